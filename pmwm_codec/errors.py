@@ -1,0 +1,52 @@
+"""The package's named errors.
+
+Everything a reader or the tools raise for bad input is a :class:`PmwError`, so
+callers (and the ``pmw`` tool, which maps them to exit status 2) can catch one
+type.  Truncation is *not* an error of the file: a cut stream yields every
+complete chunk; :class:`TruncatedError` is raised only when not even the base
+mesh is complete.
+"""
+
+
+class PmwError(Exception):
+    """Base class for every error the package raises on bad input."""
+
+
+class MeshError(PmwError, ValueError):
+    """A mesh that cannot be used: empty, NaN/inf coordinates, bad face indices."""
+
+
+class InputFormatError(PmwError, ValueError):
+    """An input file that is not a readable mesh or image."""
+
+
+class FormatError(PmwError, ValueError):
+    """A ``.pmw`` stream that breaks the container or chunk layout."""
+
+
+class UnsupportedVersionError(FormatError):
+    """A ``.pmw`` written by a newer, incompatible format version."""
+
+
+class LimitError(FormatError):
+    """Declared counts or sizes exceed the reader's hard limits."""
+
+
+class ChecksumError(FormatError):
+    """A chunk whose digest does not match: corruption, not truncation."""
+
+    def __init__(self, message, chunk=None):
+        super().__init__(message)
+        self.chunk = chunk
+
+
+class TruncatedError(FormatError):
+    """The stream ended before its base mesh was complete."""
+
+    def __init__(self, message, bytes_read=0):
+        super().__init__(message)
+        self.bytes_read = bytes_read
+
+
+class WatermarkKeyError(PmwError, ValueError):
+    """A key file that is unreadable or belongs to another file."""

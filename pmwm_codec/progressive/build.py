@@ -1,0 +1,187 @@
+"""Encoder side: turn a :class:`CollapseLog` into split records a decoder can replay.
+
+The builder replays the stream exactly as a decoder will, coarse to fine, on a
+:class:`~pmwm_codec.progressive.vsplit.MeshState`, and at every batch derives the
+symbols from what the simplifier recorded (which faces moved, which were
+deleted).  Running the decoder's own :func:`split_topology` guarantees that the
+encoder's idea of incidence order, new vertex ids and new face slots is the
+decoder's.  The geometry step is where the watermark hooks in: the caller may
+move each new vertex (``embed``) after seeing its ring, before the residual is
+taken, so the watermark sits on the grid exactly as the decoder will see it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Optional
+
+import numpy as np
+
+from .grid import Grid
+from .simplify import CollapseLog
+from .topology import face_keys
+from .vsplit import MeshState, SplitBatch, SplitTopology, find_incidences, split_topology
+
+#: embed(batch_index, topology, positions (k, 3) int64, state) -> (k, 3) int64
+EmbedHook = Callable[[int, SplitTopology, np.ndarray, MeshState], np.ndarray]
+
+
+@dataclass
+class ProgressiveMesh:
+    """A base mesh plus batches of vertex splits, all on one :class:`Grid`.
+
+    Attributes
+    ----------
+    grid : Grid
+    base_positions : (n0, 3) int64 grid coordinates
+    base_faces : (m0, 3) int64
+    batches : list[SplitBatch], coarse to fine
+    vertex_count, face_count : int, at full resolution
+    batch_errors : (len(batches),) float64
+        Geometric error (grid units) of the level *before* each batch is applied.
+    vertex_order : (n,) int64
+        Input vertex id -> id in the decoded mesh.
+    face_order : (m,) int64
+        Decoded face id -> input face id.
+    """
+
+    grid: Grid
+    base_positions: np.ndarray
+    base_faces: np.ndarray
+    batches: list
+    vertex_count: int
+    face_count: int
+    batch_errors: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    vertex_order: Optional[np.ndarray] = None
+    face_order: Optional[np.ndarray] = None
+
+    @property
+    def split_count(self) -> int:
+        return sum(b.size for b in self.batches)
+
+    def new_state(self) -> MeshState:
+        return MeshState(self.base_positions, self.base_faces, self.vertex_count, self.face_count)
+
+
+def build_progressive(
+    log: CollapseLog,
+    positions: np.ndarray,
+    grid: Grid,
+    *,
+    base_vertex_order: Optional[np.ndarray] = None,
+    base_faces_decoded: Optional[np.ndarray] = None,
+    embed: Optional[EmbedHook] = None,
+) -> ProgressiveMesh:
+    """Replay ``log`` coarse to fine and emit :class:`SplitBatch` records.
+
+    Parameters
+    ----------
+    log : CollapseLog from :func:`~pmwm_codec.progressive.simplify.simplify`
+    positions : (n, 3) int64 grid coordinates of the input mesh
+    grid : Grid the positions live on
+    base_vertex_order : (n0,) int64, optional
+        Input ids of the base vertices in the order the decoder will see them
+        (e.g. after a Draco round trip).  Default: ascending input ids.
+    base_faces_decoded : (m0, 3) int64, optional
+        Base faces as the decoder will see them, in *decoded* vertex ids (any
+        face order and rotation).  Default: the simplifier's order.
+    embed : EmbedHook, optional
+        Moves the new vertices of each batch (watermark).
+    """
+    n, m = log.vertex_count, log.face_count
+    order0 = log.base_vertices if base_vertex_order is None else np.asarray(base_vertex_order, np.int64)
+    n0 = len(order0)
+    vid = np.full(n, -1, dtype=np.int64)  # input vertex id -> decoded id
+    vid[order0] = np.arange(n0)
+    base_corners = vid[log.base_corners]
+    if base_faces_decoded is None:
+        base_faces = base_corners
+        base_face_ids = log.base_faces
+    else:
+        base_faces = np.asarray(base_faces_decoded, np.int64)
+        base_face_ids = _match_faces(base_faces, base_corners, log.base_faces, n0)
+
+    state = MeshState(positions[order0], base_faces, n, m)
+    face_src = np.full(m, -1, dtype=np.int64)  # decoded face id -> input face id
+    face_src[: len(base_faces)] = base_face_ids
+    moved_by = np.full(m, -1, dtype=np.int64)  # scratch over input face ids
+
+    batches = []
+    errors = []
+    for j, cb in enumerate(reversed(log.batches)):
+        k = len(cb.u)
+        vf = vid[cb.v]
+        order = np.argsort(vf, kind="stable")
+        rank = np.empty(k, dtype=np.int64)
+        rank[order] = np.arange(k)
+        v_sorted = vf[order]
+
+        inc, owner = find_incidences(state, v_sorted)
+        moved_by[cb.moved_face] = rank[cb.moved_by]
+        moved = moved_by[face_src[inc // 3]] == owner
+        moved_by[cb.moved_face] = -1
+
+        flat = state.faces.reshape(-1)
+        base = inc - inc % 3
+        a = flat[base + (inc + 1) % 3]
+        b = flat[base + (inc + 2) % 3]
+        wl = _lookup(vid, cb.wing_left[order])
+        wr = _lookup(vid, cb.wing_right[order])
+        left = moved & (wl[owner] >= 0) & (a == wl[owner])
+        right = moved & (wr[owner] >= 0) & (b == wr[owner])
+        symbols = (moved.astype(np.uint8) + left + 2 * right).astype(np.uint8)
+
+        m_before = state.m
+        topo = split_topology(state, v_sorted, symbols, incidences=(inc, owner))
+
+        # which input faces the appended faces are (same order as split_topology)
+        wing = symbols >= 2
+        wo = owner[wing]
+        wl_ = left[wing]
+        wr_ = right[wing]
+        per = wl_.astype(np.int64) + wr_
+        start = m_before + np.cumsum(per) - per
+        face_src[start[wl_]] = cb.del_left[order][wo[wl_]]
+        face_src[start[wr_] + wl_[wr_]] = cb.del_right[order][wo[wr_]]
+
+        u_in = cb.u[order]
+        vid[u_in] = topo.u
+        target = positions[u_in].astype(np.int64)
+        if embed is not None:
+            target = np.asarray(embed(j, topo, target, state), dtype=np.int64)
+        residual = target - topo.prediction()
+        state.positions[topo.u] = target
+        batches.append(SplitBatch(v_sorted, symbols, residual))
+        errors.append(float(np.sqrt(cb.cost.max())) if k else 0.0)
+
+    if state.n != n or state.m != m or np.any(face_src < 0):
+        raise AssertionError("progressive build did not reach the full mesh")  # a bug, not bad input
+    return ProgressiveMesh(
+        grid=grid,
+        base_positions=positions[order0].astype(np.int64),
+        base_faces=base_faces,
+        batches=batches,
+        vertex_count=n,
+        face_count=m,
+        batch_errors=np.array(errors, dtype=np.float64),
+        vertex_order=vid,
+        face_order=face_src,
+    )
+
+
+def _lookup(table, ids):
+    return np.where(ids >= 0, table[np.maximum(ids, 0)], -1)
+
+
+def _match_faces(decoded, corners, face_ids, n0):
+    """Input face ids of ``decoded`` faces (m0, 3), matched by oriented vertex triple."""
+    kd = face_keys(decoded)
+    kc = face_keys(corners)
+    key_d = (kd[:, 0] * n0 + kd[:, 1]) * n0 + kd[:, 2]
+    key_c = (kc[:, 0] * n0 + kc[:, 1]) * n0 + kc[:, 2]
+    oc = np.argsort(key_c)
+    pos = np.searchsorted(key_c[oc], key_d)
+    pos = np.minimum(pos, len(oc) - 1)
+    if not np.array_equal(key_c[oc][pos], key_d):
+        raise ValueError("decoded base faces do not match the simplified base mesh")
+    return face_ids[oc[pos]]

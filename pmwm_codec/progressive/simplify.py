@@ -1,0 +1,423 @@
+"""Encoder side: simplify a mesh by batches of independent half-edge collapses.
+
+A half-edge collapse ``u -> v`` deletes vertex ``u`` and the one or two faces on
+edge ``uv``; every other face of ``u`` has its ``u`` corner rewritten to ``v``.
+``v`` keeps its position, so the inverse operation (a vertex split) only has to
+place the new vertex ``u``; no decoded vertex ever moves.
+
+Collapses are chosen in *batches*: in one batch no two collapses touch the same
+closed 1-ring (``N[u1]`` and ``N[u2]`` are disjoint, so removed vertices are at
+graph distance >= 3).  Within a batch the collapses therefore commute, every
+legality test made against the pre-batch mesh stays true after the whole batch,
+and a decoder can undo the whole batch with array operations.
+
+A collapse is legal when
+
+* ``u`` is a manifold vertex (one disk or half-disk of faces) on no non-manifold
+  or inconsistently oriented edge; non-manifold parts simply stay in the base;
+* if ``u`` is on a boundary, ``uv`` is a boundary edge (holes are never closed
+  and boundaries never pinched);
+* the link condition holds: ``u`` and ``v`` share exactly the neighbours opposite
+  ``uv`` (no new non-manifold edge, no duplicate face);
+* each deleted face's other edge at ``u`` is interior (the split that undoes it
+  can name the face it grows from; it also forbids removing "ear" vertices);
+* no moved face flips its normal, becomes degenerate or duplicates a face.
+
+Order within a batch follows the quadric error (Garland–Heckbert) of placing
+``u`` on ``v``; an independent set is picked by rounds of "lowest cost in its
+2-ring wins" (a parallel, Luby-style version of greedy-by-cost).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .topology import csr, edge_table, expand, half_edges
+
+#: A moved face's normal may turn by at most this much (cosine bound).
+MIN_NORMAL_COS = 0.0
+#: Weight of the boundary-preserving planes relative to face planes.
+BOUNDARY_WEIGHT = 10.0
+#: How many of each vertex's cheapest collapses are tested for legality per batch.
+TRIES = 3
+
+
+@dataclass
+class CollapseBatch:
+    """One batch of independent collapses, in *original* vertex and face ids.
+
+    Attributes
+    ----------
+    u, v : (k,) int64
+        Removed vertex and the vertex it collapses into.
+    del_left, del_right : (k,) int64
+        Deleted face holding directed edge ``u->v`` (resp. ``v->u``); -1 if none.
+    wing_left, wing_right : (k,) int64
+        Third vertex of ``del_left`` / ``del_right``; -1 if none.
+    moved_face : (j,) int64
+        Faces whose ``u`` corner became ``v``.
+    moved_by : (j,) int64
+        Index into this batch's collapses for each moved face.
+    cost : (k,) float64
+        Quadric error of each collapse (the geometric error of the level).
+    """
+
+    u: np.ndarray
+    v: np.ndarray
+    del_left: np.ndarray
+    del_right: np.ndarray
+    wing_left: np.ndarray
+    wing_right: np.ndarray
+    moved_face: np.ndarray
+    moved_by: np.ndarray
+    cost: np.ndarray
+
+
+@dataclass
+class CollapseLog:
+    """Result of :func:`simplify`: the base mesh and the batches (fine to coarse)."""
+
+    vertex_count: int
+    face_count: int
+    base_vertices: np.ndarray  # (n0,) int64 original ids that survive, ascending
+    base_faces: np.ndarray  # (m0,) int64 original face ids that survive, ascending
+    base_corners: np.ndarray  # (m0, 3) int64 corners of the base faces (original vertex ids)
+    batches: list = field(default_factory=list)  # CollapseBatch, in collapse order (fine -> coarse)
+
+
+def face_quadrics(pos: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
+    """Per-vertex quadrics (n, 10) float64: area-weighted face planes plus boundary planes.
+
+    The 10 entries are the upper triangle of the symmetric 4x4 quadric
+    ``[a2, ab, ac, ad, b2, bc, bd, c2, cd, d2]`` of planes ``ax + by + cz + d = 0``.
+    """
+    p0, p1, p2 = pos[faces[:, 0]], pos[faces[:, 1]], pos[faces[:, 2]]
+    nrm = np.cross(p1 - p0, p2 - p0)
+    area2 = np.linalg.norm(nrm, axis=1)
+    unit = nrm / np.maximum(area2, 1e-300)[:, None]
+    d = -np.einsum("ij,ij->i", unit, p0)
+    planes = np.concatenate([unit, d[:, None]], axis=1)
+    q = _plane_quadrics(planes, 0.5 * area2)
+    corner_q = np.repeat(q, 3, axis=0)
+    out = np.stack([np.bincount(faces.ravel(), weights=corner_q[:, j], minlength=n) for j in range(10)], axis=1)
+
+    # boundary edges: a plane through the edge, perpendicular to its face
+    et = edge_table(faces, n)
+    b = np.flatnonzero(et.count == 1)
+    if len(b):
+        he = et.he0[b]
+        src, dst, _ = half_edges(faces)
+        a_, b_ = src[he], dst[he]
+        e = pos[b_] - pos[a_]
+        elen2 = np.einsum("ij,ij->i", e, e)
+        pn = np.cross(e, unit[he // 3])
+        pn /= np.maximum(np.linalg.norm(pn, axis=1), 1e-300)[:, None]
+        pd = -np.einsum("ij,ij->i", pn, pos[a_])
+        bq = _plane_quadrics(np.concatenate([pn, pd[:, None]], axis=1), BOUNDARY_WEIGHT * elen2)
+        idx = np.concatenate([a_, b_])
+        bq2 = np.concatenate([bq, bq])
+        out += np.stack([np.bincount(idx, weights=bq2[:, j], minlength=n) for j in range(10)], axis=1)
+    return out
+
+
+def _plane_quadrics(planes: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    a, b, c, d = planes.T
+    return weight[:, None] * np.stack(
+        [a * a, a * b, a * c, a * d, b * b, b * c, b * d, c * c, c * d, d * d], axis=1
+    )
+
+
+def quadric_error(q: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Evaluate quadrics (k, 10) at points (k, 3): returns (k,) float64 >= 0 (clipped)."""
+    x, y, z = p.T
+    a2, ab, ac, ad, b2, bc, bd, c2, cd, d2 = q.T
+    err = (
+        a2 * x * x + 2 * ab * x * y + 2 * ac * x * z + 2 * ad * x
+        + b2 * y * y + 2 * bc * y * z + 2 * bd * y
+        + c2 * z * z + 2 * cd * z + d2
+    )
+    return np.maximum(err, 0.0)
+
+
+def simplify(
+    positions: np.ndarray,
+    faces: np.ndarray,
+    *,
+    target_vertices: int = 0,
+    max_batches: int = 400,
+    locked: np.ndarray | None = None,
+) -> CollapseLog:
+    """Coarsen a mesh by batches of independent half-edge collapses.
+
+    Parameters
+    ----------
+    positions : (n, 3) int64 or float
+        Vertex positions (usually grid integers; used for geometry tests only).
+    faces : (m, 3) int64
+        Triangles, counter-clockwise.
+    target_vertices : int
+        Stop once the mesh has at most this many vertices.
+    max_batches : int
+        Upper bound on the number of batches.
+    locked : (n,) bool, optional
+        Vertices that must stay in the base mesh.
+
+    Returns
+    -------
+    CollapseLog
+        Batches in collapse order (the decoder applies them in reverse).
+    """
+    n = int(positions.shape[0])
+    m = int(faces.shape[0])
+    pos = np.asarray(positions, np.float64)
+    corners = np.array(faces, dtype=np.int64, copy=True)
+    face_alive = np.ones(m, dtype=bool)
+    vert_alive = np.zeros(n, dtype=bool)
+    vert_alive[corners.ravel()] = True
+    quad = face_quadrics(pos, corners, n)
+    frozen_ext = np.zeros(n, bool) if locked is None else np.asarray(locked, bool).copy()
+    log = CollapseLog(n, m, None, None, None, [])
+
+    alive_count = int(vert_alive.sum())
+    for _ in range(max_batches):
+        if alive_count <= target_vertices:
+            break
+        batch = _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, alive_count - target_vertices)
+        if batch is None:
+            break
+        # apply: delete faces, rewrite corners, merge quadrics
+        dead = np.concatenate([batch.del_left[batch.del_left >= 0], batch.del_right[batch.del_right >= 0]])
+        face_alive[dead] = False
+        mf = batch.moved_face
+        sub = corners[mf]
+        corners[mf] = np.where(
+            sub == batch.u[batch.moved_by][:, None], batch.v[batch.moved_by][:, None], sub
+        )
+        vert_alive[batch.u] = False
+        quad[batch.v] += quad[batch.u]
+        alive_count -= len(batch.u)
+        log.batches.append(batch)
+
+    log.base_vertices = np.flatnonzero(vert_alive)
+    log.base_faces = np.flatnonzero(face_alive)
+    log.base_corners = corners[log.base_faces]
+    return log
+
+
+def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget):
+    """Choose and describe one batch of independent legal collapses (or None)."""
+    fids = np.flatnonzero(face_alive)
+    vids = np.flatnonzero(vert_alive)
+    n_all = len(vert_alive)
+    loc = np.full(n_all, -1, dtype=np.int64)
+    loc[vids] = np.arange(len(vids))
+    F = loc[corners[fids]]  # (m, 3) local ids
+    n = len(vids)
+    m = len(fids)
+    P = pos[vids]
+    Q = quad[vids]
+
+    et = edge_table(F, n)
+    src, dst, opp = half_edges(F)
+    ne = len(et.keys)
+    # orientation: the two half-edges of an interior edge must run opposite ways
+    two = et.count == 2
+    same_dir = np.zeros(ne, bool)
+    same_dir[two] = src[et.he0[two]] == src[et.he1[two]]
+    bad_edge = (et.count > 2) | same_dir
+    boundary_edge = et.count == 1
+
+    fcount = np.bincount(F.ravel(), minlength=n)
+    ends = np.concatenate([et.lo, et.hi])
+    evc = np.bincount(ends, minlength=n)
+    bvc = np.bincount(ends, weights=np.tile(boundary_edge, 2), minlength=n).astype(np.int64)
+    badv = np.bincount(ends, weights=np.tile(bad_edge, 2), minlength=n) > 0
+    manifold = ((bvc == 0) & (evc == fcount)) | ((bvc == 2) & (evc == fcount + 1))
+    frozen = ~manifold | badv | frozen_ext[vids]
+    on_boundary = bvc > 0
+
+    # candidate directed collapses u -> v over every usable edge, both directions
+    ok_edge = ~bad_edge
+    cu = np.concatenate([et.lo, et.hi])
+    cv = np.concatenate([et.hi, et.lo])
+    ce = np.concatenate([np.arange(ne), np.arange(ne)])
+    keep = np.tile(ok_edge, 2) & ~frozen[cu] & (~on_boundary[cu] | boundary_edge[ce])
+    cu, cv, ce = cu[keep], cv[keep], ce[keep]
+    if len(cu) == 0:
+        return None
+    cost = quadric_error(Q[cu] + Q[cv], P[cv])
+
+    # the TRIES cheapest candidates per u, tested; then the cheapest legal one per u
+    order = np.argsort(cost, kind="stable")
+    order = order[np.argsort(cu[order], kind="stable")]  # grouped by u, cheapest first
+    cu_o = cu[order]
+    group_start = np.flatnonzero(np.r_[True, cu_o[1:] != cu_o[:-1]])
+    rank_in_u = np.arange(len(order)) - np.repeat(group_start, np.diff(np.r_[group_start, len(order)]))
+    pick = order[rank_in_u < TRIES]
+    cu, cv, ce, cost = cu[pick], cv[pick], ce[pick], cost[pick]
+
+    legal = _legal(cu, cv, ce, et, F, P, src, dst, opp, fcount, n)
+    cu, cv, ce, cost = cu[legal], cv[legal], ce[legal], cost[legal]
+    if len(cu) == 0:
+        return None
+    first = np.flatnonzero(np.r_[True, cu[1:] != cu[:-1]])  # still grouped by u, cheapest first
+    cu, cv, ce, cost = cu[first], cv[first], ce[first], cost[first]
+
+    win = _independent(cu, cost, et, n)
+    if len(win) > budget:
+        win = win[np.argsort(cost[win], kind="stable")[:budget]]
+    win = np.sort(win)
+    cu, cv, ce, cost = cu[win], cv[win], ce[win], cost[win]
+    k = len(cu)
+
+    # deleted faces and wings (in local ids first)
+    def side(he_col):
+        he = np.where(he_col >= 0, he_col, 0)
+        face = np.where(he_col >= 0, he // 3, -1)
+        forward = (src[he] == cu) & (he_col >= 0)
+        return face, forward, np.where(he_col >= 0, opp[he], -1)
+
+    f0, fw0, w0 = side(et.he0[ce])
+    f1, fw1, w1 = side(et.he1[ce])
+    # left = the face with directed edge u->v
+    del_left = np.where(fw0, f0, np.where(fw1, f1, -1))
+    wing_left = np.where(fw0, w0, np.where(fw1, w1, -1))
+    rev0 = (f0 >= 0) & ~fw0
+    rev1 = (f1 >= 0) & ~fw1
+    del_right = np.where(rev0, f0, np.where(rev1, f1, -1))
+    wing_right = np.where(rev0, w0, np.where(rev1, w1, -1))
+
+    # moved faces: faces of u that do not contain v
+    vf_start, vf_face = csr(F.ravel(), np.repeat(np.arange(m), 3), n)
+    owner, p = expand(vf_start, cu)
+    face = vf_face[p]
+    has_v = (F[face] == cv[owner][:, None]).any(axis=1)
+    moved_face = face[~has_v]
+    moved_by = owner[~has_v]
+
+    g = lambda a: np.where(a >= 0, vids[np.maximum(a, 0)], -1)  # noqa: E731
+    gf = lambda a: np.where(a >= 0, fids[np.maximum(a, 0)], -1)  # noqa: E731
+    return CollapseBatch(
+        u=vids[cu], v=vids[cv],
+        del_left=gf(del_left), del_right=gf(del_right),
+        wing_left=g(wing_left), wing_right=g(wing_right),
+        moved_face=fids[moved_face], moved_by=moved_by,
+        cost=cost,
+    )
+
+
+def _legal(cu, cv, ce, et, F, P, src, dst, opp, fcount, n):
+    """Boolean mask (k,) of candidate collapses ``cu -> cv`` on edge ``ce`` that are legal."""
+    k = len(cu)
+    ok = np.ones(k, dtype=bool)
+    m = len(F)
+
+    # link condition: |N(u) ∩ N(v)| == faces on uv
+    nb_src = np.concatenate([et.lo, et.hi])
+    nb_dst = np.concatenate([et.hi, et.lo])
+    vv_start, vv_nbr = csr(nb_src, nb_dst, n)
+    owner, p = expand(vv_start, cu)
+    x = vv_nbr[p]
+    common = np.bincount(owner, weights=(et.find(cv[owner], x) >= 0), minlength=k)
+    ok &= common == et.count[ce]
+
+    # each deleted face's other edge at u must be interior, its third vertex keep a face
+    for he_col in (et.he0[ce], et.he1[ce]):
+        has = he_col >= 0
+        he = np.where(has, he_col, 0)
+        w = opp[he]
+        e_uw = et.find(cu, w)
+        interior = (e_uw >= 0) & (et.count[np.maximum(e_uw, 0)] == 2)
+        ok &= ~has | (interior & (fcount[w] >= 2))
+    ok &= fcount[cu] > et.count[ce]
+
+    # moved faces: no flip, no degenerate result, no duplicate
+    vf_start, vf_face = csr(F.ravel(), np.repeat(np.arange(m), 3), n)
+    owner, p = expand(vf_start, cu)
+    face = vf_face[p]
+    tri = F[face]
+    u_o = cu[owner]
+    v_o = cv[owner]
+    has_v = (tri == v_o[:, None]).any(axis=1)
+    sel = ~has_v
+    owner, tri, u_o, v_o = owner[sel], tri[sel], u_o[sel], v_o[sel]
+    new = np.where(tri == u_o[:, None], v_o[:, None], tri)
+    n0 = _normals(P, tri)
+    n1 = _normals(P, new)
+    dot = np.einsum("ij,ij->i", n0, n1)
+    l0 = np.linalg.norm(n0, axis=1)
+    l1 = np.linalg.norm(n1, axis=1)
+    good = (l1 > 0) & (dot > MIN_NORMAL_COS * l0 * l1)
+    # duplicate: the edge opposite u in the moved face already has a face with apex v
+    col = np.argmax(tri == u_o[:, None], axis=1)
+    xa = np.take_along_axis(tri, ((col + 1) % 3)[:, None], 1)[:, 0]
+    xb = np.take_along_axis(tri, ((col + 2) % 3)[:, None], 1)[:, 0]
+    e = et.find(xa, xb)
+    e_ = np.maximum(e, 0)
+    o0 = opp[et.he0[e_]]
+    o1 = np.where(et.he1[e_] >= 0, opp[np.maximum(et.he1[e_], 0)], -1)
+    # (an edge with more than two faces is not searched: refuse the collapse)
+    dup = (e >= 0) & ((o0 == v_o) | (o1 == v_o) | (et.count[e_] > 2))
+    good &= ~dup
+    bad_count = np.bincount(owner, weights=~good, minlength=k)
+    ok &= bad_count == 0
+    return ok
+
+
+def _normals(P, tri):
+    a, b, c = P[tri[:, 0]], P[tri[:, 1]], P[tri[:, 2]]
+    return np.cross(b - a, c - a)
+
+
+def _independent(cu, cost, et, n, rounds: int = 6):
+    """Indices into ``cu`` of a set of collapses whose closed 1-rings are disjoint.
+
+    A candidate wins a round when its cost rank is the lowest in its 2-ring;
+    winners block every candidate within distance 2; repeat for ``rounds``.
+    """
+    k = len(cu)
+    # Rank by cost, but only to within a factor of ~1.4: ties inside a bucket are
+    # broken by a fixed pseudo-random order, otherwise smooth cost fields (flat
+    # CAD regions, all zero) let only a few local minima win each round.
+    bucket = np.floor(2.0 * np.log2(cost + 1e-12 + 1e-9 * float(cost.max(initial=0.0))))
+    shuffle = np.random.default_rng(len(cu)).permutation(k)
+    rank = np.empty(k, dtype=np.int64)
+    rank[np.lexsort((shuffle, bucket))] = np.arange(k)
+    big = np.int64(k + 1)
+    nb_src = np.concatenate([et.lo, et.hi])
+    nb_dst = np.concatenate([et.hi, et.lo])
+    vv_start, vv_nbr = csr(nb_src, nb_dst, n)
+    has_nb = vv_start[1:] > vv_start[:-1]
+    seg = vv_start[:-1][has_nb]
+
+    def ring_min(values):
+        out = values.copy()
+        red = np.minimum.reduceat(values[vv_nbr], seg) if len(seg) else values[:0]
+        out[has_nb] = np.minimum(out[has_nb], red)
+        return out
+
+    def ring_any(flags):
+        out = flags.copy()
+        red = np.maximum.reduceat(flags[vv_nbr].astype(np.int8), seg).astype(bool) if len(seg) else flags[:0]
+        out[has_nb] |= red
+        return out
+
+    active = np.ones(k, dtype=bool)
+    chosen = np.zeros(k, dtype=bool)
+    for _ in range(rounds):
+        vr = np.full(n, big, dtype=np.int64)
+        vr[cu[active]] = rank[active]
+        m2 = ring_min(ring_min(vr))
+        won = active & (m2[cu] == rank)
+        if not won.any():
+            break
+        chosen |= won
+        mark = np.zeros(n, dtype=bool)
+        mark[cu[won]] = True
+        blocked = ring_any(ring_any(mark))
+        active &= ~blocked[cu]
+        if not active.any():
+            break
+    return np.flatnonzero(chosen)

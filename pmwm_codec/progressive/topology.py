@@ -1,0 +1,113 @@
+"""Vectorised connectivity queries shared by the simplifier and the tests.
+
+All functions take ``faces`` (m, 3) int64 with vertex ids in ``[0, n)`` and
+return flat numpy arrays; nothing here loops over vertices or faces in Python.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class EdgeTable:
+    """Undirected edges of a triangle mesh and the half-edges on them.
+
+    Attributes
+    ----------
+    keys : (e,) int64, sorted
+        ``lo * n + hi`` for every undirected edge, ascending (for searchsorted).
+    lo, hi : (e,) int64
+        Edge end points, ``lo < hi``.
+    count : (e,) int64
+        Number of faces on the edge (1 boundary, 2 interior, >2 non-manifold).
+    he0, he1 : (e,) int64
+        First and second half-edge on the edge (``he1 == -1`` when count == 1).
+        Half-edge ``h`` is corner ``h % 3`` of face ``h // 3`` and runs from
+        that corner to the next one.
+    he_edge : (3m,) int64
+        Edge id of every half-edge.
+    """
+
+    n: int
+    keys: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    count: np.ndarray
+    he0: np.ndarray
+    he1: np.ndarray
+    he_edge: np.ndarray
+
+    def find(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Edge ids of the pairs ``(a, b)`` (any order); -1 where no such edge."""
+        a = np.asarray(a, np.int64)
+        b = np.asarray(b, np.int64)
+        q = np.minimum(a, b) * self.n + np.maximum(a, b)
+        pos = np.searchsorted(self.keys, q)
+        pos_c = np.minimum(pos, len(self.keys) - 1)
+        hit = self.keys[pos_c] == q
+        return np.where(hit, pos_c, -1)
+
+
+def half_edges(faces: np.ndarray):
+    """Half-edge end points: ``(src, dst, opposite)`` each (3m,) int64, face-major."""
+    src = faces.reshape(-1)
+    dst = faces[:, [1, 2, 0]].reshape(-1)
+    opp = faces[:, [2, 0, 1]].reshape(-1)
+    return src, dst, opp
+
+
+def edge_table(faces: np.ndarray, n: int) -> EdgeTable:
+    """Build the :class:`EdgeTable` of ``faces`` (m, 3) over ``n`` vertices."""
+    src, dst, _ = half_edges(faces)
+    lo = np.minimum(src, dst)
+    hi = np.maximum(src, dst)
+    key = lo * n + hi
+    order = np.argsort(key)
+    ks = key[order]
+    first = np.empty(len(ks), dtype=bool)
+    first[0] = True
+    np.not_equal(ks[1:], ks[:-1], out=first[1:])
+    starts = np.flatnonzero(first)
+    eid_sorted = np.cumsum(first) - 1
+    he_edge = np.empty_like(eid_sorted)
+    he_edge[order] = eid_sorted
+    count = np.diff(np.append(starts, len(ks)))
+    he0 = order[starts]
+    second = np.minimum(starts + 1, len(ks) - 1)
+    he1 = np.where(count >= 2, order[second], -1)
+    return EdgeTable(n, ks[starts], lo[he0], hi[he0], count, he0, he1, he_edge)
+
+
+def csr(groups: np.ndarray, values: np.ndarray, n: int):
+    """Group ``values`` by ``groups`` (ids in [0, n)): returns ``(start (n+1,), values sorted)``."""
+    order = np.argsort(groups)
+    start = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(groups, minlength=n), out=start[1:])
+    return start, values[order]
+
+
+def expand(start: np.ndarray, rows: np.ndarray):
+    """For CSR ``start`` and query ``rows`` (k,), the flat positions of every entry.
+
+    Returns ``(owner (t,), pos (t,))``: ``owner[j]`` is the index into ``rows`` that
+    entry ``pos[j]`` belongs to.  Vectorised ``[range(start[r], start[r+1]) for r in rows]``.
+    """
+    lengths = start[rows + 1] - start[rows]
+    owner = np.repeat(np.arange(len(rows)), lengths)
+    offsets = np.cumsum(lengths) - lengths
+    pos = np.arange(int(lengths.sum())) - np.repeat(offsets, lengths) + np.repeat(start[rows], lengths)
+    return owner, pos
+
+
+def face_keys(faces: np.ndarray):
+    """Rotation-invariant, orientation-keeping keys of faces: (m, 3) int64 rows.
+
+    Each face is rotated so its smallest vertex id comes first; two faces are the
+    same oriented triangle iff their rows are equal.
+    """
+    k = np.argmin(faces, axis=1)
+    idx = (k[:, None] + np.arange(3)[None, :]) % 3
+    return np.take_along_axis(faces, idx, axis=1)

@@ -1,0 +1,216 @@
+"""Decoder side: vertex-split records and applying a whole batch with array operations.
+
+A batch of ``k`` independent vertex splits is three arrays (see :class:`SplitBatch`):
+
+``v`` : (k,) int64, strictly increasing
+    The vertices that split.  Split ``i`` creates vertex ``u_i = n + i`` where
+    ``n`` is the vertex count before the batch.
+``symbols`` : (I,) uint8
+    One symbol per *incidence*: every face corner that holds a split vertex,
+    in face-slot order (face 0 corner 0, face 0 corner 1, ...).  ``0`` the face
+    stays with ``v``; ``1`` it moves to ``u``; ``2``/``3``/``4`` it moves and
+    also names the left / right / both new faces.  The left new face is
+    ``(u, v, a)`` and the right one ``(v, u, b)`` where ``a`` / ``b`` are the
+    corners after / before ``v`` in the naming face.  New faces are appended in
+    the order of their naming incidences, left before right.
+``residual`` : (k, 3) int64
+    ``position(u) - floor(ring mean)``, where the ring mean is the face-weighted
+    mean of ``u``'s neighbours after the split (for an interior vertex exactly
+    the 1-ring mean): each face of ``u`` contributes its two other corners.
+
+Because the encoder only puts collapses with disjoint closed 1-rings in one
+batch, every incidence belongs to exactly one split and the faces a split
+touches are touched by no other split of the batch, so the whole batch is a
+handful of gathers, one scatter and one append -- no per-split Python loop and
+no sort.  :func:`split_topology` is shared by the decoder and the encoder's
+record builder, so both sides compute the same incidence order by construction.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import FormatError
+
+#: Incidence symbols.
+STAY, MOVE, MOVE_LEFT, MOVE_RIGHT, MOVE_BOTH = range(5)
+SYMBOL_COUNT = 5
+
+
+@dataclass
+class SplitBatch:
+    """One batch of vertex splits (see module docstring for the fields)."""
+
+    v: np.ndarray
+    symbols: np.ndarray
+    residual: np.ndarray
+
+    @property
+    def size(self) -> int:
+        return int(len(self.v))
+
+    def new_face_count(self) -> int:
+        s = self.symbols
+        return int(np.count_nonzero((s == MOVE_LEFT) | (s == MOVE_RIGHT)) + 2 * np.count_nonzero(s == MOVE_BOTH))
+
+
+class MeshState:
+    """A mesh growing in preallocated arrays.
+
+    Attributes
+    ----------
+    positions : (N, 3) int64
+        Grid positions; rows ``[:n]`` are valid.
+    faces : (M, 3) int64
+        Triangles; rows ``[:m]`` are valid.
+    """
+
+    def __init__(self, base_positions, base_faces, vertex_capacity, face_capacity):
+        n0 = len(base_positions)
+        m0 = len(base_faces)
+        if vertex_capacity < n0 or face_capacity < m0:
+            raise FormatError("declared full-resolution counts are smaller than the base mesh")
+        self.positions = np.empty((vertex_capacity, 3), dtype=np.int64)
+        self.faces = np.empty((face_capacity, 3), dtype=np.int64)
+        self.positions[:n0] = base_positions
+        self.faces[:m0] = base_faces
+        self.n = n0
+        self.m = m0
+        self._sid = np.full(vertex_capacity, -1, dtype=np.int64)
+
+    def current_positions(self) -> np.ndarray:
+        return self.positions[: self.n]
+
+    def current_faces(self) -> np.ndarray:
+        return self.faces[: self.m]
+
+
+@dataclass
+class SplitTopology:
+    """What :func:`split_topology` did, for the geometry step and the watermark.
+
+    ``u`` : (k,) int64 new vertex ids; ``ring_sum`` : (k, 3) float64 sum of the
+    neighbour corners of u's faces; ``ring_count`` : (k,) int64 twice the number
+    of u's faces; ``incidences`` : (I,) int64 flat corner ids; ``owner`` : (I,)
+    split index of each incidence.
+    """
+
+    u: np.ndarray
+    ring_sum: np.ndarray
+    ring_count: np.ndarray
+    incidences: np.ndarray
+    owner: np.ndarray
+
+    def prediction(self) -> np.ndarray:
+        """(k, 3) int64 ``floor(ring mean)``, the position predictor."""
+        total = np.rint(self.ring_sum).astype(np.int64)
+        return np.floor_divide(total, self.ring_count[:, None])
+
+    def centroid(self) -> np.ndarray:
+        """(k, 3) float64 exact ring mean."""
+        return self.ring_sum / self.ring_count[:, None]
+
+
+def find_incidences(state: MeshState, v: np.ndarray):
+    """Face corners holding one of the split vertices ``v`` (k,), in face-slot order.
+
+    Returns ``(incidences (I,) int64 flat corner ids, owner (I,) int64 split index)``.
+    """
+    k = len(v)
+    sid = state._sid
+    sid[v] = np.arange(k)
+    flat = state.faces[: state.m].reshape(-1)
+    s = sid[flat]
+    inc = np.flatnonzero(s >= 0)
+    sid[v] = -1
+    return inc, s[inc]
+
+
+def split_topology(state: MeshState, v: np.ndarray, symbols: np.ndarray, *, incidences=None) -> SplitTopology:
+    """Apply the connectivity of a batch of splits; positions of the new vertices are left unset.
+
+    Parameters
+    ----------
+    state : MeshState, advanced in place (``n += k``, ``m += new faces``)
+    v : (k,) int64 strictly increasing split vertices, all ``< state.n``
+    symbols : (I,) uint8 incidence symbols (see module docstring)
+    incidences : optional precomputed ``find_incidences(state, v)``
+
+    Raises
+    ------
+    FormatError
+        Records that do not fit the current mesh (corrupt or hostile input).
+    """
+    k = len(v)
+    n0, m0 = state.n, state.m
+    if k == 0:
+        raise FormatError("a split batch is empty")
+    if v[0] < 0 or v[-1] >= n0 or (k > 1 and np.any(np.diff(v) <= 0)):
+        raise FormatError("split vertex ids out of range or not increasing")
+    if n0 + k > len(state.positions):
+        raise FormatError("splits exceed the declared vertex count")
+    inc, owner = incidences if incidences is not None else find_incidences(state, v)
+    if len(inc) != len(symbols):
+        raise FormatError(f"batch has {len(symbols)} incidence symbols, the mesh has {len(inc)} incidences")
+    sym = np.asarray(symbols)
+    if len(sym) and int(sym.max()) >= SYMBOL_COUNT:
+        raise FormatError("unknown incidence symbol")
+
+    flat = state.faces.reshape(-1)
+    u_of = n0 + np.arange(k)
+
+    moved = sym != STAY
+    mi = inc[moved]
+    ms = owner[moved]
+    base = mi - mi % 3
+    a = flat[base + (mi + 1) % 3]  # corner after v
+    b = flat[base + (mi + 2) % 3]  # corner before v
+
+    wing = sym[moved] >= MOVE_LEFT
+    ws = sym[moved][wing]
+    left = (ws == MOVE_LEFT) | (ws == MOVE_BOTH)
+    right = (ws == MOVE_RIGHT) | (ws == MOVE_BOTH)
+    per = left.astype(np.int64) + right
+    n_new = int(per.sum())
+    if m0 + n_new > len(state.faces):
+        raise FormatError("splits exceed the declared face count")
+    start = np.cumsum(per) - per
+    wu = u_of[ms[wing]]
+    wv = v[ms[wing]]
+    new = np.empty((n_new, 3), dtype=np.int64)
+    li = start[left]
+    new[li, 0], new[li, 1], new[li, 2] = wu[left], wv[left], a[wing][left]
+    ri = start[right] + left[right]
+    new[ri, 0], new[ri, 1], new[ri, 2] = wv[right], wu[right], b[wing][right]
+
+    # every split must own at least one new face (a wing)
+    wings_per_split = np.bincount(ms[wing], weights=per, minlength=k)
+    if np.any(wings_per_split == 0) or np.any(wings_per_split > 2):
+        raise FormatError("a split names no new face or more than two")
+
+    flat[mi] = u_of[ms]
+    state.faces[m0 : m0 + n_new] = new
+
+    # ring of u: two other corners of each moved face, and (v, wing) of each new face
+    P = state.positions
+    own = np.concatenate([ms, ms[wing][left], ms[wing][right]])
+    ra = np.concatenate([a, wv[left], wv[right]])
+    rb = np.concatenate([b, a[wing][left], b[wing][right]])
+    pts = P[ra] + P[rb]
+    ring_sum = np.stack([np.bincount(own, weights=pts[:, j], minlength=k) for j in range(3)], axis=1)
+    ring_count = 2 * np.bincount(own, minlength=k)
+    state.n = n0 + k
+    state.m = m0 + n_new
+    return SplitTopology(u_of, ring_sum, ring_count, inc, owner)
+
+
+def apply_batch(state: MeshState, batch: SplitBatch) -> SplitTopology:
+    """Apply a whole :class:`SplitBatch`: connectivity, then positions ``prediction + residual``."""
+    topo = split_topology(state, batch.v, batch.symbols)
+    res = np.asarray(batch.residual, dtype=np.int64)
+    if res.shape != (len(batch.v), 3):
+        raise FormatError("residual array does not match the split count")
+    state.positions[topo.u] = topo.prediction() + res
+    return topo

@@ -1,0 +1,139 @@
+"""Meshes the package makes itself: for tests, the demo and benchmarks.
+
+Every function returns a :class:`~pmwm_codec.mesh.Mesh` with float64
+positions and int64 counter-clockwise faces (outward normals for closed shapes).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .mesh import Mesh
+
+
+def icosphere(subdivisions: int = 3, radius: float = 1.0, *, noise: float = 0.0, seed: int = 0) -> Mesh:
+    """A closed sphere from a subdivided icosahedron; ``noise`` jitters radii (fraction)."""
+    t = (1.0 + 5 ** 0.5) / 2.0
+    verts = np.array(
+        [[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t],
+         [0, -1, -t], [0, 1, -t], [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]],
+        dtype=np.float64,
+    )
+    faces = np.array(
+        [[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4],
+         [11, 10, 2], [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8],
+         [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]],
+        dtype=np.int64,
+    )
+    for _ in range(subdivisions):
+        verts, faces = _midpoint_subdivide(verts, faces)
+        verts /= np.linalg.norm(verts, axis=1)[:, None]
+    verts = verts / np.linalg.norm(verts, axis=1)[:, None]
+    if noise:
+        rng = np.random.default_rng(seed)
+        verts *= 1.0 + noise * rng.uniform(-1, 1, (len(verts), 1))
+    return Mesh(verts * radius, faces)
+
+
+def _midpoint_subdivide(verts, faces):
+    """Split every triangle into four; shared edge midpoints are shared vertices."""
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    lo, hi = e.min(1), e.max(1)
+    key = lo * len(verts) + hi
+    uniq, inv = np.unique(key, return_inverse=True)
+    mid = len(verts) + inv.reshape(3, -1).T  # (m, 3): midpoint of edge 01, 12, 20
+    ulo, uhi = uniq // len(verts), uniq % len(verts)
+    new_verts = np.concatenate([verts, 0.5 * (verts[ulo] + verts[uhi])])
+    a, b, c = faces.T
+    ab, bc, ca = mid.T
+    new_faces = np.concatenate(
+        [np.stack([a, ab, ca], 1), np.stack([b, bc, ab], 1), np.stack([c, ca, bc], 1), np.stack([ab, bc, ca], 1)]
+    )
+    return new_verts, new_faces
+
+
+def torus(rings: int = 48, sides: int = 24, major: float = 1.0, minor: float = 0.35, *, twist: float = 0.0) -> Mesh:
+    """A closed torus of ``rings * sides`` vertices; ``twist`` adds a ripple to the tube."""
+    i, j = np.meshgrid(np.arange(rings), np.arange(sides), indexing="ij")
+    th = 2 * np.pi * i / rings
+    ph = 2 * np.pi * j / sides
+    r = minor * (1.0 + twist * np.sin(5 * th + 3 * ph))
+    x = (major + r * np.cos(ph)) * np.cos(th)
+    y = (major + r * np.cos(ph)) * np.sin(th)
+    z = r * np.sin(ph)
+    verts = np.stack([x, y, z], -1).reshape(-1, 3)
+    i0 = i * sides + j
+    i1 = ((i + 1) % rings) * sides + j
+    i2 = ((i + 1) % rings) * sides + (j + 1) % sides
+    i3 = i * sides + (j + 1) % sides
+    faces = np.concatenate([np.stack([i0, i1, i2], -1).reshape(-1, 3), np.stack([i0, i2, i3], -1).reshape(-1, 3)])
+    return Mesh(verts, faces.astype(np.int64))
+
+
+def grid(nx: int = 30, ny: int = 30, *, hole: bool = True, bump: float = 0.2) -> Mesh:
+    """An open height-field grid, optionally with a square hole in the middle."""
+    x, y = np.meshgrid(np.linspace(-1, 1, nx), np.linspace(-1, 1, ny), indexing="ij")
+    z = bump * np.sin(2.5 * x) * np.cos(2.0 * y)
+    verts = np.stack([x, y, z], -1).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(nx - 1), np.arange(ny - 1), indexing="ij")
+    a = i * ny + j
+    b = (i + 1) * ny + j
+    c = (i + 1) * ny + j + 1
+    d = i * ny + j + 1
+    quads = np.stack([a, b, c, d], -1).reshape(-1, 4)
+    if hole:
+        ci, cj = i.ravel(), j.ravel()
+        keep = ~((np.abs(ci - (nx - 2) / 2) < nx / 6) & (np.abs(cj - (ny - 2) / 2) < ny / 6))
+        quads = quads[keep]
+    faces = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    used = np.unique(faces)
+    remap = np.full(len(verts), -1)
+    remap[used] = np.arange(len(used))
+    return Mesh(verts[used], remap[faces].astype(np.int64))
+
+
+def components(*meshes: Mesh, spacing: float = 3.0) -> Mesh:
+    """Several meshes side by side as one mesh of separate components."""
+    verts, faces, off = [], [], 0
+    for k, mesh in enumerate(meshes):
+        verts.append(mesh.positions + np.array([spacing * k, 0.0, 0.0]))
+        faces.append(mesh.faces + off)
+        off += mesh.vertex_count
+    return Mesh(np.concatenate(verts), np.concatenate(faces))
+
+
+def bowtie() -> Mesh:
+    """Non-manifold test piece: two fans sharing one vertex, plus a fin (an edge with three faces)."""
+    sphere_a = icosphere(2, 1.0)
+    sphere_b = icosphere(2, 1.0)
+    # place b so that its "south pole" vertex coincides with a's "north pole" vertex
+    pa = int(np.argmax(sphere_a.positions[:, 2]))
+    pb = int(np.argmin(sphere_b.positions[:, 2]))
+    shift = sphere_a.positions[pa] - sphere_b.positions[pb]
+    vb = sphere_b.positions + shift
+    n_a = sphere_a.vertex_count
+    remap = np.arange(sphere_b.vertex_count) + n_a
+    remap[pb] = pa
+    keep_b = np.ones(sphere_b.vertex_count, bool)
+    keep_b[pb] = False
+    new_index = np.cumsum(keep_b) - 1 + n_a
+    remap[keep_b] = new_index[keep_b]
+    verts = np.concatenate([sphere_a.positions, vb[keep_b]])
+    faces = np.concatenate([sphere_a.faces, remap[sphere_b.faces]])
+    # a fin: a third face on one edge of sphere a
+    e0, e1 = sphere_a.faces[0, 0], sphere_a.faces[0, 1]
+    tip = len(verts)
+    mid = 0.5 * (sphere_a.positions[e0] + sphere_a.positions[e1])
+    verts = np.concatenate([verts, (mid * 1.8)[None]])
+    faces = np.concatenate([faces, np.array([[e0, e1, tip]])])
+    return Mesh(verts, faces.astype(np.int64))
+
+
+def demo_mesh(resolution: int = 180) -> Mesh:
+    """A rippled torus knot-like shape with tens of thousands of vertices, for the demo."""
+    rings, sides = resolution * 2, resolution // 2
+    t = torus(rings, sides, 1.0, 0.32, twist=0.18)
+    p = t.positions.copy()
+    ang = np.arctan2(p[:, 1], p[:, 0])
+    p[:, 2] += 0.35 * np.sin(3 * ang)
+    return Mesh(p, t.faces)

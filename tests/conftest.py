@@ -1,0 +1,46 @@
+"""Shared fixtures: meshes the code makes itself, and the optional shared corpus."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from pmwm_codec import shapes
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared"
+CORPUS = SHARED / "corpus"
+WATERMARKS = SHARED / "watermarks"
+
+CORPUS_MESHES = ["cow", "fandisk", "spot", "teapot", "suzanne", "beetle", "stanford-bunny"]
+
+
+def corpus_path(name: str) -> Path:
+    """Path of a shared corpus mesh; skips the test when ../shared is absent."""
+    path = CORPUS / name
+    if not path.exists():
+        pytest.skip(f"shared corpus not available: {path}")
+    return path
+
+
+def watermark_path(name: str) -> Path:
+    path = WATERMARKS / name
+    if not path.exists():
+        pytest.skip(f"shared watermarks not available: {path}")
+    return path
+
+
+GENERATED = {
+    "sphere": lambda: shapes.icosphere(3, 1.3, noise=0.02),
+    "torus": lambda: shapes.torus(40, 20, twist=0.1),
+    "grid_with_hole": lambda: shapes.grid(28, 24, hole=True),
+    "components": lambda: shapes.components(shapes.icosphere(2, 0.9, noise=0.05), shapes.torus(20, 10), shapes.grid(10, 10, hole=False)),
+    "bowtie": lambda: shapes.bowtie(),
+}
+
+
+@pytest.fixture(params=sorted(GENERATED))
+def generated_mesh(request):
+    """Each of the generated test meshes (closed, open, multi-part, non-manifold)."""
+    return request.param, GENERATED[request.param]()

@@ -1,0 +1,182 @@
+"""The progressive mesh engine: exact round trips, valid levels, coarse bases, vectorised == reference."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pmwm_codec.mesh import read_mesh
+from pmwm_codec.progressive.build import build_progressive
+from pmwm_codec.progressive.grid import Grid
+from pmwm_codec.progressive.simplify import simplify
+from pmwm_codec.progressive.topology import edge_table, face_keys
+from pmwm_codec.progressive.vsplit import MOVE_BOTH, MOVE_LEFT, MOVE_RIGHT, STAY, MeshState, apply_batch
+from pmwm_codec import shapes
+
+from conftest import CORPUS_MESHES, corpus_path
+
+
+def progressive_of(mesh, bits=16, target=0):
+    grid = Grid.fit(mesh.positions, bits)
+    q = grid.quantize(mesh.positions)
+    log = simplify(q, mesh.faces, target_vertices=target)
+    return build_progressive(log, q, grid), q
+
+
+def decode_levels(pm):
+    """Yield (positions, faces) copies after the base and after every batch."""
+    state = pm.new_state()
+    yield state.current_positions().copy(), state.current_faces().copy()
+    for batch in pm.batches:
+        apply_batch(state, batch)
+        yield state.current_positions().copy(), state.current_faces().copy()
+
+
+def assert_same_mesh(pm, q, faces, positions, decoded_faces):
+    """Decoded == input up to vertex renumbering: identical oriented faces, identical grid positions."""
+    assert np.array_equal(positions[pm.vertex_order], q)
+    inverse = np.empty_like(pm.vertex_order)
+    inverse[pm.vertex_order] = np.arange(len(inverse))
+    got = face_keys(inverse[decoded_faces])
+    want = face_keys(faces[pm.face_order])
+    assert np.array_equal(got, want)
+
+
+def duplicate_count(faces):
+    return len(faces) - len(np.unique(np.sort(faces, axis=1), axis=0))
+
+
+def assert_valid_level(positions, faces, input_had_nonmanifold_edges, input_duplicates=0):
+    n = len(positions)
+    # no degenerate faces
+    assert np.all((faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2]))
+    # no duplicate faces (either orientation)
+    assert duplicate_count(faces) <= input_duplicates
+    et = edge_table(faces, n)
+    if not input_had_nonmanifold_edges:
+        assert et.count.max() <= 2
+    # consistent orientation: the two half-edges of an interior edge run opposite ways
+    two = et.count == 2
+    src = faces.reshape(-1)
+    assert np.all(src[et.he0[two]] != src[et.he1[two]])
+
+
+def test_generated_meshes_round_trip_exactly(generated_mesh):
+    name, mesh = generated_mesh
+    pm, q = progressive_of(mesh)
+    *_, (positions, faces) = decode_levels(pm)
+    assert_same_mesh(pm, q, mesh.faces, positions, faces)
+
+
+def test_every_level_of_generated_meshes_is_valid(generated_mesh):
+    name, mesh = generated_mesh
+    had_fin = edge_table(mesh.faces, mesh.vertex_count).count.max() > 2
+    pm, _ = progressive_of(mesh)
+    for positions, faces in decode_levels(pm):
+        assert_valid_level(positions, faces, had_fin)
+
+
+@pytest.mark.parametrize("maker", [lambda: shapes.icosphere(4, 2.0, noise=0.01), lambda: shapes.torus(80, 40, twist=0.1)])
+def test_closed_meshes_coarsen_below_two_percent_or_200(maker):
+    mesh = maker()
+    pm, _ = progressive_of(mesh, target=0)
+    assert len(pm.base_positions) <= max(0.02 * mesh.vertex_count, 200)
+
+
+def test_non_manifold_parts_stay_in_the_base():
+    mesh = shapes.bowtie()
+    pm, q = progressive_of(mesh)
+    # the pinch vertex and the fin's three vertices are base vertices (ids < n0)
+    et = edge_table(mesh.faces, mesh.vertex_count)
+    fin = np.flatnonzero(et.count > 2)
+    fin_vertices = np.unique(np.concatenate([et.lo[fin], et.hi[fin]]))
+    n0 = len(pm.base_positions)
+    assert np.all(pm.vertex_order[fin_vertices] < n0)
+
+
+def test_a_batch_never_splits_two_vertices_of_one_ring():
+    mesh = shapes.icosphere(3, 1.0, noise=0.03)
+    grid = Grid.fit(mesh.positions, 16)
+    q = grid.quantize(mesh.positions)
+    log = simplify(q, mesh.faces)
+    faces = mesh.faces.copy()
+    alive = np.ones(len(faces), bool)
+    for batch in log.batches:
+        live = faces[alive]
+        et = edge_table(live, mesh.vertex_count)
+        adj = {}
+        for a, b in zip(et.lo, et.hi):
+            adj.setdefault(int(a), set()).add(int(b))
+            adj.setdefault(int(b), set()).add(int(a))
+        rings = [adj[int(u)] | {int(u)} for u in batch.u]
+        seen = set()
+        for ring in rings:
+            assert not (ring & seen)
+            seen |= ring
+        # advance the reference mesh
+        dead = np.concatenate([batch.del_left[batch.del_left >= 0], batch.del_right[batch.del_right >= 0]])
+        alive[dead] = False
+        sub = faces[batch.moved_face]
+        faces[batch.moved_face] = np.where(sub == batch.u[batch.moved_by][:, None], batch.v[batch.moved_by][:, None], sub)
+
+
+def reference_apply(state: MeshState, batch):
+    """Slow per-split reference decoder: one split at a time, by definition of the symbols."""
+    n0, m0 = state.n, state.m
+    faces = state.faces
+    inc = [c for c in range(3 * m0) if faces.flat[c] in set(batch.v.tolist())]
+    assert len(inc) == len(batch.symbols)
+    index_of = {int(v): i for i, v in enumerate(batch.v)}
+    new_faces = []
+    ring = {i: [] for i in range(len(batch.v))}
+    for corner, sym in zip(inc, batch.symbols):
+        f, c = divmod(corner, 3)
+        v = int(faces[f, c])
+        i = index_of[v]
+        u = n0 + i
+        a, b = int(faces[f, (c + 1) % 3]), int(faces[f, (c + 2) % 3])
+        if sym == STAY:
+            continue
+        ring[i] += [a, b]
+        if sym in (MOVE_LEFT, MOVE_BOTH):
+            new_faces.append((u, v, a))
+            ring[i] += [v, a]
+        if sym in (MOVE_RIGHT, MOVE_BOTH):
+            new_faces.append((v, u, b))
+            ring[i] += [v, b]
+        faces[f, c] = u
+    for i in range(len(batch.v)):
+        pts = state.positions[ring[i]]
+        state.positions[n0 + i] = pts.sum(0) // len(ring[i]) + batch.residual[i]
+    state.faces[m0 : m0 + len(new_faces)] = new_faces
+    state.n = n0 + len(batch.v)
+    state.m = m0 + len(new_faces)
+
+
+def test_vectorised_batch_apply_equals_the_per_split_reference():
+    mesh = shapes.components(shapes.icosphere(2, 1.0, noise=0.05), shapes.grid(12, 12, hole=True))
+    pm, _ = progressive_of(mesh)
+    fast = pm.new_state()
+    slow = pm.new_state()
+    for batch in pm.batches:
+        apply_batch(fast, batch)
+        reference_apply(slow, batch)
+        assert fast.n == slow.n and fast.m == slow.m
+        assert np.array_equal(fast.current_faces(), slow.current_faces())
+        assert np.array_equal(fast.current_positions(), slow.current_positions())
+
+
+@pytest.mark.corpus
+@pytest.mark.parametrize("name", CORPUS_MESHES)
+def test_corpus_meshes_round_trip_and_every_level_is_valid(name):
+    mesh = read_mesh(corpus_path(f"{name}.obj"))
+    had_fin = edge_table(mesh.faces, mesh.vertex_count).count.max() > 2
+    target = max(mesh.vertex_count // 100, 100)
+    pm, q = progressive_of(mesh, target=target)
+    last = None
+    for positions, faces in decode_levels(pm):
+        assert_valid_level(positions, faces, had_fin, duplicate_count(mesh.faces))
+        last = positions, faces
+    assert_same_mesh(pm, q, mesh.faces, *last)
+    if name in ("cow", "fandisk"):
+        assert len(pm.base_positions) <= max(0.02 * mesh.vertex_count, 200)
