@@ -1,0 +1,507 @@
+"""Base-mesh codec: the ordinary glTF primitive every viewer shows.
+
+Contract
+--------
+The base mesh arrives as integer grid coordinates.  A grid is the JSON-able dict
+``{"bits": q, "origin": [x, y, z], "step": s}``; grid integer ``i`` stands for the
+position ``origin + i * step``, and every coordinate lies in ``[0, 2**q)``.
+
+:func:`encode_base` stores the mesh either as plain accessors (``codec="plain"``:
+float32 POSITION, UNSIGNED_SHORT/UNSIGNED_INT indices) or as a
+``KHR_draco_mesh_compression`` primitive (``codec="draco"``).  Whatever the codec,
+reading the positions back and mapping each one with ``round((p - origin) / step)``
+gives the input integers *exactly*; the encoder checks this by decoding what it
+wrote, and raises (plain) or falls back (Draco) when it does not hold.
+
+A decoder sees vertices in the *decoded* order.  Draco may reorder vertices and
+faces, so :class:`EncodedBase` carries ``vertex_map``: decoded vertex ``i`` is
+input vertex ``vertex_map[i]``.  Everything downstream (vertex-split indices)
+must refer to the decoded order.
+
+:func:`decode_base` reads the primitive back from a glTF JSON dict and the BIN
+bytes, checking declared counts against :mod:`pmwm_codec.constants` before it
+allocates anything.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..constants import MAX_FACES, MAX_GRID_BITS, MAX_VERTICES, MIN_GRID_BITS
+from ..errors import FormatError, LimitError
+from .layout import padded
+
+DRACO_EXTENSION = "KHR_draco_mesh_compression"
+
+# glTF enums
+FLOAT = 5126
+UNSIGNED_BYTE = 5121
+UNSIGNED_SHORT = 5123
+UNSIGNED_INT = 5125
+ARRAY_BUFFER = 34962
+ELEMENT_ARRAY_BUFFER = 34963
+TRIANGLES = 4
+_INDEX_DTYPES = {UNSIGNED_BYTE: "<u1", UNSIGNED_SHORT: "<u2", UNSIGNED_INT: "<u4"}
+
+#: Draco GeometryAttribute::Type of POSITION.
+_DRACO_POSITION_TYPE = 0
+
+
+@dataclass(frozen=True, eq=False)
+class EncodedBase:
+    """A base mesh ready to be placed at the start of the BIN chunk.
+
+    ``data`` : bytes
+        The base region of the BIN chunk; ``len(data)`` is a multiple of 4.
+    ``buffer_views`` : list[dict]
+        glTF bufferViews; ``byteOffset`` is relative to the start of ``data``
+        (which the writer places at BIN offset 0), ``buffer`` is 0.
+    ``accessors`` : list[dict]
+        glTF accessors; their ``bufferView`` indices point into ``buffer_views``.
+    ``primitive`` : dict
+        The glTF primitive (``attributes``, ``indices``, ``mode``, and for Draco
+        ``extensions.KHR_draco_mesh_compression``), indices into ``accessors``.
+    ``positions_int`` : (n, 3) int64
+        Grid coordinates in decoded order (``input[vertex_map]``).
+    ``faces`` : (m, 3) int64
+        Faces in decoded order, indexing decoded vertices.
+    ``vertex_map`` : (n,) int64
+        Decoded vertex ``i`` is input vertex ``vertex_map[i]``.
+    ``notice`` : str or None
+        Set when the encoder did not use what was asked (e.g. Draco fell back
+        to plain); tools print it.
+    """
+
+    codec: str
+    grid: dict
+    data: bytes
+    buffer_views: list
+    accessors: list
+    primitive: dict
+    positions_int: np.ndarray
+    faces: np.ndarray
+    vertex_map: np.ndarray
+    extensions_used: tuple = ()
+    extensions_required: tuple = ()
+    draco_attribute_ids: dict = field(default_factory=dict)
+    notice: str | None = None
+
+    @property
+    def vertex_count(self) -> int:
+        return int(self.positions_int.shape[0])
+
+    @property
+    def face_count(self) -> int:
+        return int(self.faces.shape[0])
+
+
+# --------------------------------------------------------------------------- grid
+
+
+def check_grid(grid) -> tuple[int, np.ndarray, float]:
+    """Return ``(bits, origin (3,) float64, step)`` of a grid dict or raise FormatError."""
+    try:
+        bits = grid["bits"]
+        origin = np.asarray(grid["origin"], dtype=np.float64)
+        step = float(grid["step"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise FormatError(f"grid: needs bits, origin [x, y, z] and step ({exc!r})") from None
+    if isinstance(bits, bool) or not isinstance(bits, int) or not MIN_GRID_BITS <= bits <= MAX_GRID_BITS:
+        raise FormatError(f"grid: bits must be an integer in [{MIN_GRID_BITS}, {MAX_GRID_BITS}], got {bits!r}")
+    if origin.shape != (3,) or not np.isfinite(origin).all():
+        raise FormatError(f"grid: origin must be 3 finite numbers, got {grid['origin']!r}")
+    if not np.isfinite(step) or step <= 0:
+        raise FormatError(f"grid: step must be a positive finite number, got {step!r}")
+    return bits, origin, step
+
+
+def grid_to_float(positions_int: np.ndarray, grid) -> np.ndarray:
+    """Grid integers (n, 3) int64 -> stored positions (n, 3) float32 (``origin + i * step``)."""
+    _, origin, step = check_grid(grid)
+    return (origin + positions_int.astype(np.float64) * step).astype(np.float32)
+
+
+def float_to_grid(positions: np.ndarray, grid, *, what="base mesh") -> np.ndarray:
+    """Stored positions (n, 3) float -> grid integers (n, 3) int64 (``round((p - origin) / step)``).
+
+    Raises FormatError when a coordinate is not finite or falls outside ``[0, 2**bits)``.
+    """
+    bits, origin, step = check_grid(grid)
+    with np.errstate(over="ignore", invalid="ignore"):
+        scaled = (np.asarray(positions, dtype=np.float64) - origin) / step
+    if not np.isfinite(scaled).all():
+        raise FormatError(f"{what}: positions are not finite")
+    rounded = np.rint(scaled)
+    if rounded.size and (rounded.min() < 0 or rounded.max() >= (1 << bits)):
+        raise FormatError(f"{what}: positions lie outside the {bits}-bit grid")
+    return rounded.astype(np.int64)
+
+
+# ------------------------------------------------------------------------ encoding
+
+
+def encode_base(positions_int, faces, grid: dict, codec: str = "draco", *, draco_compression_level: int = 7) -> EncodedBase:
+    """Encode a base mesh as a glTF primitive.
+
+    Parameters
+    ----------
+    positions_int : (n, 3) int64
+        Grid coordinates, each in ``[0, 2**grid["bits"])``.
+    faces : (m, 3) int64
+        Triangles indexing ``positions_int``; every vertex should be referenced
+        (Draco drops unreferenced vertices; the encoder then falls back to plain).
+    grid : dict
+        ``{"bits": q, "origin": [x, y, z], "step": s}``.
+    codec : "draco" or "plain"
+
+    Returns
+    -------
+    EncodedBase
+        Positions and faces in decoded order, with ``vertex_map``.  A Draco
+        request may come back as ``codec == "plain"`` with ``notice`` set.
+
+    Raises
+    ------
+    ValueError
+        Bad shapes, indices out of range, coordinates off the grid, too many
+        vertices/faces, or a grid too fine for float32 positions.
+    """
+    pos = np.asarray(positions_int)
+    tri = np.asarray(faces)
+    if pos.ndim != 2 or pos.shape[1] != 3 or pos.shape[0] == 0 or not np.issubdtype(pos.dtype, np.integer):
+        raise ValueError(f"encode_base: positions_int must be a non-empty (n, 3) integer array, got {pos.shape} {pos.dtype}")
+    if tri.ndim != 2 or tri.shape[1] != 3 or not np.issubdtype(tri.dtype, np.integer):
+        raise ValueError(f"encode_base: faces must be an (m, 3) integer array, got {tri.shape} {tri.dtype}")
+    pos = pos.astype(np.int64)
+    tri = tri.astype(np.int64)
+    n, m = pos.shape[0], tri.shape[0]
+    if n > MAX_VERTICES or m > MAX_FACES:
+        raise ValueError(f"encode_base: {n} vertices / {m} faces exceed the limits {MAX_VERTICES} / {MAX_FACES}")
+    if m and (tri.min() < 0 or tri.max() >= n):
+        raise ValueError(f"encode_base: face index out of range [0, {n})")
+    try:
+        bits, _, _ = check_grid(grid)
+    except FormatError as exc:
+        raise ValueError(f"encode_base: {exc}") from None
+    if pos.min() < 0 or pos.max() >= (1 << bits):
+        raise ValueError(f"encode_base: grid coordinates outside [0, 2**{bits})")
+    grid = {"bits": int(bits), "origin": [float(x) for x in grid["origin"]], "step": float(grid["step"])}
+
+    if codec == "plain":
+        return _encode_plain(pos, tri, grid)
+    if codec != "draco":
+        raise ValueError(f"encode_base: codec must be 'draco' or 'plain', got {codec!r}")
+    notices = []
+    if m == 0:
+        notices.append("Draco needs faces")
+    else:
+        for preserve_order in (False, True):
+            result = _try_draco(pos, tri, grid, preserve_order, draco_compression_level)
+            if isinstance(result, EncodedBase):
+                return result
+            notices.append(f"preserve_order={preserve_order}: {result}")
+    base = _encode_plain(pos, tri, grid)
+    notice = "Draco base mesh not exact (" + "; ".join(notices) + "); stored plain accessors instead"
+    return replace(base, notice=notice)
+
+
+def _check_float32_exact(pos: np.ndarray, grid: dict) -> np.ndarray:
+    """float32 positions of ``pos`` (n, 3) int64; ValueError when they do not map back exactly."""
+    stored = grid_to_float(pos, grid)
+    try:
+        back = float_to_grid(stored, grid)
+    except FormatError:
+        back = None
+    if back is None or not np.array_equal(back, pos):
+        raise ValueError(f"encode_base: a {grid['bits']}-bit grid at this origin/step does not survive float32 positions")
+    return stored
+
+
+def _encode_plain(pos: np.ndarray, tri: np.ndarray, grid: dict) -> EncodedBase:
+    n = pos.shape[0]
+    stored = _check_float32_exact(pos, grid)
+    index_type = UNSIGNED_SHORT if n <= 0xFFFF else UNSIGNED_INT
+    position_bytes = stored.astype("<f4").tobytes()
+    index_bytes = tri.astype(_INDEX_DTYPES[index_type]).tobytes()
+    index_offset = padded(len(position_bytes))
+    data = bytearray(padded(index_offset + len(index_bytes)))
+    data[: len(position_bytes)] = position_bytes
+    data[index_offset : index_offset + len(index_bytes)] = index_bytes
+    buffer_views = [
+        {"buffer": 0, "byteOffset": 0, "byteLength": len(position_bytes), "target": ARRAY_BUFFER},
+        {"buffer": 0, "byteOffset": index_offset, "byteLength": len(index_bytes), "target": ELEMENT_ARRAY_BUFFER},
+    ]
+    accessors = [
+        _position_accessor(stored, bufferView=0),
+        {"bufferView": 1, "componentType": index_type, "count": int(tri.size), "type": "SCALAR"},
+    ]
+    primitive = {"attributes": {"POSITION": 0}, "indices": 1, "mode": TRIANGLES}
+    return EncodedBase(
+        codec="plain", grid=grid, data=bytes(data), buffer_views=buffer_views, accessors=accessors,
+        primitive=primitive, positions_int=pos.copy(), faces=tri.copy(), vertex_map=np.arange(n, dtype=np.int64),
+    )
+
+
+def _position_accessor(stored: np.ndarray, **extra) -> dict:
+    """POSITION accessor with exact float32 min/max (the validator compares them bit-exactly)."""
+    return {
+        **extra, "componentType": FLOAT, "count": int(stored.shape[0]), "type": "VEC3",
+        "min": [float(x) for x in stored.min(0)], "max": [float(x) for x in stored.max(0)],
+    }
+
+
+def _try_draco(pos, tri, grid, preserve_order, level):
+    """EncodedBase for a Draco encoding, or a string saying why it is not exact."""
+    import DracoPy
+
+    bits = grid["bits"]
+    stored = _check_float32_exact(pos, grid)
+    # Draco quantizes q = floor((p - origin) * (2**bits - 1) / range + 0.5) and
+    # dequantizes origin + q * range / (2**bits - 1): with the grid's own origin
+    # and range = step * (2**bits - 1) its integers are our grid integers.
+    try:
+        encoded = DracoPy.encode(
+            stored, tri.astype(np.uint32), quantization_bits=bits, compression_level=level,
+            quantization_range=float(grid["step"] * ((1 << bits) - 1)),
+            quantization_origin=list(grid["origin"]), preserve_order=preserve_order,
+        )
+        decoded = DracoPy.decode(encoded)
+    except Exception as exc:  # DracoPy raises its own exception types
+        return f"DracoPy failed ({exc})"
+    ids = {a["attribute_type"]: a["unique_id"] for a in decoded.attributes}
+    if _DRACO_POSITION_TYPE not in ids:
+        return "no POSITION attribute in the Draco output"
+    dpos = np.asarray(decoded.get_attribute_by_unique_id(ids[_DRACO_POSITION_TYPE])["data"], dtype=np.float32)
+    dtri = np.asarray(decoded.faces, dtype=np.int64).reshape(-1, 3)
+    if dpos.shape != pos.shape or dtri.shape != tri.shape:
+        return f"vertex/face count changed {pos.shape[0]}/{tri.shape[0]} -> {dpos.shape[0]}/{dtri.shape[0]}"
+    try:
+        dint = float_to_grid(dpos, grid)
+    except FormatError as exc:
+        return str(exc)
+    vertex_map = _match_vertices(dint, pos)
+    if vertex_map is None:
+        return "decoded positions are not a permutation of the grid positions"
+    if not _same_triangles(vertex_map[dtri], tri):
+        return "decoded faces differ from the input faces"
+    draco_view = {"buffer": 0, "byteOffset": 0, "byteLength": len(encoded)}
+    index_type = UNSIGNED_SHORT if pos.shape[0] <= 0xFFFF else UNSIGNED_INT
+    accessors = [
+        _position_accessor(dpos),
+        {"componentType": index_type, "count": int(dtri.size), "type": "SCALAR"},
+    ]
+    attribute_ids = {"POSITION": int(ids[_DRACO_POSITION_TYPE])}
+    primitive = {
+        "attributes": {"POSITION": 0}, "indices": 1, "mode": TRIANGLES,
+        "extensions": {DRACO_EXTENSION: {"bufferView": 0, "attributes": attribute_ids}},
+    }
+    data = bytes(encoded) + bytes(padded(len(encoded)) - len(encoded))
+    return EncodedBase(
+        codec="draco", grid=grid, data=data, buffer_views=[draco_view], accessors=accessors, primitive=primitive,
+        positions_int=dint, faces=dtri, vertex_map=vertex_map,
+        extensions_used=(DRACO_EXTENSION,), extensions_required=(DRACO_EXTENSION,),
+        draco_attribute_ids=attribute_ids,
+    )
+
+
+def _match_vertices(decoded: np.ndarray, original: np.ndarray):
+    """(n,) int64 map with ``original[map] == decoded``, or None if the rows are not a permutation.
+
+    Both arrays are (n, 3) int64 grid coordinates; rows of ``original`` must be unique.
+    """
+    n = original.shape[0]
+    uniq, first = np.unique(original, axis=0, return_index=True)
+    if uniq.shape[0] != n:
+        return None  # duplicate positions: order is ambiguous
+    found, where = np.unique(decoded, axis=0, return_inverse=True)
+    if found.shape[0] != n or not np.array_equal(found, uniq):
+        return None
+    return first[where.reshape(-1)].astype(np.int64)
+
+
+def _same_triangles(a: np.ndarray, b: np.ndarray) -> bool:
+    """True when (m, 3) face arrays hold the same oriented triangles (any order, any rotation)."""
+    def canonical(t):
+        r = np.argmin(t, axis=1)
+        rolled = np.stack([t[np.arange(len(t)), (r + k) % 3] for k in range(3)], axis=1)
+        return rolled[np.lexsort(rolled.T[::-1])]
+
+    return a.shape == b.shape and np.array_equal(canonical(a), canonical(b))
+
+
+# ------------------------------------------------------------------------ decoding
+
+
+def find_extension_primitive(gltf: dict, name: str):
+    """``(mesh_index, primitive_index, primitive)`` of the one primitive carrying ``name``.
+
+    Raises FormatError when no primitive, or more than one, carries it.
+    """
+    hits = []
+    meshes = gltf.get("meshes", [])
+    if not isinstance(meshes, list):
+        raise FormatError("glTF JSON: meshes must be an array")
+    for mi, mesh in enumerate(meshes):
+        prims = mesh.get("primitives", []) if isinstance(mesh, dict) else []
+        for pi, prim in enumerate(prims if isinstance(prims, list) else []):
+            ext = prim.get("extensions") if isinstance(prim, dict) else None
+            if isinstance(ext, dict) and name in ext:
+                hits.append((mi, pi, prim))
+    if len(hits) != 1:
+        raise FormatError(f"glTF JSON: expected one mesh primitive with {name}, found {len(hits)}")
+    return hits[0]
+
+
+def _get(seq, index, what):
+    if isinstance(index, bool) or not isinstance(index, int) or not isinstance(seq, list) or not 0 <= index < len(seq):
+        raise FormatError(f"base mesh: {what} index {index!r} does not exist")
+    item = seq[index]
+    if not isinstance(item, dict):
+        raise FormatError(f"base mesh: {what} {index} is not an object")
+    return item
+
+
+def _uint(obj, key, what, default=None):
+    value = obj.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise FormatError(f"base mesh: {what}.{key} must be a non-negative integer, got {value!r}")
+    return value
+
+
+def base_views(gltf: dict, primitive: dict) -> list[int]:
+    """Indices of the bufferViews the base mesh reads (Draco: one; plain: POSITION and indices)."""
+    attributes = primitive.get("attributes")
+    if not isinstance(attributes, dict) or "POSITION" not in attributes:
+        raise FormatError("base mesh: primitive has no POSITION attribute")
+    extensions = primitive.get("extensions") or {}
+    draco = extensions.get(DRACO_EXTENSION) if isinstance(extensions, dict) else None
+    if draco is not None:
+        if not isinstance(draco, dict):
+            raise FormatError(f"base mesh: {DRACO_EXTENSION} must be an object")
+        _get(gltf.get("bufferViews"), draco.get("bufferView"), "bufferView")
+        return [draco["bufferView"]]
+    accessors = gltf.get("accessors")
+    views = []
+    for index in [attributes["POSITION"]] + ([primitive["indices"]] if "indices" in primitive else []):
+        acc = _get(accessors, index, "accessor")
+        if "bufferView" not in acc:
+            raise FormatError(f"base mesh: accessor {index} has no bufferView")
+        _get(gltf.get("bufferViews"), acc["bufferView"], "bufferView")
+        views.append(acc["bufferView"])
+    return views
+
+
+def _counts(gltf, primitive):
+    """Declared (n, m, index_componentType) of a base primitive, limit-checked."""
+    mode = primitive.get("mode", TRIANGLES)
+    if mode != TRIANGLES:
+        raise FormatError(f"base mesh: primitive mode must be TRIANGLES (4), got {mode!r}")
+    accessors = gltf.get("accessors")
+    pos_acc = _get(accessors, primitive["attributes"]["POSITION"], "accessor")
+    if pos_acc.get("componentType") != FLOAT or pos_acc.get("type") != "VEC3":
+        raise FormatError("base mesh: POSITION must be a FLOAT VEC3 accessor")
+    n = _uint(pos_acc, "count", "POSITION accessor")
+    if n > MAX_VERTICES:
+        raise LimitError(f"base mesh: {n} vertices exceed the limit {MAX_VERTICES}")
+    if "indices" not in primitive:
+        raise FormatError("base mesh: primitive has no indices")
+    idx_acc = _get(accessors, primitive["indices"], "accessor")
+    ctype = idx_acc.get("componentType")
+    if not isinstance(ctype, int) or ctype not in _INDEX_DTYPES or idx_acc.get("type") != "SCALAR":
+        raise FormatError(f"base mesh: indices must be an unsigned SCALAR accessor, got componentType {ctype!r}")
+    count = _uint(idx_acc, "count", "indices accessor")
+    if count % 3:
+        raise FormatError(f"base mesh: index count {count} is not a multiple of 3")
+    m = count // 3
+    if m > MAX_FACES:
+        raise LimitError(f"base mesh: {m} faces exceed the limit {MAX_FACES}")
+    return n, m, ctype, pos_acc, idx_acc
+
+
+def _view_bytes(gltf, view_index, bin_data, what):
+    view = _get(gltf.get("bufferViews"), view_index, "bufferView")
+    if view.get("buffer", 0) != 0:
+        raise FormatError(f"base mesh: {what} bufferView {view_index} is not in the GLB buffer")
+    start = _uint(view, "byteOffset", f"bufferView {view_index}", 0)
+    length = _uint(view, "byteLength", f"bufferView {view_index}")
+    if start + length > len(bin_data):
+        raise FormatError(f"base mesh: bufferView {view_index} ends at {start + length}, past {len(bin_data)} BIN bytes")
+    return view, memoryview(bin_data)[start : start + length]
+
+
+def _accessor_array(gltf, acc, bin_data, dtype, count, width, what):
+    view, raw = _view_bytes(gltf, acc["bufferView"], bin_data, what)
+    item = np.dtype(dtype).itemsize * width
+    stride = view.get("byteStride", item)
+    if stride != item:
+        raise FormatError(f"base mesh: {what} must be tightly packed (byteStride {stride!r})")
+    offset = _uint(acc, "byteOffset", f"{what} accessor", 0)
+    if offset + count * item > len(raw):
+        raise FormatError(f"base mesh: {what} accessor needs {offset + count * item} bytes, bufferView has {len(raw)}")
+    return np.frombuffer(raw, dtype=dtype, count=count * width, offset=offset).reshape(count, width)
+
+
+def decode_base(gltf: dict, bin_data, grid: dict, primitive: dict | None = None):
+    """Read the base mesh back.
+
+    Parameters
+    ----------
+    gltf : dict
+        The parsed glTF JSON.
+    bin_data : bytes-like
+        The BIN chunk payload from offset 0, at least up to the end of the base
+        mesh bufferViews.
+    grid : dict
+        ``{"bits", "origin", "step"}`` (from the extension object).
+    primitive : dict, optional
+        The primitive to read; default: the one carrying the PMWM extension.
+
+    Returns
+    -------
+    positions_int : (n, 3) int64
+    faces : (m, 3) int64
+
+    Raises
+    ------
+    FormatError, LimitError
+        Bad accessors, counts over the limits (checked before allocating), index
+        out of range, positions off the grid, undecodable Draco data.
+    """
+    from ..constants import EXTENSION_NAME
+
+    if primitive is None:
+        primitive = find_extension_primitive(gltf, EXTENSION_NAME)[2]
+    base_views(gltf, primitive)
+    n, m, ctype, pos_acc, idx_acc = _counts(gltf, primitive)
+    draco = (primitive.get("extensions") or {}).get(DRACO_EXTENSION)  # shape checked in base_views
+    if draco is not None:
+        positions, faces = _decode_draco(gltf, draco, bin_data, n, m)
+    else:
+        positions = _accessor_array(gltf, pos_acc, bin_data, "<f4", n, 3, "POSITION")
+        faces = _accessor_array(gltf, idx_acc, bin_data, _INDEX_DTYPES[ctype], m, 3, "indices").astype(np.int64)
+    if faces.size and faces.max() >= n:
+        raise FormatError(f"base mesh: face index {int(faces.max())} out of range [0, {n})")
+    return float_to_grid(positions, grid), faces
+
+
+def _decode_draco(gltf, draco, bin_data, n, m):
+    import DracoPy
+
+    _, raw = _view_bytes(gltf, draco.get("bufferView"), bin_data, "Draco")
+    ids = draco.get("attributes")
+    if not isinstance(ids, dict) or "POSITION" not in ids:
+        raise FormatError(f"base mesh: {DRACO_EXTENSION}.attributes has no POSITION id")
+    try:
+        mesh = DracoPy.decode(bytes(raw))
+        attribute = mesh.get_attribute_by_unique_id(ids["POSITION"])
+    except Exception as exc:  # DracoPy raises its own exception types
+        raise FormatError(f"base mesh: Draco data does not decode ({exc})") from None
+    if attribute is None:
+        raise FormatError(f"base mesh: Draco data has no attribute with unique id {ids['POSITION']!r}")
+    positions = np.asarray(attribute["data"], dtype=np.float32)
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    if positions.shape != (n, 3) or faces.reshape(-1, 3).shape != (m, 3):
+        raise FormatError(f"base mesh: Draco decoded {positions.shape[0]} vertices / {faces.size // 3} faces, accessors declare {n} / {m}")
+    return positions, faces.reshape(-1, 3)

@@ -1,0 +1,201 @@
+"""Writing a ``.pmw`` file: our own GLB writer (never pygltflib's).
+
+Contract (DESIGN.md §4)
+-----------------------
+* One JSON chunk, then one BIN chunk = ``[base mesh bufferViews | chunk 0 | chunk 1 | ...]``,
+  every bufferView starting on a 4-byte boundary, chunks in stream order.
+* Every vertex-split chunk is stored as its own zstd frame with the content size and
+  the content checksum; the extension object lists, per chunk, its bufferView, stored
+  ``byteLength``, BLAKE2b-128 ``digest`` of the stored bytes and ``uncompressedLength``,
+  plus the caller's ``splits``/``vertexCount``/``faceCount``/``geometricError``.
+* The extension object sits on the mesh primitive under ``EXTENSION_NAME``, is listed in
+  ``extensionsUsed`` and never in ``extensionsRequired``; ``KHR_draco_mesh_compression``
+  is in both lists only when the base mesh uses it.
+* Because every offset is in the JSON, all chunks are compressed before anything is
+  written; a reader learns every byte range from the first 20 bytes plus the JSON.
+
+:func:`build_pmw` returns the file as bytes; :func:`write_pmw` writes it to a path
+(atomically: temp file in the same directory, fsync, ``os.replace``) or to a binary
+file object.  Both share :func:`_assemble`.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import os
+import tempfile
+
+import zstandard
+
+from ..constants import EXTENSION_NAME, FORMAT_VERSION, MAX_CHUNK_BYTES, MAX_CHUNKS, MAX_DECOMPRESSED_CHUNK_BYTES
+from ..errors import FormatError
+from .base import EncodedBase
+from .extension import CHUNK_META_FIELDS, RESERVED_FIELDS, check_extension, digest
+from .layout import (
+    CHUNK_HEADER_SIZE,
+    CHUNK_TYPE_BIN,
+    CHUNK_TYPE_JSON,
+    GLB_HEADER_SIZE,
+    GLB_VERSION,
+    ChunkHeader,
+    GlbHeader,
+    padded,
+)
+
+GENERATOR = "pmwm_codec"
+
+
+def compress_chunk(payload, level: int = 10) -> bytes:
+    """One zstd frame with content size and checksum for a raw chunk payload (bytes-like)."""
+    cctx = zstandard.ZstdCompressor(level=level, write_content_size=True, write_checksum=True)
+    return cctx.compress(bytes(payload))
+
+
+def _assemble(base: EncodedBase, chunks, chunk_meta, extension: dict, zstd_level: int) -> list:
+    """The file as a list of bytes-like parts, in order (header, JSON, BIN header, BIN pieces)."""
+    if not isinstance(base, EncodedBase):
+        raise TypeError(f"write_pmw: base must be an EncodedBase, got {type(base).__name__}")
+    chunks = list(chunks)
+    chunk_meta = list(chunk_meta)
+    if len(chunks) != len(chunk_meta):
+        raise ValueError(f"write_pmw: {len(chunks)} chunks but {len(chunk_meta)} chunk_meta entries")
+    if len(chunks) > MAX_CHUNKS:
+        raise ValueError(f"write_pmw: {len(chunks)} chunks exceed the limit {MAX_CHUNKS}")
+    if not isinstance(extension, dict):
+        raise TypeError("write_pmw: extension must be a dict")
+    clash = [key for key in RESERVED_FIELDS if key in extension]
+    if clash:
+        raise ValueError(f"write_pmw: extension fields {clash} are set by the writer")
+
+    bin_parts = [base.data]
+    offset = len(base.data)
+    views = [dict(v) for v in base.buffer_views]
+    index = []
+    for k, (payload, meta) in enumerate(zip(chunks, chunk_meta)):
+        missing = [key for key in CHUNK_META_FIELDS if key not in meta]
+        if missing:
+            raise ValueError(f"write_pmw: chunk_meta[{k}] lacks {missing}")
+        raw_length = len(memoryview(payload).cast("B"))
+        if raw_length > MAX_DECOMPRESSED_CHUNK_BYTES:
+            raise ValueError(f"write_pmw: chunk {k} has {raw_length} bytes, over the limit {MAX_DECOMPRESSED_CHUNK_BYTES}")
+        stored = compress_chunk(payload, zstd_level)
+        if len(stored) > MAX_CHUNK_BYTES:
+            raise ValueError(f"write_pmw: chunk {k} compresses to {len(stored)} bytes, over the limit {MAX_CHUNK_BYTES}")
+        views.append({"buffer": 0, "byteOffset": offset, "byteLength": len(stored)})
+        index.append({
+            "bufferView": len(views) - 1, "byteLength": len(stored), "digest": digest(stored),
+            **{key: meta[key] for key in CHUNK_META_FIELDS},
+            **{key: value for key, value in meta.items() if key not in CHUNK_META_FIELDS},
+            "uncompressedLength": raw_length,
+        })
+        pad = padded(len(stored)) - len(stored)
+        bin_parts += [stored, bytes(pad)] if pad else [stored]
+        offset += len(stored) + pad
+
+    ext = {"version": FORMAT_VERSION, **extension, "chunks": index}
+    try:
+        check_extension(ext)
+    except FormatError as exc:
+        raise ValueError(f"write_pmw: {exc}") from None
+
+    primitive = copy.deepcopy(base.primitive)
+    primitive.setdefault("extensions", {})[EXTENSION_NAME] = ext
+    gltf = {
+        "asset": {"version": "2.0", "generator": GENERATOR},
+        "extensionsUsed": [EXTENSION_NAME, *base.extensions_used],
+        **({"extensionsRequired": list(base.extensions_required)} if base.extensions_required else {}),
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [primitive]}],
+        "accessors": copy.deepcopy(base.accessors),
+        "bufferViews": views,
+        "buffers": [{"byteLength": offset}],
+    }
+    text = json.dumps(gltf, separators=(",", ":"), allow_nan=False).encode("utf-8")
+    text += b" " * (padded(len(text)) - len(text))
+    total = GLB_HEADER_SIZE + CHUNK_HEADER_SIZE + len(text) + CHUNK_HEADER_SIZE + offset
+    if total >= 1 << 32:
+        raise ValueError(f"write_pmw: file would be {total} bytes, over the GLB limit of 4 GiB")
+    return [
+        GlbHeader.build({"version": GLB_VERSION, "length": total}),
+        ChunkHeader.build({"length": len(text), "type": CHUNK_TYPE_JSON}),
+        text,
+        ChunkHeader.build({"length": offset, "type": CHUNK_TYPE_BIN}),
+        *bin_parts,
+    ]
+
+
+def build_pmw(*, base: EncodedBase, chunks, chunk_meta, extension: dict, zstd_level: int = 10) -> bytes:
+    """The ``.pmw`` file as bytes.
+
+    Parameters
+    ----------
+    base : EncodedBase
+        From :func:`~pmwm_codec.format.base.encode_base`.
+    chunks : list of bytes-like
+        Raw (uncompressed) chunk payloads in stream order; opaque to the container.
+    chunk_meta : list of dict
+        One per chunk: ``splits``, ``vertexCount``, ``faceCount``, ``geometricError``
+        (extra keys are kept).
+    extension : dict
+        Caller fields of the extension object (``grid``, ``vertexCount``, ``faceCount``,
+        ``watermark`` ...); ``version`` and ``chunks`` are set by the writer.
+    zstd_level : int
+
+    Raises
+    ------
+    ValueError, TypeError
+        Inconsistent arguments, limits exceeded, or an extension object the schema rejects.
+    """
+    return b"".join(_assemble(base, chunks, chunk_meta, extension, zstd_level))
+
+
+def write_pmw(dst, *, base: EncodedBase, chunks, chunk_meta, extension: dict, zstd_level: int = 10) -> int:
+    """Write a ``.pmw`` file; return the number of bytes written.
+
+    ``dst`` is a path (``str`` or ``os.PathLike``) or a binary file object.  A path is
+    written atomically: a temporary file in the same directory is written, fsynced and
+    moved over ``dst`` with ``os.replace``; on any exception the temporary file is
+    removed and an existing file at ``dst`` is untouched.  Other arguments: see
+    :func:`build_pmw`.
+    """
+    parts = _assemble(base, chunks, chunk_meta, extension, zstd_level)
+    size = sum(len(p) for p in parts)
+    if not isinstance(dst, (str, os.PathLike)):
+        for part in parts:
+            dst.write(part)
+        return size
+    path = os.fspath(dst)
+    directory = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            for part in parts:
+                fh.write(part)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+    _fsync_directory(directory)
+    return size
+
+
+def _fsync_directory(directory: str) -> None:
+    """Make the rename durable where the platform allows it (best effort)."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)

@@ -1,0 +1,522 @@
+"""Push parser for ``.pmw`` containers: bytes in, events out, as soon as they are complete.
+
+Contract
+--------
+``ContainerParser.feed(data)`` accepts any slice of the stream and returns the events
+that became complete, in stream order:
+
+1. :class:`HeaderEvent` once the 20-byte preamble and the JSON chunk are in.  All byte
+   ranges (base mesh, every chunk) are known from here on.
+2. :class:`BaseEvent` once the base mesh bufferViews are in.
+3. :class:`ChunkEvent` for each vertex-split chunk whose bytes are all in, in order,
+   digest-checked and zstd-decompressed.
+
+``close()`` ends the stream and returns an :class:`EndEvent`.  A stream cut after the
+base mesh is *progress, not corruption*: ``EndEvent.complete`` is False and the chunks
+already delivered stay valid.  A stream cut before the base mesh is complete raises
+:class:`~pmwm_codec.errors.TruncatedError`.
+
+Every event carries ``bytes_read`` as the absolute stream offset at which it became
+complete, so the events do not depend on how the bytes were split into ``feed`` calls.
+
+Corruption is a named error, raised from ``feed`` (or, when the same ``feed`` call
+first completed other events, returned after them and raised by the next ``feed``
+or ``close`` call, so every good chunk before a bad one is delivered): a bad digest is ``ChecksumError``
+(``.chunk`` = index); bad magic, JSON, layout or extension fields are ``FormatError``;
+a newer extension ``version`` is ``UnsupportedVersionError``; declared sizes or counts
+over the limits of :mod:`pmwm_codec.constants` are ``LimitError``, checked before
+anything of that size is allocated or decompressed.
+
+A parser is single-use: after ``close()`` or after it raised, it refuses more input.
+:func:`iter_events` and :func:`read_header` are thin pull wrappers.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from dataclasses import dataclass
+
+import numpy as np
+import zstandard
+from construct import ConstructError
+
+from ..constants import (
+    EXTENSION_NAME,
+    MAX_CHUNK_BYTES,
+    MAX_CHUNKS,
+    MAX_DECOMPRESSED_CHUNK_BYTES,
+    MAX_FACES,
+    MAX_JSON_BYTES,
+    MAX_VERTICES,
+)
+from ..errors import ChecksumError, FormatError, LimitError, TruncatedError
+from . import base as _base
+from .extension import check_extension, digest
+from .layout import (
+    ALIGNMENT,
+    CHUNK_HEADER_SIZE,
+    CHUNK_TYPE_BIN,
+    CHUNK_TYPE_JSON,
+    GLB_HEADER_SIZE,
+    GLB_MAGIC,
+    GLB_VERSION,
+    PREAMBLE_SIZE,
+    ChunkHeader,
+    GlbHeader,
+)
+
+DEFAULT_BLOCK_SIZE = 1 << 16
+
+
+# ----------------------------------------------------------------------- events
+
+
+@dataclass(frozen=True)
+class HeaderEvent:
+    """The glTF JSON is in: every byte range is known."""
+
+    gltf_json: dict
+    extension: dict
+    total_length: int  # GLB header length: the size of the complete file
+    chunk_count: int
+
+
+@dataclass(frozen=True, eq=False)
+class BaseEvent:
+    """The base mesh is in.  ``positions_int`` (n, 3) int64 grid coordinates, ``faces`` (m, 3) int64."""
+
+    positions_int: np.ndarray
+    faces: np.ndarray
+    bytes_read: int
+
+    def __eq__(self, other):
+        if not isinstance(other, BaseEvent):
+            return NotImplemented
+        return (
+            self.bytes_read == other.bytes_read
+            and np.array_equal(self.positions_int, other.positions_int)
+            and np.array_equal(self.faces, other.faces)
+        )
+
+    __hash__ = None
+
+
+@dataclass(frozen=True)
+class ChunkEvent:
+    """Chunk ``index`` is in; ``payload`` is its decompressed raw bytes."""
+
+    index: int
+    payload: bytes
+    bytes_read: int
+
+
+@dataclass(frozen=True)
+class EndEvent:
+    """The stream ended (``close()``).  ``complete`` is False for a cut stream."""
+
+    complete: bool
+    bytes_read: int
+    total_length: int
+    chunks_delivered: int
+    chunk_count: int
+
+    @property
+    def truncated(self) -> bool:
+        return not self.complete
+
+
+# ------------------------------------------------------------------ header sniff
+
+
+def parse_preamble(data) -> tuple[int, int]:
+    """``(total_length, json_length)`` from the first 20 bytes, or FormatError/LimitError."""
+    head = bytes(data[:PREAMBLE_SIZE])
+    if head[:4] != GLB_MAGIC:
+        raise FormatError(f"GLB header: bad magic {head[:4]!r}, not a glTF binary")
+    try:
+        glb = GlbHeader.parse(head[:GLB_HEADER_SIZE])
+        chunk = ChunkHeader.parse(head[GLB_HEADER_SIZE:PREAMBLE_SIZE])
+    except ConstructError as exc:  # pragma: no cover - magic already checked
+        raise FormatError(f"GLB header: {exc}".splitlines()[0]) from None
+    if glb.version != GLB_VERSION:
+        raise FormatError(f"GLB header: container version {glb.version}, expected {GLB_VERSION}")
+    if chunk.type != CHUNK_TYPE_JSON:
+        raise FormatError(f"GLB header: first chunk type {chunk.type!r}, expected {CHUNK_TYPE_JSON!r}")
+    if chunk.length > MAX_JSON_BYTES:
+        raise LimitError(f"GLB header: JSON chunk of {chunk.length} bytes exceeds the limit {MAX_JSON_BYTES}")
+    if chunk.length == 0 or chunk.length % ALIGNMENT:
+        raise FormatError(f"GLB header: JSON chunk length {chunk.length} is not a positive multiple of {ALIGNMENT}")
+    if PREAMBLE_SIZE + chunk.length + CHUNK_HEADER_SIZE > glb.length:
+        raise FormatError(f"GLB header: total length {glb.length} cannot hold a {chunk.length}-byte JSON chunk and a BIN chunk")
+    return glb.length, chunk.length
+
+
+def _uint(obj, key, what):
+    value = obj.get(key) if isinstance(obj, dict) else None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise FormatError(f"{what}: {key} must be a non-negative integer, got {value!r}")
+    return value
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """Byte ranges (relative to the BIN payload) derived from the JSON."""
+
+    primitive: dict
+    base_end: int
+    chunk_ranges: tuple  # ((start, end), ...)
+    buffer_length: int
+
+
+def _plan(gltf: dict, ext: dict, bin_capacity: int) -> _Plan:
+    """Check the JSON's structure and limits; compute every byte range."""
+    used = gltf.get("extensionsUsed", [])
+    if not isinstance(used, list) or EXTENSION_NAME not in used:
+        raise FormatError(f"glTF JSON: {EXTENSION_NAME} is not listed in extensionsUsed")
+    buffers = gltf.get("buffers")
+    if not isinstance(buffers, list) or not buffers or not isinstance(buffers[0], dict):
+        raise FormatError("glTF JSON: no buffers[0] for the GLB BIN chunk")
+    if "uri" in buffers[0]:
+        raise FormatError("glTF JSON: buffers[0] has a uri; a .pmw keeps its data in the GLB BIN chunk")
+    buffer_length = _uint(buffers[0], "byteLength", "buffers[0]")
+    if buffer_length > bin_capacity:
+        raise FormatError(f"glTF JSON: buffers[0].byteLength {buffer_length} exceeds the {bin_capacity} bytes the GLB length leaves")
+    for key in ("vertexCount", "faceCount"):
+        limit = MAX_VERTICES if key == "vertexCount" else MAX_FACES
+        if ext[key] > limit:
+            raise LimitError(f"{EXTENSION_NAME}: {key} {ext[key]} exceeds the limit {limit}")
+
+    _, _, primitive = _base.find_extension_primitive(gltf, EXTENSION_NAME)
+    views = gltf.get("bufferViews")
+    base_end = 0
+    for index in _base.base_views(gltf, primitive):
+        start, end = _view_range(views, index, buffer_length, "base mesh")
+        base_end = max(base_end, end)
+    _base._counts(gltf, primitive)  # base vertex/face counts against the limits
+
+    chunks = ext["chunks"]
+    if len(chunks) > MAX_CHUNKS:
+        raise LimitError(f"{EXTENSION_NAME}: {len(chunks)} chunks exceed the limit {MAX_CHUNKS}")
+    ranges = []
+    previous_end = base_end
+    for k, chunk in enumerate(chunks):
+        what = f"{EXTENSION_NAME}: chunk {k}"
+        if chunk["byteLength"] > MAX_CHUNK_BYTES:
+            raise LimitError(f"{what}: byteLength {chunk['byteLength']} exceeds the limit {MAX_CHUNK_BYTES}")
+        if chunk["uncompressedLength"] > MAX_DECOMPRESSED_CHUNK_BYTES:
+            raise LimitError(f"{what}: uncompressedLength {chunk['uncompressedLength']} exceeds the limit {MAX_DECOMPRESSED_CHUNK_BYTES}")
+        if chunk["vertexCount"] > MAX_VERTICES or chunk["faceCount"] > MAX_FACES:
+            raise LimitError(f"{what}: {chunk['vertexCount']} vertices / {chunk['faceCount']} faces exceed the limits")
+        start, end = _view_range(views, chunk["bufferView"], buffer_length, what)
+        if end - start != chunk["byteLength"]:
+            raise FormatError(f"{what}: byteLength {chunk['byteLength']} differs from bufferView length {end - start}")
+        if start < previous_end:
+            raise FormatError(f"{what}: bufferView starts at {start}, before the end {previous_end} of the data before it (overlap or out of stream order)")
+        ranges.append((start, end))
+        previous_end = end
+    return _Plan(primitive, base_end, tuple(ranges), buffer_length)
+
+
+def _view_range(views, index, buffer_length, what):
+    if not isinstance(views, list) or isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < len(views):
+        raise FormatError(f"{what}: bufferView {index!r} does not exist")
+    view = views[index]
+    if not isinstance(view, dict) or view.get("buffer", 0) != 0:
+        raise FormatError(f"{what}: bufferView {index} is not in the GLB BIN buffer")
+    start = _uint({"byteOffset": view.get("byteOffset", 0)}, "byteOffset", f"{what}: bufferView {index}")
+    length = _uint(view, "byteLength", f"{what}: bufferView {index}")
+    if start + length > buffer_length:
+        raise FormatError(f"{what}: bufferView {index} ends at {start + length}, past the buffer's {buffer_length} bytes")
+    return start, start + length
+
+
+# ----------------------------------------------------------------------- parser
+
+_PREAMBLE, _JSON, _BIN_HEADER, _BASE, _CHUNKS, _TAIL, _CLOSED, _FAILED = range(8)
+
+
+class ContainerParser:
+    """Incremental (push) reader of one ``.pmw`` stream.  Single-use.
+
+    >>> parser = ContainerParser()
+    >>> events = parser.feed(first_bytes)      # doctest: +SKIP
+    >>> events += parser.feed(more_bytes)      # doctest: +SKIP
+    >>> end = parser.close()                   # doctest: +SKIP
+    """
+
+    def __init__(self):
+        self._buf = bytearray()
+        self._buf_start = 0  # absolute offset of _buf[0]
+        self._received = 0
+        self._state = _PREAMBLE
+        self._total = None
+        self._json_length = None
+        self._bin_data = None  # absolute offset of the BIN payload
+        self._gltf = None
+        self._ext = None
+        self._plan = None
+        self._next_chunk = 0
+        self._pending_error = None
+
+    @property
+    def bytes_read(self) -> int:
+        """Bytes fed so far."""
+        return self._received
+
+    def feed(self, data) -> list:
+        """Add bytes; return the list of events that became complete (may be empty)."""
+        if self._state == _CLOSED:
+            raise RuntimeError("ContainerParser: feed() after close(); a parser is single-use")
+        self._raise_pending()
+        if self._state == _FAILED:
+            raise RuntimeError("ContainerParser: feed() after an error; a parser is single-use")
+        data = memoryview(data).cast("B")
+        self._received += len(data)
+        if self._total is not None and self._received > self._total:
+            self._state = _FAILED
+            raise FormatError(f"GLB: {self._received - self._total} bytes after the declared file length {self._total}")
+        if self._state != _TAIL:
+            self._buf += data
+        events = []
+        try:
+            while True:
+                event = self._step()
+                if event is None:
+                    break
+                if event is not True:
+                    events.append(event)
+        except Exception as exc:
+            self._state = _FAILED
+            if not events:
+                raise
+            self._pending_error = exc  # deliver what completed first; raise on the next call
+        return events
+
+    def _raise_pending(self):
+        error, self._pending_error = self._pending_error, None
+        if error is not None:
+            raise error
+
+    def close(self) -> EndEvent:
+        """End the stream.  Returns an EndEvent; raises TruncatedError if the base mesh is incomplete."""
+        self._raise_pending()
+        if self._state in (_CLOSED, _FAILED):
+            raise RuntimeError("ContainerParser: close() called twice or after an error; a parser is single-use")
+        state = self._state
+        self._state = _CLOSED
+        self._buf = bytearray()
+        if state <= _BASE:
+            need = self._needed(state)
+            raise TruncatedError(
+                f"truncated: stream ended after {self._received} bytes, before the base mesh was complete"
+                + (f" (needs {need} bytes)" if need is not None else ""),
+                bytes_read=self._received,
+            )
+        count = len(self._plan.chunk_ranges)
+        return EndEvent(
+            complete=self._received == self._total and self._next_chunk == count,
+            bytes_read=self._received, total_length=self._total,
+            chunks_delivered=self._next_chunk, chunk_count=count,
+        )
+
+    # -- internals -------------------------------------------------------------
+
+    def _needed(self, state):
+        if state == _PREAMBLE:
+            return PREAMBLE_SIZE
+        if state == _JSON:
+            return PREAMBLE_SIZE + self._json_length
+        if state == _BIN_HEADER:
+            return self._bin_data
+        if state == _BASE:
+            return self._bin_data + self._plan.base_end
+        return None
+
+    def _take(self, end: int):
+        """Bytes from _buf_start to absolute offset ``end``, or None if not all in; drops them."""
+        if self._buf_start + len(self._buf) < end:
+            return None
+        cut = end - self._buf_start
+        out = bytes(self._buf[:cut])
+        del self._buf[:cut]
+        self._buf_start = end
+        return out
+
+    def _skip_to(self, offset: int) -> bool:
+        """Drop bytes before ``offset``; True if the buffer reaches it."""
+        if self._buf_start + len(self._buf) < offset:
+            return False
+        del self._buf[: offset - self._buf_start]
+        self._buf_start = offset
+        return True
+
+    def _step(self):
+        """Advance one state; return an event, True (progress, no event) or None (need bytes)."""
+        state = self._state
+        if state == _PREAMBLE:
+            head = self._take(PREAMBLE_SIZE)
+            if head is None:
+                if len(self._buf) >= 4 and bytes(self._buf[:4]) != GLB_MAGIC:
+                    parse_preamble(bytes(self._buf[:4]) + bytes(PREAMBLE_SIZE))  # bad magic, early
+                return None
+            self._total, self._json_length = parse_preamble(head)
+            if self._received > self._total:
+                raise FormatError(f"GLB: {self._received - self._total} bytes after the declared file length {self._total}")
+            self._state = _JSON
+            return True
+        if state == _JSON:
+            text = self._take(PREAMBLE_SIZE + self._json_length)
+            if text is None:
+                return None
+            self._gltf, self._ext = _load_json(text)
+            self._bin_data = PREAMBLE_SIZE + self._json_length + CHUNK_HEADER_SIZE
+            self._plan = _plan(self._gltf, self._ext, self._total - self._bin_data)
+            self._state = _BIN_HEADER
+            return HeaderEvent(self._gltf, self._ext, self._total, len(self._plan.chunk_ranges))
+        if state == _BIN_HEADER:
+            head = self._take(self._bin_data)
+            if head is None:
+                return None
+            chunk = ChunkHeader.parse(head)
+            if chunk.type != CHUNK_TYPE_BIN:
+                raise FormatError(f"GLB: second chunk type {chunk.type!r}, expected {CHUNK_TYPE_BIN!r}")
+            if self._bin_data + chunk.length != self._total:
+                raise FormatError(f"GLB: BIN chunk of {chunk.length} bytes does not end at the file length {self._total}")
+            if chunk.length < self._plan.buffer_length:
+                raise FormatError(f"GLB: BIN chunk of {chunk.length} bytes is shorter than buffers[0].byteLength {self._plan.buffer_length}")
+            self._state = _BASE
+            return True
+        if state == _BASE:
+            data = self._take(self._bin_data + self._plan.base_end)
+            if data is None:
+                return None
+            positions, faces = _base.decode_base(self._gltf, data, self._ext["grid"], self._plan.primitive)
+            self._state = _CHUNKS if self._plan.chunk_ranges else _TAIL
+            if self._state == _TAIL:
+                self._buf = bytearray()
+            return BaseEvent(positions, faces, self._bin_data + self._plan.base_end)
+        if state == _CHUNKS:
+            k = self._next_chunk
+            start, end = self._plan.chunk_ranges[k]
+            if not self._skip_to(self._bin_data + start):
+                return None
+            stored = self._take(self._bin_data + end)
+            if stored is None:
+                return None
+            payload = _open_chunk(k, stored, self._ext["chunks"][k])
+            self._next_chunk += 1
+            if self._next_chunk == len(self._plan.chunk_ranges):
+                self._state = _TAIL
+                self._buf = bytearray()
+            return ChunkEvent(k, payload, self._bin_data + end)
+        return None  # _TAIL: padding up to the file length
+
+
+def _load_json(text: bytes):
+    import json
+
+    try:
+        gltf = json.loads(text.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise FormatError(f"GLB JSON chunk: not valid UTF-8 JSON ({str(exc).splitlines()[0]})") from None
+    if not isinstance(gltf, dict):
+        raise FormatError("GLB JSON chunk: top level is not an object")
+    _, _, primitive = _base.find_extension_primitive(gltf, EXTENSION_NAME)
+    ext = check_extension(primitive["extensions"][EXTENSION_NAME])
+    return gltf, ext
+
+
+def _open_chunk(k: int, stored: bytes, meta: dict) -> bytes:
+    """Digest-check and decompress chunk ``k``; return the raw payload."""
+    if digest(stored) != meta["digest"]:
+        raise ChecksumError(f"chunk {k}: digest mismatch, the stored bytes are corrupt", chunk=k)
+    declared = meta["uncompressedLength"]
+    try:
+        params = zstandard.get_frame_parameters(stored)
+    except zstandard.ZstdError as exc:
+        raise FormatError(f"chunk {k}: not a zstd frame ({exc})") from None
+    if params.content_size == zstandard.CONTENTSIZE_UNKNOWN:
+        raise FormatError(f"chunk {k}: zstd frame does not declare its content size")
+    if params.content_size != declared:
+        raise FormatError(f"chunk {k}: zstd frame content size {params.content_size} differs from uncompressedLength {declared}")
+    if not params.has_checksum:
+        raise FormatError(f"chunk {k}: zstd frame has no content checksum")
+    dobj = zstandard.ZstdDecompressor().decompressobj(write_size=max(1, min(declared, 1 << 20)))
+    try:
+        payload = dobj.decompress(stored)
+    except zstandard.ZstdError as exc:
+        raise FormatError(f"chunk {k}: zstd frame does not decompress ({exc})") from None
+    if not dobj.eof or dobj.unused_data or len(payload) != declared:
+        raise FormatError(f"chunk {k}: zstd frame is incomplete, has trailing bytes, or differs from uncompressedLength {declared}")
+    return payload
+
+
+# ------------------------------------------------------------------ pull wrappers
+
+
+def _blocks(source, block_size: int):
+    """Yield byte blocks from a path, '-' (stdin), bytes, a binary file object or an iterable of blocks."""
+    if isinstance(source, (bytes, bytearray, memoryview)):
+        yield source
+        return
+    if isinstance(source, str) and source == "-" or source is sys.stdin:
+        source = sys.stdin.buffer
+    if isinstance(source, (str, os.PathLike)):
+        with open(source, "rb") as fh:
+            yield from _blocks(fh, block_size)
+        return
+    if hasattr(source, "read"):
+        read = getattr(source, "read1", None) or source.read
+        while True:
+            block = read(block_size)
+            if not block:
+                return
+            yield block
+        return
+    yield from source
+
+
+def iter_events(source, block_size: int = DEFAULT_BLOCK_SIZE):
+    """Yield every event of ``source``, ending with the :class:`EndEvent`.
+
+    ``source``: a path, ``"-"`` or ``sys.stdin`` (standard input), bytes-like, a binary
+    file object (read in blocks of ``block_size``), or an iterable of byte blocks.
+    Raises the parser's named errors; TruncatedError when the base mesh is incomplete.
+    """
+    parser = ContainerParser()
+    for block in _blocks(source, block_size):
+        yield from parser.feed(block)
+    yield parser.close()
+
+
+def read_header(source) -> HeaderEvent:
+    """The HeaderEvent of ``source``, reading only the 20-byte preamble and the JSON chunk.
+
+    ``source`` as for :func:`iter_events`.  Raises TruncatedError if the JSON is incomplete.
+    """
+    if isinstance(source, str) and source == "-" or source is sys.stdin:
+        source = sys.stdin.buffer
+    parser = ContainerParser()
+    wanted = PREAMBLE_SIZE
+    got = 0
+    if isinstance(source, (str, os.PathLike)):
+        with open(source, "rb") as fh:
+            return read_header(fh)
+    reader = getattr(source, "read", None)
+    blocks = None if reader is not None else _blocks(source, DEFAULT_BLOCK_SIZE)
+    pending = b""
+    while True:
+        if reader is not None:
+            block = reader(wanted - got)
+        else:
+            block = pending or next(blocks, b"")
+            block, pending = block[: wanted - got], block[wanted - got :]
+        if not block:
+            raise TruncatedError(f"truncated: stream ended after {got} bytes, inside the GLB header or JSON (needs {wanted})", bytes_read=got)
+        got += len(block)
+        for event in parser.feed(block):
+            if isinstance(event, HeaderEvent):
+                return event
+        if got == PREAMBLE_SIZE:
+            wanted = PREAMBLE_SIZE + parser._json_length

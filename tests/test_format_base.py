@@ -1,0 +1,138 @@
+"""Base-mesh codec: plain and Draco primitives give back the exact grid integers."""
+
+import json
+
+import numpy as np
+import pytest
+
+from pmwm_codec.constants import MAX_VERTICES
+from pmwm_codec.errors import FormatError, LimitError
+from pmwm_codec.format import base as basecodec
+from pmwm_codec.format._samples import ICOSPHERE_CENTRE, ICOSPHERE_RADIUS, icosphere, to_grid
+
+
+def _gltf_of(enc):
+    """A minimal glTF dict around an EncodedBase (what decode_base reads)."""
+    prim = json.loads(json.dumps(enc.primitive))
+    return {"accessors": enc.accessors, "bufferViews": enc.buffer_views, "meshes": [{"primitives": [prim]}]}, prim
+
+
+@pytest.fixture(scope="module")
+def mesh():
+    positions, faces = icosphere(2)
+    ints, grid = to_grid(positions, bits=14)
+    return ints, faces, grid
+
+
+@pytest.mark.parametrize("codec", ["plain", "draco"])
+def test_decoded_base_equals_input_up_to_vertex_map(mesh, codec):
+    ints, faces, grid = mesh
+    enc = basecodec.encode_base(ints, faces, grid, codec=codec)
+    assert enc.codec == codec and enc.notice is None
+    assert np.array_equal(enc.positions_int, ints[enc.vertex_map])
+    assert np.array_equal(np.sort(enc.vertex_map), np.arange(len(ints)))
+    gltf, prim = _gltf_of(enc)
+    pos, tri = basecodec.decode_base(gltf, enc.data, grid, prim)
+    assert pos.dtype == np.int64 and tri.dtype == np.int64
+    assert np.array_equal(pos, enc.positions_int)
+    assert np.array_equal(tri, enc.faces)
+    assert basecodec._same_triangles(enc.vertex_map[tri], faces)
+
+
+def test_draco_base_keeps_the_bounding_radius(mesh):
+    # not a unit sphere and off-centre: a swapped attribute or a lost origin would show here
+    ints, faces, grid = mesh
+    enc = basecodec.encode_base(ints, faces, grid, codec="draco")
+    gltf, prim = _gltf_of(enc)
+    pos, _ = basecodec.decode_base(gltf, enc.data, grid, prim)
+    xyz = basecodec.grid_to_float(pos, grid).astype(np.float64)
+    radius = np.linalg.norm(xyz - np.asarray(ICOSPHERE_CENTRE), axis=1)
+    assert np.allclose(radius, ICOSPHERE_RADIUS, atol=2 * grid["step"])
+
+
+def test_draco_attribute_id_is_read_back_not_assumed(mesh, monkeypatch):
+    # With normals DracoPy gives NORMAL id 0 and POSITION id 1: the primitive must say 1.
+    import DracoPy
+
+    real_encode = DracoPy.encode
+    monkeypatch.setattr(DracoPy, "encode", lambda points, faces, **kw: real_encode(points, faces, normals=np.asarray(points, dtype=np.float64), **kw))
+    ints, faces, grid = mesh
+    enc = basecodec.encode_base(ints, faces, grid, codec="draco")
+    assert enc.codec == "draco"
+    assert enc.draco_attribute_ids == {"POSITION": 1}
+    assert enc.primitive["extensions"]["KHR_draco_mesh_compression"]["attributes"] == {"POSITION": 1}
+    gltf, prim = _gltf_of(enc)
+    pos, _ = basecodec.decode_base(gltf, enc.data, grid, prim)
+    assert np.array_equal(pos, enc.positions_int)
+
+
+def test_draco_falls_back_to_plain_with_a_notice_when_vertices_are_duplicated(mesh):
+    ints, faces, grid = mesh
+    dup = np.vstack([ints, ints[:1]])  # two vertices at one grid point: order is ambiguous
+    tri = np.vstack([faces, [[len(ints), faces[0, 1], faces[0, 2]]]])
+    enc = basecodec.encode_base(dup, tri, grid, codec="draco")
+    assert enc.codec == "plain" and "Draco" in enc.notice
+    assert np.array_equal(enc.positions_int, dup)
+
+
+def test_plain_indices_use_unsigned_short_for_small_meshes(mesh):
+    ints, faces, grid = mesh
+    enc = basecodec.encode_base(ints, faces, grid, codec="plain")
+    assert enc.accessors[1]["componentType"] == basecodec.UNSIGNED_SHORT
+    assert len(enc.data) % 4 == 0
+
+
+def test_plain_position_accessor_min_max_are_the_exact_float32_bounds(mesh):
+    ints, faces, grid = mesh
+    enc = basecodec.encode_base(ints, faces, grid, codec="plain")
+    stored = np.frombuffer(enc.data, "<f4", count=3 * len(ints)).reshape(-1, 3)
+    assert enc.accessors[0]["min"] == [float(x) for x in stored.min(0)]
+    assert enc.accessors[0]["max"] == [float(x) for x in stored.max(0)]
+
+
+@pytest.mark.parametrize("bad", ["negative", "too_big", "float", "face_range"])
+def test_encode_base_rejects_bad_input(mesh, bad):
+    ints, faces, grid = mesh
+    if bad == "negative":
+        ints = ints - 1
+    elif bad == "too_big":
+        ints = ints.copy(); ints[0, 0] = 1 << grid["bits"]
+    elif bad == "float":
+        ints = ints.astype(float)
+    else:
+        faces = faces.copy(); faces[0, 0] = len(ints)
+    with pytest.raises(ValueError, match="encode_base"):
+        basecodec.encode_base(ints, faces, grid, codec="plain")
+
+
+def test_encode_base_rejects_a_grid_too_fine_for_float32():
+    positions, faces = icosphere(0)
+    ints, grid = to_grid(positions * 1000 + 1e6, bits=30)
+    with pytest.raises(ValueError, match="float32"):
+        basecodec.encode_base(ints, faces, grid, codec="plain")
+
+
+def test_decode_base_checks_vertex_count_before_reading(mesh):
+    ints, faces, grid = mesh
+    enc = basecodec.encode_base(ints, faces, grid, codec="plain")
+    gltf, prim = _gltf_of(enc)
+    gltf["accessors"][0]["count"] = MAX_VERTICES + 1
+    with pytest.raises(LimitError):
+        basecodec.decode_base(gltf, enc.data, grid, prim)
+
+
+def test_decode_base_rejects_out_of_range_indices(mesh):
+    ints, faces, grid = mesh
+    enc = basecodec.encode_base(ints, faces, grid, codec="plain")
+    gltf, prim = _gltf_of(enc)
+    gltf["accessors"][0]["count"] = 3  # fewer vertices than the faces index
+    with pytest.raises(FormatError, match="out of range"):
+        basecodec.decode_base(gltf, enc.data, grid, prim)
+
+
+def test_decode_base_rejects_undecodable_draco(mesh):
+    ints, faces, grid = mesh
+    enc = basecodec.encode_base(ints, faces, grid, codec="draco")
+    gltf, prim = _gltf_of(enc)
+    with pytest.raises(FormatError, match="Draco"):
+        basecodec.decode_base(gltf, bytes(len(enc.data)), grid, prim)

@@ -1,0 +1,135 @@
+"""spec/ and the code say the same thing: byte tables, limits, schemas, examples."""
+
+import json
+import re
+from pathlib import Path
+
+import jsonschema
+import pytest
+from referencing import Registry, Resource
+
+from pmwm_codec import constants
+from pmwm_codec.format import layout
+from pmwm_codec.format._samples import sample_pmw
+from pmwm_codec.format import read_header
+from pmwm_codec.format.extension import SCHEMA_DIR
+
+SPEC = Path(__file__).resolve().parents[1] / "spec"
+NAME = constants.EXTENSION_NAME
+TYPE_SIZES = {"uint32": 4, "char[4]": 4}
+
+
+def _tagged_tables(text):
+    """{struct name: [(field, type, size), ...]} from tables preceded by ``<!-- layout: Name -->``."""
+    tables = {}
+    for match in re.finditer(r"<!-- layout: (\w+) -->\n((?:\|.*\n)+)", text):
+        rows = [line.strip().strip("|").split("|") for line in match.group(2).splitlines()[2:]]
+        tables[match.group(1)] = [(c[0].strip().strip("`"), c[1].strip().strip("`"), int(c[2])) for c in rows]
+    return tables
+
+
+def _schemas():
+    return {p.name: json.loads(p.read_text()) for p in (SPEC / "schema").glob("*.schema.json")}
+
+
+def _validator():
+    schemas = _schemas()
+    registry = Registry().with_resources((n, Resource.from_contents(s)) for n, s in schemas.items())
+    schema = schemas[f"mesh.primitive.{NAME}.schema.json"]
+    return jsonschema.Draft202012Validator(schema, registry=registry)
+
+
+def test_bitstream_tables_match_layout_structs():
+    tables = _tagged_tables((SPEC / "bitstream.md").read_text())
+    assert set(tables) == set(layout.STRUCTS)
+    for name, struct in layout.STRUCTS.items():
+        code = [(sub.name, sub.sizeof()) for sub in struct.subcons]
+        spec = [(field, size) for field, _, size in tables[name]]
+        assert spec == code, name
+        for field, type_, size in tables[name]:
+            assert TYPE_SIZES[type_] == size, (name, field)
+
+
+def test_bitstream_has_the_chunk_payload_section_for_the_lead():
+    assert "## 6. Chunk payload (vertex-split records)" in (SPEC / "bitstream.md").read_text()
+
+
+def test_readme_limits_table_matches_constants():
+    text = (SPEC / "README.md").read_text()
+    rows = dict(re.findall(r"^\| `(MAX_\w+)` \| (\d+) \|$", text, re.M))
+    names = [n for n in dir(constants) if n.startswith("MAX_") and n != "MAX_GRID_BITS"]
+    assert {n: int(rows[n]) for n in names} == {n: getattr(constants, n) for n in names}
+
+
+def test_readme_names_the_extension_and_version():
+    text = (SPEC / "README.md").read_text()
+    assert text.startswith(f"# {NAME}\n")
+    assert f"format version {constants.FORMAT_VERSION}" in text
+
+
+def test_packaged_schemas_are_identical_to_spec_schemas():
+    spec = {p.name: p.read_bytes() for p in (SPEC / "schema").glob("*.json")}
+    packaged = {p.name: p.read_bytes() for p in SCHEMA_DIR.glob("*.json")}
+    assert spec == packaged, "copy spec/schema/*.json to pmwm_codec/format/schema/"
+
+
+@pytest.mark.parametrize("name", sorted(_schemas()))
+def test_schema_is_valid_and_every_property_has_a_description(name):
+    schema = _schemas()[name]
+    jsonschema.Draft202012Validator.check_schema(schema)
+    assert schema["$id"] == name and "description" in schema
+
+    def walk(node, path):
+        for key, prop in node.get("properties", {}).items():
+            assert "description" in prop, f"{name}: {path}{key} has no description"
+            walk(prop, f"{path}{key}.")
+        if isinstance(node.get("items"), dict):
+            walk(node["items"], path)
+
+    walk(schema, "")
+
+
+def test_schema_limits_match_constants():
+    schemas = _schemas()
+    grid = schemas[f"{NAME}.grid.schema.json"]["properties"]["bits"]
+    assert (grid["minimum"], grid["maximum"]) == (constants.MIN_GRID_BITS, constants.MAX_GRID_BITS)
+    chunks = schemas[f"mesh.primitive.{NAME}.schema.json"]["properties"]["chunks"]
+    assert chunks["maxItems"] == constants.MAX_CHUNKS
+
+
+def test_readme_property_tables_list_the_schema_properties():
+    text = (SPEC / "README.md").read_text()
+    documented = set(re.findall(r"^\| `(\w+)` \| `[^`]+` \|", text, re.M))
+    schemas = _schemas()
+    for name in (f"mesh.primitive.{NAME}.schema.json", f"{NAME}.chunk.schema.json", f"{NAME}.grid.schema.json"):
+        props = set(schemas[name]["properties"]) - {"extensions", "extras"}
+        assert props <= documented, (name, props - documented)
+
+
+@pytest.mark.parametrize("codec", ["plain", "draco"])
+def test_writer_output_validates_against_the_spec_schemas(codec):
+    data, *_ = sample_pmw(codec, chunk_count=3)
+    ext = read_header(data).extension
+    _validator().validate(ext)
+
+
+def test_worked_example_is_valid_and_its_ranges_are_consistent():
+    gltf = json.loads((SPEC / "examples" / "icosphere-plain.gltf.json").read_text())
+    ext = gltf["meshes"][0]["primitives"][0]["extensions"][NAME]
+    _validator().validate(ext)
+    views = gltf["bufferViews"]
+    ends = [views[c["bufferView"]]["byteOffset"] + c["byteLength"] for c in ext["chunks"]]
+    assert ends[-1] <= gltf["buffers"][0]["byteLength"]
+    assert all(views[c["bufferView"]]["byteLength"] == c["byteLength"] for c in ext["chunks"])
+    text = (SPEC / "README.md").read_text()
+    for chunk in ext["chunks"]:
+        assert chunk["digest"] in text  # the README quotes the example's real numbers
+
+
+def test_worked_example_is_what_the_writer_produces_today():
+    # Same generator call as in the README; differs only if zstd or the writer changed.
+    data, *_ = sample_pmw("plain", chunk_count=2, subdivisions=1, seed=5, chunk_sizes=[96, 200])
+    example = json.loads((SPEC / "examples" / "icosphere-plain.gltf.json").read_text())
+    if read_header(data).gltf_json != example:
+        pytest.skip("worked example was generated with another zstd build; regenerate spec/examples if the writer changed")
+    assert len(data) == 2440
