@@ -2,14 +2,107 @@
 
 The public API (DESIGN.md §5)::
 
-    mesh   = pmwm_codec.read_mesh(path)
+    mesh   = pmwm_codec.read_mesh(path)                       # OBJ, PLY, STL, glTF/GLB -> Mesh
     report = pmwm_codec.encode(src, dst, watermark=None, key=None, **options)
-    mesh   = pmwm_codec.decode(src, chunks=None)
-    for step in pmwm_codec.iter_decode(src, key=None, watermark=None): ...
+    mesh   = pmwm_codec.decode(src, chunks=None)              # path, bytes or binary file
+    for step in pmwm_codec.iter_decode(src, key=None, watermark=None):
+        step.mesh, step.watermark, step.chunk, step.bytes_read
 """
 
-from .errors import PmwError
-from .mesh import Mesh, read_mesh
+from __future__ import annotations
 
-__all__ = ["Mesh", "PmwError", "read_mesh"]
+import os
+
+import numpy as np
+
+from .errors import PmwError
+from .mesh import Mesh, checked_mesh, read_mesh
+
+__all__ = ["Mesh", "PmwError", "read_mesh", "encode", "decode", "iter_decode", "load_key"]
 __version__ = "0.1.0"
+
+
+def _as_mesh(src) -> Mesh:
+    if isinstance(src, Mesh):
+        return checked_mesh(src.positions, src.faces, src.attributes)
+    return read_mesh(src)
+
+
+def _as_watermark(watermark):
+    if watermark is None:
+        return None, []
+    from .watermark.image import load_watermark
+
+    return load_watermark(watermark)
+
+
+def load_key(key):
+    """A :class:`~pmwm_codec.watermark.key.WatermarkKey` from a key object or a key file path."""
+    from .watermark.key import WatermarkKey
+
+    if key is None or isinstance(key, WatermarkKey):
+        return key
+    return WatermarkKey.load(key)
+
+
+def encode(src, dst, watermark=None, key=None, **options):
+    """Encode ``src`` (path or :class:`Mesh`) into a ``.pmw`` at ``dst`` (path or binary file).
+
+    ``watermark``: image path or (s, s) array; ``key``: a WatermarkKey, the path of an
+    existing key file, or None (a new key; with a path ``dst`` it is saved to
+    ``dst + ".key.json"``).  Options: ``mode``, ``bits``, ``grid_bits``, ``base_codec``,
+    ``base_vertices``, ``zstd_level``, ``measure``.  Returns the report dict (the
+    ``pmw encode --json`` fields, plus ``notices`` and ``key_path``).
+    """
+    from .stream.encoder import default_key_path, encode_mesh
+
+    mesh = _as_mesh(src)
+    image, notices = _as_watermark(watermark)
+    key_path = None
+    key_obj = None
+    if image is not None:
+        if isinstance(key, (str, os.PathLike)) and os.path.exists(key):
+            key_obj = load_key(key)
+            key_path = os.fspath(key)
+        elif isinstance(key, (str, os.PathLike)):
+            key_path = os.fspath(key)
+        elif key is not None:
+            key_obj = key
+        else:
+            key_path = default_key_path(dst)
+    report = encode_mesh(mesh, dst, watermark=image, key=key_obj, **options)
+    if report.key is not None and key_path is not None:
+        report.key.save(key_path)
+    out = report.as_json()
+    out["notices"] = notices + report.notices + [f"dropped {v} {k.replace('_', ' ')}" for k, v in mesh.cleanup.items()]
+    out["key_path"] = key_path
+    out["base_codec"] = report.base_codec
+    out["batches"] = report.batches
+    return out
+
+
+def decode(src, chunks=None) -> Mesh:
+    """Decode a whole or cut ``.pmw`` (path, bytes or binary file) to a :class:`Mesh`.
+
+    ``chunks``: stop after the base mesh and this many vertex-split chunks.
+    """
+    from .stream.reader import decode_stream
+
+    last, _ = decode_stream(src, chunks=chunks, copy=False)
+    return Mesh(last.grid.dequantize(last.positions_int), np.array(last.faces))
+
+
+def iter_decode(src, key=None, watermark=None):
+    """Yield a :class:`~pmwm_codec.stream.PartialResult` per chunk boundary, base mesh first.
+
+    Each has ``mesh``, ``watermark`` (the partial image, with a key), ``chunk`` and
+    ``bytes_read``, plus ``nc`` and ``psnr_db`` when a reference watermark is known.
+    """
+    from .stream.decoder import StreamDecoder
+    from .stream.reader import iter_results
+
+    reference = None
+    if watermark is not None:
+        reference, _ = _as_watermark(watermark)
+    decoder = StreamDecoder(load_key(key), reference)
+    yield from iter_results(src, decoder)

@@ -1,0 +1,201 @@
+"""The push decoder: bytes in, one :class:`PartialResult` per chunk boundary out.
+
+Contract
+--------
+``StreamDecoder.feed(data)`` accepts any number of bytes and returns the results
+that became available: first the base mesh (``chunk == 0``), then one result per
+complete vertex-split chunk, in order.  ``close()`` ends the stream and returns
+a :class:`StreamEnd` saying whether it was complete or cut short.  A cut stream
+is progress, not corruption: every complete chunk has been delivered; only a
+stream that ends before its base mesh is complete raises
+:class:`~pmwm_codec.errors.TruncatedError`.  A chunk whose digest fails raises
+:class:`~pmwm_codec.errors.ChecksumError` naming it.  The decoder is single-use.
+
+The container layer (:class:`~pmwm_codec.format.ContainerParser`) does the byte
+work (GLB framing, limits, digests, zstd); this layer turns its events into
+meshes: it parses split records, applies them a batch at a time with
+:func:`~pmwm_codec.progressive.vsplit.apply_batch` into arrays preallocated for
+the full-resolution counts, and, given a key, reads the watermark codes of
+every batch and rebuilds the partial watermark.  Pull wrappers live in
+:mod:`.reader`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..constants import EXTENSION_NAME
+from ..errors import FormatError, WatermarkKeyError
+from ..format import BaseEvent, ChunkEvent, ContainerParser, EndEvent, HeaderEvent
+from ..format.records import unpack_batches
+from ..mesh import Mesh
+from ..progressive.grid import Grid
+from ..progressive.vsplit import MeshState, apply_batch
+from ..watermark import codec as wm
+from ..watermark.verify import Verifier
+
+
+@dataclass
+class PartialResult:
+    """The mesh (and watermark) at one chunk boundary.
+
+    ``positions_int`` (n, 3) int64 grid coordinates and ``faces`` (m, 3) int64 are
+    copies (or views of the decoder's arrays when the decoder was made with
+    ``copy=False``; views are only valid until the next ``feed``).
+    """
+
+    chunk: int
+    chunks_total: int
+    bytes_read: int
+    vertices: int
+    faces_count: int
+    grid: Grid
+    positions_int: np.ndarray
+    faces: np.ndarray
+    watermark: np.ndarray | None = None
+    coefficients: int = 0
+    nc: float | None = None
+    psnr_db: float | None = None
+    centered_nc: float | None = None
+    code_match: float | None = None
+    carriers_read: int = 0
+
+    @property
+    def mesh(self) -> Mesh:
+        """The mesh at this level, positions dequantized to float64."""
+        return Mesh(self.grid.dequantize(self.positions_int), self.faces)
+
+    def as_json(self) -> dict:
+        return {
+            "chunk": self.chunk, "bytes_read": self.bytes_read, "vertices": self.vertices,
+            "faces": self.faces_count, "coefficients": self.coefficients,
+            "nc": self.nc, "psnr_db": self.psnr_db,
+        }
+
+
+@dataclass
+class StreamEnd:
+    complete: bool
+    bytes_read: int
+    total_length: int
+    chunks_applied: int
+    chunks_total: int
+
+    @property
+    def truncated(self) -> bool:
+        return not self.complete
+
+
+class StreamDecoder:
+    """Push decoder (see module docstring).
+
+    Parameters
+    ----------
+    key : WatermarkKey, optional
+        Needed to read the watermark.  A key whose fingerprint differs from the
+        file's raises :class:`WatermarkKeyError` as soon as the header is in.
+    reference : (s, s) uint8, optional
+        The original watermark, for NC/PSNR; defaults to the one in the key.
+    copy : bool
+        Copy the mesh arrays into every result (default) or hand out views.
+    max_chunks : int, optional
+        Stop applying chunks after this many (``decode --chunks N``).
+    check_key : bool
+        Refuse keys of other files (default).  Off only to measure false positives.
+    """
+
+    def __init__(self, key=None, reference=None, *, copy: bool = True, max_chunks: int | None = None,
+                 check_key: bool = True):
+        self._parser = ContainerParser()
+        self.key = key
+        self.reference = reference if reference is not None else getattr(key, "reference", None)
+        self.copy = copy
+        self.max_chunks = max_chunks
+        self.check_key = check_key
+        self.header: HeaderEvent | None = None
+        self.grid: Grid | None = None
+        self.state: MeshState | None = None
+        self.chunks_applied = 0
+        self.chunks_total = 0
+        self.watermark_params: wm.WatermarkParams | None = None
+        self.verifier: Verifier | None = None
+        self._batch_index = 0
+        self._closed = False
+        self.last: PartialResult | None = None
+
+    # -- push interface -------------------------------------------------------------
+    def feed(self, data) -> list:
+        """Consume bytes; return the :class:`PartialResult` objects that became available."""
+        if self._closed:
+            raise ValueError("StreamDecoder is single-use: it was already closed")
+        out = []
+        for event in self._parser.feed(data):
+            result = self._on_event(event)
+            if result is not None:
+                out.append(result)
+        return out
+
+    def close(self) -> StreamEnd:
+        """End the stream: complete or truncated.  Raises TruncatedError before the base is in."""
+        self._closed = True
+        end: EndEvent = self._parser.close()
+        return StreamEnd(end.complete, end.bytes_read, end.total_length, self.chunks_applied, end.chunk_count)
+
+    # -- events -----------------------------------------------------------------------
+    def _on_event(self, event):
+        if isinstance(event, HeaderEvent):
+            self._on_header(event)
+            return None
+        if isinstance(event, BaseEvent):
+            ext = self.header.extension
+            self.state = MeshState(event.positions_int, event.faces, int(ext["vertexCount"]), int(ext["faceCount"]))
+            if self.watermark_params is not None and self.key is not None:
+                nbar = wm.base_mean_edge(event.positions_int, event.faces)
+                self.verifier = Verifier(self.watermark_params, self.key, nbar, self.reference)
+            return self._result(0, event.bytes_read)
+        if isinstance(event, ChunkEvent):
+            if self.max_chunks is not None and self.chunks_applied >= self.max_chunks:
+                return None
+            for batch in unpack_batches(event.payload, max_splits=len(self.state.positions)):
+                topo = apply_batch(self.state, batch)
+                if self.verifier is not None:
+                    self.verifier.add(self._batch_index, self.state.positions[topo.u], topo.centroid())
+                self._batch_index += 1
+            self.chunks_applied += 1
+            meta = self.header.extension["chunks"][event.index]
+            if self.state.n != meta["vertexCount"] or self.state.m != meta["faceCount"]:
+                raise FormatError(f"chunk {event.index + 1}: vertex/face counts differ from its index entry")
+            return self._result(event.index + 1, event.bytes_read)
+        return None
+
+    def _on_header(self, event: HeaderEvent):
+        self.header = event
+        ext = event.extension
+        self.grid = Grid.from_config(ext["grid"])
+        self.chunks_total = event.chunk_count
+        payload = ext.get("payload", {"codec": "pmwm-vsplit", "version": 1})
+        if payload.get("codec") != "pmwm-vsplit" or int(payload.get("version", 0)) != 1:
+            raise FormatError(f"{EXTENSION_NAME}: unknown chunk payload codec {payload!r}")
+        if "watermark" in ext:
+            self.watermark_params = wm.WatermarkParams.from_config(ext["watermark"])
+            if self.key is not None and self.check_key:
+                fp = self.watermark_params.fingerprint
+                if fp and self.key.fingerprint() != fp:
+                    raise WatermarkKeyError("the key belongs to another file (its fingerprint differs from the file's)")
+        elif self.key is not None and self.check_key:
+            # an unmarked file: nothing to read, the verdict will say so
+            pass
+
+    def _result(self, chunk: int, bytes_read: int) -> PartialResult:
+        st = self.state
+        pos = st.positions[: st.n]
+        fac = st.faces[: st.m]
+        if self.copy:
+            pos, fac = pos.copy(), fac.copy()
+        r = PartialResult(chunk, self.chunks_total, bytes_read, st.n, st.m, self.grid, pos, fac)
+        if self.verifier is not None:
+            self.verifier.fill(r)
+        self.last = r
+        return r

@@ -1,0 +1,303 @@
+"""Embedding a wavelet-transformed watermark in the vertex splits, and reading it back.
+
+Contract
+--------
+Every vertex split creates a vertex ``u``; it is a *carrier*.  Its code is read
+from geometry alone (DESIGN.md §2, after Wagner 2000)::
+
+    d    = position(u) - ring_mean(u)          # ring mean as in progressive/vsplit.py
+    l    = scale * |d| / nbar                   # relative scale, nbar = base mean edge
+    code = floor(l) mod 2**bits
+
+``nbar`` is the mean edge length of the base mesh, which the watermark never
+moves, so codes are invariant to rotation, uniform scale and translation;
+``scale`` (the paper's ``c``) and ``bits`` are public and stored in the file.
+The encoder moves ``u`` along ``d`` to the *centre* of the nearest bin holding
+its code, on the integer grid the decoder sees (a small lattice search keeps
+the rounded point inside the bin), so our own file round trip is lossless for
+the watermark.  Collapses of one batch have disjoint 1-rings, so no carrier's
+ring holds another carrier of its batch (the paper's embedding dependency).
+
+Carriers are numbered in stream order: batch 0 (coarsest) first; inside batch
+``j`` of ``k`` splits, split ``i`` carries stream slot ``offset_j + perm_j[i]``
+with ``perm_j = key.permutation(j, k)`` -- secret, but never mixing batches, so
+a cut stream carries a *prefix* of the watermark stream (low frequencies first).
+
+Modes
+-----
+``exact`` (default)
+    Integer lifting Haar coefficients, packed with per-band bit widths
+    (:mod:`.payload`) into a bit stream, cycled to fill every carrier
+    (``bits`` bits each) and whitened with ``key.bits``; copies are voted.
+    The watermark comes back bit-exactly from the complete file.
+``paper``
+    One ``bits``-bit code per carrier (the paper's Eq. 4): the float Haar
+    coefficient ``w = round(coef * 2**(bits-9)) + 2**(bits-1)``, clipped; codes
+    repeat when carriers outnumber them (median of the copies).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import PmwError
+from . import haar
+from .payload import BitLayout, bits_from_symbols, pack, repeat_to_capacity, symbols, unpack, vote
+
+MODES = ("exact", "paper")
+#: Default code step (nbar / scale) in grid units, per mode.
+DEFAULT_STEP_UNITS = {"exact": 2.0, "paper": 2.5}
+DEFAULT_GRID_BITS = {"exact": 16, "paper": 22}
+MAX_BITS = 16
+
+_OFFSETS = np.stack(np.meshgrid([0, -1, 1], [0, -1, 1], [0, -1, 1], indexing="ij"), -1).reshape(-1, 3)
+
+
+class CapacityError(PmwError, ValueError):
+    """The mesh has too few vertex splits to carry the watermark."""
+
+
+@dataclass
+class WatermarkParams:
+    """Public watermark parameters (stored in the file's extension JSON)."""
+
+    mode: str
+    bits: int
+    scale: float
+    size: int
+    levels: int
+    codes: int  # exact: bits in one copy of the stream; paper: coefficients
+    carriers: int
+    layout: dict | None = None
+    fingerprint: str = ""
+
+    def get_config(self) -> dict:
+        cfg = {
+            "mode": self.mode, "bits": self.bits, "scale": self.scale, "width": self.size,
+            "height": self.size, "levels": self.levels, "codes": self.codes,
+            "carriers": self.carriers, "keyFingerprint": self.fingerprint,
+        }
+        if self.layout is not None:
+            cfg["layout"] = self.layout
+        return cfg
+
+    @classmethod
+    def from_config(cls, cfg: dict) -> "WatermarkParams":
+        from ..errors import FormatError
+
+        try:
+            p = cls(
+                mode=str(cfg["mode"]), bits=int(cfg["bits"]), scale=float(cfg["scale"]),
+                size=int(cfg["width"]), levels=int(cfg["levels"]), codes=int(cfg["codes"]),
+                carriers=int(cfg["carriers"]), layout=cfg.get("layout"),
+                fingerprint=str(cfg.get("keyFingerprint", "")),
+            )
+        except (KeyError, TypeError, ValueError):
+            raise FormatError("watermark parameters in the file are incomplete") from None
+        if p.mode not in MODES or not 1 <= p.bits <= MAX_BITS or not (p.scale > 0 and np.isfinite(p.scale)):
+            raise FormatError("watermark parameters in the file are out of range")
+        if p.size < 1 or p.size > 4096 or p.size & (p.size - 1) or p.codes < 0 or p.carriers < 0:
+            raise FormatError("watermark size or counts in the file are out of range")
+        return p
+
+
+def base_mean_edge(positions: np.ndarray, faces: np.ndarray) -> float:
+    """Mean undirected edge length of a mesh: positions (n, 3) float, faces (m, 3) int."""
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    e = np.unique(np.sort(e, axis=1), axis=0)
+    p = np.asarray(positions, np.float64)
+    return float(np.linalg.norm(p[e[:, 0]] - p[e[:, 1]], axis=1).mean())
+
+
+def relative_scale(points: np.ndarray, centroid: np.ndarray, nbar: float, scale: float) -> np.ndarray:
+    """(k,) float64 ``l = scale * |points - centroid| / nbar``."""
+    d = np.asarray(points, np.float64) - centroid
+    return scale * np.sqrt(np.einsum("ij,ij->i", d, d)) / nbar
+
+
+def read_codes(points, centroid, nbar, scale, bits) -> np.ndarray:
+    """(k,) int64 codes carried by vertices ``points`` (k, 3) with ring means ``centroid``."""
+    l = relative_scale(points, centroid, nbar, scale)
+    return np.floor(l).astype(np.int64) % (1 << bits)
+
+
+def place_codes(target, centroid, codes, nbar, scale, bits):
+    """Grid points (k, 3) int64 near ``target`` whose relative scale carries ``codes``.
+
+    Returns ``(points, ok)``: ``ok`` (k,) bool is False where no point of the
+    3x3x3 lattice neighbourhood lands in the code's bin (step below the grid).
+    """
+    target = np.asarray(target, np.int64)
+    d = target - centroid
+    length = np.sqrt(np.einsum("ij,ij->i", d, d))
+    direction = np.where(length[:, None] > 0, d / np.maximum(length, 1e-300)[:, None], np.array([0.0, 0.0, 1.0]))
+    period = float(1 << bits)
+    l = scale * length / nbar
+    t = np.round((l - codes - 0.5) / period)
+    want = period * t + codes + 0.5
+    want = np.where(want < 0.5, want + period, want)
+    ideal = centroid + direction * (want * nbar / scale)[:, None]
+    cand = np.rint(ideal).astype(np.int64)[:, None, :] + _OFFSETS[None]  # (k, 27, 3)
+    lc = scale * np.linalg.norm(cand - centroid[:, None, :], axis=2) / nbar
+    valid = (np.floor(lc).astype(np.int64) % (1 << bits)) == codes[:, None]
+    err = np.abs(lc - want[:, None]) + np.where(valid, 0.0, np.inf)
+    best = np.argmin(err, axis=1)
+    ok = np.isfinite(err[np.arange(len(best)), best])
+    return cand[np.arange(len(best)), best], ok
+
+
+def carrier_slots(key, batch_index: int, offset: int, k: int) -> np.ndarray:
+    """(k,) int64 stream slots carried by the k splits of one batch."""
+    return offset + key.permutation(batch_index, k)
+
+
+# --------------------------------------------------------------------------- encoder
+
+
+@dataclass
+class Embedder:
+    """The encoder's hook for :func:`~pmwm_codec.progressive.build.build_progressive`.
+
+    ``codes`` (carriers,) int64 is the code of every stream slot; ``nbar`` the
+    base mean edge in grid units.  Counts how many carriers got their code.
+    """
+
+    params: WatermarkParams
+    key: object
+    codes: np.ndarray
+    nbar: float
+    offset: int = 0
+    embedded: int = 0
+    failed: int = 0
+
+    def __call__(self, j, topo, target, state):
+        k = len(target)
+        slots = carrier_slots(self.key, j, self.offset, k)
+        self.offset += k
+        live = slots < len(self.codes)
+        out = np.array(target, dtype=np.int64, copy=True)
+        if live.any():
+            pts, ok = place_codes(
+                target[live], topo.centroid()[live], self.codes[slots[live]], self.nbar, self.params.scale, self.params.bits
+            )
+            out[live] = pts
+            self.embedded += int(ok.sum())
+            self.failed += int((~ok).sum())
+        return out
+
+
+def plan(image: np.ndarray, key, carriers: int, *, mode: str = "exact", bits: int | None = None,
+         nbar: float = 1.0, step_units: float | None = None) -> tuple[WatermarkParams, np.ndarray]:
+    """Choose parameters and the per-slot codes for embedding ``image`` (s, s) uint8.
+
+    Returns ``(params, codes (carriers,) int64)``.  Raises :class:`CapacityError`
+    when ``exact`` mode would need more than ``MAX_BITS`` bits per carrier.
+    """
+    if mode not in MODES:
+        raise ValueError(f"unknown watermark mode {mode!r}; expected one of {', '.join(MODES)}")
+    size = int(image.shape[0])
+    levels = haar.check_size(size, size.bit_length() - 1)
+    step = DEFAULT_STEP_UNITS[mode] if step_units is None else float(step_units)
+    scale = nbar / step
+    if carriers <= 0:
+        raise CapacityError("the mesh has no vertex splits to carry a watermark")
+    if mode == "exact":
+        stream = haar.to_stream(haar.forward_int(image, levels), levels)
+        layout = BitLayout.for_coefficients(stream, haar.bands(size, levels))
+        message = pack(stream, layout)
+        need = max(1, -(-len(message) // carriers))
+        b = need if bits is None else int(bits)
+        if b > MAX_BITS or b * carriers < len(message):
+            raise CapacityError(
+                f"a {size}x{size} watermark needs {len(message)} bits; this mesh has {carriers} vertex splits "
+                f"(at most {MAX_BITS} bits each{'' if bits is None else f', {b} requested'}): "
+                "use a smaller watermark image or a finer mesh"
+            )
+        cycled = repeat_to_capacity(message, b * carriers) ^ key.bits(0, b * carriers)
+        codes = symbols(cycled, b)
+        params = WatermarkParams("exact", b, scale, size, levels, len(message), carriers, layout.get_config())
+    else:
+        b = 12 if bits is None else int(bits)
+        if not 2 <= b <= MAX_BITS:
+            raise ValueError(f"paper mode needs 2..{MAX_BITS} bits per code, got {b}")
+        stream = haar.to_stream(haar.forward_float(image, levels), levels)
+        q = np.clip(np.round(stream * 2.0 ** (b - 9)) + 2 ** (b - 1), 0, 2**b - 1).astype(np.int64)
+        codes = q[np.arange(carriers) % len(q)]
+        params = WatermarkParams("paper", b, scale, size, levels, len(q), carriers, None)
+    params.fingerprint = key.fingerprint()
+    return params, codes
+
+
+# --------------------------------------------------------------------------- decoder
+
+
+@dataclass
+class Extractor:
+    """Reads codes batch by batch and rebuilds the partial watermark.
+
+    Call :meth:`add` after each batch is applied (with its split topology and the
+    decoder's positions), then :meth:`image` for the watermark so far.
+    """
+
+    params: WatermarkParams
+    key: object
+    nbar: float
+    received: np.ndarray = field(default=None)  # (carriers,) int64 codes, -1 unknown
+    offset: int = 0
+
+    def __post_init__(self):
+        self.received = np.full(self.params.carriers, -1, dtype=np.int64)
+
+    def add(self, j: int, points: np.ndarray, centroid: np.ndarray) -> None:
+        """Record the codes of batch ``j``: points (k, 3) and ring means (k, 3), same units."""
+        k = len(points)
+        slots = carrier_slots(self.key, j, self.offset, k)
+        self.offset += k
+        live = slots < len(self.received)
+        codes = read_codes(points[live], centroid[live], self.nbar, self.params.scale, self.params.bits)
+        self.received[slots[live]] = codes
+
+    @property
+    def carriers_read(self) -> int:
+        return int(np.count_nonzero(self.received >= 0))
+
+    def coefficients(self) -> tuple[np.ndarray, int]:
+        """The coefficient stream prefix recovered so far: ``(values, count)``."""
+        p = self.params
+        got = self.received >= 0
+        if p.mode == "exact":
+            b = p.bits
+            sym = np.where(got, self.received, 0)
+            raw = bits_from_symbols(sym, b, b * p.carriers) ^ self.key.bits(0, b * p.carriers)
+            known = np.repeat(got, b)
+            bits_, ok = vote(raw, known, p.codes)
+            prefix = int(np.argmin(ok)) if not ok.all() else len(ok)
+            layout = BitLayout.from_config(p.layout)
+            values, count = unpack(bits_[:prefix], layout)
+            return values, count
+        q = p.codes
+        slot_code = np.arange(p.carriers) % q
+        values = np.zeros(q, dtype=np.float64)
+        have = np.zeros(q, dtype=bool)
+        if got.any():
+            # median of the copies of each code
+            idx = slot_code[got]
+            vals = self.received[got].astype(np.float64)
+            order = np.lexsort((vals, idx))
+            idx, vals = idx[order], vals[order]
+            starts = np.flatnonzero(np.r_[True, idx[1:] != idx[:-1]])
+            counts = np.diff(np.r_[starts, len(idx)])
+            med = vals[starts + (counts - 1) // 2]
+            values[idx[starts]] = (med - 2 ** (p.bits - 1)) / 2.0 ** (p.bits - 9)
+            have[idx[starts]] = True
+        prefix = int(np.argmin(have)) if not have.all() else q
+        return values[:prefix], prefix
+
+    def image(self) -> tuple[np.ndarray, int]:
+        """(size, size) uint8 partial watermark and the number of coefficients it used."""
+        p = self.params
+        values, count = self.coefficients()
+        img = haar.reconstruct_prefix(values, p.size, p.levels, integer=(p.mode == "exact"))
+        return img, count
