@@ -33,7 +33,11 @@ class LimitError(FormatError):
 
 
 class ChecksumError(FormatError):
-    """A chunk whose digest does not match: corruption, not truncation."""
+    """A chunk whose digest does not match: corruption, not truncation.
+
+    ``chunk`` is the 0-based index into the extension's ``chunks`` array; messages
+    number chunks from 1 (chunk 0 is the base mesh), as ``pmw verify`` does.
+    """
 
     def __init__(self, message, chunk=None):
         super().__init__(message)

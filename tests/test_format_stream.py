@@ -95,7 +95,7 @@ def test_a_flipped_bit_inside_a_chunk_raises_checksum_error_naming_it(data):
                 with pytest.raises(ChecksumError) as info:
                     list(iter_events(bytes(corrupt)))
                 assert info.value.chunk == k
-                assert f"chunk {k}" in str(info.value)
+                assert f"chunk {k + 1}" in str(info.value)
 
 
 def test_chunks_before_the_corrupt_one_are_still_delivered():

@@ -201,7 +201,7 @@ def _plan(gltf: dict, ext: dict, bin_capacity: int) -> _Plan:
     ranges = []
     previous_end = base_end
     for k, chunk in enumerate(chunks):
-        what = f"{EXTENSION_NAME}: chunk {k}"
+        what = f"{EXTENSION_NAME}: chunks[{k}]"
         if chunk["byteLength"] > MAX_CHUNK_BYTES:
             raise LimitError(f"{what}: byteLength {chunk['byteLength']} exceeds the limit {MAX_CHUNK_BYTES}")
         if chunk["uncompressedLength"] > MAX_DECOMPRESSED_CHUNK_BYTES:
@@ -430,25 +430,25 @@ def _load_json(text: bytes):
 def _open_chunk(k: int, stored: bytes, meta: dict) -> bytes:
     """Digest-check and decompress chunk ``k``; return the raw payload."""
     if digest(stored) != meta["digest"]:
-        raise ChecksumError(f"chunk {k}: digest mismatch, the stored bytes are corrupt", chunk=k)
+        raise ChecksumError(f"chunk {k + 1}: digest mismatch, the stored bytes are corrupt", chunk=k)
     declared = meta["uncompressedLength"]
     try:
         params = zstandard.get_frame_parameters(stored)
     except zstandard.ZstdError as exc:
-        raise FormatError(f"chunk {k}: not a zstd frame ({exc})") from None
+        raise FormatError(f"chunk {k + 1}: not a zstd frame ({exc})") from None
     if params.content_size == zstandard.CONTENTSIZE_UNKNOWN:
-        raise FormatError(f"chunk {k}: zstd frame does not declare its content size")
+        raise FormatError(f"chunk {k + 1}: zstd frame does not declare its content size")
     if params.content_size != declared:
-        raise FormatError(f"chunk {k}: zstd frame content size {params.content_size} differs from uncompressedLength {declared}")
+        raise FormatError(f"chunk {k + 1}: zstd frame content size {params.content_size} differs from uncompressedLength {declared}")
     if not params.has_checksum:
-        raise FormatError(f"chunk {k}: zstd frame has no content checksum")
+        raise FormatError(f"chunk {k + 1}: zstd frame has no content checksum")
     dobj = zstandard.ZstdDecompressor().decompressobj(write_size=max(1, min(declared, 1 << 20)))
     try:
         payload = dobj.decompress(stored)
     except zstandard.ZstdError as exc:
-        raise FormatError(f"chunk {k}: zstd frame does not decompress ({exc})") from None
+        raise FormatError(f"chunk {k + 1}: zstd frame does not decompress ({exc})") from None
     if not dobj.eof or dobj.unused_data or len(payload) != declared:
-        raise FormatError(f"chunk {k}: zstd frame is incomplete, has trailing bytes, or differs from uncompressedLength {declared}")
+        raise FormatError(f"chunk {k + 1}: zstd frame is incomplete, has trailing bytes, or differs from uncompressedLength {declared}")
     return payload
 
 

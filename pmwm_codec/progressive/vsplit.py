@@ -62,17 +62,18 @@ class MeshState:
     Attributes
     ----------
     positions : (N, 3) int64
-        Grid positions; rows ``[:n]`` are valid.
+        Grid positions; rows ``[:n]`` are valid.  (float64 when the state only
+        replays connectivity over positions taken from elsewhere.)
     faces : (M, 3) int64
         Triangles; rows ``[:m]`` are valid.
     """
 
-    def __init__(self, base_positions, base_faces, vertex_capacity, face_capacity):
+    def __init__(self, base_positions, base_faces, vertex_capacity, face_capacity, dtype=np.int64):
         n0 = len(base_positions)
         m0 = len(base_faces)
         if vertex_capacity < n0 or face_capacity < m0:
             raise FormatError("declared full-resolution counts are smaller than the base mesh")
-        self.positions = np.empty((vertex_capacity, 3), dtype=np.int64)
+        self.positions = np.empty((vertex_capacity, 3), dtype=dtype)
         self.faces = np.empty((face_capacity, 3), dtype=np.int64)
         self.positions[:n0] = base_positions
         self.faces[:m0] = base_faces

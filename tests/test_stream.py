@@ -1,0 +1,157 @@
+"""The whole pipeline: encode -> .pmw -> push/pull decode, whole, cut, fed in any blocks."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+import pmwm_codec
+from pmwm_codec import shapes
+from pmwm_codec.errors import ChecksumError, TruncatedError
+from pmwm_codec.progressive.grid import Grid
+from pmwm_codec.stream import StreamDecoder, encode_mesh, iter_results
+from pmwm_codec.progressive.topology import face_keys
+
+
+def small_mesh():
+    return shapes.components(shapes.icosphere(3, 1.0, noise=0.04), shapes.grid(14, 12, hole=True))
+
+
+@pytest.fixture(scope="module", params=["draco", "plain"])
+def encoded(request):
+    mesh = small_mesh()
+    buf = io.BytesIO()
+    report = encode_mesh(mesh, buf, base_codec=request.param, min_chunk_splits=40, measure=False)
+    return mesh, buf.getvalue(), report
+
+
+def all_results(data, **kw):
+    dec = StreamDecoder(**kw)
+    out = dec.feed(data)
+    end = dec.close()
+    return out, end
+
+
+def same_mesh_up_to_renumbering(a_pos, a_faces, b_pos, b_faces):
+    """Equal oriented faces and positions after matching vertices by position."""
+    ka = np.lexsort(a_pos.T[::-1])
+    kb = np.lexsort(b_pos.T[::-1])
+    if not np.allclose(a_pos[ka], b_pos[kb]):
+        return False
+    ra = np.empty(len(ka), np.int64)
+    ra[ka] = np.arange(len(ka))
+    rb = np.empty(len(kb), np.int64)
+    rb[kb] = np.arange(len(kb))
+    fa = face_keys(ra[a_faces])
+    fb = face_keys(rb[b_faces])
+    fa = fa[np.lexsort(fa.T[::-1])]
+    fb = fb[np.lexsort(fb.T[::-1])]
+    return np.array_equal(fa, fb)
+
+
+def test_decoding_the_whole_file_gives_the_input_mesh_within_one_grid_step(encoded):
+    mesh, data, _ = encoded
+    out = pmwm_codec.decode(data)
+    assert out.vertex_count == mesh.vertex_count and out.face_count == mesh.face_count
+    grid = Grid.fit(mesh.positions, 16)
+    # positions: every input vertex has a decoded vertex within half a grid step per axis
+    q_in = grid.quantize(mesh.positions)
+    q_out = grid.quantize(out.positions)
+    assert same_mesh_up_to_renumbering(q_in.astype(float), mesh.faces, q_out.astype(float), out.faces)
+    assert np.abs(grid.dequantize(q_in) - mesh.positions).max() <= grid.step
+
+
+def test_results_arrive_base_first_then_one_per_chunk_in_order(encoded):
+    _, data, report = encoded
+    results, end = all_results(data)
+    assert [r.chunk for r in results] == list(range(report.chunks + 1))
+    assert end.complete and not end.truncated
+    assert results[-1].vertices == report.vertices
+    assert all(a.bytes_read < b.bytes_read for a, b in zip(results, results[1:]))
+
+
+def test_every_cut_yields_exactly_the_chunks_inside_it(encoded):
+    _, data, _ = encoded
+    full, _ = all_results(data)
+    ends = [r.bytes_read for r in full]
+    cuts = sorted(set(range(0, len(data) + 1, 97)) | {e + d for e in ends for d in (-1, 0, 1)} | {len(data)})
+    for cut in cuts:
+        if cut < 0 or cut > len(data):
+            continue
+        dec = StreamDecoder()
+        if cut < ends[0]:
+            dec.feed(data[:cut])
+            with pytest.raises(TruncatedError):
+                dec.close()
+            continue
+        got = dec.feed(data[:cut])
+        end = dec.close()
+        want = [r for r in full if r.bytes_read <= cut]
+        assert [r.chunk for r in got] == [r.chunk for r in want]
+        assert end.truncated == (cut < len(data))
+        for g, w in zip(got, want):
+            assert np.array_equal(g.positions_int, w.positions_int) and np.array_equal(g.faces, w.faces)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.integers(1, 4000), min_size=1, max_size=40))
+def test_any_block_sizes_give_the_same_results(sizes):
+    mesh = small_mesh()
+    data = _cached_small_file()
+    full, _ = all_results(data)
+    dec = StreamDecoder()
+    got, pos, i = [], 0, 0
+    while pos < len(data):
+        step = sizes[i % len(sizes)]
+        got += dec.feed(data[pos : pos + step])
+        pos += step
+        i += 1
+    assert dec.close().complete
+    assert [r.chunk for r in got] == [r.chunk for r in full]
+    assert all(np.array_equal(a.faces, b.faces) for a, b in zip(got, full))
+
+
+_SMALL = {}
+
+
+def _cached_small_file():
+    if "data" not in _SMALL:
+        buf = io.BytesIO()
+        encode_mesh(small_mesh(), buf, min_chunk_splits=40, measure=False)
+        _SMALL["data"] = buf.getvalue()
+    return _SMALL["data"]
+
+
+def test_pull_wrappers_agree_with_the_push_decoder(encoded, tmp_path):
+    _, data, _ = encoded
+    path = tmp_path / "m.pmw"
+    path.write_bytes(data)
+    full, _ = all_results(data)
+    for source in (str(path), data, io.BytesIO(data), [data[i : i + 333] for i in range(0, len(data), 333)]):
+        got = list(pmwm_codec.iter_decode(source))
+        assert [r.chunk for r in got] == [r.chunk for r in full]
+        assert np.array_equal(got[-1].faces, full[-1].faces)
+
+
+def test_a_flipped_bit_in_a_chunk_is_reported_as_corruption_of_that_chunk(encoded):
+    _, data, _ = encoded
+    full, _ = all_results(data)
+    # flip a bit in the middle of chunk 2's bytes
+    start, stop = full[1].bytes_read, full[2].bytes_read
+    bad = bytearray(data)
+    bad[(start + stop) // 2] ^= 0x10
+    dec = StreamDecoder()
+    with pytest.raises(ChecksumError) as err:
+        dec.feed(bytes(bad))
+        dec.close()
+    assert "2" in str(err.value)
+
+
+def test_decode_chunks_stops_after_n_chunks(encoded):
+    _, data, _ = encoded
+    full, _ = all_results(data)
+    m = pmwm_codec.decode(data, chunks=2)
+    assert m.vertex_count == full[2].vertices and m.face_count == full[2].faces_count
