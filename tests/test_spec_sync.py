@@ -16,7 +16,7 @@ from pmwm_codec.format.extension import SCHEMA_DIR
 
 SPEC = Path(__file__).resolve().parents[1] / "spec"
 NAME = constants.EXTENSION_NAME
-TYPE_SIZES = {"uint32": 4, "char[4]": 4}
+TYPE_SIZES = {"uint8": 1, "uint32": 4, "char[4]": 4}
 
 
 def _tagged_tables(text):
@@ -50,8 +50,14 @@ def test_bitstream_tables_match_layout_structs():
             assert TYPE_SIZES[type_] == size, (name, field)
 
 
-def test_bitstream_has_the_chunk_payload_section_for_the_lead():
-    assert "## 6. Chunk payload (vertex-split records)" in (SPEC / "bitstream.md").read_text()
+def test_bitstream_payload_columns_are_the_columns_the_code_writes():
+    from pmwm_codec.format.records import COLUMNS
+
+    text = (SPEC / "bitstream.md").read_text()
+    section = text[text.index("## 6. Chunk payload") :]
+    named = re.findall(r"^\| `(\w+)`(?:, `(\w+)`)?(?:, `(\w+)`)? \| ", section, re.M)
+    columns = [c for row in named for c in row if c and c not in ("batch_count", "split_count", "incidence_count", "width")]
+    assert columns == list(COLUMNS)
 
 
 def test_readme_limits_table_matches_constants():
@@ -132,4 +138,4 @@ def test_worked_example_is_what_the_writer_produces_today():
     example = json.loads((SPEC / "examples" / "icosphere-plain.gltf.json").read_text())
     if read_header(data).gltf_json != example:
         pytest.skip("worked example was generated with another zstd build; regenerate spec/examples if the writer changed")
-    assert len(data) == 2440
+    assert len(data) == 2512

@@ -66,6 +66,7 @@ def sample_pmw(codec: str = "plain", chunk_count: int = 3, subdivisions: int = 1
             for k in range(len(payloads))]
     extension = {"grid": grid, "vertexCount": base.vertex_count + 10 * len(payloads),
                  "faceCount": base.face_count + 20 * len(payloads),
-                 "watermark": {"mode": "test", "bits": 2}}
+                 "watermark": {"mode": "exact", "bits": 2, "scale": 10.0, "width": 16, "height": 16,
+                               "levels": 4, "codes": 40, "carriers": 30}}
     data = build_pmw(base=base, chunks=payloads, chunk_meta=meta, extension=extension)
     return data, base, payloads, extension

@@ -18,7 +18,7 @@ All integers are little-endian.
 
 from __future__ import annotations
 
-from construct import Bytes, Const, Int32ul, Struct
+from construct import Bytes, Const, Int8ul, Int32ul, Struct
 
 #: GLB magic, the ASCII bytes ``glTF``.
 GLB_MAGIC = b"glTF"
@@ -52,8 +52,32 @@ CHUNK_HEADER_SIZE = ChunkHeader.sizeof()  # 8
 #: A reader knows the JSON length after this many bytes (header + JSON chunk header).
 PREAMBLE_SIZE = GLB_HEADER_SIZE + CHUNK_HEADER_SIZE  # 20
 
+# --- chunk payload (the decompressed content of one chunk; see format/records.py) -------
+
+RecordsHeader = Struct(
+    "batch_count" / Int32ul,
+)
+"""Chunk payload header: number of split batches in the chunk."""
+
+BatchEntry = Struct(
+    "split_count" / Int32ul,
+    "incidence_count" / Int32ul,
+)
+"""One row of the batch table that follows the records header (``batch_count`` rows)."""
+
+ColumnHeader = Struct(
+    "width" / Int8ul,
+)
+"""Opens every payload column: bytes per value (1, 2, 4 or 8); byte planes follow."""
+
 #: Every Struct the spec documents, by the name its table is tagged with.
-STRUCTS = {"GlbHeader": GlbHeader, "ChunkHeader": ChunkHeader}
+STRUCTS = {
+    "GlbHeader": GlbHeader,
+    "ChunkHeader": ChunkHeader,
+    "RecordsHeader": RecordsHeader,
+    "BatchEntry": BatchEntry,
+    "ColumnHeader": ColumnHeader,
+}
 
 
 def padded(length: int, alignment: int = ALIGNMENT) -> int:

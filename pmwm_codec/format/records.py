@@ -1,8 +1,8 @@
 """Chunk payload: a run of :class:`~pmwm_codec.progressive.vsplit.SplitBatch` <-> bytes.
 
 This is the raw (uncompressed) payload of one chunk; the container wraps it in
-its own zstd frame and digest.  Layout (all little-endian; spec/bitstream.md
-"Chunk payload" mirrors this table and a test compares the two)::
+its own zstd frame and digest.  Layout (all little-endian; the structs live in
+:mod:`.layout`, spec/bitstream.md §6 mirrors them and a test compares the two)::
 
     RecordsHeader       batch_count : uint32
     BatchTable          batch_count x (split_count : uint32, incidence_count : uint32)
@@ -12,7 +12,7 @@ its own zstd frame and digest.  Layout (all little-endian; spec/bitstream.md
     Column "residual_y"  > zigzag-coded residuals, sum(split_count) values each
     Column "residual_z" /
 
-A column is ``width : uint8`` (1, 2, 4 or 8 bytes per value) followed by the
+A column is a ``ColumnHeader`` (``width : uint8``, 1, 2, 4 or 8 bytes per value) followed by the
 values split into byte planes (all low bytes, then the next byte of every
 value, ...), which lets zstd see the mostly-zero high bytes as long runs.
 Gaps are ``v[0]`` then ``v[i] - v[i-1] - 1`` per batch (v strictly increasing).
@@ -24,15 +24,13 @@ to their entropy than with one byte per symbol.
 from __future__ import annotations
 
 import numpy as np
-from construct import Int32ul, Struct
-
 from ..constants import MAX_VERTICES
 from ..errors import FormatError, LimitError
 from ..progressive.vsplit import SYMBOL_COUNT, SplitBatch
+from .layout import BatchEntry, ColumnHeader, RecordsHeader
 
-RecordsHeader = Struct("batch_count" / Int32ul)
-#: One row of the batch table.
-BATCH_TABLE_DTYPE = np.dtype([("split_count", "<u4"), ("incidence_count", "<u4")])
+#: One row of the batch table, as a numpy dtype mirroring :data:`layout.BatchEntry`.
+BATCH_TABLE_DTYPE = np.dtype([(sub.name, "<u4") for sub in BatchEntry.subcons])
 COLUMNS = ("gaps", "symbols", "residual_x", "residual_y", "residual_z")
 MAX_BATCHES_PER_CHUNK = 4096
 _WIDTHS = (1, 2, 4, 8)
@@ -55,7 +53,7 @@ def _pack_column(values: np.ndarray) -> bytes:
     top = int(values.max()) if len(values) else 0
     width = next(w for w in _WIDTHS if top < (1 << (8 * w)))
     le = values.astype(f"<u{width}").view(np.uint8).reshape(-1, width)
-    return bytes([width]) + np.ascontiguousarray(le.T).tobytes()
+    return ColumnHeader.build({"width": width}) + np.ascontiguousarray(le.T).tobytes()
 
 
 def _unpack_column(buf: memoryview, offset: int, count: int, name: str):
