@@ -44,3 +44,17 @@ GENERATED = {
 def generated_mesh(request):
     """Each of the generated test meshes (closed, open, multi-part, non-manifold)."""
     return request.param, GENERATED[request.param]()
+
+
+def pytest_addoption(parser):
+    parser.addoption(
+        "--update-golden",
+        action="store_true",
+        default=False,
+        help="rewrite the conformance files in spec/conformance/ (only after a deliberate format change)",
+    )
+
+
+@pytest.fixture
+def update_golden(request):
+    return request.config.getoption("--update-golden")

@@ -1,0 +1,115 @@
+"""Conformance files: small .pmw files written once, committed, and decoded forever.
+
+Each ``spec/conformance/<name>.v<FORMAT_VERSION>.pmw`` has a ``.expected.npz`` beside it with the
+mesh at every chunk boundary (and, for marked files, a ``.key.json`` and the watermark).  A
+change that alters how these files decode breaks the format: bump FORMAT_VERSION, then
+regenerate with ``python -m pytest tests/test_golden.py --update-golden``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pmwm_codec import shapes
+from pmwm_codec.constants import FORMAT_VERSION
+from pmwm_codec.stream import StreamDecoder, encode_mesh
+from pmwm_codec.watermark.key import WatermarkKey
+
+CONFORMANCE = Path(__file__).resolve().parents[1] / "spec" / "conformance"
+
+
+def _stripes(size=16):
+    y, x = np.mgrid[0:size, 0:size]
+    return (((x // 2 + y // 4) % 2) * 180 + 40).astype(np.uint8)
+
+
+CASES = {
+    "grid-hole.plain": lambda: dict(mesh=shapes.grid(12, 10, hole=True), base_codec="plain"),
+    "two-parts.draco": lambda: dict(
+        mesh=shapes.components(shapes.icosphere(2, 0.8, noise=0.05), shapes.torus(16, 8)), base_codec="draco"
+    ),
+    "sphere.exact-watermark": lambda: dict(
+        mesh=shapes.icosphere(4, 1.2, noise=0.02), base_codec="draco", watermark=_stripes(16),
+        key=WatermarkKey.generate(rng=np.random.default_rng(2024)),
+    ),
+}
+
+
+def _path(name, suffix):
+    return CONFORMANCE / f"{name}.v{FORMAT_VERSION}{suffix}"
+
+
+def _decode(data, key=None):
+    dec = StreamDecoder(key)
+    results = dec.feed(data)
+    end = dec.close()
+    return results, end
+
+
+def _level_digest(r) -> str:
+    h = hashlib.sha256()
+    h.update(np.ascontiguousarray(r.positions_int, dtype="<i8").tobytes())
+    h.update(np.ascontiguousarray(r.faces, dtype="<i8").tobytes())
+    return h.hexdigest()
+
+
+def _expected_arrays(results):
+    """Final mesh in full; every level by counts and a SHA-256 of its arrays; watermarks in full."""
+    out = {
+        "chunk_bytes": np.array([r.bytes_read for r in results]),
+        "counts": np.array([(r.vertices, r.faces_count) for r in results]),
+        "level_sha256": np.array([_level_digest(r) for r in results]),
+        "final_positions": results[-1].positions_int,
+        "final_faces": results[-1].faces,
+    }
+    for r in results:
+        if r.watermark is not None:
+            out[f"watermark_{r.chunk}"] = r.watermark
+    return out
+
+
+def _write(name):
+    case = CASES[name]()
+    mesh = case.pop("mesh")
+    key = case.get("key")
+    buf = io.BytesIO()
+    encode_mesh(mesh, buf, min_chunk_splits=30, measure=False, **case)
+    data = buf.getvalue()
+    CONFORMANCE.mkdir(parents=True, exist_ok=True)
+    _path(name, ".pmw").write_bytes(data)
+    if key is not None:
+        key.save(_path(name, ".key.json"))
+    results, _ = _decode(data, key)
+    np.savez_compressed(_path(name, ".expected.npz"), **_expected_arrays(results))
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_conformance_file_decodes_to_its_expected_levels(name, update_golden):
+    if update_golden:
+        _write(name)
+    pmw = _path(name, ".pmw")
+    if not pmw.exists():
+        pytest.fail(f"{pmw.name} is missing; generate it with: python -m pytest tests/test_golden.py --update-golden")
+    key_path = _path(name, ".key.json")
+    key = WatermarkKey.load(key_path) if key_path.exists() else None
+    results, end = _decode(pmw.read_bytes(), key)
+    assert end.complete
+    with np.load(_path(name, ".expected.npz")) as expected:
+        want = dict(expected)
+    assert [r.bytes_read for r in results] == want["chunk_bytes"].tolist(), (
+        "decoding changed: if the format changed on purpose, bump FORMAT_VERSION and run with --update-golden"
+    )
+    assert [[r.vertices, r.faces_count] for r in results] == want["counts"].tolist()
+    assert np.array_equal(results[-1].positions_int, want["final_positions"])
+    assert np.array_equal(results[-1].faces, want["final_faces"])
+    for r in results:
+        assert _level_digest(r) == want["level_sha256"][r.chunk]
+        if f"watermark_{r.chunk}" in want:
+            assert np.array_equal(r.watermark, want[f"watermark_{r.chunk}"])
+    if key is not None:
+        assert np.array_equal(results[-1].watermark, key.reference)
