@@ -247,25 +247,31 @@ def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget):
     cu, cv, ce = cu[keep], cv[keep], ce[keep]
     if len(cu) == 0:
         return None
-    cost = quadric_error(Q[cu] + Q[cv], P[cv])
+    # (Q_u + Q_v)(p_v) = Q_u(p_v) + Q_v(p_v); the second term is one value per vertex
+    cost = quadric_error(Q[cu], P[cv]) + quadric_error(Q, P)[cv]
 
-    # the TRIES cheapest candidates per u, tested; then the cheapest legal one per u
-    order = np.argsort(cost, kind="stable")
-    order = order[np.argsort(cu[order], kind="stable")]  # grouped by u, cheapest first
-    cu_o = cu[order]
-    group_start = np.flatnonzero(np.r_[True, cu_o[1:] != cu_o[:-1]])
-    rank_in_u = np.arange(len(order)) - np.repeat(group_start, np.diff(np.r_[group_start, len(order)]))
-    pick = order[rank_in_u < TRIES]
-    cu, cv, ce, cost = cu[pick], cv[pick], ce[pick], cost[pick]
+    # candidates grouped by u, cheapest first; each u offers up to TRIES of them
+    crank = np.empty(len(cost), dtype=np.int64)
+    crank[np.argsort(cost)] = np.arange(len(cost))
+    order = np.argsort(cu * len(cost) + crank)
+    cu, cv, ce, cost = cu[order], cv[order], ce[order], cost[order]
+    new_group = np.r_[True, cu[1:] != cu[:-1]]
+    group_start = np.flatnonzero(new_group)
+    rank_in_u = np.arange(len(cu)) - np.repeat(group_start, np.diff(np.r_[group_start, len(cu)]))
+    keep = rank_in_u < TRIES
+    cu, cv, ce, cost = cu[keep], cv[keep], ce[keep], cost[keep]
 
-    legal = _legal(cu, cv, ce, et, F, P, src, dst, opp, fcount, n)
-    cu, cv, ce, cost = cu[legal], cv[legal], ce[legal], cost[legal]
-    if len(cu) == 0:
+    nb_src = np.concatenate([et.lo, et.hi])
+    nb_dst = np.concatenate([et.hi, et.lo])
+    vv = csr(nb_src, nb_dst, n)  # vertex -> neighbours
+    vf = csr(F.ravel(), np.repeat(np.arange(m), 3), n)  # vertex -> faces
+
+    def legal(idx):
+        return _legal(cu[idx], cv[idx], ce[idx], et, F, P, opp, fcount, vv, vf)
+
+    win = _select(cu, cost, legal, vv, n)
+    if len(win) == 0:
         return None
-    first = np.flatnonzero(np.r_[True, cu[1:] != cu[:-1]])  # still grouped by u, cheapest first
-    cu, cv, ce, cost = cu[first], cv[first], ce[first], cost[first]
-
-    win = _independent(cu, cost, et, n)
     if len(win) > budget:
         win = win[np.argsort(cost[win], kind="stable")[:budget]]
     win = np.sort(win)
@@ -290,7 +296,7 @@ def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget):
     wing_right = np.where(rev0, w0, np.where(rev1, w1, -1))
 
     # moved faces: faces of u that do not contain v
-    vf_start, vf_face = csr(F.ravel(), np.repeat(np.arange(m), 3), n)
+    vf_start, vf_face = vf
     owner, p = expand(vf_start, cu)
     face = vf_face[p]
     has_v = (F[face] == cv[owner][:, None]).any(axis=1)
@@ -308,16 +314,13 @@ def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget):
     )
 
 
-def _legal(cu, cv, ce, et, F, P, src, dst, opp, fcount, n):
+def _legal(cu, cv, ce, et, F, P, opp, fcount, vv, vf):
     """Boolean mask (k,) of candidate collapses ``cu -> cv`` on edge ``ce`` that are legal."""
     k = len(cu)
     ok = np.ones(k, dtype=bool)
-    m = len(F)
 
     # link condition: |N(u) ∩ N(v)| == faces on uv
-    nb_src = np.concatenate([et.lo, et.hi])
-    nb_dst = np.concatenate([et.hi, et.lo])
-    vv_start, vv_nbr = csr(nb_src, nb_dst, n)
+    vv_start, vv_nbr = vv
     owner, p = expand(vv_start, cu)
     x = vv_nbr[p]
     common = np.bincount(owner, weights=(et.find(cv[owner], x) >= 0), minlength=k)
@@ -334,7 +337,7 @@ def _legal(cu, cv, ce, et, F, P, src, dst, opp, fcount, n):
     ok &= fcount[cu] > et.count[ce]
 
     # moved faces: no flip, no degenerate result, no duplicate
-    vf_start, vf_face = csr(F.ravel(), np.repeat(np.arange(m), 3), n)
+    vf_start, vf_face = vf
     owner, p = expand(vf_start, cu)
     face = vf_face[p]
     tri = F[face]
@@ -371,53 +374,70 @@ def _normals(P, tri):
     return np.cross(b - a, c - a)
 
 
-def _independent(cu, cost, et, n, rounds: int = 6):
-    """Indices into ``cu`` of a set of collapses whose closed 1-rings are disjoint.
+def _select(cu, cost, legal, vv, n, rounds: int = 5):
+    """Indices of a set of legal collapses whose closed 1-rings are disjoint.
 
-    A candidate wins a round when its cost rank is the lowest in its 2-ring;
-    winners block every candidate within distance 2; repeat for ``rounds``.
+    ``cu`` (c,) is grouped by vertex, cheapest candidate first.  Each round every
+    vertex still in play offers its current candidate; an offer wins when its cost
+    rank is the lowest in its 2-ring (so no two winners are within distance 2).
+    Only winners are tested with ``legal`` (the expensive part); legal winners
+    block their 2-ring, illegal ones fall back to the vertex's next candidate.
     """
-    k = len(cu)
-    # Rank by cost, but only to within a factor of ~1.4: ties inside a bucket are
-    # broken by a fixed pseudo-random order, otherwise smooth cost fields (flat
-    # CAD regions, all zero) let only a few local minima win each round.
-    bucket = np.floor(2.0 * np.log2(cost + 1e-12 + 1e-9 * float(cost.max(initial=0.0))))
-    shuffle = np.random.default_rng(len(cu)).permutation(k)
-    rank = np.empty(k, dtype=np.int64)
-    rank[np.lexsort((shuffle, bucket))] = np.arange(k)
-    big = np.int64(k + 1)
-    nb_src = np.concatenate([et.lo, et.hi])
-    nb_dst = np.concatenate([et.hi, et.lo])
-    vv_start, vv_nbr = csr(nb_src, nb_dst, n)
+    c = len(cu)
+    # Rank by cost only to within a factor of ~1.4: ties inside a bucket are broken
+    # by a fixed pseudo-random order, otherwise smooth cost fields (flat CAD
+    # regions, all zero) let only a few local minima win each round.
+    bucket = np.floor(2.0 * np.log2(cost + 1e-12 + 1e-9 * float(cost.max(initial=0.0)))).astype(np.int64)
+    bucket -= bucket.min(initial=0)
+    shuffle = np.random.default_rng(c).permutation(c)
+    rank = np.empty(c, dtype=np.int64)
+    rank[np.argsort(bucket * c + shuffle)] = np.arange(c)
+    big = np.int64(c + 1)
+
+    starts = np.flatnonzero(np.r_[True, cu[1:] != cu[:-1]])
+    ends = np.r_[starts[1:], c]
+    front = starts.copy()  # current candidate of every vertex group
+    in_play = np.ones(len(starts), dtype=bool)
+
+    vv_start, vv_nbr = vv
     has_nb = vv_start[1:] > vv_start[:-1]
     seg = vv_start[:-1][has_nb]
 
     def ring_min(values):
         out = values.copy()
-        red = np.minimum.reduceat(values[vv_nbr], seg) if len(seg) else values[:0]
-        out[has_nb] = np.minimum(out[has_nb], red)
+        if len(seg):
+            out[has_nb] = np.minimum(out[has_nb], np.minimum.reduceat(values[vv_nbr], seg))
         return out
 
     def ring_any(flags):
         out = flags.copy()
-        red = np.maximum.reduceat(flags[vv_nbr].astype(np.int8), seg).astype(bool) if len(seg) else flags[:0]
-        out[has_nb] |= red
+        if len(seg):
+            out[has_nb] |= np.maximum.reduceat(flags[vv_nbr].astype(np.int8), seg).astype(bool)
         return out
 
-    active = np.ones(k, dtype=bool)
-    chosen = np.zeros(k, dtype=bool)
+    chosen = []
     for _ in range(rounds):
+        groups = np.flatnonzero(in_play)
+        if len(groups) == 0:
+            break
+        offer = front[groups]
         vr = np.full(n, big, dtype=np.int64)
-        vr[cu[active]] = rank[active]
+        vr[cu[offer]] = rank[offer]
         m2 = ring_min(ring_min(vr))
-        won = active & (m2[cu] == rank)
+        won = m2[cu[offer]] == rank[offer]
         if not won.any():
             break
-        chosen |= won
+        wg, wo = groups[won], offer[won]
+        ok = legal(wo)
+        good = wo[ok]
+        chosen.append(good)
+        # illegal winners try their next candidate (or leave play)
+        bad = wg[~ok]
+        front[bad] += 1
+        in_play[bad[front[bad] >= ends[bad]]] = False
+        # legal winners block everything within distance 2
         mark = np.zeros(n, dtype=bool)
-        mark[cu[won]] = True
+        mark[cu[good]] = True
         blocked = ring_any(ring_any(mark))
-        active &= ~blocked[cu]
-        if not active.any():
-            break
-    return np.flatnonzero(chosen)
+        in_play &= ~blocked[cu[starts]]
+    return np.concatenate(chosen) if chosen else np.zeros(0, dtype=np.int64)
