@@ -9,8 +9,10 @@ its own zstd frame and digest.  Layout (all little-endian; the structs live in
     Column "gaps"       split vertex gaps, sum(split_count) values
     Column "symbols"    incidence symbols, three per value (base 5), ceil(sum(incidence_count) / 3) values
     Column "residual_x" \\
-    Column "residual_y"  > zigzag-coded residuals, sum(split_count) values each
+    Column "residual_y"  > zigzag-coded position residuals, sum(split_count) values each
     Column "residual_z" /
+    Column "attribute_0" ... one more residual column per attribute component
+                         (D - 3 of them, D given by the caller / the extension JSON)
 
 A column is a ``ColumnHeader`` (``width : uint8``, 1, 2, 4 or 8 bytes per value) followed by the
 values split into byte planes (all low bytes, then the next byte of every
@@ -32,6 +34,8 @@ from .layout import BatchEntry, ColumnHeader, RecordsHeader
 #: One row of the batch table, as a numpy dtype mirroring :data:`layout.BatchEntry`.
 BATCH_TABLE_DTYPE = np.dtype([(sub.name, "<u4") for sub in BatchEntry.subcons])
 COLUMNS = ("gaps", "symbols", "residual_x", "residual_y", "residual_z")
+#: Name of the attribute residual column j (after the COLUMNS).
+ATTRIBUTE_COLUMN = "attribute_{}"
 MAX_BATCHES_PER_CHUNK = 4096
 _WIDTHS = (1, 2, 4, 8)
 
@@ -94,13 +98,15 @@ def pack_batches(batches) -> bytes:
     parts = [RecordsHeader.build({"batch_count": len(batches)}), table.tobytes()]
     parts.append(_pack_column(gaps))
     parts.append(_pack_column(_pack_symbols(symbols)))
-    for axis in range(3):
+    for axis in range(residual.shape[1]):
         parts.append(_pack_column(zigzag(residual[:, axis])))
     return b"".join(parts)
 
 
-def unpack_batches(payload: bytes, *, max_splits: int = MAX_VERTICES) -> list:
+def unpack_batches(payload: bytes, *, max_splits: int = MAX_VERTICES, width: int = 3) -> list:
     """Parse raw payload bytes back into a list of :class:`SplitBatch`.
+
+    ``width`` is ``D``, the number of residual columns (3 + attribute components).
 
     Counts are checked against ``max_splits`` and the payload length before any
     array is allocated.  Raises :class:`FormatError` / :class:`LimitError`.
@@ -123,7 +129,7 @@ def unpack_batches(payload: bytes, *, max_splits: int = MAX_VERTICES) -> list:
     if np.any(splits == 0) or k_total > max_splits or i_total > 64 * max(k_total, 1):
         raise LimitError("chunk payload: split or incidence counts out of bounds")
     # every value takes at least one byte: a cheap bound before allocating
-    if k_total * 4 + -(-i_total // 3) > len(buf):
+    if k_total * (1 + width) + -(-i_total // 3) > len(buf):
         raise FormatError("chunk payload: declared counts exceed the payload size")
 
     gaps, off = _unpack_column(buf, off, k_total, "gaps")
@@ -132,8 +138,9 @@ def unpack_batches(payload: bytes, *, max_splits: int = MAX_VERTICES) -> list:
         raise FormatError("chunk payload: unknown incidence symbol")
     symbols = _unpack_symbols(packed, i_total)
     res = []
-    for axis in "xyz":
-        col, off = _unpack_column(buf, off, k_total, f"residual_{axis}")
+    names = list(COLUMNS[2:]) + [ATTRIBUTE_COLUMN.format(j) for j in range(width - 3)]
+    for name in names:
+        col, off = _unpack_column(buf, off, k_total, name)
         res.append(unzigzag(col))
     if off != len(buf):
         raise FormatError(f"chunk payload: {len(buf) - off} trailing bytes")

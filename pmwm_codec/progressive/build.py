@@ -22,7 +22,7 @@ from .simplify import CollapseLog
 from .topology import face_keys
 from .vsplit import MeshState, SplitBatch, SplitTopology, find_incidences, split_topology
 
-#: embed(batch_index, topology, positions (k, 3) int64, state) -> (k, 3) int64
+#: embed(batch_index, topology, values (k, D) int64, state) -> (k, D) int64 (moves columns 0-2)
 EmbedHook = Callable[[int, SplitTopology, np.ndarray, MeshState], np.ndarray]
 
 
@@ -77,7 +77,8 @@ def build_progressive(
     Parameters
     ----------
     log : CollapseLog from :func:`~pmwm_codec.progressive.simplify.simplify`
-    positions : (n, 3) int64 grid coordinates of the input mesh
+    positions : (n, D) int64 grid coordinates of the input mesh, then quantized
+        attributes (columns 3 and up ride along; only columns 0-2 shape the mesh)
     grid : Grid the positions live on
     base_vertex_order : (n0,) int64, optional
         Input ids of the base vertices in the order the decoder will see them

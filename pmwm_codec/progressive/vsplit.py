@@ -13,10 +13,13 @@ A batch of ``k`` independent vertex splits is three arrays (see :class:`SplitBat
     ``(u, v, a)`` and the right one ``(v, u, b)`` where ``a`` / ``b`` are the
     corners after / before ``v`` in the naming face.  New faces are appended in
     the order of their naming incidences, left before right.
-``residual`` : (k, 3) int64
-    ``position(u) - floor(ring mean)``, where the ring mean is the face-weighted
+``residual`` : (k, D) int64
+    ``values(u) - floor(ring mean)``, where the ring mean is the face-weighted
     mean of ``u``'s neighbours after the split (for an interior vertex exactly
     the 1-ring mean): each face of ``u`` contributes its two other corners.
+    A vertex's *values* are its grid position (3 columns) followed by its
+    quantized attributes (texture coordinates, normals ..., ``D - 3`` columns);
+    all of them are predicted the same way.
 
 Because the encoder only puts collapses with disjoint closed 1-rings in one
 batch, every incidence belongs to exactly one split and the faces a split
@@ -61,9 +64,10 @@ class MeshState:
 
     Attributes
     ----------
-    positions : (N, 3) int64
-        Grid positions; rows ``[:n]`` are valid.  (float64 when the state only
-        replays connectivity over positions taken from elsewhere.)
+    positions : (N, D) int64
+        Vertex values: grid positions (columns 0-2) then quantized attributes;
+        rows ``[:n]`` are valid.  (float64 when the state only replays
+        connectivity over positions taken from elsewhere.)
     faces : (M, 3) int64
         Triangles; rows ``[:m]`` are valid.
     """
@@ -73,7 +77,8 @@ class MeshState:
         m0 = len(base_faces)
         if vertex_capacity < n0 or face_capacity < m0:
             raise FormatError("declared full-resolution counts are smaller than the base mesh")
-        self.positions = np.empty((vertex_capacity, 3), dtype=dtype)
+        base_positions = np.asarray(base_positions)
+        self.positions = np.empty((vertex_capacity, base_positions.shape[1]), dtype=dtype)
         self.faces = np.empty((face_capacity, 3), dtype=np.int64)
         self.positions[:n0] = base_positions
         self.faces[:m0] = base_faces
@@ -92,7 +97,7 @@ class MeshState:
 class SplitTopology:
     """What :func:`split_topology` did, for the geometry step and the watermark.
 
-    ``u`` : (k,) int64 new vertex ids; ``ring_sum`` : (k, 3) float64 sum of the
+    ``u`` : (k,) int64 new vertex ids; ``ring_sum`` : (k, D) float64 sum of the
     neighbour corners of u's faces; ``ring_count`` : (k,) int64 twice the number
     of u's faces; ``incidences`` : (I,) int64 flat corner ids; ``owner`` : (I,)
     split index of each incidence.
@@ -105,12 +110,12 @@ class SplitTopology:
     owner: np.ndarray
 
     def prediction(self) -> np.ndarray:
-        """(k, 3) int64 ``floor(ring mean)``, the position predictor."""
+        """(k, D) int64 ``floor(ring mean)``, the predictor of the new vertices' values."""
         total = np.rint(self.ring_sum).astype(np.int64)
         return np.floor_divide(total, self.ring_count[:, None])
 
     def centroid(self) -> np.ndarray:
-        """(k, 3) float64 exact ring mean."""
+        """(k, D) float64 exact ring mean (columns 0-2: the watermark's ring centroid)."""
         return self.ring_sum / self.ring_count[:, None]
 
 
@@ -200,7 +205,7 @@ def split_topology(state: MeshState, v: np.ndarray, symbols: np.ndarray, *, inci
     ra = np.concatenate([a, wv[left], wv[right]])
     rb = np.concatenate([b, a[wing][left], b[wing][right]])
     pts = P[ra] + P[rb]
-    ring_sum = np.stack([np.bincount(own, weights=pts[:, j], minlength=k) for j in range(3)], axis=1)
+    ring_sum = np.stack([np.bincount(own, weights=pts[:, j], minlength=k) for j in range(P.shape[1])], axis=1)
     ring_count = 2 * np.bincount(own, minlength=k)
     state.n = n0 + k
     state.m = m0 + n_new
@@ -211,7 +216,7 @@ def apply_batch(state: MeshState, batch: SplitBatch) -> SplitTopology:
     """Apply a whole :class:`SplitBatch`: connectivity, then positions ``prediction + residual``."""
     topo = split_topology(state, batch.v, batch.symbols)
     res = np.asarray(batch.residual, dtype=np.int64)
-    if res.shape != (len(batch.v), 3):
+    if res.shape != (len(batch.v), state.positions.shape[1]):
         raise FormatError("residual array does not match the split count")
     state.positions[topo.u] = topo.prediction() + res
     return topo

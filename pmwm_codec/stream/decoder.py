@@ -161,7 +161,7 @@ class StreamDecoder:
             for batch in unpack_batches(event.payload, max_splits=len(self.state.positions)):
                 topo = apply_batch(self.state, batch)
                 if self.verifier is not None:
-                    self.verifier.add(self._batch_index, self.state.positions[topo.u], topo.centroid())
+                    self.verifier.add(self._batch_index, self.state.positions[topo.u, :3], topo.centroid()[:, :3])
                 self._batch_index += 1
             self.chunks_applied += 1
             meta = self.header.extension["chunks"][event.index]

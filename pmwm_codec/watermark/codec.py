@@ -180,9 +180,10 @@ class Embedder:
         out = np.array(target, dtype=np.int64, copy=True)
         if live.any():
             pts, ok = place_codes(
-                target[live], topo.centroid()[live], self.codes[slots[live]], self.nbar, self.params.scale, self.params.bits
+                target[live, :3], topo.centroid()[live, :3], self.codes[slots[live]], self.nbar, self.params.scale,
+                self.params.bits,
             )
-            out[live] = pts
+            out[np.flatnonzero(live), :3] = pts
             self.embedded += int(ok.sum())
             self.failed += int((~ok).sum())
         return out
