@@ -339,6 +339,18 @@ def find_extension_primitive(gltf: dict, name: str):
 
     Raises FormatError when no primitive, or more than one, carries it.
     """
+    hits = find_extension_primitives(gltf, name)
+    if len(hits) != 1:
+        raise FormatError(f"glTF JSON: expected one mesh primitive with {name}, found {len(hits)}")
+    return hits[0]
+
+
+def find_extension_primitives(gltf: dict, name: str):
+    """``[(mesh_index, primitive_index, primitive), ...]`` of every primitive carrying ``name``.
+
+    Mesh/primitive order, which is the order progressive primitives are numbered in.
+    Raises FormatError when none carries it.
+    """
     hits = []
     meshes = gltf.get("meshes", [])
     if not isinstance(meshes, list):
@@ -349,9 +361,9 @@ def find_extension_primitive(gltf: dict, name: str):
             ext = prim.get("extensions") if isinstance(prim, dict) else None
             if isinstance(ext, dict) and name in ext:
                 hits.append((mi, pi, prim))
-    if len(hits) != 1:
-        raise FormatError(f"glTF JSON: expected one mesh primitive with {name}, found {len(hits)}")
-    return hits[0]
+    if not hits:
+        raise FormatError(f"glTF JSON: no mesh primitive carries {name}")
+    return hits
 
 
 def _get(seq, index, what):
@@ -370,8 +382,9 @@ def _uint(obj, key, what, default=None):
     return value
 
 
-def base_views(gltf: dict, primitive: dict) -> list[int]:
-    """Indices of the bufferViews the base mesh reads (Draco: one; plain: POSITION and indices)."""
+def base_views(gltf: dict, primitive: dict, progressive_attributes=()) -> list[int]:
+    """Indices of the bufferViews the base mesh reads (Draco: one; plain: POSITION, indices,
+    and the accessors of the extension's ``attributes`` entries)."""
     attributes = primitive.get("attributes")
     if not isinstance(attributes, dict) or "POSITION" not in attributes:
         raise FormatError("base mesh: primitive has no POSITION attribute")
@@ -384,7 +397,13 @@ def base_views(gltf: dict, primitive: dict) -> list[int]:
         return [draco["bufferView"]]
     accessors = gltf.get("accessors")
     views = []
-    for index in [attributes["POSITION"]] + ([primitive["indices"]] if "indices" in primitive else []):
+    extra = []
+    for spec in progressive_attributes:
+        semantic = spec.get("semantic") if isinstance(spec, dict) else None
+        if semantic not in attributes:
+            raise FormatError(f"base mesh: progressive attribute {semantic!r} is not an attribute of the primitive")
+        extra.append(primitive["attributes"][semantic])
+    for index in [attributes["POSITION"]] + ([primitive["indices"]] if "indices" in primitive else []) + extra:
         acc = _get(accessors, index, "accessor")
         if "bufferView" not in acc:
             raise FormatError(f"base mesh: accessor {index} has no bufferView")
@@ -505,3 +524,79 @@ def _decode_draco(gltf, draco, bin_data, n, m):
     if positions.shape != (n, 3) or faces.reshape(-1, 3).shape != (m, 3):
         raise FormatError(f"base mesh: Draco decoded {positions.shape[0]} vertices / {faces.size // 3} faces, accessors declare {n} / {m}")
     return positions, faces.reshape(-1, 3)
+
+
+# ------------------------------------------------------------------ attributes
+
+
+def attribute_grid(values: np.ndarray, bits: int) -> dict:
+    """Per-component grid ``{"bits", "origin" [k], "step" [k]}`` spanning ``values`` (n, k)."""
+    lo = values.min(axis=0).astype(np.float64)
+    span = values.max(axis=0).astype(np.float64) - lo
+    step = np.where(span > 0, span / float((1 << bits) - 1), 1.0)
+    return {"bits": int(bits), "origin": [float(x) for x in lo], "step": [float(x) for x in step]}
+
+
+def attribute_to_float(ints: np.ndarray, spec: dict) -> np.ndarray:
+    """Quantized attribute (n, k) int64 -> stored float32 values."""
+    return (np.asarray(spec["origin"]) + ints.astype(np.float64) * np.asarray(spec["step"])).astype(np.float32)
+
+
+def attribute_to_grid(values: np.ndarray, spec: dict, what: str) -> np.ndarray:
+    """Stored attribute values (n, k) float -> grid integers (n, k) int64; FormatError if off the grid."""
+    origin = np.asarray(spec["origin"], np.float64)
+    step = np.asarray(spec["step"], np.float64)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        scaled = (np.asarray(values, np.float64) - origin) / step
+    if not np.isfinite(scaled).all():
+        raise FormatError(f"base mesh: {what} values are not finite")
+    rounded = np.rint(scaled)
+    if rounded.size and (rounded.min() < 0 or rounded.max() >= (1 << int(spec["bits"]))):
+        raise FormatError(f"base mesh: {what} values lie outside their {spec['bits']}-bit grid")
+    return rounded.astype(np.int64)
+
+
+_TYPE_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
+
+
+def decode_base_attributes(gltf: dict, bin_data, primitive: dict, attributes) -> np.ndarray:
+    """The base's progressive attributes as (n, a) int64 grid integers (a = 0 without any)."""
+    n = _counts(gltf, primitive)[0]
+    columns = []
+    for spec in attributes:
+        semantic = spec["semantic"]
+        acc = _get(gltf.get("accessors"), primitive["attributes"][semantic], "accessor")
+        width = _TYPE_WIDTH.get(acc.get("type"))
+        if acc.get("componentType") != FLOAT or width is None or width != len(spec["origin"]):
+            raise FormatError(f"base mesh: {semantic} must be a FLOAT accessor with {len(spec['origin'])} components")
+        if _uint(acc, "count", f"{semantic} accessor") != n:
+            raise FormatError(f"base mesh: {semantic} has {acc.get('count')} values for {n} vertices")
+        values = _accessor_array(gltf, acc, bin_data, "<f4", n, width, semantic)
+        columns.append(attribute_to_grid(values, spec, semantic))
+    if not columns:
+        return np.zeros((n, 0), dtype=np.int64)
+    return np.concatenate(columns, axis=1)
+
+
+def with_attributes(base: EncodedBase, attributes) -> EncodedBase:
+    """Append plain float32 accessors for progressive attributes to a *plain* base.
+
+    ``attributes`` : list of ``(spec, ints (n, k) int64 in the base's decoded order)``
+    where ``spec`` has ``semantic``, ``bits``, ``origin``, ``step``.
+    """
+    if base.codec != "plain":
+        raise ValueError("with_attributes: attributes ride only on a plain base")
+    data = bytearray(base.data)
+    views = [dict(v) for v in base.buffer_views]
+    accessors = [dict(a) for a in base.accessors]
+    primitive = {**base.primitive, "attributes": dict(base.primitive["attributes"])}
+    for spec, ints in attributes:
+        stored = attribute_to_float(ints, spec)
+        raw = stored.astype("<f4").tobytes()
+        offset = len(data)
+        data += raw + bytes(padded(len(raw)) - len(raw))
+        views.append({"buffer": 0, "byteOffset": offset, "byteLength": len(raw), "target": ARRAY_BUFFER})
+        type_ = {1: "SCALAR", 2: "VEC2", 3: "VEC3", 4: "VEC4"}[stored.shape[1]]
+        accessors.append({"bufferView": len(views) - 1, "componentType": FLOAT, "count": int(stored.shape[0]), "type": type_})
+        primitive["attributes"][spec["semantic"]] = len(accessors) - 1
+    return replace(base, data=bytes(data), buffer_views=views, accessors=accessors, primitive=primitive)

@@ -77,18 +77,26 @@ class HeaderEvent:
     """The glTF JSON is in: every byte range is known."""
 
     gltf_json: dict
-    extension: dict
+    extension: dict  # the first progressive primitive's extension object
     total_length: int  # GLB header length: the size of the complete file
-    chunk_count: int
+    chunk_count: int  # all chunks of all progressive primitives
+    extensions: tuple = ()  # every progressive primitive's extension object, in mesh/primitive order
 
 
 @dataclass(frozen=True, eq=False)
 class BaseEvent:
-    """The base mesh is in.  ``positions_int`` (n, 3) int64 grid coordinates, ``faces`` (m, 3) int64."""
+    """A base mesh is in.  ``positions_int`` (n, 3) int64 grid coordinates, ``faces`` (m, 3) int64.
+
+    ``attributes_int`` (n, a) int64 quantized attributes in the order of the extension's
+    ``attributes`` list (a = 0 without attributes).  ``primitive`` numbers the progressive
+    primitives in mesh/primitive order; all bases arrive together, before any chunk.
+    """
 
     positions_int: np.ndarray
     faces: np.ndarray
     bytes_read: int
+    primitive: int = 0
+    attributes_int: np.ndarray | None = None
 
     def __eq__(self, other):
         if not isinstance(other, BaseEvent):
@@ -104,11 +112,17 @@ class BaseEvent:
 
 @dataclass(frozen=True)
 class ChunkEvent:
-    """Chunk ``index`` is in; ``payload`` is its decompressed raw bytes."""
+    """Chunk ``index`` (in stream order over all primitives) is in; ``payload`` is its raw bytes.
+
+    ``primitive`` is the progressive primitive it refines and ``chunk`` its index in that
+    primitive's ``chunks`` array.
+    """
 
     index: int
     payload: bytes
     bytes_read: int
+    primitive: int = 0
+    chunk: int = 0
 
 
 @dataclass(frozen=True)
@@ -163,13 +177,14 @@ def _uint(obj, key, what):
 class _Plan:
     """Byte ranges (relative to the BIN payload) derived from the JSON."""
 
-    primitive: dict
+    primitives: tuple  # progressive primitives, mesh/primitive order
+    extensions: tuple  # their extension objects
     base_end: int
-    chunk_ranges: tuple  # ((start, end), ...)
+    chunk_ranges: tuple  # ((start, end, primitive, chunk), ...) in stream order
     buffer_length: int
 
 
-def _plan(gltf: dict, ext: dict, bin_capacity: int) -> _Plan:
+def _plan(gltf: dict, exts: list, bin_capacity: int) -> _Plan:
     """Check the JSON's structure and limits; compute every byte range."""
     used = gltf.get("extensionsUsed", [])
     if not isinstance(used, list) or EXTENSION_NAME not in used:
@@ -182,40 +197,55 @@ def _plan(gltf: dict, ext: dict, bin_capacity: int) -> _Plan:
     buffer_length = _uint(buffers[0], "byteLength", "buffers[0]")
     if buffer_length > bin_capacity:
         raise FormatError(f"glTF JSON: buffers[0].byteLength {buffer_length} exceeds the {bin_capacity} bytes the GLB length leaves")
-    for key in ("vertexCount", "faceCount"):
-        limit = MAX_VERTICES if key == "vertexCount" else MAX_FACES
-        if ext[key] > limit:
-            raise LimitError(f"{EXTENSION_NAME}: {key} {ext[key]} exceeds the limit {limit}")
+    primitives = [prim for _, _, prim in _base.find_extension_primitives(gltf, EXTENSION_NAME)]
+    total_vertices = total_faces = 0
+    for ext in exts:
+        total_vertices += ext["vertexCount"]
+        total_faces += ext["faceCount"]
+    if total_vertices > MAX_VERTICES:
+        raise LimitError(f"{EXTENSION_NAME}: vertexCount {total_vertices} exceeds the limit {MAX_VERTICES}")
+    if total_faces > MAX_FACES:
+        raise LimitError(f"{EXTENSION_NAME}: faceCount {total_faces} exceeds the limit {MAX_FACES}")
 
-    _, _, primitive = _base.find_extension_primitive(gltf, EXTENSION_NAME)
     views = gltf.get("bufferViews")
     base_end = 0
-    for index in _base.base_views(gltf, primitive):
-        start, end = _view_range(views, index, buffer_length, "base mesh")
-        base_end = max(base_end, end)
-    _base._counts(gltf, primitive)  # base vertex/face counts against the limits
+    for primitive, ext in zip(primitives, exts):
+        for index in _base.base_views(gltf, primitive, ext.get("attributes", ())):
+            start, end = _view_range(views, index, buffer_length, "base mesh")
+            base_end = max(base_end, end)
+        _base._counts(gltf, primitive)  # base vertex/face counts against the limits
 
-    chunks = ext["chunks"]
-    if len(chunks) > MAX_CHUNKS:
-        raise LimitError(f"{EXTENSION_NAME}: {len(chunks)} chunks exceed the limit {MAX_CHUNKS}")
+    if sum(len(ext["chunks"]) for ext in exts) > MAX_CHUNKS:
+        raise LimitError(f"{EXTENSION_NAME}: {sum(len(e['chunks']) for e in exts)} chunks exceed the limit {MAX_CHUNKS}")
     ranges = []
-    previous_end = base_end
-    for k, chunk in enumerate(chunks):
-        what = f"{EXTENSION_NAME}: chunks[{k}]"
-        if chunk["byteLength"] > MAX_CHUNK_BYTES:
-            raise LimitError(f"{what}: byteLength {chunk['byteLength']} exceeds the limit {MAX_CHUNK_BYTES}")
-        if chunk["uncompressedLength"] > MAX_DECOMPRESSED_CHUNK_BYTES:
-            raise LimitError(f"{what}: uncompressedLength {chunk['uncompressedLength']} exceeds the limit {MAX_DECOMPRESSED_CHUNK_BYTES}")
-        if chunk["vertexCount"] > MAX_VERTICES or chunk["faceCount"] > MAX_FACES:
-            raise LimitError(f"{what}: {chunk['vertexCount']} vertices / {chunk['faceCount']} faces exceed the limits")
-        start, end = _view_range(views, chunk["bufferView"], buffer_length, what)
-        if end - start != chunk["byteLength"]:
-            raise FormatError(f"{what}: byteLength {chunk['byteLength']} differs from bufferView length {end - start}")
-        if start < previous_end:
-            raise FormatError(f"{what}: bufferView starts at {start}, before the end {previous_end} of the data before it (overlap or out of stream order)")
-        ranges.append((start, end))
-        previous_end = end
-    return _Plan(primitive, base_end, tuple(ranges), buffer_length)
+    for p, ext in enumerate(exts):
+        previous_end = base_end
+        for k, chunk in enumerate(ext["chunks"]):
+            what = f"{EXTENSION_NAME}: " + (f"primitive {p} " if len(exts) > 1 else "") + f"chunks[{k}]"
+            start, end = _chunk_range(views, chunk, buffer_length, what, previous_end)
+            ranges.append((start, end, p, k))
+            previous_end = end
+    ranges.sort()
+    for (s0, e0, *_), (s1, e1, p1, k1) in zip(ranges, ranges[1:]):
+        if s1 < e0:
+            raise FormatError(f"{EXTENSION_NAME}: chunks[{k1}] of primitive {p1} overlaps the chunk before it")
+    return _Plan(tuple(primitives), tuple(exts), base_end, tuple(ranges), buffer_length)
+
+
+def _chunk_range(views, chunk, buffer_length, what, previous_end):
+    """Check one chunk entry; return its (start, end) in the BIN payload."""
+    if chunk["byteLength"] > MAX_CHUNK_BYTES:
+        raise LimitError(f"{what}: byteLength {chunk['byteLength']} exceeds the limit {MAX_CHUNK_BYTES}")
+    if chunk["uncompressedLength"] > MAX_DECOMPRESSED_CHUNK_BYTES:
+        raise LimitError(f"{what}: uncompressedLength {chunk['uncompressedLength']} exceeds the limit {MAX_DECOMPRESSED_CHUNK_BYTES}")
+    if chunk["vertexCount"] > MAX_VERTICES or chunk["faceCount"] > MAX_FACES:
+        raise LimitError(f"{what}: {chunk['vertexCount']} vertices / {chunk['faceCount']} faces exceed the limits")
+    start, end = _view_range(views, chunk["bufferView"], buffer_length, what)
+    if end - start != chunk["byteLength"]:
+        raise FormatError(f"{what}: byteLength {chunk['byteLength']} differs from bufferView length {end - start}")
+    if start < previous_end:
+        raise FormatError(f"{what}: bufferView starts at {start}, before the end {previous_end} of the data before it (overlap or out of stream order)")
+    return start, end
 
 
 def _view_range(views, index, buffer_length, what):
@@ -284,7 +314,9 @@ class ContainerParser:
                 event = self._step()
                 if event is None:
                     break
-                if event is not True:
+                if isinstance(event, list):
+                    events.extend(event)
+                elif event is not True:
                     events.append(event)
         except Exception as exc:
             self._state = _FAILED
@@ -369,11 +401,12 @@ class ContainerParser:
             text = self._take(PREAMBLE_SIZE + self._json_length)
             if text is None:
                 return None
-            self._gltf, self._ext = _load_json(text)
+            self._gltf, exts = _load_json(text)
+            self._ext = exts[0]
             self._bin_data = PREAMBLE_SIZE + self._json_length + CHUNK_HEADER_SIZE
-            self._plan = _plan(self._gltf, self._ext, self._total - self._bin_data)
+            self._plan = _plan(self._gltf, exts, self._total - self._bin_data)
             self._state = _BIN_HEADER
-            return HeaderEvent(self._gltf, self._ext, self._total, len(self._plan.chunk_ranges))
+            return HeaderEvent(self._gltf, self._ext, self._total, len(self._plan.chunk_ranges), tuple(exts))
         if state == _BIN_HEADER:
             head = self._take(self._bin_data)
             if head is None:
@@ -391,25 +424,29 @@ class ContainerParser:
             data = self._take(self._bin_data + self._plan.base_end)
             if data is None:
                 return None
-            positions, faces = _base.decode_base(self._gltf, data, self._ext["grid"], self._plan.primitive)
+            events = []
+            for p, (prim, ext) in enumerate(zip(self._plan.primitives, self._plan.extensions)):
+                positions, faces = _base.decode_base(self._gltf, data, ext["grid"], prim)
+                attributes = _base.decode_base_attributes(self._gltf, data, prim, ext.get("attributes", ()))
+                events.append(BaseEvent(positions, faces, self._bin_data + self._plan.base_end, p, attributes))
             self._state = _CHUNKS if self._plan.chunk_ranges else _TAIL
             if self._state == _TAIL:
                 self._buf = bytearray()
-            return BaseEvent(positions, faces, self._bin_data + self._plan.base_end)
+            return events
         if state == _CHUNKS:
             k = self._next_chunk
-            start, end = self._plan.chunk_ranges[k]
+            start, end, p, kp = self._plan.chunk_ranges[k]
             if not self._skip_to(self._bin_data + start):
                 return None
             stored = self._take(self._bin_data + end)
             if stored is None:
                 return None
-            payload = _open_chunk(k, stored, self._ext["chunks"][k])
+            payload = _open_chunk(k, stored, self._plan.extensions[p]["chunks"][kp])
             self._next_chunk += 1
             if self._next_chunk == len(self._plan.chunk_ranges):
                 self._state = _TAIL
                 self._buf = bytearray()
-            return ChunkEvent(k, payload, self._bin_data + end)
+            return ChunkEvent(k, payload, self._bin_data + end, p, kp)
         return None  # _TAIL: padding up to the file length
 
 
@@ -422,9 +459,8 @@ def _load_json(text: bytes):
         raise FormatError(f"GLB JSON chunk: not valid UTF-8 JSON ({str(exc).splitlines()[0]})") from None
     if not isinstance(gltf, dict):
         raise FormatError("GLB JSON chunk: top level is not an object")
-    _, _, primitive = _base.find_extension_primitive(gltf, EXTENSION_NAME)
-    ext = check_extension(primitive["extensions"][EXTENSION_NAME])
-    return gltf, ext
+    found = _base.find_extension_primitives(gltf, EXTENSION_NAME)
+    return gltf, [check_extension(prim["extensions"][EXTENSION_NAME]) for _, _, prim in found]
 
 
 def _open_chunk(k: int, stored: bytes, meta: dict) -> bytes:
