@@ -25,12 +25,13 @@ import copy
 import json
 import os
 import tempfile
+from dataclasses import dataclass
 
 import zstandard
 
 from ..constants import EXTENSION_NAME, FORMAT_VERSION, MAX_CHUNK_BYTES, MAX_CHUNKS, MAX_DECOMPRESSED_CHUNK_BYTES
 from ..errors import FormatError
-from .base import EncodedBase
+from .base import DRACO_EXTENSION, EncodedBase
 from .extension import CHUNK_META_FIELDS, RESERVED_FIELDS, check_extension, digest
 from .layout import (
     CHUNK_HEADER_SIZE,
@@ -53,26 +54,85 @@ def compress_chunk(payload, level: int = 10) -> bytes:
 
 
 def _assemble(base: EncodedBase, chunks, chunk_meta, extension: dict, zstd_level: int) -> list:
-    """The file as a list of bytes-like parts, in order (header, JSON, BIN header, BIN pieces)."""
-    if not isinstance(base, EncodedBase):
-        raise TypeError(f"write_pmw: base must be an EncodedBase, got {type(base).__name__}")
-    chunks = list(chunks)
-    chunk_meta = list(chunk_meta)
-    if len(chunks) != len(chunk_meta):
-        raise ValueError(f"write_pmw: {len(chunks)} chunks but {len(chunk_meta)} chunk_meta entries")
-    if len(chunks) > MAX_CHUNKS:
-        raise ValueError(f"write_pmw: {len(chunks)} chunks exceed the limit {MAX_CHUNKS}")
-    if not isinstance(extension, dict):
-        raise TypeError("write_pmw: extension must be a dict")
-    clash = [key for key in RESERVED_FIELDS if key in extension]
-    if clash:
-        raise ValueError(f"write_pmw: extension fields {clash} are set by the writer")
+    """A single progressive primitive in a minimal document (one scene, node, mesh)."""
+    doc = {"scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}], "meshes": [{"primitives": [{}]}]}
+    prim = ProgressivePrimitive(0, 0, base, list(chunks), list(chunk_meta), extension)
+    order = [(0, k) for k in range(len(prim.chunks))]
+    return assemble_document(doc, b"", [prim], order, zstd_level)
 
-    bin_parts = [base.data]
-    offset = len(base.data)
-    views = [dict(v) for v in base.buffer_views]
-    index = []
-    for k, (payload, meta) in enumerate(zip(chunks, chunk_meta)):
+
+@dataclass
+class ProgressivePrimitive:
+    """One progressive primitive to write: where it goes, its base, its raw chunks and their index fields."""
+
+    mesh: int
+    primitive: int
+    base: EncodedBase
+    chunks: list
+    chunk_meta: list
+    extension: dict
+
+
+def assemble_document(doc: dict, kept_bin: bytes, prims, order, zstd_level: int = 10) -> list:
+    """The file as a list of bytes-like parts (header, JSON, BIN header, BIN pieces).
+
+    Parameters
+    ----------
+    doc : dict
+        The glTF document to carry: every property is kept; ``accessors`` and
+        ``bufferViews`` (if any) must refer to ``kept_bin`` (buffer 0 from offset 0).
+        The primitives named in ``prims`` get the base mesh accessors and the extension
+        object; their other properties (material, extras, other extensions) are kept.
+    kept_bin : bytes
+        The document's own data, 4-byte aligned; the bases follow it, then the chunks.
+    prims : list[ProgressivePrimitive]
+    order : list of (primitive index in ``prims``, chunk index)
+        The stream order of every chunk (each primitive's chunks in increasing order).
+    """
+    for p, prim in enumerate(prims):
+        if not isinstance(prim.base, EncodedBase):
+            raise TypeError(f"write_pmw: base must be an EncodedBase, got {type(prim.base).__name__}")
+        if len(prim.chunks) != len(prim.chunk_meta):
+            raise ValueError(f"write_pmw: {len(prim.chunks)} chunks but {len(prim.chunk_meta)} chunk_meta entries")
+        if not isinstance(prim.extension, dict):
+            raise TypeError("write_pmw: extension must be a dict")
+        clash = [key for key in RESERVED_FIELDS if key in prim.extension]
+        if clash:
+            raise ValueError(f"write_pmw: extension fields {clash} are set by the writer")
+    if sum(len(p.chunks) for p in prims) > MAX_CHUNKS:
+        raise ValueError(f"write_pmw: {sum(len(p.chunks) for p in prims)} chunks exceed the limit {MAX_CHUNKS}")
+    if sorted(order) != sorted((p, k) for p, prim in enumerate(prims) for k in range(len(prim.chunks))):
+        raise ValueError("write_pmw: order must name every chunk of every primitive once")
+
+    views = [dict(v) for v in doc.get("bufferViews", [])]
+    accessors = copy.deepcopy(doc.get("accessors", []))
+    bin_parts = [kept_bin] if kept_bin else []
+    offset = len(kept_bin)
+    primitives_json = []
+    used, required = [EXTENSION_NAME], []
+    for prim in prims:
+        base = prim.base
+        view0, acc0 = len(views), len(accessors)
+        for v in base.buffer_views:
+            views.append({**v, "byteOffset": offset + v["byteOffset"]})
+        for a in base.accessors:
+            accessors.append({**a, "bufferView": a["bufferView"] + view0} if "bufferView" in a else dict(a))
+        bin_parts.append(base.data)
+        offset += len(base.data)
+        pj = copy.deepcopy(base.primitive)
+        pj["attributes"] = {k: v + acc0 for k, v in pj["attributes"].items()}
+        if "indices" in pj:
+            pj["indices"] += acc0
+        draco = (pj.get("extensions") or {}).get(DRACO_EXTENSION)
+        if draco is not None:
+            draco["bufferView"] += view0
+        primitives_json.append(pj)
+        used += [e for e in base.extensions_used if e not in used]
+        required += [e for e in base.extensions_required if e not in required]
+
+    index = [[None] * len(prim.chunks) for prim in prims]
+    for p, k in order:
+        payload, meta = prims[p].chunks[k], prims[p].chunk_meta[k]
         missing = [key for key in CHUNK_META_FIELDS if key not in meta]
         if missing:
             raise ValueError(f"write_pmw: chunk_meta[{k}] lacks {missing}")
@@ -83,36 +143,47 @@ def _assemble(base: EncodedBase, chunks, chunk_meta, extension: dict, zstd_level
         if len(stored) > MAX_CHUNK_BYTES:
             raise ValueError(f"write_pmw: chunk {k} compresses to {len(stored)} bytes, over the limit {MAX_CHUNK_BYTES}")
         views.append({"buffer": 0, "byteOffset": offset, "byteLength": len(stored)})
-        index.append({
+        index[p][k] = {
             "bufferView": len(views) - 1, "byteLength": len(stored), "digest": digest(stored),
             **{key: meta[key] for key in CHUNK_META_FIELDS},
             **{key: value for key, value in meta.items() if key not in CHUNK_META_FIELDS},
             "uncompressedLength": raw_length,
-        })
+        }
         pad = padded(len(stored)) - len(stored)
         bin_parts += [stored, bytes(pad)] if pad else [stored]
         offset += len(stored) + pad
 
-    ext = {"version": FORMAT_VERSION, **extension, "chunks": index}
-    try:
-        check_extension(ext)
-    except FormatError as exc:
-        raise ValueError(f"write_pmw: {exc}") from None
+    meshes = copy.deepcopy(doc.get("meshes", []))
+    for p, (prim, pj) in enumerate(zip(prims, primitives_json)):
+        ext = {"version": FORMAT_VERSION, **prim.extension, "chunks": index[p]}
+        try:
+            check_extension(ext)
+        except FormatError as exc:
+            raise ValueError(f"write_pmw: {exc}") from None
+        original = meshes[prim.mesh]["primitives"][prim.primitive]
+        merged = {k: v for k, v in original.items() if k not in ("attributes", "indices", "mode")}
+        merged.update({k: v for k, v in pj.items() if k != "extensions"})
+        merged["extensions"] = {**(original.get("extensions") or {}), **(pj.get("extensions") or {}), EXTENSION_NAME: ext}
+        meshes[prim.mesh]["primitives"][prim.primitive] = merged
 
-    primitive = copy.deepcopy(base.primitive)
-    primitive.setdefault("extensions", {})[EXTENSION_NAME] = ext
-    gltf = {
-        "asset": {"version": "2.0", "generator": GENERATOR},
-        "extensionsUsed": [EXTENSION_NAME, *base.extensions_used],
-        **({"extensionsRequired": list(base.extensions_required)} if base.extensions_required else {}),
-        "scene": 0,
-        "scenes": [{"nodes": [0]}],
-        "nodes": [{"mesh": 0}],
-        "meshes": [{"primitives": [primitive]}],
-        "accessors": copy.deepcopy(base.accessors),
-        "bufferViews": views,
-        "buffers": [{"byteLength": offset}],
-    }
+    gltf = {"asset": doc.get("asset") or {"version": "2.0", "generator": GENERATOR}}
+    if "asset" not in doc:
+        gltf["asset"] = {"version": "2.0", "generator": GENERATOR}
+    gltf["extensionsUsed"] = used + [e for e in doc.get("extensionsUsed", []) if e not in used]
+    req = required + [e for e in doc.get("extensionsRequired", []) if e not in required]
+    if req:
+        gltf["extensionsRequired"] = req
+    for key, value in doc.items():
+        if key in ("asset", "extensionsUsed", "extensionsRequired", "accessors", "bufferViews", "buffers", "meshes"):
+            continue
+        gltf[key] = value
+        if key == "nodes":
+            gltf["meshes"] = meshes
+    if "meshes" not in gltf:
+        gltf["meshes"] = meshes
+    gltf["accessors"] = accessors
+    gltf["bufferViews"] = views
+    gltf["buffers"] = [{"byteLength": offset}]
     text = json.dumps(gltf, separators=(",", ":"), allow_nan=False).encode("utf-8")
     text += b" " * (padded(len(text)) - len(text))
     total = GLB_HEADER_SIZE + CHUNK_HEADER_SIZE + len(text) + CHUNK_HEADER_SIZE + offset
@@ -125,6 +196,33 @@ def _assemble(base: EncodedBase, chunks, chunk_meta, extension: dict, zstd_level
         ChunkHeader.build({"length": offset, "type": CHUNK_TYPE_BIN}),
         *bin_parts,
     ]
+
+
+def write_parts(dst, parts) -> int:
+    """Write assembled parts to a path (atomically) or a binary file; return the byte count."""
+    size = sum(len(p) for p in parts)
+    if not isinstance(dst, (str, os.PathLike)):
+        for part in parts:
+            dst.write(part)
+        return size
+    path = os.fspath(dst)
+    directory = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            for part in parts:
+                fh.write(part)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+    _fsync_directory(directory)
+    return size
 
 
 def build_pmw(*, base: EncodedBase, chunks, chunk_meta, extension: dict, zstd_level: int = 10) -> bytes:
@@ -161,30 +259,7 @@ def write_pmw(dst, *, base: EncodedBase, chunks, chunk_meta, extension: dict, zs
     removed and an existing file at ``dst`` is untouched.  Other arguments: see
     :func:`build_pmw`.
     """
-    parts = _assemble(base, chunks, chunk_meta, extension, zstd_level)
-    size = sum(len(p) for p in parts)
-    if not isinstance(dst, (str, os.PathLike)):
-        for part in parts:
-            dst.write(part)
-        return size
-    path = os.fspath(dst)
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            for part in parts:
-                fh.write(part)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-    _fsync_directory(directory)
-    return size
+    return write_parts(dst, _assemble(base, chunks, chunk_meta, extension, zstd_level))
 
 
 def _fsync_directory(directory: str) -> None:
