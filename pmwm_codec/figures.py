@@ -1,0 +1,292 @@
+"""Pictures of a progressive, watermarked decode (numpy + Pillow, no plotting library).
+
+Given the :class:`~pmwm_codec.stream.PartialResult` list of one decode (base mesh
+first), :func:`write_figures` writes what ``pmw verify --frames`` and ``pmw demo``
+promise::
+
+    frame_000.png ...   the partial watermark after every chunk boundary
+    overview.png        the mesh at ~5 boundaries (spread in log vertex count) above the watermark at the same
+                        boundaries, labelled with bytes received and PSNR (the
+                        paper's Fig. 8)
+    metrics.png         watermark PSNR and NC against bytes received
+
+The pieces are public for other uses: :func:`pick_levels`, :func:`overview`,
+:func:`metrics_plot`.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+from PIL import Image, ImageDraw, ImageFont
+
+from .errors import PmwError
+from .render import Camera, render
+
+INK = (40, 40, 48)
+GRID = (226, 226, 232)
+PSNR_COLOR = (200, 70, 50)
+NC_COLOR = (40, 100, 190)
+CUT_COLOR = (150, 150, 150)
+
+
+def font(size: int = 14):
+    """Pillow's bundled scalable font at ``size`` px (the bitmap default if FreeType is missing)."""
+    try:
+        return ImageFont.load_default(size=size)
+    except (TypeError, OSError):  # Pillow < 10.1 or no FreeType
+        return ImageFont.load_default()
+
+
+def format_bytes(n: int) -> str:
+    """``812 B``, ``71.2 kB``, ``3.41 MB``."""
+    if n < 1000:
+        return f"{n} B"
+    if n < 1_000_000:
+        return f"{n / 1000:.1f} kB"
+    return f"{n / 1_000_000:.2f} MB"
+
+
+def format_psnr(value) -> str:
+    if value is None:
+        return "PSNR -"
+    if math.isinf(value):
+        return "PSNR inf (exact)"
+    return f"PSNR {value:.1f} dB"
+
+
+def pick_levels(counts, k: int = 5) -> list[int]:
+    """Indices of ~``k`` results spread evenly in ``log(counts)`` (vertex counts, say).
+
+    A progressive mesh changes most at its start, so a log scale shows the
+    refinement best; the first and last results are always picked.
+    """
+    c = np.log(np.maximum(np.asarray(counts, dtype=np.float64), 1.0))
+    if len(c) <= k:
+        return list(range(len(c)))
+    targets = np.linspace(c[0], c[-1], k)
+    picked = []
+    for t in targets:
+        i = int(np.argmin(np.abs(c - t)))
+        if i not in picked:
+            picked.append(i)
+    for i in range(len(c)):  # top up when two targets hit the same result
+        if len(picked) >= k:
+            break
+        if i not in picked:
+            picked.append(i)
+    return sorted(picked)
+
+
+def _text_center(draw, xy_center, text, fnt, fill=INK):
+    left, top, right, bottom = draw.textbbox((0, 0), text, font=fnt)
+    draw.text((xy_center[0] - (right - left) / 2 - left, xy_center[1] - top), text, font=fnt, fill=fill)
+    return bottom - top
+
+
+def overview(results, *, k: int = 5, tile=(220, 170), title: str | None = None, camera: Camera | None = None,
+             total_bytes: int | None = None) -> Image.Image:
+    """The mesh at ~``k`` chunk boundaries in a row, the watermark below each, labels under both.
+
+    The boundaries are spread in log(vertex count) (:func:`pick_levels`).
+
+    ``results``: PartialResult list, base mesh first.  One camera (fitted to the
+    last result) renders every level, so the frames line up.
+    """
+    if not results:
+        raise ValueError("no results to draw")
+    idx = pick_levels([r.vertices for r in results], k)
+    picked = [results[i] for i in idx]
+    tw, th = tile
+    if camera is None:
+        camera = Camera.fit(picked[-1].mesh.positions, tw, th)
+    has_mark = any(r.watermark is not None for r in picked)
+    side = min(tw, th) - 10 if has_mark else 0
+    big, small = font(17), font(13)
+    pad, gap = 16, 10
+    title_h = 30 if title else 0
+    label_h = 4 * 17
+    width = pad * 2 + len(picked) * tw + (len(picked) - 1) * gap
+    height = pad + title_h + th + (gap + side if has_mark else 0) + gap + label_h + pad
+    img = Image.new("RGB", (width, height), (255, 255, 255))
+    draw = ImageDraw.Draw(img)
+    if title:
+        draw.text((pad, pad), title, font=big, fill=INK)
+    y_mesh = pad + title_h
+    y_mark = y_mesh + th + gap
+    y_label = (y_mark + side if has_mark else y_mesh + th) + gap
+    for col, r in enumerate(picked):
+        x = pad + col * (tw + gap)
+        mesh = r.mesh
+        img.paste(Image.fromarray(render(mesh.positions, mesh.faces, camera)), (x, y_mesh))
+        draw.rectangle([x, y_mesh, x + tw - 1, y_mesh + th - 1], outline=GRID)
+        if has_mark:
+            mx = x + (tw - side) // 2
+            if r.watermark is not None and r.coefficients == 0:
+                draw.rectangle([mx, y_mark, mx + side - 1, y_mark + side - 1], fill=(238, 238, 242))
+                _text_center(draw, (mx + side / 2, y_mark + side / 2 - 8), "no coefficients yet", small, CUT_COLOR)
+            elif r.watermark is not None:
+                mark = Image.fromarray(np.asarray(r.watermark, np.uint8), "L").resize((side, side), Image.NEAREST)
+                img.paste(mark.convert("RGB"), (mx, y_mark))
+            draw.rectangle([mx - 1, y_mark - 1, mx + side, y_mark + side], outline=(180, 180, 188))
+        share = f" ({100 * r.bytes_read / total_bytes:.0f}%)" if total_bytes else ""
+        lines = [
+            (f"{format_bytes(r.bytes_read)}{share}", small),
+            (format_psnr(r.psnr_db), small),
+            ("base mesh" if r.chunk == 0 else f"chunk {r.chunk}/{r.chunks_total}", small),
+            (f"{r.vertices:,} vertices", small),
+        ]
+        yy = y_label
+        for text, fnt in lines:
+            _text_center(draw, (x + tw / 2, yy), text, fnt)
+            yy += 17
+    return img
+
+
+def _ticks(lo: float, hi: float, n: int = 5) -> np.ndarray:
+    span = hi - lo if hi > lo else 1.0
+    raw = span / n
+    mag = 10 ** math.floor(math.log10(raw))
+    step = mag
+    for m in (1, 2, 2.5, 5, 10):
+        step = m * mag
+        if step >= raw:
+            break
+    start = math.ceil(lo / step - 1e-9) * step
+    return np.arange(start, hi + step * 1e-6, step)
+
+
+def _tick_label(v: float) -> str:
+    return f"{v:g}" if abs(v) < 1e5 else f"{v:.3g}"
+
+
+class _Panel:
+    """One plot area: data -> pixel mapping, axes, ticks, grid."""
+
+    def __init__(self, draw, box, xlim, ylim):
+        self.draw, self.box, self.xlim, self.ylim = draw, box, xlim, ylim
+
+    def px(self, x, y):
+        x0, y0, x1, y1 = self.box
+        fx = (x - self.xlim[0]) / ((self.xlim[1] - self.xlim[0]) or 1)
+        fy = (y - self.ylim[0]) / ((self.ylim[1] - self.ylim[0]) or 1)
+        return x0 + fx * (x1 - x0), y1 - fy * (y1 - y0)
+
+    def axes(self, xticks, yticks, ylabel, fnt, color, xlabels=True):
+        d = self.draw
+        x0, y0, x1, y1 = self.box
+        for t in yticks:
+            _, py = self.px(self.xlim[0], t)
+            d.line([x0, py, x1, py], fill=GRID)
+            d.line([x0 - 5, py, x0, py], fill=INK)
+            text = _tick_label(t)
+            w = d.textlength(text, font=fnt)
+            d.text((x0 - 8 - w, py - 7), text, font=fnt, fill=INK)
+        for t in xticks:
+            px, _ = self.px(t, self.ylim[0])
+            d.line([px, y0, px, y1], fill=GRID)
+            d.line([px, y1, px, y1 + 5], fill=INK)
+            if xlabels:
+                _text_center(d, (px, y1 + 8), _tick_label(t), fnt)
+        d.rectangle([x0, y0, x1, y1], outline=INK)
+        w = d.textlength(ylabel, font=fnt)
+        d.text((x1 - 8 - w, y1 - 22), ylabel, font=fnt, fill=color)
+
+    def series(self, xs, ys, color):
+        pts = [self.px(x, y) for x, y in zip(xs, ys)]
+        if len(pts) > 1:
+            self.draw.line(pts, fill=color, width=2, joint="curve")
+        for x, y in pts:
+            self.draw.ellipse([x - 3, y - 3, x + 3, y + 3], fill=color)
+
+
+def metrics_plot(results, *, size=(760, 460), title: str | None = None, total_bytes: int | None = None,
+                 bytes_received: int | None = None) -> Image.Image:
+    """Watermark PSNR (top) and NC (bottom) against bytes received, one point per boundary.
+
+    An exact watermark (PSNR infinite) is drawn at the top edge of the PSNR panel and
+    labelled; ``total_bytes`` (the complete file's size) extends the x axis to the
+    whole file; ``bytes_received`` below it marks where a cut stream stopped.
+    """
+    xs = np.array([r.bytes_read for r in results], dtype=np.float64) / 1000.0
+    psnr = [r.psnr_db for r in results]
+    ncs = [r.nc for r in results]
+    fnt, big = font(13), font(16)
+    img = Image.new("RGB", size, (255, 255, 255))
+    d = ImageDraw.Draw(img)
+    left, right, top = 70, size[0] - 20, 16 + (26 if title else 0)
+    bottom = size[1] - 48
+    mid_gap = 18
+    panel_h = (bottom - top - mid_gap) / 2
+    if title:
+        d.text((left, 12), title, font=big, fill=INK)
+    xmax = max(float(xs.max()), (total_bytes or 0) / 1000.0)
+    xlim = (0.0, xmax * 1.02 if xmax > 0 else 1.0)
+    xticks = _ticks(*xlim)
+
+    finite = [p for p in psnr if p is not None and math.isfinite(p)]
+    exact = any(p is not None and math.isinf(p) for p in psnr)
+    p_hi = max(finite) if finite else 10.0
+    p_top = (p_hi + 8) if exact else p_hi * 1.08 + 1
+    p_lo = min(0.0, min(finite)) if finite else 0.0
+    top_panel = _Panel(d, (left, top, right, top + panel_h), xlim, (p_lo, p_top))
+    top_panel.axes(xticks, _ticks(p_lo, p_top), "watermark PSNR (dB)", fnt, PSNR_COLOR, xlabels=False)
+    pts = [(x, (p_top if math.isinf(p) else p)) for x, p in zip(xs, psnr) if p is not None]
+    if pts:
+        top_panel.series(*zip(*pts), PSNR_COLOR)
+    if exact:
+        xi = next(x for x, p in zip(xs, psnr) if p is not None and math.isinf(p))
+        px, py = top_panel.px(xi, p_top)
+        text = "exact (inf)"
+        w = d.textlength(text, font=fnt)
+        d.text((min(px + 6, right - w - 4), py + 4), text, font=fnt, fill=PSNR_COLOR)
+
+    n_vals = [v for v in ncs if v is not None]
+    n_lo = min(0.0, min(n_vals)) if n_vals else 0.0
+    bottom_panel = _Panel(d, (left, top + panel_h + mid_gap, right, bottom), xlim, (n_lo, 1.05))
+    bottom_panel.axes(xticks, _ticks(n_lo, 1.0, 4), "watermark NC", fnt, NC_COLOR)
+    pts = [(x, v) for x, v in zip(xs, ncs) if v is not None]
+    if pts:
+        bottom_panel.series(*zip(*pts), NC_COLOR)
+    cut = bytes_received if bytes_received is not None else xs.max() * 1000
+    if total_bytes and cut < total_bytes:
+        for panel in (top_panel, bottom_panel):
+            px, _ = panel.px(cut / 1000.0, 0)
+            y0, y1 = panel.box[1], panel.box[3]
+            for y in range(int(y0), int(y1), 8):
+                d.line([px, y, px, min(y + 4, y1)], fill=CUT_COLOR, width=1)
+        px, _ = top_panel.px(cut / 1000.0, 0)
+        d.text((px + 5, top + 6), "stream cut here", font=fnt, fill=CUT_COLOR)
+    _text_center(d, ((left + right) / 2, size[1] - 24), "bytes received (kB)", fnt)
+    return img
+
+
+def write_figures(results, directory, *, title: str | None = None, total_bytes: int | None = None,
+                  bytes_received: int | None = None, k: int = 5) -> dict:
+    """Write ``frame_NNN.png`` (one per result with a watermark), ``overview.png``, ``metrics.png``.
+
+    ``total_bytes``: size of the complete file; ``bytes_received``: where the stream ended.
+    Creates ``directory`` if needed.  Returns ``{"frames": [paths], "overview": path, "plot": path}``
+    (``plot`` is None when no result carries a watermark score).
+    """
+    directory = os.fspath(directory)
+    try:
+        os.makedirs(directory, exist_ok=True)
+        frames = []
+        for r in results:
+            if r.watermark is None:
+                continue
+            path = os.path.join(directory, f"frame_{r.chunk:03d}.png")
+            Image.fromarray(np.asarray(r.watermark, np.uint8), "L").save(path)
+            frames.append(path)
+        over = os.path.join(directory, "overview.png")
+        overview(results, k=k, title=title, total_bytes=total_bytes).save(over)
+        plot = None
+        if any(r.nc is not None for r in results):
+            plot = os.path.join(directory, "metrics.png")
+            metrics_plot(results, title=title, total_bytes=total_bytes, bytes_received=bytes_received).save(plot)
+    except OSError as exc:
+        raise PmwError(f"{directory}: cannot write pictures ({exc.strerror or exc})") from None
+    return {"frames": frames, "overview": over, "plot": plot}

@@ -1,0 +1,340 @@
+"""The ``pmw`` command end to end: ``tools.pmw.main(argv)`` on temp dirs, meshes and watermarks made here."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import sys
+
+import numpy as np
+import pygltflib
+import pytest
+import trimesh
+from PIL import Image
+
+from pmwm_codec import shapes
+from pmwm_codec.watermark import WatermarkKey
+from tools.pmw import main
+from tools.pmw_decode import obj_bytes
+
+ENCODE_FIELDS = {"vertices", "faces", "base_vertices", "base_faces", "vsplits", "chunks", "bytes", "seconds",
+                 "distortion", "watermark"}
+DISTORTION_FIELDS = {"rms", "psnr_db", "hausdorff", "bbox_diagonal"}
+WATERMARK_FIELDS = {"width", "height", "mode", "bits", "codes", "embedded"}
+VERIFY_FIELDS = {"complete", "truncated", "chunks_total", "chunks", "final", "verdict"}
+CHUNK_FIELDS = {"chunk", "bytes_read", "vertices", "faces", "coefficients", "nc", "psnr_db"}
+DECODE_FIELDS = {"vertices", "faces", "chunks_applied", "complete"}
+
+
+def strict_json(text):
+    """Parse exactly one JSON object; NaN/Infinity are not JSON."""
+    def refuse(name):
+        raise ValueError(f"not JSON: {name}")
+    lines = [line for line in text.splitlines() if line.strip()]
+    assert len(lines) == 1, text
+    return json.loads(lines[0], parse_constant=refuse)
+
+
+def run(capsys, *argv):
+    """``(exit status, stdout, stderr)`` of ``pmw argv``."""
+    code = main([os.fspath(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def write_obj(path, mesh):
+    path.write_bytes(obj_bytes(mesh.positions, mesh.faces))
+    return path
+
+
+def pattern(size: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[:size, :size]
+    img = 128 + 90 * np.sin(x / 3.0) * np.cos(y / 5.0) + rng.integers(-20, 20, (size, size))
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory):
+    """An icosphere(5) (10k vertices) as OBJ, a 32x32 watermark, and its encoded .pmw + key."""
+    d = tmp_path_factory.mktemp("pmw")
+    mesh = write_obj(d / "sphere.obj", shapes.icosphere(5, 1.0, noise=0.01))
+    mark = d / "mark.png"
+    Image.fromarray(pattern(32)).save(mark)
+    other = d / "other.png"
+    Image.fromarray(255 - pattern(32, seed=7)).save(other)
+    pmw = d / "sphere.pmw"
+    assert main(["encode", str(mesh), "-o", str(pmw), "--watermark", str(mark), "--quiet"]) == 0
+    return {"dir": d, "mesh": mesh, "mark": mark, "other": other, "pmw": pmw, "key": d / "sphere.pmw.key.json"}
+
+
+def stdin_bytes(monkeypatch, data: bytes):
+    monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(io.BytesIO(data)))
+
+
+# -- encode -------------------------------------------------------------------------------
+
+def test_encode_json_has_the_contract_fields(work, tmp_path, capsys):
+    out = tmp_path / "a.pmw"
+    code, stdout, err = run(capsys, "encode", work["mesh"], "-o", out, "--watermark", work["mark"], "--json")
+    assert code == 0, err
+    doc = strict_json(stdout)
+    assert ENCODE_FIELDS <= doc.keys()
+    assert DISTORTION_FIELDS <= doc["distortion"].keys()
+    assert WATERMARK_FIELDS <= doc["watermark"].keys()
+    assert doc["watermark"]["width"] == 32 and doc["bytes"] == out.stat().st_size
+    assert doc["vertices"] == 10242 and doc["vsplits"] == doc["vertices"] - doc["base_vertices"]
+    assert (tmp_path / "a.pmw.key.json").exists() and doc["key_path"].endswith("a.pmw.key.json")
+
+
+def test_encode_prints_a_summary(work, tmp_path, capsys):
+    out = tmp_path / "b.pmw"
+    key = tmp_path / "my.key"
+    code, stdout, _ = run(capsys, "encode", work["mesh"], "-o", out, "--watermark", work["mark"], "--key", key)
+    assert code == 0
+    assert "vertex splits" in stdout and "32x32" in stdout and str(key) in stdout
+    assert key.exists() and not (tmp_path / "b.pmw.key.json").exists()
+
+
+def test_encode_with_an_existing_key_reuses_it(work, tmp_path, capsys):
+    out = tmp_path / "c.pmw"
+    code, _, _ = run(capsys, "encode", work["mesh"], "-o", out, "--watermark", work["mark"], "--key", work["key"], "-q")
+    assert code == 0
+    assert WatermarkKey.load(work["key"]).fingerprint() == json.loads(
+        json.dumps(_info(capsys, out)["watermark"]))["keyFingerprint"]
+
+
+def test_encode_without_watermark_writes_no_key(tmp_path, capsys):
+    src = write_obj(tmp_path / "t.obj", shapes.torus(24, 12))
+    code, stdout, _ = run(capsys, "encode", src, "-o", tmp_path / "t.pmw", "--json")
+    assert code == 0
+    doc = strict_json(stdout)
+    assert doc["watermark"] is None and not (tmp_path / "t.pmw.key.json").exists()
+
+
+def test_encode_options_reach_the_file(work, tmp_path, capsys):
+    out = tmp_path / "p.pmw"
+    code, stdout, err = run(capsys, "encode", work["mesh"], "-o", out, "--watermark", work["mark"], "--mode", "paper",
+                            "--bits", "4", "--grid-bits", "20", "--base-codec", "plain", "--base-vertices", "200",
+                            "--json")
+    assert code == 0, err
+    doc = strict_json(stdout)
+    assert doc["watermark"]["mode"] == "paper" and doc["watermark"]["bits"] == 4
+    info = _info(capsys, out)
+    assert info["base_codec"] == "plain" and info["grid"]["bits"] == 20 and info["watermark"]["mode"] == "paper"
+
+
+# -- decode -------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("suffix", [".glb", ".gltf", ".obj", ".ply"])
+def test_decode_writes_every_format(work, tmp_path, capsys, suffix):
+    out = tmp_path / f"level{suffix}"
+    code, stdout, err = run(capsys, "decode", work["pmw"], "-o", out, "--chunks", "2", "--json")
+    assert code == 0, err
+    doc = strict_json(stdout)
+    assert DECODE_FIELDS <= doc.keys()
+    assert doc["chunks_applied"] == 2 and doc["complete"] is True
+    loaded = trimesh.load(out, force="mesh", process=False)
+    assert loaded.vertices.shape == (doc["vertices"], 3) and loaded.faces.shape == (doc["faces"], 3)
+    assert [p.name for p in tmp_path.iterdir()] == [out.name]  # no temp file left
+
+
+def test_decode_glb_is_plain_gltf(work, tmp_path, capsys):
+    out = tmp_path / "full.glb"
+    assert run(capsys, "decode", work["pmw"], "-o", out)[0] == 0
+    gltf = pygltflib.GLTF2.load(str(out))
+    prim = gltf.meshes[0].primitives[0]
+    assert gltf.accessors[prim.attributes.POSITION].count == 10242
+    assert gltf.accessors[prim.indices].componentType == pygltflib.UNSIGNED_INT
+    assert not gltf.extensionsUsed
+
+
+def test_decode_from_stdin_truncated(work, tmp_path, capsys, monkeypatch):
+    data = work["pmw"].read_bytes()
+    stdin_bytes(monkeypatch, data[: len(data) // 2])
+    code, stdout, err = run(capsys, "decode", "-", "-o", tmp_path / "cut.obj", "--json")
+    assert code == 0, err
+    doc = strict_json(stdout)
+    assert doc["complete"] is False and 0 < doc["vertices"] < 10242
+
+
+# -- verify -------------------------------------------------------------------------------
+
+def test_verify_json_authentic(work, capsys):
+    code, stdout, err = run(capsys, "verify", work["pmw"], "--key", work["key"], "--json")
+    assert code == 0, err
+    doc = strict_json(stdout)
+    assert VERIFY_FIELDS <= doc.keys()
+    assert doc["complete"] is True and doc["truncated"] is False and doc["verdict"] == "authentic"
+    assert [c["chunk"] for c in doc["chunks"]] == list(range(doc["chunks_total"] + 1))
+    assert all(CHUNK_FIELDS <= c.keys() for c in doc["chunks"])
+    assert doc["final"] == doc["chunks"][-1]
+    assert doc["final"]["nc"] == pytest.approx(1.0) and doc["final"]["psnr_db"] is None  # exact: inf -> null
+    reads = [c["bytes_read"] for c in doc["chunks"]]
+    assert reads == sorted(reads)
+
+
+def test_verify_prints_a_table_and_the_verdict(work, capsys):
+    code, stdout, _ = run(capsys, "verify", work["pmw"], "--key", work["key"])
+    assert code == 0
+    lines = stdout.splitlines()
+    assert lines[0].split()[:2] == ["chunk", "bytes"] and "PSNR" in lines[0]
+    assert any(line.startswith("verdict: authentic") for line in lines)
+
+
+def test_verify_truncated_file_on_stdin(work, capsys, monkeypatch):
+    data = work["pmw"].read_bytes()
+    stdin_bytes(monkeypatch, data[: len(data) * 2 // 3])
+    code, stdout, err = run(capsys, "verify", "-", "--key", work["key"], "--json")
+    assert code in (0, 1), err
+    doc = strict_json(stdout)
+    assert doc["truncated"] is True and doc["complete"] is False
+    assert 1 < len(doc["chunks"]) <= doc["chunks_total"]
+    assert doc["final"]["bytes_read"] <= len(data) * 2 // 3
+    assert doc["verdict"] in ("authentic", "inconclusive")
+
+
+def test_verify_with_another_watermark_is_not_authentic(work, capsys):
+    code, stdout, _ = run(capsys, "verify", work["pmw"], "--key", work["key"], "--watermark", work["other"], "--json")
+    assert code == 1
+    # codes of two images agree more often than chance (shared low bits), so the library
+    # may call it inconclusive rather than not-authentic; either way it is not authentic
+    assert strict_json(stdout)["verdict"] in ("not-authentic", "inconclusive")
+
+
+def test_verify_of_an_unmarked_file_exits_1(work, tmp_path, capsys):
+    plain = tmp_path / "plain.pmw"
+    assert run(capsys, "encode", work["mesh"], "-o", plain, "-q")[0] == 0
+    code, stdout, _ = run(capsys, "verify", plain, "--key", work["key"])
+    assert code == 1 and "no watermark" in stdout
+
+
+def test_verify_frames(work, tmp_path, capsys):
+    frames = tmp_path / "frames"
+    data = work["pmw"].read_bytes()
+    cut = tmp_path / "cut.pmw"
+    cut.write_bytes(data[: len(data) // 2])
+    code, stdout, err = run(capsys, "verify", cut, "--key", work["key"], "--frames", frames, "--json")
+    assert code in (0, 1), err
+    doc = strict_json(stdout)
+    names = sorted(p.name for p in frames.iterdir())
+    assert [n for n in names if n.startswith("frame_")] == [f"frame_{i:03d}.png" for i in range(len(doc["chunks"]))]
+    assert "overview.png" in names and "metrics.png" in names
+    with Image.open(frames / "frame_000.png") as im:
+        assert im.size == (32, 32)
+    with Image.open(frames / "overview.png") as im:
+        assert im.width > 600 and im.mode == "RGB"
+
+
+def test_verify_reference_form_is_refused_clearly(work, capsys):
+    code, _, err = run(capsys, "verify", work["mesh"], "--reference", work["pmw"], "--key", work["key"])
+    assert code == 2 and "not supported" in err and len(err.splitlines()) == 1
+
+
+# -- info ---------------------------------------------------------------------------------
+
+def _info(capsys, path):
+    code, stdout, err = run(capsys, "info", path, "--json")
+    assert code == 0, err
+    return strict_json(stdout)
+
+
+def test_info_reads_the_structure(work, capsys):
+    info = _info(capsys, work["pmw"])
+    assert info["complete"] is True and info["vertices"] == 10242
+    assert info["chunks_total"] == len(info["chunks"]) == info["chunks_present"]
+    assert info["chunks"][-1]["vertices"] == 10242 and info["watermark"]["width"] == 32
+    assert info["vsplits"] == 10242 - info["base_vertices"]
+    code, stdout, _ = run(capsys, "info", work["pmw"])
+    assert code == 0 and "chunk" in stdout and "watermark" in stdout
+
+
+def test_info_of_a_truncated_file(work, tmp_path, capsys):
+    data = work["pmw"].read_bytes()
+    cut = tmp_path / "cut.pmw"
+    cut.write_bytes(data[: len(data) // 2])
+    info = _info(capsys, cut)
+    assert info["truncated"] is True and info["chunks_present"] < info["chunks_total"]
+    assert "TRUNCATED" in run(capsys, "info", cut)[1]
+
+
+# -- bad input: exit 2, one line, no traceback, nothing left behind -----------------------
+
+def _bad_cases(work, d):
+    (d / "notamesh.obj").write_text("this is not a mesh\n")
+    (d / "empty.obj").write_text("")
+    (d / "nan.obj").write_text("v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n")
+    (d / "range.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n")
+    (d / "mark.png").write_bytes(b"not an image at all")
+    (d / "random.pmw").write_bytes(np.random.default_rng(1).bytes(4000))
+    (d / "early.pmw").write_bytes(work["pmw"].read_bytes()[:300])
+    WatermarkKey.generate().save(d / "foreign.key.json")
+    out = d / "out.pmw"
+    mesh, pmw, key = work["mesh"], work["pmw"], work["key"]
+    return {
+        "missing file": ["encode", d / "nope.obj", "-o", out],
+        "not a mesh": ["encode", d / "notamesh.obj", "-o", out],
+        "empty mesh": ["encode", d / "empty.obj", "-o", out],
+        "NaN coordinates": ["encode", d / "nan.obj", "-o", out],
+        "face index out of range": ["encode", d / "range.obj", "-o", out],
+        "watermark not an image": ["encode", mesh, "-o", out, "--watermark", d / "mark.png"],
+        "unwritable output": ["encode", mesh, "-o", d / "no" / "such" / "dir" / "out.pmw"],
+        "output is a directory": ["decode", pmw, "-o", d],
+        "key of another file": ["verify", pmw, "--key", d / "foreign.key.json", "--frames", d / "frames"],
+        "missing key": ["verify", pmw, "--key", d / "nope.key.json"],
+        "cut before the base mesh": ["verify", d / "early.pmw", "--key", key, "--frames", d / "frames"],
+        "random bytes (verify)": ["verify", d / "random.pmw", "--key", key],
+        "random bytes (decode)": ["decode", d / "random.pmw", "-o", d / "out.glb"],
+        "random bytes (info)": ["info", d / "random.pmw"],
+        "cut before the base mesh (decode)": ["decode", d / "early.pmw", "-o", d / "out.obj"],
+        "missing .pmw": ["decode", d / "nope.pmw", "-o", d / "out.obj"],
+        "unknown output format": ["decode", pmw, "-o", d / "out.xyz"],
+        "negative --chunks": ["decode", pmw, "-o", d / "out.obj", "--chunks", "-1"],
+        "bad --bits": ["encode", mesh, "-o", out, "--bits", "99"],
+        "missing -o": ["encode", mesh],
+        "unknown command": ["frobnicate"],
+    }
+
+
+BAD = ["missing file", "not a mesh", "empty mesh", "NaN coordinates", "face index out of range",
+       "watermark not an image", "unwritable output", "output is a directory", "key of another file", "missing key",
+       "cut before the base mesh", "random bytes (verify)", "random bytes (decode)", "random bytes (info)",
+       "cut before the base mesh (decode)", "missing .pmw", "unknown output format", "negative --chunks",
+       "bad --bits", "missing -o", "unknown command"]
+
+
+@pytest.mark.parametrize("case", BAD)
+def test_bad_input_exits_2_with_one_line(work, tmp_path, capsys, case):
+    argv = _bad_cases(work, tmp_path)[case]
+    before = set(os.listdir(tmp_path))
+    code, stdout, err = run(capsys, *argv)
+    assert code == 2
+    assert stdout == ""
+    assert len(err.strip().splitlines()) == 1, err
+    assert err.startswith("pmw: error: ") and "Traceback" not in err
+    assert set(os.listdir(tmp_path)) == before  # no output, no temp file, no frames dir
+
+
+def test_bad_input_on_stdin(work, capsys, monkeypatch):
+    stdin_bytes(monkeypatch, work["pmw"].read_bytes()[:100])
+    code, _, err = run(capsys, "verify", "-", "--key", work["key"])
+    assert code == 2 and err.startswith("pmw: error: stdin: truncated")
+
+
+def test_help_exits_0(capsys):
+    assert main(["--help"]) == 0
+    assert "encode" in capsys.readouterr().out
+
+
+# -- demo ---------------------------------------------------------------------------------
+
+def test_demo_writes_its_pictures(tmp_path, capsys):
+    out = tmp_path / "demo"
+    code, stdout, err = run(capsys, "demo", "--out", out)
+    assert code == 0, err
+    for sub in ("cut", "whole"):
+        assert (out / sub / "overview.png").exists() and (out / sub / "metrics.png").exists()
+        assert (out / sub / "frame_000.png").exists()
+    assert (out / "demo.pmw").exists() and (out / "demo-cut.pmw").exists() and (out / "demo.pmw.key.json").exists()
+    assert "truncated" in stdout and "authentic" in stdout and str(out / "cut" / "overview.png") in stdout

@@ -1,0 +1,160 @@
+"""Shared pieces of the ``pmw`` subcommands: exit codes, errors, JSON, progress, atomic writes.
+
+Every subcommand module exposes ``add_parser(subparsers)`` and ``run(args) -> int``;
+:mod:`tools.pmw` wires them together and maps errors to exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import math
+import os
+import sys
+import tempfile
+
+EXIT_OK = 0
+EXIT_NOT_AUTHENTIC = 1  # verify ran; the mark is absent, wrong or too weak to decide
+EXIT_BAD_INPUT = 2  # bad input or usage (argparse uses 2 too)
+
+PROG = "pmw"
+
+
+class UsageError(Exception):
+    """A bad combination of arguments found after parsing: exit 2, one line."""
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse with one-line errors (``pmw: error: ...``) and exit status 2."""
+
+    def error(self, message):
+        self.exit(EXIT_BAD_INPUT, f"{PROG}: error: {message} (see '{self.prog} --help')\n")
+
+
+def error_line(message) -> str:
+    """The one line printed for a failed command (newlines folded)."""
+    text = " ".join(str(message).split()) or "unknown error"
+    return f"{PROG}: error: {text}"
+
+
+def os_error_message(exc: OSError) -> str:
+    name = exc.filename if exc.filename is not None else ""
+    why = exc.strerror or str(exc)
+    return f"{name}: {why}" if name else why
+
+
+def jsonable(value):
+    """Copy of ``value`` where non-finite floats become None (``Infinity`` is not JSON)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v) for v in value]
+    if hasattr(value, "item") and callable(value.item):  # numpy scalar
+        return jsonable(value.item())
+    return value
+
+
+def print_json(obj) -> None:
+    """Exactly one JSON object on stdout."""
+    sys.stdout.write(json.dumps(jsonable(obj), allow_nan=False) + "\n")
+    sys.stdout.flush()
+
+
+def fmt_float(value, digits: int = 2, unit: str = "") -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, float) and math.isinf(value):
+        return "inf"
+    return f"{value:.{digits}f}{unit}"
+
+
+class Progress:
+    """A one-line progress bar on stderr, shown only when stderr is a terminal.
+
+    ``Progress(enabled)(label, fraction)`` redraws; :meth:`done` clears the line.
+    """
+
+    def __init__(self, enabled: bool = True, width: int = 28):
+        self.enabled = bool(enabled) and _isatty(sys.stderr)
+        self.width = width
+        self._shown = False
+
+    def __call__(self, label: str, fraction: float) -> None:
+        if not self.enabled:
+            return
+        f = min(max(float(fraction), 0.0), 1.0)
+        full = int(round(f * self.width))
+        bar = "#" * full + "-" * (self.width - full)
+        sys.stderr.write(f"\r{label[:24]:<24} [{bar}] {100 * f:3.0f}%")
+        sys.stderr.flush()
+        self._shown = True
+
+    def done(self) -> None:
+        if self._shown:
+            sys.stderr.write("\r" + " " * (self.width + 34) + "\r")
+            sys.stderr.flush()
+            self._shown = False
+
+
+def _isatty(stream) -> bool:
+    try:
+        return stream.isatty()
+    except (AttributeError, ValueError):
+        return False
+
+
+@contextlib.contextmanager
+def atomic_output(path, mode: str = "wb"):
+    """Open a temporary file beside ``path``; on success it replaces ``path``, on failure it vanishes."""
+    path = os.fspath(path)
+    directory = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=directory)
+    try:
+        with os.fdopen(fd, mode) as fh:
+            yield fh
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+@contextlib.contextmanager
+def naming(path):
+    """Prefix library errors raised inside the block with the input's name (``stdin`` for ``-``)."""
+    from pmwm_codec.errors import PmwError
+
+    name = "stdin" if path == "-" else os.fspath(path)
+    try:
+        yield
+    except PmwError as exc:
+        text = str(exc)
+        if name in text or os.path.basename(name) in text:
+            raise
+        raise UsageError(f"{name}: {text}") from None
+
+
+def check_output_path(path, what: str = "output") -> None:
+    """Fail early (UsageError) when ``path``'s directory does not exist or is not writable."""
+    path = os.fspath(path)
+    directory = os.path.dirname(os.path.abspath(path)) or "."
+    if os.path.isdir(path):
+        raise UsageError(f"{path}: is a directory; give a file name for the {what}")
+    if not os.path.isdir(directory):
+        raise UsageError(f"{path}: cannot write {what}: directory {directory} does not exist")
+    if not os.access(directory, os.W_OK):
+        raise UsageError(f"{path}: cannot write {what}: directory {directory} is not writable")
+
+
+def check_input_file(path, what: str = "file") -> None:
+    """Fail (UsageError) unless ``path`` is ``-`` or an existing regular file."""
+    if path == "-":
+        return
+    if not os.path.exists(path):
+        raise UsageError(f"{path}: no such {what}")
+    if os.path.isdir(path):
+        raise UsageError(f"{path}: is a directory, not a {what}")

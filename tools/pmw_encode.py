@@ -1,0 +1,117 @@
+"""``pmw encode INPUT -o OUT.pmw``: a mesh (and optionally a watermark image) to a ``.pmw``."""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+import pmwm_codec
+from pmwm_codec.constants import MAX_GRID_BITS, MIN_GRID_BITS
+from pmwm_codec.watermark.codec import MAX_BITS, MODES
+
+from ._cli import Progress, UsageError, check_input_file, check_output_path, fmt_float, print_json
+
+STAGES = {"simplify": "simplifying", "records": "building splits", "write": "writing"}
+#: Share of the whole encode each library stage ends at (the distortion measure takes the rest).
+_SPAN = {"simplify": (0.0, 0.45), "records": (0.45, 0.6), "write": (0.6, 0.7)}
+
+
+def stage_progress(progress):
+    """Adapt the library's ``progress(stage, fraction)`` to one bar over the whole encode."""
+    def report(stage, fraction):
+        lo, hi = _SPAN.get(stage, (0.0, 1.0))
+        if stage == "write" and fraction >= 1.0:
+            progress("measuring distortion", hi)
+        else:
+            progress(STAGES.get(stage, stage), lo + (hi - lo) * fraction)
+    return report
+
+
+def _int_in(lo, hi, what):
+    def parse(text):
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{what} must be an integer, got {text!r}") from None
+        if not lo <= value <= (hi if hi is not None else value):
+            bound = f"{lo}..{hi}" if hi is not None else f">= {lo}"
+            raise argparse.ArgumentTypeError(f"{what} must be {bound}, got {value}")
+        return value
+    return parse
+
+
+def add_parser(sub):
+    p = sub.add_parser(
+        "encode", help="mesh (+ watermark) -> progressive .pmw",
+        description="Encode a mesh (OBJ, PLY, STL, glTF/GLB) into a progressive .pmw; with --watermark, "
+                    "hide the image in the vertex splits and write the secret key beside the output.")
+    p.add_argument("input", help="mesh file")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.pmw", help="the .pmw to write")
+    p.add_argument("--watermark", metavar="IMG", help="grayscale watermark image (made square, 2^k)")
+    p.add_argument("--key", metavar="KEY", help="key file to use (if it exists) or to write (default: OUT.pmw.key.json)")
+    p.add_argument("--mode", choices=MODES, default="exact", help="exact (default: bit-exact watermark) or paper (Eq. 4)")
+    p.add_argument("--bits", type=_int_in(1, MAX_BITS, "--bits"), metavar="B", help="bits per code (default: automatic)")
+    p.add_argument("--grid-bits", type=_int_in(MIN_GRID_BITS, MAX_GRID_BITS, "--grid-bits"), metavar="Q",
+                   help="position grid resolution in bits (default 16; paper mode 22)")
+    p.add_argument("--base-codec", choices=("draco", "plain"), default="draco", help="how the base mesh is stored")
+    p.add_argument("--base-vertices", type=_int_in(4, None, "--base-vertices"), metavar="N",
+                   help="target base mesh size (default 1%% of the vertices, at least 64)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
+    p.set_defaults(run=run)
+
+
+def run(args) -> int:
+    check_input_file(args.input, "mesh file")
+    if args.watermark is not None:
+        check_input_file(args.watermark, "watermark image")
+    check_output_path(args.output, ".pmw")
+    if args.key is not None and not os.path.exists(args.key):
+        check_output_path(args.key, "key")
+    progress = Progress(not (args.json or args.quiet))
+    options = {"mode": args.mode, "base_codec": args.base_codec, "progress": stage_progress(progress)}
+    for name in ("bits", "grid_bits", "base_vertices"):
+        if getattr(args, name) is not None:
+            options[name] = getattr(args, name)
+    extra = []
+    if args.key is not None and args.watermark is None:
+        extra.append("--key ignored: no --watermark, so the file carries no mark and needs no key")
+    try:
+        report = pmwm_codec.encode(args.input, args.output, watermark=args.watermark, key=args.key, **options)
+    except ValueError as exc:
+        if isinstance(exc, pmwm_codec.PmwError):
+            raise
+        raise UsageError(str(exc)) from None  # an option the library refused (e.g. --bits for --mode paper)
+    finally:
+        progress.done()
+    report["notices"] = list(report.get("notices") or []) + extra
+    if args.json:
+        print_json(report)
+    elif not args.quiet:
+        print(summary(args.input, args.output, report))
+    return 0
+
+
+def summary(src, dst, r) -> str:
+    """The human summary of an encode report."""
+    d = r["distortion"] or {}
+    lines = [f"{os.path.basename(os.fspath(src))} -> {dst}  ({r['bytes']:,} bytes, {r['seconds']:.1f} s)",
+             f"  mesh        {r['vertices']:,} vertices, {r['faces']:,} faces",
+             f"  base        {r['base_vertices']:,} vertices, {r['base_faces']:,} faces ({r.get('base_codec', '?')})",
+             f"  stream      {r['vsplits']:,} vertex splits in {r['chunks']} chunks"]
+    if d.get("rms") is not None:
+        diag = d.get("bbox_diagonal") or 0.0
+        haus = d.get("hausdorff")
+        lines.append(f"  distortion  RMS {d['rms']:.3g} (diagonal {diag:.3g}), PSNR {fmt_float(d.get('psnr_db'), 1, ' dB')}"
+                     + ("" if haus is None else f", Hausdorff {100 * haus:.3g}% of the diagonal"))
+    w = r.get("watermark")
+    if w:
+        lines.append(f"  watermark   {w['width']}x{w['height']}, {w['mode']} mode, {w['bits']} bits per code, "
+                     f"{w['codes']:,} codes on {w['embedded']:,} carriers")
+        if r.get("key_path"):
+            lines.append(f"  key         {r['key_path']}  (secret: verify needs it)")
+    else:
+        lines.append("  watermark   none")
+    for note in r.get("notices") or []:
+        lines.append(f"  note: {note}")
+    return "\n".join(lines)

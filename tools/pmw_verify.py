@@ -1,0 +1,145 @@
+"""``pmw verify IN.pmw|- --key KEY``: read the watermark at every chunk boundary and decide.
+
+Exit status: 0 authentic; 1 not-authentic or inconclusive; 2 bad input.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import pmwm_codec
+from pmwm_codec.stream import StreamDecoder, iter_results
+from pmwm_codec.watermark import load_watermark
+
+from ._cli import (EXIT_NOT_AUTHENTIC, EXIT_OK, Progress, UsageError, check_input_file, fmt_float, naming,
+                   print_json)
+
+
+@dataclass
+class Outcome:
+    """What a verification found: the results (base first), how the stream ended, the verdict."""
+
+    results: list
+    end: object  # StreamEnd
+    verdict: str
+    codes_matched: int
+    codes_read: int
+    marked: bool
+    total_length: int
+
+    def as_json(self) -> dict:
+        chunks = [r.as_json() for r in self.results]
+        return {"complete": bool(self.end.complete), "truncated": bool(self.end.truncated),
+                "chunks_total": int(self.end.chunks_total), "chunks": chunks, "final": chunks[-1],
+                "verdict": self.verdict, "bytes_read": int(self.end.bytes_read),
+                "total_length": int(self.total_length), "codes_matched": self.codes_matched,
+                "codes_read": self.codes_read}
+
+
+def verify(source, key, watermark=None, *, keep_meshes: bool = False, progress=None) -> Outcome:
+    """Decode ``source`` (path, '-', bytes, file) with ``key`` and score the mark at every boundary.
+
+    ``watermark``: the expected image (path or array; default: the one stored in the key).
+    ``keep_meshes``: keep a copy of every level's mesh in the results (for pictures).
+    """
+    reference = None
+    if watermark is not None:
+        reference, _ = load_watermark(watermark)
+    decoder = StreamDecoder(pmwm_codec.load_key(key), reference, copy=keep_meshes)
+    gen = iter_results(source, decoder)
+    results = []
+    while True:
+        try:
+            r = next(gen)
+        except StopIteration as stop:
+            end = stop.value
+            break
+        if not keep_meshes:  # views into the decoder: drop them, keep the numbers
+            r.positions_int = r.faces = None
+        results.append(r)
+        if progress is not None:
+            progress(f"chunk {r.chunk}/{r.chunks_total}", r.chunk / max(1, r.chunks_total))
+    v = decoder.verifier
+    if v is None:
+        verdict, matched, read = "not-authentic", 0, 0  # the file carries no watermark
+    else:
+        verdict = v.verdict()
+        matched, read = v.matches()
+    return Outcome(results, end, verdict, matched, read, v is not None, decoder.header.total_length)
+
+
+def add_parser(sub):
+    p = sub.add_parser(
+        "verify", help="read the watermark chunk by chunk; exit 0 if authentic",
+        description="Verify the watermark of a .pmw (whole, truncated, or '-' for standard input) at every "
+                    "chunk boundary. Exit status: 0 authentic, 1 not authentic or inconclusive, 2 bad input.")
+    p.add_argument("input", metavar="IN.pmw", help="the .pmw, or - for standard input")
+    p.add_argument("--key", required=True, metavar="KEY", help="the key file written by pmw encode")
+    p.add_argument("--watermark", metavar="IMG", help="expected watermark image (default: the one in the key)")
+    p.add_argument("--frames", metavar="DIR", help="write the partial watermark per chunk, an overview and a plot")
+    p.add_argument("--reference", metavar="ORIGINAL.pmw", help="verify a mesh that left the stream (not supported yet)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing; only the exit status")
+    p.set_defaults(run=run)
+
+
+def run(args) -> int:
+    if args.reference is not None:
+        raise UsageError("verify --reference (a mesh that left the stream) is not supported yet; "
+                         "verify the .pmw itself")
+    check_input_file(args.input, ".pmw file")
+    check_input_file(args.key, "key file")
+    if args.watermark is not None:
+        check_input_file(args.watermark, "watermark image")
+    if args.frames is not None and os.path.exists(args.frames) and not os.path.isdir(args.frames):
+        raise UsageError(f"{args.frames}: exists and is not a directory (--frames needs a directory)")
+    progress = Progress(not (args.json or args.quiet))
+    try:
+        with naming(args.input):
+            outcome = verify(args.input, args.key, args.watermark, keep_meshes=args.frames is not None,
+                             progress=progress)
+    finally:
+        progress.done()
+    pictures = None
+    if args.frames is not None:
+        from pmwm_codec.figures import write_figures
+
+        name = "stdin" if args.input == "-" else os.path.basename(args.input)
+        title = f"{name}: {outcome.verdict}" + ("" if outcome.end.complete else " (truncated)")
+        pictures = write_figures(outcome.results, args.frames, title=title, total_bytes=outcome.total_length,
+                                 bytes_received=outcome.end.bytes_read)
+    if args.json:
+        doc = outcome.as_json()
+        if pictures is not None:
+            doc["pictures"] = pictures
+        print_json(doc)
+    elif not args.quiet:
+        print(report(outcome, pictures))
+    return EXIT_OK if outcome.verdict == "authentic" else EXIT_NOT_AUTHENTIC
+
+
+def report(o: Outcome, pictures=None) -> str:
+    """The human table: one row per chunk boundary, then the verdict."""
+    head = f"{'chunk':>5} {'bytes':>11} {'vertices':>9} {'faces':>9} {'coeffs':>7} {'NC':>7} {'PSNR dB':>8}"
+    lines = [head]
+    for r in o.results:
+        lines.append(f"{r.chunk:>5} {r.bytes_read:>11,} {r.vertices:>9,} {r.faces_count:>9,} {r.coefficients:>7,} "
+                     f"{fmt_float(r.nc, 4):>7} {fmt_float(r.psnr_db, 2):>8}")
+    applied = o.results[-1].chunk
+    if o.end.complete:
+        lines.append(f"complete: {o.end.bytes_read:,} bytes, base + {applied} of {o.end.chunks_total} chunks")
+    else:
+        lines.append(f"truncated: {o.end.bytes_read:,} of {o.total_length:,} bytes arrived, "
+                     f"base + {applied} of {o.end.chunks_total} chunks")
+    if not o.marked:
+        why = "the file carries no watermark"
+    elif o.codes_read:
+        why = f"{o.codes_matched:,} of {o.codes_read:,} codes match"
+    else:
+        why = "no codes read yet"
+    lines.append(f"verdict: {o.verdict} ({why})")
+    if pictures:
+        lines.append(f"pictures: {len(pictures['frames'])} frames, {pictures['overview']}"
+                     + (f", {pictures['plot']}" if pictures.get("plot") else ""))
+    return "\n".join(lines)
