@@ -153,7 +153,7 @@ def build_progressive(
         residual = target - topo.prediction()
         state.positions[topo.u] = target
         batches.append(SplitBatch(v_sorted, symbols, residual))
-        errors.append(float(np.sqrt(cb.cost.max())) if k else 0.0)
+        errors.append(float(cb.error.max()) if k else 0.0)
 
     if state.n != n or state.m != m or np.any(face_src < 0):
         raise AssertionError("progressive build did not reach the full mesh")  # a bug, not bad input

@@ -61,7 +61,10 @@ class CollapseBatch:
     moved_by : (j,) int64
         Index into this batch's collapses for each moved face.
     cost : (k,) float64
-        Quadric error of each collapse (the geometric error of the level).
+        Quadric error of each collapse (area-weighted squared distances; ranks collapses).
+    error : (k,) float64
+        Root-mean-square distance of each collapse's quadric planes at the kept
+        vertex (``sqrt(cost / plane weight)``), in the units of the positions.
     """
 
     u: np.ndarray
@@ -73,6 +76,7 @@ class CollapseBatch:
     moved_face: np.ndarray
     moved_by: np.ndarray
     cost: np.ndarray
+    error: np.ndarray
 
 
 @dataclass
@@ -127,6 +131,11 @@ def _plane_quadrics(planes: np.ndarray, weight: np.ndarray) -> np.ndarray:
     return weight[:, None] * np.stack(
         [a * a, a * b, a * c, a * d, b * b, b * c, b * d, c * c, c * d, d * d], axis=1
     )
+
+
+def _plane_weight(q: np.ndarray) -> np.ndarray:
+    """Total weight of the planes in quadrics (k, 10): the trace a2 + b2 + c2 (unit normals)."""
+    return q[:, 0] + q[:, 4] + q[:, 7]
 
 
 def quadric_error(q: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -310,7 +319,7 @@ def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget):
         del_left=gf(del_left), del_right=gf(del_right),
         wing_left=g(wing_left), wing_right=g(wing_right),
         moved_face=fids[moved_face], moved_by=moved_by,
-        cost=cost,
+        cost=cost, error=np.sqrt(cost / np.maximum(_plane_weight(Q[cu] + Q[cv]), 1e-300)),
     )
 
 

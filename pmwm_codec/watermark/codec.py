@@ -51,6 +51,9 @@ MODES = ("exact", "paper")
 DEFAULT_STEP_UNITS = {"exact": 2.0, "paper": 2.5}
 DEFAULT_GRID_BITS = {"exact": 16, "paper": 22}
 MAX_BITS = 16
+#: exact mode: most bits per carrier before the distortion gets out of hand
+#: (a code moves its vertex by up to 2**(bits-1) steps; 6 bits ~ 70 dB mesh PSNR).
+MAX_EXACT_BITS = 6
 
 _OFFSETS = np.stack(np.meshgrid([0, -1, 1], [0, -1, 1], [0, -1, 1], indexing="ij"), -1).reshape(-1, 3)
 
@@ -210,11 +213,12 @@ def plan(image: np.ndarray, key, carriers: int, *, mode: str = "exact", bits: in
         message = pack(stream, layout)
         need = max(1, -(-len(message) // carriers))
         b = need if bits is None else int(bits)
-        if b > MAX_BITS or b * carriers < len(message):
+        limit = MAX_EXACT_BITS if bits is None else MAX_BITS
+        if b > limit or b * carriers < len(message):
             raise CapacityError(
                 f"a {size}x{size} watermark needs {len(message)} bits; this mesh has {carriers} vertex splits "
-                f"(at most {MAX_BITS} bits each{'' if bits is None else f', {b} requested'}): "
-                "use a smaller watermark image or a finer mesh"
+                f"(at most {limit} bits each{'' if bits is None else f', {b} requested'}): "
+                "use a smaller watermark image, a finer mesh, or --mode paper"
             )
         cycled = repeat_to_capacity(message, b * carriers) ^ key.bits(0, b * carriers)
         codes = symbols(cycled, b)

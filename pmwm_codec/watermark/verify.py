@@ -12,7 +12,9 @@ Binomial(n, p0).  The verdict:
   chance of that many matches under the null is below :data:`ALPHA`;
 * ``inconclusive`` — fewer than :data:`MIN_CARRIERS` codes read, or more
   matches than chance explains but fewer than :data:`MATCH_RATE` (a damaged mark);
-* ``not-authentic`` — otherwise.
+* ``not-authentic`` — otherwise, and whenever the reference image cannot be the
+  embedded one (another size, or coefficients that do not fit the file's public
+  bit layout).
 
 ``ALPHA`` bounds the false-positive probability of an ``authentic`` verdict
 per verification; ``tools/bench_watermark.py`` measures the rate over many
@@ -25,7 +27,9 @@ import numpy as np
 from scipy.stats import binom
 
 from . import codec as wm
+from . import haar
 from .metrics import centered_nc, nc, psnr
+from .payload import BitLayout, pack, repeat_to_capacity, symbols
 
 MATCH_RATE = 0.8
 ALPHA = 1e-9
@@ -57,8 +61,11 @@ class Verifier:
         self.extractor = wm.Extractor(params, key, nbar)
         self.reference = None if reference is None else np.asarray(reference, np.uint8)
         self.expected = None
+        #: True when the reference cannot be what the file carries (other size or bit layout)
+        self.mismatch = False
         if self.reference is not None:
             self.expected = expected_codes(self.reference, key, params)
+            self.mismatch = self.expected is None
 
     def add(self, batch_index: int, points: np.ndarray, centroid: np.ndarray) -> None:
         self.extractor.add(batch_index, np.asarray(points, np.float64), centroid)
@@ -72,6 +79,8 @@ class Verifier:
         return int(np.count_nonzero(self.extractor.received[got] == self.expected[got])), read
 
     def verdict(self) -> str:
+        if self.mismatch:
+            return "not-authentic"
         if self.expected is None:
             return "inconclusive"
         m, n = self.matches()
@@ -100,5 +109,13 @@ def expected_codes(reference: np.ndarray, key, params: wm.WatermarkParams):
     except (wm.CapacityError, ValueError):
         return None
     if params.mode == "exact" and p2.layout != params.layout:
-        return None
+        # pack the reference with the file's own layout; if it does not fit, it is not the mark
+        layout = BitLayout.from_config(params.layout)
+        stream = haar.to_stream(haar.forward_int(reference, params.levels), params.levels)
+        try:
+            message = pack(stream, layout)
+        except ValueError:
+            return None
+        cycled = repeat_to_capacity(message, params.bits * params.carriers) ^ key.bits(0, params.bits * params.carriers)
+        codes = symbols(cycled, params.bits)
     return codes
