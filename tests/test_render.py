@@ -8,7 +8,7 @@ import pytest
 from pmwm_codec import shapes
 from pmwm_codec.figures import _ticks, metrics_plot, overview, pick_levels, write_figures
 from pmwm_codec.render import BACKGROUND, Camera, rasterize, render
-from pmwm_codec.stream import PartialResult
+from pmwm_codec.stream.decoder import Part, PartialResult
 from pmwm_codec.progressive.grid import Grid
 
 
@@ -75,8 +75,9 @@ def _results():
         m = shapes.icosphere(k)
         mark = np.full((16, 16), 40 * i, np.uint8)
         psnr = float("inf") if i == 2 else 10.0 + 5 * i
+        part = Part(grid.quantize(m.positions), m.faces, np.zeros((m.vertex_count, 0), np.int64), grid)
         out.append(PartialResult(i, 2, 1000 * (i + 1), m.vertex_count, m.face_count, grid,
-                                 grid.quantize(m.positions), m.faces, mark, 10 * i, 0.5 + 0.25 * i, psnr))
+                                 [part], mark, 10 * i, 0.5 + 0.25 * i, psnr))
     return out
 
 

@@ -56,7 +56,7 @@ def verify(source, key, watermark=None, *, keep_meshes: bool = False, progress=N
             end = stop.value
             break
         if not keep_meshes:  # views into the decoder: drop them, keep the numbers
-            r.positions_int = r.faces = None
+            r.parts = []
         results.append(r)
         if progress is not None:
             progress(f"chunk {r.chunk}/{r.chunks_total}", r.chunk / max(1, r.chunks_total))

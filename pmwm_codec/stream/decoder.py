@@ -38,12 +38,43 @@ from ..watermark.verify import Verifier
 
 
 @dataclass
+class Part:
+    """One progressive primitive at a chunk boundary.
+
+    ``positions_int`` (n, 3) int64 grid coordinates, ``faces`` (m, 3) int64 and
+    ``attributes_int`` (n, a) int64 quantized attributes (see the extension's
+    ``attributes``); copies, or views when the decoder was made with ``copy=False``.
+    """
+
+    positions_int: np.ndarray
+    faces: np.ndarray
+    attributes_int: np.ndarray
+    grid: Grid
+    attributes: tuple = ()
+
+    @property
+    def positions(self) -> np.ndarray:
+        return self.grid.dequantize(self.positions_int)
+
+    def attribute_values(self) -> dict:
+        """``{semantic: (n, k) float32}`` dequantized attributes."""
+        from ..format.base import attribute_to_float
+
+        out, col = {}, 0
+        for spec in self.attributes:
+            width = len(spec["origin"])
+            out[spec["semantic"]] = attribute_to_float(self.attributes_int[:, col : col + width], spec)
+            col += width
+        return out
+
+
+@dataclass
 class PartialResult:
     """The mesh (and watermark) at one chunk boundary.
 
-    ``positions_int`` (n, 3) int64 grid coordinates and ``faces`` (m, 3) int64 are
-    copies (or views of the decoder's arrays when the decoder was made with
-    ``copy=False``; views are only valid until the next ``feed``).
+    ``parts`` holds every progressive primitive (one for a mesh file);
+    ``positions_int`` / ``faces`` / ``mesh`` are the first part's for a single
+    primitive and all parts concatenated otherwise.
     """
 
     chunk: int
@@ -52,8 +83,7 @@ class PartialResult:
     vertices: int
     faces_count: int
     grid: Grid
-    positions_int: np.ndarray
-    faces: np.ndarray
+    parts: list
     watermark: np.ndarray | None = None
     coefficients: int = 0
     nc: float | None = None
@@ -63,9 +93,24 @@ class PartialResult:
     carriers_read: int = 0
 
     @property
+    def positions_int(self) -> np.ndarray:
+        if len(self.parts) == 1:
+            return self.parts[0].positions_int
+        return np.concatenate([p.positions_int for p in self.parts])
+
+    @property
+    def faces(self) -> np.ndarray:
+        if len(self.parts) == 1:
+            return self.parts[0].faces
+        offsets = np.cumsum([0] + [len(p.positions_int) for p in self.parts])
+        return np.concatenate([p.faces + o for p, o in zip(self.parts, offsets)])
+
+    @property
     def mesh(self) -> Mesh:
-        """The mesh at this level, positions dequantized to float64."""
-        return Mesh(self.grid.dequantize(self.positions_int), self.faces)
+        """The mesh at this level (all parts), positions dequantized to float64."""
+        if len(self.parts) == 1:
+            return Mesh(self.grid.dequantize(self.positions_int), self.faces)
+        return Mesh(np.concatenate([p.positions for p in self.parts]), self.faces)
 
     def as_json(self) -> dict:
         return {
@@ -116,7 +161,10 @@ class StreamDecoder:
         self.check_key = check_key
         self.header: HeaderEvent | None = None
         self.grid: Grid | None = None
-        self.state: MeshState | None = None
+        self.exts: tuple = ()
+        self.grids: list = []
+        self.states: list = []
+        self.nbars: list = []
         self.chunks_applied = 0
         self.chunks_total = 0
         self.watermark_params: wm.WatermarkParams | None = None
@@ -149,35 +197,50 @@ class StreamDecoder:
             self._on_header(event)
             return None
         if isinstance(event, BaseEvent):
-            ext = self.header.extension
-            self.state = MeshState(event.positions_int, event.faces, int(ext["vertexCount"]), int(ext["faceCount"]))
+            ext = self.exts[event.primitive]
+            attrs = event.attributes_int if event.attributes_int is not None else np.zeros((len(event.positions_int), 0), np.int64)
+            width = 3 + sum(len(sp["origin"]) for sp in ext.get("attributes", ()))
+            if attrs.shape[1] != width - 3:
+                raise FormatError("base mesh: attribute columns differ from the extension's attributes")
+            values = np.concatenate([event.positions_int, attrs], axis=1)
+            self.states.append(MeshState(values, event.faces, int(ext["vertexCount"]), int(ext["faceCount"])))
+            self.nbars.append(wm.base_mean_edge(event.positions_int, event.faces) if self.watermark_params else 0.0)
+            if len(self.states) < len(self.exts):
+                return None
             if self.watermark_params is not None and self.key is not None:
-                nbar = wm.base_mean_edge(event.positions_int, event.faces)
-                self.verifier = Verifier(self.watermark_params, self.key, nbar, self.reference)
+                self.verifier = Verifier(self.watermark_params, self.key, self.nbars[0], self.reference)
             return self._result(0, event.bytes_read)
         if isinstance(event, ChunkEvent):
             if self.max_chunks is not None and self.chunks_applied >= self.max_chunks:
                 return None
-            for batch in unpack_batches(event.payload, max_splits=len(self.state.positions)):
-                topo = apply_batch(self.state, batch)
+            p = event.primitive
+            state, ext = self.states[p], self.exts[p]
+            width = state.positions.shape[1]
+            scale = ext["watermark"]["scale"] if "watermark" in ext else None
+            for batch in unpack_batches(event.payload, max_splits=len(state.positions), width=width):
+                topo = apply_batch(state, batch)
                 if self.verifier is not None:
-                    self.verifier.add(self._batch_index, self.state.positions[topo.u, :3], topo.centroid()[:, :3])
+                    self.verifier.add(self._batch_index, state.positions[topo.u, :3], topo.centroid()[:, :3],
+                                      self.nbars[p], scale)
                 self._batch_index += 1
             self.chunks_applied += 1
-            meta = self.header.extension["chunks"][event.index]
-            if self.state.n != meta["vertexCount"] or self.state.m != meta["faceCount"]:
+            meta = ext["chunks"][event.chunk]
+            if state.n != meta["vertexCount"] or state.m != meta["faceCount"]:
                 raise FormatError(f"chunk {event.index + 1}: vertex/face counts differ from its index entry")
             return self._result(event.index + 1, event.bytes_read)
         return None
 
     def _on_header(self, event: HeaderEvent):
         self.header = event
+        self.exts = event.extensions or (event.extension,)
         ext = event.extension
-        self.grid = Grid.from_config(ext["grid"])
+        self.grids = [Grid.from_config(e["grid"]) for e in self.exts]
+        self.grid = self.grids[0]
         self.chunks_total = event.chunk_count
-        payload = ext.get("payload", {"codec": "pmwm-vsplit", "version": 1})
-        if payload.get("codec") != "pmwm-vsplit" or int(payload.get("version", 0)) != 1:
-            raise FormatError(f"{EXTENSION_NAME}: unknown chunk payload codec {payload!r}")
+        for e in self.exts:
+            payload = e.get("payload", {"codec": "pmwm-vsplit", "version": 1})
+            if payload.get("codec") != "pmwm-vsplit" or int(payload.get("version", 0)) != 1:
+                raise FormatError(f"{EXTENSION_NAME}: unknown chunk payload codec {payload!r}")
         if "watermark" in ext:
             self.watermark_params = wm.WatermarkParams.from_config(ext["watermark"])
             if self.key is not None and self.check_key:
@@ -188,13 +251,22 @@ class StreamDecoder:
             # an unmarked file: nothing to read, the verdict will say so
             pass
 
+    @property
+    def state(self) -> MeshState | None:
+        """The first primitive's state (the only one for a mesh file)."""
+        return self.states[0] if self.states else None
+
     def _result(self, chunk: int, bytes_read: int) -> PartialResult:
-        st = self.state
-        pos = st.positions[: st.n]
-        fac = st.faces[: st.m]
-        if self.copy:
-            pos, fac = pos.copy(), fac.copy()
-        r = PartialResult(chunk, self.chunks_total, bytes_read, st.n, st.m, self.grid, pos, fac)
+        parts = []
+        for st, grid, ext in zip(self.states, self.grids, self.exts):
+            values = st.positions[: st.n]
+            fac = st.faces[: st.m]
+            pos, attrs = values[:, :3], values[:, 3:]
+            if self.copy:
+                pos, fac, attrs = pos.copy(), fac.copy(), attrs.copy()
+            parts.append(Part(pos, fac, attrs, grid, tuple(ext.get("attributes", ()))))
+        r = PartialResult(chunk, self.chunks_total, bytes_read, sum(st.n for st in self.states),
+                          sum(st.m for st in self.states), self.grid, parts)
         if self.verifier is not None:
             self.verifier.fill(r)
         self.last = r

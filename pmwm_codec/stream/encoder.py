@@ -12,6 +12,7 @@ It returns an :class:`EncodeReport` holding the ``pmw encode --json`` fields.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import secrets
 import time
@@ -21,7 +22,9 @@ import numpy as np
 
 from ..constants import DEFAULT_GRID_BITS
 from ..errors import PmwError
-from ..format import encode_base, write_pmw
+from ..format import encode_base
+from ..format.base import attribute_grid, attribute_to_float, attribute_to_grid, with_attributes
+from ..format.glb import ProgressivePrimitive, assemble_document, write_parts
 from ..format.records import pack_batches
 from ..mesh import Mesh
 from ..progressive.build import build_progressive
@@ -89,8 +92,43 @@ def group_batches(sizes, min_splits: int) -> list:
     return out
 
 
-def encode_mesh(
-    mesh: Mesh,
+@dataclass
+class PrimitiveJob:
+    """One triangle primitive to make progressive.
+
+    ``mesh`` carries positions, faces and per-vertex ``attributes`` (glTF semantic ->
+    (n, k) float); ``locked`` (n,) bool marks vertices that must stay in the base
+    (attribute seams, borders shared with other primitives); ``mesh_index`` and
+    ``primitive_index`` say where it sits in the document.
+    """
+
+    mesh: Mesh
+    mesh_index: int = 0
+    primitive_index: int = 0
+    locked: np.ndarray | None = None
+
+
+#: Grid bits of progressive attributes, by semantic prefix (others: 14).
+ATTRIBUTE_BITS = {"NORMAL": 14, "TANGENT": 14, "TEXCOORD": 14, "COLOR": 12}
+
+
+def _attribute_bits(semantic: str) -> int:
+    return ATTRIBUTE_BITS.get(semantic.split("_")[0], 14)
+
+
+def encode_mesh(mesh: Mesh, dst, **options) -> EncodeReport:
+    """Encode one validated :class:`Mesh` into a ``.pmw`` at ``dst`` (path or binary file).
+
+    See :func:`encode_document` for the options.
+    """
+    doc = {"scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}], "meshes": [{"primitives": [{}]}]}
+    return encode_document(doc, b"", [PrimitiveJob(mesh)], dst, **options)
+
+
+def encode_document(
+    doc: dict,
+    kept_bin: bytes,
+    jobs: list,
     dst,
     *,
     watermark: np.ndarray | None = None,
@@ -106,18 +144,23 @@ def encode_mesh(
     measure: bool = True,
     progress=None,
 ) -> EncodeReport:
-    """Encode a validated :class:`Mesh` into a ``.pmw`` at ``dst`` (path or binary file).
+    """Make the primitives of ``jobs`` progressive inside ``doc`` and write the ``.pmw``.
 
     Parameters
     ----------
+    doc, kept_bin : the document to carry and its data (see
+        :func:`~pmwm_codec.format.glb.assemble_document`).
+    jobs : list[PrimitiveJob]
     watermark : (s, s) uint8, optional
-        A ``2^k`` square grayscale image (see :func:`~pmwm_codec.watermark.load_watermark`).
+        A ``2^k`` square grayscale image (see :func:`~pmwm_codec.watermark.load_watermark`);
+        one watermark for the whole document, its slots spread over every primitive's
+        splits in stream order.
     key : WatermarkKey, optional
         Generated when a watermark is given and no key is.
     mode : ``"exact"`` | ``"paper"``; bits : bits per carrier (None: automatic / 12).
-    grid_bits : grid resolution (default 16; paper mode 22).
-    base_codec : ``"draco"`` | ``"plain"``.
-    base_vertices : target base size (default :func:`default_base_target`).
+    grid_bits : position grid resolution (default 16; paper mode 22).
+    base_codec : ``"draco"`` | ``"plain"`` (primitives with attributes use plain).
+    base_vertices : target base size per primitive (default :func:`default_base_target`).
     measure : compute the distortion (RMS, PSNR, Hausdorff) of the full decoded mesh.
     progress : optional callable(stage: str, fraction: float).
     """
@@ -126,106 +169,191 @@ def encode_mesh(
     notices = []
     if grid_bits is None:
         grid_bits = wm.DEFAULT_GRID_BITS[mode] if watermark is not None else DEFAULT_GRID_BITS
-    grid = Grid.fit(mesh.positions, grid_bits)
-    q = grid.quantize(mesh.positions)
-    n, m = mesh.vertex_count, mesh.face_count
 
+    # 1. quantize and simplify every primitive
+    work = []
     say("simplify", 0.0)
-    target = default_base_target(n) if base_vertices is None else int(base_vertices)
-    log = simplify(q, mesh.faces, target_vertices=target)
-    say("simplify", 1.0)
+    for i, job in enumerate(jobs):
+        mesh = job.mesh
+        grid = Grid.fit(mesh.positions, grid_bits)
+        q = grid.quantize(mesh.positions)
+        specs, columns = [], [q]
+        for semantic in sorted(mesh.attributes):
+            values = np.asarray(mesh.attributes[semantic], np.float64).reshape(mesh.vertex_count, -1)
+            spec = {"semantic": semantic, **attribute_grid(values, _attribute_bits(semantic))}
+            ints = attribute_to_grid(values, spec, semantic)
+            if not np.array_equal(attribute_to_grid(attribute_to_float(ints, spec), spec, semantic), ints):
+                raise PmwError(f"{semantic}: values too large for float32 at {spec['bits']} bits")
+            specs.append(spec)
+            columns.append(ints)
+        values = np.concatenate(columns, axis=1)
+        n = mesh.vertex_count
+        target = default_base_target(n) if base_vertices is None else int(base_vertices)
+        log = simplify(q, mesh.faces, target_vertices=target, locked=job.locked)
+        work.append({"job": job, "grid": grid, "values": values, "specs": specs, "log": log})
+        say("simplify", (i + 1) / len(jobs))
 
-    # the base as the decoder will see it
-    base_ids = log.base_vertices
-    local = np.full(n, -1, dtype=np.int64)
-    local[base_ids] = np.arange(len(base_ids))
-    try:
-        base = encode_base(q[base_ids], local[log.base_corners], grid.get_config(), codec=base_codec)
-    except ValueError as exc:
-        raise PmwError(f"cannot store the base mesh: {exc}") from None
-    if base.notice:
-        notices.append(base.notice)
-    base_order = base_ids[np.asarray(base.vertex_map, dtype=np.int64)]
+    # 2. bases as the decoder will see them
+    for w in work:
+        log, q = w["log"], w["values"][:, :3]
+        base_ids = log.base_vertices
+        local = np.full(len(q), -1, dtype=np.int64)
+        local[base_ids] = np.arange(len(base_ids))
+        codec = base_codec
+        if w["specs"] and codec == "draco":
+            codec = "plain"
+            notices.append("primitives with attributes keep a plain base (Draco carries positions only here)")
+        try:
+            base = encode_base(q[base_ids], local[log.base_corners], w["grid"].get_config(), codec=codec)
+        except ValueError as exc:
+            raise PmwError(f"cannot store the base mesh: {exc}") from None
+        if base.notice and base.notice not in notices:
+            notices.append(base.notice)
+        order0 = base_ids[np.asarray(base.vertex_map, dtype=np.int64)]
+        if w["specs"]:
+            offsets = np.cumsum([3] + [len(sp["origin"]) for sp in w["specs"]])
+            base = with_attributes(base, [
+                (sp, w["values"][order0, offsets[j] : offsets[j + 1]]) for j, sp in enumerate(w["specs"])
+            ])
+        w["base"], w["order0"] = base, order0
 
-    # watermark plan (needs the carrier count and nbar of the base)
-    embedder = None
+    # 3. chunks per primitive, then one stream order over all of them
+    for w in work:
+        sizes = [len(cb.u) for cb in reversed(w["log"].batches)]
+        total = sum(sizes)
+        mcs = max(32, total // 100) if min_chunk_splits is None else min_chunk_splits
+        w["sizes"], w["groups"] = sizes, group_batches(sizes, mcs)
+    order = _stream_order(work)
+    slots, g, offset = [dict() for _ in work], 0, 0
+    for p, k in order:
+        for j in work[p]["groups"][k]:
+            slots[p][j] = (g, offset)
+            g += 1
+            offset += work[p]["sizes"][j]
+    carriers = offset
+
+    # 4. watermark plan over every carrier of the document
     params = None
-    carriers = n - len(base_ids)
+    embedders = [None] * len(work)
     if watermark is not None:
         if key is None:
             key = WatermarkKey.generate()
-        nbar = wm.base_mean_edge(base.positions_int, base.faces)
-        params, codes = wm.plan(watermark, key, carriers, mode=mode, bits=bits, nbar=nbar, step_units=step_units)
-        embedder = wm.Embedder(params, key, codes, nbar)
+        params, codes = wm.plan(watermark, key, carriers, mode=mode, bits=bits, nbar=1.0, step_units=step_units)
+        step = wm.DEFAULT_STEP_UNITS[mode] if step_units is None else float(step_units)
+        for p, w in enumerate(work):
+            nbar = wm.base_mean_edge(w["base"].positions_int, w["base"].faces)
+            w["params"] = dataclasses.replace(params, scale=nbar / step)
+            embedders[p] = wm.Embedder(w["params"], key, codes, nbar, slots=slots[p])
 
+    # 5. split records
     say("records", 0.0)
-    pm = build_progressive(log, q, grid, base_vertex_order=base_order, base_faces_decoded=base.faces, embed=embedder)
-    say("records", 1.0)
+    for p, w in enumerate(work):
+        w["pm"] = build_progressive(
+            w["log"], w["values"], w["grid"], base_vertex_order=w["order0"],
+            base_faces_decoded=w["base"].faces, embed=embedders[p],
+        )
+        say("records", (p + 1) / len(work))
 
-    sizes = [b.size for b in pm.batches]
-    if min_chunk_splits is None:
-        min_chunk_splits = max(32, pm.split_count // 100)
-    groups = group_batches(sizes, min_chunk_splits)
-    payloads, meta = [], []
-    nv, nf = len(pm.base_positions), len(pm.base_faces)
-    for g in groups:
-        chunk = [pm.batches[j] for j in g]
-        payloads.append(pack_batches(chunk))
-        nv += sum(b.size for b in chunk)
-        nf += sum(b.new_face_count() for b in chunk)
-        nxt = g.stop
-        err = float(pm.batch_errors[nxt]) * grid.step if nxt < len(pm.batches) else 0.0
-        meta.append({"splits": int(sum(b.size for b in chunk)), "vertexCount": int(nv), "faceCount": int(nf),
-                     "geometricError": err, "batches": len(chunk)})
-
+    # 6. payloads, index entries, extension objects; write
     file_id = secrets.token_hex(8)
-    extension = {
-        "grid": grid.get_config(),
-        "vertexCount": int(n),
-        "faceCount": int(m),
-        "payload": {"codec": PAYLOAD_CODEC, "version": PAYLOAD_VERSION},
-        "fileId": file_id,
-    }
+    prims = []
+    for p, w in enumerate(work):
+        pm, grid = w["pm"], w["grid"]
+        remaining = np.maximum.accumulate(pm.batch_errors[::-1])[::-1] if len(pm.batch_errors) else pm.batch_errors
+        payloads, meta = [], []
+        nv, nf = len(pm.base_positions), len(pm.base_faces)
+        for grp in w["groups"]:
+            chunk = [pm.batches[j] for j in grp]
+            payloads.append(pack_batches(chunk))
+            nv += sum(b.size for b in chunk)
+            nf += sum(b.new_face_count() for b in chunk)
+            err = float(remaining[grp.stop]) * grid.step if grp.stop < len(pm.batches) else 0.0
+            meta.append({"splits": int(sum(b.size for b in chunk)), "vertexCount": int(nv), "faceCount": int(nf),
+                         "geometricError": err, "batches": len(chunk)})
+        extension = {
+            "grid": grid.get_config(),
+            "vertexCount": int(pm.vertex_count),
+            "faceCount": int(pm.face_count),
+            "payload": {"codec": PAYLOAD_CODEC, "version": PAYLOAD_VERSION},
+            "fileId": file_id,
+        }
+        if w["specs"]:
+            extension["attributes"] = w["specs"]
+        if params is not None:
+            extension["watermark"] = w["params"].get_config()
+        job = w["job"]
+        prims.append(ProgressivePrimitive(job.mesh_index, job.primitive_index, w["base"], payloads, meta, extension))
     if params is not None:
-        extension["watermark"] = params.get_config()
         key.file_id = file_id
         key.params = params.get_config()
         key.reference = np.asarray(watermark, np.uint8)
     say("write", 0.0)
-    size = write_pmw(dst, base=base, chunks=payloads, chunk_meta=meta, extension=extension, zstd_level=zstd_level)
+    size = write_parts(dst, assemble_document(doc, kept_bin, prims, order, zstd_level))
     say("write", 1.0)
 
-    distortion = {"rms": None, "psnr_db": None, "hausdorff": None, "bbox_diagonal": mesh.bbox_diagonal()}
+    meshes = [w["job"].mesh for w in work]
+    combined = _combine(meshes)
+    distortion = {"rms": None, "psnr_db": None, "hausdorff": None, "bbox_diagonal": combined.bbox_diagonal()}
     if measure:
-        distortion = full_distortion(pm, grid, mesh)
+        say("measure", 0.0)
+        decoded = [_decoded_positions(w["pm"], w["grid"]) for w in work]
+        distortion = full_distortion(combined, _combine([Mesh(d, m.faces) for d, m in zip(decoded, meshes)]))
+        say("measure", 1.0)
     wm_report = None
     if params is not None:
         wm_report = {
             "width": params.size, "height": params.size, "mode": params.mode, "bits": params.bits,
-            "codes": params.codes, "embedded": int(embedder.embedded), "carriers": params.carriers,
-            "failed": int(embedder.failed),
+            "codes": params.codes, "embedded": int(sum(e.embedded for e in embedders)), "carriers": params.carriers,
+            "failed": int(sum(e.failed for e in embedders)),
         }
     return EncodeReport(
-        vertices=n, faces=m, base_vertices=len(pm.base_positions), base_faces=len(pm.base_faces),
-        vsplits=pm.split_count, chunks=len(groups), bytes=int(size), seconds=time.perf_counter() - t0,
-        distortion=distortion, watermark=wm_report, base_codec=base.codec, notices=notices, key=key,
-        batches=len(pm.batches),
+        vertices=sum(m.vertex_count for m in meshes), faces=sum(m.face_count for m in meshes),
+        base_vertices=sum(len(w["pm"].base_positions) for w in work),
+        base_faces=sum(len(w["pm"].base_faces) for w in work),
+        vsplits=carriers, chunks=len(order), bytes=int(size), seconds=time.perf_counter() - t0,
+        distortion=distortion, watermark=wm_report, base_codec=work[0]["base"].codec if work else base_codec,
+        notices=notices, key=key, batches=sum(len(w["pm"].batches) for w in work),
     )
 
 
-def full_distortion(pm, grid: Grid, mesh: Mesh) -> dict:
-    """Distortion of the fully decoded mesh against the input ``mesh`` (float positions)."""
+def _stream_order(work) -> list:
+    """Every (primitive, chunk) in stream order: by the fraction of the primitive's splits done after it."""
+    keys = []
+    for p, w in enumerate(work):
+        total = max(1, sum(w["sizes"]))
+        done = 0
+        for k, grp in enumerate(w["groups"]):
+            done += sum(w["sizes"][j] for j in grp)
+            keys.append((done / total, p, k))
+    return [(p, k) for _, p, k in sorted(keys)]
+
+
+def _combine(meshes) -> Mesh:
+    """One mesh of several (disjoint vertex ranges); the mesh itself when there is one."""
+    if len(meshes) == 1:
+        return meshes[0]
+    offsets = np.cumsum([0] + [m.vertex_count for m in meshes])
+    return Mesh(
+        np.concatenate([m.positions for m in meshes]),
+        np.concatenate([m.faces + o for m, o in zip(meshes, offsets)]),
+    )
+
+
+def _decoded_positions(pm, grid) -> np.ndarray:
+    """(n, 3) float64 positions of the full decode, in the input's vertex order."""
     from ..progressive.vsplit import apply_batch
-    from ..watermark.metrics import mesh_distortion
 
     state = pm.new_state()
     for batch in pm.batches:
         apply_batch(state, batch)
-    decoded = grid.dequantize(state.current_positions())[pm.vertex_order]
-    inverse = np.empty_like(pm.vertex_order)
-    inverse[pm.vertex_order] = np.arange(len(inverse))
-    faces = mesh.faces  # same connectivity, input numbering
-    d = mesh_distortion(Mesh(mesh.positions, faces), Mesh(decoded, faces))
+    return grid.dequantize(state.current_positions()[:, :3])[pm.vertex_order]
+
+
+def full_distortion(original: Mesh, decoded: Mesh) -> dict:
+    """Distortion of ``decoded`` (same connectivity and vertex order) against ``original``."""
+    from ..watermark.metrics import mesh_distortion
+
+    d = mesh_distortion(original, decoded)
     return {k: (None if v is None else float(v)) for k, v in d.items()}
 
 

@@ -174,11 +174,17 @@ class Embedder:
     offset: int = 0
     embedded: int = 0
     failed: int = 0
+    #: batch j -> (stream batch index, carrier offset) when several primitives share the slots
+    slots: dict | None = None
 
     def __call__(self, j, topo, target, state):
         k = len(target)
-        slots = carrier_slots(self.key, j, self.offset, k)
-        self.offset += k
+        if self.slots is not None:
+            g, offset = self.slots[j]
+            slots = carrier_slots(self.key, g, offset, k)
+        else:
+            slots = carrier_slots(self.key, j, self.offset, k)
+            self.offset += k
         live = slots < len(self.codes)
         out = np.array(target, dtype=np.int64, copy=True)
         if live.any():
@@ -255,13 +261,19 @@ class Extractor:
     def __post_init__(self):
         self.received = np.full(self.params.carriers, -1, dtype=np.int64)
 
-    def add(self, j: int, points: np.ndarray, centroid: np.ndarray) -> None:
-        """Record the codes of batch ``j``: points (k, 3) and ring means (k, 3), same units."""
+    def add(self, j: int, points: np.ndarray, centroid: np.ndarray, nbar: float | None = None,
+            scale: float | None = None) -> None:
+        """Record the codes of batch ``j`` (stream order): points (k, 3) and ring means (k, 3).
+
+        ``nbar`` / ``scale`` override the defaults for a batch of another primitive.
+        """
         k = len(points)
         slots = carrier_slots(self.key, j, self.offset, k)
         self.offset += k
         live = slots < len(self.received)
-        codes = read_codes(points[live], centroid[live], self.nbar, self.params.scale, self.params.bits)
+        nbar = self.nbar if nbar is None else nbar
+        scale = self.params.scale if scale is None else scale
+        codes = read_codes(points[live], centroid[live], nbar, scale, self.params.bits)
         self.received[slots[live]] = codes
 
     @property

@@ -67,8 +67,8 @@ class Verifier:
             self.expected = expected_codes(self.reference, key, params)
             self.mismatch = self.expected is None
 
-    def add(self, batch_index: int, points: np.ndarray, centroid: np.ndarray) -> None:
-        self.extractor.add(batch_index, np.asarray(points, np.float64), centroid)
+    def add(self, batch_index: int, points: np.ndarray, centroid: np.ndarray, nbar=None, scale=None) -> None:
+        self.extractor.add(batch_index, np.asarray(points, np.float64), centroid, nbar, scale)
 
     def matches(self) -> tuple[int, int]:
         """``(codes matching the reference, codes read)`` so far."""
