@@ -18,7 +18,7 @@ import numpy as np
 from .errors import PmwError
 from .mesh import Mesh, checked_mesh, read_mesh
 
-__all__ = ["Mesh", "PmwError", "read_mesh", "encode", "decode", "iter_decode", "load_key"]
+__all__ = ["Mesh", "PmwError", "read_mesh", "encode", "decode", "decode_asset", "iter_decode", "load_key"]
 __version__ = "0.1.0"
 
 
@@ -46,17 +46,28 @@ def load_key(key):
 
 
 def encode(src, dst, watermark=None, key=None, **options):
-    """Encode ``src`` (path or :class:`Mesh`) into a ``.pmw`` at ``dst`` (path or binary file).
+    """Encode ``src`` into a ``.pmw`` at ``dst`` (path or binary file).
+
+    ``src``: a mesh file or :class:`Mesh`, or a glTF asset (``.glb`` / ``.gltf`` path, or an
+    in-memory ``(gltf dict, buffers)``) whose triangle primitives all become progressive
+    while materials, textures and nodes are kept (see :mod:`pmwm_codec.stream.asset`).
 
     ``watermark``: image path or (s, s) array; ``key``: a WatermarkKey, the path of an
     existing key file, or None (a new key; with a path ``dst`` it is saved to
     ``dst + ".key.json"``).  Options: ``mode``, ``bits``, ``grid_bits``, ``base_codec``,
-    ``base_vertices``, ``zstd_level``, ``measure``.  Returns the report dict (the
+    ``base_vertices``, ``zstd_level``, ``measure``, ``strip_image_profiles`` (assets).
+    Returns the report dict (the
     ``pmw encode --json`` fields, plus ``notices`` and ``key_path``).
     """
+    from .stream.asset import encode_asset, is_asset_path
     from .stream.encoder import default_key_path, encode_mesh
 
-    mesh = _as_mesh(src)
+    asset = is_asset_path(src) or isinstance(src, tuple)
+    mesh = None if asset else _as_mesh(src)
+    if asset and not isinstance(src, tuple) and not os.path.exists(src):
+        from .errors import InputFormatError
+
+        raise InputFormatError(f"{src}: no such file")
     image, notices = _as_watermark(watermark)
     key_path = None
     key_obj = None
@@ -70,11 +81,16 @@ def encode(src, dst, watermark=None, key=None, **options):
             key_obj = key
         else:
             key_path = default_key_path(dst)
-    report = encode_mesh(mesh, dst, watermark=image, key=key_obj, **options)
+    if asset:
+        report = encode_asset(src, dst, watermark=image, key=key_obj, **options)
+    else:
+        options.pop("strip_image_profiles", None)
+        report = encode_mesh(mesh, dst, watermark=image, key=key_obj, **options)
     if report.key is not None and key_path is not None:
         report.key.save(key_path)
     out = report.as_json()
-    out["notices"] = notices + report.notices + [f"dropped {v} {k.replace('_', ' ')}" for k, v in mesh.cleanup.items()]
+    cleanup = {} if mesh is None else mesh.cleanup
+    out["notices"] = notices + report.notices + [f"dropped {v} {k.replace('_', ' ')}" for k, v in cleanup.items()]
     out["key_path"] = key_path
     out["base_codec"] = report.base_codec
     out["batches"] = report.batches
@@ -106,3 +122,15 @@ def iter_decode(src, key=None, watermark=None):
         reference, _ = _as_watermark(watermark)
     decoder = StreamDecoder(load_key(key), reference)
     yield from iter_results(src, decoder)
+
+
+def decode_asset(src, chunks=None) -> bytes:
+    """A ``.pmw`` (whole or cut) as an ordinary GLB (bytes) at a level of detail.
+
+    The same glTF document (materials, textures, nodes ...) with every progressive
+    primitive's geometry at the base mesh plus ``chunks`` chunks (default: all that arrived).
+    """
+    from .stream.asset import decode_asset as _decode_asset
+
+    glb, _, _ = _decode_asset(src, chunks=chunks)
+    return glb

@@ -15,7 +15,9 @@ import struct
 
 import numpy as np
 
+from pmwm_codec.format.document import glb_to_gltf
 from pmwm_codec.stream import StreamDecoder, iter_results
+from pmwm_codec.stream.asset import decode_asset
 
 from ._cli import UsageError, atomic_output, naming, check_input_file, check_output_path, print_json
 
@@ -43,19 +45,27 @@ def run(args) -> int:
         raise UsageError(f"--chunks must be >= 0, got {args.chunks}")
     check_input_file(args.input, ".pmw file")
     check_output_path(args.output, "mesh")
-    decoder = StreamDecoder(copy=False, max_chunks=args.chunks)
-    gen = iter_results(args.input, decoder)
-    last = None
-    with naming(args.input):
-        while True:
-            try:
-                last = next(gen)
-            except StopIteration as stop:
-                end = stop.value
-                break
-    positions = last.grid.dequantize(last.positions_int).astype(np.float32)
-    faces = np.asarray(last.faces, dtype=np.uint32)
-    write_mesh(args.output, positions, faces)
+    if suffix in (".glb", ".gltf"):
+        # the whole glTF document at that level: materials, textures, nodes kept
+        with naming(args.input):
+            glb, end, decoder = decode_asset(args.input, chunks=args.chunks)
+        last = decoder.last
+        with atomic_output(args.output) as fh:
+            fh.write(glb if suffix == ".glb" else glb_to_gltf(glb))
+    else:
+        decoder = StreamDecoder(copy=False, max_chunks=args.chunks)
+        gen = iter_results(args.input, decoder)
+        last = None
+        with naming(args.input):
+            while True:
+                try:
+                    last = next(gen)
+                except StopIteration as stop:
+                    end = stop.value
+                    break
+        positions = last.mesh.positions.astype(np.float32)
+        faces = np.asarray(last.faces, dtype=np.uint32)
+        write_mesh(args.output, positions, faces)
     out = {"vertices": int(last.vertices), "faces": int(last.faces_count), "chunks_applied": int(decoder.chunks_applied),
            "complete": bool(end.complete), "chunks_total": int(end.chunks_total), "truncated": bool(end.truncated),
            "output": args.output}

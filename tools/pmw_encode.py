@@ -43,7 +43,8 @@ def _int_in(lo, hi, what):
 def add_parser(sub):
     p = sub.add_parser(
         "encode", help="mesh (+ watermark) -> progressive .pmw",
-        description="Encode a mesh (OBJ, PLY, STL, glTF/GLB) into a progressive .pmw; with --watermark, "
+        description="Encode a mesh (OBJ, PLY, STL) or a glTF asset (GLB/glTF: every triangle primitive becomes "
+                    "progressive, materials, textures and nodes are kept) into a progressive .pmw; with --watermark, "
                     "hide the image in the vertex splits and write the secret key beside the output.")
     p.add_argument("input", help="mesh file")
     p.add_argument("-o", "--output", required=True, metavar="OUT.pmw", help="the .pmw to write")
@@ -56,6 +57,9 @@ def add_parser(sub):
     p.add_argument("--base-codec", choices=("draco", "plain"), default="draco", help="how the base mesh is stored")
     p.add_argument("--base-vertices", type=_int_in(4, None, "--base-vertices"), metavar="N",
                    help="target base mesh size (default 1%% of the vertices, at least 64)")
+    p.add_argument("--strip-image-profiles", action="store_true",
+                   help="glTF assets: drop colour-profile chunks from PNG textures (same pixels; "
+                        "the glTF validator warns on them)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
     p.set_defaults(run=run)
@@ -73,6 +77,8 @@ def run(args) -> int:
     for name in ("bits", "grid_bits", "base_vertices"):
         if getattr(args, name) is not None:
             options[name] = getattr(args, name)
+    if args.strip_image_profiles:
+        options["strip_image_profiles"] = True
     extra = []
     if args.key is not None and args.watermark is None:
         extra.append("--key ignored: no --watermark, so the file carries no mark and needs no key")

@@ -308,3 +308,56 @@ def _mime(uri: str, blob: bytes) -> str:
     if blob[:4] == b"RIFF" and blob[8:12] == b"WEBP":
         return "image/webp"
     return "image/png" if uri.lower().endswith(".png") else "image/jpeg"
+
+
+#: PNG chunks that carry colour-space or pixel-aspect metadata (the Khronos validator
+#: warns IMAGE_FEATURES_UNSUPPORTED on them); pixels do not depend on them.
+PNG_PROFILE_CHUNKS = (b"iCCP", b"cHRM", b"gAMA", b"sRGB", b"pHYs")
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def strip_png_profile(blob: bytes) -> bytes:
+    """A PNG without its colour-space / pixel-aspect chunks (same pixels); other data unchanged."""
+    if blob[:8] != PNG_SIGNATURE:
+        return blob
+    out, pos = [blob[:8]], 8
+    while pos + 12 <= len(blob):
+        length = int.from_bytes(blob[pos : pos + 4], "big")
+        end = pos + 12 + length
+        if end > len(blob):
+            return blob  # damaged: leave it alone
+        if blob[pos + 4 : pos + 8] not in PNG_PROFILE_CHUNKS:
+            out.append(blob[pos:end])
+        pos = end
+    return b"".join(out)
+
+
+def strip_image_profiles(gltf: dict, buffers) -> int:
+    """Apply :func:`strip_png_profile` to every PNG image of a loaded document, in place.
+
+    Images stored in bufferViews get their own new buffer; returns how many changed.
+    """
+    changed = 0
+    for image in gltf.get("images", []):
+        if "_bytes" in image:
+            new = strip_png_profile(image["_bytes"])
+            if new != image["_bytes"]:
+                image["_bytes"], changed = new, changed + 1
+        elif "bufferView" in image:
+            raw, _ = _view(gltf, buffers, image["bufferView"])
+            new = strip_png_profile(bytes(raw))
+            if new != bytes(raw):
+                # embed as an external-style blob: repack turns it into a fresh bufferView
+                image["_bytes"] = new
+                image["uri"] = "stripped.png"
+                del image["bufferView"]
+                changed += 1
+    return changed
+
+
+def glb_to_gltf(glb: bytes) -> bytes:
+    """A GLB as a self-contained ``.gltf`` (JSON text with the BIN chunk as a base64 data URI)."""
+    gltf, buffers = _parse_glb(glb, "GLB")
+    if buffers and gltf.get("buffers"):
+        gltf["buffers"][0]["uri"] = "data:application/octet-stream;base64," + base64.b64encode(buffers[0]).decode("ascii")
+    return (json.dumps(gltf, indent=1) + "\n").encode("utf-8")

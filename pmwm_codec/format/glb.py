@@ -184,16 +184,21 @@ def assemble_document(doc: dict, kept_bin: bytes, prims, order, zstd_level: int 
     gltf["accessors"] = accessors
     gltf["bufferViews"] = views
     gltf["buffers"] = [{"byteLength": offset}]
+    return glb_parts(gltf, bin_parts, offset)
+
+
+def glb_parts(gltf: dict, bin_parts, bin_length: int) -> list:
+    """GLB framing around a JSON document and its BIN pieces (4-byte aligned, ``bin_length`` bytes)."""
     text = json.dumps(gltf, separators=(",", ":"), allow_nan=False).encode("utf-8")
     text += b" " * (padded(len(text)) - len(text))
-    total = GLB_HEADER_SIZE + CHUNK_HEADER_SIZE + len(text) + CHUNK_HEADER_SIZE + offset
+    total = GLB_HEADER_SIZE + CHUNK_HEADER_SIZE + len(text) + CHUNK_HEADER_SIZE + bin_length
     if total >= 1 << 32:
         raise ValueError(f"write_pmw: file would be {total} bytes, over the GLB limit of 4 GiB")
     return [
         GlbHeader.build({"version": GLB_VERSION, "length": total}),
         ChunkHeader.build({"length": len(text), "type": CHUNK_TYPE_JSON}),
         text,
-        ChunkHeader.build({"length": offset, "type": CHUNK_TYPE_BIN}),
+        ChunkHeader.build({"length": bin_length, "type": CHUNK_TYPE_BIN}),
         *bin_parts,
     ]
 

@@ -33,7 +33,10 @@ Modes
 ``paper``
     One ``bits``-bit code per carrier (the paper's Eq. 4): the float Haar
     coefficient ``w = round(coef * 2**(bits-9)) + 2**(bits-1)``, clipped; codes
-    repeat when carriers outnumber them (median of the copies).
+    repeat when carriers outnumber them (median of the copies).  Each slot's
+    code is stored as ``(w + r) mod 2**bits`` with ``r`` a keyed pseudo-random
+    ``bits``-bit value, so without the key codes look uniform (a wrong key
+    matches at the chance rate ``2**-bits`` and rebuilds noise, not the image).
 """
 
 from __future__ import annotations
@@ -48,7 +51,7 @@ from .payload import BitLayout, bits_from_symbols, pack, repeat_to_capacity, sym
 
 MODES = ("exact", "paper")
 #: Default code step (nbar / scale) in grid units, per mode.
-DEFAULT_STEP_UNITS = {"exact": 2.0, "paper": 2.5}
+DEFAULT_STEP_UNITS = {"exact": 2.0, "paper": 1.5}
 DEFAULT_GRID_BITS = {"exact": 16, "paper": 22}
 MAX_BITS = 16
 #: exact mode: most bits per carrier before the distortion gets out of hand
@@ -151,6 +154,12 @@ def place_codes(target, centroid, codes, nbar, scale, bits):
     return cand[np.arange(len(best)), best], ok
 
 
+def paper_mask(key, carriers: int, bits: int) -> np.ndarray:
+    """(carriers,) int64 keyed pseudo-random ``bits``-bit values that whiten paper-mode codes."""
+    raw = key.bits(1, carriers * bits).astype(np.int64).reshape(carriers, bits)
+    return raw @ (np.int64(1) << np.arange(bits - 1, -1, -1, dtype=np.int64))
+
+
 def carrier_slots(key, batch_index: int, offset: int, k: int) -> np.ndarray:
     """(k,) int64 stream slots carried by the k splits of one batch."""
     return offset + key.permutation(batch_index, k)
@@ -235,7 +244,7 @@ def plan(image: np.ndarray, key, carriers: int, *, mode: str = "exact", bits: in
             raise ValueError(f"paper mode needs 2..{MAX_BITS} bits per code, got {b}")
         stream = haar.to_stream(haar.forward_float(image, levels), levels)
         q = np.clip(np.round(stream * 2.0 ** (b - 9)) + 2 ** (b - 1), 0, 2**b - 1).astype(np.int64)
-        codes = q[np.arange(carriers) % len(q)]
+        codes = (q[np.arange(carriers) % len(q)] + paper_mask(key, carriers, b)) % (1 << b)
         params = WatermarkParams("paper", b, scale, size, levels, len(q), carriers, None)
     params.fingerprint = key.fingerprint()
     return params, codes
@@ -299,9 +308,10 @@ class Extractor:
         values = np.zeros(q, dtype=np.float64)
         have = np.zeros(q, dtype=bool)
         if got.any():
-            # median of the copies of each code
+            # unwhiten, then the median of the copies of each code
             idx = slot_code[got]
-            vals = self.received[got].astype(np.float64)
+            mask = paper_mask(self.key, p.carriers, p.bits)[got]
+            vals = ((self.received[got] - mask) % (1 << p.bits)).astype(np.float64)
             order = np.lexsort((vals, idx))
             idx, vals = idx[order], vals[order]
             starts = np.flatnonzero(np.r_[True, idx[1:] != idx[:-1]])

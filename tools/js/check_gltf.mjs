@@ -5,7 +5,7 @@
 //
 // Each line: {"file", "bytes",
 //   "validator": {"errors", "warnings", "infos", "hints", "codes": {CODE: count}, "messages": [...]},
-//   "three": {"ok", "meshes", "vertices", "triangles", "radius", "center", "draco", "error"}}
+//   "three": {"ok", "meshes", "vertices", "triangles", "radius", "center", "draco", "textures", "mapped", "error"}}
 //
 // validator: Khronos glTF-Validator (npm gltf-validator) on the file bytes.
 // three:     three.js GLTFLoader.parse() in plain Node on the GLB ArrayBuffer.  The real
@@ -98,6 +98,10 @@ async function loadThree(bytes) {
 	const loader = new GLTFLoader();
 	const draco = new NodeDracoLoader();
 	loader.setDRACOLoader(draco);
+	// Node has no image decoder (TextureLoader/ImageBitmapLoader need a DOM): a plugin hands
+	// GLTFLoader an empty THREE.Texture per texture index, so materials still resolve their maps.
+	let textures = 0;
+	loader.register(() => ({ name: 'node_stub_textures', loadTexture: () => { textures += 1; return Promise.resolve(new THREE.Texture()); } }));
 	const buffer = bytes.buffer.slice(bytes.byteOffset, bytes.byteOffset + bytes.byteLength);
 	const warnings = [];
 	const warn = console.warn;
@@ -123,7 +127,9 @@ async function loadThree(bytes) {
 			const p = object.geometry.attributes.position, v = new THREE.Vector3();
 			for (let i = 0; i < p.count; i++) radius = Math.max(radius, v.fromBufferAttribute(p, i).applyMatrix4(object.matrixWorld).distanceTo(sphere.center));
 		});
-		return { ok: true, meshes, vertices, triangles, radius, center: sphere.center.toArray(), draco: draco.used, warnings };
+		let mapped = 0;
+		gltf.scene.traverse((object) => { if (object.isMesh && object.material && object.material.map) mapped += 1; });
+		return { ok: true, meshes, vertices, triangles, radius, center: sphere.center.toArray(), draco: draco.used, textures, mapped, warnings };
 	} catch (error) {
 		return { ok: false, error: String(error && error.message || error), draco: draco.used, warnings };
 	} finally {

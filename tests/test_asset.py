@@ -1,0 +1,237 @@
+"""glTF assets: materials, textures, nodes and odd primitives survive; seams never crack."""
+
+from __future__ import annotations
+
+import io
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import pmwm_codec
+from pmwm_codec import shapes
+from pmwm_codec.format.document import load_document, read_accessor
+from pmwm_codec.format.glb import glb_parts
+from pmwm_codec.format.layout import padded
+from pmwm_codec.stream.asset import decode_asset, encode_asset
+from pmwm_codec.stream.decoder import StreamDecoder
+from pmwm_codec.watermark.key import WatermarkKey
+
+from conftest import ROOT, corpus_path
+
+CHECKER = ROOT / "tools" / "js" / "check_gltf.mjs"
+
+
+def check(path):
+    """Khronos validator + three.js on a file (skips when the npm checkers are not installed)."""
+    if shutil.which("node") is None or not (ROOT / "tools" / "js" / "node_modules").exists():
+        pytest.skip("npm checkers not installed (npm ci --prefix tools/js)")
+    out = subprocess.run(["node", str(CHECKER), str(path)], capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.splitlines()[0])
+
+
+class DocBuilder:
+    """Builds a GLB from numpy arrays, for test assets."""
+
+    def __init__(self):
+        self.doc = {"asset": {"version": "2.0"}, "accessors": [], "bufferViews": []}
+        self.parts, self.offset = [], 0
+
+    def accessor(self, array, component, type_, target=None, minmax=False):
+        raw = np.ascontiguousarray(array).tobytes()
+        view = {"buffer": 0, "byteOffset": self.offset, "byteLength": len(raw)}
+        if target:
+            view["target"] = target
+        self.doc["bufferViews"].append(view)
+        self.parts.append(raw + bytes(padded(len(raw)) - len(raw)))
+        self.offset += padded(len(raw))
+        acc = {"bufferView": len(self.doc["bufferViews"]) - 1, "componentType": component, "count": len(array), "type": type_}
+        if minmax:
+            acc["min"] = [float(x) for x in array.min(0)]
+            acc["max"] = [float(x) for x in array.max(0)]
+        self.doc["accessors"].append(acc)
+        return len(self.doc["accessors"]) - 1
+
+    def triangles(self, mesh, uv=True):
+        attrs = {"POSITION": self.accessor(mesh.positions.astype(np.float32), 5126, "VEC3", 34962, True)}
+        if uv:
+            p = mesh.positions
+            uvs = np.stack([np.arctan2(p[:, 1], p[:, 0]) / (2 * np.pi) + 0.5, p[:, 2] / 4 + 0.5], 1)
+            attrs["TEXCOORD_0"] = self.accessor(uvs.astype(np.float32), 5126, "VEC2", 34962)
+            n = p / np.linalg.norm(p, axis=1, keepdims=True)
+            attrs["NORMAL"] = self.accessor(n.astype(np.float32), 5126, "VEC3", 34962)
+        return {"attributes": attrs, "indices": self.accessor(mesh.faces.astype(np.uint32).ravel(), 5125, "SCALAR", 34963)}
+
+    def glb(self) -> bytes:
+        self.doc["buffers"] = [{"byteLength": self.offset}]
+        return b"".join(glb_parts(self.doc, self.parts, self.offset))
+
+
+def two_mesh_asset(tmp_path):
+    """Two meshes, two materials, a node tree with rotation/translation, a line strip and points."""
+    b = DocBuilder()
+    sphere = shapes.icosphere(4, 1.0, noise=0.02)
+    torus = shapes.torus(60, 30, twist=0.1)
+    line = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 1]], np.float32)
+    cloud = np.random.default_rng(1).uniform(-1, 1, (50, 3)).astype(np.float32)
+    prim_sphere = {**b.triangles(sphere), "material": 0, "extras": {"tag": "sphere"}}
+    prim_torus = {**b.triangles(torus), "material": 1}
+    prim_line = {"attributes": {"POSITION": b.accessor(line, 5126, "VEC3", 34962, True)}, "mode": 3}
+    prim_points = {"attributes": {"POSITION": b.accessor(cloud, 5126, "VEC3", 34962, True)}, "mode": 0}
+    b.doc.update({
+        "scene": 0,
+        "scenes": [{"nodes": [0], "name": "world"}],
+        "nodes": [
+            {"name": "root", "children": [1, 2], "translation": [0.0, 1.0, 0.0]},
+            {"name": "ball", "mesh": 0, "rotation": [0.0, 0.38268343, 0.0, 0.92387953], "translation": [2.0, 0.0, 0.0]},
+            {"name": "ring", "mesh": 1, "scale": [1.5, 1.5, 1.5], "extras": {"note": "kept"}},
+        ],
+        "meshes": [{"name": "ball", "primitives": [prim_sphere, prim_line]}, {"name": "ring", "primitives": [prim_torus, prim_points]}],
+        "materials": [
+            {"name": "red", "pbrMetallicRoughness": {"baseColorFactor": [1, 0, 0, 1]}},
+            {"name": "blue", "pbrMetallicRoughness": {"baseColorFactor": [0, 0, 1, 1], "metallicFactor": 0.5}},
+        ],
+    })
+    path = tmp_path / "scene.glb"
+    path.write_bytes(b.glb())
+    return path
+
+
+def test_an_asset_keeps_nodes_materials_and_meshes_and_verifies_as_one(tmp_path):
+    src = two_mesh_asset(tmp_path)
+    key = WatermarkKey.generate(rng=np.random.default_rng(5))
+    mark = (np.indices((16, 16)).sum(0) % 2 * 200 + 30).astype(np.uint8)
+    report = encode_asset(src, tmp_path / "scene.pmw", watermark=mark, key=key, measure=False)
+    assert any("mode 3" in n for n in report.notices) and any("mode 0" in n for n in report.notices)
+    glb, end, _ = decode_asset(tmp_path / "scene.pmw")
+    (tmp_path / "out.glb").write_bytes(glb)
+    original, _ = load_document(src)
+    for path in (tmp_path / "scene.pmw", tmp_path / "out.glb"):
+        doc, _ = load_document(path)
+        assert doc["nodes"] == original["nodes"]
+        assert doc["materials"] == original["materials"]
+        assert doc["scenes"] == original["scenes"]
+        assert len(doc["meshes"]) == 2
+        assert [m["name"] for m in doc["meshes"]] == ["ball", "ring"]
+        assert doc["meshes"][0]["primitives"][0]["material"] == 0
+        assert doc["meshes"][0]["primitives"][0]["extras"] == {"tag": "sphere"}
+    # the watermark is spread over both meshes and reads back whole
+    dec = StreamDecoder(key)
+    results = dec.feed((tmp_path / "scene.pmw").read_bytes())
+    dec.close()
+    assert len(results[-1].parts) == 2
+    assert dec.verifier.verdict() == "authentic"
+    assert np.array_equal(results[-1].watermark, mark)
+    for path in (tmp_path / "scene.pmw", tmp_path / "out.glb"):
+        result = check(path)
+        assert result["validator"]["errors"] == 0 and result["validator"]["warnings"] == 0
+        assert set(result["validator"]["codes"]) <= {"UNSUPPORTED_EXTENSION", "UNUSED_OBJECT"}
+        assert result["three"]["ok"]
+
+
+def test_lines_and_points_pass_through_unchanged(tmp_path):
+    src = two_mesh_asset(tmp_path)
+    encode_asset(src, tmp_path / "scene.pmw", measure=False)
+    glb, _, _ = decode_asset(tmp_path / "scene.pmw", chunks=2)
+    (tmp_path / "mid.glb").write_bytes(glb)
+    before, bb = load_document(src)
+    for path in (tmp_path / "scene.pmw", tmp_path / "mid.glb"):
+        after, ab = load_document(path)
+        for mi, pi in ((0, 1), (1, 1)):
+            p0, p1 = before["meshes"][mi]["primitives"][pi], after["meshes"][mi]["primitives"][pi]
+            assert p1["mode"] == p0["mode"]
+            assert np.array_equal(read_accessor(after, ab, p1["attributes"]["POSITION"]),
+                                  read_accessor(before, bb, p0["attributes"]["POSITION"]))
+
+
+def test_full_level_positions_and_uvs_match_the_input_within_a_grid_step(tmp_path):
+    src = two_mesh_asset(tmp_path)
+    encode_asset(src, tmp_path / "scene.pmw", measure=False)
+    glb, _, _ = decode_asset(tmp_path / "scene.pmw")
+    (tmp_path / "out.glb").write_bytes(glb)
+    _assert_same_geometry(src, tmp_path / "out.glb", [(0, 0), (1, 0)])
+
+
+def _assert_same_geometry(src, out, prims):
+    """Every input vertex (position and attributes) has a decoded vertex within half a grid step per component."""
+    from scipy.spatial import cKDTree
+
+    before, bb = load_document(src)
+    after, ab = load_document(out)
+    for mi, pi in prims:
+        p0, p1 = before["meshes"][mi]["primitives"][pi], after["meshes"][mi]["primitives"][pi]
+        assert set(p0["attributes"]) == set(p1["attributes"])
+        cols_in, cols_out = [], []
+        for semantic in sorted(p0["attributes"]):
+            a = read_accessor(before, bb, p0["attributes"][semantic])
+            b = read_accessor(after, ab, p1["attributes"][semantic])
+            bits = 16 if semantic == "POSITION" else 14
+            if semantic == "POSITION":
+                step = np.ptp(a, axis=0).max() / (2**bits - 1)
+            else:
+                step = np.where(np.ptp(a, axis=0) > 0, np.ptp(a, axis=0), 1.0) / (2**bits - 1)
+            if semantic == "NORMAL":
+                step = step * 4  # decoded normals are renormalized after dequantization
+            cols_in.append(a / step)
+            cols_out.append(b / step)
+        x_in, x_out = np.concatenate(cols_in, 1), np.concatenate(cols_out, 1)
+        assert len(x_in) == len(x_out)
+        dist, _ = cKDTree(x_out).query(x_in)
+        assert dist.max() <= 0.5 * np.sqrt(x_in.shape[1]) + 1e-3
+
+
+def _seam_cracks(doc, buffers, mi, pi):
+    """Boundary edges of a primitive whose positions are on a seam but whose twin edge is missing."""
+    prim = doc["meshes"][mi]["primitives"][pi]
+    pos = np.round(read_accessor(doc, buffers, prim["attributes"]["POSITION"]), 6)
+    faces = read_accessor(doc, buffers, prim["indices"]).reshape(-1, 3)
+    _, key = np.unique(pos, axis=0, return_inverse=True)
+    key = key.reshape(-1)
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    lo, hi = e.min(1), e.max(1)
+    pair, count = np.unique(lo * len(pos) + hi, return_counts=True)
+    boundary = pair[count == 1]
+    b_lo, b_hi = boundary // len(pos), boundary % len(pos)
+    # a seam edge: both ends' positions are shared with other vertices
+    shared = np.bincount(key, minlength=key.max() + 1)[key] > 1
+    seam = shared[b_lo] & shared[b_hi]
+    pk = np.minimum(key[b_lo], key[b_hi]) * len(pos) + np.maximum(key[b_lo], key[b_hi])
+    twins = np.unique(pk[seam], return_counts=True)
+    return int(np.sum(twins[1] < 2))
+
+
+@pytest.mark.corpus
+def test_spot_keeps_its_texture_uvs_and_is_validator_clean_with_no_seam_cracks(tmp_path):
+    src = corpus_path("spot.glb")
+    out = tmp_path / "spot.pmw"
+    encode_asset(src, out, strip_image_profiles=True, measure=False)
+    n_chunks = StreamDecoder().feed(out.read_bytes())[-1].chunks_total
+    full, _, _ = decode_asset(out)
+    half, _, _ = decode_asset(out, chunks=n_chunks // 2)
+    (tmp_path / "full.glb").write_bytes(full)
+    (tmp_path / "half.glb").write_bytes(half)
+    for path in (out, tmp_path / "full.glb", tmp_path / "half.glb"):
+        doc, buffers = load_document(path)
+        prim = doc["meshes"][0]["primitives"][0]
+        assert "TEXCOORD_0" in prim["attributes"] and prim["material"] == 0
+        assert doc["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"]["index"] == 0
+        assert doc["images"][0]["mimeType"] == "image/png"
+        assert _seam_cracks(doc, buffers, 0, 0) == _seam_cracks(*load_document(src), 0, 0)
+        result = check(path)
+        assert result["validator"]["errors"] == 0 and result["validator"]["warnings"] == 0
+        assert result["three"]["ok"] and result["three"]["mapped"] == 1
+    _assert_same_geometry(src, tmp_path / "full.glb", [(0, 0)])
+
+
+def test_pmw_decode_of_an_asset_writes_a_glb_with_its_materials(tmp_path):
+    from tools.pmw import main
+
+    src = two_mesh_asset(tmp_path)
+    assert main(["encode", str(src), "-o", str(tmp_path / "s.pmw"), "--quiet"]) == 0
+    assert main(["decode", str(tmp_path / "s.pmw"), "-o", str(tmp_path / "s.glb"), "--chunks", "1"]) == 0
+    doc, _ = load_document(tmp_path / "s.glb")
+    assert [m["name"] for m in doc["materials"]] == ["red", "blue"]
+    assert len(doc["meshes"]) == 2
