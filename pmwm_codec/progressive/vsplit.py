@@ -68,8 +68,8 @@ class MeshState:
         Vertex values: grid positions (columns 0-2) then quantized attributes;
         rows ``[:n]`` are valid.  (float64 when the state only replays
         connectivity over positions taken from elsewhere.)
-    faces : (M, 3) int64
-        Triangles; rows ``[:m]`` are valid.
+    faces : (M, 3) int32
+        Triangles; rows ``[:m]`` are valid (int32: every id is below MAX_VERTICES = 2**26).
     """
 
     def __init__(self, base_positions, base_faces, vertex_capacity, face_capacity, dtype=np.int64):
@@ -79,12 +79,12 @@ class MeshState:
             raise FormatError("declared full-resolution counts are smaller than the base mesh")
         base_positions = np.asarray(base_positions)
         self.positions = np.empty((vertex_capacity, base_positions.shape[1]), dtype=dtype)
-        self.faces = np.empty((face_capacity, 3), dtype=np.int64)
+        self.faces = np.empty((face_capacity, 3), dtype=np.int32)
         self.positions[:n0] = base_positions
         self.faces[:m0] = base_faces
         self.n = n0
         self.m = m0
-        self._sid = np.full(vertex_capacity, -1, dtype=np.int64)
+        self._sid = np.full(vertex_capacity, -1, dtype=np.int32)
 
     def current_positions(self) -> np.ndarray:
         return self.positions[: self.n]
@@ -126,7 +126,7 @@ def find_incidences(state: MeshState, v: np.ndarray):
     """
     k = len(v)
     sid = state._sid
-    sid[v] = np.arange(k)
+    sid[v] = np.arange(k, dtype=np.int32)
     flat = state.faces[: state.m].reshape(-1)
     s = sid[flat]
     inc = np.flatnonzero(s >= 0)
@@ -185,7 +185,7 @@ def split_topology(state: MeshState, v: np.ndarray, symbols: np.ndarray, *, inci
     start = np.cumsum(per) - per
     wu = u_of[ms[wing]]
     wv = v[ms[wing]]
-    new = np.empty((n_new, 3), dtype=np.int64)
+    new = np.empty((n_new, 3), dtype=np.int32)
     li = start[left]
     new[li, 0], new[li, 1], new[li, 2] = wu[left], wv[left], a[wing][left]
     ri = start[right] + left[right]
@@ -205,7 +205,10 @@ def split_topology(state: MeshState, v: np.ndarray, symbols: np.ndarray, *, inci
     ra = np.concatenate([a, wv[left], wv[right]])
     rb = np.concatenate([b, a[wing][left], b[wing][right]])
     pts = P[ra] + P[rb]
-    ring_sum = np.stack([np.bincount(own, weights=pts[:, j], minlength=k) for j in range(P.shape[1])], axis=1)
+    d = P.shape[1]
+    ring_sum = np.bincount(
+        (own[:, None] * d + np.arange(d)).ravel(), weights=pts.ravel(), minlength=k * d
+    ).reshape(k, d)
     ring_count = 2 * np.bincount(own, minlength=k)
     state.n = n0 + k
     state.m = m0 + n_new
