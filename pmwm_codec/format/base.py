@@ -565,6 +565,8 @@ def decode_base_attributes(gltf: dict, bin_data, primitive: dict, attributes) ->
     columns = []
     for spec in attributes:
         semantic = spec["semantic"]
+        if len(spec["origin"]) != len(spec["step"]):
+            raise FormatError(f"base mesh: {semantic} grid has {len(spec['origin'])} origins and {len(spec['step'])} steps")
         acc = _get(gltf.get("accessors"), primitive["attributes"][semantic], "accessor")
         width = _TYPE_WIDTH.get(acc.get("type"))
         if acc.get("componentType") != FLOAT or width is None or width != len(spec["origin"]):

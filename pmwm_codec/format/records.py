@@ -37,6 +37,11 @@ COLUMNS = ("gaps", "symbols", "residual_x", "residual_y", "residual_z")
 #: Name of the attribute residual column j (after the COLUMNS).
 ATTRIBUTE_COLUMN = "attribute_{}"
 MAX_BATCHES_PER_CHUNK = 4096
+#: Largest position residual magnitude a valid file can hold: positions and predictions both lie on
+#: a grid of at most ``MAX_GRID_BITS`` (30) bits, so ``|residual| < 2**30``.  Checked on the
+#: zigzag value (``|r| <= 2**31`` <=> ``z <= 2**32``) before any arithmetic, so hostile
+#: residuals cannot overflow the int64 positions or the float64 ring sums downstream.
+MAX_RESIDUAL_ZIGZAG = 1 << 32
 _WIDTHS = (1, 2, 4, 8)
 
 
@@ -139,8 +144,10 @@ def unpack_batches(payload: bytes, *, max_splits: int = MAX_VERTICES, width: int
     symbols = _unpack_symbols(packed, i_total)
     res = []
     names = list(COLUMNS[2:]) + [ATTRIBUTE_COLUMN.format(j) for j in range(width - 3)]
-    for name in names:
+    for c, name in enumerate(names):
         col, off = _unpack_column(buf, off, k_total, name)
+        if c < 3 and len(col) and int(col.max()) > MAX_RESIDUAL_ZIGZAG:
+            raise FormatError(f"chunk payload: {name} out of range")
         res.append(unzigzag(col))
     if off != len(buf):
         raise FormatError(f"chunk payload: {len(buf) - off} trailing bytes")
