@@ -24,4 +24,4 @@ MAX_FACES = 1 << 27  # 134M faces
 MAX_CHUNKS = 1 << 16
 MAX_JSON_BYTES = 64 << 20
 MAX_CHUNK_BYTES = 1 << 30  # one compressed chunk
-MAX_DECOMPRESSED_CHUNK_BYTES = 1 << 31
+MAX_DECOMPRESSED_CHUNK_BYTES = 1 << 28  # 256 MiB: a 1M-vertex batch needs ~2 MB

@@ -13,6 +13,7 @@ import pytest
 import trimesh
 from PIL import Image
 
+import pmwm_codec
 from pmwm_codec import shapes
 from pmwm_codec.watermark import WatermarkKey
 from tools.pmw import main
@@ -227,9 +228,24 @@ def test_verify_frames(work, tmp_path, capsys):
         assert im.width > 600 and im.mode == "RGB"
 
 
-def test_verify_reference_form_is_refused_clearly(work, capsys):
-    code, _, err = run(capsys, "verify", work["mesh"], "--reference", work["pmw"], "--key", work["key"])
-    assert code == 2 and "not supported" in err and len(err.splitlines()) == 1
+def test_verify_reference_finds_the_mark_in_an_exported_and_moved_mesh(work, tmp_path, capsys):
+    exported = tmp_path / "exported.obj"
+    code, _, err = run(capsys, "decode", work["pmw"], "-o", exported)
+    assert code == 0, err
+    mesh = pmwm_codec.read_mesh(exported)
+    angle = 0.7
+    rot = np.array([[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]])
+    moved = write_obj(tmp_path / "moved.obj", pmwm_codec.Mesh(2.5 * mesh.positions @ rot.T + 3.0, mesh.faces))
+    code, stdout, err = run(capsys, "verify", moved, "--reference", work["pmw"], "--key", work["key"], "--json")
+    assert code == 0, err
+    doc = strict_json(stdout)
+    assert doc["verdict"] == "authentic" and doc["bit_exact"]
+
+
+def test_verify_reference_of_the_unmarked_original_is_not_authentic(work, capsys):
+    code, stdout, err = run(capsys, "verify", work["mesh"], "--reference", work["pmw"], "--key", work["key"], "--json")
+    assert code == 1, err
+    assert strict_json(stdout)["verdict"] != "authentic"
 
 
 # -- info ---------------------------------------------------------------------------------

@@ -74,11 +74,13 @@ def add_parser(sub):
         "verify", help="read the watermark chunk by chunk; exit 0 if authentic",
         description="Verify the watermark of a .pmw (whole, truncated, or '-' for standard input) at every "
                     "chunk boundary. Exit status: 0 authentic, 1 not authentic or inconclusive, 2 bad input.")
-    p.add_argument("input", metavar="IN.pmw", help="the .pmw, or - for standard input")
+    p.add_argument("input", metavar="IN.pmw|MESH",
+                   help="the .pmw, or - for standard input; with --reference, a mesh file that left the stream")
     p.add_argument("--key", required=True, metavar="KEY", help="the key file written by pmw encode")
     p.add_argument("--watermark", metavar="IMG", help="expected watermark image (default: the one in the key)")
     p.add_argument("--frames", metavar="DIR", help="write the partial watermark per chunk, an overview and a plot")
-    p.add_argument("--reference", metavar="ORIGINAL.pmw", help="verify a mesh that left the stream (not supported yet)")
+    p.add_argument("--reference", metavar="ORIGINAL.pmw",
+                   help="verify a mesh that left the stream (exported, moved, re-saved) against the original .pmw")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing; only the exit status")
     p.set_defaults(run=run)
@@ -86,8 +88,7 @@ def add_parser(sub):
 
 def run(args) -> int:
     if args.reference is not None:
-        raise UsageError("verify --reference (a mesh that left the stream) is not supported yet; "
-                         "verify the .pmw itself")
+        return run_reference(args)
     check_input_file(args.input, ".pmw file")
     check_input_file(args.key, "key file")
     if args.watermark is not None:
@@ -117,6 +118,42 @@ def run(args) -> int:
     elif not args.quiet:
         print(report(outcome, pictures))
     return EXIT_OK if outcome.verdict == "authentic" else EXIT_NOT_AUTHENTIC
+
+
+def run_reference(args) -> int:
+    """``pmw verify MESH --reference ORIGINAL.pmw --key KEY``: one verdict for a mesh file."""
+    from pmwm_codec.robust import verify_mesh
+
+    check_input_file(args.input, "mesh file")
+    check_input_file(args.reference, "reference .pmw")
+    check_input_file(args.key, "key file")
+    if args.watermark is not None:
+        check_input_file(args.watermark, "watermark image")
+    if args.frames is not None and os.path.exists(args.frames) and not os.path.isdir(args.frames):
+        raise UsageError(f"{args.frames}: exists and is not a directory (--frames needs a directory)")
+    with naming(args.input):
+        mesh = pmwm_codec.read_mesh(args.input)
+    with naming(args.reference):
+        v = verify_mesh(mesh, args.reference, args.key, args.watermark)
+    if args.frames is not None:
+        from pmwm_codec.watermark.image import save_png
+
+        os.makedirs(args.frames, exist_ok=True)
+        save_png(os.path.join(args.frames, "watermark.png"), v.watermark)
+    doc = {"verdict": v.verdict, "nc": v.nc, "psnr_db": v.psnr_db, "centered_nc": v.centered_nc, "ber": v.ber,
+           "code_match": v.code_match, "coefficients": v.coefficients, "carriers_read": v.carriers_read,
+           "carriers_total": v.carriers_total, "correspondence": v.correspondence, "coverage": v.coverage,
+           "registration_rms": v.registration_rms, "vertices": v.vertices, "faces": v.faces,
+           "reference_vertices": v.reference_vertices, "bit_exact": v.bit_exact}
+    if args.json:
+        print_json(doc)
+    elif not args.quiet:
+        print(f"{args.input}: {v.vertices:,} vertices matched to the reference by {v.correspondence} "
+              f"({100 * v.coverage:.1f}% of its vertices); {v.carriers_read:,} of {v.carriers_total:,} codes read")
+        print(f"NC {fmt_float(v.nc, 4)}  PSNR {fmt_float(v.psnr_db, 2)} dB  BER {fmt_float(v.ber, 4)}"
+              + ("  (bit-exact)" if v.bit_exact else ""))
+        print(f"verdict: {v.verdict}")
+    return EXIT_OK if v.verdict == "authentic" else EXIT_NOT_AUTHENTIC
 
 
 def report(o: Outcome, pictures=None) -> str:

@@ -84,7 +84,7 @@ class MeshState:
         self.faces[:m0] = base_faces
         self.n = n0
         self.m = m0
-        self._sid = np.full(vertex_capacity, -1, dtype=np.int32)
+        self._sid = np.full(max(n0, 1), -1, dtype=np.int32)  # grown as the mesh grows (not from declared sizes)
 
     def current_positions(self) -> np.ndarray:
         return self.positions[: self.n]
@@ -125,6 +125,8 @@ def find_incidences(state: MeshState, v: np.ndarray):
     Returns ``(incidences (I,) int64 flat corner ids, owner (I,) int64 split index)``.
     """
     k = len(v)
+    if len(state._sid) < state.n:
+        state._sid = np.full(min(len(state.positions), max(state.n, 2 * len(state._sid))), -1, dtype=np.int32)
     sid = state._sid
     sid[v] = np.arange(k, dtype=np.int32)
     flat = state.faces[: state.m].reshape(-1)

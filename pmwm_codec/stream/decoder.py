@@ -204,7 +204,10 @@ class StreamDecoder:
                 raise FormatError("base mesh: attribute columns differ from the extension's attributes")
             values = np.concatenate([event.positions_int, attrs], axis=1)
             self.states.append(MeshState(values, event.faces, int(ext["vertexCount"]), int(ext["faceCount"])))
-            self.nbars.append(wm.base_mean_edge(event.positions_int, event.faces) if self.watermark_params else 0.0)
+            nbar = wm.base_mean_edge(event.positions_int, event.faces) if self.watermark_params else 0.0
+            if self.watermark_params is not None and not (np.isfinite(nbar) and nbar > 0):
+                raise FormatError("base mesh: every edge has zero length, the watermark has no reference length")
+            self.nbars.append(nbar)
             if len(self.states) < len(self.exts):
                 return None
             if self.watermark_params is not None and self.key is not None:
@@ -239,10 +242,12 @@ class StreamDecoder:
         self.chunks_total = event.chunk_count
         for e in self.exts:
             payload = e.get("payload", {"codec": "pmwm-vsplit", "version": 1})
-            if payload.get("codec") != "pmwm-vsplit" or int(payload.get("version", 0)) != 1:
-                raise FormatError(f"{EXTENSION_NAME}: unknown chunk payload codec {payload!r}")
+            if not isinstance(payload, dict) or payload.get("codec") != "pmwm-vsplit" or payload.get("version") != 1:
+                raise FormatError(f"{EXTENSION_NAME}: unknown chunk payload codec {str(payload)[:60]}")
         if "watermark" in ext:
             self.watermark_params = wm.WatermarkParams.from_config(ext["watermark"])
+            if self.watermark_params.carriers > sum(int(e["vertexCount"]) for e in self.exts):
+                raise FormatError("watermark carrier count exceeds the vertices of the stream")
             if self.key is not None and self.check_key:
                 fp = self.watermark_params.fingerprint
                 if fp and self.key.fingerprint() != fp:

@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..constants import MAX_VERTICES
 from ..errors import PmwError
 from . import haar
 from .payload import BitLayout, bits_from_symbols, pack, repeat_to_capacity, symbols, unpack, vote
@@ -57,6 +58,8 @@ MAX_BITS = 16
 #: exact mode: most bits per carrier before the distortion gets out of hand
 #: (a code moves its vertex by up to 2**(bits-1) steps; 6 bits ~ 70 dB mesh PSNR).
 MAX_EXACT_BITS = 6
+#: Largest watermark side a file may declare.
+MAX_WATERMARK_SIZE = 4096
 
 _OFFSETS = np.stack(np.meshgrid([0, -1, 1], [0, -1, 1], [0, -1, 1], indexing="ij"), -1).reshape(-1, 3)
 
@@ -104,8 +107,21 @@ class WatermarkParams:
             raise FormatError("watermark parameters in the file are incomplete") from None
         if p.mode not in MODES or not 1 <= p.bits <= MAX_BITS or not (p.scale > 0 and np.isfinite(p.scale)):
             raise FormatError("watermark parameters in the file are out of range")
-        if p.size < 1 or p.size > 4096 or p.size & (p.size - 1) or p.codes < 0 or p.carriers < 0:
-            raise FormatError("watermark size or counts in the file are out of range")
+        if p.size < 1 or p.size > MAX_WATERMARK_SIZE or p.size & (p.size - 1) or int(cfg.get("height", p.size)) != p.size:
+            raise FormatError("watermark size in the file is out of range")
+        if not 0 <= p.levels <= p.size.bit_length() - 1:
+            raise FormatError("watermark levels in the file do not fit its size")
+        if not 0 <= p.carriers <= MAX_VERTICES:
+            raise FormatError("watermark carrier count in the file is out of range")
+        if p.mode == "paper" and p.codes != p.size * p.size:
+            raise FormatError("paper-mode code count in the file differs from the image size")
+        if p.mode == "exact":
+            try:
+                layout = BitLayout.from_config(p.layout)
+            except (ValueError, TypeError, OverflowError) as exc:
+                raise FormatError(f"watermark bit layout in the file is invalid ({exc})") from None
+            if layout.count != p.size * p.size or layout.total_bits != p.codes or not 0 < p.codes <= 64 * p.size * p.size:
+                raise FormatError("watermark bit layout in the file does not match its size and code count")
         return p
 
 

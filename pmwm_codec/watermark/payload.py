@@ -117,9 +117,17 @@ class BitLayout:
             raise ValueError(f'bit layout config must have "id": "{cls.CODEC_ID}"')
         if config.get("version") != cls.VERSION:
             raise ValueError(f"unsupported bit layout version {config.get('version')!r}")
+        bands = config.get("bands")
+        if not isinstance(bands, list) or len(bands) > 1024:
+            raise ValueError("bad bit layout config: bands must be a list of at most 1024 entries")
+        for band in bands:
+            if (not isinstance(band, (list, tuple)) or len(band) != 4
+                    or not all(isinstance(x, int) and not isinstance(x, bool) for x in band)
+                    or not (0 <= band[0] <= band[1] <= 1 << 24 and band[2] in (0, 1) and 0 <= band[3] <= MAX_WIDTH)):
+                raise ValueError(f"bad bit layout config: band {band!r}")
         try:
-            return cls(config["bands"])
-        except (KeyError, TypeError) as exc:
+            return cls(bands)
+        except (KeyError, TypeError, OverflowError) as exc:
             raise ValueError(f"bad bit layout config: {exc}") from None
 
     def coefficients_in(self, nbits: int) -> int:

@@ -1,0 +1,85 @@
+"""The attack suite on a small mesh: what must survive, and what must never be called authentic."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+
+import pmwm_codec
+from pmwm_codec import shapes
+from pmwm_codec.robust import verify_mesh
+from pmwm_codec.stream.encoder import encode_mesh
+from pmwm_codec.watermark.key import WatermarkKey
+from tools import attacks
+
+
+@pytest.fixture(scope="module")
+def marked():
+    rng = np.random.default_rng(11)
+    img = rng.integers(0, 256, (16, 16)).astype(np.uint8)
+    key = WatermarkKey.generate(rng=rng)
+    buf = io.BytesIO()
+    encode_mesh(shapes.icosphere(3), buf, watermark=img, key=key)
+    data = buf.getvalue()
+    ref = pmwm_codec.decode(data)
+    return data, key, img, ref
+
+
+LOSSLESS = {
+    "reorder": attacks.reorder,
+    "similarity": attacks.similarity,
+    "float32": attacks.float32,
+    "all three": attacks.chain(attacks.similarity, attacks.reorder, attacks.float32),
+}
+
+
+@pytest.mark.parametrize("name", sorted(LOSSLESS))
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_similarity_reorder_float32_keep_the_mark_bit_exactly(marked, name, seed):
+    data, key, img, ref = marked
+    V, F = LOSSLESS[name](ref.positions.copy(), ref.faces.copy(), np.random.default_rng(seed))
+    r = verify_mesh((V, F), data, key)
+    assert r.verdict == "authentic"
+    assert r.bit_exact and np.array_equal(r.watermark, img)
+    assert r.ber == 0.0 and r.carriers_read == r.carriers_total
+
+
+@pytest.mark.parametrize("amplitude", [0.003, 0.005])
+def test_heavy_noise_is_never_authentic(marked, amplitude):
+    data, key, img, ref = marked
+    for seed in range(3):
+        V, F = attacks.noise(ref.positions, ref.faces, np.random.default_rng(seed), amplitude)
+        r = verify_mesh((V, F), data, key)
+        assert r.verdict in ("not-authentic", "inconclusive"), r.as_json()
+        assert r.ber > 0.3
+
+
+def test_no_attack_of_the_suite_gives_a_false_authentic(marked):
+    """Whatever the attack does, ``authentic`` only ever comes with codes that really match."""
+    data, key, img, ref = marked
+    rows = attacks.run_attacks(data, key, simplification=False,
+                               original=shapes.icosphere(3))
+    by_name = {r["attack"]: r for r in rows}
+    for r in rows:
+        if r.get("verdict") == "authentic":
+            assert r["ber"] is not None and r["ber"] < 0.05, r
+            assert r["carriers_read"] >= 32, r
+    for name in ("noise 0.30%", "noise 0.50%", "quantization 8 bits", "quantization 7 bits",
+                 "smoothing 50 it. (lambda 0.03)", "Draco 11 bits", "unmarked input mesh (no mark)"):
+        assert by_name[name]["verdict"] != "authentic", by_name[name]
+
+
+def test_attack_functions_keep_shapes():
+    m = shapes.icosphere(2)
+    rng = np.random.default_rng(0)
+    V, F = attacks.crop(m.positions, m.faces, rng, 0.3)
+    assert 0.6 * len(m.positions) < len(V) < 0.75 * len(m.positions)
+    assert F.max() < len(V) and F.min() >= 0
+    Q, _ = attacks.quantize(m.positions, m.faces, rng, 3)
+    assert len(np.unique(Q[:, 0])) <= 9
+    S, _ = attacks.smooth(m.positions, m.faces, rng, 10)
+    assert np.linalg.norm(S, axis=1).mean() < 1.0  # smoothing shrinks a sphere
+    R = attacks.rodrigues([0, 0, 1], np.pi / 2)
+    np.testing.assert_allclose(R @ [1, 0, 0], [0, 1, 0], atol=1e-12)

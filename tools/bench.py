@@ -1,0 +1,577 @@
+"""Engine benchmark: our encode / decode / size against the compiled peers, on the same mesh.
+
+One run measures, per mesh:
+
+* **encode** -- ``pmwm_codec.encode(mesh, BytesIO, measure=False)`` (no watermark, no
+  distortion measurement, grid 14 bits) against ``fast_simplification.simplify(...,
+  return_collapses=True)`` down to the same base face count;
+* **decode** -- ``pmwm_codec.decode(bytes)`` of the whole file in memory (Draco base + zstd +
+  every split) against ``DracoPy.decode`` of the full mesh encoded at q14 / compression level 7;
+* **size** -- total ``.pmw`` bits per vertex (grid 14 and 16) against that Draco file, plus a
+  breakdown of our bytes (GLB/JSON, base, per payload column) and the encode profile
+  (simplify / build records / base / pack / write) from timers wrapped around the stages of
+  :func:`pmwm_codec.stream.encoder.encode_mesh` (in this process only; no library file changes).
+
+Meshes: ``stanford-bunny.obj`` from ``../shared/corpus`` and the bunny midpoint-subdivided twice
+(flat subdivision, built in memory: good for time scaling, unrealistic for size).
+
+Run from the repository root::
+
+    python tools/bench.py                       # print the Markdown report
+    python tools/bench.py --write BENCHMARKS.md # also replace its "Engine" section
+
+Times are medians of ``--repeats`` runs (``--big-repeats`` on the subdivided mesh).  The
+machines these run on are shared; compare ratios within one table, not absolute times.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import os
+import platform
+import shlex
+import statistics
+import sys
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+if ROOT not in sys.path:
+    sys.path.insert(0, ROOT)
+
+import pmwm_codec  # noqa: E402
+from pmwm_codec.format import records  # noqa: E402
+from pmwm_codec.mesh import Mesh  # noqa: E402
+from pmwm_codec.stream import encoder as enc_mod  # noqa: E402
+
+DEFAULT_CORPUS = os.path.normpath(os.path.join(ROOT, "..", "shared", "corpus"))
+SECTION = "Engine"
+
+# targets (performance.md / the issue)
+ENCODE_TARGET = 3.0  # x fast-simplification
+DECODE_TARGET = 3.0  # x Draco q14 cl7 decode
+SIZE_TARGET = 1.5  # x Draco q14 cl7 bytes
+
+
+# ----------------------------------------------------------------------------- helpers
+def machine() -> dict:
+    cpu = "unknown"
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    try:
+        load = os.getloadavg()
+    except OSError:
+        load = (float("nan"),) * 3
+    import zstandard
+
+    from importlib.metadata import version
+
+    def ver(name):
+        try:
+            return version(name)
+        except Exception:  # noqa: BLE001
+            return "?"
+
+    return {
+        "git": git_state(),
+        "cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(), "numpy": np.__version__,
+        "DracoPy": ver("DracoPy"),
+        "fast_simplification": ver("fast-simplification"),
+        "zstandard": zstandard.__version__, "load": load,
+    }
+
+
+def git_state() -> str:
+    """Commit and the library files that differ from it (others edit the tree concurrently)."""
+    import subprocess
+
+    try:
+        head = subprocess.run(["git", "-C", ROOT, "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", ROOT, "status", "--porcelain", "--", "pmwm_codec"],
+                               capture_output=True, text=True).stdout.split("\n")
+        dirty = [line[3:] for line in dirty if line.strip()]
+    except OSError:
+        return "unknown"
+    return head + (f" with uncommitted changes in {', '.join(dirty)}" if dirty else " (clean library tree)")
+
+
+def median_time(fn, repeats: int):
+    """(median seconds, all seconds, last result)."""
+    times, out = [], None
+    for _ in range(repeats):
+        t = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t)
+    return statistics.median(times), times, out
+
+
+def replace_section(path: str, title: str, body: str) -> None:
+    """Replace (or append) the ``## title`` section of a Markdown file, up to the next ``## ``."""
+    text = open(path).read() if os.path.exists(path) else "# Benchmarks\n"
+    lines = text.splitlines(keepends=True)
+    head = f"## {title}"
+    start = next((i for i, l in enumerate(lines) if l.rstrip() == head), None)
+    block = head + "\n\n" + body.rstrip() + "\n\n"
+    if start is None:
+        if not text.endswith("\n\n"):
+            text = text.rstrip("\n") + "\n\n"
+        text += block
+    else:
+        end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")), len(lines))
+        text = "".join(lines[:start]) + block + "".join(lines[end:])
+    with open(path, "w") as fh:
+        fh.write(text.rstrip("\n") + "\n")
+
+
+def table(header, rows) -> str:
+    out = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    out += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
+    return "\n".join(out)
+
+
+def ms(s: float) -> str:
+    return f"{s * 1e3:,.1f} ms" if s < 10 else f"{s:,.2f} s"
+
+
+# ----------------------------------------------------------------------------- meshes
+def load_meshes(corpus: str, big: bool):
+    bunny = pmwm_codec.read_mesh(os.path.join(corpus, "stanford-bunny.obj"))
+    out = [("stanford-bunny", bunny)]
+    if big:
+        from pmwm_codec.shapes import _midpoint_subdivide
+
+        v, f = bunny.positions, bunny.faces
+        for _ in range(2):
+            v, f = _midpoint_subdivide(v, f)
+        out.append(("bunny-sub2 (midpoint x2)", Mesh(v, f)))
+    return out
+
+
+# ----------------------------------------------------------------------------- profiled encode
+class StageTimers:
+    """Wrap the stage functions encode_mesh looks up in its module; collect times and outputs."""
+
+    STAGES = ("simplify", "encode_base", "build_progressive", "pack_batches", "write_pmw")
+
+    def __init__(self):
+        self.times = {}
+        self.captured = {}
+        self.packed_chunks = []
+        self._orig = {}
+
+    def __enter__(self):
+        for name in self.STAGES:
+            orig = getattr(enc_mod, name)
+            self._orig[name] = orig
+
+            def wrapper(*a, _name=name, _orig=orig, **k):
+                t = time.perf_counter()
+                out = _orig(*a, **k)
+                self.times[_name] = self.times.get(_name, 0.0) + time.perf_counter() - t
+                if _name == "pack_batches":
+                    self.packed_chunks.append(list(a[0]))
+                else:
+                    self.captured[_name] = out
+                return out
+
+            setattr(enc_mod, name, wrapper)
+        return self
+
+    def __exit__(self, *exc):
+        for name, orig in self._orig.items():
+            setattr(enc_mod, name, orig)
+
+
+def column_breakdown(chunks, level: int) -> dict:
+    """Bytes per payload column: every chunk's column compressed alone at ``level``, summed.
+
+    Mirrors :func:`pmwm_codec.format.records.pack_batches` column by column.  Also returns the
+    raw header + batch-table bytes (compressed alone too).
+    """
+    import zstandard
+
+    cctx = zstandard.ZstdCompressor(level=level)
+    out = {"header+table": 0, "gaps": 0, "symbols": 0, "residual_x": 0, "residual_y": 0, "residual_z": 0}
+    raw = dict.fromkeys(out, 0)
+    for batches in chunks:
+        table_ = np.array([(b.size, len(b.symbols)) for b in batches], dtype=records.BATCH_TABLE_DTYPE)
+        gaps = np.concatenate([np.diff(b.v, prepend=-1) - 1 for b in batches])
+        symbols = np.concatenate([b.symbols for b in batches]).astype(np.uint8)
+        residual = np.concatenate([b.residual for b in batches]).astype(np.int64)
+        cols = {
+            "header+table": records.RecordsHeader.build({"batch_count": len(batches)}) + table_.tobytes(),
+            "gaps": records._pack_column(gaps),
+            "symbols": records._pack_column(records._pack_symbols(symbols)),
+        }
+        for axis, name in enumerate(("residual_x", "residual_y", "residual_z")):
+            cols[name] = records._pack_column(records.zigzag(residual[:, axis]))
+        if sum(len(d) for d in cols.values()) != len(records.pack_batches(batches)):
+            raise RuntimeError("column_breakdown no longer mirrors records.pack_batches: update the bench")
+        for name, data in cols.items():
+            raw[name] += len(data)
+            out[name] += len(cctx.compress(data))
+    return {"compressed": out, "raw": raw}
+
+
+def residual_stats(chunks) -> dict:
+    res = np.concatenate([np.concatenate([b.residual for b in bs]) for bs in chunks]).astype(np.int64)
+    sym = np.concatenate([np.concatenate([b.symbols for b in bs]) for bs in chunks])
+    a = np.abs(res)
+    # empirical entropy of each residual axis (bits/value): a floor for an order-0 coder
+    ent = []
+    for axis in range(3):
+        _, c = np.unique(res[:, axis], return_counts=True)
+        p = c / c.sum()
+        ent.append(float(-(p * np.log2(p)).sum()))
+    _, c = np.unique(sym, return_counts=True)
+    p = c / c.sum()
+    return {"median_abs": float(np.median(a)), "p90_abs": float(np.percentile(a, 90)),
+            "max_abs": int(a.max()), "entropy_bits": ent, "symbols_per_split": len(sym) / len(res),
+            "symbol_entropy": float(-(p * np.log2(p)).sum())}
+
+
+def glb_parts(data: bytes) -> dict:
+    """Split a .pmw into GLB overhead, JSON, base and chunk bytes (from its own index)."""
+    import json
+    import struct
+
+    json_len = struct.unpack_from("<I", data, 12)[0]
+    gltf = json.loads(data[20 : 20 + json_len])
+    ext = gltf["meshes"][0]["primitives"][0]["extensions"][pmwm_codec.constants.EXTENSION_NAME]
+    bin_len = struct.unpack_from("<I", data, 20 + json_len)[0]
+    chunk_views = {c["bufferView"] for c in ext["chunks"]}
+    chunk_bytes = sum(c["byteLength"] for c in ext["chunks"])
+    chunk_padded = sum(v["byteLength"] + (-v["byteLength"]) % 4 for i, v in enumerate(gltf["bufferViews"]) if i in chunk_views)
+    base_bytes = bin_len - chunk_padded
+    return {"glb_headers": 28, "json": json_len, "base": base_bytes, "chunks": chunk_bytes,
+            "chunk_padding": chunk_padded - chunk_bytes, "total": len(data)}
+
+
+# ----------------------------------------------------------------------------- one mesh
+def bench_mesh(name, mesh, repeats, zstd_level, log):
+    import DracoPy
+    import fast_simplification
+
+    n, m = mesh.vertex_count, mesh.face_count
+    log(f"[{name}] {n} vertices, {m} faces, {repeats} repeats")
+    res = {"name": name, "vertices": n, "faces": m, "repeats": repeats}
+
+    # ours, encode at 14 bits (timed), no watermark, no measurement
+    data = {}
+
+    def ours_encode(bits=14):
+        buf = io.BytesIO()
+        rep = pmwm_codec.encode(mesh, buf, measure=False, grid_bits=bits, zstd_level=zstd_level)
+        data[bits] = buf.getvalue()
+        return rep
+
+    t_enc, t_all, rep14 = median_time(ours_encode, repeats)
+    log(f"  ours encode q14: {t_all}")
+    res["ours_encode"] = t_enc
+    res["ours_encode_all"] = t_all
+    res["report14"] = rep14
+    # grid 16: one timed run for size
+    t16 = time.perf_counter()
+    rep16 = ours_encode(16)
+    res["ours_encode16"] = time.perf_counter() - t16
+    res["report16"] = rep16
+
+    # fast-simplification to the same base face count, with the collapse record
+    pts = np.ascontiguousarray(mesh.positions, np.float64)
+    tri = np.ascontiguousarray(mesh.faces, np.int32)
+    target_faces = int(rep14["base_faces"])
+
+    def fs_run():
+        return fast_simplification.simplify(pts, tri, target_count=target_faces, return_collapses=True)
+
+    t_fs, fs_all, (fs_pts, fs_tri, fs_coll) = median_time(fs_run, repeats)
+    log(f"  fast-simplification: {fs_all}")
+    res.update(fs=t_fs, fs_all=fs_all, fs_vertices=len(fs_pts), fs_faces=len(fs_tri), fs_collapses=len(fs_coll),
+               target_faces=target_faces)
+
+    # decode: ours (bytes in memory) vs DracoPy q14 cl7 of the full mesh
+    blob = data[14]
+    t_dec, dec_all, dm = median_time(lambda: pmwm_codec.decode(blob), repeats)
+    assert dm.vertex_count == n and dm.face_count == m, (dm.vertex_count, dm.face_count)
+    log(f"  ours decode: {dec_all}")
+    t_de, de_all, draco = median_time(
+        lambda: DracoPy.encode(pts, tri, quantization_bits=14, compression_level=7), repeats
+    )
+    t_dd, dd_all, dmesh = median_time(lambda: DracoPy.decode(draco), max(repeats, 5))
+    log(f"  draco encode {de_all} decode {dd_all}")
+    res.update(ours_decode=t_dec, ours_decode_all=dec_all, draco_encode=t_de, draco_decode=t_dd,
+               draco_decode_all=dd_all, draco_bytes=len(draco), draco_vertices=len(dmesh.points))
+
+    # size and breakdown (grid 14 and 16)
+    for bits in (14, 16):
+        res[f"parts{bits}"] = glb_parts(data[bits])
+
+    # profile: one more q14 encode with stage timers (plus the records, for the column breakdown)
+    with StageTimers() as st:
+        t = time.perf_counter()
+        pmwm_codec.encode(mesh, io.BytesIO(), measure=False, grid_bits=14, zstd_level=zstd_level)
+        total = time.perf_counter() - t
+    stages = dict(st.times)
+    # pack_batches runs inside encode_mesh before write_pmw; write_pmw includes zstd compression
+    res["profile"] = {"total": total, **stages}
+    res["columns"] = column_breakdown(st.packed_chunks, zstd_level)
+    res["residuals"] = residual_stats(st.packed_chunks)
+    res["splits"] = sum(b.size for bs in st.packed_chunks for b in bs)
+    res["batches"] = sum(len(bs) for bs in st.packed_chunks)
+    batch_sizes = [b.size for bs in st.packed_chunks for b in bs]
+    res["batch_sizes"] = batch_sizes
+
+    # inside simplify: cProfile of one more encode, for the mesh's functions (small meshes only)
+    if n < 200_000:
+        res["simplify_profile"] = simplify_profile(mesh, zstd_level)
+
+    # decode profile: parse/zstd vs apply (one run, manual loop over the decoder's stages)
+    res["decode_profile"] = decode_profile(blob)
+    return res
+
+
+def simplify_profile(mesh, zstd_level) -> list:
+    """cProfile one q14 encode; (function, calls, cumulative s, own s) for simplify's parts."""
+    import cProfile
+    import pstats
+
+    pr = cProfile.Profile()
+    pr.enable()
+    pmwm_codec.encode(mesh, io.BytesIO(), measure=False, grid_bits=14, zstd_level=zstd_level)
+    pr.disable()
+    st = pstats.Stats(pr).stats
+    rows = []
+    for (file, _, func), (cc, nc, tt, ct, _) in st.items():
+        if file.endswith(("progressive/simplify.py", "progressive/topology.py")) or func in ("<method 'argsort' of 'numpy.ndarray' objects>", "<method 'reduceat' of 'numpy.ufunc' objects>"):
+            rows.append((f"{os.path.basename(file)}:{func}" if file != "~" else func, nc, ct, tt))
+    rows.sort(key=lambda r: -r[2])
+    return rows[:10]
+
+
+def decode_profile(blob: bytes) -> dict:
+    """Time the decoder's parts on one full decode: container (digest + zstd), unpack, apply."""
+    from pmwm_codec.format import BaseEvent, ChunkEvent, ContainerParser
+    from pmwm_codec.progressive.vsplit import MeshState, apply_batch
+
+    t0 = time.perf_counter()
+    parser = ContainerParser()
+    events = list(parser.feed(blob))
+    parser.close()
+    t_container = time.perf_counter() - t0
+    header = events[0]
+    ext = header.extension
+    t_unpack = t_apply = 0.0
+    t = time.perf_counter()
+    base = next(e for e in events if isinstance(e, BaseEvent))
+    state = MeshState(base.positions_int, base.faces, int(ext["vertexCount"]), int(ext["faceCount"]))
+    t_state = time.perf_counter() - t
+    for e in events:
+        if isinstance(e, ChunkEvent):
+            t = time.perf_counter()
+            batches = records.unpack_batches(e.payload, max_splits=len(state.positions))
+            t_unpack += time.perf_counter() - t
+            t = time.perf_counter()
+            for b in batches:
+                apply_batch(state, b)
+            t_apply += time.perf_counter() - t
+    return {"container (GLB parse, Draco base, digests, zstd)": t_container, "state alloc": t_state,
+            "unpack records": t_unpack, "apply splits": t_apply}
+
+
+# ----------------------------------------------------------------------------- report
+def render(results, info, command) -> str:
+    L = []
+    L.append(f"Command (from the repository root): `{command}`")
+    L.append("")
+    L.append(
+        f"Machine: {info['cpu']}, {info['cores']} cores, Python {info['python']}, numpy {info['numpy']}, "
+        f"DracoPy {info['DracoPy']}, fast-simplification {info['fast_simplification']}, "
+        f"zstandard {info['zstandard']}; load average at start {info['load'][0]:.2f}. "
+        f"Library: commit {info['git']}."
+    )
+    L.append("")
+    L.append(
+        "These machines are shared and noisy: other helpers were running test suites on the same 2 cores "
+        "while this ran. Compare the ratios within one table, not absolute times. Times are medians "
+        "(repeat counts in the table). `OPENBLAS_CORETYPE` is not set: nothing here goes through BLAS "
+        "in a way that matters (the work is sorts, gathers, bincounts and zstd)."
+    )
+    L.append("")
+    L.append("What is timed:")
+    L.append("* ours encode: `pmwm_codec.encode(mesh, BytesIO(), measure=False, grid_bits=14)` on the mesh "
+             "already in memory, no watermark (quantize, simplify, Draco base, split records, zstd, GLB);")
+    L.append("* fast-simplification: `simplify(points, triangles, target_count=<our base face count>, "
+             "return_collapses=True)`;")
+    L.append("* ours decode: `pmwm_codec.decode(bytes)` of the whole q14 file in memory (GLB parse, Draco base, "
+             "digests, zstd, every split);")
+    L.append("* Draco: `DracoPy.decode` of `DracoPy.encode(points, faces, quantization_bits=14, "
+             "compression_level=7)` of the full mesh.")
+    L.append("")
+
+    rows = []
+    for r in results:
+        enc_ratio = r["ours_encode"] / r["fs"]
+        dec_ratio = r["ours_decode"] / r["draco_decode"]
+        rows.append([
+            r["name"], f"{r['vertices']:,}", r["repeats"],
+            ms(r["ours_encode"]), f"{ms(r['fs'])} (to {r['fs_vertices']:,} V / {r['fs_faces']:,} F)",
+            f"**{enc_ratio:.1f}x**" + (" (miss)" if enc_ratio > ENCODE_TARGET else " (ok)"),
+            ms(r["ours_decode"]), ms(r["draco_decode"]),
+            f"**{dec_ratio:.1f}x**" + (" (miss)" if dec_ratio > DECODE_TARGET else " (ok)"),
+        ])
+    L.append("### Time")
+    L.append("")
+    L.append(table(["mesh", "vertices", "repeats", "ours encode", "fast-simplification (collapses)",
+                    f"encode ratio (target <= {ENCODE_TARGET:g}x)", "ours full decode", "Draco q14 cl7 decode",
+                    f"decode ratio (target <= {DECODE_TARGET:g}x)"], rows))
+    L.append("")
+    rows = []
+    for r in results:
+        n = r["vertices"]
+        rows.append([
+            r["name"], f"{1e6 * r['ours_encode'] / n:.2f}", f"{1e6 * r['fs'] / n:.2f}",
+            f"{1e6 * r['ours_decode'] / n:.3f}", f"{1e6 * r['draco_decode'] / n:.3f}",
+            ms(r["draco_encode"]), ms(r["ours_encode16"]),
+        ])
+    L.append(table(["mesh", "ours encode µs/V", "fast-simpl. µs/V", "ours decode µs/V", "Draco decode µs/V",
+                    "Draco q14 cl7 encode", "ours encode at grid 16 (1 run)"], rows))
+    L.append("")
+    L.append("All runs (seconds): " + "; ".join(
+        f"{r['name']}: encode {[round(x, 3) for x in r['ours_encode_all']]}, fast-simpl. "
+        f"{[round(x, 3) for x in r['fs_all']]}, decode {[round(x, 4) for x in r['ours_decode_all']]}, "
+        f"Draco decode {[round(x, 4) for x in r['draco_decode_all']]}" for r in results))
+    L.append("")
+
+    L.append("### Size")
+    L.append("")
+    rows = []
+    for r in results:
+        n = r["vertices"]
+        d_bpv = 8 * r["draco_bytes"] / n
+        for bits in (14, 16):
+            b = r[f"report{bits}"]["bytes"]
+            ratio = b / r["draco_bytes"]
+            mark = ""
+            if bits == 14:
+                mark = " (miss)" if ratio > SIZE_TARGET else " (ok)"
+            rows.append([r["name"], bits, f"{b:,}", f"{8 * b / n:.1f}", f"{r['draco_bytes']:,}", f"{d_bpv:.1f}",
+                         f"**{ratio:.2f}x**{mark}"])
+    L.append(table(["mesh", "grid bits", "ours bytes", "ours bpv", "Draco q14 cl7 bytes", "Draco bpv",
+                    f"ratio (target <= {SIZE_TARGET:g}x at 14 bits)"], rows))
+    L.append("")
+    L.append("Where our bytes go (grid 14). File parts come from the file's own index; payload columns are "
+             "each column of every chunk compressed alone with the same zstd level (level "
+             f"{ZSTD_LEVEL_USED[0]}), so their sum differs slightly from the stored chunks. "
+             "Bits per split = column bits / splits.")
+    L.append("")
+    for r in results:
+        p = r["parts14"]
+        n, k = r["vertices"], r["splits"]
+        c = r["columns"]["compressed"]
+        raw = r["columns"]["raw"]
+        total = p["total"]
+        rows = [
+            ["GLB headers + JSON", f"{p['glb_headers'] + p['json']:,}", f"{100 * (p['glb_headers'] + p['json']) / total:.1f}%",
+             f"{8 * (p['glb_headers'] + p['json']) / n:.2f}", "", ""],
+            [f"base mesh (Draco, {r['report14']['base_vertices']:,} V)", f"{p['base']:,}",
+             f"{100 * p['base'] / total:.1f}%", f"{8 * p['base'] / n:.2f}", "", ""],
+            [f"split chunks as stored ({r['report14']['chunks']} zstd frames)", f"{p['chunks'] + p['chunk_padding']:,}",
+             f"{100 * (p['chunks'] + p['chunk_padding']) / total:.1f}%", f"{8 * (p['chunks'] + p['chunk_padding']) / n:.2f}",
+             f"{8 * p['chunks'] / k:.1f}", ""],
+        ]
+        for col in ("header+table", "gaps", "symbols", "residual_x", "residual_y", "residual_z"):
+            rows.append([f"&nbsp;&nbsp;column {col}", f"{c[col]:,}", f"{100 * c[col] / total:.1f}%",
+                         f"{8 * c[col] / n:.2f}", f"{8 * c[col] / k:.2f}", f"{8 * raw[col] / k:.1f}"])
+        rows.append(["total file", f"{total:,}", "100%", f"{8 * total / n:.2f}", f"{8 * total / k:.1f}", ""])
+        L.append(f"**{r['name']}** ({n:,} V, {k:,} splits in {r['batches']} batches):")
+        L.append("")
+        L.append(table(["part", "bytes", "share", "bits/vertex", "bits/split", "raw bits/split (before zstd)"], rows))
+        s = r["residuals"]
+        L.append("")
+        L.append(
+            f"Residuals (grid units): median |r| {s['median_abs']:.0f}, 90th percentile {s['p90_abs']:.0f}, max "
+            f"{s['max_abs']}; order-0 entropy per axis {', '.join(f'{e:.2f}' for e in s['entropy_bits'])} bits "
+            f"(sum {sum(s['entropy_bits']):.1f} bits/split). Symbols: {s['symbols_per_split']:.2f} per split, "
+            f"order-0 entropy {s['symbol_entropy']:.2f} bits each "
+            f"({s['symbols_per_split'] * s['symbol_entropy']:.1f} bits/split)."
+        )
+        L.append("")
+
+    L.append("### Where the encode time goes (grid 14, one run with timers around the stages)")
+    L.append("")
+    rows = []
+    for r in results:
+        p = r["profile"]
+        named = {"simplify": "simplify", "encode_base": "base (Draco encode + check)",
+                 "build_progressive": "build records", "pack_batches": "pack payloads",
+                 "write_pmw": "write (zstd + GLB)"}
+        other = p["total"] - sum(p.get(k, 0.0) for k in named)
+        rows.append([r["name"], ms(p["total"])] + [f"{ms(p.get(k, 0.0))} ({100 * p.get(k, 0.0) / p['total']:.0f}%)" for k in named]
+                    + [f"{ms(other)} ({100 * other / p['total']:.0f}%)"])
+    L.append(table(["mesh", "total", "simplify", "base (Draco encode + check)", "build records", "pack payloads",
+                    "write (zstd + GLB)", "other (validate, quantize, grouping)"], rows))
+    L.append("")
+    for r in results:
+        bs = r["batch_sizes"]
+        n = r["vertices"]
+        L.append(f"{r['name']}: {len(bs)} batches; batch yields (splits per batch, coarse to fine): "
+                 f"{', '.join(str(x) for x in bs)}.")
+        L.append("")
+    for r in results:
+        if r.get("simplify_profile"):
+            L.append(f"Inside simplify, {r['name']} (cProfile of one more encode; cumulative time includes callees, "
+                     "profiler overhead inflates the many small calls):")
+            L.append("")
+            L.append(table(["function", "calls", "cumulative", "own"],
+                           [[f"`{f}`", c, ms(ct), ms(tt)] for f, c, ct, tt in r["simplify_profile"]]))
+            L.append("")
+    L.append("### Where the decode time goes (one run, same stages as the decoder)")
+    L.append("")
+    rows = []
+    for r in results:
+        d = r["decode_profile"]
+        rows.append([r["name"]] + [ms(v) for v in d.values()])
+    L.append(table(["mesh"] + list(results[0]["decode_profile"].keys()), rows))
+    L.append("")
+    return "\n".join(L)
+
+
+ZSTD_LEVEL_USED = [10]
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--corpus", default=DEFAULT_CORPUS)
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--big-repeats", type=int, default=3)
+    ap.add_argument("--no-big", action="store_true", help="skip the subdivided (~0.56M vertex) mesh")
+    ap.add_argument("--zstd-level", type=int, default=10)
+    ap.add_argument("--write", metavar="MARKDOWN", help="replace the 'Engine' section of this file")
+    args = ap.parse_args(argv)
+    ZSTD_LEVEL_USED[0] = args.zstd_level
+    command = "python tools/bench.py " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
+    log = lambda s: print(s, file=sys.stderr, flush=True)  # noqa: E731
+    info = machine()
+    log(f"machine: {info}")
+    results = []
+    for name, mesh in load_meshes(args.corpus, not args.no_big):
+        reps = args.repeats if mesh.vertex_count < 200_000 else args.big_repeats
+        results.append(bench_mesh(name, mesh, reps, args.zstd_level, log))
+    md = render(results, info, command.strip())
+    print(md)
+    if args.write:
+        replace_section(args.write, SECTION, md)
+        log(f"wrote section '{SECTION}' of {args.write}")
+
+
+if __name__ == "__main__":
+    main()

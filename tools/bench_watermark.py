@@ -1,0 +1,387 @@
+"""Watermark benchmark: quality after a file round trip, the progressive curve, false positives.
+
+Per (mesh, watermark) pair (default: stanford-bunny + camera128, cow + text64 shrunk to 32x32):
+
+(a) **paper mode**, ``bits`` 8 / 12 / 16: encode to a file, read it back with
+    :func:`pmwm_codec.iter_decode` (key + reference), take the final result: mesh PSNR and
+    Hausdorff (fraction of the bbox diagonal) of the *decoded* mesh against the input, watermark
+    PSNR and NC -- beside the paper's Table I (bunny only; the paper has no other mesh);
+(b) **exact mode** (the default): the same, plus bits per carrier and the progressive curve
+    (bytes read -> watermark PSNR at every chunk boundary);
+(c) **false positives**: ``--keys`` wrong keys (``WatermarkKey.generate(rng=default_rng(seed))``)
+    against the marked file, verdicts from :class:`~pmwm_codec.watermark.verify.Verifier`; and the
+    *right* key against an *unmarked* file of the same mesh.
+
+Mesh distortion needs a vertex correspondence between the input and the decoded file (the
+decoder numbers vertices in stream order).  The bench takes it from the encoder itself: it
+wraps ``build_progressive`` in this process and keeps ``ProgressiveMesh.vertex_order``; the
+*positions* compared are the ones decoded from the file.  The faces are checked to be the
+input's faces under that map.
+
+For (c) the geometry of each file is decoded once, recording what the decoder hands its
+Verifier per batch (``(batch index, positions of the new vertices, ring means)``, the loop of
+:class:`~pmwm_codec.stream.decoder.StreamDecoder`); then only a Verifier runs per key.  The
+first few keys are cross-checked against a real ``StreamDecoder(key, reference,
+check_key=False)``.
+
+Run from the repository root::
+
+    python tools/bench_watermark.py                       # print the Markdown report
+    python tools/bench_watermark.py --write BENCHMARKS.md # also replace its "Watermark" section
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shlex
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+if ROOT not in sys.path:
+    sys.path.insert(0, ROOT)
+if HERE not in sys.path:
+    sys.path.insert(0, HERE)
+
+import pmwm_codec  # noqa: E402
+from pmwm_codec.format import BaseEvent, ChunkEvent, ContainerParser  # noqa: E402
+from pmwm_codec.format.records import unpack_batches  # noqa: E402
+from pmwm_codec.mesh import Mesh  # noqa: E402
+from pmwm_codec.progressive.vsplit import MeshState, apply_batch  # noqa: E402
+from pmwm_codec.stream import encoder as enc_mod  # noqa: E402
+from pmwm_codec.stream.decoder import StreamDecoder  # noqa: E402
+from pmwm_codec.watermark import codec as wm  # noqa: E402
+from pmwm_codec.watermark.image import load_watermark  # noqa: E402
+from pmwm_codec.watermark.key import WatermarkKey  # noqa: E402
+from pmwm_codec.watermark.metrics import centered_nc, mesh_distortion  # noqa: E402
+from pmwm_codec.watermark.verify import ALPHA, MATCH_RATE, Verifier  # noqa: E402
+
+from bench import machine, replace_section, table  # noqa: E402
+
+DEFAULT_CORPUS = os.path.normpath(os.path.join(ROOT, "..", "shared", "corpus"))
+DEFAULT_WATERMARKS = os.path.normpath(os.path.join(ROOT, "..", "shared", "watermarks"))
+SECTION = "Watermark"
+
+#: The paper's Table I (bunny, 128x128 watermark): b -> mesh PSNR, watermark PSNR, watermark NC, Hausdorff.
+PAPER_TABLE = {
+    8: (93.56171, 7.212543, 0.647436, 0.000117),
+    12: (69.696938, 38.979134, 0.998296, 0.001252),
+    16: (44.997974, 53.081692, 0.998356, 0.006401),
+}
+
+
+class CaptureOrder:
+    """Keep the ProgressiveMesh of the next encode (for the input -> decoded vertex map)."""
+
+    def __enter__(self):
+        self.pm = None
+        self._orig = enc_mod.build_progressive
+
+        def wrapper(*a, **k):
+            self.pm = self._orig(*a, **k)
+            return self.pm
+
+        enc_mod.build_progressive = wrapper
+        return self
+
+    def __exit__(self, *exc):
+        enc_mod.build_progressive = self._orig
+
+
+def canonical_faces(f: np.ndarray) -> np.ndarray:
+    """Faces rotated to start at their smallest index, rows sorted (orientation kept)."""
+    f = np.asarray(f, np.int64)
+    r = np.argmin(f, axis=1)
+    idx = (r[:, None] + np.arange(3)[None]) % 3
+    g = np.take_along_axis(f, idx, axis=1)
+    return g[np.lexsort(g.T[::-1])]
+
+
+def encode_and_read(mesh, path, image_path, key, log, **options):
+    """Encode to ``path``, read it back with iter_decode; returns a dict of measures."""
+    t = time.perf_counter()
+    with CaptureOrder() as cap:
+        rep = pmwm_codec.encode(mesh, path, watermark=image_path, key=key, measure=True, **options)
+    t_enc = time.perf_counter() - t
+    t = time.perf_counter()
+    steps = list(pmwm_codec.iter_decode(path, key=key, watermark=image_path) if key is not None
+                 else pmwm_codec.iter_decode(path))
+    t_dec = time.perf_counter() - t
+    last = steps[-1]
+    order = cap.pm.vertex_order
+    decoded = last.mesh
+    # the decoded connectivity must be the input's under the encoder's vertex map
+    inv = np.empty_like(order)
+    inv[order] = np.arange(len(order))
+    same_faces = np.array_equal(canonical_faces(inv[decoded.faces]), canonical_faces(mesh.faces))
+    d = mesh_distortion(mesh, Mesh(decoded.positions[order], mesh.faces))
+    size = os.path.getsize(path)
+    out = {
+        "report": rep, "bytes": size, "encode_s": t_enc, "decode_s": t_dec, "same_faces": same_faces,
+        "mesh_psnr": d["psnr_db"], "hausdorff": d["hausdorff"], "rms": d["rms"],
+        "report_psnr": rep["distortion"]["psnr_db"], "report_hausdorff": rep["distortion"]["hausdorff"],
+        "wm_psnr": last.psnr_db, "nc": last.nc, "centered_nc": last.centered_nc, "code_match": last.code_match,
+        "curve": [(s.chunk, s.bytes_read, s.vertices, s.coefficients, s.psnr_db, s.nc, s.code_match) for s in steps],
+    }
+    log(f"  {options}: {size} B, mesh PSNR {d['psnr_db']:.2f} (report {rep['distortion']['psnr_db']}), "
+        f"H {d['hausdorff']:.3g}, wm PSNR {last.psnr_db}, NC {last.nc}, faces ok {same_faces}, "
+        f"enc {t_enc:.1f}s dec {t_dec:.1f}s")
+    return out
+
+
+# ----------------------------------------------------------------------------- false positives
+def verifier_feed(path):
+    """Decode a file's geometry once: (params or None, nbar, [(batch, points, centroid)], carriers)."""
+    with open(path, "rb") as fh:
+        blob = fh.read()
+    parser = ContainerParser()
+    events = list(parser.feed(blob))
+    parser.close()
+    ext = events[0].extension
+    params = wm.WatermarkParams.from_config(ext["watermark"]) if "watermark" in ext else None
+    base = next(e for e in events if isinstance(e, BaseEvent))
+    state = MeshState(base.positions_int, base.faces, int(ext["vertexCount"]), int(ext["faceCount"]))
+    nbar = wm.base_mean_edge(base.positions_int, base.faces)
+    feed, j = [], 0
+    for e in events:
+        if isinstance(e, ChunkEvent):
+            for batch in unpack_batches(e.payload, max_splits=len(state.positions)):
+                topo = apply_batch(state, batch)
+                feed.append((j, state.positions[topo.u].astype(np.float64), np.asarray(topo.centroid())))
+                j += 1
+    return blob, params, nbar, feed
+
+
+def run_verifier(params, key, nbar, reference, feed):
+    v = Verifier(params, key, nbar, reference)
+    for j, p, c in feed:
+        v.add(j, p, c)
+    m, n = v.matches()
+    img, count = v.extractor.image()
+    run_verifier.last_count = count
+    return v.verdict(), m, n, float(centered_nc(reference.astype(np.float64), img.astype(np.float64)))
+
+
+def false_positives(path, reference, keys: int, log, check=3):
+    blob, params, nbar, feed = verifier_feed(path)
+    counts = {"authentic": 0, "inconclusive": 0, "not-authentic": 0}
+    rates, cncs, coefs = [], [], []
+    t = time.perf_counter()
+    for seed in range(keys):
+        key = WatermarkKey.generate(rng=np.random.default_rng(seed))
+        verdict, m, n, cnc = run_verifier(params, key, nbar, reference, feed)
+        if seed < check:  # the same through the real decoder
+            dec = StreamDecoder(key, reference, copy=False, check_key=False)
+            dec.feed(blob)
+            dec.close()
+            assert dec.verifier.matches() == (m, n) and dec.verifier.verdict() == verdict, (seed, m, n, verdict)
+        counts[verdict] += 1
+        rates.append(m / n if n else 0.0)
+        cncs.append(cnc)
+        coefs.append(run_verifier.last_count)
+    dt = time.perf_counter() - t
+    rates = np.array(rates)
+    log(f"  {keys} wrong keys in {dt:.1f}s: {counts}, max rate {rates.max():.4f}")
+    return {"params": params, "counts": counts, "max_rate": float(rates.max()), "mean_rate": float(rates.mean()),
+            "p0": 2.0 ** -params.bits, "mean_cnc": float(np.mean(cncs)), "max_abs_cnc": float(np.max(np.abs(cncs))),
+            "carriers": len(np.concatenate([p for _, p, _ in feed])), "seconds": dt, "keys": keys,
+            "mean_coefficients": float(np.mean(coefs)), "max_coefficients": int(np.max(coefs)),
+            "coefficients_total": params.size * params.size}
+
+
+def unmarked_check(mesh, tmp, marked_path, key, reference, options, log):
+    """The right key and the marked file's public parameters, applied to an unmarked file.
+
+    The unmarked file is the same mesh encoded with the same options but no watermark (same
+    grid, same simplification, so the same carriers in the same order).  Its geometry is fed
+    to a Verifier built from the *marked* file's parameters, the right key and the reference;
+    nbar is recomputed from the unmarked file's own base mesh, exactly as a decoder would.
+    """
+    opts = {k: v for k, v in options.items() if k not in ("mode", "bits")}
+    _, params, _, _ = verifier_feed(marked_path)
+    path = os.path.join(tmp, f"unmarked-grid{DEFAULT_GRID[params.mode]}.pmw")
+    if not os.path.exists(path):
+        pmwm_codec.encode(mesh, path, measure=False, grid_bits=DEFAULT_GRID[params.mode], **opts)
+    _, none_params, nbar, feed = verifier_feed(path)
+    assert none_params is None
+    verdict, m, n, cnc = run_verifier(params, key, nbar, reference, feed)
+    # and the real decoder on the unmarked file with the right key: it has nothing to read
+    dec = StreamDecoder(key, reference, copy=False)
+    res = dec.feed(open(path, "rb").read())
+    dec.close()
+    decoder_says = "no verifier (file carries no watermark parameters)" if dec.verifier is None else dec.verifier.verdict()
+    log(f"  unmarked ({params.mode}, {params.bits} bits): {verdict} {m}/{n}; decoder: {decoder_says}")
+    return {"mode": params.mode, "bits": params.bits, "verdict": verdict, "matches": m, "read": n,
+            "rate": m / n if n else 0.0, "p0": 2.0 ** -params.bits, "cnc": cnc, "decoder": decoder_says,
+            "carriers_file": len(res[-1].positions_int) if res else None}
+
+
+DEFAULT_GRID = wm.DEFAULT_GRID_BITS
+
+
+# ----------------------------------------------------------------------------- report
+def f2(x, nd=2):
+    if x is None:
+        return "n/a"
+    if isinstance(x, float) and np.isinf(x):
+        return "inf"
+    return f"{x:.{nd}f}"
+
+
+def render(results, info, command) -> str:
+    L = [f"Command (from the repository root): `{command}`", ""]
+    L.append(f"Machine: {info['cpu']}, {info['cores']} cores, Python {info['python']}, numpy {info['numpy']}. "
+             f"Library: commit {info['git']}. Shared machine; other helpers ran tests concurrently "
+             "(times here are incidental, the measures are deterministic for a given key except the key itself).")
+    L.append("")
+    L.append("Every number below is measured on the file *after writing and reading it back*: encode to a "
+             "`.pmw`, then `iter_decode(path, key=key, watermark=image)`, final chunk. Mesh PSNR = "
+             "`20 log10(D / RMS)` and Hausdorff / D of the decoded mesh against the input (D = bbox diagonal; "
+             "vertex correspondence from the encoder, connectivity checked identical); watermark PSNR and NC "
+             "(the paper's Hsu-Wu `Σww'/Σw²`) and centered NC (Pearson) of the extracted image against the "
+             "original. Keys are random (`WatermarkKey.generate()`), so exact numbers move slightly from run "
+             "to run (the carriers' permutation changes).")
+    L.append("")
+    for r in results:
+        L.append(f"### {r['mesh']} + {r['image']} ({r['vertices']:,} V; {r['carriers']:,} carriers at grid 16)")
+        L.append("")
+        L.append("**(a) paper mode** (`mode='paper'`, grid 22 bits)")
+        L.append("")
+        rows = []
+        for b, x in r["paper"].items():
+            pt = PAPER_TABLE.get(b) if r["paper_ref"] else None
+            rows.append([
+                b, f"{f2(x['mesh_psnr'])}" + (f" / {pt[0]:.2f}" if pt else ""),
+                f"{x['hausdorff']:.6f}" + (f" / {pt[3]:.6f}" if pt else ""),
+                f"{f2(x['wm_psnr'])}" + (f" / {pt[1]:.2f}" if pt else ""),
+                f"{f2(x['nc'], 4)}" + (f" / {pt[2]:.3f}" if pt else ""),
+                f2(x["centered_nc"], 4), f2(x["code_match"], 4), f"{x['bytes']:,}",
+                f"{x['report']['watermark']['carriers']:,}", f"{x['report']['watermark']['failed']}",
+            ])
+        suffix = " (ours / paper Table I)" if r["paper_ref"] else ""
+        L.append(table(["b", "mesh PSNR dB" + suffix, "Hausdorff / D" + suffix, "watermark PSNR dB" + suffix,
+                        "NC" + suffix, "centered NC", "code match", "file bytes", "carriers", "carriers not embedded"], rows))
+        L.append("")
+        x = r["exact"]
+        w = x["report"]["watermark"]
+        L.append("**(b) exact mode** (the default: integer Haar, packed bits, whitened, voted; grid 16 bits)")
+        L.append("")
+        L.append(table(["mesh PSNR dB", "Hausdorff / D", "watermark PSNR dB", "NC", "centered NC", "bits per carrier",
+                        "message bits (one copy)", "copies", "file bytes"],
+                       [[f2(x["mesh_psnr"]), f"{x['hausdorff']:.6f}", f2(x["wm_psnr"]), f2(x["nc"], 4),
+                         f2(x["centered_nc"], 4), w["bits"], f"{w['codes']:,}",
+                         f"{w['bits'] * w['carriers'] / w['codes']:.2f}", f"{x['bytes']:,}"]]))
+        L.append("")
+        curve = x["curve"]
+        total = x["bytes"]
+        ps = [c[4] for c in curve]
+        finite = [(-1.0 if p is None else p) for p in ps]
+        never_drops = all(b >= a for a, b in zip(finite, finite[1:]))
+        half = next(i for i, c in enumerate(curve) if c[1] >= total / 2)
+        after = [p for p in ps[half:] if p is not None]
+        min_after = min(after) if after else None
+        L.append(f"Progressive curve (exact mode): watermark PSNR at every chunk boundary. Never drops: "
+                 f"**{'yes' if never_drops else 'NO'}**. From the first boundary with at least half the bytes in "
+                 f"(chunk {curve[half][0]}, {curve[half][1]:,} of {total:,} B) on, the lowest PSNR is "
+                 f"**{f2(min_after)} dB** ({'>= 25 dB: yes' if min_after is not None and min_after >= 25 else '>= 25 dB: NO'}).")
+        L.append("")
+        rows = [[c[0], f"{c[1]:,}", f"{100 * c[1] / total:.1f}%", f"{c[2]:,}", f"{c[3]:,}", f2(c[4]), f2(c[5], 4),
+                 f2(c[6], 4)] for c in curve]
+        L.append(table(["chunk", "bytes read", "of file", "vertices", "coefficients", "watermark PSNR dB", "NC",
+                        "code match"], rows))
+        L.append("")
+        L.append("**(c) false positives**")
+        L.append("")
+        rows = []
+        for fp in r["fp"]:
+            p = fp["params"]
+            c = fp["counts"]
+            rows.append([f"{p.mode}, {p.bits} bits", fp["keys"], c["authentic"], c["inconclusive"], c["not-authentic"],
+                         f"{fp['max_rate']:.5f}", f"{fp['mean_rate']:.5f}", f"{fp['p0']:.5f}",
+                         f"{fp['mean_cnc']:+.4f} (max abs {fp['max_abs_cnc']:.4f})",
+                         f"{fp['mean_coefficients']:,.0f} (max {fp['max_coefficients']:,}) of {fp['coefficients_total']:,}"])
+        L.append(table(["marked file", "wrong keys", "authentic", "inconclusive", "not-authentic",
+                        "max code-match rate", "mean code-match rate", "chance 2^-bits", "mean centered NC",
+                        "coefficients the wrong key reconstructs: mean (max)"], rows))
+        L.append("")
+        rows = []
+        for u in r["unmarked"]:
+            rows.append([f"{u['mode']}, {u['bits']} bits", u["verdict"], f"{u['matches']:,} / {u['read']:,}",
+                         f"{u['rate']:.5f}", f"{u['p0']:.5f}", f"{u['cnc']:+.4f}", u["decoder"]])
+        L.append("Unmarked file, right key. The same mesh encoded with the same options but no watermark; its "
+                 "decoded geometry fed (as the decoder feeds it) to a Verifier built from the marked file's public "
+                 "parameters, the right key and the reference image; nbar from the unmarked file's own base. The "
+                 "last column is what `iter_decode`/`StreamDecoder` itself does with that file and key.")
+        L.append("")
+        L.append(table(["parameters from", "verdict", "matches / read", "rate", "chance 2^-bits", "centered NC",
+                        "StreamDecoder on the unmarked file"], rows))
+        L.append("")
+    L.append(f"Verdict rule (pmwm_codec/watermark/verify.py): authentic iff the binomial tail P[X >= matches | "
+             f"n, 2^-bits] < {ALPHA:g} and matches >= {MATCH_RATE:g} n; inconclusive if only the tail is small "
+             "(or fewer than 32 codes read); otherwise not-authentic.")
+    L.append("")
+    return "\n".join(L)
+
+
+def bench_pair(mesh_name, image_name, args, log):
+    mesh = pmwm_codec.read_mesh(os.path.join(args.corpus, mesh_name))
+    # "name.png@32": the image shrunk to 32x32 first (a small mesh's capacity)
+    image_name, _, shrink = image_name.partition("@")
+    reference, _ = load_watermark(os.path.join(args.watermarks, image_name), max_size=int(shrink) if shrink else 256)
+    image_path = reference  # encode/iter_decode take the array as well as a path
+    if shrink:
+        image_name = f"{image_name} shrunk to {reference.shape[0]}x{reference.shape[1]}"
+    log(f"[{mesh_name} + {image_name}] {mesh.vertex_count} V")
+    out = {"mesh": mesh_name, "image": image_name, "vertices": mesh.vertex_count,
+           "paper_ref": mesh_name == "stanford-bunny.obj" and image_name == "camera128.png", "paper": {}, "fp": [],
+           "unmarked": []}
+    with tempfile.TemporaryDirectory(prefix="pmwm-bench-") as tmp:
+        for b in (8, 12, 16):
+            key = WatermarkKey.generate()
+            path = os.path.join(tmp, f"paper{b}.pmw")
+            out["paper"][b] = encode_and_read(mesh, path, image_path, key, log, mode="paper", bits=b)
+            if args.paper_keys:
+                out["fp"].append(false_positives(path, reference, args.paper_keys, log))
+            if b in args.unmarked_paper_bits:
+                out["unmarked"].append(unmarked_check(mesh, tmp, path, key, reference, {}, log))
+        key = WatermarkKey.generate()
+        path = os.path.join(tmp, "exact.pmw")
+        out["exact"] = encode_and_read(mesh, path, image_path, key, log, mode="exact")
+        out["carriers"] = out["exact"]["report"]["watermark"]["carriers"]
+        out["fp"].insert(0, false_positives(path, reference, args.keys, log))
+        out["unmarked"].insert(0, unmarked_check(mesh, tmp, path, key, reference, {}, log))
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--corpus", default=DEFAULT_CORPUS)
+    ap.add_argument("--watermarks", default=DEFAULT_WATERMARKS)
+    ap.add_argument("--pairs", default="stanford-bunny.obj:camera128.png,cow.obj:text64.png@32",
+                    help="mesh:image pairs; image@N shrinks the image to NxN first")
+    ap.add_argument("--keys", type=int, default=1000, help="wrong keys against the exact-mode file")
+    ap.add_argument("--paper-keys", type=int, default=1000, help="wrong keys against each paper-mode file (0: skip)")
+    ap.add_argument("--unmarked-paper-bits", default="8,12,16",
+                    help="paper-mode bit counts whose parameters are also tried on the unmarked file")
+    ap.add_argument("--write", metavar="MARKDOWN", help="replace the 'Watermark' section of this file")
+    args = ap.parse_args(argv)
+    args.unmarked_paper_bits = {int(x) for x in args.unmarked_paper_bits.split(",") if x}
+    command = "python tools/bench_watermark.py " + " ".join(
+        shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
+    log = lambda s: print(s, file=sys.stderr, flush=True)  # noqa: E731
+    info = machine()
+    results = [bench_pair(*pair.split(":"), args, log) for pair in args.pairs.split(",")]
+    md = render(results, info, command.strip())
+    print(md)
+    if args.write:
+        replace_section(args.write, SECTION, md)
+        log(f"wrote section '{SECTION}' of {args.write}")
+
+
+if __name__ == "__main__":
+    main()
