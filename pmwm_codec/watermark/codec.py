@@ -128,6 +128,8 @@ class WatermarkParams:
 def base_mean_edge(positions: np.ndarray, faces: np.ndarray) -> float:
     """Mean undirected edge length of a mesh: positions (n, 3) float, faces (m, 3) int."""
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    if len(e) == 0:
+        return 0.0
     e = np.unique(np.sort(e, axis=1), axis=0)
     p = np.asarray(positions, np.float64)
     return float(np.linalg.norm(p[e[:, 0]] - p[e[:, 1]], axis=1).mean())
