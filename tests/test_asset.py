@@ -235,3 +235,15 @@ def test_pmw_decode_of_an_asset_writes_a_glb_with_its_materials(tmp_path):
     doc, _ = load_document(tmp_path / "s.glb")
     assert [m["name"] for m in doc["materials"]] == ["red", "blue"]
     assert len(doc["meshes"]) == 2
+
+
+def test_info_lists_every_progressive_primitive_and_the_stream_order(tmp_path):
+    from tools.pmw_info import describe
+
+    src = two_mesh_asset(tmp_path)
+    encode_asset(src, tmp_path / "scene.pmw", measure=False)
+    info = describe(str(tmp_path / "scene.pmw"))
+    assert [(q["mesh"], q["primitive"]) for q in info["primitives"]] == [(0, 0), (1, 0)]
+    assert info["vertices"] == sum(q["vertices"] for q in info["primitives"])
+    assert {c["primitive"] for c in info["chunks"]} == {0, 1}
+    assert len(info["chunks"]) == info["chunks_total"]

@@ -10,6 +10,8 @@ wrong or inconclusive; 2 bad input or usage, with one line on stderr.
 
 from __future__ import annotations
 
+import contextlib
+import os
 import sys
 
 from pmwm_codec import __version__
@@ -40,6 +42,10 @@ def main(argv=None) -> int:
         return int(exc.code or 0)
     try:
         return int(args.run(args))
+    except BrokenPipeError:  # `pmw info x.pmw | head`: the reader left; not an error of ours
+        with contextlib.suppress(OSError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except (PmwError, UsageError) as exc:
         sys.stderr.write(error_line(exc) + "\n")
     except OSError as exc:

@@ -6,6 +6,7 @@ import os
 
 from pmwm_codec.constants import EXTENSION_NAME
 from pmwm_codec.format import read_header
+from pmwm_codec.format.base import find_extension_primitives
 from pmwm_codec.format.layout import CHUNK_HEADER_SIZE, PREAMBLE_SIZE
 from pmwm_codec.format.parser import parse_preamble
 
@@ -22,26 +23,42 @@ def add_parser(sub):
 
 
 def describe(path) -> dict:
-    """The ``pmw info --json`` object of the .pmw at ``path``."""
+    """The ``pmw info --json`` object of the .pmw at ``path`` (from the header and JSON alone).
+
+    Counts are totals over every progressive primitive; ``primitives`` lists each one; the
+    chunk table is in stream order (the order the bytes arrive), ``primitive`` saying which
+    primitive a chunk refines.
+    """
     header = read_header(path)
-    gltf, ext = header.gltf_json, header.extension
+    gltf = header.gltf_json
     size = os.path.getsize(path) if path != "-" else None
-    prim = gltf["meshes"][0]["primitives"][0]
     accessors = gltf.get("accessors", [])
-    base_vertices = accessors[prim["attributes"]["POSITION"]]["count"]
-    base_faces = accessors[prim["indices"]]["count"] // 3 if "indices" in prim else base_vertices // 3
-    base_codec = "draco" if "KHR_draco_mesh_compression" in prim.get("extensions", {}) else "plain"
     json_length = header_json_length(gltf, path)
     bin_start = PREAMBLE_SIZE + json_length + CHUNK_HEADER_SIZE if json_length is not None else None
     views = gltf.get("bufferViews", [])
-    chunks = []
-    for i, c in enumerate(ext.get("chunks", [])):
-        view = views[c["bufferView"]]
-        end = None if bin_start is None else bin_start + view.get("byteOffset", 0) + view["byteLength"]
-        chunks.append({"chunk": i + 1, "splits": c["splits"], "vertices": c["vertexCount"], "faces": c["faceCount"],
-                       "bytes": view["byteLength"], "geometric_error": c.get("geometricError"),
-                       "present": None if (end is None or size is None) else end <= size})
+    prims, rows = [], []
+    for p, (mi, pi, prim) in enumerate(find_extension_primitives(gltf, EXTENSION_NAME)):
+        ext = prim["extensions"][EXTENSION_NAME]
+        base_vertices = accessors[prim["attributes"]["POSITION"]]["count"]
+        base_faces = accessors[prim["indices"]]["count"] // 3 if "indices" in prim else base_vertices // 3
+        prims.append({
+            "mesh": mi, "primitive": pi, "name": gltf["meshes"][mi].get("name"),
+            "vertices": ext["vertexCount"], "faces": ext["faceCount"],
+            "base_vertices": base_vertices, "base_faces": base_faces,
+            "base_codec": "draco" if "KHR_draco_mesh_compression" in prim.get("extensions", {}) else "plain",
+            "attributes": [a["semantic"] for a in ext.get("attributes", [])], "grid": ext.get("grid"),
+            "chunks": len(ext["chunks"]),
+        })
+        for k, c in enumerate(ext["chunks"]):
+            view = views[c["bufferView"]]
+            end = None if bin_start is None else bin_start + view.get("byteOffset", 0) + view["byteLength"]
+            rows.append((view.get("byteOffset", 0), {
+                "primitive": p, "splits": c["splits"], "vertices": c["vertexCount"], "faces": c["faceCount"],
+                "bytes": view["byteLength"], "geometric_error": c.get("geometricError"),
+                "present": None if (end is None or size is None) else end <= size}))
+    chunks = [dict(chunk=i + 1, **row) for i, (_, row) in enumerate(sorted(rows, key=lambda r: r[0]))]
     complete = None if size is None else size >= header.total_length
+    ext = header.extension
     wm = ext.get("watermark")
     watermark = None
     if wm:
@@ -51,10 +68,12 @@ def describe(path) -> dict:
         "file": path, "bytes": size, "total_length": header.total_length, "complete": complete,
         "truncated": None if complete is None else not complete,
         "chunks_present": sum(1 for c in chunks if c["present"]) if size is not None else None,
-        "vertices": ext["vertexCount"], "faces": ext["faceCount"],
-        "base_vertices": base_vertices, "base_faces": base_faces, "base_codec": base_codec,
+        "vertices": sum(q["vertices"] for q in prims), "faces": sum(q["faces"] for q in prims),
+        "base_vertices": sum(q["base_vertices"] for q in prims), "base_faces": sum(q["base_faces"] for q in prims),
+        "base_codec": prims[0]["base_codec"],
         "vsplits": sum(c["splits"] for c in chunks), "chunks_total": header.chunk_count,
         "grid": ext.get("grid"), "payload": ext.get("payload"), "watermark": watermark, "chunks": chunks,
+        "primitives": prims,
         "extension": EXTENSION_NAME, "generator": gltf.get("asset", {}).get("generator"),
     }
 
@@ -89,6 +108,13 @@ def text(i) -> str:
              f"  base mesh   {i['base_vertices']:,} vertices, {i['base_faces']:,} faces ({i['base_codec']})",
              f"  stream      {i['vsplits']:,} vertex splits in {i['chunks_total']} chunks",
              f"  grid        {g.get('bits')} bits, step {g.get('step', 0):.4g}"]
+    if len(i["primitives"]) > 1:
+        lines.append(f"  primitives  {len(i['primitives'])} progressive (one stream, one watermark):")
+        for n, q in enumerate(i["primitives"]):
+            name = f" {q['name']}" if q.get("name") else ""
+            attrs = ", ".join(q["attributes"]) or "positions only"
+            lines.append(f"    [{n}] mesh {q['mesh']}{name} primitive {q['primitive']}: {q['vertices']:,} vertices, "
+                         f"base {q['base_vertices']:,}, {q['chunks']} chunks; {attrs}")
     w = i["watermark"]
     if w:
         lines.append(f"  watermark   {w['width']}x{w['height']}, {w['levels']} Haar levels, {w['mode']} mode, "
@@ -96,10 +122,12 @@ def text(i) -> str:
                      f"(key fingerprint {w['keyFingerprint']})")
     else:
         lines.append("  watermark   none")
-    lines.append(f"  {'chunk':>5} {'splits':>8} {'vertices':>9} {'faces':>9} {'bytes':>9} {'geom. error':>12}")
+    multi = len(i["primitives"]) > 1
+    lines.append(f"  {'chunk':>5}" + (f" {'prim':>4}" if multi else "")
+                 + f" {'splits':>8} {'vertices':>9} {'faces':>9} {'bytes':>9} {'geom. error':>12}")
     for c in i["chunks"]:
         mark = "" if c["present"] in (True, None) else "  (missing)"
         err = "-" if c["geometric_error"] is None else f"{c['geometric_error']:.4g}"
-        lines.append(f"  {c['chunk']:>5} {c['splits']:>8,} {c['vertices']:>9,} {c['faces']:>9,} {c['bytes']:>9,} "
-                     f"{err:>12}{mark}")
+        lines.append(f"  {c['chunk']:>5}" + (f" {c['primitive']:>4}" if multi else "")
+                     + f" {c['splits']:>8,} {c['vertices']:>9,} {c['faces']:>9,} {c['bytes']:>9,} {err:>12}{mark}")
     return "\n".join(lines)

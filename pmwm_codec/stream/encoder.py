@@ -202,7 +202,9 @@ def encode_document(
         codec = base_codec
         if w["specs"] and codec == "draco":
             codec = "plain"
-            notices.append("primitives with attributes keep a plain base (Draco carries positions only here)")
+            note = "primitives with attributes keep a plain base (Draco carries positions only here)"
+            if note not in notices:
+                notices.append(note)
         try:
             base = encode_base(q[base_ids], local[log.base_corners], w["grid"].get_config(), codec=codec)
         except ValueError as exc:
