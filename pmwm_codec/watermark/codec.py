@@ -143,8 +143,11 @@ def relative_scale(points: np.ndarray, centroid: np.ndarray, nbar: float, scale:
 
 def read_codes(points, centroid, nbar, scale, bits) -> np.ndarray:
     """(k,) int64 codes carried by vertices ``points`` (k, 3) with ring means ``centroid``."""
-    l = relative_scale(points, centroid, nbar, scale)
-    return np.floor(l).astype(np.int64) % (1 << bits)
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        l = relative_scale(points, centroid, nbar, scale)
+        # the modulo in float64 (exact below 2**53) keeps absurd values from overflowing the int cast
+        code = np.mod(np.floor(l), float(1 << bits))
+    return np.where(np.isfinite(code), code, 0.0).astype(np.int64)
 
 
 def place_codes(target, centroid, codes, nbar, scale, bits):
