@@ -59,14 +59,14 @@ def run(args) -> int:
         fh.write(data[: int(len(data) * CUT_FRACTION)])
     say(f"3. cut the file at a third: {cut} ({int(len(data) * CUT_FRACTION):,} of {len(data):,} bytes)")
 
-    for label, path, sub in (("cut", cut, "cut"), ("whole", pmw, "whole")):
+    for step, (label, path, sub) in enumerate((("cut", cut, "cut"), ("whole", pmw, "whole")), start=4):
         o = verify(path, r["key_path"], keep_meshes=True)
         last = o.results[-1]
         pics = write_figures(o.results, os.path.join(out, sub),
                              title=f"demo: {label} file, {o.verdict}", total_bytes=o.total_length,
                              bytes_received=o.end.bytes_read)
         state = "truncated" if o.end.truncated else "complete"
-        say(f"4. verified the {label} file ({state}): base + {last.chunk} of {last.chunks_total} chunks, "
+        say(f"{step}. verified the {label} file ({state}): base + {last.chunk} of {last.chunks_total} chunks, "
             f"{last.vertices:,} vertices; watermark NC {fmt_float(last.nc, 3)}, PSNR {fmt_float(last.psnr_db, 1, ' dB')}; "
             f"{o.codes_matched:,} of {o.codes_read:,} codes match -> {o.verdict}")
         say(f"   pictures: {pics['overview']}, {pics['plot']}, {len(pics['frames'])} frames in {os.path.join(out, sub)}")
