@@ -160,7 +160,7 @@ def load_meshes(corpus: str, big: bool):
 class StageTimers:
     """Wrap the stage functions encode_mesh looks up in its module; collect times and outputs."""
 
-    STAGES = ("simplify", "encode_base", "build_progressive", "pack_batches", "write_pmw")
+    STAGES = ("simplify", "encode_base", "build_progressive", "pack_batches", "write_parts", "assemble_document")
 
     def __init__(self):
         self.times = {}
@@ -321,7 +321,7 @@ def bench_mesh(name, mesh, repeats, zstd_level, log):
         pmwm_codec.encode(mesh, io.BytesIO(), measure=False, grid_bits=14, zstd_level=zstd_level)
         total = time.perf_counter() - t
     stages = dict(st.times)
-    # pack_batches runs inside encode_mesh before write_pmw; write_pmw includes zstd compression
+    # pack_batches runs inside encode_document before assemble_document, which does the zstd compression
     res["profile"] = {"total": total, **stages}
     res["columns"] = column_breakdown(st.packed_chunks, zstd_level)
     res["residuals"] = residual_stats(st.packed_chunks)
@@ -513,12 +513,12 @@ def render(results, info, command) -> str:
         p = r["profile"]
         named = {"simplify": "simplify", "encode_base": "base (Draco encode + check)",
                  "build_progressive": "build records", "pack_batches": "pack payloads",
-                 "write_pmw": "write (zstd + GLB)"}
+                 "assemble_document": "zstd + GLB assembly", "write_parts": "write"}
         other = p["total"] - sum(p.get(k, 0.0) for k in named)
         rows.append([r["name"], ms(p["total"])] + [f"{ms(p.get(k, 0.0))} ({100 * p.get(k, 0.0) / p['total']:.0f}%)" for k in named]
                     + [f"{ms(other)} ({100 * other / p['total']:.0f}%)"])
     L.append(table(["mesh", "total", "simplify", "base (Draco encode + check)", "build records", "pack payloads",
-                    "write (zstd + GLB)", "other (validate, quantize, grouping)"], rows))
+                    "zstd + GLB assembly", "write", "other (validate, quantize, grouping)"], rows))
     L.append("")
     for r in results:
         bs = r["batch_sizes"]

@@ -68,8 +68,8 @@ class MeshState:
         Vertex values: grid positions (columns 0-2) then quantized attributes;
         rows ``[:n]`` are valid.  (float64 when the state only replays
         connectivity over positions taken from elsewhere.)
-    faces : (M, 3) int32
-        Triangles; rows ``[:m]`` are valid (int32: every id is below MAX_VERTICES = 2**26).
+    faces : (M, 3) int64
+        Triangles; rows ``[:m]`` are valid (int64: numpy indexes with intp, int32 would be cast on every use).
     """
 
     def __init__(self, base_positions, base_faces, vertex_capacity, face_capacity, dtype=np.int64):
@@ -79,7 +79,7 @@ class MeshState:
             raise FormatError("declared full-resolution counts are smaller than the base mesh")
         base_positions = np.asarray(base_positions)
         self.positions = np.empty((vertex_capacity, base_positions.shape[1]), dtype=dtype)
-        self.faces = np.empty((face_capacity, 3), dtype=np.int32)
+        self.faces = np.empty((face_capacity, 3), dtype=np.int64)
         self.positions[:n0] = base_positions
         self.faces[:m0] = base_faces
         self.n = n0
@@ -187,7 +187,7 @@ def split_topology(state: MeshState, v: np.ndarray, symbols: np.ndarray, *, inci
     start = np.cumsum(per) - per
     wu = u_of[ms[wing]]
     wv = v[ms[wing]]
-    new = np.empty((n_new, 3), dtype=np.int32)
+    new = np.empty((n_new, 3), dtype=np.int64)
     li = start[left]
     new[li, 0], new[li, 1], new[li, 2] = wu[left], wv[left], a[wing][left]
     ri = start[right] + left[right]
