@@ -94,7 +94,8 @@ def test_non_manifold_parts_stay_in_the_base():
     assert np.all(pm.vertex_order[fin_vertices] < n0)
 
 
-def test_a_batch_never_splits_two_vertices_of_one_ring():
+def test_collapses_of_a_batch_never_interact():
+    """Removed vertices pairwise non-adjacent, kept vertices distinct, no kept vertex next to another's removed one."""
     mesh = shapes.icosphere(3, 1.0, noise=0.03)
     grid = Grid.fit(mesh.positions, 16)
     q = grid.quantize(mesh.positions)
@@ -108,11 +109,13 @@ def test_a_batch_never_splits_two_vertices_of_one_ring():
         for a, b in zip(et.lo, et.hi):
             adj.setdefault(int(a), set()).add(int(b))
             adj.setdefault(int(b), set()).add(int(a))
-        rings = [adj[int(u)] | {int(u)} for u in batch.u]
-        seen = set()
-        for ring in rings:
-            assert not (ring & seen)
-            seen |= ring
+        removed = set(int(u) for u in batch.u)
+        kept = [int(v) for v in batch.v]
+        assert len(set(kept)) == len(kept)
+        for u, v in zip(batch.u, batch.v):
+            assert not (adj[int(u)] & removed)  # no other removed vertex next to u
+            assert v in adj[int(u)]
+            assert not ((adj[int(v)] & removed) - {int(u)})  # v next to no other removed vertex
         # advance the reference mesh
         dead = np.concatenate([batch.del_left[batch.del_left >= 0], batch.del_right[batch.del_right >= 0]])
         alive[dead] = False

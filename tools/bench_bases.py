@@ -65,10 +65,11 @@ def render(rows, command):
                      f"{d['batches']} | {m['base']:,} | {m['batches']} | {int(limit):,} ({ok if r['closed'] else 'n/a'}) | "
                      f"{100 * d['yield_median']:.1f}% ({100 * d['yield_first']:.1f}%) |")
     lines.append("")
-    lines.append("A batch removes only vertices whose closed 1-rings are disjoint (distance >= 3 between removed "
-                 "vertices), which caps a batch near 1/7 of the vertices on a regular triangulation; the selection "
-                 "reaches the yields above. Open, multi-part and non-manifold meshes keep boundary corners, "
-                 "non-manifold vertices and the ends of tiny parts in the base.")
+    lines.append("A batch removes only pairwise non-adjacent vertices whose kept vertices are distinct and not "
+                 "next to another removed vertex (see pmwm_codec/progressive/simplify.py), which caps a batch "
+                 "below 1/3 of the vertices on a regular triangulation; the selection reaches the yields above. "
+                 "Open, multi-part and non-manifold meshes keep boundary corners, non-manifold vertices and the "
+                 "ends of tiny parts in the base.")
     return "\n".join(lines) + "\n"
 
 

@@ -21,11 +21,12 @@ A batch of ``k`` independent vertex splits is three arrays (see :class:`SplitBat
     quantized attributes (texture coordinates, normals ..., ``D - 3`` columns);
     all of them are predicted the same way.
 
-Because the encoder only puts collapses with disjoint closed 1-rings in one
-batch, every incidence belongs to exactly one split and the faces a split
-touches are touched by no other split of the batch, so the whole batch is a
-handful of gathers, one scatter and one append -- no per-split Python loop and
-no sort.  :func:`split_topology` is shared by the decoder and the encoder's
+Because the encoder only puts independent collapses in one batch (removed
+vertices pairwise non-adjacent, kept vertices distinct and not next to another
+removed vertex; see :mod:`.simplify`), every incidence belongs to exactly one
+split, a face moves for at most one split, and the ring of a new vertex holds no
+other new vertex of its batch, so the whole batch is a handful of gathers, one
+scatter and one append -- no per-split Python loop and no sort.  :func:`split_topology` is shared by the decoder and the encoder's
 record builder, so both sides compute the same incidence order by construction.
 """
 

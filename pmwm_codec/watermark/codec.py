@@ -15,8 +15,9 @@ moves, so codes are invariant to rotation, uniform scale and translation;
 The encoder moves ``u`` along ``d`` to the *centre* of the nearest bin holding
 its code, on the integer grid the decoder sees (a small lattice search keeps
 the rounded point inside the bin), so our own file round trip is lossless for
-the watermark.  Collapses of one batch have disjoint 1-rings, so no carrier's
-ring holds another carrier of its batch (the paper's embedding dependency).
+the watermark.  The removed vertices of one batch are pairwise non-adjacent, so
+no carrier's ring holds another carrier of its batch (the paper's embedding
+dependency).
 
 Carriers are numbered in stream order: batch 0 (coarsest) first; inside batch
 ``j`` of ``k`` splits, split ``i`` carries stream slot ``offset_j + perm_j[i]``
