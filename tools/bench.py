@@ -566,11 +566,15 @@ def main(argv=None):
     for name, mesh in load_meshes(args.corpus, not args.no_big):
         reps = args.repeats if mesh.vertex_count < 200_000 else args.big_repeats
         results.append(bench_mesh(name, mesh, reps, args.zstd_level, log))
-    md = render(results, info, command.strip())
+    publish(render(results, info, command.strip()), args.write, SECTION, log)
+
+
+def publish(md: str, path, section: str, log) -> None:
+    """Print a rendered section and, with ``--write PATH``, replace that section of the Markdown file."""
     print(md)
-    if args.write:
-        replace_section(args.write, SECTION, md)
-        log(f"wrote section '{SECTION}' of {args.write}")
+    if path:
+        replace_section(path, section, md)
+        log(f"wrote section '{section}' of {path}")
 
 
 if __name__ == "__main__":

@@ -24,7 +24,7 @@ from pmwm_codec.progressive.simplify import simplify  # noqa: E402
 from pmwm_codec.progressive.topology import edge_table  # noqa: E402
 from pmwm_codec.stream.encoder import default_base_target  # noqa: E402
 
-from bench import replace_section  # noqa: E402
+from bench import publish  # noqa: E402
 
 SECTION = "Base meshes"
 CORPUS = os.path.join(os.path.dirname(HERE), "..", "shared", "corpus")
@@ -79,10 +79,8 @@ def main(argv=None):
     args = ap.parse_args(argv)
     names = sorted(f for f in os.listdir(CORPUS) if f.endswith(".obj"))
     rows = [row(name) for name in names]
-    md = render(rows, "python tools/bench_bases.py --write BENCHMARKS.md")
-    print(md)
-    if args.write:
-        replace_section(args.write, SECTION, md)
+    publish(render(rows, "python tools/bench_bases.py --write BENCHMARKS.md"), args.write, SECTION,
+            lambda s: print(s, file=sys.stderr))
 
 
 if __name__ == "__main__":

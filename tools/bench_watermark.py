@@ -61,7 +61,7 @@ from pmwm_codec.watermark.key import WatermarkKey  # noqa: E402
 from pmwm_codec.watermark.metrics import centered_nc, mesh_distortion  # noqa: E402
 from pmwm_codec.watermark.verify import ALPHA, MATCH_RATE, Verifier  # noqa: E402
 
-from bench import machine, replace_section, table  # noqa: E402
+from bench import machine, publish, table  # noqa: E402
 
 DEFAULT_CORPUS = os.path.normpath(os.path.join(ROOT, "..", "shared", "corpus"))
 DEFAULT_WATERMARKS = os.path.normpath(os.path.join(ROOT, "..", "shared", "watermarks"))
@@ -376,11 +376,7 @@ def main(argv=None):
     log = lambda s: print(s, file=sys.stderr, flush=True)  # noqa: E731
     info = machine()
     results = [bench_pair(*pair.split(":"), args, log) for pair in args.pairs.split(",")]
-    md = render(results, info, command.strip())
-    print(md)
-    if args.write:
-        replace_section(args.write, SECTION, md)
-        log(f"wrote section '{SECTION}' of {args.write}")
+    publish(render(results, info, command.strip()), args.write, SECTION, log)
 
 
 if __name__ == "__main__":

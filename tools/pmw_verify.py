@@ -86,15 +86,20 @@ def add_parser(sub):
     p.set_defaults(run=run)
 
 
-def run(args) -> int:
-    if args.reference is not None:
-        return run_reference(args)
-    check_input_file(args.input, ".pmw file")
+def _check_common(args) -> None:
+    """The key, the optional watermark image and the --frames directory, before any work."""
     check_input_file(args.key, "key file")
     if args.watermark is not None:
         check_input_file(args.watermark, "watermark image")
     if args.frames is not None and os.path.exists(args.frames) and not os.path.isdir(args.frames):
         raise UsageError(f"{args.frames}: exists and is not a directory (--frames needs a directory)")
+
+
+def run(args) -> int:
+    if args.reference is not None:
+        return run_reference(args)
+    check_input_file(args.input, ".pmw file")
+    _check_common(args)
     progress = Progress(not (args.json or args.quiet))
     try:
         with naming(args.input):
@@ -126,11 +131,7 @@ def run_reference(args) -> int:
 
     check_input_file(args.input, "mesh file")
     check_input_file(args.reference, "reference .pmw")
-    check_input_file(args.key, "key file")
-    if args.watermark is not None:
-        check_input_file(args.watermark, "watermark image")
-    if args.frames is not None and os.path.exists(args.frames) and not os.path.isdir(args.frames):
-        raise UsageError(f"{args.frames}: exists and is not a directory (--frames needs a directory)")
+    _check_common(args)
     with naming(args.input):
         mesh = pmwm_codec.read_mesh(args.input)
     with naming(args.reference):
