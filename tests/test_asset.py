@@ -247,3 +247,33 @@ def test_info_lists_every_progressive_primitive_and_the_stream_order(tmp_path):
     assert info["vertices"] == sum(q["vertices"] for q in info["primitives"])
     assert {c["primitive"] for c in info["chunks"]} == {0, 1}
     assert len(info["chunks"]) == info["chunks_total"]
+
+
+def test_a_draco_compressed_input_asset_is_decoded_and_made_progressive(tmp_path):
+    """Most published GLBs are Draco-compressed: their primitives are decoded, then re-encoded."""
+    from pmwm_codec.format.base import encode_base
+
+    mesh = shapes.torus(50, 24, twist=0.1)
+    grid = {"bits": 16, "origin": [-2.0, -2.0, -2.0], "step": 4.0 / 65535}
+    q = np.rint((mesh.positions - np.array(grid["origin"])) / grid["step"]).astype(np.int64)
+    base = encode_base(q, mesh.faces, grid, codec="draco")
+    assert base.codec == "draco"
+    doc = {
+        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0, "name": "torus"}], "meshes": [{"primitives": [base.primitive]}],
+        "accessors": base.accessors, "bufferViews": base.buffer_views,
+        "buffers": [{"byteLength": len(base.data)}],
+        "extensionsUsed": list(base.extensions_used), "extensionsRequired": list(base.extensions_required),
+    }
+    src = tmp_path / "draco.glb"
+    src.write_bytes(b"".join(glb_parts(doc, [base.data], len(base.data))))
+    report = encode_asset(src, tmp_path / "draco.pmw", measure=False)
+    assert report.vertices == mesh.vertex_count
+    glb, _, _ = decode_asset(tmp_path / "draco.pmw")
+    (tmp_path / "out.glb").write_bytes(glb)
+    out, buffers = load_document(tmp_path / "out.glb")
+    prim = out["meshes"][0]["primitives"][0]
+    assert "extensions" not in prim and "KHR_draco_mesh_compression" not in out.get("extensionsUsed", [])
+    positions = read_accessor(out, buffers, prim["attributes"]["POSITION"])
+    assert len(positions) == mesh.vertex_count
+    assert np.abs(np.sort(positions, axis=0) - np.sort(mesh.positions, axis=0)).max() < 1e-3

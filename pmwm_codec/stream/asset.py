@@ -7,7 +7,8 @@ samplers, the node tree with names and transforms, scenes, cameras, skins,
 animations, ``extras`` and extensions it does not know.
 
 Eligible: ``mode`` TRIANGLES, a POSITION, no morph ``targets``, no ``JOINTS_n`` /
-``WEIGHTS_n`` (skinned), not Draco-compressed on input.  Any other primitive
+``WEIGHTS_n`` (skinned).  Draco-compressed input primitives are decoded first
+(attributes looked up by their Draco unique ids).  Any other primitive
 (points, lines, strips, morphs, skins) passes through untouched, with a notice.
 Every other vertex attribute (NORMAL, TANGENT, TEXCOORD_n, COLOR_n, custom)
 rides with the splits on its own integer grid.
@@ -108,12 +109,14 @@ def _why_not(prim: dict):
         return "morph targets are not made progressive"
     if any(k.startswith(("JOINTS_", "WEIGHTS_")) for k in attrs):
         return "skinned primitives are not made progressive"
-    if DRACO_EXTENSION in (prim.get("extensions") or {}):
-        return "Draco-compressed input primitives are not re-encoded"
     return None
 
 
 def _primitive_mesh(gltf, buffers, prim, where) -> Mesh:
+    """The primitive's geometry and attributes as a checked :class:`Mesh` (Draco input decoded)."""
+    draco = (prim.get("extensions") or {}).get(DRACO_EXTENSION)
+    if draco is not None:
+        return _draco_mesh(gltf, buffers, prim, draco, where)
     attrs = prim["attributes"]
     positions = read_accessor(gltf, buffers, attrs["POSITION"]).astype(np.float64)
     n = len(positions)
@@ -131,6 +134,38 @@ def _primitive_mesh(gltf, buffers, prim, where) -> Mesh:
         values = read_accessor(gltf, buffers, idx)
         extra[semantic] = values.astype(np.float64)
     return checked_mesh(positions, faces, extra, name=where)
+
+
+def _draco_mesh(gltf, buffers, prim, draco, where) -> Mesh:
+    """A ``KHR_draco_mesh_compression`` input primitive, decoded with DracoPy.
+
+    Attributes are looked up by the unique ids the extension names (never by
+    position in the Draco stream); the decoded values replace the accessors.
+    """
+    import DracoPy
+
+    from ..format.document import _view
+
+    try:
+        raw, _ = _view(gltf, buffers, draco["bufferView"])
+        decoded = DracoPy.decode(bytes(raw))
+    except (KeyError, TypeError, InputFormatError):
+        raise InputFormatError("its Draco data is missing") from None
+    except Exception as exc:  # DracoPy raises its own exception types
+        raise InputFormatError(f"its Draco data does not decode ({str(exc).splitlines()[0]})") from None
+    ids = draco.get("attributes", {})
+    values = {}
+    for semantic in prim.get("attributes", {}):
+        if semantic not in ids:
+            raise InputFormatError(f"Draco attributes lack {semantic}")
+        attribute = decoded.get_attribute_by_unique_id(ids[semantic])
+        if attribute is None:
+            raise InputFormatError(f"Draco data has no attribute {ids[semantic]} for {semantic}")
+        data = np.asarray(attribute["data"], dtype=np.float64)
+        values[semantic] = data.reshape(len(data), -1)
+    faces = np.asarray(decoded.faces, dtype=np.int64).reshape(-1, 3)
+    positions = values.pop("POSITION")
+    return checked_mesh(positions, faces, values, name=where)
 
 
 def _lock_shared_positions(jobs) -> None:
@@ -165,12 +200,31 @@ def encode_asset(src, dst, *, strip_image_profiles: bool = False, **options) -> 
             notices.append(f"removed colour-profile metadata from {count} PNG image(s)")
     jobs, drop, planned = plan_asset(gltf, buffers)
     notices += planned
+    _forget_input_draco(gltf, jobs)
     if not jobs:
         raise PmwError("the asset has no triangle primitive that can be made progressive")
     doc, kept_bin = repack(gltf, buffers, drop)
     report = encode_document(doc, kept_bin, jobs, dst, **options)
     report.notices = notices + report.notices
     return report
+
+
+def _forget_input_draco(gltf: dict, jobs) -> None:
+    """Drop the input's Draco extension from primitives that become progressive (their
+    geometry is re-encoded), and from the extension lists if nothing else uses it."""
+    for job in jobs:
+        prim = gltf["meshes"][job.mesh_index]["primitives"][job.primitive_index]
+        exts = prim.get("extensions")
+        if isinstance(exts, dict) and exts.pop(DRACO_EXTENSION, None) is not None and not exts:
+            del prim["extensions"]
+    still = any(DRACO_EXTENSION in (p.get("extensions") or {}) for m in gltf.get("meshes", [])
+                for p in m.get("primitives", []))
+    if not still:
+        for key in ("extensionsUsed", "extensionsRequired"):
+            if key in gltf:
+                gltf[key] = [e for e in gltf[key] if e != DRACO_EXTENSION]
+                if not gltf[key]:
+                    del gltf[key]
 
 
 def _read_all(src) -> bytes:
