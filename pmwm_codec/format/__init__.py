@@ -1,14 +1,16 @@
-"""The ``.pmw`` container: a valid GLB whose mesh primitive holds a base mesh and whose
-BIN chunk carries one zstd-framed bufferView per vertex-split chunk.
+"""The ``.pmw`` container: a valid GLB whose progressive mesh primitives hold base meshes and
+whose BIN chunk carries one zstd-framed bufferView per vertex-split chunk.
 
-This layer knows nothing about how vertex splits are encoded: chunk payloads are
-opaque bytes.  Modules:
+The container layer treats chunk payloads as opaque bytes; ``records`` is the one
+module that knows their layout.  Modules:
 
-``layout``     construct Structs of the GLB header and chunk header (the only byte offsets)
-``base``       base mesh <-> glTF primitive (plain accessors or KHR_draco_mesh_compression)
+``layout``     construct Structs: GLB header, chunk header, chunk payload headers (the only byte offsets)
+``base``       base mesh <-> glTF primitive (plain accessors or KHR_draco_mesh_compression), attributes
 ``extension``  the PMWM_progressive_mesh object: JSON-schema check, digests
-``glb``        writer: :func:`build_pmw`, :func:`write_pmw` (atomic)
+``glb``        writer: :func:`assemble_document`, :func:`build_pmw`, :func:`write_pmw` (atomic)
 ``parser``     push parser :class:`ContainerParser` and pull wrappers
+``records``    chunk payload: split batches <-> bytes (numpy columns)
+``document``   glTF documents in and out: loading assets, reading accessors, repacking
 """
 
 from .base import EncodedBase, decode_base, encode_base
