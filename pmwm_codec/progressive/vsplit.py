@@ -173,40 +173,39 @@ def split_topology(state: MeshState, v: np.ndarray, symbols: np.ndarray, *, inci
     moved = sym != STAY
     mi = inc[moved]
     ms = owner[moved]
+    msym = sym[moved]
     base = mi - mi % 3
     a = flat[base + (mi + 1) % 3]  # corner after v
     b = flat[base + (mi + 2) % 3]  # corner before v
 
-    wing = sym[moved] >= MOVE_LEFT
-    ws = sym[moved][wing]
+    # the incidences that name new faces, and which ones
+    wing = np.flatnonzero(msym >= MOVE_LEFT)
+    ws, wms, wa, wb = msym[wing], ms[wing], a[wing], b[wing]
     left = (ws == MOVE_LEFT) | (ws == MOVE_BOTH)
     right = (ws == MOVE_RIGHT) | (ws == MOVE_BOTH)
     per = left.astype(np.int64) + right
     n_new = int(per.sum())
     if m0 + n_new > len(state.faces):
         raise FormatError("splits exceed the declared face count")
-    start = np.cumsum(per) - per
-    wu = u_of[ms[wing]]
-    wv = v[ms[wing]]
-    new = np.empty((n_new, 3), dtype=np.int64)
-    li = start[left]
-    new[li, 0], new[li, 1], new[li, 2] = wu[left], wv[left], a[wing][left]
-    ri = start[right] + left[right]
-    new[ri, 0], new[ri, 1], new[ri, 2] = wv[right], wu[right], b[wing][right]
-
-    # every split must own at least one new face (a wing)
-    wings_per_split = np.bincount(ms[wing], weights=per, minlength=k)
+    # every split must own one or two new faces
+    wings_per_split = np.bincount(wms, weights=per, minlength=k)
     if np.any(wings_per_split == 0) or np.any(wings_per_split > 2):
         raise FormatError("a split names no new face or more than two")
+    start = np.cumsum(per) - per
+    lm, rm = wms[left], wms[right]
+    lv, rv = v[lm], v[rm]
+    new = np.empty((n_new, 3), dtype=np.int64)
+    new[start[left]] = np.stack([u_of[lm], lv, wa[left]], axis=1)  # (u, v, a)
+    new[start[right] + left[right]] = np.stack([rv, u_of[rm], wb[right]], axis=1)  # (v, u, b)
 
     flat[mi] = u_of[ms]
     state.faces[m0 : m0 + n_new] = new
 
     # ring of u: two other corners of each moved face, and (v, wing) of each new face
     P = state.positions
-    own = np.concatenate([ms, ms[wing][left], ms[wing][right]])
-    ra = np.concatenate([a, wv[left], wv[right]])
-    rb = np.concatenate([b, a[wing][left], b[wing][right]])
+    own = np.concatenate([ms, lm, rm])
+    ra = np.concatenate([a, lv, rv])
+    rb = np.concatenate([b, wa[left], wb[right]])
     pts = P[ra] + P[rb]
     d = P.shape[1]
     ring_sum = np.bincount(
