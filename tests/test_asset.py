@@ -2,16 +2,13 @@
 
 from __future__ import annotations
 
-import io
 import json
 import shutil
 import subprocess
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-import pmwm_codec
 from pmwm_codec import shapes
 from pmwm_codec.format.document import load_document, read_accessor
 from pmwm_codec.format.glb import glb_parts

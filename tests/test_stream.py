@@ -12,7 +12,7 @@ import pmwm_codec
 from pmwm_codec import shapes
 from pmwm_codec.errors import ChecksumError, TruncatedError
 from pmwm_codec.progressive.grid import Grid
-from pmwm_codec.stream import StreamDecoder, encode_mesh, iter_results
+from pmwm_codec.stream import StreamDecoder, encode_mesh
 from pmwm_codec.progressive.topology import face_keys
 
 
@@ -99,7 +99,6 @@ def test_every_cut_yields_exactly_the_chunks_inside_it(encoded):
 @settings(max_examples=25, deadline=None)
 @given(st.lists(st.integers(1, 4000), min_size=1, max_size=40))
 def test_any_block_sizes_give_the_same_results(sizes):
-    mesh = small_mesh()
     data = _cached_small_file()
     full, _ = all_results(data)
     dec = StreamDecoder()

@@ -295,7 +295,6 @@ def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget):
         win = win[np.argsort(cost[win], kind="stable")[:budget]]
     win = np.sort(win)
     cu, cv, ce, cost = cu[win], cv[win], ce[win], cost[win]
-    k = len(cu)
 
     # deleted faces and wings (in local ids first)
     def side(he_col):

@@ -37,7 +37,7 @@ from ..errors import InputFormatError, MeshError, PmwError
 from ..format.base import DRACO_EXTENSION
 from ..format.document import load_document, read_accessor, repack
 from ..format.document import strip_image_profiles as _strip_profiles
-from ..format.glb import glb_parts, write_parts
+from ..format.glb import glb_parts
 from ..format.parser import _blocks, parse_preamble
 from ..format.layout import CHUNK_HEADER_SIZE, PREAMBLE_SIZE, padded
 from ..mesh import Mesh, checked_mesh
