@@ -40,6 +40,23 @@ GENERATED = {
 }
 
 
+def marked_sphere(seed: int, **options):
+    """A watermarked icosphere(3) in memory: ``(pmw bytes, key, 16x16 watermark)``."""
+    import io
+
+    import numpy as np
+
+    from pmwm_codec.stream import encode_mesh
+    from pmwm_codec.watermark.key import WatermarkKey
+
+    rng = np.random.default_rng(seed)
+    img = rng.integers(0, 256, (16, 16)).astype(np.uint8)
+    key = WatermarkKey.generate(rng=rng)
+    buf = io.BytesIO()
+    encode_mesh(shapes.icosphere(3), buf, watermark=img, key=key, **options)
+    return buf.getvalue(), key, img
+
+
 @pytest.fixture(params=sorted(GENERATED))
 def generated_mesh(request):
     """Each of the generated test meshes (closed, open, multi-part, non-manifold)."""

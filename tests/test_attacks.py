@@ -2,27 +2,20 @@
 
 from __future__ import annotations
 
-import io
-
 import numpy as np
 import pytest
 
 import pmwm_codec
 from pmwm_codec import shapes
 from pmwm_codec.robust import verify_mesh
-from pmwm_codec.stream.encoder import encode_mesh
-from pmwm_codec.watermark.key import WatermarkKey
 from tools import attacks
+
+from conftest import marked_sphere
 
 
 @pytest.fixture(scope="module")
 def marked():
-    rng = np.random.default_rng(11)
-    img = rng.integers(0, 256, (16, 16)).astype(np.uint8)
-    key = WatermarkKey.generate(rng=rng)
-    buf = io.BytesIO()
-    encode_mesh(shapes.icosphere(3), buf, watermark=img, key=key)
-    data = buf.getvalue()
+    data, key, img = marked_sphere(11)
     ref = pmwm_codec.decode(data)
     return data, key, img, ref
 

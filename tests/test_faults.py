@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import io
 import signal
 import subprocess
 import sys
@@ -18,6 +17,8 @@ from pmwm_codec import shapes
 from pmwm_codec.stream import StreamDecoder
 from pmwm_codec.stream.encoder import encode_mesh
 from pmwm_codec.watermark.key import WatermarkKey
+
+from conftest import marked_sphere
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -110,12 +111,7 @@ def test_kill_between_write_and_rename_then_a_later_encode(old_file):
 
 @pytest.fixture(scope="module")
 def marked():
-    rng = np.random.default_rng(5)
-    img = rng.integers(0, 256, (16, 16)).astype(np.uint8)
-    key = WatermarkKey.generate(rng=rng)
-    buf = io.BytesIO()
-    encode_mesh(shapes.icosphere(3), buf, watermark=img, key=key, min_chunk_splits=32)
-    return buf.getvalue(), key, img
+    return marked_sphere(5, min_chunk_splits=32)
 
 
 def test_reading_a_file_while_it_is_being_written(tmp_path, marked):

@@ -143,15 +143,19 @@ def _halfedges(faces):
 
 def _propagate(ref_faces_list, ref_he, mesh_he, n_ref, n_mesh, seed_face, seed_image, vmap, used, visited):
     """Grow ``vmap`` (ref -> mesh) from one seed face pair over shared edges.  False on any conflict."""
-    a, b, c = ref_faces_list[seed_face]
-    for r, m in zip((a, b, c), seed_image):
+    def bind(r, m) -> bool:
+        """Map reference vertex r to mesh vertex m; False if either is already bound elsewhere."""
         if vmap[r] == -1:
             if used[m]:
                 return False
             vmap[r] = m
             used[m] = True
-        elif vmap[r] != m:
-            return False
+            return True
+        return vmap[r] == m
+
+    a, b, c = ref_faces_list[seed_face]
+    if not all(bind(r, m) for r, m in zip((a, b, c), seed_image)):
+        return False
     if (seed_image[0], seed_image[1]) not in mesh_he:
         return False
     visited[seed_face] = True
@@ -167,13 +171,7 @@ def _propagate(ref_faces_list, ref_he, mesh_he, n_ref, n_mesh, seed_face, seed_i
             hit = mesh_he.get((vmap[q], vmap[p]))
             if hit is None:
                 return False
-            dm = hit[1]
-            if vmap[d] == -1:
-                if used[dm]:
-                    return False
-                vmap[d] = dm
-                used[dm] = True
-            elif vmap[d] != dm:
+            if not bind(d, hit[1]):
                 return False
             if not visited[g]:
                 visited[g] = True
