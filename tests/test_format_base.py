@@ -8,7 +8,7 @@ import pytest
 from pmwm_codec.constants import MAX_VERTICES
 from pmwm_codec.errors import FormatError, LimitError
 from pmwm_codec.format import base as basecodec
-from pmwm_codec.format._samples import ICOSPHERE_CENTRE, ICOSPHERE_RADIUS, icosphere, to_grid
+from samples import ICOSPHERE_CENTRE, ICOSPHERE_RADIUS, icosphere, to_grid
 
 
 def _gltf_of(enc):

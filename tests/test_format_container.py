@@ -11,7 +11,7 @@ from pmwm_codec.format import (
     BaseEvent, ChunkEvent, EndEvent, HeaderEvent, build_pmw, digest, iter_events, read_header, write_pmw,
 )
 from pmwm_codec.format import glb
-from pmwm_codec.format._samples import sample_pmw
+from samples import sample_pmw
 
 
 @pytest.fixture(scope="module", params=["plain", "draco"])

@@ -9,7 +9,7 @@ import zstandard
 from pmwm_codec import constants
 from pmwm_codec.errors import ChecksumError, FormatError, LimitError, PmwError, TruncatedError, UnsupportedVersionError
 from pmwm_codec.format import ChunkEvent, iter_events, layout
-from pmwm_codec.format._samples import sample_pmw
+from samples import sample_pmw
 from pmwm_codec.format.extension import digest
 
 DATA, BASE, PAYLOADS, _ = sample_pmw("plain", chunk_count=3, subdivisions=1, seed=3)

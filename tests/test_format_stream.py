@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from pmwm_codec.errors import ChecksumError, TruncatedError
 from pmwm_codec.format import BaseEvent, ChunkEvent, ContainerParser, EndEvent, HeaderEvent, iter_events, read_header
-from pmwm_codec.format._samples import sample_pmw
+from samples import sample_pmw
 
 DATA, BASE, PAYLOADS, _ = sample_pmw("plain", chunk_count=3, subdivisions=0, seed=7, chunk_sizes=[40, 1, 90])
 DRACO_DATA, *_ = sample_pmw("draco", chunk_count=2, subdivisions=1, seed=8)

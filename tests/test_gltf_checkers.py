@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pmwm_codec.format._samples import ICOSPHERE_CENTRE, ICOSPHERE_RADIUS, sample_pmw
+from samples import ICOSPHERE_CENTRE, ICOSPHERE_RADIUS, sample_pmw
 
 JS = Path(__file__).resolve().parents[1] / "tools" / "js"
 ALLOWED_INFOS = {"UNSUPPORTED_EXTENSION", "UNUSED_OBJECT"}

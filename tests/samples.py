@@ -1,6 +1,6 @@
-"""Small generated inputs for tests, the spec's worked example and demos (not public API).
+"""Small generated inputs for the tests and the spec's worked example (a test fixture).
 
-Nothing here reads files: an icosphere-like mesh (deliberately not a unit sphere and
+Nothing here reads files: an icosphere (deliberately not a unit sphere and
 off-centre, so a swapped Draco attribute or a lost origin shows in the bounding
 radius) and a ``.pmw`` built from it with random opaque chunk payloads.
 """
@@ -9,35 +9,24 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import encode_base
-from .glb import build_pmw
+from pmwm_codec import shapes
+from pmwm_codec.format.base import encode_base
+from pmwm_codec.format.glb import build_pmw
 
 ICOSPHERE_RADIUS = 2.5
 ICOSPHERE_CENTRE = (0.75, -1.25, 3.0)
 
 
 def icosphere(subdivisions: int = 2, radius: float = ICOSPHERE_RADIUS, centre=ICOSPHERE_CENTRE):
-    """An icosahedron subdivided ``subdivisions`` times, projected on a sphere.
+    """:func:`pmwm_codec.shapes.icosphere` moved to ``centre``: ``(positions (n, 3) float64, faces (m, 3) int64)``.
 
-    Returns positions (n, 3) float64 and faces (m, 3) int64 with
-    ``n = 10 * 4**s + 2`` and ``m = 20 * 4**s``, counter-clockwise seen from outside.
+    ``n = 10 * 4**s + 2``, ``m = 20 * 4**s``, counter-clockwise seen from outside.  For
+    ``subdivisions <= 1`` the positions are bit for bit those of the generator the spec's worked
+    example was made with (it normalised once, at the end); from 2 on they differ (shapes
+    re-projects after every subdivision), which no pinned file depends on.
     """
-    t = (1 + 5 ** 0.5) / 2
-    v = np.array([[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t],
-                  [0, -1, -t], [0, 1, -t], [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]], float)
-    f = np.array([[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4],
-                  [11, 10, 2], [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8],
-                  [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]], np.int64)
-    for _ in range(subdivisions):
-        edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
-        unique, inverse = np.unique(edges, axis=0, return_inverse=True)
-        mid = inverse.reshape(3, -1).T + len(v)  # (m, 3): midpoints of edges 01, 12, 20
-        v = np.vstack([v, (v[unique[:, 0]] + v[unique[:, 1]]) / 2])
-        a, b, c = f.T
-        ab, bc, ca = mid.T
-        f = np.concatenate([np.c_[a, ab, ca], np.c_[b, bc, ab], np.c_[c, ca, bc], np.c_[ab, bc, ca]])
-    v = v / np.linalg.norm(v, axis=1, keepdims=True) * radius + np.asarray(centre)
-    return v, f
+    mesh = shapes.icosphere(subdivisions, radius)
+    return mesh.positions + np.asarray(centre, np.float64), mesh.faces
 
 
 def to_grid(positions, bits: int = 14):
