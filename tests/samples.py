@@ -12,6 +12,7 @@ import numpy as np
 from pmwm_codec import shapes
 from pmwm_codec.format.base import encode_base
 from pmwm_codec.format.glb import build_pmw
+from pmwm_codec.progressive.vsplit import SplitBatch
 
 ICOSPHERE_RADIUS = 2.5
 ICOSPHERE_CENTRE = (0.75, -1.25, 3.0)
@@ -59,3 +60,11 @@ def sample_pmw(codec: str = "plain", chunk_count: int = 3, subdivisions: int = 1
                                "levels": 4, "codes": 40, "carriers": 30}}
     data = build_pmw(base=base, chunks=payloads, chunk_meta=meta, extension=extension)
     return data, base, payloads, extension
+
+
+#: The two-batch, D = 4 chunk of spec/bitstream.md §6 (*Example*); its bytes are pinned in
+#: tests/test_records.py and quoted in the spec.
+PAYLOAD_EXAMPLE = [
+    SplitBatch(np.array([2, 5]), np.array([1, 2, 0, 4], np.uint8), np.array([[1, -1, 0, 5], [3, 0, -2, -1]])),
+    SplitBatch(np.array([0]), np.array([3], np.uint8), np.array([[-300, 2, 0, 0]])),
+]

@@ -22,12 +22,10 @@ from pmwm_codec.format.records import (
     zigzag,
 )
 from pmwm_codec.progressive.vsplit import SplitBatch
+from samples import PAYLOAD_EXAMPLE
 
 # --- one small two-batch chunk, D = 4 (positions + one attribute component) -------------
-PINNED_BATCHES = [
-    SplitBatch(np.array([2, 5]), np.array([1, 2, 0, 4], np.uint8), np.array([[1, -1, 0, 5], [3, 0, -2, -1]])),
-    SplitBatch(np.array([0]), np.array([3], np.uint8), np.array([[-300, 2, 0, 0]])),
-]
+PINNED_BATCHES = PAYLOAD_EXAMPLE  # the example of spec/bitstream.md §6
 # Checked by hand against spec/bitstream.md §6, field by field:
 #   RecordsHeader  batch_count 2                                  -> 02000000
 #   BatchEntry 0   split_count 2, incidence_count 4               -> 02000000 04000000

@@ -9,10 +9,10 @@ import pytest
 from referencing import Registry, Resource
 
 from pmwm_codec import constants
-from pmwm_codec.format import layout
-from samples import sample_pmw
-from pmwm_codec.format import read_header
+from pmwm_codec.format import layout, read_header, records
 from pmwm_codec.format.extension import SCHEMA_DIR
+from pmwm_codec.progressive.vsplit import SYMBOL_COUNT
+from samples import PAYLOAD_EXAMPLE, sample_pmw
 
 SPEC = Path(__file__).resolve().parents[1] / "spec"
 NAME = constants.EXTENSION_NAME
@@ -50,14 +50,45 @@ def test_bitstream_tables_match_layout_structs():
             assert TYPE_SIZES[type_] == size, (name, field)
 
 
-def test_bitstream_payload_columns_are_the_columns_the_code_writes():
-    from pmwm_codec.format.records import COLUMNS
-
+def _payload_section():
     text = (SPEC / "bitstream.md").read_text()
-    section = text[text.index("## 6. Chunk payload") :]
-    named = re.findall(r"^\| `(\w+)`(?:, `(\w+)`)?(?:, `(\w+)`)? \| ", section, re.M)
-    columns = [c for row in named for c in row if c and c not in ("batch_count", "split_count", "incidence_count", "width")]
-    assert columns == list(COLUMNS)
+    return text[text.index("## 6. Chunk payload") : text.index("### 6.1")]
+
+
+def test_bitstream_payload_columns_are_the_columns_the_code_writes():
+    table = re.search(r"<!-- columns -->\n((?:\|.*\n)+)", _payload_section()).group(1)
+    rows = [re.findall(r"`(\w+|attribute_\{D−4\})`", line.split("|")[1]) for line in table.splitlines()[2:]]
+    assert [r[0] for r in rows[:-1]] == list(records.COLUMNS)
+    # last row: the D - 3 attribute columns, attribute_0 ... attribute_{D-4}
+    assert rows[-1] == [records.ATTRIBUTE_COLUMN.format(0), records.ATTRIBUTE_COLUMN.format("{D−4}")]
+    for d in (3, 4, 7):
+        names = records.column_names(d)
+        assert len(names) == d + 2  # "Then come D + 2 columns"
+        assert names[2:5] == ("residual_x", "residual_y", "residual_z")
+        assert names[5:] == tuple(records.ATTRIBUTE_COLUMN.format(j) for j in range(d - 3))
+    assert "Then come `D + 2` *columns*" in _payload_section().replace("\n", " ")
+
+
+def test_bitstream_payload_example_is_what_pack_writes():
+    section = _payload_section()
+    block = re.search(r"<!-- payload-example -->\n```\n(.*?)```", section, re.S).group(1)
+    hex_text = "".join(re.split(r" {2,}", line)[0].replace(" ", "") for line in block.splitlines())
+    packed = records.pack_batches(PAYLOAD_EXAMPLE)
+    assert bytes.fromhex(hex_text) == packed
+    assert f"Its payload is {len(packed)} bytes" in section
+    back = records.unpack_batches(packed, width=4)
+    assert [b.v.tolist() for b in back] == [[2, 5], [0]]
+
+
+def test_bitstream_payload_limits_match_records():
+    section = " ".join(_payload_section().split())
+    assert f"batches in the chunk, 1 … {records.MAX_BATCHES_PER_CHUNK} |" in section
+    assert f"reader MUST reject a stored residual above `2^{records.MAX_RESIDUAL_ZIGZAG.bit_length() - 1}`" in section
+    assert records.MAX_RESIDUAL_ZIGZAG == 1 << (records.MAX_RESIDUAL_ZIGZAG.bit_length() - 1)
+    assert "Bytes per value: " + ", ".join(map(str, records._WIDTHS[:-1])) + f" or {records._WIDTHS[-1]}" in section
+    assert f"A packed value MUST be `< {SYMBOL_COUNT ** 3}` (every symbol `< {SYMBOL_COUNT}`)" in section
+    assert f"`s_{{3t}} + {SYMBOL_COUNT}·s_{{3t+1}} + {SYMBOL_COUNT ** 2}·s_{{3t+2}}`" in section
+    assert f"header (`batch_count` 1 … {records.MAX_BATCHES_PER_CHUNK})" in section
 
 
 def test_readme_limits_table_matches_constants():
