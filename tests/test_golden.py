@@ -4,6 +4,11 @@ Each ``spec/conformance/<name>.v<FORMAT_VERSION>.pmw`` has a ``.expected.npz`` b
 mesh at every chunk boundary (and, for marked files, a ``.key.json`` and the watermark).  A
 change that alters how these files decode breaks the format: bump FORMAT_VERSION, then
 regenerate with ``python -m pytest tests/test_golden.py --update-golden``.
+
+The inputs are generated meshes (``pmwm_codec.shapes``) and seeded keys, so a regenerated file
+decodes to the same levels; its bytes still differ today because the encoder draws a random
+``fileId``.  To add a case without rewriting the others, select it:
+``python -m pytest tests/test_golden.py --update-golden -k <case name>``.
 """
 
 from __future__ import annotations
@@ -17,7 +22,9 @@ import pytest
 
 from pmwm_codec import shapes
 from pmwm_codec.constants import FORMAT_VERSION
+from pmwm_codec.mesh import Mesh
 from pmwm_codec.stream import StreamDecoder, encode_mesh
+from pmwm_codec.stream.encoder import PrimitiveJob, encode_document
 from pmwm_codec.watermark.key import WatermarkKey
 
 CONFORMANCE = Path(__file__).resolve().parents[1] / "spec" / "conformance"
@@ -28,6 +35,15 @@ def _stripes(size=16):
     return (((x // 2 + y // 4) % 2) * 180 + 40).astype(np.uint8)
 
 
+def _sphere_with_attributes():
+    """icosphere(3) with a NORMAL (n, 3) and a TEXCOORD_0 (n, 2) per vertex (float64), no seams."""
+    sphere = shapes.icosphere(3, 1.1, noise=0.03)
+    p = sphere.positions
+    normals = p / np.linalg.norm(p, axis=1, keepdims=True)
+    uv = np.stack([np.arctan2(p[:, 1], p[:, 0]) / (2 * np.pi) + 0.5, np.arccos(normals[:, 2]) / np.pi], 1)
+    return Mesh(p, sphere.faces, attributes={"NORMAL": normals, "TEXCOORD_0": uv})
+
+
 CASES = {
     "grid-hole.plain": lambda: dict(mesh=shapes.grid(12, 10, hole=True), base_codec="plain"),
     "two-parts.draco": lambda: dict(
@@ -36,6 +52,14 @@ CASES = {
     "sphere.exact-watermark": lambda: dict(
         mesh=shapes.icosphere(4, 1.2, noise=0.02), base_codec="draco", watermark=_stripes(16),
         key=WatermarkKey.generate(rng=np.random.default_rng(2024)),
+    ),
+    "sphere-attributes.plain": lambda: dict(mesh=_sphere_with_attributes(), base_codec="plain"),
+    "two-primitives.draco": lambda: dict(
+        mesh=[shapes.grid(18, 16, hole=True), shapes.torus(24, 12, twist=0.1)], base_codec="draco"
+    ),
+    "sphere.paper-watermark": lambda: dict(
+        mesh=shapes.icosphere(4, 1.2, noise=0.02), base_codec="draco", watermark=_stripes(16), mode="paper",
+        key=WatermarkKey.generate(rng=np.random.default_rng(2025)),
     ),
 }
 
@@ -51,10 +75,32 @@ def _decode(data, key=None):
     return results, end
 
 
+def _encode(mesh, **options) -> bytes:
+    """One mesh, or a list of meshes (one primitive each, in one glTF mesh), -> .pmw bytes."""
+    buf = io.BytesIO()
+    if isinstance(mesh, Mesh):
+        encode_mesh(mesh, buf, min_chunk_splits=30, measure=False, **options)
+    else:
+        doc = {"scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+               "meshes": [{"primitives": [{} for _ in mesh]}]}
+        jobs = [PrimitiveJob(m, 0, i) for i, m in enumerate(mesh)]
+        encode_document(doc, b"", jobs, buf, min_chunk_splits=30, measure=False, **options)
+    return buf.getvalue()
+
+
+def _attributes_int(r) -> np.ndarray:
+    """(n, a) int64 quantized attributes of every part, stacked (a = 0 without attributes)."""
+    return np.concatenate([p.attributes_int for p in r.parts])
+
+
 def _level_digest(r) -> str:
+    """SHA-256 of positions, faces and (when there are any) quantized attributes, as <i8."""
     h = hashlib.sha256()
     h.update(np.ascontiguousarray(r.positions_int, dtype="<i8").tobytes())
     h.update(np.ascontiguousarray(r.faces, dtype="<i8").tobytes())
+    attributes = _attributes_int(r)
+    if attributes.size:
+        h.update(np.ascontiguousarray(attributes, dtype="<i8").tobytes())
     return h.hexdigest()
 
 
@@ -66,6 +112,8 @@ def _expected_arrays(results):
         "level_sha256": np.array([_level_digest(r) for r in results]),
         "final_positions": results[-1].positions_int,
         "final_faces": results[-1].faces,
+        "final_attributes": _attributes_int(results[-1]),
+        "part_counts": np.array([[(len(p.positions_int), len(p.faces)) for p in r.parts] for r in results]),
     }
     for r in results:
         if r.watermark is not None:
@@ -77,9 +125,7 @@ def _write(name):
     case = CASES[name]()
     mesh = case.pop("mesh")
     key = case.get("key")
-    buf = io.BytesIO()
-    encode_mesh(mesh, buf, min_chunk_splits=30, measure=False, **case)
-    data = buf.getvalue()
+    data = _encode(mesh, **case)
     CONFORMANCE.mkdir(parents=True, exist_ok=True)
     _path(name, ".pmw").write_bytes(data)
     if key is not None:
@@ -107,6 +153,10 @@ def test_conformance_file_decodes_to_its_expected_levels(name, update_golden):
     assert [[r.vertices, r.faces_count] for r in results] == want["counts"].tolist()
     assert np.array_equal(results[-1].positions_int, want["final_positions"])
     assert np.array_equal(results[-1].faces, want["final_faces"])
+    if "final_attributes" in want:  # files written before attributes were recorded have none
+        assert np.array_equal(_attributes_int(results[-1]), want["final_attributes"])
+    if "part_counts" in want:
+        assert [[[len(p.positions_int), len(p.faces)] for p in r.parts] for r in results] == want["part_counts"].tolist()
     for r in results:
         assert _level_digest(r) == want["level_sha256"][r.chunk]
         if f"watermark_{r.chunk}" in want:
