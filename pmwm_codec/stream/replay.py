@@ -96,6 +96,8 @@ class Replay:
         self.grids: list = []
         self.states: list = []
         self.nbars: list = []
+        #: per primitive, its base mesh's faces (f_p, 3) int64
+        self.base_faces: list = []
         self.chunks_applied = 0
         self.batches_applied = 0
 
@@ -144,6 +146,7 @@ class Replay:
         else:
             base = self.given[p][:n0]
             self.states.append(MeshState(base, event.faces, n, m, dtype=np.float64))
+        self.base_faces.append(np.asarray(event.faces, np.int64))
         if self._nbar_override is not None:
             self.nbars.append(float(self._nbar_override[p]))
         else:

@@ -54,10 +54,12 @@ def verdict(matches: int, read: int, bits: int) -> str:
 class Verifier:
     """Collects codes batch by batch (an :class:`~.codec.Extractor`) and scores them.
 
-    ``reference`` (s, s) uint8 is the original watermark (None: no scores).
+    ``reference`` (s, s) uint8 is the original watermark (None: no scores);
+    ``nbar`` the default reference length of :meth:`add` (None when every batch
+    brings its own, as :meth:`add_carriers` does).
     """
 
-    def __init__(self, params: wm.WatermarkParams, key, nbar: float, reference=None):
+    def __init__(self, params: wm.WatermarkParams, key, nbar: float | None, reference=None):
         self.params = params
         self.extractor = wm.Extractor(params, key, nbar)
         self.reference = None if reference is None else np.asarray(reference, np.uint8)
