@@ -38,11 +38,9 @@ def _as_watermark(watermark):
 
 def load_key(key):
     """A :class:`~pmwm_codec.watermark.key.WatermarkKey` from a key object or a key file path."""
-    from .watermark.key import WatermarkKey
+    from .watermark.key import as_key
 
-    if key is None or isinstance(key, WatermarkKey):
-        return key
-    return WatermarkKey.load(key)
+    return as_key(key)
 
 
 def encode(src, dst, watermark=None, key=None, **options):
@@ -105,7 +103,8 @@ def decode(src, chunks=None) -> Mesh:
     from .stream.reader import decode_stream
 
     last, _ = decode_stream(src, chunks=chunks, copy=False)
-    return Mesh(last.grid.dequantize(last.positions_int), np.array(last.faces))
+    mesh = last.mesh  # every primitive dequantized on its own grid
+    return Mesh(mesh.positions, np.array(mesh.faces))
 
 
 def iter_decode(src, key=None, watermark=None):

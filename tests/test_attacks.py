@@ -7,7 +7,7 @@ import pytest
 
 import pmwm_codec
 from pmwm_codec import shapes
-from pmwm_codec.robust import verify_mesh
+from pmwm_codec.verify import verify_mesh
 from tools import attacks
 
 from conftest import marked_sphere

@@ -11,16 +11,12 @@ import pytest
 import pmwm_codec
 from pmwm_codec import shapes
 from pmwm_codec.errors import WatermarkKeyError
-from pmwm_codec.robust import code_ber, verify_mesh
+from pmwm_codec.verify import verify_mesh
+from pmwm_codec.watermark.verify import code_ber
 from pmwm_codec.stream.encoder import encode_mesh
 from pmwm_codec.watermark.key import WatermarkKey
-from pmwm_codec.watermark.registration import (
-    canonical_faces,
-    correspond,
-    match_topology,
-    same_face_set,
-    umeyama,
-)
+from pmwm_codec.progressive.topology import canonical_faces, same_face_set
+from pmwm_codec.verify.correspond import correspond, match_topology, umeyama
 
 
 def _encode(mesh, size=16, seed=0):

@@ -10,7 +10,7 @@ import pytest
 import pmwm_codec
 from pmwm_codec import shapes
 from pmwm_codec.stream import StreamDecoder, encode_mesh
-from pmwm_codec.stream.reference import verify_positions
+from pmwm_codec.verify.mesh import Reference, read_given
 from pmwm_codec.watermark import codec as wm
 from pmwm_codec.watermark.key import WatermarkKey
 from pmwm_codec.watermark.verify import verdict
@@ -77,14 +77,14 @@ def test_a_similarity_transform_of_the_decoded_mesh_yields_the_same_codes(marked
     rng = np.random.default_rng(3)
     q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
     moved = 3.7 * decoded @ q.T + np.array([10.0, -4.0, 2.5])
-    plain = verify_positions(decoded, data, key)
-    transformed = verify_positions(moved, data, key)
+    plain = read_given(Reference.read(data), decoded, key)
+    transformed = read_given(Reference.read(data), moved, key)
     assert np.array_equal(plain.extractor.received, transformed.extractor.received)
     assert transformed.verdict() == "authentic"
     img, _ = transformed.extractor.image()
     assert np.array_equal(img, image)
     # float32 storage does not disturb it either
-    stored = verify_positions(moved.astype(np.float32), data, key)
+    stored = read_given(Reference.read(data), moved.astype(np.float32), key)
     assert np.array_equal(stored.extractor.received, plain.extractor.received)
 
 
@@ -115,7 +115,7 @@ def test_an_unmarked_mesh_is_not_authentic(marked):
     assert len(order) == len(order_plain)
     candidate = np.empty_like(plain)
     candidate[order] = plain[order_plain]
-    v = verify_positions(candidate, data, key)
+    v = read_given(Reference.read(data), candidate, key)
     assert v.verdict() != "authentic"
 
 

@@ -16,7 +16,7 @@ plus glTF transport:
 * T4 ``draco``     a real DracoPy encode/decode at 14 and 11 quantization bits
 
 Every attack takes the *full decode* of the marked file (the reference) and
-returns a new ``(positions, faces)``; :func:`pmwm_codec.robust.verify_mesh`
+returns a new ``(positions, faces)``; :func:`pmwm_codec.verify.verify_mesh`
 then finds the vertex correspondence itself (exact topology match, or
 registration when the vertex count changed) and reports verdict, NC, PSNR, BER.
 
@@ -217,7 +217,7 @@ def run_attacks(data, key, *, seed=0, simplification=True, only=None, log=None, 
     """
     from pmwm_codec import decode
     from pmwm_codec.errors import PmwError
-    from pmwm_codec.robust import verify_mesh
+    from pmwm_codec.verify import verify_mesh
 
     ref = decode(data)
     V, F = ref.positions, ref.faces

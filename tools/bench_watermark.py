@@ -49,10 +49,10 @@ if HERE not in sys.path:
     sys.path.insert(0, HERE)
 
 import pmwm_codec  # noqa: E402
-from pmwm_codec.format import BaseEvent, ChunkEvent, ContainerParser  # noqa: E402
-from pmwm_codec.format.records import unpack_batches  # noqa: E402
+from pmwm_codec.format import iter_events  # noqa: E402
 from pmwm_codec.mesh import Mesh  # noqa: E402
-from pmwm_codec.progressive.vsplit import MeshState, apply_batch  # noqa: E402
+from pmwm_codec.progressive.topology import canonical_faces  # noqa: E402
+from pmwm_codec.stream.replay import Replay  # noqa: E402
 from pmwm_codec.stream import encoder as enc_mod  # noqa: E402
 from pmwm_codec.stream.decoder import StreamDecoder  # noqa: E402
 from pmwm_codec.watermark import codec as wm  # noqa: E402
@@ -93,15 +93,6 @@ class CaptureOrder:
         enc_mod.build_progressive = self._orig
 
 
-def canonical_faces(f: np.ndarray) -> np.ndarray:
-    """Faces rotated to start at their smallest index, rows sorted (orientation kept)."""
-    f = np.asarray(f, np.int64)
-    r = np.argmin(f, axis=1)
-    idx = (r[:, None] + np.arange(3)[None]) % 3
-    g = np.take_along_axis(f, idx, axis=1)
-    return g[np.lexsort(g.T[::-1])]
-
-
 def encode_and_read(mesh, path, image_path, key, log, **options):
     """Encode to ``path``, read it back with iter_decode; returns a dict of measures."""
     t = time.perf_counter()
@@ -136,31 +127,20 @@ def encode_and_read(mesh, path, image_path, key, log, **options):
 
 # ----------------------------------------------------------------------------- false positives
 def verifier_feed(path):
-    """Decode a file's geometry once: (params or None, nbar, [(batch, points, centroid)], carriers)."""
+    """Decode a file's geometry once: (bytes, params or None, base mean edge, [Carriers per batch])."""
     with open(path, "rb") as fh:
         blob = fh.read()
-    parser = ContainerParser()
-    events = list(parser.feed(blob))
-    parser.close()
-    ext = events[0].extension
+    replay = Replay()
+    feed = [c for event in iter_events(blob) for c in replay.on_event(event)]
+    ext = replay.exts[0]
     params = wm.WatermarkParams.from_config(ext["watermark"]) if "watermark" in ext else None
-    base = next(e for e in events if isinstance(e, BaseEvent))
-    state = MeshState(base.positions_int, base.faces, int(ext["vertexCount"]), int(ext["faceCount"]))
-    nbar = wm.base_mean_edge(base.positions_int, base.faces)
-    feed, j = [], 0
-    for e in events:
-        if isinstance(e, ChunkEvent):
-            for batch in unpack_batches(e.payload, max_splits=len(state.positions)):
-                topo = apply_batch(state, batch)
-                feed.append((j, state.positions[topo.u].astype(np.float64), np.asarray(topo.centroid())))
-                j += 1
-    return blob, params, nbar, feed
+    return blob, params, replay.nbars[0], feed
 
 
 def run_verifier(params, key, nbar, reference, feed):
     v = Verifier(params, key, nbar, reference)
-    for j, p, c in feed:
-        v.add(j, p, c)
+    for carriers in feed:
+        v.add_carriers(carriers)
     m, n = v.matches()
     img, count = v.extractor.image()
     run_verifier.last_count = count
@@ -189,7 +169,7 @@ def false_positives(path, reference, keys: int, log, check=3):
     log(f"  {keys} wrong keys in {dt:.1f}s: {counts}, max rate {rates.max():.4f}")
     return {"params": params, "counts": counts, "max_rate": float(rates.max()), "mean_rate": float(rates.mean()),
             "p0": 2.0 ** -params.bits, "mean_cnc": float(np.mean(cncs)), "max_abs_cnc": float(np.max(np.abs(cncs))),
-            "carriers": len(np.concatenate([p for _, p, _ in feed])), "seconds": dt, "keys": keys,
+            "carriers": sum(len(c.points) for c in feed), "seconds": dt, "keys": keys,
             "mean_coefficients": float(np.mean(coefs)), "max_coefficients": int(np.max(coefs)),
             "coefficients_total": params.size * params.size}
 

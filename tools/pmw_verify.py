@@ -127,7 +127,7 @@ def run(args) -> int:
 
 def run_reference(args) -> int:
     """``pmw verify MESH --reference ORIGINAL.pmw --key KEY``: one verdict for a mesh file."""
-    from pmwm_codec.robust import verify_mesh
+    from pmwm_codec.verify import verify_mesh
 
     check_input_file(args.input, "mesh file")
     check_input_file(args.reference, "reference .pmw")

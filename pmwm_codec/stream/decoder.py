@@ -13,10 +13,11 @@ stream that ends before its base mesh is complete raises
 
 The container layer (:class:`~pmwm_codec.format.ContainerParser`) does the byte
 work (GLB framing, limits, digests, zstd); this layer turns its events into
-meshes: it parses split records, applies them a batch at a time with
-:func:`~pmwm_codec.progressive.vsplit.apply_batch` into arrays preallocated for
-the full-resolution counts, and, given a key, reads the watermark codes of
-every batch and rebuilds the partial watermark.  Pull wrappers live in
+meshes through the one replay loop (:class:`.replay.Replay`: split records
+applied a batch at a time into arrays preallocated for the full-resolution
+counts) and, given a key, feeds every batch's carriers to a
+:class:`~pmwm_codec.watermark.verify.Verifier` and puts its estimate of the
+partial watermark into each result.  Pull wrappers live in
 :mod:`.reader`.
 """
 
@@ -26,15 +27,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..constants import EXTENSION_NAME
 from ..errors import FormatError, WatermarkKeyError
 from ..format import BaseEvent, ChunkEvent, ContainerParser, EndEvent, HeaderEvent
-from ..format.records import unpack_batches
 from ..mesh import Mesh
 from ..progressive.grid import Grid
-from ..progressive.vsplit import MeshState, apply_batch
 from ..watermark import codec as wm
 from ..watermark.verify import Verifier
+from .replay import Replay
 
 
 @dataclass
@@ -91,6 +90,8 @@ class PartialResult:
     centered_nc: float | None = None
     code_match: float | None = None
     carriers_read: int = 0
+    #: the watermark as read at this boundary (None without a key or a mark)
+    estimate: object = None
 
     @property
     def positions_int(self) -> np.ndarray:
@@ -154,26 +155,22 @@ class StreamDecoder:
     def __init__(self, key=None, reference=None, *, copy: bool = True, max_chunks: int | None = None,
                  check_key: bool = True):
         self._parser = ContainerParser()
+        self._replay = Replay(max_chunks=max_chunks)
         self.key = key
         self.reference = reference if reference is not None else getattr(key, "reference", None)
         self.copy = copy
-        self.max_chunks = max_chunks
         self.check_key = check_key
         self.header: HeaderEvent | None = None
-        self.grid: Grid | None = None
-        self.exts: tuple = ()
-        self.grids: list = []
-        self.states: list = []
-        self.nbars: list = []
-        self.chunks_applied = 0
         self.chunks_total = 0
         self.watermark_params: wm.WatermarkParams | None = None
         self.verifier: Verifier | None = None
-        self._batch_index = 0
         self._closed = False
         self.last: PartialResult | None = None
 
-    # -- push interface -------------------------------------------------------------
+    @property
+    def chunks_applied(self) -> int:
+        return self._replay.chunks_applied
+
     def feed(self, data) -> list:
         """Consume bytes; return the :class:`PartialResult` objects that became available."""
         if self._closed:
@@ -191,88 +188,62 @@ class StreamDecoder:
         end: EndEvent = self._parser.close()
         return StreamEnd(end.complete, end.bytes_read, end.total_length, self.chunks_applied, end.chunk_count)
 
-    # -- events -----------------------------------------------------------------------
     def _on_event(self, event):
+        applied_before = self._replay.chunks_applied
+        carriers = self._replay.on_event(event)
         if isinstance(event, HeaderEvent):
             self._on_header(event)
-            return None
-        if isinstance(event, BaseEvent):
-            ext = self.exts[event.primitive]
-            attrs = event.attributes_int if event.attributes_int is not None else np.zeros((len(event.positions_int), 0), np.int64)
-            width = 3 + sum(len(sp["origin"]) for sp in ext.get("attributes", ()))
-            if attrs.shape[1] != width - 3:
-                raise FormatError("base mesh: attribute columns differ from the extension's attributes")
-            values = np.concatenate([event.positions_int, attrs], axis=1)
-            self.states.append(MeshState(values, event.faces, int(ext["vertexCount"]), int(ext["faceCount"])))
-            nbar = wm.base_mean_edge(event.positions_int, event.faces) if self.watermark_params else 0.0
-            if self.watermark_params is not None and not (np.isfinite(nbar) and nbar > 0):
-                raise FormatError("base mesh: every edge has zero length, the watermark has no reference length")
-            self.nbars.append(nbar)
-            if len(self.states) < len(self.exts):
-                return None
-            if self.watermark_params is not None and self.key is not None:
-                self.verifier = Verifier(self.watermark_params, self.key, self.nbars[0], self.reference)
+        elif isinstance(event, BaseEvent) and self._replay.ready:
+            self._start_verifier()
             return self._result(0, event.bytes_read)
-        if isinstance(event, ChunkEvent):
-            if self.max_chunks is not None and self.chunks_applied >= self.max_chunks:
-                return None
-            p = event.primitive
-            state, ext = self.states[p], self.exts[p]
-            width = state.positions.shape[1]
-            scale = ext["watermark"]["scale"] if "watermark" in ext else None
-            for batch in unpack_batches(event.payload, max_splits=len(state.positions), width=width):
-                topo = apply_batch(state, batch)
-                if self.verifier is not None:
-                    self.verifier.add(self._batch_index, state.positions[topo.u, :3], topo.centroid()[:, :3],
-                                      self.nbars[p], scale)
-                self._batch_index += 1
-            self.chunks_applied += 1
-            meta = ext["chunks"][event.chunk]
-            if state.n != meta["vertexCount"] or state.m != meta["faceCount"]:
-                raise FormatError(f"chunk {event.index + 1}: vertex/face counts differ from its index entry")
+        elif isinstance(event, ChunkEvent) and self._replay.chunks_applied > applied_before:
+            if self.verifier is not None:
+                for c in carriers:
+                    self.verifier.add_carriers(c)
             return self._result(event.index + 1, event.bytes_read)
         return None
 
     def _on_header(self, event: HeaderEvent):
         self.header = event
-        self.exts = event.extensions or (event.extension,)
-        ext = event.extension
-        self.grids = [Grid.from_config(e["grid"]) for e in self.exts]
-        self.grid = self.grids[0]
         self.chunks_total = event.chunk_count
-        for e in self.exts:
-            payload = e.get("payload", {"codec": "pmwm-vsplit", "version": 1})
-            if not isinstance(payload, dict) or payload.get("codec") != "pmwm-vsplit" or payload.get("version") != 1:
-                raise FormatError(f"{EXTENSION_NAME}: unknown chunk payload codec {str(payload)[:60]}")
-        if "watermark" in ext:
-            self.watermark_params = wm.WatermarkParams.from_config(ext["watermark"])
-            if self.watermark_params.carriers > sum(int(e["vertexCount"]) for e in self.exts):
-                raise FormatError("watermark carrier count exceeds the vertices of the stream")
-            if self.key is not None and self.check_key:
-                fp = self.watermark_params.fingerprint
-                if fp and self.key.fingerprint() != fp:
-                    raise WatermarkKeyError("the key belongs to another file (its fingerprint differs from the file's)")
-        elif self.key is not None and self.check_key:
-            # an unmarked file: nothing to read, the verdict will say so
-            pass
+        cfg = event.extension.get("watermark")
+        if cfg is None:
+            return  # an unmarked file: nothing to read, the verdict will say so
+        self.watermark_params = wm.WatermarkParams.from_config(cfg)
+        if self.watermark_params.carriers > sum(int(e["vertexCount"]) for e in self._replay.exts):
+            raise FormatError("watermark carrier count exceeds the vertices of the stream")
+        if self.key is not None and self.check_key:
+            check_fingerprint(self.key, self.watermark_params)
 
-    @property
-    def state(self) -> MeshState | None:
-        """The first primitive's state (the only one for a mesh file)."""
-        return self.states[0] if self.states else None
+    def _start_verifier(self):
+        if self.watermark_params is None:
+            return
+        nbars = self._replay.nbars
+        if not all(np.isfinite(nb) and nb > 0 for nb in nbars):
+            raise FormatError("base mesh: every edge has zero length, the watermark has no reference length")
+        if self.key is not None:
+            self.verifier = Verifier(self.watermark_params, self.key, nbars[0], self.reference)
 
     def _result(self, chunk: int, bytes_read: int) -> PartialResult:
+        replay = self._replay
         parts = []
-        for st, grid, ext in zip(self.states, self.grids, self.exts):
-            values = st.positions[: st.n]
-            fac = st.faces[: st.m]
+        for p, (grid, ext) in enumerate(zip(replay.grids, replay.exts)):
+            values, fac = replay.current(p)
             pos, attrs = values[:, :3], values[:, 3:]
             if self.copy:
                 pos, fac, attrs = pos.copy(), fac.copy(), attrs.copy()
             parts.append(Part(pos, fac, attrs, grid, tuple(ext.get("attributes", ()))))
-        r = PartialResult(chunk, self.chunks_total, bytes_read, sum(st.n for st in self.states),
-                          sum(st.m for st in self.states), self.grid, parts)
+        r = PartialResult(chunk, self.chunks_total, bytes_read, sum(st.n for st in replay.states),
+                          sum(st.m for st in replay.states), replay.grids[0], parts)
         if self.verifier is not None:
-            self.verifier.fill(r)
+            r.estimate = est = self.verifier.estimate()
+            r.watermark, r.coefficients, r.carriers_read = est.watermark, est.coefficients, est.carriers_read
+            r.nc, r.psnr_db, r.centered_nc, r.code_match = est.nc, est.psnr_db, est.centered_nc, est.code_match
         self.last = r
         return r
+
+
+def check_fingerprint(key, params) -> None:
+    """Refuse a key whose fingerprint differs from the file's public one."""
+    if params.fingerprint and key.fingerprint() != params.fingerprint:
+        raise WatermarkKeyError("the key belongs to another file (its fingerprint differs from the file's)")

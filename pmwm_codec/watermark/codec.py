@@ -293,15 +293,19 @@ class Extractor:
         self.received = np.full(self.params.carriers, -1, dtype=np.int64)
 
     def add(self, j: int, points: np.ndarray, centroid: np.ndarray, nbar: float | None = None,
-            scale: float | None = None) -> None:
+            scale: float | None = None, known: np.ndarray | None = None) -> None:
         """Record the codes of batch ``j`` (stream order): points (k, 3) and ring means (k, 3).
 
-        ``nbar`` / ``scale`` override the defaults for a batch of another primitive.
+        ``nbar`` / ``scale`` override the defaults for a batch of another primitive;
+        ``known`` (k,) bool marks the carriers that can be read (default all): the
+        others keep their slots but stay unread.
         """
         k = len(points)
         slots = carrier_slots(self.key, j, self.offset, k)
         self.offset += k
         live = slots < len(self.received)
+        if known is not None:
+            live &= np.asarray(known, bool)
         nbar = self.nbar if nbar is None else nbar
         scale = self.params.scale if scale is None else scale
         codes = read_codes(points[live], centroid[live], nbar, scale, self.params.bits)

@@ -247,3 +247,10 @@ class WatermarkKey:
             raise ValueError(f"n must be >= 0, got {n}")
         raw = np.frombuffer(self._stream(b"bits", stream_id, (n + 7) // 8), dtype=np.uint8)
         return np.unpackbits(raw, bitorder="little")[:n]
+
+
+def as_key(key) -> WatermarkKey | None:
+    """A :class:`WatermarkKey` from a key object or a key file path (None stays None)."""
+    if key is None or isinstance(key, WatermarkKey):
+        return key
+    return WatermarkKey.load(key)

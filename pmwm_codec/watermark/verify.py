@@ -23,6 +23,8 @@ wrong keys and unmarked meshes (see BENCHMARKS.md).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.stats import binom
 
@@ -34,7 +36,6 @@ from .payload import BitLayout, pack, repeat_to_capacity, symbols
 MATCH_RATE = 0.8
 ALPHA = 1e-9
 MIN_CARRIERS = 32
-VERDICTS = ("authentic", "not-authentic", "inconclusive")
 
 
 def verdict(matches: int, read: int, bits: int) -> str:
@@ -53,10 +54,12 @@ def verdict(matches: int, read: int, bits: int) -> str:
 class Verifier:
     """Collects codes batch by batch (an :class:`~.codec.Extractor`) and scores them.
 
-    ``reference`` (s, s) uint8 is the original watermark (None: no scores).
+    ``reference`` (s, s) uint8 is the original watermark (None: no scores);
+    ``nbar`` the default reference length of :meth:`add` (None when every batch
+    brings its own, as :meth:`add_carriers` does).
     """
 
-    def __init__(self, params: wm.WatermarkParams, key, nbar: float, reference=None):
+    def __init__(self, params: wm.WatermarkParams, key, nbar: float | None, reference=None):
         self.params = params
         self.extractor = wm.Extractor(params, key, nbar)
         self.reference = None if reference is None else np.asarray(reference, np.uint8)
@@ -67,8 +70,14 @@ class Verifier:
             self.expected = expected_codes(self.reference, key, params)
             self.mismatch = self.expected is None
 
-    def add(self, batch_index: int, points: np.ndarray, centroid: np.ndarray, nbar=None, scale=None) -> None:
-        self.extractor.add(batch_index, np.asarray(points, np.float64), centroid, nbar, scale)
+    def add(self, batch_index: int, points: np.ndarray, centroid: np.ndarray, nbar=None, scale=None,
+            known=None) -> None:
+        """Read the codes of one batch (see :meth:`.codec.Extractor.add`)."""
+        self.extractor.add(batch_index, np.asarray(points, np.float64), centroid, nbar, scale, known)
+
+    def add_carriers(self, carriers) -> None:
+        """Read one :class:`~pmwm_codec.stream.replay.Carriers` batch."""
+        self.add(carriers.batch, carriers.points, carriers.centroid, carriers.nbar, carriers.scale, carriers.known)
 
     def matches(self) -> tuple[int, int]:
         """``(codes matching the reference, codes read)`` so far."""
@@ -86,18 +95,56 @@ class Verifier:
         m, n = self.matches()
         return verdict(m, n, self.params.bits)
 
-    def fill(self, result) -> None:
-        """Put the partial watermark and its scores into a PartialResult."""
+    def estimate(self) -> "WatermarkEstimate":
+        """The partial watermark so far, scored against the reference (one scoring for every reader)."""
         img, count = self.extractor.image()
-        result.watermark = img
-        result.coefficients = int(count)
         m, n = self.matches()
-        result.carriers_read = n
+        out = WatermarkEstimate(img, int(count), n, self.verdict(), self.params.carriers)
         if self.reference is not None and self.reference.shape == img.shape:
-            result.nc = float(nc(self.reference.astype(np.float64), img.astype(np.float64)))
-            result.psnr_db = float(psnr(self.reference, img))
-            result.centered_nc = float(centered_nc(self.reference.astype(np.float64), img.astype(np.float64)))
-            result.code_match = (m / n) if n else None
+            r, x = self.reference.astype(np.float64), img.astype(np.float64)
+            out.nc = float(nc(r, x))
+            out.psnr_db = float(psnr(self.reference, img))
+            out.centered_nc = float(centered_nc(r, x))
+            out.bit_exact = bool(np.array_equal(img, self.reference))
+        if self.expected is not None:
+            out.code_match = (m / n) if n else None
+            out.ber = code_ber(self.extractor.received, self.expected, self.params.bits)
+        return out
+
+
+@dataclass
+class WatermarkEstimate:
+    """The watermark as read so far.
+
+    ``watermark`` (s, s) uint8 the partial image; ``coefficients`` how many
+    stream coefficients it used; ``carriers_read`` of ``carriers_total``;
+    ``verdict`` (see :func:`verdict`); with a reference image: ``nc``,
+    ``psnr_db`` (inf when bit-exact), ``centered_nc``, ``bit_exact``; with the
+    codes the reference implies: ``code_match`` (fraction of codes read that
+    match) and ``ber`` (bit error rate of the codes read).
+    """
+
+    watermark: np.ndarray
+    coefficients: int
+    carriers_read: int
+    verdict: str
+    carriers_total: int
+    nc: float | None = None
+    psnr_db: float | None = None
+    centered_nc: float | None = None
+    bit_exact: bool = False
+    code_match: float | None = None
+    ber: float | None = None
+
+
+def code_ber(received: np.ndarray, expected: np.ndarray, bits: int) -> float | None:
+    """Bit error rate of the codes read (``received >= 0``) against ``expected``; None if none read."""
+    got = received >= 0
+    if expected is None or not got.any():
+        return None
+    diff = (received[got] ^ expected[got]).astype(np.uint64)
+    errors = sum(int(np.count_nonzero((diff >> np.uint64(b)) & np.uint64(1))) for b in range(bits))
+    return errors / (bits * int(got.sum()))
 
 
 def expected_codes(reference: np.ndarray, key, params: wm.WatermarkParams):

@@ -45,15 +45,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..progressive.topology import mean_edge_length, same_face_set
+
 __all__ = [
     "Correspondence",
     "correspond",
-    "canonical_faces",
-    "same_face_set",
     "match_topology",
     "register",
     "umeyama",
-    "mean_edge_length",
 ]
 
 METHODS = ("identity", "faces-reordered", "permutation", "registration")
@@ -94,40 +93,20 @@ class Correspondence:
 # ------------------------------------------------------------------ face sets
 
 
-def canonical_faces(faces: np.ndarray) -> np.ndarray:
-    """(m, 3) int64: every face rotated so its smallest index comes first (orientation kept), rows sorted."""
-    f = np.asarray(faces, np.int64).reshape(-1, 3)
-    r = np.argmin(f, axis=1)
-    idx = (r[:, None] + np.arange(3)[None]) % 3
-    g = np.take_along_axis(f, idx, axis=1)
-    return g[np.lexsort((g[:, 2], g[:, 1], g[:, 0]))]
-
-
-def same_face_set(faces_a: np.ndarray, faces_b: np.ndarray) -> bool:
-    """True if the two face arrays hold the same oriented triangles (as multisets)."""
-    a, b = np.asarray(faces_a), np.asarray(faces_b)
-    if a.shape != b.shape:
-        return False
-    return bool(np.array_equal(canonical_faces(a), canonical_faces(b)))
-
-
-def mean_edge_length(positions: np.ndarray, faces: np.ndarray) -> float:
-    """Mean length of the undirected edges of a triangle mesh."""
-    f = np.asarray(faces, np.int64)
-    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    e = np.unique(np.sort(e, axis=1), axis=0)
-    p = np.asarray(positions, np.float64)
-    return float(np.linalg.norm(p[e[:, 0]] - p[e[:, 1]], axis=1).mean()) if len(e) else 0.0
-
-
 # ------------------------------------------------------------- topology match
 
 
-def _face_descriptors(positions, faces, unit):
-    """(m, 3) edge lengths in corner order (|p0p1|, |p1p2|, |p2p0|) divided by ``unit``."""
+def _face_descriptors(positions, faces):
+    """(m, 3) edge lengths in corner order (|p0p1|, |p1p2|, |p2p0|) over the face's perimeter.
+
+    Scale-free per face, so parts of a flattened asset that were scaled by
+    different node transforms still find their counterparts.
+    """
     p = np.asarray(positions, np.float64)[faces]
     d = np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 1], p[:, 0] - p[:, 2]], axis=1)
-    return np.linalg.norm(d, axis=2) / unit
+    lengths = np.linalg.norm(d, axis=2)
+    perimeter = lengths.sum(axis=1, keepdims=True)
+    return lengths / np.where(perimeter > 0, perimeter, 1.0)
 
 
 def _halfedges(faces):
@@ -141,7 +120,7 @@ def _halfedges(faces):
     return out
 
 
-def _propagate(ref_faces_list, ref_he, mesh_he, n_ref, n_mesh, seed_face, seed_image, vmap, used, visited):
+def _propagate(ref_faces_list, ref_he, mesh_he, n_ref, n_mesh, seed_face, seed_image, vmap, used, visited):  # noqa: ARG001
     """Grow ``vmap`` (ref -> mesh) from one seed face pair over shared edges.  False on any conflict."""
     def bind(r, m) -> bool:
         """Map reference vertex r to mesh vertex m; False if either is already bound elsewhere."""
@@ -179,57 +158,83 @@ def _propagate(ref_faces_list, ref_he, mesh_he, n_ref, n_mesh, seed_face, seed_i
     return True
 
 
+#: a component whose propagated map fits a similarity within this fraction of its size is taken at once
+EXACT_FIT = 1e-5
+#: the best fit found must be within this fraction of the component's size (noise, smoothing) to be taken at all
+LOOSE_FIT = 0.2
+
+
+def _fit_error(ref_positions, positions, r_idx, m_idx) -> float:
+    """RMS residual of the best similarity ``positions[m_idx] ~ s R ref_positions[r_idx] + t``.
+
+    In units of the reference points' RMS spread (scale-free); mirror images allowed.
+    """
+    src, dst = ref_positions[r_idx], positions[m_idx]
+    if len(r_idx) < 3:
+        return 0.0
+    spread = np.sqrt(((src - src.mean(0)) ** 2).sum(1).mean()) or 1.0
+    best = np.inf
+    for mirrored in (False, True):  # a mirrored copy keeps the connectivity, so both are candidates
+        s, R, t = umeyama(src, dst, reflection=mirrored)
+        if s > 0:
+            resid = np.linalg.norm(dst - (s * src @ R.T + t), axis=1)
+            best = min(best, float(np.sqrt((resid**2).mean()) / s / spread))
+    return best
+
+
 def match_topology(positions, faces, ref_positions, ref_faces, *, seeds: int = 6, candidates: int = 24):
     """Vertex permutation ``index`` (n_ref,) with ``faces`` == ``index[ref_faces]`` as face sets, or None.
 
     Works component by component: for an unmapped reference face, the mesh faces
     (in each of their 3 corner rotations) whose scale-free edge-length
-    descriptors are nearest are tried as its image until one propagates without
-    conflict.  The final face sets must agree exactly.
+    descriptors are nearest are tried as its image.  A seed that propagates
+    without conflict is still only one automorphism of the connectivity (a
+    regular torus has hundreds), so the component's map must also be a
+    similarity of the geometry: the first map whose fit error is below
+    :data:`EXACT_FIT` is taken, otherwise the best one below :data:`LOOSE_FIT`.
+    The final face sets must agree exactly.
     """
     faces = np.asarray(faces, np.int64)
     ref_faces = np.asarray(ref_faces, np.int64)
+    positions = np.asarray(positions, np.float64)
+    ref_positions = np.asarray(ref_positions, np.float64)
     n_ref, n_mesh = len(ref_positions), len(positions)
     if n_ref != n_mesh or faces.shape != ref_faces.shape or len(faces) == 0:
         return None
-    unit_ref = mean_edge_length(ref_positions, ref_faces) or 1.0
-    unit_mesh = mean_edge_length(positions, faces) or 1.0
-    dref = _face_descriptors(ref_positions, ref_faces, unit_ref)
-    dm = _face_descriptors(positions, faces, unit_mesh)
+    dref = _face_descriptors(ref_positions, ref_faces)
+    dm = _face_descriptors(positions, faces)
     rot = np.concatenate([dm, np.roll(dm, -1, axis=1), np.roll(dm, -2, axis=1)])  # rotation r: corner r first
     tree = cKDTree(rot)
-    m = len(faces)
     rot_faces = np.concatenate([faces, np.roll(faces, -1, axis=1), np.roll(faces, -2, axis=1)])
     ref_list = ref_faces.tolist()
-    ref_he = _halfedges(ref_faces)
-    mesh_he = _halfedges(faces)
-    vmap = np.full(n_ref, -1, dtype=np.int64)
-    used = np.zeros(n_mesh, dtype=bool)
-    visited = np.zeros(m, dtype=bool)
+    ref_he, mesh_he = _halfedges(ref_faces), _halfedges(faces)
     # plain Python lists for the hot loop
-    vmap_l, used_l, visited_l = vmap.tolist(), used.tolist(), visited.tolist()
+    state = ([-1] * n_ref, [False] * n_mesh, [False] * len(faces))
     rng = np.random.default_rng(0)
     while True:
-        todo = np.flatnonzero(~np.asarray(visited_l, bool))
+        todo = np.flatnonzero(~np.asarray(state[2], bool))
         if len(todo) == 0:
             break
-        ok = False
-        tried = rng.choice(todo, size=min(seeds, len(todo)), replace=False)
-        tried = np.r_[todo[:1], tried]
+        tried = np.r_[todo[:1], rng.choice(todo, size=min(seeds, len(todo)), replace=False)]
+        best = (np.inf, None)
         for f in tried:
             _, hits = tree.query(dref[f], k=min(candidates, len(rot)))
             for h in np.atleast_1d(hits):
-                image = rot_faces[h].tolist()
-                snap = (list(vmap_l), list(used_l), list(visited_l))
-                if _propagate(ref_list, ref_he, mesh_he, n_ref, n_mesh, int(f), image, vmap_l, used_l, visited_l):
-                    ok = True
+                trial = (list(state[0]), list(state[1]), list(state[2]))
+                if not _propagate(ref_list, ref_he, mesh_he, n_ref, n_mesh, int(f), rot_faces[h].tolist(), *trial):
+                    continue
+                new = np.flatnonzero((np.asarray(trial[0]) >= 0) & (np.asarray(state[0]) < 0))
+                err = _fit_error(ref_positions, positions, new, np.asarray(trial[0])[new])
+                if err < best[0]:
+                    best = (err, trial)
+                if err < EXACT_FIT:
                     break
-                vmap_l, used_l, visited_l = snap
-            if ok:
+            if best[0] < EXACT_FIT:
                 break
-        if not ok:
+        if best[1] is None or not best[0] < LOOSE_FIT:
             return None
-    vmap = np.asarray(vmap_l, dtype=np.int64)
+        state = best[1]
+    vmap = np.asarray(state[0], dtype=np.int64)
     if np.any(vmap < 0):
         return None
     if not same_face_set(vmap[ref_faces], faces):
@@ -295,7 +300,7 @@ def _triangle_hypotheses(positions, faces, ref_positions, ref_faces, *, count: i
         return []
     pos = np.asarray(positions, np.float64)
     ref = np.asarray(ref_positions, np.float64)
-    dr = _face_descriptors(ref, ref_faces, 1.0)
+    dr = _face_descriptors(ref, ref_faces)
     ok = dr[:, 0] > 0
     rf = np.asarray(ref_faces, np.int64)[ok]
     key_r = dr[ok][:, 1:] / dr[ok][:, :1]
@@ -308,7 +313,7 @@ def _triangle_hypotheses(positions, faces, ref_positions, ref_faces, *, count: i
     out = []
     for r in range(3):
         g = np.roll(pick, -r, axis=1)
-        dm = _face_descriptors(pos, g, 1.0)
+        dm = _face_descriptors(pos, g)
         good = dm[:, 0] > 0
         if not good.any():
             continue

@@ -1,0 +1,185 @@
+"""The one replay loop: container events in, split batches applied, watermark carriers out.
+
+Contract
+--------
+:class:`Replay` consumes the events of :class:`~pmwm_codec.format.ContainerParser`
+one at a time (:meth:`Replay.on_event`) and keeps one
+:class:`~pmwm_codec.progressive.vsplit.MeshState` per progressive primitive.  For
+every vertex-split batch it applies, it returns a :class:`Carriers`: the
+positions of the batch's new vertices and the means of their rings, which is
+everything the watermark reader needs.  Every consumer of a stream goes through
+it: the push decoder (:mod:`.decoder`), verifying a mesh that left the stream
+(:mod:`pmwm_codec.verify.mesh`) and the benchmarks.
+
+Positions come from one of two places:
+
+* **decoded** (``given=None``): residuals of the stream, on the primitive's
+  integer grid, attributes included (``D = 3 + attribute components`` columns);
+* **given** (``given=[(n_p, 3) float64 per primitive]``): the positions of a
+  mesh outside the stream, in the stream's vertex order; only the connectivity
+  of the splits is replayed and the residuals are skipped.  NaN rows mark
+  vertices with no counterpart: carriers whose vertex or ring touches one are
+  returned with ``known`` False.
+
+Several primitives share one stream order; ``Carriers.batch`` numbers batches
+over all of them, as the watermark's carrier slots do.  ``nbar`` (the base mean
+edge of the carrier's primitive, in the units of its positions) and ``scale``
+(the primitive's public watermark scale) travel with each batch, so a reader
+needs no per-primitive bookkeeping of its own.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import FormatError, MeshError
+from ..format import BaseEvent, ChunkEvent, HeaderEvent
+from ..format.records import unpack_batches
+from ..progressive.grid import Grid
+from ..progressive.topology import mean_edge_length
+from ..progressive.vsplit import MeshState, apply_batch, split_topology
+
+PAYLOAD_CODEC = "pmwm-vsplit"
+PAYLOAD_VERSION = 1
+
+
+@dataclass(frozen=True)
+class Carriers:
+    """The watermark carriers of one applied batch.
+
+    ``points`` (k, 3) float64 positions of the new vertices, ``centroid`` (k, 3)
+    float64 their ring means, ``known`` (k,) bool (False: not readable, a
+    vertex without counterpart); ``batch`` the stream-wide batch index,
+    ``primitive`` its primitive, ``nbar`` / ``scale`` that primitive's.
+    """
+
+    primitive: int
+    batch: int
+    points: np.ndarray
+    centroid: np.ndarray
+    known: np.ndarray
+    nbar: float
+    scale: float | None
+
+
+def value_width(ext: dict) -> int:
+    """``D``: residual columns of a primitive's splits (3 + attribute components)."""
+    return 3 + sum(len(spec["origin"]) for spec in ext.get("attributes", ()))
+
+
+def check_payload_codec(ext: dict) -> None:
+    """Refuse a chunk payload codec this reader does not know."""
+    payload = ext.get("payload", {"codec": PAYLOAD_CODEC, "version": PAYLOAD_VERSION})
+    if not isinstance(payload, dict) or payload.get("codec") != PAYLOAD_CODEC or payload.get("version") != PAYLOAD_VERSION:
+        raise FormatError(f"unknown chunk payload codec {str(payload)[:60]}")
+
+
+class Replay:
+    """Per-primitive mesh states driven by container events (module docstring).
+
+    ``given``: None to decode positions from the stream, or one (n_p, 3) float64
+    array per progressive primitive (its full-resolution positions in the
+    stream's vertex order, NaN where unknown).  ``nbars``: per-primitive
+    reference lengths to use instead of the base mean edge (given positions of
+    a partial mesh measure it themselves).  ``max_chunks``: apply no chunk after
+    this many.
+    """
+
+    def __init__(self, given: list | None = None, *, nbars: list | None = None, max_chunks: int | None = None):
+        self.given = given
+        self._nbar_override = nbars
+        self.max_chunks = max_chunks
+        self.header: HeaderEvent | None = None
+        self.exts: tuple = ()
+        self.grids: list = []
+        self.states: list = []
+        self.nbars: list = []
+        #: per primitive, its base mesh's faces (f_p, 3) int64
+        self.base_faces: list = []
+        self.chunks_applied = 0
+        self.batches_applied = 0
+
+    @property
+    def ready(self) -> bool:
+        """True once every base mesh is in."""
+        return bool(self.exts) and len(self.states) == len(self.exts)
+
+    def on_event(self, event) -> list:
+        """Consume one event; return the :class:`Carriers` of the batches it applied."""
+        if isinstance(event, HeaderEvent):
+            self._on_header(event)
+        elif isinstance(event, BaseEvent):
+            self._on_base(event)
+        elif isinstance(event, ChunkEvent):
+            return self._on_chunk(event)
+        return []
+
+    def _on_header(self, event: HeaderEvent) -> None:
+        self.header = event
+        self.exts = tuple(event.extensions or (event.extension,))
+        for ext in self.exts:
+            check_payload_codec(ext)
+        self.grids = [Grid.from_config(e["grid"]) for e in self.exts]
+        if self.given is not None:
+            if len(self.given) != len(self.exts):
+                raise MeshError(f"{len(self.given)} position sets for {len(self.exts)} progressive primitives")
+            for p, (pts, ext) in enumerate(zip(self.given, self.exts)):
+                if np.shape(pts) != (int(ext["vertexCount"]), 3):
+                    raise MeshError(f"primitive {p}: {len(pts)} positions for {ext['vertexCount']} vertices")
+
+    def _on_base(self, event: BaseEvent) -> None:
+        p = event.primitive
+        ext = self.exts[p]
+        n, m = int(ext["vertexCount"]), int(ext["faceCount"])
+        n0 = len(event.positions_int)
+        if self.given is None:
+            attrs = event.attributes_int
+            if attrs is None:
+                attrs = np.zeros((n0, 0), np.int64)
+            if attrs.shape[1] != value_width(ext) - 3:
+                raise FormatError("base mesh: attribute columns differ from the extension's attributes")
+            values = np.concatenate([event.positions_int, attrs], axis=1)
+            self.states.append(MeshState(values, event.faces, n, m))
+            base = event.positions_int
+        else:
+            base = self.given[p][:n0]
+            self.states.append(MeshState(base, event.faces, n, m, dtype=np.float64))
+        self.base_faces.append(np.asarray(event.faces, np.int64))
+        if self._nbar_override is not None:
+            self.nbars.append(float(self._nbar_override[p]))
+        else:
+            self.nbars.append(mean_edge_length(base, event.faces))
+
+    def _on_chunk(self, event: ChunkEvent) -> list:
+        if self.max_chunks is not None and self.chunks_applied >= self.max_chunks:
+            return []
+        p = event.primitive
+        state, ext = self.states[p], self.exts[p]
+        scale = ext["watermark"]["scale"] if "watermark" in ext else None
+        out = []
+        for batch in unpack_batches(event.payload, max_splits=state.positions.shape[0], width=value_width(ext)):
+            if self.given is None:
+                topo = apply_batch(state, batch)
+                points = state.positions[topo.u, :3].astype(np.float64)
+                centroid = topo.centroid()[:, :3]
+                known = np.ones(len(points), bool)
+            else:
+                topo = split_topology(state, batch.v, batch.symbols)
+                points = self.given[p][topo.u]
+                state.positions[topo.u] = points
+                centroid = topo.centroid()
+                known = np.isfinite(points).all(axis=1) & np.isfinite(centroid).all(axis=1)
+            out.append(Carriers(p, self.batches_applied, points, centroid, known, self.nbars[p], scale))
+            self.batches_applied += 1
+        self.chunks_applied += 1
+        meta = ext["chunks"][event.chunk]
+        if state.n != meta["vertexCount"] or state.m != meta["faceCount"]:
+            raise FormatError(f"chunk {event.index + 1}: vertex/face counts differ from its index entry")
+        return out
+
+    def current(self, p: int) -> tuple[np.ndarray, np.ndarray]:
+        """Primitive ``p`` now: values (n, D) (views) and faces (m, 3) int64 (views)."""
+        st = self.states[p]
+        return st.positions[: st.n], st.faces[: st.m]
