@@ -111,3 +111,50 @@ def face_keys(faces: np.ndarray):
     k = np.argmin(faces, axis=1)
     idx = (k[:, None] + np.arange(3)[None, :]) % 3
     return np.take_along_axis(faces, idx, axis=1)
+
+
+def unique_edges(faces: np.ndarray) -> np.ndarray:
+    """Undirected edges of ``faces`` (m, 3) int: (e, 2) int64 rows ``(lo, hi)``, ``lo < hi``.
+
+    Every edge once, rows in ascending lexicographic order; (0, 2) without faces.
+    """
+    f = np.asarray(faces, np.int64).reshape(-1, 3)
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    if len(e) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    return np.unique(np.sort(e, axis=1), axis=0)
+
+
+def mean_edge_length(positions: np.ndarray, faces: np.ndarray) -> float:
+    """Mean length of the undirected edges: ``positions`` (n, 3) float, ``faces`` (m, 3) int.
+
+    Each edge counts once however many faces share it; 0.0 (no warning) without faces.
+    """
+    e = unique_edges(faces)
+    if len(e) == 0:
+        return 0.0
+    p = np.asarray(positions, np.float64)
+    return float(np.linalg.norm(p[e[:, 0]] - p[e[:, 1]], axis=1).mean())
+
+
+def canonical_faces(faces: np.ndarray) -> np.ndarray:
+    """Faces in a canonical order: (m, 3) int64.
+
+    Every face is rotated so its smallest vertex id comes first (orientation kept,
+    see :func:`face_keys`), and the rows are sorted lexicographically, so two face
+    arrays hold the same oriented triangles iff their canonical forms are equal.
+    """
+    g = face_keys(np.asarray(faces, np.int64).reshape(-1, 3))
+    return g[np.lexsort((g[:, 2], g[:, 1], g[:, 0]))]
+
+
+def same_face_set(a: np.ndarray, b: np.ndarray) -> bool:
+    """True when the (m, 3) int face arrays ``a`` and ``b`` hold the same oriented triangles.
+
+    Compared as multisets: any face order, any rotation within a face; a flipped
+    face (other orientation) differs.
+    """
+    a, b = np.asarray(a), np.asarray(b)
+    if a.shape != b.shape:
+        return False
+    return bool(np.array_equal(canonical_faces(a), canonical_faces(b)))
