@@ -8,6 +8,7 @@ import pytest
 from pmwm_codec.constants import MAX_VERTICES
 from pmwm_codec.errors import FormatError, LimitError
 from pmwm_codec.format import base as basecodec
+from pmwm_codec.progressive.topology import same_face_set
 from pmwm_codec.format._samples import ICOSPHERE_CENTRE, ICOSPHERE_RADIUS, icosphere, to_grid
 
 
@@ -36,7 +37,7 @@ def test_decoded_base_equals_input_up_to_vertex_map(mesh, codec):
     assert pos.dtype == np.int64 and tri.dtype == np.int64
     assert np.array_equal(pos, enc.positions_int)
     assert np.array_equal(tri, enc.faces)
-    assert basecodec._same_triangles(enc.vertex_map[tri], faces)
+    assert same_face_set(enc.vertex_map[tri], faces)
 
 
 def test_draco_base_keeps_the_bounding_radius(mesh):

@@ -31,6 +31,7 @@ import numpy as np
 
 from ..constants import MAX_FACES, MAX_GRID_BITS, MAX_VERTICES, MIN_GRID_BITS
 from ..errors import FormatError, LimitError
+from ..progressive.topology import same_face_set
 from .layout import padded
 
 DRACO_EXTENSION = "KHR_draco_mesh_compression"
@@ -284,7 +285,7 @@ def _try_draco(pos, tri, grid, preserve_order, level):
     vertex_map = _match_vertices(dint, pos)
     if vertex_map is None:
         return "decoded positions are not a permutation of the grid positions"
-    if not _same_triangles(vertex_map[dtri], tri):
+    if not same_face_set(vertex_map[dtri], tri):
         return "decoded faces differ from the input faces"
     draco_view = {"buffer": 0, "byteOffset": 0, "byteLength": len(encoded)}
     index_type = UNSIGNED_SHORT if pos.shape[0] <= 0xFFFF else UNSIGNED_INT
@@ -319,16 +320,6 @@ def _match_vertices(decoded: np.ndarray, original: np.ndarray):
     if found.shape[0] != n or not np.array_equal(found, uniq):
         return None
     return first[where.reshape(-1)].astype(np.int64)
-
-
-def _same_triangles(a: np.ndarray, b: np.ndarray) -> bool:
-    """True when (m, 3) face arrays hold the same oriented triangles (any order, any rotation)."""
-    def canonical(t):
-        r = np.argmin(t, axis=1)
-        rolled = np.stack([t[np.arange(len(t)), (r + k) % 3] for k in range(3)], axis=1)
-        return rolled[np.lexsort(rolled.T[::-1])]
-
-    return a.shape == b.shape and np.array_equal(canonical(a), canonical(b))
 
 
 # ------------------------------------------------------------------------ decoding
