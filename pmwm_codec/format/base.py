@@ -32,19 +32,25 @@ import numpy as np
 from ..constants import MAX_FACES, MAX_GRID_BITS, MAX_VERTICES, MIN_GRID_BITS
 from ..errors import FormatError, LimitError
 from ..progressive.topology import same_face_set
+from .gltf import (
+    ARRAY_BUFFER,
+    DRACO_EXTENSION,
+    BufferBuilder,
+    ELEMENT_ARRAY_BUFFER,
+    FLOAT,
+    INDEX_DTYPES,
+    TRIANGLES,
+    UNSIGNED_INT,
+    UNSIGNED_SHORT,
+    VECTOR_WIDTH,
+    accessor_array,
+    find_extension_primitive,
+    find_extension_primitives,  # noqa: F401  (re-exported: tools/pmw_info.py imports it from here)
+    item,
+    uint,
+    view_bytes,
+)
 from .layout import padded
-
-DRACO_EXTENSION = "KHR_draco_mesh_compression"
-
-# glTF enums
-FLOAT = 5126
-UNSIGNED_BYTE = 5121
-UNSIGNED_SHORT = 5123
-UNSIGNED_INT = 5125
-ARRAY_BUFFER = 34962
-ELEMENT_ARRAY_BUFFER = 34963
-TRIANGLES = 4
-_INDEX_DTYPES = {UNSIGNED_BYTE: "<u1", UNSIGNED_SHORT: "<u2", UNSIGNED_INT: "<u4"}
 
 #: Draco GeometryAttribute::Type of POSITION.
 _DRACO_POSITION_TYPE = 0
@@ -225,7 +231,7 @@ def _encode_plain(pos: np.ndarray, tri: np.ndarray, grid: dict) -> EncodedBase:
     stored = _check_float32_exact(pos, grid)
     index_type = UNSIGNED_SHORT if n <= 0xFFFF else UNSIGNED_INT
     position_bytes = stored.astype("<f4").tobytes()
-    index_bytes = tri.astype(_INDEX_DTYPES[index_type]).tobytes()
+    index_bytes = tri.astype(INDEX_DTYPES[index_type]).tobytes()
     index_offset = padded(len(position_bytes))
     data = bytearray(padded(index_offset + len(index_bytes)))
     data[: len(position_bytes)] = position_bytes
@@ -325,54 +331,6 @@ def _match_vertices(decoded: np.ndarray, original: np.ndarray):
 # ------------------------------------------------------------------------ decoding
 
 
-def find_extension_primitive(gltf: dict, name: str):
-    """``(mesh_index, primitive_index, primitive)`` of the one primitive carrying ``name``.
-
-    Raises FormatError when no primitive, or more than one, carries it.
-    """
-    hits = find_extension_primitives(gltf, name)
-    if len(hits) != 1:
-        raise FormatError(f"glTF JSON: expected one mesh primitive with {name}, found {len(hits)}")
-    return hits[0]
-
-
-def find_extension_primitives(gltf: dict, name: str):
-    """``[(mesh_index, primitive_index, primitive), ...]`` of every primitive carrying ``name``.
-
-    Mesh/primitive order, which is the order progressive primitives are numbered in.
-    Raises FormatError when none carries it.
-    """
-    hits = []
-    meshes = gltf.get("meshes", [])
-    if not isinstance(meshes, list):
-        raise FormatError("glTF JSON: meshes must be an array")
-    for mi, mesh in enumerate(meshes):
-        prims = mesh.get("primitives", []) if isinstance(mesh, dict) else []
-        for pi, prim in enumerate(prims if isinstance(prims, list) else []):
-            ext = prim.get("extensions") if isinstance(prim, dict) else None
-            if isinstance(ext, dict) and name in ext:
-                hits.append((mi, pi, prim))
-    if not hits:
-        raise FormatError(f"glTF JSON: no mesh primitive carries {name}")
-    return hits
-
-
-def _get(seq, index, what):
-    if isinstance(index, bool) or not isinstance(index, int) or not isinstance(seq, list) or not 0 <= index < len(seq):
-        raise FormatError(f"base mesh: {what} index {index!r} does not exist")
-    item = seq[index]
-    if not isinstance(item, dict):
-        raise FormatError(f"base mesh: {what} {index} is not an object")
-    return item
-
-
-def _uint(obj, key, what, default=None):
-    value = obj.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        raise FormatError(f"base mesh: {what}.{key} must be a non-negative integer, got {value!r}")
-    return value
-
-
 def base_views(gltf: dict, primitive: dict, progressive_attributes=()) -> list[int]:
     """Indices of the bufferViews the base mesh reads (Draco: one; plain: POSITION, indices,
     and the accessors of the extension's ``attributes`` entries)."""
@@ -384,7 +342,7 @@ def base_views(gltf: dict, primitive: dict, progressive_attributes=()) -> list[i
     if draco is not None:
         if not isinstance(draco, dict):
             raise FormatError(f"base mesh: {DRACO_EXTENSION} must be an object")
-        _get(gltf.get("bufferViews"), draco.get("bufferView"), "bufferView")
+        item(gltf.get("bufferViews"), draco.get("bufferView"), "base mesh: bufferView")
         return [draco["bufferView"]]
     accessors = gltf.get("accessors")
     views = []
@@ -395,62 +353,43 @@ def base_views(gltf: dict, primitive: dict, progressive_attributes=()) -> list[i
             raise FormatError(f"base mesh: progressive attribute {semantic!r} is not an attribute of the primitive")
         extra.append(primitive["attributes"][semantic])
     for index in [attributes["POSITION"]] + ([primitive["indices"]] if "indices" in primitive else []) + extra:
-        acc = _get(accessors, index, "accessor")
+        acc = item(accessors, index, "base mesh: accessor")
         if "bufferView" not in acc:
             raise FormatError(f"base mesh: accessor {index} has no bufferView")
-        _get(gltf.get("bufferViews"), acc["bufferView"], "bufferView")
+        item(gltf.get("bufferViews"), acc["bufferView"], "base mesh: bufferView")
         views.append(acc["bufferView"])
     return views
 
 
-def _counts(gltf, primitive):
-    """Declared (n, m, index_componentType) of a base primitive, limit-checked."""
+def base_counts(gltf: dict, primitive: dict):
+    """Declared sizes of a base primitive, limit-checked before anything is allocated.
+
+    Returns ``(n, m, index componentType, POSITION accessor, indices accessor)``;
+    raises FormatError (bad mode or accessors) or LimitError (counts over the limits).
+    """
     mode = primitive.get("mode", TRIANGLES)
     if mode != TRIANGLES:
         raise FormatError(f"base mesh: primitive mode must be TRIANGLES (4), got {mode!r}")
     accessors = gltf.get("accessors")
-    pos_acc = _get(accessors, primitive["attributes"]["POSITION"], "accessor")
+    pos_acc = item(accessors, primitive["attributes"]["POSITION"], "base mesh: accessor")
     if pos_acc.get("componentType") != FLOAT or pos_acc.get("type") != "VEC3":
         raise FormatError("base mesh: POSITION must be a FLOAT VEC3 accessor")
-    n = _uint(pos_acc, "count", "POSITION accessor")
+    n = uint(pos_acc, "count", "base mesh: POSITION accessor")
     if n > MAX_VERTICES:
         raise LimitError(f"base mesh: {n} vertices exceed the limit {MAX_VERTICES}")
     if "indices" not in primitive:
         raise FormatError("base mesh: primitive has no indices")
-    idx_acc = _get(accessors, primitive["indices"], "accessor")
+    idx_acc = item(accessors, primitive["indices"], "base mesh: accessor")
     ctype = idx_acc.get("componentType")
-    if not isinstance(ctype, int) or ctype not in _INDEX_DTYPES or idx_acc.get("type") != "SCALAR":
+    if not isinstance(ctype, int) or ctype not in INDEX_DTYPES or idx_acc.get("type") != "SCALAR":
         raise FormatError(f"base mesh: indices must be an unsigned SCALAR accessor, got componentType {ctype!r}")
-    count = _uint(idx_acc, "count", "indices accessor")
+    count = uint(idx_acc, "count", "base mesh: indices accessor")
     if count % 3:
         raise FormatError(f"base mesh: index count {count} is not a multiple of 3")
     m = count // 3
     if m > MAX_FACES:
         raise LimitError(f"base mesh: {m} faces exceed the limit {MAX_FACES}")
     return n, m, ctype, pos_acc, idx_acc
-
-
-def _view_bytes(gltf, view_index, bin_data, what):
-    view = _get(gltf.get("bufferViews"), view_index, "bufferView")
-    if view.get("buffer", 0) != 0:
-        raise FormatError(f"base mesh: {what} bufferView {view_index} is not in the GLB buffer")
-    start = _uint(view, "byteOffset", f"bufferView {view_index}", 0)
-    length = _uint(view, "byteLength", f"bufferView {view_index}")
-    if start + length > len(bin_data):
-        raise FormatError(f"base mesh: bufferView {view_index} ends at {start + length}, past {len(bin_data)} BIN bytes")
-    return view, memoryview(bin_data)[start : start + length]
-
-
-def _accessor_array(gltf, acc, bin_data, dtype, count, width, what):
-    view, raw = _view_bytes(gltf, acc["bufferView"], bin_data, what)
-    item = np.dtype(dtype).itemsize * width
-    stride = view.get("byteStride", item)
-    if stride != item:
-        raise FormatError(f"base mesh: {what} must be tightly packed (byteStride {stride!r})")
-    offset = _uint(acc, "byteOffset", f"{what} accessor", 0)
-    if offset + count * item > len(raw):
-        raise FormatError(f"base mesh: {what} accessor needs {offset + count * item} bytes, bufferView has {len(raw)}")
-    return np.frombuffer(raw, dtype=dtype, count=count * width, offset=offset).reshape(count, width)
 
 
 def decode_base(gltf: dict, bin_data, grid: dict, primitive: dict | None = None):
@@ -484,13 +423,13 @@ def decode_base(gltf: dict, bin_data, grid: dict, primitive: dict | None = None)
     if primitive is None:
         primitive = find_extension_primitive(gltf, EXTENSION_NAME)[2]
     base_views(gltf, primitive)
-    n, m, ctype, pos_acc, idx_acc = _counts(gltf, primitive)
+    n, m, ctype, pos_acc, idx_acc = base_counts(gltf, primitive)
     draco = (primitive.get("extensions") or {}).get(DRACO_EXTENSION)  # shape checked in base_views
     if draco is not None:
         positions, faces = _decode_draco(gltf, draco, bin_data, n, m)
     else:
-        positions = _accessor_array(gltf, pos_acc, bin_data, "<f4", n, 3, "POSITION")
-        faces = _accessor_array(gltf, idx_acc, bin_data, _INDEX_DTYPES[ctype], m, 3, "indices").astype(np.int64)
+        positions = accessor_array(gltf, pos_acc, bin_data, "<f4", n, 3, "base mesh: POSITION")
+        faces = accessor_array(gltf, idx_acc, bin_data, INDEX_DTYPES[ctype], m, 3, "base mesh: indices").astype(np.int64)
     if faces.size and faces.max() >= n:
         raise FormatError(f"base mesh: face index {int(faces.max())} out of range [0, {n})")
     return float_to_grid(positions, grid), faces
@@ -499,7 +438,7 @@ def decode_base(gltf: dict, bin_data, grid: dict, primitive: dict | None = None)
 def _decode_draco(gltf, draco, bin_data, n, m):
     import DracoPy
 
-    _, raw = _view_bytes(gltf, draco.get("bufferView"), bin_data, "Draco")
+    _, raw = view_bytes(gltf, [bin_data], draco.get("bufferView"), "base mesh: Draco")
     ids = draco.get("attributes")
     if not isinstance(ids, dict) or "POSITION" not in ids:
         raise FormatError(f"base mesh: {DRACO_EXTENSION}.attributes has no POSITION id")
@@ -547,24 +486,21 @@ def attribute_to_grid(values: np.ndarray, spec: dict, what: str) -> np.ndarray:
     return rounded.astype(np.int64)
 
 
-_TYPE_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
-
-
 def decode_base_attributes(gltf: dict, bin_data, primitive: dict, attributes) -> np.ndarray:
     """The base's progressive attributes as (n, a) int64 grid integers (a = 0 without any)."""
-    n = _counts(gltf, primitive)[0]
+    n = base_counts(gltf, primitive)[0]
     columns = []
     for spec in attributes:
         semantic = spec["semantic"]
         if len(spec["origin"]) != len(spec["step"]):
             raise FormatError(f"base mesh: {semantic} grid has {len(spec['origin'])} origins and {len(spec['step'])} steps")
-        acc = _get(gltf.get("accessors"), primitive["attributes"][semantic], "accessor")
-        width = _TYPE_WIDTH.get(acc.get("type"))
+        acc = item(gltf.get("accessors"), primitive["attributes"][semantic], "base mesh: accessor")
+        width = VECTOR_WIDTH.get(acc.get("type"))
         if acc.get("componentType") != FLOAT or width is None or width != len(spec["origin"]):
             raise FormatError(f"base mesh: {semantic} must be a FLOAT accessor with {len(spec['origin'])} components")
-        if _uint(acc, "count", f"{semantic} accessor") != n:
+        if uint(acc, "count", f"base mesh: {semantic} accessor") != n:
             raise FormatError(f"base mesh: {semantic} has {acc.get('count')} values for {n} vertices")
-        values = _accessor_array(gltf, acc, bin_data, "<f4", n, width, semantic)
+        values = accessor_array(gltf, acc, bin_data, "<f4", n, width, f"base mesh: {semantic}")
         columns.append(attribute_to_grid(values, spec, semantic))
     if not columns:
         return np.zeros((n, 0), dtype=np.int64)
@@ -579,17 +515,11 @@ def with_attributes(base: EncodedBase, attributes) -> EncodedBase:
     """
     if base.codec != "plain":
         raise ValueError("with_attributes: attributes ride only on a plain base")
-    data = bytearray(base.data)
     views = [dict(v) for v in base.buffer_views]
     accessors = [dict(a) for a in base.accessors]
     primitive = {**base.primitive, "attributes": dict(base.primitive["attributes"])}
+    out = BufferBuilder(views, accessors, [base.data], len(base.data))
     for spec, ints in attributes:
-        stored = attribute_to_float(ints, spec)
-        raw = stored.astype("<f4").tobytes()
-        offset = len(data)
-        data += raw + bytes(padded(len(raw)) - len(raw))
-        views.append({"buffer": 0, "byteOffset": offset, "byteLength": len(raw), "target": ARRAY_BUFFER})
-        type_ = {1: "SCALAR", 2: "VEC2", 3: "VEC3", 4: "VEC4"}[stored.shape[1]]
-        accessors.append({"bufferView": len(views) - 1, "componentType": FLOAT, "count": int(stored.shape[0]), "type": type_})
-        primitive["attributes"][spec["semantic"]] = len(accessors) - 1
-    return replace(base, data=bytes(data), buffer_views=views, accessors=accessors, primitive=primitive)
+        stored = attribute_to_float(ints, spec).astype("<f4")
+        primitive["attributes"][spec["semantic"]] = out.add_accessor(stored, FLOAT, ARRAY_BUFFER)
+    return replace(base, data=b"".join(out.parts), buffer_views=views, accessors=accessors, primitive=primitive)
