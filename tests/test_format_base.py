@@ -8,6 +8,7 @@ import pytest
 from pmwm_codec.constants import MAX_VERTICES
 from pmwm_codec.errors import FormatError, LimitError
 from pmwm_codec.format import base as basecodec
+from pmwm_codec.progressive.grid import Grid
 from pmwm_codec.progressive.topology import same_face_set
 from pmwm_codec.format._samples import ICOSPHERE_CENTRE, ICOSPHERE_RADIUS, icosphere, to_grid
 
@@ -46,7 +47,7 @@ def test_draco_base_keeps_the_bounding_radius(mesh):
     enc = basecodec.encode_base(ints, faces, grid, codec="draco")
     gltf, prim = _gltf_of(enc)
     pos, _ = basecodec.decode_base(gltf, enc.data, grid, prim)
-    xyz = basecodec.grid_to_float(pos, grid).astype(np.float64)
+    xyz = Grid.from_config(grid).to_float32(pos).astype(np.float64)
     radius = np.linalg.norm(xyz - np.asarray(ICOSPHERE_CENTRE), axis=1)
     assert np.allclose(radius, ICOSPHERE_RADIUS, atol=2 * grid["step"])
 

@@ -49,6 +49,7 @@ from ..constants import (
     MAX_VERTICES,
 )
 from ..errors import ChecksumError, FormatError, LimitError, TruncatedError
+from ..progressive.grid import Grid
 from . import base as _base
 from .extension import check_extension, digest
 from .gltf import find_extension_primitives, uint, view_range
@@ -408,7 +409,7 @@ class ContainerParser:
                 return None
             events = []
             for p, (prim, ext) in enumerate(zip(self._plan.primitives, self._plan.extensions)):
-                positions, faces = _base.decode_base(self._gltf, data, ext["grid"], prim)
+                positions, faces = _base.decode_base(self._gltf, data, Grid.from_config(ext["grid"]), prim)
                 attributes = _base.decode_base_attributes(self._gltf, data, prim, ext.get("attributes", ()))
                 events.append(BaseEvent(positions, faces, self._bin_data + self._plan.base_end, p, attributes))
             self._state = _CHUNKS if self._plan.chunk_ranges else _TAIL
