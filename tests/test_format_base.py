@@ -8,6 +8,8 @@ import pytest
 from pmwm_codec.constants import MAX_VERTICES
 from pmwm_codec.errors import FormatError, LimitError
 from pmwm_codec.format import base as basecodec
+from pmwm_codec.progressive.grid import Grid
+from pmwm_codec.progressive.topology import same_face_set
 from samples import ICOSPHERE_CENTRE, ICOSPHERE_RADIUS, icosphere, to_grid
 
 
@@ -36,7 +38,7 @@ def test_decoded_base_equals_input_up_to_vertex_map(mesh, codec):
     assert pos.dtype == np.int64 and tri.dtype == np.int64
     assert np.array_equal(pos, enc.positions_int)
     assert np.array_equal(tri, enc.faces)
-    assert basecodec._same_triangles(enc.vertex_map[tri], faces)
+    assert same_face_set(enc.vertex_map[tri], faces)
 
 
 def test_draco_base_keeps_the_bounding_radius(mesh):
@@ -45,7 +47,7 @@ def test_draco_base_keeps_the_bounding_radius(mesh):
     enc = basecodec.encode_base(ints, faces, grid, codec="draco")
     gltf, prim = _gltf_of(enc)
     pos, _ = basecodec.decode_base(gltf, enc.data, grid, prim)
-    xyz = basecodec.grid_to_float(pos, grid).astype(np.float64)
+    xyz = Grid.from_config(grid).to_float32(pos).astype(np.float64)
     radius = np.linalg.norm(xyz - np.asarray(ICOSPHERE_CENTRE), axis=1)
     assert np.allclose(radius, ICOSPHERE_RADIUS, atol=2 * grid["step"])
 

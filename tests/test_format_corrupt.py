@@ -11,6 +11,7 @@ from pmwm_codec.errors import ChecksumError, FormatError, LimitError, PmwError, 
 from pmwm_codec.format import ChunkEvent, iter_events, layout
 from samples import sample_pmw
 from pmwm_codec.format.extension import digest
+from pmwm_codec.format.glb import frame_glb, join_glb
 
 DATA, BASE, PAYLOADS, _ = sample_pmw("plain", chunk_count=3, subdivisions=1, seed=3)
 NAME = constants.EXTENSION_NAME
@@ -23,13 +24,7 @@ def _split(data):
 
 
 def _join(gltf, bin_payload, *, glb_version=2):
-    text = json.dumps(gltf).encode()
-    text += b" " * (layout.padded(len(text)) - len(text))
-    bin_payload = bytes(bin_payload) + bytes(layout.padded(len(bin_payload)) - len(bin_payload))
-    total = 20 + len(text) + 8 + len(bin_payload)
-    return (layout.GlbHeader.build({"version": glb_version, "length": total})
-            + layout.ChunkHeader.build({"length": len(text), "type": b"JSON"}) + text
-            + layout.ChunkHeader.build({"length": len(bin_payload), "type": b"BIN\x00"}) + bin_payload)
+    return join_glb(gltf, bin_payload, version=glb_version)
 
 
 def _mutated(edit):
@@ -70,9 +65,7 @@ def test_bad_magic_is_reported_before_20_bytes_arrive():
 def test_json_that_is_not_json_raises_format_error():
     gltf, bin_payload = _split(DATA)
     text = b"{not json" + b" " * 3
-    data = (layout.GlbHeader.build({"version": 2, "length": 20 + len(text) + 8 + len(bin_payload)})
-            + layout.ChunkHeader.build({"length": len(text), "type": b"JSON"}) + text
-            + layout.ChunkHeader.build({"length": len(bin_payload), "type": b"BIN\x00"}) + bin_payload)
+    data = b"".join(frame_glb(text, [bin_payload], len(bin_payload)))
     with pytest.raises(FormatError, match="not valid UTF-8 JSON"):
         _events(data)
 

@@ -46,6 +46,8 @@ if str(ROOT) not in sys.path:
 
 SHARED = ROOT.parent / "shared"
 
+from pmwm_codec.progressive.topology import unique_edges  # noqa: E402
+
 
 # ------------------------------------------------------------------ attacks
 
@@ -99,8 +101,7 @@ def quantize(V, F, rng, bits):
 
 
 def adjacency(F, n):
-    e = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
-    e = np.unique(np.sort(e, axis=1), axis=0)
+    e = unique_edges(F)
     A = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
     return (A + A.T).tocsr()
 

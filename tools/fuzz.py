@@ -110,15 +110,9 @@ class Sample:
 
 def join_glb(gltf: dict, bin_payload: bytes) -> bytes:
     """Re-frame a (possibly hostile) glTF JSON and BIN payload as a GLB."""
-    from pmwm_codec.format import layout
+    from pmwm_codec.format.glb import join_glb as join
 
-    text = json.dumps(gltf).encode()
-    text += b" " * (layout.padded(len(text)) - len(text))
-    bin_payload = bytes(bin_payload) + bytes(layout.padded(len(bin_payload)) - len(bin_payload))
-    total = 20 + len(text) + 8 + len(bin_payload)
-    return (layout.GlbHeader.build({"version": 2, "length": total})
-            + layout.ChunkHeader.build({"length": len(text), "type": b"JSON"}) + text
-            + layout.ChunkHeader.build({"length": len(bin_payload), "type": b"BIN\x00"}) + bin_payload)
+    return join(gltf, bin_payload)
 
 
 # ------------------------------------------------------------------ mutators

@@ -7,8 +7,11 @@ module that knows their layout.  Modules:
 ``layout``     construct Structs: GLB header, chunk header, chunk payload headers (the only byte offsets)
 ``base``       base mesh <-> glTF primitive (plain accessors or KHR_draco_mesh_compression), attributes
 ``extension``  the PMWM_progressive_mesh object: JSON-schema check, digests
-``glb``        writer: :func:`assemble_document`, :func:`build_pmw`, :func:`write_pmw` (atomic)
-``parser``     push parser :class:`ContainerParser` and pull wrappers
+``gltf``       glTF vocabulary: enums, type widths, Draco name, checked bufferView/accessor reads
+``glb``        GLB framing both ways (:func:`glb_parts`, :func:`split_glb`) and the writer:
+               :func:`assemble_document`, :func:`build_pmw`, :func:`write_pmw` (atomic)
+``parser``     push parser :class:`ContainerParser` and its events
+``reader``     pull wrappers :func:`iter_events`, :func:`read_header`
 ``records``    chunk payload: split batches <-> bytes (numpy columns)
 ``document``   glTF documents in and out: loading assets, reading accessors, repacking
 """
@@ -22,9 +25,8 @@ from .parser import (
     ContainerParser,
     EndEvent,
     HeaderEvent,
-    iter_events,
-    read_header,
 )
+from .reader import iter_events, read_header
 
 __all__ = [
     "EncodedBase", "encode_base", "decode_base", "check_extension", "digest",

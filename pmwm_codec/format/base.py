@@ -2,9 +2,11 @@
 
 Contract
 --------
-The base mesh arrives as integer grid coordinates.  A grid is the JSON-able dict
-``{"bits": q, "origin": [x, y, z], "step": s}``; grid integer ``i`` stands for the
-position ``origin + i * step``, and every coordinate lies in ``[0, 2**q)``.
+The base mesh arrives as integer grid coordinates on a
+:class:`~pmwm_codec.progressive.grid.Grid`: grid integer ``i`` stands for the
+position ``origin + i * step``, and every coordinate lies in ``[0, 2**bits)``.
+(:func:`encode_base` and :func:`decode_base` also take the grid's extension JSON
+form ``{"bits": q, "origin": [x, y, z], "step": s}`` and check it.)
 
 :func:`encode_base` stores the mesh either as plain accessors (``codec="plain"``:
 float32 POSITION, UNSIGNED_SHORT/UNSIGNED_INT indices) or as a
@@ -29,21 +31,29 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..constants import MAX_FACES, MAX_GRID_BITS, MAX_VERTICES, MIN_GRID_BITS
+from ..constants import MAX_FACES, MAX_VERTICES
 from ..errors import FormatError, LimitError
+from ..progressive.grid import AttributeGrid, Grid
+from ..progressive.topology import same_face_set
+from .gltf import (
+    ARRAY_BUFFER,
+    DRACO_EXTENSION,
+    BufferBuilder,
+    ELEMENT_ARRAY_BUFFER,
+    FLOAT,
+    INDEX_DTYPES,
+    TRIANGLES,
+    UNSIGNED_INT,
+    UNSIGNED_SHORT,
+    VECTOR_WIDTH,
+    accessor_array,
+    find_extension_primitive,
+    find_extension_primitives,  # noqa: F401  (re-exported: tools/pmw_info.py imports it from here)
+    item,
+    uint,
+    view_bytes,
+)
 from .layout import padded
-
-DRACO_EXTENSION = "KHR_draco_mesh_compression"
-
-# glTF enums
-FLOAT = 5126
-UNSIGNED_BYTE = 5121
-UNSIGNED_SHORT = 5123
-UNSIGNED_INT = 5125
-ARRAY_BUFFER = 34962
-ELEMENT_ARRAY_BUFFER = 34963
-TRIANGLES = 4
-_INDEX_DTYPES = {UNSIGNED_BYTE: "<u1", UNSIGNED_SHORT: "<u2", UNSIGNED_INT: "<u4"}
 
 #: Draco GeometryAttribute::Type of POSITION.
 _DRACO_POSITION_TYPE = 0
@@ -75,7 +85,7 @@ class EncodedBase:
     """
 
     codec: str
-    grid: dict
+    grid: Grid
     data: bytes
     buffer_views: list
     accessors: list
@@ -97,63 +107,26 @@ class EncodedBase:
         return int(self.faces.shape[0])
 
 
-# --------------------------------------------------------------------------- grid
-
-
-def check_grid(grid) -> tuple[int, np.ndarray, float]:
-    """Return ``(bits, origin (3,) float64, step)`` of a grid dict or raise FormatError."""
-    try:
-        bits = grid["bits"]
-        origin = np.asarray(grid["origin"], dtype=np.float64)
-        step = float(grid["step"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise FormatError(f"grid: needs bits, origin [x, y, z] and step ({exc!r})") from None
-    if isinstance(bits, bool) or not isinstance(bits, int) or not MIN_GRID_BITS <= bits <= MAX_GRID_BITS:
-        raise FormatError(f"grid: bits must be an integer in [{MIN_GRID_BITS}, {MAX_GRID_BITS}], got {bits!r}")
-    if origin.shape != (3,) or not np.isfinite(origin).all():
-        raise FormatError(f"grid: origin must be 3 finite numbers, got {grid['origin']!r}")
-    if not np.isfinite(step) or step <= 0:
-        raise FormatError(f"grid: step must be a positive finite number, got {step!r}")
-    return bits, origin, step
-
-
-def grid_to_float(positions_int: np.ndarray, grid) -> np.ndarray:
-    """Grid integers (n, 3) int64 -> stored positions (n, 3) float32 (``origin + i * step``)."""
-    _, origin, step = check_grid(grid)
-    return (origin + positions_int.astype(np.float64) * step).astype(np.float32)
-
-
-def float_to_grid(positions: np.ndarray, grid, *, what="base mesh") -> np.ndarray:
-    """Stored positions (n, 3) float -> grid integers (n, 3) int64 (``round((p - origin) / step)``).
-
-    Raises FormatError when a coordinate is not finite or falls outside ``[0, 2**bits)``.
-    """
-    bits, origin, step = check_grid(grid)
-    with np.errstate(over="ignore", invalid="ignore"):
-        scaled = (np.asarray(positions, dtype=np.float64) - origin) / step
-    if not np.isfinite(scaled).all():
-        raise FormatError(f"{what}: positions are not finite")
-    rounded = np.rint(scaled)
-    if rounded.size and (rounded.min() < 0 or rounded.max() >= (1 << bits)):
-        raise FormatError(f"{what}: positions lie outside the {bits}-bit grid")
-    return rounded.astype(np.int64)
-
-
 # ------------------------------------------------------------------------ encoding
 
 
-def encode_base(positions_int, faces, grid: dict, codec: str = "draco", *, draco_compression_level: int = 7) -> EncodedBase:
+def _as_grid(grid) -> Grid:
+    """``grid`` itself, or the :class:`Grid` of a config dict (FormatError if invalid)."""
+    return grid if isinstance(grid, Grid) else Grid.from_config(grid)
+
+
+def encode_base(positions_int, faces, grid: Grid | dict, codec: str = "draco", *, draco_compression_level: int = 7) -> EncodedBase:
     """Encode a base mesh as a glTF primitive.
 
     Parameters
     ----------
     positions_int : (n, 3) int64
-        Grid coordinates, each in ``[0, 2**grid["bits"])``.
+        Grid coordinates, each in ``[0, 2**grid.bits)``.
     faces : (m, 3) int64
         Triangles indexing ``positions_int``; every vertex should be referenced
         (Draco drops unreferenced vertices; the encoder then falls back to plain).
-    grid : dict
-        ``{"bits": q, "origin": [x, y, z], "step": s}``.
+    grid : Grid
+        (or its config dict ``{"bits": q, "origin": [x, y, z], "step": s}``, checked).
     codec : "draco" or "plain"
 
     Returns
@@ -182,12 +155,11 @@ def encode_base(positions_int, faces, grid: dict, codec: str = "draco", *, draco
     if m and (tri.min() < 0 or tri.max() >= n):
         raise ValueError(f"encode_base: face index out of range [0, {n})")
     try:
-        bits, _, _ = check_grid(grid)
+        grid = _as_grid(grid)
     except FormatError as exc:
         raise ValueError(f"encode_base: {exc}") from None
-    if pos.min() < 0 or pos.max() >= (1 << bits):
-        raise ValueError(f"encode_base: grid coordinates outside [0, 2**{bits})")
-    grid = {"bits": int(bits), "origin": [float(x) for x in grid["origin"]], "step": float(grid["step"])}
+    if pos.min() < 0 or pos.max() >= (1 << grid.bits):
+        raise ValueError(f"encode_base: grid coordinates outside [0, 2**{grid.bits})")
 
     if codec == "plain":
         return _encode_plain(pos, tri, grid)
@@ -207,24 +179,24 @@ def encode_base(positions_int, faces, grid: dict, codec: str = "draco", *, draco
     return replace(base, notice=notice)
 
 
-def _check_float32_exact(pos: np.ndarray, grid: dict) -> np.ndarray:
+def _check_float32_exact(pos: np.ndarray, grid: Grid) -> np.ndarray:
     """float32 positions of ``pos`` (n, 3) int64; ValueError when they do not map back exactly."""
-    stored = grid_to_float(pos, grid)
+    stored = grid.to_float32(pos)
     try:
-        back = float_to_grid(stored, grid)
+        back = grid.from_float32(stored)
     except FormatError:
         back = None
     if back is None or not np.array_equal(back, pos):
-        raise ValueError(f"encode_base: a {grid['bits']}-bit grid at this origin/step does not survive float32 positions")
+        raise ValueError(f"encode_base: a {grid.bits}-bit grid at this origin/step does not survive float32 positions")
     return stored
 
 
-def _encode_plain(pos: np.ndarray, tri: np.ndarray, grid: dict) -> EncodedBase:
+def _encode_plain(pos: np.ndarray, tri: np.ndarray, grid: Grid) -> EncodedBase:
     n = pos.shape[0]
     stored = _check_float32_exact(pos, grid)
     index_type = UNSIGNED_SHORT if n <= 0xFFFF else UNSIGNED_INT
     position_bytes = stored.astype("<f4").tobytes()
-    index_bytes = tri.astype(_INDEX_DTYPES[index_type]).tobytes()
+    index_bytes = tri.astype(INDEX_DTYPES[index_type]).tobytes()
     index_offset = padded(len(position_bytes))
     data = bytearray(padded(index_offset + len(index_bytes)))
     data[: len(position_bytes)] = position_bytes
@@ -256,7 +228,7 @@ def _try_draco(pos, tri, grid, preserve_order, level):
     """EncodedBase for a Draco encoding, or a string saying why it is not exact."""
     import DracoPy
 
-    bits = grid["bits"]
+    bits = grid.bits
     stored = _check_float32_exact(pos, grid)
     # Draco quantizes q = floor((p - origin) * (2**bits - 1) / range + 0.5) and
     # dequantizes origin + q * range / (2**bits - 1): with the grid's own origin
@@ -264,8 +236,8 @@ def _try_draco(pos, tri, grid, preserve_order, level):
     try:
         encoded = DracoPy.encode(
             stored, tri.astype(np.uint32), quantization_bits=bits, compression_level=level,
-            quantization_range=float(grid["step"] * ((1 << bits) - 1)),
-            quantization_origin=list(grid["origin"]), preserve_order=preserve_order,
+            quantization_range=float(grid.step * ((1 << bits) - 1)),
+            quantization_origin=list(grid.origin), preserve_order=preserve_order,
         )
         decoded = DracoPy.decode(encoded)
     except Exception as exc:  # DracoPy raises its own exception types
@@ -278,13 +250,13 @@ def _try_draco(pos, tri, grid, preserve_order, level):
     if dpos.shape != pos.shape or dtri.shape != tri.shape:
         return f"vertex/face count changed {pos.shape[0]}/{tri.shape[0]} -> {dpos.shape[0]}/{dtri.shape[0]}"
     try:
-        dint = float_to_grid(dpos, grid)
+        dint = grid.from_float32(dpos)
     except FormatError as exc:
         return str(exc)
     vertex_map = _match_vertices(dint, pos)
     if vertex_map is None:
         return "decoded positions are not a permutation of the grid positions"
-    if not _same_triangles(vertex_map[dtri], tri):
+    if not same_face_set(vertex_map[dtri], tri):
         return "decoded faces differ from the input faces"
     draco_view = {"buffer": 0, "byteOffset": 0, "byteLength": len(encoded)}
     index_type = UNSIGNED_SHORT if pos.shape[0] <= 0xFFFF else UNSIGNED_INT
@@ -321,65 +293,7 @@ def _match_vertices(decoded: np.ndarray, original: np.ndarray):
     return first[where.reshape(-1)].astype(np.int64)
 
 
-def _same_triangles(a: np.ndarray, b: np.ndarray) -> bool:
-    """True when (m, 3) face arrays hold the same oriented triangles (any order, any rotation)."""
-    def canonical(t):
-        r = np.argmin(t, axis=1)
-        rolled = np.stack([t[np.arange(len(t)), (r + k) % 3] for k in range(3)], axis=1)
-        return rolled[np.lexsort(rolled.T[::-1])]
-
-    return a.shape == b.shape and np.array_equal(canonical(a), canonical(b))
-
-
 # ------------------------------------------------------------------------ decoding
-
-
-def find_extension_primitive(gltf: dict, name: str):
-    """``(mesh_index, primitive_index, primitive)`` of the one primitive carrying ``name``.
-
-    Raises FormatError when no primitive, or more than one, carries it.
-    """
-    hits = find_extension_primitives(gltf, name)
-    if len(hits) != 1:
-        raise FormatError(f"glTF JSON: expected one mesh primitive with {name}, found {len(hits)}")
-    return hits[0]
-
-
-def find_extension_primitives(gltf: dict, name: str):
-    """``[(mesh_index, primitive_index, primitive), ...]`` of every primitive carrying ``name``.
-
-    Mesh/primitive order, which is the order progressive primitives are numbered in.
-    Raises FormatError when none carries it.
-    """
-    hits = []
-    meshes = gltf.get("meshes", [])
-    if not isinstance(meshes, list):
-        raise FormatError("glTF JSON: meshes must be an array")
-    for mi, mesh in enumerate(meshes):
-        prims = mesh.get("primitives", []) if isinstance(mesh, dict) else []
-        for pi, prim in enumerate(prims if isinstance(prims, list) else []):
-            ext = prim.get("extensions") if isinstance(prim, dict) else None
-            if isinstance(ext, dict) and name in ext:
-                hits.append((mi, pi, prim))
-    if not hits:
-        raise FormatError(f"glTF JSON: no mesh primitive carries {name}")
-    return hits
-
-
-def _get(seq, index, what):
-    if isinstance(index, bool) or not isinstance(index, int) or not isinstance(seq, list) or not 0 <= index < len(seq):
-        raise FormatError(f"base mesh: {what} index {index!r} does not exist")
-    item = seq[index]
-    if not isinstance(item, dict):
-        raise FormatError(f"base mesh: {what} {index} is not an object")
-    return item
-
-
-def _uint(obj, key, what, default=None):
-    value = obj.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        raise FormatError(f"base mesh: {what}.{key} must be a non-negative integer, got {value!r}")
-    return value
 
 
 def base_views(gltf: dict, primitive: dict, progressive_attributes=()) -> list[int]:
@@ -393,7 +307,7 @@ def base_views(gltf: dict, primitive: dict, progressive_attributes=()) -> list[i
     if draco is not None:
         if not isinstance(draco, dict):
             raise FormatError(f"base mesh: {DRACO_EXTENSION} must be an object")
-        _get(gltf.get("bufferViews"), draco.get("bufferView"), "bufferView")
+        item(gltf.get("bufferViews"), draco.get("bufferView"), "base mesh: bufferView")
         return [draco["bufferView"]]
     accessors = gltf.get("accessors")
     views = []
@@ -404,33 +318,37 @@ def base_views(gltf: dict, primitive: dict, progressive_attributes=()) -> list[i
             raise FormatError(f"base mesh: progressive attribute {semantic!r} is not an attribute of the primitive")
         extra.append(primitive["attributes"][semantic])
     for index in [attributes["POSITION"]] + ([primitive["indices"]] if "indices" in primitive else []) + extra:
-        acc = _get(accessors, index, "accessor")
+        acc = item(accessors, index, "base mesh: accessor")
         if "bufferView" not in acc:
             raise FormatError(f"base mesh: accessor {index} has no bufferView")
-        _get(gltf.get("bufferViews"), acc["bufferView"], "bufferView")
+        item(gltf.get("bufferViews"), acc["bufferView"], "base mesh: bufferView")
         views.append(acc["bufferView"])
     return views
 
 
-def _counts(gltf, primitive):
-    """Declared (n, m, index_componentType) of a base primitive, limit-checked."""
+def base_counts(gltf: dict, primitive: dict):
+    """Declared sizes of a base primitive, limit-checked before anything is allocated.
+
+    Returns ``(n, m, index componentType, POSITION accessor, indices accessor)``;
+    raises FormatError (bad mode or accessors) or LimitError (counts over the limits).
+    """
     mode = primitive.get("mode", TRIANGLES)
     if mode != TRIANGLES:
         raise FormatError(f"base mesh: primitive mode must be TRIANGLES (4), got {mode!r}")
     accessors = gltf.get("accessors")
-    pos_acc = _get(accessors, primitive["attributes"]["POSITION"], "accessor")
+    pos_acc = item(accessors, primitive["attributes"]["POSITION"], "base mesh: accessor")
     if pos_acc.get("componentType") != FLOAT or pos_acc.get("type") != "VEC3":
         raise FormatError("base mesh: POSITION must be a FLOAT VEC3 accessor")
-    n = _uint(pos_acc, "count", "POSITION accessor")
+    n = uint(pos_acc, "count", "base mesh: POSITION accessor")
     if n > MAX_VERTICES:
         raise LimitError(f"base mesh: {n} vertices exceed the limit {MAX_VERTICES}")
     if "indices" not in primitive:
         raise FormatError("base mesh: primitive has no indices")
-    idx_acc = _get(accessors, primitive["indices"], "accessor")
+    idx_acc = item(accessors, primitive["indices"], "base mesh: accessor")
     ctype = idx_acc.get("componentType")
-    if not isinstance(ctype, int) or ctype not in _INDEX_DTYPES or idx_acc.get("type") != "SCALAR":
+    if not isinstance(ctype, int) or ctype not in INDEX_DTYPES or idx_acc.get("type") != "SCALAR":
         raise FormatError(f"base mesh: indices must be an unsigned SCALAR accessor, got componentType {ctype!r}")
-    count = _uint(idx_acc, "count", "indices accessor")
+    count = uint(idx_acc, "count", "base mesh: indices accessor")
     if count % 3:
         raise FormatError(f"base mesh: index count {count} is not a multiple of 3")
     m = count // 3
@@ -439,30 +357,7 @@ def _counts(gltf, primitive):
     return n, m, ctype, pos_acc, idx_acc
 
 
-def _view_bytes(gltf, view_index, bin_data, what):
-    view = _get(gltf.get("bufferViews"), view_index, "bufferView")
-    if view.get("buffer", 0) != 0:
-        raise FormatError(f"base mesh: {what} bufferView {view_index} is not in the GLB buffer")
-    start = _uint(view, "byteOffset", f"bufferView {view_index}", 0)
-    length = _uint(view, "byteLength", f"bufferView {view_index}")
-    if start + length > len(bin_data):
-        raise FormatError(f"base mesh: bufferView {view_index} ends at {start + length}, past {len(bin_data)} BIN bytes")
-    return view, memoryview(bin_data)[start : start + length]
-
-
-def _accessor_array(gltf, acc, bin_data, dtype, count, width, what):
-    view, raw = _view_bytes(gltf, acc["bufferView"], bin_data, what)
-    item = np.dtype(dtype).itemsize * width
-    stride = view.get("byteStride", item)
-    if stride != item:
-        raise FormatError(f"base mesh: {what} must be tightly packed (byteStride {stride!r})")
-    offset = _uint(acc, "byteOffset", f"{what} accessor", 0)
-    if offset + count * item > len(raw):
-        raise FormatError(f"base mesh: {what} accessor needs {offset + count * item} bytes, bufferView has {len(raw)}")
-    return np.frombuffer(raw, dtype=dtype, count=count * width, offset=offset).reshape(count, width)
-
-
-def decode_base(gltf: dict, bin_data, grid: dict, primitive: dict | None = None):
+def decode_base(gltf: dict, bin_data, grid: Grid | dict, primitive: dict | None = None):
     """Read the base mesh back.
 
     Parameters
@@ -472,8 +367,8 @@ def decode_base(gltf: dict, bin_data, grid: dict, primitive: dict | None = None)
     bin_data : bytes-like
         The BIN chunk payload from offset 0, at least up to the end of the base
         mesh bufferViews.
-    grid : dict
-        ``{"bits", "origin", "step"}`` (from the extension object).
+    grid : Grid
+        The extension's grid (or its config dict ``{"bits", "origin", "step"}``, checked).
     primitive : dict, optional
         The primitive to read; default: the one carrying the PMWM extension.
 
@@ -493,22 +388,22 @@ def decode_base(gltf: dict, bin_data, grid: dict, primitive: dict | None = None)
     if primitive is None:
         primitive = find_extension_primitive(gltf, EXTENSION_NAME)[2]
     base_views(gltf, primitive)
-    n, m, ctype, pos_acc, idx_acc = _counts(gltf, primitive)
+    n, m, ctype, pos_acc, idx_acc = base_counts(gltf, primitive)
     draco = (primitive.get("extensions") or {}).get(DRACO_EXTENSION)  # shape checked in base_views
     if draco is not None:
         positions, faces = _decode_draco(gltf, draco, bin_data, n, m)
     else:
-        positions = _accessor_array(gltf, pos_acc, bin_data, "<f4", n, 3, "POSITION")
-        faces = _accessor_array(gltf, idx_acc, bin_data, _INDEX_DTYPES[ctype], m, 3, "indices").astype(np.int64)
+        positions = accessor_array(gltf, pos_acc, bin_data, "<f4", n, 3, "base mesh: POSITION")
+        faces = accessor_array(gltf, idx_acc, bin_data, INDEX_DTYPES[ctype], m, 3, "base mesh: indices").astype(np.int64)
     if faces.size and faces.max() >= n:
         raise FormatError(f"base mesh: face index {int(faces.max())} out of range [0, {n})")
-    return float_to_grid(positions, grid), faces
+    return _as_grid(grid).from_float32(positions), faces
 
 
 def _decode_draco(gltf, draco, bin_data, n, m):
     import DracoPy
 
-    _, raw = _view_bytes(gltf, draco.get("bufferView"), bin_data, "Draco")
+    _, raw = view_bytes(gltf, [bin_data], draco.get("bufferView"), "base mesh: Draco")
     ids = draco.get("attributes")
     if not isinstance(ids, dict) or "POSITION" not in ids:
         raise FormatError(f"base mesh: {DRACO_EXTENSION}.attributes has no POSITION id")
@@ -529,52 +424,21 @@ def _decode_draco(gltf, draco, bin_data, n, m):
 # ------------------------------------------------------------------ attributes
 
 
-def attribute_grid(values: np.ndarray, bits: int) -> dict:
-    """Per-component grid ``{"bits", "origin" [k], "step" [k]}`` spanning ``values`` (n, k)."""
-    lo = values.min(axis=0).astype(np.float64)
-    span = values.max(axis=0).astype(np.float64) - lo
-    step = np.where(span > 0, span / float((1 << bits) - 1), 1.0)
-    return {"bits": int(bits), "origin": [float(x) for x in lo], "step": [float(x) for x in step]}
-
-
-def attribute_to_float(ints: np.ndarray, spec: dict) -> np.ndarray:
-    """Quantized attribute (n, k) int64 -> stored float32 values."""
-    return (np.asarray(spec["origin"]) + ints.astype(np.float64) * np.asarray(spec["step"])).astype(np.float32)
-
-
-def attribute_to_grid(values: np.ndarray, spec: dict, what: str) -> np.ndarray:
-    """Stored attribute values (n, k) float -> grid integers (n, k) int64; FormatError if off the grid."""
-    origin = np.asarray(spec["origin"], np.float64)
-    step = np.asarray(spec["step"], np.float64)
-    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        scaled = (np.asarray(values, np.float64) - origin) / step
-    if not np.isfinite(scaled).all():
-        raise FormatError(f"base mesh: {what} values are not finite")
-    rounded = np.rint(scaled)
-    if rounded.size and (rounded.min() < 0 or rounded.max() >= (1 << int(spec["bits"]))):
-        raise FormatError(f"base mesh: {what} values lie outside their {spec['bits']}-bit grid")
-    return rounded.astype(np.int64)
-
-
-_TYPE_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
-
-
 def decode_base_attributes(gltf: dict, bin_data, primitive: dict, attributes) -> np.ndarray:
     """The base's progressive attributes as (n, a) int64 grid integers (a = 0 without any)."""
-    n = _counts(gltf, primitive)[0]
+    n = base_counts(gltf, primitive)[0]
     columns = []
     for spec in attributes:
         semantic = spec["semantic"]
-        if len(spec["origin"]) != len(spec["step"]):
-            raise FormatError(f"base mesh: {semantic} grid has {len(spec['origin'])} origins and {len(spec['step'])} steps")
-        acc = _get(gltf.get("accessors"), primitive["attributes"][semantic], "accessor")
-        width = _TYPE_WIDTH.get(acc.get("type"))
-        if acc.get("componentType") != FLOAT or width is None or width != len(spec["origin"]):
-            raise FormatError(f"base mesh: {semantic} must be a FLOAT accessor with {len(spec['origin'])} components")
-        if _uint(acc, "count", f"{semantic} accessor") != n:
+        grid = AttributeGrid.from_config(spec)
+        acc = item(gltf.get("accessors"), primitive["attributes"][semantic], "base mesh: accessor")
+        width = VECTOR_WIDTH.get(acc.get("type"))
+        if acc.get("componentType") != FLOAT or width is None or width != grid.width:
+            raise FormatError(f"base mesh: {semantic} must be a FLOAT accessor with {grid.width} components")
+        if uint(acc, "count", f"base mesh: {semantic} accessor") != n:
             raise FormatError(f"base mesh: {semantic} has {acc.get('count')} values for {n} vertices")
-        values = _accessor_array(gltf, acc, bin_data, "<f4", n, width, semantic)
-        columns.append(attribute_to_grid(values, spec, semantic))
+        values = accessor_array(gltf, acc, bin_data, "<f4", n, width, f"base mesh: {semantic}")
+        columns.append(grid.from_float32(values, semantic))
     if not columns:
         return np.zeros((n, 0), dtype=np.int64)
     return np.concatenate(columns, axis=1)
@@ -584,21 +448,35 @@ def with_attributes(base: EncodedBase, attributes) -> EncodedBase:
     """Append plain float32 accessors for progressive attributes to a *plain* base.
 
     ``attributes`` : list of ``(spec, ints (n, k) int64 in the base's decoded order)``
-    where ``spec`` has ``semantic``, ``bits``, ``origin``, ``step``.
+    where ``spec`` is an extension ``attributes`` entry: ``semantic`` plus the
+    :class:`AttributeGrid` config (``bits``, ``origin``, ``step``).
     """
     if base.codec != "plain":
         raise ValueError("with_attributes: attributes ride only on a plain base")
-    data = bytearray(base.data)
     views = [dict(v) for v in base.buffer_views]
     accessors = [dict(a) for a in base.accessors]
     primitive = {**base.primitive, "attributes": dict(base.primitive["attributes"])}
+    out = BufferBuilder(views, accessors, [base.data], len(base.data))
     for spec, ints in attributes:
-        stored = attribute_to_float(ints, spec)
-        raw = stored.astype("<f4").tobytes()
-        offset = len(data)
-        data += raw + bytes(padded(len(raw)) - len(raw))
-        views.append({"buffer": 0, "byteOffset": offset, "byteLength": len(raw), "target": ARRAY_BUFFER})
-        type_ = {1: "SCALAR", 2: "VEC2", 3: "VEC3", 4: "VEC4"}[stored.shape[1]]
-        accessors.append({"bufferView": len(views) - 1, "componentType": FLOAT, "count": int(stored.shape[0]), "type": type_})
-        primitive["attributes"][spec["semantic"]] = len(accessors) - 1
-    return replace(base, data=bytes(data), buffer_views=views, accessors=accessors, primitive=primitive)
+        stored = AttributeGrid.from_config(spec).to_float32(ints).astype("<f4")
+        primitive["attributes"][spec["semantic"]] = out.add_accessor(stored, FLOAT, ARRAY_BUFFER)
+    return replace(base, data=b"".join(out.parts), buffer_views=views, accessors=accessors, primitive=primitive)
+
+
+# ------------------------------------------------- deprecated dict-grid aliases
+# Kept only for stream/encoder.py and stream/decoder.py until they use AttributeGrid.
+
+
+def attribute_grid(values: np.ndarray, bits: int) -> dict:
+    """Deprecated: ``AttributeGrid.fit(values, bits).get_config()``."""
+    return AttributeGrid.fit(values, bits).get_config()
+
+
+def attribute_to_float(ints: np.ndarray, spec: dict) -> np.ndarray:
+    """Deprecated: ``AttributeGrid.from_config(spec).to_float32(ints)``."""
+    return AttributeGrid.from_config(spec).to_float32(ints)
+
+
+def attribute_to_grid(values: np.ndarray, spec: dict, what: str) -> np.ndarray:
+    """Deprecated: ``AttributeGrid.from_config(spec).from_float32(values, what)``."""
+    return AttributeGrid.from_config(spec).from_float32(values, what)

@@ -32,11 +32,9 @@ import urllib.parse
 import numpy as np
 
 from ..errors import InputFormatError
-from .layout import CHUNK_HEADER_SIZE, CHUNK_TYPE_BIN, CHUNK_TYPE_JSON, GLB_HEADER_SIZE, GLB_MAGIC, ChunkHeader, GlbHeader, padded
-
-COMPONENT_DTYPES = {5120: "i1", 5121: "u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
-TYPE_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
-_NORMALIZE = {5120: 127.0, 5121: 255.0, 5122: 32767.0, 5123: 65535.0}
+from .glb import split_glb
+from .gltf import COMPONENT_DTYPES, DRACO_EXTENSION, FLOAT, NORMALIZE_DIVISORS, TYPE_WIDTH, view_bytes
+from .layout import GLB_MAGIC, padded
 
 
 def load_document(path):
@@ -54,7 +52,7 @@ def load_document(path):
     except OSError as exc:
         raise InputFormatError(f"{path}: {exc.strerror or exc}") from None
     if data[:4] == GLB_MAGIC:
-        gltf, buffers = _parse_glb(data, name)
+        gltf, buffers = _glb_document(data, name)
     else:
         try:
             gltf = json.loads(data.decode("utf-8"))
@@ -79,30 +77,9 @@ def load_document(path):
     return gltf, buffers
 
 
-def _parse_glb(data: bytes, name: str):
-    if len(data) < GLB_HEADER_SIZE + CHUNK_HEADER_SIZE:
-        raise InputFormatError(f"{name}: GLB is cut short")
-    try:
-        header = GlbHeader.parse(data[:GLB_HEADER_SIZE])
-    except Exception:
-        raise InputFormatError(f"{name}: not a GLB file") from None
-    if header.length > len(data):
-        raise InputFormatError(f"{name}: GLB is cut short ({len(data)} of {header.length} bytes)")
-    pos = GLB_HEADER_SIZE
-    gltf, binary = None, b""
-    while pos + CHUNK_HEADER_SIZE <= header.length:
-        chunk = ChunkHeader.parse(data[pos : pos + CHUNK_HEADER_SIZE])
-        body = data[pos + CHUNK_HEADER_SIZE : pos + CHUNK_HEADER_SIZE + chunk.length]
-        if chunk.type == CHUNK_TYPE_JSON and gltf is None:
-            try:
-                gltf = json.loads(body.decode("utf-8"))
-            except (UnicodeDecodeError, ValueError):
-                raise InputFormatError(f"{name}: GLB JSON chunk is not valid JSON") from None
-        elif chunk.type == CHUNK_TYPE_BIN and not binary:
-            binary = bytes(body)
-        pos += CHUNK_HEADER_SIZE + chunk.length
-    if not isinstance(gltf, dict):
-        raise InputFormatError(f"{name}: GLB has no JSON chunk")
+def _glb_document(data: bytes, name: str):
+    """``(gltf, buffers)`` of a GLB: the BIN chunk is buffer 0 unless buffers[0] has a uri."""
+    gltf, binary = split_glb(data, name)
     buffers = [binary] if gltf.get("buffers") and "uri" not in gltf["buffers"][0] else []
     return gltf, buffers
 
@@ -165,24 +142,17 @@ def read_accessor(gltf: dict, buffers, index: int) -> np.ndarray:
 
 
 def _normalized(values, ctype, normalized):
-    if ctype == 5126:
+    if ctype == FLOAT:
         return values.astype(np.float64)
     if normalized:
-        return np.maximum(values.astype(np.float64) / _NORMALIZE[ctype], -1.0)
+        return np.maximum(values.astype(np.float64) / NORMALIZE_DIVISORS[ctype], -1.0)
     return values.astype(np.int64)
 
 
 def _view(gltf, buffers, index):
-    try:
-        view = gltf["bufferViews"][index]
-        buf = buffers[int(view.get("buffer", 0))]
-        start = int(view.get("byteOffset", 0))
-        length = int(view["byteLength"])
-    except (KeyError, IndexError, TypeError, ValueError):
-        raise InputFormatError(f"bufferView {index}: malformed or its buffer is missing") from None
-    if start + length > len(buf):
-        raise InputFormatError(f"bufferView {index}: reaches past the end of its buffer")
-    return memoryview(buf)[start : start + length], view.get("byteStride")
+    """``(memoryview of bufferView index, its byteStride or None)``; InputFormatError if malformed."""
+    view, raw = view_bytes(gltf, buffers, index, "glTF", error=InputFormatError)
+    return raw, view.get("byteStride")
 
 
 def repack(gltf: dict, buffers, drop_accessors=()):
@@ -194,79 +164,74 @@ def repack(gltf: dict, buffers, drop_accessors=()):
     result is left for the writer to set.
     """
     doc = copy.deepcopy({k: v for k, v in gltf.items()})
-    drop = set(int(i) for i in drop_accessors)
-    accessors = doc.get("accessors", [])
-    acc_map = {}
-    kept_acc = []
-    for i, acc in enumerate(accessors):
-        if i not in drop:
-            acc_map[i] = len(kept_acc)
-            kept_acc.append(acc)
-    _renumber_accessors(doc, acc_map)
-    doc["accessors"] = kept_acc
-
+    _drop_accessors(doc, set(int(i) for i in drop_accessors))
     views = doc.get("bufferViews", [])
-    extra_blobs = []
+    blobs = _embed_images(doc, len(views))
+    sites = list(_view_sites(doc))
+    used = sorted({holder[key] for holder, key in sites})
+    view_map, new_views, parts = {}, [], []
+    offset = 0
+    for i in used:
+        if i < len(views):
+            view, raw = dict(views[i]), bytes(_view(gltf, buffers, i)[0])
+        else:
+            view, raw = {"byteLength": len(blobs[i - len(views)])}, blobs[i - len(views)]
+        view.update(buffer=0, byteOffset=offset, byteLength=len(raw))
+        view_map[i] = len(new_views)
+        new_views.append(view)
+        parts.append(raw + bytes(padded(len(raw)) - len(raw)))
+        offset += padded(len(raw))
+    for holder, key in sites:
+        holder[key] = view_map[holder[key]]
+    doc["bufferViews"] = new_views
+    doc.pop("buffers", None)
+    return doc, b"".join(parts)
+
+
+def _drop_accessors(doc: dict, drop: set) -> None:
+    """Remove accessors ``drop`` from ``doc`` (in place) and renumber every reference to the rest."""
+    acc_map, kept = {}, []
+    for i, acc in enumerate(doc.get("accessors", [])):
+        if i not in drop:
+            acc_map[i] = len(kept)
+            kept.append(acc)
+    _renumber_accessors(doc, acc_map)
+    doc["accessors"] = kept
+
+
+def _embed_images(doc: dict, first_view: int) -> list:
+    """Give every image loaded from a uri (``_bytes``) a new bufferView index from ``first_view`` on.
+
+    Returns the blobs in index order; the views themselves are made by :func:`repack`.
+    """
+    blobs = []
     for image in doc.get("images", []):
         blob = image.pop("_bytes", None)
         if blob is not None:
             uri = image.pop("uri")
             if "mimeType" not in image:
                 image["mimeType"] = _mime(uri, blob)
-            image["bufferView"] = len(views) + len(extra_blobs)
-            extra_blobs.append(blob)
-    used = set()
-    for acc in kept_acc:
-        if "bufferView" in acc:
-            used.add(acc["bufferView"])
-        sparse = acc.get("sparse")
-        if sparse:
-            used.add(sparse["indices"]["bufferView"])
-            used.add(sparse["values"]["bufferView"])
-    for image in doc.get("images", []):
-        if "bufferView" in image:
-            used.add(image["bufferView"])
-    for prim in _primitives(doc):
-        draco = (prim.get("extensions") or {}).get("KHR_draco_mesh_compression")
-        if isinstance(draco, dict) and "bufferView" in draco:
-            used.add(draco["bufferView"])
+            image["bufferView"] = first_view + len(blobs)
+            blobs.append(blob)
+    return blobs
 
-    view_map = {}
-    new_views = []
-    parts = []
-    offset = 0
-    for i in sorted(used):
-        if i < len(views):
-            view = dict(views[i])
-            raw, _ = _view(gltf, buffers, i)
-            raw = bytes(raw)
-        else:
-            blob = extra_blobs[i - len(views)]
-            view, raw = {"byteLength": len(blob)}, blob
-        view["buffer"] = 0
-        view["byteOffset"] = offset
-        view["byteLength"] = len(raw)
-        view_map[i] = len(new_views)
-        new_views.append(view)
-        parts.append(raw + bytes(padded(len(raw)) - len(raw)))
-        offset += padded(len(raw))
-    for acc in kept_acc:
+
+def _view_sites(doc: dict):
+    """Yield ``(holder, key)`` for every bufferView reference ``holder[key]`` that :func:`repack` knows."""
+    for acc in doc.get("accessors", []):
         if "bufferView" in acc:
-            acc["bufferView"] = view_map[acc["bufferView"]]
+            yield acc, "bufferView"
         sparse = acc.get("sparse")
         if sparse:
-            sparse["indices"]["bufferView"] = view_map[sparse["indices"]["bufferView"]]
-            sparse["values"]["bufferView"] = view_map[sparse["values"]["bufferView"]]
+            yield sparse["indices"], "bufferView"
+            yield sparse["values"], "bufferView"
     for image in doc.get("images", []):
         if "bufferView" in image:
-            image["bufferView"] = view_map[image["bufferView"]]
+            yield image, "bufferView"
     for prim in _primitives(doc):
-        draco = (prim.get("extensions") or {}).get("KHR_draco_mesh_compression")
+        draco = (prim.get("extensions") or {}).get(DRACO_EXTENSION)
         if isinstance(draco, dict) and "bufferView" in draco:
-            draco["bufferView"] = view_map[draco["bufferView"]]
-    doc["bufferViews"] = new_views
-    doc.pop("buffers", None)
-    return doc, b"".join(parts)
+            yield draco, "bufferView"
 
 
 def _primitives(doc):
@@ -357,7 +322,7 @@ def strip_image_profiles(gltf: dict, buffers) -> int:
 
 def glb_to_gltf(glb: bytes) -> bytes:
     """A GLB as a self-contained ``.gltf`` (JSON text with the BIN chunk as a base64 data URI)."""
-    gltf, buffers = _parse_glb(glb, "GLB")
+    gltf, buffers = _glb_document(glb, "GLB")
     if buffers and gltf.get("buffers"):
         gltf["buffers"][0]["uri"] = "data:application/octet-stream;base64," + base64.b64encode(buffers[0]).decode("ascii")
     return (json.dumps(gltf, indent=1) + "\n").encode("utf-8")

@@ -1,4 +1,8 @@
-"""Writing a ``.pmw`` file: our own GLB writer (never pygltflib's).
+"""GLB framing, both ways, and writing a ``.pmw`` file: our own GLB writer (never pygltflib's).
+
+Framing: :func:`glb_parts` (the writer's), :func:`join_glb` (any JSON, for tests and the
+fuzzer) and :func:`split_glb` (lenient reader for input assets; the strict streaming
+reader of ``.pmw`` files is :mod:`.parser`).
 
 Contract (DESIGN.md §4)
 -----------------------
@@ -30,7 +34,7 @@ from dataclasses import dataclass
 import zstandard
 
 from ..constants import EXTENSION_NAME, FORMAT_VERSION, MAX_CHUNK_BYTES, MAX_CHUNKS, MAX_DECOMPRESSED_CHUNK_BYTES
-from ..errors import FormatError
+from ..errors import FormatError, InputFormatError
 from .base import DRACO_EXTENSION, EncodedBase
 from .extension import CHUNK_META_FIELDS, RESERVED_FIELDS, check_extension, digest
 from .layout import (
@@ -190,17 +194,71 @@ def assemble_document(doc: dict, kept_bin: bytes, prims, order, zstd_level: int 
 def glb_parts(gltf: dict, bin_parts, bin_length: int) -> list:
     """GLB framing around a JSON document and its BIN pieces (4-byte aligned, ``bin_length`` bytes)."""
     text = json.dumps(gltf, separators=(",", ":"), allow_nan=False).encode("utf-8")
+    return frame_glb(text, bin_parts, bin_length)
+
+
+def frame_glb(text: bytes, bin_parts, bin_length: int, version: int = GLB_VERSION) -> list:
+    """``[GLB header, JSON chunk header, JSON text (space padded), BIN chunk header, *bin_parts]``.
+
+    ``text`` is the JSON chunk's bytes (not checked: tests frame broken JSON too);
+    ``bin_parts`` are bytes-like pieces totalling ``bin_length`` bytes, 4-byte aligned.
+    """
     text += b" " * (padded(len(text)) - len(text))
     total = GLB_HEADER_SIZE + CHUNK_HEADER_SIZE + len(text) + CHUNK_HEADER_SIZE + bin_length
     if total >= 1 << 32:
         raise ValueError(f"write_pmw: file would be {total} bytes, over the GLB limit of 4 GiB")
     return [
-        GlbHeader.build({"version": GLB_VERSION, "length": total}),
+        GlbHeader.build({"version": version, "length": total}),
         ChunkHeader.build({"length": len(text), "type": CHUNK_TYPE_JSON}),
         text,
         ChunkHeader.build({"length": bin_length, "type": CHUNK_TYPE_BIN}),
         *bin_parts,
     ]
+
+
+def join_glb(gltf: dict, bin_payload, *, version: int = GLB_VERSION) -> bytes:
+    """A GLB of any JSON dict (``json.dumps`` defaults, so NaN passes) and BIN bytes (zero padded).
+
+    For tests and the fuzzer, which re-frame hostile documents; the writer uses :func:`glb_parts`.
+    """
+    text = json.dumps(gltf).encode("utf-8")
+    payload = bytes(bin_payload)
+    payload += bytes(padded(len(payload)) - len(payload))
+    return b"".join(frame_glb(text, [payload], len(payload), version))
+
+
+def split_glb(data, name: str = "GLB") -> tuple:
+    """``(gltf dict, BIN chunk bytes)`` of a GLB, read leniently (for input assets).
+
+    Unknown chunks are skipped; the first JSON and the first BIN chunk count
+    (``b""`` without a BIN chunk).  ``name`` starts the one-line
+    :class:`~pmwm_codec.errors.InputFormatError` raised for a damaged file.
+    The strict streaming reader of ``.pmw`` files is :mod:`.parser`.
+    """
+    if len(data) < GLB_HEADER_SIZE + CHUNK_HEADER_SIZE:
+        raise InputFormatError(f"{name}: GLB is cut short")
+    try:
+        header = GlbHeader.parse(data[:GLB_HEADER_SIZE])
+    except Exception:
+        raise InputFormatError(f"{name}: not a GLB file") from None
+    if header.length > len(data):
+        raise InputFormatError(f"{name}: GLB is cut short ({len(data)} of {header.length} bytes)")
+    pos = GLB_HEADER_SIZE
+    gltf, binary = None, b""
+    while pos + CHUNK_HEADER_SIZE <= header.length:
+        chunk = ChunkHeader.parse(data[pos : pos + CHUNK_HEADER_SIZE])
+        body = data[pos + CHUNK_HEADER_SIZE : pos + CHUNK_HEADER_SIZE + chunk.length]
+        if chunk.type == CHUNK_TYPE_JSON and gltf is None:
+            try:
+                gltf = json.loads(bytes(body).decode("utf-8"))
+            except (UnicodeDecodeError, ValueError):
+                raise InputFormatError(f"{name}: GLB JSON chunk is not valid JSON") from None
+        elif chunk.type == CHUNK_TYPE_BIN and not binary:
+            binary = bytes(body)
+        pos += CHUNK_HEADER_SIZE + chunk.length
+    if not isinstance(gltf, dict):
+        raise InputFormatError(f"{name}: GLB has no JSON chunk")
+    return gltf, binary
 
 
 def write_parts(dst, parts) -> int:

@@ -28,13 +28,11 @@ over the limits of :mod:`pmwm_codec.constants` are ``LimitError``, checked befor
 anything of that size is allocated or decompressed.
 
 A parser is single-use: after ``close()`` or after it raised, it refuses more input.
-:func:`iter_events` and :func:`read_header` are thin pull wrappers.
+:func:`~.reader.iter_events` and :func:`~.reader.read_header` (in :mod:`.reader`) are thin pull wrappers.
 """
 
 from __future__ import annotations
 
-import os
-import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -51,8 +49,10 @@ from ..constants import (
     MAX_VERTICES,
 )
 from ..errors import ChecksumError, FormatError, LimitError, TruncatedError
+from ..progressive.grid import Grid
 from . import base as _base
 from .extension import check_extension, digest
+from .gltf import find_extension_primitives, uint, view_range
 from .layout import (
     ALIGNMENT,
     CHUNK_HEADER_SIZE,
@@ -65,8 +65,6 @@ from .layout import (
     ChunkHeader,
     GlbHeader,
 )
-
-DEFAULT_BLOCK_SIZE = 1 << 16
 
 
 # ----------------------------------------------------------------------- events
@@ -166,13 +164,6 @@ def parse_preamble(data) -> tuple[int, int]:
     return glb.length, chunk.length
 
 
-def _uint(obj, key, what):
-    value = obj.get(key) if isinstance(obj, dict) else None
-    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        raise FormatError(f"{what}: {key} must be a non-negative integer, got {value!r}")
-    return value
-
-
 @dataclass(frozen=True)
 class _Plan:
     """Byte ranges (relative to the BIN payload) derived from the JSON."""
@@ -194,10 +185,10 @@ def _plan(gltf: dict, exts: list, bin_capacity: int) -> _Plan:
         raise FormatError("glTF JSON: no buffers[0] for the GLB BIN chunk")
     if "uri" in buffers[0]:
         raise FormatError("glTF JSON: buffers[0] has a uri; a .pmw keeps its data in the GLB BIN chunk")
-    buffer_length = _uint(buffers[0], "byteLength", "buffers[0]")
+    buffer_length = uint(buffers[0], "byteLength", "buffers[0]")
     if buffer_length > bin_capacity:
         raise FormatError(f"glTF JSON: buffers[0].byteLength {buffer_length} exceeds the {bin_capacity} bytes the GLB length leaves")
-    primitives = [prim for _, _, prim in _base.find_extension_primitives(gltf, EXTENSION_NAME)]
+    primitives = [prim for _, _, prim in find_extension_primitives(gltf, EXTENSION_NAME)]
     total_vertices = total_faces = 0
     for ext in exts:
         total_vertices += ext["vertexCount"]
@@ -211,9 +202,9 @@ def _plan(gltf: dict, exts: list, bin_capacity: int) -> _Plan:
     base_end = 0
     for primitive, ext in zip(primitives, exts):
         for index in _base.base_views(gltf, primitive, ext.get("attributes", ())):
-            start, end = _view_range(views, index, buffer_length, "base mesh")
+            start, end = view_range(views, index, buffer_length, "base mesh")
             base_end = max(base_end, end)
-        _base._counts(gltf, primitive)  # base vertex/face counts against the limits
+        _base.base_counts(gltf, primitive)  # base vertex/face counts against the limits
 
     if sum(len(ext["chunks"]) for ext in exts) > MAX_CHUNKS:
         raise LimitError(f"{EXTENSION_NAME}: {sum(len(e['chunks']) for e in exts)} chunks exceed the limit {MAX_CHUNKS}")
@@ -240,25 +231,12 @@ def _chunk_range(views, chunk, buffer_length, what, previous_end):
         raise LimitError(f"{what}: uncompressedLength {chunk['uncompressedLength']} exceeds the limit {MAX_DECOMPRESSED_CHUNK_BYTES}")
     if chunk["vertexCount"] > MAX_VERTICES or chunk["faceCount"] > MAX_FACES:
         raise LimitError(f"{what}: {chunk['vertexCount']} vertices / {chunk['faceCount']} faces exceed the limits")
-    start, end = _view_range(views, chunk["bufferView"], buffer_length, what)
+    start, end = view_range(views, chunk["bufferView"], buffer_length, what)
     if end - start != chunk["byteLength"]:
         raise FormatError(f"{what}: byteLength {chunk['byteLength']} differs from bufferView length {end - start}")
     if start < previous_end:
         raise FormatError(f"{what}: bufferView starts at {start}, before the end {previous_end} of the data before it (overlap or out of stream order)")
     return start, end
-
-
-def _view_range(views, index, buffer_length, what):
-    if not isinstance(views, list) or isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < len(views):
-        raise FormatError(f"{what}: bufferView {index!r} does not exist")
-    view = views[index]
-    if not isinstance(view, dict) or view.get("buffer", 0) != 0:
-        raise FormatError(f"{what}: bufferView {index} is not in the GLB BIN buffer")
-    start = _uint({"byteOffset": view.get("byteOffset", 0)}, "byteOffset", f"{what}: bufferView {index}")
-    length = _uint(view, "byteLength", f"{what}: bufferView {index}")
-    if start + length > buffer_length:
-        raise FormatError(f"{what}: bufferView {index} ends at {start + length}, past the buffer's {buffer_length} bytes")
-    return start, start + length
 
 
 # ----------------------------------------------------------------------- parser
@@ -293,6 +271,11 @@ class ContainerParser:
     def bytes_read(self) -> int:
         """Bytes fed so far."""
         return self._received
+
+    @property
+    def json_length(self):
+        """Length of the JSON chunk once the 20-byte preamble is in, else None."""
+        return self._json_length
 
     def feed(self, data) -> list:
         """Add bytes; return the list of events that became complete (may be empty)."""
@@ -426,7 +409,7 @@ class ContainerParser:
                 return None
             events = []
             for p, (prim, ext) in enumerate(zip(self._plan.primitives, self._plan.extensions)):
-                positions, faces = _base.decode_base(self._gltf, data, ext["grid"], prim)
+                positions, faces = _base.decode_base(self._gltf, data, Grid.from_config(ext["grid"]), prim)
                 attributes = _base.decode_base_attributes(self._gltf, data, prim, ext.get("attributes", ()))
                 events.append(BaseEvent(positions, faces, self._bin_data + self._plan.base_end, p, attributes))
             self._state = _CHUNKS if self._plan.chunk_ranges else _TAIL
@@ -459,7 +442,7 @@ def _load_json(text: bytes):
         raise FormatError(f"GLB JSON chunk: not valid UTF-8 JSON ({str(exc).splitlines()[0]})") from None
     if not isinstance(gltf, dict):
         raise FormatError("GLB JSON chunk: top level is not an object")
-    found = _base.find_extension_primitives(gltf, EXTENSION_NAME)
+    found = find_extension_primitives(gltf, EXTENSION_NAME)
     return gltf, [check_extension(prim["extensions"][EXTENSION_NAME]) for _, _, prim in found]
 
 
@@ -486,73 +469,3 @@ def _open_chunk(k: int, stored: bytes, meta: dict) -> bytes:
     if not dobj.eof or dobj.unused_data or len(payload) != declared:
         raise FormatError(f"chunk {k + 1}: zstd frame is incomplete, has trailing bytes, or differs from uncompressedLength {declared}")
     return payload
-
-
-# ------------------------------------------------------------------ pull wrappers
-
-
-def _blocks(source, block_size: int):
-    """Yield byte blocks from a path, '-' (stdin), bytes, a binary file object or an iterable of blocks."""
-    if isinstance(source, (bytes, bytearray, memoryview)):
-        yield source
-        return
-    if isinstance(source, str) and source == "-" or source is sys.stdin:
-        source = sys.stdin.buffer
-    if isinstance(source, (str, os.PathLike)):
-        with open(source, "rb") as fh:
-            yield from _blocks(fh, block_size)
-        return
-    if hasattr(source, "read"):
-        read = getattr(source, "read1", None) or source.read
-        while True:
-            block = read(block_size)
-            if not block:
-                return
-            yield block
-        return
-    yield from source
-
-
-def iter_events(source, block_size: int = DEFAULT_BLOCK_SIZE):
-    """Yield every event of ``source``, ending with the :class:`EndEvent`.
-
-    ``source``: a path, ``"-"`` or ``sys.stdin`` (standard input), bytes-like, a binary
-    file object (read in blocks of ``block_size``), or an iterable of byte blocks.
-    Raises the parser's named errors; TruncatedError when the base mesh is incomplete.
-    """
-    parser = ContainerParser()
-    for block in _blocks(source, block_size):
-        yield from parser.feed(block)
-    yield parser.close()
-
-
-def read_header(source) -> HeaderEvent:
-    """The HeaderEvent of ``source``, reading only the 20-byte preamble and the JSON chunk.
-
-    ``source`` as for :func:`iter_events`.  Raises TruncatedError if the JSON is incomplete.
-    """
-    if isinstance(source, str) and source == "-" or source is sys.stdin:
-        source = sys.stdin.buffer
-    parser = ContainerParser()
-    wanted = PREAMBLE_SIZE
-    got = 0
-    if isinstance(source, (str, os.PathLike)):
-        with open(source, "rb") as fh:
-            return read_header(fh)
-    reader = getattr(source, "read", None)
-    blocks = None if reader is not None else _blocks(source, DEFAULT_BLOCK_SIZE)
-    pending = b""
-    while True:
-        if reader is not None:
-            block = reader(wanted - got)
-        else:
-            block = pending or next(blocks, b"")
-            block, pending = block[: wanted - got], block[wanted - got :]
-        if not block:
-            raise TruncatedError(f"truncated: stream ended after {got} bytes, inside the GLB header or JSON (needs {wanted})", bytes_read=got)
-        got += len(block)
-        for event in parser.feed(block):
-            if isinstance(event, HeaderEvent):
-                return event
-        if got == PREAMBLE_SIZE:
-            wanted = PREAMBLE_SIZE + parser._json_length

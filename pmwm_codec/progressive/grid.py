@@ -1,14 +1,21 @@
-"""The integer grid every progressive stream lives on.
+"""The integer grids every progressive stream lives on: :class:`Grid` (positions) and
+:class:`AttributeGrid` (other vertex attributes).
 
 Positions are stored as integers ``q`` on a uniform cubic grid:
 ``position = origin + q * step`` with ``0 <= q < 2**bits`` on the largest bbox
 axis.  The split stream is lossless on this grid, the watermark is embedded on
 it, and a decoder recovers the integers exactly from float32 glTF accessors by
 rounding, so the grid is the one coordinate system encoder and decoder share.
+Every other vertex attribute has its own per-component grid of the same kind.
+
+Both convert to the float32 values a file stores (``to_float32``) and back, checked
+(``from_float32``).  Their dict form exists only at the extension JSON boundary
+(``get_config`` / ``from_config``), and ``from_config`` is the one validator.
 """
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,19 +54,112 @@ class Grid:
         """(n, 3) int grid coordinates -> (n, 3) float64 positions."""
         return np.asarray(self.origin) + np.asarray(q, np.float64) * self.step
 
+    def to_float32(self, q: np.ndarray) -> np.ndarray:
+        """(n, 3) int grid coordinates -> the float32 positions a file stores (``origin + q * step``)."""
+        return self.dequantize(q).astype(np.float32)
+
+    def from_float32(self, positions: np.ndarray, what: str = "base mesh") -> np.ndarray:
+        """Stored positions (n, 3) float -> grid integers (n, 3) int64 (``round((p - origin) / step)``).
+
+        Raises FormatError (message starting with ``what``) when a coordinate is not
+        finite or falls outside ``[0, 2**bits)``.
+        """
+        return _checked_grid_ints(positions, np.asarray(self.origin), self.step, self.bits, f"{what}: positions")
+
     def get_config(self) -> dict:
+        """The extension JSON form ``{"bits": int, "origin": [x, y, z], "step": float}``."""
         return {"bits": self.bits, "origin": list(self.origin), "step": self.step}
 
     @classmethod
     def from_config(cls, config: dict) -> "Grid":
-        try:
-            bits = int(config["bits"])
-            origin = tuple(float(x) for x in config["origin"])
-            step = float(config["step"])
-        except (KeyError, TypeError, ValueError):
-            raise FormatError("grid: expected {bits, origin[3], step}") from None
-        if len(origin) != 3 or not np.isfinite(origin).all() or not (np.isfinite(step) and step > 0):
-            raise FormatError("grid: origin must be 3 finite numbers and step a positive number")
-        if not MIN_GRID_BITS <= bits <= MAX_GRID_BITS:
-            raise FormatError(f"grid: bits {bits} outside [{MIN_GRID_BITS}, {MAX_GRID_BITS}]")
+        """The grid of an extension JSON object; FormatError unless ``bits`` is an integer in
+        range, ``origin`` three finite numbers and ``step`` a positive finite number."""
+        bits, origin, step = _check_config(config, "grid", scalar_step=True)
+        if len(origin) != 3:
+            raise FormatError(f"grid: origin must be 3 finite numbers, got {config['origin']!r}")
         return cls(bits, origin, step)
+
+
+@dataclass(frozen=True)
+class AttributeGrid:
+    """A per-component grid for a vertex attribute of ``k`` components.
+
+    ``bits`` int; ``origin`` and ``step`` tuples of ``k`` floats: value ``j`` of a
+    vertex is ``origin[j] + q[j] * step[j]`` with ``0 <= q[j] < 2**bits``.
+    """
+
+    bits: int
+    origin: tuple
+    step: tuple
+
+    @classmethod
+    def fit(cls, values: np.ndarray, bits: int) -> "AttributeGrid":
+        """The grid of ``bits`` bits spanning each column of ``values`` (n, k) float
+        (a constant column gets step 1.0)."""
+        lo = values.min(axis=0).astype(np.float64)
+        span = values.max(axis=0).astype(np.float64) - lo
+        step = np.where(span > 0, span / float((1 << bits) - 1), 1.0)
+        return cls(int(bits), tuple(float(x) for x in lo), tuple(float(x) for x in step))
+
+    @property
+    def width(self) -> int:
+        """Number of components ``k``."""
+        return len(self.origin)
+
+    def to_float32(self, q: np.ndarray) -> np.ndarray:
+        """(n, k) int grid values -> the float32 values a file stores."""
+        return (np.asarray(self.origin) + q.astype(np.float64) * np.asarray(self.step)).astype(np.float32)
+
+    def from_float32(self, values: np.ndarray, what: str) -> np.ndarray:
+        """Stored values (n, k) float -> grid integers (n, k) int64; FormatError (naming
+        ``what``) when a value is not finite or off the grid."""
+        return _checked_grid_ints(values, np.asarray(self.origin, np.float64), np.asarray(self.step, np.float64),
+                                  self.bits, f"base mesh: {what} values", "their ")
+
+    def get_config(self) -> dict:
+        """The extension JSON form ``{"bits": int, "origin": [k floats], "step": [k floats]}``."""
+        return {"bits": self.bits, "origin": list(self.origin), "step": list(self.step)}
+
+    @classmethod
+    def from_config(cls, config: dict) -> "AttributeGrid":
+        """The grid of an extension ``attributes`` entry (other keys, e.g. ``semantic``, ignored);
+        FormatError unless ``bits`` is in range and ``origin``/``step`` are equally long lists of
+        finite numbers, every step positive."""
+        bits, origin, step = _check_config(config, f"{config.get('semantic', 'attribute')} grid", scalar_step=False)
+        if len(origin) != len(step):
+            raise FormatError(f"base mesh: {config.get('semantic')} grid has {len(origin)} origins and {len(step)} steps")
+        return cls(bits, origin, step)
+
+
+def _number(x) -> bool:
+    return isinstance(x, numbers.Real) and not isinstance(x, bool)
+
+
+def _check_config(config, what: str, *, scalar_step: bool):
+    """``(bits, origin tuple, step)`` of a grid config dict, or FormatError (the one validator)."""
+    try:
+        bits, origin, step = config["bits"], config["origin"], config["step"]
+    except (KeyError, TypeError) as exc:
+        raise FormatError(f"{what}: needs bits, origin and step ({exc!r})") from None
+    if not _number(bits) or not isinstance(bits, numbers.Integral) or not MIN_GRID_BITS <= bits <= MAX_GRID_BITS:
+        raise FormatError(f"{what}: bits must be an integer in [{MIN_GRID_BITS}, {MAX_GRID_BITS}], got {bits!r}")
+    if not isinstance(origin, (list, tuple, np.ndarray)) or not all(_number(x) and np.isfinite(x) for x in origin):
+        raise FormatError(f"{what}: origin must be finite numbers, got {origin!r}")
+    steps = [step] if scalar_step else step
+    if not isinstance(steps, (list, tuple, np.ndarray)) or not all(_number(x) and np.isfinite(x) and x > 0 for x in steps):
+        raise FormatError(f"{what}: step must be positive finite numbers, got {step!r}")
+    origin = tuple(float(x) for x in origin)
+    step = float(step) if scalar_step else tuple(float(x) for x in step)
+    return int(bits), origin, step
+
+
+def _checked_grid_ints(values, origin, step, bits: int, what: str, whose: str = "the ") -> np.ndarray:
+    """``rint((values - origin) / step)`` as int64, or FormatError when not finite or outside ``[0, 2**bits)``."""
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        scaled = (np.asarray(values, np.float64) - origin) / step
+    if not np.isfinite(scaled).all():
+        raise FormatError(f"{what} are not finite")
+    rounded = np.rint(scaled)
+    if rounded.size and (rounded.min() < 0 or rounded.max() >= (1 << bits)):
+        raise FormatError(f"{what} lie outside {whose}{bits}-bit grid")
+    return rounded.astype(np.int64)

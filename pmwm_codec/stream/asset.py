@@ -34,17 +34,29 @@ import numpy as np
 
 from ..constants import EXTENSION_NAME
 from ..errors import InputFormatError, MeshError, PmwError
-from ..format.base import DRACO_EXTENSION
 from ..format.document import load_document, read_accessor, repack
 from ..format.document import strip_image_profiles as _strip_profiles
 from ..format.glb import glb_parts
-from ..format.parser import _blocks, parse_preamble
-from ..format.layout import CHUNK_HEADER_SIZE, PREAMBLE_SIZE, padded
+from ..format.gltf import (
+    ARRAY_BUFFER,
+    DRACO_EXTENSION,
+    ELEMENT_ARRAY_BUFFER,
+    FLOAT,
+    TRIANGLES,
+    UNSIGNED_INT,
+    BufferBuilder,
+    find_extension_primitives,
+    forget_extension,
+    uses_extension,
+    view_bytes,
+)
+from ..format.layout import CHUNK_HEADER_SIZE, PREAMBLE_SIZE
+from ..format.parser import parse_preamble
 from ..mesh import Mesh, checked_mesh
+from ..sources import read_all
 from .decoder import StreamDecoder
 from .encoder import EncodeReport, PrimitiveJob, encode_document
 
-TRIANGLES = 4
 ASSET_SUFFIXES = (".glb", ".gltf")
 
 
@@ -144,10 +156,8 @@ def _draco_mesh(gltf, buffers, prim, draco, where) -> Mesh:
     """
     import DracoPy
 
-    from ..format.document import _view
-
     try:
-        raw, _ = _view(gltf, buffers, draco["bufferView"])
+        _, raw = view_bytes(gltf, buffers, draco["bufferView"], "Draco", error=InputFormatError)
         decoded = DracoPy.decode(bytes(raw))
     except (KeyError, TypeError, InputFormatError):
         raise InputFormatError("its Draco data is missing") from None
@@ -217,20 +227,8 @@ def _forget_input_draco(gltf: dict, jobs) -> None:
         exts = prim.get("extensions")
         if isinstance(exts, dict) and exts.pop(DRACO_EXTENSION, None) is not None and not exts:
             del prim["extensions"]
-    still = any(DRACO_EXTENSION in (p.get("extensions") or {}) for m in gltf.get("meshes", [])
-                for p in m.get("primitives", []))
-    if not still:
-        for key in ("extensionsUsed", "extensionsRequired"):
-            if key in gltf:
-                gltf[key] = [e for e in gltf[key] if e != DRACO_EXTENSION]
-                if not gltf[key]:
-                    del gltf[key]
-
-
-def _read_all(src) -> bytes:
-    if isinstance(src, (bytes, bytearray, memoryview)):
-        return bytes(src)
-    return b"".join(bytes(b) for b in _blocks(src, 1 << 20))
+    if not uses_extension(gltf, DRACO_EXTENSION):
+        forget_extension(gltf, DRACO_EXTENSION)
 
 
 def decode_asset(src, chunks=None):
@@ -240,20 +238,34 @@ def decode_asset(src, chunks=None):
     primitive's geometry replaced by plain accessors for the level reached
     (base + ``chunks`` chunks, or as many as arrived) and the extension removed.
     """
-    data = _read_all(src)
+    data = read_all(src)
     decoder = StreamDecoder(copy=False, max_chunks=chunks)
     results = decoder.feed(data)
     end = decoder.close()
-    last = results[-1]
     gltf = decoder.header.gltf_json
     _, json_length = parse_preamble(data[:PREAMBLE_SIZE])
     bin_start = PREAMBLE_SIZE + json_length + CHUNK_HEADER_SIZE
-    from ..format.base import find_extension_primitives
-
     found = find_extension_primitives(gltf, EXTENSION_NAME)
+    doc, drop = _without_progressive_geometry(gltf, found)
+    kept, kept_bin = repack(doc, [data[bin_start:]], drop)
+    out = BufferBuilder(kept["bufferViews"], kept["accessors"], [kept_bin], len(kept_bin))
+    for (mi, pi, _), part in zip(found, results[-1].parts):
+        _write_level(kept["meshes"][mi]["primitives"][pi], part, out)
+    forget_extension(kept, EXTENSION_NAME, keys=("extensionsUsed",))
+    if not uses_extension(kept, DRACO_EXTENSION):
+        forget_extension(kept, DRACO_EXTENSION)
+    kept["buffers"] = [{"byteLength": out.length}]
+    return b"".join(glb_parts(kept, out.parts, out.length)), end, decoder
+
+
+def _without_progressive_geometry(gltf: dict, found) -> tuple:
+    """Copy of ``gltf`` whose progressive primitives lost the PMWM and Draco extensions.
+
+    Returns ``(doc, accessors to drop)``: the accessors those primitives used.
+    """
     doc = copy.deepcopy(gltf)
     drop = set()
-    for mi, pi, prim in found:
+    for mi, pi, _ in found:
         p = doc["meshes"][mi]["primitives"][pi]
         drop.update(p.get("attributes", {}).values())
         if "indices" in p:
@@ -263,51 +275,21 @@ def decode_asset(src, chunks=None):
         exts.pop(DRACO_EXTENSION, None)
         if not exts:
             p.pop("extensions", None)
-    buffers = [data[bin_start:]]
-    kept, kept_bin = repack(doc, buffers, drop)
-    bin_parts = [kept_bin]
-    offset = len(kept_bin)
-    views, accessors = kept["bufferViews"], kept["accessors"]
+    return doc, drop
 
-    def add(array, component, type_, target=None, minmax=False):
-        nonlocal offset
-        raw = np.ascontiguousarray(array).tobytes()
-        views.append({"buffer": 0, "byteOffset": offset, "byteLength": len(raw), **({"target": target} if target else {})})
-        bin_parts.append(raw + bytes(padded(len(raw)) - len(raw)))
-        offset += padded(len(raw))
-        acc = {"bufferView": len(views) - 1, "componentType": component, "count": int(len(array)), "type": type_}
-        if minmax:
-            acc["min"] = [float(x) for x in array.min(0)]
-            acc["max"] = [float(x) for x in array.max(0)]
-        accessors.append(acc)
-        return len(accessors) - 1
 
-    for (mi, pi, _), part in zip(found, last.parts):
-        p = kept["meshes"][mi]["primitives"][pi]
-        pos = part.positions.astype(np.float32)
-        attributes = {"POSITION": add(pos, 5126, "VEC3", 34962, minmax=True)}
-        for semantic, values in part.attribute_values().items():
-            values = values.astype(np.float32)
-            if semantic.startswith(("NORMAL", "TANGENT")):
-                values = _renormalized(values)
-            type_ = {1: "SCALAR", 2: "VEC2", 3: "VEC3", 4: "VEC4"}[values.shape[1]]
-            attributes[semantic] = add(values, 5126, type_, 34962)
-        p["attributes"] = attributes
-        p["indices"] = add(np.asarray(part.faces, np.uint32).reshape(-1), 5125, "SCALAR", 34963)
-        p["mode"] = TRIANGLES
-    used = [e for e in kept.get("extensionsUsed", []) if e not in (EXTENSION_NAME,)]
-    if not any(DRACO_EXTENSION in (pr.get("extensions") or {}) for m in kept.get("meshes", []) for pr in m.get("primitives", [])):
-        used = [e for e in used if e != DRACO_EXTENSION]
-        if "extensionsRequired" in kept:
-            kept["extensionsRequired"] = [e for e in kept["extensionsRequired"] if e != DRACO_EXTENSION]
-            if not kept["extensionsRequired"]:
-                del kept["extensionsRequired"]
-    if used:
-        kept["extensionsUsed"] = used
-    else:
-        kept.pop("extensionsUsed", None)
-    kept["buffers"] = [{"byteLength": offset}]
-    return b"".join(glb_parts(kept, bin_parts, offset)), end, decoder
+def _write_level(prim: dict, part, out: BufferBuilder) -> None:
+    """Give ``prim`` plain accessors (in ``out``) for the decoded ``part``: positions (n, 3)
+    float32 with min/max, its attributes (NORMAL / TANGENT renormalized), uint32 indices."""
+    attributes = {"POSITION": out.add_accessor(part.positions.astype(np.float32), FLOAT, ARRAY_BUFFER, minmax=True)}
+    for semantic, values in part.attribute_values().items():
+        values = values.astype(np.float32)
+        if semantic.startswith(("NORMAL", "TANGENT")):
+            values = _renormalized(values)
+        attributes[semantic] = out.add_accessor(values, FLOAT, ARRAY_BUFFER)
+    prim["attributes"] = attributes
+    prim["indices"] = out.add_accessor(np.asarray(part.faces, np.uint32).reshape(-1), UNSIGNED_INT, ELEMENT_ARRAY_BUFFER)
+    prim["mode"] = TRIANGLES
 
 
 def _renormalized(values: np.ndarray) -> np.ndarray:

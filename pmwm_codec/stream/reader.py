@@ -5,10 +5,8 @@ Each is a few lines: read blocks, feed them, yield what comes out, close.
 
 from __future__ import annotations
 
-from ..format.parser import _blocks
+from ..sources import DEFAULT_BLOCK_SIZE, iter_blocks
 from .decoder import StreamDecoder
-
-DEFAULT_BLOCK_SIZE = 1 << 16
 
 
 def iter_results(source, decoder: StreamDecoder, block_size: int = DEFAULT_BLOCK_SIZE):
@@ -17,7 +15,7 @@ def iter_results(source, decoder: StreamDecoder, block_size: int = DEFAULT_BLOCK
     ``source``: a path, ``"-"`` (standard input), bytes-like, a binary file object,
     or an iterable of byte blocks.
     """
-    for block in _blocks(source, block_size):
+    for block in iter_blocks(source, block_size):
         yield from decoder.feed(block)
     return decoder.close()
 

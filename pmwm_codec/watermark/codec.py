@@ -48,6 +48,7 @@ import numpy as np
 
 from ..constants import MAX_VERTICES
 from ..errors import PmwError
+from ..progressive.topology import mean_edge_length
 from . import haar
 from .payload import BitLayout, bits_from_symbols, pack, repeat_to_capacity, symbols, unpack, vote
 
@@ -127,13 +128,11 @@ class WatermarkParams:
 
 
 def base_mean_edge(positions: np.ndarray, faces: np.ndarray) -> float:
-    """Mean undirected edge length of a mesh: positions (n, 3) float, faces (m, 3) int."""
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    if len(e) == 0:
-        return 0.0
-    e = np.unique(np.sort(e, axis=1), axis=0)
-    p = np.asarray(positions, np.float64)
-    return float(np.linalg.norm(p[e[:, 0]] - p[e[:, 1]], axis=1).mean())
+    """Mean undirected edge length of a mesh: positions (n, 3) float, faces (m, 3) int.
+
+    The watermark's length unit ``nbar``; see :func:`~pmwm_codec.progressive.topology.mean_edge_length`.
+    """
+    return mean_edge_length(positions, faces)
 
 
 def relative_scale(points: np.ndarray, centroid: np.ndarray, nbar: float, scale: float) -> np.ndarray:

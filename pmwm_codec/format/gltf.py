@@ -1,0 +1,211 @@
+"""glTF 2.0 vocabulary: enums, type widths, and checked access to bufferViews and accessors.
+
+The one place that knows the numbers of the glTF specification (component types,
+bufferView targets, primitive modes), the accessor ``type`` widths both ways, the
+name of the Draco extension, how to find the primitives carrying an extension,
+and how to read a bufferView or a tightly packed accessor without trusting the
+JSON: every index, offset and length is checked before anything is sliced.
+
+Errors are :class:`~pmwm_codec.errors.FormatError` unless the caller passes
+another class (``error=InputFormatError`` for input assets).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import FormatError
+from .layout import padded
+
+# accessor componentType
+BYTE = 5120
+UNSIGNED_BYTE = 5121
+SHORT = 5122
+UNSIGNED_SHORT = 5123
+UNSIGNED_INT = 5125
+FLOAT = 5126
+
+# bufferView target
+ARRAY_BUFFER = 34962
+ELEMENT_ARRAY_BUFFER = 34963
+
+# primitive mode
+TRIANGLES = 4
+
+DRACO_EXTENSION = "KHR_draco_mesh_compression"
+
+#: componentType -> little-endian numpy dtype string.
+COMPONENT_DTYPES = {BYTE: "i1", UNSIGNED_BYTE: "u1", SHORT: "<i2", UNSIGNED_SHORT: "<u2", UNSIGNED_INT: "<u4", FLOAT: "<f4"}
+#: componentType of the three index types -> dtype.
+INDEX_DTYPES = {UNSIGNED_BYTE: "<u1", UNSIGNED_SHORT: "<u2", UNSIGNED_INT: "<u4"}
+#: Divisor that maps a normalized integer componentType to [-1, 1] / [0, 1].
+NORMALIZE_DIVISORS = {BYTE: 127.0, UNSIGNED_BYTE: 255.0, SHORT: 32767.0, UNSIGNED_SHORT: 65535.0}
+#: accessor type -> number of components.
+TYPE_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+#: number of components -> accessor type (vectors only).
+WIDTH_TYPE = {1: "SCALAR", 2: "VEC2", 3: "VEC3", 4: "VEC4"}
+#: vector accessor type -> number of components (no matrices).
+VECTOR_WIDTH = {name: width for width, name in WIDTH_TYPE.items()}
+
+_REQUIRED = object()
+
+
+def find_extension_primitive(gltf: dict, name: str):
+    """``(mesh_index, primitive_index, primitive)`` of the one primitive carrying ``name``.
+
+    Raises FormatError when no primitive, or more than one, carries it.
+    """
+    hits = find_extension_primitives(gltf, name)
+    if len(hits) != 1:
+        raise FormatError(f"glTF JSON: expected one mesh primitive with {name}, found {len(hits)}")
+    return hits[0]
+
+
+def find_extension_primitives(gltf: dict, name: str):
+    """``[(mesh_index, primitive_index, primitive), ...]`` of every primitive carrying ``name``.
+
+    Mesh/primitive order, which is the order progressive primitives are numbered in.
+    Raises FormatError when none carries it.
+    """
+    hits = []
+    meshes = gltf.get("meshes", [])
+    if not isinstance(meshes, list):
+        raise FormatError("glTF JSON: meshes must be an array")
+    for mi, mesh in enumerate(meshes):
+        prims = mesh.get("primitives", []) if isinstance(mesh, dict) else []
+        for pi, prim in enumerate(prims if isinstance(prims, list) else []):
+            ext = prim.get("extensions") if isinstance(prim, dict) else None
+            if isinstance(ext, dict) and name in ext:
+                hits.append((mi, pi, prim))
+    if not hits:
+        raise FormatError(f"glTF JSON: no mesh primitive carries {name}")
+    return hits
+
+
+def uses_extension(gltf: dict, name: str) -> bool:
+    """True when some mesh primitive of ``gltf`` has ``name`` in its ``extensions``."""
+    return any(name in (prim.get("extensions") or {})
+               for mesh in gltf.get("meshes", []) for prim in mesh.get("primitives", []))
+
+
+def forget_extension(gltf: dict, name: str, keys=("extensionsUsed", "extensionsRequired")) -> None:
+    """Remove ``name`` from the lists ``keys`` of ``gltf`` (in place), and each list that
+    becomes empty; call it once no primitive uses the extension any more."""
+    for key in keys:
+        if key in gltf:
+            gltf[key] = [e for e in gltf[key] if e != name]
+            if not gltf[key]:
+                del gltf[key]
+
+
+def uint(obj, key: str, what: str, default=_REQUIRED, *, error=FormatError) -> int:
+    """``obj[key]`` when it is a non-negative integer (not a bool); else ``error``.
+
+    ``default`` is used when the key is absent (no default: the key is required).
+    """
+    value = obj.get(key, None if default is _REQUIRED else default) if isinstance(obj, dict) else None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise error(f"{what}: {key} must be a non-negative integer, got {value!r}")
+    return value
+
+
+def item(seq, index, what: str, *, error=FormatError) -> dict:
+    """``seq[index]`` of a glTF array (``what`` names it, e.g. ``"accessor"``), checked to be an object."""
+    if isinstance(index, bool) or not isinstance(index, int) or not isinstance(seq, list) or not 0 <= index < len(seq):
+        raise error(f"{what} {index!r} does not exist")
+    value = seq[index]
+    if not isinstance(value, dict):
+        raise error(f"{what} {index} is not an object")
+    return value
+
+
+def view_range(views, index, buffer_length: int, what: str, *, error=FormatError) -> tuple[int, int]:
+    """``(start, end)`` of bufferView ``index`` in the GLB BIN buffer (buffer 0) of ``buffer_length`` bytes.
+
+    Checks that the view exists, lives in buffer 0, has non-negative integer
+    ``byteOffset`` / ``byteLength`` and ends inside the buffer.
+    """
+    view = item(views, index, f"{what}: bufferView", error=error)
+    if view.get("buffer", 0) != 0:
+        raise error(f"{what}: bufferView {index} is not in the GLB BIN buffer")
+    return _range(view, index, buffer_length, what, error)
+
+
+def _range(view: dict, index, buffer_length: int, what: str, error) -> tuple[int, int]:
+    start = uint(view, "byteOffset", f"{what}: bufferView {index}", 0, error=error)
+    length = uint(view, "byteLength", f"{what}: bufferView {index}", error=error)
+    if start + length > buffer_length:
+        raise error(f"{what}: bufferView {index} ends at {start + length}, past the buffer's {buffer_length} bytes")
+    return start, start + length
+
+
+def view_bytes(gltf: dict, buffers, index, what: str, *, error=FormatError):
+    """``(view dict, memoryview of its bytes)`` of bufferView ``index``.
+
+    ``buffers`` is the list of the document's buffers as bytes-like (for a GLB,
+    ``[bin_chunk]``); the view's ``buffer`` must name one of them.
+    """
+    view = item(gltf.get("bufferViews"), index, f"{what}: bufferView", error=error)
+    buffer = uint(view, "buffer", f"{what}: bufferView {index}", 0, error=error)
+    if buffer >= len(buffers):
+        raise error(f"{what}: bufferView {index} is in buffer {buffer}, which is not loaded")
+    start, end = _range(view, index, len(buffers[buffer]), what, error)
+    return view, memoryview(buffers[buffer])[start:end]
+
+
+def accessor_array(gltf: dict, acc: dict, bin_data, dtype, count: int, width: int, what: str) -> np.ndarray:
+    """A tightly packed accessor of the GLB BIN buffer as a (count, width) array of ``dtype``.
+
+    ``acc`` is the accessor object; ``count`` / ``width`` are what the caller has
+    already checked against its limits.  The array is a read-only view of ``bin_data``.
+    """
+    view = item(gltf.get("bufferViews"), acc.get("bufferView"), f"{what}: bufferView")
+    start, end = view_range(gltf.get("bufferViews"), acc["bufferView"], len(bin_data), what)
+    raw = memoryview(bin_data)[start:end]
+    size = np.dtype(dtype).itemsize * width
+    stride = view.get("byteStride", size)
+    if stride != size:
+        raise FormatError(f"{what}: must be tightly packed (byteStride {stride!r})")
+    offset = uint(acc, "byteOffset", f"{what} accessor", 0)
+    if offset + count * size > len(raw):
+        raise FormatError(f"{what}: accessor needs {offset + count * size} bytes, bufferView has {len(raw)}")
+    return np.frombuffer(raw, dtype=dtype, count=count * width, offset=offset).reshape(count, width)
+
+
+class BufferBuilder:
+    """Buffer 0 of a document being written: appends 4-byte aligned bufferViews and accessors.
+
+    ``views`` and ``accessors`` are the document's lists, extended in place;
+    ``parts`` collects the bytes (each view zero-padded to 4 bytes) and ``length``
+    is their total, which is where the next view starts.
+    """
+
+    def __init__(self, views: list, accessors: list, parts=(), length: int = 0):
+        self.views = views
+        self.accessors = accessors
+        self.parts = list(parts)
+        self.length = length
+
+    def add_view(self, raw: bytes, target: int | None = None) -> int:
+        """Append ``raw`` as a new bufferView (with ``target`` when given); returns its index."""
+        view = {"buffer": 0, "byteOffset": self.length, "byteLength": len(raw)}
+        if target:
+            view["target"] = target
+        self.views.append(view)
+        self.parts.append(raw + bytes(padded(len(raw)) - len(raw)))
+        self.length += padded(len(raw))
+        return len(self.views) - 1
+
+    def add_accessor(self, array: np.ndarray, component_type: int, target: int | None = None, *, minmax: bool = False) -> int:
+        """Append ``array`` ((n,) SCALAR or (n, k) VECk, already of ``component_type``'s dtype)
+        as a bufferView plus an accessor; ``minmax`` adds per-component ``min``/``max``.
+        Returns the accessor index."""
+        array = np.ascontiguousarray(array)
+        type_ = "SCALAR" if array.ndim == 1 else WIDTH_TYPE[array.shape[1]]
+        view = self.add_view(array.tobytes(), target)
+        acc = {"bufferView": view, "componentType": component_type, "count": int(len(array)), "type": type_}
+        if minmax:
+            acc["min"] = [float(x) for x in array.min(0)]
+            acc["max"] = [float(x) for x in array.max(0)]
+        self.accessors.append(acc)
+        return len(self.accessors) - 1

@@ -1,0 +1,59 @@
+"""Pull wrappers over the push parser :class:`~.parser.ContainerParser`.
+
+``source`` is anything :mod:`pmwm_codec.sources` reads: a path, ``"-"`` or
+``sys.stdin`` (standard input), bytes-like, a binary file object or an iterable
+of byte blocks.
+"""
+
+from __future__ import annotations
+
+import os
+
+from ..errors import TruncatedError
+from ..sources import DEFAULT_BLOCK_SIZE, iter_blocks, resolve_stdin
+from .layout import PREAMBLE_SIZE
+from .parser import ContainerParser, HeaderEvent
+
+
+def iter_events(source, block_size: int = DEFAULT_BLOCK_SIZE):
+    """Yield every event of ``source``, ending with the :class:`~.parser.EndEvent`.
+
+    A file object is read in blocks of ``block_size``.  Raises the parser's named
+    errors; TruncatedError when the base mesh is incomplete.
+    """
+    parser = ContainerParser()
+    for block in iter_blocks(source, block_size):
+        yield from parser.feed(block)
+    yield parser.close()
+
+
+def read_header(source) -> HeaderEvent:
+    """The HeaderEvent of ``source``, reading only the 20-byte preamble and the JSON chunk.
+
+    A file object is left just after the JSON chunk.  Raises TruncatedError if the
+    JSON is incomplete.
+    """
+    source = resolve_stdin(source)
+    if isinstance(source, (str, os.PathLike)):
+        with open(source, "rb") as fh:
+            return read_header(fh)
+    parser = ContainerParser()
+    wanted = PREAMBLE_SIZE
+    got = 0
+    reader = getattr(source, "read", None)
+    blocks = None if reader is not None else iter_blocks(source)
+    pending = b""
+    while True:
+        if reader is not None:
+            block = reader(wanted - got)
+        else:
+            block = pending or next(blocks, b"")
+            block, pending = block[: wanted - got], block[wanted - got :]
+        if not block:
+            raise TruncatedError(f"truncated: stream ended after {got} bytes, inside the GLB header or JSON (needs {wanted})", bytes_read=got)
+        got += len(block)
+        for event in parser.feed(block):
+            if isinstance(event, HeaderEvent):
+                return event
+        if got == PREAMBLE_SIZE:
+            wanted = PREAMBLE_SIZE + parser.json_length
