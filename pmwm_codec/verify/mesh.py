@@ -43,6 +43,7 @@ from ..errors import FormatError, MeshError, PmwError, WatermarkKeyError
 from ..format import EndEvent, HeaderEvent, iter_events
 from ..mesh import Mesh, checked_mesh, read_mesh
 from ..progressive.topology import unique_edges
+from ..sources import read_all
 from ..stream.decoder import check_fingerprint
 from ..stream.replay import Replay
 from ..watermark import codec as wm
@@ -116,20 +117,6 @@ def _as_mesh(mesh) -> Mesh:
     raise MeshError(f"verify_mesh: expected a Mesh, a path or (positions, faces), got {type(mesh).__name__}")
 
 
-def _as_bytes(source) -> bytes:
-    if isinstance(source, (bytes, bytearray, memoryview)):
-        return bytes(source)
-    if isinstance(source, (str, os.PathLike)):
-        try:
-            with open(source, "rb") as fh:
-                return fh.read()
-        except OSError as exc:
-            raise PmwError(f"cannot read the reference file: {exc}") from None
-    if hasattr(source, "read"):
-        return source.read()
-    raise PmwError(f"verify_mesh: unsupported reference source {type(source).__name__}")
-
-
 @dataclass
 class Reference:
     """The original ``.pmw``, parsed once.
@@ -155,7 +142,11 @@ class Reference:
 
     @classmethod
     def read(cls, source) -> "Reference":
-        events = list(iter_events(_as_bytes(source)))
+        try:
+            data = read_all(source)
+        except OSError as exc:
+            raise PmwError(f"cannot read the reference file: {exc}") from None
+        events = list(iter_events(data))
         header = events[0]
         assert isinstance(header, HeaderEvent)
         cfg = header.extension.get("watermark")
