@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..constants import DEFAULT_GRID_BITS
+from ..distortion import combine_meshes, decoded_positions, full_distortion
 from ..errors import PmwError
 from ..format import encode_base
 from ..format.base import attribute_grid, attribute_to_float, attribute_to_grid, with_attributes
@@ -294,12 +295,12 @@ def encode_document(
     say("write", 1.0)
 
     meshes = [w["job"].mesh for w in work]
-    combined = _combine(meshes)
+    combined = combine_meshes(meshes)
     distortion = {"rms": None, "psnr_db": None, "hausdorff": None, "bbox_diagonal": combined.bbox_diagonal()}
     if measure:
         say("measure", 0.0)
-        decoded = [_decoded_positions(w["pm"], w["grid"]) for w in work]
-        distortion = full_distortion(combined, _combine([Mesh(d, m.faces) for d, m in zip(decoded, meshes)]))
+        decoded = [decoded_positions(w["pm"], w["grid"]) for w in work]
+        distortion = full_distortion(combined, combine_meshes([Mesh(d, m.faces) for d, m in zip(decoded, meshes)]))
         say("measure", 1.0)
     wm_report = None
     if params is not None:
@@ -328,35 +329,6 @@ def _stream_order(work) -> list:
             done += sum(w["sizes"][j] for j in grp)
             keys.append((done / total, p, k))
     return [(p, k) for _, p, k in sorted(keys)]
-
-
-def _combine(meshes) -> Mesh:
-    """One mesh of several (disjoint vertex ranges); the mesh itself when there is one."""
-    if len(meshes) == 1:
-        return meshes[0]
-    offsets = np.cumsum([0] + [m.vertex_count for m in meshes])
-    return Mesh(
-        np.concatenate([m.positions for m in meshes]),
-        np.concatenate([m.faces + o for m, o in zip(meshes, offsets)]),
-    )
-
-
-def _decoded_positions(pm, grid) -> np.ndarray:
-    """(n, 3) float64 positions of the full decode, in the input's vertex order."""
-    from ..progressive.vsplit import apply_batch
-
-    state = pm.new_state()
-    for batch in pm.batches:
-        apply_batch(state, batch)
-    return grid.dequantize(state.current_positions()[:, :3])[pm.vertex_order]
-
-
-def full_distortion(original: Mesh, decoded: Mesh) -> dict:
-    """Distortion of ``decoded`` (same connectivity and vertex order) against ``original``."""
-    from ..watermark.metrics import mesh_distortion
-
-    d = mesh_distortion(original, decoded)
-    return {k: (None if v is None else float(v)) for k, v in d.items()}
 
 
 def default_key_path(dst) -> str | None:
