@@ -52,11 +52,14 @@ def encode(src, dst, watermark=None, key=None, **options):
 
     ``watermark``: image path or (s, s) array; ``key``: a WatermarkKey, the path of an
     existing key file, or None (a new key; with a path ``dst`` it is saved to
-    ``dst + ".key.json"``).  Options: ``mode``, ``bits``, ``grid_bits``, ``base_codec``,
+    ``dst + ".key.json"``); a key object is never modified (the key saved to a key path
+    holds the file's parameters and reference watermark).  Options: ``mode``, ``bits``, ``grid_bits``, ``base_codec``,
     ``base_vertices``, ``zstd_level``, ``measure``, ``strip_image_profiles`` (assets).
     Returns the report dict (the
     ``pmw encode --json`` fields, plus ``notices`` and ``key_path``).
     """
+    from dataclasses import replace
+
     from .stream.asset import encode_asset, is_asset_path
     from .stream.encoder import default_key_path, encode_mesh
 
@@ -86,13 +89,9 @@ def encode(src, dst, watermark=None, key=None, **options):
         report = encode_mesh(mesh, dst, watermark=image, key=key_obj, **options)
     if report.key is not None and key_path is not None:
         report.key.save(key_path)
-    out = report.as_json()
     cleanup = {} if mesh is None else mesh.cleanup
-    out["notices"] = notices + report.notices + [f"dropped {v} {k.replace('_', ' ')}" for k, v in cleanup.items()]
-    out["key_path"] = key_path
-    out["base_codec"] = report.base_codec
-    out["batches"] = report.batches
-    return out
+    dropped = [f"dropped {v} {k.replace('_', ' ')}" for k, v in cleanup.items()]
+    return replace(report, notices=notices + report.notices + dropped, key_path=key_path).as_json()
 
 
 def decode(src, chunks=None) -> Mesh:

@@ -53,7 +53,7 @@ def marked_sphere(seed: int, **options):
     img = rng.integers(0, 256, (16, 16)).astype(np.uint8)
     key = WatermarkKey.generate(rng=rng)
     buf = io.BytesIO()
-    encode_mesh(shapes.icosphere(3), buf, watermark=img, key=key, **options)
+    key = encode_mesh(shapes.icosphere(3), buf, watermark=img, key=key, **options).key  # the key of the file
     return buf.getvalue(), key, img
 
 

@@ -116,7 +116,7 @@ def test_an_asset_keeps_nodes_materials_and_meshes_and_verifies_as_one(tmp_path)
         assert doc["meshes"][0]["primitives"][0]["material"] == 0
         assert doc["meshes"][0]["primitives"][0]["extras"] == {"tag": "sphere"}
     # the watermark is spread over both meshes and reads back whole
-    dec = StreamDecoder(key)
+    dec = StreamDecoder(report.key)  # the key of the file (the caller's key is not modified)
     results = dec.feed((tmp_path / "scene.pmw").read_bytes())
     dec.close()
     assert len(results[-1].parts) == 2

@@ -75,17 +75,17 @@ def _decode(data, key=None):
     return results, end
 
 
-def _encode(mesh, **options) -> bytes:
-    """One mesh, or a list of meshes (one primitive each, in one glTF mesh), -> .pmw bytes."""
+def _encode(mesh, **options):
+    """One mesh, or a list of meshes (one primitive each, in one glTF mesh) -> (.pmw bytes, key or None)."""
     buf = io.BytesIO()
     if isinstance(mesh, Mesh):
-        encode_mesh(mesh, buf, min_chunk_splits=30, measure=False, **options)
+        report = encode_mesh(mesh, buf, min_chunk_splits=30, measure=False, **options)
     else:
         doc = {"scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
                "meshes": [{"primitives": [{} for _ in mesh]}]}
         jobs = [PrimitiveJob(m, 0, i) for i, m in enumerate(mesh)]
-        encode_document(doc, b"", jobs, buf, min_chunk_splits=30, measure=False, **options)
-    return buf.getvalue()
+        report = encode_document(doc, b"", jobs, buf, min_chunk_splits=30, measure=False, **options)
+    return buf.getvalue(), report.key
 
 
 def _attributes_int(r) -> np.ndarray:
@@ -124,8 +124,7 @@ def _expected_arrays(results):
 def _write(name):
     case = CASES[name]()
     mesh = case.pop("mesh")
-    key = case.get("key")
-    data = _encode(mesh, **case)
+    data, key = _encode(mesh, **case)
     CONFORMANCE.mkdir(parents=True, exist_ok=True)
     _path(name, ".pmw").write_bytes(data)
     if key is not None:

@@ -11,6 +11,7 @@ from hypothesis.extra import numpy as hnp
 
 from pmwm_codec.errors import MeshError
 from pmwm_codec.mesh import Mesh
+from pmwm_codec import distortion
 from pmwm_codec.watermark import metrics
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
@@ -89,7 +90,7 @@ coords = st.floats(-10, 10, allow_nan=False, width=32)
 @given(hnp.arrays(np.float64, (4, 3), elements=coords))
 def test_point_triangle_distance_matches_brute_force(a):
     p, tri = a[0], a[1:]
-    d = metrics.point_triangle_distance(p, tri)
+    d = distortion.point_triangle_distance(p, tri)
     size = np.ptp(tri, axis=0).max()
     ref = brute_distance(p, tri)
     assert d <= ref + 1e-9 * (1 + size)
@@ -100,11 +101,11 @@ def test_point_triangle_distance_regions_and_degenerate():
     tri = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
     pts = np.array([[0.2, 0.2, 3], [-1, -1, 0], [0.5, -2, 0], [2, 2, 0], [0.5, 0.5, 0]])
     want = [3, math.sqrt(2), 2, math.sqrt(4.5), 0]
-    assert np.allclose(metrics.point_triangle_distance(pts, tri), want)
+    assert np.allclose(distortion.point_triangle_distance(pts, tri), want)
     segment = np.array([[0.0, 0, 0], [2, 0, 0], [1, 0, 0]])  # zero area
-    assert metrics.point_triangle_distance([1, 1, 0], segment) == pytest.approx(1)
+    assert distortion.point_triangle_distance([1, 1, 0], segment) == pytest.approx(1)
     point = np.zeros((3, 3))
-    assert metrics.point_triangle_distance([0, 3, 4], point) == pytest.approx(5)
+    assert distortion.point_triangle_distance([0, 3, 4], point) == pytest.approx(5)
 
 
 @pytest.mark.parametrize("k", [1, 2, 8])
@@ -116,8 +117,8 @@ def test_surface_distance_equals_brute_force_minimum(k):
     s = np.sort(faces, axis=1)
     faces = faces[(s[:, 0] != s[:, 1]) & (s[:, 1] != s[:, 2])]
     pts = rng.normal(scale=1.5, size=(400, 3))
-    got = metrics.surface_distance(pts, pos, faces, k=k, block=128)
-    brute = metrics.point_triangle_distance(pts[:, None, :], pos[faces][None]).min(axis=1)
+    got = distortion.surface_distance(pts, pos, faces, k=k, block=128)
+    brute = distortion.point_triangle_distance(pts[:, None, :], pos[faces][None]).min(axis=1)
     assert np.allclose(got, brute, rtol=0, atol=1e-12)
 
 
@@ -126,7 +127,7 @@ def test_surface_distance_equals_brute_force_minimum(k):
 
 def test_identical_meshes():
     m = grid(10)
-    r = metrics.mesh_distortion(m, Mesh(m.positions.copy(), m.faces.copy()))
+    r = distortion.mesh_distortion(m, Mesh(m.positions.copy(), m.faces.copy()))
     assert r == {"rms": 0.0, "psnr_db": math.inf, "hausdorff": 0.0,
                  "bbox_diagonal": pytest.approx(math.sqrt(2))}
 
@@ -135,7 +136,7 @@ def test_grid_shifted_along_its_normal():
     m = grid(20)
     d = 0.01
     shifted = Mesh(m.positions + [0, 0, d], m.faces)
-    r = metrics.mesh_distortion(m, shifted, samples=5000)
+    r = distortion.mesh_distortion(m, shifted, samples=5000)
     diag = math.sqrt(2)
     assert r["bbox_diagonal"] == pytest.approx(diag)
     assert r["rms"] == pytest.approx(d)
@@ -149,7 +150,7 @@ def test_hausdorff_sees_surfaces_not_vertices():
     pos = m.positions.copy()
     inner = (pos[:, 0] > 0) & (pos[:, 0] < 1) & (pos[:, 1] > 0) & (pos[:, 1] < 1)
     pos[inner, 0] += 0.02
-    r = metrics.mesh_distortion(m, Mesh(pos, m.faces), samples=2000)
+    r = distortion.mesh_distortion(m, Mesh(pos, m.faces), samples=2000)
     assert r["rms"] > 0.01 and r["hausdorff"] < 1e-12
 
 
@@ -158,18 +159,18 @@ def test_one_vertex_bump():
     pos = m.positions.copy()
     centre = 5 * 11 + 5
     pos[centre, 2] = 0.05
-    r = metrics.mesh_distortion(m, Mesh(pos, m.faces), samples=2000)
+    r = distortion.mesh_distortion(m, Mesh(pos, m.faces), samples=2000)
     assert r["hausdorff"] == pytest.approx(0.05 / math.sqrt(2))  # the vertex is always sampled
     assert r["rms"] == pytest.approx(0.05 / math.sqrt(121))
 
 
 def test_vertex_count_mismatch_is_a_mesh_error():
     with pytest.raises(MeshError, match="vertices"):
-        metrics.mesh_distortion(grid(5), grid(6))
+        distortion.mesh_distortion(grid(5), grid(6))
 
 
 def test_hausdorff_without_correspondence():
-    h = metrics.hausdorff_distance(grid(5), Mesh(grid(9).positions + [0, 0, 0.1], grid(9).faces),
+    h = distortion.hausdorff_distance(grid(5), Mesh(grid(9).positions + [0, 0, 0.1], grid(9).faces),
                                    samples=1000)
     assert h == pytest.approx(0.1)
 
@@ -184,5 +185,5 @@ def test_bunny_with_tiny_noise_has_a_tiny_distortion():
     m = read_mesh(path)
     rng = np.random.default_rng(0)
     noisy = Mesh(m.positions + rng.normal(scale=1e-4 * m.bbox_diagonal(), size=m.positions.shape), m.faces)
-    r = metrics.mesh_distortion(m, noisy)
+    r = distortion.mesh_distortion(m, noisy)
     assert 0 < r["hausdorff"] < 0.01 and r["psnr_db"] > 60

@@ -24,7 +24,7 @@ def _encode(mesh, size=16, seed=0):
     img = rng.integers(0, 256, (size, size)).astype(np.uint8)
     key = WatermarkKey.generate(rng=rng)
     buf = io.BytesIO()
-    encode_mesh(mesh, buf, watermark=img, key=key)
+    key = encode_mesh(mesh, buf, watermark=img, key=key).key  # the key of the file
     return buf.getvalue(), key, img
 
 

@@ -207,7 +207,7 @@ def encode_case(mesh_path, wm_path, *, step_units=None, bits=None, wm_size=None,
     key = WatermarkKey.generate(rng=np.random.default_rng(seed))
     buf = io.BytesIO()
     report = encode_mesh(mesh, buf, watermark=img, key=key, step_units=step_units, bits=bits)
-    return buf.getvalue(), key, report, img, mesh
+    return buf.getvalue(), report.key, report, img, mesh
 
 
 def run_attacks(data, key, *, seed=0, simplification=True, only=None, log=None, original=None):

@@ -22,7 +22,7 @@ from pmwm_codec.mesh import read_mesh  # noqa: E402
 from pmwm_codec.progressive.grid import Grid  # noqa: E402
 from pmwm_codec.progressive.simplify import simplify  # noqa: E402
 from pmwm_codec.progressive.topology import edge_table  # noqa: E402
-from pmwm_codec.stream.encoder import default_base_target  # noqa: E402
+from pmwm_codec.stream.chunking import default_base_target  # noqa: E402
 
 from bench import publish  # noqa: E402
 

@@ -58,7 +58,8 @@ from pmwm_codec.stream.decoder import StreamDecoder  # noqa: E402
 from pmwm_codec.watermark import codec as wm  # noqa: E402
 from pmwm_codec.watermark.image import load_watermark  # noqa: E402
 from pmwm_codec.watermark.key import WatermarkKey  # noqa: E402
-from pmwm_codec.watermark.metrics import centered_nc, mesh_distortion  # noqa: E402
+from pmwm_codec.distortion import mesh_distortion  # noqa: E402
+from pmwm_codec.watermark.metrics import centered_nc  # noqa: E402
 from pmwm_codec.watermark.verify import ALPHA, MATCH_RATE, Verifier  # noqa: E402
 
 from bench import machine, publish, table  # noqa: E402

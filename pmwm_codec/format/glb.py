@@ -93,7 +93,20 @@ def assemble_document(doc: dict, kept_bin: bytes, prims, order, zstd_level: int 
     order : list of (primitive index in ``prims``, chunk index)
         The stream order of every chunk (each primitive's chunks in increasing order).
     """
-    for p, prim in enumerate(prims):
+    _check_primitives(prims, order)
+    views = [dict(v) for v in doc.get("bufferViews", [])]
+    accessors = copy.deepcopy(doc.get("accessors", []))
+    bin_parts = [kept_bin] if kept_bin else []
+    primitives_json, used, required, offset = _merge_bases(prims, views, accessors, bin_parts, len(kept_bin))
+    index, offset = _index_chunks(prims, order, views, bin_parts, offset, zstd_level)
+    meshes = _merge_primitives(doc, prims, primitives_json, index)
+    gltf = _document(doc, meshes, accessors, views, offset, used, required)
+    return glb_parts(gltf, bin_parts, offset)
+
+
+def _check_primitives(prims, order) -> None:
+    """ValueError / TypeError unless ``prims`` and ``order`` can be written."""
+    for prim in prims:
         if not isinstance(prim.base, EncodedBase):
             raise TypeError(f"write_pmw: base must be an EncodedBase, got {type(prim.base).__name__}")
         if len(prim.chunks) != len(prim.chunk_meta):
@@ -108,10 +121,14 @@ def assemble_document(doc: dict, kept_bin: bytes, prims, order, zstd_level: int 
     if sorted(order) != sorted((p, k) for p, prim in enumerate(prims) for k in range(len(prim.chunks))):
         raise ValueError("write_pmw: order must name every chunk of every primitive once")
 
-    views = [dict(v) for v in doc.get("bufferViews", [])]
-    accessors = copy.deepcopy(doc.get("accessors", []))
-    bin_parts = [kept_bin] if kept_bin else []
-    offset = len(kept_bin)
+
+def _merge_bases(prims, views: list, accessors: list, bin_parts: list, offset: int) -> tuple:
+    """Append every base's bufferViews, accessors and bytes (``views``, ``accessors`` and
+    ``bin_parts`` grow in place) from BIN offset ``offset``.
+
+    Returns ``(primitives_json, extensions_used, extensions_required, offset)``: each base's
+    glTF primitive renumbered into the merged lists, and the BIN offset after the bases.
+    """
     primitives_json = []
     used, required = [EXTENSION_NAME], []
     for prim in prims:
@@ -133,7 +150,15 @@ def assemble_document(doc: dict, kept_bin: bytes, prims, order, zstd_level: int 
         primitives_json.append(pj)
         used += [e for e in base.extensions_used if e not in used]
         required += [e for e in base.extensions_required if e not in required]
+    return primitives_json, used, required, offset
 
+
+def _index_chunks(prims, order, views: list, bin_parts: list, offset: int, zstd_level: int) -> tuple:
+    """Compress every chunk in stream order and append it (``views`` and ``bin_parts`` grow).
+
+    Returns ``(index, offset)``: ``index[p][k]`` the index entry of primitive p's chunk k,
+    and the BIN offset after the last chunk.
+    """
     index = [[None] * len(prim.chunks) for prim in prims]
     for p, k in order:
         payload, meta = prims[p].chunks[k], prims[p].chunk_meta[k]
@@ -156,7 +181,12 @@ def assemble_document(doc: dict, kept_bin: bytes, prims, order, zstd_level: int 
         pad = padded(len(stored)) - len(stored)
         bin_parts += [stored, bytes(pad)] if pad else [stored]
         offset += len(stored) + pad
+    return index, offset
 
+
+def _merge_primitives(doc: dict, prims, primitives_json, index) -> list:
+    """The document's ``meshes`` with each progressive primitive replaced by its base
+    primitive plus the extension object (other properties and extensions kept)."""
     meshes = copy.deepcopy(doc.get("meshes", []))
     for p, (prim, pj) in enumerate(zip(prims, primitives_json)):
         ext = {"version": FORMAT_VERSION, **prim.extension, "chunks": index[p]}
@@ -169,16 +199,25 @@ def assemble_document(doc: dict, kept_bin: bytes, prims, order, zstd_level: int 
         merged.update({k: v for k, v in pj.items() if k != "extensions"})
         merged["extensions"] = {**(original.get("extensions") or {}), **(pj.get("extensions") or {}), EXTENSION_NAME: ext}
         meshes[prim.mesh]["primitives"][prim.primitive] = merged
+    return meshes
 
+
+#: Top-level properties the writer sets itself (the document's own values are replaced).
+_WRITER_PROPERTIES = ("asset", "extensionsUsed", "extensionsRequired", "accessors", "bufferViews", "buffers", "meshes")
+
+
+def _document(doc: dict, meshes, accessors, views, bin_length: int, used, required) -> dict:
+    """The output glTF JSON object: the document's properties with the merged lists."""
     gltf = {"asset": doc.get("asset") or {"version": "2.0", "generator": GENERATOR}}
-    if "asset" not in doc:
-        gltf["asset"] = {"version": "2.0", "generator": GENERATOR}
     gltf["extensionsUsed"] = used + [e for e in doc.get("extensionsUsed", []) if e not in used]
     req = required + [e for e in doc.get("extensionsRequired", []) if e not in required]
     if req:
         gltf["extensionsRequired"] = req
+    # Key order: asset and the extension lists first, then the document's own properties
+    # in its order with ``meshes`` right after ``nodes`` (at the end when there are no
+    # nodes), then accessors, bufferViews and buffers.  The order is part of the bytes.
     for key, value in doc.items():
-        if key in ("asset", "extensionsUsed", "extensionsRequired", "accessors", "bufferViews", "buffers", "meshes"):
+        if key in _WRITER_PROPERTIES:
             continue
         gltf[key] = value
         if key == "nodes":
@@ -187,8 +226,8 @@ def assemble_document(doc: dict, kept_bin: bytes, prims, order, zstd_level: int 
         gltf["meshes"] = meshes
     gltf["accessors"] = accessors
     gltf["bufferViews"] = views
-    gltf["buffers"] = [{"byteLength": offset}]
-    return glb_parts(gltf, bin_parts, offset)
+    gltf["buffers"] = [{"byteLength": bin_length}]
+    return gltf
 
 
 def glb_parts(gltf: dict, bin_parts, bin_length: int) -> list:

@@ -20,7 +20,7 @@ import numpy as np
 from .grid import Grid
 from .simplify import CollapseLog
 from .topology import face_keys
-from .vsplit import MeshState, SplitBatch, SplitTopology, find_incidences, split_topology
+from .vsplit import MOVE, MOVE_LEFT, MOVE_RIGHT, MeshState, SplitBatch, SplitTopology, find_incidences, split_topology
 
 #: embed(batch_index, topology, values (k, D) int64, state) -> (k, D) int64 (moves columns 0-2)
 EmbedHook = Callable[[int, SplitTopology, np.ndarray, MeshState], np.ndarray]
@@ -90,18 +90,7 @@ def build_progressive(
         Moves the new vertices of each batch (watermark).
     """
     n, m = log.vertex_count, log.face_count
-    order0 = log.base_vertices if base_vertex_order is None else np.asarray(base_vertex_order, np.int64)
-    n0 = len(order0)
-    vid = np.full(n, -1, dtype=np.int64)  # input vertex id -> decoded id
-    vid[order0] = np.arange(n0)
-    base_corners = vid[log.base_corners]
-    if base_faces_decoded is None:
-        base_faces = base_corners
-        base_face_ids = log.base_faces
-    else:
-        base_faces = np.asarray(base_faces_decoded, np.int64)
-        base_face_ids = _match_faces(base_faces, base_corners, log.base_faces, n0)
-
+    order0, vid, base_faces, base_face_ids = _base_ids(log, base_vertex_order, base_faces_decoded)
     state = MeshState(positions[order0], base_faces, n, m)
     face_src = np.full(m, -1, dtype=np.int64)  # decoded face id -> input face id
     face_src[: len(base_faces)] = base_face_ids
@@ -110,50 +99,8 @@ def build_progressive(
     batches = []
     errors = []
     for j, cb in enumerate(reversed(log.batches)):
-        k = len(cb.u)
-        vf = vid[cb.v]
-        order = np.argsort(vf, kind="stable")
-        rank = np.empty(k, dtype=np.int64)
-        rank[order] = np.arange(k)
-        v_sorted = vf[order]
-
-        inc, owner = find_incidences(state, v_sorted)
-        moved_by[cb.moved_face] = rank[cb.moved_by]
-        moved = moved_by[face_src[inc // 3]] == owner
-        moved_by[cb.moved_face] = -1
-
-        flat = state.faces.reshape(-1)
-        base = inc - inc % 3
-        a = flat[base + (inc + 1) % 3]
-        b = flat[base + (inc + 2) % 3]
-        wl = _lookup(vid, cb.wing_left[order])
-        wr = _lookup(vid, cb.wing_right[order])
-        left = moved & (wl[owner] >= 0) & (a == wl[owner])
-        right = moved & (wr[owner] >= 0) & (b == wr[owner])
-        symbols = (moved.astype(np.uint8) + left + 2 * right).astype(np.uint8)
-
-        m_before = state.m
-        topo = split_topology(state, v_sorted, symbols, incidences=(inc, owner))
-
-        # which input faces the appended faces are (same order as split_topology)
-        wing = symbols >= 2
-        wo = owner[wing]
-        wl_ = left[wing]
-        wr_ = right[wing]
-        per = wl_.astype(np.int64) + wr_
-        start = m_before + np.cumsum(per) - per
-        face_src[start[wl_]] = cb.del_left[order][wo[wl_]]
-        face_src[start[wr_] + wl_[wr_]] = cb.del_right[order][wo[wr_]]
-
-        u_in = cb.u[order]
-        vid[u_in] = topo.u
-        target = positions[u_in].astype(np.int64)
-        if embed is not None:
-            target = np.asarray(embed(j, topo, target, state), dtype=np.int64)
-        residual = target - topo.prediction()
-        state.positions[topo.u] = target
-        batches.append(SplitBatch(v_sorted, symbols, residual))
-        errors.append(float(cb.error.max()) if k else 0.0)
+        batches.append(_replay_batch(j, cb, state, positions, vid, face_src, moved_by, embed))
+        errors.append(float(cb.error.max()) if len(cb.u) else 0.0)
 
     if state.n != n or state.m != m or np.any(face_src < 0):
         raise AssertionError("progressive build did not reach the full mesh")  # a bug, not bad input
@@ -168,6 +115,94 @@ def build_progressive(
         vertex_order=vid,
         face_order=face_src,
     )
+
+
+def _base_ids(log: CollapseLog, base_vertex_order, base_faces_decoded) -> tuple:
+    """The base as the decoder sees it.
+
+    Returns ``(order0 (n0,) int64 input ids of the decoded base vertices, vid (n,) int64
+    input id -> decoded id (-1 until the vertex exists), base faces (m0, 3) int64 in
+    decoded ids, base face ids (m0,) int64 input face id of each)``.
+    """
+    order0 = log.base_vertices if base_vertex_order is None else np.asarray(base_vertex_order, np.int64)
+    n0 = len(order0)
+    vid = np.full(log.vertex_count, -1, dtype=np.int64)
+    vid[order0] = np.arange(n0)
+    base_corners = vid[log.base_corners]
+    if base_faces_decoded is None:
+        return order0, vid, base_corners, log.base_faces
+    base_faces = np.asarray(base_faces_decoded, np.int64)
+    return order0, vid, base_faces, _match_faces(base_faces, base_corners, log.base_faces, n0)
+
+
+def _replay_batch(j, cb, state, positions, vid, face_src, moved_by, embed) -> SplitBatch:
+    """Undo collapse batch ``cb`` (stream batch ``j``) on ``state``; return its split record.
+
+    Updates ``state``, ``vid`` (new vertices get their decoded ids) and ``face_src`` (the
+    appended faces get their input face ids) in place; ``moved_by`` is scratch.
+    """
+    k = len(cb.u)
+    vf = vid[cb.v]
+    order = np.argsort(vf, kind="stable")  # splits sorted by their decoded kept vertex
+    rank = np.empty(k, dtype=np.int64)
+    rank[order] = np.arange(k)
+    v_sorted = vf[order]
+
+    inc, owner = find_incidences(state, v_sorted)
+    moved_by[cb.moved_face] = rank[cb.moved_by]
+    moved = moved_by[face_src[inc // 3]] == owner
+    moved_by[cb.moved_face] = -1
+    left, right = _wings(state, inc, owner, vid, cb, order, moved)
+    # STAY, MOVE, MOVE_LEFT, MOVE_RIGHT, MOVE_BOTH: a moved incidence is MOVE plus one per
+    # left face it names plus two per right face (MOVE_BOTH = MOVE + 1 + 2)
+    symbols = (moved * MOVE + left * (MOVE_LEFT - MOVE) + right * (MOVE_RIGHT - MOVE)).astype(np.uint8)
+
+    m_before = state.m
+    topo = split_topology(state, v_sorted, symbols, incidences=(inc, owner))
+    _name_new_faces(face_src, m_before, symbols, owner, left, right, cb, order)
+
+    u_in = cb.u[order]
+    vid[u_in] = topo.u
+    target = positions[u_in].astype(np.int64)
+    if embed is not None:
+        target = np.asarray(embed(j, topo, target, state), dtype=np.int64)
+    residual = target - topo.prediction()
+    state.positions[topo.u] = target
+    return SplitBatch(v_sorted, symbols, residual)
+
+
+def _wings(state, inc, owner, vid, cb, order, moved) -> tuple:
+    """Which moved incidences name the left / right new face: two (I,) bool arrays.
+
+    The left new face is ``(u, v, a)`` and the right one ``(v, u, b)``, ``a`` / ``b`` the
+    corners after / before ``v`` in the incidence's face; the face names it when that corner
+    is the collapse's recorded wing vertex.
+    """
+    flat = state.faces.reshape(-1)
+    first = inc - inc % 3
+    a = flat[first + (inc + 1) % 3]
+    b = flat[first + (inc + 2) % 3]
+    wing_left = _lookup(vid, cb.wing_left[order])[owner]
+    wing_right = _lookup(vid, cb.wing_right[order])[owner]
+    left = moved & (wing_left >= 0) & (a == wing_left)
+    right = moved & (wing_right >= 0) & (b == wing_right)
+    return left, right
+
+
+def _name_new_faces(face_src, m_before, symbols, owner, left, right, cb, order) -> None:
+    """Record the input face id of each face :func:`split_topology` appended.
+
+    New faces are appended in the order of their naming incidences, left before right, so
+    an incidence naming both has its left face at ``start`` and its right one at ``start + 1``.
+    """
+    naming = symbols >= MOVE_LEFT
+    split = owner[naming]
+    names_left = left[naming]
+    names_right = right[naming]
+    per = names_left.astype(np.int64) + names_right
+    start = m_before + np.cumsum(per) - per
+    face_src[start[names_left]] = cb.del_left[order][split[names_left]]
+    face_src[start[names_right] + names_left[names_right]] = cb.del_right[order][split[names_right]]
 
 
 def _lookup(table, ids):

@@ -226,60 +226,29 @@ def simplify(
 
 
 def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget):
-    """Choose and describe one batch of independent legal collapses (or None)."""
+    """Choose and describe one batch of independent legal collapses (or None).
+
+    pos (n, 3) float64, corners (m, 3) int64, face_alive (m,) bool, vert_alive (n,) bool,
+    quad (n, 10) float64 and frozen_ext (n,) bool are the simplifier's state in original
+    ids; at most ``budget`` collapses are taken (the cheapest).  The work is done on the
+    live mesh renumbered compactly ("local" ids) and returned in original ids.
+    """
     fids = np.flatnonzero(face_alive)
     vids = np.flatnonzero(vert_alive)
-    n_all = len(vert_alive)
-    loc = np.full(n_all, -1, dtype=np.int64)
+    loc = np.full(len(vert_alive), -1, dtype=np.int64)
     loc[vids] = np.arange(len(vids))
     F = loc[corners[fids]]  # (m, 3) local ids
-    n = len(vids)
-    m = len(fids)
+    n, m = len(vids), len(fids)
     P = pos[vids]
     Q = quad[vids]
 
     et = edge_table(F, n)
     src, dst, opp = half_edges(F)
-    ne = len(et.keys)
-    # orientation: the two half-edges of an interior edge must run opposite ways
-    two = et.count == 2
-    same_dir = np.zeros(ne, bool)
-    same_dir[two] = src[et.he0[two]] == src[et.he1[two]]
-    bad_edge = (et.count > 2) | same_dir
-    boundary_edge = et.count == 1
-
-    fcount = np.bincount(F.ravel(), minlength=n)
-    ends = np.concatenate([et.lo, et.hi])
-    evc = np.bincount(ends, minlength=n)
-    bvc = np.bincount(ends, weights=np.tile(boundary_edge, 2), minlength=n).astype(np.int64)
-    badv = np.bincount(ends, weights=np.tile(bad_edge, 2), minlength=n) > 0
-    manifold = ((bvc == 0) & (evc == fcount)) | ((bvc == 2) & (evc == fcount + 1))
-    frozen = ~manifold | badv | frozen_ext[vids]
-    on_boundary = bvc > 0
-
-    # candidate directed collapses u -> v over every usable edge, both directions
-    ok_edge = ~bad_edge
-    cu = np.concatenate([et.lo, et.hi])
-    cv = np.concatenate([et.hi, et.lo])
-    ce = np.concatenate([np.arange(ne), np.arange(ne)])
-    keep = np.tile(ok_edge, 2) & ~frozen[cu] & (~on_boundary[cu] | boundary_edge[ce])
-    cu, cv, ce = cu[keep], cv[keep], ce[keep]
-    if len(cu) == 0:
+    cand = _candidates(F, P, Q, et, src, frozen_ext[vids])
+    if cand is None:
         return None
-    # (Q_u + Q_v)(p_v) = Q_u(p_v) + Q_v(p_v); the second term is one value per vertex
-    cost = quadric_error(Q[cu], P[cv]) + quadric_error(Q, P)[cv]
-
-    # candidates grouped by u, cheapest first; each u offers up to TRIES of them
-    crank = np.empty(len(cost), dtype=np.int64)
-    crank[np.argsort(cost)] = np.arange(len(cost))
-    order = np.argsort(cu * len(cost) + crank)
-    cu, cv, ce, cost = cu[order], cv[order], ce[order], cost[order]
-    new_group = np.r_[True, cu[1:] != cu[:-1]]
-    group_start = np.flatnonzero(new_group)
-    rank_in_u = np.arange(len(cu)) - np.repeat(group_start, np.diff(np.r_[group_start, len(cu)]))
-    keep = rank_in_u < TRIES
-    cu, cv, ce, cost = cu[keep], cv[keep], ce[keep], cost[keep]
-
+    cu, cv, ce, cost = cand
+    fcount = np.bincount(F.ravel(), minlength=n)
     nb_src = np.concatenate([et.lo, et.hi])
     nb_dst = np.concatenate([et.hi, et.lo])
     vv = csr(nb_src, nb_dst, n)  # vertex -> neighbours
@@ -295,8 +264,76 @@ def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget):
         win = win[np.argsort(cost[win], kind="stable")[:budget]]
     win = np.sort(win)
     cu, cv, ce, cost = cu[win], cv[win], ce[win], cost[win]
+    del_left, wing_left, del_right, wing_right = _deleted_faces(et, src, opp, cu, ce)
+    moved_face, moved_by = _moved_faces(vf, F, cu, cv)
+    return CollapseBatch(
+        u=vids[cu], v=vids[cv],
+        del_left=_to_original(fids, del_left), del_right=_to_original(fids, del_right),
+        wing_left=_to_original(vids, wing_left), wing_right=_to_original(vids, wing_right),
+        moved_face=fids[moved_face], moved_by=moved_by,
+        cost=cost, error=np.sqrt(cost / np.maximum(_plane_weight(Q[cu] + Q[cv]), 1e-300)),
+    )
 
-    # deleted faces and wings (in local ids first)
+
+def _to_original(table, local):
+    """Local ids (k,) int64 (-1: none) -> original ids through ``table`` (-1 kept)."""
+    return np.where(local >= 0, table[np.maximum(local, 0)], -1)
+
+
+def _candidates(F, P, Q, et, src, frozen_ext):
+    """Candidate collapses on the local mesh, grouped by removed vertex, cheapest first.
+
+    F (m, 3) int64 faces, P (n, 3) float64 positions, Q (n, 10) quadrics, ``et`` / ``src``
+    the edge table and half-edge sources, frozen_ext (n,) bool.  Returns
+    ``(cu, cv, ce, cost)`` ((c,) int64 removed vertex, kept vertex, edge; (c,) float64
+    quadric cost), at most ``TRIES`` per removed vertex, or None when there is none.
+    """
+    n, ne = len(P), len(et.keys)
+    # orientation: the two half-edges of an interior edge must run opposite ways
+    two = et.count == 2
+    same_dir = np.zeros(ne, bool)
+    same_dir[two] = src[et.he0[two]] == src[et.he1[two]]
+    bad_edge = (et.count > 2) | same_dir
+    boundary_edge = et.count == 1
+
+    fcount = np.bincount(F.ravel(), minlength=n)
+    ends = np.concatenate([et.lo, et.hi])
+    evc = np.bincount(ends, minlength=n)
+    bvc = np.bincount(ends, weights=np.tile(boundary_edge, 2), minlength=n).astype(np.int64)
+    badv = np.bincount(ends, weights=np.tile(bad_edge, 2), minlength=n) > 0
+    manifold = ((bvc == 0) & (evc == fcount)) | ((bvc == 2) & (evc == fcount + 1))
+    frozen = ~manifold | badv | frozen_ext
+    on_boundary = bvc > 0
+
+    # candidate directed collapses u -> v over every usable edge, both directions
+    cu = np.concatenate([et.lo, et.hi])
+    cv = np.concatenate([et.hi, et.lo])
+    ce = np.concatenate([np.arange(ne), np.arange(ne)])
+    keep = np.tile(~bad_edge, 2) & ~frozen[cu] & (~on_boundary[cu] | boundary_edge[ce])
+    cu, cv, ce = cu[keep], cv[keep], ce[keep]
+    if len(cu) == 0:
+        return None
+    # (Q_u + Q_v)(p_v) = Q_u(p_v) + Q_v(p_v); the second term is one value per vertex
+    cost = quadric_error(Q[cu], P[cv]) + quadric_error(Q, P)[cv]
+
+    # candidates grouped by u, cheapest first; each u offers up to TRIES of them
+    crank = np.empty(len(cost), dtype=np.int64)
+    crank[np.argsort(cost)] = np.arange(len(cost))
+    order = np.argsort(cu * len(cost) + crank)
+    cu, cv, ce, cost = cu[order], cv[order], ce[order], cost[order]
+    new_group = np.r_[True, cu[1:] != cu[:-1]]
+    group_start = np.flatnonzero(new_group)
+    rank_in_u = np.arange(len(cu)) - np.repeat(group_start, np.diff(np.r_[group_start, len(cu)]))
+    keep = rank_in_u < TRIES
+    return cu[keep], cv[keep], ce[keep], cost[keep]
+
+
+def _deleted_faces(et, src, opp, cu, ce):
+    """Faces deleted by collapses ``cu`` on edges ``ce`` and their third vertices (local ids).
+
+    Returns ``(del_left, wing_left, del_right, wing_right)``, each (k,) int64, -1 for none:
+    the left face holds the directed edge u->v, the right one v->u.
+    """
     def side(he_col):
         he = np.where(he_col >= 0, he_col, 0)
         face = np.where(he_col >= 0, he // 3, -1)
@@ -305,31 +342,22 @@ def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget):
 
     f0, fw0, w0 = side(et.he0[ce])
     f1, fw1, w1 = side(et.he1[ce])
-    # left = the face with directed edge u->v
     del_left = np.where(fw0, f0, np.where(fw1, f1, -1))
     wing_left = np.where(fw0, w0, np.where(fw1, w1, -1))
     rev0 = (f0 >= 0) & ~fw0
     rev1 = (f1 >= 0) & ~fw1
     del_right = np.where(rev0, f0, np.where(rev1, f1, -1))
     wing_right = np.where(rev0, w0, np.where(rev1, w1, -1))
+    return del_left, wing_left, del_right, wing_right
 
-    # moved faces: faces of u that do not contain v
+
+def _moved_faces(vf, F, cu, cv):
+    """Faces of each ``cu`` that do not hold its ``cv``: ``(faces (j,) int64, collapse index (j,) int64)``."""
     vf_start, vf_face = vf
     owner, p = expand(vf_start, cu)
     face = vf_face[p]
     has_v = (F[face] == cv[owner][:, None]).any(axis=1)
-    moved_face = face[~has_v]
-    moved_by = owner[~has_v]
-
-    g = lambda a: np.where(a >= 0, vids[np.maximum(a, 0)], -1)  # noqa: E731
-    gf = lambda a: np.where(a >= 0, fids[np.maximum(a, 0)], -1)  # noqa: E731
-    return CollapseBatch(
-        u=vids[cu], v=vids[cv],
-        del_left=gf(del_left), del_right=gf(del_right),
-        wing_left=g(wing_left), wing_right=g(wing_right),
-        moved_face=fids[moved_face], moved_by=moved_by,
-        cost=cost, error=np.sqrt(cost / np.maximum(_plane_weight(Q[cu] + Q[cv]), 1e-300)),
-    )
+    return face[~has_v], owner[~has_v]
 
 
 def _legal(cu, cv, ce, et, F, P, opp, fcount, vv, vf):
@@ -406,35 +434,13 @@ def _select(cu, cv, cost, legal, vv, n, rounds: int = 8):
     winners that lost a conflict or are illegal fall back to their next candidate.
     """
     c = len(cu)
-    # Rank by cost only to within a factor of ~1.4: ties inside a bucket are broken
-    # by a fixed pseudo-random order, otherwise smooth cost fields (flat CAD
-    # regions, all zero) let only a few local minima win each round.
-    bucket = np.floor(2.0 * np.log2(cost + 1e-12 + 1e-9 * float(cost.max(initial=0.0)))).astype(np.int64)
-    bucket -= bucket.min(initial=0)
-    shuffle = np.random.default_rng(c).permutation(c)
-    rank = np.empty(c, dtype=np.int64)
-    rank[np.argsort(bucket * c + shuffle)] = np.arange(c)
+    rank = _offer_ranks(cu, cost)
     big = np.int64(c + 1)
-
     starts = np.flatnonzero(np.r_[True, cu[1:] != cu[:-1]])
     ends = np.r_[starts[1:], c]
     front = starts.copy()  # current candidate of every vertex group
     in_play = np.ones(len(starts), dtype=bool)
-
     vv_start, vv_nbr = vv
-
-    def nbr_min(values, rows):
-        """(len(rows),) the smallest ``values`` among each row's neighbours (``big`` for none)."""
-        owner, pos = expand(vv_start, rows)
-        out = np.full(len(rows), big, dtype=np.int64)
-        if len(pos):
-            np.minimum.at(out, owner, values[vv_nbr[pos]])
-        return out
-
-    def nbr_any(flags, rows):
-        """(len(rows),) whether any neighbour of each row is flagged."""
-        owner, pos = expand(vv_start, rows)
-        return np.bincount(owner, weights=flags[vv_nbr[pos]], minlength=len(rows)) > 0
 
     chosen_u = np.zeros(n, dtype=bool)
     chosen_v = np.zeros(n, dtype=bool)
@@ -447,27 +453,11 @@ def _select(cu, cv, cost, legal, vv, n, rounds: int = 8):
         offer = front[groups]
         vr = np.full(n, big, dtype=np.int64)
         vr[cu[offer]] = rank[offer]
-        won = nbr_min(vr, cu[offer]) > rank[offer]  # no neighbour offers a lower rank
+        won = _neighbour_min(vv, vr, cu[offer], big) > rank[offer]  # no neighbour offers a lower rank
         if not won.any():
             break
         wg, wo = groups[won], offer[won]
-        u, v, r = cu[wo], cv[wo], rank[wo]
-        # against the collapses already chosen: a chosen kept vertex next to u, a chosen
-        # removed vertex next to v, or v already kept by another collapse
-        loses = nbr_any(chosen_v, u) | nbr_any(chosen_u, v) | chosen_v[v] | chosen_u[v]
-        # among this round's winners, the lower rank wins: the same kept vertex ...
-        order = np.argsort(v, kind="stable")
-        same = np.flatnonzero(v[order][1:] == v[order][:-1])
-        for a_, b_ in ((order[same], order[same + 1]), (order[same + 1], order[same])):
-            loses[a_[r[a_] > r[b_]]] = True
-        # ... a kept vertex next to a lower-ranked winner's removed vertex (u itself ranks r) ...
-        win_rank = np.full(n, big, dtype=np.int64)
-        win_rank[u] = r
-        loses |= nbr_min(win_rank, v) < r
-        # ... or a removed vertex next to a lower-ranked winner's kept vertex
-        kept_rank = np.full(n, big, dtype=np.int64)
-        np.minimum.at(kept_rank, v, r)
-        loses |= nbr_min(kept_rank, u) < r
+        loses = _conflicts(cu[wo], cv[wo], rank[wo], chosen_u, chosen_v, vv, big)
         keep = ~loses
         ok = np.zeros(len(wo), dtype=bool)
         if keep.any():
@@ -487,3 +477,62 @@ def _select(cu, cv, cost, legal, vv, n, rounds: int = 8):
         blocked[cv[good]] = True
         in_play &= ~blocked[cu[starts]]
     return np.concatenate(chosen) if chosen else np.zeros(0, dtype=np.int64)
+
+
+def _offer_ranks(cu, cost):
+    """(c,) int64 rank of every candidate: by cost bucket, ties in a fixed pseudo-random order.
+
+    Rank by cost only to within a factor of ~1.4: ties inside a bucket are broken by a
+    fixed pseudo-random order (seeded by the candidate count), otherwise smooth cost fields
+    (flat CAD regions, all zero) let only a few local minima win each round.
+    """
+    c = len(cu)
+    bucket = np.floor(2.0 * np.log2(cost + 1e-12 + 1e-9 * float(cost.max(initial=0.0)))).astype(np.int64)
+    bucket -= bucket.min(initial=0)
+    shuffle = np.random.default_rng(c).permutation(c)
+    rank = np.empty(c, dtype=np.int64)
+    rank[np.argsort(bucket * c + shuffle)] = np.arange(c)
+    return rank
+
+
+def _neighbour_min(vv, values, rows, big):
+    """(len(rows),) the smallest ``values`` among each row's neighbours (``big`` for none)."""
+    vv_start, vv_nbr = vv
+    owner, pos = expand(vv_start, rows)
+    out = np.full(len(rows), big, dtype=np.int64)
+    if len(pos):
+        np.minimum.at(out, owner, values[vv_nbr[pos]])
+    return out
+
+
+def _neighbour_any(vv, flags, rows):
+    """(len(rows),) whether any neighbour of each row is flagged."""
+    vv_start, vv_nbr = vv
+    owner, pos = expand(vv_start, rows)
+    return np.bincount(owner, weights=flags[vv_nbr[pos]], minlength=len(rows)) > 0
+
+
+def _conflicts(u, v, r, chosen_u, chosen_v, vv, big):
+    """(w,) bool: which of this round's winners ``u -> v`` (ranks ``r``) must give way.
+
+    chosen_u / chosen_v (n,) bool mark the removed / kept vertices of the collapses
+    already chosen; among the winners themselves the lower rank wins.
+    """
+    n = len(chosen_u)
+    # against the collapses already chosen: a chosen kept vertex next to u, a chosen
+    # removed vertex next to v, or v already kept by another collapse
+    loses = _neighbour_any(vv, chosen_v, u) | _neighbour_any(vv, chosen_u, v) | chosen_v[v] | chosen_u[v]
+    # among this round's winners, the lower rank wins: the same kept vertex ...
+    order = np.argsort(v, kind="stable")
+    same = np.flatnonzero(v[order][1:] == v[order][:-1])
+    for a_, b_ in ((order[same], order[same + 1]), (order[same + 1], order[same])):
+        loses[a_[r[a_] > r[b_]]] = True
+    # ... a kept vertex next to a lower-ranked winner's removed vertex (u itself ranks r) ...
+    win_rank = np.full(n, big, dtype=np.int64)
+    win_rank[u] = r
+    loses |= _neighbour_min(vv, win_rank, v, big) < r
+    # ... or a removed vertex next to a lower-ranked winner's kept vertex
+    kept_rank = np.full(n, big, dtype=np.int64)
+    np.minimum.at(kept_rank, v, r)
+    loses |= _neighbour_min(vv, kept_rank, u, big) < r
+    return loses

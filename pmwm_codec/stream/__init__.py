@@ -1,6 +1,7 @@
 """Streams: the encoder pipeline, the push decoder and its pull wrappers, glTF assets.
 
 ``encoder``    Mesh / document -> .pmw (simplify, base, records, watermark, write)
+``chunking``   the encoder's chunking policy: base size, chunks, stream order, chunk index fields
 ``decoder``    :class:`StreamDecoder`: bytes in, one result per chunk boundary out
 ``reader``     pull wrappers (paths, bytes, files, stdin, block iterables)
 ``asset``      glTF assets in and out (every triangle primitive progressive, the rest kept)

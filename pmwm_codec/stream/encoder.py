@@ -1,46 +1,72 @@
 """Encoder pipeline: Mesh -> simplify -> base + split records -> watermark -> ``.pmw``.
 
-:func:`encode_mesh` is the one place the stages meet::
+:func:`encode_document` runs the stages, each a function over a list of
+:class:`PrimitiveWork` records (one per primitive)::
 
-    quantize to the grid -> simplify (batches of collapses) -> encode the base
-    (Draco or plain; its decoded vertex order is the order splits refer to)
-    -> build split records, embedding the watermark on the grid as we go
-    -> group batches into chunks -> write the GLB atomically
+    _quantize_and_simplify  grid, quantized values, collapse log
+    _encode_bases           base mesh (Draco or plain; its decoded vertex order is the
+                            order splits refer to)
+    _plan_chunks            batches -> chunks, one stream order, carrier slots (chunking.py)
+    _plan_watermark         watermark parameters and one embedder per primitive
+    _build_records          split records, the watermark embedded on the grid as we go
+    _write                  payloads, index entries, extension objects, the GLB (atomically)
+    _report                 the :class:`EncodeReport`
 
-It returns an :class:`EncodeReport` holding the ``pmw encode --json`` fields.
+The stages never modify the caller's objects (the key given is returned as a new key
+in the report) and the output depends only on the input, the key and the options:
+the ``fileId`` written is a digest of the content and of the key's fingerprint.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import os
-import secrets
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..constants import DEFAULT_GRID_BITS
+from ..distortion import combine_meshes, decoded_positions, full_distortion
 from ..errors import PmwError
 from ..format import encode_base
-from ..format.base import attribute_grid, attribute_to_float, attribute_to_grid, with_attributes
+from ..format.base import EncodedBase, attribute_grid, attribute_to_float, attribute_to_grid, with_attributes
 from ..format.glb import ProgressivePrimitive, assemble_document, write_parts
 from ..format.records import pack_batches
 from ..mesh import Mesh
-from ..progressive.build import build_progressive
+from ..progressive.build import ProgressiveMesh, build_progressive
 from ..progressive.grid import Grid
-from ..progressive.simplify import simplify
+from ..progressive.simplify import CollapseLog, simplify
+from ..progressive.topology import mean_edge_length
 from ..watermark import codec as wm
 from ..watermark.key import WatermarkKey
+from .chunking import (
+    carrier_slots,
+    chunk_meta,
+    default_base_target,
+    default_min_chunk_splits,
+    group_batches,
+    stream_order,
+)
 
 #: Payload codec id written in the extension object.
 PAYLOAD_CODEC = "pmwm-vsplit"
 PAYLOAD_VERSION = 1
 
+_DRACO_ATTRIBUTES_NOTICE = "primitives with attributes keep a plain base (Draco carries positions only here)"
+
 
 @dataclass
 class EncodeReport:
-    """What an encode did; :meth:`as_json` gives the ``pmw encode --json`` object."""
+    """What an encode did; :meth:`as_json` gives the ``pmw encode --json`` object.
+
+    ``key`` is the key the file is marked with (a new object: the caller's key is never
+    modified), holding the parameters, the reference watermark and the file id; None
+    without a watermark unless one was given.  ``key_path`` is where
+    :func:`pmwm_codec.encode` saved it.
+    """
 
     vertices: int
     faces: int
@@ -56,40 +82,18 @@ class EncodeReport:
     notices: list = field(default_factory=list)
     key: WatermarkKey | None = None
     batches: int = 0
+    key_path: str | None = None
 
     def as_json(self) -> dict:
+        """Every field but ``key``, as plain JSON values."""
         return {
             "vertices": self.vertices, "faces": self.faces,
             "base_vertices": self.base_vertices, "base_faces": self.base_faces,
             "vsplits": self.vsplits, "chunks": self.chunks, "bytes": self.bytes,
             "seconds": round(self.seconds, 4), "distortion": self.distortion,
-            "watermark": self.watermark,
+            "watermark": self.watermark, "notices": list(self.notices), "key_path": self.key_path,
+            "base_codec": self.base_codec, "batches": self.batches,
         }
-
-
-def default_base_target(n: int) -> int:
-    """Default base size: 1% of the vertices, at least 64 (and never more than n)."""
-    return min(n, max(n // 100, 64))
-
-
-def group_batches(sizes, min_splits: int) -> list:
-    """Split batch indices into chunks of consecutive batches holding >= ``min_splits`` splits.
-
-    ``sizes`` : (b,) split counts, coarse to fine.  Returns a list of ``range``.
-    """
-    out, start, acc = [], 0, 0
-    for j, k in enumerate(sizes):
-        acc += int(k)
-        if acc >= min_splits:
-            out.append(range(start, j + 1))
-            start, acc = j + 1, 0
-    if start < len(sizes):
-        if out and acc < min_splits // 2:
-            last = out.pop()
-            out.append(range(last.start, len(sizes)))
-        else:
-            out.append(range(start, len(sizes)))
-    return out
 
 
 @dataclass
@@ -106,6 +110,50 @@ class PrimitiveJob:
     mesh_index: int = 0
     primitive_index: int = 0
     locked: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class PrimitiveWork:
+    """One primitive on its way through the stages; each stage fills more fields.
+
+    Attributes
+    ----------
+    job : PrimitiveJob
+    grid : Grid
+        The position grid.
+    values : (n, D) int64
+        Grid positions (columns 0-2), then each attribute's quantized columns.
+    attribute_grids : list[dict]
+        Per attribute (sorted by semantic): ``{"semantic", "bits", "origin", "step"}``.
+    log : CollapseLog
+        The simplifier's batches (fine to coarse) and base.
+    base : EncodedBase
+        The base mesh as the decoder will see it (with its attribute accessors).
+    base_order : (n0,) int64
+        Input vertex id of each decoded base vertex.
+    sizes : list[int]
+        Splits per batch, coarse to fine.
+    groups : list[range]
+        The chunks: consecutive batch indices.
+    params : WatermarkParams or None
+        The watermark parameters with this primitive's ``scale``.
+    embedder : Embedder or None
+    pm : ProgressiveMesh
+        Base plus split records.
+    """
+
+    job: PrimitiveJob
+    grid: Grid
+    values: np.ndarray
+    attribute_grids: list
+    log: CollapseLog
+    base: EncodedBase | None = None
+    base_order: np.ndarray | None = None
+    sizes: list | None = None
+    groups: list | None = None
+    params: wm.WatermarkParams | None = None
+    embedder: wm.Embedder | None = None
+    pm: ProgressiveMesh | None = None
 
 
 #: Grid bits of progressive attributes, by semantic prefix (others: 14).
@@ -149,160 +197,248 @@ def encode_document(
     Parameters
     ----------
     doc, kept_bin : the document to carry and its data (see
-        :func:`~pmwm_codec.format.glb.assemble_document`).
+        :func:`~pmwm_codec.format.glb.assemble_document`); not modified.
     jobs : list[PrimitiveJob]
     watermark : (s, s) uint8, optional
         A ``2^k`` square grayscale image (see :func:`~pmwm_codec.watermark.load_watermark`);
         one watermark for the whole document, its slots spread over every primitive's
         splits in stream order.
     key : WatermarkKey, optional
-        Generated when a watermark is given and no key is.
+        Generated when a watermark is given and no key is.  Never modified: the report's
+        ``key`` is a copy holding the parameters, the reference watermark and the file id.
     mode : ``"exact"`` | ``"paper"``; bits : bits per carrier (None: automatic / 12).
     grid_bits : position grid resolution (default 16; paper mode 22).
     base_codec : ``"draco"`` | ``"plain"`` (primitives with attributes use plain).
-    base_vertices : target base size per primitive (default :func:`default_base_target`).
+    base_vertices : target base size per primitive (default
+        :func:`~pmwm_codec.stream.chunking.default_base_target`).
     measure : compute the distortion (RMS, PSNR, Hausdorff) of the full decoded mesh.
     progress : optional callable(stage: str, fraction: float).
+
+    The same arguments give the same bytes.
     """
     t0 = time.perf_counter()
     say = progress or (lambda stage, fraction: None)
-    notices = []
     if grid_bits is None:
         grid_bits = wm.DEFAULT_GRID_BITS[mode] if watermark is not None else DEFAULT_GRID_BITS
+    work = _quantize_and_simplify(jobs, grid_bits, base_vertices, say)
+    work, notices = _encode_bases(work, base_codec)
+    work, order, slots, carriers = _plan_chunks(work, min_chunk_splits)
+    params = None
+    if watermark is not None:
+        key = key if key is not None else WatermarkKey.generate()
+        params, work = _plan_watermark(work, watermark, key, carriers, slots, mode, bits, step_units)
+    work = _build_records(work, say)
+    size, file_id = _write(dst, doc, kept_bin, work, order, params, key, zstd_level, say)
+    if params is not None:
+        key = dataclasses.replace(
+            key, file_id=file_id, params=params.get_config(), reference=np.asarray(watermark, np.uint8)
+        )
+    report = _report(work, params, measure, say)
+    return dataclasses.replace(
+        report, vsplits=carriers, chunks=len(order), bytes=int(size), seconds=time.perf_counter() - t0,
+        base_codec=work[0].base.codec if work else base_codec, notices=notices, key=key,
+    )
 
-    # 1. quantize and simplify every primitive
+
+def _quantize(mesh: Mesh, grid_bits: int) -> tuple:
+    """``(grid, values (n, D) int64, attribute grids)`` of one mesh: positions, then attributes.
+
+    Raises PmwError when an attribute's grid values do not survive a float32 round trip.
+    """
+    grid = Grid.fit(mesh.positions, grid_bits)
+    specs, columns = [], [grid.quantize(mesh.positions)]
+    for semantic in sorted(mesh.attributes):
+        values = np.asarray(mesh.attributes[semantic], np.float64).reshape(mesh.vertex_count, -1)
+        spec = {"semantic": semantic, **attribute_grid(values, _attribute_bits(semantic))}
+        ints = attribute_to_grid(values, spec, semantic)
+        if not np.array_equal(attribute_to_grid(attribute_to_float(ints, spec), spec, semantic), ints):
+            raise PmwError(f"{semantic}: values too large for float32 at {spec['bits']} bits")
+        specs.append(spec)
+        columns.append(ints)
+    return grid, np.concatenate(columns, axis=1), specs
+
+
+def _quantize_and_simplify(jobs, grid_bits: int, base_vertices, say) -> list:
+    """Stage 1: one :class:`PrimitiveWork` per job with its grid, values and collapse log."""
     work = []
     say("simplify", 0.0)
     for i, job in enumerate(jobs):
-        mesh = job.mesh
-        grid = Grid.fit(mesh.positions, grid_bits)
-        q = grid.quantize(mesh.positions)
-        specs, columns = [], [q]
-        for semantic in sorted(mesh.attributes):
-            values = np.asarray(mesh.attributes[semantic], np.float64).reshape(mesh.vertex_count, -1)
-            spec = {"semantic": semantic, **attribute_grid(values, _attribute_bits(semantic))}
-            ints = attribute_to_grid(values, spec, semantic)
-            if not np.array_equal(attribute_to_grid(attribute_to_float(ints, spec), spec, semantic), ints):
-                raise PmwError(f"{semantic}: values too large for float32 at {spec['bits']} bits")
-            specs.append(spec)
-            columns.append(ints)
-        values = np.concatenate(columns, axis=1)
-        n = mesh.vertex_count
+        grid, values, specs = _quantize(job.mesh, grid_bits)
+        n = job.mesh.vertex_count
         target = default_base_target(n) if base_vertices is None else int(base_vertices)
-        log = simplify(q, mesh.faces, target_vertices=target, locked=job.locked)
-        work.append({"job": job, "grid": grid, "values": values, "specs": specs, "log": log})
+        log = simplify(values[:, :3], job.mesh.faces, target_vertices=target, locked=job.locked)
+        work.append(PrimitiveWork(job, grid, values, specs, log))
         say("simplify", (i + 1) / len(jobs))
+    return work
 
-    # 2. bases as the decoder will see them
+
+def _encode_bases(work, base_codec: str) -> tuple:
+    """Stage 2: each primitive's base as the decoder will see it.
+
+    Returns ``(work, notices)``; primitives with attributes always get a plain base.
+    """
+    out, notices = [], []
     for w in work:
-        log, q = w["log"], w["values"][:, :3]
-        base_ids = log.base_vertices
-        local = np.full(len(q), -1, dtype=np.int64)
-        local[base_ids] = np.arange(len(base_ids))
         codec = base_codec
-        if w["specs"] and codec == "draco":
+        if w.attribute_grids and codec == "draco":
             codec = "plain"
-            note = "primitives with attributes keep a plain base (Draco carries positions only here)"
-            if note not in notices:
-                notices.append(note)
-        try:
-            base = encode_base(q[base_ids], local[log.base_corners], w["grid"].get_config(), codec=codec)
-        except ValueError as exc:
-            raise PmwError(f"cannot store the base mesh: {exc}") from None
-        if base.notice and base.notice not in notices:
-            notices.append(base.notice)
-        order0 = base_ids[np.asarray(base.vertex_map, dtype=np.int64)]
-        if w["specs"]:
-            offsets = np.cumsum([3] + [len(sp["origin"]) for sp in w["specs"]])
-            base = with_attributes(base, [
-                (sp, w["values"][order0, offsets[j] : offsets[j + 1]]) for j, sp in enumerate(w["specs"])
-            ])
-        w["base"], w["order0"] = base, order0
+            _notice(notices, _DRACO_ATTRIBUTES_NOTICE)
+        base, base_order = _encode_base(w, codec)
+        _notice(notices, base.notice)
+        out.append(dataclasses.replace(w, base=base, base_order=base_order))
+    return out, notices
 
-    # 3. chunks per primitive, then one stream order over all of them
+
+def _notice(notices: list, note) -> None:
+    if note and note not in notices:
+        notices.append(note)
+
+
+def _encode_base(w: PrimitiveWork, codec: str) -> tuple:
+    """``(EncodedBase, base_order (n0,) int64)`` of one primitive, attributes included."""
+    log, q = w.log, w.values[:, :3]
+    base_ids = log.base_vertices
+    local = np.full(len(q), -1, dtype=np.int64)
+    local[base_ids] = np.arange(len(base_ids))
+    try:
+        base = encode_base(q[base_ids], local[log.base_corners], w.grid.get_config(), codec=codec)
+    except ValueError as exc:
+        raise PmwError(f"cannot store the base mesh: {exc}") from None
+    base_order = base_ids[np.asarray(base.vertex_map, dtype=np.int64)]
+    if w.attribute_grids:
+        offsets = np.cumsum([3] + [len(spec["origin"]) for spec in w.attribute_grids])
+        base = with_attributes(base, [
+            (spec, w.values[base_order, offsets[j] : offsets[j + 1]]) for j, spec in enumerate(w.attribute_grids)
+        ])
+    return base, base_order
+
+
+def _plan_chunks(work, min_chunk_splits) -> tuple:
+    """Stage 3: chunks per primitive, then one stream order over all of them.
+
+    Returns ``(work, order, slots, carriers)`` (see
+    :func:`~pmwm_codec.stream.chunking.stream_order` and
+    :func:`~pmwm_codec.stream.chunking.carrier_slots`).
+    """
+    out = []
     for w in work:
-        sizes = [len(cb.u) for cb in reversed(w["log"].batches)]
-        total = sum(sizes)
-        mcs = max(32, total // 100) if min_chunk_splits is None else min_chunk_splits
-        w["sizes"], w["groups"] = sizes, group_batches(sizes, mcs)
-    order = _stream_order(work)
-    slots, g, offset = [dict() for _ in work], 0, 0
-    for p, k in order:
-        for j in work[p]["groups"][k]:
-            slots[p][j] = (g, offset)
-            g += 1
-            offset += work[p]["sizes"][j]
-    carriers = offset
+        sizes = [len(batch.u) for batch in reversed(w.log.batches)]
+        smallest = default_min_chunk_splits(sum(sizes)) if min_chunk_splits is None else min_chunk_splits
+        out.append(dataclasses.replace(w, sizes=sizes, groups=group_batches(sizes, smallest)))
+    sizes, groups = [w.sizes for w in out], [w.groups for w in out]
+    order = stream_order(sizes, groups)
+    slots, carriers = carrier_slots(order, sizes, groups)
+    return out, order, slots, carriers
 
-    # 4. watermark plan over every carrier of the document
-    params = None
-    embedders = [None] * len(work)
-    if watermark is not None:
-        if key is None:
-            key = WatermarkKey.generate()
-        params, codes = wm.plan(watermark, key, carriers, mode=mode, bits=bits, nbar=1.0, step_units=step_units)
-        step = wm.DEFAULT_STEP_UNITS[mode] if step_units is None else float(step_units)
-        for p, w in enumerate(work):
-            nbar = wm.base_mean_edge(w["base"].positions_int, w["base"].faces)
-            w["params"] = dataclasses.replace(params, scale=nbar / step)
-            embedders[p] = wm.Embedder(w["params"], key, codes, nbar, slots=slots[p])
 
-    # 5. split records
+def _plan_watermark(work, watermark, key, carriers: int, slots, mode, bits, step_units) -> tuple:
+    """Stage 4: watermark plan over every carrier of the document.
+
+    Returns ``(params, work)``: the document's :class:`WatermarkParams` and the work with
+    each primitive's ``params`` (its own ``scale``: mean base edge / step) and embedder.
+    """
+    params, codes = wm.plan(watermark, key, carriers, mode=mode, bits=bits, nbar=1.0, step_units=step_units)
+    step = wm.DEFAULT_STEP_UNITS[mode] if step_units is None else float(step_units)
+    out = []
+    for w, primitive_slots in zip(work, slots):
+        nbar = mean_edge_length(w.base.positions_int, w.base.faces)
+        own = dataclasses.replace(params, scale=nbar / step)
+        embedder = wm.Embedder(own, key, codes, nbar, slots=primitive_slots)
+        out.append(dataclasses.replace(w, params=own, embedder=embedder))
+    return params, out
+
+
+def _build_records(work, say) -> list:
+    """Stage 5: split records (the embedders, if any, move the new vertices)."""
+    out = []
     say("records", 0.0)
     for p, w in enumerate(work):
-        w["pm"] = build_progressive(
-            w["log"], w["values"], w["grid"], base_vertex_order=w["order0"],
-            base_faces_decoded=w["base"].faces, embed=embedders[p],
+        pm = build_progressive(
+            w.log, w.values, w.grid, base_vertex_order=w.base_order,
+            base_faces_decoded=w.base.faces, embed=w.embedder,
         )
+        out.append(dataclasses.replace(w, pm=pm))
         say("records", (p + 1) / len(work))
+    return out
 
-    # 6. payloads, index entries, extension objects; write
-    file_id = secrets.token_hex(8)
+
+def _write(dst, doc, kept_bin, work, order, params, key, zstd_level: int, say) -> tuple:
+    """Stage 6: payloads, index entries, extension objects; write.  Returns ``(bytes, fileId)``."""
     prims = []
-    for p, w in enumerate(work):
-        pm, grid = w["pm"], w["grid"]
-        remaining = np.maximum.accumulate(pm.batch_errors[::-1])[::-1] if len(pm.batch_errors) else pm.batch_errors
-        payloads, meta = [], []
-        nv, nf = len(pm.base_positions), len(pm.base_faces)
-        for grp in w["groups"]:
-            chunk = [pm.batches[j] for j in grp]
-            payloads.append(pack_batches(chunk))
-            nv += sum(b.size for b in chunk)
-            nf += sum(b.new_face_count() for b in chunk)
-            err = float(remaining[grp.stop]) * grid.step if grp.stop < len(pm.batches) else 0.0
-            meta.append({"splits": int(sum(b.size for b in chunk)), "vertexCount": int(nv), "faceCount": int(nf),
-                         "geometricError": err, "batches": len(chunk)})
+    for w in work:
+        payloads = [pack_batches([w.pm.batches[j] for j in grp]) for grp in w.groups]
         extension = {
-            "grid": grid.get_config(),
-            "vertexCount": int(pm.vertex_count),
-            "faceCount": int(pm.face_count),
+            "grid": w.grid.get_config(),
+            "vertexCount": int(w.pm.vertex_count),
+            "faceCount": int(w.pm.face_count),
             "payload": {"codec": PAYLOAD_CODEC, "version": PAYLOAD_VERSION},
-            "fileId": file_id,
+            "fileId": "",  # set below, once the content it digests is known
         }
-        if w["specs"]:
-            extension["attributes"] = w["specs"]
+        if w.attribute_grids:
+            extension["attributes"] = w.attribute_grids
         if params is not None:
-            extension["watermark"] = w["params"].get_config()
-        job = w["job"]
-        prims.append(ProgressivePrimitive(job.mesh_index, job.primitive_index, w["base"], payloads, meta, extension))
-    if params is not None:
-        key.file_id = file_id
-        key.params = params.get_config()
-        key.reference = np.asarray(watermark, np.uint8)
+            extension["watermark"] = w.params.get_config()
+        meta = chunk_meta(w.pm, w.groups, w.grid.step)
+        job = w.job
+        prims.append(ProgressivePrimitive(job.mesh_index, job.primitive_index, w.base, payloads, meta, extension))
+    file_id = content_file_id(doc, kept_bin, prims, order, key)
+    for prim in prims:
+        prim.extension["fileId"] = file_id
     say("write", 0.0)
     size = write_parts(dst, assemble_document(doc, kept_bin, prims, order, zstd_level))
     say("write", 1.0)
+    return size, file_id
 
-    meshes = [w["job"].mesh for w in work]
-    combined = _combine(meshes)
+
+def content_file_id(doc: dict, kept_bin: bytes, prims, order, key: WatermarkKey | None) -> str:
+    """16 hex digits: SHA-256 of everything the file will hold, and of the key's fingerprint.
+
+    Covers the carried document and data, and per progressive primitive its place, base
+    bytes, extension fields (``fileId`` left out), raw chunk payloads and index fields,
+    and the stream order.  The same input, key and options give the same id; the secret
+    is not involved beyond the public fingerprint.
+    """
+    h = hashlib.sha256(b"pmwm/fileId/v1\0")
+
+    def add(data: bytes) -> None:
+        h.update(len(data).to_bytes(8, "little"))
+        h.update(data)
+
+    def add_json(obj) -> None:
+        add(json.dumps(obj, sort_keys=True, separators=(",", ":"), default=_json_default).encode("utf-8"))
+
+    add(b"" if key is None else key.fingerprint().encode("ascii"))
+    add_json(doc)
+    add(bytes(kept_bin))
+    for prim in prims:
+        add_json([prim.mesh, prim.primitive, {k: v for k, v in prim.extension.items() if k != "fileId"}])
+        add_json([prim.base.buffer_views, prim.base.accessors, prim.base.primitive, prim.chunk_meta])
+        add(bytes(prim.base.data))
+        for payload in prim.chunks:
+            add(bytes(memoryview(payload).cast("B")))
+    add_json([list(pk) for pk in order])
+    return h.hexdigest()[:16]
+
+
+def _json_default(obj):
+    if isinstance(obj, (np.generic, np.ndarray)):
+        return obj.tolist()
+    raise TypeError(f"{type(obj).__name__} is not JSON-serialisable")
+
+
+def _report(work, params, measure: bool, say) -> EncodeReport:
+    """Stage 7: sizes, distortion and watermark counts (stream fields are set by the caller)."""
+    meshes = [w.job.mesh for w in work]
+    combined = combine_meshes(meshes)
     distortion = {"rms": None, "psnr_db": None, "hausdorff": None, "bbox_diagonal": combined.bbox_diagonal()}
     if measure:
         say("measure", 0.0)
-        decoded = [_decoded_positions(w["pm"], w["grid"]) for w in work]
-        distortion = full_distortion(combined, _combine([Mesh(d, m.faces) for d, m in zip(decoded, meshes)]))
+        decoded = [decoded_positions(w.pm, w.grid) for w in work]
+        distortion = full_distortion(combined, combine_meshes([Mesh(d, m.faces) for d, m in zip(decoded, meshes)]))
         say("measure", 1.0)
     wm_report = None
     if params is not None:
+        embedders = [w.embedder for w in work]
         wm_report = {
             "width": params.size, "height": params.size, "mode": params.mode, "bits": params.bits,
             "codes": params.codes, "embedded": int(sum(e.embedded for e in embedders)), "carriers": params.carriers,
@@ -310,53 +446,11 @@ def encode_document(
         }
     return EncodeReport(
         vertices=sum(m.vertex_count for m in meshes), faces=sum(m.face_count for m in meshes),
-        base_vertices=sum(len(w["pm"].base_positions) for w in work),
-        base_faces=sum(len(w["pm"].base_faces) for w in work),
-        vsplits=carriers, chunks=len(order), bytes=int(size), seconds=time.perf_counter() - t0,
-        distortion=distortion, watermark=wm_report, base_codec=work[0]["base"].codec if work else base_codec,
-        notices=notices, key=key, batches=sum(len(w["pm"].batches) for w in work),
+        base_vertices=sum(len(w.pm.base_positions) for w in work),
+        base_faces=sum(len(w.pm.base_faces) for w in work),
+        vsplits=0, chunks=0, bytes=0, seconds=0.0, distortion=distortion, watermark=wm_report,
+        batches=sum(len(w.pm.batches) for w in work),
     )
-
-
-def _stream_order(work) -> list:
-    """Every (primitive, chunk) in stream order: by the fraction of the primitive's splits done after it."""
-    keys = []
-    for p, w in enumerate(work):
-        total = max(1, sum(w["sizes"]))
-        done = 0
-        for k, grp in enumerate(w["groups"]):
-            done += sum(w["sizes"][j] for j in grp)
-            keys.append((done / total, p, k))
-    return [(p, k) for _, p, k in sorted(keys)]
-
-
-def _combine(meshes) -> Mesh:
-    """One mesh of several (disjoint vertex ranges); the mesh itself when there is one."""
-    if len(meshes) == 1:
-        return meshes[0]
-    offsets = np.cumsum([0] + [m.vertex_count for m in meshes])
-    return Mesh(
-        np.concatenate([m.positions for m in meshes]),
-        np.concatenate([m.faces + o for m, o in zip(meshes, offsets)]),
-    )
-
-
-def _decoded_positions(pm, grid) -> np.ndarray:
-    """(n, 3) float64 positions of the full decode, in the input's vertex order."""
-    from ..progressive.vsplit import apply_batch
-
-    state = pm.new_state()
-    for batch in pm.batches:
-        apply_batch(state, batch)
-    return grid.dequantize(state.current_positions()[:, :3])[pm.vertex_order]
-
-
-def full_distortion(original: Mesh, decoded: Mesh) -> dict:
-    """Distortion of ``decoded`` (same connectivity and vertex order) against ``original``."""
-    from ..watermark.metrics import mesh_distortion
-
-    d = mesh_distortion(original, decoded)
-    return {k: (None if v is None else float(v)) for k, v in d.items()}
 
 
 def default_key_path(dst) -> str | None:

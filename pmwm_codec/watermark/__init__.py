@@ -4,7 +4,7 @@
 * :mod:`.image` — loading/normalising watermark images, PNG output, a text watermark;
 * :mod:`.payload` — bit layout, packing, symbols, repetition and voting;
 * :mod:`.key` — the secret key and its keyed permutations / whitening bits;
-* :mod:`.metrics` — PSNR, NC, BER, and mesh distortion (RMS, PSNR, Hausdorff).
+* :mod:`.metrics` — PSNR, NC, BER (mesh distortion: :mod:`pmwm_codec.distortion`).
 """
 
 from .haar import (
@@ -21,7 +21,7 @@ from .haar import (
 )
 from .image import load_watermark, make_text_watermark, save_png
 from .key import WatermarkKey
-from .metrics import ber, centered_nc, hausdorff_distance, mesh_distortion, nc, psnr
+from .metrics import ber, centered_nc, nc, psnr
 from .payload import BitLayout, bits_from_symbols, pack, repeat_to_capacity, symbols, unpack, vote
 
 __all__ = [
@@ -41,8 +41,6 @@ __all__ = [
     "WatermarkKey",
     "ber",
     "centered_nc",
-    "hausdorff_distance",
-    "mesh_distortion",
     "nc",
     "psnr",
     "BitLayout",

@@ -48,7 +48,6 @@ import numpy as np
 
 from ..constants import MAX_VERTICES
 from ..errors import PmwError
-from ..progressive.topology import mean_edge_length
 from . import haar
 from .payload import BitLayout, bits_from_symbols, pack, repeat_to_capacity, symbols, unpack, vote
 
@@ -125,14 +124,6 @@ class WatermarkParams:
             if layout.count != p.size * p.size or layout.total_bits != p.codes or not 0 < p.codes <= 64 * p.size * p.size:
                 raise FormatError("watermark bit layout in the file does not match its size and code count")
         return p
-
-
-def base_mean_edge(positions: np.ndarray, faces: np.ndarray) -> float:
-    """Mean undirected edge length of a mesh: positions (n, 3) float, faces (m, 3) int.
-
-    The watermark's length unit ``nbar``; see :func:`~pmwm_codec.progressive.topology.mean_edge_length`.
-    """
-    return mean_edge_length(positions, faces)
 
 
 def relative_scale(points: np.ndarray, centroid: np.ndarray, nbar: float, scale: float) -> np.ndarray:
