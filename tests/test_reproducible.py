@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from pmwm_codec import shapes
-from pmwm_codec.format.parser import read_header
+from pmwm_codec.format import read_header
 from pmwm_codec.mesh import Mesh
 from pmwm_codec.stream.asset import encode_asset
 from pmwm_codec.stream.encoder import PrimitiveJob, encode_document, encode_mesh
