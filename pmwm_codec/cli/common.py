@@ -1,7 +1,7 @@
 """Shared pieces of the ``pmw`` subcommands: exit codes, errors, JSON, progress, atomic writes.
 
 Every subcommand module exposes ``add_parser(subparsers)`` and ``run(args) -> int``;
-:mod:`tools.pmw` wires them together and maps errors to exit status 2.
+:mod:`pmwm_codec.cli` wires them together and maps errors to exit status 2.
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ import pmwm_codec
 from pmwm_codec.stream import StreamDecoder, iter_results
 from pmwm_codec.watermark import load_watermark
 
-from ._cli import (EXIT_NOT_AUTHENTIC, EXIT_OK, Progress, UsageError, check_input_file, fmt_float, naming,
+from .common import (EXIT_NOT_AUTHENTIC, EXIT_OK, Progress, UsageError, check_input_file, fmt_float, naming,
                    print_json)
 
 

@@ -11,9 +11,9 @@ from pmwm_codec.figures import write_figures
 from pmwm_codec.shapes import demo_mesh
 from pmwm_codec.watermark import make_text_watermark, save_png
 
-from ._cli import Progress, UsageError, fmt_float
-from .pmw_encode import stage_progress
-from .pmw_verify import verify
+from .common import Progress, UsageError, fmt_float
+from .encode import stage_progress
+from .verify import verify
 
 CUT_FRACTION = 1 / 3
 

@@ -19,7 +19,7 @@ from pmwm_codec.format.document import glb_to_gltf
 from pmwm_codec.stream import StreamDecoder, iter_results
 from pmwm_codec.stream.asset import decode_asset
 
-from ._cli import UsageError, atomic_output, naming, check_input_file, check_output_path, print_json
+from .common import UsageError, atomic_output, naming, check_input_file, check_output_path, print_json
 
 FORMATS = (".glb", ".gltf", ".obj", ".ply")
 GENERATOR = "pmwm_codec (pmw decode)"

@@ -10,7 +10,7 @@ from pmwm_codec.format.base import find_extension_primitives
 from pmwm_codec.format.layout import CHUNK_HEADER_SIZE, PREAMBLE_SIZE
 from pmwm_codec.format.parser import parse_preamble
 
-from ._cli import check_input_file, naming, print_json
+from .common import check_input_file, naming, print_json
 
 
 def add_parser(sub):

@@ -1,4 +1,4 @@
-"""The ``pmw`` command end to end: ``tools.pmw.main(argv)`` on temp dirs, meshes and watermarks made here."""
+"""The ``pmw`` command end to end: ``pmwm_codec.cli.main(argv)`` on temp dirs, meshes and watermarks made here."""
 
 from __future__ import annotations
 
@@ -16,8 +16,8 @@ from PIL import Image
 import pmwm_codec
 from pmwm_codec import shapes
 from pmwm_codec.watermark import WatermarkKey
-from tools.pmw import main
-from tools.pmw_decode import obj_bytes
+from pmwm_codec.cli import main
+from pmwm_codec.cli.decode import obj_bytes
 
 ENCODE_FIELDS = {"vertices", "faces", "base_vertices", "base_faces", "vsplits", "chunks", "bytes", "seconds",
                  "distortion", "watermark"}

@@ -9,7 +9,7 @@ import pmwm_codec
 from pmwm_codec.constants import MAX_GRID_BITS, MIN_GRID_BITS
 from pmwm_codec.watermark.codec import MAX_BITS, MODES
 
-from ._cli import Progress, UsageError, check_input_file, check_output_path, fmt_float, print_json
+from .common import Progress, UsageError, check_input_file, check_output_path, fmt_float, print_json
 
 STAGES = {"simplify": "simplifying", "records": "building splits", "write": "writing"}
 #: Share of the whole encode each library stage ends at (the distortion measure takes the rest).
