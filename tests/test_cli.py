@@ -17,7 +17,7 @@ import pmwm_codec
 from pmwm_codec import shapes
 from pmwm_codec.watermark import WatermarkKey
 from pmwm_codec.cli import main
-from pmwm_codec.cli.decode import obj_bytes
+from pmwm_codec.meshio import write_mesh
 
 ENCODE_FIELDS = {"vertices", "faces", "base_vertices", "base_faces", "vsplits", "chunks", "bytes", "seconds",
                  "distortion", "watermark"}
@@ -45,7 +45,7 @@ def run(capsys, *argv):
 
 
 def write_obj(path, mesh):
-    path.write_bytes(obj_bytes(mesh.positions, mesh.faces))
+    write_mesh(path, mesh)
     return path
 
 

@@ -1,4 +1,4 @@
-"""Shared pieces of the ``pmw`` subcommands: exit codes, errors, JSON, progress, atomic writes.
+"""Shared pieces of the ``pmw`` subcommands: exit codes, one-line errors, JSON, progress.
 
 Every subcommand module exposes ``add_parser(subparsers)`` and ``run(args) -> int``;
 :mod:`pmwm_codec.cli` wires them together and maps errors to exit status 2.
@@ -12,7 +12,6 @@ import json
 import math
 import os
 import sys
-import tempfile
 
 EXIT_OK = 0
 EXIT_NOT_AUTHENTIC = 1  # verify ran; the mark is absent, wrong or too weak to decide
@@ -104,23 +103,6 @@ def _isatty(stream) -> bool:
         return stream.isatty()
     except (AttributeError, ValueError):
         return False
-
-
-@contextlib.contextmanager
-def atomic_output(path, mode: str = "wb"):
-    """Open a temporary file beside ``path``; on success it replaces ``path``, on failure it vanishes."""
-    path = os.fspath(path)
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=directory)
-    try:
-        with os.fdopen(fd, mode) as fh:
-            yield fh
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
 
 
 @contextlib.contextmanager
