@@ -98,6 +98,23 @@ class Progress:
             self._shown = False
 
 
+#: Labels of the encoder stages on the progress bar.
+STAGES = {"simplify": "simplifying", "records": "building splits", "write": "writing"}
+#: Share of the whole encode each library stage ends at (the distortion measure takes the rest).
+_SPAN = {"simplify": (0.0, 0.45), "records": (0.45, 0.6), "write": (0.6, 0.7)}
+
+
+def stage_progress(progress):
+    """Adapt the library's ``progress(stage, fraction)`` to one bar over the whole encode."""
+    def report(stage, fraction):
+        lo, hi = _SPAN.get(stage, (0.0, 1.0))
+        if stage == "write" and fraction >= 1.0:
+            progress("measuring distortion", hi)
+        else:
+            progress(STAGES.get(stage, stage), lo + (hi - lo) * fraction)
+    return report
+
+
 def _isatty(stream) -> bool:
     try:
         return stream.isatty()

@@ -2,13 +2,7 @@
 
 from __future__ import annotations
 
-import os
-
-from pmwm_codec.constants import EXTENSION_NAME
-from pmwm_codec.format import read_header
-from pmwm_codec.format.base import find_extension_primitives
-from pmwm_codec.format.layout import CHUNK_HEADER_SIZE, PREAMBLE_SIZE
-from pmwm_codec.format.parser import parse_preamble
+from pmwm_codec.format.inspect import inspect
 
 from .common import check_input_file, naming, print_json
 
@@ -22,75 +16,10 @@ def add_parser(sub):
     p.set_defaults(run=run)
 
 
-def describe(path) -> dict:
-    """The ``pmw info --json`` object of the .pmw at ``path`` (from the header and JSON alone).
-
-    Counts are totals over every progressive primitive; ``primitives`` lists each one; the
-    chunk table is in stream order (the order the bytes arrive), ``primitive`` saying which
-    primitive a chunk refines.
-    """
-    header = read_header(path)
-    gltf = header.gltf_json
-    size = os.path.getsize(path) if path != "-" else None
-    accessors = gltf.get("accessors", [])
-    json_length = header_json_length(gltf, path)
-    bin_start = PREAMBLE_SIZE + json_length + CHUNK_HEADER_SIZE if json_length is not None else None
-    views = gltf.get("bufferViews", [])
-    prims, rows = [], []
-    for p, (mi, pi, prim) in enumerate(find_extension_primitives(gltf, EXTENSION_NAME)):
-        ext = prim["extensions"][EXTENSION_NAME]
-        base_vertices = accessors[prim["attributes"]["POSITION"]]["count"]
-        base_faces = accessors[prim["indices"]]["count"] // 3 if "indices" in prim else base_vertices // 3
-        prims.append({
-            "mesh": mi, "primitive": pi, "name": gltf["meshes"][mi].get("name"),
-            "vertices": ext["vertexCount"], "faces": ext["faceCount"],
-            "base_vertices": base_vertices, "base_faces": base_faces,
-            "base_codec": "draco" if "KHR_draco_mesh_compression" in prim.get("extensions", {}) else "plain",
-            "attributes": [a["semantic"] for a in ext.get("attributes", [])], "grid": ext.get("grid"),
-            "chunks": len(ext["chunks"]),
-        })
-        for k, c in enumerate(ext["chunks"]):
-            view = views[c["bufferView"]]
-            end = None if bin_start is None else bin_start + view.get("byteOffset", 0) + view["byteLength"]
-            rows.append((view.get("byteOffset", 0), {
-                "primitive": p, "splits": c["splits"], "vertices": c["vertexCount"], "faces": c["faceCount"],
-                "bytes": view["byteLength"], "geometric_error": c.get("geometricError"),
-                "present": None if (end is None or size is None) else end <= size}))
-    chunks = [dict(chunk=i + 1, **row) for i, (_, row) in enumerate(sorted(rows, key=lambda r: r[0]))]
-    complete = None if size is None else size >= header.total_length
-    ext = header.extension
-    wm = ext.get("watermark")
-    watermark = None
-    if wm:
-        watermark = {k: wm.get(k) for k in ("mode", "bits", "width", "height", "levels", "codes", "carriers",
-                                            "keyFingerprint")}
-    return {
-        "file": path, "bytes": size, "total_length": header.total_length, "complete": complete,
-        "truncated": None if complete is None else not complete,
-        "chunks_present": sum(1 for c in chunks if c["present"]) if size is not None else None,
-        "vertices": sum(q["vertices"] for q in prims), "faces": sum(q["faces"] for q in prims),
-        "base_vertices": sum(q["base_vertices"] for q in prims), "base_faces": sum(q["base_faces"] for q in prims),
-        "base_codec": prims[0]["base_codec"],
-        "vsplits": sum(c["splits"] for c in chunks), "chunks_total": header.chunk_count,
-        "grid": ext.get("grid"), "payload": ext.get("payload"), "watermark": watermark, "chunks": chunks,
-        "primitives": prims,
-        "extension": EXTENSION_NAME, "generator": gltf.get("asset", {}).get("generator"),
-    }
-
-
-def header_json_length(gltf, path):
-    """Length of the JSON chunk payload, read from the file's preamble (None for stdin)."""
-    if path == "-":
-        return None
-    with open(path, "rb") as fh:
-        pre = fh.read(PREAMBLE_SIZE)
-    return parse_preamble(pre)[1] if len(pre) == PREAMBLE_SIZE else None
-
-
 def run(args) -> int:
     check_input_file(args.input, ".pmw file")
     with naming(args.input):
-        info = describe(args.input)
+        info = inspect(args.input)
     if args.json:
         print_json(info)
         return 0

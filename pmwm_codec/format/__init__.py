@@ -9,6 +9,7 @@ module that knows their layout.  Modules:
 ``extension``  the PMWM_progressive_mesh object: JSON-schema check, digests
 ``glb``        writer: :func:`assemble_document`, :func:`build_pmw`, :func:`write_pmw` (atomic)
 ``parser``     push parser :class:`ContainerParser` and pull wrappers
+``inspect``    :func:`~.inspect.inspect`: the structure of a file from its header alone (``pmw info``)
 ``records``    chunk payload: split batches <-> bytes (numpy columns)
 ``document``   glTF documents in and out: loading assets, reading accessors, repacking
 """
