@@ -43,10 +43,6 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
-if ROOT not in sys.path:
-    sys.path.insert(0, ROOT)
-if HERE not in sys.path:
-    sys.path.insert(0, HERE)
 
 import pmwm_codec  # noqa: E402
 from pmwm_codec.format import BaseEvent, ChunkEvent, ContainerParser  # noqa: E402
