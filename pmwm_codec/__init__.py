@@ -132,3 +132,16 @@ def decode_asset(src, chunks=None) -> bytes:
 
     glb, _, _ = _decode_asset(src, chunks=chunks)
     return glb
+
+
+#: Functions of heavier modules, imported on first use so that ``import pmwm_codec`` stays light.
+_LAZY = {"inspect": ".format.inspect", "verify_stream": ".verify.stream", "write_mesh": ".meshio"}
+__all__ += list(_LAZY)
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        from importlib import import_module
+
+        return getattr(import_module(_LAZY[name], __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

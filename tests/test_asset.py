@@ -224,7 +224,7 @@ def test_spot_keeps_its_texture_uvs_and_is_validator_clean_with_no_seam_cracks(t
 
 
 def test_pmw_decode_of_an_asset_writes_a_glb_with_its_materials(tmp_path):
-    from tools.pmw import main
+    from pmwm_codec.cli import main
 
     src = two_mesh_asset(tmp_path)
     assert main(["encode", str(src), "-o", str(tmp_path / "s.pmw"), "--quiet"]) == 0
@@ -235,7 +235,7 @@ def test_pmw_decode_of_an_asset_writes_a_glb_with_its_materials(tmp_path):
 
 
 def test_info_lists_every_progressive_primitive_and_the_stream_order(tmp_path):
-    from tools.pmw_info import describe
+    from pmwm_codec import inspect as describe
 
     src = two_mesh_asset(tmp_path)
     encode_asset(src, tmp_path / "scene.pmw", measure=False)

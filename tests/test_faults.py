@@ -24,7 +24,6 @@ ROOT = Path(__file__).resolve().parents[1]
 
 CHILD = r"""
 import os, sys, numpy as np
-sys.path.insert(0, {root!r})
 from pmwm_codec import shapes
 from pmwm_codec.stream.encoder import encode_mesh
 from pmwm_codec.watermark.key import WatermarkKey
@@ -45,9 +44,9 @@ print("DONE", flush=True)
 
 
 def _child(dst, *, sub=5, hang_at_replace=False):
-    code = CHILD.format(root=str(ROOT), dst=str(dst), sub=sub, hang_at_replace=hang_at_replace,
+    code = CHILD.format(dst=str(dst), sub=sub, hang_at_replace=hang_at_replace,
                         size=32 if sub >= 5 else 16)
-    return subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    return subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, cwd=ROOT)
 
 
 @pytest.fixture

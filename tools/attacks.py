@@ -41,12 +41,10 @@ import numpy as np
 import scipy.sparse as sp
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
 
 SHARED = ROOT.parent / "shared"
 
-from pmwm_codec.progressive.topology import unique_edges  # noqa: E402
+from pmwm_codec.progressive.topology import unique_edges
 
 
 # ------------------------------------------------------------------ attacks

@@ -39,13 +39,11 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
-if ROOT not in sys.path:
-    sys.path.insert(0, ROOT)
 
-import pmwm_codec  # noqa: E402
-from pmwm_codec.format import records  # noqa: E402
-from pmwm_codec.mesh import Mesh  # noqa: E402
-from pmwm_codec.stream import encoder as enc_mod  # noqa: E402
+import pmwm_codec
+from pmwm_codec.format import records
+from pmwm_codec.mesh import Mesh
+from pmwm_codec.stream import encoder as enc_mod
 
 DEFAULT_CORPUS = os.path.normpath(os.path.join(ROOT, "..", "shared", "corpus"))
 SECTION = "Engine"

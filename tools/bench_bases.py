@@ -15,16 +15,14 @@ import sys
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.dirname(HERE))
-sys.path.insert(0, HERE)
 
-from pmwm_codec.mesh import read_mesh  # noqa: E402
-from pmwm_codec.progressive.grid import Grid  # noqa: E402
-from pmwm_codec.progressive.simplify import simplify  # noqa: E402
-from pmwm_codec.progressive.topology import edge_table  # noqa: E402
-from pmwm_codec.stream.chunking import default_base_target  # noqa: E402
+from pmwm_codec.mesh import read_mesh
+from pmwm_codec.progressive.grid import Grid
+from pmwm_codec.progressive.simplify import simplify
+from pmwm_codec.progressive.topology import edge_table
+from pmwm_codec.stream.chunking import default_base_target
 
-from bench import publish  # noqa: E402
+from bench import publish
 
 SECTION = "Base meshes"
 CORPUS = os.path.join(os.path.dirname(HERE), "..", "shared", "corpus")

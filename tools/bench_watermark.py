@@ -43,26 +43,22 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
-if ROOT not in sys.path:
-    sys.path.insert(0, ROOT)
-if HERE not in sys.path:
-    sys.path.insert(0, HERE)
 
-import pmwm_codec  # noqa: E402
-from pmwm_codec.format import iter_events  # noqa: E402
-from pmwm_codec.mesh import Mesh  # noqa: E402
-from pmwm_codec.progressive.topology import canonical_faces  # noqa: E402
-from pmwm_codec.stream.replay import Replay  # noqa: E402
-from pmwm_codec.stream import encoder as enc_mod  # noqa: E402
-from pmwm_codec.stream.decoder import StreamDecoder  # noqa: E402
-from pmwm_codec.watermark import codec as wm  # noqa: E402
-from pmwm_codec.watermark.image import load_watermark  # noqa: E402
-from pmwm_codec.watermark.key import WatermarkKey  # noqa: E402
-from pmwm_codec.distortion import mesh_distortion  # noqa: E402
-from pmwm_codec.watermark.metrics import centered_nc  # noqa: E402
-from pmwm_codec.watermark.verify import ALPHA, MATCH_RATE, Verifier  # noqa: E402
+import pmwm_codec
+from pmwm_codec.format import iter_events
+from pmwm_codec.mesh import Mesh
+from pmwm_codec.progressive.topology import canonical_faces
+from pmwm_codec.stream.replay import Replay
+from pmwm_codec.stream import encoder as enc_mod
+from pmwm_codec.stream.decoder import StreamDecoder
+from pmwm_codec.watermark import codec as wm
+from pmwm_codec.watermark.image import load_watermark
+from pmwm_codec.watermark.key import WatermarkKey
+from pmwm_codec.distortion import mesh_distortion
+from pmwm_codec.watermark.metrics import centered_nc
+from pmwm_codec.watermark.verify import ALPHA, MATCH_RATE, Verifier
 
-from bench import machine, publish, table  # noqa: E402
+from bench import machine, publish, table
 
 DEFAULT_CORPUS = os.path.normpath(os.path.join(ROOT, "..", "shared", "corpus"))
 DEFAULT_WATERMARKS = os.path.normpath(os.path.join(ROOT, "..", "shared", "watermarks"))

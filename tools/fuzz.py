@@ -52,12 +52,8 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
-
-from pmwm_codec.constants import EXTENSION_NAME  # noqa: E402
-from pmwm_codec.errors import PmwError  # noqa: E402
+from pmwm_codec.constants import EXTENSION_NAME
+from pmwm_codec.errors import PmwError
 
 KINDS = ("flip", "truncate", "insert", "splice", "payload", "records", "json", "zstd")
 

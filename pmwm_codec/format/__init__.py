@@ -12,6 +12,7 @@ module that knows their layout.  Modules:
                :func:`assemble_document`, :func:`build_pmw`, :func:`write_pmw` (atomic)
 ``parser``     push parser :class:`ContainerParser` and its events
 ``reader``     pull wrappers :func:`iter_events`, :func:`read_header`
+``inspect``    :func:`~.inspect.inspect`: the structure of a file from its header alone (``pmw info``)
 ``records``    chunk payload: split batches <-> bytes (numpy columns)
 ``document``   glTF documents in and out: loading assets, reading accessors, repacking
 """

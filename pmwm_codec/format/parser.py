@@ -79,6 +79,7 @@ class HeaderEvent:
     total_length: int  # GLB header length: the size of the complete file
     chunk_count: int  # all chunks of all progressive primitives
     extensions: tuple = ()  # every progressive primitive's extension object, in mesh/primitive order
+    bin_offset: int | None = None  # absolute offset of the BIN chunk's payload (buffer 0 starts here)
 
 
 @dataclass(frozen=True, eq=False)
@@ -389,7 +390,8 @@ class ContainerParser:
             self._bin_data = PREAMBLE_SIZE + self._json_length + CHUNK_HEADER_SIZE
             self._plan = _plan(self._gltf, exts, self._total - self._bin_data)
             self._state = _BIN_HEADER
-            return HeaderEvent(self._gltf, self._ext, self._total, len(self._plan.chunk_ranges), tuple(exts))
+            return HeaderEvent(self._gltf, self._ext, self._total, len(self._plan.chunk_ranges), tuple(exts),
+                               self._bin_data)
         if state == _BIN_HEADER:
             head = self._take(self._bin_data)
             if head is None:

@@ -90,11 +90,10 @@ class MeshVerification:
     bit_exact: bool = False
 
     def as_json(self) -> dict:
+        """The ``pmw verify MESH --reference --json`` object (non-finite numbers are ``null``)."""
+
         def num(x):
-            if x is None:
-                return None
-            x = float(x)
-            return None if math.isnan(x) else ("Infinity" if math.isinf(x) else x)
+            return None if x is None or not math.isfinite(float(x)) else float(x)
 
         return {
             "verdict": self.verdict, "nc": num(self.nc), "psnr_db": num(self.psnr_db),
@@ -103,7 +102,7 @@ class MeshVerification:
             "coefficients": self.coefficients, "bit_exact": self.bit_exact,
             "correspondence": self.correspondence, "coverage": self.coverage,
             "registration_rms": num(self.registration_rms), "vertices": self.vertices, "faces": self.faces,
-            "reference_vertices": self.reference_vertices, "seconds": round(self.seconds, 4),
+            "reference_vertices": self.reference_vertices,
         }
 
 

@@ -6,67 +6,12 @@ Exit status: 0 authentic; 1 not-authentic or inconclusive; 2 bad input.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
 
 import pmwm_codec
-from pmwm_codec.stream import StreamDecoder, iter_results
-from pmwm_codec.watermark import load_watermark
+from pmwm_codec.verify import StreamVerification, verify_stream
 
-from ._cli import (EXIT_NOT_AUTHENTIC, EXIT_OK, Progress, UsageError, check_input_file, fmt_float, naming,
+from .common import (EXIT_NOT_AUTHENTIC, EXIT_OK, Progress, UsageError, check_input_file, fmt_float, naming,
                    print_json)
-
-
-@dataclass
-class Outcome:
-    """What a verification found: the results (base first), how the stream ended, the verdict."""
-
-    results: list
-    end: object  # StreamEnd
-    verdict: str
-    codes_matched: int
-    codes_read: int
-    marked: bool
-    total_length: int
-
-    def as_json(self) -> dict:
-        chunks = [r.as_json() for r in self.results]
-        return {"complete": bool(self.end.complete), "truncated": bool(self.end.truncated),
-                "chunks_total": int(self.end.chunks_total), "chunks": chunks, "final": chunks[-1],
-                "verdict": self.verdict, "bytes_read": int(self.end.bytes_read),
-                "total_length": int(self.total_length), "codes_matched": self.codes_matched,
-                "codes_read": self.codes_read}
-
-
-def verify(source, key, watermark=None, *, keep_meshes: bool = False, progress=None) -> Outcome:
-    """Decode ``source`` (path, '-', bytes, file) with ``key`` and score the mark at every boundary.
-
-    ``watermark``: the expected image (path or array; default: the one stored in the key).
-    ``keep_meshes``: keep a copy of every level's mesh in the results (for pictures).
-    """
-    reference = None
-    if watermark is not None:
-        reference, _ = load_watermark(watermark)
-    decoder = StreamDecoder(pmwm_codec.load_key(key), reference, copy=keep_meshes)
-    gen = iter_results(source, decoder)
-    results = []
-    while True:
-        try:
-            r = next(gen)
-        except StopIteration as stop:
-            end = stop.value
-            break
-        if not keep_meshes:  # views into the decoder: drop them, keep the numbers
-            r.parts = []
-        results.append(r)
-        if progress is not None:
-            progress(f"chunk {r.chunk}/{r.chunks_total}", r.chunk / max(1, r.chunks_total))
-    v = decoder.verifier
-    if v is None:
-        verdict, matched, read = "not-authentic", 0, 0  # the file carries no watermark
-    else:
-        verdict = v.verdict()
-        matched, read = v.matches()
-    return Outcome(results, end, verdict, matched, read, v is not None, decoder.header.total_length)
 
 
 def add_parser(sub):
@@ -103,8 +48,8 @@ def run(args) -> int:
     progress = Progress(not (args.json or args.quiet))
     try:
         with naming(args.input):
-            outcome = verify(args.input, args.key, args.watermark, keep_meshes=args.frames is not None,
-                             progress=progress)
+            outcome = verify_stream(args.input, args.key, args.watermark, keep_meshes=args.frames is not None,
+                                    progress=progress)
     finally:
         progress.done()
     pictures = None
@@ -127,7 +72,7 @@ def run(args) -> int:
 
 def run_reference(args) -> int:
     """``pmw verify MESH --reference ORIGINAL.pmw --key KEY``: one verdict for a mesh file."""
-    from pmwm_codec.verify import verify_mesh
+    from pmwm_codec.verify.mesh import verify_mesh  # registration (scipy): loaded only for this form
 
     check_input_file(args.input, "mesh file")
     check_input_file(args.reference, "reference .pmw")
@@ -141,13 +86,8 @@ def run_reference(args) -> int:
 
         os.makedirs(args.frames, exist_ok=True)
         save_png(os.path.join(args.frames, "watermark.png"), v.watermark)
-    doc = {"verdict": v.verdict, "nc": v.nc, "psnr_db": v.psnr_db, "centered_nc": v.centered_nc, "ber": v.ber,
-           "code_match": v.code_match, "coefficients": v.coefficients, "carriers_read": v.carriers_read,
-           "carriers_total": v.carriers_total, "correspondence": v.correspondence, "coverage": v.coverage,
-           "registration_rms": v.registration_rms, "vertices": v.vertices, "faces": v.faces,
-           "reference_vertices": v.reference_vertices, "bit_exact": v.bit_exact}
     if args.json:
-        print_json(doc)
+        print_json(v.as_json())
     elif not args.quiet:
         print(f"{args.input}: {v.vertices:,} vertices matched to the reference by {v.correspondence} "
               f"({100 * v.coverage:.1f}% of its vertices); {v.carriers_read:,} of {v.carriers_total:,} codes read")
@@ -157,7 +97,7 @@ def run_reference(args) -> int:
     return EXIT_OK if v.verdict == "authentic" else EXIT_NOT_AUTHENTIC
 
 
-def report(o: Outcome, pictures=None) -> str:
+def report(o: StreamVerification, pictures=None) -> str:
     """The human table: one row per chunk boundary, then the verdict."""
     head = f"{'chunk':>5} {'bytes':>11} {'vertices':>9} {'faces':>9} {'coeffs':>7} {'NC':>7} {'PSNR dB':>8}"
     lines = [head]

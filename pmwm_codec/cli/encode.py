@@ -9,22 +9,7 @@ import pmwm_codec
 from pmwm_codec.constants import MAX_GRID_BITS, MIN_GRID_BITS
 from pmwm_codec.watermark.codec import MAX_BITS, MODES
 
-from ._cli import Progress, UsageError, check_input_file, check_output_path, fmt_float, print_json
-
-STAGES = {"simplify": "simplifying", "records": "building splits", "write": "writing"}
-#: Share of the whole encode each library stage ends at (the distortion measure takes the rest).
-_SPAN = {"simplify": (0.0, 0.45), "records": (0.45, 0.6), "write": (0.6, 0.7)}
-
-
-def stage_progress(progress):
-    """Adapt the library's ``progress(stage, fraction)`` to one bar over the whole encode."""
-    def report(stage, fraction):
-        lo, hi = _SPAN.get(stage, (0.0, 1.0))
-        if stage == "write" and fraction >= 1.0:
-            progress("measuring distortion", hi)
-        else:
-            progress(STAGES.get(stage, stage), lo + (hi - lo) * fraction)
-    return report
+from .common import Progress, UsageError, check_input_file, check_output_path, fmt_float, print_json, stage_progress
 
 
 def _int_in(lo, hi, what):

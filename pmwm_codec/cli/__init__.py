@@ -1,7 +1,7 @@
 """The ``pmw`` command: ``encode``, ``decode``, ``verify``, ``info``, ``demo`` (DESIGN.md §5).
 
-Thin over the library: each subcommand lives in ``tools/pmw_<name>.py`` as
-``add_parser(subparsers)`` + ``run(args) -> int``.  :func:`main` is the console
+Thin over the library: each subcommand lives in ``pmwm_codec/cli/<name>.py`` as
+``add_parser(subparsers)`` + ``run(args) -> int``; ``python -m pmwm_codec`` runs it too.  :func:`main` is the console
 script and the function tests call: ``main(["verify", "x.pmw", "--key", "k"])``.
 
 Exit status: 0 success (verify: authentic); 1 verify ran and the mark is absent,
@@ -17,10 +17,10 @@ import sys
 from pmwm_codec import __version__
 from pmwm_codec.errors import PmwError
 
-from . import pmw_decode, pmw_demo, pmw_encode, pmw_info, pmw_verify
-from ._cli import EXIT_BAD_INPUT, PROG, ArgumentParser, UsageError, error_line, os_error_message
+from . import decode, demo, encode, info, verify
+from .common import EXIT_BAD_INPUT, PROG, ArgumentParser, UsageError, error_line, os_error_message
 
-COMMANDS = (pmw_encode, pmw_decode, pmw_verify, pmw_info, pmw_demo)
+COMMANDS = (encode, decode, verify, info, demo)
 
 
 def build_parser() -> ArgumentParser:
@@ -54,7 +54,3 @@ def main(argv=None) -> int:
         sys.stderr.write(error_line("interrupted") + "\n")
         return 130
     return EXIT_BAD_INPUT
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())

@@ -1,11 +1,14 @@
-"""The ``pmw`` command end to end: ``tools.pmw.main(argv)`` on temp dirs, meshes and watermarks made here."""
+"""The ``pmw`` command end to end: ``pmwm_codec.cli.main(argv)`` on temp dirs, meshes and watermarks made here,
+and the library functions behind it (``verify_stream``, ``inspect``) against its ``--json`` output."""
 
 from __future__ import annotations
 
 import io
 import json
 import os
+import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pygltflib
@@ -16,8 +19,10 @@ from PIL import Image
 import pmwm_codec
 from pmwm_codec import shapes
 from pmwm_codec.watermark import WatermarkKey
-from tools.pmw import main
-from tools.pmw_decode import obj_bytes
+from pmwm_codec.cli import main
+from pmwm_codec.cli.common import jsonable
+import math
+from pmwm_codec.meshio import write_mesh
 
 ENCODE_FIELDS = {"vertices", "faces", "base_vertices", "base_faces", "vsplits", "chunks", "bytes", "seconds",
                  "distortion", "watermark"}
@@ -26,6 +31,7 @@ WATERMARK_FIELDS = {"width", "height", "mode", "bits", "codes", "embedded"}
 VERIFY_FIELDS = {"complete", "truncated", "chunks_total", "chunks", "final", "verdict"}
 CHUNK_FIELDS = {"chunk", "bytes_read", "vertices", "faces", "coefficients", "nc", "psnr_db"}
 DECODE_FIELDS = {"vertices", "faces", "chunks_applied", "complete"}
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def strict_json(text):
@@ -45,7 +51,7 @@ def run(capsys, *argv):
 
 
 def write_obj(path, mesh):
-    path.write_bytes(obj_bytes(mesh.positions, mesh.faces))
+    write_mesh(path, mesh)
     return path
 
 
@@ -354,3 +360,69 @@ def test_demo_writes_its_pictures(tmp_path, capsys):
         assert (out / sub / "frame_000.png").exists()
     assert (out / "demo.pmw").exists() and (out / "demo-cut.pmw").exists() and (out / "demo.pmw.key.json").exists()
     assert "truncated" in stdout and "authentic" in stdout and str(out / "cut" / "overview.png") in stdout
+
+
+# -- the package entry point and the library behind the command ----------------------------
+
+def test_python_dash_m_pmwm_codec_runs_the_command():
+    done = subprocess.run([sys.executable, "-m", "pmwm_codec", "--help"], cwd=ROOT, capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith("usage: pmw") and "decode" in done.stdout and "verify" in done.stdout
+
+
+def test_decode_to_stl_round_trips_through_read_mesh(work, tmp_path, capsys):
+    out = tmp_path / "level.stl"
+    code, stdout, err = run(capsys, "decode", work["pmw"], "-o", out, "--chunks", "3", "--json")
+    assert code == 0, err
+    doc = strict_json(stdout)
+    expected = pmwm_codec.decode(work["pmw"], chunks=3)
+    mesh = pmwm_codec.read_mesh(out)
+    assert (mesh.vertex_count, mesh.face_count) == (doc["vertices"], doc["faces"])
+    # STL has no vertex order: compare the triangles as sets of float32 corners
+    def corners(m):
+        return sorted(map(tuple, np.sort(m.positions.astype(np.float32)[m.faces].reshape(-1, 9), axis=1).tolist()))
+    assert corners(mesh) == corners(expected)
+    assert [p.name for p in tmp_path.iterdir()] == [out.name]
+
+
+def test_verify_stream_as_json_is_the_verify_json_output(work, capsys):
+    code, stdout, _ = run(capsys, "verify", work["pmw"], "--key", work["key"], "--json")
+    assert code == 0
+    printed = strict_json(stdout)
+    result = pmwm_codec.verify_stream(str(work["pmw"]), str(work["key"]))
+    assert result.as_json().keys() == printed.keys()
+    assert jsonable(result.as_json()) == printed
+    assert result.verdict == "authentic" and result.end.complete and len(result.results) == printed["chunks_total"] + 1
+
+
+def test_verify_stream_on_a_cut_file_in_memory(work):
+    data = work["pmw"].read_bytes()
+    result = pmwm_codec.verify_stream(data[: len(data) // 2], WatermarkKey.load(work["key"]))
+    doc = result.as_json()
+    assert doc["truncated"] is True and doc["final"] == doc["chunks"][-1]
+    assert [r.chunk for r in result.results] == list(range(len(result.results)))
+
+
+def test_verify_reference_json_is_mesh_verification_as_json(work, tmp_path, capsys):
+    from pmwm_codec.verify.mesh import verify_mesh
+
+    exported = tmp_path / "exported.obj"
+    assert run(capsys, "decode", work["pmw"], "-o", exported)[0] == 0
+    code, stdout, _ = run(capsys, "verify", exported, "--reference", work["pmw"], "--key", work["key"], "--json")
+    assert code == 0
+    printed = strict_json(stdout)
+    v = verify_mesh(pmwm_codec.read_mesh(exported), work["pmw"], work["key"])
+    expected = v.as_json()
+    assert printed == expected and printed["psnr_db"] is None and v.psnr_db == math.inf
+
+
+@pytest.mark.parametrize("cut", [False, True])
+def test_inspect_is_the_info_json_output(work, tmp_path, capsys, cut):
+    path = work["pmw"]
+    if cut:
+        path = tmp_path / "cut.pmw"
+        path.write_bytes(work["pmw"].read_bytes()[:20000])
+    info = pmwm_codec.inspect(str(path))
+    assert jsonable(info) == _info(capsys, path)
+    assert pmwm_codec.inspect(path.read_bytes()) == {**info, "file": None}

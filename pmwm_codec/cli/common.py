@@ -1,7 +1,7 @@
-"""Shared pieces of the ``pmw`` subcommands: exit codes, errors, JSON, progress, atomic writes.
+"""Shared pieces of the ``pmw`` subcommands: exit codes, one-line errors, JSON, progress.
 
 Every subcommand module exposes ``add_parser(subparsers)`` and ``run(args) -> int``;
-:mod:`tools.pmw` wires them together and maps errors to exit status 2.
+:mod:`pmwm_codec.cli` wires them together and maps errors to exit status 2.
 """
 
 from __future__ import annotations
@@ -12,7 +12,6 @@ import json
 import math
 import os
 import sys
-import tempfile
 
 EXIT_OK = 0
 EXIT_NOT_AUTHENTIC = 1  # verify ran; the mark is absent, wrong or too weak to decide
@@ -99,28 +98,28 @@ class Progress:
             self._shown = False
 
 
+#: Labels of the encoder stages on the progress bar.
+STAGES = {"simplify": "simplifying", "records": "building splits", "write": "writing"}
+#: Share of the whole encode each library stage ends at (the distortion measure takes the rest).
+_SPAN = {"simplify": (0.0, 0.45), "records": (0.45, 0.6), "write": (0.6, 0.7)}
+
+
+def stage_progress(progress):
+    """Adapt the library's ``progress(stage, fraction)`` to one bar over the whole encode."""
+    def report(stage, fraction):
+        lo, hi = _SPAN.get(stage, (0.0, 1.0))
+        if stage == "write" and fraction >= 1.0:
+            progress("measuring distortion", hi)
+        else:
+            progress(STAGES.get(stage, stage), lo + (hi - lo) * fraction)
+    return report
+
+
 def _isatty(stream) -> bool:
     try:
         return stream.isatty()
     except (AttributeError, ValueError):
         return False
-
-
-@contextlib.contextmanager
-def atomic_output(path, mode: str = "wb"):
-    """Open a temporary file beside ``path``; on success it replaces ``path``, on failure it vanishes."""
-    path = os.fspath(path)
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=directory)
-    try:
-        with os.fdopen(fd, mode) as fh:
-            yield fh
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
 
 
 @contextlib.contextmanager

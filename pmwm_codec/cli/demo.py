@@ -9,11 +9,10 @@ import time
 import pmwm_codec
 from pmwm_codec.figures import write_figures
 from pmwm_codec.shapes import demo_mesh
+from pmwm_codec.verify import verify_stream
 from pmwm_codec.watermark import make_text_watermark, save_png
 
-from ._cli import Progress, UsageError, fmt_float
-from .pmw_encode import stage_progress
-from .pmw_verify import verify
+from .common import Progress, UsageError, fmt_float, stage_progress
 
 CUT_FRACTION = 1 / 3
 
@@ -60,7 +59,7 @@ def run(args) -> int:
     say(f"3. cut the file at a third: {cut} ({int(len(data) * CUT_FRACTION):,} of {len(data):,} bytes)")
 
     for step, (label, path, sub) in enumerate((("cut", cut, "cut"), ("whole", pmw, "whole")), start=4):
-        o = verify(path, r["key_path"], keep_meshes=True)
+        o = verify_stream(path, r["key_path"], keep_meshes=True)
         last = o.results[-1]
         pics = write_figures(o.results, os.path.join(out, sub),
                              title=f"demo: {label} file, {o.verdict}", total_bytes=o.total_length,

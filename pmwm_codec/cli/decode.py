@@ -1,0 +1,58 @@
+"""``pmw decode IN.pmw|- -o OUT.(glb|gltf|obj|ply|stl) [--chunks N]``: a level of detail as a plain mesh.
+
+glTF outputs keep the whole document (materials, textures, nodes) through
+:func:`pmwm_codec.stream.asset.decode_asset`; the other formats get the geometry through
+:func:`pmwm_codec.stream.reader.decode_stream` and :func:`pmwm_codec.meshio.write_mesh`.
+Every output is written atomically.
+"""
+
+from __future__ import annotations
+
+import os
+
+from pmwm_codec.meshio import WRITE_SUFFIXES, write_asset, write_mesh
+from pmwm_codec.stream.asset import decode_asset
+from pmwm_codec.stream.reader import decode_stream
+
+from .common import UsageError, check_input_file, check_output_path, naming, print_json
+
+
+def add_parser(sub):
+    p = sub.add_parser(
+        "decode", help=".pmw (whole, cut or on stdin) -> GLB/glTF/OBJ/PLY/STL",
+        description="Decode a .pmw (whole, truncated, or '-' for standard input) to an ordinary mesh file "
+                    "at full resolution or after --chunks N vertex-split chunks.")
+    p.add_argument("input", metavar="IN.pmw", help="the .pmw, or - for standard input")
+    p.add_argument("-o", "--output", required=True, metavar="OUT", help="output mesh: .glb, .gltf, .obj, .ply or .stl")
+    p.add_argument("--chunks", type=int, metavar="N", help="stop after the base mesh and N chunks")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(run=run)
+
+
+def run(args) -> int:
+    suffix = os.path.splitext(args.output)[1].lower()
+    if suffix not in WRITE_SUFFIXES:
+        raise UsageError(f"{args.output}: unknown output format {suffix or '(no suffix)'!r}; "
+                         f"use one of {', '.join(WRITE_SUFFIXES)}")
+    if args.chunks is not None and args.chunks < 0:
+        raise UsageError(f"--chunks must be >= 0, got {args.chunks}")
+    check_input_file(args.input, ".pmw file")
+    check_output_path(args.output, "mesh")
+    with naming(args.input):
+        if suffix in (".glb", ".gltf"):
+            glb, end, decoder = decode_asset(args.input, chunks=args.chunks)
+            last = decoder.last
+            write_asset(args.output, glb)
+        else:
+            last, end = decode_stream(args.input, chunks=args.chunks, copy=False)
+            write_mesh(args.output, last.mesh)
+    out = {"vertices": int(last.vertices), "faces": int(last.faces_count), "chunks_applied": int(end.chunks_applied),
+           "complete": bool(end.complete), "chunks_total": int(end.chunks_total), "truncated": bool(end.truncated),
+           "output": args.output}
+    if args.json:
+        print_json(out)
+    else:
+        state = "complete file" if end.complete else f"truncated file, {end.bytes_read:,} bytes"
+        print(f"{args.output}: {out['vertices']:,} vertices, {out['faces']:,} faces "
+              f"(base + {out['chunks_applied']} of {out['chunks_total']} chunks; {state})")
+    return 0

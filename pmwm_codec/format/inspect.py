@@ -1,0 +1,100 @@
+"""The structure of a ``.pmw`` from its header and glTF JSON alone (no decoding).
+
+Contract
+--------
+:func:`inspect` ``(source) -> dict`` reads only the 20-byte preamble and the JSON chunk
+(:func:`~pmwm_codec.format.parser.read_header`) and returns the ``pmw info --json``
+object: counts (totals over every progressive primitive), base codec, grid, payload
+codec, public watermark parameters, one row per primitive, and the chunk table in
+stream order (the order the bytes arrive) with each chunk's byte count and whether
+its last byte is inside the file.  ``bytes``, ``complete``, ``truncated``,
+``chunks_present`` and each chunk's ``present`` are None when the size of the source
+is unknown (standard input, a file object).
+"""
+
+from __future__ import annotations
+
+import os
+
+from ..constants import EXTENSION_NAME
+from .base import DRACO_EXTENSION, find_extension_primitives
+from .parser import read_header
+
+__all__ = ["inspect"]
+
+#: The public watermark parameters ``inspect`` reports (never the key).
+WATERMARK_FIELDS = ("mode", "bits", "width", "height", "levels", "codes", "carriers", "keyFingerprint")
+
+
+def inspect(source) -> dict:
+    """The ``pmw info --json`` object of ``source``: a path, ``"-"`` (standard input) or bytes.
+
+    Raises the parser's named errors (FormatError, LimitError, TruncatedError when the
+    JSON chunk is incomplete).
+    """
+    header = read_header(source)
+    gltf = header.gltf_json
+    size = _size(source)
+    prims, rows = _primitives(gltf, header.bin_offset, size)
+    chunks = [dict(chunk=i + 1, **row) for i, (_, row) in enumerate(sorted(rows, key=lambda r: r[0]))]
+    complete = None if size is None else size >= header.total_length
+    ext = header.extension
+    wm = ext.get("watermark")
+    watermark = {k: wm.get(k) for k in WATERMARK_FIELDS} if wm else None
+    return {
+        "file": _name(source), "bytes": size, "total_length": header.total_length, "complete": complete,
+        "truncated": None if complete is None else not complete,
+        "chunks_present": sum(1 for c in chunks if c["present"]) if size is not None else None,
+        "vertices": sum(q["vertices"] for q in prims), "faces": sum(q["faces"] for q in prims),
+        "base_vertices": sum(q["base_vertices"] for q in prims), "base_faces": sum(q["base_faces"] for q in prims),
+        "base_codec": prims[0]["base_codec"],
+        "vsplits": sum(c["splits"] for c in chunks), "chunks_total": header.chunk_count,
+        "grid": ext.get("grid"), "payload": ext.get("payload"), "watermark": watermark, "chunks": chunks,
+        "primitives": prims,
+        "extension": EXTENSION_NAME, "generator": gltf.get("asset", {}).get("generator"),
+    }
+
+
+def _primitives(gltf: dict, bin_offset: int, size):
+    """``(primitive rows, [(byteOffset, chunk row), ...])`` of every progressive primitive.
+
+    A chunk row's ``present`` says whether its last byte is within ``size`` (None if unknown).
+    """
+    accessors = gltf.get("accessors", [])
+    views = gltf.get("bufferViews", [])
+    prims, rows = [], []
+    for p, (mi, pi, prim) in enumerate(find_extension_primitives(gltf, EXTENSION_NAME)):
+        ext = prim["extensions"][EXTENSION_NAME]
+        base_vertices = accessors[prim["attributes"]["POSITION"]]["count"]
+        base_faces = accessors[prim["indices"]]["count"] // 3 if "indices" in prim else base_vertices // 3
+        prims.append({
+            "mesh": mi, "primitive": pi, "name": gltf["meshes"][mi].get("name"),
+            "vertices": ext["vertexCount"], "faces": ext["faceCount"],
+            "base_vertices": base_vertices, "base_faces": base_faces,
+            "base_codec": "draco" if DRACO_EXTENSION in prim.get("extensions", {}) else "plain",
+            "attributes": [a["semantic"] for a in ext.get("attributes", [])], "grid": ext.get("grid"),
+            "chunks": len(ext["chunks"]),
+        })
+        for c in ext["chunks"]:
+            view = views[c["bufferView"]]
+            end = bin_offset + view.get("byteOffset", 0) + view["byteLength"]
+            rows.append((view.get("byteOffset", 0), {
+                "primitive": p, "splits": c["splits"], "vertices": c["vertexCount"], "faces": c["faceCount"],
+                "bytes": view["byteLength"], "geometric_error": c.get("geometricError"),
+                "present": None if size is None else end <= size}))
+    return prims, rows
+
+
+def _size(source):
+    """The byte size of ``source``, or None when it cannot be known without reading it all."""
+    if isinstance(source, (bytes, bytearray, memoryview)):
+        return len(source)
+    if isinstance(source, (str, os.PathLike)) and source != "-":
+        return os.path.getsize(source)
+    return None
+
+
+def _name(source):
+    if isinstance(source, (str, os.PathLike)):
+        return os.fspath(source)
+    return None

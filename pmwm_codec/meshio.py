@@ -1,0 +1,154 @@
+"""Writing meshes to disk: the mirror of :func:`pmwm_codec.mesh.read_mesh`.
+
+Contract
+--------
+:func:`write_mesh` ``(path, mesh)`` writes a :class:`~pmwm_codec.mesh.Mesh`
+(``positions`` (n, 3) float, ``faces`` (m, 3) int) in the format named by the
+suffix of ``path``:
+
+``.obj``   ASCII Wavefront OBJ (``v`` and ``f`` records, 1-based, 9 significant digits)
+``.ply``   binary little-endian PLY (float x, y, z; ``uchar uint`` face lists)
+``.stl``   binary STL (one float32 normal and three float32 corners per face)
+``.glb``   a minimal glTF binary: one node, one mesh, float32 POSITION, uint32 indices
+``.gltf``  the same document as JSON, its buffer in ``<stem>.bin`` beside it
+
+Positions are stored as float32 in every format (the precision of glTF; 9 significant
+digits round-trip a float32 exactly) and indices as uint32.  Attributes are not written.
+:func:`write_asset` writes the bytes of an ordinary GLB document (for instance from
+:func:`pmwm_codec.decode_asset`) as ``.glb``, or as a self-contained ``.gltf`` with the
+buffer as a base64 data URI.
+
+Every file is written atomically through :func:`pmwm_codec.format.glb.write_parts`
+(a temporary file beside the target, then ``os.replace``): an existing file is
+either replaced whole or left untouched.  GLB framing is
+:func:`pmwm_codec.format.glb.glb_parts`, the one the ``.pmw`` writer uses.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+
+import numpy as np
+
+from .format.document import glb_to_gltf
+from .format.glb import glb_parts, write_parts
+from .mesh import Mesh
+
+__all__ = ["WRITE_SUFFIXES", "write_mesh", "write_asset"]
+
+WRITE_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl")
+GENERATOR = "pmwm_codec (pmw decode)"
+#: Permissions of a written mesh: the temporary file of ``write_parts`` is private (0600).
+FILE_MODE = 0o644
+
+_FLOAT, _UINT = 5126, 5125  # glTF componentType
+_ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963  # glTF bufferView target
+_TRIANGLES = 4
+
+
+def write_mesh(path, mesh: Mesh) -> None:
+    """Write ``mesh`` to ``path`` (str or os.PathLike), format by suffix (see the module docstring).
+
+    ``mesh.positions`` (n, 3) float is stored as float32, ``mesh.faces`` (m, 3) int as uint32.
+    Raises ValueError for a suffix not in :data:`WRITE_SUFFIXES`.
+    """
+    path = os.fspath(path)
+    suffix = _suffix(path, WRITE_SUFFIXES)
+    positions = np.ascontiguousarray(mesh.positions, dtype="<f4")
+    faces = np.ascontiguousarray(mesh.faces, dtype="<u4")
+    if suffix == ".gltf":
+        _write_gltf(path, positions, faces)
+        return
+    writer = {".glb": _glb_parts, ".obj": _obj_parts, ".ply": _ply_parts, ".stl": _stl_parts}[suffix]
+    _write(path, writer(positions, faces))
+
+
+def write_asset(path, glb: bytes) -> None:
+    """Write the bytes of an ordinary GLB document as ``.glb``, or as ``.gltf`` (buffer embedded as base64)."""
+    path = os.fspath(path)
+    suffix = _suffix(path, (".glb", ".gltf"))
+    _write(path, [glb if suffix == ".glb" else glb_to_gltf(glb)])
+
+
+def _suffix(path: str, allowed) -> str:
+    suffix = os.path.splitext(path)[1].lower()
+    if suffix not in allowed:
+        raise ValueError(
+            f"{path}: unknown output format {suffix or '(no suffix)'!r}; use one of {', '.join(allowed)}")
+    return suffix
+
+
+def _write(path: str, parts) -> None:
+    write_parts(path, parts)
+    os.chmod(path, FILE_MODE)
+
+
+def _gltf_document(positions: np.ndarray, faces: np.ndarray):
+    """``(glTF dict, [position bytes, index bytes], byte length)`` for (n, 3) <f4 positions, (m, 3) <u4 faces."""
+    pos_bytes, idx_bytes = positions.tobytes(), faces.tobytes()  # 12 n and 12 m bytes: 4-aligned
+    doc = {
+        "asset": {"version": "2.0", "generator": GENERATOR},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "mode": _TRIANGLES}]}],
+        "accessors": [
+            {"bufferView": 0, "componentType": _FLOAT, "count": int(len(positions)), "type": "VEC3",
+             "min": [float(v) for v in positions.min(0)], "max": [float(v) for v in positions.max(0)]},
+            {"bufferView": 1, "componentType": _UINT, "count": int(faces.size), "type": "SCALAR"},
+        ],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": len(pos_bytes), "target": _ARRAY_BUFFER},
+            {"buffer": 0, "byteOffset": len(pos_bytes), "byteLength": len(idx_bytes),
+             "target": _ELEMENT_ARRAY_BUFFER},
+        ],
+        "buffers": [{"byteLength": len(pos_bytes) + len(idx_bytes)}],
+    }
+    return doc, [pos_bytes, idx_bytes], len(pos_bytes) + len(idx_bytes)
+
+
+def _glb_parts(positions, faces) -> list:
+    doc, binary, length = _gltf_document(positions, faces)
+    return glb_parts(doc, binary, length)
+
+
+def _write_gltf(path: str, positions, faces) -> None:
+    """The JSON at ``path`` and its buffer at ``<stem>.bin`` (written first, so the JSON never dangles)."""
+    doc, binary, _ = _gltf_document(positions, faces)
+    bin_path = os.path.splitext(path)[0] + ".bin"
+    doc["buffers"][0]["uri"] = os.path.basename(bin_path)
+    _write(bin_path, binary)
+    _write(path, [(json.dumps(doc, indent=1) + "\n").encode("utf-8")])
+
+
+def _obj_parts(positions, faces) -> list:
+    buf = io.StringIO()
+    buf.write(f"# {GENERATOR}: {len(positions)} vertices, {len(faces)} faces\n")
+    np.savetxt(buf, positions.astype(np.float64), fmt="v %.9g %.9g %.9g")
+    np.savetxt(buf, faces.astype(np.int64) + 1, fmt="f %d %d %d")
+    return [buf.getvalue().encode("ascii")]
+
+
+def _ply_parts(positions, faces) -> list:
+    rec = np.empty(len(faces), dtype=[("n", "u1"), ("i", "<u4", (3,))])
+    rec["n"] = 3
+    rec["i"] = faces
+    header = (f"ply\nformat binary_little_endian 1.0\ncomment {GENERATOR}\n"
+              f"element vertex {len(positions)}\nproperty float x\nproperty float y\nproperty float z\n"
+              f"element face {len(faces)}\nproperty list uchar uint vertex_indices\nend_header\n")
+    return [header.encode("ascii"), positions.tobytes(), rec.tobytes()]
+
+
+def _stl_parts(positions, faces) -> list:
+    """Binary STL: 80-byte header, uint32 face count, then per face 12 float32 and a uint16 (50 bytes)."""
+    corners = positions[faces]  # (m, 3, 3) float32
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]).astype(np.float64)
+    length = np.linalg.norm(normal, axis=1, keepdims=True)
+    normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0)
+    rec = np.zeros(len(faces), dtype=[("normal", "<f4", (3,)), ("corners", "<f4", (3, 3)), ("attr", "<u2")])
+    rec["normal"] = normal
+    rec["corners"] = corners
+    header = f"binary STL, {GENERATOR}".encode("ascii").ljust(80, b" ")
+    return [header, np.uint32(len(faces)).astype("<u4").tobytes(), rec.tobytes()]

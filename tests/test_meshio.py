@@ -1,0 +1,100 @@
+"""``pmwm_codec.write_mesh`` / ``write_asset``: every format read back, atomic writes, GLB framing."""
+
+from __future__ import annotations
+
+import json
+import stat
+
+import numpy as np
+import pygltflib
+import pytest
+
+import pmwm_codec
+from pmwm_codec import shapes
+from pmwm_codec.format.parser import parse_preamble
+from pmwm_codec.meshio import WRITE_SUFFIXES, write_asset, write_mesh
+
+
+@pytest.fixture(scope="module")
+def mesh():
+    return shapes.icosphere(2, 1.0, noise=0.02)
+
+
+def same_triangles(a, b) -> bool:
+    """Same triangles (as float32 corner sets), whatever the vertex order and numbering."""
+    def key(m):
+        tri = np.asarray(m.positions, np.float32)[m.faces].reshape(-1, 9)
+        return sorted(map(tuple, np.sort(tri, axis=1).tolist()))
+    return key(a) == key(b)
+
+
+@pytest.mark.parametrize("suffix", WRITE_SUFFIXES)
+def test_every_format_reads_back_with_read_mesh(mesh, tmp_path, suffix):
+    path = tmp_path / f"m{suffix}"
+    write_mesh(path, mesh)
+    back = pmwm_codec.read_mesh(path)
+    assert (back.vertex_count, back.face_count) == (mesh.vertex_count, mesh.face_count)
+    assert same_triangles(back, mesh)
+    if suffix != ".stl":  # STL stores corners, not a vertex order
+        assert np.array_equal(back.positions.astype(np.float32), mesh.positions.astype(np.float32))  # float32 exact
+        assert np.array_equal(back.faces, mesh.faces)
+    written = sorted(p.name for p in tmp_path.iterdir())
+    assert written == (["m.bin", "m.gltf"] if suffix == ".gltf" else [path.name])  # no temp file left
+    assert stat.S_IMODE(path.stat().st_mode) == 0o644
+
+
+def test_glb_is_framed_by_glb_parts_and_loads_in_pygltflib(mesh, tmp_path):
+    path = tmp_path / "m.glb"
+    write_mesh(path, mesh)
+    data = path.read_bytes()
+    total, json_length = parse_preamble(data)
+    assert total == len(data) and len(data) % 4 == 0
+    gltf = pygltflib.GLTF2.load(str(path))
+    prim = gltf.meshes[0].primitives[0]
+    assert gltf.accessors[prim.attributes.POSITION].count == mesh.vertex_count
+    assert gltf.accessors[prim.indices].count == 3 * mesh.face_count
+    assert gltf.accessors[prim.indices].componentType == pygltflib.UNSIGNED_INT
+
+
+def test_gltf_keeps_its_buffer_in_a_bin_beside_it(mesh, tmp_path):
+    write_mesh(tmp_path / "m.gltf", mesh)
+    doc = json.loads((tmp_path / "m.gltf").read_text())
+    assert doc["buffers"] == [{"byteLength": (tmp_path / "m.bin").stat().st_size, "uri": "m.bin"}]
+
+
+def test_stl_is_binary_with_unit_normals(mesh, tmp_path):
+    path = tmp_path / "m.stl"
+    write_mesh(path, mesh)
+    data = path.read_bytes()
+    count = int(np.frombuffer(data, "<u4", 1, 80)[0])
+    assert count == mesh.face_count and len(data) == 84 + 50 * count
+    rec = np.frombuffer(data, [("n", "<f4", (3,)), ("v", "<f4", (3, 3)), ("a", "<u2")], count, 84)
+    assert np.allclose(np.linalg.norm(rec["n"], axis=1), 1.0, atol=1e-5)
+    corners = mesh.positions.astype(np.float32)[mesh.faces]
+    assert np.array_equal(rec["v"], corners)
+    assert np.all((rec["n"] * np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])).sum(1) > 0)
+
+
+def test_a_failed_write_leaves_the_old_file(mesh, tmp_path):
+    path = tmp_path / "m.obj"
+    path.write_text("old")
+    with pytest.raises(ValueError, match="unknown output format"):
+        write_mesh(tmp_path / "m.xyz", mesh)
+    broken = pmwm_codec.Mesh(mesh.positions, mesh.faces[:, :2])  # not triangles: the writer fails
+    with pytest.raises(Exception):
+        write_mesh(path, broken)
+    assert path.read_text() == "old" and sorted(p.name for p in tmp_path.iterdir()) == ["m.obj"]
+
+
+def test_write_asset_writes_glb_and_self_contained_gltf(mesh, tmp_path):
+    src = tmp_path / "src.glb"
+    write_mesh(src, mesh)
+    glb = src.read_bytes()
+    write_asset(tmp_path / "copy.glb", glb)
+    write_asset(tmp_path / "copy.gltf", glb)
+    assert (tmp_path / "copy.glb").read_bytes() == glb
+    doc = json.loads((tmp_path / "copy.gltf").read_text())
+    assert doc["buffers"][0]["uri"].startswith("data:application/octet-stream;base64,")
+    assert same_triangles(pmwm_codec.read_mesh(tmp_path / "copy.gltf"), mesh)
+    with pytest.raises(ValueError):
+        write_asset(tmp_path / "copy.obj", glb)
