@@ -48,7 +48,6 @@ from .gltf import (
     VECTOR_WIDTH,
     accessor_array,
     find_extension_primitive,
-    find_extension_primitives,  # noqa: F401  (re-exported: tools/pmw_info.py imports it from here)
     item,
     uint,
     view_bytes,

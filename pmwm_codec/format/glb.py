@@ -35,7 +35,8 @@ import zstandard
 
 from ..constants import EXTENSION_NAME, FORMAT_VERSION, MAX_CHUNK_BYTES, MAX_CHUNKS, MAX_DECOMPRESSED_CHUNK_BYTES
 from ..errors import FormatError, InputFormatError
-from .base import DRACO_EXTENSION, EncodedBase
+from .base import EncodedBase
+from .gltf import DRACO_EXTENSION
 from .extension import CHUNK_META_FIELDS, RESERVED_FIELDS, check_extension, digest
 from .layout import (
     CHUNK_HEADER_SIZE,

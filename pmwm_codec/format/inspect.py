@@ -17,8 +17,8 @@ from __future__ import annotations
 import os
 
 from ..constants import EXTENSION_NAME
-from .base import DRACO_EXTENSION, find_extension_primitives
-from .parser import read_header
+from .gltf import DRACO_EXTENSION, find_extension_primitives
+from .reader import read_header
 
 __all__ = ["inspect"]
 
