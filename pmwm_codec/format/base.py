@@ -461,21 +461,3 @@ def with_attributes(base: EncodedBase, attributes) -> EncodedBase:
         primitive["attributes"][spec["semantic"]] = out.add_accessor(stored, FLOAT, ARRAY_BUFFER)
     return replace(base, data=b"".join(out.parts), buffer_views=views, accessors=accessors, primitive=primitive)
 
-
-# ------------------------------------------------- deprecated dict-grid aliases
-# Kept only for stream/encoder.py and stream/decoder.py until they use AttributeGrid.
-
-
-def attribute_grid(values: np.ndarray, bits: int) -> dict:
-    """Deprecated: ``AttributeGrid.fit(values, bits).get_config()``."""
-    return AttributeGrid.fit(values, bits).get_config()
-
-
-def attribute_to_float(ints: np.ndarray, spec: dict) -> np.ndarray:
-    """Deprecated: ``AttributeGrid.from_config(spec).to_float32(ints)``."""
-    return AttributeGrid.from_config(spec).to_float32(ints)
-
-
-def attribute_to_grid(values: np.ndarray, spec: dict, what: str) -> np.ndarray:
-    """Deprecated: ``AttributeGrid.from_config(spec).from_float32(values, what)``."""
-    return AttributeGrid.from_config(spec).from_float32(values, what)

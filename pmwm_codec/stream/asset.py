@@ -50,8 +50,6 @@ from ..format.gltf import (
     uses_extension,
     view_bytes,
 )
-from ..format.layout import CHUNK_HEADER_SIZE, PREAMBLE_SIZE
-from ..format.parser import parse_preamble
 from ..mesh import Mesh, checked_mesh
 from ..sources import read_all
 from .decoder import StreamDecoder
@@ -243,8 +241,7 @@ def decode_asset(src, chunks=None):
     results = decoder.feed(data)
     end = decoder.close()
     gltf = decoder.header.gltf_json
-    _, json_length = parse_preamble(data[:PREAMBLE_SIZE])
-    bin_start = PREAMBLE_SIZE + json_length + CHUNK_HEADER_SIZE
+    bin_start = decoder.header.bin_offset
     found = find_extension_primitives(gltf, EXTENSION_NAME)
     doc, drop = _without_progressive_geometry(gltf, found)
     kept, kept_bin = repack(doc, [data[bin_start:]], drop)

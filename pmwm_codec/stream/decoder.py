@@ -30,7 +30,7 @@ import numpy as np
 from ..errors import FormatError, WatermarkKeyError
 from ..format import BaseEvent, ChunkEvent, ContainerParser, EndEvent, HeaderEvent
 from ..mesh import Mesh
-from ..progressive.grid import Grid
+from ..progressive.grid import AttributeGrid, Grid
 from ..watermark import codec as wm
 from ..watermark.verify import Verifier
 from .replay import Replay
@@ -57,12 +57,10 @@ class Part:
 
     def attribute_values(self) -> dict:
         """``{semantic: (n, k) float32}`` dequantized attributes."""
-        from ..format.base import attribute_to_float
-
         out, col = {}, 0
         for spec in self.attributes:
             width = len(spec["origin"])
-            out[spec["semantic"]] = attribute_to_float(self.attributes_int[:, col : col + width], spec)
+            out[spec["semantic"]] = AttributeGrid.from_config(spec).to_float32(self.attributes_int[:, col : col + width])
             col += width
         return out
 

@@ -32,12 +32,12 @@ from ..constants import DEFAULT_GRID_BITS
 from ..distortion import combine_meshes, decoded_positions, full_distortion
 from ..errors import PmwError
 from ..format import encode_base
-from ..format.base import EncodedBase, attribute_grid, attribute_to_float, attribute_to_grid, with_attributes
+from ..format.base import EncodedBase, with_attributes
 from ..format.glb import ProgressivePrimitive, assemble_document, write_parts
 from ..format.records import pack_batches
 from ..mesh import Mesh
 from ..progressive.build import ProgressiveMesh, build_progressive
-from ..progressive.grid import Grid
+from ..progressive.grid import AttributeGrid, Grid
 from ..progressive.simplify import CollapseLog, simplify
 from ..progressive.topology import mean_edge_length
 from ..watermark import codec as wm
@@ -249,11 +249,11 @@ def _quantize(mesh: Mesh, grid_bits: int) -> tuple:
     specs, columns = [], [grid.quantize(mesh.positions)]
     for semantic in sorted(mesh.attributes):
         values = np.asarray(mesh.attributes[semantic], np.float64).reshape(mesh.vertex_count, -1)
-        spec = {"semantic": semantic, **attribute_grid(values, _attribute_bits(semantic))}
-        ints = attribute_to_grid(values, spec, semantic)
-        if not np.array_equal(attribute_to_grid(attribute_to_float(ints, spec), spec, semantic), ints):
-            raise PmwError(f"{semantic}: values too large for float32 at {spec['bits']} bits")
-        specs.append(spec)
+        agrid = AttributeGrid.fit(values, _attribute_bits(semantic))
+        ints = agrid.from_float32(values, semantic)
+        if not np.array_equal(agrid.from_float32(agrid.to_float32(ints), semantic), ints):
+            raise PmwError(f"{semantic}: values too large for float32 at {agrid.bits} bits")
+        specs.append({"semantic": semantic, **agrid.get_config()})
         columns.append(ints)
     return grid, np.concatenate(columns, axis=1), specs
 
@@ -301,7 +301,7 @@ def _encode_base(w: PrimitiveWork, codec: str) -> tuple:
     local = np.full(len(q), -1, dtype=np.int64)
     local[base_ids] = np.arange(len(base_ids))
     try:
-        base = encode_base(q[base_ids], local[log.base_corners], w.grid.get_config(), codec=codec)
+        base = encode_base(q[base_ids], local[log.base_corners], w.grid, codec=codec)
     except ValueError as exc:
         raise PmwError(f"cannot store the base mesh: {exc}") from None
     base_order = base_ids[np.asarray(base.vertex_map, dtype=np.int64)]
