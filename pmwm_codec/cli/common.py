@@ -62,6 +62,11 @@ def print_json(obj) -> None:
     sys.stdout.flush()
 
 
+def notice(text: str) -> None:
+    """One ``pmw: note: ...`` line on stderr: something the user asked for was adjusted."""
+    sys.stderr.write(f"{PROG}: note: {text}\n")
+
+
 def fmt_float(value, digits: int = 2, unit: str = "") -> str:
     if value is None:
         return "-"
