@@ -14,6 +14,7 @@ from pmwm_codec.cli import main
 from pmwm_codec.errors import TruncatedError
 from pmwm_codec.format import read_header
 from pmwm_codec.format.layout import CHUNK_HEADER_SIZE, GLB_HEADER_SIZE, PREAMBLE_SIZE, ChunkHeader, GlbHeader
+from pmwm_codec.format.glb import glb_parts
 from pmwm_codec.format.parser import parse_preamble
 from pmwm_codec.stream.asset import decode_asset, encode_asset
 from pmwm_codec.stream.cut import cut, cut_file
@@ -21,7 +22,7 @@ from pmwm_codec.stream.decoder import StreamDecoder
 from pmwm_codec.stream.reader import decode_stream
 from pmwm_codec.watermark.key import WatermarkKey
 
-from conftest import marked_sphere
+from conftest import corpus_path, marked_sphere
 from test_asset import DocBuilder, check, two_mesh_asset
 
 
@@ -206,3 +207,46 @@ def test_pmw_cut_of_a_file_without_its_base_fails_in_one_line_and_writes_nothing
     assert err.startswith("pmw: error: ") and err.count("\n") == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["short.pmw"]
     assert main(["cut", str(src), "--chunks", "-1", "-o", str(tmp_path / "o.pmw")]) == 2
+
+
+def _old_order(data: bytes) -> bytes:
+    """The same file with the layout of files written before the base-first order: the
+    document's own bufferViews (the image) first, then the base mesh, then the chunks."""
+    gltf, bin_start = _json_and_bin(data)
+    views, chunk_views = gltf["bufferViews"], _chunk_views(gltf)
+    doc_views = [image["bufferView"] for image in gltf["images"]]
+    lo = min(views[i]["byteOffset"] for i in doc_views)
+    hi = max(views[i]["byteOffset"] + views[i]["byteLength"] for i in doc_views)
+    payload = data[bin_start:]
+    for i, view in enumerate(views):
+        if i in doc_views:
+            view["byteOffset"] -= lo
+        elif i not in chunk_views:
+            view["byteOffset"] += hi - lo
+    moved = payload[lo:hi] + payload[:lo] + payload[hi:]
+    return b"".join(glb_parts(gltf, [moved], len(moved)))
+
+
+def test_files_with_the_old_order_still_decode_and_cut(textured_pmw):
+    old = _old_order(textured_pmw)
+    assert old != textured_pmw
+    for n in (0, 2, None):
+        a, _ = decode_stream(textured_pmw, chunks=n)
+        b, _ = decode_stream(old, chunks=n)
+        assert np.array_equal(a.positions_int, b.positions_int) and np.array_equal(a.faces, b.faces)
+        _same_levels(old, cut(old, n), 99 if n is None else n)
+    assert _image_bytes(decode_asset(old)[0]) == _image_bytes(decode_asset(textured_pmw)[0])
+
+
+@pytest.mark.corpus
+def test_every_cut_of_spot_passes_the_khronos_validator(tmp_path):
+    src = corpus_path("spot.glb")
+    out = tmp_path / "spot.pmw"
+    encode_asset(src, out, strip_image_profiles=True, measure=False)
+    data = out.read_bytes()
+    for n in range(read_header(data).chunk_count + 1):
+        path = tmp_path / f"spot{n}.pmw"
+        path.write_bytes(cut(data, n))
+        result = check(path)
+        assert result["validator"]["errors"] == 0 and result["validator"]["warnings"] == 0, (n, result["validator"])
+        _same_levels(data, path.read_bytes(), n)
