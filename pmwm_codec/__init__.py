@@ -5,6 +5,7 @@ The public API (DESIGN.md §5)::
     mesh   = pmwm_codec.read_mesh(path)                       # OBJ, PLY, STL, glTF/GLB -> Mesh
     report = pmwm_codec.encode(src, dst, watermark=None, key=None, **options)
     mesh   = pmwm_codec.decode(src, chunks=None)              # path, bytes or binary file
+    data   = pmwm_codec.cut(src, chunks=None)                 # a valid, smaller .pmw (bytes)
     for step in pmwm_codec.iter_decode(src, key=None, watermark=None):
         step.mesh, step.watermark, step.chunk, step.bytes_read
 """
@@ -18,7 +19,7 @@ import numpy as np
 from .errors import PmwError
 from .mesh import Mesh, checked_mesh, read_mesh
 
-__all__ = ["Mesh", "PmwError", "read_mesh", "encode", "decode", "decode_asset", "iter_decode", "load_key"]
+__all__ = ["Mesh", "PmwError", "read_mesh", "encode", "decode", "decode_asset", "cut", "iter_decode", "load_key"]
 __version__ = "0.1.0"
 
 
@@ -132,6 +133,14 @@ def decode_asset(src, chunks=None) -> bytes:
 
     glb, _, _ = _decode_asset(src, chunks=chunks)
     return glb
+
+
+def cut(src, chunks=None) -> bytes:
+    """A valid, smaller ``.pmw`` (bytes) from any ``.pmw`` or prefix of one: the base and the
+    first ``chunks`` chunks (default: all that arrived whole).  See :mod:`pmwm_codec.stream.cut`."""
+    from .stream.cut import cut as _cut
+
+    return _cut(src, chunks)
 
 
 #: Functions of heavier modules, imported on first use so that ``import pmwm_codec`` stays light.

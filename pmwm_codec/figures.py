@@ -4,7 +4,8 @@ Given the :class:`~pmwm_codec.stream.PartialResult` list of one decode (base mes
 first), :func:`write_figures` writes what ``pmw verify --frames`` and ``pmw demo``
 promise::
 
-    frame_000.png ...   the partial watermark after every chunk boundary
+    frame_000.png ...   the partial watermark at every chunk boundary where it changed (NNN = chunk;
+                        grey "no coefficients yet" before the first coefficient)
     overview.png        the mesh at ~5 boundaries (spread in log vertex count) above the watermark at the same
                         boundaries, labelled with bytes received and PSNR (the
                         paper's Fig. 8)
@@ -86,6 +87,48 @@ def _text_center(draw, xy_center, text, fnt, fill=INK):
     return bottom - top
 
 
+#: Background of a watermark that has no coefficients yet.
+EMPTY_MARK = (238, 238, 242)
+#: Smallest side of a written frame (the watermark is scaled up by a whole factor to reach it).
+FRAME_MIN_SIDE = 128
+
+
+def watermark_tile(r, side: int) -> Image.Image:
+    """RGB ``side`` x ``side`` picture of ``r.watermark`` (nearest-neighbour), or the grey
+    "no coefficients yet" state when no coefficient has arrived (one look everywhere)."""
+    if r.coefficients == 0:
+        tile = Image.new("RGB", (side, side), EMPTY_MARK)
+        draw = ImageDraw.Draw(tile)
+        fnt = font(max(9, min(13, side // 10)))
+        for i, word in enumerate(("no coefficients", "yet")):
+            _text_center(draw, (side / 2, side / 2 - 14 + 16 * i), word, fnt, CUT_COLOR)
+        return tile
+    return Image.fromarray(np.asarray(r.watermark, np.uint8), "L").resize((side, side), Image.NEAREST).convert("RGB")
+
+
+def _frames(results, directory: str) -> list:
+    """Write ``frame_NNN.png`` (NNN = chunk boundary) where the watermark changed; return the paths.
+
+    A frame is the watermark scaled up by a whole factor to at least ``FRAME_MIN_SIDE`` px.
+    Once every code has been read the picture stops changing (later carriers repeat the
+    codes and only refine the mesh), so boundaries without a change write no frame.
+    """
+    frames, previous = [], None
+    for r in results:
+        if r.watermark is None:
+            continue
+        state = (r.coefficients == 0, np.asarray(r.watermark, np.uint8).tobytes())
+        if state == previous:
+            continue
+        previous = state
+        size = np.shape(r.watermark)[0]
+        side = size * max(1, -(-FRAME_MIN_SIDE // max(size, 1)))
+        path = os.path.join(directory, f"frame_{r.chunk:03d}.png")
+        watermark_tile(r, side).save(path)
+        frames.append(path)
+    return frames
+
+
 def overview(results, *, k: int = 5, tile=(220, 170), title: str | None = None, camera: Camera | None = None,
              total_bytes: int | None = None) -> Image.Image:
     """The mesh at ~``k`` chunk boundaries in a row, the watermark below each, labels under both.
@@ -124,12 +167,8 @@ def overview(results, *, k: int = 5, tile=(220, 170), title: str | None = None, 
         draw.rectangle([x, y_mesh, x + tw - 1, y_mesh + th - 1], outline=GRID)
         if has_mark:
             mx = x + (tw - side) // 2
-            if r.watermark is not None and r.coefficients == 0:
-                draw.rectangle([mx, y_mark, mx + side - 1, y_mark + side - 1], fill=(238, 238, 242))
-                _text_center(draw, (mx + side / 2, y_mark + side / 2 - 8), "no coefficients yet", small, CUT_COLOR)
-            elif r.watermark is not None:
-                mark = Image.fromarray(np.asarray(r.watermark, np.uint8), "L").resize((side, side), Image.NEAREST)
-                img.paste(mark.convert("RGB"), (mx, y_mark))
+            if r.watermark is not None:
+                img.paste(watermark_tile(r, side), (mx, y_mark))
             draw.rectangle([mx - 1, y_mark - 1, mx + side, y_mark + side], outline=(180, 180, 188))
         share = f" ({100 * r.bytes_read / total_bytes:.0f}%)" if total_bytes else ""
         lines = [
@@ -265,7 +304,7 @@ def metrics_plot(results, *, size=(760, 460), title: str | None = None, total_by
 
 def write_figures(results, directory, *, title: str | None = None, total_bytes: int | None = None,
                   bytes_received: int | None = None, k: int = 5) -> dict:
-    """Write ``frame_NNN.png`` (one per result with a watermark), ``overview.png``, ``metrics.png``.
+    """Write ``frame_NNN.png`` (see :func:`_frames`: where the watermark changed), ``overview.png``, ``metrics.png``.
 
     ``total_bytes``: size of the complete file; ``bytes_received``: where the stream ended.
     Creates ``directory`` if needed.  Returns ``{"frames": [paths], "overview": path, "plot": path}``
@@ -274,13 +313,7 @@ def write_figures(results, directory, *, title: str | None = None, total_bytes: 
     directory = os.fspath(directory)
     try:
         os.makedirs(directory, exist_ok=True)
-        frames = []
-        for r in results:
-            if r.watermark is None:
-                continue
-            path = os.path.join(directory, f"frame_{r.chunk:03d}.png")
-            Image.fromarray(np.asarray(r.watermark, np.uint8), "L").save(path)
-            frames.append(path)
+        frames = _frames(results, directory)
         over = os.path.join(directory, "overview.png")
         overview(results, k=k, title=title, total_bytes=total_bytes).save(over)
         plot = None

@@ -12,6 +12,8 @@ import json
 import math
 import os
 import sys
+import threading
+import time
 
 EXIT_OK = 0
 EXIT_NOT_AUTHENTIC = 1  # verify ran; the mark is absent, wrong or too weak to decide
@@ -62,6 +64,11 @@ def print_json(obj) -> None:
     sys.stdout.flush()
 
 
+def notice(text: str) -> None:
+    """One ``pmw: note: ...`` line on stderr: something the user asked for was adjusted."""
+    sys.stderr.write(f"{PROG}: note: {text}\n")
+
+
 def fmt_float(value, digits: int = 2, unit: str = "") -> str:
     if value is None:
         return "-"
@@ -73,45 +80,75 @@ def fmt_float(value, digits: int = 2, unit: str = "") -> str:
 class Progress:
     """A one-line progress bar on stderr, shown only when stderr is a terminal.
 
-    ``Progress(enabled)(label, fraction)`` redraws; :meth:`done` clears the line.
+    ``Progress(enabled)(label, fraction)`` redraws; :meth:`done` clears the line.  The
+    line ends with the seconds elapsed, redrawn every ``tick`` seconds by a daemon thread,
+    so a long stage that reports no progress of its own still shows that it is alive.
     """
 
-    def __init__(self, enabled: bool = True, width: int = 28):
+    def __init__(self, enabled: bool = True, width: int = 28, tick: float = 1.0):
         self.enabled = bool(enabled) and _isatty(sys.stderr)
         self.width = width
+        self.tick = tick
         self._shown = False
+        self._last = None
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = None
+        self._t0 = time.monotonic()
 
     def __call__(self, label: str, fraction: float) -> None:
         if not self.enabled:
             return
-        f = min(max(float(fraction), 0.0), 1.0)
+        with self._lock:
+            self._last = (label, min(max(float(fraction), 0.0), 1.0))
+            self._draw()
+        if self._thread is None and self.tick:
+            self._thread = threading.Thread(target=self._heartbeat, daemon=True)
+            self._thread.start()
+
+    def _draw(self) -> None:
+        label, f = self._last
         full = int(round(f * self.width))
         bar = "#" * full + "-" * (self.width - full)
-        sys.stderr.write(f"\r{label[:24]:<24} [{bar}] {100 * f:3.0f}%")
+        sys.stderr.write(f"\r{label[:24]:<24} [{bar}] {100 * f:3.0f}% {time.monotonic() - self._t0:5.0f}s")
         sys.stderr.flush()
         self._shown = True
 
+    def _heartbeat(self) -> None:
+        while not self._stop.wait(self.tick):
+            with self._lock:
+                if self._last is not None and self._shown:
+                    self._draw()
+
     def done(self) -> None:
-        if self._shown:
-            sys.stderr.write("\r" + " " * (self.width + 34) + "\r")
-            sys.stderr.flush()
-            self._shown = False
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+        with self._lock:
+            if self._shown:
+                sys.stderr.write("\r" + " " * (self.width + 40) + "\r")
+                sys.stderr.flush()
+                self._shown = False
 
 
 #: Labels of the encoder stages on the progress bar.
-STAGES = {"simplify": "simplifying", "records": "building splits", "write": "writing"}
-#: Share of the whole encode each library stage ends at (the distortion measure takes the rest).
-_SPAN = {"simplify": (0.0, 0.45), "records": (0.45, 0.6), "write": (0.6, 0.7)}
+STAGES = {"simplify": "simplifying", "records": "building splits", "write": "writing",
+          "measure": "measuring distortion"}
+#: Share of the whole encode each stage spans, in the order they run (the distortion
+#: measure of a big mesh takes about as long as everything before it).
+STAGE_SPANS = {"simplify": (0.0, 0.35), "records": (0.35, 0.42), "write": (0.42, 0.45), "measure": (0.45, 1.0)}
 
 
 def stage_progress(progress):
-    """Adapt the library's ``progress(stage, fraction)`` to one bar over the whole encode."""
+    """Adapt the library's ``progress(stage, fraction)`` to one bar over the whole encode
+    that only moves forward (an unknown stage or a fraction going back never lowers it)."""
+    high = [0.0]
+
     def report(stage, fraction):
-        lo, hi = _SPAN.get(stage, (0.0, 1.0))
-        if stage == "write" and fraction >= 1.0:
-            progress("measuring distortion", hi)
-        else:
-            progress(STAGES.get(stage, stage), lo + (hi - lo) * fraction)
+        lo, hi = STAGE_SPANS.get(stage, (high[0], high[0]))
+        high[0] = max(high[0], lo + (hi - lo) * min(max(float(fraction), 0.0), 1.0))
+        progress(STAGES.get(stage, stage), high[0])
     return report
 
 

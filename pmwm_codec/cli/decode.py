@@ -14,7 +14,7 @@ from pmwm_codec.meshio import WRITE_SUFFIXES, write_asset, write_mesh
 from pmwm_codec.stream.asset import decode_asset
 from pmwm_codec.stream.reader import decode_stream
 
-from .common import UsageError, check_input_file, check_output_path, naming, print_json
+from .common import UsageError, check_input_file, check_output_path, naming, notice, print_json
 
 
 def add_parser(sub):
@@ -48,11 +48,22 @@ def run(args) -> int:
             write_mesh(args.output, last.mesh)
     out = {"vertices": int(last.vertices), "faces": int(last.faces_count), "chunks_applied": int(end.chunks_applied),
            "complete": bool(end.complete), "chunks_total": int(end.chunks_total), "truncated": bool(end.truncated),
-           "output": args.output}
+           "output": args.output, "notices": _chunk_notices(args.chunks, end)}
     if args.json:
         print_json(out)
     else:
+        for note in out["notices"]:
+            notice(note)
         state = "complete file" if end.complete else f"truncated file, {end.bytes_read:,} bytes"
         print(f"{args.output}: {out['vertices']:,} vertices, {out['faces']:,} faces "
               f"(base + {out['chunks_applied']} of {out['chunks_total']} chunks; {state})")
     return 0
+
+
+def _chunk_notices(asked, end) -> list:
+    """Say so when ``--chunks`` asked for more chunks than the file holds (or than arrived)."""
+    if asked is None or asked <= end.chunks_applied:
+        return []
+    if end.complete:
+        return [f"--chunks {asked}: the file has {end.chunks_total} chunks; decoded all of them (full resolution)"]
+    return [f"--chunks {asked}: only {end.chunks_applied} of {end.chunks_total} chunks arrived whole; decoded those"]

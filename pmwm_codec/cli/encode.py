@@ -7,7 +7,8 @@ import os
 
 import pmwm_codec
 from pmwm_codec.constants import MAX_GRID_BITS, MIN_GRID_BITS
-from pmwm_codec.watermark.codec import MAX_BITS, MODES
+from pmwm_codec.watermark.codec import MAX_BITS, MODES, CapacityError, shrink_watermark
+from pmwm_codec.watermark.image import load_watermark
 
 from .common import Progress, UsageError, check_input_file, check_output_path, fmt_float, print_json, stage_progress
 
@@ -45,6 +46,8 @@ def add_parser(sub):
     p.add_argument("--strip-image-profiles", action="store_true",
                    help="glTF assets: drop colour-profile chunks from PNG textures (same pixels; "
                         "the glTF validator warns on them)")
+    p.add_argument("--fit", action="store_true",
+                   help="shrink a watermark that does not fit to the largest size that does (with a notice)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
     p.set_defaults(run=run)
@@ -68,7 +71,7 @@ def run(args) -> int:
     if args.key is not None and args.watermark is None:
         extra.append("--key ignored: no --watermark, so the file carries no mark and needs no key")
     try:
-        report = pmwm_codec.encode(args.input, args.output, watermark=args.watermark, key=args.key, **options)
+        report = _encode_fitting(args, options, extra)
     except ValueError as exc:
         if isinstance(exc, pmwm_codec.PmwError):
             raise
@@ -81,6 +84,22 @@ def run(args) -> int:
     elif not args.quiet:
         print(summary(args.input, args.output, report))
     return 0
+
+
+def _encode_fitting(args, options: dict, notices: list) -> dict:
+    """Encode; with ``--fit``, a watermark too large for the mesh is shrunk to the largest
+    size that fits (the library's CapacityError names it) and the encode runs again."""
+    try:
+        return pmwm_codec.encode(args.input, args.output, watermark=args.watermark, key=args.key, **options)
+    except CapacityError as exc:
+        if not args.fit or not exc.largest_size:
+            raise
+        image, _ = load_watermark(args.watermark)
+        size = exc.largest_size
+        notices.append(f"--fit: watermark shrunk from {image.shape[0]}x{image.shape[0]} to {size}x{size}, "
+                       "the largest size this mesh carries")
+        return pmwm_codec.encode(args.input, args.output, watermark=shrink_watermark(image, size), key=args.key,
+                                 **options)
 
 
 def summary(src, dst, r) -> str:

@@ -164,17 +164,15 @@ def encode_base(positions_int, faces, grid: Grid | dict, codec: str = "draco", *
         return _encode_plain(pos, tri, grid)
     if codec != "draco":
         raise ValueError(f"encode_base: codec must be 'draco' or 'plain', got {codec!r}")
-    notices = []
-    if m == 0:
-        notices.append("Draco needs faces")
-    else:
-        for preserve_order in (False, True):
+    reason = "it has no faces"
+    if m:
+        for preserve_order in (False, True):  # Draco's own vertex order first, then ours
             result = _try_draco(pos, tri, grid, preserve_order, draco_compression_level)
             if isinstance(result, EncodedBase):
                 return result
-            notices.append(f"preserve_order={preserve_order}: {result}")
+            reason = result
     base = _encode_plain(pos, tri, grid)
-    notice = "Draco base mesh not exact (" + "; ".join(notices) + "); stored plain accessors instead"
+    notice = f"a base mesh is stored as plain accessors (same geometry, larger): Draco could not store it exactly ({reason})"
     return replace(base, notice=notice)
 
 

@@ -6,7 +6,9 @@ reader of ``.pmw`` files is :mod:`.parser`).
 
 Contract (DESIGN.md §4)
 -----------------------
-* One JSON chunk, then one BIN chunk = ``[base mesh bufferViews | chunk 0 | chunk 1 | ...]``,
+* One JSON chunk, then one BIN chunk = ``[base mesh bufferViews | the document's own
+  bufferViews (images, ...) | chunk 0 | chunk 1 | ...]`` (files written before this
+  order put the document's own bufferViews first; readers accept both),
   every bufferView starting on a 4-byte boundary, chunks in stream order.
 * Every vertex-split chunk is stored as its own zstd frame with the content size and
   the content checksum; the extension object lists, per chunk, its bufferView, stored
@@ -89,7 +91,10 @@ def assemble_document(doc: dict, kept_bin: bytes, prims, order, zstd_level: int 
         The primitives named in ``prims`` get the base mesh accessors and the extension
         object; their other properties (material, extras, other extensions) are kept.
     kept_bin : bytes
-        The document's own data, 4-byte aligned; the bases follow it, then the chunks.
+        The document's own data (images, other meshes), 4-byte aligned.  The BIN is laid
+        out in the order a viewer needs it: every base mesh first, then ``kept_bin``
+        (what the bases reference: textures...), then the chunks in stream order, so the
+        first textured picture needs only the bytes up to the end of ``kept_bin``.
     prims : list[ProgressivePrimitive]
     order : list of (primitive index in ``prims``, chunk index)
         The stream order of every chunk (each primitive's chunks in increasing order).
@@ -97,12 +102,21 @@ def assemble_document(doc: dict, kept_bin: bytes, prims, order, zstd_level: int 
     _check_primitives(prims, order)
     views = [dict(v) for v in doc.get("bufferViews", [])]
     accessors = copy.deepcopy(doc.get("accessors", []))
-    bin_parts = [kept_bin] if kept_bin else []
-    primitives_json, used, required, offset = _merge_bases(prims, views, accessors, bin_parts, len(kept_bin))
-    index, offset = _index_chunks(prims, order, views, bin_parts, offset, zstd_level)
+    bin_parts = []
+    primitives_json, used, required, bases_end = _merge_bases(prims, views, accessors, bin_parts, 0)
+    _shift_views(views[: len(doc.get("bufferViews", []))], bases_end)
+    if kept_bin:
+        bin_parts.append(kept_bin)
+    index, offset = _index_chunks(prims, order, views, bin_parts, bases_end + len(kept_bin), zstd_level)
     meshes = _merge_primitives(doc, prims, primitives_json, index)
     gltf = _document(doc, meshes, accessors, views, offset, used, required)
     return glb_parts(gltf, bin_parts, offset)
+
+
+def _shift_views(views: list, delta: int) -> None:
+    """Move the document's own bufferViews (``views``, in place) ``delta`` bytes later in the BIN."""
+    for view in views:
+        view["byteOffset"] = view.get("byteOffset", 0) + delta
 
 
 def _check_primitives(prims, order) -> None:

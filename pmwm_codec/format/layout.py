@@ -6,7 +6,7 @@ A ``.pmw`` file is a GLB (glTF 2.0 binary container, glTF spec §4.4):
     ChunkHeader (type = 'JSON')        8 bytes
     JSON text, space-padded to 4
     ChunkHeader (type = 'BIN\\0')       8 bytes
-    BIN payload, zero-padded to 4:    [base mesh bufferViews | chunk 0 | chunk 1 | ...]
+    BIN payload, zero-padded to 4:    [base mesh bufferViews | other bufferViews | chunk 0 | chunk 1 | ...]
 
 Every vertex-split chunk inside the BIN payload is one self-contained zstd frame
 (RFC 8878) with the content size and the content checksum present.

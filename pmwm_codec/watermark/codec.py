@@ -66,7 +66,50 @@ _OFFSETS = np.stack(np.meshgrid([0, -1, 1], [0, -1, 1], [0, -1, 1], indexing="ij
 
 
 class CapacityError(PmwError, ValueError):
-    """The mesh has too few vertex splits to carry the watermark."""
+    """The mesh has too few vertex splits to carry the watermark.
+
+    ``largest_size``: the side of the largest power-of-two watermark (the image shrunk
+    with :func:`shrink_watermark`) that fits, or None when none does.
+    """
+
+    def __init__(self, message: str, largest_size: int | None = None):
+        super().__init__(message)
+        self.largest_size = largest_size
+
+
+def shrink_watermark(image: np.ndarray, size: int) -> np.ndarray:
+    """``image`` (s, s) uint8 resampled (Lanczos) to (size, size) uint8."""
+    from PIL import Image
+
+    if size >= image.shape[0]:
+        return np.ascontiguousarray(image, np.uint8)
+    return np.asarray(Image.fromarray(np.asarray(image, np.uint8)).resize((size, size), Image.LANCZOS), np.uint8)
+
+
+def _exact_message(image: np.ndarray) -> tuple:
+    """``(message bits, BitLayout, levels)`` of ``image`` (s, s) uint8 in exact mode."""
+    size = int(image.shape[0])
+    levels = haar.check_size(size, size.bit_length() - 1)
+    stream = haar.to_stream(haar.forward_int(image, levels), levels)
+    layout = BitLayout.for_coefficients(stream, haar.bands(size, levels))
+    return pack(stream, layout), layout, levels
+
+
+def _exact_bits(message_bits: int, carriers: int, bits: int | None) -> int | None:
+    """Bits per code for ``message_bits`` on ``carriers`` (``bits`` if given), or None if it does not fit."""
+    b = max(1, -(-message_bits // carriers)) if bits is None else int(bits)
+    limit = MAX_EXACT_BITS if bits is None else MAX_BITS
+    return None if b > limit or b * carriers < message_bits else b
+
+
+def largest_fitting_size(image: np.ndarray, carriers: int, *, bits: int | None = None) -> int | None:
+    """Side of the largest :func:`shrink_watermark` of ``image`` that ``carriers`` carry in exact mode."""
+    size = int(image.shape[0]) // 2
+    while size >= 1 and carriers > 0:
+        if _exact_bits(len(_exact_message(shrink_watermark(image, size))[0]), carriers, bits) is not None:
+            return size
+        size //= 2
+    return None
 
 
 @dataclass
@@ -235,18 +278,10 @@ def plan(image: np.ndarray, key, carriers: int, *, mode: str = "exact", bits: in
     if carriers <= 0:
         raise CapacityError("the mesh has no vertex splits to carry a watermark")
     if mode == "exact":
-        stream = haar.to_stream(haar.forward_int(image, levels), levels)
-        layout = BitLayout.for_coefficients(stream, haar.bands(size, levels))
-        message = pack(stream, layout)
-        need = max(1, -(-len(message) // carriers))
-        b = need if bits is None else int(bits)
-        limit = MAX_EXACT_BITS if bits is None else MAX_BITS
-        if b > limit or b * carriers < len(message):
-            raise CapacityError(
-                f"a {size}x{size} watermark needs {len(message)} bits; this mesh has {carriers} vertex splits "
-                f"(at most {limit} bits each{'' if bits is None else f', {b} requested'}): "
-                "use a smaller watermark image, a finer mesh, or --mode paper"
-            )
+        message, layout, _ = _exact_message(image)
+        b = _exact_bits(len(message), carriers, bits)
+        if b is None:
+            raise _capacity_error(image, len(message), carriers, bits)
         cycled = repeat_to_capacity(message, b * carriers) ^ key.bits(0, b * carriers)
         codes = symbols(cycled, b)
         params = WatermarkParams("exact", b, scale, size, levels, len(message), carriers, layout.get_config())
@@ -260,6 +295,19 @@ def plan(image: np.ndarray, key, carriers: int, *, mode: str = "exact", bits: in
         params = WatermarkParams("paper", b, scale, size, levels, len(q), carriers, None)
     params.fingerprint = key.fingerprint()
     return params, codes
+
+
+def _capacity_error(image: np.ndarray, message_bits: int, carriers: int, bits: int | None) -> CapacityError:
+    """The error for a watermark that does not fit, naming the largest size that does."""
+    size = int(image.shape[0])
+    limit = MAX_EXACT_BITS if bits is None else MAX_BITS
+    fit = largest_fitting_size(image, carriers, bits=bits)
+    hint = (f"the largest that fits is {fit}x{fit} (pmw encode --fit shrinks it to that)" if fit
+            else "no smaller image fits either")
+    return CapacityError(
+        f"a {size}x{size} watermark needs {message_bits} bits; this mesh has {carriers} vertex splits "
+        f"(at most {limit} bits each{'' if bits is None else f', {bits} requested'}): {hint}; "
+        "or use a finer mesh, or --mode paper", fit)
 
 
 # --------------------------------------------------------------------------- decoder

@@ -1,0 +1,53 @@
+"""``pmw cut IN.pmw|- --chunks N -o OUT.pmw``: any prefix of a ``.pmw`` as a valid, smaller ``.pmw``.
+
+Thin over :func:`pmwm_codec.stream.cut.cut_file`; the output is written atomically
+(:func:`pmwm_codec.format.glb.write_parts`).
+"""
+
+from __future__ import annotations
+
+from pmwm_codec.format.glb import write_parts
+from pmwm_codec.stream.cut import cut_file
+
+from .common import UsageError, check_input_file, check_output_path, naming, notice, print_json
+
+
+def add_parser(sub):
+    p = sub.add_parser(
+        "cut", help=".pmw (whole, cut or on stdin) -> valid smaller .pmw",
+        description="Write a complete, valid .pmw holding the base mesh and the first N vertex-split chunks "
+                    "of IN (whole, truncated, or '-' for standard input): GLB length, JSON chunk index and "
+                    "BIN agree, so strict glTF tools accept it. It decodes to the same mesh as "
+                    "'pmw decode IN --chunks N' and verifies with IN's key.")
+    p.add_argument("input", metavar="IN.pmw", help="the .pmw, or - for standard input")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.pmw", help="the .pmw to write")
+    p.add_argument("--chunks", type=int, metavar="N",
+                   help="keep the base mesh and N chunks (default: every chunk that arrived whole)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
+    p.set_defaults(run=run)
+
+
+def run(args) -> int:
+    if args.chunks is not None and args.chunks < 0:
+        raise UsageError(f"--chunks must be >= 0, got {args.chunks}")
+    check_input_file(args.input, ".pmw file")
+    check_output_path(args.output, ".pmw")
+    with naming(args.input):
+        result = cut_file(args.input, args.chunks)
+    write_parts(args.output, [result.data])
+    notices = []
+    if args.chunks is not None and args.chunks > result.chunks:
+        notices.append(f"--chunks {args.chunks}: the input holds {result.chunks_available} whole chunks "
+                       f"(of {result.chunks_total}); kept {result.chunks}")
+    out = {"output": args.output, "bytes": len(result.data), "chunks": result.chunks,
+           "chunks_available": result.chunks_available, "chunks_total": result.chunks_total,
+           "input_complete": result.source_complete, "notices": notices}
+    if args.json:
+        print_json(out)
+        return 0
+    for note in notices:
+        notice(note)
+    if not args.quiet:
+        print(f"{args.output}: {out['bytes']:,} bytes, base + {result.chunks} of {result.chunks_total} chunks")
+    return 0

@@ -1,0 +1,252 @@
+"""`pmw cut`: any prefix of a .pmw becomes a valid, smaller .pmw; textured assets are laid out base first."""
+
+from __future__ import annotations
+
+import io
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from pmwm_codec import shapes
+from pmwm_codec.cli import main
+from pmwm_codec.errors import TruncatedError
+from pmwm_codec.format import read_header
+from pmwm_codec.format.layout import CHUNK_HEADER_SIZE, GLB_HEADER_SIZE, PREAMBLE_SIZE, ChunkHeader, GlbHeader
+from pmwm_codec.format.glb import glb_parts
+from pmwm_codec.format.parser import parse_preamble
+from pmwm_codec.stream.asset import decode_asset, encode_asset
+from pmwm_codec.stream.cut import cut, cut_file
+from pmwm_codec.stream.decoder import StreamDecoder
+from pmwm_codec.stream.reader import decode_stream
+from pmwm_codec.watermark.key import WatermarkKey
+
+from conftest import corpus_path, marked_sphere
+from test_asset import DocBuilder, check, two_mesh_asset
+
+
+def _png(size: int = 32) -> bytes:
+    """A small grayscale PNG without colour-profile chunks."""
+    buf = io.BytesIO()
+    Image.fromarray((np.indices((size, size)).sum(0) * 7 % 256).astype(np.uint8)).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def _textured_asset() -> bytes:
+    """A GLB: a UV-mapped sphere whose material samples an embedded PNG (stored before the mesh)."""
+    b = DocBuilder()
+    png = _png()
+    b.doc["bufferViews"].append({"buffer": 0, "byteOffset": 0, "byteLength": len(png)})
+    b.parts.append(png + bytes(-len(png) % 4))
+    b.offset = len(png) + (-len(png) % 4)
+    b.doc.update({
+        "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{**b.triangles(shapes.icosphere(3, 1.0, noise=0.02)), "material": 0}]}],
+        "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}],
+        "textures": [{"source": 0, "sampler": 0}], "samplers": [{}],
+        "images": [{"bufferView": 0, "mimeType": "image/png"}],
+    })
+    return b.glb()
+
+
+def _json_and_bin(data: bytes) -> tuple:
+    _, json_length = parse_preamble(data[:PREAMBLE_SIZE])
+    gltf = json.loads(data[PREAMBLE_SIZE : PREAMBLE_SIZE + json_length])
+    return gltf, PREAMBLE_SIZE + json_length + CHUNK_HEADER_SIZE
+
+
+def _chunk_views(gltf) -> set:
+    return {c["bufferView"] for m in gltf["meshes"] for p in m["primitives"]
+            for c in (p.get("extensions") or {}).get("PMWM_progressive_mesh", {}).get("chunks", [])}
+
+
+@pytest.fixture
+def textured_pmw(tmp_path):
+    src = tmp_path / "tex.glb"
+    src.write_bytes(_textured_asset())
+    out = tmp_path / "tex.pmw"
+    encode_asset(src, out, measure=False)
+    return out.read_bytes()
+
+
+def test_a_textured_asset_stores_its_base_then_its_image_then_the_chunks(textured_pmw):
+    gltf, _ = _json_and_bin(textured_pmw)
+    views = gltf["bufferViews"]
+    prim = gltf["meshes"][0]["primitives"][0]
+    base_views = {gltf["accessors"][a]["bufferView"] for a in [*prim["attributes"].values(), prim["indices"]]}
+    image_view = gltf["images"][0]["bufferView"]
+    end = lambda i: views[i]["byteOffset"] + views[i]["byteLength"]  # noqa: E731
+    assert max(end(i) for i in base_views) <= views[image_view]["byteOffset"]
+    assert end(image_view) <= min(views[i]["byteOffset"] for i in _chunk_views(gltf))
+
+
+def test_the_textured_base_decodes_from_the_bytes_of_the_base_and_its_image(textured_pmw):
+    gltf, bin_start = _json_and_bin(textured_pmw)
+    views = gltf["bufferViews"]
+    needed = bin_start + max(v["byteOffset"] + v["byteLength"] for i, v in enumerate(views) if i not in _chunk_views(gltf))
+    glb, end, _ = decode_asset(textured_pmw[:needed])
+    assert end.chunks_applied == 0
+    full, _, _ = decode_asset(textured_pmw)
+    image = lambda data: Image.open(io.BytesIO(_image_bytes(data))).tobytes()  # noqa: E731
+    assert image(glb) == image(full) == Image.open(io.BytesIO(_png())).tobytes()
+
+
+def _image_bytes(glb: bytes) -> bytes:
+    gltf, bin_start = _json_and_bin(glb)
+    view = gltf["bufferViews"][gltf["images"][0]["bufferView"]]
+    return glb[bin_start + view.get("byteOffset", 0) : bin_start + view.get("byteOffset", 0) + view["byteLength"]]
+
+
+def _same_levels(source: bytes, cut_bytes: bytes, chunks: int) -> None:
+    a, _ = decode_stream(source, chunks=chunks)
+    b, end = decode_stream(cut_bytes)
+    assert end.complete and end.chunks_applied == min(chunks, a.chunks_total)
+    assert np.array_equal(a.positions_int, b.positions_int) and np.array_equal(a.faces, b.faces)
+
+
+def test_a_cut_file_decodes_to_the_same_mesh_as_the_source_with_as_many_chunks():
+    data, key, _ = marked_sphere(4)
+    total = read_header(data).chunk_count
+    for n in range(total + 2):
+        small = cut(data, n)
+        _same_levels(data, small, n)
+        assert len(small) <= len(data)
+
+
+def test_a_cut_file_verifies_with_the_key_of_its_source():
+    data, key, img = marked_sphere(5)
+    for n in (2, read_header(data).chunk_count):
+        ours = StreamDecoder(key, reference=img).feed(cut(data, n))[-1].estimate
+        theirs = StreamDecoder(key, reference=img, max_chunks=n).feed(data)[-1].estimate
+        assert np.array_equal(ours.watermark, theirs.watermark)
+        assert (ours.verdict, ours.carriers_read, ours.code_match) == (theirs.verdict, theirs.carriers_read, theirs.code_match)
+    assert ours.verdict == "authentic" and ours.bit_exact
+
+
+def test_the_glb_lengths_of_a_cut_file_agree():
+    data, _, _ = marked_sphere(6)
+    small = cut(data[: len(data) * 3 // 4], 2)
+    header = GlbHeader.parse(small[:GLB_HEADER_SIZE])
+    gltf, bin_start = _json_and_bin(small)
+    bin_header = ChunkHeader.parse(small[bin_start - CHUNK_HEADER_SIZE : bin_start])
+    assert header.length == len(small) == bin_start + bin_header.length
+    assert gltf["buffers"][0]["byteLength"] == bin_header.length
+    ext = gltf["meshes"][0]["primitives"][0]["extensions"]["PMWM_progressive_mesh"]
+    assert len(ext["chunks"]) == 2
+    assert (ext["vertexCount"], ext["faceCount"]) == (ext["chunks"][-1]["vertexCount"], ext["chunks"][-1]["faceCount"])
+
+
+def test_cutting_a_byte_prefix_keeps_the_chunks_that_arrived_whole():
+    data, _, _ = marked_sphere(7)
+    prefix = data[: len(data) * 2 // 3]
+    arrived = decode_stream(prefix)[1].chunks_applied
+    result = cut_file(prefix, None)
+    assert result.chunks == result.chunks_available == arrived and not result.source_complete
+    _same_levels(data, result.data, arrived)
+    assert cut(result.data, None) == result.data  # cutting a cut file again changes nothing
+
+
+def test_cutting_a_whole_file_with_all_chunks_gives_the_same_bytes():
+    data, _, _ = marked_sphere(8)
+    assert cut(data) == data
+
+
+def test_a_prefix_without_the_whole_base_cannot_be_cut():
+    data, _, _ = marked_sphere(9)
+    with pytest.raises(TruncatedError):
+        cut(data[:200], 0)
+
+
+def test_a_multi_mesh_asset_cuts_every_primitive_to_the_level_reached(tmp_path):
+    src = two_mesh_asset(tmp_path)
+    encode_asset(src, tmp_path / "s.pmw", measure=False)
+    data = (tmp_path / "s.pmw").read_bytes()
+    for n in (0, 3, 7):
+        small = cut(data, n)
+        a, _ = decode_stream(data, chunks=n)
+        b, _ = decode_stream(small)
+        for pa, pb in zip(a.parts, b.parts):
+            assert np.array_equal(pa.positions_int, pb.positions_int) and np.array_equal(pa.faces, pb.faces)
+        gltf, _ = _json_and_bin(small)
+        assert len(_chunk_views(gltf)) == min(n, read_header(data).chunk_count)
+
+
+def test_every_cut_of_a_textured_asset_passes_the_khronos_validator(tmp_path, textured_pmw):
+    total = read_header(textured_pmw).chunk_count
+    for n in range(total + 1):
+        path = tmp_path / f"cut{n}.pmw"
+        path.write_bytes(cut(textured_pmw, n))
+        result = check(path)
+        assert result["validator"]["errors"] == 0 and result["validator"]["warnings"] == 0, (n, result["validator"])
+        assert result["three"]["ok"]
+
+
+def test_pmw_cut_reads_stdin_and_says_when_fewer_chunks_arrived(tmp_path, capsys, monkeypatch):
+    data, _, _ = marked_sphere(10)
+    prefix = data[: len(data) // 2 + 2000]
+    monkeypatch.setattr("sys.stdin", io.TextIOWrapper(io.BytesIO(prefix)))
+    out = tmp_path / "c.pmw"
+    assert main(["cut", "-", "--chunks", "99", "-o", str(out), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    arrived = decode_stream(prefix)[1].chunks_applied
+    assert report["chunks"] == report["chunks_available"] == arrived and not report["input_complete"]
+    assert "99" in report["notices"][0]
+    assert out.read_bytes() == cut(prefix, 99)
+    monkeypatch.setattr("sys.stdin", io.TextIOWrapper(io.BytesIO(prefix)))
+    assert main(["cut", "-", "--chunks", "99", "-o", str(out), "-q"]) == 0
+    assert "note:" in capsys.readouterr().err
+
+
+def test_pmw_cut_of_a_file_without_its_base_fails_in_one_line_and_writes_nothing(tmp_path, capsys):
+    data, _, _ = marked_sphere(11)
+    src = tmp_path / "short.pmw"
+    src.write_bytes(data[:300])
+    assert main(["cut", str(src), "--chunks", "1", "-o", str(tmp_path / "o.pmw")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("pmw: error: ") and err.count("\n") == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["short.pmw"]
+    assert main(["cut", str(src), "--chunks", "-1", "-o", str(tmp_path / "o.pmw")]) == 2
+
+
+def _old_order(data: bytes) -> bytes:
+    """The same file with the layout of files written before the base-first order: the
+    document's own bufferViews (the image) first, then the base mesh, then the chunks."""
+    gltf, bin_start = _json_and_bin(data)
+    views, chunk_views = gltf["bufferViews"], _chunk_views(gltf)
+    doc_views = [image["bufferView"] for image in gltf["images"]]
+    lo = min(views[i]["byteOffset"] for i in doc_views)
+    hi = max(views[i]["byteOffset"] + views[i]["byteLength"] for i in doc_views)
+    payload = data[bin_start:]
+    for i, view in enumerate(views):
+        if i in doc_views:
+            view["byteOffset"] -= lo
+        elif i not in chunk_views:
+            view["byteOffset"] += hi - lo
+    moved = payload[lo:hi] + payload[:lo] + payload[hi:]
+    return b"".join(glb_parts(gltf, [moved], len(moved)))
+
+
+def test_files_with_the_old_order_still_decode_and_cut(textured_pmw):
+    old = _old_order(textured_pmw)
+    assert old != textured_pmw
+    for n in (0, 2, None):
+        a, _ = decode_stream(textured_pmw, chunks=n)
+        b, _ = decode_stream(old, chunks=n)
+        assert np.array_equal(a.positions_int, b.positions_int) and np.array_equal(a.faces, b.faces)
+        _same_levels(old, cut(old, n), 99 if n is None else n)
+    assert _image_bytes(decode_asset(old)[0]) == _image_bytes(decode_asset(textured_pmw)[0])
+
+
+@pytest.mark.corpus
+def test_every_cut_of_spot_passes_the_khronos_validator(tmp_path):
+    src = corpus_path("spot.glb")
+    out = tmp_path / "spot.pmw"
+    encode_asset(src, out, strip_image_profiles=True, measure=False)
+    data = out.read_bytes()
+    for n in range(read_header(data).chunk_count + 1):
+        path = tmp_path / f"spot{n}.pmw"
+        path.write_bytes(cut(data, n))
+        result = check(path)
+        assert result["validator"]["errors"] == 0 and result["validator"]["warnings"] == 0, (n, result["validator"])
+        _same_levels(data, path.read_bytes(), n)
