@@ -75,7 +75,7 @@ def extract(pmw: bytes, key, reference, decoded: Mesh) -> list:
 def draw(rows, faces, title: str, tile=(230, 200)) -> Image.Image:
     """One column per pose: mesh (shared camera), extracted watermark, scores."""
     tw, th = tile
-    camera = Camera.fit(np.concatenate([pts for _, pts, _ in rows]), tw, th, azimuth=0.0, elevation=10.0)
+    camera = Camera.fit(np.concatenate([pts for _, pts, _ in rows]), tw, th)
     side, pad, gap, line = th - 40, 16, 10, 17
     big, small = font(17), font(13)
     width = pad * 2 + len(rows) * tw + (len(rows) - 1) * gap
