@@ -55,7 +55,7 @@ def encode(src, dst, watermark=None, key=None, **options):
     existing key file, or None (a new key; with a path ``dst`` it is saved to
     ``dst + ".key.json"``); a key object is never modified (the key saved to a key path
     holds the file's parameters and reference watermark).  Options: ``mode``, ``bits``, ``grid_bits``, ``base_codec``,
-    ``base_vertices``, ``zstd_level``, ``measure``, ``strip_image_profiles`` (assets).
+    ``base_vertices``, ``embed_from`` (first split carrying a code: index or fraction), ``zstd_level``, ``measure``, ``strip_image_profiles`` (assets).
     Returns the report dict (the
     ``pmw encode --json`` fields, plus ``notices`` and ``key_path``).
     """

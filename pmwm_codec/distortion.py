@@ -7,6 +7,8 @@ Mesh (:func:`mesh_distortion`, the fields of ``encode --json``'s ``distortion``)
 * ``hausdorff`` — symmetric Hausdorff distance between the two *surfaces*, divided by D;
 * ``bbox_diagonal`` — D.
 
+:func:`mesh_nc` adds the paper's mesh NC (normalized correlation of centred vertex positions).
+
 The Hausdorff distance is estimated Metro-style (:func:`hausdorff_distance`): each surface is
 sampled (all its vertices plus area-weighted uniform random points, seeded) and for every
 sample the distance to the *other* surface is computed **exactly** — candidate triangles
@@ -38,6 +40,7 @@ __all__ = [
     "hausdorff_distance",
     "default_samples",
     "mesh_distortion",
+    "mesh_nc",
     "full_distortion",
     "decoded_positions",
     "combine_meshes",
@@ -223,6 +226,32 @@ def mesh_distortion(original, distorted, samples: int | None = None, seed: int =
         "hausdorff": h / diag if diag > 0 else 0.0,
         "bbox_diagonal": diag,
     }
+
+
+def mesh_nc(original, distorted) -> float:
+    """Normalized correlation of two meshes' vertex positions (the paper's Table I "Disguised Mesh (NC)").
+
+    ``original`` / ``distorted``: meshes (or (n, 3) arrays) with the same vertices in the same
+    order.  Both position sets are centred on the *original's* centroid ``c`` and correlated
+    over all 3n coordinates::
+
+        a = P - c,  b = P' - c,  NC = <a, b> / (|a| |b|)      (float64)
+
+    1 for identical meshes; translation-free, so the value measures the shape change, not
+    where the mesh sits.  For a small error ``1 - NC`` is about half the squared ratio of
+    the error orthogonal to ``a`` to the RMS radius.  Raises MeshError when the vertex
+    counts differ; returns 1.0 for a mesh of one point.
+    """
+    a = np.asarray(getattr(original, "positions", original), np.float64)
+    b = np.asarray(getattr(distorted, "positions", distorted), np.float64)
+    if a.shape != b.shape:
+        raise MeshError(f"cannot correlate vertices: {len(a)} original vs {len(b)} distorted vertices")
+    c = a.mean(axis=0)
+    a, b = (a - c).ravel(), (b - c).ravel()
+    na, nb = np.linalg.norm(a), np.linalg.norm(b)
+    if na == 0.0 or nb == 0.0:
+        return 1.0 if na == nb else 0.0
+    return float(np.clip(np.dot(a, b) / (na * nb), -1.0, 1.0))
 
 
 # --- the encoder's report ----------------------------------------------------------------

@@ -61,6 +61,10 @@ CASES = {
         mesh=shapes.icosphere(4, 1.2, noise=0.02), base_codec="draco", watermark=_stripes(16), mode="paper",
         key=WatermarkKey.generate(rng=np.random.default_rng(2025)),
     ),
+    "sphere.exact-watermark-from-quarter": lambda: dict(
+        mesh=shapes.icosphere(4, 1.2, noise=0.02), base_codec="draco", watermark=_stripes(16), embed_from=0.25,
+        key=WatermarkKey.generate(rng=np.random.default_rng(2026)),
+    ),
 }
 
 

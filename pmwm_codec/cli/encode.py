@@ -26,6 +26,17 @@ def _int_in(lo, hi, what):
     return parse
 
 
+def _start(text):
+    """``--embed-from``: a split index (``2031``) or a fraction of the splits (``0.066``)."""
+    try:
+        value = float(text) if any(c in text for c in ".eE") else int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--embed-from must be a split index or a fraction, got {text!r}") from None
+    if not (0 <= value < (1 if isinstance(value, float) else value + 1)):
+        raise argparse.ArgumentTypeError(f"--embed-from must be an index >= 0 or a fraction in [0, 1), got {text}")
+    return value
+
+
 def add_parser(sub):
     p = sub.add_parser(
         "encode", help="mesh (+ watermark) -> progressive .pmw",
@@ -38,6 +49,9 @@ def add_parser(sub):
     p.add_argument("--key", metavar="KEY", help="key file to use (if it exists) or to write (default: OUT.pmw.key.json)")
     p.add_argument("--mode", choices=MODES, default="exact", help="exact (default: bit-exact watermark) or paper (Eq. 4)")
     p.add_argument("--bits", type=_int_in(1, MAX_BITS, "--bits"), metavar="B", help="bits per code (default: automatic)")
+    p.add_argument("--embed-from", type=_start, metavar="N",
+                   help="first vertex split that carries a code, counted from the base mesh over the stream "
+                        "(an index, or a fraction of the splits such as 0.25; default 0); stored in the file")
     p.add_argument("--grid-bits", type=_int_in(MIN_GRID_BITS, MAX_GRID_BITS, "--grid-bits"), metavar="Q",
                    help="position grid resolution in bits (default 16; paper mode 22)")
     p.add_argument("--base-codec", choices=("draco", "plain"), default="draco", help="how the base mesh is stored")
@@ -62,7 +76,7 @@ def run(args) -> int:
         check_output_path(args.key, "key")
     progress = Progress(not (args.json or args.quiet))
     options = {"mode": args.mode, "base_codec": args.base_codec, "progress": stage_progress(progress)}
-    for name in ("bits", "grid_bits", "base_vertices"):
+    for name in ("bits", "grid_bits", "base_vertices", "embed_from"):
         if getattr(args, name) is not None:
             options[name] = getattr(args, name)
     if args.strip_image_profiles:
@@ -70,6 +84,8 @@ def run(args) -> int:
     extra = []
     if args.key is not None and args.watermark is None:
         extra.append("--key ignored: no --watermark, so the file carries no mark and needs no key")
+    if args.embed_from is not None and args.watermark is None:
+        extra.append("--embed-from ignored: no --watermark")
     try:
         report = _encode_fitting(args, options, extra)
     except ValueError as exc:

@@ -187,6 +187,7 @@ def encode_document(
     base_codec: str = "draco",
     base_vertices: int | None = None,
     step_units: float | None = None,
+    embed_from: int | float = 0,
     min_chunk_splits: int | None = None,
     zstd_level: int = 10,
     measure: bool = True,
@@ -211,6 +212,8 @@ def encode_document(
     base_codec : ``"draco"`` | ``"plain"`` (primitives with attributes use plain).
     base_vertices : target base size per primitive (default
         :func:`~pmwm_codec.stream.chunking.default_base_target`).
+    embed_from : first vertex split (stream order, over every primitive) that carries a
+        code: an int index or a float fraction in [0, 1) of the splits; stored in the file.
     measure : compute the distortion (RMS, PSNR, Hausdorff) of the full decoded mesh.
     progress : optional callable(stage: str, fraction: float).
 
@@ -226,7 +229,8 @@ def encode_document(
     params = None
     if watermark is not None:
         key = key if key is not None else WatermarkKey.generate()
-        params, work = _plan_watermark(work, watermark, key, carriers, slots, mode, bits, step_units)
+        params, work = _plan_watermark(work, watermark, key, carriers, slots, mode, bits, step_units,
+                                       embed_from)
     work = _build_records(work, say)
     size, file_id = _write(dst, doc, kept_bin, work, order, params, key, zstd_level, say)
     if params is not None:
@@ -331,13 +335,23 @@ def _plan_chunks(work, min_chunk_splits) -> tuple:
     return out, order, slots, carriers
 
 
-def _plan_watermark(work, watermark, key, carriers: int, slots, mode, bits, step_units) -> tuple:
-    """Stage 4: watermark plan over every carrier of the document.
+def _plan_watermark(work, watermark, key, carriers: int, slots, mode, bits, step_units, embed_from=0) -> tuple:
+    """Stage 4: watermark plan over the carriers of the document from ``embed_from`` on.
 
     Returns ``(params, work)``: the document's :class:`WatermarkParams` and the work with
     each primitive's ``params`` (its own ``scale``: mean base edge / step) and embedder.
+    Raises CapacityError when the splits from the start on cannot hold the watermark.
     """
-    params, codes = wm.plan(watermark, key, carriers, mode=mode, bits=bits, nbar=1.0, step_units=step_units)
+    start = wm.start_index(embed_from, carriers)
+    if start:
+        need = wm.splits_needed(watermark, mode, bits)
+        if carriers - start < need:
+            raise wm.CapacityError(
+                f"embedding from vertex split {start:,} leaves {carriers - start:,} of {carriers:,} splits; "
+                f"the watermark needs {need:,} in {mode} mode: start earlier"
+            )
+    params, codes = wm.plan(watermark, key, carriers - start, mode=mode, bits=bits, nbar=1.0, step_units=step_units)
+    params.embed_from = start
     step = wm.DEFAULT_STEP_UNITS[mode] if step_units is None else float(step_units)
     out = []
     for w, primitive_slots in zip(work, slots):

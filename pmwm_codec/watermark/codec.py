@@ -24,6 +24,13 @@ Carriers are numbered in stream order: batch 0 (coarsest) first; inside batch
 with ``perm_j = key.permutation(j, k)`` -- secret, but never mixing batches, so
 a cut stream carries a *prefix* of the watermark stream (low frequencies first).
 
+**Start.**  ``embed_from`` (public, ``embedFrom`` in the file, absent = 0) is the
+first stream slot that carries a code: slots ``0 .. embed_from - 1`` keep their
+vertices where the simplification put them, and slot ``s >= embed_from`` carries
+code slot ``s - embed_from``.  ``carriers`` counts the code-carrying slots only.
+A batch straddling the start has its keyed permutation decide which of its splits
+fall before it.
+
 Modes
 -----
 ``exact`` (default)
@@ -125,6 +132,12 @@ class WatermarkParams:
     carriers: int
     layout: dict | None = None
     fingerprint: str = ""
+    embed_from: int = 0  # first stream slot carrying a code
+
+    def code_slots(self, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Stream slots (k,) int64 -> ``(code slots (k,) int64, live (k,) bool)``: which carry a code, and which."""
+        code = np.asarray(slots, np.int64) - self.embed_from
+        return code, (code >= 0) & (code < self.carriers)
 
     def get_config(self) -> dict:
         cfg = {
@@ -134,6 +147,8 @@ class WatermarkParams:
         }
         if self.layout is not None:
             cfg["layout"] = self.layout
+        if self.embed_from:
+            cfg["embedFrom"] = self.embed_from
         return cfg
 
     @classmethod
@@ -145,7 +160,7 @@ class WatermarkParams:
                 mode=str(cfg["mode"]), bits=int(cfg["bits"]), scale=float(cfg["scale"]),
                 size=int(cfg["width"]), levels=int(cfg["levels"]), codes=int(cfg["codes"]),
                 carriers=int(cfg["carriers"]), layout=cfg.get("layout"),
-                fingerprint=str(cfg.get("keyFingerprint", "")),
+                fingerprint=str(cfg.get("keyFingerprint", "")), embed_from=int(cfg.get("embedFrom", 0)),
             )
         except (KeyError, TypeError, ValueError):
             raise FormatError("watermark parameters in the file are incomplete") from None
@@ -155,8 +170,8 @@ class WatermarkParams:
             raise FormatError("watermark size in the file is out of range")
         if not 0 <= p.levels <= p.size.bit_length() - 1:
             raise FormatError("watermark levels in the file do not fit its size")
-        if not 0 <= p.carriers <= MAX_VERTICES:
-            raise FormatError("watermark carrier count in the file is out of range")
+        if not 0 <= p.carriers <= MAX_VERTICES or not 0 <= p.embed_from <= MAX_VERTICES - p.carriers:
+            raise FormatError("watermark carrier count or start in the file is out of range")
         if p.mode == "paper" and p.codes != p.size * p.size:
             raise FormatError("paper-mode code count in the file differs from the image size")
         if p.mode == "exact":
@@ -220,6 +235,42 @@ def carrier_slots(key, batch_index: int, offset: int, k: int) -> np.ndarray:
     return offset + key.permutation(batch_index, k)
 
 
+def start_index(embed_from, total: int) -> int:
+    """The first code-carrying stream slot for ``embed_from`` over ``total`` splits.
+
+    ``embed_from``: an int index (0 .. total) or a float fraction in [0, 1)
+    (``floor(fraction * total)``).  Raises ValueError for anything else.
+    """
+    if isinstance(embed_from, (bool, np.bool_)):
+        raise ValueError(f"embed_from must be a split index or a fraction, got {embed_from!r}")
+    if isinstance(embed_from, (int, np.integer)):
+        if not 0 <= embed_from <= total:
+            raise ValueError(f"embed_from {embed_from} is outside the stream's {total} vertex splits")
+        return int(embed_from)
+    try:
+        frac = float(embed_from)
+    except (TypeError, ValueError):
+        raise ValueError(f"embed_from must be a split index or a fraction, got {embed_from!r}") from None
+    if not 0.0 <= frac < 1.0:
+        raise ValueError(f"embed_from as a fraction must be in [0, 1), got {frac}")
+    return int(np.floor(frac * total))
+
+
+def splits_needed(image: np.ndarray, mode: str, bits: int | None = None) -> int:
+    """Fewest vertex splits that hold ``image`` (s, s) uint8 whole.
+
+    paper: one split per coefficient; exact: the packed bit stream at ``bits`` (None: at
+    most :data:`MAX_EXACT_BITS`) bits per split.
+    """
+    size = int(image.shape[0])
+    if mode == "paper":
+        return size * size
+    levels = haar.check_size(size, size.bit_length() - 1)
+    stream = haar.to_stream(haar.forward_int(image, levels), levels)
+    message = pack(stream, BitLayout.for_coefficients(stream, haar.bands(size, levels)))
+    return -(-len(message) // (MAX_EXACT_BITS if bits is None else int(bits)))
+
+
 # --------------------------------------------------------------------------- encoder
 
 
@@ -249,7 +300,7 @@ class Embedder:
         else:
             slots = carrier_slots(self.key, j, self.offset, k)
             self.offset += k
-        live = slots < len(self.codes)
+        slots, live = self.params.code_slots(slots)
         out = np.array(target, dtype=np.int64, copy=True)
         if live.any():
             pts, ok = place_codes(
@@ -339,9 +390,8 @@ class Extractor:
         others keep their slots but stay unread.
         """
         k = len(points)
-        slots = carrier_slots(self.key, j, self.offset, k)
+        slots, live = self.params.code_slots(carrier_slots(self.key, j, self.offset, k))
         self.offset += k
-        live = slots < len(self.received)
         if known is not None:
             live &= np.asarray(known, bool)
         nbar = self.nbar if nbar is None else nbar
