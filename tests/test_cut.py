@@ -250,3 +250,31 @@ def test_every_cut_of_spot_passes_the_khronos_validator(tmp_path):
         result = check(path)
         assert result["validator"]["errors"] == 0 and result["validator"]["warnings"] == 0, (n, result["validator"])
         _same_levels(data, path.read_bytes(), n)
+
+
+def test_a_prefix_ending_inside_the_texture_decodes_to_a_valid_glb_without_it(tmp_path, textured_pmw, capsys):
+    gltf, bin_start = _json_and_bin(textured_pmw)
+    image_view = gltf["bufferViews"][gltf["images"][0]["bufferView"]]
+    prefix = textured_pmw[: bin_start + image_view["byteOffset"] + image_view["byteLength"] // 2]
+    glb, end, decoder = decode_asset(prefix)
+    doc, _ = _json_and_bin(glb)
+    assert end.truncated and "images" not in doc and "textures" not in doc
+    assert not any("Texture" in key for m in doc.get("materials", []) for key in _keys(m))
+    assert decoder.notices == ["image 0 has not arrived yet: the level is written without it"]
+    src = tmp_path / "prefix.pmw"
+    src.write_bytes(prefix)
+    assert main(["decode", str(src), "-o", str(tmp_path / "level.glb"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["notices"] == decoder.notices
+    result = check(tmp_path / "level.glb")
+    assert result["validator"]["errors"] == 0 and result["validator"]["warnings"] == 0, result["validator"]
+    assert result["three"]["ok"]
+
+
+def _keys(node):
+    if isinstance(node, dict):
+        for key, value in node.items():
+            yield key
+            yield from _keys(value)
+    elif isinstance(node, list):
+        for item in node:
+            yield from _keys(item)

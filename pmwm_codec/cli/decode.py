@@ -38,17 +38,18 @@ def run(args) -> int:
         raise UsageError(f"--chunks must be >= 0, got {args.chunks}")
     check_input_file(args.input, ".pmw file")
     check_output_path(args.output, "mesh")
+    notices = []
     with naming(args.input):
         if suffix in (".glb", ".gltf"):
             glb, end, decoder = decode_asset(args.input, chunks=args.chunks)
-            last = decoder.last
+            last, notices = decoder.last, decoder.notices
             write_asset(args.output, glb)
         else:
             last, end = decode_stream(args.input, chunks=args.chunks, copy=False)
             write_mesh(args.output, last.mesh)
     out = {"vertices": int(last.vertices), "faces": int(last.faces_count), "chunks_applied": int(end.chunks_applied),
            "complete": bool(end.complete), "chunks_total": int(end.chunks_total), "truncated": bool(end.truncated),
-           "output": args.output, "notices": _chunk_notices(args.chunks, end)}
+           "output": args.output, "notices": _chunk_notices(args.chunks, end) + notices}
     if args.json:
         print_json(out)
     else:

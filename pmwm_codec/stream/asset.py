@@ -235,6 +235,9 @@ def decode_asset(src, chunks=None):
     Returns ``(glb bytes, StreamEnd, decoder)``: the document with every progressive
     primitive's geometry replaced by plain accessors for the level reached
     (base + ``chunks`` chunks, or as many as arrived) and the extension removed.
+    Images whose bytes have not all arrived (a cut file: the document's data
+    follows the base meshes) are left out with the textures that use them; the
+    decoder's ``notices`` say which.
     """
     data = read_all(src)
     decoder = StreamDecoder(copy=False, max_chunks=chunks)
@@ -244,6 +247,8 @@ def decode_asset(src, chunks=None):
     bin_start = decoder.header.bin_offset
     found = find_extension_primitives(gltf, EXTENSION_NAME)
     doc, drop = _without_progressive_geometry(gltf, found)
+    missing = _drop_images_not_arrived(doc, len(data) - bin_start)
+    decoder.notices += [f"image {i} has not arrived yet: the level is written without it" for i in missing]
     kept, kept_bin = repack(doc, [data[bin_start:]], drop)
     out = BufferBuilder(kept["bufferViews"], kept["accessors"], [kept_bin], len(kept_bin))
     for (mi, pi, _), part in zip(found, results[-1].parts):
@@ -253,6 +258,57 @@ def decode_asset(src, chunks=None):
         forget_extension(kept, DRACO_EXTENSION)
     kept["buffers"] = [{"byteLength": out.length}]
     return b"".join(glb_parts(kept, out.parts, out.length)), end, decoder
+
+
+def _drop_images_not_arrived(doc: dict, available: int) -> list:
+    """Remove (in place) the images of ``doc`` whose bufferView ends past ``available`` BIN bytes.
+
+    Textures using them go too, and every ``{"index": t}`` texture reference to
+    those textures (in materials and their extensions); the remaining textures
+    and images are renumbered.  Returns the original indices of the removed images.
+    """
+    views = doc.get("bufferViews", [])
+
+    def arrived(image) -> bool:
+        view = views[image["bufferView"]] if "bufferView" in image else None
+        return view is None or view.get("byteOffset", 0) + view["byteLength"] <= available
+
+    images = doc.get("images", [])
+    missing = [i for i, image in enumerate(images) if not arrived(image)]
+    if not missing:
+        return []
+    image_map = {i: n for n, i in enumerate(i for i in range(len(images)) if i not in missing)}
+    textures = doc.get("textures", [])
+    gone = {t for t, tex in enumerate(textures) if tex.get("source") in missing}
+    texture_map = {t: n for n, t in enumerate(t for t in range(len(textures)) if t not in gone)}
+    doc["images"] = [img for i, img in enumerate(images) if i in image_map]
+    doc["textures"] = [tex for t, tex in enumerate(textures) if t in texture_map]
+    for tex in doc["textures"]:
+        if "source" in tex:
+            tex["source"] = image_map[tex["source"]]
+    for material in doc.get("materials", []):
+        _renumber_texture_refs(material, texture_map)
+    for key in ("images", "textures"):
+        if not doc[key]:
+            del doc[key]
+    return missing
+
+
+def _renumber_texture_refs(node, texture_map: dict) -> None:
+    """Renumber texture references (``{"index": t, ...}`` under a key ending in "Texture") in place; drop lost ones."""
+    if isinstance(node, dict):
+        for key in list(node):
+            value = node[key]
+            if key.endswith("Texture") and isinstance(value, dict) and isinstance(value.get("index"), int):
+                if value["index"] in texture_map:
+                    value["index"] = texture_map[value["index"]]
+                else:
+                    del node[key]
+            else:
+                _renumber_texture_refs(value, texture_map)
+    elif isinstance(node, list):
+        for item in node:
+            _renumber_texture_refs(item, texture_map)
 
 
 def _without_progressive_geometry(gltf: dict, found) -> tuple:

@@ -165,6 +165,8 @@ class StreamDecoder:
         self.verifier: Verifier | None = None
         self._closed = False
         self.last: PartialResult | None = None
+        #: what a user should know about this decode (one line each), e.g. parts of a cut file left out
+        self.notices: list = []
 
     @property
     def chunks_applied(self) -> int:
