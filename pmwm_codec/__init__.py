@@ -51,18 +51,22 @@ def encode(src, dst, watermark=None, key=None, **options):
     in-memory ``(gltf dict, buffers)``) whose triangle primitives all become progressive
     while materials, textures and nodes are kept (see :mod:`pmwm_codec.stream.asset`).
 
-    ``watermark``: image path or (s, s) array; ``key``: a WatermarkKey, the path of an
-    existing key file, or None (a new key; with a path ``dst`` it is saved to
-    ``dst + ".key.json"``); a key object is never modified (the key saved to a key path
-    holds the file's parameters and reference watermark).  Options: ``mode``, ``bits``, ``grid_bits``, ``base_codec``,
-    ``base_vertices``, ``embed_from`` (first split carrying a code: index or fraction), ``zstd_level``, ``measure``, ``strip_image_profiles`` (assets).
+    ``watermark``: image path or (s, s) array; ``key``: a WatermarkKey (never modified, not
+    saved), a key file path, or None (the key file ``dst + ".key.json"`` when ``dst`` is a
+    path).  A key file path follows :class:`~pmwm_codec.watermark.key.KeySlot`: an existing
+    key file is reused untouched when it holds this watermark, refused
+    (WatermarkKeyError, nothing written) otherwise or when it is a symbolic link; a new one
+    is written (0600) just before the ``.pmw``, so a failure at any moment leaves the old
+    pair or the new one.  Options: ``mode``, ``bits``, ``grid_bits``, ``base_codec``,
+    ``base_vertices``, ``embed_from`` (first split carrying a code: index or fraction), ``zstd_level``, ``measure`` (``"vertices"`` | ``"sampled"`` |
+    ``"none"``), ``strip_image_profiles`` (assets).
     Returns the report dict (the
     ``pmw encode --json`` fields, plus ``notices`` and ``key_path``).
     """
     from dataclasses import replace
 
     from .stream.asset import encode_asset, is_asset_path
-    from .stream.encoder import default_key_path, encode_mesh
+    from .stream.encoder import encode_mesh
 
     asset = is_asset_path(src) or isinstance(src, tuple)
     mesh = None if asset else _as_mesh(src)
@@ -71,28 +75,36 @@ def encode(src, dst, watermark=None, key=None, **options):
 
         raise InputFormatError(f"{src}: no such file")
     image, notices = _as_watermark(watermark)
-    key_path = None
-    key_obj = None
-    if image is not None:
-        if isinstance(key, (str, os.PathLike)) and os.path.exists(key):
-            key_obj = load_key(key)
-            key_path = os.fspath(key)
-        elif isinstance(key, (str, os.PathLike)):
-            key_path = os.fspath(key)
-        elif key is not None:
-            key_obj = key
-        else:
-            key_path = default_key_path(dst)
+    key_obj, key_slot = _key_for(key, image, dst)
+    options["key_slot"] = key_slot
     if asset:
         report = encode_asset(src, dst, watermark=image, key=key_obj, **options)
     else:
         options.pop("strip_image_profiles", None)
         report = encode_mesh(mesh, dst, watermark=image, key=key_obj, **options)
-    if report.key is not None and key_path is not None:
-        report.key.save(key_path)
+    key_path = None if key_slot is None else key_slot.path
     cleanup = {} if mesh is None else mesh.cleanup
     dropped = [f"dropped {v} {k.replace('_', ' ')}" for k, v in cleanup.items()]
     return replace(report, notices=notices + report.notices + dropped, key_path=key_path).as_json()
+
+
+def _key_for(key, image, dst) -> tuple:
+    """``(key object or None, KeySlot or None)`` for an encode of ``image`` to ``dst``.
+
+    Checked before any work: a refused key file costs nothing.
+    """
+    from .stream.encoder import default_key_path
+    from .watermark.key import KeySlot
+
+    if image is None:
+        return None, None
+    if key is not None and not isinstance(key, (str, os.PathLike)):
+        return key, None
+    path = default_key_path(dst) if key is None else key
+    if path is None:
+        return None, None
+    slot = KeySlot.open(path, image)
+    return slot.existing, slot
 
 
 def decode(src, chunks=None) -> Mesh:

@@ -19,8 +19,8 @@ digits round-trip a float32 exactly) and indices as uint32.  Attributes are not 
 buffer as a base64 data URI.
 
 Every file is written atomically through :func:`pmwm_codec.format.glb.write_parts`
-(a temporary file beside the target, then ``os.replace``): an existing file is
-either replaced whole or left untouched.  GLB framing is
+(:mod:`pmwm_codec.atomic`): an existing file is either replaced whole or left
+untouched, and a new file gets the mode ``0666 & ~umask``.  GLB framing is
 :func:`pmwm_codec.format.glb.glb_parts`, the one the ``.pmw`` writer uses.
 """
 
@@ -40,8 +40,6 @@ __all__ = ["WRITE_SUFFIXES", "write_mesh", "write_asset"]
 
 WRITE_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl")
 GENERATOR = "pmwm_codec (pmw decode)"
-#: Permissions of a written mesh: the temporary file of ``write_parts`` is private (0600).
-FILE_MODE = 0o644
 
 _FLOAT, _UINT = 5126, 5125  # glTF componentType
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963  # glTF bufferView target
@@ -81,8 +79,7 @@ def _suffix(path: str, allowed) -> str:
 
 
 def _write(path: str, parts) -> None:
-    write_parts(path, parts)
-    os.chmod(path, FILE_MODE)
+    write_parts(path, parts)  # mode 0666 & ~umask, as any program's new file
 
 
 def _gltf_document(positions: np.ndarray, faces: np.ndarray):

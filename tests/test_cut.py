@@ -20,7 +20,6 @@ from pmwm_codec.stream.asset import decode_asset, encode_asset
 from pmwm_codec.stream.cut import cut, cut_file
 from pmwm_codec.stream.decoder import StreamDecoder
 from pmwm_codec.stream.reader import decode_stream
-from pmwm_codec.watermark.key import WatermarkKey
 
 from conftest import corpus_path, marked_sphere
 from test_asset import DocBuilder, check, two_mesh_asset

@@ -10,6 +10,7 @@ import pygltflib
 import pytest
 
 import pmwm_codec
+from pmwm_codec.atomic import current_umask
 from pmwm_codec import shapes
 from pmwm_codec.format.parser import parse_preamble
 from pmwm_codec.meshio import WRITE_SUFFIXES, write_asset, write_mesh
@@ -40,7 +41,7 @@ def test_every_format_reads_back_with_read_mesh(mesh, tmp_path, suffix):
         assert np.array_equal(back.faces, mesh.faces)
     written = sorted(p.name for p in tmp_path.iterdir())
     assert written == (["m.bin", "m.gltf"] if suffix == ".gltf" else [path.name])  # no temp file left
-    assert stat.S_IMODE(path.stat().st_mode) == 0o644
+    assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~current_umask()  # the umask decides
 
 
 def test_glb_is_framed_by_glb_parts_and_loads_in_pygltflib(mesh, tmp_path):

@@ -7,6 +7,7 @@ import os
 
 import pmwm_codec
 from pmwm_codec.constants import MAX_GRID_BITS, MIN_GRID_BITS
+from pmwm_codec.distortion import MEASURES
 from pmwm_codec.watermark.codec import MAX_BITS, MODES, CapacityError, shrink_watermark
 from pmwm_codec.watermark.image import load_watermark
 
@@ -62,6 +63,9 @@ def add_parser(sub):
                         "the glTF validator warns on them)")
     p.add_argument("--fit", action="store_true",
                    help="shrink a watermark that does not fit to the largest size that does (with a notice)")
+    p.add_argument("--measure", choices=MEASURES, default="vertices",
+                   help="distortion: vertices (default: exact RMS/PSNR, Hausdorff bounded by the largest vertex "
+                        "displacement), sampled (Metro-style surface Hausdorff, slower) or none")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
     p.set_defaults(run=run)
@@ -75,7 +79,8 @@ def run(args) -> int:
     if args.key is not None and not os.path.exists(args.key):
         check_output_path(args.key, "key")
     progress = Progress(not (args.json or args.quiet))
-    options = {"mode": args.mode, "base_codec": args.base_codec, "progress": stage_progress(progress)}
+    options = {"mode": args.mode, "base_codec": args.base_codec, "measure": args.measure,
+               "progress": stage_progress(progress)}
     for name in ("bits", "grid_bits", "base_vertices", "embed_from"):
         if getattr(args, name) is not None:
             options[name] = getattr(args, name)
@@ -129,7 +134,8 @@ def summary(src, dst, r) -> str:
         diag = d.get("bbox_diagonal") or 0.0
         haus = d.get("hausdorff")
         lines.append(f"  distortion  RMS {d['rms']:.3g} (diagonal {diag:.3g}), PSNR {fmt_float(d.get('psnr_db'), 1, ' dB')}"
-                     + ("" if haus is None else f", Hausdorff {100 * haus:.3g}% of the diagonal"))
+                     + ("" if haus is None else f", Hausdorff {'<= ' if d.get('measure') == 'vertices' else ''}"
+                                                f"{100 * haus:.3g}% of the diagonal"))
     w = r.get("watermark")
     if w:
         lines.append(f"  watermark   {w['width']}x{w['height']}, {w['mode']} mode, {w['bits']} bits per code, "

@@ -93,7 +93,8 @@ def run_reference(args) -> int:
               f"({100 * v.coverage:.1f}% of its vertices); {v.carriers_read:,} of {v.carriers_total:,} codes read")
         print(f"NC {fmt_float(v.nc, 4)}  PSNR {fmt_float(v.psnr_db, 2)} dB  BER {fmt_float(v.ber, 4)}"
               + ("  (bit-exact)" if v.bit_exact else ""))
-        print(f"verdict: {v.verdict}")
+        print(f"verdict: {v.verdict}" + ("" if v.key_matches else
+                                          " (the reference is marked with another key: its key fingerprint differs)"))
     return EXIT_OK if v.verdict == "authentic" else EXIT_NOT_AUTHENTIC
 
 
@@ -112,6 +113,8 @@ def report(o: StreamVerification, pictures=None) -> str:
                      f"base + {applied} of {o.end.chunks_total} chunks")
     if not o.marked:
         why = "the file carries no watermark"
+    elif not o.key_matches:
+        why = "the file is marked with another key: its key fingerprint differs"
     elif o.codes_read:
         why = f"{o.codes_matched:,} of {o.codes_read:,} codes match"
     else:

@@ -21,8 +21,7 @@ Contract (DESIGN.md §4)
   written; a reader learns every byte range from the first 20 bytes plus the JSON.
 
 :func:`build_pmw` returns the file as bytes; :func:`write_pmw` writes it to a path
-(atomically: temp file in the same directory, fsync, ``os.replace``) or to a binary
-file object.  Both share :func:`_assemble`.
+(atomically, see :mod:`pmwm_codec.atomic`) or to a binary file object.  Both share :func:`_assemble`.
 """
 
 from __future__ import annotations
@@ -30,11 +29,11 @@ from __future__ import annotations
 import copy
 import json
 import os
-import tempfile
 from dataclasses import dataclass
 
 import zstandard
 
+from ..atomic import write_atomic
 from ..constants import EXTENSION_NAME, FORMAT_VERSION, MAX_CHUNK_BYTES, MAX_CHUNKS, MAX_DECOMPRESSED_CHUNK_BYTES
 from ..errors import FormatError, InputFormatError
 from .base import EncodedBase
@@ -316,29 +315,14 @@ def split_glb(data, name: str = "GLB") -> tuple:
 
 
 def write_parts(dst, parts) -> int:
-    """Write assembled parts to a path (atomically) or a binary file; return the byte count."""
+    """Write assembled parts to a path (atomically, mode ``0666 & ~umask``) or a binary file;
+    return the byte count.  See :mod:`pmwm_codec.atomic`."""
     size = sum(len(p) for p in parts)
     if not isinstance(dst, (str, os.PathLike)):
         for part in parts:
             dst.write(part)
         return size
-    path = os.fspath(dst)
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            for part in parts:
-                fh.write(part)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-    _fsync_directory(directory)
+    write_atomic(dst, parts)
     return size
 
 
@@ -371,23 +355,8 @@ def write_pmw(dst, *, base: EncodedBase, chunks, chunk_meta, extension: dict, zs
     """Write a ``.pmw`` file; return the number of bytes written.
 
     ``dst`` is a path (``str`` or ``os.PathLike``) or a binary file object.  A path is
-    written atomically: a temporary file in the same directory is written, fsynced and
-    moved over ``dst`` with ``os.replace``; on any exception the temporary file is
-    removed and an existing file at ``dst`` is untouched.  Other arguments: see
+    written atomically (:mod:`pmwm_codec.atomic`): on any exception nothing is left
+    and an existing file at ``dst`` is untouched; the new file's mode is ``0666 & ~umask``.  Other arguments: see
     :func:`build_pmw`.
     """
     return write_parts(dst, _assemble(base, chunks, chunk_meta, extension, zstd_level))
-
-
-def _fsync_directory(directory: str) -> None:
-    """Make the rename durable where the platform allows it (best effort)."""
-    try:
-        fd = os.open(directory, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)

@@ -22,7 +22,6 @@ bytes are copied, never recompressed; each kept chunk's digest is checked on the
 from __future__ import annotations
 
 import copy
-import json
 from dataclasses import dataclass
 
 from ..constants import EXTENSION_NAME

@@ -9,8 +9,10 @@
     _plan_chunks            batches -> chunks, one stream order, carrier slots (chunking.py)
     _plan_watermark         watermark parameters and one embedder per primitive
     _build_records          split records, the watermark embedded on the grid as we go
-    _write                  payloads, index entries, extension objects, the GLB (atomically)
-    _report                 the :class:`EncodeReport`
+    _report                 the :class:`EncodeReport` with the distortion (measured before
+                            anything is written, bounded in memory)
+    _write                  payloads, index entries, extension objects; then the key file
+                            (if new) and the GLB are published together (:func:`_publish`)
 
 The stages never modify the caller's objects (the key given is returned as a new key
 in the report) and the output depends only on the input, the key and the options:
@@ -29,10 +31,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..constants import DEFAULT_GRID_BITS
-from ..distortion import combine_meshes, decoded_positions, full_distortion
+from ..distortion import combine_meshes, decoded_positions, full_distortion, measure_method
 from ..errors import PmwError
 from ..format import encode_base
 from ..format.base import EncodedBase, with_attributes
+from ..atomic import directory_lock, discard, fault_point, publish, signals_deferred, stage
 from ..format.glb import ProgressivePrimitive, assemble_document, write_parts
 from ..format.records import pack_batches
 from ..mesh import Mesh
@@ -41,7 +44,7 @@ from ..progressive.grid import AttributeGrid, Grid
 from ..progressive.simplify import CollapseLog, simplify
 from ..progressive.topology import mean_edge_length
 from ..watermark import codec as wm
-from ..watermark.key import WatermarkKey
+from ..watermark.key import KEY_FILE_MODE, KeySlot, WatermarkKey
 from .chunking import (
     carrier_slots,
     chunk_meta,
@@ -190,7 +193,8 @@ def encode_document(
     embed_from: int | float = 0,
     min_chunk_splits: int | None = None,
     zstd_level: int = 10,
-    measure: bool = True,
+    measure="vertices",
+    key_slot: KeySlot | None = None,
     progress=None,
 ) -> EncodeReport:
     """Make the primitives of ``jobs`` progressive inside ``doc`` and write the ``.pmw``.
@@ -214,13 +218,22 @@ def encode_document(
         :func:`~pmwm_codec.stream.chunking.default_base_target`).
     embed_from : first vertex split (stream order, over every primitive) that carries a
         code: an int index or a float fraction in [0, 1) of the splits; stored in the file.
-    measure : compute the distortion (RMS, PSNR, Hausdorff) of the full decoded mesh.
+    measure : how to measure the distortion of the full decoded mesh (see
+        :func:`~pmwm_codec.distortion.full_distortion`): ``"vertices"`` (default, exact RMS
+        and PSNR, Hausdorff bounded by the largest vertex displacement), ``"sampled"``
+        (Metro-style sampled surface Hausdorff) or ``"none"``; True / False stand for
+        ``"vertices"`` / ``"none"``.
+    key_slot : :class:`~pmwm_codec.watermark.key.KeySlot`, optional
+        The key file to create or reuse (its existing key should be ``key``); the key file
+        (if new) is published just before the ``.pmw``, under one directory lock, so a
+        failure at any moment leaves the old pair or the new one (:func:`_publish`).
     progress : optional callable(stage: str, fraction: float).
 
     The same arguments give the same bytes.
     """
     t0 = time.perf_counter()
     say = progress or (lambda stage, fraction: None)
+    measure = measure_method(measure)  # a bad value fails before any work
     if grid_bits is None:
         grid_bits = wm.DEFAULT_GRID_BITS[mode] if watermark is not None else DEFAULT_GRID_BITS
     work = _quantize_and_simplify(jobs, grid_bits, base_vertices, say)
@@ -232,12 +245,16 @@ def encode_document(
         params, work = _plan_watermark(work, watermark, key, carriers, slots, mode, bits, step_units,
                                        embed_from)
     work = _build_records(work, say)
-    size, file_id = _write(dst, doc, kept_bin, work, order, params, key, zstd_level, say)
+    report = _report(work, params, measure, say)
+    fault_point("measured")
+    prims, file_id = _primitives(doc, kept_bin, work, order, params, key)
     if params is not None:
         key = dataclasses.replace(
             key, file_id=file_id, params=params.get_config(), reference=np.asarray(watermark, np.uint8)
         )
-    report = _report(work, params, measure, say)
+    say("write", 0.0)
+    size = _publish(dst, assemble_document(doc, kept_bin, prims, order, zstd_level), key, key_slot)
+    say("write", 1.0)
     return dataclasses.replace(
         report, vsplits=carriers, chunks=len(order), bytes=int(size), seconds=time.perf_counter() - t0,
         base_codec=work[0].base.codec if work else base_codec, notices=notices, key=key,
@@ -376,8 +393,8 @@ def _build_records(work, say) -> list:
     return out
 
 
-def _write(dst, doc, kept_bin, work, order, params, key, zstd_level: int, say) -> tuple:
-    """Stage 6: payloads, index entries, extension objects; write.  Returns ``(bytes, fileId)``."""
+def _primitives(doc, kept_bin, work, order, params, key) -> tuple:
+    """Stage 6: payloads, index entries, extension objects.  Returns ``(prims, fileId)``."""
     prims = []
     for w in work:
         payloads = [pack_batches([w.pm.batches[j] for j in grp]) for grp in w.groups]
@@ -398,10 +415,49 @@ def _write(dst, doc, kept_bin, work, order, params, key, zstd_level: int, say) -
     file_id = content_file_id(doc, kept_bin, prims, order, key)
     for prim in prims:
         prim.extension["fileId"] = file_id
-    say("write", 0.0)
-    size = write_parts(dst, assemble_document(doc, kept_bin, prims, order, zstd_level))
-    say("write", 1.0)
-    return size, file_id
+    return prims, file_id
+
+
+def _publish(dst, parts, key: WatermarkKey | None, key_slot: KeySlot | None) -> int:
+    """Stage 7: write the key file (when new) and the ``.pmw`` so that a failure at any
+    moment leaves the old pair or the new pair; returns the ``.pmw``'s byte count.
+
+    Both files are staged (written, fsynced, nameless where the platform allows) while the
+    directories are locked (a concurrent encode to the same names waits, then finds the
+    key it expected changed and refuses); then the key is renamed into place and the
+    ``.pmw`` right after it, with SIGINT/SIGTERM held back.  An error (disk full, file
+    size limit, out of memory) before the second rename discards both; SIGKILL between
+    the two renames can leave a new key beside the old ``.pmw``, never a marked file
+    without its key.
+    """
+    if key_slot is None or key is None:
+        return write_parts(dst, parts)
+    to_path = isinstance(dst, (str, os.PathLike))
+    with directory_lock([key_slot.path] + ([dst] if to_path else [])), signals_deferred():
+        text = key_slot.pending(key)
+        staged_key = staged = None
+        created = False
+        try:
+            staged_key = None if text is None else stage(key_slot.path, [text], KEY_FILE_MODE)
+            staged = stage(dst, parts) if to_path else None
+            fault_point("staged")
+            if staged_key is not None:
+                publish(staged_key)
+                created = True
+            fault_point("key-published")
+            if to_path:
+                publish(staged)
+            else:  # a stream: its bytes follow the key
+                write_parts(dst, parts)
+            fault_point("published")
+        except BaseException:
+            discard(staged)
+            if created:
+                os.unlink(key_slot.path)  # ours: created under the lock a moment ago
+            raise
+        finally:
+            discard(staged_key)
+    return sum(len(p) for p in parts)
 
 
 def content_file_id(doc: dict, kept_bin: bytes, prims, order, key: WatermarkKey | None) -> str:
@@ -440,15 +496,21 @@ def _json_default(obj):
     raise TypeError(f"{type(obj).__name__} is not JSON-serialisable")
 
 
-def _report(work, params, measure: bool, say) -> EncodeReport:
-    """Stage 7: sizes, distortion and watermark counts (stream fields are set by the caller)."""
+def _report(work, params, measure, say) -> EncodeReport:
+    """Sizes, distortion and watermark counts (stream fields are set by the caller).
+
+    ``measure``: see :func:`encode_document`; runs before anything is written.
+    """
     meshes = [w.job.mesh for w in work]
     combined = combine_meshes(meshes)
-    distortion = {"rms": None, "psnr_db": None, "hausdorff": None, "bbox_diagonal": combined.bbox_diagonal()}
-    if measure:
+    method = measure_method(measure)
+    distortion = {"rms": None, "psnr_db": None, "hausdorff": None, "bbox_diagonal": combined.bbox_diagonal(),
+                  "measure": "none"}
+    if method != "none":
         say("measure", 0.0)
         decoded = [decoded_positions(w.pm, w.grid) for w in work]
-        distortion = full_distortion(combined, combine_meshes([Mesh(d, m.faces) for d, m in zip(decoded, meshes)]))
+        distortion = full_distortion(combined, combine_meshes([Mesh(d, m.faces) for d, m in zip(decoded, meshes)]),
+                                     method)
         say("measure", 1.0)
     wm_report = None
     if params is not None:

@@ -11,7 +11,7 @@ Contract
 * ``reference_source``: the original ``.pmw`` (path, bytes, binary file),
   complete;
 * ``key``: a :class:`~pmwm_codec.watermark.key.WatermarkKey` or a key file path
-  (a key of another file raises :class:`~pmwm_codec.errors.WatermarkKeyError`);
+  (a key whose fingerprint differs from the reference's: verdict ``not-authentic``);
 * ``watermark``: the reference image (path or array); default the key's.
 
 The reference is parsed once.  Its full decode (every progressive primitive,
@@ -44,7 +44,6 @@ from ..format import EndEvent, HeaderEvent, iter_events
 from ..mesh import Mesh, checked_mesh, read_mesh
 from ..progressive.topology import unique_edges
 from ..sources import read_all
-from ..stream.decoder import check_fingerprint
 from ..stream.replay import Replay
 from ..watermark import codec as wm
 from ..watermark.key import as_key
@@ -67,7 +66,8 @@ class MeshVerification:
     ``faces-reordered``, ``permutation``, ``registration``); ``coverage``
     fraction of reference vertices with a counterpart; ``registration_rms``
     RMS pair distance after registration (reference units, None for exact
-    methods); ``watermark`` (s, s) uint8 the recovered image.
+    methods); ``watermark`` (s, s) uint8 the recovered image; ``key_matches`` False
+    when the reference's public key fingerprint is another key's (then ``not-authentic``).
     """
 
     verdict: str
@@ -88,6 +88,7 @@ class MeshVerification:
     seconds: float
     watermark: np.ndarray | None = None
     bit_exact: bool = False
+    key_matches: bool = True
 
     def as_json(self) -> dict:
         """The ``pmw verify MESH --reference --json`` object (non-finite numbers are ``null``)."""
@@ -102,7 +103,7 @@ class MeshVerification:
             "coefficients": self.coefficients, "bit_exact": self.bit_exact,
             "correspondence": self.correspondence, "coverage": self.coverage,
             "registration_rms": num(self.registration_rms), "vertices": self.vertices, "faces": self.faces,
-            "reference_vertices": self.reference_vertices,
+            "reference_vertices": self.reference_vertices, "key_matches": self.key_matches,
         }
 
 
@@ -180,7 +181,6 @@ def verify_mesh(mesh, reference_source, key, watermark=None, *, tolerance: float
     if key is None:
         raise WatermarkKeyError("verify_mesh needs the key of the reference file")
     ref = Reference.read(reference_source)
-    check_fingerprint(key, ref.params)
     ref_image = None
     if watermark is not None:
         from ..watermark.image import load_watermark
@@ -192,8 +192,9 @@ def verify_mesh(mesh, reference_source, key, watermark=None, *, tolerance: float
     pts[corr.valid] = np.asarray(m.positions, np.float64)[corr.index[corr.valid]]
     nbars = None if corr.valid.all() else _partial_nbars(ref, ref.split(pts), corr)
     est = read_given(ref, pts, key, ref_image, nbars=nbars).estimate()
+    owns = key.owns(ref.params.fingerprint)
     return MeshVerification(
-        verdict=est.verdict, nc=est.nc, psnr_db=est.psnr_db, centered_nc=est.centered_nc, ber=est.ber,
+        verdict=est.verdict if owns else "not-authentic", key_matches=owns, nc=est.nc, psnr_db=est.psnr_db, centered_nc=est.centered_nc, ber=est.ber,
         code_match=est.code_match, carriers_read=est.carriers_read, carriers_total=ref.params.carriers,
         correspondence=corr.method, coverage=corr.coverage, registration_rms=corr.rms,
         vertices=m.vertex_count, faces=m.face_count, reference_vertices=len(ref.positions),

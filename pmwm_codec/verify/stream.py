@@ -6,8 +6,9 @@ Contract
 
 * ``source``: the ``.pmw`` -- a path, ``"-"`` (standard input), bytes, a binary file or
   an iterable of byte blocks; whole or cut (a cut file is verified as far as it goes);
-* ``key``: a :class:`~pmwm_codec.watermark.key.WatermarkKey` or a key file path (a key of
-  another file raises :class:`~pmwm_codec.errors.WatermarkKeyError`);
+* ``key``: a :class:`~pmwm_codec.watermark.key.WatermarkKey` or a key file path; a key
+  whose fingerprint differs from the file's is read like any other and the verdict is
+  ``not-authentic`` (the owner of a key may ask "is my mark in this file?" of any file);
 * ``watermark``: the expected image (path or (s, s) array); default the key's own.
 
 The verdict is the stream verifier's (:mod:`pmwm_codec.watermark.verify`):
@@ -36,7 +37,8 @@ class StreamVerification:
     ``results``: one :class:`~pmwm_codec.stream.PartialResult` per chunk boundary, base mesh
     first (``chunk`` 0); ``end``: how the stream ended; ``verdict``; ``codes_matched`` of
     ``codes_read`` codes agree with the expected ones; ``marked``: the file carries a
-    watermark; ``total_length``: the size of the complete file in bytes.
+    watermark; ``total_length``: the size of the complete file in bytes; ``key_matches``:
+    False when the file's public key fingerprint is another key's (verdict ``not-authentic``).
     """
 
     results: list
@@ -46,6 +48,7 @@ class StreamVerification:
     codes_read: int
     marked: bool
     total_length: int
+    key_matches: bool = True
 
     def as_json(self) -> dict:
         """The ``pmw verify --json`` object (without ``pictures``, which only the command writes)."""
@@ -54,7 +57,7 @@ class StreamVerification:
                 "chunks_total": int(self.end.chunks_total), "chunks": chunks, "final": chunks[-1],
                 "verdict": self.verdict, "bytes_read": int(self.end.bytes_read),
                 "total_length": int(self.total_length), "codes_matched": self.codes_matched,
-                "codes_read": self.codes_read}
+                "codes_read": self.codes_read, "key_matches": self.key_matches}
 
 
 def verify_stream(source, key, watermark=None, *, keep_meshes: bool = False, progress=None) -> StreamVerification:
@@ -71,7 +74,7 @@ def verify_stream(source, key, watermark=None, *, keep_meshes: bool = False, pro
         reference, _ = load_watermark(watermark)
     if key is not None and not isinstance(key, WatermarkKey):
         key = WatermarkKey.load(key)
-    decoder = StreamDecoder(key, reference, copy=keep_meshes)
+    decoder = StreamDecoder(key, reference, copy=keep_meshes, check_key=False)
     gen = iter_results(source, decoder)
     results = []
     while True:
@@ -86,9 +89,10 @@ def verify_stream(source, key, watermark=None, *, keep_meshes: bool = False, pro
         if progress is not None:
             progress(f"chunk {r.chunk}/{r.chunks_total}", r.chunk / max(1, r.chunks_total))
     v = decoder.verifier
+    owns = decoder.watermark_params is None or key is None or key.owns(decoder.watermark_params.fingerprint)
     if v is None:
         verdict, matched, read = "not-authentic", 0, 0  # the file carries no watermark
     else:
-        verdict = v.verdict()
         matched, read = v.matches()
-    return StreamVerification(results, end, verdict, matched, read, v is not None, decoder.header.total_length)
+        verdict = v.verdict() if owns else "not-authentic"
+    return StreamVerification(results, end, verdict, matched, read, v is not None, decoder.header.total_length, owns)

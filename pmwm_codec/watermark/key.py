@@ -5,9 +5,14 @@ A :class:`WatermarkKey` holds
 * ``secret`` — 32 random bytes; never written into a ``.pmw``;
 * ``params`` — JSON-able public parameters (bits, levels, bit layout ...), as a dict;
 * ``reference`` — optional (s, s) uint8 watermark, so ``verify`` needs no image;
-* ``file_id`` — optional string binding the key to one ``.pmw``.
+* ``file_id`` — optional string: the ``.pmw`` the key was made for.
 
-It is stored as a JSON file (``save``/``load``), written with mode 0600::
+``params`` and ``file_id`` describe the first file a key file marked; they are
+informational (verification takes the parameters and the public fingerprint from the
+file), so a key reused for more assets (:class:`KeySlot`) is never rewritten.
+
+It is stored as a JSON file (``save``/``load``), written atomically with mode 0600 and
+never through a symbolic link::
 
     {"format": "pmwm-key", "version": 1, "secret": "<64 hex>", "file_id": "...",
      "params": {...}, "reference": {"width": s, "height": s, "png": "<base64 PNG>"}}
@@ -46,11 +51,13 @@ import numpy as np
 
 from ..errors import WatermarkKeyError
 
-__all__ = ["WatermarkKey", "KEY_FORMAT", "KEY_VERSION"]
+__all__ = ["WatermarkKey", "KeySlot", "KEY_FORMAT", "KEY_VERSION", "KEY_FILE_MODE", "refuse_symlink"]
 
 KEY_FORMAT = "pmwm-key"
 KEY_VERSION = 1
 SECRET_BYTES = 32
+#: Mode of every key file written, whatever the umask or an older file's mode.
+KEY_FILE_MODE = 0o600
 _FINGERPRINT_LABEL = b"pmwm/fingerprint/v1"
 
 
@@ -163,12 +170,18 @@ class WatermarkKey:
         return key
 
     def save(self, path) -> None:
-        """Write the key file as JSON (mode 0600: it holds the secret)."""
-        path = os.fspath(path)
-        text = json.dumps(self.to_json(), indent=2, default=_jsonable) + "\n"
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
+        """Write the key file atomically, mode 0600 (it holds the secret), never through a symlink.
+
+        WatermarkKeyError when ``path`` is a symbolic link (the link is left alone).
+        """
+        from ..atomic import write_atomic
+
+        path = refuse_symlink(path)
+        write_atomic(path, [self.to_text()], KEY_FILE_MODE)
+
+    def to_text(self) -> bytes:
+        """The key file's bytes: :meth:`to_json` as indented UTF-8 JSON."""
+        return (json.dumps(self.to_json(), indent=2, default=_jsonable) + "\n").encode("utf-8")
 
     @classmethod
     def load(cls, path) -> "WatermarkKey":
@@ -192,6 +205,11 @@ class WatermarkKey:
     def fingerprint(self) -> str:
         """16 hex digits identifying the key, safe to publish (HMAC of a fixed label)."""
         return hmac.new(self.secret, _FINGERPRINT_LABEL, hashlib.sha256).hexdigest()[:16]
+
+    def owns(self, fingerprint: str | None) -> bool:
+        """Whether a file carrying the public ``fingerprint`` can hold this key's mark
+        (True when the file states none)."""
+        return not fingerprint or hmac.compare_digest(fingerprint, self.fingerprint())
 
     def check(self, file_id: str | None = None, fingerprint: str | None = None) -> None:
         """Raise WatermarkKeyError if the key does not belong to the given file."""
@@ -254,3 +272,82 @@ def as_key(key) -> WatermarkKey | None:
     if key is None or isinstance(key, WatermarkKey):
         return key
     return WatermarkKey.load(key)
+
+
+def refuse_symlink(path) -> str:
+    """``path`` as a string; WatermarkKeyError if it is a symbolic link (a key is never written through one)."""
+    path = os.fspath(path)
+    if os.path.islink(path):
+        raise WatermarkKeyError(f"{path}: is a symbolic link; a key file is never written through one "
+                                "(name the real file with --key)")
+    return path
+
+
+@dataclass
+class KeySlot:
+    """The key file an encode marks with: its path and what it held when the encode began.
+
+    Policy: a key file is never rewritten.  An existing key is reused as it is (same
+    secret, its file untouched) when its reference watermark is the image being embedded,
+    so one owner's key marks any number of assets with one logo, and every file it marked
+    keeps verifying; a key for another image (or with none) is refused, untouched.  A
+    missing key file is created (0600) in the same step that publishes the ``.pmw``.
+
+    ``path`` str; ``existing`` the key loaded from it, or None when there was none.
+    """
+
+    path: str
+    existing: WatermarkKey | None
+
+    @classmethod
+    def open(cls, path, image) -> "KeySlot":
+        """Check ``path`` for an encode that embeds ``image`` (s, s) uint8; WatermarkKeyError if refused."""
+        path = refuse_symlink(path)
+        if not os.path.lexists(path):
+            return cls(path, None)
+        existing = WatermarkKey.load(path)
+        _check_reusable(path, existing, image)
+        return cls(path, existing)
+
+    def pending(self, key: WatermarkKey) -> bytes | None:
+        """The bytes to write for ``key`` (None: reuse the file as it is).
+
+        Called while the writer holds the directory lock: WatermarkKeyError when the file
+        changed since :meth:`open` (another encode wrote a key there meanwhile).
+        """
+        refuse_symlink(self.path)
+        now = WatermarkKey.load(self.path) if os.path.lexists(self.path) else None
+        if self.existing is None:
+            if now is not None:
+                raise WatermarkKeyError(f"{self.path}: a key file appeared during the encode (another encode?); "
+                                        "it is left untouched and nothing was written")
+            return key.to_text()
+        if now is None or now.secret != self.existing.secret or not _same_image(now.reference, key.reference):
+            raise WatermarkKeyError(f"{self.path}: the key file changed during the encode; "
+                                    "it is left untouched and nothing was written")
+        _make_private(self.path)
+        return None
+
+
+def _make_private(path: str) -> None:
+    """Tighten a reused key file to 0600 (an older file may be 0644); never follows a link."""
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
+    try:
+        if os.fstat(fd).st_mode & 0o777 != KEY_FILE_MODE:
+            os.fchmod(fd, KEY_FILE_MODE)
+    finally:
+        os.close(fd)
+
+
+def _same_image(a, b) -> bool:
+    return a is not None and b is not None and a.shape == b.shape and np.array_equal(a, b)
+
+
+def _check_reusable(path: str, key: WatermarkKey, image) -> None:
+    if key.reference is None:
+        raise WatermarkKeyError(f"{path}: this key holds no reference watermark, so it cannot be reused; "
+                                "it is left untouched (name a new --key file)")
+    if not _same_image(key.reference, np.asarray(image, np.uint8)):
+        h, w = key.reference.shape
+        raise WatermarkKeyError(f"{path}: this key holds another watermark ({w}x{h}); it is left untouched "
+                                "(a key marks with one image: name a new --key file, or remove this one)")

@@ -1,0 +1,220 @@
+"""Writing files so that a failure at any moment leaves the old file or the new one, whole.
+
+Contract
+--------
+* :func:`stage` writes the bytes of a file-to-be beside its target and fsyncs them; where
+  the platform allows (Linux ``O_TMPFILE``) the staged file has **no name** until
+  :func:`publish`, so a process killed while writing (SIGKILL, the OOM killer) leaves
+  nothing behind; elsewhere it is a hidden ``.NAME.XXXX.tmp`` that :func:`discard` removes.
+* :func:`publish` moves a staged file over its target with one ``rename`` (a symlink at
+  the target is replaced, never followed) and fsyncs the directory.
+* Modes: ``mode=None`` gives ``0666 & ~umask`` (as ``open`` would); a given mode (keys:
+  0600) is set with ``fchmod`` whatever the umask.
+* :func:`write_atomic` = stage + publish; :func:`directory_lock` serialises writers of
+  the same directories (``flock`` on the directories themselves: nothing is left on
+  disk, and the lock dies with its process); :func:`signals_deferred` holds SIGINT,
+  SIGTERM and SIGHUP back while a pair of files is published.
+
+Test hook: :func:`fault_point` (``PMWM_FAULT=<point>:<SIGNAL>`` in the environment) sends
+the process that signal when it reaches the named point; it does nothing otherwise.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import secrets
+import signal
+import tempfile
+from dataclasses import dataclass
+
+__all__ = ["Staged", "stage", "publish", "discard", "write_atomic", "directory_lock", "signals_deferred",
+           "fault_point", "current_umask"]
+
+_DEFERRED_SIGNALS = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
+
+
+@dataclass
+class Staged:
+    """A written, fsynced file waiting for :func:`publish`: ``fd`` open (or -1 once closed),
+    ``temp`` its visible temporary name (None while it has none), ``path`` the target."""
+
+    fd: int
+    temp: str | None
+    path: str
+
+    @property
+    def directory(self) -> str:
+        return os.path.dirname(os.path.abspath(self.path))
+
+
+def current_umask() -> int:
+    """The process umask (read from /proc where possible, so nothing is changed)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def _temp_name(path: str) -> str:
+    directory, base = os.path.split(os.path.abspath(path))
+    return os.path.join(directory, f".{base}.{secrets.token_hex(6)}.tmp")
+
+
+def _open_staged(path: str, mode: int | None) -> Staged:
+    """An empty file in ``path``'s directory: nameless (O_TMPFILE) if possible."""
+    directory = os.path.dirname(os.path.abspath(path))
+    flags = os.O_WRONLY | getattr(os, "O_CLOEXEC", 0)
+    if hasattr(os, "O_TMPFILE") and os.path.isdir("/proc/self/fd"):
+        try:
+            fd = os.open(directory, flags | os.O_TMPFILE, 0o666 if mode is None else mode)
+            if mode is not None:
+                os.fchmod(fd, mode)
+            return Staged(fd, None, path)
+        except OSError:
+            pass  # the file system has no O_TMPFILE: a named temporary file
+    fd, temp = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".", suffix=".tmp")
+    try:
+        os.fchmod(fd, (0o666 & ~current_umask()) if mode is None else mode)
+    except BaseException:
+        os.close(fd)
+        os.unlink(temp)
+        raise
+    return Staged(fd, temp, path)
+
+
+def stage(path, parts, mode: int | None = None) -> Staged:
+    """Write the bytes-like ``parts`` to a staged file for ``path`` and fsync it.
+
+    On any exception nothing is left behind and the exception propagates.
+    """
+    staged = _open_staged(os.fspath(path), mode)
+    try:
+        view_parts = (memoryview(p).cast("B") for p in parts)
+        for part in view_parts:
+            while part:
+                part = part[os.write(staged.fd, part):]
+        fault_point("stage-written")
+        os.fsync(staged.fd)
+    except BaseException:
+        discard(staged)
+        raise
+    return staged
+
+
+def publish(staged: Staged) -> None:
+    """Move the staged file over its target (one rename) and make it durable."""
+    if staged.temp is None:
+        temp = _temp_name(staged.path)
+        proc = os.open("/proc/self/fd", os.O_RDONLY)
+        try:  # linkat(proc, "fd", AT_FDCWD, temp, AT_SYMLINK_FOLLOW): name the nameless file
+            os.link(str(staged.fd), temp, src_dir_fd=proc, follow_symlinks=True)
+        finally:
+            os.close(proc)
+        staged.temp = temp
+    os.close(staged.fd)
+    staged.fd = -1
+    os.replace(staged.temp, staged.path)
+    staged.temp = None
+    _fsync_directory(staged.directory)
+
+
+def discard(staged: Staged | None) -> None:
+    """Forget a staged file (close it, remove its temporary name); never raises."""
+    if staged is None:
+        return
+    if staged.fd >= 0:
+        with contextlib.suppress(OSError):
+            os.close(staged.fd)
+        staged.fd = -1
+    if staged.temp is not None:
+        with contextlib.suppress(OSError):
+            os.unlink(staged.temp)
+        staged.temp = None
+
+
+def write_atomic(path, parts, mode: int | None = None) -> int:
+    """Write ``parts`` to ``path`` atomically (old file or new file, whole); returns the byte count."""
+    staged = stage(path, parts, mode)
+    try:
+        publish(staged)
+    except BaseException:
+        discard(staged)
+        raise
+    return sum(len(memoryview(p).cast("B")) for p in parts)
+
+
+@contextlib.contextmanager
+def directory_lock(paths):
+    """Hold an exclusive ``flock`` on the directory of every path (sorted, so two writers never deadlock)."""
+    try:
+        import fcntl
+    except ImportError:  # no flock on this platform: writers are not serialised
+        yield
+        return
+    directories = sorted({os.path.realpath(os.path.dirname(os.path.abspath(os.fspath(p)))) for p in paths})
+    fds = []
+    try:
+        for directory in directories:
+            fd = os.open(directory, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+            fds.append(fd)
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        for fd in reversed(fds):
+            os.close(fd)  # closing releases the lock
+
+
+@contextlib.contextmanager
+def signals_deferred():
+    """Hold SIGINT, SIGTERM and SIGHUP back; they take effect (as they would have) when the block ends.
+
+    In the main thread the handlers are swapped for a recorder (a signal may reach any of
+    the process's threads, e.g. numpy's, and Python runs handlers in the main thread) and the
+    recorded signals are re-sent afterwards; in other threads Python handlers never
+    interrupt this code, so nothing is needed.
+    """
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught = []
+    old = {sig: signal.signal(sig, lambda signum, frame: caught.append(signum)) for sig in _DEFERRED_SIGNALS}
+    try:
+        yield
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, signal.SIG_DFL if handler is None else handler)
+        for sig in dict.fromkeys(caught):
+            os.kill(os.getpid(), sig)
+
+
+def fault_point(name: str) -> None:
+    """Test hook: with ``PMWM_FAULT=name:SIGNAL`` (e.g. ``key-published:KILL``), send that signal to this process."""
+    spec = os.environ.get("PMWM_FAULT")
+    if not spec:
+        return
+    point, _, sig = spec.partition(":")
+    if point == name:
+        os.kill(os.getpid(), getattr(signal, "SIG" + (sig or "KILL")))
+
+
+def _fsync_directory(directory: str) -> None:
+    """Make a rename durable where the platform allows it (best effort)."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)

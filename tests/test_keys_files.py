@@ -1,0 +1,289 @@
+"""Keys, output files and failures at any moment: what the encoder leaves on disk.
+
+The encoder runs as ``python -m pmwm_codec encode`` from the repository root; faults are
+injected with the test hook ``PMWM_FAULT=<point>:<SIGNAL>`` (pmwm_codec.atomic.fault_point)
+or with a file size limit (RLIMIT_FSIZE: writes fail with EFBIG, as on a full disk).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import stat
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+import pmwm_codec
+from pmwm_codec import shapes
+from pmwm_codec.distortion import mesh_distortion, vertex_distortion
+from pmwm_codec.mesh import Mesh
+from pmwm_codec.meshio import write_mesh
+from pmwm_codec.watermark.key import WatermarkKey
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _image(seed: int) -> np.ndarray:
+    return np.random.default_rng(seed).integers(0, 256, (16, 16)).astype(np.uint8)
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory):
+    d = tmp_path_factory.mktemp("inputs")
+    write_mesh(d / "a.ply", shapes.icosphere(4, noise=0.01, seed=1))
+    write_mesh(d / "b.ply", shapes.torus(60, 30))
+    Image.fromarray(_image(1)).save(d / "w1.png")
+    Image.fromarray(_image(2)).save(d / "w2.png")
+    return d
+
+
+def pmw(*args, env=None, preexec_fn=None):
+    full_env = {**os.environ, "PYTHONPATH": str(ROOT), **(env or {})}
+    return subprocess.run([sys.executable, "-m", "pmwm_codec", *map(str, args)], cwd=ROOT, env=full_env,
+                          capture_output=True, text=True, timeout=300, preexec_fn=preexec_fn)
+
+
+def encode(inputs, out, image="w1.png", *extra, **kw):
+    return pmw("encode", inputs / "a.ply", "-o", out, "--watermark", inputs / image, "--quiet", *extra, **kw)
+
+
+def verdict(path, key) -> tuple:
+    r = pmw("verify", path, "--key", key, "--json")
+    return r.returncode, (json.loads(r.stdout)["verdict"] if r.stdout else r.stderr)
+
+
+def mode(path) -> int:
+    return stat.S_IMODE(os.lstat(path).st_mode)
+
+
+def one_error_line(r) -> bool:
+    return r.returncode == 2 and r.stderr.startswith("pmw: error:") and r.stderr.count("\n") == 1
+
+
+# --- keys --------------------------------------------------------------------------------
+
+
+def test_new_key_is_0600_and_replaces_a_0644_file_with_a_0600_one(tmp_path):
+    path = tmp_path / "k.json"
+    path.write_text("old")
+    os.chmod(path, 0o644)
+    WatermarkKey.generate().save(path)
+    assert mode(path) == 0o600 and WatermarkKey.load(path)
+
+
+def test_key_save_refuses_a_symlink_and_leaves_its_target(tmp_path):
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious")
+    (tmp_path / "k.json").symlink_to(victim)
+    with pytest.raises(pmwm_codec.PmwError, match="symbolic link"):
+        WatermarkKey.generate().save(tmp_path / "k.json")
+    assert victim.read_text() == "precious"
+
+
+@pytest.mark.parametrize("explicit", [True, False], ids=["--key", "default path"])
+def test_encode_refuses_a_key_path_that_is_a_symlink(inputs, tmp_path, explicit):
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious")
+    key = tmp_path / ("k.json" if explicit else "o.pmw.key.json")
+    key.symlink_to(victim)
+    r = encode(inputs, tmp_path / "o.pmw", "w1.png", *(["--key", key] if explicit else []))
+    assert one_error_line(r) and "symbolic link" in r.stderr
+    assert victim.read_text() == "precious" and key.is_symlink() and not (tmp_path / "o.pmw").exists()
+
+
+def test_a_key_reused_for_a_second_asset_keeps_the_first_verifying(inputs, tmp_path):
+    key = tmp_path / "owner.key.json"
+    assert encode(inputs, tmp_path / "a.pmw", "w1.png", "--key", key).returncode == 0
+    first = key.read_bytes()
+    r = pmw("encode", inputs / "b.ply", "-o", tmp_path / "b.pmw", "--watermark", inputs / "w1.png", "--key", key,
+            "--quiet")
+    assert r.returncode == 0 and key.read_bytes() == first  # reused as it is
+    assert verdict(tmp_path / "a.pmw", key) == (0, "authentic")
+    assert verdict(tmp_path / "b.pmw", key) == (0, "authentic")
+
+
+@pytest.mark.parametrize("explicit", [True, False], ids=["--key", "default path"])
+def test_a_key_of_another_watermark_is_refused_and_left_untouched(inputs, tmp_path, explicit):
+    out = tmp_path / "a.pmw"
+    key = tmp_path / "k.json" if explicit else tmp_path / "a.pmw.key.json"
+    args = ["--key", key] if explicit else []
+    assert encode(inputs, out, "w1.png", *args).returncode == 0
+    before = (out.read_bytes(), key.read_bytes())
+    r = encode(inputs, out, "w2.png", *args)
+    assert one_error_line(r) and "another watermark" in r.stderr
+    assert (out.read_bytes(), key.read_bytes()) == before
+    assert verdict(out, key) == (0, "authentic")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([out.name, key.name])
+
+
+def test_a_reused_0644_key_is_tightened_to_0600(inputs, tmp_path):
+    out, key = tmp_path / "a.pmw", tmp_path / "a.pmw.key.json"
+    assert encode(inputs, out).returncode == 0
+    os.chmod(key, 0o644)
+    assert encode(inputs, out).returncode == 0 and mode(key) == 0o600
+
+
+def test_re_encoding_with_the_default_key_gives_the_same_bytes(inputs, tmp_path):
+    out = tmp_path / "a.pmw"
+    assert encode(inputs, out).returncode == 0
+    first = out.read_bytes()
+    assert encode(inputs, out).returncode == 0 and out.read_bytes() == first
+
+
+# --- wrong key -------------------------------------------------------------------------
+
+
+def test_a_key_of_another_file_gives_not_authentic_and_exit_1(inputs, tmp_path):
+    out = tmp_path / "a.pmw"
+    assert encode(inputs, out).returncode == 0
+    foreign = tmp_path / "foreign.json"
+    WatermarkKey.generate(reference=_image(1)).save(foreign)
+    r = pmw("verify", out, "--key", foreign, "--json")
+    doc = json.loads(r.stdout)
+    assert r.returncode == 1 and doc["verdict"] == "not-authentic" and doc["key_matches"] is False
+    assert pmw("decode", out, "-o", tmp_path / "d.ply").returncode == 0
+    r = pmw("verify", tmp_path / "d.ply", "--reference", out, "--key", foreign, "--json")
+    doc = json.loads(r.stdout)
+    assert r.returncode == 1 and doc["verdict"] == "not-authentic" and doc["key_matches"] is False
+    r = pmw("verify", tmp_path / "d.ply", "--reference", out, "--key", tmp_path / "a.pmw.key.json", "--json")
+    assert r.returncode == 0 and json.loads(r.stdout)["key_matches"] is True
+
+
+# --- file modes ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o077])
+def test_pmw_and_decoded_files_honour_the_umask_and_keys_stay_0600(inputs, tmp_path, umask):
+    out = tmp_path / "a.pmw"
+
+    def set_umask():
+        os.umask(umask)
+
+    assert encode(inputs, out, preexec_fn=set_umask).returncode == 0
+    assert mode(out) == 0o666 & ~umask and mode(tmp_path / "a.pmw.key.json") == 0o600
+    for suffix in (".glb", ".obj", ".ply", ".stl"):
+        assert pmw("decode", out, "-o", tmp_path / f"d{suffix}", preexec_fn=set_umask).returncode == 0
+        assert mode(tmp_path / f"d{suffix}") == 0o666 & ~umask
+
+
+# --- failures at any moment ----------------------------------------------------------------
+
+
+def _no_temp_files(directory: Path) -> bool:
+    return not [p.name for p in directory.iterdir() if p.name.startswith(".")]
+
+
+def _pair_is_whole(out: Path, key: Path) -> bool:
+    """A .pmw, if any, verifies with the key beside it."""
+    return not out.exists() or (key.exists() and verdict(out, key) == (0, "authentic"))
+
+
+@pytest.mark.parametrize("point", ["measured", "stage-written", "staged", "key-published", "published"])
+def test_sigkill_at_any_point_never_leaves_a_marked_file_without_its_key(inputs, tmp_path, point):
+    out, key = tmp_path / "a.pmw", tmp_path / "a.pmw.key.json"
+    r = encode(inputs, out, env={"PMWM_FAULT": f"{point}:KILL"})
+    assert r.returncode == -9
+    assert _no_temp_files(tmp_path) and _pair_is_whole(out, key)
+    assert out.exists() == (point == "published")
+
+
+@pytest.mark.parametrize("point", ["stage-written", "staged", "key-published", "published"])
+def test_sigkill_during_a_re_encode_keeps_the_old_pair_or_the_new(inputs, tmp_path, point):
+    out, key = tmp_path / "a.pmw", tmp_path / "a.pmw.key.json"
+    assert encode(inputs, out).returncode == 0
+    old_key = key.read_bytes()
+    r = encode(inputs, out, "w1.png", "--base-vertices", "80", env={"PMWM_FAULT": f"{point}:KILL"})
+    assert r.returncode == -9 and key.read_bytes() == old_key
+    assert _no_temp_files(tmp_path) and _pair_is_whole(out, key)
+
+
+@pytest.mark.parametrize("sig", ["INT", "TERM"])
+def test_sigint_sigterm_while_publishing_are_held_until_the_pair_is_whole(inputs, tmp_path, sig):
+    out, key = tmp_path / "a.pmw", tmp_path / "a.pmw.key.json"
+    r = encode(inputs, out, env={"PMWM_FAULT": f"staged:{sig}"})
+    assert r.returncode != 0  # the signal arrives, after the pair is published
+    assert out.exists() and key.exists() and _no_temp_files(tmp_path) and _pair_is_whole(out, key)
+
+
+@pytest.mark.parametrize("limit", [1_000, 20_000], ids=["key write fails", "pmw write fails"])
+def test_disk_full_leaves_nothing_and_exits_2(inputs, tmp_path, limit):
+    out = tmp_path / "a.pmw"
+
+    def small_files():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    r = encode(inputs, out, preexec_fn=small_files)
+    assert one_error_line(r)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_two_encodes_to_one_output_leave_a_matching_pair(inputs, tmp_path):
+    out, key = tmp_path / "a.pmw", tmp_path / "a.pmw.key.json"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    procs = [subprocess.Popen([sys.executable, "-m", "pmwm_codec", "encode", str(inputs / "a.ply"), "-o", str(out),
+                               "--watermark", str(inputs / image), "--quiet"], cwd=ROOT, env=env,
+                              stderr=subprocess.PIPE, text=True) for image in ("w1.png", "w2.png")]
+    codes = sorted(p.wait(timeout=300) for p in procs)
+    assert codes in ([0, 2], [0, 0])  # the second to reach the files finds another key and refuses
+    assert _no_temp_files(tmp_path) and verdict(out, key) == (0, "authentic")
+
+
+# --- the distortion measurement --------------------------------------------------------------
+
+
+def _cylinder(n: int) -> Mesh:
+    """A closed cylinder: 2n + 2 vertices, long thin side triangles and two fans."""
+    a = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    ring = np.c_[np.cos(a), np.sin(a)]
+    pos = np.r_[np.c_[ring, np.zeros(n)], np.c_[ring, np.ones(n)], [[0, 0, 0], [0, 0, 1]]]
+    i = np.arange(n)
+    j = (i + 1) % n
+    faces = np.r_[np.c_[i, j, n + j], np.c_[i, n + j, n + i], np.c_[np.full(n, 2 * n), j, i],
+                  np.c_[np.full(n, 2 * n + 1), n + i, n + j]]
+    return Mesh(pos, faces)
+
+
+def test_vertex_measure_is_exact_rms_and_bounds_the_sampled_hausdorff():
+    m = _cylinder(64)
+    moved = Mesh(m.positions + 1e-3 * np.random.default_rng(3).standard_normal(m.positions.shape), m.faces)
+    fast, sampled = vertex_distortion(m, moved), mesh_distortion(m, moved)
+    assert fast["rms"] == pytest.approx(sampled["rms"], rel=1e-12)
+    assert fast["psnr_db"] == pytest.approx(sampled["psnr_db"], rel=1e-12)
+    assert sampled["hausdorff"] <= fast["hausdorff"] + 1e-15
+    worst = np.linalg.norm(moved.positions - m.positions, axis=1).max()
+    assert fast["hausdorff"] == pytest.approx(worst / fast["bbox_diagonal"])
+
+
+CYLINDER_CHILD = """
+import numpy as np, resource, sys
+sys.path.insert(0, {tests!r})
+from test_keys_files import _cylinder
+from pmwm_codec.distortion import mesh_distortion
+from pmwm_codec.mesh import Mesh
+resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))
+m = _cylinder(200)
+moved = Mesh(m.positions + 1e-4 * np.random.default_rng(0).standard_normal(m.positions.shape), m.faces)
+print(mesh_distortion(m, moved)["hausdorff"])
+"""
+
+
+def test_sampled_measure_of_a_closed_cylinder_stays_under_3_gib():
+    code = CYLINDER_CHILD.format(tests=str(Path(__file__).parent))
+    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)},
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-500:]
+    assert 0 < float(r.stdout) < 1e-3
+
+
+def test_encode_json_distortion_keeps_its_fields_and_names_the_measure(inputs, tmp_path):
+    for measure in ("vertices", "sampled", "none"):
+        r = pmw("encode", inputs / "a.ply", "-o", tmp_path / f"{measure}.pmw", "--measure", measure, "--json")
+        d = json.loads(r.stdout)["distortion"]
+        assert {"rms", "psnr_db", "hausdorff", "bbox_diagonal"} <= set(d) and d["measure"] == measure
+        assert (d["rms"] is None) == (measure == "none")
