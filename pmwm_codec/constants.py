@@ -25,3 +25,22 @@ MAX_CHUNKS = 1 << 16
 MAX_JSON_BYTES = 64 << 20
 MAX_CHUNK_BYTES = 1 << 30  # one compressed chunk
 MAX_DECOMPRESSED_CHUNK_BYTES = 1 << 28  # 256 MiB: a 1M-vertex batch needs ~2 MB
+
+# --- limits of the encoder side, checked before its inputs are read into memory ---
+#: Largest mesh the encoder takes: it needs about 1.9 KB per vertex (measured on a
+#: subdivided bunny, ../shared/research-notes/security-audit.md), so 4M vertices
+#: is about 8 GB.  Counted over all progressive primitives of one input.
+MAX_ENCODE_VERTICES = 1 << 22
+MAX_ENCODE_FACES = 1 << 23
+#: Largest resource a ``.gltf`` may bring in through a ``uri`` (a buffer or an image
+#: file inside the asset's folder, or a ``data:`` URI after decoding); larger is refused
+#: and never read past this many bytes.
+MAX_RESOURCE_BYTES = 1 << 30
+#: Largest input mesh / glTF / key file read whole into memory.
+MAX_INPUT_FILE_BYTES = 2 << 30
+MAX_KEY_FILE_BYTES = 64 << 20
+#: Deepest nesting of arrays / objects accepted in input JSON (glTF ``extras``, key files).
+MAX_JSON_DEPTH = 64
+#: Largest watermark image decoded (pixels, read from the header first): 4096 x 4096.
+#: It is downscaled to at most 256 x 256 anyway.
+MAX_WATERMARK_PIXELS = 1 << 24

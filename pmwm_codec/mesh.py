@@ -23,7 +23,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .constants import MAX_ENCODE_FACES, MAX_ENCODE_VERTICES, MAX_GRID_BITS, MAX_INPUT_FILE_BYTES
 from .errors import InputFormatError, MeshError
+from .sources import read_regular_file
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")
 
@@ -70,7 +72,9 @@ def checked_mesh(positions, faces, attributes=None, *, name="mesh") -> Mesh:
     Raises
     ------
     MeshError
-        Empty mesh, wrong shapes, NaN/inf coordinates, face index out of range.
+        Empty mesh, wrong shapes, NaN/inf coordinates, face index out of range, more
+        than the encoder's limits (``MAX_ENCODE_VERTICES`` / ``MAX_ENCODE_FACES``), or a
+        far-out vertex that would collapse the mesh on any position grid.
     """
     try:
         pos = np.asarray(positions, dtype=np.float64)
@@ -117,12 +121,74 @@ def checked_mesh(positions, faces, attributes=None, *, name="mesh") -> Mesh:
         tri = remap[tri]
         pos = pos[used]
         attrs = {k: v[used] for k, v in attrs.items()}
+    if len(tri) > MAX_ENCODE_FACES or len(pos) > MAX_ENCODE_VERTICES:
+        raise MeshError(f"{name}: {len(pos):,} vertices and {len(tri):,} faces; the encoder takes at most "
+                        f"{MAX_ENCODE_VERTICES:,} vertices and {MAX_ENCODE_FACES:,} faces")
+    _check_extent(pos, tri, name)
     cleanup = {}
     if degenerate.any():
         cleanup["degenerate_faces"] = int(degenerate.sum())
     if unreferenced:
         cleanup["unreferenced_vertices"] = unreferenced
     return Mesh(np.ascontiguousarray(pos), np.ascontiguousarray(tri), attrs, cleanup)
+
+
+#: PLY property types that are integers (face indices must be one of them).
+_PLY_INTEGER_TYPES = {"char", "uchar", "short", "ushort", "int", "uint",
+                      "int8", "uint8", "int16", "uint16", "int32", "uint32"}
+
+
+def _check_ply_header(path, name) -> None:
+    """Refuse a PLY whose header declares more vertices / faces than the encoder takes,
+    or face indices that are not integers, before trimesh allocates anything."""
+    with open(path, "rb") as fh:
+        head = fh.read(1 << 16)
+    end = head.find(b"end_header")
+    if not head.startswith(b"ply") or end < 0:
+        raise InputFormatError(f"{name}: not a PLY file (no 'ply' ... 'end_header' header in its first 64 KiB)")
+    element = None
+    limits = {"vertex": MAX_ENCODE_VERTICES, "face": MAX_ENCODE_FACES}
+    for line in head[:end].decode("ascii", "replace").splitlines():
+        words = line.split()
+        if words[:1] == ["element"] and len(words) == 3:
+            element = words[1]
+            count = int(words[2]) if words[2].isdigit() else -1
+            if count < 0 or count > limits.get(element, count):
+                raise InputFormatError(f"{name}: PLY declares {words[2]} {element} elements "
+                                       f"(the encoder takes 0..{limits.get(element, count):,})")
+        elif words[:2] == ["property", "list"] and element == "face" and len(words) == 5:
+            if words[2] not in _PLY_INTEGER_TYPES or words[3] not in _PLY_INTEGER_TYPES:
+                raise InputFormatError(f"{name}: PLY face indices are of type {words[2]}/{words[3]}, not integers")
+
+
+def _check_stl_header(path, name) -> None:
+    """Refuse a binary STL that declares more triangles than the encoder takes."""
+    size = os.stat(path).st_size
+    with open(path, "rb") as fh:
+        head = fh.read(84)
+    if len(head) == 84:
+        count = int.from_bytes(head[80:84], "little")
+        if size == 84 + 50 * count and count > MAX_ENCODE_FACES:
+            raise InputFormatError(f"{name}: STL declares {count:,} triangles (the encoder takes {MAX_ENCODE_FACES:,})")
+
+
+def _check_extent(pos: np.ndarray, tri: np.ndarray, name: str) -> None:
+    """Refuse a mesh that no position grid can hold: when its typical edge (median of the
+    non-zero first-edge lengths, max-norm) is smaller than one cell of the finest grid
+    (the bbox extent over 2^MAX_GRID_BITS), a far-out vertex would collapse the rest of
+    the mesh onto a single cell.  ``pos`` (n, 3) float64, ``tri`` (m, 3) int64."""
+    extent = float((pos.max(0) - pos.min(0)).max())
+    sample = tri[:: max(1, len(tri) // (1 << 20))]
+    edges = np.abs(pos[sample[:, 1]] - pos[sample[:, 0]]).max(axis=1)
+    edges = edges[edges > 0]
+    if extent == 0.0 or edges.size == 0:
+        return
+    typical = float(np.median(edges))
+    if typical * float((1 << MAX_GRID_BITS) - 1) < extent:
+        far = int(np.argmax(np.abs(pos - np.median(pos, axis=0)).max(axis=1)))
+        where = ", ".join(f"{x:.3g}" for x in pos[far])
+        raise MeshError(f"{name}: vertex {far} at ({where}) spans {extent / typical:.3g} typical edge lengths; "
+                        f"the mesh would collapse onto one cell of any position grid (at most {MAX_GRID_BITS} bits)")
 
 
 def read_mesh(path) -> Mesh:
@@ -146,49 +212,75 @@ def read_mesh(path) -> Mesh:
         raise InputFormatError(f"{path}: no such file")
     if os.path.isdir(path):
         raise InputFormatError(f"{path}: is a directory, not a mesh file")
+    if not os.path.isfile(path):
+        raise InputFormatError(f"{path}: not a regular file")
     suffix = os.path.splitext(path)[1].lower()
     if suffix not in MESH_SUFFIXES:
         raise InputFormatError(
             f"{name}: unknown mesh format {suffix or '(no suffix)'!r}; expected one of "
             + ", ".join(MESH_SUFFIXES)
         )
+    size = os.stat(path).st_size
+    if size > MAX_INPUT_FILE_BYTES:
+        raise InputFormatError(f"{name}: {size:,} bytes, more than the limit of {MAX_INPUT_FILE_BYTES:,}")
     if suffix == ".obj":
         positions, faces = _read_obj(path, name)
         return checked_mesh(positions, faces, name=name)
+    if suffix == ".ply":
+        _check_ply_header(path, name)
+    elif suffix == ".stl":
+        _check_stl_header(path, name)
     return _read_with_trimesh(path, name, suffix)
 
 
 def _read_obj(path, name):
-    """Parse ``v`` and ``f`` records of a Wavefront OBJ; returns float64 and int64 arrays."""
-    verts = []
-    polys = []
+    """Parse ``v`` and ``f`` records of a Wavefront OBJ; returns float64 and int64 arrays.
+
+    Counts are checked while reading, before they are stored: at most
+    :data:`MAX_ENCODE_VERTICES` vertices and :data:`MAX_ENCODE_FACES` triangles (a
+    face line's triangles are counted from its spaces before it is split), and
+    every face index must name an existing vertex.
+    """
+    data = read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name)
     try:
-        with open(path, "rb") as fh:
-            data = fh.read()
         text = data.decode("utf-8", errors="strict")
     except UnicodeDecodeError:
         raise InputFormatError(f"{name}: not a text OBJ file") from None
+    del data
+    verts, tris = [], []
+    line = ""
     try:
         for line in text.splitlines():
             if line.startswith("v "):
-                parts = line.split()
+                if len(verts) >= MAX_ENCODE_VERTICES:
+                    raise InputFormatError(f"{name}: more than {MAX_ENCODE_VERTICES:,} vertices (the encoder's limit)")
+                parts = line.split(None, 4)
                 verts.append((float(parts[1]), float(parts[2]), float(parts[3])))
             elif line.startswith("f "):
-                idx = [int(tok.split("/", 1)[0]) for tok in line.split()[1:]]
-                polys.append(idx)
+                if len(tris) + line.count(" ") - 2 > MAX_ENCODE_FACES:
+                    raise InputFormatError(f"{name}: more than {MAX_ENCODE_FACES:,} triangles (the encoder's limit)")
+                _add_polygon(line, tris, name)
+    except InputFormatError:
+        raise
     except (ValueError, IndexError):
         raise InputFormatError(f"{name}: malformed OBJ record: {line.strip()[:60]!r}") from None
-    if not verts or not polys:
+    if not verts or not tris:
         raise MeshError(f"{name}: the mesh has no vertices or no faces")
-    n = len(verts)
-    tris = []
-    for idx in polys:
-        if len(idx) < 3:
-            raise InputFormatError(f"{name}: a face with fewer than 3 vertices")
-        fixed = [i - 1 if i > 0 else n + i for i in idx]
-        for k in range(1, len(fixed) - 1):
-            tris.append((fixed[0], fixed[k], fixed[k + 1]))
-    return np.array(verts, dtype=np.float64), np.array(tris, dtype=np.int64)
+    faces = np.array(tris, dtype=np.int64)
+    faces = np.where(faces > 0, faces - 1, len(verts) + faces)
+    return np.array(verts, dtype=np.float64), faces
+
+
+def _add_polygon(line: str, tris: list, name: str) -> None:
+    """Fan-triangulate the ``f`` record ``line`` into ``tris`` (OBJ indices as written: 1-based,
+    or negative counting back from the end); InputFormatError for 0 or an index beyond the limit."""
+    idx = [int(tok.split("/", 1)[0]) for tok in line.split()[1:]]
+    if len(idx) < 3:
+        raise InputFormatError(f"{name}: a face with fewer than 3 vertices")
+    for i in idx:
+        if i == 0 or abs(i) > MAX_ENCODE_VERTICES:
+            raise InputFormatError(f"{name}: face index {i} cannot name a vertex (at most {MAX_ENCODE_VERTICES:,})")
+    tris.extend((idx[0], idx[k], idx[k + 1]) for k in range(1, len(idx) - 1))
 
 
 def _read_with_trimesh(path, name, suffix):

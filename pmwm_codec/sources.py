@@ -55,3 +55,49 @@ def read_all(source) -> bytes:
     if isinstance(source, (bytes, bytearray, memoryview)):
         return bytes(source)
     return b"".join(bytes(b) for b in iter_blocks(source, 1 << 20))
+
+
+def read_regular_file(path, limit: int, error, label=None, *, follow_symlinks: bool = True) -> bytes:
+    """All bytes of the regular file ``path``, refusing anything else before reading.
+
+    Devices (``/dev/zero``), FIFOs, sockets and directories are refused without
+    being read (the file is opened with ``O_NONBLOCK``, so a FIFO never blocks, and
+    checked with ``fstat``); a file of more than ``limit`` bytes is refused, and no
+    more than ``limit`` bytes are ever read.  ``follow_symlinks=False`` refuses a
+    symlink as the last component (``O_NOFOLLOW``).  Errors are ``error(message)``,
+    one line starting with ``label`` (default: the path).
+    """
+    import stat
+
+    path = os.fspath(path)
+    label = path if label is None else label
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
+    if not follow_symlinks:
+        flags |= getattr(os, "O_NOFOLLOW", 0)
+    try:
+        if not stat.S_ISREG(os.stat(path, follow_symlinks=follow_symlinks).st_mode):
+            raise error(f"{label}: not a regular file")
+        fd = os.open(path, flags)
+    except OSError as exc:
+        raise error(f"{label}: cannot read ({exc.strerror or exc})") from None
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            raise error(f"{label}: not a regular file")
+        if info.st_size > limit:
+            raise error(f"{label}: {info.st_size:,} bytes, more than the limit of {limit:,}")
+        os.set_blocking(fd, True)
+        chunks, size = [], 0
+        while size <= limit:
+            block = os.read(fd, min(1 << 24, limit + 1 - size))
+            if not block:
+                break
+            chunks.append(block)
+            size += len(block)
+    except OSError as exc:
+        raise error(f"{label}: cannot read ({exc.strerror or exc})") from None
+    finally:
+        os.close(fd)
+    if size > limit:
+        raise error(f"{label}: more than the limit of {limit:,} bytes")
+    return b"".join(chunks)

@@ -10,15 +10,10 @@ wrong or inconclusive; 2 bad input or usage, with one line on stderr.
 
 from __future__ import annotations
 
-import contextlib
-import os
-import sys
-
 from pmwm_codec import __version__
-from pmwm_codec.errors import PmwError
 
 from . import cut, decode, demo, encode, info, verify
-from .common import EXIT_BAD_INPUT, PROG, ArgumentParser, UsageError, error_line, os_error_message
+from .common import PROG, ArgumentParser, run_command
 
 COMMANDS = (encode, decode, cut, verify, info, demo)
 
@@ -40,17 +35,4 @@ def main(argv=None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # usage errors (2), --help / --version (0)
         return int(exc.code or 0)
-    try:
-        return int(args.run(args))
-    except BrokenPipeError:  # `pmw info x.pmw | head`: the reader left; not an error of ours
-        with contextlib.suppress(OSError):
-            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 0
-    except (PmwError, UsageError) as exc:
-        sys.stderr.write(error_line(exc) + "\n")
-    except OSError as exc:
-        sys.stderr.write(error_line(os_error_message(exc)) + "\n")
-    except KeyboardInterrupt:
-        sys.stderr.write(error_line("interrupted") + "\n")
-        return 130
-    return EXIT_BAD_INPUT
+    return run_command(args)

@@ -194,3 +194,61 @@ def check_input_file(path, what: str = "file") -> None:
         raise UsageError(f"{path}: no such {what}")
     if os.path.isdir(path):
         raise UsageError(f"{path}: is a directory, not a {what}")
+
+
+def output_paths(args) -> list:
+    """The files a subcommand may create: ``args.output`` (not ``-``) and, for an encode
+    with ``--watermark``, its key file (``--key`` or ``OUT.key.json``)."""
+    out = getattr(args, "output", None)
+    if not isinstance(out, (str, os.PathLike)) or out == "-":
+        return []
+    paths = [os.fspath(out)]
+    if getattr(args, "watermark", None) is not None:
+        key = getattr(args, "key", None)
+        paths.append(os.fspath(key) if key is not None else os.fspath(out) + ".key.json")
+    return paths
+
+
+def run_command(args) -> int:
+    """Run ``args.run(args)`` behind the safety net; returns the exit status.
+
+    Named errors (PmwError, UsageError, OSError) keep their one-line messages; a
+    MemoryError, a RecursionError or any other exception also ends as one line
+    and exit 2 (never 1: that is ``verify``'s "not authentic"), without a traceback.
+    On any failure, the :func:`output_paths` that did not exist before the command
+    and exist now are removed, so a failed command leaves no file behind.
+    """
+    created = [p for p in output_paths(args) if not os.path.lexists(p)]
+    status = _run_mapped(args)
+    if status not in (EXIT_OK, EXIT_NOT_AUTHENTIC):
+        for path in created:
+            with contextlib.suppress(OSError):
+                if os.path.lexists(path):
+                    os.unlink(path)
+    return status
+
+
+def _run_mapped(args) -> int:
+    from pmwm_codec.errors import PmwError
+
+    try:
+        return int(args.run(args))
+    except BrokenPipeError:  # `pmw info x.pmw | head`: the reader left; not an error of ours
+        with contextlib.suppress(OSError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_OK
+    except (PmwError, UsageError) as exc:
+        message = str(exc)
+    except OSError as exc:
+        message = os_error_message(exc)
+    except KeyboardInterrupt:
+        sys.stderr.write(error_line("interrupted") + "\n")
+        return 130
+    except MemoryError:
+        message = "out of memory: the input is too large for this machine"
+    except RecursionError:
+        message = "the input is nested too deeply"
+    except Exception as exc:  # the last net: one line, exit 2, never a traceback
+        message = f"unexpected {type(exc).__name__}: {exc} (a bug of pmw: please report it with the input)"
+    sys.stderr.write(error_line(message) + "\n")
+    return EXIT_BAD_INPUT

@@ -27,44 +27,54 @@ import base64
 import copy
 import json
 import os
+import re
 import urllib.parse
 
 import numpy as np
 
+from ..constants import (
+    MAX_ENCODE_FACES,
+    MAX_ENCODE_VERTICES,
+    MAX_INPUT_FILE_BYTES,
+    MAX_JSON_DEPTH,
+    MAX_RESOURCE_BYTES,
+)
 from ..errors import InputFormatError
+from ..sources import read_regular_file
 from .glb import split_glb
-from .gltf import COMPONENT_DTYPES, DRACO_EXTENSION, FLOAT, NORMALIZE_DIVISORS, TYPE_WIDTH, view_bytes
+from .gltf import COMPONENT_DTYPES, DRACO_EXTENSION, FLOAT, INDEX_DTYPES, NORMALIZE_DIVISORS, TYPE_WIDTH, uint, view_bytes
 from .layout import GLB_MAGIC, padded
+
+#: Most elements one accessor may declare: three indices per face of the largest mesh encoded.
+MAX_ACCESSOR_COUNT = 3 * MAX_ENCODE_FACES
 
 
 def load_document(path):
     """Read a ``.glb`` or ``.gltf``: returns ``(gltf dict, buffers list[bytes])``.
 
-    External buffers and images are read relative to the file; images with a
-    ``uri`` are returned in ``gltf["images"][i]["_bytes"]`` so :func:`repack`
-    can embed them.  Raises :class:`InputFormatError` with a one-line message.
+    External buffers and images are read relative to the file, and only from
+    inside its folder (see :func:`_resolve_uri`); images with a ``uri`` are
+    returned in ``gltf["images"][i]["_bytes"]`` so :func:`repack` can embed them.
+    The JSON is checked first (:func:`check_document`: shapes, references, nesting
+    depth, declared sizes against the encoder's limits).  Raises
+    :class:`InputFormatError` with a one-line message.
     """
     path = os.fspath(path)
     name = os.path.basename(path)
+    data = read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError)
     try:
-        with open(path, "rb") as fh:
-            data = fh.read()
-    except OSError as exc:
-        raise InputFormatError(f"{path}: {exc.strerror or exc}") from None
-    if data[:4] == GLB_MAGIC:
-        gltf, buffers = _glb_document(data, name)
-    else:
-        try:
-            gltf = json.loads(data.decode("utf-8"))
-        except (UnicodeDecodeError, ValueError):
-            raise InputFormatError(f"{name}: neither a GLB nor glTF JSON") from None
-        if not isinstance(gltf, dict):
-            raise InputFormatError(f"{name}: glTF JSON must be an object")
-        buffers = []
+        if data[:4] == GLB_MAGIC:
+            gltf, buffers = _glb_document(data, name)
+        else:
+            gltf, buffers = _json_document(data, name), []
+    except RecursionError:
+        raise InputFormatError(f"{name}: glTF JSON nested too deeply") from None
+    check_document(gltf, name)
     base_dir = os.path.dirname(os.path.abspath(path))
+    budget = [MAX_RESOURCE_BYTES]
     for i, buf in enumerate(gltf.get("buffers", [])):
         if "uri" in buf:
-            raw = _resolve_uri(buf["uri"], base_dir, name)
+            raw = _resolve_uri(buf["uri"], base_dir, name, budget)
             if i < len(buffers):
                 buffers[i] = raw
             else:
@@ -73,51 +83,270 @@ def load_document(path):
             buffers.extend([b""] * (i + 1 - len(buffers)))
     for image in gltf.get("images", []):
         if "uri" in image:
-            image["_bytes"] = _resolve_uri(image["uri"], base_dir, name)
+            image["_bytes"] = _resolve_uri(image["uri"], base_dir, name, budget)
     return gltf, buffers
+
+
+def _json_document(data: bytes, name: str) -> dict:
+    try:
+        gltf = json.loads(data.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError):
+        raise InputFormatError(f"{name}: neither a GLB nor glTF JSON") from None
+    if not isinstance(gltf, dict):
+        raise InputFormatError(f"{name}: glTF JSON must be an object")
+    return gltf
 
 
 def _glb_document(data: bytes, name: str):
     """``(gltf, buffers)`` of a GLB: the BIN chunk is buffer 0 unless buffers[0] has a uri."""
     gltf, binary = split_glb(data, name)
-    buffers = [binary] if gltf.get("buffers") and "uri" not in gltf["buffers"][0] else []
+    first = gltf.get("buffers")
+    first = first[0] if isinstance(first, list) and first else None
+    buffers = [binary] if isinstance(first, dict) and "uri" not in first else []
     return gltf, buffers
 
 
-def _resolve_uri(uri: str, base_dir: str, name: str) -> bytes:
+#: A uri with a scheme (``file:``, ``http:`` ...): never fetched.
+_SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*:")
+
+
+def _resolve_uri(uri, base_dir: str, name: str, budget: list) -> bytes:
+    """The bytes a buffer / image ``uri`` names: a ``data:`` URI, or a regular file inside ``base_dir``.
+
+    The uri is percent-decoded, joined onto ``base_dir`` and resolved with
+    ``realpath`` (``..`` and symlinks included); it must stay inside the folder
+    (resolved too).  Absolute paths and other schemes are refused.  Each resource
+    is charged to ``budget[0]`` (bytes left of :data:`MAX_RESOURCE_BYTES`), and a
+    file is never read past it.  InputFormatError naming the uri otherwise.
+    """
+    if not isinstance(uri, str):
+        raise InputFormatError(f"{name}: a uri must be a string, got {type(uri).__name__}")
+    shown = repr(uri if len(uri) <= 80 else uri[:77] + "...")
     if uri.startswith("data:"):
-        try:
-            header, payload = uri.split(",", 1)
-            return base64.b64decode(payload) if header.endswith(";base64") else urllib.parse.unquote_to_bytes(payload)
-        except (ValueError, TypeError):
-            raise InputFormatError(f"{name}: a data URI does not decode") from None
-    target = os.path.join(base_dir, urllib.parse.unquote(uri))
+        blob = _data_uri(uri, name, shown, budget[0])
+    else:
+        path = urllib.parse.unquote(uri)
+        if _SCHEME.match(uri) or _SCHEME.match(path):
+            raise InputFormatError(f"{name}: the uri {shown} is not a relative path (only files beside the asset are read)")
+        if "\0" in path or os.path.isabs(path) or path.startswith(("\\", "/")):
+            raise InputFormatError(f"{name}: the uri {shown} is an absolute path; only files inside the asset's folder are read")
+        root = os.path.realpath(base_dir)
+        target = os.path.realpath(os.path.join(root, path))
+        if os.path.commonpath([root, target]) != root or target == root:
+            raise InputFormatError(f"{name}: the uri {shown} leads outside the asset's folder")
+        blob = read_regular_file(target, budget[0], InputFormatError, f"{name}: the uri {shown}", follow_symlinks=False)
+    budget[0] -= len(blob)
+    return blob
+
+
+def _data_uri(uri: str, name: str, shown: str, limit: int) -> bytes:
+    header, sep, payload = uri.partition(",")
+    if not sep:
+        raise InputFormatError(f"{name}: the data URI {shown} has no ',' before its payload")
+    base64_coded = header.endswith(";base64")
+    if base64_coded and len(payload) // 4 * 3 > limit:  # decoded size known before decoding
+        raise InputFormatError(f"{name}: the data URI {shown} holds more than the limit of {limit:,} bytes")
     try:
-        with open(target, "rb") as fh:
-            return fh.read()
-    except OSError:
-        raise InputFormatError(f"{name}: cannot read the resource {uri!r} beside it") from None
+        blob = base64.b64decode(payload) if base64_coded else urllib.parse.unquote_to_bytes(payload)
+    except (ValueError, TypeError):
+        raise InputFormatError(f"{name}: the data URI {shown} does not decode") from None
+    if len(blob) > limit:
+        raise InputFormatError(f"{name}: the data URI {shown} holds more than the limit of {limit:,} bytes")
+    return blob
+
+
+#: Top-level glTF arrays whose items must be objects.
+_ARRAYS = ("accessors", "animations", "buffers", "bufferViews", "cameras", "images", "materials",
+           "meshes", "nodes", "samplers", "scenes", "skins", "textures")
+
+
+def check_document(gltf: dict, name: str) -> None:
+    """Refuse (InputFormatError) a glTF JSON the document code cannot walk safely.
+
+    Checks the nesting depth (:data:`MAX_JSON_DEPTH`), that every array and object
+    this module reads has the right JSON type, that every accessor / bufferView
+    reference it renumbers is an index in range, and that the triangle primitives
+    declare no more vertices and faces in total than the encoder takes
+    (:data:`MAX_ENCODE_VERTICES`, :data:`MAX_ENCODE_FACES`) — all before any
+    buffer is read or any array allocated.
+    """
+    check_json_depth(gltf, name)
+    for key in _ARRAYS:
+        _objects(gltf, key, key, name)
+    for key in ("extensionsUsed", "extensionsRequired"):
+        if not all(isinstance(e, str) for e in _list(gltf, key, key, name)):
+            raise InputFormatError(f"{name}: {key} must be an array of strings")
+    n_acc, n_views = len(gltf.get("accessors", [])), len(gltf.get("bufferViews", []))
+    for i, view in enumerate(gltf.get("bufferViews", [])):
+        _check_view(view, f"bufferViews[{i}]", len(gltf.get("buffers", [])), name)
+    for i, acc in enumerate(gltf.get("accessors", [])):
+        _check_accessor(acc, f"accessors[{i}]", n_views, name)
+    for kind in ("images", "buffers"):
+        for i, entry in enumerate(gltf.get(kind, [])):
+            if "uri" in entry and not isinstance(entry["uri"], str):
+                raise InputFormatError(f"{name}: {kind}[{i}].uri must be a string")
+    for i, image in enumerate(gltf.get("images", [])):
+        _ref(image, "bufferView", n_views, f"images[{i}]", name)
+    for i, skin in enumerate(gltf.get("skins", [])):
+        _ref(skin, "inverseBindMatrices", n_acc, f"skins[{i}]", name)
+    for i, anim in enumerate(gltf.get("animations", [])):
+        for j, sampler in enumerate(_objects(anim, "samplers", f"animations[{i}].samplers", name)):
+            for key in ("input", "output"):
+                _ref(sampler, key, n_acc, f"animations[{i}].samplers[{j}]", name, required=True)
+    for i, node in enumerate(gltf.get("nodes", [])):
+        _check_extensions(node, f"nodes[{i}]", n_acc, name, "EXT_mesh_gpu_instancing")
+    _check_meshes(gltf, n_acc, n_views, name)
+
+
+def _check_view(view: dict, where: str, n_buffers: int, name: str) -> None:
+    """A bufferView's numbers: ``buffer`` in range, ``byteOffset`` / ``byteLength``
+    non-negative integers, ``byteStride`` (if any) a multiple of 4 in 4..252."""
+    _ref(view, "buffer", n_buffers, where, name, required=True)
+    uint(view, "byteOffset", f"{name}: {where}", 0, error=InputFormatError)
+    uint(view, "byteLength", f"{name}: {where}", error=InputFormatError)
+    if "byteStride" in view:
+        stride = uint(view, "byteStride", f"{name}: {where}", error=InputFormatError)
+        if not 4 <= stride <= 252 or stride % 4:
+            raise InputFormatError(f"{name}: {where}.byteStride {stride} is not a multiple of 4 in 4..252")
+
+
+def _check_accessor(acc: dict, where: str, n_views: int, name: str) -> None:
+    """An accessor's numbers: known ``componentType`` / ``type``, ``count`` in
+    1..:data:`MAX_ACCESSOR_COUNT`, ``byteOffset`` non-negative, bufferView references in
+    range, a sparse ``count`` no larger than the accessor's."""
+    if acc.get("componentType") not in COMPONENT_DTYPES or acc.get("type") not in TYPE_WIDTH:
+        raise InputFormatError(f"{name}: {where} has an unknown componentType or type")
+    count = _bounded_count(acc, "count", f"{name}: {where}")
+    if count < 1:
+        raise InputFormatError(f"{name}: {where}.count must be at least 1")
+    uint(acc, "byteOffset", f"{name}: {where}", 0, error=InputFormatError)
+    _ref(acc, "bufferView", n_views, where, name)
+    if "sparse" in acc:
+        sparse = _object(acc["sparse"], f"{where}.sparse", name)
+        if _bounded_count(sparse, "count", f"{name}: {where}.sparse") > count:
+            raise InputFormatError(f"{name}: {where}.sparse.count is larger than the accessor's count {count}")
+        for part in ("indices", "values"):
+            _ref(_object(sparse.get(part), f"{where}.sparse.{part}", name), "bufferView", n_views,
+                 f"{where}.sparse.{part}", name, required=True)
+
+
+def _check_meshes(gltf: dict, n_acc: int, n_views: int, name: str) -> None:
+    vertices = faces = 0
+    accessors = gltf.get("accessors", [])
+    for mi, mesh in enumerate(gltf.get("meshes", [])):
+        for pi, prim in enumerate(_objects(mesh, "primitives", f"meshes[{mi}].primitives", name)):
+            where = f"meshes[{mi}].primitives[{pi}]"
+            attrs = _object(prim.get("attributes", {}), f"{where}.attributes", name)
+            for semantic in attrs:
+                _ref(attrs, semantic, n_acc, f"{where}.attributes", name)
+            for ti, target in enumerate(_objects(prim, "targets", f"{where}.targets", name)):
+                for semantic in target:
+                    _ref(target, semantic, n_acc, f"{where}.targets[{ti}]", name)
+            _ref(prim, "indices", n_acc, where, name)
+            uint(prim, "mode", f"{name}: {where}", 4, error=InputFormatError)
+            draco = _check_extensions(prim, where, n_acc, name, DRACO_EXTENSION)
+            if draco is not None:
+                _ref(draco, "bufferView", n_views, f"{where} Draco", name, required=True)
+            if prim.get("mode", 4) == 4 and "POSITION" in attrs:
+                vertices += _count(accessors[attrs["POSITION"]])
+                faces += _count(accessors[prim["indices"]]) // 3 if "indices" in prim else 0
+    if vertices > MAX_ENCODE_VERTICES or faces > MAX_ENCODE_FACES:
+        raise InputFormatError(
+            f"{name}: {vertices:,} vertices and {faces:,} faces in its triangle primitives; the encoder's limit is "
+            f"{MAX_ENCODE_VERTICES:,} vertices and {MAX_ENCODE_FACES:,} faces")
+
+
+def _check_extensions(holder: dict, where: str, n_acc: int, name: str, known: str):
+    """Check ``holder["extensions"]`` is an object and its ``known`` entry (if any) is one
+    whose ``attributes`` are accessor indices; returns that entry or None."""
+    exts = _object(holder.get("extensions", {}), f"{where}.extensions", name)
+    if known not in exts:
+        return None
+    entry = _object(exts[known], f"{where}.extensions.{known}", name)
+    attrs = _object(entry.get("attributes", {}), f"{where}.extensions.{known}.attributes", name)
+    if known != DRACO_EXTENSION:  # Draco attributes are ids in the Draco stream, not accessors
+        for semantic in attrs:
+            _ref(attrs, semantic, n_acc, f"{where}.extensions.{known}.attributes", name)
+    return entry
+
+
+def _count(acc: dict) -> int:
+    value = acc.get("count")
+    return value if isinstance(value, int) and not isinstance(value, bool) and value > 0 else 0
+
+
+def _object(value, where: str, name: str) -> dict:
+    if not isinstance(value, dict):
+        raise InputFormatError(f"{name}: {where} must be an object, got {type(value).__name__}")
+    return value
+
+
+def _list(holder: dict, key: str, where: str, name: str) -> list:
+    value = holder.get(key, [])
+    if not isinstance(value, list):
+        raise InputFormatError(f"{name}: {where} must be an array, got {type(value).__name__}")
+    return value
+
+
+def _objects(holder: dict, key: str, where: str, name: str) -> list:
+    """``holder[key]`` (default []) checked to be an array of objects."""
+    items = _list(holder, key, where, name)
+    for i, value in enumerate(items):
+        _object(value, f"{where}[{i}]", name)
+    return items
+
+
+def _ref(holder: dict, key: str, bound: int, where: str, name: str, required: bool = False) -> None:
+    """``holder[key]``, when present (or ``required``), must be an integer index below ``bound``."""
+    if key not in holder and not required:
+        return
+    index = uint(holder, key, f"{name}: {where}", error=InputFormatError)
+    if index >= bound:
+        raise InputFormatError(f"{name}: {where}.{key} = {index} refers past the {bound} items it indexes")
+
+
+def check_json_depth(doc, name: str, limit: int = MAX_JSON_DEPTH, error=InputFormatError) -> None:
+    """Refuse (``error``) JSON nested deeper than ``limit`` arrays/objects (walked without recursion)."""
+    stack = [(doc, 1)]
+    while stack:
+        value, depth = stack.pop()
+        children = value.values() if isinstance(value, dict) else value if isinstance(value, list) else None
+        if children is None:
+            continue
+        if depth > limit:
+            raise error(f"{name}: JSON nested more than {limit} levels deep")
+        stack.extend((child, depth + 1) for child in children if isinstance(child, (dict, list)))
 
 
 def read_accessor(gltf: dict, buffers, index: int) -> np.ndarray:
     """Accessor ``index`` as a (count, width) array: float64 for float or normalized data,
-    int64 for integer data.  Handles byteStride, missing bufferView (zeros) and sparse."""
+    int64 for integer data.  Handles byteStride, missing bufferView (zeros) and sparse.
+
+    Every number of the JSON is checked before anything is allocated: ``count`` is a
+    non-negative integer of at most :data:`MAX_ACCESSOR_COUNT`, ``byteOffset``
+    non-negative, ``byteStride`` a multiple of 4 in 4..252 no smaller than one
+    element, and sparse indices lie inside the accessor (InputFormatError otherwise).
+    """
+    what = f"accessor {index}"
     try:
         acc = gltf["accessors"][index]
         ctype = acc["componentType"]
         width = TYPE_WIDTH[acc["type"]]
-        count = int(acc["count"])
         dtype = np.dtype(COMPONENT_DTYPES[ctype])
     except (KeyError, IndexError, TypeError):
-        raise InputFormatError(f"accessor {index}: malformed") from None
+        raise InputFormatError(f"{what}: malformed") from None
+    count = _bounded_count(acc, "count", what)
     if "bufferView" in acc:
         raw, stride = _view(gltf, buffers, acc["bufferView"])
-        offset = int(acc.get("byteOffset", 0))
+        offset = uint(acc, "byteOffset", what, 0, error=InputFormatError)
         item = dtype.itemsize * width
+        if stride is not None and (isinstance(stride, bool) or not isinstance(stride, int)
+                                   or not 4 <= stride <= 252 or stride % 4 or stride < item):
+            raise InputFormatError(f"{what}: byteStride {stride!r} is not a multiple of 4 in {max(4, item)}..252")
         stride = stride or item
         need = offset + (count - 1) * stride + item if count else 0
         if need > len(raw):
-            raise InputFormatError(f"accessor {index}: reads past its bufferView")
+            raise InputFormatError(f"{what}: reads past its bufferView")
         if stride == item:
             out = np.frombuffer(raw, dtype=dtype, count=count * width, offset=offset).reshape(count, width)
         else:
@@ -127,18 +356,41 @@ def read_accessor(gltf: dict, buffers, index: int) -> np.ndarray:
     else:
         out = np.zeros((count, width), dtype=dtype)
     out = _normalized(out, ctype, acc.get("normalized", False))
-    sparse = acc.get("sparse")
-    if sparse:
-        out = out.copy()
-        n = int(sparse["count"])
-        ii = sparse["indices"]
-        raw_i, _ = _view(gltf, buffers, ii["bufferView"])
-        idx = np.frombuffer(raw_i, dtype=COMPONENT_DTYPES[ii["componentType"]], count=n, offset=int(ii.get("byteOffset", 0)))
-        vv = sparse["values"]
-        raw_v, _ = _view(gltf, buffers, vv["bufferView"])
-        vals = np.frombuffer(raw_v, dtype=dtype, count=n * width, offset=int(vv.get("byteOffset", 0))).reshape(n, width)
-        out[idx.astype(np.int64)] = _normalized(vals, ctype, acc.get("normalized", False))
+    if acc.get("sparse"):
+        out = _apply_sparse(gltf, buffers, acc, out, what)
     return out
+
+
+def _bounded_count(holder: dict, key: str, what: str) -> int:
+    count = uint(holder, key, what, error=InputFormatError)
+    if count > MAX_ACCESSOR_COUNT:
+        raise InputFormatError(f"{what}: {key} {count:,} is more than the limit of {MAX_ACCESSOR_COUNT:,}")
+    return count
+
+
+def _apply_sparse(gltf, buffers, acc, out, what):
+    """``out`` (count, width) with the sparse substitution of ``acc`` applied (a copy)."""
+    sparse, (count, width) = acc["sparse"], out.shape
+    n = _bounded_count(sparse, "count", f"{what} sparse")
+    ii, vv = sparse["indices"], sparse["values"]
+    idx = _sparse_part(gltf, buffers, ii, INDEX_DTYPES.get(ii.get("componentType")), n, 1, f"{what} sparse indices")
+    vals = _sparse_part(gltf, buffers, vv, COMPONENT_DTYPES[acc["componentType"]], n, width, f"{what} sparse values")
+    if n and int(idx.max()) >= count:
+        raise InputFormatError(f"{what}: sparse index {int(idx.max())} is past its {count} elements")
+    out = out.copy()
+    out[idx.reshape(-1).astype(np.int64)] = _normalized(vals, acc["componentType"], acc.get("normalized", False))
+    return out
+
+
+def _sparse_part(gltf, buffers, part, dtype, n, width, what):
+    """(n, width) array of ``dtype`` read tightly packed from ``part``'s bufferView, bounds checked."""
+    if dtype is None:
+        raise InputFormatError(f"{what}: componentType is not an index type")
+    raw, _ = _view(gltf, buffers, part.get("bufferView"))
+    offset = uint(part, "byteOffset", what, 0, error=InputFormatError)
+    if offset + n * width * np.dtype(dtype).itemsize > len(raw):
+        raise InputFormatError(f"{what}: reads past its bufferView")
+    return np.frombuffer(raw, dtype=dtype, count=n * width, offset=offset).reshape(n, width)
 
 
 def _normalized(values, ctype, normalized):

@@ -24,6 +24,7 @@ import os
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont, UnidentifiedImageError
 
+from ..constants import MAX_WATERMARK_PIXELS
 from ..errors import InputFormatError, PmwError
 
 __all__ = ["load_watermark", "save_png", "make_text_watermark", "DEFAULT_MAX_SIZE"]
@@ -43,14 +44,28 @@ def _open(path) -> tuple[Image.Image, str]:
         raise InputFormatError(f"{path}: no such file")
     if os.path.isdir(path):
         raise InputFormatError(f"{path}: is a directory, not an image")
+    if not os.path.isfile(path):
+        raise InputFormatError(f"{path}: not a regular file")
     try:
         img = Image.open(path)
+        check_image_size(img, name)
         img.load()
     except UnidentifiedImageError:
         raise InputFormatError(f"{name}: not an image Pillow can read") from None
+    except Image.DecompressionBombError:  # Pillow's own, larger limit, checked by Image.open
+        raise InputFormatError(f"{name}: image is larger than the limit of {MAX_WATERMARK_PIXELS:,} pixels") from None
     except (OSError, ValueError, SyntaxError) as exc:
         raise InputFormatError(f"{name}: cannot read image ({exc})") from None
     return img, name
+
+
+def check_image_size(img: Image.Image, name: str) -> None:
+    """Refuse an opened (not yet decoded) image whose header declares more than
+    :data:`MAX_WATERMARK_PIXELS` pixels: Pillow reads the size from the header, so
+    nothing has been decoded yet."""
+    if img.width * img.height > MAX_WATERMARK_PIXELS:
+        raise InputFormatError(f"{name}: image is {img.width}x{img.height}, more than the limit of "
+                               f"{MAX_WATERMARK_PIXELS:,} pixels")
 
 
 def _to_gray(img: Image.Image, notices: list[str]) -> np.ndarray:

@@ -49,7 +49,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..constants import MAX_KEY_FILE_BYTES
 from ..errors import WatermarkKeyError
+from ..sources import read_regular_file
 
 __all__ = ["WatermarkKey", "KeySlot", "KEY_FORMAT", "KEY_VERSION", "KEY_FILE_MODE", "refuse_symlink"]
 
@@ -72,7 +74,10 @@ def _png_b64(image: np.ndarray) -> str:
 def _png_unb64(text: str) -> np.ndarray:
     from PIL import Image
 
+    from .image import check_image_size
+
     with Image.open(io.BytesIO(base64.b64decode(text, validate=True))) as img:
+        check_image_size(img, "reference watermark")
         return np.asarray(img.convert("L"), dtype=np.uint8).copy()
 
 
@@ -140,6 +145,9 @@ class WatermarkKey:
         def bad(why):
             return WatermarkKeyError(f"{source}: not a valid watermark key ({why})")
 
+        from ..format.document import check_json_depth
+
+        check_json_depth(doc, source, error=WatermarkKeyError)
         if not isinstance(doc, dict) or doc.get("format") != KEY_FORMAT:
             raise bad(f'"format" is not "{KEY_FORMAT}"')
         if doc.get("version") != KEY_VERSION:
@@ -156,11 +164,13 @@ class WatermarkKey:
             raise bad('"params" must be an object and "file_id" a string')
         reference = None
         if doc.get("reference") is not None:
+            from PIL import Image
+
             ref = doc["reference"]
             try:
                 reference = _png_unb64(ref["png"])
                 shape = (int(ref["height"]), int(ref["width"]))
-            except (KeyError, TypeError, ValueError, OSError, binascii.Error) as exc:
+            except (KeyError, TypeError, ValueError, OSError, binascii.Error, Image.DecompressionBombError) as exc:
                 raise bad(f"reference watermark unreadable: {exc}") from None
             if reference.shape != shape:
                 raise bad(f"reference watermark is {reference.shape}, declared {shape}")
@@ -187,17 +197,15 @@ class WatermarkKey:
     def load(cls, path) -> "WatermarkKey":
         """Read a key file; any problem is a one-line :class:`WatermarkKeyError`."""
         path = os.fspath(path)
-        try:
-            with open(path, "rb") as fh:
-                raw = fh.read(1 << 26)
-        except FileNotFoundError:
-            raise WatermarkKeyError(f"{path}: no such key file") from None
-        except OSError as exc:
-            raise WatermarkKeyError(f"{path}: cannot read key file ({exc.strerror})") from None
+        if not os.path.lexists(path):
+            raise WatermarkKeyError(f"{path}: no such key file")
+        raw = read_regular_file(path, MAX_KEY_FILE_BYTES, WatermarkKeyError, f"{path}: cannot read key file")
         try:
             doc = json.loads(raw.decode("utf-8"))
         except (UnicodeDecodeError, ValueError):
             raise WatermarkKeyError(f"{path}: not a watermark key (not JSON)") from None
+        except RecursionError:
+            raise WatermarkKeyError(f"{path}: not a watermark key (JSON nested too deeply)") from None
         return cls.from_json(doc, source=path)
 
     # --- public identity ----------------------------------------------------------------

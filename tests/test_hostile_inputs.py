@@ -1,0 +1,401 @@
+"""Hostile inputs on the encoder side (security audit, probes 1, 3, 11, 12, 14; issue 11 part A).
+
+Every case is a file generated here in ``tmp_path``.  Each must end ``pmw encode`` with
+exit 2, exactly one line ``pmw: error: ...`` on stderr (naming the culprit), no
+traceback and no output file; a ``.gltf`` may only bring in regular files inside its
+own folder.  The largest cases also run in a subprocess under an address-space limit.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import os
+import resource
+import struct
+import subprocess
+import sys
+import zlib
+from pathlib import Path
+
+import pytest
+
+from pmwm_codec import shapes
+from pmwm_codec.cli import main
+from pmwm_codec.constants import MAX_ENCODE_FACES, MAX_ENCODE_VERTICES, MAX_WATERMARK_PIXELS
+from pmwm_codec.format.document import load_document
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY_PNG = base64.b64decode(
+    "iVBORw0KGgoAAAANSUhEUgAAAAEAAAABCAAAAAA6fptVAAAACklEQVR4nGP4DwABAQEAG7buVgAAAABJRU5ErkJggg==")
+
+
+# --- helpers ---------------------------------------------------------------------------------
+
+
+def run_encode(capsys, tmp_path, *argv):
+    """``pmw encode`` in process: ``(status, stderr lines, out path)``; stdout is not looked at."""
+    out = tmp_path / "out.pmw"
+    status = main(["encode", *map(str, argv), "-o", str(out), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    return status, err, out
+
+
+def assert_refused(status, err, out, *words):
+    """Exit 2, one ``pmw: error:`` line holding every one of ``words``, no file written."""
+    assert status == 2, err
+    assert len(err) == 1 and err[0].startswith("pmw: error: "), err
+    assert "Traceback" not in err[0]
+    for word in words:
+        assert word in err[0], err
+    assert not out.exists()
+    assert not Path(str(out) + ".key.json").exists()
+
+
+def gltf_doc(mesh, images=(), **extra) -> dict:
+    """A ``.gltf`` JSON of ``mesh`` (one data-URI buffer) whose images have the given uris."""
+    pos = mesh.positions.astype("<f4").tobytes()
+    idx = mesh.faces.astype("<u4").tobytes()
+    blob = pos + idx
+    doc = {
+        "asset": {"version": "2.0"},
+        "buffers": [{"byteLength": len(blob),
+                     "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}],
+        "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": len(pos)},
+                        {"buffer": 0, "byteOffset": len(pos), "byteLength": len(idx)}],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": mesh.vertex_count, "type": "VEC3",
+             "min": mesh.positions.min(0).tolist(), "max": mesh.positions.max(0).tolist()},
+            {"bufferView": 1, "componentType": 5125, "count": mesh.faces.size, "type": "SCALAR"}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "material": 0}]}],
+        "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}} if images else {}],
+        "nodes": [{"mesh": 0}],
+        "scenes": [{"nodes": [0]}],
+        "scene": 0,
+    }
+    if images:
+        doc["images"] = [{"uri": uri} for uri in images]
+        doc["textures"] = [{"source": 0}]
+    doc.update(extra)
+    return doc
+
+
+def write_gltf(folder: Path, doc: dict) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / "m.gltf"
+    path.write_text(json.dumps(doc))
+    return path
+
+
+@pytest.fixture
+def mesh():
+    return shapes.icosphere(1)
+
+
+@pytest.fixture
+def secret(tmp_path) -> Path:
+    """A file beside (not inside) the asset folder ``tmp_path/asset``."""
+    path = tmp_path / "secret.txt"
+    path.write_bytes(b"root:*:secret\n")
+    return path
+
+
+# --- 1. local file exfiltration ------------------------------------------------------------
+
+
+@pytest.mark.parametrize("uri", ["/etc/shadow", "/etc/passwd", "../../../../../../../../etc/passwd",
+                                 "%2e%2e/secret.txt", "..%2fsecret.txt", "/proc/self/environ", "/dev/zero",
+                                 "SECRET_ABSOLUTE", "sub/../../secret.txt"])
+def test_image_uri_outside_the_asset_folder_is_refused_and_named(capsys, tmp_path, mesh, secret, uri):
+    uri = str(secret) if uri == "SECRET_ABSOLUTE" else uri
+    src = write_gltf(tmp_path / "asset", gltf_doc(mesh, images=[uri]))
+    status, err, out = run_encode(capsys, tmp_path, src)
+    assert_refused(status, err, out, repr(uri))
+    assert "outside the asset's folder" in err[0] or "absolute path" in err[0]
+
+
+def test_buffer_uri_outside_the_asset_folder_is_refused(capsys, tmp_path, mesh, secret):
+    doc = gltf_doc(mesh)
+    doc["buffers"].append({"byteLength": 10, "uri": "../secret.txt"})
+    status, err, out = run_encode(capsys, tmp_path, write_gltf(tmp_path / "asset", doc))
+    assert_refused(status, err, out, "'../secret.txt'", "outside the asset's folder")
+
+
+def test_symlink_leading_out_of_the_folder_is_refused(capsys, tmp_path, mesh, secret):
+    folder = tmp_path / "asset"
+    folder.mkdir()
+    (folder / "tex.png").symlink_to(secret)
+    status, err, out = run_encode(capsys, tmp_path, write_gltf(folder, gltf_doc(mesh, images=["tex.png"])))
+    assert_refused(status, err, out, "'tex.png'", "outside the asset's folder")
+
+
+def test_symlink_to_a_device_inside_the_folder_path_is_refused(capsys, tmp_path, mesh):
+    folder = tmp_path / "asset"
+    folder.mkdir()
+    (folder / "zero.png").symlink_to("/dev/zero")
+    status, err, out = run_encode(capsys, tmp_path, write_gltf(folder, gltf_doc(mesh, images=["zero.png"])))
+    assert_refused(status, err, out, "'zero.png'")
+
+
+def test_scheme_uris_are_refused_without_fetching(capsys, tmp_path, mesh, secret):
+    for uri in (f"file://{secret}", "http://127.0.0.1:9/x.png"):
+        status, err, out = run_encode(capsys, tmp_path, write_gltf(tmp_path / "asset", gltf_doc(mesh, images=[uri])))
+        assert_refused(status, err, out, "not a relative path")
+
+
+def test_fifo_inside_the_folder_is_refused_without_blocking(tmp_path, mesh):
+    """Run in a subprocess with a timeout: the old reader blocked forever on the FIFO."""
+    folder = tmp_path / "asset"
+    folder.mkdir()
+    os.mkfifo(folder / "tex.png")
+    src = write_gltf(folder, gltf_doc(mesh, images=["tex.png"]))
+    proc = run_cli_limited(["encode", str(src), "-o", str(tmp_path / "out.pmw"), "-q"], timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr.count("\n") == 1 and "'tex.png'" in proc.stderr and "not a regular file" in proc.stderr
+    assert not (tmp_path / "out.pmw").exists()
+
+
+def test_resources_inside_the_folder_still_load(tmp_path, mesh):
+    """Relative paths, ``..`` that stays inside, percent-encoding, symlinks inside, data URIs."""
+    folder = tmp_path / "asset"
+    (folder / "sub").mkdir(parents=True)
+    (folder / "tex one.png").write_bytes(TINY_PNG)
+    (folder / "link.png").symlink_to(folder / "tex one.png")
+    data_uri = "data:image/png;base64," + base64.b64encode(TINY_PNG).decode()
+    uris = ["tex one.png", "tex%20one.png", "sub/../tex one.png", "link.png", data_uri]
+    gltf, _ = load_document(write_gltf(folder, gltf_doc(mesh, images=uris)))
+    assert [image["_bytes"] for image in gltf["images"]] == [TINY_PNG] * len(uris)
+
+
+# --- 2. hostile encoder inputs -------------------------------------------------------------
+
+
+def obj_text(mesh, face_line=None) -> str:
+    lines = [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in mesh.positions]
+    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in mesh.faces]
+    if face_line is not None:
+        lines.append(face_line)
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize("line, word", [("f 1 2 100000000000000000000000", "100000000000000000000000"),
+                                        ("f 1 2 -100000000000000000000000", "-100000000000000000000000"),
+                                        ("f 0 1 2", "face index 0")])
+def test_obj_face_index_that_cannot_name_a_vertex_is_refused(capsys, tmp_path, mesh, line, word):
+    src = tmp_path / "m.obj"
+    src.write_text(obj_text(mesh, line))
+    assert_refused(*run_encode(capsys, tmp_path, src), word)
+
+
+def test_one_vertex_far_out_is_refused_instead_of_collapsing_the_mesh(capsys, tmp_path, mesh):
+    far = mesh.positions.copy()
+    far[7] = [1e30, 0.0, 0.0]
+    src = tmp_path / "m.obj"
+    src.write_text(obj_text(type(mesh)(far, mesh.faces)))
+    assert_refused(*run_encode(capsys, tmp_path, src), "vertex 7", "collapse")
+
+
+def ply_bytes(mesh, index_type="int") -> bytes:
+    head = (f"ply\nformat ascii 1.0\nelement vertex {mesh.vertex_count}\nproperty float x\nproperty float y\n"
+            f"property float z\nelement face {mesh.face_count}\nproperty list uchar {index_type} vertex_indices\n"
+            "end_header\n")
+    verts = "".join(f"{x} {y} {z}\n" for x, y, z in mesh.positions)
+    faces = "".join(f"3 {a}.0 {b}.0 {c}.0\n" if index_type == "float" else f"3 {a} {b} {c}\n" for a, b, c in mesh.faces)
+    return (head + verts + faces).encode()
+
+
+def test_ply_float_face_indices_are_refused(capsys, tmp_path, mesh):
+    src = tmp_path / "m.ply"
+    src.write_bytes(ply_bytes(mesh, "float"))
+    assert_refused(*run_encode(capsys, tmp_path, src), "not integers")
+
+
+def test_ply_declaring_more_vertices_than_the_encoder_takes_is_refused(capsys, tmp_path, mesh):
+    src = tmp_path / "m.ply"
+    src.write_bytes(ply_bytes(mesh).replace(b"element vertex 42", f"element vertex {MAX_ENCODE_VERTICES + 1}".encode()))
+    assert_refused(*run_encode(capsys, tmp_path, src), f"{MAX_ENCODE_VERTICES + 1}")
+
+
+def test_binary_stl_declaring_more_triangles_than_the_encoder_takes_is_refused(capsys, tmp_path):
+    count = MAX_ENCODE_FACES + 1
+    src = tmp_path / "m.stl"
+    with open(src, "wb") as fh:  # a sparse file of the declared size
+        fh.write(bytes(80) + struct.pack("<I", count))
+        fh.truncate(84 + 50 * count)
+    assert_refused(*run_encode(capsys, tmp_path, src), f"{count:,}")
+
+
+WRONG_TYPES = {
+    "meshes is an object": lambda d: d.update(meshes={"0": d["meshes"][0]}),
+    "primitives is a string": lambda d: d["meshes"][0].update(primitives="x"),
+    "attributes is a list": lambda d: d["meshes"][0]["primitives"][0].update(attributes=[0]),
+    "POSITION is a string": lambda d: d["meshes"][0]["primitives"][0]["attributes"].update(POSITION="0"),
+    "buffers is a number": lambda d: d.update(buffers=5),
+    "images hold a number": lambda d: d.update(images=[1]),
+    "a uri is a number": lambda d: d.update(images=[{"uri": 7}]),
+    "bufferView past the end": lambda d: d["accessors"][0].update(bufferView=9),
+    "indices past the end": lambda d: d["meshes"][0]["primitives"][0].update(indices=99),
+    "extensions is a list": lambda d: d["meshes"][0]["primitives"][0].update(extensions=[]),
+    "animation samplers are strings": lambda d: d.update(animations=[{"samplers": ["a"], "channels": []}]),
+    "extensionsUsed holds a number": lambda d: d.update(extensionsUsed=[3]),
+    "count is -5": lambda d: d["accessors"][0].update(count=-5),
+    "count is 2^36": lambda d: d["accessors"][0].update(count=1 << 36),
+    "count is 2^36 without a bufferView": lambda d: d["accessors"][1].pop("bufferView") and
+    d["accessors"][1].update(count=3 << 34),
+    "count is a float": lambda d: d["accessors"][0].update(count=42.0),
+    "byteStride is negative": lambda d: d["bufferViews"][0].update(byteStride=-12),
+    "byteStride is 2": lambda d: d["bufferViews"][0].update(byteStride=2),
+    "byteOffset is negative": lambda d: d["accessors"][0].update(byteOffset=-4),
+    "extras 800 deep": lambda d: d.update(extras=json.loads("[" * 800 + "]" * 800)),
+    "sparse count 2^40": lambda d: d["accessors"][0].update(
+        sparse={"count": 1 << 40, "indices": {"bufferView": 1, "componentType": 5125}, "values": {"bufferView": 0}}),
+}
+
+
+@pytest.mark.parametrize("case", sorted(WRONG_TYPES))
+def test_malformed_gltf_json_is_one_line_and_no_file(capsys, tmp_path, mesh, case):
+    doc = gltf_doc(mesh)
+    WRONG_TYPES[case](doc)
+    status, err, out = run_encode(capsys, tmp_path, write_gltf(tmp_path / "asset", doc))
+    assert_refused(status, err, out, "m.gltf")
+
+
+def test_sparse_index_past_the_accessor_is_refused(tmp_path, mesh):
+    from pmwm_codec.errors import InputFormatError
+    from pmwm_codec.format.document import read_accessor
+
+    doc = gltf_doc(mesh)
+    doc["bufferViews"].append({"buffer": 0, "byteOffset": 0, "byteLength": 4})  # float 'x' of vertex 0 as an index
+    doc["accessors"][0]["sparse"] = {"count": 1, "indices": {"bufferView": 2, "componentType": 5125},
+                                     "values": {"bufferView": 0}}
+    gltf, buffers = load_document(write_gltf(tmp_path / "asset", doc))
+    with pytest.raises(InputFormatError, match="sparse index"):
+        read_accessor(gltf, buffers, 0)
+
+
+def test_glb_with_json_nested_beyond_the_parser_is_refused(capsys, tmp_path):
+    body = b"[" * 100_000 + b"]" * 100_000
+    body += b" " * (-len(body) % 4)
+    glb = struct.pack("<III", 0x46546C67, 2, 12 + 8 + len(body)) + struct.pack("<II", len(body), 0x4E4F534A) + body
+    src = tmp_path / "deep.glb"
+    src.write_bytes(glb)
+    assert_refused(*run_encode(capsys, tmp_path, src), "deep.glb")
+
+
+def png_header_only(width: int, height: int) -> bytes:
+    """A PNG whose IHDR declares ``width`` x ``height`` 8-bit gray, with one tiny IDAT."""
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 64)) + chunk(b"IEND", b"")
+
+
+@pytest.mark.parametrize("side", [30000, 5000])
+def test_huge_watermark_is_refused_from_its_header(capsys, tmp_path, mesh, side):
+    assert side * side > MAX_WATERMARK_PIXELS
+    src, wm = tmp_path / "m.obj", tmp_path / "wm.png"
+    src.write_text(obj_text(mesh))
+    wm.write_bytes(png_header_only(side, side))
+    assert_refused(*run_encode(capsys, tmp_path, src, "--watermark", wm), "wm.png", f"limit of {MAX_WATERMARK_PIXELS:,} pixels")
+
+
+def test_key_file_with_deeply_nested_json_is_one_line(capsys, tmp_path, mesh):
+    src, wm, key = tmp_path / "m.obj", tmp_path / "wm.png", tmp_path / "k.json"
+    src.write_text(obj_text(mesh))
+    wm.write_bytes(TINY_PNG)
+    key.write_text("[" * 100_000 + "]" * 100_000)
+    status, err, out = run_encode(capsys, tmp_path, src, "--watermark", wm, "--key", key)
+    assert_refused(status, err, out, "k.json", "nested too deeply")
+    assert key.read_text().startswith("[[[")  # left as it was
+
+
+def test_key_file_that_is_a_fifo_is_refused(capsys, tmp_path, mesh):
+    src, wm, key = tmp_path / "m.obj", tmp_path / "wm.png", tmp_path / "k.json"
+    src.write_text(obj_text(mesh))
+    wm.write_bytes(TINY_PNG)
+    os.mkfifo(key)
+    assert_refused(*run_encode(capsys, tmp_path, src, "--watermark", wm, "--key", key), "not a regular file")
+
+
+# --- 3. the safety net ---------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("exc", [MemoryError(), RecursionError("maximum recursion depth exceeded"),
+                                 KeyError("internal"), ZeroDivisionError("division by zero")])
+def test_unexpected_exception_is_one_line_exit_2_and_removes_new_outputs(capsys, tmp_path, mesh, monkeypatch, exc):
+    import pmwm_codec
+
+    src, wm = tmp_path / "m.obj", tmp_path / "wm.png"
+    src.write_text(obj_text(mesh))
+    wm.write_bytes(TINY_PNG)
+
+    def crash(src, dst, **kwargs):
+        Path(dst).write_bytes(b"half")
+        Path(str(dst) + ".key.json").write_text("{}")
+        raise exc
+
+    monkeypatch.setattr(pmwm_codec, "encode", crash)
+    assert_refused(*run_encode(capsys, tmp_path, src, "--watermark", wm))
+
+
+def test_safety_net_leaves_files_that_existed_before(capsys, tmp_path, mesh, monkeypatch):
+    import pmwm_codec
+
+    src, out = tmp_path / "m.obj", tmp_path / "out.pmw"
+    src.write_text(obj_text(mesh))
+    out.write_bytes(b"an older file")
+    monkeypatch.setattr(pmwm_codec, "encode", lambda *a, **k: 1 / 0)
+    status, err, _ = run_encode(capsys, tmp_path, src)
+    assert status == 2 and len(err) == 1 and "ZeroDivisionError" in err[0]
+    assert out.read_bytes() == b"an older file"
+
+
+# --- 4. memory stays bounded ---------------------------------------------------------------
+
+#: Address space allowed to the subprocess: enough for Python with numpy, trimesh and
+#: Pillow imported, far below what the old code allocated on these inputs.
+ADDRESS_SPACE = 1536 << 20
+
+
+def run_cli_limited(argv, timeout=300):
+    """``python -m pmwm_codec argv`` under RLIMIT_AS = :data:`ADDRESS_SPACE`."""
+    def limit():
+        resource.setrlimit(resource.RLIMIT_AS, (ADDRESS_SPACE, ADDRESS_SPACE))
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1",
+               PYTHONPATH=str(ROOT))
+    return subprocess.run([sys.executable, "-m", "pmwm_codec", *argv], capture_output=True, text=True,
+                          timeout=timeout, preexec_fn=limit, env=env, cwd=ROOT)
+
+
+def test_largest_hostile_inputs_are_refused_under_an_address_space_limit(tmp_path, mesh):
+    cases = {}
+    face_line = tmp_path / "faceline.obj"  # a 200 MB face line: 7.6 GB with the old reader
+    with open(face_line, "w") as fh:
+        fh.write(obj_text(mesh) + "f")
+        block = " 1" * (1 << 20)
+        for _ in range(100):
+            fh.write(block)
+        fh.write("\n")
+    cases["faceline"] = ([str(face_line)], "triangles")
+    doc = gltf_doc(mesh)
+    doc["accessors"][1].pop("bufferView")
+    doc["accessors"][1]["count"] = 3 << 34
+    cases["count"] = ([str(write_gltf(tmp_path / "count", doc))], "limit")
+    wm = tmp_path / "wm.png"
+    wm.write_bytes(png_header_only(30000, 30000))
+    obj = tmp_path / "m.obj"
+    obj.write_text(obj_text(mesh))
+    cases["png"] = ([str(obj), "--watermark", str(wm)], "pixels")
+    zero = tmp_path / "zero"
+    zero.mkdir()
+    (zero / "z.bin").symlink_to("/dev/zero")
+    doc = gltf_doc(mesh)
+    doc["buffers"].append({"byteLength": 1 << 40, "uri": "z.bin"})
+    cases["devzero"] = ([str(write_gltf(zero, doc))], "'z.bin'")
+    for name, (argv, word) in cases.items():
+        out = tmp_path / f"{name}.pmw"
+        proc = run_cli_limited(["encode", *argv, "-o", str(out), "-q"])
+        assert proc.returncode == 2, (name, proc.stderr[-2000:])
+        assert proc.stderr.count("\n") == 1 and proc.stderr.startswith("pmw: error: "), (name, proc.stderr[-2000:])
+        assert word in proc.stderr and "MemoryError" not in proc.stderr and "out of memory" not in proc.stderr, name
+        assert not out.exists(), name
