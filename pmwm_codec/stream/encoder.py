@@ -399,7 +399,8 @@ def _write(dst, doc, kept_bin, work, order, params, key, zstd_level: int, say) -
     for prim in prims:
         prim.extension["fileId"] = file_id
     say("write", 0.0)
-    size = write_parts(dst, assemble_document(doc, kept_bin, prims, order, zstd_level))
+    mac_key = key.mac_key() if params is not None else None  # marked files carry keyed MACs
+    size = write_parts(dst, assemble_document(doc, kept_bin, prims, order, zstd_level, mac_key))
     say("write", 1.0)
     return size, file_id
 
