@@ -13,7 +13,9 @@ Contract (DESIGN.md §4)
 * Every vertex-split chunk is stored as its own zstd frame with the content size and
   the content checksum; the extension object lists, per chunk, its bufferView, stored
   ``byteLength``, BLAKE2b-128 ``digest`` of the stored bytes and ``uncompressedLength``,
-  plus the caller's ``splits``/``vertexCount``/``faceCount``/``geometricError``.
+  plus the caller's ``splits``/``vertexCount``/``faceCount``/``geometricError``; given a
+  MAC key (a watermarked file), also the chunk's keyed ``mac`` and, on the extension object,
+  the ``baseMac`` (:mod:`.mac`; a caller's ``baseMac`` or ``mac`` is never copied).
 * The extension object sits on the mesh primitive under ``EXTENSION_NAME``, is listed in
   ``extensionsUsed`` and never in ``extensionsRequired``; ``KHR_draco_mesh_compression``
   is in both lists only when the base mesh uses it.
@@ -39,7 +41,7 @@ from ..constants import EXTENSION_NAME, FORMAT_VERSION, MAX_CHUNK_BYTES, MAX_CHU
 from ..errors import FormatError, InputFormatError
 from .base import EncodedBase, decode_base_attributes
 from .gltf import DRACO_EXTENSION
-from .extension import CHUNK_META_FIELDS, RESERVED_FIELDS, check_extension, digest
+from .extension import CHUNK_META_FIELDS, DERIVED_FIELDS, RESERVED_FIELDS, check_extension, digest
 from .mac import base_mac, chunk_mac
 from .layout import (
     CHUNK_HEADER_SIZE,
@@ -216,7 +218,7 @@ def _index_chunks(prims, order, views: list, bin_parts: list, offset: int, zstd_
         index[p][k] = {
             "bufferView": len(views) - 1, "byteLength": len(stored), "digest": digest(stored),
             **{key: meta[key] for key in CHUNK_META_FIELDS},
-            **{key: value for key, value in meta.items() if key not in CHUNK_META_FIELDS},
+            **{key: value for key, value in meta.items() if key not in CHUNK_META_FIELDS and key != "mac"},
             "uncompressedLength": raw_length,
         }
         pad = padded(len(stored)) - len(stored)
@@ -230,7 +232,8 @@ def _merge_primitives(doc: dict, prims, primitives_json, index, base_macs) -> li
     primitive plus the extension object (other properties and extensions kept)."""
     meshes = copy.deepcopy(doc.get("meshes", []))
     for p, (prim, pj) in enumerate(zip(prims, primitives_json)):
-        ext = {"version": FORMAT_VERSION, **prim.extension, "chunks": index[p]}
+        own = {k: v for k, v in prim.extension.items() if k not in DERIVED_FIELDS}
+        ext = {"version": FORMAT_VERSION, **own, "chunks": index[p]}
         if base_macs[p] is not None:
             ext["baseMac"] = base_macs[p][1]
         try:
