@@ -1,6 +1,7 @@
 """``pmw verify IN.pmw|- --key KEY``: read the watermark at every chunk boundary and decide.
 
-Exit status: 0 authentic; 1 not-authentic or inconclusive; 2 bad input.
+Exit status: 0 authentic; 1 not-authentic or inconclusive; 2 bad input.  A chunk whose keyed
+MAC fails is named on its own line ("chunk 7: not written by the key holder (MAC mismatch)").
 """
 
 from __future__ import annotations
@@ -120,6 +121,7 @@ def report(o: StreamVerification, pictures=None) -> str:
     else:
         why = "no codes read yet"
     lines.append(f"verdict: {o.verdict} ({why})")
+    lines += o.mac_notes()
     if pictures:
         lines.append(f"pictures: {len(pictures['frames'])} frames, {pictures['overview']}"
                      + (f", {pictures['plot']}" if pictures.get("plot") else ""))

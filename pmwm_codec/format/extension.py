@@ -25,6 +25,8 @@ SCHEMA_DIR = Path(__file__).with_name("schema")
 PRIMITIVE_SCHEMA = f"mesh.primitive.{EXTENSION_NAME}.schema.json"
 #: Extension fields the writer sets itself; callers must not pass them.
 RESERVED_FIELDS = ("version", "chunks")
+#: Extension fields the writer derives and drops from the caller's (a copied ``baseMac`` would not match).
+DERIVED_FIELDS = ("baseMac",)
 #: Per-chunk fields the caller supplies (``chunk_meta``).
 CHUNK_META_FIELDS = ("splits", "vertexCount", "faceCount", "geometricError")
 

@@ -13,7 +13,9 @@ Contract (DESIGN.md §4)
 * Every vertex-split chunk is stored as its own zstd frame with the content size and
   the content checksum; the extension object lists, per chunk, its bufferView, stored
   ``byteLength``, BLAKE2b-128 ``digest`` of the stored bytes and ``uncompressedLength``,
-  plus the caller's ``splits``/``vertexCount``/``faceCount``/``geometricError``.
+  plus the caller's ``splits``/``vertexCount``/``faceCount``/``geometricError``; given a
+  MAC key (a watermarked file), also the chunk's keyed ``mac`` and, on the extension object,
+  the ``baseMac`` (:mod:`.mac`; a caller's ``baseMac`` or ``mac`` is never copied).
 * The extension object sits on the mesh primitive under ``EXTENSION_NAME``, is listed in
   ``extensionsUsed`` and never in ``extensionsRequired``; ``KHR_draco_mesh_compression``
   is in both lists only when the base mesh uses it.
@@ -36,9 +38,10 @@ import zstandard
 from ..atomic import write_atomic
 from ..constants import EXTENSION_NAME, FORMAT_VERSION, MAX_CHUNK_BYTES, MAX_CHUNKS, MAX_DECOMPRESSED_CHUNK_BYTES
 from ..errors import FormatError, InputFormatError
-from .base import EncodedBase
+from .base import EncodedBase, decode_base_attributes
 from .gltf import DRACO_EXTENSION
-from .extension import CHUNK_META_FIELDS, RESERVED_FIELDS, check_extension, digest
+from .extension import CHUNK_META_FIELDS, DERIVED_FIELDS, RESERVED_FIELDS, check_extension, digest
+from .mac import base_mac, chunk_mac
 from .layout import (
     CHUNK_HEADER_SIZE,
     CHUNK_TYPE_BIN,
@@ -79,7 +82,7 @@ class ProgressivePrimitive:
     extension: dict
 
 
-def assemble_document(doc: dict, kept_bin: bytes, prims, order, zstd_level: int = 10) -> list:
+def assemble_document(doc: dict, kept_bin: bytes, prims, order, zstd_level: int = 10, mac_key: bytes | None = None) -> list:
     """The file as a list of bytes-like parts (header, JSON, BIN header, BIN pieces).
 
     Parameters
@@ -97,8 +100,13 @@ def assemble_document(doc: dict, kept_bin: bytes, prims, order, zstd_level: int 
     prims : list[ProgressivePrimitive]
     order : list of (primitive index in ``prims``, chunk index)
         The stream order of every chunk (each primitive's chunks in increasing order).
+    mac_key : bytes, optional
+        The watermark key's :meth:`~pmwm_codec.watermark.key.WatermarkKey.mac_key`: every
+        extension object gets a ``baseMac`` and every chunk entry a ``mac``
+        (:mod:`.mac`); without it the file has no MACs.
     """
     _check_primitives(prims, order)
+    base_macs = _base_macs(prims, mac_key)
     views = [dict(v) for v in doc.get("bufferViews", [])]
     accessors = copy.deepcopy(doc.get("accessors", []))
     bin_parts = []
@@ -107,9 +115,29 @@ def assemble_document(doc: dict, kept_bin: bytes, prims, order, zstd_level: int 
     if kept_bin:
         bin_parts.append(kept_bin)
     index, offset = _index_chunks(prims, order, views, bin_parts, bases_end + len(kept_bin), zstd_level)
-    meshes = _merge_primitives(doc, prims, primitives_json, index)
+    if mac_key is not None:
+        for p, prim in enumerate(prims):
+            for k, entry in enumerate(index[p]):
+                entry["mac"] = chunk_mac(mac_key, base_macs[p][1], base_macs[p][0], k, entry, prim.chunks[k])
+    meshes = _merge_primitives(doc, prims, primitives_json, index, base_macs)
     gltf = _document(doc, meshes, accessors, views, offset, used, required)
     return glb_parts(gltf, bin_parts, offset)
+
+
+def _base_macs(prims, mac_key) -> list:
+    """Per primitive of ``prims``: ``(ordinal, baseMac)``, the ordinal being its rank in
+    mesh/primitive order (the reader's numbering); ``None`` each without ``mac_key``."""
+    if mac_key is None:
+        return [None] * len(prims)
+    rank = {place: r for r, place in enumerate(sorted((p.mesh, p.primitive) for p in prims))}
+    out = []
+    for prim in prims:
+        base, ordinal = prim.base, rank[(prim.mesh, prim.primitive)]
+        mini = {"accessors": base.accessors, "bufferViews": base.buffer_views}
+        attributes = decode_base_attributes(mini, base.data, base.primitive, prim.extension.get("attributes", ()))
+        public = {"version": FORMAT_VERSION, **prim.extension}
+        out.append((ordinal, base_mac(mac_key, ordinal, public, base.positions_int, base.faces, attributes)))
+    return out
 
 
 def _shift_views(views: list, delta: int) -> None:
@@ -189,7 +217,7 @@ def _index_chunks(prims, order, views: list, bin_parts: list, offset: int, zstd_
         index[p][k] = {
             "bufferView": len(views) - 1, "byteLength": len(stored), "digest": digest(stored),
             **{key: meta[key] for key in CHUNK_META_FIELDS},
-            **{key: value for key, value in meta.items() if key not in CHUNK_META_FIELDS},
+            **{key: value for key, value in meta.items() if key not in CHUNK_META_FIELDS and key != "mac"},
             "uncompressedLength": raw_length,
         }
         pad = padded(len(stored)) - len(stored)
@@ -198,12 +226,15 @@ def _index_chunks(prims, order, views: list, bin_parts: list, offset: int, zstd_
     return index, offset
 
 
-def _merge_primitives(doc: dict, prims, primitives_json, index) -> list:
+def _merge_primitives(doc: dict, prims, primitives_json, index, base_macs) -> list:
     """The document's ``meshes`` with each progressive primitive replaced by its base
     primitive plus the extension object (other properties and extensions kept)."""
     meshes = copy.deepcopy(doc.get("meshes", []))
     for p, (prim, pj) in enumerate(zip(prims, primitives_json)):
-        ext = {"version": FORMAT_VERSION, **prim.extension, "chunks": index[p]}
+        own = {k: v for k, v in prim.extension.items() if k not in DERIVED_FIELDS}
+        ext = {"version": FORMAT_VERSION, **own, "chunks": index[p]}
+        if base_macs[p] is not None:
+            ext["baseMac"] = base_macs[p][1]
         try:
             check_extension(ext)
         except FormatError as exc:

@@ -17,8 +17,12 @@ meshes through the one replay loop (:class:`.replay.Replay`: split records
 applied a batch at a time into arrays preallocated for the full-resolution
 counts) and, given a key, feeds every batch's carriers to a
 :class:`~pmwm_codec.watermark.verify.Verifier` and puts its estimate of the
-partial watermark into each result.  Pull wrappers live in
-:mod:`.reader`.
+partial watermark into each result.  Given a key, it also checks the keyed MACs of
+the base and of every chunk as they arrive (:class:`~pmwm_codec.format.mac.MacChecker`)
+and puts the answer in each result's ``authentic_bytes``: True written by the key
+holder, False not (MAC mismatch), None no MAC in the file (or no key).  A failed MAC
+does not stop decoding; ``mac_failed`` lists the chunks (0: the base).  Pull wrappers
+live in :mod:`.reader`.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ import numpy as np
 from ..constants import MAX_VERTICES
 from ..errors import FormatError, LimitError, WatermarkKeyError
 from ..format import BaseEvent, ChunkEvent, ContainerParser, EndEvent, HeaderEvent
+from ..format.mac import MacChecker
 from ..mesh import Mesh
 from ..progressive.grid import AttributeGrid, Grid
 from ..watermark import codec as wm
@@ -91,6 +96,8 @@ class PartialResult:
     carriers_read: int = 0
     #: the watermark as read at this boundary (None without a key or a mark)
     estimate: object = None
+    #: this chunk's (for chunk 0: the bases') MAC matched; None without a key or a MAC
+    authentic_bytes: bool | None = None
 
     @property
     def positions_int(self) -> np.ndarray:
@@ -167,6 +174,11 @@ class StreamDecoder:
         self.last: PartialResult | None = None
         #: what a user should know about this decode (one line each), e.g. parts of a cut file left out
         self.notices: list = []
+        self._macs = MacChecker(key.mac_key()) if key is not None else None
+        #: chunk numbers (0: the base meshes) whose MAC failed / that carry no MAC (with a key)
+        self.mac_failed: list = []
+        self.mac_missing: list = []
+        self.mac_checked = 0
 
     @property
     def chunks_applied(self) -> int:
@@ -192,17 +204,34 @@ class StreamDecoder:
     def _on_event(self, event):
         applied_before = self._replay.chunks_applied
         carriers = self._replay.on_event(event)
+        authentic = self._check_mac(event)
         if isinstance(event, HeaderEvent):
             self._on_header(event)
         elif isinstance(event, BaseEvent) and self._replay.ready:
             self._start_verifier()
-            return self._result(0, event.bytes_read)
+            return self._result(0, event.bytes_read, authentic)
         elif isinstance(event, ChunkEvent) and self._replay.chunks_applied > applied_before:
             if self.verifier is not None:
                 for c in carriers:
                     self.verifier.add_carriers(c)
-            return self._result(event.index + 1, event.bytes_read)
+            return self._result(event.index + 1, event.bytes_read, authentic)
         return None
+
+    def _check_mac(self, event):
+        """The MAC answer for ``event`` (True/False/None), recorded in ``mac_*``; None without a key."""
+        if self._macs is None:
+            return None
+        authentic = self._macs.on_event(event)
+        if authentic is NotImplemented:
+            return None
+        number = event.index + 1 if isinstance(event, ChunkEvent) else 0
+        if authentic is None:
+            self.mac_missing.append(number)
+        else:
+            self.mac_checked += 1
+            if not authentic:
+                self.mac_failed.append(number)
+        return authentic
 
     def _on_header(self, event: HeaderEvent):
         self.header = event
@@ -227,7 +256,7 @@ class StreamDecoder:
         if self.key is not None:
             self.verifier = Verifier(self.watermark_params, self.key, nbars[0], self.reference)
 
-    def _result(self, chunk: int, bytes_read: int) -> PartialResult:
+    def _result(self, chunk: int, bytes_read: int, authentic_bytes: bool | None = None) -> PartialResult:
         replay = self._replay
         parts = []
         for p, (grid, ext) in enumerate(zip(replay.grids, replay.exts)):
@@ -237,7 +266,7 @@ class StreamDecoder:
                 pos, fac, attrs = pos.copy(), fac.copy(), attrs.copy()
             parts.append(Part(pos, fac, attrs, grid, tuple(ext.get("attributes", ()))))
         r = PartialResult(chunk, self.chunks_total, bytes_read, sum(st.n for st in replay.states),
-                          sum(st.m for st in replay.states), replay.grids[0], parts)
+                          sum(st.m for st in replay.states), replay.grids[0], parts, authentic_bytes=authentic_bytes)
         if self.verifier is not None:
             r.estimate = est = self.verifier.estimate()
             r.watermark, r.coefficients, r.carriers_read = est.watermark, est.coefficients, est.carriers_read

@@ -253,7 +253,8 @@ def encode_document(
             key, file_id=file_id, params=params.get_config(), reference=np.asarray(watermark, np.uint8)
         )
     say("write", 0.0)
-    size = _publish(dst, assemble_document(doc, kept_bin, prims, order, zstd_level), key, key_slot)
+    mac_key = key.mac_key() if params is not None else None  # marked files carry keyed MACs
+    size = _publish(dst, assemble_document(doc, kept_bin, prims, order, zstd_level, mac_key), key, key_slot)
     say("write", 1.0)
     return dataclasses.replace(
         report, vsplits=carriers, chunks=len(order), bytes=int(size), seconds=time.perf_counter() - t0,

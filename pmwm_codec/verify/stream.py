@@ -13,7 +13,10 @@ Contract
 
 The verdict is the stream verifier's (:mod:`pmwm_codec.watermark.verify`):
 ``authentic`` | ``not-authentic`` | ``inconclusive``; a file without a watermark is
-``not-authentic``.  :meth:`StreamVerification.as_json` is the ``pmw verify --json`` object
+``not-authentic``.  Keyed chunk authentication comes on top: a marked file whose base or any
+chunk fails its MAC (or carries none: written before MACs, or stripped) is
+``not-authentic`` whatever the watermark reads, and :meth:`StreamVerification.mac_notes`
+names every such chunk.  :meth:`StreamVerification.as_json` is the ``pmw verify --json`` object
 (non-finite floats such as the PSNR of a bit-exact watermark stay ``inf``; the command
 prints them as ``null``).
 """
@@ -38,7 +41,9 @@ class StreamVerification:
     first (``chunk`` 0); ``end``: how the stream ended; ``verdict``; ``codes_matched`` of
     ``codes_read`` codes agree with the expected ones; ``marked``: the file carries a
     watermark; ``total_length``: the size of the complete file in bytes; ``key_matches``:
-    False when the file's public key fingerprint is another key's (verdict ``not-authentic``).
+    False when the file's public key fingerprint is another key's (verdict ``not-authentic``);
+    ``mac``: ``{"checked": n, "failed": [chunk numbers], "missing": [chunk numbers]}`` (chunk 0
+    is the base meshes) -- the keyed MACs checked, failed and absent.
     """
 
     results: list
@@ -49,15 +54,33 @@ class StreamVerification:
     marked: bool
     total_length: int
     key_matches: bool = True
+    mac: dict | None = None
+
+    def mac_notes(self) -> list:
+        """One line per chunk whose bytes are not the key holder's (MAC failed, or absent)."""
+        if not self.mac:
+            return []
+        notes = [f"{_chunk_name(c)}: not written by the key holder (MAC mismatch)" for c in self.mac["failed"]]
+        missing = self.mac["missing"]
+        if missing and self.marked:
+            where = "the file" if len(missing) == len(self.results) else ", ".join(_chunk_name(c) for c in missing)
+            notes.append(f"{where}: no MAC, the bytes cannot be attributed to the key holder "
+                         "(written before keyed chunk authentication, or stripped)")
+        return notes
 
     def as_json(self) -> dict:
         """The ``pmw verify --json`` object (without ``pictures``, which only the command writes)."""
-        chunks = [r.as_json() for r in self.results]
+        chunks = [{**r.as_json(), "authentic_bytes": r.authentic_bytes} for r in self.results]
         return {"complete": bool(self.end.complete), "truncated": bool(self.end.truncated),
                 "chunks_total": int(self.end.chunks_total), "chunks": chunks, "final": chunks[-1],
                 "verdict": self.verdict, "bytes_read": int(self.end.bytes_read),
                 "total_length": int(self.total_length), "codes_matched": self.codes_matched,
-                "codes_read": self.codes_read, "key_matches": self.key_matches}
+                "codes_read": self.codes_read, "key_matches": self.key_matches, "mac": self.mac}
+
+
+def _chunk_name(number: int) -> str:
+    """``chunk N`` for a chunk row, ``base mesh`` for row 0."""
+    return f"chunk {number}" if number else "base mesh"
 
 
 def verify_stream(source, key, watermark=None, *, keep_meshes: bool = False, progress=None) -> StreamVerification:
@@ -95,4 +118,8 @@ def verify_stream(source, key, watermark=None, *, keep_meshes: bool = False, pro
     else:
         matched, read = v.matches()
         verdict = v.verdict() if owns else "not-authentic"
-    return StreamVerification(results, end, verdict, matched, read, v is not None, decoder.header.total_length, owns)
+    mac = {"checked": decoder.mac_checked, "failed": decoder.mac_failed, "missing": decoder.mac_missing}
+    if v is not None and (mac["failed"] or mac["missing"]):
+        verdict = "not-authentic"  # bytes the key holder did not write (or cannot be shown to have)
+    return StreamVerification(results, end, verdict, matched, read, v is not None, decoder.header.total_length,
+                              owns, mac)

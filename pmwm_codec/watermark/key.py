@@ -32,7 +32,10 @@ carry no such promise across numpy releases::
   of ``stream(b"permutation", id, 8 n)`` — a uniformly random permutation (ties, with
   probability ~n^2/2^65, resolve by index);
 * :meth:`bits` ``(id, n)``: the first n bits (little-endian bit order within each byte)
-  of ``stream(b"bits", id, ceil(n / 8))``.
+  of ``stream(b"bits", id, ceil(n / 8))``;
+* :meth:`mac_key` ``()``: ``stream(b"mac", 0, 32)``, the key of the chunk MACs
+  (:mod:`pmwm_codec.format.mac`); a label of its own, so a MAC reveals nothing of the
+  other mappings.
 """
 
 from __future__ import annotations
@@ -273,6 +276,10 @@ class WatermarkKey:
             raise ValueError(f"n must be >= 0, got {n}")
         raw = np.frombuffer(self._stream(b"bits", stream_id, (n + 7) // 8), dtype=np.uint8)
         return np.unpackbits(raw, bitorder="little")[:n]
+
+    def mac_key(self) -> bytes:
+        """32 bytes keying the chunk and base MACs (BLAKE2b), derived under the label ``mac``."""
+        return self._stream(b"mac", 0, 32)
 
 
 def as_key(key) -> WatermarkKey | None:

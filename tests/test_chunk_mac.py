@@ -1,0 +1,201 @@
+"""Keyed chunk authentication (spec/bitstream.md §6.3): whoever lacks the key cannot re-write a chunk
+or the base of a marked file, even after recomputing the public digests, without the verifier naming it."""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+import zstandard
+
+from pmwm_codec import shapes
+from pmwm_codec.cli import main
+from pmwm_codec.constants import EXTENSION_NAME
+from pmwm_codec.format import read_header
+from pmwm_codec.format.extension import digest
+from pmwm_codec.format.glb import compress_chunk, glb_parts, split_glb
+from pmwm_codec.format.layout import padded
+from pmwm_codec.format.records import pack_batches, unpack_batches
+from pmwm_codec.stream import StreamDecoder, encode_mesh
+from pmwm_codec.stream.cut import cut
+from pmwm_codec.verify import verify_stream
+from pmwm_codec.watermark.key import WatermarkKey
+
+from conftest import marked_sphere
+
+CONFORMANCE = Path(__file__).resolve().parents[1] / "spec" / "conformance"
+
+
+def _ext(gltf: dict) -> dict:
+    return gltf["meshes"][0]["primitives"][0]["extensions"][EXTENSION_NAME]
+
+
+def _rewrite_chunk(data: bytes, k: int, edit) -> bytes:
+    """Chunk k's payload replaced by ``edit(payload)``, recompressed, re-digested and re-laid out,
+    as a forger without the key would do it (the MACs are left as they were)."""
+    gltf, binary = split_glb(data)
+    views, entries = gltf["bufferViews"], _ext(gltf)["chunks"]
+    out = bytearray(binary[: views[entries[k]["bufferView"]]["byteOffset"]])
+    for j in range(k, len(entries)):
+        view = views[entries[j]["bufferView"]]
+        stored = binary[view["byteOffset"] : view["byteOffset"] + view["byteLength"]]
+        if j == k:
+            payload = edit(zstandard.ZstdDecompressor().decompress(stored))
+            stored = compress_chunk(payload)
+            entries[j].update(byteLength=len(stored), digest=digest(stored), uncompressedLength=len(payload))
+        view["byteOffset"], view["byteLength"] = len(out), len(stored)
+        out += stored + bytes(padded(len(stored)) - len(stored))
+    gltf["buffers"][0]["byteLength"] = len(out)
+    return b"".join(glb_parts(gltf, [bytes(out)], len(out)))
+
+
+def _move_first_split(payload: bytes) -> bytes:
+    """The first split vertex of the chunk moved by one grid step along x."""
+    batches = unpack_batches(payload)
+    batches[0].residual[0, 0] += 1
+    return pack_batches(batches)
+
+
+def _rewrite_json(data: bytes, change) -> bytes:
+    """The file with ``change(gltf, binary)`` applied to its JSON (and BIN, in place)."""
+    gltf, binary = split_glb(data)
+    binary = bytearray(binary)
+    change(gltf, binary)
+    return b"".join(glb_parts(gltf, [bytes(binary)], len(binary)))
+
+
+def _decode(data: bytes, key):
+    decoder = StreamDecoder(key)
+    results = decoder.feed(data)
+    decoder.close()
+    return results, decoder
+
+
+def test_untouched_file_passes_every_mac_and_stays_authentic():
+    data, key, _ = marked_sphere(7)
+    results, decoder = _decode(data, key)
+    assert [r.authentic_bytes for r in results] == [True] * len(results)
+    assert decoder.mac_checked == len(results) and not decoder.mac_failed and not decoder.mac_missing
+    outcome = verify_stream(data, key)
+    assert outcome.verdict == "authentic"
+    assert outcome.mac == {"checked": len(results), "failed": [], "missing": []}
+    assert all(row["authentic_bytes"] is True for row in outcome.as_json()["chunks"])
+
+
+def test_chunk_changed_and_redigested_without_the_key_is_named_at_that_chunk(tmp_path, capsys):
+    data, key, _ = marked_sphere(7)
+    forged = _rewrite_chunk(data, 3, _move_first_split)
+    results, _ = _decode(forged, None)  # the public digests agree: a keyless reader decodes it
+    assert results[-1].chunk == read_header(forged).chunk_count
+    outcome = verify_stream(forged, key)
+    assert outcome.mac["failed"] == [4]  # chunk rows count from 1 (row 0 is the base)
+    assert [row["authentic_bytes"] for row in outcome.as_json()["chunks"]] == [True] * 4 + [False] + [True] * (
+        len(results) - 5)
+    assert outcome.verdict == "not-authentic"
+
+    path, key_path = tmp_path / "forged.pmw", tmp_path / "key.json"
+    path.write_bytes(forged)
+    key.save(key_path)
+    assert main(["verify", str(path), "--key", str(key_path)]) == 1
+    assert "chunk 4: not written by the key holder (MAC mismatch)" in capsys.readouterr().out.splitlines()
+    assert main(["verify", str(path), "--key", str(key_path), "--json"]) == 1
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["verdict"] == "not-authentic" and doc["mac"]["failed"] == [4]
+    assert doc["chunks"][4]["authentic_bytes"] is False
+
+
+def test_macs_copied_from_another_file_of_the_same_key_fail():
+    data, key, _ = marked_sphere(7)
+    buf = io.BytesIO()  # another mesh and watermark, marked with the same secret
+    encode_mesh(shapes.icosphere(3, noise=0.02), buf, watermark=np.full((16, 16), 200, np.uint8), key=key)
+    other = buf.getvalue()
+
+    def transplant(gltf, binary):
+        source = _ext(split_glb(other)[0])
+        _ext(gltf)["baseMac"] = source["baseMac"]
+        for entry, theirs in zip(_ext(gltf)["chunks"], source["chunks"]):
+            entry["mac"] = theirs["mac"]
+
+    outcome = verify_stream(_rewrite_json(data, transplant), key)
+    assert outcome.mac["failed"] == list(range(len(outcome.results)))
+    assert outcome.verdict == "not-authentic"
+
+
+def test_a_changed_base_or_public_field_fails_the_base_mac():
+    data, key, _ = marked_sphere(7, base_codec="plain")
+
+    def move_base_vertex(gltf, binary):
+        prim = gltf["meshes"][0]["primitives"][0]
+        view = gltf["bufferViews"][gltf["accessors"][prim["attributes"]["POSITION"]]["bufferView"]]
+        start = view.get("byteOffset", 0)
+        positions = np.frombuffer(binary, "<f4", view["byteLength"] // 4, start).reshape(-1, 3).copy()
+        positions[0] = positions[1]  # on the grid and inside the accessor bounds
+        binary[start : start + positions.nbytes] = positions.tobytes()
+
+    def change_file_id(gltf, binary):
+        _ext(gltf)["fileId"] = "0" * 16
+
+    for change in (move_base_vertex, change_file_id):
+        results, decoder = _decode(_rewrite_json(data, change), key)
+        assert results[0].authentic_bytes is False and decoder.mac_failed == [0], change.__name__
+        outcome = verify_stream(_rewrite_json(data, change), key)
+        assert outcome.verdict == "not-authentic"
+        assert "base mesh: not written by the key holder (MAC mismatch)" in outcome.mac_notes()
+
+
+def test_cut_files_keep_valid_macs_for_the_chunks_they_keep():
+    data, key, _ = marked_sphere(7)
+    for chunks in (0, 3, None):
+        outcome = verify_stream(cut(data, chunks), key)
+        assert outcome.mac["failed"] == [] and outcome.mac["missing"] == []
+        assert outcome.mac["checked"] == len(outcome.results) == 1 + len(outcome.results[1:])
+        assert all(row["authentic_bytes"] for row in outcome.as_json()["chunks"])
+
+
+def test_stripped_macs_make_a_marked_file_not_authentic():
+    data, key, _ = marked_sphere(7)
+
+    def strip(gltf, binary):
+        del _ext(gltf)["baseMac"]
+        for entry in _ext(gltf)["chunks"]:
+            del entry["mac"]
+
+    outcome = verify_stream(_rewrite_json(data, strip), key)
+    assert outcome.mac["checked"] == 0 and len(outcome.mac["missing"]) == len(outcome.results)
+    assert outcome.verdict == "not-authentic"
+    assert any(note.startswith("the file: no MAC") for note in outcome.mac_notes())
+
+
+def test_golden_files_without_macs_still_decode_and_unmarked_files_get_none():
+    name = "sphere.exact-watermark-from-quarter.v1"
+    key = WatermarkKey.load(CONFORMANCE / f"{name}.key.json")
+    data = (CONFORMANCE / f"{name}.pmw").read_bytes()
+    results, decoder = _decode(data, key)
+    assert results[-1].chunk == read_header(data).chunk_count
+    assert np.array_equal(results[-1].watermark, key.reference)
+    assert all(r.authentic_bytes is None for r in results) and decoder.mac_checked == 0
+    unmarked = (CONFORMANCE / "grid-hole.plain.v1.pmw").read_bytes()
+    ext = read_header(unmarked).extension
+    assert "baseMac" not in ext and not any("mac" in c for c in ext["chunks"])
+
+
+def test_chunk_mac_recomputed_from_the_spec_text_matches_the_file():
+    """A second implementation, from bitstream.md §6.3 alone, agrees with the writer for chunk 2."""
+    data, key, _ = marked_sphere(7)
+    gltf, binary = split_glb(data)
+    ext, k = _ext(gltf), 2
+    entry = ext["chunks"][k]
+    view = gltf["bufferViews"][entry["bufferView"]]
+    payload = zstandard.ZstdDecompressor().decompress(binary[view["byteOffset"] : view["byteOffset"] + view["byteLength"]])
+    mac_key = hashlib.shake_256(b"pmwm/mac/v1\0" + key.secret + bytes(8)).digest(32)
+    fields = {name: value for name, value in entry.items() if name not in ("bufferView", "mac")}
+    parts = [b"pmwm/chunk-mac/v1", bytes.fromhex(ext["baseMac"]), (0).to_bytes(4, "little") + k.to_bytes(4, "little"),
+             json.dumps(fields, sort_keys=True, separators=(",", ":")).encode(), payload]
+    h = hashlib.blake2b(key=mac_key, digest_size=16)
+    for part in parts:
+        h.update(len(part).to_bytes(8, "little") + part)
+    assert h.hexdigest() == entry["mac"]
+    assert mac_key == key.mac_key()
