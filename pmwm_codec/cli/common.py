@@ -196,36 +196,17 @@ def check_input_file(path, what: str = "file") -> None:
         raise UsageError(f"{path}: is a directory, not a {what}")
 
 
-def output_paths(args) -> list:
-    """The files a subcommand may create: ``args.output`` (not ``-``) and, for an encode
-    with ``--watermark``, its key file (``--key`` or ``OUT.key.json``)."""
-    out = getattr(args, "output", None)
-    if not isinstance(out, (str, os.PathLike)) or out == "-":
-        return []
-    paths = [os.fspath(out)]
-    if getattr(args, "watermark", None) is not None:
-        key = getattr(args, "key", None)
-        paths.append(os.fspath(key) if key is not None else os.fspath(out) + ".key.json")
-    return paths
-
-
 def run_command(args) -> int:
     """Run ``args.run(args)`` behind the safety net; returns the exit status.
 
     Named errors (PmwError, UsageError, OSError) keep their one-line messages; a
     MemoryError, a RecursionError or any other exception also ends as one line
     and exit 2 (never 1: that is ``verify``'s "not authentic"), without a traceback.
-    On any failure, the :func:`output_paths` that did not exist before the command
-    and exist now are removed, so a failed command leaves no file behind.
+    Files are not cleaned up here: every output is published whole or not at all by
+    the library (:func:`pmwm_codec.format.glb.write_parts`, :mod:`pmwm_codec.atomic`),
+    so a failure leaves the old files or the new ones, never a part of one.
     """
-    created = [p for p in output_paths(args) if not os.path.lexists(p)]
-    status = _run_mapped(args)
-    if status not in (EXIT_OK, EXIT_NOT_AUTHENTIC):
-        for path in created:
-            with contextlib.suppress(OSError):
-                if os.path.lexists(path):
-                    os.unlink(path)
-    return status
+    return _run_mapped(args)
 
 
 def _run_mapped(args) -> int:
