@@ -1,4 +1,4 @@
-"""The ``pmw`` command: ``encode``, ``decode``, ``verify``, ``info``, ``demo`` (DESIGN.md §5).
+"""The ``pmw`` command: ``encode``, ``decode``, ``verify``, ``info``, ``demo``, ``batch`` (DESIGN.md §5).
 
 Thin over the library: each subcommand lives in ``pmwm_codec/cli/<name>.py`` as
 ``add_parser(subparsers)`` + ``run(args) -> int``; ``python -m pmwm_codec`` runs it too.  :func:`main` is the console
@@ -17,10 +17,10 @@ import sys
 from pmwm_codec import __version__
 from pmwm_codec.errors import PmwError
 
-from . import decode, demo, encode, info, verify
+from . import batch, decode, demo, encode, info, verify
 from .common import EXIT_BAD_INPUT, PROG, ArgumentParser, UsageError, error_line, os_error_message
 
-COMMANDS = (encode, decode, verify, info, demo)
+COMMANDS = (encode, decode, verify, info, demo, batch)
 
 
 def build_parser() -> ArgumentParser:
