@@ -300,3 +300,16 @@ def test_a_collection_key_made_for_another_watermark_is_refused(library, tmp_pat
     assert main(["batch", "encode", str(src), "-o", str(tmp_path / "o"), "--key", str(key),
                  "--watermark", str(other)]) == 2
     assert "another watermark image" in capsys.readouterr().err
+
+
+def test_keys_dir_holds_each_assets_key_and_batch_verify_finds_them_there(tmp_path, client):
+    src = tmp_path / "src"
+    (src / "x").mkdir(parents=True)
+    write_mesh(src / "x" / "a.obj", shapes.icosphere(3, noise=0.01, seed=4))
+    image = np.zeros((4, 4), np.uint8)
+    image[:, ::2] = 255
+    out, keys = tmp_path / "out", tmp_path / "keys"
+    assert encode_batch(src, out, watermark=image, keys_dir=keys, client=client)["ok"] == 1
+    assert (keys / "x" / "a.obj.pmw.key.json").is_file() and not list(out.rglob("*.key.json"))
+    assert verify_batch(out, keys_dir=keys, client=client)["authentic"] == 1
+    assert verify_batch(out, client=client)["results"][0]["verdict"] == "error"  # no key beside the file

@@ -6,7 +6,9 @@ different noise seed each, OBJ) is encoded with a ``--watermark-size`` checkerbo
 1, then 2, worker processes.  Per worker count: the cluster is started (time recorded), one
 warm-up batch of one asset per worker starts each worker's encoder forkserver, then
 ``--repeats`` timed runs with ``force=True`` encode the whole folder; the table holds the
-median assets per second and the scaling ratio (2 workers / 1 worker).
+median assets per second and the scaling ratio (2 workers / 1 worker).  A baseline row
+encodes the same folder with :func:`pmwm_codec.encode` in a loop in this process (no Dask,
+no child processes): the price of the batch machinery on one worker.
 
 Run from the repository root::
 
@@ -68,6 +70,23 @@ def run_workers(src: str, out: str, image, workers: int, repeats: int, log) -> d
     return {"workers": workers, "startup": startup, "rates": rates, "median": statistics.median(rates)}
 
 
+def run_in_process(src: str, out: str, image, repeats: int, log) -> dict:
+    """The baseline without Dask or child processes: :func:`pmwm_codec.encode` in a loop, here."""
+    import pmwm_codec
+
+    os.makedirs(out, exist_ok=True)
+    names = sorted(os.listdir(src))
+    rates = []
+    for r in range(repeats):
+        t = time.perf_counter()
+        for name in names:
+            pmwm_codec.encode(os.path.join(src, name), os.path.join(out, name + ".pmw"), watermark=image)
+        rates.append(len(names) / (time.perf_counter() - t))
+        log(f"  in process, run {r + 1}: {rates[-1]:.2f} assets/s")
+    return {"workers": "0 (pmwm_codec.encode in a loop)", "startup": 0.0, "rates": rates,
+            "median": statistics.median(rates)}
+
+
 def render(results, info, args, vertices, command, load_before, load_after) -> str:
     one = next(r for r in results if r["workers"] == 1)
     rows = [[r["workers"], f"{r['median']:.2f}", ", ".join(f"{x:.2f}" for x in r["rates"]),
@@ -110,7 +129,8 @@ def main(argv=None):
         src = os.path.join(tmp, "src")
         os.makedirs(src)
         vertices = make_library(src, args.assets, args.level)
-        results = [run_workers(src, os.path.join(tmp, f"out{w}"), image, w, args.repeats, log) for w in (1, 2)]
+        results = [run_in_process(src, os.path.join(tmp, "out0"), image, args.repeats, log)]
+        results += [run_workers(src, os.path.join(tmp, f"out{w}"), image, w, args.repeats, log) for w in (1, 2)]
     publish(render(results, info, args, vertices, command.strip(), load_before, os.getloadavg()),
             args.write, SECTION, log)
 

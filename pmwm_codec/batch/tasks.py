@@ -23,6 +23,10 @@ from .ledger import sha256_file
 
 __all__ = ["EncodeJob", "encode_task", "verify_task"]
 
+#: Imported once by each worker's forkserver, so that a forked encoder starts warm.
+_PRELOAD = ["pmwm_codec.batch.child", "pmwm_codec.stream.asset", "pmwm_codec.stream.encoder", "pmwm_codec.meshio",
+            "DracoPy", "jsonschema", "PIL.PngImagePlugin"]
+
 
 @dataclass(frozen=True)
 class EncodeJob:
@@ -110,7 +114,7 @@ def _encode_in_child(job: EncodeJob) -> dict:
 
 def _run_forked(payload: dict, timeout) -> dict:
     ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload(["pmwm_codec.batch.child", "pmwm_codec.stream.asset", "pmwm_codec.stream.encoder"])
+    ctx.set_forkserver_preload(_PRELOAD)
     receive, send = ctx.Pipe(duplex=False)
     proc = ctx.Process(target=child_main, args=(payload, send), name="pmw-encode")
     proc.start()
