@@ -1,0 +1,83 @@
+"""The batch ledger ``OUT_DIR/pmw-batch.jsonl``: one JSON line per asset and attempt.
+
+Each line::
+
+    {"input": "/abs/in.obj", "input_sha256": "<64 hex>" | null, "output": "/abs/out/in.obj.pmw",
+     "status": "ok" | "failed" | "skipped" | "timeout", "error": "<one line>" | null,
+     "seconds": 1.25, "bytes": 10724 | null, "vertices": 800 | null}
+
+Only the client appends, one whole line per finished attempt, flushed at once; a run
+killed mid-write leaves at most a cut last line, which :func:`read_ledger` ignores and the
+next :class:`LedgerWriter` terminates before appending.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+
+__all__ = ["LEDGER_NAME", "FIELDS", "STATUSES", "read_ledger", "last_rows", "LedgerWriter", "sha256_file"]
+
+LEDGER_NAME = "pmw-batch.jsonl"
+FIELDS = ("input", "input_sha256", "output", "status", "error", "seconds", "bytes", "vertices")
+STATUSES = ("ok", "failed", "skipped", "timeout")
+
+
+def sha256_file(path, block: int = 1 << 20) -> str:
+    """Hex SHA-256 of a file, read in ``block``-byte pieces."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for piece in iter(lambda: fh.read(block), b""):
+            h.update(piece)
+    return h.hexdigest()
+
+
+def read_ledger(path) -> list[dict]:
+    """Every well-formed row of the ledger at ``path`` (none when it does not exist)."""
+    rows = []
+    try:
+        with open(path, encoding="utf-8", errors="replace") as fh:
+            for line in fh:
+                try:
+                    row = json.loads(line)
+                except ValueError:
+                    continue  # a line cut by a killed run
+                if isinstance(row, dict) and row.get("status") in STATUSES and isinstance(row.get("input"), str):
+                    rows.append(row)
+    except FileNotFoundError:
+        pass
+    return rows
+
+
+def last_rows(rows) -> dict:
+    """The latest row per input path: ``{input: row}``."""
+    return {row["input"]: row for row in rows}
+
+
+class LedgerWriter:
+    """Append rows to the ledger; a context manager (the file stays open for the run)."""
+
+    def __init__(self, path):
+        self.path = os.fspath(path)
+        self._fh = None
+
+    def __enter__(self):
+        cut = False
+        if os.path.exists(self.path) and os.path.getsize(self.path):
+            with open(self.path, "rb") as fh:
+                fh.seek(-1, os.SEEK_END)
+                cut = fh.read(1) != b"\n"
+        self._fh = open(self.path, "a", encoding="utf-8")
+        if cut:
+            self._fh.write("\n")
+        return self
+
+    def write(self, row: dict) -> None:
+        line = json.dumps({name: row.get(name) for name in FIELDS}, allow_nan=False)
+        self._fh.write(line + "\n")
+        self._fh.flush()
+
+    def __exit__(self, *exc):
+        self._fh.close()
+        return False

@@ -1,0 +1,220 @@
+"""The client side of ``pmw batch``: expand SRC, submit one Dask task per asset, keep the ledger.
+
+Dask (``dask.distributed``) is the engine: a ``LocalCluster`` of ``workers`` processes by
+default, or an existing cluster at ``scheduler`` (``tcp://host:8786``) whose workers have
+this package installed and see the same paths (shared filesystem).  The client is the
+ledger's only writer: it appends each row as its task finishes, so a killed run loses at
+most the rows of the assets then running, and those are redone by the next run.
+
+A collection key is created (or loaded) here, once, saved before any task starts, and
+passed to every task as an object: no task writes it, and every output verifies with it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import time
+import uuid
+
+import numpy as np
+
+from pmwm_codec.errors import PmwError
+
+from .ledger import LEDGER_NAME, LedgerWriter, last_rows, read_ledger
+from .sources import KEY_SUFFIX, PMW_SUFFIX, expand_sources
+from .tasks import EncodeJob, encode_task, verify_task
+
+__all__ = ["BatchError", "dask_client", "encode_batch", "verify_batch", "collection_key", "DEFAULT_TIMEOUT"]
+
+DEFAULT_TIMEOUT = 600.0  # seconds per asset
+
+
+class BatchError(PmwError, ValueError):
+    """A batch that cannot start (bad SRC, key, watermark or scheduler): one line, exit 2."""
+
+
+@contextlib.contextmanager
+def dask_client(workers: int | None = None, scheduler: str | None = None, client=None):
+    """``client`` if given, else a ``distributed.Client`` on ``scheduler`` or on a LocalCluster
+    of ``workers`` processes (default: one per CPU)."""
+    import dask
+    from distributed import Client, LocalCluster
+
+    if client is not None:
+        yield client
+        return
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout="15s")
+        except (OSError, TimeoutError) as exc:
+            raise BatchError(f"{scheduler}: cannot reach the Dask scheduler ({exc})") from None
+        with client:
+            yield client
+        return
+    workers = max(1, int(workers or os.cpu_count() or 1))
+    with dask.config.set({"distributed.worker.daemon": False}):  # workers may fork the per-asset encoders
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                               silence_logs=logging.ERROR)
+    with cluster, Client(cluster) as client:
+        yield client
+
+
+def collection_key(key_path, watermark):
+    """``(image, key)`` for a collection: load ``key_path`` or create it (with ``watermark``) and save it.
+
+    image: (s, s) uint8, the watermark every asset carries (the key's reference when no
+    ``watermark`` is given).  An existing key whose reference differs from ``watermark``
+    is refused: every asset must verify with the one key.
+    """
+    from pmwm_codec.watermark.image import load_watermark
+    from pmwm_codec.watermark.key import WatermarkKey
+
+    image = None if watermark is None else load_watermark(watermark)[0]
+    if os.path.exists(key_path):
+        key = WatermarkKey.load(key_path)
+        if image is None:
+            if key.reference is None:
+                raise BatchError(f"{key_path}: the key holds no watermark image; give --watermark")
+            image = key.reference
+        elif key.reference is not None and not np.array_equal(key.reference, image):
+            raise BatchError(f"{key_path}: the key was made for another watermark image than {watermark}")
+        return image, key
+    if image is None:
+        raise BatchError(f"{key_path}: no such key; give --watermark to create a collection key")
+    key = WatermarkKey.generate(reference=image)
+    key.save(key_path)
+    return image, key
+
+
+def _jobs(assets, out_dir, image, key, keys_dir, timeout, force) -> list[EncodeJob]:
+    """One EncodeJob per asset, with the ledger's verdict on what was done before."""
+    previous = last_rows(read_ledger(os.path.join(out_dir, LEDGER_NAME)))
+    jobs = []
+    for asset in assets:
+        if image is None or key is not None:
+            job_key, key_path = key, None
+        elif keys_dir is not None:
+            job_key = key_path = os.path.join(os.path.abspath(keys_dir), asset.relative + PMW_SUFFIX + KEY_SUFFIX)
+        else:
+            job_key, key_path = None, asset.output + KEY_SUFFIX  # pmwm_codec.encode's default key path
+        prior = previous.get(asset.input) or {}
+        done = prior.get("status") in ("ok", "skipped") and prior.get("output") == asset.output
+        jobs.append(EncodeJob(asset.input, asset.output, job_key, key_path, image, timeout, force,
+                              prior.get("input_sha256") if done else None, prior.get("vertices") if done else None))
+    return jobs
+
+
+def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, workers=None, scheduler=None,
+                 timeout=DEFAULT_TIMEOUT, force=False, progress=None, client=None) -> dict:
+    """Encode every asset of ``src`` into ``out_dir``; returns the run's summary.
+
+    ``key``: a collection key path (loaded, or created and saved, here); ``keys_dir``: where
+    per-asset keys go (default: beside each output).  ``client``: a ``distributed.Client`` to
+    use instead of starting one (``workers`` and ``scheduler`` are then ignored).  ``progress(counts)`` is called after
+    every finished asset with ``done total ok skipped failed timeout running rate``.
+    Summary: ``assets ok skipped failed timeout seconds ledger failures`` (failures: rows).
+    """
+    if key is not None and keys_dir is not None:
+        raise BatchError("give --key (one collection key) or --keys-dir (a key per asset), not both")
+    out_dir = os.path.abspath(os.fspath(out_dir))
+    try:
+        assets = expand_sources(src, out_dir)
+    except (ValueError, OSError) as exc:
+        raise BatchError(str(exc)) from None
+    os.makedirs(out_dir, exist_ok=True)
+    image, key_obj = (None, None)
+    if key is not None:
+        image, key_obj = collection_key(key, watermark)
+    elif watermark is not None:
+        from pmwm_codec.watermark.image import load_watermark
+
+        image = load_watermark(watermark)[0]
+    jobs = _jobs(assets, out_dir, image, key_obj, keys_dir, timeout, force)
+    start = time.monotonic()
+    counts = dict.fromkeys(("ok", "skipped", "failed", "timeout"), 0)
+    failures = []
+    with dask_client(workers, scheduler, client) as client, LedgerWriter(os.path.join(out_dir, LEDGER_NAME)) as ledger:
+        for row in _results(client, encode_task, jobs):
+            ledger.write(row)
+            counts[row["status"]] += 1
+            if row["status"] in ("failed", "timeout"):
+                failures.append(row)
+            if progress is not None:
+                progress(_progress_counts(counts, len(jobs), client, start))
+    return {"assets": len(jobs), **counts, "seconds": round(time.monotonic() - start, 3),
+            "ledger": os.path.join(out_dir, LEDGER_NAME), "failures": failures}
+
+
+def _progress_counts(counts, total, client, start) -> dict:
+    done = sum(counts.values())
+    elapsed = max(time.monotonic() - start, 1e-9)
+    slots = sum(client.nthreads().values()) or 1
+    return {"done": done, "total": total, **counts, "running": min(slots, total - done), "rate": done / elapsed}
+
+
+def _results(client, function, jobs):
+    """Submit ``function(job)`` per job; yield each result as it finishes (a lost task: a failed row)."""
+    from distributed import as_completed
+
+    token = uuid.uuid4().hex[:8]
+    futures = {client.submit(function, job, pure=False, key=f"pmw-{function.__name__}-{token}-{i}"): job
+               for i, job in enumerate(jobs)}
+    for future in as_completed(futures):
+        job = futures.pop(future)
+        if future.status == "finished":
+            yield future.result()
+        else:  # the worker died under the task (KilledWorker) or the task raised
+            yield _lost(job, future.exception())
+        future.release()
+
+
+def _lost(job, exc) -> dict:
+    text = " ".join(f"{type(exc).__name__}: {exc}".split())
+    if isinstance(job, EncodeJob):
+        return {"input": job.input, "input_sha256": None, "output": job.output, "status": "failed",
+                "error": f"{job.input}: task lost ({text})", "seconds": None, "bytes": None, "vertices": None}
+    return {"file": job[0], "verdict": "error", "error": f"task lost ({text})"}
+
+
+def verify_batch(out_dir, *, key=None, keys_dir=None, watermark=None, workers=None, scheduler=None,
+                 progress=None, client=None) -> dict:
+    """Verify every ``.pmw`` under ``out_dir``: with the collection ``key``, with per-asset keys
+    under ``keys_dir``, or (default) with the key beside each file.
+
+    Returns ``{"files", "authentic", "results": [{file, verdict, error}, ...]}`` (sorted by file).
+    """
+    if key is not None and keys_dir is not None:
+        raise BatchError("give --key (one collection key) or --keys-dir (a key per asset), not both")
+    out_dir = os.path.abspath(os.fspath(out_dir))
+    if not os.path.isdir(out_dir):
+        raise BatchError(f"{out_dir}: no such folder")
+    files = sorted(os.path.join(here, f) for here, _, names in os.walk(out_dir) for f in names
+                   if f.endswith(PMW_SUFFIX) and not f.startswith("."))
+    if not files:
+        raise BatchError(f"{out_dir}: no .pmw files found")
+    if key is not None:
+        from pmwm_codec.watermark.key import WatermarkKey
+
+        key = WatermarkKey.load(key)
+    jobs = [(path, key if key is not None else _beside_key(path, out_dir, keys_dir), watermark) for path in files]
+    results = []
+    with dask_client(workers, scheduler, client) as client:
+        for result in _results(client, _verify_job, jobs):
+            results.append(result)
+            if progress is not None:
+                progress({"done": len(results), "total": len(jobs), "rate": None})
+    results.sort(key=lambda r: r["file"])
+    return {"files": len(results), "authentic": sum(r["verdict"] == "authentic" for r in results),
+            "results": results}
+
+
+def _verify_job(job) -> dict:
+    return verify_task(*job)
+
+
+def _beside_key(path, out_dir, keys_dir) -> str:
+    if keys_dir is None:
+        return path + KEY_SUFFIX
+    return os.path.join(os.path.abspath(keys_dir), os.path.relpath(path, out_dir) + KEY_SUFFIX)

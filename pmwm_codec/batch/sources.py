@@ -1,0 +1,122 @@
+"""What ``pmw batch encode SRC`` works on: SRC expanded to assets with their output paths.
+
+SRC is one of
+
+* a folder: every ``.obj .ply .stl .glb .gltf`` file below it (recursively, sorted; files
+  under OUT_DIR are left out when OUT_DIR lies inside SRC; symlinked folders are not entered);
+* a glob (``lib/**/*.glb``; ``**`` recurses): the matching mesh files;
+* a manifest: a text file naming one input per line (blank lines and ``#`` comments
+  skipped; relative paths are relative to the manifest's folder).  Its entries are taken
+  as named, so an unreadable one becomes a failed asset in the ledger, not a usage error.
+
+Each asset's output mirrors its path relative to the root of SRC (the folder, or the
+folder a glob starts from, or the deepest folder common to the manifest's entries)::
+
+    OUT_DIR/<relative path>.pmw            e.g. chairs/oak.obj -> OUT_DIR/chairs/oak.obj.pmw
+
+The suffix is kept so that ``oak.obj`` and ``oak.ply`` never collide.  Every output
+lies inside OUT_DIR by construction (relative paths never start with ``..``).
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+from dataclasses import dataclass
+
+from pmwm_codec.mesh import MESH_SUFFIXES
+
+__all__ = ["Asset", "expand_sources", "KEY_SUFFIX", "PMW_SUFFIX"]
+
+PMW_SUFFIX = ".pmw"
+KEY_SUFFIX = ".key.json"  # the key of OUT.pmw is OUT.pmw.key.json (pmwm_codec.encode's default)
+_MAGIC = set("*?[")
+
+
+@dataclass(frozen=True)
+class Asset:
+    """One input mesh and where its ``.pmw`` goes (absolute paths; ``relative`` is POSIX-style)."""
+
+    input: str
+    relative: str
+    output: str
+
+
+def expand_sources(src, out_dir) -> list[Asset]:
+    """The assets of ``src`` (folder, glob or manifest) with outputs under ``out_dir``.
+
+    Raises ValueError with a one-line message when ``src`` names nothing usable.
+    """
+    src = os.fspath(src)
+    out_dir = os.path.abspath(os.fspath(out_dir))
+    if os.path.isdir(src):
+        root = os.path.abspath(src)
+        inputs = _walk(root, out_dir)
+    elif os.path.isfile(src) and os.path.splitext(src)[1].lower() in MESH_SUFFIXES:
+        inputs = [os.path.abspath(src)]
+        root = os.path.dirname(inputs[0])
+    elif os.path.isfile(src):
+        inputs = _manifest(src)
+        root = _common_root(inputs)
+    elif _MAGIC & set(src):
+        inputs = sorted({os.path.abspath(p) for p in glob.glob(src, recursive=True)
+                         if os.path.isfile(p) and _is_mesh(p)})
+        root = _glob_root(src)
+    else:
+        raise ValueError(f"{src}: no such folder, file or glob match")
+    if not inputs:
+        raise ValueError(f"{src}: no mesh files ({', '.join(MESH_SUFFIXES)}) found")
+    return [_asset(path, root, out_dir) for path in inputs]
+
+
+def _is_mesh(path: str) -> bool:
+    return os.path.splitext(path)[1].lower() in MESH_SUFFIXES
+
+
+def _inside(path: str, folder: str) -> bool:
+    return os.path.commonpath([path, folder]) == folder
+
+
+def _walk(root: str, out_dir: str) -> list[str]:
+    found = []
+    for here, dirs, files in os.walk(root):
+        dirs[:] = sorted(d for d in dirs if not _inside(os.path.join(here, d), out_dir))
+        found.extend(os.path.join(here, f) for f in files if _is_mesh(f))
+    return sorted(found)
+
+
+def _manifest(path: str) -> list[str]:
+    base = os.path.dirname(os.path.abspath(path))
+    with open(path, encoding="utf-8") as fh:
+        try:
+            lines = fh.read(1 << 26).splitlines()
+        except UnicodeDecodeError:
+            raise ValueError(f"{path}: not a mesh file and not a manifest (one path a line, UTF-8)") from None
+    entries = [line.strip() for line in lines]
+    named = [os.path.abspath(os.path.join(base, e)) for e in entries if e and not e.startswith("#")]
+    return list(dict.fromkeys(named))  # duplicates once, order kept
+
+
+def _glob_root(pattern: str) -> str:
+    """The folder a glob starts from: its leading components without ``* ? [``."""
+    parts = pattern.split(os.sep)
+    fixed = []
+    for part in parts[:-1]:
+        if _MAGIC & set(part):
+            break
+        fixed.append(part)
+    return os.path.abspath(os.sep.join(fixed) or ("/" if pattern.startswith(os.sep) else "."))
+
+
+def _common_root(inputs: list[str]) -> str:
+    if not inputs:
+        return os.getcwd()
+    return os.path.commonpath([os.path.dirname(p) for p in inputs])
+
+
+def _asset(path: str, root: str, out_dir: str) -> Asset:
+    relative = os.path.relpath(path, root)
+    output = os.path.join(out_dir, relative + PMW_SUFFIX)
+    if not _inside(os.path.abspath(output), out_dir):  # cannot happen: root is a parent of path
+        raise ValueError(f"{path}: its output would leave {out_dir}")
+    return Asset(path, relative.replace(os.sep, "/"), output)

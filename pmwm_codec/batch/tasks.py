@@ -1,0 +1,183 @@
+"""The functions Dask runs on the workers: one asset per call, a ledger row back, never a hang.
+
+:func:`encode_task` hashes the input, skips it when the ledger says it is done, and
+otherwise encodes it in a child process (:mod:`pmwm_codec.batch.child`) that it kills at
+the timeout; :func:`verify_task` verifies one ``.pmw``.  Both return plain dicts and
+never raise for a bad asset.
+"""
+
+from __future__ import annotations
+
+import glob
+import json
+import multiprocessing
+import os
+import pickle
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+
+from .child import child_main
+from .ledger import sha256_file
+
+__all__ = ["EncodeJob", "encode_task", "verify_task"]
+
+#: Imported once by each worker's forkserver, so that a forked encoder starts warm.
+_PRELOAD = ["pmwm_codec.batch.child", "pmwm_codec.stream.asset", "pmwm_codec.stream.encoder", "pmwm_codec.meshio",
+            "DracoPy", "jsonschema", "PIL.PngImagePlugin"]
+
+
+@dataclass(frozen=True)
+class EncodeJob:
+    """Everything a worker needs for one asset.
+
+    ``key``: what :func:`pmwm_codec.encode` gets (a collection WatermarkKey, a per-asset key
+    path under ``--keys-dir``, or None: a new key beside the output); ``key_path``: the
+    per-asset key file that must exist beside a done output (None for a collection key or
+    no watermark).  ``watermark``: (s, s) uint8 array or None.  ``prior_sha256`` /
+    ``prior_vertices``: the ledger's last ok/skipped row for this input, if any.
+    """
+
+    input: str
+    output: str
+    key: object = None
+    key_path: str | None = None
+    watermark: object = None
+    timeout: float | None = None
+    force: bool = False
+    prior_sha256: str | None = None
+    prior_vertices: int | None = None
+
+
+def encode_task(job: EncodeJob) -> dict:
+    """Encode (or skip) one asset; returns its ledger row."""
+    start = time.monotonic()
+    row = {"input": job.input, "input_sha256": None, "output": job.output, "status": "failed", "error": None,
+           "bytes": None, "vertices": None}
+    try:
+        row["input_sha256"] = sha256_file(job.input)
+    except OSError as exc:
+        row["error"] = f"{job.input}: {exc.strerror or exc}"
+    else:
+        if _done_before(job, row["input_sha256"]):
+            row.update(status="skipped", bytes=os.path.getsize(job.output), vertices=job.prior_vertices)
+        else:
+            row.update(_encode_in_child(job))
+    row["seconds"] = round(time.monotonic() - start, 3)
+    return row
+
+
+def _done_before(job: EncodeJob, sha: str) -> bool:
+    if job.force or job.prior_sha256 != sha or not os.path.isfile(job.output):
+        return False
+    return job.key_path is None or os.path.isfile(job.key_path)
+
+
+def _child_env() -> dict:
+    """The worker's environment, with this package importable and one thread per asset."""
+    import pmwm_codec
+
+    env = dict(os.environ)
+    home = os.path.dirname(os.path.dirname(os.path.abspath(pmwm_codec.__file__)))
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (home, env.get("PYTHONPATH")) if p)
+    for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        env.setdefault(name, "1")
+    return env
+
+
+def _encode_in_child(job: EncodeJob) -> dict:
+    """Encode in a child process killed at ``job.timeout`` seconds; a status dict back.
+
+    The child is forked from a forkserver that has the encoder imported (fast); a daemonic
+    worker (``dask worker`` by default) may not have children of its own, so there the
+    child is a fresh interpreter running :mod:`pmwm_codec.batch.child` (slower start).
+    """
+    for path in (job.output, job.key_path):
+        if path is not None:
+            os.makedirs(os.path.dirname(path), exist_ok=True)
+    _remove_leftovers(job)  # of a run killed before (one run per OUT_DIR at a time)
+    payload = {"src": job.input, "dst": job.output, "watermark": job.watermark, "key": job.key}
+    if multiprocessing.current_process().daemon:
+        result = _run_interpreter(payload, job.timeout)
+    else:
+        result = _run_forked(payload, job.timeout)
+    if result["status"] == "timeout":
+        result["error"] = f"{job.input}: no result within {job.timeout:g} s; encoder killed"
+    elif result["status"] == "failed" and job.input not in result["error"] \
+            and os.path.basename(job.input) not in result["error"]:
+        result["error"] = f"{job.input}: {result['error']}"
+    if result["status"] != "ok":
+        _remove_leftovers(job)
+    return {k: result.get(k) for k in ("status", "error", "bytes", "vertices")}
+
+
+def _run_forked(payload: dict, timeout) -> dict:
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(_PRELOAD)
+    receive, send = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=child_main, args=(payload, send), name="pmw-encode")
+    proc.start()
+    send.close()
+    try:
+        if not receive.poll(timeout):
+            proc.kill()
+            return {"status": "timeout"}
+        try:
+            return receive.recv()
+        except EOFError:
+            proc.join()
+            return {"status": "failed", "error": f"encoder process died (exit status {proc.exitcode})"}
+    finally:
+        receive.close()
+        proc.join()
+
+
+def _run_interpreter(payload: dict, timeout) -> dict:
+    proc = subprocess.Popen([sys.executable, "-m", "pmwm_codec.batch.child"], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_child_env())
+    try:
+        out, err = proc.communicate(pickle.dumps(payload), timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        return {"status": "timeout"}
+    lines = out.decode("utf-8", "replace").strip().splitlines()
+    try:
+        return json.loads(lines[-1])
+    except (IndexError, ValueError):
+        why = (err.decode("utf-8", "replace").strip().splitlines() or [""])[-1]
+        return {"status": "failed", "error": f"encoder process died (exit status {proc.returncode}) {why}".strip()}
+
+
+def _remove_leftovers(job: EncodeJob) -> None:
+    """After a killed encoder: its temporary files, and an output left without its key."""
+    for path in (job.output, job.key_path):
+        if path is None:
+            continue
+        pattern = os.path.join(glob.escape(os.path.dirname(path)), "." + glob.escape(os.path.basename(path)) + ".*.tmp")
+        for tmp in glob.glob(pattern):
+            _unlink(tmp)
+    if job.key_path is not None and os.path.isfile(job.output) and not os.path.isfile(job.key_path):
+        _unlink(job.output)
+
+
+def _unlink(path: str) -> None:
+    try:
+        os.unlink(path)
+    except OSError:
+        pass
+
+
+def verify_task(path: str, key, watermark=None) -> dict:
+    """Verify one ``.pmw`` with ``key`` (WatermarkKey or key path): ``{file, verdict, error}``."""
+    from pmwm_codec.errors import PmwError
+    from pmwm_codec.verify import verify_stream
+
+    from .child import one_line
+
+    try:
+        verdict = verify_stream(path, key, watermark).verdict
+    except (PmwError, OSError, ValueError) as exc:
+        return {"file": path, "verdict": "error", "error": one_line(exc)}
+    return {"file": path, "verdict": verdict, "error": None}

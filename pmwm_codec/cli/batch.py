@@ -1,0 +1,129 @@
+"""``pmw batch encode SRC -o OUT_DIR`` / ``pmw batch verify OUT_DIR``: whole libraries on Dask.
+
+Exit status: encode 0 when every asset is ok or skipped, 1 when some failed or timed out;
+verify 0 when every file is authentic, 1 otherwise; 2 bad usage (or Dask not installed).
+The work is :mod:`pmwm_codec.batch`; this module parses, shows progress and reports.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from .common import EXIT_NOT_AUTHENTIC, EXIT_OK, Progress, UsageError, print_json
+
+INSTALL_HINT = 'pmw batch needs Dask: pip install "pmwm_codec[batch]"'
+
+
+def _positive(kind, what):
+    def parse(text):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{what} must be a number, got {text!r}") from None
+        if not value > 0:
+            raise argparse.ArgumentTypeError(f"{what} must be > 0, got {text}")
+        return value
+    return parse
+
+
+def _cluster_options(p) -> None:
+    p.add_argument("--workers", type=_positive(int, "--workers"), metavar="N",
+                   help="local Dask worker processes (default: one per CPU)")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="run on an existing Dask cluster (tcp://host:8786) "
+                   "whose workers have pmwm_codec installed and share the file system")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
+
+
+def add_parser(sub):
+    p = sub.add_parser("batch", help="encode or verify a whole library of meshes (Dask)",
+                       description="Encode a folder, glob or manifest of meshes into a mirrored tree of .pmw "
+                                   "files, or verify such a tree, on a local or remote Dask cluster.")
+    cmds = p.add_subparsers(dest="batch_command", metavar="encode|verify", parser_class=type(p))
+    cmds.required = True
+    e = cmds.add_parser("encode", help="every mesh of SRC -> OUT_DIR/<relative path>.pmw",
+                        description="Encode every mesh (OBJ, PLY, STL, glTF/GLB) of SRC — a folder (recursively), "
+                                    "a glob or a manifest (one path a line) — into OUT_DIR/<relative path>.pmw. "
+                                    "A ledger OUT_DIR/pmw-batch.jsonl records each attempt; a re-run skips assets "
+                                    "already done with the same input. Exit 0 all ok, 1 some failed, 2 bad usage.")
+    e.add_argument("src", metavar="SRC", help="folder, glob (quote it) or manifest file")
+    e.add_argument("-o", "--output", required=True, metavar="OUT_DIR", help="output folder (created)")
+    e.add_argument("--watermark", metavar="IMG", help="watermark image for every asset")
+    keys = e.add_mutually_exclusive_group()
+    keys.add_argument("--key", metavar="KEY", help="one collection key for every asset (loaded, or created)")
+    keys.add_argument("--keys-dir", metavar="DIR", help="write each asset's key under DIR "
+                      "(default: OUT.pmw.key.json beside each output)")
+    e.add_argument("--timeout", type=_positive(float, "--timeout"), metavar="S",
+                   help="seconds per asset before its encoder is killed (default 600)")
+    e.add_argument("--force", action="store_true", help="redo assets the ledger records as done")
+    _cluster_options(e)
+    e.set_defaults(run=run_encode)
+    v = cmds.add_parser("verify", help="verify every .pmw under OUT_DIR",
+                        description="Verify every .pmw under OUT_DIR with one collection key (--key), the keys "
+                                    "under --keys-dir, or the key beside each file. Exit 0 when all are authentic.")
+    v.add_argument("out_dir", metavar="OUT_DIR")
+    keys = v.add_mutually_exclusive_group()
+    keys.add_argument("--key", metavar="KEY", help="the collection key")
+    keys.add_argument("--keys-dir", metavar="DIR", help="the folder of per-asset keys")
+    v.add_argument("--watermark", metavar="IMG", help="expected watermark image (default: the one in each key)")
+    _cluster_options(v)
+    v.set_defaults(run=run_verify)
+
+
+def _library():
+    try:
+        import distributed  # noqa: F401  (the engine; the batch modules import it when a run starts)
+    except ImportError:
+        raise UsageError(INSTALL_HINT) from None
+    from pmwm_codec import batch
+
+    return batch
+
+
+def _bar(args) -> Progress:
+    progress = Progress(not (args.json or args.quiet))
+
+    def show(c):
+        failed = c.get("failed", 0) + c.get("timeout", 0)
+        rate = "" if c.get("rate") is None else f" {c['rate']:.1f}/s"
+        progress(f"{c['done']}/{c['total']} f{failed} r{c.get('running', 0)}{rate}", c["done"] / max(1, c["total"]))
+    show.bar = progress
+    return show
+
+
+def run_encode(args) -> int:
+    batch = _library()
+    show = _bar(args)
+    try:
+        summary = batch.encode_batch(args.src, args.output, watermark=args.watermark, key=args.key,
+                                     keys_dir=args.keys_dir, workers=args.workers, scheduler=args.scheduler,
+                                     timeout=args.timeout or batch.DEFAULT_TIMEOUT, force=args.force, progress=show)
+    finally:
+        show.bar.done()
+    if args.json:
+        print_json(summary)
+    elif not args.quiet:
+        print(f"{summary['assets']} assets: {summary['ok']} ok, {summary['skipped']} skipped, "
+              f"{summary['failed']} failed, {summary['timeout']} timed out in {summary['seconds']:.1f} s; "
+              f"ledger {summary['ledger']}")
+        for row in summary["failures"]:
+            print(f"  {row['status']}: {row['error']}")
+    return EXIT_OK if not summary["failures"] else EXIT_NOT_AUTHENTIC
+
+
+def run_verify(args) -> int:
+    batch = _library()
+    show = _bar(args)
+    try:
+        outcome = batch.verify_batch(args.out_dir, key=args.key, keys_dir=args.keys_dir, watermark=args.watermark,
+                                     workers=args.workers, scheduler=args.scheduler, progress=show)
+    finally:
+        show.bar.done()
+    if args.json:
+        print_json(outcome)
+    elif not args.quiet:
+        for r in outcome["results"]:
+            if r["verdict"] != "authentic":
+                print(f"  {r['verdict']}: {r['file']}" + (f" ({r['error']})" if r["error"] else ""))
+        print(f"{outcome['authentic']} of {outcome['files']} files authentic")
+    return EXIT_OK if outcome["authentic"] == outcome["files"] else EXIT_NOT_AUTHENTIC

@@ -1,0 +1,315 @@
+"""``pmw batch``: a folder of generated meshes through Dask, the ledger, resumption, a real cluster."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import pmwm_codec
+from pmwm_codec import shapes
+from pmwm_codec.meshio import write_mesh
+
+pytest.importorskip("distributed")
+
+from pmwm_codec.batch import LEDGER_NAME, encode_batch, expand_sources, read_ledger, verify_batch  # noqa: E402
+from pmwm_codec.batch.run import dask_client  # noqa: E402
+from pmwm_codec.batch.ledger import LedgerWriter  # noqa: E402
+from pmwm_codec.batch.tasks import EncodeJob, encode_task  # noqa: E402
+from pmwm_codec.cli import main  # noqa: E402
+from pmwm_codec.verify import verify_stream  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+GOOD = {
+    "a.obj": lambda: shapes.icosphere(3, noise=0.01, seed=1),
+    "b.ply": lambda: shapes.icosphere(3, noise=0.02, seed=2),
+    "sub/c.stl": lambda: shapes.torus(30, 16),
+    "sub/d.glb": lambda: shapes.torus(32, 16, twist=0.2),
+    "sub/deep/e.obj": lambda: shapes.grid(24, 24),
+    "sub/deep/f.gltf": lambda: shapes.icosphere(3, noise=0.03, seed=3),
+}
+BROKEN = {"broken.obj": b"v 1 2\nf 1 2 9\n", "sub/empty.ply": b""}
+
+
+def _library(root: Path) -> Path:
+    src = root / "src"
+    for name, make in GOOD.items():
+        (src / name).parent.mkdir(parents=True, exist_ok=True)
+        write_mesh(src / name, make())
+    for name, data in BROKEN.items():
+        (src / name).write_bytes(data)
+    (src / "notes.txt").write_text("not a mesh\n")
+    return src
+
+
+@pytest.fixture(scope="module")
+def library(tmp_path_factory):
+    root = tmp_path_factory.mktemp("batch")
+    src = _library(root)
+    image = (np.indices((8, 8)).sum(0) % 2 * 255).astype(np.uint8)
+    from PIL import Image
+
+    Image.fromarray(image).save(root / "wm.png")
+    return root, src
+
+
+@pytest.fixture(scope="module")
+def client():
+    """One local Dask cluster (two worker processes) for the in-process runs of this module."""
+    with dask_client(workers=2) as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def first_run(library):
+    root, src = library
+    out = root / "out"
+    status, doc = _run_json(["batch", "encode", str(src), "-o", str(out), "--watermark", str(root / "wm.png"),
+                             "--workers", "2"])
+    return out, status, doc
+
+
+def _run_json(argv):
+    """``pmw argv --json`` in a subprocess: (exit status, the JSON object)."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    done = subprocess.run([sys.executable, "-m", "pmwm_codec", *argv, "--json"], capture_output=True, env=env,
+                          timeout=300)
+    return done.returncode, json.loads(done.stdout) if done.stdout.strip() else done.stderr.decode()
+
+
+def _last_statuses(out: Path) -> dict:
+    return {Path(r["input"]).name: r["status"] for r in read_ledger(out / LEDGER_NAME)}
+
+
+def test_batch_encode_writes_outputs_that_decode_and_verify_and_a_ledger_row_per_asset(first_run, library):
+    out, status, doc = first_run
+    root, src = library
+    assert status == 1 and doc["ok"] == len(GOOD) and doc["failed"] == len(BROKEN)
+    for name, make in GOOD.items():
+        pmw = out / (name + ".pmw")
+        assert pmwm_codec.decode(pmw).positions.shape == make().positions.shape
+        assert verify_stream(pmw, str(pmw) + ".key.json").verdict == "authentic"
+    rows = read_ledger(out / LEDGER_NAME)
+    assert sorted(Path(r["input"]).relative_to(src).as_posix() for r in rows) == sorted([*GOOD, *BROKEN])
+    for r in rows:
+        if r["status"] == "ok":
+            assert r["bytes"] == os.path.getsize(r["output"]) and r["vertices"] > 0 and r["error"] is None
+        else:
+            assert r["status"] == "failed" and not os.path.exists(r["output"])
+    errors = {Path(r["input"]).name: r["error"] for r in rows if r["status"] == "failed"}
+    assert "malformed OBJ" in errors["broken.obj"] and "empty.ply" in errors["empty.ply"]
+    assert not list(out.rglob("*.tmp")) and not (out / "notes.txt.pmw").exists()
+
+
+def test_second_run_skips_done_assets_and_retries_failed_ones(first_run, library, client):
+    out, _, _ = first_run
+    root, src = library
+    before = {p: p.read_bytes() for p in out.rglob("*.pmw")}
+    doc = encode_batch(src, out, watermark=root / "wm.png", client=client)
+    assert doc["skipped"] == len(GOOD) and doc["failed"] == len(BROKEN) and doc["ok"] == 0
+    assert len(read_ledger(out / LEDGER_NAME)) == 2 * (len(GOOD) + len(BROKEN))
+    assert {p: p.read_bytes() for p in out.rglob("*.pmw")} == before
+
+
+def test_changed_input_or_missing_key_is_redone_and_the_rest_skipped(tmp_path, client):
+    src = tmp_path / "src"
+    src.mkdir()
+    write_mesh(src / "a.obj", shapes.icosphere(3, noise=0.01, seed=1))
+    write_mesh(src / "b.obj", shapes.icosphere(3, noise=0.01, seed=2))
+    image = np.full((4, 4), 255, np.uint8)
+    image[::2] = 0
+    out = tmp_path / "out"
+    assert encode_batch(src, out, watermark=image, client=client)["ok"] == 2
+    write_mesh(src / "a.obj", shapes.icosphere(3, noise=0.01, seed=7))
+    os.unlink(out / "b.obj.pmw.key.json")
+    summary = encode_batch(src, out, watermark=image, client=client)
+    assert (summary["ok"], summary["skipped"]) == (2, 0)
+    assert verify_batch(out, client=client)["authentic"] == 2
+    assert encode_batch(src, out, watermark=image, client=client, force=True)["ok"] == 2
+
+
+def test_sigkill_of_the_process_group_halfway_then_rerun_finishes_consistently(library, tmp_path, client):
+    root, src = library
+    out = tmp_path / "out"
+    argv = [sys.executable, "-m", "pmwm_codec", "batch", "encode", str(src), "-o", str(out),
+            "--watermark", str(root / "wm.png"), "--workers", "1", "-q"]
+    proc = subprocess.Popen(argv, env=dict(os.environ, PYTHONPATH=str(ROOT)), start_new_session=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 240
+        while len(read_ledger(out / LEDGER_NAME)) < 3 and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    done_before = len(read_ledger(out / LEDGER_NAME))
+    assert 3 <= done_before < len(GOOD) + len(BROKEN)  # killed halfway, not after the end
+    doc = encode_batch(src, out, watermark=root / "wm.png", client=client)
+    assert doc["ok"] + doc["skipped"] == len(GOOD) and doc["failed"] == len(BROKEN)
+    last = _last_statuses(out)
+    assert {n: last[Path(n).name] for n in BROKEN} == dict.fromkeys(BROKEN, "failed")
+    assert {last[Path(n).name] for n in GOOD} <= {"ok", "skipped"}
+    for name in GOOD:
+        pmw = out / (name + ".pmw")
+        assert verify_stream(pmw, str(pmw) + ".key.json").verdict == "authentic"
+    assert sorted(p.name for p in out.rglob("*.pmw")) == sorted(Path(n).name + ".pmw" for n in GOOD)
+    assert not list(out.rglob("*.tmp"))
+
+
+def test_a_timed_out_asset_is_killed_and_leaves_nothing(tmp_path):
+    src = tmp_path / "big.obj"
+    write_mesh(src, shapes.icosphere(5, noise=0.01))
+    out = tmp_path / "out" / "big.obj.pmw"
+    row = encode_task(EncodeJob(str(src), str(out), key_path=str(out) + ".key.json",
+                                watermark=np.full((8, 8), 255, np.uint8), timeout=0.05))
+    assert row["status"] == "timeout" and "killed" in row["error"]
+    assert sorted(os.listdir(out.parent)) == []
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _wait_for_workers(address: str, count: int, timeout: float = 120) -> None:
+    from distributed import Client
+
+    with Client(address, timeout="60s") as client:
+        client.wait_for_workers(count, timeout=timeout)
+
+
+def test_a_dask_scheduler_and_two_workers_give_the_same_bytes_as_the_local_run(library, tmp_path, client):
+    root, src = library
+    dask = shutil.which("dask", path=os.path.dirname(sys.executable)) or shutil.which("dask")
+    if dask is None:
+        pytest.skip("the dask command is not installed")
+    key = tmp_path / "collection.key.json"
+    local, remote = tmp_path / "local", tmp_path / "remote"
+    common = ["--watermark", str(root / "wm.png"), "--key", str(key)]
+    doc = encode_batch(src, local, watermark=root / "wm.png", key=key, client=client)
+    assert doc["ok"] == len(GOOD)
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
+                              env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)]
+    try:
+        for _ in range(2):
+            procs.append(subprocess.Popen([dask, "worker", address, "--host", "127.0.0.1", "--nthreads", "1",
+                                           "--no-dashboard"], env=env, stdout=subprocess.DEVNULL,
+                                          stderr=subprocess.DEVNULL, start_new_session=True))
+        _wait_for_workers(address, 2)
+        status, doc = _run_json(["batch", "encode", str(src), "-o", str(remote), *common, "--scheduler", address])
+        assert status == 1 and doc["ok"] == len(GOOD) and doc["failed"] == len(BROKEN)
+        status, doc = _run_json(["batch", "verify", str(remote), "--key", str(key), "--scheduler", address])
+        assert status == 0 and doc["authentic"] == doc["files"] == len(GOOD)
+    finally:
+        for proc in reversed(procs):
+            os.killpg(proc.pid, signal.SIGTERM)
+        for proc in reversed(procs):
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+    for name in GOOD:
+        assert (remote / (name + ".pmw")).read_bytes() == (local / (name + ".pmw")).read_bytes()
+    assert not list(remote.rglob("*.key.json")) and not list(local.rglob("*.key.json"))
+
+
+def test_batch_verify_reports_a_file_verified_with_another_key_as_not_authentic(first_run, tmp_path, client):
+    out, _, _ = first_run
+    tree = tmp_path / "tree"
+    shutil.copytree(out, tree)
+    keys = sorted(tree.rglob("*.pmw.key.json"))
+    shutil.copy(keys[0], keys[1])
+    doc = verify_batch(tree, client=client)
+    assert doc["authentic"] == len(GOOD) - 1
+    bad = [r for r in doc["results"] if r["verdict"] != "authentic"]
+    assert [r["file"] for r in bad] == [str(keys[1])[: -len(".key.json")]]
+
+
+def test_sources_mirror_the_tree_from_a_folder_a_glob_and_a_manifest(library, tmp_path):
+    root, src = library
+    by_folder = expand_sources(src, src / "out")
+    assert sorted(a.relative for a in by_folder) == sorted([*GOOD, *BROKEN])
+    assert all(a.output == str(src / "out" / a.relative) + ".pmw" for a in by_folder)
+    by_glob = expand_sources(str(src / "sub" / "**" / "*.obj"), tmp_path)
+    assert [a.relative for a in by_glob] == ["deep/e.obj"]
+    manifest = tmp_path / "list.txt"
+    manifest.write_text(f"# meshes\n{src / 'a.obj'}\n\n{src / 'sub' / 'c.stl'}\n{src / 'a.obj'}\n")
+    assert [a.relative for a in expand_sources(manifest, tmp_path / "o")] == ["a.obj", "sub/c.stl"]
+
+
+def test_a_folder_holding_the_output_folder_does_not_take_outputs_as_inputs(tmp_path):
+    write_mesh(tmp_path / "a.obj", shapes.icosphere(1))
+    (tmp_path / "out").mkdir()
+    write_mesh(tmp_path / "out" / "decoded.obj", shapes.icosphere(1))
+    assert [a.relative for a in expand_sources(tmp_path, tmp_path / "out")] == ["a.obj"]
+
+
+def test_the_ledger_reader_drops_a_line_cut_by_a_kill_and_the_writer_starts_a_new_line(tmp_path):
+    path = tmp_path / LEDGER_NAME
+    row = {"input": "/x.obj", "input_sha256": "0" * 64, "output": "/o/x.obj.pmw", "status": "ok", "error": None,
+           "seconds": 1.0, "bytes": 10, "vertices": 4}
+    path.write_text(json.dumps(row) + "\n" + json.dumps(row)[:30])
+    assert read_ledger(path) == [row]
+    with LedgerWriter(path) as ledger:
+        ledger.write({**row, "status": "skipped"})
+    assert [r["status"] for r in read_ledger(path)] == ["ok", "skipped"]
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["batch", "encode", "/nonexistent/src", "-o", "OUT"], "no such folder"),
+    (["batch", "encode", "SRC", "-o", "OUT", "--key", "k", "--keys-dir", "d"], "not allowed with"),
+    (["batch", "encode", "SRC", "-o", "OUT", "--workers", "0"], "--workers must be > 0"),
+    (["batch", "verify", "/nonexistent/out"], "no such folder"),
+])
+def test_bad_batch_usage_exits_2_with_one_line(argv, words, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("pmw: error:") and words in err
+
+
+def test_batch_without_dask_installed_tells_how_to_install_it(monkeypatch, capsys, tmp_path):
+    monkeypatch.setitem(sys.modules, "distributed", None)
+    assert main(["batch", "encode", str(tmp_path), "-o", str(tmp_path / "o")]) == 2
+    assert capsys.readouterr().err == 'pmw: error: pmw batch needs Dask: pip install "pmwm_codec[batch]"\n'
+
+
+def test_a_collection_key_made_for_another_watermark_is_refused(library, tmp_path, capsys):
+    root, src = library
+    key = tmp_path / "k.json"
+    other = tmp_path / "other.png"
+    from PIL import Image
+
+    Image.fromarray(np.zeros((8, 8), np.uint8)).save(other)
+    from pmwm_codec.batch.run import collection_key
+
+    collection_key(str(key), str(root / "wm.png"))
+    assert main(["batch", "encode", str(src), "-o", str(tmp_path / "o"), "--key", str(key),
+                 "--watermark", str(other)]) == 2
+    assert "another watermark image" in capsys.readouterr().err
+
+
+def test_keys_dir_holds_each_assets_key_and_batch_verify_finds_them_there(tmp_path, client):
+    src = tmp_path / "src"
+    (src / "x").mkdir(parents=True)
+    write_mesh(src / "x" / "a.obj", shapes.icosphere(3, noise=0.01, seed=4))
+    image = np.zeros((4, 4), np.uint8)
+    image[:, ::2] = 255
+    out, keys = tmp_path / "out", tmp_path / "keys"
+    assert encode_batch(src, out, watermark=image, keys_dir=keys, client=client)["ok"] == 1
+    assert (keys / "x" / "a.obj.pmw.key.json").is_file() and not list(out.rglob("*.key.json"))
+    assert verify_batch(out, keys_dir=keys, client=client)["authentic"] == 1
+    assert verify_batch(out, client=client)["results"][0]["verdict"] == "error"  # no key beside the file
