@@ -55,7 +55,7 @@ def encode(src, dst, watermark=None, key=None, **options):
     existing key file, or None (a new key; with a path ``dst`` it is saved to
     ``dst + ".key.json"``); a key object is never modified (the key saved to a key path
     holds the file's parameters and reference watermark).  Options: ``mode``, ``bits``, ``grid_bits``, ``base_codec``,
-    ``base_vertices``, ``embed_from`` (first split carrying a code: index or fraction), ``zstd_level``, ``measure``, ``strip_image_profiles`` (assets).
+    ``base_vertices``, ``embed_from`` (first split carrying a code: index or fraction), ``owner_id`` (64-bit int: the owner layer, alone or under the watermark), ``zstd_level``, ``measure``, ``strip_image_profiles`` (assets).
     Returns the report dict (the
     ``pmw encode --json`` fields, plus ``notices`` and ``key_path``).
     """
@@ -73,7 +73,7 @@ def encode(src, dst, watermark=None, key=None, **options):
     image, notices = _as_watermark(watermark)
     key_path = None
     key_obj = None
-    if image is not None:
+    if image is not None or options.get("owner_id") is not None:
         if isinstance(key, (str, os.PathLike)) and os.path.exists(key):
             key_obj = load_key(key)
             key_path = os.fspath(key)
@@ -92,7 +92,10 @@ def encode(src, dst, watermark=None, key=None, **options):
         report.key.save(key_path)
     cleanup = {} if mesh is None else mesh.cleanup
     dropped = [f"dropped {v} {k.replace('_', ' ')}" for k, v in cleanup.items()]
-    return replace(report, notices=notices + report.notices + dropped, key_path=key_path).as_json()
+    doc = replace(report, notices=notices + report.notices + dropped, key_path=key_path).as_json()
+    if options.get("owner_id") is not None:
+        doc["owner_id"] = report.key.owner_hex
+    return doc
 
 
 def decode(src, chunks=None) -> Mesh:

@@ -3,6 +3,7 @@
 :func:`encode_document` runs the stages, each a function over a list of
 :class:`PrimitiveWork` records (one per primitive)::
 
+    _mark_owner             (with ``owner_id``) the owner layer on the full-resolution mesh
     _quantize_and_simplify  grid, quantized values, collapse log
     _encode_bases           base mesh (Draco or plain; its decoded vertex order is the
                             order splits refer to)
@@ -188,6 +189,8 @@ def encode_document(
     base_vertices: int | None = None,
     step_units: float | None = None,
     embed_from: int | float = 0,
+    owner_id: int | None = None,
+    owner_strength: float | None = None,
     min_chunk_splits: int | None = None,
     zstd_level: int = 10,
     measure: bool = True,
@@ -214,6 +217,9 @@ def encode_document(
         :func:`~pmwm_codec.stream.chunking.default_base_target`).
     embed_from : first vertex split (stream order, over every primitive) that carries a
         code: an int index or a float fraction in [0, 1) of the splits; stored in the file.
+    owner_id : 64-bit owner ID: mark the owner layer (:mod:`~pmwm_codec.watermark.owner`)
+        into every primitive's full-resolution positions first; the key (generated when
+        none is given) is returned carrying it.  ``owner_strength``: its margin.
     measure : compute the distortion (RMS, PSNR, Hausdorff) of the full decoded mesh.
     progress : optional callable(stage: str, fraction: float).
 
@@ -223,6 +229,9 @@ def encode_document(
     say = progress or (lambda stage, fraction: None)
     if grid_bits is None:
         grid_bits = wm.DEFAULT_GRID_BITS[mode] if watermark is not None else DEFAULT_GRID_BITS
+    if owner_id is not None:
+        key = dataclasses.replace(key if key is not None else WatermarkKey.generate(), owner_id=int(owner_id))
+        jobs = _mark_owner(jobs, key, owner_strength)
     work = _quantize_and_simplify(jobs, grid_bits, base_vertices, say)
     work, notices = _encode_bases(work, base_codec)
     work, order, slots, carriers = _plan_chunks(work, min_chunk_splits)
@@ -242,6 +251,16 @@ def encode_document(
         report, vsplits=carriers, chunks=len(order), bytes=int(size), seconds=time.perf_counter() - t0,
         base_codec=work[0].base.codec if work else base_codec, notices=notices, key=key,
     )
+
+
+def _mark_owner(jobs, key: WatermarkKey, strength) -> list:
+    """Stage 0: the owner layer on each primitive's full-resolution positions (new jobs)."""
+    from ..watermark import owner
+
+    strength = owner.DEFAULT_STRENGTH if strength is None else float(strength)
+    return [dataclasses.replace(job, mesh=dataclasses.replace(
+        job.mesh, positions=owner.embed(job.mesh.positions, job.mesh.faces, key, strength=strength)))
+        for job in jobs]
 
 
 def _quantize(mesh: Mesh, grid_bits: int) -> tuple:

@@ -5,12 +5,14 @@ A :class:`WatermarkKey` holds
 * ``secret`` — 32 random bytes; never written into a ``.pmw``;
 * ``params`` — JSON-able public parameters (bits, levels, bit layout ...), as a dict;
 * ``reference`` — optional (s, s) uint8 watermark, so ``verify`` needs no image;
-* ``file_id`` — optional string binding the key to one ``.pmw``.
+* ``file_id`` — optional string binding the key to one ``.pmw``;
+* ``owner_id`` — the 64-bit owner ID of the owner layer (:mod:`.owner`), an int; random
+  in :meth:`WatermarkKey.generate`, None in keys written before the owner layer.
 
 It is stored as a JSON file (``save``/``load``), written with mode 0600::
 
     {"format": "pmwm-key", "version": 1, "secret": "<64 hex>", "file_id": "...",
-     "params": {...}, "reference": {"width": s, "height": s, "png": "<base64 PNG>"}}
+     "owner_id": "<16 hex>", "params": {...}, "reference": {"width": s, "height": s, "png": "<base64 PNG>"}}
 
 A file may carry :meth:`WatermarkKey.fingerprint` publicly: it identifies the key
 (HMAC-SHA256 of a fixed label) without revealing the secret, so a reader can tell
@@ -84,6 +86,7 @@ class WatermarkKey:
     params: dict = field(default_factory=dict)
     reference: np.ndarray | None = None
     file_id: str | None = None
+    owner_id: int | None = None
 
     def __post_init__(self):
         if not isinstance(self.secret, (bytes, bytearray)) or len(self.secret) != SECRET_BYTES:
@@ -94,18 +97,30 @@ class WatermarkKey:
             if ref.ndim != 2 or ref.size == 0:
                 raise WatermarkKeyError(f"reference watermark must be 2-D, got shape {ref.shape}")
             self.reference = ref.astype(np.uint8)
+        if self.owner_id is not None:
+            if isinstance(self.owner_id, bool) or not isinstance(self.owner_id, (int, np.integer)) \
+                    or not 0 <= int(self.owner_id) < 1 << 64:
+                raise WatermarkKeyError("an owner id must be an integer of at most 64 bits")
+            self.owner_id = int(self.owner_id)
 
     # --- construction and storage ---------------------------------------------------------
 
     @classmethod
-    def generate(cls, rng=None, params=None, reference=None, file_id=None) -> "WatermarkKey":
-        """A new key with a random 256-bit secret.
+    def generate(cls, rng=None, params=None, reference=None, file_id=None, owner_id=None) -> "WatermarkKey":
+        """A new key with a random 256-bit secret and (unless given) a random 64-bit owner id.
 
         rng : numpy Generator, optional — only for reproducible tests; the default draws
         from the operating system (``secrets``).
         """
         secret = secrets.token_bytes(SECRET_BYTES) if rng is None else rng.bytes(SECRET_BYTES)
-        return cls(secret, dict(params or {}), reference, file_id)
+        if owner_id is None:
+            owner_id = int.from_bytes(secrets.token_bytes(8) if rng is None else rng.bytes(8), "big")
+        return cls(secret, dict(params or {}), reference, file_id, owner_id)
+
+    @property
+    def owner_hex(self) -> str | None:
+        """The owner id as 16 hex digits (None when the key has none)."""
+        return None if self.owner_id is None else f"{self.owner_id:016x}"
 
     @property
     def secret_hex(self) -> str:
@@ -119,6 +134,7 @@ class WatermarkKey:
             "secret": self.secret.hex(),
             "fingerprint": self.fingerprint(),
             "file_id": self.file_id,
+            "owner_id": self.owner_hex,
             "params": self.params,
         }
         if self.reference is not None:
@@ -157,7 +173,13 @@ class WatermarkKey:
                 raise bad(f"reference watermark unreadable: {exc}") from None
             if reference.shape != shape:
                 raise bad(f"reference watermark is {reference.shape}, declared {shape}")
-        key = cls(secret, params, reference, file_id)
+        owner_id = doc.get("owner_id")
+        if owner_id is not None:
+            try:
+                owner_id = parse_owner_id(owner_id)
+            except ValueError as exc:
+                raise bad(str(exc)) from None
+        key = cls(secret, params, reference, file_id, owner_id)
         if "fingerprint" in doc and doc["fingerprint"] != key.fingerprint():
             raise bad("fingerprint does not match the secret")
         return key
@@ -214,6 +236,7 @@ class WatermarkKey:
             hmac.compare_digest(self.secret, other.secret)
             and self.params == other.params
             and self.file_id == other.file_id
+            and self.owner_id == other.owner_id
             and same_ref
         )
 
@@ -247,6 +270,15 @@ class WatermarkKey:
             raise ValueError(f"n must be >= 0, got {n}")
         raw = np.frombuffer(self._stream(b"bits", stream_id, (n + 7) // 8), dtype=np.uint8)
         return np.unpackbits(raw, bitorder="little")[:n]
+
+
+def parse_owner_id(text) -> int:
+    """An owner id from 1-16 hexadecimal digits (``0x`` allowed); ValueError otherwise."""
+    s = str(text).strip().lower()
+    s = s[2:] if s.startswith("0x") else s
+    if not 1 <= len(s) <= 16 or any(ch not in "0123456789abcdef" for ch in s):
+        raise ValueError(f"owner id {text!r} is not 1 to 16 hexadecimal digits")
+    return int(s, 16)
 
 
 def as_key(key) -> WatermarkKey | None:
