@@ -121,8 +121,9 @@ def test_cli_owner_only_encode_then_blind_verify_of_the_decoded_mesh(tmp_path, b
     assert main(["decode", str(out), "-o", str(tmp_path / "d.ply")]) == 0
     capsys.readouterr()
     assert main(["verify", str(tmp_path / "d.ply"), "--key", str(key), "--json"]) == 0
-    doc = json.loads(capsys.readouterr().out)
-    assert doc["owner"]["verdict"] == "present" and doc["owner"]["id"] == "00c0ffee00c0ffee"
+    doc = json.loads(capsys.readouterr().out)  # the CLI's key is random: a few bit errors may occur
+    assert doc["owner"]["verdict"] == "present" and doc["owner"]["bits"] == 64
+    assert bin(int(doc["owner"]["id"], 16) ^ 0x00C0FFEE00C0FFEE).count("1") == doc["owner"]["bit_errors"] <= 8
     assert main(["verify", str(src), "--key", str(key), "-q"]) == 1  # the unmarked original
     assert main(["verify", str(out), "--key", str(key), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)

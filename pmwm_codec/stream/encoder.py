@@ -246,6 +246,8 @@ def encode_document(
         key = dataclasses.replace(
             key, file_id=file_id, params=params.get_config(), reference=np.asarray(watermark, np.uint8)
         )
+    if key is not None and owner_id is None and key.owner_id is not None:
+        key = dataclasses.replace(key, owner_id=None)  # the key names an owner id only if the layer is there
     report = _report(work, params, measure, say)
     return dataclasses.replace(
         report, vsplits=carriers, chunks=len(order), bytes=int(size), seconds=time.perf_counter() - t0,
