@@ -58,7 +58,7 @@ def encode(src, dst, watermark=None, key=None, **options):
     (WatermarkKeyError, nothing written) otherwise or when it is a symbolic link; a new one
     is written (0600) just before the ``.pmw``, so a failure at any moment leaves the old
     pair or the new one.  Options: ``mode``, ``bits``, ``grid_bits``, ``base_codec``,
-    ``base_vertices``, ``embed_from`` (first split carrying a code: index or fraction), ``zstd_level``, ``measure`` (``"vertices"`` | ``"sampled"`` |
+    ``base_vertices``, ``embed_from`` (first split carrying a code: index or fraction), ``owner_id`` (64-bit int: the owner layer, alone or under the watermark), ``zstd_level``, ``measure`` (``"vertices"`` | ``"sampled"`` |
     ``"none"``), ``strip_image_profiles`` (assets).
     Returns the report dict (the
     ``pmw encode --json`` fields, plus ``notices`` and ``key_path``).
@@ -75,7 +75,7 @@ def encode(src, dst, watermark=None, key=None, **options):
 
         raise InputFormatError(f"{src}: no such file")
     image, notices = _as_watermark(watermark)
-    key_obj, key_slot = _key_for(key, image, dst)
+    key_obj, key_slot = _key_for(key, image, dst, options.get("owner_id"))
     options["key_slot"] = key_slot
     if asset:
         report = encode_asset(src, dst, watermark=image, key=key_obj, **options)
@@ -85,25 +85,29 @@ def encode(src, dst, watermark=None, key=None, **options):
     key_path = None if key_slot is None else key_slot.path
     cleanup = {} if mesh is None else mesh.cleanup
     dropped = [f"dropped {v} {k.replace('_', ' ')}" for k, v in cleanup.items()]
-    return replace(report, notices=notices + report.notices + dropped, key_path=key_path).as_json()
+    doc = replace(report, notices=notices + report.notices + dropped, key_path=key_path).as_json()
+    if options.get("owner_id") is not None:
+        doc["owner_id"] = report.key.owner_hex
+    return doc
 
 
-def _key_for(key, image, dst) -> tuple:
-    """``(key object or None, KeySlot or None)`` for an encode of ``image`` to ``dst``.
+def _key_for(key, image, dst, owner_id=None) -> tuple:
+    """``(key object or None, KeySlot or None)`` for an encode of ``image`` (and/or the owner
+    layer ``owner_id``) to ``dst``.
 
     Checked before any work: a refused key file costs nothing.
     """
     from .stream.encoder import default_key_path
     from .watermark.key import KeySlot
 
-    if image is None:
+    if image is None and owner_id is None:
         return None, None
     if key is not None and not isinstance(key, (str, os.PathLike)):
         return key, None
     path = default_key_path(dst) if key is None else key
     if path is None:
         return None, None
-    slot = KeySlot.open(path, image)
+    slot = KeySlot.open(path, image, owner_id)
     return slot.existing, slot
 
 

@@ -38,6 +38,15 @@ def _start(text):
     return value
 
 
+def _owner_id(text):
+    from pmwm_codec.watermark.key import parse_owner_id
+
+    try:
+        return parse_owner_id(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"--owner-id: {exc}") from None
+
+
 def add_parser(sub):
     p = sub.add_parser(
         "encode", help="mesh (+ watermark) -> progressive .pmw",
@@ -47,6 +56,9 @@ def add_parser(sub):
     p.add_argument("input", help="mesh file")
     p.add_argument("-o", "--output", required=True, metavar="OUT.pmw", help="the .pmw to write")
     p.add_argument("--watermark", metavar="IMG", help="grayscale watermark image (made square, 2^k)")
+    p.add_argument("--owner-id", type=_owner_id, metavar="HEX",
+                   help="mark a 64-bit owner ID (1-16 hex digits) that survives transport and processing, read "
+                        "blind by 'pmw verify MESH --key KEY'; alone, without --watermark, it is the only mark")
     p.add_argument("--key", metavar="KEY", help="key file to use (if it exists) or to write (default: OUT.pmw.key.json)")
     p.add_argument("--mode", choices=MODES, default="exact", help="exact (default: bit-exact watermark) or paper (Eq. 4)")
     p.add_argument("--bits", type=_int_in(1, MAX_BITS, "--bits"), metavar="B", help="bits per code (default: automatic)")
@@ -81,13 +93,13 @@ def run(args) -> int:
     progress = Progress(not (args.json or args.quiet))
     options = {"mode": args.mode, "base_codec": args.base_codec, "measure": args.measure,
                "progress": stage_progress(progress)}
-    for name in ("bits", "grid_bits", "base_vertices", "embed_from"):
+    for name in ("bits", "grid_bits", "base_vertices", "embed_from", "owner_id"):
         if getattr(args, name) is not None:
             options[name] = getattr(args, name)
     if args.strip_image_profiles:
         options["strip_image_profiles"] = True
     extra = []
-    if args.key is not None and args.watermark is None:
+    if args.key is not None and args.watermark is None and args.owner_id is None:
         extra.append("--key ignored: no --watermark, so the file carries no mark and needs no key")
     if args.embed_from is not None and args.watermark is None:
         extra.append("--embed-from ignored: no --watermark")
@@ -144,6 +156,9 @@ def summary(src, dst, r) -> str:
             lines.append(f"  key         {r['key_path']}  (secret: verify needs it)")
     else:
         lines.append("  watermark   none")
+    if r.get("owner_id"):
+        lines.append(f"  owner       {r['owner_id']} (64-bit owner layer)"
+                     + (f", key {r['key_path']}" if r.get("key_path") and not w else ""))
     for note in r.get("notices") or []:
         lines.append(f"  note: {note}")
     return "\n".join(lines)

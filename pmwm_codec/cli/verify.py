@@ -1,7 +1,10 @@
 """``pmw verify IN.pmw|- --key KEY``: read the watermark at every chunk boundary and decide.
 
-Exit status: 0 authentic; 1 not-authentic or inconclusive; 2 bad input.  A chunk whose keyed
-MAC fails is named on its own line ("chunk 7: not written by the key holder (MAC mismatch)").
+``pmw verify MESH --key KEY`` (OBJ, PLY, STL, glTF/GLB, no ``--reference``) reads the owner
+layer blind.  Exit status: 0 authentic (a mesh: owner ``present``; a ``.pmw`` without an
+image watermark: owner ``present`` at the end); 1 not-authentic, absent or inconclusive;
+2 bad input.  A chunk whose keyed MAC fails is named on its own line ("chunk 7: not written
+by the key holder (MAC mismatch)").
 """
 
 from __future__ import annotations
@@ -41,16 +44,31 @@ def _check_common(args) -> None:
         raise UsageError(f"{args.frames}: exists and is not a directory (--frames needs a directory)")
 
 
+def _is_mesh_file(path: str) -> bool:
+    from pmwm_codec.mesh import MESH_SUFFIXES
+
+    return path != "-" and os.path.splitext(path)[1].lower() in MESH_SUFFIXES
+
+
 def run(args) -> int:
     if args.reference is not None:
         return run_reference(args)
+    if _is_mesh_file(args.input):
+        return run_owner(args)
     check_input_file(args.input, ".pmw file")
     _check_common(args)
     progress = Progress(not (args.json or args.quiet))
+    source = args.input
     try:
         with naming(args.input):
-            outcome = verify_stream(args.input, args.key, args.watermark, keep_meshes=args.frames is not None,
+            key = pmwm_codec.load_key(args.key)
+            if key.owner_id is not None and source == "-":
+                from pmwm_codec.sources import read_all
+
+                source = read_all(source)  # read twice below: the image, then the owner layer
+            outcome = verify_stream(source, key, args.watermark, keep_meshes=args.frames is not None,
                                     progress=progress)
+            owners = _owner_boundaries(source, key)
     finally:
         progress.done()
     pictures = None
@@ -63,12 +81,61 @@ def run(args) -> int:
                                  bytes_received=outcome.end.bytes_read)
     if args.json:
         doc = outcome.as_json()
+        if owners:
+            for chunk, boundary in zip(doc["chunks"], owners):
+                chunk["owner"] = boundary.owner.as_json()
+            doc["owner"] = owners[-1].owner.as_json()
         if pictures is not None:
             doc["pictures"] = pictures
         print_json(doc)
     elif not args.quiet:
         print(report(outcome, pictures))
+        if owners:
+            print(owner_report(owners))
+    if not outcome.marked and owners:  # an owner-only file: the owner layer decides
+        return EXIT_OK if owners[-1].owner.verdict == "present" else EXIT_NOT_AUTHENTIC
     return EXIT_OK if outcome.verdict == "authentic" else EXIT_NOT_AUTHENTIC
+
+
+def _owner_boundaries(source, key) -> list:
+    """The owner layer at every chunk boundary (empty when the key carries no owner id)."""
+    if key.owner_id is None:
+        return []
+    from pmwm_codec.verify.owner import owner_of_stream
+
+    return owner_of_stream(source, key)
+
+
+def owner_report(owners) -> str:
+    """Human lines: the owner layer per chunk boundary, and from how many bytes it is present."""
+    lines = [f"{'chunk':>5} {'bytes':>11} {'vertices':>9}  owner"]
+    for b in owners:
+        o = b.owner
+        lines.append(f"{b.chunk:>5} {b.bytes_read:>11,} {b.vertices:>9,}  {o.verdict} ({o.bit_errors}/64 bit errors, "
+                     f"P_fa {o.false_alarm_probability:.1e})")
+    first = next((b for b in owners if b.owner.verdict == "present"), None)
+    lines.append(f"owner {owners[-1].owner.id}: {owners[-1].owner.verdict}"
+                 + (f" (present from {first.bytes_read:,} bytes)" if first else ""))
+    return "\n".join(lines)
+
+
+def run_owner(args) -> int:
+    """``pmw verify MESH --key KEY``: the owner layer, read blind from any mesh file."""
+    from pmwm_codec.verify.owner import owner_of_mesh
+
+    check_input_file(args.input, "mesh file")
+    check_input_file(args.key, "key file")
+    with naming(args.input):
+        mesh = pmwm_codec.read_mesh(args.input)
+    with naming(args.key):
+        o = owner_of_mesh(mesh, args.key)
+    if args.json:
+        print_json({"input": args.input, "vertices": mesh.vertex_count, "owner": o.as_json(), "verdict": o.verdict})
+    elif not args.quiet:
+        print(f"{args.input}: {mesh.vertex_count:,} vertices; owner {o.id}: {o.bit_errors}/64 bit errors, "
+              f"false-alarm probability {o.false_alarm_probability:.2e}")
+        print(f"verdict: {o.verdict}")
+    return EXIT_OK if o.verdict == "present" else EXIT_NOT_AUTHENTIC
 
 
 def run_reference(args) -> int:

@@ -3,6 +3,7 @@
 :func:`encode_document` runs the stages, each a function over a list of
 :class:`PrimitiveWork` records (one per primitive)::
 
+    _mark_owner             (with ``owner_id``) the owner layer on the full-resolution mesh
     _quantize_and_simplify  grid, quantized values, collapse log
     _encode_bases           base mesh (Draco or plain; its decoded vertex order is the
                             order splits refer to)
@@ -191,6 +192,8 @@ def encode_document(
     base_vertices: int | None = None,
     step_units: float | None = None,
     embed_from: int | float = 0,
+    owner_id: int | None = None,
+    owner_strength: float | None = None,
     min_chunk_splits: int | None = None,
     zstd_level: int = 10,
     measure="vertices",
@@ -218,6 +221,9 @@ def encode_document(
         :func:`~pmwm_codec.stream.chunking.default_base_target`).
     embed_from : first vertex split (stream order, over every primitive) that carries a
         code: an int index or a float fraction in [0, 1) of the splits; stored in the file.
+    owner_id : 64-bit owner ID: mark the owner layer (:mod:`~pmwm_codec.watermark.owner`)
+        into every primitive's full-resolution positions first; the key (generated when
+        none is given) is returned carrying it.  ``owner_strength``: its margin.
     measure : how to measure the distortion of the full decoded mesh (see
         :func:`~pmwm_codec.distortion.full_distortion`): ``"vertices"`` (default, exact RMS
         and PSNR, Hausdorff bounded by the largest vertex displacement), ``"sampled"``
@@ -236,6 +242,9 @@ def encode_document(
     measure = measure_method(measure)  # a bad value fails before any work
     if grid_bits is None:
         grid_bits = wm.DEFAULT_GRID_BITS[mode] if watermark is not None else DEFAULT_GRID_BITS
+    if owner_id is not None:
+        key = dataclasses.replace(key if key is not None else WatermarkKey.generate(), owner_id=int(owner_id))
+        jobs = _mark_owner(jobs, key, owner_strength)
     work = _quantize_and_simplify(jobs, grid_bits, base_vertices, say)
     work, notices = _encode_bases(work, base_codec)
     work, order, slots, carriers = _plan_chunks(work, min_chunk_splits)
@@ -252,6 +261,8 @@ def encode_document(
         key = dataclasses.replace(
             key, file_id=file_id, params=params.get_config(), reference=np.asarray(watermark, np.uint8)
         )
+    if key is not None and owner_id is None and key.owner_id is not None:
+        key = dataclasses.replace(key, owner_id=None)  # the key names an owner id only if the layer is there
     say("write", 0.0)
     mac_key = key.mac_key() if params is not None else None  # marked files carry keyed MACs
     size = _publish(dst, assemble_document(doc, kept_bin, prims, order, zstd_level, mac_key), key, key_slot)
@@ -260,6 +271,16 @@ def encode_document(
         report, vsplits=carriers, chunks=len(order), bytes=int(size), seconds=time.perf_counter() - t0,
         base_codec=work[0].base.codec if work else base_codec, notices=notices, key=key,
     )
+
+
+def _mark_owner(jobs, key: WatermarkKey, strength) -> list:
+    """Stage 0: the owner layer on each primitive's full-resolution positions (new jobs)."""
+    from ..watermark import owner
+
+    strength = owner.DEFAULT_STRENGTH if strength is None else float(strength)
+    return [dataclasses.replace(job, mesh=dataclasses.replace(
+        job.mesh, positions=owner.embed(job.mesh.positions, job.mesh.faces, key, strength=strength)))
+        for job in jobs]
 
 
 def _quantize(mesh: Mesh, grid_bits: int) -> tuple:

@@ -5,7 +5,9 @@ A :class:`WatermarkKey` holds
 * ``secret`` — 32 random bytes; never written into a ``.pmw``;
 * ``params`` — JSON-able public parameters (bits, levels, bit layout ...), as a dict;
 * ``reference`` — optional (s, s) uint8 watermark, so ``verify`` needs no image;
-* ``file_id`` — optional string: the ``.pmw`` the key was made for.
+* ``file_id`` — optional string: the ``.pmw`` the key was made for;
+* ``owner_id`` — the 64-bit owner ID of the owner layer (:mod:`.owner`), an int; random
+  in :meth:`WatermarkKey.generate`, None in keys written before the owner layer.
 
 ``params`` and ``file_id`` describe the first file a key file marked; they are
 informational (verification takes the parameters and the public fingerprint from the
@@ -15,7 +17,7 @@ It is stored as a JSON file (``save``/``load``), written atomically with mode 06
 never through a symbolic link::
 
     {"format": "pmwm-key", "version": 1, "secret": "<64 hex>", "file_id": "...",
-     "params": {...}, "reference": {"width": s, "height": s, "png": "<base64 PNG>"}}
+     "owner_id": "<16 hex>", "params": {...}, "reference": {"width": s, "height": s, "png": "<base64 PNG>"}}
 
 A file may carry :meth:`WatermarkKey.fingerprint` publicly: it identifies the key
 (HMAC-SHA256 of a fixed label) without revealing the secret, so a reader can tell
@@ -99,6 +101,7 @@ class WatermarkKey:
     params: dict = field(default_factory=dict)
     reference: np.ndarray | None = None
     file_id: str | None = None
+    owner_id: int | None = None
 
     def __post_init__(self):
         if not isinstance(self.secret, (bytes, bytearray)) or len(self.secret) != SECRET_BYTES:
@@ -109,18 +112,30 @@ class WatermarkKey:
             if ref.ndim != 2 or ref.size == 0:
                 raise WatermarkKeyError(f"reference watermark must be 2-D, got shape {ref.shape}")
             self.reference = ref.astype(np.uint8)
+        if self.owner_id is not None:
+            if isinstance(self.owner_id, bool) or not isinstance(self.owner_id, (int, np.integer)) \
+                    or not 0 <= int(self.owner_id) < 1 << 64:
+                raise WatermarkKeyError("an owner id must be an integer of at most 64 bits")
+            self.owner_id = int(self.owner_id)
 
     # --- construction and storage ---------------------------------------------------------
 
     @classmethod
-    def generate(cls, rng=None, params=None, reference=None, file_id=None) -> "WatermarkKey":
-        """A new key with a random 256-bit secret.
+    def generate(cls, rng=None, params=None, reference=None, file_id=None, owner_id=None) -> "WatermarkKey":
+        """A new key with a random 256-bit secret and (unless given) a random 64-bit owner id.
 
         rng : numpy Generator, optional — only for reproducible tests; the default draws
         from the operating system (``secrets``).
         """
         secret = secrets.token_bytes(SECRET_BYTES) if rng is None else rng.bytes(SECRET_BYTES)
-        return cls(secret, dict(params or {}), reference, file_id)
+        if owner_id is None:
+            owner_id = int.from_bytes(secrets.token_bytes(8) if rng is None else rng.bytes(8), "big")
+        return cls(secret, dict(params or {}), reference, file_id, owner_id)
+
+    @property
+    def owner_hex(self) -> str | None:
+        """The owner id as 16 hex digits (None when the key has none)."""
+        return None if self.owner_id is None else f"{self.owner_id:016x}"
 
     @property
     def secret_hex(self) -> str:
@@ -134,6 +149,7 @@ class WatermarkKey:
             "secret": self.secret.hex(),
             "fingerprint": self.fingerprint(),
             "file_id": self.file_id,
+            "owner_id": self.owner_hex,
             "params": self.params,
         }
         if self.reference is not None:
@@ -177,7 +193,13 @@ class WatermarkKey:
                 raise bad(f"reference watermark unreadable: {exc}") from None
             if reference.shape != shape:
                 raise bad(f"reference watermark is {reference.shape}, declared {shape}")
-        key = cls(secret, params, reference, file_id)
+        owner_id = doc.get("owner_id")
+        if owner_id is not None:
+            try:
+                owner_id = parse_owner_id(owner_id)
+            except ValueError as exc:
+                raise bad(str(exc)) from None
+        key = cls(secret, params, reference, file_id, owner_id)
         if "fingerprint" in doc and doc["fingerprint"] != key.fingerprint():
             raise bad("fingerprint does not match the secret")
         return key
@@ -243,6 +265,7 @@ class WatermarkKey:
             hmac.compare_digest(self.secret, other.secret)
             and self.params == other.params
             and self.file_id == other.file_id
+            and self.owner_id == other.owner_id
             and same_ref
         )
 
@@ -282,6 +305,15 @@ class WatermarkKey:
         return self._stream(b"mac", 0, 32)
 
 
+def parse_owner_id(text) -> int:
+    """An owner id from 1-16 hexadecimal digits (``0x`` allowed); ValueError otherwise."""
+    s = str(text).strip().lower()
+    s = s[2:] if s.startswith("0x") else s
+    if not 1 <= len(s) <= 16 or any(ch not in "0123456789abcdef" for ch in s):
+        raise ValueError(f"owner id {text!r} is not 1 to 16 hexadecimal digits")
+    return int(s, 16)
+
+
 def as_key(key) -> WatermarkKey | None:
     """A :class:`WatermarkKey` from a key object or a key file path (None stays None)."""
     if key is None or isinstance(key, WatermarkKey):
@@ -315,13 +347,14 @@ class KeySlot:
     existing: WatermarkKey | None
 
     @classmethod
-    def open(cls, path, image) -> "KeySlot":
-        """Check ``path`` for an encode that embeds ``image`` (s, s) uint8; WatermarkKeyError if refused."""
+    def open(cls, path, image, owner_id: int | None = None) -> "KeySlot":
+        """Check ``path`` for an encode that embeds ``image`` (s, s) uint8 (None: the owner layer
+        alone) and the owner ID ``owner_id`` (None: no owner layer); WatermarkKeyError if refused."""
         path = refuse_symlink(path)
         if not os.path.lexists(path):
             return cls(path, None)
         existing = WatermarkKey.load(path)
-        _check_reusable(path, existing, image)
+        _check_reusable(path, existing, image, owner_id)
         return cls(path, existing)
 
     def pending(self, key: WatermarkKey) -> bytes | None:
@@ -337,7 +370,7 @@ class KeySlot:
                 raise WatermarkKeyError(f"{self.path}: a key file appeared during the encode (another encode?); "
                                         "it is left untouched and nothing was written")
             return key.to_text()
-        if now is None or now.secret != self.existing.secret or not _same_image(now.reference, key.reference):
+        if now is None or now.secret != self.existing.secret or not _same_marks(now, key):
             raise WatermarkKeyError(f"{self.path}: the key file changed during the encode; "
                                     "it is left untouched and nothing was written")
         _make_private(self.path)
@@ -358,7 +391,21 @@ def _same_image(a, b) -> bool:
     return a is not None and b is not None and a.shape == b.shape and np.array_equal(a, b)
 
 
-def _check_reusable(path: str, key: WatermarkKey, image) -> None:
+def _same_marks(a: WatermarkKey, b: WatermarkKey) -> bool:
+    """The two keys mark alike: the same reference image (or none for both) and the same owner ID."""
+    images = (a.reference is None and b.reference is None) or _same_image(a.reference, b.reference)
+    return images and a.owner_id == b.owner_id
+
+
+def _check_reusable(path: str, key: WatermarkKey, image, owner_id: int | None = None) -> None:
+    if owner_id is not None and key.owner_id != owner_id:
+        raise WatermarkKeyError(f"{path}: this key names another owner id (or none); it is left untouched "
+                                "(name a new --key file)")
+    if image is None:
+        if key.reference is not None:
+            raise WatermarkKeyError(f"{path}: this key holds a watermark image; an owner-only encode cannot "
+                                    "reuse it (name a new --key file)")
+        return
     if key.reference is None:
         raise WatermarkKeyError(f"{path}: this key holds no reference watermark, so it cannot be reused; "
                                 "it is left untouched (name a new --key file)")

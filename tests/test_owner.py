@@ -1,0 +1,130 @@
+"""The owner layer: embed/detect round trip, keys, attacks, false alarms (generated meshes)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from pmwm_codec import shapes
+from pmwm_codec.cli import main
+from pmwm_codec.mesh import Mesh
+from pmwm_codec.watermark import owner
+from pmwm_codec.watermark.key import WatermarkKey, parse_owner_id
+
+
+@pytest.fixture(scope="module")
+def blob():
+    """An irregular closed mesh of ~10k vertices (a noisy, stretched icosphere)."""
+    m = shapes.icosphere(5, 1.0, noise=0.03, seed=3)
+    return Mesh(m.positions * np.array([1.0, 0.7, 0.5]), m.faces)
+
+
+@pytest.fixture(scope="module")
+def marked(blob):
+    key = WatermarkKey.generate(rng=np.random.default_rng(7))
+    return key, owner.embed(blob.positions, blob.faces, key)
+
+
+def _rms_of_diagonal(a, b):
+    diag = np.linalg.norm(a.max(0) - a.min(0))
+    return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))) / diag)
+
+
+def test_round_trip_reads_the_keys_owner_id_with_no_errors(blob, marked):
+    key, pos = marked
+    r = owner.detect(pos, blob.faces, key)
+    assert r.id == key.owner_hex and r.bit_errors == 0 and r.verdict == "present"
+    assert r.false_alarm_probability == pytest.approx(2.0**-64)
+    assert _rms_of_diagonal(blob.positions, pos) < 0.002
+
+
+def test_wrong_key_and_unmarked_mesh_are_absent(blob, marked):
+    key, pos = marked
+    rng = np.random.default_rng(11)
+    for _ in range(5):
+        assert owner.detect(pos, blob.faces, WatermarkKey.generate(rng=rng)).verdict != "present"
+    assert owner.detect(blob.positions, blob.faces, key).verdict != "present"
+
+
+def test_same_secret_other_owner_id_is_not_present(blob, marked):
+    key, pos = marked
+    other = WatermarkKey(key.secret, owner_id=key.owner_id ^ 0xFFFF_FFFF_0000_0000)
+    r = owner.detect(pos, blob.faces, other)
+    assert r.bit_errors >= 32 and r.verdict == "absent"
+
+
+def test_survives_similarity_reorder_float32_and_small_noise(blob, marked):
+    key, pos = marked
+    rng = np.random.default_rng(5)
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    moved = (pos @ q.T * 3.7 + [5.0, -2.0, 1.0]).astype(np.float32).astype(np.float64)
+    perm = rng.permutation(len(pos))
+    inv = np.argsort(perm)
+    r = owner.detect(moved[perm], inv[blob.faces][rng.permutation(len(blob.faces))], key)
+    assert r.bit_errors == 0 and r.verdict == "present"
+    d = np.linalg.norm(pos - pos.mean(0), axis=1).mean()
+    noisy = pos + rng.uniform(-1, 1, pos.shape) * 0.0005 * d
+    assert owner.detect(noisy, blob.faces, key).verdict == "present"
+
+
+def test_owner_id_wider_than_64_bits_is_refused(blob):
+    key = WatermarkKey.generate(rng=np.random.default_rng(1))
+    with pytest.raises(ValueError):
+        owner.embed(blob.positions, blob.faces, key, owner_id=1 << 64)
+
+
+def test_false_alarm_probability_is_the_binomial_tail():
+    assert owner.false_alarm_probability(0) == 2.0**-64
+    assert owner.false_alarm_probability(8) == pytest.approx(sum(math.comb(64, i) for i in range(9)) / 2**64)
+    assert owner.false_alarm_probability(8) < owner.PRESENT_BELOW < owner.false_alarm_probability(9)
+    assert owner.false_alarm_probability(64) == pytest.approx(1.0)
+
+
+def test_wrong_key_errors_follow_the_fair_coin_distribution(blob, marked):
+    """Over 200 wrong keys the mean error count is near 32 and none is present."""
+    _, pos = marked
+    rng = np.random.default_rng(2)
+    errors = []
+    for _ in range(200):
+        k = WatermarkKey.generate(rng=rng)
+        r = owner.detect(pos, blob.faces, k)
+        assert r.verdict != "present"
+        errors.append(r.bit_errors)
+    assert abs(np.mean(errors) - 32) < 2  # the mean's standard deviation is 4 / sqrt(200) = 0.28
+    assert 2 < np.std(errors) < 6
+
+
+def test_key_serialises_the_owner_id(tmp_path):
+    key = WatermarkKey.generate(owner_id=0xABCDEF)
+    key.save(tmp_path / "k.json")
+    doc = json.loads((tmp_path / "k.json").read_text())
+    assert doc["owner_id"] == "0000000000abcdef"
+    assert WatermarkKey.load(tmp_path / "k.json") == key
+    assert parse_owner_id("0x00FF") == 255
+    with pytest.raises(ValueError):
+        parse_owner_id("xyz")
+
+
+def test_cli_owner_only_encode_then_blind_verify_of_the_decoded_mesh(tmp_path, blob, capsys):
+
+    src = tmp_path / "blob.obj"
+    with open(src, "w") as fh:
+        fh.writelines(f"v {x:.17g} {y:.17g} {z:.17g}\n" for x, y, z in blob.positions)
+        fh.writelines(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in blob.faces)
+    out = tmp_path / "b.pmw"
+    assert main(["encode", str(src), "-o", str(out), "--owner-id", "00c0ffee00c0ffee", "-q"]) == 0
+    key = tmp_path / "b.pmw.key.json"
+    assert WatermarkKey.load(key).owner_hex == "00c0ffee00c0ffee"
+    assert main(["decode", str(out), "-o", str(tmp_path / "d.ply")]) == 0
+    capsys.readouterr()
+    assert main(["verify", str(tmp_path / "d.ply"), "--key", str(key), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)  # the CLI's key is random: a few bit errors may occur
+    assert doc["owner"]["verdict"] == "present" and doc["owner"]["bits"] == 64
+    assert bin(int(doc["owner"]["id"], 16) ^ 0x00C0FFEE00C0FFEE).count("1") == doc["owner"]["bit_errors"] <= 8
+    assert main(["verify", str(src), "--key", str(key), "-q"]) == 1  # the unmarked original
+    assert main(["verify", str(out), "--key", str(key), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["owner"]["verdict"] == "present" and all("owner" in c for c in doc["chunks"])
