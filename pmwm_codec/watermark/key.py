@@ -27,7 +27,9 @@ carry no such promise across numpy releases::
   of ``stream(b"permutation", id, 8 n)`` — a uniformly random permutation (ties, with
   probability ~n^2/2^65, resolve by index);
 * :meth:`bits` ``(id, n)``: the first n bits (little-endian bit order within each byte)
-  of ``stream(b"bits", id, ceil(n / 8))``.
+  of ``stream(b"bits", id, ceil(n / 8))``;
+* :meth:`derived_key` ``(label)``: ``stream(b"key/" + label, 0, 32)``, a 32-byte key for a
+  keyed PRF/MAC (BLAKE2b) that never exposes the secret itself (e.g. the ring binding).
 """
 
 from __future__ import annotations
@@ -247,6 +249,11 @@ class WatermarkKey:
             raise ValueError(f"n must be >= 0, got {n}")
         raw = np.frombuffer(self._stream(b"bits", stream_id, (n + 7) // 8), dtype=np.uint8)
         return np.unpackbits(raw, bitorder="little")[:n]
+
+
+    def derived_key(self, label: bytes) -> bytes:
+        """32 bytes derived from the secret for the keyed PRF/MAC named ``label`` (module docstring)."""
+        return self._stream(b"key/" + bytes(label), 0, 32)
 
 
 def as_key(key) -> WatermarkKey | None:

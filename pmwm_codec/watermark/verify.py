@@ -1,24 +1,40 @@
-"""Verification: from codes read at each chunk boundary to NC, PSNR and a verdict.
+"""Verification: from codes read at each chunk boundary to NC, PSNR, a verdict and a tamper map.
 
-The verdict is a hypothesis test on the *codes*, not on the picture.  With the
-key and the reference watermark the verifier knows the code every carrier
-should hold.  If the mesh does not carry this mark (another key, an unmarked
-mesh, a mesh from elsewhere), each code read matches by chance with
-probability ``p0 = 2**-bits`` (codes are whitened by the key in exact mode and
-the bins are uniform).  The number of matches among ``n`` carriers read is then
-Binomial(n, p0).  The verdict:
+With the key and the reference watermark the verifier knows the code every
+carrier should hold: its message symbol plus, for a bound mark (``binding``
+``ring-v1``), a keyed pseudo-random offset of its stream slot and of the
+quantized shape of its ring (:func:`~.codec.binding_offsets`).  A code read is
+*consistent* when it equals the expected code under the ring as read or one of
+its ambiguous readings (a descriptor value within :data:`~.codec.RING_EPS` of a
+bin boundary).  Two counts decide:
 
-* ``authentic`` — at least :data:`MATCH_RATE` of the codes match *and* the
-  chance of that many matches under the null is below :data:`ALPHA`;
-* ``inconclusive`` — fewer than :data:`MIN_CARRIERS` codes read, or more
-  matches than chance explains but fewer than :data:`MATCH_RATE` (a damaged mark);
-* ``not-authentic`` — otherwise, and whenever the reference image cannot be the
-  embedded one (another size, or coefficients that do not fit the file's public
-  bit layout).
+* ``matches``: codes equal to the expected code under the ring *as read*.  If
+  the mesh does not carry this mark (another key, an unmarked mesh, a mesh from
+  elsewhere), each matches by chance with probability ``p0 = 2**-bits`` (codes
+  are whitened by the key, the bins are uniform), so ``matches`` is then
+  Binomial(n, p0) over the ``n`` carriers read;
+* ``mismatched``: carriers read whose code is consistent with no reading of the ring.
 
-``ALPHA`` bounds the false-positive probability of an ``authentic`` verdict
-per verification; ``tools/bench_watermark.py`` measures the rate over many
-wrong keys and unmarked meshes (see BENCHMARKS.md).
+The verdict:
+
+* ``inconclusive`` -- fewer than :data:`MIN_CARRIERS` codes read, or so few that
+  even all of them matching would not pass the test below (``p0**n >= ALPHA``);
+* ``not-authentic`` -- ``matches`` within chance (binomial tail ``>= ALPHA``), or
+  the reference image cannot be the embedded one (another size, or
+  coefficients that do not fit the file's public bit layout);
+* ``tampered`` -- the mark is there (tail ``< ALPHA``) but at least one carrier
+  is inconsistent, or the mesh holds vertices the reference does not explain
+  (``foreign``, a graft);
+* ``authentic`` -- the mark is there and every carrier read is consistent (no
+  tolerance: our transport keeps every code bit-exactly, and float32 storage or a
+  similarity moves a ring value only across a boundary it lies within
+  ``RING_EPS`` of) and the mark is bound; a legacy file (no ``binding``) is
+  ``inconclusive`` instead, since its codes can be transplanted without the key.
+
+``ALPHA`` bounds the false-positive probability of a ``tampered`` or ``authentic``
+verdict per verification; ``tools/bench_watermark.py`` measures the rate over
+many wrong keys and unmarked meshes (see BENCHMARKS.md).  :meth:`Verifier.tamper`
+maps the inconsistent carriers to vertices.
 """
 
 from __future__ import annotations
@@ -33,22 +49,27 @@ from . import haar
 from .metrics import centered_nc, nc, psnr
 from .payload import BitLayout, pack, repeat_to_capacity, symbols
 
-MATCH_RATE = 0.8
 ALPHA = 1e-9
 MIN_CARRIERS = 32
+VERDICTS = ("authentic", "tampered", "not-authentic", "inconclusive")
 
 
-def verdict(matches: int, read: int, bits: int) -> str:
-    """``authentic`` | ``not-authentic`` | ``inconclusive`` for ``matches`` of ``read`` codes."""
-    if read < MIN_CARRIERS:
-        return "inconclusive"
+def verdict(matches: int, read: int, bits: int, *, mismatched: int | None = None, foreign: bool = False,
+            bound: bool = True) -> str:
+    """One of :data:`VERDICTS` (module docstring) for ``matches`` of ``read`` codes.
+
+    ``mismatched``: carriers consistent with no reading of their ring (default
+    ``read - matches``); ``foreign``: the mesh holds vertices the reference does not
+    explain; ``bound``: the mark has a keyed binding (False: a legacy mark).
+    """
     p0 = 2.0 ** -bits
-    tail = float(binom.sf(matches - 1, read, p0))
-    if tail < ALPHA and matches >= MATCH_RATE * read:
-        return "authentic"
-    if tail < ALPHA:
+    if read < MIN_CARRIERS or read * bits * np.log10(2.0) <= -np.log10(ALPHA):
         return "inconclusive"
-    return "not-authentic"
+    if float(binom.sf(matches - 1, read, p0)) >= ALPHA:
+        return "not-authentic"
+    if (read - matches if mismatched is None else mismatched) > 0 or foreign:
+        return "tampered"
+    return "authentic" if bound else "inconclusive"
 
 
 class Verifier:
@@ -56,7 +77,8 @@ class Verifier:
 
     ``reference`` (s, s) uint8 is the original watermark (None: no scores);
     ``nbar`` the default reference length of :meth:`add` (None when every batch
-    brings its own, as :meth:`add_carriers` does).
+    brings its own, as :meth:`add_carriers` does).  ``foreign`` (set by the caller):
+    the checked mesh holds vertices the reference does not explain.
     """
 
     def __init__(self, params: wm.WatermarkParams, key, nbar: float | None, reference=None):
@@ -64,6 +86,9 @@ class Verifier:
         self.extractor = wm.Extractor(params, key, nbar)
         self.reference = None if reference is None else np.asarray(reference, np.uint8)
         self.expected = None
+        self.foreign = False
+        #: per batch read: (primitive, code slots (r,), new vertex ids (r,), ring descriptor, batch rows (r,))
+        self.support: list = []
         #: True when the reference cannot be what the file carries (other size or bit layout)
         self.mismatch = False
         if self.reference is not None:
@@ -71,21 +96,34 @@ class Verifier:
             self.mismatch = self.expected is None
 
     def add(self, batch_index: int, points: np.ndarray, centroid: np.ndarray, nbar=None, scale=None,
-            known=None) -> None:
+            known=None, descriptor=None):
         """Read the codes of one batch (see :meth:`.codec.Extractor.add`)."""
-        self.extractor.add(batch_index, np.asarray(points, np.float64), centroid, nbar, scale, known)
+        return self.extractor.add(batch_index, np.asarray(points, np.float64), centroid, nbar, scale, known,
+                                  descriptor)
 
     def add_carriers(self, carriers) -> None:
         """Read one :class:`~pmwm_codec.stream.replay.Carriers` batch."""
-        self.add(carriers.batch, carriers.points, carriers.centroid, carriers.nbar, carriers.scale, carriers.known)
+        desc = carriers.descriptor() if self.params.binding else None
+        slots, rows = self.add(carriers.batch, carriers.points, carriers.centroid, carriers.nbar, carriers.scale,
+                               carriers.known, desc)
+        if carriers.vertices is not None:
+            self.support.append((carriers.primitive, slots, carriers.vertices[rows], desc, rows))
 
     def matches(self) -> tuple[int, int]:
-        """``(codes matching the reference, codes read)`` so far."""
+        """``(codes matching the reference under their ring as read, codes read)`` so far."""
         got = self.extractor.received >= 0
         read = int(got.sum())
         if self.expected is None:
             return 0, read
         return int(np.count_nonzero(self.extractor.received[got] == self.expected[got])), read
+
+    def inconsistent(self) -> np.ndarray:
+        """(carriers,) bool: read, and consistent with no reading of the ring (False without a reference)."""
+        alt = self.extractor.alternates
+        if self.expected is None:
+            return np.zeros(len(alt), bool)
+        ok = (alt == self.expected[:, None]).any(axis=1)
+        return (alt[:, 0] >= 0) & ~ok
 
     def verdict(self) -> str:
         if self.mismatch:
@@ -93,7 +131,22 @@ class Verifier:
         if self.expected is None:
             return "inconclusive"
         m, n = self.matches()
-        return verdict(m, n, self.params.bits)
+        return verdict(m, n, self.params.bits, mismatched=int(self.inconsistent().sum()), foreign=self.foreign,
+                       bound=bool(self.params.binding))
+
+    def tamper(self, offsets=None) -> np.ndarray:
+        """Sorted (f,) int64 vertex ids whose carrier code no longer reads (see spec/watermark.md).
+
+        A carrier is flagged with its vertex when its code is inconsistent; ``offsets``
+        (per primitive) turns primitive-local ids into ids of the concatenated mesh.
+        """
+        bad = self.inconsistent()
+        out = []
+        for primitive, slots, vertices, _desc, _rows in self.support:
+            hit = bad[slots]
+            if hit.any():
+                out.append(vertices[hit] + (0 if offsets is None else int(offsets[primitive])))
+        return np.unique(np.concatenate(out)) if out else np.zeros(0, np.int64)
 
     def estimate(self) -> "WatermarkEstimate":
         """The partial watermark so far, scored against the reference (one scoring for every reader)."""
@@ -109,6 +162,7 @@ class Verifier:
         if self.expected is not None:
             out.code_match = (m / n) if n else None
             out.ber = code_ber(self.extractor.received, self.expected, self.params.bits)
+            out.inconsistent = int(self.inconsistent().sum())
         return out
 
 
@@ -121,7 +175,8 @@ class WatermarkEstimate:
     ``verdict`` (see :func:`verdict`); with a reference image: ``nc``,
     ``psnr_db`` (inf when bit-exact), ``centered_nc``, ``bit_exact``; with the
     codes the reference implies: ``code_match`` (fraction of codes read that
-    match) and ``ber`` (bit error rate of the codes read).
+    match), ``ber`` (bit error rate of the codes read) and ``inconsistent`` (carriers
+    whose code reads under no reading of their ring).
     """
 
     watermark: np.ndarray
@@ -135,6 +190,7 @@ class WatermarkEstimate:
     bit_exact: bool = False
     code_match: float | None = None
     ber: float | None = None
+    inconsistent: int = 0
 
 
 def code_ber(received: np.ndarray, expected: np.ndarray, bits: int) -> float | None:
