@@ -17,8 +17,8 @@ bin boundary).  Two counts decide:
 
 The verdict:
 
-* ``inconclusive`` -- fewer than :data:`MIN_CARRIERS` codes read, or so few that
-  even all of them matching would not pass the test below (``p0**n >= ALPHA``);
+* ``inconclusive`` -- fewer than :data:`MIN_CARRIERS` codes read (even one-bit
+  codes then pass the test below only when all of them match: ``2**-32 < ALPHA``);
 * ``not-authentic`` -- ``matches`` within chance (binomial tail ``>= ALPHA``), or
   the reference image cannot be the embedded one (another size, or
   coefficients that do not fit the file's public bit layout);
@@ -62,10 +62,9 @@ def verdict(matches: int, read: int, bits: int, *, mismatched: int | None = None
     ``read - matches``); ``foreign``: the mesh holds vertices the reference does not
     explain; ``bound``: the mark has a keyed binding (False: a legacy mark).
     """
-    p0 = 2.0 ** -bits
-    if read < MIN_CARRIERS or read * bits * np.log10(2.0) <= -np.log10(ALPHA):
+    if read < MIN_CARRIERS:
         return "inconclusive"
-    if float(binom.sf(matches - 1, read, p0)) >= ALPHA:
+    if float(binom.sf(matches - 1, read, 2.0**-bits)) >= ALPHA:
         return "not-authentic"
     if (read - matches if mismatched is None else mismatched) > 0 or foreign:
         return "tampered"
