@@ -11,15 +11,18 @@ Contract
 * ``watermark``: the expected image (path or (s, s) array); default the key's own.
 
 The verdict is the stream verifier's (:mod:`pmwm_codec.watermark.verify`):
-``authentic`` | ``not-authentic`` | ``inconclusive``; a file without a watermark is
-``not-authentic``.  :meth:`StreamVerification.as_json` is the ``pmw verify --json`` object
+``authentic`` | ``tampered`` | ``not-authentic`` | ``inconclusive``; a file without a
+watermark is ``not-authentic``.  ``tamper`` lists the vertices of the decoded mesh whose
+carrier code no longer reads (:meth:`~pmwm_codec.watermark.verify.Verifier.tamper`).  :meth:`StreamVerification.as_json` is the ``pmw verify --json`` object
 (non-finite floats such as the PSNR of a bit-exact watermark stay ``inf``; the command
 prints them as ``null``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+
+import numpy as np
 
 from ..stream import StreamDecoder, iter_results
 from ..stream.decoder import StreamEnd
@@ -36,7 +39,9 @@ class StreamVerification:
     ``results``: one :class:`~pmwm_codec.stream.PartialResult` per chunk boundary, base mesh
     first (``chunk`` 0); ``end``: how the stream ended; ``verdict``; ``codes_matched`` of
     ``codes_read`` codes agree with the expected ones; ``marked``: the file carries a
-    watermark; ``total_length``: the size of the complete file in bytes.
+    watermark; ``total_length``: the size of the complete file in bytes; ``flagged`` (f,)
+    int64 the tamper map (vertex ids of the last level's decoded mesh); ``binding`` the
+    mark's keyed binding (``""``: a legacy mark).
     """
 
     results: list
@@ -46,6 +51,13 @@ class StreamVerification:
     codes_read: int
     marked: bool
     total_length: int
+    flagged: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    binding: str = ""
+
+    def tamper(self) -> dict:
+        """``{"flagged": [vertex ids of the decoded mesh whose carrier code no longer reads], "fraction"}``."""
+        vertices = self.results[-1].vertices if self.results else 0
+        return {"flagged": [int(i) for i in self.flagged], "fraction": len(self.flagged) / max(1, vertices)}
 
     def as_json(self) -> dict:
         """The ``pmw verify --json`` object (without ``pictures``, which only the command writes)."""
@@ -54,7 +66,7 @@ class StreamVerification:
                 "chunks_total": int(self.end.chunks_total), "chunks": chunks, "final": chunks[-1],
                 "verdict": self.verdict, "bytes_read": int(self.end.bytes_read),
                 "total_length": int(self.total_length), "codes_matched": self.codes_matched,
-                "codes_read": self.codes_read}
+                "codes_read": self.codes_read, "tamper": self.tamper(), "binding": self.binding or None}
 
 
 def verify_stream(source, key, watermark=None, *, keep_meshes: bool = False, progress=None) -> StreamVerification:
@@ -86,9 +98,12 @@ def verify_stream(source, key, watermark=None, *, keep_meshes: bool = False, pro
         if progress is not None:
             progress(f"chunk {r.chunk}/{r.chunks_total}", r.chunk / max(1, r.chunks_total))
     v = decoder.verifier
-    if v is None:
-        verdict, matched, read = "not-authentic", 0, 0  # the file carries no watermark
-    else:
-        verdict = v.verdict()
-        matched, read = v.matches()
-    return StreamVerification(results, end, verdict, matched, read, v is not None, decoder.header.total_length)
+    out = StreamVerification(results, end, "not-authentic", 0, 0, v is not None, decoder.header.total_length)
+    if v is not None:  # else the file carries no watermark
+        out.verdict = v.verdict()
+        out.codes_matched, out.codes_read = v.matches()
+        # vertex ids of the decoded mesh: the primitives' current meshes, concatenated in stream order
+        counts = [st.n for st in decoder._replay.states]
+        out.flagged = v.tamper(np.cumsum([0] + counts[:-1]))
+        out.binding = v.params.binding
+    return out

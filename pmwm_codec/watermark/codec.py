@@ -548,13 +548,18 @@ class Extractor:
     def carriers_read(self) -> int:
         return int(np.count_nonzero(self.received >= 0))
 
-    def coefficients(self) -> tuple[np.ndarray, int]:
-        """The coefficient stream prefix recovered so far: ``(values, count)``."""
+    def coefficients(self, received: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+        """The coefficient stream prefix recovered so far: ``(values, count)``.
+
+        ``received`` (carriers,) int64 replaces :attr:`received` (e.g. each carrier's reading
+        that agrees with the expected code, when a ring value lay on a boundary).
+        """
         p = self.params
-        got = self.received >= 0
+        received = self.received if received is None else received
+        got = received >= 0
         if p.mode == "exact":
             b = p.bits
-            sym = np.where(got, self.received, 0)
+            sym = np.where(got, received, 0)
             raw = bits_from_symbols(sym, b, b * p.carriers) ^ self.key.bits(0, b * p.carriers)
             known = np.repeat(got, b)
             bits_, ok = vote(raw, known, p.codes)
@@ -570,7 +575,7 @@ class Extractor:
             # unwhiten, then the median of the copies of each code
             idx = slot_code[got]
             mask = paper_mask(self.key, p.carriers, p.bits)[got]
-            vals = ((self.received[got] - mask) % (1 << p.bits)).astype(np.float64)
+            vals = ((received[got] - mask) % (1 << p.bits)).astype(np.float64)
             order = np.lexsort((vals, idx))
             idx, vals = idx[order], vals[order]
             starts = np.flatnonzero(np.r_[True, idx[1:] != idx[:-1]])
@@ -581,9 +586,10 @@ class Extractor:
         prefix = int(np.argmin(have)) if not have.all() else q
         return values[:prefix], prefix
 
-    def image(self) -> tuple[np.ndarray, int]:
-        """(size, size) uint8 partial watermark and the number of coefficients it used."""
+    def image(self, received: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+        """(size, size) uint8 partial watermark and the number of coefficients it used (``received``: see
+        :meth:`coefficients`)."""
         p = self.params
-        values, count = self.coefficients()
+        values, count = self.coefficients(received)
         img = haar.reconstruct_prefix(values, p.size, p.levels, integer=(p.mode == "exact"))
         return img, count

@@ -51,6 +51,9 @@ from .payload import BitLayout, pack, repeat_to_capacity, symbols
 
 ALPHA = 1e-9
 MIN_CARRIERS = 32
+#: tamper map: share of a vertex's carriers that must fail (own code failing / at least two failing)
+FLAG_OWN = 0.25
+FLAG_SHARED = 0.3
 VERDICTS = ("authentic", "tampered", "not-authentic", "inconclusive")
 
 
@@ -134,22 +137,47 @@ class Verifier:
                        bound=bool(self.params.binding))
 
     def tamper(self, offsets=None) -> np.ndarray:
-        """Sorted (f,) int64 vertex ids whose carrier code no longer reads (see spec/watermark.md).
+        """Sorted (f,) int64 ids of the vertices whose carrier codes no longer read.
 
-        A carrier is flagged with its vertex when its code is inconsistent; ``offsets``
-        (per primitive) turns primitive-local ids into ids of the concatenated mesh.
+        A vertex is read by its own carrier (if it is one) and by every carrier whose ring
+        holds it.  It is flagged when its own code fails and at least :data:`FLAG_OWN` of
+        the carriers reading it fail, or when at least two fail and they are at least
+        :data:`FLAG_SHARED` of them: a moved vertex fails each carrier reading it with
+        probability ``1 - 2**-bits``, an untouched neighbour of an edit only those that
+        also read a moved vertex.  ``offsets`` (per primitive) turns primitive-local ids
+        into ids of the concatenated mesh.
         """
         bad = self.inconsistent()
-        out = []
-        for primitive, slots, vertices, _desc, _rows in self.support:
+        ids, fails, own = [], [], []
+        for primitive, slots, vertices, desc, rows in self.support:
+            shift = 0 if offsets is None else int(offsets[primitive])
             hit = bad[slots]
-            if hit.any():
-                out.append(vertices[hit] + (0 if offsets is None else int(offsets[primitive])))
-        return np.unique(np.concatenate(out)) if out else np.zeros(0, np.int64)
+            ids.append(vertices + shift)
+            fails.append(hit)
+            own.append(np.ones(len(rows), bool))
+            if desc is not None and len(rows):
+                first, size = desc.starts[rows] + 1, desc.starts[rows + 1] - desc.starts[rows] - 1
+                at = np.repeat(first - np.cumsum(size) + size, size) + np.arange(int(size.sum()))
+                ids.append(desc.vertex[at] + shift)
+                fails.append(np.repeat(hit, size))
+                own.append(np.zeros(len(at), bool))
+        if not ids:
+            return np.zeros(0, np.int64)
+        ids, fails, own = np.concatenate(ids), np.concatenate(fails), np.concatenate(own)
+        n = int(ids.max()) + 1 if len(ids) else 0
+        read = np.bincount(ids, minlength=n)
+        failed = np.bincount(ids, weights=fails, minlength=n)
+        own_failed = np.bincount(ids[own & fails], minlength=n) > 0
+        flag = (own_failed & (failed >= FLAG_OWN * read)) | ((failed >= 2) & (failed >= FLAG_SHARED * read))
+        return np.flatnonzero(flag).astype(np.int64)
 
     def estimate(self) -> "WatermarkEstimate":
         """The partial watermark so far, scored against the reference (one scoring for every reader)."""
-        img, count = self.extractor.image()
+        received = self.extractor.received
+        if self.expected is not None:  # a ring value on a boundary: take the reading the expected code agrees with
+            agree = (self.extractor.alternates == self.expected[:, None]).any(axis=1)
+            received = np.where(agree, self.expected, received)
+        img, count = self.extractor.image(received)
         m, n = self.matches()
         out = WatermarkEstimate(img, int(count), n, self.verdict(), self.params.carriers)
         if self.reference is not None and self.reference.shape == img.shape:
