@@ -272,3 +272,25 @@ def test_the_bunny_forgery_fails_and_its_copy_stays_authentic(tmp_path):
     V, F = attacks.similarity(ref.positions.astype(np.float32).astype(np.float64), ref.faces,
                               np.random.default_rng(0))
     assert verify_mesh((V, F), data, key).verdict == "authentic"
+
+
+def test_pmw_verify_says_tampered_with_exit_1_and_draws_the_map(marked, tmp_path, capsys):
+    import json
+
+    from pmwm_codec.cli import main
+
+    data, key, _img, ref = marked
+    (tmp_path / "m.pmw").write_bytes(data)
+    key.save(tmp_path / "m.key.json")
+    edited, _moved = _local_edit(ref.positions, 0.01, 0.001, 0)
+    pmwm_codec.write_mesh(tmp_path / "e.obj", pmwm_codec.Mesh(edited, ref.faces))
+    argv = ["verify", str(tmp_path / "e.obj"), "--reference", str(tmp_path / "m.pmw"), "--key",
+            str(tmp_path / "m.key.json"), "--json", "--frames", str(tmp_path / "frames")]
+    capsys.readouterr()
+    assert main(argv) == 1
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["verdict"] == "tampered" and doc["tamper"]["flagged"] and 0 < doc["tamper"]["fraction"] < 1
+    assert (tmp_path / "frames" / "tamper.png").stat().st_size > 0
+    assert main(["verify", str(tmp_path / "m.pmw"), "--key", str(tmp_path / "m.key.json"), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["verdict"] == "authentic" and doc["tamper"] == {"flagged": [], "fraction": 0.0}
