@@ -294,3 +294,16 @@ def test_pmw_verify_says_tampered_with_exit_1_and_draws_the_map(marked, tmp_path
     assert main(["verify", str(tmp_path / "m.pmw"), "--key", str(tmp_path / "m.key.json"), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["verdict"] == "authentic" and doc["tamper"] == {"flagged": [], "fraction": 0.0}
+
+
+def test_a_legacy_golden_file_still_reads_its_image_but_is_never_authentic():
+    """spec/conformance holds files marked before the binding: their image still reads bit-exactly,
+    their verdict is ``inconclusive`` (a legacy mark can be transplanted without the key)."""
+    from pathlib import Path
+
+    base = Path(__file__).resolve().parent.parent / "spec" / "conformance" / "sphere.exact-watermark.v1"
+    key = WatermarkKey.load(f"{base}.key.json")
+    v = verify_stream(f"{base}.pmw", key)
+    assert v.binding == "" and v.as_json()["binding"] is None
+    assert np.array_equal(v.results[-1].watermark, key.reference)
+    assert v.verdict == "inconclusive"
