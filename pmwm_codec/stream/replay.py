@@ -31,6 +31,7 @@ needs no per-primitive bookkeeping of its own.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -56,7 +57,7 @@ class Carriers:
     ``vertices`` (k,) int64 the new vertices' ids in the primitive; ``positions``
     (n, >=3) the primitive's positions (the rings' rows are final) and ``topology``
     the batch's :class:`~pmwm_codec.progressive.vsplit.SplitTopology`, from which
-    :meth:`descriptor` describes the rings.
+    :attr:`descriptor` describes the rings.
     """
 
     primitive: int
@@ -70,8 +71,9 @@ class Carriers:
     positions: np.ndarray | None = None
     topology: object = None
 
+    @cached_property
     def descriptor(self):
-        """The batch's :class:`~pmwm_codec.watermark.codec.RingDescriptor` (the rings never move later)."""
+        """The batch's :class:`~pmwm_codec.watermark.codec.RingDescriptor` (the rings never move later; computed once)."""
         from ..watermark.codec import ring_descriptor
 
         return ring_descriptor(self.positions, self.topology, self.nbar)

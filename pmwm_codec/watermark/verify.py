@@ -105,7 +105,7 @@ class Verifier:
 
     def add_carriers(self, carriers) -> None:
         """Read one :class:`~pmwm_codec.stream.replay.Carriers` batch."""
-        desc = carriers.descriptor() if self.params.binding else None
+        desc = carriers.descriptor if self.params.binding else None
         slots, rows = self.add(carriers.batch, carriers.points, carriers.centroid, carriers.nbar, carriers.scale,
                                carriers.known, desc)
         if carriers.vertices is not None:
