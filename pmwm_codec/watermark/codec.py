@@ -19,6 +19,12 @@ the watermark.  The removed vertices of one batch are pairwise non-adjacent, so
 no carrier's ring holds another carrier of its batch (the paper's embedding
 dependency).
 
+**Binding** (``binding`` ``ring-v1``, spec/watermark.md §5): the code a carrier holds
+is its message symbol plus :func:`binding_offsets` -- a keyed BLAKE2b PRF of its stream
+slot and of :func:`ring_descriptor`, the similarity-invariant, quantized shape of its ring
+at split time -- mod ``2**bits``, so codes read from one mesh are worthless on another
+without the key.  Files without ``binding`` are legacy marks (read, never authentic).
+
 Carriers are numbered in stream order: batch 0 (coarsest) first; inside batch
 ``j`` of ``k`` splits, split ``i`` carries stream slot ``offset_j + perm_j[i]``
 with ``perm_j = key.permutation(j, k)`` -- secret, but never mixing batches, so
