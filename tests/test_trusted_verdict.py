@@ -264,7 +264,7 @@ def test_a_legacy_mark_without_binding_is_never_authentic(marked):
 def test_the_bunny_forgery_fails_and_its_copy_stays_authentic(tmp_path):
     from conftest import corpus_path
 
-    mesh = pmwm_codec.read_mesh(corpus_path("bunny"))
+    mesh = pmwm_codec.read_mesh(corpus_path("stanford-bunny.obj"))
     data, key, _img = _marked(mesh)
     ext, base, chunks, _forged, _ = forge(data, 0.001)
     assert verify_stream(write_forged_pmw(ext, base, chunks), key).verdict in ("not-authentic", "tampered")
@@ -272,6 +272,11 @@ def test_the_bunny_forgery_fails_and_its_copy_stays_authentic(tmp_path):
     V, F = attacks.similarity(ref.positions.astype(np.float32).astype(np.float64), ref.faces,
                               np.random.default_rng(0))
     assert verify_mesh((V, F), data, key).verdict == "authentic"
+    edited, moved = _local_edit(ref.positions, 0.01, 0.001, 0)
+    r = verify_mesh((edited, ref.faces), data, key)
+    flagged = np.asarray(r.tamper()["flagged"], np.int64)
+    assert r.verdict == "tampered" and np.isin(moved, flagged).mean() >= 0.5
+    assert (_ring_distance(ref.faces, len(ref.positions), moved)[flagged] <= 2).mean() >= 0.8
 
 
 def test_pmw_verify_says_tampered_with_exit_1_and_draws_the_map(marked, tmp_path, capsys):
