@@ -10,6 +10,8 @@ promise::
                         boundaries, labelled with bytes received and PSNR (the
                         paper's Fig. 8)
     metrics.png         watermark PSNR and NC against bytes received
+    tamper.png          (given a tamper map) the mesh with the flagged vertices in red, beside the
+                        watermark read (:func:`tamper_figure`)
 
 The pieces are public for other uses: :func:`pick_levels`, :func:`overview`,
 :func:`metrics_plot`.
@@ -300,6 +302,41 @@ def metrics_plot(results, *, size=(760, 460), title: str | None = None, total_by
         d.text((px + 5, top + 6), "stream cut here", font=fnt, fill=CUT_COLOR)
     _text_center(d, ((left + right) / 2, size[1] - 24), "bytes received (kB)", fnt)
     return img
+
+
+TAMPER_COLOR = (214, 40, 40)
+
+
+def tamper_figure(positions, faces, flagged, watermark=None, *, size: int = 360, title: str | None = None) -> Image.Image:
+    """The mesh ``positions`` (n, 3) / ``faces`` (m, 3) with the vertices ``flagged`` (f,) int64 drawn as red
+    dots (hidden ones too: the map is a list, not a view), beside ``watermark`` (s, s) uint8 if given."""
+    camera = Camera.fit(positions, size, size)
+    pad, top = 14, 30 if title else 0
+    img = Image.new("RGB", (pad * 3 + 2 * size if watermark is not None else pad * 2 + size, pad * 2 + top + size + 20),
+                    (255, 255, 255))
+    img.paste(Image.fromarray(render(positions, faces, camera)), (pad, pad + top))
+    draw = ImageDraw.Draw(img)
+    if title:
+        draw.text((pad, pad), title, font=font(17), fill=INK)
+    xy = camera.project(np.asarray(positions, np.float64)[np.asarray(flagged, np.int64)])[:, :2] + (pad, pad + top)
+    for x, y in xy:
+        draw.ellipse([x - 2, y - 2, x + 2, y + 2], fill=TAMPER_COLOR)
+    if watermark is not None:
+        mark = Image.fromarray(np.asarray(watermark, np.uint8), "L").resize((size, size), Image.NEAREST)
+        img.paste(mark.convert("RGB"), (2 * pad + size, pad + top))
+    _text_center(draw, (pad + size / 2, pad + top + size + 10), f"{len(flagged):,} vertices flagged", font(13))
+    return img
+
+
+def write_tamper(directory, positions, faces, flagged, watermark=None, *, title: str | None = None) -> str:
+    """Write ``tamper.png`` (:func:`tamper_figure`) into ``directory``; return its path."""
+    path = os.path.join(os.fspath(directory), "tamper.png")
+    try:
+        os.makedirs(os.fspath(directory), exist_ok=True)
+        tamper_figure(positions, faces, flagged, watermark, title=title).save(path)
+    except OSError as exc:
+        raise PmwError(f"{directory}: cannot write pictures ({exc.strerror or exc})") from None
+    return path
 
 
 def write_figures(results, directory, *, title: str | None = None, total_bytes: int | None = None,

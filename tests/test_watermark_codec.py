@@ -124,7 +124,10 @@ def test_the_verdict_rule_on_hand_counts():
     assert verdict(100, 100, 5) == "authentic"
     assert verdict(3, 100, 5) == "not-authentic"
     assert verdict(10, 10, 5) == "inconclusive"  # too few codes
-    assert verdict(50, 100, 5) == "inconclusive"  # far above chance, far below the match rate
+    assert verdict(50, 100, 5) == "tampered"  # the mark is there, half of it no longer reads
+    assert verdict(100, 100, 5, mismatched=1) == "tampered"  # one carrier inconsistent under every ring reading
+    assert verdict(100, 100, 5, foreign=True) == "tampered"  # a graft: vertices the reference does not explain
+    assert verdict(100, 100, 5, bound=False) == "inconclusive"  # a legacy mark can be transplanted: never authentic
 
 
 def test_a_key_of_another_file_is_refused(marked):

@@ -61,7 +61,7 @@ from pmwm_codec.watermark.image import load_watermark
 from pmwm_codec.watermark.key import WatermarkKey
 from pmwm_codec.distortion import mesh_distortion, mesh_nc
 from pmwm_codec.watermark.metrics import centered_nc
-from pmwm_codec.watermark.verify import ALPHA, MATCH_RATE, Verifier
+from pmwm_codec.watermark.verify import ALPHA, MIN_CARRIERS, VERDICTS, Verifier
 
 from bench import machine, publish, table
 
@@ -159,7 +159,7 @@ def run_verifier(params, key, nbar, reference, feed):
 
 def false_positives(path, reference, keys: int, log, check=3):
     blob, params, nbar, feed = verifier_feed(path)
-    counts = {"authentic": 0, "inconclusive": 0, "not-authentic": 0}
+    counts = dict.fromkeys(VERDICTS, 0)
     rates, cncs, coefs = [], [], []
     t = time.perf_counter()
     for seed in range(keys):
@@ -292,11 +292,12 @@ def render(results, info, command) -> str:
         for fp in r["fp"]:
             p = fp["params"]
             c = fp["counts"]
-            rows.append([f"{p.mode}, {p.bits} bits", fp["keys"], c["authentic"], c["inconclusive"], c["not-authentic"],
+            rows.append([f"{p.mode}, {p.bits} bits", fp["keys"], c["authentic"], c["tampered"], c["inconclusive"],
+                         c["not-authentic"],
                          f"{fp['max_rate']:.5f}", f"{fp['mean_rate']:.5f}", f"{fp['p0']:.5f}",
                          f"{fp['mean_cnc']:+.4f} (max abs {fp['max_abs_cnc']:.4f})",
                          f"{fp['mean_coefficients']:,.0f} (max {fp['max_coefficients']:,}) of {fp['coefficients_total']:,}"])
-        L.append(table(["marked file", "wrong keys", "authentic", "inconclusive", "not-authentic",
+        L.append(table(["marked file", "wrong keys", "authentic", "tampered", "inconclusive", "not-authentic",
                         "max code-match rate", "mean code-match rate", "chance 2^-bits", "mean centered NC",
                         "coefficients the wrong key reconstructs: mean (max)"], rows))
         L.append("")
@@ -315,9 +316,11 @@ def render(results, info, command) -> str:
     for r in results:
         if r.get("table2"):
             L.append(render_tables(r))
-    L.append(f"Verdict rule (pmwm_codec/watermark/verify.py): authentic iff the binomial tail P[X >= matches | "
-             f"n, 2^-bits] < {ALPHA:g} and matches >= {MATCH_RATE:g} n; inconclusive if only the tail is small "
-             "(or fewer than 32 codes read); otherwise not-authentic.")
+    L.append(f"Verdict rule (pmwm_codec/watermark/verify.py): inconclusive if fewer than {MIN_CARRIERS} codes read; "
+             f"not-authentic if the binomial tail P[X >= matches | n, 2^-bits] >= {ALPHA:g}; otherwise tampered if any "
+             "carrier's code is consistent with no reading of its ring (or the mesh has foreign vertices), "
+             "authentic if every one is and the mark is bound (ring-v1), inconclusive for a legacy mark. "
+             "A wrong key's tail below the threshold would be a false `tampered` or `authentic`.")
     L.append("")
     return "\n".join(L)
 

@@ -2,9 +2,10 @@
 
 ``pmw verify MESH --key KEY`` (OBJ, PLY, STL, glTF/GLB, no ``--reference``) reads the owner
 layer blind.  Exit status: 0 authentic (a mesh: owner ``present``; a ``.pmw`` without an
-image watermark: owner ``present`` at the end); 1 not-authentic, absent or inconclusive;
+image watermark: owner ``present`` at the end); 1 tampered, not-authentic, absent or inconclusive;
 2 bad input.  A chunk whose keyed MAC fails is named on its own line ("chunk 7: not written
 by the key holder (MAC mismatch)").
+``--frames DIR`` also draws the tamper map (``tamper.png``: flagged vertices in red).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ def add_parser(sub):
     p = sub.add_parser(
         "verify", help="read the watermark chunk by chunk; exit 0 if authentic",
         description="Verify the watermark of a .pmw (whole, truncated, or '-' for standard input) at every "
-                    "chunk boundary. Exit status: 0 authentic, 1 not authentic or inconclusive, 2 bad input.")
+                    "chunk boundary. Exit status: 0 authentic, 1 tampered, not authentic or inconclusive, 2 bad input.")
     p.add_argument("input", metavar="IN.pmw|MESH",
                    help="the .pmw, or - for standard input; with --reference, a mesh file that left the stream")
     p.add_argument("--key", required=True, metavar="KEY", help="the key file written by pmw encode")
@@ -79,6 +80,13 @@ def run(args) -> int:
         title = f"{name}: {outcome.verdict}" + ("" if outcome.end.complete else " (truncated)")
         pictures = write_figures(outcome.results, args.frames, title=title, total_bytes=outcome.total_length,
                                  bytes_received=outcome.end.bytes_read)
+        if outcome.marked:
+            from pmwm_codec.figures import write_tamper
+
+            last = outcome.results[-1]
+            mesh = last.mesh
+            pictures["tamper"] = write_tamper(args.frames, mesh.positions, mesh.faces, outcome.flagged,
+                                              last.watermark, title=title)
     if args.json:
         doc = outcome.as_json()
         if owners:
@@ -150,10 +158,13 @@ def run_reference(args) -> int:
     with naming(args.reference):
         v = verify_mesh(mesh, args.reference, args.key, args.watermark)
     if args.frames is not None:
+        from pmwm_codec.figures import write_tamper
         from pmwm_codec.watermark.image import save_png
 
         os.makedirs(args.frames, exist_ok=True)
         save_png(os.path.join(args.frames, "watermark.png"), v.watermark)
+        write_tamper(args.frames, mesh.positions, mesh.faces, v.flagged, v.watermark,
+                     title=f"{os.path.basename(args.input)}: {v.verdict}")
     if args.json:
         print_json(v.as_json())
     elif not args.quiet:
@@ -161,8 +172,8 @@ def run_reference(args) -> int:
               f"({100 * v.coverage:.1f}% of its vertices); {v.carriers_read:,} of {v.carriers_total:,} codes read")
         print(f"NC {fmt_float(v.nc, 4)}  PSNR {fmt_float(v.psnr_db, 2)} dB  BER {fmt_float(v.ber, 4)}"
               + ("  (bit-exact)" if v.bit_exact else ""))
-        print(f"verdict: {v.verdict}" + ("" if v.key_matches else
-                                          " (the reference is marked with another key: its key fingerprint differs)"))
+        print(f"verdict: {v.verdict}" + _tamper_note(v.tamper(), v.binding)
+              + ("" if v.key_matches else " (the reference is marked with another key: its key fingerprint differs)"))
     return EXIT_OK if v.verdict == "authentic" else EXIT_NOT_AUTHENTIC
 
 
@@ -187,9 +198,19 @@ def report(o: StreamVerification, pictures=None) -> str:
         why = f"{o.codes_matched:,} of {o.codes_read:,} codes match"
     else:
         why = "no codes read yet"
-    lines.append(f"verdict: {o.verdict} ({why})")
+    lines.append(f"verdict: {o.verdict} ({why})" + (_tamper_note(o.tamper(), o.binding) if o.marked else ""))
     lines += o.mac_notes()
     if pictures:
         lines.append(f"pictures: {len(pictures['frames'])} frames, {pictures['overview']}"
                      + (f", {pictures['plot']}" if pictures.get("plot") else ""))
     return "\n".join(lines)
+
+
+def _tamper_note(tamper: dict, binding: str) -> str:
+    """`` ; N vertices flagged (x%)`` and the legacy-mark notice, for the verdict line."""
+    note = ""
+    if tamper["flagged"]:
+        note += f"; {len(tamper['flagged']):,} vertices flagged ({100 * tamper['fraction']:.2f}%)"
+    if not binding:
+        note += "; legacy mark without keyed binding: never authentic, re-encode the original"
+    return note

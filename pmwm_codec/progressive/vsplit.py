@@ -101,7 +101,10 @@ class SplitTopology:
     ``u`` : (k,) int64 new vertex ids; ``ring_sum`` : (k, D) float64 sum of the
     neighbour corners of u's faces; ``ring_count`` : (k,) int64 twice the number
     of u's faces; ``incidences`` : (I,) int64 flat corner ids; ``owner`` : (I,)
-    split index of each incidence.
+    split index of each incidence.  The ring itself, as it is summed: ``ring_owner``
+    (R,) int64 split index of each face of a new vertex and ``ring_a`` / ``ring_b``
+    (R,) int64 its two other corners (moved faces in incidence order, then the
+    left new faces, then the right ones), for the watermark's ring binding.
     """
 
     u: np.ndarray
@@ -109,6 +112,9 @@ class SplitTopology:
     ring_count: np.ndarray
     incidences: np.ndarray
     owner: np.ndarray
+    ring_owner: np.ndarray | None = None
+    ring_a: np.ndarray | None = None
+    ring_b: np.ndarray | None = None
 
     def prediction(self) -> np.ndarray:
         """(k, D) int64 ``floor(ring mean)``, the predictor of the new vertices' values."""
@@ -214,7 +220,7 @@ def split_topology(state: MeshState, v: np.ndarray, symbols: np.ndarray, *, inci
     ring_count = 2 * np.bincount(own, minlength=k)
     state.n = n0 + k
     state.m = m0 + n_new
-    return SplitTopology(u_of, ring_sum, ring_count, inc, owner)
+    return SplitTopology(u_of, ring_sum, ring_count, inc, owner, own, ra, rb)
 
 
 def apply_batch(state: MeshState, batch: SplitBatch) -> SplitTopology:

@@ -180,6 +180,10 @@ class StreamDecoder:
         self.mac_missing: list = []
         self.mac_checked = 0
 
+    def vertex_counts(self) -> list:
+        """Vertices of each progressive primitive now, in stream order."""
+        return [st.n for st in self._replay.states]
+
     @property
     def chunks_applied(self) -> int:
         return self._replay.chunks_applied

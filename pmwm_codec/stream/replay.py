@@ -31,6 +31,7 @@ needs no per-primitive bookkeeping of its own.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -52,7 +53,11 @@ class Carriers:
     ``points`` (k, 3) float64 positions of the new vertices, ``centroid`` (k, 3)
     float64 their ring means, ``known`` (k,) bool (False: not readable, a
     vertex without counterpart); ``batch`` the stream-wide batch index,
-    ``primitive`` its primitive, ``nbar`` / ``scale`` that primitive's.
+    ``primitive`` its primitive, ``nbar`` / ``scale`` that primitive's;
+    ``vertices`` (k,) int64 the new vertices' ids in the primitive; ``positions``
+    (n, >=3) the primitive's positions (the rings' rows are final) and ``topology``
+    the batch's :class:`~pmwm_codec.progressive.vsplit.SplitTopology`, from which
+    :attr:`descriptor` describes the rings.
     """
 
     primitive: int
@@ -62,6 +67,16 @@ class Carriers:
     known: np.ndarray
     nbar: float
     scale: float | None
+    vertices: np.ndarray | None = None
+    positions: np.ndarray | None = None
+    topology: object = None
+
+    @cached_property
+    def descriptor(self):
+        """The batch's :class:`~pmwm_codec.watermark.codec.RingDescriptor` (the rings never move later; computed once)."""
+        from ..watermark.codec import ring_descriptor
+
+        return ring_descriptor(self.positions, self.topology, self.nbar)
 
 
 def value_width(ext: dict) -> int:
@@ -171,7 +186,8 @@ class Replay:
                 state.positions[topo.u] = points
                 centroid = topo.centroid()
                 known = np.isfinite(points).all(axis=1) & np.isfinite(centroid).all(axis=1)
-            out.append(Carriers(p, self.batches_applied, points, centroid, known, self.nbars[p], scale))
+            out.append(Carriers(p, self.batches_applied, points, centroid, known, self.nbars[p], scale,
+                                topo.u, state.positions, topo))
             self.batches_applied += 1
         self.chunks_applied += 1
         meta = ext["chunks"][event.chunk]

@@ -24,7 +24,9 @@ given positions) and every carrier's code is read as a decoder reads it, so the
 codes are invariant to rotation, uniform scale and translation (``nbar`` is
 measured on the mesh's own base vertices).  Carriers whose vertex or ring has
 no counterpart stay unread.  The scores and the verdict are the stream
-verifier's (:class:`~pmwm_codec.watermark.verify.Verifier`).
+verifier's (:class:`~pmwm_codec.watermark.verify.Verifier`); vertices of the mesh that
+no reference vertex explains (a graft) make it ``tampered``, and the carriers whose
+code no longer reads are mapped back to the mesh's vertices (``tamper``).
 
 ``MeshVerification.as_json()`` is the ``pmw verify MESH --reference ... --json``
 object.
@@ -57,7 +59,7 @@ __all__ = ["MeshVerification", "verify_mesh"]
 class MeshVerification:
     """The result of :func:`verify_mesh`.
 
-    ``verdict`` authentic | not-authentic | inconclusive; ``nc``, ``psnr_db``
+    ``verdict`` authentic | tampered | not-authentic | inconclusive; ``nc``, ``psnr_db``
     (inf when bit-exact), ``centered_nc`` of the recovered watermark against the
     reference; ``ber`` bit error rate of the codes read against the codes the
     reference embeds (None without a reference image); ``code_match`` fraction
@@ -67,7 +69,12 @@ class MeshVerification:
     fraction of reference vertices with a counterpart; ``registration_rms``
     RMS pair distance after registration (reference units, None for exact
     methods); ``watermark`` (s, s) uint8 the recovered image; ``key_matches`` False
-    when the reference's public key fingerprint is another key's (then ``not-authentic``).
+    when the reference's public key fingerprint is another key's (then ``not-authentic``);
+    ``flagged`` (f,) int64
+    vertices of the checked mesh whose carrier code no longer reads (the tamper map);
+    ``foreign`` the mesh holds vertices no reference vertex explains (registration only:
+    farther than the tolerance from every reference vertex); ``binding`` the file's
+    (``""``: a legacy mark, never ``authentic``).
     """
 
     verdict: str
@@ -89,6 +96,14 @@ class MeshVerification:
     watermark: np.ndarray | None = None
     bit_exact: bool = False
     key_matches: bool = True
+    flagged: np.ndarray | None = None
+    foreign: bool = False
+    binding: str = ""
+
+    def tamper(self) -> dict:
+        """``{"flagged": [mesh vertex ids whose carrier code no longer reads], "fraction": of the mesh's vertices}``."""
+        flagged = [] if self.flagged is None else [int(i) for i in self.flagged]
+        return {"flagged": flagged, "fraction": len(flagged) / max(1, self.vertices)}
 
     def as_json(self) -> dict:
         """The ``pmw verify MESH --reference --json`` object (non-finite numbers are ``null``)."""
@@ -104,6 +119,7 @@ class MeshVerification:
             "correspondence": self.correspondence, "coverage": self.coverage,
             "registration_rms": num(self.registration_rms), "vertices": self.vertices, "faces": self.faces,
             "reference_vertices": self.reference_vertices, "key_matches": self.key_matches,
+            "tamper": self.tamper(), "foreign": self.foreign, "binding": self.binding or None,
         }
 
 
@@ -191,7 +207,11 @@ def verify_mesh(mesh, reference_source, key, watermark=None, *, tolerance: float
     pts = np.full((len(ref.positions), 3), np.nan)
     pts[corr.valid] = np.asarray(m.positions, np.float64)[corr.index[corr.valid]]
     nbars = None if corr.valid.all() else _partial_nbars(ref, ref.split(pts), corr)
-    est = read_given(ref, pts, key, ref_image, nbars=nbars).estimate()
+    verifier = read_given(ref, pts, key, ref_image, nbars=nbars)
+    verifier.foreign = _foreign_vertices(m, ref, corr, tolerance) > 0
+    est = verifier.estimate()
+    starts = np.cumsum([0] + [len(pos) for pos, _ in ref.parts])
+    flagged = np.unique(corr.index[verifier.tamper(starts)])
     owns = key.owns(ref.params.fingerprint)
     return MeshVerification(
         verdict=est.verdict if owns else "not-authentic", key_matches=owns, nc=est.nc, psnr_db=est.psnr_db, centered_nc=est.centered_nc, ber=est.ber,
@@ -199,8 +219,22 @@ def verify_mesh(mesh, reference_source, key, watermark=None, *, tolerance: float
         correspondence=corr.method, coverage=corr.coverage, registration_rms=corr.rms,
         vertices=m.vertex_count, faces=m.face_count, reference_vertices=len(ref.positions),
         coefficients=est.coefficients, seconds=time.perf_counter() - t0, watermark=est.watermark,
-        bit_exact=est.bit_exact,
+        bit_exact=est.bit_exact, flagged=flagged, foreign=bool(verifier.foreign), binding=ref.params.binding,
     )
+
+
+def _foreign_vertices(mesh: Mesh, ref: Reference, corr: Correspondence, tolerance: float) -> int:
+    """How many vertices of ``mesh`` lie farther than ``tolerance`` reference mean edges from every
+    reference vertex once registered (a graft); 0 for the topological correspondences (bijections)."""
+    if corr.method != "registration":
+        return 0
+    from scipy.spatial import cKDTree
+
+    from ..progressive.topology import mean_edge_length
+
+    unit = tolerance * mean_edge_length(ref.positions, ref.faces)
+    dist, _ = cKDTree(ref.positions).query(corr.transform(np.asarray(mesh.positions, np.float64)))
+    return int(np.count_nonzero(dist > unit))
 
 
 def read_given(ref: Reference, positions: np.ndarray, key, reference_image=None, *, nbars=None) -> Verifier:

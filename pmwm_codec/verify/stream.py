@@ -12,18 +12,22 @@ Contract
 * ``watermark``: the expected image (path or (s, s) array); default the key's own.
 
 The verdict is the stream verifier's (:mod:`pmwm_codec.watermark.verify`):
-``authentic`` | ``not-authentic`` | ``inconclusive``; a file without a watermark is
-``not-authentic``.  Keyed chunk authentication comes on top: a marked file whose base or any
-chunk fails its MAC (or carries none: written before MACs, or stripped) is
-``not-authentic`` whatever the watermark reads, and :meth:`StreamVerification.mac_notes`
-names every such chunk.  :meth:`StreamVerification.as_json` is the ``pmw verify --json`` object
+``authentic`` | ``tampered`` | ``not-authentic`` | ``inconclusive``; a file without a
+watermark is ``not-authentic``.  ``tamper`` lists the vertices of the decoded mesh whose
+carrier code no longer reads (:meth:`~pmwm_codec.watermark.verify.Verifier.tamper`).  Keyed
+chunk authentication comes on top: a marked file whose base or any chunk fails its MAC (or
+carries none: written before MACs, or stripped) is ``not-authentic`` whatever the watermark
+reads, and :meth:`StreamVerification.mac_notes` names every such chunk.
+:meth:`StreamVerification.as_json` is the ``pmw verify --json`` object
 (non-finite floats such as the PSNR of a bit-exact watermark stay ``inf``; the command
 prints them as ``null``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+
+import numpy as np
 
 from ..stream import StreamDecoder, iter_results
 from ..stream.decoder import StreamEnd
@@ -44,6 +48,8 @@ class StreamVerification:
     False when the file's public key fingerprint is another key's (verdict ``not-authentic``);
     ``mac``: ``{"checked": n, "failed": [chunk numbers], "missing": [chunk numbers]}`` (chunk 0
     is the base meshes) -- the keyed MACs checked, failed and absent.
+    ``flagged`` (f,) int64 the tamper map (vertex ids of the last level's decoded mesh);
+    ``binding`` the mark's keyed binding (``""``: a legacy mark).
     """
 
     results: list
@@ -55,6 +61,13 @@ class StreamVerification:
     total_length: int
     key_matches: bool = True
     mac: dict | None = None
+    flagged: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    binding: str = ""
+
+    def tamper(self) -> dict:
+        """``{"flagged": [vertex ids of the decoded mesh whose carrier code no longer reads], "fraction"}``."""
+        vertices = self.results[-1].vertices if self.results else 0
+        return {"flagged": [int(i) for i in self.flagged], "fraction": len(self.flagged) / max(1, vertices)}
 
     def mac_notes(self) -> list:
         """One line per chunk whose bytes are not the key holder's (MAC failed, or absent)."""
@@ -75,7 +88,8 @@ class StreamVerification:
                 "chunks_total": int(self.end.chunks_total), "chunks": chunks, "final": chunks[-1],
                 "verdict": self.verdict, "bytes_read": int(self.end.bytes_read),
                 "total_length": int(self.total_length), "codes_matched": self.codes_matched,
-                "codes_read": self.codes_read, "key_matches": self.key_matches, "mac": self.mac}
+                "codes_read": self.codes_read, "key_matches": self.key_matches, "mac": self.mac,
+                "tamper": self.tamper(), "binding": self.binding or None}
 
 
 def _chunk_name(number: int) -> str:
@@ -113,13 +127,15 @@ def verify_stream(source, key, watermark=None, *, keep_meshes: bool = False, pro
             progress(f"chunk {r.chunk}/{r.chunks_total}", r.chunk / max(1, r.chunks_total))
     v = decoder.verifier
     owns = decoder.watermark_params is None or key is None or key.owns(decoder.watermark_params.fingerprint)
-    if v is None:
-        verdict, matched, read = "not-authentic", 0, 0  # the file carries no watermark
-    else:
-        matched, read = v.matches()
-        verdict = v.verdict() if owns else "not-authentic"
     mac = {"checked": decoder.mac_checked, "failed": decoder.mac_failed, "missing": decoder.mac_missing}
-    if v is not None and (mac["failed"] or mac["missing"]):
-        verdict = "not-authentic"  # bytes the key holder did not write (or cannot be shown to have)
-    return StreamVerification(results, end, verdict, matched, read, v is not None, decoder.header.total_length,
-                              owns, mac)
+    out = StreamVerification(results, end, "not-authentic", 0, 0, v is not None, decoder.header.total_length,
+                             owns, mac)
+    if v is not None:  # else the file carries no watermark
+        out.verdict = v.verdict() if owns else "not-authentic"
+        out.codes_matched, out.codes_read = v.matches()
+        # vertex ids of the decoded mesh: the primitives' current meshes, concatenated in stream order
+        out.flagged = v.tamper(np.cumsum([0] + decoder.vertex_counts()[:-1]))
+        out.binding = v.params.binding
+        if mac["failed"] or mac["missing"]:
+            out.verdict = "not-authentic"  # bytes the key holder did not write (or cannot be shown to have)
+    return out

@@ -19,6 +19,12 @@ the watermark.  The removed vertices of one batch are pairwise non-adjacent, so
 no carrier's ring holds another carrier of its batch (the paper's embedding
 dependency).
 
+**Binding** (``binding`` ``ring-v1``, spec/watermark.md §5): the code a carrier holds
+is its message symbol plus :func:`binding_offsets` -- a keyed BLAKE2b PRF of its stream
+slot and of :func:`ring_descriptor`, the similarity-invariant, quantized shape of its ring
+at split time -- mod ``2**bits``, so codes read from one mesh are worthless on another
+without the key.  Files without ``binding`` are legacy marks (read, never authentic).
+
 Carriers are numbered in stream order: batch 0 (coarsest) first; inside batch
 ``j`` of ``k`` splits, split ``i`` carries stream slot ``offset_j + perm_j[i]``
 with ``perm_j = key.permutation(j, k)`` -- secret, but never mixing batches, so
@@ -49,6 +55,7 @@ Modes
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -133,6 +140,7 @@ class WatermarkParams:
     layout: dict | None = None
     fingerprint: str = ""
     embed_from: int = 0  # first stream slot carrying a code
+    binding: str = ""  # keyed binding of codes to their rings ("" legacy: none)
 
     def code_slots(self, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Stream slots (k,) int64 -> ``(code slots (k,) int64, live (k,) bool)``: which carry a code, and which."""
@@ -149,6 +157,8 @@ class WatermarkParams:
             cfg["layout"] = self.layout
         if self.embed_from:
             cfg["embedFrom"] = self.embed_from
+        if self.binding:
+            cfg["binding"] = self.binding
         return cfg
 
     @classmethod
@@ -161,9 +171,12 @@ class WatermarkParams:
                 size=int(cfg["width"]), levels=int(cfg["levels"]), codes=int(cfg["codes"]),
                 carriers=int(cfg["carriers"]), layout=cfg.get("layout"),
                 fingerprint=str(cfg.get("keyFingerprint", "")), embed_from=int(cfg.get("embedFrom", 0)),
+                binding=cfg.get("binding", ""),
             )
         except (KeyError, TypeError, ValueError):
             raise FormatError("watermark parameters in the file are incomplete") from None
+        if p.binding not in ("", BINDING):
+            raise FormatError(f"unknown watermark binding {str(p.binding)[:40]!r} (this reader knows {BINDING!r})")
         if p.mode not in MODES or not 1 <= p.bits <= MAX_BITS or not (p.scale > 0 and np.isfinite(p.scale)):
             raise FormatError("watermark parameters in the file are out of range")
         if p.size < 1 or p.size > MAX_WATERMARK_SIZE or p.size & (p.size - 1) or int(cfg.get("height", p.size)) != p.size:
@@ -224,6 +237,115 @@ def place_codes(target, centroid, codes, nbar, scale, bits):
     return cand[np.arange(len(best)), best], ok
 
 
+# --------------------------------------------------------------------------- ring binding
+
+#: The keyed binding of every code to the ring it sits on (public: ``binding`` in the file).
+BINDING = "ring-v1"
+#: Descriptor bins per unit of normalized ring distance, and per octave of ring size.
+RING_STEPS = 32
+#: A descriptor value closer than this (in bins) to a bin boundary is read in both bins.
+RING_EPS = 1.0 / 128
+#: At most this many ambiguous values of one carrier are tried both ways (2**3 alternatives).
+MAX_AMBIGUOUS = 3
+ALTERNATIVES = 1 << MAX_AMBIGUOUS
+BINDING_LABEL = b"ring-binding/v1"
+
+
+@dataclass(frozen=True)
+class RingDescriptor:
+    """Quantized, similarity-invariant description of the rings of one batch's k carriers.
+
+    Carrier i owns values ``starts[i]:starts[i + 1]`` of ``q`` (V,) int64: first
+    ``floor(RING_STEPS * log2(R / nbar))`` (``R`` the mean distance of the ring's distinct
+    vertices to their mean), then ``floor(RING_STEPS * |p - mean| / R)`` for each distinct
+    ring vertex ``p`` in ring order (:class:`~pmwm_codec.progressive.vsplit.SplitTopology`).
+    ``vertex`` (V,) int64 the ring vertex behind each value (-1 for the size);
+    ``near`` (V,) int64 -1 / +1 when the value lies within :data:`RING_EPS` bins of its
+    lower / upper boundary (the neighbouring bin is accepted too), else 0; ``closeness``
+    (V,) float64 the distance to the nearer boundary, in bins.
+    """
+
+    q: np.ndarray
+    starts: np.ndarray
+    vertex: np.ndarray
+    near: np.ndarray
+    closeness: np.ndarray
+
+    def ring(self, i: int) -> np.ndarray:
+        """(r,) int64 the distinct ring vertices of carrier ``i``."""
+        return self.vertex[self.starts[i] + 1 : self.starts[i + 1]]
+
+
+def ring_descriptor(positions: np.ndarray, topo, nbar: float) -> RingDescriptor:
+    """The :class:`RingDescriptor` of the new vertices of ``topo`` over ``positions`` (n, >=3).
+
+    Ring vertices are placed before their carrier and never move again, so the encoder (at
+    split time) and every reader (decoded or given positions) describe the same ring.
+    """
+    k = len(topo.u)
+    own = np.repeat(np.asarray(topo.ring_owner, np.int64), 2)
+    ids = np.stack([topo.ring_a, topo.ring_b], axis=1).reshape(-1).astype(np.int64)
+    order = np.argsort(own, kind="stable")
+    own, ids = own[order], ids[order]
+    _, first = np.unique(own * (int(ids.max()) + 1) + ids, return_index=True)
+    first.sort()  # distinct ring vertices, owner by owner, in order of first appearance
+    own, ids = own[first], ids[first]
+    count = np.bincount(own, minlength=k)
+    pts = np.asarray(positions[ids, :3], np.float64)
+    mean = np.stack([np.bincount(own, pts[:, c], k) for c in range(3)], axis=1) / count[:, None]
+    dist = np.linalg.norm(pts - mean[own], axis=1)
+    radius = np.bincount(own, dist, k) / count
+    starts = np.r_[0, np.cumsum(count + 1)].astype(np.int64)
+    head = np.zeros(starts[-1], bool)
+    head[starts[:-1]] = True
+    values = np.empty(starts[-1])
+    vertex = np.full(starts[-1], -1, np.int64)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        values[starts[:-1]] = np.log2(radius / nbar)
+        values[~head] = dist / radius[own]
+        x = np.clip(np.nan_to_num(values * RING_STEPS, nan=0.0, posinf=0.0, neginf=0.0), -(2.0**40), 2.0**40)
+    vertex[~head] = ids
+    q = np.floor(x)
+    frac = x - q
+    near = np.where(frac < RING_EPS, -1, np.where(frac > 1.0 - RING_EPS, 1, 0)).astype(np.int64)
+    return RingDescriptor(q.astype(np.int64), starts, vertex, near, np.minimum(frac, 1.0 - frac))
+
+
+def _prf(mac: bytes, slot: int, values: np.ndarray) -> int:
+    """The keyed PRF: BLAKE2b-64 keyed with ``mac`` over uint64_le(slot) + int64_le values."""
+    h = hashlib.blake2b(int(slot).to_bytes(8, "little"), key=mac, digest_size=8)
+    h.update(np.ascontiguousarray(values, "<i8").tobytes())
+    return int.from_bytes(h.digest(), "little")
+
+
+def binding_offsets(mac: bytes, slots: np.ndarray, desc: RingDescriptor, bits: int, which=None, *,
+                    alternatives: bool = False) -> np.ndarray:
+    """Keyed code offsets of carriers ``which`` (default all) of one batch.
+
+    ``slots`` (k,) int64 their stream slots.  Returns (w, A) int64: column 0 the offset of the
+    descriptor as computed; with ``alternatives`` (A = :data:`ALTERNATIVES`) the further
+    columns hold the offsets of its ambiguous readings (the up to :data:`MAX_AMBIGUOUS`
+    values nearest a boundary, flipped in every combination), -1 where there are none.
+    """
+    which = np.arange(len(slots)) if which is None else np.asarray(which, np.int64)
+    width = ALTERNATIVES if alternatives else 1
+    out = np.full((len(which), width), -1, np.int64)
+    mask = (1 << bits) - 1
+    for row, i in enumerate(which):
+        lo, hi = desc.starts[i], desc.starts[i + 1]
+        q = desc.q[lo:hi]
+        out[row, 0] = _prf(mac, slots[i], q) & mask
+        amb = np.flatnonzero(desc.near[lo:hi]) if alternatives else ()
+        if len(amb) > MAX_AMBIGUOUS:
+            amb = amb[np.argsort(desc.closeness[lo:hi][amb], kind="stable")[:MAX_AMBIGUOUS]]
+        for m in range(1, 1 << len(amb)):
+            flip = amb[[(m >> t) & 1 == 1 for t in range(len(amb))]]
+            alt = q.copy()
+            alt[flip] += desc.near[lo:hi][flip]
+            out[row, m] = _prf(mac, slots[i], alt) & mask
+    return out
+
+
 def paper_mask(key, carriers: int, bits: int) -> np.ndarray:
     """(carriers,) int64 keyed pseudo-random ``bits``-bit values that whiten paper-mode codes."""
     raw = key.bits(1, carriers * bits).astype(np.int64).reshape(carriers, bits)
@@ -278,8 +400,10 @@ def splits_needed(image: np.ndarray, mode: str, bits: int | None = None) -> int:
 class Embedder:
     """The encoder's hook for :func:`~pmwm_codec.progressive.build.build_progressive`.
 
-    ``codes`` (carriers,) int64 is the code of every stream slot; ``nbar`` the
-    base mean edge in grid units.  Counts how many carriers got their code.
+    ``codes`` (carriers,) int64 is the message symbol of every code slot; ``nbar`` the
+    base mean edge in grid units.  With ``params.binding`` each carrier gets its symbol
+    plus the keyed PRF of its stream slot and ring (:func:`binding_offsets`), mod 2**bits.
+    Counts how many carriers got their code.
     """
 
     params: WatermarkParams
@@ -300,12 +424,17 @@ class Embedder:
         else:
             slots = carrier_slots(self.key, j, self.offset, k)
             self.offset += k
-        slots, live = self.params.code_slots(slots)
+        code_slots, live = self.params.code_slots(slots)
         out = np.array(target, dtype=np.int64, copy=True)
         if live.any():
+            codes = self.codes[code_slots[live]]
+            if self.params.binding:
+                desc = ring_descriptor(state.positions, topo, self.nbar)
+                mac = self.key.derived_key(BINDING_LABEL)
+                offsets = binding_offsets(mac, slots, desc, self.params.bits, np.flatnonzero(live))[:, 0]
+                codes = (codes + offsets) % (1 << self.params.bits)
             pts, ok = place_codes(
-                target[live, :3], topo.centroid()[live, :3], self.codes[slots[live]], self.nbar, self.params.scale,
-                self.params.bits,
+                target[live, :3], topo.centroid()[live, :3], codes, self.nbar, self.params.scale, self.params.bits,
             )
             out[np.flatnonzero(live), :3] = pts
             self.embedded += int(ok.sum())
@@ -345,6 +474,7 @@ def plan(image: np.ndarray, key, carriers: int, *, mode: str = "exact", bits: in
         codes = (q[np.arange(carriers) % len(q)] + paper_mask(key, carriers, b)) % (1 << b)
         params = WatermarkParams("paper", b, scale, size, levels, len(q), carriers, None)
     params.fingerprint = key.fingerprint()
+    params.binding = BINDING
     return params, codes
 
 
@@ -370,46 +500,72 @@ class Extractor:
 
     Call :meth:`add` after each batch is applied (with its split topology and the
     decoder's positions), then :meth:`image` for the watermark so far.
+    ``alternates`` (carriers, A) int64: per code slot the message symbols the carrier's
+    code reads as, column 0 with its ring descriptor as computed, the others with its
+    ambiguous readings (-1: none; A = :data:`ALTERNATIVES`); ``received`` is column 0
+    (-1: unread).
     """
 
     params: WatermarkParams
     key: object
     nbar: float
-    received: np.ndarray = field(default=None)  # (carriers,) int64 codes, -1 unknown
+    alternates: np.ndarray = field(default=None)
     offset: int = 0
 
     def __post_init__(self):
-        self.received = np.full(self.params.carriers, -1, dtype=np.int64)
+        self.alternates = np.full((self.params.carriers, ALTERNATIVES), -1, dtype=np.int64)
+        self._mac = self.key.derived_key(BINDING_LABEL) if self.params.binding else None
+
+    @property
+    def received(self) -> np.ndarray:
+        """(carriers,) int64 message symbol read per code slot, -1 unread."""
+        return self.alternates[:, 0]
 
     def add(self, j: int, points: np.ndarray, centroid: np.ndarray, nbar: float | None = None,
-            scale: float | None = None, known: np.ndarray | None = None) -> None:
+            scale: float | None = None, known: np.ndarray | None = None, descriptor: RingDescriptor | None = None):
         """Record the codes of batch ``j`` (stream order): points (k, 3) and ring means (k, 3).
 
         ``nbar`` / ``scale`` override the defaults for a batch of another primitive;
         ``known`` (k,) bool marks the carriers that can be read (default all): the
-        others keep their slots but stay unread.
+        others keep their slots but stay unread; ``descriptor`` the batch's rings (needed
+        when the mark is bound).  Returns ``(code slots (r,) int64, batch rows (r,) int64)``
+        of the carriers read.
         """
         k = len(points)
-        slots, live = self.params.code_slots(carrier_slots(self.key, j, self.offset, k))
+        stream = carrier_slots(self.key, j, self.offset, k)
+        slots, live = self.params.code_slots(stream)
         self.offset += k
         if known is not None:
             live &= np.asarray(known, bool)
         nbar = self.nbar if nbar is None else nbar
         scale = self.params.scale if scale is None else scale
+        rows = np.flatnonzero(live)
         codes = read_codes(points[live], centroid[live], nbar, scale, self.params.bits)
-        self.received[slots[live]] = codes
+        if self._mac is None:
+            self.alternates[slots[live], 0] = codes
+        else:
+            if descriptor is None:
+                raise ValueError("a bound watermark is read with the ring descriptors of its carriers")
+            offsets = binding_offsets(self._mac, stream, descriptor, self.params.bits, rows, alternatives=True)
+            self.alternates[slots[live]] = np.where(offsets >= 0, (codes[:, None] - offsets) % (1 << self.params.bits), -1)
+        return slots[live], rows
 
     @property
     def carriers_read(self) -> int:
         return int(np.count_nonzero(self.received >= 0))
 
-    def coefficients(self) -> tuple[np.ndarray, int]:
-        """The coefficient stream prefix recovered so far: ``(values, count)``."""
+    def coefficients(self, received: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+        """The coefficient stream prefix recovered so far: ``(values, count)``.
+
+        ``received`` (carriers,) int64 replaces :attr:`received` (e.g. each carrier's reading
+        that agrees with the expected code, when a ring value lay on a boundary).
+        """
         p = self.params
-        got = self.received >= 0
+        received = self.received if received is None else received
+        got = received >= 0
         if p.mode == "exact":
             b = p.bits
-            sym = np.where(got, self.received, 0)
+            sym = np.where(got, received, 0)
             raw = bits_from_symbols(sym, b, b * p.carriers) ^ self.key.bits(0, b * p.carriers)
             known = np.repeat(got, b)
             bits_, ok = vote(raw, known, p.codes)
@@ -425,7 +581,7 @@ class Extractor:
             # unwhiten, then the median of the copies of each code
             idx = slot_code[got]
             mask = paper_mask(self.key, p.carriers, p.bits)[got]
-            vals = ((self.received[got] - mask) % (1 << p.bits)).astype(np.float64)
+            vals = ((received[got] - mask) % (1 << p.bits)).astype(np.float64)
             order = np.lexsort((vals, idx))
             idx, vals = idx[order], vals[order]
             starts = np.flatnonzero(np.r_[True, idx[1:] != idx[:-1]])
@@ -436,9 +592,10 @@ class Extractor:
         prefix = int(np.argmin(have)) if not have.all() else q
         return values[:prefix], prefix
 
-    def image(self) -> tuple[np.ndarray, int]:
-        """(size, size) uint8 partial watermark and the number of coefficients it used."""
+    def image(self, received: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+        """(size, size) uint8 partial watermark and the number of coefficients it used (``received``: see
+        :meth:`coefficients`)."""
         p = self.params
-        values, count = self.coefficients()
+        values, count = self.coefficients(received)
         img = haar.reconstruct_prefix(values, p.size, p.levels, integer=(p.mode == "exact"))
         return img, count

@@ -38,6 +38,8 @@ carry no such promise across numpy releases::
 * :meth:`mac_key` ``()``: ``stream(b"mac", 0, 32)``, the key of the chunk MACs
   (:mod:`pmwm_codec.format.mac`); a label of its own, so a MAC reveals nothing of the
   other mappings.
+* :meth:`derived_key` ``(label)``: ``stream(b"key/" + label, 0, 32)``, a 32-byte key for a
+  keyed PRF/MAC (BLAKE2b) that never exposes the secret itself (e.g. the ring binding).
 """
 
 from __future__ import annotations
@@ -303,6 +305,10 @@ class WatermarkKey:
     def mac_key(self) -> bytes:
         """32 bytes keying the chunk and base MACs (BLAKE2b), derived under the label ``mac``."""
         return self._stream(b"mac", 0, 32)
+
+    def derived_key(self, label: bytes) -> bytes:
+        """32 bytes derived from the secret for the keyed PRF/MAC named ``label`` (module docstring)."""
+        return self._stream(b"key/" + bytes(label), 0, 32)
 
 
 def parse_owner_id(text) -> int:

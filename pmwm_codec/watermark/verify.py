@@ -1,24 +1,40 @@
-"""Verification: from codes read at each chunk boundary to NC, PSNR and a verdict.
+"""Verification: from codes read at each chunk boundary to NC, PSNR, a verdict and a tamper map.
 
-The verdict is a hypothesis test on the *codes*, not on the picture.  With the
-key and the reference watermark the verifier knows the code every carrier
-should hold.  If the mesh does not carry this mark (another key, an unmarked
-mesh, a mesh from elsewhere), each code read matches by chance with
-probability ``p0 = 2**-bits`` (codes are whitened by the key in exact mode and
-the bins are uniform).  The number of matches among ``n`` carriers read is then
-Binomial(n, p0).  The verdict:
+With the key and the reference watermark the verifier knows the code every
+carrier should hold: its message symbol plus, for a bound mark (``binding``
+``ring-v1``), a keyed pseudo-random offset of its stream slot and of the
+quantized shape of its ring (:func:`~.codec.binding_offsets`).  A code read is
+*consistent* when it equals the expected code under the ring as read or one of
+its ambiguous readings (a descriptor value within :data:`~.codec.RING_EPS` of a
+bin boundary).  Two counts decide:
 
-* ``authentic`` — at least :data:`MATCH_RATE` of the codes match *and* the
-  chance of that many matches under the null is below :data:`ALPHA`;
-* ``inconclusive`` — fewer than :data:`MIN_CARRIERS` codes read, or more
-  matches than chance explains but fewer than :data:`MATCH_RATE` (a damaged mark);
-* ``not-authentic`` — otherwise, and whenever the reference image cannot be the
-  embedded one (another size, or coefficients that do not fit the file's public
-  bit layout).
+* ``matches``: codes equal to the expected code under the ring *as read*.  If
+  the mesh does not carry this mark (another key, an unmarked mesh, a mesh from
+  elsewhere), each matches by chance with probability ``p0 = 2**-bits`` (codes
+  are whitened by the key, the bins are uniform), so ``matches`` is then
+  Binomial(n, p0) over the ``n`` carriers read;
+* ``mismatched``: carriers read whose code is consistent with no reading of the ring.
 
-``ALPHA`` bounds the false-positive probability of an ``authentic`` verdict
-per verification; ``tools/bench_watermark.py`` measures the rate over many
-wrong keys and unmarked meshes (see BENCHMARKS.md).
+The verdict:
+
+* ``inconclusive`` -- fewer than :data:`MIN_CARRIERS` codes read (even one-bit
+  codes then pass the test below only when all of them match: ``2**-32 < ALPHA``);
+* ``not-authentic`` -- ``matches`` within chance (binomial tail ``>= ALPHA``), or
+  the reference image cannot be the embedded one (another size, or
+  coefficients that do not fit the file's public bit layout);
+* ``tampered`` -- the mark is there (tail ``< ALPHA``) but at least one carrier
+  is inconsistent, or the mesh holds vertices the reference does not explain
+  (``foreign``, a graft);
+* ``authentic`` -- the mark is there and every carrier read is consistent (no
+  tolerance: our transport keeps every code bit-exactly, and float32 storage or a
+  similarity moves a ring value only across a boundary it lies within
+  ``RING_EPS`` of) and the mark is bound; a legacy file (no ``binding``) is
+  ``inconclusive`` instead, since its codes can be transplanted without the key.
+
+``ALPHA`` bounds the false-positive probability of a ``tampered`` or ``authentic``
+verdict per verification; ``tools/bench_watermark.py`` measures the rate over
+many wrong keys and unmarked meshes (see BENCHMARKS.md).  :meth:`Verifier.tamper`
+maps the inconsistent carriers to vertices.
 """
 
 from __future__ import annotations
@@ -33,22 +49,29 @@ from . import haar
 from .metrics import centered_nc, nc, psnr
 from .payload import BitLayout, pack, repeat_to_capacity, symbols
 
-MATCH_RATE = 0.8
 ALPHA = 1e-9
 MIN_CARRIERS = 32
+#: tamper map: share of a vertex's carriers that must fail (own code failing / at least two failing)
+FLAG_OWN = 0.25
+FLAG_SHARED = 0.3
+VERDICTS = ("authentic", "tampered", "not-authentic", "inconclusive")
 
 
-def verdict(matches: int, read: int, bits: int) -> str:
-    """``authentic`` | ``not-authentic`` | ``inconclusive`` for ``matches`` of ``read`` codes."""
+def verdict(matches: int, read: int, bits: int, *, mismatched: int | None = None, foreign: bool = False,
+            bound: bool = True) -> str:
+    """One of :data:`VERDICTS` (module docstring) for ``matches`` of ``read`` codes.
+
+    ``mismatched``: carriers consistent with no reading of their ring (default
+    ``read - matches``); ``foreign``: the mesh holds vertices the reference does not
+    explain; ``bound``: the mark has a keyed binding (False: a legacy mark).
+    """
     if read < MIN_CARRIERS:
         return "inconclusive"
-    p0 = 2.0 ** -bits
-    tail = float(binom.sf(matches - 1, read, p0))
-    if tail < ALPHA and matches >= MATCH_RATE * read:
-        return "authentic"
-    if tail < ALPHA:
-        return "inconclusive"
-    return "not-authentic"
+    if float(binom.sf(matches - 1, read, 2.0**-bits)) >= ALPHA:
+        return "not-authentic"
+    if (read - matches if mismatched is None else mismatched) > 0 or foreign:
+        return "tampered"
+    return "authentic" if bound else "inconclusive"
 
 
 class Verifier:
@@ -56,7 +79,8 @@ class Verifier:
 
     ``reference`` (s, s) uint8 is the original watermark (None: no scores);
     ``nbar`` the default reference length of :meth:`add` (None when every batch
-    brings its own, as :meth:`add_carriers` does).
+    brings its own, as :meth:`add_carriers` does).  ``foreign`` (set by the caller):
+    the checked mesh holds vertices the reference does not explain.
     """
 
     def __init__(self, params: wm.WatermarkParams, key, nbar: float | None, reference=None):
@@ -64,6 +88,9 @@ class Verifier:
         self.extractor = wm.Extractor(params, key, nbar)
         self.reference = None if reference is None else np.asarray(reference, np.uint8)
         self.expected = None
+        self.foreign = False
+        #: per batch read: (primitive, code slots (r,), new vertex ids (r,), ring descriptor, batch rows (r,))
+        self.support: list = []
         #: True when the reference cannot be what the file carries (other size or bit layout)
         self.mismatch = False
         if self.reference is not None:
@@ -71,21 +98,34 @@ class Verifier:
             self.mismatch = self.expected is None
 
     def add(self, batch_index: int, points: np.ndarray, centroid: np.ndarray, nbar=None, scale=None,
-            known=None) -> None:
+            known=None, descriptor=None):
         """Read the codes of one batch (see :meth:`.codec.Extractor.add`)."""
-        self.extractor.add(batch_index, np.asarray(points, np.float64), centroid, nbar, scale, known)
+        return self.extractor.add(batch_index, np.asarray(points, np.float64), centroid, nbar, scale, known,
+                                  descriptor)
 
     def add_carriers(self, carriers) -> None:
         """Read one :class:`~pmwm_codec.stream.replay.Carriers` batch."""
-        self.add(carriers.batch, carriers.points, carriers.centroid, carriers.nbar, carriers.scale, carriers.known)
+        desc = carriers.descriptor if self.params.binding else None
+        slots, rows = self.add(carriers.batch, carriers.points, carriers.centroid, carriers.nbar, carriers.scale,
+                               carriers.known, desc)
+        if carriers.vertices is not None:
+            self.support.append((carriers.primitive, slots, carriers.vertices[rows], desc, rows))
 
     def matches(self) -> tuple[int, int]:
-        """``(codes matching the reference, codes read)`` so far."""
+        """``(codes matching the reference under their ring as read, codes read)`` so far."""
         got = self.extractor.received >= 0
         read = int(got.sum())
         if self.expected is None:
             return 0, read
         return int(np.count_nonzero(self.extractor.received[got] == self.expected[got])), read
+
+    def inconsistent(self) -> np.ndarray:
+        """(carriers,) bool: read, and consistent with no reading of the ring (False without a reference)."""
+        alt = self.extractor.alternates
+        if self.expected is None:
+            return np.zeros(len(alt), bool)
+        ok = (alt == self.expected[:, None]).any(axis=1)
+        return (alt[:, 0] >= 0) & ~ok
 
     def verdict(self) -> str:
         if self.mismatch:
@@ -93,11 +133,51 @@ class Verifier:
         if self.expected is None:
             return "inconclusive"
         m, n = self.matches()
-        return verdict(m, n, self.params.bits)
+        return verdict(m, n, self.params.bits, mismatched=int(self.inconsistent().sum()), foreign=self.foreign,
+                       bound=bool(self.params.binding))
+
+    def tamper(self, offsets=None) -> np.ndarray:
+        """Sorted (f,) int64 ids of the vertices whose carrier codes no longer read.
+
+        A vertex is read by its own carrier (if it is one) and by every carrier whose ring
+        holds it.  It is flagged when its own code fails and at least :data:`FLAG_OWN` of
+        the carriers reading it fail, or when at least two fail and they are at least
+        :data:`FLAG_SHARED` of them: a moved vertex fails each carrier reading it with
+        probability ``1 - 2**-bits``, an untouched neighbour of an edit only those that
+        also read a moved vertex.  ``offsets`` (per primitive) turns primitive-local ids
+        into ids of the concatenated mesh.
+        """
+        bad = self.inconsistent()
+        ids, fails, own = [], [], []
+        for primitive, slots, vertices, desc, rows in self.support:
+            shift = 0 if offsets is None else int(offsets[primitive])
+            hit = bad[slots]
+            ids.append(vertices + shift)
+            fails.append(hit)
+            own.append(np.ones(len(rows), bool))
+            if desc is not None and len(rows):
+                first, size = desc.starts[rows] + 1, desc.starts[rows + 1] - desc.starts[rows] - 1
+                at = np.repeat(first - np.cumsum(size) + size, size) + np.arange(int(size.sum()))
+                ids.append(desc.vertex[at] + shift)
+                fails.append(np.repeat(hit, size))
+                own.append(np.zeros(len(at), bool))
+        if not ids:
+            return np.zeros(0, np.int64)
+        ids, fails, own = np.concatenate(ids), np.concatenate(fails), np.concatenate(own)
+        n = int(ids.max()) + 1 if len(ids) else 0
+        read = np.bincount(ids, minlength=n)
+        failed = np.bincount(ids, weights=fails, minlength=n)
+        own_failed = np.bincount(ids[own & fails], minlength=n) > 0
+        flag = (own_failed & (failed >= FLAG_OWN * read)) | ((failed >= 2) & (failed >= FLAG_SHARED * read))
+        return np.flatnonzero(flag).astype(np.int64)
 
     def estimate(self) -> "WatermarkEstimate":
         """The partial watermark so far, scored against the reference (one scoring for every reader)."""
-        img, count = self.extractor.image()
+        received = self.extractor.received
+        if self.expected is not None:  # a ring value on a boundary: take the reading the expected code agrees with
+            agree = (self.extractor.alternates == self.expected[:, None]).any(axis=1)
+            received = np.where(agree, self.expected, received)
+        img, count = self.extractor.image(received)
         m, n = self.matches()
         out = WatermarkEstimate(img, int(count), n, self.verdict(), self.params.carriers)
         if self.reference is not None and self.reference.shape == img.shape:
@@ -109,6 +189,7 @@ class Verifier:
         if self.expected is not None:
             out.code_match = (m / n) if n else None
             out.ber = code_ber(self.extractor.received, self.expected, self.params.bits)
+            out.inconsistent = int(self.inconsistent().sum())
         return out
 
 
@@ -121,7 +202,8 @@ class WatermarkEstimate:
     ``verdict`` (see :func:`verdict`); with a reference image: ``nc``,
     ``psnr_db`` (inf when bit-exact), ``centered_nc``, ``bit_exact``; with the
     codes the reference implies: ``code_match`` (fraction of codes read that
-    match) and ``ber`` (bit error rate of the codes read).
+    match), ``ber`` (bit error rate of the codes read) and ``inconsistent`` (carriers
+    whose code reads under no reading of their ring).
     """
 
     watermark: np.ndarray
@@ -135,6 +217,7 @@ class WatermarkEstimate:
     bit_exact: bool = False
     code_match: float | None = None
     ber: float | None = None
+    inconsistent: int = 0
 
 
 def code_ber(received: np.ndarray, expected: np.ndarray, bits: int) -> float | None:
