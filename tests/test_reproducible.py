@@ -24,7 +24,7 @@ from pmwm_codec.watermark.key import WatermarkKey
 from test_asset import DocBuilder
 
 #: sha256 of the ``.pmw`` of :func:`_pinned_encode`.
-PINNED_SHA256 = "4ae33afc8c0511f6cc27b6f6203b752b7bc71f8577225292935e022038d264fa"
+PINNED_SHA256 = "c7b4ce1e15d8349a25f9f9a08afed29863d65a58c4e5b0db25911df28a252a3c"
 
 
 def _key(seed: int = 3) -> WatermarkKey:
