@@ -303,7 +303,7 @@ def test_pmw_verify_says_tampered_with_exit_1_and_draws_the_map(marked, tmp_path
 
 def test_a_legacy_golden_file_still_reads_its_image_but_is_never_authentic():
     """spec/conformance holds files marked before the binding: their image still reads bit-exactly,
-    their verdict is ``inconclusive`` (a legacy mark can be transplanted without the key)."""
+    never ``authentic`` (a legacy mark can be transplanted without the key, and it has no chunk MACs)."""
     from pathlib import Path
 
     base = Path(__file__).resolve().parent.parent / "spec" / "conformance" / "sphere.exact-watermark.v1"
@@ -311,4 +311,4 @@ def test_a_legacy_golden_file_still_reads_its_image_but_is_never_authentic():
     v = verify_stream(f"{base}.pmw", key)
     assert v.binding == "" and v.as_json()["binding"] is None
     assert np.array_equal(v.results[-1].watermark, key.reference)
-    assert v.verdict == "inconclusive"
+    assert v.verdict == "not-authentic" and v.mac["missing"] and any("no MAC" in n for n in v.mac_notes())

@@ -174,11 +174,14 @@ class Verifier:
     def estimate(self) -> "WatermarkEstimate":
         """The partial watermark so far, scored against the reference (one scoring for every reader)."""
         received = self.extractor.received
-        if self.expected is not None:  # a ring value on a boundary: take the reading the expected code agrees with
+        m, n = self.matches()
+        if self.expected is not None and n and binom.sf(m - 1, n, 2.0**-self.params.bits) < ALPHA:
+            # the mark is there: a ring value on a boundary takes the reading the expected code agrees
+            # with.  Only then -- a wrong key or an unmarked mesh would otherwise be pulled toward
+            # the reference image through its ambiguous carriers.
             agree = (self.extractor.alternates == self.expected[:, None]).any(axis=1)
             received = np.where(agree, self.expected, received)
         img, count = self.extractor.image(received)
-        m, n = self.matches()
         out = WatermarkEstimate(img, int(count), n, self.verdict(), self.params.carriers)
         if self.reference is not None and self.reference.shape == img.shape:
             r, x = self.reference.astype(np.float64), img.astype(np.float64)
