@@ -20,10 +20,12 @@ const NORMALIZED = { NORMAL: 3, TANGENT: 3 };
 
 export class PmwDecoder {
   /**
-   * @param {{draco?: DracoDecoder, maxChunks?: number, snapshots?: boolean}} options
-   *   maxChunks: apply no chunk after this many; snapshots: attach `mesh` (see snapshot()) to every result
+   * @param {{draco?: DracoDecoder, maxChunks?: number, snapshots?: boolean, onLevel?: Function}} options
+   *   maxChunks: apply no chunk after this many; snapshots: attach `mesh` (see snapshot()) to every result;
+   *   onLevel(result, decoder): called as each level is reached, before the next chunk is applied
    */
-  constructor({ draco, maxChunks = Infinity, snapshots = false } = {}) {
+  constructor({ draco, maxChunks = Infinity, snapshots = false, onLevel } = {}) {
+    this.onLevel = onLevel;
     this.draco = draco;
     this.maxChunks = maxChunks;
     this.snapshots = snapshots;
@@ -128,6 +130,7 @@ export class PmwDecoder {
       parts,
     };
     if (this.snapshots) r.mesh = this.snapshot();
+    this.onLevel?.(r, this);
     return r;
   }
 

@@ -2,7 +2,7 @@
  * Hostile input ends in a named error (a PmwError subclass) or a valid partial result, never a
  * hang or another exception: seeded random cuts, bit flips anywhere, bit flips and overwrites of
  * decompressed chunk payloads re-wrapped with valid frames and digests, and JSON edits.
- * Bounded: FUZZ_CASES (default 400) cases per kind; every case runs under a time bound.
+ * Bounded: FUZZ_CASES (default 200) cases per kind; every case runs under a time bound.
  */
 import assert from 'node:assert/strict';
 import { readFileSync } from 'node:fs';
@@ -12,7 +12,7 @@ import { PmwDecoder, PmwError } from '../src/index.js';
 import { CONFORMANCE, conformanceFiles } from './lib/helpers.js';
 import { chunkPayloads, withPayload } from './lib/rewrite.js';
 
-const CASES = Number(process.env.FUZZ_CASES ?? 400);
+const CASES = Number(process.env.FUZZ_CASES ?? 200);
 const files = conformanceFiles().map((f) => new Uint8Array(readFileSync(join(CONFORMANCE, f))));
 
 function rng(seed) {
