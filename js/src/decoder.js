@@ -141,6 +141,7 @@ export class PmwDecoder {
    * attributesInt (n*a) Int32Array, attributes {semantic: Float32Array}}.
    */
   snapshot() {
+    if (this.failed) throw this.failed; // a chunk may be half applied: never shown as a level
     if (!this.states) throw new TruncatedError('no base mesh yet', this.received, this.#baseBytes());
     const parts = this.states.map((s, p) => partSnapshot(s, this.plan.primitives[p]));
     const N = parts.reduce((a, p) => a + p.positionsInt.length / 3, 0);
