@@ -7,6 +7,8 @@ import { FormatError, LimitError } from './errors.js';
 import { MAX_BATCHES_PER_CHUNK, MAX_VERTICES } from './constants.js';
 
 const TWO32 = 4294967296;
+/** Packed symbol value (0..124) -> its three symbols, least significant first. */
+const TRIPLES = Array.from({ length: 125 }, (_, x) => Uint8Array.of(x % 5, Math.floor(x / 5) % 5, Math.floor(x / 25)));
 
 /**
  * One column at `at`: its `count` values as a Float64Array (exact below 2^53; larger ones only
@@ -21,6 +23,10 @@ function readColumn(p, at, count, name) {
   const end = at + 1 + width * count;
   if (end > p.length) throw new FormatError(`chunk payload: column ${name} is cut short`);
   const out = new Float64Array(count);
+  if (width === 1) {
+    out.set(p.subarray(at + 1, end));
+    return { values: out, end };
+  }
   const lowPlanes = Math.min(width, 4);
   for (let plane = 0; plane < lowPlanes; plane++) {
     const src = at + 1 + plane * count;
@@ -75,11 +81,9 @@ export function unpackPayload(p, D, maxSplits) {
   if (at !== p.length) throw new FormatError(`chunk payload: ${p.length - at} trailing bytes`);
   const symbols = new Uint8Array(packedCount * 3);
   for (let t = 0; t < packedCount; t++) {
-    let x = packed.values[t];
+    const x = packed.values[t];
     if (x >= 125) throw new FormatError('chunk payload: unknown incidence symbol');
-    symbols[3 * t] = x % 5; x = (x - (x % 5)) / 5;
-    symbols[3 * t + 1] = x % 5;
-    symbols[3 * t + 2] = (x - (x % 5)) / 5;
+    symbols.set(TRIPLES[x], 3 * t);
   }
   const v = new Float64Array(K);
   let s = 0;
@@ -158,7 +162,8 @@ export class MeshState {
     let t = 0;
     let mNew = m;
     const I = symbols.length;
-    for (let c = 0; c < 3 * m; c++) {
+    const corners = 3 * m;
+    for (let c = 0; c < corners; c++) {
       const i = slot[faces[c]];
       if (i < 0) continue;
       if (t >= I) throw new FormatError(`batch has ${I} incidence symbols, the mesh has more incidences`);
