@@ -117,13 +117,18 @@ export class MeshState {
     this.D = D;
     this.capN = capN;
     this.capM = capM;
-    this.values = new Float64Array(capN * D);
+    try {
+      this.values = new Float64Array(capN * D);
+      this.faces = new Uint32Array(capM * 3);
+      this.slot = new Int32Array(capN).fill(-1);
+    } catch (e) {
+      if (!(e instanceof RangeError)) throw e;
+      throw new LimitError(`cannot allocate ${capN} vertices and ${capM} faces (${e.message})`);
+    }
     this.values.set(values.subarray(0, n * D));
-    this.faces = new Uint32Array(capM * 3);
     this.faces.set(faces.subarray(0, m * 3));
     this.n = n;
     this.m = m;
-    this.slot = new Int32Array(capN).fill(-1);
   }
 
   /**

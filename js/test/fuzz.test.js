@@ -38,7 +38,7 @@ async function outcome(bytes, what) {
   }
 }
 
-test('random cuts and bit flips anywhere in the file end in named errors', async () => {
+test('random cuts and bit flips anywhere in the file end in named errors', { timeout: 300000 }, async () => {
   const r = rng(1);
   const seen = new Set();
   for (let i = 0; i < CASES; i++) {
@@ -50,7 +50,7 @@ test('random cuts and bit flips anywhere in the file end in named errors', async
   assert.ok(seen.size > 1, [...seen].join());
 });
 
-test('hostile chunk payloads behind valid frames and digests end in named errors', async () => {
+test('hostile chunk payloads behind valid frames and digests end in named errors', { timeout: 300000 }, async () => {
   const r = rng(2);
   const sources = files.map((bytes) => ({ bytes, chunks: chunkPayloads(bytes) }));
   const seen = new Set();
@@ -72,7 +72,7 @@ test('hostile chunk payloads behind valid frames and digests end in named errors
   assert.ok(seen.has('FormatError') || seen.has('LimitError'), [...seen].join());
 });
 
-test('edits of the JSON counts and offsets end in named errors', async () => {
+test('edits of the JSON counts and offsets end in named errors', { timeout: 300000 }, async () => {
   const r = rng(3);
   const edits = [
     (x) => x.replace(/"vertexCount":\s*(\d+)/, (_, n) => `"vertexCount":${Number(n) * 1000}`),
