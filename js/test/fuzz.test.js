@@ -9,20 +9,12 @@ import { readFileSync } from 'node:fs';
 import { join } from 'node:path';
 import { test } from 'node:test';
 import { PmwDecoder, PmwError } from '../src/index.js';
-import { CONFORMANCE, conformanceFiles } from './lib/helpers.js';
+import { CONFORMANCE, conformanceFiles, seededRandom } from './lib/helpers.js';
 import { chunkPayloads, withPayload } from './lib/rewrite.js';
 
 const CASES = Number(process.env.FUZZ_CASES ?? 200);
 const files = conformanceFiles().map((f) => new Uint8Array(readFileSync(join(CONFORMANCE, f))));
 
-function rng(seed) {
-  return () => {
-    seed = (seed + 0x6d2b79f5) | 0;
-    let t = Math.imul(seed ^ (seed >>> 15), 1 | seed);
-    t = (t + Math.imul(t ^ (t >>> 7), 61 | t)) ^ t;
-    return ((t ^ (t >>> 14)) >>> 0) / 4294967296;
-  };
-}
 
 /** Decodes `bytes`: 'ok' (possibly partial) or the error's class name; fails on a non-PmwError. */
 async function outcome(bytes, what) {
@@ -39,7 +31,7 @@ async function outcome(bytes, what) {
 }
 
 test('random cuts and bit flips anywhere in the file end in named errors', { timeout: 300000 }, async () => {
-  const r = rng(1);
+  const r = seededRandom(1);
   const seen = new Set();
   for (let i = 0; i < CASES; i++) {
     const src = files[i % files.length];
@@ -51,7 +43,7 @@ test('random cuts and bit flips anywhere in the file end in named errors', { tim
 });
 
 test('hostile chunk payloads behind valid frames and digests end in named errors', { timeout: 300000 }, async () => {
-  const r = rng(2);
+  const r = seededRandom(2);
   const sources = files.map((bytes) => ({ bytes, chunks: chunkPayloads(bytes) }));
   const seen = new Set();
   for (let i = 0; i < CASES; i++) {
@@ -73,7 +65,7 @@ test('hostile chunk payloads behind valid frames and digests end in named errors
 });
 
 test('edits of the JSON counts and offsets end in named errors', { timeout: 300000 }, async () => {
-  const r = rng(3);
+  const r = seededRandom(3);
   const edits = [
     (x) => x.replace(/"vertexCount":\s*(\d+)/, (_, n) => `"vertexCount":${Number(n) * 1000}`),
     (x) => x.replace(/"faceCount":\s*(\d+)/, '"faceCount":1'),

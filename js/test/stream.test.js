@@ -8,18 +8,10 @@ import { readFileSync } from 'node:fs';
 import { join } from 'node:path';
 import { test } from 'node:test';
 import { CorruptChunkError, FormatError, PmwDecoder, TruncatedError, decodePmw } from '../src/index.js';
-import { CONFORMANCE, conformanceFiles, levelDigest } from './lib/helpers.js';
+import { CONFORMANCE, conformanceFiles, seededRandom, levelDigest } from './lib/helpers.js';
 
 const load = (f) => new Uint8Array(readFileSync(join(CONFORMANCE, f)));
 
-function mulberry32(seed) {
-  return () => {
-    seed = (seed + 0x6d2b79f5) | 0;
-    let t = Math.imul(seed ^ (seed >>> 15), 1 | seed);
-    t = (t + Math.imul(t ^ (t >>> 7), 61 | t)) ^ t;
-    return ((t ^ (t >>> 14)) >>> 0) / 4294967296;
-  };
-}
 
 async function levels(bytes, pieces) {
   const d = new PmwDecoder({ snapshots: true });
@@ -32,7 +24,7 @@ for (const file of conformanceFiles()) {
   test(`${file}: fed in random pieces, the same levels as fed whole`, async () => {
     const bytes = load(file);
     const whole = await levels(bytes, (b) => [b]);
-    const rand = mulberry32(7);
+    const rand = seededRandom(7);
     const pieces = (b) => {
       const out = [];
       for (let at = 0; at < b.length;) {

@@ -36,3 +36,13 @@ export function levelDigest(mesh) {
   if (a.length) h.update(asInt64Bytes(a));
   return h.digest('hex');
 }
+
+/** A seeded uniform [0, 1) generator (mulberry32): the tests' only randomness. */
+export function seededRandom(seed) {
+  return () => {
+    seed = (seed + 0x6d2b79f5) | 0;
+    let t = Math.imul(seed ^ (seed >>> 15), 1 | seed);
+    t = (t + Math.imul(t ^ (t >>> 7), 61 | t)) ^ t;
+    return ((t ^ (t >>> 14)) >>> 0) / 4294967296;
+  };
+}
