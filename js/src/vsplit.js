@@ -43,7 +43,7 @@ function readColumn(p, at, count, name) {
 
 /**
  * Parses a chunk payload against D values per vertex and at most `maxSplits` splits.
- * @returns {{batches: {k:number, I:number}[], v: Float64Array, symbols: Uint8Array, residuals: Float64Array}}
+ * @returns {{batches: {k:number, I:number}[], v: Int32Array, symbols: Uint8Array, residuals: Float64Array}}
  *   v: (K) split vertices (batch-relative gaps resolved); symbols: (I); residuals: (K*D) row-major per split.
  */
 export function unpackPayload(p, D, maxSplits) {
@@ -85,13 +85,17 @@ export function unpackPayload(p, D, maxSplits) {
     if (x >= 125) throw new FormatError('chunk payload: unknown incidence symbol');
     symbols.set(TRIPLES[x], 3 * t);
   }
-  const v = new Float64Array(K);
+  const v = new Int32Array(K);
   let s = 0;
   for (const { k } of batches) {
+    let prev = -1;
     for (let i = 0; i < k; i++) {
       const g = gaps.values[s + i];
       if (g > MAX_VERTICES) throw new FormatError('chunk payload: split vertex gap out of range');
-      v[s + i] = i === 0 ? g : v[s + i - 1] + g + 1;
+      prev += g + 1;
+      // a vertex past MAX_VERTICES can be no vertex of the mesh (spec: it MUST be < n <= MAX_VERTICES)
+      if (prev >= MAX_VERTICES) throw new FormatError('chunk payload: split vertex out of range');
+      v[s + i] = prev;
     }
     s += k;
   }
@@ -109,7 +113,9 @@ export function unpackPayload(p, D, maxSplits) {
 
 /**
  * A primitive's mesh as it grows: `values` (capN*D) Float64Array of integer values per vertex
- * (grid x, y, z, then attribute components), `faces` (capM*3) Uint32Array, `n`/`m` in use.
+ * (grid x, y, z, then attribute components), `faces` (capM*3) Uint32Array, `n`/`m` in use, and
+ * for every vertex the list of corners holding it (`head` (capN), `next` (capM*3) Int32Array,
+ * -1 ends a list), so a batch finds its incidences without scanning every face.
  */
 export class MeshState {
   constructor(values, faces, n, m, D, capN, capM) {
@@ -120,60 +126,89 @@ export class MeshState {
     try {
       this.values = new Float64Array(capN * D);
       this.faces = new Uint32Array(capM * 3);
+      this.head = new Int32Array(capN).fill(-1);
       this.slot = new Int32Array(capN).fill(-1);
+      this.next = new Int32Array(capM * 3);
     } catch (e) {
       if (!(e instanceof RangeError)) throw e;
       throw new LimitError(`cannot allocate ${capN} vertices and ${capM} faces (${e.message})`);
     }
     this.values.set(values.subarray(0, n * D));
     this.faces.set(faces.subarray(0, m * 3));
+    for (let c = 3 * m - 1; c >= 0; c--) this.#link(c);
     this.n = n;
     this.m = m;
   }
 
+  /** Puts corner c at the head of the list of the vertex it holds. */
+  #link(c) {
+    const x = this.faces[c];
+    this.next[c] = this.head[x];
+    this.head[x] = c;
+  }
+
+  /** The corners holding v[0..k) in ascending order (the face-slot order of spec §6.1 step 1). */
+  #incidences(v, I) {
+    const { head, next } = this;
+    let count = 0;
+    for (let i = 0; i < v.length; i++) {
+      for (let c = head[v[i]]; c >= 0; c = next[c]) {
+        if (++count > I) throw new FormatError(`batch has ${I} incidence symbols, the mesh has more incidences`);
+      }
+    }
+    if (count !== I) throw new FormatError(`batch has ${I} incidence symbols, the mesh has ${count} incidences`);
+    const inc = new Int32Array(count);
+    let at = 0;
+    for (let i = 0; i < v.length; i++) for (let c = head[v[i]]; c >= 0; c = next[c]) inc[at++] = c;
+    return inc.sort();
+  }
+
   /**
    * Applies one batch (spec/bitstream.md §6.1) in place.
-   * @param {Float64Array} v (k) split vertices; symbols (I) Uint8Array; residuals (k*D) Float64Array
+   * @param {Int32Array} v (k) split vertices; symbols (I) Uint8Array; residuals (k*D) Float64Array
    */
   applyBatch(v, symbols, residuals) {
-    const { D, faces, values, slot } = this;
+    const { D, faces, values } = this;
     const k = v.length;
     const n = this.n;
     const m = this.m;
     if (n + k > this.capN) throw new FormatError('splits exceed the declared vertex count');
     for (let i = 0; i < k; i++) {
-      if (v[i] >= n || (i > 0 && v[i] <= v[i - 1])) {
-        for (let j = 0; j < i; j++) slot[v[j]] = -1;
-        throw new FormatError('split vertex ids out of range or not increasing');
+      if (v[i] >= n || (i > 0 && v[i] <= v[i - 1])) throw new FormatError('split vertex ids out of range or not increasing');
+    }
+    const inc = this.#incidences(v, symbols.length);
+    const { sums, ring, wings, mNew } = this.#split(v, symbols, inc, n, m);
+    for (let i = 0; i < k; i++) {
+      if (wings[i] < 1 || wings[i] > 2) throw new FormatError('a split names no new face or more than two');
+      for (let d = 0; d < D; d++) {
+        values[(n + i) * D + d] = Math.floor(sums[i * D + d] / ring[i]) + residuals[i * D + d];
       }
-      slot[v[i]] = i;
     }
-    try {
-      this.#scan(v, symbols, residuals, n, m);
-    } finally {
-      for (let i = 0; i < k; i++) slot[v[i]] = -1;
-    }
+    for (let i = 0; i < k; i++) this.head[v[i]] = -1;
+    for (let t = inc.length - 1; t >= 0; t--) this.#link(inc[t]); // each to v[i] or its new vertex
+    for (let c = 3 * mNew - 1; c >= 3 * m; c--) this.#link(c);
+    this.n = n + k;
+    this.m = mNew;
   }
 
-  #scan(v, symbols, residuals, n, m) {
-    const { D, faces, values, slot } = this;
+  /** Steps 1-3 of spec §6.1 over the incidences `inc` in order: corners rewritten, faces appended. */
+  #split(v, symbols, inc, n, m) {
+    const { D, faces, values } = this;
     const k = v.length;
     const sums = new Float64Array(k * D);
     const wings = new Int32Array(k);
     const ring = new Int32Array(k);
+    const { slot } = this;
+    for (let i = 0; i < k; i++) slot[v[i]] = i;
     const add = (i, x) => {
       for (let d = 0; d < D; d++) sums[i * D + d] += values[x * D + d];
     };
-    let t = 0;
     let mNew = m;
-    const I = symbols.length;
-    const corners = 3 * m;
-    for (let c = 0; c < corners; c++) {
-      const i = slot[faces[c]];
-      if (i < 0) continue;
-      if (t >= I) throw new FormatError(`batch has ${I} incidence symbols, the mesh has more incidences`);
-      const s = symbols[t++];
+    for (let t = 0; t < inc.length; t++) {
+      const s = symbols[t];
       if (s === 0) continue;
+      const c = inc[t];
+      const i = slot[faces[c]];
       const f = c - (c % 3);
       const a = faces[f + ((c + 1) % 3)];
       const b = faces[f + ((c + 2) % 3)];
@@ -192,15 +227,8 @@ export class MeshState {
         add(i, vi); add(i, b); ring[i] += 2; wings[i]++;
       }
     }
-    if (t !== I) throw new FormatError(`batch has ${I} incidence symbols, the mesh has ${t} incidences`);
-    for (let i = 0; i < k; i++) {
-      if (wings[i] < 1 || wings[i] > 2) throw new FormatError('a split names no new face or more than two');
-      for (let d = 0; d < D; d++) {
-        values[(n + i) * D + d] = Math.floor(sums[i * D + d] / ring[i]) + residuals[i * D + d];
-      }
-    }
-    this.n = n + k;
-    this.m = mNew;
+    for (let i = 0; i < k; i++) slot[v[i]] = -1;
+    return { sums, ring, wings, mNew };
   }
 
   /** Applies a whole unpacked chunk payload (see unpackPayload), batch after batch. */
