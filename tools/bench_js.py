@@ -57,12 +57,14 @@ def render(results: list, command: str) -> str:
     runs = "; ".join(f"{r['name']}: decodePmw {[round(t, 4) for t in r['pmw']]}, draco3d {[round(t, 4) for t in r['draco']]}"
                      for r in results)
     load = os.getloadavg()[0]
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
+    dirty = subprocess.run(["git", "status", "--porcelain", "js/src"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
     node = results[0]["node"] if results else "?"
     return "\n".join([
         f"Command (from the repository root): `{command}`",
         "",
         f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, Node {node}; load average "
-        f"at start {load:.2f}. The machine was shared with other agents running test suites while this ran: "
+        f"at start {load:.2f}. Decoder: commit {commit or '?'}{' with uncommitted js/src changes' if dirty else ''}. The machine was shared with other agents running test suites while this ran: "
         "compare the ratio within a row, not absolute times.",
         "",
         "What is timed (medians; one warm-up run each first, module instantiation not timed): "

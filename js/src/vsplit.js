@@ -193,41 +193,45 @@ export class MeshState {
 
   /** Steps 1-3 of spec §6.1 over the incidences `inc` in order: corners rewritten, faces appended. */
   #split(v, symbols, inc, n, m) {
-    const { D, faces, values } = this;
+    const { D, faces, values, slot, capM } = this;
     const k = v.length;
     const sums = new Float64Array(k * D);
     const wings = new Int32Array(k);
     const ring = new Int32Array(k);
-    const { slot } = this;
     for (let i = 0; i < k; i++) slot[v[i]] = i;
-    const add = (i, x) => {
-      for (let d = 0; d < D; d++) sums[i * D + d] += values[x * D + d];
-    };
     let mNew = m;
-    for (let t = 0; t < inc.length; t++) {
-      const s = symbols[t];
-      if (s === 0) continue;
-      const c = inc[t];
-      const i = slot[faces[c]];
-      const f = c - (c % 3);
-      const a = faces[f + ((c + 1) % 3)];
-      const b = faces[f + ((c + 2) % 3)];
-      const u = n + i;
-      const vi = v[i];
-      faces[c] = u;
-      add(i, a); add(i, b); ring[i] += 2;
-      if (s === 2 || s === 4) {
-        if (mNew >= this.capM) throw new FormatError('splits exceed the declared face count');
-        faces[3 * mNew] = u; faces[3 * mNew + 1] = vi; faces[3 * mNew + 2] = a; mNew++;
-        add(i, vi); add(i, a); ring[i] += 2; wings[i]++;
+    try {
+      for (let t = 0; t < inc.length; t++) {
+        const s = symbols[t];
+        if (s === 0) continue;
+        const c = inc[t];
+        const i = slot[faces[c]];
+        const f = c - (c % 3);
+        const a = faces[f + ((c + 1) % 3)];
+        const b = faces[f + ((c + 2) % 3)];
+        const u = n + i;
+        const vi = v[i];
+        faces[c] = u;
+        const left = s === 2 || s === 4;
+        const right = s === 3 || s === 4;
+        if ((left ? 1 : 0) + (right ? 1 : 0) + mNew > capM) throw new FormatError('splits exceed the declared face count');
+        if (left) {
+          faces[3 * mNew] = u; faces[3 * mNew + 1] = vi; faces[3 * mNew + 2] = a; mNew++;
+        }
+        if (right) {
+          faces[3 * mNew] = vi; faces[3 * mNew + 1] = u; faces[3 * mNew + 2] = b; mNew++;
+        }
+        const wa = 1 + (left ? 1 : 0); // weights of a, b and v in the ring sum of u
+        const wb = 1 + (right ? 1 : 0);
+        const wv = (left ? 1 : 0) + (right ? 1 : 0);
+        const o = i * D;
+        for (let d = 0; d < D; d++) sums[o + d] += wa * values[a * D + d] + wb * values[b * D + d] + wv * values[vi * D + d];
+        ring[i] += 2 + 2 * wv;
+        wings[i] += wv;
       }
-      if (s === 3 || s === 4) {
-        if (mNew >= this.capM) throw new FormatError('splits exceed the declared face count');
-        faces[3 * mNew] = vi; faces[3 * mNew + 1] = u; faces[3 * mNew + 2] = b; mNew++;
-        add(i, vi); add(i, b); ring[i] += 2; wings[i]++;
-      }
+    } finally {
+      for (let i = 0; i < k; i++) slot[v[i]] = -1;
     }
-    for (let i = 0; i < k; i++) slot[v[i]] = -1;
     return { sums, ring, wings, mNew };
   }
 
