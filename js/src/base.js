@@ -1,0 +1,87 @@
+/**
+ * Base meshes (spec/README.md "Base mesh"): read plain accessors or decode Draco, then map the
+ * stored floats to grid integers, `rint((p - origin) / step)` in float64 with ties to even.
+ */
+import { DracoError, FormatError } from './errors.js';
+import { readAccessor } from './header.js';
+
+/** Round half to even, as numpy's rint (the reference reader's rounding). */
+function rint(x) {
+  const r = Math.round(x);
+  return r - x === 0.5 && r % 2 !== 0 ? r - 1 : r;
+}
+
+/**
+ * Writes the grid integers of `floats` (count*k, k = grid.origin.length) into column `col0..col0+k`
+ * of `values` (count*D row-major).
+ */
+function quantizeInto(values, D, col0, floats, grid, what) {
+  const k = grid.origin.length;
+  const count = floats.length / k;
+  const limit = 2 ** grid.bits;
+  for (let i = 0; i < count; i++) {
+    for (let c = 0; c < k; c++) {
+      const q = rint((floats[i * k + c] - grid.origin[c]) / grid.step[c]);
+      if (!Number.isFinite(q)) throw new FormatError(`base mesh: ${what} are not finite`);
+      if (q < 0 || q >= limit) throw new FormatError(`base mesh: ${what} lie outside the ${grid.bits}-bit grid`);
+      values[i * D + col0 + c] = q;
+    }
+  }
+}
+
+let nodeDraco = null;
+async function defaultDraco() {
+  try {
+    nodeDraco ??= (await import('./draco-node.js')).createNodeDracoDecoder();
+  } catch (e) {
+    throw new DracoError(`no Draco decoder: pass options.draco (draco3d not loadable: ${e.message})`);
+  }
+  return nodeDraco;
+}
+
+/**
+ * Decodes primitive `prim`'s base mesh from the BIN payload.
+ * @param {Uint8Array} bin BIN payload (at least up to the base's bufferViews)
+ * @param {object} prim a primitive plan of planDocument()
+ * @param {{decode: Function}|undefined} draco a Draco decoder (see draco-node.js), default draco3d in Node
+ * @returns {Promise<{values: Float64Array, faces: Uint32Array, n: number, m: number, D: number}>}
+ *   values: (n*D) grid x, y, z then attribute components per vertex; faces: (m*3)
+ */
+export async function decodeBase(bin, prim, draco) {
+  const { base, grid } = prim;
+  let positions;
+  let attributes;
+  let indices;
+  if (base.draco) {
+    const { view, positionId, attributeIds } = base.draco;
+    const decoder = draco ?? await defaultDraco();
+    const out = await decoder.decode(bin.subarray(view.offset, view.offset + view.length), { positionId, attributeIds });
+    ({ positions, attributes, indices } = out);
+    attributes = attributes.map((a, j) => {
+      const values = a.values ?? a;
+      if (a.components !== undefined && a.components !== base.grids[j].origin.length) {
+        throw new DracoError(`Draco ${base.grids[j].semantic} has ${a.components} components`);
+      }
+      return values;
+    });
+  } else {
+    positions = readAccessor(bin, base.plain.position);
+    indices = readAccessor(bin, base.plain.indices);
+    attributes = base.plain.attributes.map((plan) => readAccessor(bin, plan));
+  }
+  const n = positions.length / 3;
+  const D = 3 + base.grids.reduce((s, g) => s + g.origin.length, 0);
+  if (indices.length % 3 !== 0) throw new FormatError('base mesh: index count is not a multiple of 3');
+  for (let i = 0; i < indices.length; i++) {
+    if (indices[i] >= n) throw new FormatError('base mesh: an index is out of range');
+  }
+  const values = new Float64Array(n * D);
+  quantizeInto(values, D, 0, positions, { ...grid }, 'positions');
+  let col = 3;
+  base.grids.forEach((g, j) => {
+    if (attributes[j].length !== n * g.origin.length) throw new FormatError(`base mesh: ${g.semantic} count differs`);
+    quantizeInto(values, D, col, attributes[j], g, `${g.semantic} values`);
+    col += g.origin.length;
+  });
+  return { values, faces: indices instanceof Uint32Array ? indices : Uint32Array.from(indices), n, m: indices.length / 3, D };
+}

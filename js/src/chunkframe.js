@@ -1,0 +1,91 @@
+/**
+ * A stored chunk (spec/bitstream.md §5): BLAKE2b-128 digest, then one zstd frame with its content
+ * size and checksum, decompressed into exactly `uncompressedLength` bytes.
+ *
+ * Digest: BLAKE2b (RFC 7693, 16-byte output, no key) from @noble/hashes. Decompression: fzstd.
+ * Content checksum: XXH64 (low 32 bits) from xxhash-wasm, which fzstd does not check.
+ */
+import { blake2b } from '@noble/hashes/blake2.js';
+import { decompress } from 'fzstd';
+import xxhash from 'xxhash-wasm';
+import { CorruptChunkError, FormatError } from './errors.js';
+
+const MAX_BLOCK = 131072;
+let hasher = null;
+
+/** Loads the XXH64 WebAssembly module once (async: browsers compile wasm asynchronously). */
+export async function initChunkFrames() {
+  hasher ??= await xxhash();
+}
+
+function hex(bytes) {
+  let s = '';
+  for (const b of bytes) s += b.toString(16).padStart(2, '0');
+  return s;
+}
+
+/** True when BLAKE2b-128 of `stored` equals the 32-digit lowercase hex `digest`. */
+export function digestMatches(stored, digest) {
+  return hex(blake2b(stored, { dkLen: 16 })) === digest;
+}
+
+/**
+ * The frame header and block layout of one zstd frame (RFC 8878 §3.1.1), walked without decoding.
+ * @returns {{contentSize:number, checksum:number}} FormatError unless the frame declares its content size,
+ *   has a checksum, no dictionary, and ends exactly at the end of `frame`.
+ */
+export function frameLayout(frame, what) {
+  const fail = (why) => { throw new FormatError(`${what}: ${why}`); };
+  if (frame.length < 6 || frame[0] !== 0x28 || frame[1] !== 0xb5 || frame[2] !== 0x2f || frame[3] !== 0xfd) {
+    fail('not a zstd frame');
+  }
+  const fhd = frame[4];
+  const fcsFlag = fhd >> 6;
+  const single = (fhd >> 5) & 1;
+  if (fhd & 8) fail('zstd frame header has its reserved bit set');
+  if (!((fhd >> 2) & 1)) fail('zstd frame has no content checksum');
+  if (fhd & 3) fail('zstd frame names a dictionary');
+  const fcsSize = fcsFlag === 0 ? single : 1 << fcsFlag;
+  if (fcsSize === 0) fail('zstd frame does not declare its content size');
+  let at = 5 + (single ? 0 : 1);
+  if (at + fcsSize > frame.length) fail('zstd frame header is cut short');
+  let contentSize = 0;
+  for (let i = fcsSize - 1; i >= 0; i--) contentSize = contentSize * 256 + frame[at + i];
+  if (fcsSize === 2) contentSize += 256;
+  at += fcsSize;
+  for (let last = 0; !last;) {
+    if (at + 3 > frame.length) fail('zstd frame is cut short');
+    const h = frame[at] | (frame[at + 1] << 8) | (frame[at + 2] << 16);
+    last = h & 1;
+    const type = (h >> 1) & 3;
+    const size = h >>> 3;
+    if (type === 3 || size > MAX_BLOCK) fail('zstd frame has an invalid block');
+    at += 3 + (type === 1 ? 1 : size);
+  }
+  if (at + 4 !== frame.length) fail(at + 4 > frame.length ? 'zstd frame is cut short' : 'bytes after the zstd frame');
+  const checksum = (frame[at] | (frame[at + 1] << 8) | (frame[at + 2] << 16) | (frame[at + 3] << 24)) >>> 0;
+  return { contentSize, checksum };
+}
+
+/**
+ * Checks and decompresses chunk `index` of the stream (spec/bitstream.md §5, checks 2-4).
+ * @param {Uint8Array} stored the chunk's bufferView bytes
+ * @param {{digest:string, uncompressedLength:number}} chunk its index entry
+ * @returns {Uint8Array} the payload, exactly `uncompressedLength` bytes
+ */
+export function openChunk(stored, chunk, index) {
+  const what = `chunk ${index}`;
+  if (!digestMatches(stored, chunk.digest)) throw new CorruptChunkError(`${what}: BLAKE2b digest differs`, index);
+  const { contentSize, checksum } = frameLayout(stored, what);
+  if (contentSize !== chunk.uncompressedLength) throw new FormatError(`${what}: zstd content size differs`);
+  const out = new Uint8Array(contentSize);
+  try {
+    decompress(stored, out);
+  } catch (e) {
+    throw new FormatError(`${what}: zstd frame does not decode (${e.message})`);
+  }
+  if (hasher === null) throw new Error('initChunkFrames() was not awaited');
+  const h = hasher.h64Raw(out, 0n);
+  if (Number(h & 0xffffffffn) !== checksum) throw new FormatError(`${what}: zstd content checksum differs`);
+  return out;
+}

@@ -1,0 +1,13 @@
+/** Limits of spec/README.md "Limits" (values of pmwm_codec/constants.py) and format constants. */
+export const MAX_VERTICES = 67108864;
+export const MAX_FACES = 134217728;
+export const MAX_CHUNKS = 65536;
+export const MAX_JSON_BYTES = 67108864;
+export const MAX_CHUNK_BYTES = 1073741824;
+export const MAX_DECOMPRESSED_CHUNK_BYTES = 268435456;
+export const MAX_BATCHES_PER_CHUNK = 4096;
+export const FORMAT_VERSION = 1;
+export const EXTENSION = 'PMWM_progressive_mesh';
+export const DRACO_EXTENSION = 'KHR_draco_mesh_compression';
+export const PAYLOAD_CODEC = 'pmwm-vsplit';
+export const PAYLOAD_VERSION = 1;

@@ -1,0 +1,221 @@
+/**
+ * Push decoder of a .pmw stream, mirroring pmwm_codec.StreamDecoder: `await feed(bytes)` returns
+ * what became available (one result when every base mesh is in, then one per applied chunk, in
+ * stream order), `close()` says whether the stream was complete or cut.
+ */
+import { decodeBase } from './base.js';
+import { initChunkFrames, openChunk } from './chunkframe.js';
+import { FormatError, LimitError, TruncatedError } from './errors.js';
+import { parseGlb, planDocument, preambleLength } from './header.js';
+import { MeshState, unpackPayload } from './vsplit.js';
+
+/**
+ * @typedef {object} DracoDecoder
+ * @property {(bytes: Uint8Array, ids: {positionId: number, attributeIds: number[]}) =>
+ *   Promise<{positions: Float32Array, attributes: (Float32Array|{values: Float32Array, components: number})[],
+ *   indices: Uint32Array}>} decode  the mesh in Draco's decoded vertex order
+ */
+
+const NORMALIZED = { NORMAL: 3, TANGENT: 3 };
+
+export class PmwDecoder {
+  /**
+   * @param {{draco?: DracoDecoder, maxChunks?: number, snapshots?: boolean, onLevel?: Function}} options
+   *   maxChunks: apply no chunk after this many; snapshots: attach `mesh` (see snapshot()) to every result;
+   *   onLevel(result, decoder): called as each level is reached, before the next chunk is applied
+   */
+  constructor({ draco, maxChunks = Infinity, snapshots = false, onLevel } = {}) {
+    this.onLevel = onLevel;
+    this.draco = draco;
+    this.maxChunks = maxChunks;
+    this.snapshots = snapshots;
+    this.buf = new Uint8Array(0);
+    this.received = 0;
+    this.header = null;
+    this.plan = null;
+    this.states = null;
+    this.chunksApplied = 0;
+    this.closed = false;
+    this.failed = null;
+    this.queue = Promise.resolve();
+  }
+
+  /** Appends `bytes`; resolves to the results that became available (possibly none). */
+  feed(bytes) {
+    const run = this.queue.then(() => this.#feed(bytes));
+    this.queue = run.catch(() => {});
+    return run;
+  }
+
+  async #feed(bytes) {
+    if (this.closed) throw new FormatError('the decoder was already closed');
+    if (this.failed) throw this.failed;
+    try {
+      this.#append(bytes);
+      return await this.#advance();
+    } catch (e) {
+      this.failed = e;
+      throw e;
+    }
+  }
+
+  #append(bytes) {
+    const need = this.received + bytes.length;
+    if (this.header && need > this.header.length) throw new FormatError('more bytes than the GLB length');
+    if (need > this.buf.length) {
+      const cap = Math.min(Math.max(need, 2 * this.buf.length, 1024), this.header ? this.header.length : Infinity);
+      const grown = new Uint8Array(cap);
+      grown.set(this.buf.subarray(0, this.received));
+      this.buf = grown;
+    }
+    this.buf.set(bytes, this.received);
+    this.received = need;
+  }
+
+  async #advance() {
+    const out = [];
+    const data = this.buf.subarray(0, this.received);
+    if (!this.header) {
+      if (this.received < 20 || this.received < preambleLength(data)) return out;
+      this.header = parseGlb(data);
+      if (this.received > this.header.length) throw new FormatError('more bytes than the GLB length');
+      this.plan = planDocument(this.header.gltf, this.header.binLength);
+      await initChunkFrames();
+    }
+    const { binStart } = this.header;
+    const bin = () => this.buf.subarray(binStart, this.received);
+    if (!this.states) {
+      if (this.received < binStart + this.plan.baseEnd) return out;
+      this.states = [];
+      for (const prim of this.plan.primitives) {
+        const b = await decodeBase(bin(), prim, this.draco);
+        this.states.push(new MeshState(b.values, b.faces, b.n, b.m, b.D, prim.vertexCount, prim.faceCount));
+      }
+      out.push(this.#result(binStart + this.plan.baseEnd));
+    }
+    const { stream } = this.plan;
+    while (this.chunksApplied < stream.length && this.chunksApplied < this.maxChunks) {
+      const c = stream[this.chunksApplied];
+      const end = binStart + c.offset + c.length;
+      if (this.received < end) break;
+      this.#apply(c, this.buf.subarray(binStart + c.offset, end));
+      this.chunksApplied++;
+      out.push(this.#result(end));
+    }
+    return out;
+  }
+
+  #apply(c, stored) {
+    const index = this.chunksApplied;
+    const state = this.states[c.primitive];
+    const payload = openChunk(stored, c, index);
+    const records = unpackPayload(payload, state.D, state.capN);
+    try {
+      state.applyPayload(records);
+    } catch (e) {
+      if (e instanceof FormatError) e.message = `chunk ${index}: ${e.message}`;
+      throw e;
+    }
+    if (state.n !== c.vertexCount || state.m !== c.faceCount) {
+      throw new FormatError(`chunk ${index}: vertex/face counts differ from its index entry`);
+    }
+  }
+
+  #result(bytesRead) {
+    const parts = this.states.map((s) => ({ vertexCount: s.n, faceCount: s.m }));
+    const r = {
+      chunk: this.chunksApplied, chunksTotal: this.plan.stream.length, bytesRead,
+      vertexCount: parts.reduce((a, p) => a + p.vertexCount, 0),
+      faceCount: parts.reduce((a, p) => a + p.faceCount, 0),
+      parts,
+    };
+    if (this.snapshots) r.mesh = this.snapshot();
+    this.onLevel?.(r, this);
+    return r;
+  }
+
+  /**
+   * The mesh now (copies), all progressive primitives concatenated in mesh/primitive order:
+   * positions (N*3) Float32Array (origin + q*step), positionsInt (N*3) Int32Array grid integers,
+   * indices (M*3) Uint32Array (offset per part), parts: per primitive {positionsInt, indices,
+   * attributesInt (n*a) Int32Array, attributes {semantic: Float32Array}}.
+   */
+  snapshot() {
+    if (this.failed) throw this.failed; // a chunk may be half applied: never shown as a level
+    if (!this.states) throw new TruncatedError('no base mesh yet', this.received, this.#baseBytes());
+    const parts = this.states.map((s, p) => partSnapshot(s, this.plan.primitives[p]));
+    const N = parts.reduce((a, p) => a + p.positionsInt.length / 3, 0);
+    const M = parts.reduce((a, p) => a + p.indices.length / 3, 0);
+    const positions = new Float32Array(N * 3);
+    const positionsInt = new Int32Array(N * 3);
+    const indices = new Uint32Array(M * 3);
+    let v = 0;
+    let f = 0;
+    for (const p of parts) {
+      positions.set(p.positions, v * 3);
+      positionsInt.set(p.positionsInt, v * 3);
+      for (let i = 0; i < p.indices.length; i++) indices[f * 3 + i] = p.indices[i] + v;
+      v += p.positionsInt.length / 3;
+      f += p.indices.length / 3;
+    }
+    return { positions, positionsInt, indices, parts };
+  }
+
+  #baseBytes() {
+    return this.header ? this.header.binStart + this.plan.baseEnd : preambleLength(this.buf.subarray(0, this.received));
+  }
+
+  /**
+   * Ends the stream. @returns {{complete: boolean, bytesReceived: number, totalLength: number,
+   * chunksApplied: number, chunkCount: number}}; TruncatedError when no base mesh arrived.
+   */
+  close() {
+    if (this.failed) throw this.failed;
+    this.closed = true;
+    if (!this.states) {
+      throw new TruncatedError(`stream ended after ${this.received} bytes, before the base mesh (${this.#baseBytes()} bytes)`,
+        this.received, this.#baseBytes());
+    }
+    const chunkCount = this.plan.stream.length;
+    return {
+      complete: this.received === this.header.length && this.chunksApplied === chunkCount,
+      bytesReceived: this.received, totalLength: this.header.length, chunksApplied: this.chunksApplied, chunkCount,
+    };
+  }
+}
+
+/** One primitive's arrays now (copies); attributes dequantized, NORMAL/TANGENT xyz renormalized. */
+function partSnapshot(s, prim) {
+  const { D, n, m } = s;
+  const positionsInt = new Int32Array(n * 3);
+  const positions = new Float32Array(n * 3);
+  const a = D - 3;
+  const attributesInt = new Int32Array(n * a);
+  const { origin, step } = prim.grid;
+  for (let i = 0; i < n; i++) {
+    for (let d = 0; d < 3; d++) {
+      const q = s.values[i * D + d];
+      positionsInt[i * 3 + d] = q;
+      positions[i * 3 + d] = origin[d] + q * step[d];
+    }
+    for (let d = 0; d < a; d++) attributesInt[i * a + d] = s.values[i * D + 3 + d];
+  }
+  const attributes = {};
+  let col = 0;
+  for (const g of prim.base.grids) {
+    const k = g.origin.length;
+    const out = new Float32Array(n * k);
+    for (let i = 0; i < n; i++) {
+      let norm = 0;
+      const nk = NORMALIZED[g.semantic] ? Math.min(3, k) : 0;
+      const row = [];
+      for (let c = 0; c < k; c++) row.push(g.origin[c] + attributesInt[i * a + col + c] * g.step[c]);
+      for (let c = 0; c < nk; c++) norm += row[c] * row[c];
+      norm = nk && norm > 0 ? Math.sqrt(norm) : 1;
+      for (let c = 0; c < k; c++) out[i * k + c] = c < nk ? row[c] / norm : row[c];
+    }
+    attributes[g.semantic] = out;
+    col += k;
+  }
+  return { positions, positionsInt, indices: s.faces.slice(0, m * 3), attributesInt, attributes };
+}

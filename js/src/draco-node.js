@@ -1,0 +1,64 @@
+/**
+ * The Draco step in Node, through the `draco3d` npm package (its WebAssembly decoder).
+ * Any object with the same `decode` method can stand in (e.g. one built on three.js' DRACOLoader
+ * worker in a browser): see `DracoDecoder` in decoder.js.
+ */
+import draco3d from 'draco3d';
+import { DracoError } from './errors.js';
+
+let modulePromise = null;
+
+function copyAttribute(m, decoder, mesh, id, what) {
+  const attr = decoder.GetAttributeByUniqueId(mesh, id);
+  if (!attr || attr.ptr === 0) throw new DracoError(`Draco base mesh has no attribute with unique id ${id} (${what})`);
+  const k = attr.num_components();
+  const count = mesh.num_points() * k;
+  const ptr = m._malloc(count * 4);
+  try {
+    if (!decoder.GetAttributeDataArrayForAllPoints(mesh, attr, m.DT_FLOAT32, count * 4, ptr)) {
+      throw new DracoError(`Draco attribute ${id} (${what}) does not convert to float`);
+    }
+    return { values: new Float32Array(m.HEAPF32.buffer, ptr, count).slice(), components: k };
+  } finally {
+    m._free(ptr);
+  }
+}
+
+/** A Draco decoder on `draco3d`: decode(bytes, {positionId, attributeIds}) -> {positions, attributes, indices}. */
+export function createNodeDracoDecoder() {
+  return {
+    async decode(bytes, { positionId, attributeIds = [] }) {
+      modulePromise ??= draco3d.createDecoderModule({});
+      const m = await modulePromise;
+      const decoder = new m.Decoder();
+      const buffer = new m.DecoderBuffer();
+      const mesh = new m.Mesh();
+      try {
+        buffer.Init(new Int8Array(bytes.buffer, bytes.byteOffset, bytes.byteLength), bytes.byteLength);
+        if (decoder.GetEncodedGeometryType(buffer) !== m.TRIANGULAR_MESH) throw new DracoError('Draco data is not a triangle mesh');
+        const status = decoder.DecodeBufferToMesh(buffer, mesh);
+        if (!status.ok()) throw new DracoError(`Draco decoding failed: ${status.error_msg()}`);
+        const faces = mesh.num_faces();
+        const ptr = m._malloc(faces * 12);
+        let indices;
+        try {
+          decoder.GetTrianglesUInt32Array(mesh, faces * 12, ptr);
+          indices = new Uint32Array(m.HEAPU32.buffer, ptr, faces * 3).slice();
+        } finally {
+          m._free(ptr);
+        }
+        const position = copyAttribute(m, decoder, mesh, positionId, 'POSITION');
+        if (position.components !== 3) throw new DracoError('Draco POSITION does not have 3 components');
+        const attributes = attributeIds.map((id) => copyAttribute(m, decoder, mesh, id, `attribute ${id}`));
+        return { positions: position.values, attributes, indices };
+      } catch (e) {
+        if (e instanceof DracoError) throw e;
+        throw new DracoError(`Draco decoding failed (${e?.message ?? e})`);
+      } finally {
+        m.destroy(mesh);
+        m.destroy(buffer);
+        m.destroy(decoder);
+      }
+    },
+  };
+}

@@ -1,0 +1,35 @@
+/**
+ * Named errors of the decoder. Every failure on input bytes is a PmwError subclass:
+ *
+ *   PmwError
+ *   ├── FormatError            the bytes break the format (spec/README.md, spec/bitstream.md)
+ *   │   ├── LimitError         a declared size or count is over a limit (README "Limits")
+ *   │   └── UnsupportedError   a version / payload codec this reader does not implement
+ *   ├── CorruptChunkError      a chunk's stored bytes do not match its BLAKE2b digest
+ *   ├── TruncatedError         the stream ended before the base mesh was complete
+ *   └── DracoError             the Draco base mesh could not be decoded
+ */
+export class PmwError extends Error {
+  constructor(message, options) {
+    super(message, options);
+    this.name = this.constructor.name;
+  }
+}
+export class FormatError extends PmwError {}
+export class LimitError extends FormatError {}
+export class UnsupportedError extends FormatError {}
+export class CorruptChunkError extends PmwError {
+  /** @param {number} chunk stream index of the chunk (0-based) */
+  constructor(message, chunk) {
+    super(message);
+    this.chunk = chunk;
+  }
+}
+export class TruncatedError extends PmwError {
+  constructor(message, bytesReceived, bytesNeeded) {
+    super(message);
+    this.bytesReceived = bytesReceived;
+    this.bytesNeeded = bytesNeeded;
+  }
+}
+export class DracoError extends PmwError {}

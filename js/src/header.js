@@ -1,0 +1,235 @@
+/**
+ * GLB preamble and JSON chunk of a .pmw file (spec/bitstream.md §1-4, spec/README.md):
+ * the document, its progressive primitives and the byte range of every base mesh and chunk.
+ * Everything here is checked before any BIN byte is read or any array is allocated.
+ */
+import { FormatError, LimitError, UnsupportedError } from './errors.js';
+import {
+  DRACO_EXTENSION, EXTENSION, FORMAT_VERSION, MAX_CHUNK_BYTES, MAX_CHUNKS,
+  MAX_DECOMPRESSED_CHUNK_BYTES, MAX_FACES, MAX_JSON_BYTES, MAX_VERTICES, PAYLOAD_CODEC, PAYLOAD_VERSION,
+} from './constants.js';
+
+const GLB_MAGIC = 0x46546c67; // 'glTF'
+const JSON_TYPE = 0x4e4f534a;
+const BIN_TYPE = 0x004e4942;
+const MIN_GRID_BITS = 8;
+const MAX_GRID_BITS = 30;
+const COMPONENTS = { SCALAR: 1, VEC2: 2, VEC3: 3, VEC4: 4 };
+const INDEX_TYPES = { 5123: 2, 5125: 4 };
+const FLOAT = 5126;
+
+const isInt = (x, lo, hi) => Number.isSafeInteger(x) && x >= lo && x <= hi;
+const isNum = (x) => typeof x === 'number' && Number.isFinite(x);
+const isObj = (x) => x !== null && typeof x === 'object' && !Array.isArray(x);
+
+/** Bytes needed before the JSON can be parsed: 20 (preamble), then 20 + J + 8 (BIN header). */
+export function preambleLength(bytes) {
+  if (bytes.length < 20) return 20;
+  return 28 + new DataView(bytes.buffer, bytes.byteOffset, 20).getUint32(12, true);
+}
+
+/**
+ * Parse the preamble and JSON of a GLB prefix holding at least preambleLength(bytes) bytes.
+ * @returns {{length:number, binStart:number, binLength:number, gltf:object}} binStart: file offset of BIN byte 0
+ */
+export function parseGlb(bytes) {
+  const dv = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength);
+  if (dv.getUint32(0, true) !== GLB_MAGIC) throw new FormatError('not a GLB file (bad magic)');
+  if (dv.getUint32(4, true) !== 2) throw new UnsupportedError(`GLB version ${dv.getUint32(4, true)}, expected 2`);
+  const length = dv.getUint32(8, true);
+  const jsonLength = dv.getUint32(12, true);
+  if (dv.getUint32(16, true) !== JSON_TYPE) throw new FormatError('first GLB chunk is not JSON');
+  if (jsonLength % 4 !== 0) throw new FormatError('JSON chunk length is not a multiple of 4');
+  if (jsonLength > MAX_JSON_BYTES) throw new LimitError(`JSON chunk of ${jsonLength} bytes is over the limit`);
+  if (28 + jsonLength > length) throw new FormatError('GLB length leaves no room for the BIN chunk');
+  const binLength = dv.getUint32(20 + jsonLength, true);
+  if (dv.getUint32(24 + jsonLength, true) !== BIN_TYPE) throw new FormatError('second GLB chunk is not BIN');
+  if (binLength % 4 !== 0 || 28 + jsonLength + binLength !== length) {
+    throw new FormatError('BIN chunk does not end at the GLB length');
+  }
+  let gltf;
+  try {
+    const text = new TextDecoder('utf-8', { fatal: true }).decode(bytes.subarray(20, 20 + jsonLength));
+    gltf = JSON.parse(text);
+  } catch (e) {
+    throw new FormatError(`JSON chunk is not valid UTF-8 JSON (${e.message})`);
+  }
+  if (!isObj(gltf)) throw new FormatError('JSON chunk is not an object');
+  return { length, binStart: 28 + jsonLength, binLength, gltf };
+}
+
+function checkGrid(grid, what, components) {
+  if (!isObj(grid) || !isInt(grid.bits, MIN_GRID_BITS, MAX_GRID_BITS)) {
+    throw new FormatError(`${what}: bits must be an integer in [${MIN_GRID_BITS}, ${MAX_GRID_BITS}]`);
+  }
+  const origin = grid.origin;
+  const step = components === 3 ? [grid.step, grid.step, grid.step] : grid.step;
+  if (!Array.isArray(origin) || !origin.every(isNum) || (components === 3 && origin.length !== 3)
+      || origin.length < 1 || origin.length > 4) {
+    throw new FormatError(`${what}: origin must be finite numbers`);
+  }
+  if (!Array.isArray(step) || step.length !== origin.length || !step.every((s) => isNum(s) && s > 0)) {
+    throw new FormatError(`${what}: step must be positive finite numbers`);
+  }
+  return { bits: grid.bits, origin: origin.slice(), step: step.slice() };
+}
+
+/** A bufferView of buffer 0 by index, with its range checked against the buffer. */
+function bufferView(gltf, index, bufferLength, what) {
+  const views = Array.isArray(gltf.bufferViews) ? gltf.bufferViews : [];
+  const view = isInt(index, 0, views.length - 1) ? views[index] : undefined;
+  if (!isObj(view)) throw new FormatError(`${what}: bufferView ${index} does not exist`);
+  const offset = view.byteOffset ?? 0;
+  if ((view.buffer ?? 0) !== 0 || !isInt(offset, 0, bufferLength) || !isInt(view.byteLength, 0, bufferLength - offset)) {
+    throw new FormatError(`${what}: bufferView ${index} lies outside buffer 0`);
+  }
+  if (view.byteStride !== undefined && !isInt(view.byteStride, 4, 252)) {
+    throw new FormatError(`${what}: bufferView ${index} has an invalid byteStride`);
+  }
+  return { index, offset, length: view.byteLength, stride: view.byteStride };
+}
+
+/** An accessor read plan {view, offset, stride, count, components, componentType}, every byte in range. */
+function accessorPlan(gltf, index, bufferLength, what, { types, components }) {
+  const accessors = Array.isArray(gltf.accessors) ? gltf.accessors : [];
+  const acc = isInt(index, 0, accessors.length - 1) ? accessors[index] : undefined;
+  if (!isObj(acc)) throw new FormatError(`${what}: accessor ${index} does not exist`);
+  const size = types[acc.componentType];
+  const k = COMPONENTS[acc.type];
+  if (!size || k !== components) throw new FormatError(`${what}: accessor ${index} has the wrong type`);
+  if (!isInt(acc.count, 0, MAX_FACES * 3)) throw new LimitError(`${what}: accessor count over the limit`);
+  const view = bufferView(gltf, acc.bufferView, bufferLength, what);
+  const offset = acc.byteOffset ?? 0;
+  const stride = view.stride ?? size * k;
+  if (!isInt(offset, 0, view.length) || offset % size !== 0 || stride % size !== 0
+      || (acc.count > 0 && offset + stride * (acc.count - 1) + size * k > view.length)) {
+    throw new FormatError(`${what}: accessor ${index} does not fit its bufferView`);
+  }
+  return { view, offset, stride, count: acc.count, components: k, componentType: acc.componentType };
+}
+
+function checkChunk(gltf, c, j, bufferLength, what) {
+  if (!isObj(c)) throw new FormatError(`${what} chunk ${j}: not an object`);
+  if (!isInt(c.byteLength, 0, MAX_CHUNK_BYTES)) throw new LimitError(`${what} chunk ${j}: byteLength over the limit`);
+  if (!isInt(c.uncompressedLength, 0, MAX_DECOMPRESSED_CHUNK_BYTES)) {
+    throw new LimitError(`${what} chunk ${j}: uncompressedLength over the limit`);
+  }
+  for (const key of ['splits', 'vertexCount', 'faceCount']) {
+    if (!isInt(c[key], 0, key === 'faceCount' ? MAX_FACES : MAX_VERTICES)) {
+      throw new FormatError(`${what} chunk ${j}: ${key} is not a count within the limits`);
+    }
+  }
+  if (typeof c.digest !== 'string' || !/^[0-9a-f]{32}$/.test(c.digest)) {
+    throw new FormatError(`${what} chunk ${j}: digest is not 32 lowercase hex digits`);
+  }
+  const view = bufferView(gltf, c.bufferView, bufferLength, `${what} chunk ${j}`);
+  if (view.length !== c.byteLength) throw new FormatError(`${what} chunk ${j}: byteLength differs from its bufferView`);
+  return {
+    offset: view.offset, length: view.length, digest: c.digest, uncompressedLength: c.uncompressedLength,
+    splits: c.splits, vertexCount: c.vertexCount, faceCount: c.faceCount, geometricError: c.geometricError,
+  };
+}
+
+/** The base mesh plan of one primitive: Draco bufferView or plain accessors, and its attribute grids. */
+function basePlan(gltf, prim, ext, bufferLength, what) {
+  const attributes = (ext.attributes ?? []);
+  if (!Array.isArray(attributes)) throw new FormatError(`${what}: attributes is not an array`);
+  const grids = attributes.map((a, i) => {
+    if (!isObj(a) || typeof a.semantic !== 'string' || a.semantic === 'POSITION') {
+      throw new FormatError(`${what}: attribute ${i} has no valid semantic`);
+    }
+    return { semantic: a.semantic, ...checkGrid(a, `${what}: ${a.semantic} grid`, 0) };
+  });
+  if (!isObj(prim.attributes)) throw new FormatError(`${what}: primitive has no attributes`);
+  if ((prim.mode ?? 4) !== 4) throw new FormatError(`${what}: primitive mode is not TRIANGLES`);
+  const draco = isObj(prim.extensions) ? prim.extensions[DRACO_EXTENSION] : undefined;
+  if (draco !== undefined) {
+    if (!isObj(draco) || !isObj(draco.attributes)) throw new FormatError(`${what}: invalid ${DRACO_EXTENSION}`);
+    const ids = ['POSITION', ...grids.map((g) => g.semantic)].map((s) => draco.attributes[s]);
+    if (!ids.every((id) => isInt(id, 0, 0xffff))) throw new FormatError(`${what}: Draco attribute ids missing`);
+    const view = bufferView(gltf, draco.bufferView, bufferLength, what);
+    return { draco: { view, positionId: ids[0], attributeIds: ids.slice(1) }, grids, views: [view] };
+  }
+  const position = accessorPlan(gltf, prim.attributes.POSITION, bufferLength, `${what} POSITION`,
+    { types: { [FLOAT]: 4 }, components: 3 });
+  const indices = accessorPlan(gltf, prim.indices, bufferLength, `${what} indices`, { types: INDEX_TYPES, components: 1 });
+  const attrs = grids.map((g) => accessorPlan(gltf, prim.attributes[g.semantic], bufferLength, `${what} ${g.semantic}`,
+    { types: { [FLOAT]: 4 }, components: g.origin.length }));
+  const views = [position, indices, ...attrs].map((a) => a.view);
+  return { plain: { position, indices, attributes: attrs }, grids, views };
+}
+
+function checkExtension(ext, what) {
+  if (!isObj(ext)) throw new FormatError(`${what}: extension is not an object`);
+  if (!isInt(ext.version, 0, Number.MAX_SAFE_INTEGER)) throw new FormatError(`${what}: version is not an integer`);
+  if (ext.version > FORMAT_VERSION) throw new UnsupportedError(`${what}: version ${ext.version} is newer than ${FORMAT_VERSION}`);
+  if (ext.version < 1) throw new FormatError(`${what}: version ${ext.version}`);
+  const payload = ext.payload ?? { codec: PAYLOAD_CODEC, version: PAYLOAD_VERSION };
+  if (!isObj(payload) || payload.codec !== PAYLOAD_CODEC || payload.version !== PAYLOAD_VERSION) {
+    throw new UnsupportedError(`${what}: unknown chunk payload codec`);
+  }
+  if (!isInt(ext.vertexCount, 0, MAX_VERTICES)) throw new LimitError(`${what}: vertexCount over the limit`);
+  if (!isInt(ext.faceCount, 0, MAX_FACES)) throw new LimitError(`${what}: faceCount over the limit`);
+  if (!Array.isArray(ext.chunks)) throw new FormatError(`${what}: chunks is not an array`);
+  if (ext.chunks.length > MAX_CHUNKS) throw new LimitError(`${what}: more than ${MAX_CHUNKS} chunks`);
+}
+
+/**
+ * The progressive primitives of a parsed document and the chunk stream.
+ * @returns {{primitives: object[], stream: object[], baseEnd: number}} baseEnd: BIN offset where every base is in;
+ *   stream: chunks of all primitives ordered by byte offset, each {primitive, chunk, offset, length, ...}.
+ */
+export function planDocument(gltf, binLength) {
+  const buffers = Array.isArray(gltf.buffers) ? gltf.buffers : [];
+  if (!isObj(buffers[0]) || buffers[0].uri !== undefined || !isInt(buffers[0].byteLength, 0, binLength)) {
+    throw new FormatError('buffers[0] must be the GLB BIN chunk, at most its length');
+  }
+  const bufferLength = buffers[0].byteLength;
+  const primitives = [];
+  const meshes = Array.isArray(gltf.meshes) ? gltf.meshes : [];
+  meshes.forEach((mesh, mi) => {
+    const prims = isObj(mesh) && Array.isArray(mesh.primitives) ? mesh.primitives : [];
+    prims.forEach((prim, pi) => {
+      const ext = isObj(prim) && isObj(prim.extensions) ? prim.extensions[EXTENSION] : undefined;
+      if (ext === undefined) return;
+      const what = `mesh ${mi} primitive ${pi}`;
+      checkExtension(ext, what);
+      const grid = checkGrid(ext.grid, `${what}: grid`, 3);
+      const base = basePlan(gltf, prim, ext, bufferLength, what);
+      const chunks = ext.chunks.map((c, j) => checkChunk(gltf, c, j, bufferLength, what));
+      const baseEnd = Math.max(0, ...base.views.map((v) => v.offset + v.length));
+      primitives.push({ index: primitives.length, mesh: mi, primitive: pi, ext, grid, base, chunks, baseEnd,
+        vertexCount: ext.vertexCount, faceCount: ext.faceCount });
+    });
+  });
+  if (primitives.length === 0) throw new FormatError(`no primitive carries ${EXTENSION}`);
+  const stream = primitives.flatMap((p) => p.chunks.map((c, j) => ({ ...c, primitive: p.index, chunk: j })));
+  if (stream.length > MAX_CHUNKS) throw new LimitError(`more than ${MAX_CHUNKS} chunks`);
+  stream.sort((a, b) => a.offset - b.offset || a.primitive - b.primitive || a.chunk - b.chunk);
+  const baseEnd = Math.max(...primitives.map((p) => p.baseEnd));
+  let end = baseEnd;
+  const next = primitives.map(() => 0);
+  for (const c of stream) {
+    if (c.offset < end) throw new FormatError('chunks overlap each other or the base meshes');
+    if (c.chunk !== next[c.primitive]++) throw new FormatError('a primitive\'s chunks are not in stream order');
+    end = c.offset + c.length;
+  }
+  return { primitives, stream, baseEnd };
+}
+
+/** Reads an accessor into a new typed array: Float32Array (count*k) or Uint32Array for indices. */
+export function readAccessor(bin, plan) {
+  const { count, components: k, stride, componentType } = plan;
+  const start = plan.view.offset + plan.offset;
+  const dv = new DataView(bin.buffer, bin.byteOffset + start, Math.max(0, bin.byteLength - start));
+  const out = componentType === FLOAT ? new Float32Array(count * k) : new Uint32Array(count * k);
+  const size = componentType === 5123 ? 2 : 4;
+  for (let i = 0; i < count; i++) {
+    for (let c = 0; c < k; c++) {
+      const at = i * stride + c * size;
+      out[i * k + c] = componentType === FLOAT ? dv.getFloat32(at, true)
+        : componentType === 5125 ? dv.getUint32(at, true) : dv.getUint16(at, true);
+    }
+  }
+  return out;
+}

@@ -1,0 +1,89 @@
+/**
+ * Hostile input ends in a named error (a PmwError subclass) or a valid partial result, never a
+ * hang or another exception: seeded random cuts, bit flips anywhere, bit flips and overwrites of
+ * decompressed chunk payloads re-wrapped with valid frames and digests, and JSON edits.
+ * Bounded: FUZZ_CASES (default 200) cases per kind; every case runs under a time bound.
+ */
+import assert from 'node:assert/strict';
+import { readFileSync } from 'node:fs';
+import { join } from 'node:path';
+import { test } from 'node:test';
+import { PmwDecoder, PmwError } from '../src/index.js';
+import { CONFORMANCE, conformanceFiles, seededRandom } from './lib/helpers.js';
+import { chunkPayloads, withPayload } from './lib/rewrite.js';
+
+const CASES = Number(process.env.FUZZ_CASES ?? 200);
+const files = conformanceFiles().map((f) => new Uint8Array(readFileSync(join(CONFORMANCE, f))));
+
+
+/** Decodes `bytes`: 'ok' (possibly partial) or the error's class name; fails on a non-PmwError. */
+async function outcome(bytes, what) {
+  const d = new PmwDecoder();
+  const timer = new Promise((_, reject) => setTimeout(() => reject(new Error(`${what}: decode did not end in 5 s`)), 5000).unref());
+  try {
+    await Promise.race([d.feed(bytes), timer]);
+    d.close();
+    return 'ok';
+  } catch (e) {
+    if (!(e instanceof PmwError)) assert.fail(`${what}: ${e?.name}: ${e?.message}\n${e?.stack}`);
+    return e.name;
+  }
+}
+
+test('random cuts and bit flips anywhere in the file end in named errors', { timeout: 300000 }, async () => {
+  const r = seededRandom(1);
+  const seen = new Set();
+  for (let i = 0; i < CASES; i++) {
+    const src = files[i % files.length];
+    const bytes = src.slice(0, 1 + Math.floor(r() * src.length));
+    for (let f = Math.floor(r() * 4); f > 0; f--) bytes[Math.floor(r() * bytes.length)] ^= 1 << Math.floor(r() * 8);
+    seen.add(await outcome(bytes, `case ${i}`));
+  }
+  assert.ok(seen.size > 1, [...seen].join());
+});
+
+test('hostile chunk payloads behind valid frames and digests end in named errors', { timeout: 300000 }, async () => {
+  const r = seededRandom(2);
+  const sources = files.map((bytes) => ({ bytes, chunks: chunkPayloads(bytes) }));
+  const seen = new Set();
+  for (let i = 0; i < CASES; i++) {
+    const { bytes, chunks } = sources[i % sources.length];
+    const index = Math.floor(r() * chunks.length);
+    let payload = chunks[index].payload.slice();
+    const kind = i % 4;
+    if (kind === 0) payload = payload.subarray(0, Math.floor(r() * payload.length));
+    for (let f = 1 + Math.floor(r() * 3); f > 0 && payload.length; f--) {
+      const at = Math.floor(r() * payload.length);
+      if (kind === 1) payload[at] ^= 1 << Math.floor(r() * 8);
+      else if (kind === 2) payload[at] = Math.floor(r() * 256);
+      else if (kind === 3) payload.fill(0xff, at, at + 4);
+    }
+    seen.add(await outcome(withPayload(bytes, index, payload), `payload case ${i} (kind ${kind})`));
+  }
+  if (process.env.FUZZ_VERBOSE) console.log([...seen]);
+  assert.ok(seen.has('FormatError') || seen.has('LimitError'), [...seen].join());
+});
+
+test('edits of the JSON counts and offsets end in named errors', { timeout: 300000 }, async () => {
+  const r = seededRandom(3);
+  const edits = [
+    (x) => x.replace(/"vertexCount":\s*(\d+)/, (_, n) => `"vertexCount":${Number(n) * 1000}`),
+    (x) => x.replace(/"faceCount":\s*(\d+)/, '"faceCount":1'),
+    (x) => x.replace(/"byteOffset":\s*(\d+)/g, (m, n) => (r() < 0.3 ? `"byteOffset":${Number(n) + 4}` : m)),
+    (x) => x.replace(/"uncompressedLength":\s*(\d+)/, '"uncompressedLength":268435456'),
+    (x) => x.replace(/"bits":\s*(\d+)/, '"bits":31'),
+    (x) => x.replace(/"version":\s*1/, '"version":2'),
+    (x) => x.replace(/"count":\s*(\d+)/, '"count":4000000000'),
+  ];
+  for (let i = 0; i < Math.min(CASES, 200); i++) {
+    const src = files[i % files.length];
+    const J = new DataView(src.buffer, src.byteOffset).getUint32(12, true);
+    const text = new TextDecoder().decode(src.subarray(20, 20 + J));
+    const edited = new TextEncoder().encode(edits[i % edits.length](text));
+    if (edited.length > J) continue;
+    const bytes = src.slice();
+    bytes.fill(0x20, 20, 20 + J);
+    bytes.set(edited, 20);
+    await outcome(bytes, `json case ${i}`);
+  }
+});

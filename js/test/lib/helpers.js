@@ -1,0 +1,48 @@
+/** Shared test helpers: conformance file paths and the level digest of tests/test_golden.py. */
+import { createHash } from 'node:crypto';
+import { readdirSync } from 'node:fs';
+import { dirname, join } from 'node:path';
+import { fileURLToPath } from 'node:url';
+
+export const CONFORMANCE = join(dirname(fileURLToPath(import.meta.url)), '..', '..', '..', 'spec', 'conformance');
+
+/** Names of the conformance files (`<name>.v1.pmw`). */
+export function conformanceFiles() {
+  return readdirSync(CONFORMANCE).filter((f) => f.endsWith('.v1.pmw')).sort();
+}
+
+/** Any integer typed array as little-endian int64 bytes (numpy '<i8'). */
+export function asInt64Bytes(arr) {
+  const out = new BigInt64Array(arr.length);
+  for (let i = 0; i < arr.length; i++) out[i] = BigInt(arr[i]);
+  return new Uint8Array(out.buffer);
+}
+
+/** Parts' quantized attributes stacked (n, a) as one flat array, like tests/test_golden.py. */
+export function attributesInt(mesh) {
+  const total = mesh.parts.reduce((a, p) => a + p.attributesInt.length, 0);
+  const out = new Int32Array(total);
+  let at = 0;
+  for (const p of mesh.parts) { out.set(p.attributesInt, at); at += p.attributesInt.length; }
+  return out;
+}
+
+/** SHA-256 of positions, faces and (when any) quantized attributes as <i8: tests/test_golden.py::_level_digest. */
+export function levelDigest(mesh) {
+  const h = createHash('sha256');
+  h.update(asInt64Bytes(mesh.positionsInt));
+  h.update(asInt64Bytes(mesh.indices));
+  const a = attributesInt(mesh);
+  if (a.length) h.update(asInt64Bytes(a));
+  return h.digest('hex');
+}
+
+/** A seeded uniform [0, 1) generator (mulberry32): the tests' only randomness. */
+export function seededRandom(seed) {
+  return () => {
+    seed = (seed + 0x6d2b79f5) | 0;
+    let t = Math.imul(seed ^ (seed >>> 15), 1 | seed);
+    t = (t + Math.imul(t ^ (t >>> 7), 61 | t)) ^ t;
+    return ((t ^ (t >>> 14)) >>> 0) / 4294967296;
+  };
+}

@@ -1,0 +1,71 @@
+/**
+ * Test-only writer: a .pmw with one chunk's payload replaced, stored as a zstd frame of raw
+ * blocks (RFC 8878: single segment, 4-byte content size, XXH64 checksum) with a fresh BLAKE2b
+ * digest, so hostile payloads reach the record parser instead of stopping at the digest.
+ */
+import { blake2b } from '@noble/hashes/blake2.js';
+import xxhash from 'xxhash-wasm';
+import { parseGlb, planDocument } from '../../src/header.js';
+import { openChunk, initChunkFrames } from '../../src/chunkframe.js';
+
+const { h64Raw } = await xxhash();
+await initChunkFrames();
+
+export function rawFrame(payload) {
+  const blocks = [];
+  for (let at = 0; at < payload.length || at === 0; at += 131072) {
+    const part = payload.subarray(at, at + 131072);
+    const last = at + 131072 >= payload.length ? 1 : 0;
+    const h = (part.length << 3) | last;
+    blocks.push(Uint8Array.of(h & 255, (h >> 8) & 255, (h >> 16) & 255), part);
+    if (payload.length === 0) break;
+  }
+  const sum = Number(h64Raw(payload, 0n) & 0xffffffffn);
+  const head = Uint8Array.of(0x28, 0xb5, 0x2f, 0xfd, 0xa4, ...new Uint8Array(Uint32Array.of(payload.length).buffer));
+  const tail = new Uint8Array(Uint32Array.of(sum).buffer);
+  const out = new Uint8Array([...head, ...blocks.flatMap((b) => [...b]), ...tail]);
+  return out;
+}
+
+const hex = (b) => Array.from(b, (x) => x.toString(16).padStart(2, '0')).join('');
+
+/** The decompressed payloads of every chunk, in stream order: [{entry, payload}]. */
+export function chunkPayloads(bytes) {
+  const h = parseGlb(bytes);
+  const plan = planDocument(h.gltf, h.binLength);
+  return plan.stream.map((c, i) => ({ c, payload: openChunk(bytes.subarray(h.binStart + c.offset, h.binStart + c.offset + c.length), c, i) }));
+}
+
+/** `bytes` with stream chunk `index` holding `payload` (bufferViews after it shifted). */
+export function withPayload(bytes, index, payload) {
+  const h = parseGlb(bytes);
+  const gltf = structuredClone(h.gltf);
+  const plan = planDocument(gltf, h.binLength);
+  const c = plan.stream[index];
+  const entry = gltf.meshes[plan.primitives[c.primitive].mesh].primitives[plan.primitives[c.primitive].primitive]
+    .extensions.PMWM_progressive_mesh.chunks[c.chunk];
+  const frame = rawFrame(payload);
+  const padded = (n) => (n + 3) & ~3;
+  const delta = padded(frame.length) - padded(c.length);
+  for (const v of gltf.bufferViews) if ((v.byteOffset ?? 0) > c.offset) v.byteOffset += delta;
+  gltf.bufferViews[entry.bufferView].byteLength = frame.length;
+  Object.assign(entry, { byteLength: frame.length, uncompressedLength: payload.length, digest: hex(blake2b(frame, { dkLen: 16 })) });
+  const oldBin = bytes.subarray(h.binStart, h.binStart + h.binLength);
+  const bin = new Uint8Array(padded(h.binLength + delta));
+  bin.set(oldBin.subarray(0, c.offset));
+  bin.set(frame, c.offset);
+  bin.set(oldBin.subarray(c.offset + padded(c.length)), c.offset + padded(frame.length));
+  gltf.buffers[0].byteLength = Math.min(bin.length, gltf.buffers[0].byteLength + delta);
+  let json = new TextEncoder().encode(JSON.stringify(gltf));
+  const jsonPadded = new Uint8Array(padded(json.length)).fill(0x20);
+  jsonPadded.set(json);
+  json = jsonPadded;
+  const out = new Uint8Array(28 + json.length + bin.length);
+  const dv = new DataView(out.buffer);
+  dv.setUint32(0, 0x46546c67, true); dv.setUint32(4, 2, true); dv.setUint32(8, out.length, true);
+  dv.setUint32(12, json.length, true); dv.setUint32(16, 0x4e4f534a, true);
+  out.set(json, 20);
+  dv.setUint32(20 + json.length, bin.length, true); dv.setUint32(24 + json.length, 0x004e4942, true);
+  out.set(bin, 28 + json.length);
+  return out;
+}

@@ -1,0 +1,80 @@
+/**
+ * The push API: bytes fed in pieces give the same levels as the whole file; a cut file is
+ * progress (every chunk wholly received is applied), a file cut before its base is truncated,
+ * and a chunk whose bytes differ from its digest is a named error that names the chunk.
+ */
+import assert from 'node:assert/strict';
+import { readFileSync } from 'node:fs';
+import { join } from 'node:path';
+import { test } from 'node:test';
+import { CorruptChunkError, FormatError, PmwDecoder, TruncatedError, decodePmw } from '../src/index.js';
+import { CONFORMANCE, conformanceFiles, seededRandom, levelDigest } from './lib/helpers.js';
+
+const load = (f) => new Uint8Array(readFileSync(join(CONFORMANCE, f)));
+
+
+async function levels(bytes, pieces) {
+  const d = new PmwDecoder({ snapshots: true });
+  const out = [];
+  for (const piece of pieces(bytes)) out.push(...await d.feed(piece));
+  return { out, end: d.close() };
+}
+
+for (const file of conformanceFiles()) {
+  test(`${file}: fed in random pieces, the same levels as fed whole`, async () => {
+    const bytes = load(file);
+    const whole = await levels(bytes, (b) => [b]);
+    const rand = seededRandom(7);
+    const pieces = (b) => {
+      const out = [];
+      for (let at = 0; at < b.length;) {
+        const n = 1 + Math.floor(rand() * 700);
+        out.push(b.subarray(at, at + n));
+        at += n;
+      }
+      return out;
+    };
+    const split = await levels(bytes, pieces);
+    assert.deepEqual(split.out.map((r) => [r.chunk, r.bytesRead, levelDigest(r.mesh)]),
+      whole.out.map((r) => [r.chunk, r.bytesRead, levelDigest(r.mesh)]));
+    assert.equal(split.end.complete, true);
+  });
+}
+
+test('a file cut anywhere after its base gives the level of the last whole chunk', async () => {
+  const bytes = load(conformanceFiles().find((f) => f.startsWith('sphere-attributes')));
+  const { out } = await levels(bytes, (b) => [b]);
+  for (let i = 0; i < out.length; i++) {
+    const cutAt = i + 1 < out.length ? out[i + 1].bytesRead - 1 : bytes.length;
+    const cut = await decodePmw(bytes.subarray(0, cutAt));
+    assert.equal(cut.chunksApplied, out[i].chunk);
+    assert.equal(cut.complete, cutAt === bytes.length);
+    assert.equal(levelDigest(cut), levelDigest(out[i].mesh));
+  }
+});
+
+test('a file cut before its base mesh is complete is reported truncated with bytes received and needed', async () => {
+  const bytes = load(conformanceFiles()[0]);
+  const { out } = await levels(bytes, (b) => [b]);
+  for (const cutAt of [0, 7, 20, 500, out[0].bytesRead - 1]) {
+    const d = new PmwDecoder();
+    assert.deepEqual(await d.feed(bytes.subarray(0, cutAt)), []);
+    assert.throws(() => d.close(), (e) => e instanceof TruncatedError && e.bytesReceived === cutAt);
+  }
+});
+
+test('a chunk whose stored bytes change is corrupt, named, and neither it nor later chunks apply', async () => {
+  const bytes = load(conformanceFiles()[0]).slice();
+  const { out } = await levels(bytes, (b) => [b]);
+  bytes[out[1].bytesRead - 3] ^= 0x10; // inside chunk 0
+  const d = new PmwDecoder();
+  await assert.rejects(d.feed(bytes), (e) => e instanceof CorruptChunkError && e.chunk === 0);
+  await assert.rejects(d.feed(new Uint8Array(0)), CorruptChunkError);
+});
+
+test('bytes beyond the GLB length are a format error', async () => {
+  const bytes = load(conformanceFiles()[0]);
+  const longer = new Uint8Array(bytes.length + 4);
+  longer.set(bytes);
+  await assert.rejects(decodePmw(longer), FormatError);
+});

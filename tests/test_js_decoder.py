@@ -1,0 +1,93 @@
+"""The JavaScript decoder (js/) reproduces the Python decoder exactly on every corpus mesh.
+
+Each corpus mesh is encoded with Python into a temporary .pmw (Draco base; one plain base too),
+then ``node js/test/dump.mjs`` prints the JS decode at every chunk boundary (counts, bytes read and
+a SHA-256 of the level's positions, faces and quantized attributes) and the Python decoder's
+levels must match line for line.  The conformance files are compared by the Node tests themselves
+(``npm test --prefix js``).  Skips when node or js/node_modules is absent, or ../shared is.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import pmwm_codec
+from pmwm_codec.stream import StreamDecoder
+
+from conftest import CORPUS_MESHES, corpus_path
+
+ROOT = Path(__file__).resolve().parents[1]
+DUMP = ROOT / "js" / "test" / "dump.mjs"
+
+
+def _node() -> str:
+    node = shutil.which("node")
+    if node is None or not (ROOT / "js" / "node_modules" / "fzstd").exists():
+        pytest.skip("node or js/node_modules absent (npm ci --prefix js)")
+    return node
+
+
+def _level_digest(r) -> str:
+    """SHA-256 of positions_int, faces and (when any) quantized attributes as <i8 (as js/test/lib/helpers.js)."""
+    h = hashlib.sha256()
+    h.update(np.ascontiguousarray(r.positions_int, dtype="<i8").tobytes())
+    h.update(np.ascontiguousarray(r.faces, dtype="<i8").tobytes())
+    attributes = np.concatenate([p.attributes_int for p in r.parts])
+    if attributes.size:
+        h.update(np.ascontiguousarray(attributes, dtype="<i8").tobytes())
+    return h.hexdigest()
+
+
+def _python_levels(data: bytes) -> list:
+    dec = StreamDecoder()
+    results = dec.feed(data)
+    assert dec.close().complete
+    return [
+        {"chunk": r.chunk, "bytesRead": r.bytes_read, "vertexCount": r.vertices, "faceCount": r.faces_count,
+         "parts": [[len(p.positions_int), len(p.faces)] for p in r.parts], "sha256": _level_digest(r)}
+        for r in results
+    ]
+
+
+def _js_levels(node: str, path: Path) -> tuple[list, dict]:
+    out = subprocess.run([node, str(DUMP), str(path)], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    lines = [json.loads(line) for line in out.stdout.splitlines()]
+    return lines[:-1], lines[-1]["end"]
+
+
+def _corpus_file(name: str) -> Path:
+    """The corpus asset of `name`: its .glb when there is one (attributes, textures), else its .obj."""
+    for suffix in (".glb", ".obj"):
+        path = corpus_path("") / f"{name}{suffix}"
+        if path.exists():
+            return path
+    return corpus_path(f"{name}.obj")
+
+
+@pytest.mark.parametrize("name", CORPUS_MESHES)
+def test_js_decoder_matches_python_at_every_chunk_boundary(name, tmp_path):
+    node = _node()
+    src = _corpus_file(name)
+    dst = tmp_path / f"{name}.pmw"
+    pmwm_codec.encode(str(src), str(dst), measure=False)
+    js, end = _js_levels(node, dst)
+    assert end["complete"]
+    assert js == _python_levels(dst.read_bytes())
+
+
+def test_js_decoder_matches_python_on_a_plain_base_with_a_watermark(tmp_path):
+    node = _node()
+    dst = tmp_path / "cow.pmw"
+    stripes = (np.indices((16, 16)).sum(0) % 2 * 200 + 20).astype(np.uint8)
+    pmwm_codec.encode(str(corpus_path("cow.obj")), str(dst), watermark=stripes, base_codec="plain", measure=False)
+    js, end = _js_levels(node, dst)
+    assert end["complete"] and end["chunksApplied"] == end["chunkCount"]
+    assert js == _python_levels(dst.read_bytes())

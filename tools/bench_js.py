@@ -1,0 +1,100 @@
+"""JavaScript decoder benchmark: js/ full decode in Node vs draco3d's decode of the same full mesh.
+
+For each mesh: encode it with pmwm_codec (grid 14, Draco base, no watermark) and with DracoPy
+(quantization 14, compression level 7, the full mesh: the same settings as tools/bench.py's Draco
+column), then run ``node js/bench/bench.mjs`` (one warm-up each, then REPEATS alternating runs of
+``decodePmw`` and of draco3d ``DecodeBufferToMesh`` + array copies) and report medians.
+
+    python tools/bench_js.py [--big] [--repeats N] [--write BENCHMARKS.md]
+
+Meshes: ``stanford-bunny.obj`` from ``../shared/corpus`` and, with ``--big``, the bunny
+midpoint-subdivided twice (556k vertices), as in tools/bench.py.  Needs node and ``npm ci --prefix js``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import DracoPy
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import pmwm_codec  # noqa: E402
+from tools.bench import load_meshes, ms, publish, table  # noqa: E402
+
+SECTION = "JavaScript decoder"
+
+
+def run_mesh(name: str, mesh, repeats: int, tmp: Path) -> dict:
+    """Encode ``mesh`` both ways into ``tmp`` and time the two decoders in Node; the bench.mjs JSON."""
+    pmw, drc = tmp / "mesh.pmw", tmp / "mesh.drc"
+    pmwm_codec.encode(mesh, str(pmw), measure=False, grid_bits=14)
+    drc.write_bytes(DracoPy.encode(mesh.positions, mesh.faces, quantization_bits=14, compression_level=7))
+    out = subprocess.run(["node", str(ROOT / "js" / "bench" / "bench.mjs"), str(pmw), str(drc), str(repeats)],
+                         capture_output=True, text=True, check=True)
+    result = json.loads(out.stdout)
+    result.update(name=name, pmw_bytes=pmw.stat().st_size, drc_bytes=drc.stat().st_size)
+    return result
+
+
+def render(results: list, command: str) -> str:
+    rows = []
+    for r in results:
+        ours, draco = statistics.median(r["pmw"]), statistics.median(r["draco"])
+        ratio = ours / draco
+        rows.append([r["name"], f"{r['vertices']:,}", len(r["pmw"]), ms(ours), ms(draco),
+                     f"**{ratio:.1f}x** ({'met' if ratio <= 3 else 'miss'})",
+                     f"{r['pmw_bytes']:,} / {r['drc_bytes']:,}"])
+    runs = "; ".join(f"{r['name']}: decodePmw {[round(t, 4) for t in r['pmw']]}, draco3d {[round(t, 4) for t in r['draco']]}"
+                     for r in results)
+    load = os.getloadavg()[0]
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
+    dirty = subprocess.run(["git", "status", "--porcelain", "js/src"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
+    node = results[0]["node"] if results else "?"
+    return "\n".join([
+        f"Command (from the repository root): `{command}`",
+        "",
+        f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, Node {node}; load average "
+        f"at start {load:.2f}. Decoder: commit {commit or '?'}{' with uncommitted js/src changes' if dirty else ''}. The machine was shared with other agents running test suites while this ran: "
+        "compare the ratio within a row, not absolute times.",
+        "",
+        "What is timed (medians; one warm-up run each first, module instantiation not timed): "
+        "`decodePmw(bytes)` of the whole grid-14 .pmw in memory (js/: GLB plan, Draco base through draco3d, "
+        "BLAKE2b digests, zstd, every split) vs draco3d's `DecodeBufferToMesh` of "
+        "`DracoPy.encode(points, faces, quantization_bits=14, compression_level=7)` of the full mesh, positions "
+        "and indices copied out. Done-when 3 of issue 15 asks for at most 3x.",
+        "",
+        table(["mesh", "vertices", "repeats", "JS decodePmw", "draco3d decode", "ratio (target <= 3x)",
+               ".pmw / .drc bytes"], rows),
+        "",
+        f"All runs (seconds): {runs}",
+    ])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--corpus", default=str(ROOT.parent / "shared" / "corpus"))
+    ap.add_argument("--big", action="store_true", help="also the bunny subdivided twice (556k vertices)")
+    ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--write", metavar="PATH", help=f"replace the '{SECTION}' section of this Markdown file")
+    args = ap.parse_args()
+    command = "python tools/bench_js.py" + (" --big" if args.big else "") + f" --repeats {args.repeats}" + (
+        f" --write {args.write}" if args.write else "")
+    results = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, mesh in load_meshes(args.corpus, args.big):
+            results.append(run_mesh(name, mesh, args.repeats if mesh.vertex_count < 200_000 else 3, Path(tmp)))
+    publish(render(results, command), args.write, SECTION, lambda msg: print(msg, file=sys.stderr))
+
+
+if __name__ == "__main__":
+    main()
