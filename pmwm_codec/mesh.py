@@ -25,7 +25,7 @@ import numpy as np
 
 from .constants import MAX_ENCODE_FACES, MAX_ENCODE_VERTICES, MAX_GRID_BITS, MAX_INPUT_FILE_BYTES
 from .errors import InputFormatError, MeshError
-from .sources import read_regular_file
+from .sources import check_input_path, read_regular_file
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")
 
@@ -207,13 +207,7 @@ def read_mesh(path) -> Mesh:
         See :func:`checked_mesh`.
     """
     path = os.fspath(path)
-    name = os.path.basename(path)
-    if not os.path.exists(path):
-        raise InputFormatError(f"{path}: no such file")
-    if os.path.isdir(path):
-        raise InputFormatError(f"{path}: is a directory, not a mesh file")
-    if not os.path.isfile(path):
-        raise InputFormatError(f"{path}: not a regular file")
+    name = check_input_path(path, "a mesh file")
     suffix = os.path.splitext(path)[1].lower()
     if suffix not in MESH_SUFFIXES:
         raise InputFormatError(

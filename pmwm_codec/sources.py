@@ -101,3 +101,21 @@ def read_regular_file(path, limit: int, error, label=None, *, follow_symlinks: b
     if size > limit:
         raise error(f"{label}: more than the limit of {limit:,} bytes")
     return b"".join(chunks)
+
+
+def check_input_path(path, what: str) -> str:
+    """The file name of ``path`` once it is known to name an existing regular file.
+
+    Raises :class:`~pmwm_codec.errors.InputFormatError` naming the path otherwise
+    (missing, a directory, a device or FIFO); ``what`` says what was expected ("a mesh file").
+    """
+    from .errors import InputFormatError
+
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise InputFormatError(f"{path}: no such file")
+    if os.path.isdir(path):
+        raise InputFormatError(f"{path}: is a directory, not {what}")
+    if not os.path.isfile(path):
+        raise InputFormatError(f"{path}: not a regular file")
+    return os.path.basename(path) or path

@@ -26,6 +26,7 @@ from PIL import Image, ImageDraw, ImageFont, UnidentifiedImageError
 
 from ..constants import MAX_WATERMARK_PIXELS
 from ..errors import InputFormatError, PmwError
+from ..sources import check_input_path
 
 __all__ = ["load_watermark", "save_png", "make_text_watermark", "DEFAULT_MAX_SIZE"]
 
@@ -39,13 +40,7 @@ def _next_pow2(n: int) -> int:
 
 def _open(path) -> tuple[Image.Image, str]:
     path = os.fspath(path)
-    name = os.path.basename(path) or path
-    if not os.path.exists(path):
-        raise InputFormatError(f"{path}: no such file")
-    if os.path.isdir(path):
-        raise InputFormatError(f"{path}: is a directory, not an image")
-    if not os.path.isfile(path):
-        raise InputFormatError(f"{path}: not a regular file")
+    name = check_input_path(path, "an image")
     try:
         img = Image.open(path)
         check_image_size(img, name)
