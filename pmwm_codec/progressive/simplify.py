@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .topology import csr, edge_table, expand, half_edges
+from .topology import csr, edge_table, expand, group_order, half_edges
 
 #: A moved face's normal may turn by at most this much (cosine bound).
 MIN_NORMAL_COS = 0.0
@@ -317,9 +317,9 @@ def _candidates(F, P, Q, et, src, frozen_ext):
     cost = quadric_error(Q[cu], P[cv]) + quadric_error(Q, P)[cv]
 
     # candidates grouped by u, cheapest first; each u offers up to TRIES of them
-    crank = np.empty(len(cost), dtype=np.int64)
-    crank[np.argsort(cost)] = np.arange(len(cost))
-    order = np.argsort(cu * len(cost) + crank)
+    # (the same order as argsort(cu * c + rank of cost): cost order, then grouped by u, stably)
+    by_cost = np.argsort(cost)
+    order = by_cost[group_order(cu[by_cost], n)]
     cu, cv, ce, cost = cu[order], cv[order], ce[order], cost[order]
     new_group = np.r_[True, cu[1:] != cu[:-1]]
     group_start = np.flatnonzero(new_group)
@@ -490,8 +490,13 @@ def _offer_ranks(cu, cost):
     bucket = np.floor(2.0 * np.log2(cost + 1e-12 + 1e-9 * float(cost.max(initial=0.0)))).astype(np.int64)
     bucket -= bucket.min(initial=0)
     shuffle = np.random.default_rng(c).permutation(c)
+    # argsort(bucket * c + shuffle) without a sort of c keys: candidates in shuffle order,
+    # then grouped by bucket (few distinct values) stably
+    by_shuffle = np.empty(c, dtype=np.int64)
+    by_shuffle[shuffle] = np.arange(c)
+    order = by_shuffle[group_order(bucket[by_shuffle], int(bucket.max(initial=0)) + 1)]
     rank = np.empty(c, dtype=np.int64)
-    rank[np.argsort(bucket * c + shuffle)] = np.arange(c)
+    rank[order] = np.arange(c)
     return rank
 
 

@@ -10,6 +10,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+try:  # optional compiled kernels (wheels on PyPI); every kernel has an identical numpy twin
+    import numba as _numba
+except ImportError:  # pragma: no cover - exercised by forcing USE_NUMBA = False in the tests
+    _numba = None
+
+#: Use the numba kernels when numba is installed (tests flip this to check the numpy twins).
+USE_NUMBA = _numba is not None
+
 
 @dataclass
 class EdgeTable:
@@ -51,6 +59,37 @@ class EdgeTable:
         return np.where(hit, pos_c, -1)
 
 
+def _counting_order_py(keys, n):
+    count = np.zeros(n + 1, dtype=np.int64)
+    for k in keys:
+        count[k + 1] += 1
+    for i in range(n):
+        count[i + 1] += count[i]
+    out = np.empty(len(keys), dtype=np.int64)
+    for j in range(len(keys)):
+        k = keys[j]
+        out[count[k]] = j
+        count[k] += 1
+    return out
+
+
+_counting_order_jit = None
+
+
+def group_order(keys: np.ndarray, n: int) -> np.ndarray:
+    """Stable order of ``keys`` (c,) int in ``[0, n)``: (c,) int64, equal to ``argsort(kind="stable")``.
+
+    A counting sort (O(c + n)) when numba is available, numpy's stable argsort otherwise.
+    """
+    global _counting_order_jit
+    keys = np.asarray(keys, dtype=np.int64)
+    if not USE_NUMBA or len(keys) < 64:
+        return np.argsort(keys, kind="stable")
+    if _counting_order_jit is None:
+        _counting_order_jit = _numba.njit(cache=True, nogil=True)(_counting_order_py)
+    return _counting_order_jit(keys, int(n))
+
+
 def half_edges(faces: np.ndarray):
     """Half-edge end points: ``(src, dst, opposite)`` each (3m,) int64, face-major."""
     src = faces.reshape(-1)
@@ -65,7 +104,8 @@ def edge_table(faces: np.ndarray, n: int) -> EdgeTable:
     lo = np.minimum(src, dst)
     hi = np.maximum(src, dst)
     key = lo * n + hi
-    order = np.argsort(key)
+    by_hi = group_order(hi, n)
+    order = by_hi[group_order(lo[by_hi], n)]
     ks = key[order]
     first = np.empty(len(ks), dtype=bool)
     first[0] = True
@@ -83,7 +123,7 @@ def edge_table(faces: np.ndarray, n: int) -> EdgeTable:
 
 def csr(groups: np.ndarray, values: np.ndarray, n: int):
     """Group ``values`` by ``groups`` (ids in [0, n)): returns ``(start (n+1,), values sorted)``."""
-    order = np.argsort(groups)
+    order = group_order(groups, n)
     start = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(np.bincount(groups, minlength=n), out=start[1:])
     return start, values[order]
