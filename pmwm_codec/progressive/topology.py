@@ -60,6 +60,7 @@ class EdgeTable:
 
 
 def _counting_order_py(keys, n):
+    """Kernel of :func:`group_order`: keys (c,) int64 in [0, n) -> (c,) int64 stable order."""
     count = np.zeros(n + 1, dtype=np.int64)
     for k in keys:
         count[k + 1] += 1
@@ -73,7 +74,21 @@ def _counting_order_py(keys, n):
     return out
 
 
-_counting_order_jit = None
+_COMPILED: dict = {}
+
+
+def compiled(fn):
+    """The numba-compiled twin of the plain-Python kernel ``fn`` (disk-cached), or None.
+
+    None when numba is absent or :data:`USE_NUMBA` is off; callers then run their numpy
+    version, which computes the same result.
+    """
+    if not USE_NUMBA:
+        return None
+    jit = _COMPILED.get(fn)
+    if jit is None:
+        jit = _COMPILED[fn] = _numba.njit(cache=True, nogil=True)(fn)
+    return jit
 
 
 def group_order(keys: np.ndarray, n: int) -> np.ndarray:
@@ -81,13 +96,11 @@ def group_order(keys: np.ndarray, n: int) -> np.ndarray:
 
     A counting sort (O(c + n)) when numba is available, numpy's stable argsort otherwise.
     """
-    global _counting_order_jit
     keys = np.asarray(keys, dtype=np.int64)
-    if not USE_NUMBA or len(keys) < 64:
+    kernel = compiled(_counting_order_py) if len(keys) >= 64 else None
+    if kernel is None:
         return np.argsort(keys, kind="stable")
-    if _counting_order_jit is None:
-        _counting_order_jit = _numba.njit(cache=True, nogil=True)(_counting_order_py)
-    return _counting_order_jit(keys, int(n))
+    return kernel(keys, int(n))
 
 
 def half_edges(faces: np.ndarray):
