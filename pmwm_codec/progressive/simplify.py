@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .topology import csr, edge_table, expand, group_order, half_edges
+from .topology import compiled, csr, edge_table, expand, group_order, half_edges
 
 #: A moved face's normal may turn by at most this much (cosine bound).
 MIN_NORMAL_COS = 0.0
@@ -158,6 +158,26 @@ def quadric_error(q: np.ndarray, p: np.ndarray) -> np.ndarray:
         + c2 * z * z + 2 * cd * z + d2
     )
     return np.maximum(err, 0.0)
+
+
+def _pair_cost_kernel(Q, P, cu, cv, own):
+    """Compiled ``quadric_error(Q[cu], P[cv]) + own[cv]`` without the (c, 10) gather.
+
+    Q (n, 10) float64, P (n, 3) float64, cu / cv (c,) int64, own (n,) float64 -> (c,) float64;
+    the same operations in the same order as :func:`quadric_error` (no contraction): same bits.
+    """
+    out = np.empty(len(cu), np.float64)
+    for i in range(len(cu)):
+        q = Q[cu[i]]
+        j = cv[i]
+        x, y, z = P[j, 0], P[j, 1], P[j, 2]
+        err = (
+            q[0] * x * x + 2 * q[1] * x * y + 2 * q[2] * x * z + 2 * q[3] * x
+            + q[4] * y * y + 2 * q[5] * y * z + 2 * q[6] * y
+            + q[7] * z * z + 2 * q[8] * z + q[9]
+        )
+        out[i] = max(err, 0.0) + own[j]
+    return out
 
 
 def simplify(
@@ -314,7 +334,12 @@ def _candidates(F, P, Q, et, src, frozen_ext):
     if len(cu) == 0:
         return None
     # (Q_u + Q_v)(p_v) = Q_u(p_v) + Q_v(p_v); the second term is one value per vertex
-    cost = quadric_error(Q[cu], P[cv]) + quadric_error(Q, P)[cv]
+    own = quadric_error(Q, P)
+    kernel = compiled(_pair_cost_kernel)
+    if kernel is None:
+        cost = quadric_error(Q[cu], P[cv]) + own[cv]
+    else:
+        cost = kernel(Q, P, cu, cv, own)
 
     # candidates grouped by u, cheapest first; each u offers up to TRIES of them
     # (the same order as argsort(cu * c + rank of cost): cost order, then grouped by u, stably)
@@ -503,6 +528,9 @@ def _offer_ranks(cu, cost):
 def _neighbour_min(vv, values, rows, big):
     """(len(rows),) the smallest ``values`` among each row's neighbours (``big`` for none)."""
     vv_start, vv_nbr = vv
+    kernel = compiled(_neighbour_min_kernel)
+    if kernel is not None:
+        return kernel(vv_start, vv_nbr, np.asarray(values, np.int64), np.asarray(rows, np.int64), big)
     owner, pos = expand(vv_start, rows)
     out = np.full(len(rows), big, dtype=np.int64)
     if len(pos):
@@ -510,11 +538,40 @@ def _neighbour_min(vv, values, rows, big):
     return out
 
 
+def _neighbour_min_kernel(vv_start, vv_nbr, values, rows, big):
+    """Compiled :func:`_neighbour_min`: the same (len(rows),) int64 minima."""
+    out = np.full(len(rows), big, np.int64)
+    for i in range(len(rows)):
+        r = rows[i]
+        best = big
+        for p in range(vv_start[r], vv_start[r + 1]):
+            x = values[vv_nbr[p]]
+            if x < best:
+                best = x
+        out[i] = best
+    return out
+
+
 def _neighbour_any(vv, flags, rows):
     """(len(rows),) whether any neighbour of each row is flagged."""
     vv_start, vv_nbr = vv
+    kernel = compiled(_neighbour_any_kernel)
+    if kernel is not None:
+        return kernel(vv_start, vv_nbr, flags, np.asarray(rows, np.int64))
     owner, pos = expand(vv_start, rows)
     return np.bincount(owner, weights=flags[vv_nbr[pos]], minlength=len(rows)) > 0
+
+
+def _neighbour_any_kernel(vv_start, vv_nbr, flags, rows):
+    """Compiled :func:`_neighbour_any`: the same (len(rows),) bool."""
+    out = np.zeros(len(rows), np.bool_)
+    for i in range(len(rows)):
+        r = rows[i]
+        for p in range(vv_start[r], vv_start[r + 1]):
+            if flags[vv_nbr[p]]:
+                out[i] = True
+                break
+    return out
 
 
 def _conflicts(u, v, r, chosen_u, chosen_v, vv, big):
