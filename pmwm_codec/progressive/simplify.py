@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .topology import compiled, csr, edge_table, expand, group_order, half_edges
+from .topology import compiled, csr, edge_table, expand, group_order, half_edges, kernel_helper
 
 #: A moved face's normal may turn by at most this much (cosine bound).
 MIN_NORMAL_COS = 0.0
@@ -387,6 +387,10 @@ def _moved_faces(vf, F, cu, cv):
 
 def _legal(cu, cv, ce, et, F, P, opp, fcount, vv, vf):
     """Boolean mask (k,) of candidate collapses ``cu -> cv`` on edge ``ce`` that are legal."""
+    kernel = compiled(_legal_kernel)
+    if kernel is not None:
+        return kernel(cu, cv, ce, et.keys, et.n, et.count, et.he0, et.he1, F, P, opp, fcount, vv[0], vv[1],
+                      vf[0], vf[1])
     k = len(cu)
     ok = np.ones(k, dtype=bool)
 
@@ -438,6 +442,71 @@ def _legal(cu, cv, ce, et, F, P, opp, fcount, vv, vf):
     bad_count = np.bincount(owner, weights=~good, minlength=k)
     ok &= bad_count == 0
     return ok
+
+
+@kernel_helper
+def _edge_id(keys, n, a, b):
+    """Edge id of the pair (a, b) in the sorted ``keys`` (-1: none); for the kernels."""
+    q = min(a, b) * n + max(a, b)
+    i = np.searchsorted(keys, q)
+    if i < len(keys) and keys[i] == q:
+        return i
+    return -1
+
+
+def _legal_kernel(cu, cv, ce, keys, n, count, he0, he1, F, P, opp, fcount, vv_start, vv_nbr, vf_start, vf_face):
+    """Compiled :func:`_legal`: the same (k,) bool mask, test for test (see there)."""
+    ok = np.ones(len(cu), np.bool_)
+    for i in range(len(cu)):
+        u, v, e = cu[i], cv[i], ce[i]
+        common = 0  # link condition
+        for p in range(vv_start[u], vv_start[u + 1]):
+            if _edge_id(keys, n, v, vv_nbr[p]) >= 0:
+                common += 1
+        if common != count[e] or fcount[u] <= count[e]:
+            ok[i] = False
+            continue
+        for he in (he0[e], he1[e]):  # deleted faces: other edge at u interior, wing keeps a face
+            if he >= 0:
+                w = opp[he]
+                e_uw = _edge_id(keys, n, u, w)
+                if e_uw < 0 or count[e_uw] != 2 or fcount[w] < 2:
+                    ok[i] = False
+        if ok[i]:
+            ok[i] = _moved_faces_ok(u, v, keys, n, count, he0, he1, F, P, opp, vf_start, vf_face)
+    return ok
+
+
+@kernel_helper
+def _moved_faces_ok(u, v, keys, n, count, he0, he1, F, P, opp, vf_start, vf_face):
+    """Kernel part of :func:`_legal`: no moved face of ``u -> v`` flips, degenerates or duplicates."""
+    for p in range(vf_start[u], vf_start[u + 1]):
+        f = vf_face[p]
+        t0, t1, t2 = F[f, 0], F[f, 1], F[f, 2]
+        if t0 == v or t1 == v or t2 == v:
+            continue
+        col = 0 if t0 == u else (1 if t1 == u else 2)
+        xa = F[f, (col + 1) % 3]
+        xb = F[f, (col + 2) % 3]
+        a0, a1, a2 = P[t0, 0], P[t0, 1], P[t0, 2]  # normal before (np.cross order)
+        b0, b1, b2 = P[t1, 0] - a0, P[t1, 1] - a1, P[t1, 2] - a2
+        c0, c1, c2 = P[t2, 0] - a0, P[t2, 1] - a1, P[t2, 2] - a2
+        n0x, n0y, n0z = b1 * c2 - b2 * c1, b2 * c0 - b0 * c2, b0 * c1 - b1 * c0
+        s0, s1, s2 = (v if t0 == u else t0), (v if t1 == u else t1), (v if t2 == u else t2)
+        a0, a1, a2 = P[s0, 0], P[s0, 1], P[s0, 2]  # normal after
+        b0, b1, b2 = P[s1, 0] - a0, P[s1, 1] - a1, P[s1, 2] - a2
+        c0, c1, c2 = P[s2, 0] - a0, P[s2, 1] - a1, P[s2, 2] - a2
+        n1x, n1y, n1z = b1 * c2 - b2 * c1, b2 * c0 - b0 * c2, b0 * c1 - b1 * c0
+        l0 = np.sqrt(n0x * n0x + n0y * n0y + n0z * n0z)
+        l1 = np.sqrt(n1x * n1x + n1y * n1y + n1z * n1z)
+        dot = n0x * n1x + n0y * n1y + n0z * n1z
+        if not (l1 > 0 and dot > MIN_NORMAL_COS * l0 * l1):
+            return False
+        e = _edge_id(keys, n, xa, xb)  # duplicate: the edge opposite u already has apex v
+        if e >= 0:
+            if count[e] > 2 or opp[he0[e]] == v or (he1[e] >= 0 and opp[he1[e]] == v):
+                return False
+    return True
 
 
 def _normals(P, tri):

@@ -91,6 +91,12 @@ def compiled(fn):
     return jit
 
 
+def kernel_helper(fn):
+    """Decorator for plain-Python functions that compiled kernels call (numba dispatchers need them
+    compiled too); returns ``fn`` itself when numba is absent.  Compiled lazily, disk-cached."""
+    return _numba.njit(cache=True, nogil=True)(fn) if _numba is not None else fn
+
+
 def group_order(keys: np.ndarray, n: int) -> np.ndarray:
     """Stable order of ``keys`` (c,) int in ``[0, n)``: (c,) int64, equal to ``argsort(kind="stable")``.
 
