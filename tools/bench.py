@@ -5,6 +5,9 @@ One run measures, per mesh:
 * **encode** -- ``pmwm_codec.encode(mesh, BytesIO, measure=False)`` (no watermark, no
   distortion measurement, grid 14 bits) against ``fast_simplification.simplify(...,
   return_collapses=True)`` down to the same base face count;
+* **default encode** -- ``pmwm_codec.encode(mesh, BytesIO)`` with no options at all, against the same
+  fast-simplification runs; **peak memory** of each task in a fresh subprocess (``ru_maxrss`` growth,
+  ``tracemalloc`` peak); **cold start** of ``pmw encode`` with and without the numba cache;
 * **decode** -- ``pmwm_codec.decode(bytes)`` of the whole file in memory (Draco base + zstd +
   every split) against ``DracoPy.decode`` of the full mesh encoded at q14 / compression level 7;
 * **size** -- total ``.pmw`` bits per vertex (grid 14 and 16) against that Draco file, plus a
@@ -39,6 +42,8 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
+if ROOT not in sys.path:  # run as `python tools/bench.py` from a checkout
+    sys.path.insert(0, ROOT)
 
 import pmwm_codec
 from pmwm_codec.format import records
@@ -309,6 +314,15 @@ def bench_mesh(name, mesh, repeats, zstd_level, log):
     res.update(ours_decode=t_dec, ours_decode_all=dec_all, draco_encode=t_de, draco_decode=t_dd,
                draco_decode_all=dd_all, draco_bytes=len(draco), draco_vertices=len(dmesh.points))
 
+    # the user's default options: pmwm_codec.encode(mesh, dst), nothing else (grid 16, default report)
+    def ours_default():
+        return pmwm_codec.encode(mesh, io.BytesIO())
+
+    t_def, def_all, _ = median_time(ours_default, repeats if n < 200_000 else 1)
+    log(f"  ours encode, default options: {def_all}")
+    res.update(ours_default=t_def, ours_default_all=def_all)
+    res["peak"] = peak_memory(mesh, blob, draco, target_faces, log)
+
     # size and breakdown (grid 14 and 16)
     for bits in (14, 16):
         res[f"parts{bits}"] = glb_parts(data[bits])
@@ -334,6 +348,105 @@ def bench_mesh(name, mesh, repeats, zstd_level, log):
 
     # decode profile: parse/zstd vs apply (one run, manual loop over the decoder's stages)
     res["decode_profile"] = decode_profile(blob)
+    return res
+
+
+# ----------------------------------------------------------------------------- peak memory, cold start
+PEAK_TASKS = ("ours encode", "ours decode", "fast-simplification", "Draco decode")
+
+
+def peak_memory(mesh, blob: bytes, draco: bytes, target_faces: int, log) -> dict:
+    """Peak memory of each task, each in a fresh subprocess: ``{task: (rss MB, traced MB or None)}``.
+
+    RSS: ``ru_maxrss`` after the call minus the resident size just before it (inputs and imports
+    loaded), i.e. how far the call pushed the process above where it started (Linux).  Traced: ``tracemalloc`` peak during the call (numpy
+    reports its buffers to tracemalloc; C libraries' own allocations are not seen), ours only.
+    """
+    import json
+    import subprocess
+    import tempfile
+
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        np.savez(os.path.join(tmp, "mesh.npz"), v=mesh.positions, f=mesh.faces)
+        for name, data in (("blob.pmw", blob), ("mesh.drc", draco)):
+            with open(os.path.join(tmp, name), "wb") as fh:
+                fh.write(data)
+        for task in PEAK_TASKS:
+            for traced in ((False, True) if task.startswith("ours") else (False,)):
+                cmd = [sys.executable, os.path.abspath(__file__), "--peak-child", task, tmp, str(target_faces)]
+                run = subprocess.run(cmd + (["--traced"] if traced else []), capture_output=True, text=True,
+                                     cwd=ROOT, env={**os.environ, "PYTHONPATH": ROOT})
+                if run.returncode != 0:
+                    raise RuntimeError(f"peak-memory child failed: {run.stderr.strip()[-500:]}")
+                got = json.loads(run.stdout.strip().splitlines()[-1])
+                rss, tr = out.get(task, (None, None))
+                out[task] = (got["mb"], tr) if not traced else (rss, got["mb"])
+    log(f"  peak memory (MB, rss / traced): {out}")
+    return out
+
+
+def peak_child(task: str, tmp: str, target_faces: int, traced: bool) -> None:
+    """Run one :data:`PEAK_TASKS` task on the inputs in ``tmp``; print its peak memory as JSON."""
+    import json
+    import resource
+    import tracemalloc
+
+    d = np.load(os.path.join(tmp, "mesh.npz"))
+    mesh = Mesh(d["v"], d["f"])
+    blob = open(os.path.join(tmp, "blob.pmw"), "rb").read()
+    draco = open(os.path.join(tmp, "mesh.drc"), "rb").read()
+    pts, tri = np.ascontiguousarray(mesh.positions, np.float64), np.ascontiguousarray(mesh.faces, np.int32)
+    import DracoPy
+    import fast_simplification
+
+    run = {
+        "ours encode": lambda: pmwm_codec.encode(mesh, io.BytesIO()),
+        "ours decode": lambda: pmwm_codec.decode(blob),
+        "fast-simplification": lambda: fast_simplification.simplify(pts, tri, target_count=target_faces,
+                                                                      return_collapses=True),
+        "Draco decode": lambda: DracoPy.decode(draco),
+    }[task]
+    import pmwm_codec.stream  # noqa: F401  (the encoder's and decoder's imports, before measuring)
+
+    if traced:
+        tracemalloc.start()
+        run()
+        mb = tracemalloc.get_traced_memory()[1] / 2**20
+    else:
+        with open("/proc/self/status") as fh:  # resident now (KB), not the high-water mark
+            now = next(int(line.split()[1]) for line in fh if line.startswith("VmRSS:"))
+        run()
+        mb = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - now) / 1024
+    print(json.dumps({"mb": mb}))
+
+
+def cold_start(corpus: str, log) -> dict:
+    """Fresh-process ``pmw encode`` of the bunny (imports, numba kernels, encode, write), timed from outside.
+
+    ``compile``: an empty numba cache (``NUMBA_CACHE_DIR`` a new directory), so every kernel compiles;
+    ``cached``: the same directory again, kernels loaded from the cache.  Default options.
+    """
+    import subprocess
+    import tempfile
+
+    src = os.path.join(corpus, "stanford-bunny.obj")
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        env = {**os.environ, "PYTHONPATH": ROOT, "NUMBA_CACHE_DIR": os.path.join(tmp, "numba-cache")}
+        for label in ("compile", "cached", "cached "):
+            dst = os.path.join(tmp, "bunny.pmw")
+            if os.path.exists(dst):
+                os.remove(dst)
+            t = time.perf_counter()
+            run = subprocess.run([sys.executable, "-m", "pmwm_codec.cli", "encode", src, "-o", dst], env=env, cwd=ROOT,
+                                 capture_output=True, text=True)
+            dt = time.perf_counter() - t
+            if run.returncode != 0:
+                raise RuntimeError(f"pmw encode failed: {run.stderr.strip()[-500:]}")
+            out.setdefault(label.strip(), []).append(dt)
+    res = {"compile": out["compile"][0], "cached": statistics.median(out["cached"])}
+    log(f"  cold start pmw encode: {res}")
     return res
 
 
@@ -443,6 +556,34 @@ def render(results, info, command) -> str:
     L.append(table(["mesh", "ours encode µs/V", "fast-simpl. µs/V", "ours decode µs/V", "Draco decode µs/V",
                     "Draco q14 cl7 encode", "ours encode at grid 16 (1 run)"], rows))
     L.append("")
+    rows = []
+    for r in results:
+        ratio = r["ours_default"] / r["fs"]
+        rows.append([r["name"], len(r["ours_default_all"]), ms(r["ours_default"]), ms(r["fs"]),
+                     f"**{ratio:.1f}x**" + (" (miss)" if ratio > ENCODE_TARGET else " (ok)")])
+    L.append("Encode with the user's default options, `pmwm_codec.encode(mesh, dst)` (grid 16 and the default "
+             "distortion report), against the same fast-simplification runs:")
+    L.append("")
+    L.append(table(["mesh", "runs", "ours encode, default options", "fast-simplification (collapses)",
+                    f"ratio (target <= {ENCODE_TARGET:g}x)"], rows))
+    L.append("")
+    rows = []
+    for r in results:
+        for task in PEAK_TASKS:
+            rss, traced = r["peak"][task]
+            rows.append([r["name"], task, f"{rss:,.0f}", "" if traced is None else f"{traced:,.0f}"])
+    L.append("Peak memory, each task alone in a fresh process (inputs loaded first; ours encode with default "
+             "options): RSS = `ru_maxrss` after the call minus the resident size just before it; traced = `tracemalloc` peak of the "
+             "call (numpy buffers; ours only, the C peers allocate outside it):")
+    L.append("")
+    L.append(table(["mesh", "task", "peak RSS growth (MB)", "traced peak (MB)"], rows))
+    L.append("")
+    cold = info.get("cold")
+    if cold:
+        L.append(f"Fresh process, `python -m pmwm_codec.cli encode stanford-bunny.obj -o out.pmw` (default options, "
+                 f"imports included): {cold['compile']:.2f} s with an empty numba cache (every kernel compiles), "
+                 f"{cold['cached']:.2f} s with the kernels cached (median of 2).")
+        L.append("")
     L.append("All runs (seconds): " + "; ".join(
         f"{r['name']}: encode {[round(x, 3) for x in r['ours_encode_all']]}, fast-simpl. "
         f"{[round(x, 3) for x in r['fs_all']]}, decode {[round(x, 4) for x in r['ours_decode_all']]}, "
@@ -554,7 +695,13 @@ def main(argv=None):
     ap.add_argument("--no-big", action="store_true", help="skip the subdivided (~0.56M vertex) mesh")
     ap.add_argument("--zstd-level", type=int, default=10)
     ap.add_argument("--write", metavar="MARKDOWN", help="replace the 'Engine' section of this file")
+    ap.add_argument("--peak-child", nargs=3, metavar=("TASK", "DIR", "TARGET_FACES"), help=argparse.SUPPRESS)
+    ap.add_argument("--traced", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.peak_child:
+        task, tmp, target = args.peak_child
+        peak_child(task, tmp, int(target), args.traced)
+        return
     ZSTD_LEVEL_USED[0] = args.zstd_level
     command = "python tools/bench.py " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
     log = lambda s: print(s, file=sys.stderr, flush=True)  # noqa: E731
@@ -564,6 +711,7 @@ def main(argv=None):
     for name, mesh in load_meshes(args.corpus, not args.no_big):
         reps = args.repeats if mesh.vertex_count < 200_000 else args.big_repeats
         results.append(bench_mesh(name, mesh, reps, args.zstd_level, log))
+    info["cold"] = cold_start(args.corpus, log)
     publish(render(results, info, command.strip()), args.write, SECTION, log)
 
 
