@@ -308,29 +308,12 @@ def _candidates(F, P, Q, et, src, frozen_ext):
     ``(cu, cv, ce, cost)`` ((c,) int64 removed vertex, kept vertex, edge; (c,) float64
     quadric cost), at most ``TRIES`` per removed vertex, or None when there is none.
     """
-    n, ne = len(P), len(et.keys)
-    # orientation: the two half-edges of an interior edge must run opposite ways
-    two = et.count == 2
-    same_dir = np.zeros(ne, bool)
-    same_dir[two] = src[et.he0[two]] == src[et.he1[two]]
-    bad_edge = (et.count > 2) | same_dir
-    boundary_edge = et.count == 1
-
-    fcount = np.bincount(F.ravel(), minlength=n)
-    ends = np.concatenate([et.lo, et.hi])
-    evc = np.bincount(ends, minlength=n)
-    bvc = np.bincount(ends, weights=np.tile(boundary_edge, 2), minlength=n).astype(np.int64)
-    badv = np.bincount(ends, weights=np.tile(bad_edge, 2), minlength=n) > 0
-    manifold = ((bvc == 0) & (evc == fcount)) | ((bvc == 2) & (evc == fcount + 1))
-    frozen = ~manifold | badv | frozen_ext
-    on_boundary = bvc > 0
-
-    # candidate directed collapses u -> v over every usable edge, both directions
-    cu = np.concatenate([et.lo, et.hi])
-    cv = np.concatenate([et.hi, et.lo])
-    ce = np.concatenate([np.arange(ne), np.arange(ne)])
-    keep = np.tile(~bad_edge, 2) & ~frozen[cu] & (~on_boundary[cu] | boundary_edge[ce])
-    cu, cv, ce = cu[keep], cv[keep], ce[keep]
+    n = len(P)
+    kernel = compiled(_usable_kernel)
+    if kernel is None:
+        cu, cv, ce = _usable(F, et, src, frozen_ext, n)
+    else:
+        cu, cv, ce = kernel(et.lo, et.hi, et.count, et.he0, et.he1, src, F.reshape(-1), frozen_ext, n)
     if len(cu) == 0:
         return None
     # (Q_u + Q_v)(p_v) = Q_u(p_v) + Q_v(p_v); the second term is one value per vertex
@@ -351,6 +334,71 @@ def _candidates(F, P, Q, et, src, frozen_ext):
     rank_in_u = np.arange(len(cu)) - np.repeat(group_start, np.diff(np.r_[group_start, len(cu)]))
     keep = rank_in_u < TRIES
     return cu[keep], cv[keep], ce[keep], cost[keep]
+
+
+def _usable(F, et, src, frozen_ext, n):
+    """Directed collapses ``u -> v`` worth costing: ``(cu, cv, ce)`` (c,) int64 each.
+
+    Every edge of the edge table ``et`` both ways (all ``lo -> hi`` first, then ``hi -> lo``), minus
+    edges that are non-manifold or inconsistently oriented, minus removed vertices that are frozen
+    (not one disk or half-disk of faces, on such an edge, or in ``frozen_ext`` (n,) bool), minus
+    boundary vertices moving along an interior edge.  F (m, 3) int64, src (3m,) int64.
+    """
+    ne = len(et.keys)
+    # orientation: the two half-edges of an interior edge must run opposite ways
+    two = et.count == 2
+    same_dir = np.zeros(ne, bool)
+    same_dir[two] = src[et.he0[two]] == src[et.he1[two]]
+    bad_edge = (et.count > 2) | same_dir
+    boundary_edge = et.count == 1
+
+    fcount = np.bincount(F.ravel(), minlength=n)
+    ends = np.concatenate([et.lo, et.hi])
+    evc = np.bincount(ends, minlength=n)
+    bvc = np.bincount(ends, weights=np.tile(boundary_edge, 2), minlength=n).astype(np.int64)
+    badv = np.bincount(ends, weights=np.tile(bad_edge, 2), minlength=n) > 0
+    manifold = ((bvc == 0) & (evc == fcount)) | ((bvc == 2) & (evc == fcount + 1))
+    frozen = ~manifold | badv | frozen_ext
+    on_boundary = bvc > 0
+
+    cu = np.concatenate([et.lo, et.hi])
+    cv = np.concatenate([et.hi, et.lo])
+    ce = np.concatenate([np.arange(ne), np.arange(ne)])
+    keep = np.tile(~bad_edge, 2) & ~frozen[cu] & (~on_boundary[cu] | boundary_edge[ce])
+    return cu[keep], cv[keep], ce[keep]
+
+
+def _usable_kernel(lo, hi, count, he0, he1, src, flat_faces, frozen_ext, n):
+    """Compiled :func:`_usable` (same arrays, same order); flat_faces (3m,) int64."""
+    ne = len(lo)
+    fcount = np.zeros(n, np.int64)
+    for x in flat_faces:
+        fcount[x] += 1
+    evc = np.zeros(n, np.int64)
+    bvc = np.zeros(n, np.int64)
+    badv = np.zeros(n, np.bool_)
+    bad = np.zeros(ne, np.bool_)
+    for e in range(ne):
+        bad[e] = count[e] > 2 or (count[e] == 2 and src[he0[e]] == src[he1[e]])
+        for x in (lo[e], hi[e]):
+            evc[x] += 1
+            if count[e] == 1:
+                bvc[x] += 1
+            if bad[e]:
+                badv[x] = True
+    cu = np.empty(2 * ne, np.int64)
+    cv = np.empty(2 * ne, np.int64)
+    ce = np.empty(2 * ne, np.int64)
+    c = 0
+    for side in range(2):
+        for e in range(ne):
+            u, v = (lo[e], hi[e]) if side == 0 else (hi[e], lo[e])
+            manifold = (bvc[u] == 0 and evc[u] == fcount[u]) or (bvc[u] == 2 and evc[u] == fcount[u] + 1)
+            if bad[e] or not manifold or badv[u] or frozen_ext[u] or (bvc[u] > 0 and count[e] != 1):
+                continue
+            cu[c], cv[c], ce[c] = u, v, e
+            c += 1
+    return cu[:c], cv[:c], ce[:c]
 
 
 def _deleted_faces(et, src, opp, cu, ce):
