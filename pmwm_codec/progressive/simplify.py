@@ -505,11 +505,14 @@ def _edge_id(keys, n, a, b):
 def _legal_kernel(cu, cv, ce, keys, n, count, he0, he1, F, P, opp, fcount, vv_start, vv_nbr, vf_start, vf_face):
     """Compiled :func:`_legal`: the same (k,) bool mask, test for test (see there)."""
     ok = np.ones(len(cu), np.bool_)
+    mark = np.full(n, -1, np.int64)  # mark[x] == i: x is a neighbour of candidate i's kept vertex
     for i in range(len(cu)):
         u, v, e = cu[i], cv[i], ce[i]
+        for p in range(vv_start[v], vv_start[v + 1]):
+            mark[vv_nbr[p]] = i
         common = 0  # link condition
         for p in range(vv_start[u], vv_start[u + 1]):
-            if _edge_id(keys, n, v, vv_nbr[p]) >= 0:
+            if mark[vv_nbr[p]] == i:
                 common += 1
         if common != count[e] or fcount[u] <= count[e]:
             ok[i] = False
