@@ -130,12 +130,38 @@ def find_incidences(state: MeshState, v: np.ndarray):
     if len(state._sid) < state.n:
         state._sid = np.full(min(len(state.positions), max(state.n, 2 * len(state._sid))), -1, dtype=np.int32)
     sid = state._sid
+    kernel = compiled(_incidences_kernel)
+    if kernel is not None:
+        return kernel(state.faces[: state.m].reshape(-1), np.asarray(v, np.int64), sid)
     sid[v] = np.arange(k, dtype=np.int32)
     flat = state.faces[: state.m].reshape(-1)
     s = sid[flat]
     inc = np.flatnonzero(s >= 0)
     sid[v] = -1
     return inc, s[inc]
+
+
+def _incidences_kernel(flat, v, sid):
+    """Compiled :func:`find_incidences` over face slots ``flat`` (3m,) int64; ``sid`` (>= n,) int32
+    scratch, all -1 on entry and on return.  Returns ``(inc (I,) int64, owner (I,) int32)``."""
+    for i in range(len(v)):
+        sid[v[i]] = i
+    count = 0
+    for x in flat:
+        if sid[x] >= 0:
+            count += 1
+    inc = np.empty(count, np.int64)
+    owner = np.empty(count, np.int32)
+    j = 0
+    for c in range(len(flat)):
+        s = sid[flat[c]]
+        if s >= 0:
+            inc[j] = c
+            owner[j] = s
+            j += 1
+    for i in range(len(v)):
+        sid[v[i]] = -1
+    return inc, owner
 
 
 def split_topology(state: MeshState, v: np.ndarray, symbols: np.ndarray, *, incidences=None) -> SplitTopology:
