@@ -109,3 +109,19 @@ def test_split_topology_refuses_bad_wing_counts_on_both_paths(kernels, bad):
     with pytest.raises(FormatError):
         split_topology(state, b.v, sym)
     assert state.n == len(pm.base_positions) and np.array_equal(state.current_faces(), faces_before)
+
+
+def test_kernels_compile_without_a_writable_cache(monkeypatch):
+    """numba refuses ``cache=True`` when no cache dir is writable; the kernel then compiles uncached."""
+    numba = pytest.importorskip("numba")
+    real = numba.njit
+
+    def njit(*a, cache=False, **k):
+        if cache:
+            raise RuntimeError("cannot cache function: no locator available")
+        return real(*a, cache=cache, **k)
+
+    monkeypatch.setattr(topology._numba, "njit", njit)
+    kernel = topology._jit(topology._counting_order_py)
+    keys = np.array([3, 1, 3, 0, 1], np.int64)
+    assert np.array_equal(kernel(keys, 4), np.argsort(keys, kind="stable"))

@@ -87,14 +87,23 @@ def compiled(fn):
         return None
     jit = _COMPILED.get(fn)
     if jit is None:
-        jit = _COMPILED[fn] = _numba.njit(cache=True, nogil=True)(fn)
+        jit = _COMPILED[fn] = _jit(fn)
     return jit
+
+
+def _jit(fn):
+    """``numba.njit`` with the on-disk cache (next to the module, else numba's user cache dir);
+    without the cache when no cache dir is writable (numba refuses ``cache=True`` then)."""
+    try:
+        return _numba.njit(cache=True, nogil=True)(fn)
+    except RuntimeError:  # "cannot cache function ...: no locator available"
+        return _numba.njit(cache=False, nogil=True)(fn)
 
 
 def kernel_helper(fn):
     """Decorator for plain-Python functions that compiled kernels call (numba dispatchers need them
     compiled too); returns ``fn`` itself when numba is absent.  Compiled lazily, disk-cached."""
-    return _numba.njit(cache=True, nogil=True)(fn) if _numba is not None else fn
+    return _jit(fn) if _numba is not None else fn
 
 
 def group_order(keys: np.ndarray, n: int) -> np.ndarray:
