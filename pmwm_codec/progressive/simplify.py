@@ -52,6 +52,8 @@ MIN_NORMAL_COS = 0.0
 BOUNDARY_WEIGHT = 10.0
 #: How many of each vertex's cheapest collapses are tested for legality per batch.
 TRIES = 3
+#: Selection rounds per batch (see :func:`_select`).
+ROUNDS = 8
 
 
 @dataclass
@@ -277,7 +279,12 @@ def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget):
     def legal(idx):
         return _legal(cu[idx], cv[idx], ce[idx], et, F, P, opp, fcount, vv, vf)
 
-    win = _select(cu, cv, cost, legal, vv, n)
+    kernel = compiled(_select_kernel)
+    if kernel is None:
+        win = _select(cu, cv, cost, legal, vv, n, ROUNDS)
+    else:
+        win = kernel(cu, cv, ce, _offer_ranks(cu, cost), vv[0], vv[1], n, ROUNDS,
+                     (et.keys, et.n, et.count, et.he0, et.he1, F, P, opp, fcount, vf[0], vf[1]))
     if len(win) == 0:
         return None
     if len(win) > budget:
@@ -502,6 +509,7 @@ def _edge_id(keys, n, a, b):
     return -1
 
 
+@kernel_helper
 def _legal_kernel(cu, cv, ce, keys, n, count, he0, he1, F, P, opp, fcount, vv_start, vv_nbr, vf_start, vf_face):
     """Compiled :func:`_legal`: the same (k,) bool mask, test for test (see there)."""
     ok = np.ones(len(cu), np.bool_)
@@ -565,7 +573,7 @@ def _normals(P, tri):
     return np.cross(b - a, c - a)
 
 
-def _select(cu, cv, cost, legal, vv, n, rounds: int = 8):
+def _select(cu, cv, cost, legal, vv, n, rounds: int = ROUNDS):
     """Indices of a set of legal collapses that a decoder can undo as one batch.
 
     The rule (see the module docstring): no two removed vertices are adjacent, no
@@ -622,6 +630,89 @@ def _select(cu, cv, cost, legal, vv, n, rounds: int = 8):
         blocked[cv[good]] = True
         in_play &= ~blocked[cu[starts]]
     return np.concatenate(chosen) if chosen else np.zeros(0, dtype=np.int64)
+
+
+def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
+    """Compiled :func:`_select`: the same winners in the same order (round by round, group order).
+
+    ``rank`` (c,) int64 is :func:`_offer_ranks`; ``mesh`` the tuple of :func:`_legal_kernel`'s mesh
+    arguments.  (``_conflicts``' same-kept-vertex rule is implied by its kept-vertex-next-to-a-
+    lower-ranked-removed-vertex rule, since every winner's removed vertex neighbours its kept one.)
+    """
+    keys, en, count, he0, he1, F, P, opp, fcount, vf_start, vf_face = mesh
+    big = len(cu) + 1
+    starts = np.flatnonzero(np.concatenate((np.ones(1, np.bool_), cu[1:] != cu[:-1])))
+    ends = np.append(starts[1:], len(cu))
+    front = starts.copy()
+    in_play = np.ones(len(starts), np.bool_)
+    flags = np.zeros((3, n), np.bool_)  # chosen removed, chosen kept, blocked
+    scratch = np.full((3, n), big, np.int64)  # offers, winners' ranks at u, at v (reset after use)
+    out = np.empty(len(cu), np.int64)
+    n_out = 0
+    for _ in range(rounds):
+        groups = np.flatnonzero(in_play)
+        if len(groups) == 0:
+            break
+        offer = front[groups]
+        for o in offer:
+            scratch[0, cu[o]] = rank[o]
+        won = np.array([_nbr_min(vv_start, vv_nbr, scratch[0], cu[o], big) > rank[o] for o in offer])
+        for o in offer:
+            scratch[0, cu[o]] = big
+        if not won.any():
+            break
+        wg, wo = groups[won], offer[won]
+        keep = ~_round_conflicts(cu[wo], cv[wo], rank[wo], flags, scratch, vv_start, vv_nbr, big)
+        ok = np.zeros(len(wo), np.bool_)
+        idx = wo[keep]
+        ok[keep] = _legal_kernel(cu[idx], cv[idx], ce[idx], keys, en, count, he0, he1, F, P, opp, fcount,
+                                 vv_start, vv_nbr, vf_start, vf_face)
+        for j in range(len(wo)):
+            g, o = wg[j], wo[j]
+            if ok[j]:
+                out[n_out] = o
+                n_out += 1
+                flags[0, cu[o]] = flags[1, cv[o]] = True
+                for p in range(vv_start[cu[o]], vv_start[cu[o] + 1]):
+                    flags[2, vv_nbr[p]] = True
+                flags[2, cu[o]] = flags[2, cv[o]] = True
+            else:
+                front[g] += 1
+                if front[g] >= ends[g]:
+                    in_play[g] = False
+        for g in range(len(starts)):
+            if flags[2, cu[starts[g]]]:
+                in_play[g] = False
+    return out[:n_out]
+
+
+@kernel_helper
+def _nbr_min(vv_start, vv_nbr, values, row, big):
+    best = big
+    for p in range(vv_start[row], vv_start[row + 1]):
+        best = min(best, values[vv_nbr[p]])
+    return best
+
+
+@kernel_helper
+def _round_conflicts(u, v, r, flags, scratch, vv_start, vv_nbr, big):
+    """Kernel part of :func:`_select_kernel`: :func:`_conflicts` of one round's winners (w,) -> (w,) bool."""
+    loses = np.zeros(len(u), np.bool_)
+    for i in range(len(u)):
+        loses[i] = flags[1, v[i]] or flags[0, v[i]]
+        for p in range(vv_start[u[i]], vv_start[u[i] + 1]):
+            loses[i] |= flags[1, vv_nbr[p]]
+        for p in range(vv_start[v[i]], vv_start[v[i] + 1]):
+            loses[i] |= flags[0, vv_nbr[p]]
+        scratch[1, u[i]] = r[i]
+        scratch[2, v[i]] = min(scratch[2, v[i]], r[i])
+    for i in range(len(u)):
+        loses[i] |= _nbr_min(vv_start, vv_nbr, scratch[1], v[i], big) < r[i]
+        loses[i] |= _nbr_min(vv_start, vv_nbr, scratch[2], u[i], big) < r[i]
+    for i in range(len(u)):
+        scratch[1, u[i]] = big
+        scratch[2, v[i]] = big
+    return loses
 
 
 def _offer_ranks(cu, cost):

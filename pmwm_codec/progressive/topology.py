@@ -85,6 +85,8 @@ def compiled(fn):
     """
     if not USE_NUMBA:
         return None
+    if hasattr(fn, "py_func"):  # already a dispatcher (a kernel_helper that is also a kernel)
+        return fn
     jit = _COMPILED.get(fn)
     if jit is None:
         jit = _COMPILED[fn] = _jit(fn)
