@@ -7,7 +7,9 @@ these tests run both on the same inputs and require identical results, so the pa
 
 from __future__ import annotations
 
+import importlib.util
 import io
+import os
 
 import numpy as np
 import pytest
@@ -18,11 +20,13 @@ from pmwm_codec.errors import FormatError
 from pmwm_codec.progressive import topology
 from pmwm_codec.progressive.vsplit import MeshState, find_incidences, split_topology
 
+NUMBA = importlib.util.find_spec("numba") is not None
+
 
 @pytest.fixture(params=[True, False], ids=["compiled", "numpy"])
 def kernels(request, monkeypatch):
     """Run a test once with the compiled kernels (when numba is installed) and once without."""
-    if request.param and topology._numba is None:
+    if request.param and not NUMBA:
         pytest.skip("numba is not installed")
     monkeypatch.setattr(topology, "USE_NUMBA", request.param)
     return request.param
@@ -38,7 +42,7 @@ def test_group_order_is_a_stable_argsort(kernels):
 def test_edge_table_is_the_same_on_both_paths(monkeypatch):
     mesh = shapes.torus(30, 12)
     tables = []
-    for use in (False, topology._numba is not None):
+    for use in (False, NUMBA):
         monkeypatch.setattr(topology, "USE_NUMBA", use)
         tables.append(topology.edge_table(np.asarray(mesh.faces, np.int64), mesh.vertex_count))
     for name in ("keys", "lo", "hi", "count", "he0", "he1", "he_edge"):
@@ -55,7 +59,7 @@ def test_encode_bytes_do_not_depend_on_the_kernels(monkeypatch):
     mesh = shapes.icosphere(3, 1.0, noise=0.02)
     monkeypatch.setattr(topology, "USE_NUMBA", False)
     plain = _encoded(mesh)
-    monkeypatch.setattr(topology, "USE_NUMBA", topology._numba is not None)
+    monkeypatch.setattr(topology, "USE_NUMBA", NUMBA)
     assert _encoded(mesh) == plain
 
 
@@ -64,7 +68,7 @@ def test_split_topology_matches_bit_for_bit(monkeypatch):
     mesh = shapes.icosphere(3, 1.0, noise=0.05)
     pm = _progressive(mesh)
     out = []
-    for use in (False, topology._numba is not None):
+    for use in (False, NUMBA):
         monkeypatch.setattr(topology, "USE_NUMBA", use)
         pos = np.random.default_rng(2).normal(size=(pm.vertex_count, 3))  # floats: summation order shows
         state = MeshState(pos[: len(pm.base_positions)], pm.base_faces, pm.vertex_count, pm.face_count,
@@ -114,6 +118,7 @@ def test_split_topology_refuses_bad_wing_counts_on_both_paths(kernels, bad):
 def test_kernels_compile_without_a_writable_cache(monkeypatch):
     """numba refuses ``cache=True`` when no cache dir is writable; the kernel then compiles uncached."""
     numba = pytest.importorskip("numba")
+    topology._load_numba()
     real = numba.njit
 
     def njit(*a, cache=False, **k):
@@ -121,7 +126,19 @@ def test_kernels_compile_without_a_writable_cache(monkeypatch):
             raise RuntimeError("cannot cache function: no locator available")
         return real(*a, cache=cache, **k)
 
-    monkeypatch.setattr(topology._numba, "njit", njit)
+    monkeypatch.setattr(numba, "njit", njit)
     kernel = topology._jit(topology._counting_order_py)
     keys = np.array([3, 1, 3, 0, 1], np.int64)
     assert np.array_equal(kernel(keys, 4), np.argsort(keys, kind="stable"))
+
+
+def test_commands_that_run_no_kernel_do_not_import_numba():
+    """numba loads on the first kernel call: reading a header stays as quick to start as before."""
+    import subprocess
+    import sys
+
+    code = ("import sys, pmwm_codec.progressive.simplify, pmwm_codec.progressive.vsplit, pmwm_codec.format; "
+            "print('numba' in sys.modules)")
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=root)
+    assert out.stdout.strip() == "False"

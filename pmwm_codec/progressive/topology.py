@@ -6,17 +6,16 @@ return flat numpy arrays; nothing here loops over vertices or faces in Python.
 
 from __future__ import annotations
 
+import importlib.util
 from dataclasses import dataclass
 
 import numpy as np
 
-try:  # optional compiled kernels (wheels on PyPI); every kernel has an identical numpy twin
-    import numba as _numba
-except ImportError:  # pragma: no cover - exercised by forcing USE_NUMBA = False in the tests
-    _numba = None
-
 #: Use the numba kernels when numba is installed (tests flip this to check the numpy twins).
-USE_NUMBA = _numba is not None
+#: numba itself is imported on the first kernel call, not here: commands that run no kernel
+#: (``pmw info``, ...) do not pay its import time.
+USE_NUMBA = importlib.util.find_spec("numba") is not None
+_numba = None  # the numba module, once loaded
 
 
 @dataclass
@@ -74,7 +73,8 @@ def _counting_order_py(keys, n):
     return out
 
 
-_COMPILED: dict = {}
+_COMPILED: dict = {}  # plain function -> its dispatcher
+_HELPERS: list = []  # (module globals, name, plain function) of every kernel_helper
 
 
 def compiled(fn):
@@ -85,12 +85,23 @@ def compiled(fn):
     """
     if not USE_NUMBA:
         return None
-    if hasattr(fn, "py_func"):  # already a dispatcher (a kernel_helper that is also a kernel)
-        return fn
+    _load_numba()
+    fn = getattr(fn, "py_func", fn)  # a kernel_helper that is also called as a kernel
     jit = _COMPILED.get(fn)
     if jit is None:
         jit = _COMPILED[fn] = _jit(fn)
     return jit
+
+
+def _load_numba():
+    """Import numba once; swap every :func:`kernel_helper` for its dispatcher in its module."""
+    global _numba
+    if _numba is None:
+        import numba
+
+        _numba = numba
+        for g, name, fn in _HELPERS:
+            g[name] = _COMPILED.setdefault(fn, _jit(fn))
 
 
 def _jit(fn):
@@ -103,9 +114,12 @@ def _jit(fn):
 
 
 def kernel_helper(fn):
-    """Decorator for plain-Python functions that compiled kernels call (numba dispatchers need them
-    compiled too); returns ``fn`` itself when numba is absent.  Compiled lazily, disk-cached."""
-    return _jit(fn) if _numba is not None else fn
+    """Decorator for plain-Python functions that compiled kernels call: numba needs them compiled
+    too.  The module global becomes the dispatcher when numba loads (:func:`_load_numba`)."""
+    if _numba is not None:
+        return _COMPILED.setdefault(fn, _jit(fn))
+    _HELPERS.append((fn.__globals__, fn.__name__, fn))
+    return fn
 
 
 def group_order(keys: np.ndarray, n: int) -> np.ndarray:
