@@ -62,6 +62,11 @@ MAX_BATCHES_PER_CHUNK = 4096
 #: wrong (the file is invalid anyway) but no integer array overflows.
 MAX_RESIDUAL_ZIGZAG = 1 << 32
 _WIDTHS = (1, 2, 4, 8)
+#: Byte sizes of the fixed structs, computed once (construct's sizeof/parse cost ~10 us a call).
+_COLUMN_HEADER_SIZE = ColumnHeader.sizeof()
+_RECORDS_HEADER_SIZE = RecordsHeader.sizeof()
+# the column header is its width byte alone: the decoder reads that byte directly
+assert _COLUMN_HEADER_SIZE == 1 and ColumnHeader.parse(b"\x08").width == 8
 
 
 def column_names(width: int = 3) -> tuple:
@@ -92,10 +97,10 @@ def _pack_column(values: np.ndarray) -> bytes:
 
 def _unpack_column(buf: memoryview, offset: int, count: int, name: str):
     """Inverse of :func:`_pack_column`: returns ``(values (count,) uint64, offset after the column)``."""
-    start = offset + ColumnHeader.sizeof()
+    start = offset + _COLUMN_HEADER_SIZE
     if start > len(buf):
         raise FormatError(f"chunk payload: column {name} is missing")
-    width = ColumnHeader.parse(bytes(buf[offset:start])).width
+    width = buf[offset]
     if width not in _WIDTHS:
         raise FormatError(f"chunk payload: column {name} has invalid width {width}")
     end = start + width * count
@@ -114,11 +119,16 @@ def _pack_symbols(symbols: np.ndarray) -> np.ndarray:
     return (t[:, 0] + SYMBOL_COUNT * t[:, 1] + SYMBOL_COUNT**2 * t[:, 2]).astype(np.uint8)
 
 
+#: (256, 3) uint8: packed byte -> its three symbols (rows >= 125 are never looked up).
+_SYMBOL_TRIPLES = np.stack(
+    [np.arange(256) % SYMBOL_COUNT, (np.arange(256) // SYMBOL_COUNT) % SYMBOL_COUNT, np.arange(256) // SYMBOL_COUNT**2],
+    axis=1,
+).astype(np.uint8)
+
+
 def _unpack_symbols(packed: np.ndarray, count: int) -> np.ndarray:
-    """(ceil(count/3),) packed values < 125 -> (count,) uint8 symbols < 5."""
-    p = packed.astype(np.uint8)
-    t = np.stack([p % SYMBOL_COUNT, (p // SYMBOL_COUNT) % SYMBOL_COUNT, p // SYMBOL_COUNT**2], axis=1)
-    return t.reshape(-1)[:count]
+    """(ceil(count/3),) packed values < 125 -> (count,) uint8 symbols < 5 (one table gather)."""
+    return _SYMBOL_TRIPLES[packed.astype(np.uint8)].reshape(-1)[:count]
 
 
 def pack_batches(batches) -> bytes:
@@ -142,7 +152,7 @@ def pack_batches(batches) -> bytes:
 
 def _read_batch_table(buf: memoryview, max_splits: int):
     """Records header and batch table -> ``(split counts (B,) int64, incidence counts (B,) int64, offset)``."""
-    off = RecordsHeader.sizeof()
+    off = _RECORDS_HEADER_SIZE
     if len(buf) < off:
         raise FormatError("chunk payload: shorter than its header")
     batch_count = RecordsHeader.parse(bytes(buf[:off])).batch_count

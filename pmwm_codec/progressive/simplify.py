@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .topology import csr, edge_table, expand, half_edges
+from .topology import compiled, csr, edge_table, expand, group_order, half_edges, kernel_helper
 
 #: A moved face's normal may turn by at most this much (cosine bound).
 MIN_NORMAL_COS = 0.0
@@ -52,6 +52,8 @@ MIN_NORMAL_COS = 0.0
 BOUNDARY_WEIGHT = 10.0
 #: How many of each vertex's cheapest collapses are tested for legality per batch.
 TRIES = 3
+#: Selection rounds per batch (see :func:`_select`).
+ROUNDS = 8
 
 
 @dataclass
@@ -160,6 +162,26 @@ def quadric_error(q: np.ndarray, p: np.ndarray) -> np.ndarray:
     return np.maximum(err, 0.0)
 
 
+def _pair_cost_kernel(Q, P, cu, cv, own):
+    """Compiled ``quadric_error(Q[cu], P[cv]) + own[cv]`` without the (c, 10) gather.
+
+    Q (n, 10) float64, P (n, 3) float64, cu / cv (c,) int64, own (n,) float64 -> (c,) float64;
+    the same operations in the same order as :func:`quadric_error` (no contraction): same bits.
+    """
+    out = np.empty(len(cu), np.float64)
+    for i in range(len(cu)):
+        q = Q[cu[i]]
+        j = cv[i]
+        x, y, z = P[j, 0], P[j, 1], P[j, 2]
+        err = (
+            q[0] * x * x + 2 * q[1] * x * y + 2 * q[2] * x * z + 2 * q[3] * x
+            + q[4] * y * y + 2 * q[5] * y * z + 2 * q[6] * y
+            + q[7] * z * z + 2 * q[8] * z + q[9]
+        )
+        out[i] = max(err, 0.0) + own[j]
+    return out
+
+
 def simplify(
     positions: np.ndarray,
     faces: np.ndarray,
@@ -257,7 +279,12 @@ def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget):
     def legal(idx):
         return _legal(cu[idx], cv[idx], ce[idx], et, F, P, opp, fcount, vv, vf)
 
-    win = _select(cu, cv, cost, legal, vv, n)
+    kernel = compiled(_select_kernel)
+    if kernel is None:
+        win = _select(cu, cv, cost, legal, vv, n, ROUNDS)
+    else:
+        win = kernel(cu, cv, ce, _offer_ranks(cu, cost), vv[0], vv[1], n, ROUNDS,
+                     (et.keys, et.n, et.count, et.he0, et.he1, F, P, opp, fcount, vf[0], vf[1]))
     if len(win) == 0:
         return None
     if len(win) > budget:
@@ -288,7 +315,43 @@ def _candidates(F, P, Q, et, src, frozen_ext):
     ``(cu, cv, ce, cost)`` ((c,) int64 removed vertex, kept vertex, edge; (c,) float64
     quadric cost), at most ``TRIES`` per removed vertex, or None when there is none.
     """
-    n, ne = len(P), len(et.keys)
+    n = len(P)
+    kernel = compiled(_usable_kernel)
+    if kernel is None:
+        cu, cv, ce = _usable(F, et, src, frozen_ext, n)
+    else:
+        cu, cv, ce = kernel(et.lo, et.hi, et.count, et.he0, et.he1, src, F.reshape(-1), frozen_ext, n)
+    if len(cu) == 0:
+        return None
+    # (Q_u + Q_v)(p_v) = Q_u(p_v) + Q_v(p_v); the second term is one value per vertex
+    own = quadric_error(Q, P)
+    kernel = compiled(_pair_cost_kernel)
+    if kernel is None:
+        cost = quadric_error(Q[cu], P[cv]) + own[cv]
+    else:
+        cost = kernel(Q, P, cu, cv, own)
+
+    # candidates grouped by u, cheapest first; each u offers up to TRIES of them
+    # (the same order as argsort(cu * c + rank of cost): cost order, then grouped by u, stably)
+    by_cost = np.argsort(cost)
+    order = by_cost[group_order(cu[by_cost], n)]
+    cu, cv, ce, cost = cu[order], cv[order], ce[order], cost[order]
+    new_group = np.r_[True, cu[1:] != cu[:-1]]
+    group_start = np.flatnonzero(new_group)
+    rank_in_u = np.arange(len(cu)) - np.repeat(group_start, np.diff(np.r_[group_start, len(cu)]))
+    keep = rank_in_u < TRIES
+    return cu[keep], cv[keep], ce[keep], cost[keep]
+
+
+def _usable(F, et, src, frozen_ext, n):
+    """Directed collapses ``u -> v`` worth costing: ``(cu, cv, ce)`` (c,) int64 each.
+
+    Every edge of the edge table ``et`` both ways (all ``lo -> hi`` first, then ``hi -> lo``), minus
+    edges that are non-manifold or inconsistently oriented, minus removed vertices that are frozen
+    (not one disk or half-disk of faces, on such an edge, or in ``frozen_ext`` (n,) bool), minus
+    boundary vertices moving along an interior edge.  F (m, 3) int64, src (3m,) int64.
+    """
+    ne = len(et.keys)
     # orientation: the two half-edges of an interior edge must run opposite ways
     two = et.count == 2
     same_dir = np.zeros(ne, bool)
@@ -305,27 +368,44 @@ def _candidates(F, P, Q, et, src, frozen_ext):
     frozen = ~manifold | badv | frozen_ext
     on_boundary = bvc > 0
 
-    # candidate directed collapses u -> v over every usable edge, both directions
     cu = np.concatenate([et.lo, et.hi])
     cv = np.concatenate([et.hi, et.lo])
     ce = np.concatenate([np.arange(ne), np.arange(ne)])
     keep = np.tile(~bad_edge, 2) & ~frozen[cu] & (~on_boundary[cu] | boundary_edge[ce])
-    cu, cv, ce = cu[keep], cv[keep], ce[keep]
-    if len(cu) == 0:
-        return None
-    # (Q_u + Q_v)(p_v) = Q_u(p_v) + Q_v(p_v); the second term is one value per vertex
-    cost = quadric_error(Q[cu], P[cv]) + quadric_error(Q, P)[cv]
+    return cu[keep], cv[keep], ce[keep]
 
-    # candidates grouped by u, cheapest first; each u offers up to TRIES of them
-    crank = np.empty(len(cost), dtype=np.int64)
-    crank[np.argsort(cost)] = np.arange(len(cost))
-    order = np.argsort(cu * len(cost) + crank)
-    cu, cv, ce, cost = cu[order], cv[order], ce[order], cost[order]
-    new_group = np.r_[True, cu[1:] != cu[:-1]]
-    group_start = np.flatnonzero(new_group)
-    rank_in_u = np.arange(len(cu)) - np.repeat(group_start, np.diff(np.r_[group_start, len(cu)]))
-    keep = rank_in_u < TRIES
-    return cu[keep], cv[keep], ce[keep], cost[keep]
+
+def _usable_kernel(lo, hi, count, he0, he1, src, flat_faces, frozen_ext, n):
+    """Compiled :func:`_usable` (same arrays, same order); flat_faces (3m,) int64."""
+    ne = len(lo)
+    fcount = np.zeros(n, np.int64)
+    for x in flat_faces:
+        fcount[x] += 1
+    evc = np.zeros(n, np.int64)
+    bvc = np.zeros(n, np.int64)
+    badv = np.zeros(n, np.bool_)
+    bad = np.zeros(ne, np.bool_)
+    for e in range(ne):
+        bad[e] = count[e] > 2 or (count[e] == 2 and src[he0[e]] == src[he1[e]])
+        for x in (lo[e], hi[e]):
+            evc[x] += 1
+            if count[e] == 1:
+                bvc[x] += 1
+            if bad[e]:
+                badv[x] = True
+    cu = np.empty(2 * ne, np.int64)
+    cv = np.empty(2 * ne, np.int64)
+    ce = np.empty(2 * ne, np.int64)
+    c = 0
+    for side in range(2):
+        for e in range(ne):
+            u, v = (lo[e], hi[e]) if side == 0 else (hi[e], lo[e])
+            manifold = (bvc[u] == 0 and evc[u] == fcount[u]) or (bvc[u] == 2 and evc[u] == fcount[u] + 1)
+            if bad[e] or not manifold or badv[u] or frozen_ext[u] or (bvc[u] > 0 and count[e] != 1):
+                continue
+            cu[c], cv[c], ce[c] = u, v, e
+            c += 1
+    return cu[:c], cv[:c], ce[:c]
 
 
 def _deleted_faces(et, src, opp, cu, ce):
@@ -362,6 +442,10 @@ def _moved_faces(vf, F, cu, cv):
 
 def _legal(cu, cv, ce, et, F, P, opp, fcount, vv, vf):
     """Boolean mask (k,) of candidate collapses ``cu -> cv`` on edge ``ce`` that are legal."""
+    kernel = compiled(_legal_kernel)
+    if kernel is not None:
+        return kernel(cu, cv, ce, et.keys, et.n, et.count, et.he0, et.he1, F, P, opp, fcount, vv[0], vv[1],
+                      vf[0], vf[1])
     k = len(cu)
     ok = np.ones(k, dtype=bool)
 
@@ -415,12 +499,81 @@ def _legal(cu, cv, ce, et, F, P, opp, fcount, vv, vf):
     return ok
 
 
+@kernel_helper
+def _edge_id(keys, n, a, b):
+    """Edge id of the pair (a, b) in the sorted ``keys`` (-1: none); for the kernels."""
+    q = min(a, b) * n + max(a, b)
+    i = np.searchsorted(keys, q)
+    if i < len(keys) and keys[i] == q:
+        return i
+    return -1
+
+
+@kernel_helper
+def _legal_kernel(cu, cv, ce, keys, n, count, he0, he1, F, P, opp, fcount, vv_start, vv_nbr, vf_start, vf_face):
+    """Compiled :func:`_legal`: the same (k,) bool mask, test for test (see there)."""
+    ok = np.ones(len(cu), np.bool_)
+    mark = np.full(n, -1, np.int64)  # mark[x] == i: x is a neighbour of candidate i's kept vertex
+    for i in range(len(cu)):
+        u, v, e = cu[i], cv[i], ce[i]
+        for p in range(vv_start[v], vv_start[v + 1]):
+            mark[vv_nbr[p]] = i
+        common = 0  # link condition
+        for p in range(vv_start[u], vv_start[u + 1]):
+            if mark[vv_nbr[p]] == i:
+                common += 1
+        if common != count[e] or fcount[u] <= count[e]:
+            ok[i] = False
+            continue
+        for he in (he0[e], he1[e]):  # deleted faces: other edge at u interior, wing keeps a face
+            if he >= 0:
+                w = opp[he]
+                e_uw = _edge_id(keys, n, u, w)
+                if e_uw < 0 or count[e_uw] != 2 or fcount[w] < 2:
+                    ok[i] = False
+        if ok[i]:
+            ok[i] = _moved_faces_ok(u, v, keys, n, count, he0, he1, F, P, opp, vf_start, vf_face)
+    return ok
+
+
+@kernel_helper
+def _moved_faces_ok(u, v, keys, n, count, he0, he1, F, P, opp, vf_start, vf_face):
+    """Kernel part of :func:`_legal`: no moved face of ``u -> v`` flips, degenerates or duplicates."""
+    for p in range(vf_start[u], vf_start[u + 1]):
+        f = vf_face[p]
+        t0, t1, t2 = F[f, 0], F[f, 1], F[f, 2]
+        if t0 == v or t1 == v or t2 == v:
+            continue
+        col = 0 if t0 == u else (1 if t1 == u else 2)
+        xa = F[f, (col + 1) % 3]
+        xb = F[f, (col + 2) % 3]
+        a0, a1, a2 = P[t0, 0], P[t0, 1], P[t0, 2]  # normal before (np.cross order)
+        b0, b1, b2 = P[t1, 0] - a0, P[t1, 1] - a1, P[t1, 2] - a2
+        c0, c1, c2 = P[t2, 0] - a0, P[t2, 1] - a1, P[t2, 2] - a2
+        n0x, n0y, n0z = b1 * c2 - b2 * c1, b2 * c0 - b0 * c2, b0 * c1 - b1 * c0
+        s0, s1, s2 = (v if t0 == u else t0), (v if t1 == u else t1), (v if t2 == u else t2)
+        a0, a1, a2 = P[s0, 0], P[s0, 1], P[s0, 2]  # normal after
+        b0, b1, b2 = P[s1, 0] - a0, P[s1, 1] - a1, P[s1, 2] - a2
+        c0, c1, c2 = P[s2, 0] - a0, P[s2, 1] - a1, P[s2, 2] - a2
+        n1x, n1y, n1z = b1 * c2 - b2 * c1, b2 * c0 - b0 * c2, b0 * c1 - b1 * c0
+        l0 = np.sqrt(n0x * n0x + n0y * n0y + n0z * n0z)
+        l1 = np.sqrt(n1x * n1x + n1y * n1y + n1z * n1z)
+        dot = n0x * n1x + n0y * n1y + n0z * n1z
+        if not (l1 > 0 and dot > MIN_NORMAL_COS * l0 * l1):
+            return False
+        e = _edge_id(keys, n, xa, xb)  # duplicate: the edge opposite u already has apex v
+        if e >= 0:
+            if count[e] > 2 or opp[he0[e]] == v or (he1[e] >= 0 and opp[he1[e]] == v):
+                return False
+    return True
+
+
 def _normals(P, tri):
     a, b, c = P[tri[:, 0]], P[tri[:, 1]], P[tri[:, 2]]
     return np.cross(b - a, c - a)
 
 
-def _select(cu, cv, cost, legal, vv, n, rounds: int = 8):
+def _select(cu, cv, cost, legal, vv, n, rounds: int = ROUNDS):
     """Indices of a set of legal collapses that a decoder can undo as one batch.
 
     The rule (see the module docstring): no two removed vertices are adjacent, no
@@ -479,6 +632,89 @@ def _select(cu, cv, cost, legal, vv, n, rounds: int = 8):
     return np.concatenate(chosen) if chosen else np.zeros(0, dtype=np.int64)
 
 
+def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
+    """Compiled :func:`_select`: the same winners in the same order (round by round, group order).
+
+    ``rank`` (c,) int64 is :func:`_offer_ranks`; ``mesh`` the tuple of :func:`_legal_kernel`'s mesh
+    arguments.  (``_conflicts``' same-kept-vertex rule is implied by its kept-vertex-next-to-a-
+    lower-ranked-removed-vertex rule, since every winner's removed vertex neighbours its kept one.)
+    """
+    keys, en, count, he0, he1, F, P, opp, fcount, vf_start, vf_face = mesh
+    big = len(cu) + 1
+    starts = np.flatnonzero(np.concatenate((np.ones(1, np.bool_), cu[1:] != cu[:-1])))
+    ends = np.append(starts[1:], len(cu))
+    front = starts.copy()
+    in_play = np.ones(len(starts), np.bool_)
+    flags = np.zeros((3, n), np.bool_)  # chosen removed, chosen kept, blocked
+    scratch = np.full((3, n), big, np.int64)  # offers, winners' ranks at u, at v (reset after use)
+    out = np.empty(len(cu), np.int64)
+    n_out = 0
+    for _ in range(rounds):
+        groups = np.flatnonzero(in_play)
+        if len(groups) == 0:
+            break
+        offer = front[groups]
+        for o in offer:
+            scratch[0, cu[o]] = rank[o]
+        won = np.array([_nbr_min(vv_start, vv_nbr, scratch[0], cu[o], big) > rank[o] for o in offer])
+        for o in offer:
+            scratch[0, cu[o]] = big
+        if not won.any():
+            break
+        wg, wo = groups[won], offer[won]
+        keep = ~_round_conflicts(cu[wo], cv[wo], rank[wo], flags, scratch, vv_start, vv_nbr, big)
+        ok = np.zeros(len(wo), np.bool_)
+        idx = wo[keep]
+        ok[keep] = _legal_kernel(cu[idx], cv[idx], ce[idx], keys, en, count, he0, he1, F, P, opp, fcount,
+                                 vv_start, vv_nbr, vf_start, vf_face)
+        for j in range(len(wo)):
+            g, o = wg[j], wo[j]
+            if ok[j]:
+                out[n_out] = o
+                n_out += 1
+                flags[0, cu[o]] = flags[1, cv[o]] = True
+                for p in range(vv_start[cu[o]], vv_start[cu[o] + 1]):
+                    flags[2, vv_nbr[p]] = True
+                flags[2, cu[o]] = flags[2, cv[o]] = True
+            else:
+                front[g] += 1
+                if front[g] >= ends[g]:
+                    in_play[g] = False
+        for g in range(len(starts)):
+            if flags[2, cu[starts[g]]]:
+                in_play[g] = False
+    return out[:n_out]
+
+
+@kernel_helper
+def _nbr_min(vv_start, vv_nbr, values, row, big):
+    best = big
+    for p in range(vv_start[row], vv_start[row + 1]):
+        best = min(best, values[vv_nbr[p]])
+    return best
+
+
+@kernel_helper
+def _round_conflicts(u, v, r, flags, scratch, vv_start, vv_nbr, big):
+    """Kernel part of :func:`_select_kernel`: :func:`_conflicts` of one round's winners (w,) -> (w,) bool."""
+    loses = np.zeros(len(u), np.bool_)
+    for i in range(len(u)):
+        loses[i] = flags[1, v[i]] or flags[0, v[i]]
+        for p in range(vv_start[u[i]], vv_start[u[i] + 1]):
+            loses[i] |= flags[1, vv_nbr[p]]
+        for p in range(vv_start[v[i]], vv_start[v[i] + 1]):
+            loses[i] |= flags[0, vv_nbr[p]]
+        scratch[1, u[i]] = r[i]
+        scratch[2, v[i]] = min(scratch[2, v[i]], r[i])
+    for i in range(len(u)):
+        loses[i] |= _nbr_min(vv_start, vv_nbr, scratch[1], v[i], big) < r[i]
+        loses[i] |= _nbr_min(vv_start, vv_nbr, scratch[2], u[i], big) < r[i]
+    for i in range(len(u)):
+        scratch[1, u[i]] = big
+        scratch[2, v[i]] = big
+    return loses
+
+
 def _offer_ranks(cu, cost):
     """(c,) int64 rank of every candidate: by cost bucket, ties in a fixed pseudo-random order.
 
@@ -490,14 +726,22 @@ def _offer_ranks(cu, cost):
     bucket = np.floor(2.0 * np.log2(cost + 1e-12 + 1e-9 * float(cost.max(initial=0.0)))).astype(np.int64)
     bucket -= bucket.min(initial=0)
     shuffle = np.random.default_rng(c).permutation(c)
+    # argsort(bucket * c + shuffle) without a sort of c keys: candidates in shuffle order,
+    # then grouped by bucket (few distinct values) stably
+    by_shuffle = np.empty(c, dtype=np.int64)
+    by_shuffle[shuffle] = np.arange(c)
+    order = by_shuffle[group_order(bucket[by_shuffle], int(bucket.max(initial=0)) + 1)]
     rank = np.empty(c, dtype=np.int64)
-    rank[np.argsort(bucket * c + shuffle)] = np.arange(c)
+    rank[order] = np.arange(c)
     return rank
 
 
 def _neighbour_min(vv, values, rows, big):
     """(len(rows),) the smallest ``values`` among each row's neighbours (``big`` for none)."""
     vv_start, vv_nbr = vv
+    kernel = compiled(_neighbour_min_kernel)
+    if kernel is not None:
+        return kernel(vv_start, vv_nbr, np.asarray(values, np.int64), np.asarray(rows, np.int64), big)
     owner, pos = expand(vv_start, rows)
     out = np.full(len(rows), big, dtype=np.int64)
     if len(pos):
@@ -505,11 +749,40 @@ def _neighbour_min(vv, values, rows, big):
     return out
 
 
+def _neighbour_min_kernel(vv_start, vv_nbr, values, rows, big):
+    """Compiled :func:`_neighbour_min`: the same (len(rows),) int64 minima."""
+    out = np.full(len(rows), big, np.int64)
+    for i in range(len(rows)):
+        r = rows[i]
+        best = big
+        for p in range(vv_start[r], vv_start[r + 1]):
+            x = values[vv_nbr[p]]
+            if x < best:
+                best = x
+        out[i] = best
+    return out
+
+
 def _neighbour_any(vv, flags, rows):
     """(len(rows),) whether any neighbour of each row is flagged."""
     vv_start, vv_nbr = vv
+    kernel = compiled(_neighbour_any_kernel)
+    if kernel is not None:
+        return kernel(vv_start, vv_nbr, flags, np.asarray(rows, np.int64))
     owner, pos = expand(vv_start, rows)
     return np.bincount(owner, weights=flags[vv_nbr[pos]], minlength=len(rows)) > 0
+
+
+def _neighbour_any_kernel(vv_start, vv_nbr, flags, rows):
+    """Compiled :func:`_neighbour_any`: the same (len(rows),) bool."""
+    out = np.zeros(len(rows), np.bool_)
+    for i in range(len(rows)):
+        r = rows[i]
+        for p in range(vv_start[r], vv_start[r + 1]):
+            if flags[vv_nbr[p]]:
+                out[i] = True
+                break
+    return out
 
 
 def _conflicts(u, v, r, chosen_u, chosen_v, vv, big):

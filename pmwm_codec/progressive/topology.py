@@ -6,9 +6,16 @@ return flat numpy arrays; nothing here loops over vertices or faces in Python.
 
 from __future__ import annotations
 
+import importlib.util
 from dataclasses import dataclass
 
 import numpy as np
+
+#: Use the numba kernels when numba is installed (tests flip this to check the numpy twins).
+#: numba itself is imported on the first kernel call, not here: commands that run no kernel
+#: (``pmw info``, ...) do not pay its import time.
+USE_NUMBA = importlib.util.find_spec("numba") is not None
+_numba = None  # the numba module, once loaded
 
 
 @dataclass
@@ -51,6 +58,82 @@ class EdgeTable:
         return np.where(hit, pos_c, -1)
 
 
+def _counting_order_py(keys, n):
+    """Kernel of :func:`group_order`: keys (c,) int64 in [0, n) -> (c,) int64 stable order."""
+    count = np.zeros(n + 1, dtype=np.int64)
+    for k in keys:
+        count[k + 1] += 1
+    for i in range(n):
+        count[i + 1] += count[i]
+    out = np.empty(len(keys), dtype=np.int64)
+    for j in range(len(keys)):
+        k = keys[j]
+        out[count[k]] = j
+        count[k] += 1
+    return out
+
+
+_COMPILED: dict = {}  # plain function -> its dispatcher
+_HELPERS: list = []  # (module globals, name, plain function) of every kernel_helper
+
+
+def compiled(fn):
+    """The numba-compiled twin of the plain-Python kernel ``fn`` (disk-cached), or None.
+
+    None when numba is absent or :data:`USE_NUMBA` is off; callers then run their numpy
+    version, which computes the same result.
+    """
+    if not USE_NUMBA:
+        return None
+    _load_numba()
+    fn = getattr(fn, "py_func", fn)  # a kernel_helper that is also called as a kernel
+    jit = _COMPILED.get(fn)
+    if jit is None:
+        jit = _COMPILED[fn] = _jit(fn)
+    return jit
+
+
+def _load_numba():
+    """Import numba once; swap every :func:`kernel_helper` for its dispatcher in its module."""
+    global _numba
+    if _numba is None:
+        import numba
+
+        _numba = numba
+        for g, name, fn in _HELPERS:
+            g[name] = _COMPILED.setdefault(fn, _jit(fn))
+
+
+def _jit(fn):
+    """``numba.njit`` with the on-disk cache (next to the module, else numba's user cache dir);
+    without the cache when no cache dir is writable (numba refuses ``cache=True`` then)."""
+    try:
+        return _numba.njit(cache=True, nogil=True)(fn)
+    except RuntimeError:  # "cannot cache function ...: no locator available"
+        return _numba.njit(cache=False, nogil=True)(fn)
+
+
+def kernel_helper(fn):
+    """Decorator for plain-Python functions that compiled kernels call: numba needs them compiled
+    too.  The module global becomes the dispatcher when numba loads (:func:`_load_numba`)."""
+    if _numba is not None:
+        return _COMPILED.setdefault(fn, _jit(fn))
+    _HELPERS.append((fn.__globals__, fn.__name__, fn))
+    return fn
+
+
+def group_order(keys: np.ndarray, n: int) -> np.ndarray:
+    """Stable order of ``keys`` (c,) int in ``[0, n)``: (c,) int64, equal to ``argsort(kind="stable")``.
+
+    A counting sort (O(c + n)) when numba is available, numpy's stable argsort otherwise.
+    """
+    keys = np.asarray(keys, dtype=np.int64)
+    kernel = compiled(_counting_order_py) if len(keys) >= 64 else None
+    if kernel is None:
+        return np.argsort(keys, kind="stable")
+    return kernel(keys, int(n))
+
+
 def half_edges(faces: np.ndarray):
     """Half-edge end points: ``(src, dst, opposite)`` each (3m,) int64, face-major."""
     src = faces.reshape(-1)
@@ -65,7 +148,8 @@ def edge_table(faces: np.ndarray, n: int) -> EdgeTable:
     lo = np.minimum(src, dst)
     hi = np.maximum(src, dst)
     key = lo * n + hi
-    order = np.argsort(key)
+    by_hi = group_order(hi, n)
+    order = by_hi[group_order(lo[by_hi], n)]
     ks = key[order]
     first = np.empty(len(ks), dtype=bool)
     first[0] = True
@@ -83,7 +167,7 @@ def edge_table(faces: np.ndarray, n: int) -> EdgeTable:
 
 def csr(groups: np.ndarray, values: np.ndarray, n: int):
     """Group ``values`` by ``groups`` (ids in [0, n)): returns ``(start (n+1,), values sorted)``."""
-    order = np.argsort(groups)
+    order = group_order(groups, n)
     start = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(np.bincount(groups, minlength=n), out=start[1:])
     return start, values[order]

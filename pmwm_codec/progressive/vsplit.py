@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import FormatError
+from .topology import compiled
 
 #: Incidence symbols.
 STAY, MOVE, MOVE_LEFT, MOVE_RIGHT, MOVE_BOTH = range(5)
@@ -135,12 +136,38 @@ def find_incidences(state: MeshState, v: np.ndarray):
     if len(state._sid) < state.n:
         state._sid = np.full(min(len(state.positions), max(state.n, 2 * len(state._sid))), -1, dtype=np.int32)
     sid = state._sid
+    kernel = compiled(_incidences_kernel)
+    if kernel is not None:
+        return kernel(state.faces[: state.m].reshape(-1), np.asarray(v, np.int64), sid)
     sid[v] = np.arange(k, dtype=np.int32)
     flat = state.faces[: state.m].reshape(-1)
     s = sid[flat]
     inc = np.flatnonzero(s >= 0)
     sid[v] = -1
     return inc, s[inc]
+
+
+def _incidences_kernel(flat, v, sid):
+    """Compiled :func:`find_incidences` over face slots ``flat`` (3m,) int64; ``sid`` (>= n,) int32
+    scratch, all -1 on entry and on return.  Returns ``(inc (I,) int64, owner (I,) int32)``."""
+    for i in range(len(v)):
+        sid[v[i]] = i
+    count = 0
+    for x in flat:
+        if sid[x] >= 0:
+            count += 1
+    inc = np.empty(count, np.int64)
+    owner = np.empty(count, np.int32)
+    j = 0
+    for c in range(len(flat)):
+        s = sid[flat[c]]
+        if s >= 0:
+            inc[j] = c
+            owner[j] = s
+            j += 1
+    for i in range(len(v)):
+        sid[v[i]] = -1
+    return inc, owner
 
 
 def split_topology(state: MeshState, v: np.ndarray, symbols: np.ndarray, *, incidences=None) -> SplitTopology:
@@ -173,6 +200,9 @@ def split_topology(state: MeshState, v: np.ndarray, symbols: np.ndarray, *, inci
     if len(sym) and int(sym.max()) >= SYMBOL_COUNT:
         raise FormatError("unknown incidence symbol")
 
+    kernel = compiled(_split_kernel)
+    if kernel is not None:
+        return _split_compiled(kernel, state, v, sym, inc, owner)
     flat = state.faces.reshape(-1)
     u_of = n0 + np.arange(k)
 
@@ -221,6 +251,92 @@ def split_topology(state: MeshState, v: np.ndarray, symbols: np.ndarray, *, inci
     state.n = n0 + k
     state.m = m0 + n_new
     return SplitTopology(u_of, ring_sum, ring_count, inc, owner, own, ra, rb)
+
+
+def _split_compiled(kernel, state, v, sym, inc, owner) -> SplitTopology:
+    """:func:`split_topology`'s work after the argument checks, by :func:`_split_kernel`.
+
+    Same faces, same face order and bit-identical ring sums as the numpy path.
+    """
+    k, n0, m0 = len(v), state.n, state.m
+    d = state.positions.shape[1]
+    ring_sum = np.zeros((k, d), dtype=np.float64)
+    ring_count = np.zeros(k, dtype=np.int64)
+    n_new = kernel(state.faces.reshape(-1), m0, len(state.faces), n0, np.asarray(v, np.int64),
+                   np.asarray(sym, np.uint8), inc, np.asarray(owner, np.int64), state.positions, ring_sum, ring_count)
+    if n_new == -1:
+        raise FormatError("a split names no new face or more than two")
+    if n_new == -2:
+        raise FormatError("splits exceed the declared face count")
+    state.n = n0 + k
+    state.m = m0 + n_new
+    return SplitTopology(n0 + np.arange(k), ring_sum, ring_count, inc, owner)
+
+
+def _split_kernel(flat, m0, face_capacity, n0, v, sym, inc, owner, P, ring_sum, ring_count):
+    """Compiled twin of the numpy body of :func:`split_topology` (see there for the rules).
+
+    flat (3M,) int64 face slots, v (k,) int64, sym (I,) uint8, inc / owner (I,) int64,
+    P (N, D) values; fills ring_sum (k, D) float64 and ring_count (k,) int64 and writes the
+    faces.  Returns the number of new faces, -1 when a split names 0 or > 2 new faces, -2
+    when they exceed ``face_capacity``; nothing is written in those cases.  Ring sums add in
+    the numpy path's order (moved faces, then left, then right new faces): same float bits.
+    """
+    k = len(v)
+    n_inc = len(inc)
+    wings = np.zeros(k, np.int64)
+    n_new = 0
+    for j in range(n_inc):
+        s = sym[j]
+        if s >= 2:
+            w = 1 if s < 4 else 2
+            wings[owner[j]] += w
+            n_new += w
+    for i in range(k):
+        if wings[i] == 0 or wings[i] > 2:
+            return -1
+    if m0 + n_new > face_capacity:
+        return -2
+    a = np.empty(n_inc, np.int64)
+    b = np.empty(n_inc, np.int64)
+    for j in range(n_inc):  # read every corner before any is rewritten
+        c = inc[j]
+        base = c - c % 3
+        a[j] = flat[base + (c + 1) % 3]
+        b[j] = flat[base + (c + 2) % 3]
+    d = P.shape[1]
+    slot = 3 * m0
+    for j in range(n_inc):
+        s = sym[j]
+        if s == 0:
+            continue
+        i = owner[j]
+        for t in range(d):
+            ring_sum[i, t] += P[a[j], t] + P[b[j], t]
+        ring_count[i] += 2
+        if s == 2 or s == 4:  # left new face (u, v, a)
+            flat[slot] = n0 + i
+            flat[slot + 1] = v[i]
+            flat[slot + 2] = a[j]
+            slot += 3
+        if s == 3 or s == 4:  # right new face (v, u, b)
+            flat[slot] = v[i]
+            flat[slot + 1] = n0 + i
+            flat[slot + 2] = b[j]
+            slot += 3
+    for j in range(n_inc):
+        if sym[j] != 0:
+            flat[inc[j]] = n0 + owner[j]
+    for side in (2, 3):  # the new faces' (v, wing) pairs, all left ones before all right ones
+        for j in range(n_inc):
+            s = sym[j]
+            if s == side or s == 4:
+                i = owner[j]
+                w = a[j] if side == 2 else b[j]
+                for t in range(d):
+                    ring_sum[i, t] += P[v[i], t] + P[w, t]
+                ring_count[i] += 2
+    return n_new
 
 
 def apply_batch(state: MeshState, batch: SplitBatch) -> SplitTopology:

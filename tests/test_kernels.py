@@ -1,0 +1,144 @@
+"""The compiled kernels (numba, when installed) and their numpy twins compute the same thing.
+
+Every kernel in :mod:`pmwm_codec.progressive` has a numpy path used when numba is absent;
+these tests run both on the same inputs and require identical results, so the path CI runs
+(numba, a dependency) and the fallback cannot drift apart.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import io
+import os
+
+import numpy as np
+import pytest
+
+import pmwm_codec
+from pmwm_codec import shapes
+from pmwm_codec.errors import FormatError
+from pmwm_codec.progressive import topology
+from pmwm_codec.progressive.vsplit import MeshState, find_incidences, split_topology
+
+NUMBA = importlib.util.find_spec("numba") is not None
+
+
+@pytest.fixture(params=[True, False], ids=["compiled", "numpy"])
+def kernels(request, monkeypatch):
+    """Run a test once with the compiled kernels (when numba is installed) and once without."""
+    if request.param and not NUMBA:
+        pytest.skip("numba is not installed")
+    monkeypatch.setattr(topology, "USE_NUMBA", request.param)
+    return request.param
+
+
+def test_group_order_is_a_stable_argsort(kernels):
+    rng = np.random.default_rng(5)
+    for c, n in ((10, 3), (1000, 7), (5000, 4000)):
+        keys = rng.integers(0, n, c)
+        assert np.array_equal(topology.group_order(keys, n), np.argsort(keys, kind="stable"))
+
+
+def test_edge_table_is_the_same_on_both_paths(monkeypatch):
+    mesh = shapes.torus(30, 12)
+    tables = []
+    for use in (False, NUMBA):
+        monkeypatch.setattr(topology, "USE_NUMBA", use)
+        tables.append(topology.edge_table(np.asarray(mesh.faces, np.int64), mesh.vertex_count))
+    for name in ("keys", "lo", "hi", "count", "he0", "he1", "he_edge"):
+        assert np.array_equal(getattr(tables[0], name), getattr(tables[1], name)), name
+
+
+def _encoded(mesh) -> bytes:
+    buf = io.BytesIO()
+    pmwm_codec.encode(mesh, buf, measure=False)
+    return buf.getvalue()
+
+
+def test_encode_bytes_do_not_depend_on_the_kernels(monkeypatch):
+    mesh = shapes.icosphere(3, 1.0, noise=0.02)
+    monkeypatch.setattr(topology, "USE_NUMBA", False)
+    plain = _encoded(mesh)
+    monkeypatch.setattr(topology, "USE_NUMBA", NUMBA)
+    assert _encoded(mesh) == plain
+
+
+def test_split_topology_matches_bit_for_bit(monkeypatch):
+    """Faces, face order and the float ring sums (the watermark's centroids) agree exactly."""
+    mesh = shapes.icosphere(3, 1.0, noise=0.05)
+    pm = _progressive(mesh)
+    out = []
+    for use in (False, NUMBA):
+        monkeypatch.setattr(topology, "USE_NUMBA", use)
+        pos = np.random.default_rng(2).normal(size=(pm.vertex_count, 3))  # floats: summation order shows
+        state = MeshState(pos[: len(pm.base_positions)], pm.base_faces, pm.vertex_count, pm.face_count,
+                          dtype=np.float64)
+        state.positions[:] = pos
+        sums = [split_topology(state, b.v, b.symbols).ring_sum for b in pm.batches]
+        out.append((state.current_faces().copy(), sums))
+    assert np.array_equal(out[0][0], out[1][0])
+    for a, b in zip(out[0][1], out[1][1]):
+        assert np.array_equal(a, b)
+
+
+def _progressive(mesh):
+    """The encoder's ProgressiveMesh for ``mesh`` (captured from a real encode)."""
+    from pmwm_codec.stream import encoder
+
+    got = {}
+    orig = encoder.build_progressive
+
+    def capture(*a, **k):
+        got["pm"] = orig(*a, **k)
+        return got["pm"]
+
+    encoder.build_progressive = capture
+    try:
+        _encoded(mesh)
+    finally:
+        encoder.build_progressive = orig
+    return got["pm"]
+
+
+@pytest.mark.parametrize("bad", ["no_face", "three_faces"])
+def test_split_topology_refuses_bad_wing_counts_on_both_paths(kernels, bad):
+    pm = _progressive(shapes.icosphere(2, 1.0, noise=0.02))
+    b = pm.batches[0]
+    sym = b.symbols.copy()
+    state = pm.new_state()
+    inc, owner = find_incidences(state, b.v)
+    mine = np.flatnonzero(owner == 0)
+    sym[mine] = 1 if bad == "no_face" else 4  # split 0 names none / one per moved face (>= 3)
+    faces_before = state.current_faces().copy()
+    with pytest.raises(FormatError):
+        split_topology(state, b.v, sym)
+    assert state.n == len(pm.base_positions) and np.array_equal(state.current_faces(), faces_before)
+
+
+def test_kernels_compile_without_a_writable_cache(monkeypatch):
+    """numba refuses ``cache=True`` when no cache dir is writable; the kernel then compiles uncached."""
+    numba = pytest.importorskip("numba")
+    topology._load_numba()
+    real = numba.njit
+
+    def njit(*a, cache=False, **k):
+        if cache:
+            raise RuntimeError("cannot cache function: no locator available")
+        return real(*a, cache=cache, **k)
+
+    monkeypatch.setattr(numba, "njit", njit)
+    kernel = topology._jit(topology._counting_order_py)
+    keys = np.array([3, 1, 3, 0, 1], np.int64)
+    assert np.array_equal(kernel(keys, 4), np.argsort(keys, kind="stable"))
+
+
+def test_commands_that_run_no_kernel_do_not_import_numba():
+    """numba loads on the first kernel call: reading a header stays as quick to start as before."""
+    import subprocess
+    import sys
+
+    code = ("import sys, pmwm_codec.progressive.simplify, pmwm_codec.progressive.vsplit, pmwm_codec.format; "
+            "print('numba' in sys.modules)")
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=root)
+    assert out.stdout.strip() == "False"
