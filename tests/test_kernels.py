@@ -142,3 +142,27 @@ def test_commands_that_run_no_kernel_do_not_import_numba():
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=root)
     assert out.stdout.strip() == "False"
+
+
+def test_the_compiled_split_lists_the_same_ring_as_numpy(monkeypatch):
+    """The ring binding reads the ring of every split: both paths must list it alike."""
+    from pmwm_codec.progressive import topology, vsplit
+    from pmwm_codec.progressive.build import build_progressive
+    from pmwm_codec.progressive.simplify import simplify
+    from pmwm_codec.progressive.grid import Grid
+
+    mesh = shapes.icosphere(3, 1.0, noise=0.02)
+    grid = Grid.fit(mesh.positions, 14)
+    q = grid.quantize(mesh.positions)
+    pm = build_progressive(simplify(q, mesh.faces, target_vertices=40), q, grid)
+
+    def rings(use_kernel):
+        monkeypatch.setattr(topology, "compiled", topology.compiled if use_kernel else (lambda fn: None))
+        monkeypatch.setattr(vsplit, "compiled", topology.compiled if use_kernel else (lambda fn: None))
+        state, out = pm.new_state(), []
+        for batch in pm.batches:
+            topo = vsplit.apply_batch(state, batch)
+            out.append((topo.ring_owner.tolist(), topo.ring_a.tolist(), topo.ring_b.tolist()))
+        return out
+
+    assert rings(True) == rings(False)

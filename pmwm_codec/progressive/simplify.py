@@ -333,7 +333,7 @@ def _candidates(F, P, Q, et, src, frozen_ext):
 
     # candidates grouped by u, cheapest first; each u offers up to TRIES of them
     # (the same order as argsort(cu * c + rank of cost): cost order, then grouped by u, stably)
-    by_cost = np.argsort(cost)
+    by_cost = np.argsort(cost, kind="stable")  # ties in encounter order: the same bytes on every CPU
     order = by_cost[group_order(cu[by_cost], n)]
     cu, cv, ce, cost = cu[order], cv[order], ce[order], cost[order]
     new_group = np.r_[True, cu[1:] != cu[:-1]]

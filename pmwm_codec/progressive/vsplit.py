@@ -260,6 +260,7 @@ def _split_compiled(kernel, state, v, sym, inc, owner) -> SplitTopology:
     """
     k, n0, m0 = len(v), state.n, state.m
     d = state.positions.shape[1]
+    ring = _ring_corners(state.faces.reshape(-1), np.asarray(v, np.int64), sym, inc, owner)  # before the rewrite
     ring_sum = np.zeros((k, d), dtype=np.float64)
     ring_count = np.zeros(k, dtype=np.int64)
     n_new = kernel(state.faces.reshape(-1), m0, len(state.faces), n0, np.asarray(v, np.int64),
@@ -270,7 +271,22 @@ def _split_compiled(kernel, state, v, sym, inc, owner) -> SplitTopology:
         raise FormatError("splits exceed the declared face count")
     state.n = n0 + k
     state.m = m0 + n_new
-    return SplitTopology(n0 + np.arange(k), ring_sum, ring_count, inc, owner)
+    return SplitTopology(n0 + np.arange(k), ring_sum, ring_count, inc, owner, *ring)
+
+
+def _ring_corners(flat, v, sym, inc, owner) -> tuple:
+    """``(ring_owner, ring_a, ring_b)`` (R,) int64 of a batch, as the numpy path of
+    :func:`split_topology` lists them: the two other corners of each moved face, then
+    ``(v, a)`` of every left new face, then ``(v, b)`` of every right one.  Reads ``flat``
+    (3M,) int64 before the batch rewrites it."""
+    moved = sym != STAY
+    mi, ms, msym = inc[moved], np.asarray(owner, np.int64)[moved], sym[moved]
+    base = mi - mi % 3
+    a, b = flat[base + (mi + 1) % 3], flat[base + (mi + 2) % 3]
+    left = (msym == MOVE_LEFT) | (msym == MOVE_BOTH)
+    right = (msym == MOVE_RIGHT) | (msym == MOVE_BOTH)
+    own = np.concatenate([ms, ms[left], ms[right]])
+    return own, np.concatenate([a, v[ms[left]], v[ms[right]]]), np.concatenate([b, a[left], b[right]])
 
 
 def _split_kernel(flat, m0, face_capacity, n0, v, sym, inc, owner, P, ring_sum, ring_count):
