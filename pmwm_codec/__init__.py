@@ -4,7 +4,7 @@ The public API (DESIGN.md §5)::
 
     mesh   = pmwm_codec.read_mesh(path)                       # OBJ, PLY, STL, glTF/GLB -> Mesh
     report = pmwm_codec.encode(src, dst, watermark=None, key=None, **options)
-    mesh   = pmwm_codec.decode(src, chunks=None)              # path, bytes or binary file
+    mesh   = pmwm_codec.decode(src, chunks=None)              # path, bytes, binary file or http(s) URL
     data   = pmwm_codec.cut(src, chunks=None)                 # a valid, smaller .pmw (bytes)
     for step in pmwm_codec.iter_decode(src, key=None, watermark=None):
         step.mesh, step.watermark, step.chunk, step.bytes_read
@@ -114,11 +114,14 @@ def _key_for(key, image, dst, owner_id=None) -> tuple:
 def decode(src, chunks=None) -> Mesh:
     """Decode a whole or cut ``.pmw`` (path, bytes or binary file) to a :class:`Mesh`.
 
-    ``chunks``: stop after the base mesh and this many vertex-split chunks.
+    ``chunks``: stop after the base mesh and this many vertex-split chunks.  ``src`` may be
+    an ``http://`` or ``https://`` URL (:mod:`pmwm_codec.http`): read by Range requests when
+    the server honours them, fetching nothing after the last chunk asked for.
     """
+    from .http import as_source
     from .stream.reader import decode_stream
 
-    last, _ = decode_stream(src, chunks=chunks, copy=False)
+    last, _ = decode_stream(as_source(src, chunks), chunks=chunks, copy=False)
     mesh = last.mesh  # every primitive dequantized on its own grid
     return Mesh(mesh.positions, np.array(mesh.faces))
 
@@ -128,7 +131,9 @@ def iter_decode(src, key=None, watermark=None):
 
     Each has ``mesh``, ``watermark`` (the partial image, with a key), ``chunk`` and
     ``bytes_read``, plus ``nc`` and ``psnr_db`` when a reference watermark is known.
+    ``src`` may be an ``http://`` or ``https://`` URL, fetched as the results are pulled.
     """
+    from .http import as_source
     from .stream.decoder import StreamDecoder
     from .stream.reader import iter_results
 
@@ -136,7 +141,7 @@ def iter_decode(src, key=None, watermark=None):
     if watermark is not None:
         reference, _ = _as_watermark(watermark)
     decoder = StreamDecoder(load_key(key), reference)
-    yield from iter_results(src, decoder)
+    yield from iter_results(as_source(src), decoder)
 
 
 def decode_asset(src, chunks=None) -> bytes:

@@ -1,4 +1,4 @@
-"""The ``pmw`` command: ``encode``, ``decode``, ``cut``, ``verify``, ``info``, ``demo``, ``batch`` (DESIGN.md §5).
+"""The ``pmw`` command: ``encode``, ``decode``, ``cut``, ``verify``, ``info``, ``demo``, ``batch``, ``serve`` (DESIGN.md §5).
 
 Thin over the library: each subcommand lives in ``pmwm_codec/cli/<name>.py`` as
 ``add_parser(subparsers)`` + ``run(args) -> int``; ``python -m pmwm_codec`` runs it too.  :func:`main` is the console
@@ -12,10 +12,10 @@ from __future__ import annotations
 
 from pmwm_codec import __version__
 
-from . import batch, cut, decode, demo, encode, info, verify
+from . import batch, cut, decode, demo, encode, info, serve, verify
 from .common import PROG, ArgumentParser, run_command
 
-COMMANDS = (encode, decode, cut, verify, info, demo, batch)
+COMMANDS = (encode, decode, cut, verify, info, demo, batch, serve)
 
 
 def build_parser() -> ArgumentParser:

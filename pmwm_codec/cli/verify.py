@@ -1,4 +1,4 @@
-"""``pmw verify IN.pmw|- --key KEY``: read the watermark at every chunk boundary and decide.
+"""``pmw verify IN.pmw|URL|- --key KEY``: read the watermark at every chunk boundary and decide.
 
 ``pmw verify MESH --key KEY`` (OBJ, PLY, STL, glTF/GLB, no ``--reference``) reads the owner
 layer blind.  Exit status: 0 authentic (a mesh: owner ``present``; a ``.pmw`` without an
@@ -13,6 +13,7 @@ from __future__ import annotations
 import os
 
 import pmwm_codec
+from pmwm_codec.http import UrlSource, is_url
 from pmwm_codec.verify import StreamVerification, verify_stream
 
 from .common import (EXIT_NOT_AUTHENTIC, EXIT_OK, Progress, UsageError, check_input_file, fmt_float, naming,
@@ -24,8 +25,9 @@ def add_parser(sub):
         "verify", help="read the watermark chunk by chunk; exit 0 if authentic",
         description="Verify the watermark of a .pmw (whole, truncated, or '-' for standard input) at every "
                     "chunk boundary. Exit status: 0 authentic, 1 tampered, not authentic or inconclusive, 2 bad input.")
-    p.add_argument("input", metavar="IN.pmw|MESH",
-                   help="the .pmw, or - for standard input; with --reference, a mesh file that left the stream")
+    p.add_argument("input", metavar="IN.pmw|URL|MESH",
+                   help="the .pmw, an http(s):// URL of one (read by Range requests when the server allows), or - for "
+                        "standard input; with --reference, a mesh file that left the stream")
     p.add_argument("--key", required=True, metavar="KEY", help="the key file written by pmw encode")
     p.add_argument("--watermark", metavar="IMG", help="expected watermark image (default: the one in the key)")
     p.add_argument("--frames", metavar="DIR", help="write the partial watermark per chunk, an overview and a plot")
@@ -54,16 +56,18 @@ def _is_mesh_file(path: str) -> bool:
 def run(args) -> int:
     if args.reference is not None:
         return run_reference(args)
-    if _is_mesh_file(args.input):
+    url = is_url(args.input)
+    if not url and _is_mesh_file(args.input):
         return run_owner(args)
-    check_input_file(args.input, ".pmw file")
+    if not url:
+        check_input_file(args.input, ".pmw file")
     _check_common(args)
     progress = Progress(not (args.json or args.quiet))
-    source = args.input
+    source = UrlSource(args.input) if url else args.input
     try:
         with naming(args.input):
             key = pmwm_codec.load_key(args.key)
-            if key.owner_id is not None and source == "-":
+            if key.owner_id is not None and (source == "-" or url):
                 from pmwm_codec.sources import read_all
 
                 source = read_all(source)  # read twice below: the image, then the owner layer
@@ -76,7 +80,7 @@ def run(args) -> int:
     if args.frames is not None:
         from pmwm_codec.figures import write_figures
 
-        name = "stdin" if args.input == "-" else os.path.basename(args.input)
+        name = "stdin" if args.input == "-" else os.path.basename(args.input.rstrip("/"))
         title = f"{name}: {outcome.verdict}" + ("" if outcome.end.complete else " (truncated)")
         pictures = write_figures(outcome.results, args.frames, title=title, total_bytes=outcome.total_length,
                                  bytes_received=outcome.end.bytes_read)

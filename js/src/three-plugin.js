@@ -1,0 +1,331 @@
+/**
+ * three.js GLTFLoader plugin for PMWM_progressive_mesh: the base shows at once, chunks refine it in place.
+ *
+ *   loader.register((parser) => new PMWMProgressivePlugin(parser, { url, onChunk }));
+ *   const gltf = await loader.loadAsync(url);       // or: await loadProgressive(loader, url, options)
+ *   await gltf.userData.pmwm.done;                   // {complete, chunksApplied, bytesFetched, ...}
+ *
+ * three.js reads the base mesh itself (the extension is optional). The plugin then reads the stream
+ * from `options.url` (default: the URL the loader was given, when `loadProgressive` is used):
+ * by HTTP `Range` requests when the server honours them (preamble, JSON, base, then one request per
+ * chunk in stream order, nothing after the last chunk it needs), else as one `fetch` stream. Each
+ * applied chunk rewrites the primitive's BufferGeometry (arrays allocated once at the full
+ * resolution, draw range grown) and calls `onChunk`. Stops: `maxChunks`, `maxGeometricError`
+ * (the first chunk whose geometricError is at most this), `byteBudget` (no byte past it is used).
+ * `loadProgressive(loader, url)` fetches only the bytes up to the base first, so the base is shown
+ * before any chunk is downloaded. Decoding runs on the main thread (no worker yet).
+ */
+import { BufferAttribute } from 'three';
+import { PmwDecoder } from './decoder.js';
+import { FormatError } from './errors.js';
+import { parseGlb, planDocument, preambleLength } from './header.js';
+
+export const EXTENSION_NAME = 'PMWM_progressive_mesh';
+const THREE_NAMES = { POSITION: 'position', NORMAL: 'normal', TANGENT: 'tangent', TEXCOORD_0: 'uv',
+  TEXCOORD_1: 'uv1', TEXCOORD_2: 'uv2', TEXCOORD_3: 'uv3', COLOR_0: 'color' };
+
+export class PMWMProgressivePlugin {
+  /**
+   * @param {object} parser the GLTFParser
+   * @param {{url?: string, range?: boolean, maxChunks?: number, maxGeometricError?: number,
+   *   byteBudget?: number, onBase?: Function, onChunk?: Function, onDone?: Function, fetch?: Function,
+   *   prefix?: Uint8Array, reader?: object}} options
+   *   onChunk({chunk, chunksTotal, vertexCount, faceCount, bytesRead, bytesFetched, requests})
+   */
+  constructor(parser, options = {}) {
+    this.parser = parser;
+    this.name = EXTENSION_NAME;
+    this.options = options;
+  }
+
+  async afterRoot(gltf) {
+    const targets = progressiveTargets(this.parser, gltf);
+    if (!targets.length) return;
+    const run = new ProgressiveRun(targets, this.options);
+    gltf.userData = gltf.userData ?? {};
+    gltf.userData.pmwm = run;
+    run.done = run.start();
+    run.done.catch(() => {}); // the caller awaits run.done for the outcome; never an unhandled rejection
+  }
+}
+
+/** [{mesh: index, primitive: index, objects: [three.Mesh]}] in mesh/primitive order. */
+function progressiveTargets(parser, gltf) {
+  const byKey = new Map();
+  gltf.scene.traverse((object) => {
+    const assoc = parser.associations.get(object);
+    if (!object.isMesh || !assoc || assoc.meshes === undefined) return;
+    const prim = parser.json.meshes?.[assoc.meshes]?.primitives?.[assoc.primitives ?? 0];
+    if (!prim?.extensions?.[EXTENSION_NAME]) return;
+    const key = `${assoc.meshes}/${assoc.primitives ?? 0}`;
+    if (!byKey.has(key)) byKey.set(key, { mesh: assoc.meshes, primitive: assoc.primitives ?? 0, prim, objects: [] });
+    byKey.get(key).objects.push(object);
+  });
+  return [...byKey.values()].sort((a, b) => a.mesh - b.mesh || a.primitive - b.primitive);
+}
+
+/** One progressive load: reads the stream, feeds a PmwDecoder, refreshes the geometries. */
+export class ProgressiveRun {
+  constructor(targets, options) {
+    this.targets = targets;
+    this.options = options;
+    this.levels = [];
+    this.bytesFetched = 0;
+    this.requests = 0;
+    this.stopped = false;
+    this.draco = threeDracoAdapter(targets);
+    this.decoder = new PmwDecoder({ draco: this.draco, maxChunks: options.maxChunks ?? Infinity });
+  }
+
+  /** Stops reading after the chunk being read. */
+  stop() { this.stopped = true; }
+
+  async start() {
+    const o = this.options;
+    const fetchFn = o.fetch ?? globalThis.fetch.bind(globalThis);
+    const source = o.reader ? continueReader(o.prefix, o.reader, this)
+      : readStream(o.url, fetchFn, o.range ?? true, this, o.prefix);
+    for await (const piece of source) {
+      if (this.stopped) break;
+      const results = await this.decoder.feed(piece);
+      for (const r of results) this.#level(r);
+      if (this.#enough()) break;
+    }
+    const end = this.decoder.close();
+    const outcome = { ...end, bytesFetched: this.bytesFetched, requests: this.requests, levels: this.levels.length };
+    o.onDone?.(outcome);
+    return outcome;
+  }
+
+  /** The number of chunks worth reading, once the header is known (geometric error, maxChunks). */
+  chunksWanted() {
+    const plan = this.decoder.plan;
+    let want = Math.min(plan.stream.length, this.options.maxChunks ?? Infinity);
+    const target = this.options.maxGeometricError;
+    if (target !== undefined) {
+      const current = plan.primitives.map(() => Infinity);
+      for (let k = 0; k < plan.stream.length; k++) {
+        current[plan.stream[k].primitive] = plan.stream[k].geometricError;
+        if (Math.max(...current) <= target) { want = Math.min(want, k + 1); break; }
+      }
+    }
+    return want;
+  }
+
+  #enough() {
+    const plan = this.decoder.plan;
+    if (!plan || !this.decoder.states) return false;
+    const want = this.chunksWanted();
+    return want < plan.stream.length && this.decoder.chunksApplied >= want; // all of them: read on to the end
+  }
+
+  #level(r) {
+    const mesh = this.decoder.snapshot();
+    this.targets.forEach((t, p) => {
+      const geometries = new Set(t.objects.map((o) => o.geometry));
+      const plan = this.decoder.plan.primitives[p];
+      for (const g of geometries) refreshGeometry(g, mesh.parts[p], plan.vertexCount, plan.faceCount);
+    });
+    const event = { ...r, bytesFetched: this.bytesFetched, requests: this.requests };
+    delete event.mesh;
+    this.levels.push(event);
+    if (r.chunk === 0) this.options.onBase?.(event);
+    else this.options.onChunk?.(event);
+  }
+}
+
+/** Writes one level into `geometry`: arrays sized once for the full mesh, draw range = the faces now. */
+export function refreshGeometry(geometry, part, capV, capF) {
+  const n = part.positions.length / 3;
+  if (!geometry.userData.pmwmCapacity) {
+    geometry.setAttribute('position', new BufferAttribute(new Float32Array(capV * 3), 3));
+    geometry.setIndex(new BufferAttribute(new Uint32Array(capF * 3), 1));
+    for (const [semantic, values] of Object.entries(part.attributes)) {
+      const name = THREE_NAMES[semantic];
+      if (name) geometry.setAttribute(name, new BufferAttribute(new Float32Array(capV * (values.length / n || 1)),
+        values.length / n || 1));
+    }
+    geometry.userData.pmwmCapacity = { vertices: capV, faces: capF };
+  }
+  const write = (attr, values) => { attr.array.set(values); attr.needsUpdate = true; };
+  write(geometry.getAttribute('position'), part.positions);
+  write(geometry.index, part.indices);
+  for (const [semantic, values] of Object.entries(part.attributes)) {
+    const attr = THREE_NAMES[semantic] && geometry.getAttribute(THREE_NAMES[semantic]);
+    if (attr) write(attr, values);
+  }
+  geometry.setDrawRange(0, part.indices.length);
+  if (!part.attributes.NORMAL && geometry.getAttribute('normal')) geometry.computeVertexNormals();
+  geometry.computeBoundingBox();
+  geometry.computeBoundingSphere();
+  geometry.userData.pmwmLevel = { vertices: n, faces: part.indices.length / 3 };
+}
+
+/** A Draco "decoder" answering from three.js' own decode of each Draco base (plan order). */
+function threeDracoAdapter(targets) {
+  const queue = targets.filter((t) => t.prim.extensions?.KHR_draco_mesh_compression)
+    .map((t) => ({ geometry: t.objects[0].geometry, ids: t.prim.extensions.KHR_draco_mesh_compression.attributes }));
+  const base = queue.map(({ geometry, ids }) => ({ ids, attrs: Object.fromEntries(
+    Object.entries(geometry.attributes).map(([k, a]) => [k, { values: Float32Array.from(a.array), components: a.itemSize }])),
+  indices: Uint32Array.from(geometry.index.array) }));
+  return {
+    async decode(_bytes, { attributeIds }) {
+      const b = base.shift();
+      if (!b) throw new FormatError('three.js decoded fewer Draco base meshes than the stream holds');
+      const byId = Object.fromEntries(Object.entries(b.ids).map(([semantic, id]) => [id, semantic]));
+      return {
+        positions: b.attrs.position.values, indices: b.indices,
+        attributes: attributeIds.map((id) => b.attrs[THREE_NAMES[byId[id]]]),
+      };
+    },
+  };
+}
+
+/** Bytes already read (`prefix`) then the rest of a ReadableStream reader. */
+async function* continueReader(prefix, reader, run) {
+  const limit = run.options.byteBudget ?? Infinity;
+  if (prefix?.length) {
+    yield prefix.subarray(0, limit);
+    if (prefix.length >= limit) { await reader.cancel(); return; }
+  }
+  for (;;) {
+    const { value, done } = await reader.read();
+    if (done) return;
+    const budget = run.options.byteBudget;
+    run.bytesFetched += value.length;
+    if (budget !== undefined && run.decoder.received + value.length > budget) {
+      yield value.subarray(0, Math.max(0, budget - run.decoder.received));
+      await reader.cancel();
+      return;
+    }
+    yield value;
+    if (run.stopped) { await reader.cancel(); return; }
+  }
+}
+
+/** The file at `url`: by Range requests (when allowed and honoured), else one streamed GET. */
+async function* readStream(url, fetchFn, range, run, prefix) {
+  if (!url) throw new FormatError('PMWMProgressivePlugin: no url to read the stream from (options.url)');
+  let start = 0;
+  if (prefix?.length) {
+    yield prefix.subarray(0, run.options.byteBudget ?? Infinity);
+    start = prefix.length;
+  } else {
+    const first = await fetchFn(url, range ? { headers: { Range: 'bytes=0-19' } } : {});
+    run.requests++;
+    if (!first.ok) throw new FormatError(`${url}: HTTP ${first.status}`);
+    if (first.status !== 206) {
+      yield* continueReader(null, first.body.getReader(), run);
+      return;
+    }
+    const head = new Uint8Array(await first.arrayBuffer());
+    run.bytesFetched += head.length;
+    yield head;
+    if (head.length < 20) return;
+    start = 20;
+  }
+  for (const end of rangeEnds(run, preambleLength(prefix ?? new Uint8Array(0)))) {
+    if (run.stopped) return;
+    if (end <= start) continue;
+    const stop = Math.min(end, run.options.byteBudget ?? Infinity);
+    if (stop <= start) return;
+    const res = await fetchFn(url, { headers: { Range: `bytes=${start}-${stop - 1}` } });
+    run.requests++;
+    if (res.status === 416) return;
+    if (res.status !== 206) throw new FormatError(`${url}: HTTP ${res.status} to a Range request`);
+    const block = new Uint8Array(await res.arrayBuffer());
+    run.bytesFetched += block.length;
+    yield block;
+    if (block.length < stop - start || stop < end) return;
+    start = end;
+  }
+}
+
+/** Absolute end offsets to request: the header, then (once it is parsed) the base, each chunk, the tail. */
+function* rangeEnds(run, knownHeaderEnd) {
+  yield run.decoder.header ? 0 : knownHeaderEnd > 20 ? knownHeaderEnd : headerEndOf(run);
+  const { plan, header } = run.decoder;
+  if (!plan) return;
+  const { stream } = plan;
+  const bin = header.binStart;
+  if (stream.length) yield bin + stream[0].offset;
+  const want = run.chunksWanted();
+  for (let k = 0; k < want; k++) yield bin + stream[k].offset + stream[k].length;
+  if (want === stream.length) yield header.length;
+}
+
+function headerEndOf(run) {
+  return preambleLength(run.decoder.buf.subarray(0, run.decoder.received));
+}
+
+/**
+ * Loads `url` with `loader`, reading only the bytes before the first chunk (the base and what it uses)
+ * first: by Range requests, or the start of one fetch stream. three.js shows that base; a
+ * PMWMProgressivePlugin registered for this load only then refines it from the rest (not fetched twice).
+ * Do not also register the plugin on `loader` yourself. Options as PMWMProgressivePlugin's.
+ * @returns {Promise<object>} the gltf; `gltf.userData.pmwm.done` resolves when the stream ends
+ */
+export async function loadProgressive(loader, url, options = {}) {
+  const fetchFn = options.fetch ?? globalThis.fetch.bind(globalThis);
+  const stats = { bytesFetched: 0, requests: 0 };
+  let prefix = new Uint8Array(0);
+  const append = (b) => {
+    const m = new Uint8Array(prefix.length + b.length); m.set(prefix); m.set(b, prefix.length); prefix = m;
+    stats.bytesFetched += b.length;
+  };
+  const baseEnd = () => {
+    if (prefix.length < 20 || prefix.length < preambleLength(prefix)) return Infinity;
+    const header = parseGlb(prefix);
+    const { stream } = planDocument(header.gltf, header.binLength);
+    return stream.length ? header.binStart + stream[0].offset : header.length;
+  };
+  const res = await fetchFn(url, options.range === false ? {} : { headers: { Range: 'bytes=0-19' } });
+  stats.requests++;
+  if (!res.ok) throw new FormatError(`${url}: HTTP ${res.status}`);
+  let reader = null;
+  if (res.status === 206) {
+    append(new Uint8Array(await res.arrayBuffer()));
+    await getRange(fetchFn, url, 20, preambleLength(prefix), append, stats);
+    await getRange(fetchFn, url, prefix.length, baseEnd(), append, stats);
+  } else {
+    reader = res.body.getReader();
+    while (prefix.length < baseEnd()) {
+      const { value, done } = await reader.read();
+      if (done) break;
+      append(value);
+    }
+  }
+  const factory = (parser) => new PMWMProgressivePlugin(parser, { ...options, url, prefix, reader });
+  loader.register(factory);
+  let gltf;
+  try {
+    gltf = await loader.parseAsync(baseGlb(prefix).buffer, options.path ?? url.replace(/[^/]*$/, ''));
+  } finally {
+    loader.unregister(factory);
+  }
+  const run = gltf.userData?.pmwm;
+  if (run) {
+    run.bytesFetched += stats.bytesFetched;
+    run.requests += stats.requests;
+  }
+  return gltf;
+}
+
+async function getRange(fetchFn, url, start, end, append, stats) {
+  if (end <= start || !Number.isFinite(end)) return;
+  const res = await fetchFn(url, { headers: { Range: `bytes=${start}-${end - 1}` } });
+  stats.requests++;
+  if (res.status !== 206) throw new FormatError(`${url}: HTTP ${res.status} to a Range request`);
+  append(new Uint8Array(await res.arrayBuffer()));
+}
+
+/** A prefix of a .pmw as a GLB three.js accepts: the GLB and BIN lengths cut to the bytes present. */
+export function baseGlb(prefix) {
+  const out = prefix.slice();
+  const view = new DataView(out.buffer);
+  const jsonLength = view.getUint32(12, true);
+  const binHeader = 20 + jsonLength;
+  view.setUint32(8, out.length, true);
+  if (out.length >= binHeader + 8) view.setUint32(binHeader, out.length - binHeader - 8, true);
+  return out;
+}

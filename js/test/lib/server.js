@@ -1,0 +1,44 @@
+// A static file server on 127.0.0.1 (free port) with single-range Range support, for the tests.
+// Counts body bytes sent (`stats.bytes`) and requests; `ranges: false` answers every GET whole (200);
+// `delayMs` waits before each response (a throttled network).
+import fs from 'node:fs';
+import http from 'node:http';
+import path from 'node:path';
+
+const TYPES = { '.html': 'text/html', '.js': 'text/javascript', '.mjs': 'text/javascript', '.wasm': 'application/wasm',
+  '.pmw': 'model/gltf-binary', '.json': 'application/json' };
+
+export async function startServer(root, { ranges = true, delayMs = 0 } = {}) {
+  const stats = { bytes: 0, requests: 0, log: [] };
+  const server = http.createServer(async (req, res) => {
+    stats.requests++;
+    const rel = decodeURIComponent(new URL(req.url, 'http://x').pathname);
+    const file = path.join(root, path.normalize(rel).replace(/^(\.\.[/\\])+/, ''));
+    if (!file.startsWith(root) || !fs.existsSync(file) || !fs.statSync(file).isFile()) {
+      res.writeHead(404, { 'Content-Length': 0 }); res.end(); return;
+    }
+    if (delayMs && file.endsWith('.pmw')) await new Promise((r) => setTimeout(r, delayMs));
+    const data = fs.readFileSync(file);
+    const type = TYPES[path.extname(file)] ?? 'application/octet-stream';
+    const m = ranges && /^bytes=(\d*)-(\d*)$/.exec(req.headers.range ?? '');
+    let body = data;
+    if (m && (m[1] || m[2])) {
+      let start = m[1] === '' ? Math.max(0, data.length - Number(m[2])) : Number(m[1]);
+      let end = m[1] === '' || m[2] === '' ? data.length : Math.min(Number(m[2]) + 1, data.length);
+      if (start >= data.length || end <= start) {
+        res.writeHead(416, { 'Content-Range': `bytes */${data.length}`, 'Content-Length': 0 }); res.end(); return;
+      }
+      body = data.subarray(start, end);
+      res.writeHead(206, { 'Content-Type': type, 'Content-Length': body.length, 'Accept-Ranges': 'bytes',
+        'Content-Range': `bytes ${start}-${end - 1}/${data.length}`, 'Cache-Control': 'no-store' });
+    } else {
+      res.writeHead(200, { 'Content-Type': type, 'Content-Length': body.length, 'Cache-Control': 'no-store' });
+    }
+    if (file.endsWith('.pmw')) { stats.bytes += body.length; stats.log.push(req.headers.range ?? 'whole'); }
+    res.end(body);
+  });
+  await new Promise((resolve) => server.listen(0, '127.0.0.1', resolve));
+  const url = `http://127.0.0.1:${server.address().port}/`;
+  const close = () => new Promise((resolve) => { server.closeAllConnections?.(); server.close(resolve); });
+  return { url, stats, close };
+}

@@ -1,0 +1,150 @@
+"""``pmw serve DIR [--port P] [--host 127.0.0.1]``: a small static server with Range support, for local demos.
+
+The standard library's ``http.server`` plus single-range ``Range: bytes=a-b`` requests
+(``206 Partial Content``, ``416`` when unsatisfiable), so that ``pmw verify URL``, the
+three.js plugin and the demo page can read a ``.pmw`` chunk by chunk.  Only files under
+``DIR`` are served (the standard library's path translation); it binds to 127.0.0.1
+unless ``--host`` says otherwise.  Not a production server.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import threading
+from functools import partial
+from http import HTTPStatus
+from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
+
+from .common import UsageError
+
+_RANGE = re.compile(r"bytes=(\d*)-(\d*)\s*$")
+
+
+def add_parser(sub):
+    p = sub.add_parser("serve", help="serve a directory over HTTP with Range support (local demos)",
+                       description="Serve the files of DIR over HTTP, with single-range Range requests, for local "
+                                   "demos of progressive loading (pmw verify URL, the three.js plugin). Ctrl-C stops it.")
+    p.add_argument("directory", metavar="DIR", help="the directory to serve")
+    p.add_argument("--port", type=int, default=8000, help="TCP port (default 8000; 0: any free port)")
+    p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only)")
+    p.set_defaults(run=run)
+
+
+def parse_range(header: str | None, size: int):
+    """``(start, end)`` (end exclusive) of a single ``bytes=`` range of a ``size``-byte file.
+
+    None when there is no usable single range (absent, several ranges, another unit:
+    the whole file is sent); ``(size, size)`` when it cannot be satisfied (416).
+    """
+    match = _RANGE.match(header or "")
+    if match is None or match[1] == match[2] == "":
+        return None
+    if match[1] == "":  # suffix: the last n bytes
+        n = int(match[2])
+        return (max(0, size - n), size) if n else (size, size)
+    start = int(match[1])
+    end = size if match[2] == "" else min(int(match[2]) + 1, size)
+    if start >= size or end <= start:
+        return (size, size)
+    return start, end
+
+
+class RangeRequestHandler(SimpleHTTPRequestHandler):
+    """``SimpleHTTPRequestHandler`` answering single-range requests with 206.
+
+    ``server.bytes_sent`` (when the server has it) counts the body bytes sent.
+    """
+
+    protocol_version = "HTTP/1.1"
+
+    def send_head(self):
+        self._span = None
+        path = self.translate_path(self.path)
+        if "Range" not in self.headers or not os.path.isfile(path):
+            return super().send_head()
+        try:
+            f = open(path, "rb")
+        except OSError:
+            self.send_error(HTTPStatus.NOT_FOUND, "File not found")
+            return None
+        size = os.fstat(f.fileno()).st_size
+        span = parse_range(self.headers["Range"], size)
+        if span is None:
+            f.close()
+            return super().send_head()
+        if span[0] >= size:
+            f.close()
+            self.send_response(HTTPStatus.REQUESTED_RANGE_NOT_SATISFIABLE)
+            self.send_header("Content-Range", f"bytes */{size}")
+            self.send_header("Content-Length", "0")
+            self.end_headers()
+            return None
+        self.send_response(HTTPStatus.PARTIAL_CONTENT)
+        self.send_header("Content-Type", self.guess_type(path))
+        self.send_header("Content-Range", f"bytes {span[0]}-{span[1] - 1}/{size}")
+        self.send_header("Content-Length", str(span[1] - span[0]))
+        self.send_header("Accept-Ranges", "bytes")
+        self.end_headers()
+        f.seek(span[0])
+        self._span = span
+        return f
+
+    def copyfile(self, source, outputfile):
+        span = getattr(self, "_span", None)
+        left = None if span is None else span[1] - span[0]
+        while left is None or left > 0:
+            block = source.read(1 << 16 if left is None else min(1 << 16, left))
+            if not block:
+                break
+            outputfile.write(block)
+            _count(self.server, len(block))
+            if left is not None:
+                left -= len(block)
+
+    def end_headers(self):
+        if getattr(self, "_span", None) is None:
+            self.send_header("Accept-Ranges", "bytes")
+        super().end_headers()
+
+    def log_message(self, format, *args):  # noqa: A002 - the standard library's name
+        if getattr(self.server, "verbose", False):
+            super().log_message(format, *args)
+
+
+def _count(server, n: int) -> None:
+    lock = getattr(server, "count_lock", None)
+    if lock is not None:
+        with lock:
+            server.bytes_sent += n
+
+
+def make_server(directory, host: str = "127.0.0.1", port: int = 0, handler=RangeRequestHandler):
+    """A ``ThreadingHTTPServer`` serving ``directory`` with ``handler``; not started.
+
+    It counts body bytes in ``bytes_sent`` (under ``count_lock``).
+    """
+    server = ThreadingHTTPServer((host, port), partial(handler, directory=os.fspath(directory)))
+    server.bytes_sent = 0
+    server.count_lock = threading.Lock()
+    server.daemon_threads = True
+    return server
+
+
+def run(args) -> int:
+    if not os.path.isdir(args.directory):
+        raise UsageError(f"{args.directory}: not a directory")
+    if not 0 <= args.port <= 65535:
+        raise UsageError(f"--port {args.port}: not a TCP port (0..65535)")
+    server = make_server(args.directory, args.host, args.port)
+    server.verbose = True
+    host, port = server.server_address[:2]
+    print(f"serving {os.path.abspath(args.directory)} at http://{host}:{port}/ (Ctrl-C to stop)", flush=True)
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.server_close()
+    return 0
+

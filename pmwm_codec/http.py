@@ -1,0 +1,227 @@
+"""Reading a ``.pmw`` over HTTP: a byte source for a URL the user named.
+
+:class:`UrlSource` is an iterable of byte blocks (a *source* in the sense of
+:mod:`pmwm_codec.sources`), so every reader takes it as it takes a file.  It asks for
+the first bytes with a ``Range`` request:
+
+* the server honours it (``206``): the GLB preamble (20 bytes), then the JSON and
+  the BIN chunk header, then, planned from the chunk index, the base mesh (everything
+  before the first chunk) and every chunk's byte range in stream order, one request
+  each, and finally the padding up to the file length.  With ``max_chunks=N`` it stops
+  after the N-th chunk: nothing after it is requested.
+* the server ignores it (``200``): the body is read as one plain streamed GET, in
+  blocks, stopped after the N-th chunk when ``max_chunks`` is given.
+
+A connection that ends early is a cut stream, read with the same semantics as a cut
+file (every complete chunk is delivered).  Only ``http://`` and ``https://`` URLs are
+accepted, and only where the caller passed one (:func:`is_url`): nothing read from a
+file ever makes us fetch anything; a redirect to another scheme is refused.  Network
+failures and inconsistent servers raise :class:`~pmwm_codec.errors.InputFormatError`
+naming the URL.
+"""
+
+from __future__ import annotations
+
+import re
+import urllib.error
+import urllib.request
+
+from .errors import InputFormatError
+from .format import ContainerParser, HeaderEvent
+from .format.layout import CHUNK_HEADER_SIZE, PREAMBLE_SIZE
+from .format.parser import parse_preamble
+from .sources import DEFAULT_BLOCK_SIZE
+
+#: Seconds a connection may stay silent before the read fails.
+DEFAULT_TIMEOUT = 30.0
+_CONTENT_RANGE = re.compile(r"bytes\s+(\d+)-(\d+)/(\d+|\*)\s*$")
+
+
+def is_url(source) -> bool:
+    """True for a ``str`` starting with ``http://`` or ``https://`` (any case)."""
+    return isinstance(source, str) and source[:8].lower().startswith(("http://", "https://"))
+
+
+def as_source(source, max_chunks: int | None = None):
+    """A :class:`UrlSource` for a URL string, any other source unchanged."""
+    return UrlSource(source, max_chunks=max_chunks) if is_url(source) else source
+
+
+class _HttpOnlyRedirects(urllib.request.HTTPRedirectHandler):
+    """Follow redirects to ``http(s)://`` only (never ``file:`` or ``ftp:``)."""
+
+    def redirect_request(self, req, fp, code, msg, headers, newurl):
+        if not is_url(newurl):
+            raise InputFormatError(f"{req.full_url}: redirected to {newurl!r}, not an http(s) URL")
+        return super().redirect_request(req, fp, code, msg, headers, newurl)
+
+
+class UrlSource:
+    """The bytes of the ``.pmw`` at ``url``, as blocks, fetched as they are iterated.
+
+    ``max_chunks``: stop after the base mesh and this many chunks (stream order).
+    After (or during) an iteration ``requests`` counts the HTTP requests made,
+    ``bytes_fetched`` the body bytes received and ``ranged`` says whether the server
+    honoured ``Range``.  Each iteration fetches afresh.
+    """
+
+    def __init__(self, url: str, *, max_chunks: int | None = None, timeout: float = DEFAULT_TIMEOUT,
+                 block_size: int = DEFAULT_BLOCK_SIZE):
+        if not is_url(url):
+            raise InputFormatError(f"{url}: not an http:// or https:// URL")
+        self.url = url
+        self.max_chunks = max_chunks
+        self.timeout = timeout
+        self.block_size = block_size
+        self.requests = 0
+        self.bytes_fetched = 0
+        self.ranged = None
+        self._opener = urllib.request.build_opener(_HttpOnlyRedirects)
+
+    def __repr__(self):
+        return f"UrlSource({self.url!r})"
+
+    def __iter__(self):
+        self.requests = self.bytes_fetched = 0
+        self._size = None
+        response = self._open(0, PREAMBLE_SIZE)
+        with response:
+            self.ranged = response.status == 206
+            if not self.ranged:
+                yield from self._plain(response)
+                return
+            head = self._body(response, 0, PREAMBLE_SIZE)
+        yield head
+        if len(head) < PREAMBLE_SIZE:
+            return
+        yield from self._ranges(head)
+
+    # -- Range mode --------------------------------------------------------------
+
+    def _ranges(self, preamble: bytes):
+        """After the preamble: JSON + BIN header, then the planned ranges, in order."""
+        _, json_length = parse_preamble(preamble)
+        header_end = PREAMBLE_SIZE + json_length + CHUNK_HEADER_SIZE
+        rest = self._fetch(PREAMBLE_SIZE, header_end)
+        yield rest
+        if len(rest) < header_end - PREAMBLE_SIZE:
+            return
+        start = header_end
+        for end in plan_ranges(preamble + rest, self.max_chunks):
+            block = self._fetch(start, end)
+            yield block
+            if len(block) < end - start:
+                return  # the server stopped: a cut stream
+            start = end
+
+    def _fetch(self, start: int, end: int) -> bytes:
+        """Bytes ``[start, end)`` by one Range request; fewer (or none) when the file ends first."""
+        with self._open(start, end, past_end_ok=True) as response:
+            if response.status == 416:  # the served file ends before ``start``: a cut stream
+                return b""
+            if response.status != 206:
+                raise InputFormatError(f"{self.url}: the server answered a Range request with status "
+                                       f"{response.status} after honouring one")
+            return self._body(response, start, end)
+
+    def _body(self, response, start: int, end: int) -> bytes:
+        """The body of a 206 answer for ``[start, end)``, its Content-Range checked.
+
+        The file's size must stay the one the first answer gave (a file replaced while it
+        is read is refused); the server may end the range early at the end of the file.
+        """
+        given = response.headers.get("Content-Range", "")
+        match = _CONTENT_RANGE.match(given)
+        if match is None or int(match[1]) != start or int(match[2]) > end - 1:
+            raise InputFormatError(f"{self.url}: Content-Range {given!r} does not answer bytes {start}-{end - 1}")
+        if self._size is None:
+            self._size = match[3]
+        elif match[3] != self._size:
+            raise InputFormatError(f"{self.url}: the file changed while it was read (size {self._size}, now {match[3]})")
+        parts, size = [], 0
+        while size < end - start:
+            block = self._read(response, min(self.block_size, end - start - size))
+            if not block:
+                break
+            parts.append(block)
+            size += len(block)
+        return b"".join(parts)
+
+    # -- plain mode ---------------------------------------------------------------
+
+    def _plain(self, response):
+        """The body of a plain GET, in blocks; stopped after ``max_chunks`` chunks."""
+        if response.status != 200:
+            raise InputFormatError(f"{self.url}: HTTP status {response.status}")
+        head, stop, offset = bytearray(), None, 0
+        while stop is None or offset < stop:
+            want = self.block_size if stop is None else min(self.block_size, stop - offset)
+            block = self._read(response, want)
+            if not block:
+                return
+            offset += len(block)
+            if stop is None and self.max_chunks is not None:
+                head += block
+                stop = _plain_stop(bytes(head), self.max_chunks)
+            yield block
+
+    # -- HTTP ---------------------------------------------------------------------
+
+    def _open(self, start: int, end: int, past_end_ok: bool = False):
+        request = urllib.request.Request(self.url, headers={"Range": f"bytes={start}-{end - 1}",
+                                                           "Accept-Encoding": "identity"})
+        self.requests += 1
+        try:
+            return self._opener.open(request, timeout=self.timeout)
+        except urllib.error.HTTPError as exc:
+            if past_end_ok and exc.code == 416:
+                return exc  # a response object too (status 416, empty body)
+            exc.close()
+            raise InputFormatError(f"{self.url}: HTTP {exc.code} {exc.reason}") from None
+        except (urllib.error.URLError, OSError) as exc:
+            reason = getattr(exc, "reason", None) or exc
+            raise InputFormatError(f"{self.url}: cannot read ({reason})") from None
+
+    def _read(self, response, size: int) -> bytes:
+        try:
+            block = response.read(size)
+        except (OSError, ValueError) as exc:  # reset, timeout, broken chunked encoding
+            raise InputFormatError(f"{self.url}: cannot read ({exc})") from None
+        self.bytes_fetched += len(block)
+        return block
+
+
+def _plain_stop(head: bytes, max_chunks: int):
+    """Where a plain read may stop, once ``head`` holds the JSON and the BIN header (else None)."""
+    if len(head) < PREAMBLE_SIZE:
+        return None
+    _, json_length = parse_preamble(head)
+    if len(head) < PREAMBLE_SIZE + json_length + CHUNK_HEADER_SIZE:
+        return None
+    return plan_ranges(head, max_chunks)[-1]
+
+
+def plan_ranges(head: bytes, max_chunks: int | None = None) -> list:
+    """Absolute end offsets of the reads after the header: the base, each chunk, the tail.
+
+    ``head``: at least the preamble, the JSON and the BIN chunk header, checked here
+    by the container parser (structure, limits, chunk ranges).  The first range ends
+    where the first chunk starts (the base meshes and the data they reference), then
+    one range per chunk in stream order (gaps before a chunk go with it), then the
+    padding up to the file length; with ``max_chunks`` the list stops after that chunk.
+    """
+    parser = ContainerParser()
+    header = next((e for e in parser.feed(head) if isinstance(e, HeaderEvent)), None)
+    if header is None:  # pragma: no cover - the caller passes the whole header
+        raise InputFormatError("the glTF JSON did not arrive whole")
+    views = header.gltf_json["bufferViews"]
+    chunk_ranges = sorted(
+        (header.bin_offset + views[c["bufferView"]].get("byteOffset", 0),
+         header.bin_offset + views[c["bufferView"]].get("byteOffset", 0) + c["byteLength"])
+        for ext in header.extensions for c in ext["chunks"])
+    ends = [start for start, _ in chunk_ranges[:1]] + [end for _, end in chunk_ranges]
+    if max_chunks is not None and max_chunks < len(chunk_ranges):
+        return ends[: max_chunks + 1]
+    if not ends or ends[-1] < header.total_length:
+        ends.append(header.total_length)
+    return ends

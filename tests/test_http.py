@@ -1,0 +1,198 @@
+"""Reading a ``.pmw`` over HTTP (``pmwm_codec.http``) and ``pmw serve``'s Range handler.
+
+Every server here listens on 127.0.0.1 on a free port, runs in a thread and is shut
+down by its fixture; one honours ``Range``, one ignores it (plain 200 answers).
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from pathlib import Path
+import urllib.request
+from http.server import SimpleHTTPRequestHandler
+
+import numpy as np
+import pytest
+
+import pmwm_codec
+from pmwm_codec import shapes
+from pmwm_codec.cli import main
+from pmwm_codec.cli.serve import RangeRequestHandler, make_server, parse_range
+from pmwm_codec.errors import InputFormatError
+from pmwm_codec.format.inspect import inspect
+from pmwm_codec.http import UrlSource, is_url
+
+
+class IgnoringRange(RangeRequestHandler):
+    """A server that answers every GET with the whole file (200), as if Range did not exist."""
+
+    def send_head(self):
+        self._span = None
+        return SimpleHTTPRequestHandler.send_head(self)
+
+    def end_headers(self):
+        SimpleHTTPRequestHandler.end_headers(self)
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory):
+    """A directory with ``x.pmw`` (icosphere(3), watermarked, several chunks) and its key file."""
+    d = tmp_path_factory.mktemp("site")
+    image = np.random.default_rng(3).integers(0, 256, (16, 16)).astype(np.uint8)
+    pmwm_codec.encode(shapes.icosphere(3), d / "x.pmw", watermark=image)
+    return d
+
+
+def _serve(directory, handler):
+    server = make_server(directory, "127.0.0.1", 0, handler)
+    thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
+    thread.start()
+    return server, thread
+
+
+@pytest.fixture(params=["ranges", "no-ranges"])
+def server(request, site):
+    """A running server over ``site`` (both kinds); stopped after the test."""
+    handler = RangeRequestHandler if request.param == "ranges" else IgnoringRange
+    srv, thread = _serve(site, handler)
+    srv.ranges = request.param == "ranges"
+    srv.url = f"http://127.0.0.1:{srv.server_address[1]}/"
+    yield srv
+    srv.shutdown()
+    srv.server_close()
+    thread.join(5)
+
+
+def _pmw(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_is_url_accepts_only_http_and_https():
+    assert is_url("http://127.0.0.1/x.pmw") and is_url("HTTPS://example.org/x.pmw")
+    for other in ("file:///etc/passwd", "ftp://h/x.pmw", "x.pmw", "/tmp/http://x", b"http://x", None):
+        assert not is_url(other)
+    with pytest.raises(InputFormatError):
+        UrlSource("file:///etc/passwd")
+
+
+@pytest.mark.parametrize("header,expected", [
+    ("bytes=0-19", (0, 20)), ("bytes=10-", (10, 100)), ("bytes=-30", (70, 100)), ("bytes=90-500", (90, 100)),
+    ("bytes=100-", (100, 100)), ("bytes=5-2", (100, 100)), ("bytes=0-1,5-6", None), ("items=0-1", None), (None, None),
+])
+def test_parse_range_reads_single_byte_ranges(header, expected):
+    assert parse_range(header, 100) == expected
+
+
+def test_verify_url_gives_the_local_verdict_and_json(server, site, capsys):
+    key = site / "x.pmw.key.json"
+    code_file, out_file, _ = _pmw(capsys, "verify", site / "x.pmw", "--key", key, "--json")
+    code_url, out_url, err = _pmw(capsys, "verify", server.url + "x.pmw", "--key", key, "--json")
+    assert code_url == code_file == 0, err
+    assert json.loads(out_url) == json.loads(out_file)
+    assert json.loads(out_url)["verdict"] == "authentic"
+
+
+def test_iter_decode_url_matches_the_file_at_every_boundary(server, site):
+    local = list(pmwm_codec.iter_decode(site / "x.pmw"))
+    remote = list(pmwm_codec.iter_decode(server.url + "x.pmw"))
+    assert [r.bytes_read for r in remote] == [r.bytes_read for r in local]
+    for a, b in zip(local, remote):
+        assert np.array_equal(a.positions_int, b.positions_int) and np.array_equal(a.faces, b.faces)
+
+
+def test_decode_url_with_chunks_fetches_only_the_bytes_it_needs_by_ranges(server, site):
+    info = inspect(site / "x.pmw")
+    assert info["chunks_total"] >= 3
+    size = (site / "x.pmw").stat().st_size
+    for n in (0, 2):
+        server.bytes_sent = 0
+        source = UrlSource(server.url + "x.pmw", max_chunks=n)
+        mesh = pmwm_codec.decode(source, chunks=n)
+        local = pmwm_codec.decode(site / "x.pmw", chunks=n)
+        assert np.array_equal(mesh.faces, local.faces) and np.allclose(mesh.positions, local.positions)
+        if server.ranges:
+            # exactly the prefix up to the end of chunk n: nothing after it was sent
+            assert server.bytes_sent == source.bytes_fetched == _prefix_end(site / "x.pmw", n) < size
+            assert source.ranged and source.requests == 2 + 1 + n
+        else:
+            assert not source.ranged and source.requests == 1
+            assert source.bytes_fetched >= _prefix_end(site / "x.pmw", n)
+
+
+def test_decode_url_string_reads_the_whole_stream(server, site):
+    mesh = pmwm_codec.decode(server.url + "x.pmw")
+    local = pmwm_codec.decode(site / "x.pmw")
+    assert np.array_equal(mesh.faces, local.faces)
+    assert server.bytes_sent == (site / "x.pmw").stat().st_size
+
+
+def test_a_cut_file_over_http_reads_like_the_cut_file(server, site, capsys):
+    data = (site / "x.pmw").read_bytes()
+    (site / "cut.pmw").write_bytes(data[: len(data) * 2 // 3])
+    key = site / "x.pmw.key.json"
+    _, out_file, _ = _pmw(capsys, "verify", site / "cut.pmw", "--key", key, "--json")
+    code, out_url, err = _pmw(capsys, "verify", server.url + "cut.pmw", "--key", key, "--json")
+    assert json.loads(out_url) == json.loads(out_file), err
+    assert json.loads(out_url)["truncated"] is True
+
+
+def test_verify_url_errors_are_one_line_exit_2(server, site, capsys):
+    key = site / "x.pmw.key.json"
+    code, out, err = _pmw(capsys, "verify", server.url + "missing.pmw", "--key", key)
+    assert code == 2 and err.startswith("pmw: error: ") and "404" in err and len(err.splitlines()) == 1
+    server.shutdown()  # a closed port: connection refused
+    server.server_close()
+    code, out, err = _pmw(capsys, "verify", server.url + "x.pmw", "--key", key)
+    assert code == 2 and "cannot read" in err and len(err.splitlines()) == 1
+
+
+def test_range_server_answers_206_with_content_range(site):
+    srv, thread = _serve(site, RangeRequestHandler)
+    try:
+        url = f"http://127.0.0.1:{srv.server_address[1]}/x.pmw"
+        size = (site / "x.pmw").stat().st_size
+        with urllib.request.urlopen(urllib.request.Request(url, headers={"Range": "bytes=4-11"}), timeout=10) as r:
+            assert r.status == 206 and r.headers["Content-Range"] == f"bytes 4-11/{size}"
+            assert r.read() == (site / "x.pmw").read_bytes()[4:12]
+        with pytest.raises(urllib.error.HTTPError) as info:
+            urllib.request.urlopen(urllib.request.Request(url, headers={"Range": f"bytes={size}-"}), timeout=10)
+        assert info.value.code == 416
+        info.value.close()
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+
+
+def _prefix_end(path, n: int) -> int:
+    """Bytes of ``path`` up to the end of chunk ``n`` (0: the end of the data before the first chunk)."""
+    from pmwm_codec.http import plan_ranges
+
+    return plan_ranges(path.read_bytes(), n)[-1]
+
+
+def test_pmw_serve_refuses_a_missing_directory(tmp_path, capsys):
+    code, _, err = _pmw(capsys, "serve", tmp_path / "nope")
+    assert code == 2 and err.startswith("pmw: error: ") and len(err.splitlines()) == 1
+
+
+def test_pmw_serve_serves_ranges_until_stopped(site):
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-m", "pmwm_codec", "serve", str(site), "--port", "0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+                            cwd=Path(__file__).resolve().parents[1])
+    try:
+        line = proc.stdout.readline()
+        assert line.startswith("serving ") and "http://127.0.0.1:" in line
+        url = line.split(" at ")[1].split()[0] + "x.pmw"
+        source = UrlSource(url, max_chunks=1)
+        assert pmwm_codec.decode(source, chunks=1).faces.shape[0] > 0 and source.ranged
+    finally:
+        proc.terminate()
+        proc.wait(10)
+        proc.stdout.close()
