@@ -199,3 +199,23 @@ def test_chunk_mac_recomputed_from_the_spec_text_matches_the_file():
         h.update(len(part).to_bytes(8, "little") + part)
     assert h.hexdigest() == entry["mac"]
     assert mac_key == key.mac_key()
+
+
+def test_an_index_entry_without_a_canonical_form_fails_its_mac_instead_of_crashing():
+    """A crafted entry holding a non-finite number, or a base MAC that is not hex, is not the key holder's."""
+    from pmwm_codec.format import ChunkEvent, iter_events
+    from pmwm_codec.format.mac import MacChecker
+
+    data, key, _ = marked_sphere(4)
+
+    def answers(edit):
+        events = list(iter_events(data))
+        edit(events[0].extension)
+        checker = MacChecker(key.mac_key())
+        return [answer for e in events if (answer := checker.on_event(e)) is not NotImplemented
+                and isinstance(e, ChunkEvent)]
+
+    assert all(a is True for a in answers(lambda ext: None))
+    infinite = answers(lambda ext: ext["chunks"][0].update(geometricError=float("inf")))
+    assert infinite[0] is False and all(a is True for a in infinite[1:])
+    assert all(a is False for a in answers(lambda ext: ext.update(baseMac="not hex")))
