@@ -2,7 +2,7 @@
 
 With the key and the reference watermark the verifier knows the code every
 carrier should hold: its message symbol plus, for a bound mark (``binding``
-``ring-v1``), a keyed pseudo-random offset of its stream slot and of the
+``ring-v2``), a keyed pseudo-random offset of its stream slot and of the
 quantized shape of its ring (:func:`~.codec.binding_offsets`).  A code read is
 *consistent* when it equals the expected code under the ring as read or one of
 its ambiguous readings (a descriptor value within :data:`~.codec.RING_EPS` of a
