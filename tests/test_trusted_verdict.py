@@ -246,7 +246,7 @@ def test_the_untouched_stream_is_authentic_with_nothing_flagged(marked):
     v = verify_stream(data, key)
     assert v.verdict == "authentic"
     assert v.as_json()["tamper"] == {"flagged": [], "fraction": 0.0}
-    assert v.as_json()["binding"] == "ring-v1"
+    assert v.as_json()["binding"] == "ring-v2"
 
 
 def test_a_legacy_mark_without_binding_is_never_authentic(marked):

@@ -319,7 +319,7 @@ def render(results, info, command) -> str:
     L.append(f"Verdict rule (pmwm_codec/watermark/verify.py): inconclusive if fewer than {MIN_CARRIERS} codes read; "
              f"not-authentic if the binomial tail P[X >= matches | n, 2^-bits] >= {ALPHA:g}; otherwise tampered if any "
              "carrier's code is consistent with no reading of its ring (or the mesh has foreign vertices), "
-             "authentic if every one is and the mark is bound (ring-v1), inconclusive for a legacy mark. "
+             "authentic if every one is and the mark is bound (ring-v2), inconclusive for a legacy mark. "
              "A wrong key's tail below the threshold would be a false `tampered` or `authentic`.")
     L.append("")
     return "\n".join(L)

@@ -19,10 +19,10 @@ the watermark.  The removed vertices of one batch are pairwise non-adjacent, so
 no carrier's ring holds another carrier of its batch (the paper's embedding
 dependency).
 
-**Binding** (``binding`` ``ring-v1``, spec/watermark.md §5): the code a carrier holds
-is its message symbol plus :func:`binding_offsets` -- a keyed BLAKE2b PRF of its stream
-slot and of :func:`ring_descriptor`, the similarity-invariant, quantized shape of its ring
-at split time -- mod ``2**bits``, so codes read from one mesh are worthless on another
+**Binding** (``binding`` ``ring-v2``, spec/watermark.md §5): the code a carrier holds
+is its message symbol plus :func:`binding_offsets` -- SipHash-2-4 (:func:`siphash24`, all the
+carriers of a batch at once), keyed from the secret, of its stream slot and of
+:func:`ring_descriptor`, the similarity-invariant, quantized shape of its ring at split time -- mod ``2**bits``, so codes read from one mesh are worthless on another
 without the key.  Files without ``binding`` are legacy marks (read, never authentic).
 
 Carriers are numbered in stream order: batch 0 (coarsest) first; inside batch
@@ -55,7 +55,6 @@ Modes
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -240,7 +239,7 @@ def place_codes(target, centroid, codes, nbar, scale, bits):
 # --------------------------------------------------------------------------- ring binding
 
 #: The keyed binding of every code to the ring it sits on (public: ``binding`` in the file).
-BINDING = "ring-v1"
+BINDING = "ring-v2"
 #: Descriptor bins per unit of normalized ring distance, and per octave of ring size.
 RING_STEPS = 32
 #: A descriptor value closer than this (in bins) to a bin boundary is read in both bins.
@@ -248,7 +247,7 @@ RING_EPS = 1.0 / 128
 #: At most this many ambiguous values of one carrier are tried both ways (2**3 alternatives).
 MAX_AMBIGUOUS = 3
 ALTERNATIVES = 1 << MAX_AMBIGUOUS
-BINDING_LABEL = b"ring-binding/v1"
+BINDING_LABEL = b"ring-binding/v2"
 
 
 @dataclass(frozen=True)
@@ -311,38 +310,126 @@ def ring_descriptor(positions: np.ndarray, topo, nbar: float) -> RingDescriptor:
     return RingDescriptor(q.astype(np.int64), starts, vertex, near, np.minimum(frac, 1.0 - frac))
 
 
-def _prf(mac: bytes, slot: int, values: np.ndarray) -> int:
-    """The keyed PRF: BLAKE2b-64 keyed with ``mac`` over uint64_le(slot) + int64_le values."""
-    h = hashlib.blake2b(int(slot).to_bytes(8, "little"), key=mac, digest_size=8)
-    h.update(np.ascontiguousarray(values, "<i8").tobytes())
-    return int.from_bytes(h.digest(), "little")
+#: SipHash initial state constants ("somepseudorandomlygeneratedbytes"), v0 .. v3.
+_SIP_IV = np.array([0x736F6D6570736575, 0x646F72616E646F6D, 0x6C7967656E657261, 0x7465646279746573], np.uint64)
+#: Rotations of (v1, v3) in the first and the second half of a SipRound, and their complements.
+_ROT_1, _ROT_2 = np.array([[13], [16]], np.uint64), np.array([[17], [21]], np.uint64)
+_ROT_1C, _ROT_2C = np.uint64(64) - _ROT_1, np.uint64(64) - _ROT_2
+_U32, _U56 = np.uint64(32), np.uint64(56)
 
 
-def binding_offsets(mac: bytes, slots: np.ndarray, desc: RingDescriptor, bits: int, which=None, *,
+def _rotl(x: np.ndarray, r: np.ndarray, rc: np.ndarray, tmp: np.ndarray) -> None:
+    """``x <<<= r`` in place (uint64 lanes; ``rc = 64 - r``; ``tmp`` scratch of x's shape)."""
+    np.right_shift(x, rc, out=tmp)
+    np.left_shift(x, r, out=x)
+    np.bitwise_or(x, tmp, out=x)
+
+
+def _sip_rounds(state: np.ndarray, rounds: int) -> None:
+    """``rounds`` SipRounds in place over lanes: ``state`` (4, w) uint64 rows v0, v1, v2, v3."""
+    a, b = state[0::2], state[1::2]  # (v0, v2), (v1, v3)
+    tmp, tmp1 = np.empty_like(b), np.empty_like(b[0])
+    for _ in range(rounds):
+        a += b  # v0 += v1; v2 += v3
+        _rotl(b, _ROT_1, _ROT_1C, tmp)  # v1 <<<= 13; v3 <<<= 16
+        b ^= a  # v1 ^= v0; v3 ^= v2
+        _rotl(a[0], _U32, _U32, tmp1)  # v0 <<<= 32
+        a += b[::-1]  # v0 += v3; v2 += v1
+        _rotl(b, _ROT_2, _ROT_2C, tmp)  # v1 <<<= 17; v3 <<<= 21
+        b ^= a[::-1]  # v1 ^= v2; v3 ^= v0
+        _rotl(a[1], _U32, _U32, tmp1)  # v2 <<<= 32
+
+
+def siphash24(key: bytes, message: np.ndarray, nbytes: np.ndarray) -> np.ndarray:
+    """SipHash-2-4 (Aumasson & Bernstein 2012) of w byte strings at once.
+
+    ``key`` 16 bytes (``k0``, ``k1`` little-endian); message ``i`` is ``message[i, :nbytes[i]]``
+    (``message`` (w, B) uint8, zero beyond each message, ``B >= 8 * (max(nbytes) // 8 + 1)``;
+    ``nbytes`` (w,) int64).  Returns (w,) uint64: the standard 8-byte output read little-endian.
+    Lanes are sorted longest first, so each 8-byte block compresses a prefix of them.
+    """
+    nbytes = np.asarray(nbytes, np.int64)
+    k0, k1 = np.frombuffer(bytes(key[:16]), "<u8").astype(np.uint64)
+    order = np.argsort(-nbytes, kind="stable")
+    full = nbytes[order] // 8  # whole blocks; then the last block: the tail bytes and the length byte
+    words = np.ascontiguousarray(np.asarray(message, np.uint8)[order]).view("<u8").astype(np.uint64)
+    state = np.empty((4, len(full)), np.uint64)
+    state[:] = (_SIP_IV ^ np.array([k0, k1, k0, k1], np.uint64))[:, None]
+    lanes = np.arange(len(full))
+    with np.errstate(over="ignore"):
+        for j in range(int(full[0]) + 1 if len(full) else 0):
+            live = int(np.searchsorted(-full, -j, side="left"))  # lanes with more than j whole blocks
+            if j < int(full[0]):
+                m = words[:live, j]
+            else:
+                live, m = len(full), words[lanes, full] | ((nbytes[order].astype(np.uint64) & np.uint64(0xFF)) << _U56)
+            state[3, :live] ^= m
+            _sip_rounds(state[:, :live], 2)
+            state[0, :live] ^= m
+        state[2] ^= np.uint64(0xFF)
+        _sip_rounds(state, 4)
+    out = np.empty(len(full), np.uint64)
+    out[order] = state[0] ^ state[1] ^ state[2] ^ state[3]
+    return out
+
+
+def binding_key(key) -> bytes:
+    """The 16-byte SipHash key of the ring binding: the first 16 bytes of ``key.derived_key(BINDING_LABEL)``."""
+    return key.derived_key(BINDING_LABEL)[:16]
+
+
+def _ambiguous(desc: RingDescriptor, idx: np.ndarray, inside: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ambiguous values of w carriers whose descriptors sit at ``idx`` (w, L) (``inside``: real values).
+
+    Returns ``(column (w, t), step (w, t), count (w,))``, ``t = min(L, MAX_AMBIGUOUS)``: per carrier the
+    positions in its descriptor of its ambiguous values nearest a boundary first (ties: descriptor
+    order), the +-1 that moves each into its neighbouring bin, and how many there are (<= t).
+    """
+    near = np.where(inside, desc.near[idx], 0)
+    close = np.where(near != 0, desc.closeness[idx], np.inf)
+    column = np.argsort(close, axis=1, kind="stable")[:, :MAX_AMBIGUOUS]
+    count = np.isfinite(np.take_along_axis(close, column, 1)).sum(axis=1)
+    return column, np.take_along_axis(near, column, 1), count
+
+
+def binding_offsets(prf_key: bytes, slots: np.ndarray, desc: RingDescriptor, bits: int, which=None, *,
                     alternatives: bool = False) -> np.ndarray:
-    """Keyed code offsets of carriers ``which`` (default all) of one batch.
+    """Keyed code offsets of carriers ``which`` (default all) of one batch, all at once.
 
-    ``slots`` (k,) int64 their stream slots.  Returns (w, A) int64: column 0 the offset of the
-    descriptor as computed; with ``alternatives`` (A = :data:`ALTERNATIVES`) the further
-    columns hold the offsets of its ambiguous readings (the up to :data:`MAX_AMBIGUOUS`
-    values nearest a boundary, flipped in every combination), -1 where there are none.
+    ``prf_key`` the 16-byte :func:`binding_key`; ``slots`` (k,) int64 the carriers' stream slots.
+    Carrier i's offset is ``siphash24(prf_key, uint64_le(slot_i) || int16_le(D_i)) mod 2**bits``
+    with ``D_i`` its descriptor values saturated to int16 (spec/watermark.md §5).  Returns (w, A)
+    int64: column 0 the offset of the descriptor as computed; with ``alternatives``
+    (A = :data:`ALTERNATIVES`) column ``m`` the reading with the ``t``-th ambiguous value
+    (:func:`_ambiguous`) moved to its neighbouring bin for every bit ``t`` set in ``m``, -1 where
+    the carrier has fewer.
     """
     which = np.arange(len(slots)) if which is None else np.asarray(which, np.int64)
-    width = ALTERNATIVES if alternatives else 1
-    out = np.full((len(which), width), -1, np.int64)
-    mask = (1 << bits) - 1
-    for row, i in enumerate(which):
-        lo, hi = desc.starts[i], desc.starts[i + 1]
-        q = desc.q[lo:hi]
-        out[row, 0] = _prf(mac, slots[i], q) & mask
-        amb = np.flatnonzero(desc.near[lo:hi]) if alternatives else ()
-        if len(amb) > MAX_AMBIGUOUS:
-            amb = amb[np.argsort(desc.closeness[lo:hi][amb], kind="stable")[:MAX_AMBIGUOUS]]
-        for m in range(1, 1 << len(amb)):
-            flip = amb[[(m >> t) & 1 == 1 for t in range(len(amb))]]
-            alt = q.copy()
-            alt[flip] += desc.near[lo:hi][flip]
-            out[row, m] = _prf(mac, slots[i], alt) & mask
+    out = np.full((len(which), ALTERNATIVES if alternatives else 1), -1, np.int64)
+    if not len(which):
+        return out
+    lo = desc.starts[which]
+    n = desc.starts[which + 1] - lo
+    col = np.arange(int(n.max()))
+    inside = col < n[:, None]
+    idx = np.where(inside, lo[:, None] + col, 0)
+    values = np.where(inside, desc.q[idx], 0)  # (w, L) int64
+    lane = np.arange(len(which))  # one lane per reading: carrier, flip mask
+    flips = np.zeros(len(which), np.int64)
+    if alternatives:
+        column, step, count = _ambiguous(desc, idx, inside)
+        lane = np.repeat(lane, 1 << count)
+        flips = np.arange(len(lane)) - np.repeat(np.cumsum(1 << count) - (1 << count), 1 << count)
+        values = values[lane]
+        for t in range(column.shape[1]):
+            rows = np.flatnonzero((flips >> t) & 1)
+            values[rows, column[lane[rows], t]] += step[lane[rows], t]
+    w, width = values.shape
+    message = np.zeros((w, 8 * ((8 + 2 * width) // 8 + 1)), np.uint8)  # room for the longest's last block
+    message[:, :8] = np.asarray(slots, "<u8")[which][lane].view(np.uint8).reshape(w, 8)
+    message[:, 8 : 8 + 2 * width] = np.clip(values, -(1 << 15), (1 << 15) - 1).astype("<i2").view(np.uint8)
+    h = siphash24(prf_key, message, 8 + 2 * n[lane])
+    out[lane, flips] = (h & np.uint64((1 << bits) - 1)).astype(np.int64)
     return out
 
 
@@ -430,8 +517,7 @@ class Embedder:
             codes = self.codes[code_slots[live]]
             if self.params.binding:
                 desc = ring_descriptor(state.positions, topo, self.nbar)
-                mac = self.key.derived_key(BINDING_LABEL)
-                offsets = binding_offsets(mac, slots, desc, self.params.bits, np.flatnonzero(live))[:, 0]
+                offsets = binding_offsets(binding_key(self.key), slots, desc, self.params.bits, np.flatnonzero(live))[:, 0]
                 codes = (codes + offsets) % (1 << self.params.bits)
             pts, ok = place_codes(
                 target[live, :3], topo.centroid()[live, :3], codes, self.nbar, self.params.scale, self.params.bits,
@@ -514,7 +600,7 @@ class Extractor:
 
     def __post_init__(self):
         self.alternates = np.full((self.params.carriers, ALTERNATIVES), -1, dtype=np.int64)
-        self._mac = self.key.derived_key(BINDING_LABEL) if self.params.binding else None
+        self._prf_key = binding_key(self.key) if self.params.binding else None
 
     @property
     def received(self) -> np.ndarray:
@@ -541,12 +627,12 @@ class Extractor:
         scale = self.params.scale if scale is None else scale
         rows = np.flatnonzero(live)
         codes = read_codes(points[live], centroid[live], nbar, scale, self.params.bits)
-        if self._mac is None:
+        if self._prf_key is None:
             self.alternates[slots[live], 0] = codes
         else:
             if descriptor is None:
                 raise ValueError("a bound watermark is read with the ring descriptors of its carriers")
-            offsets = binding_offsets(self._mac, stream, descriptor, self.params.bits, rows, alternatives=True)
+            offsets = binding_offsets(self._prf_key, stream, descriptor, self.params.bits, rows, alternatives=True)
             self.alternates[slots[live]] = np.where(offsets >= 0, (codes[:, None] - offsets) % (1 << self.params.bits), -1)
         return slots[live], rows
 

@@ -39,7 +39,8 @@ carry no such promise across numpy releases::
   (:mod:`pmwm_codec.format.mac`); a label of its own, so a MAC reveals nothing of the
   other mappings.
 * :meth:`derived_key` ``(label)``: ``stream(b"key/" + label, 0, 32)``, a 32-byte key for a
-  keyed PRF/MAC (BLAKE2b) that never exposes the secret itself (e.g. the ring binding).
+  keyed PRF/MAC that never exposes the secret itself (e.g. the ring binding, SipHash-2-4 keyed
+  with its first 16 bytes under the label ``ring-binding/v2``).
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 With the key and the reference watermark the verifier knows the code every
 carrier should hold: its message symbol plus, for a bound mark (``binding``
-``ring-v1``), a keyed pseudo-random offset of its stream slot and of the
+``ring-v2``), a keyed pseudo-random offset of its stream slot and of the
 quantized shape of its ring (:func:`~.codec.binding_offsets`).  A code read is
 *consistent* when it equals the expected code under the ring as read or one of
 its ambiguous readings (a descriptor value within :data:`~.codec.RING_EPS` of a
@@ -191,7 +191,7 @@ class Verifier:
             out.bit_exact = bool(np.array_equal(img, self.reference))
         if self.expected is not None:
             out.code_match = (m / n) if n else None
-            out.ber = code_ber(self.extractor.received, self.expected, self.params.bits)
+            out.ber = code_ber(received, self.expected, self.params.bits)
             out.inconsistent = int(self.inconsistent().sum())
         return out
 
@@ -205,7 +205,8 @@ class WatermarkEstimate:
     ``verdict`` (see :func:`verdict`); with a reference image: ``nc``,
     ``psnr_db`` (inf when bit-exact), ``centered_nc``, ``bit_exact``; with the
     codes the reference implies: ``code_match`` (fraction of codes read that
-    match), ``ber`` (bit error rate of the codes read) and ``inconsistent`` (carriers
+    match), ``ber`` (bit error rate of the codes read, a ring on a boundary taking its agreeing
+    reading when the mark is there, as for the image) and ``inconsistent`` (carriers
     whose code reads under no reading of their ring).
     """
 
