@@ -528,8 +528,8 @@ def render(results, info, command) -> str:
     )
     L.append("")
     L.append(
-        "These machines are shared and noisy: other helpers (five other agents) were running test suites "
-        "on the same 2 cores while this ran; ours and the peer alternate run by run, so each ratio compares "
+        "These machines are shared and noisy (the load average above says how busy this one was); "
+        "ours and the peer alternate run by run, so each ratio compares "
         "runs made under the same load. Compare the ratios within one table, not absolute times. Times are medians "
         "(repeat counts in the table). `OPENBLAS_CORETYPE` is not set: nothing here goes through BLAS "
         "in a way that matters (the work is sorts, gathers, bincounts and zstd)."
