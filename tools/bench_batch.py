@@ -103,9 +103,11 @@ def render(results, info, args, vertices, command, load_before, load_after) -> s
         "",
         table(["workers", "median assets/s", "runs (assets/s)", "scaling vs 1 worker", "cluster start"], rows),
         "",
-        "The machine is shared with other agents' test suites while this runs (see the load average): both "
-        "workers compete with them for the 2 cores, so the 2-worker figure and the ratio are noisy and "
-        "understate the scaling of an idle machine.",
+        "The load averages above say how busy the shared machine was: with other work on the 2 cores the "
+        "2-worker figure and the ratio are noisy and understate the scaling of an idle machine. Row 0 is "
+        "the same encodes in one process without Dask or a child process per asset: the gap to 1 worker "
+        "is the cost of a killable child per asset (process start and imports), which dominates for "
+        "small assets like these.",
     ])
 
 
