@@ -97,8 +97,8 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
             block = source.read(1 << 16 if left is None else min(1 << 16, left))
             if not block:
                 break
+            _count(self.server, len(block))  # before the write: a client never sees bytes not yet counted
             outputfile.write(block)
-            _count(self.server, len(block))
             if left is not None:
                 left -= len(block)
 
