@@ -1,0 +1,232 @@
+/**
+ * PMWM_progressive_mesh for glTF-Transform (@gltf-transform/core, an optional peer dependency):
+ * a document read with this extension registered keeps every progressive primitive's stream, so
+ * `read()` then `write()` of a .pmw gives a .pmw again instead of a plain GLB of the base meshes.
+ *
+ *   import { NodeIO } from '@gltf-transform/core';
+ *   import { PMWMProgressiveMesh } from 'pmwm-progressive/gltf-transform';
+ *   const io = new NodeIO().registerExtensions([PMWMProgressiveMesh]);
+ *   await io.write('out.pmw', await io.read('in.pmw'));
+ *
+ * Read: each progressive primitive gets a `ProgressiveMesh` extension property holding the
+ * extension object without the chunks' `bufferView` indices (`getInfo()`), the stored chunk bytes
+ * as read (`getChunks()`: Uint8Array[], one zstd frame each), each chunk's place in the stream
+ * (`getStreamOffsets()`: its BIN byte offset in the file read) and a fingerprint of the base mesh.
+ *
+ * Write: the chunks of all progressive primitives are written as one stream, in the order they had
+ * in the file read, as bufferViews placed after every other bufferView of the buffer (glTF-Transform
+ * writes accessors, then images, then extension bufferViews: base, document data, chunks, as
+ * spec/bitstream.md §4 asks), each starting at a multiple of 4 with zero gaps; the chunk index's
+ * `bufferView` entries are rewritten. The payload bytes are never touched.
+ *
+ * A vertex split names base vertices by index, so the stream is only valid on the exact base mesh it
+ * was encoded against. Before writing, the base mesh (POSITION, indices and the attributes the
+ * stream carries, values and order) is compared with its fingerprint taken on read; a transform
+ * that welded, reordered, simplified, quantized or otherwise changed it makes the write throw
+ * `BaseMeshChangedError`. A Draco base (KHR_draco_mesh_compression registered on read) can be written
+ * back only as plain accessors: re-encoding it renumbers the vertices, so writing with the Draco
+ * extension still in the document throws `BaseMeshChangedError` as well.
+ */
+import { Extension, ExtensionProperty, PropertyType } from '@gltf-transform/core';
+import { blake2b } from '@noble/hashes/blake2.js';
+import { PmwError } from './errors.js';
+
+const NAME = 'PMWM_progressive_mesh';
+const DRACO = 'KHR_draco_mesh_compression';
+
+/** Writing would break a progressive stream: its base mesh changed since it was read. */
+export class BaseMeshChangedError extends PmwError {
+  /** @param {string} message @param {{mesh: number, primitive: number}} where */
+  constructor(message, where) {
+    super(message);
+    this.mesh = where.mesh;
+    this.primitive = where.primitive;
+  }
+}
+
+/** The PMWM_progressive_mesh object of one primitive: the stream, kept as read. */
+export class ProgressiveMesh extends ExtensionProperty {
+  static EXTENSION_NAME = NAME;
+
+  init() {
+    this.extensionName = NAME;
+    this.propertyType = 'ProgressiveMesh';
+    this.parentTypes = [PropertyType.PRIMITIVE];
+  }
+
+  getDefaults() {
+    return Object.assign(super.getDefaults(), {
+      info: null, chunks: [], streamOffsets: [], fingerprint: '', dracoBase: false,
+    });
+  }
+
+  /** @returns {object} the extension object, `chunks[k]` without `bufferView` */
+  getInfo() { return this.get('info'); }
+  setInfo(info) { return this.set('info', info); }
+  /** @returns {Uint8Array[]} stored chunk bytes, in this primitive's chunk order */
+  getChunks() { return this.get('chunks'); }
+  setChunks(chunks) { return this.set('chunks', chunks); }
+  /** @returns {number[]} each chunk's BIN byte offset in the file read: its place in the stream */
+  getStreamOffsets() { return this.get('streamOffsets'); }
+  setStreamOffsets(offsets) { return this.set('streamOffsets', offsets); }
+  /** @returns {string} hex BLAKE2b-128 of the base mesh as read (baseFingerprint) */
+  getFingerprint() { return this.get('fingerprint'); }
+  setFingerprint(fingerprint) { return this.set('fingerprint', fingerprint); }
+  /** @returns {boolean} whether the base was stored with KHR_draco_mesh_compression */
+  getDracoBase() { return this.get('dracoBase'); }
+  setDracoBase(draco) { return this.set('dracoBase', draco); }
+}
+
+/**
+ * Fingerprint of a primitive's base mesh: counts, POSITION bytes, indices as uint32 values and the
+ * bytes of every attribute the stream carries, in order.
+ * @param {import('@gltf-transform/core').Primitive} primitive
+ * @param {object} info the extension object (its `attributes[].semantic` are hashed)
+ * @returns {{hex: string, vertices: number, faces: number}}
+ */
+export function baseFingerprint(primitive, info) {
+  const position = primitive.getAttribute('POSITION');
+  const indices = primitive.getIndices();
+  const vertices = position ? position.getCount() : 0;
+  const faces = indices ? indices.getCount() / 3 : 0;
+  const hash = blake2b.create({ dkLen: 16 });
+  const section = (label, array) => {
+    const bytes = array ? new Uint8Array(array.buffer, array.byteOffset, array.byteLength) : new Uint8Array(0);
+    hash.update(new TextEncoder().encode(`${label}:${bytes.length};`));
+    hash.update(bytes);
+  };
+  section(`mode ${primitive.getMode()} vertices ${vertices} faces ${faces} POSITION`, position?.getArray());
+  section('indices', indices ? Uint32Array.from(indices.getArray()) : null);
+  for (const { semantic } of info.attributes ?? []) section(semantic, primitive.getAttribute(semantic)?.getArray());
+  const hex = Array.from(hash.digest(), (b) => b.toString(16).padStart(2, '0')).join('');
+  return { hex, vertices, faces };
+}
+
+/** Every progressive primitive of a document: [{mesh, primitive, meshIndex, primitiveIndex, stream}]. */
+function progressivePrimitives(document) {
+  const out = [];
+  document.getRoot().listMeshes().forEach((mesh, meshIndex) => {
+    mesh.listPrimitives().forEach((primitive, primitiveIndex) => {
+      const stream = primitive.getExtension(NAME);
+      if (stream) out.push({ mesh, primitive, meshIndex, primitiveIndex, stream });
+    });
+  });
+  return out;
+}
+
+export class PMWMProgressiveMesh extends Extension {
+  static EXTENSION_NAME = NAME;
+  extensionName = NAME;
+  prewriteTypes = [PropertyType.BUFFER];
+
+  /** @returns {ProgressiveMesh} a new, empty extension property */
+  createProgressiveMesh() {
+    return new ProgressiveMesh(this.document.getGraph());
+  }
+
+  /** @param {import('@gltf-transform/core').ReaderContext} context */
+  read(context) {
+    const json = context.jsonDoc.json;
+    (json.meshes ?? []).forEach((meshDef, meshIndex) => {
+      meshDef.primitives.forEach((primitiveDef, primitiveIndex) => {
+        const ext = primitiveDef.extensions?.[NAME];
+        if (!ext) return;
+        const primitive = context.meshes[meshIndex].listPrimitives()[primitiveIndex];
+        const chunks = ext.chunks.map((entry) => context.bufferViews[entry.bufferView].slice());
+        const streamOffsets = ext.chunks.map((entry) => json.bufferViews[entry.bufferView].byteOffset ?? 0);
+        const info = { ...ext, chunks: ext.chunks.map(({ bufferView, ...entry }) => entry) };
+        primitive.setExtension(NAME, this.createProgressiveMesh()
+          .setInfo(info).setChunks(chunks).setStreamOffsets(streamOffsets)
+          .setFingerprint(baseFingerprint(primitive, info).hex)
+          .setDracoBase(Boolean(primitiveDef.extensions[DRACO])));
+      });
+    });
+    return this;
+  }
+
+  /** Checks every base, then queues the chunks (whole stream, in stream order) as bufferViews. */
+  prewrite(context, propertyType) {
+    if (propertyType !== PropertyType.BUFFER) return this;
+    const root = this.document.getRoot();
+    const draco = root.listExtensionsUsed().some((e) => e.extensionName === DRACO);
+    const queued = [];
+    for (const { primitive, meshIndex, primitiveIndex, stream } of progressivePrimitives(this.document)) {
+      const where = { mesh: meshIndex, primitive: primitiveIndex };
+      const label = `mesh ${meshIndex} primitive ${primitiveIndex}`;
+      const now = baseFingerprint(primitive, stream.getInfo());
+      if (now.hex !== stream.getFingerprint()) {
+        throw new BaseMeshChangedError(`${label}: the base mesh of a ${NAME} primitive changed since it was read `
+          + `(now ${now.vertices} vertices, ${now.faces} faces); its vertex splits name base vertices by index, `
+          + `so the stream would no longer decode. Transform before encoding, or remove the extension `
+          + `(primitive.setExtension('${NAME}', null)) to write a plain glTF.`, where);
+      }
+      if (stream.getDracoBase() && draco) {
+        throw new BaseMeshChangedError(`${label}: the base was read from ${DRACO}; re-encoding it renumbers `
+          + `its vertices, which the ${NAME} stream refers to by index. Dispose the ${DRACO} extension `
+          + `to write the base as plain accessors.`, where);
+      }
+      const buffer = primitive.getAttribute('POSITION')?.getBuffer() ?? root.listBuffers()[0];
+      stream.getChunks().forEach((bytes, k) => queued.push({ buffer, stream, k, order: stream.getStreamOffsets()[k], view: bytes.subarray(0) }));
+    }
+    queued.sort((a, b) => a.order - b.order);
+    this._queued = queued;
+    for (const q of queued) {
+      if (!context.otherBufferViews.has(q.buffer)) context.otherBufferViews.set(q.buffer, []);
+      context.otherBufferViews.get(q.buffer).push(q.view);
+    }
+    return this;
+  }
+
+  /** @param {import('@gltf-transform/core').WriterContext} context */
+  write(context) {
+    const queued = this._queued ?? [];
+    this._queued = null;
+    const json = context.jsonDoc.json;
+    const views = new Map(queued.map((q) => [q, context.otherBufferViewsIndexMap.get(q.view)]));
+    for (const buffer of new Set(queued.map((q) => q.buffer))) {
+      alignTail(context, context.bufferIndexMap.get(buffer), queued.filter((q) => q.buffer === buffer).map((q) => views.get(q)));
+    }
+    for (const { mesh, primitive, stream } of progressivePrimitives(this.document)) {
+      const meshDef = json.meshes[context.meshIndexMap.get(mesh)];
+      const primitiveDef = meshDef.primitives[mesh.listPrimitives().indexOf(primitive)];
+      const info = stream.getInfo();
+      const chunks = info.chunks.map((entry, k) => ({
+        bufferView: views.get(queued.find((q) => q.stream === stream && q.k === k)), ...entry,
+      }));
+      primitiveDef.extensions = { ...primitiveDef.extensions, [NAME]: { ...info, chunks } };
+    }
+    return this;
+  }
+}
+
+/**
+ * Moves the bufferViews from the first chunk's onward (the tail glTF-Transform writes extension
+ * bufferViews into, unpadded) so each starts at a multiple of 4, zero-filling the gaps, and fixes
+ * the buffer's byteLength and bytes.
+ * @param {import('@gltf-transform/core').WriterContext} context
+ * @param {number} bufferIndex @param {number[]} chunkViews bufferView indices of the chunks
+ */
+function alignTail(context, bufferIndex, chunkViews) {
+  const json = context.jsonDoc.json;
+  const bufferDef = json.buffers[bufferIndex];
+  const key = bufferDef.uri ?? '@glb.bin';
+  const old = context.jsonDoc.resources[key];
+  const start = Math.min(...chunkViews.map((i) => json.bufferViews[i].byteOffset));
+  const tail = json.bufferViews.filter((v) => v.buffer === bufferIndex && (v.byteOffset ?? 0) >= start)
+    .sort((a, b) => a.byteOffset - b.byteOffset);
+  const align = (n) => Math.ceil(n / 4) * 4;
+  let end = align(start);
+  const placed = tail.map((view) => {
+    const at = end;
+    end = align(at + view.byteLength);
+    return { view, at };
+  });
+  const bytes = new Uint8Array(end);
+  bytes.set(old.subarray(0, start));
+  for (const { view, at } of placed) {
+    bytes.set(old.subarray(view.byteOffset, view.byteOffset + view.byteLength), at);
+    view.byteOffset = at;
+  }
+  context.jsonDoc.resources[key] = bytes;
+  bufferDef.byteLength = end;
+}

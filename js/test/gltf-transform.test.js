@@ -1,0 +1,127 @@
+/**
+ * PMWMProgressiveMesh keeps a .pmw's progressive stream through glTF-Transform read() + write():
+ * the extension object and every chunk's stored bytes survive, the chunks are written after all
+ * other bufferViews, 4-aligned, in stream order, and our decoder gives the same mesh at every level.
+ * A changed base mesh (or a Draco base about to be re-encoded) makes the write throw.
+ */
+import assert from 'node:assert/strict';
+import { existsSync, mkdtempSync, readFileSync, rmSync, writeFileSync } from 'node:fs';
+import { tmpdir } from 'node:os';
+import { join } from 'node:path';
+import { spawnSync } from 'node:child_process';
+import { test } from 'node:test';
+import { NodeIO } from '@gltf-transform/core';
+import { KHRDracoMeshCompression } from '@gltf-transform/extensions';
+import draco3d from 'draco3d';
+import { PMWMProgressiveMesh, BaseMeshChangedError } from 'pmwm-progressive/gltf-transform';
+import { PmwDecoder } from '../src/index.js';
+import { CONFORMANCE, levelDigest } from './lib/helpers.js';
+
+const NAME = 'PMWM_progressive_mesh';
+const CHECK_GLTF = join(CONFORMANCE, '..', '..', 'tools', 'js', 'check_gltf.mjs');
+const VALIDATOR = join(CONFORMANCE, '..', '..', 'tools', 'js', 'node_modules', 'gltf-validator');
+
+const load = (file) => new Uint8Array(readFileSync(join(CONFORMANCE, file)));
+
+/** The GLB's JSON and BIN payload. */
+function glbParts(bytes) {
+  const view = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength);
+  const jsonLength = view.getUint32(12, true);
+  const json = JSON.parse(new TextDecoder().decode(bytes.subarray(20, 20 + jsonLength)));
+  return { json, bin: bytes.subarray(28 + jsonLength) };
+}
+
+/** [{meshIndex, primitiveIndex, ext, chunks: Uint8Array[]}] of every progressive primitive. */
+function streams(bytes) {
+  const { json, bin } = glbParts(bytes);
+  return json.meshes.flatMap((mesh, meshIndex) => mesh.primitives.flatMap((p, primitiveIndex) => {
+    const ext = p.extensions?.[NAME];
+    if (!ext) return [];
+    const chunks = ext.chunks.map((c) => {
+      const v = json.bufferViews[c.bufferView];
+      return bin.subarray(v.byteOffset ?? 0, (v.byteOffset ?? 0) + v.byteLength);
+    });
+    return [{ meshIndex, primitiveIndex, ext, chunks }];
+  }));
+}
+
+const withoutViews = (ext) => ({ ...ext, chunks: ext.chunks.map(({ bufferView, ...entry }) => entry) });
+
+async function levels(bytes) {
+  const decoder = new PmwDecoder({ snapshots: true });
+  const results = await decoder.feed(bytes);
+  assert.equal(decoder.close().complete, true);
+  return results.map((r) => ({ vertices: r.vertexCount, faces: r.faceCount, digest: levelDigest(r.mesh) }));
+}
+
+/** The rewrite keeps the stream: same objects, same chunk bytes, chunks last, same decoded levels. */
+async function assertStreamKept(original, rewritten) {
+  const before = streams(original), after = streams(rewritten);
+  assert.deepEqual(after.map((s) => withoutViews(s.ext)), before.map((s) => withoutViews(s.ext)));
+  after.forEach((s, i) => s.chunks.forEach((bytes, k) => assert.deepEqual(bytes, before[i].chunks[k], `chunk ${k}`)));
+  const { json } = glbParts(rewritten);
+  const chunkViews = new Set(after.flatMap((s) => s.ext.chunks.map((c) => c.bufferView)));
+  const ends = json.bufferViews.filter((_, i) => !chunkViews.has(i)).map((v) => (v.byteOffset ?? 0) + v.byteLength);
+  const offsetOf = (s, k) => json.bufferViews[s.ext.chunks[k].bufferView].byteOffset;
+  const stream = after.flatMap((s) => s.chunks.map((_, k) => offsetOf(s, k))).sort((a, b) => a - b);
+  assert.ok(stream[0] >= Math.max(...ends), 'chunks come after every other bufferView');
+  for (const o of stream) assert.equal(o % 4, 0, 'chunk bufferViews start at a multiple of 4');
+  assert.deepEqual(json.extensionsUsed.includes(NAME), true);
+  assert.equal((json.extensionsRequired ?? []).includes(NAME), false);
+  assert.deepEqual(await levels(rewritten), await levels(original));
+}
+
+for (const file of ['sphere-attributes.plain.v1.pmw', 'grid-hole.plain.v1.pmw']) {
+  test(`${file}: read + write through glTF-Transform keeps the stream and decodes to the same levels`, async () => {
+    const original = load(file);
+    const io = new NodeIO().registerExtensions([PMWMProgressiveMesh]);
+    const rewritten = await io.writeBinary(await io.readBinary(original));
+    await assertStreamKept(original, rewritten);
+    // and a second round trip is a fixed point
+    assert.deepEqual(await io.writeBinary(await io.readBinary(rewritten)), rewritten);
+  });
+}
+
+test('the Khronos validator finds no error in a rewritten file (skipped without tools/js/node_modules)',
+  { skip: !existsSync(VALIDATOR) && 'gltf-validator not installed in tools/js' }, async () => {
+    const io = new NodeIO().registerExtensions([PMWMProgressiveMesh]);
+    const rewritten = await io.writeBinary(await io.readBinary(load('sphere-attributes.plain.v1.pmw')));
+    const dir = mkdtempSync(join(tmpdir(), 'pmw-gltf-transform-'));
+    try {
+      writeFileSync(join(dir, 'out.pmw'), rewritten);
+      const run = spawnSync(process.execPath, [CHECK_GLTF, join(dir, 'out.pmw')], { encoding: 'utf8' });
+      assert.equal(run.status, 0, run.stderr);
+      assert.equal(JSON.parse(run.stdout).validator.errors, 0, run.stdout);
+    } finally {
+      rmSync(dir, { recursive: true, force: true });
+    }
+  });
+
+test('a transform that changes a progressive base mesh makes write() throw BaseMeshChangedError', async () => {
+  const io = new NodeIO().registerExtensions([PMWMProgressiveMesh]);
+  const doc = await io.readBinary(load('sphere-attributes.plain.v1.pmw'));
+  const indices = doc.getRoot().listMeshes()[0].listPrimitives()[0].getIndices();
+  const swapped = indices.getArray().slice();
+  [swapped[0], swapped[1]] = [swapped[1], swapped[0]];   // one flipped triangle: counts unchanged
+  indices.setArray(swapped);
+  await assert.rejects(io.writeBinary(doc), (e) => e instanceof BaseMeshChangedError && e.mesh === 0 && e.primitive === 0);
+  // without the extension on the primitive the document writes as a plain glTF
+  doc.getRoot().listMeshes()[0].listPrimitives()[0].setExtension(NAME, null);
+  const plain = glbParts(await io.writeBinary(doc)).json;
+  assert.equal(plain.bufferViews.length, 2);
+  assert.equal(JSON.stringify(plain.meshes).includes(NAME), false);
+});
+
+test('two-primitives.draco.v1.pmw: re-encoding the Draco base is refused, a plain base keeps the stream', async () => {
+  const original = load('two-primitives.draco.v1.pmw');
+  const io = new NodeIO().registerExtensions([PMWMProgressiveMesh, KHRDracoMeshCompression])
+    .registerDependencies({
+      'draco3d.decoder': await draco3d.createDecoderModule(), 'draco3d.encoder': await draco3d.createEncoderModule(),
+    });
+  const doc = await io.readBinary(original);
+  await assert.rejects(io.writeBinary(doc), BaseMeshChangedError);
+  doc.getRoot().listExtensionsUsed().find((e) => e.extensionName === 'KHR_draco_mesh_compression').dispose();
+  const rewritten = await io.writeBinary(doc);
+  assert.equal(glbParts(rewritten).json.extensionsUsed.includes('KHR_draco_mesh_compression'), false);
+  await assertStreamKept(original, rewritten);
+});
