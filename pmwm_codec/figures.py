@@ -26,6 +26,7 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
 from .errors import PmwError
+from .watermark.image import write_image
 from .render import Camera, render
 
 INK = (40, 40, 48)
@@ -33,6 +34,7 @@ GRID = (226, 226, 232)
 PSNR_COLOR = (200, 70, 50)
 NC_COLOR = (40, 100, 190)
 CUT_COLOR = (150, 150, 150)
+
 
 
 def font(size: int = 14):
@@ -126,7 +128,7 @@ def _frames(results, directory: str) -> list:
         size = np.shape(r.watermark)[0]
         side = size * max(1, -(-FRAME_MIN_SIDE // max(size, 1)))
         path = os.path.join(directory, f"frame_{r.chunk:03d}.png")
-        watermark_tile(r, side).save(path)
+        write_image(path, watermark_tile(r, side))
         frames.append(path)
     return frames
 
@@ -333,7 +335,7 @@ def write_tamper(directory, positions, faces, flagged, watermark=None, *, title:
     path = os.path.join(os.fspath(directory), "tamper.png")
     try:
         os.makedirs(os.fspath(directory), exist_ok=True)
-        tamper_figure(positions, faces, flagged, watermark, title=title).save(path)
+        write_image(path, tamper_figure(positions, faces, flagged, watermark, title=title))
     except OSError as exc:
         raise PmwError(f"{directory}: cannot write pictures ({exc.strerror or exc})") from None
     return path
@@ -352,11 +354,11 @@ def write_figures(results, directory, *, title: str | None = None, total_bytes: 
         os.makedirs(directory, exist_ok=True)
         frames = _frames(results, directory)
         over = os.path.join(directory, "overview.png")
-        overview(results, k=k, title=title, total_bytes=total_bytes).save(over)
+        write_image(over, overview(results, k=k, title=title, total_bytes=total_bytes))
         plot = None
         if any(r.nc is not None for r in results):
             plot = os.path.join(directory, "metrics.png")
-            metrics_plot(results, title=title, total_bytes=total_bytes, bytes_received=bytes_received).save(plot)
+            write_image(plot, metrics_plot(results, title=title, total_bytes=total_bytes, bytes_received=bytes_received))
     except OSError as exc:
         raise PmwError(f"{directory}: cannot write pictures ({exc.strerror or exc})") from None
     return {"frames": frames, "overview": over, "plot": plot}

@@ -19,6 +19,7 @@ Bad input (missing file, directory, not an image, zero-size image) is an
 
 from __future__ import annotations
 
+import io
 import os
 
 import numpy as np
@@ -173,8 +174,17 @@ def save_png(path, image) -> None:
         raise ValueError(f"expected a non-empty 2-D image, got shape {a.shape}")
     if a.dtype != np.uint8:
         a = np.clip(np.rint(a.astype(np.float64)), 0, 255).astype(np.uint8)
+    write_image(path, Image.fromarray(a, mode="L"))
+
+
+def write_image(path, image: Image.Image) -> None:
+    """Write a Pillow ``image`` as a PNG at ``path``, whole or not at all (an interrupted run leaves no cut file)."""
+    from ..atomic import write_atomic
+
+    buf = io.BytesIO()
+    image.save(buf, format="PNG")
     try:
-        Image.fromarray(a, mode="L").save(os.fspath(path), format="PNG")
+        write_atomic(os.fspath(path), [buf.getvalue()])
     except OSError as exc:
         raise PmwError(f"{os.fspath(path)}: cannot write PNG ({exc.strerror or exc})") from None
 
