@@ -25,7 +25,9 @@ def test_grid_config_round_trips():
     ({**GOOD, "origin": [0, 0]}, "origin must be 3 finite numbers"),
     ({**GOOD, "origin": ["0", 0, 0]}, "origin must be finite numbers"),
     ({**GOOD, "origin": [float("nan"), 0, 0]}, "origin must be finite numbers"),
+    ({**GOOD, "origin": [10**400, 0, 0]}, "origin must be finite numbers"),  # a JSON integer no float holds
     ({**GOOD, "step": 0}, "step must be positive"),
+    ({**GOOD, "step": 10**400}, "step must be positive"),
     ({**GOOD, "step": "0.5"}, "step must be positive"),
     ({"bits": 16, "origin": [0, 0, 0]}, "needs bits, origin and step"),
 ])

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import pmwm_codec
+from pmwm_codec.errors import FormatError
 from pmwm_codec import shapes
 from pmwm_codec.stream import StreamDecoder, encode_mesh
 from pmwm_codec.verify.mesh import Reference, read_given
@@ -166,3 +167,12 @@ def test_bunny_carries_the_camera_watermark_bit_exactly_at_70_db():
     assert results[-1].psnr_db == np.inf
     half = len(buf.getvalue()) / 2
     assert [r for r in results if r.bytes_read >= half][0].psnr_db >= 25.0
+
+
+@pytest.mark.parametrize("field, value", [("scale", 10**400), ("scale", "x"), ("height", 10**400),
+                                          ("width", float("inf")), ("bits", None)])
+def test_watermark_parameters_no_number_can_hold_are_a_format_error(field, value):
+    image = np.random.default_rng(0).integers(0, 256, (8, 8)).astype(np.uint8)
+    params, _ = wm.plan(image, WatermarkKey.generate(rng=np.random.default_rng(1)), 500)
+    with pytest.raises(FormatError):
+        wm.WatermarkParams.from_config({**params.get_config(), field: value})

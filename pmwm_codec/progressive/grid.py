@@ -15,6 +15,7 @@ Both convert to the float32 values a file stores (``to_float32``) and back, chec
 
 from __future__ import annotations
 
+import math
 import numbers
 from dataclasses import dataclass
 
@@ -135,6 +136,17 @@ def _number(x) -> bool:
     return isinstance(x, numbers.Real) and not isinstance(x, bool)
 
 
+def _finite(x) -> bool:
+    """A real number (not a bool) that is finite as a float64; JSON integers too large for a
+    float (``1e400`` written out as digits) are not."""
+    if not _number(x):
+        return False
+    try:
+        return math.isfinite(float(x))
+    except OverflowError:
+        return False
+
+
 def _check_config(config, what: str, *, scalar_step: bool):
     """``(bits, origin tuple, step)`` of a grid config dict, or FormatError (the one validator)."""
     try:
@@ -143,10 +155,10 @@ def _check_config(config, what: str, *, scalar_step: bool):
         raise FormatError(f"{what}: needs bits, origin and step ({exc!r})") from None
     if not _number(bits) or not isinstance(bits, numbers.Integral) or not MIN_GRID_BITS <= bits <= MAX_GRID_BITS:
         raise FormatError(f"{what}: bits must be an integer in [{MIN_GRID_BITS}, {MAX_GRID_BITS}], got {bits!r}")
-    if not isinstance(origin, (list, tuple, np.ndarray)) or not all(_number(x) and np.isfinite(x) for x in origin):
+    if not isinstance(origin, (list, tuple, np.ndarray)) or not all(_finite(x) for x in origin):
         raise FormatError(f"{what}: origin must be finite numbers, got {origin!r}")
     steps = [step] if scalar_step else step
-    if not isinstance(steps, (list, tuple, np.ndarray)) or not all(_number(x) and np.isfinite(x) and x > 0 for x in steps):
+    if not isinstance(steps, (list, tuple, np.ndarray)) or not all(_finite(x) and x > 0 for x in steps):
         raise FormatError(f"{what}: step must be positive finite numbers, got {step!r}")
     origin = tuple(float(x) for x in origin)
     step = float(step) if scalar_step else tuple(float(x) for x in step)

@@ -172,13 +172,14 @@ class WatermarkParams:
                 fingerprint=str(cfg.get("keyFingerprint", "")), embed_from=int(cfg.get("embedFrom", 0)),
                 binding=cfg.get("binding", ""),
             )
-        except (KeyError, TypeError, ValueError):
+            height = int(cfg.get("height", p.size))
+        except (KeyError, TypeError, ValueError, OverflowError):
             raise FormatError("watermark parameters in the file are incomplete") from None
         if p.binding not in ("", BINDING):
             raise FormatError(f"unknown watermark binding {str(p.binding)[:40]!r} (this reader knows {BINDING!r})")
         if p.mode not in MODES or not 1 <= p.bits <= MAX_BITS or not (p.scale > 0 and np.isfinite(p.scale)):
             raise FormatError("watermark parameters in the file are out of range")
-        if p.size < 1 or p.size > MAX_WATERMARK_SIZE or p.size & (p.size - 1) or int(cfg.get("height", p.size)) != p.size:
+        if p.size < 1 or p.size > MAX_WATERMARK_SIZE or p.size & (p.size - 1) or height != p.size:
             raise FormatError("watermark size in the file is out of range")
         if not 0 <= p.levels <= p.size.bit_length() - 1:
             raise FormatError("watermark levels in the file do not fit its size")
