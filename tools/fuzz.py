@@ -252,11 +252,12 @@ def make_case(sample: Sample, kind: str, rng, *, json_scope: str = "all") -> byt
             for p in path[1:-1]:
                 obj = obj[p]
             r = rng.random()
-            if r < 0.15 and path[0] == "bufferViews" and path[-1] == "byteOffset":
+            is_int = isinstance(obj[path[-1]], int) and not isinstance(obj[path[-1]], bool)  # not yet replaced
+            if r < 0.15 and path[0] == "bufferViews" and path[-1] == "byteOffset" and is_int:
                 obj[path[-1]] = max(0, obj[path[-1]] - int(rng.integers(1, 400)))  # overlap
             elif r < 0.25 and path[-1] == "digest":
                 obj[path[-1]] = digest(rng.bytes(8))  # lying digest
-            elif r < 0.45 and isinstance(obj[path[-1]], int) and not isinstance(obj[path[-1]], bool):
+            elif r < 0.45 and is_int:
                 obj[path[-1]] = int(obj[path[-1]]) + int(rng.integers(-3, 4))
             else:
                 obj[path[-1]] = HOSTILE[int(rng.integers(len(HOSTILE)))]
