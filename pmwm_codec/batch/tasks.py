@@ -23,9 +23,10 @@ from .ledger import sha256_file
 
 __all__ = ["EncodeJob", "encode_task", "verify_task"]
 
-#: Imported once by each worker's forkserver, so that a forked encoder starts warm.
+#: Imported once by each worker's forkserver, so that a forked encoder starts warm
+#: (``warm`` also compiles the numba kernels: a child would otherwise pay ~0.5 s for them).
 _PRELOAD = ["pmwm_codec.batch.child", "pmwm_codec.stream.asset", "pmwm_codec.stream.encoder", "pmwm_codec.meshio",
-            "DracoPy", "jsonschema", "PIL.PngImagePlugin"]
+            "DracoPy", "jsonschema", "PIL.PngImagePlugin", "pmwm_codec.batch.warm"]
 
 
 @dataclass(frozen=True)
