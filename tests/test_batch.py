@@ -137,6 +137,30 @@ def test_changed_input_or_missing_key_is_redone_and_the_rest_skipped(tmp_path, c
     assert encode_batch(src, out, watermark=image, client=client, force=True)["ok"] == 2
 
 
+def test_a_rerun_with_another_watermark_or_key_is_never_skipped_as_done(tmp_path, client):
+    src = tmp_path / "src"
+    src.mkdir()
+    for i in range(2):
+        write_mesh(src / f"m{i}.obj", shapes.icosphere(3, noise=0.01, seed=i + 1))
+    first, second = np.full((4, 4), 255, np.uint8), np.full((4, 4), 255, np.uint8)
+    first[::2], second[:, ::2] = 0, 0
+    out = tmp_path / "out"
+    assert encode_batch(src, out, watermark=first, client=client)["ok"] == 2
+    assert encode_batch(src, out, watermark=first, client=client)["skipped"] == 2
+    before = {p: p.read_bytes() for p in out.glob("*.pmw*")}
+    redo = encode_batch(src, out, watermark=second, client=client)  # never skipped as if done
+    assert redo["failed"] == 2 and all("key holds another watermark" in r["error"] for r in redo["failures"])
+    assert {p: p.read_bytes() for p in out.glob("*.pmw*")} == before  # the keys' own outputs untouched
+    assert encode_batch(src, out, watermark=second, keys_dir=tmp_path / "keys2", client=client)["ok"] == 2
+    for i in range(2):
+        pmw = out / f"m{i}.obj.pmw"
+        assert verify_stream(pmw, tmp_path / "keys2" / f"m{i}.obj.pmw.key.json", second).verdict == "authentic"
+    collection = tmp_path / "collection.key.json"
+    assert encode_batch(src, out, watermark=second, key=collection, client=client)["ok"] == 2
+    assert encode_batch(src, out, watermark=second, key=collection, client=client)["skipped"] == 2
+    assert verify_batch(out, key=collection, client=client)["authentic"] == 2
+
+
 def test_sigkill_of_the_process_group_halfway_then_rerun_finishes_consistently(library, tmp_path, client):
     root, src = library
     out = tmp_path / "out"

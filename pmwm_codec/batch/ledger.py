@@ -4,7 +4,10 @@ Each line::
 
     {"input": "/abs/in.obj", "input_sha256": "<64 hex>" | null, "output": "/abs/out/in.obj.pmw",
      "status": "ok" | "failed" | "skipped" | "timeout", "error": "<one line>" | null,
-     "seconds": 1.25, "bytes": 10724 | null, "vertices": 800 | null}
+     "seconds": 1.25, "bytes": 10724 | null, "vertices": 800 | null, "settings_sha256": "<64 hex>"}
+
+``settings_sha256`` names what the output was made with besides the input (see
+:func:`settings_sha256`): a re-run with another watermark or key redoes the asset.
 
 Only the client appends, one whole line per finished attempt, flushed at once; a run
 killed mid-write leaves at most a cut last line, which :func:`read_ledger` ignores and the
@@ -17,10 +20,11 @@ import hashlib
 import json
 import os
 
-__all__ = ["LEDGER_NAME", "FIELDS", "STATUSES", "read_ledger", "last_rows", "LedgerWriter", "sha256_file"]
+__all__ = ["LEDGER_NAME", "FIELDS", "STATUSES", "read_ledger", "last_rows", "LedgerWriter", "sha256_file",
+           "settings_sha256"]
 
 LEDGER_NAME = "pmw-batch.jsonl"
-FIELDS = ("input", "input_sha256", "output", "status", "error", "seconds", "bytes", "vertices")
+FIELDS = ("input", "input_sha256", "output", "status", "error", "seconds", "bytes", "vertices", "settings_sha256")
 STATUSES = ("ok", "failed", "skipped", "timeout")
 
 
@@ -30,6 +34,22 @@ def sha256_file(path, block: int = 1 << 20) -> str:
     with open(path, "rb") as fh:
         for piece in iter(lambda: fh.read(block), b""):
             h.update(piece)
+    return h.hexdigest()
+
+
+def settings_sha256(image, key_mode: str, key_fingerprint: str | None) -> str:
+    """Hex SHA-256 of everything but the input that decides an output's bytes and its key.
+
+    image: (s, s) uint8 watermark or None; key_mode: ``collection`` | ``beside`` | ``keys-dir``;
+    key_fingerprint: the collection key's fingerprint (None otherwise).  The package's
+    container version is in it too, so that a newer format redoes old outputs.
+    """
+    from pmwm_codec.constants import FORMAT_VERSION
+
+    h = hashlib.sha256(json.dumps({"format": FORMAT_VERSION, "key": key_mode, "fingerprint": key_fingerprint,
+                                   "image": None if image is None else list(image.shape)}).encode())
+    if image is not None:
+        h.update(image.astype("uint8").tobytes())
     return h.hexdigest()
 
 

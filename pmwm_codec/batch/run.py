@@ -22,7 +22,7 @@ import numpy as np
 
 from pmwm_codec.errors import PmwError
 
-from .ledger import LEDGER_NAME, LedgerWriter, last_rows, read_ledger
+from .ledger import LEDGER_NAME, LedgerWriter, last_rows, read_ledger, settings_sha256
 from .sources import KEY_SUFFIX, PMW_SUFFIX, expand_sources
 from .tasks import EncodeJob, encode_task, verify_task
 
@@ -89,8 +89,10 @@ def collection_key(key_path, watermark):
 
 
 def _jobs(assets, out_dir, image, key, keys_dir, timeout, force) -> list[EncodeJob]:
-    """One EncodeJob per asset, with the ledger's verdict on what was done before."""
+    """One EncodeJob per asset, with the ledger's verdict on what was done before (with the same settings)."""
     previous = last_rows(read_ledger(os.path.join(out_dir, LEDGER_NAME)))
+    mode = "collection" if key is not None else "keys-dir" if keys_dir is not None else "beside"
+    settings = settings_sha256(image, mode, None if key is None else key.fingerprint())
     jobs = []
     for asset in assets:
         if image is None or key is not None:
@@ -100,9 +102,11 @@ def _jobs(assets, out_dir, image, key, keys_dir, timeout, force) -> list[EncodeJ
         else:
             job_key, key_path = None, asset.output + KEY_SUFFIX  # pmwm_codec.encode's default key path
         prior = previous.get(asset.input) or {}
-        done = prior.get("status") in ("ok", "skipped") and prior.get("output") == asset.output
+        done = prior.get("status") in ("ok", "skipped") and prior.get("output") == asset.output \
+            and prior.get("settings_sha256") == settings
         jobs.append(EncodeJob(asset.input, asset.output, job_key, key_path, image, timeout, force,
-                              prior.get("input_sha256") if done else None, prior.get("vertices") if done else None))
+                              prior.get("input_sha256") if done else None, prior.get("vertices") if done else None,
+                              settings))
     return jobs
 
 
@@ -174,7 +178,8 @@ def _lost(job, exc) -> dict:
     text = " ".join(f"{type(exc).__name__}: {exc}".split())
     if isinstance(job, EncodeJob):
         return {"input": job.input, "input_sha256": None, "output": job.output, "status": "failed",
-                "error": f"{job.input}: task lost ({text})", "seconds": None, "bytes": None, "vertices": None}
+                "error": f"{job.input}: task lost ({text})", "seconds": None, "bytes": None, "vertices": None,
+                "settings_sha256": job.settings}
     return {"file": job[0], "verdict": "error", "error": f"task lost ({text})"}
 
 

@@ -37,7 +37,8 @@ class EncodeJob:
     path under ``--keys-dir``, or None: a new key beside the output); ``key_path``: the
     per-asset key file that must exist beside a done output (None for a collection key or
     no watermark).  ``watermark``: (s, s) uint8 array or None.  ``prior_sha256`` /
-    ``prior_vertices``: the ledger's last ok/skipped row for this input, if any.
+    ``prior_vertices``: the ledger's last ok/skipped row for this input, if any, made with
+    the same ``settings`` (:func:`pmwm_codec.batch.ledger.settings_sha256`).
     """
 
     input: str
@@ -49,13 +50,14 @@ class EncodeJob:
     force: bool = False
     prior_sha256: str | None = None
     prior_vertices: int | None = None
+    settings: str | None = None
 
 
 def encode_task(job: EncodeJob) -> dict:
     """Encode (or skip) one asset; returns its ledger row."""
     start = time.monotonic()
     row = {"input": job.input, "input_sha256": None, "output": job.output, "status": "failed", "error": None,
-           "bytes": None, "vertices": None}
+           "bytes": None, "vertices": None, "settings_sha256": job.settings}
     try:
         row["input_sha256"] = sha256_file(job.input)
     except OSError as exc:
