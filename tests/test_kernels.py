@@ -166,3 +166,17 @@ def test_the_compiled_split_lists_the_same_ring_as_numpy(monkeypatch):
         return out
 
     assert rings(True) == rings(False)
+
+
+def test_the_cheapest_candidates_per_vertex_are_the_same_on_both_paths():
+    pytest.importorskip("numba")
+    from pmwm_codec.progressive import simplify
+
+    rng = np.random.default_rng(11)
+    for c, n in ((1, 1), (50, 7), (4000, 900)):
+        cu = rng.integers(0, n, c)
+        cost = rng.integers(0, 6, c).astype(np.float64)  # many ties: the order of equals shows
+        cost[rng.random(c) < 0.05] = np.nan
+        plain = simplify._cheapest_per_group(cu, cost, n)
+        fast = topology.compiled(simplify._cheapest_per_group_kernel)(cu, cost, n, simplify.TRIES)
+        assert np.array_equal(plain, fast)

@@ -333,14 +333,56 @@ def _candidates(F, P, Q, et, src, frozen_ext):
 
     # candidates grouped by u, cheapest first; each u offers up to TRIES of them
     # (the same order as argsort(cu * c + rank of cost): cost order, then grouped by u, stably)
-    by_cost = np.argsort(cost, kind="stable")  # ties in encounter order: the same bytes on every CPU
-    order = by_cost[group_order(cu[by_cost], n)]
-    cu, cv, ce, cost = cu[order], cv[order], ce[order], cost[order]
-    new_group = np.r_[True, cu[1:] != cu[:-1]]
-    group_start = np.flatnonzero(new_group)
-    rank_in_u = np.arange(len(cu)) - np.repeat(group_start, np.diff(np.r_[group_start, len(cu)]))
-    keep = rank_in_u < TRIES
+    kernel = compiled(_cheapest_per_group_kernel)
+    if kernel is None:
+        keep = _cheapest_per_group(cu, cost, n)
+    else:
+        keep = kernel(cu, cost, n, TRIES)
     return cu[keep], cv[keep], ce[keep], cost[keep]
+
+
+def _cheapest_per_group(cu, cost, n):
+    """Indices (k,) int64 of the ``TRIES`` cheapest candidates of every removed vertex, grouped
+    by ``cu`` (c,) int64 in ``[0, n)``, each group by ``cost`` (c,) float64 with ties in
+    encounter order (so the same bytes on every CPU)."""
+    by_cost = np.argsort(cost, kind="stable")
+    order = by_cost[group_order(cu[by_cost], n)]
+    grouped = cu[order]
+    group_start = np.flatnonzero(np.r_[True, grouped[1:] != grouped[:-1]])
+    rank_in_u = np.arange(len(order)) - np.repeat(group_start, np.diff(np.r_[group_start, len(order)]))
+    return order[rank_in_u < TRIES]
+
+
+def _cheapest_per_group_kernel(cu, cost, n, tries):
+    """Compiled :func:`_cheapest_per_group`: group by ``cu`` (counting sort), then a stable
+    insertion sort by ``cost`` inside each group (a handful of edges per vertex), NaN last."""
+    c = len(cu)
+    start = np.zeros(n + 1, np.int64)
+    for i in range(c):
+        start[cu[i] + 1] += 1
+    for u in range(n):
+        start[u + 1] += start[u]
+    fill = start[:-1].copy()
+    order = np.empty(c, np.int64)
+    for i in range(c):
+        order[fill[cu[i]]] = i
+        fill[cu[i]] += 1
+    out = np.empty(c, np.int64)
+    k = 0
+    for u in range(n):
+        a, b = start[u], start[u + 1]
+        for j in range(a + 1, b):  # stable: move an item left past strictly greater costs only
+            item = order[j]
+            x = cost[item]
+            t = j
+            while t > a and (cost[order[t - 1]] > x or (np.isnan(cost[order[t - 1]]) and not np.isnan(x))):
+                order[t] = order[t - 1]
+                t -= 1
+            order[t] = item
+        for j in range(a, min(b, a + tries)):
+            out[k] = order[j]
+            k += 1
+    return out[:k]
 
 
 def _usable(F, et, src, frozen_ext, n):
