@@ -5,7 +5,7 @@
  * A changed base mesh (or a Draco base about to be re-encoded) makes the write throw.
  */
 import assert from 'node:assert/strict';
-import { existsSync, mkdtempSync, readFileSync, rmSync, writeFileSync } from 'node:fs';
+import { existsSync, mkdtempSync, readdirSync, readFileSync, rmSync, writeFileSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { spawnSync } from 'node:child_process';
@@ -124,4 +124,50 @@ test('two-primitives.draco.v1.pmw: re-encoding the Draco base is refused, a plai
   const rewritten = await io.writeBinary(doc);
   assert.equal(glbParts(rewritten).json.extensionsUsed.includes('KHR_draco_mesh_compression'), false);
   await assertStreamKept(original, rewritten);
+});
+
+// The real glTF-Transform command line (node_modules/.bin/gltf-transform, a pinned devDependency) with
+// the package's configuration file (gltf-transform.config.mjs): `copy` keeps every chunk of the stream.
+const PACKAGE = join(CONFORMANCE, '..', '..', 'js');
+const CLI = join(PACKAGE, 'node_modules', '.bin', 'gltf-transform');
+const CONFIG = join(PACKAGE, 'gltf-transform.config.mjs');
+
+/** Runs `gltf-transform ARGS --config gltf-transform.config.mjs`: {status, stdout, stderr}. */
+const gltfTransform = (...args) => spawnSync(CLI, [...args, '--config', CONFIG], { encoding: 'utf8', timeout: 120000 });
+
+test('gltf-transform copy in.pmw out.pmw (CLI, our config) keeps every chunk byte for byte, the validator reports 0 errors / 0 warnings',
+  async () => {
+    const dir = mkdtempSync(join(tmpdir(), 'pmw-gltf-transform-cli-'));
+    try {
+      const outputs = [];
+      for (const file of ['sphere-attributes.plain.v1.pmw', 'two-primitives.draco.v1.pmw']) {
+        const out = join(dir, file);
+        const run = gltfTransform('copy', join(CONFORMANCE, file), out);
+        assert.equal(run.status, 0, run.stderr);
+        assert.deepEqual(readdirSync(dir).filter((f) => !f.endsWith('.pmw')), [], 'one GLB, no separate .bin');
+        await assertStreamKept(load(file), new Uint8Array(readFileSync(out)));
+        outputs.push(out);
+      }
+      if (!existsSync(VALIDATOR)) return;   // the stream checks above still ran
+      const check = spawnSync(process.execPath, [CHECK_GLTF, ...outputs], { encoding: 'utf8' });
+      assert.equal(check.status, 0, check.stderr);
+      for (const line of check.stdout.trim().split('\n')) {
+        const { file, validator } = JSON.parse(line);
+        assert.deepEqual([validator.errors, validator.warnings], [0, 0], `${file}: ${JSON.stringify(validator.messages)}`);
+      }
+    } finally {
+      rmSync(dir, { recursive: true, force: true });
+    }
+  });
+
+test('gltf-transform weld of a .pmw (CLI, our config) fails with BaseMeshChangedError and writes nothing', () => {
+  const dir = mkdtempSync(join(tmpdir(), 'pmw-gltf-transform-cli-'));
+  try {
+    const run = gltfTransform('weld', join(CONFORMANCE, 'sphere-attributes.plain.v1.pmw'), join(dir, 'out.pmw'));
+    assert.notEqual(run.status, 0);
+    assert.match(run.stdout + run.stderr, /base mesh of a PMWM_progressive_mesh primitive changed/);  // the CLI logs to stdout
+    assert.deepEqual(readdirSync(dir), []);
+  } finally {
+    rmSync(dir, { recursive: true, force: true });
+  }
 });
