@@ -2,8 +2,8 @@
  * The tests' way to the Python side: finds a Python that imports pmwm_codec from the repository
  * (PYTHONPATH = repository root) and encodes test meshes with `python -m pmwm_codec encode`.
  *
- * The interpreter: $PYTHON when set, else `python`, then `python3` (CI activates a venv holding the
- * project's dependencies). `python()` is null when none can import pmwm_codec; callers skip then.
+ * The interpreter: $PYTHON when set, else the repository's `.venv` (the one .ci/run makes), `python`,
+ * then `python3`. `python()` is null when none can import pmwm_codec; callers skip then.
  */
 import { spawnSync } from 'node:child_process';
 import { existsSync } from 'node:fs';
@@ -19,7 +19,7 @@ let found;
 /** The first interpreter that imports pmwm_codec's command line, or null. */
 export function python() {
   if (found !== undefined) return found;
-  const candidates = process.env.PYTHON ? [process.env.PYTHON] : ['python', 'python3'];
+  const candidates = process.env.PYTHON ? [process.env.PYTHON] : [join(ROOT, '.venv', 'bin', 'python'), 'python', 'python3'];
   found = candidates.find((exe) => spawnSync(exe, ['-c', 'import pmwm_codec.cli'], { env: env(), stdio: 'ignore' }).status === 0) ?? null;
   return found;
 }
