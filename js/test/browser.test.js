@@ -1,81 +1,117 @@
-// The three.js plugin in headless Chromium (Debian's /usr/bin/chromium through playwright-core): a page on
-// 127.0.0.1 loads a .pmw through loadProgressive. Skipped when Chromium is absent (CI installs it).
+// The three.js plugin in headless Chromium (Debian's /usr/bin/chromium through playwright-core): the demo
+// page (js/demo/index.html), served from 127.0.0.1, loads a .pmw through loadProgressive and DRACOLoader.
+// Subjects: bunny.pmw, encoded in setup by `python -m pmwm_codec encode` from ../shared's Stanford bunny
+// (a generated icosphere of similar size when ../shared is absent; Draco base, the encoder's defaults),
+// and a conformance file with a plain base and attributes. Skipped when Chromium is absent (CI installs
+// it); the bunny's tests skip when no Python imports pmwm_codec (set PYTHON).
 import assert from 'node:assert/strict';
 import fs from 'node:fs';
 import os from 'node:os';
 import path from 'node:path';
-import { after, before, test } from 'node:test';
-import { fileURLToPath } from 'node:url';
+import { after, before, describe, test } from 'node:test';
 import { decodePmw } from '../src/index.js';
+import { encodeBunny, python, ROOT } from './lib/python.js';
 import { startServer } from './lib/server.js';
 
 const CHROMIUM = process.env.CHROMIUM ?? '/usr/bin/chromium';
 const skip = fs.existsSync(CHROMIUM) ? false : `no Chromium at ${CHROMIUM}`;
-const root = path.resolve(path.dirname(fileURLToPath(import.meta.url)), '../..');
-const NAME = 'spec/conformance/sphere-attributes.plain.v1.pmw';
-const bytes = new Uint8Array(fs.readFileSync(path.join(root, NAME)));
-let browser; let profile; const servers = {};
+const skipBunny = skip || (python() ? false : 'no Python that imports pmwm_codec (set PYTHON)');
+let browser; let tmp; let bunny; const servers = {};
 
 before(async () => {
   if (skip) return;
+  tmp = fs.mkdtempSync(path.join(os.tmpdir(), 'pmwm-browser-'));
+  if (!skipBunny) bunny = encodeBunny(tmp);
   const { chromium } = await import('playwright-core');
-  profile = fs.mkdtempSync(path.join(os.tmpdir(), 'pmwm-chromium-'));
   // a fresh profile directory (playwright passes it as --user-data-dir)
-  browser = await chromium.launchPersistentContext(profile, { executablePath: CHROMIUM, headless: true,
+  browser = await chromium.launchPersistentContext(path.join(tmp, 'profile'), { executablePath: CHROMIUM, headless: true,
     args: ['--headless', '--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run',
       '--disable-background-networking', '--disable-component-update', '--disable-sync', '--enable-unsafe-swiftshader'] });
-  servers.fast = await startServer(root);
-  servers.slow = await startServer(root, { delayMs: 60 });
-  servers.plain = await startServer(root, { ranges: false });
+  const mounts = { '/data/': tmp };
+  servers.fast = await startServer(ROOT, { mounts });
+  servers.slow = await startServer(ROOT, { mounts, delayMs: 40 });
+  servers.plain = await startServer(ROOT, { mounts, ranges: false });
 });
 after(async () => {
   await browser?.close();
   for (const s of Object.values(servers)) await s.close();
-  if (profile) fs.rmSync(profile, { recursive: true, force: true });
+  if (tmp) fs.rmSync(tmp, { recursive: true, force: true });
 });
 
-async function load(server, query) {
+/** The demo page's outcome for `src` with `query`: {result, levels: [{chunk, vertexCount, image}]}. */
+async function load(server, src, query) {
   const page = await browser.newPage();
+  const errors = [];
+  page.on('pageerror', (e) => errors.push(String(e)));
   try {
-    await page.goto(`${server.url}js/test/browser/index.html?src=/${NAME}&${query}`);
+    await page.goto(`${server.url}js/demo/index.html?src=${src}&size=256&record=1&${query}`);
     await page.waitForFunction(() => window.result !== undefined, null, { timeout: 60000 });
     const out = await page.evaluate(() => ({ result: window.result, levels: window.levels }));
     assert.equal(out.result.error, undefined, out.result.error);
+    assert.deepEqual(errors, []);
     return out;
   } finally {
     await page.close();
   }
 }
 
-test('a throttled Range load reaches the full vertex count through at least three distinct rendered levels', { skip }, async () => {
-  const full = await decodePmw(bytes);
-  const { result, levels } = await load(servers.slow, '');
-  assert.equal(result.complete, true);
-  assert.equal(result.vertices, full.positions.length / 3);
-  assert.ok(new Set(levels.map((l) => l.image)).size >= 3, `${levels.length} levels`);
-  assert.ok(new Set(levels.map((l) => l.vertexCount)).size >= 3);
-});
+const SUBJECTS = [
+  { title: 'bunny.pmw (Draco base)', src: '/data/bunny.pmw', skip: () => skipBunny, bytes: () => fs.readFileSync(bunny.file) },
+  { title: 'sphere-attributes (plain base, attributes)', src: '/spec/conformance/sphere-attributes.plain.v1.pmw', skip: () => skip,
+    bytes: () => fs.readFileSync(path.join(ROOT, 'spec/conformance/sphere-attributes.plain.v1.pmw')) },
+];
 
-test('a plain (no Range) load reaches the full vertex count', { skip }, async () => {
-  const full = await decodePmw(bytes);
-  const { result } = await load(servers.plain, 'range=0');
-  assert.equal(result.complete, true);
-  assert.equal(result.vertices, full.positions.length / 3);
-});
+for (const subject of SUBJECTS) {
+  describe(subject.title, () => {
+    let bytes; let full;
+    before(async () => {
+      if (subject.skip()) return;
+      bytes = new Uint8Array(subject.bytes());
+      full = await decodePmw(bytes);
+    });
+    const opts = () => ({ skip: subject.skip() });
 
-test('a load stopped after a byte budget shows the level of the cut file', { skip }, async () => {
-  const [three, four] = [await decodePmw(bytes, { chunks: 3 }), await decodePmw(bytes, { chunks: 4 })];
-  const budget = Math.floor((three.bytesRead + four.bytesRead) / 2);
-  const { result } = await load(servers.fast, `budget=${budget}`);
-  assert.equal(result.chunksApplied, 3);
-  assert.equal(result.vertices, three.positions.length / 3);
-});
+    test('a throttled Range load reaches the full vertex count through at least three pixel-different levels', opts(), async () => {
+      const { result, levels } = await load(servers.slow, subject.src, '');
+      assert.equal(result.complete, true);
+      assert.equal(result.vertices, full.positions.length / 3);
+      if (subject.src.includes('bunny')) assert.equal(result.vertices, bunny.report.vertices);
+      assert.equal(levels.length, full.chunkCount + 1, 'the base and one rendered level per chunk');
+      assert.ok(new Set(levels.map((l) => l.image)).size >= 3, `${levels.length} levels`);
+      assert.ok(new Set(levels.map((l) => l.vertexCount)).size >= 3);
+    });
 
-test('a Range load of two chunks fetches only the bytes it needs (counted at the server)', { skip }, async () => {
-  const two = await decodePmw(bytes, { chunks: 2 });
-  servers.fast.stats.bytes = 0;
-  const { result } = await load(servers.fast, 'chunks=2');
-  assert.equal(result.chunksApplied, 2);
-  assert.equal(servers.fast.stats.bytes, two.bytesRead);
-  assert.ok(two.bytesRead < bytes.length);
-});
+    test('a plain (no Range) load reaches the full vertex count', opts(), async () => {
+      servers.plain.stats.bytes = 0;
+      const { result } = await load(servers.plain, subject.src, 'range=0');
+      assert.equal(result.complete, true);
+      assert.equal(result.vertices, full.positions.length / 3);
+      assert.equal(servers.plain.stats.bytes, bytes.length);
+    });
+
+    test('a load stopped after a byte budget shows the level the decoder gives for that byte prefix', opts(), async () => {
+      const k = Math.min(3, full.chunkCount - 1);
+      const [lo, hi] = [await decodePmw(bytes, { chunks: k }), await decodePmw(bytes, { chunks: k + 1 })];
+      const budget = Math.floor((lo.bytesRead + hi.bytesRead) / 2);
+      const prefix = await decodePmw(bytes.subarray(0, budget));
+      assert.equal(prefix.chunksApplied, k);
+      servers.fast.stats.bytes = 0;
+      const { result } = await load(servers.fast, subject.src, `budget=${budget}`);
+      assert.equal(result.chunksApplied, k);
+      assert.equal(result.complete, false);
+      assert.equal(result.vertices, prefix.positions.length / 3);
+      assert.ok(result.vertices < full.positions.length / 3);
+      assert.ok(servers.fast.stats.bytes <= budget, `${servers.fast.stats.bytes} bytes served, budget ${budget}`);
+    });
+
+    test('a Range load of two chunks fetches only the bytes it needs (counted at the server)', opts(), async () => {
+      const two = await decodePmw(bytes, { chunks: 2 });
+      servers.fast.stats.bytes = 0;
+      const { result } = await load(servers.fast, subject.src, 'chunks=2');
+      assert.equal(result.chunksApplied, 2);
+      assert.equal(result.vertices, two.positions.length / 3);
+      assert.equal(servers.fast.stats.bytes, two.bytesRead);
+      assert.ok(two.bytesRead < bytes.length);
+    });
+  });
+}

@@ -5,11 +5,11 @@
  * A changed base mesh (or a Draco base about to be re-encoded) makes the write throw.
  */
 import assert from 'node:assert/strict';
-import { existsSync, mkdtempSync, readFileSync, rmSync, writeFileSync } from 'node:fs';
+import { existsSync, mkdtempSync, readdirSync, readFileSync, rmSync, writeFileSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { spawnSync } from 'node:child_process';
-import { test } from 'node:test';
+import { after, test } from 'node:test';
 import { NodeIO } from '@gltf-transform/core';
 import { KHRDracoMeshCompression } from '@gltf-transform/extensions';
 import draco3d from 'draco3d';
@@ -124,4 +124,53 @@ test('two-primitives.draco.v1.pmw: re-encoding the Draco base is refused, a plai
   const rewritten = await io.writeBinary(doc);
   assert.equal(glbParts(rewritten).json.extensionsUsed.includes('KHR_draco_mesh_compression'), false);
   await assertStreamKept(original, rewritten);
+});
+
+// The real glTF-Transform command line (node_modules/.bin/gltf-transform, a pinned devDependency) with
+// the package's configuration file (gltf-transform.config.mjs): `copy` keeps every chunk of the stream.
+const PACKAGE = join(CONFORMANCE, '..', '..', 'js');
+const CLI = join(PACKAGE, 'node_modules', '.bin', 'gltf-transform');
+const CONFIG = join(PACKAGE, 'gltf-transform.config.mjs');
+
+/** Runs `gltf-transform ARGS --config gltf-transform.config.mjs`: {status, stdout, stderr}. */
+const gltfTransform = (...args) => spawnSync(CLI, [...args, '--config', CONFIG], { encoding: 'utf8', timeout: 120000 });
+
+const COPIED = ['sphere-attributes.plain.v1.pmw', 'two-primitives.draco.v1.pmw'];
+const copies = mkdtempSync(join(tmpdir(), 'pmw-gltf-transform-cli-'));
+after(() => rmSync(copies, { recursive: true, force: true }));
+
+test('gltf-transform copy in.pmw out.pmw (CLI, our config) writes one GLB holding every chunk byte for byte, in order', async () => {
+  for (const file of COPIED) {
+    const run = gltfTransform('copy', join(CONFORMANCE, file), join(copies, file));
+    assert.equal(run.status, 0, run.stdout + run.stderr);
+    assert.deepEqual(readdirSync(copies).filter((f) => !f.endsWith('.pmw')), [], 'one GLB, no separate .bin');
+    await assertStreamKept(load(file), new Uint8Array(readFileSync(join(copies, file))));
+  }
+});
+
+test('the Khronos validator reports 0 errors / 0 warnings on what gltf-transform copy wrote (skipped without tools/js/node_modules)',
+  { skip: !existsSync(VALIDATOR) && 'gltf-validator not installed in tools/js' }, () => {
+    const outputs = COPIED.map((file) => join(copies, file));
+    for (const [i, out] of outputs.entries()) {
+      if (!existsSync(out)) assert.equal(gltfTransform('copy', join(CONFORMANCE, COPIED[i]), out).status, 0);
+    }
+    const check = spawnSync(process.execPath, [CHECK_GLTF, ...outputs], { encoding: 'utf8' });
+    assert.equal(check.status, 0, check.stderr);
+    const reports = check.stdout.trim().split('\n').map((line) => JSON.parse(line));
+    assert.equal(reports.length, outputs.length);
+    for (const { file, validator } of reports) {
+      assert.deepEqual([validator.errors, validator.warnings], [0, 0], `${file}: ${JSON.stringify(validator.messages)}`);
+    }
+  });
+
+test('gltf-transform weld of a .pmw (CLI, our config) fails with BaseMeshChangedError and writes nothing', () => {
+  const dir = mkdtempSync(join(tmpdir(), 'pmw-gltf-transform-cli-'));
+  try {
+    const run = gltfTransform('weld', join(CONFORMANCE, 'sphere-attributes.plain.v1.pmw'), join(dir, 'out.pmw'));
+    assert.notEqual(run.status, 0);
+    assert.match(run.stdout + run.stderr, /base mesh of a PMWM_progressive_mesh primitive changed/);  // the CLI logs to stdout
+    assert.deepEqual(readdirSync(dir), []);
+  } finally {
+    rmSync(dir, { recursive: true, force: true });
+  }
 });

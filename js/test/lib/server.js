@@ -1,6 +1,7 @@
 // A static file server on 127.0.0.1 (free port) with single-range Range support, for the tests.
 // Counts body bytes sent (`stats.bytes`) and requests; `ranges: false` answers every GET whole (200);
-// `delayMs` waits before each response (a throttled network).
+// `delayMs` waits before each response (a throttled network); `mounts` serves more directories under
+// URL prefixes ({'/data/': dir}: /data/x is dir/x).
 import fs from 'node:fs';
 import http from 'node:http';
 import path from 'node:path';
@@ -8,13 +9,16 @@ import path from 'node:path';
 const TYPES = { '.html': 'text/html', '.js': 'text/javascript', '.mjs': 'text/javascript', '.wasm': 'application/wasm',
   '.pmw': 'model/gltf-binary', '.json': 'application/json' };
 
-export async function startServer(root, { ranges = true, delayMs = 0 } = {}) {
+export async function startServer(root, { ranges = true, delayMs = 0, mounts = {} } = {}) {
   const stats = { bytes: 0, requests: 0, log: [] };
   const server = http.createServer(async (req, res) => {
     stats.requests++;
-    const rel = decodeURIComponent(new URL(req.url, 'http://x').pathname);
-    const file = path.join(root, path.normalize(rel).replace(/^(\.\.[/\\])+/, ''));
-    if (!file.startsWith(root) || !fs.existsSync(file) || !fs.statSync(file).isFile()) {
+    let rel = decodeURIComponent(new URL(req.url, 'http://x').pathname);
+    const mount = Object.keys(mounts).find((prefix) => rel.startsWith(prefix));
+    const base = mount ? mounts[mount] : root;
+    if (mount) rel = rel.slice(mount.length - 1);
+    const file = path.join(base, path.normalize(rel).replace(/^(\.\.[/\\])+/, ''));
+    if (!file.startsWith(base) || !fs.existsSync(file) || !fs.statSync(file).isFile()) {
       res.writeHead(404, { 'Content-Length': 0 }); res.end(); return;
     }
     if (delayMs && file.endsWith('.pmw')) await new Promise((r) => setTimeout(r, delayMs));

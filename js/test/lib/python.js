@@ -1,0 +1,48 @@
+/**
+ * The tests' way to the Python side: finds a Python that imports pmwm_codec from the repository
+ * (PYTHONPATH = repository root) and encodes test meshes with `python -m pmwm_codec encode`.
+ *
+ * The interpreter: $PYTHON when set, else the repository's `.venv` (the one .ci/run makes), `python`,
+ * then `python3`. `python()` is null when none can import pmwm_codec; callers skip then.
+ */
+import { spawnSync } from 'node:child_process';
+import { existsSync } from 'node:fs';
+import { dirname, join, resolve } from 'node:path';
+import { fileURLToPath } from 'node:url';
+
+export const ROOT = resolve(dirname(fileURLToPath(import.meta.url)), '..', '..', '..');
+export const CORPUS = resolve(ROOT, '..', 'shared', 'corpus');
+
+const env = () => ({ ...process.env, PYTHONPATH: [ROOT, process.env.PYTHONPATH].filter(Boolean).join(':') });
+
+let found;
+/** The first interpreter that imports pmwm_codec's command line, or null. */
+export function python() {
+  if (found !== undefined) return found;
+  const candidates = process.env.PYTHON ? [process.env.PYTHON] : [join(ROOT, '.venv', 'bin', 'python'), 'python', 'python3'];
+  found = candidates.find((exe) => spawnSync(exe, ['-c', 'import pmwm_codec.cli'], { env: env(), stdio: 'ignore' }).status === 0) ?? null;
+  return found;
+}
+
+function run(args) {
+  const out = spawnSync(python(), args, { env: env(), encoding: 'utf8', maxBuffer: 1 << 24 });
+  if (out.status !== 0) throw new Error(`python ${args.join(' ')} failed (${out.status}): ${out.stderr || out.error}`);
+  return out.stdout;
+}
+
+/**
+ * Writes `<dir>/bunny.pmw`: the shared corpus' Stanford bunny encoded by `pmw encode` (Draco base,
+ * default settings), or when ../shared is absent a generated mesh of similar size
+ * (`shapes.icosphere(6)`, 40,962 vertices). Returns {file, source, report} where report is the
+ * encoder's --json line (vertices, faces, chunks, bytes...).
+ */
+export function encodeBunny(dir) {
+  let source = join(CORPUS, 'stanford-bunny.obj');
+  if (!existsSync(source)) {
+    source = join(dir, 'icosphere6.obj');
+    run(['-c', 'import sys\nfrom pmwm_codec import meshio, shapes\nmeshio.write_mesh(sys.argv[1], shapes.icosphere(6))', source]);
+  }
+  const file = join(dir, 'bunny.pmw');
+  const report = JSON.parse(run(['-m', 'pmwm_codec', 'encode', source, '-o', file, '--measure', 'none', '--json', '-q']));
+  return { file, source, report };
+}
