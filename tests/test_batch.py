@@ -337,3 +337,10 @@ def test_keys_dir_holds_each_assets_key_and_batch_verify_finds_them_there(tmp_pa
     assert (keys / "x" / "a.obj.pmw.key.json").is_file() and not list(out.rglob("*.key.json"))
     assert verify_batch(out, keys_dir=keys, client=client)["authentic"] == 1
     assert verify_batch(out, client=client)["results"][0]["verdict"] == "error"  # no key beside the file
+
+
+def test_the_encoder_forkserver_warm_up_runs_a_real_encode_and_decode():
+    from pmwm_codec.batch import tasks, warm
+
+    assert "pmwm_codec.batch.warm" in tasks._PRELOAD  # imported by each worker's forkserver
+    assert warm.warm() is True  # False would mean every forked encoder compiles its kernels again
