@@ -7,8 +7,9 @@ import { FormatError, LimitError } from './errors.js';
 import { MAX_BATCHES_PER_CHUNK, MAX_VERTICES } from './constants.js';
 
 const TWO32 = 4294967296;
-/** Packed symbol value (0..124) -> its three symbols, least significant first. */
-const TRIPLES = Array.from({ length: 125 }, (_, x) => Uint8Array.of(x % 5, Math.floor(x / 5) % 5, Math.floor(x / 25)));
+/** Symbol (0..4) -> 1 when it creates the left / the right new face (spec §6.1 step 2). */
+const LEFT = Uint8Array.of(0, 0, 1, 0, 1);
+const RIGHT = Uint8Array.of(0, 0, 0, 1, 1);
 
 /**
  * One column at `at`: its `count` values as a Float64Array (exact below 2^53; larger ones only
@@ -23,20 +24,20 @@ function readColumn(p, at, count, name) {
   const end = at + 1 + width * count;
   if (end > p.length) throw new FormatError(`chunk payload: column ${name} is cut short`);
   const out = new Float64Array(count);
+  const s = at + 1; // byte plane j of value i is at s + j*count + i
   if (width === 1) {
-    out.set(p.subarray(at + 1, end));
-    return { values: out, end };
-  }
-  const lowPlanes = Math.min(width, 4);
-  for (let plane = 0; plane < lowPlanes; plane++) {
-    const src = at + 1 + plane * count;
-    const scale = 2 ** (8 * plane);
-    for (let i = 0; i < count; i++) out[i] += p[src + i] * scale;
-  }
-  for (let plane = 4; plane < width; plane++) { // width 8: bytes 4..7 only need to be seen as "large"
-    const src = at + 1 + plane * count;
-    const scale = TWO32 * 2 ** (8 * (plane - 4));
-    for (let i = 0; i < count; i++) out[i] += p[src + i] * scale;
+    out.set(p.subarray(s, end));
+  } else if (width === 2) {
+    for (let i = 0; i < count; i++) out[i] = p[s + i] | (p[s + count + i] << 8);
+  } else {
+    for (let i = 0, c = count; i < count; i++) {
+      out[i] = (p[s + i] | (p[s + c + i] << 8) | (p[s + 2 * c + i] << 16) | (p[s + 3 * c + i] << 24)) >>> 0;
+    }
+    for (let plane = 4; plane < width; plane++) { // width 8: bytes 4..7 only need to be seen as "large"
+      const src = s + plane * count;
+      const scale = TWO32 * 2 ** (8 * (plane - 4));
+      for (let i = 0; i < count; i++) out[i] += p[src + i] * scale;
+    }
   }
   return { values: out, end };
 }
@@ -80,10 +81,14 @@ export function unpackPayload(p, D, maxSplits) {
   }
   if (at !== p.length) throw new FormatError(`chunk payload: ${p.length - at} trailing bytes`);
   const symbols = new Uint8Array(packedCount * 3);
+  const packedValues = packed.values;
   for (let t = 0; t < packedCount; t++) {
-    const x = packed.values[t];
+    const x = packedValues[t];
     if (x >= 125) throw new FormatError('chunk payload: unknown incidence symbol');
-    symbols.set(TRIPLES[x], 3 * t);
+    const high = Math.floor(x / 5);
+    symbols[3 * t] = x - 5 * high;
+    symbols[3 * t + 1] = high % 5;
+    symbols[3 * t + 2] = Math.floor(x / 25);
   }
   const v = new Int32Array(K);
   let s = 0;
@@ -105,17 +110,25 @@ export function unpackPayload(p, D, maxSplits) {
     for (let i = 0; i < K; i++) {
       const z = col[i];
       if (z > TWO32) throw new FormatError(`chunk payload: residual ${d} out of range`);
-      residuals[i * D + d] = z % 2 === 0 ? z / 2 : -(z + 1) / 2;
+      const half = Math.floor(z / 2); // zigzag: 2r for r >= 0, -2r - 1 for r < 0
+      residuals[i * D + d] = z === 2 * half ? half : -half - 1;
     }
   }
   return { batches, v, symbols: symbols.subarray(0, I), residuals };
 }
 
 /**
- * A primitive's mesh as it grows: `values` (capN*D) Float64Array of integer values per vertex
- * (grid x, y, z, then attribute components), `faces` (capM*3) Uint32Array, `n`/`m` in use, and
- * for every vertex the list of corners holding it (`head` (capN), `next` (capM*3) Int32Array,
- * -1 ends a list), so a batch finds its incidences without scanning every face.
+ * A primitive's mesh as it grows, in typed arrays allocated once from the extension's
+ * full-resolution counts (capN vertices, capM faces):
+ *
+ *   values (capN*D) Float64Array  row-major: vertex i's D integer values at [i*D, i*D+D) -- grid
+ *                                 x, y, z, then attribute components (exact in float64)
+ *   faces  (capM*3) Uint32Array   face f's vertex ids at corners 3f, 3f+1, 3f+2
+ *   slot   (capN)   Int32Array    -1 for every vertex, except during a batch, where slot[v[i]] = i
+ *                                 for the batch's split vertices (so one scan finds the incidences)
+ *
+ * `n`, `m`: vertices and faces in use. No per-vertex incidence lists: a batch scans the corners of
+ * its m faces once, in order (spec §6.1 step 1), which costs less than keeping lists up to date.
  */
 export class MeshState {
   constructor(values, faces, n, m, D, capN, capM) {
@@ -126,113 +139,117 @@ export class MeshState {
     try {
       this.values = new Float64Array(capN * D);
       this.faces = new Uint32Array(capM * 3);
-      this.head = new Int32Array(capN).fill(-1);
       this.slot = new Int32Array(capN).fill(-1);
-      this.next = new Int32Array(capM * 3);
     } catch (e) {
       if (!(e instanceof RangeError)) throw e;
       throw new LimitError(`cannot allocate ${capN} vertices and ${capM} faces (${e.message})`);
     }
     this.values.set(values.subarray(0, n * D));
     this.faces.set(faces.subarray(0, m * 3));
-    for (let c = 3 * m - 1; c >= 0; c--) this.#link(c);
     this.n = n;
     this.m = m;
   }
 
-  /** Puts corner c at the head of the list of the vertex it holds. */
-  #link(c) {
-    const x = this.faces[c];
-    this.next[c] = this.head[x];
-    this.head[x] = c;
-  }
-
-  /** The corners holding v[0..k) in ascending order (the face-slot order of spec §6.1 step 1). */
-  #incidences(v, I) {
-    const { head, next } = this;
-    let count = 0;
-    for (let i = 0; i < v.length; i++) {
-      for (let c = head[v[i]]; c >= 0; c = next[c]) {
-        if (++count > I) throw new FormatError(`batch has ${I} incidence symbols, the mesh has more incidences`);
-      }
-    }
-    if (count !== I) throw new FormatError(`batch has ${I} incidence symbols, the mesh has ${count} incidences`);
-    const inc = new Int32Array(count);
-    let at = 0;
-    for (let i = 0; i < v.length; i++) for (let c = head[v[i]]; c >= 0; c = next[c]) inc[at++] = c;
-    return inc.sort();
-  }
-
   /**
-   * Applies one batch (spec/bitstream.md §6.1) in place.
+   * Applies one batch (spec/bitstream.md §6.1) in place. On a FormatError the mesh may be left
+   * half changed (the decoder then refuses to show it).
    * @param {Int32Array} v (k) split vertices; symbols (I) Uint8Array; residuals (k*D) Float64Array
    */
   applyBatch(v, symbols, residuals) {
-    const { D, faces, values } = this;
+    const { D, values } = this;
     const k = v.length;
     const n = this.n;
-    const m = this.m;
     if (n + k > this.capN) throw new FormatError('splits exceed the declared vertex count');
     for (let i = 0; i < k; i++) {
       if (v[i] >= n || (i > 0 && v[i] <= v[i - 1])) throw new FormatError('split vertex ids out of range or not increasing');
     }
-    const inc = this.#incidences(v, symbols.length);
-    const { sums, ring, wings, mNew } = this.#split(v, symbols, inc, n, m);
+    const sums = new Float64Array(k * D); // (k*D) ring sums of u_i, row-major
+    const ring = new Int32Array(k); // (k) corners in the ring of u_i (2 per face)
+    const wings = new Int32Array(k); // (k) new faces of split i
+    const mNew = this.#split(v, symbols, sums, ring, wings);
     for (let i = 0; i < k; i++) {
       if (wings[i] < 1 || wings[i] > 2) throw new FormatError('a split names no new face or more than two');
-      for (let d = 0; d < D; d++) {
-        values[(n + i) * D + d] = Math.floor(sums[i * D + d] / ring[i]) + residuals[i * D + d];
+      const r = ring[i];
+      for (let d = 0, o = i * D; d < D; d++, o++) {
+        values[n * D + o] = Math.floor(sums[o] / r) + residuals[o];
       }
     }
-    for (let i = 0; i < k; i++) this.head[v[i]] = -1;
-    for (let t = inc.length - 1; t >= 0; t--) this.#link(inc[t]); // each to v[i] or its new vertex
-    for (let c = 3 * mNew - 1; c >= 3 * m; c--) this.#link(c);
     this.n = n + k;
     this.m = mNew;
   }
 
-  /** Steps 1-3 of spec §6.1 over the incidences `inc` in order: corners rewritten, faces appended. */
-  #split(v, symbols, inc, n, m) {
-    const { D, faces, values, slot, capM } = this;
+  /**
+   * Steps 1-3 of spec §6.1 in one scan of the corners of faces 0..m-1: each incidence takes the
+   * next symbol, its corner is rewritten as it goes (a rewritten corner holds u_i >= n, never a
+   * split vertex) and new faces are appended after face m-1, outside the scan. Each moved face is
+   * recorded (owner i, corners a and b, symbol) and the ring sums are added from those records in a
+   * second loop without branches, whose scattered reads of `values` the CPU can overlap. Fills
+   * sums, ring and wings; returns the new face count.
+   */
+  #split(v, symbols, sums, ring, wings) {
+    const { D, faces, values, slot, capM, n, m } = this;
     const k = v.length;
-    const sums = new Float64Array(k * D);
-    const wings = new Int32Array(k);
-    const ring = new Int32Array(k);
-    for (let i = 0; i < k; i++) slot[v[i]] = i;
+    const I = symbols.length;
+    const end = 3 * m;
+    const owner = new Int32Array(I); // (moved) per moved face: split index, corner after v, before v, symbol
+    const after = new Int32Array(I);
+    const before = new Int32Array(I);
+    const sym = new Uint8Array(I);
+    let moved = 0;
+    let t = 0; // incidences seen so far
     let mNew = m;
+    for (let i = 0; i < k; i++) slot[v[i]] = i;
     try {
-      for (let t = 0; t < inc.length; t++) {
-        const s = symbols[t];
-        if (s === 0) continue;
-        const c = inc[t];
+      for (let c = 0; c < end; c++) {
         const i = slot[faces[c]];
+        if (i < 0) continue;
+        const s = t < I ? symbols[t] : 0; // past the I-th incidence: only counted
+        t++;
+        if (s === 0) continue;
         const f = c - (c % 3);
-        const a = faces[f + ((c + 1) % 3)];
-        const b = faces[f + ((c + 2) % 3)];
+        const a = faces[f + ((c + 1) % 3)]; // corner after v
+        const b = faces[f + ((c + 2) % 3)]; // corner before v
         const u = n + i;
         const vi = v[i];
         faces[c] = u;
-        const left = s === 2 || s === 4;
-        const right = s === 3 || s === 4;
-        if ((left ? 1 : 0) + (right ? 1 : 0) + mNew > capM) throw new FormatError('splits exceed the declared face count');
+        const left = s === 2 || s === 4 ? 1 : 0;
+        const right = s === 3 || s === 4 ? 1 : 0;
+        if (left + right + mNew > capM) throw new FormatError('splits exceed the declared face count');
         if (left) {
           faces[3 * mNew] = u; faces[3 * mNew + 1] = vi; faces[3 * mNew + 2] = a; mNew++;
         }
         if (right) {
           faces[3 * mNew] = vi; faces[3 * mNew + 1] = u; faces[3 * mNew + 2] = b; mNew++;
         }
-        const wa = 1 + (left ? 1 : 0); // weights of a, b and v in the ring sum of u
-        const wb = 1 + (right ? 1 : 0);
-        const wv = (left ? 1 : 0) + (right ? 1 : 0);
-        const o = i * D;
-        for (let d = 0; d < D; d++) sums[o + d] += wa * values[a * D + d] + wb * values[b * D + d] + wv * values[vi * D + d];
-        ring[i] += 2 + 2 * wv;
-        wings[i] += wv;
+        owner[moved] = i;
+        after[moved] = a;
+        before[moved] = b;
+        sym[moved++] = s;
       }
     } finally {
       for (let i = 0; i < k; i++) slot[v[i]] = -1;
     }
-    return { sums, ring, wings, mNew };
+    if (t !== I) throw new FormatError(`batch has ${I} incidence symbols, the mesh has ${t} incidences`);
+    for (let r = 0; r < moved; r++) {
+      // the moved face adds a + b to u's ring, each new face v + its wing (a for left, b for right)
+      const s = sym[r];
+      const left = LEFT[s];
+      const right = RIGHT[s];
+      const i = owner[r];
+      const a = after[r] * D;
+      const b = before[r] * D;
+      const o = i * D;
+      for (let d = 0; d < D; d++) sums[o + d] += (1 + left) * values[a + d] + (1 + right) * values[b + d];
+      ring[i] += 2 + 2 * (left + right);
+      wings[i] += left + right;
+    }
+    for (let i = 0; i < k; i++) { // v once per new face, read in vertex order
+      const w = wings[i];
+      const x = v[i] * D;
+      const o = i * D;
+      for (let d = 0; d < D; d++) sums[o + d] += w * values[x + d];
+    }
+    return mNew;
   }
 
   /** Applies a whole unpacked chunk payload (see unpackPayload), batch after batch. */
