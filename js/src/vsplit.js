@@ -7,15 +7,17 @@ import { FormatError, LimitError } from './errors.js';
 import { MAX_BATCHES_PER_CHUNK, MAX_VERTICES } from './constants.js';
 
 const TWO32 = 4294967296;
+/** (125*3) packed symbol value x -> its three symbols at 3x..3x+2, least significant first. */
+const TRIPLES = Uint8Array.from({ length: 375 }, (_, j) => Math.floor(Math.floor(j / 3) / 5 ** (j % 3)) % 5);
 /** Symbol (0..4) -> 1 when it creates the left / the right new face (spec §6.1 step 2). */
 const LEFT = Uint8Array.of(0, 0, 1, 0, 1);
 const RIGHT = Uint8Array.of(0, 0, 0, 1, 1);
 
 /**
- * One column at `at`: its `count` values as a Float64Array (exact below 2^53; larger ones only
- * matter to be rejected) and the offset after it.
+ * The column at `at` (spec §6: a width byte, then `count` values as byte planes): its width, the
+ * offset of its first plane and the offset after it. Checks the layout only, not the values.
  */
-function readColumn(p, at, count, name) {
+function column(p, at, count, name) {
   if (at >= p.length) throw new FormatError(`chunk payload: column ${name} is missing`);
   const width = p[at];
   if (width !== 1 && width !== 2 && width !== 4 && width !== 8) {
@@ -23,10 +25,17 @@ function readColumn(p, at, count, name) {
   }
   const end = at + 1 + width * count;
   if (end > p.length) throw new FormatError(`chunk payload: column ${name} is cut short`);
+  return { width, start: at + 1, end };
+}
+
+/**
+ * A column's `count` values as a Float64Array (exact below 2^53; larger ones only matter to be
+ * rejected). Byte plane j of value i is at start + j*count + i.
+ */
+function columnValues(p, { width, start: s }, count) {
   const out = new Float64Array(count);
-  const s = at + 1; // byte plane j of value i is at s + j*count + i
   if (width === 1) {
-    out.set(p.subarray(s, end));
+    out.set(p.subarray(s, s + count));
   } else if (width === 2) {
     for (let i = 0; i < count; i++) out[i] = p[s + i] | (p[s + count + i] << 8);
   } else {
@@ -35,11 +44,35 @@ function readColumn(p, at, count, name) {
     }
     for (let plane = 4; plane < width; plane++) { // width 8: bytes 4..7 only need to be seen as "large"
       const src = s + plane * count;
-      const scale = TWO32 * 2 ** (8 * (plane - 4));
+      const scale = TWO32 * 2 ** (8 * plane - 32);
       for (let i = 0; i < count; i++) out[i] += p[src + i] * scale;
     }
   }
-  return { values: out, end };
+  return out;
+}
+
+/**
+ * Writes the zigzag-decoded values of residual column `col` (K values) into column d of
+ * `residuals` (K*D row-major). Widths 1-4 hold values below 2^32, decoded in 32-bit integers;
+ * width 8 goes through doubles and rejects a value above 2^32 (spec §6).
+ */
+function unzigzagInto(p, col, K, D, d, residuals) {
+  const s = col.start;
+  if (col.width === 8) {
+    const z = columnValues(p, col, K);
+    for (let i = 0; i < K; i++) {
+      if (z[i] > TWO32) throw new FormatError(`chunk payload: residual ${d} out of range`);
+      const half = Math.floor(z[i] / 2); // zigzag: 2r for r >= 0, -2r - 1 for r < 0
+      residuals[i * D + d] = z[i] === 2 * half ? half : -half - 1;
+    }
+    return;
+  }
+  for (let i = 0, o = d; i < K; i++, o += D) {
+    let z = p[s + i];
+    if (col.width >= 2) z |= p[s + K + i] << 8;
+    if (col.width === 4) z = (z | (p[s + 2 * K + i] << 16) | (p[s + 3 * K + i] << 24)) >>> 0;
+    residuals[o] = (z >>> 1) ^ -(z & 1); // zigzag: 2r for r >= 0, -2r - 1 for r < 0
+  }
 }
 
 /**
@@ -69,33 +102,31 @@ export function unpackPayload(p, D, maxSplits) {
   if (K > maxSplits) throw new LimitError(`chunk payload: ${K} splits, more than the limit ${maxSplits}`);
   const packedCount = Math.ceil(I / 3);
   if (K * (D + 1) + packedCount > p.length) throw new FormatError('chunk payload: declared counts exceed the payload size');
-  let at = 4 + 8 * batchCount;
-  const gaps = readColumn(p, at, K, 'gaps');
-  const packed = readColumn(p, gaps.end, packedCount, 'symbols');
-  at = packed.end;
-  const columns = [];
+  const gapColumn = column(p, 4 + 8 * batchCount, K, 'gaps');
+  const symbolColumn = column(p, gapColumn.end, packedCount, 'symbols');
+  let at = symbolColumn.end;
+  const residualColumns = [];
   for (let d = 0; d < D; d++) {
-    const col = readColumn(p, at, K, d < 3 ? `residual_${'xyz'[d]}` : `attribute_${d - 3}`);
-    columns.push(col.values);
-    at = col.end;
+    residualColumns.push(column(p, at, K, d < 3 ? `residual_${'xyz'[d]}` : `attribute_${d - 3}`));
+    at = residualColumns[d].end;
   }
   if (at !== p.length) throw new FormatError(`chunk payload: ${p.length - at} trailing bytes`);
   const symbols = new Uint8Array(packedCount * 3);
-  const packedValues = packed.values;
+  const packed = columnValues(p, symbolColumn, packedCount);
   for (let t = 0; t < packedCount; t++) {
-    const x = packedValues[t];
+    const x = packed[t];
     if (x >= 125) throw new FormatError('chunk payload: unknown incidence symbol');
-    const high = Math.floor(x / 5);
-    symbols[3 * t] = x - 5 * high;
-    symbols[3 * t + 1] = high % 5;
-    symbols[3 * t + 2] = Math.floor(x / 25);
+    symbols[3 * t] = TRIPLES[3 * x];
+    symbols[3 * t + 1] = TRIPLES[3 * x + 1];
+    symbols[3 * t + 2] = TRIPLES[3 * x + 2];
   }
+  const gaps = columnValues(p, gapColumn, K);
   const v = new Int32Array(K);
   let s = 0;
   for (const { k } of batches) {
     let prev = -1;
     for (let i = 0; i < k; i++) {
-      const g = gaps.values[s + i];
+      const g = gaps[s + i];
       if (g > MAX_VERTICES) throw new FormatError('chunk payload: split vertex gap out of range');
       prev += g + 1;
       // a vertex past MAX_VERTICES can be no vertex of the mesh (spec: it MUST be < n <= MAX_VERTICES)
@@ -105,16 +136,40 @@ export function unpackPayload(p, D, maxSplits) {
     s += k;
   }
   const residuals = new Float64Array(K * D);
-  for (let d = 0; d < D; d++) {
-    const col = columns[d];
-    for (let i = 0; i < K; i++) {
-      const z = col[i];
-      if (z > TWO32) throw new FormatError(`chunk payload: residual ${d} out of range`);
-      const half = Math.floor(z / 2); // zigzag: 2r for r >= 0, -2r - 1 for r < 0
-      residuals[i * D + d] = z === 2 * half ? half : -half - 1;
-    }
-  }
+  for (let d = 0; d < D; d++) unzigzagInto(p, residualColumns[d], K, D, d, residuals);
   return { batches, v, symbols: symbols.subarray(0, I), residuals };
+}
+
+/**
+ * Adds to `sums` (k*D) the a and b corners of every moved face r < moved of a batch: a moved face
+ * gives a + b to the ring of its new vertex, a left new face v + a, a right one v + b (v is added
+ * per split by the caller). owner/after/before (moved) Int32Array, sym (moved) Uint8Array.
+ */
+function ringSums(D, moved, owner, after, before, sym, values, sums) {
+  for (let r = 0; r < moved; r++) {
+    const s = sym[r];
+    const wa = 1 + LEFT[s];
+    const wb = 1 + RIGHT[s];
+    const a = after[r] * D;
+    const b = before[r] * D;
+    const o = owner[r] * D;
+    for (let d = 0; d < D; d++) sums[o + d] += wa * values[a + d] + wb * values[b + d];
+  }
+}
+
+/** ringSums for D = 3 (positions only), unrolled. */
+function ringSums3(moved, owner, after, before, sym, values, sums) {
+  for (let r = 0; r < moved; r++) {
+    const s = sym[r];
+    const wa = 1 + LEFT[s];
+    const wb = 1 + RIGHT[s];
+    const a = 3 * after[r];
+    const b = 3 * before[r];
+    const o = 3 * owner[r];
+    sums[o] += wa * values[a] + wb * values[b];
+    sums[o + 1] += wa * values[a + 1] + wb * values[b + 1];
+    sums[o + 2] += wa * values[a + 2] + wb * values[b + 2];
+  }
 }
 
 /**
@@ -179,41 +234,47 @@ export class MeshState {
   }
 
   /**
-   * Steps 1-3 of spec §6.1 in one scan of the corners of faces 0..m-1: each incidence takes the
-   * next symbol, its corner is rewritten as it goes (a rewritten corner holds u_i >= n, never a
-   * split vertex) and new faces are appended after face m-1, outside the scan. Each moved face is
-   * recorded (owner i, corners a and b, symbol) and the ring sums are added from those records in a
-   * second loop without branches, whose scattered reads of `values` the CPU can overlap. Fills
-   * sums, ring and wings; returns the new face count.
+   * Steps 1-3 of spec §6.1. A scan of the corners of faces 0..m-1 lists the incidences in order
+   * (branch-free: every corner is written, the count advances on a split vertex); then each
+   * incidence t takes symbol t, its corner is rewritten (to u_i >= n, never a split vertex) and
+   * new faces are appended after face m-1. Each moved face is recorded (owner i, corners a and b,
+   * symbol) and the ring sums are added from those records in a loop without branches, whose
+   * scattered reads of `values` the CPU can overlap. Fills sums, ring and wings; returns the new
+   * face count.
    */
   #split(v, symbols, sums, ring, wings) {
     const { D, faces, values, slot, capM, n, m } = this;
     const k = v.length;
     const I = symbols.length;
     const end = 3 * m;
+    const inc = new Int32Array(I + 1); // (I) incidence corners in ascending order (+1: a write past I is dropped)
     const owner = new Int32Array(I); // (moved) per moved face: split index, corner after v, before v, symbol
     const after = new Int32Array(I);
     const before = new Int32Array(I);
     const sym = new Uint8Array(I);
     let moved = 0;
-    let t = 0; // incidences seen so far
+    let count = 0;
     let mNew = m;
     for (let i = 0; i < k; i++) slot[v[i]] = i;
     try {
       for (let c = 0; c < end; c++) {
-        const i = slot[faces[c]];
-        if (i < 0) continue;
-        const s = t < I ? symbols[t] : 0; // past the I-th incidence: only counted
-        t++;
+        inc[count] = c; // typed-array writes past the end are ignored: more than I incidences only count
+        count += (slot[faces[c]] >>> 31) ^ 1; // 1 when faces[c] is a split vertex (slot >= 0)
+      }
+      if (count !== I) throw new FormatError(`batch has ${I} incidence symbols, the mesh has ${count} incidences`);
+      for (let t = 0; t < I; t++) {
+        const s = symbols[t];
         if (s === 0) continue;
+        const c = inc[t];
+        const i = slot[faces[c]];
         const f = c - (c % 3);
         const a = faces[f + ((c + 1) % 3)]; // corner after v
         const b = faces[f + ((c + 2) % 3)]; // corner before v
         const u = n + i;
         const vi = v[i];
         faces[c] = u;
-        const left = s === 2 || s === 4 ? 1 : 0;
-        const right = s === 3 || s === 4 ? 1 : 0;
+        const left = LEFT[s];
+        const right = RIGHT[s];
         if (left + right + mNew > capM) throw new FormatError('splits exceed the declared face count');
         if (left) {
           faces[3 * mNew] = u; faces[3 * mNew + 1] = vi; faces[3 * mNew + 2] = a; mNew++;
@@ -221,6 +282,8 @@ export class MeshState {
         if (right) {
           faces[3 * mNew] = vi; faces[3 * mNew + 1] = u; faces[3 * mNew + 2] = b; mNew++;
         }
+        ring[i] += 2 + 2 * (left + right);
+        wings[i] += left + right;
         owner[moved] = i;
         after[moved] = a;
         before[moved] = b;
@@ -229,20 +292,8 @@ export class MeshState {
     } finally {
       for (let i = 0; i < k; i++) slot[v[i]] = -1;
     }
-    if (t !== I) throw new FormatError(`batch has ${I} incidence symbols, the mesh has ${t} incidences`);
-    for (let r = 0; r < moved; r++) {
-      // the moved face adds a + b to u's ring, each new face v + its wing (a for left, b for right)
-      const s = sym[r];
-      const left = LEFT[s];
-      const right = RIGHT[s];
-      const i = owner[r];
-      const a = after[r] * D;
-      const b = before[r] * D;
-      const o = i * D;
-      for (let d = 0; d < D; d++) sums[o + d] += (1 + left) * values[a + d] + (1 + right) * values[b + d];
-      ring[i] += 2 + 2 * (left + right);
-      wings[i] += left + right;
-    }
+    if (D === 3) ringSums3(moved, owner, after, before, sym, values, sums);
+    else ringSums(D, moved, owner, after, before, sym, values, sums);
     for (let i = 0; i < k; i++) { // v once per new face, read in vertex order
       const w = wings[i];
       const x = v[i] * D;
