@@ -180,10 +180,13 @@ function ringSums3(moved, owner, after, before, sym, values, sums) {
  *                                 x, y, z, then attribute components (exact in float64)
  *   faces  (capM*3) Uint32Array   face f's vertex ids at corners 3f, 3f+1, 3f+2
  *   slot   (capN)   Int32Array    -1 for every vertex, except during a batch, where slot[v[i]] = i
- *                                 for the batch's split vertices (so one scan finds the incidences)
+ *                                 for the batch's split vertices
+ *   mark   (capN)   Uint8Array    0 for every vertex, except 1 for the split vertices during a batch
+ *                                 (what the corner scan reads: a quarter of slot's bytes)
  *
  * `n`, `m`: vertices and faces in use. No per-vertex incidence lists: a batch scans the corners of
  * its m faces once, in order (spec §6.1 step 1), which costs less than keeping lists up to date.
+ * Per-batch scratch arrays (see #scratch) are kept between batches and grown geometrically.
  */
 export class MeshState {
   constructor(values, faces, n, m, D, capN, capM) {
@@ -195,6 +198,7 @@ export class MeshState {
       this.values = new Float64Array(capN * D);
       this.faces = new Uint32Array(capM * 3);
       this.slot = new Int32Array(capN).fill(-1);
+      this.mark = new Uint8Array(capN);
     } catch (e) {
       if (!(e instanceof RangeError)) throw e;
       throw new LimitError(`cannot allocate ${capN} vertices and ${capM} faces (${e.message})`);
@@ -203,6 +207,34 @@ export class MeshState {
     this.faces.set(faces.subarray(0, m * 3));
     this.n = n;
     this.m = m;
+    this.perIncidence = { size: 0 };
+    this.perSplit = { size: 0 };
+  }
+
+  /**
+   * Scratch arrays of a batch with I incidences and k splits, reused from batch to batch:
+   * inc (I+1) Int32Array incidence corners; per moved face (at most I): owner, after, before
+   * Int32Array and sym Uint8Array; per split: sums (k*D) Float64Array, ring and wings (k)
+   * Int32Array, all three zeroed.
+   */
+  #scratch(I, k) {
+    const D = this.D;
+    if (this.perIncidence.size < I + 1) {
+      const size = Math.max(I + 1, 2 * this.perIncidence.size);
+      this.perIncidence = {
+        size, inc: new Int32Array(size), owner: new Int32Array(size), after: new Int32Array(size),
+        before: new Int32Array(size), sym: new Uint8Array(size),
+      };
+    }
+    if (this.perSplit.size < k) {
+      const size = Math.max(k, 2 * this.perSplit.size);
+      this.perSplit = { size, sums: new Float64Array(size * D), ring: new Int32Array(size), wings: new Int32Array(size) };
+    }
+    const { sums, ring, wings } = this.perSplit;
+    sums.fill(0, 0, k * D);
+    ring.fill(0, 0, k);
+    wings.fill(0, 0, k);
+    return { ...this.perIncidence, sums, ring, wings };
   }
 
   /**
@@ -218,10 +250,9 @@ export class MeshState {
     for (let i = 0; i < k; i++) {
       if (v[i] >= n || (i > 0 && v[i] <= v[i - 1])) throw new FormatError('split vertex ids out of range or not increasing');
     }
-    const sums = new Float64Array(k * D); // (k*D) ring sums of u_i, row-major
-    const ring = new Int32Array(k); // (k) corners in the ring of u_i (2 per face)
-    const wings = new Int32Array(k); // (k) new faces of split i
-    const mNew = this.#split(v, symbols, sums, ring, wings);
+    const work = this.#scratch(symbols.length, k);
+    const { sums, ring, wings } = work; // (k*D) ring sums of u_i row-major; (k) ring corners, new faces
+    const mNew = this.#split(v, symbols, work);
     for (let i = 0; i < k; i++) {
       if (wings[i] < 1 || wings[i] > 2) throw new FormatError('a split names no new face or more than two');
       const r = ring[i];
@@ -242,24 +273,24 @@ export class MeshState {
    * scattered reads of `values` the CPU can overlap. Fills sums, ring and wings; returns the new
    * face count.
    */
-  #split(v, symbols, sums, ring, wings) {
-    const { D, faces, values, slot, capM, n, m } = this;
+  #split(v, symbols, { inc, owner, after, before, sym, sums, ring, wings }) {
+    const { D, faces, values, slot, mark, capM, n, m } = this;
     const k = v.length;
     const I = symbols.length;
     const end = 3 * m;
-    const inc = new Int32Array(I + 1); // (I) incidence corners in ascending order (+1: a write past I is dropped)
-    const owner = new Int32Array(I); // (moved) per moved face: split index, corner after v, before v, symbol
-    const after = new Int32Array(I);
-    const before = new Int32Array(I);
-    const sym = new Uint8Array(I);
+    // inc: incidence corners in ascending order; per moved face: owner (split index),
+    // after / before (the corners after / before v), sym (its symbol)
     let moved = 0;
     let count = 0;
     let mNew = m;
-    for (let i = 0; i < k; i++) slot[v[i]] = i;
+    for (let i = 0; i < k; i++) {
+      slot[v[i]] = i;
+      mark[v[i]] = 1;
+    }
     try {
       for (let c = 0; c < end; c++) {
-        inc[count] = c; // typed-array writes past the end are ignored: more than I incidences only count
-        count += (slot[faces[c]] >>> 31) ^ 1; // 1 when faces[c] is a split vertex (slot >= 0)
+        inc[count] = c; // inc holds >= I + 1; a write past its end is dropped (count > I only fails)
+        count += mark[faces[c]];
       }
       if (count !== I) throw new FormatError(`batch has ${I} incidence symbols, the mesh has ${count} incidences`);
       for (let t = 0; t < I; t++) {
@@ -290,7 +321,10 @@ export class MeshState {
         sym[moved++] = s;
       }
     } finally {
-      for (let i = 0; i < k; i++) slot[v[i]] = -1;
+      for (let i = 0; i < k; i++) {
+        slot[v[i]] = -1;
+        mark[v[i]] = 0;
+      }
     }
     if (D === 3) ringSums3(moved, owner, after, before, sym, values, sums);
     else ringSums(D, moved, owner, after, before, sym, values, sums);
