@@ -288,9 +288,13 @@ export class MeshState {
       mark[v[i]] = 1;
     }
     try {
-      for (let c = 0; c < end; c++) {
+      for (let c = 0; c < end; c += 3) { // one face per step
         inc[count] = c; // inc holds >= I + 1; a write past its end is dropped (count > I only fails)
         count += mark[faces[c]];
+        inc[count] = c + 1;
+        count += mark[faces[c + 1]];
+        inc[count] = c + 2;
+        count += mark[faces[c + 2]];
       }
       if (count !== I) throw new FormatError(`batch has ${I} incidence symbols, the mesh has ${count} incidences`);
       for (let t = 0; t < I; t++) {
