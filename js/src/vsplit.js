@@ -176,8 +176,10 @@ function ringSums3(moved, owner, after, before, sym, values, sums) {
  * A primitive's mesh as it grows, in typed arrays allocated once from the extension's
  * full-resolution counts (capN vertices, capM faces):
  *
- *   values (capN*D) Float64Array  row-major: vertex i's D integer values at [i*D, i*D+D) -- grid
- *                                 x, y, z, then attribute components (exact in float64)
+ *   values (capN*D) Int32Array    row-major: vertex i's D integer values at [i*D, i*D+D) -- grid
+ *                                 x, y, z, then attribute components. Valid values are < 2^30; a
+ *                                 hostile stream whose value leaves the int32 range turns the array
+ *                                 into a Float64Array (exact, as the reference decoder's int64)
  *   faces  (capM*3) Uint32Array   face f's vertex ids at corners 3f, 3f+1, 3f+2
  *   slot   (capN)   Int32Array    -1 for every vertex, except during a batch, where slot[v[i]] = i
  *                                 for the batch's split vertices
@@ -195,7 +197,7 @@ export class MeshState {
     this.capN = capN;
     this.capM = capM;
     try {
-      this.values = new Float64Array(capN * D);
+      this.values = new Int32Array(capN * D); // 4 bytes a value: the ring sums' scattered reads cost less
       this.faces = new Uint32Array(capM * 3);
       this.slot = new Int32Array(capN).fill(-1);
       this.mark = new Uint8Array(capN);
@@ -209,6 +211,12 @@ export class MeshState {
     this.m = m;
     this.perIncidence = { size: 0 };
     this.perSplit = { size: 0 };
+  }
+
+  /** Moves the values to a Float64Array (exact integers up to 2^53) and returns it. */
+  #widen() {
+    if (!(this.values instanceof Float64Array)) this.values = Float64Array.from(this.values);
+    return this.values;
   }
 
   /**
@@ -243,7 +251,8 @@ export class MeshState {
    * @param {Int32Array} v (k) split vertices; symbols (I) Uint8Array; residuals (k*D) Float64Array
    */
   applyBatch(v, symbols, residuals) {
-    const { D, values } = this;
+    const { D } = this;
+    let { values } = this;
     const k = v.length;
     const n = this.n;
     if (n + k > this.capN) throw new FormatError('splits exceed the declared vertex count');
@@ -257,7 +266,9 @@ export class MeshState {
       if (wings[i] < 1 || wings[i] > 2) throw new FormatError('a split names no new face or more than two');
       const r = ring[i];
       for (let d = 0, o = i * D; d < D; d++, o++) {
-        values[n * D + o] = Math.floor(sums[o] / r) + residuals[o];
+        const x = Math.floor(sums[o] / r) + residuals[o];
+        if (x !== (x | 0)) values = this.#widen(); // outside int32: never in a valid stream
+        values[n * D + o] = x;
       }
     }
     this.n = n + k;
