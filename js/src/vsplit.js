@@ -29,24 +29,25 @@ function column(p, at, count, name) {
 }
 
 /**
- * A column's `count` values as a Float64Array (exact below 2^53; larger ones only matter to be
- * rejected). Byte plane j of value i is at start + j*count + i.
+ * A column's `count` values (byte plane j of value i is at start + j*count + i): for width 1 the
+ * payload's own bytes (a view, no copy), for widths 2 and 4 a Uint32Array, for width 8 a
+ * Float64Array (exact below 2^53; larger values only matter to be rejected).
  */
 function columnValues(p, { width, start: s }, count) {
-  const out = new Float64Array(count);
-  if (width === 1) {
-    out.set(p.subarray(s, s + count));
-  } else if (width === 2) {
+  if (width === 1) return p.subarray(s, s + count);
+  if (width === 2) {
+    const out = new Uint32Array(count);
     for (let i = 0; i < count; i++) out[i] = p[s + i] | (p[s + count + i] << 8);
-  } else {
-    for (let i = 0, c = count; i < count; i++) {
-      out[i] = (p[s + i] | (p[s + c + i] << 8) | (p[s + 2 * c + i] << 16) | (p[s + 3 * c + i] << 24)) >>> 0;
-    }
-    for (let plane = 4; plane < width; plane++) { // width 8: bytes 4..7 only need to be seen as "large"
-      const src = s + plane * count;
-      const scale = TWO32 * 2 ** (8 * plane - 32);
-      for (let i = 0; i < count; i++) out[i] += p[src + i] * scale;
-    }
+    return out;
+  }
+  const out = width === 4 ? new Uint32Array(count) : new Float64Array(count);
+  for (let i = 0, c = count; i < count; i++) {
+    out[i] = (p[s + i] | (p[s + c + i] << 8) | (p[s + 2 * c + i] << 16) | (p[s + 3 * c + i] << 24)) >>> 0;
+  }
+  for (let plane = 4; plane < width; plane++) { // width 8: bytes 4..7 only need to be seen as "large"
+    const src = s + plane * count;
+    const scale = TWO32 * 2 ** (8 * plane - 32);
+    for (let i = 0; i < count; i++) out[i] += p[src + i] * scale;
   }
   return out;
 }
@@ -77,8 +78,9 @@ function unzigzagInto(p, col, K, D, d, residuals) {
 
 /**
  * Parses a chunk payload against D values per vertex and at most `maxSplits` splits.
- * @returns {{batches: {k:number, I:number}[], v: Int32Array, symbols: Uint8Array, residuals: Float64Array}}
- *   v: (K) split vertices (batch-relative gaps resolved); symbols: (I); residuals: (K*D) row-major per split.
+ * @returns {{batches: {k:number, I:number}[], v: Int32Array, symbols: Uint8Array, residuals: Int32Array|Float64Array}}
+ *   v: (K) split vertices (batch-relative gaps resolved); symbols: (I); residuals: (K*D) row-major per split,
+ *   an Int32Array unless a residual column has width 8.
  */
 export function unpackPayload(p, D, maxSplits) {
   if (p.length < 4) throw new FormatError('chunk payload: shorter than its header');
@@ -135,7 +137,8 @@ export function unpackPayload(p, D, maxSplits) {
     }
     s += k;
   }
-  const residuals = new Float64Array(K * D);
+  // widths 1-4 give residuals within int32; only a width-8 column (valid streams have none) needs doubles
+  const residuals = residualColumns.some((c) => c.width === 8) ? new Float64Array(K * D) : new Int32Array(K * D);
   for (let d = 0; d < D; d++) unzigzagInto(p, residualColumns[d], K, D, d, residuals);
   return { batches, v, symbols: symbols.subarray(0, I), residuals };
 }
@@ -248,7 +251,7 @@ export class MeshState {
   /**
    * Applies one batch (spec/bitstream.md §6.1) in place. On a FormatError the mesh may be left
    * half changed (the decoder then refuses to show it).
-   * @param {Int32Array} v (k) split vertices; symbols (I) Uint8Array; residuals (k*D) Float64Array
+   * @param {Int32Array} v (k) split vertices; symbols (I) Uint8Array; residuals (k*D) Int32Array or Float64Array
    */
   applyBatch(v, symbols, residuals) {
     const { D } = this;
