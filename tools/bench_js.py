@@ -3,7 +3,8 @@
 For each mesh: encode it with pmwm_codec (grid 14, Draco base, no watermark) and with DracoPy
 (quantization 14, compression level 7, the full mesh: the same settings as tools/bench.py's Draco
 column), then run ``node js/bench/bench.mjs`` (one warm-up each, then REPEATS alternating runs of
-``decodePmw`` and of draco3d ``DecodeBufferToMesh`` + array copies) and report medians.
+``decodePmw`` and of draco3d ``DecodeBufferToMesh`` + array copies) and report medians; then
+``node js/bench/stages.mjs --cpu`` splits the JS decode into its stages (CPU time per stage).
 
     python tools/bench_js.py [--big] [--repeats N] [--write BENCHMARKS.md]
 
@@ -42,11 +43,34 @@ def run_mesh(name: str, mesh, repeats: int, tmp: Path) -> dict:
     out = subprocess.run(["node", str(ROOT / "js" / "bench" / "bench.mjs"), str(pmw), str(drc), str(repeats)],
                          capture_output=True, text=True, check=True)
     result = json.loads(out.stdout)
-    result.update(name=name, pmw_bytes=pmw.stat().st_size, drc_bytes=drc.stat().st_size)
+    stages = subprocess.run(["node", str(ROOT / "js" / "bench" / "stages.mjs"), str(pmw), str(repeats), "--cpu"],
+                            capture_output=True, text=True, check=True)
+    result.update(name=name, pmw_bytes=pmw.stat().st_size, drc_bytes=drc.stat().st_size,
+                  stages=json.loads(stages.stdout))
     return result
 
 
-def render(results: list, command: str) -> str:
+#: stages.mjs keys, in decode order, with what each one is (libraries named).
+STAGES = [
+    ("plan", "GLB preamble + JSON plan"),
+    ("base", "Draco base mesh (draco3d) + grid mapping"),
+    ("blake2b", "chunk digests, BLAKE2b-128 (@noble/hashes)"),
+    ("zstd", "zstd frame walk + decompression (fzstd)"),
+    ("xxh64", "zstd content checksums, XXH64 (xxhash-wasm)"),
+    ("unpack", "payload columns -> split vertices, symbols, residuals"),
+    ("splits", "vertex splits (incidences, new faces, predicted values)"),
+    ("decode", "whole PmwDecoder feed + close"),
+    ("snapshot", "snapshot(): output arrays"),
+]
+
+
+def render_stages(results: list) -> str:
+    """The per-stage CPU-time table of stages.mjs, one column per mesh."""
+    rows = [[key, what] + [ms(r["stages"][key]) for r in results] for key, what in STAGES]
+    return table(["stage", "what"] + [r["name"] for r in results], rows)
+
+
+def render(results: list, command: str, load: float) -> str:
     rows = []
     for r in results:
         ours, draco = statistics.median(r["pmw"]), statistics.median(r["draco"])
@@ -56,7 +80,6 @@ def render(results: list, command: str) -> str:
                      f"{r['pmw_bytes']:,} / {r['drc_bytes']:,}"])
     runs = "; ".join(f"{r['name']}: decodePmw {[round(t, 4) for t in r['pmw']]}, draco3d {[round(t, 4) for t in r['draco']]}"
                      for r in results)
-    load = os.getloadavg()[0]
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
     dirty = subprocess.run(["git", "status", "--porcelain", "js/src"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
     node = results[0]["node"] if results else "?"
@@ -77,6 +100,12 @@ def render(results: list, command: str) -> str:
                ".pmw / .drc bytes"], rows),
         "",
         f"All runs (seconds): {runs}",
+        "",
+        "Stages of the JS decode (`node js/bench/stages.mjs FILE.pmw REPEATS --cpu`: medians of this process's "
+        "CPU time per stage over the same number of runs after one warm-up; the stage rows are timed in one "
+        "loop that does what PmwDecoder does, `decode` and `snapshot` through PmwDecoder itself):",
+        "",
+        render_stages(results),
     ])
 
 
@@ -89,11 +118,13 @@ def main() -> None:
     args = ap.parse_args()
     command = "python tools/bench_js.py" + (" --big" if args.big else "") + f" --repeats {args.repeats}" + (
         f" --write {args.write}" if args.write else "")
+    load = os.getloadavg()[0]
+    print(f"load average at start: {load:.2f}", file=sys.stderr)
     results = []
     with tempfile.TemporaryDirectory() as tmp:
         for name, mesh in load_meshes(args.corpus, args.big):
             results.append(run_mesh(name, mesh, args.repeats if mesh.vertex_count < 200_000 else 3, Path(tmp)))
-    publish(render(results, command), args.write, SECTION, lambda msg: print(msg, file=sys.stderr))
+    publish(render(results, command, load), args.write, SECTION, lambda msg: print(msg, file=sys.stderr))
 
 
 if __name__ == "__main__":

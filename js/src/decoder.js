@@ -154,7 +154,8 @@ export class PmwDecoder {
     for (const p of parts) {
       positions.set(p.positions, v * 3);
       positionsInt.set(p.positionsInt, v * 3);
-      for (let i = 0; i < p.indices.length; i++) indices[f * 3 + i] = p.indices[i] + v;
+      if (v === 0) indices.set(p.indices, f * 3);
+      else for (let i = 0; i < p.indices.length; i++) indices[f * 3 + i] = p.indices[i] + v;
       v += p.positionsInt.length / 3;
       f += p.indices.length / 3;
     }
@@ -186,36 +187,49 @@ export class PmwDecoder {
 
 /** One primitive's arrays now (copies); attributes dequantized, NORMAL/TANGENT xyz renormalized. */
 function partSnapshot(s, prim) {
-  const { D, n, m } = s;
+  const { D, n, m, values } = s;
   const positionsInt = new Int32Array(n * 3);
   const positions = new Float32Array(n * 3);
   const a = D - 3;
   const attributesInt = new Int32Array(n * a);
-  const { origin, step } = prim.grid;
-  for (let i = 0; i < n; i++) {
-    for (let d = 0; d < 3; d++) {
-      const q = s.values[i * D + d];
-      positionsInt[i * 3 + d] = q;
-      positions[i * 3 + d] = origin[d] + q * step[d];
-    }
-    for (let d = 0; d < a; d++) attributesInt[i * a + d] = s.values[i * D + 3 + d];
+  const [ox, oy, oz] = prim.grid.origin;
+  const [sx, sy, sz] = prim.grid.step;
+  for (let i = 0, r = 0, o = 0; i < n; i++, r += D, o += 3) {
+    const x = values[r];
+    const y = values[r + 1];
+    const z = values[r + 2];
+    positionsInt[o] = x;
+    positionsInt[o + 1] = y;
+    positionsInt[o + 2] = z;
+    positions[o] = ox + x * sx;
+    positions[o + 1] = oy + y * sy;
+    positions[o + 2] = oz + z * sz;
+    for (let d = 0; d < a; d++) attributesInt[i * a + d] = values[r + 3 + d];
   }
   const attributes = {};
   let col = 0;
   for (const g of prim.base.grids) {
-    const k = g.origin.length;
-    const out = new Float32Array(n * k);
-    for (let i = 0; i < n; i++) {
-      let norm = 0;
-      const nk = NORMALIZED[g.semantic] ? Math.min(3, k) : 0;
-      const row = [];
-      for (let c = 0; c < k; c++) row.push(g.origin[c] + attributesInt[i * a + col + c] * g.step[c]);
-      for (let c = 0; c < nk; c++) norm += row[c] * row[c];
-      norm = nk && norm > 0 ? Math.sqrt(norm) : 1;
-      for (let c = 0; c < k; c++) out[i * k + c] = c < nk ? row[c] / norm : row[c];
-    }
-    attributes[g.semantic] = out;
-    col += k;
+    attributes[g.semantic] = dequantize(attributesInt, n, a, col, g);
+    col += g.origin.length;
   }
   return { positions, positionsInt, indices: s.faces.slice(0, m * 3), attributesInt, attributes };
+}
+
+/**
+ * One attribute's floats: columns col..col+k of `attributesInt` (n*a) on grid `g` (k components),
+ * as (n*k) Float32Array; NORMAL/TANGENT xyz scaled to unit length (a zero vector stays zero).
+ */
+function dequantize(attributesInt, n, a, col, g) {
+  const k = g.origin.length;
+  const out = new Float32Array(n * k);
+  const nk = NORMALIZED[g.semantic] ? Math.min(3, k) : 0;
+  const row = new Float64Array(k);
+  for (let i = 0; i < n; i++) {
+    let norm = 0;
+    for (let c = 0; c < k; c++) row[c] = g.origin[c] + attributesInt[i * a + col + c] * g.step[c];
+    for (let c = 0; c < nk; c++) norm += row[c] * row[c];
+    norm = nk && norm > 0 ? Math.sqrt(norm) : 1;
+    for (let c = 0; c < k; c++) out[i * k + c] = c < nk ? row[c] / norm : row[c];
+  }
+  return out;
 }

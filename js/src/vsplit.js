@@ -7,14 +7,17 @@ import { FormatError, LimitError } from './errors.js';
 import { MAX_BATCHES_PER_CHUNK, MAX_VERTICES } from './constants.js';
 
 const TWO32 = 4294967296;
-/** Packed symbol value (0..124) -> its three symbols, least significant first. */
-const TRIPLES = Array.from({ length: 125 }, (_, x) => Uint8Array.of(x % 5, Math.floor(x / 5) % 5, Math.floor(x / 25)));
+/** (125*3) packed symbol value x -> its three symbols at 3x..3x+2, least significant first. */
+const TRIPLES = Uint8Array.from({ length: 375 }, (_, j) => Math.floor(Math.floor(j / 3) / 5 ** (j % 3)) % 5);
+/** Symbol (0..4) -> 1 when it creates the left / the right new face (spec §6.1 step 2). */
+const LEFT = Uint8Array.of(0, 0, 1, 0, 1);
+const RIGHT = Uint8Array.of(0, 0, 0, 1, 1);
 
 /**
- * One column at `at`: its `count` values as a Float64Array (exact below 2^53; larger ones only
- * matter to be rejected) and the offset after it.
+ * The column at `at` (spec §6: a width byte, then `count` values as byte planes): its width, the
+ * offset of its first plane and the offset after it. Checks the layout only, not the values.
  */
-function readColumn(p, at, count, name) {
+function column(p, at, count, name) {
   if (at >= p.length) throw new FormatError(`chunk payload: column ${name} is missing`);
   const width = p[at];
   if (width !== 1 && width !== 2 && width !== 4 && width !== 8) {
@@ -22,29 +25,62 @@ function readColumn(p, at, count, name) {
   }
   const end = at + 1 + width * count;
   if (end > p.length) throw new FormatError(`chunk payload: column ${name} is cut short`);
-  const out = new Float64Array(count);
-  if (width === 1) {
-    out.set(p.subarray(at + 1, end));
-    return { values: out, end };
+  return { width, start: at + 1, end };
+}
+
+/**
+ * A column's `count` values (byte plane j of value i is at start + j*count + i): for width 1 the
+ * payload's own bytes (a view, no copy), for widths 2 and 4 a Uint32Array, for width 8 a
+ * Float64Array (exact below 2^53; larger values only matter to be rejected).
+ */
+function columnValues(p, { width, start: s }, count) {
+  if (width === 1) return p.subarray(s, s + count);
+  if (width === 2) {
+    const out = new Uint32Array(count);
+    for (let i = 0; i < count; i++) out[i] = p[s + i] | (p[s + count + i] << 8);
+    return out;
   }
-  const lowPlanes = Math.min(width, 4);
-  for (let plane = 0; plane < lowPlanes; plane++) {
-    const src = at + 1 + plane * count;
-    const scale = 2 ** (8 * plane);
-    for (let i = 0; i < count; i++) out[i] += p[src + i] * scale;
+  const out = width === 4 ? new Uint32Array(count) : new Float64Array(count);
+  for (let i = 0, c = count; i < count; i++) {
+    out[i] = (p[s + i] | (p[s + c + i] << 8) | (p[s + 2 * c + i] << 16) | (p[s + 3 * c + i] << 24)) >>> 0;
   }
   for (let plane = 4; plane < width; plane++) { // width 8: bytes 4..7 only need to be seen as "large"
-    const src = at + 1 + plane * count;
-    const scale = TWO32 * 2 ** (8 * (plane - 4));
+    const src = s + plane * count;
+    const scale = TWO32 * 2 ** (8 * plane - 32);
     for (let i = 0; i < count; i++) out[i] += p[src + i] * scale;
   }
-  return { values: out, end };
+  return out;
+}
+
+/**
+ * Writes the zigzag-decoded values of residual column `col` (K values) into column d of
+ * `residuals` (K*D row-major). Widths 1-4 hold values below 2^32, decoded in 32-bit integers;
+ * width 8 goes through doubles and rejects a value above 2^32 (spec §6).
+ */
+function unzigzagInto(p, col, K, D, d, residuals) {
+  const s = col.start;
+  if (col.width === 8) {
+    const z = columnValues(p, col, K);
+    for (let i = 0; i < K; i++) {
+      if (z[i] > TWO32) throw new FormatError(`chunk payload: residual ${d} out of range`);
+      const half = Math.floor(z[i] / 2); // zigzag: 2r for r >= 0, -2r - 1 for r < 0
+      residuals[i * D + d] = z[i] === 2 * half ? half : -half - 1;
+    }
+    return;
+  }
+  for (let i = 0, o = d; i < K; i++, o += D) {
+    let z = p[s + i];
+    if (col.width >= 2) z |= p[s + K + i] << 8;
+    if (col.width === 4) z = (z | (p[s + 2 * K + i] << 16) | (p[s + 3 * K + i] << 24)) >>> 0;
+    residuals[o] = (z >>> 1) ^ -(z & 1); // zigzag: 2r for r >= 0, -2r - 1 for r < 0
+  }
 }
 
 /**
  * Parses a chunk payload against D values per vertex and at most `maxSplits` splits.
- * @returns {{batches: {k:number, I:number}[], v: Int32Array, symbols: Uint8Array, residuals: Float64Array}}
- *   v: (K) split vertices (batch-relative gaps resolved); symbols: (I); residuals: (K*D) row-major per split.
+ * @returns {{batches: {k:number, I:number}[], v: Int32Array, symbols: Uint8Array, residuals: Int32Array|Float64Array}}
+ *   v: (K) split vertices (batch-relative gaps resolved); symbols: (I); residuals: (K*D) row-major per split,
+ *   an Int32Array unless a residual column has width 8.
  */
 export function unpackPayload(p, D, maxSplits) {
   if (p.length < 4) throw new FormatError('chunk payload: shorter than its header');
@@ -68,29 +104,31 @@ export function unpackPayload(p, D, maxSplits) {
   if (K > maxSplits) throw new LimitError(`chunk payload: ${K} splits, more than the limit ${maxSplits}`);
   const packedCount = Math.ceil(I / 3);
   if (K * (D + 1) + packedCount > p.length) throw new FormatError('chunk payload: declared counts exceed the payload size');
-  let at = 4 + 8 * batchCount;
-  const gaps = readColumn(p, at, K, 'gaps');
-  const packed = readColumn(p, gaps.end, packedCount, 'symbols');
-  at = packed.end;
-  const columns = [];
+  const gapColumn = column(p, 4 + 8 * batchCount, K, 'gaps');
+  const symbolColumn = column(p, gapColumn.end, packedCount, 'symbols');
+  let at = symbolColumn.end;
+  const residualColumns = [];
   for (let d = 0; d < D; d++) {
-    const col = readColumn(p, at, K, d < 3 ? `residual_${'xyz'[d]}` : `attribute_${d - 3}`);
-    columns.push(col.values);
-    at = col.end;
+    residualColumns.push(column(p, at, K, d < 3 ? `residual_${'xyz'[d]}` : `attribute_${d - 3}`));
+    at = residualColumns[d].end;
   }
   if (at !== p.length) throw new FormatError(`chunk payload: ${p.length - at} trailing bytes`);
   const symbols = new Uint8Array(packedCount * 3);
+  const packed = columnValues(p, symbolColumn, packedCount);
   for (let t = 0; t < packedCount; t++) {
-    const x = packed.values[t];
+    const x = packed[t];
     if (x >= 125) throw new FormatError('chunk payload: unknown incidence symbol');
-    symbols.set(TRIPLES[x], 3 * t);
+    symbols[3 * t] = TRIPLES[3 * x];
+    symbols[3 * t + 1] = TRIPLES[3 * x + 1];
+    symbols[3 * t + 2] = TRIPLES[3 * x + 2];
   }
+  const gaps = columnValues(p, gapColumn, K);
   const v = new Int32Array(K);
   let s = 0;
   for (const { k } of batches) {
     let prev = -1;
     for (let i = 0; i < k; i++) {
-      const g = gaps.values[s + i];
+      const g = gaps[s + i];
       if (g > MAX_VERTICES) throw new FormatError('chunk payload: split vertex gap out of range');
       prev += g + 1;
       // a vertex past MAX_VERTICES can be no vertex of the mesh (spec: it MUST be < n <= MAX_VERTICES)
@@ -99,23 +137,61 @@ export function unpackPayload(p, D, maxSplits) {
     }
     s += k;
   }
-  const residuals = new Float64Array(K * D);
-  for (let d = 0; d < D; d++) {
-    const col = columns[d];
-    for (let i = 0; i < K; i++) {
-      const z = col[i];
-      if (z > TWO32) throw new FormatError(`chunk payload: residual ${d} out of range`);
-      residuals[i * D + d] = z % 2 === 0 ? z / 2 : -(z + 1) / 2;
-    }
-  }
+  // widths 1-4 give residuals within int32; only a width-8 column (valid streams have none) needs doubles
+  const residuals = residualColumns.some((c) => c.width === 8) ? new Float64Array(K * D) : new Int32Array(K * D);
+  for (let d = 0; d < D; d++) unzigzagInto(p, residualColumns[d], K, D, d, residuals);
   return { batches, v, symbols: symbols.subarray(0, I), residuals };
 }
 
 /**
- * A primitive's mesh as it grows: `values` (capN*D) Float64Array of integer values per vertex
- * (grid x, y, z, then attribute components), `faces` (capM*3) Uint32Array, `n`/`m` in use, and
- * for every vertex the list of corners holding it (`head` (capN), `next` (capM*3) Int32Array,
- * -1 ends a list), so a batch finds its incidences without scanning every face.
+ * Adds to `sums` (k*D) the a and b corners of every moved face r < moved of a batch: a moved face
+ * gives a + b to the ring of its new vertex, a left new face v + a, a right one v + b (v is added
+ * per split by the caller). owner/after/before (moved) Int32Array, sym (moved) Uint8Array.
+ */
+function ringSums(D, moved, owner, after, before, sym, values, sums) {
+  for (let r = 0; r < moved; r++) {
+    const s = sym[r];
+    const wa = 1 + LEFT[s];
+    const wb = 1 + RIGHT[s];
+    const a = after[r] * D;
+    const b = before[r] * D;
+    const o = owner[r] * D;
+    for (let d = 0; d < D; d++) sums[o + d] += wa * values[a + d] + wb * values[b + d];
+  }
+}
+
+/** ringSums for D = 3 (positions only), unrolled. */
+function ringSums3(moved, owner, after, before, sym, values, sums) {
+  for (let r = 0; r < moved; r++) {
+    const s = sym[r];
+    const wa = 1 + LEFT[s];
+    const wb = 1 + RIGHT[s];
+    const a = 3 * after[r];
+    const b = 3 * before[r];
+    const o = 3 * owner[r];
+    sums[o] += wa * values[a] + wb * values[b];
+    sums[o + 1] += wa * values[a + 1] + wb * values[b + 1];
+    sums[o + 2] += wa * values[a + 2] + wb * values[b + 2];
+  }
+}
+
+/**
+ * A primitive's mesh as it grows, in typed arrays allocated once from the extension's
+ * full-resolution counts (capN vertices, capM faces):
+ *
+ *   values (capN*D) Int32Array    row-major: vertex i's D integer values at [i*D, i*D+D) -- grid
+ *                                 x, y, z, then attribute components. Valid values are < 2^30; a
+ *                                 hostile stream whose value leaves the int32 range turns the array
+ *                                 into a Float64Array (exact, as the reference decoder's int64)
+ *   faces  (capM*3) Uint32Array   face f's vertex ids at corners 3f, 3f+1, 3f+2
+ *   slot   (capN)   Int32Array    -1 for every vertex, except during a batch, where slot[v[i]] = i
+ *                                 for the batch's split vertices
+ *   mark   (capN)   Uint8Array    0 for every vertex, except 1 for the split vertices during a batch
+ *                                 (what the corner scan reads: a quarter of slot's bytes)
+ *
+ * `n`, `m`: vertices and faces in use. No per-vertex incidence lists: a batch scans the corners of
+ * its m faces once, in order (spec §6.1 step 1), which costs less than keeping lists up to date.
+ * Per-batch scratch arrays (see #scratch) are kept between batches and grown geometrically.
  */
 export class MeshState {
   constructor(values, faces, n, m, D, capN, capM) {
@@ -124,115 +200,159 @@ export class MeshState {
     this.capN = capN;
     this.capM = capM;
     try {
-      this.values = new Float64Array(capN * D);
+      this.values = new Int32Array(capN * D); // 4 bytes a value: the ring sums' scattered reads cost less
       this.faces = new Uint32Array(capM * 3);
-      this.head = new Int32Array(capN).fill(-1);
       this.slot = new Int32Array(capN).fill(-1);
-      this.next = new Int32Array(capM * 3);
+      this.mark = new Uint8Array(capN);
     } catch (e) {
       if (!(e instanceof RangeError)) throw e;
       throw new LimitError(`cannot allocate ${capN} vertices and ${capM} faces (${e.message})`);
     }
     this.values.set(values.subarray(0, n * D));
     this.faces.set(faces.subarray(0, m * 3));
-    for (let c = 3 * m - 1; c >= 0; c--) this.#link(c);
     this.n = n;
     this.m = m;
+    this.perIncidence = { size: 0 };
+    this.perSplit = { size: 0 };
   }
 
-  /** Puts corner c at the head of the list of the vertex it holds. */
-  #link(c) {
-    const x = this.faces[c];
-    this.next[c] = this.head[x];
-    this.head[x] = c;
-  }
-
-  /** The corners holding v[0..k) in ascending order (the face-slot order of spec §6.1 step 1). */
-  #incidences(v, I) {
-    const { head, next } = this;
-    let count = 0;
-    for (let i = 0; i < v.length; i++) {
-      for (let c = head[v[i]]; c >= 0; c = next[c]) {
-        if (++count > I) throw new FormatError(`batch has ${I} incidence symbols, the mesh has more incidences`);
-      }
-    }
-    if (count !== I) throw new FormatError(`batch has ${I} incidence symbols, the mesh has ${count} incidences`);
-    const inc = new Int32Array(count);
-    let at = 0;
-    for (let i = 0; i < v.length; i++) for (let c = head[v[i]]; c >= 0; c = next[c]) inc[at++] = c;
-    return inc.sort();
+  /** Moves the values to a Float64Array (exact integers up to 2^53) and returns it. */
+  #widen() {
+    if (!(this.values instanceof Float64Array)) this.values = Float64Array.from(this.values);
+    return this.values;
   }
 
   /**
-   * Applies one batch (spec/bitstream.md §6.1) in place.
-   * @param {Int32Array} v (k) split vertices; symbols (I) Uint8Array; residuals (k*D) Float64Array
+   * Scratch arrays of a batch with I incidences and k splits, reused from batch to batch:
+   * inc (I+1) Int32Array incidence corners; per moved face (at most I): owner, after, before
+   * Int32Array and sym Uint8Array; per split: sums (k*D) Float64Array, ring and wings (k)
+   * Int32Array, all three zeroed.
+   */
+  #scratch(I, k) {
+    const D = this.D;
+    if (this.perIncidence.size < I + 1) {
+      const size = Math.max(I + 1, 2 * this.perIncidence.size);
+      this.perIncidence = {
+        size, inc: new Int32Array(size), owner: new Int32Array(size), after: new Int32Array(size),
+        before: new Int32Array(size), sym: new Uint8Array(size),
+      };
+    }
+    if (this.perSplit.size < k) {
+      const size = Math.max(k, 2 * this.perSplit.size);
+      this.perSplit = { size, sums: new Float64Array(size * D), ring: new Int32Array(size), wings: new Int32Array(size) };
+    }
+    const { sums, ring, wings } = this.perSplit;
+    sums.fill(0, 0, k * D);
+    ring.fill(0, 0, k);
+    wings.fill(0, 0, k);
+    return { ...this.perIncidence, sums, ring, wings };
+  }
+
+  /**
+   * Applies one batch (spec/bitstream.md §6.1) in place. On a FormatError the mesh may be left
+   * half changed (the decoder then refuses to show it).
+   * @param {Int32Array} v (k) split vertices; symbols (I) Uint8Array; residuals (k*D) Int32Array or Float64Array
    */
   applyBatch(v, symbols, residuals) {
-    const { D, faces, values } = this;
+    const { D } = this;
+    let { values } = this;
     const k = v.length;
     const n = this.n;
-    const m = this.m;
     if (n + k > this.capN) throw new FormatError('splits exceed the declared vertex count');
     for (let i = 0; i < k; i++) {
       if (v[i] >= n || (i > 0 && v[i] <= v[i - 1])) throw new FormatError('split vertex ids out of range or not increasing');
     }
-    const inc = this.#incidences(v, symbols.length);
-    const { sums, ring, wings, mNew } = this.#split(v, symbols, inc, n, m);
+    const work = this.#scratch(symbols.length, k);
+    const { sums, ring, wings } = work; // (k*D) ring sums of u_i row-major; (k) ring corners, new faces
+    const mNew = this.#split(v, symbols, work);
     for (let i = 0; i < k; i++) {
       if (wings[i] < 1 || wings[i] > 2) throw new FormatError('a split names no new face or more than two');
-      for (let d = 0; d < D; d++) {
-        values[(n + i) * D + d] = Math.floor(sums[i * D + d] / ring[i]) + residuals[i * D + d];
+      const r = ring[i];
+      for (let d = 0, o = i * D; d < D; d++, o++) {
+        const x = Math.floor(sums[o] / r) + residuals[o];
+        if (x !== (x | 0)) values = this.#widen(); // outside int32: never in a valid stream
+        values[n * D + o] = x;
       }
     }
-    for (let i = 0; i < k; i++) this.head[v[i]] = -1;
-    for (let t = inc.length - 1; t >= 0; t--) this.#link(inc[t]); // each to v[i] or its new vertex
-    for (let c = 3 * mNew - 1; c >= 3 * m; c--) this.#link(c);
     this.n = n + k;
     this.m = mNew;
   }
 
-  /** Steps 1-3 of spec §6.1 over the incidences `inc` in order: corners rewritten, faces appended. */
-  #split(v, symbols, inc, n, m) {
-    const { D, faces, values, slot, capM } = this;
+  /**
+   * Steps 1-3 of spec §6.1. A scan of the corners of faces 0..m-1 lists the incidences in order
+   * (branch-free: every corner is written, the count advances on a split vertex); then each
+   * incidence t takes symbol t, its corner is rewritten (to u_i >= n, never a split vertex) and
+   * new faces are appended after face m-1. Each moved face is recorded (owner i, corners a and b,
+   * symbol) and the ring sums are added from those records in a loop without branches, whose
+   * scattered reads of `values` the CPU can overlap. Fills sums, ring and wings; returns the new
+   * face count.
+   */
+  #split(v, symbols, { inc, owner, after, before, sym, sums, ring, wings }) {
+    const { D, faces, values, slot, mark, capM, n, m } = this;
     const k = v.length;
-    const sums = new Float64Array(k * D);
-    const wings = new Int32Array(k);
-    const ring = new Int32Array(k);
-    for (let i = 0; i < k; i++) slot[v[i]] = i;
+    const I = symbols.length;
+    const end = 3 * m;
+    // inc: incidence corners in ascending order; per moved face: owner (split index),
+    // after / before (the corners after / before v), sym (its symbol)
+    let moved = 0;
+    let count = 0;
     let mNew = m;
+    for (let i = 0; i < k; i++) {
+      slot[v[i]] = i;
+      mark[v[i]] = 1;
+    }
     try {
-      for (let t = 0; t < inc.length; t++) {
+      for (let c = 0; c < end; c += 3) { // one face per step
+        inc[count] = c; // inc holds >= I + 1; a write past its end is dropped (count > I only fails)
+        count += mark[faces[c]];
+        inc[count] = c + 1;
+        count += mark[faces[c + 1]];
+        inc[count] = c + 2;
+        count += mark[faces[c + 2]];
+      }
+      if (count !== I) throw new FormatError(`batch has ${I} incidence symbols, the mesh has ${count} incidences`);
+      for (let t = 0; t < I; t++) {
         const s = symbols[t];
         if (s === 0) continue;
         const c = inc[t];
         const i = slot[faces[c]];
         const f = c - (c % 3);
-        const a = faces[f + ((c + 1) % 3)];
-        const b = faces[f + ((c + 2) % 3)];
+        const a = faces[f + ((c + 1) % 3)]; // corner after v
+        const b = faces[f + ((c + 2) % 3)]; // corner before v
         const u = n + i;
         const vi = v[i];
         faces[c] = u;
-        const left = s === 2 || s === 4;
-        const right = s === 3 || s === 4;
-        if ((left ? 1 : 0) + (right ? 1 : 0) + mNew > capM) throw new FormatError('splits exceed the declared face count');
+        const left = LEFT[s];
+        const right = RIGHT[s];
+        if (left + right + mNew > capM) throw new FormatError('splits exceed the declared face count');
         if (left) {
           faces[3 * mNew] = u; faces[3 * mNew + 1] = vi; faces[3 * mNew + 2] = a; mNew++;
         }
         if (right) {
           faces[3 * mNew] = vi; faces[3 * mNew + 1] = u; faces[3 * mNew + 2] = b; mNew++;
         }
-        const wa = 1 + (left ? 1 : 0); // weights of a, b and v in the ring sum of u
-        const wb = 1 + (right ? 1 : 0);
-        const wv = (left ? 1 : 0) + (right ? 1 : 0);
-        const o = i * D;
-        for (let d = 0; d < D; d++) sums[o + d] += wa * values[a * D + d] + wb * values[b * D + d] + wv * values[vi * D + d];
-        ring[i] += 2 + 2 * wv;
-        wings[i] += wv;
+        ring[i] += 2 + 2 * (left + right);
+        wings[i] += left + right;
+        owner[moved] = i;
+        after[moved] = a;
+        before[moved] = b;
+        sym[moved++] = s;
       }
     } finally {
-      for (let i = 0; i < k; i++) slot[v[i]] = -1;
+      for (let i = 0; i < k; i++) {
+        slot[v[i]] = -1;
+        mark[v[i]] = 0;
+      }
     }
-    return { sums, ring, wings, mNew };
+    if (D === 3) ringSums3(moved, owner, after, before, sym, values, sums);
+    else ringSums(D, moved, owner, after, before, sym, values, sums);
+    for (let i = 0; i < k; i++) { // v once per new face, read in vertex order
+      const w = wings[i];
+      const x = v[i] * D;
+      const o = i * D;
+      for (let d = 0; d < D; d++) sums[o + d] += w * values[x + d];
+    }
+    return mNew;
   }
 
   /** Applies a whole unpacked chunk payload (see unpackPayload), batch after batch. */

@@ -1,0 +1,86 @@
+#!/usr/bin/env node
+/**
+ * Per-stage times of the JS full decode of one .pmw (medians over REPEATS runs after one warm-up):
+ * GLB + JSON plan, Draco base (draco3d), and over all chunks: BLAKE2b digest (@noble/hashes),
+ * zstd frame walk + decompression (fzstd), XXH64 content checksum (xxhash-wasm), payload unpack,
+ * split application; then the final snapshot. Prints JSON {stage: seconds}.
+ *
+ *   node js/bench/stages.mjs FILE.pmw [REPEATS] [--cpu]
+ */
+import { readFileSync } from 'node:fs';
+import { performance } from 'node:perf_hooks';
+import { decompress } from 'fzstd';
+import xxhash from 'xxhash-wasm';
+import { decodeBase } from '../src/base.js';
+import { digestMatches, frameLayout, initChunkFrames } from '../src/chunkframe.js';
+import { PmwDecoder } from '../src/decoder.js';
+import { parseGlb, planDocument } from '../src/header.js';
+import { MeshState, unpackPayload } from '../src/vsplit.js';
+
+const [path, repeatsArg] = process.argv.slice(2).filter((a) => a !== '--cpu');
+const repeats = Number(repeatsArg ?? 5);
+const bytes = new Uint8Array(readFileSync(path));
+const hasher = await xxhash();
+/** Milliseconds: wall clock, or with --cpu this process's CPU time (steadier on a loaded machine). */
+const clock = process.argv.includes('--cpu') ? () => { const u = process.cpuUsage(); return (u.user + u.system) / 1000; }
+  : () => performance.now();
+await initChunkFrames();
+
+/** One decode, stage by stage, as PmwDecoder does it; returns {stage: seconds}. */
+async function stages() {
+  const t = {};
+  let t0 = clock();
+  const lap = (name) => {
+    const now = clock();
+    t[name] = (t[name] ?? 0) + (now - t0) / 1000;
+    t0 = now;
+  };
+  const header = parseGlb(bytes);
+  const plan = planDocument(header.gltf, header.binLength);
+  const bin = bytes.subarray(header.binStart);
+  lap('plan');
+  const states = [];
+  for (const prim of plan.primitives) {
+    const b = await decodeBase(bin, prim);
+    states.push(new MeshState(b.values, b.faces, b.n, b.m, b.D, prim.vertexCount, prim.faceCount));
+  }
+  lap('base');
+  plan.stream.forEach((c) => {
+    const stored = bin.subarray(c.offset, c.offset + c.length);
+    t0 = clock();
+    if (!digestMatches(stored, c.digest)) throw new Error('digest');
+    lap('blake2b');
+    frameLayout(stored, 'chunk');
+    const out = new Uint8Array(c.uncompressedLength);
+    decompress(stored, out);
+    lap('zstd');
+    hasher.h64Raw(out, 0n);
+    lap('xxh64');
+    const state = states[c.primitive];
+    const records = unpackPayload(out, state.D, state.capN);
+    lap('unpack');
+    state.applyPayload(records);
+    lap('splits');
+  });
+  return t;
+}
+
+async function full() {
+  const t = clock();
+  const d = new PmwDecoder();
+  await d.feed(bytes);
+  d.close();
+  const t1 = clock();
+  d.snapshot();
+  return { decode: (t1 - t) / 1000, snapshot: (clock() - t1) / 1000 };
+}
+
+const median = (xs) => xs.slice().sort((a, b) => a - b)[Math.floor(xs.length / 2)];
+await stages();
+await full();
+const runs = [];
+for (let i = 0; i < repeats; i++) runs.push({ ...(await stages()), ...(await full()) });
+const out = {};
+for (const k of Object.keys(runs[0])) out[k] = Number(median(runs.map((r) => r[k])).toFixed(5));
+out.chunks = planDocument(parseGlb(bytes).gltf, parseGlb(bytes).binLength).stream.length;
+process.stdout.write(`${JSON.stringify(out)}\n`);
