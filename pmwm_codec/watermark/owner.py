@@ -1,15 +1,19 @@
 """The owner layer: a 64-bit owner ID in the distribution of vertex norms, read blind.
 
 Method (after Cho, Prost & Jung 2007, "mean shifting of the vertex-norm histogram", with a
-smooth per-vertex statistic, spreading over two shells per bit and transport-checked margins):
+smooth per-vertex statistic, a gradient-flow embedding and margins checked against the
+transport noise at embedding time):
 
-1. **Frame.**  ``c`` = the vertex mean; ``rho`` = |v - c| per vertex.  Invariant to
-   rotation, translation, uniform scale and re-ordering.
+1. **Frame.**  Over the *distinct* vertex positions (seam duplicates and the vertices
+   Draco splits or merges count once): ``c`` = their mean, ``rho`` = |v - c|.  Invariant
+   to rotation, translation, uniform scale, re-ordering and duplication.
 2. **Shells.**  The range between the ``QUANTILE`` and ``1 - QUANTILE`` quantiles of
    ``rho`` (each a mean of the sorted norms in a band of +-``BAND`` around it, so that
    neither one vertex nor quantization noise moves it) is cut into ``BINS + 2`` equal
    shells: a guard shell each side, never moved, and ``BINS = 64 * SPREAD`` shells.  In a
    shell, ``t`` = the position of a vertex between the inner (0) and outer (1) radius.
+   ``SPREAD = 1``: two narrower shells per bit (128 shells) cost less RMS and never left a
+   bit short, but noise, smoothing and coarse quantization read worse (measured).
 3. **Score.**  Shell score ``S`` = mean of ``g(t) = (sin(4 pi t)/2 - sin(2 pi t)) / (3 sqrt3/4)``
    over its vertices, in [-1, 1].  ``g`` is 0 with a zero slope at both edges, so a vertex
    that noise carries across a shell edge changes no score (the hard edges of the mean
@@ -48,20 +52,20 @@ __all__ = ["OwnerResult", "embed", "detect", "false_alarm_probability", "OWNER_B
 
 OWNER_BITS = 64
 #: Radial shells per bit (keyed, spread over the range of norms): a bit's soft value is
-#: the mean of its shells' scores, so a shell the encoder cannot move far enough (too few
-#: vertices, a strong natural bias) is carried by the others.
-SPREAD = 2
+#: the mean of its shells' scores, so that with SPREAD > 1 a shell the encoder cannot move
+#: far enough is carried by the others.  1 (module docstring, step 2: measured).
+SPREAD = 1
 #: Radial shells in all.
 BINS = OWNER_BITS * SPREAD
 #: Quantile of the norms that bounds the shells (each side).
-QUANTILE = 0.01
+QUANTILE = 0.03
 #: Half-width (a fraction of the vertices) of the band of sorted norms averaged into each
 #: bound: a trimmed mean of ~0.5% of the norms, inside the never-moved guard shells, so
 #: that neither one vertex nor quantization noise moves the shells much.
 BAND = 0.0025
 #: Default margin: every coded bit's soft value (in [-1, 1]) on its side of 0 by at least
 #: this, clean and after each simulated transport (measured: BENCHMARKS.md "Owner layer").
-DEFAULT_STRENGTH = 0.12
+DEFAULT_STRENGTH = 0.10
 #: The transport the encoder simulates to check every shell's margin: coordinate
 #: quantization on a cubic grid of ``2**TRANSPORT_BITS`` steps over the largest extent
 #: (Draco q11, and everything finer), on ``TRANSPORT_TRIALS`` randomly rotated and shifted
@@ -156,6 +160,22 @@ def _band_mean(sorted_rho: np.ndarray, q: float) -> float:
     return float(sorted_rho[a:b].mean())
 
 
+def _distinct(positions) -> np.ndarray:
+    """The distinct rows of ``positions`` (n, 3) as (k, 3) float64.
+
+    Every statistic counts a position once: seam duplicates, and the vertices a Draco
+    round trip splits or merges at them, change none.  (Welding vertices closer than a
+    tolerance as well, so that noise pulling a seam apart changes nothing either, was
+    measured and rejected: pairs entering and leaving the tolerance as the embedding moves
+    them made the feedback loop diverge.)
+    """
+    p = np.asarray(positions, np.float64).reshape(-1, 3)
+    p = p[np.lexsort(p.T[::-1])]
+    keep = np.ones(len(p), bool)
+    keep[1:] = np.any(p[1:] != p[:-1], axis=1)
+    return p[keep]
+
+
 def _frame(positions: np.ndarray) -> tuple:
     """``(centroid (3,) float64, lo, width)``: shell ``k`` holds norms in [lo + k w, lo + (k+1) w).
 
@@ -185,7 +205,7 @@ def _shells(positions: np.ndarray, frame: tuple) -> tuple:
 
 def _scores(positions: np.ndarray) -> tuple:
     """``(S (BINS,) float64 in [-1, 1], mass (BINS,) int64)``: mean g(t) per shell, vertex count."""
-    positions = np.asarray(positions, np.float64)
+    positions = _distinct(positions)
     frame = _frame(positions)
     if frame[2] == 0:
         return np.zeros(BINS), np.zeros(BINS, np.int64)
@@ -244,15 +264,18 @@ def _worst_bits(marked: np.ndarray, sides: np.ndarray, shell_bit: np.ndarray, se
 def embed(positions, faces, key, owner_id: int | None = None, strength: float = DEFAULT_STRENGTH) -> np.ndarray:
     """Mark ``owner_id`` (default ``key.owner_id``) into the distribution of vertex norms.
 
-    positions : (n, 3) float; faces : (m, 3) int (unused: the statistics are per vertex);
-    key : :class:`~pmwm_codec.watermark.key.WatermarkKey`; strength : the margin every
-    shell's ``side * S`` must keep, clean and after the simulated transport.  Returns new
-    (n, 3) float64 positions: each vertex moved along the ray from the centroid, never
-    out of its shell.
+    positions : (n, 3) float; faces : (m, 3) int (unused: the statistics are per distinct
+    vertex position); key : :class:`~pmwm_codec.watermark.key.WatermarkKey`; strength :
+    the margin every coded bit's soft value (in [-1, 1]) must keep on its side of 0,
+    clean and after the simulated transport.  Returns new (n, 3) float64 positions: each
+    vertex moved along the ray from the centroid, never out of its shell; coincident
+    vertices stay coincident.
 
     A feedback loop: the marked mesh and its simulated transports are measured exactly as
-    :func:`detect` measures them, and each shell short of the margin in any of them gets
-    a larger amplitude, until none is short (or the amplitude cap is reached).
+    :func:`detect` measures them, and the shells of each bit short of the margin in any of
+    them get a larger flow amplitude, until none is short (or the amplitude cap of
+    :data:`_MAX_AMPLITUDE` or :data:`_ROUNDS` rounds is reached: a mesh too small for 64
+    bits may keep a few short bits, which :func:`detect` reads as errors).
     """
     pos0 = np.asarray(positions, np.float64)
     owner_id = key.owner_id if owner_id is None else owner_id
@@ -263,7 +286,7 @@ def embed(positions, faces, key, owner_id: int | None = None, strength: float = 
     amp = np.zeros(BINS)
     marked = pos0
     for _ in range(_ROUNDS):
-        frame = _frame(marked)
+        frame = _frame(_distinct(marked))
         if frame[2] == 0:
             return pos0.copy()
         worst, mass = _worst_bits(marked, sides, shell_bit, seed=len(pos0))
