@@ -74,12 +74,23 @@ def test_duplicated_vertices_do_not_change_what_is_read(blob, marked):
 def test_embedding_moves_vertices_radially_and_keeps_coincident_ones_together(blob):
     key = WatermarkKey.generate(rng=np.random.default_rng(8))
     pos = np.vstack([blob.positions, blob.positions[:500]])
-    out = owner.embed(pos, blob.faces, key)
+    out = owner.embed(pos, blob.faces, key, rms_budget=None)
     assert np.array_equal(out[-500:], out[:500])
     c = np.unique(pos, axis=0).mean(0)
     d0, d1 = pos - c, out - c
     cos = np.sum(d0 * d1, 1) / np.linalg.norm(d0, axis=1) / np.linalg.norm(d1, axis=1)
     assert cos.min() > 1 - 1e-6  # the centroid moves a little with the marking; the rays barely do
+
+
+def test_rms_budget_raises_every_margin_and_stays_within_the_budget(blob, marked):
+    key, pos = marked
+    bare = owner.embed(blob.positions, blob.faces, key, rms_budget=None)
+    _, whiten = owner._layout(key)
+    sides = np.where((owner.id_to_bits(key.owner_id) ^ whiten) == 1, 1.0, -1.0)
+    margin_bare = (sides * owner.read_soft(bare, blob.faces, key)).min()
+    margin = (sides * owner.read_soft(pos, blob.faces, key)).min()
+    assert owner.DEFAULT_STRENGTH <= margin_bare < margin
+    assert _rms_of_diagonal(blob.positions, bare) < _rms_of_diagonal(blob.positions, pos) <= owner.DEFAULT_RMS_BUDGET
 
 
 def test_shell_score_is_zero_and_flat_at_shell_edges():
