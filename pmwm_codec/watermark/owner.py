@@ -152,8 +152,9 @@ def _h_of_t(t: np.ndarray) -> np.ndarray:
     """The shift profile h(t) = (cos 4 pi t - cos 2 pi t) / 2 = g'(t) * (3 sqrt(3) / 4) / (2 pi).
 
     In [-0.5625, 1], 0 with a zero slope at both edges: moving ``t`` by ``a h(t)`` is
-    the steepest ascent of the shell's sum of g, never crosses an edge for
-    ``|a| <= _MAX_AMPLITUDE`` and piles nothing up at one.
+    the steepest ascent of the shell's sum of g; for ``|a| <= _STEP`` it is an increasing
+    map of [0, 1] onto itself (no vertex leaves its shell), and it moves vertices near an
+    edge only slowly (no pile-up at ``t = 1 - epsilon`` that float32 could push across).
     """
     a = 2.0 * np.pi * t
     return 0.5 * (np.cos(2.0 * a) - np.cos(a))
