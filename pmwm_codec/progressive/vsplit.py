@@ -32,7 +32,7 @@ record builder, so both sides compute the same incidence order by construction.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -113,9 +113,26 @@ class SplitTopology:
     ring_count: np.ndarray
     incidences: np.ndarray
     owner: np.ndarray
-    ring_owner: np.ndarray | None = None
-    ring_a: np.ndarray | None = None
-    ring_b: np.ndarray | None = None
+    #: ``(ring_owner, ring_a, ring_b)``, or a function that lists them when first asked
+    #: (a plain decode never asks: only the watermark's ring binding reads the ring)
+    ring: object = field(default=None, repr=False)
+
+    def _ring(self) -> tuple:
+        if callable(self.ring):
+            self.ring = self.ring()
+        return self.ring
+
+    @property
+    def ring_owner(self) -> np.ndarray:
+        return self._ring()[0]
+
+    @property
+    def ring_a(self) -> np.ndarray:
+        return self._ring()[1]
+
+    @property
+    def ring_b(self) -> np.ndarray:
+        return self._ring()[2]
 
     def prediction(self) -> np.ndarray:
         """(k, D) int64 ``floor(ring mean)``, the predictor of the new vertices' values."""
@@ -250,7 +267,7 @@ def split_topology(state: MeshState, v: np.ndarray, symbols: np.ndarray, *, inci
     ring_count = 2 * np.bincount(own, minlength=k)
     state.n = n0 + k
     state.m = m0 + n_new
-    return SplitTopology(u_of, ring_sum, ring_count, inc, owner, own, ra, rb)
+    return SplitTopology(u_of, ring_sum, ring_count, inc, owner, (own, ra, rb))
 
 
 def _split_compiled(kernel, state, v, sym, inc, owner) -> SplitTopology:
@@ -260,41 +277,42 @@ def _split_compiled(kernel, state, v, sym, inc, owner) -> SplitTopology:
     """
     k, n0, m0 = len(v), state.n, state.m
     d = state.positions.shape[1]
-    ring = _ring_corners(state.faces.reshape(-1), np.asarray(v, np.int64), sym, inc, owner)  # before the rewrite
+    v, sym, owner = np.asarray(v, np.int64), np.asarray(sym, np.uint8), np.asarray(owner, np.int64)
     ring_sum = np.zeros((k, d), dtype=np.float64)
     ring_count = np.zeros(k, dtype=np.int64)
-    n_new = kernel(state.faces.reshape(-1), m0, len(state.faces), n0, np.asarray(v, np.int64),
-                   np.asarray(sym, np.uint8), inc, np.asarray(owner, np.int64), state.positions, ring_sum, ring_count)
+    a, b = np.empty(len(inc), np.int64), np.empty(len(inc), np.int64)
+    n_new = kernel(state.faces.reshape(-1), m0, len(state.faces), n0, v, sym, inc, owner, state.positions,
+                   ring_sum, ring_count, a, b)
     if n_new == -1:
         raise FormatError("a split names no new face or more than two")
     if n_new == -2:
         raise FormatError("splits exceed the declared face count")
     state.n = n0 + k
     state.m = m0 + n_new
-    return SplitTopology(n0 + np.arange(k), ring_sum, ring_count, inc, owner, *ring)
+    return SplitTopology(n0 + np.arange(k), ring_sum, ring_count, inc, owner,
+                         lambda: _ring_lists(v, sym, owner, a, b))
 
 
-def _ring_corners(flat, v, sym, inc, owner) -> tuple:
+def _ring_lists(v, sym, owner, a, b) -> tuple:
     """``(ring_owner, ring_a, ring_b)`` (R,) int64 of a batch, as the numpy path of
     :func:`split_topology` lists them: the two other corners of each moved face, then
-    ``(v, a)`` of every left new face, then ``(v, b)`` of every right one.  Reads ``flat``
-    (3M,) int64 before the batch rewrites it."""
+    ``(v, a)`` of every left new face, then ``(v, b)`` of every right one.  ``a`` / ``b``
+    (I,) int64: the corners after / before the split vertex of every incidence, as they
+    were before the batch rewrote the faces."""
     moved = sym != STAY
-    mi, ms, msym = inc[moved], np.asarray(owner, np.int64)[moved], sym[moved]
-    base = mi - mi % 3
-    a, b = flat[base + (mi + 1) % 3], flat[base + (mi + 2) % 3]
-    left = (msym == MOVE_LEFT) | (msym == MOVE_BOTH)
-    right = (msym == MOVE_RIGHT) | (msym == MOVE_BOTH)
-    own = np.concatenate([ms, ms[left], ms[right]])
-    return own, np.concatenate([a, v[ms[left]], v[ms[right]]]), np.concatenate([b, a[left], b[right]])
+    left = (sym == MOVE_LEFT) | (sym == MOVE_BOTH)
+    right = (sym == MOVE_RIGHT) | (sym == MOVE_BOTH)
+    own = np.concatenate([owner[moved], owner[left], owner[right]])
+    return own, np.concatenate([a[moved], v[owner[left]], v[owner[right]]]), np.concatenate([b[moved], a[left], b[right]])
 
 
-def _split_kernel(flat, m0, face_capacity, n0, v, sym, inc, owner, P, ring_sum, ring_count):
+def _split_kernel(flat, m0, face_capacity, n0, v, sym, inc, owner, P, ring_sum, ring_count, a, b):
     """Compiled twin of the numpy body of :func:`split_topology` (see there for the rules).
 
     flat (3M,) int64 face slots, v (k,) int64, sym (I,) uint8, inc / owner (I,) int64,
-    P (N, D) values; fills ring_sum (k, D) float64 and ring_count (k,) int64 and writes the
-    faces.  Returns the number of new faces, -1 when a split names 0 or > 2 new faces, -2
+    P (N, D) values; fills ring_sum (k, D) float64, ring_count (k,) int64 and a / b (I,) int64
+    (each incidence's corners after / before its vertex, read before any face is rewritten)
+    and writes the faces.  Returns the number of new faces, -1 when a split names 0 or > 2 new faces, -2
     when they exceed ``face_capacity``; nothing is written in those cases.  Ring sums add in
     the numpy path's order (moved faces, then left, then right new faces): same float bits.
     """
@@ -313,8 +331,6 @@ def _split_kernel(flat, m0, face_capacity, n0, v, sym, inc, owner, P, ring_sum, 
             return -1
     if m0 + n_new > face_capacity:
         return -2
-    a = np.empty(n_inc, np.int64)
-    b = np.empty(n_inc, np.int64)
     for j in range(n_inc):  # read every corner before any is rewritten
         c = inc[j]
         base = c - c % 3
