@@ -29,7 +29,7 @@ DUMP = ROOT / "js" / "test" / "dump.mjs"
 
 def _node() -> str:
     node = shutil.which("node")
-    if node is None or not (ROOT / "js" / "node_modules" / "fzstd").exists():
+    if node is None or not (ROOT / "js" / "node_modules" / "zstddec").exists():
         pytest.skip("node or js/node_modules absent (npm ci --prefix js)")
     return node
 

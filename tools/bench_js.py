@@ -54,9 +54,8 @@ def run_mesh(name: str, mesh, repeats: int, tmp: Path) -> dict:
 STAGES = [
     ("plan", "GLB preamble + JSON plan"),
     ("base", "Draco base mesh (draco3d) + grid mapping"),
-    ("blake2b", "chunk digests, BLAKE2b-128 (@noble/hashes)"),
-    ("zstd", "zstd frame walk + decompression (fzstd)"),
-    ("xxh64", "zstd content checksums, XXH64 (xxhash-wasm)"),
+    ("blake2b", "chunk digests, BLAKE2b-128 (hash-wasm)"),
+    ("zstd", "zstd frame walk + decompression and XXH64 content checksum (zstddec)"),
     ("unpack", "payload columns -> split vertices, symbols, residuals"),
     ("splits", "vertex splits (incidences, new faces, predicted values)"),
     ("decode", "whole PmwDecoder feed + close"),

@@ -1,18 +1,16 @@
 #!/usr/bin/env node
 /**
  * Per-stage times of the JS full decode of one .pmw (medians over REPEATS runs after one warm-up):
- * GLB + JSON plan, Draco base (draco3d), and over all chunks: BLAKE2b digest (@noble/hashes),
- * zstd frame walk + decompression (fzstd), XXH64 content checksum (xxhash-wasm), payload unpack,
+ * GLB + JSON plan, Draco base (draco3d), and over all chunks: BLAKE2b digest (hash-wasm), zstd frame
+ * walk + decompression with its XXH64 content checksum (zstddec: libzstd in WebAssembly), payload unpack,
  * split application; then the final snapshot. Prints JSON {stage: seconds}.
  *
  *   node js/bench/stages.mjs FILE.pmw [REPEATS] [--cpu]
  */
 import { readFileSync } from 'node:fs';
 import { performance } from 'node:perf_hooks';
-import { decompress } from 'fzstd';
-import xxhash from 'xxhash-wasm';
 import { decodeBase } from '../src/base.js';
-import { digestMatches, frameLayout, initChunkFrames } from '../src/chunkframe.js';
+import { digestMatches, frameLayout, inflate, initChunkFrames } from '../src/chunkframe.js';
 import { PmwDecoder } from '../src/decoder.js';
 import { parseGlb, planDocument } from '../src/header.js';
 import { MeshState, unpackPayload } from '../src/vsplit.js';
@@ -20,7 +18,6 @@ import { MeshState, unpackPayload } from '../src/vsplit.js';
 const [path, repeatsArg] = process.argv.slice(2).filter((a) => a !== '--cpu');
 const repeats = Number(repeatsArg ?? 5);
 const bytes = new Uint8Array(readFileSync(path));
-const hasher = await xxhash();
 /** Milliseconds: wall clock, or with --cpu this process's CPU time (steadier on a loaded machine). */
 const clock = process.argv.includes('--cpu') ? () => { const u = process.cpuUsage(); return (u.user + u.system) / 1000; }
   : () => performance.now();
@@ -51,11 +48,8 @@ async function stages() {
     if (!digestMatches(stored, c.digest)) throw new Error('digest');
     lap('blake2b');
     frameLayout(stored, 'chunk');
-    const out = new Uint8Array(c.uncompressedLength);
-    decompress(stored, out);
+    const out = inflate(stored, c.uncompressedLength, 'chunk');
     lap('zstd');
-    hasher.h64Raw(out, 0n);
-    lap('xxh64');
     const state = states[c.primitive];
     const records = unpackPayload(out, state.D, state.capN);
     lap('unpack');

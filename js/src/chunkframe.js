@@ -2,31 +2,40 @@
  * A stored chunk (spec/bitstream.md §5): BLAKE2b-128 digest, then one zstd frame with its content
  * size and checksum, decompressed into exactly `uncompressedLength` bytes.
  *
- * Digest: BLAKE2b (RFC 7693, 16-byte output, no key) from @noble/hashes. Decompression: fzstd.
- * Content checksum: XXH64 (low 32 bits) from xxhash-wasm, which fzstd does not check.
+ * Digest: BLAKE2b (RFC 7693, 16-byte output, no key) from hash-wasm. Decompression: zstddec, the
+ * reference libzstd compiled to WebAssembly; its one-shot ZSTD_decompress also verifies the frame's
+ * content checksum (XXH64, low 32 bits) and fails the frame when it differs, so a wrong checksum ends in
+ * the same FormatError as any other undecodable frame. Chunks are whole frames, so one-shot decoding per
+ * chunk keeps the push decoder incremental. The WebAssembly memory grows to the largest chunk seen
+ * (stored + decompressed bytes: at most 1.25 GiB under spec/README.md "Limits", within its 2000 MiB).
  */
-import { blake2b } from '@noble/hashes/blake2.js';
-import { decompress } from 'fzstd';
-import xxhash from 'xxhash-wasm';
+import { createBLAKE2b } from 'hash-wasm';
+import { ZSTDDecoder } from 'zstddec';
 import { CorruptChunkError, FormatError } from './errors.js';
 
 const MAX_BLOCK = 131072;
-let hasher = null;
+/** Low 32 bits of XXH64 (seed 0) of no bytes: the content checksum of an empty frame. */
+const XXH64_EMPTY_LOW32 = 0x51d8e999;
+let blake = null;
+let zstd = null;
 
-/** Loads the XXH64 WebAssembly module once (async: browsers compile wasm asynchronously). */
+/** Loads the BLAKE2b and zstd WebAssembly modules once (async: browsers compile wasm asynchronously). */
 export async function initChunkFrames() {
-  hasher ??= await xxhash();
+  if (blake && zstd) return;
+  const decoder = new ZSTDDecoder();
+  const [hasher] = await Promise.all([createBLAKE2b(128), decoder.init()]);
+  blake ??= hasher;
+  zstd ??= decoder;
 }
 
-function hex(bytes) {
-  let s = '';
-  for (const b of bytes) s += b.toString(16).padStart(2, '0');
-  return s;
+function ready() {
+  if (blake === null || zstd === null) throw new Error('initChunkFrames() was not awaited');
 }
 
 /** True when BLAKE2b-128 of `stored` equals the 32-digit lowercase hex `digest`. */
 export function digestMatches(stored, digest) {
-  return hex(blake2b(stored, { dkLen: 16 })) === digest;
+  ready();
+  return blake.init().update(stored).digest('hex') === digest;
 }
 
 /**
@@ -78,14 +87,24 @@ export function openChunk(stored, chunk, index) {
   if (!digestMatches(stored, chunk.digest)) throw new CorruptChunkError(`${what}: BLAKE2b digest differs`, index);
   const { contentSize, checksum } = frameLayout(stored, what);
   if (contentSize !== chunk.uncompressedLength) throw new FormatError(`${what}: zstd content size differs`);
-  const out = new Uint8Array(contentSize);
-  try {
-    decompress(stored, out);
-  } catch (e) {
-    throw new FormatError(`${what}: zstd frame does not decode (${e.message})`);
+  if (contentSize === 0) {
+    // zstddec cannot tell an empty result from an error, so check the checksum here (an empty payload
+    // then fails the payload parser: spec/bitstream.md §6 starts it with a header)
+    if (checksum !== XXH64_EMPTY_LOW32) throw new FormatError(`${what}: zstd content checksum differs`);
+    return new Uint8Array(0);
   }
-  if (hasher === null) throw new Error('initChunkFrames() was not awaited');
-  const h = hasher.h64Raw(out, 0n);
-  if (Number(h & 0xffffffffn) !== checksum) throw new FormatError(`${what}: zstd content checksum differs`);
+  return inflate(stored, contentSize, what);
+}
+
+/**
+ * One zstd frame decompressed into exactly `contentSize` (> 0) bytes; libzstd checks the content checksum.
+ * @returns {Uint8Array} a fresh array, not a view of the WebAssembly memory
+ */
+export function inflate(frame, contentSize, what) {
+  ready();
+  const out = zstd.decode(frame, contentSize);
+  // zstddec returns the bytes ZSTD_decompress wrote: none (an error code) unless the frame decoded
+  // and its checksum matched
+  if (out.length !== contentSize) throw new FormatError(`${what}: zstd frame does not decode or its checksum differs`);
   return out;
 }

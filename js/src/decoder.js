@@ -135,19 +135,27 @@ export class PmwDecoder {
   }
 
   /**
-   * The mesh now (copies), all progressive primitives concatenated in mesh/primitive order:
-   * positions (N*3) Float32Array (origin + q*step), positionsInt (N*3) Int32Array grid integers,
-   * indices (M*3) Uint32Array (offset per part), parts: per primitive {positionsInt, indices,
-   * attributesInt (n*a) Int32Array, attributes {semantic: Float32Array}}.
+   * The mesh now (fresh arrays, not views of the decoder's state), all progressive primitives
+   * concatenated in mesh/primitive order: positions (N*3) Float32Array (origin + q*step), positionsInt
+   * (N*3) Int32Array grid integers, indices (M*3) Uint32Array (offset per part), parts: per primitive
+   * {positions, positionsInt, indices, attributesInt (n*a) Int32Array, attributes {semantic: Float32Array}}.
+   * A hostile stream whose values leave the int32 range gets its integer arrays as Float64Array
+   * (exact, as the reference decoder's int64; never for a valid stream, whose values are < 2^30).
+   * With one progressive primitive, positions, positionsInt and indices ARE parts[0]'s arrays (the
+   * same objects, not copies): writing to one shows in the other.
    */
   snapshot() {
     if (this.failed) throw this.failed; // a chunk may be half applied: never shown as a level
     if (!this.states) throw new TruncatedError('no base mesh yet', this.received, this.#baseBytes());
     const parts = this.states.map((s, p) => partSnapshot(s, this.plan.primitives[p]));
+    if (parts.length === 1) {
+      const [p] = parts; // one primitive: the top level shares its arrays (nothing to concatenate)
+      return { positions: p.positions, positionsInt: p.positionsInt, indices: p.indices, parts };
+    }
     const N = parts.reduce((a, p) => a + p.positionsInt.length / 3, 0);
     const M = parts.reduce((a, p) => a + p.indices.length / 3, 0);
     const positions = new Float32Array(N * 3);
-    const positionsInt = new Int32Array(N * 3);
+    const positionsInt = new (parts.some((p) => p.positionsInt instanceof Float64Array) ? Float64Array : Int32Array)(N * 3);
     const indices = new Uint32Array(M * 3);
     let v = 0;
     let f = 0;
@@ -185,13 +193,18 @@ export class PmwDecoder {
   }
 }
 
-/** One primitive's arrays now (copies); attributes dequantized, NORMAL/TANGENT xyz renormalized. */
+/**
+ * One primitive's arrays now (copies); attributes dequantized, NORMAL/TANGENT xyz renormalized.
+ * positionsInt / attributesInt are Int32Array, or Float64Array (exact integers) when a hostile stream
+ * put a value outside the int32 range (see MeshState.values).
+ */
 function partSnapshot(s, prim) {
   const { D, n, m, values } = s;
-  const positionsInt = new Int32Array(n * 3);
+  const Ints = values instanceof Float64Array && !fitsInt32(values, n * D) ? Float64Array : Int32Array;
+  const positionsInt = new Ints(n * 3);
   const positions = new Float32Array(n * 3);
   const a = D - 3;
-  const attributesInt = new Int32Array(n * a);
+  const attributesInt = new Ints(n * a);
   const [ox, oy, oz] = prim.grid.origin;
   const [sx, sy, sz] = prim.grid.step;
   for (let i = 0, r = 0, o = 0; i < n; i++, r += D, o += 3) {
@@ -213,6 +226,12 @@ function partSnapshot(s, prim) {
     col += g.origin.length;
   }
   return { positions, positionsInt, indices: s.faces.slice(0, m * 3), attributesInt, attributes };
+}
+
+/** Whether values[0..count) all lie in the int32 range. */
+function fitsInt32(values, count) {
+  for (let i = 0; i < count; i++) if (values[i] !== (values[i] | 0)) return false;
+  return true;
 }
 
 /**

@@ -28,8 +28,11 @@
  * extension still in the document throws `BaseMeshChangedError` as well.
  */
 import { Extension, ExtensionProperty, PropertyType } from '@gltf-transform/core';
-import { blake2b } from '@noble/hashes/blake2.js';
+import { createBLAKE2b } from 'hash-wasm';
 import { PmwError } from './errors.js';
+
+/** BLAKE2b-128 (hash-wasm; WebAssembly compiles asynchronously, once, at import). */
+const blake = await createBLAKE2b(128);
 
 const NAME = 'PMWM_progressive_mesh';
 const DRACO = 'KHR_draco_mesh_compression';
@@ -89,7 +92,7 @@ export function baseFingerprint(primitive, info) {
   const indices = primitive.getIndices();
   const vertices = position ? position.getCount() : 0;
   const faces = indices ? indices.getCount() / 3 : 0;
-  const hash = blake2b.create({ dkLen: 16 });
+  const hash = blake.init();
   const section = (label, array) => {
     const bytes = array ? new Uint8Array(array.buffer, array.byteOffset, array.byteLength) : new Uint8Array(0);
     hash.update(new TextEncoder().encode(`${label}:${bytes.length};`));
@@ -98,7 +101,7 @@ export function baseFingerprint(primitive, info) {
   section(`mode ${primitive.getMode()} vertices ${vertices} faces ${faces} POSITION`, position?.getArray());
   section('indices', indices ? Uint32Array.from(indices.getArray()) : null);
   for (const { semantic } of info.attributes ?? []) section(semantic, primitive.getAttribute(semantic)?.getArray());
-  const hex = Array.from(hash.digest(), (b) => b.toString(16).padStart(2, '0')).join('');
+  const hex = hash.digest('hex');
   return { hex, vertices, faces };
 }
 

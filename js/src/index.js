@@ -18,7 +18,9 @@ export { MAX_VERTICES, MAX_FACES, MAX_CHUNKS, MAX_JSON_BYTES, MAX_CHUNK_BYTES, M
  * @param {{chunks?: number, draco?: object}} options chunks: apply at most this many chunks of the stream
  * @returns {Promise<{positions: Float32Array, indices: Uint32Array, positionsInt: Int32Array, parts: object[],
  *   chunksApplied: number, chunkCount: number, complete: boolean, bytesRead: number}>}
- *   positions (3 per vertex), indices (3 per face) of every progressive primitive, concatenated
+ *   positions (3 per vertex), indices (3 per face) of every progressive primitive, concatenated;
+ *   the arrays of PmwDecoder.snapshot() (shared with parts[0] for one primitive; positionsInt a
+ *   Float64Array only for a hostile stream whose values leave the int32 range)
  */
 export async function decodePmw(bytes, { chunks, draco } = {}) {
   const decoder = new PmwDecoder({ draco, maxChunks: chunks ?? Infinity });

@@ -3,12 +3,12 @@
  * blocks (RFC 8878: single segment, 4-byte content size, XXH64 checksum) with a fresh BLAKE2b
  * digest, so hostile payloads reach the record parser instead of stopping at the digest.
  */
-import { blake2b } from '@noble/hashes/blake2.js';
-import xxhash from 'xxhash-wasm';
+import { createBLAKE2b, createXXHash64 } from 'hash-wasm';
 import { parseGlb, planDocument } from '../../src/header.js';
 import { openChunk, initChunkFrames } from '../../src/chunkframe.js';
 
-const { h64Raw } = await xxhash();
+const blake = await createBLAKE2b(128);
+const xxh64 = await createXXHash64();
 await initChunkFrames();
 
 export function rawFrame(payload) {
@@ -20,14 +20,13 @@ export function rawFrame(payload) {
     blocks.push(Uint8Array.of(h & 255, (h >> 8) & 255, (h >> 16) & 255), part);
     if (payload.length === 0) break;
   }
-  const sum = Number(h64Raw(payload, 0n) & 0xffffffffn);
+  const digest = xxh64.init().update(payload).digest('binary'); // big-endian
+  const sum = new DataView(digest.buffer, digest.byteOffset).getUint32(4);
   const head = Uint8Array.of(0x28, 0xb5, 0x2f, 0xfd, 0xa4, ...new Uint8Array(Uint32Array.of(payload.length).buffer));
   const tail = new Uint8Array(Uint32Array.of(sum).buffer);
   const out = new Uint8Array([...head, ...blocks.flatMap((b) => [...b]), ...tail]);
   return out;
 }
-
-const hex = (b) => Array.from(b, (x) => x.toString(16).padStart(2, '0')).join('');
 
 /** The decompressed payloads of every chunk, in stream order: [{entry, payload}]. */
 export function chunkPayloads(bytes) {
@@ -49,7 +48,7 @@ export function withPayload(bytes, index, payload) {
   const delta = padded(frame.length) - padded(c.length);
   for (const v of gltf.bufferViews) if ((v.byteOffset ?? 0) > c.offset) v.byteOffset += delta;
   gltf.bufferViews[entry.bufferView].byteLength = frame.length;
-  Object.assign(entry, { byteLength: frame.length, uncompressedLength: payload.length, digest: hex(blake2b(frame, { dkLen: 16 })) });
+  Object.assign(entry, { byteLength: frame.length, uncompressedLength: payload.length, digest: blake.init().update(frame).digest('hex') });
   const oldBin = bytes.subarray(h.binStart, h.binStart + h.binLength);
   const bin = new Uint8Array(padded(h.binLength + delta));
   bin.set(oldBin.subarray(0, c.offset));
