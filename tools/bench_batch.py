@@ -106,8 +106,13 @@ def render(results, info, args, vertices, command, load_before, load_after) -> s
         "The load averages above say how busy the shared machine was: with other work on the 2 cores the "
         "2-worker figure and the ratio are noisy and understate the scaling of an idle machine. Row 0 is "
         "the same encodes in one process without Dask or a child process per asset: the gap to 1 worker "
-        "is the cost of a killable child per asset (process start and imports), which dominates for "
-        "small assets like these.",
+        "is the price of isolation, a killable child forked per asset from a forkserver that has the "
+        "encoder imported and its kernels compiled (`pmwm_codec/batch/warm.py`), plus Dask's per-task "
+        "round trip and the ledger. Most of it is the encode itself running slower in a fresh child "
+        "than in a long-lived process: every array faults in fresh memory pages, which a process that "
+        "has encoded before reuses (a persistent encoder per worker would close it, at the price of "
+        "isolation between assets). "
+        "The client (scheduler, ledger) shares the 2 cores with the workers' encoders.",
     ])
 
 
