@@ -6,10 +6,11 @@ column), then run ``node js/bench/bench.mjs`` (one warm-up each, then REPEATS al
 ``decodePmw`` and of draco3d ``DecodeBufferToMesh`` + array copies) and report medians; then
 ``node js/bench/stages.mjs --cpu`` splits the JS decode into its stages (CPU time per stage).
 
-    python tools/bench_js.py [--big] [--repeats N] [--write BENCHMARKS.md]
+    python tools/bench_js.py [--big | --huge] [--repeats N] [--write BENCHMARKS.md]
 
 Meshes: ``stanford-bunny.obj`` from ``../shared/corpus`` and, with ``--big``, the bunny
-midpoint-subdivided twice (556k vertices), as in tools/bench.py.  Needs node and ``npm ci --prefix js``.
+midpoint-subdivided twice (556k vertices), as in tools/bench.py; ``--huge`` adds two copies
+of that side by side (1.11M vertices).  Needs node and ``npm ci --prefix js``.
 """
 
 from __future__ import annotations
@@ -25,11 +26,13 @@ import tempfile
 from pathlib import Path
 
 import DracoPy
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import pmwm_codec  # noqa: E402
+from pmwm_codec.mesh import Mesh  # noqa: E402
 from tools.bench import load_meshes, ms, publish, table  # noqa: E402
 
 SECTION = "JavaScript decoder"
@@ -86,7 +89,7 @@ def render(results: list, command: str, load: float) -> str:
         f"Command (from the repository root): `{command}`",
         "",
         f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, Node {node}; load average "
-        f"at start {load:.2f}. Decoder: commit {commit or '?'}{' with uncommitted js/src changes' if dirty else ''}. The machine was shared with other agents running test suites while this ran: "
+        f"at start {load:.2f}. Decoder: commit {commit or '?'}{' with uncommitted js/src changes' if dirty else ''}. The machine is shared (the load average says how busy it was): "
         "compare the ratio within a row, not absolute times.",
         "",
         "What is timed (medians; one warm-up run each first, module instantiation not timed): "
@@ -108,20 +111,33 @@ def render(results: list, command: str, load: float) -> str:
     ])
 
 
+def side_by_side(mesh):
+    """Two copies of ``mesh`` one bounding box width (x 1.1) apart along x: one mesh of twice the size."""
+    width = float(np.ptp(mesh.positions[:, 0])) * 1.1
+    shifted = mesh.positions + np.array([width, 0.0, 0.0])
+    return Mesh(np.concatenate([mesh.positions, shifted]), np.concatenate([mesh.faces, mesh.faces + mesh.vertex_count]))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--corpus", default=str(ROOT.parent / "shared" / "corpus"))
     ap.add_argument("--big", action="store_true", help="also the bunny subdivided twice (556k vertices)")
+    ap.add_argument("--huge", action="store_true",
+                    help="also two copies of the subdivided bunny side by side (1.11M vertices; implies --big)")
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--write", metavar="PATH", help=f"replace the '{SECTION}' section of this Markdown file")
     args = ap.parse_args()
-    command = "python tools/bench_js.py" + (" --big" if args.big else "") + f" --repeats {args.repeats}" + (
-        f" --write {args.write}" if args.write else "")
+    args.big = args.big or args.huge
+    command = "python tools/bench_js.py" + (" --huge" if args.huge else " --big" if args.big else "") + (
+        f" --repeats {args.repeats}") + (f" --write {args.write}" if args.write else "")
     load = os.getloadavg()[0]
     print(f"load average at start: {load:.2f}", file=sys.stderr)
     results = []
     with tempfile.TemporaryDirectory() as tmp:
-        for name, mesh in load_meshes(args.corpus, args.big):
+        meshes = load_meshes(args.corpus, args.big)
+        if args.huge:
+            meshes.append(("bunny-sub2 x2 (side by side)", side_by_side(meshes[-1][1])))
+        for name, mesh in meshes:
             results.append(run_mesh(name, mesh, args.repeats if mesh.vertex_count < 200_000 else 3, Path(tmp)))
     publish(render(results, command, load), args.write, SECTION, lambda msg: print(msg, file=sys.stderr))
 
