@@ -35,6 +35,15 @@ class BatchError(PmwError, ValueError):
     """A batch that cannot start (bad SRC, key, watermark or scheduler): one line, exit 2."""
 
 
+#: Our local workers: they may fork the per-asset encoders (not daemonic), and they do not sample
+#: their own stacks (Dask's statistical profiler and GIL monitor) while the encoders need the cores.
+LOCAL_WORKER_CONFIG = {
+    "distributed.worker.daemon": False,
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.system-monitor.gil.enabled": False,
+}
+
+
 @contextlib.contextmanager
 def dask_client(workers: int | None = None, scheduler: str | None = None, client=None):
     """``client`` if given, else a ``distributed.Client`` on ``scheduler`` or on a LocalCluster
@@ -54,7 +63,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, client
             yield client
         return
     workers = max(1, int(workers or os.cpu_count() or 1))
-    with dask.config.set({"distributed.worker.daemon": False}):  # workers may fork the per-asset encoders
+    with dask.config.set(LOCAL_WORKER_CONFIG):
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
                                silence_logs=logging.ERROR)
     with cluster, Client(cluster) as client:
