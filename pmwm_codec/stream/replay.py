@@ -164,8 +164,10 @@ class Replay:
         self.base_faces.append(np.asarray(event.faces, np.int64))
         if self._nbar_override is not None:
             self.nbars.append(float(self._nbar_override[p]))
-        else:
+        elif "watermark" in ext:
             self.nbars.append(mean_edge_length(base, event.faces))
+        else:  # only the watermark reads the reference length: a plain stream skips the edge scan
+            self.nbars.append(float("nan"))
 
     def _on_chunk(self, event: ChunkEvent) -> list:
         if self.max_chunks is not None and self.chunks_applied >= self.max_chunks:
