@@ -113,14 +113,17 @@ export class WorkerDecoder {
     return this.#post({ type: 'feed', bytes: copy }, [copy.buffer]);
   }
 
-  /** Keeps bytes while the header is incomplete; returns all kept so far. */
+  /** Keeps bytes while the header is incomplete (capacity doubled as needed); returns a view of all kept so far. */
   #append(bytes) {
-    const grown = new Uint8Array(this.#received + bytes.length);
-    grown.set(this.buf.subarray(0, this.#received));
-    grown.set(bytes, this.#received);
-    this.buf = grown;
-    this.#received = grown.length;
-    return grown;
+    const need = this.#received + bytes.length;
+    if (need > this.buf.length) {
+      const grown = new Uint8Array(Math.max(need, 2 * this.buf.length, 1024));
+      grown.set(this.buf.subarray(0, this.#received));
+      this.buf = grown;
+    }
+    this.buf.set(bytes, this.#received);
+    this.#received = need;
+    return this.buf.subarray(0, need);
   }
 
   /** The header is in: a worker (started here) or the main thread. Unparseable: the main thread says why. */
@@ -220,18 +223,27 @@ async function startWorker(workerUrl) {
     worker.onmessage = ({ data }) => resolve(data?.type === 'ready' ? worker : (worker.terminate(), null));
     worker.onerror = (e) => { e.preventDefault?.(); worker.terminate(); resolve(null); };
   });
-  const url = workerUrl ?? new URL('./decode-worker.js', import.meta.url);
-  const worker = await attempt(() => workerUrl ? new Worker(workerUrl, { type: 'module' })
-    : new Worker(new URL('./decode-worker.js', import.meta.url), { type: 'module' }));
-  if (worker || typeof import.meta.resolve !== 'function') return worker;
+  const url = new URL(workerUrl ?? new URL('./decode-worker.js', import.meta.url), globalThis.location?.href).href;
+  if (!needsBlob.has(url)) {
+    const worker = await attempt(() => workerUrl ? new Worker(workerUrl, { type: 'module' })
+      : new Worker(new URL('./decode-worker.js', import.meta.url), { type: 'module' }));
+    if (worker || typeof import.meta.resolve !== 'function') return worker;
+    needsBlob.add(url);
+  }
   let blob;
   try {
-    blob = await blobModule(new URL(url, globalThis.location?.href).href, new Map());
+    blob = await blobModule(url, blobModules);
   } catch {
+    blobModules.clear(); // a failed fetch is not kept: the next load tries again
     return null;
   }
   return attempt(() => new Worker(blob, { type: 'module' }));
 }
+
+/** Worker URLs whose plain module worker failed to load (tried as blob graphs from then on). */
+const needsBlob = new Set();
+/** Module URL -> Promise of its rewritten blob: URL, kept for the page's life (one per module). */
+const blobModules = new Map();
 
 const STATIC_IMPORT = /^(\s*(?:import|export)\b[^'"]*?\bfrom\s*)(['"])([^'"]+)\2/gm;
 const DYNAMIC_IMPORT = /(\bimport\(\s*)(['"])(\.{1,2}\/[^'"]+)\2/g;

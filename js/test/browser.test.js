@@ -140,6 +140,16 @@ for (const subject of SUBJECTS) {
       assert.deepEqual(inWorker.arrays.indices, Array.from(full.indices));
     });
 
+    test('worker auto decodes in the worker only when the full vertex count exceeds the threshold', opts(), async () => {
+      const vertices = full.positions.length / 3;
+      const below = await load(servers.fast, subject.src, `worker-threshold=${vertices - 1}`);
+      const at = await load(servers.fast, subject.src, `worker-threshold=${vertices}`);
+      assert.equal(below.result.workerLevels, full.chunkCount + 1);
+      assert.equal(at.result.workerLevels, 0);
+      assert.equal(below.result.vertices, vertices);
+      assert.equal(at.result.vertices, vertices);
+    });
+
     test('a worker that cannot start falls back to the main thread with the same result', opts(), async () => {
       const { result } = await load(servers.fast, subject.src, 'worker=1&worker-url=/no-such-worker.js');
       assert.equal(result.workerLevels, 0);
