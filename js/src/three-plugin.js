@@ -13,24 +13,28 @@
  * resolution, draw range grown) and calls `onChunk`. Stops: `maxChunks`, `maxGeometricError`
  * (the first chunk whose geometricError is at most this), `byteBudget` (no byte past it is used).
  * `loadProgressive(loader, url)` fetches only the bytes up to the base first, so the base is shown
- * before any chunk is downloaded. Decoding runs on the main thread (no worker yet).
+ * before any chunk is downloaded. Decoding (`worker`): in a module Worker (decode-worker.js) when the
+ * header's full vertex count exceeds `workerThreshold` (default 100,000) or `worker: true`; on the main
+ * thread when `worker: false`, below the threshold, or when no worker starts (Node: no Worker global);
+ * the same levels, arrays and named errors either way (worker-decoder.js).
  */
 import { BufferAttribute } from 'three';
-import { PmwDecoder } from './decoder.js';
 import { FormatError } from './errors.js';
 import { parseGlb, planDocument, preambleLength } from './header.js';
+import { createDecoder, THREE_NAMES } from './worker-decoder.js';
 
 export const EXTENSION_NAME = 'PMWM_progressive_mesh';
-const THREE_NAMES = { POSITION: 'position', NORMAL: 'normal', TANGENT: 'tangent', TEXCOORD_0: 'uv',
-  TEXCOORD_1: 'uv1', TEXCOORD_2: 'uv2', TEXCOORD_3: 'uv3', COLOR_0: 'color' };
 
 export class PMWMProgressivePlugin {
   /**
    * @param {object} parser the GLTFParser
    * @param {{url?: string, range?: boolean, maxChunks?: number, maxGeometricError?: number,
    *   byteBudget?: number, onBase?: Function, onChunk?: Function, onDone?: Function, fetch?: Function,
-   *   prefix?: Uint8Array, reader?: object}} options
+   *   prefix?: Uint8Array, reader?: object, worker?: 'auto'|boolean, workerThreshold?: number,
+   *   workerUrl?: string|URL}} options
    *   onChunk({chunk, chunksTotal, vertexCount, faceCount, bytesRead, bytesFetched, requests})
+   *   worker: 'auto' (default: a worker above workerThreshold vertices), true, false (main thread);
+   *   workerUrl: the decode-worker.js to start (default: next to this module)
    */
   constructor(parser, options = {}) {
     this.parser = parser;
@@ -64,7 +68,7 @@ function progressiveTargets(parser, gltf) {
   return [...byKey.values()].sort((a, b) => a.mesh - b.mesh || a.primitive - b.primitive);
 }
 
-/** One progressive load: reads the stream, feeds a PmwDecoder, refreshes the geometries. */
+/** One progressive load: reads the stream, feeds a decoder (PmwDecoder or WorkerDecoder), refreshes the geometries. */
 export class ProgressiveRun {
   constructor(targets, options) {
     this.targets = targets;
@@ -73,8 +77,9 @@ export class ProgressiveRun {
     this.bytesFetched = 0;
     this.requests = 0;
     this.stopped = false;
-    this.draco = threeDracoAdapter(targets);
-    this.decoder = new PmwDecoder({ draco: this.draco, maxChunks: options.maxChunks ?? Infinity });
+    const { maxChunks = Infinity, worker = 'auto', workerThreshold, workerUrl } = options;
+    this.decoder = createDecoder({ bases: threeDracoBases(targets), maxChunks, worker, workerThreshold, workerUrl,
+      keep: [options.prefix?.buffer] });
   }
 
   /** Stops reading after the chunk being read. */
@@ -85,14 +90,20 @@ export class ProgressiveRun {
     const fetchFn = o.fetch ?? globalThis.fetch.bind(globalThis);
     const source = o.reader ? continueReader(o.prefix, o.reader, this)
       : readStream(o.url, fetchFn, o.range ?? true, this, o.prefix);
-    for await (const piece of source) {
-      if (this.stopped) break;
-      const results = await this.decoder.feed(piece);
-      for (const r of results) this.#level(r);
-      if (this.#enough()) break;
+    let end;
+    try {
+      for await (const piece of source) {
+        if (this.stopped) break;
+        const results = await this.decoder.feed(piece);
+        for (const r of results) this.#level(r);
+        if (this.#enough()) break;
+      }
+      end = await this.decoder.close();
+    } finally {
+      this.decoder.dispose?.();
     }
-    const end = this.decoder.close();
-    const outcome = { ...end, bytesFetched: this.bytesFetched, requests: this.requests, levels: this.levels.length };
+    const outcome = { ...end, bytesFetched: this.bytesFetched, requests: this.requests, levels: this.levels.length,
+      workerLevels: this.decoder.workerLevels ?? 0 };
     o.onDone?.(outcome);
     return outcome;
   }
@@ -114,13 +125,14 @@ export class ProgressiveRun {
 
   #enough() {
     const plan = this.decoder.plan;
-    if (!plan || !this.decoder.states) return false;
+    if (!plan || !this.levels.length) return false;
     const want = this.chunksWanted();
     return want < plan.stream.length && this.decoder.chunksApplied >= want; // all of them: read on to the end
   }
 
+  /** Draws level `r` (its `mesh`: the decoder's snapshot at that level) and reports it. */
   #level(r) {
-    const mesh = this.decoder.snapshot();
+    const { mesh } = r;
     this.targets.forEach((t, p) => {
       const geometries = new Set(t.objects.map((o) => o.geometry));
       const plan = this.decoder.plan.primitives[p];
@@ -161,24 +173,14 @@ export function refreshGeometry(geometry, part, capV, capF) {
   geometry.userData.pmwmLevel = { vertices: n, faces: part.indices.length / 3 };
 }
 
-/** A Draco "decoder" answering from three.js' own decode of each Draco base (plan order). */
-function threeDracoAdapter(targets) {
-  const queue = targets.filter((t) => t.prim.extensions?.KHR_draco_mesh_compression)
-    .map((t) => ({ geometry: t.objects[0].geometry, ids: t.prim.extensions.KHR_draco_mesh_compression.attributes }));
-  const base = queue.map(({ geometry, ids }) => ({ ids, attrs: Object.fromEntries(
-    Object.entries(geometry.attributes).map(([k, a]) => [k, { values: Float32Array.from(a.array), components: a.itemSize }])),
-  indices: Uint32Array.from(geometry.index.array) }));
-  return {
-    async decode(_bytes, { attributeIds }) {
-      const b = base.shift();
-      if (!b) throw new FormatError('three.js decoded fewer Draco base meshes than the stream holds');
-      const byId = Object.fromEntries(Object.entries(b.ids).map(([semantic, id]) => [id, semantic]));
-      return {
-        positions: b.attrs.position.values, indices: b.indices,
-        attributes: attributeIds.map((id) => b.attrs[THREE_NAMES[byId[id]]]),
-      };
-    },
-  };
+/** The Draco base meshes three.js decoded (copies, in plan order), for dracoFromBases. */
+function threeDracoBases(targets) {
+  return targets.filter((t) => t.prim.extensions?.KHR_draco_mesh_compression).map((t) => {
+    const { geometry } = t.objects[0];
+    return { ids: t.prim.extensions.KHR_draco_mesh_compression.attributes, indices: Uint32Array.from(geometry.index.array),
+      attrs: Object.fromEntries(Object.entries(geometry.attributes).map(([k, a]) =>
+        [k, { values: Float32Array.from(a.array), components: a.itemSize }])) };
+  });
 }
 
 /** Bytes already read (`prefix`) then the rest of a ReadableStream reader. */
@@ -219,9 +221,10 @@ async function* readStream(url, fetchFn, range, run, prefix) {
       return;
     }
     const head = new Uint8Array(await first.arrayBuffer());
-    run.bytesFetched += head.length;
+    const got = head.length; // a piece yielded may be transferred to the decode worker (then empty here)
+    run.bytesFetched += got;
     yield head;
-    if (head.length < 20) return;
+    if (got < 20) return;
     start = 20;
   }
   for (const end of rangeEnds(run, preambleLength(prefix ?? new Uint8Array(0)))) {
@@ -234,9 +237,10 @@ async function* readStream(url, fetchFn, range, run, prefix) {
     if (res.status === 416) return;
     if (res.status !== 206) throw new FormatError(`${url}: HTTP ${res.status} to a Range request`);
     const block = new Uint8Array(await res.arrayBuffer());
-    run.bytesFetched += block.length;
+    const got = block.length;
+    run.bytesFetched += got;
     yield block;
-    if (block.length < stop - start || stop < end) return;
+    if (got < stop - start || stop < end) return;
     start = end;
   }
 }

@@ -9,6 +9,7 @@ import fs from 'node:fs';
 import os from 'node:os';
 import path from 'node:path';
 import { after, before, describe, test } from 'node:test';
+import { parseGlb, planDocument } from '../src/header.js';
 import { decodePmw } from '../src/index.js';
 import { encodeBunny, python, ROOT } from './lib/python.js';
 import { startServer } from './lib/server.js';
@@ -38,16 +39,27 @@ after(async () => {
   if (tmp) fs.rmSync(tmp, { recursive: true, force: true });
 });
 
-/** The demo page's outcome for `src` with `query`: {result, levels: [{chunk, vertexCount, image}]}. */
-async function load(server, src, query) {
+/**
+ * The demo page's outcome for `src` with `query`: {result, levels: [{chunk, vertexCount, image}], arrays}.
+ * arrays (with `arrays: true`): the refined geometry's drawn positions, indices and normals as plain arrays.
+ * `failing: true` expects the load to end in an error (result.errorName, result.errorMessage).
+ */
+async function load(server, src, query, { arrays = false, failing = false } = {}) {
   const page = await browser.newPage();
   const errors = [];
   page.on('pageerror', (e) => errors.push(String(e)));
   try {
     await page.goto(`${server.url}js/demo/index.html?src=${src}&size=256&record=1&${query}`);
     await page.waitForFunction(() => window.result !== undefined, null, { timeout: 60000 });
-    const out = await page.evaluate(() => ({ result: window.result, levels: window.levels }));
-    assert.equal(out.result.error, undefined, out.result.error);
+    const out = await page.evaluate((withArrays) => {
+      const g = withArrays && window.mesh.geometry;
+      const drawn = (attr, n) => Array.from(attr.array.subarray(0, n * attr.itemSize));
+      return { result: window.result, levels: window.levels, arrays: g && { indices: drawn(g.index, g.drawRange.count),
+        positions: drawn(g.getAttribute('position'), g.userData.pmwmLevel.vertices),
+        normals: g.getAttribute('normal') ? drawn(g.getAttribute('normal'), g.userData.pmwmLevel.vertices) : null } };
+    }, arrays);
+    if (failing) assert.ok(out.result.errorName, 'the load should have failed');
+    else assert.equal(out.result.error, undefined, out.result.error);
     assert.deepEqual(errors, []);
     return out;
   } finally {
@@ -112,6 +124,51 @@ for (const subject of SUBJECTS) {
       assert.equal(result.vertices, two.positions.length / 3);
       assert.equal(servers.fast.stats.bytes, two.bytesRead);
       assert.ok(two.bytesRead < bytes.length);
+    });
+
+    test('worker=1 decodes in the Web Worker to the same levels and arrays as the main thread (worker=0)', opts(), async () => {
+      const main = await load(servers.fast, subject.src, 'worker=0', { arrays: true });
+      const inWorker = await load(servers.fast, subject.src, 'worker=1', { arrays: true });
+      assert.equal(main.result.workerLevels, 0, 'worker=0 decoded in a worker');
+      assert.equal(inWorker.result.workerLevels, full.chunkCount + 1, 'the worker decoded the base and every chunk');
+      assert.equal(inWorker.result.complete, true);
+      const counts = (out) => out.levels.map((l) => [l.chunk, l.vertexCount]);
+      assert.equal(inWorker.levels.length, full.chunkCount + 1);
+      assert.deepEqual(counts(inWorker), counts(main));
+      assert.deepEqual(inWorker.arrays, main.arrays);
+      assert.deepEqual(inWorker.arrays.positions, Array.from(full.positions));
+      assert.deepEqual(inWorker.arrays.indices, Array.from(full.indices));
+    });
+
+    test('worker auto decodes in the worker only when the full vertex count exceeds the threshold', opts(), async () => {
+      const vertices = full.positions.length / 3;
+      const below = await load(servers.fast, subject.src, `worker-threshold=${vertices - 1}`);
+      const at = await load(servers.fast, subject.src, `worker-threshold=${vertices}`);
+      assert.equal(below.result.workerLevels, full.chunkCount + 1);
+      assert.equal(at.result.workerLevels, 0);
+      assert.equal(below.result.vertices, vertices);
+      assert.equal(at.result.vertices, vertices);
+    });
+
+    test('a worker that cannot start falls back to the main thread with the same result', opts(), async () => {
+      const { result } = await load(servers.fast, subject.src, 'worker=1&worker-url=/no-such-worker.js');
+      assert.equal(result.workerLevels, 0);
+      assert.equal(result.complete, true);
+      assert.equal(result.vertices, full.positions.length / 3);
+    });
+
+    test('a corrupt chunk fails with the same named error in the worker as on the main thread', opts(), async () => {
+      const header = parseGlb(bytes);
+      const chunk = planDocument(header.gltf, header.binLength).stream[1];
+      const corrupt = bytes.slice();
+      corrupt[header.binStart + chunk.offset + chunk.length - 1] ^= 0x40; // a stored byte: the digest differs
+      const name = `corrupt-${path.basename(subject.src)}`;
+      fs.writeFileSync(path.join(tmp, name), corrupt);
+      const main = await load(servers.fast, `/data/${name}`, 'worker=0', { failing: true });
+      const inWorker = await load(servers.fast, `/data/${name}`, 'worker=1', { failing: true });
+      assert.equal(main.result.errorName, 'CorruptChunkError');
+      assert.deepEqual([inWorker.result.errorName, inWorker.result.errorMessage],
+        [main.result.errorName, main.result.errorMessage]);
     });
   });
 }

@@ -1,0 +1,41 @@
+/**
+ * The decode worker (a module Worker started by worker-decoder.js): runs a PmwDecoder off the main thread.
+ *
+ * Messages in: {type: 'start', maxChunks, bases} (the Draco bases three.js decoded, see dracoFromBases),
+ * {type: 'feed', id, bytes: Uint8Array}, {type: 'close', id}. Out: {type: 'ready'} once loaded;
+ * {id, results} per feed, each result with `mesh.parts[p]` {positions, indices, attributes} (buffers
+ * transferred); {id, end, levels} for close (levels: how many levels this worker decoded); {id, error}
+ * (serializeError) for any failure.
+ */
+import { PmwDecoder } from './decoder.js';
+import { dracoFromBases, serializeError } from './worker-decoder.js';
+
+let decoder = null;
+let levels = 0;
+
+/** A result with only the arrays the plugin draws, and the ArrayBuffers to transfer (each once). */
+function packLevel(r, buffers) {
+  const parts = r.mesh.parts.map(({ positions, indices, attributes }) => {
+    buffers.add(positions.buffer);
+    buffers.add(indices.buffer);
+    for (const values of Object.values(attributes)) buffers.add(values.buffer);
+    return { positions, indices, attributes };
+  });
+  return { ...r, mesh: { parts } };
+}
+
+async function handle(msg) {
+  if (msg.type === 'start') {
+    decoder = new PmwDecoder({ draco: dracoFromBases(msg.bases), maxChunks: msg.maxChunks, snapshots: true });
+  } else if (msg.type === 'feed') {
+    const buffers = new Set();
+    const results = (await decoder.feed(msg.bytes)).map((r) => packLevel(r, buffers));
+    levels += results.length;
+    self.postMessage({ id: msg.id, results }, [...buffers]);
+  } else if (msg.type === 'close') {
+    self.postMessage({ id: msg.id, end: decoder.close(), levels });
+  }
+}
+
+self.onmessage = ({ data: msg }) => handle(msg).catch((e) => self.postMessage({ id: msg.id, error: serializeError(e) }));
+self.postMessage({ type: 'ready' });
