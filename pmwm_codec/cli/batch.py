@@ -45,7 +45,8 @@ def add_parser(sub):
                         description="Encode every mesh (OBJ, PLY, STL, glTF/GLB) of SRC — a folder (recursively), "
                                     "a glob or a manifest (one path a line) — into OUT_DIR/<relative path>.pmw. "
                                     "A ledger OUT_DIR/pmw-batch.jsonl records each attempt; a re-run skips assets "
-                                    "already done with the same input. Exit 0 all ok, 1 some failed, 2 bad usage.")
+                                    "already done with the same input and settings (watermark, key). "
+                                    "Exit 0 all ok, 1 some failed, 2 bad usage.")
     e.add_argument("src", metavar="SRC", help="folder, glob (quote it) or manifest file")
     e.add_argument("-o", "--output", required=True, metavar="OUT_DIR", help="output folder (created)")
     e.add_argument("--watermark", metavar="IMG", help="watermark image for every asset")
