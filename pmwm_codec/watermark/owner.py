@@ -45,6 +45,7 @@ when ``P >= 1e-3`` (14 errors or more), ``inconclusive`` in between or when fewe
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -53,26 +54,21 @@ import numpy as np
 __all__ = ["OwnerResult", "embed", "detect", "false_alarm_probability", "OWNER_BITS", "DEFAULT_STRENGTH"]
 
 OWNER_BITS = 64
-#: Radial shells per bit (keyed, spread over the range of norms): a bit's soft value is
-#: the mean of its shells' scores, so that with SPREAD > 1 a shell the encoder cannot move
-#: far enough is carried by the others.  1 (module docstring, step 2: measured).
-SPREAD = 1
-#: Radial shells in all.
-BINS = OWNER_BITS * SPREAD
-#: Quantile of the norms that bounds the shells (each side).
+#: Radial shells, one per bit (two keyed shells per bit cost less RMS but read worse after
+#: noise, smoothing and coarse quantization: measured, BENCHMARKS.md "Owner layer").
+BINS = OWNER_BITS
+#: Quantile of the surface area (by norm) that bounds the shells (each side).
 QUANTILE = 0.03
-#: Half-width (a fraction of the vertices) of the band of sorted norms averaged into each
-#: bound: a trimmed mean of ~0.5% of the norms, inside the never-moved guard shells, so
-#: that neither one vertex nor quantization noise moves the shells much.
-BAND = 0.0025
+#: Half-width (a fraction of the area) of the band about each bounding quantile whose
+#: area-weighted mean norm is the bound: a trimmed mean of ~1% of the surface, so that
+#: neither one vertex, nor quantization noise, nor re-sampling the surface moves it much.
+BAND = 0.005
 #: Default margin: every coded bit's soft value (in [-1, 1]) on its side of 0 by at least
 #: this, clean and after each simulated transport (measured: BENCHMARKS.md "Owner layer").
 DEFAULT_STRENGTH = 0.07
 #: Default RMS displacement budget (fraction of the bounding-box diagonal) up to which the
 #: margin is raised beyond ``strength``: 0.018%, under the issue's 0.02%.
 DEFAULT_RMS_BUDGET = 1.8e-4
-#: Factor by which the margin is raised per step while within the budget.
-_RAISE = 1.25
 #: The transport the encoder simulates to check every shell's margin: coordinate
 #: quantization on a cubic grid of ``2**TRANSPORT_BITS`` steps over the largest extent
 #: (Draco q11, and everything finer), on ``TRANSPORT_TRIALS`` randomly rotated and shifted
@@ -86,13 +82,15 @@ PRESENT_BELOW = 1e-9
 ABSENT_FROM = 1e-3
 #: Fewer readable bits than this: inconclusive (the mesh is too small to say).
 MIN_BITS_READ = 48
-_ROUNDS = 100
-#: Each feedback round asks for a little more than the linear estimate of the gap.
+#: Feedback rounds of the embedding (each: one frame, one table, one move, 5 measurements).
+_ROUNDS = 16
+#: A shell short of the margin by this fraction of it or less counts as reached.
+_TOLERANCE = 0.02
+#: A short shell's target is raised by its shortfall times this.
 _OVERSHOOT = 1.2
-#: Largest flow amplitude per shell (shell widths).
-_MAX_AMPLITUDE = 1.0
-#: Largest step of the flow: 1 + _STEP max|h'| > 0 (max |h'| = 8.6), each step is increasing.
-_STEP = 0.1
+#: The flow table: amplitudes 0, 1/(_FLOW_A - 1), ..., 1 (shell widths) by _FLOW_T values of t.
+_FLOW_A = 41
+_FLOW_T = 1025
 #: |g| peaks at t = 1/3 and 2/3 with 3 sqrt(3) / 4; g is divided by it.
 _G_MAX = 3.0 * math.sqrt(3.0) / 4.0
 
@@ -160,50 +158,73 @@ def _h_of_t(t: np.ndarray) -> np.ndarray:
     return 0.5 * (np.cos(2.0 * a) - np.cos(a))
 
 
-def _band_mean(sorted_rho: np.ndarray, q: float) -> float:
-    """Mean of the sorted norms between quantiles ``q - BAND`` and ``q + BAND`` (at least one)."""
-    n = len(sorted_rho)
-    a = min(max(int(math.floor((q - BAND) * n)), 0), n - 1)
-    b = min(max(int(math.ceil((q + BAND) * n)), a + 1), n)
-    return float(sorted_rho[a:b].mean())
-
-
-def _distinct(positions) -> np.ndarray:
-    """The distinct rows of ``positions`` (n, 3) as (k, 3) float64.
+def _distinct_index(positions) -> tuple:
+    """``(unique (k, 3) float64, inverse (n,) int64)`` with ``positions == unique[inverse]``.
 
     Every statistic counts a position once: seam duplicates, and the vertices a Draco
     round trip splits or merges at them, change none.  (Welding vertices closer than a
-    tolerance as well, so that noise pulling a seam apart changes nothing either, was
-    measured and rejected: pairs entering and leaving the tolerance as the embedding moves
-    them made the feedback loop diverge.)
+    tolerance as well was measured and rejected: pairs entering and leaving the tolerance
+    as the embedding moves them made the embedding diverge.)
     """
     p = np.asarray(positions, np.float64).reshape(-1, 3)
-    p = p[np.lexsort(p.T[::-1])]
-    keep = np.ones(len(p), bool)
-    keep[1:] = np.any(p[1:] != p[:-1], axis=1)
-    return p[keep]
+    order = np.lexsort(p.T[::-1])
+    ps = p[order]
+    new = np.ones(len(p), bool)
+    new[1:] = np.any(ps[1:] != ps[:-1], axis=1)
+    inverse = np.empty(len(p), np.int64)
+    inverse[order] = np.cumsum(new) - 1
+    return ps[new], inverse
 
 
-def _frame(positions: np.ndarray) -> tuple:
+def _vertex_areas(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(k,) float64: a third of the area of every face on each of ``points`` (k, 3); faces (m, 3) index them.
+
+    All ones when there is no face of positive area (a point set: every position counts alike).
+    """
+    faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    tri = points[faces]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    w = np.bincount(faces.ravel(), weights=np.repeat(area / 3.0, 3), minlength=len(points))
+    return w if w.sum() > 0 else np.ones(len(points))
+
+
+def _band_mean(rho: np.ndarray, w: np.ndarray, q: float) -> float:
+    """Area-weighted mean of the norms ``rho`` (k,) (sorted; areas ``w`` (k,)) whose cumulative area
+    overlaps the quantile band [q - BAND, q + BAND] (each counted by its overlap: continuous in the positions)."""
+    cw = np.cumsum(w) / w.sum()
+    prev = cw - w / w.sum()
+    a0, a1 = q - BAND, q + BAND
+    i, j = int(np.searchsorted(cw, a0)), min(int(np.searchsorted(prev, a1)) + 1, len(rho))
+    i = min(i, j - 1)
+    overlap = np.clip(np.minimum(cw[i:j], a1) - np.maximum(prev[i:j], a0), 0.0, None)
+    if not overlap.sum() > 0:
+        return float(rho[i])
+    return float(overlap @ rho[i:j] / overlap.sum())
+
+
+def _frame(points: np.ndarray, faces: np.ndarray) -> tuple:
     """``(centroid (3,) float64, lo, width)``: shell ``k`` holds norms in [lo + k w, lo + (k+1) w).
 
-    The centroid is the vertex mean; the bounds are band means of the norms about the
-    ``QUANTILE`` and ``1 - QUANTILE`` quantiles, with a guard shell inside each (never
-    moved, so the marking does not move them).  ``width`` is 0 for a degenerate mesh.
+    ``points`` (k, 3): the distinct positions; ``faces`` (m, 3) index them.  Statistics of
+    the *surface*, not of its sampling: the centroid is the area centroid, the bounds are
+    area-weighted band means of the norms about the ``QUANTILE`` and ``1 - QUANTILE``
+    quantiles of area, with a guard shell inside each.  ``width`` is 0 for a degenerate mesh.
     """
-    if len(positions) < 2:
+    if len(points) < 2:
         return np.zeros(3), 0.0, 0.0
-    centroid = positions.mean(0)
-    rho = np.sort(np.linalg.norm(positions - centroid, axis=1))
-    lo, hi = _band_mean(rho, QUANTILE), _band_mean(rho, 1.0 - QUANTILE)
+    w = _vertex_areas(points, faces)
+    centroid = w @ points / w.sum()
+    rho = np.linalg.norm(points - centroid, axis=1)
+    order = np.argsort(rho, kind="stable")
+    lo, hi = (_band_mean(rho[order], w[order], q) for q in (QUANTILE, 1.0 - QUANTILE))
     width = (hi - lo) / (BINS + 2)
     return centroid, lo + width, (width if width > 0 else 0.0)
 
 
-def _shells(positions: np.ndarray, frame: tuple) -> tuple:
-    """``(shell (n,) int64, -1 outside; t (n,) float64 in [0, 1); rho (n,); d (n, 3))``."""
+def _shells(points: np.ndarray, frame: tuple) -> tuple:
+    """``(shell (k,) int64, -1 outside; t (k,) float64 in [0, 1); rho (k,); d (k, 3))``."""
     centroid, lo, width = frame
-    d = positions - centroid
+    d = points - centroid
     rho = np.linalg.norm(d, axis=1)
     u = (rho - lo) / width
     shell = np.floor(u).astype(np.int64)
@@ -211,141 +232,229 @@ def _shells(positions: np.ndarray, frame: tuple) -> tuple:
     return shell, u - np.floor(u), rho, d
 
 
-def _scores(positions: np.ndarray) -> tuple:
-    """``(S (BINS,) float64 in [-1, 1], mass (BINS,) int64)``: mean g(t) per shell, vertex count."""
-    positions = _distinct(positions)
-    frame = _frame(positions)
+def _scores(points: np.ndarray, faces: np.ndarray) -> tuple:
+    """``(S (BINS,) float64 in [-1, 1], mass (BINS,) int64)`` of distinct ``points`` (k, 3), ``faces`` (m, 3)."""
+    frame = _frame(points, faces)
     if frame[2] == 0:
         return np.zeros(BINS), np.zeros(BINS, np.int64)
-    shell, t, _, _ = _shells(positions, frame)
+    shell, t, _, _ = _shells(points, frame)
     inside = shell >= 0
     mass = np.bincount(shell[inside], minlength=BINS)
     tot = np.bincount(shell[inside], weights=g_of_t(t[inside]), minlength=BINS)
     return tot / np.maximum(mass, 1), mass
 
 
-def _move(pos0: np.ndarray, frame: tuple, amp: np.ndarray) -> np.ndarray:
-    """``pos0`` (n, 3) with each vertex's ``t`` moved along the flow of ``amp[shell] * h``.
+def _mesh_scores(positions, faces) -> tuple:
+    """:func:`_scores` of a mesh: positions (n, 3), faces (m, 3) indexing them (duplicates merged)."""
+    points, inverse = _distinct_index(positions)
+    faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    return _scores(points, inverse[faces] if len(faces) else faces)
 
-    The flow is integrated in steps of at most :data:`_STEP` (each an increasing map of
-    [0, 1] onto itself), so it never moves a vertex out of its shell, nor two past each
-    other; a vertex converges to a maximum of ``sign(amp) * g`` (t = 2/3 or 1/3, or an edge).
+
+@functools.lru_cache(maxsize=1)
+def _flow_table() -> np.ndarray:
+    """(2, _FLOW_A, _FLOW_T) float64: ``[side, j, i]`` = where the flow ``dt/da = side h(t)`` takes
+    ``t = i / (_FLOW_T - 1)`` at amplitude ``a = j / (_FLOW_A - 1)`` (side 0: toward 1/3, 1: toward 2/3).
+
+    Integrated with RK4 (8 steps per row); each row is an increasing map of [0, 1] onto itself.
     """
-    shell, t, rho, d = _shells(pos0, frame)
-    _, lo, width = frame
-    a = np.where(shell >= 0, amp[np.maximum(shell, 0)], 0.0)
-    steps = max(1, int(math.ceil(float(np.abs(a).max(initial=0.0)) / _STEP)))
-    t1 = t
-    for _ in range(steps):
-        t1 = np.clip(t1 + (a / steps) * _h_of_t(t1), 0.0, 1.0)
-    new_rho = np.where(a != 0, lo + (np.maximum(shell, 0) + t1) * width, rho)
-    scale = np.divide(new_rho, rho, out=np.ones_like(rho), where=rho > 0)
-    return frame[0] + d * scale[:, None]
+    out = np.empty((2, _FLOW_A, _FLOW_T))
+    da = 1.0 / (_FLOW_A - 1) / 8
+    for s, sign in enumerate((-1.0, 1.0)):
+        x = np.linspace(0.0, 1.0, _FLOW_T)
+        out[s, 0] = x
+        for j in range(1, _FLOW_A):
+            for _ in range(8):
+                k1 = sign * _h_of_t(x)
+                k2 = sign * _h_of_t(x + 0.5 * da * k1)
+                k3 = sign * _h_of_t(x + 0.5 * da * k2)
+                k4 = sign * _h_of_t(x + da * k3)
+                x = np.clip(x + da / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4), 0.0, 1.0)
+            out[s, j] = np.maximum.accumulate(x)
+    return out
 
 
-def _transports(positions: np.ndarray, rng: np.random.Generator):
-    """The simulated transport of :data:`TRANSPORT_BITS`: yields (n, 3) float64 positions."""
-    yield positions.astype(np.float32).astype(np.float64)
-    step = float((positions.max(0) - positions.min(0)).max()) / (2**TRANSPORT_BITS - 1)
+def _flow_rows(side: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(k, _FLOW_A) float64: the flow of each ``t`` (k,) at every tabled amplitude (side (k,) 0 / 1)."""
+    x = t * (_FLOW_T - 1)
+    i0 = np.minimum(x.astype(np.int64), _FLOW_T - 2)
+    f = (x - i0)[:, None]
+    table = _flow_table()
+    return table[side, :, i0] * (1.0 - f) + table[side, :, i0 + 1] * f
+
+
+@dataclass
+class _Tables:
+    """One frame's view of the unmarked distinct positions, for choosing per-shell amplitudes.
+
+    ``shell`` (k,) int64 (-1 outside), ``t`` (k,) float64, ``d`` (k, 3) and ``rho`` (k,) about
+    the frame's centroid; ``margin`` (BINS, _FLOW_A): side * shell score at each tabled
+    amplitude (nondecreasing along a row); ``sq`` (BINS, _FLOW_A): the shell's sum of squared
+    displacements over the original vertices at each amplitude.
+    """
+
+    frame: tuple
+    shell: np.ndarray
+    t: np.ndarray
+    rho: np.ndarray
+    d: np.ndarray
+    flows: np.ndarray
+    margin: np.ndarray
+    sq: np.ndarray
+
+
+def _tables(points: np.ndarray, count: np.ndarray, frame: tuple, shell_side: np.ndarray) -> _Tables:
+    """:class:`_Tables` of ``points`` (k, 3) (``count`` (k,) original vertices each) in ``frame``.
+
+    shell_side (BINS,) float64 +-1: the side each shell's score is pushed to.
+    """
+    shell, t, rho, d = _shells(points, frame)
+    inside = np.flatnonzero(shell >= 0)
+    s = shell[inside]
+    flows = _flow_rows((shell_side[s] > 0).astype(np.int64), t[inside])
+    cols = (s[:, None] * _FLOW_A + np.arange(_FLOW_A)).ravel()
+    mass = np.maximum(np.bincount(s, minlength=BINS), 1)[:, None]
+    tot = np.bincount(cols, weights=g_of_t(flows).ravel(), minlength=BINS * _FLOW_A).reshape(BINS, _FLOW_A)
+    margin = np.maximum.accumulate(shell_side[:, None] * tot / mass, axis=1)
+    moved = (count[inside, None] * ((flows - t[inside, None]) * frame[2]) ** 2).ravel()
+    sq = np.bincount(cols, weights=moved, minlength=BINS * _FLOW_A).reshape(BINS, _FLOW_A)
+    return _Tables(frame, shell, t, rho, d, flows, margin, sq)
+
+
+def _amplitudes(tab: _Tables, target: np.ndarray) -> tuple:
+    """``(a (BINS,) in [0, 1], sum of squared displacements)``: the least tabled-and-interpolated
+    amplitude per shell whose margin reaches ``target`` (BINS,) (1 where none does)."""
+    rows = np.arange(BINS)
+    j = np.count_nonzero(tab.margin < target[:, None], axis=1)
+    jj = np.clip(j, 1, _FLOW_A - 1)
+    m0, m1 = tab.margin[rows, jj - 1], tab.margin[rows, jj]
+    frac = np.clip(np.divide(target - m0, m1 - m0, out=np.ones(BINS), where=m1 > m0), 0.0, 1.0)
+    frac = np.where(j == 0, 0.0, np.where(j >= _FLOW_A, 1.0, frac))
+    sq = tab.sq[rows, jj - 1] * (1.0 - frac) + tab.sq[rows, jj] * frac
+    return (jj - 1 + frac) / (_FLOW_A - 1), float(sq.sum())
+
+
+def _best_margin(tab: _Tables, extra: np.ndarray, strength: float, limit_sq: float) -> float:
+    """The largest margin in [strength, 1] whose amplitudes (targets ``margin + extra``) keep the
+    sum of squared displacements within ``limit_sq`` (``strength`` when even it does not)."""
+    if _amplitudes(tab, strength + extra)[1] > limit_sq:
+        return strength
+    lo, hi = strength, 1.0
+    if _amplitudes(tab, hi + extra)[1] <= limit_sq:
+        return hi
+    for _ in range(24):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if _amplitudes(tab, mid + extra)[1] <= limit_sq else (lo, mid)
+    return lo
+
+
+def _move(tab: _Tables, amp: np.ndarray) -> np.ndarray:
+    """The distinct positions (k, 3) with each shell's ``t`` moved along its flow to amplitude ``amp`` (BINS,).
+
+    Linear between tabled amplitudes (a convex mix of two increasing maps: no vertex leaves
+    its shell nor passes another); a vertex moves along the ray from the frame's centroid.
+    """
+    centroid, lo, width = tab.frame
+    inside = np.flatnonzero(tab.shell >= 0)
+    s = tab.shell[inside]
+    x = amp[s] * (_FLOW_A - 1)
+    j0 = np.minimum(x.astype(np.int64), _FLOW_A - 2)
+    f = x - j0
+    rows = np.arange(len(inside))
+    t1 = tab.flows[rows, j0] * (1.0 - f) + tab.flows[rows, j0 + 1] * f
+    scale = np.ones(len(tab.rho))
+    new_rho = lo + (s + t1) * width
+    scale[inside] = np.divide(new_rho, tab.rho[inside], out=np.ones(len(inside)), where=tab.rho[inside] > 0)
+    return centroid + tab.d * scale[:, None]
+
+
+def _transports(points: np.ndarray, rng: np.random.Generator):
+    """The simulated transport of :data:`TRANSPORT_BITS`: yields (k, 3) float64 positions."""
+    yield points.astype(np.float32).astype(np.float64)
+    step = float((points.max(0) - points.min(0)).max()) / (2**TRANSPORT_BITS - 1)
     for _ in range(TRANSPORT_TRIALS):
         q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
-        p = positions @ q.T + rng.uniform(0.0, step, 3)
+        p = points @ q.T + rng.uniform(0.0, step, 3)
         yield (np.round(p / step) * step) @ q
 
 
-def _bit_values(shell_scores: np.ndarray, mass: np.ndarray, shell_bit: np.ndarray) -> np.ndarray:
-    """Soft value per coded bit (OWNER_BITS,): the mean score of its non-empty shells (0: none)."""
-    tot = np.bincount(shell_bit, weights=np.where(mass > 0, shell_scores, 0.0), minlength=OWNER_BITS)
-    return tot / SPREAD
-
-
-def _worst_bits(marked: np.ndarray, sides: np.ndarray, shell_bit: np.ndarray, seed: int) -> tuple:
-    """``(min over clean + simulated transports of sides * soft (OWNER_BITS,), mass (BINS,))``."""
-    s, mass = _scores(marked)
-    worst = sides * _bit_values(s, mass, shell_bit)
+def _worst(marked: np.ndarray, faces: np.ndarray, shell_side: np.ndarray, seed: int) -> np.ndarray:
+    """(BINS,) min over the marked points (k, 3) and their simulated transports of side * shell score."""
+    worst = shell_side * _scores(marked, faces)[0]
     for p in _transports(marked, np.random.default_rng(seed)):
-        s2, m2 = _scores(p)
-        worst = np.minimum(worst, sides * _bit_values(s2, m2, shell_bit))
-    return worst, mass
+        worst = np.minimum(worst, shell_side * _scores(p, faces)[0])
+    return worst
 
 
-def _rms(a: np.ndarray, b: np.ndarray) -> float:
-    """RMS distance between corresponding rows of two (n, 3) arrays."""
-    return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
+def _mark(points: np.ndarray, count: np.ndarray, faces: np.ndarray, shell_side: np.ndarray,
+          strength: float, limit_sq: float) -> np.ndarray:
+    """The marked distinct positions (k, 3): the feedback loop of :func:`embed`.
 
-
-def _with_margin(pos0: np.ndarray, sides: np.ndarray, shell_bit: np.ndarray, strength: float,
-                 amp: np.ndarray, limit: float = math.inf) -> tuple:
-    """``(marked (n, 3), amp (BINS,))``: the feedback loop of :func:`embed` from amplitudes ``amp``.
-
-    The marked mesh and its simulated transports are measured exactly as :func:`detect`
-    measures them, and the shells of each bit short of ``strength`` in any of them get a
-    larger flow amplitude, until none is short (or the cap :data:`_MAX_AMPLITUDE` or
-    :data:`_ROUNDS` rounds is reached: a mesh too small for 64 bits may keep a few short
-    bits, which :func:`detect` reads as errors).  Stops early once the RMS displacement
-    exceeds ``limit`` (the caller then rejects the result).
+    Each round takes the frame of the current marked points, tables every shell's margin and
+    displacement against its amplitude (:func:`_tables`), picks the largest margin the budget
+    allows (:func:`_best_margin`; each shell's target is that plus its learned ``extra``), moves
+    the points, and measures them exactly as :func:`detect` does, clean and after the simulated
+    transport; a shell short of the margin in any of them gets that shortfall (x
+    :data:`_OVERSHOOT`) added to its ``extra``.  Stops when none is short or after
+    :data:`_ROUNDS` rounds (a mesh too small for 64 bits may keep a few short bits).
     """
-    marked = _move(pos0, _frame(_distinct(pos0)), amp) if np.any(amp) else pos0
+    extra = np.zeros(BINS)
+    marked = points
     for _ in range(_ROUNDS):
-        frame = _frame(_distinct(marked))
+        frame = _frame(marked, faces)
         if frame[2] == 0:
-            return pos0.copy(), amp
-        worst, mass = _worst_bits(marked, sides, shell_bit, seed=len(pos0))
-        short = worst < strength
-        if not short.any():
+            return points
+        tab = _tables(points, count, frame, shell_side)
+        margin = _best_margin(tab, extra, strength, limit_sq)
+        amp, _ = _amplitudes(tab, margin + extra)
+        marked = _move(tab, amp)
+        short = np.maximum(margin - _worst(marked, faces, shell_side, seed=len(points)), 0.0)
+        if not np.any(short > _TOLERANCE * margin):
             break
-        # dS/da = mean g'(t) h(t) = (2 pi / G) mean h(t)^2 ~ pi / G for spread-out t
-        gap = np.where(short, (strength - worst) * _G_MAX / np.pi * _OVERSHOOT, 0.0)[shell_bit]
-        amp = np.clip(amp + sides[shell_bit] * gap * (mass > 0), -_MAX_AMPLITUDE, _MAX_AMPLITUDE)
-        marked = _move(pos0, frame, amp)
-        if _rms(marked, pos0) > limit:
-            break
-    return marked, amp
+        extra += short * _OVERSHOOT
+    return marked
 
 
 def embed(positions, faces, key, owner_id: int | None = None, strength: float = DEFAULT_STRENGTH,
           rms_budget: float | None = DEFAULT_RMS_BUDGET) -> np.ndarray:
     """Mark ``owner_id`` (default ``key.owner_id``) into the distribution of vertex norms.
 
-    positions : (n, 3) float; faces : (m, 3) int (unused: the statistics are per distinct
-    vertex position); key : :class:`~pmwm_codec.watermark.key.WatermarkKey`.
+    positions : (n, 3) float; faces : (m, 3) int indexing them (the frame is area-weighted);
+    key : :class:`~pmwm_codec.watermark.key.WatermarkKey`.
     strength : the margin every coded bit's soft value (in [-1, 1]) must keep on its side
     of 0, clean and after the simulated transport (kept even if it costs more than the budget).
-    rms_budget : then the margin is raised (by factors of :data:`_RAISE`) as long as the
-    RMS displacement stays within this fraction of the bounding-box diagonal, for
-    robustness to noise, smoothing and coarse quantization; None: no raising.
-    Returns new (n, 3) float64 positions: each vertex moved along the ray from the
+    rms_budget : the margin is raised beyond ``strength`` as far as the RMS displacement
+    stays within this fraction of the bounding-box diagonal, for robustness to noise,
+    smoothing, coarse quantization and simplification; None: no raising.
+    Returns new (n, 3) float64 positions: each vertex moved along the ray from the area
     centroid, never out of its shell; coincident vertices stay coincident.
     """
-    pos0 = np.asarray(positions, np.float64)
+    pos0 = np.asarray(positions, np.float64).reshape(-1, 3)
     owner_id = key.owner_id if owner_id is None else owner_id
     if owner_id is None:
         raise ValueError("the key carries no owner id")
     shell_bit, whiten = _layout(key)
-    sides = np.where((id_to_bits(owner_id) ^ whiten) == 1, 1.0, -1.0)
-    marked, amp = _with_margin(pos0, sides, shell_bit, float(strength), np.zeros(BINS))
-    if rms_budget is None or not len(pos0):
-        return marked
-    limit = float(rms_budget) * float(np.linalg.norm(pos0.max(0) - pos0.min(0)))
-    margin = float(strength)
-    while margin < 1.0:
-        margin *= _RAISE
-        cand, cand_amp = _with_margin(pos0, sides, shell_bit, margin, amp.copy(), limit)
-        if _rms(cand, pos0) > limit:
-            break
-        marked, amp = cand, cand_amp
-    return marked
+    shell_side = np.where((id_to_bits(owner_id) ^ whiten) == 1, 1.0, -1.0)[shell_bit]
+    if len(pos0) < 2:
+        return pos0.copy()
+    points, inverse = _distinct_index(pos0)
+    count = np.bincount(inverse, minlength=len(points)).astype(np.float64)
+    faces = inverse[np.asarray(faces, np.int64).reshape(-1, 3)]
+    limit_sq = 0.0 if rms_budget is None else (float(rms_budget) * float(np.linalg.norm(pos0.max(0) - pos0.min(0)))) ** 2 * len(pos0)
+    return _mark(points, count, faces, shell_side, float(strength), limit_sq)[inverse]
 
 
 def _layout(key) -> tuple:
     """``(bit of each shell (BINS,) int64, whitening (64,) uint8)`` from the key."""
-    return key.permutation(STREAM_ID, BINS) % OWNER_BITS, key.bits(STREAM_ID, OWNER_BITS)
+    return key.permutation(STREAM_ID, BINS), key.bits(STREAM_ID, OWNER_BITS)
 
 
 def read_soft(positions, faces, key) -> np.ndarray:
     """Soft coded values (64,) float64 in [-1, 1]: > 0 reads 1, < 0 reads 0, 0 is erased."""
-    s, mass = _scores(positions)
-    return _bit_values(s, mass, _layout(key)[0])
+    s, mass = _mesh_scores(positions, faces)
+    soft = np.zeros(OWNER_BITS)
+    soft[_layout(key)[0]] = np.where(mass > 0, s, 0.0)
+    return soft
 
 
 def detect(positions, faces, key) -> OwnerResult:
