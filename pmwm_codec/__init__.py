@@ -58,7 +58,9 @@ def encode(src, dst, watermark=None, key=None, **options):
     (WatermarkKeyError, nothing written) otherwise or when it is a symbolic link; a new one
     is written (0600) just before the ``.pmw``, so a failure at any moment leaves the old
     pair or the new one.  Options: ``mode``, ``bits``, ``grid_bits``, ``base_codec``,
-    ``base_vertices``, ``embed_from`` (first split carrying a code: index or fraction), ``owner_id`` (64-bit int: the owner layer, alone or under the watermark), ``zstd_level``, ``measure`` (``"vertices"`` | ``"sampled"`` |
+    ``base_vertices``, ``embed_from`` (first split carrying a code: index or fraction), ``owner_id`` (the owner layer: a 64-bit int, alone or under the watermark; default
+    with a watermark: the key's owner ID, random for a new key, none for a key written
+    before the owner layer; False: no owner layer), ``zstd_level``, ``measure`` (``"vertices"`` | ``"sampled"`` |
     ``"none"``), ``strip_image_profiles`` (assets).
     Returns the report dict (the
     ``pmw encode --json`` fields, plus ``notices`` and ``key_path``).
@@ -75,8 +77,11 @@ def encode(src, dst, watermark=None, key=None, **options):
 
         raise InputFormatError(f"{src}: no such file")
     image, notices = _as_watermark(watermark)
-    key_obj, key_slot = _key_for(key, image, dst, options.get("owner_id"))
+    asked = options.get("owner_id")
+    key_obj, key_slot, options["owner_id"] = _key_for(key, image, dst, asked)
     options["key_slot"] = key_slot
+    if image is not None and asked is None and options["owner_id"] is None:
+        notices.append("the key names no owner id (written before the owner layer): no owner layer written")
     if asset:
         report = encode_asset(src, dst, watermark=image, key=key_obj, **options)
     else:
@@ -92,23 +97,27 @@ def encode(src, dst, watermark=None, key=None, **options):
 
 
 def _key_for(key, image, dst, owner_id=None) -> tuple:
-    """``(key object or None, KeySlot or None)`` for an encode of ``image`` (and/or the owner
-    layer ``owner_id``) to ``dst``.
+    """``(key object or None, KeySlot or None, owner ID or None)`` for an encode of ``image``
+    (and/or the owner layer) to ``dst``; ``owner_id`` as :func:`encode` takes it, resolved.
 
     Checked before any work: a refused key file costs nothing.
     """
     from .stream.encoder import default_key_path
-    from .watermark.key import KeySlot
+    from .watermark.key import FROM_KEY, KeySlot, random_owner_id
 
+    if owner_id is False or (owner_id is None and image is None):
+        owner_id = None
+    elif owner_id is None:
+        owner_id = FROM_KEY
     if image is None and owner_id is None:
-        return None, None
+        return None, None, None
     if key is not None and not isinstance(key, (str, os.PathLike)):
-        return key, None
+        return key, None, (key.owner_id if owner_id == FROM_KEY else owner_id)
     path = default_key_path(dst) if key is None else key
     if path is None:
-        return None, None
+        return None, None, (random_owner_id() if owner_id == FROM_KEY else owner_id)
     slot = KeySlot.open(path, image, owner_id)
-    return slot.existing, slot
+    return slot.existing, slot, slot.owner_id
 
 
 def decode(src, chunks=None) -> Mesh:

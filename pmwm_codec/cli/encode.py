@@ -57,8 +57,11 @@ def add_parser(sub):
     p.add_argument("-o", "--output", required=True, metavar="OUT.pmw", help="the .pmw to write")
     p.add_argument("--watermark", metavar="IMG", help="grayscale watermark image (made square, 2^k)")
     p.add_argument("--owner-id", type=_owner_id, metavar="HEX",
-                   help="mark a 64-bit owner ID (1-16 hex digits) that survives transport and processing, read "
-                        "blind by 'pmw verify MESH --key KEY'; alone, without --watermark, it is the only mark")
+                   help="the 64-bit owner ID (1-16 hex digits) of the owner layer, which survives transport and "
+                        "processing and is read blind by 'pmw verify MESH --key KEY' (default with --watermark: the "
+                        "key's, random for a new key); alone, without --watermark, it is the only mark")
+    p.add_argument("--no-owner", action="store_true",
+                   help="with --watermark: write the exact layer only, no owner layer")
     p.add_argument("--key", metavar="KEY", help="key file to use (if it exists) or to write (default: OUT.pmw.key.json)")
     p.add_argument("--mode", choices=MODES, default="exact", help="exact (default: bit-exact watermark) or paper (Eq. 4)")
     p.add_argument("--bits", type=_int_in(1, MAX_BITS, "--bits"), metavar="B", help="bits per code (default: automatic)")
@@ -98,7 +101,13 @@ def run(args) -> int:
             options[name] = getattr(args, name)
     if args.strip_image_profiles:
         options["strip_image_profiles"] = True
+    if args.no_owner and args.owner_id is not None:
+        raise UsageError("--no-owner and --owner-id exclude each other")
     extra = []
+    if args.no_owner:
+        options["owner_id"] = False
+        if args.watermark is None:
+            extra.append("--no-owner ignored: no --watermark, so the file carries no mark")
     if args.key is not None and args.watermark is None and args.owner_id is None:
         extra.append("--key ignored: no --watermark, so the file carries no mark and needs no key")
     if args.embed_from is not None and args.watermark is None:

@@ -312,6 +312,15 @@ class WatermarkKey:
         return self._stream(b"key/" + bytes(label), 0, 32)
 
 
+#: ``KeySlot.open(..., owner_id=FROM_KEY)``: mark the key file's owner ID (random for a new key).
+FROM_KEY = "from-key"
+
+
+def random_owner_id() -> int:
+    """A random 64-bit owner ID (from the operating system's generator)."""
+    return int.from_bytes(secrets.token_bytes(8), "big")
+
+
 def parse_owner_id(text) -> int:
     """An owner id from 1-16 hexadecimal digits (``0x`` allowed); ValueError otherwise."""
     s = str(text).strip().lower()
@@ -347,22 +356,29 @@ class KeySlot:
     keeps verifying; a key for another image (or with none) is refused, untouched.  A
     missing key file is created (0600) in the same step that publishes the ``.pmw``.
 
-    ``path`` str; ``existing`` the key loaded from it, or None when there was none.
+    ``path`` str; ``existing`` the key loaded from it, or None when there was none;
+    ``owner_id`` the owner ID the encode marks (None: no owner layer).  A key is reused
+    only when it holds the same image and the same owner ID (or none for both).
     """
 
     path: str
     existing: WatermarkKey | None
+    owner_id: int | None = None
 
     @classmethod
-    def open(cls, path, image, owner_id: int | None = None) -> "KeySlot":
+    def open(cls, path, image, owner_id=None) -> "KeySlot":
         """Check ``path`` for an encode that embeds ``image`` (s, s) uint8 (None: the owner layer
-        alone) and the owner ID ``owner_id`` (None: no owner layer); WatermarkKeyError if refused."""
+        alone) and the owner ID ``owner_id`` (None: no owner layer; :data:`FROM_KEY`: the key
+        file's own owner ID, a random one when the file is new, none for a key written before
+        the owner layer); WatermarkKeyError if refused.  The owner ID resolved is ``owner_id``."""
         path = refuse_symlink(path)
         if not os.path.lexists(path):
-            return cls(path, None)
+            return cls(path, None, random_owner_id() if owner_id == FROM_KEY else owner_id)
         existing = WatermarkKey.load(path)
+        if owner_id == FROM_KEY:
+            owner_id = existing.owner_id
         _check_reusable(path, existing, image, owner_id)
-        return cls(path, existing)
+        return cls(path, existing, owner_id)
 
     def pending(self, key: WatermarkKey) -> bytes | None:
         """The bytes to write for ``key`` (None: reuse the file as it is).
@@ -405,9 +421,10 @@ def _same_marks(a: WatermarkKey, b: WatermarkKey) -> bool:
 
 
 def _check_reusable(path: str, key: WatermarkKey, image, owner_id: int | None = None) -> None:
-    if owner_id is not None and key.owner_id != owner_id:
-        raise WatermarkKeyError(f"{path}: this key names another owner id (or none); it is left untouched "
-                                "(name a new --key file)")
+    if key.owner_id != owner_id:
+        what = "names no owner id" if key.owner_id is None else (
+            "names an owner id, and this encode writes no owner layer" if owner_id is None else "names another owner id")
+        raise WatermarkKeyError(f"{path}: this key {what}; it is left untouched (name a new --key file)")
     if image is None:
         if key.reference is not None:
             raise WatermarkKeyError(f"{path}: this key holds a watermark image; an owner-only encode cannot "
