@@ -189,3 +189,61 @@ def test_cli_owner_only_encode_then_blind_verify_of_the_decoded_mesh(tmp_path, b
     assert main(["verify", str(out), "--key", str(key), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["owner"]["verdict"] == "present" and all("owner" in c for c in doc["chunks"])
+
+
+def _write_obj(path, mesh):
+    with open(path, "w") as fh:
+        fh.writelines(f"v {x:.17g} {y:.17g} {z:.17g}\n" for x, y, z in mesh.positions)
+        fh.writelines(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in mesh.faces)
+
+
+def _watermark_png(path):
+    from PIL import Image
+
+    Image.fromarray((np.arange(16 * 16).reshape(16, 16) % 2 * 255).astype(np.uint8)).save(path)
+
+
+def test_watermark_encode_marks_a_random_owner_id_by_default_and_no_owner_opts_out(tmp_path, blob, capsys):
+    src, img = tmp_path / "blob.obj", tmp_path / "w.png"
+    _write_obj(src, blob)
+    _watermark_png(img)
+    ids = []
+    for name in ("a", "b"):
+        assert main(["encode", str(src), "-o", str(tmp_path / f"{name}.pmw"), "--watermark", str(img), "--json"]) == 0
+        doc = json.loads(capsys.readouterr().out)
+        key = WatermarkKey.load(tmp_path / f"{name}.pmw.key.json")
+        assert key.owner_hex == doc["owner_id"]
+        ids.append(key.owner_id)
+        assert main(["verify", str(tmp_path / f"{name}.pmw"), "--key", str(tmp_path / f"{name}.pmw.key.json"),
+                     "--json"]) == 0
+        out = json.loads(capsys.readouterr().out)
+        assert out["verdict"] == "authentic" and out["owner"]["verdict"] == "present"
+    assert ids[0] != ids[1]  # random per new key
+    # reusing key a for the same image marks key a's owner id again
+    assert main(["encode", str(src), "-o", str(tmp_path / "c.pmw"), "--watermark", str(img),
+                 "--key", str(tmp_path / "a.pmw.key.json"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["owner_id"] == f"{ids[0]:016x}"
+    # --no-owner: the exact layer only, and the new key names no owner id
+    assert main(["encode", str(src), "-o", str(tmp_path / "n.pmw"), "--watermark", str(img), "--no-owner", "-q"]) == 0
+    assert WatermarkKey.load(tmp_path / "n.pmw.key.json").owner_id is None
+    # a key with an owner id is not reused by an encode without the layer
+    assert main(["encode", str(src), "-o", str(tmp_path / "d.pmw"), "--watermark", str(img), "--no-owner",
+                 "--key", str(tmp_path / "a.pmw.key.json")]) == 2
+    assert "names an owner id" in capsys.readouterr().err
+    assert main(["encode", str(src), "-o", str(tmp_path / "e.pmw"), "--no-owner", "--owner-id", "ff"]) == 2
+
+
+def test_a_key_written_before_the_owner_layer_still_marks_and_verifies_the_image(tmp_path, blob, capsys):
+    src, img = tmp_path / "blob.obj", tmp_path / "w.png"
+    _write_obj(src, blob)
+    _watermark_png(img)
+    assert main(["encode", str(src), "-o", str(tmp_path / "a.pmw"), "--watermark", str(img), "-q"]) == 0
+    old = tmp_path / "old.key.json"
+    doc = json.loads((tmp_path / "a.pmw.key.json").read_text())
+    doc.pop("owner_id")  # as an older version wrote it
+    old.write_text(json.dumps(doc))
+    assert main(["encode", str(src), "-o", str(tmp_path / "b.pmw"), "--watermark", str(img), "--key", str(old),
+                 "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert "owner_id" not in report and any("no owner id" in n for n in report["notices"])
+    assert main(["verify", str(tmp_path / "b.pmw"), "--key", str(old), "-q"]) == 0
