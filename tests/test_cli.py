@@ -390,6 +390,10 @@ def test_verify_stream_as_json_is_the_verify_json_output(work, capsys):
     assert code == 0
     printed = strict_json(stdout)
     result = pmwm_codec.verify_stream(str(work["pmw"]), str(work["key"]))
+    # the key carries an owner id (a watermark encode marks the owner layer by default): the CLI
+    # adds the owner layer read at every chunk boundary and at the end (pmwm_codec.verify.owner)
+    assert printed.pop("owner")["verdict"] == "present"
+    assert all(chunk.pop("owner")["bits"] == 64 for chunk in printed["chunks"] + [printed["final"]])
     assert result.as_json().keys() == printed.keys()
     assert jsonable(result.as_json()) == printed
     assert result.verdict == "authentic" and result.end.complete and len(result.results) == printed["chunks_total"] + 1
