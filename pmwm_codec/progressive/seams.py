@@ -53,17 +53,29 @@ from .topology import csr, expand
 def weld_groups(positions: np.ndarray) -> np.ndarray | None:
     """(n,) int64: the smallest vertex id with each vertex's exact position; None when all differ.
 
-    ``positions`` (n, 3) float; -0.0 and 0.0 are the same position.
+    ``positions`` (n, 3) float; -0.0 and 0.0 are the same position.  One sort of a 64-bit
+    hash of the rows finds the candidates; only rows whose hash repeats are compared exactly.
     """
-    pts = np.asarray(positions, np.float64) + 0.0
-    if len(pts) == 0:
+    pts = np.ascontiguousarray(np.asarray(positions, np.float64) + 0.0)
+    n = len(pts)
+    if n < 2:
         return None
-    _, inverse = np.unique(pts, axis=0, return_inverse=True)
+    bits = pts.view(np.uint64).reshape(n, 3)
+    h = bits[:, 0] * np.uint64(0x9E3779B97F4A7C15)
+    h ^= bits[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F)
+    h ^= bits[:, 2] * np.uint64(0x165667B19E3779F9)
+    order = np.argsort(h, kind="stable")
+    same = h[order][1:] == h[order][:-1]
+    if not same.any():
+        return None
+    cand = np.unique(order[np.r_[same, False] | np.r_[False, same]])
+    _, inverse = np.unique(pts[cand], axis=0, return_inverse=True)
     inverse = inverse.reshape(-1)
-    rep = np.full(int(inverse.max()) + 1, len(pts), np.int64)
-    np.minimum.at(rep, inverse, np.arange(len(pts)))
-    weld = rep[inverse]
-    return None if np.array_equal(weld, np.arange(len(pts))) else weld
+    rep = np.full(int(inverse.max()) + 1, n, np.int64)
+    np.minimum.at(rep, inverse, cand)
+    weld = np.arange(n, dtype=np.int64)
+    weld[cand] = rep[inverse]
+    return None if np.array_equal(weld, np.arange(n)) else weld
 
 
 def local_groups(weld: np.ndarray, vids: np.ndarray, loc: np.ndarray) -> np.ndarray:
@@ -133,18 +145,15 @@ def _welded_link(u1, u2, v1, g, vv) -> np.ndarray:
     share exactly two neighbour positions."""
     n = len(g)
     vv_start, vv_nbr = vv
-    p = np.arange(len(u1))
+    p = np.arange(len(u1), dtype=np.int64)
     own_a, pos_a = expand(vv_start, np.concatenate([u1, u2]))
-    side_a = np.stack([np.concatenate([p, p])[own_a], g[vv_nbr[pos_a]]], 1)
+    side_a = np.unique(np.concatenate([p, p])[own_a] * n + g[vv_nbr[pos_a]])
     members_start, members = csr(g, np.arange(n), n)
     own_m, pos_m = expand(members_start, g[v1])
-    copies_v = members[pos_m]
-    own_b, pos_b = expand(vv_start, copies_v)
-    side_b = np.stack([own_m[own_b], g[vv_nbr[pos_b]]], 1)
-    both = np.concatenate([np.unique(side_a, axis=0), np.unique(side_b, axis=0)])
-    pairs, count = np.unique(both, axis=0, return_counts=True)
-    common = np.bincount(pairs[count == 2, 0], minlength=len(u1))
-    return common == 2
+    own_b, pos_b = expand(vv_start, members[pos_m])
+    side_b = np.unique(own_m[own_b] * n + g[vv_nbr[pos_b]])
+    common = np.intersect1d(side_a, side_b, assume_unique=True) // n
+    return np.bincount(common, minlength=len(u1)) == 2
 
 
 def choose_pairs(hu, hv, i, j, cost, vv, n: int, rounds: int = 32) -> np.ndarray:
