@@ -33,6 +33,10 @@ A collapse is legal when
   can name the face it grows from; it also forbids removing "ear" vertices);
 * no moved face flips its normal, becomes degenerate or duplicates a face.
 
+Seams: vertices that share a position (glTF copies on a UV seam or a hard edge, given as
+``weld``) are never removed by an ordinary collapse; both copies go together, as a *seam pair*
+of collapses in one batch, chosen before the batch's other collapses (rule in :mod:`.seams`).
+
 Order within a batch follows the quadric error (Garland–Heckbert) of placing
 ``u`` on ``v``; an independent set is picked by rounds of "lowest cost among its
 neighbours wins" (a parallel, Luby-style version of greedy-by-cost).
