@@ -137,3 +137,49 @@ def demo_mesh(resolution: int = 180) -> Mesh:
     ang = np.arctan2(p[:, 1], p[:, 0])
     p[:, 2] += 0.35 * np.sin(3 * ang)
     return Mesh(p, t.faces)
+
+
+def uv_torus(rings: int = 32, sides: int = 16, *, twist: float = 0.1) -> Mesh:
+    """:func:`torus` with a TEXCOORD_0 and its two UV seams, as a glTF exporter splits it.
+
+    The wrap-around row and column are separate vertices (``(rings + 1) * (sides + 1)``)
+    at the same positions as the first ones, with u = 1 / v = 1; the two seam loops
+    cross at one position with four copies.  The welded surface is closed.
+    """
+    t = torus(rings, sides, twist=twist)
+    a, b = np.meshgrid(np.arange(rings + 1), np.arange(sides + 1), indexing="ij")
+    source = (a % rings) * sides + b % sides
+    uv = np.stack([a / rings, b / sides], -1).reshape(-1, 2)
+    i0 = a[:-1, :-1] * (sides + 1) + b[:-1, :-1]
+    i1, i3 = i0 + sides + 1, i0 + 1
+    i2 = i1 + 1
+    faces = np.concatenate([np.stack([i0, i1, i2], -1).reshape(-1, 3), np.stack([i0, i2, i3], -1).reshape(-1, 3)])
+    return Mesh(t.positions[source.reshape(-1)], faces.astype(np.int64), attributes={"TEXCOORD_0": uv})
+
+
+def faceted_cube(k: int = 9, *, bump: float = 0.0) -> Mesh:
+    """A cube of six ``k x k`` vertex grids with a NORMAL per face (hard edges split the vertices).
+
+    Vertices on the cube's edges have two copies, its corners three; the welded surface is
+    closed.  ``bump`` pushes each face's interior outwards (a dome; edges stay straight).
+    """
+    s = np.linspace(-1.0, 1.0, k)
+    si, ti = np.meshgrid(s, s, indexing="ij")
+    verts, normals, faces = [], [], []
+    for axis in range(3):
+        for sign in (1.0, -1.0):
+            n = np.zeros(3)
+            n[axis] = sign
+            t1 = np.zeros(3)
+            t1[(axis + 1) % 3] = 1.0
+            t2 = np.cross(n, t1)
+            dome = bump * (1 - si**2) * (1 - ti**2)
+            p = (1.0 + dome)[..., None] * n + si[..., None] * t1 + ti[..., None] * t2
+            base = len(verts) * k * k
+            i0 = base + np.arange(k - 1)[:, None] * k + np.arange(k - 1)[None, :]
+            faces.append(np.stack([i0, i0 + k, i0 + k + 1], -1).reshape(-1, 3))
+            faces.append(np.stack([i0, i0 + k + 1, i0 + 1], -1).reshape(-1, 3))
+            verts.append(p.reshape(-1, 3) + 0.0)
+            normals.append(np.tile(n, (k * k, 1)))
+    return Mesh(np.concatenate(verts), np.concatenate(faces).astype(np.int64),
+                attributes={"NORMAL": np.concatenate(normals)})

@@ -33,6 +33,10 @@ A collapse is legal when
   can name the face it grows from; it also forbids removing "ear" vertices);
 * no moved face flips its normal, becomes degenerate or duplicates a face.
 
+Seams: vertices that share a position (glTF copies on a UV seam or a hard edge, given as
+``weld``) are never removed by an ordinary collapse; both copies go together, as a *seam pair*
+of collapses in one batch, chosen before the batch's other collapses (rule in :mod:`.seams`).
+
 Order within a batch follows the quadric error (Garland–Heckbert) of placing
 ``u`` on ``v``; an independent set is picked by rounds of "lowest cost among its
 neighbours wins" (a parallel, Luby-style version of greedy-by-cost).
@@ -44,6 +48,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import seams
 from .topology import compiled, csr, edge_table, expand, group_order, half_edges, kernel_helper
 
 #: A moved face's normal may turn by at most this much (cosine bound).
@@ -189,6 +194,7 @@ def simplify(
     target_vertices: int = 0,
     max_batches: int = 400,
     locked: np.ndarray | None = None,
+    weld: np.ndarray | None = None,
 ) -> CollapseLog:
     """Coarsen a mesh by batches of independent half-edge collapses.
 
@@ -204,6 +210,10 @@ def simplify(
         Upper bound on the number of batches.
     locked : (n,) bool, optional
         Vertices that must stay in the base mesh.
+    weld : (n,) int64, optional
+        Seam copies: the smallest vertex id at each vertex's position
+        (:func:`~pmwm_codec.progressive.seams.weld_groups`).  Vertices that share a
+        position are removed only in seam pairs (:mod:`.seams`); None: no seams.
 
     Returns
     -------
@@ -225,7 +235,8 @@ def simplify(
     for _ in range(max_batches):
         if alive_count <= target_vertices:
             break
-        batch = _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, alive_count - target_vertices)
+        batch = _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, alive_count - target_vertices,
+                           weld)
         if batch is None:
             break
         # apply: delete faces, rewrite corners, merge quadrics
@@ -247,13 +258,14 @@ def simplify(
     return log
 
 
-def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget):
+def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget, weld=None):
     """Choose and describe one batch of independent legal collapses (or None).
 
     pos (n, 3) float64, corners (m, 3) int64, face_alive (m,) bool, vert_alive (n,) bool,
     quad (n, 10) float64 and frozen_ext (n,) bool are the simplifier's state in original
-    ids; at most ``budget`` collapses are taken (the cheapest).  The work is done on the
-    live mesh renumbered compactly ("local" ids) and returned in original ids.
+    ids; at most ``budget`` vertices are removed (the cheapest collapses).  ``weld`` (n,)
+    int64 or None: seam copies (see :func:`simplify`).  The work is done on the live mesh
+    renumbered compactly ("local" ids) and returned in original ids.
     """
     fids = np.flatnonzero(face_alive)
     vids = np.flatnonzero(vert_alive)
@@ -266,31 +278,34 @@ def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget):
 
     et = edge_table(F, n)
     src, dst, opp = half_edges(F)
-    cand = _candidates(F, P, Q, et, src, frozen_ext[vids])
-    if cand is None:
+    frozen = frozen_ext[vids]
+    g = None if weld is None else seams.local_groups(weld, vids, loc)
+    seam = None if g is None else seams.seam_mask(g)
+    if seam is not None and not seam.any():
+        g = seam = None
+    cand = _candidates(F, P, Q, et, src, frozen if seam is None else frozen | seam)
+    if cand is None and seam is None:
         return None
-    cu, cv, ce, cost = cand
     fcount = np.bincount(F.ravel(), minlength=n)
     nb_src = np.concatenate([et.lo, et.hi])
     nb_dst = np.concatenate([et.hi, et.lo])
     vv = csr(nb_src, nb_dst, n)  # vertex -> neighbours
     vf = csr(F.ravel(), np.repeat(np.arange(m), 3), n)  # vertex -> faces
-
-    def legal(idx):
-        return _legal(cu[idx], cv[idx], ce[idx], et, F, P, opp, fcount, vv, vf)
-
-    kernel = compiled(_select_kernel)
-    if kernel is None:
-        win = _select(cu, cv, cost, legal, vv, n, ROUNDS)
-    else:
-        win = kernel(cu, cv, ce, _offer_ranks(cu, cost), vv[0], vv[1], n, ROUNDS,
-                     (et.keys, et.n, et.count, et.he0, et.he1, F, P, opp, fcount, vf[0], vf[1]))
-    if len(win) == 0:
+    mesh = (et, F, P, opp, fcount, vv, vf)
+    pairs = None if seam is None else _seam_pairs(Q, src, dst, frozen, seam, g, mesh)
+    if pairs is not None:
+        cand = _unblocked(cand, pairs, vv, n)
+    win = _ordinary_winners(cand, mesh, n) if cand is not None else np.zeros(0, np.int64)
+    if len(win) == 0 and pairs is None:
         return None
-    if len(win) > budget:
-        win = win[np.argsort(cost[win], kind="stable")[:budget]]
-    win = np.sort(win)
-    cu, cv, ce, cost = cu[win], cv[win], ce[win], cost[win]
+    if pairs is None:
+        if len(win) > budget:
+            win = win[np.argsort(cand[3][win], kind="stable")[:budget]]
+        cu, cv, ce, cost = (x[np.sort(win)] for x in cand)
+    else:
+        cu, cv, ce, cost = _merge_pairs(cand, win, pairs, budget)
+        if len(cu) == 0:
+            return None
     del_left, wing_left, del_right, wing_right = _deleted_faces(et, src, opp, cu, ce)
     moved_face, moved_by = _moved_faces(vf, F, cu, cv)
     return CollapseBatch(
@@ -300,6 +315,72 @@ def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget):
         moved_face=fids[moved_face], moved_by=moved_by,
         cost=cost, error=np.sqrt(cost / np.maximum(_plane_weight(Q[cu] + Q[cv]), 1e-300)),
     )
+
+
+def _ordinary_winners(cand, mesh, n):
+    """Indices (w,) int64 into the candidates ``cand = (cu, cv, ce, cost)`` chosen by :func:`_select`
+    (or its compiled twin); ``mesh`` is ``(et, F, P, opp, fcount, vv, vf)`` of the local mesh."""
+    cu, cv, ce, cost = cand
+    et, F, P, opp, fcount, vv, vf = mesh
+    if len(cu) == 0:
+        return np.zeros(0, np.int64)
+
+    def legal(idx):
+        return _legal(cu[idx], cv[idx], ce[idx], et, F, P, opp, fcount, vv, vf)
+
+    kernel = compiled(_select_kernel)
+    if kernel is None:
+        return _select(cu, cv, cost, legal, vv, n, ROUNDS)
+    return kernel(cu, cv, ce, _offer_ranks(cu, cost), vv[0], vv[1], n, ROUNDS,
+                  (et.keys, et.n, et.count, et.he0, et.he1, F, P, opp, fcount, vf[0], vf[1]))
+
+
+def _seam_pairs(Q, src, dst, frozen, seam, g, mesh):
+    """The seam pairs of this batch (:mod:`.seams`), or None.
+
+    Q (n, 10) quadrics, src / dst (3m,) half-edges, frozen / seam (n,) bool, g (n,) int64 seam
+    groups, ``mesh`` as in :func:`_ordinary_winners`.  Returns ``(cu, cv, ce, cost)``, each
+    (2p,) (int64 / float64 half costs): first halves, then second halves in the same order
+    (pair ``k`` is rows ``k`` and ``p + k``).
+    """
+    et, F, P, opp, fcount, vv, vf = mesh
+    halves = _candidates(F, P, Q, et, src, frozen | ~seam)
+    if halves is None:
+        return None
+    hu, hv, he, hcost = halves
+    i, j = seams.pair_up(hu, hv, he, g, et, src, dst, opp, vv)
+    if len(i) == 0:
+        return None
+    both = np.concatenate([i, j])
+    ok = _legal(hu[both], hv[both], he[both], et, F, P, opp, fcount, vv, vf)
+    good = ok[: len(i)] & ok[len(i):]
+    i, j = i[good], j[good]
+    pick = seams.choose_pairs(hu, hv, i, j, hcost[i] + hcost[j], vv, len(P))
+    if len(pick) == 0:
+        return None
+    rows = np.concatenate([i[pick], j[pick]])
+    return hu[rows], hv[rows], he[rows], hcost[rows]
+
+
+def _unblocked(cand, pairs, vv, n):
+    """The ordinary candidates independent of the chosen seam ``pairs`` (None when none are)."""
+    if cand is None:
+        return None
+    no_remove, no_keep = seams.blocked_by(pairs[0], pairs[1], vv, n)
+    keep = ~no_remove[cand[0]] & ~no_keep[cand[1]]
+    return tuple(x[keep] for x in cand) if keep.any() else None
+
+
+def _merge_pairs(cand, win, pairs, budget):
+    """``(cu, cv, ce, cost)`` of a batch: ordinary winners ``win`` (indices into ``cand``) and
+    seam ``pairs`` (:func:`_seam_pairs`), cut to ``budget`` removed vertices with pairs whole."""
+    p = len(pairs[0]) // 2
+    win = np.sort(win)
+    single_cost = cand[3][win] if cand is not None else np.zeros(0)
+    singles, keep = seams.within_budget(single_cost, pairs[3][:p] + pairs[3][p:], budget)
+    rows = np.concatenate([keep, keep + p])
+    parts = [(x[win[singles]] for x in cand)] if cand is not None else []
+    return tuple(np.concatenate(cols) for cols in zip(*parts, (x[rows] for x in pairs)))
 
 
 def _to_original(table, local):

@@ -14,11 +14,12 @@ Every other vertex attribute (NORMAL, TANGENT, TEXCOORD_n, COLOR_n, custom)
 rides with the splits on its own integer grid.
 
 Seams.  glTF vertices are already split where UVs or normals jump; the copies
-share a position.  Every vertex whose position is shared with another vertex of
-the same glTF mesh (a seam, or a border between two primitives of one mesh) is
-locked: it stays in the base mesh, so both sides of every seam have identical
-positions at every level of detail (no cracks).  Collapses elsewhere may still
-land *on* seam vertices (the kept vertex never moves).
+share a position.  Inside one primitive the simplifier collapses both sides of a
+seam together, in the same batch (:mod:`~pmwm_codec.progressive.seams`), so both
+sides have identical positions at every level of detail (no cracks).  A vertex
+whose position another *primitive* of the same glTF mesh shares (a border between
+primitives) is locked: it stays in the base mesh.  Collapses elsewhere may still
+land *on* seam or border vertices (the kept vertex never moves).
 
 :func:`decode_asset` turns a ``.pmw`` (whole or cut) back into an ordinary GLB
 at any level: the same document with each progressive primitive's geometry
@@ -177,10 +178,14 @@ def _draco_mesh(gltf, buffers, prim, draco, where) -> Mesh:
 
 
 def _lock_shared_positions(jobs) -> None:
-    """Lock every vertex whose position also belongs to another vertex of the same glTF mesh."""
-    points = np.concatenate([j.mesh.positions for j in jobs])
-    _, inverse, counts = np.unique(points, axis=0, return_inverse=True, return_counts=True)
-    shared = counts[inverse.reshape(-1)] > 1
+    """Lock every vertex whose position also belongs to another primitive of the same glTF mesh."""
+    points = np.concatenate([j.mesh.positions for j in jobs]) + 0.0
+    owner = np.repeat(np.arange(len(jobs)), [j.mesh.vertex_count for j in jobs])
+    _, inverse = np.unique(points, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    # distinct (position, primitive) pairs per position: more than one -> a border
+    pairs = np.unique(np.stack([inverse, owner], 1), axis=0)
+    shared = np.bincount(pairs[:, 0], minlength=int(inverse.max(initial=-1)) + 1)[inverse] > 1
     start = 0
     for job in jobs:
         n = job.mesh.vertex_count

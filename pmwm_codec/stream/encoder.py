@@ -42,6 +42,7 @@ from ..format.records import pack_batches
 from ..mesh import Mesh
 from ..progressive.build import ProgressiveMesh, build_progressive
 from ..progressive.grid import AttributeGrid, Grid
+from ..progressive.seams import twin_rows, weld_groups
 from ..progressive.simplify import CollapseLog, simplify
 from ..progressive.topology import mean_edge_length
 from ..watermark import codec as wm
@@ -106,7 +107,8 @@ class PrimitiveJob:
 
     ``mesh`` carries positions, faces and per-vertex ``attributes`` (glTF semantic ->
     (n, k) float); ``locked`` (n,) bool marks vertices that must stay in the base
-    (attribute seams, borders shared with other primitives); ``mesh_index`` and
+    (borders shared with other primitives; vertices sharing a position inside the
+    primitive are seams, collapsed in pairs: :mod:`~pmwm_codec.progressive.seams`); ``mesh_index`` and
     ``primitive_index`` say where it sits in the document.
     """
 
@@ -309,7 +311,8 @@ def _quantize_and_simplify(jobs, grid_bits: int, base_vertices, say) -> list:
         grid, values, specs = _quantize(job.mesh, grid_bits)
         n = job.mesh.vertex_count
         target = default_base_target(n) if base_vertices is None else int(base_vertices)
-        log = simplify(values[:, :3], job.mesh.faces, target_vertices=target, locked=job.locked)
+        log = simplify(values[:, :3], job.mesh.faces, target_vertices=target, locked=job.locked,
+                       weld=weld_groups(job.mesh.positions))
         work.append(PrimitiveWork(job, grid, values, specs, log))
         say("simplify", (i + 1) / len(jobs))
     return work
@@ -389,16 +392,42 @@ def _plan_watermark(work, watermark, key, carriers: int, slots, mode, bits, step
                 f"embedding from vertex split {start:,} leaves {carriers - start:,} of {carriers:,} splits; "
                 f"the watermark needs {need:,} in {mode} mode: start earlier"
             )
-    params, codes = wm.plan(watermark, key, carriers - start, mode=mode, bits=bits, nbar=1.0, step_units=step_units)
+    void = _twin_slots(work, key, slots)  # seam twins carry nothing (spec/watermark.md, "Repeated points")
+    readable = carriers - start - int(np.count_nonzero(void >= start))
+    params, codes = wm.plan(watermark, key, readable, mode=mode, bits=bits, nbar=1.0, step_units=step_units)
     params.embed_from = start
     step = wm.DEFAULT_STEP_UNITS[mode] if step_units is None else float(step_units)
     out = []
     for w, primitive_slots in zip(work, slots):
         nbar = mean_edge_length(w.base.positions_int, w.base.faces)
         own = dataclasses.replace(params, scale=nbar / step)
-        embedder = wm.Embedder(own, key, codes, nbar, slots=primitive_slots)
+        embedder = wm.Embedder(own, key, codes, nbar, slots=primitive_slots, void=void)
         out.append(dataclasses.replace(w, params=own, embedder=embedder))
     return params, out
+
+
+def _twin_slots(work, key, slots) -> np.ndarray:
+    """(v,) int64 sorted stream slots of the seam twins: splits whose new vertex has the
+    position of an earlier split of its batch (the watermark reader skips them).
+
+    Replays the decoder's vertex numbering from each primitive's log (splits of a batch in
+    the order of their kept vertex's decoded id) without building the records.
+    """
+    out = []
+    for w, primitive_slots in zip(work, slots):
+        vid = np.full(w.log.vertex_count, -1, dtype=np.int64)
+        vid[w.base_order] = np.arange(len(w.base_order))
+        n = len(w.base_order)
+        for j, cb in enumerate(reversed(w.log.batches)):
+            order = np.argsort(vid[cb.v], kind="stable")
+            u = cb.u[order]
+            vid[u] = n + np.arange(len(u))
+            n += len(u)
+            twin = twin_rows(w.values[u, :3]) != np.arange(len(u))
+            if twin.any():
+                g, offset = primitive_slots[j]
+                out.append(wm.carrier_slots(key, g, offset, len(u))[twin])
+    return np.sort(np.concatenate(out)) if out else np.zeros(0, np.int64)
 
 
 def _build_records(work, say) -> list:

@@ -39,6 +39,7 @@ from ..errors import FormatError, MeshError
 from ..format import BaseEvent, ChunkEvent, HeaderEvent
 from ..format.records import unpack_batches
 from ..progressive.grid import Grid
+from ..progressive.seams import twin_rows
 from ..progressive.topology import mean_edge_length
 from ..progressive.vsplit import MeshState, apply_batch, split_topology
 
@@ -57,7 +58,9 @@ class Carriers:
     ``vertices`` (k,) int64 the new vertices' ids in the primitive; ``positions``
     (n, >=3) the primitive's positions (the rings' rows are final) and ``topology``
     the batch's :class:`~pmwm_codec.progressive.vsplit.SplitTopology`, from which
-    :attr:`descriptor` describes the rings.
+    :attr:`descriptor` describes the rings; ``twin`` (k,) bool the seam twins as the
+    stream decodes them (a new vertex on the position of an earlier one of its batch:
+    it carries no code, spec/watermark.md "Repeated points"), also for given positions.
     """
 
     primitive: int
@@ -70,6 +73,7 @@ class Carriers:
     vertices: np.ndarray | None = None
     positions: np.ndarray | None = None
     topology: object = None
+    twin: np.ndarray | None = None
 
     @cached_property
     def descriptor(self):
@@ -113,6 +117,8 @@ class Replay:
         self.nbars: list = []
         #: per primitive, its base mesh's faces (f_p, 3) int64
         self.base_faces: list = []
+        #: given positions: per primitive, the stream's decoded state (seam twins come from it)
+        self.shadows: dict = {}
         self.chunks_applied = 0
         self.batches_applied = 0
 
@@ -149,18 +155,20 @@ class Replay:
         ext = self.exts[p]
         n, m = int(ext["vertexCount"]), int(ext["faceCount"])
         n0 = len(event.positions_int)
+        attrs = event.attributes_int
+        if attrs is None:
+            attrs = np.zeros((n0, 0), np.int64)
+        if attrs.shape[1] != value_width(ext) - 3:
+            raise FormatError("base mesh: attribute columns differ from the extension's attributes")
+        decoded = MeshState(np.concatenate([event.positions_int, attrs], axis=1), event.faces, n, m)
         if self.given is None:
-            attrs = event.attributes_int
-            if attrs is None:
-                attrs = np.zeros((n0, 0), np.int64)
-            if attrs.shape[1] != value_width(ext) - 3:
-                raise FormatError("base mesh: attribute columns differ from the extension's attributes")
-            values = np.concatenate([event.positions_int, attrs], axis=1)
-            self.states.append(MeshState(values, event.faces, n, m))
+            self.states.append(decoded)
             base = event.positions_int
         else:
             base = self.given[p][:n0]
             self.states.append(MeshState(base, event.faces, n, m, dtype=np.float64))
+            # the stream's own positions, only to know its seam twins (never read as codes)
+            self.shadows[p] = decoded
         self.base_faces.append(np.asarray(event.faces, np.int64))
         if self._nbar_override is not None:
             self.nbars.append(float(self._nbar_override[p]))
@@ -182,14 +190,17 @@ class Replay:
                 points = state.positions[topo.u, :3].astype(np.float64)
                 centroid = topo.centroid()[:, :3]
                 known = np.ones(len(points), bool)
+                twin = twin_rows(points) != np.arange(len(points))
             else:
                 topo = split_topology(state, batch.v, batch.symbols)
                 points = self.given[p][topo.u]
                 state.positions[topo.u] = points
                 centroid = topo.centroid()
                 known = np.isfinite(points).all(axis=1) & np.isfinite(centroid).all(axis=1)
+                own = self.shadows[p].positions[apply_batch(self.shadows[p], batch).u, :3]
+                twin = twin_rows(own) != np.arange(len(own))
             out.append(Carriers(p, self.batches_applied, points, centroid, known, self.nbars[p], scale,
-                                topo.u, state.positions, topo))
+                                topo.u, state.positions, topo, twin))
             self.batches_applied += 1
         self.chunks_applied += 1
         meta = ext["chunks"][event.chunk]

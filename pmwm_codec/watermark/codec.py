@@ -61,6 +61,7 @@ import numpy as np
 
 from ..constants import MAX_VERTICES
 from ..errors import PmwError
+from ..progressive.seams import twin_rows
 from . import haar
 from .payload import BitLayout, bits_from_symbols, pack, repeat_to_capacity, symbols, unpack, vote
 
@@ -141,10 +142,25 @@ class WatermarkParams:
     embed_from: int = 0  # first stream slot carrying a code
     binding: str = ""  # keyed binding of codes to their rings ("" legacy: none)
 
-    def code_slots(self, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Stream slots (k,) int64 -> ``(code slots (k,) int64, live (k,) bool)``: which carry a code, and which."""
-        code = np.asarray(slots, np.int64) - self.embed_from
-        return code, (code >= 0) & (code < self.carriers)
+    def code_slots(self, slots: np.ndarray, twin: np.ndarray | None = None, void_before: int = 0) -> tuple:
+        """Stream slots (k,) int64 of one batch -> ``(code slots (k,) int64, live (k,) bool)``.
+
+        ``twin`` (k,) bool marks the batch's seam twins (spec/watermark.md, "Repeated
+        points"): they carry nothing and the code slots skip them; ``void_before`` counts
+        the twins of earlier batches at or after ``embed_from``.
+        """
+        slots = np.asarray(slots, np.int64)
+        code = slots - self.embed_from
+        if twin is not None and np.any(twin):
+            void = np.sort(slots[twin & (code >= 0)])
+            code = code - void_before - np.searchsorted(void, slots)
+            return code, (code >= 0) & (code < self.carriers) & (slots >= self.embed_from) & ~twin
+        code = code - void_before
+        return code, (slots >= self.embed_from) & (code < self.carriers)
+
+    def void_count(self, slots: np.ndarray, twin: np.ndarray | None) -> int:
+        """Twins of one batch (stream slots (k,), ``twin`` (k,) bool) that :meth:`code_slots` skips."""
+        return 0 if twin is None else int(np.count_nonzero(np.asarray(twin) & (np.asarray(slots) >= self.embed_from)))
 
     def get_config(self) -> dict:
         cfg = {
@@ -503,6 +519,10 @@ class Embedder:
     failed: int = 0
     #: batch j -> (stream batch index, carrier offset) when several primitives share the slots
     slots: dict | None = None
+    #: sorted stream slots of every seam twin of the document (None: counted as batches come,
+    #: which needs the batches in stream order)
+    void: np.ndarray | None = None
+    void_seen: int = 0
 
     def __call__(self, j, topo, target, state):
         k = len(target)
@@ -510,9 +530,18 @@ class Embedder:
             g, offset = self.slots[j]
             slots = carrier_slots(self.key, g, offset, k)
         else:
+            offset = self.offset
             slots = carrier_slots(self.key, j, self.offset, k)
             self.offset += k
-        code_slots, live = self.params.code_slots(slots)
+        first = twin_rows(target[:, :3])
+        twin = first != np.arange(k)  # seam twins: they take their first copy's final place
+        if self.void is None:
+            before = self.void_seen
+            self.void_seen += self.params.void_count(slots, twin)
+        else:
+            before = int(np.searchsorted(self.void, offset) - np.searchsorted(self.void, self.params.embed_from))
+            before = max(before, 0)
+        code_slots, live = self.params.code_slots(slots, twin, before)
         out = np.array(target, dtype=np.int64, copy=True)
         if live.any():
             codes = self.codes[code_slots[live]]
@@ -520,13 +549,35 @@ class Embedder:
                 desc = ring_descriptor(state.positions, topo, self.nbar)
                 offsets = binding_offsets(binding_key(self.key), slots, desc, self.params.bits, np.flatnonzero(live))[:, 0]
                 codes = (codes + offsets) % (1 << self.params.bits)
-            pts, ok = place_codes(
-                target[live, :3], topo.centroid()[live, :3], codes, self.nbar, self.params.scale, self.params.bits,
-            )
-            out[np.flatnonzero(live), :3] = pts
+            ok = _place_apart(out, target, live, twin, topo.centroid()[:, :3], codes, self.nbar, self.params)
             self.embedded += int(ok.sum())
             self.failed += int((~ok).sum())
+        out[twin, :3] = out[first[twin], :3]
         return out
+
+
+def _place_apart(out, target, live, twin, centroid, codes, nbar, params) -> np.ndarray:
+    """Place the ``live`` rows' codes into ``out`` (k, D) int64, no two on one point.
+
+    A carrier on the point of another row of its batch would read as a seam twin (and
+    shift every later code slot), so a clashing carrier is placed again from a target
+    moved by one grid unit (up to 8 times).  ``twin`` rows are left to their first copy.
+    Returns ``ok`` (live,) bool: the code is in place and the point is its own.
+    """
+    rows = np.flatnonzero(live)
+    aim = np.asarray(target[rows, :3], np.int64).copy()
+    todo = np.ones(len(rows), bool)
+    ok = np.zeros(len(rows), bool)
+    for attempt in range(9):
+        pts, placed = place_codes(aim[todo], centroid[rows[todo]], codes[todo], nbar, params.scale, params.bits)
+        out[rows[todo], :3] = pts
+        ok[todo] = placed
+        clash = (twin_rows(np.where(twin[:, None], -1, out[:, :3])) != np.arange(len(out)))[rows]
+        if not clash.any():
+            break
+        todo = clash
+        aim[todo, attempt % 3] += 1
+    return ok & ~clash
 
 
 def plan(image: np.ndarray, key, carriers: int, *, mode: str = "exact", bits: int | None = None,
@@ -598,6 +649,7 @@ class Extractor:
     nbar: float
     alternates: np.ndarray = field(default=None)
     offset: int = 0
+    void_seen: int = 0  # seam twins so far (at or after embed_from)
 
     def __post_init__(self):
         self.alternates = np.full((self.params.carriers, ALTERNATIVES), -1, dtype=np.int64)
@@ -609,8 +661,12 @@ class Extractor:
         return self.alternates[:, 0]
 
     def add(self, j: int, points: np.ndarray, centroid: np.ndarray, nbar: float | None = None,
-            scale: float | None = None, known: np.ndarray | None = None, descriptor: RingDescriptor | None = None):
+            scale: float | None = None, known: np.ndarray | None = None, descriptor: RingDescriptor | None = None,
+            twin: np.ndarray | None = None):
         """Record the codes of batch ``j`` (stream order): points (k, 3) and ring means (k, 3).
+
+        ``twin`` (k,) bool: the batch's seam twins as the stream decodes them (default: the
+        repeated rows of ``points``); they carry nothing and the code slots skip them.
 
         ``nbar`` / ``scale`` override the defaults for a batch of another primitive;
         ``known`` (k,) bool marks the carriers that can be read (default all): the
@@ -620,7 +676,9 @@ class Extractor:
         """
         k = len(points)
         stream = carrier_slots(self.key, j, self.offset, k)
-        slots, live = self.params.code_slots(stream)
+        twin = (twin_rows(points) != np.arange(k)) if twin is None else np.asarray(twin, bool)
+        slots, live = self.params.code_slots(stream, twin, self.void_seen)
+        self.void_seen += self.params.void_count(stream, twin)
         self.offset += k
         if known is not None:
             live &= np.asarray(known, bool)

@@ -98,16 +98,16 @@ class Verifier:
             self.mismatch = self.expected is None
 
     def add(self, batch_index: int, points: np.ndarray, centroid: np.ndarray, nbar=None, scale=None,
-            known=None, descriptor=None):
+            known=None, descriptor=None, twin=None):
         """Read the codes of one batch (see :meth:`.codec.Extractor.add`)."""
         return self.extractor.add(batch_index, np.asarray(points, np.float64), centroid, nbar, scale, known,
-                                  descriptor)
+                                  descriptor, twin)
 
     def add_carriers(self, carriers) -> None:
         """Read one :class:`~pmwm_codec.stream.replay.Carriers` batch."""
         desc = carriers.descriptor if self.params.binding else None
         slots, rows = self.add(carriers.batch, carriers.points, carriers.centroid, carriers.nbar, carriers.scale,
-                               carriers.known, desc)
+                               carriers.known, desc, carriers.twin)
         if carriers.vertices is not None:
             self.support.append((carriers.primitive, slots, carriers.vertices[rows], desc, rows))
 
