@@ -259,13 +259,18 @@ def enc_flush(es, out):
     return 0
 
 
+def new_probs(n_probs: int) -> np.ndarray:
+    """(n_probs,) int64 probabilities, all :data:`PROB_INIT`."""
+    return np.full(n_probs, PROB_INIT, np.int64)
+
+
 class Encoder:
     """One coded stream: state, output buffer and probability table (module docstring)."""
 
-    def __init__(self, n_probs: int, capacity: int = 256):
+    def __init__(self, probs: np.ndarray, capacity: int = 256):
         self.es = np.array([0, MASK32, 0, 1, 0, 0], np.int64)
         self.out = np.zeros(max(capacity, 16), np.uint8)
-        self.probs = np.full(n_probs, PROB_INIT, np.int64)
+        self.probs = probs
 
     def reserve(self, decisions: int) -> None:
         """Make room for ``decisions`` more coded decisions (and the flush)."""
@@ -283,14 +288,14 @@ class Encoder:
 
 
 class Decoder:
-    """Decoding state over ``payload`` (bytes-like) and a fresh probability table."""
+    """Decoding state over ``payload`` (bytes-like) with the probability table ``probs`` (updated in place)."""
 
-    def __init__(self, payload, n_probs: int):
+    def __init__(self, payload, probs: np.ndarray):
         self.buf = np.frombuffer(bytes(payload), np.uint8)
         head = self.buf[:4].tolist() + [0] * max(0, 4 - len(self.buf))
         code = int.from_bytes(bytes(head), "big")
         self.ds = np.array([MASK32, code, 4, 1 if len(self.buf) < 4 else 0], np.int64)
-        self.probs = np.full(n_probs, PROB_INIT, np.int64)
+        self.probs = probs
 
     def finish(self, what: str = "chunk payload") -> None:
         """FormatError unless the stream ended exactly at the end of the bytes."""
@@ -346,7 +351,7 @@ def _dec_array_kernel(ds, buf, probs, kind, ctx, values):
 
 def encode_array(kind: np.ndarray, ctx: np.ndarray, values: np.ndarray, n_probs: int) -> bytes:
     """One stream coding ``values`` (s,) int64 as ``kind`` (s,) / ``ctx`` (s,) say (:func:`_enc_array_kernel`)."""
-    enc = Encoder(n_probs)
+    enc = Encoder(new_probs(n_probs))
     enc.reserve(INT_DECISIONS * len(values))
     _kernel(_enc_array_kernel)(enc.es, enc.out, enc.probs, np.asarray(kind, np.int64), np.asarray(ctx, np.int64),
                                np.asarray(values, np.int64))
@@ -355,7 +360,7 @@ def encode_array(kind: np.ndarray, ctx: np.ndarray, values: np.ndarray, n_probs:
 
 def decode_array(payload, kind: np.ndarray, ctx: np.ndarray, n_probs: int) -> np.ndarray:
     """Inverse of :func:`encode_array`: (s,) int64.  FormatError on an invalid or mis-terminated stream."""
-    dec = Decoder(payload, n_probs)
+    dec = Decoder(payload, new_probs(n_probs))
     values = np.zeros(len(kind), np.int64)
     if _kernel(_dec_array_kernel)(dec.ds, dec.buf, dec.probs, np.asarray(kind, np.int64), np.asarray(ctx, np.int64), values):
         raise FormatError("coded stream: integer out of range")

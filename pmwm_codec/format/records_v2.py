@@ -212,7 +212,7 @@ def _arc_of(fan, d, kind, sym):
                 break
     else:
         for t in range(d):
-            prev_moved = sym[fan[t - 1]] != 0 if (t > 0 or kind == 1) else False
+            prev_moved = sym[fan[(t + d - 1) % d]] != 0 if (t > 0 or kind == 1) else False
             if sym[fan[t]] != 0 and not prev_moved:
                 if s >= 0:
                     return -1, 0, 0, 0
@@ -481,10 +481,11 @@ def pack_chunks(state, chunks) -> list:
     :class:`SplitBatch`, coarse to fine.  Returns one ``bytes`` payload per chunk.
     """
     out = []
+    probs = new_model()
     for batches in chunks:
         if not 1 <= len(batches) <= MAX_BATCHES_PER_CHUNK:
             raise ValueError(f"payload v2: {len(batches)} batches in a chunk, outside 1..{MAX_BATCHES_PER_CHUNK}")
-        enc = rc.Encoder(N_PROBS)
+        enc = rc.Encoder(probs)
         enc.reserve(INT_DECISIONS)
         rc._kernel(rc._enc_array_kernel)(enc.es, enc.out, enc.probs, np.array([2]), np.array([_block(B_BATCHES)]),
                                          np.array([len(batches) - 1]))
@@ -495,15 +496,22 @@ def pack_chunks(state, chunks) -> list:
     return out
 
 
-def decode_chunk(payload, state):
-    """Decode one chunk against ``state`` (int64 values), applying each batch as it is decoded.
+def new_model() -> np.ndarray:
+    """The probability table of a primitive's first chunk: (N_PROBS,) int64, every entry 1024.
+    Each chunk continues the table the chunk before it (of the same primitive) left."""
+    return rc.new_probs(N_PROBS)
+
+
+def decode_chunk(payload, state, probs):
+    """Decode one chunk against ``state`` (int64 values), applying each batch as it is decoded;
+    ``probs`` is the primitive's probability table (:func:`new_model`, updated in place).
 
     Yields ``(SplitBatch, SplitTopology)`` per batch: the batch in version 1 terms (split
     vertices, incidence symbols, residuals against the version 1 prediction) and what
     :func:`~pmwm_codec.progressive.vsplit.split_topology` did.  FormatError / LimitError on any
     invalid code, count or termination.
     """
-    dec = rc.Decoder(payload, N_PROBS)
+    dec = rc.Decoder(payload, probs)
     count = np.zeros(1, np.int64)
     if rc._kernel(rc._dec_array_kernel)(dec.ds, dec.buf, dec.probs, np.array([2]), np.array([_block(B_BATCHES)]), count):
         raise FormatError("chunk payload: invalid batch count")

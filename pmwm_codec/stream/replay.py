@@ -37,13 +37,12 @@ import numpy as np
 
 from ..errors import FormatError, MeshError
 from ..format import BaseEvent, ChunkEvent, HeaderEvent
+from ..format.extension import payload_version
 from ..format.records import unpack_batches
+from ..format.records_v2 import decode_chunk, new_model
 from ..progressive.grid import Grid
 from ..progressive.topology import mean_edge_length
 from ..progressive.vsplit import MeshState, apply_batch, split_topology
-
-PAYLOAD_CODEC = "pmwm-vsplit"
-PAYLOAD_VERSION = 1
 
 
 @dataclass(frozen=True)
@@ -85,10 +84,18 @@ def value_width(ext: dict) -> int:
 
 
 def check_payload_codec(ext: dict) -> None:
-    """Refuse a chunk payload codec this reader does not know."""
-    payload = ext.get("payload", {"codec": PAYLOAD_CODEC, "version": PAYLOAD_VERSION})
-    if not isinstance(payload, dict) or payload.get("codec") != PAYLOAD_CODEC or payload.get("version") != PAYLOAD_VERSION:
-        raise FormatError(f"unknown chunk payload codec {str(payload)[:60]}")
+    """Refuse a chunk payload codec this reader does not know (:func:`~pmwm_codec.format.extension.payload_version`)."""
+    payload_version(ext)
+
+
+def _base_values(event: BaseEvent, ext: dict) -> np.ndarray:
+    """(n0, D) int64: a base mesh's grid positions, then its quantized attributes."""
+    attrs = event.attributes_int
+    if attrs is None:
+        attrs = np.zeros((len(event.positions_int), 0), np.int64)
+    if attrs.shape[1] != value_width(ext) - 3:
+        raise FormatError("base mesh: attribute columns differ from the extension's attributes")
+    return np.concatenate([event.positions_int, attrs], axis=1)
 
 
 class Replay:
@@ -113,6 +120,11 @@ class Replay:
         self.nbars: list = []
         #: per primitive, its base mesh's faces (f_p, 3) int64
         self.base_faces: list = []
+        #: per primitive, the integer mesh a version 2 payload decodes against when the positions
+        #: are given (the given ones are not the stream's); None otherwise
+        self.shadows: list = []
+        #: per primitive, the version 2 probability table the next chunk continues (None for version 1)
+        self.models: list = []
         self.chunks_applied = 0
         self.batches_applied = 0
 
@@ -149,18 +161,17 @@ class Replay:
         ext = self.exts[p]
         n, m = int(ext["vertexCount"]), int(ext["faceCount"])
         n0 = len(event.positions_int)
+        shadow = None
         if self.given is None:
-            attrs = event.attributes_int
-            if attrs is None:
-                attrs = np.zeros((n0, 0), np.int64)
-            if attrs.shape[1] != value_width(ext) - 3:
-                raise FormatError("base mesh: attribute columns differ from the extension's attributes")
-            values = np.concatenate([event.positions_int, attrs], axis=1)
-            self.states.append(MeshState(values, event.faces, n, m))
+            self.states.append(MeshState(_base_values(event, ext), event.faces, n, m))
             base = event.positions_int
         else:
             base = self.given[p][:n0]
             self.states.append(MeshState(base, event.faces, n, m, dtype=np.float64))
+            if payload_version(ext) == 2:
+                shadow = MeshState(_base_values(event, ext), event.faces, n, m)
+        self.shadows.append(shadow)
+        self.models.append(new_model() if payload_version(ext) == 2 else None)
         self.base_faces.append(np.asarray(event.faces, np.int64))
         if self._nbar_override is not None:
             self.nbars.append(float(self._nbar_override[p]))
@@ -176,9 +187,8 @@ class Replay:
         state, ext = self.states[p], self.exts[p]
         scale = ext["watermark"]["scale"] if "watermark" in ext else None
         out = []
-        for batch in unpack_batches(event.payload, max_splits=state.positions.shape[0], width=value_width(ext)):
+        for batch, topo in self._batches(p, event):
             if self.given is None:
-                topo = apply_batch(state, batch)
                 points = state.positions[topo.u, :3].astype(np.float64)
                 centroid = topo.centroid()[:, :3]
                 known = np.ones(len(points), bool)
@@ -196,6 +206,17 @@ class Replay:
         if state.n != meta["vertexCount"] or state.m != meta["faceCount"]:
             raise FormatError(f"chunk {event.index + 1}: vertex/face counts differ from its index entry")
         return out
+
+    def _batches(self, p: int, event: ChunkEvent):
+        """Yield ``(SplitBatch, SplitTopology or None)`` per batch of the chunk; with decoded
+        positions the batch is applied to the primitive's state (topology and values), with given
+        positions only a version 2 payload is decoded (on the shadow state) and the topology is None."""
+        state, ext = self.states[p], self.exts[p]
+        if payload_version(ext) == 2:
+            yield from decode_chunk(event.payload, state if self.given is None else self.shadows[p], self.models[p])
+            return
+        for batch in unpack_batches(event.payload, max_splits=state.positions.shape[0], width=value_width(ext)):
+            yield batch, (apply_batch(state, batch) if self.given is None else None)
 
     def current(self, p: int) -> tuple[np.ndarray, np.ndarray]:
         """Primitive ``p`` now: values (n, D) (views) and faces (m, 3) int64 (views)."""
