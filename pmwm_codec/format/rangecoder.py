@@ -30,7 +30,7 @@ from ..progressive.topology import kernel_helper
 PROB_BITS = 11
 PROB_ONE = 1 << PROB_BITS
 PROB_INIT = PROB_ONE // 2
-ADAPT_SHIFT = 5
+ADAPT_SHIFT = 4
 TOP = 1 << 24
 MASK32 = 0xFFFFFFFF
 #: Integer context block: 64 bucket bit-tree nodes, 3 mantissa nodes per bucket at 64, sign per bucket at 192.
