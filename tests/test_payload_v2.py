@@ -250,3 +250,43 @@ def test_a_real_scan_s_v2_chunks_take_under_two_thirds_of_v1_s_bytes():
     _assert_same_levels(_levels(v1), _levels(v2))
     assert _chunk_bytes(v2) < 2 / 3 * _chunk_bytes(v1)
 
+
+
+# ---------------------------------------------------------------- spec/bitstream.md §8 and the code
+
+
+def _spec_v2() -> str:
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "spec" / "bitstream.md").read_text()
+    return text[text.index("## 8. Chunk payload version 2"):]
+
+
+def test_spec_coder_example_is_what_the_coder_writes():
+    import re
+
+    block = re.search(r"<!-- coder-example -->\n```\n(.*?)```", _spec_v2(), re.S).group(1)
+    kind, ctx, values = [0, 0, 0, 1, 2, 3], [0, 0, 0, 0, 16, 16], [0, 1, 1, 1, 5, -3]
+    coded = rc.encode_array(np.array(kind), np.array(ctx), np.array(values), 16 + rc.INT_BLOCK)
+    assert bytes.fromhex(block.replace(" ", "").replace("\n", "")) == coded
+    assert f"the {len(coded)} bytes" in _spec_v2()
+
+
+def test_spec_constants_of_the_coder_and_the_models_match_the_code():
+    text = " ".join(_spec_v2().split())
+    assert f"prob[i] = {rc.PROB_INIT}" in text and f"bound = (range >> {rc.PROB_BITS}) * prob[i]" in text
+    assert f"prob[i] += ({rc.PROB_ONE} - prob[i]) >> {rc.ADAPT_SHIFT}" in text
+    assert f"prob[i] -= prob[i] >> {rc.ADAPT_SHIFT}" in text
+    assert f"range < 2^{rc.TOP.bit_length() - 1}" in text
+    assert f"`b = Tree(base, {rc.BUCKET_BITS})`; `b > {rc.MAX_BUCKET}` is a format error" in text
+    assert f"base + {rc.INT_MANTISSA} + 3·b + t" in text and f"`base + {rc.INT_SIGN} + b` the sign" in text
+    r2 = records_v2
+    assert f"`N_PROBS = {r2.P_INT} + {r2.INT_BLOCKS}·{rc.INT_BLOCK} = {r2.N_PROBS}`" in text
+    assert f"| `{r2.P_ESCAPE}` | escape flag" in text and f"| `{r2.P_WING}`, `{r2.P_WING + 1}` | left / right wing" in text
+    assert f"`{r2.P_SYMBOL} … {r2.P_SYMBOL + 7}` | escaped symbol, `Tree({r2.P_SYMBOL}, 3)`" in text
+    assert f"`{r2.B_GEOMETRY} + 3·cls + role` | position residual" in text
+    assert f"`{r2.B_ATTRIBUTE} + min(j, {r2.ATTRIBUTE_CONTEXTS - 1})` | residual of attribute" in text
+    assert f"`{r2.B_LENGTH} + min(d, 16) − 1`" in text and f"`{r2.B_RANK} + min(c, 16) − 1`" in text
+    assert f"`1 <= d <= {r2.MAX_ARC_FAN}`" in text
+    assert f"`|x| < 2^{r2.MAX_VALUE.bit_length() - 1}`" in text
+    assert f"1 … {r2.MAX_BATCHES_PER_CHUNK}, else a format error" in text
