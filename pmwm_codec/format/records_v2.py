@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import FormatError, LimitError
-from ..progressive.topology import kernel_helper
+from ..progressive.topology import group_order, kernel_helper
 from ..progressive.vsplit import SplitBatch, apply_batch, find_incidences, split_topology
 from . import rangecoder as rc
 from .rangecoder import INT_BLOCK, INT_DECISIONS
@@ -61,23 +61,24 @@ def _block(b):
 # ---------------------------------------------------------------- selection mask
 
 
-def _mask_kernel(faces, m, n, sel, stamp, es, out, ds, buf, probs, decode):
-    """Code (``decode`` 0) or decode (1) the mask ``sel`` (n,) int64 of the mesh ``faces[:m]``.
+def _mask_kernel(flat, n, sel, stamp, es, out, ds, buf, probs, decode):
+    """Code (``decode`` 0) or decode (1) the mask ``sel`` (n,) int64 of the mesh whose face slots
+    are ``flat`` (3m,) int64.
 
     ``stamp`` (>= n,) int64 scratch.  Context of vertex w: 7 * min(2, marked distinct neighbours
     below w) + clamp(distinct neighbours, 3, 9) - 3.  Returns the number of marked vertices.
     """
     start = np.zeros(n + 1, np.int64)
-    for c in range(3 * m):
-        start[faces[c // 3, c % 3] + 1] += 1
+    for c in range(len(flat)):
+        start[flat[c] + 1] += 1
     for w in range(n):
         start[w + 1] += start[w]
     fill = start[:n].copy()
-    vf = np.empty(3 * m, np.int64)
-    for f in range(m):
+    vf = np.empty(len(flat), np.int64)  # per vertex, the first slot of each of its faces
+    for f3 in range(0, len(flat), 3):
         for j in range(3):
-            w = faces[f, j]
-            vf[fill[w]] = f
+            w = flat[f3 + j]
+            vf[fill[w]] = f3
             fill[w] += 1
     for w in range(n):
         stamp[w] = -1
@@ -86,9 +87,9 @@ def _mask_kernel(faces, m, n, sel, stamp, es, out, ds, buf, probs, decode):
         valence = 0
         below = 0
         for t in range(start[w], start[w + 1]):
-            f = vf[t]
+            f3 = vf[t]
             for j in range(3):
-                x = faces[f, j]
+                x = flat[f3 + j]
                 if x != w and stamp[x] != w:
                     stamp[x] = w
                     valence += 1
@@ -156,7 +157,7 @@ def _fan(J, a, b, posA, posB, fan):
 
 
 @kernel_helper
-def _arc_rank(fan, d, closed, L, s, a, vv, P, lens, choose):
+def _arc_rank(fan, d, closed, L, s, a, vv, P, lens, scores, choose):
     """Rank of start ``s`` among the arc's candidate starts (``choose`` < 0), or the start of
     rank ``choose``.  Score of start c: sum over j = 1 .. L-1 of |P[a of fan[(c + j) mod d]] - P[v]|
     (float64, in that order); higher scores first, ties by lower c."""
@@ -167,7 +168,6 @@ def _arc_rank(fan, d, closed, L, s, a, vv, P, lens, choose):
         fx, fy, fz = np.float64(x), np.float64(y), np.float64(z)
         lens[t] = np.sqrt((fx * fx + fy * fy) + fz * fz)
     ncand = d if closed else d - L + 1
-    scores = np.empty(ncand, np.float64)
     for c in range(ncand):
         sc = 0.0
         for j in range(1, L):
@@ -243,6 +243,7 @@ def _connectivity_kernel(gstart, gidx, a, b, v, P, sym, posA, posB, es, out, ds,
     k = len(v)
     fan = np.empty(MAX_ARC_FAN, np.int64)
     lens = np.empty(MAX_ARC_FAN, np.float64)
+    scores = np.empty(MAX_ARC_FAN, np.float64)
     for i in range(k):
         J = gidx[gstart[i]:gstart[i + 1]]
         d = len(J)
@@ -280,9 +281,9 @@ def _connectivity_kernel(gstart, gidx, a, b, v, P, sym, posA, posB, es, out, ds,
             r = rc.dec_uint(ds, buf, probs, rank_ctx)
             if r < 0 or r >= ncand:
                 return -1
-            s = _arc_rank(fan, d, kind == 1, L, 0, a, v[i], P, lens, r)
+            s = _arc_rank(fan, d, kind == 1, L, 0, a, v[i], P, lens, scores, r)
         else:
-            rc.enc_uint(es, out, probs, rank_ctx, _arc_rank(fan, d, kind == 1, L, s, a, v[i], P, lens, -1))
+            rc.enc_uint(es, out, probs, rank_ctx, _arc_rank(fan, d, kind == 1, L, s, a, v[i], P, lens, scores, -1))
         if kind == 1:
             left, right = 1, 1
         else:
@@ -324,6 +325,7 @@ def _geometry_kernel(gstart, gidx, a, b, v, sym, P, n0, es, out, ds, buf, probs,
     k = len(v)
     D = P.shape[1]
     S = np.zeros(D, np.int64)
+    frame = np.empty((3, 3), np.float64)  # scratch rows: ring mean m, normal n, prediction ph
     for i in range(k):
         vv = v[i]
         S[:] = 0
@@ -354,21 +356,20 @@ def _geometry_kernel(gstart, gidx, a, b, v, sym, P, n0, es, out, ds, buf, probs,
                     ell += abs(P[vv, 0] - P[o, 0]) + abs(P[vv, 1] - P[o, 1]) + abs(P[vv, 2] - P[o, 2])
         if c == 0:
             return -1
-        status = _split_values(S, c, ell, nx, ny, nz, vv, n0 + i, P, es, out, ds, buf, probs, decode)
+        status = _split_values(S, c, ell, nx, ny, nz, vv, n0 + i, P, frame, es, out, ds, buf, probs, decode)
         if status != 0:
             return status
     return 0
 
 
 @kernel_helper
-def _split_values(S, c, ell, nx, ny, nz, vv, u, P, es, out, ds, buf, probs, decode):
-    """One new vertex ``u``: frame prediction, then its D values coded / decoded in order."""
+def _split_values(S, c, ell, nx, ny, nz, vv, u, P, frame, es, out, ds, buf, probs, decode):
+    """One new vertex ``u``: frame prediction, then its D values coded / decoded in order
+    (``frame`` (3, 3) float64 scratch)."""
     D = P.shape[1]
     cls = min(rc.bit_length(ell // c), GEOMETRY_CLASSES - 1)
     two_c = np.float64(2 * c)
-    m = np.empty(3, np.float64)
-    nv = np.empty(3, np.float64)
-    ph = np.empty(3, np.float64)
+    m, nv, ph = frame[0], frame[1], frame[2]
     for q in range(3):
         m[q] = np.float64(S[q]) / two_c
     nv[0], nv[1], nv[2] = nx, ny, nz
@@ -436,7 +437,7 @@ def _grouped(state, v):
     base = inc - inc % 3
     a = flat[base + (inc + 1) % 3]
     b = flat[base + (inc + 2) % 3]
-    gidx = np.argsort(owner, kind="stable")
+    gidx = group_order(owner, len(v))
     gstart = np.zeros(len(v) + 1, np.int64)
     np.cumsum(np.bincount(owner, minlength=len(v)), out=gstart[1:])
     return inc, owner, gstart, gidx, a, b
@@ -456,7 +457,7 @@ def _encode_batch(enc, state, batch, scratch) -> None:
     sel = np.zeros(n, np.int64)
     sel[batch.v] = 1
     enc.reserve(n)
-    rc._kernel(_mask_kernel)(state.faces, state.m, n, sel, scratch, enc.es, enc.out, _NO_STATE, _NO_BYTES,
+    rc._kernel(_mask_kernel)(state.faces[: state.m].reshape(-1), n, sel, scratch, enc.es, enc.out, _NO_STATE, _NO_BYTES,
                              enc.probs, 0)
     inc, owner, gstart, gidx, a, b = _grouped(state, batch.v)
     sym = np.asarray(batch.symbols, np.uint8)
@@ -526,7 +527,7 @@ def decode_chunk(payload, state, probs):
 def _decode_batch(dec, state):
     n = state.n
     sel = np.zeros(n, np.int64)
-    k = rc._kernel(_mask_kernel)(state.faces, state.m, n, sel, np.empty(n, np.int64), _NO_STATE, _NO_BYTES,
+    k = rc._kernel(_mask_kernel)(state.faces[: state.m].reshape(-1), n, sel, np.empty(n, np.int64), _NO_STATE, _NO_BYTES,
                                  dec.ds, dec.buf, dec.probs, 1)
     if k == 0:
         raise FormatError("chunk payload: a batch marks no split vertex")
