@@ -19,7 +19,6 @@ from pmwm_codec.format import rangecoder as rc
 from pmwm_codec.format import records_v2
 from pmwm_codec.format.extension import EXTENSION_NAME, digest
 from pmwm_codec.format.glb import glb_parts, split_glb
-from pmwm_codec.format.layout import padded
 from pmwm_codec.mesh import Mesh
 from pmwm_codec.progressive import topology
 from pmwm_codec.stream import StreamDecoder, encode_mesh
@@ -28,6 +27,7 @@ from pmwm_codec.verify import verify_mesh, verify_stream
 from pmwm_codec.watermark.key import WatermarkKey
 
 from conftest import GENERATED, corpus_path
+from test_golden import _sphere_with_attributes
 
 
 def _encode(mesh, version, **options) -> tuple:
@@ -60,14 +60,6 @@ def _assert_same_levels(a, b) -> None:
             assert np.array_equal(p.attributes_int, q.attributes_int)
         if x.watermark is not None or y.watermark is not None:
             assert np.array_equal(x.watermark, y.watermark)
-
-
-def _sphere_with_attributes():
-    sphere = shapes.icosphere(3, 1.1, noise=0.03)
-    p = sphere.positions
-    normals = p / np.linalg.norm(p, axis=1, keepdims=True)
-    uv = np.stack([np.arctan2(p[:, 1], p[:, 0]) / (2 * np.pi) + 0.5, np.arccos(normals[:, 2]) / np.pi], 1)
-    return Mesh(p, sphere.faces, attributes={"NORMAL": normals, "TEXCOORD_0": uv})
 
 
 # ---------------------------------------------------------------- range coder
