@@ -68,8 +68,13 @@ CASES = {
 }
 
 
-def _path(name, suffix):
-    return CONFORMANCE / f"{name}.v{FORMAT_VERSION}{suffix}"
+#: File versions with conformance files: FORMAT_VERSION (payload version 1), and ``2``, the same
+#: cases with chunk payload version 2 (bitstream.md §8; the extension object is still version 1).
+VERSIONS = (FORMAT_VERSION, 2)
+
+
+def _path(name, suffix, version=FORMAT_VERSION):
+    return CONFORMANCE / f"{name}.v{version}{suffix}"
 
 
 def _decode(data, key=None):
@@ -125,30 +130,31 @@ def _expected_arrays(results):
     return out
 
 
-def _write(name):
+def _write(name, version):
     case = CASES[name]()
     mesh = case.pop("mesh")
-    data, key = _encode(mesh, **case)
+    data, key = _encode(mesh, payload_version=1 if version == FORMAT_VERSION else version, **case)
     CONFORMANCE.mkdir(parents=True, exist_ok=True)
-    _path(name, ".pmw").write_bytes(data)
+    _path(name, ".pmw", version).write_bytes(data)
     if key is not None:
-        key.save(_path(name, ".key.json"))
+        key.save(_path(name, ".key.json", version))
     results, _ = _decode(data, key)
-    np.savez_compressed(_path(name, ".expected.npz"), **_expected_arrays(results))
+    np.savez_compressed(_path(name, ".expected.npz", version), **_expected_arrays(results))
 
 
+@pytest.mark.parametrize("version", VERSIONS)
 @pytest.mark.parametrize("name", sorted(CASES))
-def test_conformance_file_decodes_to_its_expected_levels(name, update_golden):
+def test_conformance_file_decodes_to_its_expected_levels(name, version, update_golden):
     if update_golden:
-        _write(name)
-    pmw = _path(name, ".pmw")
+        _write(name, version)
+    pmw = _path(name, ".pmw", version)
     if not pmw.exists():
         pytest.fail(f"{pmw.name} is missing; generate it with: python -m pytest tests/test_golden.py --update-golden")
-    key_path = _path(name, ".key.json")
+    key_path = _path(name, ".key.json", version)
     key = WatermarkKey.load(key_path) if key_path.exists() else None
     results, end = _decode(pmw.read_bytes(), key)
     assert end.complete
-    with np.load(_path(name, ".expected.npz")) as expected:
+    with np.load(_path(name, ".expected.npz", version)) as expected:
         want = dict(expected)
     assert [r.bytes_read for r in results] == want["chunk_bytes"].tolist(), (
         "decoding changed: if the format changed on purpose, bump FORMAT_VERSION and run with --update-golden"

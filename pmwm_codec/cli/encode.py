@@ -8,6 +8,7 @@ import os
 import pmwm_codec
 from pmwm_codec.constants import MAX_GRID_BITS, MIN_GRID_BITS
 from pmwm_codec.distortion import MEASURES
+from pmwm_codec.format.extension import DEFAULT_PAYLOAD_VERSION, PAYLOAD_VERSIONS
 from pmwm_codec.watermark.codec import MAX_BITS, MODES, CapacityError, shrink_watermark
 from pmwm_codec.watermark.image import load_watermark
 
@@ -71,6 +72,9 @@ def add_parser(sub):
     p.add_argument("--grid-bits", type=_int_in(MIN_GRID_BITS, MAX_GRID_BITS, "--grid-bits"), metavar="Q",
                    help="position grid resolution in bits (default 16; paper mode 22)")
     p.add_argument("--base-codec", choices=("draco", "plain"), default="draco", help="how the base mesh is stored")
+    p.add_argument("--payload-version", type=int, choices=PAYLOAD_VERSIONS, default=DEFAULT_PAYLOAD_VERSION,
+                   help="chunk payload format: 1 (zstd columns, default) or 2 (range-coded, ~40%% smaller; "
+                        "not yet read by the JavaScript decoder)")
     p.add_argument("--base-vertices", type=_int_in(4, None, "--base-vertices"), metavar="N",
                    help="target base mesh size (default 1%% of the vertices, at least 64)")
     p.add_argument("--strip-image-profiles", action="store_true",
@@ -95,7 +99,7 @@ def run(args) -> int:
         check_output_path(args.key, "key")
     progress = Progress(not (args.json or args.quiet))
     options = {"mode": args.mode, "base_codec": args.base_codec, "measure": args.measure,
-               "progress": stage_progress(progress)}
+               "payload_version": args.payload_version, "progress": stage_progress(progress)}
     for name in ("bits", "grid_bits", "base_vertices", "embed_from", "owner_id"):
         if getattr(args, name) is not None:
             options[name] = getattr(args, name)

@@ -29,11 +29,26 @@ RESERVED_FIELDS = ("version", "chunks")
 DERIVED_FIELDS = ("baseMac",)
 #: Per-chunk fields the caller supplies (``chunk_meta``).
 CHUNK_META_FIELDS = ("splits", "vertexCount", "faceCount", "geometricError")
+#: Chunk payload codec id and the versions this reader knows (bitstream.md §6 and §8).
+PAYLOAD_CODEC = "pmwm-vsplit"
+PAYLOAD_VERSIONS = (1, 2)
+#: Version written unless the caller asks for another.
+DEFAULT_PAYLOAD_VERSION = 1
 
 
 def digest(data) -> str:
     """BLAKE2b-128 of ``data`` as 32 lowercase hex digits (the chunk ``digest`` field)."""
     return hashlib.blake2b(data, digest_size=DIGEST_SIZE).hexdigest()
+
+
+def payload_version(ext: dict) -> int:
+    """The chunk payload version of an extension object (1 when it names none); FormatError for
+    a codec or version this reader does not know.  The one place readers dispatch on it."""
+    payload = ext.get("payload", {"codec": PAYLOAD_CODEC, "version": 1})
+    if not isinstance(payload, dict) or payload.get("codec") != PAYLOAD_CODEC or payload.get("version") not in PAYLOAD_VERSIONS \
+            or isinstance(payload.get("version"), bool):
+        raise FormatError(f"unknown chunk payload codec {str(payload)[:60]}")
+    return payload["version"]
 
 
 @functools.lru_cache(maxsize=None)

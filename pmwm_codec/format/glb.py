@@ -40,7 +40,7 @@ from ..constants import EXTENSION_NAME, FORMAT_VERSION, MAX_CHUNK_BYTES, MAX_CHU
 from ..errors import FormatError, InputFormatError
 from .base import EncodedBase, decode_base_attributes
 from .gltf import DRACO_EXTENSION
-from .extension import CHUNK_META_FIELDS, DERIVED_FIELDS, RESERVED_FIELDS, check_extension, digest
+from .extension import CHUNK_META_FIELDS, DERIVED_FIELDS, RESERVED_FIELDS, check_extension, digest, payload_version
 from .mac import base_mac, chunk_mac
 from .layout import (
     CHUNK_HEADER_SIZE,
@@ -210,7 +210,9 @@ def _index_chunks(prims, order, views: list, bin_parts: list, offset: int, zstd_
         raw_length = len(memoryview(payload).cast("B"))
         if raw_length > MAX_DECOMPRESSED_CHUNK_BYTES:
             raise ValueError(f"write_pmw: chunk {k} has {raw_length} bytes, over the limit {MAX_DECOMPRESSED_CHUNK_BYTES}")
-        stored = compress_chunk(payload, zstd_level)
+        # payload version 2 is a range-coded stream stored as it is (bitstream.md §8)
+        raw = payload_version(prims[p].extension) == 2
+        stored = bytes(memoryview(payload).cast("B")) if raw else compress_chunk(payload, zstd_level)
         if len(stored) > MAX_CHUNK_BYTES:
             raise ValueError(f"write_pmw: chunk {k} compresses to {len(stored)} bytes, over the limit {MAX_CHUNK_BYTES}")
         views.append({"buffer": 0, "byteOffset": offset, "byteLength": len(stored)})

@@ -51,7 +51,7 @@ from ..constants import (
 from ..errors import ChecksumError, FormatError, LimitError, TruncatedError
 from ..progressive.grid import Grid
 from . import base as _base
-from .extension import check_extension, digest
+from .extension import check_extension, digest, payload_version
 from .gltf import find_extension_primitives, uint, view_range
 from .layout import (
     ALIGNMENT,
@@ -426,7 +426,7 @@ class ContainerParser:
             stored = self._take(self._bin_data + end)
             if stored is None:
                 return None
-            payload = _open_chunk(k, stored, self._plan.extensions[p]["chunks"][kp])
+            payload = _open_chunk(k, stored, self._plan.extensions[p]["chunks"][kp], payload_version(self._plan.extensions[p]))
             self._next_chunk += 1
             if self._next_chunk == len(self._plan.chunk_ranges):
                 self._state = _TAIL
@@ -448,11 +448,16 @@ def _load_json(text: bytes):
     return gltf, [check_extension(prim["extensions"][EXTENSION_NAME]) for _, _, prim in found]
 
 
-def _open_chunk(k: int, stored: bytes, meta: dict) -> bytes:
-    """Digest-check and decompress chunk ``k``; return the raw payload."""
+def _open_chunk(k: int, stored: bytes, meta: dict, version: int = 1) -> bytes:
+    """Digest-check chunk ``k`` and return its raw payload: the zstd frame decompressed
+    (payload version 1, bitstream.md §5) or the stored range-coded stream itself (version 2, §8)."""
     if digest(stored) != meta["digest"]:
         raise ChecksumError(f"chunk {k + 1}: digest mismatch, the stored bytes are corrupt", chunk=k)
     declared = meta["uncompressedLength"]
+    if version == 2:
+        if declared != len(stored):
+            raise FormatError(f"chunk {k + 1}: uncompressedLength {declared} differs from byteLength {len(stored)} (payload version 2)")
+        return bytes(stored)
     try:
         params = zstandard.get_frame_parameters(stored)
     except zstandard.ZstdError as exc:

@@ -38,7 +38,9 @@ from ..format import encode_base
 from ..format.base import EncodedBase, with_attributes
 from ..atomic import directory_lock, discard, fault_point, publish, signals_deferred, stage
 from ..format.glb import ProgressivePrimitive, assemble_document, write_parts
+from ..format.extension import DEFAULT_PAYLOAD_VERSION, PAYLOAD_CODEC, PAYLOAD_VERSIONS
 from ..format.records import pack_batches
+from ..format.records_v2 import pack_chunks
 from ..mesh import Mesh
 from ..progressive.build import ProgressiveMesh, build_progressive
 from ..progressive.grid import AttributeGrid, Grid
@@ -55,10 +57,6 @@ from .chunking import (
     group_batches,
     stream_order,
 )
-
-#: Payload codec id written in the extension object.
-PAYLOAD_CODEC = "pmwm-vsplit"
-PAYLOAD_VERSION = 1
 
 _DRACO_ATTRIBUTES_NOTICE = "primitives with attributes keep a plain base (Draco carries positions only here)"
 
@@ -198,6 +196,7 @@ def encode_document(
     owner_strength: float | None = None,
     min_chunk_splits: int | None = None,
     zstd_level: int = 10,
+    payload_version: int = DEFAULT_PAYLOAD_VERSION,
     measure="vertices",
     key_slot: KeySlot | None = None,
     progress=None,
@@ -235,6 +234,9 @@ def encode_document(
         The key file to create or reuse (its existing key should be ``key``); the key file
         (if new) is published just before the ``.pmw``, under one directory lock, so a
         failure at any moment leaves the old pair or the new one (:func:`_publish`).
+    payload_version : chunk payload format, 1 (zstd columns, bitstream.md §6) or 2 (one
+        range-coded stream per chunk, §8: about 40 % fewer bytes, decoded by the Python reader only
+        so far).
     progress : optional callable(stage: str, fraction: float).
 
     The same arguments give the same bytes.
@@ -242,6 +244,8 @@ def encode_document(
     t0 = time.perf_counter()
     say = progress or (lambda stage, fraction: None)
     measure = measure_method(measure)  # a bad value fails before any work
+    if payload_version not in PAYLOAD_VERSIONS or isinstance(payload_version, bool):
+        raise ValueError(f"payload_version must be one of {PAYLOAD_VERSIONS}, not {payload_version!r}")
     if grid_bits is None:
         grid_bits = wm.DEFAULT_GRID_BITS[mode] if watermark is not None else DEFAULT_GRID_BITS
     if owner_id is not None:
@@ -258,7 +262,7 @@ def encode_document(
     work = _build_records(work, say)
     report = _report(work, params, measure, say)
     fault_point("measured")
-    prims, file_id = _primitives(doc, kept_bin, work, order, params, key)
+    prims, file_id = _primitives(doc, kept_bin, work, order, params, key, payload_version)
     if params is not None:
         key = dataclasses.replace(
             key, file_id=file_id, params=params.get_config(), reference=np.asarray(watermark, np.uint8)
@@ -444,16 +448,20 @@ def _build_records(work, say) -> list:
     return out
 
 
-def _primitives(doc, kept_bin, work, order, params, key) -> tuple:
+def _primitives(doc, kept_bin, work, order, params, key, payload_version: int = DEFAULT_PAYLOAD_VERSION) -> tuple:
     """Stage 6: payloads, index entries, extension objects.  Returns ``(prims, fileId)``."""
     prims = []
     for w in work:
-        payloads = [pack_batches([w.pm.batches[j] for j in grp]) for grp in w.groups]
+        chunks = [[w.pm.batches[j] for j in grp] for grp in w.groups]
+        if payload_version == 2:
+            payloads = pack_chunks(w.pm.new_state(), chunks)
+        else:
+            payloads = [pack_batches(batches) for batches in chunks]
         extension = {
             "grid": w.grid.get_config(),
             "vertexCount": int(w.pm.vertex_count),
             "faceCount": int(w.pm.face_count),
-            "payload": {"codec": PAYLOAD_CODEC, "version": PAYLOAD_VERSION},
+            "payload": {"codec": PAYLOAD_CODEC, "version": payload_version},
             "fileId": "",  # set below, once the content it digests is known
         }
         if w.attribute_grids:

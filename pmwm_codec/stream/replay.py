@@ -37,14 +37,13 @@ import numpy as np
 
 from ..errors import FormatError, MeshError
 from ..format import BaseEvent, ChunkEvent, HeaderEvent
+from ..format.extension import payload_version
 from ..format.records import unpack_batches
+from ..format.records_v2 import decode_chunk, new_model
 from ..progressive.grid import Grid
 from ..progressive.seams import twin_rows
 from ..progressive.topology import mean_edge_length
 from ..progressive.vsplit import MeshState, apply_batch, split_topology
-
-PAYLOAD_CODEC = "pmwm-vsplit"
-PAYLOAD_VERSION = 1
 
 
 @dataclass(frozen=True)
@@ -89,10 +88,18 @@ def value_width(ext: dict) -> int:
 
 
 def check_payload_codec(ext: dict) -> None:
-    """Refuse a chunk payload codec this reader does not know."""
-    payload = ext.get("payload", {"codec": PAYLOAD_CODEC, "version": PAYLOAD_VERSION})
-    if not isinstance(payload, dict) or payload.get("codec") != PAYLOAD_CODEC or payload.get("version") != PAYLOAD_VERSION:
-        raise FormatError(f"unknown chunk payload codec {str(payload)[:60]}")
+    """Refuse a chunk payload codec this reader does not know (:func:`~pmwm_codec.format.extension.payload_version`)."""
+    payload_version(ext)
+
+
+def _base_values(event: BaseEvent, ext: dict) -> np.ndarray:
+    """(n0, D) int64: a base mesh's grid positions, then its quantized attributes."""
+    attrs = event.attributes_int
+    if attrs is None:
+        attrs = np.zeros((len(event.positions_int), 0), np.int64)
+    if attrs.shape[1] != value_width(ext) - 3:
+        raise FormatError("base mesh: attribute columns differ from the extension's attributes")
+    return np.concatenate([event.positions_int, attrs], axis=1)
 
 
 class Replay:
@@ -117,8 +124,11 @@ class Replay:
         self.nbars: list = []
         #: per primitive, its base mesh's faces (f_p, 3) int64
         self.base_faces: list = []
-        #: given positions: per primitive, the stream's decoded state (seam twins come from it)
-        self.shadows: dict = {}
+        #: given positions: per primitive, the stream's own decoded integer state, which a version 2
+        #: payload decodes against and the seam twins come from (never read as codes); None otherwise
+        self.shadows: list = []
+        #: per primitive, the version 2 probability table the next chunk continues (None for version 1)
+        self.models: list = []
         self.chunks_applied = 0
         self.batches_applied = 0
 
@@ -155,20 +165,17 @@ class Replay:
         ext = self.exts[p]
         n, m = int(ext["vertexCount"]), int(ext["faceCount"])
         n0 = len(event.positions_int)
-        attrs = event.attributes_int
-        if attrs is None:
-            attrs = np.zeros((n0, 0), np.int64)
-        if attrs.shape[1] != value_width(ext) - 3:
-            raise FormatError("base mesh: attribute columns differ from the extension's attributes")
-        decoded = MeshState(np.concatenate([event.positions_int, attrs], axis=1), event.faces, n, m)
+        decoded = MeshState(_base_values(event, ext), event.faces, n, m)
+        shadow = None
         if self.given is None:
             self.states.append(decoded)
             base = event.positions_int
         else:
             base = self.given[p][:n0]
             self.states.append(MeshState(base, event.faces, n, m, dtype=np.float64))
-            # the stream's own positions, only to know its seam twins (never read as codes)
-            self.shadows[p] = decoded
+            shadow = decoded
+        self.shadows.append(shadow)
+        self.models.append(new_model() if payload_version(ext) == 2 else None)
         self.base_faces.append(np.asarray(event.faces, np.int64))
         if self._nbar_override is not None:
             self.nbars.append(float(self._nbar_override[p]))
@@ -184,9 +191,9 @@ class Replay:
         state, ext = self.states[p], self.exts[p]
         scale = ext["watermark"]["scale"] if "watermark" in ext else None
         out = []
-        for batch in unpack_batches(event.payload, max_splits=state.positions.shape[0], width=value_width(ext)):
+        for batch, own_topo in self._batches(p, event):
             if self.given is None:
-                topo = apply_batch(state, batch)
+                topo = own_topo
                 points = state.positions[topo.u, :3].astype(np.float64)
                 centroid = topo.centroid()[:, :3]
                 known = np.ones(len(points), bool)
@@ -197,7 +204,7 @@ class Replay:
                 state.positions[topo.u] = points
                 centroid = topo.centroid()
                 known = np.isfinite(points).all(axis=1) & np.isfinite(centroid).all(axis=1)
-                own = self.shadows[p].positions[apply_batch(self.shadows[p], batch).u, :3]
+                own = self.shadows[p].positions[own_topo.u, :3]
                 twin = twin_rows(own) != np.arange(len(own))
             out.append(Carriers(p, self.batches_applied, points, centroid, known, self.nbars[p], scale,
                                 topo.u, state.positions, topo, twin))
@@ -207,6 +214,18 @@ class Replay:
         if state.n != meta["vertexCount"] or state.m != meta["faceCount"]:
             raise FormatError(f"chunk {event.index + 1}: vertex/face counts differ from its index entry")
         return out
+
+    def _batches(self, p: int, event: ChunkEvent):
+        """Yield ``(SplitBatch, SplitTopology)`` per batch of the chunk, the batch applied (topology and
+        values) to the stream's own integer state: the primitive's state with decoded positions, its
+        shadow with given positions (the caller then replays the topology over the given ones)."""
+        own = self.states[p] if self.given is None else self.shadows[p]
+        ext = self.exts[p]
+        if payload_version(ext) == 2:
+            yield from decode_chunk(event.payload, own, self.models[p])
+            return
+        for batch in unpack_batches(event.payload, max_splits=own.positions.shape[0], width=value_width(ext)):
+            yield batch, apply_batch(own, batch)
 
     def current(self, p: int) -> tuple[np.ndarray, np.ndarray]:
         """Primitive ``p`` now: values (n, D) (views) and faces (m, 3) int64 (views)."""

@@ -1,0 +1,368 @@
+"""Adaptive binary range coder (LZMA style) and the integer binarisations of payload v2.
+
+spec/bitstream.md §8.1-§8.2 is the normative text; this module is its reference.  Everything is
+integer arithmetic on values below 2**40, so a decoder in another language (JavaScript with plain
+numbers) reproduces it bit for bit.  That is why the project does not use ``constriction`` here:
+its quantized continuous models evaluate floating-point CDFs whose rounding is not specified.
+
+Coder state lives in small numpy arrays so that one chunk is ONE coded stream that several
+kernels (mask, connectivity, geometry) continue in turn:
+
+* encoder: ``es`` (6,) int64 ``[low, range, cache, cache_size, out_pos, started]`` and ``out``
+  (cap,) uint8, grown by :class:`Encoder` between kernel calls (a kernel never writes past
+  ``out_pos + 1 + bytes for its decisions``; see :meth:`Encoder.reserve`);
+* decoder: ``ds`` (4,) int64 ``[range, code, in_pos, overrun]`` over ``buf`` (L,) uint8.  Reading
+  past the end yields zero bytes and sets ``overrun``; :meth:`Decoder.finish` demands that the
+  stream ended exactly at the end of ``buf`` (and no overrun), else FormatError.
+* ``probs`` (P,) int64: 11-bit probabilities of a 0 bit, all :data:`PROB_INIT` at a chunk start.
+
+The functions below are plain Python that numba compiles (:func:`~pmwm_codec.progressive.topology.kernel_helper`),
+called from the model kernels in :mod:`.records_v2`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import FormatError
+from ..progressive.topology import kernel_helper
+
+PROB_BITS = 11
+PROB_ONE = 1 << PROB_BITS
+PROB_INIT = PROB_ONE // 2
+ADAPT_SHIFT = 4
+TOP = 1 << 24
+MASK32 = 0xFFFFFFFF
+#: Integer context block: 64 bucket bit-tree nodes, 3 mantissa nodes per bucket at 64, sign per bucket at 192.
+INT_BLOCK = 256
+INT_MANTISSA = 64
+INT_SIGN = 192
+BUCKET_BITS = 6
+#: Largest bucket (bit length) of a coded integer magnitude: values below 2**32.
+MAX_BUCKET = 32
+#: Most bytes one coded decision can add to the output (a bound for buffer sizing).
+BYTES_PER_DECISION = 1
+#: Decisions of one integer: 6 bucket bits, a sign, up to 31 mantissa bits.
+INT_DECISIONS = BUCKET_BITS + 1 + MAX_BUCKET
+
+
+@kernel_helper
+def _shift_low(es, out):
+    low = es[0]
+    if low < 0xFF000000 or low >= 0x100000000:
+        carry = low >> 32
+        temp = es[2]
+        while True:
+            if es[5] != 0:
+                out[es[4]] = (temp + carry) & 0xFF
+                es[4] += 1
+            else:  # the very first byte is always 0 and is not stored
+                es[5] = 1
+            temp = 0xFF
+            es[3] -= 1
+            if es[3] == 0:
+                break
+        es[2] = (low >> 24) & 0xFF
+    es[3] += 1
+    es[0] = (low & 0x00FFFFFF) << 8
+
+
+@kernel_helper
+def enc_bit(es, out, probs, i, bit):
+    """Code ``bit`` (0/1) with adaptive probability ``probs[i]``."""
+    p = probs[i]
+    bound = (es[1] >> PROB_BITS) * p
+    if bit == 0:
+        es[1] = bound
+        probs[i] = p + ((PROB_ONE - p) >> ADAPT_SHIFT)
+    else:
+        es[0] += bound
+        es[1] -= bound
+        probs[i] = p - (p >> ADAPT_SHIFT)
+    while es[1] < TOP:
+        es[1] = es[1] << 8
+        _shift_low(es, out)
+
+
+@kernel_helper
+def enc_direct(es, out, bit):
+    """Code ``bit`` with probability 1/2, no model."""
+    es[1] = es[1] >> 1
+    if bit != 0:
+        es[0] += es[1]
+    while es[1] < TOP:
+        es[1] = es[1] << 8
+        _shift_low(es, out)
+
+
+@kernel_helper
+def _next_byte(ds, buf):
+    pos = ds[2]
+    ds[2] = pos + 1
+    if pos < len(buf):
+        return np.int64(buf[pos])
+    ds[3] = 1
+    return np.int64(0)
+
+
+@kernel_helper
+def dec_bit(ds, buf, probs, i):
+    """Decode one bit with adaptive probability ``probs[i]``."""
+    p = probs[i]
+    bound = (ds[0] >> PROB_BITS) * p
+    if ds[1] < bound:
+        ds[0] = bound
+        probs[i] = p + ((PROB_ONE - p) >> ADAPT_SHIFT)
+        bit = 0
+    else:
+        ds[1] -= bound
+        ds[0] -= bound
+        probs[i] = p - (p >> ADAPT_SHIFT)
+        bit = 1
+    while ds[0] < TOP:
+        ds[0] = ds[0] << 8
+        ds[1] = ((ds[1] << 8) | _next_byte(ds, buf)) & MASK32
+    return bit
+
+
+@kernel_helper
+def dec_direct(ds, buf):
+    """Decode one equiprobable bit."""
+    ds[0] = ds[0] >> 1
+    bit = 0
+    if ds[1] >= ds[0]:
+        ds[1] -= ds[0]
+        bit = 1
+    while ds[0] < TOP:
+        ds[0] = ds[0] << 8
+        ds[1] = ((ds[1] << 8) | _next_byte(ds, buf)) & MASK32
+    return bit
+
+
+@kernel_helper
+def bit_length(x):
+    """Bits of the non-negative int ``x`` (0 for 0)."""
+    b = 0
+    while x > 0:
+        b += 1
+        x >>= 1
+    return b
+
+
+@kernel_helper
+def enc_tree(es, out, probs, base, nbits, value):
+    """``value`` < 2**nbits, MSB first, node ``1 .. 2**nbits - 1`` at ``probs[base + node]``."""
+    node = 1
+    for t in range(nbits - 1, -1, -1):
+        bit = (value >> t) & 1
+        enc_bit(es, out, probs, base + node, bit)
+        node = 2 * node + bit
+    return 0
+
+
+@kernel_helper
+def dec_tree(ds, buf, probs, base, nbits):
+    node = 1
+    for _ in range(nbits):
+        node = 2 * node + dec_bit(ds, buf, probs, base + node)
+    return node - (1 << nbits)
+
+
+@kernel_helper
+def _enc_mantissa(es, out, probs, base, b, m):
+    """The ``b - 1`` bits of ``m`` below a magnitude's leading one: two adaptive, the rest direct."""
+    nb = b - 1
+    first = 0
+    for t in range(nb - 1, -1, -1):
+        bit = (m >> t) & 1
+        pos = nb - 1 - t
+        if pos == 0:
+            enc_bit(es, out, probs, base + INT_MANTISSA + 3 * b, bit)
+            first = bit
+        elif pos == 1:
+            enc_bit(es, out, probs, base + INT_MANTISSA + 3 * b + 1 + first, bit)
+        else:
+            enc_direct(es, out, bit)
+    return 0
+
+
+@kernel_helper
+def _dec_mantissa(ds, buf, probs, base, b):
+    nb = b - 1
+    m = 0
+    first = 0
+    for pos in range(nb):
+        if pos == 0:
+            bit = dec_bit(ds, buf, probs, base + INT_MANTISSA + 3 * b)
+            first = bit
+        elif pos == 1:
+            bit = dec_bit(ds, buf, probs, base + INT_MANTISSA + 3 * b + 1 + first)
+        else:
+            bit = dec_direct(ds, buf)
+        m = 2 * m + bit
+    return m
+
+
+@kernel_helper
+def enc_uint(es, out, probs, base, x):
+    """Unsigned ``0 <= x < 2**32`` under the integer context block at ``probs[base:]``."""
+    b = bit_length(x)
+    enc_tree(es, out, probs, base, BUCKET_BITS, b)
+    if b >= 2:
+        _enc_mantissa(es, out, probs, base, b, x - (np.int64(1) << (b - 1)))
+    return 0
+
+
+@kernel_helper
+def dec_uint(ds, buf, probs, base):
+    """Inverse of :func:`enc_uint`; -1 for a bucket above :data:`MAX_BUCKET` (invalid)."""
+    b = dec_tree(ds, buf, probs, base, BUCKET_BITS)
+    if b > MAX_BUCKET:
+        return np.int64(-1)
+    if b < 2:
+        return np.int64(b)
+    return (np.int64(1) << (b - 1)) + _dec_mantissa(ds, buf, probs, base, b)
+
+
+@kernel_helper
+def enc_sint(es, out, probs, base, r):
+    """Signed ``|r| < 2**32``: bucket of ``|r|``, sign (context: bucket), mantissa."""
+    a = -r if r < 0 else r
+    b = bit_length(a)
+    enc_tree(es, out, probs, base, BUCKET_BITS, b)
+    if b >= 1:
+        enc_bit(es, out, probs, base + INT_SIGN + b, 1 if r < 0 else 0)
+    if b >= 2:
+        _enc_mantissa(es, out, probs, base, b, a - (np.int64(1) << (b - 1)))
+    return 0
+
+
+@kernel_helper
+def dec_sint(ds, buf, probs, base):
+    """Inverse of :func:`enc_sint`.  Returns ``(value, ok)``; ok 0 for a bucket above :data:`MAX_BUCKET`."""
+    b = dec_tree(ds, buf, probs, base, BUCKET_BITS)
+    if b > MAX_BUCKET:
+        return np.int64(0), 0
+    if b == 0:
+        return np.int64(0), 1
+    neg = dec_bit(ds, buf, probs, base + INT_SIGN + b)
+    a = np.int64(1)
+    if b >= 2:
+        a = (np.int64(1) << (b - 1)) + _dec_mantissa(ds, buf, probs, base, b)
+    return (-a if neg else a), 1
+
+
+@kernel_helper
+def enc_flush(es, out):
+    for _ in range(5):
+        _shift_low(es, out)
+    return 0
+
+
+def new_probs(n_probs: int) -> np.ndarray:
+    """(n_probs,) int64 probabilities, all :data:`PROB_INIT`."""
+    return np.full(n_probs, PROB_INIT, np.int64)
+
+
+class Encoder:
+    """One coded stream: state, output buffer and probability table (module docstring)."""
+
+    def __init__(self, probs: np.ndarray, capacity: int = 256):
+        self.es = np.array([0, MASK32, 0, 1, 0, 0], np.int64)
+        self.out = np.zeros(max(capacity, 16), np.uint8)
+        self.probs = probs
+
+    def reserve(self, decisions: int) -> None:
+        """Make room for ``decisions`` more coded decisions (and the flush)."""
+        need = int(self.es[4]) + 16 + BYTES_PER_DECISION * int(decisions)
+        if need > len(self.out):
+            grown = np.zeros(max(need, 2 * len(self.out)), np.uint8)
+            grown[: len(self.out)] = self.out
+            self.out = grown
+
+    def finish(self) -> bytes:
+        """Flush; the stream's bytes."""
+        self.reserve(0)
+        _kernel(enc_flush)(self.es, self.out)
+        return self.out[: int(self.es[4])].tobytes()
+
+
+class Decoder:
+    """Decoding state over ``payload`` (bytes-like) with the probability table ``probs`` (updated in place)."""
+
+    def __init__(self, payload, probs: np.ndarray):
+        self.buf = np.frombuffer(bytes(payload), np.uint8)
+        head = self.buf[:4].tolist() + [0] * max(0, 4 - len(self.buf))
+        code = int.from_bytes(bytes(head), "big")
+        self.ds = np.array([MASK32, code, 4, 1 if len(self.buf) < 4 else 0], np.int64)
+        self.probs = probs
+
+    def finish(self, what: str = "chunk payload") -> None:
+        """FormatError unless the stream ended exactly at the end of the bytes."""
+        if self.ds[3] or int(self.ds[2]) != len(self.buf):
+            raise FormatError(f"{what}: the coded stream does not end at the end of the payload "
+                              f"({int(self.ds[2])} bytes read of {len(self.buf)})")
+
+
+def _kernel(fn):
+    """``fn`` compiled when numba is available, else the plain function."""
+    from ..progressive.topology import compiled
+
+    jit = compiled(fn)
+    return jit if jit is not None else getattr(fn, "py_func", fn)
+
+
+def _enc_array_kernel(es, out, probs, kind, ctx, values):
+    """Code ``values`` (s,) int64 in order; ``kind`` (s,) int64: 0 adaptive bit at ``probs[ctx]``,
+    1 direct bit, 2 unsigned / 3 signed integer under the block at ``probs[ctx]``."""
+    for t in range(len(values)):
+        k = kind[t]
+        if k == 0:
+            enc_bit(es, out, probs, ctx[t], values[t])
+        elif k == 1:
+            enc_direct(es, out, values[t])
+        elif k == 2:
+            enc_uint(es, out, probs, ctx[t], values[t])
+        else:
+            enc_sint(es, out, probs, ctx[t], values[t])
+    return 0
+
+
+def _dec_array_kernel(ds, buf, probs, kind, ctx, values):
+    """Inverse of :func:`_enc_array_kernel`: fills ``values``; returns 0, or -1 on an invalid integer."""
+    for t in range(len(values)):
+        k = kind[t]
+        if k == 0:
+            values[t] = dec_bit(ds, buf, probs, ctx[t])
+        elif k == 1:
+            values[t] = dec_direct(ds, buf)
+        elif k == 2:
+            x = dec_uint(ds, buf, probs, ctx[t])
+            if x < 0:
+                return -1
+            values[t] = x
+        else:
+            x, ok = dec_sint(ds, buf, probs, ctx[t])
+            if ok == 0:
+                return -1
+            values[t] = x
+    return 0
+
+
+def encode_array(kind: np.ndarray, ctx: np.ndarray, values: np.ndarray, n_probs: int) -> bytes:
+    """One stream coding ``values`` (s,) int64 as ``kind`` (s,) / ``ctx`` (s,) say (:func:`_enc_array_kernel`)."""
+    enc = Encoder(new_probs(n_probs))
+    enc.reserve(INT_DECISIONS * len(values))
+    _kernel(_enc_array_kernel)(enc.es, enc.out, enc.probs, np.asarray(kind, np.int64), np.asarray(ctx, np.int64),
+                               np.asarray(values, np.int64))
+    return enc.finish()
+
+
+def decode_array(payload, kind: np.ndarray, ctx: np.ndarray, n_probs: int) -> np.ndarray:
+    """Inverse of :func:`encode_array`: (s,) int64.  FormatError on an invalid or mis-terminated stream."""
+    dec = Decoder(payload, new_probs(n_probs))
+    values = np.zeros(len(kind), np.int64)
+    if _kernel(_dec_array_kernel)(dec.ds, dec.buf, dec.probs, np.asarray(kind, np.int64), np.asarray(ctx, np.int64), values):
+        raise FormatError("coded stream: integer out of range")
+    dec.finish("coded stream")
+    return values

@@ -1,0 +1,284 @@
+"""Chunk payload version 2 (spec/bitstream.md §8): the range coder, and v2 files against v1 files.
+
+A v2 file codes the same batches as a v1 file of the same input and options, so both decode to the
+same mesh at every chunk; the watermark rides in the values and reads the same; hostile payloads
+give a FormatError (never a crash or a hang).
+"""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from pmwm_codec import shapes
+from pmwm_codec.errors import FormatError, PmwError
+from pmwm_codec.format import rangecoder as rc
+from pmwm_codec.format import records_v2
+from pmwm_codec.format.extension import EXTENSION_NAME, digest
+from pmwm_codec.format.glb import glb_parts, split_glb
+from pmwm_codec.mesh import Mesh
+from pmwm_codec.progressive import topology
+from pmwm_codec.stream import StreamDecoder, encode_mesh
+from pmwm_codec.stream.encoder import PrimitiveJob, encode_document
+from pmwm_codec.verify import verify_mesh, verify_stream
+from pmwm_codec.watermark.key import WatermarkKey
+
+from conftest import GENERATED, corpus_path
+from test_golden import _sphere_with_attributes
+
+
+def _encode(mesh, version, **options) -> tuple:
+    """(bytes, key) of ``mesh`` (a Mesh or a list: one primitive each) at payload ``version``."""
+    buf = io.BytesIO()
+    options = dict(min_chunk_splits=30, measure=False, payload_version=version, **options)
+    if isinstance(mesh, Mesh):
+        report = encode_mesh(mesh, buf, **options)
+    else:
+        doc = {"scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+               "meshes": [{"primitives": [{} for _ in mesh]}]}
+        report = encode_document(doc, b"", [PrimitiveJob(m, 0, i) for i, m in enumerate(mesh)], buf, **options)
+    return buf.getvalue(), report.key
+
+
+def _levels(data, key=None) -> list:
+    dec = StreamDecoder(key)
+    results = dec.feed(data)
+    assert dec.close().complete
+    return results
+
+
+def _assert_same_levels(a, b) -> None:
+    assert len(a) == len(b)
+    for x, y in zip(a, b):
+        assert (x.vertices, x.faces_count) == (y.vertices, y.faces_count)
+        assert np.array_equal(x.positions_int, y.positions_int)
+        assert np.array_equal(x.faces, y.faces)
+        for p, q in zip(x.parts, y.parts):
+            assert np.array_equal(p.attributes_int, q.attributes_int)
+        if x.watermark is not None or y.watermark is not None:
+            assert np.array_equal(x.watermark, y.watermark)
+
+
+# ---------------------------------------------------------------- range coder
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 3), st.integers(0, 5), st.integers(-(2**32) + 1, 2**32 - 1)), max_size=200))
+def test_range_coder_round_trips_any_bits_and_integers_under_any_contexts(items):
+    kind = np.array([k for k, _, _ in items], np.int64)
+    ctx = np.array([c if k < 2 else 16 + c * rc.INT_BLOCK for k, c, _ in items], np.int64)
+    values = np.array([(x & 1) if k < 2 else (abs(x) if k == 2 else x) for k, _, x in items], np.int64)
+    n_probs = 16 + 6 * rc.INT_BLOCK
+    coded = rc.encode_array(kind, ctx, values, n_probs)
+    assert np.array_equal(rc.decode_array(coded, kind, ctx, n_probs), values)
+
+
+def test_range_coder_refuses_a_stream_cut_short_or_with_trailing_bytes():
+    rng = np.random.default_rng(3)
+    kind = np.zeros(500, np.int64)
+    ctx = rng.integers(0, 4, 500)
+    values = (rng.random(500) < 0.3).astype(np.int64)
+    coded = rc.encode_array(kind, ctx, values, 4)
+    with pytest.raises(FormatError):
+        rc.decode_array(coded[:-1], kind, ctx, 4)
+    with pytest.raises(FormatError):
+        rc.decode_array(coded + b"\x00", kind, ctx, 4)
+
+
+def test_skewed_bits_cost_far_less_than_a_bit_each():
+    values = np.zeros(4000, np.int64)
+    values[::100] = 1
+    coded = rc.encode_array(np.zeros(4000, np.int64), np.zeros(4000, np.int64), values, 1)
+    assert 8 * len(coded) < 4000 * 0.2
+
+
+def test_plain_python_kernels_code_the_same_bytes_as_the_compiled_ones(monkeypatch):
+    mesh = shapes.grid(8, 7, hole=True)
+    compiled, _ = _encode(mesh, 2, base_codec="plain")
+    monkeypatch.setattr(topology, "USE_NUMBA", False)
+    plain, _ = _encode(mesh, 2, base_codec="plain")
+    assert plain == compiled
+    _assert_same_levels(_levels(plain), _levels(compiled))
+
+
+# ---------------------------------------------------------------- v2 files against v1 files
+
+
+@pytest.mark.parametrize("name", sorted(GENERATED))
+def test_v2_decodes_to_the_same_mesh_as_v1_at_every_chunk(name):
+    mesh = GENERATED[name]()
+    v1, _ = _encode(mesh, 1)
+    v2, _ = _encode(mesh, 2)
+    _assert_same_levels(_levels(v1), _levels(v2))
+    assert len(v2) < len(v1)
+
+
+def test_v2_keeps_attributes_and_two_primitives_exact():
+    for mesh in (_sphere_with_attributes(), [shapes.grid(18, 16, hole=True), shapes.torus(24, 12, twist=0.1)]):
+        v1, _ = _encode(mesh, 1, base_codec="plain")
+        v2, _ = _encode(mesh, 2, base_codec="plain")
+        _assert_same_levels(_levels(v1), _levels(v2))
+
+
+@pytest.mark.parametrize("mode", ["exact", "paper"])
+def test_v2_watermark_reads_as_in_v1_and_verifies_authentic(mode):
+    mesh = shapes.icosphere(4, 1.2, noise=0.02)
+    img = (np.indices((16, 16)).sum(0) % 3 * 100).astype(np.uint8)
+    key = WatermarkKey.generate(rng=np.random.default_rng(7))
+    v1, _ = _encode(mesh, 1, watermark=img, key=key, mode=mode)
+    v2, key2 = _encode(mesh, 2, watermark=img, key=key, mode=mode)
+    levels = _levels(v2, key2)
+    _assert_same_levels(_levels(v1, key2), levels)
+    if mode == "exact":
+        assert np.array_equal(levels[-1].watermark, img)
+    report = verify_stream(io.BytesIO(v2), key2)
+    assert report.verdict == "authentic", report.as_json()
+    final = levels[-1]
+    as_mesh = verify_mesh((final.mesh.positions, final.mesh.faces), v2, key2)
+    assert as_mesh.verdict == "authentic", as_mesh.as_json()
+
+
+# ---------------------------------------------------------------- hostile and truncated input
+
+
+@pytest.fixture(scope="module")
+def v2_file():
+    return _encode(shapes.grid(12, 10, hole=True), 2, base_codec="plain")[0]
+
+
+def test_every_prefix_of_a_v2_file_decodes_to_whole_chunks_only(v2_file):
+    full = _levels(v2_file)
+    for cut in range(0, len(v2_file), 7):
+        dec = StreamDecoder()
+        try:
+            got = dec.feed(v2_file[:cut])
+        except PmwError:
+            continue
+        assert len(got) <= len(full)
+        for x, y in zip(got, full):
+            assert np.array_equal(x.positions_int, y.positions_int) and np.array_equal(x.faces, y.faces)
+
+
+def _chunk_entries(data):
+    gltf, binary = split_glb(data)
+    ext = gltf["meshes"][0]["primitives"][0]["extensions"][EXTENSION_NAME]
+    return gltf, bytearray(binary), ext["chunks"]
+
+
+def _with_chunk(data, k, stored: bytes) -> bytes:
+    """Chunk k's stored bytes replaced (same length), digest recomputed."""
+    gltf, binary, entries = _chunk_entries(data)
+    view = gltf["bufferViews"][entries[k]["bufferView"]]
+    assert len(stored) == view["byteLength"]
+    binary[view["byteOffset"]: view["byteOffset"] + len(stored)] = stored
+    entries[k]["digest"] = digest(stored)
+    return b"".join(glb_parts(gltf, [bytes(binary)], len(binary)))
+
+
+def _decode_all(data):
+    dec = StreamDecoder()
+    dec.feed(data)
+    dec.close()
+
+
+def test_flipped_bits_with_a_recomputed_digest_give_a_format_error_or_a_valid_mesh(v2_file):
+    gltf, binary, entries = _chunk_entries(v2_file)
+    rng = np.random.default_rng(11)
+    errors = 0
+    for trial in range(60):
+        k = int(rng.integers(len(entries)))
+        view = gltf["bufferViews"][entries[k]["bufferView"]]
+        stored = bytearray(binary[view["byteOffset"]: view["byteOffset"] + view["byteLength"]])
+        bit = int(rng.integers(8 * len(stored)))
+        stored[bit // 8] ^= 1 << (bit % 8)
+        try:
+            _decode_all(_with_chunk(v2_file, k, bytes(stored)))
+        except PmwError:
+            errors += 1
+    assert errors > 40
+
+
+def test_random_payload_bytes_give_a_format_error(v2_file):
+    gltf, binary, entries = _chunk_entries(v2_file)
+    rng = np.random.default_rng(12)
+    for trial in range(30):
+        k = int(rng.integers(len(entries)))
+        size = gltf["bufferViews"][entries[k]["bufferView"]]["byteLength"]
+        with pytest.raises(PmwError):
+            _decode_all(_with_chunk(v2_file, k, rng.integers(0, 256, size, dtype=np.uint8).tobytes()))
+
+
+def test_a_v2_chunk_whose_uncompressed_length_differs_from_its_bytes_is_refused(v2_file):
+    gltf, binary, entries = _chunk_entries(v2_file)
+    entries[0]["uncompressedLength"] += 1
+    with pytest.raises(FormatError, match="uncompressedLength"):
+        _decode_all(b"".join(glb_parts(gltf, [bytes(binary)], len(binary))))
+
+
+def test_an_unknown_payload_version_is_refused(v2_file):
+    gltf, binary, _ = _chunk_entries(v2_file)
+    gltf["meshes"][0]["primitives"][0]["extensions"][EXTENSION_NAME]["payload"]["version"] = 3
+    with pytest.raises(FormatError):
+        _decode_all(b"".join(glb_parts(gltf, [bytes(binary)], len(binary))))
+
+
+# ---------------------------------------------------------------- the arc model
+
+
+def _chunk_bytes(data) -> int:
+    return sum(entry["byteLength"] for entry in _chunk_entries(data)[2])
+
+
+def test_a_real_scan_s_v2_chunks_take_under_two_thirds_of_v1_s_bytes():
+    """On the cow the models (arcs, mask, frame) pay: v2's chunks are far smaller than v1's."""
+    from pmwm_codec.mesh import read_mesh
+
+    mesh = read_mesh(str(corpus_path("cow.obj")))
+    v1, _ = _encode(mesh, 1, grid_bits=14)
+    v2, _ = _encode(mesh, 2, grid_bits=14)
+    _assert_same_levels(_levels(v1), _levels(v2))
+    assert _chunk_bytes(v2) < 2 / 3 * _chunk_bytes(v1)
+
+
+
+# ---------------------------------------------------------------- spec/bitstream.md §8 and the code
+
+
+def _spec_v2() -> str:
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "spec" / "bitstream.md").read_text()
+    return text[text.index("## 8. Chunk payload version 2"):]
+
+
+def test_spec_coder_example_is_what_the_coder_writes():
+    import re
+
+    block = re.search(r"<!-- coder-example -->\n```\n(.*?)```", _spec_v2(), re.S).group(1)
+    kind, ctx, values = [0, 0, 0, 1, 2, 3], [0, 0, 0, 0, 16, 16], [0, 1, 1, 1, 5, -3]
+    coded = rc.encode_array(np.array(kind), np.array(ctx), np.array(values), 16 + rc.INT_BLOCK)
+    assert bytes.fromhex(block.replace(" ", "").replace("\n", "")) == coded
+    assert f"the {len(coded)} bytes" in _spec_v2()
+
+
+def test_spec_constants_of_the_coder_and_the_models_match_the_code():
+    text = " ".join(_spec_v2().split())
+    assert f"prob[i] = {rc.PROB_INIT}" in text and f"bound = (range >> {rc.PROB_BITS}) * prob[i]" in text
+    assert f"prob[i] += ({rc.PROB_ONE} - prob[i]) >> {rc.ADAPT_SHIFT}" in text
+    assert f"prob[i] -= prob[i] >> {rc.ADAPT_SHIFT}" in text
+    assert f"range < 2^{rc.TOP.bit_length() - 1}" in text
+    assert f"`b = Tree(base, {rc.BUCKET_BITS})`; `b > {rc.MAX_BUCKET}` is a format error" in text
+    assert f"base + {rc.INT_MANTISSA} + 3·b + t" in text and f"`base + {rc.INT_SIGN} + b` the sign" in text
+    r2 = records_v2
+    assert f"`N_PROBS = {r2.P_INT} + {r2.INT_BLOCKS}·{rc.INT_BLOCK} = {r2.N_PROBS}`" in text
+    assert f"| `{r2.P_ESCAPE}` | escape flag" in text and f"| `{r2.P_WING}`, `{r2.P_WING + 1}` | left / right wing" in text
+    assert f"`{r2.P_SYMBOL} … {r2.P_SYMBOL + 7}` | escaped symbol, `Tree({r2.P_SYMBOL}, 3)`" in text
+    assert f"`{r2.B_GEOMETRY} + 3·cls + role` | position residual" in text
+    assert f"`{r2.B_ATTRIBUTE} + min(j, {r2.ATTRIBUTE_CONTEXTS - 1})` | residual of attribute" in text
+    assert f"`{r2.B_LENGTH} + min(d, 16) − 1`" in text and f"`{r2.B_RANK} + min(c, 16) − 1`" in text
+    assert f"`1 <= d <= {r2.MAX_ARC_FAN}`" in text
+    assert f"`|x| < 2^{r2.MAX_VALUE.bit_length() - 1}`" in text
+    assert f"1 … {r2.MAX_BATCHES_PER_CHUNK}, else a format error" in text
