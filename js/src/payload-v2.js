@@ -48,8 +48,11 @@ function bitLength(x) {
 /** floor(x + 0.5): the rounding of the frame predictions. */
 const round = (x) => Math.floor(x + 0.5);
 
-/** The rank-r candidate start of an arc of L faces (spec §8.4.2 "Start rank"). */
-function arcStart(fan, d, ncand, L, a, values, D, v, lens) {
+/**
+ * The candidate start of rank r of an arc of L faces in a fan of d (spec §8.4.2 "Start rank"):
+ * lens[t] (t < d) the length from v to the corner a of fan[t], lens[32 + c] the score of start c.
+ */
+function arcStart(r, fan, d, ncand, L, a, values, D, v, lens) {
   const pv = v * D;
   for (let t = 0; t < d; t++) {
     const pa = a[fan[t]] * D;
@@ -58,24 +61,21 @@ function arcStart(fan, d, ncand, L, a, values, D, v, lens) {
     const dz = values[pa + 2] - values[pv + 2];
     lens[t] = Math.sqrt((dx * dx + dy * dy) + dz * dz);
   }
-  return (r) => {
-    // scores[c] for c < ncand in lens[32 + c]; then the candidate of rank r
-    for (let c = 0; c < ncand; c++) {
-      let sc = 0.0;
-      for (let j = 1; j < L; j++) sc += lens[(c + j) % d];
-      lens[MAX_ARC_FAN + c] = sc;
+  for (let c = 0; c < ncand; c++) {
+    let sc = 0.0;
+    for (let j = 1; j < L; j++) sc += lens[(c + j) % d];
+    lens[MAX_ARC_FAN + c] = sc;
+  }
+  for (let c = 0; c < ncand; c++) {
+    const sc = lens[MAX_ARC_FAN + c];
+    let rank = 0;
+    for (let c2 = 0; c2 < ncand; c2++) {
+      const s2 = lens[MAX_ARC_FAN + c2];
+      if (s2 > sc || (s2 === sc && c2 < c)) rank++;
     }
-    for (let c = 0; c < ncand; c++) {
-      const sc = lens[MAX_ARC_FAN + c];
-      let rank = 0;
-      for (let c2 = 0; c2 < ncand; c2++) {
-        const s2 = lens[MAX_ARC_FAN + c2];
-        if (s2 > sc || (s2 === sc && c2 < c)) rank++;
-      }
-      if (rank === r) return c;
-    }
-    return -1; // ranks are a permutation of 0 .. ncand-1: never reached
-  };
+    if (rank === r) return c;
+  }
+  return -1; // ranks are a permutation of 0 .. ncand-1: never reached
 }
 
 export class ChunkDecoderV2 {
@@ -139,36 +139,40 @@ export class ChunkDecoderV2 {
 
   /**
    * §8.4.1: one bit per vertex w < n under the context of its distinct neighbours (valence class)
-   * and the marked ones below w. Builds the vertex -> face lists `vf` (faces*3, per vertex in
-   * `off[w] .. off[w+1]`). Leaves sel (n) Uint8Array, and the split vertices v (k) Int32Array and
+   * and the marked ones below w. Builds the vertex -> neighbour lists `nb` (the two other corners
+   * of each of its corners, in `off[w] .. off[w+1]`; off[w+1] - off[w] is twice its corner count). Leaves sel (n) Uint8Array, and the split vertices v (k) Int32Array and
    * their slot (slot[v[i]] = i). Returns k.
    */
   #mask(rc, n, m) {
     const { faces } = this.state;
     const { capN, capM } = this.state;
     const off = this.#grow('off', n + 1, Int32Array, capN + 1);
-    const vf = this.#grow('vf', 3 * m, Int32Array, 3 * capM);
+    const nb = this.#grow('nb', 6 * m, Int32Array, 6 * capM);
     const stamp = this.#grow('stamp', n, Int32Array, capN);
     const sel = this.#grow('sel', n, Uint8Array, capN);
     off.fill(0, 0, n + 1);
     stamp.fill(-1, 0, n);
-    for (let c = 0; c < 3 * m; c++) off[faces[c]]++;
+    for (let c = 0; c < 3 * m; c++) off[faces[c]] += 2;
     for (let w = 1; w < n; w++) off[w] += off[w - 1];
-    off[n] = 3 * m;
-    for (let c = 3 * m - 1; c >= 0; c--) vf[--off[faces[c]]] = c - (c % 3);
+    off[n] = 6 * m;
+    for (let f = 3 * m - 3; f >= 0; f -= 3) { // the two other corners of every corner, listed per vertex
+      const x = faces[f];
+      const y = faces[f + 1];
+      const z = faces[f + 2];
+      nb[--off[x]] = y; nb[--off[x]] = z;
+      nb[--off[y]] = z; nb[--off[y]] = x;
+      nb[--off[z]] = x; nb[--off[z]] = y;
+    }
     let k = 0;
     for (let w = 0; w < n; w++) {
       let valence = 0;
       let below = 0;
       for (let t = off[w], end = off[w + 1]; t < end; t++) {
-        const f = vf[t];
-        for (let j = f; j < f + 3; j++) {
-          const x = faces[j];
-          if (x !== w && stamp[x] !== w) {
-            stamp[x] = w;
-            valence++;
-            if (x < w) below += sel[x];
-          }
+        const x = nb[t];
+        if (x !== w && stamp[x] !== w) {
+          stamp[x] = w;
+          valence++;
+          if (x < w) below += sel[x];
         }
       }
       const bit = rc.bit(P_MASK + 7 * (below < 2 ? below : 2) + (valence < 3 ? 0 : valence > 9 ? 6 : valence - 3));
@@ -199,7 +203,7 @@ export class ChunkDecoderV2 {
     const fill = this.#grow('gfill', k, Int32Array, capN);
     gstart[0] = 0;
     for (let i = 0; i < k; i++) {
-      gstart[i + 1] = gstart[i] + off[v[i] + 1] - off[v[i]];
+      gstart[i + 1] = gstart[i] + ((off[v[i] + 1] - off[v[i]]) >> 1); // corners of v[i]
       fill[i] = gstart[i];
     }
     const I = gstart[k];
@@ -293,7 +297,7 @@ export class ChunkDecoderV2 {
       const ncand = kind === 1 ? d : d - L + 1;
       const r = rc.uint(block(B_RANK + Math.min(ncand, 16) - 1), 'an arc start rank');
       if (r >= ncand) throw new FormatError('chunk payload: an arc start rank is out of range');
-      const s = arcStart(fan, d, ncand, L, a, values, D, v[i], this.lens)(r);
+      const s = arcStart(r, fan, d, ncand, L, a, values, D, v[i], this.lens);
       const left = kind === 2 && s === 0 ? rc.bit(P_WING) : 1;
       const right = kind === 2 && s + L === d ? rc.bit(P_WING + 1) : 1;
       for (let t = 0; t < d; t++) {

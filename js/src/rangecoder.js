@@ -1,9 +1,8 @@
 /**
  * The adaptive binary range decoder of chunk payload version 2 and its integer binarisations
- * (spec/bitstream.md §8.1-§8.2), LZMA style. `range` and `code` are unsigned 32-bit values held in
- * numbers (every product below stays under 2^32, so doubles are exact); probabilities are 11-bit
- * values in a Uint16Array table that the caller keeps per primitive (it carries from chunk to chunk).
- * No allocation per decoded symbol.
+ * (spec/bitstream.md §8.1-§8.2), LZMA style. Probabilities are 11-bit values in a Uint16Array
+ * table that the caller keeps per primitive (it carries from chunk to chunk). No allocation per
+ * decoded symbol.
  */
 import { FormatError } from './errors.js';
 
@@ -24,7 +23,12 @@ export function newProbabilities(size) {
   return new Uint16Array(size).fill(PROB_ONE >> 1);
 }
 
-/** Decoding state over one chunk's stored bytes `buf` (Uint8Array), adapting `probs` (Uint16Array) in place. */
+/**
+ * Decoding state over one chunk's stored bytes `buf` (Uint8Array), adapting `probs` (Uint16Array) in
+ * place. `range` and `code` are held as int32 bit patterns of the unsigned 32-bit values (compared
+ * after `>>> 0`), which V8 keeps unboxed: the same arithmetic as §8.1 modulo 2^32, where no
+ * operation of a conforming decoder wraps.
+ */
 export class RangeDecoder {
   constructor(buf, probs) {
     this.buf = buf;
@@ -32,9 +36,9 @@ export class RangeDecoder {
     this.length = buf.length;
     this.overrun = false;
     this.pos = 0;
-    this.range = 0xffffffff;
+    this.range = -1; // 0xFFFFFFFF
     let code = 0;
-    for (let i = 0; i < 4; i++) code = code * 256 + this.#next();
+    for (let i = 0; i < 4; i++) code = (code << 8) | this.#next();
     this.code = code;
   }
 
@@ -46,26 +50,31 @@ export class RangeDecoder {
     return 0;
   }
 
+  /** Normalize: while range < 2^24, shift a byte in. */
+  #normalize() {
+    while ((this.range >>> 0) < TOP) {
+      this.range <<= 8;
+      this.code = (this.code << 8) | this.#next(); // (code * 256 + byte) mod 2^32
+    }
+  }
+
   /** DecodeBit(i): one bit under the adaptive probability probs[i]. */
   bit(i) {
     const { probs } = this;
     const p = probs[i];
-    const bound = (this.range >>> PROB_BITS) * p;
+    const bound = Math.imul(this.range >>> PROB_BITS, p); // < 2^32: exact
     let bit;
-    if (this.code < bound) {
+    if ((this.code >>> 0) < (bound >>> 0)) {
       this.range = bound;
       probs[i] = p + ((PROB_ONE - p) >> ADAPT_SHIFT);
       bit = 0;
     } else {
-      this.code -= bound;
-      this.range -= bound;
+      this.code = (this.code - bound) | 0;
+      this.range = (this.range - bound) | 0;
       probs[i] = p - (p >> ADAPT_SHIFT);
       bit = 1;
     }
-    while (this.range < TOP) {
-      this.range *= 256;
-      this.code = ((this.code << 8) | this.#next()) >>> 0; // (code * 256 + byte) mod 2^32
-    }
+    this.#normalize();
     return bit;
   }
 
@@ -73,14 +82,11 @@ export class RangeDecoder {
   direct() {
     this.range >>>= 1;
     let bit = 0;
-    if (this.code >= this.range) {
-      this.code -= this.range;
+    if ((this.code >>> 0) >= this.range) {
+      this.code = (this.code - this.range) | 0;
       bit = 1;
     }
-    while (this.range < TOP) {
-      this.range *= 256;
-      this.code = ((this.code << 8) | this.#next()) >>> 0;
-    }
+    this.#normalize();
     return bit;
   }
 
