@@ -87,6 +87,11 @@ export class ChunkDecoderV2 {
     this.lens = new Float64Array(2 * MAX_ARC_FAN); // lengths, then scores
     this.sums = new Float64Array(state.D);
     this.frame = new Float64Array(6);
+    // scratch arrays (see #grow), declared here so that the object keeps one shape
+    for (const name of ['off', 'nb', 'stamp', 'v', 'slot', 'gstart', 'gfill', 'inc', 'owner', 'a', 'b', 'gidx',
+      'posA', 'posB', 'wings']) this[name] = new Int32Array(0);
+    this.sel = new Uint8Array(0);
+    this.sym = new Uint8Array(0);
   }
 
   /**
@@ -95,8 +100,8 @@ export class ChunkDecoderV2 {
    */
   #grow(name, size, Type, max, fillValue) {
     let arr = this[name];
-    if (arr === undefined || arr.length < size) {
-      const cap = Math.min(Math.max(size, 2 * (arr === undefined ? 0 : arr.length)), Math.max(size, max));
+    if (arr.length < size) {
+      const cap = Math.min(Math.max(size, 2 * arr.length), Math.max(size, max));
       try {
         arr = new Type(cap);
       } catch (e) {
