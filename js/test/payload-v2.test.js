@@ -4,17 +4,18 @@
  * and Draco bases, closed meshes and boundaries, attributes, two primitives, an exact watermark),
  * to the same levels as their version 1 encoding, and every prefix of one to the levels its
  * whole chunks give. Stored-chunk rules (digest, uncompressedLength) and hostile streams end in
- * named errors. Skipped when no Python imports a pmwm_codec that writes version 2.
+ * named errors; on streams with flipped bits both decoders refuse the same files and give the
+ * same levels on the others. Skipped when no Python imports a pmwm_codec that writes version 2.
  */
 import assert from 'node:assert/strict';
-import { mkdtempSync, readFileSync, rmSync } from 'node:fs';
+import { mkdtempSync, readFileSync, rmSync, writeFileSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { after, test } from 'node:test';
 import { CorruptChunkError, FormatError, PmwDecoder, PmwError, TruncatedError, UnsupportedError } from '../src/index.js';
 import { parseGlb, planDocument } from '../src/header.js';
-import { levelDigest } from './lib/helpers.js';
-import { encodeCase, pythonHasPayloadV2 } from './lib/python.js';
+import { levelDigest, seededRandom } from './lib/helpers.js';
+import { decodeFiles, encodeCase, pythonHasPayloadV2 } from './lib/python.js';
 import { chunkPayloads, withPayload } from './lib/rewrite.js';
 
 const skip = !pythonHasPayloadV2() && 'no Python importing a pmwm_codec that writes payload version 2 ($PYTHON, $PMW_PYTHONPATH)';
@@ -138,4 +139,41 @@ test('a version 2 stream with a byte more or a byte less, or another chunk\'s st
     assert.ok(e instanceof FormatError, String(e));
     assert.match(e.message, new RegExp(`^chunk ${k}: `));
   }
+});
+
+test('on version 2 streams with flipped bits, the JS and Python decoders refuse the same files and agree on the others', { skip }, async () => {
+  const sources = ['closed-sphere.draco', 'boundaries.plain', 'attributes.plain'].map((name) => {
+    const { bytes } = encodedCase(name);
+    return { name, bytes, chunks: chunkPayloads(bytes) };
+  });
+  const r = seededRandom(5);
+  const files = [];
+  const js = [];
+  for (let i = 0; i < 90; i++) {
+    const { name, bytes, chunks } = sources[i % sources.length];
+    const index = Math.floor(r() * chunks.length);
+    const payload = chunks[index].payload.slice();
+    // anywhere, or in the last 4 bytes (the coder's flush, where a flip can leave a valid stream)
+    const span = i % 2 ? payload.length : 4;
+    for (let f = 1 + Math.floor(r() * 2); f > 0; f--) payload[payload.length - 1 - Math.floor(r() * span)] ^= 1 << Math.floor(r() * 8);
+    const file = join(dir, `flipped-${i}.${name}.pmw`);
+    const hostile = withPayload(bytes, index, payload);
+    writeFileSync(file, hostile);
+    files.push(file);
+    const e = await failure(hostile);
+    js.push(e === null ? await jsLevels(hostile) : e);
+  }
+  const py = decodeFiles(files);
+  let refused = 0;
+  for (const [i, want] of py.entries()) {
+    const got = js[i];
+    if (want.error !== undefined) {
+      refused++;
+      assert.ok(got instanceof PmwError, `${files[i]}: Python refuses it (${want.error}), JS decodes it`);
+    } else {
+      assert.ok(!(got instanceof PmwError), `${files[i]}: Python decodes it, JS refuses it (${got?.name}: ${got?.message})`);
+      assert.deepEqual(got.levels, want.levels, files[i]);
+    }
+  }
+  assert.ok(refused > 0 && refused < py.length, `${refused} of ${py.length} refused: both outcomes compared`);
 });

@@ -1,13 +1,16 @@
-"""The Python side of js/test/payload-v2.test.js: encodes a generated case and prints its levels.
+"""The Python side of js/test/payload-v2.test.js: encodes generated cases, prints decoded levels.
 
-    python levels.py CASE VERSION OUT.pmw
+    python levels.py encode CASE VERSION OUT.pmw
+    python levels.py decode FILE.pmw [FILE.pmw ...]
 
-writes ``OUT.pmw`` (the case encoded with chunk payload ``VERSION``, 1 or 2) and prints one JSON
-object: the reference decoder's level at every chunk boundary, ``{"levels": [{"bytesRead",
-"vertexCount", "faceCount", "parts": [[n, m], ...], "sha256"}, ...], "complete"}``; ``sha256`` is
-tests/test_golden.py's level digest (positions, faces, quantized attributes as <i8) and
-js/test/lib/helpers.js::levelDigest.  Cases are generated meshes (``pmwm_codec.shapes``) and
-seeded keys, so the levels do not depend on the machine.
+``encode`` writes ``OUT.pmw`` (the case encoded with chunk payload ``VERSION``, 1 or 2) and prints
+one JSON object: the reference decoder's level at every chunk boundary, ``{"levels":
+[{"bytesRead", "vertexCount", "faceCount", "parts": [[n, m], ...], "sha256"}, ...], "complete"}``;
+``sha256`` is tests/test_golden.py's level digest (positions, faces, quantized attributes as <i8)
+and js/test/lib/helpers.js::levelDigest.  ``decode`` prints one such object per file, in order,
+as a JSON array, with ``"error"`` (the exception's class name) instead when the decoder refuses
+the file.  Cases are generated meshes (``pmwm_codec.shapes``) and seeded keys, so the levels do
+not depend on the machine.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ import sys
 
 import numpy as np
 
-from pmwm_codec import encode, shapes
+from pmwm_codec import PmwError, encode, shapes
 from pmwm_codec.mesh import Mesh
 from pmwm_codec.stream import StreamDecoder
 from pmwm_codec.stream.encoder import PrimitiveJob, encode_document
@@ -74,15 +77,27 @@ def _digest(r) -> str:
     return h.hexdigest()
 
 
-def main(case: str, version: str, out: str) -> None:
-    _write(case, int(version), out)
-    with open(out, "rb") as f:
+def _levels(path: str) -> dict:
+    """The decoded levels of the file at ``path`` (module docstring), or ``{"error": class name}``."""
+    with open(path, "rb") as f:
         data = f.read()
     dec = StreamDecoder()
-    levels = [{"bytesRead": r.bytes_read, "vertexCount": r.vertices, "faceCount": r.faces_count,
-               "parts": [[len(p.positions_int), len(p.faces)] for p in r.parts], "sha256": _digest(r)}
-              for r in dec.feed(data)]
-    print(json.dumps({"levels": levels, "complete": dec.close().complete}))
+    try:
+        levels = [{"bytesRead": r.bytes_read, "vertexCount": r.vertices, "faceCount": r.faces_count,
+                   "parts": [[len(p.positions_int), len(p.faces)] for p in r.parts], "sha256": _digest(r)}
+                  for r in dec.feed(data)]
+        return {"levels": levels, "complete": dec.close().complete}
+    except PmwError as exc:
+        return {"error": type(exc).__name__}
+
+
+def main(command: str, *args: str) -> None:
+    if command == "encode":
+        case, version, out = args
+        _write(case, int(version), out)
+        print(json.dumps(_levels(out)))
+    else:
+        print(json.dumps([_levels(path) for path in args]))
 
 
 if __name__ == "__main__":

@@ -28,6 +28,8 @@ export function python() {
   return found;
 }
 
+const LEVELS = join(dirname(fileURLToPath(import.meta.url)), 'levels.py');
+
 let v2;
 /** Whether python() encodes chunk payload version 2 (spec/bitstream.md §8). */
 export function pythonHasPayloadV2() {
@@ -44,7 +46,12 @@ export function pythonHasPayloadV2() {
  * returns the reference decoder's levels: {levels: [{bytesRead, vertexCount, faceCount, parts, sha256}], complete}.
  */
 export function encodeCase(name, version, file) {
-  return JSON.parse(run([join(dirname(fileURLToPath(import.meta.url)), 'levels.py'), name, String(version), file]));
+  return JSON.parse(run([LEVELS, 'encode', name, String(version), file]));
+}
+
+/** The reference decoder's levels of each file ({levels, complete} as encodeCase), or {error: class name}. */
+export function decodeFiles(files) {
+  return JSON.parse(run([LEVELS, 'decode', ...files]));
 }
 
 function run(args) {
