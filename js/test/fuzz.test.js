@@ -44,6 +44,22 @@ test('random cuts and bit flips anywhere in the file end in named errors', { tim
   assert.ok(seen.size > 1, [...seen].join());
 });
 
+/**
+ * `payload` (a copy) damaged by kind: 0 cut short, then 1-3 flips of a bit (kind 1), random bytes
+ * (2) or 4 bytes of 0xff (3) at random places; 4 noise of the same length.
+ */
+function damaged(r, payload, kind) {
+  const out = kind === 0 ? payload.subarray(0, Math.floor(r() * payload.length)) : payload.slice();
+  if (kind === 4) return out.map(() => Math.floor(r() * 256));
+  for (let f = 1 + Math.floor(r() * 3); f > 0 && out.length; f--) {
+    const at = Math.floor(r() * out.length);
+    if (kind === 1) out[at] ^= 1 << Math.floor(r() * 8);
+    else if (kind === 2) out[at] = Math.floor(r() * 256);
+    else if (kind === 3) out.fill(0xff, at, at + 4);
+  }
+  return out;
+}
+
 test('hostile chunk payloads behind valid frames and digests end in named errors', { timeout: 300000 }, async () => {
   const r = seededRandom(2);
   const sources = files.map((bytes) => ({ bytes, chunks: chunkPayloads(bytes) }));
@@ -51,15 +67,8 @@ test('hostile chunk payloads behind valid frames and digests end in named errors
   for (let i = 0; i < CASES; i++) {
     const { bytes, chunks } = sources[i % sources.length];
     const index = Math.floor(r() * chunks.length);
-    let payload = chunks[index].payload.slice();
     const kind = i % 4;
-    if (kind === 0) payload = payload.subarray(0, Math.floor(r() * payload.length));
-    for (let f = 1 + Math.floor(r() * 3); f > 0 && payload.length; f--) {
-      const at = Math.floor(r() * payload.length);
-      if (kind === 1) payload[at] ^= 1 << Math.floor(r() * 8);
-      else if (kind === 2) payload[at] = Math.floor(r() * 256);
-      else if (kind === 3) payload.fill(0xff, at, at + 4);
-    }
+    const payload = damaged(r, chunks[index].payload, kind);
     seen.add(await outcome(withPayload(bytes, index, payload), `payload case ${i} (kind ${kind})`));
   }
   if (process.env.FUZZ_VERBOSE) console.log([...seen]);
@@ -76,16 +85,8 @@ test('hostile range-coded streams of payload version 2 behind valid digests end 
     for (let i = 0; i < CASES; i++) {
       const { bytes, chunks } = sources[i % sources.length];
       const index = Math.floor(r() * chunks.length);
-      let payload = chunks[index].payload.slice();
       const kind = i % 5;
-      if (kind === 0) payload = payload.subarray(0, Math.floor(r() * payload.length)); // cut short
-      else if (kind === 4) payload = payload.map(() => Math.floor(r() * 256)); // noise of the same length
-      for (let f = 1 + Math.floor(r() * 3); kind < 4 && f > 0 && payload.length; f--) {
-        const at = Math.floor(r() * payload.length);
-        if (kind === 1) payload[at] ^= 1 << Math.floor(r() * 8);
-        else if (kind === 2) payload[at] = Math.floor(r() * 256);
-        else if (kind === 3) payload.fill(0xff, at, at + 4);
-      }
+      const payload = damaged(r, chunks[index].payload, kind);
       const name = await outcome(withPayload(bytes, index, payload), `v2 payload case ${i} (kind ${kind})`);
       seen.set(name, (seen.get(name) ?? 0) + 1);
     }

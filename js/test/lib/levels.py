@@ -15,12 +15,14 @@ not depend on the machine.
 
 from __future__ import annotations
 
-import hashlib
+import importlib.util
 import json
 import sys
+from pathlib import Path
 
 import numpy as np
 
+import pmwm_codec
 from pmwm_codec import PmwError, encode, shapes
 from pmwm_codec.mesh import Mesh
 from pmwm_codec.stream import StreamDecoder
@@ -30,29 +32,28 @@ from pmwm_codec.watermark.key import WatermarkKey
 OPTIONS = dict(min_chunk_splits=30, measure="none")
 
 
-def _with_attributes() -> Mesh:
-    """icosphere(3) with a NORMAL (n, 3) and a TEXCOORD_0 (n, 2) per vertex: D = 8 values."""
-    sphere = shapes.icosphere(3, 1.1, noise=0.03)
-    p = sphere.positions
-    normals = p / np.linalg.norm(p, axis=1, keepdims=True)
-    uv = np.stack([np.arctan2(p[:, 1], p[:, 0]) / (2 * np.pi) + 0.5, np.arccos(normals[:, 2]) / np.pi], 1)
-    return Mesh(p, sphere.faces, attributes={"NORMAL": normals, "TEXCOORD_0": uv})
+def _load_golden():
+    """tests/test_golden.py of the tree this pmwm_codec comes from: the home of the level digest
+    and of the attribute sphere and watermark image used here."""
+    path = Path(pmwm_codec.__file__).resolve().parents[1] / "tests" / "test_golden.py"
+    spec = importlib.util.spec_from_file_location("_pmw_test_golden", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
-def _stripes(size: int = 16) -> np.ndarray:
-    y, x = np.mgrid[0:size, 0:size]
-    return (((x // 2 + y // 4) % 2) * 180 + 40).astype(np.uint8)
+golden = _load_golden()
 
 
 #: name -> (mesh or list of meshes (one primitive each), encoder options)
 CASES = {
     "closed-sphere.draco": lambda: (shapes.icosphere(4, 1.0, noise=0.02), dict(base_codec="draco")),
     "boundaries.plain": lambda: (shapes.grid(20, 14, hole=True), dict(base_codec="plain")),
-    "attributes.plain": lambda: (_with_attributes(), dict(base_codec="plain")),
+    "attributes.plain": lambda: (golden._sphere_with_attributes(), dict(base_codec="plain")),  # D = 8
     "two-primitives.draco": lambda: ([shapes.grid(18, 16, hole=True), shapes.torus(24, 12, twist=0.1)],
                                      dict(base_codec="draco")),
     "exact-watermark.draco": lambda: (shapes.icosphere(4, 1.2, noise=0.02), dict(
-        base_codec="draco", watermark=_stripes(16), key=WatermarkKey.generate(rng=np.random.default_rng(7)))),
+        base_codec="draco", watermark=golden._stripes(16), key=WatermarkKey.generate(rng=np.random.default_rng(7)))),
 }
 
 
@@ -67,16 +68,6 @@ def _write(case: str, version: int, out: str) -> None:
     encode_document(doc, b"", jobs, out, payload_version=version, **OPTIONS, **options)
 
 
-def _digest(r) -> str:
-    h = hashlib.sha256()
-    h.update(np.ascontiguousarray(r.positions_int, dtype="<i8").tobytes())
-    h.update(np.ascontiguousarray(r.faces, dtype="<i8").tobytes())
-    attributes = np.concatenate([p.attributes_int for p in r.parts])
-    if attributes.size:
-        h.update(np.ascontiguousarray(attributes, dtype="<i8").tobytes())
-    return h.hexdigest()
-
-
 def _levels(path: str) -> dict:
     """The decoded levels of the file at ``path`` (module docstring), or ``{"error": class name}``."""
     with open(path, "rb") as f:
@@ -84,7 +75,7 @@ def _levels(path: str) -> dict:
     dec = StreamDecoder()
     try:
         levels = [{"bytesRead": r.bytes_read, "vertexCount": r.vertices, "faceCount": r.faces_count,
-                   "parts": [[len(p.positions_int), len(p.faces)] for p in r.parts], "sha256": _digest(r)}
+                   "parts": [[len(p.positions_int), len(p.faces)] for p in r.parts], "sha256": golden._level_digest(r)}
                   for r in dec.feed(data)]
         return {"levels": levels, "complete": dec.close().complete}
     except PmwError as exc:
