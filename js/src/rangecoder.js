@@ -18,6 +18,9 @@ const BUCKET_BITS = 6;
 /** Largest bucket (bit length) of a coded magnitude: values below 2^32. */
 const MAX_BUCKET = 32;
 
+/** 2^b for b = 0 .. 32. */
+const POW2 = Float64Array.from({ length: MAX_BUCKET + 1 }, (_, b) => 2 ** b);
+
 /** A probability table of `size` entries, every one 1024 (probability 1/2): a primitive's first chunk. */
 export function newProbabilities(size) {
   return new Uint16Array(size).fill(PROB_ONE >> 1);
@@ -74,7 +77,7 @@ export class RangeDecoder {
       probs[i] = p - (p >> ADAPT_SHIFT);
       bit = 1;
     }
-    this.#normalize();
+    if ((this.range >>> 0) < TOP) this.#normalize();
     return bit;
   }
 
@@ -122,7 +125,7 @@ export class RangeDecoder {
   uint(base, what) {
     const b = this.#bucket(base, what);
     if (b < 2) return b;
-    return 2 ** (b - 1) + this.#mantissa(base, b);
+    return POW2[b - 1] + this.#mantissa(base, b);
   }
 
   /** SInt(base): a signed integer of magnitude below 2^32. */
@@ -130,7 +133,7 @@ export class RangeDecoder {
     const b = this.#bucket(base, what);
     if (b === 0) return 0;
     const neg = this.bit(base + INT_SIGN + b);
-    const a = b === 1 ? 1 : 2 ** (b - 1) + this.#mantissa(base, b);
+    const a = b === 1 ? 1 : POW2[b - 1] + this.#mantissa(base, b);
     return neg ? -a : a;
   }
 
