@@ -3,7 +3,8 @@
  * Per-stage times of the JS full decode of one .pmw (medians over REPEATS runs after one warm-up):
  * GLB + JSON plan, Draco base (draco3d), and over all chunks: BLAKE2b digest (hash-wasm), zstd frame
  * walk + decompression with its XXH64 content checksum (zstddec: libzstd in WebAssembly), payload unpack,
- * split application; then the final snapshot. Prints JSON {stage: seconds}.
+ * split application (payload version 1), or `rangecoded`: the whole range-coded chunk decode, splits
+ * included (payload version 2); then the final snapshot. Prints JSON {stage: seconds}.
  *
  *   node js/bench/stages.mjs FILE.pmw [REPEATS] [--cpu]
  */
@@ -13,6 +14,7 @@ import { decodeBase } from '../src/base.js';
 import { digestMatches, frameLayout, inflate, initChunkFrames } from '../src/chunkframe.js';
 import { PmwDecoder } from '../src/decoder.js';
 import { parseGlb, planDocument } from '../src/header.js';
+import { ChunkDecoderV2 } from '../src/payload-v2.js';
 import { MeshState, unpackPayload } from '../src/vsplit.js';
 
 const [path, repeatsArg] = process.argv.slice(2).filter((a) => a !== '--cpu');
@@ -41,12 +43,18 @@ async function stages() {
     const b = await decodeBase(bin, prim);
     states.push(new MeshState(b.values, b.faces, b.n, b.m, b.D, prim.vertexCount, prim.faceCount));
   }
+  const coders = plan.primitives.map((p, i) => (p.payloadVersion === 2 ? new ChunkDecoderV2(states[i]) : null));
   lap('base');
   plan.stream.forEach((c) => {
     const stored = bin.subarray(c.offset, c.offset + c.length);
     t0 = clock();
     if (!digestMatches(stored, c.digest)) throw new Error('digest');
     lap('blake2b');
+    if (c.payloadVersion === 2) {
+      coders[c.primitive].decodeChunk(stored);
+      lap('rangecoded');
+      return;
+    }
     frameLayout(stored, 'chunk');
     const out = inflate(stored, c.uncompressedLength, 'chunk');
     lap('zstd');

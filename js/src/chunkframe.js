@@ -1,6 +1,7 @@
 /**
  * A stored chunk (spec/bitstream.md §5): BLAKE2b-128 digest, then one zstd frame with its content
- * size and checksum, decompressed into exactly `uncompressedLength` bytes.
+ * size and checksum, decompressed into exactly `uncompressedLength` bytes (payload version 1; a
+ * version 2 chunk is its coded stream itself, §8).
  *
  * Digest: BLAKE2b (RFC 7693, 16-byte output, no key) from hash-wasm. Decompression: zstddec, the
  * reference libzstd compiled to WebAssembly; its one-shot ZSTD_decompress also verifies the frame's
@@ -77,14 +78,21 @@ export function frameLayout(frame, what) {
 }
 
 /**
- * Checks and decompresses chunk `index` of the stream (spec/bitstream.md §5, checks 2-4).
+ * Checks and decompresses chunk `index` of the stream (spec/bitstream.md §5, checks 2-4). A chunk
+ * of payload version 2 (§8) is stored as it is: digest, then `uncompressedLength` equal to its length.
  * @param {Uint8Array} stored the chunk's bufferView bytes
- * @param {{digest:string, uncompressedLength:number}} chunk its index entry
- * @returns {Uint8Array} the payload, exactly `uncompressedLength` bytes
+ * @param {{digest:string, uncompressedLength:number, payloadVersion?:number}} chunk its index entry
+ * @returns {Uint8Array} the payload, exactly `uncompressedLength` bytes (version 2: `stored` itself)
  */
 export function openChunk(stored, chunk, index) {
   const what = `chunk ${index}`;
   if (!digestMatches(stored, chunk.digest)) throw new CorruptChunkError(`${what}: BLAKE2b digest differs`, index);
+  if (chunk.payloadVersion === 2) {
+    if (chunk.uncompressedLength !== stored.length) {
+      throw new FormatError(`${what}: uncompressedLength ${chunk.uncompressedLength} differs from byteLength ${stored.length} (payload version 2)`);
+    }
+    return stored;
+  }
   const { contentSize, checksum } = frameLayout(stored, what);
   if (contentSize !== chunk.uncompressedLength) throw new FormatError(`${what}: zstd content size differs`);
   if (contentSize === 0) {

@@ -10,4 +10,5 @@ export const FORMAT_VERSION = 1;
 export const EXTENSION = 'PMWM_progressive_mesh';
 export const DRACO_EXTENSION = 'KHR_draco_mesh_compression';
 export const PAYLOAD_CODEC = 'pmwm-vsplit';
-export const PAYLOAD_VERSION = 1;
+/** Chunk payload versions this decoder reads: 1 (zstd, byte-plane columns) and 2 (range-coded stream). */
+export const PAYLOAD_VERSIONS = [1, 2];

@@ -7,6 +7,7 @@ import { decodeBase } from './base.js';
 import { initChunkFrames, openChunk } from './chunkframe.js';
 import { FormatError, LimitError, TruncatedError } from './errors.js';
 import { parseGlb, planDocument, preambleLength } from './header.js';
+import { ChunkDecoderV2 } from './payload-v2.js';
 import { MeshState, unpackPayload } from './vsplit.js';
 
 /**
@@ -34,6 +35,7 @@ export class PmwDecoder {
     this.header = null;
     this.plan = null;
     this.states = null;
+    this.coders = null;
     this.chunksApplied = 0;
     this.closed = false;
     this.failed = null;
@@ -86,11 +88,14 @@ export class PmwDecoder {
     const bin = () => this.buf.subarray(binStart, this.received);
     if (!this.states) {
       if (this.received < binStart + this.plan.baseEnd) return out;
-      this.states = [];
+      const states = [];
       for (const prim of this.plan.primitives) {
         const b = await decodeBase(bin(), prim, this.draco);
-        this.states.push(new MeshState(b.values, b.faces, b.n, b.m, b.D, prim.vertexCount, prim.faceCount));
+        states.push(new MeshState(b.values, b.faces, b.n, b.m, b.D, prim.vertexCount, prim.faceCount));
       }
+      // payload version 2: per primitive, the probability table its chunks carry on (spec §8.1)
+      this.coders = this.plan.primitives.map((p, i) => (p.payloadVersion === 2 ? new ChunkDecoderV2(states[i]) : null));
+      this.states = states;
       out.push(this.#result(binStart + this.plan.baseEnd));
     }
     const { stream } = this.plan;
@@ -109,9 +114,9 @@ export class PmwDecoder {
     const index = this.chunksApplied;
     const state = this.states[c.primitive];
     const payload = openChunk(stored, c, index);
-    const records = unpackPayload(payload, state.D, state.capN);
     try {
-      state.applyPayload(records);
+      if (c.payloadVersion === 2) this.coders[c.primitive].decodeChunk(payload);
+      else state.applyPayload(unpackPayload(payload, state.D, state.capN));
     } catch (e) {
       if (e instanceof FormatError) e.message = `chunk ${index}: ${e.message}`;
       throw e;

@@ -6,7 +6,7 @@
 import { FormatError, LimitError, UnsupportedError } from './errors.js';
 import {
   DRACO_EXTENSION, EXTENSION, FORMAT_VERSION, MAX_CHUNK_BYTES, MAX_CHUNKS,
-  MAX_DECOMPRESSED_CHUNK_BYTES, MAX_FACES, MAX_JSON_BYTES, MAX_VERTICES, PAYLOAD_CODEC, PAYLOAD_VERSION,
+  MAX_DECOMPRESSED_CHUNK_BYTES, MAX_FACES, MAX_JSON_BYTES, MAX_VERTICES, PAYLOAD_CODEC, PAYLOAD_VERSIONS,
 } from './constants.js';
 
 const GLB_MAGIC = 0x46546c67; // 'glTF'
@@ -159,25 +159,28 @@ function basePlan(gltf, prim, ext, bufferLength, what) {
   return { plain: { position, indices, attributes: attrs }, grids, views };
 }
 
+/** Checks a primitive's extension object; returns its chunk payload version (1 or 2). */
 function checkExtension(ext, what) {
   if (!isObj(ext)) throw new FormatError(`${what}: extension is not an object`);
   if (!isInt(ext.version, 0, Number.MAX_SAFE_INTEGER)) throw new FormatError(`${what}: version is not an integer`);
   if (ext.version > FORMAT_VERSION) throw new UnsupportedError(`${what}: version ${ext.version} is newer than ${FORMAT_VERSION}`);
   if (ext.version < 1) throw new FormatError(`${what}: version ${ext.version}`);
-  const payload = ext.payload ?? { codec: PAYLOAD_CODEC, version: PAYLOAD_VERSION };
-  if (!isObj(payload) || payload.codec !== PAYLOAD_CODEC || payload.version !== PAYLOAD_VERSION) {
+  const payload = ext.payload ?? { codec: PAYLOAD_CODEC, version: 1 };
+  if (!isObj(payload) || payload.codec !== PAYLOAD_CODEC || !PAYLOAD_VERSIONS.includes(payload.version)) {
     throw new UnsupportedError(`${what}: unknown chunk payload codec`);
   }
   if (!isInt(ext.vertexCount, 0, MAX_VERTICES)) throw new LimitError(`${what}: vertexCount over the limit`);
   if (!isInt(ext.faceCount, 0, MAX_FACES)) throw new LimitError(`${what}: faceCount over the limit`);
   if (!Array.isArray(ext.chunks)) throw new FormatError(`${what}: chunks is not an array`);
   if (ext.chunks.length > MAX_CHUNKS) throw new LimitError(`${what}: more than ${MAX_CHUNKS} chunks`);
+  return payload.version;
 }
 
 /**
  * The progressive primitives of a parsed document and the chunk stream.
  * @returns {{primitives: object[], stream: object[], baseEnd: number}} baseEnd: BIN offset where every base is in;
- *   stream: chunks of all primitives ordered by byte offset, each {primitive, chunk, offset, length, ...}.
+ *   stream: chunks of all primitives ordered by byte offset, each {primitive, chunk, offset, length,
+ *   payloadVersion, ...}; a primitive's payloadVersion is 1 or 2 (spec/bitstream.md §6, §8).
  */
 export function planDocument(gltf, binLength) {
   const buffers = Array.isArray(gltf.buffers) ? gltf.buffers : [];
@@ -193,17 +196,19 @@ export function planDocument(gltf, binLength) {
       const ext = isObj(prim) && isObj(prim.extensions) ? prim.extensions[EXTENSION] : undefined;
       if (ext === undefined) return;
       const what = `mesh ${mi} primitive ${pi}`;
-      checkExtension(ext, what);
+      const payloadVersion = checkExtension(ext, what);
       const grid = checkGrid(ext.grid, `${what}: grid`, 3);
       const base = basePlan(gltf, prim, ext, bufferLength, what);
       const chunks = ext.chunks.map((c, j) => checkChunk(gltf, c, j, bufferLength, what));
       const baseEnd = Math.max(0, ...base.views.map((v) => v.offset + v.length));
       primitives.push({ index: primitives.length, mesh: mi, primitive: pi, ext, grid, base, chunks, baseEnd,
-        vertexCount: ext.vertexCount, faceCount: ext.faceCount });
+        vertexCount: ext.vertexCount, faceCount: ext.faceCount, payloadVersion });
     });
   });
   if (primitives.length === 0) throw new FormatError(`no primitive carries ${EXTENSION}`);
-  const stream = primitives.flatMap((p) => p.chunks.map((c, j) => ({ ...c, primitive: p.index, chunk: j })));
+  const stream = primitives.flatMap((p) => p.chunks.map((c, j) => ({
+    ...c, primitive: p.index, chunk: j, payloadVersion: p.payloadVersion,
+  })));
   if (stream.length > MAX_CHUNKS) throw new LimitError(`more than ${MAX_CHUNKS} chunks`);
   stream.sort((a, b) => a.offset - b.offset || a.primitive - b.primitive || a.chunk - b.chunk);
   const baseEnd = Math.max(...primitives.map((p) => p.baseEnd));

@@ -1,7 +1,9 @@
 /**
  * Hostile input ends in a named error (a PmwError subclass) or a valid partial result, never a
  * hang or another exception: seeded random cuts, bit flips anywhere, bit flips and overwrites of
- * decompressed chunk payloads re-wrapped with valid frames and digests, and JSON edits.
+ * decompressed chunk payloads re-wrapped with valid frames and digests, the same on the range-coded
+ * streams of payload version 2 (stored raw, with valid digests), and JSON edits. The conformance
+ * files of both payload versions are the sources.
  * Bounded: FUZZ_CASES (default 200) cases per kind; every case runs under a time bound.
  */
 import assert from 'node:assert/strict';
@@ -42,6 +44,22 @@ test('random cuts and bit flips anywhere in the file end in named errors', { tim
   assert.ok(seen.size > 1, [...seen].join());
 });
 
+/**
+ * `payload` (a copy) damaged by kind: 0 cut short, then 1-3 flips of a bit (kind 1), random bytes
+ * (2) or 4 bytes of 0xff (3) at random places; 4 noise of the same length.
+ */
+function damaged(r, payload, kind) {
+  const out = kind === 0 ? payload.subarray(0, Math.floor(r() * payload.length)) : payload.slice();
+  if (kind === 4) return out.map(() => Math.floor(r() * 256));
+  for (let f = 1 + Math.floor(r() * 3); f > 0 && out.length; f--) {
+    const at = Math.floor(r() * out.length);
+    if (kind === 1) out[at] ^= 1 << Math.floor(r() * 8);
+    else if (kind === 2) out[at] = Math.floor(r() * 256);
+    else if (kind === 3) out.fill(0xff, at, at + 4);
+  }
+  return out;
+}
+
 test('hostile chunk payloads behind valid frames and digests end in named errors', { timeout: 300000 }, async () => {
   const r = seededRandom(2);
   const sources = files.map((bytes) => ({ bytes, chunks: chunkPayloads(bytes) }));
@@ -49,20 +67,32 @@ test('hostile chunk payloads behind valid frames and digests end in named errors
   for (let i = 0; i < CASES; i++) {
     const { bytes, chunks } = sources[i % sources.length];
     const index = Math.floor(r() * chunks.length);
-    let payload = chunks[index].payload.slice();
     const kind = i % 4;
-    if (kind === 0) payload = payload.subarray(0, Math.floor(r() * payload.length));
-    for (let f = 1 + Math.floor(r() * 3); f > 0 && payload.length; f--) {
-      const at = Math.floor(r() * payload.length);
-      if (kind === 1) payload[at] ^= 1 << Math.floor(r() * 8);
-      else if (kind === 2) payload[at] = Math.floor(r() * 256);
-      else if (kind === 3) payload.fill(0xff, at, at + 4);
-    }
+    const payload = damaged(r, chunks[index].payload, kind);
     seen.add(await outcome(withPayload(bytes, index, payload), `payload case ${i} (kind ${kind})`));
   }
   if (process.env.FUZZ_VERBOSE) console.log([...seen]);
   assert.ok(seen.has('FormatError') || seen.has('LimitError'), [...seen].join());
 });
+
+const v2Files = conformanceFiles(2).map((f) => new Uint8Array(readFileSync(join(CONFORMANCE, f))));
+
+test('hostile range-coded streams of payload version 2 behind valid digests end in named errors',
+  { timeout: 300000, skip: v2Files.length === 0 && 'no *.v2.pmw in spec/conformance' }, async () => {
+    const r = seededRandom(4);
+    const sources = v2Files.map((bytes) => ({ bytes, chunks: chunkPayloads(bytes) }));
+    const seen = new Map();
+    for (let i = 0; i < CASES; i++) {
+      const { bytes, chunks } = sources[i % sources.length];
+      const index = Math.floor(r() * chunks.length);
+      const kind = i % 5;
+      const payload = damaged(r, chunks[index].payload, kind);
+      const name = await outcome(withPayload(bytes, index, payload), `v2 payload case ${i} (kind ${kind})`);
+      seen.set(name, (seen.get(name) ?? 0) + 1);
+    }
+    if (process.env.FUZZ_VERBOSE) console.log(seen);
+    assert.ok(seen.has('FormatError') || seen.has('LimitError'), [...seen.keys()].join());
+  });
 
 test('edits of the JSON counts and offsets end in named errors', { timeout: 300000 }, async () => {
   const r = seededRandom(3);

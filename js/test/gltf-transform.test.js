@@ -15,11 +15,12 @@ import { KHRDracoMeshCompression } from '@gltf-transform/extensions';
 import draco3d from 'draco3d';
 import { PMWMProgressiveMesh, BaseMeshChangedError } from 'pmwm-progressive/gltf-transform';
 import { PmwDecoder } from '../src/index.js';
-import { CONFORMANCE, levelDigest } from './lib/helpers.js';
+import { CONFORMANCE, conformanceFiles, levelDigest } from './lib/helpers.js';
+import { ROOT } from './lib/python.js';
 
 const NAME = 'PMWM_progressive_mesh';
-const CHECK_GLTF = join(CONFORMANCE, '..', '..', 'tools', 'js', 'check_gltf.mjs');
-const VALIDATOR = join(CONFORMANCE, '..', '..', 'tools', 'js', 'node_modules', 'gltf-validator');
+const CHECK_GLTF = join(ROOT, 'tools', 'js', 'check_gltf.mjs');
+const VALIDATOR = join(ROOT, 'tools', 'js', 'node_modules', 'gltf-validator');
 
 const load = (file) => new Uint8Array(readFileSync(join(CONFORMANCE, file)));
 
@@ -128,14 +129,16 @@ test('two-primitives.draco.v1.pmw: re-encoding the Draco base is refused, a plai
 
 // The real glTF-Transform command line (node_modules/.bin/gltf-transform, a pinned devDependency) with
 // the package's configuration file (gltf-transform.config.mjs): `copy` keeps every chunk of the stream.
-const PACKAGE = join(CONFORMANCE, '..', '..', 'js');
+const PACKAGE = join(ROOT, 'js');
 const CLI = join(PACKAGE, 'node_modules', '.bin', 'gltf-transform');
 const CONFIG = join(PACKAGE, 'gltf-transform.config.mjs');
 
 /** Runs `gltf-transform ARGS --config gltf-transform.config.mjs`: {status, stdout, stderr}. */
 const gltfTransform = (...args) => spawnSync(CLI, [...args, '--config', CONFIG], { encoding: 'utf8', timeout: 120000 });
 
-const COPIED = ['sphere-attributes.plain.v1.pmw', 'two-primitives.draco.v1.pmw'];
+// a payload version 2 file too (its chunks are stored raw, not as zstd frames: spec/bitstream.md §8)
+const COPIED = ['sphere-attributes.plain.v1.pmw', 'two-primitives.draco.v1.pmw',
+  ...conformanceFiles(2).filter((f) => f.startsWith('two-primitives'))];
 const copies = mkdtempSync(join(tmpdir(), 'pmw-gltf-transform-cli-'));
 after(() => rmSync(copies, { recursive: true, force: true }));
 

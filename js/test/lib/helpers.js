@@ -1,14 +1,19 @@
 /** Shared test helpers: conformance file paths and the level digest of tests/test_golden.py. */
 import { createHash } from 'node:crypto';
 import { readdirSync } from 'node:fs';
-import { dirname, join } from 'node:path';
-import { fileURLToPath } from 'node:url';
+import { join } from 'node:path';
+import { TREE } from './python.js';
 
-export const CONFORMANCE = join(dirname(fileURLToPath(import.meta.url)), '..', '..', '..', 'spec', 'conformance');
+/** spec/conformance of the repository under test (TREE: this one, or $PMW_PYTHONPATH's). */
+export const CONFORMANCE = join(TREE, 'spec', 'conformance');
 
-/** Names of the conformance files (`<name>.v1.pmw`). */
-export function conformanceFiles() {
-  return readdirSync(CONFORMANCE).filter((f) => f.endsWith('.v1.pmw')).sort();
+/**
+ * Names of the conformance files: `<name>.v1.pmw` (chunk payload version 1) and `<name>.v2.pmw`
+ * (the same cases with payload version 2, spec/bitstream.md §8), or only those of `version`.
+ */
+export function conformanceFiles(version) {
+  const suffixes = version === undefined ? ['.v1.pmw', '.v2.pmw'] : [`.v${version}.pmw`];
+  return readdirSync(CONFORMANCE).filter((f) => suffixes.some((s) => f.endsWith(s))).sort();
 }
 
 /** Any integer typed array as little-endian int64 bytes (numpy '<i8'). */

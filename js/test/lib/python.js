@@ -4,6 +4,8 @@
  *
  * The interpreter: $PYTHON when set, else the repository's `.venv` (the one .ci/run makes), `python`,
  * then `python3`. `python()` is null when none can import pmwm_codec; callers skip then.
+ * $PMW_PYTHONPATH names another checkout of the repository to test against instead of this one:
+ * its pmwm_codec package and its spec/conformance files (TREE).
  */
 import { spawnSync } from 'node:child_process';
 import { existsSync } from 'node:fs';
@@ -12,8 +14,10 @@ import { fileURLToPath } from 'node:url';
 
 export const ROOT = resolve(dirname(fileURLToPath(import.meta.url)), '..', '..', '..');
 export const CORPUS = resolve(ROOT, '..', 'shared', 'corpus');
+/** The repository tree whose Python package and conformance files the tests use. */
+export const TREE = process.env.PMW_PYTHONPATH ? resolve(process.env.PMW_PYTHONPATH) : ROOT;
 
-const env = () => ({ ...process.env, PYTHONPATH: [ROOT, process.env.PYTHONPATH].filter(Boolean).join(':') });
+const env = () => ({ ...process.env, PYTHONPATH: [TREE, process.env.PYTHONPATH].filter(Boolean).join(':') });
 
 let found;
 /** The first interpreter that imports pmwm_codec's command line, or null. */
@@ -22,6 +26,32 @@ export function python() {
   const candidates = process.env.PYTHON ? [process.env.PYTHON] : [join(ROOT, '.venv', 'bin', 'python'), 'python', 'python3'];
   found = candidates.find((exe) => spawnSync(exe, ['-c', 'import pmwm_codec.cli'], { env: env(), stdio: 'ignore' }).status === 0) ?? null;
   return found;
+}
+
+const LEVELS = join(dirname(fileURLToPath(import.meta.url)), 'levels.py');
+
+let v2;
+/** Whether python() encodes chunk payload version 2 (spec/bitstream.md §8). */
+export function pythonHasPayloadV2() {
+  if (v2 === undefined) {
+    v2 = python() !== null && spawnSync(python(), ['-c',
+      'from pmwm_codec.format.extension import PAYLOAD_VERSIONS\nraise SystemExit(0 if 2 in PAYLOAD_VERSIONS else 1)'],
+    { env: env(), stdio: 'ignore' }).status === 0;
+  }
+  return v2;
+}
+
+/**
+ * Writes `file`: generated case `name` of test/lib/levels.py encoded with chunk payload `version`;
+ * returns the reference decoder's levels: {levels: [{bytesRead, vertexCount, faceCount, parts, sha256}], complete}.
+ */
+export function encodeCase(name, version, file) {
+  return JSON.parse(run([LEVELS, 'encode', name, String(version), file]));
+}
+
+/** The reference decoder's levels of each file ({levels, complete} as encodeCase), or {error: class name}. */
+export function decodeFiles(files) {
+  return JSON.parse(run([LEVELS, 'decode', ...files]));
 }
 
 function run(args) {

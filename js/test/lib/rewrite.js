@@ -1,7 +1,8 @@
 /**
  * Test-only writer: a .pmw with one chunk's payload replaced, stored as a zstd frame of raw
- * blocks (RFC 8878: single segment, 4-byte content size, XXH64 checksum) with a fresh BLAKE2b
- * digest, so hostile payloads reach the record parser instead of stopping at the digest.
+ * blocks (RFC 8878: single segment, 4-byte content size, XXH64 checksum; payload version 1) or as
+ * it is (payload version 2, spec/bitstream.md §8) with a fresh BLAKE2b digest, so hostile payloads
+ * reach the record parser instead of stopping at the digest.
  */
 import { createBLAKE2b, createXXHash64 } from 'hash-wasm';
 import { parseGlb, planDocument } from '../../src/header.js';
@@ -35,20 +36,23 @@ export function chunkPayloads(bytes) {
   return plan.stream.map((c, i) => ({ c, payload: openChunk(bytes.subarray(h.binStart + c.offset, h.binStart + c.offset + c.length), c, i) }));
 }
 
-/** `bytes` with stream chunk `index` holding `payload` (bufferViews after it shifted). */
-export function withPayload(bytes, index, payload) {
+/**
+ * `bytes` with stream chunk `index` holding `payload` (bufferViews after it shifted), its index
+ * entry then given the fields of `patch` (e.g. a wrong uncompressedLength).
+ */
+export function withPayload(bytes, index, payload, patch = {}) {
   const h = parseGlb(bytes);
   const gltf = structuredClone(h.gltf);
   const plan = planDocument(gltf, h.binLength);
   const c = plan.stream[index];
   const entry = gltf.meshes[plan.primitives[c.primitive].mesh].primitives[plan.primitives[c.primitive].primitive]
     .extensions.PMWM_progressive_mesh.chunks[c.chunk];
-  const frame = rawFrame(payload);
+  const frame = c.payloadVersion === 2 ? payload : rawFrame(payload);
   const padded = (n) => (n + 3) & ~3;
   const delta = padded(frame.length) - padded(c.length);
   for (const v of gltf.bufferViews) if ((v.byteOffset ?? 0) > c.offset) v.byteOffset += delta;
   gltf.bufferViews[entry.bufferView].byteLength = frame.length;
-  Object.assign(entry, { byteLength: frame.length, uncompressedLength: payload.length, digest: blake.init().update(frame).digest('hex') });
+  Object.assign(entry, { byteLength: frame.length, uncompressedLength: payload.length, digest: blake.init().update(frame).digest('hex') }, patch);
   const oldBin = bytes.subarray(h.binStart, h.binStart + h.binLength);
   const bin = new Uint8Array(padded(h.binLength + delta));
   bin.set(oldBin.subarray(0, c.offset));

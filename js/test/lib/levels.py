@@ -1,0 +1,95 @@
+"""The Python side of js/test/payload-v2.test.js: encodes generated cases, prints decoded levels.
+
+    python levels.py encode CASE VERSION OUT.pmw
+    python levels.py decode FILE.pmw [FILE.pmw ...]
+
+``encode`` writes ``OUT.pmw`` (the case encoded with chunk payload ``VERSION``, 1 or 2) and prints
+one JSON object: the reference decoder's level at every chunk boundary, ``{"levels":
+[{"bytesRead", "vertexCount", "faceCount", "parts": [[n, m], ...], "sha256"}, ...], "complete"}``;
+``sha256`` is tests/test_golden.py's level digest (positions, faces, quantized attributes as <i8)
+and js/test/lib/helpers.js::levelDigest.  ``decode`` prints one such object per file, in order,
+as a JSON array, with ``"error"`` (the exception's class name) instead when the decoder refuses
+the file.  Cases are generated meshes (``pmwm_codec.shapes``) and seeded keys, so the levels do
+not depend on the machine.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+import pmwm_codec
+from pmwm_codec import PmwError, encode, shapes
+from pmwm_codec.mesh import Mesh
+from pmwm_codec.stream import StreamDecoder
+from pmwm_codec.stream.encoder import PrimitiveJob, encode_document
+from pmwm_codec.watermark.key import WatermarkKey
+
+OPTIONS = dict(min_chunk_splits=30, measure="none")
+
+
+def _load_golden():
+    """tests/test_golden.py of the tree this pmwm_codec comes from: the home of the level digest
+    and of the attribute sphere and watermark image used here."""
+    path = Path(pmwm_codec.__file__).resolve().parents[1] / "tests" / "test_golden.py"
+    spec = importlib.util.spec_from_file_location("_pmw_test_golden", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+golden = _load_golden()
+
+
+#: name -> (mesh or list of meshes (one primitive each), encoder options)
+CASES = {
+    "closed-sphere.draco": lambda: (shapes.icosphere(4, 1.0, noise=0.02), dict(base_codec="draco")),
+    "boundaries.plain": lambda: (shapes.grid(20, 14, hole=True), dict(base_codec="plain")),
+    "attributes.plain": lambda: (golden._sphere_with_attributes(), dict(base_codec="plain")),  # D = 8
+    "two-primitives.draco": lambda: ([shapes.grid(18, 16, hole=True), shapes.torus(24, 12, twist=0.1)],
+                                     dict(base_codec="draco")),
+    "exact-watermark.draco": lambda: (shapes.icosphere(4, 1.2, noise=0.02), dict(
+        base_codec="draco", watermark=golden._stripes(16), key=WatermarkKey.generate(rng=np.random.default_rng(7)))),
+}
+
+
+def _write(case: str, version: int, out: str) -> None:
+    mesh, options = CASES[case]()
+    if isinstance(mesh, Mesh):
+        encode(mesh, out, payload_version=version, **OPTIONS, **options)
+        return
+    doc = {"scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+           "meshes": [{"primitives": [{} for _ in mesh]}]}
+    jobs = [PrimitiveJob(m, 0, i) for i, m in enumerate(mesh)]
+    encode_document(doc, b"", jobs, out, payload_version=version, **OPTIONS, **options)
+
+
+def _levels(path: str) -> dict:
+    """The decoded levels of the file at ``path`` (module docstring), or ``{"error": class name}``."""
+    with open(path, "rb") as f:
+        data = f.read()
+    dec = StreamDecoder()
+    try:
+        levels = [{"bytesRead": r.bytes_read, "vertexCount": r.vertices, "faceCount": r.faces_count,
+                   "parts": [[len(p.positions_int), len(p.faces)] for p in r.parts], "sha256": golden._level_digest(r)}
+                  for r in dec.feed(data)]
+        return {"levels": levels, "complete": dec.close().complete}
+    except PmwError as exc:
+        return {"error": type(exc).__name__}
+
+
+def main(command: str, *args: str) -> None:
+    if command == "encode":
+        case, version, out = args
+        _write(case, int(version), out)
+        print(json.dumps(_levels(out)))
+    else:
+        print(json.dumps([_levels(path) for path in args]))
+
+
+if __name__ == "__main__":
+    main(*sys.argv[1:])
