@@ -54,6 +54,9 @@ BOUNDARY_WEIGHT = 10.0
 TRIES = 3
 #: Selection rounds per batch (see :func:`_select`).
 ROUNDS = 8
+#: A batch only takes collapses no dearer than this quantile of the vertices' cheapest
+#: candidate costs (see :func:`_affordable`); 1.0 takes every independent winner.
+BATCH_QUANTILE = 0.5
 
 
 @dataclass
@@ -269,22 +272,16 @@ def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget):
     cand = _candidates(F, P, Q, et, src, frozen_ext[vids])
     if cand is None:
         return None
-    cu, cv, ce, cost = cand
     fcount = np.bincount(F.ravel(), minlength=n)
     nb_src = np.concatenate([et.lo, et.hi])
     nb_dst = np.concatenate([et.hi, et.lo])
     vv = csr(nb_src, nb_dst, n)  # vertex -> neighbours
     vf = csr(F.ravel(), np.repeat(np.arange(m), 3), n)  # vertex -> faces
-
-    def legal(idx):
-        return _legal(cu[idx], cv[idx], ce[idx], et, F, P, opp, fcount, vv, vf)
-
-    kernel = compiled(_select_kernel)
-    if kernel is None:
-        win = _select(cu, cv, cost, legal, vv, n, ROUNDS)
-    else:
-        win = kernel(cu, cv, ce, _offer_ranks(cu, cost), vv[0], vv[1], n, ROUNDS,
-                     (et.keys, et.n, et.count, et.he0, et.he1, F, P, opp, fcount, vf[0], vf[1]))
+    for quantile in (BATCH_QUANTILE, 1.0):  # all candidates when no affordable one is legal
+        cu, cv, ce, cost = _affordable(*cand, quantile)
+        win = _winners(cu, cv, ce, cost, (et, F, P, opp, fcount, vv, vf))
+        if len(win) or quantile >= 1.0:
+            break
     if len(win) == 0:
         return None
     if len(win) > budget:
@@ -300,6 +297,33 @@ def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget):
         moved_face=fids[moved_face], moved_by=moved_by,
         cost=cost, error=np.sqrt(cost / np.maximum(_plane_weight(Q[cu] + Q[cv]), 1e-300)),
     )
+
+
+def _winners(cu, cv, ce, cost, mesh):
+    """Indices (w,) int64 of the batch :func:`_select` (or its kernel) picks among the candidates.
+
+    ``mesh``: ``(et, F, P, opp, fcount, vv, vf)`` of the local mesh (see :func:`_one_batch`).
+    """
+    et, F, P, opp, fcount, vv, vf = mesh
+    kernel = compiled(_select_kernel)
+    if kernel is None:
+        def legal(idx):
+            return _legal(cu[idx], cv[idx], ce[idx], et, F, P, opp, fcount, vv, vf)
+
+        return _select(cu, cv, cost, legal, vv, len(P), ROUNDS)
+    return kernel(cu, cv, ce, _offer_ranks(cu, cost), vv[0], vv[1], len(P), ROUNDS,
+                  (et.keys, et.n, et.count, et.he0, et.he1, F, P, opp, fcount, vf[0], vf[1]))
+
+
+def _affordable(cu, cv, ce, cost, quantile: float):
+    """The candidates (grouped by ``cu``, as from :func:`_candidates`) whose cost is at most
+    the ``quantile`` of the per-vertex cheapest costs; all of them when ``quantile >= 1``."""
+    if quantile >= 1.0 or len(cu) == 0:
+        return cu, cv, ce, cost
+    first = np.flatnonzero(np.r_[True, cu[1:] != cu[:-1]])
+    limit = np.quantile(cost[first], quantile)
+    keep = cost <= limit
+    return cu[keep], cv[keep], ce[keep], cost[keep]
 
 
 def _to_original(table, local):
