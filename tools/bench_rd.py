@@ -9,7 +9,9 @@ For each mesh and grid resolution (default 16 and 14 bits):
 * **LODs** -- ``fast_simplification.simplify`` to 2 %, 10 % and 30 % of the faces, each
   compressed by ``DracoPy.encode(quantization_bits=g, compression_level=7)`` and decoded back;
 * **same bytes** -- the longest prefix of ours that fits in each LOD's Draco bytes, its error
-  against the LOD's ("nothing fits" when even our base is larger);
+  against the LOD's ("nothing fits" when even our base is larger); and, as a diagnostic that
+  separates the index from the payload, the same with the GLB JSON (the v1 chunk index lives
+  there) not counted;
 * **same vertex count** (ordering only, no bits) -- our simplifier's level with exactly the
   LOD's vertex count, on the original float positions (the encoder's own collapse log applied
   fine to coarse; the batch that crosses the count is applied in part, cheapest collapses
@@ -48,7 +50,7 @@ from pmwm_codec.distortion import rms_surface_distance  # noqa: E402
 from pmwm_codec.mesh import Mesh  # noqa: E402
 from pmwm_codec.shapes import demo_mesh  # noqa: E402
 
-from bench import DEFAULT_CORPUS, StageTimers, machine, publish, table  # noqa: E402
+from bench import DEFAULT_CORPUS, StageTimers, glb_parts, machine, publish, table  # noqa: E402
 
 SECTION = "Rate-distortion against a Draco LOD chain"
 FRACTIONS = (0.02, 0.10, 0.30)
@@ -145,20 +147,23 @@ def measure(name: str, mesh: Mesh, bits: int, samples: int, log) -> dict:
 
     blob, levels, clog = our_stream(mesh, bits)
     curve = [(b, nv, err(m)) for b, nv, m in levels]
+    index = glb_parts(blob)["json"]
     rows = []
     for lod in lod_chain(mesh, bits):
         fits = [c for c in curve if c[0] <= lod["bytes"]]
+        no_json = [c for c in curve if c[0] - index <= lod["bytes"]]
         k = lod["raw"].vertex_count
         ours_k = level_at(mesh, clog, k)
         rows.append({
             "fraction": lod["fraction"], "lod_vertices": k, "lod_faces": lod["raw"].face_count,
             "lod_bytes": lod["bytes"], "lod_error": err(lod["draco"]),
             "prefix": fits[-1] if fits else None, "prefix_chunks": len(fits) - 1,
+            "prefix_no_json": no_json[-1] if no_json else None,
             "raw_error": err(lod["raw"]), "ours_k_vertices": ours_k.vertex_count, "ours_k_error": err(ours_k),
         })
     log(f"[{name} grid {bits}] {len(blob):,} B, {len(levels) - 1} chunks, {time.perf_counter() - t0:.1f} s")
     return {"name": name, "bits": bits, "vertices": mesh.vertex_count, "faces": mesh.face_count,
-            "bytes": len(blob), "curve": curve, "lods": rows}
+            "bytes": len(blob), "json": index, "curve": curve, "lods": rows}
 
 
 # ----------------------------------------------------------------------------- report
@@ -180,7 +185,8 @@ def render(results, info, command: str, plot) -> str:
          f"{results[0]['samples']:,} points per surface, seed 0) over the original's bounding-box diagonal D. "
          "LOD: fast-simplification to 2/10/30 % of the faces, Draco at the grid's bits, cl7. "
          "Same bytes: the longest prefix of our default-option `.pmw` (no watermark; GLB header, JSON, base "
-         "and whole chunks) within the LOD's Draco bytes. Same vertices: our simplifier's level with the "
+         "and whole chunks) within the LOD's Draco bytes; \"without the JSON\": the same with the GLB JSON "
+         "(the v1 chunk index) not counted, a diagnostic. Same vertices: our simplifier's level with the "
          "LOD's vertex count on the float positions (order only) against the uncompressed LOD.", ""]
     rows = []
     for r in results:
@@ -189,17 +195,20 @@ def render(results, info, command: str, plot) -> str:
             p = x["prefix"]
             ours = (f"{p[0]:,} B, {p[1]:,} V ({x['prefix_chunks']} chunks): {fmt_err(p[2])}" if p
                     else f"nothing fits (base {base[0]:,} B)")
+            q = x["prefix_no_json"]
+            free = f"{q[1]:,} V: {ratio(q[2], x['lod_error'])}" if q else "nothing fits"
             rows.append([r["name"], r["bits"], f"{100 * x['fraction']:g}%", f"{x['lod_vertices']:,}",
-                         f"{x['lod_bytes']:,}", fmt_err(x["lod_error"]), ours, ratio(p[2], x["lod_error"]) if p else "-",
+                         f"{x['lod_bytes']:,}", fmt_err(x["lod_error"]), ours, ratio(p[2], x["lod_error"]) if p else "-", free,
                          fmt_err(x["ours_k_error"]) + ("" if x["ours_k_vertices"] == x["lod_vertices"]
                                                        else f" (base: {x['ours_k_vertices']:,} V)"),
                          fmt_err(x["raw_error"]), ratio(x["ours_k_error"], x["raw_error"])])
     L.append(table(["mesh", "grid", "LOD", "LOD V", "LOD Draco B", "LOD error", "ours in those bytes",
-                    "ours / LOD", "ours at LOD V", "fast-simpl. LOD", "ordering ratio"], rows))
+                    "ours / LOD", "without the JSON: ours / LOD", "ours at LOD V", "fast-simpl. LOD", "ordering ratio"], rows))
     L += ["", "Our stream (whole file, base mesh = the first renderable one):", ""]
-    L.append(table(["mesh", "grid", "file B", "chunks", "base B", "base V", "error at base"],
-                   [[r["name"], r["bits"], f"{r['bytes']:,}", len(r["curve"]) - 1, f"{r['curve'][0][0]:,}",
-                     f"{r['curve'][0][1]:,}", fmt_err(r["curve"][0][2])] for r in results]))
+    L.append(table(["mesh", "grid", "file B", "chunks", "JSON B", "base B (all bytes before it)", "base V",
+                    "error at base"],
+                   [[r["name"], r["bits"], f"{r['bytes']:,}", len(r["curve"]) - 1, f"{r['json']:,}",
+                     f"{r['curve'][0][0]:,}", f"{r['curve'][0][1]:,}", fmt_err(r["curve"][0][2])] for r in results]))
     if plot:
         L += ["", f"![error against bytes]({plot}) — ours: one point per chunk boundary; "
               "LODs: the Draco chain (same colour per grid)."]
@@ -253,7 +262,7 @@ def _log_axes(d, panel, fnt) -> None:
         d.line([x0, py, x1, py], fill=GRID)
         d.text((x0 - 40, py - 7), f"1e{int(t)}", font=fnt, fill=INK)
     d.rectangle([x0, y0, x1, y1], outline=INK)
-    d.text((x0 + 4, y0 + 4), "RMS error / D", font=fnt, fill=INK)
+    d.text((x0 + 4, y1 - 18), "RMS error / D", font=fnt, fill=INK)
 
 
 def main(argv=None):
