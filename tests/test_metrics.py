@@ -187,3 +187,26 @@ def test_bunny_with_tiny_noise_has_a_tiny_distortion():
     noisy = Mesh(m.positions + rng.normal(scale=1e-4 * m.bbox_diagonal(), size=m.positions.shape), m.faces)
     r = distortion.mesh_distortion(m, noisy)
     assert 0 < r["hausdorff"] < 0.01 and r["psnr_db"] > 60
+
+
+def _square(x1: float, z: float = 0.0):
+    """Rectangle [0, x1] x [0, 1] at height z, two triangles."""
+    from pmwm_codec.mesh import Mesh
+
+    v = np.array([[0, 0, z], [x1, 0, z], [x1, 1, z], [0, 1, z]], dtype=np.float64)
+    return Mesh(v, np.array([[0, 1, 2], [0, 2, 3]]))
+
+
+def test_rms_surface_distance_of_a_parallel_copy_is_its_offset():
+    assert distortion.rms_surface_distance(_square(1), _square(1, 0.25), samples=2000) == pytest.approx(0.25)
+    assert distortion.rms_surface_distance(_square(1), _square(1), samples=2000) == 0.0
+
+
+def test_rms_surface_distance_counts_both_directions_equally():
+    # [0,1]^2 lies inside [0,2]x[0,1]: 0 one way; the other way half the points sit at x-1,
+    # uniform on [0, 1]: mean square 1/6, so the symmetric RMS is sqrt((0 + 1/6) / 2).
+    small, wide = _square(1), _square(2)
+    d = distortion.rms_surface_distance(small, wide, samples=40_000, seed=3)
+    assert d == pytest.approx(math.sqrt(1 / 12), rel=0.02)
+    assert distortion.rms_surface_distance(small, wide, samples=40_000, seed=3) == d  # seeded
+    assert distortion.rms_surface_distance(wide, small, samples=40_000) == pytest.approx(d, rel=0.02)

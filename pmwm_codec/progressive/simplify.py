@@ -39,7 +39,15 @@ of collapses in one batch, chosen before the batch's other collapses (rule in :m
 
 Order within a batch follows the quadric error (Garland–Heckbert) of placing
 ``u`` on ``v``; an independent set is picked by rounds of "lowest cost among its
-neighbours wins" (a parallel, Luby-style version of greedy-by-cost).
+neighbours wins" (a parallel, Luby-style version of greedy-by-cost).  A local
+minimum is not a globally cheap collapse: left alone, a batch would also take the
+collapses that are cheapest only among expensive neighbours (creases, tips), long
+before a sequential greedy order would.  So a batch only considers candidates no
+dearer than the :data:`BATCH_QUANTILE` (the median) of the vertices' cheapest costs
+(:func:`_affordable`); the rest wait for a later batch, when the cheap ones are gone.
+On fandisk this made the level with 30 % of the vertices 24x closer to the original
+(the error of fast-simplification's LOD: 6.1x before, 0.25x after) for ~30 % more
+batches (tools/bench_rd.py, BENCHMARKS.md).
 """
 
 from __future__ import annotations
@@ -59,6 +67,9 @@ BOUNDARY_WEIGHT = 10.0
 TRIES = 3
 #: Selection rounds per batch (see :func:`_select`).
 ROUNDS = 8
+#: A batch only takes collapses no dearer than this quantile of the vertices' cheapest
+#: candidate costs (see :func:`_affordable`); 1.0 takes every independent winner.
+BATCH_QUANTILE = 0.5
 
 
 @dataclass
@@ -295,7 +306,12 @@ def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget, w
     pairs = None if seam is None else _seam_pairs(Q, src, dst, frozen, seam, g, mesh)
     if pairs is not None:
         cand = _unblocked(cand, pairs, vv, n)
-    win = _ordinary_winners(cand, mesh, n) if cand is not None else np.zeros(0, np.int64)
+    for quantile in (BATCH_QUANTILE, 1.0):  # all candidates when no affordable one is legal
+        part = None if cand is None else _affordable(*cand, quantile)
+        win = _ordinary_winners(part, mesh, n) if part is not None else np.zeros(0, np.int64)
+        if len(win) or pairs is not None or quantile >= 1.0:
+            break
+    cand = part
     if len(win) == 0 and pairs is None:
         return None
     if pairs is None:
@@ -381,6 +397,17 @@ def _merge_pairs(cand, win, pairs, budget):
     rows = np.concatenate([keep, keep + p])
     parts = [(x[win[singles]] for x in cand)] if cand is not None else []
     return tuple(np.concatenate(cols) for cols in zip(*parts, (x[rows] for x in pairs)))
+
+
+def _affordable(cu, cv, ce, cost, quantile: float):
+    """The candidates (grouped by ``cu``, as from :func:`_candidates`) whose cost is at most
+    the ``quantile`` of the per-vertex cheapest costs; all of them when ``quantile >= 1``."""
+    if quantile >= 1.0 or len(cu) == 0:
+        return cu, cv, ce, cost
+    first = np.flatnonzero(np.r_[True, cu[1:] != cu[:-1]])
+    limit = np.quantile(cost[first], quantile)
+    keep = cost <= limit
+    return cu[keep], cv[keep], ce[keep], cost[keep]
 
 
 def _to_original(table, local):

@@ -1,0 +1,290 @@
+"""Rate-distortion: prefixes of our stream against a Draco-compressed LOD chain (issue 13, done-when 2).
+
+For each mesh and grid resolution (default 16 and 14 bits):
+
+* **ours** -- ``pmwm_codec.encode(mesh, BytesIO, grid_bits=g, measure="none")`` (default options
+  otherwise: no watermark), decoded with :func:`pmwm_codec.iter_decode`; every chunk boundary
+  gives a point (bytes of the whole file prefix needed -- GLB header + JSON + base + chunks --
+  and the error of the mesh decoded from it);
+* **LODs** -- ``fast_simplification.simplify`` to 2 %, 10 % and 30 % of the faces, each
+  compressed by ``DracoPy.encode(quantization_bits=g, compression_level=7)`` and decoded back;
+* **same bytes** -- the longest prefix of ours that fits in each LOD's Draco bytes, its error
+  against the LOD's ("nothing fits" when even our base is larger); and, as a diagnostic that
+  separates the index from the payload, the same with the GLB JSON (the v1 chunk index lives
+  there) not counted;
+* **same vertex count** (ordering only, no bits) -- our simplifier's level with exactly the
+  LOD's vertex count, on the original float positions (the encoder's own collapse log applied
+  fine to coarse; the batch that crosses the count is applied in part, cheapest collapses
+  first: collapses of one batch are independent) against the uncompressed fast-simplification LOD.
+
+Error: symmetric RMS point-to-surface distance to the original
+(:func:`pmwm_codec.distortion.rms_surface_distance`: ``--samples`` area-weighted points on
+each surface, seed 0), divided by the original's bounding-box diagonal D.
+
+Meshes: every ``*.obj`` of ``../shared/corpus`` (skipped when absent) and a generated one
+(``pmwm_codec.shapes.demo_mesh(100)``), so the tool runs anywhere.  Run from the repository root::
+
+    python tools/bench_rd.py                         # print the Markdown report
+    python tools/bench_rd.py --write BENCHMARKS.md   # also replace its section, plot in docs/
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import os
+import shlex
+import sys
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+for path in (ROOT, HERE):
+    if path not in sys.path:
+        sys.path.insert(0, path)
+
+import pmwm_codec  # noqa: E402
+from pmwm_codec.distortion import rms_surface_distance  # noqa: E402
+from pmwm_codec.mesh import Mesh  # noqa: E402
+from pmwm_codec.shapes import demo_mesh  # noqa: E402
+
+from bench import DEFAULT_CORPUS, StageTimers, glb_parts, machine, publish, table  # noqa: E402
+
+SECTION = "Rate-distortion against a Draco LOD chain"
+FRACTIONS = (0.02, 0.10, 0.30)
+PLOT = os.path.join("docs", "rate-distortion.png")
+
+
+# ----------------------------------------------------------------------------- meshes
+def load_meshes(corpus: str, names=None) -> list:
+    """``[(name, Mesh)]``: the corpus ``*.obj`` meshes (bunny first; none when absent), then a generated one."""
+    out = []
+    if os.path.isdir(corpus):
+        files = sorted(f for f in os.listdir(corpus) if f.endswith(".obj"))
+        files.sort(key=lambda f: f != "stanford-bunny.obj")
+        out = [(f[:-4], pmwm_codec.read_mesh(os.path.join(corpus, f))) for f in files]
+    out.append(("generated demo_mesh(100)", demo_mesh(100)))
+    return [(n, m) for n, m in out if not names or n in names]
+
+
+def compact(positions: np.ndarray, faces: np.ndarray) -> Mesh:
+    """The mesh of the vertices ``faces`` (m, 3) uses, renumbered: positions (k, 3) float64, faces (m, 3) int64."""
+    used = np.unique(faces)
+    remap = np.full(len(positions), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    return Mesh(np.asarray(positions, np.float64)[used], remap[faces])
+
+
+# ----------------------------------------------------------------------------- ours
+def our_stream(mesh: Mesh, bits: int) -> tuple:
+    """``(blob bytes, boundaries, collapse log)``: boundaries are ``[(bytes_read, vertices, Mesh)]``, base first."""
+    buf = io.BytesIO()
+    with StageTimers() as timers:
+        pmwm_codec.encode(mesh, buf, grid_bits=bits, measure="none")
+    blob = buf.getvalue()
+    levels = [(r.bytes_read, r.vertices, r.mesh) for r in pmwm_codec.iter_decode(blob)]
+    return blob, levels, timers.captured["simplify"]
+
+
+def level_at(mesh: Mesh, log, count: int) -> Mesh:
+    """Our simplifier's level with ``count`` vertices, on ``mesh``'s own (float) positions.
+
+    ``log``: the encoder's :class:`~pmwm_codec.progressive.simplify.CollapseLog` for ``mesh``.
+    Batches are applied fine to coarse; the one that would go below ``count`` is applied in
+    part, its cheapest collapses first (the collapses of a batch are independent).  A
+    ``count`` below the base size gives the base.
+    """
+    corners = np.array(mesh.faces, np.int64)
+    face_alive = np.ones(len(corners), bool)
+    alive = len(np.unique(corners))
+    for batch in log.batches:
+        if alive <= count:
+            break
+        take = np.arange(len(batch.u))
+        if alive - len(take) < count:
+            take = np.sort(np.argsort(batch.cost, kind="stable")[: alive - count])
+        chosen = np.zeros(len(batch.u), bool)
+        chosen[take] = True
+        dead = np.concatenate([batch.del_left[take], batch.del_right[take]])
+        face_alive[dead[dead >= 0]] = False
+        moved = chosen[batch.moved_by]
+        mf, by = batch.moved_face[moved], batch.moved_by[moved]
+        corners[mf] = np.where(corners[mf] == batch.u[by][:, None], batch.v[by][:, None], corners[mf])
+        alive -= len(take)
+    return compact(mesh.positions, corners[face_alive])
+
+
+# ----------------------------------------------------------------------------- peers
+def lod_chain(mesh: Mesh, bits: int) -> list:
+    """One dict per fraction of :data:`FRACTIONS`: ``raw`` (uncompressed fast-simplification LOD),
+    ``draco`` (its Draco q``bits`` cl7 decode), ``bytes`` (the Draco file's size)."""
+    import DracoPy
+    import fast_simplification
+
+    pts = np.ascontiguousarray(mesh.positions, np.float64)
+    tri = np.ascontiguousarray(mesh.faces, np.int32)
+    out = []
+    for frac in FRACTIONS:
+        v, f = fast_simplification.simplify(pts, tri, target_reduction=1.0 - frac)
+        raw = compact(v, np.asarray(f, np.int64))
+        blob = DracoPy.encode(raw.positions, raw.faces.astype(np.uint32), quantization_bits=bits, compression_level=7)
+        dec = DracoPy.decode(blob)
+        draco = Mesh(np.asarray(dec.points, np.float64), np.asarray(dec.faces, np.int64).reshape(-1, 3))
+        out.append({"fraction": frac, "raw": raw, "draco": draco, "bytes": len(blob)})
+    return out
+
+
+# ----------------------------------------------------------------------------- measure
+def measure(name: str, mesh: Mesh, bits: int, samples: int, log) -> dict:
+    """Every boundary's error, the LODs' errors, and the same-bytes / same-vertex comparisons."""
+    t0 = time.perf_counter()
+    diag = float(np.linalg.norm(np.ptp(mesh.positions, axis=0)))
+
+    def err(m):
+        return rms_surface_distance(mesh, m, samples) / diag
+
+    blob, levels, clog = our_stream(mesh, bits)
+    curve = [(b, nv, err(m)) for b, nv, m in levels]
+    index = glb_parts(blob)["json"]
+    rows = []
+    for lod in lod_chain(mesh, bits):
+        fits = [c for c in curve if c[0] <= lod["bytes"]]
+        no_json = [c for c in curve if c[0] - index <= lod["bytes"]]
+        k = lod["raw"].vertex_count
+        ours_k = level_at(mesh, clog, k)
+        rows.append({
+            "fraction": lod["fraction"], "lod_vertices": k, "lod_faces": lod["raw"].face_count,
+            "lod_bytes": lod["bytes"], "lod_error": err(lod["draco"]),
+            "prefix": fits[-1] if fits else None, "prefix_chunks": len(fits) - 1,
+            "prefix_no_json": no_json[-1] if no_json else None,
+            "raw_error": err(lod["raw"]), "ours_k_vertices": ours_k.vertex_count, "ours_k_error": err(ours_k),
+        })
+    log(f"[{name} grid {bits}] {len(blob):,} B, {len(levels) - 1} chunks, {time.perf_counter() - t0:.1f} s")
+    return {"name": name, "bits": bits, "vertices": mesh.vertex_count, "faces": mesh.face_count,
+            "bytes": len(blob), "json": index, "curve": curve, "lods": rows}
+
+
+# ----------------------------------------------------------------------------- report
+def fmt_err(e: float) -> str:
+    return f"{e:.2e}"
+
+
+def ratio(a: float, b: float) -> str:
+    return f"{a / b:.2f}x" if b > 0 else "-"
+
+
+def render(results, info, command: str, plot) -> str:
+    load = ", ".join(f"{x:.2f}" for x in info["load"])
+    L = [f"Command: `{command}`", "",
+         f"Machine: {info['cpu']} ({info['cores']} cores), load average {load} at the start; Python "
+         f"{info['python']}, numpy {info['numpy']}, DracoPy {info['DracoPy']}, fast-simplification "
+         f"{info['fast_simplification']}; code {info['git']}.", "",
+         "Error: symmetric RMS point-to-surface distance to the original (sampled both ways, "
+         f"{results[0]['samples']:,} points per surface, seed 0) over the original's bounding-box diagonal D. "
+         "LOD: fast-simplification to 2/10/30 % of the faces, Draco at the grid's bits, cl7. "
+         "Same bytes: the longest prefix of our default-option `.pmw` (no watermark; GLB header, JSON, base "
+         "and whole chunks) within the LOD's Draco bytes; \"without the JSON\": the same with the GLB JSON "
+         "(the v1 chunk index) not counted, a diagnostic. Same vertices: our simplifier's level with the "
+         "LOD's vertex count on the float positions (order only) against the uncompressed LOD.", ""]
+    rows = []
+    for r in results:
+        base = r["curve"][0]
+        for x in r["lods"]:
+            p = x["prefix"]
+            ours = (f"{p[0]:,} B, {p[1]:,} V ({x['prefix_chunks']} chunks): {fmt_err(p[2])}" if p
+                    else f"nothing fits (base {base[0]:,} B)")
+            q = x["prefix_no_json"]
+            free = f"{q[1]:,} V: {ratio(q[2], x['lod_error'])}" if q else "nothing fits"
+            rows.append([r["name"], r["bits"], f"{100 * x['fraction']:g}%", f"{x['lod_vertices']:,}",
+                         f"{x['lod_bytes']:,}", fmt_err(x["lod_error"]), ours, ratio(p[2], x["lod_error"]) if p else "-", free,
+                         fmt_err(x["ours_k_error"]) + ("" if x["ours_k_vertices"] == x["lod_vertices"]
+                                                       else f" (base: {x['ours_k_vertices']:,} V)"),
+                         fmt_err(x["raw_error"]), ratio(x["ours_k_error"], x["raw_error"])])
+    L.append(table(["mesh", "grid", "LOD", "LOD V", "LOD Draco B", "LOD error", "ours in those bytes",
+                    "ours / LOD", "without the JSON: ours / LOD", "ours at LOD V", "fast-simpl. LOD", "ordering ratio"], rows))
+    L += ["", "Our stream (whole file, base mesh = the first renderable one):", ""]
+    L.append(table(["mesh", "grid", "file B", "chunks", "JSON B", "base B (all bytes before it)", "base V",
+                    "error at base"],
+                   [[r["name"], r["bits"], f"{r['bytes']:,}", len(r["curve"]) - 1, f"{r['json']:,}",
+                     f"{r['curve'][0][0]:,}", f"{r['curve'][0][1]:,}", fmt_err(r["curve"][0][2])] for r in results]))
+    if plot:
+        L += ["", f"![error against bytes]({plot}) — ours: one point per chunk boundary; "
+              "LODs: the Draco chain (same colour per grid)."]
+    return "\n".join(L) + "\n"
+
+
+def plot(results, path: str) -> None:
+    """Log-log error against bytes, one panel per mesh: our curve and the LOD points per grid."""
+    from PIL import Image, ImageDraw
+
+    from pmwm_codec.figures import INK, _Panel, font
+
+    names = list(dict.fromkeys(r["name"] for r in results))
+    cols, w, h = 2, 520, 330
+    img = Image.new("RGB", (cols * w, ((len(names) + cols - 1) // cols) * h), (255, 255, 255))
+    d, fnt = ImageDraw.Draw(img), font(12)
+    colors = {16: (200, 70, 50), 14: (40, 100, 190)}
+    for i, name in enumerate(names):
+        mine = [r for r in results if r["name"] == name]
+        xs = [np.log10(c[0]) for r in mine for c in r["curve"]] + [np.log10(x["lod_bytes"]) for r in mine for x in r["lods"]]
+        ys = [np.log10(max(c[2], 1e-9)) for r in mine for c in r["curve"]]
+        ys += [np.log10(max(x["lod_error"], 1e-9)) for r in mine for x in r["lods"]]
+        ox, oy = (i % cols) * w, (i // cols) * h
+        xlim, ylim = (np.floor(min(xs) * 4) / 4, np.ceil(max(xs) * 4) / 4), (np.floor(min(ys) * 2) / 2, np.ceil(max(ys) * 2) / 2)
+        panel = _Panel(d, (ox + 62, oy + 28, ox + w - 16, oy + h - 40), xlim, ylim)
+        _log_axes(d, panel, fnt)
+        d.text((ox + 62, oy + 8), name, font=font(14), fill=INK)
+        for r in mine:
+            c = colors.get(r["bits"], INK)
+            panel.series([np.log10(p[0]) for p in r["curve"]], [np.log10(max(p[2], 1e-9)) for p in r["curve"]], c)
+            for x in r["lods"]:
+                px, py = panel.px(np.log10(x["lod_bytes"]), np.log10(max(x["lod_error"], 1e-9)))
+                d.rectangle([px - 6, py - 6, px + 6, py + 6], outline=c, width=2)
+            d.text((ox + w - 210, oy + 8 + 14 * (r["bits"] == 14)), f"grid {r['bits']}: ours (line), LOD (square)",
+                   font=fnt, fill=c)
+    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
+    img.save(path)
+
+
+def _log_axes(d, panel, fnt) -> None:
+    """Frame, grid lines and 10^k labels of a panel whose data are log10 values."""
+    from pmwm_codec.figures import GRID, INK
+
+    x0, y0, x1, y1 = panel.box
+    for t in np.arange(np.ceil(panel.xlim[0]), panel.xlim[1] + 1e-9):
+        px, _ = panel.px(t, panel.ylim[0])
+        d.line([px, y0, px, y1], fill=GRID)
+        d.text((px - 14, y1 + 6), f"1e{int(t)} B", font=fnt, fill=INK)
+    for t in np.arange(np.ceil(panel.ylim[0]), panel.ylim[1] + 1e-9):
+        _, py = panel.px(panel.xlim[0], t)
+        d.line([x0, py, x1, py], fill=GRID)
+        d.text((x0 - 40, py - 7), f"1e{int(t)}", font=fnt, fill=INK)
+    d.rectangle([x0, y0, x1, y1], outline=INK)
+    d.text((x0 + 4, y1 - 18), "RMS error / D", font=fnt, fill=INK)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--corpus", default=DEFAULT_CORPUS)
+    ap.add_argument("--mesh", action="append", help="only these meshes (corpus names without .obj; repeatable)")
+    ap.add_argument("--bits", type=int, nargs="+", default=[16, 14], help="grid bits (default: 16 14)")
+    ap.add_argument("--samples", type=int, default=100_000, help="sample points per surface")
+    ap.add_argument("--write", metavar="MARKDOWN", help=f"replace the '{SECTION}' section and write {PLOT}")
+    ap.add_argument("--section", default=SECTION, help="section title to replace")
+    args = ap.parse_args(argv)
+    command = "python tools/bench_rd.py " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
+    log = lambda s: print(s, file=sys.stderr, flush=True)  # noqa: E731
+    info = machine()
+    results = []
+    for name, mesh in load_meshes(args.corpus, args.mesh):
+        for bits in args.bits:
+            results.append({**measure(name, mesh, bits, args.samples, log), "samples": args.samples})
+    if args.write:
+        plot(results, os.path.join(ROOT, PLOT))
+    publish(render(results, info, command.strip(), PLOT if args.write else None), args.write, args.section, log)
+
+
+if __name__ == "__main__":
+    main()
