@@ -138,3 +138,20 @@ def test_decode_base_rejects_undecodable_draco(mesh):
     gltf, prim = _gltf_of(enc)
     with pytest.raises(FormatError, match="Draco"):
         basecodec.decode_base(gltf, bytes(len(enc.data)), grid, prim)
+
+
+def test_decode_base_rejects_a_face_that_repeats_a_vertex(mesh):
+    """A split of a vertex held twice by one face has no defined result (bitstream §6.1): refused."""
+    ints, faces, grid = mesh
+    enc = basecodec.encode_base(ints, faces, grid, codec="plain")
+    gltf, prim = _gltf_of(enc)
+    acc = gltf["accessors"][prim["indices"]]
+    view = gltf["bufferViews"][acc["bufferView"]]
+    dtype = {5121: "<u1", 5123: "<u2", 5125: "<u4"}[acc["componentType"]]
+    data = bytearray(enc.data)
+    start = view.get("byteOffset", 0) + acc.get("byteOffset", 0)
+    idx = np.frombuffer(data, dtype, acc["count"], start).copy()
+    idx[1] = idx[0]  # face 0 becomes (a, a, c)
+    data[start:start + idx.nbytes] = idx.tobytes()
+    with pytest.raises(FormatError, match="repeats a vertex"):
+        basecodec.decode_base(gltf, bytes(data), grid, prim)

@@ -75,6 +75,10 @@ export async function decodeBase(bin, prim, draco) {
   for (let i = 0; i < indices.length; i++) {
     if (indices[i] >= n) throw new FormatError('base mesh: an index is out of range');
   }
+  for (let f = 0; f < indices.length; f += 3) {
+    const a = indices[f], b = indices[f + 1], c = indices[f + 2];
+    if (a === b || b === c || a === c) throw new FormatError('base mesh: a face repeats a vertex');
+  }
   const values = new Float64Array(n * D);
   quantizeInto(values, D, 0, positions, { ...grid }, 'positions');
   let col = 3;

@@ -394,6 +394,8 @@ def decode_base(gltf: dict, bin_data, grid: Grid | dict, primitive: dict | None 
         faces = accessor_array(gltf, idx_acc, bin_data, INDEX_DTYPES[ctype], m, 3, "base mesh: indices").astype(np.int64)
     if faces.size and faces.max() >= n:
         raise FormatError(f"base mesh: face index {int(faces.max())} out of range [0, {n})")
+    if ((faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])).any():
+        raise FormatError("base mesh: a face repeats a vertex (a valid base has only proper triangles)")
     return _as_grid(grid).from_float32(positions), faces
 
 
