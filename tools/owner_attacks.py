@@ -96,8 +96,9 @@ def run_mesh(path: Path, keys: int, strength: float, wrong: int, rms_budget) -> 
             r = owner.detect(V2, F2, key)
             out["errors"][name].append(r.bit_errors)
             out["present"][name] += r.verdict == "present"
+        scores = owner.mesh_scores(W, F)  # key-independent: read once for every wrong key
         for _ in range(wrong // keys + (k < wrong % keys)):
-            r = owner.detect(W, F, WatermarkKey.generate(rng=wrong_rng))
+            r = owner.detect(W, F, WatermarkKey.generate(rng=wrong_rng), scores=scores)
             out["wrong"].append((r.bit_errors, r.verdict))
     return out
 
