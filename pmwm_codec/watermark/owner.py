@@ -82,6 +82,7 @@ TRANSPORT_TRIALS = 3
 #: widths (less than half a shell: a frame one whole shell off would read every bit from its
 #: neighbour's shell), pattern steps of these widths.
 SEARCH_BOX = 0.45
+SHAPE_POWER = 0.5
 SEARCH_GRID = (-0.2, 0.0, 0.2)
 SEARCH_STEPS = (0.1, 0.05, 0.025, 0.0125)
 #: The searched frame replaces the estimate only when it raises sum |S_k| by this many of its
@@ -419,18 +420,34 @@ def _amplitudes(tab: _Tables, target: np.ndarray) -> tuple:
     return (jj - 1 + frac) / (_FLOW_A - 1), float(sq.sum())
 
 
-def _best_margin(tab: _Tables, extra: np.ndarray, strength: float, limit_sq: float) -> float:
-    """The largest margin in [strength, 1] whose amplitudes (targets ``margin + extra``) keep the
-    sum of squared displacements within ``limit_sq`` (``strength`` when even it does not)."""
-    if _amplitudes(tab, strength + extra)[1] > limit_sq:
-        return strength
-    lo, hi = strength, 1.0
-    if _amplitudes(tab, hi + extra)[1] <= limit_sq:
-        return hi
+def _goals(c: float, shape: np.ndarray, strength: float) -> np.ndarray:
+    """(BINS,) per-shell margins of level ``c``: ``c * shape`` (shape (BINS,)), at least ``strength``, at most 1."""
+    return np.clip(c * shape, strength, 1.0)
+
+
+def _best_margin(tab: _Tables, extra: np.ndarray, strength: float, limit_sq: float, shape: np.ndarray) -> np.ndarray:
+    """The highest goals (:func:`_goals`) whose amplitudes (targets ``goals + extra``) keep the
+    sum of squared displacements within ``limit_sq`` (``strength`` everywhere when even it does not)."""
+    cost = lambda c: _amplitudes(tab, _goals(c, shape, strength) + extra)[1]  # noqa: E731
+    if cost(0.0) > limit_sq:
+        return _goals(0.0, shape, strength)
+    lo, hi = 0.0, 1.0 / float(shape.min())
+    if cost(hi) <= limit_sq:
+        return _goals(hi, shape, strength)
     for _ in range(24):
         mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if _amplitudes(tab, mid + extra)[1] <= limit_sq else (lo, mid)
-    return lo
+        lo, hi = (mid, hi) if cost(mid) <= limit_sq else (lo, mid)
+    return _goals(lo, shape, strength)
+
+
+def _shape(shell: np.ndarray) -> np.ndarray:
+    """(BINS,) float64: each shell's margin relative to the others, for shells of (k,) ``shell`` (-1: none).
+
+    ``(median mass / mass) ** SHAPE_POWER`` (in [1/2, 2]): the noise of a shell's mean score falls as
+    1 / sqrt(its vertices), so equal signal-to-noise needs a margin in that ratio (power 1/2).
+    """
+    mass = np.maximum(np.bincount(shell[shell >= 0], minlength=BINS), 1).astype(np.float64)
+    return np.clip((np.median(mass) / mass) ** SHAPE_POWER, 0.5, 2.0)
 
 
 def _move(tab: _Tables, amp: np.ndarray) -> np.ndarray:
@@ -490,7 +507,7 @@ def _mark(points: np.ndarray, count: np.ndarray, faces: np.ndarray, shell_side: 
         if frame[2] == 0:
             return points
         tab = _tables(points, count, frame, shell_side)
-        margin = _best_margin(tab, extra, strength, limit_sq)
+        margin = _best_margin(tab, extra, strength, limit_sq, _shape(tab.shell))
         amp, _ = _amplitudes(tab, margin + extra)
         marked = _move(tab, amp)
         short = np.maximum(margin - _worst(marked, faces, shell_side, seed=len(points)), 0.0)
