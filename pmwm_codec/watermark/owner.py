@@ -318,7 +318,8 @@ def _searched_frame(points: np.ndarray, faces: np.ndarray) -> tuple:
                 if f > best:
                     x, best, improved = y, f, True
                     break
-    if best - values[len(grid) // 2] < SEARCH_GAIN * _objective_sd(rho, lo, width):
+    estimate = values[int(np.flatnonzero(~grid.any(axis=1))[0])]  # the zero offset
+    if best - estimate < SEARCH_GAIN * _objective_sd(rho, lo, width):
         return centroid, lo, width
     return centroid + x[:3] * width, lo + x[3] * width, width * (1.0 + (x[4] - x[3]) / BINS)
 
@@ -509,10 +510,11 @@ def _mark(points: np.ndarray, count: np.ndarray, faces: np.ndarray, shell_side: 
     """The marked distinct positions (k, 3): the feedback loop of :func:`embed`.
 
     Each round takes the frame of the current marked points, tables every shell's margin and
-    displacement against its amplitude (:func:`_tables`), picks the largest margin the budget
-    allows (:func:`_best_margin`; each shell's target is that plus its learned ``extra``), moves
-    the points, and measures them exactly as :func:`detect` does, clean and after the simulated
-    transport; a shell short of the margin in any of them gets that shortfall (x
+    displacement against its amplitude (:func:`_tables`), picks the highest per-shell margins the
+    budget allows (:func:`_best_margin`, in the ratio of :func:`_shape`; each shell's target is its
+    margin plus its learned ``extra``), moves the points, and measures them as :func:`detect` does
+    in the estimated frame (:func:`_frame`, no search), clean and after the simulated
+    transport; a shell short of its margin in any of them gets that shortfall (x
     :data:`_OVERSHOOT`) added to its ``extra``.  Stops when none is short or after
     :data:`_ROUNDS` rounds (a mesh too small for 64 bits may keep a few short bits).
     """
@@ -541,7 +543,8 @@ def embed(positions, faces, key, owner_id: int | None = None, strength: float = 
     key : :class:`~pmwm_codec.watermark.key.WatermarkKey`.
     strength : the margin every coded bit's soft value (in [-1, 1]) must keep on its side
     of 0, clean and after the simulated transport (kept even if it costs more than the budget).
-    rms_budget : the margin is raised beyond ``strength`` as far as the RMS displacement
+    rms_budget : the margins are raised beyond ``strength`` (per shell in the ratio of
+    :func:`_shape`) as far as the RMS displacement
     stays within this fraction of the bounding-box diagonal, for robustness to noise,
     smoothing, coarse quantization and simplification; None: no raising.
     Returns new (n, 3) float64 positions: each vertex moved along the ray from the area
