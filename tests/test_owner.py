@@ -149,9 +149,10 @@ def test_wrong_key_errors_follow_the_fair_coin_distribution(blob, marked):
     _, pos = marked
     rng = np.random.default_rng(2)
     errors = []
+    scores = owner.mesh_scores(pos, blob.faces)  # the frame search does not depend on the key
     for _ in range(200):
         k = WatermarkKey.generate(rng=rng)
-        r = owner.detect(pos, blob.faces, k)
+        r = owner.detect(pos, blob.faces, k, scores=scores)
         assert r.verdict != "present"
         errors.append(r.bit_errors)
     assert abs(np.mean(errors) - 32) < 2  # the mean's standard deviation is 4 / sqrt(200) = 0.28
@@ -247,3 +248,53 @@ def test_a_key_written_before_the_owner_layer_still_marks_and_verifies_the_image
     report = json.loads(capsys.readouterr().out)
     assert "owner_id" not in report and any("no owner id" in n for n in report["notices"])
     assert main(["verify", str(tmp_path / "b.pmw"), "--key", str(old), "-q"]) == 0
+
+
+def test_scores_read_once_give_every_key_the_same_answer_as_detect(blob, marked):
+    key, pos = marked
+    scores = owner.mesh_scores(pos, blob.faces)
+    rng = np.random.default_rng(12)
+    for k in [key] + [WatermarkKey.generate(rng=rng) for _ in range(3)]:
+        assert owner.detect(pos, blob.faces, k, scores=scores) == owner.detect(pos, blob.faces, k)
+
+
+def _offset_frame(frame_of, dc, dlo, dhi):
+    """A frame estimator that errs by ``dc`` (3,) / ``dlo`` / ``dhi`` shell widths."""
+    def wrong(points, faces):
+        c, lo, w = frame_of(points, faces)
+        return c + np.asarray(dc) * w, lo + dlo * w, w * (1.0 + (dhi - dlo) / owner.BINS)
+    return wrong
+
+
+def test_frame_search_reads_through_an_estimate_a_fifth_of_a_shell_off(blob, marked, monkeypatch):
+    """Smoothing and coarse quantization move the estimated frame by tenths of a shell (bunny,
+    smoothing 30: ~0.2); the read searches the frame that maximises sum |S_k| around the estimate."""
+    key, pos = marked
+    monkeypatch.setattr(owner, "_frame", _offset_frame(owner._frame, [0.15, 0.1, 0.0], 0.2, 0.2))
+    points, inverse = owner._distinct_index(pos)
+    shell, t, _, _ = owner._shells(points, owner._frame(points, inverse[blob.faces]))
+    soft = np.zeros(owner.BINS)
+    inside = shell >= 0
+    soft[owner._layout(key)[0]] = np.bincount(shell[inside], owner.g_of_t(t[inside]), owner.BINS)
+    unsearched = (soft > 0).astype(np.uint8) ^ owner._layout(key)[1]
+    assert np.count_nonzero(unsearched != owner.id_to_bits(key.owner_id)) > 8  # the offset frame alone fails
+    r = owner.detect(pos, blob.faces, key)
+    assert r.bit_errors == 0 and r.verdict == "present"
+
+
+def test_frame_search_keeps_the_estimate_on_an_unmarked_mesh(blob):
+    """Without a mark, no frame beats the estimate by SEARCH_GAIN noise deviations: the read is
+    the estimate's (and, either way, a choice that does not depend on the key)."""
+    points, inverse = owner._distinct_index(blob.positions)
+    faces = inverse[blob.faces]
+    frame, searched = owner._frame(points, faces), owner._searched_frame(points, faces)
+    assert np.array_equal(frame[0], searched[0]) and frame[1:] == searched[1:]
+
+
+def test_sparser_shells_get_larger_margins(blob, marked):
+    """Equal signal-to-noise: a shell's margin grows as its vertex count falls (sqrt(median / mass))."""
+    key, pos = marked
+    s, mass = owner.mesh_scores(pos, blob.faces)
+    order = np.argsort(mass)
+    assert mass[order[0]] < mass[order[-1]]
+    assert np.abs(s[order[:16]]).mean() > 1.2 * np.abs(s[order[-16:]]).mean()
