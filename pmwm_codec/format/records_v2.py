@@ -20,11 +20,13 @@ numpy over whole batches (incidences, topology: :mod:`..progressive.vsplit`).
 
 from __future__ import annotations
 
+from functools import cached_property
+
 import numpy as np
 
 from ..errors import FormatError, LimitError
 from ..progressive.topology import group_order, kernel_helper
-from ..progressive.vsplit import SplitBatch, apply_batch, find_incidences, split_topology
+from ..progressive.vsplit import SplitBatch, SplitTopology, _ring_lists, apply_batch, find_incidences
 from . import rangecoder as rc
 from .rangecoder import INT_BLOCK, INT_DECISIONS
 
@@ -58,51 +60,131 @@ def _block(b):
     return P_INT + b * INT_BLOCK
 
 
-# ---------------------------------------------------------------- selection mask
+# ---------------------------------------------------------------- corner lists and the selection mask
 
 
-def _mask_kernel(flat, n, sel, stamp, es, out, ds, buf, probs, decode):
-    """Code (``decode`` 0) or decode (1) the mask ``sel`` (n,) int64 of the mesh whose face slots
-    are ``flat`` (3m,) int64.
+class CornerLists:
+    """Every vertex's corners (the face slots holding it) as ascending linked lists in preallocated
+    arrays, with every vertex's valence class (spec §8.4.1): the adjacency the models read.
 
-    ``stamp`` (>= n,) int64 scratch.  Context of vertex w: 7 * min(2, marked distinct neighbours
-    below w) + clamp(distinct neighbours, 3, 9) - 3.  Returns the number of marked vertices.
+    ``head`` / ``tail`` (N,) int64 first / last corner of a vertex (-1: none), ``nxt`` (3M,) int64
+    the next corner of the same vertex (-1: the last); ``valence`` (N,) int64 the number of
+    distinct other vertices sharing a face with each vertex; scratch: ``below`` (N,) int64 zeros,
+    ``stamp`` / ``tag`` (N,) int64 with their token counter ``ctr`` (1,) int64, ``split`` (N,) uint8
+    zeros, ``posA`` / ``posB`` (N,) int64 all -1 (fan ordering).  N / M: the primitive's declared
+    vertex / face counts.  ``n`` / ``m``: the mesh they describe; :meth:`sync` rebuilds them (O(m))
+    for a mesh that changed elsewhere, the decoder updates them batch by batch (O(batch)).
     """
-    start = np.zeros(n + 1, np.int64)
+
+    def __init__(self, vertex_capacity: int, face_capacity: int):
+        N, M = int(vertex_capacity), int(face_capacity)
+        self.head, self.tail = np.full(N, -1, np.int64), np.full(N, -1, np.int64)
+        self.nxt = np.full(3 * M, -1, np.int64)
+        self.valence, self.tag, self.split = np.zeros(N, np.int64), np.zeros(N, np.int64), np.zeros(N, np.uint8)
+        self.below, self.stamp, self.ctr = np.zeros(N, np.int64), np.zeros(N, np.int64), np.zeros(1, np.int64)
+        self.posA, self.posB = np.full(N, -1, np.int64), np.full(N, -1, np.int64)
+        self.n = self.m = -1
+
+    def fits(self, state) -> bool:
+        return len(self.head) == len(state.positions) and len(self.nxt) == 3 * len(state.faces)
+
+    def sync(self, state) -> None:
+        """Describe ``state``'s current mesh (rebuilt unless it is the mesh they already describe)."""
+        if (self.n, self.m) != (state.n, state.m):
+            rc._kernel(_corner_lists_kernel)(state.faces[: state.m].reshape(-1), state.n, self.head, self.tail,
+                                             self.nxt, self.valence, self.stamp, self.ctr)
+            self.n, self.m = state.n, state.m
+
+
+def _corner_lists_kernel(flat, n, head, tail, nxt, valence, stamp, ctr):
+    """Build the lists of :class:`CornerLists` for the faces ``flat`` (3m,) over ``n`` vertices."""
+    for w in range(n):
+        head[w] = -1
+        tail[w] = -1
     for c in range(len(flat)):
-        start[flat[c] + 1] += 1
+        _append_corner(flat[c], c, head, tail, nxt)
     for w in range(n):
-        start[w + 1] += start[w]
-    fill = start[:n].copy()
-    vf = np.empty(len(flat), np.int64)  # per vertex, the first slot of each of its faces
-    for f3 in range(0, len(flat), 3):
+        valence[w] = _valence(w, flat, head, nxt, stamp, ctr)
+    return 0
+
+
+@kernel_helper
+def _append_corner(w, c, head, tail, nxt):
+    """Put corner ``c`` (larger than every corner of ``w``'s list) at the end of ``w``'s list."""
+    nxt[c] = -1
+    if head[w] < 0:
+        head[w] = c
+    else:
+        nxt[tail[w]] = c
+    tail[w] = c
+
+
+@kernel_helper
+def _valence(w, flat, head, nxt, stamp, ctr):
+    """|N(w)|: the distinct vertices other than ``w`` sharing a face with it."""
+    token = ctr[0] + 1
+    ctr[0] = token
+    valence = 0
+    c = head[w]
+    while c >= 0:
+        f3 = c - c % 3
         for j in range(3):
-            w = flat[f3 + j]
-            vf[fill[w]] = f3
-            fill[w] += 1
+            x = flat[f3 + j]
+            if x != w and stamp[x] != token:
+                stamp[x] = token
+                valence += 1
+        c = nxt[c]
+    return valence
+
+
+@kernel_helper
+def _mark_above(w, flat, head, nxt, below, stamp, ctr):
+    """``below[x] += 1`` for each distinct neighbour ``x > w`` of ``w``; returns ``w``'s corner count."""
+    token = ctr[0] + 1
+    ctr[0] = token
+    corners = 0
+    c = head[w]
+    while c >= 0:
+        corners += 1
+        f3 = c - c % 3
+        for j in range(3):
+            x = flat[f3 + j]
+            if x > w and stamp[x] != token:
+                stamp[x] = token
+                below[x] += 1
+        c = nxt[c]
+    return corners
+
+
+def _mask_kernel(flat, n, head, nxt, valence, below, stamp, ctr, sel, marked, es, out, ds, buf, probs, decode):
+    """Code (``decode`` 0, the bits ``sel`` (n,) int64) or decode (1) a batch's selection mask over the
+    mesh of the corner lists (:class:`CornerLists` arrays, ``flat`` (3M,) int64 its face slots).
+
+    Context of vertex w: 7 * min(2, marked distinct neighbours below w) + clamp(valence, 3, 9) - 3; the
+    marks push to the neighbours above them as they are coded.  ``marked`` (cap,) int64 receives
+    the marked vertices, ascending.  Returns ``(k, corners of the marked vertices)``; k = -1 when
+    more than ``cap`` vertices are marked (``below`` is then cleared).
+    """
+    k = 0
+    corners = 0
     for w in range(n):
-        stamp[w] = -1
-    count = 0
-    for w in range(n):
-        valence = 0
-        below = 0
-        for t in range(start[w], start[w + 1]):
-            f3 = vf[t]
-            for j in range(3):
-                x = flat[f3 + j]
-                if x != w and stamp[x] != w:
-                    stamp[x] = w
-                    valence += 1
-                    if x < w and sel[x] != 0:
-                        below += 1
-        vclass = min(max(valence, 3), 9) - 3
-        ctx = P_MASK + 7 * min(below, 2) + vclass
+        ctx = P_MASK + 7 * min(below[w], 2) + min(max(valence[w], 3), 9) - 3
+        below[w] = 0
         if decode:
-            sel[w] = rc.dec_bit(ds, buf, probs, ctx)
+            bit = rc.dec_bit(ds, buf, probs, ctx)
         else:
-            rc.enc_bit(es, out, probs, ctx, sel[w])
-        count += sel[w]
-    return count
+            bit = sel[w]
+            rc.enc_bit(es, out, probs, ctx, bit)
+        if bit == 0:
+            continue
+        if k == len(marked):
+            for x in range(n):
+                below[x] = 0
+            return -1, corners
+        marked[k] = w
+        k += 1
+        corners += _mark_above(w, flat, head, nxt, below, stamp, ctr)
+    return k, corners
 
 
 # ---------------------------------------------------------------- connectivity: fans and arcs
@@ -234,6 +316,7 @@ def _arc_of(fan, d, kind, sym):
     return s, L, left, right
 
 
+@kernel_helper
 def _connectivity_kernel(gstart, gidx, a, b, v, P, sym, posA, posB, es, out, ds, buf, probs, decode):
     """Code or decode the incidence symbols ``sym`` (I,) uint8 of a batch, split by split.
 
@@ -317,10 +400,13 @@ def _floor_half(x):
     return np.int64(np.floor(x + 0.5))
 
 
-def _geometry_kernel(gstart, gidx, a, b, v, sym, P, n0, es, out, ds, buf, probs, decode):
+@kernel_helper
+def _geometry_kernel(gstart, gidx, a, b, v, sym, P, n0, es, out, ds, buf, probs, decode, rsum, rcount):
     """Code (from ``P[n0 + i]``) or decode (into it) the values of the new vertices, split by split.
 
-    Returns 0, or (decode) -1 on an invalid code / a value outside ``|x| < 2**31``.
+    Also fills ``rsum`` (k, D) float64 / ``rcount`` (k,) int64, each split's ring sum and twice
+    its face count (:class:`~pmwm_codec.progressive.vsplit.SplitTopology`'s ``ring_sum`` /
+    ``ring_count``).  Returns 0, or (decode) -1 on an invalid code / a value outside ``|x| < 2**31``.
     """
     k = len(v)
     D = P.shape[1]
@@ -356,6 +442,9 @@ def _geometry_kernel(gstart, gidx, a, b, v, sym, P, n0, es, out, ds, buf, probs,
                     ell += abs(P[vv, 0] - P[o, 0]) + abs(P[vv, 1] - P[o, 1]) + abs(P[vv, 2] - P[o, 2])
         if c == 0:
             return -1
+        for q in range(D):
+            rsum[i, q] = np.float64(S[q])
+        rcount[i] = 2 * c
         status = _split_values(S, c, ell, nx, ny, nz, vv, n0 + i, P, frame, es, out, ds, buf, probs, decode)
         if status != 0:
             return status
@@ -449,29 +538,33 @@ def _connectivity_decisions(incidences: int, splits: int) -> int:
 
 _NO_BYTES = np.zeros(0, np.uint8)
 _NO_STATE = np.zeros(6, np.int64)
+_NO_SEL = np.zeros(0, np.int64)
 
 
-def _encode_batch(enc, state, batch, scratch) -> None:
-    """Code one batch into ``enc`` and apply it to ``state`` (version 1 semantics)."""
+def _encode_batch(enc, state, batch, lists) -> None:
+    """Code one batch into ``enc`` and apply it to ``state`` (version 1 semantics); ``lists``:
+    a :class:`CornerLists` of the state's capacities (rebuilt for the mesh before the batch)."""
     n, k = state.n, batch.size
     sel = np.zeros(n, np.int64)
     sel[batch.v] = 1
     enc.reserve(n)
-    rc._kernel(_mask_kernel)(state.faces[: state.m].reshape(-1), n, sel, scratch, enc.es, enc.out, _NO_STATE, _NO_BYTES,
-                             enc.probs, 0)
+    lists.sync(state)
+    rc._kernel(_mask_kernel)(state.faces.reshape(-1), n, lists.head, lists.nxt, lists.valence, lists.below,
+                             lists.stamp, lists.ctr, sel, np.empty(k, np.int64), enc.es, enc.out, _NO_STATE,
+                             _NO_BYTES, enc.probs, 0)
     inc, owner, gstart, gidx, a, b = _grouped(state, batch.v)
     sym = np.asarray(batch.symbols, np.uint8)
-    posA, posB = np.full(n, -1, np.int64), np.full(n, -1, np.int64)
     enc.reserve(_connectivity_decisions(len(inc), k))
     rc._kernel(_connectivity_kernel)(gstart, gidx, a, b, np.asarray(batch.v, np.int64), state.positions, sym,
-                                     posA, posB, enc.es, enc.out, _NO_STATE, _NO_BYTES, enc.probs, 0)
+                                     lists.posA, lists.posB, enc.es, enc.out, _NO_STATE, _NO_BYTES, enc.probs, 0)
     n0 = state.n
     topo = apply_batch(state, batch)
     if not np.array_equal(topo.incidences, inc):
         raise AssertionError("payload v2: incidences changed under the encoder")
     enc.reserve(k * state.positions.shape[1] * INT_DECISIONS)
     rc._kernel(_geometry_kernel)(gstart, gidx, a, b, np.asarray(batch.v, np.int64), sym, state.positions, n0,
-                                 enc.es, enc.out, _NO_STATE, _NO_BYTES, enc.probs, 0)
+                                 enc.es, enc.out, _NO_STATE, _NO_BYTES, enc.probs, 0,
+                                 np.empty((k, state.positions.shape[1])), np.empty(k, np.int64))
 
 
 def pack_chunks(state, chunks) -> list:
@@ -483,6 +576,7 @@ def pack_chunks(state, chunks) -> list:
     """
     out = []
     probs = new_model()
+    lists = CornerLists(len(state.positions), len(state.faces))
     for batches in chunks:
         if not 1 <= len(batches) <= MAX_BATCHES_PER_CHUNK:
             raise ValueError(f"payload v2: {len(batches)} batches in a chunk, outside 1..{MAX_BATCHES_PER_CHUNK}")
@@ -490,9 +584,8 @@ def pack_chunks(state, chunks) -> list:
         enc.reserve(INT_DECISIONS)
         rc._kernel(rc._enc_array_kernel)(enc.es, enc.out, enc.probs, np.array([2]), np.array([_block(B_BATCHES)]),
                                          np.array([len(batches) - 1]))
-        scratch = np.empty(state.n + sum(b.size for b in batches), np.int64)
         for batch in batches:
-            _encode_batch(enc, state, batch, scratch)
+            _encode_batch(enc, state, batch, lists)
         out.append(enc.finish())
     return out
 
@@ -503,47 +596,258 @@ def new_model() -> np.ndarray:
     return rc.new_probs(N_PROBS)
 
 
-def decode_chunk(payload, state, probs):
+class ChunkDecoder:
+    """What decoding a primitive's chunks carries from one chunk to the next: the probability
+    table (:func:`new_model`) and the :class:`CornerLists` of its mesh (made on the first chunk,
+    then updated batch by batch).  One per primitive; :func:`decode_chunk` advances it."""
+
+    def __init__(self):
+        self.probs = new_model()
+        self.lists: CornerLists | None = None
+
+    def lists_for(self, state) -> CornerLists:
+        if self.lists is None or not self.lists.fits(state):
+            self.lists = CornerLists(len(state.positions), len(state.faces))
+        self.lists.sync(state)
+        return self.lists
+
+
+def decode_chunk(payload, state, model: ChunkDecoder):
     """Decode one chunk against ``state`` (int64 values), applying each batch as it is decoded;
-    ``probs`` is the primitive's probability table (:func:`new_model`, updated in place).
+    ``model`` is the primitive's :class:`ChunkDecoder` (updated in place).
 
     Yields ``(SplitBatch, SplitTopology)`` per batch: the batch in version 1 terms (split
-    vertices, incidence symbols, residuals against the version 1 prediction) and what
-    :func:`~pmwm_codec.progressive.vsplit.split_topology` did.  FormatError / LimitError on any
-    invalid code, count or termination.
+    vertices, incidence symbols, residuals against the version 1 prediction; listed when first
+    read) and what :func:`~pmwm_codec.progressive.vsplit.split_topology` would have done.
+    FormatError / LimitError on any invalid code, count or termination.
     """
-    dec = rc.Decoder(payload, probs)
+    dec = rc.Decoder(payload, model.probs)
     count = np.zeros(1, np.int64)
     if rc._kernel(rc._dec_array_kernel)(dec.ds, dec.buf, dec.probs, np.array([2]), np.array([_block(B_BATCHES)]), count):
         raise FormatError("chunk payload: invalid batch count")
     batches = int(count[0]) + 1
     if batches > MAX_BATCHES_PER_CHUNK:
         raise LimitError(f"chunk payload: batch count {batches} outside 1..{MAX_BATCHES_PER_CHUNK}")
+    lists = model.lists_for(state)
     for _ in range(batches):
-        yield _decode_batch(dec, state)
+        try:
+            yield _decode_batch(dec, state, lists)
+        except FormatError:
+            lists.n = -1  # the lists may be half updated: rebuilt if anyone decodes on
+            raise
     dec.finish()
 
 
-def _decode_batch(dec, state):
-    n = state.n
-    sel = np.zeros(n, np.int64)
-    k = rc._kernel(_mask_kernel)(state.faces[: state.m].reshape(-1), n, sel, np.empty(n, np.int64), _NO_STATE, _NO_BYTES,
-                                 dec.ds, dec.buf, dec.probs, 1)
+_BATCH_ERRORS = {
+    -1: "chunk payload: invalid connectivity code",
+    -2: "a split names no new face or more than two",
+    -3: "splits exceed the declared face count",
+    -4: "chunk payload: invalid value code or a value out of range",
+}
+
+
+def _decode_batch(dec, state, lists):
+    """One batch: mask, then connectivity, topology and values in one kernel (:func:`_batch_kernel`)."""
+    n, m = state.n, state.m
+    flat = state.faces.reshape(-1)
+    marked = np.empty(len(state.positions) - n, np.int64)
+    k, corners = rc._kernel(_mask_kernel)(flat, n, lists.head, lists.nxt, lists.valence, lists.below, lists.stamp,
+                                          lists.ctr, _NO_SEL, marked, _NO_STATE, _NO_BYTES,
+                                          dec.ds, dec.buf, dec.probs, 1)
+    if k < 0:
+        raise FormatError("splits exceed the declared vertex count")
     if k == 0:
         raise FormatError("chunk payload: a batch marks no split vertex")
-    if n + k > len(state.positions):
-        raise FormatError("splits exceed the declared vertex count")
-    v = np.flatnonzero(sel).astype(np.int64)
-    inc, owner, gstart, gidx, a, b = _grouped(state, v)
-    sym = np.zeros(len(inc), np.uint8)
-    posA, posB = np.full(n, -1, np.int64), np.full(n, -1, np.int64)
-    if rc._kernel(_connectivity_kernel)(gstart, gidx, a, b, v, state.positions, sym, posA, posB, _NO_STATE,
-                                        _NO_BYTES, dec.ds, dec.buf, dec.probs, 1):
-        raise FormatError("chunk payload: invalid connectivity code")
-    n0 = state.n
-    topo = split_topology(state, v, sym, incidences=(inc, owner))
-    if rc._kernel(_geometry_kernel)(gstart, gidx, a, b, v, sym, state.positions, n0, _NO_STATE, _NO_BYTES,
-                                    dec.ds, dec.buf, dec.probs, 1):
-        raise FormatError("chunk payload: invalid value code or a value out of range")
-    values = state.positions[topo.u]
-    return SplitBatch(v, sym, values - topo.prediction()), topo
+    v = marked[:k].copy()
+    D = state.positions.shape[1]
+    inc, own, a, b = (np.empty(corners, np.int64) for _ in range(4))
+    sym = np.zeros(corners, np.uint8)
+    gstart = np.empty(k + 1, np.int64)
+    rsum, rcount = np.empty((k, D)), np.empty(k, np.int64)
+    new_faces = rc._kernel(_batch_kernel)(flat, m, n, state.positions, v, lists.head, lists.tail, lists.nxt,
+                                          lists.valence, lists.stamp, lists.tag, lists.split, lists.ctr, lists.posA, lists.posB, inc, own, a,
+                                          b, sym, gstart, rsum, rcount, dec.ds, dec.buf, dec.probs)
+    if new_faces < 0:
+        raise FormatError(_BATCH_ERRORS[new_faces])
+    state.n, state.m = n + k, m + new_faces
+    lists.n, lists.m = state.n, state.m
+    u = n + np.arange(k)
+
+    def face_slot_order():
+        order = np.argsort(inc, kind="stable")
+        return inc[order], own[order], order
+
+    def incidence_lists():
+        return face_slot_order()[:2]
+
+    def ring():
+        order = face_slot_order()[2]
+        return _ring_lists(v, sym[order], own[order], a[order], b[order])
+
+    topo = SplitTopology(u, rsum, rcount, incidence_lists, ring)
+    return DecodedBatch(v, state.positions, topo, lambda: sym[face_slot_order()[2]]), topo
+
+
+class DecodedBatch(SplitBatch):
+    """A decoded batch in version 1 terms (:class:`~pmwm_codec.progressive.vsplit.SplitBatch`):
+    its symbols in face-slot order and its residuals, listed only when first read (a plain
+    decode reads neither)."""
+
+    def __init__(self, v, positions, topo, symbols):
+        self.v = v
+        self._positions, self._topo, self._symbols = positions, topo, symbols
+
+    @cached_property
+    def symbols(self) -> np.ndarray:
+        return self._symbols()
+
+    @cached_property
+    def residual(self) -> np.ndarray:
+        return self._positions[self._topo.u] - self._topo.prediction()
+
+
+def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, split, ctr, posA, posB, inc, own, a, b, sym, gstart,
+                  rsum, rcount, ds, buf, probs):
+    """Decode the connectivity and values of one batch whose split vertices ``v`` (k,) are known,
+    applying it to the face slots ``flat`` (3M,) int64, the values ``P`` (N, D) and the corner
+    lists (:class:`CornerLists` arrays).
+
+    Fills, per incidence grouped by split (split i's: ``[gstart[i], gstart[i+1])``, face-slot
+    order within it): ``inc`` corner, ``own`` split, ``a`` / ``b`` corners after / before the
+    split vertex (all (I,) int64), ``sym`` (I,) uint8; and ``rsum`` / ``rcount`` (see
+    :func:`_geometry_kernel`).  Returns the number of new faces, or a negative code
+    (:data:`_BATCH_ERRORS`).
+    """
+    _gather_incidences(v, flat, head, nxt, inc, own, a, b, gstart)
+    gidx = np.arange(len(inc))
+    es, out = np.zeros(6, np.int64), np.zeros(1, np.uint8)
+    if _connectivity_kernel(gstart, gidx, a, b, v, P, sym, posA, posB, es, out, ds, buf, probs, 1) != 0:
+        return -1
+    new_faces, rewritten = _link_splits(flat, m0, n0, v, inc, own, a, b, sym, gstart, head, tail, nxt, split)
+    if new_faces < 0:
+        return new_faces
+    if _geometry_kernel(gstart, gidx, a, b, v, sym, P, n0, es, out, ds, buf, probs, 1, rsum, rcount) != 0:
+        return -4
+    _update_valences(n0, v, a, b, sym, gstart, flat, head, nxt, valence, stamp, tag, ctr, rewritten)
+    return new_faces
+
+
+@kernel_helper
+def _update_valences(n0, v, a, b, sym, gstart, flat, head, nxt, valence, stamp, tag, ctr, rewritten):
+    """The valences a batch changed, after its topology.  A ring vertex ``x`` of split i gains ``u``
+    when a face of ``u`` holds it and loses ``v`` when no face of ``v`` holds it any more; ``v`` and
+    ``u`` count the distinct ring vertices of their faces, plus each other.  That holds when no face
+    held a moved corner and another split vertex (``rewritten`` False: every valid batch); else
+    every ring, split and new vertex is recounted from its faces."""
+    k = len(v)
+    if rewritten:
+        for i in range(k):
+            for t in range(gstart[i], gstart[i + 1]):
+                valence[a[t]] = _valence(a[t], flat, head, nxt, stamp, ctr)
+                valence[b[t]] = _valence(b[t], flat, head, nxt, stamp, ctr)
+        for i in range(k):
+            valence[v[i]] = _valence(v[i], flat, head, nxt, stamp, ctr)
+            valence[n0 + i] = _valence(n0 + i, flat, head, nxt, stamp, ctr)
+        return
+    own = np.empty((k, 2), np.int64)  # valences of u and v after the split
+    for i in range(k):
+        ctr[0] += 1
+        token = 8 * ctr[0]  # tag bits: 1 in a face of u, 2 in a face of v, 4 counted
+        for t in range(gstart[i], gstart[i + 1]):
+            s = sym[t]
+            _tag(a[t], token, (1 if s != 0 else 2) | (2 if s == 2 or s == 4 else 0), tag)
+            _tag(b[t], token, (1 if s != 0 else 2) | (2 if s == 3 or s == 4 else 0), tag)
+        own[i, 0], own[i, 1] = 1, 1
+        for t in range(gstart[i], gstart[i + 1]):
+            for x in (a[t], b[t]):
+                bits = tag[x]
+                if bits & 4 == 0 and x != v[i]:
+                    valence[x] += (bits & 1) - 1 + ((bits >> 1) & 1)
+                    own[i, 0] += bits & 1
+                    own[i, 1] += (bits >> 1) & 1
+                    tag[x] = bits | 4
+    for i in range(k):  # last: a split vertex may be in another split's ring
+        valence[n0 + i], valence[v[i]] = own[i, 0], own[i, 1]
+
+
+@kernel_helper
+def _tag(x, token, bits, tag):
+    """``tag[x]``: ``token`` with ``bits`` or-ed into those ``x`` already has under it."""
+    tag[x] = (tag[x] | bits) if tag[x] & ~7 == token else (token | bits)
+
+
+@kernel_helper
+def _gather_incidences(v, flat, head, nxt, inc, own, a, b, gstart):
+    """Every corner of the split vertices ``v``, split by split (see :func:`_batch_kernel`)."""
+    t = 0
+    for i in range(len(v)):
+        gstart[i] = t
+        c = head[v[i]]
+        while c >= 0:
+            f3 = c - c % 3
+            inc[t], own[t] = c, i
+            a[t], b[t] = flat[f3 + (c + 1) % 3], flat[f3 + (c + 2) % 3]
+            t += 1
+            c = nxt[c]
+    gstart[len(v)] = t
+
+
+@kernel_helper
+def _link_splits(flat, m0, n0, v, inc, own, a, b, sym, gstart, head, tail, nxt, split):
+    """Spec §6.1 steps 1-3 on the face slots and the corner lists: the moved corners become
+    ``u`` (and its list), the new faces are appended in face-slot order of the incidences naming
+    them.  Returns ``(new faces, rewritten)``: new faces -2 when a split names none or more than
+    two, -3 when they exceed the face capacity (nothing written then); rewritten True when a
+    face held a moved corner and another corner of a split vertex (:func:`_update_valences`).
+    ``split`` (N,) uint8 scratch, zeros on entry and on return."""
+    k = len(v)
+    wkey = np.empty(len(inc), np.int64)  # (corner << 32) | incidence, of the incidences naming new faces
+    named = 0
+    new_faces = 0
+    for i in range(k):
+        wings = 0
+        for t in range(gstart[i], gstart[i + 1]):
+            if sym[t] >= 2:
+                wings += 1 if sym[t] < 4 else 2
+                wkey[named] = (inc[t] << 32) | t
+                named += 1
+        if wings == 0 or wings > 2:
+            return -2, False
+        new_faces += wings
+    if 3 * (m0 + new_faces) > len(flat):
+        return -3, False
+    for i in range(k):
+        split[v[i]] = 1
+    rewritten = False
+    for i in range(k):  # split i's corners, ascending: the moved ones to u, the others stay with v
+        u = n0 + i
+        head[u], tail[u], head[v[i]], tail[v[i]] = -1, -1, -1, -1
+        for t in range(gstart[i], gstart[i + 1]):
+            if sym[t] != 0:
+                c = inc[t]
+                f3 = c - c % 3
+                for y in (flat[f3 + (c + 1) % 3], flat[f3 + (c + 2) % 3]):
+                    rewritten = rewritten or y >= n0 or split[y] != 0
+                flat[c] = u
+            _append_corner(u if sym[t] != 0 else v[i], inc[t], head, tail, nxt)
+    slot = 3 * m0
+    for key in np.sort(wkey[:named]):
+        t = key & 0xFFFFFFFF
+        i = own[t]
+        if sym[t] == 2 or sym[t] == 4:  # left new face (u, v, a)
+            slot = _new_face(slot, n0 + i, v[i], a[t], flat, head, tail, nxt)
+        if sym[t] == 3 or sym[t] == 4:  # right new face (v, u, b)
+            slot = _new_face(slot, v[i], n0 + i, b[t], flat, head, tail, nxt)
+    for i in range(k):
+        split[v[i]] = 0
+    return new_faces, rewritten
+
+
+@kernel_helper
+def _new_face(slot, x, y, z, flat, head, tail, nxt):
+    """Write face (x, y, z) at face slot ``slot`` and list its corners; returns the next slot."""
+    flat[slot], flat[slot + 1], flat[slot + 2] = x, y, z
+    _append_corner(x, slot, head, tail, nxt)
+    _append_corner(y, slot + 1, head, tail, nxt)
+    _append_corner(z, slot + 2, head, tail, nxt)
+    return slot + 3

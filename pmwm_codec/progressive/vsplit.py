@@ -101,8 +101,9 @@ class SplitTopology:
 
     ``u`` : (k,) int64 new vertex ids; ``ring_sum`` : (k, D) float64 sum of the
     neighbour corners of u's faces; ``ring_count`` : (k,) int64 twice the number
-    of u's faces; ``incidences`` : (I,) int64 flat corner ids; ``owner`` : (I,)
-    split index of each incidence.  The ring itself, as it is summed: ``ring_owner``
+    of u's faces; ``incidences`` : (I,) int64 flat corner ids in face-slot order; ``owner`` : (I,)
+    split index of each incidence (both held in ``incidence_lists``, a pair or a function that
+    lists them when first asked).  The ring itself, as it is summed: ``ring_owner``
     (R,) int64 split index of each face of a new vertex and ``ring_a`` / ``ring_b``
     (R,) int64 its two other corners (moved faces in incidence order, then the
     left new faces, then the right ones), for the watermark's ring binding.
@@ -111,8 +112,8 @@ class SplitTopology:
     u: np.ndarray
     ring_sum: np.ndarray
     ring_count: np.ndarray
-    incidences: np.ndarray
-    owner: np.ndarray
+    #: ``(incidences, owner)``, or a function that lists them when first asked
+    incidence_lists: object = field(repr=False)
     #: ``(ring_owner, ring_a, ring_b)``, or a function that lists them when first asked
     #: (a plain decode never asks: only the watermark's ring binding reads the ring)
     ring: object = field(default=None, repr=False)
@@ -121,6 +122,19 @@ class SplitTopology:
         if callable(self.ring):
             self.ring = self.ring()
         return self.ring
+
+    def _incidence_pair(self) -> tuple:
+        if callable(self.incidence_lists):
+            self.incidence_lists = self.incidence_lists()
+        return self.incidence_lists
+
+    @property
+    def incidences(self) -> np.ndarray:
+        return self._incidence_pair()[0]
+
+    @property
+    def owner(self) -> np.ndarray:
+        return self._incidence_pair()[1]
 
     @property
     def ring_owner(self) -> np.ndarray:
@@ -267,7 +281,7 @@ def split_topology(state: MeshState, v: np.ndarray, symbols: np.ndarray, *, inci
     ring_count = 2 * np.bincount(own, minlength=k)
     state.n = n0 + k
     state.m = m0 + n_new
-    return SplitTopology(u_of, ring_sum, ring_count, inc, owner, (own, ra, rb))
+    return SplitTopology(u_of, ring_sum, ring_count, (inc, owner), (own, ra, rb))
 
 
 def _split_compiled(kernel, state, v, sym, inc, owner) -> SplitTopology:
@@ -289,7 +303,7 @@ def _split_compiled(kernel, state, v, sym, inc, owner) -> SplitTopology:
         raise FormatError("splits exceed the declared face count")
     state.n = n0 + k
     state.m = m0 + n_new
-    return SplitTopology(n0 + np.arange(k), ring_sum, ring_count, inc, owner,
+    return SplitTopology(n0 + np.arange(k), ring_sum, ring_count, (inc, owner),
                          lambda: _ring_lists(v, sym, owner, a, b))
 
 
