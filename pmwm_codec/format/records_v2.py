@@ -65,15 +65,15 @@ def _block(b):
 
 class CornerLists:
     """Every vertex's corners (the face slots holding it) as ascending linked lists in preallocated
-    arrays, with every vertex's valence class (spec §8.4.1): the adjacency the models read.
+    arrays, with every vertex's valence (spec §8.4.1): the adjacency the models read.
 
     ``head`` / ``tail`` (N,) int64 first / last corner of a vertex (-1: none), ``nxt`` (3M,) int64
     the next corner of the same vertex (-1: the last); ``valence`` (N,) int64 the number of
     distinct other vertices sharing a face with each vertex; scratch: ``below`` (N,) int64 zeros,
     ``stamp`` / ``tag`` (N,) int64 with their token counter ``ctr`` (1,) int64, ``split`` (N,) uint8
-    zeros, ``posA`` / ``posB`` (N,) int64 all -1 (fan ordering).  N / M: the primitive's declared
-    vertex / face counts.  ``n`` / ``m``: the mesh they describe; :meth:`sync` rebuilds them (O(m))
-    for a mesh that changed elsewhere, the decoder updates them batch by batch (O(batch)).
+    zeros.  N / M: the primitive's declared vertex / face counts.  ``n`` / ``m``: the mesh they
+    describe; :meth:`sync` rebuilds them (O(m)) for a mesh that changed elsewhere, the decoder
+    updates them batch by batch (O(batch)).
     """
 
     def __init__(self, vertex_capacity: int, face_capacity: int):
@@ -82,7 +82,6 @@ class CornerLists:
         self.nxt = np.full(3 * M, -1, np.int64)
         self.valence, self.tag, self.split = np.zeros(N, np.int64), np.zeros(N, np.int64), np.zeros(N, np.uint8)
         self.below, self.stamp, self.ctr = np.zeros(N, np.int64), np.zeros(N, np.int64), np.zeros(1, np.int64)
-        self.posA, self.posB = np.full(N, -1, np.int64), np.full(N, -1, np.int64)
         self.n = self.m = -1
 
     def fits(self, state) -> bool:
@@ -138,32 +137,37 @@ def _valence(w, flat, head, nxt, stamp, ctr):
 
 
 @kernel_helper
-def _mark_above(w, flat, head, nxt, below, stamp, ctr):
-    """``below[x] += 1`` for each distinct neighbour ``x > w`` of ``w``; returns ``w``'s corner count."""
+def _mark_above(w, i, t, flat, head, nxt, below, stamp, ctr, inc, own, a, b):
+    """``below[x] += 1`` for each distinct neighbour ``x > w`` of ``w``, and ``w``'s corners listed
+    from ``t`` on as split ``i``'s incidences (:func:`_batch_kernel`); returns the next ``t``."""
     token = ctr[0] + 1
     ctr[0] = token
-    corners = 0
     c = head[w]
     while c >= 0:
-        corners += 1
         f3 = c - c % 3
         for j in range(3):
             x = flat[f3 + j]
             if x > w and stamp[x] != token:
                 stamp[x] = token
                 below[x] += 1
+        inc[t], own[t] = c, i
+        a[t], b[t] = flat[f3 + (c + 1) % 3], flat[f3 + (c + 2) % 3]
+        t += 1
         c = nxt[c]
-    return corners
+    return t
 
 
-def _mask_kernel(flat, n, head, nxt, valence, below, stamp, ctr, sel, marked, es, out, ds, buf, probs, decode):
+def _mask_kernel(flat, n, head, nxt, valence, below, stamp, ctr, sel, marked, gstart, inc, own, a, b, es, out, ds,
+                 buf, probs, decode):
     """Code (``decode`` 0, the bits ``sel`` (n,) int64) or decode (1) a batch's selection mask over the
     mesh of the corner lists (:class:`CornerLists` arrays, ``flat`` (3M,) int64 its face slots).
 
     Context of vertex w: 7 * min(2, marked distinct neighbours below w) + clamp(valence, 3, 9) - 3; the
     marks push to the neighbours above them as they are coded.  ``marked`` (cap,) int64 receives
-    the marked vertices, ascending.  Returns ``(k, corners of the marked vertices)``; k = -1 when
-    more than ``cap`` vertices are marked (``below`` is then cleared).
+    the marked vertices, ascending, and ``gstart`` (cap + 1,) / ``inc`` / ``own`` / ``a`` / ``b``
+    (3m,) int64 their incidences as :func:`_batch_kernel` takes them (gathered on the way).
+    Returns ``(k, incidences)``; k = -1 when more than ``cap`` vertices are marked (``below`` is
+    then cleared).
     """
     k = 0
     corners = 0
@@ -182,8 +186,10 @@ def _mask_kernel(flat, n, head, nxt, valence, below, stamp, ctr, sel, marked, es
                 below[x] = 0
             return -1, corners
         marked[k] = w
+        gstart[k] = corners
+        corners = _mark_above(w, k, corners, flat, head, nxt, below, stamp, ctr, inc, own, a, b)
         k += 1
-        corners += _mark_above(w, flat, head, nxt, below, stamp, ctr)
+    gstart[k] = corners
     return k, corners
 
 
@@ -191,51 +197,50 @@ def _mask_kernel(flat, n, head, nxt, valence, below, stamp, ctr, sel, marked, es
 
 
 @kernel_helper
-def _fan(J, a, b, posA, posB, fan):
-    """Order the incidences ``J`` (d,) of one split vertex into ``fan`` (d,) (spec §8.5).
+def _fan(J, a, b, fan):
+    """Order the incidences ``J`` (d,) of one split vertex, ``d <= MAX_ARC_FAN``, into ``fan`` (d,)
+    (spec §8.4.2), by pairwise comparisons of their corners (no scratch outside the fan).
 
-    ``posA`` / ``posB`` (>= n,) int64 scratch, all -1 on entry and on return.  Returns 1 closed
-    fan, 2 open fan, 0 not simple (then ``fan`` is undefined).
+    Returns 1 closed fan, 2 open fan, 0 not simple (then ``fan`` is undefined).
     """
     d = len(J)
-    simple = 1
+    first = -1
+    starts = 0
     for t in range(d):
-        j = J[t]
-        if posA[a[j]] >= 0 or posB[b[j]] >= 0:
-            simple = 0
-        posA[a[j]] = t
-        posB[b[j]] = t
-    kind = 0
-    if simple:
-        first = -1
-        starts = 0
-        for t in range(d):
-            if posB[a[J[t]]] < 0:
-                starts += 1
-                if first < 0:
-                    first = t
-        if starts == 0:
-            kind, first = 1, 0
-        elif starts == 1:
-            kind = 2
-        if kind != 0:
-            t = first
-            for s in range(d):
-                fan[s] = J[t]
-                nxt = posA[b[J[t]]]
-                if s < d - 1:
-                    if nxt < 0 or nxt == first:
-                        kind = 0
-                        break
-                    t = nxt
-                elif kind == 1 and nxt != first:
-                    kind = 0
-                elif kind == 2 and nxt >= 0:
-                    kind = 0
-    for t in range(d):
-        posA[a[J[t]]] = -1
-        posB[b[J[t]]] = -1
+        has_pred = False
+        for s in range(d):
+            if s != t and (a[J[s]] == a[J[t]] or b[J[s]] == b[J[t]]):
+                return 0  # corners after (or before) the vertex repeat
+            has_pred = has_pred or b[J[s]] == a[J[t]]
+        if not has_pred:
+            starts += 1
+            if first < 0:
+                first = t
+    if starts > 1:
+        return 0
+    kind = 2 if starts == 1 else 1
+    if kind == 1:
+        first = 0
+    t = first
+    for s in range(d):
+        fan[s] = J[t]
+        nxt = _successor(J, a, b, t)
+        if s < d - 1:
+            if nxt < 0 or nxt == first:
+                return 0
+            t = nxt
+        elif (kind == 1 and nxt != first) or (kind == 2 and nxt >= 0):
+            return 0
     return kind
+
+
+@kernel_helper
+def _successor(J, a, b, t):
+    """The position in ``J`` of the incidence whose corner after the vertex is ``t``'s corner before it, or -1."""
+    for s in range(len(J)):
+        if a[J[s]] == b[J[t]]:
+            return s
+    return -1
 
 
 @kernel_helper
@@ -317,77 +322,87 @@ def _arc_of(fan, d, kind, sym):
 
 
 @kernel_helper
-def _connectivity_kernel(gstart, gidx, a, b, v, P, sym, posA, posB, es, out, ds, buf, probs, decode):
-    """Code or decode the incidence symbols ``sym`` (I,) uint8 of a batch, split by split.
+def _connectivity_kernel(gstart, gidx, a, b, v, P, sym, S, ring, nrm, es, out, ds, buf, probs, decode):
+    """Code or decode the incidence symbols ``sym`` (I,) uint8 of a batch, split by split, and
+    take each split's ring statistics (:func:`_ring_stats`) while its rows are at hand.
 
     ``gidx[gstart[i]:gstart[i+1]]``: split i's incidences in face-slot order; ``a`` / ``b`` (I,)
-    the corners after / before the split vertex.  Returns 0, or (decode) -1 on an invalid code.
+    the corners after / before the split vertex.  Fills ``S`` (k, D) int64, ``ring`` (k, 2) int64,
+    ``nrm`` (k, 3) float64.  Returns 0, or (decode) -1 on an invalid code.
     """
-    k = len(v)
     fan = np.empty(MAX_ARC_FAN, np.int64)
     lens = np.empty(MAX_ARC_FAN, np.float64)
     scores = np.empty(MAX_ARC_FAN, np.float64)
-    for i in range(k):
+    for i in range(len(v)):
         J = gidx[gstart[i]:gstart[i + 1]]
-        d = len(J)
-        kind = _fan(J, a, b, posA, posB, fan) if 0 < d <= MAX_ARC_FAN else 0
-        s, L, left, right = -1, 0, 0, 0
-        if kind != 0:
+        if _split_symbols(J, v[i], a, b, P, sym, fan, lens, scores, es, out, ds, buf, probs, decode) != 0:
+            return -1
+        _ring_stats(J, a, b, v[i], sym, P, S[i], ring[i], nrm[i])
+    return 0
+
+
+@kernel_helper
+def _split_symbols(J, vv, a, b, P, sym, fan, lens, scores, es, out, ds, buf, probs, decode):
+    """Code or decode the symbols of one split's incidences ``J`` (spec §8.4.2); 0, or -1 on an invalid code."""
+    d = len(J)
+    kind = _fan(J, a, b, fan) if 0 < d <= MAX_ARC_FAN else 0
+    s, L, left, right = -1, 0, 0, 0
+    if kind != 0:
+        if decode:
+            escape = rc.dec_bit(ds, buf, probs, P_ESCAPE)
+        else:
+            s, L, left, right = _arc_of(fan, d, kind, sym)
+            escape = 1 if s < 0 else 0
+            rc.enc_bit(es, out, probs, P_ESCAPE, escape)
+    else:
+        escape = 1
+    if escape:
+        for t in range(d):
             if decode:
-                escape = rc.dec_bit(ds, buf, probs, P_ESCAPE)
+                x = rc.dec_tree(ds, buf, probs, P_SYMBOL, 3)
+                if x >= 5:
+                    return -1
+                sym[J[t]] = x
             else:
-                s, L, left, right = _arc_of(fan, d, kind, sym)
-                escape = 1 if s < 0 else 0
-                rc.enc_bit(es, out, probs, P_ESCAPE, escape)
-        else:
-            escape = 1
-        if escape:
-            for t in range(d):
-                if decode:
-                    x = rc.dec_tree(ds, buf, probs, P_SYMBOL, 3)
-                    if x >= 5:
-                        return -1
-                    sym[J[t]] = x
-                else:
-                    rc.enc_tree(es, out, probs, P_SYMBOL, 3, sym[J[t]])
-            continue
-        len_ctx = _block(B_LENGTH + min(d, 16) - 1)
-        if decode:
-            L = rc.dec_uint(ds, buf, probs, len_ctx) + 1
-            if L < 1 or L > d:
-                return -1
-        else:
-            rc.enc_uint(es, out, probs, len_ctx, L - 1)
-        ncand = d if kind == 1 else d - L + 1
-        rank_ctx = _block(B_RANK + min(ncand, 16) - 1)
-        if decode:
-            r = rc.dec_uint(ds, buf, probs, rank_ctx)
-            if r < 0 or r >= ncand:
-                return -1
-            s = _arc_rank(fan, d, kind == 1, L, 0, a, v[i], P, lens, scores, r)
-        else:
-            rc.enc_uint(es, out, probs, rank_ctx, _arc_rank(fan, d, kind == 1, L, s, a, v[i], P, lens, scores, -1))
-        if kind == 1:
-            left, right = 1, 1
-        else:
-            if s == 0:
-                if decode:
-                    left = rc.dec_bit(ds, buf, probs, P_WING)
-                else:
-                    rc.enc_bit(es, out, probs, P_WING, left)
+                rc.enc_tree(es, out, probs, P_SYMBOL, 3, sym[J[t]])
+        return 0
+    len_ctx = _block(B_LENGTH + min(d, 16) - 1)
+    if decode:
+        L = rc.dec_uint(ds, buf, probs, len_ctx) + 1
+        if L < 1 or L > d:
+            return -1
+    else:
+        rc.enc_uint(es, out, probs, len_ctx, L - 1)
+    ncand = d if kind == 1 else d - L + 1
+    rank_ctx = _block(B_RANK + min(ncand, 16) - 1)
+    if decode:
+        r = rc.dec_uint(ds, buf, probs, rank_ctx)
+        if r < 0 or r >= ncand:
+            return -1
+        s = _arc_rank(fan, d, kind == 1, L, 0, a, vv, P, lens, scores, r)
+    else:
+        rc.enc_uint(es, out, probs, rank_ctx, _arc_rank(fan, d, kind == 1, L, s, a, vv, P, lens, scores, -1))
+    if kind == 1:
+        left, right = 1, 1
+    else:
+        if s == 0:
+            if decode:
+                left = rc.dec_bit(ds, buf, probs, P_WING)
             else:
-                left = 1
-            if s + L == d:
-                if decode:
-                    right = rc.dec_bit(ds, buf, probs, P_WING + 1)
-                else:
-                    rc.enc_bit(es, out, probs, P_WING + 1, right)
+                rc.enc_bit(es, out, probs, P_WING, left)
+        else:
+            left = 1
+        if s + L == d:
+            if decode:
+                right = rc.dec_bit(ds, buf, probs, P_WING + 1)
             else:
-                right = 1
-        if decode:
-            for t in range(d):
-                inside = (t - s) % d
-                sym[fan[t]] = _arc_symbol(inside, L, left, right) if inside < L else 0
+                rc.enc_bit(es, out, probs, P_WING + 1, right)
+        else:
+            right = 1
+    if decode:
+        for t in range(d):
+            inside = (t - s) % d
+            sym[fan[t]] = _arc_symbol(inside, L, left, right) if inside < L else 0
     return 0
 
 
@@ -401,51 +416,59 @@ def _floor_half(x):
 
 
 @kernel_helper
-def _geometry_kernel(gstart, gidx, a, b, v, sym, P, n0, es, out, ds, buf, probs, decode, rsum, rcount):
-    """Code (from ``P[n0 + i]``) or decode (into it) the values of the new vertices, split by split.
+def _ring_stats(J, a, b, vv, sym, P, S, ring, nrm):
+    """One split's ring over the faces of its new vertex (spec §8.4.3), from its incidences ``J``
+    and their symbols: ``S`` (D,) int64 the sums of the faces' other corners' values, ``ring`` (2,)
+    int64 the face count ``c`` and the summed L1 edge ``E``, ``nrm`` (3,) float64 the normal."""
+    D = P.shape[1]
+    S[:] = 0
+    c, ell = 0, 0
+    nx, ny, nz = 0.0, 0.0, 0.0
+    for j in J:
+        s = sym[j]
+        if s == 0:
+            continue
+        aj, bj = a[j], b[j]
+        for q in range(D):
+            S[q] += P[aj, q] + P[bj, q]
+        c += 1
+        ell += abs(P[aj, 0] - P[bj, 0]) + abs(P[aj, 1] - P[bj, 1]) + abs(P[aj, 2] - P[bj, 2])
+        e1x, e1y, e1z = np.float64(P[aj, 0] - P[vv, 0]), np.float64(P[aj, 1] - P[vv, 1]), np.float64(P[aj, 2] - P[vv, 2])
+        e2x, e2y, e2z = np.float64(P[bj, 0] - P[vv, 0]), np.float64(P[bj, 1] - P[vv, 1]), np.float64(P[bj, 2] - P[vv, 2])
+        nx += e1y * e2z - e1z * e2y
+        ny += e1z * e2x - e1x * e2z
+        nz += e1x * e2y - e1y * e2x
+        for w in range(2):
+            if (w == 0 and (s == 2 or s == 4)) or (w == 1 and (s == 3 or s == 4)):
+                o = aj if w == 0 else bj
+                for q in range(D):
+                    S[q] += P[vv, q] + P[o, q]
+                c += 1
+                ell += abs(P[vv, 0] - P[o, 0]) + abs(P[vv, 1] - P[o, 1]) + abs(P[vv, 2] - P[o, 2])
+    ring[0], ring[1] = c, ell
+    nrm[0], nrm[1], nrm[2] = nx, ny, nz
+
+
+@kernel_helper
+def _values_kernel(v, P, n0, S, ring, nrm, es, out, ds, buf, probs, decode, rsum, rcount):
+    """Code (from ``P[n0 + i]``) or decode (into it) the values of the new vertices, split by split,
+    given their rings (``S``, ``ring``, ``nrm`` of :func:`_connectivity_kernel`).
 
     Also fills ``rsum`` (k, D) float64 / ``rcount`` (k,) int64, each split's ring sum and twice
     its face count (:class:`~pmwm_codec.progressive.vsplit.SplitTopology`'s ``ring_sum`` /
     ``ring_count``).  Returns 0, or (decode) -1 on an invalid code / a value outside ``|x| < 2**31``.
     """
-    k = len(v)
     D = P.shape[1]
-    S = np.zeros(D, np.int64)
     frame = np.empty((3, 3), np.float64)  # scratch rows: ring mean m, normal n, prediction ph
-    for i in range(k):
-        vv = v[i]
-        S[:] = 0
-        c = 0
-        ell = 0
-        nx, ny, nz = 0.0, 0.0, 0.0
-        for t in range(gstart[i], gstart[i + 1]):
-            j = gidx[t]
-            s = sym[j]
-            if s == 0:
-                continue
-            aj, bj = a[j], b[j]
-            for q in range(D):
-                S[q] += P[aj, q] + P[bj, q]
-            c += 1
-            ell += abs(P[aj, 0] - P[bj, 0]) + abs(P[aj, 1] - P[bj, 1]) + abs(P[aj, 2] - P[bj, 2])
-            e1x, e1y, e1z = np.float64(P[aj, 0] - P[vv, 0]), np.float64(P[aj, 1] - P[vv, 1]), np.float64(P[aj, 2] - P[vv, 2])
-            e2x, e2y, e2z = np.float64(P[bj, 0] - P[vv, 0]), np.float64(P[bj, 1] - P[vv, 1]), np.float64(P[bj, 2] - P[vv, 2])
-            nx += e1y * e2z - e1z * e2y
-            ny += e1z * e2x - e1x * e2z
-            nz += e1x * e2y - e1y * e2x
-            for w in range(2):
-                if (w == 0 and (s == 2 or s == 4)) or (w == 1 and (s == 3 or s == 4)):
-                    o = aj if w == 0 else bj
-                    for q in range(D):
-                        S[q] += P[vv, q] + P[o, q]
-                    c += 1
-                    ell += abs(P[vv, 0] - P[o, 0]) + abs(P[vv, 1] - P[o, 1]) + abs(P[vv, 2] - P[o, 2])
+    for i in range(len(v)):
+        c, ell = ring[i, 0], ring[i, 1]
         if c == 0:
             return -1
         for q in range(D):
-            rsum[i, q] = np.float64(S[q])
+            rsum[i, q] = np.float64(S[i, q])
         rcount[i] = 2 * c
-        status = _split_values(S, c, ell, nx, ny, nz, vv, n0 + i, P, frame, es, out, ds, buf, probs, decode)
+        status = _split_values(S[i], c, ell, nrm[i, 0], nrm[i, 1], nrm[i, 2], v[i], n0 + i, P, frame, es, out, ds,
+                               buf, probs, decode)
         if status != 0:
             return status
     return 0
@@ -550,21 +573,22 @@ def _encode_batch(enc, state, batch, lists) -> None:
     enc.reserve(n)
     lists.sync(state)
     rc._kernel(_mask_kernel)(state.faces.reshape(-1), n, lists.head, lists.nxt, lists.valence, lists.below,
-                             lists.stamp, lists.ctr, sel, np.empty(k, np.int64), enc.es, enc.out, _NO_STATE,
+                             lists.stamp, lists.ctr, sel, *_mask_buffers(state.m, k), enc.es, enc.out, _NO_STATE,
                              _NO_BYTES, enc.probs, 0)
     inc, owner, gstart, gidx, a, b = _grouped(state, batch.v)
     sym = np.asarray(batch.symbols, np.uint8)
     enc.reserve(_connectivity_decisions(len(inc), k))
-    rc._kernel(_connectivity_kernel)(gstart, gidx, a, b, np.asarray(batch.v, np.int64), state.positions, sym,
-                                     lists.posA, lists.posB, enc.es, enc.out, _NO_STATE, _NO_BYTES, enc.probs, 0)
+    v, D = np.asarray(batch.v, np.int64), state.positions.shape[1]
+    S, ring, nrm = np.empty((k, D), np.int64), np.empty((k, 2), np.int64), np.empty((k, 3))
+    rc._kernel(_connectivity_kernel)(gstart, gidx, a, b, v, state.positions, sym, S, ring, nrm,
+                                     enc.es, enc.out, _NO_STATE, _NO_BYTES, enc.probs, 0)
     n0 = state.n
     topo = apply_batch(state, batch)
     if not np.array_equal(topo.incidences, inc):
         raise AssertionError("payload v2: incidences changed under the encoder")
-    enc.reserve(k * state.positions.shape[1] * INT_DECISIONS)
-    rc._kernel(_geometry_kernel)(gstart, gidx, a, b, np.asarray(batch.v, np.int64), sym, state.positions, n0,
-                                 enc.es, enc.out, _NO_STATE, _NO_BYTES, enc.probs, 0,
-                                 np.empty((k, state.positions.shape[1])), np.empty(k, np.int64))
+    enc.reserve(k * D * INT_DECISIONS)
+    rc._kernel(_values_kernel)(v, state.positions, n0, S, ring, nrm, enc.es, enc.out, _NO_STATE, _NO_BYTES,
+                               enc.probs, 0, np.empty((k, D)), np.empty(k, np.int64))
 
 
 def pack_chunks(state, chunks) -> list:
@@ -646,26 +670,32 @@ _BATCH_ERRORS = {
 }
 
 
+def _mask_buffers(m: int, cap: int) -> tuple:
+    """Outputs of :func:`_mask_kernel` for a mesh of ``m`` faces and up to ``cap`` marks:
+    ``(marked (cap,), gstart (cap + 1,), inc, own, a, b (3m,))`` int64, uninitialised (their
+    pages are only taken as the kernel writes them)."""
+    return (np.empty(cap, np.int64), np.empty(cap + 1, np.int64)) + tuple(np.empty(3 * m, np.int64) for _ in range(4))
+
+
 def _decode_batch(dec, state, lists):
     """One batch: mask, then connectivity, topology and values in one kernel (:func:`_batch_kernel`)."""
     n, m = state.n, state.m
     flat = state.faces.reshape(-1)
-    marked = np.empty(len(state.positions) - n, np.int64)
+    marked, gstart, inc, own, a, b = buffers = _mask_buffers(m, len(state.positions) - n)
     k, corners = rc._kernel(_mask_kernel)(flat, n, lists.head, lists.nxt, lists.valence, lists.below, lists.stamp,
-                                          lists.ctr, _NO_SEL, marked, _NO_STATE, _NO_BYTES,
+                                          lists.ctr, _NO_SEL, *buffers, _NO_STATE, _NO_BYTES,
                                           dec.ds, dec.buf, dec.probs, 1)
     if k < 0:
         raise FormatError("splits exceed the declared vertex count")
     if k == 0:
         raise FormatError("chunk payload: a batch marks no split vertex")
-    v = marked[:k].copy()
+    v, gstart = marked[:k], gstart[: k + 1]
+    inc, own, a, b = inc[:corners], own[:corners], a[:corners], b[:corners]
     D = state.positions.shape[1]
-    inc, own, a, b = (np.empty(corners, np.int64) for _ in range(4))
     sym = np.zeros(corners, np.uint8)
-    gstart = np.empty(k + 1, np.int64)
     rsum, rcount = np.empty((k, D)), np.empty(k, np.int64)
     new_faces = rc._kernel(_batch_kernel)(flat, m, n, state.positions, v, lists.head, lists.tail, lists.nxt,
-                                          lists.valence, lists.stamp, lists.tag, lists.split, lists.ctr, lists.posA, lists.posB, inc, own, a,
+                                          lists.valence, lists.stamp, lists.tag, lists.split, lists.ctr, inc, own, a,
                                           b, sym, gstart, rsum, rcount, dec.ds, dec.buf, dec.probs)
     if new_faces < 0:
         raise FormatError(_BATCH_ERRORS[new_faces])
@@ -706,27 +736,28 @@ class DecodedBatch(SplitBatch):
         return self._positions[self._topo.u] - self._topo.prediction()
 
 
-def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, split, ctr, posA, posB, inc, own, a, b, sym, gstart,
+def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, split, ctr, inc, own, a, b, sym, gstart,
                   rsum, rcount, ds, buf, probs):
-    """Decode the connectivity and values of one batch whose split vertices ``v`` (k,) are known,
-    applying it to the face slots ``flat`` (3M,) int64, the values ``P`` (N, D) and the corner
-    lists (:class:`CornerLists` arrays).
+    """Decode the connectivity and values of one batch whose split vertices ``v`` (k,) and
+    incidences are known (:func:`_mask_kernel`), applying it to the face slots ``flat`` (3M,)
+    int64, the values ``P`` (N, D) and the corner lists (:class:`CornerLists` arrays).
 
-    Fills, per incidence grouped by split (split i's: ``[gstart[i], gstart[i+1])``, face-slot
+    The incidences are grouped by split (split i's: ``[gstart[i], gstart[i+1])``, face-slot
     order within it): ``inc`` corner, ``own`` split, ``a`` / ``b`` corners after / before the
-    split vertex (all (I,) int64), ``sym`` (I,) uint8; and ``rsum`` / ``rcount`` (see
-    :func:`_geometry_kernel`).  Returns the number of new faces, or a negative code
+    split vertex (all (I,) int64).  Fills ``sym`` (I,) uint8 and ``rsum`` / ``rcount`` (see
+    :func:`_values_kernel`).  Returns the number of new faces, or a negative code
     (:data:`_BATCH_ERRORS`).
     """
-    _gather_incidences(v, flat, head, nxt, inc, own, a, b, gstart)
     gidx = np.arange(len(inc))
     es, out = np.zeros(6, np.int64), np.zeros(1, np.uint8)
-    if _connectivity_kernel(gstart, gidx, a, b, v, P, sym, posA, posB, es, out, ds, buf, probs, 1) != 0:
+    k, D = len(v), P.shape[1]
+    S, ring, nrm = np.empty((k, D), np.int64), np.empty((k, 2), np.int64), np.empty((k, 3))
+    if _connectivity_kernel(gstart, gidx, a, b, v, P, sym, S, ring, nrm, es, out, ds, buf, probs, 1) != 0:
         return -1
     new_faces, rewritten = _link_splits(flat, m0, n0, v, inc, own, a, b, sym, gstart, head, tail, nxt, split)
     if new_faces < 0:
         return new_faces
-    if _geometry_kernel(gstart, gidx, a, b, v, sym, P, n0, es, out, ds, buf, probs, 1, rsum, rcount) != 0:
+    if _values_kernel(v, P, n0, S, ring, nrm, es, out, ds, buf, probs, 1, rsum, rcount) != 0:
         return -4
     _update_valences(n0, v, a, b, sym, gstart, flat, head, nxt, valence, stamp, tag, ctr, rewritten)
     return new_faces
@@ -774,22 +805,6 @@ def _update_valences(n0, v, a, b, sym, gstart, flat, head, nxt, valence, stamp, 
 def _tag(x, token, bits, tag):
     """``tag[x]``: ``token`` with ``bits`` or-ed into those ``x`` already has under it."""
     tag[x] = (tag[x] | bits) if tag[x] & ~7 == token else (token | bits)
-
-
-@kernel_helper
-def _gather_incidences(v, flat, head, nxt, inc, own, a, b, gstart):
-    """Every corner of the split vertices ``v``, split by split (see :func:`_batch_kernel`)."""
-    t = 0
-    for i in range(len(v)):
-        gstart[i] = t
-        c = head[v[i]]
-        while c >= 0:
-            f3 = c - c % 3
-            inc[t], own[t] = c, i
-            a[t], b[t] = flat[f3 + (c + 1) % 3], flat[f3 + (c + 2) % 3]
-            t += 1
-            c = nxt[c]
-    gstart[len(v)] = t
 
 
 @kernel_helper
