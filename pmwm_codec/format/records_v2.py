@@ -67,7 +67,7 @@ class CornerLists:
     """Every vertex's corners (the face slots holding it) as ascending linked lists in preallocated
     arrays, with every vertex's valence (spec §8.4.1): the adjacency the models read.
 
-    ``head`` / ``tail`` (N,) int64 first / last corner of a vertex (-1: none), ``nxt`` (3M,) int64
+    ``head`` / ``tail`` (N,) int32 first / last corner of a vertex (-1: none), ``nxt`` (3M,) int32
     the next corner of the same vertex (-1: the last); ``valence`` (N,) int64 the number of
     distinct other vertices sharing a face with each vertex; scratch: ``below`` (N,) int64 zeros,
     ``stamp`` / ``tag`` (N,) int64 with their token counter ``ctr`` (1,) int64, ``split`` (N,) uint8
@@ -78,8 +78,8 @@ class CornerLists:
 
     def __init__(self, vertex_capacity: int, face_capacity: int):
         N, M = int(vertex_capacity), int(face_capacity)
-        self.head, self.tail = np.full(N, -1, np.int64), np.full(N, -1, np.int64)
-        self.nxt = np.full(3 * M, -1, np.int64)
+        self.head, self.tail = np.full(N, -1, np.int32), np.full(N, -1, np.int32)
+        self.nxt = np.full(3 * M, -1, np.int32)  # corners < 3 * MAX_FACES < 2**31
         self.valence, self.tag, self.split = np.zeros(N, np.int64), np.zeros(N, np.int64), np.zeros(N, np.uint8)
         self.below, self.stamp, self.ctr = np.zeros(N, np.int64), np.zeros(N, np.int64), np.zeros(1, np.int64)
         self.n = self.m = -1
