@@ -319,6 +319,8 @@ def bench_mesh(name, mesh, repeats, zstd_level, log):
         v1 = io.BytesIO()
         pmwm_codec.encode(mesh, v1, measure=False, grid_bits=14, zstd_level=zstd_level, payload_version=1)
         decodes["ours_v1"] = lambda: pmwm_codec.decode(v1.getvalue())
+    for warm in decodes.values():  # first calls load the decoders' compiled kernels (as the encode warm-up above)
+        warm()
     timed = interleaved(decodes, max(repeats, 5))
     if "ours_v1" in timed:
         res.update(ours_decode_v1=timed["ours_v1"][0], ours_decode_v1_all=timed["ours_v1"][1])
@@ -383,7 +385,8 @@ def peak_memory(mesh, blob: bytes, draco: bytes, target_faces: int, log) -> dict
                 fh.write(data)
         for task in PEAK_TASKS:
             for traced in ((False, True) if task.startswith("ours") else (False,)):
-                cmd = [sys.executable, os.path.abspath(__file__), "--peak-child", task, tmp, str(target_faces)]
+                cmd = [sys.executable, os.path.abspath(__file__), "--peak-child", task, tmp, str(target_faces),
+                       "--payload-version", str(PAYLOAD_VERSION[0])]
                 run = subprocess.run(cmd + (["--traced"] if traced else []), capture_output=True, text=True,
                                      cwd=ROOT, env={**os.environ, "PYTHONPATH": ROOT})
                 if run.returncode != 0:
@@ -423,7 +426,7 @@ def peak_child(task: str, tmp: str, target_faces: int, traced: bool) -> None:
         from pmwm_codec.shapes import icosphere
 
         buf = io.BytesIO()
-        pmwm_codec.encode(icosphere(2, 1.0), buf)
+        pmwm_codec.encode(icosphere(2, 1.0), buf, payload_version=PAYLOAD_VERSION[0])
         pmwm_codec.decode(buf.getvalue())
 
     if traced:
@@ -741,12 +744,12 @@ def main(argv=None):
     ap.add_argument("--peak-child", nargs=3, metavar=("TASK", "DIR", "TARGET_FACES"), help=argparse.SUPPRESS)
     ap.add_argument("--traced", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    PAYLOAD_VERSION[0] = args.payload_version
     if args.peak_child:
         task, tmp, target = args.peak_child
         peak_child(task, tmp, int(target), args.traced)
         return
     ZSTD_LEVEL_USED[0] = args.zstd_level
-    PAYLOAD_VERSION[0] = args.payload_version
     command = "python tools/bench.py " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
     log = lambda s: print(s, file=sys.stderr, flush=True)  # noqa: E731
     info = machine()

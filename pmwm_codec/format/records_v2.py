@@ -137,23 +137,39 @@ def _valence(w, flat, head, nxt, stamp, ctr):
 
 
 @kernel_helper
-def _mark_above(w, i, t, flat, head, nxt, below, stamp, ctr, inc, own, a, b):
-    """``below[x] += 1`` for each distinct neighbour ``x > w`` of ``w``, and ``w``'s corners listed
-    from ``t`` on as split ``i``'s incidences (:func:`_batch_kernel`); returns the next ``t``."""
-    token = ctr[0] + 1
-    ctr[0] = token
+def _mark_above(w, i, t, flat, head, nxt, below, stamp, ctr, inc, own, a, b, near):
+    """List ``w``'s corners from ``t`` on as split ``i``'s incidences (:func:`_batch_kernel`) and
+    ``below[x] += 1`` for each distinct neighbour ``x > w`` of ``w`` (told apart in ``near``
+    (2 * MAX_ARC_FAN,) int64 scratch for a small fan, by ``stamp`` otherwise); returns the next ``t``."""
+    start = t
     c = head[w]
     while c >= 0:
         f3 = c - c % 3
-        for j in range(3):
-            x = flat[f3 + j]
-            if x > w and stamp[x] != token:
-                stamp[x] = token
-                below[x] += 1
         inc[t], own[t] = c, i
         a[t], b[t] = flat[f3 + (c + 1) % 3], flat[f3 + (c + 2) % 3]
         t += 1
         c = nxt[c]
+    small = t - start <= MAX_ARC_FAN
+    token = ctr[0] + 1
+    ctr[0] = token
+    count = 0
+    for s in range(start, t):
+        for x in (a[s], b[s]):
+            if x <= w:
+                continue
+            if small:
+                seen = False
+                for q in range(count):
+                    seen = seen or near[q] == x
+                if seen:
+                    continue
+                near[count] = x
+                count += 1
+            else:
+                if stamp[x] == token:
+                    continue
+                stamp[x] = token
+            below[x] += 1
     return t
 
 
@@ -171,6 +187,7 @@ def _mask_kernel(flat, n, head, nxt, valence, below, stamp, ctr, sel, marked, gs
     """
     k = 0
     corners = 0
+    near = np.empty(2 * MAX_ARC_FAN, np.int64)
     for w in range(n):
         ctx = P_MASK + 7 * min(below[w], 2) + min(max(valence[w], 3), 9) - 3
         below[w] = 0
@@ -187,7 +204,7 @@ def _mask_kernel(flat, n, head, nxt, valence, below, stamp, ctr, sel, marked, gs
             return -1, corners
         marked[k] = w
         gstart[k] = corners
-        corners = _mark_above(w, k, corners, flat, head, nxt, below, stamp, ctr, inc, own, a, b)
+        corners = _mark_above(w, k, corners, flat, head, nxt, below, stamp, ctr, inc, own, a, b, near)
         k += 1
     gstart[k] = corners
     return k, corners
@@ -780,25 +797,53 @@ def _update_valences(n0, v, a, b, sym, gstart, flat, head, nxt, valence, stamp, 
             valence[v[i]] = _valence(v[i], flat, head, nxt, stamp, ctr)
             valence[n0 + i] = _valence(n0 + i, flat, head, nxt, stamp, ctr)
         return
-    own = np.empty((k, 2), np.int64)  # valences of u and v after the split
+    own = np.ones((k, 2), np.int64)  # valences of u and v after the split
+    near, flags = np.empty(2 * MAX_ARC_FAN, np.int64), np.empty(2 * MAX_ARC_FAN, np.int64)
     for i in range(k):
+        lo, hi = gstart[i], gstart[i + 1]
+        if hi - lo <= MAX_ARC_FAN:  # a small ring: its distinct vertices told apart in near / flags
+            count = 0
+            for t in range(lo, hi):
+                s = sym[t]
+                count = _note(a[t], (1 if s != 0 else 2) | (2 if s == 2 or s == 4 else 0), near, flags, count)
+                count = _note(b[t], (1 if s != 0 else 2) | (2 if s == 3 or s == 4 else 0), near, flags, count)
+            for q in range(count):
+                _ring_vertex_moved(near[q], flags[q], v[i], valence, own[i])
+            continue
         ctr[0] += 1
         token = 8 * ctr[0]  # tag bits: 1 in a face of u, 2 in a face of v, 4 counted
-        for t in range(gstart[i], gstart[i + 1]):
+        for t in range(lo, hi):
             s = sym[t]
             _tag(a[t], token, (1 if s != 0 else 2) | (2 if s == 2 or s == 4 else 0), tag)
             _tag(b[t], token, (1 if s != 0 else 2) | (2 if s == 3 or s == 4 else 0), tag)
-        own[i, 0], own[i, 1] = 1, 1
-        for t in range(gstart[i], gstart[i + 1]):
+        for t in range(lo, hi):
             for x in (a[t], b[t]):
-                bits = tag[x]
-                if bits & 4 == 0 and x != v[i]:
-                    valence[x] += (bits & 1) - 1 + ((bits >> 1) & 1)
-                    own[i, 0] += bits & 1
-                    own[i, 1] += (bits >> 1) & 1
-                    tag[x] = bits | 4
+                if tag[x] & 4 == 0:
+                    _ring_vertex_moved(x, tag[x], v[i], valence, own[i])
+                    tag[x] |= 4
     for i in range(k):  # last: a split vertex may be in another split's ring
         valence[n0 + i], valence[v[i]] = own[i, 0], own[i, 1]
+
+
+@kernel_helper
+def _ring_vertex_moved(x, bits, vv, valence, own):
+    """Ring vertex ``x`` of a split of ``vv``, in a face of u (bits & 1) / of v (bits & 2) after it:
+    its valence gains u, loses v unless still beside it; ``own`` (2,) counts it for u and v."""
+    if x != vv:
+        valence[x] += (bits & 1) - 1 + ((bits >> 1) & 1)
+        own[0] += bits & 1
+        own[1] += (bits >> 1) & 1
+
+
+@kernel_helper
+def _note(x, bits, near, flags, count):
+    """Or ``bits`` into the flags of ``x`` among ``near[:count]`` (appended when new); returns the count."""
+    for q in range(count):
+        if near[q] == x:
+            flags[q] |= bits
+            return count
+    near[count], flags[count] = x, bits
+    return count + 1
 
 
 @kernel_helper

@@ -118,35 +118,19 @@ class SplitTopology:
     #: (a plain decode never asks: only the watermark's ring binding reads the ring)
     ring: object = field(default=None, repr=False)
 
-    def _ring(self) -> tuple:
-        if callable(self.ring):
-            self.ring = self.ring()
-        return self.ring
+    def _listed(self, name: str) -> tuple:
+        """Field ``name`` (a tuple of arrays), listed now if it still holds the function that lists it."""
+        value = getattr(self, name)
+        if callable(value):
+            value = value()
+            setattr(self, name, value)
+        return value
 
-    def _incidence_pair(self) -> tuple:
-        if callable(self.incidence_lists):
-            self.incidence_lists = self.incidence_lists()
-        return self.incidence_lists
-
-    @property
-    def incidences(self) -> np.ndarray:
-        return self._incidence_pair()[0]
-
-    @property
-    def owner(self) -> np.ndarray:
-        return self._incidence_pair()[1]
-
-    @property
-    def ring_owner(self) -> np.ndarray:
-        return self._ring()[0]
-
-    @property
-    def ring_a(self) -> np.ndarray:
-        return self._ring()[1]
-
-    @property
-    def ring_b(self) -> np.ndarray:
-        return self._ring()[2]
+    incidences = property(lambda self: self._listed("incidence_lists")[0])
+    owner = property(lambda self: self._listed("incidence_lists")[1])
+    ring_owner = property(lambda self: self._listed("ring")[0])
+    ring_a = property(lambda self: self._listed("ring")[1])
+    ring_b = property(lambda self: self._listed("ring")[2])
 
     def prediction(self) -> np.ndarray:
         """(k, D) int64 ``floor(ring mean)``, the predictor of the new vertices' values."""
