@@ -14,8 +14,13 @@ symbols, final integer values) with models that need the mesh the chunk applies 
 So encoding and decoding both walk the batches on a :class:`~pmwm_codec.progressive.vsplit.MeshState`:
 :func:`pack_chunks` takes the base state and every chunk's batches, :func:`decode_chunk` applies
 one chunk's batches to a state as it decodes them.  The coder is :mod:`.rangecoder`; the model
-kernels here are numba-compiled (plain Python without numba) and loop per vertex / split, around
-numpy over whole batches (incidences, topology: :mod:`..progressive.vsplit`).
+kernels here are numba-compiled (plain Python without numba, same results, slow) and loop per
+vertex / split.  Both sides read the mesh through :class:`CornerLists` (every vertex's corners,
+its valence).  The decoder (:class:`ChunkDecoder`, one per primitive) keeps them from chunk to
+chunk and updates them with each batch, so a batch costs two kernel calls and work in proportion
+to its splits plus one mask bit per vertex: :func:`_mask_kernel` (marks, gathering the marked
+vertices' incidences on the way) and :func:`_batch_kernel` (arcs, topology, values, valences).
+The encoder rebuilds them per batch and applies batches with :mod:`..progressive.vsplit`.
 """
 
 from __future__ import annotations
