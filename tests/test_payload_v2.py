@@ -141,6 +141,72 @@ def test_v2_watermark_reads_as_in_v1_and_verifies_authentic(mode):
     assert as_mesh.verdict == "authentic", as_mesh.as_json()
 
 
+# ---------------------------------------------------------------- the decoder's incremental adjacency
+
+
+def _corner_sets_and_valences(lists, n: int) -> tuple:
+    """Every vertex's corners (walking the lists, which must be ascending) and its valence."""
+    corners = []
+    for w in range(n):
+        c, got = int(lists.head[w]), []
+        while c >= 0:
+            got.append(c)
+            c = int(lists.nxt[c])
+        assert got == sorted(got)
+        corners.append(got)
+    return corners, lists.valence[:n].tolist()
+
+
+def _assert_lists_match_a_rebuild(lists, state) -> None:
+    fresh = records_v2.CornerLists(len(state.positions), len(state.faces))
+    fresh.sync(state)
+    assert (lists.n, lists.m) == (state.n, state.m)
+    assert _corner_sets_and_valences(lists, state.n) == _corner_sets_and_valences(fresh, state.n)
+
+
+def test_v2_decoder_corner_lists_and_valences_equal_a_rebuild_after_every_chunk():
+    from pmwm_codec.stream.replay import Replay
+    from pmwm_codec.format import ChunkEvent, ContainerParser
+
+    data, _ = _encode(shapes.grid(14, 11, hole=True), 2, base_codec="plain")
+    parser, replay = ContainerParser(), Replay()
+    chunks = 0
+    for event in parser.feed(data):
+        replay.on_event(event)
+        if isinstance(event, ChunkEvent):
+            _assert_lists_match_a_rebuild(replay.models[0].lists, replay.states[0])
+            chunks += 1
+    assert chunks >= 2 and replay.batches_applied > chunks
+
+
+def test_a_batch_whose_splits_share_faces_decodes_as_version_1_applies_it():
+    """Splits that are not independent (an encoder MUST NOT batch them; a hostile file may): the
+    decoder's topology, values and adjacency still follow spec §6.1 exactly."""
+    from pmwm_codec.progressive.vsplit import MeshState, SplitBatch, find_incidences
+
+    mesh = shapes.grid(6, 5, hole=False)
+    values = np.rint(mesh.positions * 1000).astype(np.int64)
+    faces = np.asarray(mesh.faces, np.int64)
+    n, m = len(values), len(faces)
+    x, y = sorted(int(c) for c in faces[7, :2])  # both move their corners in face 7; y also in
+    both = np.flatnonzero((faces == x).any(axis=1) & (faces == y).any(axis=1))  # the other face of edge xy
+    v = np.array([x, y], np.int64)
+    encoder_state = MeshState(values, faces, n + 2, m + 4)
+    inc, owner = find_incidences(encoder_state, v)
+    symbols = ((inc // 3 == 7) | ((owner == 1) & np.isin(inc // 3, both))).astype(np.uint8)
+    for i in range(2):  # each split also names one new face on its first incidence
+        symbols[np.flatnonzero(owner == i)[0]] = 2
+    batch = SplitBatch(v, symbols, np.array([[3, -2, 1], [0, 5, -4]]))
+    payload = records_v2.pack_chunks(encoder_state, [[batch]])[0]
+
+    state, model = MeshState(values, faces, n + 2, m + 4), records_v2.ChunkDecoder()
+    (decoded, _), = list(records_v2.decode_chunk(payload, state, model))
+    assert np.array_equal(decoded.symbols, symbols) and np.array_equal(decoded.residual, batch.residual)
+    assert np.array_equal(state.current_faces(), encoder_state.current_faces())
+    assert np.array_equal(state.current_positions(), encoder_state.current_positions())
+    _assert_lists_match_a_rebuild(model.lists, state)
+
+
 # ---------------------------------------------------------------- hostile and truncated input
 
 

@@ -276,7 +276,8 @@ def bench_mesh(name, mesh, repeats, zstd_level, log):
 
     def ours_encode(bits=14):
         buf = io.BytesIO()
-        rep = pmwm_codec.encode(mesh, buf, measure=False, grid_bits=bits, zstd_level=zstd_level)
+        rep = pmwm_codec.encode(mesh, buf, measure=False, grid_bits=bits, zstd_level=zstd_level,
+                                payload_version=PAYLOAD_VERSION[0])
         data[bits] = buf.getvalue()
         return rep
 
@@ -312,9 +313,18 @@ def bench_mesh(name, mesh, repeats, zstd_level, log):
     # decode: ours (bytes in memory) vs DracoPy q14 cl7 of the full mesh
     blob = data[14]
     draco = DracoPy.encode(pts, tri, quantization_bits=14, compression_level=7)
-    timed = interleaved({"ours": lambda: pmwm_codec.decode(blob), "draco": lambda: DracoPy.decode(draco),
-                         "draco_encode": lambda: DracoPy.encode(pts, tri, quantization_bits=14, compression_level=7)},
-                        max(repeats, 5))
+    decodes = {"ours": lambda: pmwm_codec.decode(blob), "draco": lambda: DracoPy.decode(draco),
+               "draco_encode": lambda: DracoPy.encode(pts, tri, quantization_bits=14, compression_level=7)}
+    if PAYLOAD_VERSION[0] != 1:  # the same mesh at payload version 1, decoded in the same runs
+        v1 = io.BytesIO()
+        pmwm_codec.encode(mesh, v1, measure=False, grid_bits=14, zstd_level=zstd_level, payload_version=1)
+        decodes["ours_v1"] = lambda: pmwm_codec.decode(v1.getvalue())
+    for warm in decodes.values():  # first calls load the decoders' compiled kernels (as the encode warm-up above)
+        warm()
+    timed = interleaved(decodes, max(repeats, 5))
+    if "ours_v1" in timed:
+        res.update(ours_decode_v1=timed["ours_v1"][0], ours_decode_v1_all=timed["ours_v1"][1])
+        log(f"  decode runs, payload v1: {timed['ours_v1'][1]}")
     dm, dmesh = timed["ours"][2], timed["draco"][2]
     assert dm.vertex_count == n and dm.face_count == m, (dm.vertex_count, dm.face_count)
     log(f"  decode runs: ours {timed['ours'][1]} draco {timed['draco'][1]}")
@@ -375,7 +385,8 @@ def peak_memory(mesh, blob: bytes, draco: bytes, target_faces: int, log) -> dict
                 fh.write(data)
         for task in PEAK_TASKS:
             for traced in ((False, True) if task.startswith("ours") else (False,)):
-                cmd = [sys.executable, os.path.abspath(__file__), "--peak-child", task, tmp, str(target_faces)]
+                cmd = [sys.executable, os.path.abspath(__file__), "--peak-child", task, tmp, str(target_faces),
+                       "--payload-version", str(PAYLOAD_VERSION[0])]
                 run = subprocess.run(cmd + (["--traced"] if traced else []), capture_output=True, text=True,
                                      cwd=ROOT, env={**os.environ, "PYTHONPATH": ROOT})
                 if run.returncode != 0:
@@ -415,7 +426,7 @@ def peak_child(task: str, tmp: str, target_faces: int, traced: bool) -> None:
         from pmwm_codec.shapes import icosphere
 
         buf = io.BytesIO()
-        pmwm_codec.encode(icosphere(2, 1.0), buf)
+        pmwm_codec.encode(icosphere(2, 1.0), buf, payload_version=PAYLOAD_VERSION[0])
         pmwm_codec.decode(buf.getvalue())
 
     if traced:
@@ -486,8 +497,10 @@ def simplify_profile(mesh, zstd_level) -> list:
 
 
 def decode_profile(blob: bytes) -> dict:
-    """Time the decoder's parts on one full decode: container (digest + zstd), unpack, apply."""
-    from pmwm_codec.format import BaseEvent, ChunkEvent, ContainerParser
+    """Time the decoder's parts on one full decode: container (digest + zstd), unpack, apply
+    (payload version 2: unpacking is decoding against the mesh, counted in apply)."""
+    from pmwm_codec.format import BaseEvent, ChunkEvent, ContainerParser, records_v2
+    from pmwm_codec.format.extension import payload_version
     from pmwm_codec.progressive.vsplit import MeshState, apply_batch
 
     t0 = time.perf_counter()
@@ -502,8 +515,14 @@ def decode_profile(blob: bytes) -> dict:
     base = next(e for e in events if isinstance(e, BaseEvent))
     state = MeshState(base.positions_int, base.faces, int(ext["vertexCount"]), int(ext["faceCount"]))
     t_state = time.perf_counter() - t
+    model = records_v2.ChunkDecoder() if payload_version(ext) == 2 else None
     for e in events:
-        if isinstance(e, ChunkEvent):
+        if isinstance(e, ChunkEvent) and model is not None:  # v2 decodes as it applies: all under "apply"
+            t = time.perf_counter()
+            for _ in records_v2.decode_chunk(e.payload, state, model):
+                pass
+            t_apply += time.perf_counter() - t
+        elif isinstance(e, ChunkEvent):
             t = time.perf_counter()
             batches = records.unpack_batches(e.payload, max_splits=len(state.positions))
             t_unpack += time.perf_counter() - t
@@ -541,7 +560,7 @@ def render(results, info, command) -> str:
     L.append("* fast-simplification: `simplify(points, triangles, target_count=<our base face count>, "
              "return_collapses=True)`;")
     L.append("* ours decode: `pmwm_codec.decode(bytes)` of the whole q14 file in memory (GLB parse, Draco base, "
-             "digests, zstd, every split);")
+             f"digests, zstd, every split), chunk payload version {PAYLOAD_VERSION[0]};")
     L.append("* Draco: `DracoPy.decode` of `DracoPy.encode(points, faces, quantization_bits=14, "
              "compression_level=7)` of the full mesh.")
     L.append("")
@@ -562,6 +581,11 @@ def render(results, info, command) -> str:
     L.append(table(["mesh", "vertices", "repeats", "ours encode", "fast-simplification (collapses)",
                     f"encode ratio (target <= {ENCODE_TARGET:g}x)", "ours full decode", "Draco q14 cl7 decode",
                     f"decode ratio (target <= {DECODE_TARGET:g}x)"], rows))
+    for r in results:
+        if "ours_decode_v1" in r:
+            L.append(f"* {r['name']}: chunk payload version {PAYLOAD_VERSION[0]} above; the same mesh at payload "
+                     f"version 1, decoded in the same runs: {ms(r['ours_decode_v1'])}, "
+                     f"{r['ours_decode_v1'] / r['draco_decode']:.1f}x Draco.")
     L.append("")
     rows = []
     for r in results:
@@ -704,6 +728,7 @@ def render(results, info, command) -> str:
 
 
 ZSTD_LEVEL_USED = [10]
+PAYLOAD_VERSION = [1]  # chunk payload version of our encodes (--payload-version)
 
 
 def main(argv=None):
@@ -713,10 +738,13 @@ def main(argv=None):
     ap.add_argument("--big-repeats", type=int, default=3)
     ap.add_argument("--no-big", action="store_true", help="skip the subdivided (~0.56M vertex) mesh")
     ap.add_argument("--zstd-level", type=int, default=10)
+    ap.add_argument("--payload-version", type=int, choices=(1, 2), default=1,
+                    help="chunk payload version of our timed encodes and decodes (2: also decode v1 in the same runs)")
     ap.add_argument("--write", metavar="MARKDOWN", help="replace the 'Engine' section of this file")
     ap.add_argument("--peak-child", nargs=3, metavar=("TASK", "DIR", "TARGET_FACES"), help=argparse.SUPPRESS)
     ap.add_argument("--traced", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    PAYLOAD_VERSION[0] = args.payload_version
     if args.peak_child:
         task, tmp, target = args.peak_child
         peak_child(task, tmp, int(target), args.traced)

@@ -14,17 +14,24 @@ symbols, final integer values) with models that need the mesh the chunk applies 
 So encoding and decoding both walk the batches on a :class:`~pmwm_codec.progressive.vsplit.MeshState`:
 :func:`pack_chunks` takes the base state and every chunk's batches, :func:`decode_chunk` applies
 one chunk's batches to a state as it decodes them.  The coder is :mod:`.rangecoder`; the model
-kernels here are numba-compiled (plain Python without numba) and loop per vertex / split, around
-numpy over whole batches (incidences, topology: :mod:`..progressive.vsplit`).
+kernels here are numba-compiled (plain Python without numba, same results, slow) and loop per
+vertex / split.  Both sides read the mesh through :class:`CornerLists` (every vertex's corners,
+its valence).  The decoder (:class:`ChunkDecoder`, one per primitive) keeps them from chunk to
+chunk and updates them with each batch, so a batch costs two kernel calls and work in proportion
+to its splits plus one mask bit per vertex: :func:`_mask_kernel` (marks, gathering the marked
+vertices' incidences on the way) and :func:`_batch_kernel` (arcs, topology, values, valences).
+The encoder rebuilds them per batch and applies batches with :mod:`..progressive.vsplit`.
 """
 
 from __future__ import annotations
+
+from functools import cached_property
 
 import numpy as np
 
 from ..errors import FormatError, LimitError
 from ..progressive.topology import group_order, kernel_helper
-from ..progressive.vsplit import SplitBatch, apply_batch, find_incidences, split_topology
+from ..progressive.vsplit import SplitBatch, SplitTopology, _ring_lists, apply_batch, find_incidences
 from . import rangecoder as rc
 from .rangecoder import INT_BLOCK, INT_DECISIONS
 
@@ -58,102 +65,204 @@ def _block(b):
     return P_INT + b * INT_BLOCK
 
 
-# ---------------------------------------------------------------- selection mask
+# ---------------------------------------------------------------- corner lists and the selection mask
 
 
-def _mask_kernel(flat, n, sel, stamp, es, out, ds, buf, probs, decode):
-    """Code (``decode`` 0) or decode (1) the mask ``sel`` (n,) int64 of the mesh whose face slots
-    are ``flat`` (3m,) int64.
+class CornerLists:
+    """Every vertex's corners (the face slots holding it) as ascending linked lists in preallocated
+    arrays, with every vertex's valence (spec §8.4.1): the adjacency the models read.
 
-    ``stamp`` (>= n,) int64 scratch.  Context of vertex w: 7 * min(2, marked distinct neighbours
-    below w) + clamp(distinct neighbours, 3, 9) - 3.  Returns the number of marked vertices.
+    ``head`` / ``tail`` (N,) int32 first / last corner of a vertex (-1: none), ``nxt`` (3M,) int32
+    the next corner of the same vertex (-1: the last); ``valence`` (N,) int64 the number of
+    distinct other vertices sharing a face with each vertex; scratch: ``below`` (N,) int64 zeros,
+    ``stamp`` / ``tag`` (N,) int64 with their token counter ``ctr`` (1,) int64, ``split`` (N,) uint8
+    zeros.  N / M: the primitive's declared vertex / face counts.  ``n`` / ``m``: the mesh they
+    describe; :meth:`sync` rebuilds them (O(m)) for a mesh that changed elsewhere, the decoder
+    updates them batch by batch (O(batch)).
     """
-    start = np.zeros(n + 1, np.int64)
+
+    def __init__(self, vertex_capacity: int, face_capacity: int):
+        N, M = int(vertex_capacity), int(face_capacity)
+        self.head, self.tail = np.full(N, -1, np.int32), np.full(N, -1, np.int32)
+        self.nxt = np.full(3 * M, -1, np.int32)  # corners < 3 * MAX_FACES < 2**31
+        self.valence, self.tag, self.split = np.zeros(N, np.int64), np.zeros(N, np.int64), np.zeros(N, np.uint8)
+        self.below, self.stamp, self.ctr = np.zeros(N, np.int64), np.zeros(N, np.int64), np.zeros(1, np.int64)
+        self.n = self.m = -1
+
+    def fits(self, state) -> bool:
+        return len(self.head) == len(state.positions) and len(self.nxt) == 3 * len(state.faces)
+
+    def sync(self, state) -> None:
+        """Describe ``state``'s current mesh (rebuilt unless it is the mesh they already describe)."""
+        if (self.n, self.m) != (state.n, state.m):
+            rc._kernel(_corner_lists_kernel)(state.faces[: state.m].reshape(-1), state.n, self.head, self.tail,
+                                             self.nxt, self.valence, self.stamp, self.ctr)
+            self.n, self.m = state.n, state.m
+
+
+def _corner_lists_kernel(flat, n, head, tail, nxt, valence, stamp, ctr):
+    """Build the lists of :class:`CornerLists` for the faces ``flat`` (3m,) over ``n`` vertices."""
+    for w in range(n):
+        head[w] = -1
+        tail[w] = -1
     for c in range(len(flat)):
-        start[flat[c] + 1] += 1
+        _append_corner(flat[c], c, head, tail, nxt)
     for w in range(n):
-        start[w + 1] += start[w]
-    fill = start[:n].copy()
-    vf = np.empty(len(flat), np.int64)  # per vertex, the first slot of each of its faces
-    for f3 in range(0, len(flat), 3):
+        valence[w] = _valence(w, flat, head, nxt, stamp, ctr)
+    return 0
+
+
+@kernel_helper
+def _append_corner(w, c, head, tail, nxt):
+    """Put corner ``c`` (larger than every corner of ``w``'s list) at the end of ``w``'s list."""
+    nxt[c] = -1
+    if head[w] < 0:
+        head[w] = c
+    else:
+        nxt[tail[w]] = c
+    tail[w] = c
+
+
+@kernel_helper
+def _valence(w, flat, head, nxt, stamp, ctr):
+    """|N(w)|: the distinct vertices other than ``w`` sharing a face with it."""
+    token = ctr[0] + 1
+    ctr[0] = token
+    valence = 0
+    c = head[w]
+    while c >= 0:
+        f3 = c - c % 3
         for j in range(3):
-            w = flat[f3 + j]
-            vf[fill[w]] = f3
-            fill[w] += 1
-    for w in range(n):
-        stamp[w] = -1
+            x = flat[f3 + j]
+            if x != w and stamp[x] != token:
+                stamp[x] = token
+                valence += 1
+        c = nxt[c]
+    return valence
+
+
+@kernel_helper
+def _mark_above(w, i, t, flat, head, nxt, below, stamp, ctr, inc, own, a, b, near):
+    """List ``w``'s corners from ``t`` on as split ``i``'s incidences (:func:`_batch_kernel`) and
+    ``below[x] += 1`` for each distinct neighbour ``x > w`` of ``w`` (told apart in ``near``
+    (2 * MAX_ARC_FAN,) int64 scratch for a small fan, by ``stamp`` otherwise); returns the next ``t``."""
+    start = t
+    c = head[w]
+    while c >= 0:
+        f3 = c - c % 3
+        inc[t], own[t] = c, i
+        a[t], b[t] = flat[f3 + (c + 1) % 3], flat[f3 + (c + 2) % 3]
+        t += 1
+        c = nxt[c]
+    small = t - start <= MAX_ARC_FAN
+    token = ctr[0] + 1
+    ctr[0] = token
     count = 0
+    for s in range(start, t):
+        for x in (a[s], b[s]):
+            if x <= w:
+                continue
+            if small:
+                seen = False
+                for q in range(count):
+                    seen = seen or near[q] == x
+                if seen:
+                    continue
+                near[count] = x
+                count += 1
+            else:
+                if stamp[x] == token:
+                    continue
+                stamp[x] = token
+            below[x] += 1
+    return t
+
+
+def _mask_kernel(flat, n, head, nxt, valence, below, stamp, ctr, sel, marked, gstart, inc, own, a, b, es, out, ds,
+                 buf, probs, decode):
+    """Code (``decode`` 0, the bits ``sel`` (n,) int64) or decode (1) a batch's selection mask over the
+    mesh of the corner lists (:class:`CornerLists` arrays, ``flat`` (3M,) int64 its face slots).
+
+    Context of vertex w: 7 * min(2, marked distinct neighbours below w) + clamp(valence, 3, 9) - 3; the
+    marks push to the neighbours above them as they are coded.  ``marked`` (cap,) int64 receives
+    the marked vertices, ascending, and ``gstart`` (cap + 1,) / ``inc`` / ``own`` / ``a`` / ``b``
+    (3m,) int64 their incidences as :func:`_batch_kernel` takes them (gathered on the way).
+    Returns ``(k, incidences)``; k = -1 when more than ``cap`` vertices are marked (``below`` is
+    then cleared).
+    """
+    k = 0
+    corners = 0
+    near = np.empty(2 * MAX_ARC_FAN, np.int64)
     for w in range(n):
-        valence = 0
-        below = 0
-        for t in range(start[w], start[w + 1]):
-            f3 = vf[t]
-            for j in range(3):
-                x = flat[f3 + j]
-                if x != w and stamp[x] != w:
-                    stamp[x] = w
-                    valence += 1
-                    if x < w and sel[x] != 0:
-                        below += 1
-        vclass = min(max(valence, 3), 9) - 3
-        ctx = P_MASK + 7 * min(below, 2) + vclass
+        ctx = P_MASK + 7 * min(below[w], 2) + min(max(valence[w], 3), 9) - 3
+        below[w] = 0
         if decode:
-            sel[w] = rc.dec_bit(ds, buf, probs, ctx)
+            bit = rc.dec_bit(ds, buf, probs, ctx)
         else:
-            rc.enc_bit(es, out, probs, ctx, sel[w])
-        count += sel[w]
-    return count
+            bit = sel[w]
+            rc.enc_bit(es, out, probs, ctx, bit)
+        if bit == 0:
+            continue
+        if k == len(marked):
+            for x in range(n):
+                below[x] = 0
+            return -1, corners
+        marked[k] = w
+        gstart[k] = corners
+        corners = _mark_above(w, k, corners, flat, head, nxt, below, stamp, ctr, inc, own, a, b, near)
+        k += 1
+    gstart[k] = corners
+    return k, corners
 
 
 # ---------------------------------------------------------------- connectivity: fans and arcs
 
 
 @kernel_helper
-def _fan(J, a, b, posA, posB, fan):
-    """Order the incidences ``J`` (d,) of one split vertex into ``fan`` (d,) (spec §8.5).
+def _fan(J, a, b, fan):
+    """Order the incidences ``J`` (d,) of one split vertex, ``d <= MAX_ARC_FAN``, into ``fan`` (d,)
+    (spec §8.4.2), by pairwise comparisons of their corners (no scratch outside the fan).
 
-    ``posA`` / ``posB`` (>= n,) int64 scratch, all -1 on entry and on return.  Returns 1 closed
-    fan, 2 open fan, 0 not simple (then ``fan`` is undefined).
+    Returns 1 closed fan, 2 open fan, 0 not simple (then ``fan`` is undefined).
     """
     d = len(J)
-    simple = 1
+    first = -1
+    starts = 0
     for t in range(d):
-        j = J[t]
-        if posA[a[j]] >= 0 or posB[b[j]] >= 0:
-            simple = 0
-        posA[a[j]] = t
-        posB[b[j]] = t
-    kind = 0
-    if simple:
-        first = -1
-        starts = 0
-        for t in range(d):
-            if posB[a[J[t]]] < 0:
-                starts += 1
-                if first < 0:
-                    first = t
-        if starts == 0:
-            kind, first = 1, 0
-        elif starts == 1:
-            kind = 2
-        if kind != 0:
-            t = first
-            for s in range(d):
-                fan[s] = J[t]
-                nxt = posA[b[J[t]]]
-                if s < d - 1:
-                    if nxt < 0 or nxt == first:
-                        kind = 0
-                        break
-                    t = nxt
-                elif kind == 1 and nxt != first:
-                    kind = 0
-                elif kind == 2 and nxt >= 0:
-                    kind = 0
-    for t in range(d):
-        posA[a[J[t]]] = -1
-        posB[b[J[t]]] = -1
+        has_pred = False
+        for s in range(d):
+            if s != t and (a[J[s]] == a[J[t]] or b[J[s]] == b[J[t]]):
+                return 0  # corners after (or before) the vertex repeat
+            has_pred = has_pred or b[J[s]] == a[J[t]]
+        if not has_pred:
+            starts += 1
+            if first < 0:
+                first = t
+    if starts > 1:
+        return 0
+    kind = 2 if starts == 1 else 1
+    if kind == 1:
+        first = 0
+    t = first
+    for s in range(d):
+        fan[s] = J[t]
+        nxt = _successor(J, a, b, t)
+        if s < d - 1:
+            if nxt < 0 or nxt == first:
+                return 0
+            t = nxt
+        elif (kind == 1 and nxt != first) or (kind == 2 and nxt >= 0):
+            return 0
     return kind
+
+
+@kernel_helper
+def _successor(J, a, b, t):
+    """The position in ``J`` of the incidence whose corner after the vertex is ``t``'s corner before it, or -1."""
+    for s in range(len(J)):
+        if a[J[s]] == b[J[t]]:
+            return s
+    return -1
 
 
 @kernel_helper
@@ -234,77 +343,88 @@ def _arc_of(fan, d, kind, sym):
     return s, L, left, right
 
 
-def _connectivity_kernel(gstart, gidx, a, b, v, P, sym, posA, posB, es, out, ds, buf, probs, decode):
-    """Code or decode the incidence symbols ``sym`` (I,) uint8 of a batch, split by split.
+@kernel_helper
+def _connectivity_kernel(gstart, gidx, a, b, v, P, sym, S, ring, nrm, es, out, ds, buf, probs, decode):
+    """Code or decode the incidence symbols ``sym`` (I,) uint8 of a batch, split by split, and
+    take each split's ring statistics (:func:`_ring_stats`) while its rows are at hand.
 
     ``gidx[gstart[i]:gstart[i+1]]``: split i's incidences in face-slot order; ``a`` / ``b`` (I,)
-    the corners after / before the split vertex.  Returns 0, or (decode) -1 on an invalid code.
+    the corners after / before the split vertex.  Fills ``S`` (k, D) int64, ``ring`` (k, 2) int64,
+    ``nrm`` (k, 3) float64.  Returns 0, or (decode) -1 on an invalid code.
     """
-    k = len(v)
     fan = np.empty(MAX_ARC_FAN, np.int64)
     lens = np.empty(MAX_ARC_FAN, np.float64)
     scores = np.empty(MAX_ARC_FAN, np.float64)
-    for i in range(k):
+    for i in range(len(v)):
         J = gidx[gstart[i]:gstart[i + 1]]
-        d = len(J)
-        kind = _fan(J, a, b, posA, posB, fan) if 0 < d <= MAX_ARC_FAN else 0
-        s, L, left, right = -1, 0, 0, 0
-        if kind != 0:
+        if _split_symbols(J, v[i], a, b, P, sym, fan, lens, scores, es, out, ds, buf, probs, decode) != 0:
+            return -1
+        _ring_stats(J, a, b, v[i], sym, P, S[i], ring[i], nrm[i])
+    return 0
+
+
+@kernel_helper
+def _split_symbols(J, vv, a, b, P, sym, fan, lens, scores, es, out, ds, buf, probs, decode):
+    """Code or decode the symbols of one split's incidences ``J`` (spec §8.4.2); 0, or -1 on an invalid code."""
+    d = len(J)
+    kind = _fan(J, a, b, fan) if 0 < d <= MAX_ARC_FAN else 0
+    s, L, left, right = -1, 0, 0, 0
+    if kind != 0:
+        if decode:
+            escape = rc.dec_bit(ds, buf, probs, P_ESCAPE)
+        else:
+            s, L, left, right = _arc_of(fan, d, kind, sym)
+            escape = 1 if s < 0 else 0
+            rc.enc_bit(es, out, probs, P_ESCAPE, escape)
+    else:
+        escape = 1
+    if escape:
+        for t in range(d):
             if decode:
-                escape = rc.dec_bit(ds, buf, probs, P_ESCAPE)
+                x = rc.dec_tree(ds, buf, probs, P_SYMBOL, 3)
+                if x >= 5:
+                    return -1
+                sym[J[t]] = x
             else:
-                s, L, left, right = _arc_of(fan, d, kind, sym)
-                escape = 1 if s < 0 else 0
-                rc.enc_bit(es, out, probs, P_ESCAPE, escape)
-        else:
-            escape = 1
-        if escape:
-            for t in range(d):
-                if decode:
-                    x = rc.dec_tree(ds, buf, probs, P_SYMBOL, 3)
-                    if x >= 5:
-                        return -1
-                    sym[J[t]] = x
-                else:
-                    rc.enc_tree(es, out, probs, P_SYMBOL, 3, sym[J[t]])
-            continue
-        len_ctx = _block(B_LENGTH + min(d, 16) - 1)
-        if decode:
-            L = rc.dec_uint(ds, buf, probs, len_ctx) + 1
-            if L < 1 or L > d:
-                return -1
-        else:
-            rc.enc_uint(es, out, probs, len_ctx, L - 1)
-        ncand = d if kind == 1 else d - L + 1
-        rank_ctx = _block(B_RANK + min(ncand, 16) - 1)
-        if decode:
-            r = rc.dec_uint(ds, buf, probs, rank_ctx)
-            if r < 0 or r >= ncand:
-                return -1
-            s = _arc_rank(fan, d, kind == 1, L, 0, a, v[i], P, lens, scores, r)
-        else:
-            rc.enc_uint(es, out, probs, rank_ctx, _arc_rank(fan, d, kind == 1, L, s, a, v[i], P, lens, scores, -1))
-        if kind == 1:
-            left, right = 1, 1
-        else:
-            if s == 0:
-                if decode:
-                    left = rc.dec_bit(ds, buf, probs, P_WING)
-                else:
-                    rc.enc_bit(es, out, probs, P_WING, left)
+                rc.enc_tree(es, out, probs, P_SYMBOL, 3, sym[J[t]])
+        return 0
+    len_ctx = _block(B_LENGTH + min(d, 16) - 1)
+    if decode:
+        L = rc.dec_uint(ds, buf, probs, len_ctx) + 1
+        if L < 1 or L > d:
+            return -1
+    else:
+        rc.enc_uint(es, out, probs, len_ctx, L - 1)
+    ncand = d if kind == 1 else d - L + 1
+    rank_ctx = _block(B_RANK + min(ncand, 16) - 1)
+    if decode:
+        r = rc.dec_uint(ds, buf, probs, rank_ctx)
+        if r < 0 or r >= ncand:
+            return -1
+        s = _arc_rank(fan, d, kind == 1, L, 0, a, vv, P, lens, scores, r)
+    else:
+        rc.enc_uint(es, out, probs, rank_ctx, _arc_rank(fan, d, kind == 1, L, s, a, vv, P, lens, scores, -1))
+    if kind == 1:
+        left, right = 1, 1
+    else:
+        if s == 0:
+            if decode:
+                left = rc.dec_bit(ds, buf, probs, P_WING)
             else:
-                left = 1
-            if s + L == d:
-                if decode:
-                    right = rc.dec_bit(ds, buf, probs, P_WING + 1)
-                else:
-                    rc.enc_bit(es, out, probs, P_WING + 1, right)
+                rc.enc_bit(es, out, probs, P_WING, left)
+        else:
+            left = 1
+        if s + L == d:
+            if decode:
+                right = rc.dec_bit(ds, buf, probs, P_WING + 1)
             else:
-                right = 1
-        if decode:
-            for t in range(d):
-                inside = (t - s) % d
-                sym[fan[t]] = _arc_symbol(inside, L, left, right) if inside < L else 0
+                rc.enc_bit(es, out, probs, P_WING + 1, right)
+        else:
+            right = 1
+    if decode:
+        for t in range(d):
+            inside = (t - s) % d
+            sym[fan[t]] = _arc_symbol(inside, L, left, right) if inside < L else 0
     return 0
 
 
@@ -317,46 +437,60 @@ def _floor_half(x):
     return np.int64(np.floor(x + 0.5))
 
 
-def _geometry_kernel(gstart, gidx, a, b, v, sym, P, n0, es, out, ds, buf, probs, decode):
-    """Code (from ``P[n0 + i]``) or decode (into it) the values of the new vertices, split by split.
-
-    Returns 0, or (decode) -1 on an invalid code / a value outside ``|x| < 2**31``.
-    """
-    k = len(v)
+@kernel_helper
+def _ring_stats(J, a, b, vv, sym, P, S, ring, nrm):
+    """One split's ring over the faces of its new vertex (spec §8.4.3), from its incidences ``J``
+    and their symbols: ``S`` (D,) int64 the sums of the faces' other corners' values, ``ring`` (2,)
+    int64 the face count ``c`` and the summed L1 edge ``E``, ``nrm`` (3,) float64 the normal."""
     D = P.shape[1]
-    S = np.zeros(D, np.int64)
+    S[:] = 0
+    c, ell = 0, 0
+    nx, ny, nz = 0.0, 0.0, 0.0
+    for j in J:
+        s = sym[j]
+        if s == 0:
+            continue
+        aj, bj = a[j], b[j]
+        for q in range(D):
+            S[q] += P[aj, q] + P[bj, q]
+        c += 1
+        ell += abs(P[aj, 0] - P[bj, 0]) + abs(P[aj, 1] - P[bj, 1]) + abs(P[aj, 2] - P[bj, 2])
+        e1x, e1y, e1z = np.float64(P[aj, 0] - P[vv, 0]), np.float64(P[aj, 1] - P[vv, 1]), np.float64(P[aj, 2] - P[vv, 2])
+        e2x, e2y, e2z = np.float64(P[bj, 0] - P[vv, 0]), np.float64(P[bj, 1] - P[vv, 1]), np.float64(P[bj, 2] - P[vv, 2])
+        nx += e1y * e2z - e1z * e2y
+        ny += e1z * e2x - e1x * e2z
+        nz += e1x * e2y - e1y * e2x
+        for w in range(2):
+            if (w == 0 and (s == 2 or s == 4)) or (w == 1 and (s == 3 or s == 4)):
+                o = aj if w == 0 else bj
+                for q in range(D):
+                    S[q] += P[vv, q] + P[o, q]
+                c += 1
+                ell += abs(P[vv, 0] - P[o, 0]) + abs(P[vv, 1] - P[o, 1]) + abs(P[vv, 2] - P[o, 2])
+    ring[0], ring[1] = c, ell
+    nrm[0], nrm[1], nrm[2] = nx, ny, nz
+
+
+@kernel_helper
+def _values_kernel(v, P, n0, S, ring, nrm, es, out, ds, buf, probs, decode, rsum, rcount):
+    """Code (from ``P[n0 + i]``) or decode (into it) the values of the new vertices, split by split,
+    given their rings (``S``, ``ring``, ``nrm`` of :func:`_connectivity_kernel`).
+
+    Also fills ``rsum`` (k, D) float64 / ``rcount`` (k,) int64, each split's ring sum and twice
+    its face count (:class:`~pmwm_codec.progressive.vsplit.SplitTopology`'s ``ring_sum`` /
+    ``ring_count``).  Returns 0, or (decode) -1 on an invalid code / a value outside ``|x| < 2**31``.
+    """
+    D = P.shape[1]
     frame = np.empty((3, 3), np.float64)  # scratch rows: ring mean m, normal n, prediction ph
-    for i in range(k):
-        vv = v[i]
-        S[:] = 0
-        c = 0
-        ell = 0
-        nx, ny, nz = 0.0, 0.0, 0.0
-        for t in range(gstart[i], gstart[i + 1]):
-            j = gidx[t]
-            s = sym[j]
-            if s == 0:
-                continue
-            aj, bj = a[j], b[j]
-            for q in range(D):
-                S[q] += P[aj, q] + P[bj, q]
-            c += 1
-            ell += abs(P[aj, 0] - P[bj, 0]) + abs(P[aj, 1] - P[bj, 1]) + abs(P[aj, 2] - P[bj, 2])
-            e1x, e1y, e1z = np.float64(P[aj, 0] - P[vv, 0]), np.float64(P[aj, 1] - P[vv, 1]), np.float64(P[aj, 2] - P[vv, 2])
-            e2x, e2y, e2z = np.float64(P[bj, 0] - P[vv, 0]), np.float64(P[bj, 1] - P[vv, 1]), np.float64(P[bj, 2] - P[vv, 2])
-            nx += e1y * e2z - e1z * e2y
-            ny += e1z * e2x - e1x * e2z
-            nz += e1x * e2y - e1y * e2x
-            for w in range(2):
-                if (w == 0 and (s == 2 or s == 4)) or (w == 1 and (s == 3 or s == 4)):
-                    o = aj if w == 0 else bj
-                    for q in range(D):
-                        S[q] += P[vv, q] + P[o, q]
-                    c += 1
-                    ell += abs(P[vv, 0] - P[o, 0]) + abs(P[vv, 1] - P[o, 1]) + abs(P[vv, 2] - P[o, 2])
+    for i in range(len(v)):
+        c, ell = ring[i, 0], ring[i, 1]
         if c == 0:
             return -1
-        status = _split_values(S, c, ell, nx, ny, nz, vv, n0 + i, P, frame, es, out, ds, buf, probs, decode)
+        for q in range(D):
+            rsum[i, q] = np.float64(S[i, q])
+        rcount[i] = 2 * c
+        status = _split_values(S[i], c, ell, nrm[i, 0], nrm[i, 1], nrm[i, 2], v[i], n0 + i, P, frame, es, out, ds,
+                               buf, probs, decode)
         if status != 0:
             return status
     return 0
@@ -449,29 +583,34 @@ def _connectivity_decisions(incidences: int, splits: int) -> int:
 
 _NO_BYTES = np.zeros(0, np.uint8)
 _NO_STATE = np.zeros(6, np.int64)
+_NO_SEL = np.zeros(0, np.int64)
 
 
-def _encode_batch(enc, state, batch, scratch) -> None:
-    """Code one batch into ``enc`` and apply it to ``state`` (version 1 semantics)."""
+def _encode_batch(enc, state, batch, lists) -> None:
+    """Code one batch into ``enc`` and apply it to ``state`` (version 1 semantics); ``lists``:
+    a :class:`CornerLists` of the state's capacities (rebuilt for the mesh before the batch)."""
     n, k = state.n, batch.size
     sel = np.zeros(n, np.int64)
     sel[batch.v] = 1
     enc.reserve(n)
-    rc._kernel(_mask_kernel)(state.faces[: state.m].reshape(-1), n, sel, scratch, enc.es, enc.out, _NO_STATE, _NO_BYTES,
-                             enc.probs, 0)
+    lists.sync(state)
+    rc._kernel(_mask_kernel)(state.faces.reshape(-1), n, lists.head, lists.nxt, lists.valence, lists.below,
+                             lists.stamp, lists.ctr, sel, *_mask_buffers(state.m, k), enc.es, enc.out, _NO_STATE,
+                             _NO_BYTES, enc.probs, 0)
     inc, owner, gstart, gidx, a, b = _grouped(state, batch.v)
     sym = np.asarray(batch.symbols, np.uint8)
-    posA, posB = np.full(n, -1, np.int64), np.full(n, -1, np.int64)
     enc.reserve(_connectivity_decisions(len(inc), k))
-    rc._kernel(_connectivity_kernel)(gstart, gidx, a, b, np.asarray(batch.v, np.int64), state.positions, sym,
-                                     posA, posB, enc.es, enc.out, _NO_STATE, _NO_BYTES, enc.probs, 0)
+    v, D = np.asarray(batch.v, np.int64), state.positions.shape[1]
+    S, ring, nrm = np.empty((k, D), np.int64), np.empty((k, 2), np.int64), np.empty((k, 3))
+    rc._kernel(_connectivity_kernel)(gstart, gidx, a, b, v, state.positions, sym, S, ring, nrm,
+                                     enc.es, enc.out, _NO_STATE, _NO_BYTES, enc.probs, 0)
     n0 = state.n
     topo = apply_batch(state, batch)
     if not np.array_equal(topo.incidences, inc):
         raise AssertionError("payload v2: incidences changed under the encoder")
-    enc.reserve(k * state.positions.shape[1] * INT_DECISIONS)
-    rc._kernel(_geometry_kernel)(gstart, gidx, a, b, np.asarray(batch.v, np.int64), sym, state.positions, n0,
-                                 enc.es, enc.out, _NO_STATE, _NO_BYTES, enc.probs, 0)
+    enc.reserve(k * D * INT_DECISIONS)
+    rc._kernel(_values_kernel)(v, state.positions, n0, S, ring, nrm, enc.es, enc.out, _NO_STATE, _NO_BYTES,
+                               enc.probs, 0, np.empty((k, D)), np.empty(k, np.int64))
 
 
 def pack_chunks(state, chunks) -> list:
@@ -483,6 +622,7 @@ def pack_chunks(state, chunks) -> list:
     """
     out = []
     probs = new_model()
+    lists = CornerLists(len(state.positions), len(state.faces))
     for batches in chunks:
         if not 1 <= len(batches) <= MAX_BATCHES_PER_CHUNK:
             raise ValueError(f"payload v2: {len(batches)} batches in a chunk, outside 1..{MAX_BATCHES_PER_CHUNK}")
@@ -490,9 +630,8 @@ def pack_chunks(state, chunks) -> list:
         enc.reserve(INT_DECISIONS)
         rc._kernel(rc._enc_array_kernel)(enc.es, enc.out, enc.probs, np.array([2]), np.array([_block(B_BATCHES)]),
                                          np.array([len(batches) - 1]))
-        scratch = np.empty(state.n + sum(b.size for b in batches), np.int64)
         for batch in batches:
-            _encode_batch(enc, state, batch, scratch)
+            _encode_batch(enc, state, batch, lists)
         out.append(enc.finish())
     return out
 
@@ -503,47 +642,277 @@ def new_model() -> np.ndarray:
     return rc.new_probs(N_PROBS)
 
 
-def decode_chunk(payload, state, probs):
+class ChunkDecoder:
+    """What decoding a primitive's chunks carries from one chunk to the next: the probability
+    table (:func:`new_model`) and the :class:`CornerLists` of its mesh (made on the first chunk,
+    then updated batch by batch).  One per primitive; :func:`decode_chunk` advances it."""
+
+    def __init__(self):
+        self.probs = new_model()
+        self.lists: CornerLists | None = None
+
+    def lists_for(self, state) -> CornerLists:
+        if self.lists is None or not self.lists.fits(state):
+            self.lists = CornerLists(len(state.positions), len(state.faces))
+        self.lists.sync(state)
+        return self.lists
+
+
+def decode_chunk(payload, state, model: ChunkDecoder):
     """Decode one chunk against ``state`` (int64 values), applying each batch as it is decoded;
-    ``probs`` is the primitive's probability table (:func:`new_model`, updated in place).
+    ``model`` is the primitive's :class:`ChunkDecoder` (updated in place).
 
     Yields ``(SplitBatch, SplitTopology)`` per batch: the batch in version 1 terms (split
-    vertices, incidence symbols, residuals against the version 1 prediction) and what
-    :func:`~pmwm_codec.progressive.vsplit.split_topology` did.  FormatError / LimitError on any
-    invalid code, count or termination.
+    vertices, incidence symbols, residuals against the version 1 prediction; listed when first
+    read) and what :func:`~pmwm_codec.progressive.vsplit.split_topology` would have done.
+    FormatError / LimitError on any invalid code, count or termination.
     """
-    dec = rc.Decoder(payload, probs)
+    dec = rc.Decoder(payload, model.probs)
     count = np.zeros(1, np.int64)
     if rc._kernel(rc._dec_array_kernel)(dec.ds, dec.buf, dec.probs, np.array([2]), np.array([_block(B_BATCHES)]), count):
         raise FormatError("chunk payload: invalid batch count")
     batches = int(count[0]) + 1
     if batches > MAX_BATCHES_PER_CHUNK:
         raise LimitError(f"chunk payload: batch count {batches} outside 1..{MAX_BATCHES_PER_CHUNK}")
+    lists = model.lists_for(state)
     for _ in range(batches):
-        yield _decode_batch(dec, state)
+        try:
+            yield _decode_batch(dec, state, lists)
+        except FormatError:
+            lists.n = -1  # the lists may be half updated: rebuilt if anyone decodes on
+            raise
     dec.finish()
 
 
-def _decode_batch(dec, state):
-    n = state.n
-    sel = np.zeros(n, np.int64)
-    k = rc._kernel(_mask_kernel)(state.faces[: state.m].reshape(-1), n, sel, np.empty(n, np.int64), _NO_STATE, _NO_BYTES,
-                                 dec.ds, dec.buf, dec.probs, 1)
+_BATCH_ERRORS = {
+    -1: "chunk payload: invalid connectivity code",
+    -2: "a split names no new face or more than two",
+    -3: "splits exceed the declared face count",
+    -4: "chunk payload: invalid value code or a value out of range",
+}
+
+
+def _mask_buffers(m: int, cap: int) -> tuple:
+    """Outputs of :func:`_mask_kernel` for a mesh of ``m`` faces and up to ``cap`` marks:
+    ``(marked (cap,), gstart (cap + 1,), inc, own, a, b (3m,))`` int64, uninitialised (their
+    pages are only taken as the kernel writes them)."""
+    return (np.empty(cap, np.int64), np.empty(cap + 1, np.int64)) + tuple(np.empty(3 * m, np.int64) for _ in range(4))
+
+
+def _decode_batch(dec, state, lists):
+    """One batch: mask, then connectivity, topology and values in one kernel (:func:`_batch_kernel`)."""
+    n, m = state.n, state.m
+    flat = state.faces.reshape(-1)
+    marked, gstart, inc, own, a, b = buffers = _mask_buffers(m, len(state.positions) - n)
+    k, corners = rc._kernel(_mask_kernel)(flat, n, lists.head, lists.nxt, lists.valence, lists.below, lists.stamp,
+                                          lists.ctr, _NO_SEL, *buffers, _NO_STATE, _NO_BYTES,
+                                          dec.ds, dec.buf, dec.probs, 1)
+    if k < 0:
+        raise FormatError("splits exceed the declared vertex count")
     if k == 0:
         raise FormatError("chunk payload: a batch marks no split vertex")
-    if n + k > len(state.positions):
-        raise FormatError("splits exceed the declared vertex count")
-    v = np.flatnonzero(sel).astype(np.int64)
-    inc, owner, gstart, gidx, a, b = _grouped(state, v)
-    sym = np.zeros(len(inc), np.uint8)
-    posA, posB = np.full(n, -1, np.int64), np.full(n, -1, np.int64)
-    if rc._kernel(_connectivity_kernel)(gstart, gidx, a, b, v, state.positions, sym, posA, posB, _NO_STATE,
-                                        _NO_BYTES, dec.ds, dec.buf, dec.probs, 1):
-        raise FormatError("chunk payload: invalid connectivity code")
-    n0 = state.n
-    topo = split_topology(state, v, sym, incidences=(inc, owner))
-    if rc._kernel(_geometry_kernel)(gstart, gidx, a, b, v, sym, state.positions, n0, _NO_STATE, _NO_BYTES,
-                                    dec.ds, dec.buf, dec.probs, 1):
-        raise FormatError("chunk payload: invalid value code or a value out of range")
-    values = state.positions[topo.u]
-    return SplitBatch(v, sym, values - topo.prediction()), topo
+    v, gstart = marked[:k], gstart[: k + 1]
+    inc, own, a, b = inc[:corners], own[:corners], a[:corners], b[:corners]
+    D = state.positions.shape[1]
+    sym = np.zeros(corners, np.uint8)
+    rsum, rcount = np.empty((k, D)), np.empty(k, np.int64)
+    new_faces = rc._kernel(_batch_kernel)(flat, m, n, state.positions, v, lists.head, lists.tail, lists.nxt,
+                                          lists.valence, lists.stamp, lists.tag, lists.split, lists.ctr, inc, own, a,
+                                          b, sym, gstart, rsum, rcount, dec.ds, dec.buf, dec.probs)
+    if new_faces < 0:
+        raise FormatError(_BATCH_ERRORS[new_faces])
+    state.n, state.m = n + k, m + new_faces
+    lists.n, lists.m = state.n, state.m
+    u = n + np.arange(k)
+
+    def face_slot_order():
+        order = np.argsort(inc, kind="stable")
+        return inc[order], own[order], order
+
+    def incidence_lists():
+        return face_slot_order()[:2]
+
+    def ring():
+        order = face_slot_order()[2]
+        return _ring_lists(v, sym[order], own[order], a[order], b[order])
+
+    topo = SplitTopology(u, rsum, rcount, incidence_lists, ring)
+    return DecodedBatch(v, state.positions, topo, lambda: sym[face_slot_order()[2]]), topo
+
+
+class DecodedBatch(SplitBatch):
+    """A decoded batch in version 1 terms (:class:`~pmwm_codec.progressive.vsplit.SplitBatch`):
+    its symbols in face-slot order and its residuals, listed only when first read (a plain
+    decode reads neither)."""
+
+    def __init__(self, v, positions, topo, symbols):
+        self.v = v
+        self._positions, self._topo, self._symbols = positions, topo, symbols
+
+    @cached_property
+    def symbols(self) -> np.ndarray:
+        return self._symbols()
+
+    @cached_property
+    def residual(self) -> np.ndarray:
+        return self._positions[self._topo.u] - self._topo.prediction()
+
+
+def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, split, ctr, inc, own, a, b, sym, gstart,
+                  rsum, rcount, ds, buf, probs):
+    """Decode the connectivity and values of one batch whose split vertices ``v`` (k,) and
+    incidences are known (:func:`_mask_kernel`), applying it to the face slots ``flat`` (3M,)
+    int64, the values ``P`` (N, D) and the corner lists (:class:`CornerLists` arrays).
+
+    The incidences are grouped by split (split i's: ``[gstart[i], gstart[i+1])``, face-slot
+    order within it): ``inc`` corner, ``own`` split, ``a`` / ``b`` corners after / before the
+    split vertex (all (I,) int64).  Fills ``sym`` (I,) uint8 and ``rsum`` / ``rcount`` (see
+    :func:`_values_kernel`).  Returns the number of new faces, or a negative code
+    (:data:`_BATCH_ERRORS`).
+    """
+    gidx = np.arange(len(inc))
+    es, out = np.zeros(6, np.int64), np.zeros(1, np.uint8)
+    k, D = len(v), P.shape[1]
+    S, ring, nrm = np.empty((k, D), np.int64), np.empty((k, 2), np.int64), np.empty((k, 3))
+    if _connectivity_kernel(gstart, gidx, a, b, v, P, sym, S, ring, nrm, es, out, ds, buf, probs, 1) != 0:
+        return -1
+    new_faces, rewritten = _link_splits(flat, m0, n0, v, inc, own, a, b, sym, gstart, head, tail, nxt, split)
+    if new_faces < 0:
+        return new_faces
+    if _values_kernel(v, P, n0, S, ring, nrm, es, out, ds, buf, probs, 1, rsum, rcount) != 0:
+        return -4
+    _update_valences(n0, v, a, b, sym, gstart, flat, head, nxt, valence, stamp, tag, ctr, rewritten)
+    return new_faces
+
+
+@kernel_helper
+def _update_valences(n0, v, a, b, sym, gstart, flat, head, nxt, valence, stamp, tag, ctr, rewritten):
+    """The valences a batch changed, after its topology.  A ring vertex ``x`` of split i gains ``u``
+    when a face of ``u`` holds it and loses ``v`` when no face of ``v`` holds it any more; ``v`` and
+    ``u`` count the distinct ring vertices of their faces, plus each other.  That holds when no face
+    held a moved corner and another split vertex (``rewritten`` False: every valid batch); else
+    every ring, split and new vertex is recounted from its faces."""
+    k = len(v)
+    if rewritten:
+        for i in range(k):
+            for t in range(gstart[i], gstart[i + 1]):
+                valence[a[t]] = _valence(a[t], flat, head, nxt, stamp, ctr)
+                valence[b[t]] = _valence(b[t], flat, head, nxt, stamp, ctr)
+        for i in range(k):
+            valence[v[i]] = _valence(v[i], flat, head, nxt, stamp, ctr)
+            valence[n0 + i] = _valence(n0 + i, flat, head, nxt, stamp, ctr)
+        return
+    own = np.ones((k, 2), np.int64)  # valences of u and v after the split
+    near, flags = np.empty(2 * MAX_ARC_FAN, np.int64), np.empty(2 * MAX_ARC_FAN, np.int64)
+    for i in range(k):
+        lo, hi = gstart[i], gstart[i + 1]
+        if hi - lo <= MAX_ARC_FAN:  # a small ring: its distinct vertices told apart in near / flags
+            count = 0
+            for t in range(lo, hi):
+                s = sym[t]
+                count = _note(a[t], (1 if s != 0 else 2) | (2 if s == 2 or s == 4 else 0), near, flags, count)
+                count = _note(b[t], (1 if s != 0 else 2) | (2 if s == 3 or s == 4 else 0), near, flags, count)
+            for q in range(count):
+                _ring_vertex_moved(near[q], flags[q], v[i], valence, own[i])
+            continue
+        ctr[0] += 1
+        token = 8 * ctr[0]  # tag bits: 1 in a face of u, 2 in a face of v, 4 counted
+        for t in range(lo, hi):
+            s = sym[t]
+            _tag(a[t], token, (1 if s != 0 else 2) | (2 if s == 2 or s == 4 else 0), tag)
+            _tag(b[t], token, (1 if s != 0 else 2) | (2 if s == 3 or s == 4 else 0), tag)
+        for t in range(lo, hi):
+            for x in (a[t], b[t]):
+                if tag[x] & 4 == 0:
+                    _ring_vertex_moved(x, tag[x], v[i], valence, own[i])
+                    tag[x] |= 4
+    for i in range(k):  # last: a split vertex may be in another split's ring
+        valence[n0 + i], valence[v[i]] = own[i, 0], own[i, 1]
+
+
+@kernel_helper
+def _ring_vertex_moved(x, bits, vv, valence, own):
+    """Ring vertex ``x`` of a split of ``vv``, in a face of u (bits & 1) / of v (bits & 2) after it:
+    its valence gains u, loses v unless still beside it; ``own`` (2,) counts it for u and v."""
+    if x != vv:
+        valence[x] += (bits & 1) - 1 + ((bits >> 1) & 1)
+        own[0] += bits & 1
+        own[1] += (bits >> 1) & 1
+
+
+@kernel_helper
+def _note(x, bits, near, flags, count):
+    """Or ``bits`` into the flags of ``x`` among ``near[:count]`` (appended when new); returns the count."""
+    for q in range(count):
+        if near[q] == x:
+            flags[q] |= bits
+            return count
+    near[count], flags[count] = x, bits
+    return count + 1
+
+
+@kernel_helper
+def _tag(x, token, bits, tag):
+    """``tag[x]``: ``token`` with ``bits`` or-ed into those ``x`` already has under it."""
+    tag[x] = (tag[x] | bits) if tag[x] & ~7 == token else (token | bits)
+
+
+@kernel_helper
+def _link_splits(flat, m0, n0, v, inc, own, a, b, sym, gstart, head, tail, nxt, split):
+    """Spec §6.1 steps 1-3 on the face slots and the corner lists: the moved corners become
+    ``u`` (and its list), the new faces are appended in face-slot order of the incidences naming
+    them.  Returns ``(new faces, rewritten)``: new faces -2 when a split names none or more than
+    two, -3 when they exceed the face capacity (nothing written then); rewritten True when a
+    face held a moved corner and another corner of a split vertex (:func:`_update_valences`).
+    ``split`` (N,) uint8 scratch, zeros on entry and on return."""
+    k = len(v)
+    wkey = np.empty(len(inc), np.int64)  # (corner << 32) | incidence, of the incidences naming new faces
+    named = 0
+    new_faces = 0
+    for i in range(k):
+        wings = 0
+        for t in range(gstart[i], gstart[i + 1]):
+            if sym[t] >= 2:
+                wings += 1 if sym[t] < 4 else 2
+                wkey[named] = (inc[t] << 32) | t
+                named += 1
+        if wings == 0 or wings > 2:
+            return -2, False
+        new_faces += wings
+    if 3 * (m0 + new_faces) > len(flat):
+        return -3, False
+    for i in range(k):
+        split[v[i]] = 1
+    rewritten = False
+    for i in range(k):  # split i's corners, ascending: the moved ones to u, the others stay with v
+        u = n0 + i
+        head[u], tail[u], head[v[i]], tail[v[i]] = -1, -1, -1, -1
+        for t in range(gstart[i], gstart[i + 1]):
+            if sym[t] != 0:
+                c = inc[t]
+                f3 = c - c % 3
+                for y in (flat[f3 + (c + 1) % 3], flat[f3 + (c + 2) % 3]):
+                    rewritten = rewritten or y >= n0 or split[y] != 0
+                flat[c] = u
+            _append_corner(u if sym[t] != 0 else v[i], inc[t], head, tail, nxt)
+    slot = 3 * m0
+    for key in np.sort(wkey[:named]):
+        t = key & 0xFFFFFFFF
+        i = own[t]
+        if sym[t] == 2 or sym[t] == 4:  # left new face (u, v, a)
+            slot = _new_face(slot, n0 + i, v[i], a[t], flat, head, tail, nxt)
+        if sym[t] == 3 or sym[t] == 4:  # right new face (v, u, b)
+            slot = _new_face(slot, v[i], n0 + i, b[t], flat, head, tail, nxt)
+    for i in range(k):
+        split[v[i]] = 0
+    return new_faces, rewritten
+
+
+@kernel_helper
+def _new_face(slot, x, y, z, flat, head, tail, nxt):
+    """Write face (x, y, z) at face slot ``slot`` and list its corners; returns the next slot."""
+    flat[slot], flat[slot + 1], flat[slot + 2] = x, y, z
+    _append_corner(x, slot, head, tail, nxt)
+    _append_corner(y, slot + 1, head, tail, nxt)
+    _append_corner(z, slot + 2, head, tail, nxt)
+    return slot + 3

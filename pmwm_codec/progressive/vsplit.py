@@ -101,8 +101,9 @@ class SplitTopology:
 
     ``u`` : (k,) int64 new vertex ids; ``ring_sum`` : (k, D) float64 sum of the
     neighbour corners of u's faces; ``ring_count`` : (k,) int64 twice the number
-    of u's faces; ``incidences`` : (I,) int64 flat corner ids; ``owner`` : (I,)
-    split index of each incidence.  The ring itself, as it is summed: ``ring_owner``
+    of u's faces; ``incidences`` : (I,) int64 flat corner ids in face-slot order; ``owner`` : (I,)
+    split index of each incidence (both held in ``incidence_lists``, a pair or a function that
+    lists them when first asked).  The ring itself, as it is summed: ``ring_owner``
     (R,) int64 split index of each face of a new vertex and ``ring_a`` / ``ring_b``
     (R,) int64 its two other corners (moved faces in incidence order, then the
     left new faces, then the right ones), for the watermark's ring binding.
@@ -111,28 +112,25 @@ class SplitTopology:
     u: np.ndarray
     ring_sum: np.ndarray
     ring_count: np.ndarray
-    incidences: np.ndarray
-    owner: np.ndarray
+    #: ``(incidences, owner)``, or a function that lists them when first asked
+    incidence_lists: object = field(repr=False)
     #: ``(ring_owner, ring_a, ring_b)``, or a function that lists them when first asked
     #: (a plain decode never asks: only the watermark's ring binding reads the ring)
     ring: object = field(default=None, repr=False)
 
-    def _ring(self) -> tuple:
-        if callable(self.ring):
-            self.ring = self.ring()
-        return self.ring
+    def _listed(self, name: str) -> tuple:
+        """Field ``name`` (a tuple of arrays), listed now if it still holds the function that lists it."""
+        value = getattr(self, name)
+        if callable(value):
+            value = value()
+            setattr(self, name, value)
+        return value
 
-    @property
-    def ring_owner(self) -> np.ndarray:
-        return self._ring()[0]
-
-    @property
-    def ring_a(self) -> np.ndarray:
-        return self._ring()[1]
-
-    @property
-    def ring_b(self) -> np.ndarray:
-        return self._ring()[2]
+    incidences = property(lambda self: self._listed("incidence_lists")[0])
+    owner = property(lambda self: self._listed("incidence_lists")[1])
+    ring_owner = property(lambda self: self._listed("ring")[0])
+    ring_a = property(lambda self: self._listed("ring")[1])
+    ring_b = property(lambda self: self._listed("ring")[2])
 
     def prediction(self) -> np.ndarray:
         """(k, D) int64 ``floor(ring mean)``, the predictor of the new vertices' values."""
@@ -267,7 +265,7 @@ def split_topology(state: MeshState, v: np.ndarray, symbols: np.ndarray, *, inci
     ring_count = 2 * np.bincount(own, minlength=k)
     state.n = n0 + k
     state.m = m0 + n_new
-    return SplitTopology(u_of, ring_sum, ring_count, inc, owner, (own, ra, rb))
+    return SplitTopology(u_of, ring_sum, ring_count, (inc, owner), (own, ra, rb))
 
 
 def _split_compiled(kernel, state, v, sym, inc, owner) -> SplitTopology:
@@ -289,7 +287,7 @@ def _split_compiled(kernel, state, v, sym, inc, owner) -> SplitTopology:
         raise FormatError("splits exceed the declared face count")
     state.n = n0 + k
     state.m = m0 + n_new
-    return SplitTopology(n0 + np.arange(k), ring_sum, ring_count, inc, owner,
+    return SplitTopology(n0 + np.arange(k), ring_sum, ring_count, (inc, owner),
                          lambda: _ring_lists(v, sym, owner, a, b))
 
 

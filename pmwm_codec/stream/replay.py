@@ -39,7 +39,7 @@ from ..errors import FormatError, MeshError
 from ..format import BaseEvent, ChunkEvent, HeaderEvent
 from ..format.extension import payload_version
 from ..format.records import unpack_batches
-from ..format.records_v2 import decode_chunk, new_model
+from ..format.records_v2 import ChunkDecoder, decode_chunk
 from ..progressive.grid import Grid
 from ..progressive.seams import twin_rows
 from ..progressive.topology import mean_edge_length
@@ -57,9 +57,10 @@ class Carriers:
     ``vertices`` (k,) int64 the new vertices' ids in the primitive; ``positions``
     (n, >=3) the primitive's positions (the rings' rows are final) and ``topology``
     the batch's :class:`~pmwm_codec.progressive.vsplit.SplitTopology`, from which
-    :attr:`descriptor` describes the rings; ``twin`` (k,) bool the seam twins as the
+    :attr:`descriptor` describes the rings; :attr:`twin` (k,) bool the seam twins as the
     stream decodes them (a new vertex on the position of an earlier one of its batch:
-    it carries no code, spec/watermark.md "Repeated points"), also for given positions.
+    it carries no code, spec/watermark.md "Repeated points"), also for given positions,
+    found from ``decoded`` (k, 3) the new vertices' decoded positions when first asked.
     """
 
     primitive: int
@@ -72,7 +73,14 @@ class Carriers:
     vertices: np.ndarray | None = None
     positions: np.ndarray | None = None
     topology: object = None
-    twin: np.ndarray | None = None
+    decoded: np.ndarray | None = None
+
+    @cached_property
+    def twin(self) -> np.ndarray | None:
+        """(k,) bool the seam twins (class docstring); None without ``decoded``."""
+        if self.decoded is None:
+            return None
+        return twin_rows(self.decoded) != np.arange(len(self.decoded))
 
     @cached_property
     def descriptor(self):
@@ -127,7 +135,8 @@ class Replay:
         #: given positions: per primitive, the stream's own decoded integer state, which a version 2
         #: payload decodes against and the seam twins come from (never read as codes); None otherwise
         self.shadows: list = []
-        #: per primitive, the version 2 probability table the next chunk continues (None for version 1)
+        #: per primitive, the version 2 :class:`~pmwm_codec.format.records_v2.ChunkDecoder` the next chunk continues
+        #: (None for version 1)
         self.models: list = []
         self.chunks_applied = 0
         self.batches_applied = 0
@@ -175,7 +184,7 @@ class Replay:
             self.states.append(MeshState(base, event.faces, n, m, dtype=np.float64))
             shadow = decoded
         self.shadows.append(shadow)
-        self.models.append(new_model() if payload_version(ext) == 2 else None)
+        self.models.append(ChunkDecoder() if payload_version(ext) == 2 else None)
         self.base_faces.append(np.asarray(event.faces, np.int64))
         if self._nbar_override is not None:
             self.nbars.append(float(self._nbar_override[p]))
@@ -197,17 +206,16 @@ class Replay:
                 points = state.positions[topo.u, :3].astype(np.float64)
                 centroid = topo.centroid()[:, :3]
                 known = np.ones(len(points), bool)
-                twin = twin_rows(points) != np.arange(len(points))
+                decoded = points
             else:
                 topo = split_topology(state, batch.v, batch.symbols)
                 points = self.given[p][topo.u]
                 state.positions[topo.u] = points
                 centroid = topo.centroid()
                 known = np.isfinite(points).all(axis=1) & np.isfinite(centroid).all(axis=1)
-                own = self.shadows[p].positions[own_topo.u, :3]
-                twin = twin_rows(own) != np.arange(len(own))
+                decoded = self.shadows[p].positions[own_topo.u, :3]
             out.append(Carriers(p, self.batches_applied, points, centroid, known, self.nbars[p], scale,
-                                topo.u, state.positions, topo, twin))
+                                topo.u, state.positions, topo, decoded))
             self.batches_applied += 1
         self.chunks_applied += 1
         meta = ext["chunks"][event.chunk]
