@@ -84,13 +84,20 @@ export class ChunkDecoderV2 {
     this.state = state;
     this.probs = newProbabilities(N_PROBS);
     this.fan = new Int32Array(MAX_ARC_FAN);
+    this.fa = new Int32Array(MAX_ARC_FAN); // a and b of the incidences of one fan, in face-slot order
+    this.fb = new Int32Array(MAX_ARC_FAN);
     this.lens = new Float64Array(2 * MAX_ARC_FAN); // lengths, then scores
     this.sums = new Float64Array(state.D);
     this.frame = new Float64Array(6);
-    // scratch arrays (see #grow), declared here so that the object keeps one shape
-    for (const name of ['off', 'nb', 'stamp', 'v', 'slot', 'gstart', 'gfill', 'inc', 'owner', 'a', 'b', 'gidx',
-      'posA', 'posB', 'wings']) this[name] = new Int32Array(0);
-    this.sel = new Uint8Array(0);
+    // the mesh's adjacency, kept from batch to batch (see #adjacency); valid for adjN vertices, adjM faces
+    this.adjN = -1;
+    this.adjM = -1;
+    this.epoch = 0;
+    // adjacency and scratch arrays (see #adjacency, #grow), declared here so that the object keeps one shape
+    for (const name of ['head', 'tail', 'next', 'deg', 'val', 'stamp', 'stamp2', 'v', 'gstart', 'inc', 'a', 'b',
+      'creators', 'wings']) this[name] = new Int32Array(0);
+    this.vc = new Uint8Array(0);
+    this.cnt = new Uint8Array(0);
     this.sym = new Uint8Array(0);
   }
 
@@ -120,6 +127,9 @@ export class ChunkDecoderV2 {
    * (the mesh may then be half changed: the decoder refuses to show it).
    */
   decodeChunk(buf) {
+    const st = this.state;
+    if (this.adjN !== st.n || this.adjM !== st.m) this.#adjacency();
+    this.adjN = -1; // until the chunk decodes: a failure may leave the adjacency half updated
     const rc = new RangeDecoder(buf, this.probs);
     const batches = rc.uint(block(B_BATCHES), 'the batch count') + 1;
     if (batches > MAX_BATCHES_PER_CHUNK) {
@@ -127,164 +137,226 @@ export class ChunkDecoderV2 {
     }
     for (let j = 0; j < batches; j++) this.#batch(rc);
     rc.finish();
+    this.adjN = st.n;
+    this.adjM = st.m;
   }
 
   #batch(rc) {
     const st = this.state;
     const n = st.n;
-    const k = this.#mask(rc, n, st.m);
+    const k = this.#mask(rc, n);
     if (k === 0) throw new FormatError('chunk payload: a batch marks no split vertex');
     if (n + k > st.capN) throw new FormatError('splits exceed the declared vertex count');
-    const I = this.#incidences(n, st.m, k);
+    const I = this.#incidences(k);
     this.#connectivity(rc, k);
     this.#topology(k, I);
     this.#values(rc, n, k);
     st.n = n + k;
+    this.#revalue(n, k);
   }
 
   /**
-   * §8.4.1: one bit per vertex w < n under the context of its distinct neighbours (valence class)
-   * and the marked ones below w. Builds the vertex -> neighbour lists `nb` (the two other corners
-   * of each of its corners, in `off[w] .. off[w+1]`; off[w+1] - off[w] is twice its corner count). Leaves sel (n) Uint8Array, and the split vertices v (k) Int32Array and
-   * their slot (slot[v[i]] = i). Returns k.
+   * The mesh's vertex -> corner lists, built once from the faces and then kept up to date by
+   * #topology: vertex w's corners (c with faces[c] = w) in ascending order are head[w], next[head[w]],
+   * ... (-1 ends), tail[w] the last, deg[w] how many; all (capN) / (3 capM) Int32Array. Also the
+   * valence class vc (capN) Uint8Array of §8.4.1 of every vertex, and the scratch stamp / cnt.
    */
-  #mask(rc, n, m) {
-    const { faces } = this.state;
-    const { capN, capM } = this.state;
-    const off = this.#grow('off', n + 1, Int32Array, capN + 1);
-    const nb = this.#grow('nb', 6 * m, Int32Array, 6 * capM);
-    const stamp = this.#grow('stamp', n, Int32Array, capN);
-    const sel = this.#grow('sel', n, Uint8Array, capN);
-    off.fill(0, 0, n + 1);
-    stamp.fill(-1, 0, n);
-    for (let c = 0; c < 3 * m; c++) off[faces[c]] += 2;
-    for (let w = 1; w < n; w++) off[w] += off[w - 1];
-    off[n] = 6 * m;
-    for (let f = 3 * m - 3; f >= 0; f -= 3) { // the two other corners of every corner, listed per vertex
-      const x = faces[f];
-      const y = faces[f + 1];
-      const z = faces[f + 2];
-      nb[--off[x]] = y; nb[--off[x]] = z;
-      nb[--off[y]] = z; nb[--off[y]] = x;
-      nb[--off[z]] = x; nb[--off[z]] = y;
+  #adjacency() {
+    const st = this.state;
+    const { faces, n, m, capN, capM } = st;
+    if (this.head.length < capN || this.next.length < 3 * capM) {
+      try {
+        for (const name of ['head', 'tail', 'deg', 'val', 'stamp', 'stamp2']) this[name] = new Int32Array(capN);
+        this.next = new Int32Array(3 * capM);
+        this.vc = new Uint8Array(capN);
+        this.cnt = new Uint8Array(capN);
+      } catch (e) {
+        if (!(e instanceof RangeError)) throw e;
+        throw new LimitError(`cannot allocate the adjacency of ${capN} vertices and ${capM} faces (${e.message})`);
+      }
     }
-    let k = 0;
-    for (let w = 0; w < n; w++) {
-      let valence = 0;
-      let below = 0;
-      for (let t = off[w], end = off[w + 1]; t < end; t++) {
-        const x = nb[t];
-        if (x !== w && stamp[x] !== w) {
-          stamp[x] = w;
+    const { head, tail, next, deg } = this;
+    head.fill(-1, 0, n);
+    tail.fill(-1, 0, n);
+    deg.fill(0, 0, n);
+    this.#link(0, 3 * m);
+    for (let w = 0; w < n; w++) this.#setValence(w, this.#valence(w));
+  }
+
+  /** Appends the corners c0 .. c1-1 (ascending, all above every listed corner) to their vertices' lists. */
+  #link(c0, c1) {
+    const { faces } = this.state;
+    const { head, tail, next, deg } = this;
+    for (let c = c0; c < c1; c++) {
+      const w = faces[c];
+      const last = tail[w];
+      if (last < 0) head[w] = c;
+      else next[last] = c;
+      next[c] = -1;
+      tail[w] = c;
+      deg[w]++;
+    }
+  }
+
+  /** A fresh stamp value (stamp (capN) holds values below it). */
+  #nextEpoch() {
+    if (this.epoch >= 0x3fffffff) {
+      this.stamp.fill(0);
+      this.stamp2.fill(0);
+      this.epoch = 0;
+    }
+    return ++this.epoch;
+  }
+
+  /** |N(w)| of §8.4.1: the distinct vertices other than w that share a face with w. */
+  #valence(w) {
+    const { faces } = this.state;
+    const { next, stamp } = this;
+    const e = this.#nextEpoch();
+    let valence = 0;
+    for (let c = this.head[w]; c >= 0; c = next[c]) {
+      const f = c - (c % 3);
+      for (let j = 1; j < 3; j++) {
+        const x = faces[f + ((c - f + j) % 3)];
+        if (x !== w && stamp[x] !== e) {
+          stamp[x] = e;
           valence++;
-          if (x < w) below += sel[x];
         }
       }
-      const bit = rc.bit(P_MASK + 7 * (below < 2 ? below : 2) + (valence < 3 ? 0 : valence > 9 ? 6 : valence - 3));
-      sel[w] = bit;
-      k += bit;
     }
-    const v = this.#grow('v', k, Int32Array, capN);
-    const slot = this.#grow('slot', n, Int32Array, capN, -1);
-    for (let w = 0, i = 0; w < n; w++) {
-      if (sel[w]) {
-        slot[w] = i;
-        v[i++] = w;
+    return valence;
+  }
+
+  /** cnt[x] += 1 (saturating at 2) for every distinct neighbour x > w of w: w is marked. */
+  #markAbove(w) {
+    const { faces } = this.state;
+    const { next, stamp, cnt } = this;
+    const e = this.#nextEpoch();
+    for (let c = this.head[w]; c >= 0; c = next[c]) {
+      const f = c - (c % 3);
+      for (let j = 1; j < 3; j++) {
+        const x = faces[f + ((c - f + j) % 3)];
+        if (x > w && stamp[x] !== e) {
+          stamp[x] = e;
+          if (cnt[x] < 2) cnt[x]++;
+        }
       }
     }
+  }
+
+  /**
+   * §8.4.1: one bit per vertex w < n under the context 7 nb + vc, vc kept per vertex, nb = cnt[w]
+   * (marked distinct neighbours below w, counted up to 2 as the marks are decoded). The coder's
+   * state is held in locals for the loop. Leaves the split vertices in v (k) Int32Array; returns k.
+   */
+  #mask(rc, n) {
+    const { capN } = this.state;
+    const { vc } = this;
+    const cnt = this.cnt;
+    const v = this.#grow('v', n, Int32Array, capN);
+    cnt.fill(0, 0, n);
+    const { probs, buf, length } = rc;
+    let { range, code, pos } = rc;
+    let k = 0;
+    for (let w = 0; w < n; w++) {
+      const i = 7 * cnt[w] + vc[w];
+      const p = probs[i];
+      const bound = Math.imul(range >>> 11, p); // DecodeBit (§8.1) inlined, int32 bit patterns as RangeDecoder
+      if ((code >>> 0) < (bound >>> 0)) {
+        range = bound;
+        probs[i] = p + ((2048 - p) >> 4);
+      } else {
+        code = (code - bound) | 0;
+        range = (range - bound) | 0;
+        probs[i] = p - (p >> 4);
+        v[k++] = w;
+        this.#markAbove(w);
+      }
+      while ((range >>> 0) < 0x1000000) {
+        range <<= 8;
+        code = (code << 8) | (pos < length ? buf[pos] : 0);
+        pos++;
+      }
+    }
+    rc.range = range;
+    rc.code = code;
+    rc.pos = pos;
     return k;
   }
 
   /**
-   * §6.1 step 1 grouped as §8.4.2 needs them: incidences t (face-slot order) with corner inc[t],
-   * split owner[t], corners after / before a[t], b[t] (mesh before the batch); split i's
-   * incidences gidx[gstart[i] .. gstart[i+1]) in face-slot order. Resets slot. Returns I.
+   * §6.1 step 1 grouped per split, as §8.4.2 needs them: split i's incidences are t = gstart[i] ..
+   * gstart[i+1]-1, its corners inc[t] in face-slot order (its corner list), with the corners after /
+   * before it a[t], b[t] (mesh before the batch). Returns I.
    */
-  #incidences(n, m, k) {
-    const { faces } = this.state;
-    const { off, v, slot } = this;
-    const { capN, capM } = this.state;
+  #incidences(k) {
+    const { faces, capN, capM } = this.state;
+    const { v, head, next, deg } = this;
     const gstart = this.#grow('gstart', k + 1, Int32Array, capN + 1);
-    const fill = this.#grow('gfill', k, Int32Array, capN);
     gstart[0] = 0;
-    for (let i = 0; i < k; i++) {
-      gstart[i + 1] = gstart[i] + ((off[v[i] + 1] - off[v[i]]) >> 1); // corners of v[i]
-      fill[i] = gstart[i];
-    }
+    for (let i = 0; i < k; i++) gstart[i + 1] = gstart[i] + deg[v[i]];
     const I = gstart[k];
     const inc = this.#grow('inc', I, Int32Array, 3 * capM);
-    const owner = this.#grow('owner', I, Int32Array, 3 * capM);
     const a = this.#grow('a', I, Int32Array, 3 * capM);
     const b = this.#grow('b', I, Int32Array, 3 * capM);
-    const gidx = this.#grow('gidx', I, Int32Array, 3 * capM);
     this.#grow('sym', I, Uint8Array, 3 * capM);
-    let t = 0;
-    for (let c = 0; c < 3 * m; c += 3) {
-      for (let j = 0; j < 3; j++) {
-        const i = slot[faces[c + j]];
-        if (i < 0) continue;
-        inc[t] = c + j;
-        owner[t] = i;
-        a[t] = faces[c + ((j + 1) % 3)];
-        b[t] = faces[c + ((j + 2) % 3)];
-        gidx[fill[i]++] = t;
-        t++;
+    for (let i = 0, t = 0; i < k; i++) {
+      for (let c = head[v[i]]; c >= 0; c = next[c], t++) {
+        const f = c - (c % 3);
+        const j = c - f;
+        inc[t] = c;
+        a[t] = faces[f + (j === 2 ? 0 : j + 1)];
+        b[t] = faces[f + (j === 0 ? 2 : j - 1)];
       }
     }
-    for (let i = 0; i < k; i++) slot[v[i]] = -1;
     return I;
   }
 
   /**
-   * Orders split i's incidences J = gidx[g0 .. g0+d) into this.fan (spec §8.4.2 "Fan").
-   * Returns 1 closed, 2 open, 0 not simple. posA / posB (n) all -1 on entry and on return.
+   * Orders split i's incidences t = g0 .. g0+d-1 into this.fan (spec §8.4.2 "Fan"), comparing
+   * their d <= 32 corners a / b pairwise. Returns 1 closed, 2 open, 0 not simple.
    */
   #fanOf(g0, d) {
-    const { gidx, a, b, fan, posA, posB } = this;
-    let kind = 1;
+    const { a, b, fan, fa, fb } = this;
     for (let t = 0; t < d; t++) {
-      const j = gidx[g0 + t];
-      if (posA[a[j]] >= 0 || posB[b[j]] >= 0) kind = 0;
-      posA[a[j]] = t;
-      posB[b[j]] = t;
+      const x = a[g0 + t];
+      const y = b[g0 + t];
+      for (let t2 = 0; t2 < t; t2++) if (fa[t2] === x || fb[t2] === y) return 0;
+      fa[t] = x;
+      fb[t] = y;
     }
-    if (kind !== 0) {
-      let first = -1;
-      let starts = 0;
-      for (let t = 0; t < d; t++) {
-        if (posB[a[gidx[g0 + t]]] < 0) {
-          starts++;
-          if (first < 0) first = t;
-        }
-      }
-      if (starts === 0) first = 0;
-      kind = starts === 0 ? 1 : starts === 1 ? 2 : 0;
-      for (let s = 0, t = first; kind !== 0 && s < d; s++) {
-        const j = gidx[g0 + t];
-        fan[s] = j;
-        const next = posA[b[j]];
-        if (s < d - 1) {
-          if (next < 0 || next === first) kind = 0;
-          t = next;
-        } else if ((kind === 1 && next !== first) || (kind === 2 && next >= 0)) {
-          kind = 0;
-        }
+    let first = -1;
+    let starts = 0;
+    for (let t = 0; t < d; t++) { // t starts the walk when no b equals its a
+      let t2 = 0;
+      while (t2 < d && fb[t2] !== fa[t]) t2++;
+      if (t2 === d) {
+        starts++;
+        if (first < 0) first = t;
       }
     }
-    for (let t = 0; t < d; t++) {
-      const j = gidx[g0 + t];
-      posA[a[j]] = -1;
-      posB[b[j]] = -1;
+    if (starts > 1) return 0;
+    const kind = starts === 0 ? 1 : 2;
+    if (starts === 0) first = 0;
+    for (let s = 0, t = first; s < d; s++) {
+      fan[s] = g0 + t;
+      let next = 0; // the successor of t: the one whose a is b of t
+      while (next < d && fa[next] !== fb[t]) next++;
+      if (next === d) next = -1;
+      if (s < d - 1) {
+        if (next < 0 || next === first) return 0;
+        t = next;
+      } else if ((kind === 1 && next !== first) || (kind === 2 && next >= 0)) {
+        return 0;
+      }
     }
     return kind;
   }
 
   /** §8.4.2: the incidence symbols sym (I) of the batch, split by split. */
   #connectivity(rc, k) {
-    const { gstart, gidx, sym, fan, v, a } = this;
-    const { values, D, n, capN } = this.state;
-    this.#grow('posA', n, Int32Array, capN, -1);
-    this.#grow('posB', n, Int32Array, capN, -1);
+    const { gstart, sym, fan, v, a } = this;
+    const { values, D } = this.state;
     for (let i = 0; i < k; i++) {
       const g0 = gstart[i];
       const d = gstart[i + 1] - g0;
@@ -293,7 +365,7 @@ export class ChunkDecoderV2 {
         for (let t = 0; t < d; t++) {
           const x = rc.tree(P_SYMBOL, 3);
           if (x >= 5) throw new FormatError('chunk payload: unknown incidence symbol');
-          sym[gidx[g0 + t]] = x;
+          sym[g0 + t] = x;
         }
         continue;
       }
@@ -314,47 +386,184 @@ export class ChunkDecoderV2 {
 
   /**
    * §6.1 steps 2-3: every moved corner becomes u_i, new faces are appended in incidence order
-   * ((u, v, a) left, (v, u, b) right); FormatError when they exceed the declared face count or a
-   * split creates no new face or more than two.
+   * ((u, v, a) left, (v, u, b) right: the creating incidences sorted by corner); FormatError when
+   * they exceed the declared face count or a split creates no new face or more than two. Then
+   * the corner lists: v_i keeps its unmoved corners, u_i gets the moved ones, the new faces'
+   * corners are appended (every list stays ascending).
    */
   #topology(k, I) {
     const st = this.state;
-    const { faces, capM } = st;
-    const { inc, owner, a, b, sym, v } = this;
+    const { faces, capM, capN, slot } = st;
+    const { inc, a, b, sym, v, gstart } = this;
     const n = st.n;
-    const wings = this.#grow('wings', k, Int32Array, st.capN);
-    wings.fill(0, 0, k);
+    const m = st.m;
+    const wings = this.#grow('wings', k, Int32Array, capN);
+    const creators = this.#grow('creators', I, Int32Array, 3 * capM);
     let added = 0;
-    for (let t = 0; t < I; t++) {
-      const s = sym[t];
-      added += (s === 2 || s === 3) ? 1 : s === 4 ? 2 : 0;
-      wings[owner[t]] += (s === 2 || s === 3) ? 1 : s === 4 ? 2 : 0;
+    let nc = 0;
+    for (let i = 0; i < k; i++) {
+      let w = 0;
+      for (let t = gstart[i]; t < gstart[i + 1]; t++) {
+        const s = sym[t];
+        if (s < 2) continue;
+        w += s === 4 ? 2 : 1;
+        creators[nc++] = inc[t];
+      }
+      wings[i] = w;
+      added += w;
     }
-    if (st.m + added > capM) throw new FormatError('splits exceed the declared face count');
+    if (m + added > capM) throw new FormatError('splits exceed the declared face count');
     for (let i = 0; i < k; i++) {
       if (wings[i] < 1 || wings[i] > 2) throw new FormatError('a split names no new face or more than two');
     }
-    let f = 3 * st.m;
-    for (let t = 0; t < I; t++) {
+    const order = creators.subarray(0, nc).sort(); // face-slot order of the incidences that add faces
+    for (let i = 0; i < k; i++) slot[v[i]] = i;
+    let f = 3 * m;
+    for (let r = 0; r < nc; r++) {
+      const c = order[r];
+      const i = slot[faces[c]];
+      const t = this.#incidenceOf(c, gstart[i], gstart[i + 1]);
       const s = sym[t];
-      if (s === 0) continue;
-      const u = n + owner[t];
-      const vi = v[owner[t]];
-      faces[inc[t]] = u;
+      const u = n + i;
       if (s === 2 || s === 4) {
-        faces[f] = u; faces[f + 1] = vi; faces[f + 2] = a[t]; f += 3;
+        faces[f] = u; faces[f + 1] = v[i]; faces[f + 2] = a[t]; f += 3;
       }
       if (s === 3 || s === 4) {
-        faces[f] = vi; faces[f + 1] = u; faces[f + 2] = b[t]; f += 3;
+        faces[f] = v[i]; faces[f + 1] = u; faces[f + 2] = b[t]; f += 3;
       }
     }
-    st.m += added;
+    for (let i = 0; i < k; i++) slot[v[i]] = -1;
+    this.#relink(n, k);
+    st.m = m + added;
+    this.#link(3 * m, 3 * st.m);
+  }
+
+  /** The incidence t in [t0, t1) whose corner is c (inc ascending there). */
+  #incidenceOf(c, t0, t1) {
+    const { inc } = this;
+    let lo = t0;
+    let hi = t1 - 1;
+    while (lo < hi) {
+      const mid = (lo + hi) >> 1;
+      if (inc[mid] < c) lo = mid + 1;
+      else hi = mid;
+    }
+    return lo;
+  }
+
+  /** Moves each split's moved corners (sym != 0) to u_i = n + i: rewrites them, splits v_i's list in two. */
+  #relink(n, k) {
+    const { faces } = this.state;
+    const { inc, sym, v, gstart, head, tail, next, deg } = this;
+    for (let i = 0; i < k; i++) {
+      const u = n + i;
+      const vi = v[i];
+      let lastV = -1;
+      let lastU = -1;
+      head[vi] = -1;
+      head[u] = -1;
+      deg[u] = 0;
+      for (let t = gstart[i]; t < gstart[i + 1]; t++) {
+        const c = inc[t];
+        next[c] = -1;
+        if (sym[t] === 0) {
+          if (lastV < 0) head[vi] = c; else next[lastV] = c;
+          lastV = c;
+        } else {
+          faces[c] = u;
+          if (lastU < 0) head[u] = c; else next[lastU] = c;
+          lastU = c;
+          deg[u]++;
+        }
+      }
+      tail[vi] = lastV;
+      tail[u] = lastU;
+      deg[vi] -= deg[u];
+    }
+  }
+
+  /**
+   * After a batch (n vertices before it, k splits): the valence of every vertex whose neighbours
+   * changed, by the exact update of #revalueSplit when no corner a, b of a moved face is a split
+   * vertex (as in every batch of independent splits, §6.1), else by recounting v_i, u_i and the
+   * corners a, b of the moved faces from their corner lists.
+   */
+  #revalue(n, k) {
+    const { v, a, b, sym, gstart, stamp } = this;
+    const e = this.#nextEpoch();
+    for (let i = 0; i < k; i++) stamp[v[i]] = e;
+    let independent = true;
+    for (let t = 0; t < gstart[k] && independent; t++) {
+      if (sym[t] !== 0 && (stamp[a[t]] === e || stamp[b[t]] === e)) independent = false;
+    }
+    for (let i = 0; i < k; i++) {
+      if (independent) {
+        this.#revalueSplit(i, n + i);
+        continue;
+      }
+      this.#setValence(v[i], this.#valence(v[i]));
+      this.#setValence(n + i, this.#valence(n + i));
+      for (let t = gstart[i]; t < gstart[i + 1]; t++) {
+        if (sym[t] === 0) continue;
+        this.#setValence(a[t], this.#valence(a[t]));
+        this.#setValence(b[t], this.#valence(b[t]));
+      }
+    }
+  }
+
+  /**
+   * The valences after split i of a batch whose moved faces hold no split vertex but their own.
+   * Then v's faces are its unmoved ones and the new ones, so its neighbours N'(v) are read from
+   * the incidences (marked in stamp2): a and b of an unmoved face, a of a left new face, b of a
+   * right one, and u. u's neighbours are the distinct corners x of its moved faces, and v; each
+   * such x gains u and loses v unless x is in N'(v). A vertex x in the moved faces of several
+   * splits gets each split's change in turn.
+   */
+  #revalueSplit(i, u) {
+    const { v, a, b, sym, gstart, stamp, stamp2, val } = this;
+    const vi = v[i];
+    const t0 = gstart[i];
+    const t1 = gstart[i + 1];
+    const e1 = this.#nextEpoch();
+    let cv = 1; // u
+    for (let t = t0; t < t1; t++) {
+      const s = sym[t];
+      const x = a[t];
+      if ((s === 0 || s === 2 || s === 4) && x !== vi && stamp2[x] !== e1) {
+        stamp2[x] = e1;
+        cv++;
+      }
+      const y = b[t];
+      if ((s === 0 || s === 3 || s === 4) && y !== vi && stamp2[y] !== e1) {
+        stamp2[y] = e1;
+        cv++;
+      }
+    }
+    this.#setValence(vi, cv);
+    const e2 = this.#nextEpoch();
+    let cu = 1; // v
+    for (let t = t0; t < t1; t++) {
+      if (sym[t] === 0) continue;
+      for (let x = a[t], j = 0; j < 2; j++, x = b[t]) {
+        if (stamp[x] === e2) continue;
+        stamp[x] = e2;
+        cu++;
+        this.#setValence(x, val[x] + (stamp2[x] === e1 ? 1 : 0));
+      }
+    }
+    this.#setValence(u, cu);
+  }
+
+  /** val[w] = valence and vc[w] its class min(max(valence, 3), 9) - 3 (§8.4.1). */
+  #setValence(w, valence) {
+    this.val[w] = valence;
+    this.vc[w] = valence < 3 ? 0 : valence > 9 ? 6 : valence - 3;
   }
 
   /** §8.4.3: the D values of each new vertex u = n + i, split by split. */
   #values(rc, n, k) {
     const { values, D } = this.state;
-    const { gstart, gidx, sym, a, b, v, sums: S } = this;
+    const { gstart, sym, a, b, v, sums: S } = this;
     for (let i = 0; i < k; i++) {
       const pv = v[i] * D;
       S.fill(0);
@@ -363,8 +572,7 @@ export class ChunkDecoderV2 {
       let nx = 0.0;
       let ny = 0.0;
       let nz = 0.0;
-      for (let g = gstart[i]; g < gstart[i + 1]; g++) {
-        const j = gidx[g];
+      for (let j = gstart[i]; j < gstart[i + 1]; j++) {
         const s = sym[j];
         if (s === 0) continue;
         const pa = a[j] * D;
