@@ -89,13 +89,12 @@ export class ChunkDecoderV2 {
     this.lens = new Float64Array(2 * MAX_ARC_FAN); // lengths, then scores
     this.sums = new Float64Array(state.D);
     this.frame = new Float64Array(6);
-    // the mesh's adjacency, kept from batch to batch (see #adjacency); valid for adjN vertices, adjM faces
-    this.adjN = -1;
-    this.adjM = -1;
+    /** The vertex count for which val / vc hold every vertex's valence (-1: recount them). */
+    this.valFor = -1;
     this.epoch = 0;
-    // adjacency and scratch arrays (see #adjacency, #grow), declared here so that the object keeps one shape
-    for (const name of ['head', 'tail', 'next', 'deg', 'val', 'stamp', 'stamp2', 'v', 'gstart', 'inc', 'a', 'b',
-      'creators', 'wings']) this[name] = new Int32Array(0);
+    // scratch arrays (see #grow), declared here so that the object keeps one shape
+    for (const name of ['off', 'nb', 'nc', 'val', 'stamp', 'stamp2', 'v', 'gstart', 'inc', 'a', 'b', 'creators',
+      'wings']) this[name] = new Int32Array(0);
     this.vc = new Uint8Array(0);
     this.cnt = new Uint8Array(0);
     this.sym = new Uint8Array(0);
@@ -103,12 +102,13 @@ export class ChunkDecoderV2 {
 
   /**
    * Scratch array `name` with at least `size` (<= max) elements, grown geometrically up to `max`
-   * (contents not kept; a new array is filled with `fillValue` when given).
+   * (contents kept when `keep`; a new array is otherwise filled with `fillValue` when given).
    */
-  #grow(name, size, Type, max, fillValue) {
+  #grow(name, size, Type, max, fillValue, keep = false) {
     let arr = this[name];
     if (arr.length < size) {
       const cap = Math.min(Math.max(size, 2 * arr.length), Math.max(size, max));
+      const old = arr;
       try {
         arr = new Type(cap);
       } catch (e) {
@@ -116,6 +116,7 @@ export class ChunkDecoderV2 {
         throw new LimitError(`cannot allocate ${cap} scratch entries (${e.message})`);
       }
       if (fillValue !== undefined) arr.fill(fillValue);
+      if (keep) arr.set(old);
       this[name] = arr;
     }
     return arr;
@@ -127,9 +128,6 @@ export class ChunkDecoderV2 {
    * (the mesh may then be half changed: the decoder refuses to show it).
    */
   decodeChunk(buf) {
-    const st = this.state;
-    if (this.adjN !== st.n || this.adjM !== st.m) this.#adjacency();
-    this.adjN = -1; // until the chunk decodes: a failure may leave the adjacency half updated
     const rc = new RangeDecoder(buf, this.probs);
     const batches = rc.uint(block(B_BATCHES), 'the batch count') + 1;
     if (batches > MAX_BATCHES_PER_CHUNK) {
@@ -137,13 +135,14 @@ export class ChunkDecoderV2 {
     }
     for (let j = 0; j < batches; j++) this.#batch(rc);
     rc.finish();
-    this.adjN = st.n;
-    this.adjM = st.m;
   }
 
   #batch(rc) {
     const st = this.state;
     const n = st.n;
+    const valid = this.valFor === n;
+    this.valFor = -1; // until the batch is applied and the valences updated
+    this.#neighbours(n, st.m, valid);
     const k = this.#mask(rc, n);
     if (k === 0) throw new FormatError('chunk payload: a batch marks no split vertex');
     if (n + k > st.capN) throw new FormatError('splits exceed the declared vertex count');
@@ -152,53 +151,44 @@ export class ChunkDecoderV2 {
     this.#topology(k, I);
     this.#values(rc, n, k);
     st.n = n + k;
-    this.#revalue(n, k);
+    if (this.#revalue(n, k)) this.valFor = st.n;
   }
 
   /**
-   * The mesh's vertex -> corner lists, built once from the faces and then kept up to date by
-   * #topology: vertex w's corners (c with faces[c] = w) in ascending order are head[w], next[head[w]],
-   * ... (-1 ends), tail[w] the last, deg[w] how many; all (capN) / (3 capM) Int32Array. Also the
-   * valence class vc (capN) Uint8Array of §8.4.1 of every vertex, and the scratch stamp / cnt.
+   * The vertex -> corner lists of the mesh before the batch, in face-slot order: vertex w's corners
+   * are nc[q] for q = off[w]/2 .. off[w+1]/2 - 1, each with the corners before and after it in its
+   * face at nb[2q] and nb[2q+1] (off (n+1), nb (6m), nc (3m) Int32Array). Recounts every valence
+   * (#valence) unless `valid`.
    */
-  #adjacency() {
-    const st = this.state;
-    const { faces, n, m, capN, capM } = st;
-    if (this.head.length < capN || this.next.length < 3 * capM) {
-      try {
-        for (const name of ['head', 'tail', 'deg', 'val', 'stamp', 'stamp2']) this[name] = new Int32Array(capN);
-        this.next = new Int32Array(3 * capM);
-        this.vc = new Uint8Array(capN);
-        this.cnt = new Uint8Array(capN);
-      } catch (e) {
-        if (!(e instanceof RangeError)) throw e;
-        throw new LimitError(`cannot allocate the adjacency of ${capN} vertices and ${capM} faces (${e.message})`);
-      }
+  #neighbours(n, m, valid) {
+    const { faces, capN, capM } = this.state;
+    const off = this.#grow('off', n + 1, Int32Array, capN + 1);
+    const nb = this.#grow('nb', 6 * m, Int32Array, 6 * capM);
+    const nc = this.#grow('nc', 3 * m, Int32Array, 3 * capM);
+    off.fill(0, 0, n + 1);
+    for (let c = 0; c < 3 * m; c++) off[faces[c]] += 2;
+    for (let w = 1; w < n; w++) off[w] += off[w - 1];
+    off[n] = 6 * m;
+    for (let f = 3 * m - 3; f >= 0; f -= 3) { // backwards, so that every list ends up ascending
+      const x = faces[f];
+      const y = faces[f + 1];
+      const z = faces[f + 2];
+      let q = (off[z] -= 2);
+      nb[q] = y; nb[q + 1] = x; nc[q >> 1] = f + 2;
+      q = (off[y] -= 2);
+      nb[q] = x; nb[q + 1] = z; nc[q >> 1] = f + 1;
+      q = (off[x] -= 2);
+      nb[q] = z; nb[q + 1] = y; nc[q >> 1] = f;
     }
-    const { head, tail, next, deg } = this;
-    head.fill(-1, 0, n);
-    tail.fill(-1, 0, n);
-    deg.fill(0, 0, n);
-    this.#link(0, 3 * m);
-    for (let w = 0; w < n; w++) this.#setValence(w, this.#valence(w));
+    this.#grow('val', n, Int32Array, capN, undefined, true);
+    this.#grow('vc', n, Uint8Array, capN, undefined, true);
+    this.#grow('stamp', n, Int32Array, capN, 0, true);
+    this.#grow('stamp2', n, Int32Array, capN, 0, true);
+    this.#grow('cnt', n, Uint8Array, capN);
+    if (!valid) for (let w = 0; w < n; w++) this.#setValence(w, this.#valence(w));
   }
 
-  /** Appends the corners c0 .. c1-1 (ascending, all above every listed corner) to their vertices' lists. */
-  #link(c0, c1) {
-    const { faces } = this.state;
-    const { head, tail, next, deg } = this;
-    for (let c = c0; c < c1; c++) {
-      const w = faces[c];
-      const last = tail[w];
-      if (last < 0) head[w] = c;
-      else next[last] = c;
-      next[c] = -1;
-      tail[w] = c;
-      deg[w]++;
-    }
-  }
-
-  /** A fresh stamp value (stamp (capN) holds values below it). */
+  /** A fresh stamp value (stamp and stamp2 hold values below it). */
   #nextEpoch() {
     if (this.epoch >= 0x3fffffff) {
       this.stamp.fill(0);
@@ -208,20 +198,16 @@ export class ChunkDecoderV2 {
     return ++this.epoch;
   }
 
-  /** |N(w)| of §8.4.1: the distinct vertices other than w that share a face with w. */
+  /** |N(w)| of §8.4.1: the distinct vertices other than w that share a face with w (from nb). */
   #valence(w) {
-    const { faces } = this.state;
-    const { next, stamp } = this;
+    const { off, nb, stamp } = this;
     const e = this.#nextEpoch();
     let valence = 0;
-    for (let c = this.head[w]; c >= 0; c = next[c]) {
-      const f = c - (c % 3);
-      for (let j = 1; j < 3; j++) {
-        const x = faces[f + ((c - f + j) % 3)];
-        if (x !== w && stamp[x] !== e) {
-          stamp[x] = e;
-          valence++;
-        }
+    for (let t = off[w], end = off[w + 1]; t < end; t++) {
+      const x = nb[t];
+      if (x !== w && stamp[x] !== e) {
+        stamp[x] = e;
+        valence++;
       }
     }
     return valence;
@@ -229,17 +215,13 @@ export class ChunkDecoderV2 {
 
   /** cnt[x] += 1 (saturating at 2) for every distinct neighbour x > w of w: w is marked. */
   #markAbove(w) {
-    const { faces } = this.state;
-    const { next, stamp, cnt } = this;
+    const { off, nb, stamp, cnt } = this;
     const e = this.#nextEpoch();
-    for (let c = this.head[w]; c >= 0; c = next[c]) {
-      const f = c - (c % 3);
-      for (let j = 1; j < 3; j++) {
-        const x = faces[f + ((c - f + j) % 3)];
-        if (x > w && stamp[x] !== e) {
-          stamp[x] = e;
-          if (cnt[x] < 2) cnt[x]++;
-        }
+    for (let t = off[w], end = off[w + 1]; t < end; t++) {
+      const x = nb[t];
+      if (x > w && stamp[x] !== e) {
+        stamp[x] = e;
+        if (cnt[x] < 2) cnt[x]++;
       }
     }
   }
@@ -251,8 +233,7 @@ export class ChunkDecoderV2 {
    */
   #mask(rc, n) {
     const { capN } = this.state;
-    const { vc } = this;
-    const cnt = this.cnt;
+    const { vc, cnt } = this;
     const v = this.#grow('v', n, Int32Array, capN);
     cnt.fill(0, 0, n);
     const { probs, buf, length } = rc;
@@ -285,36 +266,34 @@ export class ChunkDecoderV2 {
   }
 
   /**
-   * §6.1 step 1 grouped per split, as §8.4.2 needs them: split i's incidences are t = gstart[i] ..
-   * gstart[i+1]-1, its corners inc[t] in face-slot order (its corner list), with the corners after /
-   * before it a[t], b[t] (mesh before the batch). Returns I.
+   * §6.1 step 1 grouped per split, as §8.4.2 needs them: split i's incidences are g = gstart[i] ..
+   * gstart[i+1]-1, its corner list in face-slot order: corner inc[g], the corners after / before it
+   * a[g], b[g] (mesh before the batch). Returns I.
    */
   #incidences(k) {
-    const { faces, capN, capM } = this.state;
-    const { v, head, next, deg } = this;
+    const { capN, capM } = this.state;
+    const { off, nb, nc, v } = this;
     const gstart = this.#grow('gstart', k + 1, Int32Array, capN + 1);
     gstart[0] = 0;
-    for (let i = 0; i < k; i++) gstart[i + 1] = gstart[i] + deg[v[i]];
+    for (let i = 0; i < k; i++) gstart[i + 1] = gstart[i] + ((off[v[i] + 1] - off[v[i]]) >> 1);
     const I = gstart[k];
     const inc = this.#grow('inc', I, Int32Array, 3 * capM);
     const a = this.#grow('a', I, Int32Array, 3 * capM);
     const b = this.#grow('b', I, Int32Array, 3 * capM);
     this.#grow('sym', I, Uint8Array, 3 * capM);
-    for (let i = 0, t = 0; i < k; i++) {
-      for (let c = head[v[i]]; c >= 0; c = next[c], t++) {
-        const f = c - (c % 3);
-        const j = c - f;
-        inc[t] = c;
-        a[t] = faces[f + (j === 2 ? 0 : j + 1)];
-        b[t] = faces[f + (j === 0 ? 2 : j - 1)];
+    for (let i = 0, g = 0; i < k; i++) {
+      for (let q = off[v[i]], end = off[v[i] + 1]; q < end; q += 2, g++) {
+        inc[g] = nc[q >> 1];
+        b[g] = nb[q];
+        a[g] = nb[q + 1];
       }
     }
     return I;
   }
 
   /**
-   * Orders split i's incidences t = g0 .. g0+d-1 into this.fan (spec §8.4.2 "Fan"), comparing
-   * their d <= 32 corners a / b pairwise. Returns 1 closed, 2 open, 0 not simple.
+   * Orders split i's incidences g0 .. g0+d-1 into this.fan (spec §8.4.2 "Fan"), comparing their
+   * d <= 32 corners a / b pairwise. Returns 1 closed, 2 open, 0 not simple.
    */
   #fanOf(g0, d) {
     const { a, b, fan, fa, fb } = this;
@@ -385,64 +364,60 @@ export class ChunkDecoderV2 {
   }
 
   /**
-   * §6.1 steps 2-3: every moved corner becomes u_i, new faces are appended in incidence order
-   * ((u, v, a) left, (v, u, b) right: the creating incidences sorted by corner); FormatError when
-   * they exceed the declared face count or a split creates no new face or more than two. Then
-   * the corner lists: v_i keeps its unmoved corners, u_i gets the moved ones, the new faces'
-   * corners are appended (every list stays ascending).
+   * §6.1 steps 2-3: every moved corner becomes u_i; new faces ((u, v, a) left, (v, u, b) right)
+   * are appended in the face-slot order of the incidences that create them (their corners, sorted);
+   * FormatError when they exceed the declared face count or a split creates no new face or more
+   * than two.
    */
   #topology(k, I) {
     const st = this.state;
-    const { faces, capM, capN, slot } = st;
+    const { faces, capM, capN } = st;
     const { inc, a, b, sym, v, gstart } = this;
     const n = st.n;
-    const m = st.m;
     const wings = this.#grow('wings', k, Int32Array, capN);
     const creators = this.#grow('creators', I, Int32Array, 3 * capM);
     let added = 0;
     let nc = 0;
     for (let i = 0; i < k; i++) {
       let w = 0;
-      for (let t = gstart[i]; t < gstart[i + 1]; t++) {
-        const s = sym[t];
+      for (let g = gstart[i]; g < gstart[i + 1]; g++) {
+        const s = sym[g];
         if (s < 2) continue;
         w += s === 4 ? 2 : 1;
-        creators[nc++] = inc[t];
+        creators[nc++] = inc[g];
       }
       wings[i] = w;
       added += w;
     }
-    if (m + added > capM) throw new FormatError('splits exceed the declared face count');
+    if (st.m + added > capM) throw new FormatError('splits exceed the declared face count');
     for (let i = 0; i < k; i++) {
       if (wings[i] < 1 || wings[i] > 2) throw new FormatError('a split names no new face or more than two');
     }
-    const order = creators.subarray(0, nc).sort(); // face-slot order of the incidences that add faces
-    for (let i = 0; i < k; i++) slot[v[i]] = i;
-    let f = 3 * m;
+    for (let i = 0; i < k; i++) {
+      for (let g = gstart[i]; g < gstart[i + 1]; g++) if (sym[g] !== 0) faces[inc[g]] = n + i;
+    }
+    const order = creators.subarray(0, nc).sort();
+    let f = 3 * st.m;
     for (let r = 0; r < nc; r++) {
       const c = order[r];
-      const i = slot[faces[c]];
-      const t = this.#incidenceOf(c, gstart[i], gstart[i + 1]);
-      const s = sym[t];
-      const u = n + i;
+      const i = faces[c] - n; // a creating corner is a moved one: it now holds u_i
+      const g = this.#incidenceOf(c, gstart[i], gstart[i + 1]);
+      const s = sym[g];
       if (s === 2 || s === 4) {
-        faces[f] = u; faces[f + 1] = v[i]; faces[f + 2] = a[t]; f += 3;
+        faces[f] = n + i; faces[f + 1] = v[i]; faces[f + 2] = a[g]; f += 3;
       }
       if (s === 3 || s === 4) {
-        faces[f] = v[i]; faces[f + 1] = u; faces[f + 2] = b[t]; f += 3;
+        faces[f] = v[i]; faces[f + 1] = n + i; faces[f + 2] = b[g]; f += 3;
       }
     }
-    for (let i = 0; i < k; i++) slot[v[i]] = -1;
-    this.#relink(n, k);
-    st.m = m + added;
-    this.#link(3 * m, 3 * st.m);
+    st.m += added;
   }
 
-  /** The incidence t in [t0, t1) whose corner is c (inc ascending there). */
-  #incidenceOf(c, t0, t1) {
+  /** The incidence g in [g0, g1) whose corner is c (inc ascending there). */
+  #incidenceOf(c, g0, g1) {
     const { inc } = this;
-    let lo = t0;
-    let hi = t1 - 1;
+    let lo = g0;
+    let hi = g1 - 1;
     while (lo < hi) {
       const mid = (lo + hi) >> 1;
       if (inc[mid] < c) lo = mid + 1;
@@ -451,64 +426,25 @@ export class ChunkDecoderV2 {
     return lo;
   }
 
-  /** Moves each split's moved corners (sym != 0) to u_i = n + i: rewrites them, splits v_i's list in two. */
-  #relink(n, k) {
-    const { faces } = this.state;
-    const { inc, sym, v, gstart, head, tail, next, deg } = this;
-    for (let i = 0; i < k; i++) {
-      const u = n + i;
-      const vi = v[i];
-      let lastV = -1;
-      let lastU = -1;
-      head[vi] = -1;
-      head[u] = -1;
-      deg[u] = 0;
-      for (let t = gstart[i]; t < gstart[i + 1]; t++) {
-        const c = inc[t];
-        next[c] = -1;
-        if (sym[t] === 0) {
-          if (lastV < 0) head[vi] = c; else next[lastV] = c;
-          lastV = c;
-        } else {
-          faces[c] = u;
-          if (lastU < 0) head[u] = c; else next[lastU] = c;
-          lastU = c;
-          deg[u]++;
-        }
-      }
-      tail[vi] = lastV;
-      tail[u] = lastU;
-      deg[vi] -= deg[u];
-    }
-  }
-
   /**
-   * After a batch (n vertices before it, k splits): the valence of every vertex whose neighbours
-   * changed, by the exact update of #revalueSplit when no corner a, b of a moved face is a split
-   * vertex (as in every batch of independent splits, §6.1), else by recounting v_i, u_i and the
-   * corners a, b of the moved faces from their corner lists.
+   * After a batch (n vertices before it, k splits): updates the valence of every vertex whose
+   * neighbours changed (#revalueSplit) when no corner a, b of a moved face is a split vertex (as
+   * in every batch of independent splits, §6.1); returns false otherwise (the next batch then
+   * recounts every valence).
    */
   #revalue(n, k) {
-    const { v, a, b, sym, gstart, stamp } = this;
+    const { v, a, b, sym, gstart } = this;
+    this.#grow('val', n + k, Int32Array, this.state.capN, undefined, true);
+    this.#grow('vc', n + k, Uint8Array, this.state.capN, undefined, true);
+    this.#grow('stamp', n + k, Int32Array, this.state.capN, 0, true);
+    this.#grow('stamp2', n + k, Int32Array, this.state.capN, 0, true);
     const e = this.#nextEpoch();
-    for (let i = 0; i < k; i++) stamp[v[i]] = e;
-    let independent = true;
-    for (let t = 0; t < gstart[k] && independent; t++) {
-      if (sym[t] !== 0 && (stamp[a[t]] === e || stamp[b[t]] === e)) independent = false;
+    for (let i = 0; i < k; i++) this.stamp[v[i]] = e;
+    for (let t = 0; t < gstart[k]; t++) {
+      if (sym[t] !== 0 && (this.stamp[a[t]] === e || this.stamp[b[t]] === e)) return false;
     }
-    for (let i = 0; i < k; i++) {
-      if (independent) {
-        this.#revalueSplit(i, n + i);
-        continue;
-      }
-      this.#setValence(v[i], this.#valence(v[i]));
-      this.#setValence(n + i, this.#valence(n + i));
-      for (let t = gstart[i]; t < gstart[i + 1]; t++) {
-        if (sym[t] === 0) continue;
-        this.#setValence(a[t], this.#valence(a[t]));
-        this.#setValence(b[t], this.#valence(b[t]));
-      }
-    }
+    for (let i = 0; i < k; i++) this.#revalueSplit(i, n + i);
+    return true;
   }
 
   /**
@@ -522,18 +458,18 @@ export class ChunkDecoderV2 {
   #revalueSplit(i, u) {
     const { v, a, b, sym, gstart, stamp, stamp2, val } = this;
     const vi = v[i];
-    const t0 = gstart[i];
-    const t1 = gstart[i + 1];
+    const g0 = gstart[i];
+    const g1 = gstart[i + 1];
     const e1 = this.#nextEpoch();
     let cv = 1; // u
-    for (let t = t0; t < t1; t++) {
-      const s = sym[t];
-      const x = a[t];
+    for (let g = g0; g < g1; g++) {
+      const s = sym[g];
+      const x = a[g];
       if ((s === 0 || s === 2 || s === 4) && x !== vi && stamp2[x] !== e1) {
         stamp2[x] = e1;
         cv++;
       }
-      const y = b[t];
+      const y = b[g];
       if ((s === 0 || s === 3 || s === 4) && y !== vi && stamp2[y] !== e1) {
         stamp2[y] = e1;
         cv++;
@@ -542,9 +478,9 @@ export class ChunkDecoderV2 {
     this.#setValence(vi, cv);
     const e2 = this.#nextEpoch();
     let cu = 1; // v
-    for (let t = t0; t < t1; t++) {
-      if (sym[t] === 0) continue;
-      for (let x = a[t], j = 0; j < 2; j++, x = b[t]) {
+    for (let g = g0; g < g1; g++) {
+      if (sym[g] === 0) continue;
+      for (let x = a[g], j = 0; j < 2; j++, x = b[g]) {
         if (stamp[x] === e2) continue;
         stamp[x] = e2;
         cu++;
