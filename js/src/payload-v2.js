@@ -86,6 +86,7 @@ export class ChunkDecoderV2 {
     this.fan = new Int32Array(MAX_ARC_FAN);
     this.fa = new Int32Array(MAX_ARC_FAN); // a and b of the incidences of one fan, in face-slot order
     this.fb = new Int32Array(MAX_ARC_FAN);
+    this.succ = new Int32Array(MAX_ARC_FAN); // the successor of each, -1 for none
     this.lens = new Float64Array(2 * MAX_ARC_FAN); // lengths, then scores
     this.sums = new Float64Array(state.D);
     this.frame = new Float64Array(6);
@@ -296,20 +297,24 @@ export class ChunkDecoderV2 {
    * d <= 32 corners a / b pairwise. Returns 1 closed, 2 open, 0 not simple.
    */
   #fanOf(g0, d) {
-    const { a, b, fan, fa, fb } = this;
+    const { a, b, fan, fa, fb, succ } = this;
     for (let t = 0; t < d; t++) {
-      const x = a[g0 + t];
-      const y = b[g0 + t];
-      for (let t2 = 0; t2 < t; t2++) if (fa[t2] === x || fb[t2] === y) return 0;
-      fa[t] = x;
-      fb[t] = y;
+      fa[t] = a[g0 + t];
+      fb[t] = b[g0 + t];
+      succ[t] = -1;
     }
     let first = -1;
     let starts = 0;
-    for (let t = 0; t < d; t++) { // t starts the walk when no b equals its a
-      let t2 = 0;
-      while (t2 < d && fb[t2] !== fa[t]) t2++;
-      if (t2 === d) {
+    for (let t = 0; t < d; t++) { // one pass over the pairs: distinct a / b, successors, starts
+      const x = fa[t];
+      const y = fb[t];
+      let pred = 0;
+      for (let t2 = 0; t2 < d; t2++) {
+        if (t2 < t && (fa[t2] === x || fb[t2] === y)) return 0;
+        if (fa[t2] === y) succ[t] = t2; // t2 follows t: its a is the b of t
+        if (fb[t2] === x) pred = 1;
+      }
+      if (pred === 0) { // t starts the walk when no b equals its a
         starts++;
         if (first < 0) first = t;
       }
@@ -319,9 +324,7 @@ export class ChunkDecoderV2 {
     if (starts === 0) first = 0;
     for (let s = 0, t = first; s < d; s++) {
       fan[s] = g0 + t;
-      let next = 0; // the successor of t: the one whose a is b of t
-      while (next < d && fa[next] !== fb[t]) next++;
-      if (next === d) next = -1;
+      const next = succ[t];
       if (s < d - 1) {
         if (next < 0 || next === first) return 0;
         t = next;
@@ -331,6 +334,7 @@ export class ChunkDecoderV2 {
     }
     return kind;
   }
+
 
   /** §8.4.2: the incidence symbols sym (I) of the batch, split by split. */
   #connectivity(rc, k) {
