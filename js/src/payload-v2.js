@@ -432,22 +432,19 @@ export class ChunkDecoderV2 {
 
   /**
    * After a batch (n vertices before it, k splits): updates the valence of every vertex whose
-   * neighbours changed (#revalueSplit) when no corner a, b of a moved face is a split vertex (as
-   * in every batch of independent splits, §6.1); returns false otherwise (the next batch then
-   * recounts every valence).
+   * neighbours changed (#revalueSplit, split vertices marked in stamp with epoch e) while no
+   * corner a, b of a moved face is a split vertex (as in every batch of independent splits,
+   * §6.1); returns false at the first that is (the next batch then recounts every valence).
    */
   #revalue(n, k) {
-    const { v, a, b, sym, gstart } = this;
+    const { v } = this;
     this.#grow('val', n + k, Int32Array, this.state.capN, undefined, true);
     this.#grow('vc', n + k, Uint8Array, this.state.capN, undefined, true);
     this.#grow('stamp', n + k, Int32Array, this.state.capN, 0, true);
     this.#grow('stamp2', n + k, Int32Array, this.state.capN, 0, true);
     const e = this.#nextEpoch();
     for (let i = 0; i < k; i++) this.stamp[v[i]] = e;
-    for (let t = 0; t < gstart[k]; t++) {
-      if (sym[t] !== 0 && (this.stamp[a[t]] === e || this.stamp[b[t]] === e)) return false;
-    }
-    for (let i = 0; i < k; i++) this.#revalueSplit(i, n + i);
+    for (let i = 0; i < k; i++) if (!this.#revalueSplit(i, n + i, e)) return false;
     return true;
   }
 
@@ -457,9 +454,9 @@ export class ChunkDecoderV2 {
    * the incidences (marked in stamp2): a and b of an unmoved face, a of a left new face, b of a
    * right one, and u. u's neighbours are the distinct corners x of its moved faces, and v; each
    * such x gains u and loses v unless x is in N'(v). A vertex x in the moved faces of several
-   * splits gets each split's change in turn.
+   * splits gets each split's change in turn. False when such an x is a split vertex (stamp[x] = e).
    */
-  #revalueSplit(i, u) {
+  #revalueSplit(i, u, e) {
     const { v, a, b, sym, gstart, stamp, stamp2, val } = this;
     const vi = v[i];
     const g0 = gstart[i];
@@ -485,6 +482,7 @@ export class ChunkDecoderV2 {
     for (let g = g0; g < g1; g++) {
       if (sym[g] === 0) continue;
       for (let x = a[g], j = 0; j < 2; j++, x = b[g]) {
+        if (stamp[x] === e) return false;
         if (stamp[x] === e2) continue;
         stamp[x] = e2;
         cu++;
@@ -492,6 +490,7 @@ export class ChunkDecoderV2 {
       }
     }
     this.#setValence(u, cu);
+    return true;
   }
 
   /** val[w] = valence and vc[w] its class min(max(valence, 3), 9) - 3 (§8.4.1). */
