@@ -92,9 +92,11 @@ export class ChunkDecoderV2 {
     this.frame = new Float64Array(6);
     /** The vertex count for which val / vc hold every vertex's valence (-1: recount them). */
     this.valFor = -1;
+    /** The vertex count for which deg holds every vertex's corner count (-1: count them). */
+    this.degFor = -1;
     this.epoch = 0;
     // scratch arrays (see #grow), declared here so that the object keeps one shape
-    for (const name of ['off', 'nb', 'nc', 'val', 'stamp', 'stamp2', 'v', 'gstart', 'inc', 'a', 'b', 'creators',
+    for (const name of ['off', 'nb', 'nc', 'deg', 'val', 'stamp', 'stamp2', 'v', 'gstart', 'inc', 'a', 'b', 'creators',
       'wings']) this[name] = new Int32Array(0);
     this.vc = new Uint8Array(0);
     this.cnt = new Uint8Array(0);
@@ -143,13 +145,15 @@ export class ChunkDecoderV2 {
     const n = st.n;
     const valid = this.valFor === n;
     this.valFor = -1; // until the batch is applied and the valences updated
-    this.#neighbours(n, st.m, valid);
+    this.#neighbours(n, st.m, valid, this.degFor === n);
+    this.degFor = -1;
     const k = this.#mask(rc, n);
     if (k === 0) throw new FormatError('chunk payload: a batch marks no split vertex');
     if (n + k > st.capN) throw new FormatError('splits exceed the declared vertex count');
     const I = this.#incidences(k);
     this.#connectivity(rc, k);
     this.#topology(k, I);
+    this.degFor = n + k;
     this.#values(rc, n, k);
     st.n = n + k;
     if (this.#revalue(n, k)) this.valFor = st.n;
@@ -158,17 +162,24 @@ export class ChunkDecoderV2 {
   /**
    * The vertex -> corner lists of the mesh before the batch, in face-slot order: vertex w's corners
    * are nc[q] for q = off[w]/2 .. off[w+1]/2 - 1, each with the corners before and after it in its
-   * face at nb[2q] and nb[2q+1] (off (n+1), nb (6m), nc (3m) Int32Array). Recounts every valence
-   * (#valence) unless `valid`.
+   * face at nb[2q] and nb[2q+1] (off (n+1), nb (6m), nc (3m) Int32Array). The corner counts deg
+   * (n) are counted unless `counted` (#topology keeps them); every valence is recounted (#valence)
+   * unless `valid`.
    */
-  #neighbours(n, m, valid) {
+  #neighbours(n, m, valid, counted) {
     const { faces, capN, capM } = this.state;
     const off = this.#grow('off', n + 1, Int32Array, capN + 1);
     const nb = this.#grow('nb', 6 * m, Int32Array, 6 * capM);
     const nc = this.#grow('nc', 3 * m, Int32Array, 3 * capM);
-    off.fill(0, 0, n + 1);
-    for (let c = 0; c < 3 * m; c++) off[faces[c]] += 2;
-    for (let w = 1; w < n; w++) off[w] += off[w - 1];
+    const deg = this.#grow('deg', n, Int32Array, capN, 0, true);
+    if (!counted) {
+      deg.fill(0, 0, n);
+      for (let c = 0; c < 3 * m; c++) deg[faces[c]]++;
+    }
+    for (let w = 0, end = 0; w < n; w++) { // the end of each list; the scatter below moves it to the start
+      end += 2 * deg[w];
+      off[w] = end;
+    }
     off[n] = 6 * m;
     for (let f = 3 * m - 3; f >= 0; f -= 3) { // backwards, so that every list ends up ascending
       const x = faces[f];
@@ -397,8 +408,16 @@ export class ChunkDecoderV2 {
     for (let i = 0; i < k; i++) {
       if (wings[i] < 1 || wings[i] > 2) throw new FormatError('a split names no new face or more than two');
     }
+    const deg = this.#grow('deg', n + k, Int32Array, capN, 0, true);
     for (let i = 0; i < k; i++) {
-      for (let g = gstart[i]; g < gstart[i + 1]; g++) if (sym[g] !== 0) faces[inc[g]] = n + i;
+      let moved = 0;
+      for (let g = gstart[i]; g < gstart[i + 1]; g++) {
+        if (sym[g] === 0) continue;
+        faces[inc[g]] = n + i;
+        moved++;
+      }
+      deg[v[i]] += wings[i] - moved; // corners: the moved ones go to u, each new face has one of v
+      deg[n + i] = moved + wings[i];
     }
     const order = creators.subarray(0, nc).sort();
     let f = 3 * st.m;
@@ -409,9 +428,11 @@ export class ChunkDecoderV2 {
       const s = sym[g];
       if (s === 2 || s === 4) {
         faces[f] = n + i; faces[f + 1] = v[i]; faces[f + 2] = a[g]; f += 3;
+        deg[a[g]]++;
       }
       if (s === 3 || s === 4) {
         faces[f] = v[i]; faces[f + 1] = n + i; faces[f + 2] = b[g]; f += 3;
+        deg[b[g]]++;
       }
     }
     st.m += added;
