@@ -8,6 +8,13 @@
  * A ChunkDecoderV2 belongs to one primitive: it holds the probability table its chunks continue
  * (§8.1) and typed scratch arrays grown geometrically, and decodes each chunk straight into the
  * primitive's MeshState (values, faces, n, m). No allocation per vertex, split or symbol.
+ *
+ * Per batch: the vertex -> corner lists are rebuilt in one scatter over the faces (#neighbours),
+ * from corner counts the previous batch kept; every vertex's valence (§8.4.1) is kept from batch
+ * to batch, updated from the batch's incidences alone (#revalue), and recounted from the lists
+ * after a batch whose splits touch each other's moved faces; the mask bits are decoded with the
+ * coder's state in locals, each marked vertex adding itself to its neighbours' counts; a split's
+ * incidences are a slice of its corner list (face-slot order), so no scan of the corners.
  */
 import { FormatError, LimitError } from './errors.js';
 import { MAX_BATCHES_PER_CHUNK } from './constants.js';
