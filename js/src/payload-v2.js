@@ -18,7 +18,7 @@
  */
 import { FormatError, LimitError } from './errors.js';
 import { MAX_BATCHES_PER_CHUNK } from './constants.js';
-import { INT_BLOCK, RangeDecoder, newProbabilities } from './rangecoder.js';
+import { ADAPT_SHIFT, INT_BLOCK, PROB_BITS, PROB_ONE, RangeDecoder, TOP, newProbabilities } from './rangecoder.js';
 
 // probability table layout (spec §8.3)
 const P_MASK = 0; // 7 * nb + vc
@@ -261,18 +261,18 @@ export class ChunkDecoderV2 {
     for (let w = 0; w < n; w++) {
       const i = 7 * cnt[w] + vc[w];
       const p = probs[i];
-      const bound = Math.imul(range >>> 11, p); // DecodeBit (§8.1) inlined, int32 bit patterns as RangeDecoder
+      const bound = Math.imul(range >>> PROB_BITS, p); // DecodeBit (§8.1) inlined, int32 bit patterns as RangeDecoder
       if ((code >>> 0) < (bound >>> 0)) {
         range = bound;
-        probs[i] = p + ((2048 - p) >> 4);
+        probs[i] = p + ((PROB_ONE - p) >> ADAPT_SHIFT);
       } else {
         code = (code - bound) | 0;
         range = (range - bound) | 0;
-        probs[i] = p - (p >> 4);
+        probs[i] = p - (p >> ADAPT_SHIFT);
         v[k++] = w;
         this.#markAbove(w);
       }
-      while ((range >>> 0) < 0x1000000) {
+      while ((range >>> 0) < TOP) {
         range <<= 8;
         code = (code << 8) | (pos < length ? buf[pos] : 0);
         pos++;

@@ -6,10 +6,11 @@
  */
 import { FormatError } from './errors.js';
 
-const PROB_BITS = 11;
-const PROB_ONE = 1 << PROB_BITS;
-const ADAPT_SHIFT = 4;
-const TOP = 1 << 24;
+/** §8.1 constants, also for the hot loops that inline DecodeBit (payload-v2.js). */
+export const PROB_BITS = 11;
+export const PROB_ONE = 1 << PROB_BITS;
+export const ADAPT_SHIFT = 4;
+export const TOP = 1 << 24;
 /** Integer context block: bucket tree nodes [1, 64), mantissa nodes at 64 + 3b + t, sign at 192 + b. */
 export const INT_BLOCK = 256;
 const INT_MANTISSA = 64;
