@@ -70,7 +70,7 @@ function arcStart(r, fan, d, ncand, L, a, values, D, v, lens) {
   }
   for (let c = 0; c < ncand; c++) {
     let sc = 0.0;
-    for (let j = 1; j < L; j++) sc += lens[(c + j) % d];
+    for (let j = 1, t = c + 1 === d ? 0 : c + 1; j < L; j++, t = t + 1 === d ? 0 : t + 1) sc += lens[t]; // t = (c + j) mod d
     lens[MAX_ARC_FAN + c] = sc;
   }
   for (let c = 0; c < ncand; c++) {
@@ -379,7 +379,7 @@ export class ChunkDecoderV2 {
       const left = kind === 2 && s === 0 ? rc.bit(P_WING) : 1;
       const right = kind === 2 && s + L === d ? rc.bit(P_WING + 1) : 1;
       for (let t = 0; t < d; t++) {
-        const q = (t - s + d) % d;
+        const q = t >= s ? t - s : t - s + d; // (t - s) mod d
         sym[fan[t]] = q >= L ? 0 : 1 + (q === 0 ? left : 0) + 2 * (q === L - 1 ? right : 0);
       }
     }
