@@ -6,7 +6,7 @@ column), then run ``node js/bench/bench.mjs`` (one warm-up each, then REPEATS al
 ``decodePmw`` and of draco3d ``DecodeBufferToMesh`` + array copies) and report medians; then
 ``node js/bench/stages.mjs --cpu`` splits the JS decode into its stages (CPU time per stage).
 
-    python tools/bench_js.py [--big | --huge] [--repeats N] [--write BENCHMARKS.md]
+    python tools/bench_js.py [--big | --huge] [--repeats N] [--payload-version {1,2}] [--write BENCHMARKS.md]
 
 Meshes: ``stanford-bunny.obj`` from ``../shared/corpus`` and, with ``--big``, the bunny
 midpoint-subdivided twice (556k vertices), as in tools/bench.py; ``--huge`` adds two copies
@@ -38,10 +38,11 @@ from tools.bench import load_meshes, ms, publish, table  # noqa: E402
 SECTION = "JavaScript decoder"
 
 
-def run_mesh(name: str, mesh, repeats: int, tmp: Path) -> dict:
-    """Encode ``mesh`` both ways into ``tmp`` and time the two decoders in Node; the bench.mjs JSON."""
+def run_mesh(name: str, mesh, repeats: int, tmp: Path, payload_version: int = 1) -> dict:
+    """Encode ``mesh`` both ways into ``tmp`` (chunk payload ``payload_version``) and time the two
+    decoders in Node; the bench.mjs JSON."""
     pmw, drc = tmp / "mesh.pmw", tmp / "mesh.drc"
-    pmwm_codec.encode(mesh, str(pmw), measure=False, grid_bits=14)
+    pmwm_codec.encode(mesh, str(pmw), measure=False, grid_bits=14, payload_version=payload_version)
     drc.write_bytes(DracoPy.encode(mesh.positions, mesh.faces, quantization_bits=14, compression_level=7))
     out = subprocess.run(["node", str(ROOT / "js" / "bench" / "bench.mjs"), str(pmw), str(drc), str(repeats)],
                          capture_output=True, text=True, check=True)
@@ -61,6 +62,7 @@ STAGES = [
     ("zstd", "zstd frame walk + decompression and XXH64 content checksum (zstddec)"),
     ("unpack", "payload columns -> split vertices, symbols, residuals"),
     ("splits", "vertex splits (incidences, new faces, predicted values)"),
+    ("rangecoded", "payload version 2: range-coded chunks decoded into the mesh, splits included"),
     ("decode", "whole PmwDecoder feed + close"),
     ("snapshot", "snapshot(): output arrays"),
 ]
@@ -68,7 +70,8 @@ STAGES = [
 
 def render_stages(results: list) -> str:
     """The per-stage CPU-time table of stages.mjs, one column per mesh."""
-    rows = [[key, what] + [ms(r["stages"][key]) for r in results] for key, what in STAGES]
+    rows = [[key, what] + [ms(r["stages"][key]) for r in results] for key, what in STAGES
+            if any(key in r["stages"] for r in results)]
     return table(["stage", "what"] + [r["name"] for r in results], rows)
 
 
@@ -125,11 +128,14 @@ def main() -> None:
     ap.add_argument("--huge", action="store_true",
                     help="also two copies of the subdivided bunny side by side (1.11M vertices; implies --big)")
     ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--payload-version", type=int, choices=(1, 2), default=1,
+                    help="chunk payload version of the encoded .pmw (spec/bitstream.md §6 or §8)")
     ap.add_argument("--write", metavar="PATH", help=f"replace the '{SECTION}' section of this Markdown file")
     args = ap.parse_args()
     args.big = args.big or args.huge
     command = "python tools/bench_js.py" + (" --huge" if args.huge else " --big" if args.big else "") + (
-        f" --repeats {args.repeats}") + (f" --write {args.write}" if args.write else "")
+        f" --repeats {args.repeats}") + (f" --payload-version {args.payload_version}" if args.payload_version != 1 else "") + (
+        f" --write {args.write}" if args.write else "")
     load = os.getloadavg()[0]
     print(f"load average at start: {load:.2f}", file=sys.stderr)
     results = []
@@ -138,7 +144,8 @@ def main() -> None:
         if args.huge:
             meshes.append(("bunny-sub2 x2 (side by side)", side_by_side(meshes[-1][1])))
         for name, mesh in meshes:
-            results.append(run_mesh(name, mesh, args.repeats if mesh.vertex_count < 200_000 else 3, Path(tmp)))
+            results.append(run_mesh(name, mesh, args.repeats if mesh.vertex_count < 200_000 else 3, Path(tmp),
+                                    args.payload_version))
     publish(render(results, command, load), args.write, SECTION, lambda msg: print(msg, file=sys.stderr))
 
 

@@ -8,10 +8,17 @@
  * A ChunkDecoderV2 belongs to one primitive: it holds the probability table its chunks continue
  * (§8.1) and typed scratch arrays grown geometrically, and decodes each chunk straight into the
  * primitive's MeshState (values, faces, n, m). No allocation per vertex, split or symbol.
+ *
+ * Per batch: the vertex -> corner lists are rebuilt in one scatter over the faces (#neighbours),
+ * from corner counts the previous batch kept; every vertex's valence (§8.4.1) is kept from batch
+ * to batch, updated from the batch's incidences alone (#revalue), and recounted from the lists
+ * after a batch whose splits touch each other's moved faces; the mask bits are decoded with the
+ * coder's state in locals, each marked vertex adding itself to its neighbours' counts; a split's
+ * incidences are a slice of its corner list (face-slot order), so no scan of the corners.
  */
 import { FormatError, LimitError } from './errors.js';
 import { MAX_BATCHES_PER_CHUNK } from './constants.js';
-import { INT_BLOCK, RangeDecoder, newProbabilities } from './rangecoder.js';
+import { ADAPT_SHIFT, INT_BLOCK, PROB_BITS, PROB_ONE, RangeDecoder, TOP, newProbabilities } from './rangecoder.js';
 
 // probability table layout (spec §8.3)
 const P_MASK = 0; // 7 * nb + vc
@@ -63,7 +70,7 @@ function arcStart(r, fan, d, ncand, L, a, values, D, v, lens) {
   }
   for (let c = 0; c < ncand; c++) {
     let sc = 0.0;
-    for (let j = 1; j < L; j++) sc += lens[(c + j) % d];
+    for (let j = 1, t = c + 1 === d ? 0 : c + 1; j < L; j++, t = t + 1 === d ? 0 : t + 1) sc += lens[t]; // t = (c + j) mod d
     lens[MAX_ARC_FAN + c] = sc;
   }
   for (let c = 0; c < ncand; c++) {
@@ -84,24 +91,34 @@ export class ChunkDecoderV2 {
     this.state = state;
     this.probs = newProbabilities(N_PROBS);
     this.fan = new Int32Array(MAX_ARC_FAN);
+    this.fa = new Int32Array(MAX_ARC_FAN); // a and b of the incidences of one fan, in face-slot order
+    this.fb = new Int32Array(MAX_ARC_FAN);
+    this.succ = new Int32Array(MAX_ARC_FAN); // the successor of each, -1 for none
     this.lens = new Float64Array(2 * MAX_ARC_FAN); // lengths, then scores
     this.sums = new Float64Array(state.D);
     this.frame = new Float64Array(6);
+    /** The vertex count for which val / vc hold every vertex's valence (-1: recount them). */
+    this.valFor = -1;
+    /** The vertex count for which deg holds every vertex's corner count (-1: count them). */
+    this.degFor = -1;
+    this.epoch = 0;
     // scratch arrays (see #grow), declared here so that the object keeps one shape
-    for (const name of ['off', 'nb', 'stamp', 'v', 'slot', 'gstart', 'gfill', 'inc', 'owner', 'a', 'b', 'gidx',
-      'posA', 'posB', 'wings']) this[name] = new Int32Array(0);
-    this.sel = new Uint8Array(0);
+    for (const name of ['off', 'nb', 'nc', 'deg', 'val', 'stamp', 'stamp2', 'v', 'gstart', 'inc', 'a', 'b', 'creators',
+      'wings']) this[name] = new Int32Array(0);
+    this.vc = new Uint8Array(0);
+    this.cnt = new Uint8Array(0);
     this.sym = new Uint8Array(0);
   }
 
   /**
    * Scratch array `name` with at least `size` (<= max) elements, grown geometrically up to `max`
-   * (contents not kept; a new array is filled with `fillValue` when given).
+   * (contents kept when `keep`; a new array is otherwise filled with `fillValue` when given).
    */
-  #grow(name, size, Type, max, fillValue) {
+  #grow(name, size, Type, max, fillValue, keep = false) {
     let arr = this[name];
     if (arr.length < size) {
       const cap = Math.min(Math.max(size, 2 * arr.length), Math.max(size, max));
+      const old = arr;
       try {
         arr = new Type(cap);
       } catch (e) {
@@ -109,6 +126,7 @@ export class ChunkDecoderV2 {
         throw new LimitError(`cannot allocate ${cap} scratch entries (${e.message})`);
       }
       if (fillValue !== undefined) arr.fill(fillValue);
+      if (keep) arr.set(old);
       this[name] = arr;
     }
     return arr;
@@ -132,159 +150,214 @@ export class ChunkDecoderV2 {
   #batch(rc) {
     const st = this.state;
     const n = st.n;
-    const k = this.#mask(rc, n, st.m);
+    const valid = this.valFor === n;
+    this.valFor = -1; // until the batch is applied and the valences updated
+    this.#neighbours(n, st.m, valid, this.degFor === n);
+    this.degFor = -1;
+    const k = this.#mask(rc, n);
     if (k === 0) throw new FormatError('chunk payload: a batch marks no split vertex');
     if (n + k > st.capN) throw new FormatError('splits exceed the declared vertex count');
-    const I = this.#incidences(n, st.m, k);
+    const I = this.#incidences(k);
     this.#connectivity(rc, k);
     this.#topology(k, I);
+    this.degFor = n + k;
     this.#values(rc, n, k);
     st.n = n + k;
+    if (this.#revalue(n, k)) this.valFor = st.n;
   }
 
   /**
-   * §8.4.1: one bit per vertex w < n under the context of its distinct neighbours (valence class)
-   * and the marked ones below w. Builds the vertex -> neighbour lists `nb` (the two other corners
-   * of each of its corners, in `off[w] .. off[w+1]`; off[w+1] - off[w] is twice its corner count). Leaves sel (n) Uint8Array, and the split vertices v (k) Int32Array and
-   * their slot (slot[v[i]] = i). Returns k.
+   * The vertex -> corner lists of the mesh before the batch, in face-slot order: vertex w's corners
+   * are nc[q] for q = off[w]/2 .. off[w+1]/2 - 1, each with the corners before and after it in its
+   * face at nb[2q] and nb[2q+1] (off (n+1), nb (6m), nc (3m) Int32Array). The corner counts deg
+   * (n) are counted unless `counted` (#topology keeps them); every valence is recounted (#valence)
+   * unless `valid`.
    */
-  #mask(rc, n, m) {
-    const { faces } = this.state;
-    const { capN, capM } = this.state;
+  #neighbours(n, m, valid, counted) {
+    const { faces, capN, capM } = this.state;
     const off = this.#grow('off', n + 1, Int32Array, capN + 1);
     const nb = this.#grow('nb', 6 * m, Int32Array, 6 * capM);
-    const stamp = this.#grow('stamp', n, Int32Array, capN);
-    const sel = this.#grow('sel', n, Uint8Array, capN);
-    off.fill(0, 0, n + 1);
-    stamp.fill(-1, 0, n);
-    for (let c = 0; c < 3 * m; c++) off[faces[c]] += 2;
-    for (let w = 1; w < n; w++) off[w] += off[w - 1];
+    const nc = this.#grow('nc', 3 * m, Int32Array, 3 * capM);
+    const deg = this.#grow('deg', n, Int32Array, capN, 0, true);
+    if (!counted) {
+      deg.fill(0, 0, n);
+      for (let c = 0; c < 3 * m; c++) deg[faces[c]]++;
+    }
+    for (let w = 0, end = 0; w < n; w++) { // the end of each list; the scatter below moves it to the start
+      end += 2 * deg[w];
+      off[w] = end;
+    }
     off[n] = 6 * m;
-    for (let f = 3 * m - 3; f >= 0; f -= 3) { // the two other corners of every corner, listed per vertex
+    for (let f = 3 * m - 3; f >= 0; f -= 3) { // backwards, so that every list ends up ascending
       const x = faces[f];
       const y = faces[f + 1];
       const z = faces[f + 2];
-      nb[--off[x]] = y; nb[--off[x]] = z;
-      nb[--off[y]] = z; nb[--off[y]] = x;
-      nb[--off[z]] = x; nb[--off[z]] = y;
+      let q = (off[z] -= 2);
+      nb[q] = y; nb[q + 1] = x; nc[q >> 1] = f + 2;
+      q = (off[y] -= 2);
+      nb[q] = x; nb[q + 1] = z; nc[q >> 1] = f + 1;
+      q = (off[x] -= 2);
+      nb[q] = z; nb[q + 1] = y; nc[q >> 1] = f;
     }
+    this.#grow('val', n, Int32Array, capN, undefined, true);
+    this.#grow('vc', n, Uint8Array, capN, undefined, true);
+    this.#grow('stamp', n, Int32Array, capN, 0, true);
+    this.#grow('stamp2', n, Int32Array, capN, 0, true);
+    this.#grow('cnt', n, Uint8Array, capN);
+    if (!valid) for (let w = 0; w < n; w++) this.#setValence(w, this.#valence(w));
+  }
+
+  /** A fresh stamp value (stamp and stamp2 hold values below it). */
+  #nextEpoch() {
+    if (this.epoch >= 0x3fffffff) {
+      this.stamp.fill(0);
+      this.stamp2.fill(0);
+      this.epoch = 0;
+    }
+    return ++this.epoch;
+  }
+
+  /** |N(w)| of §8.4.1: the distinct vertices other than w that share a face with w (from nb). */
+  #valence(w) {
+    const { off, nb, stamp } = this;
+    const e = this.#nextEpoch();
+    let valence = 0;
+    for (let t = off[w], end = off[w + 1]; t < end; t++) {
+      const x = nb[t];
+      if (x !== w && stamp[x] !== e) {
+        stamp[x] = e;
+        valence++;
+      }
+    }
+    return valence;
+  }
+
+  /** cnt[x] += 1 (saturating at 2) for every distinct neighbour x > w of w: w is marked. */
+  #markAbove(w) {
+    const { off, nb, stamp, cnt } = this;
+    const e = this.#nextEpoch();
+    for (let t = off[w], end = off[w + 1]; t < end; t++) {
+      const x = nb[t];
+      if (x > w && stamp[x] !== e) {
+        stamp[x] = e;
+        if (cnt[x] < 2) cnt[x]++;
+      }
+    }
+  }
+
+  /**
+   * §8.4.1: one bit per vertex w < n under the context 7 nb + vc, vc kept per vertex, nb = cnt[w]
+   * (marked distinct neighbours below w, counted up to 2 as the marks are decoded). The coder's
+   * state is held in locals for the loop. Leaves the split vertices in v (k) Int32Array; returns k.
+   */
+  #mask(rc, n) {
+    const { capN } = this.state;
+    const { vc, cnt } = this;
+    const v = this.#grow('v', n, Int32Array, capN);
+    cnt.fill(0, 0, n);
+    const { probs, buf, length } = rc;
+    let { range, code, pos } = rc;
     let k = 0;
     for (let w = 0; w < n; w++) {
-      let valence = 0;
-      let below = 0;
-      for (let t = off[w], end = off[w + 1]; t < end; t++) {
-        const x = nb[t];
-        if (x !== w && stamp[x] !== w) {
-          stamp[x] = w;
-          valence++;
-          if (x < w) below += sel[x];
-        }
+      const i = 7 * cnt[w] + vc[w];
+      const p = probs[i];
+      const bound = Math.imul(range >>> PROB_BITS, p); // DecodeBit (§8.1) inlined, int32 bit patterns as RangeDecoder
+      if ((code >>> 0) < (bound >>> 0)) {
+        range = bound;
+        probs[i] = p + ((PROB_ONE - p) >> ADAPT_SHIFT);
+      } else {
+        code = (code - bound) | 0;
+        range = (range - bound) | 0;
+        probs[i] = p - (p >> ADAPT_SHIFT);
+        v[k++] = w;
+        this.#markAbove(w);
       }
-      const bit = rc.bit(P_MASK + 7 * (below < 2 ? below : 2) + (valence < 3 ? 0 : valence > 9 ? 6 : valence - 3));
-      sel[w] = bit;
-      k += bit;
-    }
-    const v = this.#grow('v', k, Int32Array, capN);
-    const slot = this.#grow('slot', n, Int32Array, capN, -1);
-    for (let w = 0, i = 0; w < n; w++) {
-      if (sel[w]) {
-        slot[w] = i;
-        v[i++] = w;
+      while ((range >>> 0) < TOP) {
+        range <<= 8;
+        code = (code << 8) | (pos < length ? buf[pos] : 0);
+        pos++;
       }
     }
+    rc.range = range;
+    rc.code = code;
+    rc.pos = pos;
     return k;
   }
 
   /**
-   * §6.1 step 1 grouped as §8.4.2 needs them: incidences t (face-slot order) with corner inc[t],
-   * split owner[t], corners after / before a[t], b[t] (mesh before the batch); split i's
-   * incidences gidx[gstart[i] .. gstart[i+1]) in face-slot order. Resets slot. Returns I.
+   * §6.1 step 1 grouped per split, as §8.4.2 needs them: split i's incidences are g = gstart[i] ..
+   * gstart[i+1]-1, its corner list in face-slot order: corner inc[g], the corners after / before it
+   * a[g], b[g] (mesh before the batch). Returns I.
    */
-  #incidences(n, m, k) {
-    const { faces } = this.state;
-    const { off, v, slot } = this;
+  #incidences(k) {
     const { capN, capM } = this.state;
+    const { off, nb, nc, v } = this;
     const gstart = this.#grow('gstart', k + 1, Int32Array, capN + 1);
-    const fill = this.#grow('gfill', k, Int32Array, capN);
     gstart[0] = 0;
-    for (let i = 0; i < k; i++) {
-      gstart[i + 1] = gstart[i] + ((off[v[i] + 1] - off[v[i]]) >> 1); // corners of v[i]
-      fill[i] = gstart[i];
-    }
+    for (let i = 0; i < k; i++) gstart[i + 1] = gstart[i] + ((off[v[i] + 1] - off[v[i]]) >> 1);
     const I = gstart[k];
     const inc = this.#grow('inc', I, Int32Array, 3 * capM);
-    const owner = this.#grow('owner', I, Int32Array, 3 * capM);
     const a = this.#grow('a', I, Int32Array, 3 * capM);
     const b = this.#grow('b', I, Int32Array, 3 * capM);
-    const gidx = this.#grow('gidx', I, Int32Array, 3 * capM);
     this.#grow('sym', I, Uint8Array, 3 * capM);
-    let t = 0;
-    for (let c = 0; c < 3 * m; c += 3) {
-      for (let j = 0; j < 3; j++) {
-        const i = slot[faces[c + j]];
-        if (i < 0) continue;
-        inc[t] = c + j;
-        owner[t] = i;
-        a[t] = faces[c + ((j + 1) % 3)];
-        b[t] = faces[c + ((j + 2) % 3)];
-        gidx[fill[i]++] = t;
-        t++;
+    for (let i = 0, g = 0; i < k; i++) {
+      for (let q = off[v[i]], end = off[v[i] + 1]; q < end; q += 2, g++) {
+        inc[g] = nc[q >> 1];
+        b[g] = nb[q];
+        a[g] = nb[q + 1];
       }
     }
-    for (let i = 0; i < k; i++) slot[v[i]] = -1;
     return I;
   }
 
   /**
-   * Orders split i's incidences J = gidx[g0 .. g0+d) into this.fan (spec §8.4.2 "Fan").
-   * Returns 1 closed, 2 open, 0 not simple. posA / posB (n) all -1 on entry and on return.
+   * Orders split i's incidences g0 .. g0+d-1 into this.fan (spec §8.4.2 "Fan"), comparing their
+   * d <= 32 corners a / b pairwise. Returns 1 closed, 2 open, 0 not simple.
    */
   #fanOf(g0, d) {
-    const { gidx, a, b, fan, posA, posB } = this;
-    let kind = 1;
+    const { a, b, fan, fa, fb, succ } = this;
     for (let t = 0; t < d; t++) {
-      const j = gidx[g0 + t];
-      if (posA[a[j]] >= 0 || posB[b[j]] >= 0) kind = 0;
-      posA[a[j]] = t;
-      posB[b[j]] = t;
+      fa[t] = a[g0 + t];
+      fb[t] = b[g0 + t];
+      succ[t] = -1;
     }
-    if (kind !== 0) {
-      let first = -1;
-      let starts = 0;
-      for (let t = 0; t < d; t++) {
-        if (posB[a[gidx[g0 + t]]] < 0) {
-          starts++;
-          if (first < 0) first = t;
-        }
+    let first = -1;
+    let starts = 0;
+    for (let t = 0; t < d; t++) { // one pass over the pairs: distinct a / b, successors, starts
+      const x = fa[t];
+      const y = fb[t];
+      let pred = 0;
+      for (let t2 = 0; t2 < d; t2++) {
+        if (t2 < t && (fa[t2] === x || fb[t2] === y)) return 0;
+        if (fa[t2] === y) succ[t] = t2; // t2 follows t: its a is the b of t
+        if (fb[t2] === x) pred = 1;
       }
-      if (starts === 0) first = 0;
-      kind = starts === 0 ? 1 : starts === 1 ? 2 : 0;
-      for (let s = 0, t = first; kind !== 0 && s < d; s++) {
-        const j = gidx[g0 + t];
-        fan[s] = j;
-        const next = posA[b[j]];
-        if (s < d - 1) {
-          if (next < 0 || next === first) kind = 0;
-          t = next;
-        } else if ((kind === 1 && next !== first) || (kind === 2 && next >= 0)) {
-          kind = 0;
-        }
+      if (pred === 0) { // t starts the walk when no b equals its a
+        starts++;
+        if (first < 0) first = t;
       }
     }
-    for (let t = 0; t < d; t++) {
-      const j = gidx[g0 + t];
-      posA[a[j]] = -1;
-      posB[b[j]] = -1;
+    if (starts > 1) return 0;
+    const kind = starts === 0 ? 1 : 2;
+    if (starts === 0) first = 0;
+    for (let s = 0, t = first; s < d; s++) {
+      fan[s] = g0 + t;
+      const next = succ[t];
+      if (s < d - 1) {
+        if (next < 0 || next === first) return 0;
+        t = next;
+      } else if ((kind === 1 && next !== first) || (kind === 2 && next >= 0)) {
+        return 0;
+      }
     }
     return kind;
   }
 
+
   /** §8.4.2: the incidence symbols sym (I) of the batch, split by split. */
   #connectivity(rc, k) {
-    const { gstart, gidx, sym, fan, v, a } = this;
-    const { values, D, n, capN } = this.state;
-    this.#grow('posA', n, Int32Array, capN, -1);
-    this.#grow('posB', n, Int32Array, capN, -1);
+    const { gstart, sym, fan, v, a } = this;
+    const { values, D } = this.state;
     for (let i = 0; i < k; i++) {
       const g0 = gstart[i];
       const d = gstart[i + 1] - g0;
@@ -293,7 +366,7 @@ export class ChunkDecoderV2 {
         for (let t = 0; t < d; t++) {
           const x = rc.tree(P_SYMBOL, 3);
           if (x >= 5) throw new FormatError('chunk payload: unknown incidence symbol');
-          sym[gidx[g0 + t]] = x;
+          sym[g0 + t] = x;
         }
         continue;
       }
@@ -306,55 +379,158 @@ export class ChunkDecoderV2 {
       const left = kind === 2 && s === 0 ? rc.bit(P_WING) : 1;
       const right = kind === 2 && s + L === d ? rc.bit(P_WING + 1) : 1;
       for (let t = 0; t < d; t++) {
-        const q = (t - s + d) % d;
+        const q = t >= s ? t - s : t - s + d; // (t - s) mod d
         sym[fan[t]] = q >= L ? 0 : 1 + (q === 0 ? left : 0) + 2 * (q === L - 1 ? right : 0);
       }
     }
   }
 
   /**
-   * §6.1 steps 2-3: every moved corner becomes u_i, new faces are appended in incidence order
-   * ((u, v, a) left, (v, u, b) right); FormatError when they exceed the declared face count or a
-   * split creates no new face or more than two.
+   * §6.1 steps 2-3: every moved corner becomes u_i; new faces ((u, v, a) left, (v, u, b) right)
+   * are appended in the face-slot order of the incidences that create them (their corners, sorted);
+   * FormatError when they exceed the declared face count or a split creates no new face or more
+   * than two.
    */
   #topology(k, I) {
     const st = this.state;
-    const { faces, capM } = st;
-    const { inc, owner, a, b, sym, v } = this;
+    const { faces, capM, capN } = st;
+    const { inc, a, b, sym, v, gstart } = this;
     const n = st.n;
-    const wings = this.#grow('wings', k, Int32Array, st.capN);
-    wings.fill(0, 0, k);
+    const wings = this.#grow('wings', k, Int32Array, capN);
+    const creators = this.#grow('creators', I, Int32Array, 3 * capM);
     let added = 0;
-    for (let t = 0; t < I; t++) {
-      const s = sym[t];
-      added += (s === 2 || s === 3) ? 1 : s === 4 ? 2 : 0;
-      wings[owner[t]] += (s === 2 || s === 3) ? 1 : s === 4 ? 2 : 0;
+    let nc = 0;
+    for (let i = 0; i < k; i++) {
+      let w = 0;
+      for (let g = gstart[i]; g < gstart[i + 1]; g++) {
+        const s = sym[g];
+        if (s < 2) continue;
+        w += s === 4 ? 2 : 1;
+        creators[nc++] = inc[g];
+      }
+      wings[i] = w;
+      added += w;
     }
     if (st.m + added > capM) throw new FormatError('splits exceed the declared face count');
     for (let i = 0; i < k; i++) {
       if (wings[i] < 1 || wings[i] > 2) throw new FormatError('a split names no new face or more than two');
     }
+    const deg = this.#grow('deg', n + k, Int32Array, capN, 0, true);
+    for (let i = 0; i < k; i++) {
+      let moved = 0;
+      for (let g = gstart[i]; g < gstart[i + 1]; g++) {
+        if (sym[g] === 0) continue;
+        faces[inc[g]] = n + i;
+        moved++;
+      }
+      deg[v[i]] += wings[i] - moved; // corners: the moved ones go to u, each new face has one of v
+      deg[n + i] = moved + wings[i];
+    }
+    const order = creators.subarray(0, nc).sort();
     let f = 3 * st.m;
-    for (let t = 0; t < I; t++) {
-      const s = sym[t];
-      if (s === 0) continue;
-      const u = n + owner[t];
-      const vi = v[owner[t]];
-      faces[inc[t]] = u;
+    for (let r = 0; r < nc; r++) {
+      const c = order[r];
+      const i = faces[c] - n; // a creating corner is a moved one: it now holds u_i
+      const g = this.#incidenceOf(c, gstart[i], gstart[i + 1]);
+      const s = sym[g];
       if (s === 2 || s === 4) {
-        faces[f] = u; faces[f + 1] = vi; faces[f + 2] = a[t]; f += 3;
+        faces[f] = n + i; faces[f + 1] = v[i]; faces[f + 2] = a[g]; f += 3;
+        deg[a[g]]++;
       }
       if (s === 3 || s === 4) {
-        faces[f] = vi; faces[f + 1] = u; faces[f + 2] = b[t]; f += 3;
+        faces[f] = v[i]; faces[f + 1] = n + i; faces[f + 2] = b[g]; f += 3;
+        deg[b[g]]++;
       }
     }
     st.m += added;
   }
 
+  /** The incidence g in [g0, g1) whose corner is c (inc ascending there). */
+  #incidenceOf(c, g0, g1) {
+    const { inc } = this;
+    let lo = g0;
+    let hi = g1 - 1;
+    while (lo < hi) {
+      const mid = (lo + hi) >> 1;
+      if (inc[mid] < c) lo = mid + 1;
+      else hi = mid;
+    }
+    return lo;
+  }
+
+  /**
+   * After a batch (n vertices before it, k splits): updates the valence of every vertex whose
+   * neighbours changed (#revalueSplit, split vertices marked in stamp with epoch e) while no
+   * corner a, b of a moved face is a split vertex (as in every batch of independent splits,
+   * §6.1); returns false at the first that is (the next batch then recounts every valence).
+   */
+  #revalue(n, k) {
+    const { v } = this;
+    this.#grow('val', n + k, Int32Array, this.state.capN, undefined, true);
+    this.#grow('vc', n + k, Uint8Array, this.state.capN, undefined, true);
+    this.#grow('stamp', n + k, Int32Array, this.state.capN, 0, true);
+    this.#grow('stamp2', n + k, Int32Array, this.state.capN, 0, true);
+    const e = this.#nextEpoch();
+    for (let i = 0; i < k; i++) this.stamp[v[i]] = e;
+    for (let i = 0; i < k; i++) if (!this.#revalueSplit(i, n + i, e)) return false;
+    return true;
+  }
+
+  /**
+   * The valences after split i of a batch whose moved faces hold no split vertex but their own.
+   * Then v's faces are its unmoved ones and the new ones, so its neighbours N'(v) are read from
+   * the incidences (marked in stamp2): a and b of an unmoved face, a of a left new face, b of a
+   * right one, and u. u's neighbours are the distinct corners x of its moved faces, and v; each
+   * such x gains u and loses v unless x is in N'(v). A vertex x in the moved faces of several
+   * splits gets each split's change in turn. False when such an x is a split vertex (stamp[x] = e).
+   */
+  #revalueSplit(i, u, e) {
+    const { v, a, b, sym, gstart, stamp, stamp2, val } = this;
+    const vi = v[i];
+    const g0 = gstart[i];
+    const g1 = gstart[i + 1];
+    const e1 = this.#nextEpoch();
+    let cv = 1; // u
+    for (let g = g0; g < g1; g++) {
+      const s = sym[g];
+      const x = a[g];
+      if ((s === 0 || s === 2 || s === 4) && x !== vi && stamp2[x] !== e1) {
+        stamp2[x] = e1;
+        cv++;
+      }
+      const y = b[g];
+      if ((s === 0 || s === 3 || s === 4) && y !== vi && stamp2[y] !== e1) {
+        stamp2[y] = e1;
+        cv++;
+      }
+    }
+    this.#setValence(vi, cv);
+    const e2 = this.#nextEpoch();
+    let cu = 1; // v
+    for (let g = g0; g < g1; g++) {
+      if (sym[g] === 0) continue;
+      for (let x = a[g], j = 0; j < 2; j++, x = b[g]) {
+        if (stamp[x] === e) return false;
+        if (stamp[x] === e2) continue;
+        stamp[x] = e2;
+        cu++;
+        this.#setValence(x, val[x] + (stamp2[x] === e1 ? 1 : 0));
+      }
+    }
+    this.#setValence(u, cu);
+    return true;
+  }
+
+  /** val[w] = valence and vc[w] its class min(max(valence, 3), 9) - 3 (§8.4.1). */
+  #setValence(w, valence) {
+    this.val[w] = valence;
+    this.vc[w] = valence < 3 ? 0 : valence > 9 ? 6 : valence - 3;
+  }
+
   /** §8.4.3: the D values of each new vertex u = n + i, split by split. */
   #values(rc, n, k) {
     const { values, D } = this.state;
-    const { gstart, gidx, sym, a, b, v, sums: S } = this;
+    const { gstart, sym, a, b, v, sums: S } = this;
     for (let i = 0; i < k; i++) {
       const pv = v[i] * D;
       S.fill(0);
@@ -363,8 +539,7 @@ export class ChunkDecoderV2 {
       let nx = 0.0;
       let ny = 0.0;
       let nz = 0.0;
-      for (let g = gstart[i]; g < gstart[i + 1]; g++) {
-        const j = gidx[g];
+      for (let j = gstart[i]; j < gstart[i + 1]; j++) {
         const s = sym[j];
         if (s === 0) continue;
         const pa = a[j] * D;

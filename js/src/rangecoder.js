@@ -6,10 +6,11 @@
  */
 import { FormatError } from './errors.js';
 
-const PROB_BITS = 11;
-const PROB_ONE = 1 << PROB_BITS;
-const ADAPT_SHIFT = 4;
-const TOP = 1 << 24;
+/** §8.1 constants, also for the hot loops that inline DecodeBit (payload-v2.js). */
+export const PROB_BITS = 11;
+export const PROB_ONE = 1 << PROB_BITS;
+export const ADAPT_SHIFT = 4;
+export const TOP = 1 << 24;
 /** Integer context block: bucket tree nodes [1, 64), mantissa nodes at 64 + 3b + t, sign at 192 + b. */
 export const INT_BLOCK = 256;
 const INT_MANTISSA = 64;
@@ -30,14 +31,14 @@ export function newProbabilities(size) {
  * Decoding state over one chunk's stored bytes `buf` (Uint8Array), adapting `probs` (Uint16Array) in
  * place. `range` and `code` are held as int32 bit patterns of the unsigned 32-bit values (compared
  * after `>>> 0`), which V8 keeps unboxed: the same arithmetic as §8.1 modulo 2^32, where no
- * operation of a conforming decoder wraps.
+ * operation of a conforming decoder wraps. Hot loops (UInt / SInt here, the selection mask of
+ * payload-v2.js) copy `range`, `code` and `pos` into locals and store them back when done.
  */
 export class RangeDecoder {
   constructor(buf, probs) {
     this.buf = buf;
     this.probs = probs;
     this.length = buf.length;
-    this.overrun = false;
     this.pos = 0;
     this.range = -1; // 0xFFFFFFFF
     let code = 0;
@@ -45,12 +46,15 @@ export class RangeDecoder {
     this.code = code;
   }
 
-  /** NextByte: buf[pos], or 0 past the end (the stream is then overrun). */
+  /** NextByte: buf[pos], or 0 past the end (the stream is then overrun); pos += 1. */
   #next() {
     const pos = this.pos++;
-    if (pos < this.length) return this.buf[pos];
-    this.overrun = true;
-    return 0;
+    return pos < this.length ? this.buf[pos] : 0;
+  }
+
+  /** Whether a byte past the end was read: pos counts every NextByte, so pos > length. */
+  get overrun() {
+    return this.pos > this.length;
   }
 
   /** Normalize: while range < 2^24, shift a byte in. */
@@ -100,46 +104,101 @@ export class RangeDecoder {
     return node - (1 << nbits);
   }
 
-  /** The b - 1 bits below the leading one of a bucket-b magnitude: two adaptive, the rest direct. */
-  #mantissa(base, b) {
+  /**
+   * UInt / SInt (§8.2) with the coder's state in locals: the 6-bit bucket tree, then (signed,
+   * b >= 1) the sign, then the mantissa (two adaptive bits, the rest direct). Step 0..5 decodes
+   * tree node `node`, step 6 the sign, steps 7 and 8 the adaptive mantissa bits. Returns the
+   * value; FormatError for a bucket above 32.
+   */
+  #int(base, what, signed) {
+    const { probs, buf, length } = this;
+    let { range, code, pos } = this;
+    let node = 1;
+    let b = 0;
+    let neg = 0;
     let m = 0;
-    let first = 0;
-    for (let pos = 0; pos < b - 1; pos++) {
-      let bit;
-      if (pos === 0) first = bit = this.bit(base + INT_MANTISSA + 3 * b);
-      else if (pos === 1) bit = this.bit(base + INT_MANTISSA + 3 * b + 1 + first);
-      else bit = this.direct();
-      m = 2 * m + bit;
+    for (let step = 0, i = base + 1; ;) {
+      const p = probs[i];
+      const bound = Math.imul(range >>> PROB_BITS, p); // DecodeBit, as bit()
+      let bit = 0;
+      if ((code >>> 0) < (bound >>> 0)) {
+        range = bound;
+        probs[i] = p + ((PROB_ONE - p) >> ADAPT_SHIFT);
+      } else {
+        code = (code - bound) | 0;
+        range = (range - bound) | 0;
+        probs[i] = p - (p >> ADAPT_SHIFT);
+        bit = 1;
+      }
+      while ((range >>> 0) < TOP) {
+        range <<= 8;
+        code = (code << 8) | (pos < length ? buf[pos] : 0);
+        pos++;
+      }
+      if (step < 5) {
+        node = 2 * node + bit;
+        i = base + node;
+      } else if (step === 5) {
+        b = 2 * node + bit - (1 << BUCKET_BITS);
+        if (b > MAX_BUCKET) {
+          this.pos = pos; // the state as it is: the caller throws away the chunk
+          throw new FormatError(`chunk payload: ${what} has an invalid bucket ${b}`);
+        }
+        if (b === 0 || (b === 1 && !signed)) break;
+        if (signed) {
+          i = base + INT_SIGN + b;
+        } else {
+          step = 6;
+          i = base + INT_MANTISSA + 3 * b;
+        }
+      } else if (step === 6) {
+        neg = bit;
+        if (b === 1) break;
+        i = base + INT_MANTISSA + 3 * b;
+      } else if (step === 7) {
+        m = bit;
+        if (b === 2) break;
+        i = base + INT_MANTISSA + 3 * b + 1 + bit;
+      } else {
+        m = 2 * m + bit;
+        break;
+      }
+      step++;
     }
-    return m;
-  }
-
-  /** The bucket of an integer under the block at `base`; FormatError above 32. */
-  #bucket(base, what) {
-    const b = this.tree(base, BUCKET_BITS);
-    if (b > MAX_BUCKET) throw new FormatError(`chunk payload: ${what} has an invalid bucket ${b}`);
-    return b;
+    for (let r = b - 3; r > 0; r--) { // DecodeDirect, as direct()
+      range >>>= 1;
+      let bit = 0;
+      if ((code >>> 0) >= range) {
+        code = (code - range) | 0;
+        bit = 1;
+      }
+      m = 2 * m + bit;
+      while ((range >>> 0) < TOP) {
+        range <<= 8;
+        code = (code << 8) | (pos < length ? buf[pos] : 0);
+        pos++;
+      }
+    }
+    this.range = range;
+    this.code = code;
+    this.pos = pos;
+    const a = b < 2 ? b : POW2[b - 1] + m;
+    return neg ? -a : a;
   }
 
   /** UInt(base): an unsigned integer below 2^32. */
   uint(base, what) {
-    const b = this.#bucket(base, what);
-    if (b < 2) return b;
-    return POW2[b - 1] + this.#mantissa(base, b);
+    return this.#int(base, what, false);
   }
 
   /** SInt(base): a signed integer of magnitude below 2^32. */
   sint(base, what) {
-    const b = this.#bucket(base, what);
-    if (b === 0) return 0;
-    const neg = this.bit(base + INT_SIGN + b);
-    const a = b === 1 ? 1 : POW2[b - 1] + this.#mantissa(base, b);
-    return neg ? -a : a;
+    return this.#int(base, what, true);
   }
 
   /** Termination (§8.1): FormatError unless exactly the stored bytes were read, without overrun. */
   finish() {
-    if (this.overrun || this.pos !== this.length) {
+    if (this.pos !== this.length) { // also an overrun: pos > length
       throw new FormatError(`chunk payload: the coded stream does not end at the end of the payload (${this.pos} bytes read of ${this.length})`);
     }
   }

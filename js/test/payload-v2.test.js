@@ -3,7 +3,8 @@
  * `payload_version=2` decode here to the reference decoder's level at every chunk boundary (plain
  * and Draco bases, closed meshes and boundaries, attributes, two primitives, an exact watermark),
  * to the same levels as their version 1 encoding, and every prefix of one to the levels its
- * whole chunks give. Stored-chunk rules (digest, uncompressedLength) and hostile streams end in
+ * whole chunks give; a batch of dependent splits (which the decoder's kept valences cannot follow)
+ * and the batch after it decode as in the reference decoder. Stored-chunk rules (digest, uncompressedLength) and hostile streams end in
  * named errors; on streams with flipped bits both decoders refuse the same files and give the
  * same levels on the others. Skipped when no Python imports a pmwm_codec that writes version 2.
  */
@@ -14,8 +15,10 @@ import { join } from 'node:path';
 import { after, test } from 'node:test';
 import { CorruptChunkError, FormatError, PmwDecoder, PmwError, TruncatedError, UnsupportedError } from '../src/index.js';
 import { parseGlb, planDocument } from '../src/header.js';
+import { ChunkDecoderV2 } from '../src/payload-v2.js';
+import { MeshState } from '../src/vsplit.js';
 import { levelDigest, seededRandom } from './lib/helpers.js';
-import { decodeFiles, encodeCase, pythonHasPayloadV2 } from './lib/python.js';
+import { decodeFiles, dependentBatches, encodeCase, pythonHasPayloadV2 } from './lib/python.js';
 import { chunkPayloads, withPayload } from './lib/rewrite.js';
 
 const skip = !pythonHasPayloadV2() && 'no Python importing a pmwm_codec that writes payload version 2 ($PYTHON, $PMW_PYTHONPATH)';
@@ -176,4 +179,15 @@ test('on version 2 streams with flipped bits, the JS and Python decoders refuse 
     }
   }
   assert.ok(refused > 0 && refused < py.length, `${refused} of ${py.length} refused: both outcomes compared`);
+});
+
+test('a batch of adjacent splits whose moved faces hold each other, and the batch after it, decode as in the Python decoder', { skip }, () => {
+  const { D, capN, capM, base, chunk, final } = dependentBatches();
+  const values = Int32Array.from(base.values);
+  const faces = Uint32Array.from(base.faces);
+  const state = new MeshState(values, faces, values.length / D, faces.length / 3, D, capN, capM);
+  new ChunkDecoderV2(state).decodeChunk(Uint8Array.from(Buffer.from(chunk, 'hex')));
+  assert.deepEqual([state.n, state.m], [final.values.length / D, final.faces.length / 3]);
+  assert.deepEqual([...state.values.subarray(0, state.n * D)], final.values);
+  assert.deepEqual([...state.faces.subarray(0, state.m * 3)], final.faces);
 });

@@ -61,6 +61,15 @@ function run(args) {
 }
 
 /**
+ * A version 2 chunk of two batches whose first splits two adjacent vertices, each moving a face
+ * that holds the other (lib/dependent_batches.py): {D, capN, capM, base: {values, faces}, chunk
+ * (hex), final: {values, faces}}, final as the reference decoder gives it.
+ */
+export function dependentBatches() {
+  return JSON.parse(run([join(dirname(fileURLToPath(import.meta.url)), 'dependent_batches.py')]));
+}
+
+/**
  * Writes `<dir>/bunny.pmw`: the shared corpus' Stanford bunny encoded by `pmw encode` (Draco base,
  * default settings), or when ../shared is absent a generated mesh of similar size
  * (`shapes.icosphere(6)`, 40,962 vertices). Returns {file, source, report} where report is the

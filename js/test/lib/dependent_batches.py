@@ -1,0 +1,66 @@
+"""A chunk payload version 2 whose first batch splits two adjacent vertices, each moving a face
+that holds the other (a batch an encoder never writes, which a decoder applies all the same),
+then three batches of many splits whose selection masks read the valences the first left: prints JSON {D, capN, capM, base: {values, faces}, chunk (hex), final:
+{values, faces}}, the final mesh as the reference decoder gives it (pmwm_codec.format.records_v2).
+
+    python dependent_batches.py
+"""
+
+import json
+
+import numpy as np
+
+from pmwm_codec.format.records_v2 import decode_chunk, new_model, pack_chunks
+from pmwm_codec.progressive.vsplit import MeshState, SplitBatch, apply_batch, find_incidences
+
+SIDE = 5
+
+
+def grid():
+    """A SIDE x SIDE grid of vertices on z = x * y (int64 (n, 3)), two triangles per cell (int64 (m, 3))."""
+    values = np.array([(4 * x, 4 * y, x * y) for y in range(SIDE) for x in range(SIDE)], np.int64)
+    faces = []
+    for y in range(SIDE - 1):
+        for x in range(SIDE - 1):
+            p = y * SIDE + x
+            faces += [(p, p + 1, p + SIDE + 1), (p, p + SIDE + 1, p + SIDE)]
+    return values, np.array(faces, np.int64)
+
+
+def batch(state, v, moved):
+    """Splits of the vertices v (ascending), split i moving its incidence moved[i] with both new faces."""
+    inc, owner = find_incidences(state, np.asarray(v, np.int64))
+    symbols = np.zeros(len(inc), np.uint8)
+    for i, j in enumerate(moved):
+        symbols[np.flatnonzero(np.asarray(owner) == i)[j]] = 4
+    residual = np.arange(3 * len(v), dtype=np.int64).reshape(len(v), 3) % 3 - 1
+    return SplitBatch(np.asarray(v, np.int64), symbols, residual)
+
+
+def main():
+    values, faces = grid()
+    cap_n, cap_m = 4 * len(values), 8 * len(faces)
+    state = MeshState(values, faces, cap_n, cap_m)
+    # 6 moves its 5th face (6, 7, 12), 12 its 2nd (6, 12, 11): each moved face holds the other split vertex
+    first = batch(state, [6, 12], [4, 1])
+    probe = MeshState(values, faces, cap_n, cap_m)
+    batches = [first]
+    apply_batch(probe, first)
+    for r in range(3):  # then every third vertex, each moving its first face
+        later = batch(probe, list(range(r, probe.n, 3)), [0] * len(range(r, probe.n, 3)))
+        batches.append(later)
+        apply_batch(probe, later)
+    chunk = pack_chunks(MeshState(values, faces, cap_n, cap_m), [batches])[0]
+    ref = MeshState(values, faces, cap_n, cap_m)
+    for _ in decode_chunk(chunk, ref, new_model()):
+        pass
+    print(json.dumps({
+        "D": 3, "capN": cap_n, "capM": cap_m,
+        "base": {"values": values.reshape(-1).tolist(), "faces": faces.reshape(-1).tolist()},
+        "chunk": bytes(chunk).hex(),
+        "final": {"values": ref.positions[: ref.n].reshape(-1).tolist(), "faces": ref.faces[: ref.m].reshape(-1).tolist()},
+    }))
+
+
+if __name__ == "__main__":
+    main()
