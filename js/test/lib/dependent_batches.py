@@ -10,7 +10,7 @@ import json
 
 import numpy as np
 
-from pmwm_codec.format.records_v2 import decode_chunk, new_model, pack_chunks
+from pmwm_codec.format.records_v2 import ChunkDecoder, decode_chunk, pack_chunks
 from pmwm_codec.progressive.vsplit import MeshState, SplitBatch, apply_batch, find_incidences
 
 SIDE = 5
@@ -52,7 +52,7 @@ def main():
         apply_batch(probe, later)
     chunk = pack_chunks(MeshState(values, faces, cap_n, cap_m), [batches])[0]
     ref = MeshState(values, faces, cap_n, cap_m)
-    for _ in decode_chunk(chunk, ref, new_model()):
+    for _ in decode_chunk(chunk, ref, ChunkDecoder()):
         pass
     print(json.dumps({
         "D": 3, "capN": cap_n, "capM": cap_m,
