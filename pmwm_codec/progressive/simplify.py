@@ -57,7 +57,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import seams
-from .topology import compiled, csr, edge_table, expand, group_order, half_edges, kernel_helper
+from .livemesh import live_mesh
+from .topology import compiled, edge_table, expand, group_order, half_edges, kernel_helper
 
 #: A moved face's normal may turn by at most this much (cosine bound).
 MIN_NORMAL_COS = 0.0
@@ -278,16 +279,13 @@ def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget, w
     int64 or None: seam copies (see :func:`simplify`).  The work is done on the live mesh
     renumbered compactly ("local" ids) and returned in original ids.
     """
-    fids = np.flatnonzero(face_alive)
-    vids = np.flatnonzero(vert_alive)
-    loc = np.full(len(vert_alive), -1, dtype=np.int64)
-    loc[vids] = np.arange(len(vids))
-    F = loc[corners[fids]]  # (m, 3) local ids
-    n, m = len(vids), len(fids)
+    live = live_mesh(corners, face_alive, vert_alive)
+    vids, fids, loc, F, et, vv, vf, fcount = (live.vids, live.fids, live.loc, live.F, live.et, live.vv, live.vf,
+                                              live.fcount)
+    vv_edge = live.vv_edge
+    n = len(vids)
     P = pos[vids]
     Q = quad[vids]
-
-    et = edge_table(F, n)
     src, dst, opp = half_edges(F)
     frozen = frozen_ext[vids]
     g = None if weld is None else seams.local_groups(weld, vids, loc)
@@ -297,12 +295,7 @@ def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget, w
     cand = _candidates(F, P, Q, et, src, frozen if seam is None else frozen | seam)
     if cand is None and seam is None:
         return None
-    fcount = np.bincount(F.ravel(), minlength=n)
-    nb_src = np.concatenate([et.lo, et.hi])
-    nb_dst = np.concatenate([et.hi, et.lo])
-    vv = csr(nb_src, nb_dst, n)  # vertex -> neighbours
-    vf = csr(F.ravel(), np.repeat(np.arange(m), 3), n)  # vertex -> faces
-    mesh = (et, F, P, opp, fcount, vv, vf)
+    mesh = (et, F, P, opp, fcount, vv, vf, vv_edge)
     pairs = None if seam is None else _seam_pairs(Q, src, dst, frozen, seam, g, mesh)
     if pairs is not None:
         cand = _unblocked(cand, pairs, vv, n)
@@ -335,20 +328,21 @@ def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget, w
 
 def _ordinary_winners(cand, mesh, n):
     """Indices (w,) int64 into the candidates ``cand = (cu, cv, ce, cost)`` chosen by :func:`_select`
-    (or its compiled twin); ``mesh`` is ``(et, F, P, opp, fcount, vv, vf)`` of the local mesh."""
+    (or its compiled twin); ``mesh`` is ``(et, F, P, opp, fcount, vv, vf, vv_edge)`` of the local mesh
+    (:class:`~.livemesh.LiveMesh`; ``opp`` (3m,) the half-edges' opposite corners)."""
     cu, cv, ce, cost = cand
-    et, F, P, opp, fcount, vv, vf = mesh
     if len(cu) == 0:
         return np.zeros(0, np.int64)
 
     def legal(idx):
-        return _legal(cu[idx], cv[idx], ce[idx], et, F, P, opp, fcount, vv, vf)
+        return _legal(cu[idx], cv[idx], ce[idx], mesh)
 
     kernel = compiled(_select_kernel)
     if kernel is None:
-        return _select(cu, cv, cost, legal, vv, n, ROUNDS)
+        return _select(cu, cv, cost, legal, mesh[5], n, ROUNDS)
+    et, F, P, opp, fcount, vv, vf, vv_edge = mesh
     return kernel(cu, cv, ce, _offer_ranks(cu, cost), vv[0], vv[1], n, ROUNDS,
-                  (et.keys, et.n, et.count, et.he0, et.he1, F, P, opp, fcount, vf[0], vf[1]))
+                  (vv_edge, et.count, et.he0, et.he1, F, P, opp, fcount, vf[0], vf[1]))
 
 
 def _seam_pairs(Q, src, dst, frozen, seam, g, mesh):
@@ -359,7 +353,7 @@ def _seam_pairs(Q, src, dst, frozen, seam, g, mesh):
     (2p,) (int64 / float64 half costs): first halves, then second halves in the same order
     (pair ``k`` is rows ``k`` and ``p + k``).
     """
-    et, F, P, opp, fcount, vv, vf = mesh
+    et, F, P, opp, fcount, vv, vf, _ = mesh
     halves = _candidates(F, P, Q, et, src, frozen | ~seam)
     if halves is None:
         return None
@@ -368,7 +362,7 @@ def _seam_pairs(Q, src, dst, frozen, seam, g, mesh):
     if len(i) == 0:
         return None
     both = np.concatenate([i, j])
-    ok = _legal(hu[both], hv[both], he[both], et, F, P, opp, fcount, vv, vf)
+    ok = _legal(hu[both], hv[both], he[both], mesh)
     good = ok[: len(i)] & ok[len(i):]
     i, j = i[good], j[good]
     pick = seams.choose_pairs(hu, hv, i, j, hcost[i] + hcost[j], vv, len(P))
@@ -590,11 +584,13 @@ def _moved_faces(vf, F, cu, cv):
     return face[~has_v], owner[~has_v]
 
 
-def _legal(cu, cv, ce, et, F, P, opp, fcount, vv, vf):
-    """Boolean mask (k,) of candidate collapses ``cu -> cv`` on edge ``ce`` that are legal."""
+def _legal(cu, cv, ce, mesh):
+    """Boolean mask (k,) of candidate collapses ``cu -> cv`` on edge ``ce`` that are legal
+    (``mesh`` as in :func:`_ordinary_winners`)."""
+    et, F, P, opp, fcount, vv, vf, vv_edge = mesh
     kernel = compiled(_legal_kernel)
     if kernel is not None:
-        return kernel(cu, cv, ce, et.keys, et.n, et.count, et.he0, et.he1, F, P, opp, fcount, vv[0], vv[1],
+        return kernel(cu, cv, ce, vv_edge, et.count, et.he0, et.he1, F, P, opp, fcount, vv[0], vv[1],
                       vf[0], vf[1])
     k = len(cu)
     ok = np.ones(k, dtype=bool)
@@ -650,20 +646,20 @@ def _legal(cu, cv, ce, et, F, P, opp, fcount, vv, vf):
 
 
 @kernel_helper
-def _edge_id(keys, n, a, b):
-    """Edge id of the pair (a, b) in the sorted ``keys`` (-1: none); for the kernels."""
-    q = min(a, b) * n + max(a, b)
-    i = np.searchsorted(keys, q)
-    if i < len(keys) and keys[i] == q:
-        return i
+def _edge_id(vv_start, vv_nbr, vv_edge, a, b):
+    """Edge id of the pair (a, b) (-1: none), found in ``a``'s row of the vertex -> neighbours CSR
+    (``vv_edge``: edge id of every entry); for the kernels."""
+    for p in range(vv_start[a], vv_start[a + 1]):
+        if vv_nbr[p] == b:
+            return vv_edge[p]
     return -1
 
 
 @kernel_helper
-def _legal_kernel(cu, cv, ce, keys, n, count, he0, he1, F, P, opp, fcount, vv_start, vv_nbr, vf_start, vf_face):
+def _legal_kernel(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_start, vv_nbr, vf_start, vf_face):
     """Compiled :func:`_legal`: the same (k,) bool mask, test for test (see there)."""
     ok = np.ones(len(cu), np.bool_)
-    mark = np.full(n, -1, np.int64)  # mark[x] == i: x is a neighbour of candidate i's kept vertex
+    mark = np.full(len(fcount), -1, np.int64)  # mark[x] == i: x is a neighbour of candidate i's kept vertex
     for i in range(len(cu)):
         u, v, e = cu[i], cv[i], ce[i]
         for p in range(vv_start[v], vv_start[v + 1]):
@@ -678,16 +674,16 @@ def _legal_kernel(cu, cv, ce, keys, n, count, he0, he1, F, P, opp, fcount, vv_st
         for he in (he0[e], he1[e]):  # deleted faces: other edge at u interior, wing keeps a face
             if he >= 0:
                 w = opp[he]
-                e_uw = _edge_id(keys, n, u, w)
+                e_uw = _edge_id(vv_start, vv_nbr, vv_edge, u, w)
                 if e_uw < 0 or count[e_uw] != 2 or fcount[w] < 2:
                     ok[i] = False
         if ok[i]:
-            ok[i] = _moved_faces_ok(u, v, keys, n, count, he0, he1, F, P, opp, vf_start, vf_face)
+            ok[i] = _moved_faces_ok(u, v, (vv_start, vv_nbr, vv_edge), count, he0, he1, F, P, opp, vf_start, vf_face)
     return ok
 
 
 @kernel_helper
-def _moved_faces_ok(u, v, keys, n, count, he0, he1, F, P, opp, vf_start, vf_face):
+def _moved_faces_ok(u, v, vv, count, he0, he1, F, P, opp, vf_start, vf_face):
     """Kernel part of :func:`_legal`: no moved face of ``u -> v`` flips, degenerates or duplicates."""
     for p in range(vf_start[u], vf_start[u + 1]):
         f = vf_face[p]
@@ -711,7 +707,7 @@ def _moved_faces_ok(u, v, keys, n, count, he0, he1, F, P, opp, vf_start, vf_face
         dot = n0x * n1x + n0y * n1y + n0z * n1z
         if not (l1 > 0 and dot > MIN_NORMAL_COS * l0 * l1):
             return False
-        e = _edge_id(keys, n, xa, xb)  # duplicate: the edge opposite u already has apex v
+        e = _edge_id(vv[0], vv[1], vv[2], xa, xb)  # duplicate: the edge opposite u already has apex v
         if e >= 0:
             if count[e] > 2 or opp[he0[e]] == v or (he1[e] >= 0 and opp[he1[e]] == v):
                 return False
@@ -789,7 +785,7 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
     arguments.  (``_conflicts``' same-kept-vertex rule is implied by its kept-vertex-next-to-a-
     lower-ranked-removed-vertex rule, since every winner's removed vertex neighbours its kept one.)
     """
-    keys, en, count, he0, he1, F, P, opp, fcount, vf_start, vf_face = mesh
+    vv_edge, count, he0, he1, F, P, opp, fcount, vf_start, vf_face = mesh
     big = len(cu) + 1
     starts = np.flatnonzero(np.concatenate((np.ones(1, np.bool_), cu[1:] != cu[:-1])))
     ends = np.append(starts[1:], len(cu))
@@ -815,7 +811,7 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
         keep = ~_round_conflicts(cu[wo], cv[wo], rank[wo], flags, scratch, vv_start, vv_nbr, big)
         ok = np.zeros(len(wo), np.bool_)
         idx = wo[keep]
-        ok[keep] = _legal_kernel(cu[idx], cv[idx], ce[idx], keys, en, count, he0, he1, F, P, opp, fcount,
+        ok[keep] = _legal_kernel(cu[idx], cv[idx], ce[idx], vv_edge, count, he0, he1, F, P, opp, fcount,
                                  vv_start, vv_nbr, vf_start, vf_face)
         for j in range(len(wo)):
             g, o = wg[j], wo[j]
