@@ -58,7 +58,7 @@ import numpy as np
 
 from . import seams
 from .livemesh import live_mesh
-from .topology import compiled, edge_table, expand, group_order, half_edges, kernel_helper
+from .topology import compiled, expand, group_order, half_edges, kernel_helper
 
 #: A moved face's normal may turn by at most this much (cosine bound).
 MIN_NORMAL_COS = 0.0
@@ -133,11 +133,17 @@ def face_quadrics(pos: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
     d = -np.einsum("ij,ij->i", unit, p0)
     planes = np.concatenate([unit, d[:, None]], axis=1)
     q = _plane_quadrics(planes, 0.5 * area2)
-    corner_q = np.repeat(q, 3, axis=0)
-    out = np.stack([np.bincount(faces.ravel(), weights=corner_q[:, j], minlength=n) for j in range(10)], axis=1)
+    kernel = compiled(_corner_sum_kernel)
+    if kernel is None:
+        corner_q = np.repeat(q, 3, axis=0)
+        out = np.stack([np.bincount(faces.ravel(), weights=corner_q[:, j], minlength=n) for j in range(10)], axis=1)
+    else:
+        out = kernel(faces, q, n)
 
     # boundary edges: a plane through the edge, perpendicular to its face
-    et = edge_table(faces, n)
+    used = np.zeros(n, bool)
+    used[faces.ravel()] = True
+    et = live_mesh(faces, np.ones(len(faces), bool), used).et  # edge order and he0 as edge_table(faces, n)
     b = np.flatnonzero(et.count == 1)
     if len(b):
         he = et.he0[b]
@@ -152,6 +158,18 @@ def face_quadrics(pos: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
         idx = np.concatenate([a_, b_])
         bq2 = np.concatenate([bq, bq])
         out += np.stack([np.bincount(idx, weights=bq2[:, j], minlength=n) for j in range(10)], axis=1)
+    return out
+
+
+def _corner_sum_kernel(faces, q, n):
+    """Compiled ``bincount`` of the face quadrics ``q`` (m, 10) float64 over the corners ``faces``
+    (m, 3) int64: (n, 10) float64, summed in the same order (corner by corner), so the same bits."""
+    out = np.zeros((n, q.shape[1]), np.float64)
+    for f in range(len(faces)):
+        for c in range(3):
+            x = faces[f, c]
+            for j in range(q.shape[1]):
+                out[x, j] += q[f, j]
     return out
 
 
@@ -398,10 +416,28 @@ def _affordable(cu, cv, ce, cost, quantile: float):
     the ``quantile`` of the per-vertex cheapest costs; all of them when ``quantile >= 1``."""
     if quantile >= 1.0 or len(cu) == 0:
         return cu, cv, ce, cost
-    first = np.flatnonzero(np.r_[True, cu[1:] != cu[:-1]])
-    limit = np.quantile(cost[first], quantile)
-    keep = cost <= limit
+    keep = cost <= np.quantile(cost[_group_starts(cu)], quantile)
     return cu[keep], cv[keep], ce[keep], cost[keep]
+
+
+def _group_starts(cu):
+    """(g,) int64: the first index of every run of equal values in ``cu`` (c,) int64, c >= 1."""
+    kernel = compiled(_group_starts_kernel)
+    if kernel is None:
+        return np.flatnonzero(np.r_[True, cu[1:] != cu[:-1]])
+    return kernel(cu)
+
+
+def _group_starts_kernel(cu):
+    """Compiled :func:`_group_starts`."""
+    out = np.empty(len(cu), np.int64)
+    k = 0
+    for i in range(len(cu)):
+        if i == 0 or cu[i] != cu[i - 1]:
+            out[k] = i
+            k += 1
+    return out[:k]
+
 
 
 def _to_original(table, local):
@@ -578,10 +614,32 @@ def _deleted_faces(et, src, opp, cu, ce):
 def _moved_faces(vf, F, cu, cv):
     """Faces of each ``cu`` that do not hold its ``cv``: ``(faces (j,) int64, collapse index (j,) int64)``."""
     vf_start, vf_face = vf
+    kernel = compiled(_moved_faces_kernel)
+    if kernel is not None:
+        return kernel(vf_start, vf_face, F, cu, cv)
     owner, p = expand(vf_start, cu)
     face = vf_face[p]
     has_v = (F[face] == cv[owner][:, None]).any(axis=1)
     return face[~has_v], owner[~has_v]
+
+
+def _moved_faces_kernel(vf_start, vf_face, F, cu, cv):
+    """Compiled :func:`_moved_faces`: the same two (j,) int64 arrays."""
+    total = 0
+    for i in range(len(cu)):
+        total += vf_start[cu[i] + 1] - vf_start[cu[i]]
+    face = np.empty(total, np.int64)
+    owner = np.empty(total, np.int64)
+    k = 0
+    for i in range(len(cu)):
+        v = cv[i]
+        for p in range(vf_start[cu[i]], vf_start[cu[i] + 1]):
+            f = vf_face[p]
+            if F[f, 0] != v and F[f, 1] != v and F[f, 2] != v:
+                face[k] = f
+                owner[k] = i
+                k += 1
+    return face[:k], owner[:k]
 
 
 def _legal(cu, cv, ce, mesh):
@@ -735,7 +793,7 @@ def _select(cu, cv, cost, legal, vv, n, rounds: int = ROUNDS):
     c = len(cu)
     rank = _offer_ranks(cu, cost)
     big = np.int64(c + 1)
-    starts = np.flatnonzero(np.r_[True, cu[1:] != cu[:-1]])
+    starts = _group_starts(cu)
     ends = np.r_[starts[1:], c]
     front = starts.copy()  # current candidate of every vertex group
     in_play = np.ones(len(starts), dtype=bool)
@@ -802,7 +860,9 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
         offer = front[groups]
         for o in offer:
             scratch[0, cu[o]] = rank[o]
-        won = np.array([_nbr_min(vv_start, vv_nbr, scratch[0], cu[o], big) > rank[o] for o in offer])
+        won = np.empty(len(offer), np.bool_)
+        for j in range(len(offer)):
+            won[j] = _nbr_min(vv_start, vv_nbr, scratch[0], cu[offer[j]], big) > rank[offer[j]]
         for o in offer:
             scratch[0, cu[o]] = big
         if not won.any():
