@@ -197,24 +197,19 @@ def quadric_error(q: np.ndarray, p: np.ndarray) -> np.ndarray:
     return np.maximum(err, 0.0)
 
 
-def _pair_cost_kernel(Q, P, cu, cv, own):
-    """Compiled ``quadric_error(Q[cu], P[cv]) + own[cv]`` without the (c, 10) gather.
-
-    Q (n, 10) float64, P (n, 3) float64, cu / cv (c,) int64, own (n,) float64 -> (c,) float64;
-    the same operations in the same order as :func:`quadric_error` (no contraction): same bits.
-    """
-    out = np.empty(len(cu), np.float64)
-    for i in range(len(cu)):
-        q = Q[cu[i]]
-        j = cv[i]
-        x, y, z = P[j, 0], P[j, 1], P[j, 2]
-        err = (
-            q[0] * x * x + 2 * q[1] * x * y + 2 * q[2] * x * z + 2 * q[3] * x
-            + q[4] * y * y + 2 * q[5] * y * z + 2 * q[6] * y
-            + q[7] * z * z + 2 * q[8] * z + q[9]
-        )
-        out[i] = max(err, 0.0) + own[j]
-    return out
+@kernel_helper
+def _pair_cost(Q, P, u, v, own):
+    """Compiled ``quadric_error(Q[u], P[v]) + own[v]`` for one pair (Q (n, 10), P (n, 3), own (n,)
+    float64): the same operations in the same order as :func:`quadric_error` (no contraction),
+    so the same bits."""
+    q = Q[u]
+    x, y, z = P[v, 0], P[v, 1], P[v, 2]
+    err = (
+        q[0] * x * x + 2 * q[1] * x * y + 2 * q[2] * x * z + 2 * q[3] * x
+        + q[4] * y * y + 2 * q[5] * y * z + 2 * q[6] * y
+        + q[7] * z * z + 2 * q[8] * z + q[9]
+    )
+    return max(err, 0.0) + own[v]
 
 
 def simplify(
@@ -310,10 +305,10 @@ def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget, w
     seam = None if g is None else seams.seam_mask(g)
     if seam is not None and not seam.any():
         g = seam = None
-    cand = _candidates(F, P, Q, et, src, frozen if seam is None else frozen | seam)
+    mesh = (et, F, P, opp, fcount, vv, vf, vv_edge)
+    cand = _candidates(mesh, Q, src, frozen if seam is None else frozen | seam)
     if cand is None and seam is None:
         return None
-    mesh = (et, F, P, opp, fcount, vv, vf, vv_edge)
     pairs = None if seam is None else _seam_pairs(Q, src, dst, frozen, seam, g, mesh)
     if pairs is not None:
         cand = _unblocked(cand, pairs, vv, n)
@@ -372,7 +367,7 @@ def _seam_pairs(Q, src, dst, frozen, seam, g, mesh):
     (pair ``k`` is rows ``k`` and ``p + k``).
     """
     et, F, P, opp, fcount, vv, vf, _ = mesh
-    halves = _candidates(F, P, Q, et, src, frozen | ~seam)
+    halves = _candidates(mesh, Q, src, frozen | ~seam)
     if halves is None:
         return None
     hu, hv, he, hcost = halves
@@ -445,38 +440,76 @@ def _to_original(table, local):
     return np.where(local >= 0, table[np.maximum(local, 0)], -1)
 
 
-def _candidates(F, P, Q, et, src, frozen_ext):
+def _candidates(mesh, Q, src, frozen_ext):
     """Candidate collapses on the local mesh, grouped by removed vertex, cheapest first.
 
-    F (m, 3) int64 faces, P (n, 3) float64 positions, Q (n, 10) quadrics, ``et`` / ``src``
-    the edge table and half-edge sources, frozen_ext (n,) bool.  Returns
-    ``(cu, cv, ce, cost)`` ((c,) int64 removed vertex, kept vertex, edge; (c,) float64
-    quadric cost), at most ``TRIES`` per removed vertex, or None when there is none.
+    ``mesh`` as in :func:`_ordinary_winners`, Q (n, 10) quadrics, ``src`` (3m,) the half-edge
+    sources, frozen_ext (n,) bool.  Returns ``(cu, cv, ce, cost)`` ((c,) int64 removed vertex,
+    kept vertex, edge; (c,) float64 quadric cost), at most ``TRIES`` per removed vertex, or None
+    when there is none.
     """
+    et, F, P, _, fcount, vv, _, vv_edge = mesh
     n = len(P)
-    kernel = compiled(_usable_kernel)
-    if kernel is None:
-        cu, cv, ce = _usable(F, et, src, frozen_ext, n)
-    else:
-        cu, cv, ce = kernel(et.lo, et.hi, et.count, et.he0, et.he1, src, F.reshape(-1), frozen_ext, n)
-    if len(cu) == 0:
-        return None
     # (Q_u + Q_v)(p_v) = Q_u(p_v) + Q_v(p_v); the second term is one value per vertex
     own = quadric_error(Q, P)
-    kernel = compiled(_pair_cost_kernel)
-    if kernel is None:
-        cost = quadric_error(Q[cu], P[cv]) + own[cv]
-    else:
-        cost = kernel(Q, P, cu, cv, own)
-
+    kernel = compiled(_candidates_kernel)
+    if kernel is not None:
+        cu, cv, ce, cost = kernel(vv[0], vv[1], vv_edge, et.count, et.he0, et.he1, src, fcount, frozen_ext,
+                                  Q, P, own, TRIES)
+        return (cu, cv, ce, cost) if len(cu) else None
+    cu, cv, ce = _usable(F, et, src, frozen_ext, n)
+    if len(cu) == 0:
+        return None
+    cost = quadric_error(Q[cu], P[cv]) + own[cv]
     # candidates grouped by u, cheapest first; each u offers up to TRIES of them
     # (the same order as argsort(cu * c + rank of cost): cost order, then grouped by u, stably)
-    kernel = compiled(_cheapest_per_group_kernel)
-    if kernel is None:
-        keep = _cheapest_per_group(cu, cost, n)
-    else:
-        keep = kernel(cu, cost, n, TRIES)
+    keep = _cheapest_per_group(cu, cost, n)
     return cu[keep], cv[keep], ce[keep], cost[keep]
+
+
+def _candidates_kernel(vv_start, vv_nbr, vv_edge, count, he0, he1, src, fcount, frozen_ext, Q, P, own, tries):
+    """Compiled :func:`_candidates` (same arrays, same order), one vertex at a time.
+
+    A vertex's row of the neighbour CSR lists its edges in the order :func:`_usable` meets them
+    (edges where it is the low end, then where it is the high end, each in edge order), so the
+    usable collapses of ``u`` are its row minus the excluded edges, sorted stably by cost as in
+    :func:`_cheapest_per_group` (NaN last).
+    """
+    n = len(fcount)
+    out_u = np.empty(tries * n, np.int64)
+    out_v = np.empty(tries * n, np.int64)
+    out_e = np.empty(tries * n, np.int64)
+    out_c = np.empty(tries * n, np.float64)
+    buf = np.empty(int(np.max(np.diff(vv_start))) if n else 0, np.int64)  # row positions, by cost
+    cost = np.empty(len(vv_nbr), np.float64)
+    k = 0
+    for u in range(n):
+        a, b = vv_start[u], vv_start[u + 1]
+        bvc = 0
+        bad = False
+        for p in range(a, b):
+            e = vv_edge[p]
+            bvc += count[e] == 1
+            bad |= count[e] > 2 or (count[e] == 2 and src[he0[e]] == src[he1[e]])
+        manifold = (bvc == 0 and b - a == fcount[u]) or (bvc == 2 and b - a == fcount[u] + 1)
+        if bad or not manifold or frozen_ext[u]:
+            continue
+        m = 0
+        for p in range(a, b):
+            if bvc > 0 and count[vv_edge[p]] != 1:
+                continue
+            cost[p] = _pair_cost(Q, P, u, vv_nbr[p], own)
+            t = m  # stable: move left past strictly greater costs only (NaN counts as greatest)
+            while t > 0 and (cost[buf[t - 1]] > cost[p] or (np.isnan(cost[buf[t - 1]]) and not np.isnan(cost[p]))):
+                buf[t] = buf[t - 1]
+                t -= 1
+            buf[t] = p
+            m += 1
+        for j in range(min(m, tries)):
+            p = buf[j]
+            out_u[k], out_v[k], out_e[k], out_c[k] = u, vv_nbr[p], vv_edge[p], cost[p]
+            k += 1
+    return out_u[:k], out_v[:k], out_e[:k], out_c[:k]
 
 
 def _cheapest_per_group(cu, cost, n):
@@ -489,38 +522,6 @@ def _cheapest_per_group(cu, cost, n):
     group_start = np.flatnonzero(np.r_[True, grouped[1:] != grouped[:-1]])
     rank_in_u = np.arange(len(order)) - np.repeat(group_start, np.diff(np.r_[group_start, len(order)]))
     return order[rank_in_u < TRIES]
-
-
-def _cheapest_per_group_kernel(cu, cost, n, tries):
-    """Compiled :func:`_cheapest_per_group`: group by ``cu`` (counting sort), then a stable
-    insertion sort by ``cost`` inside each group (a handful of edges per vertex), NaN last."""
-    c = len(cu)
-    start = np.zeros(n + 1, np.int64)
-    for i in range(c):
-        start[cu[i] + 1] += 1
-    for u in range(n):
-        start[u + 1] += start[u]
-    fill = start[:-1].copy()
-    order = np.empty(c, np.int64)
-    for i in range(c):
-        order[fill[cu[i]]] = i
-        fill[cu[i]] += 1
-    out = np.empty(c, np.int64)
-    k = 0
-    for u in range(n):
-        a, b = start[u], start[u + 1]
-        for j in range(a + 1, b):  # stable: move an item left past strictly greater costs only
-            item = order[j]
-            x = cost[item]
-            t = j
-            while t > a and (cost[order[t - 1]] > x or (np.isnan(cost[order[t - 1]]) and not np.isnan(x))):
-                order[t] = order[t - 1]
-                t -= 1
-            order[t] = item
-        for j in range(a, min(b, a + tries)):
-            out[k] = order[j]
-            k += 1
-    return out[:k]
 
 
 def _usable(F, et, src, frozen_ext, n):
@@ -553,39 +554,6 @@ def _usable(F, et, src, frozen_ext, n):
     ce = np.concatenate([np.arange(ne), np.arange(ne)])
     keep = np.tile(~bad_edge, 2) & ~frozen[cu] & (~on_boundary[cu] | boundary_edge[ce])
     return cu[keep], cv[keep], ce[keep]
-
-
-def _usable_kernel(lo, hi, count, he0, he1, src, flat_faces, frozen_ext, n):
-    """Compiled :func:`_usable` (same arrays, same order); flat_faces (3m,) int64."""
-    ne = len(lo)
-    fcount = np.zeros(n, np.int64)
-    for x in flat_faces:
-        fcount[x] += 1
-    evc = np.zeros(n, np.int64)
-    bvc = np.zeros(n, np.int64)
-    badv = np.zeros(n, np.bool_)
-    bad = np.zeros(ne, np.bool_)
-    for e in range(ne):
-        bad[e] = count[e] > 2 or (count[e] == 2 and src[he0[e]] == src[he1[e]])
-        for x in (lo[e], hi[e]):
-            evc[x] += 1
-            if count[e] == 1:
-                bvc[x] += 1
-            if bad[e]:
-                badv[x] = True
-    cu = np.empty(2 * ne, np.int64)
-    cv = np.empty(2 * ne, np.int64)
-    ce = np.empty(2 * ne, np.int64)
-    c = 0
-    for side in range(2):
-        for e in range(ne):
-            u, v = (lo[e], hi[e]) if side == 0 else (hi[e], lo[e])
-            manifold = (bvc[u] == 0 and evc[u] == fcount[u]) or (bvc[u] == 2 and evc[u] == fcount[u] + 1)
-            if bad[e] or not manifold or badv[u] or frozen_ext[u] or (bvc[u] > 0 and count[e] != 1):
-                continue
-            cu[c], cv[c], ce[c] = u, v, e
-            c += 1
-    return cu[:c], cv[:c], ce[:c]
 
 
 def _deleted_faces(et, src, opp, cu, ce):
