@@ -454,8 +454,8 @@ def _candidates(mesh, Q, src, frozen_ext):
     own = quadric_error(Q, P)
     kernel = compiled(_candidates_kernel)
     if kernel is not None:
-        cu, cv, ce, cost = kernel(vv[0], vv[1], vv_edge, et.count, et.he0, et.he1, src, fcount, frozen_ext,
-                                  Q, P, own, TRIES)
+        cu, cv, ce, cost = kernel(vv[0], vv[1], vv_edge, et.lo, et.hi, et.count, et.he0, et.he1, src, fcount,
+                                  frozen_ext, Q, P, own, TRIES)
         return (cu, cv, ce, cost) if len(cu) else None
     cu, cv, ce = _usable(F, et, src, frozen_ext, n)
     if len(cu) == 0:
@@ -467,7 +467,7 @@ def _candidates(mesh, Q, src, frozen_ext):
     return cu[keep], cv[keep], ce[keep], cost[keep]
 
 
-def _candidates_kernel(vv_start, vv_nbr, vv_edge, count, he0, he1, src, fcount, frozen_ext, Q, P, own, tries):
+def _candidates_kernel(vv_start, vv_nbr, vv_edge, lo, hi, count, he0, he1, src, fcount, frozen_ext, Q, P, own, tries):
     """Compiled :func:`_candidates` (same arrays, same order), one vertex at a time.
 
     A vertex's row of the neighbour CSR lists its edges in the order :func:`_usable` meets them
@@ -482,21 +482,22 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, count, he0, he1, src, fcount, 
     out_c = np.empty(tries * n, np.float64)
     buf = np.empty(int(np.max(np.diff(vv_start))) if n else 0, np.int64)  # row positions, by cost
     cost = np.empty(len(vv_nbr), np.float64)
+    bvc = np.zeros(n, np.int64)  # boundary edges at each vertex
+    badv = np.zeros(n, np.bool_)  # a non-manifold or inconsistently oriented edge at the vertex
+    for e in range(len(lo)):
+        bad = count[e] > 2 or (count[e] == 2 and src[he0[e]] == src[he1[e]])
+        for x in (lo[e], hi[e]):
+            bvc[x] += count[e] == 1
+            badv[x] |= bad
     k = 0
     for u in range(n):
         a, b = vv_start[u], vv_start[u + 1]
-        bvc = 0
-        bad = False
-        for p in range(a, b):
-            e = vv_edge[p]
-            bvc += count[e] == 1
-            bad |= count[e] > 2 or (count[e] == 2 and src[he0[e]] == src[he1[e]])
-        manifold = (bvc == 0 and b - a == fcount[u]) or (bvc == 2 and b - a == fcount[u] + 1)
-        if bad or not manifold or frozen_ext[u]:
+        manifold = (bvc[u] == 0 and b - a == fcount[u]) or (bvc[u] == 2 and b - a == fcount[u] + 1)
+        if badv[u] or not manifold or frozen_ext[u]:
             continue
         m = 0
         for p in range(a, b):
-            if bvc > 0 and count[vv_edge[p]] != 1:
+            if bvc[u] > 0 and count[vv_edge[p]] != 1:
                 continue
             cost[p] = _pair_cost(Q, P, u, vv_nbr[p], own)
             t = m  # stable: move left past strictly greater costs only (NaN counts as greatest)
