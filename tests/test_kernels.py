@@ -168,15 +168,62 @@ def test_the_compiled_split_lists_the_same_ring_as_numpy(monkeypatch):
     assert rings(True) == rings(False)
 
 
-def test_the_cheapest_candidates_per_vertex_are_the_same_on_both_paths():
+def _live_both_ways(monkeypatch, mesh, face_alive):
+    """The :class:`LiveMesh` of ``mesh`` with ``face_alive`` built without and with the kernels."""
+    from pmwm_codec.progressive.livemesh import live_mesh
+
+    faces = np.asarray(mesh.faces, np.int64)
+    vert_alive = np.zeros(mesh.vertex_count, bool)
+    vert_alive[faces[face_alive].ravel()] = True
+    out = []
+    for use in (False, True):
+        monkeypatch.setattr(topology, "USE_NUMBA", use)
+        out.append(live_mesh(faces, face_alive, vert_alive))
+    return out
+
+
+_ODD_MESHES = {  # boundaries, holes, a non-manifold vertex, several components
+    "grid with a hole": shapes.grid(12, 9, hole=True, bump=0.0),
+    "bowtie": shapes.bowtie(),
+    "sphere and grid": shapes.components(shapes.icosphere(1, 1.0), shapes.grid(5, 5)),
+}
+
+
+@pytest.mark.parametrize("name", sorted(_ODD_MESHES))
+def test_the_live_mesh_is_the_same_on_both_paths(monkeypatch, name):
+    pytest.importorskip("numba")
+    mesh = _ODD_MESHES[name]
+    face_alive = np.random.default_rng(1).random(mesh.face_count) < 0.8  # some faces dead, some vertices too
+    plain, fast = _live_both_ways(monkeypatch, mesh, face_alive)
+    for field in ("vids", "fids", "loc", "F", "vv_edge", "fcount"):
+        assert np.array_equal(getattr(plain, field), getattr(fast, field)), field
+    for field in ("keys", "lo", "hi", "count", "he0", "he1", "he_edge"):
+        assert np.array_equal(getattr(plain.et, field), getattr(fast.et, field)), field
+    for a, b in zip(plain.vv + plain.vf, fast.vv + fast.vf):
+        assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("name", sorted(_ODD_MESHES))
+def test_the_candidate_collapses_are_the_same_on_both_paths(monkeypatch, name):
+    """Same candidates in the same order, ties (small integer quadrics) and NaN costs included."""
     pytest.importorskip("numba")
     from pmwm_codec.progressive import simplify
 
-    rng = np.random.default_rng(11)
-    for c, n in ((1, 1), (50, 7), (4000, 900)):
-        cu = rng.integers(0, n, c)
-        cost = rng.integers(0, 6, c).astype(np.float64)  # many ties: the order of equals shows
-        cost[rng.random(c) < 0.05] = np.nan
-        plain = simplify._cheapest_per_group(cu, cost, n)
-        fast = topology.compiled(simplify._cheapest_per_group_kernel)(cu, cost, n, simplify.TRIES)
-        assert np.array_equal(plain, fast)
+    mesh = _ODD_MESHES[name]
+    lives = _live_both_ways(monkeypatch, mesh, np.ones(mesh.face_count, bool))
+    out = []
+    for use, live in zip((False, True), lives):
+        monkeypatch.setattr(topology, "USE_NUMBA", use)
+        k = len(live.vids)
+        rng = np.random.default_rng(3)
+        Q = rng.integers(0, 3, (k, 10)).astype(np.float64)
+        Q[::7, 9] = np.nan
+        frozen = rng.random(k) < 0.1
+        P = np.asarray(mesh.positions, np.float64)[live.vids]
+        src, _, opp = topology.half_edges(live.F)
+        out.append(simplify._candidates((live.et, live.F, P, opp, live.fcount, live.vv, live.vf, live.vv_edge),
+                                        Q, src, frozen))
+    assert out[0] is not None and len(out[0][0]) > 0
+    for a, b in zip(*out):
+        assert np.array_equal(a, b, equal_nan=True)
+

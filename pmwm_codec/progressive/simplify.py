@@ -57,7 +57,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import seams
-from .topology import compiled, csr, edge_table, expand, group_order, half_edges, kernel_helper
+from .livemesh import live_mesh
+from .topology import compiled, expand, group_order, half_edges, kernel_helper
 
 #: A moved face's normal may turn by at most this much (cosine bound).
 MIN_NORMAL_COS = 0.0
@@ -132,11 +133,17 @@ def face_quadrics(pos: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
     d = -np.einsum("ij,ij->i", unit, p0)
     planes = np.concatenate([unit, d[:, None]], axis=1)
     q = _plane_quadrics(planes, 0.5 * area2)
-    corner_q = np.repeat(q, 3, axis=0)
-    out = np.stack([np.bincount(faces.ravel(), weights=corner_q[:, j], minlength=n) for j in range(10)], axis=1)
+    kernel = compiled(_corner_sum_kernel)
+    if kernel is None:
+        corner_q = np.repeat(q, 3, axis=0)
+        out = np.stack([np.bincount(faces.ravel(), weights=corner_q[:, j], minlength=n) for j in range(10)], axis=1)
+    else:
+        out = kernel(faces, q, n)
 
     # boundary edges: a plane through the edge, perpendicular to its face
-    et = edge_table(faces, n)
+    used = np.zeros(n, bool)
+    used[faces.ravel()] = True
+    et = live_mesh(faces, np.ones(len(faces), bool), used).et  # edge order and he0 as edge_table(faces, n)
     b = np.flatnonzero(et.count == 1)
     if len(b):
         he = et.he0[b]
@@ -151,6 +158,18 @@ def face_quadrics(pos: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
         idx = np.concatenate([a_, b_])
         bq2 = np.concatenate([bq, bq])
         out += np.stack([np.bincount(idx, weights=bq2[:, j], minlength=n) for j in range(10)], axis=1)
+    return out
+
+
+def _corner_sum_kernel(faces, q, n):
+    """Compiled ``bincount`` of the face quadrics ``q`` (m, 10) float64 over the corners ``faces``
+    (m, 3) int64: (n, 10) float64, summed in the same order (corner by corner), so the same bits."""
+    out = np.zeros((n, q.shape[1]), np.float64)
+    for f in range(len(faces)):
+        for c in range(3):
+            x = faces[f, c]
+            for j in range(q.shape[1]):
+                out[x, j] += q[f, j]
     return out
 
 
@@ -178,24 +197,19 @@ def quadric_error(q: np.ndarray, p: np.ndarray) -> np.ndarray:
     return np.maximum(err, 0.0)
 
 
-def _pair_cost_kernel(Q, P, cu, cv, own):
-    """Compiled ``quadric_error(Q[cu], P[cv]) + own[cv]`` without the (c, 10) gather.
-
-    Q (n, 10) float64, P (n, 3) float64, cu / cv (c,) int64, own (n,) float64 -> (c,) float64;
-    the same operations in the same order as :func:`quadric_error` (no contraction): same bits.
-    """
-    out = np.empty(len(cu), np.float64)
-    for i in range(len(cu)):
-        q = Q[cu[i]]
-        j = cv[i]
-        x, y, z = P[j, 0], P[j, 1], P[j, 2]
-        err = (
-            q[0] * x * x + 2 * q[1] * x * y + 2 * q[2] * x * z + 2 * q[3] * x
-            + q[4] * y * y + 2 * q[5] * y * z + 2 * q[6] * y
-            + q[7] * z * z + 2 * q[8] * z + q[9]
-        )
-        out[i] = max(err, 0.0) + own[j]
-    return out
+@kernel_helper
+def _pair_cost(Q, P, u, v, own):
+    """Compiled ``quadric_error(Q[u], P[v]) + own[v]`` for one pair (Q (n, 10), P (n, 3), own (n,)
+    float64): the same operations in the same order as :func:`quadric_error` (no contraction),
+    so the same bits."""
+    q = Q[u]
+    x, y, z = P[v, 0], P[v, 1], P[v, 2]
+    err = (
+        q[0] * x * x + 2 * q[1] * x * y + 2 * q[2] * x * z + 2 * q[3] * x
+        + q[4] * y * y + 2 * q[5] * y * z + 2 * q[6] * y
+        + q[7] * z * z + 2 * q[8] * z + q[9]
+    )
+    return max(err, 0.0) + own[v]
 
 
 def simplify(
@@ -278,31 +292,23 @@ def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget, w
     int64 or None: seam copies (see :func:`simplify`).  The work is done on the live mesh
     renumbered compactly ("local" ids) and returned in original ids.
     """
-    fids = np.flatnonzero(face_alive)
-    vids = np.flatnonzero(vert_alive)
-    loc = np.full(len(vert_alive), -1, dtype=np.int64)
-    loc[vids] = np.arange(len(vids))
-    F = loc[corners[fids]]  # (m, 3) local ids
-    n, m = len(vids), len(fids)
+    live = live_mesh(corners, face_alive, vert_alive)
+    vids, fids, loc, F, et, vv, vf, fcount = (live.vids, live.fids, live.loc, live.F, live.et, live.vv, live.vf,
+                                              live.fcount)
+    vv_edge = live.vv_edge
+    n = len(vids)
     P = pos[vids]
     Q = quad[vids]
-
-    et = edge_table(F, n)
     src, dst, opp = half_edges(F)
     frozen = frozen_ext[vids]
     g = None if weld is None else seams.local_groups(weld, vids, loc)
     seam = None if g is None else seams.seam_mask(g)
     if seam is not None and not seam.any():
         g = seam = None
-    cand = _candidates(F, P, Q, et, src, frozen if seam is None else frozen | seam)
+    mesh = (et, F, P, opp, fcount, vv, vf, vv_edge)
+    cand = _candidates(mesh, Q, src, frozen if seam is None else frozen | seam)
     if cand is None and seam is None:
         return None
-    fcount = np.bincount(F.ravel(), minlength=n)
-    nb_src = np.concatenate([et.lo, et.hi])
-    nb_dst = np.concatenate([et.hi, et.lo])
-    vv = csr(nb_src, nb_dst, n)  # vertex -> neighbours
-    vf = csr(F.ravel(), np.repeat(np.arange(m), 3), n)  # vertex -> faces
-    mesh = (et, F, P, opp, fcount, vv, vf)
     pairs = None if seam is None else _seam_pairs(Q, src, dst, frozen, seam, g, mesh)
     if pairs is not None:
         cand = _unblocked(cand, pairs, vv, n)
@@ -335,20 +341,21 @@ def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget, w
 
 def _ordinary_winners(cand, mesh, n):
     """Indices (w,) int64 into the candidates ``cand = (cu, cv, ce, cost)`` chosen by :func:`_select`
-    (or its compiled twin); ``mesh`` is ``(et, F, P, opp, fcount, vv, vf)`` of the local mesh."""
+    (or its compiled twin); ``mesh`` is ``(et, F, P, opp, fcount, vv, vf, vv_edge)`` of the local mesh
+    (:class:`~.livemesh.LiveMesh`; ``opp`` (3m,) the half-edges' opposite corners)."""
     cu, cv, ce, cost = cand
-    et, F, P, opp, fcount, vv, vf = mesh
     if len(cu) == 0:
         return np.zeros(0, np.int64)
 
     def legal(idx):
-        return _legal(cu[idx], cv[idx], ce[idx], et, F, P, opp, fcount, vv, vf)
+        return _legal(cu[idx], cv[idx], ce[idx], mesh)
 
     kernel = compiled(_select_kernel)
     if kernel is None:
-        return _select(cu, cv, cost, legal, vv, n, ROUNDS)
+        return _select(cu, cv, cost, legal, mesh[5], n, ROUNDS)
+    et, F, P, opp, fcount, vv, vf, vv_edge = mesh
     return kernel(cu, cv, ce, _offer_ranks(cu, cost), vv[0], vv[1], n, ROUNDS,
-                  (et.keys, et.n, et.count, et.he0, et.he1, F, P, opp, fcount, vf[0], vf[1]))
+                  (vv_edge, et.count, et.he0, et.he1, F, P, opp, fcount, vf[0], vf[1]))
 
 
 def _seam_pairs(Q, src, dst, frozen, seam, g, mesh):
@@ -359,8 +366,8 @@ def _seam_pairs(Q, src, dst, frozen, seam, g, mesh):
     (2p,) (int64 / float64 half costs): first halves, then second halves in the same order
     (pair ``k`` is rows ``k`` and ``p + k``).
     """
-    et, F, P, opp, fcount, vv, vf = mesh
-    halves = _candidates(F, P, Q, et, src, frozen | ~seam)
+    et, F, P, opp, fcount, vv, vf, _ = mesh
+    halves = _candidates(mesh, Q, src, frozen | ~seam)
     if halves is None:
         return None
     hu, hv, he, hcost = halves
@@ -368,7 +375,7 @@ def _seam_pairs(Q, src, dst, frozen, seam, g, mesh):
     if len(i) == 0:
         return None
     both = np.concatenate([i, j])
-    ok = _legal(hu[both], hv[both], he[both], et, F, P, opp, fcount, vv, vf)
+    ok = _legal(hu[both], hv[both], he[both], mesh)
     good = ok[: len(i)] & ok[len(i):]
     i, j = i[good], j[good]
     pick = seams.choose_pairs(hu, hv, i, j, hcost[i] + hcost[j], vv, len(P))
@@ -404,10 +411,28 @@ def _affordable(cu, cv, ce, cost, quantile: float):
     the ``quantile`` of the per-vertex cheapest costs; all of them when ``quantile >= 1``."""
     if quantile >= 1.0 or len(cu) == 0:
         return cu, cv, ce, cost
-    first = np.flatnonzero(np.r_[True, cu[1:] != cu[:-1]])
-    limit = np.quantile(cost[first], quantile)
-    keep = cost <= limit
+    keep = cost <= np.quantile(cost[_group_starts(cu)], quantile)
     return cu[keep], cv[keep], ce[keep], cost[keep]
+
+
+def _group_starts(cu):
+    """(g,) int64: the first index of every run of equal values in ``cu`` (c,) int64, c >= 1."""
+    kernel = compiled(_group_starts_kernel)
+    if kernel is None:
+        return np.flatnonzero(np.r_[True, cu[1:] != cu[:-1]])
+    return kernel(cu)
+
+
+def _group_starts_kernel(cu):
+    """Compiled :func:`_group_starts`."""
+    out = np.empty(len(cu), np.int64)
+    k = 0
+    for i in range(len(cu)):
+        if i == 0 or cu[i] != cu[i - 1]:
+            out[k] = i
+            k += 1
+    return out[:k]
+
 
 
 def _to_original(table, local):
@@ -415,38 +440,77 @@ def _to_original(table, local):
     return np.where(local >= 0, table[np.maximum(local, 0)], -1)
 
 
-def _candidates(F, P, Q, et, src, frozen_ext):
+def _candidates(mesh, Q, src, frozen_ext):
     """Candidate collapses on the local mesh, grouped by removed vertex, cheapest first.
 
-    F (m, 3) int64 faces, P (n, 3) float64 positions, Q (n, 10) quadrics, ``et`` / ``src``
-    the edge table and half-edge sources, frozen_ext (n,) bool.  Returns
-    ``(cu, cv, ce, cost)`` ((c,) int64 removed vertex, kept vertex, edge; (c,) float64
-    quadric cost), at most ``TRIES`` per removed vertex, or None when there is none.
+    ``mesh`` as in :func:`_ordinary_winners`, Q (n, 10) quadrics, ``src`` (3m,) the half-edge
+    sources, frozen_ext (n,) bool.  Returns ``(cu, cv, ce, cost)`` ((c,) int64 removed vertex,
+    kept vertex, edge; (c,) float64 quadric cost), at most ``TRIES`` per removed vertex, or None
+    when there is none.
     """
+    et, F, P, _, fcount, vv, _, vv_edge = mesh
     n = len(P)
-    kernel = compiled(_usable_kernel)
-    if kernel is None:
-        cu, cv, ce = _usable(F, et, src, frozen_ext, n)
-    else:
-        cu, cv, ce = kernel(et.lo, et.hi, et.count, et.he0, et.he1, src, F.reshape(-1), frozen_ext, n)
-    if len(cu) == 0:
-        return None
     # (Q_u + Q_v)(p_v) = Q_u(p_v) + Q_v(p_v); the second term is one value per vertex
     own = quadric_error(Q, P)
-    kernel = compiled(_pair_cost_kernel)
-    if kernel is None:
-        cost = quadric_error(Q[cu], P[cv]) + own[cv]
-    else:
-        cost = kernel(Q, P, cu, cv, own)
-
+    kernel = compiled(_candidates_kernel)
+    if kernel is not None:
+        cu, cv, ce, cost = kernel(vv[0], vv[1], vv_edge, et.lo, et.hi, et.count, et.he0, et.he1, src, fcount,
+                                  frozen_ext, Q, P, own, TRIES)
+        return (cu, cv, ce, cost) if len(cu) else None
+    cu, cv, ce = _usable(F, et, src, frozen_ext, n)
+    if len(cu) == 0:
+        return None
+    cost = quadric_error(Q[cu], P[cv]) + own[cv]
     # candidates grouped by u, cheapest first; each u offers up to TRIES of them
     # (the same order as argsort(cu * c + rank of cost): cost order, then grouped by u, stably)
-    kernel = compiled(_cheapest_per_group_kernel)
-    if kernel is None:
-        keep = _cheapest_per_group(cu, cost, n)
-    else:
-        keep = kernel(cu, cost, n, TRIES)
+    keep = _cheapest_per_group(cu, cost, n)
     return cu[keep], cv[keep], ce[keep], cost[keep]
+
+
+def _candidates_kernel(vv_start, vv_nbr, vv_edge, lo, hi, count, he0, he1, src, fcount, frozen_ext, Q, P, own, tries):
+    """Compiled :func:`_candidates` (same arrays, same order), one vertex at a time.
+
+    A vertex's row of the neighbour CSR lists its edges in the order :func:`_usable` meets them
+    (edges where it is the low end, then where it is the high end, each in edge order), so the
+    usable collapses of ``u`` are its row minus the excluded edges, sorted stably by cost as in
+    :func:`_cheapest_per_group` (NaN last).
+    """
+    n = len(fcount)
+    out_u = np.empty(tries * n, np.int64)
+    out_v = np.empty(tries * n, np.int64)
+    out_e = np.empty(tries * n, np.int64)
+    out_c = np.empty(tries * n, np.float64)
+    buf = np.empty(int(np.max(np.diff(vv_start))) if n else 0, np.int64)  # row positions, by cost
+    cost = np.empty(len(vv_nbr), np.float64)
+    bvc = np.zeros(n, np.int64)  # boundary edges at each vertex
+    badv = np.zeros(n, np.bool_)  # a non-manifold or inconsistently oriented edge at the vertex
+    for e in range(len(lo)):
+        bad = count[e] > 2 or (count[e] == 2 and src[he0[e]] == src[he1[e]])
+        for x in (lo[e], hi[e]):
+            bvc[x] += count[e] == 1
+            badv[x] |= bad
+    k = 0
+    for u in range(n):
+        a, b = vv_start[u], vv_start[u + 1]
+        manifold = (bvc[u] == 0 and b - a == fcount[u]) or (bvc[u] == 2 and b - a == fcount[u] + 1)
+        if badv[u] or not manifold or frozen_ext[u]:
+            continue
+        m = 0
+        for p in range(a, b):
+            if bvc[u] > 0 and count[vv_edge[p]] != 1:
+                continue
+            cost[p] = _pair_cost(Q, P, u, vv_nbr[p], own)
+            t = m  # stable: move left past strictly greater costs only (NaN counts as greatest)
+            while t > 0 and (cost[buf[t - 1]] > cost[p] or (np.isnan(cost[buf[t - 1]]) and not np.isnan(cost[p]))):
+                buf[t] = buf[t - 1]
+                t -= 1
+            buf[t] = p
+            m += 1
+        for j in range(min(m, tries)):
+            p = buf[j]
+            out_u[k], out_v[k], out_e[k], out_c[k] = u, vv_nbr[p], vv_edge[p], cost[p]
+            k += 1
+    return out_u[:k], out_v[:k], out_e[:k], out_c[:k]
 
 
 def _cheapest_per_group(cu, cost, n):
@@ -459,38 +523,6 @@ def _cheapest_per_group(cu, cost, n):
     group_start = np.flatnonzero(np.r_[True, grouped[1:] != grouped[:-1]])
     rank_in_u = np.arange(len(order)) - np.repeat(group_start, np.diff(np.r_[group_start, len(order)]))
     return order[rank_in_u < TRIES]
-
-
-def _cheapest_per_group_kernel(cu, cost, n, tries):
-    """Compiled :func:`_cheapest_per_group`: group by ``cu`` (counting sort), then a stable
-    insertion sort by ``cost`` inside each group (a handful of edges per vertex), NaN last."""
-    c = len(cu)
-    start = np.zeros(n + 1, np.int64)
-    for i in range(c):
-        start[cu[i] + 1] += 1
-    for u in range(n):
-        start[u + 1] += start[u]
-    fill = start[:-1].copy()
-    order = np.empty(c, np.int64)
-    for i in range(c):
-        order[fill[cu[i]]] = i
-        fill[cu[i]] += 1
-    out = np.empty(c, np.int64)
-    k = 0
-    for u in range(n):
-        a, b = start[u], start[u + 1]
-        for j in range(a + 1, b):  # stable: move an item left past strictly greater costs only
-            item = order[j]
-            x = cost[item]
-            t = j
-            while t > a and (cost[order[t - 1]] > x or (np.isnan(cost[order[t - 1]]) and not np.isnan(x))):
-                order[t] = order[t - 1]
-                t -= 1
-            order[t] = item
-        for j in range(a, min(b, a + tries)):
-            out[k] = order[j]
-            k += 1
-    return out[:k]
 
 
 def _usable(F, et, src, frozen_ext, n):
@@ -525,39 +557,6 @@ def _usable(F, et, src, frozen_ext, n):
     return cu[keep], cv[keep], ce[keep]
 
 
-def _usable_kernel(lo, hi, count, he0, he1, src, flat_faces, frozen_ext, n):
-    """Compiled :func:`_usable` (same arrays, same order); flat_faces (3m,) int64."""
-    ne = len(lo)
-    fcount = np.zeros(n, np.int64)
-    for x in flat_faces:
-        fcount[x] += 1
-    evc = np.zeros(n, np.int64)
-    bvc = np.zeros(n, np.int64)
-    badv = np.zeros(n, np.bool_)
-    bad = np.zeros(ne, np.bool_)
-    for e in range(ne):
-        bad[e] = count[e] > 2 or (count[e] == 2 and src[he0[e]] == src[he1[e]])
-        for x in (lo[e], hi[e]):
-            evc[x] += 1
-            if count[e] == 1:
-                bvc[x] += 1
-            if bad[e]:
-                badv[x] = True
-    cu = np.empty(2 * ne, np.int64)
-    cv = np.empty(2 * ne, np.int64)
-    ce = np.empty(2 * ne, np.int64)
-    c = 0
-    for side in range(2):
-        for e in range(ne):
-            u, v = (lo[e], hi[e]) if side == 0 else (hi[e], lo[e])
-            manifold = (bvc[u] == 0 and evc[u] == fcount[u]) or (bvc[u] == 2 and evc[u] == fcount[u] + 1)
-            if bad[e] or not manifold or badv[u] or frozen_ext[u] or (bvc[u] > 0 and count[e] != 1):
-                continue
-            cu[c], cv[c], ce[c] = u, v, e
-            c += 1
-    return cu[:c], cv[:c], ce[:c]
-
-
 def _deleted_faces(et, src, opp, cu, ce):
     """Faces deleted by collapses ``cu`` on edges ``ce`` and their third vertices (local ids).
 
@@ -584,17 +583,41 @@ def _deleted_faces(et, src, opp, cu, ce):
 def _moved_faces(vf, F, cu, cv):
     """Faces of each ``cu`` that do not hold its ``cv``: ``(faces (j,) int64, collapse index (j,) int64)``."""
     vf_start, vf_face = vf
+    kernel = compiled(_moved_faces_kernel)
+    if kernel is not None:
+        return kernel(vf_start, vf_face, F, cu, cv)
     owner, p = expand(vf_start, cu)
     face = vf_face[p]
     has_v = (F[face] == cv[owner][:, None]).any(axis=1)
     return face[~has_v], owner[~has_v]
 
 
-def _legal(cu, cv, ce, et, F, P, opp, fcount, vv, vf):
-    """Boolean mask (k,) of candidate collapses ``cu -> cv`` on edge ``ce`` that are legal."""
+def _moved_faces_kernel(vf_start, vf_face, F, cu, cv):
+    """Compiled :func:`_moved_faces`: the same two (j,) int64 arrays."""
+    total = 0
+    for i in range(len(cu)):
+        total += vf_start[cu[i] + 1] - vf_start[cu[i]]
+    face = np.empty(total, np.int64)
+    owner = np.empty(total, np.int64)
+    k = 0
+    for i in range(len(cu)):
+        v = cv[i]
+        for p in range(vf_start[cu[i]], vf_start[cu[i] + 1]):
+            f = vf_face[p]
+            if F[f, 0] != v and F[f, 1] != v and F[f, 2] != v:
+                face[k] = f
+                owner[k] = i
+                k += 1
+    return face[:k], owner[:k]
+
+
+def _legal(cu, cv, ce, mesh):
+    """Boolean mask (k,) of candidate collapses ``cu -> cv`` on edge ``ce`` that are legal
+    (``mesh`` as in :func:`_ordinary_winners`)."""
+    et, F, P, opp, fcount, vv, vf, vv_edge = mesh
     kernel = compiled(_legal_kernel)
     if kernel is not None:
-        return kernel(cu, cv, ce, et.keys, et.n, et.count, et.he0, et.he1, F, P, opp, fcount, vv[0], vv[1],
+        return kernel(cu, cv, ce, vv_edge, et.count, et.he0, et.he1, F, P, opp, fcount, vv[0], vv[1],
                       vf[0], vf[1])
     k = len(cu)
     ok = np.ones(k, dtype=bool)
@@ -650,20 +673,20 @@ def _legal(cu, cv, ce, et, F, P, opp, fcount, vv, vf):
 
 
 @kernel_helper
-def _edge_id(keys, n, a, b):
-    """Edge id of the pair (a, b) in the sorted ``keys`` (-1: none); for the kernels."""
-    q = min(a, b) * n + max(a, b)
-    i = np.searchsorted(keys, q)
-    if i < len(keys) and keys[i] == q:
-        return i
+def _edge_id(vv_start, vv_nbr, vv_edge, a, b):
+    """Edge id of the pair (a, b) (-1: none), found in ``a``'s row of the vertex -> neighbours CSR
+    (``vv_edge``: edge id of every entry); for the kernels."""
+    for p in range(vv_start[a], vv_start[a + 1]):
+        if vv_nbr[p] == b:
+            return vv_edge[p]
     return -1
 
 
 @kernel_helper
-def _legal_kernel(cu, cv, ce, keys, n, count, he0, he1, F, P, opp, fcount, vv_start, vv_nbr, vf_start, vf_face):
+def _legal_kernel(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_start, vv_nbr, vf_start, vf_face):
     """Compiled :func:`_legal`: the same (k,) bool mask, test for test (see there)."""
     ok = np.ones(len(cu), np.bool_)
-    mark = np.full(n, -1, np.int64)  # mark[x] == i: x is a neighbour of candidate i's kept vertex
+    mark = np.full(len(fcount), -1, np.int64)  # mark[x] == i: x is a neighbour of candidate i's kept vertex
     for i in range(len(cu)):
         u, v, e = cu[i], cv[i], ce[i]
         for p in range(vv_start[v], vv_start[v + 1]):
@@ -678,16 +701,16 @@ def _legal_kernel(cu, cv, ce, keys, n, count, he0, he1, F, P, opp, fcount, vv_st
         for he in (he0[e], he1[e]):  # deleted faces: other edge at u interior, wing keeps a face
             if he >= 0:
                 w = opp[he]
-                e_uw = _edge_id(keys, n, u, w)
+                e_uw = _edge_id(vv_start, vv_nbr, vv_edge, u, w)
                 if e_uw < 0 or count[e_uw] != 2 or fcount[w] < 2:
                     ok[i] = False
         if ok[i]:
-            ok[i] = _moved_faces_ok(u, v, keys, n, count, he0, he1, F, P, opp, vf_start, vf_face)
+            ok[i] = _moved_faces_ok(u, v, (vv_start, vv_nbr, vv_edge), count, he0, he1, F, P, opp, vf_start, vf_face)
     return ok
 
 
 @kernel_helper
-def _moved_faces_ok(u, v, keys, n, count, he0, he1, F, P, opp, vf_start, vf_face):
+def _moved_faces_ok(u, v, vv, count, he0, he1, F, P, opp, vf_start, vf_face):
     """Kernel part of :func:`_legal`: no moved face of ``u -> v`` flips, degenerates or duplicates."""
     for p in range(vf_start[u], vf_start[u + 1]):
         f = vf_face[p]
@@ -711,7 +734,7 @@ def _moved_faces_ok(u, v, keys, n, count, he0, he1, F, P, opp, vf_start, vf_face
         dot = n0x * n1x + n0y * n1y + n0z * n1z
         if not (l1 > 0 and dot > MIN_NORMAL_COS * l0 * l1):
             return False
-        e = _edge_id(keys, n, xa, xb)  # duplicate: the edge opposite u already has apex v
+        e = _edge_id(vv[0], vv[1], vv[2], xa, xb)  # duplicate: the edge opposite u already has apex v
         if e >= 0:
             if count[e] > 2 or opp[he0[e]] == v or (he1[e] >= 0 and opp[he1[e]] == v):
                 return False
@@ -739,7 +762,7 @@ def _select(cu, cv, cost, legal, vv, n, rounds: int = ROUNDS):
     c = len(cu)
     rank = _offer_ranks(cu, cost)
     big = np.int64(c + 1)
-    starts = np.flatnonzero(np.r_[True, cu[1:] != cu[:-1]])
+    starts = _group_starts(cu)
     ends = np.r_[starts[1:], c]
     front = starts.copy()  # current candidate of every vertex group
     in_play = np.ones(len(starts), dtype=bool)
@@ -789,7 +812,7 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
     arguments.  (``_conflicts``' same-kept-vertex rule is implied by its kept-vertex-next-to-a-
     lower-ranked-removed-vertex rule, since every winner's removed vertex neighbours its kept one.)
     """
-    keys, en, count, he0, he1, F, P, opp, fcount, vf_start, vf_face = mesh
+    vv_edge, count, he0, he1, F, P, opp, fcount, vf_start, vf_face = mesh
     big = len(cu) + 1
     starts = np.flatnonzero(np.concatenate((np.ones(1, np.bool_), cu[1:] != cu[:-1])))
     ends = np.append(starts[1:], len(cu))
@@ -806,7 +829,9 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
         offer = front[groups]
         for o in offer:
             scratch[0, cu[o]] = rank[o]
-        won = np.array([_nbr_min(vv_start, vv_nbr, scratch[0], cu[o], big) > rank[o] for o in offer])
+        won = np.empty(len(offer), np.bool_)
+        for j in range(len(offer)):
+            won[j] = _nbr_min(vv_start, vv_nbr, scratch[0], cu[offer[j]], big) > rank[offer[j]]
         for o in offer:
             scratch[0, cu[o]] = big
         if not won.any():
@@ -815,7 +840,7 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
         keep = ~_round_conflicts(cu[wo], cv[wo], rank[wo], flags, scratch, vv_start, vv_nbr, big)
         ok = np.zeros(len(wo), np.bool_)
         idx = wo[keep]
-        ok[keep] = _legal_kernel(cu[idx], cv[idx], ce[idx], keys, en, count, he0, he1, F, P, opp, fcount,
+        ok[keep] = _legal_kernel(cu[idx], cv[idx], ce[idx], vv_edge, count, he0, he1, F, P, opp, fcount,
                                  vv_start, vv_nbr, vf_start, vf_face)
         for j in range(len(wo)):
             g, o = wg[j], wo[j]
