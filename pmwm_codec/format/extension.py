@@ -142,7 +142,10 @@ def check_extension(ext) -> dict:
         raise UnsupportedVersionError(
             f"{EXTENSION_NAME}: version {version} is newer than this reader (version {FORMAT_VERSION})"
         )
-    error = next(iter(sorted(_validator().iter_errors(ext), key=lambda e: list(e.absolute_path))), None)
+    import jsonschema
+
+    # best_match descends into anyOf (chunks: an array of entries, or the version 2 table)
+    error = jsonschema.exceptions.best_match(sorted(_validator().iter_errors(ext), key=lambda e: list(e.absolute_path)))
     if error is not None:
         where = "/".join(str(p) for p in error.absolute_path) or "(root)"
         message = error.message.replace("\n", " ")
