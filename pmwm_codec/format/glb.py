@@ -10,12 +10,17 @@ Contract (DESIGN.md §4)
   bufferViews (images, ...) | chunk 0 | chunk 1 | ...]`` (files written before this
   order put the document's own bufferViews first; readers accept both),
   every bufferView starting on a 4-byte boundary, chunks in stream order.
-* Every vertex-split chunk is stored as its own zstd frame with the content size and
-  the content checksum; the extension object lists, per chunk, its bufferView, stored
-  ``byteLength``, BLAKE2b-128 ``digest`` of the stored bytes and ``uncompressedLength``,
-  plus the caller's ``splits``/``vertexCount``/``faceCount``/``geometricError``; given a
-  MAC key (a watermarked file), also the chunk's keyed ``mac`` and, on the extension object,
-  the ``baseMac`` (:mod:`.mac`; a caller's ``baseMac`` or ``mac`` is never copied).
+* Payload version 1: every vertex-split chunk is stored as its own zstd frame with the
+  content size and the content checksum in its own bufferView; the extension object lists,
+  per chunk, its bufferView, stored ``byteLength``, BLAKE2b-128 ``digest`` of the stored
+  bytes and ``uncompressedLength``, plus the caller's
+  ``splits``/``vertexCount``/``faceCount``/``geometricError``.
+* Payload version 2: the chunks (range-coded streams) are stored as they are, back to back
+  in ONE bufferView shared by every progressive primitive, and ``chunks`` is the compact
+  chunk table of :func:`compact_chunks` (bitstream.md §6.2: parallel arrays, 64-bit
+  digests, geometric errors rounded up to 3 digits, MACs concatenated).
+* Given a MAC key (a watermarked file), every chunk gets its keyed ``mac`` and the extension
+  object its ``baseMac`` (:mod:`.mac`; a caller's ``baseMac`` or ``mac`` is never copied).
 * The extension object sits on the mesh primitive under ``EXTENSION_NAME``, is listed in
   ``extensionsUsed`` and never in ``extensionsRequired``; ``KHR_draco_mesh_compression``
   is in both lists only when the base mesh uses it.
