@@ -23,10 +23,6 @@ __all__ = [
 ]
 
 
-#: Default growth of the coarse-end chunks (see :func:`group_batches`); None: by splits only.
-DEFAULT_CHUNK_GROWTH = None
-
-
 def default_base_target(n: int) -> int:
     """Default base size: 1% of the vertices, at least 64 (and never more than n)."""
     return min(n, max(n // 100, 64))
@@ -37,23 +33,18 @@ def default_min_chunk_splits(total: int) -> int:
     return max(32, total // 100)
 
 
-def group_batches(sizes, min_splits: int, base_vertices: int | None = None, growth: float | None = None) -> list:
+def group_batches(sizes, min_splits: int) -> list:
     """Split batch indices into chunks of consecutive batches holding >= ``min_splits`` splits.
 
-    ``sizes`` : (b,) split counts, coarse to fine.  With ``base_vertices`` and ``growth``, a
-    chunk also closes once it grows the mesh by ``growth`` (a fraction of the vertices before
-    it), so the coarse end, where a chunk index entry now costs a few bytes, streams in small
-    steps.  Returns a list of ``range``; a last chunk smaller than half of ``min_splits`` joins
-    the one before it.
+    ``sizes`` : (b,) split counts, coarse to fine.  Returns a list of ``range``; a last
+    chunk smaller than half of ``min_splits`` joins the one before it.
     """
     out, start, acc = [], 0, 0
-    vertices = base_vertices or 0
     for j, k in enumerate(sizes):
         acc += int(k)
-        target = min_splits if growth is None or base_vertices is None else min(min_splits, max(1, int(growth * vertices)))
-        if acc >= target:
+        if acc >= min_splits:
             out.append(range(start, j + 1))
-            start, vertices, acc = j + 1, vertices + acc, 0
+            start, acc = j + 1, 0
     if start < len(sizes):
         if out and acc < min_splits // 2:
             last = out.pop()

@@ -49,7 +49,6 @@ from ..progressive.simplify import CollapseLog, simplify
 from ..progressive.topology import mean_edge_length
 from ..watermark import codec as wm
 from ..watermark.key import KEY_FILE_MODE, KeySlot, WatermarkKey
-from . import chunking
 from .chunking import (
     carrier_slots,
     chunk_meta,
@@ -375,9 +374,7 @@ def _plan_chunks(work, min_chunk_splits) -> tuple:
     for w in work:
         sizes = [len(batch.u) for batch in reversed(w.log.batches)]
         smallest = default_min_chunk_splits(sum(sizes)) if min_chunk_splits is None else min_chunk_splits
-        growth = chunking.DEFAULT_CHUNK_GROWTH if min_chunk_splits is None else None
-        groups = group_batches(sizes, smallest, len(w.values) - sum(sizes), growth)
-        out.append(dataclasses.replace(w, sizes=sizes, groups=groups))
+        out.append(dataclasses.replace(w, sizes=sizes, groups=group_batches(sizes, smallest)))
     sizes, groups = [w.sizes for w in out], [w.groups for w in out]
     order = stream_order(sizes, groups)
     slots, carriers = carrier_slots(order, sizes, groups)
