@@ -168,3 +168,19 @@ def test_two_primitives_share_one_chunk_bufferview_and_every_cut_keeps_its_macs(
         assert outcome.mac["failed"] == [] and outcome.mac["missing"] == [] and outcome.mac["checked"] == n + 1
         for prim in split_glb(small)[0]["meshes"][0]["primitives"]:
             assert isinstance(prim["extensions"][EXTENSION_NAME]["chunks"], dict)  # still the compact form
+
+
+def test_a_v2_mac_survives_a_json_writer_that_prints_a_zero_error_as_an_integer():
+    """JavaScript's JSON.stringify writes 0.0 as 0 (the last chunk's geometricError)."""
+    data, key = _two_primitive_marked_file()
+    gltf, binary = split_glb(data)
+    for prim in gltf["meshes"][0]["primitives"]:
+        errors = prim["extensions"][EXTENSION_NAME]["chunks"]["geometricErrors"]
+        assert errors[-1] == 0.0
+        errors[-1] = 0
+    from pmwm_codec.format.glb import glb_parts
+
+    rewritten = b"".join(glb_parts(gltf, [binary], len(binary)))
+    assert b'0.0]' not in rewritten[: 20 + int.from_bytes(rewritten[12:16], "little")]
+    outcome = verify_stream(rewritten, key)
+    assert outcome.mac["failed"] == [] and outcome.verdict == "authentic"

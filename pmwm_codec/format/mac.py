@@ -88,8 +88,8 @@ def chunk_mac(mac_key: bytes, base_mac_hex: str, primitive: int, chunk: int, ent
     ``entry`` its index entry (:func:`~.extension.chunk_entries`; fields outside the MAC are
     ignored); ``payload`` the raw (decompressed) chunk bytes; ``version`` the payload version.
     """
-    if version == 2:
-        fields = {k: entry[k] for k in CHUNK_MAC_FIELDS_V2}
+    if version == 2:  # geometricError always as a float: "0" written by a JSON tool MACs as 0.0
+        fields = {**{k: entry[k] for k in CHUNK_MAC_FIELDS_V2}, "geometricError": float(entry["geometricError"])}
     else:
         fields = {k: v for k, v in entry.items() if k not in CHUNK_MAC_EXCLUDED}
     place = int(primitive).to_bytes(4, "little") + int(chunk).to_bytes(4, "little")
