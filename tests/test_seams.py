@@ -64,7 +64,8 @@ def seam_vertex_count(mesh: Mesh) -> int:
 
 def _encode(mesh: Mesh, **options) -> tuple:
     buf = io.BytesIO()
-    report = encode_mesh(mesh, buf, measure=False, **options)
+    # payload version 1: the batch-by-batch observer hooks replay's apply_batch, which v1 chunks go through
+    report = encode_mesh(mesh, buf, measure=False, **{"payload_version": 1, **options})
     return buf.getvalue(), report
 
 
