@@ -61,7 +61,9 @@ def encode(src, dst, watermark=None, key=None, **options):
     ``base_vertices``, ``embed_from`` (first split carrying a code: index or fraction), ``owner_id`` (the owner layer: a 64-bit int, alone or under the watermark; default
     with a watermark: the key's owner ID, random for a new key, none for a key written
     before the owner layer; False: no owner layer), ``zstd_level``, ``measure`` (``"vertices"`` | ``"sampled"`` |
-    ``"none"``), ``strip_image_profiles`` (assets).
+    ``"none"``), ``payload_version`` (2, the default: range-coded chunks and the compact chunk
+    table; 1: the zstd payload and per-chunk index of files written before),
+    ``strip_image_profiles`` (assets).
     Returns the report dict (the
     ``pmw encode --json`` fields, plus ``notices`` and ``key_path``).
     """

@@ -28,6 +28,7 @@ import urllib.request
 
 from .errors import InputFormatError
 from .format import ContainerParser, HeaderEvent
+from .format.extension import chunk_start
 from .format.layout import CHUNK_HEADER_SIZE, PREAMBLE_SIZE
 from .format.parser import parse_preamble
 from .sources import DEFAULT_BLOCK_SIZE
@@ -216,8 +217,7 @@ def plan_ranges(head: bytes, max_chunks: int | None = None) -> list:
         raise InputFormatError("the glTF JSON did not arrive whole")
     views = header.gltf_json["bufferViews"]
     chunk_ranges = sorted(
-        (header.bin_offset + views[c["bufferView"]].get("byteOffset", 0),
-         header.bin_offset + views[c["bufferView"]].get("byteOffset", 0) + c["byteLength"])
+        (header.bin_offset + chunk_start(views, c), header.bin_offset + chunk_start(views, c) + c["byteLength"])
         for ext in header.extensions for c in ext["chunks"])
     ends = [start for start, _ in chunk_ranges[:1]] + [end for _, end in chunk_ranges]
     if max_chunks is not None and max_chunks < len(chunk_ranges):

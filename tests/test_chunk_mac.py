@@ -25,6 +25,7 @@ from pmwm_codec.verify import verify_stream
 from pmwm_codec.watermark.key import WatermarkKey
 
 from conftest import marked_sphere
+import pytest
 
 CONFORMANCE = Path(__file__).resolve().parents[1] / "spec" / "conformance"
 
@@ -86,7 +87,7 @@ def test_untouched_file_passes_every_mac_and_stays_authentic():
 
 
 def test_chunk_changed_and_redigested_without_the_key_is_named_at_that_chunk(tmp_path, capsys):
-    data, key, _ = marked_sphere(7)
+    data, key, _ = marked_sphere(7, payload_version=1)  # rewrites a version 1 (zstd) chunk
     forged = _rewrite_chunk(data, 3, _move_first_split)
     results, _ = _decode(forged, None)  # the public digests agree: a keyless reader decodes it
     assert results[-1].chunk == read_header(forged).chunk_count
@@ -108,9 +109,10 @@ def test_chunk_changed_and_redigested_without_the_key_is_named_at_that_chunk(tmp
 
 
 def test_macs_copied_from_another_file_of_the_same_key_fail():
-    data, key, _ = marked_sphere(7)
+    data, key, _ = marked_sphere(7, payload_version=1)  # per-chunk entries to copy MACs between
     buf = io.BytesIO()  # another mesh and watermark, marked with the same secret
-    encode_mesh(shapes.icosphere(3, noise=0.02), buf, watermark=np.full((16, 16), 200, np.uint8), key=key)
+    encode_mesh(shapes.icosphere(3, noise=0.02), buf, watermark=np.full((16, 16), 200, np.uint8), key=key,
+                payload_version=1)
     other = buf.getvalue()
 
     def transplant(gltf, binary):
@@ -125,7 +127,8 @@ def test_macs_copied_from_another_file_of_the_same_key_fail():
 
 
 def test_a_changed_base_or_public_field_fails_the_base_mac():
-    data, key, _ = marked_sphere(7, base_codec="plain")
+    # version 1: its chunks still decode on a moved base vertex (version 2 predicts from the mesh)
+    data, key, _ = marked_sphere(7, base_codec="plain", payload_version=1)
 
     def move_base_vertex(gltf, binary):
         prim = gltf["meshes"][0]["primitives"][0]
@@ -155,13 +158,17 @@ def test_cut_files_keep_valid_macs_for_the_chunks_they_keep():
         assert all(row["authentic_bytes"] for row in outcome.as_json()["chunks"])
 
 
-def test_stripped_macs_make_a_marked_file_not_authentic():
-    data, key, _ = marked_sphere(7)
+@pytest.mark.parametrize("version", [1, 2])
+def test_stripped_macs_make_a_marked_file_not_authentic(version):
+    data, key, _ = marked_sphere(7, payload_version=version)
 
     def strip(gltf, binary):
         del _ext(gltf)["baseMac"]
-        for entry in _ext(gltf)["chunks"]:
+        chunks = _ext(gltf)["chunks"]
+        for entry in chunks if version == 1 else []:
             del entry["mac"]
+        if version == 2:
+            del chunks["macs"]
 
     outcome = verify_stream(_rewrite_json(data, strip), key)
     assert outcome.mac["checked"] == 0 and len(outcome.mac["missing"]) == len(outcome.results)
@@ -184,7 +191,7 @@ def test_golden_files_without_macs_still_decode_and_unmarked_files_get_none():
 
 def test_chunk_mac_recomputed_from_the_spec_text_matches_the_file():
     """A second implementation, from bitstream.md §6.3 alone, agrees with the writer for chunk 2."""
-    data, key, _ = marked_sphere(7)
+    data, key, _ = marked_sphere(7, payload_version=1)
     gltf, binary = split_glb(data)
     ext, k = _ext(gltf), 2
     entry = ext["chunks"][k]
@@ -219,3 +226,36 @@ def test_an_index_entry_without_a_canonical_form_fails_its_mac_instead_of_crashi
     infinite = answers(lambda ext: ext["chunks"][0].update(geometricError=float("inf")))
     assert infinite[0] is False and all(a is True for a in infinite[1:])
     assert all(a is False for a in answers(lambda ext: ext.update(baseMac="not hex")))
+
+
+def test_a_v2_chunk_mac_recomputed_from_the_spec_text_matches_the_file():
+    """Payload version 2 (bitstream.md §6.2, §6.3): the MAC of chunk k covers the five values its
+    chunk table stores for it and the stored stream; recomputed independently for chunk 2."""
+    data, key, _ = marked_sphere(7)
+    gltf, binary = split_glb(data)
+    ext, k = _ext(gltf), 2
+    table = ext["chunks"]
+    start = gltf["bufferViews"][table["bufferView"]]["byteOffset"] + sum(table["byteLengths"][:k])
+    payload = binary[start : start + table["byteLengths"][k]]
+    assert hashlib.blake2b(payload, digest_size=16).hexdigest()[:16] == table["digests"][16 * k : 16 * k + 16]
+    fields = {"byteLength": table["byteLengths"][k], "digest": table["digests"][16 * k : 16 * k + 16],
+              "faceCount": table["faceCounts"][k], "geometricError": table["geometricErrors"][k],
+              "vertexCount": table["vertexCounts"][k]}
+    parts = [b"pmwm/chunk-mac/v1", bytes.fromhex(ext["baseMac"]), (0).to_bytes(4, "little") + k.to_bytes(4, "little"),
+             json.dumps(fields, sort_keys=True, separators=(",", ":")).encode(), payload]
+    h = hashlib.blake2b(key=key.mac_key(), digest_size=16)
+    for part in parts:
+        h.update(len(part).to_bytes(8, "little") + part)
+    assert h.hexdigest() == table["macs"][32 * k : 32 * k + 32]
+
+
+def test_a_changed_v2_chunk_table_value_fails_that_chunk_s_mac():
+    """A geometric error the key holder did not write (counts and digests are checked by any reader)."""
+    data, key, _ = marked_sphere(7)
+
+    def change(gltf, binary):
+        _ext(gltf)["chunks"]["geometricErrors"][1] *= 2
+
+    outcome = verify_stream(_rewrite_json(data, change), key)
+    assert 2 in outcome.mac["failed"]  # chunk rows count from 1 (row 0 is the base)
+    assert outcome.verdict == "not-authentic"

@@ -56,8 +56,17 @@ def _json_and_bin(data: bytes) -> tuple:
 
 
 def _chunk_views(gltf) -> set:
-    return {c["bufferView"] for m in gltf["meshes"] for p in m["primitives"]
-            for c in (p.get("extensions") or {}).get("PMWM_progressive_mesh", {}).get("chunks", [])}
+    """The bufferViews holding chunks: one per chunk entry (payload version 1) or the one a
+    version 2 chunk table names."""
+    views = set()
+    for m in gltf["meshes"]:
+        for p in m["primitives"]:
+            chunks = (p.get("extensions") or {}).get("PMWM_progressive_mesh", {}).get("chunks", [])
+            if isinstance(chunks, dict):
+                views |= {chunks["bufferView"]} if "bufferView" in chunks else set()
+            else:
+                views |= {c["bufferView"] for c in chunks}
+    return views
 
 
 @pytest.fixture
@@ -131,7 +140,7 @@ def test_the_glb_lengths_of_a_cut_file_agree():
     bin_header = ChunkHeader.parse(small[bin_start - CHUNK_HEADER_SIZE : bin_start])
     assert header.length == len(small) == bin_start + bin_header.length
     assert gltf["buffers"][0]["byteLength"] == bin_header.length
-    ext = gltf["meshes"][0]["primitives"][0]["extensions"]["PMWM_progressive_mesh"]
+    ext = read_header(small).extension  # the chunk table expanded to per-chunk entries
     assert len(ext["chunks"]) == 2
     assert (ext["vertexCount"], ext["faceCount"]) == (ext["chunks"][-1]["vertexCount"], ext["chunks"][-1]["faceCount"])
 
@@ -168,7 +177,9 @@ def test_a_multi_mesh_asset_cuts_every_primitive_to_the_level_reached(tmp_path):
         for pa, pb in zip(a.parts, b.parts):
             assert np.array_equal(pa.positions_int, pb.positions_int) and np.array_equal(pa.faces, pb.faces)
         gltf, _ = _json_and_bin(small)
-        assert len(_chunk_views(gltf)) == min(n, read_header(data).chunk_count)
+        kept = min(n, read_header(data).chunk_count)
+        assert read_header(small).chunk_count == kept
+        assert len(_chunk_views(gltf)) == (1 if kept else 0)  # payload version 2: one shared bufferView
 
 
 def test_every_cut_of_a_textured_asset_passes_the_khronos_validator(tmp_path, textured_pmw):

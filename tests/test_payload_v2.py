@@ -17,7 +17,8 @@ from pmwm_codec import shapes
 from pmwm_codec.errors import FormatError, PmwError
 from pmwm_codec.format import rangecoder as rc
 from pmwm_codec.format import records_v2
-from pmwm_codec.format.extension import EXTENSION_NAME, digest
+from pmwm_codec.format import read_header
+from pmwm_codec.format.extension import EXTENSION_NAME, chunk_start, digest
 from pmwm_codec.format.glb import glb_parts, split_glb
 from pmwm_codec.mesh import Mesh
 from pmwm_codec.progressive import topology
@@ -229,18 +230,24 @@ def test_every_prefix_of_a_v2_file_decodes_to_whole_chunks_only(v2_file):
 
 
 def _chunk_entries(data):
+    """``(gltf, BIN bytearray, chunk table as stored, per-chunk entries as the reader expands them)``."""
     gltf, binary = split_glb(data)
     ext = gltf["meshes"][0]["primitives"][0]["extensions"][EXTENSION_NAME]
-    return gltf, bytearray(binary), ext["chunks"]
+    return gltf, bytearray(binary), ext["chunks"], read_header(data).extension["chunks"]
+
+
+def _stored(gltf, binary, entry) -> bytes:
+    start = chunk_start(gltf["bufferViews"], entry)
+    return bytes(binary[start : start + entry["byteLength"]])
 
 
 def _with_chunk(data, k, stored: bytes) -> bytes:
     """Chunk k's stored bytes replaced (same length), digest recomputed."""
-    gltf, binary, entries = _chunk_entries(data)
-    view = gltf["bufferViews"][entries[k]["bufferView"]]
-    assert len(stored) == view["byteLength"]
-    binary[view["byteOffset"]: view["byteOffset"] + len(stored)] = stored
-    entries[k]["digest"] = digest(stored)
+    gltf, binary, table, entries = _chunk_entries(data)
+    start = chunk_start(gltf["bufferViews"], entries[k])
+    assert len(stored) == entries[k]["byteLength"]
+    binary[start : start + len(stored)] = stored
+    table["digests"] = table["digests"][: 16 * k] + digest(stored, 2) + table["digests"][16 * (k + 1) :]
     return b"".join(glb_parts(gltf, [bytes(binary)], len(binary)))
 
 
@@ -251,13 +258,12 @@ def _decode_all(data):
 
 
 def test_flipped_bits_with_a_recomputed_digest_give_a_format_error_or_a_valid_mesh(v2_file):
-    gltf, binary, entries = _chunk_entries(v2_file)
+    gltf, binary, _, entries = _chunk_entries(v2_file)
     rng = np.random.default_rng(11)
     errors = 0
     for trial in range(60):
         k = int(rng.integers(len(entries)))
-        view = gltf["bufferViews"][entries[k]["bufferView"]]
-        stored = bytearray(binary[view["byteOffset"]: view["byteOffset"] + view["byteLength"]])
+        stored = bytearray(_stored(gltf, binary, entries[k]))
         bit = int(rng.integers(8 * len(stored)))
         stored[bit // 8] ^= 1 << (bit % 8)
         try:
@@ -268,24 +274,32 @@ def test_flipped_bits_with_a_recomputed_digest_give_a_format_error_or_a_valid_me
 
 
 def test_random_payload_bytes_give_a_format_error(v2_file):
-    gltf, binary, entries = _chunk_entries(v2_file)
+    gltf, binary, _, entries = _chunk_entries(v2_file)
     rng = np.random.default_rng(12)
     for trial in range(30):
         k = int(rng.integers(len(entries)))
-        size = gltf["bufferViews"][entries[k]["bufferView"]]["byteLength"]
+        size = entries[k]["byteLength"]
         with pytest.raises(PmwError):
             _decode_all(_with_chunk(v2_file, k, rng.integers(0, 256, size, dtype=np.uint8).tobytes()))
 
 
-def test_a_v2_chunk_whose_uncompressed_length_differs_from_its_bytes_is_refused(v2_file):
-    gltf, binary, entries = _chunk_entries(v2_file)
-    entries[0]["uncompressedLength"] += 1
-    with pytest.raises(FormatError, match="uncompressedLength"):
+@pytest.mark.parametrize("field", ["vertexCounts", "faceCounts", "geometricErrors", "byteLengths", "digests"])
+def test_a_v2_chunk_table_whose_arrays_disagree_is_refused(v2_file, field):
+    gltf, binary, table, _ = _chunk_entries(v2_file)
+    table[field] = table[field][:-1]
+    with pytest.raises(FormatError):
+        _decode_all(b"".join(glb_parts(gltf, [bytes(binary)], len(binary))))
+
+
+def test_a_v2_chunk_past_the_end_of_its_bufferview_is_refused(v2_file):
+    gltf, binary, table, _ = _chunk_entries(v2_file)
+    gltf["bufferViews"][table["bufferView"]]["byteLength"] -= 1
+    with pytest.raises(FormatError, match="past the end"):
         _decode_all(b"".join(glb_parts(gltf, [bytes(binary)], len(binary))))
 
 
 def test_an_unknown_payload_version_is_refused(v2_file):
-    gltf, binary, _ = _chunk_entries(v2_file)
+    gltf, binary, *_ = _chunk_entries(v2_file)
     gltf["meshes"][0]["primitives"][0]["extensions"][EXTENSION_NAME]["payload"]["version"] = 3
     with pytest.raises(FormatError):
         _decode_all(b"".join(glb_parts(gltf, [bytes(binary)], len(binary))))
@@ -295,7 +309,7 @@ def test_an_unknown_payload_version_is_refused(v2_file):
 
 
 def _chunk_bytes(data) -> int:
-    return sum(entry["byteLength"] for entry in _chunk_entries(data)[2])
+    return sum(entry["byteLength"] for entry in _chunk_entries(data)[3])
 
 
 def test_a_real_scan_s_v2_chunks_take_under_two_thirds_of_v1_s_bytes():

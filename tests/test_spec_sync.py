@@ -11,6 +11,7 @@ from referencing import Registry, Resource
 from pmwm_codec import constants
 from pmwm_codec.format import layout, read_header, records
 from pmwm_codec.format.extension import SCHEMA_DIR
+from pmwm_codec.format.glb import split_glb
 from pmwm_codec.progressive.vsplit import SYMBOL_COUNT
 from samples import PAYLOAD_EXAMPLE, sample_pmw
 
@@ -138,7 +139,8 @@ def test_readme_property_tables_list_the_schema_properties():
     text = (SPEC / "README.md").read_text()
     documented = set(re.findall(r"^\| `(\w+)` \| `[^`]+` \|", text, re.M))
     schemas = _schemas()
-    for name in (f"mesh.primitive.{NAME}.schema.json", f"{NAME}.chunk.schema.json", f"{NAME}.grid.schema.json"):
+    for name in (f"mesh.primitive.{NAME}.schema.json", f"{NAME}.chunk.schema.json", f"{NAME}.chunkTable.schema.json",
+                 f"{NAME}.grid.schema.json"):
         props = set(schemas[name]["properties"]) - {"extensions", "extras"}
         assert props <= documented, (name, props - documented)
 
@@ -148,6 +150,16 @@ def test_writer_output_validates_against_the_spec_schemas(codec):
     data, *_ = sample_pmw(codec, chunk_count=3)
     ext = read_header(data).extension
     _validator().validate(ext)
+
+
+def test_a_payload_v2_file_s_chunk_table_validates_and_an_array_there_does_not():
+    gltf, _ = split_glb((SPEC / "conformance" / "sphere.exact-watermark.v2.pmw").read_bytes())
+    ext = gltf["meshes"][0]["primitives"][0]["extensions"][NAME]
+    _validator().validate(ext)
+    assert isinstance(ext["chunks"], dict) and len(ext["chunks"]["macs"]) == 32 * len(ext["chunks"]["byteLengths"])
+    with pytest.raises(jsonschema.ValidationError):
+        _validator().validate({**ext, "chunks": read_header(
+            (SPEC / "conformance" / "sphere.exact-watermark.v2.pmw").read_bytes()).extension["chunks"]})
 
 
 def test_worked_example_is_valid_and_its_ranges_are_consistent():

@@ -32,7 +32,8 @@ def _marked(mesh, seed=0):
     rng = np.random.default_rng(seed)
     img = rng.integers(0, 256, (16, 16)).astype(np.uint8)
     buf = io.BytesIO()
-    key = encode_mesh(mesh, buf, watermark=img, key=WatermarkKey.generate(rng=rng)).key
+    # payload version 1: the forgeries below unpack and repack its records
+    key = encode_mesh(mesh, buf, watermark=img, key=WatermarkKey.generate(rng=rng), payload_version=1).key
     return buf.getvalue(), key, img
 
 

@@ -250,9 +250,11 @@ def glb_parts(data: bytes) -> dict:
     import json
     import struct
 
+    from pmwm_codec.format import read_header
+
     json_len = struct.unpack_from("<I", data, 12)[0]
     gltf = json.loads(data[20 : 20 + json_len])
-    ext = gltf["meshes"][0]["primitives"][0]["extensions"][pmwm_codec.constants.EXTENSION_NAME]
+    ext = read_header(data).extension  # per-chunk entries (a version 2 chunk table expanded)
     bin_len = struct.unpack_from("<I", data, 20 + json_len)[0]
     chunk_views = {c["bufferView"] for c in ext["chunks"]}
     chunk_bytes = sum(c["byteLength"] for c in ext["chunks"])

@@ -10,7 +10,7 @@ For each mesh and grid resolution (default 16 and 14 bits):
   compressed by ``DracoPy.encode(quantization_bits=g, compression_level=7)`` and decoded back;
 * **same bytes** -- the longest prefix of ours that fits in each LOD's Draco bytes, its error
   against the LOD's ("nothing fits" when even our base is larger); and, as a diagnostic that
-  separates the index from the payload, the same with the GLB JSON (the v1 chunk index lives
+  separates the index from the payload, the same with the GLB JSON (the chunk index lives
   there) not counted;
 * **same vertex count** (ordering only, no bits) -- our simplifier's level with exactly the
   LOD's vertex count, on the original float positions (the encoder's own collapse log applied
@@ -186,7 +186,7 @@ def render(results, info, command: str, plot) -> str:
          "LOD: fast-simplification to 2/10/30 % of the faces, Draco at the grid's bits, cl7. "
          "Same bytes: the longest prefix of our default-option `.pmw` (no watermark; GLB header, JSON, base "
          "and whole chunks) within the LOD's Draco bytes; \"without the JSON\": the same with the GLB JSON "
-         "(the v1 chunk index) not counted, a diagnostic. Same vertices: our simplifier's level with the "
+         "(it holds the chunk index) not counted, a diagnostic. Same vertices: our simplifier's level with the "
          "LOD's vertex count on the float positions (order only) against the uncompressed LOD.", ""]
     rows = []
     for r in results:

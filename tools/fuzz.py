@@ -75,7 +75,9 @@ class Sample:
         self.image = rng.integers(0, 256, (size, size)).astype(np.uint8)
         self.key = WatermarkKey.generate(rng=rng)
         buf = io.BytesIO()
-        encode_mesh(icosphere(subdivisions), buf, watermark=self.image, key=self.key, base_codec="plain")
+        # payload version 1: the mutators rewrite its zstd frames, records and per-chunk entries
+        encode_mesh(icosphere(subdivisions), buf, watermark=self.image, key=self.key, base_codec="plain",
+                    payload_version=1)
         self.data = buf.getvalue()
         self.payloads = []
         for event in iter_events(self.data):

@@ -33,10 +33,12 @@ function ready() {
   if (blake === null || zstd === null) throw new Error('initChunkFrames() was not awaited');
 }
 
-/** True when BLAKE2b-128 of `stored` equals the 32-digit lowercase hex `digest`. */
+/** True when BLAKE2b-128 of `stored` equals the 32-digit lowercase hex `digest`, or begins with the
+ * 16-digit `digest` of a payload version 2 chunk table (spec/bitstream.md §6.2). */
 export function digestMatches(stored, digest) {
   ready();
-  return blake.init().update(stored).digest('hex') === digest;
+  if (typeof digest !== 'string' || (digest.length !== 32 && digest.length !== 16)) return false;
+  return blake.init().update(stored).digest('hex').slice(0, digest.length) === digest;
 }
 
 /**

@@ -30,6 +30,7 @@
 import { Extension, ExtensionProperty, PropertyType } from '@gltf-transform/core';
 import { createBLAKE2b } from 'hash-wasm';
 import { PmwError } from './errors.js';
+import { chunkEntries } from './header.js';
 
 /** BLAKE2b-128 (hash-wasm; WebAssembly compiles asynchronously, once, at import). */
 const blake = await createBLAKE2b(128);
@@ -135,9 +136,11 @@ export class PMWMProgressiveMesh extends Extension {
         const ext = primitiveDef.extensions?.[NAME];
         if (!ext) return;
         const primitive = context.meshes[meshIndex].listPrimitives()[primitiveIndex];
-        const chunks = ext.chunks.map((entry) => context.bufferViews[entry.bufferView].slice());
-        const streamOffsets = ext.chunks.map((entry) => json.bufferViews[entry.bufferView].byteOffset ?? 0);
-        const info = { ...ext, chunks: ext.chunks.map(({ bufferView, ...entry }) => entry) };
+        const entries = chunkEntries(ext, ext.payload?.version ?? 1, json.accessors[primitiveDef.attributes.POSITION].count);
+        const at = (entry) => entry.byteOffset ?? 0; // inside its bufferView (a version 2 chunk table)
+        const chunks = entries.map((e) => context.bufferViews[e.bufferView].slice(at(e), at(e) + e.byteLength));
+        const streamOffsets = entries.map((e) => (json.bufferViews[e.bufferView].byteOffset ?? 0) + at(e));
+        const info = { ...ext, chunks: entries.map(({ bufferView, byteOffset, ...entry }) => entry) };
         primitive.setExtension(NAME, this.createProgressiveMesh()
           .setInfo(info).setChunks(chunks).setStreamOffsets(streamOffsets)
           .setFingerprint(baseFingerprint(primitive, info).hex)
@@ -172,10 +175,12 @@ export class PMWMProgressiveMesh extends Extension {
       stream.getChunks().forEach((bytes, k) => queued.push({ buffer, stream, k, order: stream.getStreamOffsets()[k], view: bytes.subarray(0) }));
     }
     queued.sort((a, b) => a.order - b.order);
+    shareVersion2Views(queued);
     this._queued = queued;
-    for (const q of queued) {
-      if (!context.otherBufferViews.has(q.buffer)) context.otherBufferViews.set(q.buffer, []);
-      context.otherBufferViews.get(q.buffer).push(q.view);
+    for (const view of new Set(queued.map((q) => q.view))) {
+      const buffer = queued.find((q) => q.view === view).buffer;
+      if (!context.otherBufferViews.has(buffer)) context.otherBufferViews.set(buffer, []);
+      context.otherBufferViews.get(buffer).push(view);
     }
     return this;
   }
@@ -187,19 +192,54 @@ export class PMWMProgressiveMesh extends Extension {
     const json = context.jsonDoc.json;
     const views = new Map(queued.map((q) => [q, context.otherBufferViewsIndexMap.get(q.view)]));
     for (const buffer of new Set(queued.map((q) => q.buffer))) {
-      alignTail(context, context.bufferIndexMap.get(buffer), queued.filter((q) => q.buffer === buffer).map((q) => views.get(q)));
+      alignTail(context, context.bufferIndexMap.get(buffer), [...new Set(queued.filter((q) => q.buffer === buffer).map((q) => views.get(q)))]);
     }
     for (const { mesh, primitive, stream } of progressivePrimitives(this.document)) {
       const meshDef = json.meshes[context.meshIndexMap.get(mesh)];
       const primitiveDef = meshDef.primitives[mesh.listPrimitives().indexOf(primitive)];
       const info = stream.getInfo();
-      const chunks = info.chunks.map((entry, k) => ({
-        bufferView: views.get(queued.find((q) => q.stream === stream && q.k === k)), ...entry,
-      }));
+      const placed = info.chunks.map((entry, k) => queued.find((q) => q.stream === stream && q.k === k));
+      const chunks = (info.payload?.version ?? 1) === 2
+        ? compactChunks(info.chunks.map((entry, k) => ({ ...entry, bufferView: views.get(placed[k]), byteOffset: placed[k].at })))
+        : info.chunks.map((entry, k) => ({ bufferView: views.get(placed[k]), ...entry }));
       primitiveDef.extensions = { ...primitiveDef.extensions, [NAME]: { ...info, chunks } };
     }
     return this;
   }
+}
+
+/**
+ * Payload version 2 chunks lie back to back in one bufferView per buffer (spec/bitstream.md §6.2):
+ * gives every queued version 2 chunk (in stream order) the shared view and its offset `at` in it.
+ */
+function shareVersion2Views(queued) {
+  for (const buffer of new Set(queued.map((q) => q.buffer))) {
+    const mine = queued.filter((q) => q.buffer === buffer && (q.stream.getInfo().payload?.version ?? 1) === 2);
+    const view = new Uint8Array(mine.reduce((n, q) => n + q.view.length, 0));
+    let at = 0;
+    for (const q of mine) {
+      const bytes = q.view;
+      view.set(bytes, at);
+      Object.assign(q, { view, at });
+      at += bytes.length;
+    }
+  }
+}
+
+/** The compact chunk table (spec/bitstream.md §6.2) of per-chunk entries in one bufferView. */
+function compactChunks(entries) {
+  const table = entries.length ? { bufferView: entries[0].bufferView } : {};
+  let sum = 0;
+  if (!entries.every((e) => { const ok = e.byteOffset === sum; sum += e.byteLength; return ok; })) {
+    table.byteOffsets = entries.map((e) => e.byteOffset);
+  }
+  table.byteLengths = entries.map((e) => e.byteLength);
+  table.vertexCounts = entries.map((e) => e.vertexCount);
+  table.faceCounts = entries.map((e) => e.faceCount);
+  table.geometricErrors = entries.map((e) => e.geometricError);
+  table.digests = entries.map((e) => e.digest).join('');
+  if (entries.some((e) => e.mac !== undefined)) table.macs = entries.map((e) => e.mac).join('');
+  return table;
 }
 
 /**

@@ -108,7 +108,49 @@ function accessorPlan(gltf, index, bufferLength, what, { types, components }) {
   return { view, offset, stride, count: acc.count, components: k, componentType: acc.componentType };
 }
 
-function checkChunk(gltf, c, j, bufferLength, what) {
+/** Hex digits of a chunk digest per payload version (spec/bitstream.md §6.2): BLAKE2b-128, its first 64 bits. */
+const DIGEST_HEX = { 1: 32, 2: 16 };
+const TABLE_ARRAYS = [['byteLengths', 'byteLength'], ['vertexCounts', 'vertexCount'], ['faceCounts', 'faceCount'],
+  ['geometricErrors', 'geometricError']];
+
+/**
+ * The per-chunk index entries of an extension object: its `chunks` array (payload version 1), or its
+ * compact chunk table (version 2, spec/bitstream.md §6.2) expanded to entries with `bufferView`,
+ * `byteOffset` (inside it), `byteLength`, `digest`, counts, `geometricError`, `mac` (when the table
+ * has `macs`) and the derived `splits` and `uncompressedLength` (= byteLength).
+ * @param {object} ext @param {number} version payload version @param {number} baseVertices the base's vertex count
+ */
+export function chunkEntries(ext, version, baseVertices, what = 'chunks') {
+  const table = ext.chunks;
+  if (version !== 2) {
+    if (!Array.isArray(table)) throw new FormatError(`${what}: chunks is not an array`);
+    return table;
+  }
+  if (!isObj(table) || !Array.isArray(table.byteLengths)) throw new FormatError(`${what}: chunks is not a chunk table`);
+  const count = table.byteLengths.length;
+  if (count > MAX_CHUNKS) throw new LimitError(`${what}: more than ${MAX_CHUNKS} chunks`);
+  let sum = 0;
+  const offsets = table.byteOffsets ?? table.byteLengths.map((n) => { const at = sum; sum += n; return at; });
+  const macs = table.macs;
+  if (!TABLE_ARRAYS.every(([name]) => Array.isArray(table[name]) && table[name].length === count)
+      || !Array.isArray(offsets) || offsets.length !== count
+      || typeof table.digests !== 'string' || table.digests.length !== count * 16
+      || (macs !== undefined && (typeof macs !== 'string' || macs.length !== count * 32))) {
+    throw new FormatError(`${what}: the chunk table's arrays do not all describe ${count} chunks`);
+  }
+  let previous = baseVertices;
+  return table.byteLengths.map((_, k) => {
+    const entry = { bufferView: table.bufferView, byteOffset: offsets[k], digest: table.digests.slice(16 * k, 16 * k + 16) };
+    for (const [name, field] of TABLE_ARRAYS) entry[field] = table[name][k];
+    if (macs !== undefined) entry.mac = macs.slice(32 * k, 32 * k + 32);
+    entry.splits = entry.vertexCount - previous;
+    previous = entry.vertexCount;
+    entry.uncompressedLength = entry.byteLength;
+    return entry;
+  });
+}
+
+function checkChunk(gltf, c, j, bufferLength, what, version = 1) {
   if (!isObj(c)) throw new FormatError(`${what} chunk ${j}: not an object`);
   if (!isInt(c.byteLength, 0, MAX_CHUNK_BYTES)) throw new LimitError(`${what} chunk ${j}: byteLength over the limit`);
   if (!isInt(c.uncompressedLength, 0, MAX_DECOMPRESSED_CHUNK_BYTES)) {
@@ -119,15 +161,29 @@ function checkChunk(gltf, c, j, bufferLength, what) {
       throw new FormatError(`${what} chunk ${j}: ${key} is not a count within the limits`);
     }
   }
-  if (typeof c.digest !== 'string' || !/^[0-9a-f]{32}$/.test(c.digest)) {
-    throw new FormatError(`${what} chunk ${j}: digest is not 32 lowercase hex digits`);
+  const hex = DIGEST_HEX[version];
+  if (typeof c.digest !== 'string' || c.digest.length !== hex || !/^[0-9a-f]*$/.test(c.digest)) {
+    throw new FormatError(`${what} chunk ${j}: digest is not ${hex} lowercase hex digits`);
   }
   const view = bufferView(gltf, c.bufferView, bufferLength, `${what} chunk ${j}`);
-  if (view.length !== c.byteLength) throw new FormatError(`${what} chunk ${j}: byteLength differs from its bufferView`);
+  let offset = view.offset;
+  if (version === 2) {
+    if (!isInt(c.byteOffset, 0, view.length) || c.byteOffset + c.byteLength > view.length) {
+      throw new FormatError(`${what} chunk ${j}: lies past the end of its bufferView`);
+    }
+    offset += c.byteOffset;
+  } else if (view.length !== c.byteLength) throw new FormatError(`${what} chunk ${j}: byteLength differs from its bufferView`);
   return {
-    offset: view.offset, length: view.length, digest: c.digest, uncompressedLength: c.uncompressedLength,
+    offset, length: c.byteLength, digest: c.digest, uncompressedLength: c.uncompressedLength,
     splits: c.splits, vertexCount: c.vertexCount, faceCount: c.faceCount, geometricError: c.geometricError,
   };
+}
+
+/** The vertex count a base primitive declares (its POSITION accessor's count; Draco bases too). */
+function baseVertexCount(gltf, prim) {
+  const acc = Array.isArray(gltf.accessors) && isObj(prim.attributes) ? gltf.accessors[prim.attributes.POSITION] : undefined;
+  if (!isObj(acc) || !isInt(acc.count, 0, MAX_VERTICES)) throw new FormatError('base mesh: no POSITION accessor count');
+  return acc.count;
 }
 
 /** The base mesh plan of one primitive: Draco bufferView or plain accessors, and its attribute grids. */
@@ -171,8 +227,7 @@ function checkExtension(ext, what) {
   }
   if (!isInt(ext.vertexCount, 0, MAX_VERTICES)) throw new LimitError(`${what}: vertexCount over the limit`);
   if (!isInt(ext.faceCount, 0, MAX_FACES)) throw new LimitError(`${what}: faceCount over the limit`);
-  if (!Array.isArray(ext.chunks)) throw new FormatError(`${what}: chunks is not an array`);
-  if (ext.chunks.length > MAX_CHUNKS) throw new LimitError(`${what}: more than ${MAX_CHUNKS} chunks`);
+  if (Array.isArray(ext.chunks) && ext.chunks.length > MAX_CHUNKS) throw new LimitError(`${what}: more than ${MAX_CHUNKS} chunks`);
   return payload.version;
 }
 
@@ -199,7 +254,8 @@ export function planDocument(gltf, binLength) {
       const payloadVersion = checkExtension(ext, what);
       const grid = checkGrid(ext.grid, `${what}: grid`, 3);
       const base = basePlan(gltf, prim, ext, bufferLength, what);
-      const chunks = ext.chunks.map((c, j) => checkChunk(gltf, c, j, bufferLength, what));
+      const entries = chunkEntries(ext, payloadVersion, baseVertexCount(gltf, prim), what);
+      const chunks = entries.map((c, j) => checkChunk(gltf, c, j, bufferLength, what, payloadVersion));
       const baseEnd = Math.max(0, ...base.views.map((v) => v.offset + v.length));
       primitives.push({ index: primitives.length, mesh: mi, primitive: pi, ext, grid, base, chunks, baseEnd,
         vertexCount: ext.vertexCount, faceCount: ext.faceCount, payloadVersion });

@@ -15,6 +15,7 @@ import { KHRDracoMeshCompression } from '@gltf-transform/extensions';
 import draco3d from 'draco3d';
 import { PMWMProgressiveMesh, BaseMeshChangedError } from 'pmwm-progressive/gltf-transform';
 import { PmwDecoder } from '../src/index.js';
+import { chunkEntries } from '../src/header.js';
 import { CONFORMANCE, conformanceFiles, levelDigest } from './lib/helpers.js';
 import { ROOT } from './lib/python.js';
 
@@ -32,21 +33,24 @@ function glbParts(bytes) {
   return { json, bin: bytes.subarray(28 + jsonLength) };
 }
 
-/** [{meshIndex, primitiveIndex, ext, chunks: Uint8Array[]}] of every progressive primitive. */
+/** [{meshIndex, primitiveIndex, ext, chunks: Uint8Array[]}] of every progressive primitive; `ext.chunks`
+ * as per-chunk entries (a payload version 2 chunk table expanded, spec/bitstream.md §6.2). */
 function streams(bytes) {
   const { json, bin } = glbParts(bytes);
   return json.meshes.flatMap((mesh, meshIndex) => mesh.primitives.flatMap((p, primitiveIndex) => {
-    const ext = p.extensions?.[NAME];
-    if (!ext) return [];
+    const stored = p.extensions?.[NAME];
+    if (!stored) return [];
+    const entries = chunkEntries(stored, stored.payload?.version ?? 1, json.accessors[p.attributes.POSITION].count);
+    const ext = { ...stored, chunks: entries };
     const chunks = ext.chunks.map((c) => {
-      const v = json.bufferViews[c.bufferView];
-      return bin.subarray(v.byteOffset ?? 0, (v.byteOffset ?? 0) + v.byteLength);
+      const start = (json.bufferViews[c.bufferView].byteOffset ?? 0) + (c.byteOffset ?? 0);
+      return bin.subarray(start, start + c.byteLength);
     });
     return [{ meshIndex, primitiveIndex, ext, chunks }];
   }));
 }
 
-const withoutViews = (ext) => ({ ...ext, chunks: ext.chunks.map(({ bufferView, ...entry }) => entry) });
+const withoutViews = (ext) => ({ ...ext, chunks: ext.chunks.map(({ bufferView, byteOffset, ...entry }) => entry) });
 
 async function levels(bytes) {
   const decoder = new PmwDecoder({ snapshots: true });
@@ -63,10 +67,10 @@ async function assertStreamKept(original, rewritten) {
   const { json } = glbParts(rewritten);
   const chunkViews = new Set(after.flatMap((s) => s.ext.chunks.map((c) => c.bufferView)));
   const ends = json.bufferViews.filter((_, i) => !chunkViews.has(i)).map((v) => (v.byteOffset ?? 0) + v.byteLength);
-  const offsetOf = (s, k) => json.bufferViews[s.ext.chunks[k].bufferView].byteOffset;
+  const offsetOf = (s, k) => json.bufferViews[s.ext.chunks[k].bufferView].byteOffset + (s.ext.chunks[k].byteOffset ?? 0);
   const stream = after.flatMap((s) => s.chunks.map((_, k) => offsetOf(s, k))).sort((a, b) => a - b);
   assert.ok(stream[0] >= Math.max(...ends), 'chunks come after every other bufferView');
-  for (const o of stream) assert.equal(o % 4, 0, 'chunk bufferViews start at a multiple of 4');
+  for (const i of chunkViews) assert.equal(json.bufferViews[i].byteOffset % 4, 0, 'chunk bufferViews start at a multiple of 4');
   assert.deepEqual(json.extensionsUsed.includes(NAME), true);
   assert.equal((json.extensionsRequired ?? []).includes(NAME), false);
   assert.deepEqual(await levels(rewritten), await levels(original));

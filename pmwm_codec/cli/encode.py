@@ -73,8 +73,8 @@ def add_parser(sub):
                    help="position grid resolution in bits (default 16; paper mode 22)")
     p.add_argument("--base-codec", choices=("draco", "plain"), default="draco", help="how the base mesh is stored")
     p.add_argument("--payload-version", type=int, choices=PAYLOAD_VERSIONS, default=DEFAULT_PAYLOAD_VERSION,
-                   help="chunk payload format: 1 (zstd columns, default) or 2 (range-coded, ~40%% smaller; "
-                        "not yet read by the JavaScript decoder)")
+                   help="chunk payload format: 2 (range-coded, compact chunk index; default) or 1 (zstd "
+                        "columns, one index entry per chunk: the format of files written before)")
     p.add_argument("--base-vertices", type=_int_in(4, None, "--base-vertices"), metavar="N",
                    help="target base mesh size (default 1%% of the vertices, at least 64)")
     p.add_argument("--strip-image-profiles", action="store_true",

@@ -1,4 +1,4 @@
-"""The ``PMWM_progressive_mesh`` extension object: schema check and digests.
+"""The ``PMWM_progressive_mesh`` extension object: schema check, digests and the chunk index.
 
 The normative schemas live in ``spec/schema/``; this package ships byte-identical
 copies in ``pmwm_codec/format/schema/`` (``tests/test_spec_sync.py`` keeps them
@@ -7,6 +7,11 @@ equal) so an installed package can validate without the source tree.
 :func:`check_extension` is the gate every extension object passes before a reader
 uses it: an unknown newer ``version`` is :class:`UnsupportedVersionError`, anything
 the schema rejects is a one-line :class:`FormatError`.
+
+:func:`chunk_entries` is the one place a reader turns the compact chunk table of payload
+version 2 (bitstream.md §6.2) into the per-chunk entries of version 1, so everything
+after the parser (replay, MACs, cut, inspect) reads one shape; the writer's side is
+:func:`pmwm_codec.format.glb.compact_chunks`.
 """
 
 from __future__ import annotations
@@ -33,12 +38,69 @@ CHUNK_META_FIELDS = ("splits", "vertexCount", "faceCount", "geometricError")
 PAYLOAD_CODEC = "pmwm-vsplit"
 PAYLOAD_VERSIONS = (1, 2)
 #: Version written unless the caller asks for another.
-DEFAULT_PAYLOAD_VERSION = 1
+DEFAULT_PAYLOAD_VERSION = 2
+#: Hex digits of a chunk ``digest`` per payload version: BLAKE2b-128 (v1), its first 64 bits (v2).
+DIGEST_HEX = {1: 32, 2: 16}
+#: Hex digits of one MAC (BLAKE2b-128, both versions).
+MAC_HEX = 32
+#: Compact chunk table (payload version 2): its per-chunk arrays and the entry field each one fills.
+TABLE_ARRAYS = (("byteLengths", "byteLength"), ("vertexCounts", "vertexCount"), ("faceCounts", "faceCount"),
+                ("geometricErrors", "geometricError"))
 
 
-def digest(data) -> str:
-    """BLAKE2b-128 of ``data`` as 32 lowercase hex digits (the chunk ``digest`` field)."""
-    return hashlib.blake2b(data, digest_size=DIGEST_SIZE).hexdigest()
+def digest(data, version: int = 1) -> str:
+    """The chunk ``digest`` of stored bytes ``data`` for payload ``version``: BLAKE2b-128 as 32
+    lowercase hex digits (version 1), or its first 16 (version 2)."""
+    return hashlib.blake2b(data, digest_size=DIGEST_SIZE).hexdigest()[: DIGEST_HEX[version]]
+
+
+def chunk_entries(ext: dict, base_vertices: int) -> list:
+    """The per-chunk index entries of a checked extension object ``ext``: its ``chunks`` array
+    (payload version 1, the same dicts) or its compact table expanded (version 2).
+
+    An expanded entry holds ``bufferView``, ``byteOffset`` (inside that bufferView),
+    ``byteLength``, ``digest``, ``vertexCount``, ``faceCount``, ``geometricError``, ``mac`` when
+    the table has ``macs``, and the derived ``splits`` (vertices added: one per split, the
+    first chunk counted from the base's ``base_vertices``) and ``uncompressedLength``
+    (= ``byteLength``).  FormatError when the table's arrays disagree.
+    """
+    table = ext["chunks"]
+    if payload_version(ext) != 2:
+        if not isinstance(table, list):
+            raise FormatError(f"{EXTENSION_NAME}: chunks must be an array for payload version 1")
+        return table
+    if not isinstance(table, dict):
+        raise FormatError(f"{EXTENSION_NAME}: chunks must be a chunk table object for payload version 2")
+    count = len(table["byteLengths"])
+    columns = [(field, table[name]) for name, field in TABLE_ARRAYS]
+    digests, macs = table["digests"], table.get("macs")
+    offsets = table.get("byteOffsets")
+    if offsets is None:  # back to back from the start of the bufferView
+        offsets = [0] * count
+        for k in range(1, count):
+            offsets[k] = offsets[k - 1] + table["byteLengths"][k - 1]
+    if any(len(values) != count for _, values in columns) or len(offsets) != count or \
+            len(digests) != count * DIGEST_HEX[2] or (macs is not None and len(macs) != count * MAC_HEX) or \
+            (count and "bufferView" not in table):
+        raise FormatError(f"{EXTENSION_NAME}: chunks: the table's arrays do not all describe {count} chunks")
+    entries, previous = [], base_vertices
+    for k in range(count):
+        entry = {"bufferView": table.get("bufferView"), "byteOffset": offsets[k], **{f: v[k] for f, v in columns},
+                 "digest": digests[k * DIGEST_HEX[2] : (k + 1) * DIGEST_HEX[2]]}
+        if macs is not None:
+            entry["mac"] = macs[k * MAC_HEX : (k + 1) * MAC_HEX]
+        entry["splits"], previous = entry["vertexCount"] - previous, entry["vertexCount"]
+        if entry["splits"] < 0:
+            raise FormatError(f"{EXTENSION_NAME}: chunks: vertexCounts[{k}] is smaller than the count before it")
+        entry["uncompressedLength"] = entry["byteLength"]
+        entries.append(entry)
+    return entries
+
+
+def chunk_start(views: list, entry: dict) -> int:
+    """BIN offset of the first byte of a chunk, from its entry (:func:`chunk_entries`) and the
+    document's ``bufferViews`` (already checked)."""
+    return int(views[entry["bufferView"]].get("byteOffset", 0)) + int(entry.get("byteOffset", 0))
 
 
 def payload_version(ext: dict) -> int:
@@ -80,7 +142,10 @@ def check_extension(ext) -> dict:
         raise UnsupportedVersionError(
             f"{EXTENSION_NAME}: version {version} is newer than this reader (version {FORMAT_VERSION})"
         )
-    error = next(iter(sorted(_validator().iter_errors(ext), key=lambda e: list(e.absolute_path))), None)
+    import jsonschema
+
+    # best_match descends into anyOf (chunks: an array of entries, or the version 2 table)
+    error = jsonschema.exceptions.best_match(sorted(_validator().iter_errors(ext), key=lambda e: list(e.absolute_path)))
     if error is not None:
         where = "/".join(str(p) for p in error.absolute_path) or "(root)"
         message = error.message.replace("\n", " ")

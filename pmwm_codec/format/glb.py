@@ -10,12 +10,17 @@ Contract (DESIGN.md §4)
   bufferViews (images, ...) | chunk 0 | chunk 1 | ...]`` (files written before this
   order put the document's own bufferViews first; readers accept both),
   every bufferView starting on a 4-byte boundary, chunks in stream order.
-* Every vertex-split chunk is stored as its own zstd frame with the content size and
-  the content checksum; the extension object lists, per chunk, its bufferView, stored
-  ``byteLength``, BLAKE2b-128 ``digest`` of the stored bytes and ``uncompressedLength``,
-  plus the caller's ``splits``/``vertexCount``/``faceCount``/``geometricError``; given a
-  MAC key (a watermarked file), also the chunk's keyed ``mac`` and, on the extension object,
-  the ``baseMac`` (:mod:`.mac`; a caller's ``baseMac`` or ``mac`` is never copied).
+* Payload version 1: every vertex-split chunk is stored as its own zstd frame with the
+  content size and the content checksum in its own bufferView; the extension object lists,
+  per chunk, its bufferView, stored ``byteLength``, BLAKE2b-128 ``digest`` of the stored
+  bytes and ``uncompressedLength``, plus the caller's
+  ``splits``/``vertexCount``/``faceCount``/``geometricError``.
+* Payload version 2: the chunks (range-coded streams) are stored as they are, back to back
+  in ONE bufferView shared by every progressive primitive, and ``chunks`` is the compact
+  chunk table of :func:`compact_chunks` (bitstream.md §6.2: parallel arrays, 64-bit
+  digests, geometric errors rounded up to 3 digits, MACs concatenated).
+* Given a MAC key (a watermarked file), every chunk gets its keyed ``mac`` and the extension
+  object its ``baseMac`` (:mod:`.mac`; a caller's ``baseMac`` or ``mac`` is never copied).
 * The extension object sits on the mesh primitive under ``EXTENSION_NAME``, is listed in
   ``extensionsUsed`` and never in ``extensionsRequired``; ``KHR_draco_mesh_compression``
   is in both lists only when the base mesh uses it.
@@ -30,6 +35,7 @@ from __future__ import annotations
 
 import copy
 import json
+import math
 import os
 from dataclasses import dataclass
 
@@ -40,7 +46,9 @@ from ..constants import EXTENSION_NAME, FORMAT_VERSION, MAX_CHUNK_BYTES, MAX_CHU
 from ..errors import FormatError, InputFormatError
 from .base import EncodedBase, decode_base_attributes
 from .gltf import DRACO_EXTENSION
-from .extension import CHUNK_META_FIELDS, DERIVED_FIELDS, RESERVED_FIELDS, check_extension, digest, payload_version
+from .extension import (
+    CHUNK_META_FIELDS, DERIVED_FIELDS, RESERVED_FIELDS, TABLE_ARRAYS, check_extension, digest, payload_version,
+)
 from .mac import base_mac, chunk_mac
 from .layout import (
     CHUNK_HEADER_SIZE,
@@ -118,7 +126,8 @@ def assemble_document(doc: dict, kept_bin: bytes, prims, order, zstd_level: int 
     if mac_key is not None:
         for p, prim in enumerate(prims):
             for k, entry in enumerate(index[p]):
-                entry["mac"] = chunk_mac(mac_key, base_macs[p][1], base_macs[p][0], k, entry, prim.chunks[k])
+                entry["mac"] = chunk_mac(mac_key, base_macs[p][1], base_macs[p][0], k, entry, prim.chunks[k],
+                                         payload_version(prim.extension))
     meshes = _merge_primitives(doc, prims, primitives_json, index, base_macs)
     gltf = _document(doc, meshes, accessors, views, offset, used, required)
     return glb_parts(gltf, bin_parts, offset)
@@ -158,6 +167,12 @@ def _check_primitives(prims, order) -> None:
         clash = [key for key in RESERVED_FIELDS if key in prim.extension]
         if clash:
             raise ValueError(f"write_pmw: extension fields {clash} are set by the writer")
+    try:
+        versions = {payload_version(p.extension) for p in prims}
+    except FormatError as exc:
+        raise ValueError(f"write_pmw: {exc}") from None
+    if len(versions) > 1:
+        raise ValueError("write_pmw: every progressive primitive of a file must use the same payload version")
     if sum(len(p.chunks) for p in prims) > MAX_CHUNKS:
         raise ValueError(f"write_pmw: {sum(len(p.chunks) for p in prims)} chunks exceed the limit {MAX_CHUNKS}")
     if sorted(order) != sorted((p, k) for p, prim in enumerate(prims) for k in range(len(prim.chunks))):
@@ -196,36 +211,100 @@ def _merge_bases(prims, views: list, accessors: list, bin_parts: list, offset: i
 
 
 def _index_chunks(prims, order, views: list, bin_parts: list, offset: int, zstd_level: int) -> tuple:
-    """Compress every chunk in stream order and append it (``views`` and ``bin_parts`` grow).
+    """Store every chunk in stream order and append it (``views`` and ``bin_parts`` grow).
 
-    Returns ``(index, offset)``: ``index[p][k]`` the index entry of primitive p's chunk k,
+    Payload version 1: one zstd frame per chunk in its own bufferView, 4-byte aligned.
+    Version 2: the range-coded streams as they are, back to back in ONE bufferView shared by
+    the primitives (bitstream.md §6.2).  Returns ``(index, offset)``: ``index[p][k]`` the
+    entry of primitive p's chunk k (the shape :func:`~.extension.chunk_entries` reads back),
     and the BIN offset after the last chunk.
     """
     index = [[None] * len(prim.chunks) for prim in prims]
+    vertices = [len(prim.base.positions_int) for prim in prims]  # before the next chunk (version 2)
+    shared = None  # index of the version 2 bufferView
     for p, k in order:
-        payload, meta = prims[p].chunks[k], prims[p].chunk_meta[k]
-        missing = [key for key in CHUNK_META_FIELDS if key not in meta]
-        if missing:
-            raise ValueError(f"write_pmw: chunk_meta[{k}] lacks {missing}")
-        raw_length = len(memoryview(payload).cast("B"))
-        if raw_length > MAX_DECOMPRESSED_CHUNK_BYTES:
-            raise ValueError(f"write_pmw: chunk {k} has {raw_length} bytes, over the limit {MAX_DECOMPRESSED_CHUNK_BYTES}")
-        # payload version 2 is a range-coded stream stored as it is (bitstream.md §8)
-        raw = payload_version(prims[p].extension) == 2
-        stored = bytes(memoryview(payload).cast("B")) if raw else compress_chunk(payload, zstd_level)
-        if len(stored) > MAX_CHUNK_BYTES:
-            raise ValueError(f"write_pmw: chunk {k} compresses to {len(stored)} bytes, over the limit {MAX_CHUNK_BYTES}")
-        views.append({"buffer": 0, "byteOffset": offset, "byteLength": len(stored)})
-        index[p][k] = {
-            "bufferView": len(views) - 1, "byteLength": len(stored), "digest": digest(stored),
-            **{key: meta[key] for key in CHUNK_META_FIELDS},
-            **{key: value for key, value in meta.items() if key not in CHUNK_META_FIELDS and key != "mac"},
-            "uncompressedLength": raw_length,
-        }
-        pad = padded(len(stored)) - len(stored)
+        stored, entry = _stored_chunk(prims[p], k, zstd_level)
+        if "byteOffset" not in entry:  # version 1
+            views.append({"buffer": 0, "byteOffset": offset, "byteLength": len(stored)})
+            entry = {"bufferView": len(views) - 1, **entry}  # key order is part of the bytes
+            pad = padded(len(stored)) - len(stored)
+        else:
+            if shared is None:
+                shared = len(views)
+                views.append({"buffer": 0, "byteOffset": offset, "byteLength": 0})
+            entry["bufferView"], entry["byteOffset"] = shared, offset - views[shared]["byteOffset"]
+            views[shared]["byteLength"] += len(stored)
+            pad = 0
+            if entry["splits"] != entry["vertexCount"] - vertices[p]:
+                raise ValueError(f"write_pmw: chunk_meta[{k}] has {entry['splits']} splits but adds "
+                                 f"{entry['vertexCount'] - vertices[p]} vertices")
+            vertices[p] = entry["vertexCount"]
+        index[p][k] = entry
         bin_parts += [stored, bytes(pad)] if pad else [stored]
         offset += len(stored) + pad
+    if offset != padded(offset):  # after the version 2 chunks
+        bin_parts.append(bytes(padded(offset) - offset))
+        offset = padded(offset)
     return index, offset
+
+
+def _stored_chunk(prim, k: int, zstd_level: int) -> tuple:
+    """``(stored bytes, index entry without bufferView)`` of chunk ``k`` of ``prim``: a zstd
+    frame (payload version 1) or the payload itself with a ``byteOffset`` to fill (version 2)."""
+    payload, meta = prim.chunks[k], prim.chunk_meta[k]
+    missing = [key for key in CHUNK_META_FIELDS if key not in meta]
+    if missing:
+        raise ValueError(f"write_pmw: chunk_meta[{k}] lacks {missing}")
+    raw_length = len(memoryview(payload).cast("B"))
+    if raw_length > MAX_DECOMPRESSED_CHUNK_BYTES:
+        raise ValueError(f"write_pmw: chunk {k} has {raw_length} bytes, over the limit {MAX_DECOMPRESSED_CHUNK_BYTES}")
+    if payload_version(prim.extension) == 2:  # a range-coded stream stored as it is (bitstream.md §8)
+        stored = bytes(memoryview(payload).cast("B"))
+        return stored, {
+            "byteOffset": None, "byteLength": len(stored), "digest": digest(stored, 2),
+            "vertexCount": meta["vertexCount"], "faceCount": meta["faceCount"],
+            "geometricError": round_up(meta["geometricError"]), "splits": meta["splits"], "uncompressedLength": raw_length,
+        }
+    stored = compress_chunk(payload, zstd_level)
+    if len(stored) > MAX_CHUNK_BYTES:
+        raise ValueError(f"write_pmw: chunk {k} compresses to {len(stored)} bytes, over the limit {MAX_CHUNK_BYTES}")
+    return stored, {
+        "byteLength": len(stored), "digest": digest(stored),
+        **{key: meta[key] for key in CHUNK_META_FIELDS},
+        **{key: value for key, value in meta.items() if key not in CHUNK_META_FIELDS and key != "mac"},
+        "uncompressedLength": raw_length,
+    }
+
+
+def round_up(value: float, digits: int = 3) -> float:
+    """The smallest number of ``digits`` significant decimal digits that is >= ``value`` (a
+    geometric error stays an upper bound; its JSON text stays short).  0 and non-finite values
+    are returned as floats unchanged."""
+    value = float(value)
+    if not (value > 0 and math.isfinite(value)):
+        return value
+    text = f"{value:.{digits - 1}e}"
+    if float(text) >= value:
+        return float(text)
+    mantissa, exponent = text.split("e")
+    return float(f"{float(mantissa) + 10.0 ** (1 - digits):.{digits - 1}f}e{exponent}")
+
+
+def compact_chunks(entries) -> dict:
+    """The chunk table of payload version 2 (bitstream.md §6.2) for per-chunk ``entries`` (the
+    shape :func:`~.extension.chunk_entries` returns, all in one bufferView): its inverse.
+    ``byteOffsets`` is written only when the chunks are not back to back from offset 0."""
+    entries = list(entries)
+    table = {"bufferView": entries[0]["bufferView"]} if entries else {}
+    offsets = [int(e["byteOffset"]) for e in entries]
+    if offsets != [sum(e["byteLength"] for e in entries[:k]) for k in range(len(entries))]:
+        table["byteOffsets"] = offsets
+    for name, field in TABLE_ARRAYS:
+        table[name] = [e[field] for e in entries]
+    table["digests"] = "".join(e["digest"] for e in entries)
+    if any("mac" in e for e in entries):
+        table["macs"] = "".join(e["mac"] for e in entries)
+    return table
 
 
 def _merge_primitives(doc: dict, prims, primitives_json, index, base_macs) -> list:
@@ -234,7 +313,8 @@ def _merge_primitives(doc: dict, prims, primitives_json, index, base_macs) -> li
     meshes = copy.deepcopy(doc.get("meshes", []))
     for p, (prim, pj) in enumerate(zip(prims, primitives_json)):
         own = {k: v for k, v in prim.extension.items() if k not in DERIVED_FIELDS}
-        ext = {"version": FORMAT_VERSION, **own, "chunks": index[p]}
+        chunks = compact_chunks(index[p]) if payload_version(prim.extension) == 2 else index[p]
+        ext = {"version": FORMAT_VERSION, **own, "chunks": chunks}
         if base_macs[p] is not None:
             ext["baseMac"] = base_macs[p][1]
         try:

@@ -17,6 +17,7 @@ from __future__ import annotations
 import os
 
 from ..constants import EXTENSION_NAME
+from .extension import chunk_start
 from .gltf import DRACO_EXTENSION, find_extension_primitives
 from .reader import read_header
 
@@ -35,7 +36,7 @@ def inspect(source) -> dict:
     header = read_header(source)
     gltf = header.gltf_json
     size = _size(source)
-    prims, rows = _primitives(gltf, header.bin_offset, size)
+    prims, rows = _primitives(gltf, header.extensions or (header.extension,), header.bin_offset, size)
     chunks = [dict(chunk=i + 1, **row) for i, (_, row) in enumerate(sorted(rows, key=lambda r: r[0]))]
     complete = None if size is None else size >= header.total_length
     ext = header.extension
@@ -55,16 +56,16 @@ def inspect(source) -> dict:
     }
 
 
-def _primitives(gltf: dict, bin_offset: int, size):
-    """``(primitive rows, [(byteOffset, chunk row), ...])`` of every progressive primitive.
+def _primitives(gltf: dict, exts, bin_offset: int, size):
+    """``(primitive rows, [(BIN offset, chunk row), ...])`` of every progressive primitive
+    (``exts`` their extension objects as the parser gives them: per-chunk entries).
 
     A chunk row's ``present`` says whether its last byte is within ``size`` (None if unknown).
     """
     accessors = gltf.get("accessors", [])
     views = gltf.get("bufferViews", [])
     prims, rows = [], []
-    for p, (mi, pi, prim) in enumerate(find_extension_primitives(gltf, EXTENSION_NAME)):
-        ext = prim["extensions"][EXTENSION_NAME]
+    for p, ((mi, pi, prim), ext) in enumerate(zip(find_extension_primitives(gltf, EXTENSION_NAME), exts)):
         base_vertices = accessors[prim["attributes"]["POSITION"]]["count"]
         base_faces = accessors[prim["indices"]]["count"] // 3 if "indices" in prim else base_vertices // 3
         prims.append({
@@ -76,11 +77,11 @@ def _primitives(gltf: dict, bin_offset: int, size):
             "chunks": len(ext["chunks"]),
         })
         for c in ext["chunks"]:
-            view = views[c["bufferView"]]
-            end = bin_offset + view.get("byteOffset", 0) + view["byteLength"]
-            rows.append((view.get("byteOffset", 0), {
+            start = chunk_start(views, c)
+            end = bin_offset + start + c["byteLength"]
+            rows.append((start, {
                 "primitive": p, "splits": c["splits"], "vertices": c["vertexCount"], "faces": c["faceCount"],
-                "bytes": view["byteLength"], "geometric_error": c.get("geometricError"),
+                "bytes": c["byteLength"], "geometric_error": c.get("geometricError"),
                 "present": None if size is None else end <= size}))
     return prims, rows
 

@@ -11,7 +11,8 @@ only the key holder can compute (normative text: ``spec/bitstream.md`` §6.3):
   *decoded* base mesh (grid integers, faces, progressive attributes);
 * ``mac`` on every chunk entry: BLAKE2b-128 keyed the same way over the primitive's
   ``baseMac``, the primitive ordinal and chunk index, the entry (everything but
-  ``bufferView``, which a cut renumbers, and ``mac``) and the raw (decompressed) payload.
+  ``bufferView``, which a cut renumbers, and ``mac``; payload version 2: the five values
+  its chunk table stores, :data:`CHUNK_MAC_FIELDS_V2`) and the raw (decompressed) payload.
   The entry holds the ``digest`` of the stored bytes, so the stored bytes are covered too.
 
 Every field of the MAC input is framed as ``uint64_le(len) || bytes``; JSON values are
@@ -27,6 +28,7 @@ import json
 
 import numpy as np
 
+from .extension import payload_version
 from .layout import DIGEST_SIZE
 from .parser import BaseEvent, ChunkEvent, HeaderEvent
 
@@ -34,6 +36,9 @@ from .parser import BaseEvent, ChunkEvent, HeaderEvent
 BASE_MAC_EXCLUDED = ("chunks", "vertexCount", "faceCount", "baseMac")
 #: Chunk entry fields left out of its ``mac``: renumbered by a cut, or the MAC itself.
 CHUNK_MAC_EXCLUDED = ("bufferView", "mac")
+#: Chunk entry fields its ``mac`` covers in payload version 2: the chunk table's values for it
+#: (not the bufferView and offset a cut or rewrite may move, nor the fields derived from them).
+CHUNK_MAC_FIELDS_V2 = ("byteLength", "digest", "faceCount", "geometricError", "vertexCount")
 _BASE_LABEL = b"pmwm/base-mac/v1"
 _CHUNK_LABEL = b"pmwm/chunk-mac/v1"
 
@@ -77,13 +82,16 @@ def base_mac(mac_key: bytes, primitive: int, extension: dict, positions_int, fac
                           _int64(positions, 3), _int64(faces, 3), _int64(attributes, width) if width else b""])
 
 
-def chunk_mac(mac_key: bytes, base_mac_hex: str, primitive: int, chunk: int, entry: dict, payload) -> str:
+def chunk_mac(mac_key: bytes, base_mac_hex: str, primitive: int, chunk: int, entry: dict, payload, version: int = 1) -> str:
     """32 hex digits: the ``mac`` of chunk ``chunk`` of primitive ``primitive``.
 
-    ``entry`` its index entry (excluded fields are ignored); ``payload`` the raw
-    (decompressed) chunk bytes.
+    ``entry`` its index entry (:func:`~.extension.chunk_entries`; fields outside the MAC are
+    ignored); ``payload`` the raw (decompressed) chunk bytes; ``version`` the payload version.
     """
-    fields = {k: v for k, v in entry.items() if k not in CHUNK_MAC_EXCLUDED}
+    if version == 2:  # geometricError always as a float: "0" written by a JSON tool MACs as 0.0
+        fields = {**{k: entry[k] for k in CHUNK_MAC_FIELDS_V2}, "geometricError": float(entry["geometricError"])}
+    else:
+        fields = {k: v for k, v in entry.items() if k not in CHUNK_MAC_EXCLUDED}
     place = int(primitive).to_bytes(4, "little") + int(chunk).to_bytes(4, "little")
     return _mac(mac_key, [_CHUNK_LABEL, bytes.fromhex(base_mac_hex), place, canonical_json(fields),
                           bytes(memoryview(payload).cast("B"))])
@@ -132,7 +140,8 @@ class MacChecker:
             if entry.get("mac") is None or ext.get("baseMac") is None:
                 return None
             return _verified(lambda: same_mac(
-                chunk_mac(self._key, ext["baseMac"], event.primitive, event.chunk, entry, event.payload), entry["mac"]))
+                chunk_mac(self._key, ext["baseMac"], event.primitive, event.chunk, entry, event.payload,
+                          payload_version(ext)), entry["mac"]))
         return NotImplemented
 
 

@@ -51,7 +51,7 @@ from ..constants import (
 from ..errors import ChecksumError, FormatError, LimitError, TruncatedError
 from ..progressive.grid import Grid
 from . import base as _base
-from .extension import check_extension, digest, payload_version
+from .extension import check_extension, chunk_entries, digest, payload_version
 from .gltf import find_extension_primitives, uint, view_range
 from .layout import (
     ALIGNMENT,
@@ -214,7 +214,7 @@ def _plan(gltf: dict, exts: list, bin_capacity: int) -> _Plan:
         previous_end = base_end
         for k, chunk in enumerate(ext["chunks"]):
             what = f"{EXTENSION_NAME}: " + (f"primitive {p} " if len(exts) > 1 else "") + f"chunks[{k}]"
-            start, end = _chunk_range(views, chunk, buffer_length, what, previous_end)
+            start, end = _chunk_range(views, chunk, buffer_length, what, previous_end, payload_version(ext))
             ranges.append((start, end, p, k))
             previous_end = end
     ranges.sort()
@@ -224,8 +224,9 @@ def _plan(gltf: dict, exts: list, bin_capacity: int) -> _Plan:
     return _Plan(tuple(primitives), tuple(exts), base_end, tuple(ranges), buffer_length)
 
 
-def _chunk_range(views, chunk, buffer_length, what, previous_end):
-    """Check one chunk entry; return its (start, end) in the BIN payload."""
+def _chunk_range(views, chunk, buffer_length, what, previous_end, version=1):
+    """Check one chunk entry; return its (start, end) in the BIN payload.  A version 1 chunk
+    is its whole bufferView; a version 2 chunk lies at its ``byteOffset`` inside it."""
     if chunk["byteLength"] > MAX_CHUNK_BYTES:
         raise LimitError(f"{what}: byteLength {chunk['byteLength']} exceeds the limit {MAX_CHUNK_BYTES}")
     if chunk["uncompressedLength"] > MAX_DECOMPRESSED_CHUNK_BYTES:
@@ -233,7 +234,12 @@ def _chunk_range(views, chunk, buffer_length, what, previous_end):
     if chunk["vertexCount"] > MAX_VERTICES or chunk["faceCount"] > MAX_FACES:
         raise LimitError(f"{what}: {chunk['vertexCount']} vertices / {chunk['faceCount']} faces exceed the limits")
     start, end = view_range(views, chunk["bufferView"], buffer_length, what)
-    if end - start != chunk["byteLength"]:
+    if version == 2:
+        start, view_end = start + chunk["byteOffset"], end
+        end = start + chunk["byteLength"]
+        if end > view_end:
+            raise FormatError(f"{what}: ends at {end}, past the end {view_end} of its bufferView")
+    elif end - start != chunk["byteLength"]:
         raise FormatError(f"{what}: byteLength {chunk['byteLength']} differs from bufferView length {end - start}")
     if start < previous_end:
         raise FormatError(f"{what}: bufferView starts at {start}, before the end {previous_end} of the data before it (overlap or out of stream order)")
@@ -444,14 +450,21 @@ def _load_json(text: bytes):
         raise FormatError(f"GLB JSON chunk: not valid UTF-8 JSON ({str(exc).splitlines()[0]})") from None
     if not isinstance(gltf, dict):
         raise FormatError("GLB JSON chunk: top level is not an object")
-    found = find_extension_primitives(gltf, EXTENSION_NAME)
-    return gltf, [check_extension(prim["extensions"][EXTENSION_NAME]) for _, _, prim in found]
+    exts = []
+    for _, _, prim in find_extension_primitives(gltf, EXTENSION_NAME):
+        ext = check_extension(prim["extensions"][EXTENSION_NAME])
+        if payload_version(ext) == 2:  # the compact table as per-chunk entries (the gltf keeps it as stored)
+            ext = {**ext, "chunks": chunk_entries(ext, _base.base_counts(gltf, prim)[0])}
+        else:
+            chunk_entries(ext, 0)  # a version 1 object must hold an array
+        exts.append(ext)
+    return gltf, exts
 
 
 def _open_chunk(k: int, stored: bytes, meta: dict, version: int = 1) -> bytes:
     """Digest-check chunk ``k`` and return its raw payload: the zstd frame decompressed
     (payload version 1, bitstream.md §5) or the stored range-coded stream itself (version 2, §8)."""
-    if digest(stored) != meta["digest"]:
+    if digest(stored, version) != meta["digest"]:
         raise ChecksumError(f"chunk {k + 1}: digest mismatch, the stored bytes are corrupt", chunk=k)
     declared = meta["uncompressedLength"]
     if version == 2:

@@ -6,7 +6,9 @@ three.js, but its GLB header still announces the full length, so strict glTF too
 it as a complete file:
 
 * the chunk index of every progressive primitive keeps only the chunks kept (the
-  first ``chunks`` of the stream, in stream order, or all that arrived whole);
+  first ``chunks`` of the stream, in stream order, or all that arrived whole); a payload
+  version 2 chunk table is rewritten compact, its shared bufferView shortened to the
+  last kept chunk;
 * the extension's ``vertexCount`` / ``faceCount`` become the counts of the level
   reached (the counts after its last kept chunk, or of the base);
 * the bufferViews of dropped chunks are removed and every bufferView reference is
@@ -29,7 +31,8 @@ from ..errors import TruncatedError
 from ..format import BaseEvent, ChunkEvent, ContainerParser, HeaderEvent
 from ..format.base import base_counts
 from ..format.document import _view_sites as document_view_sites
-from ..format.glb import glb_parts
+from ..format.extension import chunk_start, payload_version
+from ..format.glb import compact_chunks, glb_parts
 from ..format.gltf import find_extension_primitives
 from ..format.layout import padded
 from ..sources import iter_blocks
@@ -71,14 +74,20 @@ def cut_file(source, chunks: int | None = None) -> CutResult:
     per_primitive = [0] * len(found)
     for event in kept:
         per_primitive[event.primitive] = max(per_primitive[event.primitive], event.chunk + 1)
-    dropped = set()
-    for (_, _, prim), count in zip(found, per_primitive):
+    dropped, kept_ends = set(), {}
+    for (_, _, prim), entries, count in zip(found, header.extensions, per_primitive):
         ext = prim["extensions"][EXTENSION_NAME]
-        dropped.update(int(c["bufferView"]) for c in ext["chunks"][count:])
-        level = ext["chunks"][count - 1] if count else _base_counts(gltf, prim)
+        entries = entries["chunks"]  # per-chunk entries, the compact table of payload version 2 expanded
+        dropped.update(int(c["bufferView"]) for c in entries[count:])
+        for c in entries[:count]:
+            end = int(c.get("byteOffset", 0)) + int(c["byteLength"])
+            kept_ends[c["bufferView"]] = max(kept_ends.get(c["bufferView"], 0), end)
+        level = entries[count - 1] if count else _base_counts(gltf, prim)
         ext["vertexCount"], ext["faceCount"] = int(level["vertexCount"]), int(level["faceCount"])
-        ext["chunks"] = ext["chunks"][:count]
-    bin_bytes = _compact(gltf, dropped, received, header.bin_offset)
+        ext["chunks"] = compact_chunks(entries[:count]) if payload_version(ext) == 2 else ext["chunks"][:count]
+    for view, end in kept_ends.items():  # a shared version 2 bufferView ends after its last kept chunk
+        gltf["bufferViews"][view]["byteLength"] = end
+    bin_bytes = _compact(gltf, dropped - set(kept_ends), received, header.bin_offset)
     data = b"".join(glb_parts(gltf, [bin_bytes], len(bin_bytes)))
     return CutResult(data, len(kept), _available(header, len(received)), header.chunk_count, complete)
 
@@ -118,7 +127,7 @@ def _available(header, received: int) -> int:
     have = received - header.bin_offset
     return sum(
         1 for ext in header.extensions or (header.extension,) for c in ext["chunks"]
-        if int(views[c["bufferView"]].get("byteOffset", 0)) + int(c["byteLength"]) <= have
+        if chunk_start(views, c) + int(c["byteLength"]) <= have
     )
 
 
@@ -133,8 +142,10 @@ def _view_sites(gltf: dict):
     and the chunk entries of every progressive primitive."""
     yield from document_view_sites(gltf)
     for _, _, prim in find_extension_primitives(gltf, EXTENSION_NAME):
-        for chunk in prim["extensions"][EXTENSION_NAME]["chunks"]:
-            yield chunk, "bufferView"
+        chunks = prim["extensions"][EXTENSION_NAME]["chunks"]
+        for holder in chunks if isinstance(chunks, list) else [chunks]:  # entries, or a version 2 table
+            if "bufferView" in holder:
+                yield holder, "bufferView"
 
 
 def _compact(gltf: dict, dropped: set, received: bytes, bin_offset: int) -> bytes:

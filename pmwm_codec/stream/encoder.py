@@ -234,9 +234,9 @@ def encode_document(
         The key file to create or reuse (its existing key should be ``key``); the key file
         (if new) is published just before the ``.pmw``, under one directory lock, so a
         failure at any moment leaves the old pair or the new one (:func:`_publish`).
-    payload_version : chunk payload format, 1 (zstd columns, bitstream.md §6) or 2 (one
-        range-coded stream per chunk, §8: about 40 % fewer bytes, decoded by the Python reader only
-        so far).
+    payload_version : chunk payload format, 2 (the default: one range-coded stream per chunk,
+        bitstream.md §8, indexed by a compact chunk table, §6.2) or 1 (zstd columns, §6, one
+        index entry per chunk).
     progress : optional callable(stage: str, fraction: float).
 
     The same arguments give the same bytes.

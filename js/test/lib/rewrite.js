@@ -38,16 +38,20 @@ export function chunkPayloads(bytes) {
 
 /**
  * `bytes` with stream chunk `index` holding `payload` (bufferViews after it shifted), its index
- * entry then given the fields of `patch` (e.g. a wrong uncompressedLength).
+ * entry then given the fields of `patch` (e.g. a wrong uncompressedLength). Payload version 2: the
+ * chunk table's entries are updated (later chunks of the shared bufferView shift) and `patch` is
+ * applied to the table itself.
  */
 export function withPayload(bytes, index, payload, patch = {}) {
   const h = parseGlb(bytes);
   const gltf = structuredClone(h.gltf);
   const plan = planDocument(gltf, h.binLength);
   const c = plan.stream[index];
-  const entry = gltf.meshes[plan.primitives[c.primitive].mesh].primitives[plan.primitives[c.primitive].primitive]
-    .extensions.PMWM_progressive_mesh.chunks[c.chunk];
-  const frame = c.payloadVersion === 2 ? payload : rawFrame(payload);
+  const chunks = gltf.meshes[plan.primitives[c.primitive].mesh].primitives[plan.primitives[c.primitive].primitive]
+    .extensions.PMWM_progressive_mesh.chunks;
+  if (c.payloadVersion === 2) return withV2Payload(bytes, h, gltf, plan, c, chunks, payload, patch);
+  const entry = chunks[c.chunk];
+  const frame = rawFrame(payload);
   const padded = (n) => (n + 3) & ~3;
   const delta = padded(frame.length) - padded(c.length);
   for (const v of gltf.bufferViews) if ((v.byteOffset ?? 0) > c.offset) v.byteOffset += delta;
@@ -59,6 +63,39 @@ export function withPayload(bytes, index, payload, patch = {}) {
   bin.set(frame, c.offset);
   bin.set(oldBin.subarray(c.offset + padded(c.length)), c.offset + padded(frame.length));
   gltf.buffers[0].byteLength = Math.min(bin.length, gltf.buffers[0].byteLength + delta);
+  return glb(gltf, bin);
+}
+
+/** withPayload for a chunk of a version 2 chunk table: the chunks lie back to back in one bufferView. */
+function withV2Payload(bytes, h, gltf, plan, c, table, payload, patch) {
+  const padded = (n) => (n + 3) & ~3;
+  const view = gltf.bufferViews[table.bufferView];
+  const viewEnd = (view.byteOffset ?? 0) + view.byteLength;
+  const d = payload.length - c.length;
+  const delta = padded(viewEnd + d) - padded(viewEnd);
+  for (const v of gltf.bufferViews) if ((v.byteOffset ?? 0) >= padded(viewEnd) && v !== view) v.byteOffset += delta;
+  view.byteLength += d;
+  for (const p of plan.primitives) { // every table in this bufferView: offsets after the chunk move by d
+    const t = gltf.meshes[p.mesh].primitives[p.primitive].extensions.PMWM_progressive_mesh.chunks;
+    if (t.byteOffsets) t.byteOffsets = t.byteOffsets.map((o) => ((view.byteOffset ?? 0) + o > c.offset ? o + d : o));
+  }
+  table.byteLengths[c.chunk] = payload.length;
+  const hex = blake.init().update(payload).digest('hex').slice(0, 16);
+  table.digests = table.digests.slice(0, 16 * c.chunk) + hex + table.digests.slice(16 * c.chunk + 16);
+  Object.assign(table, patch);
+  const oldBin = bytes.subarray(h.binStart, h.binStart + h.binLength);
+  const bin = new Uint8Array(padded(h.binLength + delta));
+  bin.set(oldBin.subarray(0, c.offset));
+  bin.set(payload, c.offset);
+  bin.set(oldBin.subarray(c.offset + c.length, viewEnd), c.offset + payload.length);
+  bin.set(oldBin.subarray(padded(viewEnd)), padded(viewEnd + d));
+  gltf.buffers[0].byteLength = Math.min(bin.length, gltf.buffers[0].byteLength + delta);
+  return glb(gltf, bin);
+}
+
+/** A GLB of a glTF JSON object and its BIN bytes (4-byte aligned). */
+function glb(gltf, bin) {
+  const padded = (n) => (n + 3) & ~3;
   let json = new TextEncoder().encode(JSON.stringify(gltf));
   const jsonPadded = new Uint8Array(padded(json.length)).fill(0x20);
   jsonPadded.set(json);
