@@ -166,7 +166,8 @@ def load_meshes(corpus: str, big: bool):
 class StageTimers:
     """Wrap the stage functions encode_mesh looks up in its module; collect times and outputs."""
 
-    STAGES = ("simplify", "encode_base", "build_progressive", "pack_batches", "write_parts", "assemble_document")
+    STAGES = ("simplify", "encode_base", "build_progressive", "pack_batches", "pack_chunks", "write_parts",
+              "assemble_document")
 
     def __init__(self):
         self.times = {}
@@ -339,11 +340,19 @@ def bench_mesh(name, mesh, repeats, zstd_level, log):
     for bits in (14, 16):
         res[f"parts{bits}"] = glb_parts(data[bits])
 
-    # profile: one more q14 encode with stage timers (plus the records, for the column breakdown)
+    # profile: one more q14 encode with stage timers; the column breakdown needs the version 1 records
+    # (version 2 is one range-coded stream, no columns), so with version 2 a version 1 encode of the same
+    # batches is captured after the timed one
     with StageTimers() as st:
         t = time.perf_counter()
-        pmwm_codec.encode(mesh, io.BytesIO(), measure=False, grid_bits=14, zstd_level=zstd_level)
+        pmwm_codec.encode(mesh, io.BytesIO(), measure=False, grid_bits=14, zstd_level=zstd_level,
+                          payload_version=PAYLOAD_VERSION[0])
         total = time.perf_counter() - t
+    if not st.packed_chunks:
+        with StageTimers() as v1:
+            pmwm_codec.encode(mesh, io.BytesIO(), measure=False, grid_bits=14, zstd_level=zstd_level,
+                              payload_version=1)
+        st.packed_chunks = v1.packed_chunks
     stages = dict(st.times)
     # pack_batches runs inside encode_document before assemble_document, which does the zstd compression
     res["profile"] = {"total": total, **stages}
@@ -652,10 +661,14 @@ def render(results, info, command) -> str:
     L.append(table(["mesh", "grid bits", "ours bytes", "ours bpv", "Draco q14 cl7 bytes", "Draco bpv",
                     f"ratio (target <= {SIZE_TARGET:g}x at 14 bits)"], rows))
     L.append("")
+    v2_note = ("" if PAYLOAD_VERSION[0] == 1 else
+               " The file is payload version 2 (one range-coded stream per chunk, no columns); the column rows "
+               "show the same batches coded as payload version 1, for reference (their shares and bits/vertex are "
+               "against this file's size, so they add up to more than its chunk bytes).")
     L.append("Where our bytes go (grid 14). File parts come from the file's own index; payload columns are "
              "each column of every chunk compressed alone with the same zstd level (level "
              f"{ZSTD_LEVEL_USED[0]}), so their sum differs slightly from the stored chunks. "
-             "Bits per split = column bits / splits.")
+             "Bits per split = column bits / splits." + v2_note)
     L.append("")
     for r in results:
         p = r["parts14"]
@@ -668,12 +681,13 @@ def render(results, info, command) -> str:
              f"{8 * (p['glb_headers'] + p['json']) / n:.2f}", "", ""],
             [f"base mesh (Draco, {r['report14']['base_vertices']:,} V)", f"{p['base']:,}",
              f"{100 * p['base'] / total:.1f}%", f"{8 * p['base'] / n:.2f}", "", ""],
-            [f"split chunks as stored ({r['report14']['chunks']} zstd frames)", f"{p['chunks'] + p['chunk_padding']:,}",
+            [f"split chunks as stored ({r['report14']['chunks']} chunks, payload v{PAYLOAD_VERSION[0]})", f"{p['chunks'] + p['chunk_padding']:,}",
              f"{100 * (p['chunks'] + p['chunk_padding']) / total:.1f}%", f"{8 * (p['chunks'] + p['chunk_padding']) / n:.2f}",
              f"{8 * p['chunks'] / k:.1f}", ""],
         ]
         for col in ("header+table", "gaps", "symbols", "residual_x", "residual_y", "residual_z"):
-            rows.append([f"&nbsp;&nbsp;column {col}", f"{c[col]:,}", f"{100 * c[col] / total:.1f}%",
+            label = f"&nbsp;&nbsp;column {col}" + ("" if PAYLOAD_VERSION[0] == 1 else " (as v1)")
+            rows.append([label, f"{c[col]:,}", f"{100 * c[col] / total:.1f}%",
                          f"{8 * c[col] / n:.2f}", f"{8 * c[col] / k:.2f}", f"{8 * raw[col] / k:.1f}"])
         rows.append(["total file", f"{total:,}", "100%", f"{8 * total / n:.2f}", f"{8 * total / k:.1f}", ""])
         L.append(f"**{r['name']}** ({n:,} V, {k:,} splits in {r['batches']} batches):")
@@ -694,7 +708,8 @@ def render(results, info, command) -> str:
     L.append("")
     rows = []
     for r in results:
-        p = r["profile"]
+        p = dict(r["profile"])
+        p["pack_batches"] = p.get("pack_batches", 0.0) + p.pop("pack_chunks", 0.0)  # v1 or v2 payloads
         named = {"simplify": "simplify", "encode_base": "base (Draco encode + check)",
                  "build_progressive": "build records", "pack_batches": "pack payloads",
                  "assemble_document": "zstd + GLB assembly", "write_parts": "write"}
