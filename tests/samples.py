@@ -68,3 +68,15 @@ PAYLOAD_EXAMPLE = [
     SplitBatch(np.array([2, 5]), np.array([1, 2, 0, 4], np.uint8), np.array([[1, -1, 0, 5], [3, 0, -2, -1]])),
     SplitBatch(np.array([0]), np.array([3], np.uint8), np.array([[-300, 2, 0, 0]])),
 ]
+
+
+def edit_chunk_table(ext: dict, edit) -> None:
+    """Rewrite the packed chunk table of extension object ``ext`` (in place): ``edit(entries)``
+    changes the per-chunk entries the reader expands (``chunk_entries``) and the table is packed
+    again from them -- a table a writer with other values would have written."""
+    from pmwm_codec.format.extension import chunk_entries
+    from pmwm_codec.format.glb import compact_chunks
+
+    entries = chunk_entries(ext, 0)
+    edit(entries)
+    ext["chunks"] = compact_chunks(entries)

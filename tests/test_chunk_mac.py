@@ -3,9 +3,12 @@ or the base of a marked file, even after recomputing the public digests, without
 
 from __future__ import annotations
 
+import base64
 import hashlib
 import io
+import itertools
 import json
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +28,7 @@ from pmwm_codec.verify import verify_stream
 from pmwm_codec.watermark.key import WatermarkKey
 
 from conftest import marked_sphere
+from samples import edit_chunk_table
 import pytest
 
 CONFORMANCE = Path(__file__).resolve().parents[1] / "spec" / "conformance"
@@ -168,7 +172,7 @@ def test_stripped_macs_make_a_marked_file_not_authentic(version):
         for entry in chunks if version == 1 else []:
             del entry["mac"]
         if version == 2:
-            del chunks["macs"]
+            edit_chunk_table(_ext(gltf), lambda entries: [entry.pop("mac") for entry in entries])
 
     outcome = verify_stream(_rewrite_json(data, strip), key)
     assert outcome.mac["checked"] == 0 and len(outcome.mac["missing"]) == len(outcome.results)
@@ -228,17 +232,46 @@ def test_an_index_entry_without_a_canonical_form_fails_its_mac_instead_of_crashi
     assert all(a is False for a in answers(lambda ext: ext.update(baseMac="not hex")))
 
 
+def _unpack_from_spec_text(table: dict) -> dict:
+    """The packed chunk table (bitstream.md §6.2) read byte by byte as the spec words it, without
+    the reader's code: ``{"byteLengths", "vertexCounts", "faceCounts", "geometricErrors", "digests", "macs"}``."""
+    data, count = base64.b64decode(table["packed"]), table["count"]
+    assert data[0] in (0, 1)
+    at, out = 1, {}
+    out["digests"] = [data[at + 8 * k : at + 8 * k + 8].hex() for k in range(count)]
+    at += 8 * count
+    out["macs"] = [data[at + 16 * k : at + 16 * k + 16].hex() for k in range(count)] if data[0] else None
+    at += 16 * count if data[0] else 0
+    out["geometricErrors"] = list(struct.unpack_from(f"<{count}f", data, at))
+    at += 4 * count
+    values = []
+    while at < len(data):
+        value = shift = 0
+        while True:
+            value |= (data[at] & 0x7F) << shift
+            shift, at = shift + 7, at + 1
+            if data[at - 1] < 0x80:
+                break
+        values.append(value)
+    assert len(values) == 3 * count
+    out["byteLengths"] = values[:count]
+    out["vertexCounts"] = list(itertools.accumulate(values[count : 2 * count]))
+    out["faceCounts"] = list(itertools.accumulate(values[2 * count :]))
+    return out
+
+
 def test_a_v2_chunk_mac_recomputed_from_the_spec_text_matches_the_file():
     """Payload version 2 (bitstream.md §6.2, §6.3): the MAC of chunk k covers the five values its
-    chunk table stores for it and the stored stream; recomputed independently for chunk 2."""
+    packed chunk table stores for it (the geometric error as the float32 widened to a double) and the
+    stored stream; table and MAC recomputed independently for chunk 2."""
     data, key, _ = marked_sphere(7)
     gltf, binary = split_glb(data)
     ext, k = _ext(gltf), 2
-    table = ext["chunks"]
-    start = gltf["bufferViews"][table["bufferView"]]["byteOffset"] + sum(table["byteLengths"][:k])
+    table = _unpack_from_spec_text(ext["chunks"])
+    start = gltf["bufferViews"][ext["chunks"]["bufferView"]]["byteOffset"] + sum(table["byteLengths"][:k])
     payload = binary[start : start + table["byteLengths"][k]]
-    assert hashlib.blake2b(payload, digest_size=16).hexdigest()[:16] == table["digests"][16 * k : 16 * k + 16]
-    fields = {"byteLength": table["byteLengths"][k], "digest": table["digests"][16 * k : 16 * k + 16],
+    assert hashlib.blake2b(payload, digest_size=16).hexdigest()[:16] == table["digests"][k]
+    fields = {"byteLength": table["byteLengths"][k], "digest": table["digests"][k],
               "faceCount": table["faceCounts"][k], "geometricError": table["geometricErrors"][k],
               "vertexCount": table["vertexCounts"][k]}
     parts = [b"pmwm/chunk-mac/v1", bytes.fromhex(ext["baseMac"]), (0).to_bytes(4, "little") + k.to_bytes(4, "little"),
@@ -246,7 +279,7 @@ def test_a_v2_chunk_mac_recomputed_from_the_spec_text_matches_the_file():
     h = hashlib.blake2b(key=key.mac_key(), digest_size=16)
     for part in parts:
         h.update(len(part).to_bytes(8, "little") + part)
-    assert h.hexdigest() == table["macs"][32 * k : 32 * k + 32]
+    assert h.hexdigest() == table["macs"][k]
 
 
 def test_a_changed_v2_chunk_table_value_fails_that_chunk_s_mac():
@@ -254,7 +287,7 @@ def test_a_changed_v2_chunk_table_value_fails_that_chunk_s_mac():
     data, key, _ = marked_sphere(7)
 
     def change(gltf, binary):
-        _ext(gltf)["chunks"]["geometricErrors"][1] *= 2
+        edit_chunk_table(_ext(gltf), lambda entries: entries[1].update(geometricError=2 * entries[1]["geometricError"]))
 
     outcome = verify_stream(_rewrite_json(data, change), key)
     assert 2 in outcome.mac["failed"]  # chunk rows count from 1 (row 0 is the base)

@@ -21,8 +21,8 @@ from pmwm_codec.cli import main
 from pmwm_codec.constants import EXTENSION_NAME
 from pmwm_codec.errors import FormatError
 from pmwm_codec.format import read_header
-from pmwm_codec.format.extension import chunk_entries
-from pmwm_codec.format.glb import build_pmw, compact_chunks, round_up, split_glb
+from pmwm_codec.format.extension import chunk_entries, float32_up, pack_chunk_table
+from pmwm_codec.format.glb import build_pmw, compact_chunks, split_glb
 from pmwm_codec.meshio import write_mesh
 from pmwm_codec.stream.cut import cut
 from pmwm_codec.stream.encoder import PrimitiveJob, encode_document
@@ -39,7 +39,7 @@ def _entries(lengths, gaps, macs: bool, base: int = 7) -> list:
         offset += gap
         vertices += k % 3
         entry = {"bufferView": 4, "byteOffset": offset, "byteLength": length, "vertexCount": vertices,
-                 "faceCount": 2 * vertices, "geometricError": round_up(1.0 / (k + 1)), "digest": f"{k:016x}",
+                 "faceCount": 2 * vertices, "geometricError": float32_up(1.0 / (k + 1)), "digest": f"{k:016x}",
                  "splits": k % 3, "uncompressedLength": length}
         if macs:
             entry["mac"] = f"{k:032x}"
@@ -49,34 +49,50 @@ def _entries(lengths, gaps, macs: bool, base: int = 7) -> list:
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.lists(st.tuples(st.integers(1, 5000), st.integers(0, 3)), max_size=40), st.booleans())
-def test_the_chunk_table_reads_back_to_the_entries_it_was_written_from(chunks, macs):
+@given(st.lists(st.tuples(st.integers(1, 5000), st.integers(0, 3)), max_size=40), st.booleans(), st.booleans())
+def test_the_chunk_table_reads_back_to_the_entries_it_was_written_from(chunks, macs, packed):
     lengths, gaps = [c[0] for c in chunks], [c[1] for c in chunks]
     entries = _entries(lengths, gaps, macs)
-    table = compact_chunks(entries)
+    table = compact_chunks(entries, packed=packed)
     ext = {"payload": {"codec": "pmwm-vsplit", "version": 2}, "chunks": json.loads(json.dumps(table))}
     assert chunk_entries(ext, 7) == entries
     assert ("byteOffsets" in table) == any(gaps)  # back to back from 0 needs no offsets
-    assert ("macs" in table) == (macs and bool(chunks))
+    assert ("packed" in table) == packed and ("macs" in table) == (macs and bool(chunks) and not packed)
 
 
-@given(st.floats(min_value=1e-300, max_value=1e300, allow_nan=False, allow_infinity=False))
-def test_a_rounded_geometric_error_is_the_smallest_three_digit_bound(value):
-    up = round_up(value)
-    assert up >= value
-    assert float(f"{up:.2e}") == up  # three significant digits
-    mantissa, exponent = f"{up:.2e}".split("e")
-    below = float(f"{float(mantissa) - 0.01:.2f}e{exponent}")
-    assert below < value or math.isclose(below, value)
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.tuples(st.integers(1, (1 << 32) - 1), st.integers(0, (1 << 32) - 1),
+                          st.integers(0, (1 << 32) - 1)), max_size=12))
+def test_packed_values_up_to_32_bits_read_back_exactly(values):
+    lengths = [v[0] for v in values]
+    vertices = sorted(v[1] for v in values)
+    faces = sorted(v[2] for v in values)
+    entries = [{"bufferView": 0, "byteOffset": sum(lengths[:k]), "byteLength": n, "vertexCount": v, "faceCount": f,
+                "geometricError": 0.0, "digest": f"{k:016x}", "splits": v - (vertices[k - 1] if k else 0),
+                "uncompressedLength": n} for k, (n, v, f) in enumerate(zip(lengths, vertices, faces))]
+    ext = {"payload": {"codec": "pmwm-vsplit", "version": 2}, "chunks": compact_chunks(entries)}
+    assert chunk_entries(ext, 0) == entries
 
 
-@pytest.mark.parametrize("value", [0.0, 0.5, 1.0, 123.0, 0.00123])
-def test_round_numbers_stay_as_they_are(value):
-    assert round_up(value) == value
+@given(st.floats(min_value=0, max_value=1e38, allow_nan=False, allow_infinity=False))
+def test_a_geometric_error_rounded_to_float32_stays_the_smallest_float32_bound(value):
+    up = float32_up(value)
+    assert up >= value and float(np.float32(up)) == up
+    assert float(np.nextafter(np.float32(up), np.float32(0))) < value or up == 0
+
+
+def test_the_packed_writer_refuses_values_it_cannot_give_back():
+    entries = _entries([5, 6], [0, 0], False)
+    with pytest.raises(ValueError, match="float32"):
+        pack_chunk_table([{**entries[0], "geometricError": 0.1}])
+    with pytest.raises(ValueError, match="decrease"):
+        pack_chunk_table([entries[1], {**entries[0], "faceCount": 0}])
+    with pytest.raises(ValueError, match="MAC"):
+        pack_chunk_table([{**entries[0], "mac": "00" * 16}, entries[1]])
 
 
 def test_a_table_whose_vertex_counts_decrease_is_a_format_error():
-    table = compact_chunks(_entries([5, 6], [0, 0], False))
+    table = compact_chunks(_entries([5, 6], [0, 0], False), packed=False)
     table["vertexCounts"] = [9, 8]
     with pytest.raises(FormatError, match="smaller"):
         chunk_entries({"payload": {"codec": "pmwm-vsplit", "version": 2}, "chunks": table}, 7)
@@ -118,7 +134,8 @@ def test_encode_writes_payload_version_2_with_one_chunk_bufferview_by_default():
     assert len(entries) > 1 and {e["bufferView"] for e in entries} == {ext["chunks"]["bufferView"]}
     assert "byteOffsets" not in ext["chunks"]  # one primitive: back to back from the view's start
     view = gltf["bufferViews"][ext["chunks"]["bufferView"]]
-    assert view["byteLength"] == sum(ext["chunks"]["byteLengths"])
+    assert view["byteLength"] == sum(e["byteLength"] for e in entries)
+    assert "packed" in ext["chunks"] and ext["chunks"]["count"] == len(entries)
 
 
 def test_the_v2_index_costs_a_fraction_of_the_v1_index_of_the_same_stream():
@@ -129,9 +146,11 @@ def test_the_v2_index_costs_a_fraction_of_the_v1_index_of_the_same_stream():
         ext = gltf["meshes"][0]["primitives"][0]["extensions"][EXTENSION_NAME]
         chunk_views = len(ext["chunks"]) if version == 1 else 1
         sizes[version] = len(json.dumps(ext["chunks"], separators=(",", ":"))) + 50 * chunk_views  # + bufferViews
-    count = read_header(_encode(mesh)).chunk_count
-    assert sizes[2] * 4 < sizes[1]
-    assert sizes[2] < 64 * count + 100  # ~16 digest digits and four numbers a chunk
+    entries = read_header(_encode(mesh)).extension["chunks"]
+    assert sizes[2] * 8 < sizes[1]
+    assert sizes[2] < 32 * len(entries) + 100  # base64 of an 8-byte digest, a float32 and three small varints
+    arrays = len(json.dumps(compact_chunks(entries, packed=False), separators=(",", ":")))
+    assert sizes[2] - 50 < 0.75 * arrays  # the JSON arrays of the same values (files before the packed form)
 
 
 def test_pmw_encode_defaults_to_version_2_and_still_writes_version_1_on_request(tmp_path, capsys):
@@ -171,11 +190,14 @@ def test_two_primitives_share_one_chunk_bufferview_and_every_cut_keeps_its_macs(
 
 
 def test_a_v2_mac_survives_a_json_writer_that_prints_a_zero_error_as_an_integer():
-    """JavaScript's JSON.stringify writes 0.0 as 0 (the last chunk's geometricError)."""
+    """JavaScript's JSON.stringify writes 0.0 as 0 (the last chunk's geometricError) in a table of
+    JSON arrays (files written before the packed form; the same values rewritten in that form here)."""
     data, key = _two_primitive_marked_file()
     gltf, binary = split_glb(data)
     for prim in gltf["meshes"][0]["primitives"]:
-        errors = prim["extensions"][EXTENSION_NAME]["chunks"]["geometricErrors"]
+        ext = prim["extensions"][EXTENSION_NAME]
+        ext["chunks"] = compact_chunks(chunk_entries(ext, 0), packed=False)
+        errors = ext["chunks"]["geometricErrors"]
         assert errors[-1] == 0.0
         errors[-1] = 0
     from pmwm_codec.format.glb import glb_parts

@@ -7,7 +7,9 @@ give a FormatError (never a crash or a hang).
 
 from __future__ import annotations
 
+import base64
 import io
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -28,6 +30,7 @@ from pmwm_codec.verify import verify_mesh, verify_stream
 from pmwm_codec.watermark.key import WatermarkKey
 
 from conftest import GENERATED, corpus_path
+from samples import edit_chunk_table
 from test_golden import _sphere_with_attributes
 
 
@@ -247,7 +250,8 @@ def _with_chunk(data, k, stored: bytes) -> bytes:
     start = chunk_start(gltf["bufferViews"], entries[k])
     assert len(stored) == entries[k]["byteLength"]
     binary[start : start + len(stored)] = stored
-    table["digests"] = table["digests"][: 16 * k] + digest(stored, 2) + table["digests"][16 * (k + 1) :]
+    edit_chunk_table(gltf["meshes"][0]["primitives"][0]["extensions"][EXTENSION_NAME],
+                     lambda entries: entries[k].update(digest=digest(stored, 2)))
     return b"".join(glb_parts(gltf, [bytes(binary)], len(binary)))
 
 
@@ -283,12 +287,47 @@ def test_random_payload_bytes_give_a_format_error(v2_file):
             _decode_all(_with_chunk(v2_file, k, rng.integers(0, 256, size, dtype=np.uint8).tobytes()))
 
 
+LEGACY_V2 = Path(__file__).resolve().parents[1] / "spec" / "conformance" / "grid-hole.plain.v2.pmw"
+
+
 @pytest.mark.parametrize("field", ["vertexCounts", "faceCounts", "geometricErrors", "byteLengths", "digests"])
-def test_a_v2_chunk_table_whose_arrays_disagree_is_refused(v2_file, field):
-    gltf, binary, table, _ = _chunk_entries(v2_file)
+def test_a_v2_chunk_table_whose_json_arrays_disagree_is_refused(field):
+    gltf, binary = split_glb(LEGACY_V2.read_bytes())  # a file written before the packed form
+    table = gltf["meshes"][0]["primitives"][0]["extensions"][EXTENSION_NAME]["chunks"]
     table[field] = table[field][:-1]
     with pytest.raises(FormatError):
         _decode_all(b"".join(glb_parts(gltf, [bytes(binary)], len(binary))))
+
+
+def _repacked(table: dict, change) -> dict:
+    """``table`` with its packed bytes passed through ``change(bytearray) -> bytes`` (count kept)."""
+    return {**table, "packed": base64.b64encode(change(bytearray(base64.b64decode(table["packed"])))).decode()}
+
+
+MALFORMED_PACKED = {
+    "count one more": lambda t: {**t, "count": t["count"] + 1},
+    "count one less": lambda t: {**t, "count": t["count"] - 1},
+    "count past the limit": lambda t: {**t, "count": 1 << 20},
+    "a byte missing": lambda t: _repacked(t, lambda b: b[:-1]),
+    "a byte too many": lambda t: _repacked(t, lambda b: b + b"\x00"),
+    "a reserved flag bit": lambda t: _repacked(t, lambda b: bytes([b[0] | 2]) + b[1:]),
+    "an overlong varint": lambda t: _repacked(t, lambda b: b[:-1] + b"\x80\x80\x80\x80\x80\x00"),
+    "a NaN geometric error": lambda t: _repacked(t, lambda b: b[: 1 + 8 * t["count"]] + b"\x00\x00\xc0\x7f"
+                                                 + b[1 + 8 * t["count"] + 4 :]),
+    "not base64": lambda t: {**t, "packed": t["packed"][:-4] + "!!!="},
+    "a JSON array beside it": lambda t: {**t, "byteLengths": [1]},
+}
+
+
+@pytest.mark.parametrize("damage", sorted(MALFORMED_PACKED))
+def test_a_malformed_packed_chunk_table_is_a_one_line_format_error(v2_file, damage):
+    gltf, binary, table, _ = _chunk_entries(v2_file)
+    assert "packed" in table
+    ext = gltf["meshes"][0]["primitives"][0]["extensions"][EXTENSION_NAME]
+    ext["chunks"] = MALFORMED_PACKED[damage](table)
+    with pytest.raises(FormatError) as info:
+        _decode_all(b"".join(glb_parts(gltf, [bytes(binary)], len(binary))))
+    assert "\n" not in str(info.value)
 
 
 def test_a_v2_chunk_past_the_end_of_its_bufferview_is_refused(v2_file):

@@ -16,12 +16,16 @@ after the parser (replay, MACs, cut, inspect) reads one shape; the writer's side
 
 from __future__ import annotations
 
+import base64
+import binascii
 import functools
 import hashlib
 import json
 from pathlib import Path
 
-from ..constants import EXTENSION_NAME, FORMAT_VERSION
+import numpy as np
+
+from ..constants import EXTENSION_NAME, FORMAT_VERSION, MAX_CHUNKS
 from ..errors import FormatError, UnsupportedVersionError
 from .layout import DIGEST_SIZE
 
@@ -46,6 +50,10 @@ MAC_HEX = 32
 #: Compact chunk table (payload version 2): its per-chunk arrays and the entry field each one fills.
 TABLE_ARRAYS = (("byteLengths", "byteLength"), ("vertexCounts", "vertexCount"), ("faceCounts", "faceCount"),
                 ("geometricErrors", "geometricError"))
+#: Packed chunk table (bitstream.md §6.2): bit 0 of its first byte says it holds MACs; the other bits are 0.
+PACKED_MACS_FLAG = 1
+#: Bytes of one digest / one MAC / one geometric error in the packed table; a varint has at most 5 bytes.
+PACKED_DIGEST, PACKED_MAC, PACKED_ERROR, VARINT_MAX = 8, 16, 4, 5
 
 
 def digest(data, version: int = 1) -> str:
@@ -56,13 +64,14 @@ def digest(data, version: int = 1) -> str:
 
 def chunk_entries(ext: dict, base_vertices: int) -> list:
     """The per-chunk index entries of a checked extension object ``ext``: its ``chunks`` array
-    (payload version 1, the same dicts) or its compact table expanded (version 2).
+    (payload version 1, the same dicts) or its chunk table expanded (version 2), whether the
+    table holds JSON arrays or the packed binary form (``count`` + ``packed``).
 
     An expanded entry holds ``bufferView``, ``byteOffset`` (inside that bufferView),
     ``byteLength``, ``digest``, ``vertexCount``, ``faceCount``, ``geometricError``, ``mac`` when
-    the table has ``macs``, and the derived ``splits`` (vertices added: one per split, the
+    the table has MACs, and the derived ``splits`` (vertices added: one per split, the
     first chunk counted from the base's ``base_vertices``) and ``uncompressedLength``
-    (= ``byteLength``).  FormatError when the table's arrays disagree.
+    (= ``byteLength``).  FormatError when the table's arrays disagree or the packed bytes are malformed.
     """
     table = ext["chunks"]
     if payload_version(ext) != 2:
@@ -71,30 +80,152 @@ def chunk_entries(ext: dict, base_vertices: int) -> list:
         return table
     if not isinstance(table, dict):
         raise FormatError(f"{EXTENSION_NAME}: chunks must be a chunk table object for payload version 2")
-    count = len(table["byteLengths"])
-    columns = [(field, table[name]) for name, field in TABLE_ARRAYS]
-    digests, macs = table["digests"], table.get("macs")
+    columns = unpack_chunk_table(table["count"], table["packed"]) if "packed" in table else _json_columns(table)
+    count = len(columns["byteLength"])
     offsets = table.get("byteOffsets")
     if offsets is None:  # back to back from the start of the bufferView
         offsets = [0] * count
         for k in range(1, count):
-            offsets[k] = offsets[k - 1] + table["byteLengths"][k - 1]
-    if any(len(values) != count for _, values in columns) or len(offsets) != count or \
-            len(digests) != count * DIGEST_HEX[2] or (macs is not None and len(macs) != count * MAC_HEX) or \
-            (count and "bufferView" not in table):
+            offsets[k] = offsets[k - 1] + columns["byteLength"][k - 1]
+    if len(offsets) != count or (count and "bufferView" not in table):
         raise FormatError(f"{EXTENSION_NAME}: chunks: the table's arrays do not all describe {count} chunks")
     entries, previous = [], base_vertices
     for k in range(count):
-        entry = {"bufferView": table.get("bufferView"), "byteOffset": offsets[k], **{f: v[k] for f, v in columns},
-                 "digest": digests[k * DIGEST_HEX[2] : (k + 1) * DIGEST_HEX[2]]}
-        if macs is not None:
-            entry["mac"] = macs[k * MAC_HEX : (k + 1) * MAC_HEX]
+        entry = {"bufferView": table.get("bufferView"), "byteOffset": offsets[k],
+                 **{field: columns[field][k] for _, field in TABLE_ARRAYS}, "digest": columns["digest"][k]}
+        if "mac" in columns:
+            entry["mac"] = columns["mac"][k]
         entry["splits"], previous = entry["vertexCount"] - previous, entry["vertexCount"]
         if entry["splits"] < 0:
             raise FormatError(f"{EXTENSION_NAME}: chunks: vertexCounts[{k}] is smaller than the count before it")
         entry["uncompressedLength"] = entry["byteLength"]
         entries.append(entry)
     return entries
+
+
+def _json_columns(table: dict) -> dict:
+    """The per-chunk values of a chunk table in JSON-array form, by entry field (lists of length K)."""
+    count = len(table["byteLengths"])
+    columns = {field: table[name] for name, field in TABLE_ARRAYS}
+    digests, macs = table["digests"], table.get("macs")
+    if any(len(values) != count for values in columns.values()) or len(digests) != count * DIGEST_HEX[2] or \
+            (macs is not None and len(macs) != count * MAC_HEX):
+        raise FormatError(f"{EXTENSION_NAME}: chunks: the table's arrays do not all describe {count} chunks")
+    columns["digest"] = [digests[k * DIGEST_HEX[2] : (k + 1) * DIGEST_HEX[2]] for k in range(count)]
+    if macs is not None:
+        columns["mac"] = [macs[k * MAC_HEX : (k + 1) * MAC_HEX] for k in range(count)]
+    return columns
+
+
+def pack_chunk_table(entries) -> dict:
+    """``{"count": K, "packed": base64}``: the packed chunk table (bitstream.md §6.2) of per-chunk
+    ``entries`` (``byteLength``, ``vertexCount``, ``faceCount``, ``geometricError`` (a float32
+    value: :func:`float32_up`), ``digest`` (16 hex digits), ``mac`` on every entry or on none).
+
+    ValueError when a value does not fit (counts decreasing, a length over 32 bits, an error
+    that is not a float32) -- the inverse :func:`unpack_chunk_table` must give the same values back.
+    """
+    entries = list(entries)
+    macs = [e["mac"] for e in entries if "mac" in e]
+    if macs and len(macs) != len(entries):
+        raise ValueError("chunk table: a MAC on some chunks but not on all")
+    errors = np.array([e["geometricError"] for e in entries], dtype=np.float64)
+    if not np.array_equal(errors.astype(np.float32).astype(np.float64), errors):
+        raise ValueError("chunk table: a geometric error is not a float32 value")
+    varints = [np.array([e["byteLength"] for e in entries], dtype=np.int64)]
+    for field in ("vertexCount", "faceCount"):
+        varints.append(np.diff(np.array([e[field] for e in entries], dtype=np.int64), prepend=0))
+    varints = np.concatenate(varints)
+    if varints.size and (varints.min() < 0 or varints.max() >= 1 << 32):
+        raise ValueError("chunk table: counts must not decrease and every value must fit in 32 bits")
+    data = b"".join([bytes([PACKED_MACS_FLAG if macs else 0]), bytes.fromhex("".join(e["digest"] for e in entries)),
+                     bytes.fromhex("".join(macs)), errors.astype("<f4").tobytes(), _leb128(varints)])
+    return {"count": len(entries), "packed": base64.b64encode(data).decode("ascii")}
+
+
+def _leb128(values: np.ndarray) -> bytes:
+    """Unsigned LEB128 of (n,) int64 ``values`` in [0, 2**32): 7 bits a byte, low first, bit 7 = more follow."""
+    values = values.astype(np.uint64)
+    sizes = 1 + sum((values >> np.uint64(7 * j) > 0).astype(np.int64) for j in range(1, VARINT_MAX))
+    out = np.zeros(int(sizes.sum()), np.uint8)
+    starts = np.cumsum(sizes) - sizes
+    for j in range(VARINT_MAX):
+        live = sizes > j
+        more = (sizes > j + 1)[live].astype(np.uint8) << 7
+        out[starts[live] + j] = ((values[live] >> np.uint64(7 * j)) & np.uint64(0x7F)).astype(np.uint8) | more
+    return out.tobytes()
+
+
+def unpack_chunk_table(count, packed) -> dict:
+    """The per-chunk values of a packed chunk table, by entry field: ``byteLength``,
+    ``vertexCount``, ``faceCount`` (lists of int), ``geometricError`` (float: the float32
+    widened), ``digest`` and ``mac`` (lists of hex strings; ``mac`` only when the table has MACs).
+
+    ``count`` (K) and the base64 text's length are checked before anything is decoded or
+    allocated; FormatError (one line) for malformed base64, a wrong length, reserved flag bits,
+    a varint over 5 bytes or 32 bits, or a negative or non-finite geometric error.
+    """
+    def bad(why):
+        return FormatError(f"{EXTENSION_NAME}: chunks: packed table: {why}")
+
+    if not isinstance(count, int) or isinstance(count, bool) or not 0 <= count <= MAX_CHUNKS:
+        raise bad(f"count must be an integer in [0, {MAX_CHUNKS}]")
+    longest = 1 + count * (PACKED_DIGEST + PACKED_MAC + PACKED_ERROR + 3 * VARINT_MAX)
+    if not isinstance(packed, str) or len(packed) > 4 * -(-longest // 3):
+        raise bad(f"longer than {count} chunks can need")
+    try:
+        data = np.frombuffer(base64.b64decode(packed, validate=True), np.uint8)
+    except (binascii.Error, ValueError):
+        raise bad("not valid base64") from None
+    if not len(data) or int(data[0]) & ~PACKED_MACS_FLAG:
+        raise bad("missing or reserved flag bits")
+    fixed = PACKED_DIGEST + PACKED_ERROR + (PACKED_MAC if data[0] else 0)
+    at = 1 + count * fixed
+    if len(data) < at + 3 * count:
+        raise bad(f"{len(data)} bytes are too few for {count} chunks")
+    digests = data[1 : 1 + count * PACKED_DIGEST].reshape(count, PACKED_DIGEST)
+    columns = {"digest": [bytes(row).hex() for row in digests]}
+    if data[0]:
+        macs = data[1 + count * PACKED_DIGEST : 1 + count * (PACKED_DIGEST + PACKED_MAC)].reshape(count, PACKED_MAC)
+        columns["mac"] = [bytes(row).hex() for row in macs]
+    errors = data[at - count * PACKED_ERROR : at].view("<f4").astype(np.float64)
+    if not (np.isfinite(errors).all() and (errors >= 0).all()):
+        raise bad("a geometric error is negative or not finite")
+    varints = _read_leb128(data[at:], 3 * count, bad)
+    columns["byteLength"] = varints[:count].tolist()
+    columns["vertexCount"] = np.cumsum(varints[count : 2 * count]).tolist()
+    columns["faceCount"] = np.cumsum(varints[2 * count :]).tolist()
+    columns["geometricError"] = errors.tolist()
+    if count and min(columns["byteLength"]) < 1:
+        raise bad("a chunk has byteLength 0")
+    return columns
+
+
+def _read_leb128(data: np.ndarray, n: int, bad) -> np.ndarray:
+    """Exactly ``n`` unsigned LEB128 values filling uint8 ``data`` (m,), as (n,) int64; ``bad(why)`` the error."""
+    ends = np.flatnonzero(data < 0x80)
+    if len(ends) != n or (n and ends[-1] != len(data) - 1) or (not n and len(data)):
+        raise bad(f"the varints are not exactly {n} values")
+    sizes = np.diff(ends, prepend=-1)
+    if n and sizes.max() > VARINT_MAX:
+        raise bad(f"a varint longer than {VARINT_MAX} bytes")
+    values = np.zeros(n, np.int64)
+    starts = ends - sizes + 1
+    for j in range(VARINT_MAX):
+        live = sizes > j
+        values[live] |= (data[starts[live] + j].astype(np.int64) & 0x7F) << (7 * j)
+    if n and values.max() >= 1 << 32:
+        raise bad("a varint over 32 bits")
+    return values
+
+
+def float32_up(value: float) -> float:
+    """The smallest float32 value >= ``value`` (a finite, non-negative geometric error), as a
+    float: stored in a packed chunk table it stays an upper bound and reads back exactly."""
+    low = np.float32(value)
+    if float(low) < value:
+        low = np.nextafter(low, np.float32(np.inf))
+    return float(low)
 
 
 def chunk_start(views: list, entry: dict) -> int:

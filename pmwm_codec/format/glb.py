@@ -17,8 +17,8 @@ Contract (DESIGN.md §4)
   ``splits``/``vertexCount``/``faceCount``/``geometricError``.
 * Payload version 2: the chunks (range-coded streams) are stored as they are, back to back
   in ONE bufferView shared by every progressive primitive, and ``chunks`` is the compact
-  chunk table of :func:`compact_chunks` (bitstream.md §6.2: parallel arrays, 64-bit
-  digests, geometric errors rounded up to 3 digits, MACs concatenated).
+  chunk table of :func:`compact_chunks` (bitstream.md §6.2: the per-chunk values packed in
+  one base64 string -- 64-bit digests, MACs, geometric errors rounded up to float32, varints).
 * Given a MAC key (a watermarked file), every chunk gets its keyed ``mac`` and the extension
   object its ``baseMac`` (:mod:`.mac`; a caller's ``baseMac`` or ``mac`` is never copied).
 * The extension object sits on the mesh primitive under ``EXTENSION_NAME``, is listed in
@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import copy
 import json
-import math
 import os
 from dataclasses import dataclass
 
@@ -47,7 +46,8 @@ from ..errors import FormatError, InputFormatError
 from .base import EncodedBase, decode_base_attributes
 from .gltf import DRACO_EXTENSION
 from .extension import (
-    CHUNK_META_FIELDS, DERIVED_FIELDS, RESERVED_FIELDS, TABLE_ARRAYS, check_extension, digest, payload_version,
+    CHUNK_META_FIELDS, DERIVED_FIELDS, RESERVED_FIELDS, TABLE_ARRAYS, check_extension, digest, float32_up,
+    pack_chunk_table, payload_version,
 )
 from .mac import base_mac, chunk_mac
 from .layout import (
@@ -263,7 +263,7 @@ def _stored_chunk(prim, k: int, zstd_level: int) -> tuple:
         return stored, {
             "byteOffset": None, "byteLength": len(stored), "digest": digest(stored, 2),
             "vertexCount": meta["vertexCount"], "faceCount": meta["faceCount"],
-            "geometricError": round_up(meta["geometricError"]), "splits": meta["splits"], "uncompressedLength": raw_length,
+            "geometricError": float32_up(meta["geometricError"]), "splits": meta["splits"], "uncompressedLength": raw_length,
         }
     stored = compress_chunk(payload, zstd_level)
     if len(stored) > MAX_CHUNK_BYTES:
@@ -276,29 +276,22 @@ def _stored_chunk(prim, k: int, zstd_level: int) -> tuple:
     }
 
 
-def round_up(value: float, digits: int = 3) -> float:
-    """The smallest number of ``digits`` significant decimal digits that is >= ``value`` (a
-    geometric error stays an upper bound; its JSON text stays short).  0 and non-finite values
-    are returned as floats unchanged."""
-    value = float(value)
-    if not (value > 0 and math.isfinite(value)):
-        return value
-    text = f"{value:.{digits - 1}e}"
-    if float(text) >= value:
-        return float(text)
-    mantissa, exponent = text.split("e")
-    return float(f"{float(mantissa) + 10.0 ** (1 - digits):.{digits - 1}f}e{exponent}")
-
-
-def compact_chunks(entries) -> dict:
+def compact_chunks(entries, packed: bool = True) -> dict:
     """The chunk table of payload version 2 (bitstream.md §6.2) for per-chunk ``entries`` (the
     shape :func:`~.extension.chunk_entries` returns, all in one bufferView): its inverse.
+
+    ``packed``: the values as one base64 string (``count`` + ``packed``, what the writer
+    writes; every ``geometricError`` must be a float32 value); otherwise the JSON arrays of
+    older files (a cut keeps a table in the form it found, so its MACs stay valid).
     ``byteOffsets`` is written only when the chunks are not back to back from offset 0."""
     entries = list(entries)
     table = {"bufferView": entries[0]["bufferView"]} if entries else {}
     offsets = [int(e["byteOffset"]) for e in entries]
     if offsets != [sum(e["byteLength"] for e in entries[:k]) for k in range(len(entries))]:
         table["byteOffsets"] = offsets
+    if packed:
+        table.update(pack_chunk_table(entries))
+        return table
     for name, field in TABLE_ARRAYS:
         table[name] = [e[field] for e in entries]
     table["digests"] = "".join(e["digest"] for e in entries)

@@ -7,8 +7,8 @@ it as a complete file:
 
 * the chunk index of every progressive primitive keeps only the chunks kept (the
   first ``chunks`` of the stream, in stream order, or all that arrived whole); a payload
-  version 2 chunk table is rewritten compact, its shared bufferView shortened to the
-  last kept chunk;
+  version 2 chunk table is rewritten in the form it had (packed or JSON arrays), its shared
+  bufferView shortened to the last kept chunk;
 * the extension's ``vertexCount`` / ``faceCount`` become the counts of the level
   reached (the counts after its last kept chunk, or of the base);
 * the bufferViews of dropped chunks are removed and every bufferView reference is
@@ -84,7 +84,10 @@ def cut_file(source, chunks: int | None = None) -> CutResult:
             kept_ends[c["bufferView"]] = max(kept_ends.get(c["bufferView"], 0), end)
         level = entries[count - 1] if count else _base_counts(gltf, prim)
         ext["vertexCount"], ext["faceCount"] = int(level["vertexCount"]), int(level["faceCount"])
-        ext["chunks"] = compact_chunks(entries[:count]) if payload_version(ext) == 2 else ext["chunks"][:count]
+        if payload_version(ext) == 2:  # in the form it was found: its values, hence its MACs, unchanged
+            ext["chunks"] = compact_chunks(entries[:count], packed="packed" in ext["chunks"])
+        else:
+            ext["chunks"] = ext["chunks"][:count]
     for view, end in kept_ends.items():  # a shared version 2 bufferView ends after its last kept chunk
         gltf["bufferViews"][view]["byteLength"] = end
     bin_bytes = _compact(gltf, dropped - set(kept_ends), received, header.bin_offset)
