@@ -84,7 +84,7 @@ def test_a_textured_asset_stores_its_base_then_its_image_then_the_chunks(texture
     prim = gltf["meshes"][0]["primitives"][0]
     base_views = {gltf["accessors"][a]["bufferView"] for a in [*prim["attributes"].values(), prim["indices"]]}
     image_view = gltf["images"][0]["bufferView"]
-    end = lambda i: views[i]["byteOffset"] + views[i]["byteLength"]  # noqa: E731
+    end = lambda i: views[i].get("byteOffset", 0) + views[i]["byteLength"]  # noqa: E731
     assert max(end(i) for i in base_views) <= views[image_view]["byteOffset"]
     assert end(image_view) <= min(views[i]["byteOffset"] for i in _chunk_views(gltf))
 
@@ -92,7 +92,7 @@ def test_a_textured_asset_stores_its_base_then_its_image_then_the_chunks(texture
 def test_the_textured_base_decodes_from_the_bytes_of_the_base_and_its_image(textured_pmw):
     gltf, bin_start = _json_and_bin(textured_pmw)
     views = gltf["bufferViews"]
-    needed = bin_start + max(v["byteOffset"] + v["byteLength"] for i, v in enumerate(views) if i not in _chunk_views(gltf))
+    needed = bin_start + max(v.get("byteOffset", 0) + v["byteLength"] for i, v in enumerate(views) if i not in _chunk_views(gltf))
     glb, end, _ = decode_asset(textured_pmw[:needed])
     assert end.chunks_applied == 0
     full, _, _ = decode_asset(textured_pmw)
@@ -232,7 +232,7 @@ def _old_order(data: bytes) -> bytes:
         if i in doc_views:
             view["byteOffset"] -= lo
         elif i not in chunk_views:
-            view["byteOffset"] += hi - lo
+            view["byteOffset"] = view.get("byteOffset", 0) + hi - lo
     moved = payload[lo:hi] + payload[:lo] + payload[hi:]
     return b"".join(glb_parts(gltf, [moved], len(moved)))
 

@@ -4,6 +4,7 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from pmwm_codec.constants import MAX_VERTICES
 from pmwm_codec.errors import FormatError, LimitError
@@ -155,3 +156,28 @@ def test_decode_base_rejects_a_face_that_repeats_a_vertex(mesh):
     data[start:start + idx.nbytes] = idx.tobytes()
     with pytest.raises(FormatError, match="repeats a vertex"):
         basecodec.decode_base(gltf, bytes(data), grid, prim)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(width=32, allow_nan=False, allow_infinity=False))
+def test_float32_min_max_text_is_the_shortest_that_reads_back_to_the_same_float32(x):
+    from pmwm_codec.format.gltf import float32_numbers
+
+    (y,) = float32_numbers([x])
+    text = json.dumps(y)
+    assert np.float32(json.loads(text)) == np.float32(x)
+    assert len(text) <= len(repr(float(np.float32(x))))
+
+
+@pytest.mark.parametrize("codec", ["plain", "draco"])
+def test_the_written_base_leaves_out_glTF_defaults_and_long_float_texts(codec):
+    from pmwm_codec.format.glb import split_glb
+    from samples import sample_pmw
+
+    data, *_ = sample_pmw(codec, chunk_count=2)
+    gltf, _ = split_glb(data)
+    assert "mode" not in gltf["meshes"][0]["primitives"][0]
+    assert all(view.get("byteOffset", 1) != 0 for view in gltf["bufferViews"])
+    position = gltf["accessors"][gltf["meshes"][0]["primitives"][0]["attributes"]["POSITION"]]
+    for value in position["min"] + position["max"]:
+        assert json.dumps(value) == str(np.float32(value))

@@ -71,10 +71,15 @@ CASES = {
 #: File versions with conformance files: FORMAT_VERSION (payload version 1), and ``2``, the same
 #: cases with chunk payload version 2 (bitstream.md §8; the extension object is still version 1).
 VERSIONS = (FORMAT_VERSION, 2)
+#: The conformance file sets: (version, packed chunk table).  ``<name>.v2`` files hold the chunk
+#: table as JSON arrays (written before the packed form, frozen: the writer no longer writes them);
+#: ``<name>.packed.v2`` the packed table (bitstream.md §6.2) the writer writes today.
+VARIANTS = ((FORMAT_VERSION, False), (2, False), (2, True))
+FROZEN = {(2, False)}
 
 
-def _path(name, suffix, version=FORMAT_VERSION):
-    return CONFORMANCE / f"{name}.v{version}{suffix}"
+def _path(name, suffix, version=FORMAT_VERSION, packed=False):
+    return CONFORMANCE / f"{name}{'.packed' if packed else ''}.v{version}{suffix}"
 
 
 def _decode(data, key=None):
@@ -130,31 +135,31 @@ def _expected_arrays(results):
     return out
 
 
-def _write(name, version):
+def _write(name, version, packed=False):
     case = CASES[name]()
     mesh = case.pop("mesh")
     data, key = _encode(mesh, payload_version=1 if version == FORMAT_VERSION else version, **case)
     CONFORMANCE.mkdir(parents=True, exist_ok=True)
-    _path(name, ".pmw", version).write_bytes(data)
+    _path(name, ".pmw", version, packed).write_bytes(data)
     if key is not None:
-        key.save(_path(name, ".key.json", version))
+        key.save(_path(name, ".key.json", version, packed))
     results, _ = _decode(data, key)
-    np.savez_compressed(_path(name, ".expected.npz", version), **_expected_arrays(results))
+    np.savez_compressed(_path(name, ".expected.npz", version, packed), **_expected_arrays(results))
 
 
-@pytest.mark.parametrize("version", VERSIONS)
+@pytest.mark.parametrize("version, packed", VARIANTS, ids=["v1", "v2", "packed.v2"])
 @pytest.mark.parametrize("name", sorted(CASES))
-def test_conformance_file_decodes_to_its_expected_levels(name, version, update_golden):
-    if update_golden:
-        _write(name, version)
-    pmw = _path(name, ".pmw", version)
+def test_conformance_file_decodes_to_its_expected_levels(name, version, packed, update_golden):
+    if update_golden and (version, packed) not in FROZEN:
+        _write(name, version, packed)
+    pmw = _path(name, ".pmw", version, packed)
     if not pmw.exists():
         pytest.fail(f"{pmw.name} is missing; generate it with: python -m pytest tests/test_golden.py --update-golden")
-    key_path = _path(name, ".key.json", version)
+    key_path = _path(name, ".key.json", version, packed)
     key = WatermarkKey.load(key_path) if key_path.exists() else None
     results, end = _decode(pmw.read_bytes(), key)
     assert end.complete
-    with np.load(_path(name, ".expected.npz", version)) as expected:
+    with np.load(_path(name, ".expected.npz", version, packed)) as expected:
         want = dict(expected)
     assert [r.bytes_read for r in results] == want["chunk_bytes"].tolist(), (
         "decoding changed: if the format changed on purpose, bump FORMAT_VERSION and run with --update-golden"

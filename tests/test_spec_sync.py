@@ -1,5 +1,6 @@
 """spec/ and the code say the same thing: byte tables, limits, schemas, examples."""
 
+import base64
 import json
 import re
 from pathlib import Path
@@ -79,6 +80,26 @@ def test_bitstream_payload_example_is_what_pack_writes():
     assert f"Its payload is {len(packed)} bytes" in section
     back = records.unpack_batches(packed, width=4)
     assert [b.v.tolist() for b in back] == [[2, 5], [0]]
+
+
+def test_bitstream_packed_chunk_table_example_is_what_the_writer_packs_and_the_reader_expands():
+    from pmwm_codec.format.extension import chunk_entries, float32_up
+    from pmwm_codec.format.glb import compact_chunks
+
+    text = (SPEC / "bitstream.md").read_text()
+    section = text[text.index("*Worked example* (two chunks, no MACs") :]
+    block = re.search(r"```\n(.*?)```", section, re.S).group(1)
+    hex_text = "".join(re.match(r"(?:[0-9a-f]{2}\s+)*", line + " ").group(0) for line in block.splitlines())
+    table = json.loads(re.search(r'the table is `(\{.*?\})`', section).group(1).replace("…", "3"))
+    entries = [{"bufferView": 3, "byteOffset": 0, "byteLength": 300, "vertexCount": 120, "faceCount": 236,
+                "geometricError": float32_up(0.0125), "digest": "0123456789abcdef", "splits": 120, "uncompressedLength": 300},
+               {"bufferView": 3, "byteOffset": 300, "byteLength": 129, "vertexCount": 250, "faceCount": 496,
+                "geometricError": 0.0, "digest": "fedcba9876543210", "splits": 130, "uncompressedLength": 129}]
+    assert compact_chunks(entries) == table
+    assert base64.b64decode(table["packed"]) == bytes.fromhex(hex_text.replace(" ", ""))
+    assert f"{len(bytes.fromhex(hex_text))} bytes; the table is" in section
+    assert chunk_entries({"payload": {"codec": "pmwm-vsplit", "version": 2}, "chunks": table}, 0) == entries
+    assert repr(entries[0]["geometricError"]) in section
 
 
 def test_bitstream_payload_limits_match_records():

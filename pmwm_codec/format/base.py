@@ -48,6 +48,7 @@ from .gltf import (
     VECTOR_WIDTH,
     accessor_array,
     find_extension_primitive,
+    float32_numbers,
     item,
     uint,
     view_bytes,
@@ -206,7 +207,7 @@ def _encode_plain(pos: np.ndarray, tri: np.ndarray, grid: Grid) -> EncodedBase:
         _position_accessor(stored, bufferView=0),
         {"bufferView": 1, "componentType": index_type, "count": int(tri.size), "type": "SCALAR"},
     ]
-    primitive = {"attributes": {"POSITION": 0}, "indices": 1, "mode": TRIANGLES}
+    primitive = {"attributes": {"POSITION": 0}, "indices": 1}  # mode: TRIANGLES, the glTF default
     return EncodedBase(
         codec="plain", grid=grid, data=bytes(data), buffer_views=buffer_views, accessors=accessors,
         primitive=primitive, positions_int=pos.copy(), faces=tri.copy(), vertex_map=np.arange(n, dtype=np.int64),
@@ -214,10 +215,11 @@ def _encode_plain(pos: np.ndarray, tri: np.ndarray, grid: Grid) -> EncodedBase:
 
 
 def _position_accessor(stored: np.ndarray, **extra) -> dict:
-    """POSITION accessor with exact float32 min/max (the validator compares them bit-exactly)."""
+    """POSITION accessor with exact float32 min/max (the validator compares them as float32),
+    each written as the shortest decimal of its float32.  ``stored`` (n, 3) float32."""
     return {
         **extra, "componentType": FLOAT, "count": int(stored.shape[0]), "type": "VEC3",
-        "min": [float(x) for x in stored.min(0)], "max": [float(x) for x in stored.max(0)],
+        "min": float32_numbers(stored.min(0)), "max": float32_numbers(stored.max(0)),
     }
 
 
@@ -263,7 +265,7 @@ def _try_draco(pos, tri, grid, preserve_order, level):
     ]
     attribute_ids = {"POSITION": int(ids[_DRACO_POSITION_TYPE])}
     primitive = {
-        "attributes": {"POSITION": 0}, "indices": 1, "mode": TRIANGLES,
+        "attributes": {"POSITION": 0}, "indices": 1,  # mode: TRIANGLES, the glTF default
         "extensions": {DRACO_EXTENSION: {"bufferView": 0, "attributes": attribute_ids}},
     }
     data = bytes(encoded) + bytes(padded(len(encoded)) - len(encoded))

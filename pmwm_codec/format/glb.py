@@ -44,7 +44,7 @@ from ..atomic import write_atomic
 from ..constants import EXTENSION_NAME, FORMAT_VERSION, MAX_CHUNK_BYTES, MAX_CHUNKS, MAX_DECOMPRESSED_CHUNK_BYTES
 from ..errors import FormatError, InputFormatError
 from .base import EncodedBase, decode_base_attributes
-from .gltf import DRACO_EXTENSION
+from .gltf import DRACO_EXTENSION, without_defaults
 from .extension import (
     CHUNK_META_FIELDS, DERIVED_FIELDS, RESERVED_FIELDS, TABLE_ARRAYS, check_extension, digest, float32_up,
     pack_chunk_table, payload_version,
@@ -345,7 +345,7 @@ def _document(doc: dict, meshes, accessors, views, bin_length: int, used, requir
     if "meshes" not in gltf:
         gltf["meshes"] = meshes
     gltf["accessors"] = accessors
-    gltf["bufferViews"] = views
+    gltf["bufferViews"] = [without_defaults(view) for view in views]
     gltf["buffers"] = [{"byteLength": bin_length}]
     return gltf
 

@@ -50,6 +50,18 @@ VECTOR_WIDTH = {name: width for width, name in WIDTH_TYPE.items()}
 _REQUIRED = object()
 
 
+def float32_numbers(values) -> list:
+    """float32 ``values`` (any shape, flattened) as the floats whose JSON text is the shortest
+    decimal reading back to the same float32 (``0.1``, not ``0.10000000149011612``): glTF stores
+    accessor ``min``/``max`` of FLOAT components as single precision values."""
+    return [float(str(x)) for x in np.asarray(values, dtype=np.float32).ravel()]
+
+
+def without_defaults(view: dict) -> dict:
+    """A bufferView without a ``byteOffset`` of 0 (the glTF default)."""
+    return {k: v for k, v in view.items() if not (k == "byteOffset" and v == 0)}
+
+
 def find_extension_primitive(gltf: dict, name: str):
     """``(mesh_index, primitive_index, primitive)`` of the one primitive carrying ``name``.
 
