@@ -213,4 +213,4 @@ def test_worked_example_is_what_the_writer_produces_today(update_golden):
             "deliberate, regenerate with: python -m pytest tests/test_spec_sync.py --update-golden, then update "
             "the byte table and digests of spec/README.md, Worked example"
         )
-    assert len(data) == 2512
+    assert len(data) == 2488
