@@ -31,6 +31,7 @@ import { Extension, ExtensionProperty, PropertyType } from '@gltf-transform/core
 import { createBLAKE2b } from 'hash-wasm';
 import { PmwError } from './errors.js';
 import { chunkEntries } from './header.js';
+import { packChunkTable } from './chunktable.js';
 
 /** BLAKE2b-128 (hash-wasm; WebAssembly compiles asynchronously, once, at import). */
 const blake = await createBLAKE2b(128);
@@ -60,7 +61,7 @@ export class ProgressiveMesh extends ExtensionProperty {
 
   getDefaults() {
     return Object.assign(super.getDefaults(), {
-      info: null, chunks: [], streamOffsets: [], fingerprint: '', dracoBase: false,
+      info: null, chunks: [], streamOffsets: [], fingerprint: '', dracoBase: false, packedTable: true,
     });
   }
 
@@ -79,6 +80,9 @@ export class ProgressiveMesh extends ExtensionProperty {
   /** @returns {boolean} whether the base was stored with KHR_draco_mesh_compression */
   getDracoBase() { return this.get('dracoBase'); }
   setDracoBase(draco) { return this.set('dracoBase', draco); }
+  /** @returns {boolean} whether a payload version 2 chunk table is written packed (false: as the JSON arrays it was read in) */
+  getPackedTable() { return this.get('packedTable'); }
+  setPackedTable(packed) { return this.set('packedTable', packed); }
 }
 
 /**
@@ -144,7 +148,8 @@ export class PMWMProgressiveMesh extends Extension {
         primitive.setExtension(NAME, this.createProgressiveMesh()
           .setInfo(info).setChunks(chunks).setStreamOffsets(streamOffsets)
           .setFingerprint(baseFingerprint(primitive, info).hex)
-          .setDracoBase(Boolean(primitiveDef.extensions[DRACO])));
+          .setDracoBase(Boolean(primitiveDef.extensions[DRACO]))
+          .setPackedTable(!Array.isArray(ext.chunks) && !('byteLengths' in ext.chunks)));
       });
     });
     return this;
@@ -200,7 +205,8 @@ export class PMWMProgressiveMesh extends Extension {
       const info = stream.getInfo();
       const placed = info.chunks.map((entry, k) => queued.find((q) => q.stream === stream && q.k === k));
       const chunks = (info.payload?.version ?? 1) === 2
-        ? compactChunks(info.chunks.map((entry, k) => ({ ...entry, bufferView: views.get(placed[k]), byteOffset: placed[k].at })))
+        ? compactChunks(info.chunks.map((entry, k) => ({ ...entry, bufferView: views.get(placed[k]), byteOffset: placed[k].at })),
+          stream.getPackedTable())
         : info.chunks.map((entry, k) => ({ bufferView: views.get(placed[k]), ...entry }));
       primitiveDef.extensions = { ...primitiveDef.extensions, [NAME]: { ...info, chunks } };
     }
@@ -226,13 +232,17 @@ function shareVersion2Views(queued) {
   }
 }
 
-/** The compact chunk table (spec/bitstream.md §6.2) of per-chunk entries in one bufferView. */
-function compactChunks(entries) {
+/**
+ * The chunk table (spec/bitstream.md §6.2) of per-chunk entries in one bufferView: packed, or as the
+ * JSON arrays when the table was read in that form (its values, hence its MACs, kept as they were).
+ */
+function compactChunks(entries, packed = true) {
   const table = entries.length ? { bufferView: entries[0].bufferView } : {};
   let sum = 0;
   if (!entries.every((e) => { const ok = e.byteOffset === sum; sum += e.byteLength; return ok; })) {
     table.byteOffsets = entries.map((e) => e.byteOffset);
   }
+  if (packed) return Object.assign(table, packChunkTable(entries));
   table.byteLengths = entries.map((e) => e.byteLength);
   table.vertexCounts = entries.map((e) => e.vertexCount);
   table.faceCounts = entries.map((e) => e.faceCount);

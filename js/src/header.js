@@ -4,6 +4,7 @@
  * Everything here is checked before any BIN byte is read or any array is allocated.
  */
 import { FormatError, LimitError, UnsupportedError } from './errors.js';
+import { unpackChunkTable } from './chunktable.js';
 import {
   DRACO_EXTENSION, EXTENSION, FORMAT_VERSION, MAX_CHUNK_BYTES, MAX_CHUNKS,
   MAX_DECOMPRESSED_CHUNK_BYTES, MAX_FACES, MAX_JSON_BYTES, MAX_VERTICES, PAYLOAD_CODEC, PAYLOAD_VERSIONS,
@@ -115,9 +116,9 @@ const TABLE_ARRAYS = [['byteLengths', 'byteLength'], ['vertexCounts', 'vertexCou
 
 /**
  * The per-chunk index entries of an extension object: its `chunks` array (payload version 1), or its
- * compact chunk table (version 2, spec/bitstream.md §6.2) expanded to entries with `bufferView`,
+ * chunk table (version 2, spec/bitstream.md §6.2: packed, or JSON arrays) expanded to entries with `bufferView`,
  * `byteOffset` (inside it), `byteLength`, `digest`, counts, `geometricError`, `mac` (when the table
- * has `macs`) and the derived `splits` and `uncompressedLength` (= byteLength).
+ * has MACs) and the derived `splits` and `uncompressedLength` (= byteLength).
  * @param {object} ext @param {number} version payload version @param {number} baseVertices the base's vertex count
  */
 export function chunkEntries(ext, version, baseVertices, what = 'chunks') {
@@ -126,28 +127,49 @@ export function chunkEntries(ext, version, baseVertices, what = 'chunks') {
     if (!Array.isArray(table)) throw new FormatError(`${what}: chunks is not an array`);
     return table;
   }
-  if (!isObj(table) || !Array.isArray(table.byteLengths)) throw new FormatError(`${what}: chunks is not a chunk table`);
-  const count = table.byteLengths.length;
-  if (count > MAX_CHUNKS) throw new LimitError(`${what}: more than ${MAX_CHUNKS} chunks`);
+  if (!isObj(table)) throw new FormatError(`${what}: chunks is not a chunk table`);
+  const columns = 'packed' in table || 'count' in table ? packedColumns(table, what) : arrayColumns(table, what);
+  const count = columns.byteLength.length;
   let sum = 0;
-  const offsets = table.byteOffsets ?? table.byteLengths.map((n) => { const at = sum; sum += n; return at; });
-  const macs = table.macs;
-  if (!TABLE_ARRAYS.every(([name]) => Array.isArray(table[name]) && table[name].length === count)
-      || !Array.isArray(offsets) || offsets.length !== count
-      || typeof table.digests !== 'string' || table.digests.length !== count * 16
-      || (macs !== undefined && (typeof macs !== 'string' || macs.length !== count * 32))) {
+  const offsets = table.byteOffsets ?? columns.byteLength.map((n) => { const at = sum; sum += n; return at; });
+  if (!Array.isArray(offsets) || offsets.length !== count) {
     throw new FormatError(`${what}: the chunk table's arrays do not all describe ${count} chunks`);
   }
   let previous = baseVertices;
-  return table.byteLengths.map((_, k) => {
-    const entry = { bufferView: table.bufferView, byteOffset: offsets[k], digest: table.digests.slice(16 * k, 16 * k + 16) };
-    for (const [name, field] of TABLE_ARRAYS) entry[field] = table[name][k];
-    if (macs !== undefined) entry.mac = macs.slice(32 * k, 32 * k + 32);
+  return columns.byteLength.map((_, k) => {
+    const entry = { bufferView: table.bufferView, byteOffset: offsets[k], digest: columns.digest[k] };
+    for (const [, field] of TABLE_ARRAYS) entry[field] = columns[field][k];
+    if (columns.mac) entry.mac = columns.mac[k];
     entry.splits = entry.vertexCount - previous;
     previous = entry.vertexCount;
     entry.uncompressedLength = entry.byteLength;
     return entry;
   });
+}
+
+/** The packed form's values by entry field (src/chunktable.js); never mixed with the array form. */
+function packedColumns(table, what) {
+  if (TABLE_ARRAYS.some(([name]) => name in table) || 'digests' in table || 'macs' in table) {
+    throw new FormatError(`${what}: a chunk table is packed or in arrays, not both`);
+  }
+  return unpackChunkTable(table.count, table.packed, what);
+}
+
+/** The array form's values by entry field, every array checked to describe the same number of chunks. */
+function arrayColumns(table, what) {
+  if (!Array.isArray(table.byteLengths)) throw new FormatError(`${what}: chunks is not a chunk table`);
+  const count = table.byteLengths.length;
+  if (count > MAX_CHUNKS) throw new LimitError(`${what}: more than ${MAX_CHUNKS} chunks`);
+  const macs = table.macs;
+  if (!TABLE_ARRAYS.every(([name]) => Array.isArray(table[name]) && table[name].length === count)
+      || typeof table.digests !== 'string' || table.digests.length !== count * 16
+      || (macs !== undefined && (typeof macs !== 'string' || macs.length !== count * 32))) {
+    throw new FormatError(`${what}: the chunk table's arrays do not all describe ${count} chunks`);
+  }
+  const columns = Object.fromEntries(TABLE_ARRAYS.map(([name, field]) => [field, table[name]]));
+  columns.digest = table.byteLengths.map((_, k) => table.digests.slice(16 * k, 16 * k + 16));
+  if (macs !== undefined) columns.mac = table.byteLengths.map((_, k) => macs.slice(32 * k, 32 * k + 32));
+  return columns;
 }
 
 function checkChunk(gltf, c, j, bufferLength, what, version = 1) {

@@ -9,7 +9,8 @@ export const CONFORMANCE = join(TREE, 'spec', 'conformance');
 
 /**
  * Names of the conformance files: `<name>.v1.pmw` (chunk payload version 1) and `<name>.v2.pmw`
- * (the same cases with payload version 2, spec/bitstream.md §8), or only those of `version`.
+ * (the same cases with payload version 2, spec/bitstream.md §8; `<name>.packed.v2.pmw` with the packed
+ * chunk table of §6.2, `<name>.v2.pmw` with its older JSON arrays), or only those of `version`.
  */
 export function conformanceFiles(version) {
   const suffixes = version === undefined ? ['.v1.pmw', '.v2.pmw'] : [`.v${version}.pmw`];

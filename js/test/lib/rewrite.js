@@ -7,6 +7,7 @@
 import { createBLAKE2b, createXXHash64 } from 'hash-wasm';
 import { parseGlb, planDocument } from '../../src/header.js';
 import { openChunk, initChunkFrames } from '../../src/chunkframe.js';
+import { packChunkTable, unpackChunkTable } from '../../src/chunktable.js';
 
 const blake = await createBLAKE2b(128);
 const xxh64 = await createXXHash64();
@@ -79,9 +80,18 @@ function withV2Payload(bytes, h, gltf, plan, c, table, payload, patch) {
     const t = gltf.meshes[p.mesh].primitives[p.primitive].extensions.PMWM_progressive_mesh.chunks;
     if (t.byteOffsets) t.byteOffsets = t.byteOffsets.map((o) => ((view.byteOffset ?? 0) + o > c.offset ? o + d : o));
   }
-  table.byteLengths[c.chunk] = payload.length;
   const hex = blake.init().update(payload).digest('hex').slice(0, 16);
-  table.digests = table.digests.slice(0, 16 * c.chunk) + hex + table.digests.slice(16 * c.chunk + 16);
+  if ('packed' in table) { // spec/bitstream.md §6.2: unpack, change the chunk's length and digest, pack again
+    const cols = unpackChunkTable(table.count, table.packed);
+    cols.byteLength[c.chunk] = payload.length;
+    cols.digest[c.chunk] = hex;
+    Object.assign(table, packChunkTable(cols.byteLength.map((byteLength, k) => ({
+      byteLength, vertexCount: cols.vertexCount[k], faceCount: cols.faceCount[k], geometricError: cols.geometricError[k],
+      digest: cols.digest[k], mac: cols.mac?.[k] }))));
+  } else {
+    table.byteLengths[c.chunk] = payload.length;
+    table.digests = table.digests.slice(0, 16 * c.chunk) + hex + table.digests.slice(16 * c.chunk + 16);
+  }
   Object.assign(table, patch);
   const oldBin = bytes.subarray(h.binStart, h.binStart + h.binLength);
   const bin = new Uint8Array(padded(h.binLength + delta));
