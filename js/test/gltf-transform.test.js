@@ -50,6 +50,10 @@ function streams(bytes) {
   }));
 }
 
+/** Per progressive primitive: 'entries' (payload version 1), 'packed' or 'arrays' (version 2 tables, spec/bitstream.md §6.2). */
+const tableForms = (bytes) => glbParts(bytes).json.meshes.flatMap((m) => m.primitives.map((p) => p.extensions?.[NAME]?.chunks))
+  .filter(Boolean).map((c) => (Array.isArray(c) ? 'entries' : 'packed' in c ? 'packed' : 'arrays'));
+
 const withoutViews = (ext) => ({ ...ext, chunks: ext.chunks.map(({ bufferView, byteOffset, ...entry }) => entry) });
 
 async function levels(bytes) {
@@ -63,6 +67,7 @@ async function levels(bytes) {
 async function assertStreamKept(original, rewritten) {
   const before = streams(original), after = streams(rewritten);
   assert.deepEqual(after.map((s) => withoutViews(s.ext)), before.map((s) => withoutViews(s.ext)));
+  assert.deepEqual(tableForms(rewritten), tableForms(original), 'each chunk table keeps its form (packed or arrays)');
   after.forEach((s, i) => s.chunks.forEach((bytes, k) => assert.deepEqual(bytes, before[i].chunks[k], `chunk ${k}`)));
   const { json } = glbParts(rewritten);
   const chunkViews = new Set(after.flatMap((s) => s.ext.chunks.map((c) => c.bufferView)));
@@ -140,7 +145,7 @@ const CONFIG = join(PACKAGE, 'gltf-transform.config.mjs');
 /** Runs `gltf-transform ARGS --config gltf-transform.config.mjs`: {status, stdout, stderr}. */
 const gltfTransform = (...args) => spawnSync(CLI, [...args, '--config', CONFIG], { encoding: 'utf8', timeout: 120000 });
 
-// a payload version 2 file too (its chunks are stored raw, not as zstd frames: spec/bitstream.md §8)
+// payload version 2 files too (chunks stored raw, spec/bitstream.md §8; chunk tables packed and in arrays, §6.2)
 const COPIED = ['sphere-attributes.plain.v1.pmw', 'two-primitives.draco.v1.pmw',
   ...conformanceFiles(2).filter((f) => f.startsWith('two-primitives'))];
 const copies = mkdtempSync(join(tmpdir(), 'pmw-gltf-transform-cli-'));
