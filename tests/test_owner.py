@@ -93,13 +93,24 @@ def test_rms_budget_raises_every_margin_and_stays_within_the_budget(blob, marked
     assert _rms_of_diagonal(blob.positions, bare) < _rms_of_diagonal(blob.positions, pos) <= owner.DEFAULT_RMS_BUDGET
 
 
-def test_shell_score_is_zero_and_flat_at_shell_edges():
-    """A vertex that noise carries across a shell edge changes no shell's score (g(0) = g(1) = 0)."""
-    t = np.array([0.0, 1e-3, 1 - 1e-3, 1.0, 1 / 3, 2 / 3])
+def test_shell_score_is_zero_at_shell_edges_and_peaks_at_a_quarter_and_three_quarters():
+    """A vertex that noise carries across a shell edge changes the scores continuously (g(0) = g(1) = 0)."""
+    t = np.array([0.0, 1e-4, 1 - 1e-4, 1.0, 1 / 4, 3 / 4])
     g = owner.g_of_t(t)
-    assert np.all(np.abs(g[:4]) < 1e-4)
+    assert np.all(np.abs(g[:4]) < 1e-3)
     assert g[4] == pytest.approx(-1.0) and g[5] == pytest.approx(1.0)
     assert np.all(np.abs(owner.g_of_t(np.linspace(0, 1, 1001))) <= 1 + 1e-12)
+
+
+def test_embedding_flow_keeps_every_vertex_in_its_shell_and_in_order():
+    """The flow's profile is 0 and flat at both edges, so each tabled flow maps [0, 1] onto itself, increasing."""
+    assert owner._h_of_t(np.array([0.0, 1.0])) == pytest.approx([0.0, 0.0])
+    assert abs(owner._h_of_t(np.array([1e-4]))[0]) < 1e-4
+    table = owner._flow_table()
+    assert np.all(np.diff(table, axis=2) >= 0)
+    assert np.all(table[:, :, 0] == 0.0) and np.all(table[:, :, -1] == 1.0)
+    mid = table[:, -1, (owner._FLOW_T - 1) // 2]  # t = 1/2 flows toward 1/4 (side 0) and 3/4 (side 1)
+    assert mid[0] < 0.3 and mid[1] > 0.7
 
 
 def test_wrong_key_and_unmarked_mesh_are_absent(blob, marked):
