@@ -114,9 +114,11 @@ SEARCH_STEPS = (0.1, 0.05, 0.025, 0.0125)
 SEARCH_GAIN = 8.0
 #: Frames a read tries (:func:`_searched_frames`): the searched one and its half-shell aliases.
 FRAMES = 3
-#: The coarse grid of the search is evaluated on at most about this many points (every m-th):
-#: it only picks the basin the pattern search then climbs on all of them.
+#: The coarse grid of the search and its pattern steps of COARSE_STEP widths or more are evaluated
+#: on at most about this many points (every m-th in sorted order): they only pick the basin that
+#: the finer steps then climb on all of them.
 GRID_POINTS = 8192
+COARSE_STEP = 0.05
 #: Keyed-mapping stream id of the owner layer (the ASCII of "owner"; the exact layer uses
 #: chunk numbers, far below it).
 STREAM_ID = int.from_bytes(b"owner", "big")
@@ -312,11 +314,16 @@ def _within_box(x: np.ndarray) -> bool:
     return float(np.linalg.norm(x[:3]) + np.abs(x[3:]).max()) <= SEARCH_BOX + 1e-9
 
 
-def _ascend(objective, x: np.ndarray, best: float, center: np.ndarray) -> tuple:
-    """``(x (5,), objective(x))``: a pattern search from ``x`` (value ``best``) in steps of
-    :data:`SEARCH_STEPS` widths, one coordinate at a time, within :data:`SEARCH_BOX` of ``center`` (5,)."""
+def _ascend(objectives: tuple, x: np.ndarray, center: np.ndarray) -> np.ndarray:
+    """x (5,): a pattern search from ``x`` in steps of :data:`SEARCH_STEPS` widths, one coordinate
+    at a time, within :data:`SEARCH_BOX` of ``center`` (5,); ``objectives`` ``(coarse, fine)``:
+    the coarse one (on a subsample) for steps of :data:`COARSE_STEP` widths or more."""
     moves = [(i, sign) for i in range(5) for sign in (1.0, -1.0)]
+    objective = None
     for step in SEARCH_STEPS:
+        if objective is not objectives[step < COARSE_STEP]:
+            objective = objectives[step < COARSE_STEP]
+            best = objective(x)
         improved = True
         while improved:
             improved = False
@@ -327,16 +334,16 @@ def _ascend(objective, x: np.ndarray, best: float, center: np.ndarray) -> tuple:
                 if f > best:
                     x, best, improved = y, f, True
                     break
-    return x, best
+    return x
 
 
 def _searched_frames(points: np.ndarray, faces: np.ndarray) -> list:
     """The :data:`FRAMES` frames a read tries: ``[(centroid (3,), lo, width)]`` of ``points`` (k, 3) / ``faces`` (m, 3).
 
     First, :func:`_frame` moved to a local maximum of sum_k |S_k|: the best of a coarse grid
-    (:data:`SEARCH_GRID` on each of the centroid's 3 offsets and the two shell bounds; on at most
-    :data:`GRID_POINTS` of the points, every ``ceil(k / GRID_POINTS)``-th in sorted order), then a
-    pattern search (:func:`_ascend`); no norm's shell position moves by more than
+    (:data:`SEARCH_GRID` on each of the centroid's 3 offsets and the two shell bounds), then a
+    pattern search (:func:`_ascend`), both on at most :data:`GRID_POINTS` of the points (every
+    ``ceil(k / GRID_POINTS)``-th in sorted order) until its steps fall below :data:`COARSE_STEP`; no norm's shell position moves by more than
     :data:`SEARCH_BOX` widths; kept only when it beats the estimate by :data:`SEARCH_GAIN` noise
     deviations.  It undoes the few tenths of a shell width by which smoothing, coarse
     quantization or the sparse sampling of a stream's coarse levels move the estimated frame.
@@ -352,20 +359,18 @@ def _searched_frames(points: np.ndarray, faces: np.ndarray) -> list:
     d = points - centroid
     rho = np.linalg.norm(d, axis=1)
     n = d / np.maximum(rho, 1e-300)[:, None]
-    objective = lambda y: _search_objective(n, rho, lo, width, y)  # noqa: E731
     every = -(-len(points) // GRID_POINTS)
+    objectives = tuple(functools.partial(_search_objective, n[::m], rho[::m], lo, width) for m in (every, 1))
     grid = np.stack(np.meshgrid(*[SEARCH_GRID] * 5, indexing="ij"), -1).reshape(-1, 5)
     grid = grid[[_within_box(y) for y in grid]]
-    values = [_search_objective(n[::every], rho[::every], lo, width, y) for y in grid]
     zero = np.zeros(5)
-    start = grid[int(np.argmax(values))]
-    x, best = _ascend(objective, start, objective(start), zero)
-    if best - objective(zero) < SEARCH_GAIN * _objective_sd(rho, lo, width):
+    x = _ascend(objectives, grid[int(np.argmax([objectives[0](y) for y in grid]))], zero)
+    if objectives[1](x) - objectives[1](zero) < SEARCH_GAIN * _objective_sd(rho, lo, width):
         x = zero
     xs = [x]
     for shift in (0.5, -0.5):
         y = x + np.array([0.0, 0.0, 0.0, shift, shift])
-        xs.append(_ascend(objective, y, objective(y), y)[0])
+        xs.append(_ascend(objectives, y, y))
     return [(centroid + y[:3] * width, lo + y[3] * width, width * (1.0 + (y[4] - y[3]) / BINS)) for y in xs]
 
 
