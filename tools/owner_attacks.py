@@ -165,7 +165,8 @@ def write_benchmarks(text: str, command: str) -> None:
     body = path.read_text() if path.exists() else ""
     section = ("## Owner layer: BER of the 64-bit owner ID under attack (tools/owner_attacks.py)\n\n"
                f"Command: `{command}`\n\n" + text)
-    pattern = re.compile(r"## Owner layer: BER.*?(?=\n## |\Z)", re.S)
+    # the section's head (command and tables) up to its first sub-heading: the rounds' notes below it stay
+    pattern = re.compile(r"## Owner layer: BER.*?(?=\n##|\Z)", re.S)
     body = pattern.sub(lambda _: section, body) if pattern.search(body) else body.rstrip() + "\n\n" + section
     path.write_text(body)
 
