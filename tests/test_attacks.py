@@ -76,3 +76,48 @@ def test_attack_functions_keep_shapes():
     assert np.linalg.norm(S, axis=1).mean() < 1.0  # smoothing shrinks a sphere
     R = attacks.rodrigues([0, 0, 1], np.pi / 2)
     np.testing.assert_allclose(R @ [1, 0, 0], [0, 1, 0], atol=1e-12)
+
+
+@pytest.mark.parametrize("scheme", ["midpoint", "loop"])
+def test_subdivision_splits_every_triangle_into_four_sharing_edge_points(scheme):
+    mesh = shapes.icosphere(2)
+    V, F = attacks.subdivide(mesh.positions, mesh.faces, None, scheme)
+    edges = len(np.unique(np.sort(np.concatenate([mesh.faces[:, [0, 1]], mesh.faces[:, [1, 2]],
+                                                  mesh.faces[:, [2, 0]]]), 1), axis=0))
+    assert F.shape == (4 * len(mesh.faces), 3) and len(V) == len(mesh.positions) + edges
+    assert len(np.unique(np.sort(F, 1), axis=0)) == len(F)  # no face twice
+    assert np.all(np.diff(np.sort(F, 1), axis=1) > 0)  # no degenerate face
+
+
+def test_midpoint_subdivision_keeps_the_old_points_and_puts_the_new_ones_on_the_edges():
+    mesh = shapes.icosphere(2)
+    V, F = attacks.subdivide(mesh.positions, mesh.faces, None, "midpoint")
+    n = len(mesh.positions)
+    assert np.array_equal(V[:n], mesh.positions)
+    corner, new = F[: len(mesh.faces), 0], F[: len(mesh.faces), 1]  # face (a, ab, ca): ab is a's edge to b
+    assert np.allclose(V[new], 0.5 * (mesh.positions[corner] + mesh.positions[mesh.faces[:, 1]]))
+
+
+def test_loop_subdivision_is_affine_invariant_and_moves_a_sphere_inward():
+    """Loop's weights sum to one (a translated mesh subdivides to the translated result), and on a
+    convex closed mesh every rule averages points of the hull: nothing moves outside the sphere."""
+    mesh = shapes.icosphere(2)
+    shift = np.array([3.0, -1.0, 2.0])
+    V, F = attacks.subdivide(mesh.positions, mesh.faces, None, "loop")
+    V2, F2 = attacks.subdivide(mesh.positions + shift, mesh.faces, None, "loop")
+    assert np.array_equal(F, F2) and np.allclose(V2, V + shift)
+    r = np.linalg.norm(V, axis=1)
+    assert r.max() <= 1.0 + 1e-12 and r.min() < 0.99  # smoothed inward, not a midpoint copy
+
+
+def test_loop_subdivision_keeps_a_flat_open_grid_flat_and_a_straight_boundary_straight():
+    xs, ys = np.meshgrid(np.arange(6.0), np.arange(6.0), indexing="ij")
+    P = np.stack([xs.ravel(), ys.ravel(), np.zeros(36)], 1)  # point (i, j) at index 6 i + j
+    idx = np.arange(36).reshape(6, 6)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    V, F = attacks.subdivide(P, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)]), None, "loop")
+    assert np.allclose(V[:, 2], 0.0)
+    side = idx[1:-1, 0]  # the side j = 0 without its corners: boundary points with two boundary neighbours
+    assert np.allclose(V[side], P[side])  # 3/4 v + 1/8 (v - e) + 1/8 (v + e) on a straight boundary
+    interior = idx[1:-1, 1:-1].ravel()
+    assert np.allclose(V[interior], P[interior])  # a regular flat interior point is a fixed point of Loop's rule

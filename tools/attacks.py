@@ -14,6 +14,7 @@ plus glTF transport:
 * A7 ``crop``      drop 10/30/50 % of the vertices by a random half-space
 * A6 ``simplify``  quadric edge collapse (``fast-simplification``, optional) to 10..70 % fewer faces
 * T4 ``draco``     a real DracoPy encode/decode at 14 and 11 quantization bits
+* A5 ``subdivide`` one step of midpoint (flat) or Loop subdivision: every triangle into four
 
 Every attack takes the *full decode* of the marked file (the reference) and
 returns a new ``(positions, faces)``; :func:`pmwm_codec.verify.verify_mesh`
@@ -148,6 +149,52 @@ def draco(V, F, rng, bits):
     blob = DracoPy.encode(V.astype(np.float32), F.astype(np.uint32), quantization_bits=bits, compression_level=7)
     d = DracoPy.decode(blob)
     return np.asarray(d.points, np.float64), np.asarray(d.faces, np.int64).reshape(-1, 3)
+
+
+def subdivide(V, F, rng, scheme="midpoint"):
+    """A5: one step of subdivision, every triangle into four (shared edge points shared).
+
+    ``scheme`` "midpoint": new points at the edge midpoints, old points kept (the surface does
+    not move).  "loop": Loop's rules -- an interior edge point 3/8 (a + b) + 1/8 (c + d) from its
+    two opposite corners, a boundary (or non-manifold) edge point the midpoint; an interior old
+    point (1 - n beta) v + beta * sum of its n neighbours with beta = (5/8 - (3/8 + cos(2 pi / n) / 4)^2) / n,
+    a boundary point 3/4 v + 1/8 of its two boundary neighbours, other boundary points kept.
+    ``V`` (n, 3) float64, ``F`` (m, 3) int64; returns (n + edges, 3) float64, (4m, 3) int64.
+    """
+    n, m = len(V), len(F)
+    half = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])  # (3m, 2), face f's edge j at j*m + f
+    opposite = np.concatenate([F[:, 2], F[:, 0], F[:, 1]])
+    lo, hi = half.min(1), half.max(1)
+    uniq, inv = np.unique(lo * n + hi, return_inverse=True)
+    ulo, uhi = uniq // n, uniq % n
+    count = np.bincount(inv, minlength=len(uniq))
+    edge_points = 0.5 * (V[ulo] + V[uhi])
+    if scheme == "loop":
+        opp_sum = np.stack([np.bincount(inv, V[opposite, q], len(uniq)) for q in range(3)], 1)
+        two = count == 2
+        edge_points[two] = 0.375 * (V[ulo[two]] + V[uhi[two]]) + 0.125 * opp_sum[two]
+        old = V.copy()
+        valence = np.bincount(np.concatenate([ulo, uhi]), minlength=n)
+        nbr_sum = np.stack([np.bincount(np.concatenate([ulo, uhi]), np.concatenate([V[uhi, q], V[ulo, q]]), n)
+                            for q in range(3)], 1)
+        edge_b = count != 2
+        b_ends = np.concatenate([ulo[edge_b], uhi[edge_b]])
+        b_count = np.bincount(b_ends, minlength=n)
+        b_sum = np.stack([np.bincount(b_ends, np.concatenate([V[uhi[edge_b], q], V[ulo[edge_b], q]]), n)
+                          for q in range(3)], 1)
+        inner = (b_count == 0) & (valence > 0)
+        k = np.maximum(valence[inner], 1).astype(np.float64)
+        beta = (0.625 - (0.375 + 0.25 * np.cos(2 * np.pi / k)) ** 2) / k
+        old[inner] = (1 - k * beta)[:, None] * V[inner] + beta[:, None] * nbr_sum[inner]
+        rim = b_count == 2
+        old[rim] = 0.75 * V[rim] + 0.125 * b_sum[rim]
+        V = old
+    mid = n + inv.reshape(3, m).T  # (m, 3): edge point of edge 01, 12, 20
+    a, b, c = F.T
+    ab, bc, ca = mid.T
+    faces = np.concatenate([np.stack([a, ab, ca], 1), np.stack([b, bc, ab], 1), np.stack([c, ca, bc], 1),
+                            np.stack([ab, bc, ca], 1)])
+    return np.concatenate([V, edge_points]), faces
 
 
 def chain(*steps):

@@ -67,6 +67,8 @@ def cells():
         ("quantization 8 bits", lambda V, F, r: A.quantize(V, F, r, 8)),
         ("simplification 50%", lambda V, F, r: A.simplify(V, F, r, 0.5)),
         ("simplification 70%", lambda V, F, r: A.simplify(V, F, r, 0.7)),
+        ("midpoint subdivision", lambda V, F, r: A.subdivide(V, F, r, "midpoint")),
+        ("Loop subdivision", lambda V, F, r: A.subdivide(V, F, r, "loop")),
         ("cropping 10%", lambda V, F, r: A.crop(V, F, r, 0.1)),
         ("cropping 30%", lambda V, F, r: A.crop(V, F, r, 0.3)),
     ]
