@@ -211,6 +211,52 @@ def test_a_batch_whose_splits_share_faces_decodes_as_version_1_applies_it():
     _assert_lists_match_a_rebuild(model.lists, state)
 
 
+def test_the_encoder_packs_on_the_decoders_incremental_path_and_leaves_version_1_s_mesh(monkeypatch):
+    """pack_chunks keeps its corner lists from batch to batch (no rebuild): the state it leaves is
+    the one version 1's apply_batch leaves, and its lists equal a rebuild after every chunk."""
+    from pmwm_codec.progressive.vsplit import apply_batch
+    from test_kernels import _progressive
+
+    pm = _progressive(shapes.torus(30, 14, twist=0.1))
+    chunks = [pm.batches[i:i + 3] for i in range(0, len(pm.batches), 3)]
+    reference = pm.new_state()
+    for b in pm.batches:
+        apply_batch(reference, b)
+    seen = []
+    sync = records_v2.CornerLists.sync
+
+    def watched(lists, state):  # the base only: every later mesh comes from the incremental update
+        seen.append((state.n, state.m))
+        sync(lists, state)
+
+    monkeypatch.setattr(records_v2.CornerLists, "sync", watched)
+    state = pm.new_state()
+    payloads = records_v2.pack_chunks(state, chunks)
+    assert seen == [(len(pm.base_positions), len(pm.base_faces))] and len(payloads) == len(chunks) > 2
+    assert (state.n, state.m) == (reference.n, reference.m)
+    assert np.array_equal(state.current_faces(), reference.current_faces())
+    assert np.array_equal(state.current_positions(), reference.current_positions())
+    decoded, model = pm.new_state(), records_v2.ChunkDecoder()
+    for payload in payloads:
+        for _ in records_v2.decode_chunk(payload, decoded, model):
+            pass
+        _assert_lists_match_a_rebuild(model.lists, decoded)
+    assert np.array_equal(decoded.current_faces(), reference.current_faces())
+
+
+def test_the_encoder_refuses_a_batch_that_does_not_fit_the_mesh():
+    from test_kernels import _progressive
+
+    pm = _progressive(shapes.grid(10, 9, hole=True))
+    first = pm.batches[0]
+    bad = [records_v2.SplitBatch(first.v[::-1].copy(), first.symbols, first.residual),
+           records_v2.SplitBatch(first.v, first.symbols[:-1], first.residual),
+           records_v2.SplitBatch(first.v, first.symbols, first.residual[:, :2])]
+    for batch in bad:
+        with pytest.raises(ValueError, match="payload v2"):
+            records_v2.pack_chunks(pm.new_state(), [[batch]])
+
+
 # ---------------------------------------------------------------- hostile and truncated input
 
 

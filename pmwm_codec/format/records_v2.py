@@ -20,7 +20,8 @@ its valence).  The decoder (:class:`ChunkDecoder`, one per primitive) keeps them
 chunk and updates them with each batch, so a batch costs two kernel calls and work in proportion
 to its splits plus one mask bit per vertex: :func:`_mask_kernel` (marks, gathering the marked
 vertices' incidences on the way) and :func:`_batch_kernel` (arcs, topology, values, valences).
-The encoder rebuilds them per batch and applies batches with :mod:`..progressive.vsplit`.
+The encoder walks the same two kernels in encode mode on lists it keeps from batch to batch
+(made once for the base), so it leaves the mesh the decoder builds.
 """
 
 from __future__ import annotations
@@ -30,8 +31,8 @@ from functools import cached_property
 import numpy as np
 
 from ..errors import FormatError, LimitError
-from ..progressive.topology import group_order, kernel_helper
-from ..progressive.vsplit import SplitBatch, SplitTopology, _ring_lists, apply_batch, find_incidences
+from ..progressive.topology import kernel_helper
+from ..progressive.vsplit import SplitBatch, SplitTopology, _ring_lists
 from . import rangecoder as rc
 from .rangecoder import INT_BLOCK, INT_DECISIONS
 
@@ -557,60 +558,49 @@ def _value(pred, ctx, q, u, P, es, out, ds, buf, probs, decode):
 # ---------------------------------------------------------------- chunks
 
 
-def _grouped(state, v):
-    """Incidences of the split vertices ``v`` in the mesh before the batch, grouped by split.
-
-    Returns ``(inc (I,), owner (I,), gstart (k+1,), gidx (I,), a (I,), b (I,))`` int64: the
-    incidences in face-slot order and their owners (:func:`find_incidences`), split i's
-    incidences ``gidx[gstart[i]:gstart[i+1]]`` in face-slot order, and every incidence's corners
-    after / before its vertex.
-    """
-    inc, owner = find_incidences(state, v)
-    owner = np.asarray(owner, np.int64)
-    flat = state.faces[: state.m].reshape(-1)
-    base = inc - inc % 3
-    a = flat[base + (inc + 1) % 3]
-    b = flat[base + (inc + 2) % 3]
-    gidx = group_order(owner, len(v))
-    gstart = np.zeros(len(v) + 1, np.int64)
-    np.cumsum(np.bincount(owner, minlength=len(v)), out=gstart[1:])
-    return inc, owner, gstart, gidx, a, b
-
-
-def _connectivity_decisions(incidences: int, splits: int) -> int:
-    return 3 * incidences + splits * (3 + 2 * INT_DECISIONS)
+def _batch_decisions(n: int, incidences: int, splits: int, columns: int) -> int:
+    """A bound on the coded decisions of one batch: its mask, connectivity and values."""
+    return n + 3 * incidences + splits * (3 + 2 * INT_DECISIONS) + splits * columns * INT_DECISIONS
 
 
 _NO_BYTES = np.zeros(0, np.uint8)
 _NO_STATE = np.zeros(6, np.int64)
 _NO_SEL = np.zeros(0, np.int64)
+_NO_RES = np.zeros((0, 0), np.int64)
 
 
 def _encode_batch(enc, state, batch, lists) -> None:
-    """Code one batch into ``enc`` and apply it to ``state`` (version 1 semantics); ``lists``:
-    a :class:`CornerLists` of the state's capacities (rebuilt for the mesh before the batch)."""
-    n, k = state.n, batch.size
-    sel = np.zeros(n, np.int64)
-    sel[batch.v] = 1
-    enc.reserve(n)
-    lists.sync(state)
-    rc._kernel(_mask_kernel)(state.faces.reshape(-1), n, lists.head, lists.nxt, lists.valence, lists.below,
-                             lists.stamp, lists.ctr, sel, *_mask_buffers(state.m, k), enc.es, enc.out, _NO_STATE,
-                             _NO_BYTES, enc.probs, 0)
-    inc, owner, gstart, gidx, a, b = _grouped(state, batch.v)
-    sym = np.asarray(batch.symbols, np.uint8)
-    enc.reserve(_connectivity_decisions(len(inc), k))
+    """Code one batch into ``enc`` and apply it to ``state`` and ``lists`` (the :class:`CornerLists`
+    of the mesh before it) by the decoder's path: :func:`_mask_kernel` then :func:`_batch_kernel`,
+    both in encode mode.  ValueError for a batch the format cannot carry (no simplifier makes one)."""
+    n, m, k = state.n, state.m, batch.size
     v, D = np.asarray(batch.v, np.int64), state.positions.shape[1]
-    S, ring, nrm = np.empty((k, D), np.int64), np.empty((k, 2), np.int64), np.empty((k, 3))
-    rc._kernel(_connectivity_kernel)(gstart, gidx, a, b, v, state.positions, sym, S, ring, nrm,
-                                     enc.es, enc.out, _NO_STATE, _NO_BYTES, enc.probs, 0)
-    n0 = state.n
-    topo = apply_batch(state, batch)
-    if not np.array_equal(topo.incidences, inc):
-        raise AssertionError("payload v2: incidences changed under the encoder")
-    enc.reserve(k * D * INT_DECISIONS)
-    rc._kernel(_values_kernel)(v, state.positions, n0, S, ring, nrm, enc.es, enc.out, _NO_STATE, _NO_BYTES,
-                               enc.probs, 0, np.empty((k, D)), np.empty(k, np.int64))
+    res = np.asarray(batch.residual, np.int64)
+    if k == 0 or v[0] < 0 or v[-1] >= n or np.any(np.diff(v) <= 0) or n + k > len(state.positions):
+        raise ValueError("payload v2: split vertices empty, out of range or not increasing")
+    if res.shape != (k, D):
+        raise ValueError("payload v2: residual array does not match the split count")
+    sel = np.zeros(n, np.int64)
+    sel[v] = 1
+    symbols = np.asarray(batch.symbols)
+    enc.reserve(_batch_decisions(n, len(symbols), k, D))
+    marked, gstart, inc, own, a, b = buffers = _mask_buffers(m, k)
+    _, corners = rc._kernel(_mask_kernel)(state.faces.reshape(-1), n, lists.head, lists.nxt, lists.valence,
+                                          lists.below, lists.stamp, lists.ctr, sel, *buffers, enc.es, enc.out,
+                                          _NO_STATE, _NO_BYTES, enc.probs, 0)
+    if corners != len(symbols) or (corners and int(symbols.max()) >= 5):
+        raise ValueError("payload v2: the batch's symbols do not match the mesh's incidences")
+    sym = np.empty(corners, np.uint8)
+    sym[np.argsort(inc[:corners])] = symbols  # face-slot order -> grouped by split
+    new_faces = rc._kernel(_batch_kernel)(state.faces.reshape(-1), m, n, state.positions, v, lists.head, lists.tail,
+                                          lists.nxt, lists.valence, lists.stamp, lists.tag, lists.split, lists.ctr,
+                                          inc[:corners], own[:corners], a[:corners], b[:corners], sym, gstart[: k + 1],
+                                          np.empty((k, D)), np.empty(k, np.int64), res, enc.es, enc.out, _NO_STATE,
+                                          _NO_BYTES, enc.probs, 0)
+    if new_faces < 0:
+        raise ValueError(f"payload v2: {_BATCH_ERRORS[new_faces]}")
+    state.n, state.m = n + k, m + new_faces
+    lists.n, lists.m = state.n, state.m
 
 
 def pack_chunks(state, chunks) -> list:
@@ -623,6 +613,7 @@ def pack_chunks(state, chunks) -> list:
     out = []
     probs = new_model()
     lists = CornerLists(len(state.positions), len(state.faces))
+    lists.sync(state)
     for batches in chunks:
         if not 1 <= len(batches) <= MAX_BATCHES_PER_CHUNK:
             raise ValueError(f"payload v2: {len(batches)} batches in a chunk, outside 1..{MAX_BATCHES_PER_CHUNK}")
@@ -718,7 +709,8 @@ def _decode_batch(dec, state, lists):
     rsum, rcount = np.empty((k, D)), np.empty(k, np.int64)
     new_faces = rc._kernel(_batch_kernel)(flat, m, n, state.positions, v, lists.head, lists.tail, lists.nxt,
                                           lists.valence, lists.stamp, lists.tag, lists.split, lists.ctr, inc, own, a,
-                                          b, sym, gstart, rsum, rcount, dec.ds, dec.buf, dec.probs)
+                                          b, sym, gstart, rsum, rcount, _NO_RES, _NO_STATE, _NO_BYTES, dec.ds, dec.buf,
+                                          dec.probs, 1)
     if new_faces < 0:
         raise FormatError(_BATCH_ERRORS[new_faces])
     state.n, state.m = n + k, m + new_faces
@@ -759,27 +751,34 @@ class DecodedBatch(SplitBatch):
 
 
 def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, split, ctr, inc, own, a, b, sym, gstart,
-                  rsum, rcount, ds, buf, probs):
-    """Decode the connectivity and values of one batch whose split vertices ``v`` (k,) and
-    incidences are known (:func:`_mask_kernel`), applying it to the face slots ``flat`` (3M,)
-    int64, the values ``P`` (N, D) and the corner lists (:class:`CornerLists` arrays).
+                  rsum, rcount, res, es, out, ds, buf, probs, decode):
+    """Code (``decode`` 0) or decode (1) the connectivity and values of one batch whose split
+    vertices ``v`` (k,) and incidences are known (:func:`_mask_kernel`), applying it to the face
+    slots ``flat`` (3M,) int64, the values ``P`` (N, D) and the corner lists (:class:`CornerLists`
+    arrays).  Encoding and decoding walk the same steps, so both leave the same mesh.
 
     The incidences are grouped by split (split i's: ``[gstart[i], gstart[i+1])``, face-slot
     order within it): ``inc`` corner, ``own`` split, ``a`` / ``b`` corners after / before the
-    split vertex (all (I,) int64).  Fills ``sym`` (I,) uint8 and ``rsum`` / ``rcount`` (see
-    :func:`_values_kernel`).  Returns the number of new faces, or a negative code
-    (:data:`_BATCH_ERRORS`).
+    split vertex (all (I,) int64).  ``sym`` (I,) uint8: the symbols (encode: given, decode:
+    filled).  ``res`` (k, D) int64 (encode): the new values' residuals against the version 1
+    prediction, written to ``P`` before they are coded.  Fills ``rsum`` / ``rcount`` (see
+    :func:`_values_kernel`).  Returns the number of new faces, or a negative code (:data:`_BATCH_ERRORS`).
     """
     gidx = np.arange(len(inc))
-    es, out = np.zeros(6, np.int64), np.zeros(1, np.uint8)
     k, D = len(v), P.shape[1]
     S, ring, nrm = np.empty((k, D), np.int64), np.empty((k, 2), np.int64), np.empty((k, 3))
-    if _connectivity_kernel(gstart, gidx, a, b, v, P, sym, S, ring, nrm, es, out, ds, buf, probs, 1) != 0:
+    if _connectivity_kernel(gstart, gidx, a, b, v, P, sym, S, ring, nrm, es, out, ds, buf, probs, decode) != 0:
         return -1
     new_faces, rewritten = _link_splits(flat, m0, n0, v, inc, own, a, b, sym, gstart, head, tail, nxt, split)
     if new_faces < 0:
         return new_faces
-    if _values_kernel(v, P, n0, S, ring, nrm, es, out, ds, buf, probs, 1, rsum, rcount) != 0:
+    if not decode:
+        for i in range(k):
+            if ring[i, 0] == 0:
+                return -4
+            for q in range(D):
+                P[n0 + i, q] = S[i, q] // (2 * ring[i, 0]) + res[i, q]
+    if _values_kernel(v, P, n0, S, ring, nrm, es, out, ds, buf, probs, decode, rsum, rcount) != 0:
         return -4
     _update_valences(n0, v, a, b, sym, gstart, flat, head, nxt, valence, stamp, tag, ctr, rewritten)
     return new_faces
