@@ -17,6 +17,7 @@ import pytest
 import pmwm_codec
 from pmwm_codec import shapes
 from pmwm_codec.errors import FormatError
+from pmwm_codec.mesh import Mesh
 from pmwm_codec.progressive import topology
 from pmwm_codec.progressive.vsplit import MeshState, find_incidences, split_topology
 
@@ -187,6 +188,24 @@ _ODD_MESHES = {  # boundaries, holes, a non-manifold vertex, several components
     "bowtie": shapes.bowtie(),
     "sphere and grid": shapes.components(shapes.icosphere(1, 1.0), shapes.grid(5, 5)),
 }
+
+
+def _with_degenerate_faces(mesh):
+    """``mesh`` plus faces that repeat a corner (self-loop edges, an edge twice in one face)."""
+    extra = np.array([[0, 0, 1], [2, 2, 2], [3, 4, 3], [1, 5, 5]], np.int64)
+    return Mesh(mesh.positions, np.vstack([np.asarray(mesh.faces, np.int64), extra]))
+
+
+@pytest.mark.parametrize("name", sorted(_ODD_MESHES))
+def test_the_live_mesh_is_the_same_on_both_paths_with_degenerate_faces(monkeypatch, name):
+    pytest.importorskip("numba")
+    mesh = _with_degenerate_faces(_ODD_MESHES[name])
+    plain, fast = _live_both_ways(monkeypatch, mesh, np.ones(mesh.face_count, bool))
+    for field in ("keys", "lo", "hi", "count", "he0", "he1", "he_edge"):
+        assert np.array_equal(getattr(plain.et, field), getattr(fast.et, field)), field
+    assert (plain.et.lo == plain.et.hi).any()  # the self-loops are there
+    for a, b in zip(plain.vv + plain.vf + (plain.vv_edge, plain.fcount), fast.vv + fast.vf + (fast.vv_edge, fast.fcount)):
+        assert np.array_equal(a, b)
 
 
 @pytest.mark.parametrize("name", sorted(_ODD_MESHES))
