@@ -101,7 +101,9 @@ def _compact_kernel(corners, face_alive, vert_alive):
 @kernel_helper
 def _vertex_faces(F, n):
     """Kernel part of :func:`_live_mesh_kernel`: the vertex -> corners CSR of ``F`` (m, 3) int64,
-    corners ``3 f + c`` ascending in every row: ``(vf_start (n + 1,), vf_corner (3m,), fcount (n,))``."""
+    corners ``3 f + c`` ascending in every row: ``(vf_start (n + 1,), vf_corner (3m,), fcount (n,),
+    ring (3m, 2))`` with ``ring`` the corner's next and previous vertex in its face (so the edge pass
+    reads the rows in order instead of looking up faces)."""
     fcount = np.zeros(n, np.int64)
     for f in range(len(F)):
         for c in range(3):
@@ -111,11 +113,15 @@ def _vertex_faces(F, n):
         vf_start[x + 1] = vf_start[x] + fcount[x]
     fill = vf_start[:-1].copy()
     vf_corner = np.empty(3 * len(F), np.int64)
+    ring = np.empty((3 * len(F), 2), np.int64)
     for f in range(len(F)):
         for c in range(3):
-            vf_corner[fill[F[f, c]]] = 3 * f + c
+            s = fill[F[f, c]]
+            vf_corner[s] = 3 * f + c
+            ring[s, 0] = F[f, c + 1 if c < 2 else 0]
+            ring[s, 1] = F[f, c - 1 if c > 0 else 2]
             fill[F[f, c]] += 1
-    return vf_start, vf_corner, fcount
+    return vf_start, vf_corner, fcount, ring
 
 
 @kernel_helper
@@ -131,7 +137,7 @@ def _insert(by, bh, k, y, he):
 
 
 @kernel_helper
-def _edges_by_vertex(F, n, vf_start, vf_corner):
+def _edges_by_vertex(F, n, vf_start, vf_corner, ring):
     """Kernel part of :func:`_live_mesh_kernel`: the edge table of ``F`` built vertex by vertex.
 
     Every vertex ``x`` in turn gathers the half-edges of its corners that run to or from a higher
@@ -152,13 +158,13 @@ def _edges_by_vertex(F, n, vf_start, vf_corner):
     for x in range(n):
         k = 0
         for p in range(vf_start[x], vf_start[x + 1]):
-            f, c = vf_corner[p] // 3, vf_corner[p] % 3
-            y1, y2 = F[f, (c + 1) % 3], F[f, (c + 2) % 3]
+            hc = vf_corner[p]
+            y1, y2 = ring[p, 0], ring[p, 1]
             if y1 >= x:  # half-edge x -> y1
-                _insert(by, bh, k, y1, 3 * f + c)
+                _insert(by, bh, k, y1, hc)
                 k += 1
-            if y2 > x:  # half-edge y2 -> x
-                _insert(by, bh, k, y2, 3 * f + (c + 2) % 3)
+            if y2 > x:  # half-edge y2 -> x: the face's previous corner
+                _insert(by, bh, k, y2, hc + 2 if hc % 3 == 0 else hc - 1)
                 k += 1
         j = 0
         while j < k:
@@ -178,8 +184,8 @@ def _live_mesh_kernel(corners, face_alive, vert_alive):
     """Compiled :func:`live_mesh`: the same arrays (see there), as a flat tuple."""
     vids, fids, loc, F = _compact_kernel(corners, face_alive, vert_alive)
     n = len(vids)
-    vf_start, vf_corner, fcount = _vertex_faces(F, n)
-    lo, hi, count, he0, he1, he_edge, down = _edges_by_vertex(F, n, vf_start, vf_corner)
+    vf_start, vf_corner, fcount, ring = _vertex_faces(F, n)
+    lo, hi, count, he0, he1, he_edge, down = _edges_by_vertex(F, n, vf_start, vf_corner, ring)
     ne = len(lo)
     vv_start = np.zeros(n + 1, np.int64)
     for e in range(ne):

@@ -198,10 +198,9 @@ def quadric_error(q: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 
 @kernel_helper
-def _pair_cost(Q, P, u, v, own):
-    """Compiled ``quadric_error(Q[u], P[v]) + own[v]`` for one pair (Q (n, 10), P (n, 3), own (n,)
-    float64): the same operations in the same order as :func:`quadric_error` (no contraction),
-    so the same bits."""
+def _quadric_at(Q, u, P, v):
+    """Compiled ``quadric_error(Q[u], P[v])`` for one pair (Q (n, 10), P (n, 3) float64): the same
+    operations in the same order (no contraction) and ``np.maximum``'s choice, so the same bits."""
     q = Q[u]
     x, y, z = P[v, 0], P[v, 1], P[v, 2]
     err = (
@@ -209,7 +208,7 @@ def _pair_cost(Q, P, u, v, own):
         + q[4] * y * y + 2 * q[5] * y * z + 2 * q[6] * y
         + q[7] * z * z + 2 * q[8] * z + q[9]
     )
-    return max(err, 0.0) + own[v]
+    return err if (err >= 0.0 or err != err) else 0.0
 
 
 def simplify(
@@ -411,8 +410,41 @@ def _affordable(cu, cv, ce, cost, quantile: float):
     the ``quantile`` of the per-vertex cheapest costs; all of them when ``quantile >= 1``."""
     if quantile >= 1.0 or len(cu) == 0:
         return cu, cv, ce, cost
-    keep = cost <= np.quantile(cost[_group_starts(cu)], quantile)
-    return cu[keep], cv[keep], ce[keep], cost[keep]
+    kernel = compiled(_at_most_kernel)
+    if kernel is None:
+        keep = cost <= np.quantile(cost[_group_starts(cu)], quantile)
+        return cu[keep], cv[keep], ce[keep], cost[keep]
+    return kernel(cu, cv, ce, cost, np.quantile(_first_costs(cu, cost), quantile))
+
+
+def _first_costs(cu, cost):
+    """``cost[_group_starts(cu)]`` (g,) float64 in one compiled pass (numba only)."""
+    return compiled(_first_costs_kernel)(cu, cost)
+
+
+def _first_costs_kernel(cu, cost):
+    """Compiled ``cost[_group_starts(cu)]``."""
+    out = np.empty(len(cu), np.float64)
+    k = 0
+    for i in range(len(cu)):
+        if i == 0 or cu[i] != cu[i - 1]:
+            out[k] = cost[i]
+            k += 1
+    return out[:k]
+
+
+def _at_most_kernel(cu, cv, ce, cost, limit):
+    """Compiled filter of :func:`_affordable`: the rows (c,) of the four arrays with ``cost <= limit``."""
+    k = 0
+    for i in range(len(cost)):
+        k += cost[i] <= limit
+    out = (np.empty(k, np.int64), np.empty(k, np.int64), np.empty(k, np.int64), np.empty(k, np.float64))
+    j = 0
+    for i in range(len(cost)):
+        if cost[i] <= limit:
+            out[0][j], out[1][j], out[2][j], out[3][j] = cu[i], cv[i], ce[i], cost[i]
+            j += 1
+    return out
 
 
 def _group_starts(cu):
@@ -450,13 +482,13 @@ def _candidates(mesh, Q, src, frozen_ext):
     """
     et, F, P, _, fcount, vv, _, vv_edge = mesh
     n = len(P)
-    # (Q_u + Q_v)(p_v) = Q_u(p_v) + Q_v(p_v); the second term is one value per vertex
-    own = quadric_error(Q, P)
     kernel = compiled(_candidates_kernel)
     if kernel is not None:
         cu, cv, ce, cost = kernel(vv[0], vv[1], vv_edge, et.lo, et.hi, et.count, et.he0, et.he1, src, fcount,
-                                  frozen_ext, Q, P, own, TRIES)
+                                  frozen_ext, Q, P, TRIES)
         return (cu, cv, ce, cost) if len(cu) else None
+    # (Q_u + Q_v)(p_v) = Q_u(p_v) + Q_v(p_v); the second term is one value per vertex
+    own = quadric_error(Q, P)
     cu, cv, ce = _usable(F, et, src, frozen_ext, n)
     if len(cu) == 0:
         return None
@@ -467,7 +499,7 @@ def _candidates(mesh, Q, src, frozen_ext):
     return cu[keep], cv[keep], ce[keep], cost[keep]
 
 
-def _candidates_kernel(vv_start, vv_nbr, vv_edge, lo, hi, count, he0, he1, src, fcount, frozen_ext, Q, P, own, tries):
+def _candidates_kernel(vv_start, vv_nbr, vv_edge, lo, hi, count, he0, he1, src, fcount, frozen_ext, Q, P, tries):
     """Compiled :func:`_candidates` (same arrays, same order), one vertex at a time.
 
     A vertex's row of the neighbour CSR lists its edges in the order :func:`_usable` meets them
@@ -481,6 +513,9 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, lo, hi, count, he0, he1, src, 
     out_e = np.empty(tries * n, np.int64)
     out_c = np.empty(tries * n, np.float64)
     buf = np.empty(int(np.max(np.diff(vv_start))) if n else 0, np.int64)  # row positions, by cost
+    own = np.empty(n, np.float64)  # quadric_error(Q, P), vertex by vertex
+    for x in range(n):
+        own[x] = _quadric_at(Q, x, P, x)
     cost = np.empty(len(vv_nbr), np.float64)
     bvc = np.zeros(n, np.int64)  # boundary edges at each vertex
     badv = np.zeros(n, np.bool_)  # a non-manifold or inconsistently oriented edge at the vertex
@@ -499,7 +534,7 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, lo, hi, count, he0, he1, src, 
         for p in range(a, b):
             if bvc[u] > 0 and count[vv_edge[p]] != 1:
                 continue
-            cost[p] = _pair_cost(Q, P, u, vv_nbr[p], own)
+            cost[p] = _quadric_at(Q, u, P, vv_nbr[p]) + own[vv_nbr[p]]
             t = m  # stable: move left past strictly greater costs only (NaN counts as greatest)
             while t > 0 and (cost[buf[t - 1]] > cost[p] or (np.isnan(cost[buf[t - 1]]) and not np.isnan(cost[p]))):
                 buf[t] = buf[t - 1]
