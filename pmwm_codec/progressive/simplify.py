@@ -354,7 +354,16 @@ def _ordinary_winners(cand, mesh, n):
         return _select(cu, cv, cost, legal, mesh[5], n, ROUNDS)
     et, F, P, opp, fcount, vv, vf, vv_edge = mesh
     return kernel(cu, cv, ce, _offer_ranks(cu, cost), vv[0], vv[1], n, ROUNDS,
-                  (vv_edge, et.count, et.he0, et.he1, F, P, opp, fcount, vf[0], vf[1]))
+                  (vv_edge, et.count, et.he0, et.he1, F, P, opp, fcount, vf[0], vf[1], _fin_vertices(et, n)))
+
+
+def _fin_vertices(et, n):
+    """(n,) bool: the vertices on an edge of ``et`` with more than two faces."""
+    fin = np.zeros(n, bool)
+    many = et.count > 2
+    fin[et.lo[many]] = True
+    fin[et.hi[many]] = True
+    return fin
 
 
 def _seam_pairs(Q, src, dst, frozen, seam, g, mesh):
@@ -653,7 +662,7 @@ def _legal(cu, cv, ce, mesh):
     kernel = compiled(_legal_kernel)
     if kernel is not None:
         return kernel(cu, cv, ce, vv_edge, et.count, et.he0, et.he1, F, P, opp, fcount, vv[0], vv[1],
-                      vf[0], vf[1])
+                      vf[0], vf[1], _fin_vertices(et, len(P)))
     k = len(cu)
     ok = np.ones(k, dtype=bool)
 
@@ -718,8 +727,9 @@ def _edge_id(vv_start, vv_nbr, vv_edge, a, b):
 
 
 @kernel_helper
-def _legal_kernel(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_start, vv_nbr, vf_start, vf_face):
-    """Compiled :func:`_legal`: the same (k,) bool mask, test for test (see there)."""
+def _legal_kernel(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_start, vv_nbr, vf_start, vf_face, fin):
+    """Compiled :func:`_legal`: the same (k,) bool mask, test for test (see there); ``fin`` (n,) bool
+    marks the vertices on an edge with more than two faces (:func:`_fin_vertices`)."""
     ok = np.ones(len(cu), np.bool_)
     mark = np.full(len(fcount), -1, np.int64)  # mark[x] == i: x is a neighbour of candidate i's kept vertex
     for i in range(len(cu)):
@@ -740,13 +750,18 @@ def _legal_kernel(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_st
                 if e_uw < 0 or count[e_uw] != 2 or fcount[w] < 2:
                     ok[i] = False
         if ok[i]:
-            ok[i] = _moved_faces_ok(u, v, (vv_start, vv_nbr, vv_edge), count, he0, he1, F, P, opp, vf_start, vf_face)
+            ok[i] = _moved_faces_ok(u, v, (vv_start, vv_nbr, vv_edge), count, he0, he1, F, P, opp, vf_start, vf_face,
+                                    mark, i, fin)
     return ok
 
 
 @kernel_helper
-def _moved_faces_ok(u, v, vv, count, he0, he1, F, P, opp, vf_start, vf_face):
-    """Kernel part of :func:`_legal`: no moved face of ``u -> v`` flips, degenerates or duplicates."""
+def _moved_faces_ok(u, v, vv, count, he0, he1, F, P, opp, vf_start, vf_face, mark, i, fin):
+    """Kernel part of :func:`_legal`: no moved face of ``u -> v`` flips, degenerates or duplicates.
+
+    ``mark[x] == i`` for the neighbours ``x`` of ``v``: a face on the edge ``xa xb`` opposite ``u``
+    with apex ``v`` needs both ends next to ``v``, and an edge with more than two faces has its ends
+    in ``fin``; other edges are not looked up (the same answer, fewer memory reads)."""
     for p in range(vf_start[u], vf_start[u + 1]):
         f = vf_face[p]
         t0, t1, t2 = F[f, 0], F[f, 1], F[f, 2]
@@ -769,6 +784,8 @@ def _moved_faces_ok(u, v, vv, count, he0, he1, F, P, opp, vf_start, vf_face):
         dot = n0x * n1x + n0y * n1y + n0z * n1z
         if not (l1 > 0 and dot > MIN_NORMAL_COS * l0 * l1):
             return False
+        if not fin[xa] and (mark[xa] != i or mark[xb] != i):
+            continue
         e = _edge_id(vv[0], vv[1], vv[2], xa, xb)  # duplicate: the edge opposite u already has apex v
         if e >= 0:
             if count[e] > 2 or opp[he0[e]] == v or (he1[e] >= 0 and opp[he1[e]] == v):
@@ -847,7 +864,7 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
     arguments.  (``_conflicts``' same-kept-vertex rule is implied by its kept-vertex-next-to-a-
     lower-ranked-removed-vertex rule, since every winner's removed vertex neighbours its kept one.)
     """
-    vv_edge, count, he0, he1, F, P, opp, fcount, vf_start, vf_face = mesh
+    vv_edge, count, he0, he1, F, P, opp, fcount, vf_start, vf_face, fin = mesh
     big = len(cu) + 1
     starts = np.flatnonzero(np.concatenate((np.ones(1, np.bool_), cu[1:] != cu[:-1])))
     ends = np.append(starts[1:], len(cu))
@@ -876,7 +893,7 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
         ok = np.zeros(len(wo), np.bool_)
         idx = wo[keep]
         ok[keep] = _legal_kernel(cu[idx], cv[idx], ce[idx], vv_edge, count, he0, he1, F, P, opp, fcount,
-                                 vv_start, vv_nbr, vf_start, vf_face)
+                                 vv_start, vv_nbr, vf_start, vf_face, fin)
         for j in range(len(wo)):
             g, o = wg[j], wo[j]
             if ok[j]:
