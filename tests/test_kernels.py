@@ -246,3 +246,18 @@ def test_the_candidate_collapses_are_the_same_on_both_paths(monkeypatch, name):
     for a, b in zip(*out):
         assert np.array_equal(a, b, equal_nan=True)
 
+
+
+@pytest.mark.parametrize("name", sorted(_ODD_MESHES))
+def test_face_quadrics_are_the_same_bits_on_both_paths(monkeypatch, name):
+    """Face planes summed at the corners and boundary planes at the edge ends, in the same order."""
+    pytest.importorskip("numba")
+    from pmwm_codec.progressive import simplify
+
+    mesh = _ODD_MESHES[name]
+    pos = np.asarray(mesh.positions, np.float64) + np.random.default_rng(2).normal(0, 0.01, (mesh.vertex_count, 3))
+    out = []
+    for use in (False, True):
+        monkeypatch.setattr(topology, "USE_NUMBA", use)
+        out.append(simplify.face_quadrics(pos, np.asarray(mesh.faces, np.int64), mesh.vertex_count))
+    assert out[0].tobytes() == out[1].tobytes()

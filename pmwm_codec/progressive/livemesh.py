@@ -80,6 +80,23 @@ def live_mesh(corners: np.ndarray, face_alive: np.ndarray, vert_alive: np.ndarra
     return LiveMesh(vids, fids, loc, F, et, vv, vv_edge, vf, np.bincount(F.ravel(), minlength=n))
 
 
+def boundary_half_edges(faces: np.ndarray, n: int) -> np.ndarray:
+    """The half-edges (b,) int64 of the boundary edges (one face) of ``faces`` (m, 3) int64 over ``n``
+    vertices, in edge order (``he0`` of :func:`~.topology.edge_table` where ``count == 1``)."""
+    kernel = compiled(_boundary_kernel)
+    if kernel is None:
+        et = edge_table(faces, n)
+        return et.he0[et.count == 1]
+    return kernel(faces, n)
+
+
+def _boundary_kernel(faces, n):
+    """Compiled :func:`boundary_half_edges` (the edge pass of :func:`_live_mesh_kernel`)."""
+    vf_start, vf_corner, _, ring = _vertex_faces(faces, n)
+    _, _, count, he0, _, _, _ = _edges_by_vertex(faces, n, vf_start, vf_corner, ring)
+    return he0[count == 1]
+
+
 @kernel_helper
 def _compact_kernel(corners, face_alive, vert_alive):
     """Kernel part of :func:`_live_mesh_kernel`: ``(vids, fids, loc, F)`` as in :class:`LiveMesh`."""

@@ -57,7 +57,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import seams
-from .livemesh import live_mesh
+from .livemesh import boundary_half_edges, live_mesh
 from .topology import compiled, expand, group_order, half_edges, kernel_helper
 
 #: A moved face's normal may turn by at most this much (cosine bound).
@@ -132,21 +132,16 @@ def face_quadrics(pos: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
     unit = nrm / np.maximum(area2, 1e-300)[:, None]
     d = -np.einsum("ij,ij->i", unit, p0)
     planes = np.concatenate([unit, d[:, None]], axis=1)
-    q = _plane_quadrics(planes, 0.5 * area2)
-    kernel = compiled(_corner_sum_kernel)
+    kernel = compiled(_corner_quadrics_kernel)
     if kernel is None:
-        corner_q = np.repeat(q, 3, axis=0)
-        out = np.stack([np.bincount(faces.ravel(), weights=corner_q[:, j], minlength=n) for j in range(10)], axis=1)
+        corner_q = np.repeat(_plane_quadrics(planes, 0.5 * area2), 3, axis=0)
+        out = _index_sum(faces.ravel(), corner_q, n)
     else:
-        out = kernel(faces, q, n)
+        out = kernel(faces, planes, 0.5 * area2, n)
 
     # boundary edges: a plane through the edge, perpendicular to its face
-    used = np.zeros(n, bool)
-    used[faces.ravel()] = True
-    et = live_mesh(faces, np.ones(len(faces), bool), used).et  # edge order and he0 as edge_table(faces, n)
-    b = np.flatnonzero(et.count == 1)
-    if len(b):
-        he = et.he0[b]
+    he = boundary_half_edges(faces, n)
+    if len(he):
         src, dst, _ = half_edges(faces)
         a_, b_ = src[he], dst[he]
         e = pos[b_] - pos[a_]
@@ -155,21 +150,43 @@ def face_quadrics(pos: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
         pn /= np.maximum(np.linalg.norm(pn, axis=1), 1e-300)[:, None]
         pd = -np.einsum("ij,ij->i", pn, pos[a_])
         bq = _plane_quadrics(np.concatenate([pn, pd[:, None]], axis=1), BOUNDARY_WEIGHT * elen2)
-        idx = np.concatenate([a_, b_])
-        bq2 = np.concatenate([bq, bq])
-        out += np.stack([np.bincount(idx, weights=bq2[:, j], minlength=n) for j in range(10)], axis=1)
+        out += _index_sum(np.concatenate([a_, b_]), np.concatenate([bq, bq]), n)
     return out
 
 
-def _corner_sum_kernel(faces, q, n):
-    """Compiled ``bincount`` of the face quadrics ``q`` (m, 10) float64 over the corners ``faces``
-    (m, 3) int64: (n, 10) float64, summed in the same order (corner by corner), so the same bits."""
+def _index_sum(idx, q, n):
+    """(n, 10) float64: the rows of ``q`` (k, 10) float64 summed by ``idx`` (k,) int64, in ``idx``
+    order (``np.bincount`` per column, or its compiled twin: the same bits)."""
+    kernel = compiled(_index_sum_kernel)
+    if kernel is not None:
+        return kernel(idx, q, n)
+    return np.stack([np.bincount(idx, weights=q[:, j], minlength=n) for j in range(q.shape[1])], axis=1)
+
+
+def _index_sum_kernel(idx, q, n):
+    """Compiled :func:`_index_sum`."""
     out = np.zeros((n, q.shape[1]), np.float64)
+    for i in range(len(idx)):
+        for j in range(q.shape[1]):
+            out[idx[i], j] += q[i, j]
+    return out
+
+
+def _corner_quadrics_kernel(faces, planes, weight, n):
+    """Compiled ``_index_sum(faces.ravel(), np.repeat(_plane_quadrics(planes, weight), 3, axis=0), n)``
+    for faces (m, 3) int64, planes (m, 4) and weight (m,) float64: each face's quadric computed as
+    :func:`_plane_quadrics` does (``w * (a * b)``) and added corner by corner, so the same bits."""
+    out = np.zeros((n, 10), np.float64)
+    q = np.empty(10, np.float64)
     for f in range(len(faces)):
-        for c in range(3):
-            x = faces[f, c]
-            for j in range(q.shape[1]):
-                out[x, j] += q[f, j]
+        a, b, c, d, w = planes[f, 0], planes[f, 1], planes[f, 2], planes[f, 3], weight[f]
+        q[0], q[1], q[2], q[3] = w * (a * a), w * (a * b), w * (a * c), w * (a * d)
+        q[4], q[5], q[6], q[7] = w * (b * b), w * (b * c), w * (b * d), w * (c * c)
+        q[8], q[9] = w * (c * d), w * (d * d)
+        for k in range(3):
+            x = faces[f, k]
+            for j in range(10):
+                out[x, j] += q[j]
     return out
 
 
