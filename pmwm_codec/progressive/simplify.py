@@ -280,16 +280,7 @@ def simplify(
                            weld)
         if batch is None:
             break
-        # apply: delete faces, rewrite corners, merge quadrics
-        dead = np.concatenate([batch.del_left[batch.del_left >= 0], batch.del_right[batch.del_right >= 0]])
-        face_alive[dead] = False
-        mf = batch.moved_face
-        sub = corners[mf]
-        corners[mf] = np.where(
-            sub == batch.u[batch.moved_by][:, None], batch.v[batch.moved_by][:, None], sub
-        )
-        vert_alive[batch.u] = False
-        quad[batch.v] += quad[batch.u]
+        _apply(batch, corners, face_alive, vert_alive, quad)
         alive_count -= len(batch.u)
         log.batches.append(batch)
 
@@ -297,6 +288,40 @@ def simplify(
     log.base_faces = np.flatnonzero(face_alive)
     log.base_corners = corners[log.base_faces]
     return log
+
+
+def _apply(batch, corners, face_alive, vert_alive, quad):
+    """Apply a :class:`CollapseBatch` to the simplifier's state in place: delete its faces, rewrite
+    the moved corners ``u -> v``, retire ``u`` and merge its quadric into ``v``'s (``quad`` (n, 10)
+    float64; the batch's ``u`` and ``v`` are disjoint, every ``v`` once)."""
+    kernel = compiled(_apply_kernel)
+    if kernel is not None:
+        kernel(batch.u, batch.v, batch.del_left, batch.del_right, batch.moved_face, batch.moved_by,
+               corners, face_alive, vert_alive, quad)
+        return
+    dead = np.concatenate([batch.del_left[batch.del_left >= 0], batch.del_right[batch.del_right >= 0]])
+    face_alive[dead] = False
+    mf = batch.moved_face
+    sub = corners[mf]
+    corners[mf] = np.where(sub == batch.u[batch.moved_by][:, None], batch.v[batch.moved_by][:, None], sub)
+    vert_alive[batch.u] = False
+    quad[batch.v] += quad[batch.u]
+
+
+def _apply_kernel(u, v, del_left, del_right, moved_face, moved_by, corners, face_alive, vert_alive, quad):
+    """Compiled :func:`_apply` (the same state afterwards, the same quadric bits)."""
+    for i in range(len(u)):
+        for f in (del_left[i], del_right[i]):
+            if f >= 0:
+                face_alive[f] = False
+        vert_alive[u[i]] = False
+        for j in range(quad.shape[1]):
+            quad[v[i], j] = quad[v[i], j] + quad[u[i], j]
+    for k in range(len(moved_face)):
+        f, i = moved_face[k], moved_by[k]
+        for c in range(3):
+            if corners[f, c] == u[i]:
+                corners[f, c] = v[i]
 
 
 def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget, weld=None):
