@@ -17,6 +17,7 @@ import pytest
 import pmwm_codec
 from pmwm_codec import shapes
 from pmwm_codec.errors import FormatError
+from pmwm_codec.mesh import Mesh
 from pmwm_codec.progressive import topology
 from pmwm_codec.progressive.vsplit import MeshState, find_incidences, split_topology
 
@@ -189,6 +190,24 @@ _ODD_MESHES = {  # boundaries, holes, a non-manifold vertex, several components
 }
 
 
+def _with_degenerate_faces(mesh):
+    """``mesh`` plus faces that repeat a corner (self-loop edges, an edge twice in one face)."""
+    extra = np.array([[0, 0, 1], [2, 2, 2], [3, 4, 3], [1, 5, 5]], np.int64)
+    return Mesh(mesh.positions, np.vstack([np.asarray(mesh.faces, np.int64), extra]))
+
+
+@pytest.mark.parametrize("name", sorted(_ODD_MESHES))
+def test_the_live_mesh_is_the_same_on_both_paths_with_degenerate_faces(monkeypatch, name):
+    pytest.importorskip("numba")
+    mesh = _with_degenerate_faces(_ODD_MESHES[name])
+    plain, fast = _live_both_ways(monkeypatch, mesh, np.ones(mesh.face_count, bool))
+    for field in ("keys", "lo", "hi", "count", "he0", "he1", "he_edge"):
+        assert np.array_equal(getattr(plain.et, field), getattr(fast.et, field)), field
+    assert (plain.et.lo == plain.et.hi).any()  # the self-loops are there
+    for a, b in zip(plain.vv + plain.vf + (plain.vv_edge, plain.fcount), fast.vv + fast.vf + (fast.vv_edge, fast.fcount)):
+        assert np.array_equal(a, b)
+
+
 @pytest.mark.parametrize("name", sorted(_ODD_MESHES))
 def test_the_live_mesh_is_the_same_on_both_paths(monkeypatch, name):
     pytest.importorskip("numba")
@@ -227,3 +246,18 @@ def test_the_candidate_collapses_are_the_same_on_both_paths(monkeypatch, name):
     for a, b in zip(*out):
         assert np.array_equal(a, b, equal_nan=True)
 
+
+
+@pytest.mark.parametrize("name", sorted(_ODD_MESHES))
+def test_face_quadrics_are_the_same_bits_on_both_paths(monkeypatch, name):
+    """Face planes summed at the corners and boundary planes at the edge ends, in the same order."""
+    pytest.importorskip("numba")
+    from pmwm_codec.progressive import simplify
+
+    mesh = _ODD_MESHES[name]
+    pos = np.asarray(mesh.positions, np.float64) + np.random.default_rng(2).normal(0, 0.01, (mesh.vertex_count, 3))
+    out = []
+    for use in (False, True):
+        monkeypatch.setattr(topology, "USE_NUMBA", use)
+        out.append(simplify.face_quadrics(pos, np.asarray(mesh.faces, np.int64), mesh.vertex_count))
+    assert out[0].tobytes() == out[1].tobytes()

@@ -501,7 +501,7 @@ def simplify_profile(mesh, zstd_level) -> list:
     st = pstats.Stats(pr).stats
     rows = []
     for (file, _, func), (cc, nc, tt, ct, _) in st.items():
-        if file.endswith(("progressive/simplify.py", "progressive/topology.py")) or func in ("<method 'argsort' of 'numpy.ndarray' objects>", "<method 'reduceat' of 'numpy.ufunc' objects>"):
+        if file.endswith(("progressive/simplify.py", "progressive/topology.py", "progressive/livemesh.py")) or func in ("<method 'argsort' of 'numpy.ndarray' objects>", "<method 'reduceat' of 'numpy.ufunc' objects>"):
             rows.append((f"{os.path.basename(file)}:{func}" if file != "~" else func, nc, ct, tt))
     rows.sort(key=lambda r: -r[2])
     return rows[:10]

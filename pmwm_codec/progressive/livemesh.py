@@ -3,9 +3,9 @@
 Each batch of :func:`~pmwm_codec.progressive.simplify.simplify` works on the live mesh
 renumbered compactly ("local" ids, in the order of the original ids) and needs its edge
 table, its vertex -> neighbours and vertex -> faces adjacencies and the face count of every
-vertex.  :func:`live_mesh` builds all of them: with numba, in one compiled kernel (a counting
-sort of the half-edges by their low end, then a small stable sort by the high end inside each
-bucket, instead of two counting sorts and a dozen numpy passes); without numba, with the
+vertex.  :func:`live_mesh` builds all of them: with numba, in one compiled kernel (the vertex ->
+corners table by a counting sort, then every vertex's edges to higher vertices from its own
+corners, in edge order, so the half-edges are never sorted as a whole); without numba, with the
 functions of :mod:`.topology`.  Both paths return the same arrays, entry for entry.
 """
 
@@ -80,6 +80,23 @@ def live_mesh(corners: np.ndarray, face_alive: np.ndarray, vert_alive: np.ndarra
     return LiveMesh(vids, fids, loc, F, et, vv, vv_edge, vf, np.bincount(F.ravel(), minlength=n))
 
 
+def boundary_half_edges(faces: np.ndarray, n: int) -> np.ndarray:
+    """The half-edges (b,) int64 of the boundary edges (one face) of ``faces`` (m, 3) int64 over ``n``
+    vertices, in edge order (``he0`` of :func:`~.topology.edge_table` where ``count == 1``)."""
+    kernel = compiled(_boundary_kernel)
+    if kernel is None:
+        et = edge_table(faces, n)
+        return et.he0[et.count == 1]
+    return kernel(faces, n)
+
+
+def _boundary_kernel(faces, n):
+    """Compiled :func:`boundary_half_edges` (the edge pass of :func:`_live_mesh_kernel`)."""
+    vf_start, vf_corner, _, ring = _vertex_faces(faces, n)
+    _, _, count, he0, _, _, _ = _edges_by_vertex(faces, n, vf_start, vf_corner, ring)
+    return he0[count == 1]
+
+
 @kernel_helper
 def _compact_kernel(corners, face_alive, vert_alive):
     """Kernel part of :func:`_live_mesh_kernel`: ``(vids, fids, loc, F)`` as in :class:`LiveMesh`."""
@@ -99,75 +116,103 @@ def _compact_kernel(corners, face_alive, vert_alive):
 
 
 @kernel_helper
-def _sorted_half_edges(F, n):
-    """Half-edges ``3 f + c`` of ``F`` (m, 3) sorted by (low end, high end), ties by half-edge:
-    ``(order (3m,), lo (3m,), hi (3m,))`` with ``lo`` / ``hi`` per half-edge (not sorted)."""
-    h = 3 * len(F)
-    lo = np.empty(h, np.int64)
-    hi = np.empty(h, np.int64)
-    start = np.zeros(n + 1, np.int64)
+def _vertex_faces(F, n):
+    """Kernel part of :func:`_live_mesh_kernel`: the vertex -> corners CSR of ``F`` (m, 3) int64,
+    corners ``3 f + c`` ascending in every row: ``(vf_start (n + 1,), vf_corner (3m,), fcount (n,),
+    ring (3m, 2))`` with ``ring`` the corner's next and previous vertex in its face (so the edge pass
+    reads the rows in order instead of looking up faces)."""
+    fcount = np.zeros(n, np.int64)
     for f in range(len(F)):
         for c in range(3):
-            a, b = F[f, c], F[f, (c + 1) % 3]
-            lo[3 * f + c], hi[3 * f + c] = min(a, b), max(a, b)
-            start[min(a, b) + 1] += 1
+            fcount[F[f, c]] += 1
+    vf_start = np.zeros(n + 1, np.int64)
     for x in range(n):
-        start[x + 1] += start[x]
-    fill = start[:-1].copy()
-    order = np.empty(h, np.int64)
-    for j in range(h):  # bucket by the low end, half-edges ascending inside a bucket
-        order[fill[lo[j]]] = j
-        fill[lo[j]] += 1
-    for x in range(n):  # stable sort of each bucket by the high end
-        a, b = start[x], start[x + 1]
-        if b - a > 32:
-            seg = order[a:b].copy()
-            order[a:b] = seg[np.argsort(hi[seg], kind="mergesort")]
-            continue
-        for j in range(a + 1, b):
-            item = order[j]
-            t = j
-            while t > a and hi[order[t - 1]] > hi[item]:
-                order[t] = order[t - 1]
-                t -= 1
-            order[t] = item
-    return order, lo, hi
+        vf_start[x + 1] = vf_start[x] + fcount[x]
+    fill = vf_start[:-1].copy()
+    vf_corner = np.empty(3 * len(F), np.int64)
+    ring = np.empty((3 * len(F), 2), np.int64)
+    for f in range(len(F)):
+        for c in range(3):
+            s = fill[F[f, c]]
+            vf_corner[s] = 3 * f + c
+            ring[s, 0] = F[f, c + 1 if c < 2 else 0]
+            ring[s, 1] = F[f, c - 1 if c > 0 else 2]
+            fill[F[f, c]] += 1
+    return vf_start, vf_corner, fcount, ring
+
+
+@kernel_helper
+def _insert(by, bh, k, y, he):
+    """Insert ``(y, he)`` into the first ``k`` entries of ``by`` / ``bh``, kept sorted by (y, he)."""
+    t = k
+    while t > 0 and (by[t - 1] > y or (by[t - 1] == y and bh[t - 1] > he)):
+        by[t] = by[t - 1]
+        bh[t] = bh[t - 1]
+        t -= 1
+    by[t] = y
+    bh[t] = he
+
+
+@kernel_helper
+def _edges_by_vertex(F, n, vf_start, vf_corner, ring):
+    """Kernel part of :func:`_live_mesh_kernel`: the edge table of ``F`` built vertex by vertex.
+
+    Every vertex ``x`` in turn gathers the half-edges of its corners that run to or from a higher
+    vertex ``y`` (and its own outgoing self-loops), sorted by (y, half-edge): its edges as the low
+    end, in edge order.  Returns ``(lo, hi, count, he0, he1)`` (e,) int64 as in
+    :class:`~.topology.EdgeTable`, ``he_edge`` (3m,) int64 and ``down`` (n,) int64 (edges where
+    each vertex is the high end).
+    """
+    h = 3 * len(F)
+    lo, hi, count = np.empty(h, np.int64), np.empty(h, np.int64), np.empty(h, np.int64)
+    he0, he1, he_edge = np.empty(h, np.int64), np.empty(h, np.int64), np.empty(h, np.int64)
+    down = np.zeros(n, np.int64)
+    wmax = 0
+    for x in range(n):
+        wmax = max(wmax, vf_start[x + 1] - vf_start[x])
+    by, bh = np.empty(2 * wmax, np.int64), np.empty(2 * wmax, np.int64)
+    ne = 0
+    for x in range(n):
+        k = 0
+        for p in range(vf_start[x], vf_start[x + 1]):
+            hc = vf_corner[p]
+            y1, y2 = ring[p, 0], ring[p, 1]
+            if y1 >= x:  # half-edge x -> y1
+                _insert(by, bh, k, y1, hc)
+                k += 1
+            if y2 > x:  # half-edge y2 -> x: the face's previous corner
+                _insert(by, bh, k, y2, hc + 2 if hc % 3 == 0 else hc - 1)
+                k += 1
+        j = 0
+        while j < k:
+            s = j
+            while j < k and by[j] == by[s]:
+                he_edge[bh[j]] = ne
+                j += 1
+            lo[ne], hi[ne], count[ne] = x, by[s], j - s
+            he0[ne] = bh[s]
+            he1[ne] = bh[s + 1] if j - s >= 2 else -1
+            down[by[s]] += 1
+            ne += 1
+    return lo[:ne].copy(), hi[:ne].copy(), count[:ne].copy(), he0[:ne].copy(), he1[:ne].copy(), he_edge, down
 
 
 def _live_mesh_kernel(corners, face_alive, vert_alive):
     """Compiled :func:`live_mesh`: the same arrays (see there), as a flat tuple."""
     vids, fids, loc, F = _compact_kernel(corners, face_alive, vert_alive)
     n = len(vids)
-    order, hlo, hhi = _sorted_half_edges(F, n)
-    h = len(order)
-    he_edge = np.empty(h, np.int64)
-    first = np.empty(h, np.int64)  # sorted position of each edge's first half-edge
-    e = -1
-    for i in range(h):
-        if i == 0 or hlo[order[i]] != hlo[order[i - 1]] or hhi[order[i]] != hhi[order[i - 1]]:
-            e += 1
-            first[e] = i
-        he_edge[order[i]] = e
-    ne = e + 1
-    keys, lo, hi = np.empty(ne, np.int64), np.empty(ne, np.int64), np.empty(ne, np.int64)
-    count, he0, he1 = np.empty(ne, np.int64), np.empty(ne, np.int64), np.empty(ne, np.int64)
-    for e in range(ne):
-        s = first[e]
-        count[e] = (first[e + 1] if e + 1 < ne else h) - s
-        he0[e] = order[s]
-        he1[e] = order[s + 1] if count[e] >= 2 else -1
-        lo[e], hi[e] = hlo[order[s]], hhi[order[s]]
-        keys[e] = lo[e] * n + hi[e]
+    vf_start, vf_corner, fcount, ring = _vertex_faces(F, n)
+    lo, hi, count, he0, he1, he_edge, down = _edges_by_vertex(F, n, vf_start, vf_corner, ring)
+    ne = len(lo)
     vv_start = np.zeros(n + 1, np.int64)
     for e in range(ne):
         vv_start[lo[e] + 1] += 1
-        vv_start[hi[e] + 1] += 1
     for x in range(n):
-        vv_start[x + 1] += vv_start[x]
+        vv_start[x + 1] += vv_start[x] + down[x]
     fill = vv_start[:-1].copy()
     vv_nbr = np.empty(2 * ne, np.int64)
     vv_edge = np.empty(2 * ne, np.int64)
-    for e in range(ne):
+    for e in range(ne):  # each row: edges where the vertex is the low end, then the high end
         vv_nbr[fill[lo[e]]] = hi[e]
         vv_edge[fill[lo[e]]] = e
         fill[lo[e]] += 1
@@ -175,17 +220,5 @@ def _live_mesh_kernel(corners, face_alive, vert_alive):
         vv_nbr[fill[hi[e]]] = lo[e]
         vv_edge[fill[hi[e]]] = e
         fill[hi[e]] += 1
-    fcount = np.zeros(n, np.int64)
-    for f in range(len(F)):
-        for c in range(3):
-            fcount[F[f, c]] += 1
-    vf_start = np.zeros(n + 1, np.int64)
-    vf_start[1:] = np.cumsum(fcount)
-    fill = vf_start[:-1].copy()
-    vf_face = np.empty(3 * len(F), np.int64)
-    for f in range(len(F)):
-        for c in range(3):
-            vf_face[fill[F[f, c]]] = f
-            fill[F[f, c]] += 1
-    edges = (keys, lo, hi, count, he0, he1, he_edge)
-    return vids, fids, loc, F, edges, vv_start, vv_nbr, vv_edge, vf_start, vf_face, fcount
+    edges = (lo * n + hi, lo, hi, count, he0, he1, he_edge)
+    return vids, fids, loc, F, edges, vv_start, vv_nbr, vv_edge, vf_start, vf_corner // 3, fcount

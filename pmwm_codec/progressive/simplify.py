@@ -57,7 +57,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import seams
-from .livemesh import live_mesh
+from .livemesh import boundary_half_edges, live_mesh
 from .topology import compiled, expand, group_order, half_edges, kernel_helper
 
 #: A moved face's normal may turn by at most this much (cosine bound).
@@ -132,21 +132,16 @@ def face_quadrics(pos: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
     unit = nrm / np.maximum(area2, 1e-300)[:, None]
     d = -np.einsum("ij,ij->i", unit, p0)
     planes = np.concatenate([unit, d[:, None]], axis=1)
-    q = _plane_quadrics(planes, 0.5 * area2)
-    kernel = compiled(_corner_sum_kernel)
+    kernel = compiled(_corner_quadrics_kernel)
     if kernel is None:
-        corner_q = np.repeat(q, 3, axis=0)
-        out = np.stack([np.bincount(faces.ravel(), weights=corner_q[:, j], minlength=n) for j in range(10)], axis=1)
+        corner_q = np.repeat(_plane_quadrics(planes, 0.5 * area2), 3, axis=0)
+        out = _index_sum(faces.ravel(), corner_q, n)
     else:
-        out = kernel(faces, q, n)
+        out = kernel(faces, planes, 0.5 * area2, n)
 
     # boundary edges: a plane through the edge, perpendicular to its face
-    used = np.zeros(n, bool)
-    used[faces.ravel()] = True
-    et = live_mesh(faces, np.ones(len(faces), bool), used).et  # edge order and he0 as edge_table(faces, n)
-    b = np.flatnonzero(et.count == 1)
-    if len(b):
-        he = et.he0[b]
+    he = boundary_half_edges(faces, n)
+    if len(he):
         src, dst, _ = half_edges(faces)
         a_, b_ = src[he], dst[he]
         e = pos[b_] - pos[a_]
@@ -155,21 +150,43 @@ def face_quadrics(pos: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
         pn /= np.maximum(np.linalg.norm(pn, axis=1), 1e-300)[:, None]
         pd = -np.einsum("ij,ij->i", pn, pos[a_])
         bq = _plane_quadrics(np.concatenate([pn, pd[:, None]], axis=1), BOUNDARY_WEIGHT * elen2)
-        idx = np.concatenate([a_, b_])
-        bq2 = np.concatenate([bq, bq])
-        out += np.stack([np.bincount(idx, weights=bq2[:, j], minlength=n) for j in range(10)], axis=1)
+        out += _index_sum(np.concatenate([a_, b_]), np.concatenate([bq, bq]), n)
     return out
 
 
-def _corner_sum_kernel(faces, q, n):
-    """Compiled ``bincount`` of the face quadrics ``q`` (m, 10) float64 over the corners ``faces``
-    (m, 3) int64: (n, 10) float64, summed in the same order (corner by corner), so the same bits."""
+def _index_sum(idx, q, n):
+    """(n, 10) float64: the rows of ``q`` (k, 10) float64 summed by ``idx`` (k,) int64, in ``idx``
+    order (``np.bincount`` per column, or its compiled twin: the same bits)."""
+    kernel = compiled(_index_sum_kernel)
+    if kernel is not None:
+        return kernel(idx, q, n)
+    return np.stack([np.bincount(idx, weights=q[:, j], minlength=n) for j in range(q.shape[1])], axis=1)
+
+
+def _index_sum_kernel(idx, q, n):
+    """Compiled :func:`_index_sum`."""
     out = np.zeros((n, q.shape[1]), np.float64)
+    for i in range(len(idx)):
+        for j in range(q.shape[1]):
+            out[idx[i], j] += q[i, j]
+    return out
+
+
+def _corner_quadrics_kernel(faces, planes, weight, n):
+    """Compiled ``_index_sum(faces.ravel(), np.repeat(_plane_quadrics(planes, weight), 3, axis=0), n)``
+    for faces (m, 3) int64, planes (m, 4) and weight (m,) float64: each face's quadric computed as
+    :func:`_plane_quadrics` does (``w * (a * b)``) and added corner by corner, so the same bits."""
+    out = np.zeros((n, 10), np.float64)
+    q = np.empty(10, np.float64)
     for f in range(len(faces)):
-        for c in range(3):
-            x = faces[f, c]
-            for j in range(q.shape[1]):
-                out[x, j] += q[f, j]
+        a, b, c, d, w = planes[f, 0], planes[f, 1], planes[f, 2], planes[f, 3], weight[f]
+        q[0], q[1], q[2], q[3] = w * (a * a), w * (a * b), w * (a * c), w * (a * d)
+        q[4], q[5], q[6], q[7] = w * (b * b), w * (b * c), w * (b * d), w * (c * c)
+        q[8], q[9] = w * (c * d), w * (d * d)
+        for k in range(3):
+            x = faces[f, k]
+            for j in range(10):
+                out[x, j] += q[j]
     return out
 
 
@@ -198,10 +215,9 @@ def quadric_error(q: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 
 @kernel_helper
-def _pair_cost(Q, P, u, v, own):
-    """Compiled ``quadric_error(Q[u], P[v]) + own[v]`` for one pair (Q (n, 10), P (n, 3), own (n,)
-    float64): the same operations in the same order as :func:`quadric_error` (no contraction),
-    so the same bits."""
+def _quadric_at(Q, u, P, v):
+    """Compiled ``quadric_error(Q[u], P[v])`` for one pair (Q (n, 10), P (n, 3) float64): the same
+    operations in the same order (no contraction) and ``np.maximum``'s choice, so the same bits."""
     q = Q[u]
     x, y, z = P[v, 0], P[v, 1], P[v, 2]
     err = (
@@ -209,7 +225,7 @@ def _pair_cost(Q, P, u, v, own):
         + q[4] * y * y + 2 * q[5] * y * z + 2 * q[6] * y
         + q[7] * z * z + 2 * q[8] * z + q[9]
     )
-    return max(err, 0.0) + own[v]
+    return err if (err >= 0.0 or err != err) else 0.0
 
 
 def simplify(
@@ -264,16 +280,7 @@ def simplify(
                            weld)
         if batch is None:
             break
-        # apply: delete faces, rewrite corners, merge quadrics
-        dead = np.concatenate([batch.del_left[batch.del_left >= 0], batch.del_right[batch.del_right >= 0]])
-        face_alive[dead] = False
-        mf = batch.moved_face
-        sub = corners[mf]
-        corners[mf] = np.where(
-            sub == batch.u[batch.moved_by][:, None], batch.v[batch.moved_by][:, None], sub
-        )
-        vert_alive[batch.u] = False
-        quad[batch.v] += quad[batch.u]
+        _apply(batch, corners, face_alive, vert_alive, quad)
         alive_count -= len(batch.u)
         log.batches.append(batch)
 
@@ -281,6 +288,40 @@ def simplify(
     log.base_faces = np.flatnonzero(face_alive)
     log.base_corners = corners[log.base_faces]
     return log
+
+
+def _apply(batch, corners, face_alive, vert_alive, quad):
+    """Apply a :class:`CollapseBatch` to the simplifier's state in place: delete its faces, rewrite
+    the moved corners ``u -> v``, retire ``u`` and merge its quadric into ``v``'s (``quad`` (n, 10)
+    float64; the batch's ``u`` and ``v`` are disjoint, every ``v`` once)."""
+    kernel = compiled(_apply_kernel)
+    if kernel is not None:
+        kernel(batch.u, batch.v, batch.del_left, batch.del_right, batch.moved_face, batch.moved_by,
+               corners, face_alive, vert_alive, quad)
+        return
+    dead = np.concatenate([batch.del_left[batch.del_left >= 0], batch.del_right[batch.del_right >= 0]])
+    face_alive[dead] = False
+    mf = batch.moved_face
+    sub = corners[mf]
+    corners[mf] = np.where(sub == batch.u[batch.moved_by][:, None], batch.v[batch.moved_by][:, None], sub)
+    vert_alive[batch.u] = False
+    quad[batch.v] += quad[batch.u]
+
+
+def _apply_kernel(u, v, del_left, del_right, moved_face, moved_by, corners, face_alive, vert_alive, quad):
+    """Compiled :func:`_apply` (the same state afterwards, the same quadric bits)."""
+    for i in range(len(u)):
+        for f in (del_left[i], del_right[i]):
+            if f >= 0:
+                face_alive[f] = False
+        vert_alive[u[i]] = False
+        for j in range(quad.shape[1]):
+            quad[v[i], j] = quad[v[i], j] + quad[u[i], j]
+    for k in range(len(moved_face)):
+        f, i = moved_face[k], moved_by[k]
+        for c in range(3):
+            if corners[f, c] == u[i]:
+                corners[f, c] = v[i]
 
 
 def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget, weld=None):
@@ -355,7 +396,16 @@ def _ordinary_winners(cand, mesh, n):
         return _select(cu, cv, cost, legal, mesh[5], n, ROUNDS)
     et, F, P, opp, fcount, vv, vf, vv_edge = mesh
     return kernel(cu, cv, ce, _offer_ranks(cu, cost), vv[0], vv[1], n, ROUNDS,
-                  (vv_edge, et.count, et.he0, et.he1, F, P, opp, fcount, vf[0], vf[1]))
+                  (vv_edge, et.count, et.he0, et.he1, F, P, opp, fcount, vf[0], vf[1], _fin_vertices(et, n)))
+
+
+def _fin_vertices(et, n):
+    """(n,) bool: the vertices on an edge of ``et`` with more than two faces."""
+    fin = np.zeros(n, bool)
+    many = et.count > 2
+    fin[et.lo[many]] = True
+    fin[et.hi[many]] = True
+    return fin
 
 
 def _seam_pairs(Q, src, dst, frozen, seam, g, mesh):
@@ -411,8 +461,41 @@ def _affordable(cu, cv, ce, cost, quantile: float):
     the ``quantile`` of the per-vertex cheapest costs; all of them when ``quantile >= 1``."""
     if quantile >= 1.0 or len(cu) == 0:
         return cu, cv, ce, cost
-    keep = cost <= np.quantile(cost[_group_starts(cu)], quantile)
-    return cu[keep], cv[keep], ce[keep], cost[keep]
+    kernel = compiled(_at_most_kernel)
+    if kernel is None:
+        keep = cost <= np.quantile(cost[_group_starts(cu)], quantile)
+        return cu[keep], cv[keep], ce[keep], cost[keep]
+    return kernel(cu, cv, ce, cost, np.quantile(_first_costs(cu, cost), quantile))
+
+
+def _first_costs(cu, cost):
+    """``cost[_group_starts(cu)]`` (g,) float64 in one compiled pass (numba only)."""
+    return compiled(_first_costs_kernel)(cu, cost)
+
+
+def _first_costs_kernel(cu, cost):
+    """Compiled ``cost[_group_starts(cu)]``."""
+    out = np.empty(len(cu), np.float64)
+    k = 0
+    for i in range(len(cu)):
+        if i == 0 or cu[i] != cu[i - 1]:
+            out[k] = cost[i]
+            k += 1
+    return out[:k]
+
+
+def _at_most_kernel(cu, cv, ce, cost, limit):
+    """Compiled filter of :func:`_affordable`: the rows (c,) of the four arrays with ``cost <= limit``."""
+    k = 0
+    for i in range(len(cost)):
+        k += cost[i] <= limit
+    out = (np.empty(k, np.int64), np.empty(k, np.int64), np.empty(k, np.int64), np.empty(k, np.float64))
+    j = 0
+    for i in range(len(cost)):
+        if cost[i] <= limit:
+            out[0][j], out[1][j], out[2][j], out[3][j] = cu[i], cv[i], ce[i], cost[i]
+            j += 1
+    return out
 
 
 def _group_starts(cu):
@@ -450,13 +533,13 @@ def _candidates(mesh, Q, src, frozen_ext):
     """
     et, F, P, _, fcount, vv, _, vv_edge = mesh
     n = len(P)
-    # (Q_u + Q_v)(p_v) = Q_u(p_v) + Q_v(p_v); the second term is one value per vertex
-    own = quadric_error(Q, P)
     kernel = compiled(_candidates_kernel)
     if kernel is not None:
         cu, cv, ce, cost = kernel(vv[0], vv[1], vv_edge, et.lo, et.hi, et.count, et.he0, et.he1, src, fcount,
-                                  frozen_ext, Q, P, own, TRIES)
+                                  frozen_ext, Q, P, TRIES)
         return (cu, cv, ce, cost) if len(cu) else None
+    # (Q_u + Q_v)(p_v) = Q_u(p_v) + Q_v(p_v); the second term is one value per vertex
+    own = quadric_error(Q, P)
     cu, cv, ce = _usable(F, et, src, frozen_ext, n)
     if len(cu) == 0:
         return None
@@ -467,7 +550,7 @@ def _candidates(mesh, Q, src, frozen_ext):
     return cu[keep], cv[keep], ce[keep], cost[keep]
 
 
-def _candidates_kernel(vv_start, vv_nbr, vv_edge, lo, hi, count, he0, he1, src, fcount, frozen_ext, Q, P, own, tries):
+def _candidates_kernel(vv_start, vv_nbr, vv_edge, lo, hi, count, he0, he1, src, fcount, frozen_ext, Q, P, tries):
     """Compiled :func:`_candidates` (same arrays, same order), one vertex at a time.
 
     A vertex's row of the neighbour CSR lists its edges in the order :func:`_usable` meets them
@@ -481,6 +564,9 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, lo, hi, count, he0, he1, src, 
     out_e = np.empty(tries * n, np.int64)
     out_c = np.empty(tries * n, np.float64)
     buf = np.empty(int(np.max(np.diff(vv_start))) if n else 0, np.int64)  # row positions, by cost
+    own = np.empty(n, np.float64)  # quadric_error(Q, P), vertex by vertex
+    for x in range(n):
+        own[x] = _quadric_at(Q, x, P, x)
     cost = np.empty(len(vv_nbr), np.float64)
     bvc = np.zeros(n, np.int64)  # boundary edges at each vertex
     badv = np.zeros(n, np.bool_)  # a non-manifold or inconsistently oriented edge at the vertex
@@ -499,7 +585,7 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, lo, hi, count, he0, he1, src, 
         for p in range(a, b):
             if bvc[u] > 0 and count[vv_edge[p]] != 1:
                 continue
-            cost[p] = _pair_cost(Q, P, u, vv_nbr[p], own)
+            cost[p] = _quadric_at(Q, u, P, vv_nbr[p]) + own[vv_nbr[p]]
             t = m  # stable: move left past strictly greater costs only (NaN counts as greatest)
             while t > 0 and (cost[buf[t - 1]] > cost[p] or (np.isnan(cost[buf[t - 1]]) and not np.isnan(cost[p]))):
                 buf[t] = buf[t - 1]
@@ -618,7 +704,7 @@ def _legal(cu, cv, ce, mesh):
     kernel = compiled(_legal_kernel)
     if kernel is not None:
         return kernel(cu, cv, ce, vv_edge, et.count, et.he0, et.he1, F, P, opp, fcount, vv[0], vv[1],
-                      vf[0], vf[1])
+                      vf[0], vf[1], _fin_vertices(et, len(P)))
     k = len(cu)
     ok = np.ones(k, dtype=bool)
 
@@ -683,8 +769,9 @@ def _edge_id(vv_start, vv_nbr, vv_edge, a, b):
 
 
 @kernel_helper
-def _legal_kernel(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_start, vv_nbr, vf_start, vf_face):
-    """Compiled :func:`_legal`: the same (k,) bool mask, test for test (see there)."""
+def _legal_kernel(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_start, vv_nbr, vf_start, vf_face, fin):
+    """Compiled :func:`_legal`: the same (k,) bool mask, test for test (see there); ``fin`` (n,) bool
+    marks the vertices on an edge with more than two faces (:func:`_fin_vertices`)."""
     ok = np.ones(len(cu), np.bool_)
     mark = np.full(len(fcount), -1, np.int64)  # mark[x] == i: x is a neighbour of candidate i's kept vertex
     for i in range(len(cu)):
@@ -705,13 +792,18 @@ def _legal_kernel(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_st
                 if e_uw < 0 or count[e_uw] != 2 or fcount[w] < 2:
                     ok[i] = False
         if ok[i]:
-            ok[i] = _moved_faces_ok(u, v, (vv_start, vv_nbr, vv_edge), count, he0, he1, F, P, opp, vf_start, vf_face)
+            ok[i] = _moved_faces_ok(u, v, (vv_start, vv_nbr, vv_edge), count, he0, he1, F, P, opp, vf_start, vf_face,
+                                    mark, i, fin)
     return ok
 
 
 @kernel_helper
-def _moved_faces_ok(u, v, vv, count, he0, he1, F, P, opp, vf_start, vf_face):
-    """Kernel part of :func:`_legal`: no moved face of ``u -> v`` flips, degenerates or duplicates."""
+def _moved_faces_ok(u, v, vv, count, he0, he1, F, P, opp, vf_start, vf_face, mark, i, fin):
+    """Kernel part of :func:`_legal`: no moved face of ``u -> v`` flips, degenerates or duplicates.
+
+    ``mark[x] == i`` for the neighbours ``x`` of ``v``: a face on the edge ``xa xb`` opposite ``u``
+    with apex ``v`` needs both ends next to ``v``, and an edge with more than two faces has its ends
+    in ``fin``; other edges are not looked up (the same answer, fewer memory reads)."""
     for p in range(vf_start[u], vf_start[u + 1]):
         f = vf_face[p]
         t0, t1, t2 = F[f, 0], F[f, 1], F[f, 2]
@@ -734,6 +826,8 @@ def _moved_faces_ok(u, v, vv, count, he0, he1, F, P, opp, vf_start, vf_face):
         dot = n0x * n1x + n0y * n1y + n0z * n1z
         if not (l1 > 0 and dot > MIN_NORMAL_COS * l0 * l1):
             return False
+        if not fin[xa] and (mark[xa] != i or mark[xb] != i):
+            continue
         e = _edge_id(vv[0], vv[1], vv[2], xa, xb)  # duplicate: the edge opposite u already has apex v
         if e >= 0:
             if count[e] > 2 or opp[he0[e]] == v or (he1[e] >= 0 and opp[he1[e]] == v):
@@ -812,7 +906,7 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
     arguments.  (``_conflicts``' same-kept-vertex rule is implied by its kept-vertex-next-to-a-
     lower-ranked-removed-vertex rule, since every winner's removed vertex neighbours its kept one.)
     """
-    vv_edge, count, he0, he1, F, P, opp, fcount, vf_start, vf_face = mesh
+    vv_edge, count, he0, he1, F, P, opp, fcount, vf_start, vf_face, fin = mesh
     big = len(cu) + 1
     starts = np.flatnonzero(np.concatenate((np.ones(1, np.bool_), cu[1:] != cu[:-1])))
     ends = np.append(starts[1:], len(cu))
@@ -841,7 +935,7 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
         ok = np.zeros(len(wo), np.bool_)
         idx = wo[keep]
         ok[keep] = _legal_kernel(cu[idx], cv[idx], ce[idx], vv_edge, count, he0, he1, F, P, opp, fcount,
-                                 vv_start, vv_nbr, vf_start, vf_face)
+                                 vv_start, vv_nbr, vf_start, vf_face, fin)
         for j in range(len(wo)):
             g, o = wg[j], wo[j]
             if ok[j]:
