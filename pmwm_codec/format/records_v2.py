@@ -220,21 +220,20 @@ def _mask_kernel(flat, n, head, nxt, valence, below, stamp, ctr, sel, marked, gs
 
 
 @kernel_helper
-def _fan(J, a, b, fan):
-    """Order the incidences ``J`` (d,) of one split vertex, ``d <= MAX_ARC_FAN``, into ``fan`` (d,)
-    (spec §8.4.2), by pairwise comparisons of their corners (no scratch outside the fan).
+def _fan(lo, d, a, b, fan):
+    """Order the ``d <= MAX_ARC_FAN`` incidences ``lo .. lo + d - 1`` of one split vertex into
+    ``fan`` (d,) (spec §8.4.2), by pairwise comparisons of their corners (no scratch outside the fan).
 
     Returns 1 closed fan, 2 open fan, 0 not simple (then ``fan`` is undefined).
     """
-    d = len(J)
     first = -1
     starts = 0
-    for t in range(d):
+    for t in range(lo, lo + d):
         has_pred = False
-        for s in range(d):
-            if s != t and (a[J[s]] == a[J[t]] or b[J[s]] == b[J[t]]):
+        for s in range(lo, lo + d):
+            if s != t and (a[s] == a[t] or b[s] == b[t]):
                 return 0  # corners after (or before) the vertex repeat
-            has_pred = has_pred or b[J[s]] == a[J[t]]
+            has_pred = has_pred or b[s] == a[t]
         if not has_pred:
             starts += 1
             if first < 0:
@@ -243,11 +242,11 @@ def _fan(J, a, b, fan):
         return 0
     kind = 2 if starts == 1 else 1
     if kind == 1:
-        first = 0
+        first = lo
     t = first
     for s in range(d):
-        fan[s] = J[t]
-        nxt = _successor(J, a, b, t)
+        fan[s] = t
+        nxt = _successor(lo, d, a, b, t)
         if s < d - 1:
             if nxt < 0 or nxt == first:
                 return 0
@@ -258,10 +257,10 @@ def _fan(J, a, b, fan):
 
 
 @kernel_helper
-def _successor(J, a, b, t):
-    """The position in ``J`` of the incidence whose corner after the vertex is ``t``'s corner before it, or -1."""
-    for s in range(len(J)):
-        if a[J[s]] == b[J[t]]:
+def _successor(lo, d, a, b, t):
+    """The incidence among ``lo .. lo + d - 1`` whose corner after the vertex is ``t``'s corner before it, or -1."""
+    for s in range(lo, lo + d):
+        if a[s] == b[t]:
             return s
     return -1
 
@@ -345,11 +344,11 @@ def _arc_of(fan, d, kind, sym):
 
 
 @kernel_helper
-def _connectivity_kernel(gstart, gidx, a, b, v, P, sym, S, ring, nrm, es, out, ds, buf, probs, decode):
+def _connectivity_kernel(gstart, a, b, v, P, sym, S, ring, nrm, es, out, ds, buf, probs, decode):
     """Code or decode the incidence symbols ``sym`` (I,) uint8 of a batch, split by split, and
     take each split's ring statistics (:func:`_ring_stats`) while its rows are at hand.
 
-    ``gidx[gstart[i]:gstart[i+1]]``: split i's incidences in face-slot order; ``a`` / ``b`` (I,)
+    ``gstart[i] .. gstart[i+1] - 1``: split i's incidences in face-slot order; ``a`` / ``b`` (I,)
     the corners after / before the split vertex.  Fills ``S`` (k, D) int64, ``ring`` (k, 2) int64,
     ``nrm`` (k, 3) float64.  Returns 0, or (decode) -1 on an invalid code.
     """
@@ -357,18 +356,18 @@ def _connectivity_kernel(gstart, gidx, a, b, v, P, sym, S, ring, nrm, es, out, d
     lens = np.empty(MAX_ARC_FAN, np.float64)
     scores = np.empty(MAX_ARC_FAN, np.float64)
     for i in range(len(v)):
-        J = gidx[gstart[i]:gstart[i + 1]]
-        if _split_symbols(J, v[i], a, b, P, sym, fan, lens, scores, es, out, ds, buf, probs, decode) != 0:
+        lo, hi = gstart[i], gstart[i + 1]
+        if _split_symbols(lo, hi, v[i], a, b, P, sym, fan, lens, scores, es, out, ds, buf, probs, decode) != 0:
             return -1
-        _ring_stats(J, a, b, v[i], sym, P, S[i], ring[i], nrm[i])
+        _ring_stats(lo, hi, a, b, v[i], sym, P, S, ring, nrm, i)
     return 0
 
 
 @kernel_helper
-def _split_symbols(J, vv, a, b, P, sym, fan, lens, scores, es, out, ds, buf, probs, decode):
-    """Code or decode the symbols of one split's incidences ``J`` (spec §8.4.2); 0, or -1 on an invalid code."""
-    d = len(J)
-    kind = _fan(J, a, b, fan) if 0 < d <= MAX_ARC_FAN else 0
+def _split_symbols(lo, hi, vv, a, b, P, sym, fan, lens, scores, es, out, ds, buf, probs, decode):
+    """Code or decode the symbols of one split's incidences ``lo .. hi - 1`` (spec §8.4.2); 0, or -1 on an invalid code."""
+    d = hi - lo
+    kind = _fan(lo, d, a, b, fan) if 0 < d <= MAX_ARC_FAN else 0
     s, L, left, right = -1, 0, 0, 0
     if kind != 0:
         if decode:
@@ -380,14 +379,14 @@ def _split_symbols(J, vv, a, b, P, sym, fan, lens, scores, es, out, ds, buf, pro
     else:
         escape = 1
     if escape:
-        for t in range(d):
+        for t in range(lo, hi):
             if decode:
                 x = rc.dec_tree(ds, buf, probs, P_SYMBOL, 3)
                 if x >= 5:
                     return -1
-                sym[J[t]] = x
+                sym[t] = x
             else:
-                rc.enc_tree(es, out, probs, P_SYMBOL, 3, sym[J[t]])
+                rc.enc_tree(es, out, probs, P_SYMBOL, 3, sym[t])
         return 0
     len_ctx = _block(B_LENGTH + min(d, 16) - 1)
     if decode:
@@ -439,21 +438,23 @@ def _floor_half(x):
 
 
 @kernel_helper
-def _ring_stats(J, a, b, vv, sym, P, S, ring, nrm):
-    """One split's ring over the faces of its new vertex (spec §8.4.3), from its incidences ``J``
-    and their symbols: ``S`` (D,) int64 the sums of the faces' other corners' values, ``ring`` (2,)
-    int64 the face count ``c`` and the summed L1 edge ``E``, ``nrm`` (3,) float64 the normal."""
+def _ring_stats(lo, hi, a, b, vv, sym, P, S, ring, nrm, i):
+    """Split ``i``'s ring over the faces of its new vertex (spec §8.4.3), from its incidences
+    ``lo .. hi - 1`` and their symbols, into row ``i`` of: ``S`` (k, D) int64 the sums of the faces'
+    other corners' values, ``ring`` (k, 2) int64 the face count ``c`` and the summed L1 edge ``E``,
+    ``nrm`` (k, 3) float64 the normal."""
     D = P.shape[1]
-    S[:] = 0
+    for q in range(D):
+        S[i, q] = 0
     c, ell = 0, 0
     nx, ny, nz = 0.0, 0.0, 0.0
-    for j in J:
+    for j in range(lo, hi):
         s = sym[j]
         if s == 0:
             continue
         aj, bj = a[j], b[j]
         for q in range(D):
-            S[q] += P[aj, q] + P[bj, q]
+            S[i, q] += P[aj, q] + P[bj, q]
         c += 1
         ell += abs(P[aj, 0] - P[bj, 0]) + abs(P[aj, 1] - P[bj, 1]) + abs(P[aj, 2] - P[bj, 2])
         e1x, e1y, e1z = np.float64(P[aj, 0] - P[vv, 0]), np.float64(P[aj, 1] - P[vv, 1]), np.float64(P[aj, 2] - P[vv, 2])
@@ -465,11 +466,11 @@ def _ring_stats(J, a, b, vv, sym, P, S, ring, nrm):
             if (w == 0 and (s == 2 or s == 4)) or (w == 1 and (s == 3 or s == 4)):
                 o = aj if w == 0 else bj
                 for q in range(D):
-                    S[q] += P[vv, q] + P[o, q]
+                    S[i, q] += P[vv, q] + P[o, q]
                 c += 1
                 ell += abs(P[vv, 0] - P[o, 0]) + abs(P[vv, 1] - P[o, 1]) + abs(P[vv, 2] - P[o, 2])
-    ring[0], ring[1] = c, ell
-    nrm[0], nrm[1], nrm[2] = nx, ny, nz
+    ring[i, 0], ring[i, 1] = c, ell
+    nrm[i, 0], nrm[i, 1], nrm[i, 2] = nx, ny, nz
 
 
 @kernel_helper
@@ -482,59 +483,60 @@ def _values_kernel(v, P, n0, S, ring, nrm, es, out, ds, buf, probs, decode, rsum
     ``ring_count``).  Returns 0, or (decode) -1 on an invalid code / a value outside ``|x| < 2**31``.
     """
     D = P.shape[1]
-    frame = np.empty((3, 3), np.float64)  # scratch rows: ring mean m, normal n, prediction ph
     for i in range(len(v)):
-        c, ell = ring[i, 0], ring[i, 1]
+        c = ring[i, 0]
         if c == 0:
             return -1
         for q in range(D):
             rsum[i, q] = np.float64(S[i, q])
         rcount[i] = 2 * c
-        status = _split_values(S[i], c, ell, nrm[i, 0], nrm[i, 1], nrm[i, 2], v[i], n0 + i, P, frame, es, out, ds,
-                               buf, probs, decode)
+        status = _split_values(S, i, v[i], n0 + i, P, ring, nrm, es, out, ds, buf, probs, decode)
         if status != 0:
             return status
     return 0
 
 
 @kernel_helper
-def _split_values(S, c, ell, nx, ny, nz, vv, u, P, frame, es, out, ds, buf, probs, decode):
-    """One new vertex ``u``: frame prediction, then its D values coded / decoded in order
-    (``frame`` (3, 3) float64 scratch)."""
+def _axis(q, x0, x1, x2):
+    """Component ``q`` (0, 1, 2) of the vector ``(x0, x1, x2)``."""
+    return x0 if q == 0 else (x1 if q == 1 else x2)
+
+
+@kernel_helper
+def _split_values(S, i, vv, u, P, ring, nrm, es, out, ds, buf, probs, decode):
+    """Split ``i``'s new vertex ``u``: frame prediction from row ``i`` of ``S`` / ``ring`` / ``nrm``,
+    then its D values coded / decoded in order."""
     D = P.shape[1]
+    c, ell = ring[i, 0], ring[i, 1]
+    nx, ny, nz = nrm[i, 0], nrm[i, 1], nrm[i, 2]
     cls = min(rc.bit_length(ell // c), GEOMETRY_CLASSES - 1)
     two_c = np.float64(2 * c)
-    m, nv, ph = frame[0], frame[1], frame[2]
-    for q in range(3):
-        m[q] = np.float64(S[q]) / two_c
-    nv[0], nv[1], nv[2] = nx, ny, nz
+    m0, m1, m2 = np.float64(S[i, 0]) / two_c, np.float64(S[i, 1]) / two_c, np.float64(S[i, 2]) / two_c
     nn = (nx * nx + ny * ny) + nz * nz
     dom, ax0, ax1 = 2, 0, 1
+    ph0, ph1, ph2 = m0, m1, m2
     if nn > 0.0:
-        h = (((np.float64(P[vv, 0]) - m[0]) * nx + (np.float64(P[vv, 1]) - m[1]) * ny)
-             + (np.float64(P[vv, 2]) - m[2]) * nz) / nn
-        for q in range(3):
-            ph[q] = m[q] + h * nv[q]
+        h = (((np.float64(P[vv, 0]) - m0) * nx + (np.float64(P[vv, 1]) - m1) * ny)
+             + (np.float64(P[vv, 2]) - m2) * nz) / nn
+        ph0, ph1, ph2 = m0 + h * nx, m1 + h * ny, m2 + h * nz
         if abs(nx) >= abs(ny) and abs(nx) >= abs(nz):
             dom, ax0, ax1 = 0, 1, 2
         elif abs(ny) >= abs(nz):
             dom, ax0, ax1 = 1, 0, 2
-    else:
-        for q in range(3):
-            ph[q] = m[q]
     base = _block(B_GEOMETRY + 3 * cls)
     for role in range(3):
         q = ax0 if role == 0 else (ax1 if role == 1 else dom)
         if role < 2 or nn == 0.0:
-            pred = _floor_half(ph[q])
+            pred = _floor_half(_axis(q, ph0, ph1, ph2))
         else:
-            x0 = np.float64(P[u, ax0]) - ph[ax0]
-            x1 = np.float64(P[u, ax1]) - ph[ax1]
-            pred = _floor_half(ph[q] - (x0 * nv[ax0] + x1 * nv[ax1]) / nv[q])
+            x0 = np.float64(P[u, ax0]) - _axis(ax0, ph0, ph1, ph2)
+            x1 = np.float64(P[u, ax1]) - _axis(ax1, ph0, ph1, ph2)
+            pred = _floor_half(_axis(q, ph0, ph1, ph2) - (x0 * _axis(ax0, nx, ny, nz) + x1 * _axis(ax1, nx, ny, nz))
+                               / _axis(q, nx, ny, nz))
         if _value(pred, base + role * INT_BLOCK, q, u, P, es, out, ds, buf, probs, decode) != 0:
             return -1
     for q in range(3, D):
-        pred = S[q] // (2 * c)
+        pred = S[i, q] // (2 * c)
         ctx = _block(B_ATTRIBUTE + min(q - 3, ATTRIBUTE_CONTEXTS - 1))
         if _value(pred, ctx, q, u, P, es, out, ds, buf, probs, decode) != 0:
             return -1
@@ -764,10 +766,9 @@ def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, spli
     prediction, written to ``P`` before they are coded.  Fills ``rsum`` / ``rcount`` (see
     :func:`_values_kernel`).  Returns the number of new faces, or a negative code (:data:`_BATCH_ERRORS`).
     """
-    gidx = np.arange(len(inc))
     k, D = len(v), P.shape[1]
     S, ring, nrm = np.empty((k, D), np.int64), np.empty((k, 2), np.int64), np.empty((k, 3))
-    if _connectivity_kernel(gstart, gidx, a, b, v, P, sym, S, ring, nrm, es, out, ds, buf, probs, decode) != 0:
+    if _connectivity_kernel(gstart, a, b, v, P, sym, S, ring, nrm, es, out, ds, buf, probs, decode) != 0:
         return -1
     new_faces, rewritten = _link_splits(flat, m0, n0, v, inc, own, a, b, sym, gstart, head, tail, nxt, split)
     if new_faces < 0:
