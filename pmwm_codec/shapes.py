@@ -129,6 +129,33 @@ def bowtie() -> Mesh:
     return Mesh(verts, faces.astype(np.int64))
 
 
+def doubled_faces(pillows: int = 12) -> Mesh:
+    """An icosphere with up to ``pillows`` doubled triangles (two faces on the same three vertices,
+    facing opposite ways), as volumetric scan reconstructions leave them.
+
+    Each pillow joins two surface vertices ``u``, ``v`` two edges apart (one common neighbour)
+    to a tip of its own; ``u`` sits close to ``v``, so collapsing ``u`` onto ``v`` is cheap and
+    passes the counting tests (common neighbours = faces on ``uv``).  Every edge is manifold."""
+    V, F = icosphere(3, 1.0, noise=0.02).positions.copy(), icosphere(3, 1.0, noise=0.02).faces
+    ring = [set() for _ in range(len(V))]
+    for a, b, c in F.tolist():
+        ring[a] |= {b, c}
+        ring[b] |= {a, c}
+        ring[c] |= {a, b}
+    taken, pairs = set(), []
+    for u in range(0, len(V), 7):
+        far = {v for x in ring[u] for v in ring[x]} - ring[u] - {u}
+        v = next((v for v in sorted(far) if len(ring[u] & ring[v]) == 1 and not (ring[u] | ring[v] | {u, v}) & taken), None)
+        if v is not None and len(pairs) < pillows:
+            pairs.append((u, v))
+            taken |= ring[u] | ring[v] | {u, v}
+    u, v = np.array(pairs, np.int64).T
+    V[u] = 0.35 * V[u] + 0.65 * V[v]
+    w = len(V) + np.arange(len(pairs))
+    doubled = np.concatenate([np.stack([u, v, w], 1), np.stack([v, u, w], 1)])
+    return Mesh(np.concatenate([V, 0.505 * (V[u] + V[v])]), np.concatenate([F, doubled]).astype(np.int64))
+
+
 def demo_mesh(resolution: int = 180) -> Mesh:
     """A rippled torus knot-like shape with tens of thousands of vertices, for the demo."""
     rings, sides = resolution * 2, resolution // 2

@@ -37,6 +37,7 @@ GENERATED = {
     "grid_with_hole": lambda: shapes.grid(28, 24, hole=True),
     "components": lambda: shapes.components(shapes.icosphere(2, 0.9, noise=0.05), shapes.torus(20, 10), shapes.grid(10, 10, hole=False)),
     "bowtie": lambda: shapes.bowtie(),
+    "doubled_faces": lambda: shapes.doubled_faces(),
 }
 
 
@@ -59,7 +60,7 @@ def marked_sphere(seed: int, **options):
 
 @pytest.fixture(params=sorted(GENERATED))
 def generated_mesh(request):
-    """Each of the generated test meshes (closed, open, multi-part, non-manifold)."""
+    """Each of the generated test meshes (closed, open, multi-part, non-manifold, doubled faces)."""
     return request.param, GENERATED[request.param]()
 
 

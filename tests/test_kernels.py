@@ -56,8 +56,10 @@ def _encoded(mesh) -> bytes:
     return buf.getvalue()
 
 
-def test_encode_bytes_do_not_depend_on_the_kernels(monkeypatch):
-    mesh = shapes.icosphere(3, 1.0, noise=0.02)
+@pytest.mark.parametrize("make", [lambda: shapes.icosphere(3, 1.0, noise=0.02), shapes.doubled_faces],
+                         ids=["sphere", "doubled faces"])
+def test_encode_bytes_do_not_depend_on_the_kernels(monkeypatch, make):
+    mesh = make()
     monkeypatch.setattr(topology, "USE_NUMBA", False)
     plain = _encoded(mesh)
     monkeypatch.setattr(topology, "USE_NUMBA", NUMBA)
@@ -186,6 +188,7 @@ def _live_both_ways(monkeypatch, mesh, face_alive):
 _ODD_MESHES = {  # boundaries, holes, a non-manifold vertex, several components
     "grid with a hole": shapes.grid(12, 9, hole=True, bump=0.0),
     "bowtie": shapes.bowtie(),
+    "doubled faces": shapes.doubled_faces(),
     "sphere and grid": shapes.components(shapes.icosphere(1, 1.0), shapes.grid(5, 5)),
 }
 

@@ -73,7 +73,7 @@ def test_every_level_of_generated_meshes_is_valid(generated_mesh):
     had_fin = edge_table(mesh.faces, mesh.vertex_count).count.max() > 2
     pm, _ = progressive_of(mesh)
     for positions, faces in decode_levels(pm):
-        assert_valid_level(positions, faces, had_fin)
+        assert_valid_level(positions, faces, had_fin, duplicate_count(mesh.faces))
 
 
 @pytest.mark.parametrize("maker", [lambda: shapes.icosphere(4, 2.0, noise=0.01), lambda: shapes.torus(80, 40, twist=0.1)])

@@ -206,7 +206,7 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     results = []
     for name in args.meshes:
-        path = CORPUS / name
+        path = Path(name) if Path(name).is_file() else CORPUS / name  # a path, or a corpus name
         if not path.exists():
             print(f"skip {name}: not in {CORPUS}", file=sys.stderr)
             continue

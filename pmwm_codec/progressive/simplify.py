@@ -31,6 +31,9 @@ A collapse is legal when
   ``uv`` (no new non-manifold edge, no duplicate face);
 * each deleted face's other edge at ``u`` is interior (the split that undoes it
   can name the face it grows from; it also forbids removing "ear" vertices);
+* the two deleted faces have different third vertices: two faces on the same three vertices
+  (a doubled face, as scans' reconstructions leave them) would each grow from the other, and
+  the split that undoes the collapse could name neither;
 * no moved face flips its normal, becomes degenerate or duplicates a face.
 
 Seams: vertices that share a position (glTF copies on a UV seam or a hard edge, given as
@@ -724,6 +727,8 @@ def _legal(cu, cv, ce, mesh):
         interior = (e_uw >= 0) & (et.count[np.maximum(e_uw, 0)] == 2)
         ok &= ~has | (interior & (fcount[w] >= 2))
     ok &= fcount[cu] > et.count[ce]
+    two = et.he1[ce] >= 0  # a doubled face on uv: both deleted faces share their third vertex
+    ok &= ~two | (opp[et.he0[ce]] != opp[np.maximum(et.he1[ce], 0)])
 
     # moved faces: no flip, no degenerate result, no duplicate
     vf_start, vf_face = vf
@@ -783,6 +788,9 @@ def _legal_kernel(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_st
             if mark[vv_nbr[p]] == i:
                 common += 1
         if common != count[e] or fcount[u] <= count[e]:
+            ok[i] = False
+            continue
+        if he1[e] >= 0 and opp[he0[e]] == opp[he1[e]]:  # a doubled face on uv
             ok[i] = False
             continue
         for he in (he0[e], he1[e]):  # deleted faces: other edge at u interior, wing keeps a face
