@@ -183,3 +183,44 @@ def test_corpus_meshes_round_trip_and_every_level_is_valid(name):
     assert_same_mesh(pm, q, mesh.faces, *last)
     if name in ("cow", "fandisk"):
         assert len(pm.base_positions) <= max(0.02 * mesh.vertex_count, 200)
+
+
+def _candidates_of(mesh):
+    """The local mesh of ``mesh`` on a 16-bit grid and its first batch's candidate collapses."""
+    from pmwm_codec.progressive import simplify as S
+    from pmwm_codec.progressive.livemesh import live_mesh
+    from pmwm_codec.progressive.topology import half_edges
+
+    P = Grid.fit(mesh.positions, 16).quantize(mesh.positions).astype(np.float64)
+    live = live_mesh(mesh.faces.copy(), np.ones(mesh.face_count, bool), np.ones(mesh.vertex_count, bool))
+    src, _, opp = half_edges(live.F)
+    local = (live.et, live.F, P[live.vids], opp, live.fcount, live.vv, live.vf, live.vv_edge)
+    Q = S.face_quadrics(P, mesh.faces, mesh.vertex_count)[live.vids]
+    return local, S._candidates(local, Q, src, np.zeros(len(live.vids), bool)), len(live.vids)
+
+
+@pytest.mark.parametrize("name", ["grid_with_hole", "bowtie", "doubled_faces"])
+def test_a_stalled_batch_is_chosen_again_among_the_legal_candidates_only(name):
+    """Few winners: every candidate is tested and only the legal ones offer again; enough winners: untouched."""
+    from conftest import GENERATED
+    from pmwm_codec.progressive import simplify as S
+
+    mesh, cand, n = _candidates_of(GENERATED[name]())
+    legal = S._legal(*cand[:3], mesh)
+    assert 0 < legal.sum() < len(legal)  # the meshes have illegal cheap collapses to filter
+    again = S._unstalled(cand, np.zeros(0, np.int64), mesh, n)
+    for got, want in zip(again, cand):
+        assert np.array_equal(got, want[legal])
+    offering = len(np.unique(cand[0]))
+    enough = np.arange(int(np.ceil(S.STALL_FRACTION * offering)))
+    assert S._unstalled(cand, enough, mesh, n) is cand
+
+
+def test_the_cow_coarsens_to_its_base_target_at_grid_14():
+    """The cow stalled at 72 base vertices at grid 14 (target 64) before stalled batches were chosen again."""
+    from pmwm_codec.stream.chunking import default_base_target
+
+    mesh = read_mesh(corpus_path("cow.obj"))
+    target = default_base_target(mesh.vertex_count)
+    pm, _ = progressive_of(mesh, bits=14, target=target)
+    assert len(pm.base_positions) == target

@@ -74,6 +74,9 @@ ROUNDS = 8
 #: A batch only takes collapses no dearer than this quantile of the vertices' cheapest
 #: candidate costs (see :func:`_affordable`); 1.0 takes every independent winner.
 BATCH_QUANTILE = 0.5
+#: A batch whose winners are fewer than this fraction of the vertices offering a collapse is
+#: chosen again among the legal candidates only (see :func:`_unstalled`).
+STALL_FRACTION = 1 / 32
 
 
 @dataclass
@@ -361,7 +364,9 @@ def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget, w
         win = _ordinary_winners(part, mesh, n) if part is not None else np.zeros(0, np.int64)
         if len(win) or pairs is not None or quantile >= 1.0:
             break
-    cand = part
+    cand = _unstalled(part, win, mesh, n)
+    if cand is not part:
+        win = _ordinary_winners(cand, mesh, n)
     if len(win) == 0 and pairs is None:
         return None
     if pairs is None:
@@ -381,6 +386,27 @@ def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget, w
         moved_face=fids[moved_face], moved_by=moved_by,
         cost=cost, error=np.sqrt(cost / np.maximum(_plane_weight(Q[cu] + Q[cv]), 1e-300)),
     )
+
+
+def _unstalled(cand, win, mesh, n):
+    """``cand`` itself, or only its legal candidates when the batch stalls: fewer winners ``win``
+    than :data:`STALL_FRACTION` of the vertices offering a collapse.
+
+    The selection only tests the legality of each round's local winners, so cheap illegal
+    offers (a fold-over, a link condition that fails) can hold the local minima for every round
+    while their neighbours' legal collapses never get to win.  Once that leaves a batch almost
+    empty, testing every candidate first and selecting among the legal ones lets the mesh
+    coarsen on: on the Stanford dragon (437k vertices, grid 16) the base fell from 53k vertices
+    to 5.6k (target 4.4k) in 87 batches instead of 220."""
+    if cand is None or len(cand[0]) == 0:
+        return cand
+    offering = len(_group_starts(cand[0]))
+    if len(win) >= STALL_FRACTION * offering:
+        return cand
+    ok = _legal(cand[0], cand[1], cand[2], mesh)
+    if ok.all() or not ok.any():
+        return cand
+    return tuple(x[ok] for x in cand)
 
 
 def _ordinary_winners(cand, mesh, n):
