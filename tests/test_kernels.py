@@ -50,20 +50,21 @@ def test_edge_table_is_the_same_on_both_paths(monkeypatch):
         assert np.array_equal(getattr(tables[0], name), getattr(tables[1], name)), name
 
 
-def _encoded(mesh) -> bytes:
+def _encoded(mesh, bits=16) -> bytes:
     buf = io.BytesIO()
-    pmwm_codec.encode(mesh, buf, measure=False)
+    pmwm_codec.encode(mesh, buf, measure=False, grid_bits=bits)
     return buf.getvalue()
 
 
-@pytest.mark.parametrize("make", [lambda: shapes.icosphere(3, 1.0, noise=0.02), shapes.doubled_faces],
-                         ids=["sphere", "doubled faces"])
-def test_encode_bytes_do_not_depend_on_the_kernels(monkeypatch, make):
+@pytest.mark.parametrize("make, bits", [(lambda: shapes.icosphere(3, 1.0, noise=0.02), 16), (shapes.doubled_faces, 16),
+                                        (lambda: shapes.grid(400, 8, hole=False, bump=0.3), 8)],
+                         ids=["sphere", "doubled faces", "faces without area on the grid"])
+def test_encode_bytes_do_not_depend_on_the_kernels(monkeypatch, make, bits):
     mesh = make()
     monkeypatch.setattr(topology, "USE_NUMBA", False)
-    plain = _encoded(mesh)
+    plain = _encoded(mesh, bits)
     monkeypatch.setattr(topology, "USE_NUMBA", NUMBA)
-    assert _encoded(mesh) == plain
+    assert _encoded(mesh, bits) == plain
 
 
 def test_split_topology_matches_bit_for_bit(monkeypatch):

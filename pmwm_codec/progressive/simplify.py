@@ -34,7 +34,8 @@ A collapse is legal when
 * the two deleted faces have different third vertices: two faces on the same three vertices
   (a doubled face, as scans' reconstructions leave them) would each grow from the other, and
   the split that undoes the collapse could name neither;
-* no moved face flips its normal, becomes degenerate or duplicates a face.
+* no moved face flips its normal, becomes degenerate or duplicates a face (a face with no area
+  on the grid already may stay so, or must face the way ``u``'s faces do, their normals summed).
 
 Seams: vertices that share a position (glTF copies on a UV seam or a hard edge, given as
 ``weld``) are never removed by an ordinary collapse; both copies go together, as a *seam pair*
@@ -756,23 +757,27 @@ def _legal(cu, cv, ce, mesh):
     two = et.he1[ce] >= 0  # a doubled face on uv: both deleted faces share their third vertex
     ok &= ~two | (opp[et.he0[ce]] != opp[np.maximum(et.he1[ce], 0)])
 
-    # moved faces: no flip, no degenerate result, no duplicate
+    # moved faces: no flip, no degenerate result, no duplicate; a face with no area on the grid
+    # already may stay so, or must face the way u's faces do (their normals summed)
     vf_start, vf_face = vf
     owner, p = expand(vf_start, cu)
     face = vf_face[p]
     tri = F[face]
+    n_all = _normals(P, tri)
     u_o = cu[owner]
     v_o = cv[owner]
     has_v = (tri == v_o[:, None]).any(axis=1)
     sel = ~has_v
-    owner, tri, u_o, v_o = owner[sel], tri[sel], u_o[sel], v_o[sel]
+    vertex_normal = np.stack([np.bincount(owner, weights=n_all[:, j], minlength=k) for j in range(3)], 1)
+    owner, tri, u_o, v_o, n0 = owner[sel], tri[sel], u_o[sel], v_o[sel], n_all[sel]
     new = np.where(tri == u_o[:, None], v_o[:, None], tri)
-    n0 = _normals(P, tri)
     n1 = _normals(P, new)
+    l1 = np.linalg.norm(n1, axis=1)
+    flat = ~(np.linalg.norm(n0, axis=1) > 0)
+    n0[flat] = vertex_normal[owner[flat]]
     dot = np.einsum("ij,ij->i", n0, n1)
     l0 = np.linalg.norm(n0, axis=1)
-    l1 = np.linalg.norm(n1, axis=1)
-    good = (l1 > 0) & (dot > MIN_NORMAL_COS * l0 * l1)
+    good = ((l1 > 0) & (dot > MIN_NORMAL_COS * l0 * l1)) | (flat & ~(l1 > 0))
     # duplicate: the edge opposite u in the moved face already has a face with apex v
     col = np.argmax(tri == u_o[:, None], axis=1)
     xa = np.take_along_axis(tri, ((col + 1) % 3)[:, None], 1)[:, 0]
@@ -857,8 +862,12 @@ def _moved_faces_ok(u, v, vv, count, he0, he1, F, P, opp, vf_start, vf_face, mar
         n1x, n1y, n1z = b1 * c2 - b2 * c1, b2 * c0 - b0 * c2, b0 * c1 - b1 * c0
         l0 = np.sqrt(n0x * n0x + n0y * n0y + n0z * n0z)
         l1 = np.sqrt(n1x * n1x + n1y * n1y + n1z * n1z)
+        flat = not l0 > 0  # no area on the grid already: it may stay so, or face the way u's faces do
+        if flat:
+            n0x, n0y, n0z = _vertex_normal(u, F, P, vf_start, vf_face)
+            l0 = np.sqrt(n0x * n0x + n0y * n0y + n0z * n0z)
         dot = n0x * n1x + n0y * n1y + n0z * n1z
-        if not (l1 > 0 and dot > MIN_NORMAL_COS * l0 * l1):
+        if not ((l1 > 0 and dot > MIN_NORMAL_COS * l0 * l1) or (flat and not l1 > 0)):
             return False
         if not fin[xa] and (mark[xa] != i or mark[xb] != i):
             continue
@@ -867,6 +876,21 @@ def _moved_faces_ok(u, v, vv, count, he0, he1, F, P, opp, vf_start, vf_face, mar
             if count[e] > 2 or opp[he0[e]] == v or (he1[e] >= 0 and opp[he1[e]] == v):
                 return False
     return True
+
+
+@kernel_helper
+def _vertex_normal(u, F, P, vf_start, vf_face):
+    """Sum of the (unnormalised, np.cross order) normals of ``u``'s faces, in face-list order."""
+    rx, ry, rz = 0.0, 0.0, 0.0
+    for p in range(vf_start[u], vf_start[u + 1]):
+        f = vf_face[p]
+        a0, a1, a2 = P[F[f, 0], 0], P[F[f, 0], 1], P[F[f, 0], 2]
+        b0, b1, b2 = P[F[f, 1], 0] - a0, P[F[f, 1], 1] - a1, P[F[f, 1], 2] - a2
+        c0, c1, c2 = P[F[f, 2], 0] - a0, P[F[f, 2], 1] - a1, P[F[f, 2], 2] - a2
+        rx += b1 * c2 - b2 * c1
+        ry += b2 * c0 - b0 * c2
+        rz += b0 * c1 - b1 * c0
+    return rx, ry, rz
 
 
 def _normals(P, tri):
