@@ -5,7 +5,9 @@ smooth per-vertex statistic, a gradient-flow embedding and margins checked again
 transport noise at embedding time):
 
 1. **Frame.**  Over the *distinct* vertex positions (seam duplicates and the vertices
-   Draco splits or merges count once), each weighted by a third of the area of its faces:
+   Draco splits or merges count once), each weighted by a third of the area of its faces
+   (measured on the surface relaxed once toward its neighbours: quantization staircases
+   add no area):
    ``c`` = the area centroid, ``rho`` = |v - c|.  Invariant to rotation, translation,
    uniform scale, re-ordering and duplication, and a property of the surface rather than
    of its sampling, so that simplification and the coarse levels of a stream keep it
@@ -239,13 +241,33 @@ def _distinct_index(positions) -> tuple:
     return ps[new], inverse
 
 
-def _vertex_areas(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(k,) float64: a third of the area of every face on each of ``points`` (k, 3); faces (m, 3) index them.
+def _relaxed(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(k, 3) float64: each of ``points`` (k, 3) halfway to the mean of its neighbours over its faces
+    (m, 3) (a neighbour counts once per face it shares; a point on no face stays)."""
+    k = len(points)
+    corner = faces.ravel()
+    count = np.bincount(corner, minlength=k) * 2.0
+    rows = np.stack([np.bincount(corner, weights=(points[faces].sum(axis=1)[:, None, :] - points[faces])[..., q].ravel(),
+                                 minlength=k) for q in range(3)], axis=1)
+    has = count > 0
+    out = points.copy()
+    out[has] = 0.5 * points[has] + 0.5 * rows[has] / count[has, None]
+    return out
 
-    All ones when there is no face of positive area (a point set: every position counts alike).
+
+def _vertex_areas(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(k,) float64: a third of the area of every face on each of ``points`` (k, 3); faces (m, 3) index them,
+    the areas measured on the surface relaxed once (:func:`_relaxed`).
+
+    Relaxed, because coordinate quantization as coarse as the edges adds area where the
+    surface runs oblique to the grid (a staircase) and so moves the centroid by about a grid
+    step, a shell width or more on a dense scan: the snowden bust (54.6k vertices) after 8-bit
+    quantization read 12-16 errors of 64 with the raw areas, 0-1 with relaxed ones (3 keys;
+    the bunny unchanged).  All ones when there is no face of positive area (a point set:
+    every position counts alike).
     """
     faces = np.asarray(faces, np.int64).reshape(-1, 3)
-    tri = points[faces]
+    tri = _relaxed(points, faces)[faces]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     w = np.bincount(faces.ravel(), weights=np.repeat(area / 3.0, 3), minlength=len(points))
     return w if w.sum() > 0 else np.ones(len(points))
