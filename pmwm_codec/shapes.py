@@ -136,7 +136,8 @@ def doubled_faces(pillows: int = 12) -> Mesh:
     Each pillow joins two surface vertices ``u``, ``v`` two edges apart (one common neighbour)
     to a tip of its own; ``u`` sits close to ``v``, so collapsing ``u`` onto ``v`` is cheap and
     passes the counting tests (common neighbours = faces on ``uv``).  Every edge is manifold."""
-    V, F = icosphere(3, 1.0, noise=0.02).positions.copy(), icosphere(3, 1.0, noise=0.02).faces
+    sphere = icosphere(3, 1.0, noise=0.02)
+    V, F = sphere.positions.copy(), sphere.faces
     ring = [set() for _ in range(len(V))]
     for a, b, c in F.tolist():
         ring[a] |= {b, c}

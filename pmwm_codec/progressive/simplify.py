@@ -851,15 +851,8 @@ def _moved_faces_ok(u, v, vv, count, he0, he1, F, P, opp, vf_start, vf_face, mar
         col = 0 if t0 == u else (1 if t1 == u else 2)
         xa = F[f, (col + 1) % 3]
         xb = F[f, (col + 2) % 3]
-        a0, a1, a2 = P[t0, 0], P[t0, 1], P[t0, 2]  # normal before (np.cross order)
-        b0, b1, b2 = P[t1, 0] - a0, P[t1, 1] - a1, P[t1, 2] - a2
-        c0, c1, c2 = P[t2, 0] - a0, P[t2, 1] - a1, P[t2, 2] - a2
-        n0x, n0y, n0z = b1 * c2 - b2 * c1, b2 * c0 - b0 * c2, b0 * c1 - b1 * c0
-        s0, s1, s2 = (v if t0 == u else t0), (v if t1 == u else t1), (v if t2 == u else t2)
-        a0, a1, a2 = P[s0, 0], P[s0, 1], P[s0, 2]  # normal after
-        b0, b1, b2 = P[s1, 0] - a0, P[s1, 1] - a1, P[s1, 2] - a2
-        c0, c1, c2 = P[s2, 0] - a0, P[s2, 1] - a1, P[s2, 2] - a2
-        n1x, n1y, n1z = b1 * c2 - b2 * c1, b2 * c0 - b0 * c2, b0 * c1 - b1 * c0
+        n0x, n0y, n0z = _face_normal(P, t0, t1, t2)  # before
+        n1x, n1y, n1z = _face_normal(P, (v if t0 == u else t0), (v if t1 == u else t1), (v if t2 == u else t2))
         l0 = np.sqrt(n0x * n0x + n0y * n0y + n0z * n0z)
         l1 = np.sqrt(n1x * n1x + n1y * n1y + n1z * n1z)
         flat = not l0 > 0  # no area on the grid already: it may stay so, or face the way u's faces do
@@ -879,17 +872,25 @@ def _moved_faces_ok(u, v, vv, count, he0, he1, F, P, opp, vf_start, vf_face, mar
 
 
 @kernel_helper
+def _face_normal(P, x, y, z):
+    """The unnormalised normal of the face ``(x, y, z)`` of positions ``P`` (n, 3): ``np.cross(P[y] - P[x],
+    P[z] - P[x])``, in np.cross's order of operations (the same bits as :func:`_normals`)."""
+    a0, a1, a2 = P[x, 0], P[x, 1], P[x, 2]
+    b0, b1, b2 = P[y, 0] - a0, P[y, 1] - a1, P[y, 2] - a2
+    c0, c1, c2 = P[z, 0] - a0, P[z, 1] - a1, P[z, 2] - a2
+    return b1 * c2 - b2 * c1, b2 * c0 - b0 * c2, b0 * c1 - b1 * c0
+
+
+@kernel_helper
 def _vertex_normal(u, F, P, vf_start, vf_face):
-    """Sum of the (unnormalised, np.cross order) normals of ``u``'s faces, in face-list order."""
+    """Sum of the normals (:func:`_face_normal`) of ``u``'s faces, in face-list order."""
     rx, ry, rz = 0.0, 0.0, 0.0
     for p in range(vf_start[u], vf_start[u + 1]):
         f = vf_face[p]
-        a0, a1, a2 = P[F[f, 0], 0], P[F[f, 0], 1], P[F[f, 0], 2]
-        b0, b1, b2 = P[F[f, 1], 0] - a0, P[F[f, 1], 1] - a1, P[F[f, 1], 2] - a2
-        c0, c1, c2 = P[F[f, 2], 0] - a0, P[F[f, 2], 1] - a1, P[F[f, 2], 2] - a2
-        rx += b1 * c2 - b2 * c1
-        ry += b2 * c0 - b0 * c2
-        rz += b0 * c1 - b1 * c0
+        nx, ny, nz = _face_normal(P, F[f, 0], F[f, 1], F[f, 2])
+        rx += nx
+        ry += ny
+        rz += nz
     return rx, ry, rz
 
 

@@ -247,8 +247,9 @@ def _relaxed(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
     k = len(points)
     corner = faces.ravel()
     count = np.bincount(corner, minlength=k) * 2.0
-    rows = np.stack([np.bincount(corner, weights=(points[faces].sum(axis=1)[:, None, :] - points[faces])[..., q].ravel(),
-                                 minlength=k) for q in range(3)], axis=1)
+    tri = points[faces]
+    others = tri.sum(axis=1, keepdims=True) - tri  # (m, 3, 3): at each corner, the sum of the other two
+    rows = np.stack([np.bincount(corner, weights=others[..., q].ravel(), minlength=k) for q in range(3)], axis=1)
     has = count > 0
     out = points.copy()
     out[has] = 0.5 * points[has] + 0.5 * rows[has] / count[has, None]
