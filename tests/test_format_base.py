@@ -69,13 +69,102 @@ def test_draco_attribute_id_is_read_back_not_assumed(mesh, monkeypatch):
     assert np.array_equal(pos, enc.positions_int)
 
 
-def test_draco_falls_back_to_plain_with_a_notice_when_vertices_are_duplicated(mesh):
+def test_draco_keeps_the_order_of_a_base_whose_vertices_share_a_position(mesh):
     ints, faces, grid = mesh
-    dup = np.vstack([ints, ints[:1]])  # two vertices at one grid point: order is ambiguous
+    dup = np.vstack([ints, ints[:1]])  # two vertices at one grid point: matching them by position is ambiguous
     tri = np.vstack([faces, [[len(ints), faces[0, 1], faces[0, 2]]]])
     enc = basecodec.encode_base(dup, tri, grid, codec="draco")
-    assert enc.codec == "plain" and "Draco" in enc.notice
-    assert np.array_equal(enc.positions_int, dup)
+    assert enc.codec == "draco" and enc.notice is None and enc.welded_count is None  # Draco's sequential coding
+    assert np.array_equal(enc.vertex_map, np.arange(len(dup))) and np.array_equal(enc.positions_int, dup)
+    gltf, prim = _gltf_of(enc)
+    pos, tri_back = basecodec.decode_base(gltf, enc.data, grid, prim)
+    assert np.array_equal(pos, dup) and same_face_set(tri_back, tri)
+
+
+def test_draco_falls_back_to_plain_with_a_notice_when_the_base_has_no_faces(mesh):
+    ints, faces, grid = mesh
+    enc = basecodec.encode_base(ints, faces[:0], grid, codec="draco")
+    assert enc.codec == "plain" and "Draco" in enc.notice and "no faces" in enc.notice
+    assert np.array_equal(enc.positions_int, ints)
+
+
+def _welded_gltf(enc):
+    gltf, prim = _gltf_of(enc)
+    prim["extensions"]["PMWM_progressive_mesh"] = {"baseVertexCount": enc.welded_count}
+    return gltf, prim
+
+
+@pytest.fixture(scope="module")
+def bowtie_base():
+    """Two spheres sharing a vertex plus a fin (an edge of three faces): Draco's edgebreaker
+    stores the shared vertex and the fin's edge ends as several copies."""
+    from pmwm_codec import shapes
+
+    m = shapes.bowtie()
+    ints, grid = to_grid(m.positions, bits=14)
+    return ints, m.faces, grid
+
+
+def test_a_non_manifold_base_keeps_edgebreaker_and_is_welded_back_exactly(bowtie_base):
+    ints, faces, grid = bowtie_base
+    enc = basecodec.encode_base(ints, faces, grid, codec="draco")
+    assert enc.codec == "draco" and enc.notice is None
+    assert enc.welded_count == len(ints) < enc.accessors[0]["count"]  # stored copies, welded count declared
+    gltf, prim = _welded_gltf(enc)
+    pos, tri = basecodec.decode_base(gltf, enc.data, grid, prim)
+    assert np.array_equal(pos, enc.positions_int) and np.array_equal(tri, enc.faces)
+    assert np.array_equal(pos, ints[enc.vertex_map]) and same_face_set(enc.vertex_map[tri], faces)
+    assert basecodec.base_vertex_count(gltf, prim) == len(ints)
+    sequential = basecodec._try_draco(ints, faces, Grid.from_config(grid), True, 7)
+    assert len(enc.data) < len(sequential.data)  # what the weld is for
+
+
+def test_a_welded_base_without_its_declaration_decodes_to_the_stored_copies(bowtie_base):
+    ints, faces, grid = bowtie_base
+    enc = basecodec.encode_base(ints, faces, grid, codec="draco")
+    gltf, prim = _gltf_of(enc)  # no baseVertexCount: what a viewer shows
+    pos, _ = basecodec.decode_base(gltf, enc.data, grid, prim)
+    assert len(pos) == enc.accessors[0]["count"] > len(ints)
+
+
+def _count(delta):
+    return lambda ext, n: ext.update(baseVertexCount=n + delta)
+
+
+@pytest.mark.parametrize("edit, message", [
+    (_count(1), "baseVertexCount"),  # more than the stored vertices... or than the weld gives
+    (_count(-1), "welding"),
+    (_count(10**6), "baseVertexCount"),
+    (lambda ext, n: ext.update(attributes=[{"semantic": "TEXCOORD_0"}]), "attributes"),
+], ids=["one-more", "one-fewer", "beyond-stored", "with-attributes"])
+def test_a_wrong_weld_declaration_is_a_format_error(bowtie_base, edit, message):
+    ints, faces, grid = bowtie_base
+    enc = basecodec.encode_base(ints, faces, grid, codec="draco")
+    gltf, prim = _welded_gltf(enc)
+    edit(prim["extensions"]["PMWM_progressive_mesh"], len(ints))
+    with pytest.raises(FormatError, match=message):
+        basecodec.decode_base(gltf, enc.data, grid, prim)
+
+
+def test_weld_keeps_the_first_copy_and_numbers_kept_vertices_in_stored_order():
+    pos = np.array([[5, 0, 0], [1, 1, 1], [5, 0, 0], [2, 2, 2], [1, 1, 1]], np.int64)
+    faces = np.array([[0, 1, 3], [2, 3, 4]], np.int64)
+    kept, welded = basecodec.weld(pos, faces)
+    assert kept.tolist() == [[5, 0, 0], [1, 1, 1], [2, 2, 2]]
+    assert welded.tolist() == [[0, 1, 2], [0, 2, 1]]
+
+
+@given(st.lists(st.integers(0, 5), min_size=3, max_size=40), st.integers(0, 2**31))
+@settings(max_examples=60, deadline=None)
+def test_weld_gives_each_distinct_position_once_and_every_corner_its_position(labels, seed):
+    rng = np.random.default_rng(seed)
+    pos = np.array([[x, 2 * x, -x] for x in labels], np.int64)
+    faces = rng.integers(0, len(pos), size=(7, 3))
+    kept, welded = basecodec.weld(pos, faces)
+    assert len(np.unique(kept, axis=0)) == len(kept) == len(set(labels))
+    assert np.array_equal(kept[welded], pos[faces])
+    firsts = sorted({labels.index(x) for x in labels})
+    assert np.array_equal(kept, pos[firsts])
 
 
 def test_plain_indices_use_unsigned_short_for_small_meshes(mesh):

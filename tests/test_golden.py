@@ -61,6 +61,9 @@ CASES = {
         mesh=shapes.icosphere(4, 1.2, noise=0.02), base_codec="draco", watermark=_stripes(16), mode="paper",
         key=WatermarkKey.generate(rng=np.random.default_rng(2025)),
     ),
+    # a base Draco's edgebreaker stores with copies of its non-manifold vertices, welded back by
+    # readers (spec README, "Welded base"; files from after the weld only: no frozen array-form file)
+    "bowtie.welded-draco": lambda: dict(mesh=shapes.bowtie(), base_codec="draco"),
     "sphere.exact-watermark-from-quarter": lambda: dict(
         mesh=shapes.icosphere(4, 1.2, noise=0.02), base_codec="draco", watermark=_stripes(16), embed_from=0.25,
         key=WatermarkKey.generate(rng=np.random.default_rng(2026)),
@@ -76,6 +79,13 @@ VERSIONS = (FORMAT_VERSION, 2)
 #: ``<name>.packed.v2`` the packed table (bitstream.md §6.2) the writer writes today.
 VARIANTS = ((FORMAT_VERSION, False), (2, False), (2, True))
 FROZEN = {(2, False)}
+#: Cases added after a frozen set was frozen: no file of that set.
+NOT_IN_FROZEN = {"bowtie.welded-draco"}
+CASE_VARIANTS = [
+    pytest.param(name, version, packed, id=f"{'packed.' if packed else ''}v{version}-{name}")
+    for name in sorted(CASES) for version, packed in VARIANTS
+    if not ((version, packed) in FROZEN and name in NOT_IN_FROZEN)
+]
 
 
 def _path(name, suffix, version=FORMAT_VERSION, packed=False):
@@ -147,8 +157,7 @@ def _write(name, version, packed=False):
     np.savez_compressed(_path(name, ".expected.npz", version, packed), **_expected_arrays(results))
 
 
-@pytest.mark.parametrize("version, packed", VARIANTS, ids=["v1", "v2", "packed.v2"])
-@pytest.mark.parametrize("name", sorted(CASES))
+@pytest.mark.parametrize("name, version, packed", CASE_VARIANTS)
 def test_conformance_file_decodes_to_its_expected_levels(name, version, packed, update_golden):
     if update_golden and (version, packed) not in FROZEN:
         _write(name, version, packed)

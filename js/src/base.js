@@ -75,11 +75,7 @@ export async function decodeBase(bin, prim, draco) {
   for (let i = 0; i < indices.length; i++) {
     if (indices[i] >= n) throw new FormatError('base mesh: an index is out of range');
   }
-  for (let f = 0; f < indices.length; f += 3) {
-    const a = indices[f], b = indices[f + 1], c = indices[f + 2];
-    if (a === b || b === c || a === c) throw new FormatError('base mesh: a face repeats a vertex');
-  }
-  const values = new Float64Array(n * D);
+  let values = new Float64Array(n * D);
   quantizeInto(values, D, 0, positions, { ...grid }, 'positions');
   let col = 3;
   base.grids.forEach((g, j) => {
@@ -87,5 +83,43 @@ export async function decodeBase(bin, prim, draco) {
     quantizeInto(values, D, col, attributes[j], g, `${g.semantic} values`);
     col += g.origin.length;
   });
-  return { values, faces: indices instanceof Uint32Array ? indices : Uint32Array.from(indices), n, m: indices.length / 3, D };
+  let faces = indices instanceof Uint32Array ? indices : Uint32Array.from(indices);
+  let count = n;
+  if (base.welded != null) {
+    ({ values, faces, count } = weld(values, faces, n, D));
+    if (count !== base.welded) {
+      throw new FormatError(`base mesh: welding gives ${count} vertices, baseVertexCount says ${base.welded}`);
+    }
+  }
+  for (let f = 0; f < faces.length; f += 3) {
+    const a = faces[f], b = faces[f + 1], c = faces[f + 2];
+    if (a === b || b === c || a === c) throw new FormatError('base mesh: a face repeats a vertex');
+  }
+  return { values, faces, n: count, m: faces.length / 3, D };
+}
+
+/**
+ * Welds a stored base's copies (spec/README.md "Welded base"): vertices with equal grid positions
+ * are one vertex, the first of them in stored order; kept vertices are numbered in stored order and
+ * every face corner names its kept vertex. `values` (n*D), `faces` (m*3) on n vertices; returns new
+ * arrays and the kept count.
+ */
+function weld(values, faces, n, D) {
+  const first = new Map();
+  const number = new Uint32Array(n);
+  const kept = [];
+  for (let i = 0; i < n; i++) {
+    const key = `${values[i * D]},${values[i * D + 1]},${values[i * D + 2]}`;
+    const j = first.get(key);
+    if (j === undefined) {
+      first.set(key, kept.length);
+      number[i] = kept.length;
+      kept.push(i);
+    } else {
+      number[i] = j;
+    }
+  }
+  const out = new Float64Array(kept.length * D);
+  kept.forEach((i, k) => out.set(values.subarray(i * D, i * D + D), k * D));
+  return { values: out, faces: faces.map((x) => number[x]), count: kept.length };
 }

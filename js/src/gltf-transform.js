@@ -30,7 +30,7 @@
 import { Extension, ExtensionProperty, PropertyType } from '@gltf-transform/core';
 import { createBLAKE2b } from 'hash-wasm';
 import { PmwError } from './errors.js';
-import { chunkEntries } from './header.js';
+import { baseVertexCount, chunkEntries } from './header.js';
 import { packChunkTable } from './chunktable.js';
 
 /** BLAKE2b-128 (hash-wasm; WebAssembly compiles asynchronously, once, at import). */
@@ -140,7 +140,8 @@ export class PMWMProgressiveMesh extends Extension {
         const ext = primitiveDef.extensions?.[NAME];
         if (!ext) return;
         const primitive = context.meshes[meshIndex].listPrimitives()[primitiveIndex];
-        const entries = chunkEntries(ext, ext.payload?.version ?? 1, json.accessors[primitiveDef.attributes.POSITION].count);
+        const entries = chunkEntries(ext, ext.payload?.version ?? 1,
+          baseVertexCount(json, primitiveDef, ext, `mesh ${meshIndex} primitive ${primitiveIndex}`));
         const at = (entry) => entry.byteOffset ?? 0; // inside its bufferView (a version 2 chunk table)
         const chunks = entries.map((e) => context.bufferViews[e.bufferView].slice(at(e), at(e) + e.byteLength));
         const streamOffsets = entries.map((e) => (json.bufferViews[e.bufferView].byteOffset ?? 0) + at(e));

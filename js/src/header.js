@@ -201,11 +201,21 @@ function checkChunk(gltf, c, j, bufferLength, what, version = 1) {
   };
 }
 
-/** The vertex count a base primitive declares (its POSITION accessor's count; Draco bases too). */
-function baseVertexCount(gltf, prim) {
+/**
+ * The vertex count of a base primitive as its chunks see it: its POSITION accessor's count (Draco
+ * bases too), or, for a welded base (spec/README.md "Welded base"), the extension's baseVertexCount.
+ */
+export function baseVertexCount(gltf, prim, ext, what) {
   const acc = Array.isArray(gltf.accessors) && isObj(prim.attributes) ? gltf.accessors[prim.attributes.POSITION] : undefined;
   if (!isObj(acc) || !isInt(acc.count, 0, MAX_VERTICES)) throw new FormatError('base mesh: no POSITION accessor count');
-  return acc.count;
+  if (ext.baseVertexCount === undefined) return acc.count;
+  if (!isInt(ext.baseVertexCount, 1, acc.count)) {
+    throw new FormatError(`${what}: baseVertexCount is not an integer in 1..${acc.count} (the stored vertices)`);
+  }
+  if (Array.isArray(ext.attributes) && ext.attributes.length) {
+    throw new FormatError(`${what}: baseVertexCount (a welded base) with progressive attributes`);
+  }
+  return ext.baseVertexCount;
 }
 
 /** The base mesh plan of one primitive: Draco bufferView or plain accessors, and its attribute grids. */
@@ -276,7 +286,8 @@ export function planDocument(gltf, binLength) {
       const payloadVersion = checkExtension(ext, what);
       const grid = checkGrid(ext.grid, `${what}: grid`, 3);
       const base = basePlan(gltf, prim, ext, bufferLength, what);
-      const entries = chunkEntries(ext, payloadVersion, baseVertexCount(gltf, prim), what);
+      base.welded = ext.baseVertexCount === undefined ? null : baseVertexCount(gltf, prim, ext, what);
+      const entries = chunkEntries(ext, payloadVersion, baseVertexCount(gltf, prim, ext, what), what);
       const chunks = entries.map((c, j) => checkChunk(gltf, c, j, bufferLength, what, payloadVersion));
       const baseEnd = Math.max(0, ...base.views.map((v) => v.offset + v.length));
       primitives.push({ index: primitives.length, mesh: mi, primitive: pi, ext, grid, base, chunks, baseEnd,

@@ -122,8 +122,10 @@ test('a transform that changes a progressive base mesh makes write() throw BaseM
   assert.equal(JSON.stringify(plain.meshes).includes(NAME), false);
 });
 
-test('two-primitives.draco.v1.pmw: re-encoding the Draco base is refused, a plain base keeps the stream', async () => {
-  const original = load('two-primitives.draco.v1.pmw');
+// bowtie.welded-draco: a Draco base stored with copies of its non-manifold vertices; written plain, the
+// copies stay and readers still weld them (spec/README.md "Welded base")
+for (const file of ['two-primitives.draco.v1.pmw', 'bowtie.welded-draco.packed.v2.pmw']) test(`${file}: re-encoding the Draco base is refused, a plain base keeps the stream`, async () => {
+  const original = load(file);
   const io = new NodeIO().registerExtensions([PMWMProgressiveMesh, KHRDracoMeshCompression])
     .registerDependencies({
       'draco3d.decoder': await draco3d.createDecoderModule(), 'draco3d.encoder': await draco3d.createEncoderModule(),
@@ -146,7 +148,7 @@ const CONFIG = join(PACKAGE, 'gltf-transform.config.mjs');
 const gltfTransform = (...args) => spawnSync(CLI, [...args, '--config', CONFIG], { encoding: 'utf8', timeout: 120000 });
 
 // payload version 2 files too (chunks stored raw, spec/bitstream.md §8; chunk tables packed and in arrays, §6.2)
-const COPIED = ['sphere-attributes.plain.v1.pmw', 'two-primitives.draco.v1.pmw',
+const COPIED = ['sphere-attributes.plain.v1.pmw', 'two-primitives.draco.v1.pmw', 'bowtie.welded-draco.packed.v2.pmw',
   ...conformanceFiles(2).filter((f) => f.startsWith('two-primitives'))];
 const copies = mkdtempSync(join(tmpdir(), 'pmw-gltf-transform-cli-'));
 after(() => rmSync(copies, { recursive: true, force: true }));

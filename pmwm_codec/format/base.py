@@ -20,6 +20,13 @@ faces, so :class:`EncodedBase` carries ``vertex_map``: decoded vertex ``i`` is
 input vertex ``vertex_map[i]``.  Everything downstream (vertex-split indices)
 must refer to the decoded order.
 
+Draco's edgebreaker also splits a vertex on a non-manifold edge or at a non-manifold
+point into copies at one position.  Rather than falling back to Draco's sequential
+coding (about 3x the bytes on scans), the encoder then writes the base's true vertex
+count as the extension's ``baseVertexCount`` and every reader *welds* the decoded
+copies (:func:`weld`, spec README "Welded base"); the encoder only does so when the
+base's grid positions are pairwise distinct, so the weld is exact.
+
 :func:`decode_base` reads the primitive back from a glTF JSON dict and the BIN
 bytes, checking declared counts against :mod:`pmwm_codec.constants` before it
 allocates anything.
@@ -97,6 +104,8 @@ class EncodedBase:
     extensions_required: tuple = ()
     draco_attribute_ids: dict = field(default_factory=dict)
     notice: str | None = None
+    #: The vertex count after the weld (``baseVertexCount``), when the stored base has copies.
+    welded_count: int | None = None
 
     @property
     def vertex_count(self) -> int:
@@ -246,13 +255,22 @@ def _try_draco(pos, tri, grid, preserve_order, level):
         return "no POSITION attribute in the Draco output"
     dpos = np.asarray(decoded.get_attribute_by_unique_id(ids[_DRACO_POSITION_TYPE])["data"], dtype=np.float32)
     dtri = np.asarray(decoded.faces, dtype=np.int64).reshape(-1, 3)
-    if dpos.shape != pos.shape or dtri.shape != tri.shape:
+    if dpos.shape[0] < pos.shape[0] or dtri.shape != tri.shape:
         return f"vertex/face count changed {pos.shape[0]}/{tri.shape[0]} -> {dpos.shape[0]}/{dtri.shape[0]}"
     try:
         dint = grid.from_float32(dpos)
     except FormatError as exc:
         return str(exc)
-    vertex_map = _match_vertices(dint, pos)
+    welded_count = None
+    if dpos.shape[0] > pos.shape[0]:  # edgebreaker split non-manifold vertices: readers weld the copies
+        dint, dtri = weld(dint, dtri)
+        welded_count = pos.shape[0]
+        if dint.shape[0] != welded_count:
+            return f"welding the decoded copies gives {dint.shape[0]} vertices, not {welded_count}"
+    if np.array_equal(dint, pos):  # the order kept (sequential coding): no matching needed, copies or not
+        vertex_map = np.arange(pos.shape[0], dtype=np.int64)
+    else:
+        vertex_map = _match_vertices(dint, pos)
     if vertex_map is None:
         return "decoded positions are not a permutation of the grid positions"
     if not same_face_set(vertex_map[dtri], tri):
@@ -273,8 +291,24 @@ def _try_draco(pos, tri, grid, preserve_order, level):
         codec="draco", grid=grid, data=data, buffer_views=[draco_view], accessors=accessors, primitive=primitive,
         positions_int=dint, faces=dtri, vertex_map=vertex_map,
         extensions_used=(DRACO_EXTENSION,), extensions_required=(DRACO_EXTENSION,),
-        draco_attribute_ids=attribute_ids,
+        draco_attribute_ids=attribute_ids, welded_count=welded_count,
     )
+
+
+def weld(positions_int: np.ndarray, faces: np.ndarray) -> tuple:
+    """Weld a stored base's copies (spec README, "Welded base"): vertices with equal grid
+    positions are one vertex, the first of them in stored order; the kept vertices are
+    numbered in stored order and every face corner names its kept vertex.
+
+    ``positions_int`` (n, 3) int64, ``faces`` (m, 3) int64 indexing it; returns the kept
+    positions (n', 3) int64 and the faces (m, 3) int64 on them."""
+    n = positions_int.shape[0]
+    if n == 0:
+        return positions_int, faces
+    _, first, inverse = np.unique(positions_int, axis=0, return_index=True, return_inverse=True)
+    rank = np.empty(len(first), np.int64)
+    rank[np.argsort(first)] = np.arange(len(first))
+    return positions_int[np.sort(first)], rank[inverse.reshape(-1)][faces]
 
 
 def _match_vertices(decoded: np.ndarray, original: np.ndarray):
@@ -396,9 +430,38 @@ def decode_base(gltf: dict, bin_data, grid: Grid | dict, primitive: dict | None 
         faces = accessor_array(gltf, idx_acc, bin_data, INDEX_DTYPES[ctype], m, 3, "base mesh: indices").astype(np.int64)
     if faces.size and faces.max() >= n:
         raise FormatError(f"base mesh: face index {int(faces.max())} out of range [0, {n})")
+    positions = _as_grid(grid).from_float32(positions)
+    if welded_vertex_count(primitive) is not None:
+        welded = base_vertex_count(gltf, primitive)  # at most the stored count
+        positions, faces = weld(positions, faces)
+        if positions.shape[0] != welded:
+            raise FormatError(f"base mesh: welding gives {positions.shape[0]} vertices, baseVertexCount says {welded}")
     if ((faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])).any():
         raise FormatError("base mesh: a face repeats a vertex (a valid base has only proper triangles)")
-    return _as_grid(grid).from_float32(positions), faces
+    return positions, faces
+
+
+def welded_vertex_count(primitive: dict) -> int | None:
+    """The extension's ``baseVertexCount`` (the base's vertex count after the weld), or None
+    when the base is not welded.  Checked by the extension's schema (an integer >= 1); a welded
+    base carries no progressive attributes (a weld by position would merge their seams)."""
+    from ..constants import EXTENSION_NAME
+
+    ext = (primitive.get("extensions") or {}).get(EXTENSION_NAME) or {}
+    count = ext.get("baseVertexCount")
+    if count is not None and ext.get("attributes"):
+        raise FormatError("base mesh: baseVertexCount (a welded base) with progressive attributes")
+    return count
+
+
+def base_vertex_count(gltf: dict, primitive: dict) -> int:
+    """The base's vertex count as the chunks see it: ``baseVertexCount`` for a welded base,
+    else the POSITION accessor's count (limit-checked)."""
+    n = base_counts(gltf, primitive)[0]
+    welded = welded_vertex_count(primitive)
+    if welded is not None and welded > n:
+        raise FormatError(f"base mesh: baseVertexCount {welded} exceeds the {n} stored vertices")
+    return n if welded is None else welded
 
 
 def _decode_draco(gltf, draco, bin_data, n, m):
@@ -427,7 +490,7 @@ def _decode_draco(gltf, draco, bin_data, n, m):
 
 def decode_base_attributes(gltf: dict, bin_data, primitive: dict, attributes) -> np.ndarray:
     """The base's progressive attributes as (n, a) int64 grid integers (a = 0 without any)."""
-    n = base_counts(gltf, primitive)[0]
+    n = base_vertex_count(gltf, primitive)
     columns = []
     for spec in attributes:
         semantic = spec["semantic"]

@@ -17,6 +17,7 @@ from __future__ import annotations
 import os
 
 from ..constants import EXTENSION_NAME
+from .base import base_counts, base_vertex_count
 from .extension import chunk_start
 from .gltf import DRACO_EXTENSION, find_extension_primitives
 from .reader import read_header
@@ -62,12 +63,10 @@ def _primitives(gltf: dict, exts, bin_offset: int, size):
 
     A chunk row's ``present`` says whether its last byte is within ``size`` (None if unknown).
     """
-    accessors = gltf.get("accessors", [])
     views = gltf.get("bufferViews", [])
     prims, rows = [], []
     for p, ((mi, pi, prim), ext) in enumerate(zip(find_extension_primitives(gltf, EXTENSION_NAME), exts)):
-        base_vertices = accessors[prim["attributes"]["POSITION"]]["count"]
-        base_faces = accessors[prim["indices"]]["count"] // 3 if "indices" in prim else base_vertices // 3
+        base_vertices, base_faces = base_vertex_count(gltf, prim), base_counts(gltf, prim)[1]
         prims.append({
             "mesh": mi, "primitive": pi, "name": gltf["meshes"][mi].get("name"),
             "vertices": ext["vertexCount"], "faces": ext["faceCount"],

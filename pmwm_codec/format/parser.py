@@ -454,7 +454,7 @@ def _load_json(text: bytes):
     for _, _, prim in find_extension_primitives(gltf, EXTENSION_NAME):
         ext = check_extension(prim["extensions"][EXTENSION_NAME])
         if payload_version(ext) == 2:  # the compact table as per-chunk entries (the gltf keeps it as stored)
-            ext = {**ext, "chunks": chunk_entries(ext, _base.base_counts(gltf, prim)[0])}
+            ext = {**ext, "chunks": chunk_entries(ext, _base.base_vertex_count(gltf, prim))}
         else:
             chunk_entries(ext, 0)  # a version 1 object must hold an array
         exts.append(ext)

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from ..constants import EXTENSION_NAME
 from ..errors import TruncatedError
 from ..format import BaseEvent, ChunkEvent, ContainerParser, HeaderEvent
-from ..format.base import base_counts
+from ..format.base import base_counts, base_vertex_count
 from ..format.document import _view_sites as document_view_sites
 from ..format.extension import chunk_start, payload_version
 from ..format.glb import compact_chunks, glb_parts
@@ -135,8 +135,9 @@ def _available(header, received: int) -> int:
 
 
 def _base_counts(gltf: dict, prim: dict) -> dict:
-    """``{"vertexCount", "faceCount"}`` of a base primitive (its declared accessor counts)."""
-    n, m = base_counts(gltf, prim)[:2]
+    """``{"vertexCount", "faceCount"}`` of a base primitive (declared: its accessors' counts, the
+    vertices after the weld of a welded base)."""
+    n, m = base_vertex_count(gltf, prim), base_counts(gltf, prim)[1]
     return {"vertexCount": n, "faceCount": m}
 
 

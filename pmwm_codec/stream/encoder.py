@@ -466,6 +466,8 @@ def _primitives(doc, kept_bin, work, order, params, key, payload_version: int = 
         }
         if w.attribute_grids:
             extension["attributes"] = w.attribute_grids
+        if w.base.welded_count is not None:  # readers weld the stored base's copies (spec README, "Welded base")
+            extension["baseVertexCount"] = int(w.base.welded_count)
         if params is not None:
             extension["watermark"] = w.params.get_config()
         meta = chunk_meta(w.pm, w.groups, w.grid.step)
