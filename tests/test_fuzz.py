@@ -116,3 +116,21 @@ def test_zstd_frame_claiming_gigabytes_is_refused_before_allocating(sample):
         tracemalloc.stop()
         assert out in ("FormatError", "LimitError")
         assert peak < 64 << 20
+
+
+
+@pytest.fixture(scope="module")
+def welded():
+    from pathlib import Path
+
+    return (Path(__file__).resolve().parents[1] / "spec" / "conformance" / "bowtie.welded-draco.packed.v2.pmw").read_bytes()
+
+
+@SETTINGS
+@given(data=st.data())
+def test_byte_mutations_and_cuts_of_a_welded_draco_base_end_in_named_errors(sample, welded, data):
+    """The weld's inputs (the Draco base, the POSITION accessor count, baseVertexCount) edited byte by byte."""
+    b = bytearray(welded)
+    for i, v in data.draw(st.lists(st.tuples(st.integers(0, len(b) - 1), st.integers(0, 255)), max_size=6)):
+        b[i] = v
+    _only_named_errors(sample, b[: data.draw(st.integers(0, len(b)))])

@@ -368,8 +368,11 @@ def base_counts(gltf: dict, primitive: dict):
     mode = primitive.get("mode", TRIANGLES)
     if mode != TRIANGLES:
         raise FormatError(f"base mesh: primitive mode must be TRIANGLES (4), got {mode!r}")
+    attributes = primitive.get("attributes")
+    if not isinstance(attributes, dict) or "POSITION" not in attributes:
+        raise FormatError("base mesh: primitive has no POSITION attribute")
     accessors = gltf.get("accessors")
-    pos_acc = item(accessors, primitive["attributes"]["POSITION"], "base mesh: accessor")
+    pos_acc = item(accessors, attributes["POSITION"], "base mesh: accessor")
     if pos_acc.get("componentType") != FLOAT or pos_acc.get("type") != "VEC3":
         raise FormatError("base mesh: POSITION must be a FLOAT VEC3 accessor")
     n = uint(pos_acc, "count", "base mesh: POSITION accessor")
@@ -442,16 +445,20 @@ def decode_base(gltf: dict, bin_data, grid: Grid | dict, primitive: dict | None 
 
 
 def welded_vertex_count(primitive: dict) -> int | None:
-    """The extension's ``baseVertexCount`` (the base's vertex count after the weld), or None
-    when the base is not welded.  Checked by the extension's schema (an integer >= 1); a welded
-    base carries no progressive attributes (a weld by position would merge their seams)."""
+    """The extension's ``baseVertexCount`` (the base's vertex count after the weld) as an int, or
+    None when the base is not welded; FormatError unless it is a positive integer without
+    progressive attributes (a weld by position would merge their seams)."""
     from ..constants import EXTENSION_NAME
 
     ext = (primitive.get("extensions") or {}).get(EXTENSION_NAME) or {}
     count = ext.get("baseVertexCount")
-    if count is not None and ext.get("attributes"):
+    if count is None:
+        return None
+    if ext.get("attributes"):
         raise FormatError("base mesh: baseVertexCount (a welded base) with progressive attributes")
-    return count
+    if isinstance(count, bool) or not isinstance(count, (int, float)) or count != int(count) or count < 1:
+        raise FormatError(f"base mesh: baseVertexCount {count!r} is not a positive integer")
+    return int(count)
 
 
 def base_vertex_count(gltf: dict, primitive: dict) -> int:
