@@ -298,6 +298,9 @@ def test_the_ledger_reader_drops_a_line_cut_by_a_kill_and_the_writer_starts_a_ne
     (["batch", "encode", "SRC", "-o", "OUT", "--key", "k", "--keys-dir", "d"], "not allowed with"),
     (["batch", "encode", "SRC", "-o", "OUT", "--workers", "0"], "--workers must be > 0"),
     (["batch", "verify", "/nonexistent/out"], "no such folder"),
+    (["batch", "encode", "SRC", "-o", "OUT", "--grid-bits", "40"], "--grid-bits must be"),
+    (["batch", "encode", "SRC", "-o", "OUT", "--payload-version", "3"], "invalid choice"),
+    (["batch", "encode", "SRC", "-o", "OUT", "--no-owner"], "--no-owner needs --watermark"),
 ])
 def test_bad_batch_usage_exits_2_with_one_line(argv, words, capsys):
     assert main(argv) == 2
@@ -344,3 +347,52 @@ def test_the_encoder_forkserver_warm_up_runs_a_real_encode_and_decode():
 
     assert "pmwm_codec.batch.warm" in tasks._PRELOAD  # imported by each worker's forkserver
     assert warm.warm() is True  # False would mean every forked encoder compiles its kernels again
+
+
+def _extension(path) -> dict:
+    import struct
+
+    data = Path(path).read_bytes()
+    (length,) = struct.unpack_from("<I", data, 12)
+    gltf = json.loads(data[20 : 20 + length])
+    return gltf, gltf["meshes"][0]["primitives"][0]["extensions"]["PMWM_progressive_mesh"]
+
+
+def test_batch_encode_takes_the_stream_options_of_pmw_encode_and_redoes_assets_when_they_change(tmp_path, client, capsys):
+    src = tmp_path / "src"
+    src.mkdir()
+    write_mesh(src / "a.obj", shapes.icosphere(3, noise=0.01, seed=1))
+    out = tmp_path / "out"
+    argv = ["batch", "encode", str(src), "-o", str(out), "--grid-bits", "12", "--payload-version", "1",
+            "--base-codec", "plain", "--base-vertices", "80", "--workers", "1", "--json"]
+    assert main(argv) == 0
+    assert json.loads(capsys.readouterr().out)["ok"] == 1
+    gltf, ext = _extension(out / "a.obj.pmw")
+    assert ext["grid"]["bits"] == 12 and "payload" in ext and ext["payload"]["version"] == 1
+    assert "KHR_draco_mesh_compression" not in json.dumps(gltf["meshes"]) and isinstance(ext["chunks"], list)
+    assert gltf["accessors"][gltf["meshes"][0]["primitives"][0]["attributes"]["POSITION"]]["count"] <= 80
+    # the same options: skipped; other options (or none): redone, with what they ask
+    assert main(argv) == 0 and json.loads(capsys.readouterr().out)["skipped"] == 1
+    assert encode_batch(src, out, client=client, options={"grid_bits": 14})["ok"] == 1
+    assert _extension(out / "a.obj.pmw")[1]["grid"]["bits"] == 14
+    assert encode_batch(src, out, client=client)["ok"] == 1
+    gltf, ext = _extension(out / "a.obj.pmw")
+    assert ext["grid"]["bits"] == 16 and ext["payload"]["version"] == 2 and "KHR_draco_mesh_compression" in gltf["extensionsUsed"]
+    assert encode_batch(src, out, client=client)["skipped"] == 1
+
+
+def test_batch_no_owner_writes_the_exact_layer_only(tmp_path, client, capsys):
+    src = tmp_path / "src"
+    src.mkdir()
+    write_mesh(src / "a.obj", shapes.icosphere(3, noise=0.01, seed=1))
+    image = np.full((4, 4), 255, np.uint8)
+    image[::2] = 0
+    owners = []
+    for out, options in ((tmp_path / "o1", None), (tmp_path / "o2", {"owner_id": False})):
+        assert encode_batch(src, out, watermark=image, client=client, options=options)["ok"] == 1
+        pmw = out / "a.obj.pmw"
+        main(["verify", str(pmw), "--key", str(pmw) + ".key.json", "--json"])
+        doc = json.loads(capsys.readouterr().out)
+        assert doc["verdict"] == "authentic"
+        owners.append(doc.get("owner"))
+    assert owners[0]["verdict"] == "present" and owners[1] is None

@@ -5,7 +5,8 @@ it can kill it at the per-asset timeout, and so that a crash in a native library
 down one asset, not the worker.  A forked child gets the job dict as an argument and sends
 the result dict through a pipe; the interpreter form reads a pickled job dict on standard input
 (``src``, ``dst``, ``watermark`` ((s, s) uint8 array or None), ``key`` (WatermarkKey,
-key path or None) — trusted: written by our own task), one JSON object on standard output::
+key path or None), ``options`` (the :func:`pmwm_codec.encode` options) — trusted: written by our
+own task), one JSON object on standard output::
 
     {"status": "ok", "bytes": 10724, "vertices": 800, "key_path": "...", "error": null}
     {"status": "failed", "error": "<one line>", ...}
@@ -36,7 +37,8 @@ def encode_job(job: dict) -> dict:
     import pmwm_codec
 
     try:
-        report = pmwm_codec.encode(job["src"], job["dst"], watermark=job.get("watermark"), key=job.get("key"))
+        report = pmwm_codec.encode(job["src"], job["dst"], watermark=job.get("watermark"), key=job.get("key"),
+                                   **job.get("options", {}))
     except Exception as exc:  # the isolation boundary: the reason goes to the ledger
         if isinstance(exc, OSError) and exc.filename is not None:
             return {"status": "failed", "error": f"{exc.filename}: {exc.strerror or exc}"}

@@ -37,17 +37,22 @@ def sha256_file(path, block: int = 1 << 20) -> str:
     return h.hexdigest()
 
 
-def settings_sha256(image, key_mode: str, key_fingerprint: str | None) -> str:
+def settings_sha256(image, key_mode: str, key_fingerprint: str | None, options: dict | None = None) -> str:
     """Hex SHA-256 of everything but the input that decides an output's bytes and its key.
 
     image: (s, s) uint8 watermark or None; key_mode: ``collection`` | ``beside`` | ``keys-dir``;
-    key_fingerprint: the collection key's fingerprint (None otherwise).  The package's
-    container version is in it too, so that a newer format redoes old outputs.
+    key_fingerprint: the collection key's fingerprint (None otherwise); options: the encode
+    options (JSON-able; none or empty: the defaults, hashed as before options existed, so a
+    ledger of an older run still skips).  The package's container version is in it too, so
+    that a newer format redoes old outputs.
     """
     from pmwm_codec.constants import FORMAT_VERSION
 
-    h = hashlib.sha256(json.dumps({"format": FORMAT_VERSION, "key": key_mode, "fingerprint": key_fingerprint,
-                                   "image": None if image is None else list(image.shape)}).encode())
+    fields = {"format": FORMAT_VERSION, "key": key_mode, "fingerprint": key_fingerprint,
+              "image": None if image is None else list(image.shape)}
+    if options:
+        fields["options"] = options
+    h = hashlib.sha256(json.dumps(fields, sort_keys=bool(options)).encode())
     if image is not None:
         h.update(image.astype("uint8").tobytes())
     return h.hexdigest()

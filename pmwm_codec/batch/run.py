@@ -97,11 +97,11 @@ def collection_key(key_path, watermark):
     return image, key
 
 
-def _jobs(assets, out_dir, image, key, keys_dir, timeout, force) -> list[EncodeJob]:
+def _jobs(assets, out_dir, image, key, keys_dir, timeout, force, options=None) -> list[EncodeJob]:
     """One EncodeJob per asset, with the ledger's verdict on what was done before (with the same settings)."""
     previous = last_rows(read_ledger(os.path.join(out_dir, LEDGER_NAME)))
     mode = "collection" if key is not None else "keys-dir" if keys_dir is not None else "beside"
-    settings = settings_sha256(image, mode, None if key is None else key.fingerprint())
+    settings = settings_sha256(image, mode, None if key is None else key.fingerprint(), options)
     jobs = []
     for asset in assets:
         if image is None or key is not None:
@@ -115,13 +115,16 @@ def _jobs(assets, out_dir, image, key, keys_dir, timeout, force) -> list[EncodeJ
             and prior.get("settings_sha256") == settings
         jobs.append(EncodeJob(asset.input, asset.output, job_key, key_path, image, timeout, force,
                               prior.get("input_sha256") if done else None, prior.get("vertices") if done else None,
-                              settings))
+                              settings, dict(options or {})))
     return jobs
 
 
 def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, workers=None, scheduler=None,
-                 timeout=DEFAULT_TIMEOUT, force=False, progress=None, client=None) -> dict:
+                 timeout=DEFAULT_TIMEOUT, force=False, progress=None, client=None, options=None) -> dict:
     """Encode every asset of ``src`` into ``out_dir``; returns the run's summary.
+
+    ``options``: :func:`pmwm_codec.encode` options for every asset (``mode``, ``grid_bits``,
+    ``payload_version``, ...; JSON-able values), part of the settings the ledger compares.
 
     ``key``: a collection key path (loaded, or created and saved, here); ``keys_dir``: where
     per-asset keys go (default: beside each output).  ``client``: a ``distributed.Client`` to
@@ -144,7 +147,7 @@ def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, worke
         from pmwm_codec.watermark.image import load_watermark
 
         image = load_watermark(watermark)[0]
-    jobs = _jobs(assets, out_dir, image, key_obj, keys_dir, timeout, force)
+    jobs = _jobs(assets, out_dir, image, key_obj, keys_dir, timeout, force, options)
     start = time.monotonic()
     counts = dict.fromkeys(("ok", "skipped", "failed", "timeout"), 0)
     failures = []

@@ -38,7 +38,8 @@ class EncodeJob:
     per-asset key file that must exist beside a done output (None for a collection key or
     no watermark).  ``watermark``: (s, s) uint8 array or None.  ``prior_sha256`` /
     ``prior_vertices``: the ledger's last ok/skipped row for this input, if any, made with
-    the same ``settings`` (:func:`pmwm_codec.batch.ledger.settings_sha256`).
+    the same ``settings`` (:func:`pmwm_codec.batch.ledger.settings_sha256`).  ``options``: the
+    :func:`pmwm_codec.encode` options of every asset of the run.
     """
 
     input: str
@@ -51,6 +52,7 @@ class EncodeJob:
     prior_sha256: str | None = None
     prior_vertices: int | None = None
     settings: str | None = None
+    options: dict | None = None
 
 
 def encode_task(job: EncodeJob) -> dict:
@@ -100,7 +102,8 @@ def _encode_in_child(job: EncodeJob) -> dict:
         if path is not None:
             os.makedirs(os.path.dirname(path), exist_ok=True)
     _remove_leftovers(job)  # of a run killed before (one run per OUT_DIR at a time)
-    payload = {"src": job.input, "dst": job.output, "watermark": job.watermark, "key": job.key}
+    payload = {"src": job.input, "dst": job.output, "watermark": job.watermark, "key": job.key,
+               "options": job.options or {}}
     if multiprocessing.current_process().daemon:
         result = _run_interpreter(payload, job.timeout)
     else:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 
 from .common import EXIT_NOT_AUTHENTIC, EXIT_OK, Progress, UsageError, print_json
+from .encode import add_stream_options, stream_options
 
 INSTALL_HINT = 'pmw batch needs Dask: pip install "pmwm_codec[batch]"'
 
@@ -45,7 +46,8 @@ def add_parser(sub):
                         description="Encode every mesh (OBJ, PLY, STL, glTF/GLB) of SRC — a folder (recursively), "
                                     "a glob or a manifest (one path a line) — into OUT_DIR/<relative path>.pmw. "
                                     "A ledger OUT_DIR/pmw-batch.jsonl records each attempt; a re-run skips assets "
-                                    "already done with the same input and settings (watermark, key). "
+                                    "already done with the same input and settings (watermark, key, the options "
+                                    "below as 'pmw encode' takes them). "
                                     "Exit 0 all ok, 1 some failed, 2 bad usage.")
     e.add_argument("src", metavar="SRC", help="folder, glob (quote it) or manifest file")
     e.add_argument("-o", "--output", required=True, metavar="OUT_DIR", help="output folder (created)")
@@ -57,6 +59,9 @@ def add_parser(sub):
     e.add_argument("--timeout", type=_positive(float, "--timeout"), metavar="S",
                    help="seconds per asset before its encoder is killed (default 600)")
     e.add_argument("--force", action="store_true", help="redo assets the ledger records as done")
+    add_stream_options(e)
+    e.add_argument("--no-owner", action="store_true",
+                   help="with --watermark: write the exact layer only, no owner layer")
     _cluster_options(e)
     e.set_defaults(run=run_encode)
     v = cmds.add_parser("verify", help="verify every .pmw under OUT_DIR",
@@ -94,11 +99,17 @@ def _bar(args) -> Progress:
 
 def run_encode(args) -> int:
     batch = _library()
+    options = stream_options(args, defaults=False)  # the ledger's settings: only what differs from the defaults
+    if args.no_owner:
+        if args.watermark is None and args.key is None:
+            raise UsageError("--no-owner needs --watermark (or a collection --key): without a mark there is no owner layer")
+        options["owner_id"] = False
     show = _bar(args)
     try:
         summary = batch.encode_batch(args.src, args.output, watermark=args.watermark, key=args.key,
                                      keys_dir=args.keys_dir, workers=args.workers, scheduler=args.scheduler,
-                                     timeout=args.timeout or batch.DEFAULT_TIMEOUT, force=args.force, progress=show)
+                                     timeout=args.timeout or batch.DEFAULT_TIMEOUT, force=args.force, progress=show,
+                                     options=options)
     finally:
         show.bar.done()
     if args.json:

@@ -64,22 +64,7 @@ def add_parser(sub):
     p.add_argument("--no-owner", action="store_true",
                    help="with --watermark: write the exact layer only, no owner layer")
     p.add_argument("--key", metavar="KEY", help="key file to use (if it exists) or to write (default: OUT.pmw.key.json)")
-    p.add_argument("--mode", choices=MODES, default="exact", help="exact (default: bit-exact watermark) or paper (Eq. 4)")
-    p.add_argument("--bits", type=_int_in(1, MAX_BITS, "--bits"), metavar="B", help="bits per code (default: automatic)")
-    p.add_argument("--embed-from", type=_start, metavar="N",
-                   help="first vertex split that carries a code, counted from the base mesh over the stream "
-                        "(an index, or a fraction of the splits such as 0.25; default 0); stored in the file")
-    p.add_argument("--grid-bits", type=_int_in(MIN_GRID_BITS, MAX_GRID_BITS, "--grid-bits"), metavar="Q",
-                   help="position grid resolution in bits (default 16; paper mode 22)")
-    p.add_argument("--base-codec", choices=("draco", "plain"), default="draco", help="how the base mesh is stored")
-    p.add_argument("--payload-version", type=int, choices=PAYLOAD_VERSIONS, default=DEFAULT_PAYLOAD_VERSION,
-                   help="chunk payload format: 2 (range-coded, compact chunk index; default) or 1 (zstd "
-                        "columns, one index entry per chunk: the format of files written before)")
-    p.add_argument("--base-vertices", type=_int_in(4, None, "--base-vertices"), metavar="N",
-                   help="target base mesh size (default 1%% of the vertices, at least 64)")
-    p.add_argument("--strip-image-profiles", action="store_true",
-                   help="glTF assets: drop colour-profile chunks from PNG textures (same pixels; "
-                        "the glTF validator warns on them)")
+    add_stream_options(p)
     p.add_argument("--fit", action="store_true",
                    help="shrink a watermark that does not fit to the largest size that does (with a notice)")
     p.add_argument("--measure", choices=MEASURES, default="vertices",
@@ -90,6 +75,44 @@ def add_parser(sub):
     p.set_defaults(run=run)
 
 
+#: The defaults of :func:`add_stream_options` that are not None.
+STREAM_DEFAULTS = {"mode": "exact", "base_codec": "draco", "payload_version": DEFAULT_PAYLOAD_VERSION}
+
+
+def add_stream_options(p) -> None:
+    """The options that decide how a mesh becomes a stream (``pmw encode`` and ``pmw batch encode``)."""
+    p.add_argument("--mode", choices=MODES, default=STREAM_DEFAULTS["mode"], help="exact (default: bit-exact watermark) or paper (Eq. 4)")
+    p.add_argument("--bits", type=_int_in(1, MAX_BITS, "--bits"), metavar="B", help="bits per code (default: automatic)")
+    p.add_argument("--embed-from", type=_start, metavar="N",
+                   help="first vertex split that carries a code, counted from the base mesh over the stream "
+                        "(an index, or a fraction of the splits such as 0.25; default 0); stored in the file")
+    p.add_argument("--grid-bits", type=_int_in(MIN_GRID_BITS, MAX_GRID_BITS, "--grid-bits"), metavar="Q",
+                   help="position grid resolution in bits (default 16; paper mode 22)")
+    p.add_argument("--base-codec", choices=("draco", "plain"), default=STREAM_DEFAULTS["base_codec"],
+                   help="how the base mesh is stored")
+    p.add_argument("--payload-version", type=int, choices=PAYLOAD_VERSIONS, default=STREAM_DEFAULTS["payload_version"],
+                   help="chunk payload format: 2 (range-coded, compact chunk index; default) or 1 (zstd "
+                        "columns, one index entry per chunk: the format of files written before)")
+    p.add_argument("--base-vertices", type=_int_in(4, None, "--base-vertices"), metavar="N",
+                   help="target base mesh size (default 1%% of the vertices, at least 64)")
+    p.add_argument("--strip-image-profiles", action="store_true",
+                   help="glTF assets: drop colour-profile chunks from PNG textures (same pixels; "
+                        "the glTF validator warns on them)")
+
+
+def stream_options(args, *, defaults: bool = True) -> dict:
+    """The :func:`pmwm_codec.encode` options of :func:`add_stream_options`: those given, and with
+    ``defaults`` the :data:`STREAM_DEFAULTS` of those not given."""
+    options = {name: getattr(args, name) for name in STREAM_DEFAULTS
+               if defaults or getattr(args, name) != STREAM_DEFAULTS[name]}
+    for name in ("bits", "grid_bits", "base_vertices", "embed_from"):
+        if getattr(args, name) is not None:
+            options[name] = getattr(args, name)
+    if args.strip_image_profiles:
+        options["strip_image_profiles"] = True
+    return options
+
+
 def run(args) -> int:
     check_input_file(args.input, "mesh file")
     if args.watermark is not None:
@@ -98,13 +121,9 @@ def run(args) -> int:
     if args.key is not None and not os.path.exists(args.key):
         check_output_path(args.key, "key")
     progress = Progress(not (args.json or args.quiet))
-    options = {"mode": args.mode, "base_codec": args.base_codec, "measure": args.measure,
-               "payload_version": args.payload_version, "progress": stage_progress(progress)}
-    for name in ("bits", "grid_bits", "base_vertices", "embed_from", "owner_id"):
-        if getattr(args, name) is not None:
-            options[name] = getattr(args, name)
-    if args.strip_image_profiles:
-        options["strip_image_profiles"] = True
+    options = {**stream_options(args), "measure": args.measure, "progress": stage_progress(progress)}
+    if args.owner_id is not None:
+        options["owner_id"] = args.owner_id
     if args.no_owner and args.owner_id is not None:
         raise UsageError("--no-owner and --owner-id exclude each other")
     extra = []
