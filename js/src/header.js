@@ -286,8 +286,9 @@ export function planDocument(gltf, binLength) {
       const payloadVersion = checkExtension(ext, what);
       const grid = checkGrid(ext.grid, `${what}: grid`, 3);
       const base = basePlan(gltf, prim, ext, bufferLength, what);
-      base.welded = ext.baseVertexCount === undefined ? null : baseVertexCount(gltf, prim, ext, what);
-      const entries = chunkEntries(ext, payloadVersion, baseVertexCount(gltf, prim, ext, what), what);
+      const baseCount = baseVertexCount(gltf, prim, ext, what);
+      base.welded = ext.baseVertexCount === undefined ? null : baseCount; // decodeBase welds to this count
+      const entries = chunkEntries(ext, payloadVersion, baseCount, what);
       const chunks = entries.map((c, j) => checkChunk(gltf, c, j, bufferLength, what, payloadVersion));
       const baseEnd = Math.max(0, ...base.views.map((v) => v.offset + v.length));
       primitives.push({ index: primitives.length, mesh: mi, primitive: pi, ext, grid, base, chunks, baseEnd,
