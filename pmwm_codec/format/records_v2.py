@@ -343,7 +343,7 @@ def _arc_of(fan, d, kind, sym):
     return s, L, left, right
 
 
-@kernel_helper
+@kernel_helper(allocates=True)
 def _connectivity_kernel(gstart, a, b, v, P, sym, S, ring, nrm, es, out, ds, buf, probs, decode):
     """Code or decode the incidence symbols ``sym`` (I,) uint8 of a batch, split by split, and
     take each split's ring statistics (:func:`_ring_stats`) while its rows are at hand.
@@ -785,7 +785,7 @@ def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, spli
     return new_faces
 
 
-@kernel_helper
+@kernel_helper(allocates=True)
 def _update_valences(n0, v, a, b, sym, gstart, flat, head, nxt, valence, stamp, tag, ctr, rewritten):
     """The valences a batch changed, after its topology.  A ring vertex ``x`` of split i gains ``u``
     when a face of ``u`` holds it and loses ``v`` when no face of ``v`` holds it any more; ``v`` and
@@ -857,7 +857,7 @@ def _tag(x, token, bits, tag):
     tag[x] = (tag[x] | bits) if tag[x] & ~7 == token else (token | bits)
 
 
-@kernel_helper
+@kernel_helper(allocates=True)
 def _link_splits(flat, m0, n0, v, inc, own, a, b, sym, gstart, head, tail, nxt, split):
     """Spec §6.1 steps 1-3 on the face slots and the corner lists: the moved corners become
     ``u`` (and its list), the new faces are appended in face-slot order of the incidences naming

@@ -97,7 +97,7 @@ def _boundary_kernel(faces, n):
     return he0[count == 1]
 
 
-@kernel_helper
+@kernel_helper(allocates=True)
 def _compact_kernel(corners, face_alive, vert_alive):
     """Kernel part of :func:`_live_mesh_kernel`: ``(vids, fids, loc, F)`` as in :class:`LiveMesh`."""
     loc = np.full(len(vert_alive), -1, np.int64)
@@ -115,7 +115,7 @@ def _compact_kernel(corners, face_alive, vert_alive):
     return vids, fids, loc, F
 
 
-@kernel_helper
+@kernel_helper(allocates=True)
 def _vertex_faces(F, n):
     """Kernel part of :func:`_live_mesh_kernel`: the vertex -> corners CSR of ``F`` (m, 3) int64,
     corners ``3 f + c`` ascending in every row: ``(vf_start (n + 1,), vf_corner (3m,), fcount (n,),
@@ -153,7 +153,7 @@ def _insert(by, bh, k, y, he):
     bh[t] = he
 
 
-@kernel_helper
+@kernel_helper(allocates=True)
 def _edges_by_vertex(F, n, vf_start, vf_corner, ring):
     """Kernel part of :func:`_live_mesh_kernel`: the edge table of ``F`` built vertex by vertex.
 

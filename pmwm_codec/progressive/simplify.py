@@ -804,7 +804,7 @@ def _edge_id(vv_start, vv_nbr, vv_edge, a, b):
     return -1
 
 
-@kernel_helper
+@kernel_helper(allocates=True)
 def _legal_kernel(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_start, vv_nbr, vf_start, vf_face, fin):
     """Compiled :func:`_legal`: the same (k,) bool mask, test for test (see there); ``fin`` (n,) bool
     marks the vertices on an edge with more than two faces (:func:`_fin_vertices`)."""
@@ -1022,7 +1022,7 @@ def _nbr_min(vv_start, vv_nbr, values, row, big):
     return best
 
 
-@kernel_helper
+@kernel_helper(allocates=True)
 def _round_conflicts(u, v, r, flags, scratch, vv_start, vv_nbr, big):
     """Kernel part of :func:`_select_kernel`: :func:`_conflicts` of one round's winners (w,) -> (w,) bool."""
     loses = np.zeros(len(u), np.bool_)

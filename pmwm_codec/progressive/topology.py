@@ -74,7 +74,7 @@ def _counting_order_py(keys, n):
 
 
 _COMPILED: dict = {}  # plain function -> its dispatcher
-_HELPERS: list = []  # (module globals, name, plain function) of every kernel_helper
+_HELPERS: list = []  # (module globals, name, plain function, flags) of every kernel_helper
 
 
 def compiled(fn):
@@ -100,25 +100,35 @@ def _load_numba():
         import numba
 
         _numba = numba
-        for g, name, fn in _HELPERS:
-            g[name] = _COMPILED.setdefault(fn, _jit(fn))
+        for g, name, fn, flags in _HELPERS:
+            g[name] = _COMPILED.setdefault(fn, _jit(fn, **flags))
 
 
-def _jit(fn):
+def _jit(fn, **flags):
     """``numba.njit`` with the on-disk cache (next to the module, else numba's user cache dir);
     without the cache when no cache dir is writable (numba refuses ``cache=True`` then)."""
     try:
-        return _numba.njit(cache=True, nogil=True)(fn)
+        return _numba.njit(cache=True, nogil=True, **flags)(fn)
     except RuntimeError:  # "cannot cache function ...: no locator available"
-        return _numba.njit(cache=False, nogil=True)(fn)
+        return _numba.njit(cache=False, nogil=True, **flags)(fn)
 
 
-def kernel_helper(fn):
+def kernel_helper(fn=None, *, allocates: bool = False):
     """Decorator for plain-Python functions that compiled kernels call: numba needs them compiled
-    too.  The module global becomes the dispatcher when numba loads (:func:`_load_numba`)."""
+    too.  The module global becomes the dispatcher when numba loads (:func:`_load_numba`).
+
+    A helper that makes no array (no ``np.empty``, no slice, no sort: ``allocates`` False) is
+    compiled without numba's reference counting: with it, every call counts each array argument
+    up on entry and down on return with atomic instructions, which took a third of a decode's
+    time (helpers are called per coded decision and per corner).  ``@kernel_helper(allocates=True)``
+    keeps it for the helpers that need it.
+    """
+    if fn is None:
+        return lambda f: kernel_helper(f, allocates=allocates)
+    flags = {} if allocates else {"_nrt": False}
     if _numba is not None:
-        return _COMPILED.setdefault(fn, _jit(fn))
-    _HELPERS.append((fn.__globals__, fn.__name__, fn))
+        return _COMPILED.setdefault(fn, _jit(fn, **flags))
+    _HELPERS.append((fn.__globals__, fn.__name__, fn, flags))
     return fn
 
 
