@@ -152,7 +152,8 @@ def test_false_alarm_probability_is_the_union_bound_of_the_binomial_tail_over_th
     tail = lambda e: sum(math.comb(64, i) for i in range(e + 1)) / 2**64  # noqa: E731
     assert owner.false_alarm_probability(0, frames=1) == 2.0**-64
     assert owner.false_alarm_probability(8) == pytest.approx(owner.FRAMES * tail(8))
-    assert owner.false_alarm_probability(8) < owner.PRESENT_BELOW < owner.false_alarm_probability(9)
+    assert owner.false_alarm_probability(7) < owner.PRESENT_BELOW < owner.false_alarm_probability(8)  # spec: <= 7
+    assert owner.false_alarm_probability(17) < owner.ABSENT_FROM <= owner.false_alarm_probability(18)  # spec: >= 18
     assert owner.false_alarm_probability(64) == 1.0 and owner.false_alarm_probability(40) == 1.0
 
 
@@ -200,7 +201,7 @@ def test_cli_owner_only_encode_then_blind_verify_of_the_decoded_mesh(tmp_path, b
     assert main(["verify", str(tmp_path / "d.ply"), "--key", str(key), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)  # the CLI's key is random: a few bit errors may occur
     assert doc["owner"]["verdict"] == "present" and doc["owner"]["bits"] == 64
-    assert bin(int(doc["owner"]["id"], 16) ^ 0x00C0FFEE00C0FFEE).count("1") == doc["owner"]["bit_errors"] <= 8
+    assert bin(int(doc["owner"]["id"], 16) ^ 0x00C0FFEE00C0FFEE).count("1") == doc["owner"]["bit_errors"] <= 7
     assert main(["verify", str(src), "--key", str(key), "-q"]) == 1  # the unmarked original
     assert main(["verify", str(out), "--key", str(key), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
@@ -297,20 +298,47 @@ def test_frame_search_reads_through_an_estimate_a_fifth_of_a_shell_off(blob, mar
     assert r.bit_errors == 0 and r.verdict == "present"
 
 
-def test_frame_search_keeps_the_estimate_on_an_unmarked_mesh(blob):
-    """Without a mark, no frame beats the estimate by SEARCH_GAIN noise deviations: the read is
-    the estimate's (and, either way, a choice that does not depend on the key)."""
+def test_the_estimate_is_always_read_whatever_the_search_finds(blob, marked, monkeypatch):
+    """The first frame a read tries is the estimate itself: on the marked mesh and after transport
+    it is the frame the encoder measured, so a search lured elsewhere (here: every climb ends
+    0.4 widths off) costs nothing."""
+    key, pos = marked
+    points, inverse = owner._distinct_index(pos)
+    faces = inverse[blob.faces]
+    frame = owner._frame(points, faces)
+    monkeypatch.setattr(owner, "_ascend", lambda objectives, x, center: center + np.array([0.3, 0.0, 0.0, 0.1, 0.1]))
+    frames = owner._searched_frames(points, faces)
+    assert len(frames) == owner.FRAMES
+    assert np.array_equal(frames[0][0], frame[0]) and frames[0][1:] == frame[1:]
+    assert not np.array_equal(frames[1][0], frame[0])
+    r = owner.detect(pos, blob.faces, key)
+    assert r.bit_errors == 0 and r.verdict == "present"
+
+
+def test_frame_search_climbs_from_several_grid_points(blob, monkeypatch):
+    """The best grid point can sit in a lesser basin (a smoothed 23k-vertex dragon: 2 of 3 keys):
+    the search climbs from the SEARCH_STARTS best grid points and keeps the highest maximum."""
+    high, low = np.array([0.1, 0.1, 0.0, 0.1, 0.1]), np.array([-0.2, -0.2, 0.0, 0.0, 0.0])
+
+    def objective(n, rho, lo, width, x):  # a narrow high peak near the grid's centre, a lower one on a grid point
+        return float(np.exp(-np.sum((x - high) ** 2) / 0.02) + 0.6 * np.exp(-np.sum((x - low) ** 2) / 0.1))
+
+    monkeypatch.setattr(owner, "_search_objective", objective)
     points, inverse = owner._distinct_index(blob.positions)
     faces = inverse[blob.faces]
-    frame, searched = owner._frame(points, faces), owner._searched_frames(points, faces)[0]
-    assert np.array_equal(frame[0], searched[0]) and frame[1:] == searched[1:]
+    centroid, lo, width = owner._frame(points, faces)
+    searched = owner._searched_frames(points, faces)[1]
+    assert np.allclose(searched[0], centroid + high[:3] * width) and searched[1] == pytest.approx(lo + 0.1 * width)
+    monkeypatch.setattr(owner, "SEARCH_STARTS", 1)  # one climb, from the best grid point: the lesser peak
+    searched = owner._searched_frames(points, faces)[1]
+    assert np.allclose(searched[0], centroid + low[:3] * width)
 
 
 def test_sparser_shells_get_larger_margins(blob, marked):
     """Equal signal-to-noise: a shell's margin grows as its vertex count falls (sqrt(median / mass))."""
     key, pos = marked
     s, mass = owner.mesh_scores(pos, blob.faces)
-    s, mass = s[0], mass[0]  # the searched frame (the marked mesh reads there)
+    s, mass = s[0], mass[0]  # the estimated frame (the marked mesh reads there)
     order = np.argsort(mass)
     assert mass[order[0]] < mass[order[-1]]
     assert np.abs(s[order[:16]]).mean() > 1.2 * np.abs(s[order[-16:]]).mean()

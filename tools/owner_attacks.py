@@ -137,7 +137,7 @@ def markdown(results, keys, strength, rms_budget, seconds) -> str:
         row = [f"{np.mean(r['errors'][n]) / 64:.3f} ({r['present'][n]}/{keys})" for r in results]
         lines.append(f"| {n} | " + " | ".join(row) + f" | {ANCHORS.get(n, '—')} |")
     dist = ["", "| mesh | vertices | owner layer RMS % diag (mean / max) | Hausdorff % diag (max) | wrong keys: "
-            "present / min errors / errors mean, sd (one frame of fair coins: 32, 4; the best of 3 frames reads fewer) | "
+            f"present / min errors / errors mean, sd (one frame of fair coins: 32, 4; the best of {owner.FRAMES} frames reads fewer) | "
             "wrong keys with <= 20 errors: measured / stated bound | unmarked: min errors |", "|---|---|---|---|---|---|---|"]
     for r in results:
         e = np.array([err for err, _ in r["wrong"]])
