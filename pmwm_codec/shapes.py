@@ -129,6 +129,16 @@ def bowtie() -> Mesh:
     return Mesh(verts, faces.astype(np.int64))
 
 
+def _rings(faces: np.ndarray, n: int) -> list:
+    """Each vertex's neighbours: a list of ``n`` sets of vertex ids, from ``faces`` (m, 3) int."""
+    ring = [set() for _ in range(n)]
+    for a, b, c in np.asarray(faces).tolist():
+        ring[a] |= {b, c}
+        ring[b] |= {a, c}
+        ring[c] |= {a, b}
+    return ring
+
+
 def doubled_faces(pillows: int = 12) -> Mesh:
     """An icosphere with up to ``pillows`` doubled triangles (two faces on the same three vertices,
     facing opposite ways), as volumetric scan reconstructions leave them.
@@ -138,11 +148,7 @@ def doubled_faces(pillows: int = 12) -> Mesh:
     passes the counting tests (common neighbours = faces on ``uv``).  Every edge is manifold."""
     sphere = icosphere(3, 1.0, noise=0.02)
     V, F = sphere.positions.copy(), sphere.faces
-    ring = [set() for _ in range(len(V))]
-    for a, b, c in F.tolist():
-        ring[a] |= {b, c}
-        ring[b] |= {a, c}
-        ring[c] |= {a, b}
+    ring = _rings(F, len(V))
     taken, pairs = set(), []
     for u in range(0, len(V), 7):
         far = {v for x in ring[u] for v in ring[x]} - ring[u] - {u}
@@ -155,6 +161,27 @@ def doubled_faces(pillows: int = 12) -> Mesh:
     w = len(V) + np.arange(len(pairs))
     doubled = np.concatenate([np.stack([u, v, w], 1), np.stack([v, u, w], 1)])
     return Mesh(np.concatenate([V, 0.505 * (V[u] + V[v])]), np.concatenate([F, doubled]).astype(np.int64))
+
+
+def flaps(count: int = 12) -> Mesh:
+    """An icosphere with up to ``count`` flaps: doubled triangles (two faces on the same three
+    vertices, facing opposite ways) glued onto a surface edge ``ab``, with a tip of their own just
+    off the surface, as the VRIP dragons carry them by the hundred.  Edge ``ab`` has four faces,
+    ``a`` and ``b`` two faces more than their disk; no two flaps share a vertex or a neighbour."""
+    sphere = icosphere(3, 1.0, noise=0.02)
+    V, F = sphere.positions, sphere.faces
+    ring = _rings(F, len(V))
+    taken, edges = set(), []
+    for a, b, _ in F[::5].tolist():
+        if len(edges) < count and not (ring[a] | ring[b]) & taken:
+            edges.append((a, b))
+            taken |= ring[a] | ring[b] | {a, b}
+    a, b = np.array(edges, np.int64).T
+    tip = len(V) + np.arange(len(edges))
+    mid = 0.5 * (V[a] + V[b])
+    out = mid * 1.08  # just outside the unit sphere
+    doubled = np.concatenate([np.stack([a, b, tip], 1), np.stack([b, a, tip], 1)])
+    return Mesh(np.concatenate([V, out]), np.concatenate([F, doubled]).astype(np.int64))
 
 
 def demo_mesh(resolution: int = 180) -> Mesh:

@@ -38,6 +38,7 @@ GENERATED = {
     "components": lambda: shapes.components(shapes.icosphere(2, 0.9, noise=0.05), shapes.torus(20, 10), shapes.grid(10, 10, hole=False)),
     "bowtie": lambda: shapes.bowtie(),
     "doubled_faces": lambda: shapes.doubled_faces(),
+    "flaps": lambda: shapes.flaps(),
 }
 
 

@@ -30,8 +30,9 @@ from pmwm_codec.watermark.key import WatermarkKey
 if {hang_at_replace}:
     real = os.replace
     def replace(a, b):
-        print("READY", flush=True)
-        import time; time.sleep(60)
+        if os.fspath(b) == {dst!r}:  # the output's rename, not another (numba's cache writes rename too)
+            print("READY", flush=True)
+            import time; time.sleep(60)
         real(a, b)
     os.replace = replace
 print("START", flush=True)

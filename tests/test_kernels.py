@@ -57,8 +57,8 @@ def _encoded(mesh, bits=16) -> bytes:
 
 
 @pytest.mark.parametrize("make, bits", [(lambda: shapes.icosphere(3, 1.0, noise=0.02), 16), (shapes.doubled_faces, 16),
-                                        (lambda: shapes.grid(400, 8, hole=False, bump=0.3), 8)],
-                         ids=["sphere", "doubled faces", "faces without area on the grid"])
+                                        (shapes.flaps, 16), (lambda: shapes.grid(400, 8, hole=False, bump=0.3), 8)],
+                         ids=["sphere", "doubled faces", "flaps", "faces without area on the grid"])
 def test_encode_bytes_do_not_depend_on_the_kernels(monkeypatch, make, bits):
     mesh = make()
     monkeypatch.setattr(topology, "USE_NUMBA", False)
@@ -190,6 +190,7 @@ _ODD_MESHES = {  # boundaries, holes, a non-manifold vertex, several components
     "grid with a hole": shapes.grid(12, 9, hole=True, bump=0.0),
     "bowtie": shapes.bowtie(),
     "doubled faces": shapes.doubled_faces(),
+    "flaps": shapes.flaps(),
     "sphere and grid": shapes.components(shapes.icosphere(1, 1.0), shapes.grid(5, 5)),
 }
 
