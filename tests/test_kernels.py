@@ -245,7 +245,8 @@ def test_the_candidate_collapses_are_the_same_on_both_paths(monkeypatch, name):
         frozen = rng.random(k) < 0.1
         P = np.asarray(mesh.positions, np.float64)[live.vids]
         src, _, opp = topology.half_edges(live.F)
-        out.append(simplify._candidates((live.et, live.F, P, opp, live.fcount, live.vv, live.vf, live.vv_edge),
+        out.append(simplify._candidates((live.et, live.F, P, opp, live.fcount, live.vv, live.vf, live.vv_edge,
+                                         np.zeros(len(live.et.keys), bool)),
                                         Q, src, frozen))
     assert out[0] is not None and len(out[0][0]) > 0
     for a, b in zip(*out):

@@ -126,6 +126,36 @@ def test_flaps_do_not_lock_the_surface_edge_they_are_glued_on():
     assert_same_mesh(pm, q, mesh.faces, positions, faces)
 
 
+@pytest.mark.parametrize("use_numba", [False, True], ids=["numpy", "compiled"])
+def test_a_collapse_may_delete_a_face_beside_the_edge_a_flap_hangs_from(monkeypatch, use_numba):
+    """Collapsing a -> y deletes the surface face (a, b, y) whose other edge at a, ab, carries a flap
+    (four faces): the split that undoes it names the face from the first moved face on ab that can
+    (the surface's or the flap's), so the collapse is legal; with the flap's edges unmarked it is not."""
+    from pmwm_codec.progressive import simplify as S
+    from pmwm_codec.progressive import topology
+    from pmwm_codec.progressive.livemesh import live_mesh
+    from pmwm_codec.progressive.topology import half_edges
+
+    monkeypatch.setattr(topology, "USE_NUMBA", use_numba and topology.USE_NUMBA)
+    mesh = shapes.flaps()
+    P = Grid.fit(mesh.positions, 16).quantize(mesh.positions).astype(np.float64)
+    live = live_mesh(mesh.faces.copy(), np.ones(mesh.face_count, bool), np.ones(mesh.vertex_count, bool))
+    F, et = live.F, live.et
+    src, _, opp = half_edges(F)
+    twin_edge, _ = S._twin_counts(et, F, S.twin_faces(F), len(P))
+    cu, cv = [], []
+    for a, b, _tip in F[S.twin_faces(F)][0::2]:
+        for f in F[(F == a).any(1) & (F == b).any(1) & ~S.twin_faces(F)]:
+            cu.append(a)
+            cv.append(int(np.setdiff1d(f, [a, b])[0]))  # the surface face's third vertex
+    cu, cv = np.array(cu), np.array(cv)
+    ce = et.find(cu, cv)
+    legal = [S._legal(cu, cv, ce, (et, F, P[live.vids], opp, live.fcount, live.vv, live.vf, live.vv_edge, marks))
+             for marks in (twin_edge, np.zeros_like(twin_edge))]
+    assert len(cu) >= 20 and legal[0].mean() > 0.5
+    assert not legal[1].any()
+
+
 def test_collapses_of_a_batch_never_interact():
     """Removed vertices pairwise non-adjacent, kept vertices distinct, no kept vertex next to another's removed one."""
     mesh = shapes.icosphere(3, 1.0, noise=0.03)
@@ -226,7 +256,8 @@ def _candidates_of(mesh):
     P = Grid.fit(mesh.positions, 16).quantize(mesh.positions).astype(np.float64)
     live = live_mesh(mesh.faces.copy(), np.ones(mesh.face_count, bool), np.ones(mesh.vertex_count, bool))
     src, _, opp = half_edges(live.F)
-    local = (live.et, live.F, P[live.vids], opp, live.fcount, live.vv, live.vf, live.vv_edge)
+    local = (live.et, live.F, P[live.vids], opp, live.fcount, live.vv, live.vf, live.vv_edge,
+             np.zeros(len(live.et.keys), bool))
     Q = S.face_quadrics(P, mesh.faces, mesh.vertex_count)[live.vids]
     return local, S._candidates(local, Q, src, np.zeros(len(live.vids), bool)), len(live.vids)
 

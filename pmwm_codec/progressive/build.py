@@ -184,9 +184,20 @@ def _wings(state, inc, owner, vid, cb, order, moved) -> tuple:
     b = flat[first + (inc + 2) % 3]
     wing_left = _lookup(vid, cb.wing_left[order])[owner]
     wing_right = _lookup(vid, cb.wing_right[order])[owner]
-    left = moved & (wing_left >= 0) & (a == wing_left)
-    right = moved & (wing_right >= 0) & (b == wing_right)
+    left = _first_per_split(moved & (wing_left >= 0) & (a == wing_left), owner)
+    right = _first_per_split(moved & (wing_right >= 0) & (b == wing_right), owner)
     return left, right
+
+
+def _first_per_split(mask: np.ndarray, owner: np.ndarray) -> np.ndarray:
+    """``mask`` (I,) bool kept at the first incidence of each split only (incidences in face-slot order,
+    ``owner`` (I,) their splits): when a pillow is glued on the edge a new face grows from, several
+    moved faces could name it, and a split names each new face once."""
+    hit = np.flatnonzero(mask)
+    first = hit[np.unique(owner[hit], return_index=True)[1]]
+    out = np.zeros_like(mask)
+    out[first] = True
+    return out
 
 
 def _name_new_faces(face_src, m_before, symbols, owner, left, right, cb, order) -> None:

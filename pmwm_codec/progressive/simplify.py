@@ -33,7 +33,8 @@ A collapse is legal when
 * the link condition holds: ``u`` and ``v`` share exactly the neighbours opposite
   ``uv`` (no new non-manifold edge, no duplicate face);
 * each deleted face's other edge at ``u`` is interior (the split that undoes it
-  can name the face it grows from; it also forbids removing "ear" vertices);
+  can name the face it grows from; it also forbids removing "ear" vertices), or an edge a pillow
+  is glued on (of the faces that could name it, the first in face-slot order does);
 * the two deleted faces have different third vertices: two faces on the same three vertices
   (a doubled face, as scans' reconstructions leave them) would each grow from the other, and
   the split that undoes the collapse could name neither;
@@ -359,8 +360,8 @@ def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget, w
     seam = None if g is None else seams.seam_mask(g)
     if seam is not None and not seam.any():
         g = seam = None
-    mesh = (et, F, P, opp, fcount, vv, vf, vv_edge)
     twins = _twin_counts(et, F, None if twin is None else twin[fids], n)
+    mesh = (et, F, P, opp, fcount, vv, vf, vv_edge, twins[0])
     cand = _candidates(mesh, Q, src, frozen if seam is None else frozen | seam, twins)
     if cand is None and seam is None:
         return None
@@ -419,8 +420,9 @@ def _unstalled(cand, win, mesh, n):
 
 def _ordinary_winners(cand, mesh, n):
     """Indices (w,) int64 into the candidates ``cand = (cu, cv, ce, cost)`` chosen by :func:`_select`
-    (or its compiled twin); ``mesh`` is ``(et, F, P, opp, fcount, vv, vf, vv_edge)`` of the local mesh
-    (:class:`~.livemesh.LiveMesh`; ``opp`` (3m,) the half-edges' opposite corners)."""
+    (or its compiled twin); ``mesh`` is ``(et, F, P, opp, fcount, vv, vf, vv_edge, twin_edge)`` of the local
+    mesh (:class:`~.livemesh.LiveMesh`; ``opp`` (3m,) the half-edges' opposite corners; ``twin_edge`` (e,)
+    bool the pillows' edges, :func:`_twin_counts`)."""
     cu, cv, ce, cost = cand
     if len(cu) == 0:
         return np.zeros(0, np.int64)
@@ -431,9 +433,10 @@ def _ordinary_winners(cand, mesh, n):
     kernel = compiled(_select_kernel)
     if kernel is None:
         return _select(cu, cv, cost, legal, mesh[5], n, ROUNDS)
-    et, F, P, opp, fcount, vv, vf, vv_edge = mesh
+    et, F, P, opp, fcount, vv, vf, vv_edge, twin_edge = mesh
     return kernel(cu, cv, ce, _offer_ranks(cu, cost), vv[0], vv[1], n, ROUNDS,
-                  (vv_edge, et.count, et.he0, et.he1, F, P, opp, fcount, vf[0], vf[1], _fin_vertices(et, n)))
+                  (vv_edge, et.count, et.he0, et.he1, F, P, opp, fcount, vf[0], vf[1], _fin_vertices(et, n),
+                   twin_edge))
 
 
 def _fin_vertices(et, n):
@@ -453,7 +456,7 @@ def _seam_pairs(Q, src, dst, frozen, seam, g, mesh):
     (2p,) (int64 / float64 half costs): first halves, then second halves in the same order
     (pair ``k`` is rows ``k`` and ``p + k``).
     """
-    et, F, P, opp, fcount, vv, vf, _ = mesh
+    et, F, P, opp, fcount, vv, vf, _, _ = mesh
     halves = _candidates(mesh, Q, src, frozen | ~seam)
     if halves is None:
         return None
@@ -569,7 +572,7 @@ def _candidates(mesh, Q, src, frozen_ext, twins=None):
     kept vertex, edge; (c,) float64 quadric cost), at most ``TRIES`` per removed vertex, or None
     when there is none.
     """
-    et, F, P, _, fcount, vv, _, vv_edge = mesh
+    et, F, P, _, fcount, vv, _, vv_edge, _ = mesh
     n = len(P)
     if twins is None:
         twins = _twin_counts(et, F, None, n)
@@ -795,11 +798,11 @@ def _moved_faces_kernel(vf_start, vf_face, F, cu, cv):
 def _legal(cu, cv, ce, mesh):
     """Boolean mask (k,) of candidate collapses ``cu -> cv`` on edge ``ce`` that are legal
     (``mesh`` as in :func:`_ordinary_winners`)."""
-    et, F, P, opp, fcount, vv, vf, vv_edge = mesh
+    et, F, P, opp, fcount, vv, vf, vv_edge, twin_edge = mesh
     kernel = compiled(_legal_kernel)
     if kernel is not None:
         return kernel(cu, cv, ce, vv_edge, et.count, et.he0, et.he1, F, P, opp, fcount, vv[0], vv[1],
-                      vf[0], vf[1], _fin_vertices(et, len(P)))
+                      vf[0], vf[1], _fin_vertices(et, len(P)), twin_edge)
     k = len(cu)
     ok = np.ones(k, dtype=bool)
 
@@ -810,13 +813,14 @@ def _legal(cu, cv, ce, mesh):
     common = np.bincount(owner, weights=(et.find(cv[owner], x) >= 0), minlength=k)
     ok &= common == et.count[ce]
 
-    # each deleted face's other edge at u must be interior, its third vertex keep a face
+    # each deleted face's other edge at u must be interior (or a pillow's, glued), its third vertex keep a face
     for he_col in (et.he0[ce], et.he1[ce]):
         has = he_col >= 0
         he = np.where(has, he_col, 0)
         w = opp[he]
         e_uw = et.find(cu, w)
-        interior = (e_uw >= 0) & (et.count[np.maximum(e_uw, 0)] == 2)
+        e_ = np.maximum(e_uw, 0)
+        interior = (e_uw >= 0) & ((et.count[e_] == 2) | (twin_edge[e_] & (et.count[e_] == 4)))
         ok &= ~has | (interior & (fcount[w] >= 2))
     ok &= fcount[cu] > et.count[ce]
     two = et.he1[ce] >= 0  # a doubled face on uv: both deleted faces share their third vertex
@@ -873,9 +877,11 @@ def _edge_id(vv_start, vv_nbr, vv_edge, a, b):
 
 
 @kernel_helper(allocates=True)
-def _legal_kernel(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_start, vv_nbr, vf_start, vf_face, fin):
+def _legal_kernel(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_start, vv_nbr, vf_start, vf_face, fin,
+                  twin_edge):
     """Compiled :func:`_legal`: the same (k,) bool mask, test for test (see there); ``fin`` (n,) bool
-    marks the vertices on an edge with more than two faces (:func:`_fin_vertices`)."""
+    marks the vertices on an edge with more than two faces (:func:`_fin_vertices`), ``twin_edge`` (e,)
+    bool the pillows' edges (:func:`_twin_counts`)."""
     ok = np.ones(len(cu), np.bool_)
     mark = np.full(len(fcount), -1, np.int64)  # mark[x] == i: x is a neighbour of candidate i's kept vertex
     for i in range(len(cu)):
@@ -896,7 +902,7 @@ def _legal_kernel(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_st
             if he >= 0:
                 w = opp[he]
                 e_uw = _edge_id(vv_start, vv_nbr, vv_edge, u, w)
-                if e_uw < 0 or count[e_uw] != 2 or fcount[w] < 2:
+                if e_uw < 0 or not (count[e_uw] == 2 or (twin_edge[e_uw] and count[e_uw] == 4)) or fcount[w] < 2:
                     ok[i] = False
         if ok[i]:
             ok[i] = _moved_faces_ok(u, v, (vv_start, vv_nbr, vv_edge), count, he0, he1, F, P, opp, vf_start, vf_face,
@@ -1048,7 +1054,7 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
     arguments.  (``_conflicts``' same-kept-vertex rule is implied by its kept-vertex-next-to-a-
     lower-ranked-removed-vertex rule, since every winner's removed vertex neighbours its kept one.)
     """
-    vv_edge, count, he0, he1, F, P, opp, fcount, vf_start, vf_face, fin = mesh
+    vv_edge, count, he0, he1, F, P, opp, fcount, vf_start, vf_face, fin, twin_edge = mesh
     big = len(cu) + 1
     starts = np.flatnonzero(np.concatenate((np.ones(1, np.bool_), cu[1:] != cu[:-1])))
     ends = np.append(starts[1:], len(cu))
@@ -1077,7 +1083,7 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
         ok = np.zeros(len(wo), np.bool_)
         idx = wo[keep]
         ok[keep] = _legal_kernel(cu[idx], cv[idx], ce[idx], vv_edge, count, he0, he1, F, P, opp, fcount,
-                                 vv_start, vv_nbr, vf_start, vf_face, fin)
+                                 vv_start, vv_nbr, vf_start, vf_face, fin, twin_edge)
         for j in range(len(wo)):
             g, o = wg[j], wo[j]
             if ok[j]:
