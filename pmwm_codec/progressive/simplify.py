@@ -27,7 +27,7 @@ A collapse is legal when
   or inconsistently oriented edge; non-manifold parts simply stay in the base, except
   doubled-face "pillows" (:func:`twin_faces`) glued onto an interior disk along its edges or
   hanging from one of them as a flap: they move with ``u`` (the VRIP dragons carry ~900
-  at 23k vertices; their base halved: 4,027 -> 2,030 vertices at grid 14);
+  at 23k vertices; their base: 4,027 -> 1,670 vertices at grid 14);
 * if ``u`` is on a boundary, ``uv`` is a boundary edge (holes are never closed
   and boundaries never pinched);
 * the link condition holds: ``u`` and ``v`` share exactly the neighbours opposite
