@@ -673,9 +673,15 @@ def twin_faces(faces: np.ndarray) -> np.ndarray:
     rot = faces[np.arange(m)[:, None], (lo[:, None] + np.arange(3)) % 3]  # rotated to start at the smallest id
     flip = rot[:, 1] > rot[:, 2]
     key = np.stack([rot[:, 0], np.minimum(rot[:, 1], rot[:, 2]), np.maximum(rot[:, 1], rot[:, 2])], 1)
-    order = np.lexsort(key.T[::-1])
-    k = key[order]
-    same = np.all(k[1:] == k[:-1], axis=1)
+    n = int(faces.max()) + 1
+    if n < 1 << 21:  # one int64 per vertex triple: a single stable sort (3x faster than lexsort)
+        packed = (key[:, 0] * n + key[:, 1]) * n + key[:, 2]
+        order = np.argsort(packed, kind="stable")
+        same = packed[order][1:] == packed[order][:-1]
+    else:
+        order = np.lexsort(key.T[::-1])
+        k = key[order]
+        same = np.all(k[1:] == k[:-1], axis=1)
     start = np.flatnonzero(np.r_[True, ~same])
     size = np.diff(np.r_[start, m])
     pair = start[size == 2]
