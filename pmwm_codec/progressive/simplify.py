@@ -66,7 +66,7 @@ import numpy as np
 
 from . import seams
 from .livemesh import boundary_half_edges, live_mesh
-from .topology import compiled, expand, group_order, half_edges, kernel_helper
+from .topology import compiled, expand, face_keys, group_order, half_edges, kernel_helper
 
 #: A moved face's normal may turn by at most this much (cosine bound).
 MIN_NORMAL_COS = 0.0
@@ -669,8 +669,7 @@ def twin_faces(faces: np.ndarray) -> np.ndarray:
     twin = np.zeros(m, bool)
     if m < 2:
         return twin
-    lo = faces.argmin(axis=1)
-    rot = faces[np.arange(m)[:, None], (lo[:, None] + np.arange(3)) % 3]  # rotated to start at the smallest id
+    rot = face_keys(faces)  # rotated to start at the smallest id
     flip = rot[:, 1] > rot[:, 2]
     key = np.stack([rot[:, 0], np.minimum(rot[:, 1], rot[:, 2]), np.maximum(rot[:, 1], rot[:, 2])], 1)
     n = int(faces.max()) + 1
