@@ -265,17 +265,21 @@ def v2_file():
     return _encode(shapes.grid(12, 10, hole=True), 2, base_codec="plain")[0]
 
 
-def test_every_prefix_of_a_v2_file_decodes_to_whole_chunks_only(v2_file):
-    full = _levels(v2_file)
-    for cut in range(0, len(v2_file), 7):
-        dec = StreamDecoder()
+def assert_prefixes_decode_to_whole_chunks(data: bytes, cuts) -> None:
+    """Each prefix ``data[:cut]`` is refused (PmwError) or decodes to the first levels of ``data``."""
+    full = _levels(data)
+    for cut in cuts:
         try:
-            got = dec.feed(v2_file[:cut])
+            got = StreamDecoder().feed(data[:cut])
         except PmwError:
             continue
         assert len(got) <= len(full)
         for x, y in zip(got, full):
             assert np.array_equal(x.positions_int, y.positions_int) and np.array_equal(x.faces, y.faces)
+
+
+def test_every_prefix_of_a_v2_file_decodes_to_whole_chunks_only(v2_file):
+    assert_prefixes_decode_to_whole_chunks(v2_file, range(0, len(v2_file), 7))
 
 
 def _chunk_entries(data):

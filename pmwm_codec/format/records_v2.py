@@ -31,7 +31,7 @@ from functools import cached_property
 import numpy as np
 
 from ..errors import FormatError, LimitError
-from ..progressive.topology import kernel_helper
+from ..progressive.topology import face_keys, kernel_helper
 from ..progressive.vsplit import SplitBatch, SplitTopology, _ring_lists
 from . import rangecoder as rc
 from .rangecoder import INT_BLOCK, INT_DECISIONS
@@ -609,14 +609,20 @@ def pack_chunks(state, chunks) -> list:
     """Encode every chunk of one primitive.
 
     ``state``: the primitive's :class:`~pmwm_codec.progressive.vsplit.MeshState` at the base
-    (int64 values, D columns), advanced through every batch; ``chunks``: list of lists of
-    :class:`SplitBatch`, coarse to fine.  Returns one ``bytes`` payload per chunk.
+    (int64 values, D columns), advanced through every chunk; ``chunks``: list of lists of
+    :class:`SplitBatch`, coarse to fine, or :class:`FaceChunk` (spec §8.6).  Returns one ``bytes``
+    payload per chunk.
     """
     out = []
     probs = new_model()
     lists = CornerLists(len(state.positions), len(state.faces))
     lists.sync(state)
     for batches in chunks:
+        if lists.n < 0:  # after a face chunk
+            lists.sync(state)
+        if isinstance(batches, FaceChunk):
+            out.append(_pack_face_chunk(state, lists, batches.faces))
+            continue
         if not 1 <= len(batches) <= MAX_BATCHES_PER_CHUNK:
             raise ValueError(f"payload v2: {len(batches)} batches in a chunk, outside 1..{MAX_BATCHES_PER_CHUNK}")
         enc = rc.Encoder(probs)
@@ -916,3 +922,283 @@ def _new_face(slot, x, y, z, flat, head, tail, nxt):
     _append_corner(y, slot + 1, head, tail, nxt)
     _append_corner(z, slot + 2, head, tail, nxt)
     return slot + 3
+
+
+# ---------------------------------------------------------------- face chunks (spec §8.6)
+
+#: A face chunk's own probability table: singles 0 (b near), 1 (c near), 2 (twin); blocks at 32 + 256 * B.
+FACE_PROBS = 32 + 5 * INT_BLOCK
+F_NEAR_B, F_NEAR_C, F_TWIN = 0, 1, 2
+FB_COUNT, FB_GAP, FB_RANK_B, FB_RANK_C, FB_RAW = range(5)
+_FACE_ERRORS = {
+    -1: "face chunk: invalid integer code",
+    -2: "face chunk: a neighbour rank beyond its list",
+    -3: "face chunk: a vertex id beyond the mesh",
+    -4: "face chunk: a face with a repeated vertex",
+    -5: "face chunk: more faces than its index entry adds",
+}
+
+
+@kernel_helper
+def _face_block(b):
+    """Offset of integer block ``b`` in a face chunk's table."""
+    return 32 + b * INT_BLOCK
+
+
+@kernel_helper
+def _neighbours_above(w, above, flat, head, nxt, stamp, ctr, out):
+    """The distinct vertices ``x > above``, ``x != w``, sharing a face with ``w``, written ascending to
+    ``out`` (scratch, at least ``|N(w)|`` long); returns their number.  ``w`` and every vertex
+    sharing a face with it get ``stamp`` = the new token ``ctr[0]``."""
+    token = ctr[0] + 1
+    ctr[0] = token
+    stamp[w] = token
+    k = 0
+    c = head[w]
+    while c >= 0:
+        f3 = c - c % 3
+        for j in range(3):
+            x = flat[f3 + j]
+            if stamp[x] != token:
+                stamp[x] = token
+                if x > above:
+                    t = k  # insertion: lists are short
+                    while t > 0 and out[t - 1] > x:
+                        out[t] = out[t - 1]
+                        t -= 1
+                    out[t] = x
+                    k += 1
+        c = nxt[c]
+    return k
+
+
+@kernel_helper
+def _up_list(a, flat, head, nxt, stamp, ctr, up):
+    """``Up(a)`` (spec §8.6) into ``up``: the distinct vertices ``x > a`` sharing a face with ``a``,
+    ascending; returns their number."""
+    return _neighbours_above(a, a, flat, head, nxt, stamp, ctr, up)
+
+
+@kernel_helper
+def _near_list(a, b, up, k, flat, head, nxt, tag, ctr, near):
+    """``Near(a, b)`` (spec §8.6) into ``near``: the vertices ``x > a``, ``x != b`` sharing a face with
+    ``b``, ascending, then those of ``up[:k]`` (``Up(a)``) other than ``b`` sharing none; returns
+    their number."""
+    count = _neighbours_above(b, a, flat, head, nxt, tag, ctr, near)
+    token = ctr[0]
+    for t in range(k):
+        if tag[up[t]] != token:
+            near[count] = up[t]
+            count += 1
+    return count
+
+
+@kernel_helper
+def _position(x, items, count):
+    """Index of ``x`` in ``items[:count]``, or -1."""
+    for t in range(count):
+        if items[t] == x:
+            return t
+    return -1
+
+
+@kernel_helper
+def _fit(a, b, c, up, near, flat, head, nxt, stamp, tag, ctr):
+    """How well the coded face ``(a, b, c)`` fits the neighbour lists: 2 if ``b`` is in ``Up(a)``,
+    plus 1 if ``c`` is in ``Near(a, b)``."""
+    k = _up_list(a, flat, head, nxt, stamp, ctr, up)
+    count = _near_list(a, b, up, k, flat, head, nxt, tag, ctr, near)
+    return 2 * (_position(b, up, k) >= 0) + (_position(c, near, count) >= 0)
+
+
+@kernel_helper
+def _face_vertex(near, rank, a, items, count, n, es, out, ds, buf, probs, decode):
+    """Code or decode one of the two later vertices of a face (spec §8.6): its rank in ``items[:count]``
+    after the bit ``near`` = 1, else ``a + 1 + UInt``.  Encode: ``rank`` is the vertex; returns it
+    (decode: the vertex, or a negative code of :data:`_FACE_ERRORS`)."""
+    if not decode:
+        x = rank
+        found = _position(x, items, count)
+        rc.enc_bit(es, out, probs, near, 1 if found >= 0 else 0)
+        if found >= 0:
+            rc.enc_uint(es, out, probs, _face_block(FB_RANK_B + near), found)
+        else:
+            rc.enc_uint(es, out, probs, _face_block(FB_RAW), x - a - 1)
+        return x
+    if rc.dec_bit(ds, buf, probs, near):
+        r = rc.dec_uint(ds, buf, probs, _face_block(FB_RANK_B + near))
+        if r < 0:
+            return -1
+        if r >= count:
+            return -2
+        return items[r]
+    r = rc.dec_uint(ds, buf, probs, _face_block(FB_RAW))
+    if r < 0:
+        return -1
+    if a + 1 + r >= n:
+        return -3
+    return a + 1 + r
+
+
+def _face_kernel(flat, m, n, head, nxt, stamp, tag, ctr, coded, up, near, es, out, ds, buf, probs, decode):
+    """Code (``decode`` 0: ``coded`` (G, 4) int64 rows ``(a, b, c, twin)``, ``a`` ascending and the
+    smallest of the three) or decode (1) a face chunk over the mesh of the corner lists (``flat``
+    (3M,) int64 face slots, ``m`` faces, ``n`` vertices).  Decoding appends the faces to ``flat``
+    from slot ``3m`` on; encoding turns a twin row to ``(a, c, b)`` when that fits the neighbour
+    lists better (:func:`_fit`), in ``coded``.  ``up`` / ``near`` (scratch) hold twice the
+    largest valence.  Returns the number of faces (decode: appended), or a negative code of
+    :data:`_FACE_ERRORS`."""
+    room = len(flat) // 3 - m
+    if decode:
+        g = rc.dec_uint(ds, buf, probs, _face_block(FB_COUNT))
+        if g < 0:
+            return -1
+        g += 1
+        if g > room:
+            return -5
+    else:
+        g = len(coded)
+        rc.enc_uint(es, out, probs, _face_block(FB_COUNT), g - 1)
+    a = 0
+    added = 0
+    for i in range(g):
+        if decode:
+            gap = rc.dec_uint(ds, buf, probs, _face_block(FB_GAP))
+            if gap < 0:
+                return -1
+            a += gap
+            if a >= n:
+                return -3
+        else:
+            rc.enc_uint(es, out, probs, _face_block(FB_GAP), coded[i, 0] - a)
+            a = coded[i, 0]
+        if not decode and coded[i, 3] == 1:
+            b, c = coded[i, 1], coded[i, 2]
+            if _fit(a, c, b, up, near, flat, head, nxt, stamp, tag, ctr) > _fit(a, b, c, up, near, flat, head,
+                                                                              nxt, stamp, tag, ctr):
+                coded[i, 1], coded[i, 2] = c, b
+        k = _up_list(a, flat, head, nxt, stamp, ctr, up)
+        b = _face_vertex(F_NEAR_B, coded[i, 1] if not decode else 0, a, up, k, n, es, out, ds, buf, probs, decode)
+        if b < 0:
+            return b
+        count = _near_list(a, b, up, k, flat, head, nxt, tag, ctr, near)
+        c = _face_vertex(F_NEAR_C, coded[i, 2] if not decode else 0, a, near, count, n, es, out, ds, buf, probs,
+                         decode)
+        if c < 0:
+            return c
+        if b == c:
+            return -4
+        if decode:
+            twin = rc.dec_bit(ds, buf, probs, F_TWIN)
+        else:
+            twin = coded[i, 3]
+            rc.enc_bit(es, out, probs, F_TWIN, twin)
+        if added + 1 + twin > room:
+            return -5
+        s = 3 * (m + added)
+        if decode:
+            flat[s], flat[s + 1], flat[s + 2] = a, b, c
+            if twin:
+                flat[s + 3], flat[s + 4], flat[s + 5] = a, c, b
+        added += 1 + twin
+    return added
+
+
+def coded_faces(faces: np.ndarray) -> np.ndarray:
+    """The rows ``(a, b, c, twin)`` (G, 4) int64 a face chunk codes for ``faces`` (L, 3) int64: each
+    face rotated to start at its smallest vertex (orientation kept), a face and its reverse paired
+    into one row with ``twin`` 1, rows sorted by ``(a, b, c)`` (spec §8.6, the reference encoder)."""
+    f = face_keys(np.asarray(faces, np.int64).reshape(-1, 3))
+    lo, hi = np.minimum(f[:, 1], f[:, 2]), np.maximum(f[:, 1], f[:, 2])
+    order = np.lexsort((f[:, 1], hi, lo, f[:, 0]))  # a face and its reverse side by side, (a,lo,hi) first
+    f, lo, hi = f[order], lo[order], hi[order]
+    # Within one vertex triple the rows (a, lo, hi) come before (a, hi, lo): a face meets its reverse
+    # only where the orientation changes, so each such place is one pair (the first row codes it).
+    turn = np.zeros(len(f), bool)
+    turn[1:] = (f[1:, 0] == f[:-1, 0]) & (lo[1:] == lo[:-1]) & (hi[1:] == hi[:-1]) & (f[1:, 1] != f[:-1, 1])
+    twin = np.r_[turn[1:], False]
+    rows = np.concatenate([f, twin[:, None].astype(np.int64)], axis=1)[~turn]
+    return rows[np.lexsort((rows[:, 2], rows[:, 1], rows[:, 0]))]
+
+
+class FaceChunk:
+    """A face chunk to pack (:func:`pack_chunks`): ``faces`` (L, 3) int64, ids of the mesh it follows."""
+
+    def __init__(self, faces):
+        self.faces = np.asarray(faces, np.int64).reshape(-1, 3)
+
+
+def _face_scratch(lists, n: int) -> tuple:
+    size = 2 * int(lists.valence[:n].max()) + 1 if n else 1  # Near(a, b) <= |N(a)| + |N(b)|
+    return np.empty(size, np.int64), np.empty(size, np.int64)
+
+
+def _pack_face_chunk(state, lists, faces) -> bytes:
+    """Code a face chunk appending ``faces`` (L, 3) to ``state`` (described by ``lists``) and append
+    them to ``state`` as the decoder will (rows of :func:`coded_faces` in order, reverse after)."""
+    rows = coded_faces(faces)
+    if not len(rows):
+        raise ValueError("payload v2: a face chunk needs at least one face")
+    n, m = state.n, state.m
+    if rows[:, :3].max() >= n or (rows[:, 1] == rows[:, 2]).any() or (rows[:, 0] == rows[:, 1]).any():
+        raise ValueError("payload v2: a face chunk's faces must name three distinct existing vertices")
+    if m + len(faces) > len(state.faces):
+        raise ValueError("payload v2: the face chunk exceeds the primitive's face count")
+    enc = rc.Encoder(rc.new_probs(FACE_PROBS))
+    enc.reserve((4 * INT_DECISIONS + 3) * len(rows) + INT_DECISIONS)
+    up, near = _face_scratch(lists, n)
+    flat = state.faces.reshape(-1)
+    got = rc._kernel(_face_kernel)(flat, m, n, lists.head, lists.nxt, lists.stamp, lists.tag, lists.ctr, rows, up, near,
+                                   enc.es, enc.out, _NO_STATE, _NO_BYTES, enc.probs, 0)
+    if got < 0:
+        raise ValueError(f"payload v2: {_FACE_ERRORS[got]}")
+    state.faces[m : m + got] = expand_rows(rows)
+    state.m = m + got
+    lists.n = -1  # the corner lists no longer describe the mesh: rebuilt if a chunk that splits follows
+    return enc.finish()
+
+
+def expand_rows(rows: np.ndarray) -> np.ndarray:
+    """The faces (L, 3) int64 a face chunk's rows ``(a, b, c, twin)`` append, in order."""
+    rows = np.asarray(rows, np.int64)
+    pairs = np.stack([rows[:, :3], rows[:, [0, 2, 1]]], axis=1)  # (G, 2, 3)
+    keep = np.stack([np.ones(len(rows), bool), rows[:, 3] == 1], axis=1)
+    return pairs[keep]
+
+
+def pack_face_chunk(faces_before, n: int, new_faces) -> bytes:
+    """The stored bytes of a face chunk appending ``new_faces`` (L, 3) int64 to the mesh of
+    ``faces_before`` (m, 3) int64 over ``n`` vertices (spec §8.6; for tests and other decoders)."""
+    from ..progressive.vsplit import MeshState
+
+    before = np.asarray(faces_before, np.int64).reshape(-1, 3)
+    new = np.asarray(new_faces, np.int64).reshape(-1, 3)
+    state = MeshState(np.zeros((n, 3), np.int64), before, n, len(before) + len(new))
+    lists = CornerLists(n, len(before) + len(new))
+    lists.sync(state)
+    return _pack_face_chunk(state, lists, new)
+
+
+def decode_face_chunk(payload, state, model: ChunkDecoder, face_step: int) -> int:
+    """Decode a face chunk (spec §8.6) and append its faces to ``state`` (int64 values); ``face_step``:
+    the faces its index entry adds.  Returns the number of faces appended.  FormatError on any
+    invalid code, count or termination; ``model``'s split table is untouched."""
+    lists = model.lists_for(state)
+    n, m = state.n, state.m
+    dec = rc.Decoder(payload, rc.new_probs(FACE_PROBS))
+    room = min(int(face_step), len(state.faces) - m)
+    if room < 1:
+        raise FormatError("face chunk: its index entry adds no face")
+    flat = state.faces[: m + room].reshape(-1)
+    up, near = _face_scratch(lists, n)
+    got = rc._kernel(_face_kernel)(flat, m, n, lists.head, lists.nxt, lists.stamp, lists.tag, lists.ctr, _NO_ROWS, up, near,
+                                   _NO_STATE, _NO_BYTES, dec.ds, dec.buf, dec.probs, 1)
+    if got < 0:
+        raise FormatError(_FACE_ERRORS[got])
+    dec.finish("face chunk")
+    state.m = m + got
+    lists.n = -1  # rebuilt if a chunk that splits follows
+    return got
+
+
+_NO_ROWS = np.zeros((0, 4), np.int64)

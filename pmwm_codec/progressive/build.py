@@ -41,8 +41,11 @@ class ProgressiveMesh:
         Geometric error (grid units) of the level *before* each batch is applied.
     vertex_order : (n,) int64
         Input vertex id -> id in the decoded mesh.
-    face_order : (m,) int64
-        Decoded face id -> input face id.
+    face_order : (m - L,) int64
+        Decoded face id -> input face id (of the faces the splits make).
+    late_faces : (L, 3) int64
+        Faces in decoded ids that no split makes, appended after every batch by a face
+        chunk (bitstream.md §8.6); ``face_count`` counts them.
     """
 
     grid: Grid
@@ -54,6 +57,7 @@ class ProgressiveMesh:
     batch_errors: np.ndarray = field(default_factory=lambda: np.zeros(0))
     vertex_order: Optional[np.ndarray] = None
     face_order: Optional[np.ndarray] = None
+    late_faces: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int64))
 
     @property
     def split_count(self) -> int:
@@ -71,6 +75,7 @@ def build_progressive(
     base_vertex_order: Optional[np.ndarray] = None,
     base_faces_decoded: Optional[np.ndarray] = None,
     embed: Optional[EmbedHook] = None,
+    late_faces: Optional[np.ndarray] = None,
 ) -> ProgressiveMesh:
     """Replay ``log`` coarse to fine and emit :class:`SplitBatch` records.
 
@@ -88,6 +93,8 @@ def build_progressive(
         face order and rotation).  Default: the simplifier's order.
     embed : EmbedHook, optional
         Moves the new vertices of each batch (watermark).
+    late_faces : (L, 3) int64, optional
+        Input faces the log left out (the simplifier never saw them), sent after every batch.
     """
     n, m = log.vertex_count, log.face_count
     order0, vid, base_faces, base_face_ids = _base_ids(log, base_vertex_order, base_faces_decoded)
@@ -104,16 +111,18 @@ def build_progressive(
 
     if state.n != n or state.m != m or np.any(face_src < 0):
         raise AssertionError("progressive build did not reach the full mesh")  # a bug, not bad input
+    late = np.zeros((0, 3), np.int64) if late_faces is None else vid[np.asarray(late_faces, np.int64).reshape(-1, 3)]
     return ProgressiveMesh(
         grid=grid,
         base_positions=positions[order0].astype(np.int64),
         base_faces=base_faces,
         batches=batches,
         vertex_count=n,
-        face_count=m,
+        face_count=m + len(late),
         batch_errors=np.array(errors, dtype=np.float64),
         vertex_order=vid,
         face_order=face_src,
+        late_faces=late,
     )
 
 

@@ -690,6 +690,22 @@ def twin_faces(faces: np.ndarray) -> np.ndarray:
     return twin
 
 
+def glued_pillows(faces: np.ndarray) -> np.ndarray:
+    """(m,) bool: the :func:`twin_faces` of ``faces`` (m, 3) int64 whose three vertices all have a face
+    outside the pillows.  The encoder of payload version 2 refines the mesh without them and sends
+    them in a face chunk at the end (spec bitstream.md §8.6): kept, they stay in the base with every
+    vertex they touch.  A flap's pillow (a tip with no other face) is not one: without it the tip
+    would be a vertex without faces."""
+    faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    twin = twin_faces(faces)
+    if not twin.any():
+        return twin
+    n = int(faces.max()) + 1
+    elsewhere = np.zeros(n, bool)
+    elsewhere[faces[~twin].ravel()] = True
+    return twin & elsewhere[faces].all(axis=1)
+
+
 def _twin_counts(et, F, twin, n):
     """``(twin_edge (e,) bool, extra (n,) int64)`` of the local mesh with the doubled faces ``twin``
     (m,) bool (or None).  A doubled pair is a closed two-face "pillow" on the surface: glued onto it

@@ -60,7 +60,8 @@ def stream_order(sizes, groups) -> list:
     ``sizes[p]`` : split counts of primitive p's batches; ``groups[p]`` : its chunks (from
     :func:`group_batches`).  Chunks are sorted by the fraction of their primitive's splits
     done once they are applied (ties: primitive, then chunk index), so every primitive
-    refines at the same pace.  Returns a list of ``(p, k)``.
+    refines at the same pace; face chunks (an empty group: bitstream.md §8.6) come after every
+    chunk that splits.  Returns a list of ``(p, k)``.
     """
     keys = []
     for p, (batch_sizes, chunks) in enumerate(zip(sizes, groups)):
@@ -68,7 +69,7 @@ def stream_order(sizes, groups) -> list:
         done = 0
         for k, grp in enumerate(chunks):
             done += sum(batch_sizes[j] for j in grp)
-            keys.append((done / total, p, k))
+            keys.append((done / total if len(grp) else 2.0, p, k))
     return [(p, k) for _, p, k in sorted(keys)]
 
 
@@ -94,7 +95,8 @@ def chunk_meta(pm, groups, step: float) -> list:
     pm : :class:`~pmwm_codec.progressive.build.ProgressiveMesh`; groups : its chunks (list
     of ``range`` over ``pm.batches``); step : grid step (model units per grid unit).
     Returns one dict per chunk: ``splits``, ``vertexCount`` and ``faceCount`` once it is
-    applied, ``geometricError`` (model units) and ``batches``.
+    applied, ``geometricError`` (model units) and ``batches``.  An empty group is the face chunk
+    of ``pm.late_faces``.
     """
     errors = pm.batch_errors  # (b,) float64: error of the level *before* batch j, grid units
     # The error of the mesh after a chunk is the max over the batches still missing: the
@@ -105,7 +107,7 @@ def chunk_meta(pm, groups, step: float) -> list:
     for grp in groups:
         chunk = [pm.batches[j] for j in grp]
         nv += sum(b.size for b in chunk)
-        nf += sum(b.new_face_count() for b in chunk)
+        nf += sum(b.new_face_count() for b in chunk) if chunk else len(pm.late_faces)
         err = float(remaining[grp.stop]) * step if grp.stop < len(pm.batches) else 0.0
         meta.append({"splits": int(sum(b.size for b in chunk)), "vertexCount": int(nv), "faceCount": int(nf),
                      "geometricError": err, "batches": len(chunk)})

@@ -40,12 +40,12 @@ from ..atomic import directory_lock, discard, fault_point, publish, signals_defe
 from ..format.glb import ProgressivePrimitive, assemble_document, write_parts
 from ..format.extension import DEFAULT_PAYLOAD_VERSION, PAYLOAD_CODEC, PAYLOAD_VERSIONS
 from ..format.records import pack_batches
-from ..format.records_v2 import pack_chunks
+from ..format.records_v2 import FaceChunk, pack_chunks
 from ..mesh import Mesh
 from ..progressive.build import ProgressiveMesh, build_progressive
 from ..progressive.grid import AttributeGrid, Grid
 from ..progressive.seams import twin_rows, weld_groups
-from ..progressive.simplify import CollapseLog, simplify
+from ..progressive.simplify import CollapseLog, glued_pillows, simplify
 from ..progressive.topology import mean_edge_length
 from ..watermark import codec as wm
 from ..watermark.key import KEY_FILE_MODE, KeySlot, WatermarkKey
@@ -144,6 +144,9 @@ class PrimitiveWork:
     embedder : Embedder or None
     pm : ProgressiveMesh
         Base plus split records.
+    late : (L, 3) int64
+        Input faces kept out of the simplification (glued pillows, payload version 2 only),
+        sent in a face chunk after every split (bitstream.md §8.6).
     """
 
     job: PrimitiveJob
@@ -158,6 +161,7 @@ class PrimitiveWork:
     params: wm.WatermarkParams | None = None
     embedder: wm.Embedder | None = None
     pm: ProgressiveMesh | None = None
+    late: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3), np.int64))
 
 
 #: Grid bits of progressive attributes, by semantic prefix (others: 14).
@@ -251,7 +255,7 @@ def encode_document(
     if owner_id is not None:
         key = dataclasses.replace(key if key is not None else WatermarkKey.generate(), owner_id=int(owner_id))
         jobs = _mark_owner(jobs, key, owner_strength)
-    work = _quantize_and_simplify(jobs, grid_bits, base_vertices, say)
+    work = _quantize_and_simplify(jobs, grid_bits, base_vertices, say, defer_pillows=payload_version == 2)
     work, notices = _encode_bases(work, base_codec)
     work, order, slots, carriers = _plan_chunks(work, min_chunk_splits)
     params = None
@@ -307,17 +311,23 @@ def _quantize(mesh: Mesh, grid_bits: int) -> tuple:
     return grid, np.concatenate(columns, axis=1), specs
 
 
-def _quantize_and_simplify(jobs, grid_bits: int, base_vertices, say) -> list:
-    """Stage 1: one :class:`PrimitiveWork` per job with its grid, values and collapse log."""
+def _quantize_and_simplify(jobs, grid_bits: int, base_vertices, say, defer_pillows: bool = True) -> list:
+    """Stage 1: one :class:`PrimitiveWork` per job with its grid, values and collapse log.
+
+    ``defer_pillows``: simplify without the :func:`~pmwm_codec.progressive.simplify.glued_pillows`,
+    which a face chunk sends at the end (payload version 2 only).
+    """
     work = []
     say("simplify", 0.0)
     for i, job in enumerate(jobs):
         grid, values, specs = _quantize(job.mesh, grid_bits)
         n = job.mesh.vertex_count
         target = default_base_target(n) if base_vertices is None else int(base_vertices)
-        log = simplify(values[:, :3], job.mesh.faces, target_vertices=target, locked=job.locked,
+        faces = job.mesh.faces
+        late = glued_pillows(faces) if defer_pillows else np.zeros(len(faces), bool)
+        log = simplify(values[:, :3], faces[~late], target_vertices=target, locked=job.locked,
                        weld=weld_groups(job.mesh.positions))
-        work.append(PrimitiveWork(job, grid, values, specs, log))
+        work.append(PrimitiveWork(job, grid, values, specs, log, late=faces[late]))
         say("simplify", (i + 1) / len(jobs))
     return work
 
@@ -374,7 +384,10 @@ def _plan_chunks(work, min_chunk_splits) -> tuple:
     for w in work:
         sizes = [len(batch.u) for batch in reversed(w.log.batches)]
         smallest = default_min_chunk_splits(sum(sizes)) if min_chunk_splits is None else min_chunk_splits
-        out.append(dataclasses.replace(w, sizes=sizes, groups=group_batches(sizes, smallest)))
+        groups = group_batches(sizes, smallest)
+        if len(w.late):  # the face chunk: no batch
+            groups.append(range(len(sizes), len(sizes)))
+        out.append(dataclasses.replace(w, sizes=sizes, groups=groups))
     sizes, groups = [w.sizes for w in out], [w.groups for w in out]
     order = stream_order(sizes, groups)
     slots, carriers = carrier_slots(order, sizes, groups)
@@ -441,7 +454,7 @@ def _build_records(work, say) -> list:
     for p, w in enumerate(work):
         pm = build_progressive(
             w.log, w.values, w.grid, base_vertex_order=w.base_order,
-            base_faces_decoded=w.base.faces, embed=w.embedder,
+            base_faces_decoded=w.base.faces, embed=w.embedder, late_faces=w.late,
         )
         out.append(dataclasses.replace(w, pm=pm))
         say("records", (p + 1) / len(work))
@@ -452,7 +465,7 @@ def _primitives(doc, kept_bin, work, order, params, key, payload_version: int = 
     """Stage 6: payloads, index entries, extension objects.  Returns ``(prims, fileId)``."""
     prims = []
     for w in work:
-        chunks = [[w.pm.batches[j] for j in grp] for grp in w.groups]
+        chunks = [[w.pm.batches[j] for j in grp] if len(grp) else FaceChunk(w.pm.late_faces) for grp in w.groups]
         if payload_version == 2:
             payloads = pack_chunks(w.pm.new_state(), chunks)
         else:

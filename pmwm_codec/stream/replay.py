@@ -39,7 +39,7 @@ from ..errors import FormatError, MeshError
 from ..format import BaseEvent, ChunkEvent, HeaderEvent
 from ..format.extension import payload_version
 from ..format.records import unpack_batches
-from ..format.records_v2 import ChunkDecoder, decode_chunk
+from ..format.records_v2 import ChunkDecoder, decode_chunk, decode_face_chunk
 from ..progressive.grid import Grid
 from ..progressive.seams import twin_rows
 from ..progressive.topology import mean_edge_length
@@ -199,8 +199,12 @@ class Replay:
         p = event.primitive
         state, ext = self.states[p], self.exts[p]
         scale = ext["watermark"]["scale"] if "watermark" in ext else None
+        meta = ext["chunks"][event.chunk]
         out = []
-        for batch, own_topo in self._batches(p, event):
+        face_chunk = payload_version(ext) == 2 and meta["splits"] == 0
+        if face_chunk:
+            self._faces(p, event, meta)
+        for batch, own_topo in () if face_chunk else self._batches(p, event):
             if self.given is None:
                 topo = own_topo
                 points = state.positions[topo.u, :3].astype(np.float64)
@@ -218,10 +222,18 @@ class Replay:
                                 topo.u, state.positions, topo, decoded))
             self.batches_applied += 1
         self.chunks_applied += 1
-        meta = ext["chunks"][event.chunk]
         if state.n != meta["vertexCount"] or state.m != meta["faceCount"]:
             raise FormatError(f"chunk {event.index + 1}: vertex/face counts differ from its index entry")
         return out
+
+    def _faces(self, p: int, event: ChunkEvent, meta: dict) -> None:
+        """Apply a face chunk (bitstream.md §8.6) to the primitive's state (and its shadow)."""
+        own = self.states[p] if self.given is None else self.shadows[p]
+        got = decode_face_chunk(event.payload, own, self.models[p], meta["faceCount"] - own.m)
+        if own is not self.states[p]:
+            state = self.states[p]
+            state.faces[state.m : state.m + got] = own.faces[own.m - got : own.m]
+            state.m += got
 
     def _batches(self, p: int, event: ChunkEvent):
         """Yield ``(SplitBatch, SplitTopology)`` per batch of the chunk, the batch applied (topology and
