@@ -51,7 +51,7 @@ async function stages() {
     if (!digestMatches(stored, c.digest)) throw new Error('digest');
     lap('blake2b');
     if (c.payloadVersion === 2) {
-      coders[c.primitive].decodeChunk(stored);
+      coders[c.primitive].decodeChunk(stored, c);
       lap('rangecoded');
       return;
     }

@@ -15,6 +15,11 @@
  * after a batch whose splits touch each other's moved faces; the mask bits are decoded with the
  * coder's state in locals, each marked vertex adding itself to its neighbours' counts; a split's
  * incidences are a slice of its corner list (face-slot order), so no scan of the corners.
+ *
+ * A chunk whose entry adds no vertex (splits = 0) is a face chunk (§8.6): faces between existing
+ * vertices, coded against Up(a) / Near(a, b) of the mesh before it, under a table of its own
+ * (FACE_PROBS, fresh per face chunk). It reads the same corner lists and leaves every kept count
+ * (valences, corner counts) to be recounted by the next batch that splits.
  */
 import { FormatError, LimitError } from './errors.js';
 import { MAX_BATCHES_PER_CHUNK } from './constants.js';
@@ -42,6 +47,20 @@ const TWO32 = 4294967296;
 
 const block = (b) => P_INT + INT_BLOCK * b;
 
+// face chunk table layout (spec §8.6): single probabilities 0..2, integer blocks 0..4 (at block(B) too)
+const F_NEAR_B = 0; // b by its rank in Up(a), else a + 1 + UInt
+const F_NEAR_C = 1; // c by its rank in Near(a, b), else a + 1 + UInt
+const F_TWIN = 2; // the reverse face (a, c, b) follows
+const FB_COUNT = 0; // coded faces minus one
+const FB_GAP = 1; // a minus the previous face's a
+const FB_RANK_B = 2; // rank in Up(a)
+const FB_RANK_C = 3; // rank in Near(a, b)
+const FB_RAW = 4; // x - a - 1 of a vertex coded without a list
+/** Size of a face chunk's own probability table: 32 single probabilities, 5 integer blocks. */
+export const FACE_PROBS = P_INT + 5 * INT_BLOCK;
+/** Neighbour lists up to this long are sorted in place by insertion, longer ones by TypedArray sort. */
+const SHORT_LIST = 32;
+
 /** Bits of the non-negative integer x (0 for 0), for any x below 2^53. */
 function bitLength(x) {
   let b = 0;
@@ -50,6 +69,23 @@ function bitLength(x) {
     b += 32;
   }
   return b + 32 - Math.clz32(x);
+}
+
+/**
+ * Sorts list[0 .. k) ascending in place: by insertion when short, else by TypedArray sort
+ * (numeric; a vertex of huge valence stays O(k log k)).
+ */
+function sortList(list, k) {
+  if (k > SHORT_LIST) {
+    list.subarray(0, k).sort();
+    return;
+  }
+  for (let t = 1; t < k; t++) {
+    const x = list[t];
+    let s = t;
+    for (; s > 0 && list[s - 1] > x; s--) list[s] = list[s - 1];
+    list[s] = x;
+  }
 }
 
 /** floor(x + 0.5): the rounding of the frame predictions. */
@@ -90,6 +126,7 @@ export class ChunkDecoderV2 {
   constructor(state) {
     this.state = state;
     this.probs = newProbabilities(N_PROBS);
+    this.faceProbs = newProbabilities(FACE_PROBS); // reset for every face chunk (§8.6)
     this.fan = new Int32Array(MAX_ARC_FAN);
     this.fa = new Int32Array(MAX_ARC_FAN); // a and b of the incidences of one fan, in face-slot order
     this.fb = new Int32Array(MAX_ARC_FAN);
@@ -104,7 +141,7 @@ export class ChunkDecoderV2 {
     this.epoch = 0;
     // scratch arrays (see #grow), declared here so that the object keeps one shape
     for (const name of ['off', 'nb', 'nc', 'deg', 'val', 'stamp', 'stamp2', 'v', 'gstart', 'inc', 'a', 'b', 'creators',
-      'wings']) this[name] = new Int32Array(0);
+      'wings', 'up', 'near']) this[name] = new Int32Array(0);
     this.vc = new Uint8Array(0);
     this.cnt = new Uint8Array(0);
     this.sym = new Uint8Array(0);
@@ -133,11 +170,18 @@ export class ChunkDecoderV2 {
   }
 
   /**
-   * Decodes one chunk's stored stream `buf` (Uint8Array) into the mesh, batch after batch, then
-   * checks its termination. FormatError / LimitError on any invalid code, count or termination
-   * (the mesh may then be half changed: the decoder refuses to show it).
+   * Decodes one chunk's stored stream `buf` (Uint8Array) into the mesh, then checks its
+   * termination: batch after batch of splits, or, when its normalised index entry `entry` has
+   * splits = 0, the faces of a face chunk (§8.6; no entry: a chunk that splits). FormatError /
+   * LimitError on any invalid code, count or termination (the mesh may then be half changed: the
+   * decoder refuses to show it).
+   * @param {Uint8Array} buf @param {{splits: number, faceCount: number}} [entry]
    */
-  decodeChunk(buf) {
+  decodeChunk(buf, entry) {
+    if (entry !== undefined && entry.splits === 0) {
+      this.#faceChunk(buf, entry.faceCount);
+      return;
+    }
     const rc = new RangeDecoder(buf, this.probs);
     const batches = rc.uint(block(B_BATCHES), 'the batch count') + 1;
     if (batches > MAX_BATCHES_PER_CHUNK) {
@@ -145,6 +189,118 @@ export class ChunkDecoderV2 {
     }
     for (let j = 0; j < batches; j++) this.#batch(rc);
     rc.finish();
+  }
+
+  /**
+   * §8.6: a face chunk appending its faces to the mesh (n vertices, m faces) until `faceCount`,
+   * the entry's count after it. Up(a) is kept for the faces of one a (a never decreases, and both
+   * lists read the mesh before the chunk, which the appended faces do not change).
+   */
+  #faceChunk(buf, faceCount) {
+    const st = this.state;
+    const { n, m, faces, capM } = st;
+    this.#neighbours(n, m, true, this.degFor === n); // corner lists; valences are not read here
+    this.valFor = -1; // the new faces change valences and corner counts: the next batch recounts
+    this.degFor = -1;
+    const rc = new RangeDecoder(buf, this.faceProbs.fill(PROB_ONE >> 1));
+    const room = Math.min(faceCount, capM) - m; // the entry's face step (never past the declared count)
+    const G = rc.uint(block(FB_COUNT), 'the face count') + 1;
+    if (G > room) throw new FormatError(`face chunk: ${G} coded faces, more than the ${Math.max(room, 0)} its index entry adds`);
+    const end = 3 * (m + room);
+    let f = 3 * m;
+    let a = 0;
+    let upFor = -1;
+    let k = 0;
+    for (let i = 0; i < G; i++) {
+      a += rc.uint(block(FB_GAP), 'a face gap');
+      if (a >= n) throw new FormatError(`face chunk: vertex ${a} beyond the mesh's ${n}`);
+      if (a !== upFor) {
+        k = this.#upList(a);
+        upFor = a;
+      }
+      let b;
+      if (rc.bit(F_NEAR_B)) {
+        const r = rc.uint(block(FB_RANK_B), 'a face rank');
+        if (r >= k) throw new FormatError(`face chunk: rank ${r} in Up(${a}) of ${k} vertices`);
+        b = this.up[r];
+      } else {
+        b = this.#rawVertex(rc, a, n);
+      }
+      let c;
+      if (rc.bit(F_NEAR_C)) {
+        const r = rc.uint(block(FB_RANK_C), 'a face rank');
+        c = this.#nearAt(a, b, k, r);
+        if (c < 0) throw new FormatError(`face chunk: rank ${r} beyond Near(${a}, ${b})`);
+      } else {
+        c = this.#rawVertex(rc, a, n);
+      }
+      if (b === c) throw new FormatError(`face chunk: face (${a}, ${b}, ${c}) repeats a vertex`);
+      const twin = rc.bit(F_TWIN);
+      if (f + 3 + 3 * twin > end) throw new FormatError(`face chunk: more faces than the ${room} its index entry adds`);
+      faces[f] = a; faces[f + 1] = b; faces[f + 2] = c; f += 3;
+      if (twin) {
+        faces[f] = a; faces[f + 1] = c; faces[f + 2] = b; f += 3;
+      }
+    }
+    rc.finish();
+    st.m = f / 3;
+  }
+
+  /** A face vertex coded without a list: a + 1 + UInt(block 4), FormatError unless below n. */
+  #rawVertex(rc, a, n) {
+    const x = a + 1 + rc.uint(block(FB_RAW), 'a face vertex');
+    if (x >= n) throw new FormatError(`face chunk: vertex ${x} beyond the mesh's ${n}`);
+    return x;
+  }
+
+  /**
+   * Up(a) of §8.6 into this.up, ascending: the distinct vertices x > a sharing a face with a (its
+   * corner list's neighbours nb, mesh before the chunk). Returns their number.
+   */
+  #upList(a) {
+    const { off, nb, stamp } = this;
+    const up = this.#grow('up', off[a + 1] - off[a], Int32Array, 6 * this.state.capM);
+    const e = this.#nextEpoch();
+    let k = 0;
+    for (let t = off[a], end = off[a + 1]; t < end; t++) {
+      const x = nb[t];
+      if (x > a && stamp[x] !== e) {
+        stamp[x] = e;
+        up[k++] = x;
+      }
+    }
+    sortList(up, k);
+    return k;
+  }
+
+  /**
+   * Element r of Near(a, b) (§8.6), -1 when the list is shorter: first the distinct vertices
+   * x > a, x != b sharing a face with b, ascending (sorted into this.near only when r falls among
+   * them), then those of Up(a) (this.up, k) other than b sharing no face with b, in Up's order.
+   */
+  #nearAt(a, b, k, r) {
+    const { off, nb, stamp, up } = this;
+    const near = this.#grow('near', off[b + 1] - off[b], Int32Array, 6 * this.state.capM);
+    const e = this.#nextEpoch();
+    stamp[b] = e;
+    let count = 0;
+    for (let t = off[b], end = off[b + 1]; t < end; t++) {
+      const x = nb[t];
+      if (stamp[x] !== e) {
+        stamp[x] = e;
+        if (x > a) near[count++] = x;
+      }
+    }
+    if (r < count) {
+      sortList(near, count);
+      return near[r];
+    }
+    r -= count;
+    for (let t = 0; t < k; t++) {
+      const x = up[t];
+      if (stamp[x] !== e && r-- === 0) return x;
+    }
+    return -1;
   }
 
   #batch(rc) {

@@ -45,6 +45,28 @@ def _load_golden():
 golden = _load_golden()
 
 
+def _glued_pillows(count: int, seed: int, share: bool) -> Mesh:
+    """An icosphere with up to ``count`` glued pillows: the faces (x, y, z) and (x, z, y) on a path
+    x-y-z of surface edges (x, z not adjacent), so that all three vertices have other faces and the
+    encoder sends the pair in a face chunk (spec/bitstream.md §8.6).  Unless ``share``, no two
+    pillows touch each other's vertices or neighbours; with it they may share vertices."""
+    rng = np.random.default_rng(seed)
+    sphere = shapes.icosphere(3, 1.0, noise=0.02, seed=seed)
+    ring = shapes._rings(sphere.faces, sphere.vertex_count)
+    extra, used = [], set()
+    for y in rng.permutation(sphere.vertex_count).tolist():
+        x = int(rng.choice(sorted(ring[y])))
+        far = sorted(ring[y] - ring[x] - {x})
+        if len(extra) >= 2 * count or not far:
+            continue
+        z = int(rng.choice(far))
+        if not share and ({x, y, z} | ring[x] | ring[y] | ring[z]) & used:
+            continue
+        extra += [(x, y, z), (x, z, y)]
+        used |= {x, y, z} | ring[x] | ring[y] | ring[z]
+    return Mesh(sphere.positions, np.concatenate([sphere.faces, np.array(extra, np.int64)]))
+
+
 #: name -> (mesh or list of meshes (one primitive each), encoder options)
 CASES = {
     "closed-sphere.draco": lambda: (shapes.icosphere(4, 1.0, noise=0.02), dict(base_codec="draco")),
@@ -54,6 +76,8 @@ CASES = {
                                      dict(base_codec="draco")),
     "exact-watermark.draco": lambda: (shapes.icosphere(4, 1.2, noise=0.02), dict(
         base_codec="draco", watermark=golden._stripes(16), key=WatermarkKey.generate(rng=np.random.default_rng(7)))),
+    "pillows.plain": lambda: (_glued_pillows(12, 3, False), dict(base_codec="plain")),
+    "pillows-shared.draco": lambda: (_glued_pillows(40, 11, True), dict(base_codec="draco")),
 }
 
 

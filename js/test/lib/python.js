@@ -70,6 +70,16 @@ export function dependentBatches() {
 }
 
 /**
+ * Face chunks written by the reference encoder (lib/face_chunks.py): `tetrahedron` gives {chunk
+ * (hex)}, the spec's example (spec/bitstream.md §8.6); `sequence` gives {D, capN, capM, base:
+ * {values, faces}, chunks: [{chunk (hex), splits, faceCount, values, faces}]}, one primitive's chunks
+ * with face chunks between chunks that split, each with the mesh after it as the reference decoder gives it.
+ */
+export function faceChunks(command) {
+  return JSON.parse(run([join(dirname(fileURLToPath(import.meta.url)), 'face_chunks.py'), command]));
+}
+
+/**
  * Writes `<dir>/bunny.pmw`: the shared corpus' Stanford bunny encoded by `pmw encode` (Draco base,
  * default settings), or when ../shared is absent a generated mesh of similar size
  * (`shapes.icosphere(6)`, 40,962 vertices). Returns {file, source, report} where report is the
