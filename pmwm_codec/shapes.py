@@ -184,24 +184,29 @@ def flaps(count: int = 12) -> Mesh:
     return Mesh(np.concatenate([V, out]), np.concatenate([F, doubled]).astype(np.int64))
 
 
-def glued_pillows(count: int = 12) -> Mesh:
-    """An icosphere with up to ``count`` pillows glued along two surface edges ``a-b`` and ``b-c``
-    (``a``, ``c`` not adjacent: ``a-c`` is the pillow's own edge), as the VRIP dragons carry them
-    by the hundred: two faces on ``a, b, c`` facing opposite ways, no vertex of their own.  No two
-    pillows share a vertex or a neighbour."""
+def pillows(count: int = 12) -> Mesh:
+    """An icosphere with up to ``count`` pillows, two faces on one vertex triple facing opposite ways,
+    as the VRIP dragons carry them by the hundred: alternately glued along two surface edges ``a-b``
+    and ``b-c`` (``a``, ``c`` not adjacent: ``a-c`` is the pillow's own edge) and flaps on a surface
+    edge ``a-b`` with a tip of their own just off the surface.  No two pillows share a vertex or a
+    neighbour."""
     sphere = icosphere(3, 1.0, noise=0.02)
     V, F = sphere.positions, sphere.faces
     ring = _rings(F, len(V))
-    taken, triples = set(), []
+    taken, triples, tips = set(), [], []
     for a in range(0, len(V), 5):
         b = min(ring[a])
         far = sorted(ring[b] - ring[a] - {a})
         if len(triples) < count and far and not (ring[a] | ring[b] | ring[far[0]]) & taken:
-            triples.append((a, b, far[0]))
+            if len(triples) % 2:  # a flap: a new tip off edge a-b
+                tips.append(0.54 * (V[a] + V[b]))
+                triples.append((a, b, len(V) + len(tips) - 1))
+            else:
+                triples.append((a, b, far[0]))
             taken |= ring[a] | ring[b] | ring[far[0]]
     a, b, c = np.array(triples, np.int64).T
     doubled = np.concatenate([np.stack([a, b, c], 1), np.stack([b, a, c], 1)])
-    return Mesh(V, np.concatenate([F, doubled]).astype(np.int64))
+    return Mesh(np.concatenate([V, np.array(tips).reshape(-1, 3)]), np.concatenate([F, doubled]).astype(np.int64))
 
 
 def demo_mesh(resolution: int = 180) -> Mesh:

@@ -56,6 +56,10 @@ def test_the_chunk_table_reads_back_to_the_entries_it_was_written_from(chunks, m
     table = compact_chunks(entries, packed=packed)
     ext = {"payload": {"codec": "pmwm-vsplit", "version": 2}, "chunks": json.loads(json.dumps(table))}
     assert chunk_entries(ext, 7) == entries
+    first = 2 * len(entries) // 3  # the chunks from it on read as face chunks (bitstream.md §8.6) when the extension says so
+    marked = chunk_entries(dict(ext, firstFaceChunk=first), 7)
+    assert [e.pop("faces", False) for e in marked] == [k >= first for k in range(len(entries))]
+    assert marked == entries
     assert ("byteOffsets" in table) == any(gaps)  # back to back from 0 needs no offsets
     assert ("packed" in table) == packed and ("macs" in table) == (macs and bool(chunks) and not packed)
 

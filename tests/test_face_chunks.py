@@ -1,10 +1,10 @@
-"""Face chunks of payload version 2 (spec/bitstream.md §8.6): faces added between existing vertices.
+"""Face chunks of payload version 2 (spec/bitstream.md §8.6): faces, and the vertices only they name.
 
-The encoder keeps glued pillows (two faces on one vertex triple, facing opposite ways, whose
-vertices all have other faces) out of the simplification and sends them in one face chunk after
-every split.  These tests prove the codec round-trips any faces, that the spec's example and
-constants are the code's, that hostile face chunks are one-line format errors, and that a pillowed
-mesh streams exactly: a smaller base, no pillow before the last chunk, the input at the end.
+The encoder keeps pillows (two faces on one vertex triple, facing opposite ways) out of the
+simplification, with the flaps' tips (vertices with pillow faces only), and sends them in one face
+chunk after every split.  These tests prove the codec round-trips any faces and new vertices, that
+the spec's examples and constants are the code's, that hostile face chunks are one-line format
+errors, and that a pillowed mesh streams exactly: no pillow before the last chunk, the input at the end.
 """
 
 from __future__ import annotations
@@ -22,23 +22,30 @@ from pmwm_codec.errors import FormatError, PmwError
 from pmwm_codec.format import rangecoder as rc
 from pmwm_codec.format import read_header
 from pmwm_codec.format import records_v2 as r2
-from pmwm_codec.progressive.simplify import glued_pillows, twin_faces
+from pmwm_codec.progressive.simplify import deferred_pillows, twin_faces
 from pmwm_codec.progressive.topology import face_keys
 from pmwm_codec.progressive.vsplit import MeshState
 from pmwm_codec.stream import StreamDecoder
 
-from test_payload_v2 import _chunk_entries, _encode, _stored, _with_chunk, assert_prefixes_decode_to_whole_chunks
+from test_payload_v2 import (_chunk_entries, _encode, _stored, _with_chunk, assert_prefixes_decode_to_whole_chunks,
+                             face_set)
 from test_pillows import _pillowed
 
 TETRAHEDRON = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]], np.int64)
+TETRA_VALUES = np.arange(12, dtype=np.int64).reshape(4, 3) * 10
 
 
-def _decode(payload, faces_before, n, face_step):
-    """Faces (m + appended, 3) after decoding ``payload`` onto the mesh ``faces_before`` over ``n``."""
+def _decode(payload, values_before, faces_before, vertex_step, face_step):
+    """``(values, faces)`` after decoding ``payload`` onto the mesh of ``values_before`` (n, D) and
+    ``faces_before`` (m, 3)."""
+    values = np.asarray(values_before, np.int64)
     before = np.asarray(faces_before, np.int64).reshape(-1, 3)
-    state = MeshState(np.zeros((n, 3), np.int64), before, n, len(before) + face_step)
-    r2.decode_face_chunk(payload, state, r2.ChunkDecoder(), face_step)
-    return state.faces[: state.m]
+    n, D = values.shape
+    state = MeshState(np.concatenate([values, np.zeros((vertex_step, D), np.int64)]), before, n + vertex_step,
+                      len(before) + face_step)
+    state.n = n
+    r2.decode_face_chunk(payload, state, r2.ChunkDecoder(), vertex_step, face_step)
+    return state.positions[: state.n], state.faces[: state.m]
 
 
 def _face_multiset(faces) -> list:
@@ -53,50 +60,78 @@ def _spec() -> str:
 # ---------------------------------------------------------------- the codec
 
 
+def _spec_bytes(name: str) -> bytes:
+    block = re.search(rf"<!-- {name} -->\n```\n(.*?)```", _spec(), re.S).group(1)
+    return bytes.fromhex(block.replace(" ", "").replace("\n", ""))
+
+
 def test_spec_example_is_what_the_encoder_writes_and_decodes_to_the_spec_s_faces():
-    block = re.search(r"<!-- face-chunk-example -->\n```\n(.*?)```", _spec(), re.S).group(1)
-    stored = bytes.fromhex(block.replace(" ", "").replace("\n", ""))
-    assert r2.pack_face_chunk(TETRAHEDRON, 4, [[0, 1, 3], [0, 3, 1]]) == stored
-    faces = _decode(stored, TETRAHEDRON, 4, 2)
-    assert faces[4:].tolist() == [[0, 1, 3], [0, 3, 1]]
+    stored = _spec_bytes("face-chunk-example")
+    assert r2.pack_face_chunk(TETRA_VALUES, TETRAHEDRON, [[0, 1, 3], [0, 3, 1]])[0] == stored
+    values, faces = _decode(stored, TETRA_VALUES, TETRAHEDRON, 0, 2)
+    assert faces[4:].tolist() == [[0, 1, 3], [0, 3, 1]] and np.array_equal(values, TETRA_VALUES)
+
+
+def test_spec_flap_example_is_what_the_encoder_writes_and_decodes_to_the_spec_s_vertex():
+    stored = _spec_bytes("face-chunk-flap-example")
+    assert r2.pack_face_chunk(TETRA_VALUES, TETRAHEDRON, [[0, 1, 4], [1, 0, 4]], [[7, 9, 11]])[0] == stored
+    values, faces = _decode(stored, TETRA_VALUES, TETRAHEDRON, 1, 2)
+    assert faces[4:].tolist() == [[0, 1, 4], [0, 4, 1]] and values[4].tolist() == [7, 9, 11]
 
 
 def test_spec_constants_of_face_chunks_match_the_code():
     text = " ".join(_spec().split())
-    assert f"`FACE_PROBS = 32 + 5·256 = {r2.FACE_PROBS}`" in text
-    assert (r2.F_NEAR_B, r2.F_NEAR_C, r2.F_TWIN) == (0, 1, 2)
-    for name, block in (("COUNT", 0), ("GAP", 1), ("RANK_B", 2), ("RANK_C", 3), ("RAW", 4)):
+    assert f"`FACE_PROBS = 32 + 9·256 = {r2.FACE_PROBS}`" in text
+    assert (r2.F_NEAR_B, r2.F_NEAR_C, r2.F_TWIN, r2.F_FRESH) == (0, 1, 2, 3)
+    for name, block in (("COUNT", 0), ("GAP", 1), ("RANK_B", 2), ("RANK_C", 3), ("RAW", 4), ("VALUE", 5)):
         assert getattr(r2, "FB_" + name) == block
-    assert "UInt(block 0) + 1" in text and "a + UInt(block 1)" in text and "Up(a)[UInt(block 2)]" in text
-    assert "Near(a, b)[UInt(block 3)]" in text and "a + 1 + UInt(block 4)" in text
+    assert "UInt(block 0) + 1" in text and "a + UInt(block 1)" in text and "Vertex(0, Up(a), 2)" in text
+    assert "Vertex(1, Near(a, b), 3)" in text and "a + 1 + UInt(block 4)" in text
+    assert "DecodeBit(3)" in text and "SInt(block 5 + min(q, 3))" in text
 
 
-def _random_case(draw_seed: int):
-    rng = np.random.default_rng(draw_seed)
-    n = int(rng.integers(3, 40))
+def _random_case(seed: int):
+    """``(values (n, D), faces (m, 3), new faces, new values)``: a random mesh and random faces to add,
+    some along its edges (as pillows are), some reversed or repeated, some naming new vertices (one
+    or two to a face, every face keeping an existing vertex)."""
+    rng = np.random.default_rng(seed)
+    n, D = int(rng.integers(3, 40)), int(rng.integers(3, 6))
+    values = rng.integers(0, 1 << 16, (n, D))
     m = int(rng.integers(0, 60))
     before = np.array([rng.choice(n, 3, replace=False) for _ in range(m)], np.int64).reshape(-1, 3)
-    if rng.random() < 0.5 and m:  # faces along the mesh's edges, as pillows are
-        picks = before[rng.integers(m, size=int(rng.integers(1, 8)))]
-        new = np.stack([picks[:, 0], picks[:, 1], np.roll(picks[:, 2], 1)], 1)
-        new = new[(new[:, 0] != new[:, 2]) & (new[:, 1] != new[:, 2])]
-    else:
-        new = np.zeros((0, 3), np.int64)
-    extra = np.array([rng.choice(n, 3, replace=False) for _ in range(int(rng.integers(1, 12)))], np.int64)
-    new = np.concatenate([new, extra])
+    new = [rng.choice(n, 3, replace=False) for _ in range(int(rng.integers(0, 10)))]
+    if m:  # along the mesh's edges
+        for f in before[rng.integers(m, size=int(rng.integers(0, 6)))]:
+            if f[0] != f[1]:
+                new.append([f[0], f[1], before[rng.integers(m), 2]])
+    t = int(rng.integers(0, 5))
+    for j in range(t):  # a new vertex off an existing pair, sometimes a second one beside it
+        x = rng.choice(n, 2, replace=False)
+        new.append([x[0], x[1], n + j])
+        if j and rng.random() < 0.5:
+            new.append([x[0], n + j - 1, n + j])
+    new = np.array([f for f in new if len(set(int(v) for v in f)) == 3] or [[0, 1, 2]], np.int64)
     twins = rng.random(len(new)) < 0.5
-    new = np.concatenate([new, new[twins][:, [0, 2, 1]], new[rng.random(len(new)) < 0.1]])  # reverses, repeats
-    return before, n, rng.permutation(new)
+    new = np.concatenate([new, new[twins][:, [0, 2, 1]], new[rng.random(len(new)) < 0.1]])
+    used = np.unique(new[new >= n]) - n
+    keep = np.full(max(t, 1), -1)
+    keep[used] = np.arange(len(used))  # renumber the new vertices some face names
+    new = np.where(new >= n, n + keep[np.clip(new - n, 0, len(keep) - 1)], new)
+    return values, before, rng.permutation(new), rng.integers(0, 1 << 16, (len(used), D))
 
 
 @settings(max_examples=200, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1))
-def test_any_faces_over_any_mesh_round_trip_as_a_multiset(seed):
-    before, n, new = _random_case(seed)
-    stored = r2.pack_face_chunk(before, n, new)
-    faces = _decode(stored, before, n, len(new))
+def test_any_faces_and_new_vertices_over_any_mesh_round_trip(seed):
+    values, before, new, new_values = _random_case(seed)
+    n, t = len(values), len(new_values)
+    stored, order = r2.pack_face_chunk(values, before, new, new_values)
+    got_values, faces = _decode(stored, values, before, t, len(new))
+    final = np.arange(n + t)
+    final[n + order] = n + np.arange(t)  # the caller's new vertex -> the id it decodes as
     assert np.array_equal(faces[: len(before)], before)
-    assert _face_multiset(faces[len(before):]) == _face_multiset(new)
+    assert _face_multiset(faces[len(before):]) == _face_multiset(final[new])
+    assert np.array_equal(got_values[:n], values) and np.array_equal(got_values[n:], new_values[order])
 
 
 def test_a_face_and_its_reverse_cost_one_coded_face_and_neighbours_cost_few_bits():
@@ -108,7 +143,7 @@ def test_a_face_and_its_reverse_cost_one_coded_face_and_neighbours_cost_few_bits
     F = sphere.faces
     rows = F[::37]
     pillows = np.concatenate([rows, rows[:, [0, 2, 1]]])
-    stored = r2.pack_face_chunk(F, sphere.vertex_count, pillows)
+    stored, _ = r2.pack_face_chunk(sphere.positions.astype(np.int64), F, pillows)
     assert len(r2.coded_faces(pillows)) == len(rows)
     assert 8 * len(stored) / len(rows) < 16
 
@@ -121,38 +156,46 @@ def _crafted(*items) -> bytes:
     return rc.encode_array(np.array(kind), np.array(ctx), np.array([v for _, _, v in items]), r2.FACE_PROBS)
 
 
-BIT, UINT = 0, 2
-HOSTILE = {
-    "a rank beyond Up(a)": (_crafted((UINT, 0, 0), (UINT, 1, 0), (BIT, 0, 1), (UINT, 2, 3)), 1, "beyond its list"),
-    "a vertex beyond the mesh": (_crafted((UINT, 0, 0), (UINT, 1, 9)), 1, "beyond the mesh"),
-    "a raw vertex beyond the mesh": (_crafted((UINT, 0, 0), (UINT, 1, 0), (BIT, 0, 0), (UINT, 4, 3)), 1,
+BIT, UINT, SINT = 0, 2, 3
+_FACE = ((UINT, 0, 0), (UINT, 1, 0), (BIT, 0, 1), (UINT, 2, 0))  # one face, a = 0, b = Up(0)[0] = 1
+HOSTILE = {  # (stored, vertex step, face step, words of the error)
+    "a rank beyond Up(a)": (_crafted((UINT, 0, 0), (UINT, 1, 0), (BIT, 0, 1), (UINT, 2, 3)), 0, 1, "beyond its list"),
+    "a vertex beyond the mesh": (_crafted((UINT, 0, 0), (UINT, 1, 9)), 0, 1, "beyond the mesh"),
+    "a raw vertex beyond the mesh": (_crafted(*_FACE, (BIT, 1, 0), (BIT, 3, 0), (UINT, 4, 3)), 0, 1,
                                      "beyond the mesh"),
-    "b equal to c": (_crafted((UINT, 0, 0), (UINT, 1, 0), (BIT, 0, 1), (UINT, 2, 0), (BIT, 1, 0), (UINT, 4, 0)),
-                     1, "repeated vertex"),
-    "more faces than the entry adds": (_crafted((UINT, 0, 2)), 2, "more faces"),
-    "a twin past the entry's faces": (_crafted((UINT, 0, 0), (UINT, 1, 0), (BIT, 0, 1), (UINT, 2, 0), (BIT, 1, 1),
-                                               (UINT, 3, 1), (BIT, 2, 1)), 1, "more faces"),
+    "b equal to c": (_crafted((UINT, 0, 0), (UINT, 1, 0), (BIT, 0, 0), (BIT, 3, 0), (UINT, 4, 0), (BIT, 1, 0),
+                              (BIT, 3, 0), (UINT, 4, 0)), 0, 1, "repeated vertex"),
+    "more faces than the entry adds": (_crafted((UINT, 0, 2)), 0, 2, "more faces"),
+    "a twin past the entry's faces": (_crafted(*_FACE, (BIT, 1, 1), (UINT, 3, 1), (BIT, 2, 1)), 0, 1, "more faces"),
+    "a fresh vertex the entry does not add": (_crafted(*_FACE, (BIT, 1, 0), (BIT, 3, 1)), 0, 1, "more new vertices"),
+    "a new vertex never named": (_crafted(*_FACE, (BIT, 1, 1), (UINT, 3, 1), (BIT, 2, 0)), 1, 1, "fewer new"),
+    "a raw id of a new vertex not yet named": (_crafted(*_FACE, (BIT, 1, 0), (BIT, 3, 0), (UINT, 4, 3)), 1, 1,
+                                               "beyond the mesh"),
+    "a new value out of range": (_crafted(*_FACE, (BIT, 1, 0), (BIT, 3, 1), (BIT, 2, 0), (SINT, 5, 1 << 31),
+                                          (SINT, 6, 0), (SINT, 7, 0)), 1, 1, "value out of range"),
 }
 
 
 @pytest.mark.parametrize("name", sorted(HOSTILE))
 def test_a_hostile_face_chunk_is_a_one_line_format_error(name):
-    stored, step, words = HOSTILE[name]
+    stored, vertex_step, face_step, words = HOSTILE[name]
     with pytest.raises(FormatError, match=words):
-        _decode(stored, TETRAHEDRON, 4, step)
+        _decode(stored, TETRA_VALUES, TETRAHEDRON, vertex_step, face_step)
 
 
 def test_a_face_chunk_cut_short_or_with_trailing_bytes_is_a_format_error():
     from pmwm_codec import shapes
 
     sphere = shapes.icosphere(3, 1.0)
-    new = np.concatenate([sphere.faces[::9], sphere.faces[::9, [0, 2, 1]]])
-    stored = r2.pack_face_chunk(sphere.faces, sphere.vertex_count, new)
+    values = np.round(sphere.positions * 1000).astype(np.int64) + 1000
+    n = len(values)
+    new = np.concatenate([sphere.faces[::9], sphere.faces[::9, [0, 2, 1]], [[0, 1, n], [1, 0, n]]])
+    stored, _ = r2.pack_face_chunk(values, sphere.faces, new, [[5, 6, 7]])
     for cut in range(len(stored)):
         with pytest.raises(FormatError):
-            _decode(stored[:cut], sphere.faces, sphere.vertex_count, len(new))
+            _decode(stored[:cut], values, sphere.faces, 1, len(new))
     with pytest.raises(FormatError, match="does not end"):
-        _decode(stored + b"\0", sphere.faces, sphere.vertex_count, len(new))
+        _decode(stored + b"\0", values, sphere.faces, 1, len(new))
 
 
 # ---------------------------------------------------------------- pillowed meshes through the encoder
@@ -162,7 +205,8 @@ def test_a_face_chunk_cut_short_or_with_trailing_bytes_is_a_format_error():
 def pillowed():
     """A sphere with glued pillows and flaps, encoded with payload 2 and 1: (mesh, v2 bytes, v1 bytes)."""
     mesh = _pillowed(5, 40, False)
-    assert glued_pillows(mesh.faces).sum() >= 8 and (twin_faces(mesh.faces) & ~glued_pillows(mesh.faces)).any()
+    tips = np.setdiff1d(np.arange(mesh.vertex_count), mesh.faces[~twin_faces(mesh.faces)])
+    assert deferred_pillows(mesh.faces).sum() >= 16 and len(tips) >= 4
     out = []
     for version in (2, 1):
         buf = io.BytesIO()
@@ -178,40 +222,33 @@ def _levels(data):
     return levels
 
 
-def test_glued_pillows_arrive_in_one_face_chunk_after_every_split(pillowed):
+def test_pillows_and_flap_tips_arrive_in_one_face_chunk_after_every_split(pillowed):
     mesh, v2, _ = pillowed
-    glued = glued_pillows(mesh.faces)
-    entries = read_header(v2).extension["chunks"]
-    assert [e["splits"] == 0 for e in entries] == [False] * (len(entries) - 1) + [True]
-    assert entries[-1]["faceCount"] - entries[-2]["faceCount"] == glued.sum()
+    late = deferred_pillows(mesh.faces)
+    tips = np.setdiff1d(np.arange(mesh.vertex_count), mesh.faces[~late])
+    header = read_header(v2)
+    entries = header.extension["chunks"]
+    assert header.extension["firstFaceChunk"] == len(entries) - 1
+    assert [e.get("faces", False) for e in entries] == [False] * (len(entries) - 1) + [True]
+    assert entries[-1]["faceCount"] - entries[-2]["faceCount"] == late.sum()
+    assert entries[-1]["vertexCount"] - entries[-2]["vertexCount"] == len(tips)
     levels = _levels(v2)
-    flaps = int((twin_faces(mesh.faces) & ~glued).sum())
-    for level in levels[:-1]:  # flaps' pillows travel with their tips; glued ones only at the end
-        assert twin_faces(level.faces).sum() <= flaps
+    for level in levels[:-1]:
+        assert twin_faces(level.faces).sum() == 0
     final = levels[-1]
     assert final.vertices == mesh.vertex_count and final.faces_count == mesh.face_count
-    decoded = pmwm_codec.decode(v2)
     grid = read_header(v2).extension["grid"]
-    assert _position_faces(decoded.positions, decoded.faces, grid) == _position_faces(mesh.positions, mesh.faces, grid)
+    original = np.round((mesh.positions - grid["origin"]) / grid["step"]).astype(np.int64)
+    assert face_set(final.positions_int, final.faces) == face_set(original, mesh.faces)
 
 
-def _position_faces(P, F, grid) -> list:
-    """Faces as rotation-normalised triples of grid points (independent of vertex numbering)."""
-    q = np.round((np.asarray(P) - grid["origin"]) / grid["step"]).astype(np.int64)
-    out = []
-    for f in F:
-        t = [tuple(q[i]) for i in f]
-        out.append(min(t[r:] + t[:r] for r in range(3)))
-    return sorted(out)
-
-
-def test_the_base_holds_no_glued_pillow_where_version_1_keeps_them_all(pillowed):
+def test_the_base_holds_no_pillow_where_version_1_keeps_them_all(pillowed):
     """Version 1 cannot send a face chunk: a split never makes a face on three existing vertices,
-    so its base keeps every pillow of the input (and the simplifier works around them)."""
+    so its base keeps every pillow of the input, and every flap's tip."""
     mesh, v2, v1 = pillowed
     base2, base1 = _levels(v2)[0], _levels(v1)[0]
     assert twin_faces(base1.faces).sum() == twin_faces(mesh.faces).sum()
-    assert twin_faces(base2.faces).sum() == (twin_faces(mesh.faces) & ~glued_pillows(mesh.faces)).sum()
+    assert twin_faces(base2.faces).sum() == 0
 
 
 def test_every_prefix_of_a_file_with_a_face_chunk_decodes_to_whole_chunks_only(pillowed):
@@ -242,16 +279,18 @@ def test_flipped_bits_in_a_face_chunk_give_a_format_error_or_a_valid_mesh(pillow
 
 def test_a_watermarked_pillowed_file_verifies_authentic_and_its_face_chunk_is_covered_by_a_mac(pillowed):
     """The face chunk carries no watermark slot, but its MAC binds it: change it and the verdict falls."""
-    from pmwm_codec.verify import verify_stream
+    from pmwm_codec.verify import verify_mesh, verify_stream
     from pmwm_codec.watermark.key import WatermarkKey
 
     mesh = pillowed[0]
     image = (np.indices((16, 16)).sum(0) % 2 * 255).astype(np.uint8)
     data, key = _encode(mesh, 2, watermark=image, key=WatermarkKey.generate(rng=np.random.default_rng(4)))
     assert verify_stream(io.BytesIO(data), key).verdict == "authentic"
+    final = pmwm_codec.decode(data)  # the decoded mesh read back against the file: the tips come from it
+    assert verify_mesh((final.positions, final.faces), data, key).verdict == "authentic"
     gltf, binary, _, entries = _chunk_entries(data)
     k = len(entries) - 1
-    assert entries[k]["splits"] == 0
+    assert entries[k]["faces"]
     stored = bytearray(_stored(gltf, binary, entries[k]))
     stored[-1] ^= 1
     try:
@@ -262,11 +301,72 @@ def test_a_watermarked_pillowed_file_verifies_authentic_and_its_face_chunk_is_co
 
 
 def test_two_pillowed_primitives_send_their_face_chunks_after_every_split_of_both():
+    from pmwm_codec.format.inspect import inspect
+
     meshes = [_pillowed(8, 30, False), _pillowed(9, 30, False)]
     data, _ = _encode(meshes, 2)
-    levels = _levels(data)
-    adds_no_vertex = [i for i in range(1, len(levels)) if levels[i].vertices == levels[i - 1].vertices]
-    assert adds_no_vertex == [len(levels) - 2, len(levels) - 1]
-    final = levels[-1]
+    rows = inspect(data)["chunks"]  # in stream order
+    assert [r["face_chunk"] for r in rows] == [False] * (len(rows) - 2) + [True, True]
+    assert {r["primitive"] for r in rows[-2:]} == {0, 1}
+    final = _levels(data)[-1]
     assert final.vertices == sum(m.vertex_count for m in meshes)
     assert final.faces_count == sum(m.face_count for m in meshes)
+
+
+def _with_first_face_chunk(data: bytes, value) -> bytes:
+    """The file with its extension's ``firstFaceChunk`` set to ``value`` (None: removed)."""
+    from pmwm_codec.format.extension import EXTENSION_NAME
+    from pmwm_codec.format.glb import glb_parts, split_glb
+
+    gltf, binary = split_glb(data)
+    ext = gltf["meshes"][0]["primitives"][0]["extensions"][EXTENSION_NAME]
+    ext.pop("firstFaceChunk", None)
+    if value is not None:
+        ext["firstFaceChunk"] = value
+    return b"".join(glb_parts(gltf, [bytes(binary)], len(binary)))
+
+
+@pytest.mark.parametrize("shift, words", [(-10**6, "firstFaceChunk"), (10**6, "firstFaceChunk"), ("1", "firstFaceChunk"),
+                                          (None, None), (-1, None), (1, None)])
+def test_a_wrong_first_face_chunk_is_a_one_line_format_error(pillowed, shift, words):
+    """Out of range, not an integer, or the wrong chunks taken for face chunks (or none): refused,
+    never a mesh."""
+    _, v2, _ = pillowed
+    first = read_header(v2).extension["firstFaceChunk"]
+    value = shift if shift is None or isinstance(shift, str) else max(first + shift, -1) if abs(shift) < 10 else shift
+    with pytest.raises(PmwError, match=words):
+        pmwm_codec.decode(_with_first_face_chunk(v2, value))
+
+
+def test_face_chunks_need_payload_version_2(pillowed):
+    _, _, v1 = pillowed
+    with pytest.raises(PmwError, match="firstFaceChunk needs chunk payload version 2"):
+        pmwm_codec.decode(_with_first_face_chunk(v1, 1))
+
+
+def test_the_report_measures_the_flaps_tips_where_the_face_chunk_puts_them():
+    """The report's distortion compares every input vertex with its decoded place, tips included:
+    a tip put anywhere but on its own grid point would cost far more than grid 16's rounding."""
+    mesh = _pillowed(5, 40, False)
+    report = pmwm_codec.encode(mesh, io.BytesIO())
+    assert report["vertices"] == mesh.vertex_count and report["distortion"]["psnr_db"] > 95
+
+
+def test_a_cut_before_or_after_the_face_chunk_decodes_to_that_level_and_keeps_its_macs():
+    """A cut keeps ``firstFaceChunk`` as it is (the kept chunks keep their kind), so ``baseMac``,
+    which covers it, still verifies."""
+    from pmwm_codec.verify import verify_stream
+    from pmwm_codec.watermark.key import WatermarkKey
+
+    image = (np.indices((16, 16)).sum(0) % 2 * 255).astype(np.uint8)
+    data, key = _encode(_pillowed(6, 40, False), 2, watermark=image,
+                        key=WatermarkKey.generate(rng=np.random.default_rng(5)))
+    levels = _levels(data)
+    for keep in (len(levels) - 2, len(levels) - 1):
+        cut = pmwm_codec.cut(data, keep)
+        assert read_header(cut).extension["firstFaceChunk"] == read_header(data).extension["firstFaceChunk"]
+        got = _levels(cut)[-1]
+        assert np.array_equal(got.positions_int, levels[keep].positions_int)
+        assert np.array_equal(got.faces, levels[keep].faces)
+        report = verify_stream(io.BytesIO(cut), key)
+        assert report.mac["failed"] == [] and report.mac["checked"] == keep + 1

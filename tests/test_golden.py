@@ -64,7 +64,7 @@ CASES = {
     # a base Draco's edgebreaker stores with copies of its non-manifold vertices, welded back by
     # readers (spec README, "Welded base"; files from after the weld only: no frozen array-form file)
     "bowtie.welded-draco": lambda: dict(mesh=shapes.bowtie(), base_codec="draco"),
-    "sphere-pillows.draco": lambda: dict(mesh=shapes.glued_pillows(12), base_codec="draco"),
+    "sphere-pillows.draco": lambda: dict(mesh=shapes.pillows(12), base_codec="draco"),
     "sphere.exact-watermark-from-quarter": lambda: dict(
         mesh=shapes.icosphere(4, 1.2, noise=0.02), base_codec="draco", watermark=_stripes(16), embed_from=0.25,
         key=WatermarkKey.generate(rng=np.random.default_rng(2026)),

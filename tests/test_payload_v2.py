@@ -111,12 +111,26 @@ def test_plain_python_kernels_code_the_same_bytes_as_the_compiled_ones(monkeypat
 # ---------------------------------------------------------------- v2 files against v1 files
 
 
+def face_set(positions_int, faces) -> list:
+    """The faces of a mesh as rotation-normalised triples of grid points, sorted (any vertex numbering)."""
+    corners = [tuple(map(tuple, positions_int[f])) for f in np.asarray(faces)]
+    return sorted(min(t[r:] + t[:r] for r in range(3)) for t in corners)
+
+
 @pytest.mark.parametrize("name", sorted(GENERATED))
 def test_v2_decodes_to_the_same_mesh_as_v1_at_every_chunk(name):
+    """Version 2 codes the batches of version 1 -- except on meshes with pillows, which it simplifies
+    without and sends in a face chunk (bitstream.md §8.6): then only the full meshes agree."""
+    from pmwm_codec.progressive.simplify import deferred_pillows
+
     mesh = GENERATED[name]()
     v1, _ = _encode(mesh, 1)
     v2, _ = _encode(mesh, 2)
-    _assert_same_levels(_levels(v1), _levels(v2))
+    if deferred_pillows(mesh.faces).any():
+        a, b = _levels(v1)[-1], _levels(v2)[-1]
+        assert face_set(a.positions_int, a.faces) == face_set(b.positions_int, b.faces)
+    else:
+        _assert_same_levels(_levels(v1), _levels(v2))
     assert len(v2) < len(v1)
 
 

@@ -48,7 +48,7 @@ for path in (ROOT, HERE):
 import pmwm_codec  # noqa: E402
 from pmwm_codec.distortion import rms_surface_distance  # noqa: E402
 from pmwm_codec.mesh import Mesh  # noqa: E402
-from pmwm_codec.progressive.simplify import glued_pillows  # noqa: E402
+from pmwm_codec.progressive.simplify import deferred_pillows  # noqa: E402
 from pmwm_codec.shapes import demo_mesh  # noqa: E402
 
 from bench import DEFAULT_CORPUS, StageTimers, glb_parts, machine, publish, table  # noqa: E402
@@ -93,13 +93,18 @@ def level_at(mesh: Mesh, log, count: int) -> Mesh:
     """Our simplifier's level with ``count`` vertices, on ``mesh``'s own (float) positions.
 
     ``log``: the encoder's :class:`~pmwm_codec.progressive.simplify.CollapseLog` for ``mesh``, whose
-    face ids are those of the faces it simplified: all but the glued pillows, which the stream
-    sends last (a face chunk, bitstream.md §8.6), so no level before the last has them.
+    ids are those of the mesh it simplified: without the pillows and the flaps' tips, which the
+    stream sends last (a face chunk, bitstream.md §8.6), so no level before the last has them.
     Batches are applied fine to coarse; the one that would go below ``count`` is applied in
     part, its cheapest collapses first (the collapses of a batch are independent).  A
     ``count`` below the base size gives the base.
     """
-    corners = np.array(mesh.faces[~glued_pillows(mesh.faces)], np.int64)
+    late = deferred_pillows(mesh.faces)
+    core = np.unique(mesh.faces[~late])  # the encoder's core vertices (every vertex is on a face here)
+    local = np.full(mesh.vertex_count, -1, np.int64)
+    local[core] = np.arange(len(core))
+    mesh = Mesh(mesh.positions[core], local[mesh.faces[~late]])
+    corners = np.array(mesh.faces, np.int64)
     face_alive = np.ones(len(corners), bool)
     alive = len(np.unique(corners))
     for batch in log.batches:

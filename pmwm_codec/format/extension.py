@@ -70,13 +70,17 @@ def chunk_entries(ext: dict, base_vertices: int) -> list:
     An expanded entry holds ``bufferView``, ``byteOffset`` (inside that bufferView),
     ``byteLength``, ``digest``, ``vertexCount``, ``faceCount``, ``geometricError``, ``mac`` when
     the table has MACs, and the derived ``splits`` (vertices added: one per split, the
-    first chunk counted from the base's ``base_vertices``) and ``uncompressedLength``
-    (= ``byteLength``).  FormatError when the table's arrays disagree or the packed bytes are malformed.
+    first chunk counted from the base's ``base_vertices``), ``uncompressedLength``
+    (= ``byteLength``), and ``faces`` True on a face chunk (from ``firstFaceChunk`` on, bitstream.md §8.6).
+    FormatError when the table's arrays disagree or the packed bytes are malformed.
     """
     table = ext["chunks"]
+    first_face = ext.get("firstFaceChunk")  # an integer >= 0 (schema), or absent: no face chunk
     if payload_version(ext) != 2:
         if not isinstance(table, list):
             raise FormatError(f"{EXTENSION_NAME}: chunks must be an array for payload version 1")
+        if first_face is not None:
+            raise FormatError(f"{EXTENSION_NAME}: firstFaceChunk needs chunk payload version 2")
         return table
     if not isinstance(table, dict):
         raise FormatError(f"{EXTENSION_NAME}: chunks must be a chunk table object for payload version 2")
@@ -99,6 +103,8 @@ def chunk_entries(ext: dict, base_vertices: int) -> list:
         if entry["splits"] < 0:
             raise FormatError(f"{EXTENSION_NAME}: chunks: vertexCounts[{k}] is smaller than the count before it")
         entry["uncompressedLength"] = entry["byteLength"]
+        if first_face is not None and k >= first_face:
+            entry["faces"] = True
         entries.append(entry)
     return entries
 

@@ -79,7 +79,8 @@ def _primitives(gltf: dict, exts, bin_offset: int, size):
             start = chunk_start(views, c)
             end = bin_offset + start + c["byteLength"]
             rows.append((start, {
-                "primitive": p, "splits": c["splits"], "vertices": c["vertexCount"], "faces": c["faceCount"],
+                "primitive": p, "splits": c["splits"], "face_chunk": bool(c.get("faces", False)),
+                "vertices": c["vertexCount"], "faces": c["faceCount"],
                 "bytes": c["byteLength"], "geometric_error": c.get("geometricError"),
                 "present": None if size is None else end <= size}))
     return prims, rows

@@ -621,7 +621,7 @@ def pack_chunks(state, chunks) -> list:
         if lists.n < 0:  # after a face chunk
             lists.sync(state)
         if isinstance(batches, FaceChunk):
-            out.append(_pack_face_chunk(state, lists, batches.faces))
+            out.append(_pack_face_chunk(state, lists, batches)[0])
             continue
         if not 1 <= len(batches) <= MAX_BATCHES_PER_CHUNK:
             raise ValueError(f"payload v2: {len(batches)} batches in a chunk, outside 1..{MAX_BATCHES_PER_CHUNK}")
@@ -926,16 +926,20 @@ def _new_face(slot, x, y, z, flat, head, tail, nxt):
 
 # ---------------------------------------------------------------- face chunks (spec §8.6)
 
-#: A face chunk's own probability table: singles 0 (b near), 1 (c near), 2 (twin); blocks at 32 + 256 * B.
-FACE_PROBS = 32 + 5 * INT_BLOCK
-F_NEAR_B, F_NEAR_C, F_TWIN = 0, 1, 2
-FB_COUNT, FB_GAP, FB_RANK_B, FB_RANK_C, FB_RAW = range(5)
+#: A face chunk's own probability table: singles 0 (b near), 1 (c near), 2 (twin), 3 (fresh vertex);
+#: integer blocks at 32 + 256 * B.
+FACE_PROBS = 32 + 9 * INT_BLOCK
+F_NEAR_B, F_NEAR_C, F_TWIN, F_FRESH = 0, 1, 2, 3
+FB_COUNT, FB_GAP, FB_RANK_B, FB_RANK_C, FB_RAW, FB_VALUE = range(6)  # values: FB_VALUE + min(q, 3)
 _FACE_ERRORS = {
     -1: "face chunk: invalid integer code",
     -2: "face chunk: a neighbour rank beyond its list",
     -3: "face chunk: a vertex id beyond the mesh",
     -4: "face chunk: a face with a repeated vertex",
     -5: "face chunk: more faces than its index entry adds",
+    -6: "face chunk: more new vertices than its index entry adds",
+    -7: "face chunk: fewer new vertices named than its index entry adds",
+    -8: "face chunk: a value out of range",
 }
 
 
@@ -980,10 +984,14 @@ def _up_list(a, flat, head, nxt, stamp, ctr, up):
 
 
 @kernel_helper
-def _near_list(a, b, up, k, flat, head, nxt, tag, ctr, near):
+def _near_list(a, b, n, up, k, flat, head, nxt, tag, ctr, near):
     """``Near(a, b)`` (spec §8.6) into ``near``: the vertices ``x > a``, ``x != b`` sharing a face with
     ``b``, ascending, then those of ``up[:k]`` (``Up(a)``) other than ``b`` sharing none; returns
-    their number."""
+    their number.  A new vertex ``b >= n`` has no face yet: ``Near(a, b)`` is ``Up(a)``."""
+    if b >= n:
+        for t in range(k):
+            near[t] = up[t]
+        return k
     count = _neighbours_above(b, a, flat, head, nxt, tag, ctr, near)
     token = ctr[0]
     for t in range(k):
@@ -1003,27 +1011,37 @@ def _position(x, items, count):
 
 
 @kernel_helper
-def _fit(a, b, c, up, near, flat, head, nxt, stamp, tag, ctr):
+def _fit(a, b, c, n, up, near, flat, head, nxt, stamp, tag, ctr):
     """How well the coded face ``(a, b, c)`` fits the neighbour lists: 2 if ``b`` is in ``Up(a)``,
     plus 1 if ``c`` is in ``Near(a, b)``."""
     k = _up_list(a, flat, head, nxt, stamp, ctr, up)
-    count = _near_list(a, b, up, k, flat, head, nxt, tag, ctr, near)
+    count = _near_list(a, b, n, up, k, flat, head, nxt, tag, ctr, near)
     return 2 * (_position(b, up, k) >= 0) + (_position(c, near, count) >= 0)
 
 
 @kernel_helper
-def _face_vertex(near, rank, a, items, count, n, es, out, ds, buf, probs, decode):
-    """Code or decode one of the two later vertices of a face (spec §8.6): its rank in ``items[:count]``
-    after the bit ``near`` = 1, else ``a + 1 + UInt``.  Encode: ``rank`` is the vertex; returns it
-    (decode: the vertex, or a negative code of :data:`_FACE_ERRORS`)."""
+def _face_vertex(near, x, a, items, count, n, t, fresh, rename, es, out, ds, buf, probs, decode):
+    """Code or decode one of the two later vertices of a face (spec §8.6, ``Vertex``): its rank in
+    ``items[:count]`` after the bit ``near`` = 1; else the next new vertex after the fresh bit; else
+    ``a + 1 + UInt`` (an existing vertex, or a new one already named).  ``fresh`` (1,) int64 counts
+    the new vertices named so far.  Encode: ``x`` is the vertex (ids ``>= n``: the caller's new
+    vertices, given their final ids in ``rename`` (t,) int64 as they are first named); returns its
+    final id.  Decode: returns the vertex, or a negative code of :data:`_FACE_ERRORS`."""
     if not decode:
-        x = rank
         found = _position(x, items, count)
         rc.enc_bit(es, out, probs, near, 1 if found >= 0 else 0)
         if found >= 0:
             rc.enc_uint(es, out, probs, _face_block(FB_RANK_B + near), found)
-        else:
-            rc.enc_uint(es, out, probs, _face_block(FB_RAW), x - a - 1)
+            return x
+        if x >= n and rename[x - n] < 0:
+            rc.enc_bit(es, out, probs, F_FRESH, 1)
+            rename[x - n] = n + fresh[0]
+            fresh[0] += 1
+            return rename[x - n]
+        rc.enc_bit(es, out, probs, F_FRESH, 0)
+        if x >= n:
+            x = rename[x - n]
+        rc.enc_uint(es, out, probs, _face_block(FB_RAW), x - a - 1)
         return x
     if rc.dec_bit(ds, buf, probs, near):
         r = rc.dec_uint(ds, buf, probs, _face_block(FB_RANK_B + near))
@@ -1032,23 +1050,34 @@ def _face_vertex(near, rank, a, items, count, n, es, out, ds, buf, probs, decode
         if r >= count:
             return -2
         return items[r]
+    if rc.dec_bit(ds, buf, probs, F_FRESH):
+        if fresh[0] >= t:
+            return -6
+        fresh[0] += 1
+        return n + fresh[0] - 1
     r = rc.dec_uint(ds, buf, probs, _face_block(FB_RAW))
     if r < 0:
         return -1
-    if a + 1 + r >= n:
+    if a + 1 + r >= n + fresh[0]:
         return -3
     return a + 1 + r
 
 
-def _face_kernel(flat, m, n, head, nxt, stamp, tag, ctr, coded, up, near, es, out, ds, buf, probs, decode):
-    """Code (``decode`` 0: ``coded`` (G, 4) int64 rows ``(a, b, c, twin)``, ``a`` ascending and the
-    smallest of the three) or decode (1) a face chunk over the mesh of the corner lists (``flat``
-    (3M,) int64 face slots, ``m`` faces, ``n`` vertices).  Decoding appends the faces to ``flat``
-    from slot ``3m`` on; encoding turns a twin row to ``(a, c, b)`` when that fits the neighbour
-    lists better (:func:`_fit`), in ``coded``.  ``up`` / ``near`` (scratch) hold twice the
-    largest valence.  Returns the number of faces (decode: appended), or a negative code of
-    :data:`_FACE_ERRORS`."""
+def _face_kernel(flat, m, n, t, P, head, nxt, stamp, tag, ctr, coded, rename, up, near, es, out, ds, buf, probs,
+                 decode):
+    """Code (``decode`` 0) or decode (1) a face chunk over the mesh of the corner lists (``flat`` (3M,)
+    int64 face slots, ``m`` faces, ``n`` vertices; ``P`` (N, D) int64 values) adding ``t`` vertices.
+
+    Encode: ``coded`` (G, 4) int64 rows ``(a, b, c, twin)``, ``a`` ascending and the smallest of the
+    three, ids ``>= n`` naming the caller's new vertices, whose values are in ``P[n:n + t]`` in the
+    caller's order; the kernel turns a twin row to ``(a, c, b)`` when that fits the neighbour lists
+    better (:func:`_fit`), writes final ids into ``coded``, fills ``rename`` (t,) (caller's new
+    vertex -> final id) and codes the values; the caller then reorders ``P[n:n + t]``.  Decode:
+    appends the faces to ``flat`` from slot ``3m`` on and the values to ``P[n:n + t]``.  ``up`` /
+    ``near`` (scratch) hold twice the largest valence.  Returns the number of faces (decode:
+    appended), or a negative code of :data:`_FACE_ERRORS`."""
     room = len(flat) // 3 - m
+    fresh = np.zeros(1, np.int64)
     if decode:
         g = rc.dec_uint(ds, buf, probs, _face_block(FB_COUNT))
         if g < 0:
@@ -1072,18 +1101,19 @@ def _face_kernel(flat, m, n, head, nxt, stamp, tag, ctr, coded, up, near, es, ou
         else:
             rc.enc_uint(es, out, probs, _face_block(FB_GAP), coded[i, 0] - a)
             a = coded[i, 0]
-        if not decode and coded[i, 3] == 1:
-            b, c = coded[i, 1], coded[i, 2]
-            if _fit(a, c, b, up, near, flat, head, nxt, stamp, tag, ctr) > _fit(a, b, c, up, near, flat, head,
-                                                                              nxt, stamp, tag, ctr):
-                coded[i, 1], coded[i, 2] = c, b
+            if coded[i, 3] == 1:
+                b, c = coded[i, 1], coded[i, 2]
+                if _fit(a, c, b, n, up, near, flat, head, nxt, stamp, tag, ctr) > _fit(a, b, c, n, up, near, flat,
+                                                                                        head, nxt, stamp, tag, ctr):
+                    coded[i, 1], coded[i, 2] = c, b
         k = _up_list(a, flat, head, nxt, stamp, ctr, up)
-        b = _face_vertex(F_NEAR_B, coded[i, 1] if not decode else 0, a, up, k, n, es, out, ds, buf, probs, decode)
+        b = _face_vertex(F_NEAR_B, coded[i, 1] if not decode else 0, a, up, k, n, t, fresh, rename, es, out, ds, buf,
+                         probs, decode)
         if b < 0:
             return b
-        count = _near_list(a, b, up, k, flat, head, nxt, tag, ctr, near)
-        c = _face_vertex(F_NEAR_C, coded[i, 2] if not decode else 0, a, near, count, n, es, out, ds, buf, probs,
-                         decode)
+        count = _near_list(a, b, n, up, k, flat, head, nxt, tag, ctr, near)
+        c = _face_vertex(F_NEAR_C, coded[i, 2] if not decode else 0, a, near, count, n, t, fresh, rename, es, out,
+                         ds, buf, probs, decode)
         if c < 0:
             return c
         if b == c:
@@ -1091,17 +1121,78 @@ def _face_kernel(flat, m, n, head, nxt, stamp, tag, ctr, coded, up, near, es, ou
         if decode:
             twin = rc.dec_bit(ds, buf, probs, F_TWIN)
         else:
+            coded[i, 1], coded[i, 2] = b, c
             twin = coded[i, 3]
             rc.enc_bit(es, out, probs, F_TWIN, twin)
         if added + 1 + twin > room:
             return -5
         s = 3 * (m + added)
-        if decode:
-            flat[s], flat[s + 1], flat[s + 2] = a, b, c
-            if twin:
-                flat[s + 3], flat[s + 4], flat[s + 5] = a, c, b
+        flat[s], flat[s + 1], flat[s + 2] = a, b, c
+        if twin:
+            flat[s + 3], flat[s + 4], flat[s + 5] = a, c, b
         added += 1 + twin
+    if fresh[0] != t:
+        return -7
+    if not decode and t:  # the caller's values to final ids
+        given = P[n : n + t].copy()
+        for j in range(t):
+            P[rename[j]] = given[j]
+    if _face_values(flat, m, added, n, t, P, es, out, ds, buf, probs, decode) != 0:
+        return -8
     return added
+
+
+@kernel_helper(allocates=True)
+def _face_values(flat, m, added, n, t, P, es, out, ds, buf, probs, decode):
+    """The new vertices' values (spec §8.6, *Values*): vertex ``u`` predicted by the floored mean of
+    the other corners ``p < u`` of the chunk's faces naming it, one residual per column.  Returns 0,
+    or -1 on an invalid code or a value out of range."""
+    D = P.shape[1]
+    if t == 0:
+        return 0
+    start = np.zeros(t + 1, np.int64)  # the corners naming each new vertex, grouped (CSR)
+    for f in range(m, m + added):
+        for j in range(3):
+            if flat[3 * f + j] >= n:
+                start[flat[3 * f + j] - n + 1] += 2
+    for u in range(t):
+        start[u + 1] += start[u]
+    other = np.empty(start[t], np.int64)
+    fill = start[:t].copy()
+    for f in range(m, m + added):
+        for j in range(3):
+            x = flat[3 * f + j]
+            if x >= n:
+                other[fill[x - n]] = flat[3 * f + (j + 1) % 3]
+                other[fill[x - n] + 1] = flat[3 * f + (j + 2) % 3]
+                fill[x - n] += 2
+    S = np.zeros(D, np.int64)
+    for u in range(t):
+        c = 0
+        for q in range(D):
+            S[q] = 0
+        for e in range(start[u], start[u + 1]):
+            p = other[e]
+            if p < n + u:
+                c += 1
+                for q in range(D):
+                    S[q] += P[p, q]
+        if c == 0:
+            return -1
+        for q in range(D):
+            ctx = _face_block(FB_VALUE + min(q, 3))
+            pred = S[q] // c
+            if decode:
+                r, ok = rc.dec_sint(ds, buf, probs, ctx)
+                if ok == 0:
+                    return -1
+                x = pred + r
+                if x >= MAX_VALUE or x <= -MAX_VALUE:
+                    return -1
+                P[n + u, q] = x
+            else:
+                rc.enc_sint(es, out, probs, ctx, P[n + u, q] - pred)
+    return 0
 
 
 def coded_faces(faces: np.ndarray) -> np.ndarray:
@@ -1122,10 +1213,13 @@ def coded_faces(faces: np.ndarray) -> np.ndarray:
 
 
 class FaceChunk:
-    """A face chunk to pack (:func:`pack_chunks`): ``faces`` (L, 3) int64, ids of the mesh it follows."""
+    """A face chunk to pack (:func:`pack_chunks`): ``faces`` (L, 3) int64 in ids of the mesh it
+    follows, ids ``>= n`` naming new vertices whose values are ``values`` (t, D) int64 (row ``i``:
+    id ``n + i``); the packer renumbers them in the order the faces first name them."""
 
-    def __init__(self, faces):
+    def __init__(self, faces, values=None):
         self.faces = np.asarray(faces, np.int64).reshape(-1, 3)
+        self.values = None if values is None else np.asarray(values, np.int64)
 
 
 def _face_scratch(lists, n: int) -> tuple:
@@ -1133,29 +1227,37 @@ def _face_scratch(lists, n: int) -> tuple:
     return np.empty(size, np.int64), np.empty(size, np.int64)
 
 
-def _pack_face_chunk(state, lists, faces) -> bytes:
-    """Code a face chunk appending ``faces`` (L, 3) to ``state`` (described by ``lists``) and append
-    them to ``state`` as the decoder will (rows of :func:`coded_faces` in order, reverse after)."""
-    rows = coded_faces(faces)
+def _pack_face_chunk(state, lists, chunk: FaceChunk) -> tuple:
+    """Code ``chunk`` onto ``state`` (described by ``lists``) and apply it as the decoder will (new
+    vertices' values in their final order, faces as decoded).  Returns ``(bytes, order)``:
+    ``order[i]`` the index in ``chunk.values`` of the vertex that decodes as ``n + i``."""
+    rows = coded_faces(chunk.faces)
+    n, m = state.n, state.m
+    D = state.positions.shape[1]
+    values = np.zeros((0, D), np.int64) if chunk.values is None else chunk.values.reshape(-1, D)
+    t = len(values)
     if not len(rows):
         raise ValueError("payload v2: a face chunk needs at least one face")
-    n, m = state.n, state.m
-    if rows[:, :3].max() >= n or (rows[:, 1] == rows[:, 2]).any() or (rows[:, 0] == rows[:, 1]).any():
-        raise ValueError("payload v2: a face chunk's faces must name three distinct existing vertices")
-    if m + len(faces) > len(state.faces):
-        raise ValueError("payload v2: the face chunk exceeds the primitive's face count")
+    if rows[:, :3].max() >= n + t or (rows[:, 1] == rows[:, 2]).any() or (rows[:, 0] == rows[:, 1]).any() \
+            or rows[:, 0].max() >= n:
+        raise ValueError("payload v2: a face chunk's faces must name three distinct vertices, the first existing")
+    if m + len(chunk.faces) > len(state.faces) or n + t > len(state.positions):
+        raise ValueError("payload v2: the face chunk exceeds the primitive's counts")
     enc = rc.Encoder(rc.new_probs(FACE_PROBS))
-    enc.reserve((4 * INT_DECISIONS + 3) * len(rows) + INT_DECISIONS)
+    enc.reserve((4 * INT_DECISIONS + 5) * len(rows) + INT_DECISIONS * (1 + D * t))
     up, near = _face_scratch(lists, n)
-    flat = state.faces.reshape(-1)
-    got = rc._kernel(_face_kernel)(flat, m, n, lists.head, lists.nxt, lists.stamp, lists.tag, lists.ctr, rows, up, near,
-                                   enc.es, enc.out, _NO_STATE, _NO_BYTES, enc.probs, 0)
+    rename = np.full(t, -1, np.int64)
+    state.positions[n : n + t] = values
+    got = rc._kernel(_face_kernel)(state.faces.reshape(-1), m, n, t, state.positions, lists.head, lists.nxt,
+                                   lists.stamp, lists.tag, lists.ctr, rows, rename, up, near, enc.es, enc.out,
+                                   _NO_STATE, _NO_BYTES, enc.probs, 0)
     if got < 0:
         raise ValueError(f"payload v2: {_FACE_ERRORS[got]}")
-    state.faces[m : m + got] = expand_rows(rows)
-    state.m = m + got
+    state.n, state.m = n + t, m + got
     lists.n = -1  # the corner lists no longer describe the mesh: rebuilt if a chunk that splits follows
-    return enc.finish()
+    order = np.empty(t, np.int64)
+    order[rename - n] = np.arange(t)
+    return enc.finish(), order
 
 
 def expand_rows(rows: np.ndarray) -> np.ndarray:
@@ -1166,39 +1268,51 @@ def expand_rows(rows: np.ndarray) -> np.ndarray:
     return pairs[keep]
 
 
-def pack_face_chunk(faces_before, n: int, new_faces) -> bytes:
-    """The stored bytes of a face chunk appending ``new_faces`` (L, 3) int64 to the mesh of
-    ``faces_before`` (m, 3) int64 over ``n`` vertices (spec §8.6; for tests and other decoders)."""
+def pack_face_chunk(values_before, faces_before, new_faces, new_values=None) -> tuple:
+    """``(stored bytes, order)`` of a face chunk adding ``new_faces`` (L, 3) int64 to the mesh of
+    ``values_before`` (n, D) int64 and ``faces_before`` (m, 3) int64; ids ``>= n`` in ``new_faces``
+    name new vertices with ``new_values`` (t, D) int64 (row ``i``: id ``n + i``).  ``order[i]``: the
+    row of ``new_values`` that decodes as vertex ``n + i`` (spec §8.6; for tests and other decoders)."""
     from ..progressive.vsplit import MeshState
 
-    before = np.asarray(faces_before, np.int64).reshape(-1, 3)
+    before = np.asarray(values_before, np.int64)
+    n, D = before.shape
+    faces = np.asarray(faces_before, np.int64).reshape(-1, 3)
     new = np.asarray(new_faces, np.int64).reshape(-1, 3)
-    state = MeshState(np.zeros((n, 3), np.int64), before, n, len(before) + len(new))
-    lists = CornerLists(n, len(before) + len(new))
+    values = np.zeros((0, D), np.int64) if new_values is None else np.asarray(new_values, np.int64).reshape(-1, D)
+    N, M = n + len(values), len(faces) + len(new)
+    state = MeshState(np.concatenate([before, np.zeros((len(values), D), np.int64)]), faces, N, M)
+    state.n = n
+    lists = CornerLists(N, M)
     lists.sync(state)
-    return _pack_face_chunk(state, lists, new)
+    return _pack_face_chunk(state, lists, FaceChunk(new, values))
 
 
-def decode_face_chunk(payload, state, model: ChunkDecoder, face_step: int) -> int:
-    """Decode a face chunk (spec §8.6) and append its faces to ``state`` (int64 values); ``face_step``:
-    the faces its index entry adds.  Returns the number of faces appended.  FormatError on any
-    invalid code, count or termination; ``model``'s split table is untouched."""
+def decode_face_chunk(payload, state, model: ChunkDecoder, vertex_step: int, face_step: int) -> int:
+    """Decode a face chunk (spec §8.6) onto ``state`` (int64 values): ``vertex_step`` / ``face_step``
+    the vertices / faces its index entry adds.  Returns the number of faces appended.  FormatError
+    on any invalid code, count or termination; ``model``'s split table is untouched."""
     lists = model.lists_for(state)
     n, m = state.n, state.m
-    dec = rc.Decoder(payload, rc.new_probs(FACE_PROBS))
+    t = int(vertex_step)
+    if t < 0 or n + t > len(state.positions):
+        raise FormatError("face chunk: its index entry adds more vertices than the primitive declares")
     room = min(int(face_step), len(state.faces) - m)
     if room < 1:
         raise FormatError("face chunk: its index entry adds no face")
+    dec = rc.Decoder(payload, rc.new_probs(FACE_PROBS))
     flat = state.faces[: m + room].reshape(-1)
     up, near = _face_scratch(lists, n)
-    got = rc._kernel(_face_kernel)(flat, m, n, lists.head, lists.nxt, lists.stamp, lists.tag, lists.ctr, _NO_ROWS, up, near,
-                                   _NO_STATE, _NO_BYTES, dec.ds, dec.buf, dec.probs, 1)
+    got = rc._kernel(_face_kernel)(flat, m, n, t, state.positions, lists.head, lists.nxt, lists.stamp, lists.tag,
+                                   lists.ctr, _NO_ROWS, _NO_RENAME, up, near, _NO_STATE, _NO_BYTES, dec.ds, dec.buf,
+                                   dec.probs, 1)
     if got < 0:
         raise FormatError(_FACE_ERRORS[got])
     dec.finish("face chunk")
-    state.m = m + got
+    state.n, state.m = n + t, m + got
     lists.n = -1  # rebuilt if a chunk that splits follows
     return got
 
 
 _NO_ROWS = np.zeros((0, 4), np.int64)
+_NO_RENAME = np.zeros(0, np.int64)

@@ -44,8 +44,11 @@ class ProgressiveMesh:
     face_order : (m - L,) int64
         Decoded face id -> input face id (of the faces the splits make).
     late_faces : (L, 3) int64
-        Faces in decoded ids that no split makes, appended after every batch by a face
-        chunk (bitstream.md §8.6); ``face_count`` counts them.
+        Faces that no split makes, appended after every batch by a face chunk (bitstream.md
+        §8.6), in decoded ids; ids ``n + j`` (``n``: the vertices the splits reach) name the
+        vertex of ``late_values[j]``.  ``vertex_count`` and ``face_count`` count them.
+    late_values : (t, D) int64
+        Values of the vertices only the late faces name.
     """
 
     grid: Grid
@@ -58,6 +61,7 @@ class ProgressiveMesh:
     vertex_order: Optional[np.ndarray] = None
     face_order: Optional[np.ndarray] = None
     late_faces: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int64))
+    late_values: Optional[np.ndarray] = None
 
     @property
     def split_count(self) -> int:
@@ -76,6 +80,7 @@ def build_progressive(
     base_faces_decoded: Optional[np.ndarray] = None,
     embed: Optional[EmbedHook] = None,
     late_faces: Optional[np.ndarray] = None,
+    late_values: Optional[np.ndarray] = None,
 ) -> ProgressiveMesh:
     """Replay ``log`` coarse to fine and emit :class:`SplitBatch` records.
 
@@ -94,7 +99,8 @@ def build_progressive(
     embed : EmbedHook, optional
         Moves the new vertices of each batch (watermark).
     late_faces : (L, 3) int64, optional
-        Input faces the log left out (the simplifier never saw them), sent after every batch.
+        Faces the log left out (the simplifier never saw them), sent after every batch; ids ``n + j``
+        name vertices the log does not have, whose values are ``late_values`` (t, D) int64.
     """
     n, m = log.vertex_count, log.face_count
     order0, vid, base_faces, base_face_ids = _base_ids(log, base_vertex_order, base_faces_decoded)
@@ -111,18 +117,21 @@ def build_progressive(
 
     if state.n != n or state.m != m or np.any(face_src < 0):
         raise AssertionError("progressive build did not reach the full mesh")  # a bug, not bad input
-    late = np.zeros((0, 3), np.int64) if late_faces is None else vid[np.asarray(late_faces, np.int64).reshape(-1, 3)]
+    t = 0 if late_values is None else len(late_values)
+    named = np.concatenate([vid, n + np.arange(t)])  # the late vertices keep their order (the packer renumbers)
+    late = np.zeros((0, 3), np.int64) if late_faces is None else named[np.asarray(late_faces, np.int64).reshape(-1, 3)]
     return ProgressiveMesh(
         grid=grid,
         base_positions=positions[order0].astype(np.int64),
         base_faces=base_faces,
         batches=batches,
-        vertex_count=n,
+        vertex_count=n + t,
         face_count=m + len(late),
         batch_errors=np.array(errors, dtype=np.float64),
         vertex_order=vid,
         face_order=face_src,
         late_faces=late,
+        late_values=None if late_values is None else np.asarray(late_values, np.int64),
     )
 
 

@@ -690,12 +690,13 @@ def twin_faces(faces: np.ndarray) -> np.ndarray:
     return twin
 
 
-def glued_pillows(faces: np.ndarray) -> np.ndarray:
-    """(m,) bool: the :func:`twin_faces` of ``faces`` (m, 3) int64 whose three vertices all have a face
-    outside the pillows.  The encoder of payload version 2 refines the mesh without them and sends
-    them in a face chunk at the end (spec bitstream.md §8.6): kept, they stay in the base with every
-    vertex they touch.  A flap's pillow (a tip with no other face) is not one: without it the tip
-    would be a vertex without faces."""
+def deferred_pillows(faces: np.ndarray) -> np.ndarray:
+    """(m,) bool: the :func:`twin_faces` of ``faces`` (m, 3) int64 that the encoder of payload version 2
+    keeps out of the simplification and sends in a face chunk after every split (spec bitstream.md
+    §8.6): every pillow with a vertex that has a face outside the pillows.  Kept, they stay in the
+    base with every vertex they touch.  A flap's tip (a vertex with pillow faces only) then has no
+    face left: the face chunk brings it.  Only pillows apart from every other face stay (a face chunk
+    names an existing vertex in each face)."""
     faces = np.asarray(faces, np.int64).reshape(-1, 3)
     twin = twin_faces(faces)
     if not twin.any():
@@ -703,7 +704,7 @@ def glued_pillows(faces: np.ndarray) -> np.ndarray:
     n = int(faces.max()) + 1
     elsewhere = np.zeros(n, bool)
     elsewhere[faces[~twin].ravel()] = True
-    return twin & elsewhere[faces].all(axis=1)
+    return twin & elsewhere[faces].any(axis=1)
 
 
 def _twin_counts(et, F, twin, n):

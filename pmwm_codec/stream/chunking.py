@@ -106,9 +106,10 @@ def chunk_meta(pm, groups, step: float) -> list:
     nv, nf = len(pm.base_positions), len(pm.base_faces)
     for grp in groups:
         chunk = [pm.batches[j] for j in grp]
-        nv += sum(b.size for b in chunk)
+        added = sum(b.size for b in chunk) if chunk else pm.vertex_count - nv
+        nv += added
         nf += sum(b.new_face_count() for b in chunk) if chunk else len(pm.late_faces)
         err = float(remaining[grp.stop]) * step if grp.stop < len(pm.batches) else 0.0
-        meta.append({"splits": int(sum(b.size for b in chunk)), "vertexCount": int(nv), "faceCount": int(nf),
+        meta.append({"splits": int(added), "vertexCount": int(nv), "faceCount": int(nf),
                      "geometricError": err, "batches": len(chunk)})
     return meta

@@ -45,7 +45,7 @@ from ..mesh import Mesh
 from ..progressive.build import ProgressiveMesh, build_progressive
 from ..progressive.grid import AttributeGrid, Grid
 from ..progressive.seams import twin_rows, weld_groups
-from ..progressive.simplify import CollapseLog, glued_pillows, simplify
+from ..progressive.simplify import CollapseLog, deferred_pillows, simplify
 from ..progressive.topology import mean_edge_length
 from ..watermark import codec as wm
 from ..watermark.key import KEY_FILE_MODE, KeySlot, WatermarkKey
@@ -144,9 +144,14 @@ class PrimitiveWork:
     embedder : Embedder or None
     pm : ProgressiveMesh
         Base plus split records.
+    core : (n_core,) int64
+        Input id of each vertex the simplifier saw (``values``, the log and ``late`` use their
+        order): every vertex but those only the late faces name.
     late : (L, 3) int64
-        Input faces kept out of the simplification (glued pillows, payload version 2 only),
-        sent in a face chunk after every split (bitstream.md §8.6).
+        Faces kept out of the simplification (pillows, payload version 2 only), sent in a face chunk
+        after every split (bitstream.md §8.6); ids ``n_core + j`` name ``late_values[j]``.
+    late_values : (t, D) int64
+        Values of the vertices only the late faces name (flaps' tips), in input order.
     """
 
     job: PrimitiveJob
@@ -161,7 +166,9 @@ class PrimitiveWork:
     params: wm.WatermarkParams | None = None
     embedder: wm.Embedder | None = None
     pm: ProgressiveMesh | None = None
+    core: np.ndarray | None = None
     late: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3), np.int64))
+    late_values: np.ndarray | None = None
 
 
 #: Grid bits of progressive attributes, by semantic prefix (others: 14).
@@ -314,22 +321,40 @@ def _quantize(mesh: Mesh, grid_bits: int) -> tuple:
 def _quantize_and_simplify(jobs, grid_bits: int, base_vertices, say, defer_pillows: bool = True) -> list:
     """Stage 1: one :class:`PrimitiveWork` per job with its grid, values and collapse log.
 
-    ``defer_pillows``: simplify without the :func:`~pmwm_codec.progressive.simplify.glued_pillows`,
-    which a face chunk sends at the end (payload version 2 only).
+    ``defer_pillows``: simplify without the :func:`~pmwm_codec.progressive.simplify.deferred_pillows`
+    and the vertices only they name, which a face chunk sends at the end (payload version 2 only).
     """
     work = []
     say("simplify", 0.0)
     for i, job in enumerate(jobs):
         grid, values, specs = _quantize(job.mesh, grid_bits)
-        n = job.mesh.vertex_count
-        target = default_base_target(n) if base_vertices is None else int(base_vertices)
         faces = job.mesh.faces
-        late = glued_pillows(faces) if defer_pillows else np.zeros(len(faces), bool)
-        log = simplify(values[:, :3], faces[~late], target_vertices=target, locked=job.locked,
-                       weld=weld_groups(job.mesh.positions))
-        work.append(PrimitiveWork(job, grid, values, specs, log, late=faces[late]))
+        late = deferred_pillows(faces) if defer_pillows else np.zeros(len(faces), bool)
+        core, local = _core_vertices(job.mesh.vertex_count, faces, late)
+        target = default_base_target(len(core)) if base_vertices is None else int(base_vertices)
+        locked = None if job.locked is None else job.locked[core]
+        log = simplify(values[core, :3], local[faces[~late]], target_vertices=target, locked=locked,
+                       weld=weld_groups(job.mesh.positions[core]))
+        tips = np.setdiff1d(np.arange(job.mesh.vertex_count), core)
+        work.append(PrimitiveWork(job, grid, values[core], specs, log, core=core, late=local[faces[late]],
+                                  late_values=values[tips]))
         say("simplify", (i + 1) / len(jobs))
     return work
+
+
+def _core_vertices(n: int, faces: np.ndarray, late: np.ndarray) -> tuple:
+    """``(core (n_core,) int64, local (n,) int64)``: the vertices of a mesh of ``n`` vertices and
+    ``faces`` (m, 3) that some face outside ``late`` (m,) bool names, or no face at all, ascending;
+    ``local`` numbers them ``0 … n_core - 1`` and the others (named by late faces only) after them,
+    in input order."""
+    only_late = np.zeros(n, bool)
+    only_late[faces[late].ravel()] = True
+    only_late[faces[~late].ravel()] = False
+    core = np.flatnonzero(~only_late)
+    local = np.empty(n, np.int64)
+    local[core] = np.arange(len(core))
+    local[only_late] = len(core) + np.arange(int(only_late.sum()))
+    return core, local
 
 
 def _encode_bases(work, base_codec: str) -> tuple:
@@ -454,7 +479,7 @@ def _build_records(work, say) -> list:
     for p, w in enumerate(work):
         pm = build_progressive(
             w.log, w.values, w.grid, base_vertex_order=w.base_order,
-            base_faces_decoded=w.base.faces, embed=w.embedder, late_faces=w.late,
+            base_faces_decoded=w.base.faces, embed=w.embedder, late_faces=w.late, late_values=w.late_values,
         )
         out.append(dataclasses.replace(w, pm=pm))
         say("records", (p + 1) / len(work))
@@ -465,7 +490,8 @@ def _primitives(doc, kept_bin, work, order, params, key, payload_version: int = 
     """Stage 6: payloads, index entries, extension objects.  Returns ``(prims, fileId)``."""
     prims = []
     for w in work:
-        chunks = [[w.pm.batches[j] for j in grp] if len(grp) else FaceChunk(w.pm.late_faces) for grp in w.groups]
+        chunks = [[w.pm.batches[j] for j in grp] if len(grp) else FaceChunk(w.pm.late_faces, w.pm.late_values)
+                  for grp in w.groups]
         if payload_version == 2:
             payloads = pack_chunks(w.pm.new_state(), chunks)
         else:
@@ -479,6 +505,8 @@ def _primitives(doc, kept_bin, work, order, params, key, payload_version: int = 
         }
         if w.attribute_grids:
             extension["attributes"] = w.attribute_grids
+        if len(w.late):
+            extension["firstFaceChunk"] = len(w.groups) - 1
         if w.base.welded_count is not None:  # readers weld the stored base's copies (spec README, "Welded base")
             extension["baseVertexCount"] = int(w.base.welded_count)
         if params is not None:
@@ -582,7 +610,7 @@ def _report(work, params, measure, say) -> EncodeReport:
                   "measure": "none"}
     if method != "none":
         say("measure", 0.0)
-        decoded = [decoded_positions(w.pm, w.grid) for w in work]
+        decoded = [_decoded_input_positions(w) for w in work]
         distortion = full_distortion(combined, combine_meshes([Mesh(d, m.faces) for d, m in zip(decoded, meshes)]),
                                      method)
         say("measure", 1.0)
@@ -601,6 +629,18 @@ def _report(work, params, measure, say) -> EncodeReport:
         vsplits=0, chunks=0, bytes=0, seconds=0.0, distortion=distortion, watermark=wm_report,
         batches=sum(len(w.pm.batches) for w in work),
     )
+
+
+def _decoded_input_positions(w: PrimitiveWork) -> np.ndarray:
+    """(n, 3) float64: the full decode of one primitive's positions in the input's vertex order (the
+    vertices the face chunk brings are on the grid, unmoved)."""
+    core = decoded_positions(w.pm, w.grid)
+    if w.core is None or len(core) == w.job.mesh.vertex_count:
+        return core
+    out = np.empty((w.job.mesh.vertex_count, 3))
+    out[w.core] = core
+    out[np.setdiff1d(np.arange(len(out)), w.core)] = w.grid.dequantize(w.late_values[:, :3])
+    return out
 
 
 def default_key_path(dst) -> str | None:

@@ -201,7 +201,7 @@ class Replay:
         scale = ext["watermark"]["scale"] if "watermark" in ext else None
         meta = ext["chunks"][event.chunk]
         out = []
-        face_chunk = payload_version(ext) == 2 and meta["splits"] == 0
+        face_chunk = meta.get("faces", False)
         if face_chunk:
             self._faces(p, event, meta)
         for batch, own_topo in () if face_chunk else self._batches(p, event):
@@ -229,11 +229,13 @@ class Replay:
     def _faces(self, p: int, event: ChunkEvent, meta: dict) -> None:
         """Apply a face chunk (bitstream.md §8.6) to the primitive's state (and its shadow)."""
         own = self.states[p] if self.given is None else self.shadows[p]
-        got = decode_face_chunk(event.payload, own, self.models[p], meta["faceCount"] - own.m)
-        if own is not self.states[p]:
+        n = own.n
+        got = decode_face_chunk(event.payload, own, self.models[p], meta["vertexCount"] - n, meta["faceCount"] - own.m)
+        if own is not self.states[p]:  # the given mesh: its own values for the new vertices
             state = self.states[p]
             state.faces[state.m : state.m + got] = own.faces[own.m - got : own.m]
-            state.m += got
+            state.positions[n : own.n] = self.given[p][n : own.n]
+            state.n, state.m = own.n, state.m + got
 
     def _batches(self, p: int, event: ChunkEvent):
         """Yield ``(SplitBatch, SplitTopology)`` per batch of the chunk, the batch applied (topology and
