@@ -115,7 +115,7 @@ export class PmwDecoder {
     const state = this.states[c.primitive];
     const payload = openChunk(stored, c, index);
     try {
-      if (c.payloadVersion === 2) this.coders[c.primitive].decodeChunk(payload, c); // splits, or faces (splits = 0)
+      if (c.payloadVersion === 2) this.coders[c.primitive].decodeChunk(payload, c); // splits, or a face chunk (c.faces)
       else state.applyPayload(unpackPayload(payload, state.D, state.capN));
     } catch (e) {
       if (e instanceof FormatError) e.message = `chunk ${index}: ${e.message}`;

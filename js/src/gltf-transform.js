@@ -9,7 +9,9 @@
  *   await io.write('out.pmw', await io.read('in.pmw'));
  *
  * Read: each progressive primitive gets a `ProgressiveMesh` extension property holding the
- * extension object without the chunks' `bufferView` indices (`getInfo()`), the stored chunk bytes
+ * extension object without the chunks' `bufferView` indices (`getInfo()`: every other property,
+ * `firstFaceChunk` among them, kept as read and written back; the chunk entries as header.js's
+ * chunkEntries normalises them, `faces` marking face chunks), the stored chunk bytes
  * as read (`getChunks()`: Uint8Array[], one zstd frame each), each chunk's place in the stream
  * (`getStreamOffsets()`: its BIN byte offset in the file read) and a fingerprint of the base mesh.
  *

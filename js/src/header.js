@@ -118,12 +118,20 @@ const TABLE_ARRAYS = [['byteLengths', 'byteLength'], ['vertexCounts', 'vertexCou
  * The per-chunk index entries of an extension object: its `chunks` array (payload version 1), or its
  * chunk table (version 2, spec/bitstream.md §6.2: packed, or JSON arrays) expanded to entries with `bufferView`,
  * `byteOffset` (inside it), `byteLength`, `digest`, counts, `geometricError`, `mac` (when the table
- * has MACs) and the derived `splits` and `uncompressedLength` (= byteLength).
+ * has MACs) and the derived `splits`, `uncompressedLength` (= byteLength) and `faces` (true for a
+ * face chunk: chunk k >= the extension's `firstFaceChunk`, spec/bitstream.md §8.6). FormatError when
+ * `firstFaceChunk` is present and not an integer in 0..MAX_CHUNKS, or present with payload version 1
+ * (beyond the chunk count it is valid: a cut file may keep no face chunk).
  * @param {object} ext @param {number} version payload version @param {number} baseVertices the base's vertex count
  */
 export function chunkEntries(ext, version, baseVertices, what = 'chunks') {
   const table = ext.chunks;
+  const firstFace = ext.firstFaceChunk; // absent: no face chunk (null is no integer: the schema)
+  if (firstFace !== undefined && !isInt(firstFace, 0, MAX_CHUNKS)) {
+    throw new FormatError(`${what}: firstFaceChunk is not an integer in 0..${MAX_CHUNKS}`);
+  }
   if (version !== 2) {
+    if (firstFace !== undefined) throw new FormatError(`${what}: firstFaceChunk needs chunk payload version 2`);
     if (!Array.isArray(table)) throw new FormatError(`${what}: chunks is not an array`);
     return table;
   }
@@ -143,6 +151,7 @@ export function chunkEntries(ext, version, baseVertices, what = 'chunks') {
     entry.splits = entry.vertexCount - previous;
     previous = entry.vertexCount;
     entry.uncompressedLength = entry.byteLength;
+    entry.faces = firstFace !== undefined && k >= firstFace;
     return entry;
   });
 }
@@ -198,6 +207,7 @@ function checkChunk(gltf, c, j, bufferLength, what, version = 1) {
   return {
     offset, length: c.byteLength, digest: c.digest, uncompressedLength: c.uncompressedLength,
     splits: c.splits, vertexCount: c.vertexCount, faceCount: c.faceCount, geometricError: c.geometricError,
+    faces: version === 2 && c.faces === true, // a face chunk (spec/bitstream.md §8.6)
   };
 }
 

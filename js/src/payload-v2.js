@@ -16,10 +16,11 @@
  * coder's state in locals, each marked vertex adding itself to its neighbours' counts; a split's
  * incidences are a slice of its corner list (face-slot order), so no scan of the corners.
  *
- * A chunk whose entry adds no vertex (splits = 0) is a face chunk (§8.6): faces between existing
- * vertices, coded against Up(a) / Near(a, b) of the mesh before it, under a table of its own
- * (FACE_PROBS, fresh per face chunk). It reads the same corner lists and leaves every kept count
- * (valences, corner counts) to be recounted by the next batch that splits.
+ * The primitive's chunks from `firstFaceChunk` on are face chunks (§8.6): faces coded against Up(a) /
+ * Near(a, b) of the mesh before them, or naming new vertices (fresh, numbered in the order the
+ * faces first name them, their values predicted by the mean of their earlier corners), under a
+ * table of its own (FACE_PROBS, fresh per face chunk). It reads the same corner lists and leaves
+ * every kept count (valences, corner counts) to be recounted by the next batch that splits.
  */
 import { FormatError, LimitError } from './errors.js';
 import { MAX_BATCHES_PER_CHUNK } from './constants.js';
@@ -47,17 +48,20 @@ const TWO32 = 4294967296;
 
 const block = (b) => P_INT + INT_BLOCK * b;
 
-// face chunk table layout (spec §8.6): single probabilities 0..2, integer blocks 0..4 (at block(B) too)
-const F_NEAR_B = 0; // b by its rank in Up(a), else a + 1 + UInt
-const F_NEAR_C = 1; // c by its rank in Near(a, b), else a + 1 + UInt
+// face chunk table layout (spec §8.6): single probabilities 0..3, integer blocks 0..8 (at block(B) too)
+const F_NEAR_B = 0; // b by its rank in Up(a), else Fresh / a + 1 + UInt
+const F_NEAR_C = 1; // c by its rank in Near(a, b), else Fresh / a + 1 + UInt
 const F_TWIN = 2; // the reverse face (a, c, b) follows
+const F_FRESH = 3; // a vertex not from a list is the next new vertex, else a + 1 + UInt(block 4)
 const FB_COUNT = 0; // coded faces minus one
 const FB_GAP = 1; // a minus the previous face's a
 const FB_RANK_B = 2; // rank in Up(a)
 const FB_RANK_C = 3; // rank in Near(a, b)
-const FB_RAW = 4; // x - a - 1 of a vertex coded without a list
-/** Size of a face chunk's own probability table: 32 single probabilities, 5 integer blocks. */
-export const FACE_PROBS = P_INT + 5 * INT_BLOCK;
+const FB_RAW = 4; // x - a - 1 of a vertex coded without a list (existing, or a new one already named)
+const FB_VALUE = 5; // + min(q, 3): residual of a new vertex's value q
+/** Size of a face chunk's own probability table: 32 single probabilities, 9 integer blocks. */
+export const FACE_PROBS = P_INT + 9 * INT_BLOCK;
+const TWO53 = 2 ** 53;
 /** Neighbour lists up to this long are sorted in place by insertion, longer ones by TypedArray sort. */
 const SHORT_LIST = 32;
 
@@ -141,7 +145,8 @@ export class ChunkDecoderV2 {
     this.epoch = 0;
     // scratch arrays (see #grow), declared here so that the object keeps one shape
     for (const name of ['off', 'nb', 'nc', 'deg', 'val', 'stamp', 'stamp2', 'v', 'gstart', 'inc', 'a', 'b', 'creators',
-      'wings', 'up', 'near']) this[name] = new Int32Array(0);
+      'wings', 'up', 'near', 'fstart', 'fnames']) this[name] = new Int32Array(0);
+    this.fresh = 0; // new vertices named so far by the face chunk being decoded
     this.vc = new Uint8Array(0);
     this.cnt = new Uint8Array(0);
     this.sym = new Uint8Array(0);
@@ -171,15 +176,16 @@ export class ChunkDecoderV2 {
 
   /**
    * Decodes one chunk's stored stream `buf` (Uint8Array) into the mesh, then checks its
-   * termination: batch after batch of splits, or, when its normalised index entry `entry` has
-   * splits = 0, the faces of a face chunk (§8.6; no entry: a chunk that splits). FormatError /
-   * LimitError on any invalid code, count or termination (the mesh may then be half changed: the
-   * decoder refuses to show it).
-   * @param {Uint8Array} buf @param {{splits: number, faceCount: number}} [entry]
+   * termination: batch after batch of splits, or, when its normalised index entry `entry` is
+   * marked `faces` (chunk k >= the primitive's `firstFaceChunk`, header.js), the faces and new
+   * vertices of a face chunk (§8.6; no entry: a chunk that splits). FormatError / LimitError on
+   * any invalid code, count or termination (the mesh may then be half changed: the decoder
+   * refuses to show it).
+   * @param {Uint8Array} buf @param {{faces?: boolean, vertexCount: number, faceCount: number}} [entry]
    */
   decodeChunk(buf, entry) {
-    if (entry !== undefined && entry.splits === 0) {
-      this.#faceChunk(buf, entry.faceCount);
+    if (entry !== undefined && entry.faces === true) {
+      this.#faceChunk(buf, entry.vertexCount, entry.faceCount);
       return;
     }
     const rc = new RangeDecoder(buf, this.probs);
@@ -192,18 +198,23 @@ export class ChunkDecoderV2 {
   }
 
   /**
-   * §8.6: a face chunk appending its faces to the mesh (n vertices, m faces) until `faceCount`,
-   * the entry's count after it. Up(a) is kept for the faces of one a (a never decreases, and both
-   * lists read the mesh before the chunk, which the appended faces do not change).
+   * §8.6: a face chunk appending its faces to the mesh (n vertices, m faces) until the entry's
+   * `faceCount`, and the t = `vertexCount` - n new vertices they name (fresh, numbered n, n+1, ...
+   * as the faces first name them), then those vertices' values. Up(a) is kept for the faces of
+   * one a (a never decreases, and both lists read the mesh before the chunk, which the appended
+   * faces do not change; a new vertex has no neighbours there).
    */
-  #faceChunk(buf, faceCount) {
+  #faceChunk(buf, vertexCount, faceCount) {
     const st = this.state;
-    const { n, m, faces, capM } = st;
+    const { n, m, faces, capN, capM } = st;
     this.#neighbours(n, m, true, this.degFor === n); // corner lists; valences are not read here
     this.valFor = -1; // the new faces change valences and corner counts: the next batch recounts
     this.degFor = -1;
     const rc = new RangeDecoder(buf, this.faceProbs.fill(PROB_ONE >> 1));
+    const t = vertexCount - n;
+    if (!(t >= 0)) throw new FormatError(`face chunk: its index entry's ${vertexCount} vertices are fewer than the mesh's ${n}`);
     const room = Math.min(faceCount, capM) - m; // the entry's face step (never past the declared count)
+    const vroom = Math.min(t, capN - n); // the new vertices the chunk may add (never past the declared count)
     const G = rc.uint(block(FB_COUNT), 'the face count') + 1;
     if (G > room) throw new FormatError(`face chunk: ${G} coded faces, more than the ${Math.max(room, 0)} its index entry adds`);
     const end = 3 * (m + room);
@@ -211,6 +222,7 @@ export class ChunkDecoderV2 {
     let a = 0;
     let upFor = -1;
     let k = 0;
+    this.fresh = 0;
     for (let i = 0; i < G; i++) {
       a += rc.uint(block(FB_GAP), 'a face gap');
       if (a >= n) throw new FormatError(`face chunk: vertex ${a} beyond the mesh's ${n}`);
@@ -224,15 +236,15 @@ export class ChunkDecoderV2 {
         if (r >= k) throw new FormatError(`face chunk: rank ${r} in Up(${a}) of ${k} vertices`);
         b = this.up[r];
       } else {
-        b = this.#rawVertex(rc, a, n);
+        b = this.#unlisted(rc, a, n, vroom);
       }
       let c;
       if (rc.bit(F_NEAR_C)) {
         const r = rc.uint(block(FB_RANK_C), 'a face rank');
-        c = this.#nearAt(a, b, k, r);
+        c = this.#nearAt(a, b, k, r, n);
         if (c < 0) throw new FormatError(`face chunk: rank ${r} beyond Near(${a}, ${b})`);
       } else {
-        c = this.#rawVertex(rc, a, n);
+        c = this.#unlisted(rc, a, n, vroom);
       }
       if (b === c) throw new FormatError(`face chunk: face (${a}, ${b}, ${c}) repeats a vertex`);
       const twin = rc.bit(F_TWIN);
@@ -242,15 +254,86 @@ export class ChunkDecoderV2 {
         faces[f] = a; faces[f + 1] = c; faces[f + 2] = b; f += 3;
       }
     }
+    if (this.fresh !== t) {
+      throw new FormatError(`face chunk: ${this.fresh} new vertices, fewer than the ${t} its index entry adds`);
+    }
+    if (t > 0) this.#freshValues(rc, n, t, 3 * m, f);
     rc.finish();
     st.m = f / 3;
+    st.n = n + t;
   }
 
-  /** A face vertex coded without a list: a + 1 + UInt(block 4), FormatError unless below n. */
-  #rawVertex(rc, a, n) {
+  /**
+   * A face vertex not taken from a list (§8.6 Vertex): the next new vertex n + fresh (bit 3 set;
+   * FormatError past `vroom` new vertices), else a + 1 + UInt(block 4): an existing vertex or a new
+   * one already named (as the reference decoder reads it), FormatError unless below n + fresh.
+   */
+  #unlisted(rc, a, n, vroom) {
+    if (rc.bit(F_FRESH)) {
+      if (this.fresh >= vroom) throw new FormatError(`face chunk: more new vertices than the ${vroom} its index entry adds`);
+      return n + this.fresh++;
+    }
     const x = a + 1 + rc.uint(block(FB_RAW), 'a face vertex');
-    if (x >= n) throw new FormatError(`face chunk: vertex ${x} beyond the mesh's ${n}`);
+    if (x >= n + this.fresh) throw new FormatError(`face chunk: vertex ${x} beyond the mesh's ${n} and the ${this.fresh} new ones named`);
     return x;
+  }
+
+  /**
+   * §8.6 "Values": the D values of the new vertices u = n .. n+t-1 in order, each q predicted by
+   * floor(S[q] / c) over the corners p < u of the chunk's faces (corners f0 .. f1 of faces) that
+   * name u, once per naming. The faces naming each u are listed first (fstart / fnames, one
+   * scatter), so that every sum reads values already decoded.
+   */
+  #freshValues(rc, n, t, f0, f1) {
+    const { faces, values, D, capN, capM } = this.state;
+    const fstart = this.#grow('fstart', t + 1, Int32Array, capN + 1);
+    const fnames = this.#grow('fnames', (2 * (f1 - f0)) / 3, Int32Array, 2 * capM);
+    fstart.fill(0, 0, t + 1);
+    for (let x = f0; x < f1; x++) if (faces[x] >= n) fstart[faces[x] - n + 1]++;
+    for (let i = 0; i < t; i++) fstart[i + 1] += fstart[i];
+    for (let x = f0; x < f1; x++) if (faces[x] >= n) fnames[fstart[faces[x] - n]++] = x - (x % 3); // the face's first corner
+    for (let i = t; i > 0; i--) fstart[i] = fstart[i - 1]; // back to the starts
+    fstart[0] = 0;
+    const S = this.sums;
+    for (let i = 0; i < t; i++) {
+      const u = n + i;
+      S.fill(0);
+      let c = 0;
+      for (let g = fstart[i]; g < fstart[i + 1]; g++) {
+        const h = fnames[g];
+        for (let j = 0; j < 3; j++) {
+          const p = faces[h + j];
+          if (p >= u) continue; // u itself, or a new vertex after it
+          const pp = p * D;
+          for (let q = 0; q < D; q++) S[q] += values[pp + q];
+          c++;
+        }
+      }
+      if (c === 0) throw new FormatError(`face chunk: new vertex ${u} has no earlier corner to predict it from`);
+      for (let q = 0; q < D; q++) {
+        const pred = Math.abs(S[q]) < TWO53 ? Math.floor(S[q] / c) : this.#wideMean(fstart[i], fstart[i + 1], u, q, c);
+        this.#put(rc, u * D + q, pred, block(FB_VALUE + Math.min(q, 3)));
+      }
+    }
+  }
+
+  /**
+   * floor(S[q] / c) with the exact integer sum S[q] (BigInt) of the corners p < u of the faces
+   * fnames[g0 .. g1): only when the float64 sum reached 2^53 (a hostile stream's values and valence).
+   */
+  #wideMean(g0, g1, u, q, c) {
+    const { faces, values, D } = this.state;
+    let s = 0n;
+    for (let g = g0; g < g1; g++) {
+      for (let j = 0; j < 3; j++) {
+        const p = faces[this.fnames[g] + j];
+        if (p < u) s += BigInt(values[p * D + q]);
+      }
+    }
+    const C = BigInt(c);
+    let r = s / C; // truncates toward zero
+    if (s % C !== 0n && s < 0n) r -= 1n;
+    return Number(r);
   }
 
   /**
@@ -278,10 +361,11 @@ export class ChunkDecoderV2 {
    * x > a, x != b sharing a face with b, ascending (sorted into this.near only when r falls among
    * them), then those of Up(a) (this.up, k) other than b sharing no face with b, in Up's order.
    */
-  #nearAt(a, b, k, r) {
+  #nearAt(a, b, k, r, n) {
     const { off, nb, stamp, up } = this;
-    const near = this.#grow('near', off[b + 1] - off[b], Int32Array, 6 * this.state.capM);
+    if (b >= n) return r < k ? up[r] : -1; // a new vertex: no neighbours, and not in Up(a)
     const e = this.#nextEpoch();
+    const near = this.#grow('near', off[b + 1] - off[b], Int32Array, 6 * this.state.capM);
     stamp[b] = e;
     let count = 0;
     for (let t = off[b], end = off[b + 1]; t < end; t++) {

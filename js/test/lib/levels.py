@@ -45,11 +45,16 @@ def _load_golden():
 golden = _load_golden()
 
 
-def _glued_pillows(count: int, seed: int, share: bool) -> Mesh:
+def _glued_pillows(count: int, seed: int, share: bool, flaps: int = 0, attributes: bool = False) -> Mesh:
     """An icosphere with up to ``count`` glued pillows: the faces (x, y, z) and (x, z, y) on a path
     x-y-z of surface edges (x, z not adjacent), so that all three vertices have other faces and the
     encoder sends the pair in a face chunk (spec/bitstream.md §8.6).  Unless ``share``, no two
-    pillows touch each other's vertices or neighbours; with it they may share vertices."""
+    pillows touch each other's vertices or neighbours; with it they may share vertices.
+
+    ``flaps``: as many flaps, pillows (x, y, tip) + (y, x, tip) on a surface edge x-y whose tip is a
+    vertex of their own just off the surface (named by no other face: the face chunk adds it); with
+    ``share``, also a tip named by two flaps and a pillow with two tips (x, t, w) + (x, w, t).
+    ``attributes``: a TEXCOORD_0 and a NORMAL per vertex, tips included (D = 8)."""
     rng = np.random.default_rng(seed)
     sphere = shapes.icosphere(3, 1.0, noise=0.02, seed=seed)
     ring = shapes._rings(sphere.faces, sphere.vertex_count)
@@ -64,7 +69,31 @@ def _glued_pillows(count: int, seed: int, share: bool) -> Mesh:
             continue
         extra += [(x, y, z), (x, z, y)]
         used |= {x, y, z} | ring[x] | ring[y] | ring[z]
-    return Mesh(sphere.positions, np.concatenate([sphere.faces, np.array(extra, np.int64)]))
+    V = [p for p in sphere.positions]
+    tips = 0
+    for f in rng.permutation(len(sphere.faces)).tolist():
+        if tips >= flaps:
+            break
+        x, y, z = sphere.faces[f].tolist()
+        if not share and ({x, y} | ring[x] | ring[y]) & used:
+            continue
+        t = len(V)
+        V.append(0.54 * (V[x] + V[y]) + 0.01 * rng.standard_normal(3))
+        extra += [(x, y, t), (y, x, t)]
+        used |= {x, y} | ring[x] | ring[y]
+        tips += 1
+        if share and tips == 2:  # the tip named by a second flap on edge y-z, and a pillow with two tips
+            extra += [(y, z, t), (z, y, t)]
+            w1, w2 = len(V), len(V) + 1
+            V += [0.5 * (V[x] + V[z]) + 0.02, 0.5 * (V[x] + V[z]) - 0.02]
+            extra += [(x, w1, w2), (x, w2, w1)]
+    P = np.array(V)
+    faces = np.concatenate([sphere.faces, np.array(extra, np.int64).reshape(-1, 3)])
+    if not attributes:
+        return Mesh(P, faces)
+    normals = P / np.linalg.norm(P, axis=1, keepdims=True)
+    uv = np.stack([0.5 + np.arctan2(P[:, 1], P[:, 0]) / (2 * np.pi), 0.5 + 0.5 * P[:, 2]], 1)
+    return Mesh(P, faces, attributes={"TEXCOORD_0": uv, "NORMAL": normals})
 
 
 #: name -> (mesh or list of meshes (one primitive each), encoder options)
@@ -78,6 +107,9 @@ CASES = {
         base_codec="draco", watermark=golden._stripes(16), key=WatermarkKey.generate(rng=np.random.default_rng(7)))),
     "pillows.plain": lambda: (_glued_pillows(12, 3, False), dict(base_codec="plain")),
     "pillows-shared.draco": lambda: (_glued_pillows(40, 11, True), dict(base_codec="draco")),
+    "flaps.plain": lambda: (_glued_pillows(6, 5, False, flaps=6), dict(base_codec="plain")),
+    "flaps-shared.draco": lambda: (_glued_pillows(30, 13, True, flaps=12), dict(base_codec="draco")),
+    "flaps-attributes.plain": lambda: (_glued_pillows(8, 17, False, flaps=5, attributes=True), dict(base_codec="plain")),
 }
 
 

@@ -70,10 +70,11 @@ export function dependentBatches() {
 }
 
 /**
- * Face chunks written by the reference encoder (lib/face_chunks.py): `tetrahedron` gives {chunk
- * (hex)}, the spec's example (spec/bitstream.md §8.6); `sequence` gives {D, capN, capM, base:
- * {values, faces}, chunks: [{chunk (hex), splits, faceCount, values, faces}]}, one primitive's chunks
- * with face chunks between chunks that split, each with the mesh after it as the reference decoder gives it.
+ * Face chunks written by the reference encoder (lib/face_chunks.py): `tetrahedron` gives {chunk,
+ * flap (hex)}, the spec's examples (spec/bitstream.md §8.6); `sequence` gives {D, capN, capM, base:
+ * {values, faces}, chunks: [{chunk (hex), face, splits, vertexCount, faceCount, values, faces}]}, one
+ * primitive's chunks with face chunks (some adding vertices) between chunks that split, each with
+ * the mesh after it as the reference decoder gives it.
  */
 export function faceChunks(command) {
   return JSON.parse(run([join(dirname(fileURLToPath(import.meta.url)), 'face_chunks.py'), command]));

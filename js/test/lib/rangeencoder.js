@@ -111,21 +111,33 @@ export class RangeEncoder {
 
 const block = (b) => 32 + 256 * b;
 
+/** Size of a face chunk's probability table (spec §8.6): 32 single probabilities, 9 integer blocks. */
+export const FACE_TABLE = 32 + 9 * 256;
+
 /**
  * The stored bytes of a face chunk (spec §8.6) coding `faces`: each {gap, b, c, twin} with b / c
- * either {rank} (bit 1, the rank in Up(a) / Common(a, b)) or {raw} (bit 0, x - a - 1); `count`
- * overrides the coded G (default faces.length). No check: hostile streams are the point.
+ * either {rank} (bit 1, the rank in Up(a) / Near(a, b)), {fresh: true} (bits 0 and 1: the next new
+ * vertex) or {raw} (bits 0 and 0, x - a - 1); `count` overrides the coded G (default
+ * faces.length); `residuals` (one array of D residuals per new vertex, in order) follow the faces,
+ * residual q under block `valueBlock(q)` (spec: 5 + min(q, 3); another only to show that a
+ * decoder tells them apart). No check: hostile streams are the point.
  */
-export function faceChunkBytes(faces, count = faces.length) {
-  const e = new RangeEncoder(32 + 5 * 256);
+export function faceChunkBytes(faces, count = faces.length, residuals = [], valueBlock = (q) => 5 + Math.min(q, 3)) {
+  const e = new RangeEncoder(FACE_TABLE + 8 * 256); // room for a valueBlock past the table's 9 blocks
   e.uint(block(0), count - 1);
   for (const { gap, b, c, twin } of faces) {
     e.uint(block(1), gap);
     for (const [x, near, rankBlock] of [[b, 0, 2], [c, 1, 3]]) {
       e.bit(near, 'rank' in x ? 1 : 0);
-      e.uint(block('rank' in x ? rankBlock : 4), 'rank' in x ? x.rank : x.raw);
+      if ('rank' in x) {
+        e.uint(block(rankBlock), x.rank);
+        continue;
+      }
+      e.bit(3, x.fresh ? 1 : 0);
+      if (!x.fresh) e.uint(block(4), x.raw);
     }
     e.bit(2, twin ? 1 : 0);
   }
+  for (const row of residuals) row.forEach((r, q) => e.sint(block(valueBlock(q)), r));
   return e.finish();
 }

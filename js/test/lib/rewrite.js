@@ -103,8 +103,38 @@ function withV2Payload(bytes, h, gltf, plan, c, table, payload, patch) {
   return glb(gltf, bin);
 }
 
+/**
+ * `bytes` with its glTF JSON changed by `mutate(gltf, plan)` (on a copy; plan: planDocument of the
+ * original), the BIN kept: e.g. an extension property or a chunk table's counts (packed tables:
+ * use `setTableCounts`).
+ */
+export function withJson(bytes, mutate) {
+  const h = parseGlb(bytes);
+  const gltf = structuredClone(h.gltf);
+  mutate(gltf, planDocument(h.gltf, h.binLength));
+  return glb(gltf, bytes.subarray(h.binStart, h.binStart + h.binLength));
+}
+
+/**
+ * Sets chunk k's vertexCount / faceCount in a version 2 chunk table `table` (packed or arrays), in
+ * place; its digests and MACs are kept (a MAC then fails, which tests of unkeyed files never see).
+ */
+export function setTableCounts(table, k, vertexCount, faceCount) {
+  if (!('packed' in table)) {
+    table.vertexCounts[k] = vertexCount;
+    table.faceCounts[k] = faceCount;
+    return;
+  }
+  const cols = unpackChunkTable(table.count, table.packed);
+  cols.vertexCount[k] = vertexCount;
+  cols.faceCount[k] = faceCount;
+  Object.assign(table, packChunkTable(cols.byteLength.map((byteLength, j) => ({
+    byteLength, vertexCount: cols.vertexCount[j], faceCount: cols.faceCount[j], geometricError: cols.geometricError[j],
+    digest: cols.digest[j], mac: cols.mac?.[j] }))));
+}
+
 /** A GLB of a glTF JSON object and its BIN bytes (4-byte aligned). */
-function glb(gltf, bin) {
+export function glb(gltf, bin) {
   const padded = (n) => (n + 3) & ~3;
   let json = new TextEncoder().encode(JSON.stringify(gltf));
   const jsonPadded = new Uint8Array(padded(json.length)).fill(0x20);
