@@ -370,3 +370,34 @@ def test_a_cut_before_or_after_the_face_chunk_decodes_to_that_level_and_keeps_it
         assert np.array_equal(got.faces, levels[keep].faces)
         report = verify_stream(io.BytesIO(cut), key)
         assert report.mac["failed"] == [] and report.mac["checked"] == keep + 1
+
+
+def test_reverse_pairs_pair_each_triple_s_rarer_orientation():
+    from pmwm_codec.progressive.simplify import reverse_pairs
+
+    faces = np.array([[0, 1, 2], [0, 2, 1], [1, 2, 0],  # a pillow and a duplicate: one pair
+                      [3, 4, 5], [3, 5, 4], [4, 3, 5], [3, 4, 5],  # two pillows on one triple
+                      [6, 7, 8], [7, 8, 6],  # a face twice, the same way: no pair
+                      [0, 1, 3]])
+    assert reverse_pairs(faces).tolist() == [True, True, False, True, True, True, True, False, False, False]
+    assert np.array_equal(reverse_pairs(faces[:2]), twin_faces(faces[:2]))
+
+
+def test_pillows_laid_on_surface_faces_leave_the_surface_whole_in_every_level():
+    """A pillow on a triple that is also a surface face (three faces there: the scans' "pillow plus
+    duplicate") makes three non-manifold edges; deferring the pair leaves the surface face, so no
+    level before the face chunk has an edge of more than two faces, and the last is the input."""
+    from pmwm_codec import shapes
+    from pmwm_codec.progressive.topology import edge_table
+
+    sphere = shapes.icosphere(3, 1.0, noise=0.02)
+    picked = sphere.faces[::23]
+    mesh = pmwm_codec.mesh.Mesh(sphere.positions, np.concatenate([sphere.faces, picked[:, [0, 2, 1]], picked]))
+    data, _ = _encode(mesh, 2)
+    levels = _levels(data)
+    for level in levels[:-1]:
+        assert edge_table(level.faces, level.vertices).count.max() <= 2
+    grid = read_header(data).extension["grid"]
+    original = np.round((mesh.positions - grid["origin"]) / grid["step"]).astype(np.int64)
+    assert face_set(levels[-1].positions_int, levels[-1].faces) == face_set(original, mesh.faces)
+    assert levels[0].vertices <= 64

@@ -27,7 +27,9 @@ A collapse is legal when
   or inconsistently oriented edge; non-manifold parts simply stay in the base, except
   doubled-face "pillows" (:func:`twin_faces`) glued onto an interior disk along its edges or
   hanging from one of them as a flap: they move with ``u`` (the VRIP dragons carry ~900
-  at 23k vertices; their base: 4,027 -> 1,670 vertices at grid 14);
+  at 23k vertices; their base: 4,027 -> 1,670 vertices at grid 14).  The encoder of payload
+  version 2 does not need this: it simplifies without the pillows (:func:`deferred_pillows`)
+  and sends them in a face chunk (701 vertices);
 * if ``u`` is on a boundary, ``uv`` is a boundary edge (holes are never closed
   and boundaries never pinched);
 * the link condition holds: ``u`` and ``v`` share exactly the neighbours opposite
@@ -691,20 +693,48 @@ def twin_faces(faces: np.ndarray) -> np.ndarray:
 
 
 def deferred_pillows(faces: np.ndarray) -> np.ndarray:
-    """(m,) bool: the :func:`twin_faces` of ``faces`` (m, 3) int64 that the encoder of payload version 2
-    keeps out of the simplification and sends in a face chunk after every split (spec bitstream.md
-    §8.6): every pillow with a vertex that has a face outside the pillows.  Kept, they stay in the
+    """(m,) bool: the pillows of ``faces`` (m, 3) int64 (:func:`reverse_pairs`) that the encoder of payload
+    version 2 keeps out of the simplification and sends in a face chunk after every split (spec
+    bitstream.md §8.6): every pillow with a vertex that has a face outside the pillows.  Kept, they stay in the
     base with every vertex they touch.  A flap's tip (a vertex with pillow faces only) then has no
     face left: the face chunk brings it.  Only pillows apart from every other face stay (a face chunk
     names an existing vertex in each face)."""
     faces = np.asarray(faces, np.int64).reshape(-1, 3)
-    twin = twin_faces(faces)
+    twin = reverse_pairs(faces)
     if not twin.any():
         return twin
     n = int(faces.max()) + 1
     elsewhere = np.zeros(n, bool)
     elsewhere[faces[~twin].ravel()] = True
     return twin & elsewhere[faces].any(axis=1)
+
+
+def reverse_pairs(faces: np.ndarray) -> np.ndarray:
+    """(m,) bool: faces of ``faces`` (m, 3) int64 paired with a face on the same three vertices facing the
+    other way, as many pairs per vertex triple as its rarer orientation has faces (a pillow with a
+    duplicate face beside it, or two pillows on one triple, as scans leave them: 169 triples of three
+    faces on the 23k dragon besides its 868 lone pillows).  :func:`twin_faces` is the case of a triple
+    with exactly these two faces."""
+    faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    m = len(faces)
+    out = np.zeros(m, bool)
+    if m < 2:
+        return out
+    rot = face_keys(faces)
+    flip = (rot[:, 1] > rot[:, 2]).astype(np.int64)
+    key = np.stack([rot[:, 0], np.minimum(rot[:, 1], rot[:, 2]), np.maximum(rot[:, 1], rot[:, 2])], 1)
+    order = np.lexsort((flip, key[:, 2], key[:, 1], key[:, 0]))
+    k, f = key[order], flip[order]
+    new_triple = np.r_[True, np.any(k[1:] != k[:-1], axis=1)]
+    new_side = new_triple | np.r_[True, f[1:] != f[:-1]]
+    triple = np.cumsum(new_triple) - 1
+    side_start = np.flatnonzero(new_side)
+    rank = np.arange(m) - side_start[np.cumsum(new_side) - 1]  # place within (triple, orientation)
+    ones = np.bincount(triple, weights=f, minlength=triple[-1] + 1).astype(np.int64)
+    size = np.bincount(triple, minlength=triple[-1] + 1)
+    pairs = np.minimum(ones, size - ones)
+    out[order[rank < pairs[triple]]] = True
+    return out
 
 
 def _twin_counts(et, F, twin, n):
