@@ -29,7 +29,7 @@ A collapse is legal when
   hanging from one of them as a flap: they move with ``u`` (the VRIP dragons carry ~900
   at 23k vertices; their base: 4,027 -> 1,670 vertices at grid 14).  The encoder of payload
   version 2 does not need this: it simplifies without the pillows (:func:`deferred_pillows`)
-  and sends them in a face chunk (701 vertices);
+  and sends them in a face chunk (227 vertices);
 * if ``u`` is on a boundary, ``uv`` is a boundary edge (holes are never closed
   and boundaries never pinched);
 * the link condition holds: ``u`` and ``v`` share exactly the neighbours opposite
