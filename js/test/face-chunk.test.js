@@ -39,7 +39,7 @@ import { FormatError, PmwDecoder, PmwError } from '../src/index.js';
 import { chunkEntries, parseGlb, planDocument } from '../src/header.js';
 import { ChunkDecoderV2, FACE_PROBS } from '../src/payload-v2.js';
 import { MeshState } from '../src/vsplit.js';
-import { CONFORMANCE, conformanceFiles, levelDigest, seededRandom } from './lib/helpers.js';
+import { CONFORMANCE, conformanceFiles, failure, jsLevels, levelDigest, seededRandom } from './lib/helpers.js';
 import { TREE, decodeFiles, encodeCase, faceChunks, pythonHasPayloadV2 } from './lib/python.js';
 import { FACE_TABLE, RangeEncoder, faceChunkBytes } from './lib/rangeencoder.js';
 import { chunkPayloads, setTableCounts, withJson, withPayload } from './lib/rewrite.js';
@@ -139,16 +139,6 @@ function encodedCase(name) {
   return encoded.get(name);
 }
 
-/** Every level the JS decoder gives for `bytes` fed whole, as levels.py prints them, and close(). */
-async function jsLevels(bytes) {
-  const d = new PmwDecoder({ snapshots: true });
-  const results = await d.feed(bytes);
-  const levels = results.map((r) => ({
-    bytesRead: r.bytesRead, vertexCount: r.vertexCount, faceCount: r.faceCount,
-    parts: r.parts.map((p) => [p.vertexCount, p.faceCount]), sha256: levelDigest(r.mesh),
-  }));
-  return { levels, end: d.close(), last: results[results.length - 1].mesh };
-}
 
 /** The (first) progressive primitive's extension object. */
 const extensionOf = (bytes) => parseGlb(bytes).gltf.meshes[0].primitives[0].extensions.PMWM_progressive_mesh;
@@ -539,19 +529,6 @@ test('Near(a, b) lists b\'s neighbours above a, then the rest of Up(a): ranks ov
   assert.deepEqual(decode([{ gap: 0, b: { rank: 3 }, c: { rank: 0 }, twin: 0 }, { gap: 0, b: { rank: 1 }, c: { raw: 3 }, twin: 0 },
     { gap: 2, b: { rank: 0 }, c: { rank: 0 }, twin: 0 }], 3), [0, 4, 3, 0, 2, 4, 2, 3, 4]);
 });
-
-/** Decodes `bytes` whole: the error thrown (a PmwError), or null. */
-async function failure(bytes) {
-  try {
-    const d = new PmwDecoder();
-    await d.feed(bytes);
-    d.close();
-    return null;
-  } catch (e) {
-    if (!(e instanceof PmwError)) throw e;
-    return e;
-  }
-}
 
 test('hostile face chunks in a file are FormatErrors of their chunk; a damaged face chunk is refused by both decoders or by neither', { skip }, async () => {
   const { bytes } = encodedCase('flaps-shared.draco');

@@ -17,7 +17,7 @@ import { CorruptChunkError, FormatError, PmwDecoder, PmwError, TruncatedError, U
 import { parseGlb, planDocument } from '../src/header.js';
 import { ChunkDecoderV2 } from '../src/payload-v2.js';
 import { MeshState } from '../src/vsplit.js';
-import { levelDigest, seededRandom } from './lib/helpers.js';
+import { failure, jsLevels, levelDigest, seededRandom } from './lib/helpers.js';
 import { decodeFiles, dependentBatches, encodeCase, pythonHasPayloadV2 } from './lib/python.js';
 import { chunkPayloads, withPayload } from './lib/rewrite.js';
 
@@ -38,16 +38,6 @@ function encodedCase(name, version = 2) {
   return encoded.get(key);
 }
 
-/** Every level the JS decoder gives for `bytes` fed whole: {levels, end} as levels.py prints them. */
-async function jsLevels(bytes) {
-  const d = new PmwDecoder({ snapshots: true });
-  const results = await d.feed(bytes);
-  const levels = results.map((r) => ({
-    bytesRead: r.bytesRead, vertexCount: r.vertexCount, faceCount: r.faceCount,
-    parts: r.parts.map((p) => [p.vertexCount, p.faceCount]), sha256: levelDigest(r.mesh),
-  }));
-  return { levels, end: d.close() };
-}
 
 /** The payload versions of a file's progressive primitives. */
 function payloadVersions(bytes) {
@@ -93,19 +83,6 @@ test('every prefix of a version 2 file gives the levels of its whole chunks, or 
     assert.equal(levelDigest(d.snapshot()), want.levels[shown.length - 1].sha256, `cut ${cut}`);
   }
 });
-
-/** Decodes `bytes` whole: the error thrown (a PmwError), or null. */
-async function failure(bytes) {
-  try {
-    const d = new PmwDecoder();
-    await d.feed(bytes);
-    d.close();
-    return null;
-  } catch (e) {
-    if (!(e instanceof PmwError)) throw e;
-    return e;
-  }
-}
 
 test('a version 2 chunk is stored raw: a changed byte fails its digest, a chunk table whose arrays disagree is a FormatError', { skip }, async () => {
   const { bytes } = encodedCase('boundaries.plain');

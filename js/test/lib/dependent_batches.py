@@ -16,14 +16,16 @@ from pmwm_codec.progressive.vsplit import MeshState, SplitBatch, apply_batch, fi
 SIDE = 5
 
 
-def grid():
-    """A SIDE x SIDE grid of vertices on z = x * y (int64 (n, 3)), two triangles per cell (int64 (m, 3))."""
-    values = np.array([(4 * x, 4 * y, x * y) for y in range(SIDE) for x in range(SIDE)], np.int64)
+def grid(side: int = SIDE, extra: bool = False):
+    """A side x side grid of vertices on z = x * y (int64 (n, 3); with ``extra`` two more columns
+    x + 3y and -7x), two triangles per cell (int64 (m, 3))."""
+    values = np.array([(4 * x, 4 * y, x * y) + ((x + 3 * y, -7 * x) if extra else ())
+                       for y in range(side) for x in range(side)], np.int64)
     faces = []
-    for y in range(SIDE - 1):
-        for x in range(SIDE - 1):
-            p = y * SIDE + x
-            faces += [(p, p + 1, p + SIDE + 1), (p, p + SIDE + 1, p + SIDE)]
+    for y in range(side - 1):
+        for x in range(side - 1):
+            p = y * side + x
+            faces += [(p, p + 1, p + side + 1), (p, p + side + 1, p + side)]
     return values, np.array(faces, np.int64)
 
 

@@ -27,6 +27,8 @@ from pmwm_codec.format.records_v2 import (
 )
 from pmwm_codec.progressive.vsplit import MeshState, SplitBatch, apply_batch, find_incidences
 
+import dependent_batches
+
 SIDE = 6
 D = 5
 TETRAHEDRON = [(0, 1, 2), (0, 2, 3), (0, 3, 1), (1, 3, 2)]
@@ -35,13 +37,7 @@ TETRAHEDRON = [(0, 1, 2), (0, 2, 3), (0, 3, 1), (1, 3, 2)]
 def grid():
     """A SIDE x SIDE grid of vertices on z = x * y with two more columns (int64 (n, D)), two
     triangles per cell (int64 (m, 3))."""
-    values = np.array([(4 * x, 4 * y, x * y, x + 3 * y, -7 * x) for y in range(SIDE) for x in range(SIDE)], np.int64)
-    faces = []
-    for y in range(SIDE - 1):
-        for x in range(SIDE - 1):
-            p = y * SIDE + x
-            faces += [(p, p + 1, p + SIDE + 1), (p, p + SIDE + 1, p + SIDE)]
-    return values, np.array(faces, np.int64)
+    return dependent_batches.grid(SIDE, extra=True)
 
 
 def batch(state, v):

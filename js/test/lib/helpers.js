@@ -2,6 +2,7 @@
 import { createHash } from 'node:crypto';
 import { readdirSync } from 'node:fs';
 import { join } from 'node:path';
+import { PmwDecoder, PmwError } from '../../src/index.js';
 import { TREE } from './python.js';
 
 /** spec/conformance of the repository under test (TREE: this one, or $PMW_PYTHONPATH's). */
@@ -51,4 +52,31 @@ export function seededRandom(seed) {
     t = (t + Math.imul(t ^ (t >>> 7), 61 | t)) ^ t;
     return ((t ^ (t >>> 14)) >>> 0) / 4294967296;
   };
+}
+
+/** Decodes `bytes` whole: the error thrown (a PmwError), or null. */
+export async function failure(bytes) {
+  try {
+    const d = new PmwDecoder();
+    await d.feed(bytes);
+    d.close();
+    return null;
+  } catch (e) {
+    if (!(e instanceof PmwError)) throw e;
+    return e;
+  }
+}
+
+/**
+ * Every level the JS decoder gives for `bytes` fed whole, as levels.py prints them:
+ * {levels, end (close()'s result), last (the last level's mesh)}.
+ */
+export async function jsLevels(bytes) {
+  const d = new PmwDecoder({ snapshots: true });
+  const results = await d.feed(bytes);
+  const levels = results.map((r) => ({
+    bytesRead: r.bytesRead, vertexCount: r.vertexCount, faceCount: r.faceCount,
+    parts: r.parts.map((p) => [p.vertexCount, p.faceCount]), sha256: levelDigest(r.mesh),
+  }));
+  return { levels, end: d.close(), last: results[results.length - 1].mesh };
 }
