@@ -1222,8 +1222,12 @@ class FaceChunk:
         self.values = None if values is None else np.asarray(values, np.int64)
 
 
-def _face_scratch(lists, n: int) -> tuple:
-    size = 2 * int(lists.valence[:n].max()) + 1 if n else 1  # Near(a, b) <= |N(a)| + |N(b)|
+def _face_scratch(state) -> tuple:
+    """Scratch for ``Up`` / ``Near`` over ``state``'s mesh: (s,) int64 twice.  A vertex in ``c`` faces
+    has at most ``2c`` neighbours, and ``Near(a, b)`` at most those of both; sized from the faces
+    themselves, so no count kept elsewhere can make a kernel write past the end."""
+    corners = np.bincount(state.faces[: state.m].ravel(), minlength=state.n)
+    size = 4 * int(corners.max()) + 1 if len(corners) else 1
     return np.empty(size, np.int64), np.empty(size, np.int64)
 
 
@@ -1245,7 +1249,7 @@ def _pack_face_chunk(state, lists, chunk: FaceChunk) -> tuple:
         raise ValueError("payload v2: the face chunk exceeds the primitive's counts")
     enc = rc.Encoder(rc.new_probs(FACE_PROBS))
     enc.reserve((4 * INT_DECISIONS + 5) * len(rows) + INT_DECISIONS * (1 + D * t))
-    up, near = _face_scratch(lists, n)
+    up, near = _face_scratch(state)
     rename = np.full(t, -1, np.int64)
     state.positions[n : n + t] = values
     got = rc._kernel(_face_kernel)(state.faces.reshape(-1), m, n, t, state.positions, lists.head, lists.nxt,
@@ -1302,7 +1306,7 @@ def decode_face_chunk(payload, state, model: ChunkDecoder, vertex_step: int, fac
         raise FormatError("face chunk: its index entry adds no face")
     dec = rc.Decoder(payload, rc.new_probs(FACE_PROBS))
     flat = state.faces[: m + room].reshape(-1)
-    up, near = _face_scratch(lists, n)
+    up, near = _face_scratch(state)
     got = rc._kernel(_face_kernel)(flat, m, n, t, state.positions, lists.head, lists.nxt, lists.stamp, lists.tag,
                                    lists.ctr, _NO_ROWS, _NO_RENAME, up, near, _NO_STATE, _NO_BYTES, dec.ds, dec.buf,
                                    dec.probs, 1)

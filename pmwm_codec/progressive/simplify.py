@@ -666,30 +666,8 @@ def twin_faces(faces: np.ndarray) -> np.ndarray:
     A collapse never deletes one (both would share their third vertex), and both move together
     when one of their vertices is removed, so the pairs found on the input stay pairs while alive.
     """
-    faces = np.asarray(faces, np.int64).reshape(-1, 3)
-    m = len(faces)
-    twin = np.zeros(m, bool)
-    if m < 2:
-        return twin
-    rot = face_keys(faces)  # rotated to start at the smallest id
-    flip = rot[:, 1] > rot[:, 2]
-    key = np.stack([rot[:, 0], np.minimum(rot[:, 1], rot[:, 2]), np.maximum(rot[:, 1], rot[:, 2])], 1)
-    n = int(faces.max()) + 1
-    if n < 1 << 21:  # one int64 per vertex triple: a single stable sort (3x faster than lexsort)
-        packed = (key[:, 0] * n + key[:, 1]) * n + key[:, 2]
-        order = np.argsort(packed, kind="stable")
-        same = packed[order][1:] == packed[order][:-1]
-    else:
-        order = np.lexsort(key.T[::-1])
-        k = key[order]
-        same = np.all(k[1:] == k[:-1], axis=1)
-    start = np.flatnonzero(np.r_[True, ~same])
-    size = np.diff(np.r_[start, m])
-    pair = start[size == 2]
-    ok = flip[order[pair]] != flip[order[pair + 1]]
-    twin[order[pair[ok]]] = True
-    twin[order[pair[ok] + 1]] = True
-    return twin
+    pairs, size = _reverse_pairs(faces)
+    return pairs & (size == 2)
 
 
 def deferred_pillows(faces: np.ndarray) -> np.ndarray:
@@ -715,11 +693,41 @@ def reverse_pairs(faces: np.ndarray) -> np.ndarray:
     duplicate face beside it, or two pillows on one triple, as scans leave them: 169 triples of three
     faces on the 23k dragon besides its 868 lone pillows).  :func:`twin_faces` is the case of a triple
     with exactly these two faces."""
+    return _reverse_pairs(faces)[0]
+
+
+def _reverse_pairs(faces: np.ndarray) -> tuple:
+    """``(pairs (m,) bool, size (m,) int64)``: :func:`reverse_pairs`, and the number of faces on each
+    face's vertex triple.  One sort by (triple, orientation): a single packed int64 key while the
+    vertex ids allow it (3x faster than ``lexsort``, which larger meshes use)."""
     faces = np.asarray(faces, np.int64).reshape(-1, 3)
     m = len(faces)
-    out = np.zeros(m, bool)
+    pairs, size = np.zeros(m, bool), np.ones(m, np.int64)
     if m < 2:
-        return out
+        return pairs, size
+    rot = face_keys(faces)  # rotated to start at the smallest id
+    flip = (rot[:, 1] > rot[:, 2]).astype(np.int64)
+    lo, hi = np.minimum(rot[:, 1], rot[:, 2]), np.maximum(rot[:, 1], rot[:, 2])
+    n = int(faces.max()) + 1
+    if n < 1 << 20:  # (triple, orientation) in one int64
+        packed = ((rot[:, 0] * n + lo) * n + hi) * 2 + flip
+        order = np.argsort(packed, kind="stable")
+        triple = packed[order] >> 1
+        new_triple = np.r_[True, triple[1:] != triple[:-1]]
+    else:
+        order = np.lexsort((flip, hi, lo, rot[:, 0]))
+        k = np.stack([rot[:, 0], lo, hi], 1)[order]
+        new_triple = np.r_[True, np.any(k[1:] != k[:-1], axis=1)]
+    f = flip[order]
+    new_side = new_triple | np.r_[True, f[1:] != f[:-1]]
+    group = np.cumsum(new_triple) - 1
+    side_start = np.flatnonzero(new_side)
+    rank = np.arange(m) - side_start[np.cumsum(new_side) - 1]  # place within (triple, orientation)
+    ones = np.bincount(group, weights=f).astype(np.int64)
+    count = np.bincount(group)
+    pairs[order[rank < np.minimum(ones, count - ones)[group]]] = True
+    size[order] = count[group]
+    return pairs, size
     rot = face_keys(faces)
     flip = (rot[:, 1] > rot[:, 2]).astype(np.int64)
     key = np.stack([rot[:, 0], np.minimum(rot[:, 1], rot[:, 2]), np.maximum(rot[:, 1], rot[:, 2])], 1)

@@ -144,9 +144,11 @@ class PrimitiveWork:
     embedder : Embedder or None
     pm : ProgressiveMesh
         Base plus split records.
-    core : (n_core,) int64
+    core : (n_core,) int64 or None
         Input id of each vertex the simplifier saw (``values``, the log and ``late`` use their
-        order): every vertex but those only the late faces name.
+        order): every vertex but those only the late faces name (None: every vertex).
+    tips : (t,) int64
+        Input ids of the others, ascending: ``late_values`` are theirs.
     late : (L, 3) int64
         Faces kept out of the simplification (pillows, payload version 2 only), sent in a face chunk
         after every split (bitstream.md §8.6); ids ``n_core + j`` name ``late_values[j]``.
@@ -167,6 +169,7 @@ class PrimitiveWork:
     embedder: wm.Embedder | None = None
     pm: ProgressiveMesh | None = None
     core: np.ndarray | None = None
+    tips: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.int64))
     late: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3), np.int64))
     late_values: np.ndarray | None = None
 
@@ -328,33 +331,34 @@ def _quantize_and_simplify(jobs, grid_bits: int, base_vertices, say, defer_pillo
     say("simplify", 0.0)
     for i, job in enumerate(jobs):
         grid, values, specs = _quantize(job.mesh, grid_bits)
-        faces = job.mesh.faces
+        faces, positions, locked = job.mesh.faces, job.mesh.positions, job.locked
         late = deferred_pillows(faces) if defer_pillows else np.zeros(len(faces), bool)
-        core, local = _core_vertices(job.mesh.vertex_count, faces, late)
-        target = default_base_target(len(core)) if base_vertices is None else int(base_vertices)
-        locked = None if job.locked is None else job.locked[core]
-        log = simplify(values[core, :3], local[faces[~late]], target_vertices=target, locked=locked,
-                       weld=weld_groups(job.mesh.positions[core]))
-        tips = np.setdiff1d(np.arange(job.mesh.vertex_count), core)
-        work.append(PrimitiveWork(job, grid, values[core], specs, log, core=core, late=local[faces[late]],
-                                  late_values=values[tips]))
+        extra = {}
+        if late.any():  # the core mesh, renumbered (no copies when nothing is deferred)
+            core, tips, local = _core_vertices(job.mesh.vertex_count, faces, late)
+            extra = dict(core=core, tips=tips, late=local[faces[late]], late_values=values[tips])
+            values, positions, faces = values[core], positions[core], local[faces[~late]]
+            locked = None if locked is None else locked[core]
+        target = default_base_target(len(values)) if base_vertices is None else int(base_vertices)
+        log = simplify(values[:, :3], faces, target_vertices=target, locked=locked, weld=weld_groups(positions))
+        work.append(PrimitiveWork(job, grid, values, specs, log, **extra))
         say("simplify", (i + 1) / len(jobs))
     return work
 
 
 def _core_vertices(n: int, faces: np.ndarray, late: np.ndarray) -> tuple:
-    """``(core (n_core,) int64, local (n,) int64)``: the vertices of a mesh of ``n`` vertices and
+    """``(core (n_core,), tips (t,), local (n,))`` int64: the vertices of a mesh of ``n`` vertices and
     ``faces`` (m, 3) that some face outside ``late`` (m,) bool names, or no face at all, ascending;
-    ``local`` numbers them ``0 … n_core - 1`` and the others (named by late faces only) after them,
-    in input order."""
+    the others (named by late faces only), ascending; ``local`` numbers the core ``0 … n_core - 1``
+    and the tips after them, in input order."""
     only_late = np.zeros(n, bool)
     only_late[faces[late].ravel()] = True
     only_late[faces[~late].ravel()] = False
-    core = np.flatnonzero(~only_late)
+    core, tips = np.flatnonzero(~only_late), np.flatnonzero(only_late)
     local = np.empty(n, np.int64)
     local[core] = np.arange(len(core))
-    local[only_late] = len(core) + np.arange(int(only_late.sum()))
-    return core, local
+    local[tips] = len(core) + np.arange(len(tips))
+    return core, tips, local
 
 
 def _encode_bases(work, base_codec: str) -> tuple:
@@ -635,11 +639,11 @@ def _decoded_input_positions(w: PrimitiveWork) -> np.ndarray:
     """(n, 3) float64: the full decode of one primitive's positions in the input's vertex order (the
     vertices the face chunk brings are on the grid, unmoved)."""
     core = decoded_positions(w.pm, w.grid)
-    if w.core is None or len(core) == w.job.mesh.vertex_count:
+    if w.core is None:
         return core
     out = np.empty((w.job.mesh.vertex_count, 3))
     out[w.core] = core
-    out[np.setdiff1d(np.arange(len(out)), w.core)] = w.grid.dequantize(w.late_values[:, :3])
+    out[w.tips] = w.grid.dequantize(w.late_values[:, :3])
     return out
 
 
