@@ -15,6 +15,7 @@ import numpy as np
 
 __all__ = [
     "default_base_target",
+    "FIRST_CHUNK_SPLITS",
     "default_min_chunk_splits",
     "group_batches",
     "stream_order",
@@ -28,25 +29,36 @@ def default_base_target(n: int) -> int:
     return min(n, max(n // 100, 64))
 
 
+#: Smallest first chunk of the default chunking; each next chunk may be twice the one before
+#: until :func:`default_min_chunk_splits` (see :func:`group_batches`).
+FIRST_CHUNK_SPLITS = 32
+
+
 def default_min_chunk_splits(total: int) -> int:
     """Default smallest chunk: 1% of the primitive's ``total`` splits, at least 32."""
     return max(32, total // 100)
 
 
-def group_batches(sizes, min_splits: int) -> list:
+def group_batches(sizes, min_splits: int, first: int | None = None) -> list:
     """Split batch indices into chunks of consecutive batches holding >= ``min_splits`` splits.
 
-    ``sizes`` : (b,) split counts, coarse to fine.  Returns a list of ``range``; a last
-    chunk smaller than half of ``min_splits`` joins the one before it.
+    ``sizes`` : (b,) split counts, coarse to fine.  With ``first``, chunk j needs only
+    ``min(min_splits, first * 2**j)`` splits: the stream's first refinements come in small
+    steps, so that a prefix a little longer than the base already holds some of them (the
+    default: :data:`FIRST_CHUNK_SPLITS`; each chunk costs ~25 bytes of index), then chunks
+    double up to ``min_splits``.  Returns a list of ``range``; a last chunk smaller than half
+    of what it needs joins the one before it.
     """
     out, start, acc = [], 0, 0
+    need = min_splits if first is None else min(min_splits, first)
     for j, k in enumerate(sizes):
         acc += int(k)
-        if acc >= min_splits:
+        if acc >= need:
             out.append(range(start, j + 1))
             start, acc = j + 1, 0
+            need = min(min_splits, 2 * need)
     if start < len(sizes):
-        if out and acc < min_splits // 2:
+        if out and acc < need // 2:
             last = out.pop()
             out.append(range(last.start, len(sizes)))
         else:

@@ -50,6 +50,7 @@ from ..progressive.topology import mean_edge_length
 from ..watermark import codec as wm
 from ..watermark.key import KEY_FILE_MODE, KeySlot, WatermarkKey
 from .chunking import (
+    FIRST_CHUNK_SPLITS,
     carrier_slots,
     chunk_meta,
     default_base_target,
@@ -239,6 +240,9 @@ def encode_document(
     owner_id : 64-bit owner ID: mark the owner layer (:mod:`~pmwm_codec.watermark.owner`)
         into every primitive's full-resolution positions first; the key (generated when
         none is given) is returned carrying it.  ``owner_strength``: its margin.
+    min_chunk_splits : smallest chunk, in splits, for every chunk of every primitive (default:
+        :func:`~pmwm_codec.stream.chunking.default_min_chunk_splits`, reached by chunks that start
+        at :data:`~pmwm_codec.stream.chunking.FIRST_CHUNK_SPLITS` and double).
     measure : how to measure the distortion of the full decoded mesh (see
         :func:`~pmwm_codec.distortion.full_distortion`): ``"vertices"`` (default, exact RMS
         and PSNR, Hausdorff bounded by the largest vertex displacement), ``"sampled"``
@@ -412,8 +416,10 @@ def _plan_chunks(work, min_chunk_splits) -> tuple:
     out = []
     for w in work:
         sizes = [len(batch.u) for batch in reversed(w.log.batches)]
-        smallest = default_min_chunk_splits(sum(sizes)) if min_chunk_splits is None else min_chunk_splits
-        groups = group_batches(sizes, smallest)
+        if min_chunk_splits is None:  # the default: small first chunks, doubling
+            groups = group_batches(sizes, default_min_chunk_splits(sum(sizes)), FIRST_CHUNK_SPLITS)
+        else:
+            groups = group_batches(sizes, min_chunk_splits)
         if len(w.late):  # the face chunk: no batch
             groups.append(range(len(sizes), len(sizes)))
         out.append(dataclasses.replace(w, sizes=sizes, groups=groups))
