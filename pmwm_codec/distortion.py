@@ -41,7 +41,6 @@ that converges with the samples).  The report's ``measure`` field says which.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from .errors import MeshError
 from .mesh import Mesh
@@ -161,6 +160,8 @@ def surface_distance(points, positions, faces, k: int = 8, block: int = 1 << 15)
     ``best <= (k-th centroid distance) - (group's largest r)``, otherwise it is retried
     with 4k candidates, up to the whole group.  ``block`` points at a time (memory).
     """
+    from scipy.spatial import cKDTree  # on first use: the default (vertex) measure needs none
+
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     tris = _Triangles(np.asarray(positions, dtype=np.float64)[np.asarray(faces, dtype=np.int64)])
     centroid = tris.corner.mean(axis=1)

@@ -99,3 +99,65 @@ def test_write_asset_writes_glb_and_self_contained_gltf(mesh, tmp_path):
     assert same_triangles(pmwm_codec.read_mesh(tmp_path / "copy.gltf"), mesh)
     with pytest.raises(ValueError):
         write_asset(tmp_path / "copy.obj", glb)
+
+
+# --- OBJ reading: the column-at-a-time reader gives what the record-by-record reader gives ---------
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from pmwm_codec import mesh as mesh_mod  # noqa: E402
+
+coordinate = st.one_of(st.floats(-1e6, 1e6, allow_nan=False), st.integers(-1000, 1000))
+
+
+@st.composite
+def obj_files(draw):
+    """OBJ text with uniform or mixed records: extra vertex fields, polygons of 3-5 vertices, indices
+    written plain / ``i/t`` / ``i//n`` / ``i/t/n``, 1-based or negative, comments and blank lines."""
+    n = draw(st.integers(5, 12))
+    extra = draw(st.sampled_from([0, 0, 1, 3]))
+    fmt = draw(st.sampled_from(["{:.9g}", "{!r}", "{:.3e}", "{}"]))
+    lines = []
+    for _ in range(n):
+        values = [float(draw(coordinate)) for _ in range(3 + extra)]
+        lines.append("v " + " ".join(fmt.format(x) for x in values))
+    sizes = draw(st.sampled_from([[3], [4], [5], [3, 4]]))
+    style = draw(st.sampled_from(["{}", "{}/{}", "{}//{}", "{}/{}/{}"]))
+    for _ in range(draw(st.integers(1, 10))):
+        k = draw(st.sampled_from(sizes))
+        ids = draw(st.lists(st.integers(1, n), min_size=k, max_size=k, unique=True))
+        ids = [i - n - 1 if draw(st.booleans()) and draw(st.booleans()) else i for i in ids]  # some negative
+        lines.append("f " + " ".join(style.format(i, 1, 1) for i in ids))
+    if draw(st.booleans()):
+        lines.insert(draw(st.integers(0, len(lines))), draw(st.sampled_from(["# a comment", "", "vn 0 0 1", "o part"])))
+    return "\n".join(lines) + "\n"
+
+
+def _read_by_records(path):
+    saved = mesh_mod._read_obj_columns
+    mesh_mod._read_obj_columns = lambda lines: None
+    try:
+        return mesh_mod._read_obj(path, "m.obj")
+    finally:
+        mesh_mod._read_obj_columns = saved
+
+
+@settings(max_examples=200, deadline=None)
+@given(obj_files())
+def test_the_column_reader_gives_the_record_readers_arrays_or_leaves_the_file_to_it(tmp_path_factory, text):
+    path = tmp_path_factory.mktemp("obj") / "m.obj"
+    path.write_text(text)
+    columns = mesh_mod._read_obj_columns(text.splitlines())
+    positions, faces = _read_by_records(str(path))
+    if columns is not None:
+        assert columns[0].dtype == positions.dtype and columns[1].dtype == faces.dtype
+        assert np.array_equal(columns[0], positions) and np.array_equal(columns[1], faces)
+    got = mesh_mod._read_obj(str(path), "m.obj")
+    assert np.array_equal(got[0], positions) and np.array_equal(got[1], faces)
+
+
+def test_a_plain_triangle_obj_takes_the_column_reader(mesh, tmp_path):
+    path = tmp_path / "m.obj"
+    write_mesh(path, mesh)
+    assert mesh_mod._read_obj_columns(path.read_text().splitlines()) is not None

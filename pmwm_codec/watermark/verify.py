@@ -42,7 +42,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import binom
 
 from . import codec as wm
 from . import haar
@@ -57,6 +56,14 @@ FLAG_SHARED = 0.3
 VERDICTS = ("authentic", "tampered", "not-authentic", "inconclusive")
 
 
+def chance_tail(matches: int, read: int, bits: int) -> float:
+    """P(at least ``matches`` of ``read`` codes of ``bits`` bits match by chance): the binomial tail
+    with success probability 2**-bits (scipy, imported on first use: ``pmw encode`` does not load it)."""
+    from scipy.stats import binom
+
+    return float(binom.sf(matches - 1, read, 2.0**-bits))
+
+
 def verdict(matches: int, read: int, bits: int, *, mismatched: int | None = None, foreign: bool = False,
             bound: bool = True) -> str:
     """One of :data:`VERDICTS` (module docstring) for ``matches`` of ``read`` codes.
@@ -67,7 +74,7 @@ def verdict(matches: int, read: int, bits: int, *, mismatched: int | None = None
     """
     if read < MIN_CARRIERS:
         return "inconclusive"
-    if float(binom.sf(matches - 1, read, 2.0**-bits)) >= ALPHA:
+    if chance_tail(matches, read, bits) >= ALPHA:
         return "not-authentic"
     if (read - matches if mismatched is None else mismatched) > 0 or foreign:
         return "tampered"
@@ -175,7 +182,7 @@ class Verifier:
         """The partial watermark so far, scored against the reference (one scoring for every reader)."""
         received = self.extractor.received
         m, n = self.matches()
-        if self.expected is not None and n and binom.sf(m - 1, n, 2.0**-self.params.bits) < ALPHA:
+        if self.expected is not None and n and chance_tail(m, n, self.params.bits) < ALPHA:
             # the mark is there: a ring value on a boundary takes the reading the expected code agrees
             # with.  Only then -- a wrong key or an unmarked mesh would otherwise be pulled toward
             # the reference image through its ambiguous carriers.
