@@ -209,6 +209,21 @@ def pillows(count: int = 12) -> Mesh:
     return Mesh(np.concatenate([V, np.array(tips).reshape(-1, 3)]), np.concatenate([F, doubled]).astype(np.int64))
 
 
+def specks(mesh: Mesh | None = None, count: int = 2, size: float = 1e-7, seed: int = 0) -> Mesh:
+    """``mesh`` (default: an icosphere) with ``count`` *specks*, triangles ``size`` across at random
+    points of its bounding box, every second one with its reverse face: the lone specks of a scan,
+    smaller than a grid step (each falls on one grid point)."""
+    mesh = icosphere(3, 1.0, noise=0.02) if mesh is None else mesh
+    rng = np.random.default_rng(seed)
+    lo, hi = mesh.positions.min(axis=0), mesh.positions.max(axis=0)
+    positions, faces, n = [mesh.positions], [mesh.faces], mesh.vertex_count
+    for j in range(count):
+        positions.append(lo + (hi - lo) * rng.random(3) + size * np.eye(3))
+        faces.append([[n, n + 1, n + 2]] + ([[n, n + 2, n + 1]] if j % 2 else []))
+        n += 3
+    return Mesh(np.concatenate(positions), np.concatenate(faces).astype(np.int64))
+
+
 def demo_mesh(resolution: int = 180) -> Mesh:
     """A rippled torus knot-like shape with tens of thousands of vertices, for the demo."""
     rings, sides = resolution * 2, resolution // 2

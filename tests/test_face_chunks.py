@@ -22,7 +22,10 @@ from pmwm_codec.errors import FormatError, PmwError
 from pmwm_codec.format import rangecoder as rc
 from pmwm_codec.format import read_header
 from pmwm_codec.format import records_v2 as r2
-from pmwm_codec.progressive.simplify import deferred_pillows, twin_faces
+from pmwm_codec import shapes
+from pmwm_codec.format.glb import split_glb
+from pmwm_codec.progressive.grid import Grid
+from pmwm_codec.progressive.simplify import deferred_pillows, specks, twin_faces
 from pmwm_codec.progressive.topology import face_keys
 from pmwm_codec.progressive.vsplit import MeshState
 from pmwm_codec.stream import StreamDecoder
@@ -79,6 +82,14 @@ def test_spec_flap_example_is_what_the_encoder_writes_and_decodes_to_the_spec_s_
     assert faces[4:].tolist() == [[0, 1, 4], [0, 4, 1]] and values[4].tolist() == [7, 9, 11]
 
 
+def test_spec_speck_example_is_what_the_encoder_writes_and_decodes_to_the_spec_s_vertices():
+    stored = _spec_bytes("face-chunk-speck-example")
+    new_values = [[91, 101, 111], [91, 101, 111], [92, 101, 111]]
+    assert r2.pack_face_chunk(TETRA_VALUES, TETRAHEDRON, [[4, 5, 6]], new_values)[0] == stored
+    values, faces = _decode(stored, TETRA_VALUES, TETRAHEDRON, 3, 1)
+    assert faces[4:].tolist() == [[4, 5, 6]] and values[4:].tolist() == new_values
+
+
 def test_spec_constants_of_face_chunks_match_the_code():
     text = " ".join(_spec().split())
     assert f"`FACE_PROBS = 32 + 9·256 = {r2.FACE_PROBS}`" in text
@@ -93,7 +104,7 @@ def test_spec_constants_of_face_chunks_match_the_code():
 def _random_case(seed: int):
     """``(values (n, D), faces (m, 3), new faces, new values)``: a random mesh and random faces to add,
     some along its edges (as pillows are), some reversed or repeated, some naming new vertices (one
-    or two to a face, every face keeping an existing vertex)."""
+    or two to a face beside an existing vertex, or three: specks, parts of new vertices only)."""
     rng = np.random.default_rng(seed)
     n, D = int(rng.integers(3, 40)), int(rng.integers(3, 6))
     values = rng.integers(0, 1 << 16, (n, D))
@@ -113,6 +124,12 @@ def _random_case(seed: int):
     new = np.array([f for f in new if len(set(int(v) for v in f)) == 3] or [[0, 1, 2]], np.int64)
     twins = rng.random(len(new)) < 0.5
     new = np.concatenate([new, new[twins][:, [0, 2, 1]], new[rng.random(len(new)) < 0.1]])
+    specks = int(rng.integers(0, 3))
+    for j in range(specks):  # a triangle of three new vertices, sometimes with its reverse or a copy
+        x = n + t + 3 * j + rng.permutation(3)
+        extra = [x[[0, 2, 1]]] if rng.random() < 0.5 else [x] * int(rng.random() < 0.3)
+        new = np.concatenate([new, np.array([x, *extra], np.int64)])
+    t += 3 * specks
     used = np.unique(new[new >= n]) - n
     keep = np.full(max(t, 1), -1)
     keep[used] = np.arange(len(used))  # renumber the new vertices some face names
@@ -171,6 +188,8 @@ HOSTILE = {  # (stored, vertex step, face step, words of the error)
     "a new vertex never named": (_crafted(*_FACE, (BIT, 1, 1), (UINT, 3, 1), (BIT, 2, 0)), 1, 1, "fewer new"),
     "a raw id of a new vertex not yet named": (_crafted(*_FACE, (BIT, 1, 0), (BIT, 3, 0), (UINT, 4, 3)), 1, 1,
                                                "beyond the mesh"),
+    "a first vertex past the next new one": (_crafted((UINT, 0, 0), (UINT, 1, 5)), 3, 1, "beyond the mesh"),
+    "a first new vertex the entry does not add": (_crafted((UINT, 0, 0), (UINT, 1, 4)), 0, 1, "more new vertices"),
     "a new value out of range": (_crafted(*_FACE, (BIT, 1, 0), (BIT, 3, 1), (BIT, 2, 0), (SINT, 5, 1 << 31),
                                           (SINT, 6, 0), (SINT, 7, 0)), 1, 1, "value out of range"),
 }
@@ -401,3 +420,50 @@ def test_pillows_laid_on_surface_faces_leave_the_surface_whole_in_every_level():
     original = np.round((mesh.positions - grid["origin"]) / grid["step"]).astype(np.int64)
     assert face_set(levels[-1].positions_int, levels[-1].faces) == face_set(original, mesh.faces)
     assert levels[0].vertices <= 64
+
+
+# --- specks: parts of three vertices on one grid point, sent as faces of new vertices only ---------
+
+
+def _draco_method(data: bytes) -> int:
+    """The Draco base's encoding method byte (0 sequential, 1 edgebreaker)."""
+    gltf, binary = split_glb(data)
+    view = gltf["bufferViews"][gltf["meshes"][0]["primitives"][0]["extensions"]["KHR_draco_mesh_compression"]
+                               ["bufferView"]]
+    blob = binary[view.get("byteOffset", 0):][: view["byteLength"]]
+    assert blob[:5] == b"DRACO"
+    return blob[8]
+
+
+def test_specks_arrive_in_the_face_chunk_and_the_draco_base_keeps_edgebreaker():
+    mesh = shapes.specks()  # two specks: a face alone, a face with its reverse
+    grid = Grid.fit(mesh.positions, 14)
+    late = specks(grid.quantize(mesh.positions), mesh.faces)
+    assert late.sum() == 3 and late[-3:].all()
+    out = {}
+    for version in (2, 1):
+        buf = io.BytesIO()
+        pmwm_codec.encode(mesh, buf, measure=False, grid_bits=14, payload_version=version, base_codec="draco")
+        out[version] = buf.getvalue()
+    assert _draco_method(out[2]) == 1  # edgebreaker: the base's grid positions are distinct
+    assert _draco_method(out[1]) == 0  # version 1 keeps the specks in the base: sequential coding
+    entries = read_header(out[2]).extension["chunks"]
+    assert entries[-1].get("faces") and entries[-1]["vertexCount"] - entries[-2]["vertexCount"] == 6
+    for version in (2, 1):  # both exact on the grid
+        got = pmwm_codec.decode(out[version])
+        assert face_set(grid.quantize(got.positions), got.faces) == face_set(grid.quantize(mesh.positions), mesh.faces)
+    base = _levels(out[2])[0]
+    from pmwm_codec.stream.chunking import default_base_target
+
+    assert len(base.positions_int) == default_base_target(mesh.vertex_count - 6)  # the sphere's own base
+    assert len(np.unique(base.positions_int, axis=0)) == len(base.positions_int)  # no speck vertex in it
+
+
+def test_specks_need_three_vertices_of_their_own_on_one_grid_point():
+    P = np.array([[0, 0, 0]] * 3 + [[5, 5, 5]] * 4 + [[1, 2, 3], [4, 5, 6], [7, 8, 9], [9, 9, 9]], np.int64)
+    F = np.array([[0, 1, 2], [0, 2, 1],            # a speck and its reverse: deferred
+                  [3, 4, 5], [4, 5, 6],            # four vertices on one point: not a speck of three
+                  [7, 8, 9], [7, 9, 10],           # a real surface
+                  [7, 8, 1]], np.int64)            # ... naming a vertex of the first point: not deferred
+    assert specks(P, F).tolist() == [False] * 7
+    assert specks(P, F[[0, 1, 2, 3, 4, 5]]).tolist() == [True, True, False, False, False, False]

@@ -46,9 +46,11 @@ for path in (ROOT, HERE):
         sys.path.insert(0, path)
 
 import pmwm_codec  # noqa: E402
+from pmwm_codec.constants import DEFAULT_GRID_BITS  # noqa: E402
 from pmwm_codec.distortion import rms_surface_distance  # noqa: E402
 from pmwm_codec.mesh import Mesh  # noqa: E402
-from pmwm_codec.progressive.simplify import deferred_pillows  # noqa: E402
+from pmwm_codec.progressive.grid import Grid  # noqa: E402
+from pmwm_codec.progressive.simplify import deferred_faces  # noqa: E402
 from pmwm_codec.shapes import demo_mesh  # noqa: E402
 
 from bench import DEFAULT_CORPUS, StageTimers, glb_parts, machine, publish, table  # noqa: E402
@@ -89,17 +91,18 @@ def our_stream(mesh: Mesh, bits: int) -> tuple:
     return blob, levels, timers.captured["simplify"]
 
 
-def level_at(mesh: Mesh, log, count: int) -> Mesh:
+def level_at(mesh: Mesh, log, count: int, bits: int = DEFAULT_GRID_BITS) -> Mesh:
     """Our simplifier's level with ``count`` vertices, on ``mesh``'s own (float) positions.
 
-    ``log``: the encoder's :class:`~pmwm_codec.progressive.simplify.CollapseLog` for ``mesh``, whose
-    ids are those of the mesh it simplified: without the pillows and the flaps' tips, which the
-    stream sends last (a face chunk, bitstream.md §8.6), so no level before the last has them.
+    ``log``: the encoder's :class:`~pmwm_codec.progressive.simplify.CollapseLog` for ``mesh`` at a
+    ``bits`` grid, whose ids are those of the mesh it simplified: without the faces it defers (pillows,
+    flaps' tips, specks), which the stream sends last (a face chunk, bitstream.md §8.6), so no level
+    before the last has them.
     Batches are applied fine to coarse; the one that would go below ``count`` is applied in
     part, its cheapest collapses first (the collapses of a batch are independent).  A
     ``count`` below the base size gives the base.
     """
-    late = deferred_pillows(mesh.faces)
+    late = deferred_faces(Grid.fit(mesh.positions, bits).quantize(mesh.positions), mesh.faces)
     core = np.unique(mesh.faces[~late])  # the encoder's core vertices (every vertex is on a face here)
     local = np.full(mesh.vertex_count, -1, np.int64)
     local[core] = np.arange(len(core))
@@ -161,7 +164,7 @@ def measure(name: str, mesh: Mesh, bits: int, samples: int, log) -> dict:
         fits = [c for c in curve if c[0] <= lod["bytes"]]
         no_json = [c for c in curve if c[0] - index <= lod["bytes"]]
         k = lod["raw"].vertex_count
-        ours_k = level_at(mesh, clog, k)
+        ours_k = level_at(mesh, clog, k, bits)
         rows.append({
             "fraction": lod["fraction"], "lod_vertices": k, "lod_faces": lod["raw"].face_count,
             "lod_bytes": lod["bytes"], "lod_error": err(lod["draco"]),

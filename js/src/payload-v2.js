@@ -225,9 +225,13 @@ export class ChunkDecoderV2 {
     this.fresh = 0;
     for (let i = 0; i < G; i++) {
       a += rc.uint(block(FB_GAP), 'a face gap');
-      if (a >= n) throw new FormatError(`face chunk: vertex ${a} beyond the mesh's ${n}`);
+      if (a > n + this.fresh) throw new FormatError(`face chunk: vertex ${a} beyond the mesh's ${n} and the ${this.fresh} new ones named`);
+      if (a === n + this.fresh) { // the next new vertex: the first of a face of new vertices only
+        if (this.fresh >= vroom) throw new FormatError(`face chunk: more new vertices than the ${vroom} its index entry adds`);
+        this.fresh++;
+      }
       if (a !== upFor) {
-        k = this.#upList(a);
+        k = a < n ? this.#upList(a) : 0; // a new vertex has no neighbour in the mesh before the chunk
         upFor = a;
       }
       let b;
@@ -287,7 +291,7 @@ export class ChunkDecoderV2 {
   #freshValues(rc, n, t, f0, f1) {
     const { faces, values, D, capN, capM } = this.state;
     const fstart = this.#grow('fstart', t + 1, Int32Array, capN + 1);
-    const fnames = this.#grow('fnames', (2 * (f1 - f0)) / 3, Int32Array, 2 * capM);
+    const fnames = this.#grow('fnames', f1 - f0, Int32Array, 3 * capM); // a face may name three new vertices
     fstart.fill(0, 0, t + 1);
     for (let x = f0; x < f1; x++) if (faces[x] >= n) fstart[faces[x] - n + 1]++;
     for (let i = 0; i < t; i++) fstart[i + 1] += fstart[i];
@@ -309,7 +313,10 @@ export class ChunkDecoderV2 {
           c++;
         }
       }
-      if (c === 0) throw new FormatError(`face chunk: new vertex ${u} has no earlier corner to predict it from`);
+      if (c === 0) { // the first vertex of a face of new vertices only: predicted by the vertex before it
+        for (let q = 0; q < D; q++) S[q] = values[(u - 1) * D + q];
+        c = 1;
+      }
       for (let q = 0; q < D; q++) {
         const pred = Math.abs(S[q]) < TWO53 ? Math.floor(S[q] / c) : this.#wideMean(fstart[i], fstart[i + 1], u, q, c);
         this.#put(rc, u * D + q, pred, block(FB_VALUE + Math.min(q, 3)));

@@ -187,6 +187,21 @@ for (const name of PILLOWS) {
   });
 }
 
+test('specks.draco: specks come in the face chunk as faces of new vertices only, each new part predicted from the vertex before it; the Python decoder\'s levels', { skip }, async () => {
+  const { bytes, want } = encodedCase('specks.draco');
+  const stream = entries(bytes);
+  const last = stream[stream.length - 1];
+  const before = stream[stream.length - 2];
+  assert.ok(last.faces, 'the last chunk is a face chunk');
+  assert.equal(last.splits, 9, 'three specks of three new vertices');
+  assert.equal(last.faceCount - before.faceCount, 4, 'two lone faces and a face with its reverse');
+  const { levels, end, last: mesh } = await jsLevels(bytes);
+  assert.deepEqual(levels, want.levels);
+  assert.equal(end.complete, true);
+  const appended = Array.from(mesh.indices.subarray(3 * before.faceCount));
+  assert.ok(appended.every((x) => x >= before.vertexCount), 'every appended face names new vertices only');
+});
+
 for (const name of ['pillows.plain', 'flaps.plain']) {
   test(`${name}: read + write through glTF-Transform keeps firstFaceChunk and the face chunk's entry, the same levels`, { skip }, async () => {
     const { bytes, want } = encodedCase(name);
@@ -255,7 +270,8 @@ test('hostile face chunks over the tetrahedron are FormatErrors that say what is
     ['rank 2 in Near(0, 1) = (2, 3)', faceChunkBytes([face(0, rank(0), rank(2))]), {}, /rank 2 beyond Near\(0, 1\)/],
     ['a rank in Up(3), which is empty', faceChunkBytes([face(3, rank(0), rank(0))]), {}, /rank 0 in Up\(3\) of 0/],
     ['a rank in Up(4) of an isolated vertex', faceChunkBytes([face(4, rank(0), rank(0))]), { n: 5 }, /Up\(4\) of 0/],
-    ['a = 4 with n = 4', faceChunkBytes([face(4, raw(0), raw(1))]), {}, /vertex 4 beyond/],
+    ['a = 4 with n = 4: a new first vertex the entry does not add', faceChunkBytes([face(4, raw(0), raw(1))]), {}, /more new vertices than the 0/],
+    ['a = 5 with n = 4: past the next new vertex', faceChunkBytes([face(5, raw(0), raw(1))]), {}, /vertex 5 beyond/],
     ['a huge gap', faceChunkBytes([face(2 ** 32 - 1, raw(0), raw(1))]), {}, /beyond/],
     ['raw b = 4', faceChunkBytes([face(0, raw(3), rank(0))]), {}, /vertex 4 beyond/],
     ['raw c = 5', faceChunkBytes([face(0, rank(0), raw(4))]), {}, /vertex 5 beyond/],
@@ -342,6 +358,20 @@ test('the spec\'s flap example: bytes, decisions and the new vertex (7, 9, 11)',
   const got = flapChunk(Uint8Array.from(Buffer.from(specBytes('face-chunk-flap-example'), 'hex')), { fresh: 1, step: 2, values });
   assert.deepEqual(got.faces, [0, 1, 4, 0, 4, 1]);
   assert.deepEqual(got.values, [7, 9, 11]);
+});
+
+test('the spec\'s speck example: a face of new vertices only, its first vertex predicted by the vertex before it', () => {
+  const values = [0, 10, 20, 30, 40, 50, 60, 70, 80, 90, 100, 110];
+  const bytes = faceChunkBytes([face(4, FRESH, FRESH)], 1, [[1, 1, 1], [0, 0, 0], [1, 0, 0]]);
+  assert.equal(specBytes('face-chunk-speck-example'), hex(bytes));
+  const got = flapChunk(Uint8Array.from(Buffer.from(specBytes('face-chunk-speck-example'), 'hex')), { fresh: 3, step: 1, values });
+  assert.deepEqual(got.faces, [4, 5, 6]);
+  assert.deepEqual(got.values, [91, 101, 111, 91, 101, 111, 92, 101, 111]);
+  // a second part of new vertices: its first vertex is predicted by the last of the first part
+  const two = faceChunkBytes([face(4, FRESH, FRESH), face(3, FRESH, FRESH)], 2, [[1, 1, 1], [0, 0, 0], [1, 0, 0], [-2, 0, 0], [0, 0, 0], [0, 0, 0]]);
+  const parts = flapChunk(two, { fresh: 6, step: 2, values });
+  assert.deepEqual(parts.faces, [4, 5, 6, 7, 8, 9]);
+  assert.deepEqual(parts.values.slice(9), [90, 101, 111, 90, 101, 111, 90, 101, 111]);
 });
 
 test('new vertices\' attributes: every value column, residual q under block 5 + min(q, 3)', () => {

@@ -940,6 +940,7 @@ _FACE_ERRORS = {
     -6: "face chunk: more new vertices than its index entry adds",
     -7: "face chunk: fewer new vertices named than its index entry adds",
     -8: "face chunk: a value out of range",
+    -9: "face chunk: faces not in ascending order of their first vertex",
 }
 
 
@@ -1014,7 +1015,7 @@ def _position(x, items, count):
 def _fit(a, b, c, n, up, near, flat, head, nxt, stamp, tag, ctr):
     """How well the coded face ``(a, b, c)`` fits the neighbour lists: 2 if ``b`` is in ``Up(a)``,
     plus 1 if ``c`` is in ``Near(a, b)``."""
-    k = _up_list(a, flat, head, nxt, stamp, ctr, up)
+    k = _up_list(a, flat, head, nxt, stamp, ctr, up) if a < n else 0
     count = _near_list(a, b, n, up, k, flat, head, nxt, tag, ctr, near)
     return 2 * (_position(b, up, k) >= 0) + (_position(c, near, count) >= 0)
 
@@ -1068,9 +1069,10 @@ def _face_kernel(flat, m, n, t, P, head, nxt, stamp, tag, ctr, coded, rename, up
     """Code (``decode`` 0) or decode (1) a face chunk over the mesh of the corner lists (``flat`` (3M,)
     int64 face slots, ``m`` faces, ``n`` vertices; ``P`` (N, D) int64 values) adding ``t`` vertices.
 
-    Encode: ``coded`` (G, 4) int64 rows ``(a, b, c, twin)``, ``a`` ascending and the smallest of the
-    three, ids ``>= n`` naming the caller's new vertices, whose values are in ``P[n:n + t]`` in the
-    caller's order; the kernel turns a twin row to ``(a, c, b)`` when that fits the neighbour lists
+    Encode: ``coded`` (G, 4) int64 rows ``(a, b, c, twin)``, ``a`` the smallest of the three, ids ``>= n``
+    naming the caller's new vertices, whose values are in ``P[n:n + t]`` in the caller's order; rows
+    whose ``a`` is new (faces of new vertices only) after the others, in an order that names each such
+    ``a`` as the next new vertex or after it was named (-9 otherwise); the kernel turns a twin row to ``(a, c, b)`` when that fits the neighbour lists
     better (:func:`_fit`), writes final ids into ``coded``, fills ``rename`` (t,) (caller's new
     vertex -> final id) and codes the values; the caller then reorders ``P[n:n + t]``.  Decode:
     appends the faces to ``flat`` from slot ``3m`` on and the values to ``P[n:n + t]``.  ``up`` /
@@ -1096,17 +1098,30 @@ def _face_kernel(flat, m, n, t, P, head, nxt, stamp, tag, ctr, coded, rename, up
             if gap < 0:
                 return -1
             a += gap
-            if a >= n:
-                return -3
         else:
-            rc.enc_uint(es, out, probs, _face_block(FB_GAP), coded[i, 0] - a)
-            a = coded[i, 0]
+            x = coded[i, 0]
+            if x >= n:  # a new vertex: already named, or named here (the next one)
+                if rename[x - n] < 0:
+                    rename[x - n] = n + fresh[0]
+                x = rename[x - n]
+            if x < a:
+                return -9
+            rc.enc_uint(es, out, probs, _face_block(FB_GAP), x - a)
+            a = x
+        if a > n + fresh[0]:
+            return -3
+        if a == n + fresh[0]:  # the next new vertex: the first of a face of new vertices only
+            if fresh[0] >= t:
+                return -6
+            fresh[0] += 1
+        if not decode:
+            coded[i, 0] = a
             if coded[i, 3] == 1:
                 b, c = coded[i, 1], coded[i, 2]
                 if _fit(a, c, b, n, up, near, flat, head, nxt, stamp, tag, ctr) > _fit(a, b, c, n, up, near, flat,
                                                                                         head, nxt, stamp, tag, ctr):
                     coded[i, 1], coded[i, 2] = c, b
-        k = _up_list(a, flat, head, nxt, stamp, ctr, up)
+        k = _up_list(a, flat, head, nxt, stamp, ctr, up) if a < n else 0  # a new vertex has no neighbour yet
         b = _face_vertex(F_NEAR_B, coded[i, 1] if not decode else 0, a, up, k, n, t, fresh, rename, es, out, ds, buf,
                          probs, decode)
         if b < 0:
@@ -1177,8 +1192,10 @@ def _face_values(flat, m, added, n, t, P, es, out, ds, buf, probs, decode):
                 c += 1
                 for q in range(D):
                     S[q] += P[p, q]
-        if c == 0:
-            return -1
+        if c == 0:  # the first vertex of a face of new vertices only: predicted by the vertex before it
+            c = 1
+            for q in range(D):
+                S[q] = P[n + u - 1, q]
         for q in range(D):
             ctx = _face_block(FB_VALUE + min(q, 3))
             pred = S[q] // c
@@ -1242,9 +1259,8 @@ def _pack_face_chunk(state, lists, chunk: FaceChunk) -> tuple:
     t = len(values)
     if not len(rows):
         raise ValueError("payload v2: a face chunk needs at least one face")
-    if rows[:, :3].max() >= n + t or (rows[:, 1] == rows[:, 2]).any() or (rows[:, 0] == rows[:, 1]).any() \
-            or rows[:, 0].max() >= n:
-        raise ValueError("payload v2: a face chunk's faces must name three distinct vertices, the first existing")
+    if rows[:, :3].max() >= n + t or (rows[:, 1] == rows[:, 2]).any() or (rows[:, 0] == rows[:, 1]).any():
+        raise ValueError("payload v2: a face chunk's faces must name three distinct vertices of the mesh or new ones")
     if m + len(chunk.faces) > len(state.faces) or n + t > len(state.positions):
         raise ValueError("payload v2: the face chunk exceeds the primitive's counts")
     enc = rc.Encoder(rc.new_probs(FACE_PROBS))

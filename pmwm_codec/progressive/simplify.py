@@ -675,8 +675,8 @@ def deferred_pillows(faces: np.ndarray) -> np.ndarray:
     version 2 keeps out of the simplification and sends in a face chunk after every split (spec
     bitstream.md §8.6): every pillow with a vertex that has a face outside the pillows.  Kept, they stay in the
     base with every vertex they touch.  A flap's tip (a vertex with pillow faces only) then has no
-    face left: the face chunk brings it.  Only pillows apart from every other face stay (a face chunk
-    names an existing vertex in each face)."""
+    face left: the face chunk brings it.  Only pillows apart from every other face stay: parts of their
+    own, kept in the base like any small part (:func:`specks` sends those too small for the grid)."""
     faces = np.asarray(faces, np.int64).reshape(-1, 3)
     twin = reverse_pairs(faces)
     if not twin.any():
@@ -685,6 +685,41 @@ def deferred_pillows(faces: np.ndarray) -> np.ndarray:
     elsewhere = np.zeros(n, bool)
     elsewhere[faces[~twin].ravel()] = True
     return twin & elsewhere[faces].any(axis=1)
+
+
+def specks(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(m,) bool: the faces of ``faces`` (m, 3) int64 on *specks*: parts of the mesh with three vertices
+    that the grid ``positions`` (n, 3) int64 puts on one point (a triangle of a scan smaller than a grid
+    step, alone or with its reverse or copies).  Kept, a speck leaves three base vertices on one grid
+    point, which the reader's weld of a Draco base cannot tell apart, and the encoder falls back to
+    Draco's sequential coder (the snowden bust at 14 bits: a 12.0 KB base instead of 3.7 KB); a face
+    chunk sends them instead (bitstream.md §8.6: a face of new vertices only)."""
+    faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    p = np.asarray(positions)[faces]
+    point = (p[:, 0] == p[:, 1]).all(axis=1) & (p[:, 1] == p[:, 2]).all(axis=1)
+    if not point.any():
+        return point
+    n = len(positions)
+    elsewhere = np.zeros(n, bool)
+    elsewhere[faces[~point].ravel()] = True
+    point &= ~elsewhere[faces].any(axis=1)
+    # every vertex of a speck is named by faces on one vertex triple only
+    triple = np.sort(faces[point], axis=1)
+    key = (triple[:, 0] * n + triple[:, 1]) * n + triple[:, 2] if n < 2**21 else np.unique(triple, axis=0,
+                                                                                          return_inverse=True)[1]
+    pairs = np.unique(np.stack([triple.ravel(), np.repeat(key, 3)], axis=1), axis=0)
+    lone = np.bincount(pairs[:, 0], minlength=n) == 1
+    point[np.flatnonzero(point)[~lone[triple].all(axis=1)]] = False
+    return point
+
+
+def deferred_faces(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(m,) bool: the faces of ``faces`` (m, 3) int64 that the encoder of payload version 2 keeps out of
+    the simplification and sends in a face chunk after every split (spec bitstream.md §8.6):
+    :func:`deferred_pillows` and :func:`specks` (``positions`` (n, 3) int64: grid values), unless that
+    would be every face (the simplification needs a mesh)."""
+    late = deferred_pillows(faces) | specks(positions, faces)
+    return late if not late.all() else np.zeros(len(late), bool)
 
 
 def reverse_pairs(faces: np.ndarray) -> np.ndarray:

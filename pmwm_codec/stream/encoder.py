@@ -45,7 +45,7 @@ from ..mesh import Mesh
 from ..progressive.build import ProgressiveMesh, build_progressive
 from ..progressive.grid import AttributeGrid, Grid
 from ..progressive.seams import twin_rows, weld_groups
-from ..progressive.simplify import CollapseLog, deferred_pillows, simplify
+from ..progressive.simplify import CollapseLog, deferred_faces, simplify
 from ..progressive.topology import mean_edge_length
 from ..watermark import codec as wm
 from ..watermark.key import KEY_FILE_MODE, KeySlot, WatermarkKey
@@ -269,7 +269,7 @@ def encode_document(
     if owner_id is not None:
         key = dataclasses.replace(key if key is not None else WatermarkKey.generate(), owner_id=int(owner_id))
         jobs = _mark_owner(jobs, key, owner_strength)
-    work = _quantize_and_simplify(jobs, grid_bits, base_vertices, say, defer_pillows=payload_version == 2)
+    work = _quantize_and_simplify(jobs, grid_bits, base_vertices, say, defer_faces=payload_version == 2)
     work, notices = _encode_bases(work, base_codec)
     work, order, slots, carriers = _plan_chunks(work, min_chunk_splits)
     params = None
@@ -325,18 +325,19 @@ def _quantize(mesh: Mesh, grid_bits: int) -> tuple:
     return grid, np.concatenate(columns, axis=1), specs
 
 
-def _quantize_and_simplify(jobs, grid_bits: int, base_vertices, say, defer_pillows: bool = True) -> list:
+def _quantize_and_simplify(jobs, grid_bits: int, base_vertices, say, defer_faces: bool = True) -> list:
     """Stage 1: one :class:`PrimitiveWork` per job with its grid, values and collapse log.
 
-    ``defer_pillows``: simplify without the :func:`~pmwm_codec.progressive.simplify.deferred_pillows`
-    and the vertices only they name, which a face chunk sends at the end (payload version 2 only).
+    ``defer_faces``: simplify without the :func:`~pmwm_codec.progressive.simplify.deferred_faces`
+    (pillows, specks) and the vertices only they name, which a face chunk sends at the end
+    (payload version 2 only).
     """
     work = []
     say("simplify", 0.0)
     for i, job in enumerate(jobs):
         grid, values, specs = _quantize(job.mesh, grid_bits)
         faces, positions, locked = job.mesh.faces, job.mesh.positions, job.locked
-        late = deferred_pillows(faces) if defer_pillows else np.zeros(len(faces), bool)
+        late = deferred_faces(values[:, :3], faces) if defer_faces else np.zeros(len(faces), bool)
         extra = {}
         if late.any():  # the core mesh, renumbered (no copies when nothing is deferred)
             core, tips, local = _core_vertices(job.mesh.vertex_count, faces, late)

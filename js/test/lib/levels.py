@@ -110,6 +110,8 @@ CASES = {
     "flaps.plain": lambda: (_glued_pillows(6, 5, False, flaps=6), dict(base_codec="plain")),
     "flaps-shared.draco": lambda: (_glued_pillows(30, 13, True, flaps=12), dict(base_codec="draco")),
     "flaps-attributes.plain": lambda: (_glued_pillows(8, 17, False, flaps=5, attributes=True), dict(base_codec="plain")),
+    "specks.draco": lambda: (shapes.specks(shapes.icosphere(4, 1.0, noise=0.02), 3, seed=5),
+                             dict(base_codec="draco", grid_bits=14)),
 }
 
 
