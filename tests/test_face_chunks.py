@@ -467,3 +467,13 @@ def test_specks_need_three_vertices_of_their_own_on_one_grid_point():
                   [7, 8, 1]], np.int64)            # ... naming a vertex of the first point: not deferred
     assert specks(P, F).tolist() == [False] * 7
     assert specks(P, F[[0, 1, 2, 3, 4, 5]]).tolist() == [True, True, False, False, False, False]
+
+
+def test_faces_of_new_vertices_the_encoder_cannot_order_are_refused_not_miscoded():
+    # (4,6,7) numbers 4, 6, 7 as 4, 5, 6; (5,6,8) then starts at the next new vertex, 7, and names 6
+    # (numbered 5) after it: a raw id is coded after a face's first vertex, so the rows cannot be coded
+    # in this order (the reference encoder sends only specks as faces of new vertices)
+    with pytest.raises(ValueError, match="numbered before its first vertex"):
+        r2.pack_face_chunk(TETRA_VALUES, TETRAHEDRON, [[4, 6, 7], [5, 6, 8]], np.zeros((5, 3), np.int64))
+    stored, order = r2.pack_face_chunk(TETRA_VALUES, TETRAHEDRON, [[4, 5, 8], [5, 6, 7]], np.zeros((5, 3), np.int64))
+    assert _decode(stored, TETRA_VALUES, TETRAHEDRON, 5, 2)[1][4:].tolist() == [[4, 5, 6], [5, 7, 8]]

@@ -941,6 +941,7 @@ _FACE_ERRORS = {
     -7: "face chunk: fewer new vertices named than its index entry adds",
     -8: "face chunk: a value out of range",
     -9: "face chunk: faces not in ascending order of their first vertex",
+    -10: "face chunk: a face names a new vertex numbered before its first vertex",
 }
 
 
@@ -1042,6 +1043,8 @@ def _face_vertex(near, x, a, items, count, n, t, fresh, rename, es, out, ds, buf
         rc.enc_bit(es, out, probs, F_FRESH, 0)
         if x >= n:
             x = rename[x - n]
+        if x <= a:  # a raw id is coded after a: a new vertex named before the face's first one
+            return -10
         rc.enc_uint(es, out, probs, _face_block(FB_RAW), x - a - 1)
         return x
     if rc.dec_bit(ds, buf, probs, near):
@@ -1072,9 +1075,11 @@ def _face_kernel(flat, m, n, t, P, head, nxt, stamp, tag, ctr, coded, rename, up
     Encode: ``coded`` (G, 4) int64 rows ``(a, b, c, twin)``, ``a`` the smallest of the three, ids ``>= n``
     naming the caller's new vertices, whose values are in ``P[n:n + t]`` in the caller's order; rows
     whose ``a`` is new (faces of new vertices only) after the others, in an order that names each such
-    ``a`` as the next new vertex or after it was named (-9 otherwise); the kernel turns a twin row to ``(a, c, b)`` when that fits the neighbour lists
-    better (:func:`_fit`), writes final ids into ``coded``, fills ``rename`` (t,) (caller's new
-    vertex -> final id) and codes the values; the caller then reorders ``P[n:n + t]``.  Decode:
+    ``a`` as the next new vertex or after it was named, before the face's other new vertices (else -9,
+    -10: the reference encoder only writes such rows for specks); the kernel turns a twin row to
+    ``(a, c, b)`` when that fits the neighbour lists better (:func:`_fit`), writes final ids into
+    ``coded``, fills ``rename`` (t,) (caller's new vertex -> final id) and codes the values; the
+    caller then reorders ``P[n:n + t]``.  Decode:
     appends the faces to ``flat`` from slot ``3m`` on and the values to ``P[n:n + t]``.  ``up`` /
     ``near`` (scratch) hold twice the largest valence.  Returns the number of faces (decode:
     appended), or a negative code of :data:`_FACE_ERRORS`."""
