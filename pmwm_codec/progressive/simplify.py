@@ -681,10 +681,15 @@ def deferred_pillows(faces: np.ndarray) -> np.ndarray:
     twin = reverse_pairs(faces)
     if not twin.any():
         return twin
-    n = int(faces.max()) + 1
+    return twin & _touch_others(faces, twin, int(faces.max()) + 1)
+
+
+def _touch_others(faces: np.ndarray, chosen: np.ndarray, n: int) -> np.ndarray:
+    """(m,) bool: the faces of ``faces`` (m, 3) int64 over ``n`` vertices with a vertex that some face
+    outside ``chosen`` (m,) bool also names."""
     elsewhere = np.zeros(n, bool)
-    elsewhere[faces[~twin].ravel()] = True
-    return twin & elsewhere[faces].any(axis=1)
+    elsewhere[faces[~chosen].ravel()] = True
+    return elsewhere[faces].any(axis=1)
 
 
 def specks(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -700,13 +705,10 @@ def specks(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
     if not point.any():
         return point
     n = len(positions)
-    elsewhere = np.zeros(n, bool)
-    elsewhere[faces[~point].ravel()] = True
-    point &= ~elsewhere[faces].any(axis=1)
-    # every vertex of a speck is named by faces on one vertex triple only
+    point &= ~_touch_others(faces, point, n)
+    # every vertex of a speck is named by faces on one vertex triple only (the faces left are few)
     triple = np.sort(faces[point], axis=1)
-    key = (triple[:, 0] * n + triple[:, 1]) * n + triple[:, 2] if n < 2**21 else np.unique(triple, axis=0,
-                                                                                          return_inverse=True)[1]
+    key = np.unique(triple, axis=0, return_inverse=True)[1].reshape(-1)
     pairs = np.unique(np.stack([triple.ravel(), np.repeat(key, 3)], axis=1), axis=0)
     lone = np.bincount(pairs[:, 0], minlength=n) == 1
     point[np.flatnonzero(point)[~lone[triple].all(axis=1)]] = False
