@@ -72,4 +72,37 @@ def test_bench_rd_measures_every_boundary_and_fits_prefixes_in_the_lod_bytes():
     md = bench_rd.render([{**res, "samples": 3000}], {"cpu": "x", "cores": 2, "load": (0, 0, 0), "python": "3",
                                                       "numpy": "2", "DracoPy": "2", "fast_simplification": "0",
                                                       "git": "abc"}, "python tools/bench_rd.py", None)
-    assert md.count("| torus | 14 |") == len(bench_rd.FRACTIONS) + 1
+    assert md.count("| torus | 14 |") == 2 * len(bench_rd.FRACTIONS) + 1  # same bytes, placement, the stream
+
+
+def test_level_clusters_send_every_vertex_to_a_vertex_of_the_level():
+    mesh = shapes.torus(32, 16)
+    log = simplify(mesh.positions, mesh.faces, target_vertices=40)
+    for count in (40, 100, 333):
+        _, faces, rep = bench_rd.level_clusters(mesh, log, count)
+        level = np.unique(faces)
+        assert len(level) == count
+        assert np.array_equal(np.unique(rep), level)  # every cluster is headed by a level vertex
+        assert np.array_equal(rep[level], level)
+
+
+def test_quadric_placement_moves_only_the_vertices_that_absorbed_others_and_undoes_noise():
+    # a noisy sphere: half-edge collapses keep noisy input vertices, the cluster's quadric minimum averages them
+    mesh = shapes.icosphere(4, noise=0.01)
+    log = simplify(mesh.positions, mesh.faces, target_vertices=64)
+    core, faces, rep = bench_rd.level_clusters(mesh, log, 1500)  # of 2,562: some absorbed nobody
+    kept = bench_rd.compact(core.positions, faces)
+    placed = bench_rd.placed_level(core, faces, rep)
+    assert np.array_equal(placed.faces, kept.faces)
+    alone = np.bincount(rep, minlength=core.vertex_count)[np.unique(faces)] == 1
+    assert alone.any() and np.array_equal(placed.positions[alone], kept.positions[alone])
+    assert not np.array_equal(placed.positions[~alone], kept.positions[~alone])
+    assert rms_surface_distance(mesh, placed, samples=20_000) < rms_surface_distance(mesh, kept, samples=20_000)
+
+
+def test_snapping_a_lod_puts_every_vertex_on_an_input_vertex():
+    mesh = shapes.icosphere(3, noise=0.01)
+    lod = bench_rd.compact(mesh.positions[::3] * 1.001, mesh.faces[: len(mesh.faces) // 4] // 3)
+    snapped = bench_rd.snapped(mesh, lod)
+    assert np.array_equal(snapped.faces, lod.faces)
+    assert {tuple(p) for p in snapped.positions} <= {tuple(p) for p in mesh.positions}

@@ -15,7 +15,12 @@ For each mesh and grid resolution (default 16 and 14 bits):
 * **same vertex count** (ordering only, no bits) -- our simplifier's level with exactly the
   LOD's vertex count, on the original float positions (the encoder's own collapse log applied
   fine to coarse; the batch that crosses the count is applied in part, cheapest collapses
-  first: collapses of one batch are independent) against the uncompressed fast-simplification LOD.
+  first: collapses of one batch are independent) against the uncompressed fast-simplification LOD;
+* **placement against selection** (a diagnostic of that ordering ratio) -- our level with every
+  vertex that absorbed others moved to its cluster's quadric minimum (where a full-edge collapse
+  would put it: :func:`placed_level`), and the fast-simplification LOD with every vertex snapped
+  to the nearest input vertex (:func:`snapped`): which of the two differences, the choice of
+  collapses or where the kept vertices sit, makes our levels farther or closer.
 
 Error: symmetric RMS point-to-surface distance to the original
 (:func:`pmwm_codec.distortion.rms_surface_distance`: ``--samples`` area-weighted points on
@@ -50,7 +55,7 @@ from pmwm_codec.constants import DEFAULT_GRID_BITS  # noqa: E402
 from pmwm_codec.distortion import rms_surface_distance  # noqa: E402
 from pmwm_codec.mesh import Mesh  # noqa: E402
 from pmwm_codec.progressive.grid import Grid  # noqa: E402
-from pmwm_codec.progressive.simplify import deferred_faces  # noqa: E402
+from pmwm_codec.progressive.simplify import deferred_faces, face_quadrics  # noqa: E402
 from pmwm_codec.shapes import demo_mesh  # noqa: E402
 
 from bench import DEFAULT_CORPUS, StageTimers, glb_parts, machine, publish, table  # noqa: E402
@@ -91,8 +96,8 @@ def our_stream(mesh: Mesh, bits: int) -> tuple:
     return blob, levels, timers.captured["simplify"]
 
 
-def level_at(mesh: Mesh, log, count: int, bits: int = DEFAULT_GRID_BITS) -> Mesh:
-    """Our simplifier's level with ``count`` vertices, on ``mesh``'s own (float) positions.
+def level_clusters(mesh: Mesh, log, count: int, bits: int = DEFAULT_GRID_BITS) -> tuple:
+    """Our simplifier's level with ``count`` vertices, and where every input vertex went.
 
     ``log``: the encoder's :class:`~pmwm_codec.progressive.simplify.CollapseLog` for ``mesh`` at a
     ``bits`` grid, whose ids are those of the mesh it simplified: without the faces it defers (pillows,
@@ -101,6 +106,10 @@ def level_at(mesh: Mesh, log, count: int, bits: int = DEFAULT_GRID_BITS) -> Mesh
     Batches are applied fine to coarse; the one that would go below ``count`` is applied in
     part, its cheapest collapses first (the collapses of a batch are independent).  A
     ``count`` below the base size gives the base.
+
+    Returns ``(core, faces, rep)``: ``core`` the simplified mesh (the input without the deferred
+    faces, renumbered), ``faces`` (k, 3) int64 the level's faces in ``core``'s ids, ``rep`` (n,) int64
+    the level vertex each core vertex collapsed into (itself for a level vertex).
     """
     late = deferred_faces(Grid.fit(mesh.positions, bits).quantize(mesh.positions), mesh.faces)
     core = np.unique(mesh.faces[~late])  # the encoder's core vertices (every vertex is on a face here)
@@ -110,6 +119,7 @@ def level_at(mesh: Mesh, log, count: int, bits: int = DEFAULT_GRID_BITS) -> Mesh
     corners = np.array(mesh.faces, np.int64)
     face_alive = np.ones(len(corners), bool)
     alive = len(np.unique(corners))
+    rep = np.arange(mesh.vertex_count)
     for batch in log.batches:
         if alive <= count:
             break
@@ -123,8 +133,50 @@ def level_at(mesh: Mesh, log, count: int, bits: int = DEFAULT_GRID_BITS) -> Mesh
         moved = chosen[batch.moved_by]
         mf, by = batch.moved_face[moved], batch.moved_by[moved]
         corners[mf] = np.where(corners[mf] == batch.u[by][:, None], batch.v[by][:, None], corners[mf])
+        rep[batch.u[take]] = batch.v[take]
         alive -= len(take)
-    return compact(mesh.positions, corners[face_alive])
+    while True:  # a kept vertex may be removed by a later batch: follow each chain to its end
+        nxt = rep[rep]
+        if np.array_equal(nxt, rep):
+            break
+        rep = nxt
+    return mesh, corners[face_alive], rep
+
+
+def level_at(mesh: Mesh, log, count: int, bits: int = DEFAULT_GRID_BITS) -> Mesh:
+    """Our simplifier's level with ``count`` vertices, on ``mesh``'s own (float) positions
+    (:func:`level_clusters`): half-edge collapses, so every vertex is an input vertex."""
+    core, faces, _ = level_clusters(mesh, log, count, bits)
+    return compact(core.positions, faces)
+
+
+def placed_level(core: Mesh, faces: np.ndarray, rep: np.ndarray) -> Mesh:
+    """The level ``faces`` of :func:`level_clusters` with every vertex that absorbed others moved to the
+    minimum of the summed quadrics (:func:`~pmwm_codec.progressive.simplify.face_quadrics`, the
+    simplifier's own) of the core vertices that collapsed into it: where a full-edge collapse would
+    put it.  A diagnostic of placement against selection (the format's splits never move a kept
+    vertex); a vertex whose summed quadric is singular, or whose minimum lies farther from its
+    cluster's centroid than three times its own distance, stays where it is."""
+    P = np.asarray(core.positions, np.float64)
+    n = len(P)
+    Q = face_quadrics(P, np.asarray(core.faces, np.int64), n)
+    size = np.bincount(rep, minlength=n)
+    qs = np.stack([np.bincount(rep, weights=Q[:, j], minlength=n) for j in range(10)], axis=1)
+    centroid = np.stack([np.bincount(rep, weights=P[:, j], minlength=n) for j in range(3)], axis=1)
+    centroid /= np.maximum(size, 1)[:, None]
+    out = P.copy()
+    movers = np.flatnonzero(size > 1)
+    a2, ab, ac, ad, b2, bc, bd, c2, cd, _ = qs[movers].T
+    A = np.stack([np.stack([a2, ab, ac], -1), np.stack([ab, b2, bc], -1), np.stack([ac, bc, c2], -1)], 1)
+    scale = np.abs(A).reshape(len(movers), -1).max(axis=1)
+    ok = np.abs(np.linalg.det(A)) > 1e-12 * np.maximum(scale, 1e-300) ** 3
+    x = np.zeros((len(movers), 3))
+    if ok.any():
+        x[ok] = np.linalg.solve(A[ok], -np.stack([ad, bd, cd], -1)[ok][..., None])[..., 0]
+    near = np.linalg.norm(x - centroid[movers], axis=1) < 3 * np.linalg.norm(P[movers] - centroid[movers], axis=1)
+    take = ok & near
+    out[movers[take]] = x[take]
+    return compact(out, faces)
 
 
 # ----------------------------------------------------------------------------- peers
@@ -147,6 +199,14 @@ def lod_chain(mesh: Mesh, bits: int) -> list:
     return out
 
 
+def snapped(mesh: Mesh, lod: Mesh) -> Mesh:
+    """``lod`` with every vertex moved to the nearest vertex of ``mesh``: a full-edge simplifier's
+    selection under half-edge placement (the diagnostic twin of :func:`placed_level`)."""
+    from scipy.spatial import cKDTree
+
+    return Mesh(np.asarray(mesh.positions, np.float64)[cKDTree(mesh.positions).query(lod.positions)[1]], lod.faces)
+
+
 # ----------------------------------------------------------------------------- measure
 def measure(name: str, mesh: Mesh, bits: int, samples: int, log) -> dict:
     """Every boundary's error, the LODs' errors, and the same-bytes / same-vertex comparisons."""
@@ -164,13 +224,15 @@ def measure(name: str, mesh: Mesh, bits: int, samples: int, log) -> dict:
         fits = [c for c in curve if c[0] <= lod["bytes"]]
         no_json = [c for c in curve if c[0] - index <= lod["bytes"]]
         k = lod["raw"].vertex_count
-        ours_k = level_at(mesh, clog, k, bits)
+        core, faces, rep = level_clusters(mesh, clog, k, bits)
+        ours_k = compact(core.positions, faces)
         rows.append({
             "fraction": lod["fraction"], "lod_vertices": k, "lod_faces": lod["raw"].face_count,
             "lod_bytes": lod["bytes"], "lod_error": err(lod["draco"]),
             "prefix": fits[-1] if fits else None, "prefix_chunks": len(fits) - 1,
             "prefix_no_json": no_json[-1] if no_json else None,
             "raw_error": err(lod["raw"]), "ours_k_vertices": ours_k.vertex_count, "ours_k_error": err(ours_k),
+            "placed_error": err(placed_level(core, faces, rep)), "snapped_error": err(snapped(mesh, lod["raw"])),
         })
     log(f"[{name} grid {bits}] {len(blob):,} B, {len(levels) - 1} chunks, {time.perf_counter() - t0:.1f} s")
     return {"name": name, "bits": bits, "vertices": mesh.vertex_count, "faces": mesh.face_count,
@@ -215,6 +277,16 @@ def render(results, info, command: str, plot) -> str:
                          fmt_err(x["raw_error"]), ratio(x["ours_k_error"], x["raw_error"])])
     L.append(table(["mesh", "grid", "LOD", "LOD V", "LOD Draco B", "LOD error", "ours in those bytes",
                     "ours / LOD", "without the JSON: ours / LOD", "ours at LOD V", "fast-simpl. LOD", "ordering ratio"], rows))
+    L += ["", "Placement against selection (no bits involved): our level at the LOD's vertex count as the stream "
+          "has it (every vertex an input vertex: half-edge collapses) and with every vertex that absorbed others "
+          "moved to the minimum of the summed quadrics of its cluster (where a full-edge collapse puts it; "
+          "`placed_level`); the fast-simplification LOD as it is (full-edge collapses) and with every vertex "
+          "snapped to the nearest input vertex (`snapped`). Errors over the LOD's (uncompressed):", ""]
+    L.append(table(["mesh", "grid", "LOD", "ours (half-edge)", "ours, quadric placement", "fast-simpl. LOD",
+                    "fast-simpl. LOD snapped to input vertices"],
+                   [[r["name"], r["bits"], f"{100 * x['fraction']:g}%", ratio(x["ours_k_error"], x["raw_error"]),
+                     ratio(x["placed_error"], x["raw_error"]), fmt_err(x["raw_error"]),
+                     ratio(x["snapped_error"], x["raw_error"])] for r in results for x in r["lods"]]))
     L += ["", "Our stream (whole file, base mesh = the first renderable one):", ""]
     L.append(table(["mesh", "grid", "file B", "chunks", "JSON B", "base B (all bytes before it)", "base V",
                     "error at base"],
