@@ -16,14 +16,15 @@ One run measures, per mesh:
   :func:`pmwm_codec.stream.encoder.encode_mesh` (in this process only; no library file changes).
 
 Meshes: ``stanford-bunny.obj`` from ``../shared/corpus`` and the bunny midpoint-subdivided twice
-(flat subdivision, built in memory: good for time scaling, unrealistic for size).
+(flat subdivision, built in memory: good for time scaling, unrealistic for size); with ``--huge``
+also two copies of that side by side (1.11M vertices, the issue's ~1M-vertex mesh).
 
 Run from the repository root::
 
     python tools/bench.py                       # print the Markdown report
     python tools/bench.py --write BENCHMARKS.md # also replace its "Engine" section
 
-Times are medians of ``--repeats`` runs (``--big-repeats`` on the subdivided mesh), ours and the
+Times are medians of ``--repeats`` runs (``--big-repeats`` on the meshes of 200k vertices and more), ours and the
 peer's interleaved run by run, after one warm-up encode.  The
 machines these run on are shared; compare ratios within one table, not absolute times.
 """
@@ -149,17 +150,28 @@ def ms(s: float) -> str:
 
 
 # ----------------------------------------------------------------------------- meshes
-def load_meshes(corpus: str, big: bool):
+def load_meshes(corpus: str, big: bool, huge: bool = False):
+    """``[(name, Mesh)]``: the bunny; with ``big`` (or ``huge``) the bunny midpoint-subdivided twice (556k
+    vertices); with ``huge`` also two copies of that side by side (1.11M vertices)."""
     bunny = pmwm_codec.read_mesh(os.path.join(corpus, "stanford-bunny.obj"))
     out = [("stanford-bunny", bunny)]
-    if big:
+    if big or huge:
         from pmwm_codec.shapes import _midpoint_subdivide
 
         v, f = bunny.positions, bunny.faces
         for _ in range(2):
             v, f = _midpoint_subdivide(v, f)
         out.append(("bunny-sub2 (midpoint x2)", Mesh(v, f)))
+    if huge:
+        out.append(("bunny-sub2 x2 (side by side)", side_by_side(out[-1][1])))
     return out
+
+
+def side_by_side(mesh):
+    """Two copies of ``mesh`` one bounding box width (x 1.1) apart along x: one mesh of twice the size."""
+    width = float(np.ptp(mesh.positions[:, 0])) * 1.1
+    shifted = mesh.positions + np.array([width, 0.0, 0.0])
+    return Mesh(np.concatenate([mesh.positions, shifted]), np.concatenate([mesh.faces, mesh.faces + mesh.vertex_count]))
 
 
 # ----------------------------------------------------------------------------- profiled encode
@@ -754,6 +766,8 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--big-repeats", type=int, default=3)
     ap.add_argument("--no-big", action="store_true", help="skip the subdivided (~0.56M vertex) mesh")
+    ap.add_argument("--huge", action="store_true",
+                    help="also two copies of the subdivided bunny side by side (1.11M vertices: the ~1M-vertex mesh)")
     ap.add_argument("--zstd-level", type=int, default=10)
     ap.add_argument("--payload-version", type=int, choices=(1, 2), default=1,
                     help="chunk payload version of our timed encodes and decodes (2: also decode v1 in the same runs)")
@@ -772,7 +786,7 @@ def main(argv=None):
     info = machine()
     log(f"machine: {info}")
     results = []
-    for name, mesh in load_meshes(args.corpus, not args.no_big):
+    for name, mesh in load_meshes(args.corpus, not args.no_big, args.huge):
         reps = args.repeats if mesh.vertex_count < 200_000 else args.big_repeats
         results.append(bench_mesh(name, mesh, reps, args.zstd_level, log))
     info["cold"] = cold_start(args.corpus, log)

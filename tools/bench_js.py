@@ -26,13 +26,11 @@ import tempfile
 from pathlib import Path
 
 import DracoPy
-import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import pmwm_codec  # noqa: E402
-from pmwm_codec.mesh import Mesh  # noqa: E402
 from tools.bench import load_meshes, ms, publish, table  # noqa: E402
 
 SECTION = "JavaScript decoder"
@@ -114,13 +112,6 @@ def render(results: list, command: str, load: float) -> str:
     ])
 
 
-def side_by_side(mesh):
-    """Two copies of ``mesh`` one bounding box width (x 1.1) apart along x: one mesh of twice the size."""
-    width = float(np.ptp(mesh.positions[:, 0])) * 1.1
-    shifted = mesh.positions + np.array([width, 0.0, 0.0])
-    return Mesh(np.concatenate([mesh.positions, shifted]), np.concatenate([mesh.faces, mesh.faces + mesh.vertex_count]))
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--corpus", default=str(ROOT.parent / "shared" / "corpus"))
@@ -140,10 +131,7 @@ def main() -> None:
     print(f"load average at start: {load:.2f}", file=sys.stderr)
     results = []
     with tempfile.TemporaryDirectory() as tmp:
-        meshes = load_meshes(args.corpus, args.big)
-        if args.huge:
-            meshes.append(("bunny-sub2 x2 (side by side)", side_by_side(meshes[-1][1])))
-        for name, mesh in meshes:
+        for name, mesh in load_meshes(args.corpus, args.big, args.huge):
             results.append(run_mesh(name, mesh, args.repeats if mesh.vertex_count < 200_000 else 3, Path(tmp),
                                     args.payload_version))
     publish(render(results, command, load), args.write, SECTION, lambda msg: print(msg, file=sys.stderr))
