@@ -267,3 +267,52 @@ def test_face_quadrics_are_the_same_bits_on_both_paths(monkeypatch, name):
         monkeypatch.setattr(topology, "USE_NUMBA", use)
         out.append(simplify.face_quadrics(pos, np.asarray(mesh.faces, np.int64), mesh.vertex_count))
     assert out[0].tobytes() == out[1].tobytes()
+
+
+def _run_pmw(args, root):
+    """``pmw ARGS`` as its own process (``main()`` reading ``sys.argv``, as the console script does);
+    returns whether numba was imported, after checking the exit status."""
+    import subprocess
+    import sys
+
+    code = "import sys; from pmwm_codec.cli import main; rc = main(); print('numba' in sys.modules); sys.exit(rc)"
+    out = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, cwd=root)
+    assert out.returncode == 0, out.stderr
+    return out.stdout.strip().splitlines()[-1] == "True"
+
+
+@pytest.mark.skipif(not NUMBA, reason="numba is not installed")
+def test_a_small_mesh_on_the_command_line_skips_numba_and_writes_the_same_bytes(tmp_path):
+    """``pmw encode`` / ``decode`` of a mesh below SMALL_JOB_VERTICES run the numpy twins in their own
+    process (numba's start-up is not paid) and give the bytes the compiled kernels give."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    mesh = shapes.icosphere(3, 1.0, noise=0.02)  # 642 vertices
+    assert mesh.vertex_count < topology.SMALL_JOB_VERTICES
+    src = tmp_path / "sphere.obj"
+    pmwm_codec.write_mesh(str(src), mesh)
+    assert not _run_pmw(["encode", str(src), "-o", str(tmp_path / "cli.pmw"), "-q"], root)
+    assert not _run_pmw(["decode", str(tmp_path / "cli.pmw"), "-o", str(tmp_path / "cli.obj")], root)
+    from pmwm_codec.cli import main
+
+    assert main(["encode", str(src), "-o", str(tmp_path / "lib.pmw"), "-q"]) == 0  # in process: numba as always
+    assert main(["decode", str(tmp_path / "lib.pmw"), "-o", str(tmp_path / "lib.obj")]) == 0
+    assert topology._one_shot is False  # an in-process call never turns the policy on
+    assert (tmp_path / "cli.pmw").read_bytes() == (tmp_path / "lib.pmw").read_bytes()
+    assert (tmp_path / "cli.obj").read_bytes() == (tmp_path / "lib.obj").read_bytes()
+
+
+@pytest.mark.skipif(not NUMBA, reason="numba is not installed")
+def test_only_a_one_shot_process_with_numba_unloaded_keeps_a_small_job_off_numba(monkeypatch):
+    monkeypatch.setattr(topology, "_plain_job", False)
+    monkeypatch.setattr(topology, "_one_shot", False)
+    monkeypatch.setattr(topology, "_numba", None)
+    topology.job_vertices(10)  # a long-running process: no change
+    assert topology.compiled(topology._counting_order_py) is not None
+    monkeypatch.setattr(topology, "_one_shot", True)
+    monkeypatch.setattr(topology, "_numba", None)
+    topology.job_vertices(topology.SMALL_JOB_VERTICES - 1)
+    assert topology.compiled(topology._counting_order_py) is None
+    topology.job_vertices(topology.SMALL_JOB_VERTICES)  # a big job: numba again
+    assert topology.compiled(topology._counting_order_py) is not None
+    topology.job_vertices(10)  # numba is loaded now: it stays in use
+    assert topology.compiled(topology._counting_order_py) is not None

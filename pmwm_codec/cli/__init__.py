@@ -16,6 +16,10 @@ from . import batch, cut, decode, demo, encode, info, serve, verify
 from .common import PROG, ArgumentParser, run_command
 
 COMMANDS = (encode, decode, cut, verify, info, demo, batch, serve)
+#: Commands that do one job and exit: run as a process of their own (``argv`` None), a small mesh skips
+#: numba's start-up (:func:`pmwm_codec.progressive.topology.job_vertices`).  ``batch`` and ``serve``
+#: live on, and the tests' in-process calls keep numba.
+ONE_SHOT = {"encode", "decode", "cut", "verify", "demo"}
 
 
 def build_parser() -> ArgumentParser:
@@ -35,4 +39,8 @@ def main(argv=None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # usage errors (2), --help / --version (0)
         return int(exc.code or 0)
+    if argv is None and args.command in ONE_SHOT:
+        from pmwm_codec.progressive.topology import one_shot_process
+
+        one_shot_process()
     return run_command(args)

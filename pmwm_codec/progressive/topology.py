@@ -16,6 +16,15 @@ import numpy as np
 #: (``pmw info``, ...) do not pay its import time.
 USE_NUMBA = importlib.util.find_spec("numba") is not None
 _numba = None  # the numba module, once loaded
+#: A one-shot process (:func:`one_shot_process`: the ``pmw`` command line) runs a job of fewer
+#: vertices than this on the numpy / Python twins of the kernels when numba is not loaded yet:
+#: numba's start-up in a fresh process (its import, its target context, the cached kernels) costs
+#: more than its kernels save on a small mesh (BENCHMARKS.md, "Small meshes on the command line").
+#: The twins give the same bytes.  A long-running process (the library, ``pmw batch``'s workers,
+#: ``pmw serve``) pays the start-up once and always uses numba.
+SMALL_JOB_VERTICES = 2000
+_one_shot = False
+_plain_job = False
 
 
 @dataclass
@@ -83,7 +92,7 @@ def compiled(fn):
     None when numba is absent or :data:`USE_NUMBA` is off; callers then run their numpy
     version, which computes the same result.
     """
-    if not USE_NUMBA:
+    if not USE_NUMBA or _plain_job:
         return None
     _load_numba()
     fn = getattr(fn, "py_func", fn)  # a kernel_helper that is also called as a kernel
@@ -91,6 +100,22 @@ def compiled(fn):
     if jit is None:
         jit = _COMPILED[fn] = _jit(fn)
     return jit
+
+
+def one_shot_process() -> None:
+    """Declare this process one job long (the command line): :func:`job_vertices` may then keep
+    a small job off numba."""
+    global _one_shot
+    _one_shot = True
+
+
+def job_vertices(count: int) -> None:
+    """The size of the job at hand, in vertices (an encode's input, a decode's declared counts).
+    In a one-shot process that has not loaded numba, a job below :data:`SMALL_JOB_VERTICES` runs
+    the kernels' numpy / Python twins (:func:`compiled` gives None); elsewhere nothing changes."""
+    global _plain_job
+    if _one_shot and _numba is None:
+        _plain_job = count < SMALL_JOB_VERTICES
 
 
 def _load_numba():

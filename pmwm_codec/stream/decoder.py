@@ -37,6 +37,7 @@ from ..format import BaseEvent, ChunkEvent, ContainerParser, EndEvent, HeaderEve
 from ..format.mac import MacChecker
 from ..mesh import Mesh
 from ..progressive.grid import AttributeGrid, Grid
+from ..progressive.topology import job_vertices
 from ..watermark import codec as wm
 from ..watermark.verify import Verifier
 from .replay import Replay
@@ -240,6 +241,7 @@ class StreamDecoder:
     def _on_header(self, event: HeaderEvent):
         self.header = event
         self.chunks_total = event.chunk_count
+        job_vertices(sum(int(e.get("vertexCount", 0)) for e in event.extensions))  # counts checked by the parser
         cfg = event.extension.get("watermark")
         if cfg is None:
             return  # an unmarked file: nothing to read, the verdict will say so

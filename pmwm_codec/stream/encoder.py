@@ -46,7 +46,7 @@ from ..progressive.build import ProgressiveMesh, build_progressive
 from ..progressive.grid import AttributeGrid, Grid
 from ..progressive.seams import twin_rows, weld_groups
 from ..progressive.simplify import CollapseLog, deferred_faces, simplify
-from ..progressive.topology import mean_edge_length
+from ..progressive.topology import job_vertices, mean_edge_length
 from ..watermark import codec as wm
 from ..watermark.key import KEY_FILE_MODE, KeySlot, WatermarkKey
 from .chunking import (
@@ -262,6 +262,7 @@ def encode_document(
     t0 = time.perf_counter()
     say = progress or (lambda stage, fraction: None)
     measure = measure_method(measure)  # a bad value fails before any work
+    job_vertices(sum(job.mesh.vertex_count for job in jobs))
     if payload_version not in PAYLOAD_VERSIONS or isinstance(payload_version, bool):
         raise ValueError(f"payload_version must be one of {PAYLOAD_VERSIONS}, not {payload_version!r}")
     if grid_bits is None:
