@@ -37,7 +37,7 @@ def run(args) -> int:
     if args.chunks is not None and args.chunks < 0:
         raise UsageError(f"--chunks must be >= 0, got {args.chunks}")
     check_input_file(args.input, ".pmw file")
-    check_output_path(args.output, "mesh")
+    check_output_path(args.output, "mesh", inputs=(args.input,))
     notices = []
     with naming(args.input):
         if suffix in (".glb", ".gltf"):
