@@ -22,6 +22,7 @@ import pytest
 
 from pmwm_codec import shapes
 from pmwm_codec.cli import main
+from pmwm_codec.meshio import write_mesh
 from pmwm_codec.constants import MAX_ENCODE_FACES, MAX_ENCODE_VERTICES, MAX_WATERMARK_PIXELS
 from pmwm_codec.format.document import load_document
 
@@ -398,3 +399,84 @@ def test_largest_hostile_inputs_are_refused_under_an_address_space_limit(tmp_pat
         assert proc.stderr.count("\n") == 1 and proc.stderr.startswith("pmw: error: "), (name, proc.stderr[-2000:])
         assert word in proc.stderr and "MemoryError" not in proc.stderr and "out of memory" not in proc.stderr, name
         assert not out.exists(), name
+
+
+@pytest.mark.parametrize("cut", [-7, +9], ids=["cut short", "trailing bytes"])
+def test_a_binary_stl_whose_size_disagrees_with_its_count_is_named(capsys, tmp_path, mesh, cut):
+    src = tmp_path / "m.stl"
+    write_mesh(src, mesh)
+    data = src.read_bytes()
+    src.write_bytes(data[:cut] if cut < 0 else data + bytes(cut))
+    assert_refused(*run_encode(capsys, tmp_path, src), "binary STL declares 80 triangles",
+                   "cut short" if cut < 0 else "bytes after its last triangle")
+
+
+# --- outputs: never the input, never a device, a FIFO or a directory -------------------------------
+
+
+def test_encoding_onto_its_own_input_is_refused_and_the_input_kept(capsys, tmp_path, mesh):
+    src = tmp_path / "m.obj"
+    write_mesh(src, mesh)
+    before = src.read_bytes()
+    status = main(["encode", str(src), "-o", str(src), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and len(err) == 1 and "is also the input" in err[0], err
+    assert src.read_bytes() == before
+
+
+def test_a_pmw_named_like_a_text_mesh_is_refused(capsys, tmp_path, mesh):
+    src = tmp_path / "m.ply"
+    write_mesh(src, mesh)
+    status = main(["encode", str(src), "-o", str(tmp_path / "m.obj"), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and len(err) == 1 and "name it .pmw" in err[0], err
+    assert not (tmp_path / "m.obj").exists()
+
+
+@pytest.mark.parametrize("command", ["encode", "decode", "key"])
+def test_a_fifo_in_place_of_an_output_is_refused_and_left_alone(capsys, tmp_path, mesh, command):
+    """Publishing renames the new file over the target: a device (``-o /dev/null`` run as root) or a
+    FIFO would be replaced by a regular file."""
+    src = tmp_path / "m.obj"
+    write_mesh(src, mesh)
+    fifo = tmp_path / ("f.obj" if command == "decode" else "f.pmw")
+    if command == "decode":
+        assert main(["encode", str(src), "-o", str(tmp_path / "m.pmw"), "-q"]) == 0
+        os.mkfifo(fifo)
+        argv = ["decode", str(tmp_path / "m.pmw"), "-o", str(fifo)]
+    elif command == "encode":
+        os.mkfifo(fifo)
+        argv = ["encode", str(src), "-o", str(fifo), "-q"]
+    else:  # the default key file beside the output
+        os.mkfifo(str(tmp_path / "k.pmw") + ".key.json")
+        fifo = Path(str(tmp_path / "k.pmw") + ".key.json")
+        argv = ["encode", str(src), "-o", str(tmp_path / "k.pmw"), "--owner-id", "12", "-q"]
+    capsys.readouterr()
+    status = main(argv)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and len(err) == 1 and "not a regular file" in err[0], err
+    assert fifo.is_fifo()
+    assert not (tmp_path / "k.pmw").exists()
+
+
+def test_the_atomic_writer_never_replaces_a_device(tmp_path):
+    from pmwm_codec.atomic import write_atomic
+
+    fifo = tmp_path / "f"
+    os.mkfifo(fifo)
+    with pytest.raises(OSError, match="refusing to replace it"):
+        write_atomic(fifo, [b"x"])
+    assert fifo.is_fifo()
+
+
+@pytest.mark.parametrize("offset, bits, advice", [(1000.0, 16, "--grid-bits 15"), (1e6, 16, "move the mesh nearer"),
+                                                  (0.0, 30, "--grid-bits 25")])
+def test_a_grid_float32_cannot_carry_is_refused_before_any_work_with_the_grid_that_can(capsys, tmp_path, offset, bits,
+                                                                                         advice):
+    src = tmp_path / "m.obj"
+    sphere = shapes.icosphere(3, 1.0, noise=0.01)  # 642 vertices: none of them on a float32-friendly point by luck
+    write_mesh(src, type(sphere)(sphere.positions + offset, sphere.faces))
+    status, err, out = run_encode(capsys, tmp_path, src, "--grid-bits", str(bits))
+    assert_refused(status, err, out, f"a {bits}-bit position grid", "float32", advice)
+    if "--grid-bits" in advice:  # and the advice holds
+        assert run_encode(capsys, tmp_path, src, "--grid-bits", advice.split()[-1])[0] == 0
