@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .constants import MAX_ENCODE_FACES, MAX_ENCODE_VERTICES, MAX_GRID_BITS, MAX_INPUT_FILE_BYTES
-from .errors import InputFormatError, MeshError
+from .errors import DegenerateMeshError, InputFormatError, MeshError
 from .sources import check_input_path, read_regular_file
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")
@@ -76,7 +76,9 @@ def checked_mesh(positions, faces, attributes=None, *, name="mesh") -> Mesh:
     MeshError
         Empty mesh, wrong shapes, NaN/inf coordinates, face index out of range, more
         than the encoder's limits (``MAX_ENCODE_VERTICES`` / ``MAX_ENCODE_FACES``), or a
-        far-out vertex that would collapse the mesh on any position grid.
+        far-out vertex that would collapse the mesh on any position grid;
+        :class:`~pmwm_codec.errors.DegenerateMeshError` (a MeshError) when the data is
+        well formed but every triangle is degenerate.
     """
     try:
         pos = np.asarray(positions, dtype=np.float64)
@@ -95,8 +97,9 @@ def checked_mesh(positions, faces, attributes=None, *, name="mesh") -> Mesh:
     tri = tri.astype(np.int64)
     bad = ~np.isfinite(pos).all(axis=1)
     if bad.any():
+        count = int(bad.sum())
         raise MeshError(
-            f"{name}: {int(bad.sum())} vertices have NaN or infinite coordinates "
+            f"{name}: {count} {'vertex has' if count == 1 else 'vertices have'} NaN or infinite coordinates "
             f"(first at vertex {int(np.argmax(bad))})"
         )
     n = pos.shape[0]
@@ -114,7 +117,7 @@ def checked_mesh(positions, faces, attributes=None, *, name="mesh") -> Mesh:
     degenerate = (tri[:, 0] == tri[:, 1]) | (tri[:, 1] == tri[:, 2]) | (tri[:, 0] == tri[:, 2])
     tri = tri[~degenerate]
     if tri.shape[0] == 0:
-        raise MeshError(f"{name}: every triangle is degenerate")
+        raise DegenerateMeshError(f"{name}: every triangle is degenerate")
     used = np.zeros(n, dtype=bool)
     used[tri.ravel()] = True
     unreferenced = int(n - used.sum())

@@ -144,6 +144,35 @@ def test_lines_and_points_pass_through_unchanged(tmp_path):
                                   read_accessor(before, bb, p0["attributes"]["POSITION"]))
 
 
+@pytest.mark.parametrize("problem", ["index", "nan"])
+def test_a_primitive_with_invalid_data_is_refused_not_passed_through(tmp_path, problem):
+    """The library refuses (MeshError naming the primitive once) instead of passing it through."""
+    from pmwm_codec.errors import MeshError
+
+    src = two_mesh_asset(tmp_path)
+    gltf, buffers = load_document(src)
+    b = DocBuilder()
+    bad = shapes.icosphere(1)
+    faces, positions = bad.faces.copy(), bad.positions.copy()
+    if problem == "index":
+        faces[0, 0] = 1_000_000
+    else:
+        positions[7] = np.nan
+    prim = b.triangles(type(bad)(positions, faces), uv=False)
+    offset = len(gltf["accessors"])
+    gltf["accessors"] += b.doc["accessors"]
+    for acc in b.doc["accessors"]:
+        acc["bufferView"] += len(gltf["bufferViews"])
+    gltf["bufferViews"] += [{**v, "buffer": 1} for v in b.doc["bufferViews"]]
+    gltf["buffers"].append({"byteLength": b.offset})
+    gltf["meshes"][1]["primitives"].append({"attributes": {"POSITION": prim["attributes"]["POSITION"] + offset},
+                                            "indices": prim["indices"] + offset})
+    words = "face index 1000000 out of range for 42 vertices" if problem == "index" else "1 vertex has NaN"
+    with pytest.raises(MeshError, match=rf"^mesh 1 \(ring\) primitive 2: {words}"):
+        encode_asset((gltf, buffers + [b"".join(b.parts)]), tmp_path / "scene.pmw", measure=False)
+    assert not (tmp_path / "scene.pmw").exists()
+
+
 def test_full_level_positions_and_uvs_match_the_input_within_a_grid_step(tmp_path):
     src = two_mesh_asset(tmp_path)
     encode_asset(src, tmp_path / "scene.pmw", measure=False)

@@ -18,6 +18,7 @@ import sys
 import zlib
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from pmwm_codec import shapes
@@ -281,6 +282,122 @@ def test_glb_with_json_nested_beyond_the_parser_is_refused(capsys, tmp_path):
     src = tmp_path / "deep.glb"
     src.write_bytes(glb)
     assert_refused(*run_encode(capsys, tmp_path, src), "deep.glb")
+
+
+def glb_of(primitives, meshes=None) -> bytes:
+    """A GLB of one glTF mesh whose primitives are ``(mode, positions (n, 3), faces (m, 3) or None)``.
+
+    Written with ``json.dumps``' defaults, so a NaN in ``positions`` or in a min/max goes in
+    as-is (``NaN`` in the JSON); ``meshes`` (the JSON dict) may be edited by the caller first.
+    """
+    doc = {"asset": {"version": "2.0"}, "accessors": [], "bufferViews": [], "nodes": [{"mesh": 0}],
+           "scenes": [{"nodes": [0]}], "scene": 0}
+    blob = b""
+
+    def accessor(array, component, type_, minmax=False):
+        nonlocal blob
+        raw = array.tobytes()
+        doc["bufferViews"].append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(raw)})
+        blob += raw + bytes(-len(raw) % 4)
+        acc = {"bufferView": len(doc["bufferViews"]) - 1, "componentType": component, "count": len(array), "type": type_}
+        if minmax:
+            acc.update(min=np.nanmin(array, 0).tolist(), max=np.nanmax(array, 0).tolist())
+        doc["accessors"].append(acc)
+        return len(doc["accessors"]) - 1
+
+    prims = []
+    for mode, positions, faces in primitives:
+        prim = {"attributes": {"POSITION": accessor(np.asarray(positions, "<f4"), 5126, "VEC3", True)}, "mode": mode}
+        if faces is not None:
+            prim["indices"] = accessor(np.asarray(faces, "<u4").ravel(), 5125, "SCALAR")
+        prims.append(prim)
+    doc["meshes"] = [{"primitives": prims}]
+    doc["buffers"] = [{"byteLength": len(blob)}]
+    if meshes is not None:
+        meshes(doc)
+    text = json.dumps(doc).encode()
+    text += b" " * (-len(text) % 4)
+    body = struct.pack("<II", len(text), 0x4E4F534A) + text + struct.pack("<II", len(blob), 0x004E4942) + blob
+    return struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body
+
+
+def bad_primitive(mesh, problem):
+    """``(mode, positions, faces)`` of ``mesh`` with ``problem``: a face index out of range or a NaN position."""
+    positions, faces = mesh.positions.copy(), mesh.faces.copy()
+    if problem == "index":
+        faces[5, 1] = 1_000_000
+    else:
+        positions[3, 1] = np.nan
+    return 4, positions, faces
+
+
+PROBLEM_WORDS = {"index": "face index 1000000 out of range for 42 vertices",
+                 "nan": "1 vertex has NaN or infinite coordinates (first at vertex 3)"}
+
+
+@pytest.mark.parametrize("problem", sorted(PROBLEM_WORDS))
+@pytest.mark.parametrize("where", ["only", "second"])
+def test_gltf_primitive_with_invalid_data_is_refused_and_named(capsys, tmp_path, mesh, problem, where):
+    """Invalid data in a triangle primitive refuses the asset (as in an OBJ), whether or not
+    another primitive could be made progressive; it is never passed through."""
+    good = (4, shapes.icosphere(2).positions, shapes.icosphere(2).faces)
+    prims = [bad_primitive(mesh, problem)] if where == "only" else [good, bad_primitive(mesh, problem)]
+    src = tmp_path / "m.glb"
+    src.write_bytes(glb_of(prims))
+    k = len(prims) - 1
+    status, err, out = run_encode(capsys, tmp_path, src)
+    assert_refused(status, err, out, f"m.glb: mesh 0 primitive {k}: {PROBLEM_WORDS[problem]}")
+    assert err[0].count("primitive") == 1
+
+
+def test_gltf_points_and_degenerate_primitives_still_pass_through(capsys, tmp_path, mesh):
+    """Valid primitives that are not made progressive pass through with one notice each, exit 0."""
+    cloud = np.random.default_rng(3).uniform(-1, 1, (20, 3))
+    flat = mesh.faces.copy()
+    flat[:, 2] = flat[:, 1]  # every triangle degenerate
+    src = tmp_path / "m.glb"
+    src.write_bytes(glb_of([(4, mesh.positions, mesh.faces), (0, cloud, None), (4, mesh.positions, flat)]))
+    out = tmp_path / "out.pmw"
+    status = main(["encode", str(src), "-o", str(out), "--json"])
+    captured = capsys.readouterr()
+    assert status == 0, captured.err
+    notices = json.loads(captured.out)["notices"]
+    assert "mesh 0 primitive 1: mode 0 is not TRIANGLES; passed through unchanged" in notices
+    assert "mesh 0 primitive 2: every triangle is degenerate; passed through unchanged" in notices
+    assert out.exists()
+    doc, _ = load_document(out)
+    assert [p.get("mode", 4) for p in doc["meshes"][0]["primitives"]] == [4, 0, 4]
+
+
+def test_gltf_with_nothing_to_make_progressive_says_why(capsys, tmp_path):
+    cloud = np.random.default_rng(3).uniform(-1, 1, (20, 3))
+    src = tmp_path / "m.glb"
+    src.write_bytes(glb_of([(0, cloud, None)]))
+    assert_refused(*run_encode(capsys, tmp_path, src),
+                   "no triangle primitive that can be made progressive (mesh 0 primitive 0: mode 0 is not TRIANGLES)")
+
+
+@pytest.mark.parametrize("value, shown", [(float("nan"), "NaN"), (float("inf"), "Infinity"), (float("-inf"), "-Infinity")])
+@pytest.mark.parametrize("prim", [0, 1])
+def test_gltf_non_finite_accessor_min_max_is_refused_and_named(capsys, tmp_path, mesh, value, shown, prim):
+    """JSON has no NaN / Infinity (Python's reader takes them): refused naming the member,
+    for the accessor of a passed-through primitive (copied to the output) and of a progressive one."""
+    cloud = np.random.default_rng(3).uniform(-1, 1, (20, 3))
+
+    def poison(doc):
+        doc["accessors"][doc["meshes"][0]["primitives"][prim]["attributes"]["POSITION"]]["min"][1] = value
+
+    src = tmp_path / "m.glb"
+    src.write_bytes(glb_of([(4, mesh.positions, mesh.faces), (0, cloud, None)], poison))
+    acc = 0 if prim == 0 else 2
+    assert_refused(*run_encode(capsys, tmp_path, src), f"m.glb: accessors[{acc}].min[1] is {shown}, which JSON does not allow")
+
+
+def test_gltf_text_with_a_nan_literal_is_refused_and_named(capsys, tmp_path, mesh):
+    doc = gltf_doc(mesh)
+    doc["nodes"][0]["translation"] = [0.0, float("nan"), 0.0]
+    status, err, out = run_encode(capsys, tmp_path, write_gltf(tmp_path / "asset", doc))
+    assert_refused(status, err, out, "m.gltf: nodes[0].translation[1] is NaN")
 
 
 def png_header_only(width: int, height: int) -> bytes:
