@@ -597,3 +597,29 @@ def test_a_grid_float32_cannot_carry_is_refused_before_any_work_with_the_grid_th
     assert_refused(status, err, out, f"a {bits}-bit position grid", "float32", advice)
     if "--grid-bits" in advice:  # and the advice holds
         assert run_encode(capsys, tmp_path, src, "--grid-bits", advice.split()[-1])[0] == 0
+
+
+@pytest.mark.parametrize("literal", ["NaN", "Infinity", "-1e999"])
+def test_a_pmw_whose_json_holds_a_non_finite_number_is_a_format_error_naming_it(capsys, tmp_path, mesh, literal):
+    """Python's JSON reader takes NaN / Infinity / 1e999; JSON does not, and writing the document back
+    (decode to .glb) failed with a message calling it a bug of pmw."""
+    import json
+
+    from pmwm_codec.format.glb import frame_glb, split_glb
+
+    src = tmp_path / "m.obj"
+    write_mesh(src, mesh)
+    assert main(["encode", str(src), "-o", str(tmp_path / "m.pmw"), "-q"]) == 0
+    data = (tmp_path / "m.pmw").read_bytes()
+    gltf, binary = split_glb(data)
+    gltf["nodes"][0]["translation"] = [0.5, 0, 0]
+    text = json.dumps(gltf, separators=(",", ":")).replace("[0.5,0,0]", f"[{literal},0,0]").encode()
+    bad = tmp_path / "bad.pmw"
+    bad.write_bytes(b"".join(frame_glb(text, [binary], len(binary))))
+    for argv in (["decode", str(bad), "-o", str(tmp_path / "out.glb")], ["info", str(bad)]):
+        capsys.readouterr()
+        status = main(argv)
+        err = capsys.readouterr().err.strip().splitlines()
+        assert status == 2 and len(err) == 1, err
+        assert "nodes[0].translation[0]" in err[0] and "bug" not in err[0], err
+    assert not (tmp_path / "out.glb").exists()

@@ -26,7 +26,6 @@ from __future__ import annotations
 import base64
 import copy
 import json
-import math
 import os
 import re
 import urllib.parse
@@ -43,7 +42,8 @@ from ..constants import (
 from ..errors import InputFormatError
 from ..sources import read_regular_file
 from .glb import split_glb
-from .gltf import COMPONENT_DTYPES, DRACO_EXTENSION, FLOAT, INDEX_DTYPES, NORMALIZE_DIVISORS, TYPE_WIDTH, uint, view_bytes
+from .gltf import (COMPONENT_DTYPES, DRACO_EXTENSION, FLOAT, INDEX_DTYPES, NORMALIZE_DIVISORS, TYPE_WIDTH,
+                   check_finite_numbers, uint, view_bytes)
 from .layout import GLB_MAGIC, padded
 
 #: Most elements one accessor may declare: three indices per face of the largest mesh encoded.
@@ -174,7 +174,7 @@ def check_document(gltf: dict, name: str) -> None:
     buffer is read or any array allocated.
     """
     check_json_depth(gltf, name)
-    _check_finite_numbers(gltf, name)
+    check_finite_numbers(gltf, name, InputFormatError)
     for key in _ARRAYS:
         _objects(gltf, key, key, name)
     for key in ("extensionsUsed", "extensionsRequired"):
@@ -200,34 +200,6 @@ def check_document(gltf: dict, name: str) -> None:
     for i, node in enumerate(gltf.get("nodes", [])):
         _check_extensions(node, f"nodes[{i}]", n_acc, name, "EXT_mesh_gpu_instancing")
     _check_meshes(gltf, n_acc, n_views, name)
-
-
-def _check_finite_numbers(gltf: dict, name: str) -> None:
-    """Refuse (InputFormatError naming the member, e.g. ``accessors[3].min[0]``) a NaN or
-    infinite number anywhere in the JSON (walked without recursion; paths are built
-    only for the culprit)."""
-    stack = [(gltf, None)]  # (value, path as a (parent path, key) chain)
-    while stack:
-        value, path = stack.pop()
-        if isinstance(value, dict):
-            stack.extend((child, (path, key)) for key, child in value.items())
-        elif isinstance(value, list):
-            stack.extend((child, (path, i)) for i, child in enumerate(value))
-        elif isinstance(value, float) and not math.isfinite(value):
-            shown = "NaN" if math.isnan(value) else "Infinity" if value > 0 else "-Infinity"
-            raise InputFormatError(f"{name}: {_json_path(path)} is {shown}, which JSON does not allow")
-
-
-def _json_path(path) -> str:
-    """``accessors[3].min[0]`` of a ``(parent, key)`` chain from :func:`_check_finite_numbers`."""
-    keys = []
-    while path is not None:
-        path, key = path
-        keys.append(key)
-    text = ""
-    for key in reversed(keys):
-        text += f"[{key}]" if isinstance(key, int) else f".{key}" if text else str(key)
-    return text or "the document"
 
 
 def _check_view(view: dict, where: str, n_buffers: int, name: str) -> None:

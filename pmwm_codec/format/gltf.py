@@ -12,6 +12,8 @@ another class (``error=InputFormatError`` for input assets).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..errors import FormatError
@@ -221,3 +223,31 @@ class BufferBuilder:
             acc["max"] = [float(x) for x in array.max(0)]
         self.accessors.append(acc)
         return len(self.accessors) - 1
+
+
+def check_finite_numbers(gltf: dict, name: str, error) -> None:
+    """Refuse (``error`` naming the member, e.g. ``accessors[3].min[0]``) a NaN or infinite number
+    anywhere in a parsed JSON document: Python's reader takes ``NaN``, ``Infinity`` and ``1e999``, JSON
+    does not, and writing one back fails (walked without recursion; paths built only for the culprit)."""
+    stack = [(gltf, None)]  # (value, path as a (parent path, key) chain)
+    while stack:
+        value, path = stack.pop()
+        if isinstance(value, dict):
+            stack.extend((child, (path, key)) for key, child in value.items())
+        elif isinstance(value, list):
+            stack.extend((child, (path, i)) for i, child in enumerate(value))
+        elif isinstance(value, float) and not math.isfinite(value):
+            shown = "NaN" if math.isnan(value) else "Infinity" if value > 0 else "-Infinity"
+            raise error(f"{name}: {_json_path(path)} is {shown}, which JSON does not allow")
+
+
+def _json_path(path) -> str:
+    """``accessors[3].min[0]`` of a ``(parent, key)`` chain from :func:`check_finite_numbers`."""
+    keys = []
+    while path is not None:
+        path, key = path
+        keys.append(key)
+    text = ""
+    for key in reversed(keys):
+        text += f"[{key}]" if isinstance(key, int) else f".{key}" if text else str(key)
+    return text or "the document"
