@@ -251,3 +251,40 @@ def _json_path(path) -> str:
     for key in reversed(keys):
         text += f"[{key}]" if isinstance(key, int) else f".{key}" if text else str(key)
     return text or "the document"
+
+
+#: Node members that place a mesh.
+_IDENTITY = {"matrix": [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+             "translation": [0.0, 0.0, 0.0], "rotation": [0.0, 0.0, 0.0, 1.0], "scale": [1.0, 1.0, 1.0]}
+
+
+def placed_by_nodes(gltf: dict) -> bool:
+    """Whether the default scene (or, without one, every node) moves a mesh away from its stored
+    coordinates (a node transform on its path) or shows a mesh more than once (instances).  Reads the
+    JSON leniently: anything malformed counts as not placed (the reader checks what it uses)."""
+    nodes = gltf.get("nodes")
+    if not isinstance(nodes, list):
+        return False
+    scenes, scene = gltf.get("scenes"), gltf.get("scene", 0)
+    roots = None
+    if isinstance(scenes, list) and isinstance(scene, int) and 0 <= scene < len(scenes) and isinstance(scenes[scene], dict):
+        roots = scenes[scene].get("nodes")
+    if not isinstance(roots, list):
+        roots = list(range(len(nodes)))
+    shown, seen = set(), set()
+    stack = [(r, False) for r in roots]
+    while stack:
+        i, moved = stack.pop()
+        if not isinstance(i, int) or not 0 <= i < len(nodes) or not isinstance(nodes[i], dict) or i in seen:
+            continue  # glTF nodes form disjoint trees: a node met twice is a malformed file, walked once
+        seen.add(i)
+        node = nodes[i]
+        moved = moved or any(key in node and node[key] != value for key, value in _IDENTITY.items())
+        if "mesh" in node:
+            if moved or repr(node["mesh"]) in shown:
+                return True
+            shown.add(repr(node["mesh"]))
+        children = node.get("children")
+        if isinstance(children, list):
+            stack.extend((c, moved) for c in children)
+    return False
