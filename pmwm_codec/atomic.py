@@ -7,7 +7,10 @@ Contract
   :func:`publish`, so a process killed while writing (SIGKILL, the OOM killer) leaves
   nothing behind; elsewhere it is a hidden ``.NAME.XXXX.tmp`` that :func:`discard` removes.
 * :func:`publish` moves a staged file over its target with one ``rename`` (a symlink at
-  the target is replaced, never followed) and fsyncs the directory.
+  the target is replaced, never followed) and fsyncs the directory.  A target that exists and
+  is neither a regular file nor a symlink (a device such as ``/dev/null``, a FIFO, a socket, a
+  directory) is never replaced: :func:`stage` and :func:`publish` refuse it
+  (:func:`check_replaceable`).
 * Modes: ``mode=None`` gives ``0666 & ~umask`` (as ``open`` would); a given mode (keys:
   0600) is set with ``fchmod`` whatever the umask.
 * :func:`write_atomic` = stage + publish; :func:`directory_lock` serialises writers of
@@ -22,14 +25,16 @@ the process that signal when it reaches the named point; it does nothing otherwi
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import secrets
 import signal
+import stat
 import tempfile
 from dataclasses import dataclass
 
 __all__ = ["Staged", "stage", "publish", "discard", "write_atomic", "directory_lock", "signals_deferred",
-           "fault_point", "current_umask"]
+           "fault_point", "current_umask", "check_replaceable"]
 
 _DEFERRED_SIGNALS = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
 
@@ -67,8 +72,21 @@ def _temp_name(path: str) -> str:
     return os.path.join(directory, f".{base}.{secrets.token_hex(6)}.tmp")
 
 
+def check_replaceable(path) -> None:
+    """OSError unless ``path`` is free, a regular file or a symlink: a rename over a device, a FIFO
+    or a socket would put a regular file in its place (``-o /dev/null`` run as root)."""
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return
+    if not (stat.S_ISREG(st.st_mode) or stat.S_ISLNK(st.st_mode)):
+        kind = "a directory" if stat.S_ISDIR(st.st_mode) else "not a regular file (a device, FIFO or socket)"
+        raise OSError(errno.EEXIST, f"{os.fspath(path)}: is {kind}; refusing to replace it: give a file name")
+
+
 def _open_staged(path: str, mode: int | None) -> Staged:
     """An empty file in ``path``'s directory: nameless (O_TMPFILE) if possible."""
+    check_replaceable(path)
     directory = os.path.dirname(os.path.abspath(path))
     flags = os.O_WRONLY | getattr(os, "O_CLOEXEC", 0)
     if hasattr(os, "O_TMPFILE") and os.path.isdir("/proc/self/fd"):
@@ -120,6 +138,7 @@ def publish(staged: Staged) -> None:
         staged.temp = temp
     os.close(staged.fd)
     staged.fd = -1
+    check_replaceable(staged.path)
     os.replace(staged.temp, staged.path)
     staged.temp = None
     _fsync_directory(staged.directory)

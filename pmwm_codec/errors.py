@@ -16,6 +16,13 @@ class MeshError(PmwError, ValueError):
     """A mesh that cannot be used: empty, NaN/inf coordinates, bad face indices."""
 
 
+class DegenerateMeshError(MeshError):
+    """A well-formed mesh with nothing to encode: every triangle is degenerate.
+
+    Bad input for a mesh file; a glTF asset passes such a primitive through unchanged.
+    """
+
+
 class InputFormatError(PmwError, ValueError):
     """An input file that is not a readable mesh or image."""
 

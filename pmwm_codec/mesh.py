@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .constants import MAX_ENCODE_FACES, MAX_ENCODE_VERTICES, MAX_GRID_BITS, MAX_INPUT_FILE_BYTES
-from .errors import InputFormatError, MeshError
+from .errors import DegenerateMeshError, InputFormatError, MeshError
 from .sources import check_input_path, read_regular_file
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")
@@ -76,7 +76,9 @@ def checked_mesh(positions, faces, attributes=None, *, name="mesh") -> Mesh:
     MeshError
         Empty mesh, wrong shapes, NaN/inf coordinates, face index out of range, more
         than the encoder's limits (``MAX_ENCODE_VERTICES`` / ``MAX_ENCODE_FACES``), or a
-        far-out vertex that would collapse the mesh on any position grid.
+        far-out vertex that would collapse the mesh on any position grid;
+        :class:`~pmwm_codec.errors.DegenerateMeshError` (a MeshError) when the data is
+        well formed but every triangle is degenerate.
     """
     try:
         pos = np.asarray(positions, dtype=np.float64)
@@ -95,8 +97,9 @@ def checked_mesh(positions, faces, attributes=None, *, name="mesh") -> Mesh:
     tri = tri.astype(np.int64)
     bad = ~np.isfinite(pos).all(axis=1)
     if bad.any():
+        count = int(bad.sum())
         raise MeshError(
-            f"{name}: {int(bad.sum())} vertices have NaN or infinite coordinates "
+            f"{name}: {count} {'vertex has' if count == 1 else 'vertices have'} NaN or infinite coordinates "
             f"(first at vertex {int(np.argmax(bad))})"
         )
     n = pos.shape[0]
@@ -114,7 +117,7 @@ def checked_mesh(positions, faces, attributes=None, *, name="mesh") -> Mesh:
     degenerate = (tri[:, 0] == tri[:, 1]) | (tri[:, 1] == tri[:, 2]) | (tri[:, 0] == tri[:, 2])
     tri = tri[~degenerate]
     if tri.shape[0] == 0:
-        raise MeshError(f"{name}: every triangle is degenerate")
+        raise DegenerateMeshError(f"{name}: every triangle is degenerate")
     used = np.zeros(n, dtype=bool)
     used[tri.ravel()] = True
     unreferenced = int(n - used.sum())
@@ -164,14 +167,28 @@ def _check_ply_header(path, name) -> None:
 
 
 def _check_stl_header(path, name) -> None:
-    """Refuse a binary STL that declares more triangles than the encoder takes."""
+    """Refuse a binary STL that declares more triangles than the encoder takes, or whose size is not
+    what its triangle count says (cut short, or trailing bytes).  A file is ASCII STL when it starts
+    with ``solid`` and its first KiB is text holding ``facet`` or ``endsolid`` (binary headers may
+    start with ``solid`` too)."""
     size = os.stat(path).st_size
     with open(path, "rb") as fh:
-        head = fh.read(84)
-    if len(head) == 84:
-        count = int.from_bytes(head[80:84], "little")
-        if size == 84 + 50 * count and count > MAX_ENCODE_FACES:
-            raise InputFormatError(f"{name}: STL declares {count:,} triangles (the encoder takes {MAX_ENCODE_FACES:,})")
+        head = fh.read(1024)
+    if head.lstrip().startswith(b"solid") and (b"facet" in head or b"endsolid" in head):
+        try:
+            head.decode("ascii")
+            return
+        except UnicodeDecodeError:
+            pass
+    if len(head) < 84:
+        raise InputFormatError(f"{name}: not an STL file (a binary STL has an 84-byte header; the file has {size} bytes)")
+    count = int.from_bytes(head[80:84], "little")
+    if count > MAX_ENCODE_FACES:
+        raise InputFormatError(f"{name}: STL declares {count:,} triangles (the encoder takes {MAX_ENCODE_FACES:,})")
+    if size != 84 + 50 * count:
+        why = "cut short" if size < 84 + 50 * count else "bytes after its last triangle"
+        raise InputFormatError(f"{name}: binary STL declares {count:,} triangles ({84 + 50 * count:,} bytes) "
+                               f"but the file has {size:,} bytes ({why})")
 
 
 def _check_extent(pos: np.ndarray, tri: np.ndarray, name: str) -> None:
@@ -243,7 +260,7 @@ def _read_obj(path, name):
     except UnicodeDecodeError:
         raise InputFormatError(f"{name}: not a text OBJ file") from None
     del data
-    lines = text.splitlines()
+    lines = _obj_lines(text)
     fast = _read_obj_columns(lines)
     if fast is not None:
         return fast
@@ -259,16 +276,26 @@ def _read_obj(path, name):
             elif line.startswith("f "):
                 if len(tris) + line.count(" ") - 2 > MAX_ENCODE_FACES:
                     raise InputFormatError(f"{name}: more than {MAX_ENCODE_FACES:,} triangles (the encoder's limit)")
-                _add_polygon(line, tris, name)
+                _add_polygon(line, tris, name, len(verts))
     except InputFormatError:
         raise
     except (ValueError, IndexError):
         raise InputFormatError(f"{name}: malformed OBJ record: {line.strip()[:60]!r}") from None
     if not verts or not tris:
         raise MeshError(f"{name}: the mesh has no vertices or no faces")
-    faces = np.array(tris, dtype=np.int64)
-    faces = np.where(faces > 0, faces - 1, len(verts) + faces)
-    return np.array(verts, dtype=np.float64), faces
+    return np.array(verts, dtype=np.float64), np.array(tris, dtype=np.int64)
+
+
+def _obj_lines(text: str) -> list:
+    """The lines of an OBJ text, each ``v`` / ``f`` record starting with its keyword and one space (the
+    form both readers match): records indented, or with a tab after the keyword, are valid OBJ."""
+    if _LOOSE_RECORD.search(text):
+        text = _RECORD_HEAD.sub(r"\1 ", text)
+    return text.splitlines()
+
+
+_LOOSE_RECORD = re.compile(r"^[ \t]+[vf][ \t]|^[vf](?:\t| [ \t])", re.M)
+_RECORD_HEAD = re.compile(r"^[ \t]*([vf])[ \t]+", re.M)
 
 
 _FACE_INDICES = re.compile(r"[0-9 \t\n-]*")
@@ -305,19 +332,31 @@ def _read_obj_columns(lines: list):
         return None
     k = idx.shape[1]  # fan triangulation, as _add_polygon
     faces = np.stack([np.repeat(idx[:, 0], k - 2), idx[:, 1:-1].reshape(-1), idx[:, 2:].reshape(-1)], axis=1)
-    faces = np.where(faces > 0, faces - 1, len(positions) + faces)
+    if (faces < 0).any():  # relative indices count back from the vertices read before their record
+        is_v = np.fromiter((line.startswith("v ") for line in lines), bool, len(lines))
+        is_f = np.fromiter((line.startswith("f ") for line in lines), bool, len(lines))
+        before = np.repeat(np.cumsum(is_v)[is_f], k - 2)[:, None]
+        if ((faces < 0) & (before + faces < 0)).any():
+            return None  # an index before the first vertex: the record reader names it
+    else:
+        before = 0
+    faces = np.where(faces > 0, faces - 1, before + faces)
     return np.ascontiguousarray(positions[:, :3]), faces
 
 
-def _add_polygon(line: str, tris: list, name: str) -> None:
-    """Fan-triangulate the ``f`` record ``line`` into ``tris`` (OBJ indices as written: 1-based,
-    or negative counting back from the end); InputFormatError for 0 or an index beyond the limit."""
+def _add_polygon(line: str, tris: list, name: str, read: int) -> None:
+    """Fan-triangulate the ``f`` record ``line`` into ``tris`` as 0-based vertex ids: OBJ indices are
+    1-based, or negative counting back from the ``read`` vertices before the record (``-1``: the
+    last of them).  InputFormatError for 0, an index beyond the limit or before the first vertex."""
     idx = [int(tok.split("/", 1)[0]) for tok in line.split()[1:]]
     if len(idx) < 3:
         raise InputFormatError(f"{name}: a face with fewer than 3 vertices")
     for i in idx:
         if i == 0 or abs(i) > MAX_ENCODE_VERTICES:
             raise InputFormatError(f"{name}: face index {i} cannot name a vertex (at most {MAX_ENCODE_VERTICES:,})")
+        if i < -read:
+            raise InputFormatError(f"{name}: face index {i} counts back past the first vertex ({read} read before it)")
+    idx = [i - 1 if i > 0 else read + i for i in idx]
     tris.extend((idx[0], idx[k], idx[k + 1]) for k in range(1, len(idx) - 1))
 
 

@@ -144,6 +144,35 @@ def test_lines_and_points_pass_through_unchanged(tmp_path):
                                   read_accessor(before, bb, p0["attributes"]["POSITION"]))
 
 
+@pytest.mark.parametrize("problem", ["index", "nan"])
+def test_a_primitive_with_invalid_data_is_refused_not_passed_through(tmp_path, problem):
+    """The library refuses (MeshError naming the primitive once) instead of passing it through."""
+    from pmwm_codec.errors import MeshError
+
+    src = two_mesh_asset(tmp_path)
+    gltf, buffers = load_document(src)
+    b = DocBuilder()
+    bad = shapes.icosphere(1)
+    faces, positions = bad.faces.copy(), bad.positions.copy()
+    if problem == "index":
+        faces[0, 0] = 1_000_000
+    else:
+        positions[7] = np.nan
+    prim = b.triangles(type(bad)(positions, faces), uv=False)
+    offset = len(gltf["accessors"])
+    gltf["accessors"] += b.doc["accessors"]
+    for acc in b.doc["accessors"]:
+        acc["bufferView"] += len(gltf["bufferViews"])
+    gltf["bufferViews"] += [{**v, "buffer": 1} for v in b.doc["bufferViews"]]
+    gltf["buffers"].append({"byteLength": b.offset})
+    gltf["meshes"][1]["primitives"].append({"attributes": {"POSITION": prim["attributes"]["POSITION"] + offset},
+                                            "indices": prim["indices"] + offset})
+    words = "face index 1000000 out of range for 42 vertices" if problem == "index" else "1 vertex has NaN"
+    with pytest.raises(MeshError, match=rf"^mesh 1 \(ring\) primitive 2: {words}"):
+        encode_asset((gltf, buffers + [b"".join(b.parts)]), tmp_path / "scene.pmw", measure=False)
+    assert not (tmp_path / "scene.pmw").exists()
+
+
 def test_full_level_positions_and_uvs_match_the_input_within_a_grid_step(tmp_path):
     src = two_mesh_asset(tmp_path)
     encode_asset(src, tmp_path / "scene.pmw", measure=False)
@@ -274,3 +303,36 @@ def test_a_draco_compressed_input_asset_is_decoded_and_made_progressive(tmp_path
     positions = read_accessor(out, buffers, prim["attributes"]["POSITION"])
     assert len(positions) == mesh.vertex_count
     assert np.abs(np.sort(positions, axis=0) - np.sort(mesh.positions, axis=0)).max() < 1e-3
+
+
+@pytest.mark.parametrize("nodes, placed", [
+    ([{"mesh": 0}], False),
+    ([{"mesh": 0, "translation": [0, 0, 0], "scale": [1, 1, 1]}], False),
+    ([{"mesh": 0, "translation": [10, 0, 0]}], True),
+    ([{"children": [1], "rotation": [0, 0, 0.7071068, 0.7071068]}, {"mesh": 0}], True),  # a parent moves it
+    ([{"mesh": 0}, {"mesh": 0}], True),  # one mesh shown twice
+    ([{"mesh": 0}, {"mesh": 1}], False),
+    ([{"children": [0], "mesh": 0}], False),  # a cycle (invalid glTF): walked once, no hang
+])
+def test_placed_by_nodes_tells_transforms_and_instances_apart(nodes, placed):
+    from pmwm_codec.format.gltf import placed_by_nodes
+
+    doc = {"scene": 0, "scenes": [{"nodes": [0]}], "nodes": nodes}
+    if len(nodes) == 2 and "children" not in nodes[0]:
+        doc["scenes"][0]["nodes"] = [0, 1]
+    assert placed_by_nodes(doc) is placed
+
+
+def test_decoding_a_placed_asset_to_obj_says_the_placement_is_not_in_it(tmp_path, capsys):
+    from pmwm_codec.cli import main
+
+    b = DocBuilder()
+    b.doc.update(scene=0, scenes=[{"nodes": [0]}], nodes=[{"mesh": 0, "translation": [10.0, 0.0, 0.0]}],
+                 meshes=[{"primitives": [b.triangles(shapes.icosphere(2), uv=False)]}])
+    (tmp_path / "a.glb").write_bytes(b.glb())
+    assert main(["encode", str(tmp_path / "a.glb"), "-o", str(tmp_path / "a.pmw"), "-q"]) == 0
+    capsys.readouterr()
+    assert main(["decode", str(tmp_path / "a.pmw"), "-o", str(tmp_path / "a.obj")]) == 0
+    assert "node transforms or instances" in capsys.readouterr().err
+    assert main(["decode", str(tmp_path / "a.pmw"), "-o", str(tmp_path / "a.glb2.glb")]) == 0
+    assert "node transforms" not in capsys.readouterr().err  # the GLB keeps the scene

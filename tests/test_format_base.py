@@ -273,3 +273,24 @@ def test_the_written_base_leaves_out_glTF_defaults_and_long_float_texts(codec):
     position = gltf["accessors"][gltf["meshes"][0]["primitives"][0]["attributes"]["POSITION"]]
     for value in position["min"] + position["max"]:
         assert json.dumps(value) == str(np.float32(value))
+
+
+def test_a_base_whose_triangles_all_fall_onto_grid_points_leaves_draco_unasked_and_stderr_clean(capfd, tmp_path):
+    """A strip 1/200,000 as wide as it is long: on the 16-bit grid every triangle has two corners on one
+    point.  Draco would refuse it and print that on the process's stderr; the encoder stores the base
+    its own way and says nothing."""
+    import pmwm_codec
+    from pmwm_codec.mesh import Mesh
+
+    n = 200  # columns 1 apart, the two rows 1e-3 apart, a wave of 0.01 in z
+    x = np.arange(n, dtype=np.float64)
+    z = 0.01 * np.sin(x)
+    positions = np.concatenate([np.stack([x, np.zeros(n), z], 1), np.stack([x, np.full(n, 1e-3), z], 1)])
+    faces = np.concatenate([np.stack([np.arange(n - 1), np.arange(1, n), n + np.arange(n - 1)], 1),
+                            np.stack([np.arange(1, n), n + np.arange(1, n), n + np.arange(n - 1)], 1)])
+    capfd.readouterr()
+    report = pmwm_codec.encode(Mesh(positions, faces), str(tmp_path / "s.pmw"))
+    assert report["base_codec"] != "draco"
+    out, err = capfd.readouterr()
+    assert err == ""
+    assert pmwm_codec.decode(str(tmp_path / "s.pmw")).face_count == report["faces"]

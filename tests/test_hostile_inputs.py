@@ -18,10 +18,12 @@ import sys
 import zlib
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from pmwm_codec import shapes
 from pmwm_codec.cli import main
+from pmwm_codec.meshio import write_mesh
 from pmwm_codec.constants import MAX_ENCODE_FACES, MAX_ENCODE_VERTICES, MAX_WATERMARK_PIXELS
 from pmwm_codec.format.document import load_document
 
@@ -282,6 +284,122 @@ def test_glb_with_json_nested_beyond_the_parser_is_refused(capsys, tmp_path):
     assert_refused(*run_encode(capsys, tmp_path, src), "deep.glb")
 
 
+def glb_of(primitives, meshes=None) -> bytes:
+    """A GLB of one glTF mesh whose primitives are ``(mode, positions (n, 3), faces (m, 3) or None)``.
+
+    Written with ``json.dumps``' defaults, so a NaN in ``positions`` or in a min/max goes in
+    as-is (``NaN`` in the JSON); ``meshes`` (the JSON dict) may be edited by the caller first.
+    """
+    doc = {"asset": {"version": "2.0"}, "accessors": [], "bufferViews": [], "nodes": [{"mesh": 0}],
+           "scenes": [{"nodes": [0]}], "scene": 0}
+    blob = b""
+
+    def accessor(array, component, type_, minmax=False):
+        nonlocal blob
+        raw = array.tobytes()
+        doc["bufferViews"].append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(raw)})
+        blob += raw + bytes(-len(raw) % 4)
+        acc = {"bufferView": len(doc["bufferViews"]) - 1, "componentType": component, "count": len(array), "type": type_}
+        if minmax:
+            acc.update(min=np.nanmin(array, 0).tolist(), max=np.nanmax(array, 0).tolist())
+        doc["accessors"].append(acc)
+        return len(doc["accessors"]) - 1
+
+    prims = []
+    for mode, positions, faces in primitives:
+        prim = {"attributes": {"POSITION": accessor(np.asarray(positions, "<f4"), 5126, "VEC3", True)}, "mode": mode}
+        if faces is not None:
+            prim["indices"] = accessor(np.asarray(faces, "<u4").ravel(), 5125, "SCALAR")
+        prims.append(prim)
+    doc["meshes"] = [{"primitives": prims}]
+    doc["buffers"] = [{"byteLength": len(blob)}]
+    if meshes is not None:
+        meshes(doc)
+    text = json.dumps(doc).encode()
+    text += b" " * (-len(text) % 4)
+    body = struct.pack("<II", len(text), 0x4E4F534A) + text + struct.pack("<II", len(blob), 0x004E4942) + blob
+    return struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body
+
+
+def bad_primitive(mesh, problem):
+    """``(mode, positions, faces)`` of ``mesh`` with ``problem``: a face index out of range or a NaN position."""
+    positions, faces = mesh.positions.copy(), mesh.faces.copy()
+    if problem == "index":
+        faces[5, 1] = 1_000_000
+    else:
+        positions[3, 1] = np.nan
+    return 4, positions, faces
+
+
+PROBLEM_WORDS = {"index": "face index 1000000 out of range for 42 vertices",
+                 "nan": "1 vertex has NaN or infinite coordinates (first at vertex 3)"}
+
+
+@pytest.mark.parametrize("problem", sorted(PROBLEM_WORDS))
+@pytest.mark.parametrize("where", ["only", "second"])
+def test_gltf_primitive_with_invalid_data_is_refused_and_named(capsys, tmp_path, mesh, problem, where):
+    """Invalid data in a triangle primitive refuses the asset (as in an OBJ), whether or not
+    another primitive could be made progressive; it is never passed through."""
+    good = (4, shapes.icosphere(2).positions, shapes.icosphere(2).faces)
+    prims = [bad_primitive(mesh, problem)] if where == "only" else [good, bad_primitive(mesh, problem)]
+    src = tmp_path / "m.glb"
+    src.write_bytes(glb_of(prims))
+    k = len(prims) - 1
+    status, err, out = run_encode(capsys, tmp_path, src)
+    assert_refused(status, err, out, f"m.glb: mesh 0 primitive {k}: {PROBLEM_WORDS[problem]}")
+    assert err[0].count("primitive") == 1
+
+
+def test_gltf_points_and_degenerate_primitives_still_pass_through(capsys, tmp_path, mesh):
+    """Valid primitives that are not made progressive pass through with one notice each, exit 0."""
+    cloud = np.random.default_rng(3).uniform(-1, 1, (20, 3))
+    flat = mesh.faces.copy()
+    flat[:, 2] = flat[:, 1]  # every triangle degenerate
+    src = tmp_path / "m.glb"
+    src.write_bytes(glb_of([(4, mesh.positions, mesh.faces), (0, cloud, None), (4, mesh.positions, flat)]))
+    out = tmp_path / "out.pmw"
+    status = main(["encode", str(src), "-o", str(out), "--json"])
+    captured = capsys.readouterr()
+    assert status == 0, captured.err
+    notices = json.loads(captured.out)["notices"]
+    assert "mesh 0 primitive 1: mode 0 is not TRIANGLES; passed through unchanged" in notices
+    assert "mesh 0 primitive 2: every triangle is degenerate; passed through unchanged" in notices
+    assert out.exists()
+    doc, _ = load_document(out)
+    assert [p.get("mode", 4) for p in doc["meshes"][0]["primitives"]] == [4, 0, 4]
+
+
+def test_gltf_with_nothing_to_make_progressive_says_why(capsys, tmp_path):
+    cloud = np.random.default_rng(3).uniform(-1, 1, (20, 3))
+    src = tmp_path / "m.glb"
+    src.write_bytes(glb_of([(0, cloud, None)]))
+    assert_refused(*run_encode(capsys, tmp_path, src),
+                   "no triangle primitive that can be made progressive (mesh 0 primitive 0: mode 0 is not TRIANGLES)")
+
+
+@pytest.mark.parametrize("value, shown", [(float("nan"), "NaN"), (float("inf"), "Infinity"), (float("-inf"), "-Infinity")])
+@pytest.mark.parametrize("prim", [0, 1])
+def test_gltf_non_finite_accessor_min_max_is_refused_and_named(capsys, tmp_path, mesh, value, shown, prim):
+    """JSON has no NaN / Infinity (Python's reader takes them): refused naming the member,
+    for the accessor of a passed-through primitive (copied to the output) and of a progressive one."""
+    cloud = np.random.default_rng(3).uniform(-1, 1, (20, 3))
+
+    def poison(doc):
+        doc["accessors"][doc["meshes"][0]["primitives"][prim]["attributes"]["POSITION"]]["min"][1] = value
+
+    src = tmp_path / "m.glb"
+    src.write_bytes(glb_of([(4, mesh.positions, mesh.faces), (0, cloud, None)], poison))
+    acc = 0 if prim == 0 else 2
+    assert_refused(*run_encode(capsys, tmp_path, src), f"m.glb: accessors[{acc}].min[1] is {shown}, which JSON does not allow")
+
+
+def test_gltf_text_with_a_nan_literal_is_refused_and_named(capsys, tmp_path, mesh):
+    doc = gltf_doc(mesh)
+    doc["nodes"][0]["translation"] = [0.0, float("nan"), 0.0]
+    status, err, out = run_encode(capsys, tmp_path, write_gltf(tmp_path / "asset", doc))
+    assert_refused(status, err, out, "m.gltf: nodes[0].translation[1] is NaN")
+
+
 def png_header_only(width: int, height: int) -> bytes:
     """A PNG whose IHDR declares ``width`` x ``height`` 8-bit gray, with one tiny IDAT."""
     def chunk(kind, data):
@@ -398,3 +516,110 @@ def test_largest_hostile_inputs_are_refused_under_an_address_space_limit(tmp_pat
         assert proc.stderr.count("\n") == 1 and proc.stderr.startswith("pmw: error: "), (name, proc.stderr[-2000:])
         assert word in proc.stderr and "MemoryError" not in proc.stderr and "out of memory" not in proc.stderr, name
         assert not out.exists(), name
+
+
+@pytest.mark.parametrize("cut", [-7, +9], ids=["cut short", "trailing bytes"])
+def test_a_binary_stl_whose_size_disagrees_with_its_count_is_named(capsys, tmp_path, mesh, cut):
+    src = tmp_path / "m.stl"
+    write_mesh(src, mesh)
+    data = src.read_bytes()
+    src.write_bytes(data[:cut] if cut < 0 else data + bytes(cut))
+    assert_refused(*run_encode(capsys, tmp_path, src), "binary STL declares 80 triangles",
+                   "cut short" if cut < 0 else "bytes after its last triangle")
+
+
+# --- outputs: never the input, never a device, a FIFO or a directory -------------------------------
+
+
+def test_encoding_onto_its_own_input_is_refused_and_the_input_kept(capsys, tmp_path, mesh):
+    src = tmp_path / "m.obj"
+    write_mesh(src, mesh)
+    before = src.read_bytes()
+    status = main(["encode", str(src), "-o", str(src), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and len(err) == 1 and "is also the input" in err[0], err
+    assert src.read_bytes() == before
+
+
+def test_a_pmw_named_like_a_text_mesh_is_refused(capsys, tmp_path, mesh):
+    src = tmp_path / "m.ply"
+    write_mesh(src, mesh)
+    status = main(["encode", str(src), "-o", str(tmp_path / "m.obj"), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and len(err) == 1 and "name it .pmw" in err[0], err
+    assert not (tmp_path / "m.obj").exists()
+
+
+@pytest.mark.parametrize("command", ["encode", "decode", "key"])
+def test_a_fifo_in_place_of_an_output_is_refused_and_left_alone(capsys, tmp_path, mesh, command):
+    """Publishing renames the new file over the target: a device (``-o /dev/null`` run as root) or a
+    FIFO would be replaced by a regular file."""
+    src = tmp_path / "m.obj"
+    write_mesh(src, mesh)
+    fifo = tmp_path / ("f.obj" if command == "decode" else "f.pmw")
+    if command == "decode":
+        assert main(["encode", str(src), "-o", str(tmp_path / "m.pmw"), "-q"]) == 0
+        os.mkfifo(fifo)
+        argv = ["decode", str(tmp_path / "m.pmw"), "-o", str(fifo)]
+    elif command == "encode":
+        os.mkfifo(fifo)
+        argv = ["encode", str(src), "-o", str(fifo), "-q"]
+    else:  # the default key file beside the output
+        os.mkfifo(str(tmp_path / "k.pmw") + ".key.json")
+        fifo = Path(str(tmp_path / "k.pmw") + ".key.json")
+        argv = ["encode", str(src), "-o", str(tmp_path / "k.pmw"), "--owner-id", "12", "-q"]
+    capsys.readouterr()
+    status = main(argv)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and len(err) == 1 and "not a regular file" in err[0], err
+    assert fifo.is_fifo()
+    assert not (tmp_path / "k.pmw").exists()
+
+
+def test_the_atomic_writer_never_replaces_a_device(tmp_path):
+    from pmwm_codec.atomic import write_atomic
+
+    fifo = tmp_path / "f"
+    os.mkfifo(fifo)
+    with pytest.raises(OSError, match="refusing to replace it"):
+        write_atomic(fifo, [b"x"])
+    assert fifo.is_fifo()
+
+
+@pytest.mark.parametrize("offset, bits, advice", [(1000.0, 16, "--grid-bits 15"), (1e6, 16, "move the mesh nearer"),
+                                                  (0.0, 30, "--grid-bits 25")])
+def test_a_grid_float32_cannot_carry_is_refused_before_any_work_with_the_grid_that_can(capsys, tmp_path, offset, bits,
+                                                                                         advice):
+    src = tmp_path / "m.obj"
+    sphere = shapes.icosphere(3, 1.0, noise=0.01)  # 642 vertices: none of them on a float32-friendly point by luck
+    write_mesh(src, type(sphere)(sphere.positions + offset, sphere.faces))
+    status, err, out = run_encode(capsys, tmp_path, src, "--grid-bits", str(bits))
+    assert_refused(status, err, out, f"a {bits}-bit position grid", "float32", advice)
+    if "--grid-bits" in advice:  # and the advice holds
+        assert run_encode(capsys, tmp_path, src, "--grid-bits", advice.split()[-1])[0] == 0
+
+
+@pytest.mark.parametrize("literal", ["NaN", "Infinity", "-1e999"])
+def test_a_pmw_whose_json_holds_a_non_finite_number_is_a_format_error_naming_it(capsys, tmp_path, mesh, literal):
+    """Python's JSON reader takes NaN / Infinity / 1e999; JSON does not, and writing the document back
+    (decode to .glb) failed with a message calling it a bug of pmw."""
+    import json
+
+    from pmwm_codec.format.glb import frame_glb, split_glb
+
+    src = tmp_path / "m.obj"
+    write_mesh(src, mesh)
+    assert main(["encode", str(src), "-o", str(tmp_path / "m.pmw"), "-q"]) == 0
+    data = (tmp_path / "m.pmw").read_bytes()
+    gltf, binary = split_glb(data)
+    gltf["nodes"][0]["translation"] = [0.5, 0, 0]
+    text = json.dumps(gltf, separators=(",", ":")).replace("[0.5,0,0]", f"[{literal},0,0]").encode()
+    bad = tmp_path / "bad.pmw"
+    bad.write_bytes(b"".join(frame_glb(text, [binary], len(binary))))
+    for argv in (["decode", str(bad), "-o", str(tmp_path / "out.glb")], ["info", str(bad)]):
+        capsys.readouterr()
+        status = main(argv)
+        err = capsys.readouterr().err.strip().splitlines()
+        assert status == 2 and len(err) == 1, err
+        assert "nodes[0].translation[0]" in err[0] and "bug" not in err[0], err
+    assert not (tmp_path / "out.glb").exists()

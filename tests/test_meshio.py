@@ -112,26 +112,46 @@ coordinate = st.one_of(st.floats(-1e6, 1e6, allow_nan=False), st.integers(-1000,
 
 
 @st.composite
-def obj_files(draw):
-    """OBJ text with uniform or mixed records: extra vertex fields, polygons of 3-5 vertices, indices
-    written plain / ``i/t`` / ``i//n`` / ``i/t/n``, 1-based or negative, comments and blank lines."""
-    n = draw(st.integers(5, 12))
+def obj_documents(draw):
+    """``(text, positions, faces)``: OBJ text with uniform or mixed records and the arrays it means.
+
+    One to three objects, each its vertices then its faces (so a negative index counts back from the
+    vertices read before its record, not from the end of the file); extra vertex fields, polygons of
+    3-5 vertices (fan-triangulated), indices written plain / ``i/t`` / ``i//n`` / ``i/t/n``, 1-based or
+    negative, keywords indented or followed by tabs, comments and blank lines."""
     extra = draw(st.sampled_from([0, 0, 1, 3]))
     fmt = draw(st.sampled_from(["{:.9g}", "{!r}", "{:.3e}", "{}"]))
-    lines = []
-    for _ in range(n):
-        values = [float(draw(coordinate)) for _ in range(3 + extra)]
-        lines.append("v " + " ".join(fmt.format(x) for x in values))
     sizes = draw(st.sampled_from([[3], [4], [5], [3, 4]]))
     style = draw(st.sampled_from(["{}", "{}/{}", "{}//{}", "{}/{}/{}"]))
-    for _ in range(draw(st.integers(1, 10))):
-        k = draw(st.sampled_from(sizes))
-        ids = draw(st.lists(st.integers(1, n), min_size=k, max_size=k, unique=True))
-        ids = [i - n - 1 if draw(st.booleans()) and draw(st.booleans()) else i for i in ids]  # some negative
-        lines.append("f " + " ".join(style.format(i, 1, 1) for i in ids))
+    loose = draw(st.booleans())
+    lines, positions, faces = [], [], []
+
+    def head(keyword):
+        return draw(st.sampled_from([keyword + " ", keyword + "\t", "  " + keyword + " ", "\t" + keyword + "  "])) \
+            if loose else keyword + " "
+
+    for _ in range(draw(st.integers(1, 3))):
+        if lines and draw(st.booleans()):
+            lines.append("o part")
+        for _ in range(draw(st.integers(5, 9))):
+            values = [fmt.format(float(draw(coordinate))) for _ in range(3 + extra)]
+            lines.append(head("v") + " ".join(values))
+            positions.append([float(x) for x in values[:3]])
+        read = len(positions)
+        for _ in range(draw(st.integers(1, 6))):
+            k = draw(st.sampled_from(sizes))
+            ids = draw(st.lists(st.integers(0, read - 1), min_size=k, max_size=k, unique=True))
+            written = [i - read if draw(st.booleans()) and draw(st.booleans()) else i + 1 for i in ids]
+            lines.append(head("f") + " ".join(style.format(i, 1, 1) for i in written))
+            faces.extend((ids[0], ids[j], ids[j + 1]) for j in range(1, k - 1))
     if draw(st.booleans()):
         lines.insert(draw(st.integers(0, len(lines))), draw(st.sampled_from(["# a comment", "", "vn 0 0 1", "o part"])))
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines) + "\n", np.array(positions, np.float64), np.array(faces, np.int64)
+
+
+@st.composite
+def obj_files(draw):
+    return draw(obj_documents())[0]
 
 
 def _read_by_records(path):
@@ -148,7 +168,7 @@ def _read_by_records(path):
 def test_the_column_reader_gives_the_record_readers_arrays_or_leaves_the_file_to_it(tmp_path_factory, text):
     path = tmp_path_factory.mktemp("obj") / "m.obj"
     path.write_text(text)
-    columns = mesh_mod._read_obj_columns(text.splitlines())
+    columns = mesh_mod._read_obj_columns(mesh_mod._obj_lines(text))
     positions, faces = _read_by_records(str(path))
     if columns is not None:
         assert columns[0].dtype == positions.dtype and columns[1].dtype == faces.dtype
@@ -161,3 +181,22 @@ def test_a_plain_triangle_obj_takes_the_column_reader(mesh, tmp_path):
     path = tmp_path / "m.obj"
     write_mesh(path, mesh)
     assert mesh_mod._read_obj_columns(path.read_text().splitlines()) is not None
+
+
+@settings(max_examples=200, deadline=None)
+@given(obj_documents())
+def test_obj_records_mean_what_the_obj_format_says(tmp_path_factory, document):
+    """Negative indices count back from the vertices read so far (two objects each written with
+    ``f -4 -3 -2`` keep their own vertices); indented records and tabs after the keyword are records."""
+    text, positions, faces = document
+    path = tmp_path_factory.mktemp("obj") / "m.obj"
+    path.write_text(text)
+    got = mesh_mod._read_obj(str(path), "m.obj")
+    assert np.array_equal(got[0], positions) and np.array_equal(got[1], faces)
+
+
+def test_a_negative_index_before_the_first_vertex_is_named(tmp_path):
+    path = tmp_path / "m.obj"
+    path.write_text("v 0 0 0\nv 1 0 0\nf -1 -2 -3\nv 0 1 0\n")
+    with pytest.raises(mesh_mod.InputFormatError, match="face index -3 counts back past the first vertex"):
+        mesh_mod._read_obj(str(path), "m.obj")

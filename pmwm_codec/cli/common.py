@@ -174,16 +174,36 @@ def naming(path):
         raise UsageError(f"{name}: {text}") from None
 
 
-def check_output_path(path, what: str = "output") -> None:
-    """Fail early (UsageError) when ``path``'s directory does not exist or is not writable."""
+def check_output_path(path, what: str = "output", inputs=()) -> None:
+    """Fail early (UsageError) when ``path``'s directory does not exist or is not writable, when
+    ``path`` is a directory, a device, a FIFO or a socket (publishing renames a new file over the
+    target: it would take the device's place), or when it names one of the ``inputs`` files."""
+    from pmwm_codec.atomic import check_replaceable
+
     path = os.fspath(path)
     directory = os.path.dirname(os.path.abspath(path)) or "."
     if os.path.isdir(path):
         raise UsageError(f"{path}: is a directory; give a file name for the {what}")
+    try:
+        check_replaceable(path)
+    except OSError as exc:
+        raise UsageError(exc.strerror) from None
     if not os.path.isdir(directory):
         raise UsageError(f"{path}: cannot write {what}: directory {directory} does not exist")
     if not os.access(directory, os.W_OK):
         raise UsageError(f"{path}: cannot write {what}: directory {directory} is not writable")
+    for source in inputs:
+        if source is not None and source != "-" and _same_file(source, path):
+            raise UsageError(f"{path}: is also the input {source}; give the {what} another name "
+                             "(writing it would replace the input)")
+
+
+def _same_file(a, b) -> bool:
+    """Whether the paths ``a`` and ``b`` name one existing file (hard links and symlinks included)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
 
 
 def check_input_file(path, what: str = "file") -> None:

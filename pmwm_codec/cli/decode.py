@@ -2,7 +2,8 @@
 
 glTF outputs keep the whole document (materials, textures, nodes) through
 :func:`pmwm_codec.stream.asset.decode_asset`; the other formats get the geometry through
-:func:`pmwm_codec.stream.reader.decode_stream` and :func:`pmwm_codec.meshio.write_mesh`.
+:func:`pmwm_codec.stream.reader.iter_results` and :func:`pmwm_codec.meshio.write_mesh` (each progressive
+primitive once, as stored: a notice says so when the asset's nodes move or repeat its meshes).
 Every output is written atomically.
 """
 
@@ -12,7 +13,9 @@ import os
 
 from pmwm_codec.meshio import WRITE_SUFFIXES, write_asset, write_mesh
 from pmwm_codec.stream.asset import decode_asset
-from pmwm_codec.stream.reader import decode_stream
+from pmwm_codec.format.gltf import placed_by_nodes
+from pmwm_codec.stream.decoder import StreamDecoder
+from pmwm_codec.stream.reader import iter_results
 
 from .common import UsageError, check_input_file, check_output_path, naming, notice, print_json
 
@@ -37,7 +40,7 @@ def run(args) -> int:
     if args.chunks is not None and args.chunks < 0:
         raise UsageError(f"--chunks must be >= 0, got {args.chunks}")
     check_input_file(args.input, ".pmw file")
-    check_output_path(args.output, "mesh")
+    check_output_path(args.output, "mesh", inputs=(args.input,))
     notices = []
     with naming(args.input):
         if suffix in (".glb", ".gltf"):
@@ -45,8 +48,13 @@ def run(args) -> int:
             last, notices = decoder.last, decoder.notices
             write_asset(args.output, glb)
         else:
-            last, end = decode_stream(args.input, chunks=args.chunks, copy=False)
+            decoder = StreamDecoder(copy=False, max_chunks=args.chunks)
+            last, end = _run(iter_results(args.input, decoder))
             write_mesh(args.output, last.mesh)
+            if decoder.header is not None and placed_by_nodes(decoder.header.gltf_json):
+                notices.append("the asset places its meshes with node transforms or instances, which an "
+                               f"{suffix[1:].upper()} file does not carry: it holds each progressive primitive "
+                               "once, as stored; decode to .glb to keep the scene")
     out = {"vertices": int(last.vertices), "faces": int(last.faces_count), "chunks_applied": int(end.chunks_applied),
            "complete": bool(end.complete), "chunks_total": int(end.chunks_total), "truncated": bool(end.truncated),
            "output": args.output, "notices": _chunk_notices(args.chunks, end) + notices}
@@ -59,6 +67,16 @@ def run(args) -> int:
         print(f"{args.output}: {out['vertices']:,} vertices, {out['faces']:,} faces "
               f"(base + {out['chunks_applied']} of {out['chunks_total']} chunks; {state})")
     return 0
+
+
+def _run(results) -> tuple:
+    """``(last PartialResult, StreamEnd)`` of an :func:`iter_results` generator."""
+    last = None
+    while True:
+        try:
+            last = next(results)
+        except StopIteration as stop:
+            return last, stop.value
 
 
 def _chunk_notices(asked, end) -> list:

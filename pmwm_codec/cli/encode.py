@@ -15,6 +15,10 @@ from pmwm_codec.watermark.image import load_watermark
 from .common import Progress, UsageError, check_input_file, check_output_path, fmt_float, print_json, stage_progress
 
 
+#: Output names that would say "mesh text", not the GLB a .pmw is.
+MESH_SUFFIXES = (".obj", ".ply", ".stl", ".gltf")
+
+
 def _int_in(lo, hi, what):
     def parse(text):
         try:
@@ -117,9 +121,12 @@ def run(args) -> int:
     check_input_file(args.input, "mesh file")
     if args.watermark is not None:
         check_input_file(args.watermark, "watermark image")
-    check_output_path(args.output, ".pmw")
+    check_output_path(args.output, ".pmw", inputs=(args.input, args.watermark, args.key))
+    if os.path.splitext(args.output)[1].lower() in MESH_SUFFIXES:
+        raise UsageError(f"{args.output}: a .pmw is a GLB file; name it .pmw (or .glb), not "
+                         f"{os.path.splitext(args.output)[1]}")
     if args.key is not None and not os.path.exists(args.key):
-        check_output_path(args.key, "key")
+        check_output_path(args.key, "key", inputs=(args.input, args.watermark))
     progress = Progress(not (args.json or args.quiet))
     options = {**stream_options(args), "measure": args.measure, "progress": stage_progress(progress)}
     if args.owner_id is not None:

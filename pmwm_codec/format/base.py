@@ -238,6 +238,11 @@ def _try_draco(pos, tri, grid, preserve_order, level):
 
     bits = grid.bits
     stored = _check_float32_exact(pos, grid)
+    corners = pos[tri]  # (m, 3, 3) grid positions
+    if not (np.any(corners[:, 0] != corners[:, 1], axis=1) & np.any(corners[:, 1] != corners[:, 2], axis=1)
+            & np.any(corners[:, 2] != corners[:, 0], axis=1)).any():
+        # Draco refuses such a mesh, and says so on the process's stderr (C++): not asked at all
+        return "every triangle has two corners on one grid point (Draco keeps none of them)"
     # Draco quantizes q = floor((p - origin) * (2**bits - 1) / range + 0.5) and
     # dequantizes origin + q * range / (2**bits - 1): with the grid's own origin
     # and range = step * (2**bits - 1) its integers are our grid integers.

@@ -42,7 +42,8 @@ from ..constants import (
 from ..errors import InputFormatError
 from ..sources import read_regular_file
 from .glb import split_glb
-from .gltf import COMPONENT_DTYPES, DRACO_EXTENSION, FLOAT, INDEX_DTYPES, NORMALIZE_DIVISORS, TYPE_WIDTH, uint, view_bytes
+from .gltf import (COMPONENT_DTYPES, DRACO_EXTENSION, FLOAT, INDEX_DTYPES, NORMALIZE_DIVISORS, TYPE_WIDTH,
+                   check_finite_numbers, uint, view_bytes)
 from .layout import GLB_MAGIC, padded
 
 #: Most elements one accessor may declare: three indices per face of the largest mesh encoded.
@@ -163,7 +164,9 @@ _ARRAYS = ("accessors", "animations", "buffers", "bufferViews", "cameras", "imag
 def check_document(gltf: dict, name: str) -> None:
     """Refuse (InputFormatError) a glTF JSON the document code cannot walk safely.
 
-    Checks the nesting depth (:data:`MAX_JSON_DEPTH`), that every array and object
+    Checks the nesting depth (:data:`MAX_JSON_DEPTH`), that no number is NaN or
+    infinite (Python's JSON reader takes ``NaN``, ``Infinity`` and ``1e999``; JSON, and
+    so the output, does not), that every array and object
     this module reads has the right JSON type, that every accessor / bufferView
     reference it renumbers is an index in range, and that the triangle primitives
     declare no more vertices and faces in total than the encoder takes
@@ -171,6 +174,7 @@ def check_document(gltf: dict, name: str) -> None:
     buffer is read or any array allocated.
     """
     check_json_depth(gltf, name)
+    check_finite_numbers(gltf, name, InputFormatError)
     for key in _ARRAYS:
         _objects(gltf, key, key, name)
     for key in ("extensionsUsed", "extensionsRequired"):

@@ -12,6 +12,8 @@ another class (``error=InputFormatError`` for input assets).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..errors import FormatError
@@ -221,3 +223,68 @@ class BufferBuilder:
             acc["max"] = [float(x) for x in array.max(0)]
         self.accessors.append(acc)
         return len(self.accessors) - 1
+
+
+def check_finite_numbers(gltf: dict, name: str, error) -> None:
+    """Refuse (``error`` naming the member, e.g. ``accessors[3].min[0]``) a NaN or infinite number
+    anywhere in a parsed JSON document: Python's reader takes ``NaN``, ``Infinity`` and ``1e999``, JSON
+    does not, and writing one back fails (walked without recursion; paths built only for the culprit)."""
+    stack = [(gltf, None)]  # (value, path as a (parent path, key) chain)
+    while stack:
+        value, path = stack.pop()
+        if isinstance(value, dict):
+            stack.extend((child, (path, key)) for key, child in value.items())
+        elif isinstance(value, list):
+            stack.extend((child, (path, i)) for i, child in enumerate(value))
+        elif isinstance(value, float) and not math.isfinite(value):
+            shown = "NaN" if math.isnan(value) else "Infinity" if value > 0 else "-Infinity"
+            raise error(f"{name}: {_json_path(path)} is {shown}, which JSON does not allow")
+
+
+def _json_path(path) -> str:
+    """``accessors[3].min[0]`` of a ``(parent, key)`` chain from :func:`check_finite_numbers`."""
+    keys = []
+    while path is not None:
+        path, key = path
+        keys.append(key)
+    text = ""
+    for key in reversed(keys):
+        text += f"[{key}]" if isinstance(key, int) else f".{key}" if text else str(key)
+    return text or "the document"
+
+
+#: Node members that place a mesh.
+_IDENTITY = {"matrix": [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+             "translation": [0.0, 0.0, 0.0], "rotation": [0.0, 0.0, 0.0, 1.0], "scale": [1.0, 1.0, 1.0]}
+
+
+def placed_by_nodes(gltf: dict) -> bool:
+    """Whether the default scene (or, without one, every node) moves a mesh away from its stored
+    coordinates (a node transform on its path) or shows a mesh more than once (instances).  Reads the
+    JSON leniently: anything malformed counts as not placed (the reader checks what it uses)."""
+    nodes = gltf.get("nodes")
+    if not isinstance(nodes, list):
+        return False
+    scenes, scene = gltf.get("scenes"), gltf.get("scene", 0)
+    roots = None
+    if isinstance(scenes, list) and isinstance(scene, int) and 0 <= scene < len(scenes) and isinstance(scenes[scene], dict):
+        roots = scenes[scene].get("nodes")
+    if not isinstance(roots, list):
+        roots = list(range(len(nodes)))
+    shown, seen = set(), set()
+    stack = [(r, False) for r in roots]
+    while stack:
+        i, moved = stack.pop()
+        if not isinstance(i, int) or not 0 <= i < len(nodes) or not isinstance(nodes[i], dict) or i in seen:
+            continue  # glTF nodes form disjoint trees: a node met twice is a malformed file, walked once
+        seen.add(i)
+        node = nodes[i]
+        moved = moved or any(key in node and node[key] != value for key, value in _IDENTITY.items())
+        if "mesh" in node:
+            if moved or repr(node["mesh"]) in shown:
+                return True
+            shown.add(repr(node["mesh"]))
+        children = node.get("children")
+        if isinstance(children, list):
+            stack.extend((c, moved) for c in children)
+    return False

@@ -52,7 +52,7 @@ from ..errors import ChecksumError, FormatError, LimitError, TruncatedError
 from ..progressive.grid import Grid
 from . import base as _base
 from .extension import check_extension, chunk_entries, digest, payload_version
-from .gltf import find_extension_primitives, uint, view_range
+from .gltf import check_finite_numbers, find_extension_primitives, uint, view_range
 from .layout import (
     ALIGNMENT,
     CHUNK_HEADER_SIZE,
@@ -450,6 +450,7 @@ def _load_json(text: bytes):
         raise FormatError(f"GLB JSON chunk: not valid UTF-8 JSON ({str(exc).splitlines()[0]})") from None
     if not isinstance(gltf, dict):
         raise FormatError("GLB JSON chunk: top level is not an object")
+    check_finite_numbers(gltf, "GLB JSON chunk", FormatError)
     exts = []
     for _, _, prim in find_extension_primitives(gltf, EXTENSION_NAME):
         ext = check_extension(prim["extensions"][EXTENSION_NAME])

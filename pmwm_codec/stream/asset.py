@@ -9,7 +9,11 @@ animations, ``extras`` and extensions it does not know.
 Eligible: ``mode`` TRIANGLES, a POSITION, no morph ``targets``, no ``JOINTS_n`` /
 ``WEIGHTS_n`` (skinned).  Draco-compressed input primitives are decoded first
 (attributes looked up by their Draco unique ids).  Any other primitive
-(points, lines, strips, morphs, skins) passes through untouched, with a notice.
+(points, lines, strips, morphs, skins; triangles that are all degenerate) passes
+through untouched, with a notice.  Invalid data is never passed through: an
+eligible primitive goes through :func:`~pmwm_codec.mesh.checked_mesh` as a mesh
+file does, and a face index out of range or a NaN position refuses the asset
+with an error naming the primitive.
 Every other vertex attribute (NORMAL, TANGENT, TEXCOORD_n, COLOR_n, custom)
 rides with the splits on its own integer grid.
 
@@ -34,7 +38,7 @@ import os
 import numpy as np
 
 from ..constants import EXTENSION_NAME
-from ..errors import InputFormatError, MeshError, PmwError
+from ..errors import DegenerateMeshError, InputFormatError, MeshError, PmwError
 from ..format.document import load_document, read_accessor, repack
 from ..format.document import strip_image_profiles as _strip_profiles
 from ..format.glb import glb_parts
@@ -63,41 +67,70 @@ def is_asset_path(path) -> bool:
     return isinstance(path, (str, os.PathLike)) and os.fspath(path).lower().endswith(ASSET_SUFFIXES)
 
 
-def plan_asset(gltf: dict, buffers) -> tuple:
+#: How many pass-through reasons the "no triangle primitive" error quotes.
+_REASONS_QUOTED = 3
+
+
+class _PassThrough(Exception):
+    """A valid primitive that is not made progressive; the message names it and says why."""
+
+
+def plan_asset(gltf: dict, buffers, name: str | None = None) -> tuple:
     """Split a document's primitives into progressive jobs and pass-throughs.
 
     Returns ``(jobs: list[PrimitiveJob], drop_accessors: set, notices: list[str])``.
+
+    A primitive that is valid but not made progressive (points, lines, strips,
+    morphs, skins, triangles that are all degenerate, Draco data with attributes
+    outside the Draco stream) passes through with a notice.  A triangle primitive
+    whose data is invalid (face index out of range, NaN/inf positions, an index
+    count that is not a multiple of 3, an accessor that cannot be read, Draco data
+    that does not decode ...: what :func:`~pmwm_codec.mesh.checked_mesh` refuses in
+    a mesh file) is refused: :class:`MeshError` / :class:`InputFormatError` naming
+    the primitive (after ``name``, the file's, when given).  So is an asset with no
+    primitive to make progressive (:class:`PmwError` quoting why).
     """
-    jobs, notices = [], []
+    jobs, notices, reasons = [], [], []
     users = {}  # accessor -> number of pass-through users
     candidates = []
+
+    def pass_through(prim, reason):
+        reasons.append(reason)
+        notices.append(f"{reason}; passed through unchanged")
+        for idx in list(prim.get("attributes", {}).values()) + ([prim["indices"]] if "indices" in prim else []):
+            users[idx] = users.get(idx, 0) + 1
+        for target in prim.get("targets", []):
+            for idx in target.values():
+                users[idx] = users.get(idx, 0) + 1
+
     for mi, mesh in enumerate(gltf.get("meshes", [])):
         for pi, prim in enumerate(mesh.get("primitives", [])):
-            attrs = prim.get("attributes", {})
             why = _why_not(prim)
             where = f"mesh {mi}" + (f" ({mesh['name']})" if mesh.get("name") else "") + f" primitive {pi}"
             if why is None:
                 candidates.append((mi, pi, prim, where))
-                continue
-            notices.append(f"{where}: {why}; passed through unchanged")
-            for idx in list(attrs.values()) + ([prim["indices"]] if "indices" in prim else []):
-                users[idx] = users.get(idx, 0) + 1
-            for target in prim.get("targets", []):
-                for idx in target.values():
-                    users[idx] = users.get(idx, 0) + 1
+            else:
+                pass_through(prim, f"{where}: {why}")
 
     by_mesh = {}
     for mi, pi, prim, where in candidates:
         try:
             mesh = _primitive_mesh(gltf, buffers, prim, where)
-        except (MeshError, InputFormatError) as exc:
-            notices.append(f"{where}: {exc}; passed through unchanged")
-            for idx in list(prim.get("attributes", {}).values()) + ([prim["indices"]] if "indices" in prim else []):
-                users[idx] = users.get(idx, 0) + 1
+        except _PassThrough as exc:
+            pass_through(prim, str(exc))
             continue
+        except (MeshError, InputFormatError) as exc:
+            if name:
+                raise type(exc)(f"{name}: {exc}") from None
+            raise
         job = PrimitiveJob(mesh, mi, pi)
         jobs.append(job)
         by_mesh.setdefault(mi, []).append(job)
+    if not jobs:
+        why = "; ".join(reasons[:_REASONS_QUOTED])
+        if len(reasons) > _REASONS_QUOTED:
+            why += f"; {len(reasons) - _REASONS_QUOTED} more"
+        raise PmwError("the asset has no triangle primitive that can be made progressive" + (f" ({why})" if why else ""))
     for mi, group in by_mesh.items():
         _lock_shared_positions(group)
 
@@ -124,10 +157,28 @@ def _why_not(prim: dict):
 
 
 def _primitive_mesh(gltf, buffers, prim, where) -> Mesh:
-    """The primitive's geometry and attributes as a checked :class:`Mesh` (Draco input decoded)."""
+    """The primitive's geometry and attributes as a checked :class:`Mesh` (Draco input decoded).
+
+    Validation is :func:`~pmwm_codec.mesh.checked_mesh`'s, as for a mesh file.  Raises
+    :class:`_PassThrough` for a valid primitive that is not made progressive, and
+    MeshError / InputFormatError for invalid data; every message starts with ``where``.
+    """
     draco = (prim.get("extensions") or {}).get(DRACO_EXTENSION)
-    if draco is not None:
-        return _draco_mesh(gltf, buffers, prim, draco, where)
+    try:
+        if draco is not None:
+            positions, faces, extra = _draco_arrays(gltf, buffers, prim, draco)
+        else:
+            positions, faces, extra = _accessor_arrays(gltf, buffers, prim)
+    except (_PassThrough, MeshError, InputFormatError) as exc:
+        raise type(exc)(f"{where}: {exc}") from None
+    try:
+        return checked_mesh(positions, faces, extra, name=where)
+    except DegenerateMeshError as exc:  # well formed, nothing to make progressive
+        raise _PassThrough(str(exc)) from None
+
+
+def _accessor_arrays(gltf, buffers, prim) -> tuple:
+    """``(positions, faces (m, 3), {semantic: values})`` of a plain primitive, unchecked."""
     attrs = prim["attributes"]
     positions = read_accessor(gltf, buffers, attrs["POSITION"]).astype(np.float64)
     n = len(positions)
@@ -136,7 +187,7 @@ def _primitive_mesh(gltf, buffers, prim, where) -> Mesh:
     else:
         faces = np.arange(n)
     if len(faces) % 3:
-        raise MeshError("index count is not a multiple of 3")
+        raise MeshError(f"index count {len(faces)} is not a multiple of 3")
     faces = faces.reshape(-1, 3)
     extra = {}
     for semantic, idx in attrs.items():
@@ -144,11 +195,12 @@ def _primitive_mesh(gltf, buffers, prim, where) -> Mesh:
             continue
         values = read_accessor(gltf, buffers, idx)
         extra[semantic] = values.astype(np.float64)
-    return checked_mesh(positions, faces, extra, name=where)
+    return positions, faces, extra
 
 
-def _draco_mesh(gltf, buffers, prim, draco, where) -> Mesh:
-    """A ``KHR_draco_mesh_compression`` input primitive, decoded with DracoPy.
+def _draco_arrays(gltf, buffers, prim, draco) -> tuple:
+    """``(positions, faces, {semantic: values})`` of a ``KHR_draco_mesh_compression`` input
+    primitive, decoded with DracoPy, unchecked.
 
     Attributes are looked up by the unique ids the extension names (never by
     position in the Draco stream); the decoded values replace the accessors.
@@ -165,8 +217,8 @@ def _draco_mesh(gltf, buffers, prim, draco, where) -> Mesh:
     ids = draco.get("attributes", {})
     values = {}
     for semantic in prim.get("attributes", {}):
-        if semantic not in ids:
-            raise InputFormatError(f"Draco attributes lack {semantic}")
+        if semantic not in ids:  # allowed by the extension (read from the accessor); not supported here
+            raise _PassThrough(f"Draco attributes lack {semantic}")
         attribute = decoded.get_attribute_by_unique_id(ids[semantic])
         if attribute is None:
             raise InputFormatError(f"Draco data has no attribute {ids[semantic]} for {semantic}")
@@ -174,7 +226,7 @@ def _draco_mesh(gltf, buffers, prim, draco, where) -> Mesh:
         values[semantic] = data.reshape(len(data), -1)
     faces = np.asarray(decoded.faces, dtype=np.int64).reshape(-1, 3)
     positions = values.pop("POSITION")
-    return checked_mesh(positions, faces, values, name=where)
+    return positions, faces, values
 
 
 def _lock_shared_positions(jobs) -> None:
@@ -200,7 +252,7 @@ def encode_asset(src, dst, *, strip_image_profiles: bool = False, **options) -> 
     ``strip_image_profiles``: drop colour-profile / pixel-aspect chunks from PNG
     textures (same pixels; the glTF validator warns on them).  Images are otherwise
     carried byte for byte.  The report's ``notices`` say which primitives passed
-    through and why.
+    through and why; a primitive with invalid data is refused (see :func:`plan_asset`).
     """
     if isinstance(src, tuple):
         gltf, buffers = copy.deepcopy(src[0]), list(src[1])
@@ -211,11 +263,10 @@ def encode_asset(src, dst, *, strip_image_profiles: bool = False, **options) -> 
         count = _strip_profiles(gltf, buffers)
         if count:
             notices.append(f"removed colour-profile metadata from {count} PNG image(s)")
-    jobs, drop, planned = plan_asset(gltf, buffers)
+    name = None if isinstance(src, tuple) else os.path.basename(os.fspath(src))
+    jobs, drop, planned = plan_asset(gltf, buffers, name)
     notices += planned
     _forget_input_draco(gltf, jobs)
-    if not jobs:
-        raise PmwError("the asset has no triangle primitive that can be made progressive")
     doc, kept_bin = repack(gltf, buffers, drop)
     report = encode_document(doc, kept_bin, jobs, dst, **options)
     report.notices = notices + report.notices

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..constants import DEFAULT_GRID_BITS
+from ..constants import DEFAULT_GRID_BITS, MIN_GRID_BITS
 from ..distortion import combine_meshes, decoded_positions, full_distortion, measure_method
 from ..errors import PmwError
 from ..format import encode_base
@@ -314,7 +314,10 @@ def _quantize(mesh: Mesh, grid_bits: int) -> tuple:
     Raises PmwError when an attribute's grid values do not survive a float32 round trip.
     """
     grid = Grid.fit(mesh.positions, grid_bits)
-    specs, columns = [], [grid.quantize(mesh.positions)]
+    q = grid.quantize(mesh.positions)
+    if not _survives_float32(grid, q):
+        raise PmwError(_float32_refusal(mesh.positions, grid))
+    specs, columns = [], [q]
     for semantic in sorted(mesh.attributes):
         values = np.asarray(mesh.attributes[semantic], np.float64).reshape(mesh.vertex_count, -1)
         agrid = AttributeGrid.fit(values, _attribute_bits(semantic))
@@ -324,6 +327,28 @@ def _quantize(mesh: Mesh, grid_bits: int) -> tuple:
         specs.append({"semantic": semantic, **agrid.get_config()})
         columns.append(ints)
     return grid, np.concatenate(columns, axis=1), specs
+
+
+def _survives_float32(grid: Grid, q: np.ndarray) -> bool:
+    """Whether the grid points ``q`` (n, 3) int64 come back from the float32 positions glTF stores."""
+    try:
+        return bool(np.array_equal(grid.from_float32(grid.to_float32(q)), q))
+    except PmwError:  # FormatError: a stored coordinate off the grid
+        return False
+
+
+def _float32_refusal(positions: np.ndarray, grid: Grid) -> str:
+    """Why ``grid`` cannot carry ``positions`` (n, 3) float through float32, and the finest grid that can."""
+    reach = float(np.abs(positions).max())
+    extent = grid.step * ((1 << grid.bits) - 1)
+    why = (f"a {grid.bits}-bit position grid (step {grid.step:.3g}) does not survive the float32 positions glTF "
+           f"stores: the mesh spans {extent:.6g} but lies up to {reach:.6g} from the origin, where float32 steps "
+           f"are {float(np.spacing(np.float32(reach))):.3g}")
+    for bits in range(grid.bits - 1, MIN_GRID_BITS - 1, -1):
+        coarse = Grid.fit(positions, bits)
+        if _survives_float32(coarse, coarse.quantize(positions)):
+            return f"{why}; the finest grid that does is --grid-bits {bits} (or move the mesh nearer the origin)"
+    return f"{why}; no grid of {MIN_GRID_BITS} bits or more does: move the mesh nearer the origin"
 
 
 def _quantize_and_simplify(jobs, grid_bits: int, base_vertices, say, defer_faces: bool = True) -> list:
