@@ -60,7 +60,9 @@ def encode(src, dst, watermark=None, key=None, **options):
     pair or the new one.  Options: ``mode``, ``bits``, ``grid_bits``, ``base_codec``,
     ``base_vertices``, ``embed_from`` (first split carrying a code: index or fraction), ``owner_id`` (the owner layer: a 64-bit int, alone or under the watermark; default
     with a watermark: the key's owner ID, random for a new key, none for a key written
-    before the owner layer; False: no owner layer), ``zstd_level``, ``measure`` (``"vertices"`` | ``"sampled"`` |
+    before the owner layer; False: no owner layer; a layer that would not read back from the
+    file is refused when asked for by its ID (OwnerLayerError, nothing written) and left out
+    with a notice when on by default), ``zstd_level``, ``measure`` (``"vertices"`` | ``"sampled"`` |
     ``"none"``), ``payload_version`` (2, the default: range-coded chunks and the compact chunk
     table; 1: the zstd payload and per-chunk index of files written before),
     ``strip_image_profiles`` (assets).
@@ -84,6 +86,9 @@ def encode(src, dst, watermark=None, key=None, **options):
     options["key_slot"] = key_slot
     if image is not None and asked is None and options["owner_id"] is None:
         notices.append("the key names no owner id (written before the owner layer): no owner layer written")
+    # the owner layer on by default (under a watermark) is left out, with a notice, where it could not be
+    # read back; one asked for by its ID is refused there (OwnerLayerError, nothing written)
+    options["owner_fallback"] = image is not None and asked is None
     if asset:
         report = encode_asset(src, dst, watermark=image, key=key_obj, **options)
     else:
@@ -93,8 +98,8 @@ def encode(src, dst, watermark=None, key=None, **options):
     cleanup = {} if mesh is None else mesh.cleanup
     dropped = [f"dropped {v} {k.replace('_', ' ')}" for k, v in cleanup.items()]
     doc = replace(report, notices=notices + report.notices + dropped, key_path=key_path).as_json()
-    if options.get("owner_id") is not None:
-        doc["owner_id"] = report.key.owner_hex
+    if options.get("owner_id") is not None and report.key is not None and report.key.owner_id is not None:
+        doc["owner_id"] = report.key.owner_hex  # the owner layer is in the file
     return doc
 
 

@@ -61,3 +61,8 @@ class TruncatedError(FormatError):
 
 class WatermarkKeyError(PmwError, ValueError):
     """A key file that is unreadable or belongs to another file."""
+
+
+class OwnerLayerError(PmwError, ValueError):
+    """An owner layer asked for (an explicit owner ID) that could not be read back from the
+    mesh as it would be stored; nothing is written."""

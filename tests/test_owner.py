@@ -342,3 +342,151 @@ def test_sparser_shells_get_larger_margins(blob, marked):
     order = np.argsort(mass)
     assert mass[order[0]] < mass[order[-1]]
     assert np.abs(s[order[:16]]).mean() > 1.2 * np.abs(s[order[-16:]]).mean()
+
+
+# -- the encoder writes the owner layer only where it reads back ---------------------------------
+
+def _files(path):
+    return sorted(p.name for p in path.iterdir())
+
+
+def test_unreadable_flags_a_sphere_and_a_regular_torus_before_any_embedding(blob):
+    """A sphere's norms differ by rounding only (shells a tiny fraction of a grid step wide); a torus of
+    64 sides has 33 distinct norms, so most shells hold no vertex.  Meshes that carry the layer pass."""
+    from pmwm_codec.progressive.grid import Grid
+
+    def why(mesh, bits=16):
+        return owner.unreadable(mesh.positions, mesh.faces, Grid.fit(mesh.positions, bits).step)
+
+    assert "too narrow a range" in why(shapes.icosphere(4))
+    assert "too narrow a range" in why(shapes.icosphere(2, 1.0, noise=1e-7))  # rounding-level bumps
+    assert "too few distinct values" in why(shapes.torus(160, 64))
+    assert why(blob) is None and why(shapes.demo_mesh()) is None and why(shapes.icosphere(3, 1.3, noise=0.02)) is None
+    # the test is against the grid the positions are stored on: 0.0007 of radial noise is under half a
+    # step of an 8-bit grid but several steps of a 16-bit one
+    bumpy = shapes.icosphere(4, 1.0, noise=0.0007, seed=1)
+    assert why(bumpy, 16) is None and "too narrow a range" in why(bumpy, 8)
+
+
+def test_an_explicit_owner_id_the_mesh_cannot_carry_is_refused_and_nothing_is_written(tmp_path, capsys):
+    import pmwm_codec
+    from pmwm_codec.errors import OwnerLayerError
+
+    src, img = tmp_path / "in" / "ball.obj", tmp_path / "in" / "w.png"
+    src.parent.mkdir()
+    _write_obj(src, shapes.icosphere(4))
+    _watermark_png(img)
+    out = tmp_path / "out"
+    out.mkdir()
+    with pytest.raises(OwnerLayerError, match="cannot be read back from this mesh .*too narrow a range"):
+        pmwm_codec.encode(src, out / "a.pmw", owner_id=0xDEADBEEF01234567)
+    for extra in ([], ["--watermark", str(img)]):
+        code = main(["encode", str(src), "-o", str(out / "b.pmw"), "--owner-id", "deadbeef01234567", *extra])
+        err = capsys.readouterr().err
+        assert code == 2 and err.count("\n") == 1
+        assert err.startswith("pmw: error: the owner layer cannot be read back from this mesh (its vertex norms span "
+                              "too narrow a range") and err.rstrip().endswith("encode without --owner-id")
+    torus = tmp_path / "in" / "torus.obj"
+    _write_obj(torus, shapes.torus(160, 64))
+    assert main(["encode", str(torus), "-o", str(out / "t.pmw"), "--owner-id", "ff", "-q"]) == 2
+    assert "too few distinct values" in capsys.readouterr().err
+    assert _files(out) == []  # no .pmw, no key
+
+
+def test_the_default_owner_layer_is_left_out_with_a_notice_where_it_cannot_be_read_back(tmp_path, capsys):
+    src, img = tmp_path / "ball.obj", tmp_path / "w.png"
+    _write_obj(src, shapes.icosphere(4))
+    _watermark_png(img)
+    out, key = tmp_path / "a.pmw", tmp_path / "a.pmw.key.json"
+    assert main(["encode", str(src), "-o", str(out), "--watermark", str(img), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert "owner_id" not in doc
+    notes = [n for n in doc["notices"] if "owner layer" in n]
+    assert len(notes) == 1 and notes[0].startswith("the owner layer cannot be read back from this mesh (its vertex "
+                                                   "norms span too narrow a range")
+    assert notes[0].endswith("the file carries the image watermark only, and its key names no owner id")
+    assert WatermarkKey.load(key).owner_id is None  # as --no-owner writes it
+    assert json.loads(key.read_text())["owner_id"] is None
+    assert main(["verify", str(out), "--key", str(key), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["verdict"] == "authentic" and "owner" not in doc  # the exact layer; no owner claim at all
+    assert main(["encode", str(src), "-o", str(tmp_path / "b.pmw"), "--watermark", str(img)]) == 0
+    printed = capsys.readouterr().out
+    assert "note: the owner layer cannot be read back" in printed and "owner   " not in printed
+
+
+def test_a_reused_key_naming_an_owner_id_marks_a_mesh_without_the_layer_and_stays_as_it_is(tmp_path, blob, capsys):
+    """One key for many assets: a mesh that cannot carry the layer gets the image watermark only, the key
+    file is reused untouched (it names the owner id of the files that carry it) and the notice says so."""
+    ball, lumpy, img = tmp_path / "ball.obj", tmp_path / "blob.obj", tmp_path / "w.png"
+    _write_obj(ball, shapes.icosphere(4))
+    _write_obj(lumpy, blob)
+    _watermark_png(img)
+    key = tmp_path / "a.pmw.key.json"
+    assert main(["encode", str(lumpy), "-o", str(tmp_path / "a.pmw"), "--watermark", str(img), "-q"]) == 0
+    before = key.read_bytes()
+    assert main(["encode", str(ball), "-o", str(tmp_path / "b.pmw"), "--watermark", str(img), "--key", str(key),
+                 "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert "owner_id" not in doc and key.read_bytes() == before
+    assert any("cannot be read back" in n and "reused as it is, names an owner id this file does not carry" in n
+               for n in doc["notices"])
+    assert main(["verify", str(tmp_path / "b.pmw"), "--key", str(key), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["verdict"] == "authentic" and doc["owner"]["verdict"] != "present"
+    assert main(["verify", str(tmp_path / "a.pmw"), "--key", str(key), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["owner"]["verdict"] == "present"
+
+
+def test_a_layer_the_watermark_leaves_unreadable_is_caught_on_the_full_decode(tmp_path, blob, monkeypatch):
+    """Under a watermark the layer is read back from the full decode (the exact layer moves vertices too):
+    where that read fails the stages run again without the layer (default) or the encode is refused."""
+    import pmwm_codec
+    from pmwm_codec.errors import OwnerLayerError
+    from pmwm_codec.stream import encoder
+
+    reads = []
+    real = encoder._owner_check
+
+    def failing_on_the_decode(positions, faces, key):
+        reads.append(real(positions, faces, key))
+        return "forced" if len(reads) == 2 else reads[-1]
+
+    monkeypatch.setattr(encoder, "_owner_check", failing_on_the_decode)
+    src, img = tmp_path / "blob.obj", tmp_path / "w.png"
+    _write_obj(src, blob)
+    _watermark_png(img)
+    report = pmwm_codec.encode(src, tmp_path / "a.pmw", watermark=img)
+    assert reads == [None, None]  # read back after marking, then from the full decode (present both times)
+    assert "owner_id" not in report and any("(forced)" in n for n in report["notices"])
+    key = WatermarkKey.load(tmp_path / "a.pmw.key.json")
+    assert key.owner_id is None
+    result = pmwm_codec.verify_stream(str(tmp_path / "a.pmw"), key)
+    assert result.verdict == "authentic"
+    # the file is the one an encode without the layer writes (same key: same bytes)
+    pmwm_codec.encode(src, tmp_path / "n.pmw", watermark=img, key=key, owner_id=False)
+    assert (tmp_path / "a.pmw").read_bytes() == (tmp_path / "n.pmw").read_bytes()
+    reads.clear()
+    with pytest.raises(OwnerLayerError, match=r"\(forced\); encode without --owner-id"):
+        pmwm_codec.encode(src, tmp_path / "b.pmw", watermark=img, owner_id=0x1234)
+    assert not (tmp_path / "b.pmw").exists() and not (tmp_path / "b.pmw.key.json").exists()
+
+
+def test_without_a_watermark_the_read_back_sees_exactly_the_full_decode(blob):
+    """An owner-only encode reads the layer back from the marked positions on the grid the encoder fits,
+    before simplifying: those are the positions of the full decode, so no second read is needed."""
+    import io
+
+    import pmwm_codec
+    from pmwm_codec.progressive.grid import Grid
+    from pmwm_codec.stream.encoder import encode_mesh
+
+    key = WatermarkKey.generate(rng=np.random.default_rng(21))
+    buf = io.BytesIO()
+    report = encode_mesh(blob, buf, key=key, owner_id=0x5EED, measure=False)
+    assert report.key.owner_id == 0x5EED and report.notices == []
+    marked = owner.embed(blob.positions, blob.faces, report.key)
+    grid = Grid.fit(marked, 16)
+    decoded = pmwm_codec.decode(buf.getvalue())
+    assert np.array_equal(np.unique(decoded.positions, axis=0), np.unique(grid.dequantize(grid.quantize(marked)), axis=0))
+    assert owner.detect(decoded.positions, decoded.faces, report.key).verdict == "present"

@@ -64,7 +64,10 @@ def add_parser(sub):
     p.add_argument("--owner-id", type=_owner_id, metavar="HEX",
                    help="the 64-bit owner ID (1-16 hex digits) of the owner layer, which survives transport and "
                         "processing and is read blind by 'pmw verify MESH --key KEY' (default with --watermark: the "
-                        "key's, random for a new key); alone, without --watermark, it is the only mark")
+                        "key's, random for a new key, left out with a note where it would not read back); alone, "
+                        "without --watermark, it is the only mark.  Refused (nothing written) where the layer would "
+                        "not read back from the file: a mesh whose vertex norms span too narrow a range (a sphere) "
+                        "or take too few values")
     p.add_argument("--no-owner", action="store_true",
                    help="with --watermark: write the exact layer only, no owner layer")
     p.add_argument("--key", metavar="KEY", help="key file to use (if it exists) or to write (default: OUT.pmw.key.json)")

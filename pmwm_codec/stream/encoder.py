@@ -3,13 +3,16 @@
 :func:`encode_document` runs the stages, each a function over a list of
 :class:`PrimitiveWork` records (one per primitive)::
 
-    _mark_owner             (with ``owner_id``) the owner layer on the full-resolution mesh
+    _mark_owner             (with ``owner_id``) the owner layer on the full-resolution mesh, read
+                            back from the grid positions the decoder will see (:func:`_owner_check`)
     _quantize_and_simplify  grid, quantized values, collapse log
     _encode_bases           base mesh (Draco or plain; its decoded vertex order is the
                             order splits refer to)
     _plan_chunks            batches -> chunks, one stream order, carrier slots (chunking.py)
     _plan_watermark         watermark parameters and one embedder per primitive
     _build_records          split records, the watermark embedded on the grid as we go
+    _owner_check            (owner layer and watermark) the owner layer read back from the full
+                            decode; unreadable: refused, or the stages again without it
     _report                 the :class:`EncodeReport` with the distortion (measured before
                             anything is written, bounded in memory)
     _write                  payloads, index entries, extension objects; then the key file
@@ -33,7 +36,7 @@ import numpy as np
 
 from ..constants import DEFAULT_GRID_BITS, MIN_GRID_BITS
 from ..distortion import combine_meshes, decoded_positions, full_distortion, measure_method
-from ..errors import PmwError
+from ..errors import OwnerLayerError, PmwError
 from ..format import encode_base
 from ..format.base import EncodedBase, with_attributes
 from ..atomic import directory_lock, discard, fault_point, publish, signals_deferred, stage
@@ -209,6 +212,7 @@ def encode_document(
     embed_from: int | float = 0,
     owner_id: int | None = None,
     owner_strength: float | None = None,
+    owner_fallback: bool = False,
     min_chunk_splits: int | None = None,
     zstd_level: int = 10,
     payload_version: int = DEFAULT_PAYLOAD_VERSION,
@@ -239,7 +243,14 @@ def encode_document(
         code: an int index or a float fraction in [0, 1) of the splits; stored in the file.
     owner_id : 64-bit owner ID: mark the owner layer (:mod:`~pmwm_codec.watermark.owner`)
         into every primitive's full-resolution positions first; the key (generated when
-        none is given) is returned carrying it.  ``owner_strength``: its margin.
+        none is given) is returned carrying it.  ``owner_strength``: its margin.  The layer
+        must read back ``present`` (:func:`~pmwm_codec.watermark.owner.detect`, as ``pmw
+        verify`` reads it) from the full decode; when it cannot (a mesh whose vertex norms span
+        too narrow a range or take too few values: :func:`_owner_check`) the encode raises
+        OwnerLayerError and writes nothing, or with ``owner_fallback`` (the layer on by
+        default under a watermark) writes the file without it, the returned key naming no
+        owner ID (a key file reused as it is stays as it is), and says why in the report's
+        ``notices``.
     min_chunk_splits : smallest chunk, in splits, for every chunk of every primitive (default:
         :func:`~pmwm_codec.stream.chunking.default_min_chunk_splits`, reached by chunks that start
         at :data:`~pmwm_codec.stream.chunking.FIRST_CHUNK_SPLITS` and double).
@@ -267,19 +278,48 @@ def encode_document(
         raise ValueError(f"payload_version must be one of {PAYLOAD_VERSIONS}, not {payload_version!r}")
     if grid_bits is None:
         grid_bits = wm.DEFAULT_GRID_BITS[mode] if watermark is not None else DEFAULT_GRID_BITS
+    owner_notices = []
+    # a key that already names the owner ID: a key file reused as it is, or a key given (a collection's)
+    kept_owner = key_slot.existing if key_slot is not None else key
+    kept_owner = None if kept_owner is None else kept_owner.owner_id
+
+    def drop_owner(why: str) -> None:
+        """The owner layer cannot be read back: refuse, or go on without it (``owner_fallback``)."""
+        _owner_unreadable(why, owner_fallback, owner_notices, watermark is not None, kept_owner is not None)
+
+    marked = None
     if owner_id is not None:
         key = dataclasses.replace(key if key is not None else WatermarkKey.generate(), owner_id=int(owner_id))
-        jobs = _mark_owner(jobs, key, owner_strength)
-    work = _quantize_and_simplify(jobs, grid_bits, base_vertices, say, defer_faces=payload_version == 2)
-    work, notices = _encode_bases(work, base_codec)
-    work, order, slots, carriers = _plan_chunks(work, min_chunk_splits)
-    params = None
+        marked, why = _mark_owner(jobs, key, owner_strength, grid_bits)
+        if why is not None:
+            drop_owner(why)
+            owner_id, marked = None, None
+            key = key if watermark is not None else None  # no mark at all: no key
     if watermark is not None:
         key = key if key is not None else WatermarkKey.generate()
-        params, work = _plan_watermark(work, watermark, key, carriers, slots, mode, bits, step_units,
-                                       embed_from)
-    work = _build_records(work, say)
-    report = _report(work, params, measure, say)
+
+    def stages(jobs):
+        """Stages 1-5 over ``jobs``: ``(work, notices, order, carriers, params)``."""
+        work = _quantize_and_simplify(jobs, grid_bits, base_vertices, say, defer_faces=payload_version == 2)
+        work, notices = _encode_bases(work, base_codec)
+        work, order, slots, carriers = _plan_chunks(work, min_chunk_splits)
+        params = None
+        if watermark is not None:
+            params, work = _plan_watermark(work, watermark, key, carriers, slots, mode, bits, step_units,
+                                           embed_from)
+        return _build_records(work, say), notices, order, carriers, params
+
+    work, notices, order, carriers, params = stages(jobs if marked is None else marked)
+    decoded = None
+    if owner_id is not None and params is not None:  # the watermark moved vertices: read the full decode
+        decoded = [_decoded_input_positions(w) for w in work]
+        why = _owner_check(decoded, [w.job.mesh.faces for w in work], key)
+        if why is not None:
+            drop_owner(why)
+            owner_id, decoded = None, None
+            work, notices, order, carriers, params = stages(jobs)
+    notices = owner_notices + notices
+    report = _report(work, params, measure, say, decoded)
     fault_point("measured")
     prims, file_id = _primitives(doc, kept_bin, work, order, params, key, payload_version)
     if params is not None:
@@ -290,7 +330,10 @@ def encode_document(
         key = dataclasses.replace(key, owner_id=None)  # the key names an owner id only if the layer is there
     say("write", 0.0)
     mac_key = key.mac_key() if params is not None else None  # marked files carry keyed MACs
-    size = _publish(dst, assemble_document(doc, kept_bin, prims, order, zstd_level, mac_key), key, key_slot)
+    published = key  # a key file reused as it is still names its owner ID (KeySlot.pending compares)
+    if owner_notices and key_slot is not None and key_slot.existing is not None and kept_owner is not None:
+        published = dataclasses.replace(key, owner_id=kept_owner)
+    size = _publish(dst, assemble_document(doc, kept_bin, prims, order, zstd_level, mac_key), published, key_slot)
     say("write", 1.0)
     return dataclasses.replace(
         report, vsplits=carriers, chunks=len(order), bytes=int(size), seconds=time.perf_counter() - t0,
@@ -298,14 +341,63 @@ def encode_document(
     )
 
 
-def _mark_owner(jobs, key: WatermarkKey, strength) -> list:
-    """Stage 0: the owner layer on each primitive's full-resolution positions (new jobs)."""
+def _mark_owner(jobs, key: WatermarkKey, strength, grid_bits: int) -> tuple:
+    """Stage 0: the owner layer on each primitive's full-resolution positions.
+
+    Returns ``(new jobs, None)``, or ``(None, why)`` (a phrase) when the layer cannot be read
+    back from the positions as stored: first a cheap test of each primitive on its grid
+    (:func:`~pmwm_codec.watermark.owner.unreadable`: shells under half a grid step wide, or
+    too many of them empty; the embedding's feedback rounds cannot succeed there), then, once
+    marked, a blind read (:func:`_owner_check`) of the positions on the grids stage 1 will fit
+    them to: without a watermark those are exactly the positions of the full decode.
+    """
     from ..watermark import owner
 
     strength = owner.DEFAULT_STRENGTH if strength is None else float(strength)
-    return [dataclasses.replace(job, mesh=dataclasses.replace(
+    for job in jobs:
+        why = owner.unreadable(job.mesh.positions, job.mesh.faces, Grid.fit(job.mesh.positions, grid_bits).step)
+        if why is not None:
+            return None, (why if len(jobs) == 1 else f"mesh {job.mesh_index} primitive {job.primitive_index}: {why}")
+    marked = [dataclasses.replace(job, mesh=dataclasses.replace(
         job.mesh, positions=owner.embed(job.mesh.positions, job.mesh.faces, key, strength=strength)))
         for job in jobs]
+    stored = []
+    for job in marked:
+        grid = Grid.fit(job.mesh.positions, grid_bits)  # as _quantize fits it
+        stored.append(grid.dequantize(grid.quantize(job.mesh.positions)))
+    why = _owner_check(stored, [job.mesh.faces for job in marked], key)
+    return (marked, None) if why is None else (None, why)
+
+
+def _owner_check(positions: list, faces: list, key: WatermarkKey) -> str | None:
+    """Why the owner layer does not read back ``present`` from the primitives' positions (a list of
+    (n_i, 3)) and faces (a list of (m_i, 3)) taken as one mesh, as ``pmw verify`` reads a decoded
+    stream (:func:`~pmwm_codec.watermark.owner.detect`), or None when it does."""
+    from ..watermark import owner
+
+    offsets = np.cumsum([0] + [len(p) for p in positions])
+    read = owner.detect(np.concatenate(positions), np.concatenate([np.asarray(f, np.int64) + o
+                                                                  for f, o in zip(faces, offsets)]), key)
+    if read.verdict == "present":
+        return None
+    return f"pmw verify would read {read.bit_errors} of its {read.bits} bits wrong from the file: {read.verdict}"
+
+
+def _owner_unreadable(why: str, fallback: bool, notices: list, watermark: bool, reused: bool) -> None:
+    """The owner layer cannot be read back (``why``): raise OwnerLayerError (nothing is written), or
+    with ``fallback`` add the notice that the file carries none.  ``reused``: the key already names
+    the owner ID (a key file reused as it is, or a collection's key): it still does, for the files
+    that carry the layer, and the returned key of this file names none."""
+    what = f"the owner layer cannot be read back from this mesh ({why})"
+    if not fallback:
+        raise OwnerLayerError(f"{what}; encode without --owner-id")
+    if not watermark:
+        _notice(notices, f"{what}: the file carries no mark")
+    elif reused:
+        _notice(notices, f"{what}: the file carries the image watermark only; the key, reused as it is, names an "
+                         "owner id this file does not carry")
+    else:
+        _notice(notices, f"{what}: the file carries the image watermark only, and its key names no owner id")
 
 
 def _quantize(mesh: Mesh, grid_bits: int) -> tuple:
@@ -635,10 +727,11 @@ def _json_default(obj):
     raise TypeError(f"{type(obj).__name__} is not JSON-serialisable")
 
 
-def _report(work, params, measure, say) -> EncodeReport:
+def _report(work, params, measure, say, decoded=None) -> EncodeReport:
     """Sizes, distortion and watermark counts (stream fields are set by the caller).
 
-    ``measure``: see :func:`encode_document`; runs before anything is written.
+    ``measure``: see :func:`encode_document`; runs before anything is written.  ``decoded``:
+    :func:`_decoded_input_positions` of each primitive, when already computed.
     """
     meshes = [w.job.mesh for w in work]
     combined = combine_meshes(meshes)
@@ -647,7 +740,7 @@ def _report(work, params, measure, say) -> EncodeReport:
                   "measure": "none"}
     if method != "none":
         say("measure", 0.0)
-        decoded = [_decoded_input_positions(w) for w in work]
+        decoded = [_decoded_input_positions(w) for w in work] if decoded is None else decoded
         distortion = full_distortion(combined, combine_meshes([Mesh(d, m.faces) for d, m in zip(decoded, meshes)]),
                                      method)
         say("measure", 1.0)

@@ -78,7 +78,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["OwnerResult", "embed", "detect", "false_alarm_probability", "OWNER_BITS", "DEFAULT_STRENGTH"]
+__all__ = ["OwnerResult", "embed", "detect", "unreadable", "false_alarm_probability", "OWNER_BITS", "DEFAULT_STRENGTH"]
 
 OWNER_BITS = 64
 #: Radial shells, one per bit (two keyed shells per bit cost less RMS but read worse after
@@ -132,6 +132,13 @@ PRESENT_BELOW = 1e-9
 ABSENT_FROM = 1e-3
 #: Fewer readable bits than this: inconclusive (the mesh is too small to say).
 MIN_BITS_READ = 48
+#: :func:`unreadable`: shells narrower than this many steps of the grid the positions are stored on
+#: cannot carry a bit.  Rounding to a grid of step ``q`` moves a norm by about ``q / sqrt(12)``, which
+#: keeps ``exp(-2 (pi 0.29 q / width)^2)`` of the statistic's one harmonic (:func:`g_of_t`): 19% at one
+#: step, 0.14% at half a step (below the sampling noise of a shell of fewer than ~250k vertices).
+#: Measured (icosphere(5) with radial noise, 16-bit grid, one key): 0.94 steps read 6 errors of 64
+#: (present), 0.47 steps 25 (absent); the bunny at 8 bits (1.5 steps) reads 0.
+MIN_SHELL_STEPS = 0.5
 #: Feedback rounds of the embedding (each: one frame, one table, one move, 5 measurements).
 _ROUNDS = 16
 #: A shell short of the margin by this fraction of it or less counts as reached.
@@ -634,6 +641,41 @@ def embed(positions, faces, key, owner_id: int | None = None, strength: float = 
     faces = inverse[np.asarray(faces, np.int64).reshape(-1, 3)]
     limit_sq = 0.0 if rms_budget is None else (float(rms_budget) * float(np.linalg.norm(pos0.max(0) - pos0.min(0)))) ** 2 * len(pos0)
     return _mark(points, count, faces, shell_side, float(strength), limit_sq)[inverse]
+
+
+def unreadable(positions, faces, step: float) -> str | None:
+    """Why no owner layer embedded in this mesh can be read back once its positions are stored
+    on a grid of ``step`` (a phrase), or None when one may be (only embedding it and reading it
+    back can tell: :func:`detect`).
+
+    A cheap test on the unmarked mesh (positions (n, 3), faces (m, 3)) in its estimated frame
+    (:func:`_frame`), made before the embedding's feedback rounds, which cannot succeed here:
+
+    * the shells are narrower than :data:`MIN_SHELL_STEPS` grid steps (the vertex norms span
+      too narrow a range: a sphere, whose norms differ by rounding only): quantization to the
+      grid erases whatever the embedding writes;
+    * more than ``OWNER_BITS - MIN_BITS_READ`` shells hold no vertex at all (the norms take
+      too few distinct values: a torus of 64 sides has 33): the embedding never moves a
+      vertex out of its shell, so those bits stay erased, more than a read may miss and still
+      give a verdict (:data:`MIN_BITS_READ`), let alone ``present`` (at most 7 errors).  Fewer
+      empty shells are left to the read-back: the frame the read settles on may differ a little.
+    """
+    pos = np.asarray(positions, np.float64).reshape(-1, 3)
+    points, inverse = _distinct_index(pos)
+    if len(points) < 2:
+        return "it has fewer than two distinct vertex positions"
+    f = np.asarray(faces, np.int64).reshape(-1, 3)
+    frame = _frame(points, inverse[f] if len(f) else f)
+    width = frame[2]
+    if not width >= MIN_SHELL_STEPS * step:
+        return (f"its vertex norms span too narrow a range: its {BINS} shells are {width / step:.2g} of a grid "
+                f"step wide, under the {MIN_SHELL_STEPS:g} that quantization leaves readable")
+    shell = _shells(points, frame)[0]
+    empty = BINS - int(np.count_nonzero(np.bincount(shell[shell >= 0], minlength=BINS)))
+    if empty > OWNER_BITS - MIN_BITS_READ:
+        return (f"its vertex norms take too few distinct values: {empty} of its {BINS} shells hold no vertex, "
+                "and an empty shell carries no bit")
+    return None
 
 
 def _layout(key) -> tuple:
