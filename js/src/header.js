@@ -33,6 +33,14 @@ export function preambleLength(bytes) {
  * Parse the preamble and JSON of a GLB prefix holding at least preambleLength(bytes) bytes.
  * @returns {{length:number, binStart:number, binLength:number, gltf:object}} binStart: file offset of BIN byte 0
  */
+/** JSON.parse reviver: a number that overflows a double (1e999) is a format error (spec README). */
+function finiteNumbers(key, value) {
+  if (typeof value === 'number' && !Number.isFinite(value)) {
+    throw new FormatError(`JSON chunk: member ${JSON.stringify(key)} holds a number that is not finite`);
+  }
+  return value;
+}
+
 export function parseGlb(bytes) {
   const dv = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength);
   if (dv.getUint32(0, true) !== GLB_MAGIC) throw new FormatError('not a GLB file (bad magic)');
@@ -51,8 +59,9 @@ export function parseGlb(bytes) {
   let gltf;
   try {
     const text = new TextDecoder('utf-8', { fatal: true }).decode(bytes.subarray(20, 20 + jsonLength));
-    gltf = JSON.parse(text);
+    gltf = JSON.parse(text, finiteNumbers);
   } catch (e) {
+    if (e instanceof FormatError) throw e;
     throw new FormatError(`JSON chunk is not valid UTF-8 JSON (${e.message})`);
   }
   if (!isObj(gltf)) throw new FormatError('JSON chunk is not an object');

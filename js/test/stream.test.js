@@ -78,3 +78,23 @@ test('bytes beyond the GLB length are a format error', async () => {
   longer.set(bytes);
   await assert.rejects(decodePmw(longer), FormatError);
 });
+
+test('a JSON chunk holding a number that overflows a double is a format error naming the member', async () => {
+  const bytes = load(conformanceFiles()[0]);
+  const dv = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength);
+  const jsonLength = dv.getUint32(12, true);
+  const text = new TextDecoder().decode(bytes.subarray(20, 20 + jsonLength)).trimEnd();
+  let json = text.replace('"nodes":[{', '"nodes":[{"translation":[1e999,0,0],');
+  assert.notEqual(json, text);
+  while (json.length % 4) json += ' ';
+  const head = new TextEncoder().encode(json);
+  const bin = bytes.subarray(20 + jsonLength);
+  const out = new Uint8Array(20 + head.length + bin.length);
+  out.set(bytes.subarray(0, 20));
+  out.set(head, 20);
+  out.set(bin, 20 + head.length);
+  const odv = new DataView(out.buffer);
+  odv.setUint32(8, out.length, true);
+  odv.setUint32(12, head.length, true);
+  await assert.rejects(decodePmw(out), (e) => e instanceof FormatError && /"0" holds a number that is not finite/.test(e.message));
+});
