@@ -128,6 +128,7 @@ def stage(path, parts, mode: int | None = None) -> Staged:
 
 def publish(staged: Staged) -> None:
     """Move the staged file over its target (one rename) and make it durable."""
+    check_replaceable(staged.path)  # before the staged file gets a name: nothing to clean up
     if staged.temp is None:
         temp = _temp_name(staged.path)
         proc = os.open("/proc/self/fd", os.O_RDONLY)
@@ -138,7 +139,6 @@ def publish(staged: Staged) -> None:
         staged.temp = temp
     os.close(staged.fd)
     staged.fd = -1
-    check_replaceable(staged.path)
     os.replace(staged.temp, staged.path)
     staged.temp = None
     _fsync_directory(staged.directory)

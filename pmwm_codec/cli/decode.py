@@ -2,7 +2,7 @@
 
 glTF outputs keep the whole document (materials, textures, nodes) through
 :func:`pmwm_codec.stream.asset.decode_asset`; the other formats get the geometry through
-:func:`pmwm_codec.stream.reader.iter_results` and :func:`pmwm_codec.meshio.write_mesh` (each progressive
+:func:`pmwm_codec.stream.reader.decode_stream` and :func:`pmwm_codec.meshio.write_mesh` (each progressive
 primitive once, as stored: a notice says so when the asset's nodes move or repeat its meshes).
 Every output is written atomically.
 """
@@ -15,7 +15,7 @@ from pmwm_codec.meshio import WRITE_SUFFIXES, write_asset, write_mesh
 from pmwm_codec.stream.asset import decode_asset
 from pmwm_codec.format.gltf import placed_by_nodes
 from pmwm_codec.stream.decoder import StreamDecoder
-from pmwm_codec.stream.reader import iter_results
+from pmwm_codec.stream.reader import decode_stream
 
 from .common import UsageError, check_input_file, check_output_path, naming, notice, print_json
 
@@ -49,7 +49,7 @@ def run(args) -> int:
             write_asset(args.output, glb)
         else:
             decoder = StreamDecoder(copy=False, max_chunks=args.chunks)
-            last, end = _run(iter_results(args.input, decoder))
+            last, end = decode_stream(args.input, decoder=decoder)
             write_mesh(args.output, last.mesh)
             if decoder.header is not None and placed_by_nodes(decoder.header.gltf_json):
                 notices.append("the asset places its meshes with node transforms or instances, which an "
@@ -67,16 +67,6 @@ def run(args) -> int:
         print(f"{args.output}: {out['vertices']:,} vertices, {out['faces']:,} faces "
               f"(base + {out['chunks_applied']} of {out['chunks_total']} chunks; {state})")
     return 0
-
-
-def _run(results) -> tuple:
-    """``(last PartialResult, StreamEnd)`` of an :func:`iter_results` generator."""
-    last = None
-    while True:
-        try:
-            last = next(results)
-        except StopIteration as stop:
-            return last, stop.value
 
 
 def _chunk_notices(asked, end) -> list:

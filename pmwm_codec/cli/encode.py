@@ -9,14 +9,15 @@ import pmwm_codec
 from pmwm_codec.constants import MAX_GRID_BITS, MIN_GRID_BITS
 from pmwm_codec.distortion import MEASURES
 from pmwm_codec.format.extension import DEFAULT_PAYLOAD_VERSION, PAYLOAD_VERSIONS
+from pmwm_codec.mesh import MESH_SUFFIXES
 from pmwm_codec.watermark.codec import MAX_BITS, MODES, CapacityError, shrink_watermark
 from pmwm_codec.watermark.image import load_watermark
 
 from .common import Progress, UsageError, check_input_file, check_output_path, fmt_float, print_json, stage_progress
 
 
-#: Output names that would say "mesh text", not the GLB a .pmw is.
-MESH_SUFFIXES = (".obj", ".ply", ".stl", ".gltf")
+#: Output names that say another mesh format than the GLB a .pmw is.
+NOT_PMW_SUFFIXES = tuple(s for s in MESH_SUFFIXES if s != ".glb")
 
 
 def _int_in(lo, hi, what):
@@ -125,7 +126,7 @@ def run(args) -> int:
     if args.watermark is not None:
         check_input_file(args.watermark, "watermark image")
     check_output_path(args.output, ".pmw", inputs=(args.input, args.watermark, args.key))
-    if os.path.splitext(args.output)[1].lower() in MESH_SUFFIXES:
+    if os.path.splitext(args.output)[1].lower() in NOT_PMW_SUFFIXES:
         raise UsageError(f"{args.output}: a .pmw is a GLB file; name it .pmw (or .glb), not "
                          f"{os.path.splitext(args.output)[1]}")
     if args.key is not None and not os.path.exists(args.key):

@@ -375,9 +375,8 @@ def _owner_check(positions: list, faces: list, key: WatermarkKey) -> str | None:
     stream (:func:`~pmwm_codec.watermark.owner.detect`), or None when it does."""
     from ..watermark import owner
 
-    offsets = np.cumsum([0] + [len(p) for p in positions])
-    read = owner.detect(np.concatenate(positions), np.concatenate([np.asarray(f, np.int64) + o
-                                                                  for f, o in zip(faces, offsets)]), key)
+    mesh = combine_meshes([Mesh(p, np.asarray(f, np.int64)) for p, f in zip(positions, faces)])
+    read = owner.detect(mesh.positions, mesh.faces, key)
     if read.verdict == "present":
         return None
     return f"pmw verify would read {read.bit_errors} of its {read.bits} bits wrong from the file: {read.verdict}"

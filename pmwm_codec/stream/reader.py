@@ -20,9 +20,12 @@ def iter_results(source, decoder: StreamDecoder, block_size: int = DEFAULT_BLOCK
     return decoder.close()
 
 
-def decode_stream(source, *, chunks=None, key=None, reference=None, copy=True):
-    """Decode ``source`` fully (or up to ``chunks`` chunks): returns ``(last PartialResult, StreamEnd)``."""
-    decoder = StreamDecoder(key, reference, copy=copy, max_chunks=chunks)
+def decode_stream(source, *, chunks=None, key=None, reference=None, copy=True, decoder=None):
+    """Decode ``source`` fully (or up to ``chunks`` chunks): returns ``(last PartialResult, StreamEnd)``.
+    ``decoder``: a :class:`StreamDecoder` to feed (the caller keeps it, e.g. for its header) instead
+    of one made from the other arguments."""
+    if decoder is None:
+        decoder = StreamDecoder(key, reference, copy=copy, max_chunks=chunks)
     last = None
     gen = iter_results(source, decoder)
     while True:
