@@ -323,6 +323,39 @@ def test_placed_by_nodes_tells_transforms_and_instances_apart(nodes, placed):
     assert placed_by_nodes(doc) is placed
 
 
+def test_mesh_placements_compose_each_path_of_node_transforms_as_trimesh_does():
+    """World matrix of every showing of a mesh: parent @ child, each node ``matrix`` (column-major) or T R S;
+    checked against trimesh's scene graph on the same GLB."""
+    import trimesh
+
+    from pmwm_codec.format.document import load_document
+    from pmwm_codec.format.gltf import is_similarity, mesh_placements
+
+    b = DocBuilder()
+    prim = b.triangles(shapes.icosphere(1), uv=False)
+    b.doc.update(scene=0, scenes=[{"nodes": [0, 3]}], meshes=[{"name": "a", "primitives": [prim]}, {"name": "b", "primitives": [dict(prim)]}],
+                 nodes=[
+                     {"children": [1], "rotation": [0.0, 0.38268343, 0.0, 0.92387953], "translation": [1.0, 2.0, 3.0]},
+                     {"children": [2], "scale": [2.0, 2.0, 2.0]},
+                     {"mesh": 0, "translation": [0.0, 0.0, 5.0]},
+                     {"mesh": 1, "matrix": [1, 0, 0, 0, 0, 0, 3, 0, 0, -1, 0, 0, 4, 5, 6, 1]},
+                 ])
+    path = b.glb()
+    doc = json.loads(json.dumps(b.doc))
+    shown = mesh_placements(doc)
+    assert [m for m, _ in shown] == [0, 1]
+    scene = trimesh.load(trimesh.util.wrap_as_stream(path), file_type="glb")
+    expected = {}
+    for name in scene.graph.nodes_geometry:
+        matrix, geometry = scene.graph[name]
+        expected[geometry] = matrix
+    assert sorted(expected) and len(expected) == 2
+    for (mesh, matrix), name in zip(shown, ("a", "b")):
+        assert np.allclose(matrix, expected[name], rtol=0, atol=1e-12), mesh
+    assert is_similarity(shown[0][1]) and not is_similarity(shown[1][1])  # 2x, then 1 x 3 x 1 with a rotation
+    assert mesh_placements({"nodes": [{"mesh": 0, "scale": "big"}]}) == [(0, None)]  # malformed: placed, unknown
+
+
 def test_decoding_a_placed_asset_to_obj_says_the_placement_is_not_in_it(tmp_path, capsys):
     from pmwm_codec.cli import main
 

@@ -490,3 +490,85 @@ def test_without_a_watermark_the_read_back_sees_exactly_the_full_decode(blob):
     decoded = pmwm_codec.decode(buf.getvalue())
     assert np.array_equal(np.unique(decoded.positions, axis=0), np.unique(grid.dequantize(grid.quantize(marked)), axis=0))
     assert owner.detect(decoded.positions, decoded.faces, report.key).verdict == "present"
+
+
+def _asset_of_parts(path, mesh, parts: int, nodes: list, one_mesh: bool):
+    """A GLB of ``mesh`` cut into ``parts`` primitives by face-centre x (one glTF mesh holding them all,
+    or one mesh each), two materials, ``nodes`` as the scene's node list (node 0 the scene's root)."""
+    from test_asset import DocBuilder
+
+    centre = mesh.positions[mesh.faces].mean(1)[:, 0]
+    b = DocBuilder()
+    prims = []
+    for i, rows in enumerate(np.array_split(np.argsort(centre, kind="stable"), parts)):
+        used, inverse = np.unique(mesh.faces[np.sort(rows)], return_inverse=True)
+        prims.append({**b.triangles(Mesh(mesh.positions[used], inverse.reshape(-1, 3)), uv=False), "material": i % 2})
+    meshes = [{"primitives": prims}] if one_mesh else [{"primitives": [p]} for p in prims]
+    b.doc.update(scene=0, scenes=[{"nodes": [0]}], nodes=nodes, meshes=meshes,
+                 materials=[{"name": "a"}, {"name": "b"}])
+    path.write_bytes(b.glb())
+    return path
+
+
+#: node 0 rotates and scales (a similarity), node 1 translates; both place every mesh alike
+_SHARED_ROOT = [{"children": [1], "rotation": [0.0, 0.38268343, 0.0, 0.92387953], "scale": [2.0, 2.0, 2.0]},
+                {"mesh": 0, "translation": [1.0, 2.0, 3.0]}]
+
+
+@pytest.mark.parametrize("one_mesh", [True, False], ids=["one-mesh-three-primitives", "three-meshes-one-root"])
+def test_a_multi_primitive_asset_carries_one_owner_layer_read_from_the_pmw_and_the_decoded_asset(tmp_path, blob,
+                                                                                                    one_mesh):
+    """The primitives are marked as the one mesh both reads see: the stream's parts taken together, and the
+    decoded GLB's triangle primitives placed by its nodes (a rotation and scale shared by every mesh)."""
+    from pmwm_codec.stream.asset import decode_asset, encode_asset
+    from pmwm_codec.format.document import load_document, read_accessor
+    from pmwm_codec.verify.owner import owner_of_mesh, owner_of_stream
+
+    nodes = _SHARED_ROOT if one_mesh else [{**_SHARED_ROOT[0], "children": [1, 2, 3]}] + [{"mesh": i} for i in range(3)]
+    src = _asset_of_parts(tmp_path / "parts.glb", blob, 3, nodes, one_mesh)
+    key = WatermarkKey.generate(rng=np.random.default_rng(11))
+    report = encode_asset(src, tmp_path / "parts.pmw", key=key, owner_id=0x0123456789ABCDEF, measure=False)
+    assert report.key.owner_id == 0x0123456789ABCDEF and not any("owner" in n for n in report.notices)
+    last = owner_of_stream(tmp_path / "parts.pmw", report.key)[-1]
+    assert last.owner.verdict == "present" and last.owner.bit_errors == 0
+    glb, _, _ = decode_asset(tmp_path / "parts.pmw")
+    (tmp_path / "out.glb").write_bytes(glb)
+    read = owner_of_mesh(tmp_path / "out.glb", report.key)  # trimesh: nodes applied
+    assert read.verdict == "present" and read.bit_errors == 0
+    # one budget for the whole asset: the layer's RMS over every vertex, against the asset's diagonal (each
+    # input vertex against the nearest decoded vertex of its primitive: the layer moves a vertex by ~0.02%
+    # of the diagonal, far less than the spacing of this mesh's vertices)
+    from scipy.spatial import cKDTree
+
+    doc, buffers = load_document(src)
+    out, out_buffers = load_document(tmp_path / "out.glb")
+    before, gaps = [], []
+    for m_in, m_out in zip(doc["meshes"], out["meshes"]):
+        for p_in, p_out in zip(m_in["primitives"], m_out["primitives"]):
+            x = read_accessor(doc, buffers, p_in["attributes"]["POSITION"]).astype(np.float64)
+            y = read_accessor(out, out_buffers, p_out["attributes"]["POSITION"]).astype(np.float64)
+            assert len(x) == len(y)
+            before.append(x)
+            gaps.append(cKDTree(y).query(x)[0])
+    before, gaps = np.concatenate(before), np.concatenate(gaps)
+    diagonal = np.linalg.norm(before.max(0) - before.min(0))
+    assert 0.005 / 100 < np.sqrt(np.mean(gaps**2)) / diagonal < 0.025 / 100
+
+
+def test_an_asset_whose_meshes_are_placed_apart_refuses_an_explicit_owner_id_and_writes_nothing(tmp_path, blob,
+                                                                                                  capsys):
+    """Meshes under different node transforms: the stream's read (stored positions) and the decoded asset's
+    (placed by the nodes) see different meshes, so no one layer reads from both."""
+    nodes = [{"children": [1, 2]}, {"mesh": 0, "translation": [3.0, 0.0, 0.0]}, {"mesh": 1}]
+    src = _asset_of_parts(tmp_path / "apart.glb", blob, 2, nodes, one_mesh=False)
+    out = tmp_path / "out"
+    out.mkdir()
+    assert main(["encode", str(src), "-o", str(out / "a.pmw"), "--owner-id", "ff"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "placed by different node transforms" in err
+    assert _files(out) == []
+    stretched = [{"children": [1], "scale": [1.0, 1.0, 3.0]}, {"mesh": 0}]
+    src = _asset_of_parts(tmp_path / "stretched.glb", blob, 2, stretched, one_mesh=True)
+    assert main(["encode", str(src), "-o", str(out / "b.pmw"), "--owner-id", "ff"]) == 2
+    assert "not a similarity" in capsys.readouterr().err
+    assert _files(out) == []

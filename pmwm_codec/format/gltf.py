@@ -253,38 +253,82 @@ def _json_path(path) -> str:
     return text or "the document"
 
 
-#: Node members that place a mesh.
-_IDENTITY = {"matrix": [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0],
-             "translation": [0.0, 0.0, 0.0], "rotation": [0.0, 0.0, 0.0, 1.0], "scale": [1.0, 1.0, 1.0]}
+def _node_matrix(node: dict):
+    """A node's local transform (4, 4) float64 (``matrix``, column-major, or ``T R S``), or None when
+    a member is malformed (the reader checks what it uses; here it only makes the mesh count as placed)."""
+    try:
+        if "matrix" in node:
+            m = np.asarray(node["matrix"], np.float64)
+            return m.reshape(4, 4).T if m.shape == (16,) and np.isfinite(m).all() else None
+        t = np.asarray(node.get("translation", [0.0, 0.0, 0.0]), np.float64)
+        x, y, z, w = np.asarray(node.get("rotation", [0.0, 0.0, 0.0, 1.0]), np.float64)
+        s = np.asarray(node.get("scale", [1.0, 1.0, 1.0]), np.float64)
+    except (TypeError, ValueError):
+        return None
+    if t.shape != (3,) or s.shape != (3,) or not (np.isfinite(t).all() and np.isfinite(s).all()):
+        return None
+    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    if not norm > 0.0 or not math.isfinite(norm):
+        return None
+    x, y, z, w = x / norm, y / norm, z / norm, w / norm  # written with a few digits: unit as readers take it
+    rot = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                    [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                    [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    m = np.eye(4)
+    m[:3, :3] = rot * s[None, :]
+    m[:3, 3] = t
+    return m
 
 
-def placed_by_nodes(gltf: dict) -> bool:
-    """Whether the default scene (or, without one, every node) moves a mesh away from its stored
-    coordinates (a node transform on its path) or shows a mesh more than once (instances).  Reads the
-    JSON leniently: anything malformed counts as not placed (the reader checks what it uses)."""
+def mesh_placements(gltf: dict) -> list:
+    """Every showing of a mesh in the default scene (or, without one, under every node that is no
+    node's child): ``[(mesh index, world matrix (4, 4) float64 or None)]`` in walk order, None where a
+    node on the path has a malformed transform.  Reads the JSON leniently: a malformed node or child
+    index is skipped, a node met twice (glTF nodes form disjoint trees) is walked once."""
     nodes = gltf.get("nodes")
     if not isinstance(nodes, list):
-        return False
+        return []
     scenes, scene = gltf.get("scenes"), gltf.get("scene", 0)
     roots = None
     if isinstance(scenes, list) and isinstance(scene, int) and 0 <= scene < len(scenes) and isinstance(scenes[scene], dict):
         roots = scenes[scene].get("nodes")
     if not isinstance(roots, list):
-        roots = list(range(len(nodes)))
-    shown, seen = set(), set()
-    stack = [(r, False) for r in roots]
+        children = {c for n in nodes if isinstance(n, dict) and isinstance(n.get("children"), list)
+                    for c in n["children"] if isinstance(c, int)}
+        roots = [i for i in range(len(nodes)) if i not in children]
+    shown, seen = [], set()
+    stack = [(r, np.eye(4)) for r in reversed(roots)]
     while stack:
-        i, moved = stack.pop()
+        i, parent = stack.pop()
         if not isinstance(i, int) or not 0 <= i < len(nodes) or not isinstance(nodes[i], dict) or i in seen:
-            continue  # glTF nodes form disjoint trees: a node met twice is a malformed file, walked once
+            continue
         seen.add(i)
         node = nodes[i]
-        moved = moved or any(key in node and node[key] != value for key, value in _IDENTITY.items())
+        local = _node_matrix(node)
+        world = None if parent is None or local is None else parent @ local
         if "mesh" in node:
-            if moved or repr(node["mesh"]) in shown:
-                return True
-            shown.add(repr(node["mesh"]))
+            shown.append((node["mesh"], world))
         children = node.get("children")
         if isinstance(children, list):
-            stack.extend((c, moved) for c in children)
-    return False
+            stack.extend((c, world) for c in reversed(children))
+    return shown
+
+
+def placed_by_nodes(gltf: dict) -> bool:
+    """Whether the default scene (or, without one, every root node) moves a mesh away from its stored
+    coordinates (a node transform on its path) or shows a mesh more than once (instances).  Reads the
+    JSON leniently: a malformed transform counts as moving its meshes (:func:`mesh_placements`)."""
+    shown = mesh_placements(gltf)
+    meshes = [repr(mesh) for mesh, _ in shown]
+    return len(set(meshes)) < len(meshes) or any(m is None or not np.array_equal(m, np.eye(4)) for _, m in shown)
+
+
+def is_similarity(matrix: np.ndarray, tolerance: float = 1e-6) -> bool:
+    """Whether the affine map ``matrix`` (4, 4) is a similarity (rotation or reflection times one
+    positive scale, plus a translation): the distances it gives are the stored ones times one factor."""
+    m = np.asarray(matrix, np.float64)
+    if not np.array_equal(m[3], [0.0, 0.0, 0.0, 1.0]):
+        return False
+    gram = m[:3, :3].T @ m[:3, :3]
+    s2 = float(np.trace(gram)) / 3.0
+    return s2 > 0.0 and bool(np.abs(gram - s2 * np.eye(3)).max() <= tolerance * s2)

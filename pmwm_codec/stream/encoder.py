@@ -41,6 +41,7 @@ from ..format import encode_base
 from ..format.base import EncodedBase, with_attributes
 from ..atomic import directory_lock, discard, fault_point, publish, signals_deferred, stage
 from ..format.glb import ProgressivePrimitive, assemble_document, write_parts
+from ..format.gltf import is_similarity, mesh_placements
 from ..format.extension import DEFAULT_PAYLOAD_VERSION, PAYLOAD_CODEC, PAYLOAD_VERSIONS
 from ..format.records import pack_batches
 from ..format.records_v2 import FaceChunk, pack_chunks
@@ -242,7 +243,9 @@ def encode_document(
     embed_from : first vertex split (stream order, over every primitive) that carries a
         code: an int index or a float fraction in [0, 1) of the splits; stored in the file.
     owner_id : 64-bit owner ID: mark the owner layer (:mod:`~pmwm_codec.watermark.owner`)
-        into every primitive's full-resolution positions first; the key (generated when
+        into the primitives' full-resolution positions first, taken as one mesh (when the
+        document's nodes show every mesh once, all by one similarity: :func:`_owner_placement`);
+        the key (generated when
         none is given) is returned carrying it.  ``owner_strength``: its margin.  The layer
         must read back ``present`` (:func:`~pmwm_codec.watermark.owner.detect`, as ``pmw
         verify`` reads it) from the full decode; when it cannot (a mesh whose vertex norms span
@@ -290,7 +293,7 @@ def encode_document(
     marked = None
     if owner_id is not None:
         key = dataclasses.replace(key if key is not None else WatermarkKey.generate(), owner_id=int(owner_id))
-        marked, why = _mark_owner(jobs, key, owner_strength, grid_bits)
+        marked, why = _mark_owner(jobs, key, owner_strength, grid_bits, doc)
         if why is not None:
             drop_owner(why)
             owner_id, marked = None, None
@@ -341,11 +344,16 @@ def encode_document(
     )
 
 
-def _mark_owner(jobs, key: WatermarkKey, strength, grid_bits: int) -> tuple:
-    """Stage 0: the owner layer on each primitive's full-resolution positions.
+def _mark_owner(jobs, key: WatermarkKey, strength, grid_bits: int, doc: dict) -> tuple:
+    """Stage 0: the owner layer on the primitives' full-resolution positions, taken as one mesh.
+
+    ``pmw verify`` reads the layer from every primitive of a file at once (the stream's parts, or a
+    decoded asset's triangle primitives placed by its nodes): so the primitives are marked together
+    (:func:`~pmwm_codec.distortion.combine_meshes`, each vertex moved in its own primitive's
+    coordinates), and only when the two reads see one mesh (:func:`_owner_placement`).
 
     Returns ``(new jobs, None)``, or ``(None, why)`` (a phrase) when the layer cannot be read
-    back from the positions as stored: first a cheap test of each primitive on its grid
+    back from the positions as stored: first a cheap test on the coarsest grid
     (:func:`~pmwm_codec.watermark.owner.unreadable`: shells under half a grid step wide, or
     too many of them empty; the embedding's feedback rounds cannot succeed there), then, once
     marked, a blind read (:func:`_owner_check`) of the positions on the grids stage 1 will fit
@@ -353,20 +361,54 @@ def _mark_owner(jobs, key: WatermarkKey, strength, grid_bits: int) -> tuple:
     """
     from ..watermark import owner
 
+    why = _owner_placement(doc, jobs)
+    if why is not None:
+        return None, why
     strength = owner.DEFAULT_STRENGTH if strength is None else float(strength)
-    for job in jobs:
-        why = owner.unreadable(job.mesh.positions, job.mesh.faces, Grid.fit(job.mesh.positions, grid_bits).step)
-        if why is not None:
-            return None, (why if len(jobs) == 1 else f"mesh {job.mesh_index} primitive {job.primitive_index}: {why}")
-    marked = [dataclasses.replace(job, mesh=dataclasses.replace(
-        job.mesh, positions=owner.embed(job.mesh.positions, job.mesh.faces, key, strength=strength)))
-        for job in jobs]
+    whole = combine_meshes([job.mesh for job in jobs])
+    step = max(Grid.fit(job.mesh.positions, grid_bits).step for job in jobs)
+    why = owner.unreadable(whole.positions, whole.faces, step)
+    if why is not None:
+        return None, why
+    moved = owner.embed(whole.positions, whole.faces, key, strength=strength)
+    ends = np.cumsum([job.mesh.vertex_count for job in jobs])
+    marked = [dataclasses.replace(job, mesh=dataclasses.replace(job.mesh, positions=part))
+              for job, part in zip(jobs, np.split(moved, ends[:-1]))]
     stored = []
     for job in marked:
         grid = Grid.fit(job.mesh.positions, grid_bits)  # as _quantize fits it
         stored.append(grid.dequantize(grid.quantize(job.mesh.positions)))
     why = _owner_check(stored, [job.mesh.faces for job in marked], key)
     return (marked, None) if why is None else (None, why)
+
+
+def _owner_placement(doc: dict, jobs) -> str | None:
+    """Why a file's two owner reads would not see one mesh (a phrase), or None when they do.
+
+    A ``.pmw`` is read as its primitives' stored positions taken together; a decoded asset (``pmw
+    verify OUT.glb``) as its triangle primitives placed by the scene's nodes.  The reads agree up to
+    a similarity, which the layer ignores, when every mesh of ``jobs`` is shown once and all by one
+    world transform that is a similarity."""
+    if len(jobs) == 1 and not doc.get("nodes"):
+        return None
+    shown = mesh_placements(doc)
+    placements = []
+    for mi in sorted({job.mesh_index for job in jobs}):
+        mine = [m for index, m in shown if index == mi]
+        if len(mine) != 1:
+            return (f"mesh {mi} is shown {len(mine)} times in the scene, and the layer is marked into "
+                    "the stored meshes, once each")
+        if mine[0] is None:
+            return f"mesh {mi} is placed by a node transform that does not read"
+        placements.append(mine[0])
+    first = placements[0]
+    scale = max(1.0, float(np.abs(first).max()))
+    if any(np.abs(m - first).max() > 1e-9 * scale for m in placements[1:]):
+        return ("its meshes are placed by different node transforms, and the layer is marked into the stored "
+                "meshes taken together")
+    if not is_similarity(first):
+        return "its node transform is not a similarity (a non-uniform scale or a shear)"
+    return None
 
 
 def _owner_check(positions: list, faces: list, key: WatermarkKey) -> str | None:
