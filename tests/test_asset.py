@@ -323,6 +323,44 @@ def test_placed_by_nodes_tells_transforms_and_instances_apart(nodes, placed):
     assert placed_by_nodes(doc) is placed
 
 
+@pytest.mark.parametrize("one_mesh", [True, False], ids=["one-mesh", "one-mesh-each"])
+def test_primitives_that_share_positions_share_one_grid_and_decode_without_a_crack(tmp_path, one_mesh):
+    """A surface cut into primitives (its cut borders in both) decodes watertight: the parts share one grid,
+    so a border position is one grid point in each and comes back as one float32 (on grids of their own,
+    the copies came back up to a grid step apart: a crack along every cut).  A primitive sharing no
+    position keeps a grid of its own bounding box."""
+    from pmwm_codec.constants import EXTENSION_NAME
+    from pmwm_codec.format.reader import read_header
+
+    blob = shapes.icosphere(4, 1.0, noise=0.03, seed=3)
+    x = blob.positions[blob.faces].mean(1)[:, 0]
+    b = DocBuilder()
+    prims = []
+    for rows in (x < -0.2, (x >= -0.2) & (x < 0.5), x >= 0.5):
+        used, inverse = np.unique(blob.faces[rows], return_inverse=True)
+        prims.append(b.triangles(shapes.Mesh(blob.positions[used], inverse.reshape(-1, 3)), uv=False))
+    apart = shapes.torus(24, 12)
+    prims.append(b.triangles(shapes.Mesh(apart.positions * 0.1 + 5.0, apart.faces), uv=False))
+    if one_mesh:
+        b.doc.update(scene=0, scenes=[{"nodes": [0]}], nodes=[{"mesh": 0}], meshes=[{"primitives": prims}])
+    else:
+        b.doc.update(scene=0, scenes=[{"nodes": list(range(4))}], nodes=[{"mesh": i} for i in range(4)],
+                     meshes=[{"primitives": [p]} for p in prims])
+    (tmp_path / "cut.glb").write_bytes(b.glb())
+    encode_asset(tmp_path / "cut.glb", tmp_path / "cut.pmw", measure=False)
+    header = read_header((tmp_path / "cut.pmw").read_bytes())
+    grids = [prim["extensions"][EXTENSION_NAME]["grid"] for mesh in header.gltf_json["meshes"]
+             for prim in mesh["primitives"]]
+    assert grids[0] == grids[1] == grids[2] != grids[3]
+    assert grids[3]["step"] < grids[0]["step"] / 5  # the small torus (a tenth of the surface) on its own bounding box
+    glb, _, _ = decode_asset(tmp_path / "cut.pmw")
+    (tmp_path / "out.glb").write_bytes(glb)
+    doc, buffers = load_document(tmp_path / "out.glb")
+    decoded = [read_accessor(doc, buffers, p["attributes"]["POSITION"]) for m in doc["meshes"] for p in m["primitives"]]
+    surface = np.concatenate(decoded[:3])
+    assert len(np.unique(surface, axis=0)) == blob.vertex_count  # every border position decoded once
+
+
 def test_mesh_placements_compose_each_path_of_node_transforms_as_trimesh_does():
     """World matrix of every showing of a mesh: parent @ child, each node ``matrix`` (column-major) or T R S;
     checked against trimesh's scene graph on the same GLB."""

@@ -492,17 +492,26 @@ def test_without_a_watermark_the_read_back_sees_exactly_the_full_decode(blob):
     assert owner.detect(decoded.positions, decoded.faces, report.key).verdict == "present"
 
 
-def _asset_of_parts(path, mesh, parts: int, nodes: list, one_mesh: bool):
-    """A GLB of ``mesh`` cut into ``parts`` primitives by face-centre x (one glTF mesh holding them all,
-    or one mesh each), two materials, ``nodes`` as the scene's node list (node 0 the scene's root)."""
+def _cut(mesh, cuts) -> list:
+    """``mesh`` cut into parts at the face-centre x quantiles ``cuts``; a vertex on a cut belongs to both sides."""
+    x = mesh.positions[mesh.faces].mean(1)[:, 0]
+    part = np.searchsorted(np.quantile(x, cuts), x, side="right")
+    out = []
+    for k in range(len(cuts) + 1):
+        used, inverse = np.unique(mesh.faces[part == k], return_inverse=True)
+        out.append(Mesh(mesh.positions[used], inverse.reshape(-1, 3)))
+    return out
+
+
+def _asset_of_parts(path, mesh, parts, nodes: list, one_mesh: bool):
+    """A GLB of ``mesh`` cut into ``parts`` primitives by face-centre x (an int: equal face counts; a list:
+    the quantiles to cut at), one glTF mesh holding them all or one mesh each, two materials, ``nodes`` as
+    the scene's node list (node 0 the scene's root)."""
     from test_asset import DocBuilder
 
-    centre = mesh.positions[mesh.faces].mean(1)[:, 0]
+    cuts = list(parts) if not isinstance(parts, int) else [k / parts for k in range(1, parts)]
     b = DocBuilder()
-    prims = []
-    for i, rows in enumerate(np.array_split(np.argsort(centre, kind="stable"), parts)):
-        used, inverse = np.unique(mesh.faces[np.sort(rows)], return_inverse=True)
-        prims.append({**b.triangles(Mesh(mesh.positions[used], inverse.reshape(-1, 3)), uv=False), "material": i % 2})
+    prims = [{**b.triangles(piece, uv=False), "material": i % 2} for i, piece in enumerate(_cut(mesh, cuts))]
     meshes = [{"primitives": prims}] if one_mesh else [{"primitives": [p]} for p in prims]
     b.doc.update(scene=0, scenes=[{"nodes": [0]}], nodes=nodes, meshes=meshes,
                  materials=[{"name": "a"}, {"name": "b"}])
@@ -553,6 +562,26 @@ def test_a_multi_primitive_asset_carries_one_owner_layer_read_from_the_pmw_and_t
     before, gaps = np.concatenate(before), np.concatenate(gaps)
     diagonal = np.linalg.norm(before.max(0) - before.min(0))
     assert 0.005 / 100 < np.sqrt(np.mean(gaps**2)) / diagonal < 0.025 / 100
+
+
+def test_a_small_surface_cut_off_centre_into_primitives_carries_the_owner_layer(tmp_path):
+    """A 2.5k-vertex surface cut into two primitives at 80% of its length: the cut border's vertices are in both.
+    On a grid of their own each, the two copies of a border vertex decoded a grid step apart: the layer's read
+    counts them as two positions on two open borders, whose surface, relaxed, loses a strip along the cut, moving
+    the area centroid by most of a shell width (0 of 4 keys read back; the cow cut in two, 0 of 4).  Sharing one
+    grid, they decode to one position and the layer reads as on the uncut surface."""
+    from pmwm_codec.stream.asset import decode_asset, encode_asset
+    from pmwm_codec.verify.owner import owner_of_mesh, owner_of_stream
+
+    m = shapes.icosphere(4, 1.0, noise=0.03, seed=3)
+    small = Mesh(m.positions * np.array([1.0, 0.7, 0.5]), m.faces)
+    src = _asset_of_parts(tmp_path / "cut.glb", small, [0.8], [{"mesh": 0}], one_mesh=True)
+    for seed in range(2):
+        key = WatermarkKey.generate(rng=np.random.default_rng(seed))
+        report = encode_asset(src, tmp_path / "cut.pmw", key=key, owner_id=0x0123456789ABCDEF, measure=False)
+        assert owner_of_stream(tmp_path / "cut.pmw", report.key)[-1].owner.bit_errors == 0
+        (tmp_path / "cut.glb.out.glb").write_bytes(decode_asset(tmp_path / "cut.pmw")[0])
+        assert owner_of_mesh(tmp_path / "cut.glb.out.glb", report.key).verdict == "present"
 
 
 def test_an_asset_whose_meshes_are_placed_apart_refuses_an_explicit_owner_id_and_writes_nothing(tmp_path, blob,

@@ -366,18 +366,16 @@ def _mark_owner(jobs, key: WatermarkKey, strength, grid_bits: int, doc: dict) ->
         return None, why
     strength = owner.DEFAULT_STRENGTH if strength is None else float(strength)
     whole = combine_meshes([job.mesh for job in jobs])
-    step = max(Grid.fit(job.mesh.positions, grid_bits).step for job in jobs)
+    step = max(grid.step for grid in position_grids([job.mesh for job in jobs], grid_bits))
     why = owner.unreadable(whole.positions, whole.faces, step)
     if why is not None:
         return None, why
-    moved = owner.embed(whole.positions, whole.faces, key, strength=strength)
+    moved = owner.embed(whole.positions, whole.faces, key, strength=strength)  # coincident vertices stay so
     ends = np.cumsum([job.mesh.vertex_count for job in jobs])
     marked = [dataclasses.replace(job, mesh=dataclasses.replace(job.mesh, positions=part))
               for job, part in zip(jobs, np.split(moved, ends[:-1]))]
-    stored = []
-    for job in marked:
-        grid = Grid.fit(job.mesh.positions, grid_bits)  # as _quantize fits it
-        stored.append(grid.dequantize(grid.quantize(job.mesh.positions)))
+    grids = position_grids([job.mesh for job in marked], grid_bits)  # as stage 1 fits them
+    stored = [grid.dequantize(grid.quantize(job.mesh.positions)) for job, grid in zip(marked, grids)]
     why = _owner_check(stored, [job.mesh.faces for job in marked], key)
     return (marked, None) if why is None else (None, why)
 
@@ -441,12 +439,50 @@ def _owner_unreadable(why: str, fallback: bool, notices: list, watermark: bool, 
         _notice(notices, f"{what}: the file carries the image watermark only, and its key names no owner id")
 
 
-def _quantize(mesh: Mesh, grid_bits: int) -> tuple:
-    """``(grid, values (n, D) int64, attribute grids)`` of one mesh: positions, then attributes.
+def position_grids(meshes: list, grid_bits: int) -> list:
+    """The position grid (:class:`~pmwm_codec.progressive.grid.Grid`) of each of ``meshes`` (a list of
+    :class:`Mesh`): primitives that share a position (a surface cut into primitives, its cut border in
+    each) share one grid, spanning all of them, so a shared position is one grid point in every one and
+    decodes to the same float32 in each: no crack opens between them, and the owner layer, whose
+    statistics count a position once (:mod:`~pmwm_codec.watermark.owner`), reads them as one surface.
+    Every other primitive's grid spans its own bounding box."""
+    boxes = [np.stack([m.positions.min(0), m.positions.max(0)]) for m in meshes]
+    label = _sharing_groups([m.positions for m in meshes])
+    grids = {}
+    for g in np.unique(label):
+        members = np.flatnonzero(label == g)
+        span = np.concatenate([boxes[i] for i in members])
+        grids[int(g)] = Grid.fit(span, grid_bits)
+    return [grids[int(g)] for g in label]
 
-    Raises PmwError when an attribute's grid values do not survive a float32 round trip.
+
+def _sharing_groups(positions: list) -> np.ndarray:
+    """(k,) int64: a group label for each of ``positions`` (a list of (n_i, 3) float arrays), the smallest
+    index of the arrays it shares an exactly equal position with, directly or through others."""
+    label = np.arange(len(positions))
+    if len(positions) < 2:
+        return label
+    points = np.concatenate(positions)
+    owner = np.repeat(label, [len(p) for p in positions])
+    order = np.lexsort((owner, *points.T[::-1]))
+    p, o = points[order], owner[order]
+    same = np.all(p[1:] == p[:-1], axis=1) & (o[1:] != o[:-1])
+    pairs = np.unique(np.stack([o[:-1][same], o[1:][same]], 1), axis=0)
+    for _ in range(len(positions)):  # relax to the smallest label of each connected group
+        before = label.copy()
+        for a, b in pairs:
+            label[a] = label[b] = min(label[a], label[b])
+        if np.array_equal(before, label):
+            break
+    return label
+
+
+def _quantize(mesh: Mesh, grid: Grid) -> tuple:
+    """``(grid, values (n, D) int64, attribute grids)`` of one mesh on its position ``grid``
+    (:func:`position_grids`): positions, then attributes.
+
+    Raises PmwError when the positions or an attribute's grid values do not survive a float32 round trip.
     """
-    grid = Grid.fit(mesh.positions, grid_bits)
     q = grid.quantize(mesh.positions)
     if not _survives_float32(grid, q):
         raise PmwError(_float32_refusal(mesh.positions, grid))
@@ -493,8 +529,9 @@ def _quantize_and_simplify(jobs, grid_bits: int, base_vertices, say, defer_faces
     """
     work = []
     say("simplify", 0.0)
+    grids = position_grids([job.mesh for job in jobs], grid_bits)
     for i, job in enumerate(jobs):
-        grid, values, specs = _quantize(job.mesh, grid_bits)
+        grid, values, specs = _quantize(job.mesh, grids[i])
         faces, positions, locked = job.mesh.faces, job.mesh.positions, job.locked
         late = deferred_faces(values[:, :3], faces) if defer_faces else np.zeros(len(faces), bool)
         extra = {}
