@@ -404,6 +404,8 @@ def _owner_placement(doc: dict, jobs) -> str | None:
     if any(np.abs(m - first).max() > 1e-9 * scale for m in placements[1:]):
         return ("its meshes are placed by different node transforms, and the layer is marked into the stored "
                 "meshes taken together")
+    if not abs(np.linalg.det(first[:3, :3])) > 0.0:
+        return "its node transform flattens its meshes (a scale of zero)"
     if not is_similarity(first):
         return "its node transform is not a similarity (a non-uniform scale or a shear)"
     return None
