@@ -249,6 +249,12 @@ WRONG_TYPES = {
     "byteStride is 2": lambda d: d["bufferViews"][0].update(byteStride=2),
     "byteOffset is negative": lambda d: d["accessors"][0].update(byteOffset=-4),
     "extras 800 deep": lambda d: d.update(extras=json.loads("[" * 800 + "]" * 800)),
+    "a node with two parents": lambda d: d.update(nodes=[{"children": [2]}, {"children": [2]}, {"mesh": 0}]),
+    "a node its own ancestor": lambda d: d.update(nodes=[{"children": [1]}, {"children": [2]}, {"children": [0], "mesh": 0}]),
+    "a node its own child": lambda d: d.update(nodes=[{"children": [0], "mesh": 0}]),
+    "a child past the end": lambda d: d.update(nodes=[{"children": [5], "mesh": 0}]),
+    "a child index is a string": lambda d: d.update(nodes=[{"children": ["1"]}, {"mesh": 0}]),
+    "a node's mesh past the end": lambda d: d.update(nodes=[{"mesh": 3}]),
     "sparse count 2^40": lambda d: d["accessors"][0].update(
         sparse={"count": 1 << 40, "indices": {"bufferView": 1, "componentType": 5125}, "values": {"bufferView": 0}}),
 }

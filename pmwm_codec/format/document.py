@@ -199,7 +199,34 @@ def check_document(gltf: dict, name: str) -> None:
                 _ref(sampler, key, n_acc, f"animations[{i}].samplers[{j}]", name, required=True)
     for i, node in enumerate(gltf.get("nodes", [])):
         _check_extensions(node, f"nodes[{i}]", n_acc, name, "EXT_mesh_gpu_instancing")
+        _ref(node, "mesh", len(gltf.get("meshes", [])), f"nodes[{i}]", name)
+    _check_node_trees(gltf.get("nodes", []), name)
     _check_meshes(gltf, n_acc, n_views, name)
+
+
+def _check_node_trees(nodes: list, name: str) -> None:
+    """Refuse a node hierarchy that is not disjoint strict trees (glTF 2.0, 3.5.1): a child index out of
+    range, a node with two parents (its meshes would be shown twice, or once, as readers differ), a node
+    that is its own ancestor."""
+    parent = {}
+    for i, node in enumerate(nodes):
+        for child in _list(node, "children", f"nodes[{i}].children", name):
+            if not isinstance(child, int) or isinstance(child, bool) or not 0 <= child < len(nodes):
+                raise InputFormatError(f"{name}: nodes[{i}].children holds {child!r}, not a node index")
+            if child in parent or child == i:
+                other = parent.get(child, i)
+                raise InputFormatError(f"{name}: nodes[{child}] is a child of nodes[{other}] and of nodes[{i}]; "
+                                       "glTF nodes form disjoint trees" if child != i else
+                                       f"{name}: nodes[{i}] is its own child; glTF nodes form disjoint trees")
+            parent[child] = i
+    state = {}  # node -> the walk that reached it; each node is walked up once
+    for start in range(len(nodes)):
+        x = start
+        while x in parent and x not in state:
+            state[x] = start
+            x = parent[x]
+        if state.get(x) == start and x in parent:
+            raise InputFormatError(f"{name}: nodes[{x}] is its own ancestor; glTF nodes form disjoint trees")
 
 
 def _check_view(view: dict, where: str, n_buffers: int, name: str) -> None:
