@@ -147,6 +147,13 @@ def test_decode_writes_every_format(work, tmp_path, capsys, suffix):
     assert [p.name for p in tmp_path.iterdir()] == [out.name]  # no temp file left
 
 
+def test_decode_quiet_prints_nothing_on_success_and_still_writes(work, tmp_path, capsys):
+    """``-q`` as encode, cut and verify take it: no summary line on stdout, the file written."""
+    out = tmp_path / "level.obj"
+    code, stdout, err = run(capsys, "decode", work["pmw"], "-o", out, "--chunks", "1", "-q")
+    assert code == 0 and stdout == "" and err == "" and out.stat().st_size > 0
+
+
 def test_decode_glb_is_plain_gltf(work, tmp_path, capsys):
     out = tmp_path / "full.glb"
     assert run(capsys, "decode", work["pmw"], "-o", out)[0] == 0

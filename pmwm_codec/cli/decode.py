@@ -29,6 +29,7 @@ def add_parser(sub):
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output mesh: .glb, .gltf, .obj, .ply or .stl")
     p.add_argument("--chunks", type=int, metavar="N", help="stop after the base mesh and N chunks")
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success (notes still go to stderr)")
     p.set_defaults(run=run)
 
 
@@ -63,6 +64,8 @@ def run(args) -> int:
     else:
         for note in out["notices"]:
             notice(note)
+        if args.quiet:
+            return 0
         state = "complete file" if end.complete else f"truncated file, {end.bytes_read:,} bytes"
         print(f"{args.output}: {out['vertices']:,} vertices, {out['faces']:,} faces "
               f"(base + {out['chunks_applied']} of {out['chunks_total']} chunks; {state})")
