@@ -181,7 +181,7 @@ def _replay_batch(j, cb, state, positions, vid, face_src, moved_by, embed) -> Sp
 
     u_in = cb.u[order]
     vid[u_in] = topo.u
-    target = positions[u_in].astype(np.int64)
+    target = np.take(positions, u_in, axis=0).astype(np.int64)
     if embed is not None:
         target = np.asarray(embed(j, topo, target, state), dtype=np.int64)
     residual = target - topo.prediction()

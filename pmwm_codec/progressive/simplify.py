@@ -354,8 +354,8 @@ def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget, w
                                               live.fcount)
     vv_edge = live.vv_edge
     n = len(vids)
-    P = pos[vids]
-    Q = quad[vids]
+    P = np.take(pos, vids, axis=0)  # row gathers: np.take copies rows in one loop, indexing one memcpy per row
+    Q = np.take(quad, vids, axis=0)
     src, dst, opp = half_edges(F)
     frozen = frozen_ext[vids]
     g = None if weld is None else seams.local_groups(weld, vids, loc)
@@ -395,7 +395,7 @@ def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget, w
         del_left=_to_original(fids, del_left), del_right=_to_original(fids, del_right),
         wing_left=_to_original(vids, wing_left), wing_right=_to_original(vids, wing_right),
         moved_face=fids[moved_face], moved_by=moved_by,
-        cost=cost, error=np.sqrt(cost / np.maximum(_plane_weight(Q[cu] + Q[cv]), 1e-300)),
+        cost=cost, error=np.sqrt(cost / np.maximum(_plane_weight(np.take(Q, cu, axis=0) + np.take(Q, cv, axis=0)), 1e-300)),
     )
 
 
