@@ -313,6 +313,7 @@ def test_a_draco_compressed_input_asset_is_decoded_and_made_progressive(tmp_path
     ([{"mesh": 0}, {"mesh": 0}], True),  # one mesh shown twice
     ([{"mesh": 0}, {"mesh": 1}], False),
     ([{"children": [0], "mesh": 0}], False),  # a cycle (invalid glTF): walked once, no hang
+    ([{"mesh": 0, "extensions": {"EXT_mesh_gpu_instancing": {"attributes": {"TRANSLATION": 0}}}}], True),
 ])
 def test_placed_by_nodes_tells_transforms_and_instances_apart(nodes, placed):
     from pmwm_codec.format.gltf import placed_by_nodes

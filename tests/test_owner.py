@@ -600,6 +600,10 @@ def test_an_asset_whose_meshes_are_placed_apart_refuses_an_explicit_owner_id_and
     src = _asset_of_parts(tmp_path / "stretched.glb", blob, 2, stretched, one_mesh=True)
     assert main(["encode", str(src), "-o", str(out / "b.pmw"), "--owner-id", "ff"]) == 2
     assert "not a similarity" in capsys.readouterr().err
+    twice = [{"children": [1, 2]}, {"mesh": 0}, {"mesh": 0, "translation": [0.0, 4.0, 0.0]}]
+    src = _asset_of_parts(tmp_path / "twice.glb", blob, 2, twice, one_mesh=True)
+    assert main(["encode", str(src), "-o", str(out / "d.pmw"), "--owner-id", "ff"]) == 2
+    assert "shown more than once" in capsys.readouterr().err
     flat = [{"children": [1], "scale": [0.0, 0.0, 0.0]}, {"mesh": 0}]
     src = _asset_of_parts(tmp_path / "flat.glb", blob, 2, flat, one_mesh=True)
     assert main(["encode", str(src), "-o", str(out / "c.pmw"), "--owner-id", "ff"]) == 2

@@ -283,7 +283,8 @@ def _node_matrix(node: dict):
 def mesh_placements(gltf: dict) -> list:
     """Every showing of a mesh in the default scene (or, without one, under every node that is no
     node's child): ``[(mesh index, world matrix (4, 4) float64 or None)]`` in walk order, None where a
-    node on the path has a malformed transform.  Reads the JSON leniently: a malformed node or child
+    node on the path has a malformed transform; a node with ``EXT_mesh_gpu_instancing`` adds a second
+    showing with None (its instances are drawn where the extension's accessors say).  Reads the JSON leniently: a malformed node or child
     index is skipped, a node met twice (glTF nodes form disjoint trees) is walked once."""
     nodes = gltf.get("nodes")
     if not isinstance(nodes, list):
@@ -308,6 +309,9 @@ def mesh_placements(gltf: dict) -> list:
         world = None if parent is None or local is None else parent @ local
         if "mesh" in node:
             shown.append((node["mesh"], world))
+            exts = node.get("extensions")
+            if isinstance(exts, dict) and "EXT_mesh_gpu_instancing" in exts:  # drawn once per instance
+                shown.append((node["mesh"], None))
         children = node.get("children")
         if isinstance(children, list):
             stack.extend((c, world) for c in reversed(children))

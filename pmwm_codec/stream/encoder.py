@@ -393,9 +393,11 @@ def _owner_placement(doc: dict, jobs) -> str | None:
     placements = []
     for mi in sorted({job.mesh_index for job in jobs}):
         mine = [m for index, m in shown if index == mi]
-        if len(mine) != 1:
-            return (f"mesh {mi} is shown {len(mine)} times in the scene, and the layer is marked into "
-                    "the stored meshes, once each")
+        if not mine:
+            return f"mesh {mi} is not shown in the scene, where a decoded asset's read looks for it"
+        if len(mine) > 1:
+            return (f"mesh {mi} is shown more than once in the scene (by nodes or GPU instancing), and the layer is "
+                    "marked into the stored meshes, once each")
         if mine[0] is None:
             return f"mesh {mi} is placed by a node transform that does not read"
         placements.append(mine[0])
