@@ -387,7 +387,7 @@ def _owner_placement(doc: dict, jobs) -> str | None:
     verify OUT.glb``) as its triangle primitives placed by the scene's nodes.  The reads agree up to
     a similarity, which the layer ignores, when every mesh of ``jobs`` is shown once and all by one
     world transform that is a similarity."""
-    if len(jobs) == 1 and not doc.get("nodes"):
+    if not doc.get("nodes"):  # no scene: every reader takes the meshes as stored
         return None
     shown = mesh_placements(doc)
     placements = []
