@@ -167,6 +167,49 @@ def test_range_server_answers_206_with_content_range(site):
         thread.join(5)
 
 
+def test_serve_answers_only_for_files_inside_its_directory_and_never_with_a_key(tmp_path):
+    """A symbolic link out of the directory, a key file (``pmw encode`` writes the secret key beside the
+    ``.pmw``), a directory listing and a NUL byte all get 404, with or without ``Range``; a link that stays
+    inside is served."""
+    import os
+
+    site, outside = tmp_path / "site", tmp_path / "outside"
+    site.mkdir()
+    outside.mkdir()
+    (outside / "secret.txt").write_text("not yours")
+    (site / "a.txt").write_text("ok")
+    (site / "a.pmw.key.json").write_text('{"secret": "00"}')
+    (site / "sub").mkdir()
+    os.symlink(outside / "secret.txt", site / "out.txt")
+    os.symlink(outside, site / "outdir")
+    os.symlink(site / "a.txt", site / "in.txt")
+    os.symlink(site / "a.pmw.key.json", site / "key-link.txt")
+    srv, thread = _serve(site, RangeRequestHandler)
+    base = f"http://127.0.0.1:{srv.server_address[1]}/"
+
+    def get(path, ranged):
+        headers = {"Range": "bytes=0-1"} if ranged else {}
+        try:
+            with urllib.request.urlopen(urllib.request.Request(base + path, headers=headers), timeout=10) as r:
+                return r.status, r.read()
+        except urllib.error.HTTPError as exc:
+            exc.close()
+            return exc.code, b""
+
+    try:
+        for ranged in (False, True):
+            assert get("a.txt", ranged)[1] == b"ok"  # bytes 0-1 are the whole file
+            assert get("in.txt", ranged)[0] in (200, 206)
+            for refused in ("out.txt", "outdir/secret.txt", "a.pmw.key.json", "key-link.txt", "", "sub/",
+                            "a.txt%00.pmw", "..%2Foutside%2Fsecret.txt"):
+                status, body = get(refused, ranged)
+                assert status == 404 and b"not yours" not in body and b"secret" not in body, refused
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+
+
 def _prefix_end(path, n: int) -> int:
     """Bytes of ``path`` up to the end of chunk ``n`` (0: the end of the data before the first chunk)."""
     from pmwm_codec.http import plan_ranges

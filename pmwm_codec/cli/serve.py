@@ -3,8 +3,11 @@
 The standard library's ``http.server`` plus single-range ``Range: bytes=a-b`` requests
 (``206 Partial Content``, ``416`` when unsatisfiable), so that ``pmw verify URL``, the
 three.js plugin and the demo page can read a ``.pmw`` chunk by chunk.  Only files under
-``DIR`` are served (the standard library's path translation); it binds to 127.0.0.1
-unless ``--host`` says otherwise.  Not a production server.
+``DIR`` are served: the standard library's path translation, then the path's real location
+(symbolic links followed) must be inside ``DIR``'s.  Key files (``*.key.json``: ``pmw encode``
+writes the secret key beside the ``.pmw``) are never served, and directories are not listed
+(an ``index.html`` is served as usual).  It binds to 127.0.0.1 unless ``--host`` says
+otherwise.  Not a production server.
 """
 
 from __future__ import annotations
@@ -19,6 +22,10 @@ from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 from .common import UsageError
 
 _RANGE = re.compile(r"bytes=(\d*)-(\d*)\s*$")
+#: What :meth:`RangeRequestHandler.translate_path` gives for a path it refuses: no file can be there.
+_NOWHERE = os.path.join(os.devnull, "refused")
+#: Names never served: the secret key files ``pmw encode`` writes beside its outputs.
+KEY_SUFFIX = ".key.json"
 
 
 def add_parser(sub):
@@ -57,6 +64,25 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
     """
 
     protocol_version = "HTTP/1.1"
+
+    def translate_path(self, path):
+        """The standard library's translation, refused (a path where no file can be: 404) when the
+        file's real location is outside the served directory (a symbolic link out of it), when it is a
+        key file, or when the name cannot be a file name (a NUL byte)."""
+        local = super().translate_path(path)
+        try:
+            real, root = os.path.realpath(local), os.path.realpath(self.directory)
+        except (ValueError, OSError):
+            return _NOWHERE
+        if os.path.commonpath([real, root]) != root or os.path.basename(real).endswith(KEY_SUFFIX) \
+                or os.path.basename(local).endswith(KEY_SUFFIX):
+            return _NOWHERE
+        return local
+
+    def list_directory(self, path):
+        """No listings: the names in a folder are not the client's business (a key file's among them)."""
+        self.send_error(HTTPStatus.NOT_FOUND, "No directory listing")
+        return None
 
     def send_head(self):
         self._span = None
@@ -119,12 +145,22 @@ def _count(server, n: int) -> None:
             server.bytes_sent += n
 
 
+class _Server(ThreadingHTTPServer):
+    """A client that goes away mid-answer is its own business: no traceback for it."""
+
+    def handle_error(self, request, client_address):
+        import sys
+
+        if not isinstance(sys.exc_info()[1], ConnectionError):
+            super().handle_error(request, client_address)
+
+
 def make_server(directory, host: str = "127.0.0.1", port: int = 0, handler=RangeRequestHandler):
     """A ``ThreadingHTTPServer`` serving ``directory`` with ``handler``; not started.
 
     It counts body bytes in ``bytes_sent`` (under ``count_lock``).
     """
-    server = ThreadingHTTPServer((host, port), partial(handler, directory=os.fspath(directory)))
+    server = _Server((host, port), partial(handler, directory=os.fspath(directory)))
     server.bytes_sent = 0
     server.count_lock = threading.Lock()
     server.daemon_threads = True
