@@ -3,6 +3,7 @@
 import copy
 import json
 
+import numpy as np
 import pytest
 import zstandard
 
@@ -120,6 +121,39 @@ def test_lying_digest_raises_checksum_error_for_that_chunk():
     with pytest.raises(ChecksumError) as info:
         _events(_mutated(_set(["chunks", 1, "digest"], "0" * 32)))
     assert info.value.chunk == 1
+
+
+def test_a_decode_stopped_before_a_corrupt_chunk_never_opens_it():
+    """``decode --chunks N`` applies the base and N chunks: a chunk after them is passed over unread, as a reader
+    fetching only the bytes it needs never sees it (the JavaScript decoder, a URL read by ranges), so its bad
+    digest does not fail the decode; the whole file still does."""
+    import io
+
+    import pmwm_codec
+    from pmwm_codec import shapes
+    from pmwm_codec.stream import StreamDecoder
+    from pmwm_codec.stream.reader import decode_stream
+
+    buf = io.BytesIO()
+    pmwm_codec.encode(shapes.icosphere(4, 1.0, noise=0.02), buf, min_chunk_splits=64)
+    good = buf.getvalue()
+    ends = [e.bytes_read for e in iter_events(good) if isinstance(e, ChunkEvent)]
+    assert len(ends) > 4
+    bad = bytearray(good)
+    bad[ends[2] - 1] ^= 0x55  # the last stored byte of chunk 3 (index 2)
+    bad = bytes(bad)
+    last, end = decode_stream(bad, chunks=2)
+    whole, _ = decode_stream(good, chunks=2)
+    assert last.chunk == 2 and end.complete and end.chunks_applied == 2
+    assert np.array_equal(last.mesh.positions, whole.mesh.positions)
+    with pytest.raises(ChecksumError) as info:
+        decode_stream(bad, chunks=3)
+    assert info.value.chunk == 2
+    with pytest.raises(ChecksumError):
+        decode_stream(bad)
+    decoder = StreamDecoder(max_chunks=0)  # the base only: no chunk opened
+    decoder.feed(bad)
+    assert decoder.close().complete and decoder.chunks_applied == 0
 
 
 def _replace_chunk(k, stored, uncompressed_length=None):

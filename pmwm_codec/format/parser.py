@@ -9,7 +9,9 @@ that became complete, in stream order:
    ranges (base mesh, every chunk) are known from here on.
 2. :class:`BaseEvent` once the base mesh bufferViews are in.
 3. :class:`ChunkEvent` for each vertex-split chunk whose bytes are all in, in order,
-   digest-checked and zstd-decompressed.
+   digest-checked and zstd-decompressed.  ``ContainerParser(max_chunks=N)`` opens the first
+   ``N`` chunks only: the bytes of the others are passed over unread (no event, no digest,
+   as a reader fetching only what it needs never sees them), still counted for ``complete``.
 
 ``close()`` ends the stream and returns an :class:`EndEvent`.  A stream cut after the
 base mesh is *progress, not corruption*: ``EndEvent.complete`` is False and the chunks
@@ -260,7 +262,8 @@ class ContainerParser:
     >>> end = parser.close()                   # doctest: +SKIP
     """
 
-    def __init__(self):
+    def __init__(self, max_chunks: int | None = None):
+        self.max_chunks = max_chunks
         self._buf = bytearray()
         self._buf_start = 0  # absolute offset of _buf[0]
         self._received = 0
@@ -429,6 +432,14 @@ class ContainerParser:
             start, end, p, kp = self._plan.chunk_ranges[k]
             if not self._skip_to(self._bin_data + start):
                 return None
+            if self.max_chunks is not None and k >= self.max_chunks:  # not asked for: pass over it
+                if not self._skip_to(self._bin_data + end):
+                    return None
+                self._next_chunk += 1
+                if self._next_chunk == len(self._plan.chunk_ranges):
+                    self._state = _TAIL
+                    self._buf = bytearray()
+                return True
             stored = self._take(self._bin_data + end)
             if stored is None:
                 return None
