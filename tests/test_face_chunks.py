@@ -261,6 +261,18 @@ def test_pillows_and_flap_tips_arrive_in_one_face_chunk_after_every_split(pillow
     assert face_set(final.positions_int, final.faces) == face_set(original, mesh.faces)
 
 
+def test_info_counts_the_splits_encode_counts_not_a_face_chunks_tips(pillowed):
+    """``pmw info``'s ``vsplits`` is the number of vertex splits, as ``pmw encode`` reports it: a face chunk's
+    new vertices (flap tips) arrive with its faces, not by splits (info used to add them)."""
+    from pmwm_codec.format.inspect import inspect
+
+    mesh, v2, _ = pillowed
+    tips = np.setdiff1d(np.arange(mesh.vertex_count), mesh.faces[~deferred_pillows(mesh.faces)])
+    report = pmwm_codec.encode(mesh, io.BytesIO(), measure=False)
+    info = inspect(v2)
+    assert info["vsplits"] == report["vsplits"] == info["vertices"] - info["base_vertices"] - len(tips)
+
+
 def test_the_base_holds_no_pillow_where_version_1_keeps_them_all(pillowed):
     """Version 1 cannot send a face chunk: a split never makes a face on three existing vertices,
     so its base keeps every pillow of the input, and every flap's tip."""

@@ -50,7 +50,8 @@ def inspect(source) -> dict:
         "vertices": sum(q["vertices"] for q in prims), "faces": sum(q["faces"] for q in prims),
         "base_vertices": sum(q["base_vertices"] for q in prims), "base_faces": sum(q["base_faces"] for q in prims),
         "base_codec": prims[0]["base_codec"],
-        "vsplits": sum(c["splits"] for c in chunks), "chunks_total": header.chunk_count,
+        # a face chunk's new vertices (flap tips, bitstream.md §8.6) come with faces, not by splits
+        "vsplits": sum(c["splits"] for c in chunks if not c["face_chunk"]), "chunks_total": header.chunk_count,
         "grid": ext.get("grid"), "payload": ext.get("payload"), "watermark": watermark, "chunks": chunks,
         "primitives": prims,
         "extension": EXTENSION_NAME, "generator": gltf.get("asset", {}).get("generator"),
