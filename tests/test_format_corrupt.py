@@ -233,3 +233,29 @@ def test_truncated_error_is_a_format_error_and_a_pmw_error():
     with pytest.raises(PmwError):
         _events(DATA[:10])
     assert issubclass(TruncatedError, FormatError)
+
+
+def test_a_payload_error_names_its_chunk_as_the_container_errors_do(monkeypatch):
+    """A payload that fails while it is applied (payload version 2: a code out of range, a stream that does not end
+    where the payload does) is reported as ``chunk N payload: ...``, N counted from 1 in stream order."""
+    import io
+
+    import pmwm_codec
+    from pmwm_codec import shapes
+    from pmwm_codec.stream import replay
+    from pmwm_codec.stream.reader import decode_stream
+
+    buf = io.BytesIO()
+    pmwm_codec.encode(shapes.icosphere(3, 1.0, noise=0.02), buf, min_chunk_splits=32)
+    calls = []
+
+    def failing(payload, state, models):
+        calls.append(1)
+        if len(calls) == 3:
+            raise FormatError("chunk payload: invalid connectivity code")
+        yield from real(payload, state, models)
+
+    real = replay.decode_chunk
+    monkeypatch.setattr(replay, "decode_chunk", failing)
+    with pytest.raises(FormatError, match=r"^chunk 3 payload: invalid connectivity code$"):
+        decode_stream(buf.getvalue())

@@ -6,7 +6,7 @@
 import { decodeBase } from './base.js';
 import { initChunkFrames, openChunk } from './chunkframe.js';
 import { FormatError, LimitError, TruncatedError } from './errors.js';
-import { parseGlb, planDocument, preambleLength } from './header.js';
+import { checkPreamble, parseGlb, planDocument, preambleLength } from './header.js';
 import { ChunkDecoderV2 } from './payload-v2.js';
 import { MeshState, unpackPayload } from './vsplit.js';
 
@@ -28,6 +28,9 @@ export class PmwDecoder {
   constructor({ draco, maxChunks = Infinity, snapshots = false, onLevel } = {}) {
     this.onLevel = onLevel;
     this.draco = draco;
+    if (maxChunks !== Infinity && !(Number.isSafeInteger(maxChunks) && maxChunks >= 0)) {
+      throw new RangeError(`maxChunks must be a whole number >= 0 (or Infinity), not ${maxChunks}`);
+    }
     this.maxChunks = maxChunks;
     this.snapshots = snapshots;
     this.buf = new Uint8Array(0);
@@ -78,7 +81,9 @@ export class PmwDecoder {
     const out = [];
     const data = this.buf.subarray(0, this.received);
     if (!this.header) {
-      if (this.received < 20 || this.received < preambleLength(data)) return out;
+      if (this.received < 20) return out;
+      checkPreamble(data); // a JSON chunk over the limit is refused before it is buffered
+      if (this.received < preambleLength(data)) return out;
       this.header = parseGlb(data);
       if (this.received > this.header.length) throw new FormatError('more bytes than the GLB length');
       this.plan = planDocument(this.header.gltf, this.header.binLength);

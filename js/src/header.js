@@ -41,7 +41,12 @@ function finiteNumbers(key, value) {
   return value;
 }
 
-export function parseGlb(bytes) {
+/**
+ * Check the 20-byte preamble (GLB header and JSON chunk header) of a prefix holding at least 20 bytes,
+ * as soon as it is in: a streaming reader refuses a JSON chunk over the limit before buffering it.
+ * @returns {{length:number, jsonLength:number}}
+ */
+export function checkPreamble(bytes) {
   const dv = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength);
   if (dv.getUint32(0, true) !== GLB_MAGIC) throw new FormatError('not a GLB file (bad magic)');
   if (dv.getUint32(4, true) !== 2) throw new UnsupportedError(`GLB version ${dv.getUint32(4, true)}, expected 2`);
@@ -51,6 +56,12 @@ export function parseGlb(bytes) {
   if (jsonLength % 4 !== 0) throw new FormatError('JSON chunk length is not a multiple of 4');
   if (jsonLength > MAX_JSON_BYTES) throw new LimitError(`JSON chunk of ${jsonLength} bytes is over the limit`);
   if (28 + jsonLength > length) throw new FormatError('GLB length leaves no room for the BIN chunk');
+  return { length, jsonLength };
+}
+
+export function parseGlb(bytes) {
+  const dv = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength);
+  const { length, jsonLength } = checkPreamble(bytes);
   const binLength = dv.getUint32(20 + jsonLength, true);
   if (dv.getUint32(24 + jsonLength, true) !== BIN_TYPE) throw new FormatError('second GLB chunk is not BIN');
   if (binLength % 4 !== 0 || 28 + jsonLength + binLength !== length) {

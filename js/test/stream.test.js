@@ -98,3 +98,26 @@ test('a JSON chunk holding a number that overflows a double is a format error na
   odv.setUint32(12, head.length, true);
   await assert.rejects(decodePmw(out), (e) => e instanceof FormatError && /"0" holds a number that is not finite/.test(e.message));
 });
+
+test('a preamble declaring a JSON chunk over the limit is refused from its first 20 bytes, before any JSON is buffered', async () => {
+  const { LimitError, MAX_JSON_BYTES } = await import('../src/index.js');
+  const head = new Uint8Array(20);
+  const dv = new DataView(head.buffer);
+  dv.setUint32(0, 0x46546c67, true); // 'glTF'
+  dv.setUint32(4, 2, true);
+  dv.setUint32(8, 0xfffffff0, true);
+  dv.setUint32(12, MAX_JSON_BYTES + 4, true);
+  dv.setUint32(16, 0x4e4f534a, true); // 'JSON'
+  const d = new PmwDecoder();
+  await assert.rejects(d.feed(head), LimitError);
+  await assert.rejects(d.feed(new Uint8Array(1024)), LimitError); // and stays failed: nothing more is taken
+});
+
+test('a chunk count that is not a whole number >= 0 is refused, not rounded or taken as none', async () => {
+  const bytes = load(conformanceFiles()[0]);
+  for (const chunks of [-1, NaN, 2.5, '2']) {
+    await assert.rejects(decodePmw(bytes, { chunks }), RangeError, String(chunks));
+  }
+  assert.equal((await decodePmw(bytes, { chunks: 0 })).chunksApplied, 0);
+  assert.equal((await decodePmw(bytes, { chunks: undefined })).complete, true);
+});

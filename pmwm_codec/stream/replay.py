@@ -30,12 +30,13 @@ needs no per-primitive bookkeeping of its own.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
 
-from ..errors import FormatError, MeshError
+from ..errors import ChecksumError, FormatError, MeshError, TruncatedError
 from ..format import BaseEvent, ChunkEvent, HeaderEvent
 from ..format.extension import payload_version
 from ..format.records import unpack_batches
@@ -153,7 +154,14 @@ class Replay:
         elif isinstance(event, BaseEvent):
             self._on_base(event)
         elif isinstance(event, ChunkEvent):
-            return self._on_chunk(event)
+            try:
+                return self._on_chunk(event)
+            except FormatError as exc:  # the payload's own errors name the chunk, as the container's do
+                if re.match(r"chunk \d", str(exc)) or type(exc) in (ChecksumError, TruncatedError):
+                    raise
+                text, n = str(exc), event.index + 1
+                named = f"chunk {n} {text[len('chunk '):]}" if text.startswith("chunk payload") else f"chunk {n}: {text}"
+                raise type(exc)(named) from None
         return []
 
     def _on_header(self, event: HeaderEvent) -> None:
