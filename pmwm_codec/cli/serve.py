@@ -41,11 +41,14 @@ def add_parser(sub):
 def parse_range(header: str | None, size: int):
     """``(start, end)`` (end exclusive) of a single ``bytes=`` range of a ``size``-byte file.
 
-    None when there is no usable single range (absent, several ranges, another unit:
-    the whole file is sent); ``(size, size)`` when it cannot be satisfied (416).
+    None when there is no usable single range (absent, several ranges, another unit, a last
+    byte before the first: RFC 9110 §14.1.1 calls that invalid, to be ignored: the whole file
+    is sent); ``(size, size)`` when it cannot be satisfied (416).
     """
     match = _RANGE.match(header or "")
     if match is None or match[1] == match[2] == "":
+        return None
+    if match[1] != "" and match[2] != "" and int(match[2]) < int(match[1]):
         return None
     if match[1] == "":  # suffix: the last n bytes
         n = int(match[2])
