@@ -212,6 +212,9 @@ function checkChunk(gltf, c, j, bufferLength, what, version = 1) {
       throw new FormatError(`${what} chunk ${j}: ${key} is not a count within the limits`);
     }
   }
+  if (typeof c.geometricError !== 'number' || !(c.geometricError >= 0)) { // required by the chunk schema
+    throw new FormatError(`${what} chunk ${j}: geometricError is not a number >= 0`);
+  }
   const hex = DIGEST_HEX[version];
   if (typeof c.digest !== 'string' || c.digest.length !== hex || !/^[0-9a-f]*$/.test(c.digest)) {
     throw new FormatError(`${what} chunk ${j}: digest is not ${hex} lowercase hex digits`);
