@@ -239,3 +239,29 @@ def test_pmw_serve_serves_ranges_until_stopped(site):
         proc.terminate()
         proc.wait(10)
         proc.stdout.close()
+
+
+def test_pmw_info_and_decode_take_a_url_as_verify_does(server, site, tmp_path, capsys):
+    """``pmw info URL`` (the header only) and ``pmw decode URL`` (by ranges: nothing after chunk N) give what
+    they give for the file."""
+    size = (site / "x.pmw").stat().st_size
+    code, out_url, err = _pmw(capsys, "info", server.url + "x.pmw", "--json")
+    assert code == 0, err
+    code, out_file, _ = _pmw(capsys, "info", site / "x.pmw", "--json")
+    remote, local = json.loads(out_url), json.loads(out_file)
+    assert remote["file"] == server.url + "x.pmw" and remote["bytes"] is None  # the size is not fetched
+    assert {k: v for k, v in remote.items() if k not in ("file", "bytes", "complete", "truncated", "chunks_present",
+                                                         "chunks")} == \
+        {k: v for k, v in local.items() if k not in ("file", "bytes", "complete", "truncated", "chunks_present", "chunks")}
+    for suffix, n in ((".obj", 2), (".glb", 1), (".ply", None)):
+        server.bytes_sent = 0
+        extra = [] if n is None else ["--chunks", str(n)]
+        out, ref = tmp_path / f"remote{suffix}", tmp_path / f"local{suffix}"
+        code, _, err = _pmw(capsys, "decode", server.url + "x.pmw", "-o", out, *extra, "--json")
+        assert code == 0, err
+        _pmw(capsys, "decode", site / "x.pmw", "-o", ref, *extra)
+        assert out.read_bytes() == ref.read_bytes()
+        if server.ranges and suffix == ".obj":
+            assert server.bytes_sent == _prefix_end(site / "x.pmw", n) < size
+    code, _, err = _pmw(capsys, "decode", server.url + "missing.pmw", "-o", tmp_path / "m.obj")
+    assert code == 2 and "404" in err and len(err.splitlines()) == 1 and not (tmp_path / "m.obj").exists()

@@ -1,4 +1,4 @@
-"""``pmw decode IN.pmw|- -o OUT.(glb|gltf|obj|ply|stl) [--chunks N]``: a level of detail as a plain mesh.
+"""``pmw decode IN.pmw|URL|- -o OUT.(glb|gltf|obj|ply|stl) [--chunks N]``: a level of detail as a plain mesh.
 
 glTF outputs keep the whole document (materials, textures, nodes) through
 :func:`pmwm_codec.stream.asset.decode_asset`; the other formats get the geometry through
@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 
+from pmwm_codec.http import UrlSource, as_source, is_url
 from pmwm_codec.meshio import WRITE_SUFFIXES, write_asset, write_mesh
 from pmwm_codec.stream.asset import decode_asset
 from pmwm_codec.format.gltf import placed_by_nodes
@@ -25,7 +26,8 @@ def add_parser(sub):
         "decode", help=".pmw (whole, cut or on stdin) -> GLB/glTF/OBJ/PLY/STL",
         description="Decode a .pmw (whole, truncated, or '-' for standard input) to an ordinary mesh file "
                     "at full resolution or after --chunks N vertex-split chunks.")
-    p.add_argument("input", metavar="IN.pmw", help="the .pmw, or - for standard input")
+    p.add_argument("input", metavar="IN.pmw|URL", help="the .pmw, an http(s):// URL of one (read by Range requests "
+                                                         "when the server allows), or - for standard input")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output mesh: .glb, .gltf, .obj, .ply or .stl")
     p.add_argument("--chunks", type=int, metavar="N", help="stop after the base mesh and N chunks")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -40,17 +42,19 @@ def run(args) -> int:
                          f"use one of {', '.join(WRITE_SUFFIXES)}")
     if args.chunks is not None and args.chunks < 0:
         raise UsageError(f"--chunks must be >= 0, got {args.chunks}")
-    check_input_file(args.input, ".pmw file")
-    check_output_path(args.output, "mesh", inputs=(args.input,))
+    url = is_url(args.input)
+    if not url:
+        check_input_file(args.input, ".pmw file")
+    check_output_path(args.output, "mesh", inputs=() if url else (args.input,))
     notices = []
     with naming(args.input):
-        if suffix in (".glb", ".gltf"):
-            glb, end, decoder = decode_asset(args.input, chunks=args.chunks)
+        if suffix in (".glb", ".gltf"):  # the whole file: the document's images may follow the chunks
+            glb, end, decoder = decode_asset(UrlSource(args.input) if url else args.input, chunks=args.chunks)
             last, notices = decoder.last, decoder.notices
             write_asset(args.output, glb)
-        else:
+        else:  # a URL read by ranges fetches nothing after chunk N
             decoder = StreamDecoder(copy=False, max_chunks=args.chunks)
-            last, end = decode_stream(args.input, decoder=decoder)
+            last, end = decode_stream(as_source(args.input, args.chunks), decoder=decoder)
             write_mesh(args.output, last.mesh)
             if decoder.header is not None and placed_by_nodes(decoder.header.gltf_json):
                 notices.append("the asset places its meshes with node transforms or instances, which an "

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pmwm_codec.format.inspect import inspect
+from pmwm_codec.http import UrlSource, is_url
 
 from .common import check_input_file, naming, print_json
 
@@ -11,15 +12,17 @@ def add_parser(sub):
     p = sub.add_parser("info", help="structure of a .pmw from its header (no decoding)",
                        description="Show the structure of a .pmw from its header and glTF JSON alone: counts, base "
                                    "codec, grid, chunk table, public watermark parameters, complete or truncated.")
-    p.add_argument("input", metavar="IN.pmw", help="the .pmw")
+    p.add_argument("input", metavar="IN.pmw|URL", help="the .pmw, or an http(s):// URL of one (its header is fetched)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(run=run)
 
 
 def run(args) -> int:
-    check_input_file(args.input, ".pmw file")
+    url = is_url(args.input)
+    if not url:
+        check_input_file(args.input, ".pmw file")
     with naming(args.input):
-        info = inspect(args.input)
+        info = inspect(UrlSource(args.input, max_chunks=0) if url else args.input)  # a URL: the header only
     if args.json:
         print_json(info)
         return 0
@@ -29,7 +32,7 @@ def run(args) -> int:
 
 def text(i) -> str:
     state = ("complete" if i["complete"] else f"TRUNCATED: {i['chunks_present']} of {i['chunks_total']} chunks present") \
-        if i["complete"] is not None else "size unknown (stdin)"
+        if i["complete"] is not None else "size unknown (standard input or a URL: the header only was read)"
     size = f"{i['bytes']:,} of {i['total_length']:,} bytes" if i["bytes"] is not None else f"{i['total_length']:,} bytes"
     g = i["grid"] or {}
     lines = [f"{i['file']}: {size}, {state}",

@@ -99,4 +99,4 @@ def _size(source):
 def _name(source):
     if isinstance(source, (str, os.PathLike)):
         return os.fspath(source)
-    return None
+    return getattr(source, "url", None)  # a UrlSource
