@@ -139,6 +139,14 @@ def replace_section(path: str, title: str, body: str) -> None:
         fh.write(text.rstrip("\n") + "\n")
 
 
+def run_header(command: str, info: dict) -> list:
+    """The opening lines of a section: the command, then the machine, its load and the code measured."""
+    load = ", ".join(f"{x:.2f}" for x in info["load"])
+    return [f"Command (from the repository root): `{command}`", "",
+            f"Machine: {info['cpu']} ({info['cores']} cores), load average {load} at the start; Python {info['python']}; "
+            f"code {info['git']}.", ""]
+
+
 def table(header, rows) -> str:
     out = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
     out += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]

@@ -40,7 +40,7 @@ from pmwm_codec.mesh import Mesh  # noqa: E402
 from pmwm_codec.stream.asset import decode_asset, encode_asset  # noqa: E402
 from pmwm_codec.verify.owner import owner_of_mesh, owner_of_stream  # noqa: E402
 from pmwm_codec.watermark.key import WatermarkKey  # noqa: E402
-from tools.bench import DEFAULT_CORPUS, machine, publish, table  # noqa: E402
+from tools.bench import DEFAULT_CORPUS, machine, publish, run_header, table  # noqa: E402
 
 SECTION = "Owner layer on multi-primitive assets"
 OWNER_ID = 0x0123456789ABCDEF
@@ -143,10 +143,7 @@ def read_cell(r) -> str:
 
 
 def render(rows, info, command, parts) -> str:
-    load = ", ".join(f"{x:.2f}" for x in info["load"])
-    L = [f"Command (from the repository root): `{command}`", "",
-         f"Machine: {info['cpu']} ({info['cores']} cores), load average {load} at the start; Python {info['python']}; "
-         f"code {info['git']}.", "",
+    L = run_header(command, info) + [
          f"Each mesh cut into {parts} primitives by face-centre x (cut-border vertices in both parts), under a root "
          "node that rotates by 45 degrees and scales by 2 and a child that translates; \"one mesh\": one glTF mesh "
          "holding the parts as primitives (two materials); \"meshes\": one glTF mesh per part, each on its own node. "

@@ -33,7 +33,7 @@ sys.path.insert(0, ROOT)
 
 from pmwm_codec import read_mesh, shapes, write_mesh  # noqa: E402
 from pmwm_codec.progressive.topology import SMALL_JOB_VERTICES  # noqa: E402
-from tools.bench import DEFAULT_CORPUS, machine, publish, table  # noqa: E402
+from tools.bench import DEFAULT_CORPUS, machine, publish, run_header, table  # noqa: E402
 
 SECTION = "Small meshes on the command line"
 #: ``pmw`` as the console script runs it, with the policy's threshold set first (argv[1]).
@@ -89,10 +89,7 @@ def measure(path: str, repeats: int, tmp: str) -> dict:
 
 
 def render(results, info, command, repeats) -> str:
-    load = ", ".join(f"{x:.2f}" for x in info["load"])
-    L = [f"Command (from the repository root): `{command}`", "",
-         f"Machine: {info['cpu']} ({info['cores']} cores), load average {load} at the start; Python {info['python']}; "
-         f"code {info['git']}.", "",
+    L = run_header(command, info) + [
          "Each cell: a fresh `pmw` process as a user runs it (imports, reading, writing), median of "
          f"{repeats}, the two ways interleaved run by run. As shipped, a job under {SMALL_JOB_VERTICES:,} vertices "
          "runs the kernels' numpy twins (numba's start-up is not paid); \"numba always\" sets that threshold to 0 "
