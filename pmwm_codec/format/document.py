@@ -213,11 +213,11 @@ def _check_node_trees(nodes: list, name: str) -> None:
         for child in _list(node, "children", f"nodes[{i}].children", name):
             if not isinstance(child, int) or isinstance(child, bool) or not 0 <= child < len(nodes):
                 raise InputFormatError(f"{name}: nodes[{i}].children holds {child!r}, not a node index")
-            if child in parent or child == i:
-                other = parent.get(child, i)
-                raise InputFormatError(f"{name}: nodes[{child}] is a child of nodes[{other}] and of nodes[{i}]; "
-                                       "glTF nodes form disjoint trees" if child != i else
-                                       f"{name}: nodes[{i}] is its own child; glTF nodes form disjoint trees")
+            if child == i:
+                raise InputFormatError(f"{name}: nodes[{i}] is its own child; glTF nodes form disjoint trees")
+            if child in parent:
+                raise InputFormatError(f"{name}: nodes[{child}] is a child of nodes[{parent[child]}] and of "
+                                       f"nodes[{i}]; glTF nodes form disjoint trees")
             parent[child] = i
     state = {}  # node -> the walk that reached it; each node is walked up once
     for start in range(len(nodes)):

@@ -284,8 +284,9 @@ def mesh_placements(gltf: dict) -> list:
     """Every showing of a mesh in the default scene (or, without one, under every node that is no
     node's child): ``[(mesh index, world matrix (4, 4) float64 or None)]`` in walk order, None where a
     node on the path has a malformed transform; a node with ``EXT_mesh_gpu_instancing`` adds a second
-    showing with None (its instances are drawn where the extension's accessors say).  Reads the JSON leniently: a malformed node or child
-    index is skipped, a node met twice (glTF nodes form disjoint trees) is walked once."""
+    showing with None (its instances are drawn where the extension's accessors say).  Reads the JSON
+    leniently: a malformed node or child index is skipped, a node met twice (glTF nodes form disjoint
+    trees) is walked once."""
     nodes = gltf.get("nodes")
     if not isinstance(nodes, list):
         return []
