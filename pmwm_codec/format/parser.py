@@ -376,6 +376,13 @@ class ContainerParser:
         self._buf_start = offset
         return True
 
+    def _chunk_done(self) -> None:
+        """The next chunk's bytes are consumed: after the last one, only the padding is left."""
+        self._next_chunk += 1
+        if self._next_chunk == len(self._plan.chunk_ranges):
+            self._state = _TAIL
+            self._buf = bytearray()
+
     def _step(self):
         """Advance one state; return an event, True (progress, no event) or None (need bytes)."""
         state = self._state
@@ -435,19 +442,13 @@ class ContainerParser:
             if self.max_chunks is not None and k >= self.max_chunks:  # not asked for: pass over it
                 if not self._skip_to(self._bin_data + end):
                     return None
-                self._next_chunk += 1
-                if self._next_chunk == len(self._plan.chunk_ranges):
-                    self._state = _TAIL
-                    self._buf = bytearray()
+                self._chunk_done()
                 return True
             stored = self._take(self._bin_data + end)
             if stored is None:
                 return None
             payload = _open_chunk(k, stored, self._plan.extensions[p]["chunks"][kp], payload_version(self._plan.extensions[p]))
-            self._next_chunk += 1
-            if self._next_chunk == len(self._plan.chunk_ranges):
-                self._state = _TAIL
-                self._buf = bytearray()
+            self._chunk_done()
             return ChunkEvent(k, payload, self._bin_data + end, p, kp)
         return None  # _TAIL: padding up to the file length
 
