@@ -448,8 +448,8 @@ def test_a_layer_the_watermark_leaves_unreadable_is_caught_on_the_full_decode(tm
     reads = []
     real = encoder._owner_check
 
-    def failing_on_the_decode(positions, faces, key):
-        reads.append(real(positions, faces, key))
+    def failing_on_the_decode(positions, faces, key, frames):
+        reads.append(real(positions, faces, key, frames))
         return "forced" if len(reads) == 2 else reads[-1]
 
     monkeypatch.setattr(encoder, "_owner_check", failing_on_the_decode)
@@ -584,28 +584,53 @@ def test_a_small_surface_cut_off_centre_into_primitives_carries_the_owner_layer(
         assert owner_of_mesh(tmp_path / "cut.glb.out.glb", report.key).verdict == "present"
 
 
-def test_an_asset_whose_meshes_are_placed_apart_refuses_an_explicit_owner_id_and_writes_nothing(tmp_path, blob,
-                                                                                                  capsys):
-    """Meshes under different node transforms: the stream's read (stored positions) and the decoded asset's
-    (placed by the nodes) see different meshes, so no one layer reads from both."""
-    nodes = [{"children": [1, 2]}, {"mesh": 0, "translation": [3.0, 0.0, 0.0]}, {"mesh": 1}]
-    src = _asset_of_parts(tmp_path / "apart.glb", blob, 2, nodes, one_mesh=False)
+#: three meshes, each under its own node: apart, turned differently, one stretched along z, one mirrored
+_APART = [{"children": [1, 2, 3]},
+          {"mesh": 0, "translation": [3.0, 0.0, 0.0], "rotation": [0.0, 0.0, 0.38268343, 0.92387953]},
+          {"mesh": 1, "scale": [1.0, 1.0, 3.0], "translation": [0.0, -2.0, 1.0]},
+          {"mesh": 2, "matrix": [-1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 4, 1]}]
+
+
+def test_an_asset_whose_meshes_nodes_place_apart_carries_one_owner_layer_in_the_scene(tmp_path, blob):
+    """Meshes placed by different node transforms (one not a similarity, one a reflection): the layer is
+    marked into the scene as shown, each vertex's move taken back into its own mesh's coordinates, so the
+    ``.pmw``'s read (its parts placed by the nodes) and the decoded asset's (trimesh) both read it."""
+    from pmwm_codec.stream.asset import decode_asset, encode_asset
+    from pmwm_codec.verify.owner import owner_of_mesh, owner_of_stream
+
+    src = _asset_of_parts(tmp_path / "apart.glb", blob, 3, _APART, one_mesh=False)
+    key = WatermarkKey.generate(rng=np.random.default_rng(5))
+    report = encode_asset(src, tmp_path / "apart.pmw", key=key, owner_id=0xFEEDFACE, measure=False)
+    assert report.key.owner_id == 0xFEEDFACE and not any("owner" in n for n in report.notices)
+    last = owner_of_stream(tmp_path / "apart.pmw", report.key)[-1]
+    assert last.owner.verdict == "present" and last.owner.bit_errors == 0
+    (tmp_path / "out.glb").write_bytes(decode_asset(tmp_path / "apart.pmw")[0])
+    read = owner_of_mesh(tmp_path / "out.glb", report.key)
+    assert read.verdict == "present" and read.bit_errors == 0
+    # the stored meshes taken together, as an OBJ decode writes them, are not the scene: no false present
+    import pmwm_codec
+
+    stored = pmwm_codec.decode(tmp_path / "apart.pmw")
+    assert owner_of_mesh(stored, report.key).verdict != "present"
+
+
+def test_an_asset_that_shows_a_mesh_twice_or_flat_refuses_an_explicit_owner_id_and_writes_nothing(tmp_path, blob,
+                                                                                                   capsys):
+    """A mesh shown twice has two places in the scene and one set of stored positions; a scale of zero has no
+    inverse to take a move back through: no one layer reads from the file and from the decoded asset."""
     out = tmp_path / "out"
     out.mkdir()
-    assert main(["encode", str(src), "-o", str(out / "a.pmw"), "--owner-id", "ff"]) == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "placed by different node transforms" in err
-    assert _files(out) == []
-    stretched = [{"children": [1], "scale": [1.0, 1.0, 3.0]}, {"mesh": 0}]
-    src = _asset_of_parts(tmp_path / "stretched.glb", blob, 2, stretched, one_mesh=True)
-    assert main(["encode", str(src), "-o", str(out / "b.pmw"), "--owner-id", "ff"]) == 2
-    assert "not a similarity" in capsys.readouterr().err
     twice = [{"children": [1, 2]}, {"mesh": 0}, {"mesh": 0, "translation": [0.0, 4.0, 0.0]}]
     src = _asset_of_parts(tmp_path / "twice.glb", blob, 2, twice, one_mesh=True)
     assert main(["encode", str(src), "-o", str(out / "d.pmw"), "--owner-id", "ff"]) == 2
-    assert "shown more than once" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "shown more than once" in err
     flat = [{"children": [1], "scale": [0.0, 0.0, 0.0]}, {"mesh": 0}]
     src = _asset_of_parts(tmp_path / "flat.glb", blob, 2, flat, one_mesh=True)
     assert main(["encode", str(src), "-o", str(out / "c.pmw"), "--owner-id", "ff"]) == 2
     assert "a scale of zero" in capsys.readouterr().err
+    unshown = [{"mesh": 0}]
+    src = _asset_of_parts(tmp_path / "unshown.glb", blob, 2, unshown, one_mesh=False)
+    assert main(["encode", str(src), "-o", str(out / "e.pmw"), "--owner-id", "ff"]) == 2
+    assert "mesh 1 is not shown in the scene" in capsys.readouterr().err
     assert _files(out) == []

@@ -328,12 +328,34 @@ def placed_by_nodes(gltf: dict) -> bool:
     return len(set(meshes)) < len(meshes) or any(m is None or not np.array_equal(m, np.eye(4)) for _, m in shown)
 
 
-def is_similarity(matrix: np.ndarray, tolerance: float = 1e-6) -> bool:
-    """Whether the affine map ``matrix`` (4, 4) is a similarity (rotation or reflection times one
-    positive scale, plus a translation): the distances it gives are the stored ones times one factor."""
-    m = np.asarray(matrix, np.float64)
-    if not np.array_equal(m[3], [0.0, 0.0, 0.0, 1.0]):
-        return False
-    gram = m[:3, :3].T @ m[:3, :3]
-    s2 = float(np.trace(gram)) / 3.0
-    return s2 > 0.0 and bool(np.abs(gram - s2 * np.eye(3)).max() <= tolerance * s2)
+def world_placements(gltf: dict, mesh_indices) -> tuple:
+    """The one world matrix of each mesh of ``mesh_indices`` (a list of mesh indices, repeats allowed):
+    ``(matrices, None)``, a list of (4, 4) float64 in that order, or ``(None, why)`` (a phrase) when
+    some mesh has no single invertible placement: not shown by the default scene, shown more than once
+    (by nodes or ``EXT_mesh_gpu_instancing``), under a malformed transform, or flattened (a scale of
+    zero).  A document without nodes shows every mesh as stored (identity matrices)."""
+    if not gltf.get("nodes"):
+        return [np.eye(4) for _ in mesh_indices], None
+    shown = mesh_placements(gltf)
+    out = []
+    for mi in mesh_indices:
+        mine = [m for index, m in shown if index == mi]
+        if not mine:
+            return None, f"mesh {mi} is not shown in the scene, where a decoded asset's read looks for it"
+        if len(mine) > 1:
+            return None, (f"mesh {mi} is shown more than once in the scene (by nodes or GPU instancing), and the "
+                          "layer is marked into the stored mesh, once")
+        if mine[0] is None:
+            return None, f"mesh {mi} is placed by a node transform that does not read"
+        if not abs(np.linalg.det(mine[0][:3, :3])) > 0.0:
+            return None, f"mesh {mi} is flattened by its node transform (a scale of zero)"
+        out.append(mine[0])
+    return out, None
+
+
+def place(positions: np.ndarray, matrix: np.ndarray) -> np.ndarray:
+    """(n, 3) float64: ``positions`` (n, 3) moved by the affine map ``matrix`` (4, 4) (the same array
+    when it is the identity)."""
+    if np.array_equal(matrix, np.eye(4)):
+        return positions
+    return positions @ matrix[:3, :3].T + matrix[:3, 3]

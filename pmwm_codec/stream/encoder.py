@@ -41,7 +41,7 @@ from ..format import encode_base
 from ..format.base import EncodedBase, with_attributes
 from ..atomic import directory_lock, discard, fault_point, publish, signals_deferred, stage
 from ..format.glb import ProgressivePrimitive, assemble_document, write_parts
-from ..format.gltf import is_similarity, mesh_placements
+from ..format.gltf import place, world_placements
 from ..format.extension import DEFAULT_PAYLOAD_VERSION, PAYLOAD_CODEC, PAYLOAD_VERSIONS
 from ..format.records import pack_batches
 from ..format.records_v2 import FaceChunk, pack_chunks
@@ -244,7 +244,7 @@ def encode_document(
         code: an int index or a float fraction in [0, 1) of the splits; stored in the file.
     owner_id : 64-bit owner ID: mark the owner layer (:mod:`~pmwm_codec.watermark.owner`)
         into the primitives' full-resolution positions first, taken as one mesh (when the
-        document's nodes show every mesh once, all by one similarity: :func:`_owner_placement`);
+        scene shows it: :func:`_mark_owner`);
         the key (generated when
         none is given) is returned carrying it.  ``owner_strength``: its margin.  The layer
         must read back ``present`` (:func:`~pmwm_codec.watermark.owner.detect`, as ``pmw
@@ -316,7 +316,8 @@ def encode_document(
     decoded = None
     if owner_id is not None and params is not None:  # the watermark moved vertices: read the full decode
         decoded = [_decoded_input_positions(w) for w in work]
-        why = _owner_check(decoded, [w.job.mesh.faces for w in work], key)
+        frames = world_placements(doc, [w.job.mesh_index for w in work])[0]  # placed as _mark_owner placed them
+        why = _owner_check(decoded, [w.job.mesh.faces for w in work], key, frames)
         if why is not None:
             drop_owner(why)
             owner_id, decoded = None, None
@@ -345,12 +346,16 @@ def encode_document(
 
 
 def _mark_owner(jobs, key: WatermarkKey, strength, grid_bits: int, doc: dict) -> tuple:
-    """Stage 0: the owner layer on the primitives' full-resolution positions, taken as one mesh.
+    """Stage 0: the owner layer on the primitives' full-resolution positions, taken as one mesh where
+    the scene shows them.
 
-    ``pmw verify`` reads the layer from every primitive of a file at once (the stream's parts, or a
-    decoded asset's triangle primitives placed by its nodes): so the primitives are marked together
-    (:func:`~pmwm_codec.distortion.combine_meshes`, each vertex moved in its own primitive's
-    coordinates), and only when the two reads see one mesh (:func:`_owner_placement`).
+    ``pmw verify`` reads the layer from every primitive of a file at once, each placed by the scene's
+    nodes: a ``.pmw``'s parts (:func:`~pmwm_codec.verify.owner.owner_of_stream`) as a decoded asset's
+    triangle primitives (trimesh).  So the layer is marked into that one mesh (every primitive moved
+    by its mesh's world matrix, :func:`~pmwm_codec.format.gltf.world_placements`, then
+    :func:`~pmwm_codec.distortion.combine_meshes`) and each vertex's move is taken back into its own
+    primitive's stored coordinates (the inverse of its matrix's linear part).  A mesh shown more than
+    once, or not at all, has no one place: ``(None, why)``.
 
     Returns ``(new jobs, None)``, or ``(None, why)`` (a phrase) when the layer cannot be read
     back from the positions as stored: first a cheap test on the coarsest grid
@@ -361,65 +366,36 @@ def _mark_owner(jobs, key: WatermarkKey, strength, grid_bits: int, doc: dict) ->
     """
     from ..watermark import owner
 
-    why = _owner_placement(doc, jobs)
+    frames, why = world_placements(doc, [job.mesh_index for job in jobs])
     if why is not None:
         return None, why
     strength = owner.DEFAULT_STRENGTH if strength is None else float(strength)
-    whole = combine_meshes([job.mesh for job in jobs])
-    step = max(grid.step for grid in position_grids([job.mesh for job in jobs], grid_bits))
+    whole = combine_meshes([Mesh(place(job.mesh.positions, m), job.mesh.faces) for job, m in zip(jobs, frames)])
+    grids = position_grids([job.mesh for job in jobs], grid_bits)
+    step = max(grid.step * np.linalg.norm(m[:3, :3], 2) for grid, m in zip(grids, frames))  # in the scene
     why = owner.unreadable(whole.positions, whole.faces, step)
     if why is not None:
         return None, why
     moved = owner.embed(whole.positions, whole.faces, key, strength=strength)  # coincident vertices stay so
     ends = np.cumsum([job.mesh.vertex_count for job in jobs])
-    marked = [dataclasses.replace(job, mesh=dataclasses.replace(job.mesh, positions=part))
-              for job, part in zip(jobs, np.split(moved, ends[:-1]))]
+    marked = []
+    for job, m, before, after in zip(jobs, frames, np.split(whole.positions, ends[:-1]), np.split(moved, ends[:-1])):
+        shift = after - before if np.array_equal(m, np.eye(4)) else np.linalg.solve(m[:3, :3], (after - before).T).T
+        marked.append(dataclasses.replace(job, mesh=dataclasses.replace(job.mesh, positions=job.mesh.positions + shift)))
     grids = position_grids([job.mesh for job in marked], grid_bits)  # as stage 1 fits them
     stored = [grid.dequantize(grid.quantize(job.mesh.positions)) for job, grid in zip(marked, grids)]
-    why = _owner_check(stored, [job.mesh.faces for job in marked], key)
+    why = _owner_check(stored, [job.mesh.faces for job in marked], key, frames)
     return (marked, None) if why is None else (None, why)
 
 
-def _owner_placement(doc: dict, jobs) -> str | None:
-    """Why a file's two owner reads would not see one mesh (a phrase), or None when they do.
-
-    A ``.pmw`` is read as its primitives' stored positions taken together; a decoded asset (``pmw
-    verify OUT.glb``) as its triangle primitives placed by the scene's nodes.  The reads agree up to
-    a similarity, which the layer ignores, when every mesh of ``jobs`` is shown once and all by one
-    world transform that is a similarity."""
-    if not doc.get("nodes"):  # no scene: every reader takes the meshes as stored
-        return None
-    shown = mesh_placements(doc)
-    placements = []
-    for mi in sorted({job.mesh_index for job in jobs}):
-        mine = [m for index, m in shown if index == mi]
-        if not mine:
-            return f"mesh {mi} is not shown in the scene, where a decoded asset's read looks for it"
-        if len(mine) > 1:
-            return (f"mesh {mi} is shown more than once in the scene (by nodes or GPU instancing), and the layer is "
-                    "marked into the stored meshes, once each")
-        if mine[0] is None:
-            return f"mesh {mi} is placed by a node transform that does not read"
-        placements.append(mine[0])
-    first = placements[0]
-    scale = max(1.0, float(np.abs(first).max()))
-    if any(np.abs(m - first).max() > 1e-9 * scale for m in placements[1:]):
-        return ("its meshes are placed by different node transforms, and the layer is marked into the stored "
-                "meshes taken together")
-    if not abs(np.linalg.det(first[:3, :3])) > 0.0:
-        return "its node transform flattens its meshes (a scale of zero)"
-    if not is_similarity(first):
-        return "its node transform is not a similarity (a non-uniform scale or a shear)"
-    return None
-
-
-def _owner_check(positions: list, faces: list, key: WatermarkKey) -> str | None:
-    """Why the owner layer does not read back ``present`` from the primitives' positions (a list of
-    (n_i, 3)) and faces (a list of (m_i, 3)) taken as one mesh, as ``pmw verify`` reads a decoded
-    stream (:func:`~pmwm_codec.watermark.owner.detect`), or None when it does."""
+def _owner_check(positions: list, faces: list, key: WatermarkKey, frames: list) -> str | None:
+    """Why the owner layer does not read back ``present`` from the primitives' stored positions (a list
+    of (n_i, 3)) and faces (a list of (m_i, 3)), placed by their world matrices ``frames`` (a list of
+    (4, 4)) and taken as one mesh, as ``pmw verify`` reads a decoded stream
+    (:func:`~pmwm_codec.watermark.owner.detect`), or None when it does."""
     from ..watermark import owner
 
-    mesh = combine_meshes([Mesh(p, np.asarray(f, np.int64)) for p, f in zip(positions, faces)])
+    mesh = combine_meshes([Mesh(place(p, m), np.asarray(f, np.int64)) for p, f, m in zip(positions, faces, frames)])
     read = owner.detect(mesh.positions, mesh.faces, key)
     if read.verdict == "present":
         return None

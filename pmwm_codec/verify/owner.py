@@ -7,7 +7,7 @@ Contract
   ``(positions (n, 3), faces (m, 3))`` pair; no original is needed.
 * :func:`owner_of_stream` ``(source, key) -> list[OwnerBoundary]``: a ``.pmw`` (path, bytes,
   binary file; whole or cut) decoded chunk by chunk, the owner read at each boundary,
-  base mesh first.
+  base mesh first; its primitives are placed by the scene's nodes, as a decoded asset's are.
 
 ``key``: a :class:`~pmwm_codec.watermark.key.WatermarkKey` or key file path carrying
 ``owner_id``; a key without one raises :class:`~pmwm_codec.errors.WatermarkKeyError`.
@@ -19,7 +19,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..distortion import combine_meshes
 from ..errors import WatermarkKeyError
+from ..format.extension import EXTENSION_NAME
+from ..format.gltf import find_extension_primitives, place, world_placements
 from ..mesh import Mesh, checked_mesh, read_mesh
 from ..stream import StreamDecoder, iter_results
 from ..watermark.key import as_key
@@ -64,8 +67,21 @@ def owner_of_stream(source, key) -> list:
     """``[OwnerBoundary]`` of a ``.pmw`` (see the module contract), base mesh first."""
     key = owner_key(key)
     out = []
-    for r in iter_results(source, StreamDecoder(None, None, copy=True)):
-        mesh = r.mesh
-        out.append(OwnerBoundary(r.chunk, int(r.bytes_read), int(r.vertices),
-                                 detect(np.asarray(mesh.positions), np.asarray(mesh.faces), key)))
+    decoder = StreamDecoder(None, None, copy=True)
+    frames = None
+    for r in iter_results(source, decoder):
+        if frames is None:
+            frames = _frames(decoder.header.gltf_json)
+        mesh = combine_meshes([Mesh(place(p.positions, m), p.faces) for p, m in zip(r.parts, frames)])
+        out.append(OwnerBoundary(r.chunk, int(r.bytes_read), int(r.vertices), detect(mesh.positions, mesh.faces, key)))
     return out
+
+
+def _frames(gltf: dict) -> list:
+    """The world matrix (4, 4) of every progressive primitive of the document ``gltf``: where the scene
+    shows each of their meshes once (as the encoder marks the layer, and as a decoded asset is read),
+    else the identity for all (the stored positions taken together, as files marked before the layer
+    was placed by the nodes were)."""
+    meshes = [mi for mi, _, _ in find_extension_primitives(gltf, EXTENSION_NAME)]
+    frames, why = world_placements(gltf, meshes)
+    return frames if why is None else [np.eye(4)] * len(meshes)
