@@ -60,18 +60,20 @@ class _HttpOnlyRedirects(urllib.request.HTTPRedirectHandler):
 class UrlSource:
     """The bytes of the ``.pmw`` at ``url``, as blocks, fetched as they are iterated.
 
-    ``max_chunks``: stop after the base mesh and this many chunks (stream order).
+    ``max_chunks``: stop after the base mesh and this many chunks (stream order);
+    ``whole_document``: and after the document's other data (:func:`plan_ranges`).
     After (or during) an iteration ``requests`` counts the HTTP requests made,
     ``bytes_fetched`` the body bytes received and ``ranged`` says whether the server
     honoured ``Range``.  Each iteration fetches afresh.
     """
 
-    def __init__(self, url: str, *, max_chunks: int | None = None, timeout: float = DEFAULT_TIMEOUT,
-                 block_size: int = DEFAULT_BLOCK_SIZE):
+    def __init__(self, url: str, *, max_chunks: int | None = None, whole_document: bool = False,
+                 timeout: float = DEFAULT_TIMEOUT, block_size: int = DEFAULT_BLOCK_SIZE):
         if not is_url(url):
             raise InputFormatError(f"{url}: not an http:// or https:// URL")
         self.url = url
         self.max_chunks = max_chunks
+        self.whole_document = whole_document
         self.timeout = timeout
         self.block_size = block_size
         self.requests = 0
@@ -108,7 +110,7 @@ class UrlSource:
         if len(rest) < header_end - PREAMBLE_SIZE:
             return
         start = header_end
-        for end in plan_ranges(preamble + rest, self.max_chunks):
+        for end in plan_ranges(preamble + rest, self.max_chunks, self.whole_document):
             block = self._fetch(start, end)
             yield block
             if len(block) < end - start:
@@ -163,7 +165,7 @@ class UrlSource:
             offset += len(block)
             if stop is None and self.max_chunks is not None:
                 head += block
-                stop = _plain_stop(bytes(head), self.max_chunks)
+                stop = _plain_stop(bytes(head), self.max_chunks, self.whole_document)
             yield block
 
     # -- HTTP ---------------------------------------------------------------------
@@ -192,24 +194,27 @@ class UrlSource:
         return block
 
 
-def _plain_stop(head: bytes, max_chunks: int):
+def _plain_stop(head: bytes, max_chunks: int, whole_document: bool = False):
     """Where a plain read may stop, once ``head`` holds the JSON and the BIN header (else None)."""
     if len(head) < PREAMBLE_SIZE:
         return None
     _, json_length = parse_preamble(head)
     if len(head) < PREAMBLE_SIZE + json_length + CHUNK_HEADER_SIZE:
         return None
-    return plan_ranges(head, max_chunks)[-1]
+    return plan_ranges(head, max_chunks, whole_document)[-1]
 
 
-def plan_ranges(head: bytes, max_chunks: int | None = None) -> list:
+def plan_ranges(head: bytes, max_chunks: int | None = None, whole_document: bool = False) -> list:
     """Absolute end offsets of the reads after the header: the base, each chunk, the tail.
 
     ``head``: at least the preamble, the JSON and the BIN chunk header, checked here
     by the container parser (structure, limits, chunk ranges).  The first range ends
     where the first chunk starts (the base meshes and the data they reference), then
     one range per chunk in stream order (gaps before a chunk go with it), then the
-    padding up to the file length; with ``max_chunks`` the list stops after that chunk.
+    padding up to the file length; with ``max_chunks`` the list stops after that chunk,
+    unless ``whole_document`` asks for the document's other data too (images, plain meshes:
+    every bufferView that holds no chunk) and some of it lies past that chunk: then it goes
+    on to the end.
     """
     parser = ContainerParser()
     header = next((e for e in parser.feed(head) if isinstance(e, HeaderEvent)), None)
@@ -221,7 +226,16 @@ def plan_ranges(head: bytes, max_chunks: int | None = None) -> list:
         for ext in header.extensions for c in ext["chunks"])
     ends = [start for start, _ in chunk_ranges[:1]] + [end for _, end in chunk_ranges]
     if max_chunks is not None and max_chunks < len(chunk_ranges):
-        return ends[: max_chunks + 1]
+        if not (whole_document and _data_end(header) > ends[max_chunks]):
+            return ends[: max_chunks + 1]
     if not ends or ends[-1] < header.total_length:
         ends.append(header.total_length)
     return ends
+
+
+def _data_end(header) -> int:
+    """Absolute end of the last bufferView of the BIN that holds no chunk (0: none)."""
+    views = header.gltf_json["bufferViews"]
+    chunk_views = {int(c["bufferView"]) for ext in header.extensions for c in ext["chunks"]}
+    return max((header.bin_offset + int(v.get("byteOffset", 0)) + int(v["byteLength"])
+                for i, v in enumerate(views) if i not in chunk_views and v.get("buffer") == 0), default=0)

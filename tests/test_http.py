@@ -265,3 +265,59 @@ def test_pmw_info_and_decode_take_a_url_as_verify_does(server, site, tmp_path, c
             assert server.bytes_sent == _prefix_end(site / "x.pmw", n) < size
     code, _, err = _pmw(capsys, "decode", server.url + "missing.pmw", "-o", tmp_path / "m.obj")
     assert code == 2 and "404" in err and len(err.splitlines()) == 1 and not (tmp_path / "m.obj").exists()
+
+
+def test_pmw_cut_takes_a_url_and_fetches_only_the_chunks_it_keeps(server, site, tmp_path, capsys):
+    """``pmw cut URL --chunks N`` gives the bytes ``pmw cut FILE --chunks N`` gives, and by ranges fetches
+    nothing after chunk N (this file's data all lies before its chunks); a missing URL is one line, exit 2."""
+    size = (site / "x.pmw").stat().st_size
+    for n in (0, 2, None):
+        server.bytes_sent = 0
+        extra = [] if n is None else ["--chunks", str(n)]
+        remote, local = tmp_path / f"remote{n}.pmw", tmp_path / f"local{n}.pmw"
+        code, out, err = _pmw(capsys, "cut", server.url + "x.pmw", "-o", remote, *extra, "--json")
+        assert code == 0, err
+        assert _pmw(capsys, "cut", site / "x.pmw", "-o", local, *extra)[0] == 0
+        assert remote.read_bytes() == local.read_bytes()
+        if server.ranges and n is not None:  # (a plain answer's first block may hold the whole small file)
+            assert server.bytes_sent == _prefix_end(site / "x.pmw", n) < size
+            assert json.loads(out)["input_complete"] is False
+    code, _, err = _pmw(capsys, "cut", server.url + "missing.pmw", "-o", tmp_path / "m.pmw")
+    assert code == 2 and "404" in err and len(err.splitlines()) == 1 and not (tmp_path / "m.pmw").exists()
+
+
+def test_a_url_cut_fetches_the_document_data_another_writer_put_after_the_chunks(site, tmp_path, capsys):
+    """A bufferView that holds no chunk (an image, say) stored after the chunks: by ranges, ``whole_document``
+    goes on to the end of the file, so the cut keeps it; the other readers still stop after chunk N."""
+    import struct
+
+    from pmwm_codec.format.glb import glb_parts
+    from pmwm_codec.format.reader import read_header
+
+    data = (site / "x.pmw").read_bytes()
+    header = read_header(data)
+    gltf = json.loads(json.dumps(header.gltf_json))
+    bin_data = data[header.bin_offset:]
+    extra = bytes(range(16))
+    gltf["bufferViews"].append({"buffer": 0, "byteOffset": len(bin_data), "byteLength": len(extra)})
+    gltf["buffers"][0]["byteLength"] = len(bin_data) + len(extra)
+    gltf.setdefault("extras", {})["tail"] = len(gltf["bufferViews"]) - 1  # unreferenced: kept as stored
+    late = tmp_path / "late"
+    late.mkdir()
+    (late / "y.pmw").write_bytes(b"".join(glb_parts(gltf, [bin_data, extra], len(bin_data) + len(extra))))
+    assert struct.unpack_from("<I", (late / "y.pmw").read_bytes(), 8)[0] == (late / "y.pmw").stat().st_size
+    srv, thread = _serve(late, RangeRequestHandler)
+    try:
+        url = f"http://127.0.0.1:{srv.server_address[1]}/y.pmw"
+        code, _, err = _pmw(capsys, "cut", url, "-o", tmp_path / "r.pmw", "--chunks", "1")
+        assert code == 0, err
+        assert _pmw(capsys, "cut", late / "y.pmw", "-o", tmp_path / "l.pmw", "--chunks", "1")[0] == 0
+        cut = (tmp_path / "r.pmw").read_bytes()
+        assert cut == (tmp_path / "l.pmw").read_bytes() and cut.endswith(extra)
+        srv.bytes_sent = 0
+        pmwm_codec.decode(UrlSource(url, max_chunks=1), chunks=1)
+        assert srv.bytes_sent == _prefix_end(late / "y.pmw", 1)
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)

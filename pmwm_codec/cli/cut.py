@@ -1,12 +1,14 @@
-"""``pmw cut IN.pmw|- --chunks N -o OUT.pmw``: any prefix of a ``.pmw`` as a valid, smaller ``.pmw``.
+"""``pmw cut IN.pmw|URL|- --chunks N -o OUT.pmw``: any prefix of a ``.pmw`` as a valid, smaller ``.pmw``.
 
 Thin over :func:`pmwm_codec.stream.cut.cut_file`; the output is written atomically
-(:func:`pmwm_codec.format.glb.write_parts`).
+(:func:`pmwm_codec.format.glb.write_parts`).  A URL is read by ranges: the base, the
+first N chunks, and the document's other data (images) only where it lies past them.
 """
 
 from __future__ import annotations
 
 from pmwm_codec.format.glb import write_parts
+from pmwm_codec.http import UrlSource, is_url
 from pmwm_codec.stream.cut import cut_file
 
 from .common import UsageError, check_input_file, check_output_path, naming, notice, print_json
@@ -16,10 +18,12 @@ def add_parser(sub):
     p = sub.add_parser(
         "cut", help=".pmw (whole, cut or on stdin) -> valid smaller .pmw",
         description="Write a complete, valid .pmw holding the base mesh and the first N vertex-split chunks "
-                    "of IN (whole, truncated, or '-' for standard input): GLB length, JSON chunk index and "
+                    "of IN (whole, truncated, an http(s) URL, or '-' for standard input): GLB length, JSON chunk "
+                    "index and "
                     "BIN agree, so strict glTF tools accept it. It decodes to the same mesh as "
                     "'pmw decode IN --chunks N' and verifies with IN's key.")
-    p.add_argument("input", metavar="IN.pmw", help="the .pmw, or - for standard input")
+    p.add_argument("input", metavar="IN.pmw", help="the .pmw, an http(s) URL (read by ranges: nothing of the "
+                                                 "chunks after N is fetched), or - for standard input")
     p.add_argument("-o", "--output", required=True, metavar="OUT.pmw", help="the .pmw to write")
     p.add_argument("--chunks", type=int, metavar="N",
                    help="keep the base mesh and N chunks (default: every chunk that arrived whole)")
@@ -31,10 +35,13 @@ def add_parser(sub):
 def run(args) -> int:
     if args.chunks is not None and args.chunks < 0:
         raise UsageError(f"--chunks must be >= 0, got {args.chunks}")
-    check_input_file(args.input, ".pmw file")
+    url = is_url(args.input)
+    if not url:
+        check_input_file(args.input, ".pmw file")
     check_output_path(args.output, ".pmw")
     with naming(args.input):
-        result = cut_file(args.input, args.chunks)
+        source = UrlSource(args.input, max_chunks=args.chunks, whole_document=True) if url else args.input
+        result = cut_file(source, args.chunks)
     write_parts(args.output, [result.data])
     notices = []
     if args.chunks is not None and args.chunks > result.chunks:
