@@ -894,12 +894,9 @@ def _link_splits(flat, m0, n0, v, inc, own, a, b, sym, gstart, head, tail, nxt, 
         u = n0 + i
         head[u], tail[u], head[v[i]], tail[v[i]] = -1, -1, -1, -1
         for t in range(gstart[i], gstart[i + 1]):
-            if sym[t] != 0:
-                c = inc[t]
-                f3 = c - c % 3
-                for y in (flat[f3 + (c + 1) % 3], flat[f3 + (c + 2) % 3]):
-                    rewritten = rewritten or y >= n0 or split[y] != 0
-                flat[c] = u
+            if sym[t] != 0:  # its face's other corners as they were before the batch: a[t], b[t]
+                rewritten = rewritten or split[a[t]] != 0 or split[b[t]] != 0
+                flat[inc[t]] = u
             _append_corner(u if sym[t] != 0 else v[i], inc[t], head, tail, nxt)
     slot = 3 * m0
     for key in np.sort(wkey[:named]):
