@@ -16,11 +16,10 @@ from .common import UsageError, check_input_file, check_output_path, naming, not
 
 def add_parser(sub):
     p = sub.add_parser(
-        "cut", help=".pmw (whole, cut or on stdin) -> valid smaller .pmw",
+        "cut", help=".pmw (whole, cut, a URL or on stdin) -> valid smaller .pmw",
         description="Write a complete, valid .pmw holding the base mesh and the first N vertex-split chunks "
-                    "of IN (whole, truncated, an http(s) URL, or '-' for standard input): GLB length, JSON chunk "
-                    "index and "
-                    "BIN agree, so strict glTF tools accept it. It decodes to the same mesh as "
+                    "of IN (whole, truncated, an http(s) URL, or '-' for standard input): GLB length, JSON "
+                    "chunk index and BIN agree, so strict glTF tools accept it. It decodes to the same mesh as "
                     "'pmw decode IN --chunks N' and verifies with IN's key.")
     p.add_argument("input", metavar="IN.pmw", help="the .pmw, an http(s) URL (read by ranges: nothing of the "
                                                  "chunks after N is fetched), or - for standard input")

@@ -319,6 +319,15 @@ def mesh_placements(gltf: dict) -> list:
     return shown
 
 
+def placements_by_mesh(gltf: dict) -> dict:
+    """``{mesh index: [world matrix (4, 4) or None, ...]}``: :func:`mesh_placements` grouped by mesh."""
+    out = {}
+    for mesh, matrix in mesh_placements(gltf):
+        if isinstance(mesh, int):
+            out.setdefault(mesh, []).append(matrix)
+    return out
+
+
 def placed_by_nodes(gltf: dict) -> bool:
     """Whether the default scene (or, without one, every root node) moves a mesh away from its stored
     coordinates (a node transform on its path) or shows a mesh more than once (instances).  Reads the
@@ -336,10 +345,10 @@ def world_placements(gltf: dict, mesh_indices) -> tuple:
     zero).  A document without nodes shows every mesh as stored (identity matrices)."""
     if not gltf.get("nodes"):
         return [np.eye(4) for _ in mesh_indices], None
-    shown = mesh_placements(gltf)
+    shown = placements_by_mesh(gltf)
     out = []
     for mi in mesh_indices:
-        mine = [m for index, m in shown if index == mi]
+        mine = shown.get(mi, [])
         if not mine:
             return None, f"mesh {mi} is not shown in the scene, where a decoded asset's read looks for it"
         if len(mine) > 1:

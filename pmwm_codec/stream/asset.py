@@ -22,8 +22,9 @@ share a position.  Inside one primitive the simplifier collapses both sides of a
 seam together, in the same batch (:mod:`~pmwm_codec.progressive.seams`), so both
 sides have identical positions at every level of detail (no cracks).  A vertex
 whose position another *primitive* shares, of the same glTF mesh or of a mesh the scene
-shows in the same places (a border between primitives), is locked: it stays in the base mesh.  Collapses elsewhere may still
-land *on* seam or border vertices (the kept vertex never moves).
+shows in the same places (a border between primitives), is locked: it stays in the base
+mesh.  Collapses elsewhere may still land *on* seam or border vertices (the kept vertex
+never moves).
 
 :func:`decode_asset` turns a ``.pmw`` (whole or cut) back into an ordinary GLB
 at any level: the same document with each progressive primitive's geometry
@@ -52,7 +53,7 @@ from ..format.gltf import (
     BufferBuilder,
     find_extension_primitives,
     forget_extension,
-    mesh_placements,
+    placements_by_mesh,
     uses_extension,
     view_bytes,
 )
@@ -132,9 +133,10 @@ def plan_asset(gltf: dict, buffers, name: str | None = None) -> tuple:
         if len(reasons) > _REASONS_QUOTED:
             why += f"; {len(reasons) - _REASONS_QUOTED} more"
         raise PmwError("the asset has no triangle primitive that can be made progressive" + (f" ({why})" if why else ""))
-    together = {}
-    for mi, group in by_mesh.items():
-        together.setdefault(_placement_key(gltf, mi), []).extend(group)
+    together, shown = {}, placements_by_mesh(gltf) if gltf.get("nodes") else {}
+    for mi, group in by_mesh.items():  # meshes the scene shows in the same places lock their borders together
+        places = tuple(sorted(b"" if m is None else np.round(m, 12).tobytes() for m in shown.get(mi, [])))
+        together.setdefault(places, []).extend(group)
     for group in together.values():
         _lock_shared_positions(group)
 
@@ -233,19 +235,10 @@ def _draco_arrays(gltf, buffers, prim, draco) -> tuple:
     return positions, faces, values
 
 
-def _placement_key(gltf: dict, mesh_index: int) -> tuple:
-    """Where the scene shows mesh ``mesh_index``: its world matrices (bytes, sorted; None for a malformed
-    one), equal for meshes the scene shows in the same places (every mesh of a document without nodes)."""
-    if not gltf.get("nodes"):
-        return ()
-    shown = [m for index, m in mesh_placements(gltf) if index == mesh_index]
-    return tuple(sorted(b"" if m is None else np.round(m, 12).tobytes() for m in shown))
-
-
 def _lock_shared_positions(jobs) -> None:
-    """Lock every vertex whose position also belongs to another primitive of ``jobs``: the primitives of
-    the glTF meshes the scene shows in the same places (:func:`_placement_key`), so a border between
-    them, in one mesh or across meshes, never cracks."""
+    """Lock every vertex whose position also belongs to another primitive of ``jobs`` (the primitives of
+    the glTF meshes the scene shows in the same places, each at the same world matrices), so a border
+    between them, in one mesh or across meshes, never cracks."""
     points = np.concatenate([j.mesh.positions for j in jobs]) + 0.0
     owner = np.repeat(np.arange(len(jobs)), [j.mesh.vertex_count for j in jobs])
     _, inverse = np.unique(points, axis=0, return_inverse=True)
