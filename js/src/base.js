@@ -57,6 +57,10 @@ export async function decodeBase(bin, prim, draco) {
     const decoder = draco ?? await defaultDraco();
     const out = await decoder.decode(bin.subarray(view.offset, view.offset + view.length), { positionId, attributeIds });
     ({ positions, attributes, indices } = out);
+    if (positions.length !== 3 * base.draco.vertices || indices.length !== 3 * base.draco.faces) {
+      throw new FormatError(`base mesh: Draco decoded ${positions.length / 3} vertices / ${indices.length / 3} faces, `
+        + `accessors declare ${base.draco.vertices} / ${base.draco.faces}`);
+    }
     attributes = attributes.map((a, j) => {
       const values = a.values ?? a;
       if (a.components !== undefined && a.components !== base.grids[j].origin.length) {

@@ -110,8 +110,11 @@ function bufferView(gltf, index, bufferLength, what) {
   return { index, offset, length: view.byteLength, stride: view.byteStride };
 }
 
-/** An accessor read plan {view, offset, stride, count, components, componentType}, every byte in range. */
-function accessorPlan(gltf, index, bufferLength, what, { types, components }) {
+/**
+ * A base accessor by index, its type and count checked (a Draco base's accessors too: they declare
+ * the counts the Draco data must decode to, KHR_draco_mesh_compression).
+ */
+function baseAccessor(gltf, index, what, { types, components }) {
   const accessors = Array.isArray(gltf.accessors) ? gltf.accessors : [];
   const acc = isInt(index, 0, accessors.length - 1) ? accessors[index] : undefined;
   if (!isObj(acc)) throw new FormatError(`${what}: accessor ${index} does not exist`);
@@ -119,6 +122,12 @@ function accessorPlan(gltf, index, bufferLength, what, { types, components }) {
   const k = COMPONENTS[acc.type];
   if (!size || k !== components) throw new FormatError(`${what}: accessor ${index} has the wrong type`);
   if (!isInt(acc.count, 0, MAX_FACES * 3)) throw new LimitError(`${what}: accessor count over the limit`);
+  return { acc, size, k };
+}
+
+/** An accessor read plan {view, offset, stride, count, components, componentType}, every byte in range. */
+function accessorPlan(gltf, index, bufferLength, what, { types, components }) {
+  const { acc, size, k } = baseAccessor(gltf, index, what, { types, components });
   const view = bufferView(gltf, acc.bufferView, bufferLength, what);
   const offset = acc.byteOffset ?? 0;
   const stride = view.stride ?? size * k;
@@ -239,7 +248,8 @@ function checkChunk(gltf, c, j, bufferLength, what, version = 1) {
  * bases too), or, for a welded base (spec/README.md "Welded base"), the extension's baseVertexCount.
  */
 export function baseVertexCount(gltf, prim, ext, what) {
-  const acc = Array.isArray(gltf.accessors) && isObj(prim.attributes) ? gltf.accessors[prim.attributes.POSITION] : undefined;
+  const index = isObj(prim.attributes) ? prim.attributes.POSITION : undefined;
+  const acc = Array.isArray(gltf.accessors) && isInt(index, 0, gltf.accessors.length - 1) ? gltf.accessors[index] : undefined;
   if (!isObj(acc) || !isInt(acc.count, 0, MAX_VERTICES)) throw new FormatError('base mesh: no POSITION accessor count');
   if (ext.baseVertexCount === undefined) return acc.count;
   if (!isInt(ext.baseVertexCount, 1, acc.count)) {
@@ -269,7 +279,10 @@ function basePlan(gltf, prim, ext, bufferLength, what) {
     const ids = ['POSITION', ...grids.map((g) => g.semantic)].map((s) => draco.attributes[s]);
     if (!ids.every((id) => isInt(id, 0, 0xffff))) throw new FormatError(`${what}: Draco attribute ids missing`);
     const view = bufferView(gltf, draco.bufferView, bufferLength, what);
-    return { draco: { view, positionId: ids[0], attributeIds: ids.slice(1) }, grids, views: [view] };
+    const vertices = baseAccessor(gltf, prim.attributes.POSITION, `${what} POSITION`, { types: { [FLOAT]: 4 }, components: 3 }).acc.count;
+    const corners = baseAccessor(gltf, prim.indices, `${what} indices`, { types: INDEX_TYPES, components: 1 }).acc.count;
+    if (corners % 3 !== 0) throw new FormatError(`${what}: index count ${corners} is not a multiple of 3`);
+    return { draco: { view, positionId: ids[0], attributeIds: ids.slice(1), vertices, faces: corners / 3 }, grids, views: [view] };
   }
   const position = accessorPlan(gltf, prim.attributes.POSITION, bufferLength, `${what} POSITION`,
     { types: { [FLOAT]: 4 }, components: 3 });
