@@ -22,6 +22,44 @@ const FLOAT = 5126;
 const isInt = (x, lo, hi) => Number.isSafeInteger(x) && x >= lo && x <= hi;
 const isNum = (x) => typeof x === 'number' && Number.isFinite(x);
 const isObj = (x) => x !== null && typeof x === 'object' && !Array.isArray(x);
+/** A JSON Schema integer >= lo of any size (1e300 is one), as the schema check of the reference reader has it. */
+const isWhole = (lo) => (x) => Number.isInteger(x) && x >= lo;
+/** A string of whole `digits`-digit groups of lowercase hex (exactly one group when `one`). */
+const isHex = (digits, one = true) => (x) => typeof x === 'string' && (one ? x.length === digits : x.length % digits === 0)
+  && /^[0-9a-f]*$/.test(x);
+
+/**
+ * Fields of the extension's objects this decoder does not otherwise read, by object: [test, what the
+ * value must be, required], as spec/schema has them. Their form is checked by every reader (a MAC's
+ * value only by a verifier holding the key), so both readers refuse the same files.
+ */
+const SCHEMA_FIELDS = {
+  extension: {
+    baseMac: [isHex(32), '32 lowercase hex digits'], fileId: [(x) => typeof x === 'string', 'a string'],
+    watermark: [isObj, 'an object'], extensions: [isObj, 'an object'],
+  },
+  grid: { extensions: [isObj, 'an object'] },
+  chunk: { mac: [isHex(32), '32 lowercase hex digits'], batches: [isWhole(1), 'an integer >= 1'], extensions: [isObj, 'an object'] },
+  chunkTable: {
+    digests: [isHex(16, false), 'groups of 16 lowercase hex digits'], macs: [isHex(32, false), 'groups of 32 lowercase hex digits'],
+    extensions: [isObj, 'an object'],
+  },
+  watermark: {
+    mode: [(x) => x === 'exact' || x === 'paper', '"exact" or "paper"', true], bits: [(x) => isInt(x, 1, 16), 'an integer in 1..16', true],
+    scale: [(x) => isNum(x) && x > 0, 'a number > 0', true], width: [isWhole(1), 'an integer >= 1', true],
+    height: [isWhole(1), 'an integer >= 1', true], levels: [isWhole(0), 'an integer >= 0', true],
+    codes: [isWhole(0), 'an integer >= 0', true], carriers: [(x) => isInt(x, 0, MAX_VERTICES), `an integer in 0..${MAX_VERTICES}`, true],
+    embedFrom: [isWhole(0), 'an integer >= 0'], binding: [(x) => x === 'ring-v2', '"ring-v2"'],
+    keyFingerprint: [(x) => typeof x === 'string', 'a string'], layout: [isObj, 'an object'], extensions: [isObj, 'an object'],
+  },
+};
+
+/** FormatError unless object `obj` has the fields SCHEMA_FIELDS[kind] asks for. */
+function checkFields(obj, kind, what) {
+  for (const [key, [ok, must, required]] of Object.entries(SCHEMA_FIELDS[kind])) {
+    if (key in obj ? !ok(obj[key]) : required) throw new FormatError(`${what}: ${key} must be ${must}`);
+  }
+}
 
 /** Bytes needed before the JSON can be parsed: 20 (preamble), then 20 + J + 8 (BIN header). */
 export function preambleLength(bytes) {
@@ -165,6 +203,7 @@ export function chunkEntries(ext, version, baseVertices, what = 'chunks') {
     return table;
   }
   if (!isObj(table)) throw new FormatError(`${what}: chunks is not a chunk table`);
+  checkFields(table, 'chunkTable', `${what}: chunks`);
   const columns = 'packed' in table || 'count' in table ? packedColumns(table, what) : arrayColumns(table, what);
   const count = columns.byteLength.length;
   let sum = 0;
@@ -212,6 +251,7 @@ function arrayColumns(table, what) {
 
 function checkChunk(gltf, c, j, bufferLength, what, version = 1) {
   if (!isObj(c)) throw new FormatError(`${what} chunk ${j}: not an object`);
+  checkFields(c, 'chunk', `${what} chunk ${j}`);
   if (!isInt(c.byteLength, 0, MAX_CHUNK_BYTES)) throw new LimitError(`${what} chunk ${j}: byteLength over the limit`);
   if (!isInt(c.uncompressedLength, 0, MAX_DECOMPRESSED_CHUNK_BYTES)) {
     throw new LimitError(`${what} chunk ${j}: uncompressedLength over the limit`);
@@ -299,6 +339,9 @@ function checkExtension(ext, what) {
   if (!isInt(ext.version, 0, Number.MAX_SAFE_INTEGER)) throw new FormatError(`${what}: version is not an integer`);
   if (ext.version > FORMAT_VERSION) throw new UnsupportedError(`${what}: version ${ext.version} is newer than ${FORMAT_VERSION}`);
   if (ext.version < 1) throw new FormatError(`${what}: version ${ext.version}`);
+  checkFields(ext, 'extension', what);
+  if (ext.watermark !== undefined) checkFields(ext.watermark, 'watermark', `${what}: watermark`);
+  if (isObj(ext.grid)) checkFields(ext.grid, 'grid', `${what}: grid`);
   const payload = ext.payload ?? { codec: PAYLOAD_CODEC, version: 1 };
   if (!isObj(payload) || payload.codec !== PAYLOAD_CODEC || !PAYLOAD_VERSIONS.includes(payload.version)) {
     throw new UnsupportedError(`${what}: unknown chunk payload codec`);

@@ -59,3 +59,39 @@ test('a Draco base\'s accessors declare what the Draco data decodes to: indices 
     ['POSITION index a string', file, (g, p) => { p.attributes.POSITION = String(p.attributes.POSITION); }, /does not exist/],
   ]);
 });
+
+test('the extension\'s fields this decoder does not otherwise read have the form the schema gives them', async () => {
+  const v1 = 'sphere.exact-watermark.v1.pmw';
+  const arrays = 'sphere.exact-watermark.v2.pmw';
+  const packed = 'grid-hole.plain.packed.v2.pmw';
+  const wm = (key, value) => (g, p, e) => { if (value === undefined) delete e.watermark[key]; else e.watermark[key] = value; };
+  await bothRefuse([
+    ['baseMac a number', v1, (g, p, e) => { e.baseMac = 7; }, /baseMac must be 32 lowercase hex digits/],
+    ['baseMac upper case', v1, (g, p, e) => { e.baseMac = 'A'.repeat(32); }, /baseMac must be/],
+    ['baseMac 31 digits', packed, (g, p, e) => { e.baseMac = 'a'.repeat(31); }, /baseMac must be/],
+    ['baseMac null', packed, (g, p, e) => { e.baseMac = null; }, /baseMac must be/],
+    ['chunk mac upper case', v1, (g, p, e) => { e.chunks[0].mac = 'A'.repeat(32); }, /chunk 0: mac must be/],
+    ['chunk mac a number', v1, (g, p, e) => { e.chunks[1].mac = 0; }, /chunk 1: mac must be/],
+    ['table macs upper case', arrays, (g, p, e) => { e.chunks.macs = e.chunks.macs.toUpperCase(); }, /chunks: macs must be/],
+    ['batches 0', v1, (g, p, e) => { e.chunks[0].batches = 0; }, /batches must be an integer >= 1/],
+    ['batches a string', v1, (g, p, e) => { e.chunks[0].batches = '1'; }, /batches must be/],
+    ['fileId a number', packed, (g, p, e) => { e.fileId = 1; }, /fileId must be a string/],
+    ['extensions an array', packed, (g, p, e) => { e.extensions = []; }, /extensions must be an object/],
+    ['grid extensions a string', packed, (g, p, e) => { e.grid.extensions = 'x'; }, /grid: extensions must be an object/],
+    ['table extensions null', packed, (g, p, e) => { e.chunks.extensions = null; }, /chunks: extensions must be an object/],
+    ['watermark an array', packed, (g, p, e) => { e.watermark = []; }, /watermark must be an object/],
+    ['watermark without mode', v1, wm('mode'), /watermark: mode must be/],
+    ['watermark mode other', v1, wm('mode', 'other'), /watermark: mode must be/],
+    ['watermark bits 17', v1, wm('bits', 17), /watermark: bits must be/],
+    ['watermark scale 0', v1, wm('scale', 0), /watermark: scale must be/],
+    ['watermark width 1.5', v1, wm('width', 1.5), /watermark: width must be/],
+    ['watermark without height', v1, wm('height'), /watermark: height must be/],
+    ['watermark levels -1', v1, wm('levels', -1), /watermark: levels must be/],
+    ['watermark codes a string', v1, wm('codes', '8'), /watermark: codes must be/],
+    ['watermark carriers over MAX_VERTICES', v1, wm('carriers', 2 ** 40), /watermark: carriers must be/],
+    ['watermark embedFrom -1', v1, wm('embedFrom', -1), /watermark: embedFrom must be/],
+    ['watermark binding other', v1, wm('binding', 'ring-v3'), /watermark: binding must be/],
+    ['watermark keyFingerprint a number', v1, wm('keyFingerprint', 1), /watermark: keyFingerprint must be/],
+    ['watermark layout a string', v1, wm('layout', 'x'), /watermark: layout must be/],
+  ]);
+});
