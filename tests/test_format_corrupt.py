@@ -86,6 +86,8 @@ def _set(path, value):
     (_set(["version"], "1"), FormatError, "version"),
     (_set(["vertexCount"], constants.MAX_VERTICES + 1), LimitError, "vertexCount"),
     (_set(["chunks", 0, "vertexCount"], constants.MAX_VERTICES + 1), LimitError, r"chunks\[0\]"),
+    (_set(["chunks", 0, "splits"], constants.MAX_VERTICES + 1), LimitError, r"chunks\[0\]: splits"),
+    (_set(["chunks", 0, "splits"], 1e300), LimitError, r"chunks\[0\]: splits"),
     (_set(["chunks", 1, "byteLength"], constants.MAX_CHUNK_BYTES + 1), LimitError, r"chunks\[1\]"),
     (_set(["chunks", 1, "uncompressedLength"], 1 << 40), LimitError, "uncompressedLength"),
     (_set(["chunks", 0, "bufferView"], 99), FormatError, "bufferView 99"),

@@ -235,6 +235,8 @@ def _chunk_range(views, chunk, buffer_length, what, previous_end, version=1):
         raise LimitError(f"{what}: uncompressedLength {chunk['uncompressedLength']} exceeds the limit {MAX_DECOMPRESSED_CHUNK_BYTES}")
     if chunk["vertexCount"] > MAX_VERTICES or chunk["faceCount"] > MAX_FACES:
         raise LimitError(f"{what}: {chunk['vertexCount']} vertices / {chunk['faceCount']} faces exceed the limits")
+    if chunk["splits"] > MAX_VERTICES:  # each split adds a vertex
+        raise LimitError(f"{what}: splits {chunk['splits']} exceeds the limit {MAX_VERTICES}")
     start, end = view_range(views, chunk["bufferView"], buffer_length, what)
     if version == 2:
         start, view_end = start + chunk["byteOffset"], end
