@@ -22,6 +22,8 @@ const FLOAT = 5126;
 const isInt = (x, lo, hi) => Number.isSafeInteger(x) && x >= lo && x <= hi;
 const isNum = (x) => typeof x === 'number' && Number.isFinite(x);
 const isObj = (x) => x !== null && typeof x === 'object' && !Array.isArray(x);
+/** A member's value, or `absent` when the member is missing: a JSON null is a value (never a valid one here), not absence. */
+const given = (x, absent) => (x === undefined ? absent : x);
 /** A JSON Schema integer >= lo of any size (1e300 is one), as the schema check of the reference reader has it. */
 const isWhole = (lo) => (x) => Number.isInteger(x) && x >= lo;
 /** A string of whole `digits`-digit groups of lowercase hex (exactly one group when `one`). */
@@ -138,8 +140,8 @@ function bufferView(gltf, index, bufferLength, what) {
   const views = Array.isArray(gltf.bufferViews) ? gltf.bufferViews : [];
   const view = isInt(index, 0, views.length - 1) ? views[index] : undefined;
   if (!isObj(view)) throw new FormatError(`${what}: bufferView ${index} does not exist`);
-  const offset = view.byteOffset ?? 0;
-  if ((view.buffer ?? 0) !== 0 || !isInt(offset, 0, bufferLength) || !isInt(view.byteLength, 0, bufferLength - offset)) {
+  const offset = given(view.byteOffset, 0);
+  if (given(view.buffer, 0) !== 0 || !isInt(offset, 0, bufferLength) || !isInt(view.byteLength, 0, bufferLength - offset)) {
     throw new FormatError(`${what}: bufferView ${index} lies outside buffer 0`);
   }
   if (view.byteStride !== undefined && !isInt(view.byteStride, 4, 252)) {
@@ -167,7 +169,7 @@ function baseAccessor(gltf, index, what, { types, components }) {
 function accessorPlan(gltf, index, bufferLength, what, { types, components }) {
   const { acc, size, k } = baseAccessor(gltf, index, what, { types, components });
   const view = bufferView(gltf, acc.bufferView, bufferLength, what);
-  const offset = acc.byteOffset ?? 0;
+  const offset = given(acc.byteOffset, 0);
   const stride = view.stride ?? size * k;
   if (!isInt(offset, 0, view.length) || offset % size !== 0 || stride % size !== 0
       || (acc.count > 0 && offset + stride * (acc.count - 1) + size * k > view.length)) {
@@ -207,7 +209,7 @@ export function chunkEntries(ext, version, baseVertices, what = 'chunks') {
   const columns = 'packed' in table || 'count' in table ? packedColumns(table, what) : arrayColumns(table, what);
   const count = columns.byteLength.length;
   let sum = 0;
-  const offsets = table.byteOffsets ?? columns.byteLength.map((n) => { const at = sum; sum += n; return at; });
+  const offsets = given(table.byteOffsets, columns.byteLength.map((n) => { const at = sum; sum += n; return at; }));
   if (!Array.isArray(offsets) || offsets.length !== count) {
     throw new FormatError(`${what}: the chunk table's arrays do not all describe ${count} chunks`);
   }
@@ -303,7 +305,7 @@ export function baseVertexCount(gltf, prim, ext, what) {
 
 /** The base mesh plan of one primitive: Draco bufferView or plain accessors, and its attribute grids. */
 function basePlan(gltf, prim, ext, bufferLength, what) {
-  const attributes = (ext.attributes ?? []);
+  const attributes = given(ext.attributes, []);
   if (!Array.isArray(attributes)) throw new FormatError(`${what}: attributes is not an array`);
   const grids = attributes.map((a, i) => {
     if (!isObj(a) || typeof a.semantic !== 'string' || a.semantic === 'POSITION') {
@@ -312,7 +314,7 @@ function basePlan(gltf, prim, ext, bufferLength, what) {
     return { semantic: a.semantic, ...checkGrid(a, `${what}: ${a.semantic} grid`, 0) };
   });
   if (!isObj(prim.attributes)) throw new FormatError(`${what}: primitive has no attributes`);
-  if ((prim.mode ?? 4) !== 4) throw new FormatError(`${what}: primitive mode is not TRIANGLES`);
+  if (given(prim.mode, 4) !== 4) throw new FormatError(`${what}: primitive mode is not TRIANGLES`);
   const draco = isObj(prim.extensions) ? prim.extensions[DRACO_EXTENSION] : undefined;
   if (draco !== undefined) {
     if (!isObj(draco) || !isObj(draco.attributes)) throw new FormatError(`${what}: invalid ${DRACO_EXTENSION}`);
@@ -342,7 +344,7 @@ function checkExtension(ext, what) {
   checkFields(ext, 'extension', what);
   if (ext.watermark !== undefined) checkFields(ext.watermark, 'watermark', `${what}: watermark`);
   if (isObj(ext.grid)) checkFields(ext.grid, 'grid', `${what}: grid`);
-  const payload = ext.payload ?? { codec: PAYLOAD_CODEC, version: 1 };
+  const payload = given(ext.payload, { codec: PAYLOAD_CODEC, version: 1 });
   if (!isObj(payload) || payload.codec !== PAYLOAD_CODEC || !PAYLOAD_VERSIONS.includes(payload.version)) {
     throw new UnsupportedError(`${what}: unknown chunk payload codec`);
   }

@@ -95,3 +95,17 @@ test('the extension\'s fields this decoder does not otherwise read have the form
     ['watermark layout a string', v1, wm('layout', 'x'), /watermark: layout must be/],
   ]);
 });
+
+test('a JSON null is no value of an optional member: not its default but an error, as for the reference reader', async () => {
+  const plain = 'grid-hole.plain.packed.v2.pmw';
+  const attributes = 'sphere-attributes.plain.packed.v2.pmw';
+  await bothRefuse([
+    ['primitive mode null', plain, (g, p) => { p.mode = null; }, /mode is not TRIANGLES/],
+    ['bufferView byteOffset null', plain, (g) => { g.bufferViews[0].byteOffset = null; }, /bufferView 0 lies outside buffer 0/],
+    ['bufferView buffer null', plain, (g) => { g.bufferViews[1].buffer = null; }, /bufferView 1 lies outside buffer 0/],
+    ['accessor byteOffset null', plain, (g, p) => { g.accessors[p.indices].byteOffset = null; }, /does not fit its bufferView/],
+    ['chunk table byteOffsets null', plain, (g, p, e) => { e.chunks.byteOffsets = null; }, /do not all describe/],
+    ['attributes null', plain, (g, p, e) => { e.attributes = null; }, /attributes is not an array/],
+    ['payload null', attributes, (g, p, e) => { e.payload = null; }, /unknown chunk payload codec/],
+  ]);
+});
