@@ -372,6 +372,44 @@ def test_primitives_that_share_positions_share_one_grid_and_decode_without_a_cra
         assert borders[0] <= rows[0] & rows[1] and borders[1] <= rows[1] & rows[2], chunks
 
 
+def test_meshes_whose_nodes_place_them_to_meet_keep_their_border_at_every_level(tmp_path):
+    """Two halves of a surface, the second stored turned and moved away and put back by its node: their border
+    coincides in the scene only, so it is found there and stays in the base; at every level each border vertex
+    of one half still has its counterpart in the other within the grids' rounding (on a grid of its own each,
+    a few grid steps at most), where coarse levels used to open gaps of tenths of a percent of the diagonal."""
+    from scipy.spatial import cKDTree
+
+    from pmwm_codec.format.gltf import place, world_placements
+
+    blob = shapes.icosphere(4, 1.0, noise=0.03, seed=3)
+    x = blob.positions[blob.faces].mean(1)[:, 0]
+    turn = np.array([[0.0, 0.0, 1.0, 2.0], [0.0, 1.0, 0.0, -1.0], [-1.0, 0.0, 0.0, 0.5], [0.0, 0.0, 0.0, 1.0]])
+    b = DocBuilder()
+    halves, prims = [], []
+    for k, rows in enumerate((x < 0.1, x >= 0.1)):
+        used, inverse = np.unique(blob.faces[rows], return_inverse=True)
+        halves.append(blob.positions[used])
+        stored = blob.positions[used] if k == 0 else place(blob.positions[used], np.linalg.inv(turn))
+        prims.append(b.triangles(shapes.Mesh(stored, inverse.reshape(-1, 3)), uv=False))
+    b.doc.update(scene=0, scenes=[{"nodes": [0, 1]}], meshes=[{"primitives": [p]} for p in prims],
+                 nodes=[{"mesh": 0}, {"mesh": 1, "matrix": turn.T.ravel().tolist()}])
+    (tmp_path / "halves.glb").write_bytes(b.glb())
+    encode_asset(tmp_path / "halves.glb", tmp_path / "halves.pmw", measure=False)
+    border = halves[0][cKDTree(halves[1]).query(halves[0])[0] < 1e-9]
+    assert len(border) > 20
+    diagonal = np.linalg.norm(blob.positions.max(0) - blob.positions.min(0))
+    total = decode_asset(tmp_path / "halves.pmw")[1].chunks_total
+    for chunks in range(total + 1):
+        (tmp_path / "out.glb").write_bytes(decode_asset(tmp_path / "halves.pmw", chunks=chunks)[0])
+        doc, buffers = load_document(tmp_path / "out.glb")
+        frames, _ = world_placements(doc, [0, 1])
+        parts = [place(read_accessor(doc, buffers, m["primitives"][0]["attributes"]["POSITION"]).astype(np.float64), f)
+                 for m, f in zip(doc["meshes"], frames)]
+        for k in range(2):
+            gap = cKDTree(parts[1 - k]).query(cKDTree(parts[k]).data[cKDTree(parts[k]).query(border)[1]])[0]
+            assert gap.max() < 2e-4 * diagonal, (chunks, k, gap.max() / diagonal)
+
+
 def test_mesh_placements_compose_each_path_of_node_transforms_as_trimesh_does():
     """World matrix of every showing of a mesh: parent @ child, each node ``matrix`` (column-major) or T R S;
     checked against trimesh's scene graph on the same GLB."""

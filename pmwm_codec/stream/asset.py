@@ -21,9 +21,9 @@ Seams.  glTF vertices are already split where UVs or normals jump; the copies
 share a position.  Inside one primitive the simplifier collapses both sides of a
 seam together, in the same batch (:mod:`~pmwm_codec.progressive.seams`), so both
 sides have identical positions at every level of detail (no cracks).  A vertex
-whose position another *primitive* shares, of the same glTF mesh or of a mesh the scene
-shows in the same places (a border between primitives), is locked: it stays in the base
-mesh.  Collapses elsewhere may still land *on* seam or border vertices (the kept vertex
+that coincides in the scene with a vertex of another *primitive* (a border between
+primitives: of one glTF mesh, or of meshes whose nodes place them to meet) is locked: it
+stays in the base mesh.  Collapses elsewhere may still land *on* seam or border vertices (the kept vertex
 never moves).
 
 :func:`decode_asset` turns a ``.pmw`` (whole or cut) back into an ordinary GLB
@@ -53,6 +53,7 @@ from ..format.gltf import (
     BufferBuilder,
     find_extension_primitives,
     forget_extension,
+    place,
     placements_by_mesh,
     uses_extension,
     view_bytes,
@@ -71,6 +72,10 @@ def is_asset_path(path) -> bool:
 
 #: How many pass-through reasons the "no triangle primitive" error quotes.
 _REASONS_QUOTED = 3
+#: Two vertices of different primitives coincide in the scene within this fraction of the coordinates'
+#: size (16 float32 rounding steps: the copies of a border stored in different frames and put back
+#: by their nodes' matrices land that close; distinct vertices of a mesh are much farther apart).
+SCENE_TOLERANCE = 2.0**-20
 
 
 class _PassThrough(Exception):
@@ -133,12 +138,7 @@ def plan_asset(gltf: dict, buffers, name: str | None = None) -> tuple:
         if len(reasons) > _REASONS_QUOTED:
             why += f"; {len(reasons) - _REASONS_QUOTED} more"
         raise PmwError("the asset has no triangle primitive that can be made progressive" + (f" ({why})" if why else ""))
-    together, shown = {}, placements_by_mesh(gltf) if gltf.get("nodes") else {}
-    for mi, group in by_mesh.items():  # meshes the scene shows in the same places lock their borders together
-        places = tuple(sorted(b"" if m is None else np.round(m, 12).tobytes() for m in shown.get(mi, [])))
-        together.setdefault(places, []).extend(group)
-    for group in together.values():
-        _lock_shared_positions(group)
+    _lock_shared_positions(gltf, jobs)
 
     drop = set()
     for job in jobs:
@@ -235,22 +235,52 @@ def _draco_arrays(gltf, buffers, prim, draco) -> tuple:
     return positions, faces, values
 
 
-def _lock_shared_positions(jobs) -> None:
-    """Lock every vertex whose position also belongs to another primitive of ``jobs`` (the primitives of
-    the glTF meshes the scene shows in the same places, each at the same world matrices), so a border
-    between them, in one mesh or across meshes, never cracks."""
-    points = np.concatenate([j.mesh.positions for j in jobs]) + 0.0
-    owner = np.repeat(np.arange(len(jobs)), [j.mesh.vertex_count for j in jobs])
-    _, inverse = np.unique(points, axis=0, return_inverse=True)
-    inverse = inverse.reshape(-1)
-    # distinct (position, primitive) pairs per position: more than one -> a border
-    pairs = np.unique(np.stack([inverse, owner], 1), axis=0)
-    shared = np.bincount(pairs[:, 0], minlength=int(inverse.max(initial=-1)) + 1)[inverse] > 1
-    start = 0
-    for job in jobs:
-        n = job.mesh.vertex_count
-        job.locked = shared[start : start + n]
-        start += n
+def _lock_shared_positions(gltf: dict, jobs) -> None:
+    """Lock every vertex that coincides in the scene with a vertex of another primitive: a border between
+    two primitives, of one glTF mesh or of meshes whose nodes place them to meet, stays in the base and
+    never cracks.
+
+    A mesh the scene shows once (or every mesh of a document without nodes) is taken at its world
+    positions, where two vertices coincide within :data:`SCENE_TOLERANCE` of the coordinates' size (the
+    float32 rounding of stored coordinates, carried through different matrices, keeps a border's copies
+    that far apart); a mesh shown several times (or not, or under a malformed node) at its stored
+    positions, coinciding exactly with those of meshes shown at the same world matrices."""
+    shown = placements_by_mesh(gltf) if gltf.get("nodes") else {}
+    counts = [job.mesh.vertex_count for job in jobs]
+    owner = np.repeat(np.arange(len(jobs)), counts)
+    shared = np.zeros(len(owner), bool)
+    world, size, rows, groups = [], 0.0, [], {}
+    for k, job in enumerate(jobs):
+        places = shown.get(job.mesh_index, []) if gltf.get("nodes") else [np.eye(4)]
+        if len(places) == 1 and places[0] is not None:
+            world.append((k, place(job.mesh.positions, places[0])))
+            scale = float(np.linalg.norm(places[0][:3, :3], 2)) * float(np.abs(job.mesh.positions).max(initial=0.0))
+            size = max(size, scale, float(np.abs(world[-1][1]).max(initial=0.0)))
+            continue
+        key = tuple(sorted(b"" if m is None else np.round(m, 12).tobytes() for m in places))
+        tag = groups.setdefault(key, len(groups))
+        bits = np.ascontiguousarray(job.mesh.positions + 0.0, np.float64).view(np.int64)  # -0.0 as 0.0
+        rows.append(np.column_stack([np.full(len(bits), tag, np.int64), bits, np.full(len(bits), k)]))
+    starts = np.cumsum([0] + counts)
+    if len(world) > 1:
+        from scipy.spatial import cKDTree
+
+        points = np.concatenate([w for _, w in world])
+        index = np.concatenate([np.arange(starts[k], starts[k + 1]) for k, _ in world])
+        pairs = cKDTree(points).query_pairs(SCENE_TOLERANCE * size, output_type="ndarray")
+        i, j = index[pairs[:, 0]], index[pairs[:, 1]]
+        apart = owner[i] != owner[j]
+        shared[i[apart]] = shared[j[apart]] = True
+    if len(rows) > 1:
+        table = np.concatenate(rows)
+        _, inverse = np.unique(table[:, :4], axis=0, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        pairs = np.unique(np.stack([inverse, table[:, 4]], 1), axis=0)  # distinct (position, primitive)
+        border = np.bincount(pairs[:, 0], minlength=int(inverse.max(initial=-1)) + 1)[inverse] > 1
+        index = np.concatenate([np.arange(starts[r[0, 4]], starts[r[0, 4] + 1]) for r in rows])
+        shared[index[border]] = True
+    for k, job in enumerate(jobs):
+        job.locked = shared[starts[k] : starts[k + 1]]
 
 
 def encode_asset(src, dst, *, strip_image_profiles: bool = False, **options) -> EncodeReport:

@@ -370,8 +370,13 @@ def _mark_owner(jobs, key: WatermarkKey, strength, grid_bits: int, doc: dict) ->
     if why is not None:
         return None, why
     strength = owner.DEFAULT_STRENGTH if strength is None else float(strength)
-    whole = combine_meshes([Mesh(place(job.mesh.positions, m), job.mesh.faces) for job, m in zip(jobs, frames)])
     grids = position_grids([job.mesh for job in jobs], grid_bits)
+    # several primitives: marked as the read will see them, on their grids (copies of a position that
+    # grids of their own round apart, where meshes placed by different transforms meet, are two
+    # positions there too), so the layer's frame is the read's; one primitive: its own positions
+    base = [job.mesh.positions if len(jobs) == 1 else grid.dequantize(grid.quantize(job.mesh.positions))
+            for job, grid in zip(jobs, grids)]
+    whole = combine_meshes([Mesh(place(p, m), job.mesh.faces) for p, job, m in zip(base, jobs, frames)])
     step = max(grid.step * np.linalg.norm(m[:3, :3], 2) for grid, m in zip(grids, frames))  # in the scene
     why = owner.unreadable(whole.positions, whole.faces, step)
     if why is not None:
@@ -379,9 +384,10 @@ def _mark_owner(jobs, key: WatermarkKey, strength, grid_bits: int, doc: dict) ->
     moved = owner.embed(whole.positions, whole.faces, key, strength=strength)  # coincident vertices stay so
     ends = np.cumsum([job.mesh.vertex_count for job in jobs])
     marked = []
-    for job, m, before, after in zip(jobs, frames, np.split(whole.positions, ends[:-1]), np.split(moved, ends[:-1])):
+    for job, p, m, before, after in zip(jobs, base, frames, np.split(whole.positions, ends[:-1]),
+                                        np.split(moved, ends[:-1])):
         shift = after - before if np.array_equal(m, np.eye(4)) else np.linalg.solve(m[:3, :3], (after - before).T).T
-        marked.append(dataclasses.replace(job, mesh=dataclasses.replace(job.mesh, positions=job.mesh.positions + shift)))
+        marked.append(dataclasses.replace(job, mesh=dataclasses.replace(job.mesh, positions=p + shift)))
     grids = position_grids([job.mesh for job in marked], grid_bits)  # as stage 1 fits them
     stored = [grid.dequantize(grid.quantize(job.mesh.positions)) for job, grid in zip(marked, grids)]
     why = _owner_check(stored, [job.mesh.faces for job in marked], key, frames)
