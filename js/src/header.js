@@ -361,6 +361,9 @@ function checkExtension(ext, what) {
  *   payloadVersion, ...}; a primitive's payloadVersion is 1 or 2 (spec/bitstream.md §6, §8).
  */
 export function planDocument(gltf, binLength) {
+  if (!Array.isArray(gltf.extensionsUsed) || !gltf.extensionsUsed.includes(EXTENSION)) {
+    throw new FormatError(`${EXTENSION} is not listed in extensionsUsed`); // spec/README.md: it MUST be
+  }
   const buffers = Array.isArray(gltf.buffers) ? gltf.buffers : [];
   if (!isObj(buffers[0]) || buffers[0].uri !== undefined || !isInt(buffers[0].byteLength, 0, binLength)) {
     throw new FormatError('buffers[0] must be the GLB BIN chunk, at most its length');

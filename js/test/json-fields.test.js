@@ -109,3 +109,12 @@ test('a JSON null is no value of an optional member: not its default but an erro
     ['payload null', attributes, (g, p, e) => { e.payload = null; }, /unknown chunk payload codec/],
   ]);
 });
+
+test('the extension must be listed in extensionsUsed (spec/README.md)', async () => {
+  const file = 'grid-hole.plain.packed.v2.pmw';
+  await bothRefuse([
+    ['extensionsUsed missing', file, (g) => { delete g.extensionsUsed; }, /is not listed in extensionsUsed/],
+    ['extensionsUsed without it', file, (g) => { g.extensionsUsed = g.extensionsUsed.filter((x) => x !== EXT); }, /is not listed in extensionsUsed/],
+    ['extensionsUsed a string', file, (g) => { g.extensionsUsed = EXT; }, /is not listed in extensionsUsed/],
+  ]);
+});
