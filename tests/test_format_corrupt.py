@@ -71,6 +71,14 @@ def test_json_that_is_not_json_raises_format_error():
         _events(data)
 
 
+def test_json_chunk_starting_with_a_byte_order_mark_is_a_format_error():
+    gltf, bin_payload = _split(DATA)
+    text = b"\xef\xbb\xbf" + json.dumps(gltf).encode()
+    data = b"".join(frame_glb(text, [bin_payload], len(bin_payload)))
+    with pytest.raises(FormatError, match="not valid UTF-8 JSON"):
+        _events(data)
+
+
 def _set(path, value):
     def edit(gltf, ext, bin_payload):
         target = ext

@@ -109,7 +109,8 @@ export function parseGlb(bytes) {
   }
   let gltf;
   try {
-    const text = new TextDecoder('utf-8', { fatal: true }).decode(bytes.subarray(20, 20 + jsonLength));
+    // ignoreBOM keeps a byte order mark in the text, where JSON.parse refuses it (spec README, Conformance)
+    const text = new TextDecoder('utf-8', { fatal: true, ignoreBOM: true }).decode(bytes.subarray(20, 20 + jsonLength));
     gltf = JSON.parse(text, finiteNumbers);
   } catch (e) {
     if (e instanceof FormatError) throw e;

@@ -118,3 +118,29 @@ test('the extension must be listed in extensionsUsed (spec/README.md)', async ()
     ['extensionsUsed a string', file, (g) => { g.extensionsUsed = EXT; }, /is not listed in extensionsUsed/],
   ]);
 });
+
+test('a JSON chunk that begins with a byte order mark is a FormatError (spec/README.md, Conformance)', async () => {
+  const bytes = load('grid-hole.plain.packed.v2.pmw');
+  const J = new DataView(bytes.buffer, bytes.byteOffset).getUint32(12, true);
+  const text = new Uint8Array([0xef, 0xbb, 0xbf, ...bytes.subarray(20, 20 + J)]);
+  const json = new Uint8Array((text.length + 3) & ~3).fill(0x20);
+  json.set(text);
+  const marked = new Uint8Array(bytes.length - J + json.length);
+  marked.set(bytes.subarray(0, 20));
+  marked.set(json, 20);
+  marked.set(bytes.subarray(20 + J), 20 + json.length);
+  const dv = new DataView(marked.buffer);
+  dv.setUint32(8, marked.length, true);
+  dv.setUint32(12, json.length, true);
+  const e = await failure(marked);
+  assert.ok(e instanceof FormatError && /not valid UTF-8 JSON/.test(e.message), String(e));
+  if (python()) {
+    const dir = mkdtempSync(join(tmpdir(), 'pmwm-json-fields-'));
+    try {
+      writeFileSync(join(dir, 'bom.pmw'), marked);
+      assert.ok(decodeFiles([join(dir, 'bom.pmw')])[0].error, 'the reference reader refuses it');
+    } finally {
+      rmSync(dir, { recursive: true, force: true });
+    }
+  }
+});
