@@ -79,6 +79,15 @@ def test_json_chunk_starting_with_a_byte_order_mark_is_a_format_error():
         _events(data)
 
 
+@pytest.mark.parametrize("codec", ["plain", "draco"])
+def test_base_indices_of_unsigned_bytes_are_a_format_error(codec):
+    data = sample_pmw(codec, chunk_count=1, subdivisions=1, seed=3)[0]
+    gltf, bin_payload = _split(data)
+    gltf["accessors"][gltf["meshes"][0]["primitives"][0]["indices"]]["componentType"] = 5121  # UNSIGNED_BYTE
+    with pytest.raises(FormatError, match="UNSIGNED_SHORT or UNSIGNED_INT"):
+        _events(_join(gltf, bin_payload))
+
+
 def _set(path, value):
     def edit(gltf, ext, bin_payload):
         target = ext

@@ -387,8 +387,8 @@ def base_counts(gltf: dict, primitive: dict):
         raise FormatError("base mesh: primitive has no indices")
     idx_acc = item(accessors, primitive["indices"], "base mesh: accessor")
     ctype = idx_acc.get("componentType")
-    if not isinstance(ctype, int) or ctype not in INDEX_DTYPES or idx_acc.get("type") != "SCALAR":
-        raise FormatError(f"base mesh: indices must be an unsigned SCALAR accessor, got componentType {ctype!r}")
+    if not isinstance(ctype, int) or ctype not in (UNSIGNED_SHORT, UNSIGNED_INT) or idx_acc.get("type") != "SCALAR":
+        raise FormatError(f"base mesh: indices must be an UNSIGNED_SHORT or UNSIGNED_INT SCALAR accessor (spec README, Base mesh), got componentType {ctype!r}")
     count = uint(idx_acc, "count", "base mesh: indices accessor")
     if count % 3:
         raise FormatError(f"base mesh: index count {count} is not a multiple of 3")
