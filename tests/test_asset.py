@@ -404,7 +404,7 @@ def test_meshes_whose_nodes_place_them_to_meet_keep_their_border_at_every_level(
         doc, buffers = load_document(tmp_path / "out.glb")
         frames, _ = world_placements(doc, [0, 1])
         parts = [place(read_accessor(doc, buffers, m["primitives"][0]["attributes"]["POSITION"]).astype(np.float64), f)
-                 for m, f in zip(doc["meshes"], frames)]
+                 for m, (f,) in zip(doc["meshes"], frames)]
         for k in range(2):
             gap = cKDTree(parts[1 - k]).query(cKDTree(parts[k]).data[cKDTree(parts[k]).query(border)[1]])[0]
             assert gap.max() < 2e-4 * diagonal, (chunks, k, gap.max() / diagonal)

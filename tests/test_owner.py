@@ -648,6 +648,36 @@ def test_halves_stored_in_other_frames_and_put_back_to_meet_carry_the_owner_laye
         assert owner_of_mesh(tmp_path / "out.glb", report.key).verdict == "present"
 
 
+def test_a_mesh_shown_twice_beside_one_shown_once_leaves_its_copies_and_the_other_carries_the_layer(tmp_path, blob):
+    """Nodes that share a mesh (a wheel shown four times, say) show copies that one move of the stored mesh
+    cannot mark alike: they stay where they are and count in the read's statistics, and the mesh shown once
+    carries the layer, read from the ``.pmw`` (every showing placed) and from the decoded asset.  (Shells that
+    only such copies reach cannot be marked: here they sit within the other mesh's range of norms.)"""
+    from pmwm_codec.format.document import load_document, read_accessor
+    from pmwm_codec.stream.asset import decode_asset, encode_asset
+    from pmwm_codec.verify.owner import owner_of_mesh, owner_of_stream
+
+    small = shapes.icosphere(3, 0.3, noise=0.02, seed=5)
+    nodes = [{"children": [1, 2, 3]}, {"mesh": 0},
+             {"mesh": 1, "translation": [0.6, 0.0, 0.0]}, {"mesh": 1, "translation": [-0.6, 0.1, 0.0]}]
+    from test_asset import DocBuilder
+
+    b = DocBuilder()
+    b.doc.update(scene=0, scenes=[{"nodes": [0]}], nodes=nodes,
+                 meshes=[{"primitives": [b.triangles(blob, uv=False)]}, {"primitives": [b.triangles(small, uv=False)]}])
+    (tmp_path / "wheels.glb").write_bytes(b.glb())
+    key = WatermarkKey.generate(rng=np.random.default_rng(8))
+    report = encode_asset(tmp_path / "wheels.glb", tmp_path / "wheels.pmw", key=key, owner_id=0xBEEF, measure=False)
+    assert not any("owner" in n for n in report.notices)
+    assert owner_of_stream(tmp_path / "wheels.pmw", report.key)[-1].owner.verdict == "present"
+    (tmp_path / "out.glb").write_bytes(decode_asset(tmp_path / "wheels.pmw")[0])
+    assert owner_of_mesh(tmp_path / "out.glb", report.key).verdict == "present"
+    doc, buffers = load_document(tmp_path / "out.glb")
+    shared = read_accessor(doc, buffers, doc["meshes"][1]["primitives"][0]["attributes"]["POSITION"])
+    step = 2 * np.ptp(small.positions, axis=0).max() / 2**16  # the 16-bit grid's step is about half that
+    assert np.abs(np.sort(shared, axis=0) - np.sort(small.positions, axis=0)).max() <= step  # not moved
+
+
 def test_an_asset_that_shows_a_mesh_twice_or_flat_refuses_an_explicit_owner_id_and_writes_nothing(tmp_path, blob,
                                                                                                    capsys):
     """A mesh shown twice has two places in the scene and one set of stored positions; a scale of zero has no

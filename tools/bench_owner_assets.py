@@ -117,8 +117,8 @@ def layer_cost(src_doc, src_buffers, glb: bytes) -> tuple:
             fh.write(glb)
         out, out_buffers = load_document(path)
     before, gaps = [], []
-    frames, _ = world_placements(src_doc, range(len(src_doc["meshes"])))
-    for m_in, m_out, frame in zip(src_doc["meshes"], out["meshes"], frames):
+    frames, _ = world_placements(src_doc, range(len(src_doc["meshes"])))  # each mesh shown once here
+    for m_in, m_out, (frame,) in zip(src_doc["meshes"], out["meshes"], frames):
         for p_in, p_out in zip(m_in["primitives"], m_out["primitives"]):
             x = place(read_accessor(src_doc, src_buffers, p_in["attributes"]["POSITION"]).astype(np.float64), frame)
             y = place(read_accessor(out, out_buffers, p_out["attributes"]["POSITION"]).astype(np.float64), frame)

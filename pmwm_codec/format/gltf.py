@@ -338,27 +338,26 @@ def placed_by_nodes(gltf: dict) -> bool:
 
 
 def world_placements(gltf: dict, mesh_indices) -> tuple:
-    """The one world matrix of each mesh of ``mesh_indices`` (a list of mesh indices, repeats allowed):
-    ``(matrices, None)``, a list of (4, 4) float64 in that order, or ``(None, why)`` (a phrase) when
-    some mesh has no single invertible placement: not shown by the default scene, shown more than once
-    (by nodes or ``EXT_mesh_gpu_instancing``), under a malformed transform, or flattened (a scale of
-    zero).  A document without nodes shows every mesh as stored (identity matrices)."""
+    """Every world matrix of each mesh of ``mesh_indices`` (a list of mesh indices, repeats allowed):
+    ``(placements, None)``, for each mesh the list of (4, 4) float64 matrices of its showings (one per
+    node that shows it, in walk order), or ``(None, why)`` (a phrase) when some mesh has no placement
+    that reads: not shown by the default scene, under a malformed transform or drawn by
+    ``EXT_mesh_gpu_instancing``, or flattened (a scale of zero).  A document without nodes shows
+    every mesh once, as stored (the identity)."""
     if not gltf.get("nodes"):
-        return [np.eye(4) for _ in mesh_indices], None
+        return [[np.eye(4)] for _ in mesh_indices], None
     shown = placements_by_mesh(gltf)
     out = []
     for mi in mesh_indices:
         mine = shown.get(mi, [])
         if not mine:
             return None, f"mesh {mi} is not shown in the scene, where a decoded asset's read looks for it"
-        if len(mine) > 1:
-            return None, (f"mesh {mi} is shown more than once in the scene (by nodes or GPU instancing), and the "
-                          "layer is marked into the stored mesh, once")
-        if mine[0] is None:
-            return None, f"mesh {mi} is placed by a node transform that does not read"
-        if not abs(np.linalg.det(mine[0][:3, :3])) > 0.0:
+        if any(m is None for m in mine):
+            return None, (f"mesh {mi} is placed by a node transform that does not read, or drawn by GPU "
+                          "instancing, whose instances the reads do not place")
+        if any(not abs(np.linalg.det(m[:3, :3])) > 0.0 for m in mine):
             return None, f"mesh {mi} is flattened by its node transform (a scale of zero)"
-        out.append(mine[0])
+        out.append(mine)
     return out, None
 
 
@@ -368,3 +367,22 @@ def place(positions: np.ndarray, matrix: np.ndarray) -> np.ndarray:
     if np.array_equal(matrix, np.eye(4)):
         return positions
     return positions @ matrix[:3, :3].T + matrix[:3, 3]
+
+
+def scene_mesh(positions: list, faces: list, placements: list) -> tuple:
+    """Meshes as a scene shows them, taken as one mesh: each of ``positions`` (a list of (n_i, 3)) with its
+    ``faces`` (a list of (m_i, 3) int) placed once per matrix of its entry in ``placements`` (a list of
+    lists of (4, 4), :func:`world_placements`).  Returns ``(positions (N, 3) float64, faces (M, 3) int64,
+    spans)``, ``spans[i]`` the ``(start, stop)`` vertex ranges of mesh i's showings, in order."""
+    points, tris, spans, offset = [], [], [], 0
+    for p, f, matrices in zip(positions, faces, placements):
+        mine = []
+        for matrix in matrices:
+            points.append(place(np.asarray(p, np.float64), matrix))
+            tris.append(np.asarray(f, np.int64).reshape(-1, 3) + offset)
+            mine.append((offset, offset + len(p)))
+            offset += len(p)
+        spans.append(mine)
+    if not points:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int64), spans
+    return np.concatenate(points), np.concatenate(tris), spans

@@ -41,7 +41,7 @@ from ..format import encode_base
 from ..format.base import EncodedBase, with_attributes
 from ..atomic import directory_lock, discard, fault_point, publish, signals_deferred, stage
 from ..format.glb import ProgressivePrimitive, assemble_document, write_parts
-from ..format.gltf import place, world_placements
+from ..format.gltf import scene_mesh, world_placements
 from ..format.extension import DEFAULT_PAYLOAD_VERSION, PAYLOAD_CODEC, PAYLOAD_VERSIONS
 from ..format.records import pack_batches
 from ..format.records_v2 import FaceChunk, pack_chunks
@@ -351,11 +351,12 @@ def _mark_owner(jobs, key: WatermarkKey, strength, grid_bits: int, doc: dict) ->
 
     ``pmw verify`` reads the layer from every primitive of a file at once, each placed by the scene's
     nodes: a ``.pmw``'s parts (:func:`~pmwm_codec.verify.owner.owner_of_stream`) as a decoded asset's
-    triangle primitives (trimesh).  So the layer is marked into that one mesh (every primitive moved
-    by its mesh's world matrix, :func:`~pmwm_codec.format.gltf.world_placements`, then
-    :func:`~pmwm_codec.distortion.combine_meshes`) and each vertex's move is taken back into its own
-    primitive's stored coordinates (the inverse of its matrix's linear part).  A mesh shown more than
-    once, or not at all, has no one place: ``(None, why)``.
+    triangle primitives (trimesh).  So the layer is marked into that one mesh (every primitive placed
+    once per world matrix of its mesh, :func:`~pmwm_codec.format.gltf.scene_mesh`) and each vertex's
+    move is taken back into its own primitive's stored coordinates (the inverse of its matrix's linear
+    part).  The copies of a mesh shown several times (nodes that share it) stay where they are (one
+    move cannot mark them alike) and count in the statistics; the other meshes carry the layer.  A
+    mesh not shown, or drawn by GPU instancing, or every mesh shown several times: ``(None, why)``.
 
     Returns ``(new jobs, None)``, or ``(None, why)`` (a phrase) when the layer cannot be read
     back from the positions as stored: first a cheap test on the coarsest grid
@@ -369,6 +370,9 @@ def _mark_owner(jobs, key: WatermarkKey, strength, grid_bits: int, doc: dict) ->
     frames, why = world_placements(doc, [job.mesh_index for job in jobs])
     if why is not None:
         return None, why
+    if all(len(m) > 1 for m in frames):
+        return None, ("every mesh is shown more than once in the scene, and one move of its stored positions "
+                      "cannot mark its copies alike")
     strength = owner.DEFAULT_STRENGTH if strength is None else float(strength)
     grids = position_grids([job.mesh for job in jobs], grid_bits)
     # several primitives: marked as the read will see them, on their grids (copies of a position that
@@ -376,17 +380,27 @@ def _mark_owner(jobs, key: WatermarkKey, strength, grid_bits: int, doc: dict) ->
     # positions there too), so the layer's frame is the read's; one primitive: its own positions
     base = [job.mesh.positions if len(jobs) == 1 else grid.dequantize(grid.quantize(job.mesh.positions))
             for job, grid in zip(jobs, grids)]
-    whole = combine_meshes([Mesh(place(p, m), job.mesh.faces) for p, job, m in zip(base, jobs, frames)])
-    step = max(grid.step * np.linalg.norm(m[:3, :3], 2) for grid, m in zip(grids, frames))  # in the scene
-    why = owner.unreadable(whole.positions, whole.faces, step)
+    points, faces, spans = scene_mesh(base, [job.mesh.faces for job in jobs], frames)
+    step = max(grid.step * np.linalg.norm(m[:3, :3], 2) for grid, ms in zip(grids, frames) for m in ms)
+    why = owner.unreadable(points, faces, step)  # (``step``: the coarsest grid step, in the scene)
     if why is not None:
         return None, why
-    moved = owner.embed(whole.positions, whole.faces, key, strength=strength)  # coincident vertices stay so
-    ends = np.cumsum([job.mesh.vertex_count for job in jobs])
+    fixed = None  # the copies of a mesh shown several times stay; they count in the statistics
+    if any(len(m) > 1 for m in frames):
+        fixed = np.zeros(len(points), bool)
+        for mine in spans:
+            for start, stop in mine if len(mine) > 1 else ():
+                fixed[start:stop] = True
+    moved = owner.embed(points, faces, key, strength=strength, fixed=fixed)  # coincident vertices stay so
     marked = []
-    for job, p, m, before, after in zip(jobs, base, frames, np.split(whole.positions, ends[:-1]),
-                                        np.split(moved, ends[:-1])):
-        shift = after - before if np.array_equal(m, np.eye(4)) else np.linalg.solve(m[:3, :3], (after - before).T).T
+    for job, p, ms, mine in zip(jobs, base, frames, spans):
+        if len(ms) > 1:
+            marked.append(job)
+            continue
+        (start, stop), m = mine[0], ms[0]
+        shift = moved[start:stop] - points[start:stop]
+        if not np.array_equal(m, np.eye(4)):
+            shift = np.linalg.solve(m[:3, :3], shift.T).T
         marked.append(dataclasses.replace(job, mesh=dataclasses.replace(job.mesh, positions=p + shift)))
     grids = position_grids([job.mesh for job in marked], grid_bits)  # as stage 1 fits them
     stored = [grid.dequantize(grid.quantize(job.mesh.positions)) for job, grid in zip(marked, grids)]
@@ -396,13 +410,13 @@ def _mark_owner(jobs, key: WatermarkKey, strength, grid_bits: int, doc: dict) ->
 
 def _owner_check(positions: list, faces: list, key: WatermarkKey, frames: list) -> str | None:
     """Why the owner layer does not read back ``present`` from the primitives' stored positions (a list
-    of (n_i, 3)) and faces (a list of (m_i, 3)), placed by their world matrices ``frames`` (a list of
-    (4, 4)) and taken as one mesh, as ``pmw verify`` reads a decoded stream
-    (:func:`~pmwm_codec.watermark.owner.detect`), or None when it does."""
+    of (n_i, 3)) and faces (a list of (m_i, 3)), each placed once per world matrix of its mesh
+    (``frames``, :func:`~pmwm_codec.format.gltf.world_placements`) and taken as one mesh, as ``pmw
+    verify`` reads a decoded stream (:func:`~pmwm_codec.watermark.owner.detect`), or None when it does."""
     from ..watermark import owner
 
-    mesh = combine_meshes([Mesh(place(p, m), np.asarray(f, np.int64)) for p, f, m in zip(positions, faces, frames)])
-    read = owner.detect(mesh.positions, mesh.faces, key)
+    points, tris, _ = scene_mesh(positions, faces, frames)
+    read = owner.detect(points, tris, key)
     if read.verdict == "present":
         return None
     return f"pmw verify would read {read.bit_errors} of its {read.bits} bits wrong from the file: {read.verdict}"

@@ -19,10 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..distortion import combine_meshes
 from ..errors import WatermarkKeyError
 from ..format.extension import EXTENSION_NAME
-from ..format.gltf import find_extension_primitives, place, world_placements
+from ..format.gltf import find_extension_primitives, scene_mesh, world_placements
 from ..mesh import Mesh, checked_mesh, read_mesh
 from ..stream import StreamDecoder, iter_results
 from ..watermark.key import as_key
@@ -72,16 +71,16 @@ def owner_of_stream(source, key) -> list:
     for r in iter_results(source, decoder):
         if frames is None:
             frames = _frames(decoder.header.gltf_json)
-        mesh = combine_meshes([Mesh(place(p.positions, m), p.faces) for p, m in zip(r.parts, frames)])
-        out.append(OwnerBoundary(r.chunk, int(r.bytes_read), int(r.vertices), detect(mesh.positions, mesh.faces, key)))
+        positions, faces, _ = scene_mesh([p.positions for p in r.parts], [p.faces for p in r.parts], frames)
+        out.append(OwnerBoundary(r.chunk, int(r.bytes_read), int(r.vertices), detect(positions, faces, key)))
     return out
 
 
 def _frames(gltf: dict) -> list:
-    """The world matrix (4, 4) of every progressive primitive of the document ``gltf``: where the scene
-    shows each of their meshes once (as the encoder marks the layer, and as a decoded asset is read),
-    else the identity for all (the stored positions taken together, as files marked before the layer
-    was placed by the nodes were)."""
+    """The world matrices of every progressive primitive of the document ``gltf`` (a list of lists of
+    (4, 4), one per showing of its mesh): where every one of their meshes is placed by nodes that read
+    (as the encoder marks the layer, and as a decoded asset is read), else the identity once for all
+    (the stored positions taken together, as files marked before the layer was placed were)."""
     meshes = [mi for mi, _, _ in find_extension_primitives(gltf, EXTENSION_NAME)]
     frames, why = world_placements(gltf, meshes)
-    return frames if why is None else [np.eye(4)] * len(meshes)
+    return frames if why is None else [[np.eye(4)]] * len(meshes)

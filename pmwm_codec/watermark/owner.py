@@ -484,15 +484,20 @@ class _Tables:
     sq: np.ndarray
 
 
-def _tables(points: np.ndarray, count: np.ndarray, frame: tuple, shell_side: np.ndarray) -> _Tables:
+def _tables(points: np.ndarray, count: np.ndarray, frame: tuple, shell_side: np.ndarray,
+            fixed: np.ndarray | None = None) -> _Tables:
     """:class:`_Tables` of ``points`` (k, 3) (``count`` (k,) original vertices each) in ``frame``.
 
-    shell_side (BINS,) float64 +-1: the side each shell's score is pushed to.
+    shell_side (BINS,) float64 +-1: the side each shell's score is pushed to.  ``fixed`` (k,) bool or
+    None: points that stay where they are at every amplitude (they count in their shells' scores).
     """
     shell, t, rho, d = _shells(points, frame)
     inside = np.flatnonzero(shell >= 0)
     s = shell[inside]
     flows = _flow_rows((shell_side[s] > 0).astype(np.int64), t[inside])
+    if fixed is not None:
+        still = fixed[inside]
+        flows[still] = t[inside][still, None]
     cols = (s[:, None] * _FLOW_A + np.arange(_FLOW_A)).ravel()
     mass = np.maximum(np.bincount(s, minlength=BINS), 1)[:, None]
     tot = np.bincount(cols, weights=g_of_t(flows).ravel(), minlength=BINS * _FLOW_A).reshape(BINS, _FLOW_A)
@@ -584,7 +589,7 @@ def _worst(marked: np.ndarray, faces: np.ndarray, shell_side: np.ndarray, seed: 
 
 
 def _mark(points: np.ndarray, count: np.ndarray, faces: np.ndarray, shell_side: np.ndarray,
-          strength: float, limit_sq: float) -> np.ndarray:
+          strength: float, limit_sq: float, fixed: np.ndarray | None = None) -> np.ndarray:
     """The marked distinct positions (k, 3): the feedback loop of :func:`embed`.
 
     Each round takes the frame of the current marked points, tables every shell's margin and
@@ -594,7 +599,8 @@ def _mark(points: np.ndarray, count: np.ndarray, faces: np.ndarray, shell_side: 
     in the estimated frame (:func:`_frame`, no search), clean and after the simulated
     transport; a shell short of its margin in any of them gets that shortfall (x
     :data:`_OVERSHOOT`) added to its ``extra``.  Stops when none is short or after
-    :data:`_ROUNDS` rounds (a mesh too small for 64 bits may keep a few short bits).
+    :data:`_ROUNDS` rounds (a mesh too small for 64 bits may keep a few short bits).  ``fixed`` (k,)
+    bool or None: points that never move (they count in the scores).
     """
     extra = np.zeros(BINS)
     marked = points
@@ -602,10 +608,12 @@ def _mark(points: np.ndarray, count: np.ndarray, faces: np.ndarray, shell_side: 
         frame = _frame(marked, faces)
         if frame[2] == 0:
             return points
-        tab = _tables(points, count, frame, shell_side)
+        tab = _tables(points, count, frame, shell_side, fixed)
         margin = _best_margin(tab, extra, strength, limit_sq, _shape(tab.shell))
         amp, _ = _amplitudes(tab, margin + extra)
         marked = _move(tab, amp)
+        if fixed is not None:
+            marked[fixed] = points[fixed]
         short = np.maximum(margin - _worst(marked, faces, shell_side, seed=len(points)), 0.0)
         if not np.any(short > _TOLERANCE * margin):
             break
@@ -614,7 +622,7 @@ def _mark(points: np.ndarray, count: np.ndarray, faces: np.ndarray, shell_side: 
 
 
 def embed(positions, faces, key, owner_id: int | None = None, strength: float = DEFAULT_STRENGTH,
-          rms_budget: float | None = DEFAULT_RMS_BUDGET) -> np.ndarray:
+          rms_budget: float | None = DEFAULT_RMS_BUDGET, fixed=None) -> np.ndarray:
     """Mark ``owner_id`` (default ``key.owner_id``) into the distribution of vertex norms.
 
     positions : (n, 3) float; faces : (m, 3) int indexing them (the frame is area-weighted);
@@ -625,6 +633,9 @@ def embed(positions, faces, key, owner_id: int | None = None, strength: float = 
     :func:`_shape`) as far as the RMS displacement
     stays within this fraction of the bounding-box diagonal, for robustness to noise,
     smoothing, coarse quantization and simplification; None: no raising.
+    fixed : (n,) bool or None: vertices that must not move (the copies of a mesh a scene shows
+    several times, which one move cannot mark alike); they count in the statistics, and a vertex
+    coinciding with one stays too.
     Returns new (n, 3) float64 positions: each vertex moved along the ray from the area
     centroid, never out of its shell; coincident vertices stay coincident.
     """
@@ -640,7 +651,11 @@ def embed(positions, faces, key, owner_id: int | None = None, strength: float = 
     count = np.bincount(inverse, minlength=len(points)).astype(np.float64)
     faces = inverse[np.asarray(faces, np.int64).reshape(-1, 3)]
     limit_sq = 0.0 if rms_budget is None else (float(rms_budget) * float(np.linalg.norm(pos0.max(0) - pos0.min(0)))) ** 2 * len(pos0)
-    return _mark(points, count, faces, shell_side, float(strength), limit_sq)[inverse]
+    still = None
+    if fixed is not None:
+        still = np.zeros(len(points), bool)
+        still[inverse[np.asarray(fixed, bool).reshape(-1)]] = True
+    return _mark(points, count, faces, shell_side, float(strength), limit_sq, still)[inverse]
 
 
 def unreadable(positions, faces, step: float) -> str | None:
