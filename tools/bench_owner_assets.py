@@ -7,7 +7,9 @@ parts that share them, as exporters write them) and made into three GLB assets:
   that rotates and scales by 2 (a similarity) and a child that translates;
 * **meshes** -- one glTF mesh per part, each on its own node under the same root;
 * **meshes apart** -- one glTF mesh per part, each on its own node with a transform of its own
-  (:data:`APART`): moved apart and turned, one stretched along z (not a similarity), one mirrored.
+  (:data:`APART`): moved apart and turned, one stretched along z (not a similarity), one mirrored;
+* **a part shown twice** -- as "meshes", and the last part's mesh shown again by a second node, moved
+  by 0.3 of the mesh's extent: its copies stay unmarked, the other parts carry the layer.
 
 Each asset is encoded in memory with an owner ID (``encode_asset((gltf, buffers), ..., owner_id=...)``,
 grid 16, no watermark), then read blind as ``pmw verify`` reads it: from the ``.pmw`` at every chunk boundary
@@ -55,7 +57,7 @@ CHILD_SHIFT = [1.0, 2.0, 3.0]
 APART = [{"rotation": [0.0, 0.0, 0.38268343, 0.92387953], "translation": [1.5, 0.0, 0.0]},
          {"scale": [1.0, 1.0, 2.0], "translation": [0.0, -1.5, 0.5]},
          {"scale": [-1.0, 1.0, 1.0], "rotation": [0.5, 0.5, 0.5, 0.5], "translation": [0.0, 0.0, 1.5]}]
-KINDS = ("one mesh", "meshes", "meshes apart")
+KINDS = ("one mesh", "meshes", "meshes apart", "a part shown twice")
 
 
 def parts_of(mesh: Mesh, parts: int) -> list:
@@ -95,6 +97,13 @@ def asset(parts: list, kind: str) -> tuple:
         doc["meshes"] = [{"primitives": [p]} for p in prims]
         doc["nodes"] = ([{**ROOT_NODE, "children": [1]}, {"translation": CHILD_SHIFT, "children": list(range(2, 2 + len(parts)))}]
                         + [{"mesh": i} for i in range(len(parts))])
+    elif kind == "a part shown twice":  # "meshes", and the last part's mesh shown again by a second node
+        size = float(np.ptp(np.concatenate([p.positions for p in parts]), axis=0).max())
+        doc["meshes"] = [{"primitives": [p]} for p in prims]
+        doc["nodes"] = ([{**ROOT_NODE, "children": [1]},
+                         {"translation": CHILD_SHIFT, "children": list(range(2, 3 + len(parts)))}]
+                        + [{"mesh": i} for i in range(len(parts))]
+                        + [{"mesh": len(parts) - 1, "translation": [0.0, 0.3 * size, 0.0]}])
     else:
         size = float(np.ptp(np.concatenate([p.positions for p in parts]), axis=0).max())
         doc["meshes"] = [{"primitives": [p]} for p in prims]
@@ -110,20 +119,21 @@ def asset(parts: list, kind: str) -> tuple:
 
 def layer_cost(src_doc, src_buffers, glb: bytes) -> tuple:
     """(RMS %, max %) of the scene's diagonal: each input vertex to the nearest decoded vertex of its
-    primitive, both placed by the scene's nodes."""
+    primitive, both placed by the scene's nodes (once per showing)."""
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "out.glb")
         with open(path, "wb") as fh:
             fh.write(glb)
         out, out_buffers = load_document(path)
     before, gaps = [], []
-    frames, _ = world_placements(src_doc, range(len(src_doc["meshes"])))  # each mesh shown once here
-    for m_in, m_out, (frame,) in zip(src_doc["meshes"], out["meshes"], frames):
+    frames, _ = world_placements(src_doc, range(len(src_doc["meshes"])))
+    for m_in, m_out, showings in zip(src_doc["meshes"], out["meshes"], frames):
         for p_in, p_out in zip(m_in["primitives"], m_out["primitives"]):
-            x = place(read_accessor(src_doc, src_buffers, p_in["attributes"]["POSITION"]).astype(np.float64), frame)
-            y = place(read_accessor(out, out_buffers, p_out["attributes"]["POSITION"]).astype(np.float64), frame)
-            before.append(x)
-            gaps.append(cKDTree(y).query(x)[0])
+            x = read_accessor(src_doc, src_buffers, p_in["attributes"]["POSITION"]).astype(np.float64)
+            y = read_accessor(out, out_buffers, p_out["attributes"]["POSITION"]).astype(np.float64)
+            for frame in showings:  # every vertex the scene shows
+                before.append(place(x, frame))
+                gaps.append(cKDTree(place(y, frame)).query(place(x, frame))[0])
     before, gaps = np.concatenate(before), np.concatenate(gaps)
     diagonal = float(np.linalg.norm(before.max(0) - before.min(0)))
     return 100 * float(np.sqrt(np.mean(gaps**2))) / diagonal, 100 * float(gaps.max()) / diagonal
@@ -170,7 +180,8 @@ def render(rows, info, command, parts) -> str:
          "degrees and scales by 2 and a child that translates; \"meshes\": one glTF mesh per part, each on its own "
          "node under the same root; \"meshes apart\": one glTF mesh per part, each on a node of its own that moves "
          "it apart by 1.5 times the mesh's extent and turns it, one stretched 2x along z (not a similarity), one "
-         "mirrored. "
+         "mirrored; \"a part shown twice\": as \"meshes\", and the last part's mesh shown again by a second node, "
+         "moved by 0.3 of the mesh's extent (its copies are not marked; the cost is over every vertex shown). "
          "Encoded with an owner ID (grid 16, no watermark). Read blind: from the `.pmw` (every chunk boundary; "
          "\"present from\": the bytes from which every later boundary reads `present`) and from the decoded GLB read "
          "with its nodes applied (as `pmw verify OUT.glb` reads it). Cost: each input vertex against the nearest decoded "
