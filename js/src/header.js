@@ -145,7 +145,7 @@ function bufferView(gltf, index, bufferLength, what) {
   if (given(view.buffer, 0) !== 0 || !isInt(offset, 0, bufferLength) || !isInt(view.byteLength, 0, bufferLength - offset)) {
     throw new FormatError(`${what}: bufferView ${index} lies outside buffer 0`);
   }
-  if (view.byteStride !== undefined && !isInt(view.byteStride, 4, 252)) {
+  if (view.byteStride !== undefined && !(isInt(view.byteStride, 4, 252) && view.byteStride % 4 === 0)) {
     throw new FormatError(`${what}: bufferView ${index} has an invalid byteStride`);
   }
   return { index, offset, length: view.byteLength, stride: view.byteStride };

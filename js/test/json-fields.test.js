@@ -144,3 +144,14 @@ test('a JSON chunk that begins with a byte order mark is a FormatError (spec/REA
     }
   }
 });
+
+test('a bufferView\'s byteStride, where given, is a multiple of 4 in 4..252 (the glTF schema), on a chunk\'s view too', async () => {
+  const file = 'sphere-pillows.draco.v1.pmw';
+  const chunkView = (g, p, e) => g.bufferViews[e.chunks[0].bufferView];
+  await bothRefuse([
+    ['a chunk view with byteStride 2', file, (g, p, e) => { chunkView(g, p, e).byteStride = 2; }, /invalid byteStride/],
+    ['a chunk view with byteStride 6', file, (g, p, e) => { chunkView(g, p, e).byteStride = 6; }, /invalid byteStride/],
+    ['a chunk view with byteStride 256', file, (g, p, e) => { chunkView(g, p, e).byteStride = 256; }, /invalid byteStride/],
+    ['a chunk view with byteStride "4"', file, (g, p, e) => { chunkView(g, p, e).byteStride = '4'; }, /invalid byteStride/],
+  ]);
+});

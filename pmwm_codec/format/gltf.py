@@ -137,7 +137,8 @@ def view_range(views, index, buffer_length: int, what: str, *, error=FormatError
     """``(start, end)`` of bufferView ``index`` in the GLB BIN buffer (buffer 0) of ``buffer_length`` bytes.
 
     Checks that the view exists, lives in buffer 0, has non-negative integer
-    ``byteOffset`` / ``byteLength`` and ends inside the buffer.
+    ``byteOffset`` / ``byteLength``, ends inside the buffer and, where it has a ``byteStride``,
+    that it is a multiple of 4 in 4..252 (the glTF schema's).
     """
     view = item(views, index, f"{what}: bufferView", error=error)
     if view.get("buffer", 0) != 0:
@@ -148,6 +149,10 @@ def view_range(views, index, buffer_length: int, what: str, *, error=FormatError
 def _range(view: dict, index, buffer_length: int, what: str, error) -> tuple[int, int]:
     start = uint(view, "byteOffset", f"{what}: bufferView {index}", 0, error=error)
     length = uint(view, "byteLength", f"{what}: bufferView {index}", error=error)
+    if "byteStride" in view:
+        stride = view["byteStride"]
+        if not isinstance(stride, int) or isinstance(stride, bool) or stride % 4 or not 4 <= stride <= 252:
+            raise error(f"{what}: bufferView {index} has an invalid byteStride {stride!r} (a multiple of 4 in 4..252)")
     if start + length > buffer_length:
         raise error(f"{what}: bufferView {index} ends at {start + length}, past the buffer's {buffer_length} bytes")
     return start, start + length
