@@ -534,6 +534,8 @@ def _quantize_and_simplify(jobs, grid_bits: int, base_vertices, say, defer_faces
         grid, values, specs = _quantize(job.mesh, grids[i])
         faces, positions, locked = job.mesh.faces, job.mesh.positions, job.locked
         late = deferred_faces(values[:, :3], faces) if defer_faces else np.zeros(len(faces), bool)
+        if late.any() and locked is not None:  # a locked vertex stays in the base: its faces are not deferred
+            late &= ~_naming_locked_tips(faces, late, locked)
         extra = {}
         if late.any():  # the core mesh, renumbered (no copies when nothing is deferred)
             core, tips, local = _core_vertices(job.mesh.vertex_count, faces, late)
@@ -545,6 +547,16 @@ def _quantize_and_simplify(jobs, grid_bits: int, base_vertices, say, defer_faces
         work.append(PrimitiveWork(job, grid, values, specs, log, **extra))
         say("simplify", (i + 1) / len(jobs))
     return work
+
+
+def _naming_locked_tips(faces: np.ndarray, late: np.ndarray, locked: np.ndarray) -> np.ndarray:
+    """(m,) bool: the faces of ``late`` (m,) bool (of ``faces`` (m, 3)) that name a vertex locked in the
+    base (``locked`` (n,) bool: a border with another primitive) that only late faces name: deferred,
+    it would leave every level but the last without that vertex (a flap's tip on a border cracks)."""
+    only_late = np.zeros(len(locked), bool)
+    only_late[faces[late].ravel()] = True
+    only_late[faces[~late].ravel()] = False
+    return late & (only_late & locked)[faces].any(axis=1)
 
 
 def _core_vertices(n: int, faces: np.ndarray, late: np.ndarray) -> tuple:
