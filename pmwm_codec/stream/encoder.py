@@ -553,10 +553,16 @@ def _naming_locked_tips(faces: np.ndarray, late: np.ndarray, locked: np.ndarray)
     """(m,) bool: the faces of ``late`` (m,) bool (of ``faces`` (m, 3)) that name a vertex locked in the
     base (``locked`` (n,) bool: a border with another primitive) that only late faces name: deferred,
     it would leave every level but the last without that vertex (a flap's tip on a border cracks)."""
-    only_late = np.zeros(len(locked), bool)
+    return late & (_named_only_by(faces, late, len(locked)) & locked)[faces].any(axis=1)
+
+
+def _named_only_by(faces: np.ndarray, late: np.ndarray, n: int) -> np.ndarray:
+    """(n,) bool: the vertices of a mesh of ``n`` vertices that faces of ``late`` (m,) bool name and no
+    other face of ``faces`` (m, 3) does (the tips a face chunk brings)."""
+    only_late = np.zeros(n, bool)
     only_late[faces[late].ravel()] = True
     only_late[faces[~late].ravel()] = False
-    return late & (only_late & locked)[faces].any(axis=1)
+    return only_late
 
 
 def _core_vertices(n: int, faces: np.ndarray, late: np.ndarray) -> tuple:
@@ -564,9 +570,7 @@ def _core_vertices(n: int, faces: np.ndarray, late: np.ndarray) -> tuple:
     ``faces`` (m, 3) that some face outside ``late`` (m,) bool names, or no face at all, ascending;
     the others (named by late faces only), ascending; ``local`` numbers the core ``0 … n_core - 1``
     and the tips after them, in input order."""
-    only_late = np.zeros(n, bool)
-    only_late[faces[late].ravel()] = True
-    only_late[faces[~late].ravel()] = False
+    only_late = _named_only_by(faces, late, n)
     core, tips = np.flatnonzero(~only_late), np.flatnonzero(only_late)
     local = np.empty(n, np.int64)
     local[core] = np.arange(len(core))
