@@ -442,16 +442,64 @@ def test_mesh_placements_compose_each_path_of_node_transforms_as_trimesh_does():
     assert mesh_placements({"nodes": [{"mesh": 0, "scale": "big"}]}) == [(0, None)]  # malformed: placed, unknown
 
 
-def test_decoding_a_placed_asset_to_obj_says_the_placement_is_not_in_it(tmp_path, capsys):
+def test_decoding_an_asset_to_obj_writes_the_scene_as_shown(tmp_path, capsys):
+    """OBJ / PLY / STL carry no nodes: a decoded asset is written as its scene shows it, every primitive
+    placed by its world matrices (a mesh shown twice is written twice, a mirrored showing keeps its faces
+    facing out), the same surface a glTF converter (trimesh) makes of the decoded GLB; the owner layer,
+    marked into that scene, reads from the OBJ."""
+    import trimesh
+    from scipy.spatial import cKDTree
+
+    from pmwm_codec import read_mesh
+    from pmwm_codec.cli import main
+    from pmwm_codec.verify.owner import owner_of_mesh
+
+    b = DocBuilder()
+    sphere, torus = shapes.icosphere(4, noise=0.05, seed=2), shapes.torus(32, 16)
+    b.doc.update(scene=0, scenes=[{"nodes": [0, 1, 2]}],
+                 nodes=[{"mesh": 0, "scale": [-1.0, 2.0, 1.0], "translation": [0.0, 4.0, 0.0]},  # mirrored, stretched
+                        {"mesh": 1, "translation": [3.0, 0.0, 0.0]},
+                        {"mesh": 1, "rotation": [0.0, 0.38268343, 0.0, 0.92387953]}],
+                 meshes=[{"primitives": [b.triangles(sphere, uv=False)]}, {"primitives": [b.triangles(torus, uv=False)]}])
+    (tmp_path / "a.glb").write_bytes(b.glb())
+    key = WatermarkKey.generate(owner_id=0x0123456789ABCDEF, rng=np.random.default_rng(5))
+    key.save(tmp_path / "k.json")
+    assert main(["encode", str(tmp_path / "a.glb"), "-o", str(tmp_path / "a.pmw"), "--key", str(tmp_path / "k.json"),
+                 "--owner-id", "0123456789abcdef", "-q"]) == 0
+    capsys.readouterr()
+    assert main(["decode", str(tmp_path / "a.pmw"), "-o", str(tmp_path / "a.obj"), "-q"]) == 0
+    assert capsys.readouterr().err == ""  # placed: nothing to warn about
+    assert main(["decode", str(tmp_path / "a.pmw"), "-o", str(tmp_path / "d.glb"), "-q"]) == 0
+    obj = read_mesh(tmp_path / "a.obj")
+    scene = trimesh.load(tmp_path / "d.glb", file_type="glb").to_geometry()
+    assert obj.vertex_count == len(scene.vertices) and obj.face_count == len(scene.faces)
+    for a, b in ((obj.positions, scene.vertices), (scene.vertices, obj.positions)):  # the same points, within float32
+        assert cKDTree(a).query(b)[0].max() < 1e-5
+    tri = obj.positions[obj.faces]  # every showing is a closed surface facing out: its signed volume is positive
+    signed = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])) / 6.0
+    showing = np.repeat(np.arange(3), [sphere.face_count, torus.face_count, torus.face_count])
+    assert np.all(np.bincount(showing, weights=signed) > 0)
+    assert owner_of_mesh(tmp_path / "a.obj", key).verdict == "present"
+
+
+def test_decoding_an_asset_whose_placements_do_not_read_to_obj_says_so(tmp_path, capsys):
+    """GPU instancing draws a mesh where its accessors say, which the OBJ cannot follow: each primitive
+    is written once as stored, and a notice names why."""
+    from pmwm_codec import read_mesh
     from pmwm_codec.cli import main
 
     b = DocBuilder()
-    b.doc.update(scene=0, scenes=[{"nodes": [0]}], nodes=[{"mesh": 0, "translation": [10.0, 0.0, 0.0]}],
-                 meshes=[{"primitives": [b.triangles(shapes.icosphere(2), uv=False)]}])
+    sphere = shapes.icosphere(2)
+    b.doc.update(scene=0, scenes=[{"nodes": [0]}], meshes=[{"primitives": [b.triangles(sphere, uv=False)]}],
+                 nodes=[{"mesh": 0, "translation": [10.0, 0.0, 0.0], "extensions": {"EXT_mesh_gpu_instancing": {
+                     "attributes": {"TRANSLATION": b.accessor(np.zeros((2, 3), np.float32), 5126, "VEC3")}}}}],
+                 extensionsUsed=["EXT_mesh_gpu_instancing"])
     (tmp_path / "a.glb").write_bytes(b.glb())
     assert main(["encode", str(tmp_path / "a.glb"), "-o", str(tmp_path / "a.pmw"), "-q"]) == 0
     capsys.readouterr()
     assert main(["decode", str(tmp_path / "a.pmw"), "-o", str(tmp_path / "a.obj")]) == 0
-    assert "node transforms or instances" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "GPU instancing" in err and "once, as stored" in err
+    assert read_mesh(tmp_path / "a.obj").vertex_count == sphere.vertex_count
     assert main(["decode", str(tmp_path / "a.pmw"), "-o", str(tmp_path / "a.glb2.glb")]) == 0
-    assert "node transforms" not in capsys.readouterr().err  # the GLB keeps the scene
+    assert "as stored" not in capsys.readouterr().err  # the GLB keeps the scene

@@ -374,17 +374,29 @@ def place(positions: np.ndarray, matrix: np.ndarray) -> np.ndarray:
     return positions @ matrix[:3, :3].T + matrix[:3, 3]
 
 
-def scene_mesh(positions: list, faces: list, placements: list) -> tuple:
+def progressive_placements(gltf: dict, name: str) -> tuple:
+    """:func:`world_placements` of the meshes of every primitive carrying the extension ``name``, in
+    the order the primitives are numbered (:func:`find_extension_primitives`): ``(placements, None)``
+    or ``(None, why)``."""
+    return world_placements(gltf, [mi for mi, _, _ in find_extension_primitives(gltf, name)])
+
+
+def scene_mesh(positions: list, faces: list, placements: list, oriented: bool = False) -> tuple:
     """Meshes as a scene shows them, taken as one mesh: each of ``positions`` (a list of (n_i, 3)) with its
     ``faces`` (a list of (m_i, 3) int) placed once per matrix of its entry in ``placements`` (a list of
-    lists of (4, 4), :func:`world_placements`).  Returns ``(positions (N, 3) float64, faces (M, 3) int64,
+    lists of (4, 4), :func:`world_placements`).  ``oriented``: a showing under a matrix that mirrors
+    (negative determinant) gets its faces' winding reversed, as a renderer draws it (glTF 2.0, 3.7.4),
+    so that its faces keep facing out.  Returns ``(positions (N, 3) float64, faces (M, 3) int64,
     spans)``, ``spans[i]`` the ``(start, stop)`` vertex ranges of mesh i's showings, in order."""
     points, tris, spans, offset = [], [], [], 0
     for p, f, matrices in zip(positions, faces, placements):
         mine = []
         for matrix in matrices:
+            tri = np.asarray(f, np.int64).reshape(-1, 3)
+            if oriented and np.linalg.det(np.asarray(matrix)[:3, :3]) < 0:
+                tri = tri[:, [0, 2, 1]]
             points.append(place(np.asarray(p, np.float64), matrix))
-            tris.append(np.asarray(f, np.int64).reshape(-1, 3) + offset)
+            tris.append(tri + offset)
             mine.append((offset, offset + len(p)))
             offset += len(p)
         spans.append(mine)

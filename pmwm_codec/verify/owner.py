@@ -21,7 +21,7 @@ import numpy as np
 
 from ..errors import WatermarkKeyError
 from ..format.extension import EXTENSION_NAME
-from ..format.gltf import find_extension_primitives, scene_mesh, world_placements
+from ..format.gltf import find_extension_primitives, progressive_placements, scene_mesh
 from ..mesh import Mesh, checked_mesh, read_mesh
 from ..stream import StreamDecoder, iter_results
 from ..watermark.key import as_key
@@ -81,6 +81,5 @@ def _frames(gltf: dict) -> list:
     (4, 4), one per showing of its mesh): where every one of their meshes is placed by nodes that read
     (as the encoder marks the layer, and as a decoded asset is read), else the identity once for all
     (the stored positions taken together, as files marked before the layer was placed were)."""
-    meshes = [mi for mi, _, _ in find_extension_primitives(gltf, EXTENSION_NAME)]
-    frames, why = world_placements(gltf, meshes)
-    return frames if why is None else [[np.eye(4)]] * len(meshes)
+    frames, why = progressive_placements(gltf, EXTENSION_NAME)
+    return frames if why is None else [[np.eye(4)]] * len(find_extension_primitives(gltf, EXTENSION_NAME))
