@@ -14,11 +14,17 @@ Contract
   (a key whose fingerprint differs from the reference's: verdict ``not-authentic``);
 * ``watermark``: the reference image (path or array); default the key's.
 
-The reference is parsed once.  Its full decode (every progressive primitive,
-concatenated in stream order, as :attr:`PartialResult.mesh` gives it) is the
-target of :func:`.correspond.correspond` (exact topological match first,
-similarity registration + nearest neighbours otherwise).  The mesh's positions,
-put in the reference's vertex order, are then replayed through the split
+The reference is parsed once.  Its full decode as the asset's scene shows it (every
+progressive primitive placed by its nodes' world matrices, once per showing, as a decoded
+GLB is flattened and as ``pmw decode`` writes OBJ / PLY / STL; the primitives concatenated
+in stream order, as stored, when the scene shows each once where it is stored or its
+placements do not read) is the target of :func:`.correspond.correspond` (exact topological
+match first, similarity registration + nearest neighbours otherwise).  A placed mesh is
+taken back into each primitive's stored coordinates (the similarity that best maps the
+scene onto the mesh undone, then each showing's matrix; a vertex shown several times is
+read from its first showing that has a counterpart), so that a scene placed by any
+invertible matrices reads as its stored primitives do.  The mesh's positions, put in the
+reference's vertex order, are then replayed through the split
 connectivity of the reference (:class:`~pmwm_codec.stream.replay.Replay` with
 given positions) and every carrier's code is read as a decoder reads it, so the
 codes are invariant to rotation, uniform scale and translation (``nbar`` is
@@ -43,6 +49,8 @@ import numpy as np
 
 from ..errors import FormatError, MeshError, PmwError, WatermarkKeyError
 from ..format import EndEvent, HeaderEvent, iter_events
+from ..format.extension import EXTENSION_NAME
+from ..format.gltf import placed_by_nodes, progressive_placements, scene_mesh
 from ..mesh import Mesh, checked_mesh, read_mesh
 from ..progressive.topology import unique_edges
 from ..sources import read_all
@@ -50,9 +58,14 @@ from ..stream.replay import Replay
 from ..watermark import codec as wm
 from ..watermark.key import as_key
 from ..watermark.verify import Verifier
-from .correspond import Correspondence, correspond
+from .correspond import Correspondence, correspond, umeyama
 
 __all__ = ["MeshVerification", "verify_mesh"]
+
+#: Copies of one stored vertex (a primitive the scene shows several times) read from a placed mesh
+#: agree when they lie within this fraction of the scene's size of each other once taken back to the
+#: stored coordinates (float32 output and the transforms round them ~1e-7 apart).
+COPY_TOLERANCE = 1e-5
 
 
 @dataclass
@@ -141,6 +154,12 @@ class Reference:
     ``parts`` per progressive primitive ``(positions (n_p, 3) float64, base
     faces (f_p, 3) int64)`` of the full decode; ``positions`` (n, 3) float64 and
     ``faces`` (m, 3) int64 all primitives concatenated in stream order.
+    ``placements``: per primitive the (4, 4) world matrices of its showings, or None when the
+    scene shows each primitive once where it is stored (or its placements do not read);
+    ``scene_positions`` (N, 3) / ``scene_faces`` (M, 3) the mesh a check is matched against
+    (:func:`~pmwm_codec.format.gltf.scene_mesh` of the parts, or ``positions`` / ``faces``);
+    ``spans`` per primitive the ``(start, stop)`` rows of its showings in it; ``part_faces`` per
+    primitive its full-resolution faces (m_p, 3) int64 in its own vertex ids.
     """
 
     events: list
@@ -148,13 +167,114 @@ class Reference:
     parts: list
     positions: np.ndarray
     faces: np.ndarray
+    placements: list | None = None
+    scene_positions: np.ndarray | None = None
+    scene_faces: np.ndarray | None = None
+    spans: list | None = None
+    part_faces: list | None = None
+
+    def __post_init__(self):
+        #: (P + 1,) int64: where each primitive's rows start in ``positions``.
+        self.starts = np.cumsum([0] + [len(pos) for pos, _ in self.parts])
+        if self.placements is None:
+            self.scene_positions, self.scene_faces = self.positions, self.faces
+            self.spans = [[(int(a), int(b))] for a, b in zip(self.starts[:-1], self.starts[1:])]
+        else:
+            self.scene_positions, self.scene_faces, self.spans = scene_mesh(
+                [pos for pos, _ in self.parts], self.part_faces, self.placements, oriented=True)
+
+    def stored(self, scene_points: np.ndarray) -> tuple:
+        """(N, 3) points in the order of ``scene_positions`` (NaN: no counterpart), in any similar frame ->
+        ``(points (n, 3) in the reference's stored order and coordinates, apart (k,) int64)`` (see the module
+        docstring).  ``apart``: the rows of ``scene_points`` that a later showing of a primitive puts
+        elsewhere than its first showing with a counterpart does (copies of one stored vertex must agree,
+        to :data:`COPY_TOLERANCE` of the scene's size: an edit of a copy that is not read)."""
+        if self.placements is None:
+            return scene_points, np.zeros(0, np.int64)
+        ok = np.isfinite(scene_points).all(axis=1)
+        out = np.full((len(self.positions), 3), np.nan)
+        if not ok.any():
+            return out, np.zeros(0, np.int64)
+        frame = _robust_similarity(scene_points, self.scene_positions, ok)
+        size = float(np.ptp(self.scene_positions, axis=0).max())
+        apart = []
+        for start, matrices, spans in zip(self.starts, self.placements, self.spans):
+            for matrix, (a, b) in zip(matrices, spans):
+                rows = out[start : start + b - a]
+                local = (frame[a:b] - matrix[:3, 3]) @ np.linalg.inv(matrix[:3, :3]).T
+                world = np.linalg.norm(((local - rows) @ matrix[:3, :3].T), axis=1)  # NaN where either is missing
+                apart.append(a + np.flatnonzero(world > COPY_TOLERANCE * size))
+                fill = ~np.isfinite(rows).all(axis=1) & ok[a:b]
+                rows[fill] = local[fill]
+        return out, np.concatenate(apart)
+
+    def showing_order(self, scene_points: np.ndarray) -> np.ndarray:
+        """(N,) int64: the order of the rows of ``scene_points`` (as :meth:`stored` takes them) that puts the
+        copies of a primitive shown several times at the showings where they lie.  A topological match maps
+        each connected copy on its own, and congruent copies alike, so it may give one copy's vertices to
+        another's showing: each copy goes to the showing whose reference positions it lies nearest (an
+        assignment per primitive) once the scene's similarity is undone.  That similarity is fitted on the
+        primitives shown once, or, when every primitive is shown several times, on the first one's first
+        copy taken as each of its showings in turn (the hypothesis whose assignment fits best is kept).
+        The identity where every primitive is shown once."""
+        order = np.arange(len(scene_points))
+        ok = np.isfinite(scene_points).all(axis=1)
+        if self.placements is None or all(len(spans) < 2 for spans in self.spans) or not ok.any():
+            return order
+        once = np.zeros(len(ok), bool)
+        for spans in self.spans:
+            if len(spans) == 1:
+                once[spans[0][0] : spans[0][1]] = True
+        if np.count_nonzero(once & ok) >= 3:
+            frames = [_robust_similarity(scene_points, self.scene_positions, once & ok)]
+        else:
+            spans = next(spans for spans in self.spans if len(spans) > 1)
+            a, b = spans[0]
+            frames = []
+            for c, d in spans:
+                pairs = np.flatnonzero(ok[a:b])
+                if len(pairs) >= 3:
+                    sc, R, t = umeyama(scene_points[a:b][pairs], self.scene_positions[c:d][pairs])
+                    frames.append(sc * scene_points @ R.T + t)
+        best = (np.inf, order)
+        for frame in frames:
+            total, trial = self._assign(frame)
+            if total < best[0]:
+                best = (total, trial)
+        return best[1]
+
+    def _assign(self, frame: np.ndarray) -> tuple:
+        """``(total cost, order)``: :meth:`showing_order`'s assignment of copies to showings for the scene points
+        ``frame`` (N, 3) already in the reference's frame; a copy's cost at a showing is its mean distance to it."""
+        from scipy.optimize import linear_sum_assignment
+
+        order = np.arange(len(frame))
+        total = 0.0
+        for spans in self.spans:
+            if len(spans) < 2:
+                continue
+            cost = np.zeros((len(spans), len(spans)))
+            for i, (a, b) in enumerate(spans):
+                for j, (c, d) in enumerate(spans):
+                    gap = np.linalg.norm(frame[a:b] - self.scene_positions[c:d], axis=1)
+                    cost[i, j] = np.mean(gap[np.isfinite(gap)]) if np.isfinite(gap).any() else 0.0
+            rows, cols = linear_sum_assignment(cost)
+            total += float(cost[rows, cols].sum())
+            for i, j in zip(rows, cols):
+                order[spans[j][0] : spans[j][1]] = np.arange(*spans[i])
+        return total, order
+
+    def scene_rows(self, stored: np.ndarray) -> np.ndarray:
+        """The rows of ``scene_positions`` of the stored vertices ``stored`` (k,) int64 (every showing of each)."""
+        part = np.searchsorted(self.starts, stored, side="right") - 1
+        rows = [a + stored[part == i] - self.starts[i] for i, spans in enumerate(self.spans) for a, _ in spans]
+        return np.concatenate(rows) if rows else np.zeros(0, np.int64)
 
     def split(self, positions: np.ndarray) -> list:
         """(n, 3) positions in the reference's order -> one (n_p, 3) view per primitive."""
         if len(positions) != len(self.positions):
             raise MeshError(f"{len(positions)} positions for the reference's {len(self.positions)} vertices")
-        ends = np.cumsum([len(pos) for pos, _ in self.parts])
-        return np.split(positions, ends[:-1])
+        return np.split(positions, self.starts[1:-1])
 
     @classmethod
     def read(cls, source) -> "Reference":
@@ -174,14 +294,18 @@ class Reference:
         replay = Replay()
         for event in events:
             replay.on_event(event)
-        parts, faces, offset = [], [], 0
+        parts, faces = [], []
         for p, grid in enumerate(replay.grids):
             values, fac = replay.current(p)
             parts.append((grid.dequantize(values[:, :3]), replay.base_faces[p]))
-            faces.append(fac + offset)
-            offset += len(values)
+            faces.append(np.array(fac))
+        starts = np.cumsum([0] + [len(pos) for pos, _ in parts])
         positions = np.concatenate([pos for pos, _ in parts])
-        return cls(events, wm.WatermarkParams.from_config(cfg), parts, positions, np.concatenate(faces))
+        placements = None
+        if placed_by_nodes(header.gltf_json):
+            placements = progressive_placements(header.gltf_json, EXTENSION_NAME)[0]
+        return cls(events, wm.WatermarkParams.from_config(cfg), parts, positions,
+                   np.concatenate([f + a for f, a in zip(faces, starts)]), placements, part_faces=faces)
 
 
 def verify_mesh(mesh, reference_source, key, watermark=None, *, tolerance: float = 0.5,
@@ -203,24 +327,46 @@ def verify_mesh(mesh, reference_source, key, watermark=None, *, tolerance: float
 
         ref_image, _ = load_watermark(watermark)
 
-    corr = correspondence or correspond(m.positions, m.faces, ref.positions, ref.faces, tolerance=tolerance)
-    pts = np.full((len(ref.positions), 3), np.nan)
+    corr = correspondence or correspond(m.positions, m.faces, ref.scene_positions, ref.scene_faces, tolerance=tolerance)
+    pts = np.full((len(ref.scene_positions), 3), np.nan)
     pts[corr.valid] = np.asarray(m.positions, np.float64)[corr.index[corr.valid]]
+    order = ref.showing_order(pts)
+    pts, apart = ref.stored(pts[order])
+    index = corr.index[order]
     nbars = None if corr.valid.all() else _partial_nbars(ref, ref.split(pts), corr)
     verifier = read_given(ref, pts, key, ref_image, nbars=nbars)
-    verifier.foreign = _foreign_vertices(m, ref, corr, tolerance) > 0
+    verifier.foreign = _foreign_vertices(m, ref, corr, tolerance) > 0 or len(apart) > 0
     est = verifier.estimate()
-    starts = np.cumsum([0] + [len(pos) for pos, _ in ref.parts])
-    flagged = np.unique(corr.index[verifier.tamper(starts)])
+    flagged = index[np.concatenate([ref.scene_rows(verifier.tamper(ref.starts)), apart])]
+    flagged = np.unique(flagged[flagged >= 0])
     owns = key.owns(ref.params.fingerprint)
     return MeshVerification(
         verdict=est.verdict if owns else "not-authentic", key_matches=owns, nc=est.nc, psnr_db=est.psnr_db, centered_nc=est.centered_nc, ber=est.ber,
         code_match=est.code_match, carriers_read=est.carriers_read, carriers_total=ref.params.carriers,
         correspondence=corr.method, coverage=corr.coverage, registration_rms=corr.rms,
-        vertices=m.vertex_count, faces=m.face_count, reference_vertices=len(ref.positions),
+        vertices=m.vertex_count, faces=m.face_count, reference_vertices=len(ref.scene_positions),
         coefficients=est.coefficients, seconds=time.perf_counter() - t0, watermark=est.watermark,
         bit_exact=est.bit_exact, flagged=flagged, foreign=bool(verifier.foreign), binding=ref.params.binding,
     )
+
+
+def _robust_similarity(points: np.ndarray, target: np.ndarray, ok: np.ndarray, rounds: int = 4) -> np.ndarray:
+    """``points`` (N, 3) moved by the similarity that best maps its rows ``ok`` (N,) bool onto the same rows of
+    ``target`` (N, 3), refitted on the pairs within 3x the median residual (at least 1e-9 of the target's size):
+    the untouched vertices of an edited mesh fix it to rounding, which a showing's matrix, undone after it,
+    would otherwise spread over its primitive (a non-uniform matrix turns a small similarity into a distortion)."""
+    use = ok.copy()
+    floor = 1e-9 * float(np.ptp(target[ok], axis=0).max()) if ok.any() else 0.0
+    for _ in range(rounds):
+        s, R, t = umeyama(points[use], target[use])
+        moved = s * points @ R.T + t
+        residual = np.linalg.norm(moved[ok] - target[ok], axis=1)
+        keep = ok.copy()
+        keep[ok] = residual <= max(3.0 * float(np.median(residual)), floor)
+        if np.array_equal(keep, use) or keep.sum() < 3:
+            break
+        use = keep
+    return moved
 
 
 def _foreign_vertices(mesh: Mesh, ref: Reference, corr: Correspondence, tolerance: float) -> int:
@@ -232,8 +378,8 @@ def _foreign_vertices(mesh: Mesh, ref: Reference, corr: Correspondence, toleranc
 
     from ..progressive.topology import mean_edge_length
 
-    unit = tolerance * mean_edge_length(ref.positions, ref.faces)
-    dist, _ = cKDTree(ref.positions).query(corr.transform(np.asarray(mesh.positions, np.float64)))
+    unit = tolerance * mean_edge_length(ref.scene_positions, ref.scene_faces)
+    dist, _ = cKDTree(ref.scene_positions).query(corr.transform(np.asarray(mesh.positions, np.float64)))
     return int(np.count_nonzero(dist > unit))
 
 
