@@ -9,18 +9,21 @@
  * (§8.1) and typed scratch arrays grown geometrically, and decodes each chunk straight into the
  * primitive's MeshState (values, faces, n, m). No allocation per vertex, split or symbol.
  *
- * Per batch: the vertex -> corner lists are rebuilt in one scatter over the faces (#neighbours),
- * from corner counts the previous batch kept; every vertex's valence (§8.4.1) is kept from batch
- * to batch, updated from the batch's incidences alone (#revalue), and recounted from the lists
- * after a batch whose splits touch each other's moved faces; the mask bits are decoded with the
- * coder's state in locals, each marked vertex adding itself to its neighbours' counts; a split's
- * incidences are a slice of its corner list (face-slot order), so no scan of the corners.
+ * The decoder keeps every vertex's corners as an ascending linked list (head / nxt / tail, as the
+ * reference decoder's CornerLists) and every vertex's valence (§8.4.1) from batch to batch, so
+ * that a batch costs its mask bits plus the work of its splits, not a pass over the mesh (#lists
+ * builds them on a primitive's first chunk and after a face chunk). The mask bits are decoded with
+ * the coder's state in locals; each marked vertex lists its incidences (its corner list, in
+ * face-slot order) and adds itself to its neighbours' counts (#gather). The topology relists the
+ * split and new vertices and appends the new faces' corners (#topology); the valences are updated
+ * from the batch's incidences alone (#revalueSplit), or recounted for the vertices whose faces
+ * changed after a batch whose splits touch each other's moved faces.
  *
  * The primitive's chunks from `firstFaceChunk` on are face chunks (§8.6): faces coded against Up(a) /
  * Near(a, b) of the mesh before them, or naming new vertices (fresh, numbered in the order the
  * faces first name them, their values predicted by the mean of their earlier corners), under a
  * table of its own (FACE_PROBS, fresh per face chunk). It reads the same corner lists and leaves
- * every kept count (valences, corner counts) to be recounted by the next batch that splits.
+ * them (and the valences) to be rebuilt by the next batch that splits.
  */
 import { FormatError, LimitError } from './errors.js';
 import { MAX_BATCHES_PER_CHUNK } from './constants.js';
@@ -113,16 +116,23 @@ function arcStart(r, fan, d, ncand, L, a, values, D, v, lens) {
     for (let j = 1, t = c + 1 === d ? 0 : c + 1; j < L; j++, t = t + 1 === d ? 0 : t + 1) sc += lens[t]; // t = (c + j) mod d
     lens[MAX_ARC_FAN + c] = sc;
   }
-  for (let c = 0; c < ncand; c++) {
-    const sc = lens[MAX_ARC_FAN + c];
-    let rank = 0;
-    for (let c2 = 0; c2 < ncand; c2++) {
-      const s2 = lens[MAX_ARC_FAN + c2];
-      if (s2 > sc || (s2 === sc && c2 < c)) rank++;
+  // rank order: score descending, then index ascending; rank r is found in r + 1 passes (r is
+  // mostly 0 or 1), each taking the first candidate of highest score after the one before
+  let best = -1;
+  let bestScore = Infinity;
+  for (let q = 0; q <= r; q++) {
+    const prev = best;
+    const prevScore = bestScore;
+    best = -1;
+    for (let c = 0; c < ncand; c++) {
+      const sc = lens[MAX_ARC_FAN + c];
+      if ((sc < prevScore || (sc === prevScore && c > prev)) && (best < 0 || sc > bestScore)) {
+        best = c;
+        bestScore = sc;
+      }
     }
-    if (rank === r) return c;
   }
-  return -1; // ranks are a permutation of 0 .. ncand-1: never reached
+  return best;
 }
 
 export class ChunkDecoderV2 {
@@ -132,19 +142,16 @@ export class ChunkDecoderV2 {
     this.probs = newProbabilities(N_PROBS);
     this.faceProbs = newProbabilities(FACE_PROBS); // reset for every face chunk (§8.6)
     this.fan = new Int32Array(MAX_ARC_FAN);
-    this.fa = new Int32Array(MAX_ARC_FAN); // a and b of the incidences of one fan, in face-slot order
-    this.fb = new Int32Array(MAX_ARC_FAN);
     this.succ = new Int32Array(MAX_ARC_FAN); // the successor of each, -1 for none
     this.lens = new Float64Array(2 * MAX_ARC_FAN); // lengths, then scores
     this.sums = new Float64Array(state.D);
     this.frame = new Float64Array(6);
-    /** The vertex count for which val / vc hold every vertex's valence (-1: recount them). */
-    this.valFor = -1;
-    /** The vertex count for which deg holds every vertex's corner count (-1: count them). */
-    this.degFor = -1;
+    /** The mesh (vertices, faces) that the corner lists and valences describe (-1: none, build them). */
+    this.listsN = -1;
+    this.listsM = -1;
     this.epoch = 0;
     // scratch arrays (see #grow), declared here so that the object keeps one shape
-    for (const name of ['off', 'nb', 'nc', 'deg', 'val', 'stamp', 'stamp2', 'v', 'gstart', 'inc', 'a', 'b', 'creators',
+    for (const name of ['head', 'tail', 'nxt', 'val', 'stamp', 'stamp2', 'v', 'gstart', 'inc', 'a', 'b', 'creators',
       'wings', 'up', 'near', 'fstart', 'fnames']) this[name] = new Int32Array(0);
     this.fresh = 0; // new vertices named so far by the face chunk being decoded
     this.vc = new Uint8Array(0);
@@ -207,9 +214,10 @@ export class ChunkDecoderV2 {
   #faceChunk(buf, vertexCount, faceCount) {
     const st = this.state;
     const { n, m, faces, capN, capM } = st;
-    this.#neighbours(n, m, true, this.degFor === n); // corner lists; valences are not read here
-    this.valFor = -1; // the new faces change valences and corner counts: the next batch recounts
-    this.degFor = -1;
+    this.#lists(n, m);
+    this.listsN = -1; // the chunk's faces are not listed: the next batch rebuilds the lists
+    this.#grow('up', n, Int32Array, capN); // distinct neighbours of a vertex
+    this.#grow('near', n, Int32Array, capN);
     const rc = new RangeDecoder(buf, this.faceProbs.fill(PROB_ONE >> 1));
     const t = vertexCount - n;
     if (!(t >= 0)) throw new FormatError(`face chunk: its index entry's ${vertexCount} vertices are fewer than the mesh's ${n}`);
@@ -344,19 +352,21 @@ export class ChunkDecoderV2 {
   }
 
   /**
-   * Up(a) of §8.6 into this.up, ascending: the distinct vertices x > a sharing a face with a (its
-   * corner list's neighbours nb, mesh before the chunk). Returns their number.
+   * Up(a) of §8.6 into this.up, ascending: the distinct vertices x > a sharing a face with a (mesh
+   * before the chunk, from a's corner list). Returns their number.
    */
   #upList(a) {
-    const { off, nb, stamp } = this;
-    const up = this.#grow('up', off[a + 1] - off[a], Int32Array, 6 * this.state.capM);
+    const { head, nxt, stamp, up } = this;
+    const { faces } = this.state;
     const e = this.#nextEpoch();
     let k = 0;
-    for (let t = off[a], end = off[a + 1]; t < end; t++) {
-      const x = nb[t];
-      if (x > a && stamp[x] !== e) {
-        stamp[x] = e;
-        up[k++] = x;
+    for (let c = head[a]; c >= 0; c = nxt[c]) {
+      for (let j = c - (c % 3), end = j + 3; j < end; j++) {
+        const x = faces[j];
+        if (x > a && stamp[x] !== e) {
+          stamp[x] = e;
+          up[k++] = x;
+        }
       }
     }
     sortList(up, k);
@@ -369,17 +379,19 @@ export class ChunkDecoderV2 {
    * them), then those of Up(a) (this.up, k) other than b sharing no face with b, in Up's order.
    */
   #nearAt(a, b, k, r, n) {
-    const { off, nb, stamp, up } = this;
+    const { head, nxt, stamp, up, near } = this;
+    const { faces } = this.state;
     if (b >= n) return r < k ? up[r] : -1; // a new vertex: no neighbours, and not in Up(a)
     const e = this.#nextEpoch();
-    const near = this.#grow('near', off[b + 1] - off[b], Int32Array, 6 * this.state.capM);
     stamp[b] = e;
     let count = 0;
-    for (let t = off[b], end = off[b + 1]; t < end; t++) {
-      const x = nb[t];
-      if (stamp[x] !== e) {
-        stamp[x] = e;
-        if (x > a) near[count++] = x;
+    for (let c = head[b]; c >= 0; c = nxt[c]) {
+      for (let j = c - (c % 3), end = j + 3; j < end; j++) {
+        const x = faces[j];
+        if (stamp[x] !== e) {
+          stamp[x] = e;
+          if (x > a) near[count++] = x;
+        }
       }
     }
     if (r < count) {
@@ -397,61 +409,51 @@ export class ChunkDecoderV2 {
   #batch(rc) {
     const st = this.state;
     const n = st.n;
-    const valid = this.valFor === n;
-    this.valFor = -1; // until the batch is applied and the valences updated
-    this.#neighbours(n, st.m, valid, this.degFor === n);
-    this.degFor = -1;
+    this.#lists(n, st.m);
+    this.listsN = -1; // until the batch has updated them
     const k = this.#mask(rc, n);
     if (k === 0) throw new FormatError('chunk payload: a batch marks no split vertex');
     if (n + k > st.capN) throw new FormatError('splits exceed the declared vertex count');
-    const I = this.#incidences(k);
     this.#connectivity(rc, k);
-    this.#topology(k, I);
-    this.degFor = n + k;
+    const touching = this.#topology(k);
     this.#values(rc, n, k);
     st.n = n + k;
-    if (this.#revalue(n, k)) this.valFor = st.n;
+    this.#revalue(n, k, touching);
+    this.listsN = st.n;
+    this.listsM = st.m;
   }
 
   /**
-   * The vertex -> corner lists of the mesh before the batch, in face-slot order: vertex w's corners
-   * are nc[q] for q = off[w]/2 .. off[w+1]/2 - 1, each with the corners before and after it in its
-   * face at nb[2q] and nb[2q+1] (off (n+1), nb (6m), nc (3m) Int32Array). The corner counts deg
-   * (n) are counted unless `counted` (#topology keeps them); every valence is recounted (#valence)
-   * unless `valid`.
+   * The corner lists of the mesh (n vertices, m faces) and every vertex's valence, built in one
+   * pass over the faces unless they describe that mesh already (kept from batch to batch, built
+   * on a primitive's first chunk and after a face chunk). Vertex w's corners, ascending (face-slot
+   * order), are head[w], nxt[head[w]], ... until -1; tail[w] is the last (head (n), tail (n),
+   * nxt (3m) Int32Array).
    */
-  #neighbours(n, m, valid, counted) {
+  #lists(n, m) {
+    if (this.listsN === n && this.listsM === m) return;
     const { faces, capN, capM } = this.state;
-    const off = this.#grow('off', n + 1, Int32Array, capN + 1);
-    const nb = this.#grow('nb', 6 * m, Int32Array, 6 * capM);
-    const nc = this.#grow('nc', 3 * m, Int32Array, 3 * capM);
-    const deg = this.#grow('deg', n, Int32Array, capN, 0, true);
-    if (!counted) {
-      deg.fill(0, 0, n);
-      for (let c = 0; c < 3 * m; c++) deg[faces[c]]++;
-    }
-    for (let w = 0, end = 0; w < n; w++) { // the end of each list; the scatter below moves it to the start
-      end += 2 * deg[w];
-      off[w] = end;
-    }
-    off[n] = 6 * m;
-    for (let f = 3 * m - 3; f >= 0; f -= 3) { // backwards, so that every list ends up ascending
-      const x = faces[f];
-      const y = faces[f + 1];
-      const z = faces[f + 2];
-      let q = (off[z] -= 2);
-      nb[q] = y; nb[q + 1] = x; nc[q >> 1] = f + 2;
-      q = (off[y] -= 2);
-      nb[q] = x; nb[q + 1] = z; nc[q >> 1] = f + 1;
-      q = (off[x] -= 2);
-      nb[q] = z; nb[q + 1] = y; nc[q >> 1] = f;
-    }
-    this.#grow('val', n, Int32Array, capN, undefined, true);
-    this.#grow('vc', n, Uint8Array, capN, undefined, true);
+    const head = this.#grow('head', n, Int32Array, capN);
+    this.#grow('tail', n, Int32Array, capN);
+    this.#grow('nxt', 3 * m, Int32Array, 3 * capM);
+    head.fill(-1, 0, n);
+    for (let c = 0; c < 3 * m; c++) this.#append(faces[c], c);
+    this.#grow('val', n, Int32Array, capN);
+    this.#grow('vc', n, Uint8Array, capN);
     this.#grow('stamp', n, Int32Array, capN, 0, true);
     this.#grow('stamp2', n, Int32Array, capN, 0, true);
-    this.#grow('cnt', n, Uint8Array, capN);
-    if (!valid) for (let w = 0; w < n; w++) this.#setValence(w, this.#valence(w));
+    for (let w = 0; w < n; w++) this.#setValence(w, this.#valence(w));
+    this.listsN = n;
+    this.listsM = m;
+  }
+
+  /** Appends corner c (above every corner listed for w) to w's corner list. */
+  #append(w, c) {
+    const { head, tail } = this;
+    this.nxt[c] = -1;
+    if (head[w] < 0) head[w] = c;
+    else this.nxt[tail[w]] = c;
+    tail[w] = c;
   }
 
   /** A fresh stamp value (stamp and stamp2 hold values below it). */
@@ -464,47 +466,71 @@ export class ChunkDecoderV2 {
     return ++this.epoch;
   }
 
-  /** |N(w)| of §8.4.1: the distinct vertices other than w that share a face with w (from nb). */
+  /** |N(w)| of §8.4.1: the distinct vertices other than w that share a face with w (from its corner list). */
   #valence(w) {
-    const { off, nb, stamp } = this;
+    const { head, nxt, stamp } = this;
+    const { faces } = this.state;
     const e = this.#nextEpoch();
     let valence = 0;
-    for (let t = off[w], end = off[w + 1]; t < end; t++) {
-      const x = nb[t];
-      if (x !== w && stamp[x] !== e) {
-        stamp[x] = e;
-        valence++;
+    for (let c = head[w]; c >= 0; c = nxt[c]) {
+      for (let j = c - (c % 3), end = j + 3; j < end; j++) {
+        const x = faces[j];
+        if (x !== w && stamp[x] !== e) {
+          stamp[x] = e;
+          valence++;
+        }
       }
     }
     return valence;
   }
 
-  /** cnt[x] += 1 (saturating at 2) for every distinct neighbour x > w of w: w is marked. */
-  #markAbove(w) {
-    const { off, nb, stamp, cnt } = this;
+  /**
+   * Split vertex w's incidences from g on (§6.1 step 1, as §8.4.2 needs them: its corner list in
+   * face-slot order): corner inc[g], the corners after / before it a[g], b[g]; and cnt[x] += 1
+   * (saturating at 2) for every distinct neighbour x > w of w. Returns the next g.
+   */
+  #gather(w, g) {
+    const { head, nxt, inc, a, b, stamp, cnt } = this;
+    const { faces } = this.state;
     const e = this.#nextEpoch();
-    for (let t = off[w], end = off[w + 1]; t < end; t++) {
-      const x = nb[t];
+    for (let c = head[w]; c >= 0; c = nxt[c], g++) {
+      const r = c % 3;
+      const x = faces[r === 2 ? c - 2 : c + 1];
+      const y = faces[r === 0 ? c + 2 : c - 1];
+      inc[g] = c;
+      a[g] = x;
+      b[g] = y;
       if (x > w && stamp[x] !== e) {
         stamp[x] = e;
         if (cnt[x] < 2) cnt[x]++;
       }
+      if (y > w && stamp[y] !== e) {
+        stamp[y] = e;
+        if (cnt[y] < 2) cnt[y]++;
+      }
     }
+    return g;
   }
 
   /**
    * §8.4.1: one bit per vertex w < n under the context 7 nb + vc, vc kept per vertex, nb = cnt[w]
    * (marked distinct neighbours below w, counted up to 2 as the marks are decoded). The coder's
-   * state is held in locals for the loop. Leaves the split vertices in v (k) Int32Array; returns k.
+   * state is held in locals for the loop. Leaves the split vertices in v and their incidences
+   * grouped per split (#gather; split i's are gstart[i] .. gstart[i+1]-1); returns k.
    */
   #mask(rc, n) {
-    const { capN } = this.state;
-    const { vc, cnt } = this;
+    const { capN, capM, m } = this.state;
     const v = this.#grow('v', n, Int32Array, capN);
+    const gstart = this.#grow('gstart', n + 1, Int32Array, capN + 1);
+    for (const name of ['inc', 'a', 'b']) this.#grow(name, 3 * m, Int32Array, 3 * capM);
+    this.#grow('sym', 3 * m, Uint8Array, 3 * capM);
+    const cnt = this.#grow('cnt', n, Uint8Array, capN);
+    const { vc } = this;
     cnt.fill(0, 0, n);
     const { probs, buf, length } = rc;
     let { range, code, pos } = rc;
     let k = 0;
+    let g = 0;
     for (let w = 0; w < n; w++) {
       const i = 7 * cnt[w] + vc[w];
       const p = probs[i];
@@ -516,8 +542,9 @@ export class ChunkDecoderV2 {
         code = (code - bound) | 0;
         range = (range - bound) | 0;
         probs[i] = p - (p >> ADAPT_SHIFT);
+        gstart[k] = g;
         v[k++] = w;
-        this.#markAbove(w);
+        g = this.#gather(w, g);
       }
       while ((range >>> 0) < TOP) {
         range <<= 8;
@@ -525,6 +552,7 @@ export class ChunkDecoderV2 {
         pos++;
       }
     }
+    gstart[k] = g;
     rc.range = range;
     rc.code = code;
     rc.pos = pos;
@@ -532,59 +560,33 @@ export class ChunkDecoderV2 {
   }
 
   /**
-   * §6.1 step 1 grouped per split, as §8.4.2 needs them: split i's incidences are g = gstart[i] ..
-   * gstart[i+1]-1, its corner list in face-slot order: corner inc[g], the corners after / before it
-   * a[g], b[g] (mesh before the batch). Returns I.
-   */
-  #incidences(k) {
-    const { capN, capM } = this.state;
-    const { off, nb, nc, v } = this;
-    const gstart = this.#grow('gstart', k + 1, Int32Array, capN + 1);
-    gstart[0] = 0;
-    for (let i = 0; i < k; i++) gstart[i + 1] = gstart[i] + ((off[v[i] + 1] - off[v[i]]) >> 1);
-    const I = gstart[k];
-    const inc = this.#grow('inc', I, Int32Array, 3 * capM);
-    const a = this.#grow('a', I, Int32Array, 3 * capM);
-    const b = this.#grow('b', I, Int32Array, 3 * capM);
-    this.#grow('sym', I, Uint8Array, 3 * capM);
-    for (let i = 0, g = 0; i < k; i++) {
-      for (let q = off[v[i]], end = off[v[i] + 1]; q < end; q += 2, g++) {
-        inc[g] = nc[q >> 1];
-        b[g] = nb[q];
-        a[g] = nb[q + 1];
-      }
-    }
-    return I;
-  }
-
-  /**
    * Orders split i's incidences g0 .. g0+d-1 into this.fan (spec §8.4.2 "Fan"), comparing their
    * d <= 32 corners a / b pairwise. Returns 1 closed, 2 open, 0 not simple.
    */
   #fanOf(g0, d) {
-    const { a, b, fan, fa, fb, succ } = this;
-    for (let t = 0; t < d; t++) {
-      fa[t] = a[g0 + t];
-      fb[t] = b[g0 + t];
-      succ[t] = -1;
-    }
+    const { a, b, fan, succ } = this;
+    let same = 0; // -1 for every pair (t, t2) of equal a, and of equal b: -2d when they are pairwise distinct
     let first = -1;
     let starts = 0;
-    for (let t = 0; t < d; t++) { // one pass over the pairs: distinct a / b, successors, starts
-      const x = fa[t];
-      const y = fb[t];
+    for (let t = 0; t < d; t++) { // one pass over the pairs, branch-free: successors, starts, repeats
+      const x = a[g0 + t];
+      const y = b[g0 + t];
+      let next = -1;
       let pred = 0;
-      for (let t2 = 0; t2 < d; t2++) {
-        if (t2 < t && (fa[t2] === x || fb[t2] === y)) return 0;
-        if (fa[t2] === y) succ[t] = t2; // t2 follows t: its a is the b of t
-        if (fb[t2] === x) pred = 1;
+      for (let t2 = 0; t2 < d; t2++) { // ((p ^ q) - 1) >> 31: -1 when p = q, else 0 (ids >= 0)
+        const a2 = a[g0 + t2];
+        const b2 = b[g0 + t2];
+        next ^= (next ^ t2) & (((a2 ^ y) - 1) >> 31); // t2 follows t: its a is the b of t
+        pred |= ((b2 ^ x) - 1) >> 31;
+        same += (((a2 ^ x) - 1) >> 31) + (((b2 ^ y) - 1) >> 31);
       }
+      succ[t] = next;
       if (pred === 0) { // t starts the walk when no b equals its a
         starts++;
         if (first < 0) first = t;
       }
     }
-    if (starts > 1) return 0;
+    if (same !== -2 * d || starts > 1) return 0;
     const kind = starts === 0 ? 1 : 2;
     if (starts === 0) first = 0;
     for (let s = 0, t = first; s < d; s++) {
@@ -636,13 +638,15 @@ export class ChunkDecoderV2 {
    * §6.1 steps 2-3: every moved corner becomes u_i; new faces ((u, v, a) left, (v, u, b) right)
    * are appended in the face-slot order of the incidences that create them (their corners, sorted);
    * FormatError when they exceed the declared face count or a split creates no new face or more
-   * than two.
+   * than two. The corner lists follow: v's and u's are relisted from v's incidences (the moved
+   * corners to u), the new faces' corners appended (above every listed corner). Returns whether a
+   * moved face holds another split vertex (no batch of independent splits does; see #revalue).
    */
-  #topology(k, I) {
+  #topology(k) {
     const st = this.state;
-    const { faces, capM, capN } = st;
-    const { inc, a, b, sym, v, gstart } = this;
-    const n = st.n;
+    const { faces, capM, capN, n } = st;
+    const { inc, a, b, sym, v, gstart, stamp } = this;
+    const I = gstart[k];
     const wings = this.#grow('wings', k, Int32Array, capN);
     const creators = this.#grow('creators', I, Int32Array, 3 * capM);
     let added = 0;
@@ -662,16 +666,27 @@ export class ChunkDecoderV2 {
     for (let i = 0; i < k; i++) {
       if (wings[i] < 1 || wings[i] > 2) throw new FormatError('a split names no new face or more than two');
     }
-    const deg = this.#grow('deg', n + k, Int32Array, capN, 0, true);
+    const head = this.#grow('head', n + k, Int32Array, capN, undefined, true);
+    this.#grow('tail', n + k, Int32Array, capN, undefined, true);
+    this.#grow('nxt', 3 * (st.m + added), Int32Array, 3 * capM, undefined, true);
+    const e = this.#nextEpoch();
+    for (let i = 0; i < k; i++) stamp[v[i]] = e;
+    let touching = false;
     for (let i = 0; i < k; i++) {
-      let moved = 0;
+      const u = n + i;
+      const vi = v[i];
+      head[u] = -1;
+      head[vi] = -1;
       for (let g = gstart[i]; g < gstart[i + 1]; g++) {
-        if (sym[g] === 0) continue;
-        faces[inc[g]] = n + i;
-        moved++;
+        const c = inc[g];
+        if (sym[g] === 0) {
+          this.#append(vi, c);
+          continue;
+        }
+        if (stamp[a[g]] === e || stamp[b[g]] === e) touching = true;
+        faces[c] = u;
+        this.#append(u, c);
       }
-      deg[v[i]] += wings[i] - moved; // corners: the moved ones go to u, each new face has one of v
-      deg[n + i] = moved + wings[i];
     }
     const order = creators.subarray(0, nc).sort();
     let f = 3 * st.m;
@@ -680,16 +695,21 @@ export class ChunkDecoderV2 {
       const i = faces[c] - n; // a creating corner is a moved one: it now holds u_i
       const g = this.#incidenceOf(c, gstart[i], gstart[i + 1]);
       const s = sym[g];
-      if (s === 2 || s === 4) {
-        faces[f] = n + i; faces[f + 1] = v[i]; faces[f + 2] = a[g]; f += 3;
-        deg[a[g]]++;
-      }
-      if (s === 3 || s === 4) {
-        faces[f] = v[i]; faces[f + 1] = n + i; faces[f + 2] = b[g]; f += 3;
-        deg[b[g]]++;
-      }
+      if (s === 2 || s === 4) f = this.#newFace(f, n + i, v[i], a[g]);
+      if (s === 3 || s === 4) f = this.#newFace(f, v[i], n + i, b[g]);
     }
     st.m += added;
+    return touching;
+  }
+
+  /** Writes the face (x, y, z) at corner f and lists its corners; returns the next face's corner. */
+  #newFace(f, x, y, z) {
+    const { faces } = this.state;
+    faces[f] = x; faces[f + 1] = y; faces[f + 2] = z;
+    this.#append(x, f);
+    this.#append(y, f + 1);
+    this.#append(z, f + 2);
+    return f + 3;
   }
 
   /** The incidence g in [g0, g1) whose corner is c (inc ascending there). */
@@ -706,21 +726,30 @@ export class ChunkDecoderV2 {
   }
 
   /**
-   * After a batch (n vertices before it, k splits): updates the valence of every vertex whose
-   * neighbours changed (#revalueSplit, split vertices marked in stamp with epoch e) while no
-   * corner a, b of a moved face is a split vertex (as in every batch of independent splits,
-   * §6.1); returns false at the first that is (the next batch then recounts every valence).
+   * The valences after a batch (n vertices before it, k splits), from its incidences alone
+   * (#revalueSplit) unless it is `touching` (a moved face holds another split vertex): then every
+   * vertex whose faces changed (the split vertices, the new ones, the corners a, b of their
+   * incidences) is recounted from its corner list.
    */
-  #revalue(n, k) {
-    const { v } = this;
-    this.#grow('val', n + k, Int32Array, this.state.capN, undefined, true);
-    this.#grow('vc', n + k, Uint8Array, this.state.capN, undefined, true);
-    this.#grow('stamp', n + k, Int32Array, this.state.capN, 0, true);
-    this.#grow('stamp2', n + k, Int32Array, this.state.capN, 0, true);
-    const e = this.#nextEpoch();
-    for (let i = 0; i < k; i++) this.stamp[v[i]] = e;
-    for (let i = 0; i < k; i++) if (!this.#revalueSplit(i, n + i, e)) return false;
-    return true;
+  #revalue(n, k, touching) {
+    const { capN } = this.state;
+    this.#grow('val', n + k, Int32Array, capN, undefined, true);
+    this.#grow('vc', n + k, Uint8Array, capN, undefined, true);
+    this.#grow('stamp', n + k, Int32Array, capN, 0, true);
+    this.#grow('stamp2', n + k, Int32Array, capN, 0, true);
+    if (!touching) {
+      for (let i = 0; i < k; i++) this.#revalueSplit(i, n + i);
+      return;
+    }
+    const { v, a, b, gstart } = this;
+    for (let g = 0; g < gstart[k]; g++) {
+      this.#setValence(a[g], this.#valence(a[g]));
+      this.#setValence(b[g], this.#valence(b[g]));
+    }
+    for (let i = 0; i < k; i++) {
+      this.#setValence(v[i], this.#valence(v[i]));
+      this.#setValence(n + i, this.#valence(n + i));
+    }
   }
 
   /**
@@ -729,9 +758,9 @@ export class ChunkDecoderV2 {
    * the incidences (marked in stamp2): a and b of an unmoved face, a of a left new face, b of a
    * right one, and u. u's neighbours are the distinct corners x of its moved faces, and v; each
    * such x gains u and loses v unless x is in N'(v). A vertex x in the moved faces of several
-   * splits gets each split's change in turn. False when such an x is a split vertex (stamp[x] = e).
+   * splits gets each split's change in turn.
    */
-  #revalueSplit(i, u, e) {
+  #revalueSplit(i, u) {
     const { v, a, b, sym, gstart, stamp, stamp2, val } = this;
     const vi = v[i];
     const g0 = gstart[i];
@@ -757,7 +786,6 @@ export class ChunkDecoderV2 {
     for (let g = g0; g < g1; g++) {
       if (sym[g] === 0) continue;
       for (let x = a[g], j = 0; j < 2; j++, x = b[g]) {
-        if (stamp[x] === e) return false;
         if (stamp[x] === e2) continue;
         stamp[x] = e2;
         cu++;
@@ -765,7 +793,6 @@ export class ChunkDecoderV2 {
       }
     }
     this.#setValence(u, cu);
-    return true;
   }
 
   /** val[w] = valence and vc[w] its class min(max(valence, 3), 9) - 3 (§8.4.1). */
