@@ -460,7 +460,8 @@ def test_decoding_an_asset_to_obj_writes_the_scene_as_shown(tmp_path, capsys):
                  nodes=[{"mesh": 0, "scale": [-1.0, 2.0, 1.0], "translation": [0.0, 4.0, 0.0]},  # mirrored, stretched
                         {"mesh": 1, "translation": [3.0, 0.0, 0.0]},
                         {"mesh": 1, "rotation": [0.0, 0.38268343, 0.0, 0.92387953]}],
-                 meshes=[{"primitives": [b.triangles(sphere, uv=False)]}, {"primitives": [b.triangles(torus, uv=False)]}])
+                 meshes=[{"primitives": [b.triangles(sphere, uv=False)]},
+                         {"primitives": [b.triangles(torus, uv=False)]}])
     (tmp_path / "a.glb").write_bytes(b.glb())
     key = WatermarkKey.generate(owner_id=0x0123456789ABCDEF, rng=np.random.default_rng(5))
     key.save(tmp_path / "k.json")

@@ -1,4 +1,5 @@
-"""The owner layer on multi-primitive glTF assets: one layer across every primitive, read three ways.
+"""The owner layer on multi-primitive glTF assets: one layer across every primitive, read from the ``.pmw``,
+a decoded GLB and a decoded OBJ.
 
 Each mesh is cut into ``--parts`` primitives by face-centre x (cut-border vertices duplicated in the
 parts that share them, as exporters write them) and made into three GLB assets:
@@ -14,8 +15,9 @@ parts that share them, as exporters write them) and made into three GLB assets:
 Each asset is encoded in memory with an owner ID (``encode_asset((gltf, buffers), ..., owner_id=...)``,
 grid 16, no watermark), then read blind as ``pmw verify`` reads it: from the ``.pmw`` at every chunk boundary
 (the bytes from which every later boundary reads ``present``), from the decoded asset (a GLB read with its
-nodes applied).  The layer's cost: the RMS and the largest distance from each input vertex to the nearest
-decoded vertex of its primitive, both placed by the scene's nodes, as a percentage of the scene's bounding-box
+nodes applied) and from the OBJ ``pmw decode`` writes of it (:func:`~pmwm_codec.stream.asset.scene_as_shown`).
+The layer's cost: the RMS and the largest distance from each input vertex to the nearest decoded vertex of its
+primitive, both placed by the scene's nodes, as a percentage of the scene's bounding-box
 diagonal (quantization on the 16-bit grid included).
 
     python tools/bench_owner_assets.py [--parts 3] [--heldout /tmp/heldout] [--write BENCHMARKS.md]
@@ -43,7 +45,9 @@ from pmwm_codec.format.document import load_document, read_accessor  # noqa: E40
 from pmwm_codec.format.gltf import place, world_placements  # noqa: E402
 from pmwm_codec.format.layout import padded  # noqa: E402
 from pmwm_codec.mesh import Mesh  # noqa: E402
-from pmwm_codec.stream.asset import decode_asset, encode_asset  # noqa: E402
+from pmwm_codec.meshio import write_mesh  # noqa: E402
+from pmwm_codec.stream import StreamDecoder  # noqa: E402
+from pmwm_codec.stream.asset import decode_asset, encode_asset, scene_as_shown  # noqa: E402
 from pmwm_codec.verify.owner import owner_of_mesh, owner_of_stream  # noqa: E402
 from pmwm_codec.watermark.key import WatermarkKey  # noqa: E402
 from tools.bench import DEFAULT_CORPUS, machine, publish, run_header, table  # noqa: E402
@@ -158,15 +162,21 @@ def measure(mesh: Mesh, parts: int, kind: str, seed: int) -> dict:
         elif first is None:
             first = b
     glb, _, _ = decode_asset(data)
+    decoder = StreamDecoder(copy=False)
+    last = decoder.feed(data)[-1]
+    decoder.close()
+    shown, _ = scene_as_shown(decoder.header.gltf_json, last)  # what `pmw decode IN.pmw -o OUT.obj` writes
     with tempfile.TemporaryDirectory() as tmp:
-        path = os.path.join(tmp, "decoded.glb")
+        path, obj = os.path.join(tmp, "decoded.glb"), os.path.join(tmp, "decoded.obj")
         with open(path, "wb") as fh:
             fh.write(glb)
+        write_mesh(obj, shown)
         from_glb = owner_of_mesh(path, key)  # trimesh: the nodes applied
+        from_obj = owner_of_mesh(obj, key)
     merged = boundaries[-1]
     rms, worst = layer_cost(doc, buffers, glb)
     return {"vertices": int(merged.vertices), "bytes": len(data), "seconds": seconds,
-            "pmw": boundaries[-1].owner, "glb": from_glb, "first": first, "rms": rms, "max": worst}
+            "pmw": boundaries[-1].owner, "glb": from_glb, "obj": from_obj, "first": first, "rms": rms, "max": worst}
 
 
 def read_cell(r) -> str:
@@ -183,22 +193,24 @@ def render(rows, info, command, parts) -> str:
          "mirrored; \"a part shown twice\": as \"meshes\", and the last part's mesh shown again by a second node, "
          "moved by 0.3 of the mesh's extent (its copies are not marked; the cost is over every vertex shown). "
          "Encoded with an owner ID (grid 16, no watermark). Read blind: from the `.pmw` (every chunk boundary; "
-         "\"present from\": the bytes from which every later boundary reads `present`) and from the decoded GLB read "
-         "with its nodes applied (as `pmw verify OUT.glb` reads it). Cost: each input vertex against the nearest decoded "
+         "\"present from\": the bytes from which every later boundary reads `present`), from the decoded GLB read "
+         "with its nodes applied (as `pmw verify OUT.glb` reads it) and from the OBJ `pmw decode` writes (the scene as "
+         "shown, placed by the nodes). Cost: each input vertex against the nearest decoded "
          "vertex of its primitive, both placed by the nodes, % of the scene's diagonal (the 16-bit grid's rounding "
          "included).", ""]
     body = []
     for name, kind, r in rows:
         if "refused" in r:
-            body.append([name, kind, "", f"refused: {r['refused']}", "", "", "", ""])
+            body.append([name, kind, "", f"refused: {r['refused']}", "", "", "", "", ""])
             continue
         first = r["first"]
         present_from = (f"{first.bytes_read:,} of {r['bytes']:,} B ({100 * first.bytes_read / r['bytes']:.1f}%)"
                         if first is not None else "never")
-        body.append([name, kind, f"{r['vertices']:,}", read_cell(r["pmw"]), read_cell(r["glb"]), present_from,
+        body.append([name, kind, f"{r['vertices']:,}", read_cell(r["pmw"]), read_cell(r["glb"]), read_cell(r["obj"]),
+                     present_from,
                      f"{r['rms']:.4f}% / {r['max']:.4f}%", f"{r['seconds']:.1f} s"])
     L.append(table(["mesh", "asset", "vertices", "owner read from the .pmw", "from the decoded GLB (nodes applied)",
-                    "present from", "layer RMS / max (% diagonal)", "encode"], body))
+                    "from the decoded OBJ", "present from", "layer RMS / max (% diagonal)", "encode"], body))
     return "\n".join(L) + "\n"
 
 

@@ -2,11 +2,10 @@
 
 glTF outputs keep the whole document (materials, textures, nodes) through
 :func:`pmwm_codec.stream.asset.decode_asset`; the other formats get the geometry through
-:func:`pmwm_codec.stream.reader.decode_stream` and :func:`pmwm_codec.meshio.write_mesh`: the scene as it
-shows its progressive primitives (each placed by its nodes' world matrices, once per node that shows
-it, a mirrored one with its winding reversed), as glTF viewers and converters show it, or each primitive
-once as stored, with a notice, when the scene's placements do not read (GPU instancing, a mesh not
-shown, a scale of zero).
+:func:`pmwm_codec.stream.reader.decode_stream`, placed as the scene shows them
+(:func:`pmwm_codec.stream.asset.scene_as_shown`: each progressive primitive placed by its nodes, once
+per node that shows it, as glTF converters flatten a scene; as stored, with a notice, when the
+placements do not read), and :func:`pmwm_codec.meshio.write_mesh`.
 Every output is written atomically.
 """
 
@@ -16,10 +15,7 @@ import os
 
 from pmwm_codec.http import UrlSource, as_source, is_url
 from pmwm_codec.meshio import WRITE_SUFFIXES, write_asset, write_mesh
-from pmwm_codec.stream.asset import decode_asset
-from pmwm_codec.format.extension import EXTENSION_NAME
-from pmwm_codec.format.gltf import placed_by_nodes, progressive_placements, scene_mesh
-from pmwm_codec.mesh import Mesh
+from pmwm_codec.stream.asset import decode_asset, scene_as_shown
 from pmwm_codec.stream.decoder import StreamDecoder
 from pmwm_codec.stream.reader import decode_stream
 
@@ -60,7 +56,7 @@ def run(args) -> int:
         else:  # a URL read by ranges fetches nothing after chunk N
             decoder = StreamDecoder(copy=False, max_chunks=args.chunks)
             last, end = decode_stream(as_source(args.input, args.chunks), decoder=decoder)
-            mesh, why = _as_shown(decoder.header.gltf_json if decoder.header is not None else None, last)
+            mesh, why = scene_as_shown(decoder.header.gltf_json if decoder.header is not None else None, last)
             write_mesh(args.output, mesh)
             if why is not None:
                 notices.append(f"{why}: the {suffix[1:].upper()} file holds each progressive primitive once, as "
@@ -79,20 +75,6 @@ def run(args) -> int:
         print(f"{args.output}: {out['vertices']:,} vertices, {out['faces']:,} faces "
               f"(base + {out['chunks_applied']} of {out['chunks_total']} chunks; {state})")
     return 0
-
-
-def _as_shown(gltf: dict, result) -> tuple:
-    """``(Mesh, None)``: the level ``result`` as the scene ``gltf`` shows it (:func:`scene_mesh`, oriented), or
-    ``(the parts as stored, why)`` when its placements do not read.  A scene that shows each primitive once
-    where it is stored gives the stored mesh itself."""
-    if gltf is None or not placed_by_nodes(gltf):
-        return result.mesh, None
-    frames, why = progressive_placements(gltf, EXTENSION_NAME)
-    if frames is None:
-        return result.mesh, why
-    positions, faces, _ = scene_mesh([p.positions for p in result.parts], [p.faces for p in result.parts], frames,
-                                     oriented=True)
-    return Mesh(positions, faces), None
 
 
 def _chunk_notices(asked, end) -> list:

@@ -28,7 +28,9 @@ never moves).
 
 :func:`decode_asset` turns a ``.pmw`` (whole or cut) back into an ordinary GLB
 at any level: the same document with each progressive primitive's geometry
-replaced by plain accessors for that level and the extension removed.
+replaced by plain accessors for that level and the extension removed;
+:func:`scene_as_shown` gives a level as one mesh placed as the scene shows it
+(for OBJ, PLY and STL, which carry no nodes).
 """
 
 from __future__ import annotations
@@ -54,7 +56,10 @@ from ..format.gltf import (
     find_extension_primitives,
     forget_extension,
     place,
+    placed_by_nodes,
     placements_by_mesh,
+    progressive_placements,
+    scene_mesh,
     uses_extension,
     view_bytes,
 )
@@ -352,6 +357,27 @@ def decode_asset(src, chunks=None):
         forget_extension(kept, DRACO_EXTENSION)
     kept["buffers"] = [{"byteLength": out.length}]
     return b"".join(glb_parts(kept, out.parts, out.length)), end, decoder
+
+
+def scene_as_shown(gltf: dict | None, result) -> tuple:
+    """A level as the asset's scene shows it, for formats without nodes (OBJ, PLY, STL).
+
+    ``gltf`` the ``.pmw``'s document (None: a mesh file's), ``result`` a
+    :class:`~pmwm_codec.stream.decoder.PartialResult`.  Returns ``(Mesh, None)``: every progressive
+    primitive placed by its nodes' world matrices, once per node that shows it, a mirrored showing
+    with its winding reversed (:func:`~pmwm_codec.format.gltf.scene_mesh`, oriented), as glTF
+    converters flatten a scene; the parts as stored when the scene shows each once where it is
+    stored.  ``(the parts as stored, why)`` when the placements do not read (GPU instancing, a mesh
+    the scene does not show, a scale of zero; ``why`` a phrase).
+    """
+    if gltf is None or not placed_by_nodes(gltf):
+        return result.mesh, None
+    frames, why = progressive_placements(gltf, EXTENSION_NAME)
+    if frames is None:
+        return result.mesh, why
+    positions, faces, _ = scene_mesh([p.positions for p in result.parts], [p.faces for p in result.parts], frames,
+                                     oriented=True)
+    return Mesh(positions, faces), None
 
 
 def _drop_images_not_arrived(doc: dict, available: int) -> list:

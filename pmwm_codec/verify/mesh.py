@@ -327,7 +327,8 @@ def verify_mesh(mesh, reference_source, key, watermark=None, *, tolerance: float
 
         ref_image, _ = load_watermark(watermark)
 
-    corr = correspondence or correspond(m.positions, m.faces, ref.scene_positions, ref.scene_faces, tolerance=tolerance)
+    corr = correspondence or correspond(m.positions, m.faces, ref.scene_positions, ref.scene_faces,
+                                        tolerance=tolerance)
     pts = np.full((len(ref.scene_positions), 3), np.nan)
     pts[corr.valid] = np.asarray(m.positions, np.float64)[corr.index[corr.valid]]
     order = ref.showing_order(pts)
