@@ -468,12 +468,16 @@ def test_decoding_an_asset_to_obj_writes_the_scene_as_shown(tmp_path, capsys):
     assert main(["encode", str(tmp_path / "a.glb"), "-o", str(tmp_path / "a.pmw"), "--key", str(tmp_path / "k.json"),
                  "--owner-id", "0123456789abcdef", "-q"]) == 0
     capsys.readouterr()
-    assert main(["decode", str(tmp_path / "a.pmw"), "-o", str(tmp_path / "a.obj"), "-q"]) == 0
-    assert capsys.readouterr().err == ""  # placed: nothing to warn about
+    assert main(["decode", str(tmp_path / "a.pmw"), "-o", str(tmp_path / "a.obj"), "--json"]) == 0
+    out = capsys.readouterr()
+    assert out.err == ""  # placed: nothing to warn about
     assert main(["decode", str(tmp_path / "a.pmw"), "-o", str(tmp_path / "d.glb"), "-q"]) == 0
     obj = read_mesh(tmp_path / "a.obj")
     scene = trimesh.load(tmp_path / "d.glb", file_type="glb").to_geometry()
     assert obj.vertex_count == len(scene.vertices) and obj.face_count == len(scene.faces)
+    report = json.loads(out.out)  # the counts of the file written: the torus twice
+    assert (report["vertices"], report["faces"]) == (obj.vertex_count, obj.face_count)
+    assert report["vertices"] == sphere.vertex_count + 2 * torus.vertex_count
     for a, b in ((obj.positions, scene.vertices), (scene.vertices, obj.positions)):  # the same points, within float32
         assert cKDTree(a).query(b)[0].max() < 1e-5
     tri = obj.positions[obj.faces]  # every showing is a closed surface facing out: its signed volume is positive

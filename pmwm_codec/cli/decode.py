@@ -53,15 +53,17 @@ def run(args) -> int:
             glb, end, decoder = decode_asset(UrlSource(args.input) if url else args.input, chunks=args.chunks)
             last, notices = decoder.last, decoder.notices
             write_asset(args.output, glb)
+            counts = (last.vertices, last.faces_count)  # the document's meshes, placed by its nodes
         else:  # a URL read by ranges fetches nothing after chunk N
             decoder = StreamDecoder(copy=False, max_chunks=args.chunks)
             last, end = decode_stream(as_source(args.input, args.chunks), decoder=decoder)
             mesh, why = scene_as_shown(decoder.header.gltf_json if decoder.header is not None else None, last)
             write_mesh(args.output, mesh)
+            counts = (mesh.vertex_count, mesh.face_count)  # what the file holds: a mesh shown twice, twice
             if why is not None:
                 notices.append(f"{why}: the {suffix[1:].upper()} file holds each progressive primitive once, as "
                                "stored, not placed by the scene's nodes; decode to .glb to keep the scene")
-    out = {"vertices": int(last.vertices), "faces": int(last.faces_count), "chunks_applied": int(end.chunks_applied),
+    out = {"vertices": int(counts[0]), "faces": int(counts[1]), "chunks_applied": int(end.chunks_applied),
            "complete": bool(end.complete), "chunks_total": int(end.chunks_total), "truncated": bool(end.truncated),
            "output": args.output, "notices": _chunk_notices(args.chunks, end) + notices}
     if args.json:
