@@ -12,12 +12,17 @@
  * The decoder keeps every vertex's corners as an ascending linked list (head / nxt / tail, as the
  * reference decoder's CornerLists) and every vertex's valence (§8.4.1) from batch to batch, so
  * that a batch costs its mask bits plus the work of its splits, not a pass over the mesh (#lists
- * builds them on a primitive's first chunk and after a face chunk). The mask bits are decoded with
- * the coder's state in locals; each marked vertex lists its incidences (its corner list, in
- * face-slot order) and adds itself to its neighbours' counts (#gather). The topology relists the
- * split and new vertices and appends the new faces' corners (#topology); the valences are updated
- * from the batch's incidences alone (#revalueSplit), or recounted for the vertices whose faces
- * changed after a batch whose splits touch each other's moved faces.
+ * builds them on a primitive's first chunk and after a face chunk). Per batch:
+ * - #mask decodes one bit per vertex; each marked vertex lists its incidences (its corner list,
+ *   in face-slot order: corner, a, b) and adds itself to its neighbours' counts (#gather);
+ * - #splits then takes the splits one by one while their incidences are at hand: the symbols
+ *   (#fanOf, arcStart), the moved corners and the relisting of v and u, the ring sums and normal
+ *   that §8.4.3 reads (#ring: only values of the mesh before the batch), and the valences (the
+ *   arc of a closed fan in O(1), #revalueArc; else from the incidences, #revalueSplit; recounted
+ *   by #recount after a batch whose splits touch each other's moved faces);
+ * - #newFaces appends the new faces (sorted by the corner that creates them) and lists them;
+ * - #values decodes the new values against the kept rings.
+ * Hot loops read only constants of this module (see rangecoder.js: imported ones are not folded).
  *
  * The primitive's chunks from `firstFaceChunk` on are face chunks (§8.6): faces coded against Up(a) /
  * Near(a, b) of the mesh before them, or naming new vertices (fresh, numbered in the order the
@@ -27,7 +32,10 @@
  */
 import { FormatError, LimitError } from './errors.js';
 import { MAX_BATCHES_PER_CHUNK } from './constants.js';
-import { ADAPT_SHIFT, INT_BLOCK, PROB_BITS, PROB_ONE, RangeDecoder, TOP, newProbabilities } from './rangecoder.js';
+import { INT_BLOCK as IMPORTED_INT_BLOCK, RangeDecoder, newProbabilities } from './rangecoder.js';
+
+/** Integer context block size (§8.2), as a constant of this module (see rangecoder.js). */
+const INT_BLOCK = IMPORTED_INT_BLOCK;
 
 // probability table layout (spec §8.3)
 const P_MASK = 0; // 7 * nb + vc
@@ -45,6 +53,11 @@ const GEOMETRY_CLASSES = 32;
 export const N_PROBS = P_INT + (B_ATTRIBUTE + 8) * INT_BLOCK;
 /** Fans of more faces are never simple (their symbols are coded one by one). */
 const MAX_ARC_FAN = 32;
+/** The hash of a fan's corners: 2^FAN_BITS slots (at most half full), multiplicative hashing. */
+const FAN_BITS = 6;
+const FAN_SLOTS = 1 << FAN_BITS;
+const FAN_SHIFT = 32 - FAN_BITS;
+const HASH_MUL = 0x9e3779b1 | 0;
 /** Decoded values must satisfy |x| < 2^31. */
 const MAX_VALUE = 2147483648;
 const TWO32 = 4294967296;
@@ -140,9 +153,12 @@ export class ChunkDecoderV2 {
   constructor(state) {
     this.state = state;
     this.probs = newProbabilities(N_PROBS);
-    this.faceProbs = newProbabilities(FACE_PROBS); // reset for every face chunk (§8.6)
     this.fan = new Int32Array(MAX_ARC_FAN);
-    this.succ = new Int32Array(MAX_ARC_FAN); // the successor of each, -1 for none
+    this.succ = new Int32Array(MAX_ARC_FAN); // the successor of each incidence of a fan, -1 for none
+    this.hasPred = new Uint8Array(MAX_ARC_FAN);
+    this.slotKey = new Int32Array(FAN_SLOTS); // the hash of a fan's corners a (see #fanOf)
+    this.slotOf = new Int32Array(FAN_SLOTS);
+    this.slotEpoch = new Int32Array(FAN_SLOTS);
     this.lens = new Float64Array(2 * MAX_ARC_FAN); // lengths, then scores
     this.sums = new Float64Array(state.D);
     this.frame = new Float64Array(6);
@@ -151,8 +167,13 @@ export class ChunkDecoderV2 {
     this.listsM = -1;
     this.epoch = 0;
     // scratch arrays (see #grow), declared here so that the object keeps one shape
-    for (const name of ['head', 'tail', 'nxt', 'val', 'stamp', 'stamp2', 'v', 'gstart', 'inc', 'a', 'b', 'creators',
-      'wings', 'up', 'near', 'fstart', 'fnames']) this[name] = new Int32Array(0);
+    this.batchId = 0;
+    this.arcFirst = 0; // the arc #symbols decoded last
+    this.arcLength = 0;
+    for (const name of ['head', 'tail', 'nxt', 'val', 'stamp', 'stamp2', 'splitOf', 'v', 'gstart', 'inc', 'a', 'b',
+      'creators', 'wings', 'ringCount', 'ringClass', 'up', 'near', 'fstart', 'fnames']) this[name] = new Int32Array(0);
+    this.ringSums = new Float64Array(0);
+    this.ringNormals = new Float64Array(0);
     this.fresh = 0; // new vertices named so far by the face chunk being decoded
     this.vc = new Uint8Array(0);
     this.cnt = new Uint8Array(0);
@@ -218,7 +239,7 @@ export class ChunkDecoderV2 {
     this.listsN = -1; // the chunk's faces are not listed: the next batch rebuilds the lists
     this.#grow('up', n, Int32Array, capN); // distinct neighbours of a vertex
     this.#grow('near', n, Int32Array, capN);
-    const rc = new RangeDecoder(buf, this.faceProbs.fill(PROB_ONE >> 1));
+    const rc = new RangeDecoder(buf, newProbabilities(FACE_PROBS)); // a fresh table for every face chunk
     const t = vertexCount - n;
     if (!(t >= 0)) throw new FormatError(`face chunk: its index entry's ${vertexCount} vertices are fewer than the mesh's ${n}`);
     const room = Math.min(faceCount, capM) - m; // the entry's face step (never past the declared count)
@@ -414,11 +435,11 @@ export class ChunkDecoderV2 {
     const k = this.#mask(rc, n);
     if (k === 0) throw new FormatError('chunk payload: a batch marks no split vertex');
     if (n + k > st.capN) throw new FormatError('splits exceed the declared vertex count');
-    this.#connectivity(rc, k);
-    const touching = this.#topology(k);
+    const touching = this.#splits(rc, n, k);
+    this.#newFaces(n, k);
+    if (touching) this.#recount(n, k);
     this.#values(rc, n, k);
     st.n = n + k;
-    this.#revalue(n, k, touching);
     this.listsN = st.n;
     this.listsM = st.m;
   }
@@ -456,11 +477,12 @@ export class ChunkDecoderV2 {
     tail[w] = c;
   }
 
-  /** A fresh stamp value (stamp and stamp2 hold values below it). */
+  /** A fresh stamp value (stamp, stamp2 and slotEpoch hold values below it). */
   #nextEpoch() {
     if (this.epoch >= 0x3fffffff) {
       this.stamp.fill(0);
       this.stamp2.fill(0);
+      this.slotEpoch.fill(0);
       this.epoch = 0;
     }
     return ++this.epoch;
@@ -514,9 +536,9 @@ export class ChunkDecoderV2 {
 
   /**
    * §8.4.1: one bit per vertex w < n under the context 7 nb + vc, vc kept per vertex, nb = cnt[w]
-   * (marked distinct neighbours below w, counted up to 2 as the marks are decoded). The coder's
-   * state is held in locals for the loop. Leaves the split vertices in v and their incidences
-   * grouped per split (#gather; split i's are gstart[i] .. gstart[i+1]-1); returns k.
+   * (marked distinct neighbours below w, counted up to 2 as the marks are decoded). Leaves the
+   * split vertices in v and their incidences grouped per split (#gather; split i's are
+   * gstart[i] .. gstart[i+1]-1); returns k.
    */
   #mask(rc, n) {
     const { capN, capM, m } = this.state;
@@ -527,66 +549,61 @@ export class ChunkDecoderV2 {
     const cnt = this.#grow('cnt', n, Uint8Array, capN);
     const { vc } = this;
     cnt.fill(0, 0, n);
-    const { probs, buf, length } = rc;
-    let { range, code, pos } = rc;
     let k = 0;
     let g = 0;
     for (let w = 0; w < n; w++) {
-      const i = 7 * cnt[w] + vc[w];
-      const p = probs[i];
-      const bound = Math.imul(range >>> PROB_BITS, p); // DecodeBit (§8.1) inlined, int32 bit patterns as RangeDecoder
-      if ((code >>> 0) < (bound >>> 0)) {
-        range = bound;
-        probs[i] = p + ((PROB_ONE - p) >> ADAPT_SHIFT);
-      } else {
-        code = (code - bound) | 0;
-        range = (range - bound) | 0;
-        probs[i] = p - (p >> ADAPT_SHIFT);
+      if (rc.bit(7 * cnt[w] + vc[w]) === 1) {
         gstart[k] = g;
         v[k++] = w;
         g = this.#gather(w, g);
       }
-      while ((range >>> 0) < TOP) {
-        range <<= 8;
-        code = (code << 8) | (pos < length ? buf[pos] : 0);
-        pos++;
-      }
     }
     gstart[k] = g;
-    rc.range = range;
-    rc.code = code;
-    rc.pos = pos;
     return k;
   }
 
   /**
-   * Orders split i's incidences g0 .. g0+d-1 into this.fan (spec §8.4.2 "Fan"), comparing their
-   * d <= 32 corners a / b pairwise. Returns 1 closed, 2 open, 0 not simple.
+   * Orders split i's incidences g0 .. g0+d-1 into this.fan (spec §8.4.2 "Fan"). Returns 1 closed,
+   * 2 open, 0 not simple. The a are hashed (FAN_SLOTS slots, linear probing, slots of this fan
+   * marked by an epoch): a repeated a fails at once, and the successor of t is the t2 whose a is
+   * b[t]. With distinct a, a successor named twice means two equal b; any other repeated b (with no
+   * successor) leaves two ends to the walk, which then fails: so the spec's conditions hold
+   * exactly when these checks and the walk pass.
    */
   #fanOf(g0, d) {
-    const { a, b, fan, succ } = this;
-    let same = 0; // -1 for every pair (t, t2) of equal a, and of equal b: -2d when they are pairwise distinct
-    let first = -1;
-    let starts = 0;
-    for (let t = 0; t < d; t++) { // one pass over the pairs, branch-free: successors, starts, repeats
+    const { a, b, fan, succ, hasPred, slotKey, slotOf, slotEpoch } = this;
+    const e = this.#nextEpoch();
+    for (let t = 0; t < d; t++) {
       const x = a[g0 + t];
+      let h = Math.imul(x, HASH_MUL) >>> FAN_SHIFT;
+      for (; slotEpoch[h] === e; h = (h + 1) & (FAN_SLOTS - 1)) if (slotKey[h] === x) return 0;
+      slotEpoch[h] = e;
+      slotKey[h] = x;
+      slotOf[h] = t;
+      hasPred[t] = 0;
+    }
+    for (let t = 0; t < d; t++) { // t2 follows t: its a is the b of t
       const y = b[g0 + t];
       let next = -1;
-      let pred = 0;
-      for (let t2 = 0; t2 < d; t2++) { // ((p ^ q) - 1) >> 31: -1 when p = q, else 0 (ids >= 0)
-        const a2 = a[g0 + t2];
-        const b2 = b[g0 + t2];
-        next ^= (next ^ t2) & (((a2 ^ y) - 1) >> 31); // t2 follows t: its a is the b of t
-        pred |= ((b2 ^ x) - 1) >> 31;
-        same += (((a2 ^ x) - 1) >> 31) + (((b2 ^ y) - 1) >> 31);
+      for (let h = Math.imul(y, HASH_MUL) >>> FAN_SHIFT; slotEpoch[h] === e; h = (h + 1) & (FAN_SLOTS - 1)) {
+        if (slotKey[h] === y) {
+          next = slotOf[h];
+          if (hasPred[next] !== 0) return 0;
+          hasPred[next] = 1;
+          break;
+        }
       }
       succ[t] = next;
-      if (pred === 0) { // t starts the walk when no b equals its a
+    }
+    let first = -1;
+    let starts = 0;
+    for (let t = 0; t < d; t++) { // t starts the walk when no b equals its a
+      if (hasPred[t] === 0) {
         starts++;
         if (first < 0) first = t;
       }
     }
-    if (same !== -2 * d || starts > 1) return 0;
+    if (starts > 1) return 0;
     const kind = starts === 0 ? 1 : 2;
     if (starts === 0) first = 0;
     for (let s = 0, t = first; s < d; s++) {
@@ -603,52 +620,100 @@ export class ChunkDecoderV2 {
   }
 
 
-  /** §8.4.2: the incidence symbols sym (I) of the batch, split by split. */
-  #connectivity(rc, k) {
-    const { gstart, sym, fan, v, a } = this;
-    const { values, D } = this.state;
+  /**
+   * The batch's splits in order (split i's incidences g = gstart[i] .. gstart[i+1]-1: corner
+   * inc[g], corners a[g], b[g] of the mesh before the batch), each while its incidences are at
+   * hand: its symbols (§8.4.2, #symbols); §6.1 step 2, the moved corners to u = n + i, with v's and
+   * u's corner lists relisted; what §8.4.3 reads of its ring (#ring); its valences (#revalueSplit).
+   * Returns whether a moved face holds another split vertex (no batch of independent splits
+   * does): the valences are then recounted once the batch is applied (#recount).
+   */
+  #splits(rc, n, k) {
+    const { faces, capN, D } = this.state;
+    const { inc, a, b, sym, v, gstart } = this;
+    const head = this.#grow('head', n + k, Int32Array, capN, undefined, true);
+    this.#grow('tail', n + k, Int32Array, capN, undefined, true);
+    this.#grow('val', n + k, Int32Array, capN, undefined, true);
+    this.#grow('vc', n + k, Uint8Array, capN, undefined, true);
+    this.#grow('stamp', n + k, Int32Array, capN, 0, true);
+    this.#grow('stamp2', n + k, Int32Array, capN, 0, true);
+    this.#grow('ringSums', k * D, Float64Array, capN * D);
+    this.#grow('ringNormals', 3 * k, Float64Array, 3 * capN);
+    this.#grow('ringCount', k, Int32Array, capN);
+    this.#grow('ringClass', k, Int32Array, capN);
+    const splitOf = this.#grow('splitOf', n, Int32Array, capN, 0, true);
+    const batch = ++this.batchId; // splitOf[x] === batch: x is a split vertex of this batch
+    for (let i = 0; i < k; i++) splitOf[v[i]] = batch;
+    let touching = false;
     for (let i = 0; i < k; i++) {
       const g0 = gstart[i];
-      const d = gstart[i + 1] - g0;
-      const kind = d >= 1 && d <= MAX_ARC_FAN ? this.#fanOf(g0, d) : 0;
-      if (kind === 0 || rc.bit(P_ESCAPE)) {
-        for (let t = 0; t < d; t++) {
-          const x = rc.tree(P_SYMBOL, 3);
-          if (x >= 5) throw new FormatError('chunk payload: unknown incidence symbol');
-          sym[g0 + t] = x;
+      const g1 = gstart[i + 1];
+      const kind = this.#symbols(rc, i, g0, g1 - g0);
+      const u = n + i;
+      const vi = v[i];
+      head[u] = -1;
+      head[vi] = -1;
+      for (let g = g0; g < g1; g++) {
+        const c = inc[g];
+        if (sym[g] === 0) {
+          this.#append(vi, c);
+          continue;
         }
-        continue;
+        if (splitOf[a[g]] === batch || splitOf[b[g]] === batch) touching = true;
+        faces[c] = u;
+        this.#append(u, c);
       }
-      const L = rc.uint(block(B_LENGTH + Math.min(d, 16) - 1), 'an arc length') + 1;
-      if (L > d) throw new FormatError('chunk payload: an arc is longer than its fan');
-      const ncand = kind === 1 ? d : d - L + 1;
-      const r = rc.uint(block(B_RANK + Math.min(ncand, 16) - 1), 'an arc start rank');
-      if (r >= ncand) throw new FormatError('chunk payload: an arc start rank is out of range');
-      const s = arcStart(r, fan, d, ncand, L, a, values, D, v[i], this.lens);
-      const left = kind === 2 && s === 0 ? rc.bit(P_WING) : 1;
-      const right = kind === 2 && s + L === d ? rc.bit(P_WING + 1) : 1;
-      for (let t = 0; t < d; t++) {
-        const q = t >= s ? t - s : t - s + d; // (t - s) mod d
-        sym[fan[t]] = q >= L ? 0 : 1 + (q === 0 ? left : 0) + 2 * (q === L - 1 ? right : 0);
-      }
+      this.#ring(i, g0, g1);
+      if (!touching && !(kind === 1 && this.#revalueArc(i, u, g0, g1 - g0))) this.#revalueSplit(i, u);
     }
+    return touching;
   }
 
   /**
-   * §6.1 steps 2-3: every moved corner becomes u_i; new faces ((u, v, a) left, (v, u, b) right)
-   * are appended in the face-slot order of the incidences that create them (their corners, sorted);
-   * FormatError when they exceed the declared face count or a split creates no new face or more
-   * than two. The corner lists follow: v's and u's are relisted from v's incidences (the moved
-   * corners to u), the new faces' corners appended (above every listed corner). Returns whether a
-   * moved face holds another split vertex (no batch of independent splits does; see #revalue).
+   * §8.4.2: the symbols sym[g0 .. g0+d) of split i's incidences. Returns the fan's kind (1 closed,
+   * 2 open) when they are an arc (its start in this.fan at arcFirst, its length arcLength), else 0.
    */
-  #topology(k) {
+  #symbols(rc, i, g0, d) {
+    const { sym, fan, v, a } = this;
+    const { values, D } = this.state;
+    const kind = d >= 1 && d <= MAX_ARC_FAN ? this.#fanOf(g0, d) : 0;
+    if (kind === 0 || rc.bit(P_ESCAPE)) {
+      for (let t = 0; t < d; t++) {
+        const x = rc.tree(P_SYMBOL, 3);
+        if (x >= 5) throw new FormatError('chunk payload: unknown incidence symbol');
+        sym[g0 + t] = x;
+      }
+      return 0;
+    }
+    const L = rc.uint(block(B_LENGTH + Math.min(d, 16) - 1), 'an arc length') + 1;
+    if (L > d) throw new FormatError('chunk payload: an arc is longer than its fan');
+    const ncand = kind === 1 ? d : d - L + 1;
+    const r = rc.uint(block(B_RANK + Math.min(ncand, 16) - 1), 'an arc start rank');
+    if (r >= ncand) throw new FormatError('chunk payload: an arc start rank is out of range');
+    const s = arcStart(r, fan, d, ncand, L, a, values, D, v[i], this.lens);
+    const left = kind === 2 && s === 0 ? rc.bit(P_WING) : 1;
+    const right = kind === 2 && s + L === d ? rc.bit(P_WING + 1) : 1;
+    for (let t = 0; t < d; t++) {
+      const q = t >= s ? t - s : t - s + d; // (t - s) mod d
+      sym[fan[t]] = q >= L ? 0 : 1 + (q === 0 ? left : 0) + 2 * (q === L - 1 ? right : 0);
+    }
+    this.arcFirst = s;
+    this.arcLength = L;
+    return kind;
+  }
+
+  /**
+   * §6.1 step 3 once every split is decoded: the new faces ((u, v, a) left, (v, u, b) right) are
+   * appended in the face-slot order of the incidences that create them (their corners, sorted),
+   * their corners listed (above every listed corner); FormatError when they exceed the declared
+   * face count or a split creates no new face or more than two.
+   */
+  #newFaces(n, k) {
     const st = this.state;
-    const { faces, capM, capN, n } = st;
-    const { inc, a, b, sym, v, gstart, stamp } = this;
-    const I = gstart[k];
+    const { faces, capM, capN } = st;
+    const { inc, a, b, sym, v, gstart } = this;
     const wings = this.#grow('wings', k, Int32Array, capN);
-    const creators = this.#grow('creators', I, Int32Array, 3 * capM);
+    const creators = this.#grow('creators', gstart[k], Int32Array, 3 * capM);
     let added = 0;
     let nc = 0;
     for (let i = 0; i < k; i++) {
@@ -666,28 +731,7 @@ export class ChunkDecoderV2 {
     for (let i = 0; i < k; i++) {
       if (wings[i] < 1 || wings[i] > 2) throw new FormatError('a split names no new face or more than two');
     }
-    const head = this.#grow('head', n + k, Int32Array, capN, undefined, true);
-    this.#grow('tail', n + k, Int32Array, capN, undefined, true);
     this.#grow('nxt', 3 * (st.m + added), Int32Array, 3 * capM, undefined, true);
-    const e = this.#nextEpoch();
-    for (let i = 0; i < k; i++) stamp[v[i]] = e;
-    let touching = false;
-    for (let i = 0; i < k; i++) {
-      const u = n + i;
-      const vi = v[i];
-      head[u] = -1;
-      head[vi] = -1;
-      for (let g = gstart[i]; g < gstart[i + 1]; g++) {
-        const c = inc[g];
-        if (sym[g] === 0) {
-          this.#append(vi, c);
-          continue;
-        }
-        if (stamp[a[g]] === e || stamp[b[g]] === e) touching = true;
-        faces[c] = u;
-        this.#append(u, c);
-      }
-    }
     const order = creators.subarray(0, nc).sort();
     let f = 3 * st.m;
     for (let r = 0; r < nc; r++) {
@@ -699,7 +743,6 @@ export class ChunkDecoderV2 {
       if (s === 3 || s === 4) f = this.#newFace(f, v[i], n + i, b[g]);
     }
     st.m += added;
-    return touching;
   }
 
   /** Writes the face (x, y, z) at corner f and lists its corners; returns the next face's corner. */
@@ -726,21 +769,11 @@ export class ChunkDecoderV2 {
   }
 
   /**
-   * The valences after a batch (n vertices before it, k splits), from its incidences alone
-   * (#revalueSplit) unless it is `touching` (a moved face holds another split vertex): then every
-   * vertex whose faces changed (the split vertices, the new ones, the corners a, b of their
-   * incidences) is recounted from its corner list.
+   * The valences after a batch (n vertices before it, k splits) whose splits touch each other's
+   * moved faces: every vertex whose faces changed (the split vertices, the new ones, the corners
+   * a, b of their incidences) recounted from its corner list.
    */
-  #revalue(n, k, touching) {
-    const { capN } = this.state;
-    this.#grow('val', n + k, Int32Array, capN, undefined, true);
-    this.#grow('vc', n + k, Uint8Array, capN, undefined, true);
-    this.#grow('stamp', n + k, Int32Array, capN, 0, true);
-    this.#grow('stamp2', n + k, Int32Array, capN, 0, true);
-    if (!touching) {
-      for (let i = 0; i < k; i++) this.#revalueSplit(i, n + i);
-      return;
-    }
+  #recount(n, k) {
     const { v, a, b, gstart } = this;
     for (let g = 0; g < gstart[k]; g++) {
       this.#setValence(a[g], this.#valence(a[g]));
@@ -795,92 +828,171 @@ export class ChunkDecoderV2 {
     this.#setValence(u, cu);
   }
 
+  /**
+   * #revalueSplit for the arc of a closed fan of d faces (the ring vertices r_t = a of fan[t], all
+   * distinct; b of fan[t] is r_(t+1)) whose moved faces r_s .. r_(s+L) hold no split vertex: u's
+   * neighbours are those L + 1 (L < d) or d (L = d) vertices and v; v keeps r_(s+L) .. r_s and
+   * gains u; r_s and r_(s+L) gain u, the others between them swap v for u. False (nothing
+   * changed) when a ring vertex is v itself: #revalueSplit then counts.
+   */
+  #revalueArc(i, u, g0, d) {
+    const { a, v, fan, val } = this;
+    const vi = v[i];
+    for (let g = g0; g < g0 + d; g++) if (a[g] === vi) return false;
+    const s = this.arcFirst;
+    const L = this.arcLength;
+    const rs = a[fan[s]];
+    this.#setValence(rs, val[rs] + 1);
+    if (L < d) {
+      const re = a[fan[s + L < d ? s + L : s + L - d]];
+      this.#setValence(re, val[re] + 1);
+    }
+    this.#setValence(vi, L < d ? d - L + 2 : 2);
+    this.#setValence(u, L < d ? L + 2 : d + 1);
+    return true;
+  }
+
   /** val[w] = valence and vc[w] its class min(max(valence, 3), 9) - 3 (§8.4.1). */
   #setValence(w, valence) {
     this.val[w] = valence;
     this.vc[w] = valence < 3 ? 0 : valence > 9 ? 6 : valence - 3;
   }
 
-  /** §8.4.3: the D values of each new vertex u = n + i, split by split. */
-  #values(rc, n, k) {
+  /**
+   * What §8.4.3 reads of split i's ring (incidences g0 .. g1-1 with their symbols): over the moved
+   * faces and the new ones, S (ringSums[D i ..]), their number c (ringCount[i]), the length class
+   * of the ring (ringClass[i]) and the normal (ringNormals[3 i ..]), from the values of the mesh
+   * before the batch, which the batch leaves as they are.
+   */
+  #ring(i, g0, g1) {
     const { values, D } = this.state;
-    const { gstart, sym, a, b, v, sums: S } = this;
-    for (let i = 0; i < k; i++) {
-      const pv = v[i] * D;
-      S.fill(0);
-      let c = 0;
-      let ell = 0;
-      let nx = 0.0;
-      let ny = 0.0;
-      let nz = 0.0;
-      for (let j = gstart[i]; j < gstart[i + 1]; j++) {
+    const { sym, a, b, v, ringSums: S } = this;
+    const pv = v[i] * D;
+    const vx = values[pv];
+    const vy = values[pv + 1];
+    const vz = values[pv + 2];
+    let sx = 0;
+    let sy = 0;
+    let sz = 0;
+    let c = 0;
+    let ell = 0;
+    let nx = 0.0;
+    let ny = 0.0;
+    let nz = 0.0;
+    for (let j = g0; j < g1; j++) {
+      const s = sym[j];
+      if (s === 0) continue;
+      const pa = a[j] * D;
+      const pb = b[j] * D;
+      const ax = values[pa];
+      const ay = values[pa + 1];
+      const az = values[pa + 2];
+      const bx = values[pb];
+      const by = values[pb + 1];
+      const bz = values[pb + 2];
+      sx += ax + bx;
+      sy += ay + by;
+      sz += az + bz;
+      c++;
+      ell += Math.abs(ax - bx) + Math.abs(ay - by) + Math.abs(az - bz);
+      const e1x = ax - vx;
+      const e1y = ay - vy;
+      const e1z = az - vz;
+      const e2x = bx - vx;
+      const e2y = by - vy;
+      const e2z = bz - vz;
+      nx += e1y * e2z - e1z * e2y;
+      ny += e1z * e2x - e1x * e2z;
+      nz += e1x * e2y - e1y * e2x;
+      if (s >= 2) { // the new faces: (u, v, a) left for symbols 2 and 4, (v, u, b) right for 3 and 4
+        const left = s === 3 ? 0 : 1;
+        const right = s === 2 ? 0 : 1;
+        sx += (left + right) * vx + left * ax + right * bx;
+        sy += (left + right) * vy + left * ay + right * by;
+        sz += (left + right) * vz + left * az + right * bz;
+        c += left + right;
+        ell += left * (Math.abs(vx - ax) + Math.abs(vy - ay) + Math.abs(vz - az))
+          + right * (Math.abs(vx - bx) + Math.abs(vy - by) + Math.abs(vz - bz));
+      }
+    }
+    const o = i * D;
+    S[o] = sx;
+    S[o + 1] = sy;
+    S[o + 2] = sz;
+    if (D > 3) this.#ringAttributes(i, g0, g1);
+    this.ringCount[i] = c;
+    this.ringClass[i] = Math.min(bitLength(Math.floor(ell / c)), GEOMETRY_CLASSES - 1);
+    this.ringNormals[3 * i] = nx;
+    this.ringNormals[3 * i + 1] = ny;
+    this.ringNormals[3 * i + 2] = nz;
+  }
+
+  /** #ring's sums S[q] of the attribute values q = 3 .. D-1. */
+  #ringAttributes(i, g0, g1) {
+    const { values, D } = this.state;
+    const { sym, a, b, v, ringSums: S } = this;
+    const pv = v[i] * D;
+    const o = i * D;
+    for (let q = 3; q < D; q++) {
+      let sq = 0;
+      for (let j = g0; j < g1; j++) {
         const s = sym[j];
         if (s === 0) continue;
-        const pa = a[j] * D;
-        const pb = b[j] * D;
-        for (let q = 0; q < D; q++) S[q] += values[pa + q] + values[pb + q];
-        c++;
-        ell += Math.abs(values[pa] - values[pb]) + Math.abs(values[pa + 1] - values[pb + 1])
-          + Math.abs(values[pa + 2] - values[pb + 2]);
-        const e1x = values[pa] - values[pv];
-        const e1y = values[pa + 1] - values[pv + 1];
-        const e1z = values[pa + 2] - values[pv + 2];
-        const e2x = values[pb] - values[pv];
-        const e2y = values[pb + 1] - values[pv + 1];
-        const e2z = values[pb + 2] - values[pv + 2];
-        nx += e1y * e2z - e1z * e2y;
-        ny += e1z * e2x - e1x * e2z;
-        nz += e1x * e2y - e1y * e2x;
-        for (let w = 0; w < 2; w++) {
-          if (w === 0 ? s !== 2 && s !== 4 : s !== 3 && s !== 4) continue;
-          const po = w === 0 ? pa : pb;
-          for (let q = 0; q < D; q++) S[q] += values[pv + q] + values[po + q];
-          c++;
-          ell += Math.abs(values[pv] - values[po]) + Math.abs(values[pv + 1] - values[po + 1])
-            + Math.abs(values[pv + 2] - values[po + 2]);
-        }
+        const xa = values[a[j] * D + q];
+        const xb = values[b[j] * D + q];
+        sq += xa + xb;
+        if (s >= 2) sq += (s === 4 ? 2 : 1) * values[pv + q] + (s === 3 ? 0 : xa) + (s === 2 ? 0 : xb);
       }
-      this.#vertex(rc, (n + i) * D, pv, c, Math.min(bitLength(Math.floor(ell / c)), GEOMETRY_CLASSES - 1), nx, ny, nz);
+      S[o + q] = sq;
     }
   }
 
   /**
-   * One new vertex at values[pu ..]: the frame prediction of §8.4.3 (float64, in the spec's
-   * order), the two non-dominant axes, the dominant one against the ring plane, then attributes.
+   * §8.4.3: the D values of each new vertex u = n + i, split by split, from its ring (#ring): the
+   * frame prediction (float64, in the spec's order), the two non-dominant axes, the dominant one
+   * against the ring plane, then attributes.
    */
-  #vertex(rc, pu, pv, c, cls, nx, ny, nz) {
+  #values(rc, n, k) {
     const { values, D } = this.state;
-    const S = this.sums;
-    const two = 2 * c;
-    const m0 = S[0] / two;
-    const m1 = S[1] / two;
-    const m2 = S[2] / two;
-    const nn = (nx * nx + ny * ny) + nz * nz;
-    let p0 = m0;
-    let p1 = m1;
-    let p2 = m2;
-    let dom = 2;
-    if (nn > 0) {
-      const h = (((values[pv] - m0) * nx + (values[pv + 1] - m1) * ny) + (values[pv + 2] - m2) * nz) / nn;
-      p0 = m0 + h * nx;
-      p1 = m1 + h * ny;
-      p2 = m2 + h * nz;
-      const ax = Math.abs(nx);
-      const ay = Math.abs(ny);
-      const az = Math.abs(nz);
-      dom = ax >= ay && ax >= az ? 0 : ay >= az ? 1 : 2;
-    }
-    const i0 = dom === 0 ? 1 : 0;
-    const i1 = dom === 2 ? 1 : 2;
+    const { v, ringSums: S, ringNormals, ringCount, ringClass } = this;
     const ph = this.frame; // ph[0..3), then the normal at [3..6)
-    ph[0] = p0; ph[1] = p1; ph[2] = p2; ph[3] = nx; ph[4] = ny; ph[5] = nz;
-    const base = block(B_GEOMETRY + 3 * cls);
-    const x0 = this.#put(rc, pu + i0, round(ph[i0]), base);
-    const x1 = this.#put(rc, pu + i1, round(ph[i1]), base + INT_BLOCK);
-    const pk = nn > 0 ? ph[dom] - ((x0 - ph[i0]) * ph[3 + i0] + (x1 - ph[i1]) * ph[3 + i1]) / ph[3 + dom] : ph[dom];
-    this.#put(rc, pu + dom, round(pk), base + 2 * INT_BLOCK);
-    for (let q = 3; q < D; q++) {
-      this.#put(rc, pu + q, Math.floor(S[q] / two), block(B_ATTRIBUTE + Math.min(q - 3, 7)));
+    for (let i = 0; i < k; i++) {
+      const pu = (n + i) * D;
+      const pv = v[i] * D;
+      const o = i * D;
+      const nx = ringNormals[3 * i];
+      const ny = ringNormals[3 * i + 1];
+      const nz = ringNormals[3 * i + 2];
+      const two = 2 * ringCount[i];
+      const m0 = S[o] / two;
+      const m1 = S[o + 1] / two;
+      const m2 = S[o + 2] / two;
+      const nn = (nx * nx + ny * ny) + nz * nz;
+      let p0 = m0;
+      let p1 = m1;
+      let p2 = m2;
+      let dom = 2;
+      if (nn > 0) {
+        const h = (((values[pv] - m0) * nx + (values[pv + 1] - m1) * ny) + (values[pv + 2] - m2) * nz) / nn;
+        p0 = m0 + h * nx;
+        p1 = m1 + h * ny;
+        p2 = m2 + h * nz;
+        const ax = Math.abs(nx);
+        const ay = Math.abs(ny);
+        const az = Math.abs(nz);
+        dom = ax >= ay && ax >= az ? 0 : ay >= az ? 1 : 2;
+      }
+      const i0 = dom === 0 ? 1 : 0;
+      const i1 = dom === 2 ? 1 : 2;
+      ph[0] = p0; ph[1] = p1; ph[2] = p2; ph[3] = nx; ph[4] = ny; ph[5] = nz;
+      const base = block(B_GEOMETRY + 3 * ringClass[i]);
+      const x0 = this.#put(rc, pu + i0, round(ph[i0]), base);
+      const x1 = this.#put(rc, pu + i1, round(ph[i1]), base + INT_BLOCK);
+      const pk = nn > 0 ? ph[dom] - ((x0 - ph[i0]) * ph[3 + i0] + (x1 - ph[i1]) * ph[3 + i1]) / ph[3 + dom] : ph[dom];
+      this.#put(rc, pu + dom, round(pk), base + 2 * INT_BLOCK);
+      for (let q = 3; q < D; q++) {
+        this.#put(rc, pu + q, Math.floor(S[o + q] / two), block(B_ATTRIBUTE + Math.min(q - 3, 7)));
+      }
     }
   }
 
