@@ -51,6 +51,8 @@ const B_ATTRIBUTE = 129; // + min(j, 7)
 const GEOMETRY_CLASSES = 32;
 /** Size of a primitive's probability table: 32 single probabilities, 137 integer blocks. */
 export const N_PROBS = P_INT + (B_ATTRIBUTE + 8) * INT_BLOCK;
+/** The bit of a split vertex in the mask's counts (cnt, which count marks up to 2). */
+const SPLIT = 4;
 /** Fans of more faces are never simple (their symbols are coded one by one). */
 const MAX_ARC_FAN = 32;
 /** The hash of a fan's corners: 2^FAN_BITS slots (at most half full), multiplicative hashing. */
@@ -167,11 +169,10 @@ export class ChunkDecoderV2 {
     this.listsM = -1;
     this.epoch = 0;
     // scratch arrays (see #grow), declared here so that the object keeps one shape
-    this.batchId = 0;
     this.arcFirst = 0; // the arc #symbols decoded last
     this.arcLength = 0;
-    for (const name of ['head', 'tail', 'nxt', 'val', 'stamp', 'stamp2', 'splitOf', 'v', 'gstart', 'inc', 'a', 'b',
-      'creators', 'wings', 'ringCount', 'ringClass', 'up', 'near', 'fstart', 'fnames']) this[name] = new Int32Array(0);
+    for (const name of ['head', 'tail', 'nxt', 'val', 'stamp', 'stamp2', 'v', 'gstart', 'inc', 'a', 'b', 'creators',
+      'creatorOf', 'wings', 'ringCount', 'ringClass', 'up', 'near', 'fstart', 'fnames']) this[name] = new Int32Array(0);
     this.ringSums = new Float64Array(0);
     this.ringNormals = new Float64Array(0);
     this.fresh = 0; // new vertices named so far by the face chunk being decoded
@@ -522,7 +523,7 @@ export class ChunkDecoderV2 {
       inc[g] = c;
       a[g] = x;
       b[g] = y;
-      if (x > w && stamp[x] !== e) {
+      if (x > w && stamp[x] !== e) { // x is not marked yet: no SPLIT bit
         stamp[x] = e;
         if (cnt[x] < 2) cnt[x]++;
       }
@@ -553,6 +554,7 @@ export class ChunkDecoderV2 {
     let g = 0;
     for (let w = 0; w < n; w++) {
       if (rc.bit(7 * cnt[w] + vc[w]) === 1) {
+        cnt[w] |= SPLIT; // read by #splits; the contexts of the vertices after w never read it
         gstart[k] = g;
         v[k++] = w;
         g = this.#gather(w, g);
@@ -641,9 +643,7 @@ export class ChunkDecoderV2 {
     this.#grow('ringNormals', 3 * k, Float64Array, 3 * capN);
     this.#grow('ringCount', k, Int32Array, capN);
     this.#grow('ringClass', k, Int32Array, capN);
-    const splitOf = this.#grow('splitOf', n, Int32Array, capN, 0, true);
-    const batch = ++this.batchId; // splitOf[x] === batch: x is a split vertex of this batch
-    for (let i = 0; i < k; i++) splitOf[v[i]] = batch;
+    const { cnt } = this; // cnt[x] & SPLIT: x is a split vertex of the batch (#mask)
     let touching = false;
     for (let i = 0; i < k; i++) {
       const g0 = gstart[i];
@@ -659,7 +659,7 @@ export class ChunkDecoderV2 {
           this.#append(vi, c);
           continue;
         }
-        if (splitOf[a[g]] === batch || splitOf[b[g]] === batch) touching = true;
+        if (((cnt[a[g]] | cnt[b[g]]) & SPLIT) !== 0) touching = true;
         faces[c] = u;
         this.#append(u, c);
       }
@@ -713,16 +713,22 @@ export class ChunkDecoderV2 {
     const { faces, capM, capN } = st;
     const { inc, a, b, sym, v, gstart } = this;
     const wings = this.#grow('wings', k, Int32Array, capN);
-    const creators = this.#grow('creators', gstart[k], Int32Array, 3 * capM);
+    const creators = this.#grow('creators', gstart[k], Int32Array, 3 * capM); // 2 c + j, j-th of its split
+    const creatorOf = this.#grow('creatorOf', 2 * k, Int32Array, 2 * capN); // split i's j-th at 2 i + j
     let added = 0;
     let nc = 0;
     for (let i = 0; i < k; i++) {
       let w = 0;
+      let j = 0;
       for (let g = gstart[i]; g < gstart[i + 1]; g++) {
         const s = sym[g];
         if (s < 2) continue;
         w += s === 4 ? 2 : 1;
-        creators[nc++] = inc[g];
+        if (j < 2) { // a third makes more than two new faces: refused below
+          creatorOf[2 * i + j] = g;
+          creators[nc++] = 2 * inc[g] + j;
+        }
+        j++;
       }
       wings[i] = w;
       added += w;
@@ -735,9 +741,8 @@ export class ChunkDecoderV2 {
     const order = creators.subarray(0, nc).sort();
     let f = 3 * st.m;
     for (let r = 0; r < nc; r++) {
-      const c = order[r];
-      const i = faces[c] - n; // a creating corner is a moved one: it now holds u_i
-      const g = this.#incidenceOf(c, gstart[i], gstart[i + 1]);
+      const i = faces[order[r] >> 1] - n; // a creating corner is a moved one: it now holds u_i
+      const g = creatorOf[2 * i + (order[r] & 1)];
       const s = sym[g];
       if (s === 2 || s === 4) f = this.#newFace(f, n + i, v[i], a[g]);
       if (s === 3 || s === 4) f = this.#newFace(f, v[i], n + i, b[g]);
@@ -753,19 +758,6 @@ export class ChunkDecoderV2 {
     this.#append(y, f + 1);
     this.#append(z, f + 2);
     return f + 3;
-  }
-
-  /** The incidence g in [g0, g1) whose corner is c (inc ascending there). */
-  #incidenceOf(c, g0, g1) {
-    const { inc } = this;
-    let lo = g0;
-    let hi = g1 - 1;
-    while (lo < hi) {
-      const mid = (lo + hi) >> 1;
-      if (inc[mid] < c) lo = mid + 1;
-      else hi = mid;
-    }
-    return lo;
   }
 
   /**
