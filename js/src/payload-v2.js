@@ -168,11 +168,11 @@ export class ChunkDecoderV2 {
     this.listsN = -1;
     this.listsM = -1;
     this.epoch = 0;
-    // scratch arrays (see #grow), declared here so that the object keeps one shape
     this.arcFirst = 0; // the arc #symbols decoded last
     this.arcLength = 0;
-    for (const name of ['head', 'tail', 'nxt', 'val', 'stamp', 'stamp2', 'v', 'gstart', 'inc', 'a', 'b', 'creators',
-      'creatorOf', 'wings', 'ringCount', 'ringClass', 'up', 'near', 'fstart', 'fnames']) this[name] = new Int32Array(0);
+    // scratch arrays (see #grow), declared here so that the object keeps one shape
+    for (const name of ['head', 'tail', 'nxt', 'val', 'stamp', 'stamp2', 'v', 'gstart', 'inc', 'a', 'b', 'creatorOf',
+      'created', 'wings', 'ringCount', 'ringClass', 'up', 'near', 'fstart', 'fnames']) this[name] = new Int32Array(0);
     this.ringSums = new Float64Array(0);
     this.ringNormals = new Float64Array(0);
     this.fresh = 0; // new vertices named so far by the face chunk being decoded
@@ -704,19 +704,20 @@ export class ChunkDecoderV2 {
 
   /**
    * §6.1 step 3 once every split is decoded: the new faces ((u, v, a) left, (v, u, b) right) are
-   * appended in the face-slot order of the incidences that create them (their corners, sorted),
-   * their corners listed (above every listed corner); FormatError when they exceed the declared
-   * face count or a split creates no new face or more than two.
+   * appended in the face-slot order of the incidences that create them, their corners listed
+   * (above every listed corner); FormatError when they exceed the declared face count or a split
+   * creates no new face or more than two. The creating corners are put in order by a bitmap over
+   * the corners (one bit a corner: a 32nd of a pass over the faces, less than the mask's).
    */
   #newFaces(n, k) {
     const st = this.state;
     const { faces, capM, capN } = st;
     const { inc, a, b, sym, v, gstart } = this;
     const wings = this.#grow('wings', k, Int32Array, capN);
-    const creators = this.#grow('creators', gstart[k], Int32Array, 3 * capM); // 2 c + j, j-th of its split
-    const creatorOf = this.#grow('creatorOf', 2 * k, Int32Array, 2 * capN); // split i's j-th at 2 i + j
+    const creatorOf = this.#grow('creatorOf', 2 * k, Int32Array, 2 * capN); // split i's creating incidences
+    const words = (3 * st.m + 31) >>> 5;
+    const created = this.#grow('created', words, Int32Array, (3 * capM + 31) >>> 5).fill(0, 0, words);
     let added = 0;
-    let nc = 0;
     for (let i = 0; i < k; i++) {
       let w = 0;
       let j = 0;
@@ -724,11 +725,8 @@ export class ChunkDecoderV2 {
         const s = sym[g];
         if (s < 2) continue;
         w += s === 4 ? 2 : 1;
-        if (j < 2) { // a third makes more than two new faces: refused below
-          creatorOf[2 * i + j] = g;
-          creators[nc++] = 2 * inc[g] + j;
-        }
-        j++;
+        if (j < 2) creatorOf[2 * i + j++] = g; // a third makes more than two new faces: refused below
+        created[inc[g] >>> 5] |= 1 << (inc[g] & 31);
       }
       wings[i] = w;
       added += w;
@@ -738,14 +736,16 @@ export class ChunkDecoderV2 {
       if (wings[i] < 1 || wings[i] > 2) throw new FormatError('a split names no new face or more than two');
     }
     this.#grow('nxt', 3 * (st.m + added), Int32Array, 3 * capM, undefined, true);
-    const order = creators.subarray(0, nc).sort();
     let f = 3 * st.m;
-    for (let r = 0; r < nc; r++) {
-      const i = faces[order[r] >> 1] - n; // a creating corner is a moved one: it now holds u_i
-      const g = creatorOf[2 * i + (order[r] & 1)];
-      const s = sym[g];
-      if (s === 2 || s === 4) f = this.#newFace(f, n + i, v[i], a[g]);
-      if (s === 3 || s === 4) f = this.#newFace(f, v[i], n + i, b[g]);
+    for (let word = 0; word < words; word++) {
+      for (let bits = created[word]; bits !== 0; bits &= bits - 1) {
+        const c = 32 * word + 31 - Math.clz32(bits & -bits); // the corners in order
+        const i = faces[c] - n; // a creating corner is a moved one: it now holds u_i
+        const g = inc[creatorOf[2 * i]] === c ? creatorOf[2 * i] : creatorOf[2 * i + 1];
+        const s = sym[g];
+        if (s === 2 || s === 4) f = this.#newFace(f, n + i, v[i], a[g]);
+        if (s === 3 || s === 4) f = this.#newFace(f, v[i], n + i, b[g]);
+      }
     }
     st.m += added;
   }
