@@ -14,13 +14,15 @@
  * that a batch costs its mask bits plus the work of its splits, not a pass over the mesh (#lists
  * builds them on a primitive's first chunk and after a face chunk). Per batch:
  * - #mask decodes one bit per vertex; each marked vertex lists its incidences (its corner list,
- *   in face-slot order: corner, a, b) and adds itself to its neighbours' counts (#gather);
+ *   in face-slot order: corner, a, b, and the length to a that ranks arc starts) and adds itself
+ *   to its neighbours' counts (#gather);
  * - #splits then takes the splits one by one while their incidences are at hand: the symbols
  *   (#fanOf, arcStart), the moved corners and the relisting of v and u, the ring sums and normal
  *   that §8.4.3 reads (#ring: only values of the mesh before the batch), and the valences (the
  *   arc of a closed fan in O(1), #revalueArc; else from the incidences, #revalueSplit; recounted
  *   by #recount after a batch whose splits touch each other's moved faces);
- * - #newFaces appends the new faces (sorted by the corner that creates them) and lists them;
+ * - #newFaces appends the new faces (in the order of the corners that create them, read from a
+ *   bitmap over the corners) and lists them;
  * - #values decodes the new values against the kept rings.
  * Hot loops read only constants of this module (see rangecoder.js: imported ones are not folded).
  *
@@ -716,18 +718,17 @@ export class ChunkDecoderV2 {
     const { faces, capM, capN } = st;
     const { inc, a, b, sym, v, gstart } = this;
     const wings = this.#grow('wings', k, Int32Array, capN);
-    const creatorOf = this.#grow('creatorOf', 2 * k, Int32Array, 2 * capN); // split i's creating incidences
+    const creatorOf = this.#grow('creatorOf', 3 * st.m, Int32Array, 3 * capM); // the incidence of a creating corner
     const words = (3 * st.m + 31) >>> 5;
     const created = this.#grow('created', words, Int32Array, (3 * capM + 31) >>> 5).fill(0, 0, words);
     let added = 0;
     for (let i = 0; i < k; i++) {
       let w = 0;
-      let j = 0;
       for (let g = gstart[i]; g < gstart[i + 1]; g++) {
         const s = sym[g];
         if (s < 2) continue;
         w += s === 4 ? 2 : 1;
-        if (j < 2) creatorOf[2 * i + j++] = g; // a third makes more than two new faces: refused below
+        creatorOf[inc[g]] = g;
         created[inc[g] >>> 5] |= 1 << (inc[g] & 31);
       }
       wings[i] = w;
@@ -743,7 +744,7 @@ export class ChunkDecoderV2 {
       for (let bits = created[word]; bits !== 0; bits &= bits - 1) {
         const c = 32 * word + 31 - Math.clz32(bits & -bits); // the corners in order
         const i = faces[c] - n; // a creating corner is a moved one: it now holds u_i
-        const g = inc[creatorOf[2 * i]] === c ? creatorOf[2 * i] : creatorOf[2 * i + 1];
+        const g = creatorOf[c];
         const s = sym[g];
         if (s === 2 || s === 4) f = this.#newFace(f, n + i, v[i], a[g]);
         if (s === 3 || s === 4) f = this.#newFace(f, v[i], n + i, b[g]);
