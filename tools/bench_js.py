@@ -8,6 +8,9 @@ column), then run ``node js/bench/bench.mjs`` (one warm-up each, then REPEATS al
 
     python tools/bench_js.py [--big | --huge] [--repeats N] [--payload-version {1,2}] [--write BENCHMARKS.md]
 
+``--payload-version`` defaults to 2, what ``pmw encode`` writes; each version's run replaces its own
+section of BENCHMARKS.md (``SECTIONS``).
+
 Meshes: ``stanford-bunny.obj`` from ``../shared/corpus`` and, with ``--big``, the bunny
 midpoint-subdivided twice (556k vertices), as in tools/bench.py; ``--huge`` adds two copies
 of that side by side (1.11M vertices).  Needs node and ``npm ci --prefix js``.
@@ -33,7 +36,8 @@ sys.path.insert(0, str(ROOT))
 import pmwm_codec  # noqa: E402
 from tools.bench import load_meshes, ms, publish, table  # noqa: E402
 
-SECTION = "JavaScript decoder"
+#: The section each chunk payload version's run replaces (version 2 is what ``pmw encode`` writes).
+SECTIONS = {1: "JavaScript decoder", 2: "JavaScript decoder: payload version 2 (the default)"}
 
 
 def run_mesh(name: str, mesh, repeats: int, tmp: Path, payload_version: int = 1) -> dict:
@@ -73,7 +77,7 @@ def render_stages(results: list) -> str:
     return table(["stage", "what"] + [r["name"] for r in results], rows)
 
 
-def render(results: list, command: str, load: float) -> str:
+def render(results: list, command: str, load: float, payload_version: int) -> str:
     rows = []
     for r in results:
         ours, draco = statistics.median(r["pmw"]), statistics.median(r["draco"])
@@ -94,8 +98,9 @@ def render(results: list, command: str, load: float) -> str:
         "compare the ratio within a row, not absolute times.",
         "",
         "What is timed (medians; one warm-up run each first, module instantiation not timed): "
-        "`decodePmw(bytes)` of the whole grid-14 .pmw in memory (js/: GLB plan, Draco base through draco3d, "
-        "BLAKE2b digests, zstd, every split) vs draco3d's `DecodeBufferToMesh` of "
+        f"`decodePmw(bytes)` of the whole grid-14 .pmw (chunk payload version {payload_version}) in memory (js/: GLB "
+        "plan, Draco base through draco3d, BLAKE2b digests, "
+        f"{'zstd' if payload_version == 1 else 'the range-coded chunks'}, every split) vs draco3d's `DecodeBufferToMesh` of "
         "`DracoPy.encode(points, faces, quantization_bits=14, compression_level=7)` of the full mesh, positions "
         "and indices copied out. Done-when 3 of issue 15 asks for at most 3x.",
         "",
@@ -119,13 +124,15 @@ def main() -> None:
     ap.add_argument("--huge", action="store_true",
                     help="also two copies of the subdivided bunny side by side (1.11M vertices; implies --big)")
     ap.add_argument("--repeats", type=int, default=7)
-    ap.add_argument("--payload-version", type=int, choices=(1, 2), default=1,
-                    help="chunk payload version of the encoded .pmw (spec/bitstream.md §6 or §8)")
-    ap.add_argument("--write", metavar="PATH", help=f"replace the '{SECTION}' section of this Markdown file")
+    ap.add_argument("--payload-version", type=int, choices=(1, 2), default=2,
+                    help="chunk payload version of the encoded .pmw (spec/bitstream.md §6 or §8; default 2, what "
+                         "pmw encode writes)")
+    ap.add_argument("--write", metavar="PATH", help="replace this payload version's section of this Markdown file "
+                                                    f"({' / '.join(repr(s) for s in SECTIONS.values())})")
     args = ap.parse_args()
     args.big = args.big or args.huge
     command = "python tools/bench_js.py" + (" --huge" if args.huge else " --big" if args.big else "") + (
-        f" --repeats {args.repeats}") + (f" --payload-version {args.payload_version}" if args.payload_version != 1 else "") + (
+        f" --repeats {args.repeats}") + f" --payload-version {args.payload_version}" + (
         f" --write {args.write}" if args.write else "")
     load = os.getloadavg()[0]
     print(f"load average at start: {load:.2f}", file=sys.stderr)
@@ -134,7 +141,8 @@ def main() -> None:
         for name, mesh in load_meshes(args.corpus, args.big, args.huge):
             results.append(run_mesh(name, mesh, args.repeats if mesh.vertex_count < 200_000 else 3, Path(tmp),
                                     args.payload_version))
-    publish(render(results, command, load), args.write, SECTION, lambda msg: print(msg, file=sys.stderr))
+    publish(render(results, command, load, args.payload_version), args.write, SECTIONS[args.payload_version],
+            lambda msg: print(msg, file=sys.stderr))
 
 
 if __name__ == "__main__":
