@@ -313,3 +313,21 @@ def test_a_legacy_golden_file_still_reads_its_image_but_is_never_authentic():
     assert v.binding == "" and v.as_json()["binding"] is None
     assert np.array_equal(v.results[-1].watermark, key.reference)
     assert v.verdict == "not-authentic" and v.mac["missing"] and any("no MAC" in n for n in v.mac_notes())
+
+
+@pytest.mark.parametrize("matches, read, bits", [(0, 40, 5), (1, 40, 5), (3, 40, 5), (12, 40, 5), (40, 40, 5),
+                                                 (41, 40, 5), (7, 1000, 1), (520, 1000, 1), (160, 3000, 5),
+                                                 (3000, 3000, 5), (60, 2000, 6)])
+def test_the_chance_tail_is_the_binomial_upper_tail(matches, read, bits):
+    """P(at least ``matches`` of ``read`` codes match by chance), against the tail summed exactly
+    in rationals: the verdict's threshold (1e-9) is crossed where the exact tail crosses it."""
+    from fractions import Fraction
+    from math import comb
+
+    from pmwm_codec.watermark.verify import chance_tail
+
+    q = 2**bits - 1  # P(one code matches) = 1 / 2**bits
+    exact = float(Fraction(sum(comb(read, i) * q ** (read - i) for i in range(max(matches, 0), read + 1)),
+                           2 ** (bits * read)))
+    got = chance_tail(matches, read, bits)
+    assert got == pytest.approx(exact, rel=1e-9, abs=1e-300)
