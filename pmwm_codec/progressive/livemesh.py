@@ -100,13 +100,15 @@ def _boundary_kernel(faces, n):
 @kernel_helper(allocates=True)
 def _compact_kernel(corners, face_alive, vert_alive):
     """Kernel part of :func:`_live_mesh_kernel`: ``(vids, fids, loc, F)`` as in :class:`LiveMesh`."""
-    loc = np.full(len(vert_alive), -1, np.int64)
+    loc = np.empty(len(vert_alive), np.int64)
+    vids = np.empty(len(vert_alive), np.int64)
     n = 0
     for x in range(len(vert_alive)):
+        loc[x] = n if vert_alive[x] else -1
         if vert_alive[x]:
-            loc[x] = n
+            vids[n] = x
             n += 1
-    vids = np.flatnonzero(vert_alive).astype(np.int64)
+    vids = vids[:n]
     fids = np.flatnonzero(face_alive).astype(np.int64)
     F = np.empty((len(fids), 3), np.int64)
     for i in range(len(fids)):
@@ -194,7 +196,7 @@ def _edges_by_vertex(F, n, vf_start, vf_corner, ring):
             he1[ne] = bh[s + 1] if j - s >= 2 else -1
             down[by[s]] += 1
             ne += 1
-    return lo[:ne].copy(), hi[:ne].copy(), count[:ne].copy(), he0[:ne].copy(), he1[:ne].copy(), he_edge, down
+    return lo[:ne], hi[:ne], count[:ne], he0[:ne], he1[:ne], he_edge, down  # views: no copy of e entries
 
 
 def _live_mesh_kernel(corners, face_alive, vert_alive):
