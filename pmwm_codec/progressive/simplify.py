@@ -295,11 +295,12 @@ def simplify(
     log = CollapseLog(n, m, None, None, None, [])
 
     alive_count = int(vert_alive.sum())
+    live = None
     for _ in range(max_batches):
         if alive_count <= target_vertices:
             break
-        batch = _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, alive_count - target_vertices,
-                           weld, twin)
+        live = live_mesh(corners, face_alive, vert_alive, live)
+        batch = _one_batch(pos, live, quad, frozen_ext, alive_count - target_vertices, weld, twin)
         if batch is None:
             break
         _apply(batch, corners, face_alive, vert_alive, quad)
@@ -346,17 +347,15 @@ def _apply_kernel(u, v, del_left, del_right, moved_face, moved_by, corners, face
                 corners[f, c] = v[i]
 
 
-def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget, weld=None, twin=None):
+def _one_batch(pos, live, quad, frozen_ext, budget, weld=None, twin=None):
     """Choose and describe one batch of independent legal collapses (or None).
 
-    pos (n, 3) float64, corners (m, 3) int64, face_alive (m,) bool, vert_alive (n,) bool,
-    quad (n, 10) float64 and frozen_ext (n,) bool are the simplifier's state in original
-    ids; at most ``budget`` vertices are removed (the cheapest collapses).  ``weld`` (n,)
-    int64 or None: seam copies (see :func:`simplify`).  The work is done on the live mesh
-    renumbered compactly ("local" ids) and returned in original ids.  ``twin`` (m,) bool or None:
-    the doubled faces (:func:`twin_faces`).
+    pos (n, 3) float64, quad (n, 10) float64 and frozen_ext (n,) bool are the simplifier's state in
+    original ids, ``live`` the :class:`~.livemesh.LiveMesh` of its live faces; at most ``budget``
+    vertices are removed (the cheapest collapses).  ``weld`` (n,) int64 or None: seam copies (see
+    :func:`simplify`).  The work is done on the live mesh renumbered compactly ("local" ids) and
+    returned in original ids.  ``twin`` (m,) bool or None: the doubled faces (:func:`twin_faces`).
     """
-    live = live_mesh(corners, face_alive, vert_alive)
     vids, fids, loc, F, et, vv, vf, fcount = (live.vids, live.fids, live.loc, live.F, live.et, live.vv, live.vf,
                                               live.fcount)
     vv_edge = live.vv_edge
