@@ -133,11 +133,13 @@ class CollapseLog:
     batches: list = field(default_factory=list)  # CollapseBatch, in collapse order (fine -> coarse)
 
 
-def face_quadrics(pos: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
+def face_quadrics(pos: np.ndarray, faces: np.ndarray, n: int, boundary: np.ndarray | None = None) -> np.ndarray:
     """Per-vertex quadrics (n, 10) float64: area-weighted face planes plus boundary planes.
 
     The 10 entries are the upper triangle of the symmetric 4x4 quadric
     ``[a2, ab, ac, ad, b2, bc, bd, c2, cd, d2]`` of planes ``ax + by + cz + d = 0``.
+    ``boundary``: :func:`~.livemesh.boundary_half_edges` of ``faces`` when the caller has them
+    (the simplifier, from its first live mesh); found here otherwise.
     """
     p0, p1, p2 = pos[faces[:, 0]], pos[faces[:, 1]], pos[faces[:, 2]]
     nrm = np.cross(p1 - p0, p2 - p0)
@@ -153,7 +155,7 @@ def face_quadrics(pos: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
         out = kernel(faces, planes, 0.5 * area2, n)
 
     # boundary edges: a plane through the edge, perpendicular to its face
-    he = boundary_half_edges(faces, n)
+    he = boundary_half_edges(faces, n) if boundary is None else boundary
     if len(he):
         src, dst, _ = half_edges(faces)
         a_, b_ = src[he], dst[he]
@@ -288,18 +290,19 @@ def simplify(
     face_alive = np.ones(m, dtype=bool)
     vert_alive = np.zeros(n, dtype=bool)
     vert_alive[corners.ravel()] = True
-    quad = face_quadrics(pos, corners, n)
+    live = live_mesh(corners, face_alive, vert_alive)  # the first batch's; every face alive, so its half-edges
+    quad = face_quadrics(pos, corners, n, live.et.he0[live.et.count == 1])  # are the input's
     frozen_ext = np.zeros(n, bool) if locked is None else np.asarray(locked, bool).copy()
     twin = twin_faces(corners)
     twin = twin if twin.any() else None
     log = CollapseLog(n, m, None, None, None, [])
 
     alive_count = int(vert_alive.sum())
-    live = None
-    for _ in range(max_batches):
+    for b in range(max_batches):
         if alive_count <= target_vertices:
             break
-        live = live_mesh(corners, face_alive, vert_alive, live)
+        if b:
+            live = live_mesh(corners, face_alive, vert_alive, live)
         batch = _one_batch(pos, live, quad, frozen_ext, alive_count - target_vertices, weld, twin)
         if batch is None:
             break
