@@ -228,6 +228,34 @@ def test_the_live_mesh_is_the_same_on_both_paths(monkeypatch, name):
 
 
 @pytest.mark.parametrize("name", sorted(_ODD_MESHES))
+@pytest.mark.parametrize("use", [False, True], ids=["numpy", "compiled"])
+def test_the_live_mesh_from_the_previous_one_is_the_fresh_one(monkeypatch, name, use):
+    """``live_mesh(..., prev)`` (the simplifier's batches: ids filtered, ``loc`` updated in place) gives the
+    arrays a fresh build gives, after faces and vertices die."""
+    from pmwm_codec.progressive.livemesh import live_mesh
+
+    if use:
+        pytest.importorskip("numba")
+    monkeypatch.setattr(topology, "USE_NUMBA", use)
+    mesh = _ODD_MESHES[name]
+    faces = np.asarray(mesh.faces, np.int64)
+    face_alive = np.ones(mesh.face_count, bool)
+    rng = np.random.default_rng(2)
+    prev = None
+    for _ in range(3):
+        vert_alive = np.zeros(mesh.vertex_count, bool)
+        vert_alive[faces[face_alive].ravel()] = True
+        chained = live_mesh(faces, face_alive, vert_alive, prev)
+        fresh = live_mesh(faces, face_alive, vert_alive)
+        for field in ("vids", "fids", "loc", "F", "vv_edge", "fcount"):
+            assert np.array_equal(getattr(chained, field), getattr(fresh, field)), field
+        for a, b in zip(chained.vv + chained.vf, fresh.vv + fresh.vf):
+            assert np.array_equal(a, b)
+        prev = chained
+        face_alive &= rng.random(mesh.face_count) < 0.8
+
+
+@pytest.mark.parametrize("name", sorted(_ODD_MESHES))
 def test_the_candidate_collapses_are_the_same_on_both_paths(monkeypatch, name):
     """Same candidates in the same order, ties (small integer quadrics) and NaN costs included."""
     pytest.importorskip("numba")

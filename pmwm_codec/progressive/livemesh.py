@@ -56,18 +56,30 @@ class LiveMesh:
     fcount: np.ndarray
 
 
-def live_mesh(corners: np.ndarray, face_alive: np.ndarray, vert_alive: np.ndarray) -> LiveMesh:
+def live_mesh(corners: np.ndarray, face_alive: np.ndarray, vert_alive: np.ndarray,
+              prev: LiveMesh | None = None) -> LiveMesh:
     """:class:`LiveMesh` of the faces ``corners`` (M, 3) int64 with ``face_alive`` (M,) bool over the
-    vertices with ``vert_alive`` (N,) bool (every corner of a live face is a live vertex)."""
+    vertices with ``vert_alive`` (N,) bool (every corner of a live face is a live vertex).
+
+    ``prev``: the :class:`LiveMesh` of an earlier state of the same mesh (the previous batch's: every live
+    vertex and face now was live then).  Its ``vids`` and ``fids`` are filtered instead of every vertex
+    and face being scanned, and its ``loc`` is updated in place and shared: ``prev`` must not be used
+    afterwards.  The same arrays either way.
+    """
+    if prev is None:
+        vids0, fids0 = np.arange(len(vert_alive)), np.arange(len(face_alive))
+        loc = np.full(len(vert_alive), -1, dtype=np.int64)
+    else:
+        vids0, fids0, loc = prev.vids, prev.fids, prev.loc
     kernel = compiled(_live_mesh_kernel)
     if kernel is not None:
         vids, fids, loc, F, edges, vv_start, vv_nbr, vv_edge, vf_start, vf_face, fcount = \
-            kernel(corners, face_alive, vert_alive)
+            kernel(corners, face_alive, vert_alive, vids0, fids0, loc)
         et = EdgeTable(len(vids), *edges)
         return LiveMesh(vids, fids, loc, F, et, (vv_start, vv_nbr), vv_edge, (vf_start, vf_face), fcount)
-    fids = np.flatnonzero(face_alive)
-    vids = np.flatnonzero(vert_alive)
-    loc = np.full(len(vert_alive), -1, dtype=np.int64)
+    fids = fids0[face_alive[fids0]]
+    vids = vids0[vert_alive[vids0]]
+    loc[vids0] = -1
     loc[vids] = np.arange(len(vids))
     F = loc[corners[fids]]
     n, m = len(vids), len(fids)
@@ -98,21 +110,28 @@ def _boundary_kernel(faces, n):
 
 
 @kernel_helper(allocates=True)
-def _compact_kernel(corners, face_alive, vert_alive):
-    """Kernel part of :func:`_live_mesh_kernel`: ``(vids, fids, loc, F)`` as in :class:`LiveMesh`."""
-    loc = np.full(len(vert_alive), -1, np.int64)
+def _compact_kernel(corners, face_alive, vert_alive, vids0, fids0, loc):
+    """Kernel part of :func:`_live_mesh_kernel`: ``(vids, fids, loc, F)`` as in :class:`LiveMesh`, from
+    ``vids0`` / ``fids0`` (ascending int64: every live vertex / face and maybe dead ones) and ``loc`` (N,)
+    int64, -1 except at ``vids0``, filled in place."""
+    vids = np.empty(len(vids0), np.int64)
     n = 0
-    for x in range(len(vert_alive)):
+    for x in vids0:
+        loc[x] = n if vert_alive[x] else -1
         if vert_alive[x]:
-            loc[x] = n
+            vids[n] = x
             n += 1
-    vids = np.flatnonzero(vert_alive).astype(np.int64)
-    fids = np.flatnonzero(face_alive).astype(np.int64)
-    F = np.empty((len(fids), 3), np.int64)
-    for i in range(len(fids)):
+    fids = np.empty(len(fids0), np.int64)
+    m = 0
+    for f in fids0:
+        if face_alive[f]:
+            fids[m] = f
+            m += 1
+    F = np.empty((m, 3), np.int64)
+    for i in range(m):
         for c in range(3):
             F[i, c] = loc[corners[fids[i], c]]
-    return vids, fids, loc, F
+    return vids[:n], fids[:m], loc, F
 
 
 @kernel_helper(allocates=True)
@@ -194,12 +213,13 @@ def _edges_by_vertex(F, n, vf_start, vf_corner, ring):
             he1[ne] = bh[s + 1] if j - s >= 2 else -1
             down[by[s]] += 1
             ne += 1
-    return lo[:ne].copy(), hi[:ne].copy(), count[:ne].copy(), he0[:ne].copy(), he1[:ne].copy(), he_edge, down
+    return lo[:ne], hi[:ne], count[:ne], he0[:ne], he1[:ne], he_edge, down  # views: no copy of e entries
 
 
-def _live_mesh_kernel(corners, face_alive, vert_alive):
-    """Compiled :func:`live_mesh`: the same arrays (see there), as a flat tuple."""
-    vids, fids, loc, F = _compact_kernel(corners, face_alive, vert_alive)
+def _live_mesh_kernel(corners, face_alive, vert_alive, vids0, fids0, loc):
+    """Compiled :func:`live_mesh`: the same arrays (see there), as a flat tuple; ``vids0``, ``fids0`` and
+    ``loc`` as in :func:`_compact_kernel`."""
+    vids, fids, loc, F = _compact_kernel(corners, face_alive, vert_alive, vids0, fids0, loc)
     n = len(vids)
     vf_start, vf_corner, fcount, ring = _vertex_faces(F, n)
     lo, hi, count, he0, he1, he_edge, down = _edges_by_vertex(F, n, vf_start, vf_corner, ring)

@@ -133,11 +133,13 @@ class CollapseLog:
     batches: list = field(default_factory=list)  # CollapseBatch, in collapse order (fine -> coarse)
 
 
-def face_quadrics(pos: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
+def face_quadrics(pos: np.ndarray, faces: np.ndarray, n: int, boundary: np.ndarray | None = None) -> np.ndarray:
     """Per-vertex quadrics (n, 10) float64: area-weighted face planes plus boundary planes.
 
     The 10 entries are the upper triangle of the symmetric 4x4 quadric
     ``[a2, ab, ac, ad, b2, bc, bd, c2, cd, d2]`` of planes ``ax + by + cz + d = 0``.
+    ``boundary``: :func:`~.livemesh.boundary_half_edges` of ``faces`` when the caller has them
+    (the simplifier, from its first live mesh); found here otherwise.
     """
     p0, p1, p2 = pos[faces[:, 0]], pos[faces[:, 1]], pos[faces[:, 2]]
     nrm = np.cross(p1 - p0, p2 - p0)
@@ -153,7 +155,7 @@ def face_quadrics(pos: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
         out = kernel(faces, planes, 0.5 * area2, n)
 
     # boundary edges: a plane through the edge, perpendicular to its face
-    he = boundary_half_edges(faces, n)
+    he = boundary_half_edges(faces, n) if boundary is None else boundary
     if len(he):
         src, dst, _ = half_edges(faces)
         a_, b_ = src[he], dst[he]
@@ -228,10 +230,17 @@ def quadric_error(q: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 
 @kernel_helper
-def _quadric_at(Q, u, P, v):
-    """Compiled ``quadric_error(Q[u], P[v])`` for one pair (Q (n, 10), P (n, 3) float64): the same
-    operations in the same order (no contraction) and ``np.maximum``'s choice, so the same bits."""
-    q = Q[u]
+def _quadric_row(Q, u):
+    """Row ``u`` of the quadrics Q (n, 10) float64 as a tuple of ten floats (held in registers while
+    one vertex's collapses are costed)."""
+    return Q[u, 0], Q[u, 1], Q[u, 2], Q[u, 3], Q[u, 4], Q[u, 5], Q[u, 6], Q[u, 7], Q[u, 8], Q[u, 9]
+
+
+@kernel_helper
+def _quadric_at(q, P, v):
+    """Compiled ``quadric_error(q, P[v])`` for one quadric ``q`` (:func:`_quadric_row`) and one point of
+    P (n, 3) float64: the same operations in the same order (no contraction) and ``np.maximum``'s
+    choice, so the same bits."""
     x, y, z = P[v, 0], P[v, 1], P[v, 2]
     err = (
         q[0] * x * x + 2 * q[1] * x * y + 2 * q[2] * x * z + 2 * q[3] * x
@@ -281,18 +290,20 @@ def simplify(
     face_alive = np.ones(m, dtype=bool)
     vert_alive = np.zeros(n, dtype=bool)
     vert_alive[corners.ravel()] = True
-    quad = face_quadrics(pos, corners, n)
+    live = live_mesh(corners, face_alive, vert_alive)  # the first batch's; every face alive, so its half-edges
+    quad = face_quadrics(pos, corners, n, live.et.he0[live.et.count == 1])  # are the input's
     frozen_ext = np.zeros(n, bool) if locked is None else np.asarray(locked, bool).copy()
     twin = twin_faces(corners)
     twin = twin if twin.any() else None
     log = CollapseLog(n, m, None, None, None, [])
 
     alive_count = int(vert_alive.sum())
-    for _ in range(max_batches):
+    for b in range(max_batches):
         if alive_count <= target_vertices:
             break
-        batch = _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, alive_count - target_vertices,
-                           weld, twin)
+        if b:
+            live = live_mesh(corners, face_alive, vert_alive, live)
+        batch = _one_batch(pos, live, quad, frozen_ext, alive_count - target_vertices, weld, twin)
         if batch is None:
             break
         _apply(batch, corners, face_alive, vert_alive, quad)
@@ -339,17 +350,15 @@ def _apply_kernel(u, v, del_left, del_right, moved_face, moved_by, corners, face
                 corners[f, c] = v[i]
 
 
-def _one_batch(pos, corners, face_alive, vert_alive, quad, frozen_ext, budget, weld=None, twin=None):
+def _one_batch(pos, live, quad, frozen_ext, budget, weld=None, twin=None):
     """Choose and describe one batch of independent legal collapses (or None).
 
-    pos (n, 3) float64, corners (m, 3) int64, face_alive (m,) bool, vert_alive (n,) bool,
-    quad (n, 10) float64 and frozen_ext (n,) bool are the simplifier's state in original
-    ids; at most ``budget`` vertices are removed (the cheapest collapses).  ``weld`` (n,)
-    int64 or None: seam copies (see :func:`simplify`).  The work is done on the live mesh
-    renumbered compactly ("local" ids) and returned in original ids.  ``twin`` (m,) bool or None:
-    the doubled faces (:func:`twin_faces`).
+    pos (n, 3) float64, quad (n, 10) float64 and frozen_ext (n,) bool are the simplifier's state in
+    original ids, ``live`` the :class:`~.livemesh.LiveMesh` of its live faces; at most ``budget``
+    vertices are removed (the cheapest collapses).  ``weld`` (n,) int64 or None: seam copies (see
+    :func:`simplify`).  The work is done on the live mesh renumbered compactly ("local" ids) and
+    returned in original ids.  ``twin`` (m,) bool or None: the doubled faces (:func:`twin_faces`).
     """
-    live = live_mesh(corners, face_alive, vert_alive)
     vids, fids, loc, F, et, vv, vf, fcount = (live.vids, live.fids, live.loc, live.F, live.et, live.vv, live.vf,
                                               live.fcount)
     vv_edge = live.vv_edge
@@ -609,39 +618,45 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, lo, hi, count, he0, he1, src, 
     out_v = np.empty(tries * n, np.int64)
     out_e = np.empty(tries * n, np.int64)
     out_c = np.empty(tries * n, np.float64)
-    buf = np.empty(int(np.max(np.diff(vv_start))) if n else 0, np.int64)  # row positions, by cost
+    width = int(np.max(np.diff(vv_start))) if n else 0
+    buf_p = np.empty(width, np.int64)  # row positions of u's usable collapses, by cost
+    buf_c = np.empty(width, np.float64)  # their costs
     own = np.empty(n, np.float64)  # quadric_error(Q, P), vertex by vertex
     for x in range(n):
-        own[x] = _quadric_at(Q, x, P, x)
-    cost = np.empty(len(vv_nbr), np.float64)
+        own[x] = _quadric_at(_quadric_row(Q, x), P, x)
     bvc = np.zeros(n, np.int64)  # boundary edges at each vertex
     badv = np.zeros(n, np.bool_)  # a non-manifold or inconsistently oriented edge at the vertex
     for e in range(len(lo)):
-        bad = (count[e] > 2 and not twin_edge[e]) or (count[e] == 2 and src[he0[e]] == src[he1[e]])
-        for x in (lo[e], hi[e]):
-            bvc[x] += count[e] == 1
-            badv[x] |= bad
+        if count[e] == 1:
+            bvc[lo[e]] += 1
+            bvc[hi[e]] += 1
+        if (count[e] > 2 and not twin_edge[e]) or (count[e] == 2 and src[he0[e]] == src[he1[e]]):
+            badv[lo[e]] = badv[hi[e]] = True
     k = 0
     for u in range(n):
         a, b = vv_start[u], vv_start[u + 1]
-        manifold = (bvc[u] == 0 and b - a == fcount[u] - extra[u]) or (
-            bvc[u] == 2 and extra[u] == 0 and b - a == fcount[u] + 1)
-        if badv[u] or not manifold or frozen_ext[u]:
+        if badv[u] or frozen_ext[u]:
             continue
+        bu = bvc[u]
+        if not ((bu == 0 and b - a == fcount[u] - extra[u]) or (bu == 2 and extra[u] == 0 and b - a == fcount[u] + 1)):
+            continue  # not one disk or half-disk of faces
+        q = _quadric_row(Q, u)
         m = 0
         for p in range(a, b):
-            if (bvc[u] > 0 and count[vv_edge[p]] != 1) or count[vv_edge[p]] > 2:
+            ce = count[vv_edge[p]]
+            if (bu > 0 and ce != 1) or ce > 2:
                 continue
-            cost[p] = _quadric_at(Q, u, P, vv_nbr[p]) + own[vv_nbr[p]]
+            c = _quadric_at(q, P, vv_nbr[p]) + own[vv_nbr[p]]
             t = m  # stable: move left past strictly greater costs only (NaN counts as greatest)
-            while t > 0 and (cost[buf[t - 1]] > cost[p] or (np.isnan(cost[buf[t - 1]]) and not np.isnan(cost[p]))):
-                buf[t] = buf[t - 1]
-                t -= 1
-            buf[t] = p
+            if c == c:
+                while t > 0 and (buf_c[t - 1] > c or buf_c[t - 1] != buf_c[t - 1]):
+                    buf_p[t], buf_c[t] = buf_p[t - 1], buf_c[t - 1]
+                    t -= 1
+            buf_p[t], buf_c[t] = p, c
             m += 1
         for j in range(min(m, tries)):
-            p = buf[j]
-            out_u[k], out_v[k], out_e[k], out_c[k] = u, vv_nbr[p], vv_edge[p], cost[p]
+            p = buf_p[j]
+            out_u[k], out_v[k], out_e[k], out_c[k] = u, vv_nbr[p], vv_edge[p], buf_c[j]
             k += 1
     return out_u[:k], out_v[:k], out_e[:k], out_c[:k]
 
