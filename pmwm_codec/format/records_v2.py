@@ -219,22 +219,60 @@ def _mask_kernel(flat, n, head, nxt, valence, below, stamp, ctr, sel, marked, gs
 # ---------------------------------------------------------------- connectivity: fans and arcs
 
 
-@kernel_helper
-def _fan(lo, d, a, b, fan):
-    """Order the ``d <= MAX_ARC_FAN`` incidences ``lo .. lo + d - 1`` of one split vertex into
-    ``fan`` (d,) (spec §8.4.2), by pairwise comparisons of their corners (no scratch outside the fan).
+#: The hash of a fan's corners ``a`` (:func:`_fan`): 2**FAN_BITS slots, at most half full.
+FAN_BITS = 6
+FAN_SLOTS = 1 << FAN_BITS
+#: Layout of :func:`_fan`'s scratch ``work`` (int64): successors, predecessor flags, then the
+#: slots' keys, incidences and epochs.
+W_SUCC, W_PRED = 0, MAX_ARC_FAN
+W_KEY, W_INDEX, W_EPOCH = 2 * MAX_ARC_FAN, 2 * MAX_ARC_FAN + FAN_SLOTS, 2 * MAX_ARC_FAN + 2 * FAN_SLOTS
+FAN_WORK = 2 * MAX_ARC_FAN + 3 * FAN_SLOTS
 
+
+@kernel_helper
+def _fan_slot(x):
+    """The first slot of corner ``x`` in :func:`_fan`'s hash (multiplicative hashing)."""
+    return ((x * 0x9E3779B1) & 0xFFFFFFFF) >> (32 - FAN_BITS)
+
+
+@kernel_helper
+def _fan(lo, d, a, b, fan, work, epoch):
+    """Order the ``d <= MAX_ARC_FAN`` incidences ``lo .. lo + d - 1`` of one split vertex into
+    ``fan`` (d,) int64 (spec §8.4.2).  ``work`` (FAN_WORK,) int64 scratch, zeros when first used;
+    ``epoch`` > 0 marks the hash slots of this call (a value no earlier call on ``work`` used).
+
+    The corners ``a`` are hashed: a repeated ``a`` fails at once, and the successor of t is the
+    incidence whose ``a`` is ``b[t]``.  With distinct ``a``, a successor named twice means two equal
+    ``b``; any other repeated ``b`` (with no successor) leaves two ends to the walk, which then
+    fails: so the spec's conditions hold exactly when these checks and the walk pass.
     Returns 1 closed fan, 2 open fan, 0 not simple (then ``fan`` is undefined).
     """
+    for t in range(d):
+        x = a[lo + t]
+        h = _fan_slot(x)
+        while work[W_EPOCH + h] == epoch:
+            if work[W_KEY + h] == x:
+                return 0  # corners after the vertex repeat
+            h = (h + 1) & (FAN_SLOTS - 1)
+        work[W_EPOCH + h], work[W_KEY + h], work[W_INDEX + h] = epoch, x, t
+        work[W_PRED + t] = 0
+    for t in range(d):
+        y = b[lo + t]
+        nx = -1
+        h = _fan_slot(y)
+        while work[W_EPOCH + h] == epoch:
+            if work[W_KEY + h] == y:
+                nx = work[W_INDEX + h]
+                if work[W_PRED + nx] != 0:
+                    return 0  # corners before the vertex repeat
+                work[W_PRED + nx] = 1
+                break
+            h = (h + 1) & (FAN_SLOTS - 1)
+        work[W_SUCC + t] = nx
     first = -1
     starts = 0
-    for t in range(lo, lo + d):
-        has_pred = False
-        for s in range(lo, lo + d):
-            if s != t and (a[s] == a[t] or b[s] == b[t]):
-                return 0  # corners after (or before) the vertex repeat
-            has_pred = has_pred or b[s] == a[t]
-        if not has_pred:
+    for t in range(d):  # t starts the walk when no b equals its a
+        if work[W_PRED + t] == 0:
             starts += 1
             if first < 0:
                 first = t
@@ -242,27 +280,18 @@ def _fan(lo, d, a, b, fan):
         return 0
     kind = 2 if starts == 1 else 1
     if kind == 1:
-        first = lo
+        first = 0
     t = first
     for s in range(d):
-        fan[s] = t
-        nxt = _successor(lo, d, a, b, t)
+        fan[s] = lo + t
+        nx = work[W_SUCC + t]
         if s < d - 1:
-            if nxt < 0 or nxt == first:
+            if nx < 0 or nx == first:
                 return 0
-            t = nxt
-        elif (kind == 1 and nxt != first) or (kind == 2 and nxt >= 0):
+            t = nx
+        elif (kind == 1 and nx != first) or (kind == 2 and nx >= 0):
             return 0
     return kind
-
-
-@kernel_helper
-def _successor(lo, d, a, b, t):
-    """The incidence among ``lo .. lo + d - 1`` whose corner after the vertex is ``t``'s corner before it, or -1."""
-    for s in range(lo, lo + d):
-        if a[s] == b[t]:
-            return s
-    return -1
 
 
 @kernel_helper
@@ -279,8 +308,10 @@ def _arc_rank(fan, d, closed, L, s, a, vv, P, lens, scores, choose):
     ncand = d if closed else d - L + 1
     for c in range(ncand):
         sc = 0.0
-        for j in range(1, L):
-            sc += lens[(c + j) % d]
+        t = c
+        for _ in range(1, L):
+            t = t + 1 if t + 1 < d else 0  # (c + j) mod d
+            sc += lens[t]
         scores[c] = sc
     if choose < 0:
         r = 0
@@ -288,14 +319,19 @@ def _arc_rank(fan, d, closed, L, s, a, vv, P, lens, scores, choose):
             if scores[c] > scores[s] or (scores[c] == scores[s] and c < s):
                 r += 1
         return r
-    for c in range(ncand):
-        r = 0
-        for c2 in range(ncand):
-            if scores[c2] > scores[c] or (scores[c2] == scores[c] and c2 < c):
-                r += 1
-        if r == choose:
-            return c
-    return -1
+    # the start of rank `choose` in choose + 1 passes (mostly 1 or 2): each takes the first start
+    # of highest score among those after the previous pass's in rank order
+    best, best_score = -1, np.inf
+    for _ in range(choose + 1):
+        prev, prev_score = best, best_score
+        best = -1
+        for c in range(ncand):
+            sc = scores[c]
+            if (sc < prev_score or (sc == prev_score and c > prev)) and (best < 0 or sc > best_score):
+                best, best_score = c, sc
+        if best < 0:
+            return -1
+    return best
 
 
 @kernel_helper
@@ -352,22 +388,24 @@ def _connectivity_kernel(gstart, a, b, v, P, sym, S, ring, nrm, es, out, ds, buf
     the corners after / before the split vertex.  Fills ``S`` (k, D) int64, ``ring`` (k, 2) int64,
     ``nrm`` (k, 3) float64.  Returns 0, or (decode) -1 on an invalid code.
     """
-    fan = np.empty(MAX_ARC_FAN, np.int64)
+    fan, work = np.empty(MAX_ARC_FAN, np.int64), np.zeros(FAN_WORK, np.int64)
     lens = np.empty(MAX_ARC_FAN, np.float64)
     scores = np.empty(MAX_ARC_FAN, np.float64)
     for i in range(len(v)):
         lo, hi = gstart[i], gstart[i + 1]
-        if _split_symbols(lo, hi, v[i], a, b, P, sym, fan, lens, scores, es, out, ds, buf, probs, decode) != 0:
+        if _split_symbols(lo, hi, v[i], a, b, P, sym, fan, work, i + 1, lens, scores, es, out, ds, buf, probs,
+                          decode) != 0:
             return -1
         _ring_stats(lo, hi, a, b, v[i], sym, P, S, ring, nrm, i)
     return 0
 
 
 @kernel_helper
-def _split_symbols(lo, hi, vv, a, b, P, sym, fan, lens, scores, es, out, ds, buf, probs, decode):
-    """Code or decode the symbols of one split's incidences ``lo .. hi - 1`` (spec §8.4.2); 0, or -1 on an invalid code."""
+def _split_symbols(lo, hi, vv, a, b, P, sym, fan, work, epoch, lens, scores, es, out, ds, buf, probs, decode):
+    """Code or decode the symbols of one split's incidences ``lo .. hi - 1`` (spec §8.4.2); 0, or -1 on an
+    invalid code.  ``fan`` / ``work`` / ``epoch``: :func:`_fan`'s."""
     d = hi - lo
-    kind = _fan(lo, d, a, b, fan) if 0 < d <= MAX_ARC_FAN else 0
+    kind = _fan(lo, d, a, b, fan, work, epoch) if 0 < d <= MAX_ARC_FAN else 0
     s, L, left, right = -1, 0, 0, 0
     if kind != 0:
         if decode:
