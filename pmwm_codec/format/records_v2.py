@@ -77,7 +77,8 @@ class CornerLists:
     the next corner of the same vertex (-1: the last); ``valence`` (N,) int64 the number of
     distinct other vertices sharing a face with each vertex; scratch: ``below`` (N,) int64 zeros,
     ``stamp`` / ``tag`` (N,) int64 with their token counter ``ctr`` (1,) int64, ``split`` (N,) uint8
-    zeros.  N / M: the primitive's declared vertex / face counts.  ``n`` / ``m``: the mesh they
+    zeros, ``created`` ((3M + 31) // 32,) int64 zeros (a bitmap over the corners, 32 bits a word)
+    and ``creator`` (3M,) int32 (:func:`_link_splits`).  N / M: the primitive's declared vertex / face counts.  ``n`` / ``m``: the mesh they
     describe; :meth:`sync` rebuilds them (O(m)) for a mesh that changed elsewhere, the decoder
     updates them batch by batch (O(batch)).
     """
@@ -88,6 +89,7 @@ class CornerLists:
         self.nxt = np.full(3 * M, -1, np.int32)  # corners < 3 * MAX_FACES < 2**31
         self.valence, self.tag, self.split = np.zeros(N, np.int64), np.zeros(N, np.int64), np.zeros(N, np.uint8)
         self.below, self.stamp, self.ctr = np.zeros(N, np.int64), np.zeros(N, np.int64), np.zeros(1, np.int64)
+        self.created, self.creator = np.zeros((3 * M + 31) // 32, np.int64), np.empty(3 * M, np.int32)
         self.n = self.m = -1
 
     def fits(self, state) -> bool:
@@ -633,8 +635,8 @@ def _encode_batch(enc, state, batch, lists) -> None:
     sym = np.empty(corners, np.uint8)
     sym[np.argsort(inc[:corners])] = symbols  # face-slot order -> grouped by split
     new_faces = rc._kernel(_batch_kernel)(state.faces.reshape(-1), m, n, state.positions, v, lists.head, lists.tail,
-                                          lists.nxt, lists.valence, lists.stamp, lists.tag, lists.split, lists.ctr,
-                                          inc[:corners], own[:corners], a[:corners], b[:corners], sym, gstart[: k + 1],
+                                          lists.nxt, lists.valence, lists.stamp, lists.tag, lists.split, lists.created,
+                                          lists.creator, lists.ctr, inc[:corners], own[:corners], a[:corners], b[:corners], sym, gstart[: k + 1],
                                           np.empty((k, D)), np.empty(k, np.int64), res, enc.es, enc.out, _NO_STATE,
                                           _NO_BYTES, enc.probs, 0)
     if new_faces < 0:
@@ -754,9 +756,9 @@ def _decode_batch(dec, state, lists):
     sym = np.zeros(corners, np.uint8)
     rsum, rcount = np.empty((k, D)), np.empty(k, np.int64)
     new_faces = rc._kernel(_batch_kernel)(flat, m, n, state.positions, v, lists.head, lists.tail, lists.nxt,
-                                          lists.valence, lists.stamp, lists.tag, lists.split, lists.ctr, inc, own, a,
-                                          b, sym, gstart, rsum, rcount, _NO_RES, _NO_STATE, _NO_BYTES, dec.ds, dec.buf,
-                                          dec.probs, 1)
+                                          lists.valence, lists.stamp, lists.tag, lists.split, lists.created,
+                                          lists.creator, lists.ctr, inc, own, a, b, sym, gstart, rsum, rcount, _NO_RES,
+                                          _NO_STATE, _NO_BYTES, dec.ds, dec.buf, dec.probs, 1)
     if new_faces < 0:
         raise FormatError(_BATCH_ERRORS[new_faces])
     state.n, state.m = n + k, m + new_faces
@@ -796,8 +798,8 @@ class DecodedBatch(SplitBatch):
         return self._positions[self._topo.u] - self._topo.prediction()
 
 
-def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, split, ctr, inc, own, a, b, sym, gstart,
-                  rsum, rcount, res, es, out, ds, buf, probs, decode):
+def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, split, created, creator, ctr, inc, own, a,
+                  b, sym, gstart, rsum, rcount, res, es, out, ds, buf, probs, decode):
     """Code (``decode`` 0) or decode (1) the connectivity and values of one batch whose split
     vertices ``v`` (k,) and incidences are known (:func:`_mask_kernel`), applying it to the face
     slots ``flat`` (3M,) int64, the values ``P`` (N, D) and the corner lists (:class:`CornerLists`
@@ -814,7 +816,8 @@ def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, spli
     S, ring, nrm = np.empty((k, D), np.int64), np.empty((k, 2), np.int64), np.empty((k, 3))
     if _connectivity_kernel(gstart, a, b, v, P, sym, S, ring, nrm, es, out, ds, buf, probs, decode) != 0:
         return -1
-    new_faces, rewritten = _link_splits(flat, m0, n0, v, inc, own, a, b, sym, gstart, head, tail, nxt, split)
+    new_faces, rewritten = _link_splits(flat, m0, n0, v, inc, own, a, b, sym, gstart, head, tail, nxt, split, created,
+                                        creator)
     if new_faces < 0:
         return new_faces
     if not decode:
@@ -901,25 +904,28 @@ def _tag(x, token, bits, tag):
     tag[x] = (tag[x] | bits) if tag[x] & ~7 == token else (token | bits)
 
 
-@kernel_helper(allocates=True)
-def _link_splits(flat, m0, n0, v, inc, own, a, b, sym, gstart, head, tail, nxt, split):
+#: Bit j of a word -> j, by the de Bruijn sequence 0x077CB531 (:func:`_link_splits`'s bitmap).
+_DE_BRUIJN = np.array([0, 1, 28, 2, 29, 14, 24, 3, 30, 22, 20, 15, 25, 17, 4, 8, 31, 27, 13, 23, 21, 19, 16, 7, 26, 12, 18,
+                       6, 11, 5, 10, 9], np.int64)
+
+
+@kernel_helper
+def _link_splits(flat, m0, n0, v, inc, own, a, b, sym, gstart, head, tail, nxt, split, created, creator):
     """Spec §6.1 steps 1-3 on the face slots and the corner lists: the moved corners become
     ``u`` (and its list), the new faces are appended in face-slot order of the incidences naming
     them.  Returns ``(new faces, rewritten)``: new faces -2 when a split names none or more than
     two, -3 when they exceed the face capacity (nothing written then); rewritten True when a
     face held a moved corner and another corner of a split vertex (:func:`_update_valences`).
-    ``split`` (N,) uint8 scratch, zeros on entry and on return."""
+    Scratch: ``split`` (N,) uint8 and ``created`` (bitmap over the corners, 32 bits in each int64
+    word), zeros on entry and on return; ``creator`` (3M,) int32, the incidence naming a new face
+    at its corner (read only where ``created`` has the corner's bit)."""
     k = len(v)
-    wkey = np.empty(len(inc), np.int64)  # (corner << 32) | incidence, of the incidences naming new faces
-    named = 0
     new_faces = 0
     for i in range(k):
         wings = 0
         for t in range(gstart[i], gstart[i + 1]):
             if sym[t] >= 2:
                 wings += 1 if sym[t] < 4 else 2
-                wkey[named] = (inc[t] << 32) | t
-                named += 1
         if wings == 0 or wings > 2:
             return -2, False
         new_faces += wings
@@ -928,22 +934,33 @@ def _link_splits(flat, m0, n0, v, inc, own, a, b, sym, gstart, head, tail, nxt, 
     for i in range(k):
         split[v[i]] = 1
     rewritten = False
+    lo_word, hi_word = len(created), 0
     for i in range(k):  # split i's corners, ascending: the moved ones to u, the others stay with v
         u = n0 + i
         head[u], tail[u], head[v[i]], tail[v[i]] = -1, -1, -1, -1
         for t in range(gstart[i], gstart[i + 1]):
+            c = inc[t]
             if sym[t] != 0:  # its face's other corners as they were before the batch: a[t], b[t]
                 rewritten = rewritten or split[a[t]] != 0 or split[b[t]] != 0
-                flat[inc[t]] = u
-            _append_corner(u if sym[t] != 0 else v[i], inc[t], head, tail, nxt)
+                flat[c] = u
+                if sym[t] >= 2:  # names a new face: its corner goes into the bitmap
+                    creator[c] = t
+                    created[c >> 5] |= 1 << (c & 31)
+                    lo_word, hi_word = min(lo_word, c >> 5), max(hi_word, (c >> 5) + 1)
+            _append_corner(u if sym[t] != 0 else v[i], c, head, tail, nxt)
     slot = 3 * m0
-    for key in np.sort(wkey[:named]):
-        t = key & 0xFFFFFFFF
-        i = own[t]
-        if sym[t] == 2 or sym[t] == 4:  # left new face (u, v, a)
-            slot = _new_face(slot, n0 + i, v[i], a[t], flat, head, tail, nxt)
-        if sym[t] == 3 or sym[t] == 4:  # right new face (v, u, b)
-            slot = _new_face(slot, v[i], n0 + i, b[t], flat, head, tail, nxt)
+    for word in range(lo_word, hi_word):  # the naming corners in ascending order, the bitmap cleared
+        bits = created[word]
+        created[word] = 0
+        while bits != 0:
+            low = bits & -bits
+            bits ^= low
+            t = creator[32 * word + _DE_BRUIJN[((low * 0x077CB531) & 0xFFFFFFFF) >> 27]]
+            i = own[t]
+            if sym[t] == 2 or sym[t] == 4:  # left new face (u, v, a)
+                slot = _new_face(slot, n0 + i, v[i], a[t], flat, head, tail, nxt)
+            if sym[t] == 3 or sym[t] == 4:  # right new face (v, u, b)
+                slot = _new_face(slot, v[i], n0 + i, b[t], flat, head, tail, nxt)
     for i in range(k):
         split[v[i]] = 0
     return new_faces, rewritten
