@@ -75,12 +75,13 @@ class CornerLists:
 
     ``head`` / ``tail`` (N,) int32 first / last corner of a vertex (-1: none), ``nxt`` (3M,) int32
     the next corner of the same vertex (-1: the last); ``valence`` (N,) int64 the number of
-    distinct other vertices sharing a face with each vertex; scratch: ``below`` (N,) int64 zeros,
-    ``stamp`` / ``tag`` (N,) int64 with their token counter ``ctr`` (1,) int64, ``split`` (N,) uint8
-    zeros, ``created`` ((3M + 31) // 32,) int64 zeros (a bitmap over the corners, 32 bits a word)
-    and ``creator`` (3M,) int32 (:func:`_link_splits`).  N / M: the primitive's declared vertex / face counts.  ``n`` / ``m``: the mesh they
-    describe; :meth:`sync` rebuilds them (O(m)) for a mesh that changed elsewhere, the decoder
-    updates them batch by batch (O(batch)).
+    distinct other vertices sharing a face with each vertex; scratch: ``below`` (N,) int64 zeros
+    (:data:`BELOW_BITS`), ``stamp`` / ``tag`` (N,) int64 with their token counter ``ctr`` (1,)
+    int64, ``split`` (N,) uint8 zeros, ``created`` ((3M + 31) // 32,) int64 zeros (a bitmap over
+    the corners, 32 bits a word) and ``creator`` (3M,) int32 (:func:`_link_splits`).  N / M: the
+    primitive's declared vertex / face counts.  ``n`` / ``m``: the mesh they describe; :meth:`sync`
+    rebuilds them (O(m)) for a mesh that changed elsewhere, the decoder updates them batch by batch
+    (O(batch)).
     """
 
     def __init__(self, vertex_capacity: int, face_capacity: int):
@@ -144,60 +145,46 @@ def _valence(w, flat, head, nxt, stamp, ctr):
     return valence
 
 
+#: ``below[x]`` (:func:`_mask_kernel`): the marked distinct neighbours below x, counted up to 2, in
+#: its low bits; above them the last marked vertex w that counted x, as w + 1 (tells its corners apart).
+BELOW_BITS = 2
+
+
 @kernel_helper
-def _mark_above(w, i, t, flat, head, nxt, below, stamp, ctr, inc, own, a, b, near):
+def _mark_above(w, i, t, flat, head, nxt, below, inc, own, a, b):
     """List ``w``'s corners from ``t`` on as split ``i``'s incidences (:func:`_batch_kernel`) and
-    ``below[x] += 1`` for each distinct neighbour ``x > w`` of ``w`` (told apart in ``near``
-    (2 * MAX_ARC_FAN,) int64 scratch for a small fan, by ``stamp`` otherwise); returns the next ``t``."""
-    start = t
+    count ``w`` in ``below`` (:data:`BELOW_BITS`) once for each distinct neighbour ``x > w``;
+    returns the next ``t``."""
+    mark = (w + 1) << BELOW_BITS
     c = head[w]
     while c >= 0:
         f3 = c - c % 3
-        inc[t], own[t] = c, i
-        a[t], b[t] = flat[f3 + (c + 1) % 3], flat[f3 + (c + 2) % 3]
+        x, y = flat[f3 + (c + 1) % 3], flat[f3 + (c + 2) % 3]
+        inc[t], own[t], a[t], b[t] = c, i, x, y
         t += 1
+        for z in (x, y):
+            if z > w and below[z] & -(1 << BELOW_BITS) != mark:
+                below[z] = mark | min((below[z] & ((1 << BELOW_BITS) - 1)) + 1, 2)
         c = nxt[c]
-    small = t - start <= MAX_ARC_FAN
-    token = ctr[0] + 1
-    ctr[0] = token
-    count = 0
-    for s in range(start, t):
-        for x in (a[s], b[s]):
-            if x <= w:
-                continue
-            if small:
-                seen = False
-                for q in range(count):
-                    seen = seen or near[q] == x
-                if seen:
-                    continue
-                near[count] = x
-                count += 1
-            else:
-                if stamp[x] == token:
-                    continue
-                stamp[x] = token
-            below[x] += 1
     return t
 
 
-def _mask_kernel(flat, n, head, nxt, valence, below, stamp, ctr, sel, marked, gstart, inc, own, a, b, es, out, ds,
-                 buf, probs, decode):
+def _mask_kernel(flat, n, head, nxt, valence, below, sel, marked, gstart, inc, own, a, b, es, out, ds, buf, probs,
+                 decode):
     """Code (``decode`` 0, the bits ``sel`` (n,) int64) or decode (1) a batch's selection mask over the
     mesh of the corner lists (:class:`CornerLists` arrays, ``flat`` (3M,) int64 its face slots).
 
     Context of vertex w: 7 * min(2, marked distinct neighbours below w) + clamp(valence, 3, 9) - 3; the
-    marks push to the neighbours above them as they are coded.  ``marked`` (cap,) int64 receives
-    the marked vertices, ascending, and ``gstart`` (cap + 1,) / ``inc`` / ``own`` / ``a`` / ``b``
-    (3m,) int64 their incidences as :func:`_batch_kernel` takes them (gathered on the way).
-    Returns ``(k, incidences)``; k = -1 when more than ``cap`` vertices are marked (``below`` is
-    then cleared).
+    marks push to the neighbours above them as they are coded (``below``, zeros on entry and on
+    return).  ``marked`` (cap,) int64 receives the marked vertices, ascending, and ``gstart``
+    (cap + 1,) / ``inc`` / ``own`` / ``a`` / ``b`` (3m,) int64 their incidences as
+    :func:`_batch_kernel` takes them (gathered on the way).  Returns ``(k, incidences)``; k = -1
+    when more than ``cap`` vertices are marked.
     """
     k = 0
     corners = 0
-    near = np.empty(2 * MAX_ARC_FAN, np.int64)
     for w in range(n):
-        ctx = P_MASK + 7 * min(below[w], 2) + min(max(valence[w], 3), 9) - 3
+        ctx = P_MASK + 7 * (below[w] & ((1 << BELOW_BITS) - 1)) + min(max(valence[w], 3), 9) - 3
         below[w] = 0
         if decode:
             bit = rc.dec_bit(ds, buf, probs, ctx)
@@ -212,7 +199,7 @@ def _mask_kernel(flat, n, head, nxt, valence, below, stamp, ctr, sel, marked, gs
             return -1, corners
         marked[k] = w
         gstart[k] = corners
-        corners = _mark_above(w, k, corners, flat, head, nxt, below, stamp, ctr, inc, own, a, b, near)
+        corners = _mark_above(w, k, corners, flat, head, nxt, below, inc, own, a, b)
         k += 1
     gstart[k] = corners
     return k, corners
@@ -628,8 +615,8 @@ def _encode_batch(enc, state, batch, lists) -> None:
     enc.reserve(_batch_decisions(n, len(symbols), k, D))
     marked, gstart, inc, own, a, b = buffers = _mask_buffers(m, k)
     _, corners = rc._kernel(_mask_kernel)(state.faces.reshape(-1), n, lists.head, lists.nxt, lists.valence,
-                                          lists.below, lists.stamp, lists.ctr, sel, *buffers, enc.es, enc.out,
-                                          _NO_STATE, _NO_BYTES, enc.probs, 0)
+                                          lists.below, sel, *buffers, enc.es, enc.out, _NO_STATE, _NO_BYTES, enc.probs,
+                                          0)
     if corners != len(symbols) or (corners and int(symbols.max()) >= 5):
         raise ValueError("payload v2: the batch's symbols do not match the mesh's incidences")
     sym = np.empty(corners, np.uint8)
@@ -743,9 +730,8 @@ def _decode_batch(dec, state, lists):
     n, m = state.n, state.m
     flat = state.faces.reshape(-1)
     marked, gstart, inc, own, a, b = buffers = _mask_buffers(m, len(state.positions) - n)
-    k, corners = rc._kernel(_mask_kernel)(flat, n, lists.head, lists.nxt, lists.valence, lists.below, lists.stamp,
-                                          lists.ctr, _NO_SEL, *buffers, _NO_STATE, _NO_BYTES,
-                                          dec.ds, dec.buf, dec.probs, 1)
+    k, corners = rc._kernel(_mask_kernel)(flat, n, lists.head, lists.nxt, lists.valence, lists.below, _NO_SEL,
+                                          *buffers, _NO_STATE, _NO_BYTES, dec.ds, dec.buf, dec.probs, 1)
     if k < 0:
         raise FormatError("splits exceed the declared vertex count")
     if k == 0:
