@@ -258,6 +258,31 @@ def test_the_encoder_packs_on_the_decoders_incremental_path_and_leaves_version_1
     assert np.array_equal(decoded.current_faces(), reference.current_faces())
 
 
+def test_decoded_batches_list_the_topology_version_1_applies_even_when_read_after_the_chunk():
+    """What a decoded batch lists only when asked (its symbols, incidences, owners, ring, residuals)
+    equals version 1's apply_batch of the same batch, also when asked after the later batches of
+    its chunk were decoded (the lists must not share the decoder's scratch)."""
+    from pmwm_codec.progressive.vsplit import apply_batch
+    from test_kernels import _progressive
+
+    pm = _progressive(shapes.torus(30, 14, twist=0.1))
+    payloads = records_v2.pack_chunks(pm.new_state(), [pm.batches[i:i + 3] for i in range(0, len(pm.batches), 3)])
+    state, model, reference = pm.new_state(), records_v2.ChunkDecoder(), pm.new_state()
+    batches = 0
+    for payload in payloads:
+        decoded = list(records_v2.decode_chunk(payload, state, model))  # the whole chunk first
+        for batch, topo in decoded:
+            original = pm.batches[batches]
+            want = apply_batch(reference, original)
+            assert np.array_equal(batch.v, original.v) and np.array_equal(batch.symbols, original.symbols)
+            assert np.array_equal(batch.residual, original.residual)
+            for name in ("incidences", "owner", "ring_owner", "ring_a", "ring_b", "u", "ring_count"):
+                assert np.array_equal(getattr(topo, name), getattr(want, name)), name
+            assert np.array_equal(topo.ring_sum, want.ring_sum)
+            batches += 1
+    assert batches == len(pm.batches) and len(payloads) > 2
+
+
 def test_the_encoder_refuses_a_batch_that_does_not_fit_the_mesh():
     from test_kernels import _progressive
 

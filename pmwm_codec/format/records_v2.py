@@ -151,8 +151,8 @@ BELOW_BITS = 2
 
 
 @kernel_helper
-def _mark_above(w, i, t, flat, head, nxt, below, inc, own, a, b):
-    """List ``w``'s corners from ``t`` on as split ``i``'s incidences (:func:`_batch_kernel`) and
+def _mark_above(w, t, flat, head, nxt, below, inc, a, b):
+    """List ``w``'s corners from ``t`` on as its split's incidences (:func:`_batch_kernel`) and
     count ``w`` in ``below`` (:data:`BELOW_BITS`) once for each distinct neighbour ``x > w``;
     returns the next ``t``."""
     mark = (w + 1) << BELOW_BITS
@@ -160,7 +160,7 @@ def _mark_above(w, i, t, flat, head, nxt, below, inc, own, a, b):
     while c >= 0:
         f3 = c - c % 3
         x, y = flat[f3 + (c + 1) % 3], flat[f3 + (c + 2) % 3]
-        inc[t], own[t], a[t], b[t] = c, i, x, y
+        inc[t], a[t], b[t] = c, x, y
         t += 1
         for z in (x, y):
             if z > w and below[z] & -(1 << BELOW_BITS) != mark:
@@ -169,15 +169,14 @@ def _mark_above(w, i, t, flat, head, nxt, below, inc, own, a, b):
     return t
 
 
-def _mask_kernel(flat, n, head, nxt, valence, below, sel, marked, gstart, inc, own, a, b, es, out, ds, buf, probs,
-                 decode):
+def _mask_kernel(flat, n, head, nxt, valence, below, sel, marked, gstart, inc, a, b, es, out, ds, buf, probs, decode):
     """Code (``decode`` 0, the bits ``sel`` (n,) int64) or decode (1) a batch's selection mask over the
     mesh of the corner lists (:class:`CornerLists` arrays, ``flat`` (3M,) int64 its face slots).
 
     Context of vertex w: 7 * min(2, marked distinct neighbours below w) + clamp(valence, 3, 9) - 3; the
     marks push to the neighbours above them as they are coded (``below``, zeros on entry and on
     return).  ``marked`` (cap,) int64 receives the marked vertices, ascending, and ``gstart``
-    (cap + 1,) / ``inc`` / ``own`` / ``a`` / ``b`` (3m,) int64 their incidences as
+    (cap + 1,) / ``inc`` / ``a`` / ``b`` (3m,) int64 their incidences as
     :func:`_batch_kernel` takes them (gathered on the way).  Returns ``(k, incidences)``; k = -1
     when more than ``cap`` vertices are marked.
     """
@@ -199,7 +198,7 @@ def _mask_kernel(flat, n, head, nxt, valence, below, sel, marked, gstart, inc, o
             return -1, corners
         marked[k] = w
         gstart[k] = corners
-        corners = _mark_above(w, k, corners, flat, head, nxt, below, inc, own, a, b)
+        corners = _mark_above(w, corners, flat, head, nxt, below, inc, a, b)
         k += 1
     gstart[k] = corners
     return k, corners
@@ -613,7 +612,7 @@ def _encode_batch(enc, state, batch, lists) -> None:
     sel[v] = 1
     symbols = np.asarray(batch.symbols)
     enc.reserve(_batch_decisions(n, len(symbols), k, D))
-    marked, gstart, inc, own, a, b = buffers = _mask_buffers(m, k)
+    marked, gstart, inc, a, b = buffers = _mask_buffers(m, k)
     _, corners = rc._kernel(_mask_kernel)(state.faces.reshape(-1), n, lists.head, lists.nxt, lists.valence,
                                           lists.below, sel, *buffers, enc.es, enc.out, _NO_STATE, _NO_BYTES, enc.probs,
                                           0)
@@ -623,7 +622,8 @@ def _encode_batch(enc, state, batch, lists) -> None:
     sym[np.argsort(inc[:corners])] = symbols  # face-slot order -> grouped by split
     new_faces = rc._kernel(_batch_kernel)(state.faces.reshape(-1), m, n, state.positions, v, lists.head, lists.tail,
                                           lists.nxt, lists.valence, lists.stamp, lists.tag, lists.split, lists.created,
-                                          lists.creator, lists.ctr, inc[:corners], own[:corners], a[:corners], b[:corners], sym, gstart[: k + 1],
+                                          lists.creator, lists.ctr, inc[:corners], a[:corners], b[:corners], sym,
+                                          gstart[: k + 1],
                                           np.empty((k, D)), np.empty(k, np.int64), res, enc.es, enc.out, _NO_STATE,
                                           _NO_BYTES, enc.probs, 0)
     if new_faces < 0:
@@ -720,16 +720,16 @@ _BATCH_ERRORS = {
 
 def _mask_buffers(m: int, cap: int) -> tuple:
     """Outputs of :func:`_mask_kernel` for a mesh of ``m`` faces and up to ``cap`` marks:
-    ``(marked (cap,), gstart (cap + 1,), inc, own, a, b (3m,))`` int64, uninitialised (their
+    ``(marked (cap,), gstart (cap + 1,), inc, a, b (3m,))`` int64, uninitialised (their
     pages are only taken as the kernel writes them)."""
-    return (np.empty(cap, np.int64), np.empty(cap + 1, np.int64)) + tuple(np.empty(3 * m, np.int64) for _ in range(4))
+    return (np.empty(cap, np.int64), np.empty(cap + 1, np.int64)) + tuple(np.empty(3 * m, np.int64) for _ in range(3))
 
 
 def _decode_batch(dec, state, lists):
     """One batch: mask, then connectivity, topology and values in one kernel (:func:`_batch_kernel`)."""
     n, m = state.n, state.m
     flat = state.faces.reshape(-1)
-    marked, gstart, inc, own, a, b = buffers = _mask_buffers(m, len(state.positions) - n)
+    marked, gstart, inc, a, b = buffers = _mask_buffers(m, len(state.positions) - n)
     k, corners = rc._kernel(_mask_kernel)(flat, n, lists.head, lists.nxt, lists.valence, lists.below, _NO_SEL,
                                           *buffers, _NO_STATE, _NO_BYTES, dec.ds, dec.buf, dec.probs, 1)
     if k < 0:
@@ -737,13 +737,13 @@ def _decode_batch(dec, state, lists):
     if k == 0:
         raise FormatError("chunk payload: a batch marks no split vertex")
     v, gstart = marked[:k], gstart[: k + 1]
-    inc, own, a, b = inc[:corners], own[:corners], a[:corners], b[:corners]
+    inc, a, b = inc[:corners], a[:corners], b[:corners]
     D = state.positions.shape[1]
     sym = np.zeros(corners, np.uint8)
     rsum, rcount = np.empty((k, D)), np.empty(k, np.int64)
     new_faces = rc._kernel(_batch_kernel)(flat, m, n, state.positions, v, lists.head, lists.tail, lists.nxt,
                                           lists.valence, lists.stamp, lists.tag, lists.split, lists.created,
-                                          lists.creator, lists.ctr, inc, own, a, b, sym, gstart, rsum, rcount, _NO_RES,
+                                          lists.creator, lists.ctr, inc, a, b, sym, gstart, rsum, rcount, _NO_RES,
                                           _NO_STATE, _NO_BYTES, dec.ds, dec.buf, dec.probs, 1)
     if new_faces < 0:
         raise FormatError(_BATCH_ERRORS[new_faces])
@@ -753,14 +753,15 @@ def _decode_batch(dec, state, lists):
 
     def face_slot_order():
         order = np.argsort(inc, kind="stable")
+        own = np.repeat(np.arange(k), np.diff(gstart))  # the split of each incidence
         return inc[order], own[order], order
 
     def incidence_lists():
         return face_slot_order()[:2]
 
     def ring():
-        order = face_slot_order()[2]
-        return _ring_lists(v, sym[order], own[order], a[order], b[order])
+        _, own, order = face_slot_order()
+        return _ring_lists(v, sym[order], own, a[order], b[order])
 
     topo = SplitTopology(u, rsum, rcount, incidence_lists, ring)
     return DecodedBatch(v, state.positions, topo, lambda: sym[face_slot_order()[2]]), topo
@@ -784,15 +785,15 @@ class DecodedBatch(SplitBatch):
         return self._positions[self._topo.u] - self._topo.prediction()
 
 
-def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, split, created, creator, ctr, inc, own, a,
-                  b, sym, gstart, rsum, rcount, res, es, out, ds, buf, probs, decode):
+def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, split, created, creator, ctr, inc, a, b,
+                  sym, gstart, rsum, rcount, res, es, out, ds, buf, probs, decode):
     """Code (``decode`` 0) or decode (1) the connectivity and values of one batch whose split
     vertices ``v`` (k,) and incidences are known (:func:`_mask_kernel`), applying it to the face
     slots ``flat`` (3M,) int64, the values ``P`` (N, D) and the corner lists (:class:`CornerLists`
     arrays).  Encoding and decoding walk the same steps, so both leave the same mesh.
 
     The incidences are grouped by split (split i's: ``[gstart[i], gstart[i+1])``, face-slot
-    order within it): ``inc`` corner, ``own`` split, ``a`` / ``b`` corners after / before the
+    order within it): ``inc`` corner, ``a`` / ``b`` corners after / before the
     split vertex (all (I,) int64).  ``sym`` (I,) uint8: the symbols (encode: given, decode:
     filled).  ``res`` (k, D) int64 (encode): the new values' residuals against the version 1
     prediction, written to ``P`` before they are coded.  Fills ``rsum`` / ``rcount`` (see
@@ -802,7 +803,7 @@ def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, spli
     S, ring, nrm = np.empty((k, D), np.int64), np.empty((k, 2), np.int64), np.empty((k, 3))
     if _connectivity_kernel(gstart, a, b, v, P, sym, S, ring, nrm, es, out, ds, buf, probs, decode) != 0:
         return -1
-    new_faces, rewritten = _link_splits(flat, m0, n0, v, inc, own, a, b, sym, gstart, head, tail, nxt, split, created,
+    new_faces, rewritten = _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, head, tail, nxt, split, created,
                                         creator)
     if new_faces < 0:
         return new_faces
@@ -896,7 +897,7 @@ _DE_BRUIJN = np.array([0, 1, 28, 2, 29, 14, 24, 3, 30, 22, 20, 15, 25, 17, 4, 8,
 
 
 @kernel_helper
-def _link_splits(flat, m0, n0, v, inc, own, a, b, sym, gstart, head, tail, nxt, split, created, creator):
+def _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, head, tail, nxt, split, created, creator):
     """Spec §6.1 steps 1-3 on the face slots and the corner lists: the moved corners become
     ``u`` (and its list), the new faces are appended in face-slot order of the incidences naming
     them.  Returns ``(new faces, rewritten)``: new faces -2 when a split names none or more than
@@ -941,8 +942,9 @@ def _link_splits(flat, m0, n0, v, inc, own, a, b, sym, gstart, head, tail, nxt, 
         while bits != 0:
             low = bits & -bits
             bits ^= low
-            t = creator[32 * word + _DE_BRUIJN[((low * 0x077CB531) & 0xFFFFFFFF) >> 27]]
-            i = own[t]
+            c = 32 * word + _DE_BRUIJN[((low * 0x077CB531) & 0xFFFFFFFF) >> 27]
+            t = creator[c]
+            i = flat[c] - n0  # a naming corner is a moved one: it holds u now
             if sym[t] == 2 or sym[t] == 4:  # left new face (u, v, a)
                 slot = _new_face(slot, n0 + i, v[i], a[t], flat, head, tail, nxt)
             if sym[t] == 3 or sym[t] == 4:  # right new face (v, u, b)
