@@ -368,30 +368,34 @@ def _arc_of(fan, d, kind, sym):
 
 
 @kernel_helper(allocates=True)
-def _connectivity_kernel(gstart, a, b, v, P, sym, S, ring, nrm, es, out, ds, buf, probs, decode):
+def _connectivity_kernel(gstart, a, b, v, P, sym, S, ring, nrm, arc, es, out, ds, buf, probs, decode):
     """Code or decode the incidence symbols ``sym`` (I,) uint8 of a batch, split by split, and
     take each split's ring statistics (:func:`_ring_stats`) while its rows are at hand.
 
     ``gstart[i] .. gstart[i+1] - 1``: split i's incidences in face-slot order; ``a`` / ``b`` (I,)
     the corners after / before the split vertex.  Fills ``S`` (k, D) int64, ``ring`` (k, 2) int64,
-    ``nrm`` (k, 3) float64.  Returns 0, or (decode) -1 on an invalid code.
+    ``nrm`` (k, 3) float64 and ``arc`` (k, 3) int64 (:func:`_split_symbols`).  Returns 0, or
+    (decode) -1 on an invalid code.
     """
     fan, work = np.empty(MAX_ARC_FAN, np.int64), np.zeros(FAN_WORK, np.int64)
     lens = np.empty(MAX_ARC_FAN, np.float64)
     scores = np.empty(MAX_ARC_FAN, np.float64)
     for i in range(len(v)):
         lo, hi = gstart[i], gstart[i + 1]
-        if _split_symbols(lo, hi, v[i], a, b, P, sym, fan, work, i + 1, lens, scores, es, out, ds, buf, probs,
-                          decode) != 0:
+        if _split_symbols(lo, hi, v[i], a, b, P, sym, fan, work, i + 1, lens, scores, arc[i], es, out, ds, buf,
+                          probs, decode) != 0:
             return -1
         _ring_stats(lo, hi, a, b, v[i], sym, P, S, ring, nrm, i)
     return 0
 
 
 @kernel_helper
-def _split_symbols(lo, hi, vv, a, b, P, sym, fan, work, epoch, lens, scores, es, out, ds, buf, probs, decode):
+def _split_symbols(lo, hi, vv, a, b, P, sym, fan, work, epoch, lens, scores, arc, es, out, ds, buf, probs, decode):
     """Code or decode the symbols of one split's incidences ``lo .. hi - 1`` (spec §8.4.2); 0, or -1 on an
-    invalid code.  ``fan`` / ``work`` / ``epoch``: :func:`_fan`'s."""
+    invalid code.  ``fan`` / ``work`` / ``epoch``: :func:`_fan`'s.  ``arc`` (3,) int64: when the
+    symbols are the arc of a closed fan, the incidence of its first moved face, that of the first
+    face after it (-1 when every face moves) and its length (:func:`_arc_valences`); else -1."""
+    arc[0] = -1
     d = hi - lo
     kind = _fan(lo, d, a, b, fan, work, epoch) if 0 < d <= MAX_ARC_FAN else 0
     s, L, left, right = -1, 0, 0, 0
@@ -449,8 +453,10 @@ def _split_symbols(lo, hi, vv, a, b, P, sym, fan, work, epoch, lens, scores, es,
             right = 1
     if decode:
         for t in range(d):
-            inside = (t - s) % d
+            inside = t - s if t >= s else t - s + d
             sym[fan[t]] = _arc_symbol(inside, L, left, right) if inside < L else 0
+    if kind == 1:
+        arc[0], arc[1], arc[2] = fan[s], fan[s + L - d if s + L >= d else s + L] if L < d else -1, L
     return 0
 
 
@@ -801,7 +807,8 @@ def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, spli
     """
     k, D = len(v), P.shape[1]
     S, ring, nrm = np.empty((k, D), np.int64), np.empty((k, 2), np.int64), np.empty((k, 3))
-    if _connectivity_kernel(gstart, a, b, v, P, sym, S, ring, nrm, es, out, ds, buf, probs, decode) != 0:
+    arc = np.empty((k, 3), np.int64)
+    if _connectivity_kernel(gstart, a, b, v, P, sym, S, ring, nrm, arc, es, out, ds, buf, probs, decode) != 0:
         return -1
     new_faces, rewritten = _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, head, tail, nxt, split, created,
                                         creator)
@@ -815,17 +822,18 @@ def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, spli
                 P[n0 + i, q] = S[i, q] // (2 * ring[i, 0]) + res[i, q]
     if _values_kernel(v, P, n0, S, ring, nrm, es, out, ds, buf, probs, decode, rsum, rcount) != 0:
         return -4
-    _update_valences(n0, v, a, b, sym, gstart, flat, head, nxt, valence, stamp, tag, ctr, rewritten)
+    _update_valences(n0, v, a, b, sym, gstart, arc, flat, head, nxt, valence, stamp, tag, ctr, rewritten)
     return new_faces
 
 
 @kernel_helper(allocates=True)
-def _update_valences(n0, v, a, b, sym, gstart, flat, head, nxt, valence, stamp, tag, ctr, rewritten):
+def _update_valences(n0, v, a, b, sym, gstart, arc, flat, head, nxt, valence, stamp, tag, ctr, rewritten):
     """The valences a batch changed, after its topology.  A ring vertex ``x`` of split i gains ``u``
     when a face of ``u`` holds it and loses ``v`` when no face of ``v`` holds it any more; ``v`` and
-    ``u`` count the distinct ring vertices of their faces, plus each other.  That holds when no face
-    held a moved corner and another split vertex (``rewritten`` False: every valid batch); else
-    every ring, split and new vertex is recounted from its faces."""
+    ``u`` count the distinct ring vertices of their faces, plus each other (in O(1) for the arc of
+    a closed fan, ``arc`` (k, 3) of :func:`_split_symbols`: :func:`_arc_valences`).  That holds when
+    no face held a moved corner and another split vertex (``rewritten`` False: every valid batch);
+    else every ring, split and new vertex is recounted from its faces."""
     k = len(v)
     if rewritten:
         for i in range(k):
@@ -840,6 +848,8 @@ def _update_valences(n0, v, a, b, sym, gstart, flat, head, nxt, valence, stamp, 
     near, flags = np.empty(2 * MAX_ARC_FAN, np.int64), np.empty(2 * MAX_ARC_FAN, np.int64)
     for i in range(k):
         lo, hi = gstart[i], gstart[i + 1]
+        if arc[i, 0] >= 0 and _arc_valences(lo, hi, a, v[i], arc[i], valence, own[i]):
+            continue
         if hi - lo <= MAX_ARC_FAN:  # a small ring: its distinct vertices told apart in near / flags
             count = 0
             for t in range(lo, hi):
@@ -862,6 +872,27 @@ def _update_valences(n0, v, a, b, sym, gstart, flat, head, nxt, valence, stamp, 
                     tag[x] |= 4
     for i in range(k):  # last: a split vertex may be in another split's ring
         valence[n0 + i], valence[v[i]] = own[i, 0], own[i, 1]
+
+
+@kernel_helper
+def _arc_valences(lo, hi, a, vv, arc, valence, own):
+    """:func:`_update_valences` for a split of ``vv`` whose symbols are the arc of a closed fan of
+    d = hi - lo faces (``arc`` (3,): :func:`_split_symbols`), its moved faces holding no other split
+    vertex: the ring vertices r_t (``a`` of the fan's t-th incidence, all distinct) from r_s (the
+    arc's first) to r_(s+L) (``a`` of ``arc[1]``) gain u (r_s and r_(s+L)) or swap v for u (those
+    between, no change); u has them (L + 1, or d when L = d) and v; v keeps r_(s+L) .. r_s (d - L + 1,
+    or r_s alone when L = d) and has u.  False (nothing changed) when a ring vertex is ``vv``
+    itself: the caller then counts."""
+    for t in range(lo, hi):
+        if a[t] == vv:
+            return False
+    L, d = arc[2], hi - lo
+    valence[a[arc[0]]] += 1
+    if arc[1] >= 0:
+        valence[a[arc[1]]] += 1
+    own[0] = L + 2 if L < d else d + 1
+    own[1] = d - L + 2 if L < d else 2
+    return True
 
 
 @kernel_helper
