@@ -476,31 +476,42 @@ def _ring_stats(lo, hi, a, b, vv, sym, P, S, ring, nrm, i):
     other corners' values, ``ring`` (k, 2) int64 the face count ``c`` and the summed L1 edge ``E``,
     ``nrm`` (k, 3) float64 the normal."""
     D = P.shape[1]
-    for q in range(D):
-        S[i, q] = 0
-    c, ell = 0, 0
+    vx, vy, vz = P[vv, 0], P[vv, 1], P[vv, 2]
+    sx, sy, sz, c, ell = 0, 0, 0, 0, 0
     nx, ny, nz = 0.0, 0.0, 0.0
     for j in range(lo, hi):
         s = sym[j]
         if s == 0:
             continue
-        aj, bj = a[j], b[j]
-        for q in range(D):
-            S[i, q] += P[aj, q] + P[bj, q]
+        ax, ay, az = P[a[j], 0], P[a[j], 1], P[a[j], 2]
+        bx, by, bz = P[b[j], 0], P[b[j], 1], P[b[j], 2]
+        sx, sy, sz = sx + ax + bx, sy + ay + by, sz + az + bz
         c += 1
-        ell += abs(P[aj, 0] - P[bj, 0]) + abs(P[aj, 1] - P[bj, 1]) + abs(P[aj, 2] - P[bj, 2])
-        e1x, e1y, e1z = np.float64(P[aj, 0] - P[vv, 0]), np.float64(P[aj, 1] - P[vv, 1]), np.float64(P[aj, 2] - P[vv, 2])
-        e2x, e2y, e2z = np.float64(P[bj, 0] - P[vv, 0]), np.float64(P[bj, 1] - P[vv, 1]), np.float64(P[bj, 2] - P[vv, 2])
+        ell += abs(ax - bx) + abs(ay - by) + abs(az - bz)
+        e1x, e1y, e1z = np.float64(ax - vx), np.float64(ay - vy), np.float64(az - vz)
+        e2x, e2y, e2z = np.float64(bx - vx), np.float64(by - vy), np.float64(bz - vz)
         nx += e1y * e2z - e1z * e2y
         ny += e1z * e2x - e1x * e2z
         nz += e1x * e2y - e1y * e2x
-        for w in range(2):
-            if (w == 0 and (s == 2 or s == 4)) or (w == 1 and (s == 3 or s == 4)):
-                o = aj if w == 0 else bj
-                for q in range(D):
-                    S[i, q] += P[vv, q] + P[o, q]
-                c += 1
-                ell += abs(P[vv, 0] - P[o, 0]) + abs(P[vv, 1] - P[o, 1]) + abs(P[vv, 2] - P[o, 2])
+        if s >= 2:  # the new faces: (u, v, a) left for symbols 2 and 4, (v, u, b) right for 3 and 4
+            left, right = (0 if s == 3 else 1), (0 if s == 2 else 1)
+            sx += (left + right) * vx + left * ax + right * bx
+            sy += (left + right) * vy + left * ay + right * by
+            sz += (left + right) * vz + left * az + right * bz
+            c += left + right
+            ell += (left * (abs(vx - ax) + abs(vy - ay) + abs(vz - az))
+                    + right * (abs(vx - bx) + abs(vy - by) + abs(vz - bz)))
+    S[i, 0], S[i, 1], S[i, 2] = sx, sy, sz
+    for q in range(3, D):  # the attributes: the same faces' sums
+        sq = 0
+        for j in range(lo, hi):
+            s = sym[j]
+            if s == 0:
+                continue
+            sq += P[a[j], q] + P[b[j], q]
+            if s >= 2:
+                sq += (2 if s == 4 else 1) * P[vv, q] + (0 if s == 3 else P[a[j], q]) + (0 if s == 2 else P[b[j], q])
+        S[i, q] = sq
     ring[i, 0], ring[i, 1] = c, ell
     nrm[i, 0], nrm[i, 1], nrm[i, 2] = nx, ny, nz
 
