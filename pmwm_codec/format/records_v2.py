@@ -938,7 +938,7 @@ _DE_BRUIJN = np.array([0, 1, 28, 2, 29, 14, 24, 3, 30, 22, 20, 15, 25, 17, 4, 8,
                        6, 11, 5, 10, 9], np.int64)
 
 
-@kernel_helper
+@kernel_helper(allocates=True)
 def _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, head, tail, nxt, split, created, creator):
     """Spec §6.1 steps 1-3 on the face slots and the corner lists: the moved corners become
     ``u`` (and its list), the new faces are appended in face-slot order of the incidences naming
@@ -946,8 +946,10 @@ def _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, head, tail, nxt, split
     two, -3 when they exceed the face capacity (nothing written then); rewritten True when a
     face held a moved corner and another corner of a split vertex (:func:`_update_valences`).
     Scratch: ``split`` (N,) uint8 and ``created`` (bitmap over the corners, 32 bits in each int64
-    word), zeros on entry and on return; ``creator`` (3M,) int32, the incidence naming a new face
-    at its corner (read only where ``created`` has the corner's bit)."""
+    word), zeros on entry and on return; ``creator`` (3M,) int32, at a corner naming new faces
+    (read only where ``created`` has the corner's bit) the row of ``named`` that holds them, made
+    as the corners move: (u, v, a of the left face or -1, b of the right face or -1), so that
+    the faces are written from one row each, not from the batch's arrays at scattered places."""
     k = len(v)
     new_faces = 0
     for i in range(k):
@@ -964,6 +966,8 @@ def _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, head, tail, nxt, split
         split[v[i]] = 1
     rewritten = False
     lo_word, hi_word = len(created), 0
+    named = np.empty((new_faces, 4), np.int64)
+    j = 0
     for i in range(k):  # split i's corners, ascending: the moved ones to u, the others stay with v
         u = n0 + i
         head[u], tail[u], head[v[i]], tail[v[i]] = -1, -1, -1, -1
@@ -973,7 +977,11 @@ def _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, head, tail, nxt, split
                 rewritten = rewritten or split[a[t]] != 0 or split[b[t]] != 0
                 flat[c] = u
                 if sym[t] >= 2:  # names a new face: its corner goes into the bitmap
-                    creator[c] = t
+                    named[j, 0], named[j, 1] = u, v[i]
+                    named[j, 2] = a[t] if sym[t] != 3 else -1
+                    named[j, 3] = b[t] if sym[t] != 2 else -1
+                    creator[c] = j
+                    j += 1
                     created[c >> 5] |= 1 << (c & 31)
                     lo_word, hi_word = min(lo_word, c >> 5), max(hi_word, (c >> 5) + 1)
             _append_corner(u if sym[t] != 0 else v[i], c, head, tail, nxt)
@@ -984,13 +992,12 @@ def _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, head, tail, nxt, split
         while bits != 0:
             low = bits & -bits
             bits ^= low
-            c = 32 * word + _DE_BRUIJN[((low * 0x077CB531) & 0xFFFFFFFF) >> 27]
-            t = creator[c]
-            i = flat[c] - n0  # a naming corner is a moved one: it holds u now
-            if sym[t] == 2 or sym[t] == 4:  # left new face (u, v, a)
-                slot = _new_face(slot, n0 + i, v[i], a[t], flat, head, tail, nxt)
-            if sym[t] == 3 or sym[t] == 4:  # right new face (v, u, b)
-                slot = _new_face(slot, v[i], n0 + i, b[t], flat, head, tail, nxt)
+            row = creator[32 * word + _DE_BRUIJN[((low * 0x077CB531) & 0xFFFFFFFF) >> 27]]
+            u, vv, left, right = named[row, 0], named[row, 1], named[row, 2], named[row, 3]
+            if left >= 0:  # left new face (u, v, a)
+                slot = _new_face(slot, u, vv, left, flat, head, tail, nxt)
+            if right >= 0:  # right new face (v, u, b)
+                slot = _new_face(slot, vv, u, right, flat, head, tail, nxt)
     for i in range(k):
         split[v[i]] = 0
     return new_faces, rewritten
