@@ -26,6 +26,7 @@ The encoder walks the same two kernels in encode mode on lists it keeps from bat
 
 from __future__ import annotations
 
+import sys
 from functools import cached_property
 
 import numpy as np
@@ -693,12 +694,26 @@ class ChunkDecoder:
     def __init__(self):
         self.probs = new_model()
         self.lists: CornerLists | None = None
+        self.mask_out: tuple | None = None  # the last batch's mask outputs (mask_buffers)
 
     def lists_for(self, state) -> CornerLists:
         if self.lists is None or not self.lists.fits(state):
             self.lists = CornerLists(len(state.positions), len(state.faces))
         self.lists.sync(state)
         return self.lists
+
+    def mask_buffers(self, state) -> tuple:
+        """:func:`_mask_buffers` at the primitive's capacity (N marks, 3M corners) for the next batch
+        on ``state``: the last batch's when nothing else holds them any more, else new ones.  A
+        decoded batch lists its split vertices and incidences as views of them, read when first
+        asked (the watermark reads them after the chunk): while any view lives, CPython's count of
+        references to the array it views is above the three of this check (the tuple's, the loop's,
+        the call's).  Reuse spares a batch the system calls and page faults of new arrays."""
+        bufs = self.mask_out
+        if (bufs is None or len(bufs[0]) != len(state.positions) or len(bufs[2]) != 3 * len(state.faces)
+                or any(sys.getrefcount(x) > 3 for x in bufs)):
+            bufs = self.mask_out = _mask_buffers(len(state.faces), len(state.positions))
+        return bufs
 
 
 def decode_chunk(payload, state, model: ChunkDecoder):
@@ -720,7 +735,7 @@ def decode_chunk(payload, state, model: ChunkDecoder):
     lists = model.lists_for(state)
     for _ in range(batches):
         try:
-            yield _decode_batch(dec, state, lists)
+            yield _decode_batch(dec, state, lists, model.mask_buffers(state))
         except FormatError:
             lists.n = -1  # the lists may be half updated: rebuilt if anyone decodes on
             raise
@@ -742,13 +757,16 @@ def _mask_buffers(m: int, cap: int) -> tuple:
     return (np.empty(cap, np.int64), np.empty(cap + 1, np.int64)) + tuple(np.empty(3 * m, np.int64) for _ in range(3))
 
 
-def _decode_batch(dec, state, lists):
-    """One batch: mask, then connectivity, topology and values in one kernel (:func:`_batch_kernel`)."""
+def _decode_batch(dec, state, lists, buffers):
+    """One batch: mask, then connectivity, topology and values in one kernel (:func:`_batch_kernel`).
+    ``buffers``: the mask's outputs (:meth:`ChunkDecoder.mask_buffers`)."""
     n, m = state.n, state.m
     flat = state.faces.reshape(-1)
-    marked, gstart, inc, a, b = buffers = _mask_buffers(m, len(state.positions) - n)
+    marked, gstart, inc, a, b = buffers
+    cap = len(state.positions) - n  # the marks the primitive has room for
     k, corners = rc._kernel(_mask_kernel)(flat, n, lists.head, lists.nxt, lists.valence, lists.below, _NO_SEL,
-                                          *buffers, _NO_STATE, _NO_BYTES, dec.ds, dec.buf, dec.probs, 1)
+                                          marked[:cap], gstart[: cap + 1], inc, a, b, _NO_STATE, _NO_BYTES, dec.ds,
+                                          dec.buf, dec.probs, 1)
     if k < 0:
         raise FormatError("splits exceed the declared vertex count")
     if k == 0:
