@@ -952,8 +952,8 @@ def _tag(x, token, bits, tag):
 
 
 #: Bit j of a word -> j, by the de Bruijn sequence 0x077CB531 (:func:`_link_splits`'s bitmap).
-_DE_BRUIJN = np.array([0, 1, 28, 2, 29, 14, 24, 3, 30, 22, 20, 15, 25, 17, 4, 8, 31, 27, 13, 23, 21, 19, 16, 7, 26, 12, 18,
-                       6, 11, 5, 10, 9], np.int64)
+_DE_BRUIJN = np.array([0, 1, 28, 2, 29, 14, 24, 3, 30, 22, 20, 15, 25, 17, 4, 8, 31, 27, 13, 23, 21, 19, 16, 7, 26, 12,
+                       18, 6, 11, 5, 10, 9], np.int64)
 
 
 @kernel_helper(allocates=True)
