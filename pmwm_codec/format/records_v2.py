@@ -156,17 +156,18 @@ def _mark_above(w, t, flat, head, nxt, below, inc, a, b):
     """List ``w``'s corners from ``t`` on as its split's incidences (:func:`_batch_kernel`) and
     count ``w`` in ``below`` (:data:`BELOW_BITS`) once for each distinct neighbour ``x > w``;
     returns the next ``t``."""
-    mark = (w + 1) << BELOW_BITS
+    start = t
     c = head[w]
-    while c >= 0:
+    while c >= 0:  # no branch on what the faces hold: the face loads of the corners overlap
         f3 = c - c % 3
-        x, y = flat[f3 + (c + 1) % 3], flat[f3 + (c + 2) % 3]
-        inc[t], a[t], b[t] = c, x, y
+        inc[t], a[t], b[t] = c, flat[f3 + (c + 1) % 3], flat[f3 + (c + 2) % 3]
         t += 1
-        for z in (x, y):
+        c = nxt[c]
+    mark = (w + 1) << BELOW_BITS
+    for s in range(start, t):
+        for z in (a[s], b[s]):
             if z > w and below[z] & -(1 << BELOW_BITS) != mark:
                 below[z] = mark | min((below[z] & ((1 << BELOW_BITS) - 1)) + 1, 2)
-        c = nxt[c]
     return t
 
 
