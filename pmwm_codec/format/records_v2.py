@@ -707,14 +707,31 @@ class ChunkDecoder:
         """:func:`_mask_buffers` at the primitive's capacity (N marks, 3M corners) for the next batch
         on ``state``: the last batch's when nothing else holds them any more, else new ones.  A
         decoded batch lists its split vertices and incidences as views of them, read when first
-        asked (the watermark reads them after the chunk): while any view lives, CPython's count of
-        references to the array it views is above the three of this check (the tuple's, the loop's,
-        the call's).  Reuse spares a batch the system calls and page faults of new arrays."""
+        asked (the watermark reads them after the chunk): while any view lives, CPython counts a
+        reference to the array it views (:func:`_unreferenced`).  Reuse spares a batch the system
+        calls and page faults of new arrays."""
         bufs = self.mask_out
         if (bufs is None or len(bufs[0]) != len(state.positions) or len(bufs[2]) != 3 * len(state.faces)
-                or any(sys.getrefcount(x) > 3 for x in bufs)):
+                or not _unreferenced(bufs)):
             bufs = self.mask_out = _mask_buffers(len(state.faces), len(state.positions))
         return bufs
+
+
+def _references(items: tuple) -> list:
+    """CPython's reference count of each of ``items``, as counted from here."""
+    return [sys.getrefcount(x) for x in items]
+
+
+def _unreferenced(items: tuple) -> bool:
+    """Whether nothing but the tuple ``items`` holds any of its items (no view of an array, no
+    decoded batch).  The counts are compared with those of a fresh object held by a tuple alone and
+    counted by the same code, not with a constant: how many references the counting itself takes
+    differs between CPython versions (3.14 borrows some).  False outside CPython (its counts are
+    meaningless there): new buffers every batch, as before reuse."""
+    if sys.implementation.name != "cpython":
+        return False
+    alone = _references((object(),))[0]
+    return all(r <= alone for r in _references(items))
 
 
 def decode_chunk(payload, state, model: ChunkDecoder):
