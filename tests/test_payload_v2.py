@@ -296,6 +296,12 @@ def test_the_decoder_reuses_its_mask_outputs_once_no_batch_holds_them():
     for payload in payloads:  # every batch held: each one's outputs are new
         held += [(got, model.mask_out) for got in records_v2.decode_chunk(payload, state, model)]
     assert len({id(outputs[0]) for _, outputs in held}) == len(held) == len(pm.batches)
+    state, model, kept = pm.new_state(), records_v2.ChunkDecoder(), []
+    for payload in payloads:  # only each batch's split vertices kept (a view of the outputs): new ones too
+        for got, _ in records_v2.decode_chunk(payload, state, model):
+            kept.append((got.v, got.v.copy()))
+    assert all(np.array_equal(view, copy) for view, copy in kept)
+    assert len({view.base.ctypes.data for view, _ in kept}) == len(pm.batches)
 
 
 def test_the_encoder_refuses_a_batch_that_does_not_fit_the_mesh():
