@@ -258,6 +258,52 @@ def test_the_encoder_packs_on_the_decoders_incremental_path_and_leaves_version_1
     assert np.array_equal(decoded.current_faces(), reference.current_faces())
 
 
+def test_decoded_batches_list_the_topology_version_1_applies_even_when_read_after_the_stream():
+    """What a decoded batch lists only when asked (its symbols, incidences, owners, ring, residuals)
+    equals version 1's apply_batch of the same batch, also when asked after every later batch was
+    decoded (the decoder reuses its mask outputs only once no batch holds them)."""
+    from pmwm_codec.progressive.vsplit import apply_batch
+    from test_kernels import _progressive
+
+    pm = _progressive(shapes.torus(30, 14, twist=0.1))
+    payloads = records_v2.pack_chunks(pm.new_state(), [pm.batches[i:i + 3] for i in range(0, len(pm.batches), 3)])
+    state, model, reference = pm.new_state(), records_v2.ChunkDecoder(), pm.new_state()
+    decoded = [got for payload in payloads for got in records_v2.decode_chunk(payload, state, model)]
+    assert len(decoded) == len(pm.batches) and len(payloads) > 2
+    for (batch, topo), original in zip(decoded, pm.batches):
+        want = apply_batch(reference, original)
+        assert np.array_equal(batch.v, original.v) and np.array_equal(batch.symbols, original.symbols)
+        assert np.array_equal(batch.residual, original.residual)
+        for name in ("incidences", "owner", "ring_owner", "ring_a", "ring_b", "u", "ring_count"):
+            assert np.array_equal(getattr(topo, name), getattr(want, name)), name
+        assert np.array_equal(topo.ring_sum, want.ring_sum)
+
+
+def test_the_decoder_reuses_its_mask_outputs_once_no_batch_holds_them():
+    from test_kernels import _progressive
+
+    pm = _progressive(shapes.torus(30, 14, twist=0.1))
+    payloads = records_v2.pack_chunks(pm.new_state(), [pm.batches[i:i + 3] for i in range(0, len(pm.batches), 3)])
+    state, model = pm.new_state(), records_v2.ChunkDecoder()
+    used = set()
+    for payload in payloads:
+        batches = records_v2.decode_chunk(payload, state, model)
+        for got in iter(lambda: next(batches, None), None):
+            used.add(id(model.mask_out[0]))
+            del got  # dropped before the next batch is decoded: its mask outputs are free again
+    assert len(used) == 1 and len(pm.batches) > 3
+    state, model, held = pm.new_state(), records_v2.ChunkDecoder(), []
+    for payload in payloads:  # every batch held: each one's outputs are new
+        held += [(got, model.mask_out) for got in records_v2.decode_chunk(payload, state, model)]
+    assert len({id(outputs[0]) for _, outputs in held}) == len(held) == len(pm.batches)
+    state, model, kept = pm.new_state(), records_v2.ChunkDecoder(), []
+    for payload in payloads:  # only each batch's split vertices kept (a view of the outputs): new ones too
+        for got, _ in records_v2.decode_chunk(payload, state, model):
+            kept.append((got.v, got.v.copy()))
+    assert all(np.array_equal(view, copy) for view, copy in kept)
+    assert len({view.base.ctypes.data for view, _ in kept}) == len(pm.batches)
+
+
 def test_the_encoder_refuses_a_batch_that_does_not_fit_the_mesh():
     from test_kernels import _progressive
 

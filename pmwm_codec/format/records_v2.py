@@ -26,6 +26,7 @@ The encoder walks the same two kernels in encode mode on lists it keeps from bat
 
 from __future__ import annotations
 
+import sys
 from functools import cached_property
 
 import numpy as np
@@ -75,11 +76,13 @@ class CornerLists:
 
     ``head`` / ``tail`` (N,) int32 first / last corner of a vertex (-1: none), ``nxt`` (3M,) int32
     the next corner of the same vertex (-1: the last); ``valence`` (N,) int64 the number of
-    distinct other vertices sharing a face with each vertex; scratch: ``below`` (N,) int64 zeros,
-    ``stamp`` / ``tag`` (N,) int64 with their token counter ``ctr`` (1,) int64, ``split`` (N,) uint8
-    zeros.  N / M: the primitive's declared vertex / face counts.  ``n`` / ``m``: the mesh they
-    describe; :meth:`sync` rebuilds them (O(m)) for a mesh that changed elsewhere, the decoder
-    updates them batch by batch (O(batch)).
+    distinct other vertices sharing a face with each vertex; scratch: ``below`` (N,) int64 zeros
+    (:data:`BELOW_BITS`), ``stamp`` / ``tag`` (N,) int64 with their token counter ``ctr`` (1,)
+    int64, ``split`` (N,) uint8 zeros, ``created`` ((3M + 31) // 32,) int64 zeros (a bitmap over
+    the corners, 32 bits a word) and ``creator`` (3M,) int32 (:func:`_link_splits`).  N / M: the
+    primitive's declared vertex / face counts.  ``n`` / ``m``: the mesh they describe; :meth:`sync`
+    rebuilds them (O(m)) for a mesh that changed elsewhere, the decoder updates them batch by batch
+    (O(batch)).
     """
 
     def __init__(self, vertex_capacity: int, face_capacity: int):
@@ -88,6 +91,7 @@ class CornerLists:
         self.nxt = np.full(3 * M, -1, np.int32)  # corners < 3 * MAX_FACES < 2**31
         self.valence, self.tag, self.split = np.zeros(N, np.int64), np.zeros(N, np.int64), np.zeros(N, np.uint8)
         self.below, self.stamp, self.ctr = np.zeros(N, np.int64), np.zeros(N, np.int64), np.zeros(1, np.int64)
+        self.created, self.creator = np.zeros((3 * M + 31) // 32, np.int64), np.empty(3 * M, np.int32)
         self.n = self.m = -1
 
     def fits(self, state) -> bool:
@@ -142,60 +146,46 @@ def _valence(w, flat, head, nxt, stamp, ctr):
     return valence
 
 
+#: ``below[x]`` (:func:`_mask_kernel`): the marked distinct neighbours below x, counted up to 2, in
+#: its low bits; above them the last marked vertex w that counted x, as w + 1 (tells its corners apart).
+BELOW_BITS = 2
+
+
 @kernel_helper
-def _mark_above(w, i, t, flat, head, nxt, below, stamp, ctr, inc, own, a, b, near):
-    """List ``w``'s corners from ``t`` on as split ``i``'s incidences (:func:`_batch_kernel`) and
-    ``below[x] += 1`` for each distinct neighbour ``x > w`` of ``w`` (told apart in ``near``
-    (2 * MAX_ARC_FAN,) int64 scratch for a small fan, by ``stamp`` otherwise); returns the next ``t``."""
+def _mark_above(w, t, flat, head, nxt, below, inc, a, b):
+    """List ``w``'s corners from ``t`` on as its split's incidences (:func:`_batch_kernel`) and
+    count ``w`` in ``below`` (:data:`BELOW_BITS`) once for each distinct neighbour ``x > w``;
+    returns the next ``t``."""
     start = t
     c = head[w]
-    while c >= 0:
+    while c >= 0:  # no branch on what the faces hold: the face loads of the corners overlap
         f3 = c - c % 3
-        inc[t], own[t] = c, i
-        a[t], b[t] = flat[f3 + (c + 1) % 3], flat[f3 + (c + 2) % 3]
+        inc[t], a[t], b[t] = c, flat[f3 + (c + 1) % 3], flat[f3 + (c + 2) % 3]
         t += 1
         c = nxt[c]
-    small = t - start <= MAX_ARC_FAN
-    token = ctr[0] + 1
-    ctr[0] = token
-    count = 0
+    mark = (w + 1) << BELOW_BITS
     for s in range(start, t):
-        for x in (a[s], b[s]):
-            if x <= w:
-                continue
-            if small:
-                seen = False
-                for q in range(count):
-                    seen = seen or near[q] == x
-                if seen:
-                    continue
-                near[count] = x
-                count += 1
-            else:
-                if stamp[x] == token:
-                    continue
-                stamp[x] = token
-            below[x] += 1
+        for z in (a[s], b[s]):
+            if z > w and below[z] & -(1 << BELOW_BITS) != mark:
+                below[z] = mark | min((below[z] & ((1 << BELOW_BITS) - 1)) + 1, 2)
     return t
 
 
-def _mask_kernel(flat, n, head, nxt, valence, below, stamp, ctr, sel, marked, gstart, inc, own, a, b, es, out, ds,
-                 buf, probs, decode):
+def _mask_kernel(flat, n, head, nxt, valence, below, sel, marked, gstart, inc, a, b, es, out, ds, buf, probs, decode):
     """Code (``decode`` 0, the bits ``sel`` (n,) int64) or decode (1) a batch's selection mask over the
     mesh of the corner lists (:class:`CornerLists` arrays, ``flat`` (3M,) int64 its face slots).
 
     Context of vertex w: 7 * min(2, marked distinct neighbours below w) + clamp(valence, 3, 9) - 3; the
-    marks push to the neighbours above them as they are coded.  ``marked`` (cap,) int64 receives
-    the marked vertices, ascending, and ``gstart`` (cap + 1,) / ``inc`` / ``own`` / ``a`` / ``b``
-    (3m,) int64 their incidences as :func:`_batch_kernel` takes them (gathered on the way).
-    Returns ``(k, incidences)``; k = -1 when more than ``cap`` vertices are marked (``below`` is
-    then cleared).
+    marks push to the neighbours above them as they are coded (``below``, zeros on entry and on
+    return).  ``marked`` (cap,) int64 receives the marked vertices, ascending, and ``gstart``
+    (cap + 1,) / ``inc`` / ``a`` / ``b`` (3m,) int64 their incidences as
+    :func:`_batch_kernel` takes them (gathered on the way).  Returns ``(k, incidences)``; k = -1
+    when more than ``cap`` vertices are marked.
     """
     k = 0
     corners = 0
-    near = np.empty(2 * MAX_ARC_FAN, np.int64)
     for w in range(n):
-        ctx = P_MASK + 7 * min(below[w], 2) + min(max(valence[w], 3), 9) - 3
+        ctx = P_MASK + 7 * (below[w] & ((1 << BELOW_BITS) - 1)) + min(max(valence[w], 3), 9) - 3
         below[w] = 0
         if decode:
             bit = rc.dec_bit(ds, buf, probs, ctx)
@@ -210,7 +200,7 @@ def _mask_kernel(flat, n, head, nxt, valence, below, stamp, ctr, sel, marked, gs
             return -1, corners
         marked[k] = w
         gstart[k] = corners
-        corners = _mark_above(w, k, corners, flat, head, nxt, below, stamp, ctr, inc, own, a, b, near)
+        corners = _mark_above(w, corners, flat, head, nxt, below, inc, a, b)
         k += 1
     gstart[k] = corners
     return k, corners
@@ -219,22 +209,60 @@ def _mask_kernel(flat, n, head, nxt, valence, below, stamp, ctr, sel, marked, gs
 # ---------------------------------------------------------------- connectivity: fans and arcs
 
 
-@kernel_helper
-def _fan(lo, d, a, b, fan):
-    """Order the ``d <= MAX_ARC_FAN`` incidences ``lo .. lo + d - 1`` of one split vertex into
-    ``fan`` (d,) (spec §8.4.2), by pairwise comparisons of their corners (no scratch outside the fan).
+#: The hash of a fan's corners ``a`` (:func:`_fan`): 2**FAN_BITS slots, at most half full.
+FAN_BITS = 6
+FAN_SLOTS = 1 << FAN_BITS
+#: Layout of :func:`_fan`'s scratch ``work`` (int64): successors, predecessor flags, then the
+#: slots' keys, incidences and epochs.
+W_SUCC, W_PRED = 0, MAX_ARC_FAN
+W_KEY, W_INDEX, W_EPOCH = 2 * MAX_ARC_FAN, 2 * MAX_ARC_FAN + FAN_SLOTS, 2 * MAX_ARC_FAN + 2 * FAN_SLOTS
+FAN_WORK = 2 * MAX_ARC_FAN + 3 * FAN_SLOTS
 
+
+@kernel_helper
+def _fan_slot(x):
+    """The first slot of corner ``x`` in :func:`_fan`'s hash (multiplicative hashing)."""
+    return ((x * 0x9E3779B1) & 0xFFFFFFFF) >> (32 - FAN_BITS)
+
+
+@kernel_helper
+def _fan(lo, d, a, b, fan, work, epoch):
+    """Order the ``d <= MAX_ARC_FAN`` incidences ``lo .. lo + d - 1`` of one split vertex into
+    ``fan`` (d,) int64 (spec §8.4.2).  ``work`` (FAN_WORK,) int64 scratch, zeros when first used;
+    ``epoch`` > 0 marks the hash slots of this call (a value no earlier call on ``work`` used).
+
+    The corners ``a`` are hashed: a repeated ``a`` fails at once, and the successor of t is the
+    incidence whose ``a`` is ``b[t]``.  With distinct ``a``, a successor named twice means two equal
+    ``b``; any other repeated ``b`` (with no successor) leaves two ends to the walk, which then
+    fails: so the spec's conditions hold exactly when these checks and the walk pass.
     Returns 1 closed fan, 2 open fan, 0 not simple (then ``fan`` is undefined).
     """
+    for t in range(d):
+        x = a[lo + t]
+        h = _fan_slot(x)
+        while work[W_EPOCH + h] == epoch:
+            if work[W_KEY + h] == x:
+                return 0  # corners after the vertex repeat
+            h = (h + 1) & (FAN_SLOTS - 1)
+        work[W_EPOCH + h], work[W_KEY + h], work[W_INDEX + h] = epoch, x, t
+        work[W_PRED + t] = 0
+    for t in range(d):
+        y = b[lo + t]
+        nx = -1
+        h = _fan_slot(y)
+        while work[W_EPOCH + h] == epoch:
+            if work[W_KEY + h] == y:
+                nx = work[W_INDEX + h]
+                if work[W_PRED + nx] != 0:
+                    return 0  # corners before the vertex repeat
+                work[W_PRED + nx] = 1
+                break
+            h = (h + 1) & (FAN_SLOTS - 1)
+        work[W_SUCC + t] = nx
     first = -1
     starts = 0
-    for t in range(lo, lo + d):
-        has_pred = False
-        for s in range(lo, lo + d):
-            if s != t and (a[s] == a[t] or b[s] == b[t]):
-                return 0  # corners after (or before) the vertex repeat
-            has_pred = has_pred or b[s] == a[t]
-        if not has_pred:
+    for t in range(d):  # t starts the walk when no b equals its a
+        if work[W_PRED + t] == 0:
             starts += 1
             if first < 0:
                 first = t
@@ -242,27 +270,18 @@ def _fan(lo, d, a, b, fan):
         return 0
     kind = 2 if starts == 1 else 1
     if kind == 1:
-        first = lo
+        first = 0
     t = first
     for s in range(d):
-        fan[s] = t
-        nxt = _successor(lo, d, a, b, t)
+        fan[s] = lo + t
+        nx = work[W_SUCC + t]
         if s < d - 1:
-            if nxt < 0 or nxt == first:
+            if nx < 0 or nx == first:
                 return 0
-            t = nxt
-        elif (kind == 1 and nxt != first) or (kind == 2 and nxt >= 0):
+            t = nx
+        elif (kind == 1 and nx != first) or (kind == 2 and nx >= 0):
             return 0
     return kind
-
-
-@kernel_helper
-def _successor(lo, d, a, b, t):
-    """The incidence among ``lo .. lo + d - 1`` whose corner after the vertex is ``t``'s corner before it, or -1."""
-    for s in range(lo, lo + d):
-        if a[s] == b[t]:
-            return s
-    return -1
 
 
 @kernel_helper
@@ -279,8 +298,10 @@ def _arc_rank(fan, d, closed, L, s, a, vv, P, lens, scores, choose):
     ncand = d if closed else d - L + 1
     for c in range(ncand):
         sc = 0.0
-        for j in range(1, L):
-            sc += lens[(c + j) % d]
+        t = c
+        for _ in range(1, L):
+            t = t + 1 if t + 1 < d else 0  # (c + j) mod d
+            sc += lens[t]
         scores[c] = sc
     if choose < 0:
         r = 0
@@ -288,14 +309,19 @@ def _arc_rank(fan, d, closed, L, s, a, vv, P, lens, scores, choose):
             if scores[c] > scores[s] or (scores[c] == scores[s] and c < s):
                 r += 1
         return r
-    for c in range(ncand):
-        r = 0
-        for c2 in range(ncand):
-            if scores[c2] > scores[c] or (scores[c2] == scores[c] and c2 < c):
-                r += 1
-        if r == choose:
-            return c
-    return -1
+    # the start of rank `choose` in choose + 1 passes (mostly 1 or 2): each takes the first start
+    # of highest score among those after the previous pass's in rank order
+    best, best_score = -1, np.inf
+    for _ in range(choose + 1):
+        prev, prev_score = best, best_score
+        best = -1
+        for c in range(ncand):
+            sc = scores[c]
+            if (sc < prev_score or (sc == prev_score and c > prev)) and (best < 0 or sc > best_score):
+                best, best_score = c, sc
+        if best < 0:
+            return -1
+    return best
 
 
 @kernel_helper
@@ -344,30 +370,36 @@ def _arc_of(fan, d, kind, sym):
 
 
 @kernel_helper(allocates=True)
-def _connectivity_kernel(gstart, a, b, v, P, sym, S, ring, nrm, es, out, ds, buf, probs, decode):
+def _connectivity_kernel(gstart, a, b, v, P, sym, S, ring, nrm, arc, es, out, ds, buf, probs, decode):
     """Code or decode the incidence symbols ``sym`` (I,) uint8 of a batch, split by split, and
     take each split's ring statistics (:func:`_ring_stats`) while its rows are at hand.
 
     ``gstart[i] .. gstart[i+1] - 1``: split i's incidences in face-slot order; ``a`` / ``b`` (I,)
     the corners after / before the split vertex.  Fills ``S`` (k, D) int64, ``ring`` (k, 2) int64,
-    ``nrm`` (k, 3) float64.  Returns 0, or (decode) -1 on an invalid code.
+    ``nrm`` (k, 3) float64 and ``arc`` (k, 3) int64 (:func:`_split_symbols`).  Returns 0, or
+    (decode) -1 on an invalid code.
     """
-    fan = np.empty(MAX_ARC_FAN, np.int64)
+    fan, work = np.empty(MAX_ARC_FAN, np.int64), np.zeros(FAN_WORK, np.int64)
     lens = np.empty(MAX_ARC_FAN, np.float64)
     scores = np.empty(MAX_ARC_FAN, np.float64)
     for i in range(len(v)):
         lo, hi = gstart[i], gstart[i + 1]
-        if _split_symbols(lo, hi, v[i], a, b, P, sym, fan, lens, scores, es, out, ds, buf, probs, decode) != 0:
+        if _split_symbols(lo, hi, v[i], a, b, P, sym, fan, work, i + 1, lens, scores, arc[i], es, out, ds, buf,
+                          probs, decode) != 0:
             return -1
         _ring_stats(lo, hi, a, b, v[i], sym, P, S, ring, nrm, i)
     return 0
 
 
 @kernel_helper
-def _split_symbols(lo, hi, vv, a, b, P, sym, fan, lens, scores, es, out, ds, buf, probs, decode):
-    """Code or decode the symbols of one split's incidences ``lo .. hi - 1`` (spec §8.4.2); 0, or -1 on an invalid code."""
+def _split_symbols(lo, hi, vv, a, b, P, sym, fan, work, epoch, lens, scores, arc, es, out, ds, buf, probs, decode):
+    """Code or decode the symbols of one split's incidences ``lo .. hi - 1`` (spec §8.4.2); 0, or -1 on an
+    invalid code.  ``fan`` / ``work`` / ``epoch``: :func:`_fan`'s.  ``arc`` (3,) int64: when the
+    symbols are the arc of a closed fan, the incidence of its first moved face, that of the first
+    face after it (-1 when every face moves) and its length (:func:`_arc_valences`); else -1."""
+    arc[0] = -1
     d = hi - lo
-    kind = _fan(lo, d, a, b, fan) if 0 < d <= MAX_ARC_FAN else 0
+    kind = _fan(lo, d, a, b, fan, work, epoch) if 0 < d <= MAX_ARC_FAN else 0
     s, L, left, right = -1, 0, 0, 0
     if kind != 0:
         if decode:
@@ -423,8 +455,10 @@ def _split_symbols(lo, hi, vv, a, b, P, sym, fan, lens, scores, es, out, ds, buf
             right = 1
     if decode:
         for t in range(d):
-            inside = (t - s) % d
+            inside = t - s if t >= s else t - s + d
             sym[fan[t]] = _arc_symbol(inside, L, left, right) if inside < L else 0
+    if kind == 1:
+        arc[0], arc[1], arc[2] = fan[s], fan[s + L - d if s + L >= d else s + L] if L < d else -1, L
     return 0
 
 
@@ -444,31 +478,42 @@ def _ring_stats(lo, hi, a, b, vv, sym, P, S, ring, nrm, i):
     other corners' values, ``ring`` (k, 2) int64 the face count ``c`` and the summed L1 edge ``E``,
     ``nrm`` (k, 3) float64 the normal."""
     D = P.shape[1]
-    for q in range(D):
-        S[i, q] = 0
-    c, ell = 0, 0
+    vx, vy, vz = P[vv, 0], P[vv, 1], P[vv, 2]
+    sx, sy, sz, c, ell = 0, 0, 0, 0, 0
     nx, ny, nz = 0.0, 0.0, 0.0
     for j in range(lo, hi):
         s = sym[j]
         if s == 0:
             continue
-        aj, bj = a[j], b[j]
-        for q in range(D):
-            S[i, q] += P[aj, q] + P[bj, q]
+        ax, ay, az = P[a[j], 0], P[a[j], 1], P[a[j], 2]
+        bx, by, bz = P[b[j], 0], P[b[j], 1], P[b[j], 2]
+        sx, sy, sz = sx + ax + bx, sy + ay + by, sz + az + bz
         c += 1
-        ell += abs(P[aj, 0] - P[bj, 0]) + abs(P[aj, 1] - P[bj, 1]) + abs(P[aj, 2] - P[bj, 2])
-        e1x, e1y, e1z = np.float64(P[aj, 0] - P[vv, 0]), np.float64(P[aj, 1] - P[vv, 1]), np.float64(P[aj, 2] - P[vv, 2])
-        e2x, e2y, e2z = np.float64(P[bj, 0] - P[vv, 0]), np.float64(P[bj, 1] - P[vv, 1]), np.float64(P[bj, 2] - P[vv, 2])
+        ell += abs(ax - bx) + abs(ay - by) + abs(az - bz)
+        e1x, e1y, e1z = np.float64(ax - vx), np.float64(ay - vy), np.float64(az - vz)
+        e2x, e2y, e2z = np.float64(bx - vx), np.float64(by - vy), np.float64(bz - vz)
         nx += e1y * e2z - e1z * e2y
         ny += e1z * e2x - e1x * e2z
         nz += e1x * e2y - e1y * e2x
-        for w in range(2):
-            if (w == 0 and (s == 2 or s == 4)) or (w == 1 and (s == 3 or s == 4)):
-                o = aj if w == 0 else bj
-                for q in range(D):
-                    S[i, q] += P[vv, q] + P[o, q]
-                c += 1
-                ell += abs(P[vv, 0] - P[o, 0]) + abs(P[vv, 1] - P[o, 1]) + abs(P[vv, 2] - P[o, 2])
+        if s >= 2:  # the new faces: (u, v, a) left for symbols 2 and 4, (v, u, b) right for 3 and 4
+            left, right = (0 if s == 3 else 1), (0 if s == 2 else 1)
+            sx += (left + right) * vx + left * ax + right * bx
+            sy += (left + right) * vy + left * ay + right * by
+            sz += (left + right) * vz + left * az + right * bz
+            c += left + right
+            ell += (left * (abs(vx - ax) + abs(vy - ay) + abs(vz - az))
+                    + right * (abs(vx - bx) + abs(vy - by) + abs(vz - bz)))
+    S[i, 0], S[i, 1], S[i, 2] = sx, sy, sz
+    for q in range(3, D):  # the attributes: the same faces' sums
+        sq = 0
+        for j in range(lo, hi):
+            s = sym[j]
+            if s == 0:
+                continue
+            sq += P[a[j], q] + P[b[j], q]
+            if s >= 2:
+                sq += (2 if s == 4 else 1) * P[vv, q] + (0 if s == 3 else P[a[j], q]) + (0 if s == 2 else P[b[j], q])
+        S[i, q] = sq
     ring[i, 0], ring[i, 1] = c, ell
     nrm[i, 0], nrm[i, 1], nrm[i, 2] = nx, ny, nz
 
@@ -586,17 +631,18 @@ def _encode_batch(enc, state, batch, lists) -> None:
     sel[v] = 1
     symbols = np.asarray(batch.symbols)
     enc.reserve(_batch_decisions(n, len(symbols), k, D))
-    marked, gstart, inc, own, a, b = buffers = _mask_buffers(m, k)
+    marked, gstart, inc, a, b = buffers = _mask_buffers(m, k)
     _, corners = rc._kernel(_mask_kernel)(state.faces.reshape(-1), n, lists.head, lists.nxt, lists.valence,
-                                          lists.below, lists.stamp, lists.ctr, sel, *buffers, enc.es, enc.out,
-                                          _NO_STATE, _NO_BYTES, enc.probs, 0)
+                                          lists.below, sel, *buffers, enc.es, enc.out, _NO_STATE, _NO_BYTES, enc.probs,
+                                          0)
     if corners != len(symbols) or (corners and int(symbols.max()) >= 5):
         raise ValueError("payload v2: the batch's symbols do not match the mesh's incidences")
     sym = np.empty(corners, np.uint8)
     sym[np.argsort(inc[:corners])] = symbols  # face-slot order -> grouped by split
     new_faces = rc._kernel(_batch_kernel)(state.faces.reshape(-1), m, n, state.positions, v, lists.head, lists.tail,
-                                          lists.nxt, lists.valence, lists.stamp, lists.tag, lists.split, lists.ctr,
-                                          inc[:corners], own[:corners], a[:corners], b[:corners], sym, gstart[: k + 1],
+                                          lists.nxt, lists.valence, lists.stamp, lists.tag, lists.split, lists.created,
+                                          lists.creator, lists.ctr, inc[:corners], a[:corners], b[:corners], sym,
+                                          gstart[: k + 1],
                                           np.empty((k, D)), np.empty(k, np.int64), res, enc.es, enc.out, _NO_STATE,
                                           _NO_BYTES, enc.probs, 0)
     if new_faces < 0:
@@ -649,12 +695,43 @@ class ChunkDecoder:
     def __init__(self):
         self.probs = new_model()
         self.lists: CornerLists | None = None
+        self.mask_out: tuple | None = None  # the last batch's mask outputs (mask_buffers)
 
     def lists_for(self, state) -> CornerLists:
         if self.lists is None or not self.lists.fits(state):
             self.lists = CornerLists(len(state.positions), len(state.faces))
         self.lists.sync(state)
         return self.lists
+
+    def mask_buffers(self, state) -> tuple:
+        """:func:`_mask_buffers` at the primitive's capacity (N marks, 3M corners) for the next batch
+        on ``state``: the last batch's when nothing else holds them any more, else new ones.  A
+        decoded batch lists its split vertices and incidences as views of them, read when first
+        asked (the watermark reads them after the chunk): while any view lives, CPython counts a
+        reference to the array it views (:func:`_unreferenced`).  Reuse spares a batch the system
+        calls and page faults of new arrays."""
+        bufs = self.mask_out
+        if (bufs is None or len(bufs[0]) != len(state.positions) or len(bufs[2]) != 3 * len(state.faces)
+                or not _unreferenced(bufs)):
+            bufs = self.mask_out = _mask_buffers(len(state.faces), len(state.positions))
+        return bufs
+
+
+def _references(items: tuple) -> list:
+    """CPython's reference count of each of ``items``, as counted from here."""
+    return [sys.getrefcount(x) for x in items]
+
+
+def _unreferenced(items: tuple) -> bool:
+    """Whether nothing but the tuple ``items`` holds any of its items (no view of an array, no
+    decoded batch).  The counts are compared with those of a fresh object held by a tuple alone and
+    counted by the same code, not with a constant: how many references the counting itself takes
+    differs between CPython versions (3.14 borrows some).  False outside CPython (its counts are
+    meaningless there): new buffers every batch, as before reuse."""
+    if sys.implementation.name != "cpython":
+        return False
+    alone = _references((object(),))[0]
+    return all(r <= alone for r in _references(items))
 
 
 def decode_chunk(payload, state, model: ChunkDecoder):
@@ -676,7 +753,7 @@ def decode_chunk(payload, state, model: ChunkDecoder):
     lists = model.lists_for(state)
     for _ in range(batches):
         try:
-            yield _decode_batch(dec, state, lists)
+            yield _decode_batch(dec, state, lists, model.mask_buffers(state))
         except FormatError:
             lists.n = -1  # the lists may be half updated: rebuilt if anyone decodes on
             raise
@@ -693,32 +770,34 @@ _BATCH_ERRORS = {
 
 def _mask_buffers(m: int, cap: int) -> tuple:
     """Outputs of :func:`_mask_kernel` for a mesh of ``m`` faces and up to ``cap`` marks:
-    ``(marked (cap,), gstart (cap + 1,), inc, own, a, b (3m,))`` int64, uninitialised (their
+    ``(marked (cap,), gstart (cap + 1,), inc, a, b (3m,))`` int64, uninitialised (their
     pages are only taken as the kernel writes them)."""
-    return (np.empty(cap, np.int64), np.empty(cap + 1, np.int64)) + tuple(np.empty(3 * m, np.int64) for _ in range(4))
+    return (np.empty(cap, np.int64), np.empty(cap + 1, np.int64)) + tuple(np.empty(3 * m, np.int64) for _ in range(3))
 
 
-def _decode_batch(dec, state, lists):
-    """One batch: mask, then connectivity, topology and values in one kernel (:func:`_batch_kernel`)."""
+def _decode_batch(dec, state, lists, buffers):
+    """One batch: mask, then connectivity, topology and values in one kernel (:func:`_batch_kernel`).
+    ``buffers``: the mask's outputs (:meth:`ChunkDecoder.mask_buffers`)."""
     n, m = state.n, state.m
     flat = state.faces.reshape(-1)
-    marked, gstart, inc, own, a, b = buffers = _mask_buffers(m, len(state.positions) - n)
-    k, corners = rc._kernel(_mask_kernel)(flat, n, lists.head, lists.nxt, lists.valence, lists.below, lists.stamp,
-                                          lists.ctr, _NO_SEL, *buffers, _NO_STATE, _NO_BYTES,
-                                          dec.ds, dec.buf, dec.probs, 1)
+    marked, gstart, inc, a, b = buffers
+    cap = len(state.positions) - n  # the marks the primitive has room for
+    k, corners = rc._kernel(_mask_kernel)(flat, n, lists.head, lists.nxt, lists.valence, lists.below, _NO_SEL,
+                                          marked[:cap], gstart[: cap + 1], inc, a, b, _NO_STATE, _NO_BYTES, dec.ds,
+                                          dec.buf, dec.probs, 1)
     if k < 0:
         raise FormatError("splits exceed the declared vertex count")
     if k == 0:
         raise FormatError("chunk payload: a batch marks no split vertex")
     v, gstart = marked[:k], gstart[: k + 1]
-    inc, own, a, b = inc[:corners], own[:corners], a[:corners], b[:corners]
+    inc, a, b = inc[:corners], a[:corners], b[:corners]
     D = state.positions.shape[1]
     sym = np.zeros(corners, np.uint8)
     rsum, rcount = np.empty((k, D)), np.empty(k, np.int64)
     new_faces = rc._kernel(_batch_kernel)(flat, m, n, state.positions, v, lists.head, lists.tail, lists.nxt,
-                                          lists.valence, lists.stamp, lists.tag, lists.split, lists.ctr, inc, own, a,
-                                          b, sym, gstart, rsum, rcount, _NO_RES, _NO_STATE, _NO_BYTES, dec.ds, dec.buf,
-                                          dec.probs, 1)
+                                          lists.valence, lists.stamp, lists.tag, lists.split, lists.created,
+                                          lists.creator, lists.ctr, inc, a, b, sym, gstart, rsum, rcount, _NO_RES,
+                                          _NO_STATE, _NO_BYTES, dec.ds, dec.buf, dec.probs, 1)
     if new_faces < 0:
         raise FormatError(_BATCH_ERRORS[new_faces])
     state.n, state.m = n + k, m + new_faces
@@ -727,14 +806,15 @@ def _decode_batch(dec, state, lists):
 
     def face_slot_order():
         order = np.argsort(inc, kind="stable")
+        own = np.repeat(np.arange(k), np.diff(gstart))  # the split of each incidence
         return inc[order], own[order], order
 
     def incidence_lists():
         return face_slot_order()[:2]
 
     def ring():
-        order = face_slot_order()[2]
-        return _ring_lists(v, sym[order], own[order], a[order], b[order])
+        _, own, order = face_slot_order()
+        return _ring_lists(v, sym[order], own, a[order], b[order])
 
     topo = SplitTopology(u, rsum, rcount, incidence_lists, ring)
     return DecodedBatch(v, state.positions, topo, lambda: sym[face_slot_order()[2]]), topo
@@ -758,15 +838,15 @@ class DecodedBatch(SplitBatch):
         return self._positions[self._topo.u] - self._topo.prediction()
 
 
-def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, split, ctr, inc, own, a, b, sym, gstart,
-                  rsum, rcount, res, es, out, ds, buf, probs, decode):
+def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, split, created, creator, ctr, inc, a, b,
+                  sym, gstart, rsum, rcount, res, es, out, ds, buf, probs, decode):
     """Code (``decode`` 0) or decode (1) the connectivity and values of one batch whose split
     vertices ``v`` (k,) and incidences are known (:func:`_mask_kernel`), applying it to the face
     slots ``flat`` (3M,) int64, the values ``P`` (N, D) and the corner lists (:class:`CornerLists`
     arrays).  Encoding and decoding walk the same steps, so both leave the same mesh.
 
     The incidences are grouped by split (split i's: ``[gstart[i], gstart[i+1])``, face-slot
-    order within it): ``inc`` corner, ``own`` split, ``a`` / ``b`` corners after / before the
+    order within it): ``inc`` corner, ``a`` / ``b`` corners after / before the
     split vertex (all (I,) int64).  ``sym`` (I,) uint8: the symbols (encode: given, decode:
     filled).  ``res`` (k, D) int64 (encode): the new values' residuals against the version 1
     prediction, written to ``P`` before they are coded.  Fills ``rsum`` / ``rcount`` (see
@@ -774,9 +854,11 @@ def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, spli
     """
     k, D = len(v), P.shape[1]
     S, ring, nrm = np.empty((k, D), np.int64), np.empty((k, 2), np.int64), np.empty((k, 3))
-    if _connectivity_kernel(gstart, a, b, v, P, sym, S, ring, nrm, es, out, ds, buf, probs, decode) != 0:
+    arc = np.empty((k, 3), np.int64)
+    if _connectivity_kernel(gstart, a, b, v, P, sym, S, ring, nrm, arc, es, out, ds, buf, probs, decode) != 0:
         return -1
-    new_faces, rewritten = _link_splits(flat, m0, n0, v, inc, own, a, b, sym, gstart, head, tail, nxt, split)
+    new_faces, rewritten = _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, head, tail, nxt, split, created,
+                                        creator)
     if new_faces < 0:
         return new_faces
     if not decode:
@@ -787,17 +869,18 @@ def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, spli
                 P[n0 + i, q] = S[i, q] // (2 * ring[i, 0]) + res[i, q]
     if _values_kernel(v, P, n0, S, ring, nrm, es, out, ds, buf, probs, decode, rsum, rcount) != 0:
         return -4
-    _update_valences(n0, v, a, b, sym, gstart, flat, head, nxt, valence, stamp, tag, ctr, rewritten)
+    _update_valences(n0, v, a, b, sym, gstart, arc, flat, head, nxt, valence, stamp, tag, ctr, rewritten)
     return new_faces
 
 
 @kernel_helper(allocates=True)
-def _update_valences(n0, v, a, b, sym, gstart, flat, head, nxt, valence, stamp, tag, ctr, rewritten):
+def _update_valences(n0, v, a, b, sym, gstart, arc, flat, head, nxt, valence, stamp, tag, ctr, rewritten):
     """The valences a batch changed, after its topology.  A ring vertex ``x`` of split i gains ``u``
     when a face of ``u`` holds it and loses ``v`` when no face of ``v`` holds it any more; ``v`` and
-    ``u`` count the distinct ring vertices of their faces, plus each other.  That holds when no face
-    held a moved corner and another split vertex (``rewritten`` False: every valid batch); else
-    every ring, split and new vertex is recounted from its faces."""
+    ``u`` count the distinct ring vertices of their faces, plus each other (in O(1) for the arc of
+    a closed fan, ``arc`` (k, 3) of :func:`_split_symbols`: :func:`_arc_valences`).  That holds when
+    no face held a moved corner and another split vertex (``rewritten`` False: every valid batch);
+    else every ring, split and new vertex is recounted from its faces."""
     k = len(v)
     if rewritten:
         for i in range(k):
@@ -812,6 +895,8 @@ def _update_valences(n0, v, a, b, sym, gstart, flat, head, nxt, valence, stamp, 
     near, flags = np.empty(2 * MAX_ARC_FAN, np.int64), np.empty(2 * MAX_ARC_FAN, np.int64)
     for i in range(k):
         lo, hi = gstart[i], gstart[i + 1]
+        if arc[i, 0] >= 0 and _arc_valences(lo, hi, a, v[i], arc[i], valence, own[i]):
+            continue
         if hi - lo <= MAX_ARC_FAN:  # a small ring: its distinct vertices told apart in near / flags
             count = 0
             for t in range(lo, hi):
@@ -834,6 +919,27 @@ def _update_valences(n0, v, a, b, sym, gstart, flat, head, nxt, valence, stamp, 
                     tag[x] |= 4
     for i in range(k):  # last: a split vertex may be in another split's ring
         valence[n0 + i], valence[v[i]] = own[i, 0], own[i, 1]
+
+
+@kernel_helper
+def _arc_valences(lo, hi, a, vv, arc, valence, own):
+    """:func:`_update_valences` for a split of ``vv`` whose symbols are the arc of a closed fan of
+    d = hi - lo faces (``arc`` (3,): :func:`_split_symbols`), its moved faces holding no other split
+    vertex: the ring vertices r_t (``a`` of the fan's t-th incidence, all distinct) from r_s (the
+    arc's first) to r_(s+L) (``a`` of ``arc[1]``) gain u (r_s and r_(s+L)) or swap v for u (those
+    between, no change); u has them (L + 1, or d when L = d) and v; v keeps r_(s+L) .. r_s (d - L + 1,
+    or r_s alone when L = d) and has u.  False (nothing changed) when a ring vertex is ``vv``
+    itself: the caller then counts."""
+    for t in range(lo, hi):
+        if a[t] == vv:
+            return False
+    L, d = arc[2], hi - lo
+    valence[a[arc[0]]] += 1
+    if arc[1] >= 0:
+        valence[a[arc[1]]] += 1
+    own[0] = L + 2 if L < d else d + 1
+    own[1] = d - L + 2 if L < d else 2
+    return True
 
 
 @kernel_helper
@@ -863,25 +969,30 @@ def _tag(x, token, bits, tag):
     tag[x] = (tag[x] | bits) if tag[x] & ~7 == token else (token | bits)
 
 
+#: Bit j of a word -> j, by the de Bruijn sequence 0x077CB531 (:func:`_link_splits`'s bitmap).
+_DE_BRUIJN = np.array([0, 1, 28, 2, 29, 14, 24, 3, 30, 22, 20, 15, 25, 17, 4, 8, 31, 27, 13, 23, 21, 19, 16, 7, 26, 12,
+                       18, 6, 11, 5, 10, 9], np.int64)
+
+
 @kernel_helper(allocates=True)
-def _link_splits(flat, m0, n0, v, inc, own, a, b, sym, gstart, head, tail, nxt, split):
+def _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, head, tail, nxt, split, created, creator):
     """Spec §6.1 steps 1-3 on the face slots and the corner lists: the moved corners become
     ``u`` (and its list), the new faces are appended in face-slot order of the incidences naming
     them.  Returns ``(new faces, rewritten)``: new faces -2 when a split names none or more than
     two, -3 when they exceed the face capacity (nothing written then); rewritten True when a
     face held a moved corner and another corner of a split vertex (:func:`_update_valences`).
-    ``split`` (N,) uint8 scratch, zeros on entry and on return."""
+    Scratch: ``split`` (N,) uint8 and ``created`` (bitmap over the corners, 32 bits in each int64
+    word), zeros on entry and on return; ``creator`` (3M,) int32, at a corner naming new faces
+    (read only where ``created`` has the corner's bit) the row of ``named`` that holds them, made
+    as the corners move: (u, v, a of the left face or -1, b of the right face or -1), so that
+    the faces are written from one row each, not from the batch's arrays at scattered places."""
     k = len(v)
-    wkey = np.empty(len(inc), np.int64)  # (corner << 32) | incidence, of the incidences naming new faces
-    named = 0
     new_faces = 0
     for i in range(k):
         wings = 0
         for t in range(gstart[i], gstart[i + 1]):
             if sym[t] >= 2:
                 wings += 1 if sym[t] < 4 else 2
-                wkey[named] = (inc[t] << 32) | t
-                named += 1
         if wings == 0 or wings > 2:
             return -2, False
         new_faces += wings
@@ -890,22 +1001,39 @@ def _link_splits(flat, m0, n0, v, inc, own, a, b, sym, gstart, head, tail, nxt, 
     for i in range(k):
         split[v[i]] = 1
     rewritten = False
+    lo_word, hi_word = len(created), 0
+    named = np.empty((new_faces, 4), np.int64)
+    j = 0
     for i in range(k):  # split i's corners, ascending: the moved ones to u, the others stay with v
         u = n0 + i
         head[u], tail[u], head[v[i]], tail[v[i]] = -1, -1, -1, -1
         for t in range(gstart[i], gstart[i + 1]):
+            c = inc[t]
             if sym[t] != 0:  # its face's other corners as they were before the batch: a[t], b[t]
                 rewritten = rewritten or split[a[t]] != 0 or split[b[t]] != 0
-                flat[inc[t]] = u
-            _append_corner(u if sym[t] != 0 else v[i], inc[t], head, tail, nxt)
+                flat[c] = u
+                if sym[t] >= 2:  # names a new face: its corner goes into the bitmap
+                    named[j, 0], named[j, 1] = u, v[i]
+                    named[j, 2] = a[t] if sym[t] != 3 else -1
+                    named[j, 3] = b[t] if sym[t] != 2 else -1
+                    creator[c] = j
+                    j += 1
+                    created[c >> 5] |= 1 << (c & 31)
+                    lo_word, hi_word = min(lo_word, c >> 5), max(hi_word, (c >> 5) + 1)
+            _append_corner(u if sym[t] != 0 else v[i], c, head, tail, nxt)
     slot = 3 * m0
-    for key in np.sort(wkey[:named]):
-        t = key & 0xFFFFFFFF
-        i = own[t]
-        if sym[t] == 2 or sym[t] == 4:  # left new face (u, v, a)
-            slot = _new_face(slot, n0 + i, v[i], a[t], flat, head, tail, nxt)
-        if sym[t] == 3 or sym[t] == 4:  # right new face (v, u, b)
-            slot = _new_face(slot, v[i], n0 + i, b[t], flat, head, tail, nxt)
+    for word in range(lo_word, hi_word):  # the naming corners in ascending order, the bitmap cleared
+        bits = created[word]
+        created[word] = 0
+        while bits != 0:
+            low = bits & -bits
+            bits ^= low
+            row = creator[32 * word + _DE_BRUIJN[((low * 0x077CB531) & 0xFFFFFFFF) >> 27]]
+            u, vv, left, right = named[row, 0], named[row, 1], named[row, 2], named[row, 3]
+            if left >= 0:  # left new face (u, v, a)
+                slot = _new_face(slot, u, vv, left, flat, head, tail, nxt)
+            if right >= 0:  # right new face (v, u, b)
+                slot = _new_face(slot, vv, u, right, flat, head, tail, nxt)
     for i in range(k):
         split[v[i]] = 0
     return new_faces, rewritten
