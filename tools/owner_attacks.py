@@ -82,13 +82,13 @@ def read_cell(V, F, key):
     vertices reads its bit wrong with probability ~ Q(sqrt(n) * mean / sd).
     """
     points, inverse = owner._distinct_index(V)
-    frames = owner._searched_frames(points, inverse[np.asarray(F, np.int64)])
-    read = [owner._frame_scores(points, f) for f in frames]
+    views = owner._read_frames(points, inverse[np.asarray(F, np.int64)])
+    read = [owner._frame_scores(p, f) for p, f in views]
     scores = (np.stack([s for s, _ in read]), np.stack([m for _, m in read]))
     bits, whiten = owner._layout(key)
-    soft = np.zeros((len(frames), owner.BINS))
+    soft = np.zeros((len(views), owner.BINS))
     soft[:, bits] = np.where(scores[1] > 0, scores[0], 0.0)
-    shell, t, _, _ = owner._shells(points, frames[owner.best_frame(soft, key)])
+    shell, t, _, _ = owner._shells(*views[owner.best_frame(soft, key)])
     inside = shell >= 0
     g = owner.g_of_t(t[inside])
     side = np.where((owner.id_to_bits(key.owner_id) ^ whiten) == 1, 1.0, -1.0)[bits]
