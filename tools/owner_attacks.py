@@ -83,12 +83,9 @@ def read_cell(V, F, key):
     """
     points, inverse = owner._distinct_index(V)
     views = owner._read_frames(points, inverse[np.asarray(F, np.int64)])
-    read = [owner._frame_scores(p, f) for p, f in views]
-    scores = (np.stack([s for s, _ in read]), np.stack([m for _, m in read]))
+    scores = owner._scores_of(views)
     bits, whiten = owner._layout(key)
-    soft = np.zeros((len(views), owner.BINS))
-    soft[:, bits] = np.where(scores[1] > 0, scores[0], 0.0)
-    shell, t, _, _ = owner._shells(*views[owner.best_frame(soft, key)])
+    shell, t, _, _ = owner._shells(*views[owner._view_read(scores, key)])
     inside = shell >= 0
     g = owner.g_of_t(t[inside])
     side = np.where((owner.id_to_bits(key.owner_id) ^ whiten) == 1, 1.0, -1.0)[bits]
