@@ -139,7 +139,10 @@ def decode(src, chunks=None) -> Mesh:
 
     last, _ = decode_stream(as_source(src, chunks), chunks=chunks, copy=False)
     mesh = last.mesh  # every primitive dequantized on its own grid
-    return Mesh(mesh.positions, np.array(mesh.faces))
+    faces = mesh.faces  # nothing uses the decoder's arrays after this: a view of one is copied only to
+    if faces.base is not None and faces.base.nbytes != faces.nbytes:  # free the rows it does not cover
+        faces = faces.copy()
+    return Mesh(mesh.positions, faces)
 
 
 def iter_decode(src, key=None, watermark=None):

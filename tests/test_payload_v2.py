@@ -292,6 +292,11 @@ def test_the_decoder_reuses_its_mask_outputs_once_no_batch_holds_them():
             used.add(id(model.mask_out[0]))
             del got  # dropped before the next batch is decoded: its mask outputs are free again
     assert len(used) == 1 and len(pm.batches) > 3
+    state, model, used = pm.new_state(), records_v2.ChunkDecoder(), set()
+    for payload in payloads:  # a plain loop holds the last batch while the next is decoded: two sets in turn
+        for got in records_v2.decode_chunk(payload, state, model):
+            used.add(id(model.mask_out[0]))
+    assert len(used) == 2
     state, model, held = pm.new_state(), records_v2.ChunkDecoder(), []
     for payload in payloads:  # every batch held: each one's outputs are new
         held += [(got, model.mask_out) for got in records_v2.decode_chunk(payload, state, model)]

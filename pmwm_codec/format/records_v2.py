@@ -696,6 +696,7 @@ class ChunkDecoder:
         self.probs = new_model()
         self.lists: CornerLists | None = None
         self.mask_out: tuple | None = None  # the last batch's mask outputs (mask_buffers)
+        self.mask_spare: tuple | None = None  # the outputs of the batch before it
 
     def lists_for(self, state) -> CornerLists:
         if self.lists is None or not self.lists.fits(state):
@@ -709,11 +710,16 @@ class ChunkDecoder:
         decoded batch lists its split vertices and incidences as views of them, read when first
         asked (the watermark reads them after the chunk): while any view lives, CPython counts a
         reference to the array it views (:func:`_unreferenced`).  Reuse spares a batch the system
-        calls and page faults of new arrays."""
-        bufs = self.mask_out
-        if (bufs is None or len(bufs[0]) != len(state.positions) or len(bufs[2]) != 3 * len(state.faces)
-                or not _unreferenced(bufs)):
-            bufs = self.mask_out = _mask_buffers(len(state.faces), len(state.positions))
+        calls and page faults of new arrays.  The outputs of the batch before the last are tried
+        too: a consumer's ``for`` loop still holds the last batch while it asks for the next one."""
+        for bufs in (self.mask_out, self.mask_spare):
+            if (bufs is not None and len(bufs[0]) == len(state.positions) and len(bufs[2]) == 3 * len(state.faces)
+                    and _unreferenced(bufs)):
+                break
+        else:
+            bufs = _mask_buffers(len(state.faces), len(state.positions))
+        if bufs is not self.mask_out:
+            self.mask_out, self.mask_spare = bufs, self.mask_out
         return bufs
 
 

@@ -52,8 +52,12 @@ class Grid:
         return q.astype(np.int64)
 
     def dequantize(self, q: np.ndarray) -> np.ndarray:
-        """(n, 3) int grid coordinates -> (n, 3) float64 positions."""
-        return np.asarray(self.origin) + np.asarray(q, np.float64) * self.step
+        """(n, 3) int grid coordinates -> (n, 3) float64 positions (``origin + q * step``, in one
+        new array: no temporaries)."""
+        out = np.array(q, np.float64)
+        out *= self.step
+        out += np.asarray(self.origin)
+        return out
 
     def to_float32(self, q: np.ndarray) -> np.ndarray:
         """(n, 3) int grid coordinates -> the float32 positions a file stores (``origin + q * step``)."""

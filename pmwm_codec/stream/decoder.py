@@ -162,7 +162,7 @@ class StreamDecoder:
     def __init__(self, key=None, reference=None, *, copy: bool = True, max_chunks: int | None = None,
                  check_key: bool = True):
         self._parser = ContainerParser(max_chunks=max_chunks)  # the chunks after them are not even opened
-        self._replay = Replay(max_chunks=max_chunks)
+        self._replay = Replay(max_chunks=max_chunks, carriers=key is not None)  # only a key reads them
         self.key = key
         self.reference = reference if reference is not None else getattr(key, "reference", None)
         self.copy = copy

@@ -119,11 +119,15 @@ class Replay:
     stream's vertex order, NaN where unknown).  ``nbars``: per-primitive
     reference lengths to use instead of the base mean edge (given positions of
     a partial mesh measure it themselves).  ``max_chunks``: apply no chunk after
-    this many.
+    this many.  ``carriers``: False when nobody reads them (a decode without a key):
+    with decoded positions, :meth:`on_event` then returns none and the batches are applied
+    without the work of listing their new vertices and ring means.
     """
 
-    def __init__(self, given: list | None = None, *, nbars: list | None = None, max_chunks: int | None = None):
+    def __init__(self, given: list | None = None, *, nbars: list | None = None, max_chunks: int | None = None,
+                 carriers: bool = True):
         self.given = given
+        self.carriers = carriers
         self._nbar_override = nbars
         self.max_chunks = max_chunks
         self.header: HeaderEvent | None = None
@@ -213,6 +217,9 @@ class Replay:
         if face_chunk:
             self._faces(p, event, meta)
         for batch, own_topo in () if face_chunk else self._batches(p, event):
+            self.batches_applied += 1
+            if not self.carriers and self.given is None:
+                continue
             if self.given is None:
                 topo = own_topo
                 points = state.positions[topo.u, :3].astype(np.float64)
@@ -226,9 +233,8 @@ class Replay:
                 centroid = topo.centroid()
                 known = np.isfinite(points).all(axis=1) & np.isfinite(centroid).all(axis=1)
                 decoded = self.shadows[p].positions[own_topo.u, :3]
-            out.append(Carriers(p, self.batches_applied, points, centroid, known, self.nbars[p], scale,
+            out.append(Carriers(p, self.batches_applied - 1, points, centroid, known, self.nbars[p], scale,
                                 topo.u, state.positions, topo, decoded))
-            self.batches_applied += 1
         self.chunks_applied += 1
         if state.n != meta["vertexCount"] or state.m != meta["faceCount"]:
             raise FormatError(f"chunk {event.index + 1}: vertex/face counts differ from its index entry")
