@@ -139,8 +139,9 @@ def decode(src, chunks=None) -> Mesh:
 
     last, _ = decode_stream(as_source(src, chunks), chunks=chunks, copy=False)
     mesh = last.mesh  # every primitive dequantized on its own grid
-    faces = mesh.faces  # nothing uses the decoder's arrays after this: a view of one is copied only to
-    if faces.base is not None and faces.base.nbytes != faces.nbytes:  # free the rows it does not cover
+    faces = mesh.faces
+    # nothing uses the decoder's arrays after this: a view of one is copied only to free what it does not cover
+    if faces.base is not None and faces.base.nbytes != faces.nbytes:
         faces = faces.copy()
     return Mesh(mesh.positions, faces)
 
