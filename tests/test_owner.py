@@ -772,8 +772,8 @@ def test_the_un_smoothing_step_is_chosen_by_the_mesh_alone(blob, marked):
     assert steps[0] < steps[1] < steps[2]
 
 
-def test_the_un_smoothed_views_are_read_only_when_the_mesh_as_it_is_does_not_read_present(blob, marked, monkeypatch):
-    """A transported mesh reads present as it is and never pays for un-smoothing; a smoothed one reads the
+def test_the_un_smoothed_views_are_read_unless_the_mesh_as_it_is_reads_without_an_error(blob, marked, monkeypatch):
+    """A transported mesh reads every bit as it is and never pays for un-smoothing; a smoothed one reads the
     same answer directly and from scores read once for every key."""
     key, pos = marked
     smoothed = _laplacian_smoothing(pos, blob.faces, 30)
@@ -785,6 +785,6 @@ def test_the_un_smoothed_views_are_read_only_when_the_mesh_as_it_is_does_not_rea
         raise AssertionError("un-smoothed a mesh that reads present as it is")
 
     monkeypatch.setattr(owner, "_unsmoothed", refuse)
-    assert owner.detect(pos.astype(np.float32), blob.faces, key).verdict == "present"
+    assert owner.detect(pos.astype(np.float32), blob.faces, key).bit_errors == 0
     with pytest.raises(AssertionError, match="un-smoothed"):
         owner.detect(smoothed, blob.faces, key)
