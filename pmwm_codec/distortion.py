@@ -334,12 +334,16 @@ def decoded_positions(pm, grid) -> np.ndarray:
     """(n, 3) float64 positions of the full decode of ``pm``, in the input's vertex order.
 
     pm : :class:`~pmwm_codec.progressive.build.ProgressiveMesh`; grid : its
-    :class:`~pmwm_codec.progressive.grid.Grid`.  Every batch is replayed on a fresh state.
+    :class:`~pmwm_codec.progressive.grid.Grid`.  The builder's own replay's end (``pm.full_values``)
+    when it kept it, else every batch replayed on a fresh state.
     """
-    state = pm.new_state()
-    for batch in pm.batches:
-        apply_batch(state, batch)
-    return grid.dequantize(state.current_positions()[:, :3])[pm.vertex_order]
+    values = pm.full_values
+    if values is None:
+        state = pm.new_state()
+        for batch in pm.batches:
+            apply_batch(state, batch)
+        values = state.current_positions()
+    return grid.dequantize(values[:, :3])[pm.vertex_order]
 
 
 def measure_method(measure) -> str:

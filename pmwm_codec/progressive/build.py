@@ -49,6 +49,11 @@ class ProgressiveMesh:
         vertex of ``late_values[j]``.  ``vertex_count`` and ``face_count`` count them.
     late_values : (t, D) int64
         Values of the vertices only the late faces name.
+    full_values : (n, D) int64 or None
+        Values of the full decode (of the vertices the splits reach), in decoded ids: where the
+        builder's replay, the decoder's own (:func:`split_topology`, residuals against its
+        predictions), ends; :func:`~pmwm_codec.distortion.decoded_positions` reads them instead
+        of replaying the batches again.  None: not known (replay the batches).
     """
 
     grid: Grid
@@ -62,6 +67,7 @@ class ProgressiveMesh:
     face_order: Optional[np.ndarray] = None
     late_faces: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int64))
     late_values: Optional[np.ndarray] = None
+    full_values: Optional[np.ndarray] = field(default=None, repr=False)
 
     @property
     def split_count(self) -> int:
@@ -132,6 +138,7 @@ def build_progressive(
         face_order=face_src,
         late_faces=late,
         late_values=None if late_values is None else np.asarray(late_values, np.int64),
+        full_values=state.current_positions(),
     )
 
 
