@@ -133,73 +133,128 @@ class CollapseLog:
     batches: list = field(default_factory=list)  # CollapseBatch, in collapse order (fine -> coarse)
 
 
-def face_quadrics(pos: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
+def face_quadrics(pos: np.ndarray, faces: np.ndarray, n: int, boundary: np.ndarray | None = None) -> np.ndarray:
     """Per-vertex quadrics (n, 10) float64: area-weighted face planes plus boundary planes.
 
     The 10 entries are the upper triangle of the symmetric 4x4 quadric
     ``[a2, ab, ac, ad, b2, bc, bd, c2, cd, d2]`` of planes ``ax + by + cz + d = 0``.
+    ``pos`` (N, 3) float64, ``faces`` (m, 3) int64 over ``n`` vertices; ``boundary`` (b,) int64: the
+    half-edges of its boundary edges in edge order (:func:`~.livemesh.boundary_half_edges`), when the
+    caller has them.  A dot product of three terms is summed ``(x0 + x2) + x1``, as ``np.einsum`` sums
+    it here, so the numpy path and the compiled one (:func:`_quadrics_kernel`, no temporaries) give
+    the same bits.
     """
+    if boundary is None:
+        boundary = boundary_half_edges(faces, n)
+    kernel = compiled(_quadrics_kernel)
+    if kernel is not None:
+        return kernel(pos, faces, np.asarray(boundary, np.int64), n, BOUNDARY_WEIGHT)
     p0, p1, p2 = pos[faces[:, 0]], pos[faces[:, 1]], pos[faces[:, 2]]
     nrm = np.cross(p1 - p0, p2 - p0)
     area2 = np.linalg.norm(nrm, axis=1)
     unit = nrm / np.maximum(area2, 1e-300)[:, None]
-    d = -np.einsum("ij,ij->i", unit, p0)
-    planes = np.concatenate([unit, d[:, None]], axis=1)
-    kernel = compiled(_corner_quadrics_kernel)
-    if kernel is None:
-        corner_q = np.repeat(_plane_quadrics(planes, 0.5 * area2), 3, axis=0)
-        out = _index_sum(faces.ravel(), corner_q, n)
-    else:
-        out = kernel(faces, planes, 0.5 * area2, n)
+    planes = np.concatenate([unit, -_dot3(unit, p0)[:, None]], axis=1)
+    corner_q = np.repeat(_plane_quadrics(planes, 0.5 * area2), 3, axis=0)
+    out = _index_sum(faces.ravel(), corner_q, n)
 
     # boundary edges: a plane through the edge, perpendicular to its face
-    he = boundary_half_edges(faces, n)
+    he = boundary
     if len(he):
         src, dst, _ = half_edges(faces)
         a_, b_ = src[he], dst[he]
         e = pos[b_] - pos[a_]
-        elen2 = np.einsum("ij,ij->i", e, e)
+        elen2 = _dot3(e, e)
         pn = np.cross(e, unit[he // 3])
         pn /= np.maximum(np.linalg.norm(pn, axis=1), 1e-300)[:, None]
-        pd = -np.einsum("ij,ij->i", pn, pos[a_])
+        pd = -_dot3(pn, pos[a_])
         bq = _plane_quadrics(np.concatenate([pn, pd[:, None]], axis=1), BOUNDARY_WEIGHT * elen2)
         out += _index_sum(np.concatenate([a_, b_]), np.concatenate([bq, bq]), n)
     return out
 
 
+def _dot3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(k,) float64 row dot products of a, b (k, 3) float64, summed ``(x0 + x2) + x1``."""
+    return (a[:, 0] * b[:, 0] + a[:, 2] * b[:, 2]) + a[:, 1] * b[:, 1]
+
+
 def _index_sum(idx, q, n):
     """(n, 10) float64: the rows of ``q`` (k, 10) float64 summed by ``idx`` (k,) int64, in ``idx``
-    order (``np.bincount`` per column, or its compiled twin: the same bits)."""
-    kernel = compiled(_index_sum_kernel)
-    if kernel is not None:
-        return kernel(idx, q, n)
+    order (``np.bincount`` per column)."""
     return np.stack([np.bincount(idx, weights=q[:, j], minlength=n) for j in range(q.shape[1])], axis=1)
 
 
-def _index_sum_kernel(idx, q, n):
-    """Compiled :func:`_index_sum`."""
-    out = np.zeros((n, q.shape[1]), np.float64)
-    for i in range(len(idx)):
-        for j in range(q.shape[1]):
-            out[idx[i], j] += q[i, j]
-    return out
+@kernel_helper
+def _unit_normal(pos, faces, f):
+    """Face ``f``'s unit normal and doubled area, as :func:`face_quadrics` computes them (``np.cross``,
+    ``np.linalg.norm``, the division by the norm floored at 1e-300): ``(ux, uy, uz, area2)``."""
+    i, j, k = faces[f, 0], faces[f, 1], faces[f, 2]
+    a0, a1, a2 = pos[j, 0] - pos[i, 0], pos[j, 1] - pos[i, 1], pos[j, 2] - pos[i, 2]
+    b0, b1, b2 = pos[k, 0] - pos[i, 0], pos[k, 1] - pos[i, 1], pos[k, 2] - pos[i, 2]
+    nx, ny, nz = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+    area2 = np.sqrt((nx * nx + ny * ny) + nz * nz)
+    s = area2 if (area2 >= 1e-300 or area2 != area2) else 1e-300  # np.maximum (NaN propagates)
+    return nx / s, ny / s, nz / s, area2
 
 
-def _corner_quadrics_kernel(faces, planes, weight, n):
-    """Compiled ``_index_sum(faces.ravel(), np.repeat(_plane_quadrics(planes, weight), 3, axis=0), n)``
-    for faces (m, 3) int64, planes (m, 4) and weight (m,) float64: each face's quadric computed as
-    :func:`_plane_quadrics` does (``w * (a * b)``) and added corner by corner, so the same bits."""
+@kernel_helper
+def _add_plane(out, row, a, b, c, d, w):
+    """``out[row] += w * (the plane's quadric)``, entry by entry as :func:`_plane_quadrics` makes it."""
+    out[row, 0] += w * (a * a)
+    out[row, 1] += w * (a * b)
+    out[row, 2] += w * (a * c)
+    out[row, 3] += w * (a * d)
+    out[row, 4] += w * (b * b)
+    out[row, 5] += w * (b * c)
+    out[row, 6] += w * (b * d)
+    out[row, 7] += w * (c * c)
+    out[row, 8] += w * (c * d)
+    out[row, 9] += w * (d * d)
+
+
+def _quadrics_kernel(pos, faces, boundary, n, boundary_weight):
+    """Compiled :func:`face_quadrics` (the same bits) without its (m, ...) temporaries: each face's
+    plane added at its corners in face order; then every boundary plane summed per vertex (first at
+    the edges' first ends, then at their second ends, in edge order, from zero, as ``np.bincount``
+    does) and that sum added to the vertex's face quadric."""
     out = np.zeros((n, 10), np.float64)
-    q = np.empty(10, np.float64)
     for f in range(len(faces)):
-        a, b, c, d, w = planes[f, 0], planes[f, 1], planes[f, 2], planes[f, 3], weight[f]
-        q[0], q[1], q[2], q[3] = w * (a * a), w * (a * b), w * (a * c), w * (a * d)
-        q[4], q[5], q[6], q[7] = w * (b * b), w * (b * c), w * (b * d), w * (c * c)
-        q[8], q[9] = w * (c * d), w * (d * d)
+        ux, uy, uz, area2 = _unit_normal(pos, faces, f)
+        d = -((ux * pos[faces[f, 0], 0] + uz * pos[faces[f, 0], 2]) + uy * pos[faces[f, 0], 1])
         for k in range(3):
-            x = faces[f, k]
+            _add_plane(out, faces[f, k], ux, uy, uz, d, 0.5 * area2)
+    b = len(boundary)
+    if b == 0:
+        return out
+    planes = np.empty((b, 5), np.float64)  # a, b, c, d, weight of each boundary plane
+    ends = np.empty((2, b), np.int64)
+    for i in range(b):
+        h = boundary[i]
+        f, c = h // 3, h % 3
+        x, y = faces[f, c], faces[f, (c + 1) % 3]
+        ends[0, i], ends[1, i] = x, y
+        e0, e1, e2 = pos[y, 0] - pos[x, 0], pos[y, 1] - pos[x, 1], pos[y, 2] - pos[x, 2]
+        ux, uy, uz, _ = _unit_normal(pos, faces, f)
+        px, py, pz = e1 * uz - e2 * uy, e2 * ux - e0 * uz, e0 * uy - e1 * ux
+        norm = np.sqrt((px * px + py * py) + pz * pz)
+        s = norm if (norm >= 1e-300 or norm != norm) else 1e-300
+        px, py, pz = px / s, py / s, pz / s
+        planes[i, 0], planes[i, 1], planes[i, 2] = px, py, pz
+        planes[i, 3] = -((px * pos[x, 0] + pz * pos[x, 2]) + py * pos[x, 1])
+        planes[i, 4] = boundary_weight * ((e0 * e0 + e2 * e2) + e1 * e1)
+    slot = np.full(n, -1, np.int64)  # boundary vertex -> its row of ``acc``
+    acc = np.zeros((2 * b, 10), np.float64)
+    rows = 0
+    for side in range(2):
+        for i in range(b):
+            x = ends[side, i]
+            if slot[x] < 0:
+                slot[x] = rows
+                rows += 1
+            _add_plane(acc, slot[x], planes[i, 0], planes[i, 1], planes[i, 2], planes[i, 3], planes[i, 4])
+    for x in range(n):
+        if slot[x] >= 0:
             for j in range(10):
-                out[x, j] += q[j]
+                out[x, j] += acc[slot[x], j]
     return out
 
 
@@ -288,8 +343,9 @@ def simplify(
     face_alive = np.ones(m, dtype=bool)
     vert_alive = np.zeros(n, dtype=bool)
     vert_alive[corners.ravel()] = True
-    quad = face_quadrics(pos, corners, n)  # before the first live mesh: its temporaries are freed first
-    live = live_mesh(corners, face_alive, vert_alive)  # (the other way round: +78 MB peak on a 556k-vertex encode)
+    live = live_mesh(corners, face_alive, vert_alive)
+    boundary = live.et.he0[live.et.count == 1]  # the input's boundary half-edges, in edge order (every face is live)
+    quad = face_quadrics(pos, corners, n, live.fids[boundary // 3] * 3 + boundary % 3)
     frozen_ext = np.zeros(n, bool) if locked is None else np.asarray(locked, bool).copy()
     twin = twin_faces(corners)
     twin = twin if twin.any() else None
