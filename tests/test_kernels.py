@@ -344,3 +344,19 @@ def test_only_a_one_shot_process_with_numba_unloaded_keeps_a_small_job_off_numba
     assert topology.compiled(topology._counting_order_py) is not None
     topology.job_vertices(10)  # numba is loaded now: it stays in use
     assert topology.compiled(topology._counting_order_py) is not None
+
+
+def test_point_faces_are_the_same_on_both_paths(monkeypatch):
+    """Faces whose three corners share one grid point (specks' first test), compiled and numpy."""
+    pytest.importorskip("numba")
+    from pmwm_codec.progressive import simplify
+
+    rng = np.random.default_rng(5)
+    values = rng.integers(0, 3, (400, 5))[:, :3]  # a strided view, as the encoder passes its values
+    faces = rng.integers(0, 400, (3000, 3))
+    out = []
+    for use in (False, True):
+        monkeypatch.setattr(topology, "USE_NUMBA", use)
+        out.append(simplify._point_faces(values, faces))
+    assert out[0].dtype == out[1].dtype == bool and 0 < out[0].sum() < len(faces)
+    assert np.array_equal(out[0], out[1])

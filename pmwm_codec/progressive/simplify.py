@@ -311,6 +311,7 @@ def simplify(
     max_batches: int = 400,
     locked: np.ndarray | None = None,
     weld: np.ndarray | None = None,
+    twin: np.ndarray | None = None,
 ) -> CollapseLog:
     """Coarsen a mesh by batches of independent half-edge collapses.
 
@@ -330,6 +331,8 @@ def simplify(
         Seam copies: the smallest vertex id at each vertex's position
         (:func:`~pmwm_codec.progressive.seams.weld_groups`).  Vertices that share a
         position are removed only in seam pairs (:mod:`.seams`); None: no seams.
+    twin : (m,) bool, optional
+        :func:`twin_faces` of ``faces``, when the caller has it (:func:`deferred_and_twin_faces`).
 
     Returns
     -------
@@ -347,7 +350,7 @@ def simplify(
     boundary = live.et.he0[live.et.count == 1]  # the input's boundary half-edges, in edge order (every face is live)
     quad = face_quadrics(pos, corners, n, live.fids[boundary // 3] * 3 + boundary % 3)
     frozen_ext = np.zeros(n, bool) if locked is None else np.asarray(locked, bool).copy()
-    twin = twin_faces(corners)
+    twin = twin_faces(corners) if twin is None else np.asarray(twin, bool)
     twin = twin if twin.any() else None
     log = CollapseLog(n, m, None, None, None, [])
 
@@ -737,19 +740,25 @@ def twin_faces(faces: np.ndarray) -> np.ndarray:
     A collapse never deletes one (both would share their third vertex), and both move together
     when one of their vertices is removed, so the pairs found on the input stay pairs while alive.
     """
-    pairs, size = _reverse_pairs(faces)
+    return _twins(_reverse_pairs(faces))
+
+
+def _twins(reverse: tuple) -> np.ndarray:
+    """:func:`twin_faces` from ``reverse`` = :func:`_reverse_pairs` of the faces."""
+    pairs, size = reverse
     return pairs & (size == 2)
 
 
-def deferred_pillows(faces: np.ndarray) -> np.ndarray:
+def deferred_pillows(faces: np.ndarray, reverse: tuple | None = None) -> np.ndarray:
     """(m,) bool: the pillows of ``faces`` (m, 3) int64 (:func:`reverse_pairs`) that the encoder of payload
     version 2 keeps out of the simplification and sends in a face chunk after every split (spec
     bitstream.md §8.6): every pillow with a vertex that has a face outside the pillows.  Kept, they stay in the
     base with every vertex they touch.  A flap's tip (a vertex with pillow faces only) then has no
     face left: the face chunk brings it.  Only pillows apart from every other face stay: parts of their
-    own, kept in the base like any small part (:func:`specks` sends those too small for the grid)."""
+    own, kept in the base like any small part (:func:`specks` sends those too small for the grid).
+    ``reverse``: :func:`_reverse_pairs` of ``faces``, when the caller has it."""
     faces = np.asarray(faces, np.int64).reshape(-1, 3)
-    twin = reverse_pairs(faces)
+    twin = (_reverse_pairs(faces) if reverse is None else reverse)[0]
     if not twin.any():
         return twin
     return twin & _touch_others(faces, twin, int(faces.max()) + 1)
@@ -771,8 +780,7 @@ def specks(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
     Draco's sequential coder (the snowden bust at 14 bits: a 12.0 KB base instead of 3.7 KB); a face
     chunk sends them instead (bitstream.md §8.6: a face of new vertices only)."""
     faces = np.asarray(faces, np.int64).reshape(-1, 3)
-    p = np.asarray(positions)[faces]
-    point = (p[:, 0] == p[:, 1]).all(axis=1) & (p[:, 1] == p[:, 2]).all(axis=1)
+    point = _point_faces(np.asarray(positions), faces)
     if not point.any():
         return point
     n = len(positions)
@@ -786,13 +794,44 @@ def specks(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return point
 
 
+def _point_faces(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(m,) bool: the faces of ``faces`` (m, 3) int64 whose three corners have equal ``positions`` (n, 3)
+    (compiled: no (m, 3, 3) gather)."""
+    kernel = compiled(_point_faces_kernel)
+    if kernel is not None:
+        return kernel(positions, faces)
+    p = positions[faces]
+    return (p[:, 0] == p[:, 1]).all(axis=1) & (p[:, 1] == p[:, 2]).all(axis=1)
+
+
+def _point_faces_kernel(positions, faces):
+    """Compiled :func:`_point_faces`."""
+    out = np.empty(len(faces), np.bool_)
+    for f in range(len(faces)):
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        same = True
+        for k in range(3):
+            same = same and positions[a, k] == positions[b, k] and positions[b, k] == positions[c, k]
+        out[f] = same
+    return out
+
+
 def deferred_faces(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(m,) bool: the faces of ``faces`` (m, 3) int64 that the encoder of payload version 2 keeps out of
     the simplification and sends in a face chunk after every split (spec bitstream.md §8.6):
     :func:`deferred_pillows` and :func:`specks` (``positions`` (n, 3) int64: grid values), unless that
     would be every face (the simplification needs a mesh)."""
-    late = deferred_pillows(faces) | specks(positions, faces)
-    return late if not late.all() else np.zeros(len(late), bool)
+    return deferred_and_twin_faces(positions, faces)[0]
+
+
+def deferred_and_twin_faces(positions: np.ndarray, faces: np.ndarray) -> tuple:
+    """``(late, twin)``, each (m,) bool: :func:`deferred_faces` and :func:`twin_faces` of ``faces`` (m, 3)
+    int64 from one sort of the faces (:func:`_reverse_pairs`): the twins are what :func:`simplify` takes
+    (``twin``) when nothing is deferred (the faces it gets are these)."""
+    faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    reverse = _reverse_pairs(faces)
+    late = deferred_pillows(faces, reverse) | specks(positions, faces)
+    return (late if not late.all() else np.zeros(len(late), bool)), _twins(reverse)
 
 
 def reverse_pairs(faces: np.ndarray) -> np.ndarray:
@@ -836,21 +875,6 @@ def _reverse_pairs(faces: np.ndarray) -> tuple:
     pairs[order[rank < np.minimum(ones, count - ones)[group]]] = True
     size[order] = count[group]
     return pairs, size
-    rot = face_keys(faces)
-    flip = (rot[:, 1] > rot[:, 2]).astype(np.int64)
-    key = np.stack([rot[:, 0], np.minimum(rot[:, 1], rot[:, 2]), np.maximum(rot[:, 1], rot[:, 2])], 1)
-    order = np.lexsort((flip, key[:, 2], key[:, 1], key[:, 0]))
-    k, f = key[order], flip[order]
-    new_triple = np.r_[True, np.any(k[1:] != k[:-1], axis=1)]
-    new_side = new_triple | np.r_[True, f[1:] != f[:-1]]
-    triple = np.cumsum(new_triple) - 1
-    side_start = np.flatnonzero(new_side)
-    rank = np.arange(m) - side_start[np.cumsum(new_side) - 1]  # place within (triple, orientation)
-    ones = np.bincount(triple, weights=f, minlength=triple[-1] + 1).astype(np.int64)
-    size = np.bincount(triple, minlength=triple[-1] + 1)
-    pairs = np.minimum(ones, size - ones)
-    out[order[rank < pairs[triple]]] = True
-    return out
 
 
 def _twin_counts(et, F, twin, n):
