@@ -1265,7 +1265,7 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
             scratch[0, cu[o]] = rank[o]
         won = np.empty(len(offer), np.bool_)
         for j in range(len(offer)):
-            won[j] = _nbr_min(vv_start, vv_nbr, scratch[0], cu[offer[j]], big) > rank[offer[j]]
+            won[j] = not _nbr_below(vv_start, vv_nbr, scratch[0], cu[offer[j]], rank[offer[j]] + 1)
         for o in offer:
             scratch[0, cu[o]] = big
         if not won.any():
@@ -1296,11 +1296,13 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
 
 
 @kernel_helper
-def _nbr_min(vv_start, vv_nbr, values, row, big):
-    best = big
+def _nbr_below(vv_start, vv_nbr, values, row, limit):
+    """Whether a neighbour ``x`` of ``row`` has ``values[x] < limit`` (the smallest of them ``< limit``,
+    found without scanning the whole row once one is)."""
     for p in range(vv_start[row], vv_start[row + 1]):
-        best = min(best, values[vv_nbr[p]])
-    return best
+        if values[vv_nbr[p]] < limit:
+            return True
+    return False
 
 
 @kernel_helper(allocates=True)
@@ -1316,8 +1318,8 @@ def _round_conflicts(u, v, r, flags, scratch, vv_start, vv_nbr, big):
         scratch[1, u[i]] = r[i]
         scratch[2, v[i]] = min(scratch[2, v[i]], r[i])
     for i in range(len(u)):
-        loses[i] |= _nbr_min(vv_start, vv_nbr, scratch[1], v[i], big) < r[i]
-        loses[i] |= _nbr_min(vv_start, vv_nbr, scratch[2], u[i], big) < r[i]
+        loses[i] = loses[i] or _nbr_below(vv_start, vv_nbr, scratch[1], v[i], r[i]) \
+            or _nbr_below(vv_start, vv_nbr, scratch[2], u[i], r[i])
     for i in range(len(u)):
         scratch[1, u[i]] = big
         scratch[2, v[i]] = big
