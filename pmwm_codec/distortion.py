@@ -43,7 +43,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import MeshError
-from .mesh import Mesh
+from .mesh import Mesh, bounds
 from .progressive.vsplit import apply_batch
 
 __all__ = [
@@ -271,7 +271,8 @@ def mesh_distortion(original, distorted, samples: int | None = None, seed: int =
         raise MeshError(
             f"cannot compare vertex errors: {len(a)} original vs {len(b)} distorted vertices"
         )
-    diag = float(np.linalg.norm(a.max(0) - a.min(0)))
+    lo, hi = bounds(a)
+    diag = float(np.linalg.norm(hi - lo))
     rms = float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
     psnr_db = float("inf") if rms == 0.0 else float(20.0 * np.log10(diag / rms))
     if rms == 0.0 and np.array_equal(original.faces, distorted.faces):
@@ -366,7 +367,8 @@ def vertex_distortion(original: Mesh, decoded: Mesh) -> dict:
     b = np.asarray(decoded.positions, dtype=np.float64)
     if a.shape != b.shape:
         raise MeshError(f"cannot compare vertex errors: {len(a)} original vs {len(b)} decoded vertices")
-    diag = float(np.linalg.norm(a.max(0) - a.min(0)))
+    lo, hi = bounds(a)
+    diag = float(np.linalg.norm(hi - lo))
     moved = np.sqrt(np.sum((a - b) ** 2, axis=1))
     rms = float(np.sqrt(np.mean(moved**2)))
     psnr_db = float("inf") if rms == 0.0 else float(20.0 * np.log10(diag / rms))

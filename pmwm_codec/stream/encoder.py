@@ -45,7 +45,7 @@ from ..format.gltf import scene_mesh, world_placements
 from ..format.extension import DEFAULT_PAYLOAD_VERSION, PAYLOAD_CODEC, PAYLOAD_VERSIONS
 from ..format.records import pack_batches
 from ..format.records_v2 import FaceChunk, pack_chunks
-from ..mesh import Mesh
+from ..mesh import Mesh, bounds
 from ..progressive.build import ProgressiveMesh, build_progressive
 from ..progressive.grid import AttributeGrid, Grid
 from ..progressive.seams import twin_rows, weld_groups
@@ -446,7 +446,7 @@ def position_grids(meshes: list, grid_bits: int) -> list:
     decodes to the same float32 in each: no crack opens between them, and the owner layer, whose
     statistics count a position once (:mod:`~pmwm_codec.watermark.owner`), reads them as one surface.
     Every other primitive's grid spans its own bounding box."""
-    boxes = [np.stack([m.positions.min(0), m.positions.max(0)]) for m in meshes]
+    boxes = [np.stack(bounds(m.positions)) for m in meshes]
     label = _sharing_groups([m.positions for m in meshes])
     grids = {}
     for g in np.unique(label):
