@@ -360,3 +360,21 @@ def test_point_faces_are_the_same_on_both_paths(monkeypatch):
         out.append(simplify._point_faces(values, faces))
     assert out[0].dtype == out[1].dtype == bool and 0 < out[0].sum() < len(faces)
     assert np.array_equal(out[0], out[1])
+
+
+def test_repeated_hashes_are_the_same_on_both_paths(monkeypatch):
+    """The rows whose hash repeats (weld_groups' candidates): one hash table compiled, one sort in numpy;
+    hashes whose low bits are all zero (round floats) and collisions of the table's top-bit slots too."""
+    pytest.importorskip("numba")
+    from pmwm_codec.progressive import seams
+
+    rng = np.random.default_rng(7)
+    h = rng.integers(0, 1 << 12, 5000).astype(np.uint64) << np.uint64(52)  # top bits only: many repeats
+    h[::3] = rng.integers(0, np.iinfo(np.int64).max, len(h[::3])).astype(np.uint64)
+    out = []
+    for use in (False, True):
+        monkeypatch.setattr(topology, "USE_NUMBA", use)
+        out.append(seams._repeated_hashes(h))
+        assert len(seams._repeated_hashes(np.arange(10, dtype=np.uint64))) == 0
+    assert 0 < len(out[0]) < len(h)
+    assert np.array_equal(out[0], out[1])
