@@ -424,12 +424,12 @@ def _one_batch(pos, live, quad, frozen_ext, budget, weld=None, twin=None):
     n = len(vids)
     P = np.take(pos, vids, axis=0)  # row gathers: np.take copies rows in one loop, indexing one memcpy per row
     Q = np.take(quad, vids, axis=0)
-    src, dst, opp = half_edges(F)
     frozen = frozen_ext[vids]
     g = None if weld is None else seams.local_groups(weld, vids, loc)
     seam = None if g is None else seams.seam_mask(g)
     if seam is not None and not seam.any():
         g = seam = None
+    src, dst, opp = half_edges(F, with_dst=seam is not None)  # only the seam pairs read dst
     twins = _twin_counts(et, F, None if twin is None else twin[fids], n)
     mesh = (et, F, P, opp, fcount, vv, vf, vv_edge, twins[0])
     cand = _candidates(mesh, Q, src, frozen if seam is None else frozen | seam, twins)
