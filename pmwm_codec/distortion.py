@@ -369,7 +369,8 @@ def vertex_distortion(original: Mesh, decoded: Mesh) -> dict:
         raise MeshError(f"cannot compare vertex errors: {len(a)} original vs {len(b)} decoded vertices")
     lo, hi = bounds(a)
     diag = float(np.linalg.norm(hi - lo))
-    moved = np.sqrt(np.sum((a - b) ** 2, axis=1))
+    d = a - b
+    moved = np.sqrt((d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) + d[:, 2] * d[:, 2])  # np.sum(d ** 2, axis=1), not its slow 3-wide reduce
     rms = float(np.sqrt(np.mean(moved**2)))
     psnr_db = float("inf") if rms == 0.0 else float(20.0 * np.log10(diag / rms))
     worst = float(moved.max()) if moved.size else 0.0
