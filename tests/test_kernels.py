@@ -378,3 +378,19 @@ def test_repeated_hashes_are_the_same_on_both_paths(monkeypatch):
         assert len(seams._repeated_hashes(np.arange(10, dtype=np.uint64))) == 0
     assert 0 < len(out[0]) < len(h)
     assert np.array_equal(out[0], out[1])
+
+
+def test_first_incidence_per_split_is_the_same_on_both_paths(monkeypatch):
+    """build._first_per_split: the mask kept at each split's first incidence, compiled and numpy."""
+    pytest.importorskip("numba")
+    from pmwm_codec.progressive import build
+
+    rng = np.random.default_rng(11)
+    owner = np.sort(rng.integers(0, 300, 2000))[rng.permutation(2000)]
+    mask = rng.random(2000) < 0.3
+    out = []
+    for use in (False, True):
+        monkeypatch.setattr(topology, "USE_NUMBA", use)
+        out.append(build._first_per_split(mask, owner, 300))
+    assert out[0].dtype == out[1].dtype == bool and 0 < out[0].sum() < mask.sum()
+    assert np.array_equal(out[0], out[1])

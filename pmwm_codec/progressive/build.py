@@ -19,7 +19,7 @@ import numpy as np
 
 from .grid import Grid
 from .simplify import CollapseLog
-from .topology import face_keys
+from .topology import compiled, face_keys
 from .vsplit import MOVE, MOVE_LEFT, MOVE_RIGHT, MeshState, SplitBatch, SplitTopology, find_incidences, split_topology
 
 #: embed(batch_index, topology, values (k, D) int64, state) -> (k, D) int64 (moves columns 0-2)
@@ -209,19 +209,33 @@ def _wings(state, inc, owner, vid, cb, order, moved) -> tuple:
     b = flat[first + (inc + 2) % 3]
     wing_left = _lookup(vid, cb.wing_left[order])[owner]
     wing_right = _lookup(vid, cb.wing_right[order])[owner]
-    left = _first_per_split(moved & (wing_left >= 0) & (a == wing_left), owner)
-    right = _first_per_split(moved & (wing_right >= 0) & (b == wing_right), owner)
+    left = _first_per_split(moved & (wing_left >= 0) & (a == wing_left), owner, len(order))
+    right = _first_per_split(moved & (wing_right >= 0) & (b == wing_right), owner, len(order))
     return left, right
 
 
-def _first_per_split(mask: np.ndarray, owner: np.ndarray) -> np.ndarray:
+def _first_per_split(mask: np.ndarray, owner: np.ndarray, k: int) -> np.ndarray:
     """``mask`` (I,) bool kept at the first incidence of each split only (incidences in face-slot order,
-    ``owner`` (I,) their splits): when a pillow is glued on the edge a new face grows from, several
-    moved faces could name it, and a split names each new face once."""
+    ``owner`` (I,) int64 their splits, of ``k``): when a pillow is glued on the edge a new face grows
+    from, several moved faces could name it, and a split names each new face once."""
+    kernel = compiled(_first_per_split_kernel)
+    if kernel is not None:
+        return kernel(mask, owner, k)
     hit = np.flatnonzero(mask)
     first = hit[np.unique(owner[hit], return_index=True)[1]]
     out = np.zeros_like(mask)
     out[first] = True
+    return out
+
+
+def _first_per_split_kernel(mask, owner, k):
+    """Compiled :func:`_first_per_split` (one pass, no sort)."""
+    seen = np.zeros(k, np.bool_)
+    out = np.zeros(len(mask), np.bool_)
+    for i in range(len(mask)):
+        if mask[i] and not seen[owner[i]]:
+            seen[owner[i]] = True
+            out[i] = True
     return out
 
 
