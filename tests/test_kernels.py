@@ -394,3 +394,21 @@ def test_first_incidence_per_split_is_the_same_on_both_paths(monkeypatch):
         out.append(build._first_per_split(mask, owner, 300))
     assert out[0].dtype == out[1].dtype == bool and 0 < out[0].sum() < mask.sum()
     assert np.array_equal(out[0], out[1])
+
+
+def test_reverse_pairs_are_the_same_on_both_paths(monkeypatch):
+    """_reverse_pairs (pillows, twin faces): one hash table compiled, one sort in numpy, on faces drawn from
+    few vertices (triples of many faces, both orientations, rotations, repeated ids)."""
+    pytest.importorskip("numba")
+    from pmwm_codec.progressive import simplify
+
+    rng = np.random.default_rng(13)
+    faces = rng.integers(0, 9, (4000, 3))
+    faces[::5] = rng.integers(0, 5000, (800, 3))
+    out = []
+    for use in (False, True):
+        monkeypatch.setattr(topology, "USE_NUMBA", use)
+        out.append(simplify._reverse_pairs(faces))
+    assert 0 < out[0][0].sum() < len(faces) and out[0][1].max() > 2
+    for a, b in zip(*out):
+        assert a.dtype == b.dtype and np.array_equal(a, b)
