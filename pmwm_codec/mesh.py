@@ -54,10 +54,20 @@ class Mesh:
         """Length of the axis-aligned bounding box diagonal (float)."""
         if self.vertex_count == 0:
             return 0.0
-        return float(np.linalg.norm(self.positions.max(0) - self.positions.min(0)))
+        lo, hi = bounds(self.positions)
+        return float(np.linalg.norm(hi - lo))
 
     def __repr__(self) -> str:
         return f"Mesh({self.vertex_count} vertices, {self.face_count} faces)"
+
+
+def bounds(points: np.ndarray) -> tuple:
+    """``(lo, hi)``, each (d,) of the dtype of ``points`` (n, d), n >= 1: its columns' minima and maxima,
+    ``points.min(0)`` and ``points.max(0)``.  Column by column: numpy reduces a narrow array over its
+    first axis about 20x slower (37 ms for 556k positions)."""
+    lo = np.array([points[:, k].min() for k in range(points.shape[1])], dtype=points.dtype)
+    hi = np.array([points[:, k].max() for k in range(points.shape[1])], dtype=points.dtype)
+    return lo, hi
 
 
 def checked_mesh(positions, faces, attributes=None, *, name="mesh") -> Mesh:
@@ -94,9 +104,10 @@ def checked_mesh(positions, faces, attributes=None, *, name="mesh") -> Mesh:
     if not np.issubdtype(tri.dtype, np.integer):
         if not np.all(np.equal(np.mod(tri, 1), 0)):
             raise MeshError(f"{name}: face indices are not integers")
-    tri = tri.astype(np.int64)
-    bad = ~np.isfinite(pos).all(axis=1)
-    if bad.any():
+    tri = tri.astype(np.int64, copy=False)  # (the face filter below copies: the caller's array is never kept)
+    finite = np.isfinite(pos)
+    if not finite.all():
+        bad = ~finite.all(axis=1)
         count = int(bad.sum())
         raise MeshError(
             f"{name}: {count} {'vertex has' if count == 1 else 'vertices have'} NaN or infinite coordinates "
@@ -196,9 +207,11 @@ def _check_extent(pos: np.ndarray, tri: np.ndarray, name: str) -> None:
     non-zero first-edge lengths, max-norm) is smaller than one cell of the finest grid
     (the bbox extent over 2^MAX_GRID_BITS), a far-out vertex would collapse the rest of
     the mesh onto a single cell.  ``pos`` (n, 3) float64, ``tri`` (m, 3) int64."""
-    extent = float((pos.max(0) - pos.min(0)).max())
+    lo, hi = bounds(pos)
+    extent = float((hi - lo).max())
     sample = tri[:: max(1, len(tri) // (1 << 20))]
-    edges = np.abs(pos[sample[:, 1]] - pos[sample[:, 0]]).max(axis=1)
+    step = np.abs(np.take(pos, sample[:, 1], axis=0) - np.take(pos, sample[:, 0], axis=0))
+    edges = np.maximum(np.maximum(step[:, 0], step[:, 1]), step[:, 2])  # max(axis=1), without numpy's slow 3-wide reduce
     edges = edges[edges > 0]
     if extent == 0.0 or edges.size == 0:
         return

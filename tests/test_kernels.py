@@ -344,3 +344,71 @@ def test_only_a_one_shot_process_with_numba_unloaded_keeps_a_small_job_off_numba
     assert topology.compiled(topology._counting_order_py) is not None
     topology.job_vertices(10)  # numba is loaded now: it stays in use
     assert topology.compiled(topology._counting_order_py) is not None
+
+
+def test_point_faces_are_the_same_on_both_paths(monkeypatch):
+    """Faces whose three corners share one grid point (specks' first test), compiled and numpy."""
+    pytest.importorskip("numba")
+    from pmwm_codec.progressive import simplify
+
+    rng = np.random.default_rng(5)
+    values = rng.integers(0, 3, (400, 5))[:, :3]  # a strided view, as the encoder passes its values
+    faces = rng.integers(0, 400, (3000, 3))
+    out = []
+    for use in (False, True):
+        monkeypatch.setattr(topology, "USE_NUMBA", use)
+        out.append(simplify._point_faces(values, faces))
+    assert out[0].dtype == out[1].dtype == bool and 0 < out[0].sum() < len(faces)
+    assert np.array_equal(out[0], out[1])
+
+
+def test_repeated_hashes_are_the_same_on_both_paths(monkeypatch):
+    """The rows whose hash repeats (weld_groups' candidates): one hash table compiled, one sort in numpy;
+    hashes whose low bits are all zero (round floats) and collisions of the table's top-bit slots too."""
+    pytest.importorskip("numba")
+    from pmwm_codec.progressive import seams
+
+    rng = np.random.default_rng(7)
+    h = rng.integers(0, 1 << 12, 5000).astype(np.uint64) << np.uint64(52)  # top bits only: many repeats
+    h[::3] = rng.integers(0, np.iinfo(np.int64).max, len(h[::3])).astype(np.uint64)
+    out = []
+    for use in (False, True):
+        monkeypatch.setattr(topology, "USE_NUMBA", use)
+        out.append(seams._repeated_hashes(h))
+        assert len(seams._repeated_hashes(np.arange(10, dtype=np.uint64))) == 0
+    assert 0 < len(out[0]) < len(h)
+    assert np.array_equal(out[0], out[1])
+
+
+def test_first_incidence_per_split_is_the_same_on_both_paths(monkeypatch):
+    """build._first_per_split: the mask kept at each split's first incidence, compiled and numpy."""
+    pytest.importorskip("numba")
+    from pmwm_codec.progressive import build
+
+    rng = np.random.default_rng(11)
+    owner = np.sort(rng.integers(0, 300, 2000))[rng.permutation(2000)]
+    mask = rng.random(2000) < 0.3
+    out = []
+    for use in (False, True):
+        monkeypatch.setattr(topology, "USE_NUMBA", use)
+        out.append(build._first_per_split(mask, owner, 300))
+    assert out[0].dtype == out[1].dtype == bool and 0 < out[0].sum() < mask.sum()
+    assert np.array_equal(out[0], out[1])
+
+
+def test_reverse_pairs_are_the_same_on_both_paths(monkeypatch):
+    """_reverse_pairs (pillows, twin faces): one hash table compiled, one sort in numpy, on faces drawn from
+    few vertices (triples of many faces, both orientations, rotations, repeated ids)."""
+    pytest.importorskip("numba")
+    from pmwm_codec.progressive import simplify
+
+    rng = np.random.default_rng(13)
+    faces = rng.integers(0, 9, (4000, 3))
+    faces[::5] = rng.integers(0, 5000, (800, 3))
+    out = []
+    for use in (False, True):
+        monkeypatch.setattr(topology, "USE_NUMBA", use)
+        out.append(simplify._reverse_pairs(faces))
+    assert 0 < out[0][0].sum() < len(faces) and out[0][1].max() > 2
+    for a, b in zip(*out):
+        assert a.dtype == b.dtype and np.array_equal(a, b)

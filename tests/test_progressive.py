@@ -231,6 +231,28 @@ def test_vectorised_batch_apply_equals_the_per_split_reference():
         assert np.array_equal(fast.current_positions(), slow.current_positions())
 
 
+def test_the_builders_full_values_are_those_a_replay_of_its_batches_decodes():
+    """decoded_positions reads the builder's last state (pm.full_values): the same as replaying the records,
+    also when the embed hook moves the new vertices (a watermark)."""
+    import dataclasses
+
+    from pmwm_codec.distortion import decoded_positions
+
+    mesh = shapes.components(shapes.icosphere(2, 1.0, noise=0.05), shapes.grid(12, 12, hole=True))
+    grid = Grid.fit(mesh.positions, 16)
+    q = grid.quantize(mesh.positions)
+
+    def embed(j, topo, values, state):
+        return values + np.array([1 + j % 3, -1, 0])
+
+    pm = build_progressive(simplify(q, mesh.faces), q, grid, embed=embed)
+    assert pm.full_values is not None
+    got = decoded_positions(pm, grid)
+    want = decoded_positions(dataclasses.replace(pm, full_values=None), grid)
+    assert np.array_equal(got, want)
+    assert not np.array_equal(got, grid.dequantize(q))  # the hook moved vertices
+
+
 @pytest.mark.corpus
 @pytest.mark.parametrize("name", CORPUS_MESHES)
 def test_corpus_meshes_round_trip_and_every_level_is_valid(name):

@@ -19,7 +19,7 @@ import numpy as np
 
 from .grid import Grid
 from .simplify import CollapseLog
-from .topology import face_keys
+from .topology import compiled, face_keys
 from .vsplit import MOVE, MOVE_LEFT, MOVE_RIGHT, MeshState, SplitBatch, SplitTopology, find_incidences, split_topology
 
 #: embed(batch_index, topology, values (k, D) int64, state) -> (k, D) int64 (moves columns 0-2)
@@ -49,6 +49,11 @@ class ProgressiveMesh:
         vertex of ``late_values[j]``.  ``vertex_count`` and ``face_count`` count them.
     late_values : (t, D) int64
         Values of the vertices only the late faces name.
+    full_values : (n, D) int64 or None
+        Values of the full decode (of the vertices the splits reach), in decoded ids: where the
+        builder's replay, the decoder's own (:func:`split_topology`, residuals against its
+        predictions), ends; :func:`~pmwm_codec.distortion.decoded_positions` reads them instead
+        of replaying the batches again.  None: not known (replay the batches).
     """
 
     grid: Grid
@@ -62,6 +67,7 @@ class ProgressiveMesh:
     face_order: Optional[np.ndarray] = None
     late_faces: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int64))
     late_values: Optional[np.ndarray] = None
+    full_values: Optional[np.ndarray] = field(default=None, repr=False)
 
     @property
     def split_count(self) -> int:
@@ -132,6 +138,7 @@ def build_progressive(
         face_order=face_src,
         late_faces=late,
         late_values=None if late_values is None else np.asarray(late_values, np.int64),
+        full_values=state.current_positions(),
     )
 
 
@@ -202,19 +209,33 @@ def _wings(state, inc, owner, vid, cb, order, moved) -> tuple:
     b = flat[first + (inc + 2) % 3]
     wing_left = _lookup(vid, cb.wing_left[order])[owner]
     wing_right = _lookup(vid, cb.wing_right[order])[owner]
-    left = _first_per_split(moved & (wing_left >= 0) & (a == wing_left), owner)
-    right = _first_per_split(moved & (wing_right >= 0) & (b == wing_right), owner)
+    left = _first_per_split(moved & (wing_left >= 0) & (a == wing_left), owner, len(order))
+    right = _first_per_split(moved & (wing_right >= 0) & (b == wing_right), owner, len(order))
     return left, right
 
 
-def _first_per_split(mask: np.ndarray, owner: np.ndarray) -> np.ndarray:
+def _first_per_split(mask: np.ndarray, owner: np.ndarray, k: int) -> np.ndarray:
     """``mask`` (I,) bool kept at the first incidence of each split only (incidences in face-slot order,
-    ``owner`` (I,) their splits): when a pillow is glued on the edge a new face grows from, several
-    moved faces could name it, and a split names each new face once."""
+    ``owner`` (I,) int64 their splits, of ``k``): when a pillow is glued on the edge a new face grows
+    from, several moved faces could name it, and a split names each new face once."""
+    kernel = compiled(_first_per_split_kernel)
+    if kernel is not None:
+        return kernel(mask, owner, k)
     hit = np.flatnonzero(mask)
     first = hit[np.unique(owner[hit], return_index=True)[1]]
     out = np.zeros_like(mask)
     out[first] = True
+    return out
+
+
+def _first_per_split_kernel(mask, owner, k):
+    """Compiled :func:`_first_per_split` (one pass, no sort)."""
+    seen = np.zeros(k, np.bool_)
+    out = np.zeros(len(mask), np.bool_)
+    for i in range(len(mask)):
+        if mask[i] and not seen[owner[i]]:
+            seen[owner[i]] = True
+            out[i] = True
     return out
 
 

@@ -23,6 +23,7 @@ import numpy as np
 
 from ..constants import DEFAULT_GRID_BITS, MAX_GRID_BITS, MIN_GRID_BITS
 from ..errors import FormatError
+from ..mesh import bounds
 
 
 @dataclass(frozen=True)
@@ -38,8 +39,8 @@ class Grid:
         """The grid of ``bits`` bits spanning the bbox of ``positions`` (n, 3) float."""
         if not MIN_GRID_BITS <= bits <= MAX_GRID_BITS:
             raise ValueError(f"grid bits must be in [{MIN_GRID_BITS}, {MAX_GRID_BITS}], got {bits}")
-        lo = positions.min(axis=0)
-        extent = float((positions.max(axis=0) - lo).max())
+        lo, hi = bounds(positions)
+        extent = float((hi - lo).max())
         if extent <= 0.0:
             extent = 1.0
         # float32 must be able to carry every grid point exactly enough to round back:
@@ -101,8 +102,9 @@ class AttributeGrid:
     def fit(cls, values: np.ndarray, bits: int) -> "AttributeGrid":
         """The grid of ``bits`` bits spanning each column of ``values`` (n, k) float
         (a constant column gets step 1.0)."""
-        lo = values.min(axis=0).astype(np.float64)
-        span = values.max(axis=0).astype(np.float64) - lo
+        lo, hi = bounds(values)
+        lo = lo.astype(np.float64)
+        span = hi.astype(np.float64) - lo
         step = np.where(span > 0, span / float((1 << bits) - 1), 1.0)
         return cls(int(bits), tuple(float(x) for x in lo), tuple(float(x) for x in step))
 

@@ -139,8 +139,9 @@ def _compact_kernel(corners, face_alive, vert_alive, vids0, fids0, loc):
 def _vertex_faces(F, n):
     """Kernel part of :func:`_live_mesh_kernel`: the vertex -> corners CSR of ``F`` (m, 3) int64,
     corners ``3 f + c`` ascending in every row: ``(vf_start (n + 1,), vf_corner (3m,), fcount (n,),
-    ring (3m, 2))`` with ``ring`` the corner's next and previous vertex in its face (so the edge pass
-    reads the rows in order instead of looking up faces)."""
+    ring (3m, 2))`` with ``ring`` (int32: half the memory traffic; vertex ids are below the encoder's
+    vertex limit) the corner's next and previous vertex in its face (so the edge pass reads the rows in
+    order instead of looking up faces)."""
     fcount = np.zeros(n, np.int64)
     for f in range(len(F)):
         for c in range(3):
@@ -150,7 +151,7 @@ def _vertex_faces(F, n):
         vf_start[x + 1] = vf_start[x] + fcount[x]
     fill = vf_start[:-1].copy()
     vf_corner = np.empty(3 * len(F), np.int64)
-    ring = np.empty((3 * len(F), 2), np.int64)
+    ring = np.empty((3 * len(F), 2), np.int32)
     for f in range(len(F)):
         for c in range(3):
             s = fill[F[f, c]]
@@ -244,4 +245,6 @@ def _live_mesh_kernel(corners, face_alive, vert_alive, vids0, fids0, loc):
         vv_edge[fill[hi[e]]] = e
         fill[hi[e]] += 1
     edges = (lo * n + hi, lo, hi, count, he0, he1, he_edge)
-    return vids, fids, loc, F, edges, vv_start, vv_nbr, vv_edge, vf_start, vf_corner // 3, fcount
+    for p in range(len(vf_corner)):  # corners -> faces in place (no second (3m,) array)
+        vf_corner[p] //= 3
+    return vids, fids, loc, F, edges, vv_start, vv_nbr, vv_edge, vf_start, vf_corner, fcount

@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .topology import csr, expand
+from .topology import compiled, csr, expand
 
 
 def weld_groups(positions: np.ndarray) -> np.ndarray | None:
@@ -64,11 +64,9 @@ def weld_groups(positions: np.ndarray) -> np.ndarray | None:
     h = bits[:, 0] * np.uint64(0x9E3779B97F4A7C15)
     h ^= bits[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F)
     h ^= bits[:, 2] * np.uint64(0x165667B19E3779F9)
-    order = np.argsort(h, kind="stable")
-    same = h[order][1:] == h[order][:-1]
-    if not same.any():
+    cand = _repeated_hashes(h)
+    if len(cand) == 0:
         return None
-    cand = np.unique(order[np.r_[same, False] | np.r_[False, same]])
     _, inverse = np.unique(pts[cand], axis=0, return_inverse=True)
     inverse = inverse.reshape(-1)
     rep = np.full(int(inverse.max()) + 1, n, np.int64)
@@ -237,6 +235,48 @@ def within_budget(cost_single, cost_pair, budget: int) -> tuple:
     take = order[np.cumsum(size[order]) <= budget]
     s = len(cost_single)
     return np.sort(take[take < s]), np.sort(take[take >= s] - s)
+
+
+def _repeated_hashes(h: np.ndarray) -> np.ndarray:
+    """(c,) int64 ascending: the rows of ``h`` (n,) uint64 whose value some other row also has (one sort,
+    or its compiled twin: one hash table, no sort)."""
+    kernel = compiled(_repeated_hashes_kernel)
+    if kernel is not None:
+        return kernel(h)
+    order = np.argsort(h, kind="stable")
+    same = h[order][1:] == h[order][:-1]
+    return np.unique(order[np.r_[same, False] | np.r_[False, same]])
+
+
+def _repeated_hashes_kernel(h):
+    """Compiled :func:`_repeated_hashes`: an open-addressing table (twice the rows, a power of two) slotted
+    by the top bits of each hash (their low bits can be all zero: products of round floats' bit patterns)."""
+    n = len(h)
+    bits = 1
+    while (1 << bits) < 2 * n:
+        bits += 1
+    size = 1 << bits
+    keys = np.empty(size, np.uint64)
+    count = np.zeros(size, np.int64)  # 0: an empty slot
+    slot = np.empty(n, np.int64)
+    shift = np.uint64(64 - bits)
+    for i in range(n):
+        j = np.int64(h[i] >> shift)
+        while count[j] > 0 and keys[j] != h[i]:
+            j = (j + 1) & (size - 1)
+        keys[j] = h[i]
+        count[j] += 1
+        slot[i] = j
+    c = 0
+    for i in range(n):
+        c += count[slot[i]] > 1
+    out = np.empty(c, np.int64)
+    c = 0
+    for i in range(n):
+        if count[slot[i]] > 1:
+            out[c] = i
+            c += 1
+    return out
 
 
 def twin_rows(points: np.ndarray) -> np.ndarray:

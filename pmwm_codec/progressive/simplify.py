@@ -133,73 +133,128 @@ class CollapseLog:
     batches: list = field(default_factory=list)  # CollapseBatch, in collapse order (fine -> coarse)
 
 
-def face_quadrics(pos: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
+def face_quadrics(pos: np.ndarray, faces: np.ndarray, n: int, boundary: np.ndarray | None = None) -> np.ndarray:
     """Per-vertex quadrics (n, 10) float64: area-weighted face planes plus boundary planes.
 
     The 10 entries are the upper triangle of the symmetric 4x4 quadric
     ``[a2, ab, ac, ad, b2, bc, bd, c2, cd, d2]`` of planes ``ax + by + cz + d = 0``.
+    ``pos`` (N, 3) float64, ``faces`` (m, 3) int64 over ``n`` vertices; ``boundary`` (b,) int64: the
+    half-edges of its boundary edges in edge order (:func:`~.livemesh.boundary_half_edges`), when the
+    caller has them.  A dot product of three terms is summed ``(x0 + x2) + x1``, as ``np.einsum`` sums
+    it here, so the numpy path and the compiled one (:func:`_quadrics_kernel`, no temporaries) give
+    the same bits.
     """
+    if boundary is None:
+        boundary = boundary_half_edges(faces, n)
+    kernel = compiled(_quadrics_kernel)
+    if kernel is not None:
+        return kernel(pos, faces, np.asarray(boundary, np.int64), n, BOUNDARY_WEIGHT)
     p0, p1, p2 = pos[faces[:, 0]], pos[faces[:, 1]], pos[faces[:, 2]]
     nrm = np.cross(p1 - p0, p2 - p0)
     area2 = np.linalg.norm(nrm, axis=1)
     unit = nrm / np.maximum(area2, 1e-300)[:, None]
-    d = -np.einsum("ij,ij->i", unit, p0)
-    planes = np.concatenate([unit, d[:, None]], axis=1)
-    kernel = compiled(_corner_quadrics_kernel)
-    if kernel is None:
-        corner_q = np.repeat(_plane_quadrics(planes, 0.5 * area2), 3, axis=0)
-        out = _index_sum(faces.ravel(), corner_q, n)
-    else:
-        out = kernel(faces, planes, 0.5 * area2, n)
+    planes = np.concatenate([unit, -_dot3(unit, p0)[:, None]], axis=1)
+    corner_q = np.repeat(_plane_quadrics(planes, 0.5 * area2), 3, axis=0)
+    out = _index_sum(faces.ravel(), corner_q, n)
 
     # boundary edges: a plane through the edge, perpendicular to its face
-    he = boundary_half_edges(faces, n)
+    he = boundary
     if len(he):
         src, dst, _ = half_edges(faces)
         a_, b_ = src[he], dst[he]
         e = pos[b_] - pos[a_]
-        elen2 = np.einsum("ij,ij->i", e, e)
+        elen2 = _dot3(e, e)
         pn = np.cross(e, unit[he // 3])
         pn /= np.maximum(np.linalg.norm(pn, axis=1), 1e-300)[:, None]
-        pd = -np.einsum("ij,ij->i", pn, pos[a_])
+        pd = -_dot3(pn, pos[a_])
         bq = _plane_quadrics(np.concatenate([pn, pd[:, None]], axis=1), BOUNDARY_WEIGHT * elen2)
         out += _index_sum(np.concatenate([a_, b_]), np.concatenate([bq, bq]), n)
     return out
 
 
+def _dot3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(k,) float64 row dot products of a, b (k, 3) float64, summed ``(x0 + x2) + x1``."""
+    return (a[:, 0] * b[:, 0] + a[:, 2] * b[:, 2]) + a[:, 1] * b[:, 1]
+
+
 def _index_sum(idx, q, n):
     """(n, 10) float64: the rows of ``q`` (k, 10) float64 summed by ``idx`` (k,) int64, in ``idx``
-    order (``np.bincount`` per column, or its compiled twin: the same bits)."""
-    kernel = compiled(_index_sum_kernel)
-    if kernel is not None:
-        return kernel(idx, q, n)
+    order (``np.bincount`` per column)."""
     return np.stack([np.bincount(idx, weights=q[:, j], minlength=n) for j in range(q.shape[1])], axis=1)
 
 
-def _index_sum_kernel(idx, q, n):
-    """Compiled :func:`_index_sum`."""
-    out = np.zeros((n, q.shape[1]), np.float64)
-    for i in range(len(idx)):
-        for j in range(q.shape[1]):
-            out[idx[i], j] += q[i, j]
-    return out
+@kernel_helper
+def _unit_normal(pos, faces, f):
+    """Face ``f``'s unit normal and doubled area, as :func:`face_quadrics` computes them (``np.cross``,
+    ``np.linalg.norm``, the division by the norm floored at 1e-300): ``(ux, uy, uz, area2)``."""
+    i, j, k = faces[f, 0], faces[f, 1], faces[f, 2]
+    a0, a1, a2 = pos[j, 0] - pos[i, 0], pos[j, 1] - pos[i, 1], pos[j, 2] - pos[i, 2]
+    b0, b1, b2 = pos[k, 0] - pos[i, 0], pos[k, 1] - pos[i, 1], pos[k, 2] - pos[i, 2]
+    nx, ny, nz = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+    area2 = np.sqrt((nx * nx + ny * ny) + nz * nz)
+    s = area2 if (area2 >= 1e-300 or area2 != area2) else 1e-300  # np.maximum (NaN propagates)
+    return nx / s, ny / s, nz / s, area2
 
 
-def _corner_quadrics_kernel(faces, planes, weight, n):
-    """Compiled ``_index_sum(faces.ravel(), np.repeat(_plane_quadrics(planes, weight), 3, axis=0), n)``
-    for faces (m, 3) int64, planes (m, 4) and weight (m,) float64: each face's quadric computed as
-    :func:`_plane_quadrics` does (``w * (a * b)``) and added corner by corner, so the same bits."""
+@kernel_helper
+def _add_plane(out, row, a, b, c, d, w):
+    """``out[row] += w * (the plane's quadric)``, entry by entry as :func:`_plane_quadrics` makes it."""
+    out[row, 0] += w * (a * a)
+    out[row, 1] += w * (a * b)
+    out[row, 2] += w * (a * c)
+    out[row, 3] += w * (a * d)
+    out[row, 4] += w * (b * b)
+    out[row, 5] += w * (b * c)
+    out[row, 6] += w * (b * d)
+    out[row, 7] += w * (c * c)
+    out[row, 8] += w * (c * d)
+    out[row, 9] += w * (d * d)
+
+
+def _quadrics_kernel(pos, faces, boundary, n, boundary_weight):
+    """Compiled :func:`face_quadrics` (the same bits) without its (m, ...) temporaries: each face's
+    plane added at its corners in face order; then every boundary plane summed per vertex (first at
+    the edges' first ends, then at their second ends, in edge order, from zero, as ``np.bincount``
+    does) and that sum added to the vertex's face quadric."""
     out = np.zeros((n, 10), np.float64)
-    q = np.empty(10, np.float64)
     for f in range(len(faces)):
-        a, b, c, d, w = planes[f, 0], planes[f, 1], planes[f, 2], planes[f, 3], weight[f]
-        q[0], q[1], q[2], q[3] = w * (a * a), w * (a * b), w * (a * c), w * (a * d)
-        q[4], q[5], q[6], q[7] = w * (b * b), w * (b * c), w * (b * d), w * (c * c)
-        q[8], q[9] = w * (c * d), w * (d * d)
+        ux, uy, uz, area2 = _unit_normal(pos, faces, f)
+        d = -((ux * pos[faces[f, 0], 0] + uz * pos[faces[f, 0], 2]) + uy * pos[faces[f, 0], 1])
         for k in range(3):
-            x = faces[f, k]
+            _add_plane(out, faces[f, k], ux, uy, uz, d, 0.5 * area2)
+    b = len(boundary)
+    if b == 0:
+        return out
+    planes = np.empty((b, 5), np.float64)  # a, b, c, d, weight of each boundary plane
+    ends = np.empty((2, b), np.int64)
+    for i in range(b):
+        h = boundary[i]
+        f, c = h // 3, h % 3
+        x, y = faces[f, c], faces[f, (c + 1) % 3]
+        ends[0, i], ends[1, i] = x, y
+        e0, e1, e2 = pos[y, 0] - pos[x, 0], pos[y, 1] - pos[x, 1], pos[y, 2] - pos[x, 2]
+        ux, uy, uz, _ = _unit_normal(pos, faces, f)
+        px, py, pz = e1 * uz - e2 * uy, e2 * ux - e0 * uz, e0 * uy - e1 * ux
+        norm = np.sqrt((px * px + py * py) + pz * pz)
+        s = norm if (norm >= 1e-300 or norm != norm) else 1e-300
+        px, py, pz = px / s, py / s, pz / s
+        planes[i, 0], planes[i, 1], planes[i, 2] = px, py, pz
+        planes[i, 3] = -((px * pos[x, 0] + pz * pos[x, 2]) + py * pos[x, 1])
+        planes[i, 4] = boundary_weight * ((e0 * e0 + e2 * e2) + e1 * e1)
+    slot = np.full(n, -1, np.int64)  # boundary vertex -> its row of ``acc``
+    acc = np.zeros((2 * b, 10), np.float64)
+    rows = 0
+    for side in range(2):
+        for i in range(b):
+            x = ends[side, i]
+            if slot[x] < 0:
+                slot[x] = rows
+                rows += 1
+            _add_plane(acc, slot[x], planes[i, 0], planes[i, 1], planes[i, 2], planes[i, 3], planes[i, 4])
+    for x in range(n):
+        if slot[x] >= 0:
             for j in range(10):
-                out[x, j] += q[j]
+                out[x, j] += acc[slot[x], j]
     return out
 
 
@@ -256,6 +311,7 @@ def simplify(
     max_batches: int = 400,
     locked: np.ndarray | None = None,
     weld: np.ndarray | None = None,
+    twin: np.ndarray | None = None,
 ) -> CollapseLog:
     """Coarsen a mesh by batches of independent half-edge collapses.
 
@@ -275,6 +331,8 @@ def simplify(
         Seam copies: the smallest vertex id at each vertex's position
         (:func:`~pmwm_codec.progressive.seams.weld_groups`).  Vertices that share a
         position are removed only in seam pairs (:mod:`.seams`); None: no seams.
+    twin : (m,) bool, optional
+        :func:`twin_faces` of ``faces``, when the caller has it (:func:`deferred_and_twin_faces`).
 
     Returns
     -------
@@ -288,10 +346,11 @@ def simplify(
     face_alive = np.ones(m, dtype=bool)
     vert_alive = np.zeros(n, dtype=bool)
     vert_alive[corners.ravel()] = True
-    quad = face_quadrics(pos, corners, n)  # before the first live mesh: its temporaries are freed first
-    live = live_mesh(corners, face_alive, vert_alive)  # (the other way round: +78 MB peak on a 556k-vertex encode)
+    live = live_mesh(corners, face_alive, vert_alive)
+    boundary = live.et.he0[live.et.count == 1]  # the input's boundary half-edges, in edge order (every face is live)
+    quad = face_quadrics(pos, corners, n, live.fids[boundary // 3] * 3 + boundary % 3)
     frozen_ext = np.zeros(n, bool) if locked is None else np.asarray(locked, bool).copy()
-    twin = twin_faces(corners)
+    twin = twin_faces(corners) if twin is None else np.asarray(twin, bool)
     twin = twin if twin.any() else None
     log = CollapseLog(n, m, None, None, None, [])
 
@@ -365,12 +424,12 @@ def _one_batch(pos, live, quad, frozen_ext, budget, weld=None, twin=None):
     n = len(vids)
     P = np.take(pos, vids, axis=0)  # row gathers: np.take copies rows in one loop, indexing one memcpy per row
     Q = np.take(quad, vids, axis=0)
-    src, dst, opp = half_edges(F)
     frozen = frozen_ext[vids]
     g = None if weld is None else seams.local_groups(weld, vids, loc)
     seam = None if g is None else seams.seam_mask(g)
     if seam is not None and not seam.any():
         g = seam = None
+    src, dst, opp = half_edges(F, with_dst=seam is not None)  # only the seam pairs read dst
     twins = _twin_counts(et, F, None if twin is None else twin[fids], n)
     mesh = (et, F, P, opp, fcount, vv, vf, vv_edge, twins[0])
     cand = _candidates(mesh, Q, src, frozen if seam is None else frozen | seam, twins)
@@ -681,19 +740,25 @@ def twin_faces(faces: np.ndarray) -> np.ndarray:
     A collapse never deletes one (both would share their third vertex), and both move together
     when one of their vertices is removed, so the pairs found on the input stay pairs while alive.
     """
-    pairs, size = _reverse_pairs(faces)
+    return _twins(_reverse_pairs(faces))
+
+
+def _twins(reverse: tuple) -> np.ndarray:
+    """:func:`twin_faces` from ``reverse`` = :func:`_reverse_pairs` of the faces."""
+    pairs, size = reverse
     return pairs & (size == 2)
 
 
-def deferred_pillows(faces: np.ndarray) -> np.ndarray:
+def deferred_pillows(faces: np.ndarray, reverse: tuple | None = None) -> np.ndarray:
     """(m,) bool: the pillows of ``faces`` (m, 3) int64 (:func:`reverse_pairs`) that the encoder of payload
     version 2 keeps out of the simplification and sends in a face chunk after every split (spec
     bitstream.md §8.6): every pillow with a vertex that has a face outside the pillows.  Kept, they stay in the
     base with every vertex they touch.  A flap's tip (a vertex with pillow faces only) then has no
     face left: the face chunk brings it.  Only pillows apart from every other face stay: parts of their
-    own, kept in the base like any small part (:func:`specks` sends those too small for the grid)."""
+    own, kept in the base like any small part (:func:`specks` sends those too small for the grid).
+    ``reverse``: :func:`_reverse_pairs` of ``faces``, when the caller has it."""
     faces = np.asarray(faces, np.int64).reshape(-1, 3)
-    twin = reverse_pairs(faces)
+    twin = (_reverse_pairs(faces) if reverse is None else reverse)[0]
     if not twin.any():
         return twin
     return twin & _touch_others(faces, twin, int(faces.max()) + 1)
@@ -715,8 +780,7 @@ def specks(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
     Draco's sequential coder (the snowden bust at 14 bits: a 12.0 KB base instead of 3.7 KB); a face
     chunk sends them instead (bitstream.md §8.6: a face of new vertices only)."""
     faces = np.asarray(faces, np.int64).reshape(-1, 3)
-    p = np.asarray(positions)[faces]
-    point = (p[:, 0] == p[:, 1]).all(axis=1) & (p[:, 1] == p[:, 2]).all(axis=1)
+    point = _point_faces(np.asarray(positions), faces)
     if not point.any():
         return point
     n = len(positions)
@@ -730,13 +794,44 @@ def specks(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return point
 
 
+def _point_faces(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(m,) bool: the faces of ``faces`` (m, 3) int64 whose three corners have equal ``positions`` (n, 3)
+    (compiled: no (m, 3, 3) gather)."""
+    kernel = compiled(_point_faces_kernel)
+    if kernel is not None:
+        return kernel(positions, faces)
+    p = positions[faces]
+    return (p[:, 0] == p[:, 1]).all(axis=1) & (p[:, 1] == p[:, 2]).all(axis=1)
+
+
+def _point_faces_kernel(positions, faces):
+    """Compiled :func:`_point_faces`."""
+    out = np.empty(len(faces), np.bool_)
+    for f in range(len(faces)):
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        same = True
+        for k in range(3):
+            same = same and positions[a, k] == positions[b, k] and positions[b, k] == positions[c, k]
+        out[f] = same
+    return out
+
+
 def deferred_faces(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(m,) bool: the faces of ``faces`` (m, 3) int64 that the encoder of payload version 2 keeps out of
     the simplification and sends in a face chunk after every split (spec bitstream.md §8.6):
     :func:`deferred_pillows` and :func:`specks` (``positions`` (n, 3) int64: grid values), unless that
     would be every face (the simplification needs a mesh)."""
-    late = deferred_pillows(faces) | specks(positions, faces)
-    return late if not late.all() else np.zeros(len(late), bool)
+    return deferred_and_twin_faces(positions, faces)[0]
+
+
+def deferred_and_twin_faces(positions: np.ndarray, faces: np.ndarray) -> tuple:
+    """``(late, twin)``, each (m,) bool: :func:`deferred_faces` and :func:`twin_faces` of ``faces`` (m, 3)
+    int64 from one sort of the faces (:func:`_reverse_pairs`): the twins are what :func:`simplify` takes
+    (``twin``) when nothing is deferred (the faces it gets are these)."""
+    faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    reverse = _reverse_pairs(faces)
+    late = deferred_pillows(faces, reverse) | specks(positions, faces)
+    return (late if not late.all() else np.zeros(len(late), bool)), _twins(reverse)
 
 
 def reverse_pairs(faces: np.ndarray) -> np.ndarray:
@@ -751,16 +846,20 @@ def reverse_pairs(faces: np.ndarray) -> np.ndarray:
 def _reverse_pairs(faces: np.ndarray) -> tuple:
     """``(pairs (m,) bool, size (m,) int64)``: :func:`reverse_pairs`, and the number of faces on each
     face's vertex triple.  One sort by (triple, orientation): a single packed int64 key while the
-    vertex ids allow it (3x faster than ``lexsort``, which larger meshes use)."""
+    vertex ids allow it (3x faster than ``lexsort``, which larger meshes use); compiled, one hash table
+    of the packed triples instead (:func:`_reverse_pairs_kernel`)."""
     faces = np.asarray(faces, np.int64).reshape(-1, 3)
     m = len(faces)
     pairs, size = np.zeros(m, bool), np.ones(m, np.int64)
     if m < 2:
         return pairs, size
+    n = int(faces.max()) + 1
+    kernel = compiled(_reverse_pairs_kernel) if n < 1 << 20 else None
+    if kernel is not None:
+        return kernel(faces, n)
     rot = face_keys(faces)  # rotated to start at the smallest id
     flip = (rot[:, 1] > rot[:, 2]).astype(np.int64)
     lo, hi = np.minimum(rot[:, 1], rot[:, 2]), np.maximum(rot[:, 1], rot[:, 2])
-    n = int(faces.max()) + 1
     if n < 1 << 20:  # (triple, orientation) in one int64
         packed = ((rot[:, 0] * n + lo) * n + hi) * 2 + flip
         order = np.argsort(packed, kind="stable")
@@ -780,21 +879,49 @@ def _reverse_pairs(faces: np.ndarray) -> tuple:
     pairs[order[rank < np.minimum(ones, count - ones)[group]]] = True
     size[order] = count[group]
     return pairs, size
-    rot = face_keys(faces)
-    flip = (rot[:, 1] > rot[:, 2]).astype(np.int64)
-    key = np.stack([rot[:, 0], np.minimum(rot[:, 1], rot[:, 2]), np.maximum(rot[:, 1], rot[:, 2])], 1)
-    order = np.lexsort((flip, key[:, 2], key[:, 1], key[:, 0]))
-    k, f = key[order], flip[order]
-    new_triple = np.r_[True, np.any(k[1:] != k[:-1], axis=1)]
-    new_side = new_triple | np.r_[True, f[1:] != f[:-1]]
-    triple = np.cumsum(new_triple) - 1
-    side_start = np.flatnonzero(new_side)
-    rank = np.arange(m) - side_start[np.cumsum(new_side) - 1]  # place within (triple, orientation)
-    ones = np.bincount(triple, weights=f, minlength=triple[-1] + 1).astype(np.int64)
-    size = np.bincount(triple, minlength=triple[-1] + 1)
-    pairs = np.minimum(ones, size - ones)
-    out[order[rank < pairs[triple]]] = True
-    return out
+
+
+def _reverse_pairs_kernel(faces, n):
+    """Compiled :func:`_reverse_pairs` for vertex ids below 2^20: each face's triple (rotated to its smallest
+    id, as :func:`~.topology.face_keys`; the other two ascending) packed into one int64 and counted in an
+    open-addressing table (a power of two, at least twice the faces); a face's place among the faces of its
+    triple and orientation is the count of those before it (the sort's order: stable)."""
+    m = len(faces)
+    bits = 1
+    while (1 << bits) < 2 * m:
+        bits += 1
+    size_t = 1 << bits
+    keys = np.empty(size_t, np.int64)
+    count = np.zeros(size_t, np.int32)  # faces on the triple (0: an empty slot)
+    ones = np.zeros(size_t, np.int32)  # of them, flipped
+    slot = np.empty(m, np.int64)
+    place = np.empty(m, np.int64)
+    flips = np.empty(m, np.bool_)
+    shift = np.uint64(64 - bits)
+    for f in range(m):
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        if b < a and b <= c:  # np.argmin: the first smallest
+            a, b, c = b, c, a
+        elif c < a and c < b:
+            a, b, c = c, a, b
+        flip = b > c
+        key = (a * n + min(b, c)) * n + max(b, c)
+        j = np.int64((np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)) >> shift)
+        while count[j] > 0 and keys[j] != key:
+            j = (j + 1) & (size_t - 1)
+        keys[j] = key
+        place[f] = ones[j] if flip else count[j] - ones[j]
+        count[j] += 1
+        ones[j] += flip
+        slot[f] = j
+        flips[f] = flip
+    pairs = np.zeros(m, np.bool_)
+    size = np.empty(m, np.int64)
+    for f in range(m):
+        j = slot[f]
+        pairs[f] = place[f] < min(ones[j], count[j] - ones[j])
+        size[f] = count[j]
+    return pairs, size
 
 
 def _twin_counts(et, F, twin, n):
@@ -1185,7 +1312,7 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
             scratch[0, cu[o]] = rank[o]
         won = np.empty(len(offer), np.bool_)
         for j in range(len(offer)):
-            won[j] = _nbr_min(vv_start, vv_nbr, scratch[0], cu[offer[j]], big) > rank[offer[j]]
+            won[j] = not _nbr_below(vv_start, vv_nbr, scratch[0], cu[offer[j]], rank[offer[j]] + 1)
         for o in offer:
             scratch[0, cu[o]] = big
         if not won.any():
@@ -1216,11 +1343,13 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
 
 
 @kernel_helper
-def _nbr_min(vv_start, vv_nbr, values, row, big):
-    best = big
+def _nbr_below(vv_start, vv_nbr, values, row, limit):
+    """Whether a neighbour ``x`` of ``row`` has ``values[x] < limit`` (the smallest of them ``< limit``,
+    found without scanning the whole row once one is)."""
     for p in range(vv_start[row], vv_start[row + 1]):
-        best = min(best, values[vv_nbr[p]])
-    return best
+        if values[vv_nbr[p]] < limit:
+            return True
+    return False
 
 
 @kernel_helper(allocates=True)
@@ -1236,8 +1365,8 @@ def _round_conflicts(u, v, r, flags, scratch, vv_start, vv_nbr, big):
         scratch[1, u[i]] = r[i]
         scratch[2, v[i]] = min(scratch[2, v[i]], r[i])
     for i in range(len(u)):
-        loses[i] |= _nbr_min(vv_start, vv_nbr, scratch[1], v[i], big) < r[i]
-        loses[i] |= _nbr_min(vv_start, vv_nbr, scratch[2], u[i], big) < r[i]
+        loses[i] = loses[i] or _nbr_below(vv_start, vv_nbr, scratch[1], v[i], r[i]) \
+            or _nbr_below(vv_start, vv_nbr, scratch[2], u[i], r[i])
     for i in range(len(u)):
         scratch[1, u[i]] = big
         scratch[2, v[i]] = big

@@ -169,16 +169,19 @@ def group_order(keys: np.ndarray, n: int) -> np.ndarray:
     return kernel(keys, int(n))
 
 
-def half_edges(faces: np.ndarray):
-    """Half-edge end points: ``(src, dst, opposite)`` each (3m,) int64, face-major."""
+def half_edges(faces: np.ndarray, with_dst: bool = True):
+    """Half-edge end points: ``(src, dst, opposite)`` each (3m,) int64, face-major (``src`` a view of
+    ``faces``); ``dst`` None unless ``with_dst`` (a copy the caller may not need)."""
     faces = np.ascontiguousarray(faces)
-    dst = np.empty_like(faces)  # faces[:, [1, 2, 0]] by slices: contiguous, no gather
-    dst[:, :2] = faces[:, 1:]
-    dst[:, 2] = faces[:, 0]
+    dst = None
+    if with_dst:
+        dst = np.empty_like(faces)  # faces[:, [1, 2, 0]] by slices: contiguous, no gather
+        dst[:, :2] = faces[:, 1:]
+        dst[:, 2] = faces[:, 0]
     opp = np.empty_like(faces)  # faces[:, [2, 0, 1]]
     opp[:, 0] = faces[:, 2]
     opp[:, 1:] = faces[:, :2]
-    return faces.reshape(-1), dst.reshape(-1), opp.reshape(-1)
+    return faces.reshape(-1), None if dst is None else dst.reshape(-1), opp.reshape(-1)
 
 
 def edge_table(faces: np.ndarray, n: int) -> EdgeTable:

@@ -45,11 +45,11 @@ from ..format.gltf import scene_mesh, world_placements
 from ..format.extension import DEFAULT_PAYLOAD_VERSION, PAYLOAD_CODEC, PAYLOAD_VERSIONS
 from ..format.records import pack_batches
 from ..format.records_v2 import FaceChunk, pack_chunks
-from ..mesh import Mesh
+from ..mesh import Mesh, bounds
 from ..progressive.build import ProgressiveMesh, build_progressive
 from ..progressive.grid import AttributeGrid, Grid
 from ..progressive.seams import twin_rows, weld_groups
-from ..progressive.simplify import CollapseLog, deferred_faces, simplify
+from ..progressive.simplify import CollapseLog, deferred_and_twin_faces, simplify
 from ..progressive.topology import job_vertices, mean_edge_length
 from ..watermark import codec as wm
 from ..watermark.key import KEY_FILE_MODE, KeySlot, WatermarkKey
@@ -446,7 +446,7 @@ def position_grids(meshes: list, grid_bits: int) -> list:
     decodes to the same float32 in each: no crack opens between them, and the owner layer, whose
     statistics count a position once (:mod:`~pmwm_codec.watermark.owner`), reads them as one surface.
     Every other primitive's grid spans its own bounding box."""
-    boxes = [np.stack([m.positions.min(0), m.positions.max(0)]) for m in meshes]
+    boxes = [np.stack(bounds(m.positions)) for m in meshes]
     label = _sharing_groups([m.positions for m in meshes])
     grids = {}
     for g in np.unique(label):
@@ -533,7 +533,8 @@ def _quantize_and_simplify(jobs, grid_bits: int, base_vertices, say, defer_faces
     for i, job in enumerate(jobs):
         grid, values, specs = _quantize(job.mesh, grids[i])
         faces, positions, locked = job.mesh.faces, job.mesh.positions, job.locked
-        late = deferred_faces(values[:, :3], faces) if defer_faces else np.zeros(len(faces), bool)
+        late, twin = (deferred_and_twin_faces(values[:, :3], faces) if defer_faces
+                      else (np.zeros(len(faces), bool), None))
         if late.any() and locked is not None:  # a locked vertex stays in the base: its faces are not deferred
             late &= ~_naming_locked_tips(faces, late, locked)
         extra = {}
@@ -542,8 +543,10 @@ def _quantize_and_simplify(jobs, grid_bits: int, base_vertices, say, defer_faces
             extra = dict(core=core, tips=tips, late=local[faces[late]], late_values=values[tips])
             values, positions, faces = values[core], positions[core], local[faces[~late]]
             locked = None if locked is None else locked[core]
+            twin = None  # the simplifier finds the core's own
         target = default_base_target(len(values)) if base_vertices is None else int(base_vertices)
-        log = simplify(values[:, :3], faces, target_vertices=target, locked=locked, weld=weld_groups(positions))
+        log = simplify(values[:, :3], faces, target_vertices=target, locked=locked, weld=weld_groups(positions),
+                       twin=twin)
         work.append(PrimitiveWork(job, grid, values, specs, log, **extra))
         say("simplify", (i + 1) / len(jobs))
     return work
