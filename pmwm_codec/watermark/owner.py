@@ -421,18 +421,18 @@ def _searched_frames(points: np.ndarray, faces: np.ndarray, full: bool = True) -
     every = -(-len(points) // GRID_POINTS)
     objectives = tuple(functools.partial(_search_objective, n[::m], rho[::m], lo, width) for m in (every, 1))
     zero = np.zeros(5)
-    if not full:
+    if full:
+        grid = np.stack(np.meshgrid(*[SEARCH_GRID] * 5, indexing="ij"), -1).reshape(-1, 5)
+        grid = grid[[_within_box(y) for y in grid]]
+        coarse = np.array([objectives[0](y) for y in grid])
+        climbs = [_ascend(objectives, grid[j], zero) for j in np.argsort(-coarse, kind="stable")[:SEARCH_STARTS]]
+        x = climbs[int(np.argmax([objectives[1](y) for y in climbs]))]
+        xs = [zero, x]
+        for shift in (0.5, -0.5):
+            y = x + np.array([0.0, 0.0, 0.0, shift, shift])
+            xs.append(_ascend(objectives, y, y))
+    else:
         xs = [zero, _ascend(objectives, zero, zero)]
-        return [(centroid + y[:3] * width, lo + y[3] * width, width * (1.0 + (y[4] - y[3]) / BINS)) for y in xs]
-    grid = np.stack(np.meshgrid(*[SEARCH_GRID] * 5, indexing="ij"), -1).reshape(-1, 5)
-    grid = grid[[_within_box(y) for y in grid]]
-    coarse = np.array([objectives[0](y) for y in grid])
-    climbs = [_ascend(objectives, grid[j], zero) for j in np.argsort(-coarse, kind="stable")[:SEARCH_STARTS]]
-    x = climbs[int(np.argmax([objectives[1](y) for y in climbs]))]
-    xs = [zero, x]
-    for shift in (0.5, -0.5):
-        y = x + np.array([0.0, 0.0, 0.0, shift, shift])
-        xs.append(_ascend(objectives, y, y))
     return [(centroid + y[:3] * width, lo + y[3] * width, width * (1.0 + (y[4] - y[3]) / BINS)) for y in xs]
 
 
@@ -820,10 +820,14 @@ def mesh_scores(positions, faces) -> tuple:
 def best_frame(soft: np.ndarray, key) -> int:
     """The frame (row of ``soft`` (FRAMES, 64), the soft values read in each) whose bits differ
     least from the key's owner ID (erased bits count as errors); 0 when the key carries none."""
-    if key.owner_id is None:
-        return 0
+    return 0 if key.owner_id is None else int(np.argmin(_bit_errors(soft, key)))
+
+
+def _bit_errors(soft: np.ndarray, key):
+    """Bits of soft coded values (..., 64) that differ from ``key``'s owner ID, erased bits (0) counted:
+    int64 of shape (...)."""
     read = (soft > 0).astype(np.uint8) ^ _layout(key)[1]
-    return int(np.argmin(np.count_nonzero((read != id_to_bits(key.owner_id)) | (soft == 0), axis=1)))
+    return np.count_nonzero((read != id_to_bits(key.owner_id)) | (soft == 0), axis=-1)
 
 
 def _soft_rows(scores: tuple, key) -> np.ndarray:
@@ -843,7 +847,7 @@ def _read_as_is(scores: tuple, key) -> int | None:
     after 30 smoothing iterations, BER 0.072 against 0.000.)"""
     soft = _soft_rows((scores[0][:AS_IS], scores[1][:AS_IS]), key)
     i = best_frame(soft, key)
-    return i if key.owner_id is None or _verdict(soft[i], key)[0] == 0 else None
+    return i if key.owner_id is None or _bit_errors(soft[i], key) == 0 else None
 
 
 def _view_read(scores: tuple, key) -> int:
@@ -872,10 +876,10 @@ def read_soft(positions, faces, key, scores: tuple | None = None) -> np.ndarray:
 
 
 def _verdict(soft: np.ndarray, key) -> tuple:
-    """``(bit errors, erased, verdict)`` of soft coded values (64,) read for ``key`` (which carries an ID)."""
-    read = (soft > 0).astype(np.uint8) ^ _layout(key)[1]
+    """``(bit errors, erased, false-alarm probability, verdict)`` of soft coded values (64,) read for
+    ``key`` (which carries an ID)."""
     erased = int(np.count_nonzero(soft == 0))
-    errors = int(np.count_nonzero((read != id_to_bits(key.owner_id)) | (soft == 0)))
+    errors = int(_bit_errors(soft, key))
     p = false_alarm_probability(errors)
     if OWNER_BITS - erased < MIN_BITS_READ:
         verdict = "inconclusive"
@@ -885,7 +889,7 @@ def _verdict(soft: np.ndarray, key) -> tuple:
         verdict = "absent"
     else:
         verdict = "inconclusive"
-    return errors, erased, verdict
+    return errors, erased, p, verdict
 
 
 def detect(positions, faces, key, scores: tuple | None = None) -> OwnerResult:
@@ -898,6 +902,5 @@ def detect(positions, faces, key, scores: tuple | None = None) -> OwnerResult:
     read = (soft > 0).astype(np.uint8) ^ _layout(key)[1]
     if key.owner_id is None:
         return OwnerResult(bits_to_hex(read), OWNER_BITS, int(np.count_nonzero(soft == 0)), 1.0, "inconclusive")
-    errors, erased, verdict = _verdict(soft, key)
-    p = false_alarm_probability(errors)
+    errors, erased, p, verdict = _verdict(soft, key)
     return OwnerResult(bits_to_hex(read), errors, erased, p, verdict)
