@@ -412,3 +412,37 @@ def test_reverse_pairs_are_the_same_on_both_paths(monkeypatch):
     assert 0 < out[0][0].sum() < len(faces) and out[0][1].max() > 2
     for a, b in zip(*out):
         assert a.dtype == b.dtype and np.array_equal(a, b)
+
+
+def test_the_owner_layers_relaxed_surface_and_areas_are_the_same_bits_on_both_paths(monkeypatch):
+    """owner._relaxed / _vertex_areas: compiled loops and numpy sums, bit for bit, on a noisy sphere with a
+    degenerate face, a repeated corner and a point on no face."""
+    pytest.importorskip("numba")
+    from pmwm_codec.watermark import owner
+
+    mesh = shapes.icosphere(3, 1.0, noise=0.05)
+    points = np.vstack([mesh.positions, [[3.0, 0.0, 0.0]]]).astype(np.float64)
+    faces = np.vstack([mesh.faces, [[0, 0, 1], [2, 2, 2]]]).astype(np.int64)
+    assert len(faces) >= owner._COMPILED_FACES
+    out = []
+    for use in (False, True):
+        monkeypatch.setattr(topology, "USE_NUMBA", use)
+        out.append((owner._relaxed(points, faces), owner._vertex_areas(points, faces)))
+    assert np.array_equal(out[0][1][-1:], [0.0]) and np.array_equal(out[0][0][-1], points[-1])
+    for a, b in zip(*out):
+        assert np.array_equal(a, b)
+
+
+def test_an_owner_marked_encode_writes_the_same_bytes_on_both_paths(monkeypatch):
+    pytest.importorskip("numba")
+    from pmwm_codec.watermark.key import WatermarkKey
+
+    mesh = shapes.icosphere(4, 1.0, noise=0.02)
+    key = WatermarkKey.generate(rng=np.random.default_rng(3), owner_id=0x0123456789ABCDEF)
+    out = []
+    for use in (False, True):
+        monkeypatch.setattr(topology, "USE_NUMBA", use)
+        buf = io.BytesIO()
+        pmwm_codec.encode(mesh, buf, key=key, owner_id=key.owner_id, measure=False)
+        out.append(buf.getvalue())
+    assert out[0] == out[1]

@@ -88,6 +88,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..progressive.topology import compiled
+
 __all__ = ["OwnerResult", "embed", "detect", "unreadable", "false_alarm_probability", "OWNER_BITS", "DEFAULT_STRENGTH"]
 
 OWNER_BITS = 64
@@ -164,6 +166,8 @@ MIN_BITS_READ = 48
 MIN_SHELL_STEPS = 0.5
 #: Feedback rounds of the embedding (each: one frame, one table, one move, 5 measurements).
 _ROUNDS = 16
+#: Meshes of at least this many faces relax and weigh their surface in compiled kernels (the same bits).
+_COMPILED_FACES = 256
 #: A shell short of the margin by this fraction of it or less counts as reached.
 _TOLERANCE = 0.02
 #: A short shell's target is raised by its shortfall times this.
@@ -273,7 +277,13 @@ def _distinct_index(positions) -> tuple:
 
 def _relaxed(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(k, 3) float64: each of ``points`` (k, 3) halfway to the mean of its neighbours over its faces
-    (m, 3) (a neighbour counts once per face it shares; a point on no face stays)."""
+    (m, 3) (a neighbour counts once per face it shares; a point on no face stays).
+
+    Compiled (:func:`_relaxed_py`) when numba runs, numpy otherwise: the same bits either way."""
+    faces = np.ascontiguousarray(faces, np.int64).reshape(-1, 3)
+    kernel = compiled(_relaxed_py) if len(faces) >= _COMPILED_FACES else None
+    if kernel is not None:
+        return kernel(np.ascontiguousarray(points, np.float64), faces)
     k = len(points)
     corner = faces.ravel()
     count = np.bincount(corner, minlength=k) * 2.0
@@ -283,6 +293,29 @@ def _relaxed(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
     has = count > 0
     out = points.copy()
     out[has] = 0.5 * points[has] + 0.5 * rows[has] / count[has, None]
+    return out
+
+
+def _relaxed_py(points, faces):
+    """Kernel of :func:`_relaxed`: points (k, 3) float64, faces (m, 3) int64 -> (k, 3) float64.
+
+    Sums in the order and grouping of the numpy path (face by face, corner by corner; a corner's
+    other two as the face's sum less the corner), so both give the same bits."""
+    k = points.shape[0]
+    count = np.zeros(k)
+    rows = np.zeros((k, 3))
+    for f in range(faces.shape[0]):
+        for q in range(3):
+            s = points[faces[f, 0], q] + points[faces[f, 1], q] + points[faces[f, 2], q]
+            for c in range(3):
+                rows[faces[f, c], q] += s - points[faces[f, c], q]
+        for c in range(3):
+            count[faces[f, c]] += 2.0
+    out = points.copy()
+    for v in range(k):
+        if count[v] > 0:
+            for q in range(3):
+                out[v, q] = 0.5 * points[v, q] + 0.5 * rows[v, q] / count[v]
     return out
 
 
@@ -297,11 +330,34 @@ def _vertex_areas(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
     the bunny unchanged).  All ones when there is no face of positive area (a point set:
     every position counts alike).
     """
-    faces = np.asarray(faces, np.int64).reshape(-1, 3)
-    tri = _relaxed(points, faces)[faces]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    w = np.bincount(faces.ravel(), weights=np.repeat(area / 3.0, 3), minlength=len(points))
+    faces = np.ascontiguousarray(faces, np.int64).reshape(-1, 3)
+    relaxed = _relaxed(points, faces)
+    kernel = compiled(_vertex_areas_py) if len(faces) >= _COMPILED_FACES else None
+    if kernel is not None:
+        w = kernel(relaxed, faces)
+    else:
+        tri = relaxed[faces]
+        area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+        w = np.bincount(faces.ravel(), weights=np.repeat(area / 3.0, 3), minlength=len(points))
     return w if w.sum() > 0 else np.ones(len(points))
+
+
+def _vertex_areas_py(points, faces):
+    """Kernel of :func:`_vertex_areas` on relaxed points (k, 3) float64, faces (m, 3) int64 -> (k,) float64:
+    the cross product, norm and sums of the numpy path in its order (the same bits)."""
+    w = np.zeros(points.shape[0])
+    for f in range(faces.shape[0]):
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        e1x, e1y, e1z = points[b, 0] - points[a, 0], points[b, 1] - points[a, 1], points[b, 2] - points[a, 2]
+        e2x, e2y, e2z = points[c, 0] - points[a, 0], points[c, 1] - points[a, 1], points[c, 2] - points[a, 2]
+        x = e1y * e2z - e1z * e2y
+        y = e1z * e2x - e1x * e2z
+        z = e1x * e2y - e1y * e2x
+        third = 0.5 * math.sqrt(x * x + y * y + z * z) / 3.0
+        w[a] += third
+        w[b] += third
+        w[c] += third
+    return w
 
 
 def _band_mean(rho: np.ndarray, w: np.ndarray, q: float) -> float:
