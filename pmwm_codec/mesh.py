@@ -256,6 +256,11 @@ def read_mesh(path) -> Mesh:
         _check_ply_header(path, name)
     elif suffix == ".stl":
         _check_stl_header(path, name)
+    elif suffix == ".glb":
+        from .format.document import is_progressive_file, progressive_refusal
+
+        if is_progressive_file(path):
+            raise InputFormatError(progressive_refusal(name))
     return _read_with_trimesh(path, name, suffix)
 
 

@@ -210,6 +210,32 @@ def test_cli_owner_only_encode_then_blind_verify_of_the_decoded_mesh(tmp_path, b
     assert doc["owner"]["verdict"] == "present" and all("owner" in c for c in doc["chunks"])
 
 
+def test_a_pmw_renamed_glb_is_verified_as_the_stream_and_refused_as_a_plain_mesh(tmp_path, blob, capsys):
+    """A glTF reader sees only a .pmw's base mesh: under a .glb name the file is still verified as the stream
+    (every chunk boundary, the full mesh), and encoding or reading it as a mesh is refused by name."""
+    import pmwm_codec
+    from pmwm_codec.errors import InputFormatError
+
+    src = tmp_path / "blob.obj"
+    _write_obj(src, blob)
+    out, key = tmp_path / "b.pmw", tmp_path / "b.key.json"
+    assert main(["encode", str(src), "-o", str(out), "--owner-id", "00c0ffee00c0ffee", "--key", str(key), "-q"]) == 0
+    renamed = tmp_path / "b.glb"
+    renamed.write_bytes(out.read_bytes())
+    capsys.readouterr()
+    assert main(["verify", str(out), "--key", str(key), "--json"]) == 0
+    as_pmw = json.loads(capsys.readouterr().out)
+    assert main(["verify", str(renamed), "--key", str(key), "--json"]) == 0
+    as_glb = json.loads(capsys.readouterr().out)
+    assert as_glb["owner"] == as_pmw["owner"] and len(as_glb["chunks"]) == len(as_pmw["chunks"]) > 1
+    assert main(["encode", str(renamed), "-o", str(tmp_path / "again.pmw")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "PMWM_progressive_mesh" in err and "pmw decode" in err
+    assert not (tmp_path / "again.pmw").exists()
+    with pytest.raises(InputFormatError, match="progressive .pmw stream"):
+        pmwm_codec.read_mesh(renamed)
+
+
 def _write_obj(path, mesh):
     with open(path, "w") as fh:
         fh.writelines(f"v {x:.17g} {y:.17g} {z:.17g}\n" for x, y, z in mesh.positions)

@@ -48,9 +48,12 @@ def _check_common(args) -> None:
 
 
 def _is_mesh_file(path: str) -> bool:
+    """A mesh file by its suffix, unless it is a GLB that is a progressive stream (a ``.pmw`` renamed
+    ``.glb``: verified as the stream it is, not as its base mesh)."""
+    from pmwm_codec.format.document import is_progressive_file
     from pmwm_codec.mesh import MESH_SUFFIXES
 
-    return path != "-" and os.path.splitext(path)[1].lower() in MESH_SUFFIXES
+    return path != "-" and os.path.splitext(path)[1].lower() in MESH_SUFFIXES and not is_progressive_file(path)
 
 
 def run(args) -> int:

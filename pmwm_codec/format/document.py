@@ -28,14 +28,17 @@ import copy
 import json
 import os
 import re
+import struct
 import urllib.parse
 
 import numpy as np
 
 from ..constants import (
+    EXTENSION_NAME,
     MAX_ENCODE_FACES,
     MAX_ENCODE_VERTICES,
     MAX_INPUT_FILE_BYTES,
+    MAX_JSON_BYTES,
     MAX_JSON_DEPTH,
     MAX_RESOURCE_BYTES,
 )
@@ -44,7 +47,7 @@ from ..sources import read_regular_file
 from .glb import split_glb
 from .gltf import (COMPONENT_DTYPES, DRACO_EXTENSION, FLOAT, INDEX_DTYPES, NORMALIZE_DIVISORS, TYPE_WIDTH,
                    check_finite_numbers, uint, view_bytes)
-from .layout import GLB_MAGIC, padded
+from .layout import CHUNK_HEADER_SIZE, CHUNK_TYPE_JSON, GLB_HEADER_SIZE, GLB_MAGIC, padded
 
 #: Most elements one accessor may declare: three indices per face of the largest mesh encoded.
 MAX_ACCESSOR_COUNT = 3 * MAX_ENCODE_FACES
@@ -86,6 +89,37 @@ def load_document(path):
         if "uri" in image:
             image["_bytes"] = _resolve_uri(image["uri"], base_dir, name, budget)
     return gltf, buffers
+
+
+def is_progressive(gltf: dict) -> bool:
+    """Whether a glTF JSON is a progressive stream (a ``.pmw``, whatever the file is called): it lists
+    :data:`~pmwm_codec.constants.EXTENSION_NAME` in ``extensionsUsed``."""
+    used = gltf.get("extensionsUsed")
+    return isinstance(used, list) and EXTENSION_NAME in used
+
+
+def progressive_refusal(name: str) -> str:
+    """The one line that refuses to read a progressive stream as a plain mesh: a glTF reader sees its base only."""
+    return (f"{name}: a progressive .pmw stream ({EXTENSION_NAME}), whose glTF shows only its base mesh; "
+            f"decode it first (pmw decode {name} -o full.glb)")
+
+
+def is_progressive_file(path) -> bool:
+    """Whether the file at ``path`` is a GLB whose JSON chunk makes it a progressive stream (:func:`is_progressive`).
+    Reads the GLB header and the JSON chunk only; False for anything else (no error: the caller's reader
+    names what is wrong with the file)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(GLB_HEADER_SIZE + CHUNK_HEADER_SIZE)
+            if len(head) < GLB_HEADER_SIZE + CHUNK_HEADER_SIZE or head[:4] != GLB_MAGIC:
+                return False
+            (length,) = struct.unpack_from("<I", head, GLB_HEADER_SIZE)
+            if head[GLB_HEADER_SIZE + 4 :] != CHUNK_TYPE_JSON or length > MAX_JSON_BYTES:
+                return False
+            gltf = json.loads(f.read(length).decode("utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError):
+        return False
+    return isinstance(gltf, dict) and is_progressive(gltf)
 
 
 def _json_document(data: bytes, name: str) -> dict:

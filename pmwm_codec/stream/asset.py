@@ -42,7 +42,7 @@ import numpy as np
 
 from ..constants import EXTENSION_NAME
 from ..errors import DegenerateMeshError, InputFormatError, MeshError, PmwError
-from ..format.document import load_document, read_accessor, repack
+from ..format.document import is_progressive, load_document, progressive_refusal, read_accessor, repack
 from ..format.document import strip_image_profiles as _strip_profiles
 from ..format.glb import glb_parts
 from ..format.gltf import (
@@ -301,6 +301,8 @@ def encode_asset(src, dst, *, strip_image_profiles: bool = False, **options) -> 
         gltf, buffers = copy.deepcopy(src[0]), list(src[1])
     else:
         gltf, buffers = load_document(src)
+    if is_progressive(gltf):  # a .pmw by another name: its glTF is the base mesh alone
+        raise InputFormatError(progressive_refusal("the asset" if isinstance(src, tuple) else os.path.basename(src)))
     notices = []
     if strip_image_profiles:
         count = _strip_profiles(gltf, buffers)
