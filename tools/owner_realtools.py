@@ -97,10 +97,12 @@ def write_plain_glb(mesh_path: str, dst: str) -> None:
     m.export(dst)
 
 
-def measure(mesh_path: str, keys: int, log) -> dict:
+def measure(mesh_path: str, keys: int, log, pipelines=PIPELINES) -> dict:
+    """``{"name", "rows": {pipeline name: {"errors": [bit errors per key], "present", "vertices", "failed",
+    "absent_unmarked", "unmarked_reads", "unmarked_fewest"}}}`` of ``pipelines`` on the mesh file."""
     name = os.path.splitext(os.path.basename(mesh_path))[0]
     rows = {p[0]: {"errors": [], "present": 0, "vertices": [], "failed": None, "absent_unmarked": 0,
-                   "unmarked_reads": 0, "unmarked_fewest": None} for p in PIPELINES}
+                   "unmarked_reads": 0, "unmarked_fewest": None} for p in pipelines}
     rng = np.random.default_rng(20261203)
     with tempfile.TemporaryDirectory() as tmp:
         plain = os.path.join(tmp, "unmarked.glb")
@@ -114,7 +116,7 @@ def measure(mesh_path: str, keys: int, log) -> dict:
             code, _, err = pmw_json("decode", pmw_file, "-o", glb, "-q")
             if code != 0:
                 raise SystemExit(f"{name}: decode failed: {err}")
-            for pname, tool, args in PIPELINES:
+            for pname, tool, args in pipelines:
                 row = rows[pname]
                 if not os.path.exists(TOOLS[tool]):
                     row["failed"] = f"{tool} not installed"
@@ -145,7 +147,7 @@ def measure(mesh_path: str, keys: int, log) -> dict:
     return {"name": name, "rows": rows}
 
 
-def render(results, keys: int, command: str, info: dict) -> str:
+def render(results, keys: int, command: str, info: dict, pipelines=PIPELINES) -> str:
     lines = [f"## {SECTION}", "", f"Command: `{command}`", "",
              f"Machine: {info['cpu']}, {info['cores']} cores, Python {info['python']}, numpy {info['numpy']}; "
              f"commit {info['git']}.", "",
@@ -156,7 +158,7 @@ def render(results, keys: int, command: str, info: dict) -> str:
              "with every key: the last column counts `absent` verdicts and the fewest bit errors seen.", ""]
     header = ["pipeline"] + [f"{r['name']}: BER (present), vertices" for r in results] + ["unmarked: absent, fewest errors"]
     body = []
-    for pname, _, _ in PIPELINES:
+    for pname, _, _ in pipelines:
         cells, ua, ur, fewest, failed = [], 0, 0, [], None
         for r in results:
             row = r["rows"][pname]
