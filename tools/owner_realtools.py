@@ -53,12 +53,16 @@ PIPELINES = (
     ("gltf-transform quantize (defaults: 14-bit positions)", "gltf-transform", "quantize {i} {o}"),
     ("gltf-transform weld + reorder", "gltf-transform", "weld {i} {t} && reorder {t} {o}"),
     ("gltf-transform simplify --ratio 0.5 --error 0.01", "gltf-transform", "simplify {i} {o} --ratio 0.5 --error 0.01"),
+    ("gltf-transform simplify --ratio 0.25 --error 0.01", "gltf-transform", "simplify {i} {o} --ratio 0.25 --error 0.01"),
     ("gltf-transform optimize --compress draco", "gltf-transform", "optimize {i} {o} --compress draco"),
     ("gltf-transform optimize --compress quantize", "gltf-transform", "optimize {i} {o} --compress quantize"),
     ("gltf-transform meshopt (EXT_meshopt_compression)", "gltf-transform", "meshopt {i} {o}"),
     ("gltfpack (defaults: 14-bit positions, re-ordered)", "gltfpack", "-i {i} -o {o}"),
     ("gltfpack -vp 10 (10-bit positions)", "gltfpack", "-i {i} -o {o} -vp 10"),
+    ("gltfpack -vp 8 (8-bit positions)", "gltfpack", "-i {i} -o {o} -vp 8"),
     ("gltfpack -si 0.5 (simplified to half)", "gltfpack", "-i {i} -o {o} -si 0.5"),
+    ("gltfpack -si 0.3", "gltfpack", "-i {i} -o {o} -si 0.3"),
+    ("gltfpack -si 0.1", "gltfpack", "-i {i} -o {o} -si 0.1"),
     ("gltfpack -cc (meshopt compression)", "gltfpack", "-i {i} -o {o} -cc"),
 )
 
