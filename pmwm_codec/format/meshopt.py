@@ -441,12 +441,17 @@ def _decode_indices(data: np.ndarray, count: int, stride: int, fail) -> np.ndarr
 
 
 # --------------------------------------------------------------------------------------------
-# Appendix B: filters (on the decoded (count, stride) uint8 array, in place where possible)
+# Appendix B: filters, on the decoded (count, stride) uint8 rows.  The spec writes them in
+# float32 and specifies their results to one unit in the last place (the exponential filter
+# exactly); OCTAHEDRAL, QUATERNION and COLOR run in float64 here: nearer the exact values, and
+# nearer meshoptimizer's decoder (200k random vectors per filter and precision: 0-0.07% of the
+# OCTAHEDRAL / QUATERNION components one unit off, against 0-0.12% in float32; 12-bit COLOR
+# 0.18% either way; none more than one unit).
 
 
 def _round_away(x: np.ndarray) -> np.ndarray:
-    """Round half away from zero (float32 in, float32 out)."""
-    return np.trunc(x + np.copysign(np.float32(0.5), x))
+    """Round half away from zero (float64 in, float64 out)."""
+    return np.trunc(x + np.copysign(0.5, x))
 
 
 def _to_int(x: np.ndarray, lo: int, hi: int, dtype) -> np.ndarray:
@@ -457,17 +462,17 @@ def _to_int(x: np.ndarray, lo: int, hi: int, dtype) -> np.ndarray:
 def _filter_octahedral(raw: np.ndarray, stride: int) -> np.ndarray:
     """(count, 4|8) uint8 of four int8/int16 components -> same shape, filtered."""
     dt, imax = (np.int8, 127) if stride == 4 else ("<i2", 32767)
-    v = raw.view(dt).astype(np.float32)
+    v = raw.view(dt).astype(np.float64)
     with np.errstate(all="ignore"):
         one = v[:, 2]
         x = v[:, 0] / one
         y = v[:, 1] / one
-        z = np.float32(1) - np.abs(x) - np.abs(y)
-        t = np.minimum(z, np.float32(0))
+        z = 1 - np.abs(x) - np.abs(y)
+        t = np.minimum(z, 0)
         x = x - np.copysign(t, x)
         y = y - np.copysign(t, y)
         length = np.sqrt(x * x + y * y + z * z)
-        res = np.stack([x / length, y / length, z / length], axis=1) * np.float32(imax)
+        res = np.stack([x / length, y / length, z / length], axis=1) * imax
         ints = _to_int(_round_away(res), -imax, imax, dt)
     out = raw.view(dt).copy()
     out[:, :3] = ints
@@ -478,11 +483,11 @@ def _filter_quaternion(raw: np.ndarray) -> np.ndarray:
     """(count, 8) uint8 of four int16 components -> four int16 quaternion components."""
     q = raw.view("<i2")
     with np.errstate(all="ignore"):
-        one = (q[:, 3] | 3).astype(np.float32)
-        scale = np.float32(1.0 / np.sqrt(2.0))
-        xyz = q[:, :3].astype(np.float32) / one[:, None] * scale
-        w = np.sqrt(np.maximum(np.float32(0), np.float32(1) - (xyz * xyz).sum(axis=1, dtype=np.float32)))
-        comps = _to_int(_round_away(np.concatenate([w[:, None], xyz], axis=1) * np.float32(32767)),
+        scale = np.float64(1.0 / np.sqrt(2.0)) / (q[:, 3] | 3).astype(np.float64)
+        xyz = q[:, :3].astype(np.float64) * scale[:, None]
+        x, y, z = xyz.T
+        w = np.sqrt(np.maximum(0, 1 - x * x - y * y - z * z))
+        comps = _to_int(_round_away(np.concatenate([w[:, None], xyz], axis=1) * 32767),
                         -32768, 32767, "<i2")
     maxcomp = (q[:, 3] & 3).astype(np.int64)
     out = np.empty_like(q)
@@ -515,9 +520,9 @@ def _filter_color(raw: np.ndarray, stride: int) -> np.ndarray:
     y, co, cg = u[:, 0], s[:, 1], s[:, 2]
     a = alpha & (scale_as >> 1)
     a = (a << 1) | (a & 1)
-    rgba = np.stack([y + co - cg, y + cg, y - co - cg, a], axis=1).astype(np.float32)
+    rgba = np.stack([y + co - cg, y + cg, y - co - cg, a], axis=1).astype(np.float64)
     with np.errstate(all="ignore"):
-        ss = np.float32(umax) / scale_as.astype(np.float32)
+        ss = umax / scale_as.astype(np.float64)
         res = _round_away(rgba * ss[:, None])
         return _to_int(res, 0, umax, udt).view(np.uint8)
 
