@@ -231,25 +231,31 @@ def _decode_attributes(data: np.ndarray, count: int, stride: int, khr: bool, fai
 
 
 @kernel_helper
-def _read_index(src, dp, limit, last):
-    """``decodeIndex`` of mode 1: read a varint-7 (1-5 bytes, bits past 32 dropped) at ``src[dp]``
-    (``dp < limit``), add its zigzag-decoded value to ``last`` (32-bit wraparound).  Returns
-    ``(new last, offset past the varint)``; the offset is -1 when the varint runs into ``limit``,
-    -3 when it is longer than 5 bytes."""
+def _read_varint(src, dp, limit):
+    """A varint-7 (unsigned LEB128, 1-5 bytes, bits past 32 dropped) at ``src[dp]``, reading
+    nothing at or past ``limit``.  Returns ``(value, offset past it)``; the offset is -1 when the
+    varint runs into ``limit``, -3 when it is longer than 5 bytes."""
     v = 0
     shift = 0
     while True:
         if dp >= limit:
-            return last, -1
+            return 0, -1
         byte = np.int64(src[dp])
         dp += 1
         v |= (byte & 127) << shift
         if byte < 128:
-            break
+            return v & 0xFFFFFFFF, dp
         shift += 7
         if shift >= 35:
-            return last, -3
-    v &= 0xFFFFFFFF
+            return 0, -3
+
+
+@kernel_helper
+def _read_index(src, dp, limit, last):
+    """``decodeIndex`` of mode 1: a varint at ``src[dp]`` (:func:`_read_varint`), zigzag-decoded
+    and added to ``last`` (32-bit wraparound).  Returns ``(new last, offset past the varint)``
+    (a negative offset as :func:`_read_varint`'s)."""
+    v, dp = _read_varint(src, dp, limit)
     delta = (v >> 1) ^ (0xFFFFFFFF if v & 1 else 0)
     return (last + delta) & 0xFFFFFFFF, dp
 
@@ -404,13 +410,45 @@ def _decode_triangles(data: np.ndarray, count: int, stride: int, fail) -> np.nda
 # Mode 2: indices
 
 
+def _index_sequence_kernel(src, limit, count, out):
+    """Decode ``count`` index deltas of a mode-2 stream (``src`` (n,) uint8, deltas from offset 1
+    up to ``limit = n - 4``) into ``out`` (count,) int64 (unsigned 32-bit values).  Returns the
+    offset past the last delta, or -1 / -3 as :func:`_read_varint`."""
+    last = np.zeros(2, np.int64)
+    dp = 1
+    for i in range(count):
+        v, dp = _read_varint(src, dp, limit)
+        if dp < 0:
+            return dp
+        which = v & 1
+        delta = (v >> 2) ^ (0xFFFFFFFF if v & 2 else 0)
+        last[which] = (last[which] + delta) & 0xFFFFFFFF
+        out[i] = last[which]
+    return dp
+
+
 def _decode_indices(data: np.ndarray, count: int, stride: int, fail) -> np.ndarray:
-    """Mode 2: ``data`` (n,) uint8 -> (count,) uint16 or uint32; all numpy (no per-index loop)."""
+    """Mode 2: ``data`` (n,) uint8 -> (count,) uint16 or uint32: :func:`_index_sequence_kernel`
+    under numba, else numpy on whole arrays (no per-index loop)."""
     if data[0] != 0xD1:
         fail(f"the index stream starts with 0x{int(data[0]):02x}, not 0xd1")
     if len(data) < 1 + count + 4:
         fail(f"{len(data):,} bytes cannot hold {count:,} index deltas and the 4-byte tail "
              f"(at least {1 + count + 4:,} needed)")
+    from ..progressive.topology import compiled
+
+    kernel = compiled(_index_sequence_kernel)
+    if kernel is not None:
+        out = np.empty(count, np.int64)
+        end = kernel(data, len(data) - 4, count, out)
+        if end == _TRUNCATED:
+            fail("the index data runs into the 4-byte tail (truncated or corrupt stream)")
+        if end == _BAD_VARINT:
+            fail("an index varint is longer than 5 bytes")
+        if end != len(data) - 4:
+            fail(f"{len(data) - 4 - end:,} unused bytes between the index data and the tail")
+        return out.astype(np.uint32 if stride == 4 else np.uint16)
+    # the same on whole arrays
     body = data[1:len(data) - 4]
     ends = np.flatnonzero(body < 0x80)  # last byte of every varint
     if len(ends) < count:
