@@ -367,3 +367,18 @@ def test_one_million_vertices_fit_the_limits():
     data = bytes([0xA0]) + bytes(headers * (count // mb)) + bytes(32)
     assert len(data) == least
     assert meshopt.decode_view(data, count, stride, "ATTRIBUTES") == bytes(count * stride)
+
+
+def test_fallback_buffers_are_left_harmless():
+    doc, bin_ = _glb(DATA / "torus_cc_khr.glb")
+    out, buffers = meshopt.decompress(doc, [bin_, None], "t.glb")
+    assert buffers[1] == b"" and out["buffers"][1] == {"byteLength": doc["buffers"][1]["byteLength"]}
+    assert all(v["buffer"] == 2 for v in out["bufferViews"])
+    # an uncompressed view pointing at a fallback buffer without data (forbidden by the spec)
+    doc["bufferViews"].append({"buffer": 1, "byteLength": 4})
+    with pytest.raises(InputFormatError, match="bufferView 3 has no compression extension but points at fallback buffer 1"):
+        meshopt.decompress(doc, [bin_, None], "t.glb")
+    assert meshopt.decompress(doc, [bin_, bytes(12876)], "t.glb")[0]["bufferViews"][3]["buffer"] == 1
+    for bad in (1, 5, -1):
+        with pytest.raises(InputFormatError, match=f"buffer {bad}"):
+            meshopt.decompress(doc, [bin_, None], "t.glb", into_buffer=bad)

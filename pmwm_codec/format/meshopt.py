@@ -645,13 +645,15 @@ def decompress(gltf: dict, buffers: list, name: str, *, into_buffer: int | None 
     """Decode every bufferView of ``gltf`` compressed with EXT_/KHR_meshopt_compression.
 
     ``buffers`` holds the bytes of ``gltf["buffers"]`` in order (a GLB: ``[bin_chunk, ...]``; a
-    fallback buffer's entry may be empty).  Returns ``(document, buffers)``: a deep copy of the
+    fallback buffer's entry may be empty or None).  Returns ``(document, buffers)``: a deep copy of the
     document whose compressed views point at their decoded bytes, and the list of buffers those
     live in.  The decoded views are appended, 4-byte aligned, to a new last buffer (no ``uri``),
     or with ``into_buffer=i`` to the end of buffer ``i`` (e.g. 0, a GLB's BIN chunk; its
     ``byteLength`` is updated).  The extension objects are removed from the views and the
     buffers, and the names from ``extensionsUsed`` / ``extensionsRequired``.  Fallback buffers
-    keep their place (indices do not move) but no view points at them any more.
+    keep their place (indices do not move; their bytes may be empty or None, and are returned as
+    given or ``b""``) and lose their marker; no view points at them any more (an uncompressed view
+    pointing at one, which the spec forbids, is an error when that buffer has no data).
 
     A document without either extension comes back as it came (the same objects).
     ``name`` starts every error message, which also names the bufferView.
@@ -669,7 +671,7 @@ def decompress(gltf: dict, buffers: list, name: str, *, into_buffer: int | None 
     json_buffers = doc.get("buffers")
     if not isinstance(json_buffers, list):
         raise InputFormatError(f"{name}: the document has compressed bufferViews but no buffers array")
-    out_buffers = [bytes(b) if not isinstance(b, (bytes, bytearray)) else b for b in buffers]
+    out_buffers = [b"" if b is None else b if isinstance(b, (bytes, bytearray)) else bytes(b) for b in buffers]
     fallback = {i for i, b in enumerate(json_buffers) if _fallback_ext(b)}
     decoded: list[tuple[int, bytes]] = []
     total = 0
@@ -732,7 +734,7 @@ def decompress(gltf: dict, buffers: list, name: str, *, into_buffer: int | None 
             out_buffers.append(b"")
         else:
             target = into_buffer
-            if not 0 <= target < len(json_buffers) or target >= len(out_buffers):
+            if not 0 <= target < min(len(json_buffers), len(out_buffers)) or not isinstance(json_buffers[target], dict):
                 raise InputFormatError(f"{name}: buffer {target} does not exist")
             if target in fallback:
                 raise InputFormatError(f"{name}: buffer {target} is a fallback buffer")
@@ -748,11 +750,12 @@ def decompress(gltf: dict, buffers: list, name: str, *, into_buffer: int | None 
         out_buffers[target] = bytes(blob)
         json_buffers[target]["byteLength"] = len(blob)
 
-    for i in fallback:  # no view may point at a fallback buffer now
+    for i in fallback:  # the spec lets only compressed views point at a fallback buffer
         for j, view in enumerate(doc.get("bufferViews") or []):
-            if isinstance(view, dict) and view.get("buffer", None) == i:
-                raise InputFormatError(f"{name}: bufferView {j} points at fallback buffer {i} "
-                                       f"without a compression extension")
+            if isinstance(view, dict) and view.get("buffer", None) == i and i < len(out_buffers) \
+                    and not out_buffers[i]:
+                raise InputFormatError(f"{name}: bufferView {j} has no compression extension but "
+                                       f"points at fallback buffer {i}, which has no data")
     for b in json_buffers:
         exts = b.get("extensions") if isinstance(b, dict) else None
         if isinstance(exts, dict):
