@@ -35,7 +35,7 @@ import numpy as np
 
 from ..constants import MAX_INPUT_FILE_BYTES, MAX_RESOURCE_BYTES
 from ..errors import InputFormatError
-from ..progressive.topology import kernel_helper
+from ..progressive.topology import compiled, kernel_helper
 
 EXT = "EXT_meshopt_compression"
 KHR = "KHR_meshopt_compression"
@@ -57,8 +57,6 @@ _BAD_VARINT = -3
 
 def _kernel(fn):
     """``fn`` compiled when numba is available (and wanted), else the plain function."""
-    from ..progressive.topology import compiled
-
     jit = compiled(fn)
     return jit if jit is not None else fn
 
@@ -435,8 +433,6 @@ def _decode_indices(data: np.ndarray, count: int, stride: int, fail) -> np.ndarr
     if len(data) < 1 + count + 4:
         fail(f"{len(data):,} bytes cannot hold {count:,} index deltas and the 4-byte tail "
              f"(at least {1 + count + 4:,} needed)")
-    from ..progressive.topology import compiled
-
     kernel = compiled(_index_sequence_kernel)
     if kernel is not None:
         out = np.empty(count, np.int64)
@@ -612,9 +608,7 @@ def decode_view(data: bytes, count: int, stride: int, mode: str, filter: str = "
             rows = _filter_octahedral(rows, stride)
         elif filter == "QUATERNION":
             rows = _filter_quaternion(rows)
-        elif filter == "EXPONENTIAL":
-            if stride % 4:
-                fail(f"filter EXPONENTIAL needs a byteStride multiple of 4, not {stride}")
+        elif filter == "EXPONENTIAL":  # any stride of ATTRIBUTES (a multiple of 4)
             rows = _filter_exponential(rows)
         elif filter == "COLOR":
             rows = _filter_color(rows, stride)
