@@ -601,6 +601,7 @@ def decode_view(data: bytes, count: int, stride: int, mode: str, filter: str = "
     buf = np.frombuffer(memoryview(data).cast("B"), np.uint8) if len(data) else np.zeros(0, np.uint8)
     if len(buf) == 0:
         fail("no compressed data")
+    buf.setflags(write=False)  # one array type for the kernels (bytes and bytearray alike): one compile
 
     if mode == "ATTRIBUTES":
         rows = _decode_attributes(buf, count, stride, khr, fail)
