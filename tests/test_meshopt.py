@@ -11,12 +11,13 @@ from __future__ import annotations
 import gzip
 import json
 import struct
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from pmwm_codec.errors import InputFormatError
 from pmwm_codec.format import meshopt
@@ -27,11 +28,11 @@ FILTER_DTYPES = {("OCTAHEDRAL", 4): "i1", ("OCTAHEDRAL", 8): "<i2", ("QUATERNION
                  ("COLOR", 4): "u1", ("COLOR", 8): "<u2"}
 
 
-@lru_cache(maxsize=None)
+@cache
 def _streams():
     manifest = json.loads((DATA / "streams.json").read_text())
     blob = gzip.decompress((DATA / manifest["blob"]).read_bytes())
-    get = lambda at: blob[at[0]:at[0] + at[1]]  # noqa: E731
+    get = lambda at: blob[at[0]:at[0] + at[1]]
     cases = {}
     for c in manifest["cases"]:
         raw = get(manifest["inputs"][c["input"]])
@@ -94,8 +95,8 @@ def test_stream_decodes_to_encoder_input(name, engine):
 
 def _assert_same_up_to_rotation(got: bytes, want: bytes, size: int):
     """The same triangles in the same order, each one's corners possibly rotated."""
-    got = np.frombuffer(got, "<u%d" % size).reshape(-1, 3)
-    want = np.frombuffer(want, "<u%d" % size).reshape(-1, 3)
+    got = np.frombuffer(got, f"<u{size}").reshape(-1, 3)
+    want = np.frombuffer(want, f"<u{size}").reshape(-1, 3)
     same = np.zeros(len(got), bool)
     for k in range(3):
         same |= (got == np.roll(want, -k, axis=1)).all(axis=1)
@@ -243,7 +244,7 @@ def _doc_error(mutate, buffers=None):
 
 
 def test_decompress_errors_name_the_view():
-    ext = lambda d, i: d["bufferViews"][i]["extensions"][meshopt.EXT]  # noqa: E731
+    ext = lambda d, i: d["bufferViews"][i]["extensions"][meshopt.EXT]
     msg = _doc_error(lambda d: ext(d, 1).update(byteLength=ext(d, 1)["byteLength"] + 5000))
     assert "bufferView 1 (EXT_meshopt_compression, ATTRIBUTES, OCTAHEDRAL): data ends after" in msg
     msg = _doc_error(lambda d: ext(d, 0).update(mode="POINTS"))
@@ -314,7 +315,7 @@ def test_truncated_gltfpack_views_are_errors():
     for i, view in enumerate(doc["bufferViews"]):
         e = view["extensions"][meshopt.KHR]
         data = bin_[e["byteOffset"]:e["byteOffset"] + e["byteLength"]]
-        c = dict(count=e["count"], stride=e["byteStride"], mode=e["mode"], filter=e.get("filter", "NONE"))
+        c = {"count": e["count"], "stride": e["byteStride"], "mode": e["mode"], "filter": e.get("filter", "NONE")}
         assert _damaged(c, data) is not None
         assert all(_damaged(c, data[:k]) is None for k in range(len(data) - 30))
 
@@ -353,7 +354,7 @@ def test_plain_twins_match_the_kernels_on_damaged_streams(monkeypatch):
        stride=st.sampled_from([2, 4, 8, 12, 16, 64, 256]),
        filt=st.sampled_from(meshopt.FILTERS))
 def test_random_streams_never_raise_anything_else(data, head, mode, count, stride, filt):
-    c = dict(count=count, stride=stride, mode=mode, filter=filt)
+    c = {"count": count, "stride": stride, "mode": mode, "filter": filt}
     out = _damaged(c, bytes([head]) + data)
     assert out is None or len(out) == count * stride
 

@@ -615,8 +615,8 @@ def decode_view(data: bytes, count: int, stride: int, mode: str, filter: str = "
             rows = _filter_color(rows, stride)
         return rows.tobytes()
     if mode == "TRIANGLES":
-        return _decode_triangles(buf, count, stride, fail).astype("<u%d" % stride).tobytes()
-    return _decode_indices(buf, count, stride, fail).astype("<u%d" % stride).tobytes()
+        return _decode_triangles(buf, count, stride, fail).astype(f"<u{stride}").tobytes()
+    return _decode_indices(buf, count, stride, fail).astype(f"<u{stride}").tobytes()
 
 
 def _int(obj: dict, key: str, fail, default=None) -> int:
