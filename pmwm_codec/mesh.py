@@ -18,6 +18,7 @@ vertices are dropped and counted in :attr:`Mesh.cleanup`.
 
 from __future__ import annotations
 
+import io
 import os
 import re
 import warnings
@@ -256,12 +257,26 @@ def read_mesh(path) -> Mesh:
         _check_ply_header(path, name)
     elif suffix == ".stl":
         _check_stl_header(path, name)
-    elif suffix == ".glb":
-        from .format.document import is_progressive_file, progressive_refusal
+    else:
+        from .format.document import is_progressive, progressive_refusal, sniff_json, uses_meshopt
 
-        if is_progressive_file(path):
+        gltf = sniff_json(path) if suffix in (".glb", ".gltf") else None
+        if gltf is not None and is_progressive(gltf):
             raise InputFormatError(progressive_refusal(name))
+        if gltf is not None and uses_meshopt(gltf):
+            return _read_with_trimesh(_decompressed_glb(path), name, ".glb")
     return _read_with_trimesh(path, name, suffix)
+
+
+def _decompressed_glb(path) -> io.BytesIO:
+    """A GLB in memory of the glTF at ``path`` with its meshopt-compressed views decoded (trimesh reads
+    neither EXT_ nor KHR_meshopt_compression): :func:`~pmwm_codec.format.document.load_document`, one buffer."""
+    from .format.document import load_document, repack
+    from .format.glb import join_glb
+
+    doc, data = repack(*load_document(path))
+    doc["buffers"] = [{"byteLength": len(data)}]
+    return io.BytesIO(join_glb(doc, data))
 
 
 def _read_obj(path, name):
@@ -382,7 +397,10 @@ def _read_with_trimesh(path, name, suffix):
     import trimesh
 
     try:
-        loaded = trimesh.load(path, process=False, force=None)
+        if isinstance(path, io.BytesIO):
+            loaded = trimesh.load(path, file_type=suffix[1:], process=False, force=None)
+        else:
+            loaded = trimesh.load(path, process=False, force=None)
     except Exception as exc:  # trimesh raises many types on garbage
         raise InputFormatError(f"{name}: cannot read as {suffix[1:].upper()}: {exc}".splitlines()[0]) from None
     if isinstance(loaded, trimesh.Scene):

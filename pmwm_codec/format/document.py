@@ -48,6 +48,8 @@ from .glb import split_glb
 from .gltf import (COMPONENT_DTYPES, DRACO_EXTENSION, FLOAT, INDEX_DTYPES, NORMALIZE_DIVISORS, TYPE_WIDTH,
                    check_finite_numbers, uint, view_bytes)
 from .layout import CHUNK_HEADER_SIZE, CHUNK_TYPE_JSON, GLB_HEADER_SIZE, GLB_MAGIC, padded
+from .meshopt import EXTENSIONS as MESHOPT_EXTENSIONS
+from .meshopt import decompress as decompress_meshopt
 
 #: Most elements one accessor may declare: three indices per face of the largest mesh encoded.
 MAX_ACCESSOR_COUNT = 3 * MAX_ENCODE_FACES
@@ -59,7 +61,9 @@ def load_document(path):
     External buffers and images are read relative to the file, and only from
     inside its folder (see :func:`_resolve_uri`); images with a ``uri`` are
     returned in ``gltf["images"][i]["_bytes"]`` so :func:`repack` can embed them.
-    The JSON is checked first (:func:`check_document`: shapes, references, nesting
+    Buffer views compressed with EXT_ / KHR_meshopt_compression come back decoded
+    (:func:`~pmwm_codec.format.meshopt.decompress`: gltfpack ``-c`` / ``-cc`` output reads as
+    any other).  The JSON is checked first (:func:`check_document`: shapes, references, nesting
     depth, declared sizes against the encoder's limits).  Raises
     :class:`InputFormatError` with a one-line message.
     """
@@ -88,7 +92,7 @@ def load_document(path):
     for image in gltf.get("images", []):
         if "uri" in image:
             image["_bytes"] = _resolve_uri(image["uri"], base_dir, name, budget)
-    return gltf, buffers
+    return decompress_meshopt(gltf, buffers, name)
 
 
 def is_progressive(gltf: dict) -> bool:
@@ -105,21 +109,38 @@ def progressive_refusal(name: str) -> str:
 
 
 def is_progressive_file(path) -> bool:
-    """Whether the file at ``path`` is a GLB whose JSON chunk makes it a progressive stream (:func:`is_progressive`).
-    Reads the GLB header and the JSON chunk only; False for anything else (no error: the caller's reader
-    names what is wrong with the file)."""
+    """Whether the glTF at ``path`` (:func:`sniff_json`) is a progressive stream (:func:`is_progressive`)."""
+    gltf = sniff_json(path)
+    return gltf is not None and is_progressive(gltf)
+
+
+def sniff_json(path) -> dict | None:
+    """The glTF JSON of the GLB (its JSON chunk: the header and that chunk are all that is read) or ``.gltf``
+    at ``path``, or None for anything else (no error: the caller's reader names what is wrong)."""
     try:
         with open(path, "rb") as f:
             head = f.read(GLB_HEADER_SIZE + CHUNK_HEADER_SIZE)
-            if len(head) < GLB_HEADER_SIZE + CHUNK_HEADER_SIZE or head[:4] != GLB_MAGIC:
-                return False
-            (length,) = struct.unpack_from("<I", head, GLB_HEADER_SIZE)
-            if head[GLB_HEADER_SIZE + 4 :] != CHUNK_TYPE_JSON or length > MAX_JSON_BYTES:
-                return False
-            gltf = json.loads(f.read(length).decode("utf-8"))
+            if head[:4] == GLB_MAGIC:
+                if len(head) < GLB_HEADER_SIZE + CHUNK_HEADER_SIZE:
+                    return None
+                (length,) = struct.unpack_from("<I", head, GLB_HEADER_SIZE)
+                if head[GLB_HEADER_SIZE + 4 :] != CHUNK_TYPE_JSON or length > MAX_JSON_BYTES:
+                    return None
+                text = f.read(length)
+            else:
+                text = head + f.read(MAX_JSON_BYTES + 1 - len(head))
+                if len(text) > MAX_JSON_BYTES:
+                    return None
+        gltf = json.loads(text.decode("utf-8"))
     except (OSError, UnicodeDecodeError, ValueError, RecursionError):
-        return False
-    return isinstance(gltf, dict) and is_progressive(gltf)
+        return None
+    return gltf if isinstance(gltf, dict) else None
+
+
+def uses_meshopt(gltf: dict) -> bool:
+    """Whether a glTF JSON lists EXT_ / KHR_meshopt_compression in ``extensionsUsed`` (:mod:`.meshopt`)."""
+    used = gltf.get("extensionsUsed")
+    return isinstance(used, list) and any(e in used for e in MESHOPT_EXTENSIONS)
 
 
 def _json_document(data: bytes, name: str) -> dict:

@@ -20,11 +20,11 @@ line naming the problem; the decoders never read past the bytes they are given, 
 declared size (``count * byteStride``) is checked against :data:`MAX_DECODED_VIEW_BYTES` and
 against the least compressed size that could hold it before anything is allocated.
 
-The attribute and triangle codecs are sequential by nature (a group's bytes start where the
-previous group's end); they run as numba kernels where numba is available
-(:func:`pmwm_codec.progressive.topology.compiled`) and as the same functions in plain Python
-otherwise (same bytes).  Everything that can be done on whole arrays -- the delta chains, the
-channel transforms, the filters, the index sequence codec -- is numpy.
+The attribute, triangle and index sequence codecs are sequential by nature (a group's bytes start
+where the previous group's end); they run as numba kernels where numba is available
+(:func:`pmwm_codec.progressive.topology.compiled`), and otherwise the attribute and triangle
+kernels as the same functions in plain Python and the index sequence on whole numpy arrays (same
+bytes).  The delta chains, the channel transforms and the filters are numpy.
 """
 
 from __future__ import annotations
