@@ -32,5 +32,5 @@ def test_the_owner_layer_reads_present_after_gltf_transform_quantize_and_gltfpac
         assert row["present"] == 1 and row["errors"][0] <= 7
         assert row["unmarked_reads"] == row["absent_unmarked"] == 1  # the unmarked mesh through the same tool
     md = R.render([result], 1, "python tools/owner_realtools.py", {"cpu": "x", "cores": 2, "python": "3", "numpy": "2",
-                                                                  "git": "HEAD"}, CHOSEN)
+                                                                  "git": "HEAD", "load": (0.0, 0.0, 0.0)}, CHOSEN)
     assert md.count("\n| ") == 1 + len(CHOSEN)  # the header and one row per pipeline

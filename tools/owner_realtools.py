@@ -40,7 +40,7 @@ for path in (ROOT, HERE):
 
 from pmwm_codec.cli import main as pmw  # noqa: E402
 
-from bench import DEFAULT_CORPUS, machine, publish, table  # noqa: E402
+from bench import DEFAULT_CORPUS, machine, publish, run_header, table  # noqa: E402
 
 SECTION = "Owner layer through real tools (gltf-transform, gltfpack)"
 TOOLS = {
@@ -152,9 +152,7 @@ def measure(mesh_path: str, keys: int, log, pipelines=PIPELINES) -> dict:
 
 
 def render(results, keys: int, command: str, info: dict, pipelines=PIPELINES) -> str:
-    lines = [f"## {SECTION}", "", f"Command: `{command}`", "",
-             f"Machine: {info['cpu']}, {info['cores']} cores, Python {info['python']}, numpy {info['numpy']}; "
-             f"commit {info['git']}.", "",
+    lines = run_header(command, info) + [
              "Each mesh is encoded with the owner layer alone (`pmw encode MESH --owner-id HEX`, a new random ID and "
              f"key each time; keys: {keys}), decoded to GLB (`pmw decode`), passed through the tool as a user runs "
              "it, and read back with `pmw verify OUT.glb --key K --json`. Cells: BER over the keys (bit errors / 64, "
