@@ -412,3 +412,26 @@ def test_reverse_pairs_are_the_same_on_both_paths(monkeypatch):
     assert 0 < out[0][0].sum() < len(faces) and out[0][1].max() > 2
     for a, b in zip(*out):
         assert a.dtype == b.dtype and np.array_equal(a, b)
+
+
+def test_the_affordable_candidates_and_offer_ranks_are_the_same_on_both_paths(monkeypatch):
+    """_affordable (the quantile of the groups' first costs: odd and even group counts, ties, NaN) and
+    _offer_ranks (cost buckets, shuffled ties), compiled and numpy."""
+    pytest.importorskip("numba")
+    from pmwm_codec.progressive import simplify
+
+    rng = np.random.default_rng(17)
+    for trial in range(40):
+        c = int(rng.integers(1, 300))
+        cu = np.sort(rng.integers(0, max(1, c // 2), c))
+        cost = rng.choice([0.0, -0.0, 1.0, 1e-13, 2.5, 7.0], c) if trial % 2 else rng.random(c) * 10.0 ** (trial % 7)
+        if trial % 10 == 3:
+            cost[rng.integers(c)] = np.nan
+        cols = (cu, cu + 1, np.arange(c), cost)
+        out = []
+        for use in (False, True):
+            monkeypatch.setattr(topology, "USE_NUMBA", use)
+            out.append((simplify._affordable(*cols, simplify.BATCH_QUANTILE), simplify._offer_ranks(cu, cost)))
+        (aff0, rank0), (aff1, rank1) = out
+        assert all(a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True) for a, b in zip(aff0, aff1))
+        assert rank0.dtype == rank1.dtype and np.array_equal(rank0, rank1)
