@@ -46,7 +46,7 @@ def test_edge_table_is_the_same_on_both_paths(monkeypatch):
     for use in (False, NUMBA):
         monkeypatch.setattr(topology, "USE_NUMBA", use)
         tables.append(topology.edge_table(np.asarray(mesh.faces, np.int64), mesh.vertex_count))
-    for name in ("keys", "lo", "hi", "count", "he0", "he1", "he_edge"):
+    for name in ("keys", "lo", "hi", "count", "he0", "he1"):
         assert np.array_equal(getattr(tables[0], name), getattr(tables[1], name)), name
 
 
@@ -206,7 +206,7 @@ def test_the_live_mesh_is_the_same_on_both_paths_with_degenerate_faces(monkeypat
     pytest.importorskip("numba")
     mesh = _with_degenerate_faces(_ODD_MESHES[name])
     plain, fast = _live_both_ways(monkeypatch, mesh, np.ones(mesh.face_count, bool))
-    for field in ("keys", "lo", "hi", "count", "he0", "he1", "he_edge"):
+    for field in ("keys", "lo", "hi", "count", "he0", "he1"):
         assert np.array_equal(getattr(plain.et, field), getattr(fast.et, field)), field
     assert (plain.et.lo == plain.et.hi).any()  # the self-loops are there
     for a, b in zip(plain.vv + plain.vf + (plain.vv_edge, plain.fcount), fast.vv + fast.vf + (fast.vv_edge, fast.fcount)):
@@ -221,7 +221,7 @@ def test_the_live_mesh_is_the_same_on_both_paths(monkeypatch, name):
     plain, fast = _live_both_ways(monkeypatch, mesh, face_alive)
     for field in ("vids", "fids", "loc", "F", "vv_edge", "fcount"):
         assert np.array_equal(getattr(plain, field), getattr(fast, field)), field
-    for field in ("keys", "lo", "hi", "count", "he0", "he1", "he_edge"):
+    for field in ("keys", "lo", "hi", "count", "he0", "he1"):
         assert np.array_equal(getattr(plain.et, field), getattr(fast.et, field)), field
     for a, b in zip(plain.vv + plain.vf, fast.vv + fast.vf):
         assert np.array_equal(a, b)

@@ -43,8 +43,6 @@ class EdgeTable:
         First and second half-edge on the edge (``he1 == -1`` when count == 1).
         Half-edge ``h`` is corner ``h % 3`` of face ``h // 3`` and runs from
         that corner to the next one.
-    he_edge : (3m,) int64
-        Edge id of every half-edge.
     """
 
     n: int
@@ -54,7 +52,6 @@ class EdgeTable:
     count: np.ndarray
     he0: np.ndarray
     he1: np.ndarray
-    he_edge: np.ndarray
 
     def find(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Edge ids of the pairs ``(a, b)`` (any order); -1 where no such edge."""
@@ -210,14 +207,11 @@ def edge_table(faces: np.ndarray, n: int) -> EdgeTable:
     first[0] = True
     np.not_equal(ks[1:], ks[:-1], out=first[1:])
     starts = np.flatnonzero(first)
-    eid_sorted = np.cumsum(first) - 1
-    he_edge = np.empty_like(eid_sorted)
-    he_edge[order] = eid_sorted
     count = np.diff(np.append(starts, len(ks)))
     he0 = order[starts]
     second = np.minimum(starts + 1, len(ks) - 1)
     he1 = np.where(count >= 2, order[second], -1)
-    return EdgeTable(n, ks[starts], lo[he0], hi[he0], count, he0, he1, he_edge)
+    return EdgeTable(n, ks[starts], lo[he0], hi[he0], count, he0, he1)
 
 
 def csr(groups: np.ndarray, values: np.ndarray, n: int):
