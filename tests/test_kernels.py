@@ -46,7 +46,7 @@ def test_edge_table_is_the_same_on_both_paths(monkeypatch):
     for use in (False, NUMBA):
         monkeypatch.setattr(topology, "USE_NUMBA", use)
         tables.append(topology.edge_table(np.asarray(mesh.faces, np.int64), mesh.vertex_count))
-    for name in ("keys", "lo", "hi", "count", "he0", "he1", "he_edge"):
+    for name in ("keys", "lo", "hi", "count", "he0", "he1"):
         assert np.array_equal(getattr(tables[0], name), getattr(tables[1], name)), name
 
 
@@ -206,7 +206,7 @@ def test_the_live_mesh_is_the_same_on_both_paths_with_degenerate_faces(monkeypat
     pytest.importorskip("numba")
     mesh = _with_degenerate_faces(_ODD_MESHES[name])
     plain, fast = _live_both_ways(monkeypatch, mesh, np.ones(mesh.face_count, bool))
-    for field in ("keys", "lo", "hi", "count", "he0", "he1", "he_edge"):
+    for field in ("keys", "lo", "hi", "count", "he0", "he1"):
         assert np.array_equal(getattr(plain.et, field), getattr(fast.et, field)), field
     assert (plain.et.lo == plain.et.hi).any()  # the self-loops are there
     for a, b in zip(plain.vv + plain.vf + (plain.vv_edge, plain.fcount), fast.vv + fast.vf + (fast.vv_edge, fast.fcount)):
@@ -221,7 +221,7 @@ def test_the_live_mesh_is_the_same_on_both_paths(monkeypatch, name):
     plain, fast = _live_both_ways(monkeypatch, mesh, face_alive)
     for field in ("vids", "fids", "loc", "F", "vv_edge", "fcount"):
         assert np.array_equal(getattr(plain, field), getattr(fast, field)), field
-    for field in ("keys", "lo", "hi", "count", "he0", "he1", "he_edge"):
+    for field in ("keys", "lo", "hi", "count", "he0", "he1"):
         assert np.array_equal(getattr(plain.et, field), getattr(fast.et, field)), field
     for a, b in zip(plain.vv + plain.vf, fast.vv + fast.vf):
         assert np.array_equal(a, b)
@@ -446,3 +446,26 @@ def test_an_owner_marked_encode_writes_the_same_bytes_on_both_paths(monkeypatch)
         pmwm_codec.encode(mesh, buf, key=key, owner_id=key.owner_id, measure=False)
         out.append(buf.getvalue())
     assert out[0] == out[1]
+
+
+def test_the_affordable_candidates_and_offer_ranks_are_the_same_on_both_paths(monkeypatch):
+    """_affordable (the quantile of the groups' first costs: odd and even group counts, ties, NaN) and
+    _offer_ranks (cost buckets, shuffled ties), compiled and numpy."""
+    pytest.importorskip("numba")
+    from pmwm_codec.progressive import simplify
+
+    rng = np.random.default_rng(17)
+    for trial in range(40):
+        c = int(rng.integers(1, 300))
+        cu = np.sort(rng.integers(0, max(1, c // 2), c))
+        cost = rng.choice([0.0, -0.0, 1.0, 1e-13, 2.5, 7.0], c) if trial % 2 else rng.random(c) * 10.0 ** (trial % 7)
+        if trial % 10 == 3:
+            cost[rng.integers(c)] = np.nan
+        cols = (cu, cu + 1, np.arange(c), cost)
+        out = []
+        for use in (False, True):
+            monkeypatch.setattr(topology, "USE_NUMBA", use)
+            out.append((simplify._affordable(*cols, simplify.BATCH_QUANTILE), simplify._offer_ranks(cu, cost)))
+        (aff0, rank0), (aff1, rank1) = out
+        assert all(a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True) for a, b in zip(aff0, aff1))
+        assert rank0.dtype == rank1.dtype and np.array_equal(rank0, rank1)

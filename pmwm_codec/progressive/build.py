@@ -174,17 +174,8 @@ def _replay_batch(j, cb, state, positions, vid, face_src, moved_by, embed) -> Sp
     v_sorted = vf[order]
 
     inc, owner = find_incidences(state, v_sorted)
-    moved_by[cb.moved_face] = rank[cb.moved_by]
-    moved = moved_by[face_src[inc // 3]] == owner
-    moved_by[cb.moved_face] = -1
-    left, right = _wings(state, inc, owner, vid, cb, order, moved)
-    # STAY, MOVE, MOVE_LEFT, MOVE_RIGHT, MOVE_BOTH: a moved incidence is MOVE plus one per
-    # left face it names plus two per right face (MOVE_BOTH = MOVE + 1 + 2)
-    symbols = (moved * MOVE + left * (MOVE_LEFT - MOVE) + right * (MOVE_RIGHT - MOVE)).astype(np.uint8)
-
-    m_before = state.m
+    symbols = _symbols(state, inc, owner, vid, face_src, moved_by, cb, order, rank)
     topo = split_topology(state, v_sorted, symbols, incidences=(inc, owner))
-    _name_new_faces(face_src, m_before, symbols, owner, left, right, cb, order)
 
     u_in = cb.u[order]
     vid[u_in] = topo.u
@@ -194,6 +185,60 @@ def _replay_batch(j, cb, state, positions, vid, face_src, moved_by, embed) -> Sp
     residual = target - topo.prediction()
     state.positions[topo.u] = target
     return SplitBatch(v_sorted, symbols, residual)
+
+
+def _symbols(state, inc, owner, vid, face_src, moved_by, cb, order, rank) -> np.ndarray:
+    """The symbols (I,) uint8 of the incidences ``inc`` / ``owner`` (:func:`find_incidences`) of collapse batch
+    ``cb`` undone on ``state`` (splits in ``order``, ``rank`` its inverse); ``face_src`` gets the input face
+    ids of the faces the batch will append (:func:`_name_new_faces`), ``moved_by`` is scratch (-1 after)."""
+    kernel = compiled(_symbols_kernel)
+    if kernel is not None:
+        return kernel(state.faces.reshape(-1), inc, owner, vid, face_src, moved_by, cb.moved_face, cb.moved_by, rank,
+                      order, cb.wing_left, cb.wing_right, cb.del_left, cb.del_right, state.m)
+    moved_by[cb.moved_face] = rank[cb.moved_by]
+    moved = moved_by[face_src[inc // 3]] == owner
+    moved_by[cb.moved_face] = -1
+    left, right = _wings(state, inc, owner, vid, cb, order, moved)
+    # STAY, MOVE, MOVE_LEFT, MOVE_RIGHT, MOVE_BOTH: a moved incidence is MOVE plus one per
+    # left face it names plus two per right face (MOVE_BOTH = MOVE + 1 + 2)
+    symbols = (moved * MOVE + left * (MOVE_LEFT - MOVE) + right * (MOVE_RIGHT - MOVE)).astype(np.uint8)
+    _name_new_faces(face_src, state.m, symbols, owner, left, right, cb, order)
+    return symbols
+
+
+def _symbols_kernel(flat, inc, owner, vid, face_src, moved_by, moved_face, moved_of, rank, order, wing_left, wing_right,
+                    del_left, del_right, m_before):
+    """Compiled :func:`_symbols` (:func:`_wings`, :func:`_first_per_split` and :func:`_name_new_faces` in one
+    pass over the incidences): ``flat`` (3M,) int64 the face slots, ``moved_face`` / ``moved_of`` /
+    ``wing_*`` / ``del_*`` the batch's arrays (input ids, collapse order)."""
+    for j in range(len(moved_face)):
+        moved_by[moved_face[j]] = rank[moved_of[j]]
+    symbols = np.zeros(len(inc), np.uint8)
+    named = np.zeros((2, len(order)), np.bool_)  # the split has named its left / right new face
+    face = m_before  # the next appended face
+    for t in range(len(inc)):
+        s = owner[t]
+        if moved_by[face_src[inc[t] // 3]] != s:
+            continue
+        i = order[s]
+        c = inc[t]
+        first = c - c % 3
+        wl = vid[wing_left[i]] if wing_left[i] >= 0 else -1  # the wings' decoded ids (-1: none)
+        wr = vid[wing_right[i]] if wing_right[i] >= 0 else -1
+        left = wl >= 0 and flat[first + (c + 1) % 3] == wl and not named[0, s]
+        right = wr >= 0 and flat[first + (c + 2) % 3] == wr and not named[1, s]
+        named[0, s] |= left
+        named[1, s] |= right
+        symbols[t] = MOVE + left * (MOVE_LEFT - MOVE) + right * (MOVE_RIGHT - MOVE)
+        if left:
+            face_src[face] = del_left[i]
+            face += 1
+        if right:
+            face_src[face] = del_right[i]
+            face += 1
+    for j in range(len(moved_face)):
+        moved_by[moved_face[j]] = -1
+    return symbols
 
 
 def _wings(state, inc, owner, vid, cb, order, moved) -> tuple:

@@ -106,7 +106,7 @@ def boundary_half_edges(faces: np.ndarray, n: int) -> np.ndarray:
 def _boundary_kernel(faces, n):
     """Compiled :func:`boundary_half_edges` (the edge pass of :func:`_live_mesh_kernel`)."""
     vf_start, vf_corner, _, ring = _vertex_faces(faces, n)
-    _, _, count, he0, _, _, _ = _edges_by_vertex(faces, n, vf_start, vf_corner, ring)
+    _, _, count, he0, _, _ = _edges_by_vertex(faces, n, vf_start, vf_corner, ring)
     return he0[count == 1]
 
 
@@ -181,12 +181,11 @@ def _edges_by_vertex(F, n, vf_start, vf_corner, ring):
     Every vertex ``x`` in turn gathers the half-edges of its corners that run to or from a higher
     vertex ``y`` (and its own outgoing self-loops), sorted by (y, half-edge): its edges as the low
     end, in edge order.  Returns ``(lo, hi, count, he0, he1)`` (e,) int64 as in
-    :class:`~.topology.EdgeTable`, ``he_edge`` (3m,) int64 and ``down`` (n,) int64 (edges where
-    each vertex is the high end).
+    :class:`~.topology.EdgeTable` and ``down`` (n,) int64 (edges where each vertex is the high end).
     """
     h = 3 * len(F)
     lo, hi, count = np.empty(h, np.int64), np.empty(h, np.int64), np.empty(h, np.int64)
-    he0, he1, he_edge = np.empty(h, np.int64), np.empty(h, np.int64), np.empty(h, np.int64)
+    he0, he1 = np.empty(h, np.int64), np.empty(h, np.int64)
     down = np.zeros(n, np.int64)
     wmax = 0
     for x in range(n):
@@ -208,7 +207,6 @@ def _edges_by_vertex(F, n, vf_start, vf_corner, ring):
         while j < k:
             s = j
             while j < k and by[j] == by[s]:
-                he_edge[bh[j]] = ne
                 j += 1
             lo[ne], hi[ne], count[ne] = x, by[s], j - s
             he0[ne] = bh[s]
@@ -217,7 +215,7 @@ def _edges_by_vertex(F, n, vf_start, vf_corner, ring):
             ne += 1
     # copies, not views: a view would keep the arrays sized for every corner (about twice the edges)
     # alive with the live mesh (+137 MB peak on a 1.1M-vertex encode, for <1% of its time)
-    return lo[:ne].copy(), hi[:ne].copy(), count[:ne].copy(), he0[:ne].copy(), he1[:ne].copy(), he_edge, down
+    return lo[:ne].copy(), hi[:ne].copy(), count[:ne].copy(), he0[:ne].copy(), he1[:ne].copy(), down
 
 
 def _live_mesh_kernel(corners, face_alive, vert_alive, vids0, fids0, loc):
@@ -226,7 +224,7 @@ def _live_mesh_kernel(corners, face_alive, vert_alive, vids0, fids0, loc):
     vids, fids, loc, F = _compact_kernel(corners, face_alive, vert_alive, vids0, fids0, loc)
     n = len(vids)
     vf_start, vf_corner, fcount, ring = _vertex_faces(F, n)
-    lo, hi, count, he0, he1, he_edge, down = _edges_by_vertex(F, n, vf_start, vf_corner, ring)
+    lo, hi, count, he0, he1, down = _edges_by_vertex(F, n, vf_start, vf_corner, ring)
     ne = len(lo)
     vv_start = np.zeros(n + 1, np.int64)
     for e in range(ne):
@@ -244,7 +242,7 @@ def _live_mesh_kernel(corners, face_alive, vert_alive, vids0, fids0, loc):
         vv_nbr[fill[hi[e]]] = lo[e]
         vv_edge[fill[hi[e]]] = e
         fill[hi[e]] += 1
-    edges = (lo * n + hi, lo, hi, count, he0, he1, he_edge)
+    edges = (lo * n + hi, lo, hi, count, he0, he1)
     for p in range(len(vf_corner)):  # corners -> faces in place (no second (3m,) array)
         vf_corner[p] //= 3
     return vids, fids, loc, F, edges, vv_start, vv_nbr, vv_edge, vf_start, vf_corner, fcount

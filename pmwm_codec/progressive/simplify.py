@@ -422,8 +422,7 @@ def _one_batch(pos, live, quad, frozen_ext, budget, weld=None, twin=None):
                                               live.fcount)
     vv_edge = live.vv_edge
     n = len(vids)
-    P = np.take(pos, vids, axis=0)  # row gathers: np.take copies rows in one loop, indexing one memcpy per row
-    Q = np.take(quad, vids, axis=0)
+    P, Q = _local_rows(pos, quad, vids)
     frozen = frozen_ext[vids]
     g = None if weld is None else seams.local_groups(weld, vids, loc)
     seam = None if g is None else seams.seam_mask(g)
@@ -456,15 +455,64 @@ def _one_batch(pos, live, quad, frozen_ext, budget, weld=None, twin=None):
         cu, cv, ce, cost = _merge_pairs(cand, win, pairs, budget)
         if len(cu) == 0:
             return None
-    del_left, wing_left, del_right, wing_right = _deleted_faces(et, src, opp, cu, ce)
     moved_face, moved_by = _moved_faces(vf, F, cu, cv)
-    return CollapseBatch(
-        u=vids[cu], v=vids[cv],
-        del_left=_to_original(fids, del_left), del_right=_to_original(fids, del_right),
-        wing_left=_to_original(vids, wing_left), wing_right=_to_original(vids, wing_right),
-        moved_face=fids[moved_face], moved_by=moved_by,
-        cost=cost, error=np.sqrt(cost / np.maximum(_plane_weight(np.take(Q, cu, axis=0) + np.take(Q, cv, axis=0)), 1e-300)),
-    )
+    u, v, del_left, wing_left, del_right, wing_right, error = _described(et, src, opp, vids, fids, Q, cu, cv, ce, cost)
+    return CollapseBatch(u=u, v=v, del_left=del_left, del_right=del_right, wing_left=wing_left, wing_right=wing_right,
+                         moved_face=fids[moved_face], moved_by=moved_by, cost=cost, error=error)
+
+
+def _local_rows(pos, quad, vids):
+    """``(pos[vids], quad[vids])``: the rows (n, 3) and (n, 10) float64 of the live vertices ``vids`` (n,)
+    int64 (numpy: np.take, which copies row by row, one memcpy each; compiled: one loop)."""
+    kernel = compiled(_local_rows_kernel)
+    if kernel is None:
+        return np.take(pos, vids, axis=0), np.take(quad, vids, axis=0)
+    return kernel(pos, quad, vids)
+
+
+def _local_rows_kernel(pos, quad, vids):
+    """Compiled :func:`_local_rows`."""
+    P = np.empty((len(vids), pos.shape[1]), np.float64)
+    Q = np.empty((len(vids), quad.shape[1]), np.float64)
+    for i in range(len(vids)):
+        for j in range(pos.shape[1]):
+            P[i, j] = pos[vids[i], j]
+        for j in range(quad.shape[1]):
+            Q[i, j] = quad[vids[i], j]
+    return P, Q
+
+
+def _described(et, src, opp, vids, fids, Q, cu, cv, ce, cost):
+    """The chosen collapses ``cu -> cv`` on edges ``ce`` ((k,) int64 local ids, ``cost`` (k,) float64) in
+    :class:`CollapseBatch` terms: ``(u, v, del_left, wing_left, del_right, wing_right, error)``, (k,) int64
+    original ids (-1: none, :func:`_deleted_faces`) and (k,) float64 errors (Q (n, 10) the local quadrics)."""
+    kernel = compiled(_described_kernel)
+    if kernel is not None:
+        return kernel(et.he0, et.he1, src, opp, vids, fids, Q, cu, cv, ce, cost)
+    del_left, wing_left, del_right, wing_right = _deleted_faces(et, src, opp, cu, ce)
+    error = np.sqrt(cost / np.maximum(_plane_weight(np.take(Q, cu, axis=0) + np.take(Q, cv, axis=0)), 1e-300))
+    return (vids[cu], vids[cv], _to_original(fids, del_left), _to_original(vids, wing_left),
+            _to_original(fids, del_right), _to_original(vids, wing_right), error)
+
+
+def _described_kernel(he0, he1, src, opp, vids, fids, Q, cu, cv, ce, cost):
+    """Compiled :func:`_described`: the same arrays, the same error bits (the summed quadrics' plane
+    weight ``(q0 + q4) + q7`` as :func:`_plane_weight`, floored at 1e-300 with NaN kept as np.maximum)."""
+    k = len(cu)
+    out = np.full((6, k), -1, np.int64)  # u, v, del_left, wing_left, del_right, wing_right
+    error = np.empty(k, np.float64)
+    for i in range(k):
+        u, v, e = cu[i], cv[i], ce[i]
+        out[0, i], out[1, i] = vids[u], vids[v]
+        for h in (he0[e], he1[e]):  # the first face holding u -> v is the left one, v -> u the right one
+            if h >= 0:
+                side = 2 if src[h] == u else 4
+                if out[side, i] < 0:
+                    out[side, i], out[side + 1, i] = fids[h // 3], vids[opp[h]]
+        w = ((Q[u, 0] + Q[v, 0]) + (Q[u, 4] + Q[v, 4])) + (Q[u, 7] + Q[v, 7])
+        w = w if (w >= 1e-300 or w != w) else 1e-300
+        error[i] = np.sqrt(cost[i] / w)
+    return out[0], out[1], out[2], out[3], out[4], out[5], error
 
 
 def _unstalled(cand, win, mesh, n):
@@ -571,31 +619,23 @@ def _affordable(cu, cv, ce, cost, quantile: float):
     the ``quantile`` of the per-vertex cheapest costs; all of them when ``quantile >= 1``."""
     if quantile >= 1.0 or len(cu) == 0:
         return cu, cv, ce, cost
-    kernel = compiled(_at_most_kernel)
+    kernel = compiled(_affordable_kernel)
     if kernel is None:
         keep = cost <= np.quantile(cost[_group_starts(cu)], quantile)
         return cu[keep], cv[keep], ce[keep], cost[keep]
-    return kernel(cu, cv, ce, cost, np.quantile(_first_costs(cu, cost), quantile))
+    return kernel(cu, cv, ce, cost, quantile)
 
 
-def _first_costs(cu, cost):
-    """``cost[_group_starts(cu)]`` (g,) float64 in one compiled pass (numba only)."""
-    return compiled(_first_costs_kernel)(cu, cost)
-
-
-def _first_costs_kernel(cu, cost):
-    """Compiled ``cost[_group_starts(cu)]``."""
-    out = np.empty(len(cu), np.float64)
-    k = 0
+def _affordable_kernel(cu, cv, ce, cost, quantile):
+    """Compiled :func:`_affordable` (0 <= quantile < 1, c >= 1): the rows (a,) of the four (c,) arrays
+    with ``cost`` at most :func:`_quantile_kernel` of the groups' first costs."""
+    firsts = np.empty(len(cu), np.float64)  # cost[_group_starts(cu)]
+    g = 0
     for i in range(len(cu)):
         if i == 0 or cu[i] != cu[i - 1]:
-            out[k] = cost[i]
-            k += 1
-    return out[:k]
-
-
-def _at_most_kernel(cu, cv, ce, cost, limit):
-    """Compiled filter of :func:`_affordable`: the rows (c,) of the four arrays with ``cost <= limit``."""
+            firsts[g] = cost[i]
+            g += 1
+    limit = _quantile_kernel(firsts[:g], quantile)
     k = 0
     for i in range(len(cost)):
         k += cost[i] <= limit
@@ -606,6 +646,30 @@ def _at_most_kernel(cu, cv, ce, cost, limit):
             out[0][j], out[1][j], out[2][j], out[3][j] = cu[i], cv[i], ce[i], cost[i]
             j += 1
     return out
+
+
+@kernel_helper(allocates=True)
+def _quantile_kernel(x, q):
+    """``np.quantile(x, q)`` (method "linear") of ``x`` (g,) float64, g >= 1, 0 <= q < 1, with numpy's
+    arithmetic: the order statistics at ``floor((g - 1) q)`` and the next, ``_lerp``'s two formulas, NaN
+    when ``x`` holds one (the order statistics are values, the same whichever partition finds them; only
+    the sign of a zero could differ, which no ``<=`` test sees)."""
+    for i in range(len(x)):
+        if x[i] != x[i]:
+            return x[i]
+    virtual = (len(x) - 1) * q
+    lo = int(np.floor(virtual))
+    hi = lo + 1
+    if virtual >= len(x) - 1:  # numpy takes the last value (index -1) both times
+        lo = hi = len(x) - 1
+        gamma = virtual + 1.0
+    else:
+        gamma = virtual - lo
+    part = np.partition(x, lo)
+    a = part[lo]
+    b = a if hi == lo else np.min(part[lo + 1:])
+    diff = b - a
+    return b - diff * (1.0 - gamma) if gamma >= 0.5 else a + diff * gamma
 
 
 def _group_starts(cu):
@@ -1124,6 +1188,9 @@ def _legal_kernel(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_st
     ok = np.ones(len(cu), np.bool_)
     mark = np.full(len(fcount), -1, np.int64)  # mark[x] == i: x is a neighbour of candidate i's kept vertex
     for i in range(len(cu)):
+        if i % LEGAL_CHUNK == 0 and _touch(cu, cv, ce, i, min(i + LEGAL_CHUNK, len(cu)), count, he0, opp, fcount,
+                                           vv_start, vv_nbr, vv_edge, vf_start, vf_face, F, P) < 0:
+            ok[i] = not ok[i]  # never (counts and ids are not negative): the loads must not be dropped
         u, v, e = cu[i], cv[i], ce[i]
         for p in range(vv_start[v], vv_start[v + 1]):
             mark[vv_nbr[p]] = i
@@ -1147,6 +1214,27 @@ def _legal_kernel(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_st
             ok[i] = _moved_faces_ok(u, v, (vv_start, vv_nbr, vv_edge), count, he0, he1, F, P, opp, vf_start, vf_face,
                                     mark, i, fin)
     return ok
+
+
+#: :func:`_legal_kernel` reads the rows of this many candidates ahead (:func:`_touch`).
+LEGAL_CHUNK = 16
+
+
+@kernel_helper
+def _touch(cu, cv, ce, i0, i1, count, he0, opp, fcount, vv_start, vv_nbr, vv_edge, vf_start, vf_face, F, P):
+    """Read what the legality tests of candidates ``i0 .. i1 - 1`` will read first (their edge, their
+    vertices' rows, the faces of the removed vertex and their corners' positions) in one loop with no
+    branch on the values, so that the cache misses of the chunk overlap instead of coming one test at a
+    time (the candidates are scattered over the mesh: the winners of a selection round).  Returns a
+    sum of the counts and ids it read (never negative), which the caller tests so that the loads stay."""
+    acc = 0
+    for i in range(i0, i1):
+        u, v, e = cu[i], cv[i], ce[i]
+        acc += count[e] + opp[he0[e]] + fcount[u] + vv_nbr[vv_start[v]] + vv_edge[vv_start[u]]
+        for p in range(vf_start[u], vf_start[u + 1]):
+            f = vf_face[p]
+            acc += (P[F[f, 0], 0] > 0.0) + (P[F[f, 1], 0] > 0.0) + (P[F[f, 2], 0] > 0.0)
+    return acc
 
 
 @kernel_helper
@@ -1382,8 +1470,11 @@ def _offer_ranks(cu, cost):
     """
     c = len(cu)
     bucket = np.floor(2.0 * np.log2(cost + 1e-12 + 1e-9 * float(cost.max(initial=0.0)))).astype(np.int64)
-    bucket -= bucket.min(initial=0)
     shuffle = np.random.default_rng(c).permutation(c)
+    kernel = compiled(_ranks_kernel)
+    if kernel is not None:
+        return kernel(bucket, shuffle)
+    bucket -= bucket.min(initial=0)
     # argsort(bucket * c + shuffle) without a sort of c keys: candidates in shuffle order,
     # then grouped by bucket (few distinct values) stably
     by_shuffle = np.empty(c, dtype=np.int64)
@@ -1391,6 +1482,34 @@ def _offer_ranks(cu, cost):
     order = by_shuffle[group_order(bucket[by_shuffle], int(bucket.max(initial=0)) + 1)]
     rank = np.empty(c, dtype=np.int64)
     rank[order] = np.arange(c)
+    return rank
+
+
+def _ranks_kernel(bucket, shuffle):
+    """Compiled end of :func:`_offer_ranks`: the (c,) int64 ranks of the candidates with cost buckets
+    ``bucket`` (c,) int64 (changed in place) and tie order ``shuffle`` (c,) int64, a permutation: one
+    counting pass over the buckets, then the candidates ranked in shuffle order within their bucket."""
+    c = len(bucket)
+    low = 0
+    for i in range(c):
+        low = min(low, bucket[i])
+    high = 0
+    for i in range(c):
+        bucket[i] -= low
+        high = max(high, bucket[i])
+    start = np.zeros(high + 2, np.int64)
+    for i in range(c):
+        start[bucket[i] + 1] += 1
+    for b in range(high + 1):
+        start[b + 1] += start[b]
+    by_shuffle = np.empty(c, np.int64)
+    for j in range(c):
+        by_shuffle[shuffle[j]] = j
+    rank = np.empty(c, np.int64)
+    for i in range(c):
+        x = by_shuffle[i]
+        rank[x] = start[bucket[x]]
+        start[bucket[x]] += 1
     return rank
 
 

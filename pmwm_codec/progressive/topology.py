@@ -43,8 +43,6 @@ class EdgeTable:
         First and second half-edge on the edge (``he1 == -1`` when count == 1).
         Half-edge ``h`` is corner ``h % 3`` of face ``h // 3`` and runs from
         that corner to the next one.
-    he_edge : (3m,) int64
-        Edge id of every half-edge.
     """
 
     n: int
@@ -54,7 +52,6 @@ class EdgeTable:
     count: np.ndarray
     he0: np.ndarray
     he1: np.ndarray
-    he_edge: np.ndarray
 
     def find(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Edge ids of the pairs ``(a, b)`` (any order); -1 where no such edge."""
@@ -173,6 +170,9 @@ def half_edges(faces: np.ndarray, with_dst: bool = True):
     """Half-edge end points: ``(src, dst, opposite)`` each (3m,) int64, face-major (``src`` a view of
     ``faces``); ``dst`` None unless ``with_dst`` (a copy the caller may not need)."""
     faces = np.ascontiguousarray(faces)
+    kernel = compiled(_rotated_kernel)
+    if kernel is not None:
+        return faces.reshape(-1), kernel(faces, 1) if with_dst else None, kernel(faces, 2)
     dst = None
     if with_dst:
         dst = np.empty_like(faces)  # faces[:, [1, 2, 0]] by slices: contiguous, no gather
@@ -182,6 +182,16 @@ def half_edges(faces: np.ndarray, with_dst: bool = True):
     opp[:, 0] = faces[:, 2]
     opp[:, 1:] = faces[:, :2]
     return faces.reshape(-1), None if dst is None else dst.reshape(-1), opp.reshape(-1)
+
+
+def _rotated_kernel(faces, shift):
+    """Compiled half of :func:`half_edges`: (3m,) the corner ``(c + shift) % 3`` of every corner ``c`` of
+    ``faces`` (m, 3), face-major (``dst``: shift 1, ``opp``: shift 2)."""
+    out = np.empty(3 * len(faces), faces.dtype)
+    for f in range(len(faces)):
+        for c in range(3):
+            out[3 * f + c] = faces[f, (c + shift) % 3]
+    return out
 
 
 def edge_table(faces: np.ndarray, n: int) -> EdgeTable:
@@ -197,14 +207,11 @@ def edge_table(faces: np.ndarray, n: int) -> EdgeTable:
     first[0] = True
     np.not_equal(ks[1:], ks[:-1], out=first[1:])
     starts = np.flatnonzero(first)
-    eid_sorted = np.cumsum(first) - 1
-    he_edge = np.empty_like(eid_sorted)
-    he_edge[order] = eid_sorted
     count = np.diff(np.append(starts, len(ks)))
     he0 = order[starts]
     second = np.minimum(starts + 1, len(ks) - 1)
     he1 = np.where(count >= 2, order[second], -1)
-    return EdgeTable(n, ks[starts], lo[he0], hi[he0], count, he0, he1, he_edge)
+    return EdgeTable(n, ks[starts], lo[he0], hi[he0], count, he0, he1)
 
 
 def csr(groups: np.ndarray, values: np.ndarray, n: int):
