@@ -95,47 +95,67 @@ def enc_direct(es, out, bit):
         _shift_low(es, out)
 
 
-@kernel_helper
-def _next_byte(ds, buf):
-    pos = ds[2]
-    ds[2] = pos + 1
-    if pos < len(buf):
-        return np.int64(buf[pos])
-    ds[3] = 1
-    return np.int64(0)
+@kernel_helper(inline=True)
+def _normalize(rng, code, pos, ds, buf):
+    """Shift bytes of ``buf`` into the state in locals (:func:`_bit`) while ``rng`` is below
+    :data:`TOP`: ``(rng, code, pos)``.  Past the end of ``buf``: zero bytes, ``ds[3]`` set."""
+    while rng < TOP:
+        rng <<= 8
+        byte = np.int64(0)
+        if pos < len(buf):
+            byte = np.int64(buf[pos])
+        else:
+            ds[3] = 1
+        pos += 1
+        code = ((code << 8) | byte) & MASK32
+    return rng, code, pos
+
+
+@kernel_helper(inline=True)
+def _bit(rng, code, pos, ds, buf, probs, i):
+    """One adaptive bit (probability ``probs[i]``) decoded from the state ``rng, code, pos``
+    (``ds[0:3]``) held in locals: ``(bit, rng, code, pos)``.  Reading past the end of ``buf``
+    gives zero bytes and sets ``ds[3]``.  Inlined: a kernel decoding several decisions in a row
+    keeps the state in registers, not in ``ds`` (which every store to ``probs`` would make the
+    compiler reload, as it cannot tell the two arrays apart)."""
+    p = probs[i]
+    bound = (rng >> PROB_BITS) * p
+    if code < bound:
+        rng = bound
+        probs[i] = p + ((PROB_ONE - p) >> ADAPT_SHIFT)
+        bit = 0
+    else:
+        code -= bound
+        rng -= bound
+        probs[i] = p - (p >> ADAPT_SHIFT)
+        bit = 1
+    rng, code, pos = _normalize(rng, code, pos, ds, buf)
+    return bit, rng, code, pos
+
+
+@kernel_helper(inline=True)
+def _direct(rng, code, pos, ds, buf):
+    """One equiprobable bit from the state in locals (:func:`_bit`): ``(bit, rng, code, pos)``."""
+    rng >>= 1
+    bit = 0
+    if code >= rng:
+        code -= rng
+        bit = 1
+    rng, code, pos = _normalize(rng, code, pos, ds, buf)
+    return bit, rng, code, pos
 
 
 @kernel_helper
 def dec_bit(ds, buf, probs, i):
     """Decode one bit with adaptive probability ``probs[i]``."""
-    p = probs[i]
-    bound = (ds[0] >> PROB_BITS) * p
-    if ds[1] < bound:
-        ds[0] = bound
-        probs[i] = p + ((PROB_ONE - p) >> ADAPT_SHIFT)
-        bit = 0
-    else:
-        ds[1] -= bound
-        ds[0] -= bound
-        probs[i] = p - (p >> ADAPT_SHIFT)
-        bit = 1
-    while ds[0] < TOP:
-        ds[0] = ds[0] << 8
-        ds[1] = ((ds[1] << 8) | _next_byte(ds, buf)) & MASK32
+    bit, ds[0], ds[1], ds[2] = _bit(ds[0], ds[1], ds[2], ds, buf, probs, i)
     return bit
 
 
 @kernel_helper
 def dec_direct(ds, buf):
     """Decode one equiprobable bit."""
-    ds[0] = ds[0] >> 1
-    bit = 0
-    if ds[1] >= ds[0]:
-        ds[1] -= ds[0]
-        bit = 1
-    while ds[0] < TOP:
-        ds[0] = ds[0] << 8
-        ds[1] = ((ds[1] << 8) | _next_byte(ds, buf)) & MASK32
+    bit, ds[0], ds[1], ds[2] = _direct(ds[0], ds[1], ds[2], ds, buf)
     return bit
 
 
@@ -160,12 +180,20 @@ def enc_tree(es, out, probs, base, nbits, value):
     return 0
 
 
-@kernel_helper
-def dec_tree(ds, buf, probs, base, nbits):
+@kernel_helper(inline=True)
+def _tree(rng, code, pos, ds, buf, probs, base, nbits):
+    """:func:`dec_tree` on the state in locals (:func:`_bit`): ``(value, rng, code, pos)``."""
     node = 1
     for _ in range(nbits):
-        node = 2 * node + dec_bit(ds, buf, probs, base + node)
-    return node - (1 << nbits)
+        bit, rng, code, pos = _bit(rng, code, pos, ds, buf, probs, base + node)
+        node = 2 * node + bit
+    return node - (1 << nbits), rng, code, pos
+
+
+@kernel_helper
+def dec_tree(ds, buf, probs, base, nbits):
+    value, ds[0], ds[1], ds[2] = _tree(ds[0], ds[1], ds[2], ds, buf, probs, base, nbits)
+    return value
 
 
 @kernel_helper
@@ -186,21 +214,18 @@ def _enc_mantissa(es, out, probs, base, b, m):
     return 0
 
 
-@kernel_helper
-def _dec_mantissa(ds, buf, probs, base, b):
-    nb = b - 1
-    m = 0
-    first = 0
-    for pos in range(nb):
-        if pos == 0:
-            bit = dec_bit(ds, buf, probs, base + INT_MANTISSA + 3 * b)
-            first = bit
-        elif pos == 1:
-            bit = dec_bit(ds, buf, probs, base + INT_MANTISSA + 3 * b + 1 + first)
-        else:
-            bit = dec_direct(ds, buf)
+@kernel_helper(inline=True)
+def _mantissa(rng, code, pos, ds, buf, probs, base, b):
+    """The ``b - 1 >= 1`` bits below a magnitude's leading one (:func:`_enc_mantissa`) from the
+    state in locals (:func:`_bit`): ``(m, rng, code, pos)``."""
+    m, rng, code, pos = _bit(rng, code, pos, ds, buf, probs, base + INT_MANTISSA + 3 * b)
+    if b >= 3:
+        bit, rng, code, pos = _bit(rng, code, pos, ds, buf, probs, base + INT_MANTISSA + 3 * b + 1 + m)
         m = 2 * m + bit
-    return m
+        for _ in range(b - 3):
+            bit, rng, code, pos = _direct(rng, code, pos, ds, buf)
+            m = 2 * m + bit
+    return m, rng, code, pos
 
 
 @kernel_helper
@@ -216,12 +241,15 @@ def enc_uint(es, out, probs, base, x):
 @kernel_helper
 def dec_uint(ds, buf, probs, base):
     """Inverse of :func:`enc_uint`; -1 for a bucket above :data:`MAX_BUCKET` (invalid)."""
-    b = dec_tree(ds, buf, probs, base, BUCKET_BITS)
+    b, rng, code, pos = _tree(ds[0], ds[1], ds[2], ds, buf, probs, base, BUCKET_BITS)
+    x = np.int64(b)
     if b > MAX_BUCKET:
-        return np.int64(-1)
-    if b < 2:
-        return np.int64(b)
-    return (np.int64(1) << (b - 1)) + _dec_mantissa(ds, buf, probs, base, b)
+        x = np.int64(-1)
+    elif b >= 2:
+        m, rng, code, pos = _mantissa(rng, code, pos, ds, buf, probs, base, b)
+        x = (np.int64(1) << (b - 1)) + m
+    ds[0], ds[1], ds[2] = rng, code, pos
+    return x
 
 
 @kernel_helper
@@ -240,16 +268,19 @@ def enc_sint(es, out, probs, base, r):
 @kernel_helper
 def dec_sint(ds, buf, probs, base):
     """Inverse of :func:`enc_sint`.  Returns ``(value, ok)``; ok 0 for a bucket above :data:`MAX_BUCKET`."""
-    b = dec_tree(ds, buf, probs, base, BUCKET_BITS)
+    b, rng, code, pos = _tree(ds[0], ds[1], ds[2], ds, buf, probs, base, BUCKET_BITS)
+    x, ok = np.int64(0), 1
     if b > MAX_BUCKET:
-        return np.int64(0), 0
-    if b == 0:
-        return np.int64(0), 1
-    neg = dec_bit(ds, buf, probs, base + INT_SIGN + b)
-    a = np.int64(1)
-    if b >= 2:
-        a = (np.int64(1) << (b - 1)) + _dec_mantissa(ds, buf, probs, base, b)
-    return (-a if neg else a), 1
+        ok = 0
+    elif b >= 1:
+        neg, rng, code, pos = _bit(rng, code, pos, ds, buf, probs, base + INT_SIGN + b)
+        a = np.int64(1)
+        if b >= 2:
+            m, rng, code, pos = _mantissa(rng, code, pos, ds, buf, probs, base, b)
+            a = (np.int64(1) << (b - 1)) + m
+        x = -a if neg else a
+    ds[0], ds[1], ds[2] = rng, code, pos
+    return x, ok
 
 
 @kernel_helper

@@ -184,11 +184,12 @@ def _mask_kernel(flat, n, head, nxt, valence, below, sel, marked, gstart, inc, a
     """
     k = 0
     corners = 0
+    rng, code, pos = (ds[0], ds[1], ds[2]) if decode else (0, 0, 0)  # the coder state in registers
     for w in range(n):
         ctx = P_MASK + 7 * (below[w] & ((1 << BELOW_BITS) - 1)) + min(max(valence[w], 3), 9) - 3
         below[w] = 0
         if decode:
-            bit = rc.dec_bit(ds, buf, probs, ctx)
+            bit, rng, code, pos = rc._bit(rng, code, pos, ds, buf, probs, ctx)
         else:
             bit = sel[w]
             rc.enc_bit(es, out, probs, ctx, bit)
@@ -197,12 +198,16 @@ def _mask_kernel(flat, n, head, nxt, valence, below, sel, marked, gstart, inc, a
         if k == len(marked):
             for x in range(n):
                 below[x] = 0
-            return -1, corners
+            k = -1
+            break
         marked[k] = w
         gstart[k] = corners
         corners = _mark_above(w, corners, flat, head, nxt, below, inc, a, b)
         k += 1
-    gstart[k] = corners
+    if decode:
+        ds[0], ds[1], ds[2] = rng, code, pos
+    if k >= 0:
+        gstart[k] = corners
     return k, corners
 
 

@@ -135,7 +135,7 @@ def _jit(fn, **flags):
         return _numba.njit(cache=False, nogil=True, **flags)(fn)
 
 
-def kernel_helper(fn=None, *, allocates: bool = False):
+def kernel_helper(fn=None, *, allocates: bool = False, inline: bool = False):
     """Decorator for plain-Python functions that compiled kernels call: numba needs them compiled
     too.  The module global becomes the dispatcher when numba loads (:func:`_load_numba`).
 
@@ -143,11 +143,15 @@ def kernel_helper(fn=None, *, allocates: bool = False):
     compiled without numba's reference counting: with it, every call counts each array argument
     up on entry and down on return with atomic instructions, which took a third of a decode's
     time (helpers are called per coded decision and per corner).  ``@kernel_helper(allocates=True)``
-    keeps it for the helpers that need it.
+    keeps it for the helpers that need it.  ``inline`` has numba inline the helper into its
+    callers (``inline="always"``): for small helpers returning tuples of state that must stay in
+    registers rather than go through memory at every call.
     """
     if fn is None:
-        return lambda f: kernel_helper(f, allocates=allocates)
+        return lambda f: kernel_helper(f, allocates=allocates, inline=inline)
     flags = {} if allocates else {"_nrt": False}
+    if inline:
+        flags["inline"] = "always"
     if _numba is not None:
         return _COMPILED.setdefault(fn, _jit(fn, **flags))
     _HELPERS.append((fn.__globals__, fn.__name__, fn, flags))
