@@ -582,6 +582,24 @@ def test_a_fifo_in_place_of_an_output_is_refused_and_left_alone(capsys, tmp_path
     assert not (tmp_path / "k.pmw").exists()
 
 
+@pytest.mark.parametrize("suffix", [".glb", ".gltf"])
+def test_a_fifo_named_as_a_gltf_input_is_refused_without_being_opened(capsys, tmp_path, suffix):
+    """Telling a renamed .pmw or a meshopt file from a plain glTF sniffs the JSON: never of a FIFO (opening one
+    blocks until a writer comes)."""
+    from pmwm_codec.format.document import sniff_json
+    from pmwm_codec.watermark.key import WatermarkKey
+
+    fifo = tmp_path / f"f{suffix}"
+    os.mkfifo(fifo)
+    key = tmp_path / "k.json"
+    WatermarkKey.generate(rng=np.random.default_rng(1)).save(key)
+    assert sniff_json(fifo) is None
+    capsys.readouterr()
+    status = main(["verify", str(fifo), "--key", str(key)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and len(err) == 1 and "not a regular file" in err[0], err
+
+
 def test_the_atomic_writer_never_replaces_a_device(tmp_path):
     from pmwm_codec.atomic import write_atomic
 

@@ -116,8 +116,11 @@ def is_progressive_file(path) -> bool:
 
 def sniff_json(path) -> dict | None:
     """The glTF JSON of the GLB (its JSON chunk: the header and that chunk are all that is read) or ``.gltf``
-    at ``path``, or None for anything else (no error: the caller's reader names what is wrong)."""
+    at ``path``, or None for anything else (no error: the caller's reader names what is wrong).  Only a
+    regular file is opened: a FIFO or a device named ``x.glb`` is left to the reader, which refuses it."""
     try:
+        if not os.path.isfile(path):
+            return None
         with open(path, "rb") as f:
             head = f.read(GLB_HEADER_SIZE + CHUNK_HEADER_SIZE)
             if head[:4] == GLB_MAGIC:
