@@ -295,11 +295,18 @@ def test_a_key_written_before_the_owner_layer_still_marks_and_verifies_the_image
 
 
 def test_scores_read_once_give_every_key_the_same_answer_as_detect(blob, marked):
+    """``detect`` reads its views one at a time and stops at the first without an error; from every
+    view's scores at once (``mesh_scores``) it picks the same view: clean, noisy and smoothed."""
     key, pos = marked
-    scores = owner.mesh_scores(pos, blob.faces)
     rng = np.random.default_rng(12)
-    for k in [key] + [WatermarkKey.generate(rng=rng) for _ in range(3)]:
-        assert owner.detect(pos, blob.faces, k, scores=scores) == owner.detect(pos, blob.faces, k)
+    diag = np.linalg.norm(pos.max(0) - pos.min(0))
+    noisy = pos + rng.normal(size=pos.shape) * 0.003 * diag / math.sqrt(3)
+    smooth = _laplacian_smoothing(pos, blob.faces, 30)
+    keys = [key] + [WatermarkKey.generate(rng=rng) for _ in range(3)]
+    for p in (pos, noisy, smooth):
+        scores = owner.mesh_scores(p, blob.faces)
+        for k in keys:
+            assert owner.detect(p, blob.faces, k, scores=scores) == owner.detect(p, blob.faces, k)
 
 
 def _offset_frame(frame_of, dc, dlo, dhi):

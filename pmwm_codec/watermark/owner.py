@@ -83,6 +83,7 @@ is ``present`` when ``P(bit_errors) < 1e-9`` (at most 7 errors: 2.3e-10; 8 error
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -450,7 +451,13 @@ def _ascend(objectives: tuple, x: np.ndarray, center: np.ndarray) -> np.ndarray:
 
 
 def _searched_frames(points: np.ndarray, faces: np.ndarray, full: bool = True) -> list:
-    """The frames a read tries in one view of a mesh: ``[(centroid (3,), lo, width)]`` of ``points`` (k, 3) /
+    """:func:`_frames_in_order` as a list: ``[(centroid (3,), lo, width)]``."""
+    return list(_frames_in_order(points, faces, full))
+
+
+def _frames_in_order(points: np.ndarray, faces: np.ndarray, full: bool = True):
+    """The frames a read tries in one view of a mesh, one at a time, each searched only when the
+    one before has been taken: ``(centroid (3,), lo, width)`` of ``points`` (k, 3) /
     ``faces`` (m, 3): the four below, or (not ``full``) the estimate and the maximum one pattern search
     climbs to from it (no grid, no aliases).
 
@@ -469,8 +476,10 @@ def _searched_frames(points: np.ndarray, faces: np.ndarray, full: bool = True) -
     key reads fair coins in each (:func:`false_alarm_probability` bounds the best of them).
     """
     centroid, lo, width = _frame(points, faces)
+    yield centroid, lo, width
     if width == 0:
-        return [(centroid, lo, width)] * (4 if full else 2)
+        yield from [(centroid, lo, width)] * (3 if full else 1)
+        return
     d = points - centroid
     rho = np.linalg.norm(d, axis=1)
     n = d / np.maximum(rho, 1e-300)[:, None]
@@ -483,13 +492,17 @@ def _searched_frames(points: np.ndarray, faces: np.ndarray, full: bool = True) -
         coarse = np.array([objectives[0](y) for y in grid])
         climbs = [_ascend(objectives, grid[j], zero) for j in np.argsort(-coarse, kind="stable")[:SEARCH_STARTS]]
         x = climbs[int(np.argmax([objectives[1](y) for y in climbs]))]
-        xs = [zero, x]
+        yield _offset_frame(centroid, lo, width, x)
         for shift in (0.5, -0.5):
             y = x + np.array([0.0, 0.0, 0.0, shift, shift])
-            xs.append(_ascend(objectives, y, y))
+            yield _offset_frame(centroid, lo, width, _ascend(objectives, y, y))
     else:
-        xs = [zero, _ascend(objectives, zero, zero)]
-    return [(centroid + y[:3] * width, lo + y[3] * width, width * (1.0 + (y[4] - y[3]) / BINS)) for y in xs]
+        yield _offset_frame(centroid, lo, width, _ascend(objectives, zero, zero))
+
+
+def _offset_frame(centroid: np.ndarray, lo: float, width: float, y: np.ndarray) -> tuple:
+    """The frame ``(centroid (3,), lo, width)`` offset by ``y`` (5,) (see :func:`_search_objective`)."""
+    return centroid + y[:3] * width, lo + y[3] * width, width * (1.0 + (y[4] - y[3]) / BINS)
 
 
 def _frame_scores(points: np.ndarray, frame: tuple) -> tuple:
@@ -570,14 +583,7 @@ def _read_frames(points: np.ndarray, faces: np.ndarray, unsmoothed: bool = True)
     and the frame one pattern search climbs to from it (a smoothed mesh un-smoothed needs no wider
     search: the 23k-vertex dragon after 30 iterations, Loop subdivision and 50% simplification read
     the same errors as with the grid's four climbs, 3 keys, at ~3/4 of the time).  None depends on a key."""
-    views = [(points, f) for f in _searched_frames(points, faces)]
-    return views + _unsmoothed_views(points, faces) if unsmoothed else views
-
-
-def _unsmoothed_views(points: np.ndarray, faces: np.ndarray) -> list:
-    """The last ``FRAMES - AS_IS`` views of :func:`_read_frames`: ``[(positions (k, 3), frame)]``."""
-    smooth = _unsmoothed(points, faces)
-    return [(smooth, f) for f in _searched_frames(smooth, faces, full=False)]
+    return list(itertools.islice(_views_in_order(points, faces), FRAMES if unsmoothed else AS_IS))
 
 
 def _distinct_mesh(positions, faces) -> tuple:
@@ -916,19 +922,33 @@ def read_soft(positions, faces, key, scores: tuple | None = None) -> np.ndarray:
     """Soft coded values (64,) float64 in [-1, 1] in the view of :func:`_view_read`: > 0 reads 1,
     < 0 reads 0, 0 is erased.
 
-    The :data:`AS_IS` views of the mesh as it is are read first; the un-smoothed views unless one
-    of those reads the key's ID without an error (no transported mesh pays for them).  The bound of
+    The views are read in :func:`_read_frames` order and each is computed only when the ones before
+    it read the key's ID with an error: the first that reads it without one is the view
+    :func:`_view_read` picks, so a transported mesh, which reads it in its estimated frame, pays for
+    no frame search and no un-smoothing.  The bound of
     :func:`false_alarm_probability` covers the best of all :data:`FRAMES` views, so it covers the best
     of those read.  ``scores``: :func:`mesh_scores` of the mesh, when already computed (positions and
     faces unused; the same answer).
     """
     if scores is None:
-        points, faces = _distinct_mesh(positions, faces)
-        scores = _scores_of(_read_frames(points, faces, unsmoothed=False))
-        if _read_as_is(scores, key) is None:
-            more = _scores_of(_unsmoothed_views(points, faces))
-            scores = tuple(np.concatenate(pair) for pair in zip(scores, more))
+        read = []
+        for view in _views_in_order(*_distinct_mesh(positions, faces)):
+            read.append(_frame_scores(*view))
+            soft = _soft_rows((read[-1][0][None], read[-1][1][None]), key)[0]
+            if key.owner_id is None or _bit_errors(soft, key) == 0:
+                return soft  # the first view without an error: the one :func:`_view_read` picks
+        scores = (np.stack([s for s, _ in read]), np.stack([m for _, m in read]))
     return _soft_rows(scores, key)[_view_read(scores, key)]
+
+
+def _views_in_order(points: np.ndarray, faces: np.ndarray):
+    """:func:`_read_frames`' views ``(positions (k, 3) float64, frame)`` one at a time, each (its frame
+    search, the un-smoothing) computed only when asked for."""
+    for frame in _frames_in_order(points, faces):
+        yield points, frame
+    smooth = _unsmoothed(points, faces)
+    for frame in _frames_in_order(smooth, faces, full=False):
+        yield smooth, frame
 
 
 def _verdict(soft: np.ndarray, key) -> tuple:
