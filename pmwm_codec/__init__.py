@@ -73,7 +73,10 @@ def encode(src, dst, watermark=None, key=None, **options):
 
     from .stream.asset import encode_asset, is_asset_path
     from .stream.encoder import encode_mesh
+    from .watermark.key import refuse_key_target
 
+    if isinstance(dst, (str, os.PathLike)):
+        refuse_key_target(dst, ".pmw")
     asset = is_asset_path(src) or isinstance(src, tuple)
     mesh = None if asset else _as_mesh(src)
     if asset and not isinstance(src, tuple) and not os.path.exists(src):
@@ -110,7 +113,8 @@ def _key_for(key, image, dst, owner_id=None) -> tuple:
     Checked before any work: a refused key file costs nothing.
     """
     from .stream.encoder import default_key_path
-    from .watermark.key import FROM_KEY, KeySlot, random_owner_id
+    from .errors import WatermarkKeyError
+    from .watermark.key import FROM_KEY, KeySlot, random_owner_id, same_path
 
     if owner_id is False or (owner_id is None and image is None):
         owner_id = None
@@ -123,6 +127,9 @@ def _key_for(key, image, dst, owner_id=None) -> tuple:
     path = default_key_path(dst) if key is None else key
     if path is None:
         return None, None, (random_owner_id() if owner_id == FROM_KEY else owner_id)
+    if isinstance(dst, (str, os.PathLike)) and same_path(path, dst):
+        raise WatermarkKeyError(f"{os.fspath(path)}: the key file would be the .pmw itself (the .pmw would "
+                                "replace the key just written): give the key another name")
     slot = KeySlot.open(path, image, owner_id)
     return slot.existing, slot, slot.owner_id
 

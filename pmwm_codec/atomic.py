@@ -97,7 +97,10 @@ def _open_staged(path: str, mode: int | None) -> Staged:
             return Staged(fd, None, path)
         except OSError:
             pass  # the file system has no O_TMPFILE: a named temporary file
-    fd, temp = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".", suffix=".tmp")
+    try:
+        fd, temp = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".", suffix=".tmp")
+    except OSError as exc:  # name the file asked for, not the temporary one
+        raise OSError(exc.errno, f"cannot write a file in {directory} ({exc.strerror})", path) from None
     try:
         os.fchmod(fd, (0o666 & ~current_umask()) if mode is None else mode)
     except BaseException:

@@ -258,23 +258,31 @@ def read_mesh(path) -> Mesh:
     elif suffix == ".stl":
         _check_stl_header(path, name)
     else:
-        from .format.document import is_progressive, progressive_refusal, sniff_json, uses_meshopt
+        from .format.document import is_progressive, progressive_refusal, sniff_json
 
-        gltf = sniff_json(path) if suffix in (".glb", ".gltf") else None
+        gltf = sniff_json(path)
         if gltf is not None and is_progressive(gltf):
             raise InputFormatError(progressive_refusal(name))
-        if gltf is not None and uses_meshopt(gltf):
-            return _read_with_trimesh(_decompressed_glb(path), name, ".glb")
+        return _read_with_trimesh(_checked_glb(path), name, ".glb")
     return _read_with_trimesh(path, name, suffix)
 
 
-def _decompressed_glb(path) -> io.BytesIO:
-    """A GLB in memory of the glTF at ``path`` with its meshopt-compressed views decoded (trimesh reads
-    neither EXT_ nor KHR_meshopt_compression): :func:`~pmwm_codec.format.document.load_document`, one buffer."""
-    from .format.document import load_document, repack
+def _checked_glb(path) -> io.BytesIO:
+    """A GLB in memory of the glTF / GLB at ``path`` as :func:`~pmwm_codec.format.document.load_document`
+    reads it for an encode -- every ``uri`` a regular file inside the asset's folder or a ``data:`` URI,
+    sizes, indices and the node tree checked, meshopt-compressed views decoded (trimesh reads neither
+    EXT_ nor KHR_meshopt_compression) -- in one buffer, so trimesh reads nothing from the disk.  The
+    accessors of the mesh primitives are read once (:func:`~pmwm_codec.format.document.read_accessor`:
+    counts, offsets and strides within their bufferViews) before trimesh sees them."""
+    from .format.document import load_document, read_accessor, repack
     from .format.glb import join_glb
 
-    doc, data = repack(*load_document(path))
+    gltf, buffers = load_document(path)
+    for mesh in gltf.get("meshes", []):
+        for prim in mesh.get("primitives", []):
+            for index in [*prim.get("attributes", {}).values(), *([prim["indices"]] if "indices" in prim else [])]:
+                read_accessor(gltf, buffers, index)
+    doc, data = repack(gltf, buffers)
     doc["buffers"] = [{"byteLength": len(data)}]
     return io.BytesIO(join_glb(doc, data))
 

@@ -436,3 +436,16 @@ def test_inspect_is_the_info_json_output(work, tmp_path, capsys, cut):
     info = pmwm_codec.inspect(str(path))
     assert jsonable(info) == _info(capsys, path)
     assert pmwm_codec.inspect(path.read_bytes()) == {**info, "file": None}
+
+
+def test_batch_failure_lines_name_each_input_by_its_path_not_its_base_name(tmp_path, monkeypatch):
+    """Two ``bad.obj`` in two folders printed as ``failed: bad.obj: ...`` twice: which one failed?"""
+    from pmwm_codec.cli.batch import _failure_line
+
+    rows = [{"input": str(tmp_path / d / "bad.obj"), "status": "failed", "error": f"bad.obj: face index {i} out of range"}
+            for i, d in enumerate("ab")]
+    assert [_failure_line(r, str(tmp_path)) for r in rows] == [
+        "a/bad.obj: face index 0 out of range", "b/bad.obj: face index 1 out of range"]
+    monkeypatch.chdir(tmp_path)
+    assert _failure_line(rows[1], "*/bad.obj") == "b/bad.obj: face index 1 out of range"
+    assert _failure_line({"input": str(tmp_path / "c.obj"), "status": "timeout", "error": None}, ".") == "c.obj: timeout"

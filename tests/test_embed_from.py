@@ -7,7 +7,9 @@ comes from the file's public watermark parameters.
 from __future__ import annotations
 
 import io
+import json
 import os
+import re
 
 import numpy as np
 import pytest
@@ -172,3 +174,23 @@ def test_cli_file_with_a_start_verifies_with_no_option(files, capsys):
     assert code == 0, err
     code, stdout, err = _run(capsys, "verify", out, "--key", f"{out}.key.json", "--watermark", files / "mark.png")
     assert code == 0, err
+
+
+def test_fit_shrinks_a_watermark_to_what_the_splits_after_the_start_carry(tmp_path, capsys):
+    """``--fit`` with ``--embed-from``: the capacity error named no size, so ``--fit`` did nothing; it
+    now names the largest image the splits after the start carry, and ``--fit`` encodes it."""
+    src = tmp_path / "m.ply"
+    write_mesh(src, MESH)
+    img = tmp_path / "w.png"
+    Image.fromarray(_image(64)).save(img)
+    out = tmp_path / "m.pmw"
+    argv = ["encode", str(src), "-o", str(out), "--watermark", str(img), "--embed-from", "0.5", "-q"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    named = re.search(r"the largest that fits from there is (\d+)x\1", err)
+    assert "embedding from vertex split" in err and named and int(named.group(1)) < 64
+    assert not out.exists()
+    assert main(argv + ["--fit", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["watermark"]["width"] == int(named.group(1)) and any("--fit" in n for n in report["notices"])
+    assert main(["verify", str(out), "--key", str(out) + ".key.json", "-q"]) == 0

@@ -647,3 +647,44 @@ def test_a_pmw_whose_json_holds_a_non_finite_number_is_a_format_error_naming_it(
         assert status == 2 and len(err) == 1, err
         assert "nodes[0].translation[0]" in err[0] and "bug" not in err[0], err
     assert not (tmp_path / "out.glb").exists()
+
+
+# --- the blind read of pmw verify goes through the same reader as pmw encode --------------------
+
+
+def _owner_key(tmp_path) -> Path:
+    from pmwm_codec.watermark.key import WatermarkKey
+
+    path = tmp_path / "owner.key.json"
+    WatermarkKey.generate(rng=np.random.default_rng(3), owner_id=0x0123456789ABCDEF).save(path)
+    return path
+
+
+def test_verify_of_a_gltf_whose_buffer_is_a_fifo_is_refused_without_blocking(tmp_path, mesh):
+    """``pmw verify ASSET.gltf --key K`` read glTF through trimesh, which opened a FIFO named by a
+    ``uri`` and blocked forever; it now reads what ``pmw encode`` reads: one line, exit 2."""
+    folder = tmp_path / "asset"
+    folder.mkdir()
+    doc = gltf_doc(mesh)
+    doc["buffers"][0]["uri"] = "geo.bin"
+    os.mkfifo(folder / "geo.bin")
+    src = write_gltf(folder, doc)
+    proc = run_cli_limited(["verify", str(src), "--key", str(_owner_key(tmp_path))], timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr.count("\n") == 1 and "'geo.bin'" in proc.stderr and "not a regular file" in proc.stderr
+
+
+@pytest.mark.parametrize("edit, words", [
+    (lambda d: d["accessors"][0].update(count=10**6), "reads past its bufferView"),
+    (lambda d: d["accessors"][0].update(byteOffset=4), "reads past its bufferView"),
+    (lambda d: d["accessors"][0].update(bufferView=99), "bufferView = 99"),
+    (lambda d: d["nodes"][0].update(children=[0]), "own child"),
+    (lambda d: d["buffers"].append({"byteLength": 10, "uri": "../secret.txt"}), "outside the asset's folder"),
+])
+def test_verify_names_a_broken_gltf_as_encode_does(capsys, tmp_path, mesh, secret, edit, words):
+    doc = gltf_doc(mesh)
+    edit(doc)
+    src = write_gltf(tmp_path / "asset", doc)
+    status = main(["verify", str(src), "--key", str(_owner_key(tmp_path))])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and len(err) == 1 and err[0].startswith("pmw: error: ") and words in err[0], err

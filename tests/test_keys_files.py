@@ -25,6 +25,7 @@ from pmwm_codec import shapes
 from pmwm_codec.distortion import mesh_distortion, vertex_distortion
 from pmwm_codec.mesh import Mesh
 from pmwm_codec.meshio import write_mesh
+from pmwm_codec.errors import WatermarkKeyError
 from pmwm_codec.watermark.key import WatermarkKey
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -291,3 +292,103 @@ def test_encode_json_distortion_keeps_its_fields_and_names_the_measure(inputs, t
         d = json.loads(r.stdout)["distortion"]
         assert {"rms", "psnr_db", "hausdorff", "bbox_diagonal"} <= set(d) and d["measure"] == measure
         assert (d["rms"] is None) == (measure == "none")
+
+
+# --- no output replaces a key file, the input, or takes a name it cannot have ------------------
+
+
+def _cli(capsys, *argv) -> tuple:
+    """``pmw ARGV`` in process: ``(status, stderr lines)``."""
+    from pmwm_codec.cli import main
+
+    status = main([str(a) for a in argv])
+    return status, capsys.readouterr().err.strip().splitlines()
+
+
+def _refused(status, err, *words):
+    assert status == 2 and len(err) == 1 and err[0].startswith("pmw: error: "), err
+    assert all(w in err[0] for w in words), err
+
+
+def test_a_key_named_like_the_output_is_refused_before_anything_is_written(capsys, inputs, tmp_path):
+    """``--key y.pmw -o y.pmw`` used to write the key, rename the .pmw over it and exit 0: a marked
+    file whose key no longer existed."""
+    out = tmp_path / "y.pmw"
+    status, err = _cli(capsys, "encode", inputs / "a.ply", "-o", out, "--key", out, "--watermark", inputs / "w1.png")
+    _refused(status, err, "the key file would be the .pmw itself")
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(WatermarkKeyError):
+        pmwm_codec.encode(inputs / "a.ply", out, watermark=inputs / "w1.png", key=str(tmp_path / "." / "y.pmw"))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_no_output_replaces_a_key_file_by_its_name_or_its_contents(capsys, inputs, tmp_path):
+    """encode, cut and decode outputs onto ``*.key.json`` or onto a file holding a key (any name):
+    refused, the key byte-identical and still verifying its .pmw."""
+    pmw_path = tmp_path / "p.pmw"
+    assert encode(inputs, pmw_path).returncode == 0
+    key = Path(str(pmw_path) + ".key.json")
+    renamed = tmp_path / "k.json"
+    renamed.write_bytes(key.read_bytes())
+    glb_named = tmp_path / "k.glb"
+    glb_named.write_bytes(key.read_bytes())
+    before = key.read_bytes()
+    for argv in (["encode", inputs / "a.ply", "-o", key],
+                 ["encode", inputs / "a.ply", "-o", renamed],
+                 ["cut", pmw_path, "--chunks", "2", "-o", key],
+                 ["cut", pmw_path, "--chunks", "2", "-o", renamed],
+                 ["decode", pmw_path, "-o", glb_named]):
+        status, err = _cli(capsys, *argv)
+        _refused(status, err, "key")
+    assert key.read_bytes() == before and renamed.read_bytes() == before and glb_named.read_bytes() == before
+    assert verdict(pmw_path, key) == (0, "authentic")
+
+
+def test_cut_never_replaces_its_input_nor_names_a_glb_as_another_mesh_format(capsys, inputs, tmp_path):
+    pmw_path = tmp_path / "p.pmw"
+    assert encode(inputs, pmw_path).returncode == 0
+    before = pmw_path.read_bytes()
+    _refused(*_cli(capsys, "cut", pmw_path, "--chunks", "2", "-o", pmw_path), "is also the input")
+    assert pmw_path.read_bytes() == before
+    mesh_file = tmp_path / "m.obj"
+    mesh_file.write_text("v 0 0 0\n")
+    for name in ("m.obj", "x.ply", "x.stl", "x.gltf"):
+        _refused(*_cli(capsys, "cut", pmw_path, "-o", tmp_path / name), "a .pmw is a GLB file")
+    assert mesh_file.read_text() == "v 0 0 0\n" and not (tmp_path / "x.ply").exists()
+
+
+def test_an_output_named_dash_is_refused_not_written_as_a_file(capsys, inputs, tmp_path, monkeypatch):
+    pmw_path = tmp_path / "p.pmw"
+    assert encode(inputs, pmw_path).returncode == 0
+    monkeypatch.chdir(tmp_path)
+    for argv in (["encode", inputs / "a.ply", "-o", "-"], ["cut", pmw_path, "-o", "-"]):
+        _refused(*_cli(capsys, *argv), "standard output")
+    assert not (tmp_path / "-").exists()
+
+
+def test_a_failed_temporary_file_is_reported_under_the_name_asked_for(tmp_path, monkeypatch):
+    """Where no temporary file can be made beside the target, the error names the target (it named
+    a hidden ``.NAME.xxxx.tmp`` that never existed)."""
+    import tempfile
+
+    from pmwm_codec import atomic
+
+    def refuse(*args, **kwargs):
+        raise FileNotFoundError(2, "No such file or directory", str(tmp_path / ".x.pmw.abc.tmp"))
+
+    monkeypatch.delattr(atomic.os, "O_TMPFILE", raising=False)  # the named temporary file's path
+    monkeypatch.setattr(tempfile, "mkstemp", refuse)
+    with pytest.raises(OSError) as info:
+        atomic.write_atomic(tmp_path / "x.pmw", [b"data"])
+    assert info.value.filename == str(tmp_path / "x.pmw") and ".tmp" not in str(info.value)
+
+
+def test_key_matches_is_null_for_a_file_without_a_watermark_image(capsys, inputs, tmp_path):
+    """An owner-only .pmw holds no key fingerprint: ``key_matches`` is null (was true for any key)."""
+    owner_only = tmp_path / "o.pmw"
+    assert pmw("encode", inputs / "a.ply", "-o", owner_only, "--owner-id", "0123456789abcdef", "-q").returncode == 0
+    other = tmp_path / "p.pmw"
+    assert encode(inputs, other).returncode == 0
+    for key in (Path(str(other) + ".key.json"), Path(str(owner_only) + ".key.json")):
+        r = pmw("verify", owner_only, "--key", key, "--json")
+        assert json.loads(r.stdout)["key_matches"] is None

@@ -25,11 +25,11 @@ import os
 from dataclasses import dataclass
 
 from pmwm_codec.mesh import MESH_SUFFIXES
+from pmwm_codec.watermark.key import KEY_SUFFIX
 
 __all__ = ["Asset", "expand_sources", "KEY_SUFFIX", "PMW_SUFFIX"]
 
 PMW_SUFFIX = ".pmw"
-KEY_SUFFIX = ".key.json"  # the key of OUT.pmw is OUT.pmw.key.json (pmwm_codec.encode's default)
 _MAGIC = set("*?[")
 
 

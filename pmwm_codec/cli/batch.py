@@ -7,7 +7,9 @@ The work is :mod:`pmwm_codec.batch`; this module parses, shows progress and repo
 
 from __future__ import annotations
 
+
 import argparse
+import os
 
 from .common import EXIT_NOT_AUTHENTIC, EXIT_OK, Progress, UsageError, print_json
 from .encode import add_stream_options, stream_options
@@ -119,8 +121,23 @@ def run_encode(args) -> int:
               f"{summary['failed']} failed, {summary['timeout']} timed out in {summary['seconds']:.1f} s; "
               f"ledger {summary['ledger']}")
         for row in summary["failures"]:
-            print(f"  {row['status']}: {row['error']}")
+            print(f"  {row['status']}: {_failure_line(row, args.src)}")
     return EXIT_OK if not summary["failures"] else EXIT_NOT_AUTHENTIC
+
+
+def _failure_line(row: dict, src) -> str:
+    """A failed row's error led by its input's path (relative to the ``src`` folder, or to the
+    current directory for a glob or a manifest), not by its base name alone: two ``bad.obj`` in two
+    folders stay apart."""
+    path = row.get("input") or ""
+    base = os.path.abspath(src) if os.path.isdir(src) else os.getcwd()
+    shown = os.path.relpath(path, base) if path and os.path.isabs(path) else path
+    error = str(row.get("error") or row["status"])
+    for lead in (path, os.path.basename(path)):
+        if lead and error.startswith(lead + ": "):
+            error = error[len(lead) + 2:]
+            break
+    return f"{shown}: {error}" if shown else error
 
 
 def run_verify(args) -> int:

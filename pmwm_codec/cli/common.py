@@ -174,14 +174,25 @@ def naming(path):
         raise UsageError(f"{name}: {text}") from None
 
 
-def check_output_path(path, what: str = "output", inputs=()) -> None:
+def check_output_path(path, what: str = "output", inputs=(), key: bool = False) -> None:
     """Fail early (UsageError) when ``path``'s directory does not exist or is not writable, when
     ``path`` is a directory, a device, a FIFO or a socket (publishing renames a new file over the
-    target: it would take the device's place), or when it names one of the ``inputs`` files."""
+    target: it would take the device's place), when it names one of the ``inputs`` files, when it
+    is ``-`` (no output goes to standard output), or (unless the output is itself a ``key``) when
+    it names a watermark key file (:func:`~pmwm_codec.watermark.key.is_key_file`)."""
     from pmwm_codec.atomic import check_replaceable
+    from pmwm_codec.errors import WatermarkKeyError
+    from pmwm_codec.watermark.key import refuse_key_target
 
     path = os.fspath(path)
+    if path == "-":
+        raise UsageError(f"-: the {what} is written to a file, not to standard output; give a file name")
     directory = os.path.dirname(os.path.abspath(path)) or "."
+    if not key:
+        try:
+            refuse_key_target(path, what)
+        except WatermarkKeyError as exc:
+            raise UsageError(str(exc)) from None
     if os.path.isdir(path):
         raise UsageError(f"{path}: is a directory; give a file name for the {what}")
     try:
@@ -196,6 +207,17 @@ def check_output_path(path, what: str = "output", inputs=()) -> None:
         if source is not None and source != "-" and _same_file(source, path):
             raise UsageError(f"{path}: is also the input {source}; give the {what} another name "
                              "(writing it would replace the input)")
+
+
+def check_pmw_output(path, inputs=()) -> None:
+    """:func:`check_output_path` for a ``.pmw``, which is a GLB: not named as another mesh format
+    (``.obj``, ``.ply``, ``.stl``, ``.gltf``: a mesh of that name would be replaced by a GLB)."""
+    from pmwm_codec.mesh import MESH_SUFFIXES
+
+    check_output_path(path, ".pmw", inputs=inputs)
+    suffix = os.path.splitext(os.fspath(path))[1]
+    if suffix.lower() in MESH_SUFFIXES and suffix.lower() != ".glb":
+        raise UsageError(f"{os.fspath(path)}: a .pmw is a GLB file; name it .pmw (or .glb), not {suffix}")
 
 
 def _same_file(a, b) -> bool:

@@ -11,7 +11,7 @@ from pmwm_codec.format.glb import write_parts
 from pmwm_codec.http import UrlSource, is_url
 from pmwm_codec.stream.cut import cut_file
 
-from .common import UsageError, check_input_file, check_output_path, naming, notice, print_json
+from .common import UsageError, check_input_file, check_pmw_output, naming, notice, print_json
 
 
 def add_parser(sub):
@@ -37,7 +37,7 @@ def run(args) -> int:
     url = is_url(args.input)
     if not url:
         check_input_file(args.input, ".pmw file")
-    check_output_path(args.output, ".pmw")
+    check_pmw_output(args.output, inputs=() if url else (args.input,))
     with naming(args.input):
         source = UrlSource(args.input, max_chunks=args.chunks, whole_document=True) if url else args.input
         result = cut_file(source, args.chunks)

@@ -9,15 +9,11 @@ import pmwm_codec
 from pmwm_codec.constants import MAX_GRID_BITS, MIN_GRID_BITS
 from pmwm_codec.distortion import MEASURES
 from pmwm_codec.format.extension import DEFAULT_PAYLOAD_VERSION, PAYLOAD_VERSIONS
-from pmwm_codec.mesh import MESH_SUFFIXES
 from pmwm_codec.watermark.codec import MAX_BITS, MODES, CapacityError, shrink_watermark
 from pmwm_codec.watermark.image import load_watermark
 
-from .common import Progress, UsageError, check_input_file, check_output_path, fmt_float, print_json, stage_progress
-
-
-#: Output names that say another mesh format than the GLB a .pmw is.
-NOT_PMW_SUFFIXES = tuple(s for s in MESH_SUFFIXES if s != ".glb")
+from .common import (Progress, UsageError, check_input_file, check_output_path, check_pmw_output, fmt_float, print_json,
+                     stage_progress)
 
 
 def _int_in(lo, hi, what):
@@ -125,12 +121,9 @@ def run(args) -> int:
     check_input_file(args.input, "mesh file")
     if args.watermark is not None:
         check_input_file(args.watermark, "watermark image")
-    check_output_path(args.output, ".pmw", inputs=(args.input, args.watermark, args.key))
-    if os.path.splitext(args.output)[1].lower() in NOT_PMW_SUFFIXES:
-        raise UsageError(f"{args.output}: a .pmw is a GLB file; name it .pmw (or .glb), not "
-                         f"{os.path.splitext(args.output)[1]}")
+    check_pmw_output(args.output, inputs=(args.input, args.watermark, args.key))
     if args.key is not None and not os.path.exists(args.key):
-        check_output_path(args.key, "key", inputs=(args.input, args.watermark))
+        check_output_path(args.key, "key", inputs=(args.input, args.watermark), key=True)
     progress = Progress(not (args.json or args.quiet))
     options = {**stream_options(args), "measure": args.measure, "progress": stage_progress(progress)}
     if args.owner_id is not None:

@@ -19,13 +19,13 @@ from functools import partial
 from http import HTTPStatus
 from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 
+from pmwm_codec.watermark.key import KEY_SUFFIX  # names never served: the secret key files beside the outputs
+
 from .common import UsageError
 
 _RANGE = re.compile(r"bytes=(\d*)-(\d*)\s*$")
 #: What :meth:`RangeRequestHandler.translate_path` gives for a path it refuses: no file can be there.
 _NOWHERE = os.path.join(os.devnull, "refused")
-#: Names never served: the secret key files ``pmw encode`` writes beside its outputs.
-KEY_SUFFIX = ".key.json"
 
 
 def add_parser(sub):

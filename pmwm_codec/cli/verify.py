@@ -106,7 +106,7 @@ def run(args) -> int:
     elif not args.quiet:
         print(report(outcome, pictures))
         if owners:
-            print(owner_report(owners))
+            print(owner_report(owners, key))
     if not outcome.marked and owners:  # an owner-only file: the owner layer decides
         return EXIT_OK if owners[-1].owner.verdict == "present" else EXIT_NOT_AUTHENTIC
     return EXIT_OK if outcome.verdict == "authentic" else EXIT_NOT_AUTHENTIC
@@ -121,34 +121,44 @@ def _owner_boundaries(source, key) -> list:
     return owner_of_stream(source, key)
 
 
-def owner_report(owners) -> str:
-    """Human lines: the owner layer per chunk boundary, and from how many bytes it is present."""
+def owner_report(owners, key) -> str:
+    """Human lines: the owner layer per chunk boundary (``key`` the key read with), and from how many
+    bytes it is present."""
     lines = [f"{'chunk':>5} {'bytes':>11} {'vertices':>9}  owner"]
     for b in owners:
         o = b.owner
         lines.append(f"{b.chunk:>5} {b.bytes_read:>11,} {b.vertices:>9,}  {o.verdict} ({o.bit_errors}/64 bit errors, "
                      f"P_fa {o.false_alarm_probability:.1e})")
     first = next((b for b in owners if b.owner.verdict == "present"), None)
-    lines.append(f"owner {owners[-1].owner.id}: {owners[-1].owner.verdict}"
+    lines.append(f"owner {_owner_line(owners[-1].owner, key)}"
                  + (f" (present from {first.bytes_read:,} bytes)" if first else ""))
     return "\n".join(lines)
 
 
+def _owner_line(o, key) -> str:
+    """``ID: verdict`` of an owner read: the key's ID when ``present`` (the bits read beside it when some
+    differ), else the bits read."""
+    if o.verdict == "present" and o.bit_errors:
+        return f"{key.owner_hex}: present (read as {o.id}: {o.bit_errors} of {o.bits} bits differ)"
+    return f"{key.owner_hex if o.verdict == 'present' else o.id}: {o.verdict}"
+
+
 def run_owner(args) -> int:
     """``pmw verify MESH --key KEY``: the owner layer, read blind from any mesh file."""
-    from pmwm_codec.verify.owner import owner_of_mesh
+    from pmwm_codec.verify.owner import owner_key, owner_of_mesh
 
     check_input_file(args.input, "mesh file")
     check_input_file(args.key, "key file")
     with naming(args.input):
         mesh = pmwm_codec.read_mesh(args.input)
     with naming(args.key):
-        o = owner_of_mesh(mesh, args.key)
+        key = owner_key(args.key)
+        o = owner_of_mesh(mesh, key)
     if args.json:
         print_json({"input": args.input, "vertices": mesh.vertex_count, "owner": o.as_json(), "verdict": o.verdict})
     elif not args.quiet:
-        print(f"{args.input}: {mesh.vertex_count:,} vertices; owner {o.id}: {o.bit_errors}/64 bit errors, "
-              f"false-alarm probability {o.false_alarm_probability:.2e}")
+        print(f"{args.input}: {mesh.vertex_count:,} vertices; owner read {o.id}: {o.bit_errors}/64 bits differ "
+              f"from the key's {key.owner_hex}, false-alarm probability {o.false_alarm_probability:.2e}")
         print(f"verdict: {o.verdict}")
     return EXIT_OK if o.verdict == "present" else EXIT_NOT_AUTHENTIC
 

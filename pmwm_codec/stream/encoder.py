@@ -52,7 +52,7 @@ from ..progressive.seams import twin_rows, weld_groups
 from ..progressive.simplify import CollapseLog, deferred_and_twin_faces, simplify
 from ..progressive.topology import job_vertices, mean_edge_length
 from ..watermark import codec as wm
-from ..watermark.key import KEY_FILE_MODE, KeySlot, WatermarkKey
+from ..watermark.key import KEY_FILE_MODE, KEY_SUFFIX, KeySlot, WatermarkKey
 from .chunking import (
     FIRST_CHUNK_SPLITS,
     carrier_slots,
@@ -656,9 +656,12 @@ def _plan_watermark(work, watermark, key, carriers: int, slots, mode, bits, step
     if start:
         need = wm.splits_needed(watermark, mode, bits)
         if carriers - start < need:
+            fit = wm.largest_fitting_size(watermark, carriers - start, bits=bits, mode=mode)
+            hint = (f"; the largest that fits from there is {fit}x{fit} (pmw encode --fit shrinks it to that)"
+                    if fit else "")
             raise wm.CapacityError(
                 f"embedding from vertex split {start:,} leaves {carriers - start:,} of {carriers:,} splits; "
-                f"the watermark needs {need:,} in {mode} mode: start earlier"
+                f"the watermark needs {need:,} in {mode} mode: start earlier{hint}", fit
             )
     void = _twin_slots(work, key, slots)  # seam twins carry nothing (spec/watermark.md, "Repeated points")
     readable = carriers - start - int(np.count_nonzero(void >= start))
@@ -873,5 +876,5 @@ def _decoded_input_positions(w: PrimitiveWork) -> np.ndarray:
 def default_key_path(dst) -> str | None:
     """Where ``pmw encode`` writes the key when none is named: ``OUT.pmw.key.json``."""
     if isinstance(dst, (str, os.PathLike)):
-        return os.fspath(dst) + ".key.json"
+        return os.fspath(dst) + KEY_SUFFIX
     return None

@@ -45,7 +45,8 @@ class StreamVerification:
     first (``chunk`` 0); ``end``: how the stream ended; ``verdict``; ``codes_matched`` of
     ``codes_read`` codes agree with the expected ones; ``marked``: the file carries a
     watermark; ``total_length``: the size of the complete file in bytes; ``key_matches``:
-    False when the file's public key fingerprint is another key's (verdict ``not-authentic``);
+    False when the file's public key fingerprint is another key's (verdict ``not-authentic``), None
+    when the file carries no watermark image (no fingerprint to compare);
     ``mac``: ``{"checked": n, "failed": [chunk numbers], "missing": [chunk numbers]}`` (chunk 0
     is the base meshes) -- the keyed MACs checked, failed and absent.
     ``flagged`` (f,) int64 the tamper map (vertex ids of the last level's decoded mesh);
@@ -59,7 +60,7 @@ class StreamVerification:
     codes_read: int
     marked: bool
     total_length: int
-    key_matches: bool = True
+    key_matches: bool | None = True
     mac: dict | None = None
     flagged: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     binding: str = ""
@@ -128,8 +129,10 @@ def verify_stream(source, key, watermark=None, *, keep_meshes: bool = False, pro
     v = decoder.verifier
     owns = decoder.watermark_params is None or key is None or key.owns(decoder.watermark_params.fingerprint)
     mac = {"checked": decoder.mac_checked, "failed": decoder.mac_failed, "missing": decoder.mac_missing}
+    # key_matches None: the file carries no watermark image, so no key fingerprint to compare (an owner
+    # layer alone is answered by ``owner``: one owner's key marks many files)
     out = StreamVerification(results, end, "not-authentic", 0, 0, v is not None, decoder.header.total_length,
-                             owns, mac)
+                             None if decoder.watermark_params is None else owns, mac)
     if v is not None:  # else the file carries no watermark
         out.verdict = v.verdict() if owns else "not-authentic"
         out.codes_matched, out.codes_read = v.matches()

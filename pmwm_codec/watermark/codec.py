@@ -116,11 +116,16 @@ def _exact_bits(message_bits: int, carriers: int, bits: int | None) -> int | Non
     return None if b > limit or b * carriers < message_bits else b
 
 
-def largest_fitting_size(image: np.ndarray, carriers: int, *, bits: int | None = None) -> int | None:
-    """Side of the largest :func:`shrink_watermark` of ``image`` that ``carriers`` carry in exact mode."""
+def largest_fitting_size(image: np.ndarray, carriers: int, *, bits: int | None = None,
+                         mode: str = "exact") -> int | None:
+    """Side of the largest :func:`shrink_watermark` of ``image`` (s, s) smaller than ``image`` that
+    ``carriers`` splits carry whole in ``mode`` (paper: one split per coefficient), or None."""
     size = int(image.shape[0]) // 2
     while size >= 1 and carriers > 0:
-        if _exact_bits(len(_exact_message(shrink_watermark(image, size))[0]), carriers, bits) is not None:
+        if mode == "paper":
+            if size * size <= carriers:
+                return size
+        elif _exact_bits(len(_exact_message(shrink_watermark(image, size))[0]), carriers, bits) is not None:
             return size
         size //= 2
     return None

@@ -52,6 +52,7 @@ import hmac
 import io
 import json
 import os
+import re
 import secrets
 from dataclasses import dataclass, field
 
@@ -61,13 +62,17 @@ from ..constants import MAX_KEY_FILE_BYTES
 from ..errors import WatermarkKeyError
 from ..sources import read_regular_file
 
-__all__ = ["WatermarkKey", "KeySlot", "KEY_FORMAT", "KEY_VERSION", "KEY_FILE_MODE", "refuse_symlink"]
+__all__ = ["WatermarkKey", "KeySlot", "KEY_FORMAT", "KEY_VERSION", "KEY_FILE_MODE", "KEY_SUFFIX", "refuse_symlink",
+           "refuse_key_target", "same_path"]
 
 KEY_FORMAT = "pmwm-key"
 KEY_VERSION = 1
 SECRET_BYTES = 32
 #: Mode of every key file written, whatever the umask or an older file's mode.
 KEY_FILE_MODE = 0o600
+
+#: The key of ``OUT.pmw`` is ``OUT.pmw.key.json`` (``pmw encode``'s default); ``pmw serve`` never serves these.
+KEY_SUFFIX = ".key.json"
 _FINGERPRINT_LABEL = b"pmwm/fingerprint/v1"
 
 
@@ -344,6 +349,43 @@ def refuse_symlink(path) -> str:
         raise WatermarkKeyError(f"{path}: is a symbolic link; a key file is never written through one "
                                 "(name the real file with --key)")
     return path
+
+
+def is_key_file(path) -> bool:
+    """Whether ``path`` names a key file: a name ending :data:`KEY_SUFFIX` (any case), or an existing
+    regular file whose first bytes are a JSON object naming ``"format": "pmwm-key"``."""
+    path = os.fspath(path)
+    if path.lower().endswith(KEY_SUFFIX):
+        return True
+    try:
+        if not os.path.isfile(path):
+            return False
+        with open(path, "rb") as fh:
+            head = fh.read(4096)
+    except OSError:
+        return False
+    text = head.lstrip()
+    return text.startswith(b"{") and re.search(rb'"format"\s*:\s*"' + KEY_FORMAT.encode() + b'"', text) is not None
+
+
+def refuse_key_target(path, what: str) -> None:
+    """WatermarkKeyError when the output ``path`` (a ``what``: ".pmw", "mesh") would replace a key file or
+    take a key file's name (:func:`is_key_file`): a key file is never rewritten, by anything."""
+    if is_key_file(path):
+        raise WatermarkKeyError(f"{os.fspath(path)}: names a watermark key file; a {what} never replaces a key "
+                                "(a key file is never rewritten): give the output another name")
+
+
+def same_path(a, b) -> bool:
+    """Whether the paths ``a`` and ``b`` name one file: the same existing file (links included), or
+    the same place once symbolic links and ``..`` are resolved (for names not written yet)."""
+    a, b = os.fspath(a), os.fspath(b)
+    try:
+        if os.path.samefile(a, b):
+            return True
+    except OSError:
+        pass
+    return os.path.realpath(a) == os.path.realpath(b)
 
 
 @dataclass
