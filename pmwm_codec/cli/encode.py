@@ -186,8 +186,10 @@ def summary(src, dst, r) -> str:
                                                 f"{100 * haus:.3g}% of the diagonal"))
     w = r.get("watermark")
     if w:
+        # ``codes`` (the --json field): exact mode, the bits of one copy of the message; paper, its coefficients
+        held = f"{w['codes']:,} message bits" if w["mode"] == "exact" else f"{w['codes']:,} coefficients"
         lines.append(f"  watermark   {w['width']}x{w['height']}, {w['mode']} mode, {w['bits']} bits per code, "
-                     f"{w['codes']:,} codes on {w['embedded']:,} carriers")
+                     f"{held} on {w['embedded']:,} carriers")
         if r.get("key_path"):
             lines.append(f"  key         {r['key_path']}  (secret: verify needs it)")
     else:
