@@ -194,9 +194,11 @@ def _relocate(w, size, pool, meta, top):
 
 
 @kernel_helper
-def _push(w, c, pool, meta):
-    """Put corner ``c`` (larger than every corner of ``w``'s list) at the end of ``w``'s block, which
-    has room for it."""
+def _append(w, c, pool, meta, top):
+    """Put corner ``c`` (larger than every corner of ``w``'s list) at the end of ``w``'s list, its block
+    moved to twice the room first when full (the pool has room for that)."""
+    if meta[w, 1] == meta[w, 2]:
+        _relocate(w, 2 * meta[w, 2] if meta[w, 2] > 0 else BLOCK, pool, meta, top)
     pool[meta[w, 0] + meta[w, 1]] = c
     meta[w, 1] += 1
 
@@ -1086,11 +1088,10 @@ def _new_faces(rows, named, flat, pool, meta, top, at):
                 continue
             x, y = (u, vv) if side == 0 else (vv, u)
             flat[slot], flat[slot + 1], flat[slot + 2] = x, y, z
-            for w in (x, y, z):
-                if meta[w, 1] == meta[w, 2]:
-                    _relocate(w, 2 * meta[w, 2] if meta[w, 2] > 0 else BLOCK, pool, meta, top)
-                _push(w, slot, pool, meta)
-                slot += 1
+            _append(x, slot, pool, meta, top)
+            _append(y, slot + 1, pool, meta, top)
+            _append(z, slot + 2, pool, meta, top)
+            slot += 3
         at[1] = slot
     return False
 
