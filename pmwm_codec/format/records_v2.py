@@ -80,11 +80,11 @@ class CornerLists:
 
     ``pool`` (S,) int32 the blocks; ``meta`` (N, 4) int32 rows ``(off, cnt, cap, 0)``: vertex w's
     corners are ``pool[off : off + cnt]``, with room for ``cap`` (a multiple of :data:`BLOCK`, 0: no
-    block yet), one row (16 bytes) read for a vertex; ``top`` (1,) int64 the pool's used length.  A list that outgrows its block
-    moves to a block twice as large at the top of the pool; a full pool is replaced by a larger one
-    holding the live blocks only, in vertex order (:func:`_regrow`; the kernels that append return
-    the pool they leave).  One vertex's corners are thus one or two cache lines, not a chain of
-    scattered links.  ``valence`` (N,) int64 the number of distinct other vertices sharing a face
+    block yet), one row (16 bytes) read for a vertex; ``top`` (1,) int64 the pool's used length.  A
+    list that outgrows its block moves to a block twice as large at the top of the pool; a full pool
+    is replaced by a larger one holding the live blocks only, in vertex order (:func:`_regrow`; the
+    kernels that append return the pool they leave).  One vertex's corners are thus one or two cache
+    lines, not a chain of scattered links.  ``valence`` (N,) int64 the number of distinct other vertices sharing a face
     with each vertex; scratch: ``below`` (N,) int64 zeros (:data:`BELOW_BITS`), ``stamp`` / ``tag``
     (N,) int64 with their token counter ``ctr`` (1,) int64, ``split`` (N,) uint8 zeros, ``created``
     ((3M + 31) // 32,) int64 zeros (a bitmap over the corners, 32 bits a word) and ``creator`` (3M,)
@@ -95,16 +95,16 @@ class CornerLists:
 
     def __init__(self, vertex_capacity: int, face_capacity: int):
         N, M = int(vertex_capacity), int(face_capacity)
-        self.pool, self.top = np.empty(3 * M + BLOCK * N + 64, np.int32), np.zeros(1, np.int64)  # its pages taken as used
-        self.meta = np.zeros((N, 4), np.int32)
+        self.pool = np.empty(3 * M + BLOCK * N + 64, np.int32)  # its pages are taken as they are used
+        self.top, self.meta = np.zeros(1, np.int64), np.zeros((N, 4), np.int32)
         self.valence, self.tag, self.split = np.zeros(N, np.int64), np.zeros(N, np.int64), np.zeros(N, np.uint8)
         self.below, self.stamp, self.ctr = np.zeros(N, np.int64), np.zeros(N, np.int64), np.zeros(1, np.int64)
         self.created, self.creator = np.zeros((3 * M + 31) // 32, np.int64), np.empty(3 * M, np.int32)
         self.n = self.m = -1
-        self.faces = 3 * M
+        self.corner_capacity = 3 * M
 
     def fits(self, state) -> bool:
-        return len(self.meta) == len(state.positions) and self.faces == 3 * len(state.faces)
+        return len(self.meta) == len(state.positions) and self.corner_capacity == 3 * len(state.faces)
 
     def sync(self, state) -> None:
         """Describe ``state``'s current mesh (rebuilt unless it is the mesh they already describe)."""
@@ -720,8 +720,8 @@ def _encode_batch(enc, state, batch, lists) -> None:
     symbols = np.asarray(batch.symbols)
     enc.reserve(_batch_decisions(n, len(symbols), k, D))
     marked, gstart, inc, a, b = buffers = _mask_buffers(m, k)
-    _, corners = rc._kernel(_mask_kernel)(state.faces.reshape(-1), n, *lists.mask_arrays(), sel, *buffers, enc.es, enc.out, _NO_STATE, _NO_BYTES, enc.probs,
-                                          0)
+    _, corners = rc._kernel(_mask_kernel)(state.faces.reshape(-1), n, *lists.mask_arrays(), sel, *buffers, enc.es,
+                                          enc.out, _NO_STATE, _NO_BYTES, enc.probs, 0)
     if corners != len(symbols) or (corners and int(symbols.max()) >= 5):
         raise ValueError("payload v2: the batch's symbols do not match the mesh's incidences")
     sym = np.empty(corners, np.uint8)
