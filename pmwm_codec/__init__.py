@@ -72,17 +72,19 @@ def encode(src, dst, watermark=None, key=None, **options):
     from dataclasses import replace
 
     from .stream.asset import encode_asset, is_asset_path
+    from .options import check_destination, check_source, checked_options
     from .stream.encoder import encode_mesh
-    from .watermark.key import refuse_key_target
 
-    if isinstance(dst, (str, os.PathLike)):
-        refuse_key_target(dst, ".pmw")
+    check_source(src)
+    check_destination(dst, inputs=(src, watermark))
+    options = checked_options(options)
     asset = is_asset_path(src) or isinstance(src, tuple)
     mesh = None if asset else _as_mesh(src)
     if asset and not isinstance(src, tuple) and not os.path.exists(src):
         from .errors import InputFormatError
+        from .sources import shown_path
 
-        raise InputFormatError(f"{src}: no such file")
+        raise InputFormatError(f"{shown_path(src)}: no such file")
     image, notices = _as_watermark(watermark)
     asked = options.get("owner_id")
     key_obj, key_slot, options["owner_id"] = _key_for(key, image, dst, asked)
@@ -113,8 +115,8 @@ def _key_for(key, image, dst, owner_id=None) -> tuple:
     Checked before any work: a refused key file costs nothing.
     """
     from .stream.encoder import default_key_path
-    from .errors import WatermarkKeyError
-    from .watermark.key import FROM_KEY, KeySlot, random_owner_id, same_path
+    from .errors import OptionError, WatermarkKeyError
+    from .watermark.key import FROM_KEY, KeySlot, WatermarkKey, check_key_object, same_path
 
     if owner_id is False or (owner_id is None and image is None):
         owner_id = None
@@ -123,10 +125,15 @@ def _key_for(key, image, dst, owner_id=None) -> tuple:
     if image is None and owner_id is None:
         return None, None, None
     if key is not None and not isinstance(key, (str, os.PathLike)):
-        return key, None, (key.owner_id if owner_id == FROM_KEY else owner_id)
+        if not isinstance(key, WatermarkKey):
+            raise OptionError(f"key must be a WatermarkKey, a key file path or None, got {type(key).__name__}")
+        resolved = key.owner_id if owner_id == FROM_KEY else owner_id
+        check_key_object(key, image, resolved)
+        return key, None, resolved
     path = default_key_path(dst) if key is None else key
     if path is None:
-        return None, None, (random_owner_id() if owner_id == FROM_KEY else owner_id)
+        raise OptionError("a mark written to a file object needs key= (a WatermarkKey kept by the caller, or a key "
+                          "file path): the key made here would be lost, and nothing could verify the file")
     if isinstance(dst, (str, os.PathLike)) and same_path(path, dst):
         raise WatermarkKeyError(f"{os.fspath(path)}: the key file would be the .pmw itself (the .pmw would "
                                 "replace the key just written): give the key another name")
@@ -139,10 +146,15 @@ def decode(src, chunks=None) -> Mesh:
 
     ``chunks``: stop after the base mesh and this many vertex-split chunks.  ``src`` may be
     an ``http://`` or ``https://`` URL (:mod:`pmwm_codec.http`): read by Range requests when
-    the server honours them, fetching nothing after the last chunk asked for.
+    the server honours them, fetching nothing after the last chunk asked for.  The geometry
+    only (positions and faces, every primitive placed as stored); :func:`decode_asset` keeps
+    the document: attributes (texture coordinates, normals ...), materials and nodes.
     """
     from .http import as_source
+    from .options import checked_chunks
     from .stream.reader import decode_stream
+
+    chunks = checked_chunks(chunks)
 
     last, _ = decode_stream(as_source(src, chunks), chunks=chunks, copy=False)
     mesh = last.mesh  # every primitive dequantized on its own grid
@@ -177,18 +189,20 @@ def decode_asset(src, chunks=None) -> bytes:
     The same glTF document (materials, textures, nodes ...) with every progressive
     primitive's geometry at the base mesh plus ``chunks`` chunks (default: all that arrived).
     """
+    from .options import checked_chunks
     from .stream.asset import decode_asset as _decode_asset
 
-    glb, _, _ = _decode_asset(src, chunks=chunks)
+    glb, _, _ = _decode_asset(src, chunks=checked_chunks(chunks))
     return glb
 
 
 def cut(src, chunks=None) -> bytes:
     """A valid, smaller ``.pmw`` (bytes) from any ``.pmw`` or prefix of one: the base and the
     first ``chunks`` chunks (default: all that arrived whole).  See :mod:`pmwm_codec.stream.cut`."""
+    from .options import checked_chunks
     from .stream.cut import cut as _cut
 
-    return _cut(src, chunks)
+    return _cut(src, checked_chunks(chunks))
 
 
 #: Functions of heavier modules, imported on first use so that ``import pmwm_codec`` stays light.

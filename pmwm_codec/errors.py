@@ -66,3 +66,8 @@ class WatermarkKeyError(PmwError, ValueError):
 class OwnerLayerError(PmwError, ValueError):
     """An owner layer asked for (an explicit owner ID) that could not be read back from the
     mesh as it would be stored; nothing is written."""
+
+
+class OptionError(PmwError, ValueError):
+    """An option of :func:`pmwm_codec.encode` that is unknown or out of its range, or a ``src`` / ``dst``
+    it cannot take (an output that would replace an input, ``"-"``, a GLB named as another format)."""

@@ -61,6 +61,18 @@ class Mesh:
     def __repr__(self) -> str:
         return f"Mesh({self.vertex_count} vertices, {self.face_count} faces)"
 
+    def __eq__(self, other) -> bool:
+        """The same positions, faces and attributes, array for array (``cleanup``, a note on how the
+        mesh was read, is not compared); the generated comparison raised on numpy arrays."""
+        if not isinstance(other, Mesh):
+            return NotImplemented
+        same = lambda a, b: np.shape(a) == np.shape(b) and bool(np.array_equal(a, b))  # noqa: E731
+        return (same(self.positions, other.positions) and same(self.faces, other.faces)
+                and self.attributes.keys() == other.attributes.keys()
+                and all(same(v, other.attributes[k]) for k, v in self.attributes.items()))
+
+    __hash__ = None  # mutable arrays: not hashable (as the dataclass had it)
+
 
 def bounds(points: np.ndarray) -> tuple:
     """``(lo, hi)``, each (d,) of the dtype of ``points`` (n, d), n >= 1: its columns' minima and maxima,

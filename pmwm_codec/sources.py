@@ -36,7 +36,7 @@ def iter_blocks(source, block_size: int = DEFAULT_BLOCK_SIZE):
         return
     source = resolve_stdin(source)
     if isinstance(source, (str, os.PathLike)):
-        with open(source, "rb") as fh:
+        with open_regular_file(source) as fh:
             yield from iter_blocks(fh, block_size)
         return
     if hasattr(source, "read"):
@@ -57,6 +57,43 @@ def read_all(source) -> bytes:
     return b"".join(bytes(b) for b in iter_blocks(source, 1 << 20))
 
 
+def shown_path(path) -> str:
+    """``path`` as an error message names it: as it is, unless it cannot be a file name a person typed
+    (a line break, a NUL, or over 512 characters: a file's content passed where its path belongs,
+    which must not be copied into a message or a log -- a key file's secret, say)."""
+    text = os.fspath(path)
+    text = text if isinstance(text, str) else os.fsdecode(text)
+    if len(text) > 512 or "\n" in text or "\0" in text:
+        return f"<a string of {len(text):,} characters, not a file name (a file's content given as its path?)>"
+    return text
+
+
+def open_regular_file(path):
+    """``path`` opened for reading bytes once it is known to be an existing regular file (opened
+    without blocking and checked with ``fstat``: a FIFO never blocks);
+    :class:`~pmwm_codec.errors.InputFormatError` naming it otherwise."""
+    import stat
+
+    from .errors import InputFormatError
+
+    label = shown_path(path)
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
+    except (OSError, ValueError) as exc:
+        why = "no such file" if isinstance(exc, FileNotFoundError) else (
+            "is a directory" if isinstance(exc, IsADirectoryError) else f"cannot read ({getattr(exc, 'strerror', None) or exc})")
+        raise InputFormatError(f"{label}: {why}") from None
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            raise InputFormatError(f"{label}: {'is a directory' if stat.S_ISDIR(mode) else 'not a regular file'}")
+        os.set_blocking(fd, True)
+        return os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
+
+
 def read_regular_file(path, limit: int, error, label=None, *, follow_symlinks: bool = True) -> bytes:
     """All bytes of the regular file ``path``, refusing anything else before reading.
 
@@ -70,7 +107,7 @@ def read_regular_file(path, limit: int, error, label=None, *, follow_symlinks: b
     import stat
 
     path = os.fspath(path)
-    label = path if label is None else label
+    label = shown_path(path) if label is None else label
     flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
     if not follow_symlinks:
         flags |= getattr(os, "O_NOFOLLOW", 0)
@@ -112,8 +149,9 @@ def check_input_path(path, what: str) -> str:
     from .errors import InputFormatError
 
     path = os.fspath(path)
-    if not os.path.exists(path):
-        raise InputFormatError(f"{path}: no such file")
+    shown = shown_path(path)
+    if shown != path or not os.path.exists(path):
+        raise InputFormatError(f"{shown}: no such file")
     if os.path.isdir(path):
         raise InputFormatError(f"{path}: is a directory, not {what}")
     if not os.path.isfile(path):

@@ -60,7 +60,7 @@ import numpy as np
 
 from ..constants import MAX_KEY_FILE_BYTES
 from ..errors import WatermarkKeyError
-from ..sources import read_regular_file
+from ..sources import read_regular_file, shown_path
 
 __all__ = ["WatermarkKey", "KeySlot", "KEY_FORMAT", "KEY_VERSION", "KEY_FILE_MODE", "KEY_SUFFIX", "refuse_symlink",
            "refuse_key_target", "same_path"]
@@ -230,6 +230,8 @@ class WatermarkKey:
     def load(cls, path) -> "WatermarkKey":
         """Read a key file; any problem is a one-line :class:`WatermarkKeyError`."""
         path = os.fspath(path)
+        if shown_path(path) != path:  # a key's JSON given as its path: never echo it (the secret)
+            raise WatermarkKeyError(f"{shown_path(path)}: no such key file")
         if not os.path.lexists(path):
             raise WatermarkKeyError(f"{path}: no such key file")
         raw = read_regular_file(path, MAX_KEY_FILE_BYTES, WatermarkKeyError, f"{path}: cannot read key file")
@@ -460,6 +462,19 @@ def _same_marks(a: WatermarkKey, b: WatermarkKey) -> bool:
     """The two keys mark alike: the same reference image (or none for both) and the same owner ID."""
     images = (a.reference is None and b.reference is None) or _same_image(a.reference, b.reference)
     return images and a.owner_id == b.owner_id
+
+
+def check_key_object(key: WatermarkKey, image, owner_id: int | None) -> None:
+    """WatermarkKeyError when a key object given to an encode holds another reference watermark than
+    ``image`` (s, s) uint8 (None: the owner layer alone), or another owner ID than ``owner_id``: the file
+    would not verify with it.  A key holding neither (a fresh :meth:`WatermarkKey.generate`) marks anything."""
+    if key.reference is not None and image is not None and not _same_image(key.reference, np.asarray(image, np.uint8)):
+        h, w = key.reference.shape
+        raise WatermarkKeyError(f"the key object holds another watermark ({w}x{h}); the file would not verify "
+                                "with it (a key marks with one image: use a new key)")
+    if key.owner_id is not None and owner_id is not None and key.owner_id != owner_id:
+        raise WatermarkKeyError(f"the key object names owner id {key.owner_hex}, not {owner_id:016x}; the owner "
+                                "layer would not read with it (use a new key, or leave owner_id out)")
 
 
 def _check_reusable(path: str, key: WatermarkKey, image, owner_id: int | None = None) -> None:

@@ -1,0 +1,191 @@
+"""The checks :func:`pmwm_codec.encode` runs on what it is given before any work: the options by name,
+type and range, ``src`` / ``dst`` by kind, and output names (one home for the rules ``pmw encode``
+applies to its arguments, so the Python API refuses what the command line refuses).
+
+Every refusal is an :class:`~pmwm_codec.errors.OptionError` (a :class:`~pmwm_codec.errors.PmwError`)
+naming the option and the value: never a ``KeyError`` or ``TypeError`` from deep inside.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+import os
+
+from .constants import MAX_GRID_BITS, MIN_GRID_BITS
+from .errors import OptionError
+
+__all__ = ["checked_options", "check_source", "check_destination", "checked_chunks", "ENCODE_OPTIONS"]
+
+
+def _int(name, lo, hi=None):
+    def check(value):
+        if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < lo or (hi is not None and value > hi):
+            bound = f"an integer in {lo}..{hi}" if hi is not None else f"an integer >= {lo}"
+            raise OptionError(f"{name} must be {bound}, got {value!r}")
+        return int(value)
+    return check
+
+
+def _choice(name, choices):
+    def check(value):
+        if not isinstance(value, str) or value not in choices:
+            raise OptionError(f"{name} must be one of {', '.join(map(repr, choices))}, got {value!r}")
+        return value
+    return check
+
+
+def _positive(name):
+    def check(value):
+        if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value) or value <= 0:
+            raise OptionError(f"{name} must be a positive finite number, got {value!r}")
+        return float(value)
+    return check
+
+
+def _embed_from(value):
+    """A split index (int >= 0) or a fraction of the splits in [0, 1)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise OptionError(f"embed_from must be a split index >= 0 or a fraction in [0, 1), got {value!r}")
+    if isinstance(value, numbers.Integral):
+        if value < 0:
+            raise OptionError(f"embed_from must be a split index >= 0 or a fraction in [0, 1), got {value!r}")
+        return int(value)
+    if not (math.isfinite(value) and 0 <= value < 1):
+        raise OptionError(f"embed_from must be a split index >= 0 or a fraction in [0, 1), got {value!r}")
+    return float(value)
+
+
+def _owner_id(value):
+    """None, False (no owner layer), an int in [0, 2**64) or 1-16 hex digits."""
+    from .watermark.key import parse_owner_id
+
+    if value is None or value is False:
+        return value
+    if isinstance(value, str):
+        try:
+            return parse_owner_id(value)
+        except ValueError as exc:
+            raise OptionError(f"owner_id: {exc}") from None
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not 0 <= value < 1 << 64:
+        raise OptionError(f"owner_id must be an integer in [0, 2**64) or 1-16 hex digits, got {value!r}")
+    return int(value)
+
+
+def _measure(value):
+    from .distortion import MEASURES
+
+    if value is None or isinstance(value, bool):
+        return value
+    return _choice("measure", MEASURES)(value)
+
+
+def _flag(name):
+    def check(value):
+        if not isinstance(value, bool):
+            raise OptionError(f"{name} must be True or False, got {value!r}")
+        return value
+    return check
+
+
+def _callable(name):
+    def check(value):
+        if not callable(value):
+            raise OptionError(f"{name} must be callable, got {value!r}")
+        return value
+    return check
+
+
+def _options() -> dict:
+    from .format.extension import PAYLOAD_VERSIONS
+    from .watermark.codec import MAX_BITS, MODES
+
+    return {
+        "mode": _choice("mode", MODES),
+        "bits": _int("bits", 1, MAX_BITS),
+        "grid_bits": _int("grid_bits", MIN_GRID_BITS, MAX_GRID_BITS),
+        "base_codec": _choice("base_codec", ("draco", "plain")),
+        "base_vertices": _int("base_vertices", 4),
+        "step_units": _positive("step_units"),
+        "embed_from": _embed_from,
+        "owner_id": _owner_id,
+        "owner_strength": _positive("owner_strength"),
+        "min_chunk_splits": _int("min_chunk_splits", 1),
+        "zstd_level": _int("zstd_level", 1, 22),
+        "payload_version": lambda v: _int("payload_version", min(PAYLOAD_VERSIONS), max(PAYLOAD_VERSIONS))(v),
+        "measure": _measure,
+        "strip_image_profiles": _flag("strip_image_profiles"),
+        "progress": _callable("progress"),
+    }
+
+
+#: The options :func:`pmwm_codec.encode` takes (see its docstring).
+ENCODE_OPTIONS = ("mode", "bits", "grid_bits", "base_codec", "base_vertices", "step_units", "embed_from", "owner_id",
+                  "owner_strength", "min_chunk_splits", "zstd_level", "payload_version", "measure",
+                  "strip_image_profiles", "progress")
+
+
+def checked_options(options: dict) -> dict:
+    """``options`` with every value checked (None: the default, for those that have one) and numbers
+    made plain ints / floats; OptionError for an unknown name or a value out of range."""
+    checks = _options()
+    out = {}
+    for name, value in options.items():
+        if name not in checks:
+            raise OptionError(f"unknown option {name!r} (one of {', '.join(ENCODE_OPTIONS)})")
+        nullable = name not in ("mode", "base_codec", "zstd_level", "payload_version", "strip_image_profiles")
+        out[name] = value if value is None and nullable else checks[name](value)
+    if out.get("mode") == "paper" and out.get("bits") is not None and out["bits"] < 2:
+        raise OptionError(f"bits must be at least 2 in paper mode, got {out['bits']}")
+    return out
+
+
+def _is_path(x) -> bool:
+    return isinstance(x, (str, os.PathLike))
+
+
+def check_source(src) -> None:
+    """OptionError unless ``src`` is a :class:`~pmwm_codec.mesh.Mesh`, a path, or an in-memory glTF
+    ``(gltf dict, buffers)``."""
+    from .mesh import Mesh
+
+    if isinstance(src, Mesh) or _is_path(src):
+        return
+    if isinstance(src, tuple) and len(src) == 2 and isinstance(src[0], dict):
+        return
+    raise OptionError(f"src must be a Mesh, a path or a (gltf dict, buffers) pair, got {type(src).__name__}")
+
+
+def check_destination(dst, inputs=()) -> None:
+    """OptionError unless ``dst`` is a path or a binary file object (``write``); a path must not be
+    ``"-"``, name one of the ``inputs`` paths, or carry another mesh format's suffix (a ``.pmw`` is a
+    GLB); a key file is never its target (:func:`~pmwm_codec.watermark.key.refuse_key_target`)."""
+    from .mesh import MESH_SUFFIXES
+    from .sources import shown_path
+    from .watermark.key import refuse_key_target, same_path
+
+    if not _is_path(dst):
+        if not callable(getattr(dst, "write", None)):
+            raise OptionError(f"dst must be a path or a binary file open for writing, got {type(dst).__name__}")
+        return
+    path = os.fspath(dst)
+    if path == "-":
+        raise OptionError("dst '-': a .pmw is written to a file or a file object, not to a name for standard output")
+    suffix = os.path.splitext(path)[1].lower()
+    if suffix in MESH_SUFFIXES and suffix != ".glb":
+        raise OptionError(f"{shown_path(path)}: a .pmw is a GLB file; name it .pmw (or .glb), not {suffix}")
+    for source in inputs:
+        if _is_path(source) and same_path(source, path):
+            raise OptionError(f"{shown_path(path)}: is also the input {shown_path(source)}; writing it would "
+                              "replace the input")
+    refuse_key_target(path, ".pmw")
+
+
+def checked_chunks(chunks):
+    """``chunks`` of ``decode`` / ``cut`` / ``decode_asset``: None (every chunk that arrived) or an int >= 0;
+    OptionError otherwise (``-1`` read as the base alone, ``nan`` as every chunk, ``2.5`` as 3)."""
+    if chunks is None:
+        return None
+    if isinstance(chunks, bool) or not isinstance(chunks, numbers.Integral) or chunks < 0:
+        raise OptionError(f"chunks must be None or an integer >= 0, got {chunks!r}")
+    return int(chunks)

@@ -1,0 +1,122 @@
+"""The Python API refuses what the command line refuses, with a PmwError naming the problem, before any
+work and without writing anything (an outside-in probe of the API found each case below raising a bare
+KeyError / TypeError, hanging, or writing a file that could never be verified)."""
+
+from __future__ import annotations
+
+import io
+import math
+import os
+
+import numpy as np
+import pytest
+
+import pmwm_codec
+from pmwm_codec import shapes
+from pmwm_codec.errors import InputFormatError, OptionError, PmwError, WatermarkKeyError
+
+MESH = shapes.demo_mesh(60)
+
+
+def _image(seed):
+    return np.random.default_rng(seed).integers(0, 256, (8, 8)).astype(np.uint8)
+
+
+@pytest.fixture(scope="module")
+def stream():
+    buf = io.BytesIO()
+    pmwm_codec.encode(MESH, buf, measure="none")
+    return buf.getvalue()
+
+
+@pytest.mark.parametrize("options", [
+    {"mode": "x"}, {"mode": None}, {"grid_bits": 7}, {"grid_bits": 31}, {"grid_bits": 16.0}, {"grid_bits": "16"},
+    {"embed_from": 1.0}, {"embed_from": -1}, {"embed_from": math.nan}, {"bits": 0}, {"bits": 17},
+    {"bits": 1, "mode": "paper"}, {"bits": 3.5}, {"payload_version": 3}, {"payload_version": "2"},
+    {"measure": "x"}, {"zstd_level": 23}, {"zstd_level": 3.5}, {"owner_id": "abc!"}, {"owner_id": -1},
+    {"owner_id": 1 << 64}, {"owner_id": 1.5}, {"owner_id": True}, {"base_vertices": -5}, {"base_vertices": "10"},
+    {"gridbits": 12},
+])
+def test_a_bad_option_is_an_option_error_naming_it_and_writes_nothing(tmp_path, options):
+    out = tmp_path / "m.pmw"
+    with pytest.raises(OptionError) as info:
+        pmwm_codec.encode(MESH, out, **options)
+    assert next(iter(options)) in str(info.value)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_owner_id_takes_hex_digits_as_the_command_line_does(tmp_path):
+    report = pmwm_codec.encode(MESH, tmp_path / "m.pmw", owner_id="ff", measure="none")
+    assert report["owner_id"] == "00000000000000ff"
+
+
+@pytest.mark.parametrize("dst, words", [("-", "standard output"), ("x.obj", "a .pmw is a GLB file"),
+                                        ("x.gltf", "a .pmw is a GLB file"), (None, "dst must be")])
+def test_an_output_the_command_line_refuses_is_refused(tmp_path, monkeypatch, dst, words):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(OptionError, match=words):
+        pmwm_codec.encode(MESH, dst)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_encode_never_replaces_its_input(tmp_path):
+    src = tmp_path / "m.glb"
+    pmwm_codec.write_mesh(src, MESH)
+    before = src.read_bytes()
+    with pytest.raises(OptionError, match="is also the input"):
+        pmwm_codec.encode(str(src), str(tmp_path / "." / "m.glb"))
+    assert src.read_bytes() == before
+
+
+def test_a_key_object_for_another_image_or_owner_is_refused(tmp_path):
+    pmwm_codec.encode(MESH, tmp_path / "a.pmw", watermark=_image(0), measure="none")
+    key = pmwm_codec.load_key(tmp_path / "a.pmw.key.json")
+    with pytest.raises(WatermarkKeyError, match="another watermark"):
+        pmwm_codec.encode(MESH, tmp_path / "b.pmw", watermark=_image(1), key=key)
+    with pytest.raises(WatermarkKeyError, match="owner id"):
+        pmwm_codec.encode(MESH, tmp_path / "b.pmw", watermark=_image(0), key=key, owner_id=7)
+    assert not (tmp_path / "b.pmw").exists()
+    pmwm_codec.encode(MESH, tmp_path / "b.pmw", watermark=_image(0), key=key, measure="none")  # its own image
+    assert pmwm_codec.verify_stream(tmp_path / "b.pmw", key).verdict == "authentic"
+    with pytest.raises(OptionError, match="key must be"):
+        pmwm_codec.encode(MESH, tmp_path / "c.pmw", watermark=_image(0), key=True)
+
+
+def test_a_mark_written_to_a_file_object_needs_a_key_it_would_otherwise_lose():
+    with pytest.raises(OptionError, match="needs key="):
+        pmwm_codec.encode(MESH, io.BytesIO(), watermark=_image(0))
+    with pytest.raises(OptionError, match="needs key="):
+        pmwm_codec.encode(MESH, io.BytesIO(), owner_id=5)
+
+
+def test_pmw_paths_that_name_no_regular_file_are_input_errors_never_hangs(tmp_path):
+    os.mkfifo(tmp_path / "fifo")
+    (tmp_path / "dir").mkdir()
+    for name, words in (("fifo", "not a regular file"), ("missing.pmw", "no such file"), ("dir", "is a directory")):
+        for read in (pmwm_codec.decode, pmwm_codec.cut, pmwm_codec.decode_asset):
+            with pytest.raises(InputFormatError, match=words):
+                read(str(tmp_path / name))
+
+
+def test_a_files_content_given_as_its_path_is_never_echoed(tmp_path):
+    """A key's JSON passed to load_key put its secret into the message (and into logs)."""
+    pmwm_codec.encode(MESH, tmp_path / "a.pmw", watermark=_image(0), measure="none")
+    text = (tmp_path / "a.pmw.key.json").read_text()
+    with pytest.raises(WatermarkKeyError) as info:
+        pmwm_codec.load_key(text)
+    assert "secret" not in str(info.value) and len(str(info.value)) < 200
+    with pytest.raises(PmwError) as info:
+        pmwm_codec.encode("v 0 0 0\n" * 100, tmp_path / "x.pmw")
+    assert len(str(info.value)) < 200
+
+
+@pytest.mark.parametrize("chunks", [-1, math.nan, 2.5, "3", True])
+def test_chunks_is_none_or_a_non_negative_int_everywhere(stream, chunks):
+    for read in (pmwm_codec.decode, pmwm_codec.cut, pmwm_codec.decode_asset):
+        with pytest.raises(OptionError, match="chunks"):
+            read(stream, chunks)
+
+
+def test_meshes_compare_by_their_arrays(stream):
+    whole, again, level = pmwm_codec.decode(stream), pmwm_codec.decode(stream), pmwm_codec.decode(stream, chunks=2)
+    assert whole == again and whole != level and (whole == 1) is False
