@@ -469,3 +469,33 @@ def test_the_affordable_candidates_and_offer_ranks_are_the_same_on_both_paths(mo
         (aff0, rank0), (aff1, rank1) = out
         assert all(a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True) for a, b in zip(aff0, aff1))
         assert rank0.dtype == rank1.dtype and np.array_equal(rank0, rank1)
+
+
+def test_grouped_symbols_match_the_argsort(kernels):
+    """The payload encoder's symbols moved from face-slot order to the grouped order of distinct corners."""
+    from pmwm_codec.format.records_v2 import _grouped_symbols
+
+    rng = np.random.default_rng(11)
+    for k, cap in ((0, 5), (1, 1), (7, 9), (3000, 20000), (5000, 1 << 30)):
+        inc = rng.choice(cap, k, replace=False).astype(np.int64)
+        symbols = rng.integers(0, 5, k).astype(np.uint8)
+        want = np.empty(k, np.uint8)
+        want[np.argsort(inc)] = symbols
+        assert np.array_equal(_grouped_symbols(inc, symbols), want)
+
+
+@pytest.mark.parametrize("make", [shapes.flaps, shapes.doubled_faces])
+def test_twin_counts_are_the_same_on_both_paths(monkeypatch, make):
+    from pmwm_codec.progressive import simplify as S
+    from pmwm_codec.progressive.livemesh import live_mesh
+
+    mesh = make()
+    live = live_mesh(mesh.faces.copy(), np.ones(mesh.face_count, bool), np.ones(mesh.vertex_count, bool))
+    twin = S.twin_faces(live.F)
+    out = []
+    for use in (False, NUMBA):
+        monkeypatch.setattr(topology, "USE_NUMBA", use)
+        out.append(S._twin_counts(live.et, live.F, twin, len(live.vids)))
+    assert twin.any() and out[0][0].any()
+    for a, b in zip(*out):
+        assert a.dtype == b.dtype and np.array_equal(a, b)

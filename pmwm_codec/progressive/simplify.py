@@ -999,6 +999,9 @@ def _twin_counts(et, F, twin, n):
     twin_edge = np.zeros(len(et.keys), bool)
     if twin is None or not twin.any():
         return twin_edge, np.zeros(n, np.int64)
+    kernel = compiled(_twin_counts_kernel)
+    if kernel is not None:
+        return kernel(F, twin, et.keys, et.lo, et.hi, et.count, n)
     Ft = F[twin]
     ids = np.concatenate([et.find(Ft[:, j], Ft[:, (j + 1) % 3]) for j in range(3)])
     on_edge = np.bincount(ids, minlength=len(et.keys))
@@ -1006,6 +1009,33 @@ def _twin_counts(et, F, twin, n):
     twin_edge = (on_edge == 2) & ((et.count == 4) | free)
     po = np.bincount(np.concatenate([et.lo[free], et.hi[free]]), minlength=n)
     return twin_edge, np.bincount(Ft.ravel(), minlength=n) - po
+
+
+def _twin_counts_kernel(F, twin, keys, lo, hi, count, n):
+    """Compiled :func:`_twin_counts` (the same two arrays) in two passes over the doubled faces ``twin`` (m,)
+    bool of ``F`` (m, 3) int64, their edges found by a binary search of the edge table's sorted ``keys`` (e,):
+    the doubled faces on each edge and the corners on each vertex, then each edge with two of them once."""
+    on_edge = np.zeros(len(keys), np.int64)
+    extra = np.zeros(n, np.int64)
+    for f in range(len(F)):
+        if twin[f]:
+            for j in range(3):
+                a, b = F[f, j], F[f, (j + 1) % 3]
+                on_edge[np.searchsorted(keys, min(a, b) * n + max(a, b))] += 1
+                extra[a] += 1
+    twin_edge = np.zeros(len(keys), np.bool_)
+    for f in range(len(F)):
+        if twin[f]:
+            for j in range(3):
+                a, b = F[f, j], F[f, (j + 1) % 3]
+                e = np.searchsorted(keys, min(a, b) * n + max(a, b))
+                if on_edge[e] == 2:
+                    on_edge[e] = -1  # counted once
+                    twin_edge[e] = count[e] == 4 or count[e] == 2
+                    if count[e] == 2:  # a flap's free edge
+                        extra[lo[e]] -= 1
+                        extra[hi[e]] -= 1
+    return twin_edge, extra
 
 
 def _usable(F, et, src, frozen_ext, twins, n):
@@ -1406,7 +1436,7 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
         if not won.any():
             break
         wg, wo = groups[won], offer[won]
-        keep = ~_round_conflicts(cu[wo], cv[wo], rank[wo], flags, scratch, vv_start, vv_nbr, big)
+        keep = ~_round_conflicts(cu[wo], cv[wo], rank[wo], flags, scratch, vv_start, vv_nbr, big, n_out > 0)
         ok = np.zeros(len(wo), np.bool_)
         idx = wo[keep]
         ok[keep] = _legal_kernel(cu[idx], cv[idx], ce[idx], vv_edge, count, he0, he1, F, P, opp, fcount,
@@ -1431,6 +1461,15 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
 
 
 @kernel_helper
+def _nbr_flagged(vv_start, vv_nbr, flags, row):
+    """Whether a neighbour ``x`` of ``row`` has ``flags[x]`` (stops at the first)."""
+    for p in range(vv_start[row], vv_start[row + 1]):
+        if flags[vv_nbr[p]]:
+            return True
+    return False
+
+
+@kernel_helper
 def _nbr_below(vv_start, vv_nbr, values, row, limit):
     """Whether a neighbour ``x`` of ``row`` has ``values[x] < limit`` (the smallest of them ``< limit``,
     found without scanning the whole row once one is)."""
@@ -1441,15 +1480,15 @@ def _nbr_below(vv_start, vv_nbr, values, row, limit):
 
 
 @kernel_helper(allocates=True)
-def _round_conflicts(u, v, r, flags, scratch, vv_start, vv_nbr, big):
-    """Kernel part of :func:`_select_kernel`: :func:`_conflicts` of one round's winners (w,) -> (w,) bool."""
+def _round_conflicts(u, v, r, flags, scratch, vv_start, vv_nbr, big, any_chosen=True):
+    """Kernel part of :func:`_select_kernel`: :func:`_conflicts` of one round's winners (w,) -> (w,) bool.
+    ``any_chosen``: False when no collapse is chosen yet (``flags`` all False), which skips the rows'
+    scans against the chosen ones; each scan stops at the first conflict it finds."""
     loses = np.zeros(len(u), np.bool_)
     for i in range(len(u)):
-        loses[i] = flags[1, v[i]] or flags[0, v[i]]
-        for p in range(vv_start[u[i]], vv_start[u[i] + 1]):
-            loses[i] |= flags[1, vv_nbr[p]]
-        for p in range(vv_start[v[i]], vv_start[v[i] + 1]):
-            loses[i] |= flags[0, vv_nbr[p]]
+        if any_chosen:
+            loses[i] = flags[1, v[i]] or flags[0, v[i]] or _nbr_flagged(vv_start, vv_nbr, flags[1], u[i]) \
+                or _nbr_flagged(vv_start, vv_nbr, flags[0], v[i])
         scratch[1, u[i]] = r[i]
         scratch[2, v[i]] = min(scratch[2, v[i]], r[i])
     for i in range(len(u)):
