@@ -1508,7 +1508,12 @@ def _offer_ranks(cu, cost):
     (flat CAD regions, all zero) let only a few local minima win each round.
     """
     c = len(cu)
-    bucket = np.floor(2.0 * np.log2(cost + 1e-12 + 1e-9 * float(cost.max(initial=0.0)))).astype(np.int64)
+    # floor(2 log2(cost + 1e-12 + 1e-9 max)), in place: the same values without four (c,) temporaries
+    y = cost + 1e-12
+    y += 1e-9 * float(cost.max(initial=0.0))
+    np.log2(y, out=y)
+    y *= 2.0
+    bucket = np.floor(y, out=y).astype(np.int64)
     shuffle = np.random.default_rng(c).permutation(c)
     kernel = compiled(_ranks_kernel)
     if kernel is not None:
