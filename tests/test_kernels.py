@@ -192,6 +192,8 @@ _ODD_MESHES = {  # boundaries, holes, a non-manifold vertex, several components
     "doubled faces": shapes.doubled_faces(),
     "flaps": shapes.flaps(),
     "sphere and grid": shapes.components(shapes.icosphere(1, 1.0), shapes.grid(5, 5)),
+    # every edge a boundary edge: twice a closed mesh's edges (the compiled edge arrays grow while built)
+    "triangle soup": Mesh(np.random.default_rng(3).normal(size=(600, 3)), np.arange(600, dtype=np.int64).reshape(-1, 3)),
 }
 
 
