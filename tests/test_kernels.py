@@ -57,8 +57,9 @@ def _encoded(mesh, bits=16) -> bytes:
 
 
 @pytest.mark.parametrize("make, bits", [(lambda: shapes.icosphere(3, 1.0, noise=0.02), 16), (shapes.doubled_faces, 16),
-                                        (shapes.flaps, 16), (lambda: shapes.grid(400, 8, hole=False, bump=0.3), 8)],
-                         ids=["sphere", "doubled faces", "flaps", "faces without area on the grid"])
+                                        (shapes.flaps, 16), (lambda: shapes.grid(400, 8, hole=False, bump=0.3), 8),
+                                        (lambda: shapes.uv_torus(32, 16), 16)],
+                         ids=["sphere", "doubled faces", "flaps", "faces without area on the grid", "seams"])
 def test_encode_bytes_do_not_depend_on_the_kernels(monkeypatch, make, bits):
     mesh = make()
     monkeypatch.setattr(topology, "USE_NUMBA", False)
@@ -275,11 +276,12 @@ def test_the_candidate_collapses_are_the_same_on_both_paths(monkeypatch, name):
         frozen = rng.random(k) < 0.1
         P = np.asarray(mesh.positions, np.float64)[live.vids]
         src, _, opp = topology.half_edges(live.F)
-        out.append(simplify._candidates((live.et, live.F, P, opp, live.fcount, live.vv, live.vf, live.vv_edge,
-                                         np.zeros(len(live.et.keys), bool)),
-                                        Q, src, frozen))
-    assert out[0] is not None and len(out[0][0]) > 0
-    for a, b in zip(*out):
+        local = (live.et, live.F, P, opp, live.fcount, live.vv, live.vf, live.vv_edge, np.zeros(len(live.et.keys), bool))
+        out.append(simplify._candidates(local, Q, src, frozen))
+        few = frozen | (rng.random(k) < 0.7)  # a few vertices left free, visited alone by the compiled kernel
+        out.append(simplify._candidates(local, Q, src, few, rows=np.flatnonzero(~few)))
+    assert out[0] is not None and len(out[0][0]) > 0 and out[1] is not None
+    for a, b in zip(out[0] + out[1], out[2] + out[3]):
         assert np.array_equal(a, b, equal_nan=True)
 
 

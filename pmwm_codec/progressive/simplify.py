@@ -575,7 +575,7 @@ def _seam_pairs(Q, src, dst, frozen, seam, g, mesh):
     (pair ``k`` is rows ``k`` and ``p + k``).
     """
     et, F, P, opp, fcount, vv, vf, _, _ = mesh
-    halves = _candidates(mesh, Q, src, frozen | ~seam)
+    halves = _candidates(mesh, Q, src, frozen | ~seam, rows=np.flatnonzero(seam & ~frozen))
     if halves is None:
         return None
     hu, hv, he, hcost = halves
@@ -598,8 +598,30 @@ def _unblocked(cand, pairs, vv, n):
     if cand is None:
         return None
     no_remove, no_keep = seams.blocked_by(pairs[0], pairs[1], vv, n)
+    kernel = compiled(_unblocked_kernel)
+    if kernel is not None:
+        out = kernel(*cand, no_remove, no_keep)
+        return out if len(out[0]) else None
     keep = ~no_remove[cand[0]] & ~no_keep[cand[1]]
     return tuple(x[keep] for x in cand) if keep.any() else None
+
+
+def _unblocked_kernel(cu, cv, ce, cost, no_remove, no_keep):
+    """Compiled end of :func:`_unblocked`: the rows (a,) of the four (c,) candidate arrays whose removed vertex
+    is not in ``no_remove`` (n,) bool and kept vertex not in ``no_keep`` (n,) bool, in one pass to mark them and
+    one to copy them (not four masked gathers)."""
+    keep = np.empty(len(cu), np.bool_)
+    k = 0
+    for i in range(len(cu)):
+        keep[i] = not no_remove[cu[i]] and not no_keep[cv[i]]
+        k += keep[i]
+    out = (np.empty(k, np.int64), np.empty(k, np.int64), np.empty(k, np.int64), np.empty(k, np.float64))
+    j = 0
+    for i in range(len(cu)):
+        if keep[i]:
+            out[0][j], out[1][j], out[2][j], out[3][j] = cu[i], cv[i], ce[i], cost[i]
+            j += 1
+    return out
 
 
 def _merge_pairs(cand, win, pairs, budget):
@@ -697,14 +719,15 @@ def _to_original(table, local):
     return np.where(local >= 0, table[np.maximum(local, 0)], -1)
 
 
-def _candidates(mesh, Q, src, frozen_ext, twins=None):
+def _candidates(mesh, Q, src, frozen_ext, twins=None, rows=None):
     """Candidate collapses on the local mesh, grouped by removed vertex, cheapest first.
 
     ``mesh`` as in :func:`_ordinary_winners`, Q (n, 10) quadrics, ``src`` (3m,) the half-edge
     sources, frozen_ext (n,) bool, ``twins`` the doubled faces' edges and counts
     (:func:`_twin_counts`; None: none).  Returns ``(cu, cv, ce, cost)`` ((c,) int64 removed vertex,
     kept vertex, edge; (c,) float64 quadric cost), at most ``TRIES`` per removed vertex, or None
-    when there is none.
+    when there is none.  ``rows`` (r,) int64, ascending: the only vertices ``frozen_ext`` leaves free,
+    when they are few (the compiled kernel then visits only them); None: every vertex.
     """
     et, F, P, _, fcount, vv, _, vv_edge, _ = mesh
     n = len(P)
@@ -713,7 +736,7 @@ def _candidates(mesh, Q, src, frozen_ext, twins=None):
     kernel = compiled(_candidates_kernel)
     if kernel is not None:
         cu, cv, ce, cost = kernel(vv[0], vv[1], vv_edge, et.lo, et.hi, et.count, et.he0, et.he1, src, fcount,
-                                  frozen_ext, twins[0], twins[1], Q, P, TRIES)
+                                  frozen_ext, twins[0], twins[1], Q, P, TRIES, rows)
         return (cu, cv, ce, cost) if len(cu) else None
     # (Q_u + Q_v)(p_v) = Q_u(p_v) + Q_v(p_v); the second term is one value per vertex
     own = quadric_error(Q, P)
@@ -728,35 +751,54 @@ def _candidates(mesh, Q, src, frozen_ext, twins=None):
 
 
 def _candidates_kernel(vv_start, vv_nbr, vv_edge, lo, hi, count, he0, he1, src, fcount, frozen_ext, twin_edge, extra,
-                       Q, P, tries):
+                       Q, P, tries, rows):
     """Compiled :func:`_candidates` (same arrays, same order), one vertex at a time.
 
     A vertex's row of the neighbour CSR lists its edges in the order :func:`_usable` meets them
     (edges where it is the low end, then where it is the high end, each in edge order), so the
     usable collapses of ``u`` are its row minus the excluded edges, sorted stably by cost as in
-    :func:`_cheapest_per_group` (NaN last).
+    :func:`_cheapest_per_group` (NaN last).  ``rows``: None, every vertex (one pass over the vertices
+    for their own quadric errors, one over the edges for the boundary and bad edges at each vertex),
+    or (r,) int64, ascending, the vertices to visit (those counted from the rows' own edges, the errors
+    of their neighbours only: the cost is the rows', not the mesh's; a separate compilation).
     """
     n = len(fcount)
-    out_u = np.empty(tries * n, np.int64)
-    out_v = np.empty(tries * n, np.int64)
-    out_e = np.empty(tries * n, np.int64)
-    out_c = np.empty(tries * n, np.float64)
-    width = int(np.max(np.diff(vv_start))) if n else 0
+    r = n if rows is None else len(rows)
+    out_u = np.empty(tries * r, np.int64)
+    out_v = np.empty(tries * r, np.int64)
+    out_e = np.empty(tries * r, np.int64)
+    out_c = np.empty(tries * r, np.float64)
+    if rows is None:
+        width = int(np.max(np.diff(vv_start))) if n else 0
+    else:
+        width = 0
+        for u in rows:
+            width = max(width, vv_start[u + 1] - vv_start[u])
     buf_p = np.empty(width, np.int64)  # row positions of u's usable collapses, by cost
     buf_c = np.empty(width, np.float64)  # their costs
     own = np.empty(n, np.float64)  # quadric_error(Q, P), vertex by vertex
-    for x in range(n):
-        own[x] = _quadric_at(_quadric_row(Q, x), P, x)
     bvc = np.zeros(n, np.int64)  # boundary edges at each vertex
     badv = np.zeros(n, np.bool_)  # a non-manifold or inconsistently oriented edge at the vertex
-    for e in range(len(lo)):
-        if count[e] == 1:
-            bvc[lo[e]] += 1
-            bvc[hi[e]] += 1
-        if (count[e] > 2 and not twin_edge[e]) or (count[e] == 2 and src[he0[e]] == src[he1[e]]):
-            badv[lo[e]] = badv[hi[e]] = True
+    if rows is None:
+        for x in range(n):
+            own[x] = _quadric_at(_quadric_row(Q, x), P, x)
+        for e in range(len(lo)):
+            if count[e] == 1:
+                bvc[lo[e]] += 1
+                bvc[hi[e]] += 1
+            if (count[e] > 2 and not twin_edge[e]) or (count[e] == 2 and src[he0[e]] == src[he1[e]]):
+                badv[lo[e]] = badv[hi[e]] = True
+    else:
+        for u in rows:  # an edge is in the rows of both its ends (a self-loop twice in its vertex's)
+            for p in range(vv_start[u], vv_start[u + 1]):
+                e, x = vv_edge[p], vv_nbr[p]
+                own[x] = _quadric_at(_quadric_row(Q, x), P, x)
+                bvc[u] += count[e] == 1
+                if (count[e] > 2 and not twin_edge[e]) or (count[e] == 2 and src[he0[e]] == src[he1[e]]):
+                    badv[u] = True
     k = 0
-    for u in range(n):
+    for i in range(r):
+        u = i if rows is None else rows[i]
         a, b = vv_start[u], vv_start[u + 1]
         if badv[u] or frozen_ext[u]:
             continue
