@@ -57,8 +57,9 @@ def _encoded(mesh, bits=16) -> bytes:
 
 
 @pytest.mark.parametrize("make, bits", [(lambda: shapes.icosphere(3, 1.0, noise=0.02), 16), (shapes.doubled_faces, 16),
-                                        (shapes.flaps, 16), (lambda: shapes.grid(400, 8, hole=False, bump=0.3), 8)],
-                         ids=["sphere", "doubled faces", "flaps", "faces without area on the grid"])
+                                        (shapes.flaps, 16), (lambda: shapes.grid(400, 8, hole=False, bump=0.3), 8),
+                                        (lambda: shapes.uv_torus(32, 16), 16)],
+                         ids=["sphere", "doubled faces", "flaps", "faces without area on the grid", "seams"])
 def test_encode_bytes_do_not_depend_on_the_kernels(monkeypatch, make, bits):
     mesh = make()
     monkeypatch.setattr(topology, "USE_NUMBA", False)
@@ -192,6 +193,8 @@ _ODD_MESHES = {  # boundaries, holes, a non-manifold vertex, several components
     "doubled faces": shapes.doubled_faces(),
     "flaps": shapes.flaps(),
     "sphere and grid": shapes.components(shapes.icosphere(1, 1.0), shapes.grid(5, 5)),
+    # every edge a boundary edge: twice a closed mesh's edges (the compiled edge arrays grow while built)
+    "triangle soup": Mesh(np.random.default_rng(3).normal(size=(600, 3)), np.arange(600, dtype=np.int64).reshape(-1, 3)),
 }
 
 
@@ -273,11 +276,12 @@ def test_the_candidate_collapses_are_the_same_on_both_paths(monkeypatch, name):
         frozen = rng.random(k) < 0.1
         P = np.asarray(mesh.positions, np.float64)[live.vids]
         src, _, opp = topology.half_edges(live.F)
-        out.append(simplify._candidates((live.et, live.F, P, opp, live.fcount, live.vv, live.vf, live.vv_edge,
-                                         np.zeros(len(live.et.keys), bool)),
-                                        Q, src, frozen))
-    assert out[0] is not None and len(out[0][0]) > 0
-    for a, b in zip(*out):
+        local = (live.et, live.F, P, opp, live.fcount, live.vv, live.vf, live.vv_edge, np.zeros(len(live.et.keys), bool))
+        out.append(simplify._candidates(local, Q, src, frozen))
+        few = frozen | (rng.random(k) < 0.7)  # a few vertices left free, visited alone by the compiled kernel
+        out.append(simplify._candidates(local, Q, src, few, rows=np.flatnonzero(~few)))
+    assert out[0] is not None and len(out[0][0]) > 0 and out[1] is not None
+    for a, b in zip(out[0] + out[1], out[2] + out[3]):
         assert np.array_equal(a, b, equal_nan=True)
 
 
@@ -469,3 +473,33 @@ def test_the_affordable_candidates_and_offer_ranks_are_the_same_on_both_paths(mo
         (aff0, rank0), (aff1, rank1) = out
         assert all(a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True) for a, b in zip(aff0, aff1))
         assert rank0.dtype == rank1.dtype and np.array_equal(rank0, rank1)
+
+
+def test_grouped_symbols_match_the_argsort(kernels):
+    """The payload encoder's symbols moved from face-slot order to the grouped order of distinct corners."""
+    from pmwm_codec.format.records_v2 import _grouped_symbols
+
+    rng = np.random.default_rng(11)
+    for k, cap in ((0, 5), (1, 1), (7, 9), (3000, 20000), (5000, 1 << 30)):
+        inc = rng.choice(cap, k, replace=False).astype(np.int64)
+        symbols = rng.integers(0, 5, k).astype(np.uint8)
+        want = np.empty(k, np.uint8)
+        want[np.argsort(inc)] = symbols
+        assert np.array_equal(_grouped_symbols(inc, symbols), want)
+
+
+@pytest.mark.parametrize("make", [shapes.flaps, shapes.doubled_faces])
+def test_twin_counts_are_the_same_on_both_paths(monkeypatch, make):
+    from pmwm_codec.progressive import simplify as S
+    from pmwm_codec.progressive.livemesh import live_mesh
+
+    mesh = make()
+    live = live_mesh(mesh.faces.copy(), np.ones(mesh.face_count, bool), np.ones(mesh.vertex_count, bool))
+    twin = S.twin_faces(live.F)
+    out = []
+    for use in (False, NUMBA):
+        monkeypatch.setattr(topology, "USE_NUMBA", use)
+        out.append(S._twin_counts(live.et, live.F, twin, len(live.vids)))
+    assert twin.any() and out[0][0].any()
+    for a, b in zip(*out):
+        assert a.dtype == b.dtype and np.array_equal(a, b)

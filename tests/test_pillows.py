@@ -110,3 +110,24 @@ def test_a_flap_tip_another_primitive_shares_stays_at_every_level(tmp_path):
         first, second = (read_accessor(doc, buffers, p["attributes"]["POSITION"]) for p in doc["meshes"][0]["primitives"])
         shared = second[cKDTree(second).query(tips)[1]]  # the tips as the second primitive decodes them (one grid)
         assert {tuple(x) for x in shared} <= {tuple(x) for x in first}, chunks
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), count=st.integers(1, 40), share=st.booleans(), bits=st.sampled_from([8, 10, 16]))
+def test_the_core_s_doubled_faces_are_the_mesh_s_outside_the_deferred_ones(seed, count, share, bits):
+    """The encoder hands the simplifier ``twin[~late]`` for the core mesh instead of finding its doubled faces
+    again: the same faces, because the deferred faces take every face of a vertex triple or none."""
+    from pmwm_codec.progressive.grid import Grid
+    from pmwm_codec.progressive.simplify import deferred_and_twin_faces
+    from pmwm_codec.stream.encoder import _core_vertices
+
+    mesh = shapes.specks(_pillowed(seed, count, share), count=1 + seed % 3, seed=seed % 5)
+    n = mesh.vertex_count
+    positions = np.concatenate([mesh.positions, [[3.0, 0, 0], [3.0, 1, 0], [3.0, 0, 1]]])  # a pillow of its own
+    faces = np.concatenate([mesh.faces, [[n, n + 1, n + 2], [n, n + 2, n + 1]]]).astype(np.int64)
+    extra = faces[np.random.default_rng(seed).integers(0, len(faces), 3)]  # a third face on some pillows' triples
+    faces = np.concatenate([faces, extra[:, ::-1]])
+    late, twin = deferred_and_twin_faces(Grid.fit(positions, bits).quantize(positions), faces)
+    _, _, local = _core_vertices(len(positions), faces, late)
+    assert np.array_equal(twin_faces(local[faces[~late]]), twin[~late])
+    assert late.any()

@@ -32,7 +32,7 @@ from functools import cached_property
 import numpy as np
 
 from ..errors import FormatError, LimitError
-from ..progressive.topology import face_keys, kernel_helper
+from ..progressive.topology import compiled, face_keys, kernel_helper
 from ..progressive.vsplit import SplitBatch, SplitTopology, _ring_lists
 from . import rangecoder as rc
 from .rangecoder import INT_BLOCK, INT_DECISIONS
@@ -724,17 +724,62 @@ def _encode_batch(enc, state, batch, lists) -> None:
                                           enc.out, _NO_STATE, _NO_BYTES, enc.probs, 0)
     if corners != len(symbols) or (corners and int(symbols.max()) >= 5):
         raise ValueError("payload v2: the batch's symbols do not match the mesh's incidences")
-    sym = np.empty(corners, np.uint8)
-    sym[np.argsort(inc[:corners])] = symbols  # face-slot order -> grouped by split
+    sym = _grouped_symbols(inc[:corners], symbols)
     new_faces, lists.pool = rc._kernel(_batch_kernel)(state.faces.reshape(-1), m, n, state.positions, v,
                                                       *lists.batch_arrays(), inc[:corners], a[:corners], b[:corners],
-                                                      sym, gstart[: k + 1],
-                                          np.empty((k, D)), np.empty(k, np.int64), res, enc.es, enc.out, _NO_STATE,
-                                          _NO_BYTES, enc.probs, 0)
+                                                      sym, gstart[: k + 1], np.empty((k, D)), np.empty(k, np.int64),
+                                                      res, enc.es, enc.out, _NO_STATE, _NO_BYTES, enc.probs, 0)
     if new_faces < 0:
         raise ValueError(f"payload v2: {_BATCH_ERRORS[new_faces]}")
     state.n, state.m = n + k, m + new_faces
     lists.n, lists.m = state.n, state.m
+
+
+#: Digit width of :func:`_grouped_symbols_kernel`'s radix sort.
+RADIX_BITS = 11
+
+
+def _grouped_symbols(inc: np.ndarray, symbols: np.ndarray) -> np.ndarray:
+    """(I,) uint8: the ``symbols`` (I,) of the incidences in face-slot order (ascending corner) moved to the
+    order of ``inc`` (I,) int64, their distinct corners grouped by split (``sym[argsort(inc)] = symbols``)."""
+    kernel = compiled(_grouped_symbols_kernel)
+    if kernel is not None:
+        return kernel(inc, np.asarray(symbols, np.uint8))
+    sym = np.empty(len(inc), np.uint8)
+    sym[np.argsort(inc)] = symbols
+    return sym
+
+
+def _grouped_symbols_kernel(inc, symbols):
+    """Compiled :func:`_grouped_symbols`: the order of the corners ``inc`` (distinct, so any sort gives the
+    same one) by a least-significant-digit radix sort, :data:`RADIX_BITS` bits a pass, O(I) each."""
+    k = len(inc)
+    top = 0
+    for t in range(k):
+        top = max(top, inc[t])
+    key = inc.copy()
+    order = np.arange(k)
+    key2, order2 = np.empty(k, np.int64), np.empty(k, np.int64)
+    size = 1 << RADIX_BITS
+    start = np.empty(size + 1, np.int64)
+    shift = 0
+    while shift == 0 or (top >> shift) > 0:
+        start[:] = 0
+        for t in range(k):
+            start[((key[t] >> shift) & (size - 1)) + 1] += 1
+        for d in range(size):
+            start[d + 1] += start[d]
+        for t in range(k):
+            d = (key[t] >> shift) & (size - 1)
+            key2[start[d]], order2[start[d]] = key[t], order[t]
+            start[d] += 1
+        key, key2 = key2, key
+        order, order2 = order2, order
+        shift += RADIX_BITS
+    sym = np.empty(k, np.uint8)
+    for j in range(k):
+        sym[order[j]] = symbols[j]
+    return sym
 
 
 def pack_chunks(state, chunks) -> list:

@@ -176,23 +176,52 @@ def _insert(by, bh, k, y, he):
 
 @kernel_helper(allocates=True)
 def _edges_by_vertex(F, n, vf_start, vf_corner, ring):
-    """Kernel part of :func:`_live_mesh_kernel`: the edge table of ``F`` built vertex by vertex.
+    """Kernel part of :func:`_live_mesh_kernel`: the edge table of ``F`` built vertex by vertex
+    (:func:`_vertex_edges`).
 
-    Every vertex ``x`` in turn gathers the half-edges of its corners that run to or from a higher
-    vertex ``y`` (and its own outgoing self-loops), sorted by (y, half-edge): its edges as the low
-    end, in edge order.  Returns ``(lo, hi, count, he0, he1)`` (e,) int64 as in
-    :class:`~.topology.EdgeTable` and ``down`` (n,) int64 (edges where each vertex is the high end).
+    Returns ``(lo, hi, count, he0, he1)`` (e,) int64 as in :class:`~.topology.EdgeTable` and ``down``
+    (n,) int64 (edges where each vertex is the high end).  The edge arrays are views of arrays sized
+    for a closed mesh's edges and a little more (grown by half when short), not for every half-edge
+    (about twice the edges), which views would keep alive with the live mesh (+137 MB peak on a
+    1.1M-vertex encode); nor copies (5-8 % of the live mesh's time).
     """
     h = 3 * len(F)
-    lo, hi, count = np.empty(h, np.int64), np.empty(h, np.int64), np.empty(h, np.int64)
-    he0, he1 = np.empty(h, np.int64), np.empty(h, np.int64)
+    cap = min(h, h // 2 + h // 32 + 16)
+    lo, hi, count = np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.int64)
+    he0, he1 = np.empty(cap, np.int64), np.empty(cap, np.int64)
     down = np.zeros(n, np.int64)
     wmax = 0
     for x in range(n):
         wmax = max(wmax, vf_start[x + 1] - vf_start[x])
     by, bh = np.empty(2 * wmax, np.int64), np.empty(2 * wmax, np.int64)
-    ne = 0
-    for x in range(n):
+    x, ne = _vertex_edges(0, 0, n, vf_start, vf_corner, ring, by, bh, lo, hi, count, he0, he1, down)
+    while x < n:  # more boundary or non-manifold edges than that: grow (outside the vertex loop, which stays fast)
+        cap = min(h, max(cap + cap // 2, ne + 2 * wmax))
+        lo, hi, count = _grown(lo, cap, ne), _grown(hi, cap, ne), _grown(count, cap, ne)
+        he0, he1 = _grown(he0, cap, ne), _grown(he1, cap, ne)
+        x, ne = _vertex_edges(x, ne, n, vf_start, vf_corner, ring, by, bh, lo, hi, count, he0, he1, down)
+    return lo[:ne], hi[:ne], count[:ne], he0[:ne], he1[:ne], down
+
+
+@kernel_helper(allocates=True)
+def _grown(a, cap, k):
+    """A (cap,) array holding ``a``'s first ``k`` entries (the rest uninitialised)."""
+    out = np.empty(cap, a.dtype)
+    out[:k] = a[:k]
+    return out
+
+
+@kernel_helper
+def _vertex_edges(x0, ne, n, vf_start, vf_corner, ring, by, bh, lo, hi, count, he0, he1, down):
+    """Kernel part of :func:`_edges_by_vertex`: the edges of the vertices from ``x0`` on, written from
+    entry ``ne`` on of ``lo`` / ``hi`` / ``count`` / ``he0`` / ``he1`` (each (cap,) int64; ``down`` (n,)
+    counted), until the next vertex's would not fit: returns ``(x, ne)``, the first vertex not written
+    (``n``: none left) and the edges written.
+
+    Every vertex ``x`` in turn gathers the half-edges of its corners that run to or from a higher
+    vertex ``y`` (and its own outgoing self-loops), sorted by (y, half-edge) in ``by`` / ``bh``
+    (scratch, 2 * the largest face count): its edges as the low end, in edge order."""
+    for x in range(x0, n):
         k = 0
         for p in range(vf_start[x], vf_start[x + 1]):
             hc = vf_corner[p]
@@ -203,6 +232,8 @@ def _edges_by_vertex(F, n, vf_start, vf_corner, ring):
             if y2 > x:  # half-edge y2 -> x: the face's previous corner
                 _insert(by, bh, k, y2, hc + 2 if hc % 3 == 0 else hc - 1)
                 k += 1
+        if ne + k > len(lo):
+            return x, ne
         j = 0
         while j < k:
             s = j
@@ -213,9 +244,7 @@ def _edges_by_vertex(F, n, vf_start, vf_corner, ring):
             he1[ne] = bh[s + 1] if j - s >= 2 else -1
             down[by[s]] += 1
             ne += 1
-    # copies, not views: a view would keep the arrays sized for every corner (about twice the edges)
-    # alive with the live mesh (+137 MB peak on a 1.1M-vertex encode, for <1% of its time)
-    return lo[:ne].copy(), hi[:ne].copy(), count[:ne].copy(), he0[:ne].copy(), he1[:ne].copy(), down
+    return n, ne
 
 
 def _live_mesh_kernel(corners, face_alive, vert_alive, vids0, fids0, loc):

@@ -84,13 +84,39 @@ def local_groups(weld: np.ndarray, vids: np.ndarray, loc: np.ndarray) -> np.ndar
     smallest id) lives as long as any copy does (seam vertices die in pairs); a dead one
     would only make its copies singletons.
     """
+    kernel = compiled(_local_groups_kernel)
+    if kernel is not None:
+        return kernel(weld, vids, loc)
     g = loc[weld[vids]]
     return np.where(g >= 0, g, np.arange(len(vids)))
 
 
+def _local_groups_kernel(weld, vids, loc):
+    """Compiled :func:`local_groups` (one pass, no (n,) temporaries)."""
+    g = np.empty(len(vids), np.int64)
+    for i in range(len(vids)):
+        x = loc[weld[vids[i]]]
+        g[i] = x if x >= 0 else i
+    return g
+
+
 def seam_mask(g: np.ndarray) -> np.ndarray:
     """(n,) bool: live vertices whose position another live vertex shares (``g`` from :func:`local_groups`)."""
+    kernel = compiled(_seam_mask_kernel)
+    if kernel is not None:
+        return kernel(g)
     return np.bincount(g, minlength=len(g))[g] > 1
+
+
+def _seam_mask_kernel(g):
+    """Compiled :func:`seam_mask`: the group sizes counted, then read back."""
+    size = np.zeros(len(g), np.int64)
+    for x in g:
+        size[x] += 1
+    out = np.empty(len(g), np.bool_)
+    for i in range(len(g)):
+        out[i] = size[g[i]] > 1
+    return out
 
 
 def pair_up(hu, hv, he, g, et, src, dst, opp, vv) -> tuple:

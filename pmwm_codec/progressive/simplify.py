@@ -575,7 +575,7 @@ def _seam_pairs(Q, src, dst, frozen, seam, g, mesh):
     (pair ``k`` is rows ``k`` and ``p + k``).
     """
     et, F, P, opp, fcount, vv, vf, _, _ = mesh
-    halves = _candidates(mesh, Q, src, frozen | ~seam)
+    halves = _candidates(mesh, Q, src, frozen | ~seam, rows=np.flatnonzero(seam & ~frozen))
     if halves is None:
         return None
     hu, hv, he, hcost = halves
@@ -598,8 +598,30 @@ def _unblocked(cand, pairs, vv, n):
     if cand is None:
         return None
     no_remove, no_keep = seams.blocked_by(pairs[0], pairs[1], vv, n)
+    kernel = compiled(_unblocked_kernel)
+    if kernel is not None:
+        out = kernel(*cand, no_remove, no_keep)
+        return out if len(out[0]) else None
     keep = ~no_remove[cand[0]] & ~no_keep[cand[1]]
     return tuple(x[keep] for x in cand) if keep.any() else None
+
+
+def _unblocked_kernel(cu, cv, ce, cost, no_remove, no_keep):
+    """Compiled end of :func:`_unblocked`: the rows (a,) of the four (c,) candidate arrays whose removed vertex
+    is not in ``no_remove`` (n,) bool and kept vertex not in ``no_keep`` (n,) bool, in one pass to mark them and
+    one to copy them (not four masked gathers)."""
+    keep = np.empty(len(cu), np.bool_)
+    k = 0
+    for i in range(len(cu)):
+        keep[i] = not no_remove[cu[i]] and not no_keep[cv[i]]
+        k += keep[i]
+    out = (np.empty(k, np.int64), np.empty(k, np.int64), np.empty(k, np.int64), np.empty(k, np.float64))
+    j = 0
+    for i in range(len(cu)):
+        if keep[i]:
+            out[0][j], out[1][j], out[2][j], out[3][j] = cu[i], cv[i], ce[i], cost[i]
+            j += 1
+    return out
 
 
 def _merge_pairs(cand, win, pairs, budget):
@@ -697,14 +719,15 @@ def _to_original(table, local):
     return np.where(local >= 0, table[np.maximum(local, 0)], -1)
 
 
-def _candidates(mesh, Q, src, frozen_ext, twins=None):
+def _candidates(mesh, Q, src, frozen_ext, twins=None, rows=None):
     """Candidate collapses on the local mesh, grouped by removed vertex, cheapest first.
 
     ``mesh`` as in :func:`_ordinary_winners`, Q (n, 10) quadrics, ``src`` (3m,) the half-edge
     sources, frozen_ext (n,) bool, ``twins`` the doubled faces' edges and counts
     (:func:`_twin_counts`; None: none).  Returns ``(cu, cv, ce, cost)`` ((c,) int64 removed vertex,
     kept vertex, edge; (c,) float64 quadric cost), at most ``TRIES`` per removed vertex, or None
-    when there is none.
+    when there is none.  ``rows`` (r,) int64, ascending: the only vertices ``frozen_ext`` leaves free,
+    when they are few (the compiled kernel then visits only them); None: every vertex.
     """
     et, F, P, _, fcount, vv, _, vv_edge, _ = mesh
     n = len(P)
@@ -713,7 +736,7 @@ def _candidates(mesh, Q, src, frozen_ext, twins=None):
     kernel = compiled(_candidates_kernel)
     if kernel is not None:
         cu, cv, ce, cost = kernel(vv[0], vv[1], vv_edge, et.lo, et.hi, et.count, et.he0, et.he1, src, fcount,
-                                  frozen_ext, twins[0], twins[1], Q, P, TRIES)
+                                  frozen_ext, twins[0], twins[1], Q, P, TRIES, rows)
         return (cu, cv, ce, cost) if len(cu) else None
     # (Q_u + Q_v)(p_v) = Q_u(p_v) + Q_v(p_v); the second term is one value per vertex
     own = quadric_error(Q, P)
@@ -728,35 +751,54 @@ def _candidates(mesh, Q, src, frozen_ext, twins=None):
 
 
 def _candidates_kernel(vv_start, vv_nbr, vv_edge, lo, hi, count, he0, he1, src, fcount, frozen_ext, twin_edge, extra,
-                       Q, P, tries):
+                       Q, P, tries, rows):
     """Compiled :func:`_candidates` (same arrays, same order), one vertex at a time.
 
     A vertex's row of the neighbour CSR lists its edges in the order :func:`_usable` meets them
     (edges where it is the low end, then where it is the high end, each in edge order), so the
     usable collapses of ``u`` are its row minus the excluded edges, sorted stably by cost as in
-    :func:`_cheapest_per_group` (NaN last).
+    :func:`_cheapest_per_group` (NaN last).  ``rows``: None, every vertex (one pass over the vertices
+    for their own quadric errors, one over the edges for the boundary and bad edges at each vertex),
+    or (r,) int64, ascending, the vertices to visit (those counted from the rows' own edges, the errors
+    of their neighbours only: the cost is the rows', not the mesh's; a separate compilation).
     """
     n = len(fcount)
-    out_u = np.empty(tries * n, np.int64)
-    out_v = np.empty(tries * n, np.int64)
-    out_e = np.empty(tries * n, np.int64)
-    out_c = np.empty(tries * n, np.float64)
-    width = int(np.max(np.diff(vv_start))) if n else 0
+    r = n if rows is None else len(rows)
+    out_u = np.empty(tries * r, np.int64)
+    out_v = np.empty(tries * r, np.int64)
+    out_e = np.empty(tries * r, np.int64)
+    out_c = np.empty(tries * r, np.float64)
+    if rows is None:
+        width = int(np.max(np.diff(vv_start))) if n else 0
+    else:
+        width = 0
+        for u in rows:
+            width = max(width, vv_start[u + 1] - vv_start[u])
     buf_p = np.empty(width, np.int64)  # row positions of u's usable collapses, by cost
     buf_c = np.empty(width, np.float64)  # their costs
     own = np.empty(n, np.float64)  # quadric_error(Q, P), vertex by vertex
-    for x in range(n):
-        own[x] = _quadric_at(_quadric_row(Q, x), P, x)
     bvc = np.zeros(n, np.int64)  # boundary edges at each vertex
     badv = np.zeros(n, np.bool_)  # a non-manifold or inconsistently oriented edge at the vertex
-    for e in range(len(lo)):
-        if count[e] == 1:
-            bvc[lo[e]] += 1
-            bvc[hi[e]] += 1
-        if (count[e] > 2 and not twin_edge[e]) or (count[e] == 2 and src[he0[e]] == src[he1[e]]):
-            badv[lo[e]] = badv[hi[e]] = True
+    if rows is None:
+        for x in range(n):
+            own[x] = _quadric_at(_quadric_row(Q, x), P, x)
+        for e in range(len(lo)):
+            if count[e] == 1:
+                bvc[lo[e]] += 1
+                bvc[hi[e]] += 1
+            if (count[e] > 2 and not twin_edge[e]) or (count[e] == 2 and src[he0[e]] == src[he1[e]]):
+                badv[lo[e]] = badv[hi[e]] = True
+    else:
+        for u in rows:  # an edge is in the rows of both its ends (a self-loop twice in its vertex's)
+            for p in range(vv_start[u], vv_start[u + 1]):
+                e, x = vv_edge[p], vv_nbr[p]
+                own[x] = _quadric_at(_quadric_row(Q, x), P, x)
+                bvc[u] += count[e] == 1
+                if (count[e] > 2 and not twin_edge[e]) or (count[e] == 2 and src[he0[e]] == src[he1[e]]):
+                    badv[u] = True
     k = 0
-    for u in range(n):
+    for i in range(r):
+        u = i if rows is None else rows[i]
         a, b = vv_start[u], vv_start[u + 1]
         if badv[u] or frozen_ext[u]:
             continue
@@ -999,6 +1041,9 @@ def _twin_counts(et, F, twin, n):
     twin_edge = np.zeros(len(et.keys), bool)
     if twin is None or not twin.any():
         return twin_edge, np.zeros(n, np.int64)
+    kernel = compiled(_twin_counts_kernel)
+    if kernel is not None:
+        return kernel(F, twin, et.keys, et.lo, et.hi, et.count, n)
     Ft = F[twin]
     ids = np.concatenate([et.find(Ft[:, j], Ft[:, (j + 1) % 3]) for j in range(3)])
     on_edge = np.bincount(ids, minlength=len(et.keys))
@@ -1006,6 +1051,33 @@ def _twin_counts(et, F, twin, n):
     twin_edge = (on_edge == 2) & ((et.count == 4) | free)
     po = np.bincount(np.concatenate([et.lo[free], et.hi[free]]), minlength=n)
     return twin_edge, np.bincount(Ft.ravel(), minlength=n) - po
+
+
+def _twin_counts_kernel(F, twin, keys, lo, hi, count, n):
+    """Compiled :func:`_twin_counts` (the same two arrays) in two passes over the doubled faces ``twin`` (m,)
+    bool of ``F`` (m, 3) int64, their edges found by a binary search of the edge table's sorted ``keys`` (e,):
+    the doubled faces on each edge and the corners on each vertex, then each edge with two of them once."""
+    on_edge = np.zeros(len(keys), np.int64)
+    extra = np.zeros(n, np.int64)
+    for f in range(len(F)):
+        if twin[f]:
+            for j in range(3):
+                a, b = F[f, j], F[f, (j + 1) % 3]
+                on_edge[np.searchsorted(keys, min(a, b) * n + max(a, b))] += 1
+                extra[a] += 1
+    twin_edge = np.zeros(len(keys), np.bool_)
+    for f in range(len(F)):
+        if twin[f]:
+            for j in range(3):
+                a, b = F[f, j], F[f, (j + 1) % 3]
+                e = np.searchsorted(keys, min(a, b) * n + max(a, b))
+                if on_edge[e] == 2:
+                    on_edge[e] = -1  # counted once
+                    twin_edge[e] = count[e] == 4 or count[e] == 2
+                    if count[e] == 2:  # a flap's free edge
+                        extra[lo[e]] -= 1
+                        extra[hi[e]] -= 1
+    return twin_edge, extra
 
 
 def _usable(F, et, src, frozen_ext, twins, n):
@@ -1406,7 +1478,7 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
         if not won.any():
             break
         wg, wo = groups[won], offer[won]
-        keep = ~_round_conflicts(cu[wo], cv[wo], rank[wo], flags, scratch, vv_start, vv_nbr, big)
+        keep = ~_round_conflicts(cu[wo], cv[wo], rank[wo], flags, scratch, vv_start, vv_nbr, big, n_out > 0)
         ok = np.zeros(len(wo), np.bool_)
         idx = wo[keep]
         ok[keep] = _legal_kernel(cu[idx], cv[idx], ce[idx], vv_edge, count, he0, he1, F, P, opp, fcount,
@@ -1431,6 +1503,15 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
 
 
 @kernel_helper
+def _nbr_flagged(vv_start, vv_nbr, flags, row):
+    """Whether a neighbour ``x`` of ``row`` has ``flags[x]`` (stops at the first)."""
+    for p in range(vv_start[row], vv_start[row + 1]):
+        if flags[vv_nbr[p]]:
+            return True
+    return False
+
+
+@kernel_helper
 def _nbr_below(vv_start, vv_nbr, values, row, limit):
     """Whether a neighbour ``x`` of ``row`` has ``values[x] < limit`` (the smallest of them ``< limit``,
     found without scanning the whole row once one is)."""
@@ -1441,15 +1522,15 @@ def _nbr_below(vv_start, vv_nbr, values, row, limit):
 
 
 @kernel_helper(allocates=True)
-def _round_conflicts(u, v, r, flags, scratch, vv_start, vv_nbr, big):
-    """Kernel part of :func:`_select_kernel`: :func:`_conflicts` of one round's winners (w,) -> (w,) bool."""
+def _round_conflicts(u, v, r, flags, scratch, vv_start, vv_nbr, big, any_chosen=True):
+    """Kernel part of :func:`_select_kernel`: :func:`_conflicts` of one round's winners (w,) -> (w,) bool.
+    ``any_chosen``: False when no collapse is chosen yet (``flags`` all False), which skips the rows'
+    scans against the chosen ones; each scan stops at the first conflict it finds."""
     loses = np.zeros(len(u), np.bool_)
     for i in range(len(u)):
-        loses[i] = flags[1, v[i]] or flags[0, v[i]]
-        for p in range(vv_start[u[i]], vv_start[u[i] + 1]):
-            loses[i] |= flags[1, vv_nbr[p]]
-        for p in range(vv_start[v[i]], vv_start[v[i] + 1]):
-            loses[i] |= flags[0, vv_nbr[p]]
+        if any_chosen:
+            loses[i] = flags[1, v[i]] or flags[0, v[i]] or _nbr_flagged(vv_start, vv_nbr, flags[1], u[i]) \
+                or _nbr_flagged(vv_start, vv_nbr, flags[0], v[i])
         scratch[1, u[i]] = r[i]
         scratch[2, v[i]] = min(scratch[2, v[i]], r[i])
     for i in range(len(u)):
@@ -1469,7 +1550,12 @@ def _offer_ranks(cu, cost):
     (flat CAD regions, all zero) let only a few local minima win each round.
     """
     c = len(cu)
-    bucket = np.floor(2.0 * np.log2(cost + 1e-12 + 1e-9 * float(cost.max(initial=0.0)))).astype(np.int64)
+    # floor(2 log2(cost + 1e-12 + 1e-9 max)), in place: the same values without four (c,) temporaries
+    y = cost + 1e-12
+    y += 1e-9 * float(cost.max(initial=0.0))
+    np.log2(y, out=y)
+    y *= 2.0
+    bucket = np.floor(y, out=y).astype(np.int64)
     shuffle = np.random.default_rng(c).permutation(c)
     kernel = compiled(_ranks_kernel)
     if kernel is not None:

@@ -543,7 +543,9 @@ def _quantize_and_simplify(jobs, grid_bits: int, base_vertices, say, defer_faces
             extra = dict(core=core, tips=tips, late=local[faces[late]], late_values=values[tips])
             values, positions, faces = values[core], positions[core], local[faces[~late]]
             locked = None if locked is None else locked[core]
-            twin = None  # the simplifier finds the core's own
+            # the core's own doubled faces: ``late`` takes every face of a vertex triple or none (pillows and
+            # specks are told by their vertices), so a triple keeps its face count in the core
+            twin = twin[~late]
         target = default_base_target(len(values)) if base_vertices is None else int(base_vertices)
         log = simplify(values[:, :3], faces, target_vertices=target, locked=locked, weld=weld_groups(positions),
                        twin=twin)
