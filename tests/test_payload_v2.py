@@ -163,10 +163,13 @@ def test_v2_watermark_reads_as_in_v1_and_verifies_authentic(mode):
 
 
 def _corner_sets_and_valences(lists, n: int) -> tuple:
-    """Every vertex's corners (its block, which must be ascending) and its valence."""
+    """Every vertex's corners (walking the lists, which must be ascending) and its valence."""
     corners = []
     for w in range(n):
-        got = lists.corners(w).tolist()
+        c, got = int(lists.head[w]), []
+        while c >= 0:
+            got.append(c)
+            c = int(lists.nxt[c])
         assert got == sorted(got)
         corners.append(got)
     return corners, lists.valence[:n].tolist()

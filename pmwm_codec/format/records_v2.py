@@ -70,161 +70,79 @@ def _block(b):
 # ---------------------------------------------------------------- corner lists and the selection mask
 
 
-#: The granule of a vertex's block of corners (:class:`CornerLists`): 8 int32, half a cache line.
-BLOCK = 8
-
-
 class CornerLists:
-    """Every vertex's corners (the face slots holding it), ascending, each vertex's in one block of a
-    shared pool, with every vertex's valence (spec §8.4.1): the adjacency the models read.
+    """Every vertex's corners (the face slots holding it) as ascending linked lists in preallocated
+    arrays, with every vertex's valence (spec §8.4.1): the adjacency the models read.
 
-    ``pool`` (S,) int32 the blocks; ``meta`` (N, 4) int32 rows ``(off, cnt, cap, 0)``: vertex w's
-    corners are ``pool[off : off + cnt]``, with room for ``cap`` (a multiple of :data:`BLOCK`, 0: no
-    block yet), one row (16 bytes) read for a vertex; ``top`` (1,) int64 the pool's used length.  A
-    list that outgrows its block moves to a block twice as large at the top of the pool; a full pool
-    is replaced by a larger one holding the live blocks only, in vertex order (:func:`_regrow`; the
-    kernels that append return the pool they leave).  One vertex's corners are thus one or two cache
-    lines, not a chain of scattered links.  ``valence`` (N,) int64 the number of distinct other vertices sharing a face
-    with each vertex; scratch: ``below`` (N,) int64 zeros (:data:`BELOW_BITS`), ``stamp`` / ``tag``
-    (N,) int64 with their token counter ``ctr`` (1,) int64, ``split`` (N,) uint8 zeros, ``created``
-    ((3M + 31) // 32,) int64 zeros (a bitmap over the corners, 32 bits a word) and ``creator`` (3M,)
-    int32 (:func:`_link_splits`).  N / M: the primitive's declared vertex / face counts.  ``n`` /
-    ``m``: the mesh they describe; :meth:`sync` rebuilds them (O(m)) for a mesh that changed
-    elsewhere, the decoder updates them batch by batch (O(batch)).
+    ``head`` / ``tail`` (N,) int32 first / last corner of a vertex (-1: none), ``nxt`` (3M,) int32
+    the next corner of the same vertex (-1: the last); ``valence`` (N,) int64 the number of
+    distinct other vertices sharing a face with each vertex; scratch: ``below`` (N,) int64 zeros
+    (:data:`BELOW_BITS`), ``stamp`` / ``tag`` (N,) int64 with their token counter ``ctr`` (1,)
+    int64, ``split`` (N,) uint8 zeros, ``created`` ((3M + 31) // 32,) int64 zeros (a bitmap over
+    the corners, 32 bits a word) and ``creator`` (3M,) int32 (:func:`_link_splits`).  N / M: the
+    primitive's declared vertex / face counts.  ``n`` / ``m``: the mesh they describe; :meth:`sync`
+    rebuilds them (O(m)) for a mesh that changed elsewhere, the decoder updates them batch by batch
+    (O(batch)).
     """
 
     def __init__(self, vertex_capacity: int, face_capacity: int):
         N, M = int(vertex_capacity), int(face_capacity)
-        self.pool = np.empty(3 * M + BLOCK * N + 64, np.int32)  # its pages are taken as they are used
-        self.top, self.meta = np.zeros(1, np.int64), np.zeros((N, 4), np.int32)
+        self.head, self.tail = np.full(N, -1, np.int32), np.full(N, -1, np.int32)
+        self.nxt = np.full(3 * M, -1, np.int32)  # corners < 3 * MAX_FACES < 2**31
         self.valence, self.tag, self.split = np.zeros(N, np.int64), np.zeros(N, np.int64), np.zeros(N, np.uint8)
         self.below, self.stamp, self.ctr = np.zeros(N, np.int64), np.zeros(N, np.int64), np.zeros(1, np.int64)
         self.created, self.creator = np.zeros((3 * M + 31) // 32, np.int64), np.empty(3 * M, np.int32)
         self.n = self.m = -1
-        self.corner_capacity = 3 * M
 
     def fits(self, state) -> bool:
-        return len(self.meta) == len(state.positions) and self.corner_capacity == 3 * len(state.faces)
+        return len(self.head) == len(state.positions) and len(self.nxt) == 3 * len(state.faces)
 
     def sync(self, state) -> None:
         """Describe ``state``'s current mesh (rebuilt unless it is the mesh they already describe)."""
         if (self.n, self.m) != (state.n, state.m):
-            self.pool = rc._kernel(_corner_lists_kernel)(state.faces[: state.m].reshape(-1), state.n, self.pool,
-                                                         self.meta, self.top, self.valence, self.stamp, self.ctr)
+            rc._kernel(_corner_lists_kernel)(state.faces[: state.m].reshape(-1), state.n, self.head, self.tail,
+                                             self.nxt, self.valence, self.stamp, self.ctr)
             self.n, self.m = state.n, state.m
 
-    def mask_arrays(self) -> tuple:
-        """What :func:`_mask_kernel` reads of them: ``(pool, meta, valence, below)``."""
-        return self.pool, self.meta, self.valence, self.below
 
-    def batch_arrays(self) -> tuple:
-        """What :func:`_batch_kernel` updates: ``(pool, meta, top, valence, stamp, tag, split,
-        created, creator, ctr)``; it returns the pool to keep."""
-        return (self.pool, self.meta, self.top, self.valence, self.stamp, self.tag, self.split,
-                self.created, self.creator, self.ctr)
-
-    def corners(self, w: int) -> np.ndarray:
-        """Vertex ``w``'s corners, ascending: (c,) int32 (a view of the pool)."""
-        o, c = self.meta[w, 0], self.meta[w, 1]
-        return self.pool[o : o + c]
-
-
-def _corner_lists_kernel(flat, n, pool, meta, top, valence, stamp, ctr):
-    """Build the blocks of :class:`CornerLists` for the faces ``flat`` (3m,) over ``n`` vertices (the
-    other vertices get none) in ``pool``, or in a new pool if they need more room; returns the pool."""
-    for w in range(len(meta)):
-        meta[w, 1] = 0
-        meta[w, 2] = 0
-    for c in range(len(flat)):
-        meta[flat[c], 1] += 1
-    used = 0
+def _corner_lists_kernel(flat, n, head, tail, nxt, valence, stamp, ctr):
+    """Build the lists of :class:`CornerLists` for the faces ``flat`` (3m,) over ``n`` vertices."""
     for w in range(n):
-        meta[w, 0] = used
-        meta[w, 2] = _cap_for(meta[w, 1])
-        used += meta[w, 2]
-        meta[w, 1] = 0
-    if used > len(pool):
-        pool = np.empty(used + used // 2 + 64, np.int32)
+        head[w] = -1
+        tail[w] = -1
     for c in range(len(flat)):
-        w = flat[c]
-        pool[meta[w, 0] + meta[w, 1]] = c
-        meta[w, 1] += 1
-    top[0] = used
+        _append_corner(flat[c], c, head, tail, nxt)
     for w in range(n):
-        valence[w] = _valence(w, flat, pool, meta, stamp, ctr)
-    return pool
+        valence[w] = _valence(w, flat, head, nxt, stamp, ctr)
+    return 0
 
 
 @kernel_helper
-def _cap_for(c):
-    """The block for ``c`` corners: the multiple of :data:`BLOCK` above ``c`` (one spare slot at least)."""
-    return BLOCK * ((c + BLOCK) // BLOCK)
-
-
-@kernel_helper(allocates=True)
-def _regrow(pool, meta, top, nlive, need):
-    """A new pool holding the blocks of the vertices ``0 .. nlive - 1`` that have one, in vertex order,
-    each resized to :func:`_cap_for` its corners, with room for ``need`` more slots (and half the
-    live size again); ``meta``'s offsets and room and ``top`` follow.  Returns it."""
-    live = 0
-    for w in range(nlive):
-        if meta[w, 2] > 0:
-            live += _cap_for(meta[w, 1])
-    new = np.empty(live + live // 2 + need + 64, np.int32)
-    p = 0
-    for w in range(nlive):
-        if meta[w, 2] > 0:
-            o, c = meta[w, 0], meta[w, 1]
-            for j in range(c):
-                new[p + j] = pool[o + j]
-            meta[w, 0], meta[w, 2] = p, _cap_for(c)
-            p += meta[w, 2]
-    top[0] = p
-    return new
+def _append_corner(w, c, head, tail, nxt):
+    """Put corner ``c`` (larger than every corner of ``w``'s list) at the end of ``w``'s list."""
+    nxt[c] = -1
+    if head[w] < 0:
+        head[w] = c
+    else:
+        nxt[tail[w]] = c
+    tail[w] = c
 
 
 @kernel_helper
-def _relocate(w, size, pool, meta, top):
-    """Move ``w``'s corners to a block of ``size`` slots at the top of the pool, which has room for it."""
-    o, p = meta[w, 0], top[0]
-    for j in range(meta[w, 1]):
-        pool[p + j] = pool[o + j]
-    meta[w, 0], meta[w, 2] = p, size
-    top[0] = p + size
-
-
-@kernel_helper
-def _append(w, c, pool, meta, top):
-    """Put corner ``c`` (larger than every corner of ``w``'s list) at the end of ``w``'s list, its block
-    moved to twice the room first when full (the pool has room for that)."""
-    if meta[w, 1] == meta[w, 2]:
-        _relocate(w, 2 * meta[w, 2] if meta[w, 2] > 0 else BLOCK, pool, meta, top)
-    pool[meta[w, 0] + meta[w, 1]] = c
-    meta[w, 1] += 1
-
-
-@kernel_helper
-def _others(c):
-    """The corners after and before corner ``c`` in its face: ``(c + 1, c + 2)`` rotated into the face.
-    ``c < 2**31``: ``c // 3`` by a multiplication (exact for every ``c < 2**32``)."""
-    c = np.int64(c)
-    r = c - 3 * ((c * 0xAAAAAAAB) >> 33)
-    return (c + 1 if r < 2 else c - 2), (c - 1 if r > 0 else c + 2)
-
-
-@kernel_helper
-def _valence(w, flat, pool, meta, stamp, ctr):
+def _valence(w, flat, head, nxt, stamp, ctr):
     """|N(w)|: the distinct vertices other than ``w`` sharing a face with it."""
     token = ctr[0] + 1
     ctr[0] = token
     valence = 0
-    o = meta[w, 0]
-    for j in range(meta[w, 1]):
-        c1, c2 = _others(pool[o + j])
-        for x in (flat[c1], flat[c2]):
+    c = head[w]
+    while c >= 0:
+        f3 = c - c % 3
+        for j in range(3):
+            x = flat[f3 + j]
             if x != w and stamp[x] != token:
                 stamp[x] = token
                 valence += 1
+        c = nxt[c]
     return valence
 
 
@@ -234,17 +152,17 @@ BELOW_BITS = 2
 
 
 @kernel_helper
-def _mark_above(w, t, flat, pool, meta, below, inc, a, b):
+def _mark_above(w, t, flat, head, nxt, below, inc, a, b):
     """List ``w``'s corners from ``t`` on as its split's incidences (:func:`_batch_kernel`) and
     count ``w`` in ``below`` (:data:`BELOW_BITS`) once for each distinct neighbour ``x > w``;
     returns the next ``t``."""
     start = t
-    o = meta[w, 0]
-    for j in range(meta[w, 1]):  # no branch on what the faces hold: the face loads of the corners overlap
-        c = pool[o + j]
-        c1, c2 = _others(c)
-        inc[t], a[t], b[t] = c, flat[c1], flat[c2]
+    c = head[w]
+    while c >= 0:  # no branch on what the faces hold: the face loads of the corners overlap
+        f3 = c - c % 3
+        inc[t], a[t], b[t] = c, flat[f3 + (c + 1) % 3], flat[f3 + (c + 2) % 3]
         t += 1
+        c = nxt[c]
     mark = (w + 1) << BELOW_BITS
     for s in range(start, t):
         for z in (a[s], b[s]):
@@ -253,8 +171,7 @@ def _mark_above(w, t, flat, pool, meta, below, inc, a, b):
     return t
 
 
-def _mask_kernel(flat, n, pool, meta, valence, below, sel, marked, gstart, inc, a, b, es, out, ds, buf, probs,
-                 decode):
+def _mask_kernel(flat, n, head, nxt, valence, below, sel, marked, gstart, inc, a, b, es, out, ds, buf, probs, decode):
     """Code (``decode`` 0, the bits ``sel`` (n,) int64) or decode (1) a batch's selection mask over the
     mesh of the corner lists (:class:`CornerLists` arrays, ``flat`` (3M,) int64 its face slots).
 
@@ -285,7 +202,7 @@ def _mask_kernel(flat, n, pool, meta, valence, below, sel, marked, gstart, inc, 
             break
         marked[k] = w
         gstart[k] = corners
-        corners = _mark_above(w, corners, flat, pool, meta, below, inc, a, b)
+        corners = _mark_above(w, corners, flat, head, nxt, below, inc, a, b)
         k += 1
     if decode:
         ds[0], ds[1], ds[2] = rng, code, pos
@@ -720,15 +637,18 @@ def _encode_batch(enc, state, batch, lists) -> None:
     symbols = np.asarray(batch.symbols)
     enc.reserve(_batch_decisions(n, len(symbols), k, D))
     marked, gstart, inc, a, b = buffers = _mask_buffers(m, k)
-    _, corners = rc._kernel(_mask_kernel)(state.faces.reshape(-1), n, *lists.mask_arrays(), sel, *buffers, enc.es,
-                                          enc.out, _NO_STATE, _NO_BYTES, enc.probs, 0)
+    _, corners = rc._kernel(_mask_kernel)(state.faces.reshape(-1), n, lists.head, lists.nxt, lists.valence,
+                                          lists.below, sel, *buffers, enc.es, enc.out, _NO_STATE, _NO_BYTES, enc.probs,
+                                          0)
     if corners != len(symbols) or (corners and int(symbols.max()) >= 5):
         raise ValueError("payload v2: the batch's symbols do not match the mesh's incidences")
     sym = _grouped_symbols(inc[:corners], symbols)
-    new_faces, lists.pool = rc._kernel(_batch_kernel)(state.faces.reshape(-1), m, n, state.positions, v,
-                                                      *lists.batch_arrays(), inc[:corners], a[:corners], b[:corners],
-                                                      sym, gstart[: k + 1], np.empty((k, D)), np.empty(k, np.int64),
-                                                      res, enc.es, enc.out, _NO_STATE, _NO_BYTES, enc.probs, 0)
+    new_faces = rc._kernel(_batch_kernel)(state.faces.reshape(-1), m, n, state.positions, v, lists.head, lists.tail,
+                                          lists.nxt, lists.valence, lists.stamp, lists.tag, lists.split, lists.created,
+                                          lists.creator, lists.ctr, inc[:corners], a[:corners], b[:corners], sym,
+                                          gstart[: k + 1],
+                                          np.empty((k, D)), np.empty(k, np.int64), res, enc.es, enc.out, _NO_STATE,
+                                          _NO_BYTES, enc.probs, 0)
     if new_faces < 0:
         raise ValueError(f"payload v2: {_BATCH_ERRORS[new_faces]}")
     state.n, state.m = n + k, m + new_faces
@@ -919,7 +839,7 @@ def _decode_batch(dec, state, lists, buffers):
     flat = state.faces.reshape(-1)
     marked, gstart, inc, a, b = buffers
     cap = len(state.positions) - n  # the marks the primitive has room for
-    k, corners = rc._kernel(_mask_kernel)(flat, n, *lists.mask_arrays(), _NO_SEL,
+    k, corners = rc._kernel(_mask_kernel)(flat, n, lists.head, lists.nxt, lists.valence, lists.below, _NO_SEL,
                                           marked[:cap], gstart[: cap + 1], inc, a, b, _NO_STATE, _NO_BYTES, dec.ds,
                                           dec.buf, dec.probs, 1)
     if k < 0:
@@ -931,9 +851,10 @@ def _decode_batch(dec, state, lists, buffers):
     D = state.positions.shape[1]
     sym = np.zeros(corners, np.uint8)
     rsum, rcount = np.empty((k, D)), np.empty(k, np.int64)
-    new_faces, lists.pool = rc._kernel(_batch_kernel)(flat, m, n, state.positions, v, *lists.batch_arrays(), inc, a,
-                                                      b, sym, gstart, rsum, rcount, _NO_RES, _NO_STATE, _NO_BYTES,
-                                                      dec.ds, dec.buf, dec.probs, 1)
+    new_faces = rc._kernel(_batch_kernel)(flat, m, n, state.positions, v, lists.head, lists.tail, lists.nxt,
+                                          lists.valence, lists.stamp, lists.tag, lists.split, lists.created,
+                                          lists.creator, lists.ctr, inc, a, b, sym, gstart, rsum, rcount, _NO_RES,
+                                          _NO_STATE, _NO_BYTES, dec.ds, dec.buf, dec.probs, 1)
     if new_faces < 0:
         raise FormatError(_BATCH_ERRORS[new_faces])
     state.n, state.m = n + k, m + new_faces
@@ -974,44 +895,43 @@ class DecodedBatch(SplitBatch):
         return self._positions[self._topo.u] - self._topo.prediction()
 
 
-def _batch_kernel(flat, m0, n0, P, v, pool, meta, top, valence, stamp, tag, split, created, creator, ctr, inc,
-                  a, b, sym, gstart, rsum, rcount, res, es, out, ds, buf, probs, decode):
+def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, split, created, creator, ctr, inc, a, b,
+                  sym, gstart, rsum, rcount, res, es, out, ds, buf, probs, decode):
     """Code (``decode`` 0) or decode (1) the connectivity and values of one batch whose split
     vertices ``v`` (k,) and incidences are known (:func:`_mask_kernel`), applying it to the face
     slots ``flat`` (3M,) int64, the values ``P`` (N, D) and the corner lists (:class:`CornerLists`
-    arrays, ``pool`` the one they hold now).  Encoding and decoding walk the same steps, so both leave the same mesh.
+    arrays).  Encoding and decoding walk the same steps, so both leave the same mesh.
 
     The incidences are grouped by split (split i's: ``[gstart[i], gstart[i+1])``, face-slot
     order within it): ``inc`` corner, ``a`` / ``b`` corners after / before the
     split vertex (all (I,) int64).  ``sym`` (I,) uint8: the symbols (encode: given, decode:
     filled).  ``res`` (k, D) int64 (encode): the new values' residuals against the version 1
     prediction, written to ``P`` before they are coded.  Fills ``rsum`` / ``rcount`` (see
-    :func:`_values_kernel`).  Returns ``(new faces or a negative code of :data:`_BATCH_ERRORS`, the pool
-    the lists hold after it)``.
+    :func:`_values_kernel`).  Returns the number of new faces, or a negative code (:data:`_BATCH_ERRORS`).
     """
     k, D = len(v), P.shape[1]
     S, ring, nrm = np.empty((k, D), np.int64), np.empty((k, 2), np.int64), np.empty((k, 3))
     arc = np.empty((k, 3), np.int64)
     if _connectivity_kernel(gstart, a, b, v, P, sym, S, ring, nrm, arc, es, out, ds, buf, probs, decode) != 0:
-        return -1, pool
-    new_faces, rewritten, pool = _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, pool, meta, top,
-                                              split, created, creator)
+        return -1
+    new_faces, rewritten = _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, head, tail, nxt, split, created,
+                                        creator)
     if new_faces < 0:
-        return new_faces, pool
+        return new_faces
     if not decode:
         for i in range(k):
             if ring[i, 0] == 0:
-                return -4, pool
+                return -4
             for q in range(D):
                 P[n0 + i, q] = S[i, q] // (2 * ring[i, 0]) + res[i, q]
     if _values_kernel(v, P, n0, S, ring, nrm, es, out, ds, buf, probs, decode, rsum, rcount) != 0:
-        return -4, pool
-    _update_valences(n0, v, a, b, sym, gstart, arc, flat, pool, meta, valence, stamp, tag, ctr, rewritten)
-    return new_faces, pool
+        return -4
+    _update_valences(n0, v, a, b, sym, gstart, arc, flat, head, nxt, valence, stamp, tag, ctr, rewritten)
+    return new_faces
 
 
 @kernel_helper(allocates=True)
-def _update_valences(n0, v, a, b, sym, gstart, arc, flat, pool, meta, valence, stamp, tag, ctr, rewritten):
+def _update_valences(n0, v, a, b, sym, gstart, arc, flat, head, nxt, valence, stamp, tag, ctr, rewritten):
     """The valences a batch changed, after its topology.  A ring vertex ``x`` of split i gains ``u``
     when a face of ``u`` holds it and loses ``v`` when no face of ``v`` holds it any more; ``v`` and
     ``u`` count the distinct ring vertices of their faces, plus each other (in O(1) for the arc of
@@ -1022,11 +942,11 @@ def _update_valences(n0, v, a, b, sym, gstart, arc, flat, pool, meta, valence, s
     if rewritten:
         for i in range(k):
             for t in range(gstart[i], gstart[i + 1]):
-                valence[a[t]] = _valence(a[t], flat, pool, meta, stamp, ctr)
-                valence[b[t]] = _valence(b[t], flat, pool, meta, stamp, ctr)
+                valence[a[t]] = _valence(a[t], flat, head, nxt, stamp, ctr)
+                valence[b[t]] = _valence(b[t], flat, head, nxt, stamp, ctr)
         for i in range(k):
-            valence[v[i]] = _valence(v[i], flat, pool, meta, stamp, ctr)
-            valence[n0 + i] = _valence(n0 + i, flat, pool, meta, stamp, ctr)
+            valence[v[i]] = _valence(v[i], flat, head, nxt, stamp, ctr)
+            valence[n0 + i] = _valence(n0 + i, flat, head, nxt, stamp, ctr)
         return
     own = np.ones((k, 2), np.int64)  # valences of u and v after the split
     near, flags = np.empty(2 * MAX_ARC_FAN, np.int64), np.empty(2 * MAX_ARC_FAN, np.int64)
@@ -1111,44 +1031,13 @@ _DE_BRUIJN = np.array([0, 1, 28, 2, 29, 14, 24, 3, 30, 22, 20, 15, 25, 17, 4, 8,
                        18, 6, 11, 5, 10, 9], np.int64)
 
 
-@kernel_helper
-def _new_faces(rows, named, flat, pool, meta, top, at):
-    """Write the new faces of the rows ``rows[at[0]:]`` of :func:`_link_splits`'s ``named`` from face slot
-    ``at[1]`` on and append their corners to the lists.  Returns False when done, True when the pool
-    has no room for the moves the next row may need: ``at`` then holds that row, its slot and the
-    room it needs."""
-    for r in range(at[0], len(rows)):
-        row = rows[r]
-        u, vv, left, right = named[row, 0], named[row, 1], named[row, 2], named[row, 3]
-        room = 2 * meta[vv, 2] + BLOCK  # u's block has room; each other list moves once at most
-        room += 0 if left < 0 else 2 * meta[left, 2] + BLOCK
-        room += 0 if right < 0 else 2 * meta[right, 2] + BLOCK
-        if top[0] + room > len(pool):
-            at[0], at[2] = r, room
-            return True
-        slot = at[1]
-        for side in range(2):  # left new face (u, v, a), right new face (v, u, b)
-            z = left if side == 0 else right
-            if z < 0:
-                continue
-            x, y = (u, vv) if side == 0 else (vv, u)
-            flat[slot], flat[slot + 1], flat[slot + 2] = x, y, z
-            _append(x, slot, pool, meta, top)
-            _append(y, slot + 1, pool, meta, top)
-            _append(z, slot + 2, pool, meta, top)
-            slot += 3
-        at[1] = slot
-    return False
-
-
 @kernel_helper(allocates=True)
-def _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, pool, meta, top, split, created, creator):
-    """Spec §6.1 steps 1-3 on the face slots and the corner lists (:class:`CornerLists` arrays): the
-    moved corners become ``u`` (and its list), the new faces are appended in face-slot order of the
-    incidences naming them.  Returns ``(new faces, rewritten, pool)``: new faces -2 when a split names
-    none or more than two, -3 when they exceed the face capacity (nothing written then); rewritten
-    True when a face held a moved corner and another corner of a split vertex
-    (:func:`_update_valences`); the pool the lists hold after it.
+def _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, head, tail, nxt, split, created, creator):
+    """Spec §6.1 steps 1-3 on the face slots and the corner lists: the moved corners become
+    ``u`` (and its list), the new faces are appended in face-slot order of the incidences naming
+    them.  Returns ``(new faces, rewritten)``: new faces -2 when a split names none or more than
+    two, -3 when they exceed the face capacity (nothing written then); rewritten True when a
+    face held a moved corner and another corner of a split vertex (:func:`_update_valences`).
     Scratch: ``split`` (N,) uint8 and ``created`` (bitmap over the corners, 32 bits in each int64
     word), zeros on entry and on return; ``creator`` (3M,) int32, at a corner naming new faces
     (read only where ``created`` has the corner's bit) the row of ``named`` that holds them, made
@@ -1156,67 +1045,65 @@ def _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, pool, meta, top, split
     the faces are written from one row each, not from the batch's arrays at scattered places."""
     k = len(v)
     new_faces = 0
-    need = 0  # the blocks of the new vertices
     for i in range(k):
-        wings, moved = 0, 0
+        wings = 0
         for t in range(gstart[i], gstart[i + 1]):
-            moved += 1 if sym[t] != 0 else 0
             if sym[t] >= 2:
                 wings += 1 if sym[t] < 4 else 2
         if wings == 0 or wings > 2:
-            return -2, False, pool
+            return -2, False
         new_faces += wings
-        need += _cap_for(moved + 2)
     if 3 * (m0 + new_faces) > len(flat):
-        return -3, False, pool
+        return -3, False
     for i in range(k):
         split[v[i]] = 1
-        meta[n0 + i, 1], meta[n0 + i, 2] = 0, 0
-    if top[0] + need > len(pool):
-        pool = _regrow(pool, meta, top, n0, need)
     rewritten = False
     lo_word, hi_word = len(created), 0
     named = np.empty((new_faces, 4), np.int64)
     j = 0
     for i in range(k):  # split i's corners, ascending: the moved ones to u, the others stay with v
-        u, vv = n0 + i, v[i]
-        ou, ov, nu, nv = top[0], meta[vv, 0], 0, 0  # u's block at the top; v's keeps the corners that stay
+        u = n0 + i
+        head[u], tail[u], head[v[i]], tail[v[i]] = -1, -1, -1, -1
         for t in range(gstart[i], gstart[i + 1]):
             c = inc[t]
             if sym[t] != 0:  # its face's other corners as they were before the batch: a[t], b[t]
                 rewritten = rewritten or split[a[t]] != 0 or split[b[t]] != 0
                 flat[c] = u
                 if sym[t] >= 2:  # names a new face: its corner goes into the bitmap
-                    named[j, 0], named[j, 1] = u, vv
+                    named[j, 0], named[j, 1] = u, v[i]
                     named[j, 2] = a[t] if sym[t] != 3 else -1
                     named[j, 3] = b[t] if sym[t] != 2 else -1
                     creator[c] = j
                     j += 1
                     created[c >> 5] |= 1 << (c & 31)
                     lo_word, hi_word = min(lo_word, c >> 5), max(hi_word, (c >> 5) + 1)
-                pool[ou + nu] = c
-                nu += 1
-            else:
-                pool[ov + nv] = c
-                nv += 1
-        meta[u, 0], meta[u, 1], meta[u, 2], meta[vv, 1] = ou, nu, _cap_for(nu + 2), nv  # room for its new faces
-        top[0] = ou + _cap_for(nu + 2)
-    rows = np.empty(j, np.int64)  # the rows of named in ascending order of their corners
-    j = 0
+            _append_corner(u if sym[t] != 0 else v[i], c, head, tail, nxt)
+    slot = 3 * m0
     for word in range(lo_word, hi_word):  # the naming corners in ascending order, the bitmap cleared
         bits = created[word]
         created[word] = 0
         while bits != 0:
             low = bits & -bits
             bits ^= low
-            rows[j] = creator[32 * word + _DE_BRUIJN[((low * 0x077CB531) & 0xFFFFFFFF) >> 27]]
-            j += 1
-    at = np.array([0, 3 * m0, 0])
-    while _new_faces(rows, named, flat, pool, meta, top, at):  # the pool ran out: a larger one
-        pool = _regrow(pool, meta, top, n0 + k, at[2])
+            row = creator[32 * word + _DE_BRUIJN[((low * 0x077CB531) & 0xFFFFFFFF) >> 27]]
+            u, vv, left, right = named[row, 0], named[row, 1], named[row, 2], named[row, 3]
+            if left >= 0:  # left new face (u, v, a)
+                slot = _new_face(slot, u, vv, left, flat, head, tail, nxt)
+            if right >= 0:  # right new face (v, u, b)
+                slot = _new_face(slot, vv, u, right, flat, head, tail, nxt)
     for i in range(k):
         split[v[i]] = 0
-    return new_faces, rewritten, pool
+    return new_faces, rewritten
+
+
+@kernel_helper
+def _new_face(slot, x, y, z, flat, head, tail, nxt):
+    """Write face (x, y, z) at face slot ``slot`` and list its corners; returns the next slot."""
+    flat[slot], flat[slot + 1], flat[slot + 2] = x, y, z
+    _append_corner(x, slot, head, tail, nxt)
+    _append_corner(y, slot + 1, head, tail, nxt)
+    _append_corner(z, slot + 2, head, tail, nxt)
+    return slot + 3
 
 
 # ---------------------------------------------------------------- face chunks (spec §8.6)
@@ -1247,7 +1134,7 @@ def _face_block(b):
 
 
 @kernel_helper
-def _neighbours_above(w, above, flat, pool, meta, stamp, ctr, out):
+def _neighbours_above(w, above, flat, head, nxt, stamp, ctr, out):
     """The distinct vertices ``x > above``, ``x != w``, sharing a face with ``w``, written ascending to
     ``out`` (scratch, at least ``|N(w)|`` long); returns their number.  ``w`` and every vertex
     sharing a face with it get ``stamp`` = the new token ``ctr[0]``."""
@@ -1255,10 +1142,11 @@ def _neighbours_above(w, above, flat, pool, meta, stamp, ctr, out):
     ctr[0] = token
     stamp[w] = token
     k = 0
-    o = meta[w, 0]
-    for i in range(meta[w, 1]):
-        c1, c2 = _others(pool[o + i])
-        for x in (flat[c1], flat[c2]):
+    c = head[w]
+    while c >= 0:
+        f3 = c - c % 3
+        for j in range(3):
+            x = flat[f3 + j]
             if stamp[x] != token:
                 stamp[x] = token
                 if x > above:
@@ -1268,18 +1156,19 @@ def _neighbours_above(w, above, flat, pool, meta, stamp, ctr, out):
                         t -= 1
                     out[t] = x
                     k += 1
+        c = nxt[c]
     return k
 
 
 @kernel_helper
-def _up_list(a, flat, pool, meta, stamp, ctr, up):
+def _up_list(a, flat, head, nxt, stamp, ctr, up):
     """``Up(a)`` (spec §8.6) into ``up``: the distinct vertices ``x > a`` sharing a face with ``a``,
     ascending; returns their number."""
-    return _neighbours_above(a, a, flat, pool, meta, stamp, ctr, up)
+    return _neighbours_above(a, a, flat, head, nxt, stamp, ctr, up)
 
 
 @kernel_helper
-def _near_list(a, b, n, up, k, flat, pool, meta, tag, ctr, near):
+def _near_list(a, b, n, up, k, flat, head, nxt, tag, ctr, near):
     """``Near(a, b)`` (spec §8.6) into ``near``: the vertices ``x > a``, ``x != b`` sharing a face with
     ``b``, ascending, then those of ``up[:k]`` (``Up(a)``) other than ``b`` sharing none; returns
     their number.  A new vertex ``b >= n`` has no face yet: ``Near(a, b)`` is ``Up(a)``."""
@@ -1287,7 +1176,7 @@ def _near_list(a, b, n, up, k, flat, pool, meta, tag, ctr, near):
         for t in range(k):
             near[t] = up[t]
         return k
-    count = _neighbours_above(b, a, flat, pool, meta, tag, ctr, near)
+    count = _neighbours_above(b, a, flat, head, nxt, tag, ctr, near)
     token = ctr[0]
     for t in range(k):
         if tag[up[t]] != token:
@@ -1306,11 +1195,11 @@ def _position(x, items, count):
 
 
 @kernel_helper
-def _fit(a, b, c, n, up, near, flat, pool, meta, stamp, tag, ctr):
+def _fit(a, b, c, n, up, near, flat, head, nxt, stamp, tag, ctr):
     """How well the coded face ``(a, b, c)`` fits the neighbour lists: 2 if ``b`` is in ``Up(a)``,
     plus 1 if ``c`` is in ``Near(a, b)``."""
-    k = _up_list(a, flat, pool, meta, stamp, ctr, up) if a < n else 0
-    count = _near_list(a, b, n, up, k, flat, pool, meta, tag, ctr, near)
+    k = _up_list(a, flat, head, nxt, stamp, ctr, up) if a < n else 0
+    count = _near_list(a, b, n, up, k, flat, head, nxt, tag, ctr, near)
     return 2 * (_position(b, up, k) >= 0) + (_position(c, near, count) >= 0)
 
 
@@ -1360,7 +1249,7 @@ def _face_vertex(near, x, a, items, count, n, t, fresh, rename, es, out, ds, buf
     return a + 1 + r
 
 
-def _face_kernel(flat, m, n, t, P, pool, meta, stamp, tag, ctr, coded, rename, up, near, es, out, ds, buf, probs,
+def _face_kernel(flat, m, n, t, P, head, nxt, stamp, tag, ctr, coded, rename, up, near, es, out, ds, buf, probs,
                  decode):
     """Code (``decode`` 0) or decode (1) a face chunk over the mesh of the corner lists (``flat`` (3M,)
     int64 face slots, ``m`` faces, ``n`` vertices; ``P`` (N, D) int64 values) adding ``t`` vertices.
@@ -1416,15 +1305,15 @@ def _face_kernel(flat, m, n, t, P, pool, meta, stamp, tag, ctr, coded, rename, u
             coded[i, 0] = a
             if coded[i, 3] == 1:
                 b, c = coded[i, 1], coded[i, 2]
-                if _fit(a, c, b, n, up, near, flat, pool, meta, stamp, tag, ctr) > _fit(a, b, c, n, up, near, flat,
-                                                                                        pool, meta, stamp, tag, ctr):
+                if _fit(a, c, b, n, up, near, flat, head, nxt, stamp, tag, ctr) > _fit(a, b, c, n, up, near, flat,
+                                                                                        head, nxt, stamp, tag, ctr):
                     coded[i, 1], coded[i, 2] = c, b
-        k = _up_list(a, flat, pool, meta, stamp, ctr, up) if a < n else 0  # a new vertex has no neighbour yet
+        k = _up_list(a, flat, head, nxt, stamp, ctr, up) if a < n else 0  # a new vertex has no neighbour yet
         b = _face_vertex(F_NEAR_B, coded[i, 1] if not decode else 0, a, up, k, n, t, fresh, rename, es, out, ds, buf,
                          probs, decode)
         if b < 0:
             return b
-        count = _near_list(a, b, n, up, k, flat, pool, meta, tag, ctr, near)
+        count = _near_list(a, b, n, up, k, flat, head, nxt, tag, ctr, near)
         c = _face_vertex(F_NEAR_C, coded[i, 2] if not decode else 0, a, near, count, n, t, fresh, rename, es, out,
                          ds, buf, probs, decode)
         if c < 0:
@@ -1566,7 +1455,7 @@ def _pack_face_chunk(state, lists, chunk: FaceChunk) -> tuple:
     up, near = _face_scratch(state)
     rename = np.full(t, -1, np.int64)
     state.positions[n : n + t] = values
-    got = rc._kernel(_face_kernel)(state.faces.reshape(-1), m, n, t, state.positions, lists.pool, lists.meta,
+    got = rc._kernel(_face_kernel)(state.faces.reshape(-1), m, n, t, state.positions, lists.head, lists.nxt,
                                    lists.stamp, lists.tag, lists.ctr, rows, rename, up, near, enc.es, enc.out,
                                    _NO_STATE, _NO_BYTES, enc.probs, 0)
     if got < 0:
@@ -1621,7 +1510,7 @@ def decode_face_chunk(payload, state, model: ChunkDecoder, vertex_step: int, fac
     dec = rc.Decoder(payload, rc.new_probs(FACE_PROBS))
     flat = state.faces[: m + room].reshape(-1)
     up, near = _face_scratch(state)
-    got = rc._kernel(_face_kernel)(flat, m, n, t, state.positions, lists.pool, lists.meta, lists.stamp, lists.tag,
+    got = rc._kernel(_face_kernel)(flat, m, n, t, state.positions, lists.head, lists.nxt, lists.stamp, lists.tag,
                                    lists.ctr, _NO_ROWS, _NO_RENAME, up, near, _NO_STATE, _NO_BYTES, dec.ds, dec.buf,
                                    dec.probs, 1)
     if got < 0:
