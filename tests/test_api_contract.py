@@ -120,3 +120,28 @@ def test_chunks_is_none_or_a_non_negative_int_everywhere(stream, chunks):
 def test_meshes_compare_by_their_arrays(stream):
     whole, again, level = pmwm_codec.decode(stream), pmwm_codec.decode(stream), pmwm_codec.decode(stream, chunks=2)
     assert whole == again and whole != level and (whole == 1) is False
+
+
+def test_an_in_memory_document_brings_its_images_not_references_to_files(tmp_path):
+    """A file on disk naming ``/etc/hostname`` is refused; the same document in memory was encoded with
+    the reference carried into the .pmw."""
+    from pmwm_codec.format.document import load_document
+
+    src = tmp_path / "m.glb"
+    pmwm_codec.write_mesh(src, MESH)
+    gltf, buffers = load_document(src)
+    for uri in ("/etc/hostname", "../x.png", "http://127.0.0.1:9/x.png", "x.png"):
+        doc = {**gltf, "images": [{"uri": uri}]}
+        with pytest.raises(InputFormatError, match="names a file"):
+            pmwm_codec.encode((doc, buffers), tmp_path / "o.pmw")
+    assert not (tmp_path / "o.pmw").exists()
+
+
+def test_verify_mesh_names_an_empty_mesh(tmp_path):
+    from pmwm_codec.errors import MeshError
+    from pmwm_codec.verify.mesh import verify_mesh
+
+    pmwm_codec.encode(MESH, tmp_path / "a.pmw", watermark=_image(0), measure="none")
+    empty = pmwm_codec.Mesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64))
+    with pytest.raises(MeshError, match="no vertices"):
+        verify_mesh(empty, tmp_path / "a.pmw", tmp_path / "a.pmw.key.json")

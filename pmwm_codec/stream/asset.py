@@ -288,6 +288,19 @@ def _lock_shared_positions(gltf: dict, jobs) -> None:
         job.locked = shared[starts[k] : starts[k + 1]]
 
 
+def _refuse_external_uris(gltf: dict) -> None:
+    """InputFormatError for an image ``uri`` of an in-memory document that is not a ``data:`` URI: such a
+    document has no folder its files could be inside, and the ``.pmw`` would carry a reference out of
+    it (``/etc/hostname``, ``../x.png``, ``http://...``) that a file on disk is refused for."""
+    images = gltf.get("images") if isinstance(gltf, dict) else None
+    for i, image in enumerate(images if isinstance(images, list) else []):
+        uri = image.get("uri") if isinstance(image, dict) else None
+        if uri is not None and not (isinstance(uri, str) and uri.startswith("data:")):
+            shown = repr(uri if not isinstance(uri, str) or len(uri) <= 80 else uri[:77] + "...")
+            raise InputFormatError(f"the asset: images[{i}].uri {shown} names a file; an in-memory document "
+                                   "holds its images (a bufferView or a data: URI)")
+
+
 def encode_asset(src, dst, *, strip_image_profiles: bool = False, **options) -> EncodeReport:
     """Encode a glTF asset (path, or ``(gltf dict, buffers)``) into a ``.pmw`` at ``dst``.
 
@@ -299,6 +312,7 @@ def encode_asset(src, dst, *, strip_image_profiles: bool = False, **options) -> 
     """
     if isinstance(src, tuple):
         gltf, buffers = copy.deepcopy(src[0]), list(src[1])
+        _refuse_external_uris(gltf)
     else:
         gltf, buffers = load_document(src)
     if is_progressive(gltf):  # a .pmw by another name: its glTF is the base mesh alone

@@ -138,6 +138,8 @@ class MeshVerification:
 
 def _as_mesh(mesh) -> Mesh:
     if isinstance(mesh, Mesh):
+        if mesh.vertex_count == 0 or mesh.face_count == 0:  # the registration's eigen-solver failed on it
+            raise MeshError("verify_mesh: the mesh has no vertices or no faces")
         return mesh
     if isinstance(mesh, (str, os.PathLike)):
         return read_mesh(mesh)
