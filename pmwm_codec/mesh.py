@@ -108,12 +108,16 @@ def checked_mesh(positions, faces, attributes=None, *, name="mesh") -> Mesh:
         tri = np.asarray(faces)
     except (TypeError, ValueError) as exc:
         raise MeshError(f"{name}: vertex or face data is not numeric ({exc})") from None
-    if pos.ndim != 2 or pos.shape[1] != 3 or pos.shape[0] == 0:
+    if pos.size and (pos.ndim != 2 or pos.shape[1] != 3):
+        raise MeshError(f"{name}: positions must be (n, 3), got shape {pos.shape}")
+    if pos.ndim != 2 or pos.shape[0] == 0:
         raise MeshError(f"{name}: the mesh has no vertices")
     if tri.size == 0:
         raise MeshError(f"{name}: the mesh has no triangles")
     if tri.ndim != 2 or tri.shape[1] != 3:
         raise MeshError(f"{name}: faces must be triangles, got shape {tri.shape}")
+    if tri.dtype.kind not in "iufb":
+        raise MeshError(f"{name}: face indices are not numbers (dtype {tri.dtype})")
     if not np.issubdtype(tri.dtype, np.integer):
         if not np.all(np.equal(np.mod(tri, 1), 0)):
             raise MeshError(f"{name}: face indices are not integers")

@@ -145,3 +145,17 @@ def test_verify_mesh_names_an_empty_mesh(tmp_path):
     empty = pmwm_codec.Mesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64))
     with pytest.raises(MeshError, match="no vertices"):
         verify_mesh(empty, tmp_path / "a.pmw", tmp_path / "a.pmw.key.json")
+
+
+@pytest.mark.parametrize("positions, faces, words", [
+    (np.zeros((3, 2)), [[0, 1, 2]], "positions must be (n, 3)"),
+    (np.zeros((1, 3, 3)), [[0, 1, 2]], "positions must be (n, 3)"),
+    (np.eye(3), np.array([["0", "1", "2"]]), "not numbers"),
+])
+def test_a_mesh_of_the_wrong_shape_or_kind_is_named_so(positions, faces, words):
+    from pmwm_codec.errors import MeshError
+    from pmwm_codec.mesh import checked_mesh
+
+    with pytest.raises(MeshError) as info:
+        checked_mesh(positions, faces)
+    assert words in str(info.value)
