@@ -15,7 +15,7 @@ import os
 from .constants import MAX_GRID_BITS, MIN_GRID_BITS
 from .errors import OptionError
 
-__all__ = ["checked_options", "check_source", "check_destination", "checked_chunks", "ENCODE_OPTIONS"]
+__all__ = ["checked_options", "check_source", "check_destination", "checked_chunks", "refuse_mesh_suffix"]
 
 
 def _int(name, lo, hi=None):
@@ -97,6 +97,7 @@ def _callable(name):
 
 
 def _options() -> dict:
+    """The check of each option :func:`pmwm_codec.encode` takes (see its docstring), by name."""
     from .format.extension import PAYLOAD_VERSIONS
     from .watermark.codec import MAX_BITS, MODES
 
@@ -112,17 +113,11 @@ def _options() -> dict:
         "owner_strength": _positive("owner_strength"),
         "min_chunk_splits": _int("min_chunk_splits", 1),
         "zstd_level": _int("zstd_level", 1, 22),
-        "payload_version": lambda v: _int("payload_version", min(PAYLOAD_VERSIONS), max(PAYLOAD_VERSIONS))(v),
+        "payload_version": _int("payload_version", min(PAYLOAD_VERSIONS), max(PAYLOAD_VERSIONS)),
         "measure": _measure,
         "strip_image_profiles": _flag("strip_image_profiles"),
         "progress": _callable("progress"),
     }
-
-
-#: The options :func:`pmwm_codec.encode` takes (see its docstring).
-ENCODE_OPTIONS = ("mode", "bits", "grid_bits", "base_codec", "base_vertices", "step_units", "embed_from", "owner_id",
-                  "owner_strength", "min_chunk_splits", "zstd_level", "payload_version", "measure",
-                  "strip_image_profiles", "progress")
 
 
 def checked_options(options: dict) -> dict:
@@ -132,7 +127,7 @@ def checked_options(options: dict) -> dict:
     out = {}
     for name, value in options.items():
         if name not in checks:
-            raise OptionError(f"unknown option {name!r} (one of {', '.join(ENCODE_OPTIONS)})")
+            raise OptionError(f"unknown option {name!r} (one of {', '.join(checks)})")
         nullable = name not in ("mode", "base_codec", "zstd_level", "payload_version", "strip_image_profiles")
         out[name] = value if value is None and nullable else checks[name](value)
     if out.get("mode") == "paper" and out.get("bits") is not None and out["bits"] < 2:
@@ -160,7 +155,6 @@ def check_destination(dst, inputs=()) -> None:
     """OptionError unless ``dst`` is a path or a binary file object (``write``); a path must not be
     ``"-"``, name one of the ``inputs`` paths, or carry another mesh format's suffix (a ``.pmw`` is a
     GLB); a key file is never its target (:func:`~pmwm_codec.watermark.key.refuse_key_target`)."""
-    from .mesh import MESH_SUFFIXES
     from .sources import shown_path
     from .watermark.key import refuse_key_target, same_path
 
@@ -171,14 +165,23 @@ def check_destination(dst, inputs=()) -> None:
     path = os.fspath(dst)
     if path == "-":
         raise OptionError("dst '-': a .pmw is written to a file or a file object, not to a name for standard output")
-    suffix = os.path.splitext(path)[1].lower()
-    if suffix in MESH_SUFFIXES and suffix != ".glb":
-        raise OptionError(f"{shown_path(path)}: a .pmw is a GLB file; name it .pmw (or .glb), not {suffix}")
+    refuse_mesh_suffix(path)
     for source in inputs:
         if _is_path(source) and same_path(source, path):
             raise OptionError(f"{shown_path(path)}: is also the input {shown_path(source)}; writing it would "
                               "replace the input")
     refuse_key_target(path, ".pmw")
+
+
+def refuse_mesh_suffix(path) -> None:
+    """OptionError when the ``.pmw`` path ``path`` carries another mesh format's suffix (``.obj``, ``.ply``,
+    ``.stl``, ``.gltf``): a .pmw is a GLB, and a mesh of that name would be replaced by one."""
+    from .mesh import MESH_SUFFIXES
+    from .sources import shown_path
+
+    suffix = os.path.splitext(os.fspath(path))[1]
+    if suffix.lower() in MESH_SUFFIXES and suffix.lower() != ".glb":
+        raise OptionError(f"{shown_path(path)}: a .pmw is a GLB file; name it .pmw (or .glb), not {suffix}")
 
 
 def checked_chunks(chunks):

@@ -182,7 +182,7 @@ def check_output_path(path, what: str = "output", inputs=(), key: bool = False) 
     it names a watermark key file (:func:`~pmwm_codec.watermark.key.is_key_file`)."""
     from pmwm_codec.atomic import check_replaceable
     from pmwm_codec.errors import WatermarkKeyError
-    from pmwm_codec.watermark.key import refuse_key_target
+    from pmwm_codec.watermark.key import refuse_key_target, same_path
 
     path = os.fspath(path)
     if path == "-":
@@ -204,7 +204,7 @@ def check_output_path(path, what: str = "output", inputs=(), key: bool = False) 
     if not os.access(directory, os.W_OK):
         raise UsageError(f"{path}: cannot write {what}: directory {directory} is not writable")
     for source in inputs:
-        if source is not None and source != "-" and _same_file(source, path):
+        if source is not None and source != "-" and same_path(source, path):
             raise UsageError(f"{path}: is also the input {source}; give the {what} another name "
                              "(writing it would replace the input)")
 
@@ -212,20 +212,14 @@ def check_output_path(path, what: str = "output", inputs=(), key: bool = False) 
 def check_pmw_output(path, inputs=()) -> None:
     """:func:`check_output_path` for a ``.pmw``, which is a GLB: not named as another mesh format
     (``.obj``, ``.ply``, ``.stl``, ``.gltf``: a mesh of that name would be replaced by a GLB)."""
-    from pmwm_codec.mesh import MESH_SUFFIXES
+    from pmwm_codec.errors import OptionError
+    from pmwm_codec.options import refuse_mesh_suffix
 
     check_output_path(path, ".pmw", inputs=inputs)
-    suffix = os.path.splitext(os.fspath(path))[1]
-    if suffix.lower() in MESH_SUFFIXES and suffix.lower() != ".glb":
-        raise UsageError(f"{os.fspath(path)}: a .pmw is a GLB file; name it .pmw (or .glb), not {suffix}")
-
-
-def _same_file(a, b) -> bool:
-    """Whether the paths ``a`` and ``b`` name one existing file (hard links and symlinks included)."""
     try:
-        return os.path.samefile(a, b)
-    except OSError:
-        return False
+        refuse_mesh_suffix(path)
+    except OptionError as exc:
+        raise UsageError(str(exc)) from None
 
 
 def check_input_file(path, what: str = "file") -> None:

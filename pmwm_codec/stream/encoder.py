@@ -659,8 +659,7 @@ def _plan_watermark(work, watermark, key, carriers: int, slots, mode, bits, step
         need = wm.splits_needed(watermark, mode, bits)
         if carriers - start < need:
             fit = wm.largest_fitting_size(watermark, carriers - start, bits=bits, mode=mode)
-            hint = (f"; the largest that fits from there is {fit}x{fit} (pmw encode --fit shrinks it to that)"
-                    if fit else "")
+            hint = "; " + wm.fit_hint(fit, " from there") if fit else ""
             raise wm.CapacityError(
                 f"embedding from vertex split {start:,} leaves {carriers - start:,} of {carriers:,} splits; "
                 f"the watermark needs {need:,} in {mode} mode: start earlier{hint}", fit

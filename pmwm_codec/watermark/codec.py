@@ -621,13 +621,17 @@ def plan(image: np.ndarray, key, carriers: int, *, mode: str = "exact", bits: in
     return params, codes
 
 
+def fit_hint(fit: int, where: str = "") -> str:
+    """The capacity errors' pointer to ``--fit``: the largest size ``fit`` that fits (``where``: from where)."""
+    return f"the largest that fits{where} is {fit}x{fit} (pmw encode --fit shrinks it to that)"
+
+
 def _capacity_error(image: np.ndarray, message_bits: int, carriers: int, bits: int | None) -> CapacityError:
     """The error for a watermark that does not fit, naming the largest size that does."""
     size = int(image.shape[0])
     limit = MAX_EXACT_BITS if bits is None else MAX_BITS
     fit = largest_fitting_size(image, carriers, bits=bits)
-    hint = (f"the largest that fits is {fit}x{fit} (pmw encode --fit shrinks it to that)" if fit
-            else "no smaller image fits either")
+    hint = fit_hint(fit) if fit else "no smaller image fits either"
     return CapacityError(
         f"a {size}x{size} watermark needs {message_bits} bits; this mesh has {carriers} vertex splits "
         f"(at most {limit} bits each{'' if bits is None else f', {bits} requested'}): {hint}; "
