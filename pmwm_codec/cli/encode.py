@@ -121,7 +121,7 @@ def run(args) -> int:
     check_input_file(args.input, "mesh file")
     if args.watermark is not None:
         check_input_file(args.watermark, "watermark image")
-    check_pmw_output(args.output, inputs=(args.input, args.watermark, args.key))
+    check_pmw_output(args.output, inputs=(args.input, args.watermark))  # --key = -o: the library names it
     if args.key is not None and not os.path.exists(args.key):
         check_output_path(args.key, "key", inputs=(args.input, args.watermark), key=True)
     progress = Progress(not (args.json or args.quiet))
