@@ -93,7 +93,8 @@ def test_pmw_paths_that_name_no_regular_file_are_input_errors_never_hangs(tmp_pa
     os.mkfifo(tmp_path / "fifo")
     (tmp_path / "dir").mkdir()
     for name, words in (("fifo", "not a regular file"), ("missing.pmw", "no such file"), ("dir", "is a directory")):
-        for read in (pmwm_codec.decode, pmwm_codec.cut, pmwm_codec.decode_asset):
+        for read in (pmwm_codec.decode, pmwm_codec.cut, pmwm_codec.decode_asset, pmwm_codec.inspect,
+                     lambda src: list(pmwm_codec.iter_decode(src))):
             with pytest.raises(InputFormatError, match=words):
                 read(str(tmp_path / name))
 

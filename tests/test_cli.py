@@ -299,6 +299,7 @@ def _bad_cases(work, d):
     (d / "mark.png").write_bytes(b"not an image at all")
     (d / "random.pmw").write_bytes(np.random.default_rng(1).bytes(4000))
     (d / "early.pmw").write_bytes(work["pmw"].read_bytes()[:300])
+    os.mkfifo(d / "fifo.pmw")
     out = d / "out.pmw"
     mesh, pmw, key = work["mesh"], work["pmw"], work["key"]
     return {
@@ -315,6 +316,7 @@ def _bad_cases(work, d):
         "random bytes (verify)": ["verify", d / "random.pmw", "--key", key],
         "random bytes (decode)": ["decode", d / "random.pmw", "-o", d / "out.glb"],
         "random bytes (info)": ["info", d / "random.pmw"],
+        "a FIFO (info, was a hang)": ["info", d / "fifo.pmw"],
         "cut before the base mesh (decode)": ["decode", d / "early.pmw", "-o", d / "out.obj"],
         "missing .pmw": ["decode", d / "nope.pmw", "-o", d / "out.obj"],
         "unknown output format": ["decode", pmw, "-o", d / "out.xyz"],
@@ -328,6 +330,7 @@ def _bad_cases(work, d):
 BAD = ["missing file", "not a mesh", "empty mesh", "NaN coordinates", "face index out of range",
        "watermark not an image", "unwritable output", "output is a directory", "missing key",
        "cut before the base mesh", "random bytes (verify)", "random bytes (decode)", "random bytes (info)",
+       "a FIFO (info, was a hang)",
        "cut before the base mesh (decode)", "missing .pmw", "unknown output format", "negative --chunks",
        "bad --bits", "missing -o", "unknown command"]
 
