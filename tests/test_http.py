@@ -184,6 +184,11 @@ def test_serve_answers_only_for_files_inside_its_directory_and_never_with_a_key(
     os.symlink(outside, site / "outdir")
     os.symlink(site / "a.txt", site / "in.txt")
     os.symlink(site / "a.pmw.key.json", site / "key-link.txt")
+    image = np.random.default_rng(0).integers(0, 256, (8, 8)).astype(np.uint8)
+    # a key under another name (pmw encode --key site/sub/k.json) and a key name in other case were served
+    pmwm_codec.encode(shapes.icosphere(3), tmp_path / "b.pmw", watermark=image, key=site / "sub" / "k.json",
+                      measure="none")
+    (site / "c.pmw.Key.Json").write_text('{"secret": "00"}')
     srv, thread = _serve(site, RangeRequestHandler)
     base = f"http://127.0.0.1:{srv.server_address[1]}/"
 
@@ -201,6 +206,7 @@ def test_serve_answers_only_for_files_inside_its_directory_and_never_with_a_key(
             assert get("a.txt", ranged)[1] == b"ok"  # bytes 0-1 are the whole file
             assert get("in.txt", ranged)[0] in (200, 206)
             for refused in ("out.txt", "outdir/secret.txt", "a.pmw.key.json", "key-link.txt", "", "sub/",
+                            "sub/k.json", "c.pmw.Key.Json",
                             "a.txt%00.pmw", "..%2Foutside%2Fsecret.txt"):
                 status, body = get(refused, ranged)
                 assert status == 404 and b"not yours" not in body and b"secret" not in body, refused

@@ -4,8 +4,8 @@ The standard library's ``http.server`` plus single-range ``Range: bytes=a-b`` re
 (``206 Partial Content``, ``416`` when unsatisfiable), so that ``pmw verify URL``, the
 three.js plugin and the demo page can read a ``.pmw`` chunk by chunk.  Only files under
 ``DIR`` are served: the standard library's path translation, then the path's real location
-(symbolic links followed) must be inside ``DIR``'s.  Key files (``*.key.json``: ``pmw encode``
-writes the secret key beside the ``.pmw``) are never served, and directories are not listed
+(symbolic links followed) must be inside ``DIR``'s.  Key files (``*.key.json`` in any case: ``pmw encode``
+writes the secret key beside the ``.pmw``; or a key under any other name, ``--key site/k.json``) are never served, and directories are not listed
 (an ``index.html`` is served as usual).  It binds to 127.0.0.1 unless ``--host`` says
 otherwise.  Not a production server.
 """
@@ -19,7 +19,7 @@ from functools import partial
 from http import HTTPStatus
 from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 
-from pmwm_codec.watermark.key import KEY_SUFFIX  # names never served: the secret key files beside the outputs
+from pmwm_codec.watermark.key import is_key_file  # never served: the secret key files, by name or by content
 
 from .common import UsageError
 
@@ -71,14 +71,13 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
     def translate_path(self, path):
         """The standard library's translation, refused (a path where no file can be: 404) when the
         file's real location is outside the served directory (a symbolic link out of it), when it is a
-        key file, or when the name cannot be a file name (a NUL byte)."""
+        key file (:func:`~pmwm_codec.watermark.key.is_key_file`: by its name, or by its content), or when the name cannot be a file name (a NUL byte)."""
         local = super().translate_path(path)
         try:
             real, root = os.path.realpath(local), os.path.realpath(self.directory)
         except (ValueError, OSError):
             return _NOWHERE
-        if os.path.commonpath([real, root]) != root or os.path.basename(real).endswith(KEY_SUFFIX) \
-                or os.path.basename(local).endswith(KEY_SUFFIX):
+        if os.path.commonpath([real, root]) != root or is_key_file(real) or is_key_file(local):
             return _NOWHERE
         return local
 
