@@ -10,14 +10,16 @@ the first bytes with a ``Range`` request:
   each, and finally the padding up to the file length.  With ``max_chunks=N`` it stops
   after the N-th chunk: nothing after it is requested.
 * the server ignores it (``200``): the body is read as one plain streamed GET, in
-  blocks, stopped after the N-th chunk when ``max_chunks`` is given.
+  blocks, stopped after the N-th chunk when ``max_chunks`` is given; a gzip or deflate
+  ``Content-Encoding`` is undone as it is read (a ranged answer in one is refused).
 
 A connection that ends early is a cut stream, read with the same semantics as a cut
 file (every complete chunk is delivered).  Only ``http://`` and ``https://`` URLs are
 accepted, and only where the caller passed one (:func:`is_url`): nothing read from a
 file ever makes us fetch anything; a redirect to another scheme is refused.  Network
 failures and inconsistent servers raise :class:`~pmwm_codec.errors.InputFormatError`
-naming the URL.
+naming the URL, and so does a file that changes between the requests (its size, ``ETag``
+or ``Last-Modified``).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from __future__ import annotations
 import re
 import urllib.error
 import urllib.request
+import zlib
 
 from .errors import InputFormatError
 from .format import ContainerParser, HeaderEvent
@@ -86,10 +89,11 @@ class UrlSource:
 
     def __iter__(self):
         self.requests = self.bytes_fetched = 0
-        self._size = None
+        self._size = self._validators = None
         response = self._open(0, PREAMBLE_SIZE)
         with response:
             self.ranged = response.status == 206
+            self._check_encoding(response)
             if not self.ranged:
                 yield from self._plain(response)
                 return
@@ -125,22 +129,38 @@ class UrlSource:
             if response.status != 206:
                 raise InputFormatError(f"{self.url}: the server answered a Range request with status "
                                        f"{response.status} after honouring one")
+            self._check_encoding(response)
             return self._body(response, start, end)
+
+    def _check_encoding(self, response) -> None:
+        """Refuse a ranged answer in a content coding (gzip ...): its byte ranges are not the file's.
+        A plain answer's is undone as it is read (:meth:`_plain`)."""
+        coding = _coding(response)
+        if coding is not None and (response.status == 206 or coding not in _DECODERS):
+            raise InputFormatError(f"{self.url}: the server sent the file {coding}-encoded (Content-Encoding) although "
+                                   "asked for identity" + (" in a Range answer" if response.status == 206 else ""))
 
     def _body(self, response, start: int, end: int) -> bytes:
         """The body of a 206 answer for ``[start, end)``, its Content-Range checked.
 
-        The file's size must stay the one the first answer gave (a file replaced while it
-        is read is refused); the server may end the range early at the end of the file.
+        The file's size, ``ETag`` and ``Last-Modified`` must stay the ones the first answer gave (a file
+        replaced while it is read is refused, even by one of the same size); the server may end the
+        range early at the end of the file.
         """
         given = response.headers.get("Content-Range", "")
         match = _CONTENT_RANGE.match(given)
         if match is None or int(match[1]) != start or int(match[2]) > end - 1:
             raise InputFormatError(f"{self.url}: Content-Range {given!r} does not answer bytes {start}-{end - 1}")
+        validators = {name: response.headers.get(name) for name in ("ETag", "Last-Modified")}
         if self._size is None:
-            self._size = match[3]
+            self._size, self._validators = match[3], validators
         elif match[3] != self._size:
             raise InputFormatError(f"{self.url}: the file changed while it was read (size {self._size}, now {match[3]})")
+        else:
+            for name, first in self._validators.items():
+                if first is not None and validators[name] is not None and validators[name] != first:
+                    raise InputFormatError(f"{self.url}: the file changed while it was read ({name} {first}, "
+                                           f"now {validators[name]})")
         parts, size = [], 0
         while size < end - start:
             block = self._read(response, min(self.block_size, end - start - size))
@@ -156,10 +176,12 @@ class UrlSource:
         """The body of a plain GET, in blocks; stopped after ``max_chunks`` chunks."""
         if response.status != 200:
             raise InputFormatError(f"{self.url}: HTTP status {response.status}")
+        coding = _coding(response)
+        undo = None if coding is None else _DECODERS[coding]()
         head, stop, offset = bytearray(), None, 0
         while stop is None or offset < stop:
             want = self.block_size if stop is None else min(self.block_size, stop - offset)
-            block = self._read(response, want)
+            block = self._read(response, want) if undo is None else self._undo(response, undo, want)
             if not block:
                 return
             offset += len(block)
@@ -185,6 +207,24 @@ class UrlSource:
             reason = getattr(exc, "reason", None) or exc
             raise InputFormatError(f"{self.url}: cannot read ({reason})") from None
 
+    def _undo(self, response, undo, size: int) -> bytes:
+        """Up to ``size`` bytes of a body in a content coding, decoded (``b""`` at its end)."""
+        while True:
+            if undo.unconsumed_tail:
+                data = undo.unconsumed_tail
+            elif undo.eof:
+                return b""
+            else:
+                data = self._read(response, self.block_size)
+                if not data:
+                    return undo.flush()
+            try:
+                block = undo.decompress(data, size)
+            except zlib.error as exc:
+                raise InputFormatError(f"{self.url}: the server's compressed answer does not decode ({exc})") from None
+            if block:
+                return block
+
     def _read(self, response, size: int) -> bytes:
         try:
             block = response.read(size)
@@ -192,6 +232,18 @@ class UrlSource:
             raise InputFormatError(f"{self.url}: cannot read ({exc})") from None
         self.bytes_fetched += len(block)
         return block
+
+
+#: Content codings a plain answer may come in, undone as it is read (gzip with its header, deflate as zlib).
+_DECODERS = {"gzip": lambda: zlib.decompressobj(16 + zlib.MAX_WBITS),
+             "x-gzip": lambda: zlib.decompressobj(16 + zlib.MAX_WBITS),
+             "deflate": lambda: zlib.decompressobj(zlib.MAX_WBITS)}
+
+
+def _coding(response):
+    """The answer's content coding (lower case), None for none or ``identity``."""
+    coding = (response.headers.get("Content-Encoding") or "").strip().lower()
+    return None if coding in ("", "identity") else coding
 
 
 def _plain_stop(head: bytes, max_chunks: int, whole_document: bool = False):

@@ -327,3 +327,85 @@ def test_a_url_cut_fetches_the_document_data_another_writer_put_after_the_chunks
         srv.shutdown()
         srv.server_close()
         thread.join(5)
+
+
+class Gzipping(IgnoringRange):
+    """A server that ignores ``Range`` and gzips every answer (``Content-Encoding: gzip``) although asked for
+    identity."""
+
+    def send_head(self):
+        import gzip
+        import io
+
+        self._span = None
+        path = self.translate_path(self.path)
+        body = gzip.compress(Path(path).read_bytes())
+        self.send_response(200)
+        self.send_header("Content-Encoding", "gzip")
+        self.send_header("Content-Length", str(len(body)))
+        self.end_headers()
+        return io.BytesIO(body)
+
+
+class GzipRanges(RangeRequestHandler):
+    """A server whose Range answers say ``Content-Encoding: gzip``: ranges of the encoded bytes."""
+
+    def send_header(self, keyword, value):
+        super().send_header(keyword, value)
+        if keyword == "Content-Range":
+            super().send_header("Content-Encoding", "gzip")
+
+
+def test_a_gzipped_plain_answer_is_decoded_and_a_gzipped_range_answer_refused(site, tmp_path):
+    """Both ended as ``GLB header: bad magic b'\\x1f\\x8b...'``, which does not say what the server did."""
+    want = pmwm_codec.decode(site / "x.pmw", chunks=2)
+    for handler in (Gzipping, GzipRanges):
+        srv, thread = _serve(site, handler)
+        url = f"http://127.0.0.1:{srv.server_address[1]}/x.pmw"
+        try:
+            if handler is Gzipping:
+                assert pmwm_codec.decode(url, chunks=2) == want and pmwm_codec.decode(url) == pmwm_codec.decode(site / "x.pmw")
+            else:
+                with pytest.raises(InputFormatError, match="gzip-encoded.*in a Range answer"):
+                    pmwm_codec.decode(url)
+        finally:
+            srv.shutdown()
+            srv.server_close()
+            thread.join(5)
+
+
+def test_a_file_replaced_by_one_of_the_same_size_between_range_requests_is_refused(tmp_path):
+    """Only the size was compared: a file replaced by another of the same size (here two base vertices swapped,
+    which no digest covers) decoded to a mesh neither file holds, silently.  ``pmw serve`` now sends ``ETag``
+    and ``Last-Modified`` with its Range answers and the reader compares them."""
+    import os
+
+    from pmwm_codec.format.reader import read_header
+
+    site = tmp_path / "site"
+    site.mkdir()
+    pmwm_codec.encode(shapes.icosphere(3), site / "a.pmw", base_codec="plain", measure="none")
+    data = bytearray((site / "a.pmw").read_bytes())
+    header = read_header(bytes(data))
+    views = header.gltf_json["bufferViews"]
+    position = header.gltf_json["meshes"][0]["primitives"][0]["attributes"]["POSITION"]
+    start = header.bin_offset + views[header.gltf_json["accessors"][position]["bufferView"]].get("byteOffset", 0)
+    data[start : start + 24] = data[start + 12 : start + 24] + data[start : start + 12]  # two base vertices swapped
+    (site / "b.pmw").write_bytes(bytes(data))
+    os.utime(site / "b.pmw", ns=(1, 1))
+
+    class Replaced(RangeRequestHandler):
+        """Serves ``a.pmw`` for the first two requests (preamble, JSON), then ``b.pmw`` in its place."""
+
+        def translate_path(self, path):
+            self.server.requests = getattr(self.server, "requests", 0) + 1
+            return super().translate_path(path if self.server.requests <= 2 else "/b.pmw")
+
+    srv, thread = _serve(site, Replaced)
+    try:
+        with pytest.raises(InputFormatError, match="the file changed while it was read"):
+            pmwm_codec.decode(f"http://127.0.0.1:{srv.server_address[1]}/a.pmw", chunks=0)  # the base only
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)

@@ -87,8 +87,10 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
         return None
 
     def send_head(self):
-        self._span = None
+        self._span = self._etag = None
         path = self.translate_path(self.path)
+        if os.path.isfile(path):
+            self._etag = etag(os.stat(path))
         if "Range" not in self.headers or not os.path.isfile(path):
             return super().send_head()
         try:
@@ -96,7 +98,8 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
         except OSError:
             self.send_error(HTTPStatus.NOT_FOUND, "File not found")
             return None
-        size = os.fstat(f.fileno()).st_size
+        info = os.fstat(f.fileno())
+        size, self._etag = info.st_size, etag(info)
         span = parse_range(self.headers["Range"], size)
         if span is None:
             f.close()
@@ -113,6 +116,7 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
         self.send_header("Content-Range", f"bytes {span[0]}-{span[1] - 1}/{size}")
         self.send_header("Content-Length", str(span[1] - span[0]))
         self.send_header("Accept-Ranges", "bytes")
+        self.send_header("Last-Modified", self.date_time_string(info.st_mtime))
         self.end_headers()
         f.seek(span[0])
         self._span = span
@@ -133,11 +137,18 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
     def end_headers(self):
         if getattr(self, "_span", None) is None:
             self.send_header("Accept-Ranges", "bytes")
+        if getattr(self, "_etag", None) is not None:  # a reader by ranges tells a file replaced meanwhile
+            self.send_header("ETag", self._etag)
         super().end_headers()
 
     def log_message(self, format, *args):  # noqa: A002 - the standard library's name
         if getattr(self.server, "verbose", False):
             super().log_message(format, *args)
+
+
+def etag(info: os.stat_result) -> str:
+    """A strong ``ETag`` of a file from its ``stat``: size and modification time (nanoseconds)."""
+    return f'"{info.st_size:x}-{info.st_mtime_ns:x}"'
 
 
 def _count(server, n: int) -> None:
