@@ -46,9 +46,21 @@ def is_url(source) -> bool:
     return isinstance(source, str) and source[:8].lower().startswith(("http://", "https://"))
 
 
-def as_source(source, max_chunks: int | None = None):
-    """A :class:`UrlSource` for a URL string, any other source unchanged."""
-    return UrlSource(source, max_chunks=max_chunks) if is_url(source) else source
+def as_source(source, max_chunks: int | None = None, whole_document: bool = False):
+    """A :class:`UrlSource` for a URL string (reading up to ``max_chunks`` chunks; ``whole_document``: and
+    the document's other data, see :func:`plan_ranges`), any other source unchanged."""
+    return UrlSource(source, max_chunks=max_chunks, whole_document=whole_document) if is_url(source) else source
+
+
+def stream_end(source, end):
+    """``end`` (a :class:`~pmwm_codec.stream.StreamEnd` of a read of ``source``) as the file is: a
+    :class:`UrlSource` that stopped after the chunks asked for fetched no more, and the file on the server
+    is complete when its size is its GLB length (it is not a cut file because we did not fetch the rest)."""
+    if isinstance(source, UrlSource) and source.stopped and not end.complete and source.file_size is not None:
+        from dataclasses import replace
+
+        return replace(end, complete=source.file_size == end.total_length)
+    return end
 
 
 class _HttpOnlyRedirects(urllib.request.HTTPRedirectHandler):
@@ -67,7 +79,9 @@ class UrlSource:
     ``whole_document``: and after the document's other data (:func:`plan_ranges`).
     After (or during) an iteration ``requests`` counts the HTTP requests made,
     ``bytes_fetched`` the body bytes received and ``ranged`` says whether the server
-    honoured ``Range``.  Each iteration fetches afresh.
+    honoured ``Range``; ``stopped`` whether it ended after the chunks asked for, leaving the
+    rest of the file unfetched, and ``file_size`` the file's size as the server gave it
+    (None: not said).  Each iteration fetches afresh.
     """
 
     def __init__(self, url: str, *, max_chunks: int | None = None, whole_document: bool = False,
@@ -82,6 +96,8 @@ class UrlSource:
         self.requests = 0
         self.bytes_fetched = 0
         self.ranged = None
+        self.stopped = False
+        self.file_size = None
         self._opener = urllib.request.build_opener(_HttpOnlyRedirects)
 
     def __repr__(self):
@@ -89,7 +105,8 @@ class UrlSource:
 
     def __iter__(self):
         self.requests = self.bytes_fetched = 0
-        self._size = self._validators = None
+        self._size = self._validators = self.file_size = None
+        self.stopped = False
         response = self._open(0, PREAMBLE_SIZE)
         with response:
             self.ranged = response.status == 206
@@ -114,12 +131,14 @@ class UrlSource:
         if len(rest) < header_end - PREAMBLE_SIZE:
             return
         start = header_end
-        for end in plan_ranges(preamble + rest, self.max_chunks, self.whole_document):
+        ends = plan_ranges(preamble + rest, self.max_chunks, self.whole_document)
+        for end in ends:
             block = self._fetch(start, end)
             yield block
             if len(block) < end - start:
                 return  # the server stopped: a cut stream
             start = end
+        self.stopped = ends[-1] < parse_preamble(preamble)[0]
 
     def _fetch(self, start: int, end: int) -> bytes:
         """Bytes ``[start, end)`` by one Range request; fewer (or none) when the file ends first."""
@@ -154,6 +173,7 @@ class UrlSource:
         validators = {name: response.headers.get(name) for name in ("ETag", "Last-Modified")}
         if self._size is None:
             self._size, self._validators = match[3], validators
+            self.file_size = int(match[3]) if match[3].isdigit() else None
         elif match[3] != self._size:
             raise InputFormatError(f"{self.url}: the file changed while it was read (size {self._size}, now {match[3]})")
         else:
@@ -178,6 +198,8 @@ class UrlSource:
             raise InputFormatError(f"{self.url}: HTTP status {response.status}")
         coding = _coding(response)
         undo = None if coding is None else _DECODERS[coding]()
+        length = response.headers.get("Content-Length", "")
+        self.file_size = int(length) if coding is None and length.isdigit() else None
         head, stop, offset = bytearray(), None, 0
         while stop is None or offset < stop:
             want = self.block_size if stop is None else min(self.block_size, stop - offset)
@@ -189,6 +211,7 @@ class UrlSource:
                 head += block
                 stop = _plain_stop(bytes(head), self.max_chunks, self.whole_document)
             yield block
+        self.stopped = stop < parse_preamble(bytes(head))[0]
 
     # -- HTTP ---------------------------------------------------------------------
 

@@ -409,3 +409,35 @@ def test_a_file_replaced_by_one_of_the_same_size_between_range_requests_is_refus
         srv.shutdown()
         srv.server_close()
         thread.join(5)
+
+
+def test_every_reader_of_the_library_takes_a_url_as_its_command_does(server, site):
+    """``decode_asset``, ``cut`` and ``inspect`` took a URL for a file name (``...: no such file``), though
+    ``pmw decode``, ``pmw cut`` and ``pmw info`` take one."""
+    url, path = server.url + "x.pmw", site / "x.pmw"
+    for n in (0, 2, None):
+        assert pmwm_codec.decode_asset(url, chunks=n) == pmwm_codec.decode_asset(path, chunks=n)
+        assert pmwm_codec.cut(url, chunks=n) == pmwm_codec.cut(path, chunks=n)
+    remote, local = pmwm_codec.inspect(url), pmwm_codec.inspect(path)
+    assert remote["file"] == url and remote["chunks_total"] == local["chunks_total"]
+
+
+def test_pmw_decode_of_a_url_up_to_chunk_n_says_the_file_is_complete_as_for_the_file(server, site, tmp_path, capsys):
+    """``pmw decode URL --chunks N -o x.obj --json`` said ``complete: false, truncated: true`` of a whole file
+    (what it did not fetch, on purpose, is not missing); a cut file on the server still says truncated."""
+    from pmwm_codec.http import plan_ranges
+
+    data = (site / "x.pmw").read_bytes()
+    (site / "cut-x.pmw").write_bytes(data[: plan_ranges(data, 3)[-1]])
+    for name, complete in (("x.pmw", True), ("cut-x.pmw", False)):
+        for suffix in (".obj", ".glb"):
+            for n in (0, 2):
+                code, out, err = _pmw(capsys, "decode", server.url + name, "-o", tmp_path / f"o{suffix}",
+                                      "--chunks", n, "--json")
+                assert code == 0, err
+                _, local, _ = _pmw(capsys, "decode", site / name, "-o", tmp_path / f"l{suffix}", "--chunks", n,
+                                   "--json")
+                got, want = json.loads(out), json.loads(local)
+                assert got["complete"] is complete and got["truncated"] is not complete, (name, suffix, n, got)
+                assert {k: v for k, v in got.items() if k != "output"} == \
+                    {k: v for k, v in want.items() if k != "output"}
