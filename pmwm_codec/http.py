@@ -24,8 +24,10 @@ or ``Last-Modified``).
 
 from __future__ import annotations
 
+import http.client
 import re
 import urllib.error
+import urllib.parse
 import urllib.request
 import zlib
 
@@ -88,6 +90,14 @@ class UrlSource:
                  timeout: float = DEFAULT_TIMEOUT, block_size: int = DEFAULT_BLOCK_SIZE):
         if not is_url(url):
             raise InputFormatError(f"{url}: not an http:// or https:// URL")
+        try:
+            parts = urllib.parse.urlsplit(url)
+            parts.port  # noqa: B018 - a port out of range or not a number raises here
+        except ValueError as exc:
+            raise InputFormatError(f"{url}: not a valid URL ({exc})") from None
+        if parts.username is not None or parts.password is not None:  # never echoed: a password
+            raise InputFormatError(f"{parts.scheme}://...@{parts.hostname}{parts.path}: a user name or password in "
+                                   "the URL is not supported")
         self.url = url
         self.max_chunks = max_chunks
         self.whole_document = whole_document
@@ -229,6 +239,10 @@ class UrlSource:
         except (urllib.error.URLError, OSError) as exc:
             reason = getattr(exc, "reason", None) or exc
             raise InputFormatError(f"{self.url}: cannot read ({reason})") from None
+        except http.client.InvalidURL as exc:  # a space or a control character in the URL
+            raise InputFormatError(f"{self.url}: not a valid URL ({exc})") from None
+        except http.client.HTTPException as exc:  # not an HTTP answer (BadStatusLine ...)
+            raise InputFormatError(f"{self.url}: cannot read ({type(exc).__name__}: {exc})") from None
 
     def _undo(self, response, undo, size: int) -> bytes:
         """Up to ``size`` bytes of a body in a content coding, decoded (``b""`` at its end)."""
@@ -251,7 +265,7 @@ class UrlSource:
     def _read(self, response, size: int) -> bytes:
         try:
             block = response.read(size)
-        except (OSError, ValueError) as exc:  # reset, timeout, broken chunked encoding
+        except (OSError, ValueError, http.client.HTTPException) as exc:  # reset, timeout, broken chunked encoding
             raise InputFormatError(f"{self.url}: cannot read ({exc})") from None
         self.bytes_fetched += len(block)
         return block

@@ -441,3 +441,39 @@ def test_pmw_decode_of_a_url_up_to_chunk_n_says_the_file_is_complete_as_for_the_
                 assert got["complete"] is complete and got["truncated"] is not complete, (name, suffix, n, got)
                 assert {k: v for k, v in got.items() if k != "output"} == \
                     {k: v for k, v in want.items() if k != "output"}
+
+
+@pytest.mark.parametrize("url, words", [
+    ("http://[::1/x.pmw", "not a valid URL"), ("http://127.0.0.1:99999/x.pmw", "not a valid URL"),
+    ("http://127.0.0.1:1/a b.pmw", "not a valid URL"), ("http://127.0.0.1:1/x.pmw\r\nX-Injected: 1", "not a valid URL"),
+    ("http://me:hunter2@127.0.0.1:1/x.pmw", "user name or password in the URL is not supported"),
+])
+def test_a_url_that_cannot_be_fetched_is_named_without_its_password(tmp_path, capsys, url, words):
+    """Each ended as ``unexpected ValueError / InvalidURL (a bug of pmw)``, or for a URL with a password as a
+    name lookup of ``me:hunter2@127.0.0.1`` that echoed the password."""
+    code, out, err = _pmw(capsys, "decode", url, "-o", tmp_path / "x.obj")
+    assert code == 2 and len(err.splitlines()) == 1 and words in err and "bug of pmw" not in err, err
+    assert "hunter2" not in err and not (tmp_path / "x.obj").exists()
+
+
+def test_a_server_that_does_not_speak_http_is_a_named_error(tmp_path, capsys):
+    """A status line that is not HTTP raised ``http.client.BadStatusLine``: ``unexpected ... (a bug of pmw)``."""
+    import socket
+
+    listener = socket.create_server(("127.0.0.1", 0))
+
+    def answer():
+        conn, _ = listener.accept()
+        with conn:
+            conn.recv(65536)
+            conn.sendall(b"SSH-2.0-OpenSSH_9.0\r\n\r\n")
+
+    thread = threading.Thread(target=answer, daemon=True)
+    thread.start()
+    try:
+        url = f"http://127.0.0.1:{listener.getsockname()[1]}/x.pmw"
+        code, _, err = _pmw(capsys, "decode", url, "-o", tmp_path / "x.obj")
+        assert code == 2 and "cannot read (BadStatusLine" in err and "bug of pmw" not in err, err
+    finally:
+        listener.close()
+        thread.join(5)
