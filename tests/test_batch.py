@@ -396,3 +396,17 @@ def test_batch_no_owner_writes_the_exact_layer_only(tmp_path, client, capsys):
         assert doc["verdict"] == "authentic"
         owners.append(doc.get("owner"))
     assert owners[0]["verdict"] == "present" and owners[1] is None
+
+
+@pytest.mark.parametrize("kind", ["fifo", "device"])
+def test_an_input_that_is_a_fifo_or_a_device_is_a_failed_asset_never_a_hang(tmp_path, kind):
+    """Hashing the input opened it as it was: a FIFO in the library (or ``/dev/zero`` in a manifest) blocked or
+    read forever, before the encoder and its timeout ever started."""
+    if kind == "fifo":
+        path = tmp_path / "f.obj"
+        os.mkfifo(path)
+    else:
+        path = Path("/dev/zero")
+    row = encode_task(EncodeJob(str(path), str(tmp_path / "out" / "f.obj.pmw"), timeout=30))
+    assert row["status"] == "failed" and "not a regular file" in row["error"] and str(path) in row["error"]
+    assert not (tmp_path / "out").exists()

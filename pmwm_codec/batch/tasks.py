@@ -18,6 +18,8 @@ import sys
 import time
 from dataclasses import dataclass
 
+from pmwm_codec.errors import PmwError
+
 from .child import child_main
 from .ledger import sha256_file
 
@@ -64,6 +66,8 @@ def encode_task(job: EncodeJob) -> dict:
         row["input_sha256"] = sha256_file(job.input)
     except OSError as exc:
         row["error"] = f"{job.input}: {exc.strerror or exc}"
+    except PmwError as exc:  # not a regular file: never read
+        row["error"] = str(exc)
     else:
         if _done_before(job, row["input_sha256"]):
             row.update(status="skipped", bytes=os.path.getsize(job.output), vertices=job.prior_vertices)
