@@ -282,6 +282,17 @@ def test_a_folder_holding_the_output_folder_does_not_take_outputs_as_inputs(tmp_
     assert [a.relative for a in expand_sources(tmp_path, tmp_path / "out")] == ["a.obj"]
 
 
+def test_an_output_folder_that_is_the_source_or_holds_it_leaves_no_subfolder_out(tmp_path):
+    """``pmw batch encode lib -o lib`` (or ``-o .`` from lib's parent) took every subfolder of lib for a part of
+    OUT_DIR and encoded the top-level meshes only, exit 0."""
+    lib = tmp_path / "lib"
+    (lib / "sub").mkdir(parents=True)
+    write_mesh(lib / "a.obj", shapes.icosphere(1))
+    write_mesh(lib / "sub" / "b.ply", shapes.icosphere(1))
+    for out in (lib, tmp_path):
+        assert sorted(a.relative for a in expand_sources(lib, out)) == ["a.obj", "sub/b.ply"]
+
+
 def test_the_ledger_reader_drops_a_line_cut_by_a_kill_and_the_writer_starts_a_new_line(tmp_path):
     path = tmp_path / LEDGER_NAME
     row = {"input": "/x.obj", "input_sha256": "0" * 64, "output": "/o/x.obj.pmw", "status": "ok", "error": None,
