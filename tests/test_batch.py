@@ -421,3 +421,19 @@ def test_an_input_that_is_a_fifo_or_a_device_is_a_failed_asset_never_a_hang(tmp_
     row = encode_task(EncodeJob(str(path), str(tmp_path / "out" / "f.obj.pmw"), timeout=30))
     assert row["status"] == "failed" and "not a regular file" in row["error"] and str(path) in row["error"]
     assert not (tmp_path / "out").exists()
+
+
+def test_a_rerun_that_fails_leaves_the_output_of_the_run_before_as_it_was(tmp_path):
+    """A re-run with other settings (``--keys-dir``, so the key it wants is not there yet) deleted each old output
+    before encoding: when the encode then failed or timed out, the good output of the run before was lost and its
+    key left alone beside nothing."""
+    write_mesh(tmp_path / "a.obj", shapes.icosphere(2))
+    old = tmp_path / "out" / "a.obj.pmw"
+    old.parent.mkdir()
+    old.write_bytes(b"the output of the run before")
+    job = EncodeJob(str(tmp_path / "a.obj"), str(old), key=str(tmp_path / "keys" / "a.obj.pmw.key.json"),
+                    key_path=str(tmp_path / "keys" / "a.obj.pmw.key.json"),
+                    watermark=np.full((4, 4), 255, np.uint8), timeout=0.01)
+    row = encode_task(job)
+    assert row["status"] == "timeout" and old.read_bytes() == b"the output of the run before"
+    assert not list(old.parent.glob(".*.tmp"))

@@ -161,15 +161,15 @@ def _run_interpreter(payload: dict, timeout) -> dict:
 
 
 def _remove_leftovers(job: EncodeJob) -> None:
-    """After a killed encoder: its temporary files, and an output left without its key."""
+    """After a killed encoder: its temporary files.  An output already there is left as it is: the encoder
+    publishes a key before its ``.pmw`` (never a new ``.pmw`` without its key), and an old output (of other
+    settings, its key elsewhere) is replaced only by a new one that was written whole."""
     for path in (job.output, job.key_path):
         if path is None:
             continue
         pattern = os.path.join(glob.escape(os.path.dirname(path)), "." + glob.escape(os.path.basename(path)) + ".*.tmp")
         for tmp in glob.glob(pattern):
             _unlink(tmp)
-    if job.key_path is not None and os.path.isfile(job.output) and not os.path.isfile(job.key_path):
-        _unlink(job.output)
 
 
 def _unlink(path: str) -> None:
