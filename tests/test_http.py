@@ -81,6 +81,9 @@ def test_is_url_accepts_only_http_and_https():
 @pytest.mark.parametrize("header,expected", [
     ("bytes=0-19", (0, 20)), ("bytes=10-", (10, 100)), ("bytes=-30", (70, 100)), ("bytes=90-500", (90, 100)),
     ("bytes=100-", (100, 100)), ("bytes=5-2", None), ("bytes=0-1,5-6", None), ("items=0-1", None), (None, None),
+    # thousands of digits: int() raised (a traceback on the server, the connection dropped without an answer)
+    ("bytes=" + "9" * 5000 + "-", (100, 100)), ("bytes=0-" + "9" * 5000, (0, 100)), ("bytes=-" + "9" * 5000, (0, 100)),
+    ("bytes=" + "9" * 5000 + "-1", None),
 ])
 def test_parse_range_reads_single_byte_ranges(header, expected):
     assert parse_range(header, 100) == expected
