@@ -32,7 +32,7 @@ import numpy as np
 from ..stream import StreamDecoder, iter_results
 from ..stream.decoder import StreamEnd
 from ..watermark import load_watermark
-from ..watermark.key import WatermarkKey
+from ..watermark.key import as_key
 
 __all__ = ["StreamVerification", "verify_stream"]
 
@@ -110,8 +110,7 @@ def verify_stream(source, key, watermark=None, *, keep_meshes: bool = False, pro
     reference = None
     if watermark is not None:
         reference, _ = load_watermark(watermark)
-    if key is not None and not isinstance(key, WatermarkKey):
-        key = WatermarkKey.load(key)
+    key = as_key(key)
     decoder = StreamDecoder(key, reference, copy=keep_meshes, check_key=False)
     gen = iter_results(source, decoder)
     results = []
