@@ -189,6 +189,34 @@ def test_sigkill_of_the_process_group_halfway_then_rerun_finishes_consistently(l
     assert not list(out.rglob("*.tmp"))
 
 
+def test_ctrl_c_halfway_is_one_line_and_exit_130_and_leaves_no_process_behind(library, tmp_path):
+    """A Ctrl-C (SIGINT to the process group) raised KeyboardInterrupt in every Dask worker too, each printing
+    its traceback on stderr under ``pmw: error: interrupted``."""
+    root, src = library
+    out = tmp_path / "out"
+    argv = [sys.executable, "-m", "pmwm_codec", "batch", "encode", str(src), "-o", str(out),
+            "--watermark", str(root / "wm.png"), "--workers", "1", "-q"]
+    proc = subprocess.Popen(argv, env=dict(os.environ, PYTHONPATH=str(ROOT)), start_new_session=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 240
+        while len(read_ledger(out / LEDGER_NAME)) < 2 and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 130
+    assert "Traceback" not in err and err.strip().splitlines()[-1] == "pmw: error: interrupted", err
+    time.sleep(1)
+    ps = subprocess.run(["ps", "-o", "pid=,stat=,args=", "-g", str(proc.pid)], capture_output=True, text=True).stdout
+    left = [line for line in ps.splitlines() if not line.split()[1].startswith("Z")]  # zombies have ended
+    assert not left, left  # no worker, forkserver or encoder outlives the run
+    assert not list(out.rglob("*.tmp"))
+
+
 def test_a_timed_out_asset_is_killed_and_leaves_nothing(tmp_path):
     src = tmp_path / "big.obj"
     write_mesh(src, shapes.icosphere(5, noise=0.01))

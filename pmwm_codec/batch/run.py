@@ -63,11 +63,30 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, client
             yield client
         return
     workers = max(1, int(workers or os.cpu_count() or 1))
-    with dask.config.set(LOCAL_WORKER_CONFIG):
+    with dask.config.set(LOCAL_WORKER_CONFIG), _sigint_ignored():
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
                                silence_logs=logging.ERROR)
     with cluster, Client(cluster) as client:
         yield client
+
+
+@contextlib.contextmanager
+def _sigint_ignored():
+    """SIGINT ignored while the local workers start, so that they inherit that: a Ctrl-C (sent to the whole
+    process group) stops the run here, once (``pmw: error: interrupted``, the cluster closed), instead of
+    raising KeyboardInterrupt in every worker, each printing its traceback.  The encoders take SIGINT back
+    (:mod:`.child`): they die with the run.  Only the main thread may set a handler; elsewhere nothing changes."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def collection_key(key_path, watermark):
