@@ -465,3 +465,15 @@ def test_a_rerun_that_fails_leaves_the_output_of_the_run_before_as_it_was(tmp_pa
     row = encode_task(job)
     assert row["status"] == "timeout" and old.read_bytes() == b"the output of the run before"
     assert not list(old.parent.glob(".*.tmp"))
+
+
+@pytest.mark.parametrize("refused", ["watermark", "key"])
+def test_a_run_refused_before_any_work_leaves_no_output_folder(library, tmp_path, refused):
+    """A missing watermark or a key that is not a key left an empty OUT_DIR behind."""
+    root, src = library
+    (tmp_path / "k.json").write_text("not a key")
+    out = tmp_path / "out"
+    kwargs = {"watermark": tmp_path / "nope.png"} if refused == "watermark" else {"key": tmp_path / "k.json"}
+    with pytest.raises(pmwm_codec.PmwError):
+        encode_batch(src, out, **kwargs)
+    assert not out.exists()

@@ -158,26 +158,34 @@ def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, worke
         assets = expand_sources(src, out_dir)
     except (ValueError, OSError) as exc:
         raise BatchError(str(exc)) from None
-    os.makedirs(out_dir, exist_ok=True)
-    image, key_obj = (None, None)
-    if key is not None:
-        image, key_obj = collection_key(key, watermark)
-    elif watermark is not None:
-        from pmwm_codec.watermark.image import load_watermark
+    created = not os.path.isdir(out_dir)
+    os.makedirs(out_dir, exist_ok=True)  # before the key: a new collection key may go inside it
+    try:
+        image, key_obj = (None, None)
+        if key is not None:
+            image, key_obj = collection_key(key, watermark)
+        elif watermark is not None:
+            from pmwm_codec.watermark.image import load_watermark
 
-        image = load_watermark(watermark)[0]
-    jobs = _jobs(assets, out_dir, image, key_obj, keys_dir, timeout, force, options)
-    start = time.monotonic()
-    counts = dict.fromkeys(("ok", "skipped", "failed", "timeout"), 0)
-    failures = []
-    with dask_client(workers, scheduler, client) as client, LedgerWriter(os.path.join(out_dir, LEDGER_NAME)) as ledger:
-        for row in _results(client, encode_task, jobs):
-            ledger.write(row)
-            counts[row["status"]] += 1
-            if row["status"] in ("failed", "timeout"):
-                failures.append(row)
-            if progress is not None:
-                progress(_progress_counts(counts, len(jobs), client, start))
+            image = load_watermark(watermark)[0]
+        jobs = _jobs(assets, out_dir, image, key_obj, keys_dir, timeout, force, options)
+        start = time.monotonic()
+        counts = dict.fromkeys(("ok", "skipped", "failed", "timeout"), 0)
+        failures = []
+        with dask_client(workers, scheduler, client) as client, \
+                LedgerWriter(os.path.join(out_dir, LEDGER_NAME)) as ledger:
+            for row in _results(client, encode_task, jobs):
+                ledger.write(row)
+                counts[row["status"]] += 1
+                if row["status"] in ("failed", "timeout"):
+                    failures.append(row)
+                if progress is not None:
+                    progress(_progress_counts(counts, len(jobs), client, start))
+    except PmwError:  # refused (a watermark, a key, a scheduler): the run made nothing, not even OUT_DIR
+        if created:
+            with contextlib.suppress(OSError):
+                os.rmdir(out_dir)  # only when still empty
+        raise
     return {"assets": len(jobs), **counts, "seconds": round(time.monotonic() - start, 3),
             "ledger": os.path.join(out_dir, LEDGER_NAME), "failures": failures}
 
