@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import http.client
 import re
+import time
 import urllib.error
 import urllib.parse
 import urllib.request
@@ -40,6 +41,8 @@ from .sources import DEFAULT_BLOCK_SIZE
 
 #: Seconds a connection may stay silent before the read fails.
 DEFAULT_TIMEOUT = 30.0
+#: Bytes per second an answer must average once it has taken longer than the timeout.
+MIN_RATE = 1024
 _CONTENT_RANGE = re.compile(r"bytes\s+(\d+)-(\d+)/(\d+|\*)\s*$")
 
 
@@ -229,6 +232,7 @@ class UrlSource:
         request = urllib.request.Request(self.url, headers={"Range": f"bytes={start}-{end - 1}",
                                                            "Accept-Encoding": "identity"})
         self.requests += 1
+        self._started, self._received = time.monotonic(), 0  # this answer's pace (:meth:`_read`)
         try:
             return self._opener.open(request, timeout=self.timeout)
         except urllib.error.HTTPError as exc:
@@ -263,11 +267,19 @@ class UrlSource:
                 return block
 
     def _read(self, response, size: int) -> bytes:
+        """Up to ``size`` bytes of the body as they come (``b""`` at its end).  A server silent for ``timeout``
+        seconds fails the read, and so does one that trickles: past ``timeout`` seconds, an answer whose
+        bytes came slower than :data:`MIN_RATE` on average (a byte every few seconds never times out)."""
         try:
-            block = response.read(size)
+            block = response.read1(size)
         except (OSError, ValueError, http.client.HTTPException) as exc:  # reset, timeout, broken chunked encoding
             raise InputFormatError(f"{self.url}: cannot read ({exc})") from None
         self.bytes_fetched += len(block)
+        self._received += len(block)
+        elapsed = time.monotonic() - self._started
+        if block and elapsed > self.timeout and self._received < MIN_RATE * elapsed:
+            raise InputFormatError(f"{self.url}: cannot read (the server stalls: {self._received:,} bytes in "
+                                   f"{elapsed:.0f} s, under {MIN_RATE:,} bytes/s)")
         return block
 
 

@@ -480,3 +480,35 @@ def test_a_server_that_does_not_speak_http_is_a_named_error(tmp_path, capsys):
     finally:
         listener.close()
         thread.join(5)
+
+
+class Trickling(RangeRequestHandler):
+    """A server that sends a byte every 0.1 s (never silent long enough for a socket timeout), for 8 s at most."""
+
+    def copyfile(self, source, outputfile):
+        import time
+
+        stop = time.monotonic() + 8
+        while time.monotonic() < stop:
+            block = source.read(1)
+            if not block:
+                return
+            outputfile.write(block)
+            outputfile.flush()
+            time.sleep(0.1)
+
+
+def test_a_server_that_trickles_is_a_named_error_not_a_read_of_hours(site):
+    """A byte every 0.1 s never trips the socket timeout: a .pmw of a few KB took hours, a large one days."""
+    import time
+
+    srv, thread = _serve(site, Trickling)
+    try:
+        start = time.monotonic()
+        with pytest.raises(InputFormatError, match="the server stalls"):
+            pmwm_codec.decode(UrlSource(f"http://127.0.0.1:{srv.server_address[1]}/x.pmw", timeout=1))
+        assert time.monotonic() - start < 5
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
