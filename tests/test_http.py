@@ -512,3 +512,26 @@ def test_a_server_that_trickles_is_a_named_error_not_a_read_of_hours(site):
         srv.shutdown()
         srv.server_close()
         thread.join(5)
+
+
+def test_serve_answers_say_accept_ranges_once_and_name_the_files_version(tmp_path):
+    """A 206 carried ``Accept-Ranges`` twice and neither answer an ``ETag``: a reader by ranges could not tell a
+    file replaced between its requests by one of the same size."""
+    import os
+
+    (tmp_path / "a.bin").write_bytes(b"x" * 100)
+    srv, thread = _serve(tmp_path, RangeRequestHandler)
+    url = f"http://127.0.0.1:{srv.server_address[1]}/a.bin"
+    try:
+        tags = []
+        for headers in ({}, {"Range": "bytes=0-9"}, {"Range": "bytes=0-9"}):
+            with urllib.request.urlopen(urllib.request.Request(url, headers=headers), timeout=10) as r:
+                assert r.headers.get_all("Accept-Ranges") == ["bytes"] and r.headers["Last-Modified"]
+                tags.append(r.headers["ETag"])
+            (tmp_path / "a.bin").write_bytes(b"y" * 100)
+            os.utime(tmp_path / "a.bin", ns=(len(tags), len(tags)))
+        assert None not in tags and len(set(tags)) == 3
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)

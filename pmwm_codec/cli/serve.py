@@ -123,11 +123,10 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
         self.send_header("Content-Type", self.guess_type(path))
         self.send_header("Content-Range", f"bytes {span[0]}-{span[1] - 1}/{size}")
         self.send_header("Content-Length", str(span[1] - span[0]))
-        self.send_header("Accept-Ranges", "bytes")
         self.send_header("Last-Modified", self.date_time_string(info.st_mtime))
+        self._span = span  # end_headers adds Accept-Ranges (once)
         self.end_headers()
         f.seek(span[0])
-        self._span = span
         return f
 
     def copyfile(self, source, outputfile):
@@ -143,8 +142,7 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
                 left -= len(block)
 
     def end_headers(self):
-        if getattr(self, "_span", None) is None:
-            self.send_header("Accept-Ranges", "bytes")
+        self.send_header("Accept-Ranges", "bytes")
         if getattr(self, "_etag", None) is not None:  # a reader by ranges tells a file replaced meanwhile
             self.send_header("ETag", self._etag)
         super().end_headers()
