@@ -367,7 +367,7 @@ def decode_asset(src, chunks=None):
     missing = _drop_images_not_arrived(doc, len(data) - bin_start)
     decoder.notices += [f"image {i} has not arrived yet: the level is written without it" for i in missing]
     needed = _data_end(doc)
-    if needed > len(data) - bin_start:  # other meshes' data (a cut before it): as pmw cut says it
+    if not end.complete and needed > len(data) - bin_start:  # other meshes' data, cut before it: as pmw cut says
         raise data_not_arrived(len(data), bin_start + needed)
     kept, kept_bin = repack(doc, [data[bin_start:]], drop)
     out = BufferBuilder(kept["bufferViews"], kept["accessors"], [kept_bin], len(kept_bin))
