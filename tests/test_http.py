@@ -535,3 +535,37 @@ def test_serve_answers_say_accept_ranges_once_and_name_the_files_version(tmp_pat
         srv.shutdown()
         srv.server_close()
         thread.join(5)
+
+
+def test_serve_closes_the_connection_when_the_file_shrank_under_its_answer(tmp_path):
+    """A file cut shorter (copied over by a writer that is not atomic) after its headers announced the old length:
+    the server sent fewer bytes and kept the connection open, so a keep-alive client waited for the rest until
+    its timeout (30 s by default; a browser longer)."""
+    import http.client
+    import time
+
+    class Shrinking(RangeRequestHandler):
+        def send_head(self):
+            f = super().send_head()
+            (tmp_path / "x.pmw").write_bytes(b"glTF")  # truncated in place, the same inode
+            return f
+
+    srv, thread = _serve(tmp_path, Shrinking)
+    try:
+        for ranged in (True, False):
+            (tmp_path / "x.pmw").write_bytes(b"glTF" + bytes(4000))
+            headers = {"Range": "bytes=0-999"} if ranged else {}
+            start = time.monotonic()
+            # a keep-alive client, as a browser is (urllib asks for Connection: close)
+            connection = http.client.HTTPConnection("127.0.0.1", srv.server_address[1], timeout=10)
+            try:
+                connection.request("GET", "/x.pmw", headers=headers)
+                with pytest.raises(http.client.IncompleteRead):  # told the body ended early
+                    connection.getresponse().read()
+            finally:
+                connection.close()
+            assert time.monotonic() - start < 5
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)

@@ -95,7 +95,7 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
         return None
 
     def send_head(self):
-        self._span = self._etag = None
+        self._etag = self._length = None
         path = self.translate_path(self.path)
         if os.path.isfile(path):
             self._etag = etag(os.stat(path))
@@ -124,14 +124,20 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
         self.send_header("Content-Range", f"bytes {span[0]}-{span[1] - 1}/{size}")
         self.send_header("Content-Length", str(span[1] - span[0]))
         self.send_header("Last-Modified", self.date_time_string(info.st_mtime))
-        self._span = span  # end_headers adds Accept-Ranges (once)
         self.end_headers()
         f.seek(span[0])
         return f
 
+    def send_header(self, keyword, value):
+        if keyword.lower() == "content-length":
+            self._length = int(value)
+        super().send_header(keyword, value)
+
     def copyfile(self, source, outputfile):
-        span = getattr(self, "_span", None)
-        left = None if span is None else span[1] - span[0]
+        """The body: the ``Content-Length`` announced, or less when the file shrank meanwhile (copied over by a
+        writer that is not atomic); the connection is then closed, which tells the client the body ended early
+        (kept open, the client would wait for the missing bytes)."""
+        left = getattr(self, "_length", None)
         while left is None or left > 0:
             block = source.read(1 << 16 if left is None else min(1 << 16, left))
             if not block:
@@ -140,6 +146,8 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
             outputfile.write(block)
             if left is not None:
                 left -= len(block)
+        if left:
+            self.close_connection = True
 
     def end_headers(self):
         self.send_header("Accept-Ranges", "bytes")
