@@ -415,14 +415,16 @@ def test_a_file_replaced_by_one_of_the_same_size_between_range_requests_is_refus
 
 
 def test_every_reader_of_the_library_takes_a_url_as_its_command_does(server, site):
-    """``decode_asset``, ``cut`` and ``inspect`` took a URL for a file name (``...: no such file``), though
-    ``pmw decode``, ``pmw cut`` and ``pmw info`` take one."""
+    """``decode_asset``, ``cut``, ``inspect`` and ``verify_stream`` took a URL for a file name (``...: no such
+    file``), though ``pmw decode``, ``pmw cut``, ``pmw info`` and ``pmw verify`` take one."""
     url, path = server.url + "x.pmw", site / "x.pmw"
     for n in (0, 2, None):
         assert pmwm_codec.decode_asset(url, chunks=n) == pmwm_codec.decode_asset(path, chunks=n)
         assert pmwm_codec.cut(url, chunks=n) == pmwm_codec.cut(path, chunks=n)
     remote, local = pmwm_codec.inspect(url), pmwm_codec.inspect(path)
     assert remote["file"] == url and remote["chunks_total"] == local["chunks_total"]
+    key = site / "x.pmw.key.json"
+    assert pmwm_codec.verify_stream(url, key).verdict == pmwm_codec.verify_stream(path, key).verdict == "authentic"
 
 
 def test_pmw_decode_of_a_url_up_to_chunk_n_says_the_file_is_complete_as_for_the_file(server, site, tmp_path, capsys):

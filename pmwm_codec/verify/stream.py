@@ -105,8 +105,11 @@ def verify_stream(source, key, watermark=None, *, keep_meshes: bool = False, pro
     otherwise the results hold only the numbers and the partial watermark.
     ``progress``: optional ``progress(label, fraction)`` called after every boundary.
     Raises the decoder's named errors (:class:`~pmwm_codec.errors.PmwError`), e.g.
-    TruncatedError when the file ends before its base mesh.
+    TruncatedError when the file ends before its base mesh.  ``source`` may be an http(s) URL.
     """
+    from ..http import as_source
+
+    source = as_source(source)
     reference = None
     if watermark is not None:
         reference, _ = load_watermark(watermark)
