@@ -172,7 +172,7 @@ def test_range_server_answers_206_with_content_range(site):
 
 def test_serve_answers_only_for_files_inside_its_directory_and_never_with_a_key(tmp_path):
     """A symbolic link out of the directory, a key file (``pmw encode`` writes the secret key beside the
-    ``.pmw``), a directory listing and a NUL byte all get 404, with or without ``Range``; a link that stays
+    ``.pmw``), a FIFO, a directory listing and a NUL byte all get 404, with or without ``Range``; a link that stays
     inside is served."""
     import os
 
@@ -187,6 +187,7 @@ def test_serve_answers_only_for_files_inside_its_directory_and_never_with_a_key(
     os.symlink(outside, site / "outdir")
     os.symlink(site / "a.txt", site / "in.txt")
     os.symlink(site / "a.pmw.key.json", site / "key-link.txt")
+    os.mkfifo(site / "pipe.pmw")  # opening it blocked the answer (and a server thread) forever
     image = np.random.default_rng(0).integers(0, 256, (8, 8)).astype(np.uint8)
     # a key under another name (pmw encode --key site/sub/k.json) and a key name in other case were served
     pmwm_codec.encode(shapes.icosphere(3), tmp_path / "b.pmw", watermark=image, key=site / "sub" / "k.json",
@@ -209,7 +210,7 @@ def test_serve_answers_only_for_files_inside_its_directory_and_never_with_a_key(
             assert get("a.txt", ranged)[1] == b"ok"  # bytes 0-1 are the whole file
             assert get("in.txt", ranged)[0] in (200, 206)
             for refused in ("out.txt", "outdir/secret.txt", "a.pmw.key.json", "key-link.txt", "", "sub/",
-                            "sub/k.json", "c.pmw.Key.Json",
+                            "sub/k.json", "c.pmw.Key.Json", "pipe.pmw",
                             "a.txt%00.pmw", "..%2Foutside%2Fsecret.txt"):
                 status, body = get(refused, ranged)
                 assert status == 404 and b"not yours" not in body and b"secret" not in body, refused

@@ -79,13 +79,17 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
     def translate_path(self, path):
         """The standard library's translation, refused (a path where no file can be: 404) when the
         file's real location is outside the served directory (a symbolic link out of it), when it is a
-        key file (:func:`~pmwm_codec.watermark.key.is_key_file`: by its name, or by its content), or when the name cannot be a file name (a NUL byte)."""
+        key file (:func:`~pmwm_codec.watermark.key.is_key_file`: by its name, or by its content), when it
+        is neither a regular file nor a folder (a FIFO: opening it blocks the answer forever), or when the
+        name cannot be a file name (a NUL byte)."""
         local = super().translate_path(path)
         try:
             real, root = os.path.realpath(local), os.path.realpath(self.directory)
         except (ValueError, OSError):
             return _NOWHERE
         if os.path.commonpath([real, root]) != root or is_key_file(real) or is_key_file(local):
+            return _NOWHERE
+        if os.path.exists(real) and not (os.path.isfile(real) or os.path.isdir(real)):
             return _NOWHERE
         return local
 
