@@ -120,8 +120,11 @@ class UrlSource:
         self.requests = self.bytes_fetched = 0
         self._size = self._validators = self.file_size = None
         self.stopped = False
-        response = self._open(0, PREAMBLE_SIZE)
+        response = self._open(0, PREAMBLE_SIZE, past_end_ok=True)
         with response:
+            if response.status == 416:  # an empty file: a stream of no bytes (the reader says it is cut)
+                self.ranged = True
+                return
             self.ranged = response.status == 206
             self._check_encoding(response)
             if not self.ranged:

@@ -572,3 +572,18 @@ def test_serve_closes_the_connection_when_the_file_shrank_under_its_answer(tmp_p
         srv.shutdown()
         srv.server_close()
         thread.join(5)
+
+
+def test_an_empty_file_over_http_is_a_stream_cut_before_its_header(tmp_path, capsys):
+    """Its first Range request is unsatisfiable (416): that was ``HTTP 416 Requested Range Not Satisfiable``,
+    where the same empty file on disk says how many bytes the stream had."""
+    (tmp_path / "empty.pmw").write_bytes(b"")
+    srv, thread = _serve(tmp_path, RangeRequestHandler)
+    try:
+        code, _, err = _pmw(capsys, "decode", f"http://127.0.0.1:{srv.server_address[1]}/empty.pmw", "-o",
+                            tmp_path / "x.obj")
+        assert code == 2 and "truncated: stream ended after 0 bytes" in err and len(err.splitlines()) == 1, err
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
