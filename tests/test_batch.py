@@ -477,3 +477,13 @@ def test_a_run_refused_before_any_work_leaves_no_output_folder(library, tmp_path
     with pytest.raises(pmwm_codec.PmwError):
         encode_batch(src, out, **kwargs)
     assert not out.exists()
+
+
+def test_an_output_folder_that_cannot_be_made_is_a_failed_row_not_a_lost_task(tmp_path):
+    """A file where an output's folder goes raised FileExistsError out of the task (the ledger said ``task
+    lost``), though a task never raises for a bad asset."""
+    write_mesh(tmp_path / "a.obj", shapes.icosphere(2))
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "sub").write_text("a file where a folder goes")
+    row = encode_task(EncodeJob(str(tmp_path / "a.obj"), str(tmp_path / "out" / "sub" / "a.obj.pmw"), timeout=30))
+    assert row["status"] == "failed" and "File exists" in row["error"] and str(tmp_path / "out" / "sub") in row["error"]

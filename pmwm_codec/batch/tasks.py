@@ -72,7 +72,10 @@ def encode_task(job: EncodeJob) -> dict:
         if _done_before(job, row["input_sha256"]):
             row.update(status="skipped", bytes=os.path.getsize(job.output), vertices=job.prior_vertices)
         else:
-            row.update(_encode_in_child(job))
+            try:
+                row.update(_encode_in_child(job))
+            except OSError as exc:  # its output's folder cannot be made (a file in its place ...)
+                row["error"] = f"{exc.filename or job.output}: {exc.strerror or exc}"
     row["seconds"] = round(time.monotonic() - start, 3)
     return row
 
