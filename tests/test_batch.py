@@ -487,3 +487,17 @@ def test_an_output_folder_that_cannot_be_made_is_a_failed_row_not_a_lost_task(tm
     (tmp_path / "out" / "sub").write_text("a file where a folder goes")
     row = encode_task(EncodeJob(str(tmp_path / "a.obj"), str(tmp_path / "out" / "sub" / "a.obj.pmw"), timeout=30))
     assert row["status"] == "failed" and "File exists" in row["error"] and str(tmp_path / "out" / "sub") in row["error"]
+
+
+@pytest.mark.parametrize("timeout", [float("inf"), 1e308, 0, -1, float("nan"), "600"])
+def test_a_timeout_the_operating_system_cannot_wait_is_refused_before_any_work(library, tmp_path, capsys, timeout):
+    """``--timeout inf`` (or 1e308) passed the command's check: every asset then failed as ``task lost
+    (OverflowError: cannot convert float infinity to integer)``, with tracebacks of the workers on stderr."""
+    root, src = library
+    with pytest.raises(pmwm_codec.PmwError, match="--timeout must be"):
+        encode_batch(src, tmp_path / "out", timeout=timeout)
+    assert not (tmp_path / "out").exists()
+    if timeout == float("inf"):
+        assert main(["batch", "encode", str(src), "-o", str(tmp_path / "out"), "--timeout", "inf"]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("pmw: error: --timeout must be") and len(err.splitlines()) == 1, err

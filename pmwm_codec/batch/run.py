@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import numbers
 import os
 import time
 import uuid
@@ -29,6 +30,9 @@ from .tasks import EncodeJob, encode_task, verify_task
 __all__ = ["BatchError", "dask_client", "encode_batch", "verify_batch", "collection_key", "DEFAULT_TIMEOUT"]
 
 DEFAULT_TIMEOUT = 600.0  # seconds per asset
+#: The longest per-asset timeout: a wait the operating system takes (epoll counts int milliseconds: ~24 days);
+#: an infinite one made every asset a lost task (OverflowError).
+MAX_TIMEOUT = 1e6
 
 
 class BatchError(PmwError, ValueError):
@@ -153,6 +157,9 @@ def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, worke
     """
     if key is not None and keys_dir is not None:
         raise BatchError("give --key (one collection key) or --keys-dir (a key per asset), not both")
+    if isinstance(timeout, bool) or not isinstance(timeout, numbers.Real) or not 0 < timeout <= MAX_TIMEOUT:
+        raise BatchError(f"--timeout must be a number of seconds in (0, {MAX_TIMEOUT:g}], got {timeout!r} "
+                         "(a longer wait cannot be asked of the operating system)")
     out_dir = os.path.abspath(os.fspath(out_dir))
     try:
         assets = expand_sources(src, out_dir)
