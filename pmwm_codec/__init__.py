@@ -184,25 +184,30 @@ def iter_decode(src, key=None, watermark=None):
 
 
 def decode_asset(src, chunks=None) -> bytes:
-    """A ``.pmw`` (whole or cut) as an ordinary GLB (bytes) at a level of detail.
+    """A ``.pmw`` (whole or cut; a path, bytes, a binary file or an http(s) URL) as an ordinary GLB (bytes)
+    at a level of detail.
 
     The same glTF document (materials, textures, nodes ...) with every progressive
     primitive's geometry at the base mesh plus ``chunks`` chunks (default: all that arrived).
     """
+    from .http import as_source
     from .options import checked_chunks
     from .stream.asset import decode_asset as _decode_asset
 
-    glb, _, _ = _decode_asset(src, chunks=checked_chunks(chunks))
+    chunks = checked_chunks(chunks)
+    glb, _, _ = _decode_asset(as_source(src, chunks, whole_document=True), chunks=chunks)
     return glb
 
 
 def cut(src, chunks=None) -> bytes:
-    """A valid, smaller ``.pmw`` (bytes) from any ``.pmw`` or prefix of one: the base and the
+    """A valid, smaller ``.pmw`` (bytes) from any ``.pmw`` or prefix of one (an http(s) URL too): the base and the
     first ``chunks`` chunks (default: all that arrived whole).  See :mod:`pmwm_codec.stream.cut`."""
+    from .http import as_source
     from .options import checked_chunks
     from .stream.cut import cut as _cut
 
-    return _cut(src, checked_chunks(chunks))
+    chunks = checked_chunks(chunks)
+    return _cut(as_source(src, chunks, whole_document=True), chunks)
 
 
 #: Functions of heavier modules, imported on first use so that ``import pmwm_codec`` stays light.

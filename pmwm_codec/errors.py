@@ -70,4 +70,5 @@ class OwnerLayerError(PmwError, ValueError):
 
 class OptionError(PmwError, ValueError):
     """An option of :func:`pmwm_codec.encode` that is unknown or out of its range, or a ``src`` / ``dst``
-    it cannot take (an output that would replace an input, ``"-"``, a GLB named as another format)."""
+    it cannot take (an output that would replace an input, ``"-"``, a GLB named as another format); a
+    reader's source or data of a kind it cannot read (an int, a ``str`` from a file opened in text mode)."""

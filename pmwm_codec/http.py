@@ -10,21 +10,27 @@ the first bytes with a ``Range`` request:
   each, and finally the padding up to the file length.  With ``max_chunks=N`` it stops
   after the N-th chunk: nothing after it is requested.
 * the server ignores it (``200``): the body is read as one plain streamed GET, in
-  blocks, stopped after the N-th chunk when ``max_chunks`` is given.
+  blocks, stopped after the N-th chunk when ``max_chunks`` is given; a gzip or deflate
+  ``Content-Encoding`` is undone as it is read (a ranged answer in one is refused).
 
 A connection that ends early is a cut stream, read with the same semantics as a cut
 file (every complete chunk is delivered).  Only ``http://`` and ``https://`` URLs are
 accepted, and only where the caller passed one (:func:`is_url`): nothing read from a
 file ever makes us fetch anything; a redirect to another scheme is refused.  Network
 failures and inconsistent servers raise :class:`~pmwm_codec.errors.InputFormatError`
-naming the URL.
+naming the URL, and so does a file that changes between the requests (its size, ``ETag``
+or ``Last-Modified``).
 """
 
 from __future__ import annotations
 
+import http.client
 import re
+import time
 import urllib.error
+import urllib.parse
 import urllib.request
+import zlib
 
 from .errors import InputFormatError
 from .format import ContainerParser, HeaderEvent
@@ -35,6 +41,8 @@ from .sources import DEFAULT_BLOCK_SIZE
 
 #: Seconds a connection may stay silent before the read fails.
 DEFAULT_TIMEOUT = 30.0
+#: Bytes per second an answer must average once it has taken longer than the timeout.
+MIN_RATE = 1024
 _CONTENT_RANGE = re.compile(r"bytes\s+(\d+)-(\d+)/(\d+|\*)\s*$")
 
 
@@ -43,9 +51,21 @@ def is_url(source) -> bool:
     return isinstance(source, str) and source[:8].lower().startswith(("http://", "https://"))
 
 
-def as_source(source, max_chunks: int | None = None):
-    """A :class:`UrlSource` for a URL string, any other source unchanged."""
-    return UrlSource(source, max_chunks=max_chunks) if is_url(source) else source
+def as_source(source, max_chunks: int | None = None, whole_document: bool = False):
+    """A :class:`UrlSource` for a URL string (reading up to ``max_chunks`` chunks; ``whole_document``: and
+    the document's other data, see :func:`plan_ranges`), any other source unchanged."""
+    return UrlSource(source, max_chunks=max_chunks, whole_document=whole_document) if is_url(source) else source
+
+
+def stream_end(source, end):
+    """``end`` (a :class:`~pmwm_codec.stream.StreamEnd` of a read of ``source``) as the file is: a
+    :class:`UrlSource` that stopped after the chunks asked for fetched no more, and the file on the server
+    is complete when its size is its GLB length (it is not a cut file because we did not fetch the rest)."""
+    if isinstance(source, UrlSource) and source.stopped and not end.complete and source.file_size is not None:
+        from dataclasses import replace
+
+        return replace(end, complete=source.file_size == end.total_length)
+    return end
 
 
 class _HttpOnlyRedirects(urllib.request.HTTPRedirectHandler):
@@ -64,13 +84,23 @@ class UrlSource:
     ``whole_document``: and after the document's other data (:func:`plan_ranges`).
     After (or during) an iteration ``requests`` counts the HTTP requests made,
     ``bytes_fetched`` the body bytes received and ``ranged`` says whether the server
-    honoured ``Range``.  Each iteration fetches afresh.
+    honoured ``Range``; ``stopped`` whether it ended after the chunks asked for, leaving the
+    rest of the file unfetched, and ``file_size`` the file's size as the server gave it
+    (None: not said).  Each iteration fetches afresh.
     """
 
     def __init__(self, url: str, *, max_chunks: int | None = None, whole_document: bool = False,
                  timeout: float = DEFAULT_TIMEOUT, block_size: int = DEFAULT_BLOCK_SIZE):
         if not is_url(url):
             raise InputFormatError(f"{url}: not an http:// or https:// URL")
+        try:
+            parts = urllib.parse.urlsplit(url)
+            parts.port  # noqa: B018 - a port out of range or not a number raises here
+        except ValueError as exc:
+            raise InputFormatError(f"{url}: not a valid URL ({exc})") from None
+        if parts.username is not None or parts.password is not None:  # never echoed: a password
+            raise InputFormatError(f"{parts.scheme}://...@{parts.hostname}{parts.path}: a user name or password in "
+                                   "the URL is not supported")
         self.url = url
         self.max_chunks = max_chunks
         self.whole_document = whole_document
@@ -79,6 +109,8 @@ class UrlSource:
         self.requests = 0
         self.bytes_fetched = 0
         self.ranged = None
+        self.stopped = False
+        self.file_size = None
         self._opener = urllib.request.build_opener(_HttpOnlyRedirects)
 
     def __repr__(self):
@@ -86,10 +118,15 @@ class UrlSource:
 
     def __iter__(self):
         self.requests = self.bytes_fetched = 0
-        self._size = None
-        response = self._open(0, PREAMBLE_SIZE)
+        self._size = self._validators = self.file_size = None
+        self.stopped = False
+        response = self._open(0, PREAMBLE_SIZE, past_end_ok=True)
         with response:
+            if response.status == 416:  # an empty file: a stream of no bytes (the reader says it is cut)
+                self.ranged = True
+                return
             self.ranged = response.status == 206
+            self._check_encoding(response)
             if not self.ranged:
                 yield from self._plain(response)
                 return
@@ -110,12 +147,14 @@ class UrlSource:
         if len(rest) < header_end - PREAMBLE_SIZE:
             return
         start = header_end
-        for end in plan_ranges(preamble + rest, self.max_chunks, self.whole_document):
+        ends = plan_ranges(preamble + rest, self.max_chunks, self.whole_document)
+        for end in ends:
             block = self._fetch(start, end)
             yield block
             if len(block) < end - start:
                 return  # the server stopped: a cut stream
             start = end
+        self.stopped = ends[-1] < parse_preamble(preamble)[0]
 
     def _fetch(self, start: int, end: int) -> bytes:
         """Bytes ``[start, end)`` by one Range request; fewer (or none) when the file ends first."""
@@ -125,22 +164,39 @@ class UrlSource:
             if response.status != 206:
                 raise InputFormatError(f"{self.url}: the server answered a Range request with status "
                                        f"{response.status} after honouring one")
+            self._check_encoding(response)
             return self._body(response, start, end)
+
+    def _check_encoding(self, response) -> None:
+        """Refuse a ranged answer in a content coding (gzip ...): its byte ranges are not the file's.
+        A plain answer's is undone as it is read (:meth:`_plain`)."""
+        coding = _coding(response)
+        if coding is not None and (response.status == 206 or coding not in _DECODERS):
+            raise InputFormatError(f"{self.url}: the server sent the file {coding}-encoded (Content-Encoding) although "
+                                   "asked for identity" + (" in a Range answer" if response.status == 206 else ""))
 
     def _body(self, response, start: int, end: int) -> bytes:
         """The body of a 206 answer for ``[start, end)``, its Content-Range checked.
 
-        The file's size must stay the one the first answer gave (a file replaced while it
-        is read is refused); the server may end the range early at the end of the file.
+        The file's size, ``ETag`` and ``Last-Modified`` must stay the ones the first answer gave (a file
+        replaced while it is read is refused, even by one of the same size); the server may end the
+        range early at the end of the file.
         """
         given = response.headers.get("Content-Range", "")
         match = _CONTENT_RANGE.match(given)
         if match is None or int(match[1]) != start or int(match[2]) > end - 1:
             raise InputFormatError(f"{self.url}: Content-Range {given!r} does not answer bytes {start}-{end - 1}")
+        validators = {name: response.headers.get(name) for name in ("ETag", "Last-Modified")}
         if self._size is None:
-            self._size = match[3]
+            self._size, self._validators = match[3], validators
+            self.file_size = int(match[3]) if match[3].isdigit() else None
         elif match[3] != self._size:
             raise InputFormatError(f"{self.url}: the file changed while it was read (size {self._size}, now {match[3]})")
+        else:
+            for name, first in self._validators.items():
+                if first is not None and validators[name] is not None and validators[name] != first:
+                    raise InputFormatError(f"{self.url}: the file changed while it was read ({name} {first}, "
+                                           f"now {validators[name]})")
         parts, size = [], 0
         while size < end - start:
             block = self._read(response, min(self.block_size, end - start - size))
@@ -156,10 +212,14 @@ class UrlSource:
         """The body of a plain GET, in blocks; stopped after ``max_chunks`` chunks."""
         if response.status != 200:
             raise InputFormatError(f"{self.url}: HTTP status {response.status}")
+        coding = _coding(response)
+        undo = None if coding is None else _DECODERS[coding]()
+        length = response.headers.get("Content-Length", "")
+        self.file_size = int(length) if coding is None and length.isdigit() else None
         head, stop, offset = bytearray(), None, 0
         while stop is None or offset < stop:
             want = self.block_size if stop is None else min(self.block_size, stop - offset)
-            block = self._read(response, want)
+            block = self._read(response, want) if undo is None else self._undo(response, undo, want)
             if not block:
                 return
             offset += len(block)
@@ -167,6 +227,7 @@ class UrlSource:
                 head += block
                 stop = _plain_stop(bytes(head), self.max_chunks, self.whole_document)
             yield block
+        self.stopped = stop < parse_preamble(bytes(head))[0]
 
     # -- HTTP ---------------------------------------------------------------------
 
@@ -174,6 +235,7 @@ class UrlSource:
         request = urllib.request.Request(self.url, headers={"Range": f"bytes={start}-{end - 1}",
                                                            "Accept-Encoding": "identity"})
         self.requests += 1
+        self._started, self._received = time.monotonic(), 0  # this answer's pace (:meth:`_read`)
         try:
             return self._opener.open(request, timeout=self.timeout)
         except urllib.error.HTTPError as exc:
@@ -184,14 +246,56 @@ class UrlSource:
         except (urllib.error.URLError, OSError) as exc:
             reason = getattr(exc, "reason", None) or exc
             raise InputFormatError(f"{self.url}: cannot read ({reason})") from None
+        except http.client.InvalidURL as exc:  # a space or a control character in the URL
+            raise InputFormatError(f"{self.url}: not a valid URL ({exc})") from None
+        except http.client.HTTPException as exc:  # not an HTTP answer (BadStatusLine ...)
+            raise InputFormatError(f"{self.url}: cannot read ({type(exc).__name__}: {exc})") from None
+
+    def _undo(self, response, undo, size: int) -> bytes:
+        """Up to ``size`` bytes of a body in a content coding, decoded (``b""`` at its end)."""
+        while True:
+            if undo.unconsumed_tail:
+                data = undo.unconsumed_tail
+            elif undo.eof:
+                return b""
+            else:
+                data = self._read(response, self.block_size)
+                if not data:
+                    return undo.flush()
+            try:
+                block = undo.decompress(data, size)
+            except zlib.error as exc:
+                raise InputFormatError(f"{self.url}: the server's compressed answer does not decode ({exc})") from None
+            if block:
+                return block
 
     def _read(self, response, size: int) -> bytes:
+        """Up to ``size`` bytes of the body as they come (``b""`` at its end).  A server silent for ``timeout``
+        seconds fails the read, and so does one that trickles: past ``timeout`` seconds, an answer whose
+        bytes came slower than :data:`MIN_RATE` on average (a byte every few seconds never times out)."""
         try:
-            block = response.read(size)
-        except (OSError, ValueError) as exc:  # reset, timeout, broken chunked encoding
+            block = response.read1(size)
+        except (OSError, ValueError, http.client.HTTPException) as exc:  # reset, timeout, broken chunked encoding
             raise InputFormatError(f"{self.url}: cannot read ({exc})") from None
         self.bytes_fetched += len(block)
+        self._received += len(block)
+        elapsed = time.monotonic() - self._started
+        if block and elapsed > self.timeout and self._received < MIN_RATE * elapsed:
+            raise InputFormatError(f"{self.url}: cannot read (the server stalls: {self._received:,} bytes in "
+                                   f"{elapsed:.0f} s, under {MIN_RATE:,} bytes/s)")
         return block
+
+
+#: Content codings a plain answer may come in, undone as it is read (gzip with its header, deflate as zlib).
+_DECODERS = {"gzip": lambda: zlib.decompressobj(16 + zlib.MAX_WBITS),
+             "x-gzip": lambda: zlib.decompressobj(16 + zlib.MAX_WBITS),
+             "deflate": lambda: zlib.decompressobj(zlib.MAX_WBITS)}
+
+
+def _coding(response):
+    """The answer's content coding (lower case), None for none or ``identity``."""
+    coding = (response.headers.get("Content-Encoding") or "").strip().lower()
+    return None if coding in ("", "identity") else coding
 
 
 def _plain_stop(head: bytes, max_chunks: int, whole_document: bool = False):

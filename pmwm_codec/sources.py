@@ -45,9 +45,30 @@ def iter_blocks(source, block_size: int = DEFAULT_BLOCK_SIZE):
             block = read(block_size)
             if not block:
                 return
+            byte_view(block, "the file object's read()")
             yield block
         return
-    yield from source
+    if not hasattr(source, "__iter__"):
+        from .errors import OptionError
+
+        raise OptionError(f"the source must be a path, '-', bytes, a binary file object or an iterable of byte "
+                          f"blocks, got {type(source).__name__}")
+    for block in source:
+        byte_view(block, "a block of the source")
+        yield block
+
+
+def byte_view(data, what: str) -> memoryview:
+    """``data`` as a flat byte memoryview; :class:`~pmwm_codec.errors.OptionError` naming ``what`` when it
+    is not bytes-like (a ``str`` from a file opened in text mode, say)."""
+    try:
+        return memoryview(data).cast("B")
+    except TypeError:
+        from .errors import OptionError
+
+        hint = ": open the file in binary mode ('rb')" if isinstance(data, str) else ""
+        raise OptionError(f"{what}: bytes-like data expected (bytes, bytearray, memoryview), got "
+                          f"{type(data).__name__}{hint}") from None
 
 
 def read_all(source) -> bytes:

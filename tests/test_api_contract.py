@@ -93,7 +93,8 @@ def test_pmw_paths_that_name_no_regular_file_are_input_errors_never_hangs(tmp_pa
     os.mkfifo(tmp_path / "fifo")
     (tmp_path / "dir").mkdir()
     for name, words in (("fifo", "not a regular file"), ("missing.pmw", "no such file"), ("dir", "is a directory")):
-        for read in (pmwm_codec.decode, pmwm_codec.cut, pmwm_codec.decode_asset):
+        for read in (pmwm_codec.decode, pmwm_codec.cut, pmwm_codec.decode_asset, pmwm_codec.inspect,
+                     lambda src: list(pmwm_codec.iter_decode(src))):
             with pytest.raises(InputFormatError, match=words):
                 read(str(tmp_path / name))
 
@@ -159,3 +160,12 @@ def test_a_mesh_of_the_wrong_shape_or_kind_is_named_so(positions, faces, words):
     with pytest.raises(MeshError) as info:
         checked_mesh(positions, faces)
     assert words in str(info.value)
+
+
+@pytest.mark.parametrize("key", [5, 1.5, ["k.json"]])
+def test_a_key_that_is_neither_a_key_nor_a_path_is_named_by_every_reader(stream, key):
+    """``verify_stream(src, 5)`` raised a bare TypeError from ``os.fspath``."""
+    for read in (lambda: pmwm_codec.verify_stream(stream, key), lambda: list(pmwm_codec.iter_decode(stream, key=key)),
+                 lambda: pmwm_codec.load_key(key)):
+        with pytest.raises(WatermarkKeyError, match="a key must be a WatermarkKey, a key file path or None, got"):
+            read()

@@ -508,3 +508,32 @@ def test_decoding_an_asset_whose_placements_do_not_read_to_obj_says_so(tmp_path,
     assert read_mesh(tmp_path / "a.obj").vertex_count == sphere.vertex_count
     assert main(["decode", str(tmp_path / "a.pmw"), "-o", str(tmp_path / "a.glb2.glb")]) == 0
     assert "as stored" not in capsys.readouterr().err  # the GLB keeps the scene
+
+
+def test_an_asset_cut_before_its_other_meshes_data_is_truncated_as_pmw_cut_says(tmp_path, capsys):
+    """A prefix holding the progressive bases but not the data of the document's other meshes (a line strip,
+    points) decoded to OBJ, while ``decode_asset`` (``pmw decode -o x.glb``) failed with
+    ``glTF: bufferView 0 ends at ..., past the buffer's ... bytes``, as if the file were corrupt."""
+    import pmwm_codec
+    from pmwm_codec.cli import main
+    from pmwm_codec.errors import TruncatedError
+
+    encode_asset(two_mesh_asset(tmp_path), tmp_path / "s.pmw", measure="none")
+    data = (tmp_path / "s.pmw").read_bytes()
+    lo, hi = 0, len(data)  # the shortest prefix that decodes: the bases are in, the other data is not yet
+    while lo < hi:
+        mid = (lo + hi) // 2
+        try:
+            pmwm_codec.decode(data[:mid])
+            hi = mid
+        except TruncatedError:
+            lo = mid + 1
+    prefix = data[:lo]
+    for read in (pmwm_codec.decode_asset, pmwm_codec.cut):
+        with pytest.raises(TruncatedError, match="has not arrived"):
+            read(prefix)
+    (tmp_path / "p.pmw").write_bytes(prefix)
+    assert main(["decode", str(tmp_path / "p.pmw"), "-o", str(tmp_path / "p.glb")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("pmw: error: ") and "has not arrived" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "p.glb").exists()

@@ -189,6 +189,34 @@ def test_sigkill_of_the_process_group_halfway_then_rerun_finishes_consistently(l
     assert not list(out.rglob("*.tmp"))
 
 
+def test_ctrl_c_halfway_is_one_line_and_exit_130_and_leaves_no_process_behind(library, tmp_path):
+    """A Ctrl-C (SIGINT to the process group) raised KeyboardInterrupt in every Dask worker too, each printing
+    its traceback on stderr under ``pmw: error: interrupted``."""
+    root, src = library
+    out = tmp_path / "out"
+    argv = [sys.executable, "-m", "pmwm_codec", "batch", "encode", str(src), "-o", str(out),
+            "--watermark", str(root / "wm.png"), "--workers", "1", "-q"]
+    proc = subprocess.Popen(argv, env=dict(os.environ, PYTHONPATH=str(ROOT)), start_new_session=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 240
+        while len(read_ledger(out / LEDGER_NAME)) < 2 and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 130
+    assert "Traceback" not in err and err.strip().splitlines()[-1] == "pmw: error: interrupted", err
+    time.sleep(1)
+    ps = subprocess.run(["ps", "-o", "pid=,stat=,args=", "-g", str(proc.pid)], capture_output=True, text=True).stdout
+    left = [line for line in ps.splitlines() if not line.split()[1].startswith("Z")]  # zombies have ended
+    assert not left, left  # no worker, forkserver or encoder outlives the run
+    assert not list(out.rglob("*.tmp"))
+
+
 def test_a_timed_out_asset_is_killed_and_leaves_nothing(tmp_path):
     src = tmp_path / "big.obj"
     write_mesh(src, shapes.icosphere(5, noise=0.01))
@@ -280,6 +308,17 @@ def test_a_folder_holding_the_output_folder_does_not_take_outputs_as_inputs(tmp_
     (tmp_path / "out").mkdir()
     write_mesh(tmp_path / "out" / "decoded.obj", shapes.icosphere(1))
     assert [a.relative for a in expand_sources(tmp_path, tmp_path / "out")] == ["a.obj"]
+
+
+def test_an_output_folder_that_is_the_source_or_holds_it_leaves_no_subfolder_out(tmp_path):
+    """``pmw batch encode lib -o lib`` (or ``-o .`` from lib's parent) took every subfolder of lib for a part of
+    OUT_DIR and encoded the top-level meshes only, exit 0."""
+    lib = tmp_path / "lib"
+    (lib / "sub").mkdir(parents=True)
+    write_mesh(lib / "a.obj", shapes.icosphere(1))
+    write_mesh(lib / "sub" / "b.ply", shapes.icosphere(1))
+    for out in (lib, tmp_path):
+        assert sorted(a.relative for a in expand_sources(lib, out)) == ["a.obj", "sub/b.ply"]
 
 
 def test_the_ledger_reader_drops_a_line_cut_by_a_kill_and_the_writer_starts_a_new_line(tmp_path):
@@ -396,3 +435,69 @@ def test_batch_no_owner_writes_the_exact_layer_only(tmp_path, client, capsys):
         assert doc["verdict"] == "authentic"
         owners.append(doc.get("owner"))
     assert owners[0]["verdict"] == "present" and owners[1] is None
+
+
+@pytest.mark.parametrize("kind", ["fifo", "device"])
+def test_an_input_that_is_a_fifo_or_a_device_is_a_failed_asset_never_a_hang(tmp_path, kind):
+    """Hashing the input opened it as it was: a FIFO in the library (or ``/dev/zero`` in a manifest) blocked or
+    read forever, before the encoder and its timeout ever started."""
+    if kind == "fifo":
+        path = tmp_path / "f.obj"
+        os.mkfifo(path)
+    else:
+        path = Path("/dev/zero")
+    row = encode_task(EncodeJob(str(path), str(tmp_path / "out" / "f.obj.pmw"), timeout=30))
+    assert row["status"] == "failed" and "not a regular file" in row["error"] and str(path) in row["error"]
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_rerun_that_fails_leaves_the_output_of_the_run_before_as_it_was(tmp_path):
+    """A re-run with other settings (``--keys-dir``, so the key it wants is not there yet) deleted each old output
+    before encoding: when the encode then failed or timed out, the good output of the run before was lost and its
+    key left alone beside nothing."""
+    write_mesh(tmp_path / "a.obj", shapes.icosphere(2))
+    old = tmp_path / "out" / "a.obj.pmw"
+    old.parent.mkdir()
+    old.write_bytes(b"the output of the run before")
+    job = EncodeJob(str(tmp_path / "a.obj"), str(old), key=str(tmp_path / "keys" / "a.obj.pmw.key.json"),
+                    key_path=str(tmp_path / "keys" / "a.obj.pmw.key.json"),
+                    watermark=np.full((4, 4), 255, np.uint8), timeout=0.01)
+    row = encode_task(job)
+    assert row["status"] == "timeout" and old.read_bytes() == b"the output of the run before"
+    assert not list(old.parent.glob(".*.tmp"))
+
+
+@pytest.mark.parametrize("refused", ["watermark", "key"])
+def test_a_run_refused_before_any_work_leaves_no_output_folder(library, tmp_path, refused):
+    """A missing watermark or a key that is not a key left an empty OUT_DIR behind."""
+    root, src = library
+    (tmp_path / "k.json").write_text("not a key")
+    out = tmp_path / "out"
+    kwargs = {"watermark": tmp_path / "nope.png"} if refused == "watermark" else {"key": tmp_path / "k.json"}
+    with pytest.raises(pmwm_codec.PmwError):
+        encode_batch(src, out, **kwargs)
+    assert not out.exists()
+
+
+def test_an_output_folder_that_cannot_be_made_is_a_failed_row_not_a_lost_task(tmp_path):
+    """A file where an output's folder goes raised FileExistsError out of the task (the ledger said ``task
+    lost``), though a task never raises for a bad asset."""
+    write_mesh(tmp_path / "a.obj", shapes.icosphere(2))
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "sub").write_text("a file where a folder goes")
+    row = encode_task(EncodeJob(str(tmp_path / "a.obj"), str(tmp_path / "out" / "sub" / "a.obj.pmw"), timeout=30))
+    assert row["status"] == "failed" and "File exists" in row["error"] and str(tmp_path / "out" / "sub") in row["error"]
+
+
+@pytest.mark.parametrize("timeout", [float("inf"), 1e308, 0, -1, float("nan"), "600"])
+def test_a_timeout_the_operating_system_cannot_wait_is_refused_before_any_work(library, tmp_path, capsys, timeout):
+    """``--timeout inf`` (or 1e308) passed the command's check: every asset then failed as ``task lost
+    (OverflowError: cannot convert float infinity to integer)``, with tracebacks of the workers on stderr."""
+    root, src = library
+    with pytest.raises(pmwm_codec.PmwError, match="--timeout must be"):
+        encode_batch(src, tmp_path / "out", timeout=timeout)
+    assert not (tmp_path / "out").exists()
+    if timeout == float("inf"):
+        assert main(["batch", "encode", str(src), "-o", str(tmp_path / "out"), "--timeout", "inf"]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("pmw: error: --timeout must be") and len(err.splitlines()) == 1, err

@@ -299,6 +299,7 @@ def _bad_cases(work, d):
     (d / "mark.png").write_bytes(b"not an image at all")
     (d / "random.pmw").write_bytes(np.random.default_rng(1).bytes(4000))
     (d / "early.pmw").write_bytes(work["pmw"].read_bytes()[:300])
+    os.mkfifo(d / "fifo.pmw")
     out = d / "out.pmw"
     mesh, pmw, key = work["mesh"], work["pmw"], work["key"]
     return {
@@ -315,6 +316,7 @@ def _bad_cases(work, d):
         "random bytes (verify)": ["verify", d / "random.pmw", "--key", key],
         "random bytes (decode)": ["decode", d / "random.pmw", "-o", d / "out.glb"],
         "random bytes (info)": ["info", d / "random.pmw"],
+        "a FIFO (info, was a hang)": ["info", d / "fifo.pmw"],
         "cut before the base mesh (decode)": ["decode", d / "early.pmw", "-o", d / "out.obj"],
         "missing .pmw": ["decode", d / "nope.pmw", "-o", d / "out.obj"],
         "unknown output format": ["decode", pmw, "-o", d / "out.xyz"],
@@ -328,6 +330,7 @@ def _bad_cases(work, d):
 BAD = ["missing file", "not a mesh", "empty mesh", "NaN coordinates", "face index out of range",
        "watermark not an image", "unwritable output", "output is a directory", "missing key",
        "cut before the base mesh", "random bytes (verify)", "random bytes (decode)", "random bytes (info)",
+       "a FIFO (info, was a hang)",
        "cut before the base mesh (decode)", "missing .pmw", "unknown output format", "negative --chunks",
        "bad --bits", "missing -o", "unknown command"]
 
@@ -449,3 +452,17 @@ def test_batch_failure_lines_name_each_input_by_its_path_not_its_base_name(tmp_p
     monkeypatch.chdir(tmp_path)
     assert _failure_line(rows[1], "*/bad.obj") == "b/bad.obj: face index 1 out of range"
     assert _failure_line({"input": str(tmp_path / "c.obj"), "status": "timeout", "error": None}, ".") == "c.obj: timeout"
+
+
+@pytest.mark.parametrize("command", ["cut", "decode"])
+def test_an_output_that_is_the_file_standard_input_reads_is_refused(work, tmp_path, command):
+    """``pmw cut - -o x.pmw < x.pmw`` replaced the whole file by its cut (and ``pmw decode - -o x.glb < x.glb``
+    a .pmw named .glb by its decode): the output was compared with every input but ``-``."""
+    target = tmp_path / ("x.pmw" if command == "cut" else "x.glb")
+    target.write_bytes(work["pmw"].read_bytes())
+    with open(target, "rb") as stdin:
+        proc = subprocess.run([sys.executable, "-m", "pmwm_codec", command, "-", "-o", str(target), "--chunks", "1"],
+                              stdin=stdin, capture_output=True, text=True, cwd=ROOT)
+    assert proc.returncode == 2 and proc.stderr.startswith("pmw: error: ") and len(proc.stderr.splitlines()) == 1
+    assert "is also the input" in proc.stderr, proc.stderr
+    assert target.read_bytes() == work["pmw"].read_bytes()

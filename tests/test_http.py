@@ -81,6 +81,9 @@ def test_is_url_accepts_only_http_and_https():
 @pytest.mark.parametrize("header,expected", [
     ("bytes=0-19", (0, 20)), ("bytes=10-", (10, 100)), ("bytes=-30", (70, 100)), ("bytes=90-500", (90, 100)),
     ("bytes=100-", (100, 100)), ("bytes=5-2", None), ("bytes=0-1,5-6", None), ("items=0-1", None), (None, None),
+    # thousands of digits: int() raised (a traceback on the server, the connection dropped without an answer)
+    ("bytes=" + "9" * 5000 + "-", (100, 100)), ("bytes=0-" + "9" * 5000, (0, 100)), ("bytes=-" + "9" * 5000, (0, 100)),
+    ("bytes=" + "9" * 5000 + "-1", None),
 ])
 def test_parse_range_reads_single_byte_ranges(header, expected):
     assert parse_range(header, 100) == expected
@@ -169,7 +172,7 @@ def test_range_server_answers_206_with_content_range(site):
 
 def test_serve_answers_only_for_files_inside_its_directory_and_never_with_a_key(tmp_path):
     """A symbolic link out of the directory, a key file (``pmw encode`` writes the secret key beside the
-    ``.pmw``), a directory listing and a NUL byte all get 404, with or without ``Range``; a link that stays
+    ``.pmw``), a FIFO, a directory listing and a NUL byte all get 404, with or without ``Range``; a link that stays
     inside is served."""
     import os
 
@@ -184,6 +187,12 @@ def test_serve_answers_only_for_files_inside_its_directory_and_never_with_a_key(
     os.symlink(outside, site / "outdir")
     os.symlink(site / "a.txt", site / "in.txt")
     os.symlink(site / "a.pmw.key.json", site / "key-link.txt")
+    os.mkfifo(site / "pipe.pmw")  # opening it blocked the answer (and a server thread) forever
+    image = np.random.default_rng(0).integers(0, 256, (8, 8)).astype(np.uint8)
+    # a key under another name (pmw encode --key site/sub/k.json) and a key name in other case were served
+    pmwm_codec.encode(shapes.icosphere(3), tmp_path / "b.pmw", watermark=image, key=site / "sub" / "k.json",
+                      measure="none")
+    (site / "c.pmw.Key.Json").write_text('{"secret": "00"}')
     srv, thread = _serve(site, RangeRequestHandler)
     base = f"http://127.0.0.1:{srv.server_address[1]}/"
 
@@ -201,6 +210,7 @@ def test_serve_answers_only_for_files_inside_its_directory_and_never_with_a_key(
             assert get("a.txt", ranged)[1] == b"ok"  # bytes 0-1 are the whole file
             assert get("in.txt", ranged)[0] in (200, 206)
             for refused in ("out.txt", "outdir/secret.txt", "a.pmw.key.json", "key-link.txt", "", "sub/",
+                            "sub/k.json", "c.pmw.Key.Json", "pipe.pmw",
                             "a.txt%00.pmw", "..%2Foutside%2Fsecret.txt"):
                 status, body = get(refused, ranged)
                 assert status == 404 and b"not yours" not in body and b"secret" not in body, refused
@@ -317,6 +327,262 @@ def test_a_url_cut_fetches_the_document_data_another_writer_put_after_the_chunks
         srv.bytes_sent = 0
         pmwm_codec.decode(UrlSource(url, max_chunks=1), chunks=1)
         assert srv.bytes_sent == _prefix_end(late / "y.pmw", 1)
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+
+
+class Gzipping(IgnoringRange):
+    """A server that ignores ``Range`` and gzips every answer (``Content-Encoding: gzip``) although asked for
+    identity."""
+
+    def send_head(self):
+        import gzip
+        import io
+
+        self._span = None
+        path = self.translate_path(self.path)
+        body = gzip.compress(Path(path).read_bytes())
+        self.send_response(200)
+        self.send_header("Content-Encoding", "gzip")
+        self.send_header("Content-Length", str(len(body)))
+        self.end_headers()
+        return io.BytesIO(body)
+
+
+class GzipRanges(RangeRequestHandler):
+    """A server whose Range answers say ``Content-Encoding: gzip``: ranges of the encoded bytes."""
+
+    def send_header(self, keyword, value):
+        super().send_header(keyword, value)
+        if keyword == "Content-Range":
+            super().send_header("Content-Encoding", "gzip")
+
+
+def test_a_gzipped_plain_answer_is_decoded_and_a_gzipped_range_answer_refused(site, tmp_path):
+    """Both ended as ``GLB header: bad magic b'\\x1f\\x8b...'``, which does not say what the server did."""
+    want = pmwm_codec.decode(site / "x.pmw", chunks=2)
+    for handler in (Gzipping, GzipRanges):
+        srv, thread = _serve(site, handler)
+        url = f"http://127.0.0.1:{srv.server_address[1]}/x.pmw"
+        try:
+            if handler is Gzipping:
+                assert pmwm_codec.decode(url, chunks=2) == want and pmwm_codec.decode(url) == pmwm_codec.decode(site / "x.pmw")
+            else:
+                with pytest.raises(InputFormatError, match="gzip-encoded.*in a Range answer"):
+                    pmwm_codec.decode(url)
+        finally:
+            srv.shutdown()
+            srv.server_close()
+            thread.join(5)
+
+
+def test_a_file_replaced_by_one_of_the_same_size_between_range_requests_is_refused(tmp_path):
+    """Only the size was compared: a file replaced by another of the same size (here two base vertices swapped,
+    which no digest covers) decoded to a mesh neither file holds, silently.  ``pmw serve`` now sends ``ETag``
+    and ``Last-Modified`` with its Range answers and the reader compares them."""
+    import os
+
+    from pmwm_codec.format.reader import read_header
+
+    site = tmp_path / "site"
+    site.mkdir()
+    pmwm_codec.encode(shapes.icosphere(3), site / "a.pmw", base_codec="plain", measure="none")
+    data = bytearray((site / "a.pmw").read_bytes())
+    header = read_header(bytes(data))
+    views = header.gltf_json["bufferViews"]
+    position = header.gltf_json["meshes"][0]["primitives"][0]["attributes"]["POSITION"]
+    start = header.bin_offset + views[header.gltf_json["accessors"][position]["bufferView"]].get("byteOffset", 0)
+    data[start : start + 24] = data[start + 12 : start + 24] + data[start : start + 12]  # two base vertices swapped
+    (site / "b.pmw").write_bytes(bytes(data))
+    os.utime(site / "b.pmw", ns=(1, 1))
+
+    class Replaced(RangeRequestHandler):
+        """Serves ``a.pmw`` for the first two requests (preamble, JSON), then ``b.pmw`` in its place."""
+
+        def translate_path(self, path):
+            self.server.requests = getattr(self.server, "requests", 0) + 1
+            return super().translate_path(path if self.server.requests <= 2 else "/b.pmw")
+
+    srv, thread = _serve(site, Replaced)
+    try:
+        with pytest.raises(InputFormatError, match="the file changed while it was read"):
+            pmwm_codec.decode(f"http://127.0.0.1:{srv.server_address[1]}/a.pmw", chunks=0)  # the base only
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+
+
+def test_every_reader_of_the_library_takes_a_url_as_its_command_does(server, site):
+    """``decode_asset``, ``cut``, ``inspect`` and ``verify_stream`` took a URL for a file name (``...: no such
+    file``), though ``pmw decode``, ``pmw cut``, ``pmw info`` and ``pmw verify`` take one."""
+    url, path = server.url + "x.pmw", site / "x.pmw"
+    for n in (0, 2, None):
+        assert pmwm_codec.decode_asset(url, chunks=n) == pmwm_codec.decode_asset(path, chunks=n)
+        assert pmwm_codec.cut(url, chunks=n) == pmwm_codec.cut(path, chunks=n)
+    remote, local = pmwm_codec.inspect(url), pmwm_codec.inspect(path)
+    assert remote["file"] == url and remote["chunks_total"] == local["chunks_total"]
+    key = site / "x.pmw.key.json"
+    assert pmwm_codec.verify_stream(url, key).verdict == pmwm_codec.verify_stream(path, key).verdict == "authentic"
+
+
+def test_pmw_decode_of_a_url_up_to_chunk_n_says_the_file_is_complete_as_for_the_file(server, site, tmp_path, capsys):
+    """``pmw decode URL --chunks N -o x.obj --json`` said ``complete: false, truncated: true`` of a whole file
+    (what it did not fetch, on purpose, is not missing); a cut file on the server still says truncated."""
+    from pmwm_codec.http import plan_ranges
+
+    data = (site / "x.pmw").read_bytes()
+    (site / "cut-x.pmw").write_bytes(data[: plan_ranges(data, 3)[-1]])
+    for name, complete in (("x.pmw", True), ("cut-x.pmw", False)):
+        for suffix in (".obj", ".glb"):
+            for n in (0, 2):
+                code, out, err = _pmw(capsys, "decode", server.url + name, "-o", tmp_path / f"o{suffix}",
+                                      "--chunks", n, "--json")
+                assert code == 0, err
+                _, local, _ = _pmw(capsys, "decode", site / name, "-o", tmp_path / f"l{suffix}", "--chunks", n,
+                                   "--json")
+                got, want = json.loads(out), json.loads(local)
+                assert got["complete"] is complete and got["truncated"] is not complete, (name, suffix, n, got)
+                assert {k: v for k, v in got.items() if k != "output"} == \
+                    {k: v for k, v in want.items() if k != "output"}
+
+
+@pytest.mark.parametrize("url, words", [
+    ("http://[::1/x.pmw", "not a valid URL"), ("http://127.0.0.1:99999/x.pmw", "not a valid URL"),
+    ("http://127.0.0.1:1/a b.pmw", "not a valid URL"), ("http://127.0.0.1:1/x.pmw\r\nX-Injected: 1", "not a valid URL"),
+    ("http://me:hunter2@127.0.0.1:1/x.pmw", "user name or password in the URL is not supported"),
+])
+def test_a_url_that_cannot_be_fetched_is_named_without_its_password(tmp_path, capsys, url, words):
+    """Each ended as ``unexpected ValueError / InvalidURL (a bug of pmw)``, or for a URL with a password as a
+    name lookup of ``me:hunter2@127.0.0.1`` that echoed the password."""
+    code, out, err = _pmw(capsys, "decode", url, "-o", tmp_path / "x.obj")
+    assert code == 2 and len(err.splitlines()) == 1 and words in err and "bug of pmw" not in err, err
+    assert "hunter2" not in err and not (tmp_path / "x.obj").exists()
+
+
+def test_a_server_that_does_not_speak_http_is_a_named_error(tmp_path, capsys):
+    """A status line that is not HTTP raised ``http.client.BadStatusLine``: ``unexpected ... (a bug of pmw)``."""
+    import socket
+
+    listener = socket.create_server(("127.0.0.1", 0))
+
+    def answer():
+        conn, _ = listener.accept()
+        with conn:
+            conn.recv(65536)
+            conn.sendall(b"SSH-2.0-OpenSSH_9.0\r\n\r\n")
+
+    thread = threading.Thread(target=answer, daemon=True)
+    thread.start()
+    try:
+        url = f"http://127.0.0.1:{listener.getsockname()[1]}/x.pmw"
+        code, _, err = _pmw(capsys, "decode", url, "-o", tmp_path / "x.obj")
+        assert code == 2 and "cannot read (BadStatusLine" in err and "bug of pmw" not in err, err
+    finally:
+        listener.close()
+        thread.join(5)
+
+
+class Trickling(RangeRequestHandler):
+    """A server that sends a byte every 0.1 s (never silent long enough for a socket timeout), for 8 s at most."""
+
+    def copyfile(self, source, outputfile):
+        import time
+
+        stop = time.monotonic() + 8
+        while time.monotonic() < stop:
+            block = source.read(1)
+            if not block:
+                return
+            outputfile.write(block)
+            outputfile.flush()
+            time.sleep(0.1)
+
+
+def test_a_server_that_trickles_is_a_named_error_not_a_read_of_hours(site):
+    """A byte every 0.1 s never trips the socket timeout: a .pmw of a few KB took hours, a large one days."""
+    import time
+
+    srv, thread = _serve(site, Trickling)
+    try:
+        start = time.monotonic()
+        with pytest.raises(InputFormatError, match="the server stalls"):
+            pmwm_codec.decode(UrlSource(f"http://127.0.0.1:{srv.server_address[1]}/x.pmw", timeout=1))
+        assert time.monotonic() - start < 5
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+
+
+def test_serve_answers_say_accept_ranges_once_and_name_the_files_version(tmp_path):
+    """A 206 carried ``Accept-Ranges`` twice and neither answer an ``ETag``: a reader by ranges could not tell a
+    file replaced between its requests by one of the same size."""
+    import os
+
+    (tmp_path / "a.bin").write_bytes(b"x" * 100)
+    srv, thread = _serve(tmp_path, RangeRequestHandler)
+    url = f"http://127.0.0.1:{srv.server_address[1]}/a.bin"
+    try:
+        tags = []
+        for headers in ({}, {"Range": "bytes=0-9"}, {"Range": "bytes=0-9"}):
+            with urllib.request.urlopen(urllib.request.Request(url, headers=headers), timeout=10) as r:
+                assert r.headers.get_all("Accept-Ranges") == ["bytes"] and r.headers["Last-Modified"]
+                tags.append(r.headers["ETag"])
+            (tmp_path / "a.bin").write_bytes(b"y" * 100)
+            os.utime(tmp_path / "a.bin", ns=(len(tags), len(tags)))
+        assert None not in tags and len(set(tags)) == 3
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+
+
+def test_serve_closes_the_connection_when_the_file_shrank_under_its_answer(tmp_path):
+    """A file cut shorter (copied over by a writer that is not atomic) after its headers announced the old length:
+    the server sent fewer bytes and kept the connection open, so a keep-alive client waited for the rest until
+    its timeout (30 s by default; a browser longer)."""
+    import http.client
+    import time
+
+    class Shrinking(RangeRequestHandler):
+        def send_head(self):
+            f = super().send_head()
+            (tmp_path / "x.pmw").write_bytes(b"glTF")  # truncated in place, the same inode
+            return f
+
+    srv, thread = _serve(tmp_path, Shrinking)
+    try:
+        for ranged in (True, False):
+            (tmp_path / "x.pmw").write_bytes(b"glTF" + bytes(4000))
+            headers = {"Range": "bytes=0-999"} if ranged else {}
+            start = time.monotonic()
+            # a keep-alive client, as a browser is (urllib asks for Connection: close)
+            connection = http.client.HTTPConnection("127.0.0.1", srv.server_address[1], timeout=10)
+            try:
+                connection.request("GET", "/x.pmw", headers=headers)
+                with pytest.raises(http.client.IncompleteRead):  # told the body ended early
+                    connection.getresponse().read()
+            finally:
+                connection.close()
+            assert time.monotonic() - start < 5
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+
+
+def test_an_empty_file_over_http_is_a_stream_cut_before_its_header(tmp_path, capsys):
+    """Its first Range request is unsatisfiable (416): that was ``HTTP 416 Requested Range Not Satisfiable``,
+    where the same empty file on disk says how many bytes the stream had."""
+    (tmp_path / "empty.pmw").write_bytes(b"")
+    srv, thread = _serve(tmp_path, RangeRequestHandler)
+    try:
+        code, _, err = _pmw(capsys, "decode", f"http://127.0.0.1:{srv.server_address[1]}/empty.pmw", "-o",
+                            tmp_path / "x.obj")
+        assert code == 2 and "truncated: stream ended after 0 bytes" in err and len(err.splitlines()) == 1, err
     finally:
         srv.shutdown()
         srv.server_close()

@@ -10,7 +10,7 @@ from hypothesis import given, settings, strategies as st
 
 import pmwm_codec
 from pmwm_codec import shapes
-from pmwm_codec.errors import ChecksumError, TruncatedError
+from pmwm_codec.errors import ChecksumError, FormatError, OptionError, TruncatedError
 from pmwm_codec.progressive.grid import Grid
 from pmwm_codec.stream import StreamDecoder, encode_mesh
 from pmwm_codec.progressive.topology import face_keys
@@ -154,3 +154,50 @@ def test_decode_chunks_stops_after_n_chunks(encoded):
     full, _ = all_results(data)
     m = pmwm_codec.decode(data, chunks=2)
     assert m.vertex_count == full[2].vertices and m.face_count == full[2].faces_count
+
+
+def test_a_second_close_is_harmless_and_a_broken_stream_keeps_saying_why():
+    """A second ``close()`` raised a bare RuntimeError from the container parser; after an error, later
+    calls did too (``feed() after an error``) instead of naming what broke the stream."""
+    data = _cached_small_file()
+    dec = StreamDecoder()
+    dec.feed(data)
+    end = dec.close()
+    assert dec.close() == end and end.complete
+    with pytest.raises(ValueError, match="single-use"):
+        dec.feed(b"")
+    cut = StreamDecoder()
+    cut.feed(data[:10])
+    for _ in range(2):
+        with pytest.raises(TruncatedError, match="before the base mesh"):
+            cut.close()
+    bad = StreamDecoder()
+    with pytest.raises(FormatError, match="bad magic"):
+        bad.feed(b"glTX" + data[4:])
+    for call in (lambda: bad.feed(data), bad.close, bad.close):
+        with pytest.raises(FormatError, match="bad magic"):
+            call()
+
+
+@pytest.mark.parametrize("data", ["glTF", 5, None, [b"glTF"]])
+def test_feeding_anything_but_bytes_is_an_option_error_that_leaves_the_decoder_usable(data):
+    """``feed(str)`` raised a bare TypeError from ``memoryview``."""
+    dec = StreamDecoder()
+    with pytest.raises(OptionError, match="StreamDecoder.feed.*bytes-like.*got " + type(data).__name__):
+        dec.feed(data)
+    assert dec.feed(_cached_small_file()) and dec.close().complete
+
+
+@pytest.mark.parametrize("source, words", [
+    (5, "the source must be a path.*got int"), (None, "got NoneType"),
+    (io.StringIO("glTF"), "read\\(\\).*got str: open the file in binary mode"),
+    (["glTF"], "a block of the source.*got str"), ([b"glTF", 7], "a block of the source.*got int"),
+])
+def test_every_reader_names_a_source_it_cannot_read(source, words):
+    """Each raised a bare TypeError (``'int' object is not iterable``, ``can't concat str to bytearray``)."""
+    for read in (pmwm_codec.decode, pmwm_codec.decode_asset, pmwm_codec.cut, pmwm_codec.inspect,
+                 lambda src: list(pmwm_codec.iter_decode(src))):
+        if hasattr(source, "seek"):
+            source.seek(0)
+        with pytest.raises(OptionError, match=words):
+            read(source)

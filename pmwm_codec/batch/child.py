@@ -47,13 +47,23 @@ def encode_job(job: dict) -> dict:
             "key_path": report.get("key_path")}
 
 
+def _default_sigint() -> None:
+    """The run's workers ignore SIGINT (:func:`pmwm_codec.batch.run.dask_client`); an encoder does not: a
+    Ctrl-C of the run ends it (without a traceback), so it never outlives the run."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def child_main(job: dict, connection) -> None:
     """Entry of a forked child: encode, send the result dict through ``connection``."""
+    _default_sigint()
     connection.send(encode_job(job))
     connection.close()
 
 
 def main() -> int:
+    _default_sigint()
     job = pickle.loads(sys.stdin.buffer.read())
     result = encode_job(job)
     sys.stdout.write(json.dumps(result) + "\n")

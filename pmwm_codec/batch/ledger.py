@@ -29,9 +29,12 @@ STATUSES = ("ok", "failed", "skipped", "timeout")
 
 
 def sha256_file(path, block: int = 1 << 20) -> str:
-    """Hex SHA-256 of a file, read in ``block``-byte pieces."""
+    """Hex SHA-256 of a regular file, read in ``block``-byte pieces; InputFormatError for anything else (a
+    FIFO or ``/dev/zero`` in a library or a manifest would never end)."""
+    from pmwm_codec.sources import open_regular_file
+
     h = hashlib.sha256()
-    with open(path, "rb") as fh:
+    with open_regular_file(path) as fh:
         for piece in iter(lambda: fh.read(block), b""):
             h.update(piece)
     return h.hexdigest()

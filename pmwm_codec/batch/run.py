@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import numbers
 import os
 import time
 import uuid
@@ -29,6 +30,9 @@ from .tasks import EncodeJob, encode_task, verify_task
 __all__ = ["BatchError", "dask_client", "encode_batch", "verify_batch", "collection_key", "DEFAULT_TIMEOUT"]
 
 DEFAULT_TIMEOUT = 600.0  # seconds per asset
+#: The longest per-asset timeout: a wait the operating system takes (epoll counts int milliseconds: ~24 days);
+#: an infinite one made every asset a lost task (OverflowError).
+MAX_TIMEOUT = 1e6
 
 
 class BatchError(PmwError, ValueError):
@@ -63,11 +67,30 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, client
             yield client
         return
     workers = max(1, int(workers or os.cpu_count() or 1))
-    with dask.config.set(LOCAL_WORKER_CONFIG):
+    with dask.config.set(LOCAL_WORKER_CONFIG), _sigint_ignored():
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
                                silence_logs=logging.ERROR)
     with cluster, Client(cluster) as client:
         yield client
+
+
+@contextlib.contextmanager
+def _sigint_ignored():
+    """SIGINT ignored while the local workers start, so that they inherit that: a Ctrl-C (sent to the whole
+    process group) stops the run here, once (``pmw: error: interrupted``, the cluster closed), instead of
+    raising KeyboardInterrupt in every worker, each printing its traceback.  The encoders take SIGINT back
+    (:mod:`.child`): they die with the run.  Only the main thread may set a handler; elsewhere nothing changes."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def collection_key(key_path, watermark):
@@ -134,31 +157,42 @@ def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, worke
     """
     if key is not None and keys_dir is not None:
         raise BatchError("give --key (one collection key) or --keys-dir (a key per asset), not both")
+    if isinstance(timeout, bool) or not isinstance(timeout, numbers.Real) or not 0 < timeout <= MAX_TIMEOUT:
+        raise BatchError(f"--timeout must be a number of seconds in (0, {MAX_TIMEOUT:g}], got {timeout!r} "
+                         "(a longer wait cannot be asked of the operating system)")
     out_dir = os.path.abspath(os.fspath(out_dir))
     try:
         assets = expand_sources(src, out_dir)
     except (ValueError, OSError) as exc:
         raise BatchError(str(exc)) from None
-    os.makedirs(out_dir, exist_ok=True)
-    image, key_obj = (None, None)
-    if key is not None:
-        image, key_obj = collection_key(key, watermark)
-    elif watermark is not None:
-        from pmwm_codec.watermark.image import load_watermark
+    created = not os.path.isdir(out_dir)
+    os.makedirs(out_dir, exist_ok=True)  # before the key: a new collection key may go inside it
+    try:
+        image, key_obj = (None, None)
+        if key is not None:
+            image, key_obj = collection_key(key, watermark)
+        elif watermark is not None:
+            from pmwm_codec.watermark.image import load_watermark
 
-        image = load_watermark(watermark)[0]
-    jobs = _jobs(assets, out_dir, image, key_obj, keys_dir, timeout, force, options)
-    start = time.monotonic()
-    counts = dict.fromkeys(("ok", "skipped", "failed", "timeout"), 0)
-    failures = []
-    with dask_client(workers, scheduler, client) as client, LedgerWriter(os.path.join(out_dir, LEDGER_NAME)) as ledger:
-        for row in _results(client, encode_task, jobs):
-            ledger.write(row)
-            counts[row["status"]] += 1
-            if row["status"] in ("failed", "timeout"):
-                failures.append(row)
-            if progress is not None:
-                progress(_progress_counts(counts, len(jobs), client, start))
+            image = load_watermark(watermark)[0]
+        jobs = _jobs(assets, out_dir, image, key_obj, keys_dir, timeout, force, options)
+        start = time.monotonic()
+        counts = dict.fromkeys(("ok", "skipped", "failed", "timeout"), 0)
+        failures = []
+        with dask_client(workers, scheduler, client) as client, \
+                LedgerWriter(os.path.join(out_dir, LEDGER_NAME)) as ledger:
+            for row in _results(client, encode_task, jobs):
+                ledger.write(row)
+                counts[row["status"]] += 1
+                if row["status"] in ("failed", "timeout"):
+                    failures.append(row)
+                if progress is not None:
+                    progress(_progress_counts(counts, len(jobs), client, start))
+    except PmwError:  # refused (a watermark, a key, a scheduler): the run made nothing, not even OUT_DIR
+        if created:
+            with contextlib.suppress(OSError):
+                os.rmdir(out_dir)  # only when still empty
+        raise
     return {"assets": len(jobs), **counts, "seconds": round(time.monotonic() - start, 3),
             "ledger": os.path.join(out_dir, LEDGER_NAME), "failures": failures}
 

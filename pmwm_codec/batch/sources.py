@@ -78,9 +78,12 @@ def _inside(path: str, folder: str) -> bool:
 
 
 def _walk(root: str, out_dir: str) -> list[str]:
+    """The mesh files below ``root``, but for those under ``out_dir`` when it is a folder inside ``root``
+    (an ``out_dir`` that is ``root`` or holds it leaves out nothing: every folder below ``root`` is under it)."""
+    skip = out_dir if out_dir != root and _inside(out_dir, root) else None
     found = []
     for here, dirs, files in os.walk(root):
-        dirs[:] = sorted(d for d in dirs if not _inside(os.path.join(here, d), out_dir))
+        dirs[:] = sorted(d for d in dirs if skip is None or not _inside(os.path.join(here, d), skip))
         found.extend(os.path.join(here, f) for f in files if _is_mesh(f))
     return sorted(found)
 

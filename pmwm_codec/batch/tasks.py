@@ -18,6 +18,8 @@ import sys
 import time
 from dataclasses import dataclass
 
+from pmwm_codec.errors import PmwError
+
 from .child import child_main
 from .ledger import sha256_file
 
@@ -64,11 +66,16 @@ def encode_task(job: EncodeJob) -> dict:
         row["input_sha256"] = sha256_file(job.input)
     except OSError as exc:
         row["error"] = f"{job.input}: {exc.strerror or exc}"
+    except PmwError as exc:  # not a regular file: never read
+        row["error"] = str(exc)
     else:
         if _done_before(job, row["input_sha256"]):
             row.update(status="skipped", bytes=os.path.getsize(job.output), vertices=job.prior_vertices)
         else:
-            row.update(_encode_in_child(job))
+            try:
+                row.update(_encode_in_child(job))
+            except OSError as exc:  # its output's folder cannot be made (a file in its place ...)
+                row["error"] = f"{exc.filename or job.output}: {exc.strerror or exc}"
     row["seconds"] = round(time.monotonic() - start, 3)
     return row
 
@@ -157,15 +164,15 @@ def _run_interpreter(payload: dict, timeout) -> dict:
 
 
 def _remove_leftovers(job: EncodeJob) -> None:
-    """After a killed encoder: its temporary files, and an output left without its key."""
+    """After a killed encoder: its temporary files.  An output already there is left as it is: the encoder
+    publishes a key before its ``.pmw`` (never a new ``.pmw`` without its key), and an old output (of other
+    settings, its key elsewhere) is replaced only by a new one that was written whole."""
     for path in (job.output, job.key_path):
         if path is None:
             continue
         pattern = os.path.join(glob.escape(os.path.dirname(path)), "." + glob.escape(os.path.basename(path)) + ".*.tmp")
         for tmp in glob.glob(pattern):
             _unlink(tmp)
-    if job.key_path is not None and os.path.isfile(job.output) and not os.path.isfile(job.key_path):
-        _unlink(job.output)
 
 
 def _unlink(path: str) -> None:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import io
 import json
 import math
 import os
@@ -204,9 +205,20 @@ def check_output_path(path, what: str = "output", inputs=(), key: bool = False) 
     if not os.access(directory, os.W_OK):
         raise UsageError(f"{path}: cannot write {what}: directory {directory} is not writable")
     for source in inputs:
+        if source == "-" and _stdin_is(path):
+            raise UsageError(f"{path}: is also the input (standard input is read from it); give the {what} another "
+                             "name (writing it would replace the input)")
         if source is not None and source != "-" and same_path(source, path):
             raise UsageError(f"{path}: is also the input {source}; give the {what} another name "
                              "(writing it would replace the input)")
+
+
+def _stdin_is(path) -> bool:
+    """Whether standard input is read from the existing file ``path`` (``pmw cut - -o x.pmw < x.pmw``)."""
+    try:
+        return os.path.samestat(os.fstat(sys.stdin.fileno()), os.stat(path))
+    except (OSError, ValueError, AttributeError, io.UnsupportedOperation):  # no such file, stdin without a descriptor
+        return False
 
 
 def check_pmw_output(path, inputs=()) -> None:

@@ -8,7 +8,7 @@ first N chunks, and the document's other data (images) only where it lies past t
 from __future__ import annotations
 
 from pmwm_codec.format.glb import write_parts
-from pmwm_codec.http import UrlSource, is_url
+from pmwm_codec.http import as_source, is_url
 from pmwm_codec.stream.cut import cut_file
 
 from .common import UsageError, check_input_file, check_pmw_output, naming, notice, print_json
@@ -39,8 +39,7 @@ def run(args) -> int:
         check_input_file(args.input, ".pmw file")
     check_pmw_output(args.output, inputs=() if url else (args.input,))
     with naming(args.input):
-        source = UrlSource(args.input, max_chunks=args.chunks, whole_document=True) if url else args.input
-        result = cut_file(source, args.chunks)
+        result = cut_file(as_source(args.input, args.chunks, whole_document=True), args.chunks)
     write_parts(args.output, [result.data])
     notices = []
     if args.chunks is not None and args.chunks > result.chunks:

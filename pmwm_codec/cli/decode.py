@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import os
 
-from pmwm_codec.http import UrlSource, as_source, is_url
+from pmwm_codec.http import as_source, is_url, stream_end
 from pmwm_codec.meshio import WRITE_SUFFIXES, write_asset, write_mesh
 from pmwm_codec.stream.asset import decode_asset, scene_as_shown
 from pmwm_codec.stream.decoder import StreamDecoder
@@ -48,21 +48,23 @@ def run(args) -> int:
         check_input_file(args.input, ".pmw file")
     check_output_path(args.output, "mesh", inputs=() if url else (args.input,))
     notices = []
+    source = as_source(args.input, args.chunks, whole_document=suffix in (".glb", ".gltf"))
     with naming(args.input):
-        if suffix in (".glb", ".gltf"):  # the whole file: the document's images may follow the chunks
-            glb, end, decoder = decode_asset(UrlSource(args.input) if url else args.input, chunks=args.chunks)
+        if suffix in (".glb", ".gltf"):  # the whole document: its images may follow the chunks
+            glb, end, decoder = decode_asset(source, chunks=args.chunks)
             last, notices = decoder.last, decoder.notices
             write_asset(args.output, glb)
             counts = (last.vertices, last.faces_count)  # the document's meshes, placed by its nodes
         else:  # a URL read by ranges fetches nothing after chunk N
             decoder = StreamDecoder(copy=False, max_chunks=args.chunks)
-            last, end = decode_stream(as_source(args.input, args.chunks), decoder=decoder)
+            last, end = decode_stream(source, decoder=decoder)
             mesh, why = scene_as_shown(decoder.header.gltf_json if decoder.header is not None else None, last)
             write_mesh(args.output, mesh)
             counts = (mesh.vertex_count, mesh.face_count)  # what the file holds: a mesh shown twice, twice
             if why is not None:
                 notices.append(f"{why}: the {suffix[1:].upper()} file holds each progressive primitive once, as "
                                "stored, not placed by the scene's nodes; decode to .glb to keep the scene")
+    end = stream_end(source, end)  # a URL read up to chunk N: the file on the server may be whole
     out = {"vertices": int(counts[0]), "faces": int(counts[1]), "chunks_applied": int(end.chunks_applied),
            "complete": bool(end.complete), "chunks_total": int(end.chunks_total), "truncated": bool(end.truncated),
            "output": args.output, "notices": _chunk_notices(args.chunks, end) + notices}

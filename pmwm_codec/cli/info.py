@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pmwm_codec.format.inspect import inspect
-from pmwm_codec.http import UrlSource, is_url
+from pmwm_codec.http import is_url
 
 from .common import check_input_file, naming, print_json
 
@@ -22,7 +22,7 @@ def run(args) -> int:
     if not url:
         check_input_file(args.input, ".pmw file")
     with naming(args.input):
-        info = inspect(UrlSource(args.input, max_chunks=0) if url else args.input)  # a URL: the header only
+        info = inspect(args.input)  # a URL: the header only
     if args.json:
         print_json(info)
         return 0

@@ -4,8 +4,8 @@ The standard library's ``http.server`` plus single-range ``Range: bytes=a-b`` re
 (``206 Partial Content``, ``416`` when unsatisfiable), so that ``pmw verify URL``, the
 three.js plugin and the demo page can read a ``.pmw`` chunk by chunk.  Only files under
 ``DIR`` are served: the standard library's path translation, then the path's real location
-(symbolic links followed) must be inside ``DIR``'s.  Key files (``*.key.json``: ``pmw encode``
-writes the secret key beside the ``.pmw``) are never served, and directories are not listed
+(symbolic links followed) must be inside ``DIR``'s.  Key files (``*.key.json`` in any case: ``pmw encode``
+writes the secret key beside the ``.pmw``; or a key under any other name, ``--key site/k.json``) are never served, and directories are not listed
 (an ``index.html`` is served as usual).  It binds to 127.0.0.1 unless ``--host`` says
 otherwise.  Not a production server.
 """
@@ -19,7 +19,7 @@ from functools import partial
 from http import HTTPStatus
 from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 
-from pmwm_codec.watermark.key import KEY_SUFFIX  # names never served: the secret key files beside the outputs
+from pmwm_codec.watermark.key import is_key_file  # never served: the secret key files, by name or by content
 
 from .common import UsageError
 
@@ -48,16 +48,24 @@ def parse_range(header: str | None, size: int):
     match = _RANGE.match(header or "")
     if match is None or match[1] == match[2] == "":
         return None
-    if match[1] != "" and match[2] != "" and int(match[2]) < int(match[1]):
+    first, last = (_offset(m) for m in (match[1], match[2]))
+    if first is not None and last is not None and last < first:
         return None
-    if match[1] == "":  # suffix: the last n bytes
-        n = int(match[2])
-        return (max(0, size - n), size) if n else (size, size)
-    start = int(match[1])
-    end = size if match[2] == "" else min(int(match[2]) + 1, size)
+    if first is None:  # suffix: the last n bytes
+        return (max(0, size - last), size) if last else (size, size)
+    start = first
+    end = size if last is None else min(last + 1, size)
     if start >= size or end <= start:
         return (size, size)
     return start, end
+
+
+def _offset(digits: str):
+    """A byte offset of a Range header (None for none); past any file at 19 digits and more (``int()`` of
+    thousands of digits raises, and is slow before that)."""
+    if digits == "":
+        return None
+    return int(digits) if len(digits) < 19 else 1 << 63
 
 
 class RangeRequestHandler(SimpleHTTPRequestHandler):
@@ -71,14 +79,17 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
     def translate_path(self, path):
         """The standard library's translation, refused (a path where no file can be: 404) when the
         file's real location is outside the served directory (a symbolic link out of it), when it is a
-        key file, or when the name cannot be a file name (a NUL byte)."""
+        key file (:func:`~pmwm_codec.watermark.key.is_key_file`: by its name, or by its content), when it
+        is neither a regular file nor a folder (a FIFO: opening it blocks the answer forever), or when the
+        name cannot be a file name (a NUL byte)."""
         local = super().translate_path(path)
         try:
             real, root = os.path.realpath(local), os.path.realpath(self.directory)
         except (ValueError, OSError):
             return _NOWHERE
-        if os.path.commonpath([real, root]) != root or os.path.basename(real).endswith(KEY_SUFFIX) \
-                or os.path.basename(local).endswith(KEY_SUFFIX):
+        if os.path.commonpath([real, root]) != root or is_key_file(real) or is_key_file(local):
+            return _NOWHERE
+        if os.path.exists(real) and not (os.path.isfile(real) or os.path.isdir(real)):
             return _NOWHERE
         return local
 
@@ -88,8 +99,10 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
         return None
 
     def send_head(self):
-        self._span = None
+        self._etag = self._length = None
         path = self.translate_path(self.path)
+        if os.path.isfile(path):
+            self._etag = etag(os.stat(path))
         if "Range" not in self.headers or not os.path.isfile(path):
             return super().send_head()
         try:
@@ -97,7 +110,8 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
         except OSError:
             self.send_error(HTTPStatus.NOT_FOUND, "File not found")
             return None
-        size = os.fstat(f.fileno()).st_size
+        info = os.fstat(f.fileno())
+        size, self._etag = info.st_size, etag(info)
         span = parse_range(self.headers["Range"], size)
         if span is None:
             f.close()
@@ -113,15 +127,21 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
         self.send_header("Content-Type", self.guess_type(path))
         self.send_header("Content-Range", f"bytes {span[0]}-{span[1] - 1}/{size}")
         self.send_header("Content-Length", str(span[1] - span[0]))
-        self.send_header("Accept-Ranges", "bytes")
+        self.send_header("Last-Modified", self.date_time_string(info.st_mtime))
         self.end_headers()
         f.seek(span[0])
-        self._span = span
         return f
 
+    def send_header(self, keyword, value):
+        if keyword.lower() == "content-length":
+            self._length = int(value)
+        super().send_header(keyword, value)
+
     def copyfile(self, source, outputfile):
-        span = getattr(self, "_span", None)
-        left = None if span is None else span[1] - span[0]
+        """The body: the ``Content-Length`` announced, or less when the file shrank meanwhile (copied over by a
+        writer that is not atomic); the connection is then closed, which tells the client the body ended early
+        (kept open, the client would wait for the missing bytes)."""
+        left = getattr(self, "_length", None)
         while left is None or left > 0:
             block = source.read(1 << 16 if left is None else min(1 << 16, left))
             if not block:
@@ -130,15 +150,23 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
             outputfile.write(block)
             if left is not None:
                 left -= len(block)
+        if left:
+            self.close_connection = True
 
     def end_headers(self):
-        if getattr(self, "_span", None) is None:
-            self.send_header("Accept-Ranges", "bytes")
+        self.send_header("Accept-Ranges", "bytes")
+        if getattr(self, "_etag", None) is not None:  # a reader by ranges tells a file replaced meanwhile
+            self.send_header("ETag", self._etag)
         super().end_headers()
 
     def log_message(self, format, *args):  # noqa: A002 - the standard library's name
         if getattr(self.server, "verbose", False):
             super().log_message(format, *args)
+
+
+def etag(info: os.stat_result) -> str:
+    """A strong ``ETag`` of a file from its ``stat``: size and modification time (nanoseconds)."""
+    return f'"{info.st_size:x}-{info.st_mtime_ns:x}"'
 
 
 def _count(server, n: int) -> None:

@@ -29,11 +29,14 @@ WATERMARK_FIELDS = ("mode", "bits", "width", "height", "levels", "codes", "carri
 
 
 def inspect(source) -> dict:
-    """The ``pmw info --json`` object of ``source``: a path, ``"-"`` (standard input) or bytes.
+    """The ``pmw info --json`` object of ``source``: a path, ``"-"`` (standard input), bytes or an http(s) URL.
 
     Raises the parser's named errors (FormatError, LimitError, TruncatedError when the
     JSON chunk is incomplete).
     """
+    from ..http import as_source
+
+    source = as_source(source, 0)  # a URL: the header only is fetched
     header = read_header(source)
     gltf = header.gltf_json
     size = _size(source)

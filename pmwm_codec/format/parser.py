@@ -52,6 +52,7 @@ from ..constants import (
 )
 from ..errors import ChecksumError, FormatError, LimitError, TruncatedError
 from ..progressive.grid import Grid
+from ..sources import byte_view
 from . import base as _base
 from .extension import check_extension, chunk_entries, digest, payload_version
 from .gltf import check_finite_numbers, find_extension_primitives, uint, view_range
@@ -296,7 +297,7 @@ class ContainerParser:
         self._raise_pending()
         if self._state == _FAILED:
             raise RuntimeError("ContainerParser: feed() after an error; a parser is single-use")
-        data = memoryview(data).cast("B")
+        data = byte_view(data, "ContainerParser.feed()")
         self._received += len(data)
         if self._total is not None and self._received > self._total:
             self._state = _FAILED

@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 
 from ..errors import TruncatedError
-from ..sources import DEFAULT_BLOCK_SIZE, iter_blocks, resolve_stdin
+from ..sources import DEFAULT_BLOCK_SIZE, byte_view, iter_blocks, open_regular_file, resolve_stdin
 from .layout import PREAMBLE_SIZE
 from .parser import ContainerParser, HeaderEvent
 
@@ -35,7 +35,7 @@ def read_header(source) -> HeaderEvent:
     """
     source = resolve_stdin(source)
     if isinstance(source, (str, os.PathLike)):
-        with open(source, "rb") as fh:
+        with open_regular_file(source) as fh:  # a FIFO never blocks; a directory is a named error
             return read_header(fh)
     parser = ContainerParser()
     wanted = PREAMBLE_SIZE
@@ -46,6 +46,7 @@ def read_header(source) -> HeaderEvent:
     while True:
         if reader is not None:
             block = reader(wanted - got)
+            byte_view(block, "the file object's read()")
         else:
             block = pending or next(blocks, b"")
             block, pending = block[: wanted - got], block[wanted - got :]

@@ -42,6 +42,7 @@ import numpy as np
 
 from ..constants import EXTENSION_NAME
 from ..errors import DegenerateMeshError, InputFormatError, MeshError, PmwError
+from ..format.document import _view_sites as view_sites
 from ..format.document import is_progressive, load_document, progressive_refusal, read_accessor, repack
 from ..format.document import strip_image_profiles as _strip_profiles
 from ..format.glb import glb_parts
@@ -65,6 +66,7 @@ from ..format.gltf import (
 )
 from ..mesh import Mesh, checked_mesh
 from ..sources import read_all
+from .cut import data_not_arrived
 from .decoder import StreamDecoder
 from .encoder import EncodeReport, PrimitiveJob, encode_document
 
@@ -364,6 +366,9 @@ def decode_asset(src, chunks=None):
     doc, drop = _without_progressive_geometry(gltf, found)
     missing = _drop_images_not_arrived(doc, len(data) - bin_start)
     decoder.notices += [f"image {i} has not arrived yet: the level is written without it" for i in missing]
+    needed = _data_end(doc)
+    if not end.complete and needed > len(data) - bin_start:  # other meshes' data, cut before it: as pmw cut says
+        raise data_not_arrived(len(data), bin_start + needed)
     kept, kept_bin = repack(doc, [data[bin_start:]], drop)
     out = BufferBuilder(kept["bufferViews"], kept["accessors"], [kept_bin], len(kept_bin))
     for (mi, pi, _), part in zip(found, results[-1].parts):
@@ -394,6 +399,14 @@ def scene_as_shown(gltf: dict | None, result) -> tuple:
     positions, faces, _ = scene_mesh([p.positions for p in result.parts], [p.faces for p in result.parts], frames,
                                      oriented=True)
     return Mesh(positions, faces), None
+
+
+def _data_end(doc: dict) -> int:
+    """Where the BIN data the document references ends (its bufferViews in buffer 0 that something uses)."""
+    views = doc.get("bufferViews", [])
+    used = {holder[key] for holder, key in view_sites(doc)}
+    return max((int(views[i].get("byteOffset", 0)) + int(views[i]["byteLength"]) for i in used
+                if i < len(views) and views[i].get("buffer", 0) == 0), default=0)
 
 
 def _drop_images_not_arrived(doc: dict, available: int) -> list:

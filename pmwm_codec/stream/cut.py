@@ -134,6 +134,13 @@ def _available(header, received: int) -> int:
     )
 
 
+def data_not_arrived(received: int, needed: int) -> TruncatedError:
+    """The error for a prefix that holds the base meshes but not all the document's other data it needs:
+    ``received`` bytes of a file whose data ends at ``needed``."""
+    return TruncatedError(f"the data the base mesh needs (textures, other meshes) has not arrived: "
+                          f"{received:,} of {needed:,} bytes", bytes_read=received)
+
+
 def _base_counts(gltf: dict, prim: dict) -> dict:
     """``{"vertexCount", "faceCount"}`` of a base primitive (declared: its accessors' counts, the
     vertices after the weld of a welded base)."""
@@ -165,10 +172,8 @@ def _compact(gltf: dict, dropped: set, received: bytes, bin_offset: int) -> byte
         holder[key] = view_map[holder[key]]
     gltf["bufferViews"] = kept
     end = max((int(v.get("byteOffset", 0)) + int(v["byteLength"]) for v in kept), default=0)
-    have = len(received) - bin_offset
-    if end > have:
-        raise TruncatedError(f"the data the base mesh needs (textures, other meshes) has not arrived: "
-                             f"{len(received):,} of {bin_offset + end:,} bytes")
+    if end > len(received) - bin_offset:
+        raise data_not_arrived(len(received), bin_offset + end)
     length = padded(end)
     gltf["buffers"][0]["byteLength"] = length
     return received[bin_offset : bin_offset + end] + bytes(length - end)

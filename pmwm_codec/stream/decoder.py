@@ -9,7 +9,10 @@ a :class:`StreamEnd` saying whether it was complete or cut short.  A cut stream
 is progress, not corruption: every complete chunk has been delivered; only a
 stream that ends before its base mesh is complete raises
 :class:`~pmwm_codec.errors.TruncatedError`.  A chunk whose digest fails raises
-:class:`~pmwm_codec.errors.ChecksumError` naming it.  The decoder is single-use.
+:class:`~pmwm_codec.errors.ChecksumError` naming it.  The decoder is single-use: a second
+``close()`` returns the same :class:`StreamEnd`, after an error every later call raises that
+error again, and ``feed`` after ``close`` is a ValueError.  Data that is not bytes-like (a ``str``)
+is an :class:`~pmwm_codec.errors.OptionError`.
 
 The container layer (:class:`~pmwm_codec.format.ContainerParser`) does the byte
 work (GLB framing, limits, digests, zstd); this layer turns its events into
@@ -32,12 +35,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..constants import MAX_VERTICES
-from ..errors import FormatError, LimitError, WatermarkKeyError
+from ..errors import FormatError, LimitError, PmwError, WatermarkKeyError
 from ..format import BaseEvent, ChunkEvent, ContainerParser, EndEvent, HeaderEvent
 from ..format.mac import MacChecker
 from ..mesh import Mesh
 from ..progressive.grid import AttributeGrid, Grid
 from ..progressive.topology import job_vertices
+from ..sources import byte_view
 from ..watermark import codec as wm
 from ..watermark.verify import Verifier
 from .replay import Replay
@@ -172,6 +176,8 @@ class StreamDecoder:
         self.watermark_params: wm.WatermarkParams | None = None
         self.verifier: Verifier | None = None
         self._closed = False
+        self._end: StreamEnd | None = None  # close()'s answer, returned again by a second close()
+        self._error: PmwError | None = None  # the error that broke the stream, raised again by later calls
         self.last: PartialResult | None = None
         #: what a user should know about this decode (one line each), e.g. parts of a cut file left out
         self.notices: list = []
@@ -193,18 +199,37 @@ class StreamDecoder:
         """Consume bytes; return the :class:`PartialResult` objects that became available."""
         if self._closed:
             raise ValueError("StreamDecoder is single-use: it was already closed")
+        data = byte_view(data, "StreamDecoder.feed()")  # a str is refused before anything is read
+        if self._error is not None:  # the stream broke: every later call says why
+            raise self._error
         out = []
-        for event in self._parser.feed(data):
-            result = self._on_event(event)
-            if result is not None:
-                out.append(result)
+        try:
+            for event in self._parser.feed(data):
+                result = self._on_event(event)
+                if result is not None:
+                    out.append(result)
+        except PmwError as exc:
+            self._error = exc
+            raise
         return out
 
     def close(self) -> StreamEnd:
-        """End the stream: complete or truncated.  Raises TruncatedError before the base is in."""
-        self._closed = True
-        end: EndEvent = self._parser.close()
-        return StreamEnd(end.complete, end.bytes_read, end.total_length, self.chunks_applied, end.chunk_count)
+        """End the stream: complete or truncated.  Raises TruncatedError before the base is in.
+
+        Closing again is harmless: it returns the same :class:`StreamEnd`, or raises the error that broke
+        the stream again."""
+        if not self._closed:
+            self._closed = True
+            try:
+                if self._error is None:
+                    end: EndEvent = self._parser.close()
+                    self._end = StreamEnd(end.complete, end.bytes_read, end.total_length, self.chunks_applied,
+                                          end.chunk_count)
+            except PmwError as exc:
+                self._error = exc
+        if self._error is not None:
+            raise self._error
+        return self._end
 
     def _on_event(self, event):
         applied_before = self._replay.chunks_applied

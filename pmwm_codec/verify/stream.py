@@ -32,7 +32,7 @@ import numpy as np
 from ..stream import StreamDecoder, iter_results
 from ..stream.decoder import StreamEnd
 from ..watermark import load_watermark
-from ..watermark.key import WatermarkKey
+from ..watermark.key import as_key
 
 __all__ = ["StreamVerification", "verify_stream"]
 
@@ -105,13 +105,15 @@ def verify_stream(source, key, watermark=None, *, keep_meshes: bool = False, pro
     otherwise the results hold only the numbers and the partial watermark.
     ``progress``: optional ``progress(label, fraction)`` called after every boundary.
     Raises the decoder's named errors (:class:`~pmwm_codec.errors.PmwError`), e.g.
-    TruncatedError when the file ends before its base mesh.
+    TruncatedError when the file ends before its base mesh.  ``source`` may be an http(s) URL.
     """
+    from ..http import as_source
+
+    source = as_source(source)
     reference = None
     if watermark is not None:
         reference, _ = load_watermark(watermark)
-    if key is not None and not isinstance(key, WatermarkKey):
-        key = WatermarkKey.load(key)
+    key = as_key(key)
     decoder = StreamDecoder(key, reference, copy=keep_meshes, check_key=False)
     gen = iter_results(source, decoder)
     results = []

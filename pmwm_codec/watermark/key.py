@@ -341,6 +341,8 @@ def as_key(key) -> WatermarkKey | None:
     """A :class:`WatermarkKey` from a key object or a key file path (None stays None)."""
     if key is None or isinstance(key, WatermarkKey):
         return key
+    if not isinstance(key, (str, bytes, os.PathLike)):
+        raise WatermarkKeyError(f"a key must be a WatermarkKey, a key file path or None, got {type(key).__name__}")
     return WatermarkKey.load(key)
 
 
