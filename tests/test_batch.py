@@ -303,6 +303,21 @@ def test_sources_mirror_the_tree_from_a_folder_a_glob_and_a_manifest(library, tm
     assert [a.relative for a in expand_sources(manifest, tmp_path / "o")] == ["a.obj", "sub/c.stl"]
 
 
+def test_a_manifest_longer_than_the_limit_is_refused_never_cut(library, tmp_path, monkeypatch):
+    """A manifest past the characters read used to be cut there silently: the paths after it, and one cut in
+    two, left out of the run (exit 0)."""
+    from pmwm_codec.batch import sources
+
+    root, src = library
+    manifest = tmp_path / "list.txt"
+    manifest.write_text(f"{src / 'a.obj'}\n{src / 'sub' / 'c.stl'}\n")
+    monkeypatch.setattr(sources, "MAX_MANIFEST_CHARS", len(manifest.read_text()))
+    assert [a.relative for a in expand_sources(manifest, tmp_path / "o")] == ["a.obj", "sub/c.stl"]
+    monkeypatch.setattr(sources, "MAX_MANIFEST_CHARS", len(manifest.read_text()) - 3)
+    with pytest.raises(ValueError, match="a manifest of more than"):
+        expand_sources(manifest, tmp_path / "o")
+
+
 def test_a_folder_holding_the_output_folder_does_not_take_outputs_as_inputs(tmp_path):
     write_mesh(tmp_path / "a.obj", shapes.icosphere(1))
     (tmp_path / "out").mkdir()

@@ -88,13 +88,20 @@ def _walk(root: str, out_dir: str) -> list[str]:
     return sorted(found)
 
 
+#: The largest manifest read (characters): far more paths than a run takes; a longer one is refused, never cut.
+MAX_MANIFEST_CHARS = 1 << 26
+
+
 def _manifest(path: str) -> list[str]:
     base = os.path.dirname(os.path.abspath(path))
     with open(path, encoding="utf-8") as fh:
         try:
-            lines = fh.read(1 << 26).splitlines()
+            text = fh.read(MAX_MANIFEST_CHARS + 1)
         except UnicodeDecodeError:
             raise ValueError(f"{path}: not a mesh file and not a manifest (one path a line, UTF-8)") from None
+    if len(text) > MAX_MANIFEST_CHARS:
+        raise ValueError(f"{path}: a manifest of more than {MAX_MANIFEST_CHARS:,} characters (one path a line)")
+    lines = text.splitlines()
     entries = [line.strip() for line in lines]
     named = [os.path.abspath(os.path.join(base, e)) for e in entries if e and not e.startswith("#")]
     return list(dict.fromkeys(named))  # duplicates once, order kept
