@@ -13,17 +13,39 @@ The public API (DESIGN.md §5)::
 from __future__ import annotations
 
 import os
+from typing import TYPE_CHECKING, Any, BinaryIO, Union
 
 import numpy as np
 
 from .errors import PmwError
 from .mesh import Mesh, checked_mesh, read_mesh
+from .sources import Source
 
-__all__ = ["Mesh", "PmwError", "read_mesh", "encode", "decode", "decode_asset", "cut", "iter_decode", "load_key"]
+#: What :func:`encode` reads: a mesh file (OBJ, PLY, STL, glTF/GLB) or glTF asset path, a :class:`Mesh`,
+#: or an in-memory glTF asset ``(gltf dict, list of buffers)``.
+MeshSource = Union[str, "os.PathLike[str]", Mesh, tuple]
+#: Where :func:`encode` writes: a path or a binary file object.
+Destination = Union[str, "os.PathLike[str]", BinaryIO]
+#: A watermark image: a path (PNG ...) or a square (s, s) array.
+WatermarkImage = Union[str, "os.PathLike[str]", np.ndarray, None]
+#: A key: a :class:`~pmwm_codec.watermark.key.WatermarkKey`, a key file path, or None.
+KeyLike = Union["WatermarkKey", str, "os.PathLike[str]", None]
+
+if TYPE_CHECKING:  # for type checkers only: importing these here would make ``import pmwm_codec`` heavy
+    from collections.abc import Iterator
+
+    from .format.inspect import inspect
+    from .meshio import write_mesh
+    from .stream.decoder import PartialResult
+    from .verify.stream import verify_stream
+    from .watermark.key import WatermarkKey
+
+__all__ = ["Mesh", "PmwError", "read_mesh", "encode", "decode", "decode_asset", "cut", "iter_decode", "load_key",
+           "Source", "MeshSource", "Destination", "WatermarkImage", "KeyLike"]
 __version__ = "0.1.0"
 
 
-def _as_mesh(src) -> Mesh:
+def _as_mesh(src: MeshSource) -> Mesh:
     if isinstance(src, Mesh):
         return checked_mesh(src.positions, src.faces, src.attributes)
     return read_mesh(src)
@@ -37,14 +59,15 @@ def _as_watermark(watermark):
     return load_watermark(watermark)
 
 
-def load_key(key):
+def load_key(key: KeyLike) -> WatermarkKey | None:
     """A :class:`~pmwm_codec.watermark.key.WatermarkKey` from a key object or a key file path."""
     from .watermark.key import as_key
 
     return as_key(key)
 
 
-def encode(src, dst, watermark=None, key=None, **options):
+def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, key: KeyLike = None,
+           **options: Any) -> dict[str, Any]:
     """Encode ``src`` into a ``.pmw`` at ``dst`` (path or binary file).
 
     ``src``: a mesh file or :class:`Mesh`, or a glTF asset (``.glb`` / ``.gltf`` path, or an
@@ -141,7 +164,7 @@ def _key_for(key, image, dst, owner_id=None) -> tuple:
     return slot.existing, slot, slot.owner_id
 
 
-def decode(src, chunks=None) -> Mesh:
+def decode(src: Source, chunks: int | None = None) -> Mesh:
     """Decode a whole or cut ``.pmw`` (path, bytes or binary file) to a :class:`Mesh`.
 
     ``chunks``: stop after the base mesh and this many vertex-split chunks.  ``src`` may be
@@ -165,7 +188,7 @@ def decode(src, chunks=None) -> Mesh:
     return Mesh(mesh.positions, faces)
 
 
-def iter_decode(src, key=None, watermark=None):
+def iter_decode(src: Source, key: KeyLike = None, watermark: WatermarkImage = None) -> Iterator[PartialResult]:
     """Yield a :class:`~pmwm_codec.stream.PartialResult` per chunk boundary, base mesh first.
 
     Each has ``mesh``, ``watermark`` (the partial image, with a key), ``chunk`` and
@@ -183,7 +206,7 @@ def iter_decode(src, key=None, watermark=None):
     yield from iter_results(as_source(src), decoder)
 
 
-def decode_asset(src, chunks=None) -> bytes:
+def decode_asset(src: Source, chunks: int | None = None) -> bytes:
     """A ``.pmw`` (whole or cut; a path, bytes, a binary file or an http(s) URL) as an ordinary GLB (bytes)
     at a level of detail.
 
@@ -199,7 +222,7 @@ def decode_asset(src, chunks=None) -> bytes:
     return glb
 
 
-def cut(src, chunks=None) -> bytes:
+def cut(src: Source, chunks: int | None = None) -> bytes:
     """A valid, smaller ``.pmw`` (bytes) from any ``.pmw`` or prefix of one (an http(s) URL too): the base and the
     first ``chunks`` chunks (default: all that arrived whole).  See :mod:`pmwm_codec.stream.cut`."""
     from .http import as_source
@@ -215,7 +238,7 @@ _LAZY = {"inspect": ".format.inspect", "verify_stream": ".verify.stream", "write
 __all__ += list(_LAZY)
 
 
-def __getattr__(name):
+def __getattr__(name: str) -> Any:
     if name in _LAZY:
         from importlib import import_module
 

@@ -240,7 +240,7 @@ def _check_extent(pos: np.ndarray, tri: np.ndarray, name: str) -> None:
                         f"the mesh would collapse onto one cell of any position grid (at most {MAX_GRID_BITS} bits)")
 
 
-def read_mesh(path) -> Mesh:
+def read_mesh(path: str | os.PathLike[str]) -> Mesh:
     """Read a triangle mesh from OBJ, PLY, STL, glTF or GLB.
 
     Polygons are fan-triangulated; STL triangle soups have identical corners

@@ -46,7 +46,7 @@ _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963  # glTF bufferView target
 _TRIANGLES = 4
 
 
-def write_mesh(path, mesh: Mesh) -> None:
+def write_mesh(path: str | os.PathLike[str], mesh: Mesh) -> None:
     """Write ``mesh`` to ``path`` (str or os.PathLike), format by suffix (see the module docstring).
 
     ``mesh.positions`` (n, 3) float is stored as float32, ``mesh.faces`` (m, 3) int as uint32.

@@ -13,6 +13,12 @@ from __future__ import annotations
 
 import os
 import sys
+from collections.abc import Iterable
+from typing import BinaryIO, Union
+
+#: What every ``.pmw`` reader takes (the list above); the readers of the public API also take an
+#: ``http://`` or ``https://`` URL (a ``str``, :mod:`pmwm_codec.http`).
+Source = Union[str, "os.PathLike[str]", bytes, bytearray, memoryview, BinaryIO, Iterable[bytes]]
 
 #: Block size of the pull readers (64 KiB).
 DEFAULT_BLOCK_SIZE = 1 << 16

@@ -169,3 +169,30 @@ def test_a_key_that_is_neither_a_key_nor_a_path_is_named_by_every_reader(stream,
                  lambda: pmwm_codec.load_key(key)):
         with pytest.raises(WatermarkKeyError, match="a key must be a WatermarkKey, a key file path or None, got"):
             read()
+
+
+PUBLIC_FUNCTIONS = ("encode", "decode", "iter_decode", "decode_asset", "cut", "load_key", "read_mesh", "write_mesh",
+                    "inspect", "verify_stream")
+
+
+@pytest.mark.parametrize("name", PUBLIC_FUNCTIONS)
+def test_every_public_function_is_annotated_for_type_checkers(name):
+    """The package says it is typed (``py.typed``): a type checker then trusts these signatures, so every
+    parameter and the return value carry a type."""
+    import inspect as pyinspect
+
+    signature = pyinspect.signature(getattr(pmwm_codec, name))
+    bare = [p.name for p in signature.parameters.values() if p.annotation is pyinspect.Parameter.empty]
+    assert not bare, f"{name}: parameters without a type: {bare}"
+    assert signature.return_annotation is not pyinspect.Signature.empty, f"{name}: no return type"
+
+
+def test_the_typed_marker_ships_with_the_package():
+    """``py.typed`` sits in the package and the build takes it into the wheel (package data)."""
+    import importlib.resources
+    import tomllib
+    from pathlib import Path
+
+    assert importlib.resources.files("pmwm_codec").joinpath("py.typed").is_file()
+    pyproject = tomllib.loads((Path(pmwm_codec.__file__).parent.parent / "pyproject.toml").read_text())
+    assert "py.typed" in pyproject["tool"]["setuptools"]["package-data"]["pmwm_codec"]

@@ -15,12 +15,14 @@ is unknown (standard input, a file object).
 from __future__ import annotations
 
 import os
+from typing import Any
 
 from ..constants import EXTENSION_NAME
 from .base import base_counts, base_vertex_count
 from .extension import chunk_start
 from .gltf import DRACO_EXTENSION, find_extension_primitives
 from .reader import read_header
+from ..sources import Source
 
 __all__ = ["inspect"]
 
@@ -28,7 +30,7 @@ __all__ = ["inspect"]
 WATERMARK_FIELDS = ("mode", "bits", "width", "height", "levels", "codes", "carriers", "keyFingerprint")
 
 
-def inspect(source) -> dict:
+def inspect(source: Source) -> dict[str, Any]:
     """The ``pmw info --json`` object of ``source``: a path, ``"-"`` (standard input), bytes or an http(s) URL.
 
     Raises the parser's named errors (FormatError, LimitError, TruncatedError when the

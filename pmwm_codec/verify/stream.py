@@ -25,6 +25,8 @@ prints them as ``null``).
 
 from __future__ import annotations
 
+import os
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,7 +34,8 @@ import numpy as np
 from ..stream import StreamDecoder, iter_results
 from ..stream.decoder import StreamEnd
 from ..watermark import load_watermark
-from ..watermark.key import as_key
+from ..sources import Source
+from ..watermark.key import WatermarkKey, as_key
 
 __all__ = ["StreamVerification", "verify_stream"]
 
@@ -98,7 +101,8 @@ def _chunk_name(number: int) -> str:
     return f"chunk {number}" if number else "base mesh"
 
 
-def verify_stream(source, key, watermark=None, *, keep_meshes: bool = False, progress=None) -> StreamVerification:
+def verify_stream(source: Source, key: WatermarkKey | str | os.PathLike[str], watermark: np.ndarray | str | None = None, *,
+                  keep_meshes: bool = False, progress: Callable[[str, float], None] | None = None) -> StreamVerification:
     """Decode ``source`` with ``key`` and score the watermark at every chunk boundary.
 
     ``keep_meshes``: keep a copy of every level's mesh in the results (for pictures);
