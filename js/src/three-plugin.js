@@ -21,7 +21,7 @@
 import { BufferAttribute } from 'three';
 import { FormatError } from './errors.js';
 import { parseGlb, planDocument, preambleLength } from './header.js';
-import { createDecoder, THREE_NAMES } from './worker-decoder.js';
+import { createDecoder, threeName } from './worker-decoder.js';
 
 export const EXTENSION_NAME = 'PMWM_progressive_mesh';
 
@@ -153,8 +153,7 @@ export function refreshGeometry(geometry, part, capV, capF) {
     geometry.setAttribute('position', new BufferAttribute(new Float32Array(capV * 3), 3));
     geometry.setIndex(new BufferAttribute(new Uint32Array(capF * 3), 1));
     for (const [semantic, values] of Object.entries(part.attributes)) {
-      const name = THREE_NAMES[semantic];
-      if (name) geometry.setAttribute(name, new BufferAttribute(new Float32Array(capV * (values.length / n || 1)),
+      geometry.setAttribute(threeName(semantic), new BufferAttribute(new Float32Array(capV * (values.length / n || 1)),
         values.length / n || 1));
     }
     geometry.userData.pmwmCapacity = { vertices: capV, faces: capF };
@@ -163,8 +162,7 @@ export function refreshGeometry(geometry, part, capV, capF) {
   write(geometry.getAttribute('position'), part.positions);
   write(geometry.index, part.indices);
   for (const [semantic, values] of Object.entries(part.attributes)) {
-    const attr = THREE_NAMES[semantic] && geometry.getAttribute(THREE_NAMES[semantic]);
-    if (attr) write(attr, values);
+    write(geometry.getAttribute(threeName(semantic)), values);
   }
   geometry.setDrawRange(0, part.indices.length);
   if (!part.attributes.NORMAL && geometry.getAttribute('normal')) geometry.computeVertexNormals();

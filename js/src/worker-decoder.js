@@ -24,9 +24,14 @@ import { parseGlb, planDocument, preambleLength } from './header.js';
 /** Full vertex count above which `worker: 'auto'` decodes in a worker. */
 export const WORKER_THRESHOLD = 100000;
 
-/** glTF attribute semantic -> three.js attribute name. */
-export const THREE_NAMES = { POSITION: 'position', NORMAL: 'normal', TANGENT: 'tangent', TEXCOORD_0: 'uv',
-  TEXCOORD_1: 'uv1', TEXCOORD_2: 'uv2', TEXCOORD_3: 'uv3', COLOR_0: 'color' };
+/** glTF attribute semantic -> three.js attribute name, as GLTFLoader's ATTRIBUTES table has them. */
+const THREE_NAMES = { POSITION: 'position', NORMAL: 'normal', TANGENT: 'tangent', TEXCOORD_0: 'uv',
+  TEXCOORD_1: 'uv1', TEXCOORD_2: 'uv2', TEXCOORD_3: 'uv3', COLOR_0: 'color', WEIGHTS_0: 'skinWeight', JOINTS_0: 'skinIndex' };
+
+/** The name GLTFLoader gives attribute `semantic` (its table, else the semantic lowercased: `_CUSTOM` -> `_custom`). */
+export function threeName(semantic) {
+  return THREE_NAMES[semantic] ?? semantic.toLowerCase();
+}
 
 /**
  * A Draco "decoder" answering, in stream order, from base meshes another decoder (three.js) decoded.
@@ -42,7 +47,7 @@ export function dracoFromBases(bases) {
       const byId = Object.fromEntries(Object.entries(b.ids).map(([semantic, id]) => [id, semantic]));
       return {
         positions: b.attrs.position.values, indices: b.indices,
-        attributes: attributeIds.map((id) => b.attrs[THREE_NAMES[byId[id]]]),
+        attributes: attributeIds.map((id) => b.attrs[threeName(byId[id])]),
       };
     },
   };

@@ -1,12 +1,14 @@
 // The three.js plugin in Node: GLTFLoader shows the base, the plugin refines it over HTTP (Range or one stream).
 import assert from 'node:assert/strict';
 import fs from 'node:fs';
+import os from 'node:os';
 import path from 'node:path';
 import { after, before, test } from 'node:test';
 import { fileURLToPath } from 'node:url';
 import { GLTFLoader } from 'three/examples/jsm/loaders/GLTFLoader.js';
 import { decodePmw } from '../src/index.js';
 import { loadProgressive } from '../src/three-plugin.js';
+import { dracoFromBases } from '../src/worker-decoder.js';
 import { startServer } from './lib/server.js';
 
 const conformance = path.resolve(path.dirname(fileURLToPath(import.meta.url)), '../../spec/conformance');
@@ -72,4 +74,34 @@ test('a byte budget shows the level of the cut file', async () => {
     assert.equal(cut.chunksApplied, 3, kind);
     assert.equal(theMesh(gltf).geometry.userData.pmwmLevel.vertices, cut.positions.length / 3, kind);
   }
+});
+
+test('an attribute three.js names by lowercasing its semantic (_CUSTOM_UV) is refined with the mesh', async () => {
+  // the conformance file with TEXCOORD_0 renamed to a custom semantic of the same length (offsets unchanged)
+  const text = new TextDecoder('latin1').decode(bytes).replaceAll('"TEXCOORD_0"', '"_CUSTOM_UV"');
+  const renamed = Uint8Array.from(text, (c) => c.charCodeAt(0));
+  const dir = fs.mkdtempSync(path.join(os.tmpdir(), 'pmwm-three-'));
+  fs.writeFileSync(path.join(dir, 'custom.pmw'), renamed);
+  const server = await startServer(dir);
+  try {
+    const full = await decodePmw(renamed);
+    const gltf = await loadProgressive(new GLTFLoader(), `${server.url}custom.pmw`);
+    await gltf.userData.pmwm.done;
+    const g = theMesh(gltf).geometry;
+    const n = full.positions.length / 3;
+    assert.equal(g.getAttribute('_custom_uv').count, g.getAttribute('position').count);
+    assert.deepEqual(g.getAttribute('_custom_uv').array.subarray(0, n * 2), full.parts[0].attributes._CUSTOM_UV);
+  } finally {
+    await server.close();
+    fs.rmSync(dir, { recursive: true, force: true });
+  }
+});
+
+test('a Draco base decoded by three.js hands over a custom attribute (_CUSTOM) by its three.js name', async () => {
+  const custom = { values: Float32Array.of(1, 2, 3), components: 1 };
+  const uv = { values: new Float32Array(6), components: 2 };
+  const draco = dracoFromBases([{ ids: { POSITION: 0, TEXCOORD_0: 1, _CUSTOM: 2 }, indices: Uint32Array.of(0, 1, 2),
+    attrs: { position: { values: new Float32Array(9), components: 3 }, uv, _custom: custom } }]);
+  const out = await draco.decode(new Uint8Array(0), { positionId: 0, attributeIds: [2, 1] });
+  assert.deepEqual(out.attributes, [custom, uv]);
 });
