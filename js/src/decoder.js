@@ -45,9 +45,19 @@ export class PmwDecoder {
     this.queue = Promise.resolve();
   }
 
-  /** Appends `bytes`; resolves to the results that became available (possibly none). */
+  /**
+   * Appends `bytes` (a Uint8Array, an ArrayBuffer as `await response.arrayBuffer()` gives, or any
+   * typed array or DataView: its bytes); resolves to the results that became available (possibly
+   * none). Anything else rejects with a TypeError and leaves the decoder as it was.
+   */
   feed(bytes) {
-    const run = this.queue.then(() => this.#feed(bytes));
+    let piece;
+    try {
+      piece = asBytes(bytes);
+    } catch (e) {
+      return Promise.reject(e);
+    }
+    const run = this.queue.then(() => this.#feed(piece));
     this.queue = run.catch(() => {});
     return run;
   }
@@ -201,6 +211,17 @@ export class PmwDecoder {
       bytesReceived: this.received, totalLength: this.header.length, chunksApplied: this.chunksApplied, chunkCount,
     };
   }
+}
+
+/** The bytes of `data` (ArrayBuffer, typed array or DataView) as a Uint8Array view; TypeError for anything else. */
+function asBytes(data) {
+  if (data instanceof Uint8Array) return data;
+  if (ArrayBuffer.isView(data)) return new Uint8Array(data.buffer, data.byteOffset, data.byteLength);
+  if (data instanceof ArrayBuffer || (typeof SharedArrayBuffer === 'function' && data instanceof SharedArrayBuffer)) {
+    return new Uint8Array(data);
+  }
+  throw new TypeError(`expected bytes (a Uint8Array, ArrayBuffer or typed array), not ${data === null ? 'null' : typeof data}`
+    + (data?.constructor?.name ? ` (${data.constructor.name})` : ''));
 }
 
 /**

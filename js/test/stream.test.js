@@ -121,3 +121,18 @@ test('a chunk count that is not a whole number >= 0 is refused, not rounded or t
   assert.equal((await decodePmw(bytes, { chunks: 0 })).chunksApplied, 0);
   assert.equal((await decodePmw(bytes, { chunks: undefined })).complete, true);
 });
+
+test('decodePmw and feed take an ArrayBuffer or any typed array as bytes, and refuse what is not bytes with a TypeError', async () => {
+  const bytes = load(conformanceFiles()[0]);
+  const whole = await decodePmw(bytes);
+  const buffer = bytes.buffer.slice(bytes.byteOffset, bytes.byteOffset + bytes.length); // as response.arrayBuffer() gives
+  for (const input of [buffer, new DataView(buffer), new Uint16Array(buffer)]) { // a GLB's length is a multiple of 4
+    const got = await decodePmw(input);
+    assert.equal(levelDigest(got), levelDigest(whole), input.constructor.name);
+  }
+  const d = new PmwDecoder();
+  await d.feed(new Uint16Array(buffer, 0, 10)); // the first 20 bytes, by their bytes
+  for (const wrong of ['glTF', [103, 108, 84, 70], null, 7]) await assert.rejects(d.feed(wrong), TypeError);
+  await d.feed(new Uint8Array(buffer, 20)); // the refusals left the decoder as it was
+  assert.equal(d.close().complete, true);
+});
