@@ -19,7 +19,7 @@
  * the same levels, arrays and named errors either way (worker-decoder.js).
  */
 import { BufferAttribute } from 'three';
-import { FormatError } from './errors.js';
+import { FormatError, TruncatedError } from './errors.js';
 import { parseGlb, planDocument, preambleLength } from './header.js';
 import { createDecoder, threeName } from './worker-decoder.js';
 
@@ -264,7 +264,8 @@ function headerEndOf(run) {
  * Loads `url` with `loader`, reading only the bytes before the first chunk (the base and what it uses)
  * first: by Range requests, or the start of one fetch stream. three.js shows that base; a
  * PMWMProgressivePlugin registered for this load only then refines it from the rest (not fetched twice).
- * Do not also register the plugin on `loader` yourself. Options as PMWMProgressivePlugin's.
+ * Do not also register the plugin on `loader` yourself. Options as PMWMProgressivePlugin's. A GLB
+ * without the extension loads whole, as it is; a file that ends before those bytes is a TruncatedError.
  * @returns {Promise<object>} the gltf; `gltf.userData.pmwm.done` resolves when the stream ends
  */
 export async function loadProgressive(loader, url, options = {}) {
@@ -275,9 +276,12 @@ export async function loadProgressive(loader, url, options = {}) {
     const m = new Uint8Array(prefix.length + b.length); m.set(prefix); m.set(b, prefix.length); prefix = m;
     stats.bytesFetched += b.length;
   };
-  const baseEnd = () => {
-    if (prefix.length < 20 || prefix.length < preambleLength(prefix)) return Infinity;
+  // the bytes three.js needs: the preamble, the JSON, then everything before the first chunk (a GLB
+  // without the extension: all of it, loaded as it is)
+  const needed = () => {
+    if (prefix.length < 20 || prefix.length < preambleLength(prefix)) return preambleLength(prefix);
     const header = parseGlb(prefix);
+    if (!header.gltf.extensionsUsed?.includes?.(EXTENSION_NAME)) return header.length;
     const { stream } = planDocument(header.gltf, header.binLength);
     return stream.length ? header.binStart + stream[0].offset : header.length;
   };
@@ -287,15 +291,20 @@ export async function loadProgressive(loader, url, options = {}) {
   let reader = null;
   if (res.status === 206) {
     append(new Uint8Array(await res.arrayBuffer()));
-    await getRange(fetchFn, url, 20, preambleLength(prefix), append, stats);
-    await getRange(fetchFn, url, prefix.length, baseEnd(), append, stats);
+    if (prefix.length === 20) await getRange(fetchFn, url, 20, preambleLength(prefix), append, stats);
+    if (prefix.length === preambleLength(prefix)) await getRange(fetchFn, url, prefix.length, needed(), append, stats);
   } else {
     reader = res.body.getReader();
-    while (prefix.length < baseEnd()) {
+    while (prefix.length < needed()) {
       const { value, done } = await reader.read();
       if (done) break;
       append(value);
     }
+  }
+  if (prefix.length < needed()) {
+    reader?.cancel();
+    throw new TruncatedError(`${url}: the file ended after ${prefix.length} bytes, before its base mesh and what `
+      + `comes before the first chunk (${needed()} bytes)`, prefix.length, needed());
   }
   const factory = (parser) => new PMWMProgressivePlugin(parser, { ...options, url, prefix, reader });
   loader.register(factory);
@@ -314,9 +323,10 @@ export async function loadProgressive(loader, url, options = {}) {
 }
 
 async function getRange(fetchFn, url, start, end, append, stats) {
-  if (end <= start || !Number.isFinite(end)) return;
+  if (end <= start) return;
   const res = await fetchFn(url, { headers: { Range: `bytes=${start}-${end - 1}` } });
   stats.requests++;
+  if (res.status === 416) return; // the file ends before `start`: the caller finds it short
   if (res.status !== 206) throw new FormatError(`${url}: HTTP ${res.status} to a Range request`);
   append(new Uint8Array(await res.arrayBuffer()));
 }

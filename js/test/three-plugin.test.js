@@ -6,7 +6,8 @@ import path from 'node:path';
 import { after, before, test } from 'node:test';
 import { fileURLToPath } from 'node:url';
 import { GLTFLoader } from 'three/examples/jsm/loaders/GLTFLoader.js';
-import { decodePmw } from '../src/index.js';
+import { parseGlb, planDocument } from '../src/header.js';
+import { decodePmw, TruncatedError } from '../src/index.js';
 import { loadProgressive } from '../src/three-plugin.js';
 import { dracoFromBases } from '../src/worker-decoder.js';
 import { startServer } from './lib/server.js';
@@ -80,21 +81,15 @@ test('an attribute three.js names by lowercasing its semantic (_CUSTOM_UV) is re
   // the conformance file with TEXCOORD_0 renamed to a custom semantic of the same length (offsets unchanged)
   const text = new TextDecoder('latin1').decode(bytes).replaceAll('"TEXCOORD_0"', '"_CUSTOM_UV"');
   const renamed = Uint8Array.from(text, (c) => c.charCodeAt(0));
-  const dir = fs.mkdtempSync(path.join(os.tmpdir(), 'pmwm-three-'));
-  fs.writeFileSync(path.join(dir, 'custom.pmw'), renamed);
-  const server = await startServer(dir);
-  try {
-    const full = await decodePmw(renamed);
+  const full = await decodePmw(renamed);
+  await serving({ 'custom.pmw': renamed }, async (server) => {
     const gltf = await loadProgressive(new GLTFLoader(), `${server.url}custom.pmw`);
     await gltf.userData.pmwm.done;
     const g = theMesh(gltf).geometry;
     const n = full.positions.length / 3;
     assert.equal(g.getAttribute('_custom_uv').count, g.getAttribute('position').count);
     assert.deepEqual(g.getAttribute('_custom_uv').array.subarray(0, n * 2), full.parts[0].attributes._CUSTOM_UV);
-  } finally {
-    await server.close();
-    fs.rmSync(dir, { recursive: true, force: true });
-  }
+  });
 });
 
 test('a Draco base decoded by three.js hands over a custom attribute (_CUSTOM) by its three.js name', async () => {
@@ -104,4 +99,55 @@ test('a Draco base decoded by three.js hands over a custom attribute (_CUSTOM) b
     attrs: { position: { values: new Float32Array(9), components: 3 }, uv, _custom: custom } }]);
   const out = await draco.decode(new Uint8Array(0), { positionId: 0, attributeIds: [2, 1] });
   assert.deepEqual(out.attributes, [custom, uv]);
+});
+
+/** Serves `files` ({name: bytes}) from a temporary directory for `body(server)`. */
+async function serving(files, body, options) {
+  const dir = fs.mkdtempSync(path.join(os.tmpdir(), 'pmwm-three-'));
+  for (const [name, data] of Object.entries(files)) fs.writeFileSync(path.join(dir, name), data);
+  const server = await startServer(dir, options);
+  try {
+    await body(server);
+  } finally {
+    await server.close();
+    fs.rmSync(dir, { recursive: true, force: true });
+  }
+}
+
+test('loadProgressive of a file that ends before its base mesh is a TruncatedError with the bytes received and needed', async () => {
+  const { binStart, binLength, gltf } = parseGlb(bytes);
+  const firstChunk = binStart + planDocument(gltf, binLength).stream[0].offset;
+  const cuts = [10, 1500, firstChunk - 1];
+  for (const ranges of [true, false]) {
+    await serving(Object.fromEntries(cuts.map((n) => [`cut${n}.pmw`, bytes.subarray(0, n)])), async (server) => {
+      for (const n of cuts) {
+        await assert.rejects(loadProgressive(new GLTFLoader(), `${server.url}cut${n}.pmw`),
+          (e) => e instanceof TruncatedError && e.bytesReceived === n
+            && e.bytesNeeded === (n < 20 ? 20 : n < binStart ? binStart : firstChunk), // the preamble, the JSON, the base
+          `cut at ${n}, ranges ${ranges}`);
+      }
+    }, { ranges });
+  }
+});
+
+test('loadProgressive loads a GLB without PMWM_progressive_mesh as it is (no stream, no error)', async () => {
+  const { gltf, binStart } = parseGlb(bytes);
+  delete gltf.extensionsUsed;
+  for (const mesh of gltf.meshes) for (const p of mesh.primitives) delete p.extensions;
+  const json = new TextEncoder().encode(JSON.stringify(gltf).padEnd(Math.ceil(JSON.stringify(gltf).length / 4) * 4));
+  const bin = bytes.subarray(binStart - 8);
+  const glb = new Uint8Array(20 + json.length + bin.length);
+  const view = new DataView(glb.buffer);
+  view.setUint32(0, 0x46546c67, true); view.setUint32(4, 2, true); view.setUint32(8, glb.length, true);
+  view.setUint32(12, json.length, true); view.setUint32(16, 0x4e4f534a, true);
+  glb.set(json, 20);
+  glb.set(bin, 20 + json.length);
+  const base = await decodePmw(bytes, { chunks: 0 });
+  for (const ranges of [true, false]) {
+    await serving({ 'plain.glb': glb }, async (server) => {
+      const loaded = await loadProgressive(new GLTFLoader(), `${server.url}plain.glb`);
+      assert.equal(loaded.userData.pmwm, undefined);
+      assert.equal(theMesh(loaded).geometry.getAttribute('position').count, base.positions.length / 3);
+    }, { ranges });
+  }
 });
