@@ -11,7 +11,9 @@
  * chunk in stream order, nothing after the last chunk it needs), else as one `fetch` stream. Each
  * applied chunk rewrites the primitive's BufferGeometry (arrays allocated once at the full
  * resolution, draw range grown) and calls `onChunk`. Stops: `maxChunks`, `maxGeometricError`
- * (the first chunk whose geometricError is at most this), `byteBudget` (no byte past it is used).
+ * (the first chunk whose geometricError is at most this), `byteBudget` (no byte past it is used, but the
+ * base is: below it, the base is the level shown). A stop, a stop condition or a failure cancels the rest of a
+ * streamed GET.
  * `loadProgressive(loader, url)` fetches only the bytes up to the base first, so the base is shown
  * before any chunk is downloaded. Decoding (`worker`): in a module Worker (decode-worker.js) when the
  * header's full vertex count exceeds `workerThreshold` (default 100,000) or `worker: true`; on the main
@@ -84,6 +86,17 @@ export class ProgressiveRun {
 
   /** Stops reading after the chunk being read. */
   stop() { this.stopped = true; }
+
+  /**
+   * The bytes this run may feed: `byteBudget`, but never fewer than the bytes before the first chunk
+   * (preamble, JSON, base: what three.js shows), so a budget below the base gives that base as level 0.
+   */
+  byteLimit() {
+    const budget = this.options.byteBudget ?? Infinity;
+    const { plan, header, received } = this.decoder;
+    if (plan) return Math.max(budget, header.binStart + (plan.stream.length ? plan.stream[0].offset : plan.baseEnd));
+    return Math.max(budget, received < 20 ? 20 : headerEndOf(this));
+  }
 
   async start() {
     const o = this.options;
@@ -181,25 +194,31 @@ function threeDracoBases(targets) {
   });
 }
 
-/** Bytes already read (`prefix`) then the rest of a ReadableStream reader. */
+/** Bytes already read (`prefix`) then the rest of a ReadableStream reader, within the run's byte limit. */
 async function* continueReader(prefix, reader, run) {
-  const limit = run.options.byteBudget ?? Infinity;
-  if (prefix?.length) {
-    yield prefix.subarray(0, limit);
-    if (prefix.length >= limit) { await reader.cancel(); return; }
-  }
-  for (;;) {
-    const { value, done } = await reader.read();
-    if (done) return;
-    const budget = run.options.byteBudget;
-    run.bytesFetched += value.length;
-    if (budget !== undefined && run.decoder.received + value.length > budget) {
-      yield value.subarray(0, Math.max(0, budget - run.decoder.received));
-      await reader.cancel();
-      return;
+  let done = false;
+  try {
+    if (prefix?.length) yield* withinLimit(prefix, run);
+    while (!run.stopped && run.decoder.received < run.byteLimit()) {
+      const next = await reader.read();
+      if (next.done) { done = true; return; }
+      run.bytesFetched += next.value.length;
+      yield* withinLimit(next.value, run);
     }
-    yield value;
-    if (run.stopped) { await reader.cancel(); return; }
+  } finally {
+    // stopped, at the limit, enough chunks, or a failure: the rest of the body is not downloaded
+    if (!done) reader.cancel().catch(() => {});
+  }
+}
+
+/** `piece` up to the run's byte limit, in parts where the limit grows as the header is read. */
+function* withinLimit(piece, run) {
+  for (let rest = piece; rest.length;) {
+    const room = run.byteLimit() - run.decoder.received;
+    if (room <= 0) return;
+    const part = rest.subarray(0, room);
+    rest = rest.subarray(part.length); // before the yield: a part fed to a worker may take its buffer with it
+    yield part;
   }
 }
 
@@ -208,7 +227,7 @@ async function* readStream(url, fetchFn, range, run, prefix) {
   if (!url) throw new FormatError('PMWMProgressivePlugin: no url to read the stream from (options.url)');
   let start = 0;
   if (prefix?.length) {
-    yield prefix.subarray(0, run.options.byteBudget ?? Infinity);
+    yield* withinLimit(prefix, run);
     start = prefix.length;
   } else {
     const first = await fetchFn(url, range ? { headers: { Range: 'bytes=0-19' } } : {});
@@ -228,7 +247,7 @@ async function* readStream(url, fetchFn, range, run, prefix) {
   for (const end of rangeEnds(run, preambleLength(prefix ?? new Uint8Array(0)))) {
     if (run.stopped) return;
     if (end <= start) continue;
-    const stop = Math.min(end, run.options.byteBudget ?? Infinity);
+    const stop = Math.min(end, run.byteLimit());
     if (stop <= start) return;
     const res = await fetchFn(url, { headers: { Range: `bytes=${start}-${stop - 1}` } });
     run.requests++;

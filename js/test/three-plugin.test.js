@@ -8,7 +8,7 @@ import { fileURLToPath } from 'node:url';
 import { GLTFLoader } from 'three/examples/jsm/loaders/GLTFLoader.js';
 import { parseGlb, planDocument } from '../src/header.js';
 import { decodePmw, TruncatedError } from '../src/index.js';
-import { loadProgressive } from '../src/three-plugin.js';
+import { loadProgressive, PMWMProgressivePlugin } from '../src/three-plugin.js';
 import { dracoFromBases } from '../src/worker-decoder.js';
 import { startServer } from './lib/server.js';
 
@@ -149,5 +149,55 @@ test('loadProgressive loads a GLB without PMWM_progressive_mesh as it is (no str
       assert.equal(loaded.userData.pmwm, undefined);
       assert.equal(theMesh(loaded).geometry.getAttribute('position').count, base.positions.length / 3);
     }, { ranges });
+  }
+});
+
+/** A fetch answering every request with the whole file as a stream of 500-byte pieces; `log` records pieces read and a cancel. */
+function streamingFetch(data, log) {
+  return async () => {
+    let at = 0;
+    const body = new ReadableStream({
+      pull(controller) {
+        if (at >= data.length) { controller.close(); return; }
+        log.pulled += Math.min(500, data.length - at);
+        controller.enqueue(data.slice(at, at += 500));
+      },
+      cancel() { log.cancelled = true; },
+    }, { highWaterMark: 0 });
+    return new Response(body, { status: 200 });
+  };
+}
+
+test('a streamed load that stops early (maxChunks, maxGeometricError, stop(), a corrupt chunk) cancels the rest of the body', async () => {
+  const corrupt = bytes.slice();
+  const two = await decodePmw(bytes, { chunks: 2 });
+  corrupt[two.bytesRead - 2] ^= 1; // inside chunk 1
+  const cases = [[{ maxChunks: 2 }, bytes], [{ maxGeometricError: 1e9 }, bytes], [{ stopAtBase: true }, bytes], [{}, corrupt]];
+  for (const [options, data] of cases) {
+    const log = { pulled: 0, cancelled: false };
+    let run;
+    const gltf = await loadProgressive(new GLTFLoader(), 'http://127.0.0.1/x.pmw', { ...options, range: false,
+      fetch: streamingFetch(data, log), onBase: () => options.stopAtBase && run.stop() });
+    run = gltf.userData.pmwm;
+    await run.done.catch(() => {});
+    assert.equal(log.cancelled, true, JSON.stringify(options));
+    assert.ok(log.pulled < data.length, JSON.stringify(options));
+  }
+});
+
+test('a byte budget below the base mesh shows the base as level 0 and applies no chunk', async () => {
+  const base = await decodePmw(bytes, { chunks: 0 });
+  for (const kind of ['ranges', 'plain']) {
+    const url = servers[kind].url + NAME;
+    const viaLoad = await loadProgressive(new GLTFLoader(), url, { byteBudget: 100 });
+    const loader = new GLTFLoader();
+    loader.register((parser) => new PMWMProgressivePlugin(parser, { url, byteBudget: 100 }));
+    const viaPlugin = await loader.parseAsync(bytes.slice().buffer, ''); // three.js read the whole file itself
+    for (const gltf of [viaLoad, viaPlugin]) {
+      const outcome = await gltf.userData.pmwm.done;
+      assert.equal(outcome.chunksApplied, 0, kind);
+      assert.equal(outcome.levels, 1, kind);
+      assert.equal(theMesh(gltf).geometry.userData.pmwmLevel.vertices, base.positions.length / 3, kind);
+    }
   }
 });
