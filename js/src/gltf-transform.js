@@ -29,7 +29,7 @@
  * back only as plain accessors: re-encoding it renumbers the vertices, so writing with the Draco
  * extension still in the document throws `BaseMeshChangedError` as well.
  */
-import { Extension, ExtensionProperty, PropertyType } from '@gltf-transform/core';
+import { Extension, ExtensionProperty, PropertyType, VertexLayout } from '@gltf-transform/core';
 import { createBLAKE2b } from 'hash-wasm';
 import { PmwError } from './errors.js';
 import { baseVertexCount, chunkEntries } from './header.js';
@@ -164,7 +164,8 @@ export class PMWMProgressiveMesh extends Extension {
     const root = this.document.getRoot();
     const draco = root.listExtensionsUsed().some((e) => e.extensionName === DRACO);
     const queued = [];
-    for (const { primitive, meshIndex, primitiveIndex, stream } of progressivePrimitives(this.document)) {
+    const progressive = progressivePrimitives(this.document);
+    for (const { primitive, meshIndex, primitiveIndex, stream } of progressive) {
       const where = { mesh: meshIndex, primitive: primitiveIndex };
       const label = `mesh ${meshIndex} primitive ${primitiveIndex}`;
       const now = baseFingerprint(primitive, stream.getInfo());
@@ -183,6 +184,9 @@ export class PMWMProgressiveMesh extends Extension {
       stream.getChunks().forEach((bytes, k) => queued.push({ buffer, stream, k, order: stream.getStreamOffsets()[k], view: bytes.subarray(0) }));
     }
     queued.sort((a, b) => a.order - b.order);
+    // every vertex attribute in a bufferView of its own, tightly packed: the reference reader
+    // (pmwm_codec) refuses an interleaved base accessor (byteStride larger than its element)
+    if (progressive.length) context.options.vertexLayout = VertexLayout.SEPARATE;
     shareVersion2Views(queued);
     this._queued = queued;
     for (const view of new Set(queued.map((q) => q.view))) {

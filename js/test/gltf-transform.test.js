@@ -17,7 +17,7 @@ import { PMWMProgressiveMesh, BaseMeshChangedError } from 'pmwm-progressive/gltf
 import { PmwDecoder } from '../src/index.js';
 import { chunkEntries } from '../src/header.js';
 import { CONFORMANCE, conformanceFiles, levelDigest } from './lib/helpers.js';
-import { ROOT } from './lib/python.js';
+import { decodeFiles, python, ROOT } from './lib/python.js';
 
 const NAME = 'PMWM_progressive_mesh';
 const CHECK_GLTF = join(ROOT, 'tools', 'js', 'check_gltf.mjs');
@@ -91,6 +91,30 @@ for (const file of ['sphere-attributes.plain.v1.pmw', 'grid-hole.plain.v1.pmw'])
     assert.deepEqual(await io.writeBinary(await io.readBinary(rewritten)), rewritten);
   });
 }
+
+test('a rewritten base is tightly packed (one bufferView per vertex attribute) and the reference decoder gives the same levels',
+  async () => {
+    const original = load('sphere-attributes.plain.v1.pmw'); // POSITION, NORMAL, TEXCOORD_0: interleaved by default
+    const io = new NodeIO().registerExtensions([PMWMProgressiveMesh]);
+    const rewritten = await io.writeBinary(await io.readBinary(original));
+    const { json } = glbParts(rewritten);
+    const SIZES = { SCALAR: 1, VEC2: 2, VEC3: 3, VEC4: 4 };
+    for (const [semantic, index] of Object.entries(json.meshes[0].primitives[0].attributes)) {
+      const accessor = json.accessors[index];
+      const stride = json.bufferViews[accessor.bufferView].byteStride;
+      assert.ok(stride === undefined || stride === 4 * SIZES[accessor.type], `${semantic}: byteStride ${stride}`);
+    }
+    if (!python()) return; // pmwm_codec refuses an interleaved base accessor
+    const dir = mkdtempSync(join(tmpdir(), 'pmw-gltf-transform-'));
+    try {
+      writeFileSync(join(dir, 'out.pmw'), rewritten);
+      const [reference] = decodeFiles([join(dir, 'out.pmw')]);
+      assert.equal(reference.error, undefined);
+      assert.deepEqual(reference.levels.map((l) => l.sha256), (await levels(original)).map((l) => l.digest));
+    } finally {
+      rmSync(dir, { recursive: true, force: true });
+    }
+  });
 
 test('the Khronos validator finds no error in a rewritten file (skipped without tools/js/node_modules)',
   { skip: !existsSync(VALIDATOR) && 'gltf-validator not installed in tools/js' }, async () => {
