@@ -165,7 +165,7 @@ export class PMWMProgressiveMesh extends Extension {
     const draco = root.listExtensionsUsed().some((e) => e.extensionName === DRACO);
     const queued = [];
     const progressive = progressivePrimitives(this.document);
-    for (const { primitive, meshIndex, primitiveIndex, stream } of progressive) {
+    for (const [owner, { primitive, meshIndex, primitiveIndex, stream }] of progressive.entries()) {
       const where = { mesh: meshIndex, primitive: primitiveIndex };
       const label = `mesh ${meshIndex} primitive ${primitiveIndex}`;
       const now = baseFingerprint(primitive, stream.getInfo());
@@ -181,7 +181,10 @@ export class PMWMProgressiveMesh extends Extension {
           + `to write the base as plain accessors.`, where);
       }
       const buffer = primitive.getAttribute('POSITION')?.getBuffer() ?? root.listBuffers()[0];
-      stream.getChunks().forEach((bytes, k) => queued.push({ buffer, stream, k, order: stream.getStreamOffsets()[k], view: bytes.subarray(0) }));
+      // owner: the primitive's place in the document; a primitive two meshes share (mesh.clone()) is written
+      // twice, each time with chunks of its own (chunks never overlap)
+      stream.getChunks().forEach((bytes, k) => queued.push({ buffer, stream, owner, k, order: stream.getStreamOffsets()[k],
+        view: bytes.subarray(0) }));
     }
     queued.sort((a, b) => a.order - b.order);
     // every vertex attribute in a bufferView of its own, tightly packed: the reference reader
@@ -206,11 +209,11 @@ export class PMWMProgressiveMesh extends Extension {
     for (const buffer of new Set(queued.map((q) => q.buffer))) {
       alignTail(context, context.bufferIndexMap.get(buffer), [...new Set(queued.filter((q) => q.buffer === buffer).map((q) => views.get(q)))]);
     }
-    for (const { mesh, primitive, stream } of progressivePrimitives(this.document)) {
+    for (const [owner, { mesh, primitiveIndex, stream }] of progressivePrimitives(this.document).entries()) {
       const meshDef = json.meshes[context.meshIndexMap.get(mesh)];
-      const primitiveDef = meshDef.primitives[mesh.listPrimitives().indexOf(primitive)];
+      const primitiveDef = meshDef.primitives[primitiveIndex];
       const info = stream.getInfo();
-      const placed = info.chunks.map((entry, k) => queued.find((q) => q.stream === stream && q.k === k));
+      const placed = info.chunks.map((entry, k) => queued.find((q) => q.owner === owner && q.k === k));
       const chunks = (info.payload?.version ?? 1) === 2
         ? compactChunks(info.chunks.map((entry, k) => ({ ...entry, bufferView: views.get(placed[k]), byteOffset: placed[k].at })),
           stream.getPackedTable())
