@@ -45,7 +45,7 @@ export class PMWMProgressivePlugin {
   }
 
   async afterRoot(gltf) {
-    const targets = progressiveTargets(this.parser, gltf);
+    const targets = await progressiveTargets(this.parser, gltf);
     if (!targets.length) return;
     const run = new ProgressiveRun(targets, this.options);
     gltf.userData = gltf.userData ?? {};
@@ -55,10 +55,14 @@ export class PMWMProgressivePlugin {
   }
 }
 
-/** [{mesh: index, primitive: index, objects: [three.Mesh]}] in mesh/primitive order. */
-function progressiveTargets(parser, gltf) {
+/**
+ * [{mesh: index, primitive: index, prim, objects: [three.Mesh]}] of every progressive primitive, in
+ * mesh/primitive order (the decoder's primitive order): the meshes of every scene, and those of no scene
+ * loaded here (the stream holds their chunks: their bases decode, their geometries refine unseen).
+ */
+async function progressiveTargets(parser, gltf) {
   const byKey = new Map();
-  gltf.scene.traverse((object) => {
+  const add = (object) => {
     const assoc = parser.associations.get(object);
     if (!object.isMesh || !assoc || assoc.meshes === undefined) return;
     const prim = parser.json.meshes?.[assoc.meshes]?.primitives?.[assoc.primitives ?? 0];
@@ -66,7 +70,13 @@ function progressiveTargets(parser, gltf) {
     const key = `${assoc.meshes}/${assoc.primitives ?? 0}`;
     if (!byKey.has(key)) byKey.set(key, { mesh: assoc.meshes, primitive: assoc.primitives ?? 0, prim, objects: [] });
     byKey.get(key).objects.push(object);
-  });
+  };
+  for (const scene of gltf.scenes ?? [gltf.scene]) scene.traverse(add);
+  const unseen = new Set();
+  (parser.json.meshes ?? []).forEach((mesh, m) => mesh?.primitives?.forEach((prim, p) => {
+    if (prim?.extensions?.[EXTENSION_NAME] && !byKey.has(`${m}/${p}`)) unseen.add(m);
+  }));
+  for (const m of unseen) (await parser.getDependency('mesh', m)).traverse(add);
   return [...byKey.values()].sort((a, b) => a.mesh - b.mesh || a.primitive - b.primitive);
 }
 
@@ -146,11 +156,12 @@ export class ProgressiveRun {
   /** Draws level `r` (its `mesh`: the decoder's snapshot at that level) and reports it. */
   #level(r) {
     const { mesh } = r;
-    this.targets.forEach((t, p) => {
+    const { primitives } = this.decoder.plan;
+    for (const t of this.targets) {
+      const p = primitives.findIndex((q) => q.mesh === t.mesh && q.primitive === t.primitive);
       const geometries = new Set(t.objects.map((o) => o.geometry));
-      const plan = this.decoder.plan.primitives[p];
-      for (const g of geometries) refreshGeometry(g, mesh.parts[p], plan.vertexCount, plan.faceCount);
-    });
+      for (const g of geometries) refreshGeometry(g, mesh.parts[p], primitives[p].vertexCount, primitives[p].faceCount);
+    }
     const event = { ...r, bytesFetched: this.bytesFetched, requests: this.requests };
     delete event.mesh;
     this.levels.push(event);

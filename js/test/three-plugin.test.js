@@ -10,6 +10,7 @@ import { parseGlb, planDocument } from '../src/header.js';
 import { decodePmw, TruncatedError } from '../src/index.js';
 import { loadProgressive, PMWMProgressivePlugin } from '../src/three-plugin.js';
 import { dracoFromBases } from '../src/worker-decoder.js';
+import { encodeCase, python } from './lib/python.js';
 import { startServer } from './lib/server.js';
 
 const conformance = path.resolve(path.dirname(fileURLToPath(import.meta.url)), '../../spec/conformance');
@@ -201,3 +202,23 @@ test('a byte budget below the base mesh shows the base as level 0 and applies no
     }
   }
 });
+
+test('a progressive mesh the scene leaves out is decoded in order, and each shown mesh gets its own primitive\'s levels',
+  { skip: python() ? false : 'no Python that imports pmwm_codec (set PYTHON)' }, async () => {
+    const dir = fs.mkdtempSync(path.join(os.tmpdir(), 'pmwm-three-'));
+    try {
+      encodeCase('unseen-first-mesh.plain', 2, path.join(dir, 'unseen.pmw')); // the scene shows mesh 1 only
+      const full = await decodePmw(new Uint8Array(fs.readFileSync(path.join(dir, 'unseen.pmw'))));
+      await serving({ 'unseen.pmw': fs.readFileSync(path.join(dir, 'unseen.pmw')) }, async (server) => {
+        const gltf = await loadProgressive(new GLTFLoader(), `${server.url}unseen.pmw`);
+        assert.equal((await gltf.userData.pmwm.done).complete, true);
+        const shown = theMesh(gltf).geometry;
+        const part = full.parts[1];
+        assert.equal(shown.userData.pmwmLevel.vertices, part.positions.length / 3);
+        assert.deepEqual(shown.getAttribute('position').array.subarray(0, part.positions.length), part.positions);
+        assert.deepEqual(shown.index.array.subarray(0, part.indices.length), part.indices);
+      });
+    } finally {
+      fs.rmSync(dir, { recursive: true, force: true });
+    }
+  });
