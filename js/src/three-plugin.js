@@ -20,7 +20,7 @@
  * thread when `worker: false`, below the threshold, or when no worker starts (Node: no Worker global);
  * the same levels, arrays and named errors either way (worker-decoder.js).
  */
-import { BufferAttribute } from 'three';
+import { Box3, BufferAttribute, Sphere } from 'three';
 import { FormatError, TruncatedError } from './errors.js';
 import { parseGlb, planDocument, preambleLength } from './header.js';
 import { createDecoder, threeName } from './worker-decoder.js';
@@ -190,9 +190,23 @@ export function refreshGeometry(geometry, part, capV, capF) {
   }
   geometry.setDrawRange(0, part.indices.length);
   if (!part.attributes.NORMAL && geometry.getAttribute('normal')) geometry.computeVertexNormals();
-  geometry.computeBoundingBox();
-  geometry.computeBoundingSphere();
+  boundLevel(geometry, part.positions);
   geometry.userData.pmwmLevel = { vertices: n, faces: part.indices.length / 3 };
+}
+
+/**
+ * The bounding box and sphere of a level's `positions` (n*3): three.js' computeBounding* would read the
+ * whole attribute, whose unused capacity (zeros) pulls the volumes to the origin.
+ */
+function boundLevel(geometry, positions) {
+  const box = (geometry.boundingBox ??= new Box3()).setFromArray(positions);
+  const sphere = geometry.boundingSphere ??= new Sphere();
+  const { x, y, z } = box.getCenter(sphere.center);
+  let far = 0;
+  for (let i = 0; i < positions.length; i += 3) {
+    far = Math.max(far, (positions[i] - x) ** 2 + (positions[i + 1] - y) ** 2 + (positions[i + 2] - z) ** 2);
+  }
+  sphere.radius = Math.sqrt(far);
 }
 
 /** The Draco base meshes three.js decoded (copies, in plan order), for dracoFromBases. */

@@ -8,7 +8,8 @@ import { fileURLToPath } from 'node:url';
 import { GLTFLoader } from 'three/examples/jsm/loaders/GLTFLoader.js';
 import { parseGlb, planDocument } from '../src/header.js';
 import { decodePmw, TruncatedError } from '../src/index.js';
-import { loadProgressive, PMWMProgressivePlugin } from '../src/three-plugin.js';
+import { BufferGeometry } from 'three';
+import { loadProgressive, PMWMProgressivePlugin, refreshGeometry } from '../src/three-plugin.js';
 import { dracoFromBases } from '../src/worker-decoder.js';
 import { encodeCase, python } from './lib/python.js';
 import { startServer } from './lib/server.js';
@@ -222,3 +223,13 @@ test('a progressive mesh the scene leaves out is decoded in order, and each show
       fs.rmSync(dir, { recursive: true, force: true });
     }
   });
+
+test('each level\'s bounding box and sphere are those of its own vertices, not of the zeros past them', async () => {
+  const geometry = new BufferGeometry();
+  const part = { positions: Float32Array.of(10, 0, 5, 12, 0, 5, 10, 2, 5), indices: Uint32Array.of(0, 1, 2), attributes: {} };
+  refreshGeometry(geometry, part, 100, 200); // capacity for 100 vertices: 97 of them still (0, 0, 0)
+  assert.deepEqual(geometry.boundingBox.min.toArray(), [10, 0, 5]);
+  assert.deepEqual(geometry.boundingBox.max.toArray(), [12, 2, 5]);
+  assert.deepEqual(geometry.boundingSphere.center.toArray(), [11, 1, 5]);
+  assert.equal(geometry.boundingSphere.radius, Math.SQRT2);
+});
