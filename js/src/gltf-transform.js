@@ -32,7 +32,7 @@
 import { Extension, ExtensionProperty, PropertyType, VertexLayout } from '@gltf-transform/core';
 import { createBLAKE2b } from 'hash-wasm';
 import { PmwError } from './errors.js';
-import { baseVertexCount, chunkEntries } from './header.js';
+import { baseVertexCount, chunkEntries, planDocument } from './header.js';
 import { packChunkTable } from './chunktable.js';
 
 /** BLAKE2b-128 (hash-wasm; WebAssembly compiles asynchronously, once, at import). */
@@ -40,6 +40,8 @@ const blake = await createBLAKE2b(128);
 
 const NAME = 'PMWM_progressive_mesh';
 const DRACO = 'KHR_draco_mesh_compression';
+/** The resource key glTF-Transform gives a GLB's BIN chunk. */
+const GLB_BUFFER = '@glb.bin';
 
 /** Writing would break a progressive stream: its base mesh changed since it was read. */
 export class BaseMeshChangedError extends PmwError {
@@ -134,27 +136,28 @@ export class PMWMProgressiveMesh extends Extension {
     return new ProgressiveMesh(this.document.getGraph());
   }
 
-  /** @param {import('@gltf-transform/core').ReaderContext} context */
+  /**
+   * Reads every progressive primitive's stream. The document is first checked as the decoder checks it
+   * (header.js planDocument: extension objects, chunk tables, every chunk's range in the BIN), so a stream
+   * the decoder would refuse is refused here with the same named error, never read short.
+   * @param {import('@gltf-transform/core').ReaderContext} context
+   */
   read(context) {
     const json = context.jsonDoc.json;
-    (json.meshes ?? []).forEach((meshDef, meshIndex) => {
-      meshDef.primitives.forEach((primitiveDef, primitiveIndex) => {
-        const ext = primitiveDef.extensions?.[NAME];
-        if (!ext) return;
-        const primitive = context.meshes[meshIndex].listPrimitives()[primitiveIndex];
-        const entries = chunkEntries(ext, ext.payload?.version ?? 1,
-          baseVertexCount(json, primitiveDef, ext, `mesh ${meshIndex} primitive ${primitiveIndex}`));
-        const at = (entry) => entry.byteOffset ?? 0; // inside its bufferView (a version 2 chunk table)
-        const chunks = entries.map((e) => context.bufferViews[e.bufferView].slice(at(e), at(e) + e.byteLength));
-        const streamOffsets = entries.map((e) => (json.bufferViews[e.bufferView].byteOffset ?? 0) + at(e));
-        const info = { ...ext, chunks: entries.map(({ bufferView, byteOffset, ...entry }) => entry) };
-        primitive.setExtension(NAME, this.createProgressiveMesh()
-          .setInfo(info).setChunks(chunks).setStreamOffsets(streamOffsets)
-          .setFingerprint(baseFingerprint(primitive, info).hex)
-          .setDracoBase(Boolean(primitiveDef.extensions[DRACO]))
-          .setPackedTable(!Array.isArray(ext.chunks) && !('byteLengths' in ext.chunks)));
-      });
-    });
+    if (!(json.meshes ?? []).some((m) => m?.primitives?.some?.((p) => p?.extensions?.[NAME] !== undefined))) return this;
+    const bin = context.jsonDoc.resources[GLB_BUFFER];
+    for (const { mesh, primitive: index, ext, chunks: placed, payloadVersion, base } of planDocument(json, bin?.byteLength ?? 0).primitives) {
+      const primitive = context.meshes[mesh].listPrimitives()[index];
+      const entries = chunkEntries(ext, payloadVersion,
+        baseVertexCount(json, json.meshes[mesh].primitives[index], ext, `mesh ${mesh} primitive ${index}`));
+      const info = { ...ext, chunks: entries.map(({ bufferView, byteOffset, ...entry }) => entry) };
+      primitive.setExtension(NAME, this.createProgressiveMesh()
+        .setInfo(info).setChunks(placed.map((c) => bin.slice(c.offset, c.offset + c.length)))
+        .setStreamOffsets(placed.map((c) => c.offset))
+        .setFingerprint(baseFingerprint(primitive, info).hex)
+        .setDracoBase(Boolean(base.draco))
+        .setPackedTable(!Array.isArray(ext.chunks) && !('byteLengths' in ext.chunks)));
+    }
     return this;
   }
 
@@ -209,7 +212,9 @@ export class PMWMProgressiveMesh extends Extension {
     for (const buffer of new Set(queued.map((q) => q.buffer))) {
       alignTail(context, context.bufferIndexMap.get(buffer), [...new Set(queued.filter((q) => q.buffer === buffer).map((q) => views.get(q)))]);
     }
-    for (const [owner, { mesh, primitiveIndex, stream }] of progressivePrimitives(this.document).entries()) {
+    const progressive = progressivePrimitives(this.document);
+    if (!progressive.length) json.extensionsUsed = json.extensionsUsed.filter((name) => name !== NAME); // a plain glTF
+    for (const [owner, { mesh, primitiveIndex, stream }] of progressive.entries()) {
       const meshDef = json.meshes[context.meshIndexMap.get(mesh)];
       const primitiveDef = meshDef.primitives[primitiveIndex];
       const info = stream.getInfo();

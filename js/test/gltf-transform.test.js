@@ -14,9 +14,10 @@ import { NodeIO } from '@gltf-transform/core';
 import { KHRDracoMeshCompression } from '@gltf-transform/extensions';
 import draco3d from 'draco3d';
 import { PMWMProgressiveMesh, BaseMeshChangedError } from 'pmwm-progressive/gltf-transform';
-import { PmwDecoder } from '../src/index.js';
+import { FormatError, PmwDecoder, UnsupportedError } from '../src/index.js';
 import { chunkEntries } from '../src/header.js';
 import { CONFORMANCE, conformanceFiles, levelDigest } from './lib/helpers.js';
+import { withJson } from './lib/rewrite.js';
 import { decodeFiles, python, ROOT } from './lib/python.js';
 
 const NAME = 'PMWM_progressive_mesh';
@@ -229,3 +230,34 @@ for (const file of ['grid-hole.plain.v1.pmw', 'sphere-attributes.plain.packed.v2
     for (const part of parts) assert.equal(levelDigest({ ...part, parts: [part] }), full.digest);
   });
 }
+
+test('reading a stream the decoder refuses fails with the decoder\'s named error (never a chunk read short or a TypeError)', async () => {
+  const io = new NodeIO().registerExtensions([PMWMProgressiveMesh]);
+  const v1 = load('grid-hole.plain.v1.pmw');
+  const v2 = load('grid-hole.plain.packed.v2.pmw');
+  const ext = (gltf) => gltf.meshes[0].primitives[0].extensions[NAME];
+  const cases = [
+    ['a chunk in no bufferView', v1, (g) => { ext(g).chunks[0].bufferView = 999; }, FormatError],
+    ['a chunk longer than its bufferView', v1, (g) => { ext(g).chunks[0].byteLength += 1000; }, FormatError],
+    ['a chunk entry that is null', v1, (g) => { ext(g).chunks[1] = null; }, FormatError],
+    ['a chunk table in no bufferView', v2, (g) => { ext(g).chunks.bufferView = 999; }, FormatError],
+    ['chunks past the end of their bufferView', v2, (g) => { ext(g).chunks.byteOffsets = Array(ext(g).chunks.count).fill(1e6); }, FormatError],
+    ['a newer extension version', v2, (g) => { ext(g).version = 2; }, UnsupportedError],
+    ['an unknown payload version', v2, (g) => { ext(g).payload.version = 3; }, UnsupportedError],
+  ];
+  for (const [what, source, edit, Kind] of cases) {
+    const bytes = withJson(source, edit);
+    const decoder = new PmwDecoder();
+    await assert.rejects(decoder.feed(bytes), Kind, `decoder: ${what}`);
+    await assert.rejects(io.readBinary(bytes), Kind, what);
+  }
+});
+
+test('a stream dropped from every primitive is written as a plain glTF that read() takes back', async () => {
+  const io = new NodeIO().registerExtensions([PMWMProgressiveMesh]);
+  const document = await io.readBinary(load('grid-hole.plain.v1.pmw'));
+  for (const mesh of document.getRoot().listMeshes()) for (const p of mesh.listPrimitives()) p.setExtension(NAME, null);
+  const plain = await io.writeBinary(document);
+  assert.equal((glbParts(plain).json.extensionsUsed ?? []).includes(NAME), false);
+  await io.readBinary(plain);
+});
