@@ -310,9 +310,11 @@ function headerEndOf(run) {
  * PMWMProgressivePlugin registered for this load only then refines it from the rest (not fetched twice).
  * Do not also register the plugin on `loader` yourself. Options as PMWMProgressivePlugin's. A GLB
  * without the extension loads whole, as it is; a file that ends before those bytes is a TruncatedError.
+ * @param {string|URL} href the .pmw's URL
  * @returns {Promise<object>} the gltf; `gltf.userData.pmwm.done` resolves when the stream ends
  */
-export async function loadProgressive(loader, url, options = {}) {
+export async function loadProgressive(loader, href, options = {}) {
+  const url = String(href); // a URL object as well (new URL('./model.pmw', import.meta.url))
   const fetchFn = options.fetch ?? globalThis.fetch.bind(globalThis);
   const stats = { bytesFetched: 0, requests: 0 };
   let prefix = new Uint8Array(0);

@@ -227,3 +227,8 @@ test('each level\'s bounding box and sphere are those of its own vertices, not o
   assert.deepEqual(geometry.boundingSphere.center.toArray(), [11, 1, 5]);
   assert.equal(geometry.boundingSphere.radius, Math.SQRT2);
 });
+
+test('loadProgressive takes the URL as a URL object too', async () => {
+  const gltf = await loadProgressive(new GLTFLoader(), new URL(NAME, servers.ranges.url));
+  assert.equal((await gltf.userData.pmwm.done).complete, true);
+});
