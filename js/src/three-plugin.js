@@ -174,6 +174,7 @@ export class ProgressiveRun {
 export function refreshGeometry(geometry, part, capV, capF) {
   const n = part.positions.length / 3;
   if (!geometry.userData.pmwmCapacity) {
+    geometry.dispose(); // frees the GPU buffers of three.js' base arrays, if drawn; the next render uploads these
     geometry.setAttribute('position', new BufferAttribute(new Float32Array(capV * 3), 3));
     geometry.setIndex(new BufferAttribute(new Uint32Array(capF * 3), 1));
     for (const [semantic, values] of Object.entries(part.attributes)) {

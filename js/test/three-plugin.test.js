@@ -8,7 +8,7 @@ import { fileURLToPath } from 'node:url';
 import { GLTFLoader } from 'three/examples/jsm/loaders/GLTFLoader.js';
 import { parseGlb, planDocument } from '../src/header.js';
 import { decodePmw, TruncatedError } from '../src/index.js';
-import { BufferGeometry } from 'three';
+import { BufferAttribute, BufferGeometry } from 'three';
 import { loadProgressive, PMWMProgressivePlugin, refreshGeometry } from '../src/three-plugin.js';
 import { dracoFromBases } from '../src/worker-decoder.js';
 import { encodeCase, python } from './lib/python.js';
@@ -231,4 +231,18 @@ test('each level\'s bounding box and sphere are those of its own vertices, not o
 test('loadProgressive takes the URL as a URL object too', async () => {
   const gltf = await loadProgressive(new GLTFLoader(), new URL(NAME, servers.ranges.url));
   assert.equal((await gltf.userData.pmwm.done).complete, true);
+});
+
+test('the first level releases the GPU buffers of three.js\' base arrays it replaces (a dispose event), later levels reuse theirs', async () => {
+  const geometry = new BufferGeometry(); // three.js' base, as drawn before the first level came
+  geometry.setAttribute('position', new BufferAttribute(new Float32Array(9), 3));
+  let disposed = 0;
+  geometry.addEventListener('dispose', () => { disposed++; });
+  const part = { positions: Float32Array.of(0, 0, 0, 1, 0, 0, 0, 1, 0), indices: Uint32Array.of(0, 1, 2), attributes: {} };
+  refreshGeometry(geometry, part, 10, 20);
+  assert.equal(disposed, 1);
+  const arrays = [geometry.getAttribute('position'), geometry.index];
+  refreshGeometry(geometry, part, 10, 20);
+  assert.equal(disposed, 1);
+  assert.deepEqual([geometry.getAttribute('position'), geometry.index], arrays);
 });
