@@ -40,6 +40,8 @@ const blake = await createBLAKE2b(128);
 
 const NAME = 'PMWM_progressive_mesh';
 const DRACO = 'KHR_draco_mesh_compression';
+/** Extensions that write bufferViews compressed (a base must be plain bufferViews or Draco). */
+const MESHOPT = ['EXT_meshopt_compression', 'KHR_meshopt_compression'];
 /** The resource key glTF-Transform gives a GLB's BIN chunk. */
 const GLB_BUFFER = '@glb.bin';
 
@@ -166,6 +168,7 @@ export class PMWMProgressiveMesh extends Extension {
     if (propertyType !== PropertyType.BUFFER) return this;
     const root = this.document.getRoot();
     const draco = root.listExtensionsUsed().some((e) => e.extensionName === DRACO);
+    const meshopt = root.listExtensionsUsed().find((e) => MESHOPT.includes(e.extensionName))?.extensionName;
     const queued = [];
     const progressive = progressivePrimitives(this.document);
     for (const [owner, { primitive, meshIndex, primitiveIndex, stream }] of progressive.entries()) {
@@ -182,6 +185,11 @@ export class PMWMProgressiveMesh extends Extension {
         throw new BaseMeshChangedError(`${label}: the base was read from ${DRACO}; re-encoding it renumbers `
           + `its vertices, which the ${NAME} stream refers to by index. Dispose the ${DRACO} extension `
           + `to write the base as plain accessors.`, where);
+      }
+      if (meshopt) {
+        throw new BaseMeshChangedError(`${label}: ${meshopt} would store the base's bufferViews compressed, and a `
+          + `${NAME} base is plain bufferViews or ${DRACO} (spec/README.md "Base mesh"): no reader would read it. `
+          + `Dispose the ${meshopt} extension to write the stream.`, where);
       }
       const buffer = primitive.getAttribute('POSITION')?.getBuffer() ?? root.listBuffers()[0];
       // owner: the primitive's place in the document; a primitive two meshes share (mesh.clone()) is written

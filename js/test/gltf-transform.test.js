@@ -10,7 +10,7 @@ import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { spawnSync } from 'node:child_process';
 import { after, test } from 'node:test';
-import { NodeIO } from '@gltf-transform/core';
+import { Extension, NodeIO } from '@gltf-transform/core';
 import { KHRDracoMeshCompression } from '@gltf-transform/extensions';
 import draco3d from 'draco3d';
 import { PMWMProgressiveMesh, BaseMeshChangedError } from 'pmwm-progressive/gltf-transform';
@@ -260,4 +260,13 @@ test('a stream dropped from every primitive is written as a plain glTF that read
   const plain = await io.writeBinary(document);
   assert.equal((glbParts(plain).json.extensionsUsed ?? []).includes(NAME), false);
   await io.readBinary(plain);
+});
+
+test('writing with a meshopt compression extension in the document throws BaseMeshChangedError (a compressed base reads nowhere)', async () => {
+  // EXT_meshopt_compression as the document sees it (the real one also needs meshoptimizer's encoder)
+  class Meshopt extends Extension { static EXTENSION_NAME = 'EXT_meshopt_compression'; extensionName = 'EXT_meshopt_compression'; read() { return this; } write() { return this; } }
+  const io = new NodeIO().registerExtensions([PMWMProgressiveMesh, Meshopt]);
+  const document = await io.readBinary(load('grid-hole.plain.v1.pmw'));
+  document.createExtension(Meshopt).setRequired(true);
+  await assert.rejects(io.writeBinary(document), (e) => e instanceof BaseMeshChangedError && /EXT_meshopt_compression/.test(e.message));
 });
