@@ -336,31 +336,36 @@ export async function loadProgressive(loader, href, options = {}) {
   stats.requests++;
   if (!res.ok) throw new FormatError(`${url}: HTTP ${res.status}`);
   let reader = null;
-  if (res.status === 206) {
-    append(new Uint8Array(await res.arrayBuffer()));
-    if (prefix.length === 20) await getRange(fetchFn, url, 20, preambleLength(prefix), append, stats);
-    if (prefix.length === preambleLength(prefix)) await getRange(fetchFn, url, prefix.length, needed(), append, stats);
-  } else {
-    reader = res.body.getReader();
-    while (prefix.length < needed()) {
-      const { value, done } = await reader.read();
-      if (done) break;
-      append(value);
-    }
-  }
-  if (prefix.length < needed()) {
-    reader?.cancel();
-    throw new TruncatedError(`${url}: the file ended after ${prefix.length} bytes, before its base mesh and what `
-      + `comes before the first chunk (${needed()} bytes)`, prefix.length, needed());
-  }
-  const factory = (parser) => new PMWMProgressivePlugin(parser, { ...options, url, prefix, reader });
-  loader.register(factory);
   let gltf;
   try {
-    gltf = await loader.parseAsync(baseGlb(prefix).buffer, options.path ?? url.replace(/[^/]*$/, ''));
-  } finally {
-    loader.unregister(factory);
+    if (res.status === 206) {
+      append(new Uint8Array(await res.arrayBuffer()));
+      if (prefix.length === 20) await getRange(fetchFn, url, 20, preambleLength(prefix), append, stats);
+      if (prefix.length === preambleLength(prefix)) await getRange(fetchFn, url, prefix.length, needed(), append, stats);
+    } else {
+      reader = res.body.getReader();
+      while (prefix.length < needed()) {
+        const { value, done } = await reader.read();
+        if (done) break;
+        append(value);
+      }
+    }
+    if (prefix.length < needed()) {
+      throw new TruncatedError(`${url}: the file ended after ${prefix.length} bytes, before its base mesh and what `
+        + `comes before the first chunk (${needed()} bytes)`, prefix.length, needed());
+    }
+    const factory = (parser) => new PMWMProgressivePlugin(parser, { ...options, url, prefix, reader });
+    loader.register(factory);
+    try {
+      gltf = await loader.parseAsync(baseGlb(prefix).buffer, options.path ?? url.replace(/[^/]*$/, ''));
+    } finally {
+      loader.unregister(factory);
+    }
+  } catch (e) {
+    reader?.cancel().catch(() => {}); // a failed load reads no more of a streamed GET
+    throw e;
   }
+  if (!gltf.userData?.pmwm) reader?.cancel().catch(() => {}); // no stream to refine: nothing more is read
   const run = gltf.userData?.pmwm;
   if (run) {
     run.bytesFetched += stats.bytesFetched;

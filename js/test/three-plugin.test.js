@@ -246,3 +246,14 @@ test('the first level releases the GPU buffers of three.js\' base arrays it repl
   assert.equal(disposed, 1);
   assert.deepEqual([geometry.getAttribute('position'), geometry.index], arrays);
 });
+
+test('a streamed loadProgressive that fails (three.js cannot parse the base, the header is refused) cancels the body', async () => {
+  const draco = new Uint8Array(fs.readFileSync(path.join(conformance, 'two-primitives.draco.v1.pmw'))); // no DRACOLoader given
+  const refused = withJson(bytes, (gltf) => { gltf.meshes[0].primitives[0].extensions.PMWM_progressive_mesh.version = 2; });
+  for (const data of [draco, refused]) {
+    const log = { pulled: 0, cancelled: false };
+    await assert.rejects(loadProgressive(new GLTFLoader(), 'http://127.0.0.1/x.pmw', { range: false, fetch: streamingFetch(data, log) }));
+    assert.equal(log.cancelled, true);
+    assert.ok(log.pulled < data.length);
+  }
+});
