@@ -137,7 +137,8 @@ export class ProgressiveRun {
     let want = Math.min(plan.stream.length, this.options.maxChunks ?? Infinity);
     const target = this.options.maxGeometricError;
     if (target !== undefined) {
-      const current = plan.primitives.map(() => Infinity);
+      // a primitive without chunks is as fine as this stream makes it: it never holds the stop back
+      const current = plan.primitives.map((p) => (p.chunks.length ? Infinity : 0));
       for (let k = 0; k < plan.stream.length; k++) {
         current[plan.stream[k].primitive] = plan.stream[k].geometricError;
         if (Math.max(...current) <= target) { want = Math.min(want, k + 1); break; }

@@ -9,7 +9,7 @@ import { GLTFLoader } from 'three/examples/jsm/loaders/GLTFLoader.js';
 import { parseGlb, planDocument } from '../src/header.js';
 import { decodePmw, TruncatedError } from '../src/index.js';
 import { BufferAttribute, BufferGeometry } from 'three';
-import { loadProgressive, PMWMProgressivePlugin, refreshGeometry } from '../src/three-plugin.js';
+import { loadProgressive, PMWMProgressivePlugin, ProgressiveRun, refreshGeometry } from '../src/three-plugin.js';
 import { dracoFromBases } from '../src/worker-decoder.js';
 import { encodeCase, python } from './lib/python.js';
 import { withJson } from './lib/rewrite.js';
@@ -256,4 +256,14 @@ test('a streamed loadProgressive that fails (three.js cannot parse the base, the
     assert.equal(log.cancelled, true);
     assert.ok(log.pulled < data.length);
   }
+});
+
+test('maxGeometricError stops at the first chunk that brings every primitive to it, a primitive without chunks counting as there', () => {
+  const errors = [0.07, 0.04, 0.03, 0.02, 0.01];
+  const stream = errors.map((geometricError) => ({ primitive: 0, geometricError }));
+  const plan = { stream, primitives: [{ chunks: stream }, { chunks: [] }] }; // primitive 1: its base is all there is
+  const run = Object.assign(Object.create(ProgressiveRun.prototype), { decoder: { plan }, options: { maxGeometricError: 0.03 } });
+  assert.equal(run.chunksWanted(), 3);
+  run.options = { maxGeometricError: 0.001 };
+  assert.equal(run.chunksWanted(), 5);
 });
