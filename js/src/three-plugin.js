@@ -98,14 +98,21 @@ export class ProgressiveRun {
   stop() { this.stopped = true; }
 
   /**
-   * The bytes this run may feed: `byteBudget`, but never fewer than the bytes before the first chunk
-   * (preamble, JSON, base: what three.js shows), so a budget below the base gives that base as level 0.
+   * The bytes this run may feed: up to the end of the last chunk wanted (maxChunks, maxGeometricError)
+   * and `byteBudget`, but never fewer than the bytes before the first chunk (preamble, JSON, base: what
+   * three.js shows), so a budget below the base gives that base as level 0. A chunk past them is never
+   * fed (never applied, nor its digest checked), whatever pieces a streamed GET brings.
    */
   byteLimit() {
     const budget = this.options.byteBudget ?? Infinity;
     const { plan, header, received } = this.decoder;
-    if (plan) return Math.max(budget, header.binStart + (plan.stream.length ? plan.stream[0].offset : plan.baseEnd));
-    return Math.max(budget, received < 20 ? 20 : headerEndOf(this));
+    if (!plan) return received < 20 ? 20 : headerEndOf(this); // the header first: then the limit is known
+    const { stream } = plan;
+    const base = header.binStart + (stream.length ? stream[0].offset : plan.baseEnd);
+    const want = this.chunksWanted();
+    const last = stream[want - 1];
+    const wanted = want === stream.length ? Infinity : last ? header.binStart + last.offset + last.length : base;
+    return Math.max(Math.min(budget, wanted), base);
   }
 
   async start() {

@@ -148,15 +148,15 @@ test('loadProgressive loads a GLB without PMWM_progressive_mesh as it is (no str
   }
 });
 
-/** A fetch answering every request with the whole file as a stream of 500-byte pieces; `log` records pieces read and a cancel. */
-function streamingFetch(data, log) {
+/** A fetch answering every request with the whole file as a stream of `size`-byte pieces; `log` records bytes read and a cancel. */
+function streamingFetch(data, log = {}, size = 500) {
   return async () => {
     let at = 0;
     const body = new ReadableStream({
       pull(controller) {
         if (at >= data.length) { controller.close(); return; }
-        log.pulled += Math.min(500, data.length - at);
-        controller.enqueue(data.slice(at, at += 500));
+        log.pulled = (log.pulled ?? 0) + Math.min(size, data.length - at);
+        controller.enqueue(data.slice(at, at += size));
       },
       cancel() { log.cancelled = true; },
     }, { highWaterMark: 0 });
@@ -266,4 +266,19 @@ test('maxGeometricError stops at the first chunk that brings every primitive to 
   assert.equal(run.chunksWanted(), 3);
   run.options = { maxGeometricError: 0.001 };
   assert.equal(run.chunksWanted(), 5);
+});
+
+test('a streamed load stopped by maxGeometricError or maxChunks applies no chunk past that level, even one in the same piece', async () => {
+  const { binStart, binLength, gltf } = parseGlb(bytes);
+  const { stream } = planDocument(gltf, binLength);
+  const corrupt = bytes.slice();
+  corrupt[binStart + stream[5].offset] ^= 1; // chunk 5: past the level asked, no error of it (spec/README.md "Integrity")
+  const target = stream[2].geometricError; // reached at chunk 2: three chunks
+  for (const options of [{ maxGeometricError: target }, { maxChunks: 3 }]) {
+    const gltf = await loadProgressive(new GLTFLoader(), 'http://127.0.0.1/x.pmw',
+      { ...options, range: false, fetch: streamingFetch(corrupt, {}, corrupt.length) }); // the whole file in one piece
+    const outcome = await gltf.userData.pmwm.done;
+    assert.equal(outcome.chunksApplied, 3, JSON.stringify(options));
+    assert.equal(theMesh(gltf).geometry.userData.pmwmLevel.vertices, (await decodePmw(bytes, { chunks: 3 })).positions.length / 3);
+  }
 });
