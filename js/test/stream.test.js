@@ -7,7 +7,7 @@ import assert from 'node:assert/strict';
 import { readFileSync } from 'node:fs';
 import { join } from 'node:path';
 import { test } from 'node:test';
-import { CorruptChunkError, FormatError, PmwDecoder, TruncatedError, decodePmw } from '../src/index.js';
+import { CorruptChunkError, DracoError, FormatError, PmwDecoder, TruncatedError, decodePmw } from '../src/index.js';
 import { CONFORMANCE, conformanceFiles, seededRandom, levelDigest } from './lib/helpers.js';
 
 const load = (f) => new Uint8Array(readFileSync(join(CONFORMANCE, f)));
@@ -135,4 +135,14 @@ test('decodePmw and feed take an ArrayBuffer or any typed array as bytes, and re
   for (const wrong of ['glTF', [103, 108, 84, 70], null, 7]) await assert.rejects(d.feed(wrong), TypeError);
   await d.feed(new Uint8Array(buffer, 20)); // the refusals left the decoder as it was
   assert.equal(d.close().complete, true);
+});
+
+test('a Draco decoder of the caller\'s that fails or gives no mesh ends in a DracoError', async () => {
+  const bytes = load(conformanceFiles().find((f) => f.includes('.draco.')));
+  const decoders = [
+    { decode: async () => { throw new Error('the DRACOLoader worker crashed'); } },
+    { decode: async () => undefined },
+    { decode: async () => ({ positions: new Float32Array(3) }) },
+  ];
+  for (const draco of decoders) await assert.rejects(decodePmw(bytes, { draco }), DracoError);
 });
