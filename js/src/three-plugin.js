@@ -20,7 +20,7 @@
  * thread when `worker: false`, below the threshold, or when no worker starts (Node: no Worker global);
  * the same levels, arrays and named errors either way (worker-decoder.js).
  */
-import { Box3, BufferAttribute, Sphere } from 'three';
+import { Box3, BufferAttribute, LoaderUtils, Sphere } from 'three';
 import { FormatError, TruncatedError } from './errors.js';
 import { parseGlb, planDocument, preambleLength } from './header.js';
 import { createDecoder, threeName } from './worker-decoder.js';
@@ -323,8 +323,14 @@ function headerEndOf(run) {
  * @returns {Promise<object>} the gltf; `gltf.userData.pmwm.done` resolves when the stream ends
  */
 export async function loadProgressive(loader, href, options = {}) {
-  const url = String(href); // a URL object as well (new URL('./model.pmw', import.meta.url))
-  const fetchFn = options.fetch ?? globalThis.fetch.bind(globalThis);
+  const given = String(href); // a URL object as well (new URL('./model.pmw', import.meta.url))
+  // as GLTFLoader.load: the loader's path and its manager's URL modifier, its request headers and credentials
+  const url = loader.manager?.resolveURL?.((loader.path ?? '') + given) ?? given;
+  const resourcePath = options.path ?? (loader.resourcePath || (loader.path
+    ? LoaderUtils.resolveURL(LoaderUtils.extractUrlBase(given), loader.path) : LoaderUtils.extractUrlBase(given)));
+  const baseFetch = options.fetch ?? globalThis.fetch.bind(globalThis);
+  const fetchFn = (target, init = {}) => baseFetch(target, { ...init, headers: { ...loader.requestHeader, ...init.headers },
+    ...(loader.withCredentials ? { credentials: 'include' } : {}) });
   const stats = { bytesFetched: 0, requests: 0 };
   let prefix = new Uint8Array(0);
   const append = (b) => {
@@ -362,10 +368,10 @@ export async function loadProgressive(loader, href, options = {}) {
       throw new TruncatedError(`${url}: the file ended after ${prefix.length} bytes, before its base mesh and what `
         + `comes before the first chunk (${needed()} bytes)`, prefix.length, needed());
     }
-    const factory = (parser) => new PMWMProgressivePlugin(parser, { ...options, url, prefix, reader });
+    const factory = (parser) => new PMWMProgressivePlugin(parser, { ...options, url, prefix, reader, fetch: fetchFn });
     loader.register(factory);
     try {
-      gltf = await loader.parseAsync(baseGlb(prefix).buffer, options.path ?? url.replace(/[^/]*$/, ''));
+      gltf = await loader.parseAsync(baseGlb(prefix).buffer, resourcePath);
     } finally {
       loader.unregister(factory);
     }

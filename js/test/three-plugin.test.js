@@ -8,7 +8,7 @@ import { fileURLToPath } from 'node:url';
 import { GLTFLoader } from 'three/examples/jsm/loaders/GLTFLoader.js';
 import { parseGlb, planDocument } from '../src/header.js';
 import { decodePmw, TruncatedError } from '../src/index.js';
-import { BufferAttribute, BufferGeometry } from 'three';
+import { BufferAttribute, BufferGeometry, LoadingManager } from 'three';
 import { loadProgressive, PMWMProgressivePlugin, ProgressiveRun, refreshGeometry } from '../src/three-plugin.js';
 import { dracoFromBases } from '../src/worker-decoder.js';
 import { encodeCase, python } from './lib/python.js';
@@ -280,5 +280,21 @@ test('a streamed load stopped by maxGeometricError or maxChunks applies no chunk
     const outcome = await gltf.userData.pmwm.done;
     assert.equal(outcome.chunksApplied, 3, JSON.stringify(options));
     assert.equal(theMesh(gltf).geometry.userData.pmwmLevel.vertices, (await decodePmw(bytes, { chunks: 3 })).positions.length / 3);
+  }
+});
+
+test('loadProgressive honours the loader as GLTFLoader.load does: its path, URL modifier, request headers and credentials', async () => {
+  const requests = [];
+  const recording = (url, init) => { requests.push({ url: String(url), init }); return fetch(url, init); };
+  const manager = new LoadingManager().setURLModifier((url) => url.replace('/aliased/', '/'));
+  const loader = new GLTFLoader(manager).setPath(`${servers.ranges.url}aliased/`).setRequestHeader({ 'X-Token': 'abc' })
+    .setWithCredentials(true);
+  const gltf = await loadProgressive(loader, NAME, { fetch: recording });
+  assert.equal((await gltf.userData.pmwm.done).complete, true);
+  assert.ok(requests.length > 3);
+  for (const { url, init } of requests) {
+    assert.equal(url, servers.ranges.url + NAME);
+    assert.equal(init.headers['X-Token'], 'abc');
+    assert.equal(init.credentials, 'include');
   }
 });
