@@ -183,6 +183,10 @@ export function refreshGeometry(geometry, part, capV, capF) {
   const n = part.positions.length / 3;
   if (!geometry.userData.pmwmCapacity) {
     geometry.dispose(); // frees the GPU buffers of three.js' base arrays, if drawn; the next render uploads these
+    // an attribute the stream does not carry has no value for a new vertex: dropped, as the reference
+    // writer drops it from a level (normals are recomputed below)
+    const carried = new Set(['position', 'normal', ...Object.keys(part.attributes).map(threeName)]);
+    for (const name of Object.keys(geometry.attributes)) if (!carried.has(name)) geometry.deleteAttribute(name);
     geometry.setAttribute('position', new BufferAttribute(new Float32Array(capV * 3), 3));
     geometry.setIndex(new BufferAttribute(new Uint32Array(capF * 3), 1));
     for (const [semantic, values] of Object.entries(part.attributes)) {

@@ -298,3 +298,12 @@ test('loadProgressive honours the loader as GLTFLoader.load does: its path, URL 
     assert.equal(init.credentials, 'include');
   }
 });
+
+test('a base attribute the stream does not carry is dropped at the first level (it has no value for a new vertex)', async () => {
+  const geometry = new BufferGeometry(); // as GLTFLoader gives it: uv carried by the stream, _extra not
+  for (const [name, k] of [['position', 3], ['uv', 2], ['_extra', 1]]) geometry.setAttribute(name, new BufferAttribute(new Float32Array(3 * k), k));
+  const part = { positions: new Float32Array(12), indices: Uint32Array.of(0, 1, 2, 1, 3, 2), attributes: { TEXCOORD_0: new Float32Array(8) } };
+  refreshGeometry(geometry, part, 10, 20);
+  assert.deepEqual(Object.keys(geometry.attributes).sort(), ['position', 'uv']);
+  for (const attribute of Object.values(geometry.attributes)) assert.equal(attribute.count, 10);
+});
