@@ -92,8 +92,8 @@ export class ProgressiveMesh extends ExtensionProperty {
 }
 
 /**
- * Fingerprint of a primitive's base mesh: counts, POSITION bytes, indices as uint32 values and the
- * bytes of every attribute the stream carries, in order.
+ * Fingerprint of a primitive's base mesh: counts, the names of its attributes, POSITION bytes, indices
+ * as uint32 values and the bytes of every attribute the stream carries, in order.
  * @param {import('@gltf-transform/core').Primitive} primitive
  * @param {object} info the extension object (its `attributes[].semantic` are hashed)
  * @returns {{hex: string, vertices: number, faces: number}}
@@ -109,7 +109,9 @@ export function baseFingerprint(primitive, info) {
     hash.update(new TextEncoder().encode(`${label}:${bytes.length};`));
     hash.update(bytes);
   };
-  section(`mode ${primitive.getMode()} vertices ${vertices} faces ${faces} POSITION`, position?.getArray());
+  // the attribute names too: one added to a progressive base (tangents()) would have no value for a new vertex
+  section(`mode ${primitive.getMode()} vertices ${vertices} faces ${faces} attributes ${primitive.listSemantics().sort()} POSITION`,
+    position?.getArray());
   section('indices', indices ? Uint32Array.from(indices.getArray()) : null);
   for (const { semantic } of info.attributes ?? []) section(semantic, primitive.getAttribute(semantic)?.getArray());
   const hex = hash.digest('hex');

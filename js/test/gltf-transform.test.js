@@ -147,6 +147,17 @@ test('a transform that changes a progressive base mesh makes write() throw BaseM
   assert.equal(JSON.stringify(plain.meshes).includes(NAME), false);
 });
 
+test('an attribute added to a progressive base (the stream has no value of it for a new vertex) makes write() throw BaseMeshChangedError',
+  async () => {
+    const io = new NodeIO().registerExtensions([PMWMProgressiveMesh]);
+    const doc = await io.readBinary(load('sphere-attributes.plain.v1.pmw'));
+    const primitive = doc.getRoot().listMeshes()[0].listPrimitives()[0];
+    const count = primitive.getAttribute('POSITION').getCount();
+    primitive.setAttribute('TANGENT', doc.createAccessor().setType('VEC4').setArray(new Float32Array(4 * count))
+      .setBuffer(doc.getRoot().listBuffers()[0]));
+    await assert.rejects(io.writeBinary(doc), BaseMeshChangedError);
+  });
+
 // bowtie.welded-draco: a Draco base stored with copies of its non-manifold vertices; written plain, the
 // copies stay and readers still weld them (spec/README.md "Welded base")
 for (const file of ['two-primitives.draco.v1.pmw', 'bowtie.welded-draco.packed.v2.pmw']) test(`${file}: re-encoding the Draco base is refused, a plain base keeps the stream`, async () => {
