@@ -215,8 +215,12 @@ function baseBuffers(bases) {
   return [...buffers];
 }
 
+/** Milliseconds a starting worker has to post 'ready' (a script that is not the decode worker never does). */
+export const WORKER_START_MS = 10000;
+
 /** A started module worker (it posted 'ready'), or null when none starts. */
 async function startWorker(workerUrl) {
+  // resolves to the worker, null when it failed to load, 'late' when it loaded but never said 'ready'
   const attempt = (create) => new Promise((resolve) => {
     let worker;
     try {
@@ -225,13 +229,16 @@ async function startWorker(workerUrl) {
       resolve(null);
       return;
     }
-    worker.onmessage = ({ data }) => resolve(data?.type === 'ready' ? worker : (worker.terminate(), null));
-    worker.onerror = (e) => { e.preventDefault?.(); worker.terminate(); resolve(null); };
+    const timer = setTimeout(() => { worker.terminate(); resolve('late'); }, WORKER_START_MS);
+    const settle = (value) => { clearTimeout(timer); resolve(value); };
+    worker.onmessage = ({ data }) => settle(data?.type === 'ready' ? worker : (worker.terminate(), null));
+    worker.onerror = (e) => { e.preventDefault?.(); worker.terminate(); settle(null); };
   });
   const url = new URL(workerUrl ?? new URL('./decode-worker.js', import.meta.url), globalThis.location?.href).href;
   if (!needsBlob.has(url)) {
     const worker = await attempt(() => workerUrl ? new Worker(workerUrl, { type: 'module' })
       : new Worker(new URL('./decode-worker.js', import.meta.url), { type: 'module' }));
+    if (worker === 'late') return null; // it loaded: loading it again as blobs would not make it answer
     if (worker || typeof import.meta.resolve !== 'function') return worker;
     needsBlob.add(url);
   }
@@ -242,7 +249,8 @@ async function startWorker(workerUrl) {
     blobModules.clear(); // a failed fetch is not kept: the next load tries again
     return null;
   }
-  return attempt(() => new Worker(blob, { type: 'module' }));
+  const worker = await attempt(() => new Worker(blob, { type: 'module' }));
+  return worker === 'late' ? null : worker;
 }
 
 /** Worker URLs whose plain module worker failed to load (tried as blob graphs from then on). */
