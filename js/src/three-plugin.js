@@ -336,19 +336,28 @@ export async function loadProgressive(loader, href, options = {}) {
   const fetchFn = (target, init = {}) => baseFetch(target, { ...init, headers: { ...loader.requestHeader, ...init.headers },
     ...(loader.withCredentials ? { credentials: 'include' } : {}) });
   const stats = { bytesFetched: 0, requests: 0 };
-  let prefix = new Uint8Array(0);
+  let prefix = new Uint8Array(0); // a view of `kept`, whose capacity doubles: appending stays linear
+  let kept = prefix;
   const append = (b) => {
-    const m = new Uint8Array(prefix.length + b.length); m.set(prefix); m.set(b, prefix.length); prefix = m;
+    if (prefix.length + b.length > kept.length) {
+      const grown = new Uint8Array(Math.max(prefix.length + b.length, 2 * kept.length));
+      grown.set(prefix);
+      kept = grown;
+    }
+    kept.set(b, prefix.length);
+    prefix = kept.subarray(0, prefix.length + b.length);
     stats.bytesFetched += b.length;
   };
   // the bytes three.js needs: the preamble, the JSON, then everything before the first chunk (a GLB
-  // without the extension: all of it, loaded as it is)
+  // without the extension: all of it, loaded as it is); known once the JSON is in (parsed once)
+  let known;
   const needed = () => {
+    if (known !== undefined) return known;
     if (prefix.length < 20 || prefix.length < preambleLength(prefix)) return preambleLength(prefix);
     const header = parseGlb(prefix);
-    if (!header.gltf.extensionsUsed?.includes?.(EXTENSION_NAME)) return header.length;
+    if (!header.gltf.extensionsUsed?.includes?.(EXTENSION_NAME)) return (known = header.length);
     const { stream } = planDocument(header.gltf, header.binLength);
-    return stream.length ? header.binStart + stream[0].offset : header.length;
+    return (known = stream.length ? header.binStart + stream[0].offset : header.length);
   };
   const res = await fetchFn(url, options.range === false ? {} : { headers: { Range: 'bytes=0-19' } });
   stats.requests++;
