@@ -29,9 +29,9 @@
  * back only as plain accessors: re-encoding it renumbers the vertices, so writing with the Draco
  * extension still in the document throws `BaseMeshChangedError` as well.
  */
-import { Extension, ExtensionProperty, PropertyType, VertexLayout } from '@gltf-transform/core';
+import { Extension, ExtensionProperty, Format, PropertyType, VertexLayout } from '@gltf-transform/core';
 import { createBLAKE2b } from 'hash-wasm';
-import { PmwError } from './errors.js';
+import { FormatError, PmwError } from './errors.js';
 import { baseVertexCount, chunkEntries, planDocument } from './header.js';
 import { packChunkTable } from './chunktable.js';
 
@@ -173,6 +173,10 @@ export class PMWMProgressiveMesh extends Extension {
     const meshopt = root.listExtensionsUsed().find((e) => MESHOPT.includes(e.extensionName))?.extensionName;
     const queued = [];
     const progressive = progressivePrimitives(this.document);
+    if (progressive.length && context.options.format !== Format.GLB) {
+      throw new FormatError(`${NAME} lives in a GLB's BIN chunk (spec/README.md "Dependencies"): write a .pmw or .glb `
+        + `(io.writeBinary), or remove the extension (primitive.setExtension('${NAME}', null)) to write a plain .gltf`);
+    }
     for (const [owner, { primitive, meshIndex, primitiveIndex, stream }] of progressive.entries()) {
       const where = { mesh: meshIndex, primitive: primitiveIndex };
       const label = `mesh ${meshIndex} primitive ${primitiveIndex}`;

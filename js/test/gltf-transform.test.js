@@ -281,3 +281,11 @@ test('writing with a meshopt compression extension in the document throws BaseMe
   document.createExtension(Meshopt).setRequired(true);
   await assert.rejects(io.writeBinary(document), (e) => e instanceof BaseMeshChangedError && /EXT_meshopt_compression/.test(e.message));
 });
+
+test('writing a progressive document as JSON + .bin (a .gltf) is a FormatError: the stream lives in a GLB\'s BIN chunk', async () => {
+  const io = new NodeIO().registerExtensions([PMWMProgressiveMesh]);
+  const document = await io.readBinary(load('grid-hole.plain.v1.pmw'));
+  await assert.rejects(io.writeJSON(document), (e) => e instanceof FormatError && /GLB/.test(e.message));
+  for (const mesh of document.getRoot().listMeshes()) for (const p of mesh.listPrimitives()) p.setExtension(NAME, null);
+  await io.writeJSON(document); // without the stream: a plain .gltf
+});
