@@ -131,11 +131,22 @@ export class ProgressiveRun {
       end = await this.decoder.close();
     } finally {
       this.decoder.dispose?.();
+      this.#release();
     }
     const outcome = { ...end, bytesFetched: this.bytesFetched, requests: this.requests, levels: this.levels.length,
       workerLevels: this.decoder.workerLevels ?? 0 };
     o.onDone?.(outcome);
     return outcome;
+  }
+
+  /**
+   * The stream ended: the run (gltf.userData.pmwm, kept as long as the gltf) keeps only the decoder's
+   * header, plan and counts; its bytes and arrays (several times the geometry's size) and the prefix go.
+   */
+  #release() {
+    const { header, plan, received, chunksApplied, workerLevels } = this.decoder;
+    this.decoder = { header, plan, received, chunksApplied, workerLevels };
+    this.options = { ...this.options, prefix: undefined, reader: undefined };
   }
 
   /** The number of chunks worth reading, once the header is known (geometric error, maxChunks). */

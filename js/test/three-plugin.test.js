@@ -327,3 +327,14 @@ test('a streamed loadProgressive reads a large prefix (16 MB before the first ch
   assert.equal((await loaded.userData.pmwm.done).complete, true);
   assert.ok(Date.now() - started < 5000, `${Date.now() - started} ms (the prefix was copied whole for every piece: 14 to 25 s)`);
 });
+
+test('once the stream ends, the run a gltf keeps (userData.pmwm) holds no bytes, decoder arrays or prefix: only plan and counts', async () => {
+  for (const kind of ['ranges', 'plain']) {
+    const gltf = await loadProgressive(new GLTFLoader(), servers[kind].url + NAME);
+    const run = gltf.userData.pmwm;
+    const outcome = await run.done;
+    assert.deepEqual(Object.keys(run.decoder).sort(), ['chunksApplied', 'header', 'plan', 'received', 'workerLevels']);
+    assert.equal(run.decoder.chunksApplied, outcome.chunksApplied);
+    assert.equal(run.options.prefix, undefined);
+  }
+});
