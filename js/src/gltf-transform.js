@@ -6,7 +6,7 @@
  *   import { NodeIO } from '@gltf-transform/core';
  *   import { PMWMProgressiveMesh } from 'pmwm-progressive/gltf-transform';
  *   const io = new NodeIO().registerExtensions([PMWMProgressiveMesh]);
- *   await io.write('out.pmw', await io.read('in.pmw'));
+ *   await writeFile('out.pmw', await io.writeBinary(await io.read('in.pmw')));   // NodeIO.write: GLB for .glb only
  *
  * Read: each progressive primitive gets a `ProgressiveMesh` extension property holding the
  * extension object without the chunks' `bufferView` indices (`getInfo()`: every other property,
@@ -174,8 +174,9 @@ export class PMWMProgressiveMesh extends Extension {
     const queued = [];
     const progressive = progressivePrimitives(this.document);
     if (progressive.length && context.options.format !== Format.GLB) {
-      throw new FormatError(`${NAME} lives in a GLB's BIN chunk (spec/README.md "Dependencies"): write a .pmw or .glb `
-        + `(io.writeBinary), or remove the extension (primitive.setExtension('${NAME}', null)) to write a plain .gltf`);
+      throw new FormatError(`${NAME} lives in a GLB's BIN chunk (spec/README.md "Dependencies"), and this write is JSON `
+        + `+ .bin (NodeIO.write writes a GLB only for a .glb name): write the bytes of io.writeBinary(doc) to the .pmw, `
+        + `or remove the extension (primitive.setExtension('${NAME}', null)) to write a plain .gltf`);
     }
     for (const [owner, { primitive, meshIndex, primitiveIndex, stream }] of progressive.entries()) {
       const where = { mesh: meshIndex, primitive: primitiveIndex };

@@ -14,6 +14,7 @@ import { Extension, NodeIO } from '@gltf-transform/core';
 import { KHRDracoMeshCompression } from '@gltf-transform/extensions';
 import draco3d from 'draco3d';
 import { PMWMProgressiveMesh, BaseMeshChangedError } from 'pmwm-progressive/gltf-transform';
+import { writePmwAsGlb } from 'pmwm-progressive/gltf-transform.config.mjs';
 import { FormatError, PmwDecoder, UnsupportedError } from '../src/index.js';
 import { chunkEntries } from '../src/header.js';
 import { CONFORMANCE, conformanceFiles, levelDigest } from './lib/helpers.js';
@@ -288,4 +289,20 @@ test('writing a progressive document as JSON + .bin (a .gltf) is a FormatError: 
   await assert.rejects(io.writeJSON(document), (e) => e instanceof FormatError && /GLB/.test(e.message));
   for (const mesh of document.getRoot().listMeshes()) for (const p of mesh.listPrimitives()) p.setExtension(NAME, null);
   await io.writeJSON(document); // without the stream: a plain .gltf
+});
+
+test('the README\'s round trip writes a .pmw; io.write(\'out.pmw\') (NodeIO: JSON + .bin for any name but .glb) is refused, writing nothing, unless writePmwAsGlb', async () => {
+  const dir = mkdtempSync(join(tmpdir(), 'pmw-gltf-transform-'));
+  try {
+    writeFileSync(join(dir, 'in.pmw'), load('grid-hole.plain.v1.pmw'));
+    const io = new NodeIO().registerExtensions([PMWMProgressiveMesh]);
+    writeFileSync(join(dir, 'out.pmw'), await io.writeBinary(await io.read(join(dir, 'in.pmw')))); // the README's example
+    assert.deepEqual(await levels(readFileSync(join(dir, 'out.pmw'))), await levels(load('grid-hole.plain.v1.pmw')));
+    await assert.rejects(io.write(join(dir, 'json.pmw'), await io.read(join(dir, 'in.pmw'))), FormatError);
+    assert.deepEqual(readdirSync(dir).sort(), ['in.pmw', 'out.pmw']);
+    await writePmwAsGlb(io).write(join(dir, 'glb.pmw'), await io.read(join(dir, 'in.pmw')));
+    assert.deepEqual(await levels(readFileSync(join(dir, 'glb.pmw'))), await levels(load('grid-hole.plain.v1.pmw')));
+  } finally {
+    rmSync(dir, { recursive: true, force: true });
+  }
 });
