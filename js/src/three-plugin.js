@@ -22,7 +22,7 @@
  */
 import { Box3, BufferAttribute, LoaderUtils, Sphere } from 'three';
 import { FormatError, TruncatedError } from './errors.js';
-import { parseGlb, planDocument, preambleLength } from './header.js';
+import { checkPreamble, parseGlb, planDocument, preambleLength } from './header.js';
 import { createDecoder, threeName } from './worker-decoder.js';
 
 export const EXTENSION_NAME = 'PMWM_progressive_mesh';
@@ -364,6 +364,7 @@ export async function loadProgressive(loader, href, options = {}) {
   let known;
   const needed = () => {
     if (known !== undefined) return known;
+    if (prefix.length >= 20) checkPreamble(prefix); // a JSON chunk over the limit: refused before it is fetched
     if (prefix.length < 20 || prefix.length < preambleLength(prefix)) return preambleLength(prefix);
     const header = parseGlb(prefix);
     if (!header.gltf.extensionsUsed?.includes?.(EXTENSION_NAME)) return (known = header.length);
@@ -378,7 +379,7 @@ export async function loadProgressive(loader, href, options = {}) {
   try {
     if (res.status === 206) {
       append(new Uint8Array(await res.arrayBuffer()));
-      if (prefix.length === 20) await getRange(fetchFn, url, 20, preambleLength(prefix), append, stats);
+      if (prefix.length === 20) await getRange(fetchFn, url, 20, needed(), append, stats);
       if (prefix.length === preambleLength(prefix)) await getRange(fetchFn, url, prefix.length, needed(), append, stats);
     } else {
       reader = res.body.getReader();

@@ -7,7 +7,7 @@ import { after, before, test } from 'node:test';
 import { fileURLToPath } from 'node:url';
 import { GLTFLoader } from 'three/examples/jsm/loaders/GLTFLoader.js';
 import { parseGlb, planDocument } from '../src/header.js';
-import { decodePmw, TruncatedError } from '../src/index.js';
+import { decodePmw, LimitError, MAX_JSON_BYTES, TruncatedError } from '../src/index.js';
 import { BufferAttribute, BufferGeometry, LoadingManager } from 'three';
 import { loadProgressive, PMWMProgressivePlugin, ProgressiveRun, refreshGeometry } from '../src/three-plugin.js';
 import { dracoFromBases } from '../src/worker-decoder.js';
@@ -336,5 +336,18 @@ test('once the stream ends, the run a gltf keeps (userData.pmwm) holds no bytes,
     assert.deepEqual(Object.keys(run.decoder).sort(), ['chunksApplied', 'header', 'plan', 'received', 'workerLevels']);
     assert.equal(run.decoder.chunksApplied, outcome.chunksApplied);
     assert.equal(run.options.prefix, undefined);
+  }
+});
+
+test('loadProgressive refuses a preamble declaring a JSON chunk over the limit from its first 20 bytes, fetching no more', async () => {
+  const huge = bytes.slice();
+  const view = new DataView(huge.buffer);
+  view.setUint32(12, MAX_JSON_BYTES + 4, true); // the JSON chunk's length
+  view.setUint32(8, MAX_JSON_BYTES + 4 + 28 + 4, true); // the GLB length: room for it
+  for (const ranges of [true, false]) {
+    await serving({ 'huge.pmw': huge }, async (server) => {
+      await assert.rejects(loadProgressive(new GLTFLoader(), `${server.url}huge.pmw`), LimitError);
+      if (ranges) assert.equal(server.stats.bytes, 20);
+    }, { ranges });
   }
 });
