@@ -19,7 +19,7 @@
 import { PmwDecoder } from './decoder.js';
 import * as errors from './errors.js';
 import { FormatError } from './errors.js';
-import { parseGlb, planDocument, preambleLength } from './header.js';
+import { checkPreamble, parseGlb, planDocument, preambleLength } from './header.js';
 
 /** Full vertex count above which `worker: 'auto'` decodes in a worker. */
 export const WORKER_THRESHOLD = 100000;
@@ -110,6 +110,7 @@ export class WorkerDecoder {
       return this.#post({ type: 'feed', bytes }, keep ? [] : [bytes.buffer]);
     }
     const data = this.#append(bytes);
+    if (data.length >= 20) checkPreamble(data); // as PmwDecoder: a JSON chunk over the limit is refused before it is buffered
     if (data.length < 20 || data.length < preambleLength(data)) return [];
     await this.#choose(data);
     if (this.local) return this.local.feed(data);

@@ -7,10 +7,10 @@ import { after, before, test } from 'node:test';
 import { fileURLToPath } from 'node:url';
 import { GLTFLoader } from 'three/examples/jsm/loaders/GLTFLoader.js';
 import { parseGlb, planDocument } from '../src/header.js';
-import { decodePmw, LimitError, MAX_JSON_BYTES, TruncatedError } from '../src/index.js';
+import { decodePmw, LimitError, MAX_JSON_BYTES, PmwDecoder, TruncatedError } from '../src/index.js';
 import { BufferAttribute, BufferGeometry, LoadingManager } from 'three';
 import { loadProgressive, PMWMProgressivePlugin, ProgressiveRun, refreshGeometry } from '../src/three-plugin.js';
-import { dracoFromBases } from '../src/worker-decoder.js';
+import { dracoFromBases, WorkerDecoder } from '../src/worker-decoder.js';
 import { encodeCase, python } from './lib/python.js';
 import { glb, withJson } from './lib/rewrite.js';
 import { startServer } from './lib/server.js';
@@ -350,4 +350,12 @@ test('loadProgressive refuses a preamble declaring a JSON chunk over the limit f
       if (ranges) assert.equal(server.stats.bytes, 20);
     }, { ranges });
   }
+});
+
+test('the worker decoder, as PmwDecoder, refuses a JSON chunk declared over the limit from the first 20 bytes', async () => {
+  const huge = bytes.slice(0, 20);
+  new DataView(huge.buffer).setUint32(12, MAX_JSON_BYTES + 4, true);
+  new DataView(huge.buffer).setUint32(8, MAX_JSON_BYTES + 4 + 28 + 4, true);
+  await assert.rejects(new WorkerDecoder({ bases: [], worker: true }).feed(huge), LimitError);
+  await assert.rejects(new PmwDecoder().feed(huge), LimitError);
 });
