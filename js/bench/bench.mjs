@@ -14,6 +14,10 @@ import draco3d from 'draco3d';
 import { decodePmw } from '../src/index.js';
 
 const [pmwPath, drcPath, repeatsArg] = process.argv.slice(2);
+if (!pmwPath || !drcPath) {
+  console.error('usage: node bench/bench.mjs FILE.pmw FILE.drc [REPEATS]   (python tools/bench_js.py makes both)');
+  process.exit(2);
+}
 const repeats = Number(repeatsArg ?? 5);
 const pmw = new Uint8Array(readFileSync(pmwPath));
 const drc = new Uint8Array(readFileSync(drcPath));

@@ -2,7 +2,7 @@
  * Base meshes (spec/README.md "Base mesh"): read plain accessors or decode Draco, then map the
  * stored floats to grid integers, `rint((p - origin) / step)` in float64 with ties to even.
  */
-import { DracoError, FormatError } from './errors.js';
+import { DracoError, FormatError, PmwError } from './errors.js';
 import { readAccessor } from './header.js';
 
 /** Round half to even, as numpy's rint (the reference reader's rounding). */
@@ -55,14 +55,24 @@ export async function decodeBase(bin, prim, draco) {
   if (base.draco) {
     const { view, positionId, attributeIds } = base.draco;
     const decoder = draco ?? await defaultDraco();
-    const out = await decoder.decode(bin.subarray(view.offset, view.offset + view.length), { positionId, attributeIds });
-    ({ positions, attributes, indices } = out);
+    let out;
+    try {
+      out = await decoder.decode(bin.subarray(view.offset, view.offset + view.length), { positionId, attributeIds });
+    } catch (e) {
+      if (e instanceof PmwError) throw e;
+      throw new DracoError(`Draco decoding failed (${e?.message ?? e})`, { cause: e }); // a decoder of the caller's
+    }
+    ({ positions, attributes = [], indices } = out ?? {});
+    if (!positions || !indices || !Array.isArray(attributes) || attributes.length !== attributeIds.length) {
+      throw new DracoError(`the Draco decoder gave no {positions, indices, attributes: [${attributeIds.length} arrays]}`);
+    }
     if (positions.length !== 3 * base.draco.vertices || indices.length !== 3 * base.draco.faces) {
       throw new FormatError(`base mesh: Draco decoded ${positions.length / 3} vertices / ${indices.length / 3} faces, `
         + `accessors declare ${base.draco.vertices} / ${base.draco.faces}`);
     }
     attributes = attributes.map((a, j) => {
-      const values = a.values ?? a;
+      const values = a?.values ?? a;
+      if (!values) throw new DracoError(`the Draco decoder gave no ${base.grids[j].semantic}`);
       if (a.components !== undefined && a.components !== base.grids[j].origin.length) {
         throw new DracoError(`Draco ${base.grids[j].semantic} has ${a.components} components`);
       }

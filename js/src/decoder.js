@@ -18,6 +18,8 @@ import { MeshState, unpackPayload } from './vsplit.js';
  */
 
 const NORMALIZED = { NORMAL: 3, TANGENT: 3 };
+/** 1e-30 as float32: the least length a NORMAL/TANGENT is divided by. */
+const TINY = Math.fround(1e-30);
 
 export class PmwDecoder {
   /**
@@ -45,9 +47,19 @@ export class PmwDecoder {
     this.queue = Promise.resolve();
   }
 
-  /** Appends `bytes`; resolves to the results that became available (possibly none). */
+  /**
+   * Appends `bytes` (a Uint8Array, an ArrayBuffer as `await response.arrayBuffer()` gives, or any
+   * typed array or DataView: its bytes); resolves to the results that became available (possibly
+   * none). Anything else rejects with a TypeError and leaves the decoder as it was.
+   */
   feed(bytes) {
-    const run = this.queue.then(() => this.#feed(bytes));
+    let piece;
+    try {
+      piece = asBytes(bytes);
+    } catch (e) {
+      return Promise.reject(e);
+    }
+    const run = this.queue.then(() => this.#feed(piece));
     this.queue = run.catch(() => {});
     return run;
   }
@@ -203,6 +215,17 @@ export class PmwDecoder {
   }
 }
 
+/** The bytes of `data` (ArrayBuffer, typed array or DataView) as a Uint8Array view; TypeError for anything else. */
+function asBytes(data) {
+  if (data instanceof Uint8Array) return data;
+  if (ArrayBuffer.isView(data)) return new Uint8Array(data.buffer, data.byteOffset, data.byteLength);
+  if (data instanceof ArrayBuffer || (typeof SharedArrayBuffer === 'function' && data instanceof SharedArrayBuffer)) {
+    return new Uint8Array(data);
+  }
+  throw new TypeError(`expected bytes (a Uint8Array, ArrayBuffer or typed array), not ${data === null ? 'null' : typeof data}`
+    + (data?.constructor?.name ? ` (${data.constructor.name})` : ''));
+}
+
 /**
  * One primitive's arrays now (copies); attributes dequantized, NORMAL/TANGENT xyz renormalized.
  * positionsInt / attributesInt are Int32Array, or Float64Array (exact integers) when a hostile stream
@@ -246,19 +269,23 @@ function fitsInt32(values, count) {
 
 /**
  * One attribute's floats: columns col..col+k of `attributesInt` (n*a) on grid `g` (k components),
- * as (n*k) Float32Array; NORMAL/TANGENT xyz scaled to unit length (a zero vector stays zero).
+ * as (n*k) Float32Array: origin + i*step in double precision, rounded to float32 (as positions);
+ * NORMAL/TANGENT xyz then scaled to unit length in float32 arithmetic, as the reference writes a level
+ * (spec/README.md "Seams and attributes"): every product, sum (x² + y², then + z²), the square root and
+ * the quotient by max(length, 1e-30) rounded to float32; a zero vector stays zero.
  */
 function dequantize(attributesInt, n, a, col, g) {
+  const f = Math.fround; // float32 rounding of a double result: exact float32 arithmetic for + * / sqrt
   const k = g.origin.length;
   const out = new Float32Array(n * k);
   const nk = NORMALIZED[g.semantic] ? Math.min(3, k) : 0;
-  const row = new Float64Array(k);
-  for (let i = 0; i < n; i++) {
-    let norm = 0;
-    for (let c = 0; c < k; c++) row[c] = g.origin[c] + attributesInt[i * a + col + c] * g.step[c];
-    for (let c = 0; c < nk; c++) norm += row[c] * row[c];
-    norm = nk && norm > 0 ? Math.sqrt(norm) : 1;
-    for (let c = 0; c < k; c++) out[i * k + c] = c < nk ? row[c] / norm : row[c];
+  for (let i = 0, o = 0; i < n; i++, o += k) {
+    for (let c = 0; c < k; c++) out[o + c] = g.origin[c] + attributesInt[i * a + col + c] * g.step[c];
+    if (!nk) continue;
+    let squares = 0;
+    for (let c = 0; c < nk; c++) squares = f(squares + f(out[o + c] * out[o + c]));
+    const length = f(Math.sqrt(squares));
+    if (length > 0) for (let c = 0; c < nk; c++) out[o + c] = out[o + c] / Math.max(length, TINY);
   }
   return out;
 }

@@ -6,7 +6,7 @@
  *   import { NodeIO } from '@gltf-transform/core';
  *   import { PMWMProgressiveMesh } from 'pmwm-progressive/gltf-transform';
  *   const io = new NodeIO().registerExtensions([PMWMProgressiveMesh]);
- *   await io.write('out.pmw', await io.read('in.pmw'));
+ *   await writeFile('out.pmw', await io.writeBinary(await io.read('in.pmw')));   // NodeIO.write: GLB for .glb only
  *
  * Read: each progressive primitive gets a `ProgressiveMesh` extension property holding the
  * extension object without the chunks' `bufferView` indices (`getInfo()`: every other property,
@@ -29,10 +29,10 @@
  * back only as plain accessors: re-encoding it renumbers the vertices, so writing with the Draco
  * extension still in the document throws `BaseMeshChangedError` as well.
  */
-import { Extension, ExtensionProperty, PropertyType } from '@gltf-transform/core';
+import { Extension, ExtensionProperty, Format, PropertyType, VertexLayout } from '@gltf-transform/core';
 import { createBLAKE2b } from 'hash-wasm';
-import { PmwError } from './errors.js';
-import { baseVertexCount, chunkEntries } from './header.js';
+import { FormatError, PmwError } from './errors.js';
+import { baseVertexCount, chunkEntries, planDocument } from './header.js';
 import { packChunkTable } from './chunktable.js';
 
 /** BLAKE2b-128 (hash-wasm; WebAssembly compiles asynchronously, once, at import). */
@@ -40,6 +40,10 @@ const blake = await createBLAKE2b(128);
 
 const NAME = 'PMWM_progressive_mesh';
 const DRACO = 'KHR_draco_mesh_compression';
+/** Extensions that write bufferViews compressed (a base must be plain bufferViews or Draco). */
+const MESHOPT = ['EXT_meshopt_compression', 'KHR_meshopt_compression'];
+/** The resource key glTF-Transform gives a GLB's BIN chunk. */
+const GLB_BUFFER = '@glb.bin';
 
 /** Writing would break a progressive stream: its base mesh changed since it was read. */
 export class BaseMeshChangedError extends PmwError {
@@ -88,8 +92,8 @@ export class ProgressiveMesh extends ExtensionProperty {
 }
 
 /**
- * Fingerprint of a primitive's base mesh: counts, POSITION bytes, indices as uint32 values and the
- * bytes of every attribute the stream carries, in order.
+ * Fingerprint of a primitive's base mesh: counts, the names of its attributes, POSITION bytes, indices
+ * as uint32 values and the bytes of every attribute the stream carries, in order.
  * @param {import('@gltf-transform/core').Primitive} primitive
  * @param {object} info the extension object (its `attributes[].semantic` are hashed)
  * @returns {{hex: string, vertices: number, faces: number}}
@@ -105,7 +109,9 @@ export function baseFingerprint(primitive, info) {
     hash.update(new TextEncoder().encode(`${label}:${bytes.length};`));
     hash.update(bytes);
   };
-  section(`mode ${primitive.getMode()} vertices ${vertices} faces ${faces} POSITION`, position?.getArray());
+  // the attribute names too: one added to a progressive base (tangents()) would have no value for a new vertex
+  section(`mode ${primitive.getMode()} vertices ${vertices} faces ${faces} attributes ${primitive.listSemantics().sort()} POSITION`,
+    position?.getArray());
   section('indices', indices ? Uint32Array.from(indices.getArray()) : null);
   for (const { semantic } of info.attributes ?? []) section(semantic, primitive.getAttribute(semantic)?.getArray());
   const hex = hash.digest('hex');
@@ -134,27 +140,28 @@ export class PMWMProgressiveMesh extends Extension {
     return new ProgressiveMesh(this.document.getGraph());
   }
 
-  /** @param {import('@gltf-transform/core').ReaderContext} context */
+  /**
+   * Reads every progressive primitive's stream. The document is first checked as the decoder checks it
+   * (header.js planDocument: extension objects, chunk tables, every chunk's range in the BIN), so a stream
+   * the decoder would refuse is refused here with the same named error, never read short.
+   * @param {import('@gltf-transform/core').ReaderContext} context
+   */
   read(context) {
     const json = context.jsonDoc.json;
-    (json.meshes ?? []).forEach((meshDef, meshIndex) => {
-      meshDef.primitives.forEach((primitiveDef, primitiveIndex) => {
-        const ext = primitiveDef.extensions?.[NAME];
-        if (!ext) return;
-        const primitive = context.meshes[meshIndex].listPrimitives()[primitiveIndex];
-        const entries = chunkEntries(ext, ext.payload?.version ?? 1,
-          baseVertexCount(json, primitiveDef, ext, `mesh ${meshIndex} primitive ${primitiveIndex}`));
-        const at = (entry) => entry.byteOffset ?? 0; // inside its bufferView (a version 2 chunk table)
-        const chunks = entries.map((e) => context.bufferViews[e.bufferView].slice(at(e), at(e) + e.byteLength));
-        const streamOffsets = entries.map((e) => (json.bufferViews[e.bufferView].byteOffset ?? 0) + at(e));
-        const info = { ...ext, chunks: entries.map(({ bufferView, byteOffset, ...entry }) => entry) };
-        primitive.setExtension(NAME, this.createProgressiveMesh()
-          .setInfo(info).setChunks(chunks).setStreamOffsets(streamOffsets)
-          .setFingerprint(baseFingerprint(primitive, info).hex)
-          .setDracoBase(Boolean(primitiveDef.extensions[DRACO]))
-          .setPackedTable(!Array.isArray(ext.chunks) && !('byteLengths' in ext.chunks)));
-      });
-    });
+    if (!(json.meshes ?? []).some((m) => m?.primitives?.some?.((p) => p?.extensions?.[NAME] !== undefined))) return this;
+    const bin = context.jsonDoc.resources[GLB_BUFFER];
+    for (const { mesh, primitive: index, ext, chunks: placed, payloadVersion, base } of planDocument(json, bin?.byteLength ?? 0).primitives) {
+      const primitive = context.meshes[mesh].listPrimitives()[index];
+      const entries = chunkEntries(ext, payloadVersion,
+        baseVertexCount(json, json.meshes[mesh].primitives[index], ext, `mesh ${mesh} primitive ${index}`));
+      const info = { ...ext, chunks: entries.map(({ bufferView, byteOffset, ...entry }) => entry) };
+      primitive.setExtension(NAME, this.createProgressiveMesh()
+        .setInfo(info).setChunks(placed.map((c) => bin.slice(c.offset, c.offset + c.length)))
+        .setStreamOffsets(placed.map((c) => c.offset))
+        .setFingerprint(baseFingerprint(primitive, info).hex)
+        .setDracoBase(Boolean(base.draco))
+        .setPackedTable(!Array.isArray(ext.chunks) && !('byteLengths' in ext.chunks)));
+    }
     return this;
   }
 
@@ -163,8 +170,15 @@ export class PMWMProgressiveMesh extends Extension {
     if (propertyType !== PropertyType.BUFFER) return this;
     const root = this.document.getRoot();
     const draco = root.listExtensionsUsed().some((e) => e.extensionName === DRACO);
+    const meshopt = root.listExtensionsUsed().find((e) => MESHOPT.includes(e.extensionName))?.extensionName;
     const queued = [];
-    for (const { primitive, meshIndex, primitiveIndex, stream } of progressivePrimitives(this.document)) {
+    const progressive = progressivePrimitives(this.document);
+    if (progressive.length && context.options.format !== Format.GLB) {
+      throw new FormatError(`${NAME} lives in a GLB's BIN chunk (spec/README.md "Dependencies"), and this write is JSON `
+        + `+ .bin (NodeIO.write writes a GLB only for a .glb name): write the bytes of io.writeBinary(doc) to the .pmw, `
+        + `or remove the extension (primitive.setExtension('${NAME}', null)) to write a plain .gltf`);
+    }
+    for (const [owner, { primitive, meshIndex, primitiveIndex, stream }] of progressive.entries()) {
       const where = { mesh: meshIndex, primitive: primitiveIndex };
       const label = `mesh ${meshIndex} primitive ${primitiveIndex}`;
       const now = baseFingerprint(primitive, stream.getInfo());
@@ -179,10 +193,21 @@ export class PMWMProgressiveMesh extends Extension {
           + `its vertices, which the ${NAME} stream refers to by index. Dispose the ${DRACO} extension `
           + `to write the base as plain accessors.`, where);
       }
+      if (meshopt) {
+        throw new BaseMeshChangedError(`${label}: ${meshopt} would store the base's bufferViews compressed, and a `
+          + `${NAME} base is plain bufferViews or ${DRACO} (spec/README.md "Base mesh"): no reader would read it. `
+          + `Dispose the ${meshopt} extension to write the stream.`, where);
+      }
       const buffer = primitive.getAttribute('POSITION')?.getBuffer() ?? root.listBuffers()[0];
-      stream.getChunks().forEach((bytes, k) => queued.push({ buffer, stream, k, order: stream.getStreamOffsets()[k], view: bytes.subarray(0) }));
+      // owner: the primitive's place in the document; a primitive two meshes share (mesh.clone()) is written
+      // twice, each time with chunks of its own (chunks never overlap)
+      stream.getChunks().forEach((bytes, k) => queued.push({ buffer, stream, owner, k, order: stream.getStreamOffsets()[k],
+        view: bytes.subarray(0) }));
     }
     queued.sort((a, b) => a.order - b.order);
+    // every vertex attribute in a bufferView of its own, tightly packed: the reference reader
+    // (pmwm_codec) refuses an interleaved base accessor (byteStride larger than its element)
+    if (progressive.length) context.options.vertexLayout = VertexLayout.SEPARATE;
     shareVersion2Views(queued);
     this._queued = queued;
     for (const view of new Set(queued.map((q) => q.view))) {
@@ -202,11 +227,13 @@ export class PMWMProgressiveMesh extends Extension {
     for (const buffer of new Set(queued.map((q) => q.buffer))) {
       alignTail(context, context.bufferIndexMap.get(buffer), [...new Set(queued.filter((q) => q.buffer === buffer).map((q) => views.get(q)))]);
     }
-    for (const { mesh, primitive, stream } of progressivePrimitives(this.document)) {
+    const progressive = progressivePrimitives(this.document);
+    if (!progressive.length) json.extensionsUsed = json.extensionsUsed.filter((name) => name !== NAME); // a plain glTF
+    for (const [owner, { mesh, primitiveIndex, stream }] of progressive.entries()) {
       const meshDef = json.meshes[context.meshIndexMap.get(mesh)];
-      const primitiveDef = meshDef.primitives[mesh.listPrimitives().indexOf(primitive)];
+      const primitiveDef = meshDef.primitives[primitiveIndex];
       const info = stream.getInfo();
-      const placed = info.chunks.map((entry, k) => queued.find((q) => q.stream === stream && q.k === k));
+      const placed = info.chunks.map((entry, k) => queued.find((q) => q.owner === owner && q.k === k));
       const chunks = (info.payload?.version ?? 1) === 2
         ? compactChunks(info.chunks.map((entry, k) => ({ ...entry, bufferView: views.get(placed[k]), byteOffset: placed[k].at })),
           stream.getPackedTable())

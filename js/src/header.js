@@ -172,6 +172,10 @@ function accessorPlan(gltf, index, bufferLength, what, { types, components }) {
   const view = bufferView(gltf, acc.bufferView, bufferLength, what);
   const offset = given(acc.byteOffset, 0);
   const stride = view.stride ?? size * k;
+  // glTF: a vertex attribute's stride is at least its element; indices are tightly packed
+  if (stride < size * k || (types === INDEX_TYPES && stride !== size * k)) {
+    throw new FormatError(`${what}: accessor ${index}'s bufferView has byteStride ${stride} for ${size * k}-byte elements`);
+  }
   if (!isInt(offset, 0, view.length) || offset % size !== 0 || stride % size !== 0
       || (acc.count > 0 && offset + stride * (acc.count - 1) + size * k > view.length)) {
     throw new FormatError(`${what}: accessor ${index} does not fit its bufferView`);

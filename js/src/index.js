@@ -14,7 +14,7 @@ export { MAX_VERTICES, MAX_FACES, MAX_CHUNKS, MAX_JSON_BYTES, MAX_CHUNK_BYTES, M
 
 /**
  * Decodes a whole (or cut) .pmw file.
- * @param {Uint8Array} bytes the file, or a prefix of it holding at least the base meshes
+ * @param {Uint8Array|ArrayBuffer|ArrayBufferView} bytes the file, or a prefix of it holding at least the base meshes
  * @param {{chunks?: number, draco?: object}} options chunks: apply at most this many chunks of the stream
  * @returns {Promise<{positions: Float32Array, indices: Uint32Array, positionsInt: Int32Array, parts: object[],
  *   chunksApplied: number, chunkCount: number, complete: boolean, bytesRead: number}>}

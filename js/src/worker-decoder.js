@@ -19,14 +19,19 @@
 import { PmwDecoder } from './decoder.js';
 import * as errors from './errors.js';
 import { FormatError } from './errors.js';
-import { parseGlb, planDocument, preambleLength } from './header.js';
+import { checkPreamble, parseGlb, planDocument, preambleLength } from './header.js';
 
 /** Full vertex count above which `worker: 'auto'` decodes in a worker. */
 export const WORKER_THRESHOLD = 100000;
 
-/** glTF attribute semantic -> three.js attribute name. */
-export const THREE_NAMES = { POSITION: 'position', NORMAL: 'normal', TANGENT: 'tangent', TEXCOORD_0: 'uv',
-  TEXCOORD_1: 'uv1', TEXCOORD_2: 'uv2', TEXCOORD_3: 'uv3', COLOR_0: 'color' };
+/** glTF attribute semantic -> three.js attribute name, as GLTFLoader's ATTRIBUTES table has them. */
+const THREE_NAMES = { POSITION: 'position', NORMAL: 'normal', TANGENT: 'tangent', TEXCOORD_0: 'uv',
+  TEXCOORD_1: 'uv1', TEXCOORD_2: 'uv2', TEXCOORD_3: 'uv3', COLOR_0: 'color', WEIGHTS_0: 'skinWeight', JOINTS_0: 'skinIndex' };
+
+/** The name GLTFLoader gives attribute `semantic` (its table, else the semantic lowercased: `_CUSTOM` -> `_custom`). */
+export function threeName(semantic) {
+  return THREE_NAMES[semantic] ?? semantic.toLowerCase();
+}
 
 /**
  * A Draco "decoder" answering, in stream order, from base meshes another decoder (three.js) decoded.
@@ -42,7 +47,7 @@ export function dracoFromBases(bases) {
       const byId = Object.fromEntries(Object.entries(b.ids).map(([semantic, id]) => [id, semantic]));
       return {
         positions: b.attrs.position.values, indices: b.indices,
-        attributes: attributeIds.map((id) => b.attrs[THREE_NAMES[byId[id]]]),
+        attributes: attributeIds.map((id) => b.attrs[threeName(byId[id])]),
       };
     },
   };
@@ -105,6 +110,7 @@ export class WorkerDecoder {
       return this.#post({ type: 'feed', bytes }, keep ? [] : [bytes.buffer]);
     }
     const data = this.#append(bytes);
+    if (data.length >= 20) checkPreamble(data); // as PmwDecoder: a JSON chunk over the limit is refused before it is buffered
     if (data.length < 20 || data.length < preambleLength(data)) return [];
     await this.#choose(data);
     if (this.local) return this.local.feed(data);
@@ -210,8 +216,12 @@ function baseBuffers(bases) {
   return [...buffers];
 }
 
+/** Milliseconds a starting worker has to post 'ready' (a script that is not the decode worker never does). */
+export const WORKER_START_MS = 10000;
+
 /** A started module worker (it posted 'ready'), or null when none starts. */
 async function startWorker(workerUrl) {
+  // resolves to the worker, null when it failed to load, 'late' when it loaded but never said 'ready'
   const attempt = (create) => new Promise((resolve) => {
     let worker;
     try {
@@ -220,13 +230,16 @@ async function startWorker(workerUrl) {
       resolve(null);
       return;
     }
-    worker.onmessage = ({ data }) => resolve(data?.type === 'ready' ? worker : (worker.terminate(), null));
-    worker.onerror = (e) => { e.preventDefault?.(); worker.terminate(); resolve(null); };
+    const timer = setTimeout(() => { worker.terminate(); resolve('late'); }, WORKER_START_MS);
+    const settle = (value) => { clearTimeout(timer); resolve(value); };
+    worker.onmessage = ({ data }) => settle(data?.type === 'ready' ? worker : (worker.terminate(), null));
+    worker.onerror = (e) => { e.preventDefault?.(); worker.terminate(); settle(null); };
   });
   const url = new URL(workerUrl ?? new URL('./decode-worker.js', import.meta.url), globalThis.location?.href).href;
   if (!needsBlob.has(url)) {
     const worker = await attempt(() => workerUrl ? new Worker(workerUrl, { type: 'module' })
       : new Worker(new URL('./decode-worker.js', import.meta.url), { type: 'module' }));
+    if (worker === 'late') return null; // it loaded: loading it again as blobs would not make it answer
     if (worker || typeof import.meta.resolve !== 'function') return worker;
     needsBlob.add(url);
   }
@@ -237,7 +250,8 @@ async function startWorker(workerUrl) {
     blobModules.clear(); // a failed fetch is not kept: the next load tries again
     return null;
   }
-  return attempt(() => new Worker(blob, { type: 'module' }));
+  const worker = await attempt(() => new Worker(blob, { type: 'module' }));
+  return worker === 'late' ? null : worker;
 }
 
 /** Worker URLs whose plain module worker failed to load (tried as blob graphs from then on). */

@@ -175,3 +175,13 @@ for (const subject of SUBJECTS) {
     });
   });
 }
+
+test('a worker script that loads but never says ready (a wrong workerUrl) falls back to the main thread, no hang',
+  { skip, timeout: 60000 }, async () => {
+    const src = '/spec/conformance/sphere-attributes.plain.v1.pmw';
+    const full = await decodePmw(new Uint8Array(fs.readFileSync(path.join(ROOT, src))));
+    const { result } = await load(servers.fast, src, 'worker=1&worker-url=/js/src/errors.js'); // a module, not the worker
+    assert.equal(result.workerLevels, 0);
+    assert.equal(result.complete, true);
+    assert.equal(result.vertices, full.positions.length / 3);
+  });

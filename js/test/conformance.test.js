@@ -5,12 +5,14 @@
  * final arrays in full.
  */
 import assert from 'node:assert/strict';
-import { readFileSync } from 'node:fs';
+import { mkdtempSync, readFileSync, rmSync } from 'node:fs';
+import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { test } from 'node:test';
 import { PmwDecoder, decodePmw } from '../src/index.js';
 import { readNpz } from './lib/npz.js';
 import { CONFORMANCE, attributesInt, conformanceFiles, levelDigest } from './lib/helpers.js';
+import { decodeToGlb, python } from './lib/python.js';
 
 const asNumbers = (a) => Array.from(a, Number);
 
@@ -50,3 +52,35 @@ test('decodePmw stops after the requested chunk count and says the file is not c
   assert.equal(full.positions.length, counts[counts.length - 2] * 3);
   assert.ok(full.positions instanceof Float32Array && full.indices instanceof Uint32Array);
 });
+
+/** The float arrays of mesh `m` primitive `p` of a GLB written by `pmw decode`: {semantic: Float32Array}. */
+function glbAttributes(bytes, m = 0, p = 0) {
+  const view = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength);
+  const jsonLength = view.getUint32(12, true);
+  const gltf = JSON.parse(new TextDecoder().decode(bytes.subarray(20, 20 + jsonLength)));
+  const bin = bytes.slice(28 + jsonLength);
+  const K = { SCALAR: 1, VEC2: 2, VEC3: 3, VEC4: 4 };
+  return Object.fromEntries(Object.entries(gltf.meshes[m].primitives[p].attributes).map(([semantic, index]) => {
+    const acc = gltf.accessors[index];
+    const start = (gltf.bufferViews[acc.bufferView].byteOffset ?? 0) + (acc.byteOffset ?? 0);
+    return [semantic, new Float32Array(bin.buffer, start, acc.count * K[acc.type])];
+  }));
+}
+
+test('positions and attributes (NORMAL renormalized) are pmw decode\'s floats bit for bit at every level',
+  { skip: python() ? false : 'no Python that imports pmwm_codec (set PYTHON)' }, async () => {
+    const file = join(CONFORMANCE, 'sphere-attributes.plain.packed.v2.pmw'); // NORMAL and TEXCOORD_0
+    const bytes = new Uint8Array(readFileSync(file));
+    const dir = mkdtempSync(join(tmpdir(), 'pmw-floats-'));
+    try {
+      for (let k = 0; k <= (await decodePmw(bytes)).chunkCount; k++) {
+        decodeToGlb(file, k, join(dir, `${k}.glb`));
+        const reference = glbAttributes(new Uint8Array(readFileSync(join(dir, `${k}.glb`))));
+        const [part] = (await decodePmw(bytes, { chunks: k })).parts;
+        assert.deepEqual(part.positions, reference.POSITION, `level ${k} POSITION`);
+        for (const [semantic, values] of Object.entries(part.attributes)) assert.deepEqual(values, reference[semantic], `level ${k} ${semantic}`);
+      }
+    } finally {
+      rmSync(dir, { recursive: true, force: true });
+    }
+  });

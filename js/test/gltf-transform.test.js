@@ -10,14 +10,16 @@ import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { spawnSync } from 'node:child_process';
 import { after, test } from 'node:test';
-import { NodeIO } from '@gltf-transform/core';
+import { Extension, NodeIO } from '@gltf-transform/core';
 import { KHRDracoMeshCompression } from '@gltf-transform/extensions';
 import draco3d from 'draco3d';
 import { PMWMProgressiveMesh, BaseMeshChangedError } from 'pmwm-progressive/gltf-transform';
-import { PmwDecoder } from '../src/index.js';
+import { writePmwAsGlb } from 'pmwm-progressive/gltf-transform.config.mjs';
+import { FormatError, PmwDecoder, UnsupportedError } from '../src/index.js';
 import { chunkEntries } from '../src/header.js';
 import { CONFORMANCE, conformanceFiles, levelDigest } from './lib/helpers.js';
-import { ROOT } from './lib/python.js';
+import { withJson } from './lib/rewrite.js';
+import { decodeFiles, python, ROOT } from './lib/python.js';
 
 const NAME = 'PMWM_progressive_mesh';
 const CHECK_GLTF = join(ROOT, 'tools', 'js', 'check_gltf.mjs');
@@ -92,6 +94,30 @@ for (const file of ['sphere-attributes.plain.v1.pmw', 'grid-hole.plain.v1.pmw'])
   });
 }
 
+test('a rewritten base is tightly packed (one bufferView per vertex attribute) and the reference decoder gives the same levels',
+  async () => {
+    const original = load('sphere-attributes.plain.v1.pmw'); // POSITION, NORMAL, TEXCOORD_0: interleaved by default
+    const io = new NodeIO().registerExtensions([PMWMProgressiveMesh]);
+    const rewritten = await io.writeBinary(await io.readBinary(original));
+    const { json } = glbParts(rewritten);
+    const SIZES = { SCALAR: 1, VEC2: 2, VEC3: 3, VEC4: 4 };
+    for (const [semantic, index] of Object.entries(json.meshes[0].primitives[0].attributes)) {
+      const accessor = json.accessors[index];
+      const stride = json.bufferViews[accessor.bufferView].byteStride;
+      assert.ok(stride === undefined || stride === 4 * SIZES[accessor.type], `${semantic}: byteStride ${stride}`);
+    }
+    if (!python()) return; // pmwm_codec refuses an interleaved base accessor
+    const dir = mkdtempSync(join(tmpdir(), 'pmw-gltf-transform-'));
+    try {
+      writeFileSync(join(dir, 'out.pmw'), rewritten);
+      const [reference] = decodeFiles([join(dir, 'out.pmw')]);
+      assert.equal(reference.error, undefined);
+      assert.deepEqual(reference.levels.map((l) => l.sha256), (await levels(original)).map((l) => l.digest));
+    } finally {
+      rmSync(dir, { recursive: true, force: true });
+    }
+  });
+
 test('the Khronos validator finds no error in a rewritten file (skipped without tools/js/node_modules)',
   { skip: !existsSync(VALIDATOR) && 'gltf-validator not installed in tools/js' }, async () => {
     const io = new NodeIO().registerExtensions([PMWMProgressiveMesh]);
@@ -121,6 +147,17 @@ test('a transform that changes a progressive base mesh makes write() throw BaseM
   assert.equal(plain.bufferViews.length, 2);
   assert.equal(JSON.stringify(plain.meshes).includes(NAME), false);
 });
+
+test('an attribute added to a progressive base (the stream has no value of it for a new vertex) makes write() throw BaseMeshChangedError',
+  async () => {
+    const io = new NodeIO().registerExtensions([PMWMProgressiveMesh]);
+    const doc = await io.readBinary(load('sphere-attributes.plain.v1.pmw'));
+    const primitive = doc.getRoot().listMeshes()[0].listPrimitives()[0];
+    const count = primitive.getAttribute('POSITION').getCount();
+    primitive.setAttribute('TANGENT', doc.createAccessor().setType('VEC4').setArray(new Float32Array(4 * count))
+      .setBuffer(doc.getRoot().listBuffers()[0]));
+    await assert.rejects(io.writeBinary(doc), BaseMeshChangedError);
+  });
 
 // bowtie.welded-draco: a Draco base stored with copies of its non-manifold vertices; written plain, the
 // copies stay and readers still weld them (spec/README.md "Welded base")
@@ -184,6 +221,87 @@ test('gltf-transform weld of a .pmw (CLI, our config) fails with BaseMeshChanged
     assert.notEqual(run.status, 0);
     assert.match(run.stdout + run.stderr, /base mesh of a PMWM_progressive_mesh primitive changed/);  // the CLI logs to stdout
     assert.deepEqual(readdirSync(dir), []);
+  } finally {
+    rmSync(dir, { recursive: true, force: true });
+  }
+});
+
+for (const file of ['grid-hole.plain.v1.pmw', 'sphere-attributes.plain.packed.v2.pmw']) {
+  test(`${file}: a progressive primitive two meshes share (mesh.clone()) is written with chunks of its own in each`, async () => {
+    const original = load(file);
+    const io = new NodeIO().registerExtensions([PMWMProgressiveMesh]);
+    const document = await io.readBinary(original);
+    const copy = document.getRoot().listMeshes()[0].clone(); // shares its primitives
+    document.getRoot().listScenes()[0].addChild(document.createNode('copy').setMesh(copy));
+    const decoder = new PmwDecoder();
+    await decoder.feed(await io.writeBinary(document)); // was: 'chunks overlap each other or the base meshes'
+    assert.equal(decoder.close().complete, true);
+    const [full] = (await levels(original)).slice(-1);
+    const { parts } = decoder.snapshot();
+    assert.equal(parts.length, 2);
+    for (const part of parts) assert.equal(levelDigest({ ...part, parts: [part] }), full.digest);
+  });
+}
+
+test('reading a stream the decoder refuses fails with the decoder\'s named error (never a chunk read short or a TypeError)', async () => {
+  const io = new NodeIO().registerExtensions([PMWMProgressiveMesh]);
+  const v1 = load('grid-hole.plain.v1.pmw');
+  const v2 = load('grid-hole.plain.packed.v2.pmw');
+  const ext = (gltf) => gltf.meshes[0].primitives[0].extensions[NAME];
+  const cases = [
+    ['a chunk in no bufferView', v1, (g) => { ext(g).chunks[0].bufferView = 999; }, FormatError],
+    ['a chunk longer than its bufferView', v1, (g) => { ext(g).chunks[0].byteLength += 1000; }, FormatError],
+    ['a chunk entry that is null', v1, (g) => { ext(g).chunks[1] = null; }, FormatError],
+    ['a chunk table in no bufferView', v2, (g) => { ext(g).chunks.bufferView = 999; }, FormatError],
+    ['chunks past the end of their bufferView', v2, (g) => { ext(g).chunks.byteOffsets = Array(ext(g).chunks.count).fill(1e6); }, FormatError],
+    ['a newer extension version', v2, (g) => { ext(g).version = 2; }, UnsupportedError],
+    ['an unknown payload version', v2, (g) => { ext(g).payload.version = 3; }, UnsupportedError],
+  ];
+  for (const [what, source, edit, Kind] of cases) {
+    const bytes = withJson(source, edit);
+    const decoder = new PmwDecoder();
+    await assert.rejects(decoder.feed(bytes), Kind, `decoder: ${what}`);
+    await assert.rejects(io.readBinary(bytes), Kind, what);
+  }
+});
+
+test('a stream dropped from every primitive is written as a plain glTF that read() takes back', async () => {
+  const io = new NodeIO().registerExtensions([PMWMProgressiveMesh]);
+  const document = await io.readBinary(load('grid-hole.plain.v1.pmw'));
+  for (const mesh of document.getRoot().listMeshes()) for (const p of mesh.listPrimitives()) p.setExtension(NAME, null);
+  const plain = await io.writeBinary(document);
+  assert.equal((glbParts(plain).json.extensionsUsed ?? []).includes(NAME), false);
+  await io.readBinary(plain);
+});
+
+test('writing with a meshopt compression extension in the document throws BaseMeshChangedError (a compressed base reads nowhere)', async () => {
+  // EXT_meshopt_compression as the document sees it (the real one also needs meshoptimizer's encoder)
+  class Meshopt extends Extension { static EXTENSION_NAME = 'EXT_meshopt_compression'; extensionName = 'EXT_meshopt_compression'; read() { return this; } write() { return this; } }
+  const io = new NodeIO().registerExtensions([PMWMProgressiveMesh, Meshopt]);
+  const document = await io.readBinary(load('grid-hole.plain.v1.pmw'));
+  document.createExtension(Meshopt).setRequired(true);
+  await assert.rejects(io.writeBinary(document), (e) => e instanceof BaseMeshChangedError && /EXT_meshopt_compression/.test(e.message));
+});
+
+test('writing a progressive document as JSON + .bin (a .gltf) is a FormatError: the stream lives in a GLB\'s BIN chunk', async () => {
+  const io = new NodeIO().registerExtensions([PMWMProgressiveMesh]);
+  const document = await io.readBinary(load('grid-hole.plain.v1.pmw'));
+  await assert.rejects(io.writeJSON(document), (e) => e instanceof FormatError && /GLB/.test(e.message));
+  for (const mesh of document.getRoot().listMeshes()) for (const p of mesh.listPrimitives()) p.setExtension(NAME, null);
+  await io.writeJSON(document); // without the stream: a plain .gltf
+});
+
+test('the README\'s round trip writes a .pmw; io.write(\'out.pmw\') (NodeIO: JSON + .bin for any name but .glb) is refused, writing nothing, unless writePmwAsGlb', async () => {
+  const dir = mkdtempSync(join(tmpdir(), 'pmw-gltf-transform-'));
+  try {
+    writeFileSync(join(dir, 'in.pmw'), load('grid-hole.plain.v1.pmw'));
+    const io = new NodeIO().registerExtensions([PMWMProgressiveMesh]);
+    writeFileSync(join(dir, 'out.pmw'), await io.writeBinary(await io.read(join(dir, 'in.pmw')))); // the README's example
+    assert.deepEqual(await levels(readFileSync(join(dir, 'out.pmw'))), await levels(load('grid-hole.plain.v1.pmw')));
+    await assert.rejects(io.write(join(dir, 'json.pmw'), await io.read(join(dir, 'in.pmw'))), FormatError);
+    assert.deepEqual(readdirSync(dir).sort(), ['in.pmw', 'out.pmw']);
+    await writePmwAsGlb(io).write(join(dir, 'glb.pmw'), await io.read(join(dir, 'in.pmw')));
+    assert.deepEqual(await levels(readFileSync(join(dir, 'glb.pmw'))), await levels(load('grid-hole.plain.v1.pmw')));
   } finally {
     rmSync(dir, { recursive: true, force: true });
   }

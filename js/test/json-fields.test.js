@@ -155,3 +155,13 @@ test('a bufferView\'s byteStride, where given, is a multiple of 4 in 4..252 (the
     ['a chunk view with byteStride "4"', file, (g, p, e) => { chunkView(g, p, e).byteStride = '4'; }, /invalid byteStride/],
   ]);
 });
+
+test('a base accessor whose bufferView\'s byteStride is shorter than its element (or strides indices) is refused, not read overlapping', async () => {
+  const file = 'sphere-attributes.plain.packed.v2.pmw';
+  const strideOf = (semantic, stride) => (g, p) => { g.bufferViews[g.accessors[semantic ? p.attributes[semantic] : p.indices].bufferView].byteStride = stride; };
+  await bothRefuse([
+    ['TEXCOORD_0 with byteStride 4', file, strideOf('TEXCOORD_0', 4), /byteStride 4 for 8-byte elements/],
+    ['NORMAL with byteStride 8', file, strideOf('NORMAL', 8), /byteStride 8 for 12-byte elements/],
+    ['indices with byteStride 8', file, strideOf(null, 8), /byteStride 8 for 2-byte elements/],
+  ]);
+});

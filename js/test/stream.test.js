@@ -7,7 +7,7 @@ import assert from 'node:assert/strict';
 import { readFileSync } from 'node:fs';
 import { join } from 'node:path';
 import { test } from 'node:test';
-import { CorruptChunkError, FormatError, PmwDecoder, TruncatedError, decodePmw } from '../src/index.js';
+import { CorruptChunkError, DracoError, FormatError, PmwDecoder, TruncatedError, decodePmw } from '../src/index.js';
 import { CONFORMANCE, conformanceFiles, seededRandom, levelDigest } from './lib/helpers.js';
 
 const load = (f) => new Uint8Array(readFileSync(join(CONFORMANCE, f)));
@@ -120,4 +120,29 @@ test('a chunk count that is not a whole number >= 0 is refused, not rounded or t
   }
   assert.equal((await decodePmw(bytes, { chunks: 0 })).chunksApplied, 0);
   assert.equal((await decodePmw(bytes, { chunks: undefined })).complete, true);
+});
+
+test('decodePmw and feed take an ArrayBuffer or any typed array as bytes, and refuse what is not bytes with a TypeError', async () => {
+  const bytes = load(conformanceFiles()[0]);
+  const whole = await decodePmw(bytes);
+  const buffer = bytes.buffer.slice(bytes.byteOffset, bytes.byteOffset + bytes.length); // as response.arrayBuffer() gives
+  for (const input of [buffer, new DataView(buffer), new Uint16Array(buffer)]) { // a GLB's length is a multiple of 4
+    const got = await decodePmw(input);
+    assert.equal(levelDigest(got), levelDigest(whole), input.constructor.name);
+  }
+  const d = new PmwDecoder();
+  await d.feed(new Uint16Array(buffer, 0, 10)); // the first 20 bytes, by their bytes
+  for (const wrong of ['glTF', [103, 108, 84, 70], null, 7]) await assert.rejects(d.feed(wrong), TypeError);
+  await d.feed(new Uint8Array(buffer, 20)); // the refusals left the decoder as it was
+  assert.equal(d.close().complete, true);
+});
+
+test('a Draco decoder of the caller\'s that fails or gives no mesh ends in a DracoError', async () => {
+  const bytes = load(conformanceFiles().find((f) => f.includes('.draco.')));
+  const decoders = [
+    { decode: async () => { throw new Error('the DRACOLoader worker crashed'); } },
+    { decode: async () => undefined },
+    { decode: async () => ({ positions: new Float32Array(3) }) },
+  ];
+  for (const draco of decoders) await assert.rejects(decodePmw(bytes, { draco }), DracoError);
 });

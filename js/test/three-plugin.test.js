@@ -1,12 +1,18 @@
 // The three.js plugin in Node: GLTFLoader shows the base, the plugin refines it over HTTP (Range or one stream).
 import assert from 'node:assert/strict';
 import fs from 'node:fs';
+import os from 'node:os';
 import path from 'node:path';
 import { after, before, test } from 'node:test';
 import { fileURLToPath } from 'node:url';
 import { GLTFLoader } from 'three/examples/jsm/loaders/GLTFLoader.js';
-import { decodePmw } from '../src/index.js';
-import { loadProgressive } from '../src/three-plugin.js';
+import { parseGlb, planDocument } from '../src/header.js';
+import { decodePmw, LimitError, MAX_JSON_BYTES, PmwDecoder, TruncatedError } from '../src/index.js';
+import { BufferAttribute, BufferGeometry, LoadingManager } from 'three';
+import { loadProgressive, PMWMProgressivePlugin, ProgressiveRun, refreshGeometry } from '../src/three-plugin.js';
+import { dracoFromBases, WorkerDecoder } from '../src/worker-decoder.js';
+import { encodeCase, python } from './lib/python.js';
+import { glb, withJson } from './lib/rewrite.js';
 import { startServer } from './lib/server.js';
 
 const conformance = path.resolve(path.dirname(fileURLToPath(import.meta.url)), '../../spec/conformance');
@@ -72,4 +78,284 @@ test('a byte budget shows the level of the cut file', async () => {
     assert.equal(cut.chunksApplied, 3, kind);
     assert.equal(theMesh(gltf).geometry.userData.pmwmLevel.vertices, cut.positions.length / 3, kind);
   }
+});
+
+test('an attribute three.js names by lowercasing its semantic (_CUSTOM_UV) is refined with the mesh', async () => {
+  // the conformance file with TEXCOORD_0 renamed to a custom semantic of the same length (offsets unchanged)
+  const text = new TextDecoder('latin1').decode(bytes).replaceAll('"TEXCOORD_0"', '"_CUSTOM_UV"');
+  const renamed = Uint8Array.from(text, (c) => c.charCodeAt(0));
+  const full = await decodePmw(renamed);
+  await serving({ 'custom.pmw': renamed }, async (server) => {
+    const gltf = await loadProgressive(new GLTFLoader(), `${server.url}custom.pmw`);
+    await gltf.userData.pmwm.done;
+    const g = theMesh(gltf).geometry;
+    const n = full.positions.length / 3;
+    assert.equal(g.getAttribute('_custom_uv').count, g.getAttribute('position').count);
+    assert.deepEqual(g.getAttribute('_custom_uv').array.subarray(0, n * 2), full.parts[0].attributes._CUSTOM_UV);
+  });
+});
+
+test('a Draco base decoded by three.js hands over a custom attribute (_CUSTOM) by its three.js name', async () => {
+  const custom = { values: Float32Array.of(1, 2, 3), components: 1 };
+  const uv = { values: new Float32Array(6), components: 2 };
+  const draco = dracoFromBases([{ ids: { POSITION: 0, TEXCOORD_0: 1, _CUSTOM: 2 }, indices: Uint32Array.of(0, 1, 2),
+    attrs: { position: { values: new Float32Array(9), components: 3 }, uv, _custom: custom } }]);
+  const out = await draco.decode(new Uint8Array(0), { positionId: 0, attributeIds: [2, 1] });
+  assert.deepEqual(out.attributes, [custom, uv]);
+});
+
+/** Serves `files` ({name: bytes}) from a temporary directory for `body(server)`. */
+async function serving(files, body, options) {
+  const dir = fs.mkdtempSync(path.join(os.tmpdir(), 'pmwm-three-'));
+  for (const [name, data] of Object.entries(files)) fs.writeFileSync(path.join(dir, name), data);
+  const server = await startServer(dir, options);
+  try {
+    await body(server);
+  } finally {
+    await server.close();
+    fs.rmSync(dir, { recursive: true, force: true });
+  }
+}
+
+test('loadProgressive of a file that ends before its base mesh is a TruncatedError with the bytes received and needed', async () => {
+  const { binStart, binLength, gltf } = parseGlb(bytes);
+  const firstChunk = binStart + planDocument(gltf, binLength).stream[0].offset;
+  const cuts = [10, 1500, firstChunk - 1];
+  for (const ranges of [true, false]) {
+    await serving(Object.fromEntries(cuts.map((n) => [`cut${n}.pmw`, bytes.subarray(0, n)])), async (server) => {
+      for (const n of cuts) {
+        await assert.rejects(loadProgressive(new GLTFLoader(), `${server.url}cut${n}.pmw`),
+          (e) => e instanceof TruncatedError && e.bytesReceived === n
+            && e.bytesNeeded === (n < 20 ? 20 : n < binStart ? binStart : firstChunk), // the preamble, the JSON, the base
+          `cut at ${n}, ranges ${ranges}`);
+      }
+    }, { ranges });
+  }
+});
+
+test('loadProgressive loads a GLB without PMWM_progressive_mesh as it is (no stream, no error)', async () => {
+  const glb = withJson(bytes, (gltf) => {
+    delete gltf.extensionsUsed;
+    for (const mesh of gltf.meshes) for (const p of mesh.primitives) delete p.extensions;
+  });
+  const base = await decodePmw(bytes, { chunks: 0 });
+  for (const ranges of [true, false]) {
+    await serving({ 'plain.glb': glb }, async (server) => {
+      const loaded = await loadProgressive(new GLTFLoader(), `${server.url}plain.glb`);
+      assert.equal(loaded.userData.pmwm, undefined);
+      assert.equal(theMesh(loaded).geometry.getAttribute('position').count, base.positions.length / 3);
+    }, { ranges });
+  }
+});
+
+/** A fetch answering every request with the whole file as a stream of `size`-byte pieces; `log` records bytes read and a cancel. */
+function streamingFetch(data, log = {}, size = 500) {
+  return async () => {
+    let at = 0;
+    const body = new ReadableStream({
+      pull(controller) {
+        if (at >= data.length) { controller.close(); return; }
+        log.pulled = (log.pulled ?? 0) + Math.min(size, data.length - at);
+        controller.enqueue(data.slice(at, at += size));
+      },
+      cancel() { log.cancelled = true; },
+    }, { highWaterMark: 0 });
+    return new Response(body, { status: 200 });
+  };
+}
+
+test('a streamed load that stops early (maxChunks, maxGeometricError, stop(), a corrupt chunk) cancels the rest of the body', async () => {
+  const corrupt = bytes.slice();
+  const two = await decodePmw(bytes, { chunks: 2 });
+  corrupt[two.bytesRead - 2] ^= 1; // inside chunk 1
+  const cases = [[{ maxChunks: 2 }, bytes], [{ maxGeometricError: 1e9 }, bytes], [{ stopAtBase: true }, bytes], [{}, corrupt]];
+  for (const [options, data] of cases) {
+    const log = { pulled: 0, cancelled: false };
+    let run;
+    const gltf = await loadProgressive(new GLTFLoader(), 'http://127.0.0.1/x.pmw', { ...options, range: false,
+      fetch: streamingFetch(data, log), onBase: () => options.stopAtBase && run.stop() });
+    run = gltf.userData.pmwm;
+    await run.done.catch(() => {});
+    assert.equal(log.cancelled, true, JSON.stringify(options));
+    assert.ok(log.pulled < data.length, JSON.stringify(options));
+  }
+});
+
+test('a byte budget below the base mesh shows the base as level 0 and applies no chunk', async () => {
+  const base = await decodePmw(bytes, { chunks: 0 });
+  for (const kind of ['ranges', 'plain']) {
+    const url = servers[kind].url + NAME;
+    const viaLoad = await loadProgressive(new GLTFLoader(), url, { byteBudget: 100 });
+    const loader = new GLTFLoader();
+    loader.register((parser) => new PMWMProgressivePlugin(parser, { url, byteBudget: 100 }));
+    const viaPlugin = await loader.parseAsync(bytes.slice().buffer, ''); // three.js read the whole file itself
+    for (const gltf of [viaLoad, viaPlugin]) {
+      const outcome = await gltf.userData.pmwm.done;
+      assert.equal(outcome.chunksApplied, 0, kind);
+      assert.equal(outcome.levels, 1, kind);
+      assert.equal(theMesh(gltf).geometry.userData.pmwmLevel.vertices, base.positions.length / 3, kind);
+    }
+  }
+});
+
+test('a progressive mesh the scene leaves out is decoded in order, and each shown mesh gets its own primitive\'s levels',
+  { skip: python() ? false : 'no Python that imports pmwm_codec (set PYTHON)' }, async () => {
+    const dir = fs.mkdtempSync(path.join(os.tmpdir(), 'pmwm-three-'));
+    try {
+      encodeCase('unseen-first-mesh.plain', 2, path.join(dir, 'unseen.pmw')); // the scene shows mesh 1 only
+      const full = await decodePmw(new Uint8Array(fs.readFileSync(path.join(dir, 'unseen.pmw'))));
+      await serving({ 'unseen.pmw': fs.readFileSync(path.join(dir, 'unseen.pmw')) }, async (server) => {
+        const gltf = await loadProgressive(new GLTFLoader(), `${server.url}unseen.pmw`);
+        assert.equal((await gltf.userData.pmwm.done).complete, true);
+        const shown = theMesh(gltf).geometry;
+        const part = full.parts[1];
+        assert.equal(shown.userData.pmwmLevel.vertices, part.positions.length / 3);
+        assert.deepEqual(shown.getAttribute('position').array.subarray(0, part.positions.length), part.positions);
+        assert.deepEqual(shown.index.array.subarray(0, part.indices.length), part.indices);
+      });
+    } finally {
+      fs.rmSync(dir, { recursive: true, force: true });
+    }
+  });
+
+test('each level\'s bounding box and sphere are those of its own vertices, not of the zeros past them', async () => {
+  const geometry = new BufferGeometry();
+  const part = { positions: Float32Array.of(10, 0, 5, 12, 0, 5, 10, 2, 5), indices: Uint32Array.of(0, 1, 2), attributes: {} };
+  refreshGeometry(geometry, part, 100, 200); // capacity for 100 vertices: 97 of them still (0, 0, 0)
+  assert.deepEqual(geometry.boundingBox.min.toArray(), [10, 0, 5]);
+  assert.deepEqual(geometry.boundingBox.max.toArray(), [12, 2, 5]);
+  assert.deepEqual(geometry.boundingSphere.center.toArray(), [11, 1, 5]);
+  assert.equal(geometry.boundingSphere.radius, Math.SQRT2);
+});
+
+test('loadProgressive takes the URL as a URL object too', async () => {
+  const gltf = await loadProgressive(new GLTFLoader(), new URL(NAME, servers.ranges.url));
+  assert.equal((await gltf.userData.pmwm.done).complete, true);
+});
+
+test('the first level releases the GPU buffers of three.js\' base arrays it replaces (a dispose event), later levels reuse theirs', async () => {
+  const geometry = new BufferGeometry(); // three.js' base, as drawn before the first level came
+  geometry.setAttribute('position', new BufferAttribute(new Float32Array(9), 3));
+  let disposed = 0;
+  geometry.addEventListener('dispose', () => { disposed++; });
+  const part = { positions: Float32Array.of(0, 0, 0, 1, 0, 0, 0, 1, 0), indices: Uint32Array.of(0, 1, 2), attributes: {} };
+  refreshGeometry(geometry, part, 10, 20);
+  assert.equal(disposed, 1);
+  const arrays = [geometry.getAttribute('position'), geometry.index];
+  refreshGeometry(geometry, part, 10, 20);
+  assert.equal(disposed, 1);
+  assert.deepEqual([geometry.getAttribute('position'), geometry.index], arrays);
+});
+
+test('a streamed loadProgressive that fails (three.js cannot parse the base, the header is refused) cancels the body', async () => {
+  const draco = new Uint8Array(fs.readFileSync(path.join(conformance, 'two-primitives.draco.v1.pmw'))); // no DRACOLoader given
+  const refused = withJson(bytes, (gltf) => { gltf.meshes[0].primitives[0].extensions.PMWM_progressive_mesh.version = 2; });
+  for (const data of [draco, refused]) {
+    const log = { pulled: 0, cancelled: false };
+    await assert.rejects(loadProgressive(new GLTFLoader(), 'http://127.0.0.1/x.pmw', { range: false, fetch: streamingFetch(data, log) }));
+    assert.equal(log.cancelled, true);
+    assert.ok(log.pulled < data.length);
+  }
+});
+
+test('maxGeometricError stops at the first chunk that brings every primitive to it, a primitive without chunks counting as there', () => {
+  const errors = [0.07, 0.04, 0.03, 0.02, 0.01];
+  const stream = errors.map((geometricError) => ({ primitive: 0, geometricError }));
+  const plan = { stream, primitives: [{ chunks: stream }, { chunks: [] }] }; // primitive 1: its base is all there is
+  const run = Object.assign(Object.create(ProgressiveRun.prototype), { decoder: { plan }, options: { maxGeometricError: 0.03 } });
+  assert.equal(run.chunksWanted(), 3);
+  run.options = { maxGeometricError: 0.001 };
+  assert.equal(run.chunksWanted(), 5);
+});
+
+test('a streamed load stopped by maxGeometricError or maxChunks applies no chunk past that level, even one in the same piece', async () => {
+  const { binStart, binLength, gltf } = parseGlb(bytes);
+  const { stream } = planDocument(gltf, binLength);
+  const corrupt = bytes.slice();
+  corrupt[binStart + stream[5].offset] ^= 1; // chunk 5: past the level asked, no error of it (spec/README.md "Integrity")
+  const target = stream[2].geometricError; // reached at chunk 2: three chunks
+  for (const options of [{ maxGeometricError: target }, { maxChunks: 3 }]) {
+    const gltf = await loadProgressive(new GLTFLoader(), 'http://127.0.0.1/x.pmw',
+      { ...options, range: false, fetch: streamingFetch(corrupt, {}, corrupt.length) }); // the whole file in one piece
+    const outcome = await gltf.userData.pmwm.done;
+    assert.equal(outcome.chunksApplied, 3, JSON.stringify(options));
+    assert.equal(theMesh(gltf).geometry.userData.pmwmLevel.vertices, (await decodePmw(bytes, { chunks: 3 })).positions.length / 3);
+  }
+});
+
+test('loadProgressive honours the loader as GLTFLoader.load does: its path, URL modifier, request headers and credentials', async () => {
+  const requests = [];
+  const recording = (url, init) => { requests.push({ url: String(url), init }); return fetch(url, init); };
+  const manager = new LoadingManager().setURLModifier((url) => url.replace('/aliased/', '/'));
+  const loader = new GLTFLoader(manager).setPath(`${servers.ranges.url}aliased/`).setRequestHeader({ 'X-Token': 'abc' })
+    .setWithCredentials(true);
+  const gltf = await loadProgressive(loader, NAME, { fetch: recording });
+  assert.equal((await gltf.userData.pmwm.done).complete, true);
+  assert.ok(requests.length > 3);
+  for (const { url, init } of requests) {
+    assert.equal(url, servers.ranges.url + NAME);
+    assert.equal(init.headers['X-Token'], 'abc');
+    assert.equal(init.credentials, 'include');
+  }
+});
+
+test('a base attribute the stream does not carry is dropped at the first level (it has no value for a new vertex)', async () => {
+  const geometry = new BufferGeometry(); // as GLTFLoader gives it: uv carried by the stream, _extra not
+  for (const [name, k] of [['position', 3], ['uv', 2], ['_extra', 1]]) geometry.setAttribute(name, new BufferAttribute(new Float32Array(3 * k), k));
+  const part = { positions: new Float32Array(12), indices: Uint32Array.of(0, 1, 2, 1, 3, 2), attributes: { TEXCOORD_0: new Float32Array(8) } };
+  refreshGeometry(geometry, part, 10, 20);
+  assert.deepEqual(Object.keys(geometry.attributes).sort(), ['position', 'uv']);
+  for (const attribute of Object.values(geometry.attributes)) assert.equal(attribute.count, 10);
+});
+
+test('a streamed loadProgressive reads a large prefix (16 MB before the first chunk, 16 KB pieces) in linear time', { timeout: 120000 }, async () => {
+  // the conformance file with 16 MB of data (as a large texture would be) between its base and its chunks
+  const { binStart, binLength, gltf } = parseGlb(bytes);
+  const first = planDocument(gltf, binLength).stream[0].offset;
+  const extra = 16 << 20;
+  const bin = new Uint8Array(binLength + extra);
+  bin.set(bytes.subarray(binStart, binStart + first));
+  bin.set(bytes.subarray(binStart + first, binStart + binLength), first + extra);
+  const json = structuredClone(gltf);
+  for (const view of json.bufferViews) if ((view.byteOffset ?? 0) >= first) view.byteOffset += extra;
+  json.bufferViews.push({ buffer: 0, byteOffset: first, byteLength: extra });
+  json.buffers[0].byteLength += extra;
+  const large = glb(json, bin);
+  const started = Date.now();
+  const loaded = await loadProgressive(new GLTFLoader(), 'http://127.0.0.1/large.pmw',
+    { range: false, fetch: streamingFetch(large, {}, 16384) });
+  assert.equal((await loaded.userData.pmwm.done).complete, true);
+  assert.ok(Date.now() - started < 5000, `${Date.now() - started} ms (the prefix was copied whole for every piece: 14 to 25 s)`);
+});
+
+test('once the stream ends, the run a gltf keeps (userData.pmwm) holds no bytes, decoder arrays or prefix: only plan and counts', async () => {
+  for (const kind of ['ranges', 'plain']) {
+    const gltf = await loadProgressive(new GLTFLoader(), servers[kind].url + NAME);
+    const run = gltf.userData.pmwm;
+    const outcome = await run.done;
+    assert.deepEqual(Object.keys(run.decoder).sort(), ['chunksApplied', 'header', 'plan', 'received', 'workerLevels']);
+    assert.equal(run.decoder.chunksApplied, outcome.chunksApplied);
+    assert.equal(run.options.prefix, undefined);
+  }
+});
+
+test('loadProgressive refuses a preamble declaring a JSON chunk over the limit from its first 20 bytes, fetching no more', async () => {
+  const huge = bytes.slice();
+  const view = new DataView(huge.buffer);
+  view.setUint32(12, MAX_JSON_BYTES + 4, true); // the JSON chunk's length
+  view.setUint32(8, MAX_JSON_BYTES + 4 + 28 + 4, true); // the GLB length: room for it
+  for (const ranges of [true, false]) {
+    await serving({ 'huge.pmw': huge }, async (server) => {
+      await assert.rejects(loadProgressive(new GLTFLoader(), `${server.url}huge.pmw`), LimitError);
+      if (ranges) assert.equal(server.stats.bytes, 20);
+    }, { ranges });
+  }
+});
+
+test('the worker decoder, as PmwDecoder, refuses a JSON chunk declared over the limit from the first 20 bytes', async () => {
+  const huge = bytes.slice(0, 20);
+  new DataView(huge.buffer).setUint32(12, MAX_JSON_BYTES + 4, true);
+  new DataView(huge.buffer).setUint32(8, MAX_JSON_BYTES + 4 + 28 + 4, true);
+  await assert.rejects(new WorkerDecoder({ bases: [], worker: true }).feed(huge), LimitError);
+  await assert.rejects(new PmwDecoder().feed(huge), LimitError);
 });

@@ -115,7 +115,22 @@ CASES = {
 }
 
 
+#: name -> (meshes (one mesh of one primitive each), the nodes of the scene (node i shows mesh i), encoder
+#: options): documents whose scene leaves progressive meshes out
+SCENES = {
+    "unseen-first-mesh.plain": lambda: ([shapes.grid(18, 16, hole=True), shapes.torus(24, 12, twist=0.1)], [1],
+                                        dict(base_codec="plain")),
+}
+
+
 def _write(case: str, version: int, out: str) -> None:
+    if case in SCENES:
+        meshes, shown, options = SCENES[case]()
+        doc = {"scene": 0, "scenes": [{"nodes": shown}], "nodes": [{"mesh": i} for i in range(len(meshes))],
+               "meshes": [{"primitives": [{}]} for _ in meshes]}
+        jobs = [PrimitiveJob(m, i, 0) for i, m in enumerate(meshes)]
+        encode_document(doc, b"", jobs, out, payload_version=version, **OPTIONS, **options)
+        return
     mesh, options = CASES[case]()
     if isinstance(mesh, Mesh):
         encode(mesh, out, payload_version=version, **OPTIONS, **options)

@@ -54,6 +54,11 @@ export function decodeFiles(files) {
   return JSON.parse(run([LEVELS, 'decode', ...files]));
 }
 
+/** Writes `out` (.glb): `pmw decode FILE --chunks N`, the reference decoder's level N as an ordinary GLB. */
+export function decodeToGlb(file, chunks, out) {
+  run(['-m', 'pmwm_codec', 'decode', file, '--chunks', String(chunks), '-o', out, '-q']);
+}
+
 function run(args) {
   const out = spawnSync(python(), args, { env: env(), encoding: 'utf8', maxBuffer: 1 << 24 });
   if (out.status !== 0) throw new Error(`python ${args.join(' ')} failed (${out.status}): ${out.stderr || out.error}`);
