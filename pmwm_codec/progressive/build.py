@@ -254,8 +254,7 @@ def _replay_packed(cb, state, positions, vid, face_src, face_dst, packer) -> Spl
     vid[u_in] = n0 + np.arange(k)
     state.positions[n0 : n0 + k] = np.take(positions, u_in, axis=0)
     batch, _ = packer.split(v_sorted, gstart, inc, a, b, sym)
-    _name_appended_faces(face_src, state.faces[m0 : state.m], m0, n0, cb, order)
-    face_dst[face_src[m0 : state.m]] = np.arange(m0, state.m)
+    _name_appended_faces(face_src, face_dst, state.faces[m0 : state.m], m0, n0, cb, order)
     return batch
 
 
@@ -315,13 +314,31 @@ def _grouped_symbols_kernel(gstart, inc, a, b, vid, face_dst, moved_face, moved_
     return symbols
 
 
-def _name_appended_faces(face_src, new, m0, n0, cb, order) -> None:
+def _name_appended_faces(face_src, face_dst, new, m0, n0, cb, order) -> None:
     """Record the input face id of each face (rows ``new`` (f, 3) int64, from face ``m0`` on) that the
-    splits of collapse batch ``cb`` (in ``order``, new vertices ``n0 + s``) appended: a left new face
-    is ``(u, v, a)``, a right one ``(v, u, b)``, so the first corner tells them apart (``u >= n0``)."""
+    splits of collapse batch ``cb`` (in ``order``, new vertices ``n0 + s``) appended, in ``face_src`` and
+    its inverse ``face_dst``: a left new face is ``(u, v, a)``, a right one ``(v, u, b)``, so the first
+    corner tells them apart (``u >= n0``)."""
+    kernel = compiled(_name_appended_faces_kernel)
+    if kernel is not None:
+        kernel(face_src, face_dst, new, m0, n0, cb.del_left, cb.del_right, order)
+        return
     left = new[:, 0] >= n0
     i = order[np.where(left, new[:, 0], new[:, 1]) - n0]
     face_src[m0 : m0 + len(new)] = np.where(left, cb.del_left[i], cb.del_right[i])
+    face_dst[face_src[m0 : m0 + len(new)]] = np.arange(m0, m0 + len(new))
+
+
+def _name_appended_faces_kernel(face_src, face_dst, new, m0, n0, del_left, del_right, order):
+    """Compiled :func:`_name_appended_faces`."""
+    for j in range(len(new)):
+        if new[j, 0] >= n0:
+            f = del_left[order[new[j, 0] - n0]]
+        else:
+            f = del_right[order[new[j, 1] - n0]]
+        face_src[m0 + j] = f
+        face_dst[f] = m0 + j
+    return 0
 
 
 def _symbols(state, inc, owner, vid, face_src, moved_by, cb, order, rank) -> np.ndarray:
