@@ -766,8 +766,7 @@ class ChunkPacker:
         coded (``gstart``, ``inc``, ``a``, ``b``: what it returned; ``sym`` (I,) uint8 their symbols,
         in that order) and apply it.  ``res`` (k, D) int64: the new values' residuals against the
         version 1 prediction; None: the caller has put the new values in ``state.positions[n:n + k]``.
-        Returns the batch in version 1 terms and its topology (:func:`_listed_batch`, on copies of the
-        mask's outputs)."""
+        Returns the batch in version 1 terms (:func:`_packed_batch`)."""
         state, enc, lists = self.state, self.enc, self.lists
         n, m, k, D = state.n, state.m, len(v), state.positions.shape[1]
         enc.reserve(_batch_decisions(0, len(inc), k, D))
@@ -781,7 +780,7 @@ class ChunkPacker:
             raise ValueError(f"payload v2: {_BATCH_ERRORS[new_faces]}")
         state.n, state.m = n + k, m + new_faces
         lists.n, lists.m = state.n, state.m
-        return _listed_batch(v, n, state.positions, gstart.copy(), inc.copy(), a.copy(), b.copy(), sym, rsum, rcount)
+        return _packed_batch(v, n, state.positions, inc, sym, rsum, rcount)
 
     def face_chunk(self, chunk: FaceChunk) -> np.ndarray:
         """Code the face chunk ``chunk`` and apply it (:func:`_pack_face_chunk`); returns its ``order``."""
@@ -944,6 +943,17 @@ def _listed_batch(v, n0, positions, gstart, inc, a, b, sym, rsum, rcount) -> tup
 
     topo = SplitTopology(u, rsum, rcount, incidence_lists, ring)
     return DecodedBatch(v, positions, topo, lambda: sym[face_slot_order()[2]], sym), topo
+
+
+def _packed_batch(v, n0, positions, inc, sym, rsum, rcount) -> DecodedBatch:
+    """A batch :meth:`ChunkPacker.split` applied, in version 1 terms (as :func:`_listed_batch`), holding
+    only what its symbols in face-slot order and its residuals are listed from when first read: ``sym``
+    (I,) uint8 grouped by split, a copy of their corners ``inc`` (I,) in int32 (corners < 2**31; the
+    mask's buffers are reused), the ring sums ``rsum`` (k, D) / ``rcount`` (k,) and ``positions``
+    (N, D), which hold the new values at ``n0 ..``."""
+    corners = inc.astype(np.int32)
+    topo = SplitTopology(n0 + np.arange(len(v)), rsum, rcount, None)
+    return DecodedBatch(v, positions, topo, lambda: sym[np.argsort(corners, kind="stable")], sym)
 
 
 class DecodedBatch(SplitBatch):

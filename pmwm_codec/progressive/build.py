@@ -253,7 +253,7 @@ def _replay_packed(cb, state, positions, vid, face_src, face_dst, packer) -> Spl
     u_in = cb.u[order]
     vid[u_in] = n0 + np.arange(k)
     state.positions[n0 : n0 + k] = np.take(positions, u_in, axis=0)
-    batch, _ = packer.split(v_sorted, gstart, inc, a, b, sym)
+    batch = packer.split(v_sorted, gstart, inc, a, b, sym)
     _name_appended_faces(face_src, face_dst, state.faces[m0 : state.m], m0, n0, cb, order)
     return batch
 
