@@ -135,8 +135,9 @@ def build_progressive(
         state = MeshState(positions[order0], base_faces, n, m)
     face_src = np.full(m, -1, dtype=np.int64)  # decoded face id -> input face id
     face_src[: len(base_faces)] = base_face_ids
-    moved_by = np.full(m, -1, dtype=np.int64)  # scratch over input face ids
-    if packer is not None:  # input face id -> decoded face id (-1: not made yet), face_src's inverse
+    if packer is None:
+        moved_by = np.full(m, -1, dtype=np.int64)  # scratch over input face ids
+    else:  # input face id -> decoded face id (-1: not made yet), face_src's inverse
         face_dst = np.full(m, -1, dtype=np.int64)
         face_dst[base_face_ids] = np.arange(len(base_faces))
 
