@@ -185,7 +185,6 @@ def _mask_kernel(flat, n, head, nxt, valence, below, sel, marked, gstart, inc, a
     k = 0
     corners = 0
     rng, code, pos = (ds[0], ds[1], ds[2]) if decode else (0, 0, 0)  # the coder state in registers
-    low, erng = (es[0], es[1]) if not decode else (0, 0)  # (the encoder's)
     for w in range(n):
         ctx = P_MASK + 7 * (below[w] & ((1 << BELOW_BITS) - 1)) + min(max(valence[w], 3), 9) - 3
         below[w] = 0
@@ -193,7 +192,7 @@ def _mask_kernel(flat, n, head, nxt, valence, below, sel, marked, gstart, inc, a
             bit, rng, code, pos = rc._bit(rng, code, pos, ds, buf, probs, ctx)
         else:
             bit = sel[w]
-            low, erng = rc._ebit(low, erng, es, out, probs, ctx, bit)
+            rc.enc_bit(es, out, probs, ctx, bit)
         if bit == 0:
             continue
         if k == len(marked):
@@ -207,8 +206,6 @@ def _mask_kernel(flat, n, head, nxt, valence, below, sel, marked, gstart, inc, a
         k += 1
     if decode:
         ds[0], ds[1], ds[2] = rng, code, pos
-    else:
-        es[0], es[1] = low, erng
     if k >= 0:
         gstart[k] = corners
     return k, corners
