@@ -20,8 +20,10 @@ its valence).  The decoder (:class:`ChunkDecoder`, one per primitive) keeps them
 chunk and updates them with each batch, so a batch costs two kernel calls and work in proportion
 to its splits plus one mask bit per vertex: :func:`_mask_kernel` (marks, gathering the marked
 vertices' incidences on the way) and :func:`_batch_kernel` (arcs, topology, values, valences).
-The encoder walks the same two kernels in encode mode on lists it keeps from batch to batch
-(made once for the base), so it leaves the mesh the decoder builds.
+The encoder (:class:`ChunkPacker`) walks the same two kernels in encode mode on lists it keeps
+from batch to batch (made once for the base), so it leaves the mesh the decoder builds; the record
+builder (:func:`~pmwm_codec.progressive.build.build_progressive` with ``chunks``) replays the
+simplifier's log through it, so an encode walks the mesh once.
 """
 
 from __future__ import annotations
