@@ -31,6 +31,7 @@ from pmwm_codec.watermark.key import WatermarkKey
 
 from conftest import GENERATED, corpus_path
 from samples import edit_chunk_table
+from test_pillows import _pillowed
 from test_golden import _sphere_with_attributes
 
 
@@ -307,6 +308,38 @@ def test_the_decoder_reuses_its_mask_outputs_once_no_batch_holds_them():
             kept.append((got.v, got.v.copy()))
     assert all(np.array_equal(view, copy) for view, copy in kept)
     assert len({view.base.ctypes.data for view, _ in kept}) == len(pm.batches)
+
+
+@pytest.mark.parametrize("use_numba", [True, False], ids=["compiled", "numpy"])
+@pytest.mark.parametrize("make", [lambda: shapes.torus(30, 14, twist=0.1), lambda: _pillowed(5, 40, False)],
+                         ids=["torus", "pillows"])
+def test_the_builders_own_payloads_are_pack_chunks_of_its_batches(monkeypatch, use_numba, make):
+    """Without an embedder the record builder codes the payloads on its replay (the packer's path): the
+    same bytes as packing its batches afterwards, the same batches, ids and values as a build that
+    does not pack (a face chunk included)."""
+    from pmwm_codec.progressive import build
+    from pmwm_codec.stream import encoder
+    from test_kernels import NUMBA
+
+    if use_numba and not NUMBA:
+        pytest.skip("numba is not installed")
+    monkeypatch.setattr(topology, "USE_NUMBA", use_numba)
+    calls, orig = [], encoder.build_progressive
+    monkeypatch.setattr(encoder, "build_progressive", lambda *a, **k: calls.append((a, k)) or orig(*a, **k))
+    _encode(make(), 2)
+    (args, kwargs), = calls
+    packed, plain = orig(*args, **kwargs), orig(*args, **dict(kwargs, chunks=None))
+    assert plain.payloads is None and len(packed.payloads) == len(kwargs["chunks"]) > 2
+    chunks = [[plain.batches[j] for j in grp] if len(grp) else records_v2.FaceChunk(plain.late_faces, plain.late_values)
+              for grp in kwargs["chunks"]]
+    assert records_v2.pack_chunks(plain.new_state(), chunks) == packed.payloads
+    for mine, theirs in zip(packed.batches, plain.batches, strict=True):
+        assert np.array_equal(mine.v, theirs.v) and np.array_equal(mine.symbols, theirs.symbols)
+        assert np.array_equal(mine.residual, theirs.residual) and mine.new_face_count() == theirs.new_face_count()
+    for name in ("vertex_order", "face_order", "full_values", "late_faces", "base_faces"):
+        assert np.array_equal(getattr(packed, name), getattr(plain, name)), name
+    with pytest.raises(ValueError, match="consecutive"):
+        build.build_progressive(*args, **dict(kwargs, chunks=[range(1, len(plain.batches))]))
 
 
 def test_the_encoder_refuses_a_batch_that_does_not_fit_the_mesh():

@@ -48,7 +48,13 @@ INT_DECISIONS = BUCKET_BITS + 1 + MAX_BUCKET
 
 @kernel_helper
 def _shift_low(es, out):
-    low = es[0]
+    es[0] = _shift(es[0], es, out)
+
+
+@kernel_helper
+def _shift(low, es, out):
+    """Shift the top byte out of ``low`` (the encoder's ``es[0]``, held by the caller): the bytes it
+    completes go to ``out`` (``es[2:5]``: cache, cache size, position, started).  Returns the new low."""
     if low < 0xFF000000 or low >= 0x100000000:
         carry = low >> 32
         temp = es[2]
@@ -64,35 +70,51 @@ def _shift_low(es, out):
                 break
         es[2] = (low >> 24) & 0xFF
     es[3] += 1
-    es[0] = (low & 0x00FFFFFF) << 8
+    return (low & 0x00FFFFFF) << 8
+
+
+@kernel_helper(inline=True)
+def _ebit(low, rng, es, out, probs, i, bit):
+    """:func:`enc_bit` on the state ``low, rng`` (``es[0:2]``) held in locals: ``(low, rng)``.  Inlined,
+    as :func:`_bit` is for the decoder: a kernel coding several decisions in a row keeps the state in
+    registers, not in ``es`` (which every store to ``probs`` would make the compiler reload)."""
+    p = probs[i]
+    bound = (rng >> PROB_BITS) * p
+    if bit == 0:
+        rng = bound
+        probs[i] = p + ((PROB_ONE - p) >> ADAPT_SHIFT)
+    else:
+        low += bound
+        rng -= bound
+        probs[i] = p - (p >> ADAPT_SHIFT)
+    while rng < TOP:
+        rng <<= 8
+        low = _shift(low, es, out)
+    return low, rng
+
+
+@kernel_helper(inline=True)
+def _edirect(low, rng, es, out, bit):
+    """:func:`enc_direct` on the state in locals (:func:`_ebit`): ``(low, rng)``."""
+    rng >>= 1
+    if bit != 0:
+        low += rng
+    while rng < TOP:
+        rng <<= 8
+        low = _shift(low, es, out)
+    return low, rng
 
 
 @kernel_helper
 def enc_bit(es, out, probs, i, bit):
     """Code ``bit`` (0/1) with adaptive probability ``probs[i]``."""
-    p = probs[i]
-    bound = (es[1] >> PROB_BITS) * p
-    if bit == 0:
-        es[1] = bound
-        probs[i] = p + ((PROB_ONE - p) >> ADAPT_SHIFT)
-    else:
-        es[0] += bound
-        es[1] -= bound
-        probs[i] = p - (p >> ADAPT_SHIFT)
-    while es[1] < TOP:
-        es[1] = es[1] << 8
-        _shift_low(es, out)
+    es[0], es[1] = _ebit(es[0], es[1], es, out, probs, i, bit)
 
 
 @kernel_helper
 def enc_direct(es, out, bit):
     """Code ``bit`` with probability 1/2, no model."""
-    es[1] = es[1] >> 1
-    if bit != 0:
-        es[0] += es[1]
-    while es[1] < TOP:
-        es[1] = es[1] << 8
-        _shift_low(es, out)
+    es[0], es[1] = _edirect(es[0], es[1], es, out, bit)
 
 
 @kernel_helper(inline=True)
@@ -172,12 +194,19 @@ def bit_length(x):
 @kernel_helper
 def enc_tree(es, out, probs, base, nbits, value):
     """``value`` < 2**nbits, MSB first, node ``1 .. 2**nbits - 1`` at ``probs[base + node]``."""
+    es[0], es[1] = _etree(es[0], es[1], es, out, probs, base, nbits, value)
+    return 0
+
+
+@kernel_helper(inline=True)
+def _etree(low, rng, es, out, probs, base, nbits, value):
+    """:func:`enc_tree` on the state in locals (:func:`_ebit`): ``(low, rng)``."""
     node = 1
     for t in range(nbits - 1, -1, -1):
         bit = (value >> t) & 1
-        enc_bit(es, out, probs, base + node, bit)
+        low, rng = _ebit(low, rng, es, out, probs, base + node, bit)
         node = 2 * node + bit
-    return 0
+    return low, rng
 
 
 @kernel_helper(inline=True)
@@ -196,22 +225,23 @@ def dec_tree(ds, buf, probs, base, nbits):
     return value
 
 
-@kernel_helper
-def _enc_mantissa(es, out, probs, base, b, m):
-    """The ``b - 1`` bits of ``m`` below a magnitude's leading one: two adaptive, the rest direct."""
+@kernel_helper(inline=True)
+def _emantissa(low, rng, es, out, probs, base, b, m):
+    """The ``b - 1`` bits of ``m`` below a magnitude's leading one, two adaptive, the rest direct, on the
+    state in locals (:func:`_ebit`): ``(low, rng)``."""
     nb = b - 1
     first = 0
     for t in range(nb - 1, -1, -1):
         bit = (m >> t) & 1
         pos = nb - 1 - t
         if pos == 0:
-            enc_bit(es, out, probs, base + INT_MANTISSA + 3 * b, bit)
+            low, rng = _ebit(low, rng, es, out, probs, base + INT_MANTISSA + 3 * b, bit)
             first = bit
         elif pos == 1:
-            enc_bit(es, out, probs, base + INT_MANTISSA + 3 * b + 1 + first, bit)
+            low, rng = _ebit(low, rng, es, out, probs, base + INT_MANTISSA + 3 * b + 1 + first, bit)
         else:
-            enc_direct(es, out, bit)
-    return 0
+            low, rng = _edirect(low, rng, es, out, bit)
+    return low, rng
 
 
 @kernel_helper(inline=True)
@@ -232,9 +262,10 @@ def _mantissa(rng, code, pos, ds, buf, probs, base, b):
 def enc_uint(es, out, probs, base, x):
     """Unsigned ``0 <= x < 2**32`` under the integer context block at ``probs[base:]``."""
     b = bit_length(x)
-    enc_tree(es, out, probs, base, BUCKET_BITS, b)
+    low, rng = _etree(es[0], es[1], es, out, probs, base, BUCKET_BITS, b)
     if b >= 2:
-        _enc_mantissa(es, out, probs, base, b, x - (np.int64(1) << (b - 1)))
+        low, rng = _emantissa(low, rng, es, out, probs, base, b, x - (np.int64(1) << (b - 1)))
+    es[0], es[1] = low, rng
     return 0
 
 
@@ -257,11 +288,12 @@ def enc_sint(es, out, probs, base, r):
     """Signed ``|r| < 2**32``: bucket of ``|r|``, sign (context: bucket), mantissa."""
     a = -r if r < 0 else r
     b = bit_length(a)
-    enc_tree(es, out, probs, base, BUCKET_BITS, b)
+    low, rng = _etree(es[0], es[1], es, out, probs, base, BUCKET_BITS, b)
     if b >= 1:
-        enc_bit(es, out, probs, base + INT_SIGN + b, 1 if r < 0 else 0)
+        low, rng = _ebit(low, rng, es, out, probs, base + INT_SIGN + b, 1 if r < 0 else 0)
     if b >= 2:
-        _enc_mantissa(es, out, probs, base, b, a - (np.int64(1) << (b - 1)))
+        low, rng = _emantissa(low, rng, es, out, probs, base, b, a - (np.int64(1) << (b - 1)))
+    es[0], es[1] = low, rng
     return 0
 
 

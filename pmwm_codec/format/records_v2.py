@@ -20,8 +20,10 @@ its valence).  The decoder (:class:`ChunkDecoder`, one per primitive) keeps them
 chunk and updates them with each batch, so a batch costs two kernel calls and work in proportion
 to its splits plus one mask bit per vertex: :func:`_mask_kernel` (marks, gathering the marked
 vertices' incidences on the way) and :func:`_batch_kernel` (arcs, topology, values, valences).
-The encoder walks the same two kernels in encode mode on lists it keeps from batch to batch
-(made once for the base), so it leaves the mesh the decoder builds.
+The encoder (:class:`ChunkPacker`) walks the same two kernels in encode mode on lists it keeps
+from batch to batch (made once for the base), so it leaves the mesh the decoder builds; the record
+builder (:func:`~pmwm_codec.progressive.build.build_progressive` with ``chunks``) replays the
+simplifier's log through it, so an encode walks the mesh once.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ import numpy as np
 
 from ..errors import FormatError, LimitError
 from ..progressive.topology import compiled, face_keys, kernel_helper
-from ..progressive.vsplit import SplitBatch, SplitTopology, _ring_lists
+from ..progressive.vsplit import SplitBatch, SplitTopology, _ring_lists, new_face_count
 from . import rangecoder as rc
 from .rangecoder import INT_BLOCK, INT_DECISIONS
 
@@ -621,40 +623,6 @@ _NO_SEL = np.zeros(0, np.int64)
 _NO_RES = np.zeros((0, 0), np.int64)
 
 
-def _encode_batch(enc, state, batch, lists) -> None:
-    """Code one batch into ``enc`` and apply it to ``state`` and ``lists`` (the :class:`CornerLists`
-    of the mesh before it) by the decoder's path: :func:`_mask_kernel` then :func:`_batch_kernel`,
-    both in encode mode.  ValueError for a batch the format cannot carry (no simplifier makes one)."""
-    n, m, k = state.n, state.m, batch.size
-    v, D = np.asarray(batch.v, np.int64), state.positions.shape[1]
-    res = np.asarray(batch.residual, np.int64)
-    if k == 0 or v[0] < 0 or v[-1] >= n or np.any(np.diff(v) <= 0) or n + k > len(state.positions):
-        raise ValueError("payload v2: split vertices empty, out of range or not increasing")
-    if res.shape != (k, D):
-        raise ValueError("payload v2: residual array does not match the split count")
-    sel = np.zeros(n, np.int64)
-    sel[v] = 1
-    symbols = np.asarray(batch.symbols)
-    enc.reserve(_batch_decisions(n, len(symbols), k, D))
-    marked, gstart, inc, a, b = buffers = _mask_buffers(m, k)
-    _, corners = rc._kernel(_mask_kernel)(state.faces.reshape(-1), n, lists.head, lists.nxt, lists.valence,
-                                          lists.below, sel, *buffers, enc.es, enc.out, _NO_STATE, _NO_BYTES, enc.probs,
-                                          0)
-    if corners != len(symbols) or (corners and int(symbols.max()) >= 5):
-        raise ValueError("payload v2: the batch's symbols do not match the mesh's incidences")
-    sym = _grouped_symbols(inc[:corners], symbols)
-    new_faces = rc._kernel(_batch_kernel)(state.faces.reshape(-1), m, n, state.positions, v, lists.head, lists.tail,
-                                          lists.nxt, lists.valence, lists.stamp, lists.tag, lists.split, lists.created,
-                                          lists.creator, lists.ctr, inc[:corners], a[:corners], b[:corners], sym,
-                                          gstart[: k + 1],
-                                          np.empty((k, D)), np.empty(k, np.int64), res, enc.es, enc.out, _NO_STATE,
-                                          _NO_BYTES, enc.probs, 0)
-    if new_faces < 0:
-        raise ValueError(f"payload v2: {_BATCH_ERRORS[new_faces]}")
-    state.n, state.m = n + k, m + new_faces
-    lists.n, lists.m = state.n, state.m
-
-
 #: Digit width of :func:`_grouped_symbols_kernel`'s radix sort.
 RADIX_BITS = 11
 
@@ -710,26 +678,116 @@ def pack_chunks(state, chunks) -> list:
     :class:`SplitBatch`, coarse to fine, or :class:`FaceChunk` (spec §8.6).  Returns one ``bytes``
     payload per chunk.
     """
-    out = []
-    probs = new_model()
-    lists = CornerLists(len(state.positions), len(state.faces))
-    lists.sync(state)
+    packer = ChunkPacker(state)
     for batches in chunks:
-        if lists.n < 0:  # after a face chunk
-            lists.sync(state)
         if isinstance(batches, FaceChunk):
-            out.append(_pack_face_chunk(state, lists, batches)[0])
+            packer.face_chunk(batches)
             continue
-        if not 1 <= len(batches) <= MAX_BATCHES_PER_CHUNK:
-            raise ValueError(f"payload v2: {len(batches)} batches in a chunk, outside 1..{MAX_BATCHES_PER_CHUNK}")
-        enc = rc.Encoder(probs)
+        packer.begin(len(batches))
+        for batch in batches:
+            packer.batch(batch)
+        packer.end()
+    return packer.payloads
+
+
+class ChunkPacker:
+    """Codes one primitive's chunks (one payload each, :attr:`payloads`) while it applies their batches
+    to ``state`` (a :class:`~pmwm_codec.progressive.vsplit.MeshState` at the base, int64 values) by
+    the decoder's path, so it leaves the mesh the decoder builds: per batch :func:`_mask_kernel`
+    then :func:`_batch_kernel`, both in encode mode, on :class:`CornerLists` made once for the base
+    and updated batch by batch.  A chunk of splits is :meth:`begin`, then :meth:`batch` (a whole
+    :class:`SplitBatch`) or :meth:`mask` and :meth:`split` (a batch whose symbols the caller derives
+    from the incidences the mask gathers: the record builder), then :meth:`end`;
+    :meth:`face_chunk` codes a face chunk.  ValueError for a batch the format cannot carry (no
+    simplifier makes one)."""
+
+    def __init__(self, state):
+        self.state = state
+        self.probs = new_model()  # each chunk continues the table the chunk before it left
+        self.lists = CornerLists(len(state.positions), len(state.faces))
+        self.lists.sync(state)
+        self.payloads = []
+        self.enc = None
+        self.buffers = None  # the mask's outputs, reused from batch to batch (:func:`_mask_buffers`)
+
+    def begin(self, batches: int) -> None:
+        """Start a chunk of ``batches`` batches: its batch count."""
+        if not 1 <= batches <= MAX_BATCHES_PER_CHUNK:
+            raise ValueError(f"payload v2: {batches} batches in a chunk, outside 1..{MAX_BATCHES_PER_CHUNK}")
+        if self.lists.n < 0:  # after a face chunk
+            self.lists.sync(self.state)
+        self.enc = enc = rc.Encoder(self.probs)
         enc.reserve(INT_DECISIONS)
         rc._kernel(rc._enc_array_kernel)(enc.es, enc.out, enc.probs, np.array([2]), np.array([_block(B_BATCHES)]),
-                                         np.array([len(batches) - 1]))
-        for batch in batches:
-            _encode_batch(enc, state, batch, lists)
-        out.append(enc.finish())
-    return out
+                                         np.array([batches - 1]))
+
+    def end(self) -> None:
+        """Close the chunk: its payload is appended to :attr:`payloads`."""
+        self.payloads.append(self.enc.finish())
+        self.enc = None
+
+    def batch(self, batch: SplitBatch) -> None:
+        """Code ``batch`` (symbols in face-slot order, residuals against the version 1 prediction) and
+        apply it."""
+        k, D = batch.size, self.state.positions.shape[1]
+        res = np.asarray(batch.residual, np.int64)
+        if res.shape != (k, D):
+            raise ValueError("payload v2: residual array does not match the split count")
+        v = np.asarray(batch.v, np.int64)
+        gstart, inc, a, b = self.mask(v)
+        symbols = np.asarray(batch.symbols)
+        if len(inc) != len(symbols) or (len(inc) and int(symbols.max()) >= 5):
+            raise ValueError("payload v2: the batch's symbols do not match the mesh's incidences")
+        self.split(v, gstart, inc, a, b, _grouped_symbols(inc, symbols), res)
+
+    def mask(self, v: np.ndarray) -> tuple:
+        """Code the selection of the split vertices ``v`` (k,) int64 (strictly increasing, existing).
+        Returns their incidences as :func:`_batch_kernel` takes them, grouped by split: ``(gstart
+        (k + 1,), inc, a, b (I,))`` int64 (:func:`_mask_kernel`), views of buffers the next batch reuses."""
+        state = self.state
+        n, m, k = state.n, state.m, len(v)
+        if k == 0 or v[0] < 0 or v[-1] >= n or np.any(np.diff(v) <= 0) or n + k > len(state.positions):
+            raise ValueError("payload v2: split vertices empty, out of range or not increasing")
+        sel = np.zeros(n, np.int64)
+        sel[v] = 1
+        self.enc.reserve(n)
+        enc, lists = self.enc, self.lists
+        if self.buffers is None:
+            self.buffers = _mask_buffers(len(state.faces), len(state.positions))
+        marked, gstart, inc, a, b = self.buffers
+        _, corners = rc._kernel(_mask_kernel)(state.faces.reshape(-1), n, lists.head, lists.nxt, lists.valence,
+                                              lists.below, sel, marked[:k], gstart[: k + 1], inc, a, b, enc.es,
+                                              enc.out, _NO_STATE, _NO_BYTES, enc.probs, 0)
+        return gstart[: k + 1], inc[:corners], a[:corners], b[:corners]
+
+    def split(self, v, gstart, inc, a, b, sym, res=None):
+        """Code the connectivity and values of the batch of ``v`` (k,) whose selection :meth:`mask`
+        coded (``gstart``, ``inc``, ``a``, ``b``: what it returned; ``sym`` (I,) uint8 their symbols,
+        in that order) and apply it.  ``res`` (k, D) int64: the new values' residuals against the
+        version 1 prediction; None: the caller has put the new values in ``state.positions[n:n + k]``.
+        Returns the batch in version 1 terms (:func:`_packed_batch`)."""
+        state, enc, lists = self.state, self.enc, self.lists
+        n, m, k, D = state.n, state.m, len(v), state.positions.shape[1]
+        enc.reserve(_batch_decisions(0, len(inc), k, D))
+        rsum, rcount = np.empty((k, D)), np.empty(k, np.int64)
+        new_faces = rc._kernel(_batch_kernel)(state.faces.reshape(-1), m, n, state.positions, v, lists.head,
+                                              lists.tail, lists.nxt, lists.valence, lists.stamp, lists.tag,
+                                              lists.split, lists.created, lists.creator, lists.ctr, inc, a, b, sym,
+                                              gstart, rsum, rcount, _NO_RES if res is None else res, enc.es, enc.out,
+                                              _NO_STATE, _NO_BYTES, enc.probs, 0)
+        if new_faces < 0:
+            raise ValueError(f"payload v2: {_BATCH_ERRORS[new_faces]}")
+        state.n, state.m = n + k, m + new_faces
+        lists.n, lists.m = state.n, state.m
+        return _packed_batch(v, n, state.positions, inc, sym, rsum, rcount)
+
+    def face_chunk(self, chunk: FaceChunk) -> np.ndarray:
+        """Code the face chunk ``chunk`` and apply it (:func:`_pack_face_chunk`); returns its ``order``."""
+        if self.lists.n < 0:
+            self.lists.sync(self.state)
+        payload, order = _pack_face_chunk(self.state, self.lists, chunk)
+        self.payloads.append(payload)
+        return order
 
 
 def new_model() -> np.ndarray:
@@ -859,7 +917,16 @@ def _decode_batch(dec, state, lists, buffers):
         raise FormatError(_BATCH_ERRORS[new_faces])
     state.n, state.m = n + k, m + new_faces
     lists.n, lists.m = state.n, state.m
-    u = n + np.arange(k)
+    return _listed_batch(v, n, state.positions, gstart, inc, a, b, sym, rsum, rcount)
+
+
+def _listed_batch(v, n0, positions, gstart, inc, a, b, sym, rsum, rcount) -> tuple:
+    """``(DecodedBatch, SplitTopology)`` of a batch :func:`_batch_kernel` applied: ``v`` (k,) int64 its split
+    vertices, ``n0`` the vertex count before it, ``positions`` (N, D) the values it wrote, ``gstart`` /
+    ``inc`` / ``a`` / ``b`` / ``sym`` its incidences grouped by split (:func:`_mask_kernel`), ``rsum`` /
+    ``rcount`` its ring sums; what version 1 terms need of them is listed when first asked."""
+    k = len(v)
+    u = n0 + np.arange(k)
 
     def face_slot_order():
         order = np.argsort(inc, kind="stable")
@@ -874,7 +941,18 @@ def _decode_batch(dec, state, lists, buffers):
         return _ring_lists(v, sym[order], own, a[order], b[order])
 
     topo = SplitTopology(u, rsum, rcount, incidence_lists, ring)
-    return DecodedBatch(v, state.positions, topo, lambda: sym[face_slot_order()[2]]), topo
+    return DecodedBatch(v, positions, topo, lambda: sym[face_slot_order()[2]], sym), topo
+
+
+def _packed_batch(v, n0, positions, inc, sym, rsum, rcount) -> DecodedBatch:
+    """A batch :meth:`ChunkPacker.split` applied, in version 1 terms (as :func:`_listed_batch`), holding
+    only what its symbols in face-slot order and its residuals are listed from when first read: ``sym``
+    (I,) uint8 grouped by split, a copy of their corners ``inc`` (I,) in int32 (corners < 2**31; the
+    mask's buffers are reused), the ring sums ``rsum`` (k, D) / ``rcount`` (k,) and ``positions``
+    (N, D), which hold the new values at ``n0 ..``."""
+    corners = inc.astype(np.int32)
+    topo = SplitTopology(n0 + np.arange(len(v)), rsum, rcount, None)
+    return DecodedBatch(v, positions, topo, lambda: sym[np.argsort(corners, kind="stable")], sym)
 
 
 class DecodedBatch(SplitBatch):
@@ -882,9 +960,12 @@ class DecodedBatch(SplitBatch):
     its symbols in face-slot order and its residuals, listed only when first read (a plain
     decode reads neither)."""
 
-    def __init__(self, v, positions, topo, symbols):
+    def __init__(self, v, positions, topo, symbols, grouped):
         self.v = v
-        self._positions, self._topo, self._symbols = positions, topo, symbols
+        self._positions, self._topo, self._symbols, self._grouped = positions, topo, symbols, grouped
+
+    def new_face_count(self) -> int:
+        return new_face_count(self._grouped)  # a count: any order of the symbols
 
     @cached_property
     def symbols(self) -> np.ndarray:
@@ -906,7 +987,8 @@ def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, spli
     order within it): ``inc`` corner, ``a`` / ``b`` corners after / before the
     split vertex (all (I,) int64).  ``sym`` (I,) uint8: the symbols (encode: given, decode:
     filled).  ``res`` (k, D) int64 (encode): the new values' residuals against the version 1
-    prediction, written to ``P`` before they are coded.  Fills ``rsum`` / ``rcount`` (see
+    prediction, written to ``P`` before they are coded; empty (encode): ``P[n0:n0 + k]`` already holds
+    the new values.  Fills ``rsum`` / ``rcount`` (see
     :func:`_values_kernel`).  Returns the number of new faces, or a negative code (:data:`_BATCH_ERRORS`).
     """
     k, D = len(v), P.shape[1]
@@ -918,7 +1000,7 @@ def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, spli
                                         creator)
     if new_faces < 0:
         return new_faces
-    if not decode:
+    if not decode and len(res) != 0:
         for i in range(k):
             if ring[i, 0] == 0:
                 return -4

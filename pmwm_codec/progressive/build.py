@@ -54,6 +54,9 @@ class ProgressiveMesh:
         builder's replay, the decoder's own (:func:`split_topology`, residuals against its
         predictions), ends; :func:`~pmwm_codec.distortion.decoded_positions` reads them instead
         of replaying the batches again.  None: not known (replay the batches).
+    payloads : list[bytes] or None
+        The chunk payloads (version 2) when the builder coded them on its replay
+        (:func:`build_progressive`'s ``chunks``), else None.
     """
 
     grid: Grid
@@ -68,6 +71,7 @@ class ProgressiveMesh:
     late_faces: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int64))
     late_values: Optional[np.ndarray] = None
     full_values: Optional[np.ndarray] = field(default=None, repr=False)
+    payloads: Optional[list] = field(default=None, repr=False)
 
     @property
     def split_count(self) -> int:
@@ -87,6 +91,7 @@ def build_progressive(
     embed: Optional[EmbedHook] = None,
     late_faces: Optional[np.ndarray] = None,
     late_values: Optional[np.ndarray] = None,
+    chunks: Optional[list] = None,
 ) -> ProgressiveMesh:
     """Replay ``log`` coarse to fine and emit :class:`SplitBatch` records.
 
@@ -107,25 +112,57 @@ def build_progressive(
     late_faces : (L, 3) int64, optional
         Faces the log left out (the simplifier never saw them), sent after every batch; ids ``n + j``
         name vertices the log does not have, whose values are ``late_values`` (t, D) int64.
+    chunks : list[range], optional
+        The chunks of payload version 2 (consecutive batch indices, coarse to fine, covering every
+        batch; an empty range, last, is the face chunk of the late faces): without ``embed``, the
+        replay is the packer's own (:class:`~pmwm_codec.format.records_v2.ChunkPacker`), which codes
+        each batch as it applies it (``payloads``); with ``embed`` they are ignored (the caller packs).
     """
     n, m = log.vertex_count, log.face_count
     order0, vid, base_faces, base_face_ids = _base_ids(log, base_vertex_order, base_faces_decoded)
-    state = MeshState(positions[order0], base_faces, n, m)
+    t = 0 if late_values is None else len(late_values)
+    n_late = 0 if late_faces is None else len(np.asarray(late_faces).reshape(-1, 3))
+    packer = None
+    if chunks is not None and embed is None:
+        from ..format.records_v2 import ChunkPacker
+
+        _check_chunks(chunks, len(log.batches))
+        starts = {grp.start: len(grp) for grp in chunks if len(grp)}
+        stops = {grp.stop for grp in chunks if len(grp)}
+        state = MeshState(positions[order0], base_faces, n + t, m + n_late)  # room for the face chunk
+        packer = ChunkPacker(state)
+    else:
+        state = MeshState(positions[order0], base_faces, n, m)
     face_src = np.full(m, -1, dtype=np.int64)  # decoded face id -> input face id
     face_src[: len(base_faces)] = base_face_ids
-    moved_by = np.full(m, -1, dtype=np.int64)  # scratch over input face ids
+    if packer is None:
+        moved_by = np.full(m, -1, dtype=np.int64)  # scratch over input face ids
+    else:  # input face id -> decoded face id (-1: not made yet), face_src's inverse
+        face_dst = np.full(m, -1, dtype=np.int64)
+        face_dst[base_face_ids] = np.arange(len(base_faces))
 
     batches = []
     errors = []
     for j, cb in enumerate(reversed(log.batches)):
-        batches.append(_replay_batch(j, cb, state, positions, vid, face_src, moved_by, embed))
+        if packer is None:
+            batches.append(_replay_batch(j, cb, state, positions, vid, face_src, moved_by, embed))
+        else:
+            if j in starts:
+                packer.begin(starts[j])
+            batches.append(_replay_packed(cb, state, positions, vid, face_src, face_dst, packer))
+            if j + 1 in stops:
+                packer.end()
         errors.append(float(cb.error.max()) if len(cb.u) else 0.0)
 
     if state.n != n or state.m != m or np.any(face_src < 0):
         raise AssertionError("progressive build did not reach the full mesh")  # a bug, not bad input
-    t = 0 if late_values is None else len(late_values)
+    full_values = state.current_positions()
     named = np.concatenate([vid, n + np.arange(t)])  # the late vertices keep their order (the packer renumbers)
     late = np.zeros((0, 3), np.int64) if late_faces is None else named[np.asarray(late_faces, np.int64).reshape(-1, 3)]
+    if packer is not None and len(chunks) and not len(chunks[-1]):
+        from ..format.records_v2 import FaceChunk
+
+        packer.face_chunk(FaceChunk(late, late_values))  # writes past full_values' rows only
     return ProgressiveMesh(
         grid=grid,
         base_positions=positions[order0].astype(np.int64),
@@ -138,8 +175,19 @@ def build_progressive(
         face_order=face_src,
         late_faces=late,
         late_values=None if late_values is None else np.asarray(late_values, np.int64),
-        full_values=state.current_positions(),
+        full_values=full_values,
+        payloads=None if packer is None else packer.payloads,
     )
+
+
+def _check_chunks(chunks: list, count: int) -> None:
+    """ValueError unless ``chunks`` (list of range) are consecutive ranges over ``count`` batches, in
+    order, with at most one empty range, last (the face chunk)."""
+    spans = [grp for grp in chunks if len(grp)]
+    stops = [0] + [grp.stop for grp in spans]
+    if ([grp.start for grp in spans] != stops[:-1] or stops[-1] != count or any(grp.step != 1 for grp in spans)
+            or len(chunks) - len(spans) > 1 or (len(spans) < len(chunks) and len(chunks[-1]))):
+        raise ValueError("chunks must be consecutive batch ranges covering every batch, a face chunk last")
 
 
 def _base_ids(log: CollapseLog, base_vertex_order, base_faces_decoded) -> tuple:
@@ -187,6 +235,113 @@ def _replay_batch(j, cb, state, positions, vid, face_src, moved_by, embed) -> Sp
     return SplitBatch(v_sorted, symbols, residual)
 
 
+def _replay_packed(cb, state, positions, vid, face_src, face_dst, packer) -> SplitBatch:
+    """:func:`_replay_batch` without an embedder, by the packer's path: ``packer``
+    (:class:`~pmwm_codec.format.records_v2.ChunkPacker` over ``state``, in a chunk) codes the batch's
+    selection, the symbols are derived from the incidences it gathers (:func:`_grouped_symbols`), and it
+    codes the connectivity and the values as it applies them.  ``face_dst`` (M,) int64: ``face_src``'s
+    inverse (input face id -> decoded id), updated with it.  Returns the batch in version 1 terms (its
+    symbols and residuals listed when first read)."""
+    k = len(cb.u)
+    n0, m0 = state.n, state.m
+    vf = vid[cb.v]
+    order = np.argsort(vf, kind="stable")  # splits sorted by their decoded kept vertex
+    rank = np.empty(k, dtype=np.int64)
+    rank[order] = np.arange(k)
+    v_sorted = vf[order]
+    gstart, inc, a, b = packer.mask(v_sorted)
+    sym = _grouped_symbols(gstart, inc, a, b, vid, face_dst, cb, order, rank)
+    u_in = cb.u[order]
+    vid[u_in] = n0 + np.arange(k)
+    state.positions[n0 : n0 + k] = np.take(positions, u_in, axis=0)
+    batch = packer.split(v_sorted, gstart, inc, a, b, sym)
+    _name_appended_faces(face_src, face_dst, state.faces[m0 : state.m], m0, n0, cb, order)
+    return batch
+
+
+def _grouped_symbols(gstart, inc, a, b, vid, face_dst, cb, order, rank) -> np.ndarray:
+    """The symbols (I,) uint8 of collapse batch ``cb`` undone, for its incidences grouped by split
+    (:meth:`~pmwm_codec.format.records_v2.ChunkPacker.mask`: split ``s`` has ``gstart[s] ..
+    gstart[s + 1] - 1``, ascending corners ``inc``, the corners after / before its vertex ``a`` / ``b``,
+    all (I,) int64); splits in ``order``, ``rank`` its inverse; ``face_dst`` (M,) int64 the decoded id
+    of each input face.  An incidence moves when its face is one of its split's moved faces (a face
+    moves for one split at most: the batch's removed vertices share no face)."""
+    kernel = compiled(_grouped_symbols_kernel)
+    if kernel is not None:
+        return kernel(gstart, inc, a, b, vid, face_dst, cb.moved_face, cb.moved_by, rank, order, cb.wing_left,
+                      cb.wing_right)
+    owner = np.repeat(np.arange(len(order)), np.diff(gstart))
+    M = len(face_dst)
+    moved = np.isin(owner * M + inc // 3, rank[cb.moved_by] * M + face_dst[cb.moved_face])
+    left, right = _wing_incidences(a, b, owner, vid, cb, order, moved)
+    return (moved * MOVE + left * (MOVE_LEFT - MOVE) + right * (MOVE_RIGHT - MOVE)).astype(np.uint8)
+
+
+def _grouped_symbols_kernel(gstart, inc, a, b, vid, face_dst, moved_face, moved_of, rank, order, wing_left,
+                            wing_right):
+    """Compiled :func:`_grouped_symbols` (``moved_face`` / ``moved_of`` / ``wing_*``: the batch's arrays,
+    input ids, collapse order): the moved faces' decoded ids grouped by split (a counting sort), then
+    one pass over the incidences, split by split, each looked up among its split's few moved faces."""
+    k = len(order)
+    start = np.zeros(k + 1, np.int64)
+    for j in range(len(moved_face)):
+        start[rank[moved_of[j]] + 1] += 1
+    for s in range(k):
+        start[s + 1] += start[s]
+    fill = start[:k].copy()
+    moved = np.empty(len(moved_face), np.int64)
+    for j in range(len(moved_face)):
+        s = rank[moved_of[j]]
+        moved[fill[s]] = face_dst[moved_face[j]]
+        fill[s] += 1
+    symbols = np.zeros(len(inc), np.uint8)
+    for s in range(k):
+        i = order[s]
+        wl = vid[wing_left[i]] if wing_left[i] >= 0 else -1  # the wings' decoded ids (-1: none)
+        wr = vid[wing_right[i]] if wing_right[i] >= 0 else -1
+        named_left = named_right = False  # the split has named its left / right new face
+        for t in range(gstart[s], gstart[s + 1]):
+            f = inc[t] // 3
+            q = start[s]
+            while q < start[s + 1] and moved[q] != f:
+                q += 1
+            if q == start[s + 1]:
+                continue
+            left = wl >= 0 and a[t] == wl and not named_left
+            right = wr >= 0 and b[t] == wr and not named_right
+            named_left |= left
+            named_right |= right
+            symbols[t] = MOVE + left * (MOVE_LEFT - MOVE) + right * (MOVE_RIGHT - MOVE)
+    return symbols
+
+
+def _name_appended_faces(face_src, face_dst, new, m0, n0, cb, order) -> None:
+    """Record the input face id of each face (rows ``new`` (f, 3) int64, from face ``m0`` on) that the
+    splits of collapse batch ``cb`` (in ``order``, new vertices ``n0 + s``) appended, in ``face_src`` and
+    its inverse ``face_dst``: a left new face is ``(u, v, a)``, a right one ``(v, u, b)``, so the first
+    corner tells them apart (``u >= n0``)."""
+    kernel = compiled(_name_appended_faces_kernel)
+    if kernel is not None:
+        kernel(face_src, face_dst, new, m0, n0, cb.del_left, cb.del_right, order)
+        return
+    left = new[:, 0] >= n0
+    i = order[np.where(left, new[:, 0], new[:, 1]) - n0]
+    face_src[m0 : m0 + len(new)] = np.where(left, cb.del_left[i], cb.del_right[i])
+    face_dst[face_src[m0 : m0 + len(new)]] = np.arange(m0, m0 + len(new))
+
+
+def _name_appended_faces_kernel(face_src, face_dst, new, m0, n0, del_left, del_right, order):
+    """Compiled :func:`_name_appended_faces`."""
+    for j in range(len(new)):
+        if new[j, 0] >= n0:
+            f = del_left[order[new[j, 0] - n0]]
+        else:
+            f = del_right[order[new[j, 1] - n0]]
+        face_src[m0 + j] = f
+        face_dst[f] = m0 + j
+    return 0
+
+
 def _symbols(state, inc, owner, vid, face_src, moved_by, cb, order, rank) -> np.ndarray:
     """The symbols (I,) uint8 of the incidences ``inc`` / ``owner`` (:func:`find_incidences`) of collapse batch
     ``cb`` undone on ``state`` (splits in ``order``, ``rank`` its inverse); ``face_src`` gets the input face
@@ -198,7 +353,10 @@ def _symbols(state, inc, owner, vid, face_src, moved_by, cb, order, rank) -> np.
     moved_by[cb.moved_face] = rank[cb.moved_by]
     moved = moved_by[face_src[inc // 3]] == owner
     moved_by[cb.moved_face] = -1
-    left, right = _wings(state, inc, owner, vid, cb, order, moved)
+    flat = state.faces.reshape(-1)
+    first = inc - inc % 3
+    left, right = _wing_incidences(flat[first + (inc + 1) % 3], flat[first + (inc + 2) % 3], owner, vid, cb, order,
+                                   moved)
     # STAY, MOVE, MOVE_LEFT, MOVE_RIGHT, MOVE_BOTH: a moved incidence is MOVE plus one per
     # left face it names plus two per right face (MOVE_BOTH = MOVE + 1 + 2)
     symbols = (moved * MOVE + left * (MOVE_LEFT - MOVE) + right * (MOVE_RIGHT - MOVE)).astype(np.uint8)
@@ -208,7 +366,7 @@ def _symbols(state, inc, owner, vid, face_src, moved_by, cb, order, rank) -> np.
 
 def _symbols_kernel(flat, inc, owner, vid, face_src, moved_by, moved_face, moved_of, rank, order, wing_left, wing_right,
                     del_left, del_right, m_before):
-    """Compiled :func:`_symbols` (:func:`_wings`, :func:`_first_per_split` and :func:`_name_new_faces` in one
+    """Compiled :func:`_symbols` (:func:`_wing_incidences`, :func:`_first_per_split` and :func:`_name_new_faces` in one
     pass over the incidences): ``flat`` (3M,) int64 the face slots, ``moved_face`` / ``moved_of`` /
     ``wing_*`` / ``del_*`` the batch's arrays (input ids, collapse order)."""
     for j in range(len(moved_face)):
@@ -241,17 +399,13 @@ def _symbols_kernel(flat, inc, owner, vid, face_src, moved_by, moved_face, moved
     return symbols
 
 
-def _wings(state, inc, owner, vid, cb, order, moved) -> tuple:
+def _wing_incidences(a, b, owner, vid, cb, order, moved) -> tuple:
     """Which moved incidences name the left / right new face: two (I,) bool arrays.
 
-    The left new face is ``(u, v, a)`` and the right one ``(v, u, b)``, ``a`` / ``b`` the
+    The left new face is ``(u, v, a)`` and the right one ``(v, u, b)``, ``a`` / ``b`` (I,) int64 the
     corners after / before ``v`` in the incidence's face; the face names it when that corner
-    is the collapse's recorded wing vertex.
+    is the collapse's recorded wing vertex.  Within a split the incidences are in face-slot order.
     """
-    flat = state.faces.reshape(-1)
-    first = inc - inc % 3
-    a = flat[first + (inc + 1) % 3]
-    b = flat[first + (inc + 2) % 3]
     wing_left = _lookup(vid, cb.wing_left[order])[owner]
     wing_right = _lookup(vid, cb.wing_right[order])[owner]
     left = _first_per_split(moved & (wing_left >= 0) & (a == wing_left), owner, len(order))

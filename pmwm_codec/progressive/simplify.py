@@ -450,7 +450,8 @@ def _one_batch(pos, live, quad, frozen_ext, budget, weld=None, twin=None):
     if pairs is None:
         if len(win) > budget:
             win = win[np.argsort(cand[3][win], kind="stable")[:budget]]
-        cu, cv, ce, cost = (x[np.sort(win)] for x in cand)
+        win = np.sort(win)
+        cu, cv, ce, cost = (x[win] for x in cand)
     else:
         cu, cv, ce, cost = _merge_pairs(cand, win, pairs, budget)
         if len(cu) == 0:

@@ -57,8 +57,13 @@ class SplitBatch:
         return int(len(self.v))
 
     def new_face_count(self) -> int:
-        s = self.symbols
-        return int(np.count_nonzero((s == MOVE_LEFT) | (s == MOVE_RIGHT)) + 2 * np.count_nonzero(s == MOVE_BOTH))
+        return new_face_count(self.symbols)
+
+
+def new_face_count(symbols: np.ndarray) -> int:
+    """The faces the incidence symbols ``symbols`` (I,) uint8 (any order) append."""
+    s = symbols
+    return int(np.count_nonzero((s == MOVE_LEFT) | (s == MOVE_RIGHT)) + 2 * np.count_nonzero(s == MOVE_BOTH))
 
 
 class MeshState:

@@ -310,7 +310,7 @@ def encode_document(
         if watermark is not None:
             params, work = _plan_watermark(work, watermark, key, carriers, slots, mode, bits, step_units,
                                            embed_from)
-        return _build_records(work, say), notices, order, carriers, params
+        return _build_records(work, say, payload_version), notices, order, carriers, params
 
     work, notices, order, carriers, params = stages(jobs if marked is None else marked)
     decoded = None
@@ -702,14 +702,16 @@ def _twin_slots(work, key, slots) -> np.ndarray:
     return np.sort(np.concatenate(out)) if out else np.zeros(0, np.int64)
 
 
-def _build_records(work, say) -> list:
-    """Stage 5: split records (the embedders, if any, move the new vertices)."""
+def _build_records(work, say, payload_version: int = DEFAULT_PAYLOAD_VERSION) -> list:
+    """Stage 5: split records (the embedders, if any, move the new vertices); with payload version 2
+    and no embedder, the payloads too (the builder's replay codes them: ``pm.payloads``)."""
     out = []
     say("records", 0.0)
     for p, w in enumerate(work):
         pm = build_progressive(
             w.log, w.values, w.grid, base_vertex_order=w.base_order,
             base_faces_decoded=w.base.faces, embed=w.embedder, late_faces=w.late, late_values=w.late_values,
+            chunks=w.groups if payload_version == 2 else None,
         )
         out.append(dataclasses.replace(w, pm=pm))
         say("records", (p + 1) / len(work))
@@ -723,7 +725,7 @@ def _primitives(doc, kept_bin, work, order, params, key, payload_version: int = 
         chunks = [[w.pm.batches[j] for j in grp] if len(grp) else FaceChunk(w.pm.late_faces, w.pm.late_values)
                   for grp in w.groups]
         if payload_version == 2:
-            payloads = pack_chunks(w.pm.new_state(), chunks)
+            payloads = w.pm.payloads if w.pm.payloads is not None else pack_chunks(w.pm.new_state(), chunks)
         else:
             payloads = [pack_batches(batches) for batches in chunks]
         extension = {
