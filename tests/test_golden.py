@@ -22,6 +22,7 @@ import pytest
 
 from pmwm_codec import shapes
 from pmwm_codec.constants import FORMAT_VERSION
+from pmwm_codec.errors import FormatError
 from pmwm_codec.mesh import Mesh
 from pmwm_codec.stream import StreamDecoder, encode_mesh
 from pmwm_codec.stream.encoder import PrimitiveJob, encode_document
@@ -189,3 +190,59 @@ def test_conformance_file_decodes_to_its_expected_levels(name, version, packed, 
             assert np.array_equal(r.watermark, want[f"watermark_{r.chunk}"])
     if key is not None:
         assert np.array_equal(results[-1].watermark, key.reference)
+
+
+def _interleaved(data: bytes) -> bytes:
+    """``sphere-attributes.plain``'s GLB with the base's NORMAL and TEXCOORD_0 in one interleaved bufferView
+    (byteStride 20; glTF 2.0 3.6.2.4 allows it for vertex attributes), every other byte as it was."""
+    import json
+    import struct
+
+    (json_len,) = struct.unpack("<I", data[12:16])
+    gltf = json.loads(data[20:20 + json_len])
+    bin_start = 20 + json_len + 8
+    prim = gltf["meshes"][0]["primitives"][0]
+    normal, uv = (gltf["accessors"][prim["attributes"][s]] for s in ("NORMAL", "TEXCOORD_0"))
+    nv, tv = gltf["bufferViews"][normal["bufferView"]], gltf["bufferViews"][uv["bufferView"]]
+    start, n = nv["byteOffset"], normal["count"]
+    assert tv["byteOffset"] == start + 12 * n and "byteOffset" not in normal and "byteOffset" not in uv
+    blob = bytearray(data)
+    normals = np.frombuffer(data, "<f4", 3 * n, bin_start + start).reshape(n, 3)
+    uvs = np.frombuffer(data, "<f4", 2 * n, bin_start + tv["byteOffset"]).reshape(n, 2)
+    blob[bin_start + start: bin_start + start + 20 * n] = np.hstack([normals, uvs]).astype("<f4").tobytes()
+    nv.update(byteLength=20 * n, byteStride=20)
+    uv.update(bufferView=normal["bufferView"], byteOffset=12)
+    text = json.dumps(gltf, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 4)
+    body = struct.pack("<II", len(text), 0x4E4F534A) + text + bytes(blob[20 + json_len:])
+    return struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body
+
+
+def test_a_base_whose_attributes_interleave_decodes_to_the_same_levels():
+    """A writer may interleave a plain base's vertex attributes (glTF-Transform's default layout did): the
+    reader used to refuse it ('must be tightly packed'); every level is now the file's own."""
+    data = _path("sphere-attributes.plain", ".pmw", 2, packed=True).read_bytes()
+    edited = _interleaved(data)
+    assert edited != data
+    want, _ = _decode(data)
+    got, end = _decode(edited)
+    assert end.complete and len(got) == len(want)
+    assert [_level_digest(r) for r in got] == [_level_digest(r) for r in want]
+
+
+def test_interleaved_indices_are_refused_by_name():
+    """Indices are tightly packed (glTF 2.0): a byteStride on their view is a format error, never read
+    overlapping."""
+    import json
+    import struct
+
+    data = _path("sphere-attributes.plain", ".pmw", 2, packed=True).read_bytes()
+    (json_len,) = struct.unpack("<I", data[12:16])
+    gltf = json.loads(data[20:20 + json_len])
+    prim = gltf["meshes"][0]["primitives"][0]
+    gltf["bufferViews"][gltf["accessors"][prim["indices"]]["bufferView"]]["byteStride"] = 4
+    text = json.dumps(gltf, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 4)
+    body = struct.pack("<II", len(text), 0x4E4F534A) + text + data[20 + json_len:]
+    with pytest.raises(FormatError, match="indices are tightly packed"):
+        _decode(struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body)
