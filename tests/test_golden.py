@@ -268,3 +268,13 @@ def test_a_decode_without_a_key_ignores_the_watermark_parameters():
     key = WatermarkKey.load(str(_path(name, ".key.json", 2, packed=True)))
     with pytest.raises(FormatError, match="watermark size"):
         _decode(edited, key)
+
+
+@pytest.mark.parametrize("field, value", [("vertexCount", 4_000_000), ("faceCount", 8_000_000)])
+def test_declared_counts_past_what_the_chunks_reach_are_refused_before_anything_is_allocated(field, value):
+    """The extension's counts are what its last chunk reaches (spec README). A 3 KB edit declaring 4M
+    vertices took 120+ MB for arrays sized by it, then decoded as complete to the 642 the chunks make."""
+    gltf, rest = _split_glb(_path("sphere-attributes.plain", ".pmw", 2, packed=True).read_bytes())
+    gltf["meshes"][0]["primitives"][0]["extensions"]["PMWM_progressive_mesh"][field] = value
+    with pytest.raises(FormatError, match="its last chunk reaches"):
+        _decode(_join_glb(gltf, rest))
