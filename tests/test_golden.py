@@ -22,6 +22,7 @@ import pytest
 
 from pmwm_codec import shapes
 from pmwm_codec.constants import FORMAT_VERSION
+from pmwm_codec.errors import FormatError
 from pmwm_codec.mesh import Mesh
 from pmwm_codec.stream import StreamDecoder, encode_mesh
 from pmwm_codec.stream.encoder import PrimitiveJob, encode_document
@@ -189,3 +190,91 @@ def test_conformance_file_decodes_to_its_expected_levels(name, version, packed, 
             assert np.array_equal(r.watermark, want[f"watermark_{r.chunk}"])
     if key is not None:
         assert np.array_equal(results[-1].watermark, key.reference)
+
+
+
+def _split_glb(data: bytes) -> tuple:
+    """``(gltf dict, the bytes after the JSON chunk)`` of a GLB."""
+    import json
+    import struct
+
+    (json_len,) = struct.unpack("<I", data[12:16])
+    return json.loads(data[20:20 + json_len]), data[20 + json_len:]
+
+
+def _join_glb(gltf: dict, rest: bytes) -> bytes:
+    """A GLB of ``gltf`` (padded JSON) followed by ``rest`` (the BIN chunk with its header)."""
+    import json
+    import struct
+
+    text = json.dumps(gltf, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 4)
+    body = struct.pack("<II", len(text), 0x4E4F534A) + text + rest
+    return struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body
+
+
+def _interleaved(data: bytes) -> bytes:
+    """``sphere-attributes.plain``'s GLB with the base's NORMAL and TEXCOORD_0 in one interleaved bufferView
+    (byteStride 20; glTF 2.0 3.6.2.4 allows it for vertex attributes), every other byte as it was."""
+    gltf, rest = _split_glb(data)
+    prim = gltf["meshes"][0]["primitives"][0]
+    normal, uv = (gltf["accessors"][prim["attributes"][s]] for s in ("NORMAL", "TEXCOORD_0"))
+    nv, tv = gltf["bufferViews"][normal["bufferView"]], gltf["bufferViews"][uv["bufferView"]]
+    start, n = 8 + nv["byteOffset"], normal["count"]  # in rest: after the BIN chunk's 8-byte header
+    assert tv["byteOffset"] == nv["byteOffset"] + 12 * n and "byteOffset" not in normal and "byteOffset" not in uv
+    normals = np.frombuffer(rest, "<f4", 3 * n, start).reshape(n, 3)
+    uvs = np.frombuffer(rest, "<f4", 2 * n, start + 12 * n).reshape(n, 2)
+    blob = bytearray(rest)
+    blob[start:start + 20 * n] = np.hstack([normals, uvs]).astype("<f4").tobytes()
+    nv.update(byteLength=20 * n, byteStride=20)
+    uv.update(bufferView=normal["bufferView"], byteOffset=12)
+    return _join_glb(gltf, bytes(blob))
+
+
+def test_a_base_whose_attributes_interleave_decodes_to_the_same_levels():
+    """A writer may interleave a plain base's vertex attributes (glTF-Transform's default layout did): the
+    reader used to refuse it ('must be tightly packed'); every level is now the file's own."""
+    data = _path("sphere-attributes.plain", ".pmw", 2, packed=True).read_bytes()
+    edited = _interleaved(data)
+    assert edited != data
+    want, _ = _decode(data)
+    got, end = _decode(edited)
+    assert end.complete and len(got) == len(want)
+    assert [_level_digest(r) for r in got] == [_level_digest(r) for r in want]
+
+
+def test_interleaved_indices_are_refused_by_name():
+    """Indices are tightly packed (glTF 2.0): a byteStride on their view is a format error, never read
+    overlapping."""
+    gltf, rest = _split_glb(_path("sphere-attributes.plain", ".pmw", 2, packed=True).read_bytes())
+    prim = gltf["meshes"][0]["primitives"][0]
+    gltf["bufferViews"][gltf["accessors"][prim["indices"]]["bufferView"]]["byteStride"] = 4
+    with pytest.raises(FormatError, match="indices are tightly packed"):
+        _decode(_join_glb(gltf, rest))
+
+
+def test_a_decode_without_a_key_ignores_the_watermark_parameters():
+    """spec/watermark.md: a reader that only decodes the mesh can ignore the watermark. Out-of-range
+    parameters (an image 3 pixels wide) refused the decode (the JavaScript reader decoded it); now only a
+    reader with a key, which reads the mark, refuses them."""
+    name = "sphere.exact-watermark"
+    data = _path(name, ".pmw", 2, packed=True).read_bytes()
+    gltf, rest = _split_glb(data)
+    gltf["meshes"][0]["primitives"][0]["extensions"]["PMWM_progressive_mesh"]["watermark"]["width"] = 3
+    edited = _join_glb(gltf, rest)
+    want, _ = _decode(data)
+    got, end = _decode(edited)
+    assert end.complete and [_level_digest(r) for r in got] == [_level_digest(r) for r in want]
+    key = WatermarkKey.load(str(_path(name, ".key.json", 2, packed=True)))
+    with pytest.raises(FormatError, match="watermark size"):
+        _decode(edited, key)
+
+
+@pytest.mark.parametrize("field, value", [("vertexCount", 4_000_000), ("faceCount", 8_000_000)])
+def test_declared_counts_past_what_the_chunks_reach_are_refused_before_anything_is_allocated(field, value):
+    """The extension's counts are what its last chunk reaches (spec README). A 3 KB edit declaring 4M
+    vertices took 120+ MB for arrays sized by it, then decoded as complete to the 642 the chunks make."""
+    gltf, rest = _split_glb(_path("sphere-attributes.plain", ".pmw", 2, packed=True).read_bytes())
+    gltf["meshes"][0]["primitives"][0]["extensions"]["PMWM_progressive_mesh"][field] = value
+    with pytest.raises(FormatError, match="its last chunk reaches"):
+        _decode(_join_glb(gltf, rest))

@@ -360,6 +360,19 @@ function checkExtension(ext, what) {
 }
 
 /**
+ * The extension's vertexCount / faceCount are the counts after all chunks of the file (spec/README.md): its last
+ * chunk's, or its base mesh's when it has none. A reader sizes its arrays by them: a file declaring millions it
+ * never reaches took that memory and decoded as complete to fewer.
+ */
+function checkFinalCounts(ext, entries, baseVertices, baseFaces, what) {
+  const last = entries.length ? entries[entries.length - 1] : { vertexCount: baseVertices, faceCount: baseFaces };
+  if (last.vertexCount !== ext.vertexCount || last.faceCount !== ext.faceCount) {
+    throw new FormatError(`${what}: vertexCount / faceCount ${ext.vertexCount} / ${ext.faceCount} differ from the `
+      + `${last.vertexCount} / ${last.faceCount} ${entries.length ? 'its last chunk reaches' : 'of its base mesh'}`);
+  }
+}
+
+/**
  * The progressive primitives of a parsed document and the chunk stream.
  * @returns {{primitives: object[], stream: object[], baseEnd: number}} baseEnd: BIN offset where every base is in;
  *   stream: chunks of all primitives ordered by byte offset, each {primitive, chunk, offset, length,
@@ -389,6 +402,7 @@ export function planDocument(gltf, binLength) {
       base.welded = ext.baseVertexCount === undefined ? null : baseCount; // decodeBase welds to this count
       const entries = chunkEntries(ext, payloadVersion, baseCount, what);
       const chunks = entries.map((c, j) => checkChunk(gltf, c, j, bufferLength, what, payloadVersion));
+      checkFinalCounts(ext, entries, baseCount, base.draco ? base.draco.faces : base.plain.indices.count / 3, what);
       const baseEnd = Math.max(0, ...base.views.map((v) => v.offset + v.length));
       primitives.push({ index: primitives.length, mesh: mi, primitive: pi, ext, grid, base, chunks, baseEnd,
         vertexCount: ext.vertexCount, faceCount: ext.faceCount, payloadVersion });

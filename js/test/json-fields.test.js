@@ -165,3 +165,11 @@ test('a base accessor whose bufferView\'s byteStride is shorter than its element
     ['indices with byteStride 8', file, strideOf(null, 8), /byteStride 8 for 2-byte elements/],
   ]);
 });
+
+test('the extension\'s vertexCount / faceCount are the counts its last chunk reaches: inflated ones are refused, not allocated', async () => {
+  const file = 'sphere-pillows.draco.packed.v2.pmw';
+  await bothRefuse([
+    ['vertexCount 4,000,000', file, (g, p, e) => { e.vertexCount = 4000000; }, /differ from the \d+ \/ \d+ its last chunk reaches/],
+    ['faceCount one more', file, (g, p, e) => { e.faceCount += 1; }, /differ from the \d+ \/ \d+ its last chunk reaches/],
+  ]);
+});

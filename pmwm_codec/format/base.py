@@ -435,7 +435,8 @@ def decode_base(gltf: dict, bin_data, grid: Grid | dict, primitive: dict | None 
         positions, faces = _decode_draco(gltf, draco, bin_data, n, m)
     else:
         positions = accessor_array(gltf, pos_acc, bin_data, "<f4", n, 3, "base mesh: POSITION")
-        faces = accessor_array(gltf, idx_acc, bin_data, INDEX_DTYPES[ctype], m, 3, "base mesh: indices").astype(np.int64)
+        faces = accessor_array(gltf, idx_acc, bin_data, INDEX_DTYPES[ctype], m, 3, "base mesh: indices",
+                               vertex_attribute=False).astype(np.int64)
     if faces.size and faces.max() >= n:
         raise FormatError(f"base mesh: face index {int(faces.max())} out of range [0, {n})")
     positions = _as_grid(grid).from_float32(positions)

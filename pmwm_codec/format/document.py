@@ -46,7 +46,7 @@ from ..errors import InputFormatError
 from ..sources import read_regular_file
 from .glb import split_glb
 from .gltf import (COMPONENT_DTYPES, DRACO_EXTENSION, FLOAT, INDEX_DTYPES, NORMALIZE_DIVISORS, TYPE_WIDTH,
-                   check_finite_numbers, uint, view_bytes)
+                   check_finite_numbers, element_rows, uint, view_bytes)
 from .layout import CHUNK_HEADER_SIZE, CHUNK_TYPE_JSON, GLB_HEADER_SIZE, GLB_MAGIC, padded
 from .meshopt import EXTENSIONS as MESHOPT_EXTENSIONS
 from .meshopt import decompress as decompress_meshopt
@@ -436,12 +436,7 @@ def read_accessor(gltf: dict, buffers, index: int) -> np.ndarray:
         need = offset + (count - 1) * stride + item if count else 0
         if need > len(raw):
             raise InputFormatError(f"{what}: reads past its bufferView")
-        if stride == item:
-            out = np.frombuffer(raw, dtype=dtype, count=count * width, offset=offset).reshape(count, width)
-        else:
-            rows = np.frombuffer(raw, dtype=np.uint8, count=need - offset, offset=offset)
-            idx = (np.arange(count)[:, None] * stride + np.arange(item)[None, :])
-            out = rows[idx].copy().view(dtype).reshape(count, width)
+        out = element_rows(raw, dtype, count, width, offset, stride)
     else:
         out = np.zeros((count, width), dtype=dtype)
     out = _normalized(out, ctype, acc.get("normalized", False))

@@ -172,23 +172,40 @@ def view_bytes(gltf: dict, buffers, index, what: str, *, error=FormatError):
     return view, memoryview(buffers[buffer])[start:end]
 
 
-def accessor_array(gltf: dict, acc: dict, bin_data, dtype, count: int, width: int, what: str) -> np.ndarray:
-    """A tightly packed accessor of the GLB BIN buffer as a (count, width) array of ``dtype``.
+def accessor_array(gltf: dict, acc: dict, bin_data, dtype, count: int, width: int, what: str, *,
+                   vertex_attribute: bool = True) -> np.ndarray:
+    """An accessor of the GLB BIN buffer as a (count, width) array of ``dtype``.
 
     ``acc`` is the accessor object; ``count`` / ``width`` are what the caller has
-    already checked against its limits.  The array is a read-only view of ``bin_data``.
+    already checked against its limits.  A vertex attribute's bufferView may interleave
+    (a ``byteStride`` of at least one element, a multiple of the component size, glTF 2.0
+    3.6.2.4); indices (``vertex_attribute`` False) are tightly packed.  The array is a
+    read-only view of ``bin_data`` when tightly packed, else a copy (:func:`element_rows`).
     """
     view = item(gltf.get("bufferViews"), acc.get("bufferView"), f"{what}: bufferView")
     start, end = view_range(gltf.get("bufferViews"), acc["bufferView"], len(bin_data), what)
     raw = memoryview(bin_data)[start:end]
-    size = np.dtype(dtype).itemsize * width
+    component = np.dtype(dtype).itemsize
+    size = component * width
     stride = view.get("byteStride", size)
-    if stride != size:
-        raise FormatError(f"{what}: must be tightly packed (byteStride {stride!r})")
+    if stride != size and (not vertex_attribute or stride < size or stride % component):
+        raise FormatError(f"{what}: byteStride {stride!r} for {size}-byte elements"
+                          + ("" if vertex_attribute else " (indices are tightly packed)"))
     offset = uint(acc, "byteOffset", f"{what} accessor", 0)
-    if offset + count * size > len(raw):
-        raise FormatError(f"{what}: accessor needs {offset + count * size} bytes, bufferView has {len(raw)}")
-    return np.frombuffer(raw, dtype=dtype, count=count * width, offset=offset).reshape(count, width)
+    need = offset + (count - 1) * stride + size if count else offset
+    if offset % component or need > len(raw):
+        raise FormatError(f"{what}: accessor needs {need} bytes at offset {offset}, bufferView has {len(raw)}")
+    return element_rows(raw, dtype, count, width, offset, stride)
+
+
+def element_rows(raw, dtype, count: int, width: int, offset: int, stride: int) -> np.ndarray:
+    """(count, width) array of ``dtype`` whose rows start every ``stride`` bytes from ``offset`` in ``raw`` (the
+    bytes of a bufferView, already checked to hold them): a read-only view of ``raw`` when the rows are
+    tightly packed, else a contiguous copy (an interleaved view's other attributes left out)."""
+    dtype = np.dtype(dtype)
+    if count == 0 or stride == dtype.itemsize * width:
+        return np.frombuffer(raw, dtype=dtype, count=count * width, offset=offset).reshape(count, width)
+    return np.ndarray((count, width), dtype, buffer=raw, offset=offset, strides=(stride, dtype.itemsize)).copy()
 
 
 class BufferBuilder:

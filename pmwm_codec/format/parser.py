@@ -208,7 +208,8 @@ def _plan(gltf: dict, exts: list, bin_capacity: int) -> _Plan:
         for index in _base.base_views(gltf, primitive, ext.get("attributes", ())):
             start, end = view_range(views, index, buffer_length, "base mesh")
             base_end = max(base_end, end)
-        _base.base_counts(gltf, primitive)  # base vertex/face counts against the limits
+        faces0 = _base.base_counts(gltf, primitive)[1]  # base vertex/face counts against the limits
+        _check_final_counts(ext, _base.base_vertex_count(gltf, primitive), faces0)
 
     if sum(len(ext["chunks"]) for ext in exts) > MAX_CHUNKS:
         raise LimitError(f"{EXTENSION_NAME}: {sum(len(e['chunks']) for e in exts)} chunks exceed the limit {MAX_CHUNKS}")
@@ -225,6 +226,18 @@ def _plan(gltf: dict, exts: list, bin_capacity: int) -> _Plan:
         if s1 < e0:
             raise FormatError(f"{EXTENSION_NAME}: chunks[{k1}] of primitive {p1} overlaps the chunk before it")
     return _Plan(tuple(primitives), tuple(exts), base_end, tuple(ranges), buffer_length)
+
+
+def _check_final_counts(ext: dict, base_vertices: int, base_faces: int) -> None:
+    """The extension's ``vertexCount`` / ``faceCount`` are the counts after all chunks of the file (spec
+    README): the last chunk's, or the base mesh's when there is none.  FormatError otherwise: a reader
+    sizes its arrays by them (a file declaring millions it never reaches took that memory and decoded as
+    complete to fewer)."""
+    chunks = ext["chunks"]
+    last = (chunks[-1]["vertexCount"], chunks[-1]["faceCount"]) if chunks else (base_vertices, base_faces)
+    if (ext["vertexCount"], ext["faceCount"]) != last:
+        raise FormatError(f"{EXTENSION_NAME}: vertexCount / faceCount {ext['vertexCount']} / {ext['faceCount']} differ "
+                          f"from the {last[0]} / {last[1]} " + ("its last chunk reaches" if chunks else "of its base mesh"))
 
 
 def _chunk_range(views, chunk, buffer_length, what, previous_end, version=1):

@@ -270,12 +270,16 @@ class StreamDecoder:
         cfg = event.extension.get("watermark")
         if cfg is None:
             return  # an unmarked file: nothing to read, the verdict will say so
-        self.watermark_params = wm.WatermarkParams.from_config(cfg)
         # A file cut by `pmw cut` holds fewer vertices than the stream the mark was spread
-        # over, so the carrier count is bounded by the vertex limit, not by this file's count.
-        if self.watermark_params.carriers > MAX_VERTICES:
-            raise LimitError(f"watermark carrier count {self.watermark_params.carriers} exceeds the limit {MAX_VERTICES}")
-        if self.key is not None and self.check_key:
+        # over, so the carrier count is bounded by the vertex limit, not by this file's count
+        # (the schema's form of the field: every reader checks it, as the JavaScript reader does).
+        carriers = cfg.get("carriers")
+        if isinstance(carriers, int) and carriers > MAX_VERTICES:
+            raise LimitError(f"watermark carrier count {carriers} exceeds the limit {MAX_VERTICES}")
+        if self.key is None:
+            return  # a decode without a key reads the mesh only: the parameters' meaning is ignored (spec/watermark.md)
+        self.watermark_params = wm.WatermarkParams.from_config(cfg)
+        if self.check_key:
             check_fingerprint(self.key, self.watermark_params)
 
     def _start_verifier(self):
