@@ -161,16 +161,23 @@ def test_writer_refuses_mismatched_chunk_meta():
         build_pmw(base=base, chunks=payloads[:1], chunk_meta=[{"splits": 1}], extension=extension)
 
 
+def _counted(extension, base, meta):
+    """``extension`` with the counts after all of ``meta``'s chunks (the base's without any): what the reader checks."""
+    last = meta[-1] if meta else {"vertexCount": base.vertex_count, "faceCount": base.face_count}
+    return dict(extension, vertexCount=last["vertexCount"], faceCount=last["faceCount"])
+
+
 def test_empty_chunk_payload_round_trips():
     _, base, _, extension = sample_pmw("plain", 1)
-    data = build_pmw(base=base, chunks=[b""], chunk_meta=_meta(base, [b""]), extension=extension)
+    meta = _meta(base, [b""])
+    data = build_pmw(base=base, chunks=[b""], chunk_meta=meta, extension=_counted(extension, base, meta))
     chunks = [e for e in iter_events(data) if isinstance(e, ChunkEvent)]
     assert [c.payload for c in chunks] == [b""]
 
 
 def test_file_without_chunks_is_complete_after_the_base():
     _, base, _, extension = sample_pmw("plain", 1)
-    data = build_pmw(base=base, chunks=[], chunk_meta=[], extension=extension)
+    data = build_pmw(base=base, chunks=[], chunk_meta=[], extension=_counted(extension, base, []))
     events = list(iter_events(data))
     assert [type(e) for e in events] == [HeaderEvent, BaseEvent, EndEvent]
     assert events[-1].complete

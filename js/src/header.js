@@ -388,6 +388,7 @@ export function planDocument(gltf, binLength) {
   }
   const bufferLength = buffers[0].byteLength;
   const primitives = [];
+  const counted = []; // checkFinalCounts' arguments, checked once the stream's order is (its errors come first)
   const meshes = Array.isArray(gltf.meshes) ? gltf.meshes : [];
   meshes.forEach((mesh, mi) => {
     const prims = isObj(mesh) && Array.isArray(mesh.primitives) ? mesh.primitives : [];
@@ -402,7 +403,7 @@ export function planDocument(gltf, binLength) {
       base.welded = ext.baseVertexCount === undefined ? null : baseCount; // decodeBase welds to this count
       const entries = chunkEntries(ext, payloadVersion, baseCount, what);
       const chunks = entries.map((c, j) => checkChunk(gltf, c, j, bufferLength, what, payloadVersion));
-      checkFinalCounts(ext, entries, baseCount, base.draco ? base.draco.faces : base.plain.indices.count / 3, what);
+      counted.push([ext, entries, baseCount, base.draco ? base.draco.faces : base.plain.indices.count / 3, what]);
       const baseEnd = Math.max(0, ...base.views.map((v) => v.offset + v.length));
       primitives.push({ index: primitives.length, mesh: mi, primitive: pi, ext, grid, base, chunks, baseEnd,
         vertexCount: ext.vertexCount, faceCount: ext.faceCount, payloadVersion });
@@ -422,6 +423,7 @@ export function planDocument(gltf, binLength) {
     if (c.chunk !== next[c.primitive]++) throw new FormatError('a primitive\'s chunks are not in stream order');
     end = c.offset + c.length;
   }
+  for (const args of counted) checkFinalCounts(...args);
   return { primitives, stream, baseEnd };
 }
 

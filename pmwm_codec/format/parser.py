@@ -204,12 +204,13 @@ def _plan(gltf: dict, exts: list, bin_capacity: int) -> _Plan:
 
     views = gltf.get("bufferViews")
     base_end = 0
+    base_counts = []
     for primitive, ext in zip(primitives, exts):
         for index in _base.base_views(gltf, primitive, ext.get("attributes", ())):
             start, end = view_range(views, index, buffer_length, "base mesh")
             base_end = max(base_end, end)
         faces0 = _base.base_counts(gltf, primitive)[1]  # base vertex/face counts against the limits
-        _check_final_counts(ext, _base.base_vertex_count(gltf, primitive), faces0)
+        base_counts.append((_base.base_vertex_count(gltf, primitive), faces0))
 
     if sum(len(ext["chunks"]) for ext in exts) > MAX_CHUNKS:
         raise LimitError(f"{EXTENSION_NAME}: {sum(len(e['chunks']) for e in exts)} chunks exceed the limit {MAX_CHUNKS}")
@@ -225,6 +226,8 @@ def _plan(gltf: dict, exts: list, bin_capacity: int) -> _Plan:
     for (s0, e0, *_), (s1, e1, p1, k1) in zip(ranges, ranges[1:]):
         if s1 < e0:
             raise FormatError(f"{EXTENSION_NAME}: chunks[{k1}] of primitive {p1} overlaps the chunk before it")
+    for ext, (vertices0, faces0) in zip(exts, base_counts):
+        _check_final_counts(ext, vertices0, faces0)
     return _Plan(tuple(primitives), tuple(exts), base_end, tuple(ranges), buffer_length)
 
 
