@@ -503,7 +503,7 @@ def repack(gltf: dict, buffers, drop_accessors=()):
     _drop_accessors(doc, set(int(i) for i in drop_accessors))
     views = doc.get("bufferViews", [])
     blobs = _embed_images(doc, len(views))
-    sites = list(_view_sites(doc))
+    sites = list(view_sites(doc))
     used = sorted({holder[key] for holder, key in sites})
     view_map, new_views, parts = {}, [], []
     offset = 0
@@ -552,7 +552,7 @@ def _embed_images(doc: dict, first_view: int) -> list:
     return blobs
 
 
-def _view_sites(doc: dict):
+def view_sites(doc: dict):
     """Yield ``(holder, key)`` for every bufferView reference ``holder[key]`` that :func:`repack` knows."""
     for acc in doc.get("accessors", []):
         if "bufferView" in acc:

@@ -204,13 +204,13 @@ def _plan(gltf: dict, exts: list, bin_capacity: int) -> _Plan:
 
     views = gltf.get("bufferViews")
     base_end = 0
-    base_counts = []
+    bases = []  # each primitive's base (vertices as the chunks see them, faces)
     for primitive, ext in zip(primitives, exts):
         for index in _base.base_views(gltf, primitive, ext.get("attributes", ())):
             start, end = view_range(views, index, buffer_length, "base mesh")
             base_end = max(base_end, end)
         faces0 = _base.base_counts(gltf, primitive)[1]  # base vertex/face counts against the limits
-        base_counts.append((_base.base_vertex_count(gltf, primitive), faces0))
+        bases.append((_base.base_vertex_count(gltf, primitive), faces0))
 
     if sum(len(ext["chunks"]) for ext in exts) > MAX_CHUNKS:
         raise LimitError(f"{EXTENSION_NAME}: {sum(len(e['chunks']) for e in exts)} chunks exceed the limit {MAX_CHUNKS}")
@@ -226,7 +226,7 @@ def _plan(gltf: dict, exts: list, bin_capacity: int) -> _Plan:
     for (s0, e0, *_), (s1, e1, p1, k1) in zip(ranges, ranges[1:]):
         if s1 < e0:
             raise FormatError(f"{EXTENSION_NAME}: chunks[{k1}] of primitive {p1} overlaps the chunk before it")
-    for ext, (vertices0, faces0) in zip(exts, base_counts):
+    for ext, (vertices0, faces0) in zip(exts, bases):
         _check_final_counts(ext, vertices0, faces0)
     return _Plan(tuple(primitives), tuple(exts), base_end, tuple(ranges), buffer_length)
 

@@ -238,7 +238,7 @@ def _replay_batch(j, cb, state, positions, vid, face_src, moved_by, embed) -> Sp
 def _replay_packed(cb, state, positions, vid, face_src, face_dst, packer) -> SplitBatch:
     """:func:`_replay_batch` without an embedder, by the packer's path: ``packer``
     (:class:`~pmwm_codec.format.records_v2.ChunkPacker` over ``state``, in a chunk) codes the batch's
-    selection, the symbols are derived from the incidences it gathers (:func:`_grouped_symbols`), and it
+    selection, the symbols are derived from the incidences it gathers (:func:`_packed_symbols`), and it
     codes the connectivity and the values as it applies them.  ``face_dst`` (M,) int64: ``face_src``'s
     inverse (input face id -> decoded id), updated with it.  Returns the batch in version 1 terms (its
     symbols and residuals listed when first read)."""
@@ -250,7 +250,7 @@ def _replay_packed(cb, state, positions, vid, face_src, face_dst, packer) -> Spl
     rank[order] = np.arange(k)
     v_sorted = vf[order]
     gstart, inc, a, b = packer.mask(v_sorted)
-    sym = _grouped_symbols(gstart, inc, a, b, vid, face_dst, cb, order, rank)
+    sym = _packed_symbols(gstart, inc, a, b, vid, face_dst, cb, order, rank)
     u_in = cb.u[order]
     vid[u_in] = n0 + np.arange(k)
     state.positions[n0 : n0 + k] = np.take(positions, u_in, axis=0)
@@ -259,14 +259,14 @@ def _replay_packed(cb, state, positions, vid, face_src, face_dst, packer) -> Spl
     return batch
 
 
-def _grouped_symbols(gstart, inc, a, b, vid, face_dst, cb, order, rank) -> np.ndarray:
+def _packed_symbols(gstart, inc, a, b, vid, face_dst, cb, order, rank) -> np.ndarray:
     """The symbols (I,) uint8 of collapse batch ``cb`` undone, for its incidences grouped by split
     (:meth:`~pmwm_codec.format.records_v2.ChunkPacker.mask`: split ``s`` has ``gstart[s] ..
     gstart[s + 1] - 1``, ascending corners ``inc``, the corners after / before its vertex ``a`` / ``b``,
     all (I,) int64); splits in ``order``, ``rank`` its inverse; ``face_dst`` (M,) int64 the decoded id
     of each input face.  An incidence moves when its face is one of its split's moved faces (a face
     moves for one split at most: the batch's removed vertices share no face)."""
-    kernel = compiled(_grouped_symbols_kernel)
+    kernel = compiled(_packed_symbols_kernel)
     if kernel is not None:
         return kernel(gstart, inc, a, b, vid, face_dst, cb.moved_face, cb.moved_by, rank, order, cb.wing_left,
                       cb.wing_right)
@@ -277,9 +277,9 @@ def _grouped_symbols(gstart, inc, a, b, vid, face_dst, cb, order, rank) -> np.nd
     return (moved * MOVE + left * (MOVE_LEFT - MOVE) + right * (MOVE_RIGHT - MOVE)).astype(np.uint8)
 
 
-def _grouped_symbols_kernel(gstart, inc, a, b, vid, face_dst, moved_face, moved_of, rank, order, wing_left,
+def _packed_symbols_kernel(gstart, inc, a, b, vid, face_dst, moved_face, moved_of, rank, order, wing_left,
                             wing_right):
-    """Compiled :func:`_grouped_symbols` (``moved_face`` / ``moved_of`` / ``wing_*``: the batch's arrays,
+    """Compiled :func:`_packed_symbols` (``moved_face`` / ``moved_of`` / ``wing_*``: the batch's arrays,
     input ids, collapse order): the moved faces' decoded ids grouped by split (a counting sort), then
     one pass over the incidences, split by split, each looked up among its split's few moved faces."""
     k = len(order)

@@ -42,7 +42,7 @@ import numpy as np
 
 from ..constants import EXTENSION_NAME
 from ..errors import DegenerateMeshError, InputFormatError, MeshError, PmwError
-from ..format.document import _view_sites as view_sites
+from ..format.document import view_sites
 from ..format.document import is_progressive, load_document, progressive_refusal, read_accessor, repack
 from ..format.document import strip_image_profiles as _strip_profiles
 from ..format.glb import glb_parts

@@ -30,7 +30,7 @@ from ..constants import EXTENSION_NAME
 from ..errors import TruncatedError
 from ..format import BaseEvent, ChunkEvent, ContainerParser, HeaderEvent
 from ..format.base import base_counts, base_vertex_count
-from ..format.document import _view_sites as document_view_sites
+from ..format.document import view_sites as document_view_sites
 from ..format.extension import chunk_start, payload_version
 from ..format.glb import compact_chunks, glb_parts
 from ..format.gltf import find_extension_primitives
