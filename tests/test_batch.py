@@ -362,6 +362,32 @@ def test_bad_batch_usage_exits_2_with_one_line(argv, words, capsys):
     assert err.count("\n") == 1 and err.startswith("pmw: error:") and words in err
 
 
+def test_more_local_workers_than_four_per_cpu_are_refused_before_anything_is_made(library, tmp_path, capsys):
+    """A thousand worker processes (each imports the library) would take the machine down: refused in one line,
+    no output folder made, nothing started."""
+    _, src = library
+    out = tmp_path / "never"
+    for argv in (["batch", "encode", str(src), "-o", str(out)], ["batch", "verify", str(src)]):
+        assert main([*argv, "--workers", str(4 * (os.cpu_count() or 1) + 1)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "local processes per CPU" in err and "--scheduler" in err
+    assert not out.exists()
+
+
+def test_a_local_run_starts_no_more_workers_than_it_has_assets(monkeypatch):
+    """``--workers 4`` over one asset starts one process; the default is one per CPU, and the same bound holds."""
+    from pmwm_codec.batch import run
+
+    monkeypatch.setattr(run.os, "cpu_count", lambda: 2)
+    assert run.local_workers(4, tasks=1) == 1
+    assert run.local_workers(None, tasks=1) == 1
+    assert run.local_workers(None, tasks=10) == 2
+    assert run.local_workers(8, tasks=10) == 8
+    assert run.local_workers(3) == 3
+    with pytest.raises(run.BatchError, match="--workers 9"):
+        run.local_workers(9, tasks=100)
+
+
 def test_batch_without_dask_installed_tells_how_to_install_it(monkeypatch, capsys, tmp_path):
     monkeypatch.setitem(sys.modules, "distributed", None)
     assert main(["batch", "encode", str(tmp_path), "-o", str(tmp_path / "o")]) == 2

@@ -48,10 +48,26 @@ LOCAL_WORKER_CONFIG = {
 }
 
 
+#: Local worker processes a run may start per CPU: each imports the library (~150 MB) and runs encoders
+#: that need a core each; more only queue for the cores and the memory.
+MAX_WORKERS_PER_CPU = 4
+
+
+def local_workers(workers: int | None, tasks: int | None = None) -> int:
+    """How many local worker processes to start for ``tasks`` tasks: ``workers`` (default one per CPU),
+    no more than there are tasks; BatchError when ``workers`` exceeds :data:`MAX_WORKERS_PER_CPU` per CPU."""
+    cpus = os.cpu_count() or 1
+    if workers is not None and workers > MAX_WORKERS_PER_CPU * cpus:
+        raise BatchError(f"--workers {workers}: more than {MAX_WORKERS_PER_CPU} local processes per CPU "
+                         f"({MAX_WORKERS_PER_CPU * cpus} on this machine's {cpus}); use --scheduler for a bigger cluster")
+    count = int(workers or cpus)
+    return max(1, min(count, tasks) if tasks is not None else count)
+
+
 @contextlib.contextmanager
-def dask_client(workers: int | None = None, scheduler: str | None = None, client=None):
+def dask_client(workers: int | None = None, scheduler: str | None = None, client=None, tasks: int | None = None):
     """``client`` if given, else a ``distributed.Client`` on ``scheduler`` or on a LocalCluster
-    of ``workers`` processes (default: one per CPU)."""
+    of :func:`local_workers` processes (default one per CPU, no more than ``tasks``)."""
     import dask
     from distributed import Client, LocalCluster
 
@@ -66,7 +82,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, client
         with client:
             yield client
         return
-    workers = max(1, int(workers or os.cpu_count() or 1))
+    workers = local_workers(workers, tasks)
     with dask.config.set(LOCAL_WORKER_CONFIG), _sigint_ignored():
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
                                silence_logs=logging.ERROR)
@@ -160,6 +176,8 @@ def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, worke
     if isinstance(timeout, bool) or not isinstance(timeout, numbers.Real) or not 0 < timeout <= MAX_TIMEOUT:
         raise BatchError(f"--timeout must be a number of seconds in (0, {MAX_TIMEOUT:g}], got {timeout!r} "
                          "(a longer wait cannot be asked of the operating system)")
+    if client is None and not scheduler:
+        local_workers(workers)  # refused before anything is read or made
     out_dir = os.path.abspath(os.fspath(out_dir))
     try:
         assets = expand_sources(src, out_dir)
@@ -179,7 +197,7 @@ def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, worke
         start = time.monotonic()
         counts = dict.fromkeys(("ok", "skipped", "failed", "timeout"), 0)
         failures = []
-        with dask_client(workers, scheduler, client) as client, \
+        with dask_client(workers, scheduler, client, len(jobs)) as client, \
                 LedgerWriter(os.path.join(out_dir, LEDGER_NAME)) as ledger:
             for row in _results(client, encode_task, jobs):
                 ledger.write(row)
@@ -238,6 +256,8 @@ def verify_batch(out_dir, *, key=None, keys_dir=None, watermark=None, workers=No
     """
     if key is not None and keys_dir is not None:
         raise BatchError("give --key (one collection key) or --keys-dir (a key per asset), not both")
+    if client is None and not scheduler:
+        local_workers(workers)
     out_dir = os.path.abspath(os.fspath(out_dir))
     if not os.path.isdir(out_dir):
         raise BatchError(f"{out_dir}: no such folder")
@@ -251,7 +271,7 @@ def verify_batch(out_dir, *, key=None, keys_dir=None, watermark=None, workers=No
         key = WatermarkKey.load(key)
     jobs = [(path, key if key is not None else _beside_key(path, out_dir, keys_dir), watermark) for path in files]
     results = []
-    with dask_client(workers, scheduler, client) as client:
+    with dask_client(workers, scheduler, client, len(jobs)) as client:
         for result in _results(client, _verify_job, jobs):
             results.append(result)
             if progress is not None:
