@@ -361,8 +361,9 @@ function checkExtension(ext, what) {
 
 /**
  * The extension's vertexCount / faceCount are the counts after all chunks of the file (spec/README.md): its last
- * chunk's, or its base mesh's when it has none. A reader sizes its arrays by them: a file declaring millions it
- * never reaches took that memory and decoded as complete to fewer.
+ * chunk's, or its base mesh's when it has none. They bound what a reader's arrays grow to (they are not allocated
+ * up front: MeshState grows with the decode); a file declaring millions it never reaches would otherwise decode
+ * as complete to fewer.
  */
 function checkFinalCounts(ext, entries, baseVertices, baseFaces, what) {
   const last = entries.length ? entries[entries.length - 1] : { vertexCount: baseVertices, faceCount: baseFaces };

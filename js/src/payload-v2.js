@@ -232,7 +232,8 @@ export class ChunkDecoderV2 {
    */
   #faceChunk(buf, vertexCount, faceCount) {
     const st = this.state;
-    const { n, m, faces, capN, capM } = st;
+    const { n, m, capN, capM } = st;
+    let { faces } = st; // grown (st.reserve) as the chunk's faces come: its entry's counts are only bounds
     this.#lists(n, m);
     this.listsN = -1; // the chunk's faces are not listed: the next batch rebuilds the lists
     this.#grow('up', n, Int32Array, capN); // distinct neighbours of a vertex
@@ -280,6 +281,10 @@ export class ChunkDecoderV2 {
       if (b === c) throw new FormatError(`face chunk: face (${a}, ${b}, ${c}) repeats a vertex`);
       const twin = rc.bit(F_TWIN);
       if (f + 3 + 3 * twin > end) throw new FormatError(`face chunk: more faces than the ${room} its index entry adds`);
+      if (f + 3 + 3 * twin > faces.length) {
+        st.reserve(0, (f + 3 + 3 * twin) / 3);
+        faces = st.faces;
+      }
       faces[f] = a; faces[f + 1] = b; faces[f + 2] = c; f += 3;
       if (twin) {
         faces[f] = a; faces[f + 1] = c; faces[f + 2] = b; f += 3;
@@ -288,6 +293,7 @@ export class ChunkDecoderV2 {
     if (this.fresh !== t) {
       throw new FormatError(`face chunk: ${this.fresh} new vertices, fewer than the ${t} its index entry adds`);
     }
+    st.reserve(n + t, 0); // the t new vertices the faces named
     if (t > 0) this.#freshValues(rc, n, t, 3 * m, f);
     rc.finish();
     st.m = f / 3;
@@ -433,6 +439,7 @@ export class ChunkDecoderV2 {
     const k = this.#mask(rc, n);
     if (k === 0) throw new FormatError('chunk payload: a batch marks no split vertex');
     if (n + k > st.capN) throw new FormatError('splits exceed the declared vertex count');
+    st.reserve(n + k, 0); // the k new vertices (#newFaces makes room for the new faces)
     const touching = this.#splits(rc, n, k);
     this.#newFaces(n, k);
     if (touching) this.#recount(n, k);
@@ -715,7 +722,7 @@ export class ChunkDecoderV2 {
    */
   #newFaces(n, k) {
     const st = this.state;
-    const { faces, capM, capN } = st;
+    const { capM, capN } = st;
     const { inc, a, b, sym, v, gstart } = this;
     const wings = this.#grow('wings', k, Int32Array, capN);
     const creatorOf = this.#grow('creatorOf', 3 * st.m, Int32Array, 3 * capM); // the incidence of a creating corner
@@ -738,6 +745,8 @@ export class ChunkDecoderV2 {
     for (let i = 0; i < k; i++) {
       if (wings[i] < 1 || wings[i] > 2) throw new FormatError('a split names no new face or more than two');
     }
+    st.reserve(0, st.m + added);
+    const { faces } = st;
     this.#grow('nxt', 3 * (st.m + added), Int32Array, 3 * capM, undefined, true);
     let f = 3 * st.m;
     for (let word = 0; word < words; word++) {

@@ -9,8 +9,8 @@
  * from `options.url` (default: the URL the loader was given, when `loadProgressive` is used):
  * by HTTP `Range` requests when the server honours them (preamble, JSON, base, then one request per
  * chunk in stream order, nothing after the last chunk it needs), else as one `fetch` stream. Each
- * applied chunk rewrites the primitive's BufferGeometry (arrays allocated once at the full
- * resolution, draw range grown) and calls `onChunk`. Stops: `maxChunks`, `maxGeometricError`
+ * applied chunk rewrites the primitive's BufferGeometry (arrays grown by doubling with the levels,
+ * at most to the full resolution; draw range grown) and calls `onChunk`. Stops: `maxChunks`, `maxGeometricError`
  * (the first chunk whose geometricError is at most this), `byteBudget` (no byte past it is used, but the
  * base is: below it, the base is the level shown). A stop, a stop condition or a failure cancels the rest of a
  * streamed GET.
@@ -189,22 +189,45 @@ export class ProgressiveRun {
   }
 }
 
-/** Writes one level into `geometry`: arrays sized once for the full mesh, draw range = the faces now. */
+/**
+ * Writes one level into `geometry`: draw range = the faces now, in arrays that hold at least the
+ * level. They start at the first level's size and, when a level outgrows them, are replaced by ones
+ * of twice the capacity (or the level's size, when more), at most the full mesh's capV vertices /
+ * capF faces: memory and GPU buffers follow the levels decoded, not the counts a file declares (a
+ * file may declare far more than its chunks reach; it is refused only at the chunk that fails to
+ * reach them). A replacement disposes of the geometry first, which frees the GPU buffers of the
+ * arrays it replaces (the first one: three.js' base arrays); the next render uploads the new ones.
+ * Doubling keeps the replacements few (log2 of full / base size) and each upload at most twice the
+ * level's size (three.js uploads a whole attribute when it changes).
+ */
 export function refreshGeometry(geometry, part, capV, capF) {
   const n = part.positions.length / 3;
-  if (!geometry.userData.pmwmCapacity) {
-    geometry.dispose(); // frees the GPU buffers of three.js' base arrays, if drawn; the next render uploads these
-    // an attribute the stream does not carry has no value for a new vertex: dropped, as the reference
-    // writer drops it from a level (normals are recomputed below)
-    const carried = new Set(['position', 'normal', ...Object.keys(part.attributes).map(threeName)]);
-    for (const name of Object.keys(geometry.attributes)) if (!carried.has(name)) geometry.deleteAttribute(name);
-    geometry.setAttribute('position', new BufferAttribute(new Float32Array(capV * 3), 3));
-    geometry.setIndex(new BufferAttribute(new Uint32Array(capF * 3), 1));
-    for (const [semantic, values] of Object.entries(part.attributes)) {
-      geometry.setAttribute(threeName(semantic), new BufferAttribute(new Float32Array(capV * (values.length / n || 1)),
-        values.length / n || 1));
+  const faces = part.indices.length / 3;
+  const had = geometry.userData.pmwmCapacity;
+  if (!had || n > had.vertices || faces > had.faces) {
+    const grown = (need, have, cap) => (need <= have ? have : Math.min(Math.max(need, 2 * have), Math.max(need, cap)));
+    const vertices = grown(n, had?.vertices ?? 0, capV);
+    const faceCapacity = grown(faces, had?.faces ?? 0, capF);
+    geometry.dispose(); // frees the GPU buffers of the arrays replaced here, if drawn; the next render uploads these
+    if (!had) {
+      // an attribute the stream does not carry has no value for a new vertex: dropped, as the reference
+      // writer drops it from a level (normals are recomputed below)
+      const carried = new Set(['position', 'normal', ...Object.keys(part.attributes).map(threeName)]);
+      for (const name of Object.keys(geometry.attributes)) if (!carried.has(name)) geometry.deleteAttribute(name);
     }
-    geometry.userData.pmwmCapacity = { vertices: capV, faces: capF };
+    if (!had || vertices !== had.vertices) {
+      geometry.setAttribute('position', new BufferAttribute(new Float32Array(vertices * 3), 3));
+      for (const [semantic, values] of Object.entries(part.attributes)) {
+        const k = values.length / n || 1;
+        geometry.setAttribute(threeName(semantic), new BufferAttribute(new Float32Array(vertices * k), k));
+      }
+      const normal = geometry.getAttribute('normal');
+      if (!part.attributes.NORMAL && normal && normal.count !== vertices) { // three.js' base normals, recomputed per level
+        geometry.setAttribute('normal', new BufferAttribute(new Float32Array(vertices * 3), 3));
+      }
+    }
+    if (!had || faceCapacity !== had.faces) geometry.setIndex(new BufferAttribute(new Uint32Array(faceCapacity * 3), 1));
+    geometry.userData.pmwmCapacity = { vertices, faces: faceCapacity };
   }
   const write = (attr, values) => { attr.array.set(values); attr.needsUpdate = true; };
   write(geometry.getAttribute('position'), part.positions);

@@ -1,7 +1,7 @@
 /**
  * Chunk payloads (spec/bitstream.md §6): the batch table, the byte-plane columns, and the
- * application of a batch of vertex splits to a mesh held in typed arrays preallocated from the
- * extension's full-resolution counts.
+ * application of a batch of vertex splits to a mesh held in typed arrays that grow with it (up to
+ * the extension's full-resolution counts).
  */
 import { FormatError, LimitError } from './errors.js';
 import { MAX_BATCHES_PER_CHUNK, MAX_VERTICES } from './constants.js';
@@ -176,22 +176,26 @@ function ringSums3(moved, owner, after, before, sym, values, sums) {
 }
 
 /**
- * A primitive's mesh as it grows, in typed arrays allocated once from the extension's
- * full-resolution counts (capN vertices, capM faces):
+ * A primitive's mesh as it grows, in typed arrays whose capacity follows what is decoded: they
+ * start at the base mesh's size and grow geometrically (reserve, called once a batch or face chunk
+ * knows how much it can add), never past the extension's full-resolution counts capN / capM, which
+ * are only upper bounds: a file that declares far more than its chunks decode costs no memory for it
+ * (spec/README.md "Conformance").
  *
- *   values (capN*D) Int32Array    row-major: vertex i's D integer values at [i*D, i*D+D) -- grid
+ *   values (N*D) Int32Array       row-major: vertex i's D integer values at [i*D, i*D+D) -- grid
  *                                 x, y, z, then attribute components. Valid values are < 2^30; a
  *                                 hostile stream whose value leaves the int32 range turns the array
  *                                 into a Float64Array (exact, as the reference decoder's int64)
- *   faces  (capM*3) Uint32Array   face f's vertex ids at corners 3f, 3f+1, 3f+2
- *   slot   (capN)   Int32Array    -1 for every vertex, except during a batch, where slot[v[i]] = i
+ *   faces  (M*3) Uint32Array      face f's vertex ids at corners 3f, 3f+1, 3f+2
+ *   slot   (N)   Int32Array       -1 for every vertex, except during a batch, where slot[v[i]] = i
  *                                 for the batch's split vertices
- *   mark   (capN)   Uint8Array    0 for every vertex, except 1 for the split vertices during a batch
+ *   mark   (N)   Uint8Array       0 for every vertex, except 1 for the split vertices during a batch
  *                                 (what the corner scan reads: a quarter of slot's bytes)
  *
- * `n`, `m`: vertices and faces in use. No per-vertex incidence lists: a batch scans the corners of
- * its m faces once, in order (spec §6.1 step 1), which costs less than keeping lists up to date.
- * Per-batch scratch arrays (see #scratch) are kept between batches and grown geometrically.
+ * N = vertexCapacity (n <= N <= capN), M = faceCapacity (m <= M <= capM). `n`, `m`: vertices and
+ * faces in use. No per-vertex incidence lists: a batch scans the corners of its m faces once, in
+ * order (spec §6.1 step 1), which costs less than keeping lists up to date. Per-batch scratch arrays
+ * (see #scratch) are kept between batches and grown geometrically.
  */
 export class MeshState {
   constructor(values, faces, n, m, D, capN, capM) {
@@ -199,21 +203,59 @@ export class MeshState {
     this.D = D;
     this.capN = capN;
     this.capM = capM;
-    try {
-      this.values = new Int32Array(capN * D); // 4 bytes a value: the ring sums' scattered reads cost less
-      this.faces = new Uint32Array(capM * 3);
-      this.slot = new Int32Array(capN).fill(-1);
-      this.mark = new Uint8Array(capN);
-    } catch (e) {
-      if (!(e instanceof RangeError)) throw e;
-      throw new LimitError(`cannot allocate ${capN} vertices and ${capM} faces (${e.message})`);
-    }
+    this.values = new Int32Array(0); // 4 bytes a value: the ring sums' scattered reads cost less
+    this.faces = new Uint32Array(0);
+    this.slot = new Int32Array(0);
+    this.mark = new Uint8Array(0);
+    this.vertexCapacity = 0;
+    this.faceCapacity = 0;
+    this.n = 0;
+    this.m = 0;
+    this.reserve(n, m);
     this.values.set(values.subarray(0, n * D));
     this.faces.set(faces.subarray(0, m * 3));
     this.n = n;
     this.m = m;
     this.perIncidence = { size: 0 };
     this.perSplit = { size: 0 };
+  }
+
+  /**
+   * Room for `vertices` vertices and `faces` faces: an array too small is replaced by one of twice
+   * its capacity (or the size asked, when more), at most capN / capM, its contents kept (all of them:
+   * a chunk may have written past n / m already; slot's new entries -1, mark's 0). FormatError when
+   * the size asked is past capN / capM; LimitError when the memory cannot be had.
+   */
+  reserve(vertices, faces) {
+    if (vertices > this.capN) throw new FormatError('splits exceed the declared vertex count');
+    if (faces > this.capM) throw new FormatError('splits exceed the declared face count');
+    const grown = (need, have, cap) => Math.min(Math.max(need, 2 * have), cap);
+    try {
+      if (vertices > this.vertexCapacity) {
+        const N = grown(vertices, this.vertexCapacity, this.capN);
+        const { D } = this;
+        const values = new this.values.constructor(N * D);
+        values.set(this.values);
+        const slot = new Int32Array(N).fill(-1);
+        slot.set(this.slot);
+        const mark = new Uint8Array(N);
+        mark.set(this.mark);
+        this.values = values;
+        this.slot = slot;
+        this.mark = mark;
+        this.vertexCapacity = N;
+      }
+      if (faces > this.faceCapacity) {
+        const M = grown(faces, this.faceCapacity, this.capM);
+        const arr = new Uint32Array(M * 3);
+        arr.set(this.faces);
+        this.faces = arr;
+        this.faceCapacity = M;
+      }
+    } catch (e) {
+      if (!(e instanceof RangeError)) throw e;
+      throw new LimitError(`cannot allocate ${vertices} vertices and ${faces} faces (${e.message})`);
+    }
   }
 
   /** Moves the values to a Float64Array (exact integers up to 2^53) and returns it. */
@@ -255,13 +297,14 @@ export class MeshState {
    */
   applyBatch(v, symbols, residuals) {
     const { D } = this;
-    let { values } = this;
     const k = v.length;
     const n = this.n;
     if (n + k > this.capN) throw new FormatError('splits exceed the declared vertex count');
     for (let i = 0; i < k; i++) {
       if (v[i] >= n || (i > 0 && v[i] <= v[i - 1])) throw new FormatError('split vertex ids out of range or not increasing');
     }
+    this.reserve(n + k, Math.min(this.m + 2 * k, this.capM)); // k new vertices, one or two new faces a split
+    let { values } = this;
     const work = this.#scratch(symbols.length, k);
     const { sums, ring, wings } = work; // (k*D) ring sums of u_i row-major; (k) ring corners, new faces
     const mNew = this.#split(v, symbols, work);
@@ -288,7 +331,8 @@ export class MeshState {
    * face count.
    */
   #split(v, symbols, { inc, owner, after, before, sym, sums, ring, wings }) {
-    const { D, faces, values, slot, mark, capM, n, m } = this;
+    const { D, values, slot, mark, capM, n, m } = this;
+    let { faces, faceCapacity } = this; // grown here only by a hostile stream (more than two new faces a split)
     const k = v.length;
     const I = symbols.length;
     const end = 3 * m;
@@ -324,7 +368,11 @@ export class MeshState {
         faces[c] = u;
         const left = LEFT[s];
         const right = RIGHT[s];
-        if (left + right + mNew > capM) throw new FormatError('splits exceed the declared face count');
+        if (left + right + mNew > faceCapacity) {
+          if (left + right + mNew > capM) throw new FormatError('splits exceed the declared face count');
+          this.reserve(0, mNew + left + right);
+          ({ faces, faceCapacity } = this);
+        }
         if (left) {
           faces[3 * mNew] = u; faces[3 * mNew + 1] = vi; faces[3 * mNew + 2] = a; mNew++;
         }

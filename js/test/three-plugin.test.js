@@ -220,8 +220,10 @@ test('a progressive mesh the scene leaves out is decoded in order, and each show
 
 test('each level\'s bounding box and sphere are those of its own vertices, not of the zeros past them', async () => {
   const geometry = new BufferGeometry();
+  refreshGeometry(geometry, { positions: new Float32Array(6), indices: Uint32Array.of(0, 1, 0), attributes: {} }, 100, 200);
   const part = { positions: Float32Array.of(10, 0, 5, 12, 0, 5, 10, 2, 5), indices: Uint32Array.of(0, 1, 2), attributes: {} };
-  refreshGeometry(geometry, part, 100, 200); // capacity for 100 vertices: 97 of them still (0, 0, 0)
+  refreshGeometry(geometry, part, 100, 200); // capacity for 4 vertices (twice the first level's): 1 of them still (0, 0, 0)
+  assert.equal(geometry.getAttribute('position').count, 4);
   assert.deepEqual(geometry.boundingBox.min.toArray(), [10, 0, 5]);
   assert.deepEqual(geometry.boundingBox.max.toArray(), [12, 2, 5]);
   assert.deepEqual(geometry.boundingSphere.center.toArray(), [11, 1, 5]);
@@ -305,7 +307,49 @@ test('a base attribute the stream does not carry is dropped at the first level (
   const part = { positions: new Float32Array(12), indices: Uint32Array.of(0, 1, 2, 1, 3, 2), attributes: { TEXCOORD_0: new Float32Array(8) } };
   refreshGeometry(geometry, part, 10, 20);
   assert.deepEqual(Object.keys(geometry.attributes).sort(), ['position', 'uv']);
-  for (const attribute of Object.values(geometry.attributes)) assert.equal(attribute.count, 10);
+  for (const attribute of Object.values(geometry.attributes)) assert.equal(attribute.count, 4); // the level's: capacity grows with the levels
+});
+
+test('a level\'s arrays grow with the levels (twice the capacity, at most the declared counts), not to the declared counts at once', () => {
+  const geometry = new BufferGeometry();
+  geometry.setAttribute('normal', new BufferAttribute(new Float32Array(9), 3)); // three.js' base normals: recomputed per level
+  let disposed = 0;
+  geometry.addEventListener('dispose', () => { disposed++; });
+  const level = (n, m) => ({ positions: Float32Array.from({ length: 3 * n }, (_, i) => i % 7), indices: new Uint32Array(3 * m),
+    attributes: { TEXCOORD_0: new Float32Array(2 * n) } });
+  const capacity = () => [geometry.getAttribute('position').count, geometry.getAttribute('uv').count,
+    geometry.getAttribute('normal').count, geometry.index.count / 3];
+  const declared = [60000000, 120000000]; // a file's claim: 2 GB of arrays (and GPU buffers) if sized by it
+  refreshGeometry(geometry, level(3, 1), ...declared);
+  assert.deepEqual(capacity(), [3, 3, 3, 1]);
+  refreshGeometry(geometry, level(4, 2), ...declared); // outgrown: twice the capacity, the GPU buffers released
+  assert.deepEqual(capacity(), [6, 6, 6, 2]);
+  assert.equal(disposed, 2);
+  refreshGeometry(geometry, level(5, 2), ...declared); // fits: the same arrays
+  assert.deepEqual(capacity(), [6, 6, 6, 2]);
+  assert.equal(disposed, 2);
+  refreshGeometry(geometry, level(20, 3), ...declared); // more than twice: the level's size
+  assert.deepEqual(capacity(), [20, 20, 20, 4]);
+  refreshGeometry(geometry, level(21, 5), 30, 6); // never past the full mesh's counts
+  assert.deepEqual(capacity(), [30, 30, 30, 6]);
+  assert.deepEqual(geometry.getAttribute('position').array.subarray(0, 63), level(21, 5).positions);
+  assert.deepEqual(geometry.userData.pmwmLevel, { vertices: 21, faces: 5 });
+});
+
+test('a file declaring 60 million vertices it never decodes: the geometry\'s arrays stay near the levels drawn, the load fails at its chunk', async () => {
+  const { binLength, gltf: json } = parseGlb(bytes);
+  const K = planDocument(json, binLength).stream.length;
+  const edited = withJson(bytes, (gltf) => { // payload version 1: one index entry per chunk
+    const ext = gltf.meshes[0].primitives[0].extensions.PMWM_progressive_mesh;
+    Object.assign(ext.chunks[K - 1], { vertexCount: 60000000, faceCount: 120000000 });
+    Object.assign(ext, { vertexCount: 60000000, faceCount: 120000000 });
+  });
+  const loaded = await loadProgressive(new GLTFLoader(), 'http://127.0.0.1/x.pmw', { range: false, fetch: streamingFetch(edited) });
+  await assert.rejects(loaded.userData.pmwm.done, { name: 'FormatError', message: `chunk ${K - 1}: vertex/face counts differ from its index entry` });
+  const g = theMesh(loaded).geometry;
+  const { vertices, faces } = g.userData.pmwmLevel; // the last level drawn: chunk K - 2's
+  assert.ok(g.getAttribute('position').count <= 2 * vertices && g.index.count <= 2 * 3 * faces,
+    `${g.getAttribute('position').count} / ${g.index.count / 3} for ${vertices} / ${faces}`);
 });
 
 test('a streamed loadProgressive reads a large prefix (16 MB before the first chunk, 16 KB pieces) in linear time', { timeout: 120000 }, async () => {
