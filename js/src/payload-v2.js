@@ -282,6 +282,7 @@ export class ChunkDecoderV2 {
       const twin = rc.bit(F_TWIN);
       if (f + 3 + 3 * twin > end) throw new FormatError(`face chunk: more faces than the ${room} its index entry adds`);
       if (f + 3 + 3 * twin > faces.length) {
+        rc.checkOverrun(); // room only for faces that bytes stand behind
         st.reserve(0, (f + 3 + 3 * twin) / 3);
         faces = st.faces;
       }
@@ -439,6 +440,7 @@ export class ChunkDecoderV2 {
     const k = this.#mask(rc, n);
     if (k === 0) throw new FormatError('chunk payload: a batch marks no split vertex');
     if (n + k > st.capN) throw new FormatError('splits exceed the declared vertex count');
+    rc.checkOverrun(); // a batch read past the payload's end: refused now, not after decoding zeros
     st.reserve(n + k, 0); // the k new vertices (#newFaces makes room for the new faces)
     const touching = this.#splits(rc, n, k);
     this.#newFaces(n, k);

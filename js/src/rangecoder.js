@@ -203,8 +203,18 @@ export class RangeDecoder {
 
   /** Termination (§8.1): FormatError unless exactly the stored bytes were read, without overrun. */
   finish() {
-    if (this.pos !== this.length) { // also an overrun: pos > length
-      throw new FormatError(`chunk payload: the coded stream does not end at the end of the payload (${this.pos} bytes read of ${this.length})`);
-    }
+    if (this.pos !== this.length) this.#endedElsewhere(); // also an overrun: pos > length
+  }
+
+  /**
+   * finish()'s FormatError as soon as a byte past the end was read (§8.1: a stream that overruns never
+   * terminates validly; decoding on would only spend time and memory on zeros).
+   */
+  checkOverrun() {
+    if (this.overrun) this.#endedElsewhere();
+  }
+
+  #endedElsewhere() {
+    throw new FormatError(`chunk payload: the coded stream does not end at the end of the payload (${this.pos} bytes read of ${this.length})`);
   }
 }

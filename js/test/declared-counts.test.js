@@ -13,7 +13,7 @@ import { FormatError, PmwDecoder } from '../src/index.js';
 import { readNpz } from './lib/npz.js';
 import { CONFORMANCE, levelDigest } from './lib/helpers.js';
 import { packChunkTable, unpackChunkTable } from '../src/chunktable.js';
-import { withJson } from './lib/rewrite.js';
+import { chunkPayloads, withJson, withPayload } from './lib/rewrite.js';
 
 /** Declared counts near the limits (MAX_VERTICES 2^26, MAX_FACES 2^27): gigabytes if allocated up front. */
 const V = 60000000;
@@ -99,6 +99,17 @@ for (const name of FILES) {
     assert.ok(s.vertexCapacity <= 2 * s.n && s.faceCapacity <= 4 * s.m, `${s.vertexCapacity} / ${s.faceCapacity} for ${s.n} / ${s.m}`);
   });
 }
+
+test('a payload cut to 3 bytes under a claim of millions is refused at its first batch, not decoded as zeros to the claim', async () => {
+  // The range decoder reads zeros past a payload's end (spec §8.1 overrun); it said so only at the chunk's end.
+  const name = 'sphere-attributes.plain.packed.v2.pmw';
+  const { bytes, first } = declaring(read(name));
+  const cut = withPayload(bytes, first, chunkPayloads(bytes)[first].payload.subarray(0, 3));
+  const { error, grew } = await decode(cut);
+  assert.ok(error instanceof FormatError, String(error));
+  assert.match(error.message, new RegExp(`^chunk ${first}: chunk payload: the coded stream does not end at the end of the payload`));
+  assert.ok(grew < 32 * MB, `arrayBuffers grew by ${(grew / MB).toFixed(1)} MB`);
+});
 
 test('a face chunk whose entry declares millions of new vertices and faces is refused, its arrays near the real mesh', async () => {
   const name = 'sphere-pillows.draco.packed.v2.pmw'; // its last chunk is a face chunk (firstFaceChunk)
