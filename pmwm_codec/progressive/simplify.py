@@ -1258,13 +1258,23 @@ def _legal_kernel(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_st
     """Compiled :func:`_legal`: the same (k,) bool mask, test for test (see there); ``fin`` (n,) bool
     marks the vertices on an edge with more than two faces (:func:`_fin_vertices`), ``twin_edge`` (e,)
     bool the pillows' edges (:func:`_twin_counts`)."""
+    return _legal_marked(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_start, vv_nbr, vf_start, vf_face,
+                         fin, twin_edge, np.full(len(fcount), -1, np.int64), 0)
+
+
+@kernel_helper(allocates=True)
+def _legal_marked(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_start, vv_nbr, vf_start, vf_face, fin,
+                  twin_edge, mark, token):
+    """:func:`_legal_kernel` with its scratch ``mark`` (n,) int64 given: ``mark[x] == token + j`` marks ``x`` a
+    neighbour of candidate j's kept vertex, so a caller testing several sets of candidates (a selection's
+    rounds) fills it once, each set with ``token`` past the marks of the sets before (all below it)."""
     ok = np.ones(len(cu), np.bool_)
-    mark = np.full(len(fcount), -1, np.int64)  # mark[x] == i: x is a neighbour of candidate i's kept vertex
-    for i in range(len(cu)):
-        if i % LEGAL_CHUNK == 0 and _touch(cu, cv, ce, i, min(i + LEGAL_CHUNK, len(cu)), count, he0, opp, fcount,
+    for j in range(len(cu)):
+        i = token + j
+        if j % LEGAL_CHUNK == 0 and _touch(cu, cv, ce, j, min(j + LEGAL_CHUNK, len(cu)), count, he0, opp, fcount,
                                            vv_start, vv_nbr, vv_edge, vf_start, vf_face, F, P) < 0:
-            ok[i] = not ok[i]  # never (counts and ids are not negative): the loads must not be dropped
-        u, v, e = cu[i], cv[i], ce[i]
+            ok[j] = not ok[j]  # never (counts and ids are not negative): the loads must not be dropped
+        u, v, e = cu[j], cv[j], ce[j]
         for p in range(vv_start[v], vv_start[v + 1]):
             mark[vv_nbr[p]] = i
         common = 0  # link condition
@@ -1272,19 +1282,19 @@ def _legal_kernel(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_st
             if mark[vv_nbr[p]] == i:
                 common += 1
         if common != count[e] or fcount[u] <= count[e]:
-            ok[i] = False
+            ok[j] = False
             continue
         if he1[e] >= 0 and opp[he0[e]] == opp[he1[e]]:  # a doubled face on uv
-            ok[i] = False
+            ok[j] = False
             continue
         for he in (he0[e], he1[e]):  # deleted faces: other edge at u interior, wing keeps a face
             if he >= 0:
                 w = opp[he]
                 e_uw = _edge_id(vv_start, vv_nbr, vv_edge, u, w)
                 if e_uw < 0 or not (count[e_uw] == 2 or (twin_edge[e_uw] and count[e_uw] == 4)) or fcount[w] < 2:
-                    ok[i] = False
-        if ok[i]:
-            ok[i] = _moved_faces_ok(u, v, (vv_start, vv_nbr, vv_edge), count, he0, he1, F, P, opp, vf_start, vf_face,
+                    ok[j] = False
+        if ok[j]:
+            ok[j] = _moved_faces_ok(u, v, (vv_start, vv_nbr, vv_edge), count, he0, he1, F, P, opp, vf_start, vf_face,
                                     mark, i, fin)
     return ok
 
@@ -1453,38 +1463,49 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
     ``rank`` (c,) int64 is :func:`_offer_ranks`; ``mesh`` the tuple of :func:`_legal_kernel`'s mesh
     arguments.  (``_conflicts``' same-kept-vertex rule is implied by its kept-vertex-next-to-a-
     lower-ranked-removed-vertex rule, since every winner's removed vertex neighbours its kept one.)
+    The groups still in play are kept as a list, ascending, compacted after every round (a round
+    visits them only, not every group).
     """
     vv_edge, count, he0, he1, F, P, opp, fcount, vf_start, vf_face, fin, twin_edge = mesh
     big = len(cu) + 1
     starts = np.flatnonzero(np.concatenate((np.ones(1, np.bool_), cu[1:] != cu[:-1])))
     ends = np.append(starts[1:], len(cu))
     front = starts.copy()
-    in_play = np.ones(len(starts), np.bool_)
+    play = np.arange(len(starts))  # groups in play, ascending: the first ``live`` entries
+    live = len(starts)
     flags = np.zeros((3, n), np.bool_)  # chosen removed, chosen kept, blocked
     scratch = np.full((3, n), big, np.int64)  # offers, winners' ranks at u, at v (reset after use)
+    wg = np.empty(len(starts), np.int64)  # this round's winning groups and their offers
+    wo = np.empty(len(starts), np.int64)
+    mark = np.full(n, -1, np.int64)  # the legality tests' scratch (:func:`_legal_marked`), filled once
+    tested = 0
     out = np.empty(len(cu), np.int64)
     n_out = 0
     for _ in range(rounds):
-        groups = np.flatnonzero(in_play)
-        if len(groups) == 0:
+        if live == 0:
             break
-        offer = front[groups]
-        for o in offer:
+        for j in range(live):
+            o = front[play[j]]
             scratch[0, cu[o]] = rank[o]
-        won = np.empty(len(offer), np.bool_)
-        for j in range(len(offer)):
-            won[j] = not _nbr_below(vv_start, vv_nbr, scratch[0], cu[offer[j]], rank[offer[j]] + 1)
-        for o in offer:
-            scratch[0, cu[o]] = big
-        if not won.any():
+        w = 0
+        for j in range(live):
+            g = play[j]
+            o = front[g]
+            if not _nbr_below(vv_start, vv_nbr, scratch[0], cu[o], rank[o] + 1):
+                wg[w], wo[w] = g, o
+                w += 1
+        for j in range(live):
+            scratch[0, cu[front[play[j]]]] = big
+        if w == 0:
             break
-        wg, wo = groups[won], offer[won]
-        keep = ~_round_conflicts(cu[wo], cv[wo], rank[wo], flags, scratch, vv_start, vv_nbr, big, n_out > 0)
-        ok = np.zeros(len(wo), np.bool_)
-        idx = wo[keep]
-        ok[keep] = _legal_kernel(cu[idx], cv[idx], ce[idx], vv_edge, count, he0, he1, F, P, opp, fcount,
-                                 vv_start, vv_nbr, vf_start, vf_face, fin, twin_edge)
-        for j in range(len(wo)):
+        wu, wv = cu[wo[:w]], cv[wo[:w]]
+        keep = ~_round_conflicts(wu, wv, rank[wo[:w]], flags, scratch, vv_start, vv_nbr, big, n_out > 0)
+        ok = np.zeros(w, np.bool_)
+        idx = wo[:w][keep]
+        ok[keep] = _legal_marked(cu[idx], cv[idx], ce[idx], vv_edge, count, he0, he1, F, P, opp, fcount,
+                                 vv_start, vv_nbr, vf_start, vf_face, fin, twin_edge, mark, tested)
+        tested += len(idx)
+        for j in range(w):
             g, o = wg[j], wo[j]
             if ok[j]:
                 out[n_out] = o
@@ -1495,11 +1516,13 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
                 flags[2, cu[o]] = flags[2, cv[o]] = True
             else:
                 front[g] += 1
-                if front[g] >= ends[g]:
-                    in_play[g] = False
-        for g in range(len(starts)):
-            if flags[2, cu[starts[g]]]:
-                in_play[g] = False
+        kept = 0  # out of play: no candidate left, or the group's vertex blocked
+        for j in range(live):
+            g = play[j]
+            if front[g] < ends[g] and not flags[2, cu[starts[g]]]:
+                play[kept] = g
+                kept += 1
+        live = kept
     return out[:n_out]
 
 
