@@ -163,15 +163,13 @@ def _vertex_faces(F, n):
 
 
 @kernel_helper
-def _insert(by, bh, k, y, he):
-    """Insert ``(y, he)`` into the first ``k`` entries of ``by`` / ``bh``, kept sorted by (y, he)."""
+def _insert(buf, k, key):
+    """Insert ``key`` into the first ``k`` entries of ``buf``, kept ascending."""
     t = k
-    while t > 0 and (by[t - 1] > y or (by[t - 1] == y and bh[t - 1] > he)):
-        by[t] = by[t - 1]
-        bh[t] = bh[t - 1]
+    while t > 0 and buf[t - 1] > key:
+        buf[t] = buf[t - 1]
         t -= 1
-    by[t] = y
-    bh[t] = he
+    buf[t] = key
 
 
 @kernel_helper(allocates=True)
@@ -193,13 +191,13 @@ def _edges_by_vertex(F, n, vf_start, vf_corner, ring):
     wmax = 0
     for x in range(n):
         wmax = max(wmax, vf_start[x + 1] - vf_start[x])
-    by, bh = np.empty(2 * wmax, np.int64), np.empty(2 * wmax, np.int64)
-    x, ne = _vertex_edges(0, 0, n, vf_start, vf_corner, ring, by, bh, lo, hi, count, he0, he1, down)
+    buf = np.empty(2 * wmax, np.int64)
+    x, ne = _vertex_edges(0, 0, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0, he1, down)
     while x < n:  # more boundary or non-manifold edges than that: grow (outside the vertex loop, which stays fast)
         cap = min(h, max(cap + cap // 2, ne + 2 * wmax))
         lo, hi, count = _grown(lo, cap, ne), _grown(hi, cap, ne), _grown(count, cap, ne)
         he0, he1 = _grown(he0, cap, ne), _grown(he1, cap, ne)
-        x, ne = _vertex_edges(x, ne, n, vf_start, vf_corner, ring, by, bh, lo, hi, count, he0, he1, down)
+        x, ne = _vertex_edges(x, ne, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0, he1, down)
     return lo[:ne], hi[:ne], count[:ne], he0[:ne], he1[:ne], down
 
 
@@ -212,37 +210,43 @@ def _grown(a, cap, k):
 
 
 @kernel_helper
-def _vertex_edges(x0, ne, n, vf_start, vf_corner, ring, by, bh, lo, hi, count, he0, he1, down):
+def _vertex_edges(x0, ne, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0, he1, down):
     """Kernel part of :func:`_edges_by_vertex`: the edges of the vertices from ``x0`` on, written from
     entry ``ne`` on of ``lo`` / ``hi`` / ``count`` / ``he0`` / ``he1`` (each (cap,) int64; ``down`` (n,)
     counted), until the next vertex's would not fit: returns ``(x, ne)``, the first vertex not written
     (``n``: none left) and the edges written.
 
     Every vertex ``x`` in turn gathers the half-edges of its corners that run to or from a higher
-    vertex ``y`` (and its own outgoing self-loops), sorted by (y, half-edge) in ``by`` / ``bh``
-    (scratch, 2 * the largest face count): its edges as the low end, in edge order."""
+    vertex ``y`` (and its own outgoing self-loops), sorted by (y, half-edge) as one packed key
+    ``y << shift | half-edge`` in ``buf`` (scratch, 2 * the largest face count; one comparison per
+    step of the insertion): its edges as the low end, in edge order."""
+    shift = 1
+    while (1 << shift) < len(vf_corner):  # half-edge ids are below 3m, the corner count
+        shift += 1
+    low = (1 << shift) - 1
     for x in range(x0, n):
         k = 0
         for p in range(vf_start[x], vf_start[x + 1]):
             hc = vf_corner[p]
-            y1, y2 = ring[p, 0], ring[p, 1]
+            y1, y2 = np.int64(ring[p, 0]), np.int64(ring[p, 1])
             if y1 >= x:  # half-edge x -> y1
-                _insert(by, bh, k, y1, hc)
+                _insert(buf, k, (y1 << shift) | hc)
                 k += 1
             if y2 > x:  # half-edge y2 -> x: the face's previous corner
-                _insert(by, bh, k, y2, hc + 2 if hc % 3 == 0 else hc - 1)
+                _insert(buf, k, (y2 << shift) | (hc + 2 if hc % 3 == 0 else hc - 1))
                 k += 1
         if ne + k > len(lo):
             return x, ne
         j = 0
         while j < k:
             s = j
-            while j < k and by[j] == by[s]:
+            y = buf[s] >> shift
+            while j < k and buf[j] >> shift == y:
                 j += 1
-            lo[ne], hi[ne], count[ne] = x, by[s], j - s
-            he0[ne] = bh[s]
-            he1[ne] = bh[s + 1] if j - s >= 2 else -1
-            down[by[s]] += 1
+            lo[ne], hi[ne], count[ne] = x, y, j - s
+            he0[ne] = buf[s] & low
+            he1[ne] = buf[s + 1] & low if j - s >= 2 else -1
+            down[y] += 1
             ne += 1
     return n, ne
 
