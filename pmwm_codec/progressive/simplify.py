@@ -348,7 +348,8 @@ def simplify(
     vert_alive[corners.ravel()] = True
     live = live_mesh(corners, face_alive, vert_alive)
     boundary = live.et.he0[live.et.count == 1]  # the input's boundary half-edges, in edge order (every face is live)
-    quad = face_quadrics(pos, corners, n, live.fids[boundary // 3] * 3 + boundary % 3)
+    # positions and quadrics of the live vertices, in local ids (:func:`_kept_rows` from batch to batch)
+    P, Q = _local_rows(pos, face_quadrics(pos, corners, n, live.fids[boundary // 3] * 3 + boundary % 3), live.vids)
     frozen_ext = np.zeros(n, bool) if locked is None else np.asarray(locked, bool).copy()
     twin = twin_faces(corners) if twin is None else np.asarray(twin, bool)
     twin = twin if twin.any() else None
@@ -362,10 +363,11 @@ def simplify(
             ids = live.vids, live.fids, live.loc
             live = None  # the previous batch's edge tables and adjacency freed before the next ones are made
             live = live_mesh(corners, face_alive, vert_alive, ids)
-        batch = _one_batch(pos, live, quad, frozen_ext, alive_count - target_vertices, weld, twin)
+            P, Q = _kept_rows(P, Q, ids[0], vert_alive)
+        batch = _one_batch(P, Q, live, frozen_ext, alive_count - target_vertices, weld, twin)
         if batch is None:
             break
-        _apply(batch, corners, face_alive, vert_alive, quad)
+        _apply(batch, corners, face_alive, vert_alive, Q, live.loc)
         alive_count -= len(batch.u)
         log.batches.append(batch)
 
@@ -375,14 +377,15 @@ def simplify(
     return log
 
 
-def _apply(batch, corners, face_alive, vert_alive, quad):
+def _apply(batch, corners, face_alive, vert_alive, Q, loc):
     """Apply a :class:`CollapseBatch` to the simplifier's state in place: delete its faces, rewrite
-    the moved corners ``u -> v``, retire ``u`` and merge its quadric into ``v``'s (``quad`` (n, 10)
-    float64; the batch's ``u`` and ``v`` are disjoint, every ``v`` once)."""
+    the moved corners ``u -> v``, retire ``u`` and merge its quadric into ``v``'s (``Q`` (n, 10) float64,
+    the batch's local quadrics, ``loc`` (N,) int64 its original -> local ids; the batch's ``u`` and ``v``
+    are disjoint, every ``v`` once)."""
     kernel = compiled(_apply_kernel)
     if kernel is not None:
         kernel(batch.u, batch.v, batch.del_left, batch.del_right, batch.moved_face, batch.moved_by,
-               corners, face_alive, vert_alive, quad)
+               corners, face_alive, vert_alive, Q, loc)
         return
     dead = np.concatenate([batch.del_left[batch.del_left >= 0], batch.del_right[batch.del_right >= 0]])
     face_alive[dead] = False
@@ -390,18 +393,19 @@ def _apply(batch, corners, face_alive, vert_alive, quad):
     sub = corners[mf]
     corners[mf] = np.where(sub == batch.u[batch.moved_by][:, None], batch.v[batch.moved_by][:, None], sub)
     vert_alive[batch.u] = False
-    quad[batch.v] += quad[batch.u]
+    Q[loc[batch.v]] += Q[loc[batch.u]]
 
 
-def _apply_kernel(u, v, del_left, del_right, moved_face, moved_by, corners, face_alive, vert_alive, quad):
+def _apply_kernel(u, v, del_left, del_right, moved_face, moved_by, corners, face_alive, vert_alive, Q, loc):
     """Compiled :func:`_apply` (the same state afterwards, the same quadric bits)."""
     for i in range(len(u)):
         for f in (del_left[i], del_right[i]):
             if f >= 0:
                 face_alive[f] = False
         vert_alive[u[i]] = False
-        for j in range(quad.shape[1]):
-            quad[v[i], j] = quad[v[i], j] + quad[u[i], j]
+        a, b = loc[u[i]], loc[v[i]]
+        for j in range(Q.shape[1]):
+            Q[b, j] = Q[b, j] + Q[a, j]
     for k in range(len(moved_face)):
         f, i = moved_face[k], moved_by[k]
         for c in range(3):
@@ -409,20 +413,20 @@ def _apply_kernel(u, v, del_left, del_right, moved_face, moved_by, corners, face
                 corners[f, c] = v[i]
 
 
-def _one_batch(pos, live, quad, frozen_ext, budget, weld=None, twin=None):
+def _one_batch(P, Q, live, frozen_ext, budget, weld=None, twin=None):
     """Choose and describe one batch of independent legal collapses (or None).
 
-    pos (n, 3) float64, quad (n, 10) float64 and frozen_ext (n,) bool are the simplifier's state in
-    original ids, ``live`` the :class:`~.livemesh.LiveMesh` of its live faces; at most ``budget``
-    vertices are removed (the cheapest collapses).  ``weld`` (n,) int64 or None: seam copies (see
-    :func:`simplify`).  The work is done on the live mesh renumbered compactly ("local" ids) and
-    returned in original ids.  ``twin`` (m,) bool or None: the doubled faces (:func:`twin_faces`).
+    ``live`` is the :class:`~.livemesh.LiveMesh` of the simplifier's live faces, P (n, 3) and Q (n, 10)
+    float64 its vertices' positions and quadrics (local ids), frozen_ext (N,) bool the simplifier's
+    frozen vertices (original ids); at most ``budget`` vertices are removed (the cheapest collapses).
+    ``weld`` (N,) int64 or None: seam copies (see :func:`simplify`).  The work is done on the live mesh
+    renumbered compactly ("local" ids) and returned in original ids.  ``twin`` (M,) bool or None: the
+    doubled faces (:func:`twin_faces`).
     """
     vids, fids, loc, F, et, vv, vf, fcount = (live.vids, live.fids, live.loc, live.F, live.et, live.vv, live.vf,
                                               live.fcount)
     vv_edge = live.vv_edge
     n = len(vids)
-    P, Q = _local_rows(pos, quad, vids)
     frozen = frozen_ext[vids]
     g = None if weld is None else seams.local_groups(weld, vids, loc)
     seam = None if g is None else seams.seam_mask(g)
@@ -481,6 +485,32 @@ def _local_rows_kernel(pos, quad, vids):
         for j in range(quad.shape[1]):
             Q[i, j] = quad[vids[i], j]
     return P, Q
+
+
+def _kept_rows(P, Q, vids, vert_alive):
+    """The rows of ``P`` (n, 3) and ``Q`` (n, 10) float64 (the live vertices ``vids`` (n,) int64 of the
+    batch before, in local ids) whose vertices are still alive (``vert_alive`` (N,) bool): the next
+    batch's local rows, in its order.  Compiled: moved down in place (views of P and Q; the batch
+    before must be done with them), so that every batch reads the rows of the one before, not the
+    whole mesh's original arrays."""
+    kernel = compiled(_kept_rows_kernel)
+    if kernel is None:
+        keep = vert_alive[vids]
+        return P[keep], Q[keep]
+    return kernel(P, Q, vids, vert_alive)
+
+
+def _kept_rows_kernel(P, Q, vids, vert_alive):
+    """Compiled :func:`_kept_rows`."""
+    k = 0
+    for i in range(len(vids)):
+        if vert_alive[vids[i]]:
+            for j in range(P.shape[1]):
+                P[k, j] = P[i, j]
+            for j in range(Q.shape[1]):
+                Q[k, j] = Q[i, j]
+            k += 1
+    return P[:k], Q[:k]
 
 
 def _described(et, src, opp, vids, fids, Q, cu, cv, ce, cost):
