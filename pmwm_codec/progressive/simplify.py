@@ -435,10 +435,11 @@ def _one_batch(P, Q, live, frozen_ext, budget, weld=None, twin=None):
     src, dst, opp = half_edges(F, with_dst=seam is not None)  # only the seam pairs read dst
     twins = _twin_counts(et, F, None if twin is None else twin[fids], n)
     mesh = (et, F, P, opp, fcount, vv, vf, vv_edge, twins[0])
-    cand = _candidates(mesh, Q, src, frozen if seam is None else frozen | seam, twins)
+    ends = live.boundary, live.edge_flags
+    cand = _candidates(mesh, ends, Q, src, frozen if seam is None else frozen | seam, twins)
     if cand is None and seam is None:
         return None
-    pairs = None if seam is None else _seam_pairs(Q, src, dst, frozen, seam, g, mesh)
+    pairs = None if seam is None else _seam_pairs(Q, src, dst, frozen, seam, g, mesh, ends)
     if pairs is not None:
         cand = _unblocked(cand, pairs, vv, n)
     for quantile in (BATCH_QUANTILE, 1.0):  # all candidates when no affordable one is legal
@@ -597,16 +598,16 @@ def _fin_vertices(et, n):
     return fin
 
 
-def _seam_pairs(Q, src, dst, frozen, seam, g, mesh):
+def _seam_pairs(Q, src, dst, frozen, seam, g, mesh, ends):
     """The seam pairs of this batch (:mod:`.seams`), or None.
 
     Q (n, 10) quadrics, src / dst (3m,) half-edges, frozen / seam (n,) bool, g (n,) int64 seam
-    groups, ``mesh`` as in :func:`_ordinary_winners`.  Returns ``(cu, cv, ce, cost)``, each
+    groups, ``mesh`` as in :func:`_ordinary_winners`, ``ends`` as in :func:`_candidates`.  Returns ``(cu, cv, ce, cost)``, each
     (2p,) (int64 / float64 half costs): first halves, then second halves in the same order
     (pair ``k`` is rows ``k`` and ``p + k``).
     """
     et, F, P, opp, fcount, vv, vf, _, _ = mesh
-    halves = _candidates(mesh, Q, src, frozen | ~seam, rows=np.flatnonzero(seam & ~frozen))
+    halves = _candidates(mesh, ends, Q, src, frozen | ~seam, rows=np.flatnonzero(seam & ~frozen))
     if halves is None:
         return None
     hu, hv, he, hcost = halves
@@ -750,12 +751,12 @@ def _to_original(table, local):
     return np.where(local >= 0, table[np.maximum(local, 0)], -1)
 
 
-def _candidates(mesh, Q, src, frozen_ext, twins=None, rows=None):
+def _candidates(mesh, ends, Q, src, frozen_ext, twins=None, rows=None):
     """Candidate collapses on the local mesh, grouped by removed vertex, cheapest first.
 
-    ``mesh`` as in :func:`_ordinary_winners`, Q (n, 10) quadrics, ``src`` (3m,) the half-edge
-    sources, frozen_ext (n,) bool, ``twins`` the doubled faces' edges and counts
-    (:func:`_twin_counts`; None: none).  Returns ``(cu, cv, ce, cost)`` ((c,) int64 removed vertex,
+    ``mesh`` as in :func:`_ordinary_winners`, ``ends`` the live mesh's ``(boundary, edge_flags)``
+    (:class:`~.livemesh.LiveMesh`), Q (n, 10) quadrics, ``src`` (3m,) the half-edge sources, frozen_ext
+    (n,) bool, ``twins`` the doubled faces' edges and counts (:func:`_twin_counts`; None: none).  Returns ``(cu, cv, ce, cost)`` ((c,) int64 removed vertex,
     kept vertex, edge; (c,) float64 quadric cost), at most ``TRIES`` per removed vertex, or None
     when there is none.  ``rows`` (r,) int64, ascending: the only vertices ``frozen_ext`` leaves free,
     when they are few (the compiled kernel then visits only them); None: every vertex.
@@ -766,8 +767,8 @@ def _candidates(mesh, Q, src, frozen_ext, twins=None, rows=None):
         twins = _twin_counts(et, F, None, n)
     kernel = compiled(_candidates_kernel)
     if kernel is not None:
-        cu, cv, ce, cost = kernel(vv[0], vv[1], vv_edge, et.lo, et.hi, et.count, et.he0, et.he1, src, fcount,
-                                  frozen_ext, twins[0], twins[1], Q, P, TRIES, rows)
+        cu, cv, ce, cost = kernel(vv[0], vv[1], vv_edge, et.count, ends[0], ends[1], fcount, frozen_ext, twins[0],
+                                  twins[1], Q, P, TRIES, rows)
         return (cu, cv, ce, cost) if len(cu) else None
     # (Q_u + Q_v)(p_v) = Q_u(p_v) + Q_v(p_v); the second term is one value per vertex
     own = quadric_error(Q, P)
@@ -781,17 +782,18 @@ def _candidates(mesh, Q, src, frozen_ext, twins=None, rows=None):
     return cu[keep], cv[keep], ce[keep], cost[keep]
 
 
-def _candidates_kernel(vv_start, vv_nbr, vv_edge, lo, hi, count, he0, he1, src, fcount, frozen_ext, twin_edge, extra,
+def _candidates_kernel(vv_start, vv_nbr, vv_edge, count, boundary, edge_flags, fcount, frozen_ext, twin_edge, extra,
                        Q, P, tries, rows):
     """Compiled :func:`_candidates` (same arrays, same order), one vertex at a time.
 
     A vertex's row of the neighbour CSR lists its edges in the order :func:`_usable` meets them
     (edges where it is the low end, then where it is the high end, each in edge order), so the
     usable collapses of ``u`` are its row minus the excluded edges, sorted stably by cost as in
-    :func:`_cheapest_per_group` (NaN last).  ``rows``: None, every vertex (one pass over the vertices
-    for their own quadric errors, one over the edges for the boundary and bad edges at each vertex),
-    or (r,) int64, ascending, the vertices to visit (those counted from the rows' own edges, the errors
-    of their neighbours only: the cost is the rows', not the mesh's; a separate compilation).
+    :func:`_cheapest_per_group` (NaN last).  ``boundary`` / ``edge_flags`` (n,): the live mesh's
+    (:class:`~.livemesh.LiveMesh`); a vertex on an edge of more than two faces has its row searched
+    for one that is no pillow's.  ``rows``: None, every vertex (one pass over the vertices for their
+    own quadric errors first), or (r,) int64, ascending, the vertices to visit (the errors of their
+    neighbours only: the cost is the rows', not the mesh's; a separate compilation).
     """
     n = len(fcount)
     r = n if rows is None else len(rows)
@@ -808,32 +810,21 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, lo, hi, count, he0, he1, src, 
     buf_p = np.empty(width, np.int64)  # row positions of u's usable collapses, by cost
     buf_c = np.empty(width, np.float64)  # their costs
     own = np.empty(n, np.float64)  # quadric_error(Q, P), vertex by vertex
-    bvc = np.zeros(n, np.int64)  # boundary edges at each vertex
-    badv = np.zeros(n, np.bool_)  # a non-manifold or inconsistently oriented edge at the vertex
     if rows is None:
         for x in range(n):
             own[x] = _quadric_at(_quadric_row(Q, x), P, x)
-        for e in range(len(lo)):
-            if count[e] == 1:
-                bvc[lo[e]] += 1
-                bvc[hi[e]] += 1
-            if (count[e] > 2 and not twin_edge[e]) or (count[e] == 2 and src[he0[e]] == src[he1[e]]):
-                badv[lo[e]] = badv[hi[e]] = True
     else:
-        for u in rows:  # an edge is in the rows of both its ends (a self-loop twice in its vertex's)
+        for u in rows:
             for p in range(vv_start[u], vv_start[u + 1]):
-                e, x = vv_edge[p], vv_nbr[p]
+                x = vv_nbr[p]
                 own[x] = _quadric_at(_quadric_row(Q, x), P, x)
-                bvc[u] += count[e] == 1
-                if (count[e] > 2 and not twin_edge[e]) or (count[e] == 2 and src[he0[e]] == src[he1[e]]):
-                    badv[u] = True
     k = 0
     for i in range(r):
         u = i if rows is None else rows[i]
         a, b = vv_start[u], vv_start[u + 1]
-        if badv[u] or frozen_ext[u]:
-            continue
-        bu = bvc[u]
+        if frozen_ext[u] or edge_flags[u] & 1 or (edge_flags[u] & 2 and _on_fin(a, b, vv_edge, count, twin_edge)):
+            continue  # a non-manifold (and no pillow's) or inconsistently oriented edge at u
+        bu = boundary[u]
         if not ((bu == 0 and b - a == fcount[u] - extra[u]) or (bu == 2 and extra[u] == 0 and b - a == fcount[u] + 1)):
             continue  # not one disk or half-disk of faces
         q = _quadric_row(Q, u)
@@ -855,6 +846,17 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, lo, hi, count, he0, he1, src, 
             out_u[k], out_v[k], out_e[k], out_c[k] = u, vv_nbr[p], vv_edge[p], buf_c[j]
             k += 1
     return out_u[:k], out_v[:k], out_e[:k], out_c[:k]
+
+
+@kernel_helper
+def _on_fin(a, b, vv_edge, count, twin_edge):
+    """Whether the edges ``vv_edge[a:b]`` (a vertex's row) hold one of more than two faces that is not
+    a pillow's (``twin_edge``, :func:`_twin_counts`)."""
+    for p in range(a, b):
+        e = vv_edge[p]
+        if count[e] > 2 and not twin_edge[e]:
+            return True
+    return False
 
 
 def _cheapest_per_group(cu, cost, n):
