@@ -212,8 +212,10 @@ def test_the_live_mesh_is_the_same_on_both_paths_with_degenerate_faces(monkeypat
     for field in ("keys", "lo", "hi", "count", "he0", "he1"):
         assert np.array_equal(getattr(plain.et, field), getattr(fast.et, field)), field
     assert (plain.et.lo == plain.et.hi).any()  # the self-loops are there
-    for a, b in zip(plain.vv + plain.vf + (plain.vv_edge, plain.fcount), fast.vv + fast.vf + (fast.vv_edge, fast.fcount)):
+    for a, b in zip(plain.vv + plain.vf + (plain.vv_edge, plain.fcount, plain.boundary, plain.edge_flags),
+                    fast.vv + fast.vf + (fast.vv_edge, fast.fcount, fast.boundary, fast.edge_flags)):
         assert np.array_equal(a, b)
+    assert plain.edge_flags.any()  # an edge of three faces (a degenerate face's self-loop) marks its vertex
 
 
 @pytest.mark.parametrize("name", sorted(_ODD_MESHES))
@@ -222,7 +224,7 @@ def test_the_live_mesh_is_the_same_on_both_paths(monkeypatch, name):
     mesh = _ODD_MESHES[name]
     face_alive = np.random.default_rng(1).random(mesh.face_count) < 0.8  # some faces dead, some vertices too
     plain, fast = _live_both_ways(monkeypatch, mesh, face_alive)
-    for field in ("vids", "fids", "loc", "F", "vv_edge", "fcount"):
+    for field in ("vids", "fids", "loc", "F", "vv_edge", "fcount", "boundary", "edge_flags"):
         assert np.array_equal(getattr(plain, field), getattr(fast, field)), field
     for field in ("keys", "lo", "hi", "count", "he0", "he1"):
         assert np.array_equal(getattr(plain.et, field), getattr(fast.et, field)), field
@@ -250,7 +252,7 @@ def test_the_live_mesh_from_the_previous_one_is_the_fresh_one(monkeypatch, name,
         vert_alive[faces[face_alive].ravel()] = True
         chained = live_mesh(faces, face_alive, vert_alive, prev)
         fresh = live_mesh(faces, face_alive, vert_alive)
-        for field in ("vids", "fids", "loc", "F", "vv_edge", "fcount"):
+        for field in ("vids", "fids", "loc", "F", "vv_edge", "fcount", "boundary", "edge_flags"):
             assert np.array_equal(getattr(chained, field), getattr(fresh, field)), field
         for a, b in zip(chained.vv + chained.vf, fresh.vv + fresh.vf):
             assert np.array_equal(a, b)
@@ -277,9 +279,9 @@ def test_the_candidate_collapses_are_the_same_on_both_paths(monkeypatch, name):
         P = np.asarray(mesh.positions, np.float64)[live.vids]
         src, _, opp = topology.half_edges(live.F)
         local = (live.et, live.F, P, opp, live.fcount, live.vv, live.vf, live.vv_edge, np.zeros(len(live.et.keys), bool))
-        out.append(simplify._candidates(local, Q, src, frozen))
+        out.append(simplify._candidates(local, (live.boundary, live.edge_flags), Q, src, frozen))
         few = frozen | (rng.random(k) < 0.7)  # a few vertices left free, visited alone by the compiled kernel
-        out.append(simplify._candidates(local, Q, src, few, rows=np.flatnonzero(~few)))
+        out.append(simplify._candidates(local, (live.boundary, live.edge_flags), Q, src, few, rows=np.flatnonzero(~few)))
     assert out[0] is not None and len(out[0][0]) > 0 and out[1] is not None
     for a, b in zip(out[0] + out[1], out[2] + out[3]):
         assert np.array_equal(a, b, equal_nan=True)
@@ -503,3 +505,17 @@ def test_twin_counts_are_the_same_on_both_paths(monkeypatch, make):
     assert twin.any() and out[0][0].any()
     for a, b in zip(*out):
         assert a.dtype == b.dtype and np.array_equal(a, b)
+
+
+def test_a_face_turned_over_marks_its_edges_ends_on_both_paths(monkeypatch):
+    """An edge whose two faces run it the same way (one face turned over) marks both its ends (bit 1 of
+    ``edge_flags``), the same with and without the kernels; boundary counts agree too."""
+    pytest.importorskip("numba")
+    grid = shapes.grid(6, 6, hole=False, bump=0.0)
+    faces = np.asarray(grid.faces, np.int64).copy()
+    faces[3] = faces[3][::-1]
+    plain, fast = _live_both_ways(monkeypatch, Mesh(grid.positions, faces), np.ones(len(faces), bool))
+    assert np.array_equal(plain.boundary, fast.boundary) and np.array_equal(plain.edge_flags, fast.edge_flags)
+    turned = np.zeros(plain.vv[0].shape[0] - 1, bool)
+    turned[np.unique(faces[3])] = True  # its interior edges' ends are among its corners
+    assert (plain.edge_flags & 1).any() and not (plain.edge_flags[~turned] & 1).any()

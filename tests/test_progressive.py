@@ -281,7 +281,7 @@ def _candidates_of(mesh):
     local = (live.et, live.F, P[live.vids], opp, live.fcount, live.vv, live.vf, live.vv_edge,
              np.zeros(len(live.et.keys), bool))
     Q = S.face_quadrics(P, mesh.faces, mesh.vertex_count)[live.vids]
-    return local, S._candidates(local, Q, src, np.zeros(len(live.vids), bool)), len(live.vids)
+    return local, S._candidates(local, (live.boundary, live.edge_flags), Q, src, np.zeros(len(live.vids), bool)), len(live.vids)
 
 
 @pytest.mark.parametrize("name", ["grid_with_hole", "bowtie", "doubled_faces"])

@@ -43,6 +43,11 @@ class LiveMesh:
         Vertex -> faces CSR, faces ascending (one entry per corner).
     fcount : (n,) int64
         Faces on each vertex.
+    boundary : (n,) int64
+        Boundary edges (one face) at each vertex (a self-loop counts at both ends).
+    edge_flags : (n,) uint8
+        What edges each vertex is on: bit 1, an edge of two faces whose half-edges run the same way
+        (inconsistently oriented); bit 2, an edge of more than two faces.
     """
 
     vids: np.ndarray
@@ -54,6 +59,8 @@ class LiveMesh:
     vv_edge: np.ndarray
     vf: tuple
     fcount: np.ndarray
+    boundary: np.ndarray
+    edge_flags: np.ndarray
 
 
 def live_mesh(corners: np.ndarray, face_alive: np.ndarray, vert_alive: np.ndarray,
@@ -74,10 +81,11 @@ def live_mesh(corners: np.ndarray, face_alive: np.ndarray, vert_alive: np.ndarra
         vids0, fids0, loc = prev
     kernel = compiled(_live_mesh_kernel)
     if kernel is not None:
-        vids, fids, loc, F, edges, vv_start, vv_nbr, vv_edge, vf_start, vf_face, fcount = \
+        vids, fids, loc, F, edges, vv_start, vv_nbr, vv_edge, vf_start, vf_face, fcount, boundary, flags = \
             kernel(corners, face_alive, vert_alive, vids0, fids0, loc)
         et = EdgeTable(len(vids), *edges)
-        return LiveMesh(vids, fids, loc, F, et, (vv_start, vv_nbr), vv_edge, (vf_start, vf_face), fcount)
+        return LiveMesh(vids, fids, loc, F, et, (vv_start, vv_nbr), vv_edge, (vf_start, vf_face), fcount, boundary,
+                        flags)
     fids = fids0[face_alive[fids0]]
     vids = vids0[vert_alive[vids0]]
     loc[vids0] = -1
@@ -90,7 +98,14 @@ def live_mesh(corners: np.ndarray, face_alive: np.ndarray, vert_alive: np.ndarra
     ids = np.arange(len(et.lo))
     _, vv_edge = csr(ends, np.concatenate([ids, ids]), n)
     vf = csr(F.ravel(), np.repeat(np.arange(m), 3), n)
-    return LiveMesh(vids, fids, loc, F, et, vv, vv_edge, vf, np.bincount(F.ravel(), minlength=n))
+    boundary = np.bincount(ends, weights=np.tile(et.count == 1, 2), minlength=n).astype(np.int64)
+    two = np.flatnonzero(et.count == 2)
+    same = two[F.ravel()[et.he0[two]] == F.ravel()[et.he1[two]]]  # both half-edges leave the same end
+    flags = np.zeros(n, np.uint8)
+    for bit, e in ((1, same), (2, np.flatnonzero(et.count > 2))):
+        flags[et.lo[e]] |= bit
+        flags[et.hi[e]] |= bit
+    return LiveMesh(vids, fids, loc, F, et, vv, vv_edge, vf, np.bincount(F.ravel(), minlength=n), boundary, flags)
 
 
 def boundary_half_edges(faces: np.ndarray, n: int) -> np.ndarray:
@@ -106,7 +121,7 @@ def boundary_half_edges(faces: np.ndarray, n: int) -> np.ndarray:
 def _boundary_kernel(faces, n):
     """Compiled :func:`boundary_half_edges` (the edge pass of :func:`_live_mesh_kernel`)."""
     vf_start, vf_corner, _, ring = _vertex_faces(faces, n)
-    _, _, count, he0, _, _ = _edges_by_vertex(faces, n, vf_start, vf_corner, ring)
+    _, _, count, he0, _, _, _, _ = _edges_by_vertex(faces, n, vf_start, vf_corner, ring)
     return he0[count == 1]
 
 
@@ -163,15 +178,13 @@ def _vertex_faces(F, n):
 
 
 @kernel_helper
-def _insert(by, bh, k, y, he):
-    """Insert ``(y, he)`` into the first ``k`` entries of ``by`` / ``bh``, kept sorted by (y, he)."""
+def _insert(buf, k, key):
+    """Insert ``key`` into the first ``k`` entries of ``buf``, kept ascending."""
     t = k
-    while t > 0 and (by[t - 1] > y or (by[t - 1] == y and bh[t - 1] > he)):
-        by[t] = by[t - 1]
-        bh[t] = bh[t - 1]
+    while t > 0 and buf[t - 1] > key:
+        buf[t] = buf[t - 1]
         t -= 1
-    by[t] = y
-    bh[t] = he
+    buf[t] = key
 
 
 @kernel_helper(allocates=True)
@@ -179,8 +192,9 @@ def _edges_by_vertex(F, n, vf_start, vf_corner, ring):
     """Kernel part of :func:`_live_mesh_kernel`: the edge table of ``F`` built vertex by vertex
     (:func:`_vertex_edges`).
 
-    Returns ``(lo, hi, count, he0, he1)`` (e,) int64 as in :class:`~.topology.EdgeTable` and ``down``
-    (n,) int64 (edges where each vertex is the high end).  The edge arrays are views of arrays sized
+    Returns ``(lo, hi, count, he0, he1)`` (e,) int64 as in :class:`~.topology.EdgeTable`, ``down``
+    (n,) int64 (edges where each vertex is the high end) and :class:`LiveMesh`'s ``boundary`` and
+    ``edge_flags``.  The edge arrays are views of arrays sized
     for a closed mesh's edges and a little more (grown by half when short), not for every half-edge
     (about twice the edges), which views would keep alive with the live mesh (+137 MB peak on a
     1.1M-vertex encode); nor copies (5-8 % of the live mesh's time).
@@ -190,17 +204,19 @@ def _edges_by_vertex(F, n, vf_start, vf_corner, ring):
     lo, hi, count = np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.int64)
     he0, he1 = np.empty(cap, np.int64), np.empty(cap, np.int64)
     down = np.zeros(n, np.int64)
+    boundary, flags = np.zeros(n, np.int64), np.zeros(n, np.uint8)
     wmax = 0
     for x in range(n):
         wmax = max(wmax, vf_start[x + 1] - vf_start[x])
-    by, bh = np.empty(2 * wmax, np.int64), np.empty(2 * wmax, np.int64)
-    x, ne = _vertex_edges(0, 0, n, vf_start, vf_corner, ring, by, bh, lo, hi, count, he0, he1, down)
+    buf = np.empty(2 * wmax, np.int64)
+    x, ne = _vertex_edges(0, 0, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0, he1, down, boundary, flags)
     while x < n:  # more boundary or non-manifold edges than that: grow (outside the vertex loop, which stays fast)
         cap = min(h, max(cap + cap // 2, ne + 2 * wmax))
         lo, hi, count = _grown(lo, cap, ne), _grown(hi, cap, ne), _grown(count, cap, ne)
         he0, he1 = _grown(he0, cap, ne), _grown(he1, cap, ne)
-        x, ne = _vertex_edges(x, ne, n, vf_start, vf_corner, ring, by, bh, lo, hi, count, he0, he1, down)
-    return lo[:ne], hi[:ne], count[:ne], he0[:ne], he1[:ne], down
+        x, ne = _vertex_edges(x, ne, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0, he1, down, boundary,
+                              flags)
+    return lo[:ne], hi[:ne], count[:ne], he0[:ne], he1[:ne], down, boundary, flags
 
 
 @kernel_helper(allocates=True)
@@ -212,37 +228,55 @@ def _grown(a, cap, k):
 
 
 @kernel_helper
-def _vertex_edges(x0, ne, n, vf_start, vf_corner, ring, by, bh, lo, hi, count, he0, he1, down):
+def _vertex_edges(x0, ne, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0, he1, down, boundary, flags):
     """Kernel part of :func:`_edges_by_vertex`: the edges of the vertices from ``x0`` on, written from
-    entry ``ne`` on of ``lo`` / ``hi`` / ``count`` / ``he0`` / ``he1`` (each (cap,) int64; ``down`` (n,)
-    counted), until the next vertex's would not fit: returns ``(x, ne)``, the first vertex not written
-    (``n``: none left) and the edges written.
+    entry ``ne`` on of ``lo`` / ``hi`` / ``count`` / ``he0`` / ``he1`` (each (cap,) int64; ``down``,
+    ``boundary`` and ``flags`` (n,) counted and marked as in :class:`LiveMesh`), until the next vertex's
+    would not fit: returns ``(x, ne)``, the first vertex not written (``n``: none left) and the edges
+    written.
 
     Every vertex ``x`` in turn gathers the half-edges of its corners that run to or from a higher
-    vertex ``y`` (and its own outgoing self-loops), sorted by (y, half-edge) in ``by`` / ``bh``
-    (scratch, 2 * the largest face count): its edges as the low end, in edge order."""
+    vertex ``y`` (and its own outgoing self-loops), sorted by (y, half-edge) as one packed key
+    ``(y << shift | half-edge) << 1 | into x`` in ``buf`` (scratch, 2 * the largest face count; one
+    comparison per step of the insertion; the direction bit below the half-edge, which no two
+    entries share): its edges as the low end, in edge order."""
+    shift = 1
+    while (1 << shift) < len(vf_corner):  # half-edge ids are below 3m, the corner count
+        shift += 1
+    low = (1 << shift) - 1
     for x in range(x0, n):
         k = 0
         for p in range(vf_start[x], vf_start[x + 1]):
             hc = vf_corner[p]
-            y1, y2 = ring[p, 0], ring[p, 1]
+            y1, y2 = np.int64(ring[p, 0]), np.int64(ring[p, 1])
             if y1 >= x:  # half-edge x -> y1
-                _insert(by, bh, k, y1, hc)
+                _insert(buf, k, ((y1 << shift) | hc) << 1)
                 k += 1
             if y2 > x:  # half-edge y2 -> x: the face's previous corner
-                _insert(by, bh, k, y2, hc + 2 if hc % 3 == 0 else hc - 1)
+                _insert(buf, k, (((y2 << shift) | (hc + 2 if hc % 3 == 0 else hc - 1)) << 1) | 1)
                 k += 1
         if ne + k > len(lo):
             return x, ne
         j = 0
         while j < k:
             s = j
-            while j < k and by[j] == by[s]:
+            y = buf[s] >> (shift + 1)
+            while j < k and buf[j] >> (shift + 1) == y:
                 j += 1
-            lo[ne], hi[ne], count[ne] = x, by[s], j - s
-            he0[ne] = bh[s]
-            he1[ne] = bh[s + 1] if j - s >= 2 else -1
-            down[by[s]] += 1
+            c = j - s
+            lo[ne], hi[ne], count[ne] = x, y, c
+            he0[ne] = (buf[s] >> 1) & low
+            he1[ne] = (buf[s + 1] >> 1) & low if c >= 2 else -1
+            down[y] += 1
+            if c == 1:
+                boundary[x] += 1
+                boundary[y] += 1
+            elif c == 2 and (buf[s] & 1) == (buf[s + 1] & 1):
+                flags[x] |= 1
+                flags[y] |= 1
+            elif c > 2:
+                flags[x] |= 2
+                flags[y] |= 2
             ne += 1
     return n, ne
 
@@ -253,7 +287,7 @@ def _live_mesh_kernel(corners, face_alive, vert_alive, vids0, fids0, loc):
     vids, fids, loc, F = _compact_kernel(corners, face_alive, vert_alive, vids0, fids0, loc)
     n = len(vids)
     vf_start, vf_corner, fcount, ring = _vertex_faces(F, n)
-    lo, hi, count, he0, he1, down = _edges_by_vertex(F, n, vf_start, vf_corner, ring)
+    lo, hi, count, he0, he1, down, boundary, flags = _edges_by_vertex(F, n, vf_start, vf_corner, ring)
     ne = len(lo)
     vv_start = np.zeros(n + 1, np.int64)
     for e in range(ne):
@@ -274,4 +308,4 @@ def _live_mesh_kernel(corners, face_alive, vert_alive, vids0, fids0, loc):
     edges = (lo * n + hi, lo, hi, count, he0, he1)
     for p in range(len(vf_corner)):  # corners -> faces in place (no second (3m,) array)
         vf_corner[p] //= 3
-    return vids, fids, loc, F, edges, vv_start, vv_nbr, vv_edge, vf_start, vf_corner, fcount
+    return vids, fids, loc, F, edges, vv_start, vv_nbr, vv_edge, vf_start, vf_corner, fcount, boundary, flags

@@ -348,7 +348,8 @@ def simplify(
     vert_alive[corners.ravel()] = True
     live = live_mesh(corners, face_alive, vert_alive)
     boundary = live.et.he0[live.et.count == 1]  # the input's boundary half-edges, in edge order (every face is live)
-    quad = face_quadrics(pos, corners, n, live.fids[boundary // 3] * 3 + boundary % 3)
+    # positions and quadrics of the live vertices, in local ids (:func:`_kept_rows` from batch to batch)
+    P, Q = _local_rows(pos, face_quadrics(pos, corners, n, live.fids[boundary // 3] * 3 + boundary % 3), live.vids)
     frozen_ext = np.zeros(n, bool) if locked is None else np.asarray(locked, bool).copy()
     twin = twin_faces(corners) if twin is None else np.asarray(twin, bool)
     twin = twin if twin.any() else None
@@ -362,10 +363,11 @@ def simplify(
             ids = live.vids, live.fids, live.loc
             live = None  # the previous batch's edge tables and adjacency freed before the next ones are made
             live = live_mesh(corners, face_alive, vert_alive, ids)
-        batch = _one_batch(pos, live, quad, frozen_ext, alive_count - target_vertices, weld, twin)
+            P, Q = _kept_rows(P, Q, ids[0], vert_alive)
+        batch = _one_batch(P, Q, live, frozen_ext, alive_count - target_vertices, weld, twin)
         if batch is None:
             break
-        _apply(batch, corners, face_alive, vert_alive, quad)
+        _apply(batch, corners, face_alive, vert_alive, Q, live.loc)
         alive_count -= len(batch.u)
         log.batches.append(batch)
 
@@ -375,14 +377,15 @@ def simplify(
     return log
 
 
-def _apply(batch, corners, face_alive, vert_alive, quad):
+def _apply(batch, corners, face_alive, vert_alive, Q, loc):
     """Apply a :class:`CollapseBatch` to the simplifier's state in place: delete its faces, rewrite
-    the moved corners ``u -> v``, retire ``u`` and merge its quadric into ``v``'s (``quad`` (n, 10)
-    float64; the batch's ``u`` and ``v`` are disjoint, every ``v`` once)."""
+    the moved corners ``u -> v``, retire ``u`` and merge its quadric into ``v``'s (``Q`` (n, 10) float64,
+    the batch's local quadrics, ``loc`` (N,) int64 its original -> local ids; the batch's ``u`` and ``v``
+    are disjoint, every ``v`` once)."""
     kernel = compiled(_apply_kernel)
     if kernel is not None:
         kernel(batch.u, batch.v, batch.del_left, batch.del_right, batch.moved_face, batch.moved_by,
-               corners, face_alive, vert_alive, quad)
+               corners, face_alive, vert_alive, Q, loc)
         return
     dead = np.concatenate([batch.del_left[batch.del_left >= 0], batch.del_right[batch.del_right >= 0]])
     face_alive[dead] = False
@@ -390,18 +393,19 @@ def _apply(batch, corners, face_alive, vert_alive, quad):
     sub = corners[mf]
     corners[mf] = np.where(sub == batch.u[batch.moved_by][:, None], batch.v[batch.moved_by][:, None], sub)
     vert_alive[batch.u] = False
-    quad[batch.v] += quad[batch.u]
+    Q[loc[batch.v]] += Q[loc[batch.u]]
 
 
-def _apply_kernel(u, v, del_left, del_right, moved_face, moved_by, corners, face_alive, vert_alive, quad):
+def _apply_kernel(u, v, del_left, del_right, moved_face, moved_by, corners, face_alive, vert_alive, Q, loc):
     """Compiled :func:`_apply` (the same state afterwards, the same quadric bits)."""
     for i in range(len(u)):
         for f in (del_left[i], del_right[i]):
             if f >= 0:
                 face_alive[f] = False
         vert_alive[u[i]] = False
-        for j in range(quad.shape[1]):
-            quad[v[i], j] = quad[v[i], j] + quad[u[i], j]
+        a, b = loc[u[i]], loc[v[i]]
+        for j in range(Q.shape[1]):
+            Q[b, j] = Q[b, j] + Q[a, j]
     for k in range(len(moved_face)):
         f, i = moved_face[k], moved_by[k]
         for c in range(3):
@@ -409,20 +413,20 @@ def _apply_kernel(u, v, del_left, del_right, moved_face, moved_by, corners, face
                 corners[f, c] = v[i]
 
 
-def _one_batch(pos, live, quad, frozen_ext, budget, weld=None, twin=None):
+def _one_batch(P, Q, live, frozen_ext, budget, weld=None, twin=None):
     """Choose and describe one batch of independent legal collapses (or None).
 
-    pos (n, 3) float64, quad (n, 10) float64 and frozen_ext (n,) bool are the simplifier's state in
-    original ids, ``live`` the :class:`~.livemesh.LiveMesh` of its live faces; at most ``budget``
-    vertices are removed (the cheapest collapses).  ``weld`` (n,) int64 or None: seam copies (see
-    :func:`simplify`).  The work is done on the live mesh renumbered compactly ("local" ids) and
-    returned in original ids.  ``twin`` (m,) bool or None: the doubled faces (:func:`twin_faces`).
+    ``live`` is the :class:`~.livemesh.LiveMesh` of the simplifier's live faces, P (n, 3) and Q (n, 10)
+    float64 its vertices' positions and quadrics (local ids), frozen_ext (N,) bool the simplifier's
+    frozen vertices (original ids); at most ``budget`` vertices are removed (the cheapest collapses).
+    ``weld`` (N,) int64 or None: seam copies (see :func:`simplify`).  The work is done on the live mesh
+    renumbered compactly ("local" ids) and returned in original ids.  ``twin`` (M,) bool or None: the
+    doubled faces (:func:`twin_faces`).
     """
     vids, fids, loc, F, et, vv, vf, fcount = (live.vids, live.fids, live.loc, live.F, live.et, live.vv, live.vf,
                                               live.fcount)
     vv_edge = live.vv_edge
     n = len(vids)
-    P, Q = _local_rows(pos, quad, vids)
     frozen = frozen_ext[vids]
     g = None if weld is None else seams.local_groups(weld, vids, loc)
     seam = None if g is None else seams.seam_mask(g)
@@ -431,10 +435,11 @@ def _one_batch(pos, live, quad, frozen_ext, budget, weld=None, twin=None):
     src, dst, opp = half_edges(F, with_dst=seam is not None)  # only the seam pairs read dst
     twins = _twin_counts(et, F, None if twin is None else twin[fids], n)
     mesh = (et, F, P, opp, fcount, vv, vf, vv_edge, twins[0])
-    cand = _candidates(mesh, Q, src, frozen if seam is None else frozen | seam, twins)
+    ends = live.boundary, live.edge_flags
+    cand = _candidates(mesh, ends, Q, src, frozen if seam is None else frozen | seam, twins)
     if cand is None and seam is None:
         return None
-    pairs = None if seam is None else _seam_pairs(Q, src, dst, frozen, seam, g, mesh)
+    pairs = None if seam is None else _seam_pairs(Q, src, dst, frozen, seam, g, mesh, ends)
     if pairs is not None:
         cand = _unblocked(cand, pairs, vv, n)
     for quantile in (BATCH_QUANTILE, 1.0):  # all candidates when no affordable one is legal
@@ -481,6 +486,32 @@ def _local_rows_kernel(pos, quad, vids):
         for j in range(quad.shape[1]):
             Q[i, j] = quad[vids[i], j]
     return P, Q
+
+
+def _kept_rows(P, Q, vids, vert_alive):
+    """The rows of ``P`` (n, 3) and ``Q`` (n, 10) float64 (the live vertices ``vids`` (n,) int64 of the
+    batch before, in local ids) whose vertices are still alive (``vert_alive`` (N,) bool): the next
+    batch's local rows, in its order.  Compiled: moved down in place (views of P and Q; the batch
+    before must be done with them), so that every batch reads the rows of the one before, not the
+    whole mesh's original arrays."""
+    kernel = compiled(_kept_rows_kernel)
+    if kernel is None:
+        keep = vert_alive[vids]
+        return P[keep], Q[keep]
+    return kernel(P, Q, vids, vert_alive)
+
+
+def _kept_rows_kernel(P, Q, vids, vert_alive):
+    """Compiled :func:`_kept_rows`."""
+    k = 0
+    for i in range(len(vids)):
+        if vert_alive[vids[i]]:
+            for j in range(P.shape[1]):
+                P[k, j] = P[i, j]
+            for j in range(Q.shape[1]):
+                Q[k, j] = Q[i, j]
+            k += 1
+    return P[:k], Q[:k]
 
 
 def _described(et, src, opp, vids, fids, Q, cu, cv, ce, cost):
@@ -567,16 +598,16 @@ def _fin_vertices(et, n):
     return fin
 
 
-def _seam_pairs(Q, src, dst, frozen, seam, g, mesh):
+def _seam_pairs(Q, src, dst, frozen, seam, g, mesh, ends):
     """The seam pairs of this batch (:mod:`.seams`), or None.
 
     Q (n, 10) quadrics, src / dst (3m,) half-edges, frozen / seam (n,) bool, g (n,) int64 seam
-    groups, ``mesh`` as in :func:`_ordinary_winners`.  Returns ``(cu, cv, ce, cost)``, each
+    groups, ``mesh`` as in :func:`_ordinary_winners`, ``ends`` as in :func:`_candidates`.  Returns ``(cu, cv, ce, cost)``, each
     (2p,) (int64 / float64 half costs): first halves, then second halves in the same order
     (pair ``k`` is rows ``k`` and ``p + k``).
     """
     et, F, P, opp, fcount, vv, vf, _, _ = mesh
-    halves = _candidates(mesh, Q, src, frozen | ~seam, rows=np.flatnonzero(seam & ~frozen))
+    halves = _candidates(mesh, ends, Q, src, frozen | ~seam, rows=np.flatnonzero(seam & ~frozen))
     if halves is None:
         return None
     hu, hv, he, hcost = halves
@@ -720,12 +751,12 @@ def _to_original(table, local):
     return np.where(local >= 0, table[np.maximum(local, 0)], -1)
 
 
-def _candidates(mesh, Q, src, frozen_ext, twins=None, rows=None):
+def _candidates(mesh, ends, Q, src, frozen_ext, twins=None, rows=None):
     """Candidate collapses on the local mesh, grouped by removed vertex, cheapest first.
 
-    ``mesh`` as in :func:`_ordinary_winners`, Q (n, 10) quadrics, ``src`` (3m,) the half-edge
-    sources, frozen_ext (n,) bool, ``twins`` the doubled faces' edges and counts
-    (:func:`_twin_counts`; None: none).  Returns ``(cu, cv, ce, cost)`` ((c,) int64 removed vertex,
+    ``mesh`` as in :func:`_ordinary_winners`, ``ends`` the live mesh's ``(boundary, edge_flags)``
+    (:class:`~.livemesh.LiveMesh`), Q (n, 10) quadrics, ``src`` (3m,) the half-edge sources, frozen_ext
+    (n,) bool, ``twins`` the doubled faces' edges and counts (:func:`_twin_counts`; None: none).  Returns ``(cu, cv, ce, cost)`` ((c,) int64 removed vertex,
     kept vertex, edge; (c,) float64 quadric cost), at most ``TRIES`` per removed vertex, or None
     when there is none.  ``rows`` (r,) int64, ascending: the only vertices ``frozen_ext`` leaves free,
     when they are few (the compiled kernel then visits only them); None: every vertex.
@@ -736,8 +767,8 @@ def _candidates(mesh, Q, src, frozen_ext, twins=None, rows=None):
         twins = _twin_counts(et, F, None, n)
     kernel = compiled(_candidates_kernel)
     if kernel is not None:
-        cu, cv, ce, cost = kernel(vv[0], vv[1], vv_edge, et.lo, et.hi, et.count, et.he0, et.he1, src, fcount,
-                                  frozen_ext, twins[0], twins[1], Q, P, TRIES, rows)
+        cu, cv, ce, cost = kernel(vv[0], vv[1], vv_edge, et.count, ends[0], ends[1], fcount, frozen_ext, twins[0],
+                                  twins[1], Q, P, TRIES, rows)
         return (cu, cv, ce, cost) if len(cu) else None
     # (Q_u + Q_v)(p_v) = Q_u(p_v) + Q_v(p_v); the second term is one value per vertex
     own = quadric_error(Q, P)
@@ -751,17 +782,18 @@ def _candidates(mesh, Q, src, frozen_ext, twins=None, rows=None):
     return cu[keep], cv[keep], ce[keep], cost[keep]
 
 
-def _candidates_kernel(vv_start, vv_nbr, vv_edge, lo, hi, count, he0, he1, src, fcount, frozen_ext, twin_edge, extra,
+def _candidates_kernel(vv_start, vv_nbr, vv_edge, count, boundary, edge_flags, fcount, frozen_ext, twin_edge, extra,
                        Q, P, tries, rows):
     """Compiled :func:`_candidates` (same arrays, same order), one vertex at a time.
 
     A vertex's row of the neighbour CSR lists its edges in the order :func:`_usable` meets them
     (edges where it is the low end, then where it is the high end, each in edge order), so the
     usable collapses of ``u`` are its row minus the excluded edges, sorted stably by cost as in
-    :func:`_cheapest_per_group` (NaN last).  ``rows``: None, every vertex (one pass over the vertices
-    for their own quadric errors, one over the edges for the boundary and bad edges at each vertex),
-    or (r,) int64, ascending, the vertices to visit (those counted from the rows' own edges, the errors
-    of their neighbours only: the cost is the rows', not the mesh's; a separate compilation).
+    :func:`_cheapest_per_group` (NaN last).  ``boundary`` / ``edge_flags`` (n,): the live mesh's
+    (:class:`~.livemesh.LiveMesh`); a vertex on an edge of more than two faces has its row searched
+    for one that is no pillow's.  ``rows``: None, every vertex (one pass over the vertices for their
+    own quadric errors first), or (r,) int64, ascending, the vertices to visit (the errors of their
+    neighbours only: the cost is the rows', not the mesh's; a separate compilation).
     """
     n = len(fcount)
     r = n if rows is None else len(rows)
@@ -778,32 +810,21 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, lo, hi, count, he0, he1, src, 
     buf_p = np.empty(width, np.int64)  # row positions of u's usable collapses, by cost
     buf_c = np.empty(width, np.float64)  # their costs
     own = np.empty(n, np.float64)  # quadric_error(Q, P), vertex by vertex
-    bvc = np.zeros(n, np.int64)  # boundary edges at each vertex
-    badv = np.zeros(n, np.bool_)  # a non-manifold or inconsistently oriented edge at the vertex
     if rows is None:
         for x in range(n):
             own[x] = _quadric_at(_quadric_row(Q, x), P, x)
-        for e in range(len(lo)):
-            if count[e] == 1:
-                bvc[lo[e]] += 1
-                bvc[hi[e]] += 1
-            if (count[e] > 2 and not twin_edge[e]) or (count[e] == 2 and src[he0[e]] == src[he1[e]]):
-                badv[lo[e]] = badv[hi[e]] = True
     else:
-        for u in rows:  # an edge is in the rows of both its ends (a self-loop twice in its vertex's)
+        for u in rows:
             for p in range(vv_start[u], vv_start[u + 1]):
-                e, x = vv_edge[p], vv_nbr[p]
+                x = vv_nbr[p]
                 own[x] = _quadric_at(_quadric_row(Q, x), P, x)
-                bvc[u] += count[e] == 1
-                if (count[e] > 2 and not twin_edge[e]) or (count[e] == 2 and src[he0[e]] == src[he1[e]]):
-                    badv[u] = True
     k = 0
     for i in range(r):
         u = i if rows is None else rows[i]
         a, b = vv_start[u], vv_start[u + 1]
-        if badv[u] or frozen_ext[u]:
-            continue
-        bu = bvc[u]
+        if frozen_ext[u] or edge_flags[u] & 1 or (edge_flags[u] & 2 and _on_fin(a, b, vv_edge, count, twin_edge)):
+            continue  # a non-manifold (and no pillow's) or inconsistently oriented edge at u
+        bu = boundary[u]
         if not ((bu == 0 and b - a == fcount[u] - extra[u]) or (bu == 2 and extra[u] == 0 and b - a == fcount[u] + 1)):
             continue  # not one disk or half-disk of faces
         q = _quadric_row(Q, u)
@@ -825,6 +846,17 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, lo, hi, count, he0, he1, src, 
             out_u[k], out_v[k], out_e[k], out_c[k] = u, vv_nbr[p], vv_edge[p], buf_c[j]
             k += 1
     return out_u[:k], out_v[:k], out_e[:k], out_c[:k]
+
+
+@kernel_helper
+def _on_fin(a, b, vv_edge, count, twin_edge):
+    """Whether the edges ``vv_edge[a:b]`` (a vertex's row) hold one of more than two faces that is not
+    a pillow's (``twin_edge``, :func:`_twin_counts`)."""
+    for p in range(a, b):
+        e = vv_edge[p]
+        if count[e] > 2 and not twin_edge[e]:
+            return True
+    return False
 
 
 def _cheapest_per_group(cu, cost, n):
@@ -1258,13 +1290,23 @@ def _legal_kernel(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_st
     """Compiled :func:`_legal`: the same (k,) bool mask, test for test (see there); ``fin`` (n,) bool
     marks the vertices on an edge with more than two faces (:func:`_fin_vertices`), ``twin_edge`` (e,)
     bool the pillows' edges (:func:`_twin_counts`)."""
+    return _legal_marked(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_start, vv_nbr, vf_start, vf_face,
+                         fin, twin_edge, np.full(len(fcount), -1, np.int64), 0)
+
+
+@kernel_helper(allocates=True)
+def _legal_marked(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_start, vv_nbr, vf_start, vf_face, fin,
+                  twin_edge, mark, token):
+    """:func:`_legal_kernel` with its scratch ``mark`` (n,) int64 given: ``mark[x] == token + j`` marks ``x`` a
+    neighbour of candidate j's kept vertex, so a caller testing several sets of candidates (a selection's
+    rounds) fills it once, each set with ``token`` past the marks of the sets before (all below it)."""
     ok = np.ones(len(cu), np.bool_)
-    mark = np.full(len(fcount), -1, np.int64)  # mark[x] == i: x is a neighbour of candidate i's kept vertex
-    for i in range(len(cu)):
-        if i % LEGAL_CHUNK == 0 and _touch(cu, cv, ce, i, min(i + LEGAL_CHUNK, len(cu)), count, he0, opp, fcount,
+    for j in range(len(cu)):
+        i = token + j
+        if j % LEGAL_CHUNK == 0 and _touch(cu, cv, ce, j, min(j + LEGAL_CHUNK, len(cu)), count, he0, opp, fcount,
                                            vv_start, vv_nbr, vv_edge, vf_start, vf_face, F, P) < 0:
-            ok[i] = not ok[i]  # never (counts and ids are not negative): the loads must not be dropped
-        u, v, e = cu[i], cv[i], ce[i]
+            ok[j] = not ok[j]  # never (counts and ids are not negative): the loads must not be dropped
+        u, v, e = cu[j], cv[j], ce[j]
         for p in range(vv_start[v], vv_start[v + 1]):
             mark[vv_nbr[p]] = i
         common = 0  # link condition
@@ -1272,19 +1314,19 @@ def _legal_kernel(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_st
             if mark[vv_nbr[p]] == i:
                 common += 1
         if common != count[e] or fcount[u] <= count[e]:
-            ok[i] = False
+            ok[j] = False
             continue
         if he1[e] >= 0 and opp[he0[e]] == opp[he1[e]]:  # a doubled face on uv
-            ok[i] = False
+            ok[j] = False
             continue
         for he in (he0[e], he1[e]):  # deleted faces: other edge at u interior, wing keeps a face
             if he >= 0:
                 w = opp[he]
                 e_uw = _edge_id(vv_start, vv_nbr, vv_edge, u, w)
                 if e_uw < 0 or not (count[e_uw] == 2 or (twin_edge[e_uw] and count[e_uw] == 4)) or fcount[w] < 2:
-                    ok[i] = False
-        if ok[i]:
-            ok[i] = _moved_faces_ok(u, v, (vv_start, vv_nbr, vv_edge), count, he0, he1, F, P, opp, vf_start, vf_face,
+                    ok[j] = False
+        if ok[j]:
+            ok[j] = _moved_faces_ok(u, v, (vv_start, vv_nbr, vv_edge), count, he0, he1, F, P, opp, vf_start, vf_face,
                                     mark, i, fin)
     return ok
 
@@ -1453,38 +1495,49 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
     ``rank`` (c,) int64 is :func:`_offer_ranks`; ``mesh`` the tuple of :func:`_legal_kernel`'s mesh
     arguments.  (``_conflicts``' same-kept-vertex rule is implied by its kept-vertex-next-to-a-
     lower-ranked-removed-vertex rule, since every winner's removed vertex neighbours its kept one.)
+    The groups still in play are kept as a list, ascending, compacted after every round (a round
+    visits them only, not every group).
     """
     vv_edge, count, he0, he1, F, P, opp, fcount, vf_start, vf_face, fin, twin_edge = mesh
     big = len(cu) + 1
     starts = np.flatnonzero(np.concatenate((np.ones(1, np.bool_), cu[1:] != cu[:-1])))
     ends = np.append(starts[1:], len(cu))
     front = starts.copy()
-    in_play = np.ones(len(starts), np.bool_)
+    play = np.arange(len(starts))  # groups in play, ascending: the first ``live`` entries
+    live = len(starts)
     flags = np.zeros((3, n), np.bool_)  # chosen removed, chosen kept, blocked
     scratch = np.full((3, n), big, np.int64)  # offers, winners' ranks at u, at v (reset after use)
+    wg = np.empty(len(starts), np.int64)  # this round's winning groups and their offers
+    wo = np.empty(len(starts), np.int64)
+    mark = np.full(n, -1, np.int64)  # the legality tests' scratch (:func:`_legal_marked`), filled once
+    tested = 0
     out = np.empty(len(cu), np.int64)
     n_out = 0
     for _ in range(rounds):
-        groups = np.flatnonzero(in_play)
-        if len(groups) == 0:
+        if live == 0:
             break
-        offer = front[groups]
-        for o in offer:
+        for j in range(live):
+            o = front[play[j]]
             scratch[0, cu[o]] = rank[o]
-        won = np.empty(len(offer), np.bool_)
-        for j in range(len(offer)):
-            won[j] = not _nbr_below(vv_start, vv_nbr, scratch[0], cu[offer[j]], rank[offer[j]] + 1)
-        for o in offer:
-            scratch[0, cu[o]] = big
-        if not won.any():
+        w = 0
+        for j in range(live):
+            g = play[j]
+            o = front[g]
+            if not _nbr_below(vv_start, vv_nbr, scratch[0], cu[o], rank[o] + 1):
+                wg[w], wo[w] = g, o
+                w += 1
+        for j in range(live):
+            scratch[0, cu[front[play[j]]]] = big
+        if w == 0:
             break
-        wg, wo = groups[won], offer[won]
-        keep = ~_round_conflicts(cu[wo], cv[wo], rank[wo], flags, scratch, vv_start, vv_nbr, big, n_out > 0)
-        ok = np.zeros(len(wo), np.bool_)
-        idx = wo[keep]
-        ok[keep] = _legal_kernel(cu[idx], cv[idx], ce[idx], vv_edge, count, he0, he1, F, P, opp, fcount,
-                                 vv_start, vv_nbr, vf_start, vf_face, fin, twin_edge)
-        for j in range(len(wo)):
+        wu, wv = cu[wo[:w]], cv[wo[:w]]
+        keep = ~_round_conflicts(wu, wv, rank[wo[:w]], flags, scratch, vv_start, vv_nbr, big, n_out > 0)
+        ok = np.zeros(w, np.bool_)
+        idx = wo[:w][keep]
+        ok[keep] = _legal_marked(cu[idx], cv[idx], ce[idx], vv_edge, count, he0, he1, F, P, opp, fcount,
+                                 vv_start, vv_nbr, vf_start, vf_face, fin, twin_edge, mark, tested)
+        tested += len(idx)
+        for j in range(w):
             g, o = wg[j], wo[j]
             if ok[j]:
                 out[n_out] = o
@@ -1495,11 +1548,13 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
                 flags[2, cu[o]] = flags[2, cv[o]] = True
             else:
                 front[g] += 1
-                if front[g] >= ends[g]:
-                    in_play[g] = False
-        for g in range(len(starts)):
-            if flags[2, cu[starts[g]]]:
-                in_play[g] = False
+        kept = 0  # out of play: no candidate left, or the group's vertex blocked
+        for j in range(live):
+            g = play[j]
+            if front[g] < ends[g] and not flags[2, cu[starts[g]]]:
+                play[kept] = g
+                kept += 1
+        live = kept
     return out[:n_out]
 
 
