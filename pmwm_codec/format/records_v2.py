@@ -845,6 +845,8 @@ class ChunkDecoder:
                     and _unreferenced(bufs)):
                 break
         else:
+            if self.mask_out is not None and len(self.mask_out[0]) != len(state.positions):
+                self.mask_out = self.mask_spare = None  # the mesh grew: the old sizes are never used again
             bufs = _mask_buffers(len(state.faces), len(state.positions))
         if bufs is not self.mask_out:
             self.mask_out, self.mask_spare = bufs, self.mask_out

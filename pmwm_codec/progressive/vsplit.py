@@ -131,12 +131,17 @@ class MeshState:
 
 #: Rows a growing :class:`MeshState` starts with beyond twice its base.
 GROW_START = 64
+#: A growing :class:`MeshState` takes its whole declared room once it needs this fraction of it: the
+#: last copy then moves a quarter of the arrays at most, not half (a valid stream reaches its counts),
+#: and a claim is trusted only up to this many times what was decoded.
+GROW_TO_LIMIT = 8
 
 
 def _grown(rows: np.ndarray, valid: int, need: int, limit: int) -> np.ndarray:
-    """A copy of ``rows`` (R, ...) with room for ``need`` rows: at least twice R, at most ``limit``;
-    its first ``valid`` rows copied, the others uninitialised."""
-    out = np.empty((min(limit, max(need, 2 * len(rows))),) + rows.shape[1:], rows.dtype)
+    """A copy of ``rows`` (R, ...) with room for ``need`` rows: at least twice R, at most ``limit``
+    (all of it from ``limit / GROW_TO_LIMIT`` on); its first ``valid`` rows copied, the others uninitialised."""
+    size = limit if need * GROW_TO_LIMIT >= limit else min(limit, max(need, 2 * len(rows)))
+    out = np.empty((size,) + rows.shape[1:], rows.dtype)
     out[:valid] = rows[:valid]
     return out
 
