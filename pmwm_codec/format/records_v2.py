@@ -73,8 +73,8 @@ def _block(b):
 
 
 class CornerLists:
-    """Every vertex's corners (the face slots holding it) as ascending linked lists in preallocated
-    arrays, with every vertex's valence (spec §8.4.1): the adjacency the models read.
+    """Every vertex's corners (the face slots holding it) as ascending linked lists in arrays with room
+    to spare, with every vertex's valence (spec §8.4.1): the adjacency the models read.
 
     ``head`` / ``tail`` (N,) int32 first / last corner of a vertex (-1: none), ``nxt`` (3M,) int32
     the next corner of the same vertex (-1: the last); ``valence`` (N,) int64 the number of
@@ -82,7 +82,7 @@ class CornerLists:
     (:data:`BELOW_BITS`), ``stamp`` / ``tag`` (N,) int64 with their token counter ``ctr`` (1,)
     int64, ``split`` (N,) uint8 zeros, ``created`` ((3M + 31) // 32,) int64 zeros (a bitmap over
     the corners, 32 bits a word) and ``creator`` (3M,) int32 (:func:`_link_splits`).  N / M: the
-    primitive's declared vertex / face counts.  ``n`` / ``m``: the mesh they describe; :meth:`sync`
+    capacity of the primitive's :class:`~pmwm_codec.progressive.vsplit.MeshState` (:meth:`grow` follows it).  ``n`` / ``m``: the mesh they describe; :meth:`sync`
     rebuilds them (O(m)) for a mesh that changed elsewhere, the decoder updates them batch by batch
     (O(batch)).
     """
