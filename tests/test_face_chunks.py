@@ -489,3 +489,24 @@ def test_faces_of_new_vertices_the_encoder_cannot_order_are_refused_not_miscoded
         r2.pack_face_chunk(TETRA_VALUES, TETRAHEDRON, [[4, 6, 7], [5, 6, 8]], np.zeros((5, 3), np.int64))
     stored, order = r2.pack_face_chunk(TETRA_VALUES, TETRAHEDRON, [[4, 5, 8], [5, 6, 7]], np.zeros((5, 3), np.int64))
     assert _decode(stored, TETRA_VALUES, TETRAHEDRON, 5, 2)[1][4:].tolist() == [[4, 5, 6], [5, 7, 8]]
+
+
+@pytest.mark.parametrize("vertex_step, face_step", [(20_000_000, 2), (0, 50_000_000)])
+def test_a_face_chunk_claiming_more_than_its_bytes_can_code_is_refused_before_any_room_is_made(vertex_step,
+                                                                                                 face_step):
+    """Every new value and face costs a coded decision, and a byte pays for at most
+    :data:`~pmwm_codec.format.rangecoder.MAX_DECISIONS_PER_BYTE` of them: an index entry claiming millions
+    for a few bytes is refused by name, on a state that grows only as it is decoded (no room made first)."""
+    import tracemalloc
+
+    stored = _spec_bytes("face-chunk-example")
+    state = MeshState(TETRA_VALUES, TETRAHEDRON, 4 + vertex_step, 4 + face_step, grow=True)
+    tracemalloc.start()
+    try:
+        with pytest.raises(FormatError, match=f"adds more than its {len(stored)} bytes can code"):
+            r2.decode_face_chunk(stored, state, r2.ChunkDecoder(), vertex_step, face_step)
+        assert tracemalloc.get_traced_memory()[1] < 1 << 20
+    finally:
+        tracemalloc.stop()
+    values, faces = _decode(stored, TETRA_VALUES, TETRAHEDRON, 0, 2)  # the honest entry still decodes
+    assert faces[4:].tolist() == [[0, 1, 3], [0, 3, 1]]

@@ -278,3 +278,67 @@ def test_declared_counts_past_what_the_chunks_reach_are_refused_before_anything_
     gltf["meshes"][0]["primitives"][0]["extensions"]["PMWM_progressive_mesh"][field] = value
     with pytest.raises(FormatError, match="its last chunk reaches"):
         _decode(_join_glb(gltf, rest))
+
+
+def _claiming(data: bytes, vertices: int, faces: int, cut_last_to: int | None = None) -> bytes:
+    """``data`` (a one-primitive version 2 file, packed table) with its last chunk's index entry and the
+    extension claiming ``vertices`` / ``faces`` (digests kept valid: no key, no MAC); ``cut_last_to``: that
+    chunk's payload cut to so many bytes, its length and digest made to match."""
+    from pmwm_codec.format.extension import digest, pack_chunk_table, unpack_chunk_table
+
+    gltf, rest = _split_glb(data)
+    ext = gltf["meshes"][0]["primitives"][0]["extensions"]["PMWM_progressive_mesh"]
+    table = ext["chunks"]
+    columns = unpack_chunk_table(table["count"], table["packed"])
+    fields = ("byteLength", "vertexCount", "faceCount", "geometricError", "digest")
+    entries = [dict(zip(fields, row)) for row in zip(*(columns[f] for f in fields))]
+    assert "firstFaceChunk" not in ext and "byteOffsets" not in table
+    blob = rest[8:]
+    view = gltf["bufferViews"][table["bufferView"]]
+    start = view.get("byteOffset", 0) + sum(e["byteLength"] for e in entries[:-1])
+    last = entries[-1]
+    if cut_last_to is not None:
+        payload = blob[start : start + cut_last_to]
+        blob = blob[:start] + payload + blob[start + last["byteLength"] :]
+        view["byteLength"] -= last["byteLength"] - cut_last_to
+        gltf["buffers"][0]["byteLength"] = len(blob)
+        blob += b"\0" * (-len(blob) % 4)
+        last.update(byteLength=cut_last_to, digest=digest(payload, 2))
+    last.update(vertexCount=vertices, faceCount=faces)
+    ext.update(vertexCount=vertices, faceCount=faces, chunks={**table, **pack_chunk_table(entries)})
+    return _join_glb(gltf, len(blob).to_bytes(4, "little") + rest[4:8] + blob)  # the BIN chunk's header, its length new
+
+
+def _peak_bytes(run) -> tuple:
+    """``(most bytes allocated, numpy's arrays included, the error's text)`` of ``run()``, which must raise
+    FormatError."""
+    import tracemalloc
+
+    tracemalloc.start()
+    try:
+        with pytest.raises(FormatError) as caught:
+            run()
+        return tracemalloc.get_traced_memory()[1], str(caught.value)
+    finally:
+        tracemalloc.stop()
+
+
+def test_chunks_claiming_sixty_million_vertices_cost_the_memory_of_what_they_hold():
+    """An edited index (the last chunk and the extension claiming 60M vertices / 120M faces, digests valid)
+    made both decoders size every array by the claim before a chunk was read: 2 GB and 10 s for a 105 KB file
+    (a dragon). Memory now follows the splits actually decoded; the claim is refused when it is not reached."""
+    data = _path("sphere-attributes.plain", ".pmw", 2, packed=True).read_bytes()
+    _decode(data)  # the kernels compiled, outside the measure
+    peak, error = _peak_bytes(lambda: _decode(_claiming(data, 60_000_000, 120_000_000)))
+    assert "counts differ from its index entry" in error
+    assert peak < 16 << 20
+
+
+def test_a_payload_cut_short_is_refused_at_the_first_batch_past_its_end():
+    """The range decoder reads zeros past a payload's end and only said so at the end of the chunk: a few bytes
+    claiming millions of splits decoded zeros up to the claim (work and memory with no bytes behind them). The
+    first batch that reads past the end is refused now, with the end-of-payload error."""
+    data = _path("sphere-attributes.plain", ".pmw", 2, packed=True).read_bytes()
+    peak, error = _peak_bytes(lambda: _decode(_claiming(data, 60_000_000, 120_000_000, cut_last_to=3)))
+    assert "does not end at the end of the payload" in error
+    assert peak < 16 << 20

@@ -233,9 +233,9 @@ def _plan(gltf: dict, exts: list, bin_capacity: int) -> _Plan:
 
 def _check_final_counts(ext: dict, base_vertices: int, base_faces: int) -> None:
     """The extension's ``vertexCount`` / ``faceCount`` are the counts after all chunks of the file (spec
-    README): the last chunk's, or the base mesh's when there is none.  FormatError otherwise: a reader
-    sizes its arrays by them (a file declaring millions it never reaches took that memory and decoded as
-    complete to fewer)."""
+    README): the last chunk's, or the base mesh's when there is none.  FormatError otherwise (a file
+    declaring millions it never reaches decoded as complete to fewer).  They bound what a reader holds;
+    its arrays grow as the chunks decode (:meth:`~pmwm_codec.progressive.vsplit.MeshState.reserve`)."""
     chunks = ext["chunks"]
     last = (chunks[-1]["vertexCount"], chunks[-1]["faceCount"]) if chunks else (base_vertices, base_faces)
     if (ext["vertexCount"], ext["faceCount"]) != last:

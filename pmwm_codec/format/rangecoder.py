@@ -44,6 +44,12 @@ MAX_BUCKET = 32
 BYTES_PER_DECISION = 1
 #: Decisions of one integer: 6 bucket bits, a sign, up to 31 mantissa bits.
 INT_DECISIONS = BUCKET_BITS + 1 + MAX_BUCKET
+#: Most decisions a decoder can take per byte it reads: an adaptive probability stays within
+#: [2**ADAPT_SHIFT - 1, PROB_ONE - 2**ADAPT_SHIFT + 1] (2033 of 2048 at most), so every decision
+#: narrows the range by at least -log2(2033 / 2048) = 0.0106 bits and a byte pays for at most
+#: 8 / 0.0106 = 755 of them (a direct bit costs 1 bit).  Rounded up: a bound on what a payload of a
+#: given length can hold, so that a reader refuses counts no payload of that length can carry.
+MAX_DECISIONS_PER_BYTE = 768
 
 
 @kernel_helper
@@ -363,8 +369,17 @@ class Decoder:
     def finish(self, what: str = "chunk payload") -> None:
         """FormatError unless the stream ended exactly at the end of the bytes."""
         if self.ds[3] or int(self.ds[2]) != len(self.buf):
-            raise FormatError(f"{what}: the coded stream does not end at the end of the payload "
-                              f"({int(self.ds[2])} bytes read of {len(self.buf)})")
+            self._ended_elsewhere(what)
+
+    def check_overrun(self, what: str = "chunk payload") -> None:
+        """:meth:`finish`'s FormatError as soon as the decoder has read past the end of the bytes (zeros
+        from there on): a valid stream never does, and decoding on would only spend time and memory."""
+        if self.ds[3]:
+            self._ended_elsewhere(what)
+
+    def _ended_elsewhere(self, what: str):
+        raise FormatError(f"{what}: the coded stream does not end at the end of the payload "
+                          f"({int(self.ds[2])} bytes read of {len(self.buf)})")
 
 
 def _kernel(fn):

@@ -73,8 +73,8 @@ def _block(b):
 
 
 class CornerLists:
-    """Every vertex's corners (the face slots holding it) as ascending linked lists in preallocated
-    arrays, with every vertex's valence (spec §8.4.1): the adjacency the models read.
+    """Every vertex's corners (the face slots holding it) as ascending linked lists in arrays with room
+    to spare, with every vertex's valence (spec §8.4.1): the adjacency the models read.
 
     ``head`` / ``tail`` (N,) int32 first / last corner of a vertex (-1: none), ``nxt`` (3M,) int32
     the next corner of the same vertex (-1: the last); ``valence`` (N,) int64 the number of
@@ -82,7 +82,7 @@ class CornerLists:
     (:data:`BELOW_BITS`), ``stamp`` / ``tag`` (N,) int64 with their token counter ``ctr`` (1,)
     int64, ``split`` (N,) uint8 zeros, ``created`` ((3M + 31) // 32,) int64 zeros (a bitmap over
     the corners, 32 bits a word) and ``creator`` (3M,) int32 (:func:`_link_splits`).  N / M: the
-    primitive's declared vertex / face counts.  ``n`` / ``m``: the mesh they describe; :meth:`sync`
+    capacity of the primitive's :class:`~pmwm_codec.progressive.vsplit.MeshState` (:meth:`grow` follows it).  ``n`` / ``m``: the mesh they describe; :meth:`sync`
     rebuilds them (O(m)) for a mesh that changed elsewhere, the decoder updates them batch by batch
     (O(batch)).
     """
@@ -99,12 +99,31 @@ class CornerLists:
     def fits(self, state) -> bool:
         return len(self.head) == len(state.positions) and len(self.nxt) == 3 * len(state.faces)
 
+    def grow(self, state) -> None:
+        """Room for ``state``'s arrays after they grew (:meth:`~pmwm_codec.progressive.vsplit.MeshState.reserve`):
+        every array copied into a longer one, its new part as a new one's (-1 / zeros)."""
+        N, M = len(state.positions), len(state.faces)
+        for name in ("head", "tail", "valence", "tag", "split", "below", "stamp"):
+            setattr(self, name, _longer(getattr(self, name), N, -1 if name in ("head", "tail") else 0))
+        self.nxt, self.creator = _longer(self.nxt, 3 * M, -1), _longer(self.creator, 3 * M, 0)
+        self.created = _longer(self.created, (3 * M + 31) // 32, 0)
+
     def sync(self, state) -> None:
         """Describe ``state``'s current mesh (rebuilt unless it is the mesh they already describe)."""
         if (self.n, self.m) != (state.n, state.m):
             rc._kernel(_corner_lists_kernel)(state.faces[: state.m].reshape(-1), state.n, self.head, self.tail,
                                              self.nxt, self.valence, self.stamp, self.ctr)
             self.n, self.m = state.n, state.m
+
+
+def _longer(values: np.ndarray, size: int, fill) -> np.ndarray:
+    """(size,) ``values`` then ``fill`` (``values`` itself when it is that long already)."""
+    if len(values) >= size:
+        return values
+    out = np.empty(size, values.dtype)
+    out[: len(values)] = values
+    out[len(values) :] = fill
+    return out
 
 
 def _corner_lists_kernel(flat, n, head, tail, nxt, valence, stamp, ctr):
@@ -826,6 +845,8 @@ class ChunkDecoder:
                     and _unreferenced(bufs)):
                 break
         else:
+            if self.mask_out is not None and len(self.mask_out[0]) != len(state.positions):
+                self.mask_out = self.mask_spare = None  # the mesh grew: the old sizes are never used again
             bufs = _mask_buffers(len(state.faces), len(state.positions))
         if bufs is not self.mask_out:
             self.mask_out, self.mask_spare = bufs, self.mask_out
@@ -896,7 +917,7 @@ def _decode_batch(dec, state, lists, buffers):
     n, m = state.n, state.m
     flat = state.faces.reshape(-1)
     marked, gstart, inc, a, b = buffers
-    cap = len(state.positions) - n  # the marks the primitive has room for
+    cap = min(state.vertex_limit, 2 * n) - n  # the marks the primitive has room for (one a vertex at most)
     k, corners = rc._kernel(_mask_kernel)(flat, n, lists.head, lists.nxt, lists.valence, lists.below, _NO_SEL,
                                           marked[:cap], gstart[: cap + 1], inc, a, b, _NO_STATE, _NO_BYTES, dec.ds,
                                           dec.buf, dec.probs, 1)
@@ -904,8 +925,12 @@ def _decode_batch(dec, state, lists, buffers):
         raise FormatError("splits exceed the declared vertex count")
     if k == 0:
         raise FormatError("chunk payload: a batch marks no split vertex")
+    dec.check_overrun()
     v, gstart = marked[:k], gstart[: k + 1]
     inc, a, b = inc[:corners], a[:corners], b[:corners]
+    if state.reserve(n + k, min(m + 2 * k, state.face_limit)):  # two new faces a split at most
+        lists.grow(state)
+        flat = state.faces.reshape(-1)
     D = state.positions.shape[1]
     sym = np.zeros(corners, np.uint8)
     rsum, rcount = np.empty((k, D)), np.empty(k, np.int64)
@@ -1584,11 +1609,15 @@ def decode_face_chunk(payload, state, model: ChunkDecoder, vertex_step: int, fac
     lists = model.lists_for(state)
     n, m = state.n, state.m
     t = int(vertex_step)
-    if t < 0 or n + t > len(state.positions):
+    if t < 0 or n + t > state.vertex_limit:
         raise FormatError("face chunk: its index entry adds more vertices than the primitive declares")
-    room = min(int(face_step), len(state.faces) - m)
+    room = min(int(face_step), state.face_limit - m)
     if room < 1:
         raise FormatError("face chunk: its index entry adds no face")
+    if t * state.positions.shape[1] + room > rc.MAX_DECISIONS_PER_BYTE * (len(payload) + 4):
+        raise FormatError(f"face chunk: its index entry adds more than its {len(payload)} bytes can code")
+    if state.reserve(n + t, m + room):
+        lists.grow(state)
     dec = rc.Decoder(payload, rc.new_probs(FACE_PROBS))
     flat = state.faces[: m + room].reshape(-1)
     up, near = _face_scratch(state)

@@ -67,7 +67,7 @@ def new_face_count(symbols: np.ndarray) -> int:
 
 
 class MeshState:
-    """A mesh growing in preallocated arrays.
+    """A mesh growing in arrays with room to spare.
 
     Attributes
     ----------
@@ -77,27 +77,73 @@ class MeshState:
         connectivity over positions taken from elsewhere.)
     faces : (M, 3) int64
         Triangles; rows ``[:m]`` are valid (int64: numpy indexes with intp, int32 would be cast on every use).
+    vertex_limit, face_limit : int
+        The counts the mesh may reach (a stream's declared counts): :meth:`reserve` refuses more.
+
+    ``N`` / ``M`` are the limits when the state is made with ``grow=False`` (an encoder, which knows
+    its counts).  A decoder makes it with ``grow=True``: the arrays start at the base's size and
+    :meth:`reserve` grows them (at least doubling, never past the limits) as splits are actually
+    decoded, so memory follows what a stream holds, not what its header claims.  Growing replaces
+    the arrays: read ``positions`` / ``faces`` again after a :meth:`reserve` (views taken before keep
+    the rows they had).
     """
 
-    def __init__(self, base_positions, base_faces, vertex_capacity, face_capacity, dtype=np.int64):
+    def __init__(self, base_positions, base_faces, vertex_capacity, face_capacity, dtype=np.int64, *,
+                 grow: bool = False):
         n0 = len(base_positions)
         m0 = len(base_faces)
         if vertex_capacity < n0 or face_capacity < m0:
             raise FormatError("declared full-resolution counts are smaller than the base mesh")
+        self.vertex_limit, self.face_limit = int(vertex_capacity), int(face_capacity)
         base_positions = np.asarray(base_positions)
-        self.positions = np.empty((vertex_capacity, base_positions.shape[1]), dtype=dtype)
-        self.faces = np.empty((face_capacity, 3), dtype=np.int64)
+        N = min(self.vertex_limit, 2 * n0 + GROW_START) if grow else self.vertex_limit
+        M = min(self.face_limit, 2 * m0 + 2 * GROW_START) if grow else self.face_limit
+        self.positions = np.empty((N, base_positions.shape[1]), dtype=dtype)
+        self.faces = np.empty((M, 3), dtype=np.int64)
         self.positions[:n0] = base_positions
         self.faces[:m0] = base_faces
         self.n = n0
         self.m = m0
         self._sid = np.full(max(n0, 1), -1, dtype=np.int32)  # grown as the mesh grows (not from declared sizes)
 
+    def reserve(self, vertices: int, faces: int) -> bool:
+        """Room for ``vertices`` vertices and ``faces`` faces in all; True when an array was replaced.
+        FormatError when either exceeds the declared limits (the stream holds more than it says)."""
+        if vertices > self.vertex_limit:
+            raise FormatError("splits exceed the declared vertex count")
+        if faces > self.face_limit:
+            raise FormatError("splits exceed the declared face count")
+        grown = False
+        if vertices > len(self.positions):
+            self.positions = _grown(self.positions, self.n, vertices, self.vertex_limit)
+            grown = True
+        if faces > len(self.faces):
+            self.faces = _grown(self.faces, self.m, faces, self.face_limit)
+            grown = True
+        return grown
+
     def current_positions(self) -> np.ndarray:
         return self.positions[: self.n]
 
     def current_faces(self) -> np.ndarray:
         return self.faces[: self.m]
+
+
+#: Rows a growing :class:`MeshState` starts with beyond twice its base.
+GROW_START = 64
+#: A growing :class:`MeshState` takes its whole declared room once it needs this fraction of it: the
+#: last copy then moves a quarter of the arrays at most, not half (a valid stream reaches its counts),
+#: and a claim is trusted only up to this many times what was decoded.
+GROW_TO_LIMIT = 8
+
+
+def _grown(rows: np.ndarray, valid: int, need: int, limit: int) -> np.ndarray:
+    """A copy of ``rows`` (R, ...) with room for ``need`` rows: at least twice R, at most ``limit``
+    (all of it from ``limit / GROW_TO_LIMIT`` on); its first ``valid`` rows copied, the others uninitialised."""
+    size = limit if need * GROW_TO_LIMIT >= limit else min(limit, max(need, 2 * len(rows)))
+    out = np.empty((size,) + rows.shape[1:], rows.dtype)
+    out[:valid] = rows[:valid]
+    return out
 
 
 @dataclass
@@ -211,7 +257,7 @@ def split_topology(state: MeshState, v: np.ndarray, symbols: np.ndarray, *, inci
         raise FormatError("a split batch is empty")
     if v[0] < 0 or v[-1] >= n0 or (k > 1 and np.any(np.diff(v) <= 0)):
         raise FormatError("split vertex ids out of range or not increasing")
-    if n0 + k > len(state.positions):
+    if n0 + k > state.vertex_limit:
         raise FormatError("splits exceed the declared vertex count")
     inc, owner = incidences if incidences is not None else find_incidences(state, v)
     if len(inc) != len(symbols):
@@ -219,6 +265,7 @@ def split_topology(state: MeshState, v: np.ndarray, symbols: np.ndarray, *, inci
     sym = np.asarray(symbols)
     if len(sym) and int(sym.max()) >= SYMBOL_COUNT:
         raise FormatError("unknown incidence symbol")
+    state.reserve(n0 + k, min(m0 + new_face_count(sym), state.face_limit))  # more faces: refused below
 
     kernel = compiled(_split_kernel)
     if kernel is not None:

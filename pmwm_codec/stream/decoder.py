@@ -17,8 +17,8 @@ is an :class:`~pmwm_codec.errors.OptionError`.
 The container layer (:class:`~pmwm_codec.format.ContainerParser`) does the byte
 work (GLB framing, limits, digests, zstd); this layer turns its events into
 meshes through the one replay loop (:class:`.replay.Replay`: split records
-applied a batch at a time into arrays preallocated for the full-resolution
-counts) and, given a key, feeds every batch's carriers to a
+applied a batch at a time into arrays that grow with the decoded mesh, up to the
+declared full-resolution counts) and, given a key, feeds every batch's carriers to a
 :class:`~pmwm_codec.watermark.verify.Verifier` and puts its estimate of the
 partial watermark into each result.  Given a key, it also checks the keyed MACs of
 the base and of every chunk as they arrive (:class:`~pmwm_codec.format.mac.MacChecker`)

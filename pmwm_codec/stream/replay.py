@@ -186,14 +186,14 @@ class Replay:
         ext = self.exts[p]
         n, m = int(ext["vertexCount"]), int(ext["faceCount"])
         n0 = len(event.positions_int)
-        decoded = MeshState(_base_values(event, ext), event.faces, n, m)
+        decoded = MeshState(_base_values(event, ext), event.faces, n, m, grow=True)  # memory follows the chunks
         shadow = None
         if self.given is None:
             self.states.append(decoded)
             base = event.positions_int
         else:
             base = self.given[p][:n0]
-            self.states.append(MeshState(base, event.faces, n, m, dtype=np.float64))
+            self.states.append(MeshState(base, event.faces, n, m, dtype=np.float64, grow=True))
             shadow = decoded
         self.shadows.append(shadow)
         self.models.append(ChunkDecoder() if payload_version(ext) == 2 else None)
@@ -247,6 +247,7 @@ class Replay:
         got = decode_face_chunk(event.payload, own, self.models[p], meta["vertexCount"] - n, meta["faceCount"] - own.m)
         if own is not self.states[p]:  # the given mesh: its own values for the new vertices
             state = self.states[p]
+            state.reserve(own.n, state.m + got)
             state.faces[state.m : state.m + got] = own.faces[own.m - got : own.m]
             state.positions[n : own.n] = self.given[p][n : own.n]
             state.n, state.m = own.n, state.m + got
@@ -260,7 +261,7 @@ class Replay:
         if payload_version(ext) == 2:
             yield from decode_chunk(event.payload, own, self.models[p])
             return
-        for batch in unpack_batches(event.payload, max_splits=own.positions.shape[0], width=value_width(ext)):
+        for batch in unpack_batches(event.payload, max_splits=own.vertex_limit, width=value_width(ext)):
             yield batch, apply_batch(own, batch)
 
     def current(self, p: int) -> tuple[np.ndarray, np.ndarray]:
