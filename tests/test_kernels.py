@@ -519,3 +519,19 @@ def test_a_face_turned_over_marks_its_edges_ends_on_both_paths(monkeypatch):
     turned = np.zeros(plain.vv[0].shape[0] - 1, bool)
     turned[np.unique(faces[3])] = True  # its interior edges' ends are among its corners
     assert (plain.edge_flags & 1).any() and not (plain.edge_flags[~turned] & 1).any()
+
+
+def test_a_prefetch_hint_compiles_for_rows_and_items_and_changes_nothing(kernels):
+    from pmwm_codec.format import records_v2
+
+    rows, items, index = np.arange(30).reshape(10, 3), np.arange(10), np.array([9, 0, 4])
+    before = rows.copy(), items.copy()
+
+    def hint_all(rows, items, index):
+        records_v2._prefetch_rows(rows, index, 0, len(index))
+        records_v2._prefetch_rows(items, index, 0, len(index))
+        return rows[index[0], 2] + items[index[2]]
+
+    kernel = topology.compiled(hint_all) if kernels else hint_all
+    assert kernel(rows, items, index) == 29 + 4
+    assert np.array_equal(rows, before[0]) and np.array_equal(items, before[1])

@@ -34,6 +34,7 @@ from functools import cached_property
 import numpy as np
 
 from ..errors import FormatError, LimitError
+from ..progressive import topology
 from ..progressive.topology import compiled, face_keys, kernel_helper
 from ..progressive.vsplit import SplitBatch, SplitTopology, _ring_lists, new_face_count
 from . import rangecoder as rc
@@ -232,6 +233,19 @@ def _mask_kernel(flat, n, head, nxt, valence, below, sel, marked, gstart, inc, a
     return k, corners
 
 
+#: Meshes of at least this many vertices (the primitive's declared count) outgrow the processor's
+#: caches: the kernels then ask for the next split's scattered rows while they work on a split
+#: (:func:`_prefetch_rows`).  Below it the rows are mostly cached and the requests only cost time.
+PREFETCH_VERTICES = 1 << 16
+
+
+@kernel_helper(inline=True)
+def _prefetch_rows(array, index, lo, hi):
+    """:func:`~pmwm_codec.progressive.topology.prefetch` of ``array[index[t]]`` for ``t`` in ``lo .. hi - 1``."""
+    for t in range(lo, hi):
+        topology.prefetch(array, index[t])
+
+
 # ---------------------------------------------------------------- connectivity: fans and arcs
 
 
@@ -406,10 +420,13 @@ def _connectivity_kernel(gstart, a, b, v, P, sym, S, ring, nrm, arc, es, out, ds
     (decode) -1 on an invalid code.
     """
     fan, work = np.empty(MAX_ARC_FAN, np.int64), np.zeros(FAN_WORK, np.int64)
+    ahead = len(P) >= PREFETCH_VERTICES
     lens = np.empty(MAX_ARC_FAN, np.float64)
     scores = np.empty(MAX_ARC_FAN, np.float64)
     for i in range(len(v)):
         lo, hi = gstart[i], gstart[i + 1]
+        if ahead and i + 1 < len(v):  # the next split's ring values, loaded while this split is worked on
+            _prefetch_rows(P, a, hi, gstart[i + 2])
         if _split_symbols(lo, hi, v[i], a, b, P, sym, fan, work, i + 1, lens, scores, arc[i], es, out, ds, buf,
                           probs, decode) != 0:
             return -1
@@ -1165,11 +1182,15 @@ def _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, head, tail, nxt, split
     for i in range(k):
         split[v[i]] = 1
     rewritten = False
+    ahead = len(head) >= PREFETCH_VERTICES
     lo_word, hi_word = len(created), 0
     named = np.empty((new_faces, 4), np.int64)
     j = 0
     for i in range(k):  # split i's corners, ascending: the moved ones to u, the others stay with v
         u = n0 + i
+        if ahead and i + 1 < k:  # the next split's corners, loaded while this split is worked on
+            _prefetch_rows(flat, inc, gstart[i + 1], gstart[i + 2])
+            _prefetch_rows(nxt, inc, gstart[i + 1], gstart[i + 2])
         head[u], tail[u], head[v[i]], tail[v[i]] = -1, -1, -1, -1
         for t in range(gstart[i], gstart[i + 1]):
             c = inc[t]

@@ -116,14 +116,47 @@ def job_vertices(count: int) -> None:
 
 
 def _load_numba():
-    """Import numba once; swap every :func:`kernel_helper` for its dispatcher in its module."""
-    global _numba
+    """Import numba once; swap every :func:`kernel_helper` for its dispatcher in its module and
+    :func:`prefetch` for its compiled form."""
+    global _numba, prefetch
     if _numba is None:
         import numba
 
         _numba = numba
         for g, name, fn, flags in _HELPERS:
             g[name] = _COMPILED.setdefault(fn, _jit(fn, **flags))
+        prefetch = _prefetch_intrinsic()
+
+
+def prefetch(array, i):
+    """A hint for compiled kernels: start loading the cache line of ``array[i]`` (of ``array[i, 0]`` for
+    a 2-D array; ``0 <= i < len(array)``) and go on at once, so that loads whose addresses are known
+    early overlap the work before them.  Changes no result; in plain Python it does nothing.  Kernels
+    call it as ``topology.prefetch`` (the module attribute, swapped by :func:`_load_numba`)."""
+
+
+def _prefetch_intrinsic():
+    """:func:`prefetch` compiled: LLVM's ``llvm.prefetch`` (write, high locality, data cache)."""
+    from llvmlite import ir
+    from numba.core import cgutils
+    from numba.extending import intrinsic
+
+    @intrinsic
+    def compiled_prefetch(typingctx, array, i):
+        def codegen(context, builder, signature, args):
+            aryty = signature.args[0]
+            ary = context.make_array(aryty)(context, builder, args[0])
+            index = [args[1]] + [context.get_constant(_numba.types.intp, 0)] * (aryty.ndim - 1)
+            ptr = cgutils.get_item_pointer(context, builder, aryty, ary, index, wraparound=False)
+            i8p, i32 = ir.IntType(8).as_pointer(), ir.IntType(32)
+            fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
+                                                "llvm.prefetch.p0i8")
+            builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, 1), ir.Constant(i32, 3), ir.Constant(i32, 1)])
+            return context.get_dummy_value()
+
+        return _numba.types.void(array, _numba.types.intp), codegen
+
+    return compiled_prefetch
 
 
 def _jit(fn, **flags):
