@@ -119,6 +119,22 @@ def test_zstd_frame_claiming_gigabytes_is_refused_before_allocating(sample):
 
 
 
+def test_counts_claimed_past_the_records_cost_the_memory_of_what_is_decoded(sample):
+    """An index entry (and every count after it) claiming up to 33M more vertices than the chunk's records
+    hold: only named errors, and the arrays follow the splits decoded (they were sized by the claim before)."""
+    import tracemalloc
+
+    outcomes = set()
+    for seed in range(30):
+        data = fuzz.make_case(sample, "claims", np.random.default_rng(seed))
+        tracemalloc.start()
+        outcomes.add(_only_named_errors(sample, data))
+        _, peak = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+        assert peak < 32 << 20, (seed, peak)
+    assert outcomes <= {"FormatError", "LimitError"} and outcomes
+
+
 @pytest.fixture(scope="module")
 def welded():
     from pathlib import Path

@@ -27,6 +27,11 @@ Kinds of cases (``KINDS``):
 ``zstd``     a chunk replaced by a zstd frame that claims gigabytes (content
              size field), with a valid digest and a matching or lying
              ``uncompressedLength``
+``claims``   one chunk's index entry claiming up to millions more vertices and faces than
+             its records hold, every later entry and the extension's counts raised to
+             agree (the header's consistency checks pass; only decoding finds the lie),
+             sometimes with that chunk's payload cut short: memory must follow what
+             is decoded, not the claim
 
 Run::
 
@@ -55,7 +60,7 @@ import numpy as np
 from pmwm_codec.constants import EXTENSION_NAME
 from pmwm_codec.errors import PmwError
 
-KINDS = ("flip", "truncate", "insert", "splice", "payload", "records", "json", "zstd")
+KINDS = ("flip", "truncate", "insert", "splice", "payload", "records", "json", "zstd", "claims")
 
 
 # ------------------------------------------------------------------ the sample
@@ -290,6 +295,21 @@ def make_case(sample: Sample, kind: str, rng, *, json_scope: str = "all") -> byt
         chunk["digest"] = digest(frame)
         chunk["uncompressedLength"] = claim if rng.random() < 0.7 else int(rng.integers(1, 4096))
         return join_glb(gltf, bytes(body))
+    if kind == "claims":
+        from pmwm_codec.constants import MAX_VERTICES
+
+        k = int(rng.integers(len(sample.meta)))
+        extra = int(rng.choice([1, 1000, 10**5, 10**7, MAX_VERTICES // 2]))
+        meta = copy.deepcopy(sample.meta)
+        for j in range(k, len(meta)):
+            meta[j]["vertexCount"] += extra
+            meta[j]["faceCount"] += 2 * extra
+        meta[k]["splits"] += extra
+        extension = {**sample.extension, "vertexCount": meta[-1]["vertexCount"], "faceCount": meta[-1]["faceCount"]}
+        payloads = list(sample.payloads)
+        if rng.random() < 0.3:
+            payloads[k] = payloads[k][: int(rng.integers(len(payloads[k])))]
+        return sample.rebuild(payloads, meta, extension)
     raise ValueError(f"unknown kind {kind!r}")
 
 
