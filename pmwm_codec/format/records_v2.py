@@ -83,9 +83,9 @@ class CornerLists:
     (:data:`BELOW_BITS`), ``stamp`` / ``tag`` (N,) int64 with their token counter ``ctr`` (1,)
     int64, ``split`` (N,) uint8 zeros, ``created`` ((3M + 31) // 32,) int64 zeros (a bitmap over
     the corners, 32 bits a word) and ``creator`` (3M,) int32 (:func:`_link_splits`).  N / M: the
-    capacity of the primitive's :class:`~pmwm_codec.progressive.vsplit.MeshState` (:meth:`grow` follows it).  ``n`` / ``m``: the mesh they describe; :meth:`sync`
-    rebuilds them (O(m)) for a mesh that changed elsewhere, the decoder updates them batch by batch
-    (O(batch)).
+    capacity of the primitive's :class:`~pmwm_codec.progressive.vsplit.MeshState` (:meth:`grow`
+    follows it).  ``n`` / ``m``: the mesh they describe; :meth:`sync` rebuilds them (O(m)) for a mesh
+    that changed elsewhere, the decoder updates them batch by batch (O(batch)).
     """
 
     def __init__(self, vertex_capacity: int, face_capacity: int):
@@ -233,9 +233,10 @@ def _mask_kernel(flat, n, head, nxt, valence, below, sel, marked, gstart, inc, a
     return k, corners
 
 
-#: Meshes of at least this many vertices (the primitive's declared count) outgrow the processor's
-#: caches: the kernels then ask for the next split's scattered rows while they work on a split
-#: (:func:`_prefetch_rows`).  Below it the rows are mostly cached and the requests only cost time.
+#: Meshes with room for at least this many vertices (the length of the decoder's arrays, which grow with
+#: the decoded mesh) outgrow the processor's caches: the kernels then ask for the next split's scattered
+#: rows while they work on a split (:func:`_prefetch_rows`).  Below it the rows are mostly cached and the
+#: requests only cost time.
 PREFETCH_VERTICES = 1 << 16
 
 
