@@ -85,9 +85,17 @@ def test_a_similarity_transform_of_the_decoded_mesh_yields_the_same_codes(marked
     assert transformed.verdict() == "authentic"
     img, _ = transformed.extractor.image()
     assert np.array_equal(img, image)
-    # float32 storage does not disturb it either
-    stored = read_given(Reference.read(data), moved.astype(np.float32), key)
-    assert np.array_equal(stored.extractor.received, plain.extractor.received)
+    # float32 storage does not disturb it either, even placed a few times its size away, where float32
+    # rounding (~0.05 grid steps) moves some ring descriptor values across a bin boundary: those are
+    # read both ways (the binding's ambiguous readings), so every carrier reads its code among its
+    # readings, and the verdict and the image (which take the agreeing reading) stay
+    far = moved + np.array([30.0, -12.0, 7.5])
+    for placed in (moved, far):
+        stored = read_given(Reference.read(data), placed.astype(np.float32), key)
+        readings = stored.extractor.alternates
+        assert (readings == plain.extractor.received[:, None]).any(axis=1).all()
+        assert stored.verdict() == "authentic"
+        assert stored.estimate().bit_exact
 
 
 def test_wrong_keys_are_not_authentic_and_correlate_near_zero(marked):
