@@ -173,6 +173,30 @@ def test_a_primitive_with_invalid_data_is_refused_not_passed_through(tmp_path, p
     assert not (tmp_path / "scene.pmw").exists()
 
 
+def test_an_in_memory_document_sharing_one_extension_dict_between_nodes_keeps_every_reference(tmp_path):
+    """Three nodes holding one ``EXT_mesh_gpu_instancing`` dict (Python objects a caller shares; parsed JSON
+    never does): the renumbering of accessors reached it three times and wrote ``TRANSLATION: null`` into
+    the ``.pmw``, an invalid file. Copied as JSON first, each node's reference is renumbered once."""
+    from pmwm_codec.errors import InputFormatError
+
+    b = DocBuilder()
+    prims = [b.triangles(shapes.icosphere(2, 1.0, noise=0.02, seed=k), uv=False) for k in range(3)]
+    shifts = b.accessor(np.array([[0, 0, 0], [3, 0, 0]], np.float32), 5126, "VEC3")
+    shared = {"EXT_mesh_gpu_instancing": {"attributes": {"TRANSLATION": shifts}}}
+    b.doc.update(scene=0, scenes=[{"nodes": [0, 1, 2]}], extensionsUsed=["EXT_mesh_gpu_instancing"],
+                 meshes=[{"primitives": [p]} for p in prims],
+                 nodes=[{"mesh": k, "extensions": shared} for k in range(3)])
+    encode_asset((b.doc, [b"".join(b.parts)]), tmp_path / "shared.pmw", measure=False)
+    (tmp_path / "out.glb").write_bytes(decode_asset(tmp_path / "shared.pmw")[0])
+    doc, buffers = load_document(tmp_path / "out.glb")
+    refs = [n["extensions"]["EXT_mesh_gpu_instancing"]["attributes"]["TRANSLATION"] for n in doc["nodes"]]
+    assert len(set(refs)) == 1 and isinstance(refs[0], int)
+    assert np.array_equal(read_accessor(doc, buffers, refs[0]), [[0, 0, 0], [3, 0, 0]])
+    with pytest.raises(InputFormatError, match="not JSON"):
+        encode_asset(({**b.doc, "extras": np.zeros(2)}, [b"".join(b.parts)]), tmp_path / "x.pmw", measure=False)
+    assert not (tmp_path / "x.pmw").exists()
+
+
 def test_full_level_positions_and_uvs_match_the_input_within_a_grid_step(tmp_path):
     src = two_mesh_asset(tmp_path)
     encode_asset(src, tmp_path / "scene.pmw", measure=False)

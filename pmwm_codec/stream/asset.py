@@ -36,6 +36,7 @@ replaced by plain accessors for that level and the extension removed;
 from __future__ import annotations
 
 import copy
+import json
 import os
 
 import numpy as np
@@ -313,7 +314,7 @@ def encode_asset(src, dst, *, strip_image_profiles: bool = False, **options) -> 
     through and why; a primitive with invalid data is refused (see :func:`plan_asset`).
     """
     if isinstance(src, tuple):
-        gltf, buffers = copy.deepcopy(src[0]), list(src[1])
+        gltf, buffers = _json_copy(src[0]), list(src[1])
         _refuse_external_uris(gltf)
     else:
         gltf, buffers = load_document(src)
@@ -332,6 +333,20 @@ def encode_asset(src, dst, *, strip_image_profiles: bool = False, **options) -> 
     report = encode_document(doc, kept_bin, jobs, dst, **options)
     report.notices = notices + report.notices
     return report
+
+
+def _json_copy(gltf) -> dict:
+    """An in-memory document copied as its JSON text would be parsed: objects the caller's dict shares (one
+    ``extensions`` dict on several nodes, say) become separate, so renumbering an index in one place does
+    not renumber it again through another (a shared instancing dict came out with ``TRANSLATION: null``).
+    InputFormatError when the document is not JSON (a numpy array, a NaN, a cycle)."""
+    try:
+        gltf = json.loads(json.dumps(gltf, allow_nan=False))
+    except (TypeError, ValueError, RecursionError) as exc:
+        raise InputFormatError(f"the asset's glTF document is not JSON ({str(exc)[:80]})") from None
+    if not isinstance(gltf, dict):
+        raise InputFormatError("the asset's glTF document is not a JSON object")
+    return gltf
 
 
 def _forget_input_draco(gltf: dict, jobs) -> None:
