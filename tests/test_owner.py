@@ -713,26 +713,58 @@ def test_a_mesh_shown_twice_beside_one_shown_once_leaves_its_copies_and_the_othe
     assert np.abs(np.sort(shared, axis=0) - np.sort(small.positions, axis=0)).max() <= step  # not moved
 
 
-def test_an_asset_that_shows_a_mesh_twice_or_flat_refuses_an_explicit_owner_id_and_writes_nothing(tmp_path, blob,
-                                                                                                   capsys):
-    """A mesh shown twice has two places in the scene and one set of stored positions; a scale of zero has no
-    inverse to take a move back through: no one layer reads from the file and from the decoded asset."""
-    out = tmp_path / "out"
-    out.mkdir()
-    twice = [{"children": [1, 2]}, {"mesh": 0}, {"mesh": 0, "translation": [0.0, 4.0, 0.0]}]
-    src = _asset_of_parts(tmp_path / "twice.glb", blob, 2, twice, one_mesh=True)
-    assert main(["encode", str(src), "-o", str(out / "d.pmw"), "--owner-id", "ff"]) == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "shown more than once" in err
-    flat = [{"children": [1], "scale": [0.0, 0.0, 0.0]}, {"mesh": 0}]
-    src = _asset_of_parts(tmp_path / "flat.glb", blob, 2, flat, one_mesh=True)
-    assert main(["encode", str(src), "-o", str(out / "c.pmw"), "--owner-id", "ff"]) == 2
-    assert "a scale of zero" in capsys.readouterr().err
-    unshown = [{"mesh": 0}]
-    src = _asset_of_parts(tmp_path / "unshown.glb", blob, 2, unshown, one_mesh=False)
-    assert main(["encode", str(src), "-o", str(out / "e.pmw"), "--owner-id", "ff"]) == 2
-    assert "mesh 1 is not shown in the scene" in capsys.readouterr().err
-    assert _files(out) == []
+def _instanced(b, mesh_index: int, offsets) -> dict:
+    """A node drawing mesh ``mesh_index`` once per row of ``offsets`` (k, 3) by ``EXT_mesh_gpu_instancing``."""
+    tr = b.accessor(np.asarray(offsets, np.float32), 5126, "VEC3")
+    b.doc.setdefault("extensionsUsed", []).append("EXT_mesh_gpu_instancing")
+    return {"mesh": mesh_index, "extensions": {"EXT_mesh_gpu_instancing": {"attributes": {"TRANSLATION": tr}}}}
+
+
+_STORED_VIEWS = {
+    # every mesh shown twice: one mesh of two primitives under two nodes (a wheel of two parts, shown twice)
+    "every-mesh-twice": [{"children": [1, 2]}, {"mesh": 0}, {"mesh": 0, "translation": [0.0, 4.0, 0.0],
+                                                             "rotation": [0.0, 0.0, 0.38268343, 0.92387953]}],
+    # flattened by a scale of zero: no inverse to take a move in the scene back through
+    "flat": [{"children": [1], "scale": [0.0, 0.0, 0.0]}, {"mesh": 0}],
+    # GPU instancing: where the instances are drawn the accessors say, which the reads do not place
+    "gpu-instanced": None,
+}
+
+
+@pytest.mark.parametrize("case", sorted(_STORED_VIEWS))
+def test_an_asset_with_no_mesh_shown_once_carries_the_owner_layer_in_its_stored_meshes(tmp_path, blob, case):
+    """Nodes that all share their meshes (instances), GPU instancing, or a scale of zero: no one move of the
+    stored positions marks the scene, so the layer is marked in the meshes' own coordinates, each mesh once
+    (:func:`~pmwm_codec.format.gltf.owner_placements`), and read there from the ``.pmw`` at every boundary and
+    from the decoded GLB; the GLB's scene flattened (as an OBJ of it is written) is not that view, and reads
+    no false ``present``.  (These assets were refused before: ``every mesh is shown more than once``.)"""
+    from test_asset import DocBuilder
+
+    from pmwm_codec.stream.asset import decode_asset, encode_asset
+    from pmwm_codec.verify.owner import owner_of_mesh, owner_of_stream, owner_view
+
+    b = DocBuilder()
+    prims = [b.triangles(piece, uv=False) for piece in _cut(blob, [0.5])]
+    nodes = _STORED_VIEWS[case]
+    if nodes is None:
+        nodes = [{"children": [1]}, _instanced(b, 0, [[0.0, 0.0, 0.0], [3.0, 0.0, 0.0], [0.0, 3.0, 0.0]])]
+    b.doc.update(scene=0, scenes=[{"nodes": [0]}], nodes=nodes, meshes=[{"primitives": prims}])
+    (tmp_path / "in.glb").write_bytes(b.glb())
+    key = WatermarkKey.generate(rng=np.random.default_rng(11))
+    report = encode_asset(tmp_path / "in.glb", tmp_path / "in.pmw", key=key, owner_id=0x5EED0F0123456789,
+                          measure=False)
+    assert report.key.owner_id == 0x5EED0F0123456789 and not any("owner" in n for n in report.notices)
+    reads = owner_of_stream(tmp_path / "in.pmw", report.key)
+    assert reads[-1].owner.verdict == "present" and reads[-1].owner.bit_errors == 0
+    (tmp_path / "out.glb").write_bytes(decode_asset(tmp_path / "in.pmw")[0])
+    view = owner_view(tmp_path / "out.glb")
+    assert view.vertex_count == sum(len(np.unique(p.faces)) for p in _cut(blob, [0.5]))  # each stored once
+    read = owner_of_mesh(tmp_path / "out.glb", report.key)
+    assert read.verdict == "present" and read.bit_errors == 0
+    if case == "every-mesh-twice":  # the scene flattened: two copies apart, not the marked view
+        import pmwm_codec
+
+        assert owner_of_mesh(pmwm_codec.read_mesh(tmp_path / "out.glb"), report.key).verdict != "present"
 
 
 def _laplacian_smoothing(positions, faces, iterations, lam=0.03):

@@ -10,7 +10,12 @@ parts that share them, as exporters write them) and made into three GLB assets:
 * **meshes apart** -- one glTF mesh per part, each on its own node with a transform of its own
   (:data:`APART`): moved apart and turned, one stretched along z (not a similarity), one mirrored;
 * **a part shown twice** -- as "meshes", and the last part's mesh shown again by a second node, moved
-  by 0.3 of the mesh's extent: its copies stay unmarked, the other parts carry the layer.
+  by 0.3 of the mesh's extent: its copies stay unmarked, the other parts carry the layer;
+* **every part shown twice** -- as "meshes", the whole group shown again by a second node that moves it
+  by 1.5 times the mesh's extent and turns it: no mesh is shown once, so the layer is marked in the
+  meshes' stored coordinates (:func:`~pmwm_codec.format.gltf.owner_placements`);
+* **GPU-instanced** -- one glTF mesh per part, each on a node drawing it three times by
+  ``EXT_mesh_gpu_instancing`` (translations): marked in the stored meshes too.
 
 Each asset is encoded in memory with an owner ID (``encode_asset((gltf, buffers), ..., owner_id=...)``,
 grid 16, no watermark), then read blind as ``pmw verify`` reads it: from the ``.pmw`` at every chunk boundary
@@ -42,7 +47,7 @@ sys.path.insert(0, ROOT)
 from pmwm_codec import read_mesh  # noqa: E402
 from pmwm_codec.errors import OwnerLayerError  # noqa: E402
 from pmwm_codec.format.document import load_document, read_accessor  # noqa: E402
-from pmwm_codec.format.gltf import place, world_placements  # noqa: E402
+from pmwm_codec.format.gltf import owner_placements, place  # noqa: E402
 from pmwm_codec.format.layout import padded  # noqa: E402
 from pmwm_codec.mesh import Mesh  # noqa: E402
 from pmwm_codec.meshio import write_mesh  # noqa: E402
@@ -61,7 +66,7 @@ CHILD_SHIFT = [1.0, 2.0, 3.0]
 APART = [{"rotation": [0.0, 0.0, 0.38268343, 0.92387953], "translation": [1.5, 0.0, 0.0]},
          {"scale": [1.0, 1.0, 2.0], "translation": [0.0, -1.5, 0.5]},
          {"scale": [-1.0, 1.0, 1.0], "rotation": [0.5, 0.5, 0.5, 0.5], "translation": [0.0, 0.0, 1.5]}]
-KINDS = ("one mesh", "meshes", "meshes apart", "a part shown twice")
+KINDS = ("one mesh", "meshes", "meshes apart", "a part shown twice", "every part shown twice", "GPU-instanced")
 
 
 def parts_of(mesh: Mesh, parts: int) -> list:
@@ -108,6 +113,25 @@ def asset(parts: list, kind: str) -> tuple:
                          {"translation": CHILD_SHIFT, "children": list(range(2, 3 + len(parts)))}]
                         + [{"mesh": i} for i in range(len(parts))]
                         + [{"mesh": len(parts) - 1, "translation": [0.0, 0.3 * size, 0.0]}])
+    elif kind == "every part shown twice":  # "meshes", and the whole group shown again, moved and turned
+        size = float(np.ptp(np.concatenate([p.positions for p in parts]), axis=0).max())
+        doc["meshes"] = [{"primitives": [p]} for p in prims]
+        n = len(parts)
+        doc["nodes"] = ([{**ROOT_NODE, "children": [1, 2]},
+                         {"translation": CHILD_SHIFT, "children": list(range(3, 3 + n))},
+                         {**APART[0], "translation": [1.5 * size, 0.0, 0.0], "children": list(range(3 + n, 3 + 2 * n))}]
+                        + [{"mesh": i % n} for i in range(2 * n)])
+    elif kind == "GPU-instanced":  # each part drawn three times by EXT_mesh_gpu_instancing
+        size = float(np.ptp(np.concatenate([p.positions for p in parts]), axis=0).max())
+        doc["meshes"] = [{"primitives": [p]} for p in prims]
+        shifts = (size * np.array([[0.0, 0.0, 0.0], [1.5, 0.0, 0.0], [0.0, 1.5, 0.0]])).astype(np.float32)
+        doc["accessors"].append({"bufferView": view(shifts.tobytes(), None), "componentType": 5126, "count": 3,
+                                 "type": "VEC3"})
+        doc["bufferViews"][-1].pop("target")
+        inst = {"EXT_mesh_gpu_instancing": {"attributes": {"TRANSLATION": len(doc["accessors"]) - 1}}}
+        doc["nodes"] = [{"children": list(range(1, 1 + len(parts)))}] + [
+            {"mesh": i, "extensions": inst} for i in range(len(parts))]
+        doc["extensionsUsed"] = ["EXT_mesh_gpu_instancing"]
     else:
         size = float(np.ptp(np.concatenate([p.positions for p in parts]), axis=0).max())
         doc["meshes"] = [{"primitives": [p]} for p in prims]
@@ -122,15 +146,16 @@ def asset(parts: list, kind: str) -> tuple:
 
 
 def layer_cost(src_doc, src_buffers, glb: bytes) -> tuple:
-    """(RMS %, max %) of the scene's diagonal: each input vertex to the nearest decoded vertex of its
-    primitive, both placed by the scene's nodes (once per showing)."""
+    """(RMS %, max %) of the diagonal: each input vertex to the nearest decoded vertex of its primitive,
+    both placed as the layer is marked (:func:`~pmwm_codec.format.gltf.owner_placements`: by the scene's
+    nodes, once per showing, or where no mesh is shown once, each mesh once as stored)."""
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "out.glb")
         with open(path, "wb") as fh:
             fh.write(glb)
         out, out_buffers = load_document(path)
     before, gaps = [], []
-    frames, _ = world_placements(src_doc, range(len(src_doc["meshes"])))
+    frames, _ = owner_placements(src_doc, range(len(src_doc["meshes"])))  # where the layer is marked
     for m_in, m_out, showings in zip(src_doc["meshes"], out["meshes"], frames):
         for p_in, p_out in zip(m_in["primitives"], m_out["primitives"]):
             x = read_accessor(src_doc, src_buffers, p_in["attributes"]["POSITION"]).astype(np.float64)
@@ -171,7 +196,7 @@ def measure(mesh: Mesh, parts: int, kind: str, seed: int) -> dict:
         with open(path, "wb") as fh:
             fh.write(glb)
         write_mesh(obj, shown)
-        from_glb = owner_of_mesh(path, key)  # trimesh: the nodes applied
+        from_glb = owner_of_mesh(path, key)  # as `pmw verify OUT.glb` reads it (owner_view)
         from_obj = owner_of_mesh(obj, key)
     merged = boundaries[-1]
     rms, worst = layer_cost(doc, buffers, glb)
@@ -191,10 +216,14 @@ def render(rows, info, command, parts) -> str:
          "node under the same root; \"meshes apart\": one glTF mesh per part, each on a node of its own that moves "
          "it apart by 1.5 times the mesh's extent and turns it, one stretched 2x along z (not a similarity), one "
          "mirrored; \"a part shown twice\": as \"meshes\", and the last part's mesh shown again by a second node, "
-         "moved by 0.3 of the mesh's extent (its copies are not marked; the cost is over every vertex shown). "
+         "moved by 0.3 of the mesh's extent (its copies are not marked; the cost is over every vertex shown); "
+         "\"every part shown twice\": as \"meshes\", the whole group shown again by a second node (moved by 1.5 "
+         "extents, turned); \"GPU-instanced\": a mesh per part, each drawn three times by EXT_mesh_gpu_instancing "
+         "(no mesh shown once: the layer is marked and read in the stored meshes, each once, and its cost is "
+         "measured there). "
          "Encoded with an owner ID (grid 16, no watermark). Read blind: from the `.pmw` (every chunk boundary; "
-         "\"present from\": the bytes from which every later boundary reads `present`), from the decoded GLB read "
-         "with its nodes applied (as `pmw verify OUT.glb` reads it) and from the OBJ `pmw decode` writes (the scene as "
+         "\"present from\": the bytes from which every later boundary reads `present`), from the decoded GLB as "
+         "`pmw verify OUT.glb` reads it (its nodes applied, or its stored meshes where no mesh is shown once) and from the OBJ `pmw decode` writes (the scene as "
          "shown, placed by the nodes). Cost: each input vertex against the nearest decoded "
          "vertex of its primitive, both placed by the nodes, % of the scene's diagonal (the 16-bit grid's rounding "
          "included).", ""]

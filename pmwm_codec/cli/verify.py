@@ -145,12 +145,12 @@ def _owner_line(o, key) -> str:
 
 def run_owner(args) -> int:
     """``pmw verify MESH --key KEY``: the owner layer, read blind from any mesh file."""
-    from pmwm_codec.verify.owner import owner_key, owner_of_mesh
+    from pmwm_codec.verify.owner import owner_key, owner_of_mesh, owner_view
 
     check_input_file(args.input, "mesh file")
     check_input_file(args.key, "key file")
     with naming(args.input):
-        mesh = pmwm_codec.read_mesh(args.input)
+        mesh = owner_view(args.input)
     with naming(args.key):
         key = owner_key(args.key)
         o = owner_of_mesh(mesh, key)

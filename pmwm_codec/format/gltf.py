@@ -383,6 +383,25 @@ def world_placements(gltf: dict, mesh_indices) -> tuple:
     return out, None
 
 
+def owner_placements(gltf: dict, mesh_indices) -> tuple:
+    """Where the owner layer of the meshes ``mesh_indices`` (a list of mesh indices, repeats allowed) of a
+    document is marked and read: ``(placements, in_scene)``, ``placements`` as :func:`world_placements`'
+    (for each mesh a list of (4, 4) float64 matrices).
+
+    The scene as shown (``in_scene`` True: every showing of each mesh placed by its world matrix) when
+    every placement reads and some mesh is shown once: that mesh carries the layer where the scene shows
+    it.  Otherwise each mesh once, where it is stored (the identity; ``in_scene`` False): a scene whose
+    every mesh is shown several times (instances) or drawn by ``EXT_mesh_gpu_instancing``, or whose
+    placements do not read (a mesh not shown, a malformed transform, a scale of zero), carries the layer
+    in its meshes' own coordinates, where one move of the stored positions marks every showing alike.
+    The rule reads the JSON alone, so the encoder and every reader of the file or of its decoded asset
+    take the same view."""
+    frames, _ = world_placements(gltf, mesh_indices)
+    if frames is not None and any(len(mine) == 1 for mine in frames):
+        return frames, True
+    return [[np.eye(4)] for _ in mesh_indices], False
+
+
 def place(positions: np.ndarray, matrix: np.ndarray) -> np.ndarray:
     """(n, 3) float64: ``positions`` (n, 3) moved by the affine map ``matrix`` (4, 4) (the same array
     when it is the identity)."""

@@ -339,9 +339,10 @@ def _json_copy(gltf) -> dict:
     """An in-memory document copied as its JSON text would be parsed: objects the caller's dict shares (one
     ``extensions`` dict on several nodes, say) become separate, so renumbering an index in one place does
     not renumber it again through another (a shared instancing dict came out with ``TRANSLATION: null``).
-    InputFormatError when the document is not JSON (a numpy array, a NaN, a cycle)."""
+    InputFormatError when the document is not JSON (a numpy array, a cycle; a NaN is let through to the
+    checks that name where it is)."""
     try:
-        gltf = json.loads(json.dumps(gltf, allow_nan=False))
+        gltf = json.loads(json.dumps(gltf))
     except (TypeError, ValueError, RecursionError) as exc:
         raise InputFormatError(f"the asset's glTF document is not JSON ({str(exc)[:80]})") from None
     if not isinstance(gltf, dict):

@@ -41,7 +41,7 @@ from ..format import encode_base
 from ..format.base import EncodedBase, with_attributes
 from ..atomic import directory_lock, discard, fault_point, publish, signals_deferred, stage
 from ..format.glb import ProgressivePrimitive, assemble_document, write_parts
-from ..format.gltf import scene_mesh, world_placements
+from ..format.gltf import owner_placements, scene_mesh
 from ..format.extension import DEFAULT_PAYLOAD_VERSION, PAYLOAD_CODEC, PAYLOAD_VERSIONS
 from ..format.records import pack_batches
 from ..format.records_v2 import FaceChunk, pack_chunks
@@ -316,7 +316,7 @@ def encode_document(
     decoded = None
     if owner_id is not None and params is not None:  # the watermark moved vertices: read the full decode
         decoded = [_decoded_input_positions(w) for w in work]
-        frames = world_placements(doc, [w.job.mesh_index for w in work])[0]  # placed as _mark_owner placed them
+        frames = owner_placements(doc, [w.job.mesh_index for w in work])[0]  # placed as _mark_owner placed them
         why = _owner_check(decoded, [w.job.mesh.faces for w in work], key, frames)
         if why is not None:
             drop_owner(why)
@@ -347,16 +347,18 @@ def encode_document(
 
 def _mark_owner(jobs, key: WatermarkKey, strength, grid_bits: int, doc: dict) -> tuple:
     """Stage 0: the owner layer on the primitives' full-resolution positions, taken as one mesh where
-    the scene shows them.
+    the scene shows them, or where they are stored.
 
-    ``pmw verify`` reads the layer from every primitive of a file at once, each placed by the scene's
-    nodes: a ``.pmw``'s parts (:func:`~pmwm_codec.verify.owner.owner_of_stream`) as a decoded asset's
-    triangle primitives (trimesh).  So the layer is marked into that one mesh (every primitive placed
-    once per world matrix of its mesh, :func:`~pmwm_codec.format.gltf.scene_mesh`) and each vertex's
-    move is taken back into its own primitive's stored coordinates (the inverse of its matrix's linear
-    part).  The copies of a mesh shown several times (nodes that share it) stay where they are (one
-    move cannot mark them alike) and count in the statistics; the other meshes carry the layer.  A
-    mesh not shown, or drawn by GPU instancing, or every mesh shown several times: ``(None, why)``.
+    ``pmw verify`` reads the layer from every primitive of a file at once, in the view
+    :func:`~pmwm_codec.format.gltf.owner_placements` gives: a ``.pmw``'s parts
+    (:func:`~pmwm_codec.verify.owner.owner_of_stream`) as a decoded asset's triangle primitives
+    (:func:`~pmwm_codec.verify.owner.owner_view`).  So the layer is marked into that one mesh (every
+    primitive placed once per matrix of its mesh, :func:`~pmwm_codec.format.gltf.scene_mesh`) and each
+    vertex's move is taken back into its own primitive's stored coordinates (the inverse of its
+    matrix's linear part).  In the scene, the copies of a mesh shown several times (nodes that share
+    it) stay where they are (one move cannot mark them alike) and count in the statistics; the meshes
+    shown once carry the layer.  A scene with no mesh shown once (instances only, GPU instancing) or
+    whose placements do not read is marked in its meshes' stored coordinates, each mesh once.
 
     Returns ``(new jobs, None)``, or ``(None, why)`` (a phrase) when the layer cannot be read
     back from the positions as stored: first a cheap test on the coarsest grid
@@ -367,12 +369,7 @@ def _mark_owner(jobs, key: WatermarkKey, strength, grid_bits: int, doc: dict) ->
     """
     from ..watermark import owner
 
-    frames, why = world_placements(doc, [job.mesh_index for job in jobs])
-    if why is not None:
-        return None, why
-    if all(len(m) > 1 for m in frames):
-        return None, ("every mesh is shown more than once in the scene, and one move of its stored positions "
-                      "cannot mark its copies alike")
+    frames, _ = owner_placements(doc, [job.mesh_index for job in jobs])
     strength = owner.DEFAULT_STRENGTH if strength is None else float(strength)
     grids = position_grids([job.mesh for job in jobs], grid_bits)
     # several primitives: marked as the read will see them, on their grids (copies of a position that
@@ -411,7 +408,7 @@ def _mark_owner(jobs, key: WatermarkKey, strength, grid_bits: int, doc: dict) ->
 def _owner_check(positions: list, faces: list, key: WatermarkKey, frames: list) -> str | None:
     """Why the owner layer does not read back ``present`` from the primitives' stored positions (a list
     of (n_i, 3)) and faces (a list of (m_i, 3)), each placed once per world matrix of its mesh
-    (``frames``, :func:`~pmwm_codec.format.gltf.world_placements`) and taken as one mesh, as ``pmw
+    (``frames``, :func:`~pmwm_codec.format.gltf.owner_placements`) and taken as one mesh, as ``pmw
     verify`` reads a decoded stream (:func:`~pmwm_codec.watermark.owner.detect`), or None when it does."""
     from ..watermark import owner
 
