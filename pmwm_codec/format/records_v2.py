@@ -102,11 +102,14 @@ class CornerLists:
 
     def grow(self, state) -> None:
         """Room for ``state``'s arrays after they grew (:meth:`~pmwm_codec.progressive.vsplit.MeshState.reserve`):
-        every array copied into a longer one, its new part as a new one's (-1 / zeros)."""
+        every array copied into a longer one, its new part as a new one's (-1 / zeros); ``creator`` (scratch) is
+        not carried over."""
         N, M = len(state.positions), len(state.faces)
         for name in ("head", "tail", "valence", "tag", "split", "below", "stamp"):
             setattr(self, name, _longer(getattr(self, name), N, -1 if name in ("head", "tail") else 0))
-        self.nxt, self.creator = _longer(self.nxt, 3 * M, -1), _longer(self.creator, 3 * M, 0)
+        self.nxt = _longer(self.nxt, 3 * M, -1)
+        if len(self.creator) < 3 * M:  # scratch read only where a batch wrote it: nothing to carry over
+            self.creator = np.empty(3 * M, np.int32)
         self.created = _longer(self.created, (3 * M + 31) // 32, 0)
 
     def sync(self, state) -> None:
@@ -121,9 +124,12 @@ def _longer(values: np.ndarray, size: int, fill) -> np.ndarray:
     """(size,) ``values`` then ``fill`` (``values`` itself when it is that long already)."""
     if len(values) >= size:
         return values
-    out = np.empty(size, values.dtype)
+    if fill == 0:  # zeroed pages from the allocator: those never written are never touched
+        out = np.zeros(size, values.dtype)
+    else:
+        out = np.empty(size, values.dtype)
+        out[len(values) :] = fill
     out[: len(values)] = values
-    out[len(values) :] = fill
     return out
 
 
