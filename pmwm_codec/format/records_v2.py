@@ -894,13 +894,14 @@ def _unreferenced(items: tuple) -> bool:
     return all(r <= alone for r in _references(items))
 
 
-def decode_chunk(payload, state, model: ChunkDecoder):
+def decode_chunk(payload, state, model: ChunkDecoder, listed: bool = True):
     """Decode one chunk against ``state`` (int64 values), applying each batch as it is decoded;
     ``model`` is the primitive's :class:`ChunkDecoder` (updated in place).
 
     Yields ``(SplitBatch, SplitTopology)`` per batch: the batch in version 1 terms (split
     vertices, incidence symbols, residuals against the version 1 prediction; listed when first
-    read) and what :func:`~pmwm_codec.progressive.vsplit.split_topology` would have done.
+    read) and what :func:`~pmwm_codec.progressive.vsplit.split_topology` would have done;
+    ``(None, None)`` when not ``listed`` (a caller that reads neither: the batch is applied all the same).
     FormatError / LimitError on any invalid code, count or termination.
     """
     dec = rc.Decoder(payload, model.probs)
@@ -913,7 +914,7 @@ def decode_chunk(payload, state, model: ChunkDecoder):
     lists = model.lists_for(state)
     for _ in range(batches):
         try:
-            yield _decode_batch(dec, state, lists, model.mask_buffers(state))
+            yield _decode_batch(dec, state, lists, model.mask_buffers(state), listed)
         except FormatError:
             lists.n = -1  # the lists may be half updated: rebuilt if anyone decodes on
             raise
@@ -935,9 +936,10 @@ def _mask_buffers(m: int, cap: int) -> tuple:
     return (np.empty(cap, np.int64), np.empty(cap + 1, np.int64)) + tuple(np.empty(3 * m, np.int64) for _ in range(3))
 
 
-def _decode_batch(dec, state, lists, buffers):
+def _decode_batch(dec, state, lists, buffers, listed):
     """One batch: mask, then connectivity, topology and values in one kernel (:func:`_batch_kernel`).
-    ``buffers``: the mask's outputs (:meth:`ChunkDecoder.mask_buffers`)."""
+    ``buffers``: the mask's outputs (:meth:`ChunkDecoder.mask_buffers`).  Returns what
+    :func:`decode_chunk` yields (``listed``: whether the batch is listed)."""
     n, m = state.n, state.m
     flat = state.faces.reshape(-1)
     marked, gstart, inc, a, b = buffers
@@ -966,6 +968,8 @@ def _decode_batch(dec, state, lists, buffers):
         raise FormatError(_BATCH_ERRORS[new_faces])
     state.n, state.m = n + k, m + new_faces
     lists.n, lists.m = state.n, state.m
+    if not listed:
+        return None, None
     return _listed_batch(v, n, state.positions, gstart, inc, a, b, sym, rsum, rcount)
 
 
