@@ -177,6 +177,8 @@ def _valence(w, flat, head, nxt, stamp, ctr):
 #: ``below[x]`` (:func:`_mask_kernel`): the marked distinct neighbours below x, counted up to 2, in
 #: its low bits; above them the last marked vertex w that counted x, as w + 1 (tells its corners apart).
 BELOW_BITS = 2
+#: How many vertices ahead :func:`_mask_kernel` asks for a vertex's first corner (:data:`PREFETCH_VERTICES`).
+MASK_AHEAD = 16
 
 
 @kernel_helper
@@ -212,8 +214,14 @@ def _mask_kernel(flat, n, head, nxt, valence, below, sel, marked, gstart, inc, a
     """
     k = 0
     corners = 0
+    ahead = len(head) >= PREFETCH_VERTICES
     rng, code, pos = (ds[0], ds[1], ds[2]) if decode else (0, 0, 0)  # the coder state in registers
     for w in range(n):
+        if ahead and w + MASK_AHEAD < n:  # a later vertex's first corner and its face, in case it is marked
+            c = head[w + MASK_AHEAD]
+            if c >= 0:
+                topology.prefetch(nxt, c)
+                topology.prefetch(flat, c - c % 3)
         ctx = P_MASK + 7 * (below[w] & ((1 << BELOW_BITS) - 1)) + min(max(valence[w], 3), 9) - 3
         below[w] = 0
         if decode:
