@@ -1226,21 +1226,58 @@ def _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, head, tail, nxt, split
                     lo_word, hi_word = min(lo_word, c >> 5), max(hi_word, (c >> 5) + 1)
             _append_corner(u if sym[t] != 0 else v[i], c, head, tail, nxt)
     slot = 3 * m0
-    for word in range(lo_word, hi_word):  # the naming corners in ascending order, the bitmap cleared
-        bits = created[word]
+    word, bits = lo_word - 1, 0  # the naming corners in ascending order (a cursor over the bitmap)
+    # on large meshes two cursors run ahead: one asks for the creator entries LINK_AHEAD corners on, one
+    # for the rows of named half as far on (their creator entries asked for by then)
+    wa, ba, wb, bb = word, bits, word, bits
+    if ahead:
+        for _ in range(LINK_AHEAD):
+            c, wa, ba = _next_created(created, wa, ba, hi_word)
+            if c >= 0:
+                topology.prefetch(creator, c)
+        for _ in range(LINK_AHEAD // 2):
+            c, wb, bb = _next_created(created, wb, bb, hi_word)
+            if c >= 0:
+                topology.prefetch(named, creator[c])
+    while True:
+        c, word, bits = _next_created(created, word, bits, hi_word)
+        if c < 0:
+            break
+        if ahead:
+            x, wa, ba = _next_created(created, wa, ba, hi_word)
+            if x >= 0:
+                topology.prefetch(creator, x)
+            x, wb, bb = _next_created(created, wb, bb, hi_word)
+            if x >= 0:
+                topology.prefetch(named, creator[x])
+        row = creator[c]
+        u, vv, left, right = named[row, 0], named[row, 1], named[row, 2], named[row, 3]
+        if left >= 0:  # left new face (u, v, a)
+            slot = _new_face(slot, u, vv, left, flat, head, tail, nxt)
+        if right >= 0:  # right new face (v, u, b)
+            slot = _new_face(slot, vv, u, right, flat, head, tail, nxt)
+    for word in range(lo_word, hi_word):  # the bitmap cleared
         created[word] = 0
-        while bits != 0:
-            low = bits & -bits
-            bits ^= low
-            row = creator[32 * word + _DE_BRUIJN[((low * 0x077CB531) & 0xFFFFFFFF) >> 27]]
-            u, vv, left, right = named[row, 0], named[row, 1], named[row, 2], named[row, 3]
-            if left >= 0:  # left new face (u, v, a)
-                slot = _new_face(slot, u, vv, left, flat, head, tail, nxt)
-            if right >= 0:  # right new face (v, u, b)
-                slot = _new_face(slot, vv, u, right, flat, head, tail, nxt)
     for i in range(k):
         split[v[i]] = 0
     return new_faces, rewritten
+
+
+#: How many naming corners ahead :func:`_link_splits` asks for their ``creator`` entries on large meshes.
+LINK_AHEAD = 16
+
+
+@kernel_helper(inline=True)
+def _next_created(created, word, bits, hi_word):
+    """Advance a cursor over the bitmap ``created`` (:func:`_link_splits`): ``bits`` the part of word ``word``
+    not visited yet.  Returns ``(corner, word, bits)``: the next set corner, or -1 past word ``hi_word - 1``."""
+    while bits == 0:
+        word += 1
+        if word >= hi_word:
+            return -1, word, bits
+        bits = created[word]
+    low = bits & -bits
+    return 32 * word + _DE_BRUIJN[((low * 0x077CB531) & 0xFFFFFFFF) >> 27], word, bits ^ low
 
 
 @kernel_helper
