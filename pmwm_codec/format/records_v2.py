@@ -177,7 +177,8 @@ def _valence(w, flat, head, nxt, stamp, ctr):
 #: ``below[x]`` (:func:`_mask_kernel`): the marked distinct neighbours below x, counted up to 2, in
 #: its low bits; above them the last marked vertex w that counted x, as w + 1 (tells its corners apart).
 BELOW_BITS = 2
-#: How many vertices ahead :func:`_mask_kernel` asks for a vertex's first corner (:data:`PREFETCH_VERTICES`).
+#: How many vertices ahead :func:`_mask_kernel` asks for a vertex's first corner, and half as far its second
+#: (:data:`PREFETCH_VERTICES`).
 MASK_AHEAD = 16
 
 
@@ -217,11 +218,11 @@ def _mask_kernel(flat, n, head, nxt, valence, below, sel, marked, gstart, inc, a
     ahead = len(head) >= PREFETCH_VERTICES
     rng, code, pos = (ds[0], ds[1], ds[2]) if decode else (0, 0, 0)  # the coder state in registers
     for w in range(n):
-        if ahead and w + MASK_AHEAD < n:  # a later vertex's first corner and its face, in case it is marked
-            c = head[w + MASK_AHEAD]
+        if ahead and w + MASK_AHEAD < n:  # later vertices' first corners and their faces, in case they are marked
+            _prefetch_corner(head[w + MASK_AHEAD], flat, nxt)
+            c = head[w + MASK_AHEAD // 2]  # a nearer one's second corner (its first asked for above, earlier)
             if c >= 0:
-                topology.prefetch(nxt, c)
-                topology.prefetch(flat, c - c % 3)
+                _prefetch_corner(nxt[c], flat, nxt)
         ctx = P_MASK + 7 * (below[w] & ((1 << BELOW_BITS) - 1)) + min(max(valence[w], 3), 9) - 3
         below[w] = 0
         if decode:
@@ -245,6 +246,14 @@ def _mask_kernel(flat, n, head, nxt, valence, below, sel, marked, gstart, inc, a
     if k >= 0:
         gstart[k] = corners
     return k, corners
+
+
+@kernel_helper(inline=True)
+def _prefetch_corner(c, flat, nxt):
+    """:func:`~pmwm_codec.progressive.topology.prefetch` of corner ``c``'s successor and face (nothing for ``c`` < 0)."""
+    if c >= 0:
+        topology.prefetch(nxt, c)
+        topology.prefetch(flat, c - c % 3)
 
 
 #: Meshes with room for at least this many vertices (the length of the decoder's arrays, which grow with
