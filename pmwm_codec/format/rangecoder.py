@@ -303,7 +303,7 @@ def enc_sint(es, out, probs, base, r):
     return 0
 
 
-@kernel_helper
+@kernel_helper(inline=True)
 def dec_sint(ds, buf, probs, base):
     """Inverse of :func:`enc_sint`.  Returns ``(value, ok)``; ok 0 for a bucket above :data:`MAX_BUCKET`."""
     b, rng, code, pos = _tree(ds[0], ds[1], ds[2], ds, buf, probs, base, BUCKET_BITS)

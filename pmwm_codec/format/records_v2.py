@@ -655,7 +655,7 @@ def _split_values(S, i, vv, u, P, ring, nrm, es, out, ds, buf, probs, decode):
     return 0
 
 
-@kernel_helper
+@kernel_helper(inline=True)
 def _value(pred, ctx, q, u, P, es, out, ds, buf, probs, decode):
     """Value ``q`` of vertex ``u``: residual against ``pred`` coded from / decoded into ``P[u, q]``."""
     if decode:
