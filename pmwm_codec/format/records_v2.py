@@ -538,7 +538,7 @@ def _floor_half(x):
     return np.int64(np.floor(x + 0.5))
 
 
-@kernel_helper
+@kernel_helper(inline=True)
 def _ring_stats(lo, hi, a, b, vv, sym, P, S, ring, nrm, i):
     """Split ``i``'s ring over the faces of its new vertex (spec §8.4.3), from its incidences
     ``lo .. hi - 1`` and their symbols, into row ``i`` of: ``S`` (k, D) int64 the sums of the faces'
@@ -614,7 +614,7 @@ def _axis(q, x0, x1, x2):
     return x0 if q == 0 else (x1 if q == 1 else x2)
 
 
-@kernel_helper
+@kernel_helper(inline=True)
 def _split_values(S, i, vv, u, P, ring, nrm, es, out, ds, buf, probs, decode):
     """Split ``i``'s new vertex ``u``: frame prediction from row ``i`` of ``S`` / ``ring`` / ``nrm``,
     then its D values coded / decoded in order."""
