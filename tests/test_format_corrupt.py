@@ -268,11 +268,11 @@ def test_a_payload_error_names_its_chunk_as_the_container_errors_do(monkeypatch)
     pmwm_codec.encode(shapes.icosphere(3, 1.0, noise=0.02), buf, min_chunk_splits=32)
     calls = []
 
-    def failing(payload, state, models):
+    def failing(payload, state, models, **options):
         calls.append(1)
         if len(calls) == 3:
             raise FormatError("chunk payload: invalid connectivity code")
-        yield from real(payload, state, models)
+        yield from real(payload, state, models, **options)
 
     real = replay.decode_chunk
     monkeypatch.setattr(replay, "decode_chunk", failing)

@@ -173,7 +173,7 @@ def _direct(rng, code, pos, ds, buf):
     return bit, rng, code, pos
 
 
-@kernel_helper
+@kernel_helper(inline=True)
 def dec_bit(ds, buf, probs, i):
     """Decode one bit with adaptive probability ``probs[i]``."""
     bit, ds[0], ds[1], ds[2] = _bit(ds[0], ds[1], ds[2], ds, buf, probs, i)
@@ -225,7 +225,7 @@ def _tree(rng, code, pos, ds, buf, probs, base, nbits):
     return node - (1 << nbits), rng, code, pos
 
 
-@kernel_helper
+@kernel_helper(inline=True)
 def dec_tree(ds, buf, probs, base, nbits):
     value, ds[0], ds[1], ds[2] = _tree(ds[0], ds[1], ds[2], ds, buf, probs, base, nbits)
     return value
@@ -275,7 +275,7 @@ def enc_uint(es, out, probs, base, x):
     return 0
 
 
-@kernel_helper
+@kernel_helper(inline=True)
 def dec_uint(ds, buf, probs, base):
     """Inverse of :func:`enc_uint`; -1 for a bucket above :data:`MAX_BUCKET` (invalid)."""
     b, rng, code, pos = _tree(ds[0], ds[1], ds[2], ds, buf, probs, base, BUCKET_BITS)
@@ -303,7 +303,7 @@ def enc_sint(es, out, probs, base, r):
     return 0
 
 
-@kernel_helper
+@kernel_helper(inline=True)
 def dec_sint(ds, buf, probs, base):
     """Inverse of :func:`enc_sint`.  Returns ``(value, ok)``; ok 0 for a bucket above :data:`MAX_BUCKET`."""
     b, rng, code, pos = _tree(ds[0], ds[1], ds[2], ds, buf, probs, base, BUCKET_BITS)

@@ -102,11 +102,14 @@ class CornerLists:
 
     def grow(self, state) -> None:
         """Room for ``state``'s arrays after they grew (:meth:`~pmwm_codec.progressive.vsplit.MeshState.reserve`):
-        every array copied into a longer one, its new part as a new one's (-1 / zeros)."""
+        every array copied into a longer one, its new part as a new one's (-1 / zeros); ``creator`` (scratch) is
+        not carried over."""
         N, M = len(state.positions), len(state.faces)
         for name in ("head", "tail", "valence", "tag", "split", "below", "stamp"):
             setattr(self, name, _longer(getattr(self, name), N, -1 if name in ("head", "tail") else 0))
-        self.nxt, self.creator = _longer(self.nxt, 3 * M, -1), _longer(self.creator, 3 * M, 0)
+        self.nxt = _longer(self.nxt, 3 * M, -1)
+        if len(self.creator) < 3 * M:  # scratch read only where a batch wrote it: nothing to carry over
+            self.creator = np.empty(3 * M, np.int32)
         self.created = _longer(self.created, (3 * M + 31) // 32, 0)
 
     def sync(self, state) -> None:
@@ -121,9 +124,12 @@ def _longer(values: np.ndarray, size: int, fill) -> np.ndarray:
     """(size,) ``values`` then ``fill`` (``values`` itself when it is that long already)."""
     if len(values) >= size:
         return values
-    out = np.empty(size, values.dtype)
+    if fill == 0:  # zeroed pages from the allocator: those never written are never touched
+        out = np.zeros(size, values.dtype)
+    else:
+        out = np.empty(size, values.dtype)
+        out[len(values) :] = fill
     out[: len(values)] = values
-    out[len(values) :] = fill
     return out
 
 
@@ -171,6 +177,9 @@ def _valence(w, flat, head, nxt, stamp, ctr):
 #: ``below[x]`` (:func:`_mask_kernel`): the marked distinct neighbours below x, counted up to 2, in
 #: its low bits; above them the last marked vertex w that counted x, as w + 1 (tells its corners apart).
 BELOW_BITS = 2
+#: How many vertices ahead :func:`_mask_kernel` asks for a vertex's first corner, and half as far its second
+#: (:data:`PREFETCH_VERTICES`).
+MASK_AHEAD = 16
 
 
 @kernel_helper
@@ -206,8 +215,14 @@ def _mask_kernel(flat, n, head, nxt, valence, below, sel, marked, gstart, inc, a
     """
     k = 0
     corners = 0
+    ahead = len(head) >= PREFETCH_VERTICES
     rng, code, pos = (ds[0], ds[1], ds[2]) if decode else (0, 0, 0)  # the coder state in registers
     for w in range(n):
+        if ahead and w + MASK_AHEAD < n:  # later vertices' first corners and their faces, in case they are marked
+            _prefetch_corner(head[w + MASK_AHEAD], flat, nxt)
+            c = head[w + MASK_AHEAD // 2]  # a nearer one's second corner (its first asked for above, earlier)
+            if c >= 0:
+                _prefetch_corner(nxt[c], flat, nxt)
         ctx = P_MASK + 7 * (below[w] & ((1 << BELOW_BITS) - 1)) + min(max(valence[w], 3), 9) - 3
         below[w] = 0
         if decode:
@@ -231,6 +246,14 @@ def _mask_kernel(flat, n, head, nxt, valence, below, sel, marked, gstart, inc, a
     if k >= 0:
         gstart[k] = corners
     return k, corners
+
+
+@kernel_helper(inline=True)
+def _prefetch_corner(c, flat, nxt):
+    """:func:`~pmwm_codec.progressive.topology.prefetch` of corner ``c``'s successor and face (nothing for ``c`` < 0)."""
+    if c >= 0:
+        topology.prefetch(nxt, c)
+        topology.prefetch(flat, c - c % 3)
 
 
 #: Meshes with room for at least this many vertices (the length of the decoder's arrays, which grow with
@@ -515,7 +538,7 @@ def _floor_half(x):
     return np.int64(np.floor(x + 0.5))
 
 
-@kernel_helper
+@kernel_helper(inline=True)
 def _ring_stats(lo, hi, a, b, vv, sym, P, S, ring, nrm, i):
     """Split ``i``'s ring over the faces of its new vertex (spec §8.4.3), from its incidences
     ``lo .. hi - 1`` and their symbols, into row ``i`` of: ``S`` (k, D) int64 the sums of the faces'
@@ -591,7 +614,7 @@ def _axis(q, x0, x1, x2):
     return x0 if q == 0 else (x1 if q == 1 else x2)
 
 
-@kernel_helper
+@kernel_helper(inline=True)
 def _split_values(S, i, vv, u, P, ring, nrm, es, out, ds, buf, probs, decode):
     """Split ``i``'s new vertex ``u``: frame prediction from row ``i`` of ``S`` / ``ring`` / ``nrm``,
     then its D values coded / decoded in order."""
@@ -632,7 +655,7 @@ def _split_values(S, i, vv, u, P, ring, nrm, es, out, ds, buf, probs, decode):
     return 0
 
 
-@kernel_helper
+@kernel_helper(inline=True)
 def _value(pred, ctx, q, u, P, es, out, ds, buf, probs, decode):
     """Value ``q`` of vertex ``u``: residual against ``pred`` coded from / decoded into ``P[u, q]``."""
     if decode:
@@ -888,13 +911,14 @@ def _unreferenced(items: tuple) -> bool:
     return all(r <= alone for r in _references(items))
 
 
-def decode_chunk(payload, state, model: ChunkDecoder):
+def decode_chunk(payload, state, model: ChunkDecoder, listed: bool = True):
     """Decode one chunk against ``state`` (int64 values), applying each batch as it is decoded;
     ``model`` is the primitive's :class:`ChunkDecoder` (updated in place).
 
     Yields ``(SplitBatch, SplitTopology)`` per batch: the batch in version 1 terms (split
     vertices, incidence symbols, residuals against the version 1 prediction; listed when first
-    read) and what :func:`~pmwm_codec.progressive.vsplit.split_topology` would have done.
+    read) and what :func:`~pmwm_codec.progressive.vsplit.split_topology` would have done;
+    ``(None, None)`` when not ``listed`` (a caller that reads neither: the batch is applied all the same).
     FormatError / LimitError on any invalid code, count or termination.
     """
     dec = rc.Decoder(payload, model.probs)
@@ -907,7 +931,7 @@ def decode_chunk(payload, state, model: ChunkDecoder):
     lists = model.lists_for(state)
     for _ in range(batches):
         try:
-            yield _decode_batch(dec, state, lists, model.mask_buffers(state))
+            yield _decode_batch(dec, state, lists, model.mask_buffers(state), listed)
         except FormatError:
             lists.n = -1  # the lists may be half updated: rebuilt if anyone decodes on
             raise
@@ -929,9 +953,10 @@ def _mask_buffers(m: int, cap: int) -> tuple:
     return (np.empty(cap, np.int64), np.empty(cap + 1, np.int64)) + tuple(np.empty(3 * m, np.int64) for _ in range(3))
 
 
-def _decode_batch(dec, state, lists, buffers):
+def _decode_batch(dec, state, lists, buffers, listed):
     """One batch: mask, then connectivity, topology and values in one kernel (:func:`_batch_kernel`).
-    ``buffers``: the mask's outputs (:meth:`ChunkDecoder.mask_buffers`)."""
+    ``buffers``: the mask's outputs (:meth:`ChunkDecoder.mask_buffers`).  Returns what
+    :func:`decode_chunk` yields (``listed``: whether the batch is listed)."""
     n, m = state.n, state.m
     flat = state.faces.reshape(-1)
     marked, gstart, inc, a, b = buffers
@@ -960,6 +985,8 @@ def _decode_batch(dec, state, lists, buffers):
         raise FormatError(_BATCH_ERRORS[new_faces])
     state.n, state.m = n + k, m + new_faces
     lists.n, lists.m = state.n, state.m
+    if not listed:
+        return None, None
     return _listed_batch(v, n, state.positions, gstart, inc, a, b, sym, rsum, rcount)
 
 
@@ -1208,21 +1235,58 @@ def _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, head, tail, nxt, split
                     lo_word, hi_word = min(lo_word, c >> 5), max(hi_word, (c >> 5) + 1)
             _append_corner(u if sym[t] != 0 else v[i], c, head, tail, nxt)
     slot = 3 * m0
-    for word in range(lo_word, hi_word):  # the naming corners in ascending order, the bitmap cleared
-        bits = created[word]
+    word, bits = lo_word - 1, 0  # the naming corners in ascending order (a cursor over the bitmap)
+    # on large meshes two cursors run ahead: one asks for the creator entries LINK_AHEAD corners on, one
+    # for the rows of named half as far on (their creator entries asked for by then)
+    wa, ba, wb, bb = word, bits, word, bits
+    if ahead:
+        for _ in range(LINK_AHEAD):
+            c, wa, ba = _next_created(created, wa, ba, hi_word)
+            if c >= 0:
+                topology.prefetch(creator, c)
+        for _ in range(LINK_AHEAD // 2):
+            c, wb, bb = _next_created(created, wb, bb, hi_word)
+            if c >= 0:
+                topology.prefetch(named, creator[c])
+    while True:
+        c, word, bits = _next_created(created, word, bits, hi_word)
+        if c < 0:
+            break
+        if ahead:
+            x, wa, ba = _next_created(created, wa, ba, hi_word)
+            if x >= 0:
+                topology.prefetch(creator, x)
+            x, wb, bb = _next_created(created, wb, bb, hi_word)
+            if x >= 0:
+                topology.prefetch(named, creator[x])
+        row = creator[c]
+        u, vv, left, right = named[row, 0], named[row, 1], named[row, 2], named[row, 3]
+        if left >= 0:  # left new face (u, v, a)
+            slot = _new_face(slot, u, vv, left, flat, head, tail, nxt)
+        if right >= 0:  # right new face (v, u, b)
+            slot = _new_face(slot, vv, u, right, flat, head, tail, nxt)
+    for word in range(lo_word, hi_word):  # the bitmap cleared
         created[word] = 0
-        while bits != 0:
-            low = bits & -bits
-            bits ^= low
-            row = creator[32 * word + _DE_BRUIJN[((low * 0x077CB531) & 0xFFFFFFFF) >> 27]]
-            u, vv, left, right = named[row, 0], named[row, 1], named[row, 2], named[row, 3]
-            if left >= 0:  # left new face (u, v, a)
-                slot = _new_face(slot, u, vv, left, flat, head, tail, nxt)
-            if right >= 0:  # right new face (v, u, b)
-                slot = _new_face(slot, vv, u, right, flat, head, tail, nxt)
     for i in range(k):
         split[v[i]] = 0
     return new_faces, rewritten
+
+
+#: How many naming corners ahead :func:`_link_splits` asks for their ``creator`` entries on large meshes.
+LINK_AHEAD = 16
+
+
+@kernel_helper(inline=True)
+def _next_created(created, word, bits, hi_word):
+    """Advance a cursor over the bitmap ``created`` (:func:`_link_splits`): ``bits`` the part of word ``word``
+    not visited yet.  Returns ``(corner, word, bits)``: the next set corner, or -1 past word ``hi_word - 1``."""
+    while bits == 0:
+        word += 1
+        if word >= hi_word:
+            return -1, word, bits
+        bits = created[word]
+    low = bits & -bits
+    return 32 * word + _DE_BRUIJN[((low * 0x077CB531) & 0xFFFFFFFF) >> 27], word, bits ^ low
 
 
 @kernel_helper

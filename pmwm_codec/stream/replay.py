@@ -255,11 +255,12 @@ class Replay:
     def _batches(self, p: int, event: ChunkEvent):
         """Yield ``(SplitBatch, SplitTopology)`` per batch of the chunk, the batch applied (topology and
         values) to the stream's own integer state: the primitive's state with decoded positions, its
-        shadow with given positions (the caller then replays the topology over the given ones)."""
+        shadow with given positions (the caller then replays the topology over the given ones).  Version 2
+        batches nobody reads (decoded positions, no carriers) are applied and not listed: ``(None, None)``."""
         own = self.states[p] if self.given is None else self.shadows[p]
         ext = self.exts[p]
         if payload_version(ext) == 2:
-            yield from decode_chunk(event.payload, own, self.models[p])
+            yield from decode_chunk(event.payload, own, self.models[p], listed=self.carriers or self.given is not None)
             return
         for batch in unpack_batches(event.payload, max_splits=own.vertex_limit, width=value_width(ext)):
             yield batch, apply_batch(own, batch)
