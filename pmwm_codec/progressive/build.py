@@ -135,9 +135,8 @@ def build_progressive(
         state = MeshState(positions[order0], base_faces, n, m)
     face_src = np.full(m, -1, dtype=np.int64)  # decoded face id -> input face id
     face_src[: len(base_faces)] = base_face_ids
-    if packer is None:
-        moved_by = np.full(m, -1, dtype=np.int64)  # scratch over input face ids
-    else:  # input face id -> decoded face id (-1: not made yet), face_src's inverse
+    moved_by = np.full(m, -1, dtype=np.int64)  # scratch over input (replay) or decoded (packer) face ids
+    if packer is not None:  # input face id -> decoded face id (-1: not made yet), face_src's inverse
         face_dst = np.full(m, -1, dtype=np.int64)
         face_dst[base_face_ids] = np.arange(len(base_faces))
 
@@ -149,7 +148,7 @@ def build_progressive(
         else:
             if j in starts:
                 packer.begin(starts[j])
-            batches.append(_replay_packed(cb, state, positions, vid, face_src, face_dst, packer))
+            batches.append(_replay_packed(cb, state, positions, vid, face_src, face_dst, moved_by, packer))
             if j + 1 in stops:
                 packer.end()
         errors.append(float(cb.error.max()) if len(cb.u) else 0.0)
@@ -235,13 +234,13 @@ def _replay_batch(j, cb, state, positions, vid, face_src, moved_by, embed) -> Sp
     return SplitBatch(v_sorted, symbols, residual)
 
 
-def _replay_packed(cb, state, positions, vid, face_src, face_dst, packer) -> SplitBatch:
+def _replay_packed(cb, state, positions, vid, face_src, face_dst, moved_by, packer) -> SplitBatch:
     """:func:`_replay_batch` without an embedder, by the packer's path: ``packer``
     (:class:`~pmwm_codec.format.records_v2.ChunkPacker` over ``state``, in a chunk) codes the batch's
     selection, the symbols are derived from the incidences it gathers (:func:`_packed_symbols`), and it
     codes the connectivity and the values as it applies them.  ``face_dst`` (M,) int64: ``face_src``'s
-    inverse (input face id -> decoded id), updated with it.  Returns the batch in version 1 terms (its
-    symbols and residuals listed when first read)."""
+    inverse (input face id -> decoded id), updated with it; ``moved_by`` (M,) int64: scratch, -1.  Returns
+    the batch in version 1 terms (its symbols and residuals listed when first read)."""
     k = len(cb.u)
     n0, m0 = state.n, state.m
     vf = vid[cb.v]
@@ -250,7 +249,7 @@ def _replay_packed(cb, state, positions, vid, face_src, face_dst, packer) -> Spl
     rank[order] = np.arange(k)
     v_sorted = vf[order]
     gstart, inc, a, b = packer.mask(v_sorted)
-    sym = _packed_symbols(gstart, inc, a, b, vid, face_dst, cb, order, rank)
+    sym = _packed_symbols(gstart, inc, a, b, vid, face_dst, moved_by, cb, order, rank)
     u_in = cb.u[order]
     vid[u_in] = n0 + np.arange(k)
     state.positions[n0 : n0 + k] = np.take(positions, u_in, axis=0)
@@ -259,59 +258,50 @@ def _replay_packed(cb, state, positions, vid, face_src, face_dst, packer) -> Spl
     return batch
 
 
-def _packed_symbols(gstart, inc, a, b, vid, face_dst, cb, order, rank) -> np.ndarray:
+def _packed_symbols(gstart, inc, a, b, vid, face_dst, moved_by, cb, order, rank) -> np.ndarray:
     """The symbols (I,) uint8 of collapse batch ``cb`` undone, for its incidences grouped by split
     (:meth:`~pmwm_codec.format.records_v2.ChunkPacker.mask`: split ``s`` has ``gstart[s] ..
     gstart[s + 1] - 1``, ascending corners ``inc``, the corners after / before its vertex ``a`` / ``b``,
     all (I,) int64); splits in ``order``, ``rank`` its inverse; ``face_dst`` (M,) int64 the decoded id
     of each input face.  An incidence moves when its face is one of its split's moved faces (a face
-    moves for one split at most: the batch's removed vertices share no face)."""
+    moves for one split at most: the batch's removed vertices share no face), marked in ``moved_by``
+    (M,) int64 over decoded face ids (scratch, -1 on entry and on return) with the split's rank."""
     kernel = compiled(_packed_symbols_kernel)
     if kernel is not None:
-        return kernel(gstart, inc, a, b, vid, face_dst, cb.moved_face, cb.moved_by, rank, order, cb.wing_left,
-                      cb.wing_right)
+        return kernel(gstart, inc, a, b, vid, face_dst, moved_by, cb.moved_face, cb.moved_by, rank, order,
+                      cb.wing_left, cb.wing_right)
     owner = np.repeat(np.arange(len(order)), np.diff(gstart))
-    M = len(face_dst)
-    moved = np.isin(owner * M + inc // 3, rank[cb.moved_by] * M + face_dst[cb.moved_face])
+    mover = face_dst[cb.moved_face]
+    moved_by[mover] = rank[cb.moved_by]
+    moved = moved_by[inc // 3] == owner
+    moved_by[mover] = -1
     left, right = _wing_incidences(a, b, owner, vid, cb, order, moved)
     return (moved * MOVE + left * (MOVE_LEFT - MOVE) + right * (MOVE_RIGHT - MOVE)).astype(np.uint8)
 
 
-def _packed_symbols_kernel(gstart, inc, a, b, vid, face_dst, moved_face, moved_of, rank, order, wing_left,
-                            wing_right):
+def _packed_symbols_kernel(gstart, inc, a, b, vid, face_dst, moved_by, moved_face, moved_of, rank, order, wing_left,
+                           wing_right):
     """Compiled :func:`_packed_symbols` (``moved_face`` / ``moved_of`` / ``wing_*``: the batch's arrays,
-    input ids, collapse order): the moved faces' decoded ids grouped by split (a counting sort), then
-    one pass over the incidences, split by split, each looked up among its split's few moved faces."""
-    k = len(order)
-    start = np.zeros(k + 1, np.int64)
+    input ids, collapse order): the moved faces marked with their split's rank, then one pass over the
+    incidences, split by split."""
     for j in range(len(moved_face)):
-        start[rank[moved_of[j]] + 1] += 1
-    for s in range(k):
-        start[s + 1] += start[s]
-    fill = start[:k].copy()
-    moved = np.empty(len(moved_face), np.int64)
-    for j in range(len(moved_face)):
-        s = rank[moved_of[j]]
-        moved[fill[s]] = face_dst[moved_face[j]]
-        fill[s] += 1
+        moved_by[face_dst[moved_face[j]]] = rank[moved_of[j]]
     symbols = np.zeros(len(inc), np.uint8)
-    for s in range(k):
+    for s in range(len(order)):
         i = order[s]
         wl = vid[wing_left[i]] if wing_left[i] >= 0 else -1  # the wings' decoded ids (-1: none)
         wr = vid[wing_right[i]] if wing_right[i] >= 0 else -1
         named_left = named_right = False  # the split has named its left / right new face
         for t in range(gstart[s], gstart[s + 1]):
-            f = inc[t] // 3
-            q = start[s]
-            while q < start[s + 1] and moved[q] != f:
-                q += 1
-            if q == start[s + 1]:
+            if moved_by[inc[t] // 3] != s:
                 continue
             left = wl >= 0 and a[t] == wl and not named_left
             right = wr >= 0 and b[t] == wr and not named_right
             named_left |= left
             named_right |= right
             symbols[t] = MOVE + left * (MOVE_LEFT - MOVE) + right * (MOVE_RIGHT - MOVE)
+    for j in range(len(moved_face)):
+        moved_by[face_dst[moved_face[j]]] = -1
     return symbols
 
 

@@ -236,25 +236,27 @@ def _vertex_edges(x0, ne, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0,
     written.
 
     Every vertex ``x`` in turn gathers the half-edges of its corners that run to or from a higher
-    vertex ``y`` (and its own outgoing self-loops), sorted by (y, half-edge) as one packed key
-    ``(y << shift | half-edge) << 1 | into x`` in ``buf`` (scratch, 2 * the largest face count; one
-    comparison per step of the insertion; the direction bit below the half-edge, which no two
-    entries share): its edges as the low end, in edge order."""
+    vertex ``y`` (and its own outgoing self-loops) as one packed key ``(y << shift | half-edge) << 1 |
+    into x`` in ``buf`` (scratch, 2 * the largest face count; the direction bit below the half-edge,
+    which no two entries share), then sorts them by insertion (one comparison per step): its edges as
+    the low end, in edge order.  The gathering writes both keys of every corner and keeps the wanted
+    ones by advancing the count or not: a branch there, taken at random about half the time, cost a
+    tenth of the edge pass in mispredictions."""
     shift = 1
     while (1 << shift) < len(vf_corner):  # half-edge ids are below 3m, the corner count
         shift += 1
     low = (1 << shift) - 1
     for x in range(x0, n):
         k = 0
-        for p in range(vf_start[x], vf_start[x + 1]):
+        for p in range(vf_start[x], vf_start[x + 1]):  # every key written, kept (k advanced) or not: no branch
             hc = vf_corner[p]
             y1, y2 = np.int64(ring[p, 0]), np.int64(ring[p, 1])
-            if y1 >= x:  # half-edge x -> y1
-                _insert(buf, k, ((y1 << shift) | hc) << 1)
-                k += 1
-            if y2 > x:  # half-edge y2 -> x: the face's previous corner
-                _insert(buf, k, (((y2 << shift) | (hc + 2 if hc % 3 == 0 else hc - 1)) << 1) | 1)
-                k += 1
+            buf[k] = ((y1 << shift) | hc) << 1  # half-edge x -> y1
+            k += y1 >= x
+            buf[k] = (((y2 << shift) | (hc + 2 if hc % 3 == 0 else hc - 1)) << 1) | 1  # y2 -> x: the previous corner
+            k += y2 > x
+        for i in range(1, k):
+            _insert(buf, i, buf[i])
         if ne + k > len(lo):
             return x, ne
         j = 0

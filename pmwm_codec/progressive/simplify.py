@@ -1496,7 +1496,9 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
     arguments.  (``_conflicts``' same-kept-vertex rule is implied by its kept-vertex-next-to-a-
     lower-ranked-removed-vertex rule, since every winner's removed vertex neighbours its kept one.)
     The groups still in play are kept as a list, ascending, compacted after every round (a round
-    visits them only, not every group).
+    visits them only, not every group).  Round ``r``'s offers are written as ``rank + (rounds - 1 - r)
+    * big``: an offer left from an earlier round is above every limit of a later one, so the offers
+    are never reset (a pass over the groups in play per round less).
     """
     vv_edge, count, he0, he1, F, P, opp, fcount, vf_start, vf_face, fin, twin_edge = mesh
     big = len(cu) + 1
@@ -1506,28 +1508,28 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
     play = np.arange(len(starts))  # groups in play, ascending: the first ``live`` entries
     live = len(starts)
     flags = np.zeros((3, n), np.bool_)  # chosen removed, chosen kept, blocked
-    scratch = np.full((3, n), big, np.int64)  # offers, winners' ranks at u, at v (reset after use)
+    offer = np.full(n, rounds * big, np.int64)  # each round's offers, never reset (see ``above``)
+    scratch = np.full((2, n), big, np.int64)  # winners' ranks at u, at v (reset after use)
     wg = np.empty(len(starts), np.int64)  # this round's winning groups and their offers
     wo = np.empty(len(starts), np.int64)
     mark = np.full(n, -1, np.int64)  # the legality tests' scratch (:func:`_legal_marked`), filled once
     tested = 0
     out = np.empty(len(cu), np.int64)
     n_out = 0
-    for _ in range(rounds):
+    for r in range(rounds):
         if live == 0:
             break
+        above = (rounds - 1 - r) * big  # this round's offers: rank + above, below every earlier round's
         for j in range(live):
             o = front[play[j]]
-            scratch[0, cu[o]] = rank[o]
+            offer[cu[o]] = rank[o] + above
         w = 0
         for j in range(live):
             g = play[j]
             o = front[g]
-            if not _nbr_below(vv_start, vv_nbr, scratch[0], cu[o], rank[o] + 1):
+            if not _nbr_below(vv_start, vv_nbr, offer, cu[o], rank[o] + 1 + above):
                 wg[w], wo[w] = g, o
                 w += 1
-        for j in range(live):
-            scratch[0, cu[front[play[j]]]] = big
         if w == 0:
             break
         wu, wv = cu[wo[:w]], cv[wo[:w]]
@@ -1581,20 +1583,21 @@ def _nbr_below(vv_start, vv_nbr, values, row, limit):
 def _round_conflicts(u, v, r, flags, scratch, vv_start, vv_nbr, big, any_chosen=True):
     """Kernel part of :func:`_select_kernel`: :func:`_conflicts` of one round's winners (w,) -> (w,) bool.
     ``any_chosen``: False when no collapse is chosen yet (``flags`` all False), which skips the rows'
-    scans against the chosen ones; each scan stops at the first conflict it finds."""
+    scans against the chosen ones; each scan stops at the first conflict it finds.  ``scratch`` (2, n) int64:
+    ``big`` on entry and on return (the winners' ranks at their u, at their v, while the round is tested)."""
     loses = np.zeros(len(u), np.bool_)
     for i in range(len(u)):
         if any_chosen:
             loses[i] = flags[1, v[i]] or flags[0, v[i]] or _nbr_flagged(vv_start, vv_nbr, flags[1], u[i]) \
                 or _nbr_flagged(vv_start, vv_nbr, flags[0], v[i])
-        scratch[1, u[i]] = r[i]
-        scratch[2, v[i]] = min(scratch[2, v[i]], r[i])
+        scratch[0, u[i]] = r[i]
+        scratch[1, v[i]] = min(scratch[1, v[i]], r[i])
     for i in range(len(u)):
-        loses[i] = loses[i] or _nbr_below(vv_start, vv_nbr, scratch[1], v[i], r[i]) \
-            or _nbr_below(vv_start, vv_nbr, scratch[2], u[i], r[i])
+        loses[i] = loses[i] or _nbr_below(vv_start, vv_nbr, scratch[0], v[i], r[i]) \
+            or _nbr_below(vv_start, vv_nbr, scratch[1], u[i], r[i])
     for i in range(len(u)):
-        scratch[1, u[i]] = big
-        scratch[2, v[i]] = big
+        scratch[0, u[i]] = big
+        scratch[1, v[i]] = big
     return loses
 
 
