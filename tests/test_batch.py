@@ -492,6 +492,35 @@ def test_an_input_that_is_a_fifo_or_a_device_is_a_failed_asset_never_a_hang(tmp_
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("named", ["folder", "glob"])
+def test_a_symlink_out_of_the_named_folder_is_a_refused_asset_never_read(tmp_path, named):
+    """A folder or glob run followed symlinked files: ``lib/x.obj -> ~/private/x.obj`` made the run read (and embed
+    in a .pmw) a file outside what the user named.  Now such an asset is a failed row naming the link; a link that
+    stays inside the folder is encoded, and a manifest that names the outside file encodes it."""
+    outside = tmp_path / "private"
+    outside.mkdir()
+    write_mesh(outside / "secret.obj", shapes.icosphere(1))
+    lib = tmp_path / "lib"
+    (lib / "sub").mkdir(parents=True)
+    write_mesh(lib / "a.obj", shapes.icosphere(1))
+    (lib / "x.obj").symlink_to(outside / "secret.obj")
+    (lib / "sub" / "alias.obj").symlink_to(lib / "a.obj")
+    src = lib if named == "folder" else str(lib / "**" / "*.obj")
+    assets = {a.relative: a for a in expand_sources(src, tmp_path / "out")}
+    assert sorted(assets) == ["a.obj", "sub/alias.obj", "x.obj"]
+    refused = encode_task(EncodeJob(assets["x.obj"].input, assets["x.obj"].output, timeout=60, root=assets["x.obj"].root))
+    assert refused["status"] == "failed" and refused["input_sha256"] is None
+    assert "symlink" in refused["error"] and str(outside / "secret.obj") in refused["error"]
+    assert not (tmp_path / "out").exists()
+    inside = assets["sub/alias.obj"]
+    assert encode_task(EncodeJob(inside.input, inside.output, timeout=60, root=inside.root))["status"] == "ok"
+    manifest = tmp_path / "list.txt"
+    manifest.write_text(f"{lib / 'x.obj'}\n")
+    (listed,) = expand_sources(manifest, tmp_path / "out2")
+    assert listed.root is None
+    assert encode_task(EncodeJob(listed.input, listed.output, timeout=60, root=listed.root))["status"] == "ok"
+
+
 def test_a_rerun_that_fails_leaves_the_output_of_the_run_before_as_it_was(tmp_path):
     """A re-run with other settings (``--keys-dir``, so the key it wants is not there yet) deleted each old output
     before encoding: when the encode then failed or timed out, the good output of the run before was lost and its

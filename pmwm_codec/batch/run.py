@@ -154,7 +154,7 @@ def _jobs(assets, out_dir, image, key, keys_dir, timeout, force, options=None) -
             and prior.get("settings_sha256") == settings
         jobs.append(EncodeJob(asset.input, asset.output, job_key, key_path, image, timeout, force,
                               prior.get("input_sha256") if done else None, prior.get("vertices") if done else None,
-                              settings, dict(options or {})))
+                              settings, dict(options or {}), asset.root))
     return jobs
 
 

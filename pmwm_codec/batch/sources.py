@@ -5,6 +5,10 @@ SRC is one of
 * a folder: every ``.obj .ply .stl .glb .gltf`` file below it (recursively, sorted; files
   under OUT_DIR are left out when OUT_DIR lies inside SRC; symlinked folders are not entered);
 * a glob (``lib/**/*.glb``; ``**`` recurses): the matching mesh files;
+
+  in both, a file whose real path (symlinks resolved) lies outside the folder SRC names
+  is refused, a failed row of the ledger that says so: a symlink planted in a library
+  never makes a run read a file the user did not name (name it in a manifest instead);
 * a manifest: a text file naming one input per line (blank lines and ``#`` comments
   skipped; relative paths are relative to the manifest's folder).  Its entries are taken
   as named, so an unreadable one becomes a failed asset in the ledger, not a usage error.
@@ -27,7 +31,7 @@ from dataclasses import dataclass
 from pmwm_codec.mesh import MESH_SUFFIXES
 from pmwm_codec.watermark.key import KEY_SUFFIX
 
-__all__ = ["Asset", "expand_sources", "KEY_SUFFIX", "PMW_SUFFIX"]
+__all__ = ["Asset", "expand_sources", "outside_root", "KEY_SUFFIX", "PMW_SUFFIX"]
 
 PMW_SUFFIX = ".pmw"
 _MAGIC = set("*?[")
@@ -40,6 +44,8 @@ class Asset:
     input: str
     relative: str
     output: str
+    root: str | None = None
+    """The folder a folder or glob SRC names: the input's real path must stay inside it (None: named as is)."""
 
 
 def expand_sources(src, out_dir) -> list[Asset]:
@@ -49,15 +55,16 @@ def expand_sources(src, out_dir) -> list[Asset]:
     """
     src = os.fspath(src)
     out_dir = os.path.abspath(os.fspath(out_dir))
+    confine = True
     if os.path.isdir(src):
         root = os.path.abspath(src)
         inputs = _walk(root, out_dir)
     elif os.path.isfile(src) and os.path.splitext(src)[1].lower() in MESH_SUFFIXES:
         inputs = [os.path.abspath(src)]
-        root = os.path.dirname(inputs[0])
+        root, confine = os.path.dirname(inputs[0]), False
     elif os.path.isfile(src):
         inputs = _manifest(src)
-        root = _common_root(inputs)
+        root, confine = _common_root(inputs), False
     elif _MAGIC & set(src):
         inputs = sorted({os.path.abspath(p) for p in glob.glob(src, recursive=True)
                          if os.path.isfile(p) and _is_mesh(p)})
@@ -66,7 +73,21 @@ def expand_sources(src, out_dir) -> list[Asset]:
         raise ValueError(f"{src}: no such folder, file or glob match")
     if not inputs:
         raise ValueError(f"{src}: no mesh files ({', '.join(MESH_SUFFIXES)}) found")
-    return [_asset(path, root, out_dir) for path in inputs]
+    return [_asset(path, root, out_dir, root if confine else None) for path in inputs]
+
+
+def outside_root(path: str, root: str | None) -> str | None:
+    """Why the input ``path`` must not be read (its real path leaves ``root``, the folder SRC names), or None.
+
+    Checked by the worker just before it reads the input, so a symlink planted after the
+    folder was listed is refused too."""
+    if root is None:
+        return None
+    real = os.path.realpath(path)
+    if _inside(real, os.path.realpath(root)):
+        return None
+    return (f"{path}: a symlink to {real}, outside {root}; refused "
+            "(name the file itself, or list it in a manifest, to encode it)")
 
 
 def _is_mesh(path: str) -> bool:
@@ -124,9 +145,9 @@ def _common_root(inputs: list[str]) -> str:
     return os.path.commonpath([os.path.dirname(p) for p in inputs])
 
 
-def _asset(path: str, root: str, out_dir: str) -> Asset:
+def _asset(path: str, root: str, out_dir: str, confine: str | None) -> Asset:
     relative = os.path.relpath(path, root)
     output = os.path.join(out_dir, relative + PMW_SUFFIX)
     if not _inside(os.path.abspath(output), out_dir):  # cannot happen: root is a parent of path
         raise ValueError(f"{path}: its output would leave {out_dir}")
-    return Asset(path, relative.replace(os.sep, "/"), output)
+    return Asset(path, relative.replace(os.sep, "/"), output, confine)

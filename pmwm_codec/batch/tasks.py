@@ -22,6 +22,7 @@ from pmwm_codec.errors import PmwError
 
 from .child import child_main
 from .ledger import sha256_file
+from .sources import outside_root
 
 __all__ = ["EncodeJob", "encode_task", "verify_task"]
 
@@ -41,7 +42,8 @@ class EncodeJob:
     no watermark).  ``watermark``: (s, s) uint8 array or None.  ``prior_sha256`` /
     ``prior_vertices``: the ledger's last ok/skipped row for this input, if any, made with
     the same ``settings`` (:func:`pmwm_codec.batch.ledger.settings_sha256`).  ``options``: the
-    :func:`pmwm_codec.encode` options of every asset of the run.
+    :func:`pmwm_codec.encode` options of every asset of the run.  ``root``: the folder a
+    folder or glob SRC names, which the input's real path must not leave (None: no bound).
     """
 
     input: str
@@ -55,6 +57,7 @@ class EncodeJob:
     prior_vertices: int | None = None
     settings: str | None = None
     options: dict | None = None
+    root: str | None = None
 
 
 def encode_task(job: EncodeJob) -> dict:
@@ -62,20 +65,22 @@ def encode_task(job: EncodeJob) -> dict:
     start = time.monotonic()
     row = {"input": job.input, "input_sha256": None, "output": job.output, "status": "failed", "error": None,
            "bytes": None, "vertices": None, "settings_sha256": job.settings}
-    try:
-        row["input_sha256"] = sha256_file(job.input)
-    except OSError as exc:
-        row["error"] = f"{job.input}: {exc.strerror or exc}"
-    except PmwError as exc:  # not a regular file: never read
-        row["error"] = str(exc)
-    else:
-        if _done_before(job, row["input_sha256"]):
-            row.update(status="skipped", bytes=os.path.getsize(job.output), vertices=job.prior_vertices)
+    row["error"] = outside_root(job.input, job.root)  # a symlink out of SRC's folder: never read
+    if row["error"] is None:
+        try:
+            row["input_sha256"] = sha256_file(job.input)
+        except OSError as exc:
+            row["error"] = f"{job.input}: {exc.strerror or exc}"
+        except PmwError as exc:  # not a regular file: never read
+            row["error"] = str(exc)
         else:
-            try:
-                row.update(_encode_in_child(job))
-            except OSError as exc:  # its output's folder cannot be made (a file in its place ...)
-                row["error"] = f"{exc.filename or job.output}: {exc.strerror or exc}"
+            if _done_before(job, row["input_sha256"]):
+                row.update(status="skipped", bytes=os.path.getsize(job.output), vertices=job.prior_vertices)
+            else:
+                try:
+                    row.update(_encode_in_child(job))
+                except OSError as exc:  # its output's folder cannot be made (a file in its place ...)
+                    row["error"] = f"{exc.filename or job.output}: {exc.strerror or exc}"
     row["seconds"] = round(time.monotonic() - start, 3)
     return row
 
