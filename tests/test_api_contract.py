@@ -5,6 +5,7 @@ KeyError / TypeError, hanging, or writing a file that could never be verified)."
 from __future__ import annotations
 
 import io
+import json
 import math
 import os
 
@@ -135,6 +136,31 @@ def test_an_in_memory_document_brings_its_images_not_references_to_files(tmp_pat
         doc = {**gltf, "images": [{"uri": uri}]}
         with pytest.raises(InputFormatError, match="names a file"):
             pmwm_codec.encode((doc, buffers), tmp_path / "o.pmw")
+    assert not (tmp_path / "o.pmw").exists()
+
+
+@pytest.mark.parametrize("damage", ["node cycle", "meshes not an array", "bufferView out of range"])
+def test_an_in_memory_document_gets_the_checks_a_file_gets(tmp_path, damage):
+    """``encode((gltf, buffers))`` skipped the document checks a file passes through: a node that is its own
+    child was encoded into an invalid .pmw, and ``"meshes": "no"`` raised AttributeError (a traceback)."""
+    from pmwm_codec.format.document import load_document
+
+    src = tmp_path / "m.glb"
+    pmwm_codec.write_mesh(src, MESH)
+    gltf, buffers = load_document(src)
+    doc = json.loads(json.dumps(gltf))
+    if damage == "node cycle":
+        doc["nodes"][0]["children"] = [0]
+    elif damage == "meshes not an array":
+        doc["meshes"] = "no"
+    else:
+        doc["accessors"][0]["bufferView"] = len(doc["bufferViews"])
+    (tmp_path / "bad.gltf").write_text(json.dumps(doc))
+    with pytest.raises(InputFormatError) as on_disk:
+        load_document(tmp_path / "bad.gltf")
+    with pytest.raises(InputFormatError) as in_memory:
+        pmwm_codec.encode((doc, buffers), tmp_path / "o.pmw")
+    assert str(in_memory.value).split(": ", 1)[1] == str(on_disk.value).split(": ", 1)[1]
     assert not (tmp_path / "o.pmw").exists()
 
 

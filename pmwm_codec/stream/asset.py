@@ -44,9 +44,10 @@ import numpy as np
 from ..constants import EXTENSION_NAME
 from ..errors import DegenerateMeshError, InputFormatError, MeshError, PmwError
 from ..format.document import view_sites
-from ..format.document import is_progressive, load_document, progressive_refusal, read_accessor, repack
+from ..format.document import check_document, is_progressive, load_document, progressive_refusal, read_accessor, repack
 from ..format.document import strip_image_profiles as _strip_profiles
 from ..format.glb import glb_parts
+from ..format.meshopt import decompress as decompress_meshopt
 from ..format.gltf import (
     ARRAY_BUFFER,
     DRACO_EXTENSION,
@@ -313,9 +314,11 @@ def encode_asset(src, dst, *, strip_image_profiles: bool = False, **options) -> 
     carried byte for byte.  The report's ``notices`` say which primitives passed
     through and why; a primitive with invalid data is refused (see :func:`plan_asset`).
     """
-    if isinstance(src, tuple):
+    if isinstance(src, tuple):  # checked as a file's document is (load_document), but it has no folder
         gltf, buffers = _json_copy(src[0]), list(src[1])
+        check_document(gltf, "the asset")
         _refuse_external_uris(gltf)
+        gltf, buffers = decompress_meshopt(gltf, buffers, "the asset")
     else:
         gltf, buffers = load_document(src)
     if is_progressive(gltf):  # a .pmw by another name: its glTF is the base mesh alone
