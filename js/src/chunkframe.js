@@ -87,7 +87,7 @@ export function frameLayout(frame, what) {
  * @returns {Uint8Array} the payload, exactly `uncompressedLength` bytes (version 2: `stored` itself)
  */
 export function openChunk(stored, chunk, index) {
-  const what = `chunk ${index}`;
+  const what = `chunk ${index + 1}`; // numbered from 1, as the Python reader does (0 is the base mesh)
   if (!digestMatches(stored, chunk.digest)) throw new CorruptChunkError(`${what}: BLAKE2b digest differs`, index);
   if (chunk.payloadVersion === 2) {
     if (chunk.uncompressedLength !== stored.length) {

@@ -135,11 +135,11 @@ export class PmwDecoder {
       if (c.payloadVersion === 2) this.coders[c.primitive].decodeChunk(payload, c); // splits, or a face chunk (c.faces)
       else state.applyPayload(unpackPayload(payload, state.D, state.capN));
     } catch (e) {
-      if (e instanceof FormatError) e.message = `chunk ${index}: ${e.message}`;
+      if (e instanceof FormatError) e.message = `chunk ${index + 1}: ${e.message}`;
       throw e;
     }
     if (state.n !== c.vertexCount || state.m !== c.faceCount) {
-      throw new FormatError(`chunk ${index}: vertex/face counts differ from its index entry`);
+      throw new FormatError(`chunk ${index + 1}: vertex/face counts differ from its index entry`);
     }
   }
 

@@ -257,32 +257,32 @@ function arrayColumns(table, what) {
 }
 
 function checkChunk(gltf, c, j, bufferLength, what, version = 1) {
-  if (!isObj(c)) throw new FormatError(`${what} chunk ${j}: not an object`);
-  checkFields(c, 'chunk', `${what} chunk ${j}`);
-  if (!isInt(c.byteLength, 0, MAX_CHUNK_BYTES)) throw new LimitError(`${what} chunk ${j}: byteLength over the limit`);
+  if (!isObj(c)) throw new FormatError(`${what} chunks[${j}]: not an object`);
+  checkFields(c, 'chunk', `${what} chunks[${j}]`);
+  if (!isInt(c.byteLength, 0, MAX_CHUNK_BYTES)) throw new LimitError(`${what} chunks[${j}]: byteLength over the limit`);
   if (!isInt(c.uncompressedLength, 0, MAX_DECOMPRESSED_CHUNK_BYTES)) {
-    throw new LimitError(`${what} chunk ${j}: uncompressedLength over the limit`);
+    throw new LimitError(`${what} chunks[${j}]: uncompressedLength over the limit`);
   }
   for (const key of ['splits', 'vertexCount', 'faceCount']) {
     if (!isInt(c[key], 0, key === 'faceCount' ? MAX_FACES : MAX_VERTICES)) {
-      throw new FormatError(`${what} chunk ${j}: ${key} is not a count within the limits`);
+      throw new FormatError(`${what} chunks[${j}]: ${key} is not a count within the limits`);
     }
   }
   if (typeof c.geometricError !== 'number' || !(c.geometricError >= 0)) { // required by the chunk schema
-    throw new FormatError(`${what} chunk ${j}: geometricError is not a number >= 0`);
+    throw new FormatError(`${what} chunks[${j}]: geometricError is not a number >= 0`);
   }
   const hex = DIGEST_HEX[version];
   if (typeof c.digest !== 'string' || c.digest.length !== hex || !/^[0-9a-f]*$/.test(c.digest)) {
-    throw new FormatError(`${what} chunk ${j}: digest is not ${hex} lowercase hex digits`);
+    throw new FormatError(`${what} chunks[${j}]: digest is not ${hex} lowercase hex digits`);
   }
-  const view = bufferView(gltf, c.bufferView, bufferLength, `${what} chunk ${j}`);
+  const view = bufferView(gltf, c.bufferView, bufferLength, `${what} chunks[${j}]`);
   let offset = view.offset;
   if (version === 2) {
     if (!isInt(c.byteOffset, 0, view.length) || c.byteOffset + c.byteLength > view.length) {
-      throw new FormatError(`${what} chunk ${j}: lies past the end of its bufferView`);
+      throw new FormatError(`${what} chunks[${j}]: lies past the end of its bufferView`);
     }
     offset += c.byteOffset;
-  } else if (view.length !== c.byteLength) throw new FormatError(`${what} chunk ${j}: byteLength differs from its bufferView`);
+  } else if (view.length !== c.byteLength) throw new FormatError(`${what} chunks[${j}]: byteLength differs from its bufferView`);
   return {
     offset, length: c.byteLength, digest: c.digest, uncompressedLength: c.uncompressedLength,
     splits: c.splits, vertexCount: c.vertexCount, faceCount: c.faceCount, geometricError: c.geometricError,

@@ -30,7 +30,7 @@ test('a frame whose content checksum differs ends in a FormatError, also for an 
     const frame = rawFrame(payload);
     frame[frame.length - 1] ^= 0x40;
     assert.throws(() => openChunk(frame, entry(frame, payload.length), 3), (e) => e instanceof FormatError
-      && /chunk 3: zstd (frame does not decode or its checksum differs|content checksum differs)/.test(e.message));
+      && /chunk 4: zstd (frame does not decode or its checksum differs|content checksum differs)/.test(e.message));
   }
 });
 

@@ -90,7 +90,7 @@ for (const name of FILES) {
     const { bytes, first } = declaring(src);
     const bomb = await decode(bytes);
     assert.ok(bomb.error instanceof FormatError, String(bomb.error));
-    assert.equal(bomb.error.message, `chunk ${first}: vertex/face counts differ from its index entry`);
+    assert.equal(bomb.error.message, `chunk ${first + 1}: vertex/face counts differ from its index entry`);
     assert.ok(bomb.grew < 32 * MB, `arrayBuffers grew by ${(bomb.grew / MB).toFixed(1)} MB`);
     const held = heldBytes(bomb.decoder);
     assert.ok(held <= 2 * heldBytes(normal.decoder), `${held} bytes held, ${heldBytes(normal.decoder)} for the whole mesh`);
@@ -107,7 +107,7 @@ test('a payload cut to 3 bytes under a claim of millions is refused at its first
   const cut = withPayload(bytes, first, chunkPayloads(bytes)[first].payload.subarray(0, 3));
   const { error, grew } = await decode(cut);
   assert.ok(error instanceof FormatError, String(error));
-  assert.match(error.message, new RegExp(`^chunk ${first}: chunk payload: the coded stream does not end at the end of the payload`));
+  assert.match(error.message, new RegExp(`^chunk ${first + 1}: chunk payload: the coded stream does not end at the end of the payload`));
   assert.ok(grew < 32 * MB, `arrayBuffers grew by ${(grew / MB).toFixed(1)} MB`);
 });
 
@@ -117,7 +117,7 @@ test('a face chunk whose entry declares millions of new vertices and faces is re
   const { decoder, error, grew } = await decode(bytes);
   assert.equal(decoder.plan.stream[first].faces, true);
   assert.ok(error instanceof FormatError, String(error));
-  assert.match(error.message, new RegExp(`^chunk ${first}: face chunk: \\d+ new vertices, fewer than the \\d+ its index entry adds$`));
+  assert.match(error.message, new RegExp(`^chunk ${first + 1}: face chunk: \\d+ new vertices, fewer than the \\d+ its index entry adds$`));
   assert.ok(grew < 32 * MB, `arrayBuffers grew by ${(grew / MB).toFixed(1)} MB`);
   const [s] = decoder.states;
   assert.ok(s.vertexCapacity < 4096 && s.faceCapacity < 8192, `${s.vertexCapacity} / ${s.faceCapacity}`);

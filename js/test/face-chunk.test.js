@@ -571,7 +571,7 @@ test('hostile face chunks in a file are FormatErrors of their chunk; a damaged f
   for (const [i, payload] of hostile.entries()) {
     const e = await failure(withPayload(bytes, k, payload));
     assert.ok(e instanceof FormatError, `${i}: ${e}`);
-    assert.match(e.message, new RegExp(`^chunk ${k}: `), `${i}`);
+    assert.match(e.message, new RegExp(`^chunk ${k + 1}: `), `${i}`);
   }
   assert.equal(await failure(withPayload(bytes, k, p)), null, 'the rewrite itself keeps the file valid');
   // the right bytes under a wrong firstFaceChunk or a wrong vertex count: refused by both decoders

@@ -117,7 +117,7 @@ test('a version 2 stream with a byte more or a byte less, or another chunk\'s st
   for (const payload of [Uint8Array.of(...p, 0), p.subarray(0, p.length - 1), chunks[0].payload]) {
     const e = await failure(withPayload(bytes, k, payload));
     assert.ok(e instanceof FormatError, String(e));
-    assert.match(e.message, new RegExp(`^chunk ${k}: `));
+    assert.match(e.message, new RegExp(`^chunk ${k + 1}: `));
   }
   const empty = await failure(withPayload(bytes, k, new Uint8Array(0))); // a packed table cannot even say so
   assert.ok(empty instanceof FormatError && /byteLength 0/.test(empty.message), String(empty));

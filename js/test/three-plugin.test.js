@@ -345,7 +345,7 @@ test('a file declaring 60 million vertices it never decodes: the geometry\'s arr
     Object.assign(ext, { vertexCount: 60000000, faceCount: 120000000 });
   });
   const loaded = await loadProgressive(new GLTFLoader(), 'http://127.0.0.1/x.pmw', { range: false, fetch: streamingFetch(edited) });
-  await assert.rejects(loaded.userData.pmwm.done, { name: 'FormatError', message: `chunk ${K - 1}: vertex/face counts differ from its index entry` });
+  await assert.rejects(loaded.userData.pmwm.done, { name: 'FormatError', message: `chunk ${K}: vertex/face counts differ from its index entry` });
   const g = theMesh(loaded).geometry;
   const { vertices, faces } = g.userData.pmwmLevel; // the last level drawn: chunk K - 2's
   assert.ok(g.getAttribute('position').count <= 2 * vertices && g.index.count <= 2 * 3 * faces,
