@@ -4,7 +4,10 @@ Contract
 --------
 * :func:`owner_of_mesh` ``(mesh, key) -> OwnerResult``: ``mesh`` a :class:`~pmwm_codec.mesh.Mesh`,
   a mesh file path (OBJ, PLY, STL, glTF/GLB: :func:`owner_view`) or a
-  ``(positions (n, 3), faces (m, 3))`` pair; no original is needed.
+  ``(positions (n, 3), faces (m, 3))`` pair; no original is needed.  A mesh made of separate pieces
+  (:func:`pieces`: an OBJ of a scene that shows the marked object twice, a marked object exported
+  beside others) is read whole and piece by piece, and the best read counts; its false-alarm
+  probability covers every read made (the union bound).
 * :func:`owner_view` ``(path) -> Mesh``: the one mesh a mesh file's layer is read from: an OBJ, PLY
   or STL as it is; a glTF/GLB's triangle primitives in the view
   :func:`~pmwm_codec.format.gltf.owner_placements` gives (the scene as shown, flattened, or, when no
@@ -22,6 +25,8 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
+import numpy as np
+
 from ..errors import WatermarkKeyError
 from ..format.extension import EXTENSION_NAME
 from ..format.document import sniff_json
@@ -31,7 +36,17 @@ from ..stream import StreamDecoder, iter_results
 from ..watermark.key import as_key
 from ..watermark.owner import OwnerResult, detect
 
-__all__ = ["OwnerBoundary", "owner_key", "owner_of_mesh", "owner_of_stream", "owner_view"]
+__all__ = ["OwnerBoundary", "owner_key", "owner_of_mesh", "owner_of_stream", "owner_view", "pieces",
+           "MAX_PIECES", "MIN_PIECE_VERTICES"]
+
+#: At most this many pieces of a mesh are read besides the whole mesh (the largest distinct ones).
+MAX_PIECES = 8
+#: A piece with fewer distinct vertices is not read on its own: too few to fill the layer's 64 shells
+#: reliably (the encoder refuses meshes whose shells would stay empty, and no marked mesh is this small).
+MIN_PIECE_VERTICES = 500
+#: Only the largest components this many are grouped by their bounding boxes (a scan's thousands of
+#: specks would make the grouping quadratic, and a speck changes no piece's read).
+MAX_GROUPED = 256
 
 
 @dataclass
@@ -63,7 +78,105 @@ def owner_of_mesh(mesh, key) -> OwnerResult:
         mesh = checked_mesh(*mesh)
     elif not isinstance(mesh, Mesh):
         mesh = owner_view(mesh)
-    return detect(mesh.positions, mesh.faces, key)
+    parts = pieces(mesh)
+    reads = 1 + len(parts)
+    best = detect(mesh.positions, mesh.faces, key, reads=reads)
+    for part in parts:
+        if best.verdict == "present" and best.bit_errors == 0:
+            break  # no read can do better
+        result = detect(part.positions, part.faces, key, reads=reads)
+        if result.bit_errors < best.bit_errors:
+            best = result
+    return best
+
+
+def pieces(mesh: Mesh) -> list:
+    """The separate pieces of ``mesh`` worth a read of their own: ``[Mesh]``, largest first, at most
+    :data:`MAX_PIECES`, none when the mesh is one piece.
+
+    A piece is a set of faces connected through shared positions (vertices at the same position are
+    one: exporters split them at seams and part borders), or a group of such sets whose bounding boxes
+    overlap (the parts of one object that do not touch); both kinds are candidates.  Pieces with fewer
+    than :data:`MIN_PIECE_VERTICES` distinct positions are left out, and of pieces that are copies of
+    one another (a similarity apart: equal counts, equal sorted distances from the centroid relative
+    to their mean) one is kept.  Nothing here depends on a key: the reads are chosen before any is
+    compared with an ID, as the false-alarm bound requires."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    points, inverse = np.unique(np.asarray(mesh.positions, np.float64), axis=0, return_inverse=True)
+    faces = inverse.reshape(-1)[np.asarray(mesh.faces, np.int64)]
+    if len(faces) == 0:
+        return []
+    n = len(points)
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]]])
+    graph = coo_matrix((np.ones(len(edges), np.int8), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    count, label = connected_components(graph, directed=False)
+    face_label = label[faces[:, 0]]
+    used = np.zeros(n, bool)
+    used[faces.ravel()] = True
+    size = np.bincount(label[used], minlength=count)  # distinct positions of each component
+    with_faces = np.flatnonzero(np.bincount(face_label, minlength=count) > 0)
+    if len(with_faces) < 2:
+        return []
+    largest = with_faces[np.argsort(-size[with_faces], kind="stable")][:MAX_GROUPED]
+    lo = np.full((count, 3), np.inf)
+    hi = np.full((count, 3), -np.inf)
+    np.minimum.at(lo, label[used], points[used])
+    np.maximum.at(hi, label[used], points[used])
+    candidates = [[int(c)] for c in largest] + [g for g in _overlapping(largest, lo, hi) if len(g) > 1]
+    candidates = [g for g in candidates if MIN_PIECE_VERTICES <= size[g].sum() < used.sum()]
+    out, seen = [], []
+    for members in sorted(candidates, key=lambda g: -int(size[g].sum())):
+        part = _compact(points, faces[np.isin(face_label, members)])
+        sign = _signature(part)
+        if any(_copies(sign, other) for other in seen):
+            continue
+        seen.append(sign)
+        out.append(part)
+        if len(out) == MAX_PIECES:
+            break
+    return out
+
+
+def _overlapping(components: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> list:
+    """The components (indices into ``lo`` / ``hi``, (c, 3) bounding boxes) grouped so that boxes that
+    overlap, directly or through others, share a group: a list of lists of component indices."""
+    boxes = [(lo[c].copy(), hi[c].copy(), [int(c)]) for c in components]
+    merged = True
+    while merged and len(boxes) > 1:
+        merged = False
+        out = []
+        for b_lo, b_hi, members in boxes:
+            for o in out:
+                if np.all(b_lo <= o[1]) and np.all(o[0] <= b_hi):
+                    o[0][:] = np.minimum(o[0], b_lo)
+                    o[1][:] = np.maximum(o[1], b_hi)
+                    o[2].extend(members)
+                    merged = True
+                    break
+            else:
+                out.append((b_lo, b_hi, members))
+        boxes = out
+    return [members for _, _, members in boxes]
+
+
+def _compact(points: np.ndarray, faces: np.ndarray) -> Mesh:
+    """The mesh of the ``points`` (n, 3) that ``faces`` (m, 3) int64 use, renumbered."""
+    used, local = np.unique(faces, return_inverse=True)
+    return Mesh(points[used], local.reshape(-1, 3))
+
+
+def _signature(part: Mesh) -> tuple:
+    """``(vertices, faces, sorted distances from the centroid / their mean)``: equal for a piece and a
+    copy of it moved, turned, mirrored or scaled."""
+    r = np.linalg.norm(part.positions - part.positions.mean(0), axis=1)
+    r = np.sort(r)
+    return part.vertex_count, part.face_count, r / max(float(r.mean()), 1e-300)
+
+
+def _copies(a: tuple, b: tuple) -> bool:
+    return a[0] == b[0] and a[1] == b[1] and bool(np.allclose(a[2], b[2], rtol=0, atol=1e-5))
 
 
 def owner_view(path) -> Mesh:

@@ -91,7 +91,7 @@ import numpy as np
 
 from ..progressive.topology import compiled
 
-__all__ = ["OwnerResult", "embed", "detect", "unreadable", "false_alarm_probability", "OWNER_BITS", "DEFAULT_STRENGTH"]
+__all__ = ["OwnerResult", "embed", "detect", "judge", "unreadable", "false_alarm_probability", "OWNER_BITS", "DEFAULT_STRENGTH"]
 
 OWNER_BITS = 64
 #: Radial shells, one per bit (two keyed shells per bit cost less RMS but read worse after
@@ -951,12 +951,19 @@ def _views_in_order(points: np.ndarray, faces: np.ndarray):
         yield smooth, frame
 
 
-def _verdict(soft: np.ndarray, key) -> tuple:
+def _verdict(soft: np.ndarray, key, reads: int = 1) -> tuple:
     """``(bit errors, erased, false-alarm probability, verdict)`` of soft coded values (64,) read for
-    ``key`` (which carries an ID)."""
+    ``key`` (which carries an ID), the best of ``reads`` reads of :data:`FRAMES` views each."""
     erased = int(np.count_nonzero(soft == 0))
     errors = int(_bit_errors(soft, key))
-    p = false_alarm_probability(errors)
+    return (errors, erased, *judge(errors, erased, reads))
+
+
+def judge(errors: int, erased: int, reads: int = 1) -> tuple:
+    """``(false-alarm probability, verdict)`` of a read with ``errors`` bit errors of which ``erased`` are
+    erased bits, when it is the best of ``reads`` independent reads (each of :data:`FRAMES` views: the
+    union bound over ``reads * FRAMES`` views)."""
+    p = false_alarm_probability(errors, frames=FRAMES * int(reads))
     if OWNER_BITS - erased < MIN_BITS_READ:
         verdict = "inconclusive"
     elif p < PRESENT_BELOW:
@@ -965,18 +972,20 @@ def _verdict(soft: np.ndarray, key) -> tuple:
         verdict = "absent"
     else:
         verdict = "inconclusive"
-    return errors, erased, p, verdict
+    return p, verdict
 
 
-def detect(positions, faces, key, scores: tuple | None = None) -> OwnerResult:
+def detect(positions, faces, key, scores: tuple | None = None, reads: int = 1) -> OwnerResult:
     """Read the owner ID blind from any mesh: positions (n, 3) float, faces (m, 3) int.
 
     ``key`` must carry ``owner_id`` (the ID expected); the ID read is reported either way.
-    ``scores``: :func:`mesh_scores` of the mesh, to read several keys from one mesh.
+    ``scores``: :func:`mesh_scores` of the mesh, to read several keys from one mesh.  ``reads``: how
+    many meshes the caller reads for the best answer (pieces of one file), this one among them: the
+    false-alarm probability covers the best of them (:func:`judge`).
     """
     soft = read_soft(positions, faces, key, scores)
     read = (soft > 0).astype(np.uint8) ^ _layout(key)[1]
     if key.owner_id is None:
         return OwnerResult(bits_to_hex(read), OWNER_BITS, int(np.count_nonzero(soft == 0)), 1.0, "inconclusive")
-    errors, erased, p, verdict = _verdict(soft, key)
+    errors, erased, p, verdict = _verdict(soft, key, reads)
     return OwnerResult(bits_to_hex(read), errors, erased, p, verdict)
