@@ -882,3 +882,16 @@ def test_the_un_smoothed_views_are_read_unless_the_mesh_as_it_is_reads_without_a
     assert owner.detect(pos.astype(np.float32), blob.faces, key).bit_errors == 0
     with pytest.raises(AssertionError, match="un-smoothed"):
         owner.detect(smoothed, blob.faces, key)
+
+
+def test_the_spec_states_the_piece_rule_with_the_readers_numbers():
+    """spec/watermark.md §7 "Pieces" is what a second reader implements: its numbers are the code's."""
+    from pathlib import Path
+
+    from pmwm_codec.verify import owner as reader
+
+    text = " ".join((Path(__file__).resolve().parents[1] / "spec" / "watermark.md").read_text().split())
+    assert f"the {reader.MAX_GROUPED} largest are also grouped" in text
+    assert f"at least {reader.MIN_PIECE_VERTICES} distinct positions" in text
+    assert f"at most {reader.MAX_PIECES} are kept" in text
+    assert f"`{owner.FRAMES} (1 + P)`" in text

@@ -224,7 +224,8 @@ def render(rows, info, command, parts) -> str:
          "Encoded with an owner ID (grid 16, no watermark). Read blind: from the `.pmw` (every chunk boundary; "
          "\"present from\": the bytes from which every later boundary reads `present`), from the decoded GLB as "
          "`pmw verify OUT.glb` reads it (its nodes applied, or its stored meshes where no mesh is shown once) and from the OBJ `pmw decode` writes (the scene as "
-         "shown, placed by the nodes). Cost: each input vertex against the nearest decoded "
+         "shown, placed by the nodes; read whole and piece by piece, as `pmw verify OUT.obj` reads any mesh file). "
+         "Cost: each input vertex against the nearest decoded "
          "vertex of its primitive, both placed by the nodes, % of the scene's diagonal (the 16-bit grid's rounding "
          "included).", ""]
     body = []

@@ -34,7 +34,7 @@ from ..format.gltf import find_extension_primitives, owner_placements, scene_mes
 from ..mesh import Mesh, checked_mesh, read_mesh
 from ..stream import StreamDecoder, iter_results
 from ..watermark.key import as_key
-from ..watermark.owner import OwnerResult, detect
+from ..watermark.owner import OwnerResult, detect, distinct_mesh
 
 __all__ = ["OwnerBoundary", "owner_key", "owner_of_mesh", "owner_of_stream", "owner_view", "pieces",
            "MAX_PIECES", "MIN_PIECE_VERTICES"]
@@ -104,8 +104,7 @@ def pieces(mesh: Mesh) -> list:
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    points, inverse = np.unique(np.asarray(mesh.positions, np.float64), axis=0, return_inverse=True)
-    faces = inverse.reshape(-1)[np.asarray(mesh.faces, np.int64)]
+    points, faces = distinct_mesh(mesh.positions, mesh.faces)
     if len(faces) == 0:
         return []
     n = len(points)

@@ -91,7 +91,7 @@ import numpy as np
 
 from ..progressive.topology import compiled
 
-__all__ = ["OwnerResult", "embed", "detect", "judge", "unreadable", "false_alarm_probability", "OWNER_BITS", "DEFAULT_STRENGTH"]
+__all__ = ["OwnerResult", "embed", "detect", "distinct_mesh", "judge", "unreadable", "false_alarm_probability", "OWNER_BITS", "DEFAULT_STRENGTH"]
 
 OWNER_BITS = 64
 #: Radial shells, one per bit (two keyed shells per bit cost less RMS but read worse after
@@ -586,7 +586,7 @@ def _read_frames(points: np.ndarray, faces: np.ndarray, unsmoothed: bool = True)
     return list(itertools.islice(_views_in_order(points, faces), FRAMES if unsmoothed else AS_IS))
 
 
-def _distinct_mesh(positions, faces) -> tuple:
+def distinct_mesh(positions, faces) -> tuple:
     """``(points (k, 3) float64, faces (m, 3) int64 indexing them)``: positions (n, 3) with duplicates
     merged (:func:`_distinct_index`), faces (m, 3) re-indexed."""
     points, inverse = _distinct_index(positions)
@@ -603,7 +603,7 @@ def _scores_of(views: list) -> tuple:
 def _mesh_scores(positions, faces) -> tuple:
     """``(S (FRAMES, BINS) float64, mass (FRAMES, BINS) int64)``: a mesh read in each of its
     :func:`_read_frames` (positions (n, 3), faces (m, 3) indexing them; duplicates merged)."""
-    return _scores_of(_read_frames(*_distinct_mesh(positions, faces)))
+    return _scores_of(_read_frames(*distinct_mesh(positions, faces)))
 
 
 @functools.lru_cache(maxsize=1)
@@ -932,7 +932,7 @@ def read_soft(positions, faces, key, scores: tuple | None = None) -> np.ndarray:
     """
     if scores is None:
         read = []
-        for view in _views_in_order(*_distinct_mesh(positions, faces)):
+        for view in _views_in_order(*distinct_mesh(positions, faces)):
             read.append(_frame_scores(*view))
             soft = _soft_rows((read[-1][0][None], read[-1][1][None]), key)[0]
             if key.owner_id is None or _bit_errors(soft, key) == 0:
