@@ -125,9 +125,12 @@ def pieces(mesh: Mesh) -> list:
     np.maximum.at(hi, label[used], points[used])
     candidates = [[int(c)] for c in largest] + [g for g in _overlapping(largest, lo, hi) if len(g) > 1]
     candidates = [g for g in candidates if MIN_PIECE_VERTICES <= size[g].sum() < used.sum()]
+    by_label = np.argsort(face_label, kind="stable")  # each component's faces a slice, in face order
+    start = np.searchsorted(face_label[by_label], np.arange(count + 1))
     out, seen = [], []
     for members in sorted(candidates, key=lambda g: -int(size[g].sum())):
-        part = _compact(points, faces[np.isin(face_label, members)])
+        rows = np.sort(np.concatenate([by_label[start[c]:start[c + 1]] for c in members]))
+        part = _compact(points, faces[rows])
         sign = _signature(part)
         if any(_copies(sign, other) for other in seen):
             continue
@@ -141,23 +144,12 @@ def pieces(mesh: Mesh) -> list:
 def _overlapping(components: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> list:
     """The components (indices into ``lo`` / ``hi``, (c, 3) bounding boxes) grouped so that boxes that
     overlap, directly or through others, share a group: a list of lists of component indices."""
-    boxes = [(lo[c].copy(), hi[c].copy(), [int(c)]) for c in components]
-    merged = True
-    while merged and len(boxes) > 1:
-        merged = False
-        out = []
-        for b_lo, b_hi, members in boxes:
-            for o in out:
-                if np.all(b_lo <= o[1]) and np.all(o[0] <= b_hi):
-                    o[0][:] = np.minimum(o[0], b_lo)
-                    o[1][:] = np.maximum(o[1], b_hi)
-                    o[2].extend(members)
-                    merged = True
-                    break
-            else:
-                out.append((b_lo, b_hi, members))
-        boxes = out
-    return [members for _, _, members in boxes]
+    from scipy.sparse.csgraph import connected_components
+
+    a, b = lo[components], hi[components]
+    touch = np.all((a[:, None, :] <= b[None, :, :]) & (a[None, :, :] <= b[:, None, :]), axis=2)
+    count, group = connected_components(touch, directed=False)
+    return [[int(c) for c in components[group == g]] for g in range(count)]
 
 
 def _compact(points: np.ndarray, faces: np.ndarray) -> Mesh:
