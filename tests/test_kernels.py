@@ -456,7 +456,7 @@ def test_an_owner_marked_encode_writes_the_same_bytes_on_both_paths(monkeypatch)
 
 def test_the_affordable_candidates_and_offer_ranks_are_the_same_on_both_paths(monkeypatch):
     """_affordable (the quantile of the groups' first costs: odd and even group counts, ties, NaN) and
-    _offer_ranks (cost buckets, shuffled ties), compiled and numpy."""
+    _offer_ranks (cost buckets, shuffled ties; a NaN cost last), compiled and numpy."""
     pytest.importorskip("numba")
     from pmwm_codec.progressive import simplify
 
@@ -467,6 +467,8 @@ def test_the_affordable_candidates_and_offer_ranks_are_the_same_on_both_paths(mo
         cost = rng.choice([0.0, -0.0, 1.0, 1e-13, 2.5, 7.0], c) if trial % 2 else rng.random(c) * 10.0 ** (trial % 7)
         if trial % 10 == 3:
             cost[rng.integers(c)] = np.nan
+        if trial % 10 == 5:  # a quadric error rounded below zero ranks with the zero costs
+            cost[rng.integers(c)] = -1e-9
         cols = (cu, cu + 1, np.arange(c), cost)
         out = []
         for use in (False, True):
@@ -475,6 +477,11 @@ def test_the_affordable_candidates_and_offer_ranks_are_the_same_on_both_paths(mo
         (aff0, rank0), (aff1, rank1) = out
         assert all(a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True) for a, b in zip(aff0, aff1))
         assert rank0.dtype == rank1.dtype and np.array_equal(rank0, rank1)
+        if np.isnan(cost).any():  # ranks last on every CPU (a cast of NaN to int64 gave x86's smallest integer)
+            assert rank0[np.isnan(cost)].min() > rank0[~np.isnan(cost)].max(initial=-1)
+        if (cost < 0).any():
+            first = np.argsort(rank0)[: int(np.count_nonzero(cost <= 1e-13))]
+            assert (cost[first] <= 1e-13).all()
 
 
 def test_grouped_symbols_match_the_argsort(kernels):

@@ -1601,6 +1601,11 @@ def _round_conflicts(u, v, r, flags, scratch, vv_start, vv_nbr, big, any_chosen=
     return loses
 
 
+#: The cost bucket of a NaN or infinite cost: past every finite one (|2 log2 x| < 2,200 for any finite
+#: double above 1e-12).
+_LAST_BUCKET = 4096.0
+
+
 def _offer_ranks(cu, cost):
     """(c,) int64 rank of every candidate: by cost bucket, ties in a fixed pseudo-random order.
 
@@ -1609,12 +1614,17 @@ def _offer_ranks(cu, cost):
     (flat CAD regions, all zero) let only a few local minima win each round.
     """
     c = len(cu)
-    # floor(2 log2(cost + 1e-12 + 1e-9 max)), in place: the same values without four (c,) temporaries
-    y = cost + 1e-12
-    y += 1e-9 * float(cost.max(initial=0.0))
+    # floor(2 log2(cost + 1e-12 + 1e-9 max)), in place: the same values without four (c,) temporaries;
+    # a cost rounded below zero counts as zero (its log2 was NaN, which a cast made x86's smallest integer
+    # and the compiled ranking then asked for a counting array of 2**63 entries)
+    y = np.maximum(cost, 0.0)
+    y += 1e-12
+    y += 1e-9 * float(np.max(cost, where=np.isfinite(cost), initial=0.0))  # a NaN or inf cost moves no other
     np.log2(y, out=y)
     y *= 2.0
-    bucket = np.floor(y, out=y).astype(np.int64)
+    np.floor(y, out=y)
+    y[~np.isfinite(y)] = _LAST_BUCKET  # a NaN or infinite cost ranks last, alike on every CPU (a cast of NaN is not)
+    bucket = y.astype(np.int64)
     shuffle = np.random.default_rng(c).permutation(c)
     kernel = compiled(_ranks_kernel)
     if kernel is not None:
