@@ -313,7 +313,7 @@ def _read_obj(path, name):
     """
     data = read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name)
     try:
-        text = data.decode("utf-8", errors="strict")
+        text = data.decode("utf-8-sig", errors="strict")  # a byte-order mark (Windows editors) is not a record
     except UnicodeDecodeError:
         raise InputFormatError(f"{name}: not a text OBJ file") from None
     del data
@@ -421,10 +421,14 @@ def _read_with_trimesh(path, name, suffix):
     import trimesh
 
     try:
-        if isinstance(path, io.BytesIO):
-            loaded = trimesh.load(path, file_type=suffix[1:], process=False, force=None)
-        else:
-            loaded = trimesh.load(path, process=False, force=None)
+        # trimesh's parsers warn (an ASCII PLY value past float32 "overflow encountered in cast") where the
+        # value becomes inf, which checked_mesh refuses in one line: the warning would be two lines more
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            if isinstance(path, io.BytesIO):
+                loaded = trimesh.load(path, file_type=suffix[1:], process=False, force=None)
+            else:
+                loaded = trimesh.load(path, process=False, force=None)
     except Exception as exc:  # trimesh raises many types on garbage
         raise InputFormatError(f"{name}: cannot read as {suffix[1:].upper()}: {exc}".splitlines()[0]) from None
     if isinstance(loaded, trimesh.Scene):

@@ -200,3 +200,31 @@ def test_a_negative_index_before_the_first_vertex_is_named(tmp_path):
     path.write_text("v 0 0 0\nv 1 0 0\nf -1 -2 -3\nv 0 1 0\n")
     with pytest.raises(mesh_mod.InputFormatError, match="face index -3 counts back past the first vertex"):
         mesh_mod._read_obj(str(path), "m.obj")
+
+
+def test_an_obj_saved_with_a_byte_order_mark_reads_its_first_vertex(tmp_path):
+    """A UTF-8 byte-order mark (Notepad's "UTF-8 with BOM") hid the first ``v`` record: every face then named
+    the vertex after the one meant, and the mesh encoded with exit 0 as the wrong triangles."""
+    text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 5 5 5\nf 1 2 3\n"
+    (tmp_path / "bom.obj").write_bytes(b"\xef\xbb\xbf" + text.encode())
+    (tmp_path / "plain.obj").write_text(text)
+    with_bom, plain = pmwm_codec.read_mesh(tmp_path / "bom.obj"), pmwm_codec.read_mesh(tmp_path / "plain.obj")
+    assert np.array_equal(with_bom.positions, plain.positions) and np.array_equal(with_bom.faces, plain.faces)
+    assert with_bom.positions[with_bom.faces[0]].tolist() == [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
+
+
+def test_a_ply_value_past_float32_is_refused_in_one_line_without_a_warning(tmp_path):
+    """An ASCII PLY ``property float`` of 1e39 was refused (exit 2) after trimesh's ``RuntimeWarning: overflow
+    encountered in cast`` and its source line: three lines on stderr where the rule is one."""
+    import warnings
+
+    from pmwm_codec.errors import MeshError
+
+    header = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+    header += "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+    (tmp_path / "big.ply").write_text(header + "0 0 0\n1 0 0\n0 1e39 0\n3 0 1 2\n")
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        with pytest.raises(MeshError, match="infinite"):
+            pmwm_codec.read_mesh(tmp_path / "big.ply")
+    assert not [w for w in seen if issubclass(w.category, RuntimeWarning)]

@@ -67,7 +67,8 @@ def owner_key(key):
     """The key as a WatermarkKey; WatermarkKeyError when it carries no owner id."""
     key = as_key(key)
     if key is None or key.owner_id is None:
-        raise WatermarkKeyError("the key carries no owner id (it was written before the owner layer)")
+        raise WatermarkKeyError("the key carries no owner id: it was written before the owner layer, or the "
+                                "encoder left the layer out (a mesh it could not be read back from; the encode said so)")
     return key
 
 
