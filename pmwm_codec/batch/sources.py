@@ -86,7 +86,7 @@ def outside_root(path: str, root: str | None) -> str | None:
     real = os.path.realpath(path)
     if _inside(real, os.path.realpath(root)):
         return None
-    return (f"{path}: a symlink to {real}, outside {root}; refused "
+    return (f"{path}: resolves through a symlink to {real}, outside {root}; refused "
             "(name the file itself, or list it in a manifest, to encode it)")
 
 
