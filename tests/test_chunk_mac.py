@@ -18,10 +18,12 @@ from pmwm_codec import shapes
 from pmwm_codec.cli import main
 from pmwm_codec.constants import EXTENSION_NAME
 from pmwm_codec.format import read_header
-from pmwm_codec.format.extension import digest
+from pmwm_codec.format.base import decode_base, decode_base_attributes
+from pmwm_codec.format.extension import base_digest, digest
 from pmwm_codec.format.glb import compress_chunk, glb_parts, split_glb
 from pmwm_codec.format.layout import padded
 from pmwm_codec.format.records import pack_batches, unpack_batches
+from pmwm_codec.progressive.grid import Grid
 from pmwm_codec.stream import StreamDecoder, encode_mesh
 from pmwm_codec.stream.cut import cut
 from pmwm_codec.verify import verify_stream
@@ -70,6 +72,15 @@ def _rewrite_json(data: bytes, change) -> bytes:
     binary = bytearray(binary)
     change(gltf, binary)
     return b"".join(glb_parts(gltf, [bytes(binary)], len(binary)))
+
+
+def _restamp_base_digest(gltf, binary) -> None:
+    """Set the first primitive's ``baseDigest`` to the digest of the base its bytes now decode to."""
+    prim = gltf["meshes"][0]["primitives"][0]
+    ext = prim["extensions"][EXTENSION_NAME]
+    positions, faces = decode_base(gltf, bytes(binary), Grid.from_config(ext["grid"]), prim)
+    attributes = decode_base_attributes(gltf, bytes(binary), prim, ext.get("attributes", ()))
+    ext["baseDigest"] = base_digest(positions, faces, attributes)
 
 
 def _decode(data: bytes, key):
@@ -141,6 +152,7 @@ def test_a_changed_base_or_public_field_fails_the_base_mac():
         positions = np.frombuffer(binary, "<f4", view["byteLength"] // 4, start).reshape(-1, 3).copy()
         positions[0] = positions[1]  # on the grid and inside the accessor bounds
         binary[start : start + positions.nbytes] = positions.tobytes()
+        _restamp_base_digest(gltf, binary)  # as a forger would: anyone can compute the keyless digest
 
     def change_file_id(gltf, binary):
         _ext(gltf)["fileId"] = "0" * 16

@@ -213,4 +213,19 @@ def test_worked_example_is_what_the_writer_produces_today(update_golden):
             "deliberate, regenerate with: python -m pytest tests/test_spec_sync.py --update-golden, then update "
             "the byte table and digests of spec/README.md, Worked example"
         )
-    assert len(data) == 2488
+    assert len(data) == 2520
+    text = (SPEC / "README.md").read_text()
+    section = text[text.index("## Worked example") : text.index("## Implementation notes")]
+    ext = gltf["meshes"][0]["primitives"][0]["extensions"][NAME]
+    assert f"{len(data)}-byte file" in section and f"the `baseDigest` `{ext['baseDigest']}`" in section
+
+
+def test_bitstream_base_digest_examples_are_what_the_reader_computes():
+    from pmwm_codec.format.extension import BASE_DIGEST_LABEL, base_digest
+
+    text = (SPEC / "bitstream.md").read_text()
+    section = text[text.index("### 6.4 Base digest") : text.index("## 7. Watermark")]
+    triangle = ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
+    assert f"`baseDigest` = `{base_digest(*triangle)}`" in section
+    assert f"values `7, 8, 9`: `{base_digest(*triangle, [[7], [8], [9]])}`" in section
+    assert f'b"{BASE_DIGEST_LABEL.decode()}"' in section and f"the {len(BASE_DIGEST_LABEL)}-byte label" in section

@@ -2,8 +2,11 @@
  * Base meshes (spec/README.md "Base mesh"): read plain accessors or decode Draco, then map the
  * stored floats to grid integers, `rint((p - origin) / step)` in float64 with ties to even.
  */
-import { DracoError, FormatError, PmwError } from './errors.js';
+import { framedDigest } from './chunkframe.js';
+import { CorruptChunkError, DracoError, FormatError, PmwError } from './errors.js';
 import { readAccessor } from './header.js';
+
+const BASE_DIGEST_LABEL = new TextEncoder().encode('pmwm/base-digest/v1');
 
 /** Round half to even, as numpy's rint (the reference reader's rounding). */
 function rint(x) {
@@ -109,7 +112,38 @@ export async function decodeBase(bin, prim, draco) {
     const a = faces[f], b = faces[f + 1], c = faces[f + 2];
     if (a === b || b === c || a === c) throw new FormatError('base mesh: a face repeats a vertex');
   }
+  if (prim.ext?.baseDigest !== undefined) checkBaseDigest(values, faces, count, D, prim);
   return { values, faces, n: count, m: faces.length / 3, D };
+}
+
+/**
+ * Columns `col0 .. col0+k` of the first `rows` rows of `values` (rows*D, row-major) as little-endian
+ * int64 bytes. Grid integers and face indices are in [0, 2^32), so each is its low word and a zero word.
+ */
+function int64Bytes(values, rows, D, col0, k) {
+  const out = new DataView(new ArrayBuffer(rows * k * 8));
+  for (let i = 0; i < rows; i++) {
+    for (let c = 0; c < k; c++) out.setUint32((i * k + c) * 8, values[i * D + col0 + c], true);
+  }
+  return new Uint8Array(out.buffer);
+}
+
+/**
+ * CorruptChunkError (chunk null: the base mesh) unless the decoded base gives the extension's
+ * `baseDigest` (spec/bitstream.md §6.4): the first 16 hex digits of BLAKE2b-128 over the framed
+ * label, counts, positions, faces and attributes, each as little-endian int64.
+ */
+function checkBaseDigest(values, faces, n, D, prim) {
+  const m = faces.length / 3;
+  const a = D - 3;
+  const counts = new DataView(new ArrayBuffer(24));
+  [n, m, a].forEach((x, i) => counts.setUint32(8 * i, x, true));
+  const fields = [BASE_DIGEST_LABEL, new Uint8Array(counts.buffer), int64Bytes(values, n, D, 0, 3),
+    int64Bytes(faces, m, 3, 0, 3), int64Bytes(values, n, D, 3, a)];
+  if (framedDigest(fields).slice(0, 16) !== prim.ext.baseDigest) {
+    const which = prim.several ? ` of progressive primitive ${prim.index + 1}` : '';
+    throw new CorruptChunkError(`base mesh${which}: baseDigest mismatch, the base mesh decodes to other geometry than was written (corrupt)`, null);
+  }
 }
 
 /**

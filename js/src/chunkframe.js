@@ -42,6 +42,22 @@ export function digestMatches(stored, digest) {
 }
 
 /**
+ * Unkeyed BLAKE2b-128 over `fields` framed as spec/bitstream.md §6.3 has it (each field preceded by
+ * its length as a uint64 little-endian), as 32 lowercase hex digits.
+ * @param {Uint8Array[]} fields
+ */
+export function framedDigest(fields) {
+  ready();
+  const hasher = blake.init();
+  const length = new DataView(new ArrayBuffer(8));
+  for (const f of fields) {
+    length.setBigUint64(0, BigInt(f.length), true);
+    hasher.update(new Uint8Array(length.buffer)).update(f);
+  }
+  return hasher.digest('hex');
+}
+
+/**
  * The frame header and block layout of one zstd frame (RFC 8878 §3.1.1), walked without decoding.
  * @returns {{contentSize:number, checksum:number}} FormatError unless the frame declares its content size,
  *   has a checksum, no dictionary, and ends exactly at the end of `frame`.

@@ -5,7 +5,8 @@
  *   ├── FormatError            the bytes break the format (spec/README.md, spec/bitstream.md)
  *   │   ├── LimitError         a declared size or count is over a limit (README "Limits")
  *   │   └── UnsupportedError   a version / payload codec this reader does not implement
- *   ├── CorruptChunkError      a chunk's stored bytes do not match its BLAKE2b digest
+ *   ├── CorruptChunkError      a chunk's stored bytes do not match its BLAKE2b digest, or (chunk
+ *   │                          null) the decoded base mesh does not match its baseDigest
  *   ├── TruncatedError         the stream ended before the base mesh was complete
  *   └── DracoError             the Draco base mesh could not be decoded
  */
@@ -19,7 +20,7 @@ export class FormatError extends PmwError {}
 export class LimitError extends FormatError {}
 export class UnsupportedError extends FormatError {}
 export class CorruptChunkError extends PmwError {
-  /** @param {number} chunk stream index of the chunk (0-based) */
+  /** @param {number|null} chunk stream index of the chunk (0-based); null for the base mesh */
   constructor(message, chunk) {
     super(message);
     this.chunk = chunk;

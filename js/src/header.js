@@ -37,7 +37,7 @@ const isHex = (digits, one = true) => (x) => typeof x === 'string' && (one ? x.l
  */
 const SCHEMA_FIELDS = {
   extension: {
-    baseMac: [isHex(32), '32 lowercase hex digits'], fileId: [(x) => typeof x === 'string', 'a string'],
+    baseMac: [isHex(32), '32 lowercase hex digits'], baseDigest: [isHex(16), '16 lowercase hex digits'], fileId: [(x) => typeof x === 'string', 'a string'],
     watermark: [isObj, 'an object'], extensions: [isObj, 'an object'],
   },
   grid: { extensions: [isObj, 'an object'] },
@@ -411,6 +411,7 @@ export function planDocument(gltf, binLength) {
     });
   });
   if (primitives.length === 0) throw new FormatError(`no primitive carries ${EXTENSION}`);
+  for (const p of primitives) p.several = primitives.length > 1; // errors name the primitive only then
   const stream = primitives.flatMap((p) => p.chunks.map((c, j) => ({
     ...c, primitive: p.index, chunk: j, payloadVersion: p.payloadVersion,
   })));

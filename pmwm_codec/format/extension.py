@@ -34,8 +34,9 @@ SCHEMA_DIR = Path(__file__).with_name("schema")
 PRIMITIVE_SCHEMA = f"mesh.primitive.{EXTENSION_NAME}.schema.json"
 #: Extension fields the writer sets itself; callers must not pass them.
 RESERVED_FIELDS = ("version", "chunks")
-#: Extension fields the writer derives and drops from the caller's (a copied ``baseMac`` would not match).
-DERIVED_FIELDS = ("baseMac",)
+#: Extension fields the writer derives and drops from the caller's (a copied ``baseMac`` or
+#: ``baseDigest`` would not match).
+DERIVED_FIELDS = ("baseMac", "baseDigest")
 #: Per-chunk fields the caller supplies (``chunk_meta``).
 CHUNK_META_FIELDS = ("splits", "vertexCount", "faceCount", "geometricError")
 #: Chunk payload codec id and the versions this reader knows (bitstream.md §6 and §8).
@@ -60,6 +61,49 @@ def digest(data, version: int = 1) -> str:
     """The chunk ``digest`` of stored bytes ``data`` for payload ``version``: BLAKE2b-128 as 32
     lowercase hex digits (version 1), or its first 16 (version 2)."""
     return hashlib.blake2b(data, digest_size=DIGEST_SIZE).hexdigest()[: DIGEST_HEX[version]]
+
+
+def framed_blake2b(fields, key: bytes = b"") -> str:
+    """BLAKE2b-128 (keyed with ``key``, unkeyed when empty) over ``uint64_le(len(f)) || f`` for
+    each bytes-like ``f`` of ``fields`` in turn, as 32 lowercase hex digits (bitstream.md §6.3)."""
+    h = hashlib.blake2b(key=key, digest_size=DIGEST_SIZE)
+    for data in fields:
+        data = memoryview(data).cast("B")
+        h.update(len(data).to_bytes(8, "little"))
+        h.update(data)
+    return h.hexdigest()
+
+
+def base_mesh_fields(positions_int, faces, attributes_int=None) -> list:
+    """The decoded base mesh as the framed fields its ``baseMac`` and ``baseDigest`` cover
+    (bitstream.md §6.3): counts ``uint64_le(n) || uint64_le(m) || uint64_le(a)``, then
+    positions, faces and attributes as little-endian int64, row-major.
+
+    ``positions_int`` (n, 3) int64 grid coordinates, ``faces`` (m, 3) int64, ``attributes_int``
+    (n, a) int64 progressive attributes in the extension's order (None: a = 0).
+    """
+    positions = np.asarray(positions_int, dtype=np.int64).reshape(-1, 3)
+    triangles = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    attributes = np.zeros((len(positions), 0), np.int64) if attributes_int is None else np.asarray(attributes_int, np.int64)
+    width = attributes.shape[1] if attributes.ndim == 2 else 0
+    counts = np.array([len(positions), len(triangles), width], dtype="<u8").tobytes()
+    as_bytes = [np.ascontiguousarray(a, dtype="<i8").tobytes() for a in (positions, triangles)]
+    return [counts, *as_bytes, np.ascontiguousarray(attributes.reshape(len(positions), width), dtype="<i8").tobytes()]
+
+
+#: Label of the ``baseDigest`` input (bitstream.md §6.4).
+BASE_DIGEST_LABEL = b"pmwm/base-digest/v1"
+#: Hex digits of a ``baseDigest``: the first 64 bits of its BLAKE2b-128, as a version 2 chunk digest.
+BASE_DIGEST_HEX = 16
+
+
+def base_digest(positions_int, faces, attributes_int=None) -> str:
+    """The keyless ``baseDigest`` of a decoded base mesh (bitstream.md §6.4): 16 lowercase hex
+    digits, the first 64 bits of the unkeyed BLAKE2b-128 of the label and
+    :func:`base_mesh_fields`.  Catches accidental damage to the base (a flipped bit inside a
+    Draco stream that still decodes); anyone can recompute it, so it proves nothing about who
+    wrote the file (that is ``baseMac``'s job)."""
+    return framed_blake2b([BASE_DIGEST_LABEL, *base_mesh_fields(positions_int, faces, attributes_int)])[:BASE_DIGEST_HEX]
 
 
 def chunk_entries(ext: dict, base_vertices: int) -> list:

@@ -19,8 +19,10 @@ Contract (DESIGN.md §4)
   in ONE bufferView shared by every progressive primitive, and ``chunks`` is the compact
   chunk table of :func:`compact_chunks` (bitstream.md §6.2: the per-chunk values packed in
   one base64 string -- 64-bit digests, MACs, geometric errors rounded up to float32, varints).
-* Given a MAC key (a watermarked file), every chunk gets its keyed ``mac`` and the extension
-  object its ``baseMac`` (:mod:`.mac`; a caller's ``baseMac`` or ``mac`` is never copied).
+* Every extension object gets the keyless ``baseDigest`` of its decoded base mesh
+  (:func:`~.extension.base_digest`).  Given a MAC key (a watermarked file), every chunk gets
+  its keyed ``mac`` and the extension object its ``baseMac`` (:mod:`.mac`; a caller's
+  ``baseMac``, ``baseDigest`` or ``mac`` is never copied).
 * The extension object sits on the mesh primitive under ``EXTENSION_NAME``, is listed in
   ``extensionsUsed`` and never in ``extensionsRequired``; ``KHR_draco_mesh_compression``
   is in both lists only when the base mesh uses it.
@@ -46,7 +48,7 @@ from ..errors import FormatError, InputFormatError
 from .base import EncodedBase, decode_base_attributes
 from .gltf import DRACO_EXTENSION, without_defaults
 from .extension import (
-    CHUNK_META_FIELDS, DERIVED_FIELDS, RESERVED_FIELDS, TABLE_ARRAYS, check_extension, digest, float32_up,
+    CHUNK_META_FIELDS, DERIVED_FIELDS, RESERVED_FIELDS, TABLE_ARRAYS, base_digest, check_extension, digest, float32_up,
     pack_chunk_table, payload_version,
 )
 from .mac import base_mac, chunk_mac
@@ -114,7 +116,7 @@ def assemble_document(doc: dict, kept_bin: bytes, prims, order, zstd_level: int 
         (:mod:`.mac`); without it the file has no MACs.
     """
     _check_primitives(prims, order)
-    base_macs = _base_macs(prims, mac_key)
+    checks = _base_checks(prims, mac_key)
     views = [dict(v) for v in doc.get("bufferViews", [])]
     accessors = copy.deepcopy(doc.get("accessors", []))
     bin_parts = []
@@ -126,26 +128,28 @@ def assemble_document(doc: dict, kept_bin: bytes, prims, order, zstd_level: int 
     if mac_key is not None:
         for p, prim in enumerate(prims):
             for k, entry in enumerate(index[p]):
-                entry["mac"] = chunk_mac(mac_key, base_macs[p][1], base_macs[p][0], k, entry, prim.chunks[k],
+                entry["mac"] = chunk_mac(mac_key, checks[p][1]["baseMac"], checks[p][0], k, entry, prim.chunks[k],
                                          payload_version(prim.extension))
-    meshes = _merge_primitives(doc, prims, primitives_json, index, base_macs)
+    meshes = _merge_primitives(doc, prims, primitives_json, index, checks)
     gltf = _document(doc, meshes, accessors, views, offset, used, required)
     return glb_parts(gltf, bin_parts, offset)
 
 
-def _base_macs(prims, mac_key) -> list:
-    """Per primitive of ``prims``: ``(ordinal, baseMac)``, the ordinal being its rank in
-    mesh/primitive order (the reader's numbering); ``None`` each without ``mac_key``."""
-    if mac_key is None:
-        return [None] * len(prims)
+def _base_checks(prims, mac_key) -> list:
+    """Per primitive of ``prims``: ``(ordinal, fields)``, the ordinal being its rank in
+    mesh/primitive order (the reader's numbering) and ``fields`` the extension fields that
+    check its decoded base: ``baseDigest`` always, ``baseMac`` with ``mac_key``."""
     rank = {place: r for r, place in enumerate(sorted((p.mesh, p.primitive) for p in prims))}
     out = []
     for prim in prims:
         base, ordinal = prim.base, rank[(prim.mesh, prim.primitive)]
         mini = {"accessors": base.accessors, "bufferViews": base.buffer_views}
         attributes = decode_base_attributes(mini, base.data, base.primitive, prim.extension.get("attributes", ()))
-        public = {"version": FORMAT_VERSION, **prim.extension}
-        out.append((ordinal, base_mac(mac_key, ordinal, public, base.positions_int, base.faces, attributes)))
+        fields = {"baseDigest": base_digest(base.positions_int, base.faces, attributes)}
+        if mac_key is not None:
+            public = {"version": FORMAT_VERSION, **prim.extension}
+            fields["baseMac"] = base_mac(mac_key, ordinal, public, base.positions_int, base.faces, attributes)
+        out.append((ordinal, fields))
     return out
 
 
@@ -300,16 +304,14 @@ def compact_chunks(entries, packed: bool = True) -> dict:
     return table
 
 
-def _merge_primitives(doc: dict, prims, primitives_json, index, base_macs) -> list:
+def _merge_primitives(doc: dict, prims, primitives_json, index, checks) -> list:
     """The document's ``meshes`` with each progressive primitive replaced by its base
     primitive plus the extension object (other properties and extensions kept)."""
     meshes = copy.deepcopy(doc.get("meshes", []))
     for p, (prim, pj) in enumerate(zip(prims, primitives_json)):
         own = {k: v for k, v in prim.extension.items() if k not in DERIVED_FIELDS}
         chunks = compact_chunks(index[p]) if payload_version(prim.extension) == 2 else index[p]
-        ext = {"version": FORMAT_VERSION, **own, "chunks": chunks}
-        if base_macs[p] is not None:
-            ext["baseMac"] = base_macs[p][1]
+        ext = {"version": FORMAT_VERSION, **own, "chunks": chunks, **checks[p][1]}
         try:
             check_extension(ext)
         except FormatError as exc:

@@ -22,18 +22,15 @@ out, so a cut file keeps valid MACs for the chunks it keeps.
 
 from __future__ import annotations
 
-import hashlib
 import hmac
 import json
 
-import numpy as np
-
-from .extension import payload_version
-from .layout import DIGEST_SIZE
+from .extension import base_mesh_fields, framed_blake2b, payload_version
 from .parser import BaseEvent, ChunkEvent, HeaderEvent
 
-#: Extension fields left out of ``baseMac``: set per cut (counts, chunk list) or the MAC itself.
-BASE_MAC_EXCLUDED = ("chunks", "vertexCount", "faceCount", "baseMac")
+#: Extension fields left out of ``baseMac``: set per cut (counts, chunk list), the MAC itself, or
+#: the keyless ``baseDigest`` of the same base mesh the MAC covers.
+BASE_MAC_EXCLUDED = ("chunks", "vertexCount", "faceCount", "baseMac", "baseDigest")
 #: Chunk entry fields left out of its ``mac``: renumbered by a cut, or the MAC itself.
 CHUNK_MAC_EXCLUDED = ("bufferView", "mac")
 #: Chunk entry fields its ``mac`` covers in payload version 2: the chunk table's values for it
@@ -52,19 +49,6 @@ def canonical_json(value) -> bytes:
     return json.dumps(value, sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=False).encode("ascii")
 
 
-def _mac(mac_key: bytes, fields) -> str:
-    h = hashlib.blake2b(key=mac_key, digest_size=DIGEST_SIZE)
-    for data in fields:
-        h.update(len(data).to_bytes(8, "little"))
-        h.update(data)
-    return h.hexdigest()
-
-
-def _int64(array, columns: int) -> bytes:
-    """``array`` as (n, columns) little-endian int64, row-major bytes."""
-    return np.ascontiguousarray(np.asarray(array, dtype=np.int64).reshape(-1, columns), dtype="<i8").tobytes()
-
-
 def base_mac(mac_key: bytes, primitive: int, extension: dict, positions_int, faces, attributes_int=None) -> str:
     """32 hex digits: the ``baseMac`` of progressive primitive ``primitive``.
 
@@ -72,14 +56,9 @@ def base_mac(mac_key: bytes, primitive: int, extension: dict, positions_int, fac
     (n, 3) int64 grid coordinates and ``faces`` (m, 3) int64 of the decoded base;
     ``attributes_int`` (n, a) int64 progressive attributes (None: a = 0).
     """
-    positions = np.asarray(positions_int)
-    n = len(positions)
-    attributes = np.zeros((n, 0), np.int64) if attributes_int is None else np.asarray(attributes_int)
-    width = attributes.shape[1] if attributes.ndim == 2 else 0
     public = {k: v for k, v in extension.items() if k not in BASE_MAC_EXCLUDED}
-    counts = np.array([n, len(np.asarray(faces).reshape(-1, 3)), width], dtype="<u8").tobytes()
-    return _mac(mac_key, [_BASE_LABEL, int(primitive).to_bytes(4, "little"), canonical_json(public), counts,
-                          _int64(positions, 3), _int64(faces, 3), _int64(attributes, width) if width else b""])
+    return framed_blake2b([_BASE_LABEL, int(primitive).to_bytes(4, "little"), canonical_json(public),
+                           *base_mesh_fields(positions_int, faces, attributes_int)], key=mac_key)
 
 
 def chunk_mac(mac_key: bytes, base_mac_hex: str, primitive: int, chunk: int, entry: dict, payload, version: int = 1) -> str:
@@ -93,8 +72,8 @@ def chunk_mac(mac_key: bytes, base_mac_hex: str, primitive: int, chunk: int, ent
     else:
         fields = {k: v for k, v in entry.items() if k not in CHUNK_MAC_EXCLUDED}
     place = int(primitive).to_bytes(4, "little") + int(chunk).to_bytes(4, "little")
-    return _mac(mac_key, [_CHUNK_LABEL, bytes.fromhex(base_mac_hex), place, canonical_json(fields),
-                          bytes(memoryview(payload).cast("B"))])
+    return framed_blake2b([_CHUNK_LABEL, bytes.fromhex(base_mac_hex), place, canonical_json(fields),
+                           bytes(memoryview(payload).cast("B"))], key=mac_key)
 
 
 def same_mac(expected: str, found) -> bool:

@@ -24,7 +24,7 @@ complete, so the events do not depend on how the bytes were split into ``feed`` 
 Corruption is a named error, raised from ``feed`` (or, when the same ``feed`` call
 first completed other events, returned after them and raised by the next ``feed``
 or ``close`` call, so every good chunk before a bad one is delivered): a bad digest is ``ChecksumError``
-(``.chunk`` = index); bad magic, JSON, layout or extension fields are ``FormatError``;
+(``.chunk`` = index; None for a base mesh whose ``baseDigest`` differs); bad magic, JSON, layout or extension fields are ``FormatError``;
 a newer extension ``version`` is ``UnsupportedVersionError``; declared sizes or counts
 over the limits of :mod:`pmwm_codec.constants` are ``LimitError``, checked before
 anything of that size is allocated or decompressed.
@@ -54,7 +54,7 @@ from ..errors import ChecksumError, FormatError, LimitError, TruncatedError
 from ..progressive.grid import Grid
 from ..sources import byte_view
 from . import base as _base
-from .extension import check_extension, chunk_entries, digest, payload_version
+from .extension import base_digest, check_extension, chunk_entries, digest, payload_version
 from .gltf import check_finite_numbers, find_extension_primitives, uint, view_range
 from .layout import (
     ALIGNMENT,
@@ -448,6 +448,7 @@ class ContainerParser:
             for p, (prim, ext) in enumerate(zip(self._plan.primitives, self._plan.extensions)):
                 positions, faces = _base.decode_base(self._gltf, data, Grid.from_config(ext["grid"]), prim)
                 attributes = _base.decode_base_attributes(self._gltf, data, prim, ext.get("attributes", ()))
+                _check_base_digest(ext, positions, faces, attributes, p, len(self._plan.extensions))
                 events.append(BaseEvent(positions, faces, self._bin_data + self._plan.base_end, p, attributes))
             self._state = _CHUNKS if self._plan.chunk_ranges else _TAIL
             if self._state == _TAIL:
@@ -491,6 +492,15 @@ def _load_json(text: bytes):
             chunk_entries(ext, 0)  # a version 1 object must hold an array
         exts.append(ext)
     return gltf, exts
+
+
+def _check_base_digest(ext: dict, positions, faces, attributes, p: int, count: int) -> None:
+    """ChecksumError when primitive ``p``'s decoded base differs from its ``baseDigest``
+    (bitstream.md §6.4; files without the field are not checked)."""
+    expected = ext.get("baseDigest")
+    if expected is not None and base_digest(positions, faces, attributes) != expected:
+        which = f" of progressive primitive {p + 1}" if count > 1 else ""
+        raise ChecksumError(f"base mesh{which}: baseDigest mismatch, the base mesh decodes to other geometry than was written (corrupt)")
 
 
 def _open_chunk(k: int, stored: bytes, meta: dict, version: int = 1) -> bytes:

@@ -80,3 +80,9 @@ export async function jsLevels(bytes) {
   }));
   return { levels, end: d.close(), last: results[results.length - 1].mesh };
 }
+
+/** What this decoder makes of `bytes`: its PmwError, or jsLevels(bytes) when it decodes them. */
+export async function jsOutcome(bytes) {
+  const e = await failure(bytes);
+  return e === null ? jsLevels(bytes) : e;
+}

@@ -112,6 +112,8 @@ CASES = {
     "flaps-attributes.plain": lambda: (_glued_pillows(8, 17, False, flaps=5, attributes=True), dict(base_codec="plain")),
     "specks.draco": lambda: (shapes.specks(shapes.icosphere(4, 1.0, noise=0.02), 3, seed=5),
                              dict(base_codec="draco", grid_bits=14)),
+    # a base Draco stores with copies of its non-manifold vertices, welded back by readers
+    "welded.draco": lambda: (shapes.bowtie(), dict(base_codec="draco")),
 }
 
 
