@@ -95,6 +95,8 @@ def _text_center(draw, xy_center, text, fnt, fill=INK):
 EMPTY_MARK = (238, 238, 242)
 #: Smallest side of a written frame (the watermark is scaled up by a whole factor to reach it).
 FRAME_MIN_SIDE = 128
+#: File names in a pictures directory: the tamper map, the overview, the metrics plot.
+TAMPER_NAME, OVERVIEW_NAME, PLOT_NAME = "tamper.png", "overview.png", "metrics.png"
 
 
 def watermark_tile(r, side: int) -> Image.Image:
@@ -117,20 +119,41 @@ def _frames(results, directory: str) -> list:
     Once every code has been read the picture stops changing (later carriers repeat the
     codes and only refine the mesh), so boundaries without a change write no frame.
     """
-    frames, previous = [], None
+    frames = []
+    for r in _framed(results):
+        size = np.shape(r.watermark)[0]
+        side = size * max(1, -(-FRAME_MIN_SIDE // max(size, 1)))
+        path = _frame_path(directory, r)
+        write_image(path, watermark_tile(r, side))
+        frames.append(path)
+    return frames
+
+
+def _framed(results) -> list:
+    """The results :func:`_frames` draws: those whose watermark differs from the previous one drawn."""
+    out, previous = [], None
     for r in results:
         if r.watermark is None:
             continue
         state = (r.coefficients == 0, np.asarray(r.watermark, np.uint8).tobytes())
-        if state == previous:
-            continue
-        previous = state
-        size = np.shape(r.watermark)[0]
-        side = size * max(1, -(-FRAME_MIN_SIDE // max(size, 1)))
-        path = os.path.join(directory, f"frame_{r.chunk:03d}.png")
-        write_image(path, watermark_tile(r, side))
-        frames.append(path)
-    return frames
+        if state != previous:
+            out.append(r)
+            previous = state
+    return out
+
+
+def _frame_path(directory: str, r) -> str:
+    return os.path.join(directory, f"frame_{r.chunk:03d}.png")
+
+
+def figure_paths(results, directory, *, tamper: bool = False) -> list:
+    """Every file :func:`write_figures` (and, with ``tamper``, :func:`write_tamper`) would write into
+    ``directory`` for ``results``, so a caller can check them all before any is written."""
+    directory = os.fspath(directory)
+    paths = [_frame_path(directory, r) for r in _framed(results)] + [os.path.join(directory, OVERVIEW_NAME)]
+    if any(r.nc is not None for r in results):
+        paths.append(os.path.join(directory, PLOT_NAME))
+    return paths + ([os.path.join(directory, TAMPER_NAME)] if tamper else [])
 
 
 def overview(results, *, k: int = 5, tile=(220, 170), title: str | None = None, camera: Camera | None = None,
@@ -332,7 +355,7 @@ def tamper_figure(positions, faces, flagged, watermark=None, *, size: int = 360,
 
 def write_tamper(directory, positions, faces, flagged, watermark=None, *, title: str | None = None) -> str:
     """Write ``tamper.png`` (:func:`tamper_figure`) into ``directory``; return its path."""
-    path = os.path.join(os.fspath(directory), "tamper.png")
+    path = os.path.join(os.fspath(directory), TAMPER_NAME)
     try:
         os.makedirs(os.fspath(directory), exist_ok=True)
         write_image(path, tamper_figure(positions, faces, flagged, watermark, title=title))
@@ -353,11 +376,11 @@ def write_figures(results, directory, *, title: str | None = None, total_bytes: 
     try:
         os.makedirs(directory, exist_ok=True)
         frames = _frames(results, directory)
-        over = os.path.join(directory, "overview.png")
+        over = os.path.join(directory, OVERVIEW_NAME)
         write_image(over, overview(results, k=k, title=title, total_bytes=total_bytes))
         plot = None
         if any(r.nc is not None for r in results):
-            plot = os.path.join(directory, "metrics.png")
+            plot = os.path.join(directory, PLOT_NAME)
             write_image(plot, metrics_plot(results, title=title, total_bytes=total_bytes, bytes_received=bytes_received))
     except OSError as exc:
         raise PmwError(f"{directory}: cannot write pictures ({exc.strerror or exc})") from None

@@ -6,6 +6,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -240,6 +241,52 @@ def test_verify_frames(work, tmp_path, capsys):
         assert im.size == (128, 128)  # the 32x32 mark scaled up by 4
     with Image.open(frames / "overview.png") as im:
         assert im.width > 600 and im.mode == "RGB"
+
+
+@pytest.mark.parametrize("case", ["the stream", "the key", "a key it does not use", "the watermark image", "stdin",
+                                  "the reference's key"])
+def test_verify_frames_never_writes_a_picture_over_an_input_or_a_key(work, tmp_path, capsys, monkeypatch, case):
+    """The picture names are known only after the read (a frame where the watermark changed), so every one is
+    checked before the first is written: an input, the file standard input reads, or any key file in the
+    --frames directory under a picture's name is refused (exit 2, one line) and left as it was."""
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    pmw, key, mark = work["pmw"], work["key"], work["mark"]
+    argv = ["verify", pmw, "--key", key, "--frames", frames]
+    if case == "the stream":
+        pmw = frames / "frame_000.png"
+        pmw.write_bytes(work["pmw"].read_bytes())
+        argv[1] = pmw
+    elif case == "the key":
+        key = frames / "overview.png"
+        key.write_bytes(work["key"].read_bytes())
+        argv[3] = key
+    elif case == "a key it does not use":
+        (frames / "metrics.png").write_bytes(work["key"].read_bytes())
+    elif case == "the watermark image":
+        shutil.copy(work["mark"], frames / "frame_000.png")
+        argv += ["--watermark", frames / "frame_000.png"]
+    elif case == "stdin":
+        (frames / "frame_000.png").write_bytes(work["pmw"].read_bytes())
+        monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(open(frames / "frame_000.png", "rb")))
+        argv[1] = "-"
+    else:
+        exported = tmp_path / "exported.obj"
+        assert run(capsys, "decode", work["pmw"], "-o", exported)[0] == 0
+        (frames / "tamper.png").write_bytes(work["key"].read_bytes())
+        argv = ["verify", exported, "--reference", work["pmw"], "--key", frames / "tamper.png", "--frames", frames]
+    before = {p.name: p.read_bytes() for p in frames.iterdir()}
+    code, stdout, err = run(capsys, *argv)
+    assert code == 2 and err.count("\n") == 1 and "Traceback" not in err, err
+    assert ("standard input" if case == "stdin" else "key" if "key" in case else "is also the input") in err, err
+    assert {p.name: p.read_bytes() for p in frames.iterdir()} == before
+
+
+def test_verify_frames_to_standard_output_is_refused(work, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run(capsys, "verify", work["pmw"], "--key", work["key"], "--frames", "-")
+    assert code == 2 and "--frames writes pictures into a directory" in err
+    assert not (tmp_path / "-").exists()
 
 
 def test_verify_reference_finds_the_mark_in_an_exported_and_moved_mesh(work, tmp_path, capsys):

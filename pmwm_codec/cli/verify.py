@@ -16,8 +16,8 @@ import pmwm_codec
 from pmwm_codec.http import UrlSource, is_url
 from pmwm_codec.verify import StreamVerification, verify_stream
 
-from .common import (EXIT_NOT_AUTHENTIC, EXIT_OK, Progress, UsageError, check_input_file, fmt_float, naming,
-                   print_json)
+from .common import (EXIT_NOT_AUTHENTIC, EXIT_OK, Progress, UsageError, check_input_file, check_output_path,
+                     fmt_float, naming, print_json)
 
 
 def add_parser(sub):
@@ -43,8 +43,21 @@ def _check_common(args) -> None:
     check_input_file(args.key, "key file")
     if args.watermark is not None:
         check_input_file(args.watermark, "watermark image")
+    if args.frames == "-":
+        raise UsageError("-: --frames writes pictures into a directory, not to standard output; give a directory name")
     if args.frames is not None and os.path.exists(args.frames) and not os.path.isdir(args.frames):
         raise UsageError(f"{args.frames}: exists and is not a directory (--frames needs a directory)")
+
+
+def _check_pictures(args, paths) -> None:
+    """UsageError, before any picture is written, when one of ``paths`` (the files ``--frames`` will
+    write) is an input of the command (the stream, the key, the watermark image, the reference, or
+    the file standard input reads), a key file, or not a file that can be replaced."""
+    if not os.path.isdir(args.frames):
+        return  # made by the write: nothing in it yet
+    inputs = [args.input, args.key, args.watermark, getattr(args, "reference", None)]
+    for path in paths:
+        check_output_path(path, "--frames picture", inputs=inputs)
 
 
 def _is_mesh_file(path: str) -> bool:
@@ -81,8 +94,9 @@ def run(args) -> int:
         progress.done()
     pictures = None
     if args.frames is not None:
-        from pmwm_codec.figures import write_figures
+        from pmwm_codec.figures import figure_paths, write_figures
 
+        _check_pictures(args, figure_paths(outcome.results, args.frames, tamper=outcome.marked))
         name = "stdin" if args.input == "-" else os.path.basename(args.input.rstrip("/"))
         title = f"{name}: {outcome.verdict}" + ("" if outcome.end.complete else " (truncated)")
         pictures = write_figures(outcome.results, args.frames, title=title, total_bytes=outcome.total_length,
@@ -175,11 +189,13 @@ def run_reference(args) -> int:
     with naming(args.reference):
         v = verify_mesh(mesh, args.reference, args.key, args.watermark)
     if args.frames is not None:
-        from pmwm_codec.figures import write_tamper
+        from pmwm_codec.figures import TAMPER_NAME, write_tamper
         from pmwm_codec.watermark.image import save_png
 
+        watermark = os.path.join(args.frames, "watermark.png")
+        _check_pictures(args, [watermark, os.path.join(args.frames, TAMPER_NAME)])
         os.makedirs(args.frames, exist_ok=True)
-        save_png(os.path.join(args.frames, "watermark.png"), v.watermark)
+        save_png(watermark, v.watermark)
         write_tamper(args.frames, mesh.positions, mesh.faces, v.flagged, v.watermark,
                      title=f"{os.path.basename(args.input)}: {v.verdict}")
     if args.json:
