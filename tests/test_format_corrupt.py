@@ -136,6 +136,16 @@ def test_error_messages_are_one_line():
         assert "\n" not in str(info.value)
 
 
+@pytest.mark.parametrize("value", [{"bufferView": 1, "count": 15, "packed": "AHB5" * 200}, "x" * 500])
+def test_a_schema_error_on_a_long_value_keeps_its_reason_on_the_line(value):
+    """jsonschema starts such messages with the value itself; a long one (a chunk table where an array
+    belongs) used to fill the 160 characters before the reason."""
+    with pytest.raises(FormatError) as info:
+        _events(_mutated(_set(["chunks"], value)))
+    text = str(info.value)
+    assert text.startswith(f"{NAME}: chunks: the value (") and "is not" in text and len(text) < 220, text
+
+
 def test_lying_digest_raises_checksum_error_for_that_chunk():
     with pytest.raises(ChecksumError) as info:
         _events(_mutated(_set(["chunks", 1, "digest"], "0" * 32)))

@@ -306,6 +306,23 @@ def _validator():
     return cls(schema, registry=registry)
 
 
+#: JSON names of the Python types a schema error's value can have.
+_JSON_KINDS = {dict: "an object", list: "an array", str: "a string", bool: "a boolean", int: "an integer",
+               float: "a number", type(None): "null"}
+
+
+def _schema_message(error) -> str:
+    """A schema error's message on one line of at most 160 characters that keeps its reason: jsonschema
+    starts many messages with the offending value itself (``{...} is not of type 'array'``), which for
+    a chunk table or a long string would fill the line before the reason; such a value is named by
+    its JSON kind instead."""
+    message = error.message.replace("\n", " ")
+    shown = repr(error.instance)
+    if len(shown) > 40 and message.startswith(shown):
+        message = f"the value ({_JSON_KINDS.get(type(error.instance), 'a value')})" + message[len(shown):]
+    return message if len(message) <= 160 else message[:157] + "..."
+
+
 def check_extension(ext) -> dict:
     """Check an extension object; return it unchanged.
 
@@ -329,10 +346,7 @@ def check_extension(ext) -> dict:
     error = jsonschema.exceptions.best_match(sorted(_validator().iter_errors(ext), key=lambda e: list(e.absolute_path)))
     if error is not None:
         where = "/".join(str(p) for p in error.absolute_path) or "(root)"
-        message = error.message.replace("\n", " ")
-        if len(message) > 160:
-            message = message[:157] + "..."
-        raise FormatError(f"{EXTENSION_NAME}: {where}: {message}")
+        raise FormatError(f"{EXTENSION_NAME}: {where}: {_schema_message(error)}")
     if version != FORMAT_VERSION:
         raise UnsupportedVersionError(f"{EXTENSION_NAME}: version {version} is not supported (this reader knows {FORMAT_VERSION})")
     return ext
