@@ -563,3 +563,34 @@ def test_an_asset_cut_before_its_other_meshes_data_is_truncated_as_pmw_cut_says(
     err = capsys.readouterr().err
     assert err.startswith("pmw: error: ") and "has not arrived" in err and len(err.splitlines()) == 1
     assert not (tmp_path / "p.glb").exists()
+
+
+def test_a_gltf_read_by_load_document_encodes_from_memory_with_its_external_images(tmp_path):
+    """README's round trip, ``encode((load_document(path)), ...)``, on a .gltf whose texture is a file beside
+    it: the image bytes load_document read from the asset's folder are embedded (they were the JSON copy's
+    undoing: "the asset's glTF document is not JSON"); its uri is never opened, and a uri without bytes
+    is still refused."""
+    from PIL import Image as PILImage
+
+    from pmwm_codec.errors import InputFormatError
+
+    b = DocBuilder()
+    prim = {**b.triangles(shapes.icosphere(3, 1.0, noise=0.02)), "material": 0}
+    b.doc.update(scene=0, scenes=[{"nodes": [0]}], nodes=[{"mesh": 0}], meshes=[{"primitives": [prim]}],
+                 materials=[{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}],
+                 textures=[{"source": 0}], images=[{"uri": "stripes.png"}],
+                 buffers=[{"uri": "scene.bin", "byteLength": b.offset}])
+    PILImage.fromarray((np.indices((16, 16)).sum(0) % 2 * 255).astype(np.uint8)).save(tmp_path / "stripes.png")
+    (tmp_path / "scene.bin").write_bytes(b"".join(b.parts))
+    (tmp_path / "scene.gltf").write_text(json.dumps(b.doc))
+    gltf, buffers = load_document(tmp_path / "scene.gltf")
+    encode_asset((gltf, buffers), tmp_path / "scene.pmw", measure=False)
+    (tmp_path / "stripes.png").unlink()  # the .pmw holds the image: nothing refers to the file any more
+    (tmp_path / "out.glb").write_bytes(decode_asset(tmp_path / "scene.pmw")[0])
+    doc, _ = load_document(tmp_path / "out.glb")
+    image = doc["images"][0]
+    assert "uri" not in image and image["mimeType"] == "image/png"
+    del gltf["images"][0]["_bytes"]
+    with pytest.raises(InputFormatError, match=r"images\[0\]\.uri 'stripes.png' names a file"):
+        encode_asset((gltf, buffers), tmp_path / "again.pmw", measure=False)
+    assert not (tmp_path / "again.pmw").exists()

@@ -45,8 +45,8 @@ from ..constants import (
 from ..errors import InputFormatError
 from ..sources import read_regular_file
 from .glb import split_glb
-from .gltf import (COMPONENT_DTYPES, DRACO_EXTENSION, FLOAT, INDEX_DTYPES, NORMALIZE_DIVISORS, TYPE_WIDTH,
-                   check_finite_numbers, element_rows, uint, view_bytes)
+from .gltf import (COMPONENT_DTYPES, COMPONENT_NAMES, DRACO_EXTENSION, FLOAT, INDEX_DTYPES, NORMALIZE_DIVISORS,
+                   TYPE_WIDTH, check_finite_numbers, element_rows, uint, view_bytes)
 from .layout import CHUNK_HEADER_SIZE, CHUNK_TYPE_JSON, GLB_HEADER_SIZE, GLB_MAGIC, padded
 from .meshopt import EXTENSIONS as MESHOPT_EXTENSIONS
 from .meshopt import decompress as decompress_meshopt
@@ -60,7 +60,8 @@ def load_document(path):
 
     External buffers and images are read relative to the file, and only from
     inside its folder (see :func:`_resolve_uri`); images with a ``uri`` are
-    returned in ``gltf["images"][i]["_bytes"]`` so :func:`repack` can embed them.
+    returned in ``gltf["images"][i]["_bytes"]`` so :func:`repack` can embed them, and every image
+    embedded or in a bufferView gets its ``mimeType`` (:func:`label_images`).
     Buffer views compressed with EXT_ / KHR_meshopt_compression come back decoded
     (:func:`~pmwm_codec.format.meshopt.decompress`: gltfpack ``-c`` / ``-cc`` output reads as
     any other).  The JSON is checked first (:func:`check_document`: shapes, references, nesting
@@ -92,7 +93,9 @@ def load_document(path):
     for image in gltf.get("images", []):
         if "uri" in image:
             image["_bytes"] = _resolve_uri(image["uri"], base_dir, name, budget)
-    return decompress_meshopt(gltf, buffers, name)
+    gltf, buffers = decompress_meshopt(gltf, buffers, name)
+    label_images(gltf, buffers, name)
+    return gltf, buffers
 
 
 def is_progressive(gltf: dict) -> bool:
@@ -218,6 +221,26 @@ def _data_uri(uri: str, name: str, shown: str, limit: int) -> bytes:
 _ARRAYS = ("accessors", "animations", "buffers", "bufferViews", "cameras", "images", "materials",
            "meshes", "nodes", "samplers", "scenes", "skins", "textures")
 
+#: Extensions an input may list in ``extensionsRequired``: what the reader implements -- Draco and
+#: meshopt data are decoded, quantized accessors read (KHR_mesh_quantization: any componentType,
+#: ``normalized``), GPU instancing placed and renumbered -- and this package's own (a ``.pmw``, refused
+#: by name as an input).
+READ_EXTENSIONS = (DRACO_EXTENSION, *MESHOPT_EXTENSIONS, "KHR_mesh_quantization", "EXT_mesh_gpu_instancing",
+                   EXTENSION_NAME)
+#: Required extensions carried to the output still required: they say only how materials, textures,
+#: images and lights look, which the encoder copies unchanged (it reads no pixel, and a texture
+#: transform applies to the TEXCOORD values the splits carry), so the output asks a viewer for them
+#: as the input did.  Any other required extension may change what the geometry means (how an
+#: accessor, a buffer or a primitive reads): refused, never guessed.
+CARRIED_EXTENSIONS = (
+    "KHR_texture_basisu", "EXT_texture_webp", "EXT_texture_avif", "MSFT_texture_dds", "KHR_texture_transform",
+    "KHR_materials_anisotropy", "KHR_materials_clearcoat", "KHR_materials_diffuse_transmission",
+    "KHR_materials_dispersion", "KHR_materials_emissive_strength", "KHR_materials_ior", "KHR_materials_iridescence",
+    "KHR_materials_pbrSpecularGlossiness", "KHR_materials_sheen", "KHR_materials_specular",
+    "KHR_materials_transmission", "KHR_materials_unlit", "KHR_materials_variants", "KHR_materials_volume",
+    "KHR_lights_punctual",
+)
+
 
 def check_document(gltf: dict, name: str) -> None:
     """Refuse (InputFormatError) a glTF JSON the document code cannot walk safely.
@@ -225,8 +248,14 @@ def check_document(gltf: dict, name: str) -> None:
     Checks the nesting depth (:data:`MAX_JSON_DEPTH`), that no number is NaN or
     infinite (Python's JSON reader takes ``NaN``, ``Infinity`` and ``1e999``; JSON, and
     so the output, does not), that every array and object
-    this module reads has the right JSON type, that every accessor / bufferView
-    reference it renumbers is an index in range, and that the triangle primitives
+    this module reads has the right JSON type, that every index reference the
+    output keeps (scene, scene and child nodes, a node's mesh / skin / camera, a
+    primitive's accessors and material, textures' images and samplers, materials'
+    textures, skins' joints, animations' samplers, accessors and target nodes,
+    bufferViews) is an index in range, that an accessor's ``normalized`` is a
+    boolean, true only where glTF allows it (never on indices), that every required
+    extension is used and supported (:data:`READ_EXTENSIONS`,
+    :data:`CARRIED_EXTENSIONS`), and that the triangle primitives
     declare no more vertices and faces in total than the encoder takes
     (:data:`MAX_ENCODE_VERTICES`, :data:`MAX_ENCODE_FACES`) — all before any
     buffer is read or any array allocated.
@@ -238,6 +267,7 @@ def check_document(gltf: dict, name: str) -> None:
     for key in ("extensionsUsed", "extensionsRequired"):
         if not all(isinstance(e, str) for e in _list(gltf, key, key, name)):
             raise InputFormatError(f"{name}: {key} must be an array of strings")
+    _check_required_extensions(gltf, name)
     n_acc, n_views = len(gltf.get("accessors", [])), len(gltf.get("bufferViews", []))
     for i, view in enumerate(gltf.get("bufferViews", [])):
         _check_view(view, f"bufferViews[{i}]", len(gltf.get("buffers", [])), name)
@@ -247,19 +277,95 @@ def check_document(gltf: dict, name: str) -> None:
         for i, entry in enumerate(gltf.get(kind, [])):
             if "uri" in entry and not isinstance(entry["uri"], str):
                 raise InputFormatError(f"{name}: {kind}[{i}].uri must be a string")
+    count = {key: len(gltf.get(key, [])) for key in _ARRAYS}
     for i, image in enumerate(gltf.get("images", [])):
-        _ref(image, "bufferView", n_views, f"images[{i}]", name)
+        _ref(image, "bufferView", n_views, f"images[{i}]", name, "bufferView")
+        if "mimeType" in image and not isinstance(image["mimeType"], str):
+            raise InputFormatError(f"{name}: images[{i}].mimeType must be a string, got {_shown(image['mimeType'])}")
+    for i, texture in enumerate(gltf.get("textures", [])):
+        _check_texture(texture, f"textures[{i}]", count, name)
+    for i, material in enumerate(gltf.get("materials", [])):
+        _check_material(material, f"materials[{i}]", count["textures"], name)
     for i, skin in enumerate(gltf.get("skins", [])):
-        _ref(skin, "inverseBindMatrices", n_acc, f"skins[{i}]", name)
+        _ref(skin, "inverseBindMatrices", n_acc, f"skins[{i}]", name, "accessor")
+        _refs(skin, "joints", count["nodes"], f"skins[{i}]", name, "node")
+        _ref(skin, "skeleton", count["nodes"], f"skins[{i}]", name, "node")
     for i, anim in enumerate(gltf.get("animations", [])):
-        for j, sampler in enumerate(_objects(anim, "samplers", f"animations[{i}].samplers", name)):
-            for key in ("input", "output"):
-                _ref(sampler, key, n_acc, f"animations[{i}].samplers[{j}]", name, required=True)
+        _check_animation(anim, f"animations[{i}]", n_acc, count["nodes"], name)
     for i, node in enumerate(gltf.get("nodes", [])):
         _check_extensions(node, f"nodes[{i}]", n_acc, name, "EXT_mesh_gpu_instancing")
-        _ref(node, "mesh", len(gltf.get("meshes", [])), f"nodes[{i}]", name)
+        for key, kind in (("mesh", "meshes"), ("skin", "skins"), ("camera", "cameras")):
+            _ref(node, key, count[kind], f"nodes[{i}]", name, key)
     _check_node_trees(gltf.get("nodes", []), name)
+    _ref(gltf, "scene", count["scenes"], "", name, "scene")
+    for i, scene in enumerate(gltf.get("scenes", [])):
+        _refs(scene, "nodes", count["nodes"], f"scenes[{i}]", name, "node")
     _check_meshes(gltf, n_acc, n_views, name)
+
+
+def _check_required_extensions(gltf: dict, name: str) -> None:
+    """Refuse an extension in ``extensionsRequired`` that ``extensionsUsed`` does not list (invalid glTF,
+    and an output that would say so), or that the reader neither implements nor carries unchanged
+    (:data:`READ_EXTENSIONS`, :data:`CARRIED_EXTENSIONS`): what it changes would be read wrong."""
+    used = gltf.get("extensionsUsed", [])
+    for ext in gltf.get("extensionsRequired", []):
+        if ext not in used:
+            raise InputFormatError(f"{name}: extensionsRequired lists {ext}, which extensionsUsed does not "
+                                   "(glTF lists every required extension as used)")
+        if ext not in READ_EXTENSIONS and ext not in CARRIED_EXTENSIONS:
+            raise InputFormatError(f"{name}: the asset requires the glTF extension {ext}, which pmw does not "
+                                   "support")
+
+
+def _check_texture(texture: dict, where: str, count: dict, name: str) -> None:
+    """A texture's ``source`` (also the ``source`` of an extension object: KHR_texture_basisu,
+    EXT_texture_webp, EXT_texture_avif, MSFT_texture_dds) and ``sampler`` in range."""
+    _ref(texture, "source", count["images"], where, name, "image")
+    _ref(texture, "sampler", count["samplers"], where, name, "sampler")
+    for ext, entry in _object(texture.get("extensions", {}), f"{where}.extensions", name).items():
+        if isinstance(entry, dict) and "source" in entry:
+            _ref(entry, "source", count["images"], f"{where}.extensions.{ext}", name, "image")
+
+
+#: The textureInfo members of a material: ``(member holding them or None for the material, names)``.
+_MATERIAL_TEXTURES = (("pbrMetallicRoughness", ("baseColorTexture", "metallicRoughnessTexture")),
+                      (None, ("normalTexture", "occlusionTexture", "emissiveTexture")))
+
+
+def _check_material(material: dict, where: str, n_textures: int, name: str) -> None:
+    """A material's textureInfo objects, each with a texture ``index`` in range: the core ones, and in its
+    extensions every object with an ``index`` under a member whose name ends in ``Texture``
+    (``clearcoatTexture``, ``sheenColorTexture`` ...: the rule decode renumbers them by)."""
+    for member, keys in _MATERIAL_TEXTURES:
+        at = f"{where}.{member}" if member else where
+        holder = _object(material.get(member, {}), at, name) if member else material
+        for key in keys:
+            if key in holder:
+                info = _object(holder[key], f"{at}.{key}", name)
+                _ref(info, "index", n_textures, f"{at}.{key}", name, "texture", required=True)
+    stack = [(_object(material.get("extensions", {}), f"{where}.extensions", name), f"{where}.extensions")]
+    while stack:  # the JSON depth is bounded already
+        value, at = stack.pop()
+        children = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, list) else ()
+        for key, child in children:
+            path = f"{at}[{key}]" if isinstance(key, int) else f"{at}.{key}"
+            if isinstance(key, str) and key.endswith("Texture") and isinstance(child, dict) and "index" in child:
+                _ref(child, "index", n_textures, path, name, "texture")
+            if key != "extras":
+                stack.append((child, path))
+
+
+def _check_animation(anim: dict, where: str, n_acc: int, n_nodes: int, name: str) -> None:
+    """An animation's samplers (``input`` / ``output`` accessors) and channels (a ``sampler`` of this
+    animation, a ``target`` object whose ``node``, if any, exists)."""
+    samplers = _objects(anim, "samplers", f"{where}.samplers", name)
+    for j, sampler in enumerate(samplers):
+        for key in ("input", "output"):
+            _ref(sampler, key, n_acc, f"{where}.samplers[{j}]", name, "accessor", required=True)
+    for j, channel in enumerate(_objects(anim, "channels", f"{where}.channels", name)):
+        at = f"{where}.channels[{j}]"
+        _ref(channel, "sampler", len(samplers), at, name, "sampler", required=True)
+        _ref(_object(channel.get("target"), f"{at}.target", name), "node", n_nodes, f"{at}.target", name, "node")
 
 
 def _check_node_trees(nodes: list, name: str) -> None:
@@ -290,7 +396,7 @@ def _check_node_trees(nodes: list, name: str) -> None:
 def _check_view(view: dict, where: str, n_buffers: int, name: str) -> None:
     """A bufferView's numbers: ``buffer`` in range, ``byteOffset`` / ``byteLength``
     non-negative integers, ``byteStride`` (if any) a multiple of 4 in 4..252."""
-    _ref(view, "buffer", n_buffers, where, name, required=True)
+    _ref(view, "buffer", n_buffers, where, name, "buffer", required=True)
     uint(view, "byteOffset", f"{name}: {where}", 0, error=InputFormatError)
     uint(view, "byteLength", f"{name}: {where}", error=InputFormatError)
     if "byteStride" in view:
@@ -309,33 +415,39 @@ def _check_accessor(acc: dict, where: str, n_views: int, name: str) -> None:
     if count < 1:
         raise InputFormatError(f"{name}: {where}.count must be at least 1")
     uint(acc, "byteOffset", f"{name}: {where}", 0, error=InputFormatError)
-    _ref(acc, "bufferView", n_views, where, name)
+    _ref(acc, "bufferView", n_views, where, name, "bufferView")
+    _normalized_flag(acc, f"{name}: {where}")
     if "sparse" in acc:
         sparse = _object(acc["sparse"], f"{where}.sparse", name)
         if _bounded_count(sparse, "count", f"{name}: {where}.sparse") > count:
             raise InputFormatError(f"{name}: {where}.sparse.count is larger than the accessor's count {count}")
         for part in ("indices", "values"):
             _ref(_object(sparse.get(part), f"{where}.sparse.{part}", name), "bufferView", n_views,
-                 f"{where}.sparse.{part}", name, required=True)
+                 f"{where}.sparse.{part}", name, "bufferView", required=True)
 
 
 def _check_meshes(gltf: dict, n_acc: int, n_views: int, name: str) -> None:
     vertices = faces = 0
-    accessors = gltf.get("accessors", [])
+    accessors, n_materials = gltf.get("accessors", []), len(gltf.get("materials", []))
     for mi, mesh in enumerate(gltf.get("meshes", [])):
         for pi, prim in enumerate(_objects(mesh, "primitives", f"meshes[{mi}].primitives", name)):
             where = f"meshes[{mi}].primitives[{pi}]"
             attrs = _object(prim.get("attributes", {}), f"{where}.attributes", name)
             for semantic in attrs:
-                _ref(attrs, semantic, n_acc, f"{where}.attributes", name)
+                _ref(attrs, semantic, n_acc, f"{where}.attributes", name, "accessor")
             for ti, target in enumerate(_objects(prim, "targets", f"{where}.targets", name)):
                 for semantic in target:
-                    _ref(target, semantic, n_acc, f"{where}.targets[{ti}]", name)
-            _ref(prim, "indices", n_acc, where, name)
+                    _ref(target, semantic, n_acc, f"{where}.targets[{ti}]", name, "accessor")
+            _ref(prim, "indices", n_acc, where, name, "accessor")
+            if "indices" in prim and accessors[prim["indices"]].get("normalized") is True:
+                raise InputFormatError(f"{name}: {where}.indices: accessor {prim['indices']} is normalized; "
+                                       "glTF indices never are")
+            _ref(prim, "material", n_materials, where, name, "material")
             uint(prim, "mode", f"{name}: {where}", 4, error=InputFormatError)
             draco = _check_extensions(prim, where, n_acc, name, DRACO_EXTENSION)
             if draco is not None:
-                _ref(draco, "bufferView", n_views, f"{where} Draco", name, required=True)
+                _ref(draco, "bufferView", n_views, f"{where}.extensions.{DRACO_EXTENSION}", name, "bufferView",
+                     required=True)
             if prim.get("mode", 4) == 4 and "POSITION" in attrs:
                 vertices += _count(accessors[attrs["POSITION"]])
                 faces += _count(accessors[prim["indices"]]) // 3 if "indices" in prim else 0
@@ -355,7 +467,7 @@ def _check_extensions(holder: dict, where: str, n_acc: int, name: str, known: st
     attrs = _object(entry.get("attributes", {}), f"{where}.extensions.{known}.attributes", name)
     if known != DRACO_EXTENSION:  # Draco attributes are ids in the Draco stream, not accessors
         for semantic in attrs:
-            _ref(attrs, semantic, n_acc, f"{where}.extensions.{known}.attributes", name)
+            _ref(attrs, semantic, n_acc, f"{where}.extensions.{known}.attributes", name, "accessor")
     return entry
 
 
@@ -385,13 +497,54 @@ def _objects(holder: dict, key: str, where: str, name: str) -> list:
     return items
 
 
-def _ref(holder: dict, key: str, bound: int, where: str, name: str, required: bool = False) -> None:
-    """``holder[key]``, when present (or ``required``), must be an integer index below ``bound``."""
-    if key not in holder and not required:
-        return
-    index = uint(holder, key, f"{name}: {where}", error=InputFormatError)
-    if index >= bound:
-        raise InputFormatError(f"{name}: {where}.{key} = {index} refers past the {bound} items it indexes")
+def _ref(holder: dict, key: str, bound: int, where: str, name: str, kind: str, required: bool = False) -> None:
+    """``holder[key]``, when present (or ``required``), must be the index of one of the ``bound`` items
+    it refers to, each a ``kind`` ("accessor", "node" ...); ``where`` is the JSON path of ``holder``
+    ("" for the document), which the error names with the member:
+    ``scenes[0].nodes[1] = 7 names a node that does not exist``."""
+    if key in holder or required:
+        _index(holder.get(key), bound, f"{where}.{key}" if where else key, name, kind)
+
+
+def _refs(holder: dict, key: str, bound: int, where: str, name: str, kind: str) -> None:
+    """``holder[key]`` (default []) must be an array of indices of ``kind`` items, as :func:`_ref`."""
+    for j, value in enumerate(_list(holder, key, f"{where}.{key}", name)):
+        _index(value, bound, f"{where}.{key}[{j}]", name, kind)
+
+
+def _index(value, bound: int, path: str, name: str, kind: str) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise InputFormatError(f"{name}: {path} must be {_a(kind)} index (a non-negative integer), got {_shown(value)}")
+    if value >= bound:
+        raise InputFormatError(f"{name}: {path} = {value} names {_a(kind)} that does not exist "
+                               f"(the document has {bound or 'none'})")
+
+
+def _a(word: str) -> str:
+    return ("an " if word[0] in "aeiou" else "a ") + word
+
+
+def _shown(value) -> str:
+    """``value`` for a message: its JSON text when short, else its JSON kind (a long string, an array)."""
+    text = repr(value)
+    if len(text) <= 40:
+        return text
+    kinds = {str: "a string", list: "an array", dict: "an object", int: "an integer", float: "a number"}
+    return kinds.get(type(value), type(value).__name__)
+
+
+def _normalized_flag(acc: dict, where: str) -> bool:
+    """An accessor's ``normalized`` (default false): a JSON boolean, true only on the componentTypes glTF
+    normalizes (BYTE, UNSIGNED_BYTE, SHORT, UNSIGNED_SHORT); ``where`` names the accessor."""
+    value = acc.get("normalized", False)
+    if not isinstance(value, bool):
+        raise InputFormatError(f"{where}.normalized must be true or false, got {_shown(value)}")
+    ctype = acc.get("componentType")
+    if value and ctype not in NORMALIZE_DIVISORS:
+        raise InputFormatError(f"{where}.normalized is true on componentType {ctype!r} "
+                               f"({COMPONENT_NAMES.get(ctype, 'unknown')}); glTF normalizes only BYTE, "
+                               "UNSIGNED_BYTE, SHORT and UNSIGNED_SHORT")
+    return value
 
 
 def check_json_depth(doc, name: str, limit: int = MAX_JSON_DEPTH, error=InputFormatError) -> None:
@@ -424,6 +577,7 @@ def read_accessor(gltf: dict, buffers, index: int) -> np.ndarray:
         dtype = np.dtype(COMPONENT_DTYPES[ctype])
     except (KeyError, IndexError, TypeError):
         raise InputFormatError(f"{what}: malformed") from None
+    normalized = _normalized_flag(acc, f"accessors[{index}]")
     count = _bounded_count(acc, "count", what)
     if "bufferView" in acc:
         raw, stride = _view(gltf, buffers, acc["bufferView"])
@@ -439,9 +593,9 @@ def read_accessor(gltf: dict, buffers, index: int) -> np.ndarray:
         out = element_rows(raw, dtype, count, width, offset, stride)
     else:
         out = np.zeros((count, width), dtype=dtype)
-    out = _normalized(out, ctype, acc.get("normalized", False))
+    out = _normalized(out, ctype, normalized)
     if acc.get("sparse"):
-        out = _apply_sparse(gltf, buffers, acc, out, what)
+        out = _apply_sparse(gltf, buffers, acc, out, what, normalized)
     return out
 
 
@@ -452,7 +606,7 @@ def _bounded_count(holder: dict, key: str, what: str) -> int:
     return count
 
 
-def _apply_sparse(gltf, buffers, acc, out, what):
+def _apply_sparse(gltf, buffers, acc, out, what, normalized):
     """``out`` (count, width) with the sparse substitution of ``acc`` applied (a copy)."""
     sparse, (count, width) = acc["sparse"], out.shape
     n = _bounded_count(sparse, "count", f"{what} sparse")
@@ -462,7 +616,7 @@ def _apply_sparse(gltf, buffers, acc, out, what):
     if n and int(idx.max()) >= count:
         raise InputFormatError(f"{what}: sparse index {int(idx.max())} is past its {count} elements")
     out = out.copy()
-    out[idx.reshape(-1).astype(np.int64)] = _normalized(vals, acc["componentType"], acc.get("normalized", False))
+    out[idx.reshape(-1).astype(np.int64)] = _normalized(vals, acc["componentType"], normalized)
     return out
 
 
@@ -545,8 +699,8 @@ def _embed_images(doc: dict, first_view: int) -> list:
         blob = image.pop("_bytes", None)
         if blob is not None:
             uri = image.pop("uri")
-            if "mimeType" not in image:
-                image["mimeType"] = _mime(uri, blob)
+            if "mimeType" not in image:  # labelled when loaded (label_images); a caller's _bytes too
+                image["mimeType"] = _image_type(uri, blob, "an image")
             image["bufferView"] = first_view + len(blobs)
             blobs.append(blob)
     return blobs
@@ -601,14 +755,51 @@ def _renumber_accessors(doc, acc_map):
             inst["attributes"] = {k: m(v) for k, v in inst["attributes"].items()}
 
 
-def _mime(uri: str, blob: bytes) -> str:
-    if blob[:8] == b"\x89PNG\r\n\x1a\n":
-        return "image/png"
-    if blob[:3] == b"\xff\xd8\xff":
-        return "image/jpeg"
-    if blob[:4] == b"RIFF" and blob[8:12] == b"WEBP":
-        return "image/webp"
-    return "image/png" if uri.lower().endswith(".png") else "image/jpeg"
+#: The image formats glTF carries (PNG, JPEG) and its texture extensions' (KHR_texture_basisu: KTX2,
+#: EXT_texture_webp, EXT_texture_avif, MSFT_texture_dds) as ``(offset, signature, media type)``.
+IMAGE_SIGNATURES = ((0, b"\x89PNG\r\n\x1a\n", "image/png"), (0, b"\xff\xd8\xff", "image/jpeg"),
+                    (0, b"\xabKTX 20\xbb\r\n\x1a\n", "image/ktx2"), (8, b"WEBP", "image/webp"),
+                    (4, b"ftypavif", "image/avif"), (4, b"ftypavis", "image/avif"), (0, b"DDS ", "image/vnd-ms.dds"))
+
+
+def sniff_image(blob) -> str | None:
+    """The media type of an image's bytes by its signature (:data:`IMAGE_SIGNATURES`), or None."""
+    head = bytes(blob[:16])
+    for offset, signature, kind in IMAGE_SIGNATURES:
+        if head[offset : offset + len(signature)] == signature and (kind != "image/webp" or head[:4] == b"RIFF"):
+            return kind
+    return None
+
+
+def _image_type(uri, blob, where: str) -> str:
+    """The ``mimeType`` of an image without one: the media type of its ``data:`` URI when that is an
+    ``image/`` type, else its bytes' (:func:`sniff_image`); never guessed (a bufferView image must have
+    one, and the wrong one makes a viewer fail): InputFormatError naming ``where`` when neither tells."""
+    if isinstance(uri, str) and uri.startswith("data:"):
+        declared = uri[5:].partition(",")[0].split(";")[0].strip().lower()
+        if declared.startswith("image/"):
+            return declared
+    kind = sniff_image(blob)
+    if kind is None:
+        raise InputFormatError(f"{where} has no mimeType and its bytes are none of PNG, JPEG, WebP, KTX2, AVIF "
+                               "or DDS; give it its mimeType")
+    return kind
+
+
+def label_images(gltf: dict, buffers, name: str) -> None:
+    """Give a ``mimeType`` (in place) to every image of a loaded document that lacks one and that the output
+    holds in a bufferView: one loaded from a ``uri`` (``_bytes``, which :func:`repack` embeds) and one in
+    a bufferView already (where glTF requires it).  See :func:`_image_type`; a declared ``mimeType`` is
+    kept as it is.  An in-memory document's ``data:`` URI image stays a URI, whose type is optional."""
+    for i, image in enumerate(gltf.get("images", [])):
+        where = f"{name}: images[{i}]"
+        if "mimeType" in image:
+            continue
+        if "_bytes" in image:
+            image["mimeType"] = _image_type(image.get("uri"), image["_bytes"], where)
+        elif "bufferView" in image:
+            _, raw = view_bytes(gltf, buffers, image["bufferView"], where, error=InputFormatError)
+            image["mimeType"] = _image_type(None, raw, where)
 
 
 #: PNG chunks that carry colour-space or pixel-aspect metadata (the Khronos validator

@@ -38,6 +38,9 @@ DRACO_EXTENSION = "KHR_draco_mesh_compression"
 
 #: componentType -> little-endian numpy dtype string.
 COMPONENT_DTYPES = {BYTE: "i1", UNSIGNED_BYTE: "u1", SHORT: "<i2", UNSIGNED_SHORT: "<u2", UNSIGNED_INT: "<u4", FLOAT: "<f4"}
+#: componentType -> its name in the glTF specification (for messages).
+COMPONENT_NAMES = {BYTE: "BYTE", UNSIGNED_BYTE: "UNSIGNED_BYTE", SHORT: "SHORT", UNSIGNED_SHORT: "UNSIGNED_SHORT",
+                   UNSIGNED_INT: "UNSIGNED_INT", FLOAT: "FLOAT"}
 #: componentType of the three index types -> dtype.
 INDEX_DTYPES = {UNSIGNED_BYTE: "<u1", UNSIGNED_SHORT: "<u2", UNSIGNED_INT: "<u4"}
 #: Divisor that maps a normalized integer componentType to [-1, 1] / [0, 1].

@@ -44,7 +44,8 @@ import numpy as np
 from ..constants import EXTENSION_NAME
 from ..errors import DegenerateMeshError, InputFormatError, MeshError, PmwError
 from ..format.document import view_sites
-from ..format.document import check_document, is_progressive, load_document, progressive_refusal, read_accessor, repack
+from ..format.document import (check_document, is_progressive, label_images, load_document, progressive_refusal,
+                               read_accessor, repack)
 from ..format.document import strip_image_profiles as _strip_profiles
 from ..format.glb import glb_parts
 from ..format.meshopt import decompress as decompress_meshopt
@@ -107,7 +108,7 @@ def plan_asset(gltf: dict, buffers, name: str | None = None) -> tuple:
     primitive to make progressive (:class:`PmwError` quoting why).
     """
     jobs, notices, reasons = [], [], []
-    users = {}  # accessor -> number of pass-through users
+    users = {i: 1 for i in _accessors_outside_meshes(gltf)}  # accessor -> number of users kept as they are
     candidates = []
 
     def pass_through(prim, reason):
@@ -156,6 +157,20 @@ def plan_asset(gltf: dict, buffers, name: str | None = None) -> tuple:
             if users.get(idx, 0) == 0:
                 drop.add(idx)
     return jobs, drop, notices
+
+
+def _accessors_outside_meshes(gltf: dict) -> set:
+    """The accessors that skins (``inverseBindMatrices``), animation samplers (``input`` / ``output``) and
+    ``EXT_mesh_gpu_instancing`` refer to: never dropped with a progressive primitive that shares one (its
+    reference came out ``null``)."""
+    used = {skin["inverseBindMatrices"] for skin in gltf.get("skins", []) if "inverseBindMatrices" in skin}
+    used.update(sampler[key] for anim in gltf.get("animations", []) for sampler in anim.get("samplers", [])
+                for key in ("input", "output"))
+    for node in gltf.get("nodes", []):
+        inst = (node.get("extensions") or {}).get("EXT_mesh_gpu_instancing")
+        if isinstance(inst, dict):
+            used.update((inst.get("attributes") or {}).values())
+    return used
 
 
 def _why_not(prim: dict):
@@ -295,11 +310,13 @@ def _lock_shared_positions(gltf: dict, jobs) -> None:
 def _refuse_external_uris(gltf: dict) -> None:
     """InputFormatError for an image ``uri`` of an in-memory document that is not a ``data:`` URI: such a
     document has no folder its files could be inside, and the ``.pmw`` would carry a reference out of
-    it (``/etc/hostname``, ``../x.png``, ``http://...``) that a file on disk is refused for."""
+    it (``/etc/hostname``, ``../x.png``, ``http://...``) that a file on disk is refused for.  An image
+    whose bytes the document holds (``_bytes``, as :func:`load_document` leaves an image it read from
+    the asset's folder) is embedded from them: its ``uri`` is never opened."""
     images = gltf.get("images") if isinstance(gltf, dict) else None
     for i, image in enumerate(images if isinstance(images, list) else []):
         uri = image.get("uri") if isinstance(image, dict) else None
-        if uri is not None and not (isinstance(uri, str) and uri.startswith("data:")):
+        if uri is not None and not (isinstance(uri, str) and uri.startswith("data:")) and "_bytes" not in image:
             shown = repr(uri if not isinstance(uri, str) or len(uri) <= 80 else uri[:77] + "...")
             raise InputFormatError(f"the asset: images[{i}].uri {shown} names a file; an in-memory document "
                                    "holds its images (a bufferView or a data: URI)")
@@ -319,6 +336,7 @@ def encode_asset(src, dst, *, strip_image_profiles: bool = False, **options) -> 
         check_document(gltf, "the asset")
         _refuse_external_uris(gltf)
         gltf, buffers = decompress_meshopt(gltf, buffers, "the asset")
+        label_images(gltf, buffers, "the asset")
     else:
         gltf, buffers = load_document(src)
     if is_progressive(gltf):  # a .pmw by another name: its glTF is the base mesh alone
@@ -341,15 +359,26 @@ def encode_asset(src, dst, *, strip_image_profiles: bool = False, **options) -> 
 def _json_copy(gltf) -> dict:
     """An in-memory document copied as its JSON text would be parsed: objects the caller's dict shares (one
     ``extensions`` dict on several nodes, say) become separate, so renumbering an index in one place does
-    not renumber it again through another (a shared instancing dict came out with ``TRANSLATION: null``).
+    not renumber it again through another (a shared instancing dict came out with ``TRANSLATION: null``);
+    an image's ``_bytes`` (:func:`load_document`'s) are kept as bytes.
     InputFormatError when the document is not JSON (a numpy array, a cycle; a NaN is let through to the
     checks that name where it is)."""
+    images = gltf.get("images") if isinstance(gltf, dict) else None
+    held = {i: image["_bytes"] for i, image in enumerate(images if isinstance(images, list) else [])
+            if isinstance(image, dict) and "_bytes" in image}
+    if held:  # the image bytes load_document holds beside the JSON, copied as bytes
+        gltf = {**gltf, "images": [{k: v for k, v in image.items() if k != "_bytes"} if i in held else image
+                                   for i, image in enumerate(images)]}
     try:
         gltf = json.loads(json.dumps(gltf))
     except (TypeError, ValueError, RecursionError) as exc:
         raise InputFormatError(f"the asset's glTF document is not JSON ({str(exc)[:80]})") from None
     if not isinstance(gltf, dict):
         raise InputFormatError("the asset's glTF document is not a JSON object")
+    for i, blob in held.items():
+        if not isinstance(blob, (bytes, bytearray, memoryview)):
+            raise InputFormatError(f"the asset: images[{i}]._bytes is {type(blob).__name__}, not bytes")
+        gltf["images"][i]["_bytes"] = bytes(blob)
     return gltf
 
 
@@ -431,7 +460,8 @@ def _data_end(doc: dict) -> int:
 def _drop_images_not_arrived(doc: dict, available: int) -> list:
     """Remove (in place) the images of ``doc`` whose bufferView ends past ``available`` BIN bytes.
 
-    Textures using them go too, and every ``{"index": t}`` texture reference to
+    Textures using them go too (as their ``source`` or the ``source`` of an extension object:
+    KHR_texture_basisu, EXT_texture_webp ...), and every ``{"index": t}`` texture reference to
     those textures (in materials and their extensions); the remaining textures
     and images are renumbered.  Returns the original indices of the removed images.
     """
@@ -447,19 +477,27 @@ def _drop_images_not_arrived(doc: dict, available: int) -> list:
         return []
     image_map = {i: n for n, i in enumerate(i for i in range(len(images)) if i not in missing)}
     textures = doc.get("textures", [])
-    gone = {t for t, tex in enumerate(textures) if tex.get("source") in missing}
+    gone = {t for t, tex in enumerate(textures) if any(holder["source"] in missing for holder in _sources(tex))}
     texture_map = {t: n for n, t in enumerate(t for t in range(len(textures)) if t not in gone)}
     doc["images"] = [img for i, img in enumerate(images) if i in image_map]
     doc["textures"] = [tex for t, tex in enumerate(textures) if t in texture_map]
     for tex in doc["textures"]:
-        if "source" in tex:
-            tex["source"] = image_map[tex["source"]]
+        for holder in _sources(tex):
+            holder["source"] = image_map[holder["source"]]
     for material in doc.get("materials", []):
         _renumber_texture_refs(material, texture_map)
     for key in ("images", "textures"):
         if not doc[key]:
             del doc[key]
     return missing
+
+
+def _sources(texture: dict) -> list:
+    """The objects holding an image ``source`` of a texture: itself, and its extension objects that have one
+    (KHR_texture_basisu, EXT_texture_webp, EXT_texture_avif, MSFT_texture_dds)."""
+    exts = texture.get("extensions")
+    holders = [texture] + [e for e in (exts.values() if isinstance(exts, dict) else ()) if isinstance(e, dict)]
+    return [h for h in holders if isinstance(h.get("source"), int)]
 
 
 def _renumber_texture_refs(node, texture_map: dict) -> None:

@@ -1,0 +1,353 @@
+"""glTF inputs the encoder must refuse by name, or label right (outside probe 2, findings 03-07).
+
+Each bad input ends ``pmw encode`` with exit 2, one ``pmw: error:`` line naming the problem and
+no output file, and the library with an :class:`InputFormatError`: an image whose type is not
+declared and cannot be told from its bytes (03), an accessor ``normalized`` that is not a JSON
+boolean (04) or is true where glTF does not allow it (05), an index reference out of range (06),
+an extension required but not supported, or required but not used (07).  Valid assets of the same
+kinds (KTX2 textures, required material extensions, animations) still encode, and keep what they say.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+
+import numpy as np
+import pytest
+
+import pmwm_codec
+from pmwm_codec import shapes
+from pmwm_codec.errors import InputFormatError
+from pmwm_codec.format.document import load_document, read_accessor, sniff_json
+from pmwm_codec.format.glb import split_glb
+from pmwm_codec.stream.asset import decode_asset
+
+from test_hostile_inputs import TINY_PNG, assert_refused, gltf_doc, run_encode, write_gltf
+
+#: The 12-byte KTX2 file identifier, then a body (the encoder never decodes textures).
+KTX2 = b"\xabKTX 20\xbb\r\n\x1a\n" + bytes(200)
+PNG_URI = "data:image/png;base64," + base64.b64encode(TINY_PNG).decode()
+
+
+@pytest.fixture
+def mesh():
+    return shapes.icosphere(1)
+
+
+def refused(capsys, tmp_path, doc, *words, files=()):
+    """``doc`` (with ``files``: ``{name: bytes}`` beside it) is refused by the CLI and by the library,
+    each naming every one of ``words`` (the library's message is the CLI's line)."""
+    folder = tmp_path / "asset"
+    folder.mkdir(parents=True, exist_ok=True)
+    for file_name, data in dict(files).items():
+        (folder / file_name).write_bytes(data)
+    src = write_gltf(folder, doc)
+    assert_refused(*run_encode(capsys, tmp_path, src), "m.gltf", *words)
+    out = tmp_path / "api.pmw"
+    with pytest.raises(InputFormatError) as exc:
+        pmwm_codec.encode(src, out, measure="none")
+    for word in ("m.gltf", *words):
+        assert word in str(exc.value)
+    assert not out.exists()
+
+
+def encoded(capsys, tmp_path, doc, files=()) -> dict:
+    """The glTF JSON of the ``.pmw`` that ``pmw encode`` writes of ``doc`` (exit 0)."""
+    folder = tmp_path / "asset"
+    folder.mkdir(parents=True, exist_ok=True)
+    for file_name, data in dict(files).items():
+        (folder / file_name).write_bytes(data)
+    status, err, out = run_encode(capsys, tmp_path, write_gltf(folder, doc))
+    assert status == 0, err
+    return sniff_json(out)
+
+
+def basisu_doc(mesh, image: dict) -> dict:
+    """A mesh textured by a KHR_texture_basisu texture of ``image`` (no fallback source)."""
+    doc = gltf_doc(mesh, images=["x"])
+    doc.update(images=[image], textures=[{"extensions": {"KHR_texture_basisu": {"source": 0}}}],
+               extensionsUsed=["KHR_texture_basisu"], extensionsRequired=["KHR_texture_basisu"])
+    return doc
+
+
+def append_view(doc: dict, data: bytes) -> int:
+    """Extend the data-URI buffer of ``doc`` (from :func:`gltf_doc`) by ``data`` as a new bufferView; its index."""
+    blob = base64.b64decode(doc["buffers"][0]["uri"].partition(",")[2])
+    blob += bytes(-len(blob) % 4)
+    doc["buffers"][0] = {"byteLength": len(blob) + len(data),
+                         "uri": "data:application/octet-stream;base64," + base64.b64encode(blob + data).decode()}
+    doc["bufferViews"].append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(data)})
+    return len(doc["bufferViews"]) - 1
+
+
+def with_view_image(doc: dict, data: bytes, **image) -> dict:
+    """``doc`` with images[0] the bufferView of ``data`` (and the members ``image``)."""
+    doc["images"] = [{"bufferView": append_view(doc, data), **image}]
+    return doc
+
+
+# --- 03: an image's type is declared, read from its data URI or its bytes, never guessed ---------------
+
+
+@pytest.mark.parametrize("how", ["file", "data URI", "octet-stream data URI", "bufferView"])
+def test_a_ktx2_image_without_a_mime_type_is_labelled_ktx2(capsys, tmp_path, mesh, how):
+    uri = {"file": "tex.ktx2", "data URI": "data:image/ktx2;base64," + base64.b64encode(KTX2).decode(),
+           "octet-stream data URI": "data:application/octet-stream;base64," + base64.b64encode(KTX2).decode()}
+    doc = basisu_doc(mesh, {"uri": uri.get(how, "x")})
+    if how == "bufferView":
+        doc = with_view_image(doc, KTX2)
+    gltf = encoded(capsys, tmp_path, doc, files={"tex.ktx2": KTX2})
+    assert [image.get("mimeType") for image in gltf["images"]] == ["image/ktx2"]
+    assert "KHR_texture_basisu" in gltf["extensionsRequired"]
+    assert gltf["textures"] == [{"extensions": {"KHR_texture_basisu": {"source": 0}}}]
+
+
+def test_a_declared_or_data_uri_image_type_is_kept(capsys, tmp_path, mesh):
+    doc = gltf_doc(mesh, images=["tex.bin", "data:image/webp;base64," + base64.b64encode(b"not sniffed").decode()])
+    doc["images"][0]["mimeType"] = "image/ktx2"
+    gltf = encoded(capsys, tmp_path, doc, files={"tex.bin": b"some bytes the encoder does not read"})
+    assert [image["mimeType"] for image in gltf["images"]] == ["image/ktx2", "image/webp"]
+
+
+def test_png_jpeg_and_webp_images_are_still_told_from_their_bytes(capsys, tmp_path, mesh):
+    jpeg, webp = b"\xff\xd8\xff\xe0" + bytes(20), b"RIFF\x10\0\0\0WEBPVP8 " + bytes(8)
+    doc = gltf_doc(mesh, images=["a.img", "b.img", "c.img"])
+    gltf = encoded(capsys, tmp_path, doc, files={"a.img": TINY_PNG, "b.img": jpeg, "c.img": webp})
+    assert [image["mimeType"] for image in gltf["images"]] == ["image/png", "image/jpeg", "image/webp"]
+
+
+@pytest.mark.parametrize("how", ["file", "octet-stream data URI", "bufferView"])
+def test_an_image_whose_type_cannot_be_told_is_refused_not_guessed(capsys, tmp_path, mesh, how):
+    data = b"GIF89a" + bytes(30)
+    uri = {"file": "tex.png",
+           "octet-stream data URI": "data:application/octet-stream;base64," + base64.b64encode(data).decode()}
+    doc = gltf_doc(mesh, images=[uri.get(how, "x")])
+    if how == "bufferView":
+        doc = with_view_image(doc, data)
+    refused(capsys, tmp_path, doc, "images[0]", "mimeType", files={"tex.png": data})
+
+
+def test_a_mime_type_that_is_not_a_string_is_refused(capsys, tmp_path, mesh):
+    doc = with_view_image(gltf_doc(mesh, images=["x"]), TINY_PNG, mimeType=7)
+    refused(capsys, tmp_path, doc, "images[0].mimeType")
+
+
+def in_memory(doc: dict) -> tuple:
+    """``doc`` (from :func:`gltf_doc`) as the in-memory ``(gltf, buffers)`` the library takes."""
+    blob = base64.b64decode(doc["buffers"][0].pop("uri").partition(",")[2])
+    return doc, [blob]
+
+
+@pytest.mark.parametrize("edit, words", [
+    (lambda d: with_view_image(d, b"GIF89a" + bytes(30)), "the asset: images[0] has no mimeType"),
+    (lambda d: d["meshes"][0]["primitives"][0].update(material=4), "the asset: meshes[0].primitives[0].material = 4"),
+    (lambda d: d["accessors"][1].update(normalized=True), "the asset: accessors[1].normalized is true"),
+    (lambda d: d.update(extensionsUsed=["EXT_x"], extensionsRequired=["EXT_x"]), "requires the glTF extension EXT_x"),
+])
+def test_an_in_memory_document_is_refused_as_a_file_is(tmp_path, mesh, edit, words):
+    doc = gltf_doc(mesh, images=[PNG_URI])
+    edit(doc)
+    with pytest.raises(InputFormatError) as exc:
+        pmwm_codec.encode(in_memory(doc), tmp_path / "out.pmw", measure="none")
+    assert words in str(exc.value) and "\n" not in str(exc.value)
+    assert not (tmp_path / "out.pmw").exists()
+
+
+def test_an_in_memory_bufferview_image_without_a_mime_type_is_labelled(tmp_path, mesh):
+    doc = with_view_image(gltf_doc(mesh, images=["x"]), KTX2)
+    pmwm_codec.encode(in_memory(doc), tmp_path / "out.pmw", measure="none")
+    assert sniff_json(tmp_path / "out.pmw")["images"][0]["mimeType"] == "image/ktx2"
+
+
+# --- 04, 05: accessor normalized is a boolean, and true only where glTF allows it ---------------------
+
+
+def quantized_doc(mesh, normalized) -> dict:
+    """Positions as UNSIGNED_SHORT 0..100 (KHR_mesh_quantization), with ``normalized`` when not None."""
+    q = np.zeros((mesh.vertex_count, 4), "<u2")
+    q[:, :3] = np.round((mesh.positions - mesh.positions.min(0)) * 50)
+    doc = gltf_doc(mesh)
+    view = append_view(doc, q.tobytes())
+    doc["bufferViews"][view]["byteStride"] = 8
+    doc["accessors"][0].update(bufferView=view, componentType=5123,
+                               min=q[:, :3].min(0).tolist(), max=q[:, :3].max(0).tolist())
+    if normalized is not None:
+        doc["accessors"][0]["normalized"] = normalized
+    doc.update(extensionsUsed=["KHR_mesh_quantization"], extensionsRequired=["KHR_mesh_quantization"])
+    return doc
+
+
+@pytest.mark.parametrize("value", ["false", "true", 0, 1, None])
+def test_normalized_that_is_not_a_json_boolean_is_refused(capsys, tmp_path, mesh, value):
+    doc = quantized_doc(mesh, value)
+    if value is None:
+        doc["accessors"][0]["normalized"] = None
+    refused(capsys, tmp_path, doc, "accessors[0].normalized", repr(value))
+
+
+@pytest.mark.parametrize("normalized", [False, None])
+def test_quantized_positions_still_encode_at_their_scale(tmp_path, mesh, normalized):
+    src = write_gltf(tmp_path / "asset", quantized_doc(mesh, normalized))
+    pmwm_codec.encode(src, tmp_path / "out.pmw", measure="none")
+    glb, _, _ = decode_asset(tmp_path / "out.pmw")
+    (tmp_path / "out.glb").write_bytes(glb)
+    gltf, buffers = load_document(tmp_path / "out.glb")
+    positions = read_accessor(gltf, buffers, gltf["meshes"][0]["primitives"][0]["attributes"]["POSITION"])
+    assert 99 < positions.max() <= 101  # the integers, not divided by 65535
+
+
+@pytest.mark.parametrize("accessor, component", [(1, 5125), (0, 5126)])
+def test_normalized_on_unsigned_int_or_float_is_refused_by_name(capsys, tmp_path, mesh, accessor, component):
+    doc = gltf_doc(mesh)
+    doc["accessors"][accessor]["normalized"] = True
+    refused(capsys, tmp_path, doc, f"accessors[{accessor}].normalized", str(component))
+
+
+def test_normalized_indices_are_refused(capsys, tmp_path, mesh):
+    doc = gltf_doc(mesh)
+    doc["accessors"][1].update(bufferView=append_view(doc, mesh.faces.astype("<u2").tobytes()), componentType=5123,
+                               normalized=True)
+    refused(capsys, tmp_path, doc, "meshes[0].primitives[0].indices", "normalized")
+
+
+# --- 06: every index reference the writer keeps is in range ----------------------------------------------
+
+
+def _animated(doc, **channel):
+    doc["accessors"].append({"bufferView": 0, "componentType": 5126, "count": 2, "type": "SCALAR",
+                             "min": [0.0], "max": [1.0]})
+    doc["animations"] = [{"channels": [{"sampler": 0, "target": {"node": 0, "path": "translation"}, **channel}],
+                          "samplers": [{"input": 2, "output": 0}]}]
+
+
+#: An edit of :func:`gltf_doc`'s document (textured) -> what the one line says: ``(path, value)`` of a
+#: reference out of range (``path = value names a ... that does not exist``), or the path of a member
+#: of the wrong type.
+REFERENCES = {
+    "scene": (lambda d: d.update(scene=3), ("scene", 3, "scene")),
+    "scene root past the end": (lambda d: d.update(scenes=[{"nodes": [0, 7]}]), ("scenes[0].nodes[1]", 7, "node")),
+    "scene root negative": (lambda d: d.update(scenes=[{"nodes": [-1]}]), "scenes[0].nodes[0]"),
+    "scene root a string": (lambda d: d.update(scenes=[{"nodes": ["0"]}]), "scenes[0].nodes[0]"),
+    "scene nodes an object": (lambda d: d.update(scenes=[{"nodes": {"0": 0}}]), "scenes[0].nodes"),
+    "primitive material": (lambda d: d["meshes"][0]["primitives"][0].update(material=9),
+                           ("meshes[0].primitives[0].material", 9, "material")),
+    "node skin": (lambda d: d["nodes"][0].update(skin=2), ("nodes[0].skin", 2, "skin")),
+    "node camera": (lambda d: d["nodes"][0].update(camera=1), ("nodes[0].camera", 1, "camera")),
+    "skin joint": (lambda d: d.update(skins=[{"joints": [0, 4]}]), ("skins[0].joints[1]", 4, "node")),
+    "skin skeleton": (lambda d: d.update(skins=[{"joints": [0], "skeleton": 3}]), ("skins[0].skeleton", 3, "node")),
+    "texture source": (lambda d: d["textures"][0].update(source=9), ("textures[0].source", 9, "image")),
+    "texture sampler": (lambda d: d["textures"][0].update(sampler=1), ("textures[0].sampler", 1, "sampler")),
+    "texture extension source": (lambda d: d["textures"][0].update(extensions={"EXT_texture_webp": {"source": 4}}),
+                                 ("textures[0].extensions.EXT_texture_webp.source", 4, "image")),
+    "baseColorTexture": (lambda d: d["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"].update(index=9),
+                         ("materials[0].pbrMetallicRoughness.baseColorTexture.index", 9, "texture")),
+    "normalTexture": (lambda d: d["materials"][0].update(normalTexture={"index": 2}),
+                      ("materials[0].normalTexture.index", 2, "texture")),
+    "emissiveTexture a string": (lambda d: d["materials"][0].update(emissiveTexture={"index": "0"}),
+                                 "materials[0].emissiveTexture.index"),
+    "occlusionTexture not an object": (lambda d: d["materials"][0].update(occlusionTexture=0),
+                                       "materials[0].occlusionTexture"),
+    "texture in a material extension": (
+        lambda d: d["materials"][0].update(extensions={"KHR_materials_clearcoat": {"clearcoatTexture": {"index": 5}}}),
+        ("materials[0].extensions.KHR_materials_clearcoat.clearcoatTexture.index", 5, "texture")),
+    "animation target node": (lambda d: _animated(d, target={"node": 5, "path": "translation"}),
+                              ("animations[0].channels[0].target.node", 5, "node")),
+    "animation channel sampler": (lambda d: _animated(d, sampler=3), ("animations[0].channels[0].sampler", 3, "sampler")),
+    "animation channel without a target": (lambda d: _animated(d, target=None), "animations[0].channels[0].target"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(REFERENCES))
+def test_a_reference_out_of_range_or_of_the_wrong_type_is_refused_by_its_path(capsys, tmp_path, mesh, case):
+    edit, said = REFERENCES[case]
+    doc = gltf_doc(mesh, images=[PNG_URI])
+    edit(doc)
+    if isinstance(said, tuple):
+        path, value, kind = said
+        said = f"{path} = {value} names a{'n' if kind[0] in 'aeiou' else ''} {kind} that does not exist"
+    refused(capsys, tmp_path, doc, said)
+
+
+def test_a_valid_asset_with_materials_textures_skins_and_animations_keeps_its_references(capsys, tmp_path, mesh):
+    """Every reference kept as it was: an animation's output sharing the POSITION accessor of a progressive
+    primitive (valid, if odd) keeps that accessor (it came out ``null`` when the primitive's was dropped)."""
+    doc = gltf_doc(mesh, images=[PNG_URI, PNG_URI])
+    doc["textures"] = [{"source": 0, "sampler": 0}, {"source": 1}]
+    doc["samplers"] = [{"magFilter": 9729}]
+    doc["materials"][0].update(normalTexture={"index": 1}, extensions={
+        "KHR_materials_clearcoat": {"clearcoatFactor": 1.0, "clearcoatTexture": {"index": 1}}})
+    doc["nodes"] = [{"mesh": 0, "children": [1]}, {"name": "child", "camera": 0}]
+    doc["cameras"] = [{"type": "perspective", "perspective": {"yfov": 0.8, "znear": 0.01}}]
+    doc["skins"] = [{"joints": [1], "skeleton": 1}]
+    times = np.linspace(0, 1, mesh.vertex_count).astype("<f4")
+    doc["accessors"].append({"bufferView": append_view(doc, times.tobytes()), "componentType": 5126,
+                             "count": mesh.vertex_count, "type": "SCALAR", "min": [0.0], "max": [1.0]})
+    doc["animations"] = [{"channels": [{"sampler": 0, "target": {"node": 1, "path": "translation"}}],
+                          "samplers": [{"input": 2, "output": 0}]}]
+    doc["extensionsUsed"] = ["KHR_materials_clearcoat"]
+    before = json.loads(json.dumps(doc))
+    gltf = encoded(capsys, tmp_path, doc)
+    for key in ("materials", "textures", "samplers", "nodes", "scenes", "scene", "cameras", "skins"):
+        assert gltf[key] == before[key], key
+    sampler = gltf["animations"][0]["samplers"][0]
+    assert isinstance(sampler["input"], int) and isinstance(sampler["output"], int)
+    output, times_out = gltf["accessors"][sampler["output"]], gltf["accessors"][sampler["input"]]
+    assert (output["type"], output["count"], times_out["count"]) == ("VEC3", mesh.vertex_count, mesh.vertex_count)
+    assert gltf["animations"][0]["channels"] == before["animations"][0]["channels"]
+    glb, _, _ = decode_asset(tmp_path / "out.pmw")
+    decoded, _ = split_glb(glb, "decoded")
+    sampler = decoded["animations"][0]["samplers"][0]
+    assert decoded["accessors"][sampler["output"]]["type"] == "VEC3"
+    assert decoded["accessors"][sampler["input"]]["count"] == mesh.vertex_count
+    assert decoded["materials"] == before["materials"] and decoded["textures"] == before["textures"]
+
+
+def test_a_prefix_without_its_ktx2_image_leaves_out_the_basisu_texture_that_uses_it(tmp_path, mesh):
+    """A texture whose image is its KHR_texture_basisu ``source`` (no fallback) went out with that image
+    when a cut file's data ended inside it: decode kept the texture, pointing at an image that is gone."""
+    doc = basisu_doc(mesh, {"uri": "tex.ktx2"})
+    (tmp_path / "asset").mkdir()
+    (tmp_path / "asset" / "tex.ktx2").write_bytes(KTX2)
+    pmwm_codec.encode(write_gltf(tmp_path / "asset", doc), tmp_path / "out.pmw", measure="none")
+    data = (tmp_path / "out.pmw").read_bytes()
+    gltf, _ = split_glb(data, "out.pmw")
+    view = gltf["bufferViews"][gltf["images"][0]["bufferView"]]
+    bin_start = 12 + 8 + int.from_bytes(data[12:16], "little") + 8
+    glb, end, decoder = decode_asset(data[: bin_start + view.get("byteOffset", 0) + view["byteLength"] // 2])
+    decoded, _ = split_glb(glb, "decoded")
+    assert end.truncated and "images" not in decoded and "textures" not in decoded
+    assert decoded["materials"] == [{"pbrMetallicRoughness": {}}]
+    assert decoder.notices == ["image 0 has not arrived yet: the level is written without it"]
+
+
+# --- 07: required extensions are ones the reader supports, and are used -----------------------------------
+
+
+def test_an_unsupported_required_extension_is_refused_by_name(capsys, tmp_path, mesh):
+    doc = gltf_doc(mesh, extensionsUsed=["EXT_bogus_thing"], extensionsRequired=["EXT_bogus_thing"])
+    refused(capsys, tmp_path, doc, "EXT_bogus_thing", "requires")
+
+
+def test_an_extension_required_but_not_used_is_refused(capsys, tmp_path, mesh):
+    doc = gltf_doc(mesh, extensionsRequired=["KHR_texture_transform"])
+    refused(capsys, tmp_path, doc, "KHR_texture_transform", "extensionsUsed")
+
+
+def test_an_unknown_extension_used_but_not_required_is_carried(capsys, tmp_path, mesh):
+    doc = gltf_doc(mesh, extensionsUsed=["EXT_bogus_thing"])
+    doc["nodes"][0]["extensions"] = {"EXT_bogus_thing": {"any": [1, 2]}}
+    gltf = encoded(capsys, tmp_path, doc)
+    assert "EXT_bogus_thing" in gltf["extensionsUsed"] and "EXT_bogus_thing" not in gltf.get("extensionsRequired", [])
+    assert gltf["nodes"][0]["extensions"] == {"EXT_bogus_thing": {"any": [1, 2]}}
+
+
+def test_required_material_and_texture_extensions_are_carried_still_required(capsys, tmp_path, mesh):
+    required = ["KHR_texture_transform", "KHR_materials_unlit"]
+    doc = gltf_doc(mesh, images=[PNG_URI], extensionsUsed=list(required), extensionsRequired=list(required))
+    doc["materials"][0]["extensions"] = {"KHR_materials_unlit": {}}
+    doc["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"]["extensions"] = {
+        "KHR_texture_transform": {"scale": [2.0, 2.0]}}
+    gltf = encoded(capsys, tmp_path, doc)
+    assert set(required) <= set(gltf["extensionsRequired"]) <= set(gltf["extensionsUsed"])
+    assert gltf["materials"] == doc["materials"]
