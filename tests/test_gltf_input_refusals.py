@@ -269,6 +269,18 @@ def test_a_reference_out_of_range_or_of_the_wrong_type_is_refused_by_its_path(ca
     refused(capsys, tmp_path, doc, said)
 
 
+@pytest.mark.parametrize("roots, said", [([0, 0], "scenes[0].nodes[1] names nodes[0] again"),
+                                         ([0, 1], "scenes[0].nodes[1] names nodes[1], a child of nodes[0]")])
+def test_a_scene_naming_a_root_twice_or_a_child_as_a_root_is_refused(capsys, tmp_path, mesh, roots, said):
+    """glTF 2.0 3.5.2: a scene's roots are distinct roots; either way the mesh would be shown twice by some
+    readers and once by others."""
+    doc = gltf_doc(mesh, images=[PNG_URI])
+    doc["nodes"][0]["children"] = [len(doc["nodes"])]
+    doc["nodes"].append({"name": "child"})
+    doc["scenes"] = [{"nodes": roots}]
+    refused(capsys, tmp_path, doc, said)
+
+
 def test_a_valid_asset_with_materials_textures_skins_and_animations_keeps_its_references(capsys, tmp_path, mesh):
     """Every reference kept as it was: an animation's output sharing the POSITION accessor of a progressive
     primitive (valid, if odd) keeps that accessor (it came out ``null`` when the primitive's was dropped)."""

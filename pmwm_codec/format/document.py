@@ -296,10 +296,11 @@ def check_document(gltf: dict, name: str) -> None:
         _check_extensions(node, f"nodes[{i}]", n_acc, name, "EXT_mesh_gpu_instancing")
         for key, kind in (("mesh", "meshes"), ("skin", "skins"), ("camera", "cameras")):
             _ref(node, key, count[kind], f"nodes[{i}]", name, key)
-    _check_node_trees(gltf.get("nodes", []), name)
+    parent = _check_node_trees(gltf.get("nodes", []), name)
     _ref(gltf, "scene", count["scenes"], "", name, "scene")
     for i, scene in enumerate(gltf.get("scenes", [])):
         _refs(scene, "nodes", count["nodes"], f"scenes[{i}]", name, "node")
+        _check_scene_roots(scene.get("nodes", []), parent, f"scenes[{i}].nodes", name)
     _check_meshes(gltf, n_acc, n_views, name)
 
 
@@ -368,10 +369,23 @@ def _check_animation(anim: dict, where: str, n_acc: int, n_nodes: int, name: str
         _ref(_object(channel.get("target"), f"{at}.target", name), "node", n_nodes, f"{at}.target", name, "node")
 
 
-def _check_node_trees(nodes: list, name: str) -> None:
+def _check_scene_roots(roots: list, parent: dict, where: str, name: str) -> None:
+    """Refuse a scene whose root nodes repeat or include a node's child (glTF 2.0, 3.5.2: each root is
+    named once and is the root of its tree): its meshes would be shown twice, or once, as readers differ."""
+    seen = set()
+    for j, node in enumerate(roots):
+        if node in seen:
+            raise InputFormatError(f"{name}: {where}[{j}] names nodes[{node}] again; a scene names each root once")
+        if node in parent:
+            raise InputFormatError(f"{name}: {where}[{j}] names nodes[{node}], a child of nodes[{parent[node]}]; "
+                                   "a scene names only root nodes")
+        seen.add(node)
+
+
+def _check_node_trees(nodes: list, name: str) -> dict:
     """Refuse a node hierarchy that is not disjoint strict trees (glTF 2.0, 3.5.1): a child index out of
     range, a node with two parents (its meshes would be shown twice, or once, as readers differ), a node
-    that is its own ancestor."""
+    that is its own ancestor.  Returns the parent of every child node."""
     parent = {}
     for i, node in enumerate(nodes):
         for child in _list(node, "children", f"nodes[{i}].children", name):
@@ -391,6 +405,7 @@ def _check_node_trees(nodes: list, name: str) -> None:
             x = parent[x]
         if state.get(x) == start and x in parent:
             raise InputFormatError(f"{name}: nodes[{x}] is its own ancestor; glTF nodes form disjoint trees")
+    return parent
 
 
 def _check_view(view: dict, where: str, n_buffers: int, name: str) -> None:
