@@ -27,7 +27,8 @@ from .ledger import LEDGER_NAME, LedgerWriter, last_rows, read_ledger, settings_
 from .sources import KEY_SUFFIX, PMW_SUFFIX, expand_sources
 from .tasks import EncodeJob, encode_task, verify_task
 
-__all__ = ["BatchError", "dask_client", "encode_batch", "verify_batch", "collection_key", "DEFAULT_TIMEOUT"]
+__all__ = ["BatchError", "dask_client", "encode_batch", "verify_batch", "collection_key", "check_key_places",
+           "DEFAULT_TIMEOUT"]
 
 DEFAULT_TIMEOUT = 600.0  # seconds per asset
 #: The longest per-asset timeout: a wait the operating system takes (epoll counts int milliseconds: ~24 days);
@@ -136,6 +137,67 @@ def collection_key(key_path, watermark):
     return image, key
 
 
+def check_key_places(assets, out_dir, key=None, keys_dir=None) -> None:
+    """BatchError (one line; called before anything is written) when the collection ``key`` or the
+    ``keys_dir`` is where this run reads or writes something else: an input of ``assets`` (links
+    resolved), an output or a place inside one (an output is a file), the ledger; or when ``keys_dir``
+    is, or lies below, an existing file that is not a folder (it could never be made)."""
+    if key is None and keys_dir is None:
+        return
+    ledger = os.path.join(out_dir, LEDGER_NAME)
+    written = {os.path.realpath(a.output): f"the output {a.output} (of {a.input})" for a in assets}
+    written[os.path.realpath(ledger)] = f"the run's ledger {ledger}"
+    inputs = {os.path.realpath(a.input): a.input for a in assets}
+
+    def clash(path: str, what: str) -> str | None:
+        real = os.path.realpath(path)
+        if real in inputs:
+            return (f"{path}: is also the input {inputs[real]}; give the {what} another name "
+                    "(an input is never replaced)")
+        if real in written:
+            return f"{path}: is {written[real]}; give the {what} another name"
+        here = real
+        while os.path.dirname(here) != here:
+            here = os.path.dirname(here)
+            if here in written:
+                return f"{path}: lies inside {written[here]}, a file, not a folder; give the {what} another name"
+        return None
+
+    if key is not None:
+        key = os.fspath(key)
+        why = clash(key, "collection key") or _hard_link_to_input(key, assets)
+        if why:
+            raise BatchError(why)
+    if keys_dir is not None:
+        keys_dir = os.fspath(keys_dir)
+        existing = os.path.abspath(keys_dir)
+        while not os.path.lexists(existing):
+            existing = os.path.dirname(existing)
+        if not os.path.isdir(existing):
+            if existing == os.path.abspath(keys_dir):
+                raise BatchError(f"{keys_dir}: exists and is not a folder; --keys-dir names the folder "
+                                 "each asset's key goes in")
+            raise BatchError(f"{keys_dir}: cannot be made: {existing} is not a folder")
+        why = clash(keys_dir, "keys folder")
+        if why:
+            raise BatchError(why)
+
+
+def _hard_link_to_input(key: str, assets) -> str | None:
+    """Why the existing ``key`` is an input under another name (a hard link), or None."""
+    try:
+        mine = os.stat(key)
+    except OSError:
+        return None
+    for a in assets:
+        try:
+            if os.path.samestat(mine, os.stat(a.input)):
+                return f"{key}: is also the input {a.input}; give the collection key another name"
+        except OSError:
+            continue
+    return None
+
+
 def _jobs(assets, out_dir, image, key, keys_dir, timeout, force, options=None) -> list[EncodeJob]:
     """One EncodeJob per asset, with the ledger's verdict on what was done before (with the same settings)."""
     previous = last_rows(read_ledger(os.path.join(out_dir, LEDGER_NAME)))
@@ -183,6 +245,7 @@ def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, worke
         assets = expand_sources(src, out_dir)
     except (ValueError, OSError) as exc:
         raise BatchError(str(exc)) from None
+    check_key_places(assets, out_dir, key, keys_dir)  # before anything is made: no key, no OUT_DIR
     created = not os.path.isdir(out_dir)
     os.makedirs(out_dir, exist_ok=True)  # before the key: a new collection key may go inside it
     try:
@@ -206,7 +269,7 @@ def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, worke
                     failures.append(row)
                 if progress is not None:
                     progress(_progress_counts(counts, len(jobs), client, start))
-    except PmwError:  # refused (a watermark, a key, a scheduler): the run made nothing, not even OUT_DIR
+    except (PmwError, OSError):  # refused (a watermark, a key or its folder, a scheduler): not even OUT_DIR made
         if created:
             with contextlib.suppress(OSError):
                 os.rmdir(out_dir)  # only when still empty
@@ -253,6 +316,8 @@ def verify_batch(out_dir, *, key=None, keys_dir=None, watermark=None, workers=No
     under ``keys_dir``, or (default) with the key beside each file.
 
     Returns ``{"files", "authentic", "results": [{file, verdict, error}, ...]}`` (sorted by file).
+    Symlinked folders are not entered, and a file or key whose real path leaves its folder
+    (``out_dir``, or ``keys_dir`` for the keys there) is not read: an ``error`` result saying so.
     """
     if key is not None and keys_dir is not None:
         raise BatchError("give --key (one collection key) or --keys-dir (a key per asset), not both")
@@ -269,7 +334,11 @@ def verify_batch(out_dir, *, key=None, keys_dir=None, watermark=None, workers=No
         from pmwm_codec.watermark.key import WatermarkKey
 
         key = WatermarkKey.load(key)
-    jobs = [(path, key if key is not None else _beside_key(path, out_dir, keys_dir), watermark) for path in files]
+    # the folders named bound what is read: a .pmw (or a key beside it, or under --keys-dir) whose real path
+    # leaves its folder is an error result, never read; a --key names one file, taken as named
+    key_root = None if key is not None else out_dir if keys_dir is None else os.path.abspath(keys_dir)
+    jobs = [(path, key if key is not None else _beside_key(path, out_dir, keys_dir), watermark, out_dir, key_root)
+            for path in files]
     results = []
     with dask_client(workers, scheduler, client, len(jobs)) as client:
         for result in _results(client, _verify_job, jobs):

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from pmwm_codec.mesh import MESH_SUFFIXES
 from pmwm_codec.watermark.key import KEY_SUFFIX
 
-__all__ = ["Asset", "expand_sources", "outside_root", "KEY_SUFFIX", "PMW_SUFFIX"]
+__all__ = ["Asset", "expand_sources", "outside_root", "ENCODE_REMEDY", "KEY_SUFFIX", "PMW_SUFFIX"]
 
 PMW_SUFFIX = ".pmw"
 _MAGIC = set("*?[")
@@ -76,18 +76,22 @@ def expand_sources(src, out_dir) -> list[Asset]:
     return [_asset(path, root, out_dir, root if confine else None) for path in inputs]
 
 
-def outside_root(path: str, root: str | None) -> str | None:
-    """Why the input ``path`` must not be read (its real path leaves ``root``, the folder SRC names), or None.
+#: What an ``outside_root`` refusal suggests for an input of ``pmw batch encode``.
+ENCODE_REMEDY = "name the file itself, or list it in a manifest, to encode it"
 
-    Checked by the worker just before it reads the input, so a symlink planted after the
-    folder was listed is refused too."""
+
+def outside_root(path: str, root: str | None, remedy: str = ENCODE_REMEDY) -> str | None:
+    """Why the file ``path`` must not be read (its real path leaves ``root``, the folder the user
+    named: SRC for ``batch encode``, OUT_DIR or ``--keys-dir`` for ``batch verify``), or None.
+
+    Checked by the worker just before it reads the file, so a symlink planted after the
+    folder was listed is refused too.  ``remedy``: how to read such a file anyway (naming it)."""
     if root is None:
         return None
     real = os.path.realpath(path)
     if _inside(real, os.path.realpath(root)):
         return None
-    return (f"{path}: resolves through a symlink to {real}, outside {root}; refused "
-            "(name the file itself, or list it in a manifest, to encode it)")
+    return f"{path}: resolves through a symlink to {real}, outside {root}; refused ({remedy})"
 
 
 def _is_mesh(path: str) -> bool:

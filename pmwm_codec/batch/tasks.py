@@ -187,13 +187,28 @@ def _unlink(path: str) -> None:
         pass
 
 
-def verify_task(path: str, key, watermark=None) -> dict:
-    """Verify one ``.pmw`` with ``key`` (WatermarkKey or key path): ``{file, verdict, error}``."""
+#: What an ``outside_root`` refusal of ``pmw batch verify`` suggests: naming the file (and its key) itself.
+VERIFY_REMEDY = "name the file and its key to verify it: pmw verify FILE --key KEY"
+
+
+def verify_task(path: str, key, watermark=None, root: str | None = None, key_root: str | None = None) -> dict:
+    """Verify one ``.pmw`` with ``key`` (WatermarkKey or key path): ``{file, verdict, error}``.
+
+    ``root``: the folder the run names (OUT_DIR), which the real path of ``path`` must not
+    leave; ``key_root``: the folder a key path must not leave (OUT_DIR for the key beside the
+    file, ``--keys-dir``), None for a key named as is.  A file (or key) that leaves its folder
+    is never read: an ``error`` result that says so (:func:`~pmwm_codec.batch.sources.outside_root`).
+    """
     from pmwm_codec.errors import PmwError
     from pmwm_codec.verify import verify_stream
 
     from .child import one_line
 
+    key_path = os.fspath(key) if isinstance(key, (str, os.PathLike)) else None
+    for file, folder in ((path, root), (key_path, key_root)):
+        why = None if file is None else outside_root(file, folder, VERIFY_REMEDY)
+        if why is not None:
+            return {"file": path, "verdict": "error", "error": why}
     try:
         verdict = verify_stream(path, key, watermark).verdict
     except (PmwError, OSError, ValueError) as exc:

@@ -57,7 +57,7 @@ def add_parser(sub):
     keys = e.add_mutually_exclusive_group()
     keys.add_argument("--key", metavar="KEY", help="one collection key for every asset (loaded, or created)")
     keys.add_argument("--keys-dir", metavar="DIR", help="write each asset's key under DIR "
-                      "(default: OUT.pmw.key.json beside each output)")
+                      "(default: OUT.pmw.key.json beside each output); a folder, not an input or an output")
     e.add_argument("--timeout", type=_positive(float, "--timeout"), metavar="S",
                    help="seconds per asset before its encoder is killed (default 600)")
     e.add_argument("--force", action="store_true", help="redo assets the ledger records as done")
@@ -68,7 +68,9 @@ def add_parser(sub):
     e.set_defaults(run=run_encode)
     v = cmds.add_parser("verify", help="verify every .pmw under OUT_DIR",
                         description="Verify every .pmw under OUT_DIR with one collection key (--key), the keys "
-                                    "under --keys-dir, or the key beside each file. Exit 0 when all are authentic.")
+                                    "under --keys-dir, or the key beside each file. Symlinked folders are not "
+                                    "entered; a file or key whose real path leaves OUT_DIR (or --keys-dir) is not "
+                                    "read and counts as an error. Exit 0 when all are authentic.")
     v.add_argument("out_dir", metavar="OUT_DIR")
     keys = v.add_mutually_exclusive_group()
     keys.add_argument("--key", metavar="KEY", help="the collection key")
@@ -153,6 +155,9 @@ def run_verify(args) -> int:
     elif not args.quiet:
         for r in outcome["results"]:
             if r["verdict"] != "authentic":
-                print(f"  {r['verdict']}: {r['file']}" + (f" ({r['error']})" if r["error"] else ""))
+                error = r["error"] or ""
+                if error.startswith(r["file"] + ": "):  # the path once, not twice
+                    error = error[len(r["file"]) + 2:]
+                print(f"  {r['verdict']}: {r['file']}" + (f" ({error})" if error else ""))
         print(f"{outcome['authentic']} of {outcome['files']} files authentic")
     return EXIT_OK if outcome["authentic"] == outcome["files"] else EXIT_NOT_AUTHENTIC
