@@ -221,6 +221,23 @@ def _animated(doc, **channel):
                           "samplers": [{"input": 2, "output": 0}]}]
 
 
+def _lit(doc, light):
+    """A document light, and node 0 naming light ``light`` (KHR_lights_punctual)."""
+    doc.setdefault("extensionsUsed", []).append("KHR_lights_punctual")
+    doc["extensions"] = {"KHR_lights_punctual": {"lights": [{"type": "point"}]}}
+    doc["nodes"][0]["extensions"] = {"KHR_lights_punctual": {"light": light}}
+
+
+_MAPPING = "meshes[0].primitives[0].extensions.KHR_materials_variants.mappings[0]"
+
+
+def _variants(doc, mapping):
+    """Two document variants, and primitive 0 mapping ``mapping`` (KHR_materials_variants)."""
+    doc.setdefault("extensionsUsed", []).append("KHR_materials_variants")
+    doc["extensions"] = {"KHR_materials_variants": {"variants": [{"name": "a"}, {"name": "b"}]}}
+    doc["meshes"][0]["primitives"][0]["extensions"] = {"KHR_materials_variants": {"mappings": [mapping]}}
+
+
 #: An edit of :func:`gltf_doc`'s document (textured) -> what the one line says: ``(path, value)`` of a
 #: reference out of range (``path = value names a ... that does not exist``), or the path of a member
 #: of the wrong type.
@@ -255,6 +272,12 @@ REFERENCES = {
                               ("animations[0].channels[0].target.node", 5, "node")),
     "animation channel sampler": (lambda d: _animated(d, sampler=3), ("animations[0].channels[0].sampler", 3, "sampler")),
     "animation channel without a target": (lambda d: _animated(d, target=None), "animations[0].channels[0].target"),
+    "punctual light": (lambda d: _lit(d, 3), ("nodes[0].extensions.KHR_lights_punctual.light", 3, "light")),
+    "punctual light a string": (lambda d: _lit(d, "0"), "nodes[0].extensions.KHR_lights_punctual.light"),
+    "variant mapping material": (lambda d: _variants(d, {"material": 9, "variants": [0]}),
+                                 (_MAPPING + ".material", 9, "material")),
+    "variant mapping variant": (lambda d: _variants(d, {"material": 0, "variants": [0, 4]}),
+                                (_MAPPING + ".variants[1]", 4, "variant")),
 }
 
 
@@ -363,3 +386,17 @@ def test_required_material_and_texture_extensions_are_carried_still_required(cap
     gltf = encoded(capsys, tmp_path, doc)
     assert set(required) <= set(gltf["extensionsRequired"]) <= set(gltf["extensionsUsed"])
     assert gltf["materials"] == doc["materials"]
+
+
+def test_valid_lights_and_material_variants_are_carried(capsys, tmp_path, mesh):
+    """The carried extensions whose indices are now checked still pass through when they are right."""
+    doc = gltf_doc(mesh, images=[PNG_URI])
+    _lit(doc, 0)
+    lights = doc["extensions"]
+    _variants(doc, {"material": 0, "variants": [1]})
+    doc["extensions"].update(lights)
+    out = encoded(capsys, tmp_path, doc)
+    assert out["nodes"][0]["extensions"]["KHR_lights_punctual"] == {"light": 0}
+    mapping = out["meshes"][0]["primitives"][0]["extensions"]["KHR_materials_variants"]["mappings"][0]
+    assert mapping == {"material": 0, "variants": [1]}
+    assert len(out["extensions"]["KHR_lights_punctual"]["lights"]) == 1

@@ -302,6 +302,33 @@ def check_document(gltf: dict, name: str) -> None:
         _refs(scene, "nodes", count["nodes"], f"scenes[{i}]", name, "node")
         _check_scene_roots(scene.get("nodes", []), parent, f"scenes[{i}].nodes", name)
     _check_meshes(gltf, n_acc, n_views, name)
+    _check_carried_refs(gltf, count["materials"], name)
+
+
+def _check_carried_refs(gltf: dict, n_materials: int, name: str) -> None:
+    """The indices of carried extensions the output keeps as they are: a node's ``KHR_lights_punctual``
+    light (into the document's ``lights``) and a primitive's ``KHR_materials_variants`` mappings (a
+    material, and variants of the document's ``variants``)."""
+    root = _object(gltf.get("extensions", {}), "extensions", name)
+    lights = _objects(_object(root.get("KHR_lights_punctual", {}), "extensions.KHR_lights_punctual", name),
+                      "lights", "extensions.KHR_lights_punctual.lights", name)
+    variants = _objects(_object(root.get("KHR_materials_variants", {}), "extensions.KHR_materials_variants", name),
+                        "variants", "extensions.KHR_materials_variants.variants", name)
+    for i, node in enumerate(gltf.get("nodes", [])):
+        punctual = _object(node.get("extensions", {}), f"nodes[{i}].extensions", name).get("KHR_lights_punctual")
+        if punctual is not None:
+            at = f"nodes[{i}].extensions.KHR_lights_punctual"
+            _ref(_object(punctual, at, name), "light", len(lights), at, name, "light", required=True)
+    for mi, mesh in enumerate(gltf.get("meshes", [])):
+        for pi, prim in enumerate(mesh.get("primitives", [])):
+            where = f"meshes[{mi}].primitives[{pi}].extensions"
+            entry = _object(prim.get("extensions", {}), where, name).get("KHR_materials_variants")
+            if entry is None:
+                continue
+            at = f"{where}.KHR_materials_variants"
+            for j, mapping in enumerate(_objects(_object(entry, at, name), "mappings", f"{at}.mappings", name)):
+                _ref(mapping, "material", n_materials, f"{at}.mappings[{j}]", name, "material", required=True)
+                _refs(mapping, "variants", len(variants), f"{at}.mappings[{j}]", name, "variant")
 
 
 def _check_required_extensions(gltf: dict, name: str) -> None:
