@@ -295,9 +295,11 @@ function resolveBare(spec) {
   }
 }
 
-/** An error as a message: {name, message, stack, fields} (its own number/string/boolean fields: chunk, bytesReceived...). */
+/** An error as a message: {name, message, stack, fields} (its own number/string/boolean/null fields: chunk, bytesReceived...;
+ * a CorruptChunkError of the base mesh has chunk null). */
 export function serializeError(e) {
-  const fields = Object.fromEntries(Object.entries(e ?? {}).filter(([, v]) => ['number', 'string', 'boolean'].includes(typeof v)));
+  const fields = Object.fromEntries(Object.entries(e ?? {})
+    .filter(([, v]) => v === null || ['number', 'string', 'boolean'].includes(typeof v)));
   return { name: e?.name ?? 'Error', message: e?.message ?? String(e), stack: e?.stack, fields };
 }
 

@@ -146,3 +146,13 @@ test('a Draco decoder of the caller\'s that fails or gives no mesh ends in a Dra
   ];
   for (const draco of decoders) await assert.rejects(decodePmw(bytes, { draco }), DracoError);
 });
+
+test('an error crossing from the decode worker keeps its class and fields, a base mesh\'s chunk null included', async () => {
+  const { reviveError, serializeError } = await import('../src/worker-decoder.js');
+  for (const sent of [new CorruptChunkError('chunk 3: BLAKE2b digest differs', 2),
+    new CorruptChunkError('base mesh: baseDigest mismatch', null), new TruncatedError('cut', 10, 20)]) {
+    const got = reviveError(JSON.parse(JSON.stringify(serializeError(sent))));
+    assert.ok(got instanceof sent.constructor && got.message === sent.message, got.name);
+    assert.deepEqual({ ...got }, { ...sent });
+  }
+});
