@@ -129,18 +129,26 @@ function int64Bytes(values, rows, D, col0, k) {
 }
 
 /**
- * CorruptChunkError (chunk null: the base mesh) unless the decoded base gives the extension's
- * `baseDigest` (spec/bitstream.md §6.4): the first 16 hex digits of BLAKE2b-128 over the framed
- * label, counts, positions, faces and attributes, each as little-endian int64.
+ * The `baseDigest` of a decoded base (spec/bitstream.md §6.4), 16 lowercase hex digits: `values` (n*D,
+ * grid x, y, z then the attribute components of each vertex), `faces` (m*3). Needs initChunkFrames().
  */
-function checkBaseDigest(values, faces, n, D, prim) {
+export function baseDigest(values, faces, n, D) {
   const m = faces.length / 3;
   const a = D - 3;
   const counts = new DataView(new ArrayBuffer(24));
   [n, m, a].forEach((x, i) => counts.setUint32(8 * i, x, true));
   const fields = [BASE_DIGEST_LABEL, new Uint8Array(counts.buffer), int64Bytes(values, n, D, 0, 3),
     int64Bytes(faces, m, 3, 0, 3), int64Bytes(values, n, D, 3, a)];
-  if (framedDigest(fields).slice(0, 16) !== prim.ext.baseDigest) {
+  return framedDigest(fields).slice(0, 16);
+}
+
+/**
+ * CorruptChunkError (chunk null: the base mesh) unless the decoded base gives the extension's
+ * `baseDigest` (spec/bitstream.md §6.4): the first 16 hex digits of BLAKE2b-128 over the framed
+ * label, counts, positions, faces and attributes, each as little-endian int64.
+ */
+function checkBaseDigest(values, faces, n, D, prim) {
+  if (baseDigest(values, faces, n, D) !== prim.ext.baseDigest) {
     const which = prim.several ? ` of progressive primitive ${prim.index + 1}` : '';
     throw new CorruptChunkError(`base mesh${which}: baseDigest mismatch, the base mesh decodes to other geometry than was written (corrupt)`, null);
   }

@@ -3,7 +3,7 @@
  * Draco, attributes, two primitives, welded) decodes here to integers and faces whose digest is the
  * file's `baseDigest`; a base with a flipped bit that still decodes is refused as the Python decoder
  * refuses it (CorruptChunkError, chunk null), and both decoders agree on every flip. Skipped when no
- * Python imports a pmwm_codec that writes payload version 2.
+ * Python imports a pmwm_codec that writes payload version 2; the spec's worked values (§6.4) are checked without one.
  */
 import assert from 'node:assert/strict';
 import { mkdtempSync, readFileSync, rmSync, writeFileSync } from 'node:fs';
@@ -11,9 +11,11 @@ import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { after, test } from 'node:test';
 import { CorruptChunkError, PmwError, decodePmw } from '../src/index.js';
+import { baseDigest } from '../src/base.js';
+import { initChunkFrames } from '../src/chunkframe.js';
 import { parseGlb, planDocument } from '../src/header.js';
 import { jsLevels, jsOutcome, seededRandom } from './lib/helpers.js';
-import { decodeFiles, encodeCase, pythonHasPayloadV2 } from './lib/python.js';
+import { TREE, decodeFiles, encodeCase, pythonHasPayloadV2 } from './lib/python.js';
 
 const skip = !pythonHasPayloadV2() && 'no Python importing a pmwm_codec that writes payload version 2 ($PYTHON, $PMW_PYTHONPATH)';
 const dir = mkdtempSync(join(tmpdir(), 'pmw-base-digest-'));
@@ -85,4 +87,15 @@ test('two primitives: the error names the one whose base is damaged', { skip }, 
   hostile.set(new TextEncoder().encode('0'.repeat(16)), at);
   await assert.rejects(decodePmw(hostile), (e) => e instanceof CorruptChunkError && e.chunk === null
     && /^base mesh of progressive primitive 2: baseDigest mismatch/.test(e.message));
+});
+
+test('the worked values of bitstream.md §6.4 are what this decoder computes', async () => {
+  await initChunkFrames();
+  const spec = readFileSync(join(TREE, 'spec', 'bitstream.md'), 'utf8');
+  const section = spec.slice(spec.indexOf('### 6.4 Base digest'), spec.indexOf('## 7. Watermark'));
+  const plain = section.match(/`baseDigest` = `([0-9a-f]{16})`/)[1];
+  const withAttribute = section.match(/values `7, 8, 9`: `([0-9a-f]{16})`/)[1];
+  const faces = Uint32Array.from([0, 1, 2]);
+  assert.equal(baseDigest(Float64Array.from([0, 0, 0, 1, 0, 0, 0, 1, 0]), faces, 3, 3), plain);
+  assert.equal(baseDigest(Float64Array.from([0, 0, 0, 7, 1, 0, 0, 8, 0, 1, 0, 9]), faces, 3, 4), withAttribute);
 });
