@@ -46,7 +46,7 @@ from ..errors import InputFormatError
 from ..sources import read_regular_file
 from .glb import split_glb
 from .gltf import (COMPONENT_DTYPES, COMPONENT_NAMES, DRACO_EXTENSION, FLOAT, INDEX_DTYPES, NORMALIZE_DIVISORS,
-                   TYPE_WIDTH, check_finite_numbers, element_rows, uint, view_bytes)
+                   TYPE_WIDTH, check_finite_numbers, element_rows, shown_value, uint, view_bytes)
 from .layout import CHUNK_HEADER_SIZE, CHUNK_TYPE_JSON, GLB_HEADER_SIZE, GLB_MAGIC, padded
 from .meshopt import EXTENSIONS as MESHOPT_EXTENSIONS
 from .meshopt import decompress as decompress_meshopt
@@ -281,7 +281,7 @@ def check_document(gltf: dict, name: str) -> None:
     for i, image in enumerate(gltf.get("images", [])):
         _ref(image, "bufferView", n_views, f"images[{i}]", name, "bufferView")
         if "mimeType" in image and not isinstance(image["mimeType"], str):
-            raise InputFormatError(f"{name}: images[{i}].mimeType must be a string, got {_shown(image['mimeType'])}")
+            raise InputFormatError(f"{name}: images[{i}].mimeType must be a string, got {shown_value(image['mimeType'])}")
     for i, texture in enumerate(gltf.get("textures", [])):
         _check_texture(texture, f"textures[{i}]", count, name)
     for i, material in enumerate(gltf.get("materials", [])):
@@ -556,7 +556,7 @@ def _refs(holder: dict, key: str, bound: int, where: str, name: str, kind: str) 
 
 def _index(value, bound: int, path: str, name: str, kind: str) -> None:
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        raise InputFormatError(f"{name}: {path} must be {_a(kind)} index (a non-negative integer), got {_shown(value)}")
+        raise InputFormatError(f"{name}: {path} must be {_a(kind)} index (a non-negative integer), got {shown_value(value)}")
     if value >= bound:
         raise InputFormatError(f"{name}: {path} = {value} names {_a(kind)} that does not exist "
                                f"(the document has {bound or 'none'})")
@@ -566,21 +566,12 @@ def _a(word: str) -> str:
     return ("an " if word[0] in "aeiou" else "a ") + word
 
 
-def _shown(value) -> str:
-    """``value`` for a message: its JSON text when short, else its JSON kind (a long string, an array)."""
-    text = repr(value)
-    if len(text) <= 40:
-        return text
-    kinds = {str: "a string", list: "an array", dict: "an object", int: "an integer", float: "a number"}
-    return kinds.get(type(value), type(value).__name__)
-
-
 def _normalized_flag(acc: dict, where: str) -> bool:
     """An accessor's ``normalized`` (default false): a JSON boolean, true only on the componentTypes glTF
     normalizes (BYTE, UNSIGNED_BYTE, SHORT, UNSIGNED_SHORT); ``where`` names the accessor."""
     value = acc.get("normalized", False)
     if not isinstance(value, bool):
-        raise InputFormatError(f"{where}.normalized must be true or false, got {_shown(value)}")
+        raise InputFormatError(f"{where}.normalized must be true or false, got {shown_value(value)}")
     ctype = acc.get("componentType")
     if value and ctype not in NORMALIZE_DIVISORS:
         raise InputFormatError(f"{where}.normalized is true on componentType {ctype!r} "

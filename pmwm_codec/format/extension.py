@@ -27,6 +27,7 @@ import numpy as np
 
 from ..constants import EXTENSION_NAME, FORMAT_VERSION, MAX_CHUNKS
 from ..errors import FormatError, UnsupportedVersionError
+from .gltf import SHOWN_LIMIT, json_kind
 from .layout import DIGEST_SIZE
 
 SCHEMA_DIR = Path(__file__).with_name("schema")
@@ -306,20 +307,15 @@ def _validator():
     return cls(schema, registry=registry)
 
 
-#: JSON names of the Python types a schema error's value can have.
-_JSON_KINDS = {dict: "an object", list: "an array", str: "a string", bool: "a boolean", int: "an integer",
-               float: "a number", type(None): "null"}
-
-
 def _schema_message(error) -> str:
     """A schema error's message on one line of at most 160 characters that keeps its reason: jsonschema
     starts many messages with the offending value itself (``{...} is not of type 'array'``), which for
     a chunk table or a long string would fill the line before the reason; such a value is named by
     its JSON kind instead."""
     message = error.message.replace("\n", " ")
-    shown = repr(error.instance)
-    if len(shown) > 40 and message.startswith(shown):
-        message = f"the value ({_JSON_KINDS.get(type(error.instance), 'a value')})" + message[len(shown):]
+    text = repr(error.instance)
+    if len(text) > SHOWN_LIMIT and message.startswith(text):
+        message = f"the value ({json_kind(error.instance)})" + message[len(text):]
     return message if len(message) <= 160 else message[:157] + "..."
 
 

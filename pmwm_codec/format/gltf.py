@@ -36,6 +36,24 @@ TRIANGLES = 4
 
 DRACO_EXTENSION = "KHR_draco_mesh_compression"
 
+#: JSON names of the Python types a parsed JSON value can have (for messages).
+JSON_KINDS = {dict: "an object", list: "an array", str: "a string", bool: "a boolean", int: "an integer",
+              float: "a number", type(None): "null"}
+#: Longest ``repr`` of a value a message quotes; a longer one is named by its JSON kind.
+SHOWN_LIMIT = 40
+
+
+def json_kind(value) -> str:
+    """``value``'s JSON kind for a message: "an object", "an array", "a string" ..."""
+    return JSON_KINDS.get(type(value), type(value).__name__)
+
+
+def shown_value(value) -> str:
+    """``value`` for a one-line message: its ``repr`` when short, else its JSON kind (a long string, a table)."""
+    text = repr(value)
+    return text if len(text) <= SHOWN_LIMIT else json_kind(value)
+
+
 #: componentType -> little-endian numpy dtype string.
 COMPONENT_DTYPES = {BYTE: "i1", UNSIGNED_BYTE: "u1", SHORT: "<i2", UNSIGNED_SHORT: "<u2", UNSIGNED_INT: "<u4", FLOAT: "<f4"}
 #: componentType -> its name in the glTF specification (for messages).
