@@ -22,6 +22,7 @@ import uuid
 import numpy as np
 
 from pmwm_codec.errors import PmwError
+from pmwm_codec.watermark.key import same_path
 
 from .ledger import LEDGER_NAME, LedgerWriter, last_rows, read_ledger, settings_sha256
 from .sources import KEY_SUFFIX, PMW_SUFFIX, expand_sources
@@ -147,13 +148,12 @@ def check_key_places(assets, out_dir, key=None, keys_dir=None) -> None:
     ledger = os.path.join(out_dir, LEDGER_NAME)
     written = {os.path.realpath(a.output): f"the output {a.output} (of {a.input})" for a in assets}
     written[os.path.realpath(ledger)] = f"the run's ledger {ledger}"
-    inputs = {os.path.realpath(a.input): a.input for a in assets}
 
     def clash(path: str, what: str) -> str | None:
+        source = next((a.input for a in assets if same_path(a.input, path)), None)  # links of both kinds
+        if source is not None:
+            return f"{path}: is also the input {source}; give the {what} another name (an input is never replaced)"
         real = os.path.realpath(path)
-        if real in inputs:
-            return (f"{path}: is also the input {inputs[real]}; give the {what} another name "
-                    "(an input is never replaced)")
         if real in written:
             return f"{path}: is {written[real]}; give the {what} another name"
         here = real
@@ -165,7 +165,7 @@ def check_key_places(assets, out_dir, key=None, keys_dir=None) -> None:
 
     if key is not None:
         key = os.fspath(key)
-        why = clash(key, "collection key") or _hard_link_to_input(key, assets)
+        why = clash(key, "collection key")
         if why:
             raise BatchError(why)
     if keys_dir is not None:
@@ -181,21 +181,6 @@ def check_key_places(assets, out_dir, key=None, keys_dir=None) -> None:
         why = clash(keys_dir, "keys folder")
         if why:
             raise BatchError(why)
-
-
-def _hard_link_to_input(key: str, assets) -> str | None:
-    """Why the existing ``key`` is an input under another name (a hard link), or None."""
-    try:
-        mine = os.stat(key)
-    except OSError:
-        return None
-    for a in assets:
-        try:
-            if os.path.samestat(mine, os.stat(a.input)):
-                return f"{key}: is also the input {a.input}; give the collection key another name"
-        except OSError:
-            continue
-    return None
 
 
 def _jobs(assets, out_dir, image, key, keys_dir, timeout, force, options=None) -> list[EncodeJob]:
