@@ -211,6 +211,33 @@ def test_normalized_indices_are_refused(capsys, tmp_path, mesh):
     refused(capsys, tmp_path, doc, "meshes[0].primitives[0].indices", "normalized")
 
 
+@pytest.mark.parametrize("kind, component, said", [("VEC3", 5125, "a VEC3 of UNSIGNED_INT (5125)"),
+                                                    ("SCALAR", 5126, "a SCALAR of FLOAT (5126)"),
+                                                    ("SCALAR", 5122, "a SCALAR of SHORT (5122)")])
+def test_indices_that_are_not_an_unsigned_integer_scalar_are_refused(capsys, tmp_path, mesh, kind, component, said):
+    """glTF 2.0 3.7.2.1: whole numbers stored as FLOAT, or a VEC3 of indices, are not indices (they were
+    read as if they were, and the output rewrote them valid: a silent repair of an invalid asset)."""
+    doc = gltf_doc(mesh)
+    values = mesh.faces.astype("<f4" if component == 5126 else "<i2" if component == 5122 else "<u4")
+    count = mesh.faces.size // (3 if kind == "VEC3" else 1)
+    doc["accessors"][1].update(bufferView=append_view(doc, values.tobytes()), componentType=component, type=kind,
+                               count=count)
+    refused(capsys, tmp_path, doc, f"meshes[0].primitives[0].indices: accessor 1 is {said}", "UNSIGNED_INT SCALAR")
+
+
+@pytest.mark.parametrize("kind, component, said", [("VEC3", 5126, "a VEC3 of FLOAT (5126)"),
+                                                    ("SCALAR", 5123, "a SCALAR of UNSIGNED_SHORT (5123)")])
+def test_keyframe_times_that_are_not_a_float_scalar_are_refused(capsys, tmp_path, mesh, kind, component, said):
+    """glTF 2.0 5.2.3: an animation sampler's ``input`` is a FLOAT SCALAR accessor; another was copied into
+    the ``.pmw`` as it was (an invalid output)."""
+    doc = gltf_doc(mesh)
+    _animated(doc)
+    doc["accessors"][2].update(type=kind, componentType=component, min=None, max=None)
+    for key in ("min", "max"):
+        del doc["accessors"][2][key]
+    refused(capsys, tmp_path, doc, f"animations[0].samplers[0].input: accessor 2 is {said}", "FLOAT SCALAR")
+
+
 # --- 06: every index reference the writer keeps is in range ----------------------------------------------
 
 

@@ -253,7 +253,9 @@ def check_document(gltf: dict, name: str) -> None:
     primitive's accessors and material, textures' images and samplers, materials'
     textures, skins' joints, animations' samplers, accessors and target nodes,
     bufferViews) is an index in range, that an accessor's ``normalized`` is a
-    boolean, true only where glTF allows it (never on indices), that every required
+    boolean, true only where glTF allows it (never on indices), that a primitive's
+    indices are an unsigned integer SCALAR accessor and an animation's keyframe times a
+    FLOAT SCALAR one, that every required
     extension is used and supported (:data:`READ_EXTENSIONS`,
     :data:`CARRIED_EXTENSIONS`), and that the triangle primitives
     declare no more vertices and faces in total than the encoder takes
@@ -291,7 +293,7 @@ def check_document(gltf: dict, name: str) -> None:
         _refs(skin, "joints", count["nodes"], f"skins[{i}]", name, "node")
         _ref(skin, "skeleton", count["nodes"], f"skins[{i}]", name, "node")
     for i, anim in enumerate(gltf.get("animations", [])):
-        _check_animation(anim, f"animations[{i}]", n_acc, count["nodes"], name)
+        _check_animation(anim, f"animations[{i}]", gltf.get("accessors", []), count["nodes"], name)
     for i, node in enumerate(gltf.get("nodes", [])):
         _check_extensions(node, f"nodes[{i}]", n_acc, name, "EXT_mesh_gpu_instancing")
         for key, kind in (("mesh", "meshes"), ("skin", "skins"), ("camera", "cameras")):
@@ -383,13 +385,18 @@ def _check_material(material: dict, where: str, n_textures: int, name: str) -> N
                 stack.append((child, path))
 
 
-def _check_animation(anim: dict, where: str, n_acc: int, n_nodes: int, name: str) -> None:
-    """An animation's samplers (``input`` / ``output`` accessors) and channels (a ``sampler`` of this
-    animation, a ``target`` object whose ``node``, if any, exists)."""
+def _check_animation(anim: dict, where: str, accessors: list, n_nodes: int, name: str) -> None:
+    """An animation's samplers (``input`` / ``output`` accessors; an ``input``, the keyframe times, a
+    FLOAT SCALAR accessor) and channels (a ``sampler`` of this animation, a ``target`` object whose
+    ``node``, if any, exists)."""
     samplers = _objects(anim, "samplers", f"{where}.samplers", name)
     for j, sampler in enumerate(samplers):
         for key in ("input", "output"):
-            _ref(sampler, key, n_acc, f"{where}.samplers[{j}]", name, "accessor", required=True)
+            _ref(sampler, key, len(accessors), f"{where}.samplers[{j}]", name, "accessor", required=True)
+        times = accessors[sampler["input"]]
+        if (times["type"], times["componentType"]) != ("SCALAR", FLOAT):
+            raise InputFormatError(f"{name}: {where}.samplers[{j}].input: accessor {sampler['input']} is {_kind(times)}; "
+                                   "keyframe times are a FLOAT SCALAR")
     for j, channel in enumerate(_objects(anim, "channels", f"{where}.channels", name)):
         at = f"{where}.channels[{j}]"
         _ref(channel, "sampler", len(samplers), at, name, "sampler", required=True)
@@ -468,6 +475,23 @@ def _check_accessor(acc: dict, where: str, n_views: int, name: str) -> None:
                  f"{where}.sparse.{part}", name, "bufferView", required=True)
 
 
+def _check_indices_accessor(acc: dict, where: str, index: int, name: str) -> None:
+    """A primitive's ``indices`` accessor ``acc`` (accessor ``index``): an UNSIGNED_BYTE, UNSIGNED_SHORT or
+    UNSIGNED_INT SCALAR, never normalized (glTF 2.0, 3.7.2.1)."""
+    if acc.get("normalized") is True:
+        raise InputFormatError(f"{name}: {where}: accessor {index} is normalized; glTF indices never are")
+    if acc["type"] != "SCALAR" or acc["componentType"] not in INDEX_DTYPES:
+        raise InputFormatError(f"{name}: {where}: accessor {index} is {_kind(acc)}; glTF indices are an UNSIGNED_BYTE, "
+                               "UNSIGNED_SHORT or UNSIGNED_INT SCALAR")
+
+
+def _kind(acc: dict) -> str:
+    """An accessor's element kind for a message, e.g. ``"a VEC3 of FLOAT (5126)"`` (its type and
+    componentType known: :func:`_check_accessor`)."""
+    ctype = acc["componentType"]
+    return f"a {acc['type']} of {COMPONENT_NAMES[ctype]} ({ctype})"
+
+
 def _check_meshes(gltf: dict, n_acc: int, n_views: int, name: str) -> None:
     vertices = faces = 0
     accessors, n_materials = gltf.get("accessors", []), len(gltf.get("materials", []))
@@ -481,9 +505,8 @@ def _check_meshes(gltf: dict, n_acc: int, n_views: int, name: str) -> None:
                 for semantic in target:
                     _ref(target, semantic, n_acc, f"{where}.targets[{ti}]", name, "accessor")
             _ref(prim, "indices", n_acc, where, name, "accessor")
-            if "indices" in prim and accessors[prim["indices"]].get("normalized") is True:
-                raise InputFormatError(f"{name}: {where}.indices: accessor {prim['indices']} is normalized; "
-                                       "glTF indices never are")
+            if "indices" in prim:
+                _check_indices_accessor(accessors[prim["indices"]], f"{where}.indices", prim["indices"], name)
             _ref(prim, "material", n_materials, where, name, "material")
             uint(prim, "mode", f"{name}: {where}", 4, error=InputFormatError)
             draco = _check_extensions(prim, where, n_acc, name, DRACO_EXTENSION)
