@@ -16,7 +16,8 @@ import math
 
 import numpy as np
 
-from ..errors import FormatError
+from ..constants import MAX_JSON_DEPTH
+from ..errors import FormatError, LimitError
 from .layout import padded
 
 # accessor componentType
@@ -282,6 +283,62 @@ def check_finite_numbers(gltf: dict, name: str, error) -> None:
         elif isinstance(value, float) and not math.isfinite(value):
             shown = "NaN" if math.isnan(value) else "Infinity" if value > 0 else "-Infinity"
             raise error(f"{name}: {_json_path(path)} is {shown}, which JSON does not allow")
+
+
+#: Bytes of JSON text :func:`check_json_text_depth` looks at in one numpy pass.
+_SCAN_BLOCK = 1 << 20
+#: Depth step of each byte outside a string: ``[`` and ``{`` open (+1), ``]`` and ``}`` close (-1).
+_DEPTH_STEP = np.zeros(256, np.int64)
+_DEPTH_STEP[[ord("["), ord("{")]] = 1
+_DEPTH_STEP[[ord("]"), ord("}")]] = -1
+_QUOTE, _BACKSLASH = ord('"'), ord("\\")
+
+
+def check_json_text_depth(text, name: str, limit: int = MAX_JSON_DEPTH, error=LimitError) -> None:
+    """Refuse (``error`` naming :data:`~pmwm_codec.constants.MAX_JSON_DEPTH`) JSON text nested more than
+    ``limit`` arrays and objects deep (the outermost value is level 1), found in the bytes before they
+    are parsed: Python's JSON reader recurses once per level (a deep enough text raises RecursionError,
+    at a depth that depends on the stack).
+
+    The scan (spec README, Conformance): a ``"`` preceded by an even run of backslashes (none included)
+    toggles "inside a string"; outside a string ``[`` / ``{`` open a level and ``]`` / ``}`` close one;
+    nothing else counts.  On valid JSON this is its nesting depth; on any text it is what the JavaScript
+    decoder's scan (``jsonTooDeep`` in js/src/header.js) finds, so both refuse the same texts.  Linear,
+    in blocks of :data:`_SCAN_BLOCK` bytes, without recursion.
+    """
+    data = np.frombuffer(text, np.uint8)
+    depth, inside, odd = 0, False, False  # before the block: levels open, in a string, after an odd backslash run
+    for start in range(0, len(data), _SCAN_BLOCK):
+        block = data[start : start + _SCAN_BLOCK]
+        plain = np.flatnonzero(block != _BACKSLASH)
+        quotes = np.flatnonzero(block == _QUOTE)
+        at = np.searchsorted(plain, quotes)  # each quote's place among the bytes that are no backslash
+        run = np.where(at > 0, quotes - plain[np.maximum(at - 1, 0)] - 1, quotes + odd)  # backslashes before it
+        toggles = quotes[run % 2 == 0]
+        brackets = np.flatnonzero(_DEPTH_STEP[block])
+        outside = (np.searchsorted(toggles, brackets) % 2 == 1) == inside  # toggles before it, from the state before
+        running = depth + np.cumsum(np.where(outside, _DEPTH_STEP[block[brackets]], 0))
+        if running.size and running.max() > limit:
+            raise error(f"{name}: JSON nested more than {limit} levels deep (MAX_JSON_DEPTH)")
+        depth = int(running[-1]) if running.size else depth
+        inside ^= bool(len(toggles) % 2)
+        trailing = len(block) - 1 - int(plain[-1]) if plain.size else len(block) + odd
+        odd = bool(trailing % 2)
+    return None
+
+
+def check_json_depth(doc, name: str, limit: int = MAX_JSON_DEPTH, error=FormatError) -> None:
+    """Refuse (``error``) a parsed JSON value nested deeper than ``limit`` arrays/objects, the outermost
+    being level 1 (walked without recursion): :func:`check_json_text_depth` for a value already in memory."""
+    stack = [(doc, 1)]
+    while stack:
+        value, depth = stack.pop()
+        children = value.values() if isinstance(value, dict) else value if isinstance(value, list) else None
+        if children is None:
+            continue
+        if depth > limit:
+            raise error(f"{name}: JSON nested more than {limit} levels deep")
+        stack.extend((child, depth + 1) for child in children if isinstance(child, (dict, list)))
 
 
 def _json_path(path) -> str:

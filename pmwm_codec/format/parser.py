@@ -26,7 +26,7 @@ first completed other events, returned after them and raised by the next ``feed`
 or ``close`` call, so every good chunk before a bad one is delivered): a bad digest is ``ChecksumError``
 (``.chunk`` = index; None for a base mesh whose ``baseDigest`` differs); bad magic, JSON, layout or extension fields are ``FormatError``;
 a newer extension ``version`` is ``UnsupportedVersionError``; declared sizes or counts
-over the limits of :mod:`pmwm_codec.constants` are ``LimitError``, checked before
+over the limits of :mod:`pmwm_codec.constants` (and JSON nested deeper than ``MAX_JSON_DEPTH``) are ``LimitError``, checked before
 anything of that size is allocated or decompressed.
 
 A parser is single-use: after ``close()`` or after it raised, it refuses more input.
@@ -55,7 +55,7 @@ from ..progressive.grid import Grid
 from ..sources import byte_view
 from . import base as _base
 from .extension import base_digest, check_extension, chunk_entries, digest, payload_version
-from .gltf import check_finite_numbers, find_extension_primitives, uint, view_range
+from .gltf import check_finite_numbers, check_json_text_depth, find_extension_primitives, uint, view_range
 from .layout import (
     ALIGNMENT,
     CHUNK_HEADER_SIZE,
@@ -477,8 +477,13 @@ def _load_json(text: bytes):
     import json
 
     try:
-        gltf = json.loads(text.decode("utf-8"))
-    except (UnicodeDecodeError, ValueError) as exc:
+        decoded = text.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise FormatError(f"GLB JSON chunk: not valid UTF-8 JSON ({str(exc).splitlines()[0]})") from None
+    check_json_text_depth(text, "GLB JSON chunk")  # before the parser recurses into it (spec README, Conformance)
+    try:
+        gltf = json.loads(decoded)
+    except ValueError as exc:
         raise FormatError(f"GLB JSON chunk: not valid UTF-8 JSON ({str(exc).splitlines()[0]})") from None
     if not isinstance(gltf, dict):
         raise FormatError("GLB JSON chunk: top level is not an object")
