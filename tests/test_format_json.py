@@ -14,6 +14,7 @@ import pytest
 import pmwm_codec
 from pmwm_codec import constants, shapes
 from pmwm_codec.errors import FormatError, LimitError, PmwError
+from pmwm_codec.format import gltf as gltf_module
 from pmwm_codec.format.glb import frame_glb
 from pmwm_codec.stream import StreamDecoder
 
@@ -103,6 +104,41 @@ def test_the_depth_scan_skips_strings_as_json_does(text, deep):
             decoded(data)
         return
     assert same_levels(decoded(data), decoded(conformance("grid-hole.plain.v2.pmw")))
+
+
+def _scan_reference(text: bytes, limit: int) -> bool:
+    """The spec's depth scan byte by byte (as js/src/header.js jsonTooDeep runs it): True when too deep."""
+    depth, inside, odd = 0, False, False
+    for b in text:
+        if b == ord("\\"):
+            odd = not odd
+            continue
+        if b == ord('"'):
+            inside ^= not odd
+        elif not inside and b in b"[{":
+            depth += 1
+            if depth > limit:
+                return True
+        elif not inside and b in b"]}":
+            depth -= 1
+        odd = False
+    return False
+
+
+@pytest.mark.parametrize("block", [3, 7, 64, 1 << 20])
+def test_the_depth_scan_in_blocks_is_the_byte_by_byte_scan(monkeypatch, block):
+    monkeypatch.setattr(gltf_module, "_SCAN_BLOCK", block)
+    rng = np.random.default_rng(block)
+    alphabet = np.frombuffer(b'[]{}"\\ax', np.uint8)
+    for _ in range(2000):
+        text = alphabet[rng.integers(0, len(alphabet), rng.integers(0, 60))].tobytes()
+        limit = int(rng.integers(0, 6))
+        try:
+            gltf_module.check_json_text_depth(text, "text", limit)
+            deep = False
+        except LimitError:
+            deep = True
+        assert deep == _scan_reference(text, limit), (text, limit)
 
 
 def test_every_file_the_encoder_writes_is_within_the_readers_depth(tmp_path):

@@ -7,7 +7,7 @@ import { FormatError, LimitError, UnsupportedError } from './errors.js';
 import { unpackChunkTable } from './chunktable.js';
 import {
   DRACO_EXTENSION, EXTENSION, FORMAT_VERSION, MAX_CHUNK_BYTES, MAX_CHUNKS,
-  MAX_DECOMPRESSED_CHUNK_BYTES, MAX_FACES, MAX_JSON_BYTES, MAX_VERTICES, PAYLOAD_CODEC, PAYLOAD_VERSIONS,
+  MAX_DECOMPRESSED_CHUNK_BYTES, MAX_FACES, MAX_JSON_BYTES, MAX_JSON_DEPTH, MAX_VERTICES, PAYLOAD_CODEC, PAYLOAD_VERSIONS,
 } from './constants.js';
 
 const GLB_MAGIC = 0x46546c67; // 'glTF'
@@ -63,6 +63,33 @@ function checkFields(obj, kind, what) {
   }
 }
 
+/**
+ * Whether JSON text `bytes` nests more than `limit` arrays and objects deep (the outermost value is
+ * level 1), found by one scan of the bytes before they are parsed (spec/README.md, Conformance): a `"`
+ * after an even run of backslashes (none included) begins or ends a string; outside a string `[` / `{`
+ * open a level and `]` / `}` close one. The reference reader's `check_json_text_depth`
+ * (pmwm_codec/format/gltf.py) scans the same way, so both refuse the same bytes; JSON.parse's reviver
+ * then never recurses deeper than the limit.
+ */
+export function jsonTooDeep(bytes, limit = MAX_JSON_DEPTH) {
+  let depth = 0;
+  let inString = false;
+  let odd = false; // after an odd run of backslashes
+  for (let i = 0; i < bytes.length; i++) {
+    const b = bytes[i];
+    if (b === 0x5c) { odd = !odd; continue; }
+    if (b === 0x22) {
+      if (!odd) inString = !inString;
+    } else if (!inString) {
+      if (b === 0x5b || b === 0x7b) {
+        if (++depth > limit) return true;
+      } else if (b === 0x5d || b === 0x7d) depth--;
+    }
+    odd = false;
+  }
+  return false;
+}
+
 /** Bytes needed before the JSON can be parsed: 20 (preamble), then 20 + J + 8 (BIN header). */
 export function preambleLength(bytes) {
   if (bytes.length < 20) return 20;
@@ -110,7 +137,9 @@ export function parseGlb(bytes) {
   let gltf;
   try {
     // ignoreBOM keeps a byte order mark in the text, where JSON.parse refuses it (spec README, Conformance)
-    const text = new TextDecoder('utf-8', { fatal: true, ignoreBOM: true }).decode(bytes.subarray(20, 20 + jsonLength));
+    const json = bytes.subarray(20, 20 + jsonLength);
+    const text = new TextDecoder('utf-8', { fatal: true, ignoreBOM: true }).decode(json);
+    if (jsonTooDeep(json)) throw new LimitError(`JSON chunk: JSON nested more than ${MAX_JSON_DEPTH} levels deep (MAX_JSON_DEPTH)`);
     gltf = JSON.parse(text, finiteNumbers);
   } catch (e) {
     if (e instanceof FormatError) throw e;

@@ -1,0 +1,104 @@
+/**
+ * The JSON chunk as both readers read it (spec/README.md, Conformance; the reference reader's twin tests
+ * are tests/test_format_json.py): its nesting depth, integer members written as floats, and the named
+ * error of each refusal. Every case is a conformance file with its JSON text edited; this decoder and the
+ * reference reader (when a Python with pmwm_codec is found) must give the same outcome: the same
+ * levels, or an error of the same kind.
+ */
+import assert from 'node:assert/strict';
+import { mkdtempSync, readFileSync, rmSync, writeFileSync } from 'node:fs';
+import { tmpdir } from 'node:os';
+import { join } from 'node:path';
+import { test } from 'node:test';
+import { MAX_JSON_DEPTH, PmwError } from '../src/index.js';
+import { jsonTooDeep } from '../src/header.js';
+import { CONFORMANCE, jsOutcome } from './lib/helpers.js';
+import { decodeFiles, python } from './lib/python.js';
+
+const load = (f) => new Uint8Array(readFileSync(join(CONFORMANCE, f)));
+
+/** The reference reader's error classes by the kind this decoder names them (src/errors.js). */
+const KIND = { FormatError: 'FormatError', LimitError: 'LimitError', UnsupportedVersionError: 'UnsupportedError',
+  ChecksumError: 'CorruptChunkError', TruncatedError: 'TruncatedError' };
+
+/** `bytes` (a GLB) with its JSON text replaced by `edit(text)`, text being the compact JSON of its document. */
+function withText(bytes, edit) {
+  const dv = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength);
+  const J = dv.getUint32(12, true);
+  const text = edit(JSON.stringify(JSON.parse(new TextDecoder().decode(bytes.subarray(20, 20 + J)))));
+  const json = new TextEncoder().encode(text);
+  const padded = new Uint8Array((json.length + 3) & ~3).fill(0x20);
+  padded.set(json);
+  const bin = bytes.subarray(28 + J);
+  const out = new Uint8Array(28 + padded.length + bin.length);
+  out.set(bytes.subarray(0, 20));
+  out.set(padded, 20);
+  out.set(bytes.subarray(20 + J, 28 + J), 20 + padded.length);
+  out.set(bin, 28 + padded.length);
+  const odv = new DataView(out.buffer);
+  odv.setUint32(8, out.length, true);
+  odv.setUint32(12, padded.length, true);
+  return out;
+}
+
+/** `bytes` with `nodes[0].extras` nested so that the document is `depth` levels deep (document 1, nodes 2, node 3). */
+const nested = (bytes, depth) => withText(bytes, (t) => {
+  const g = JSON.parse(t);
+  g.nodes[0].extras = '@extras@';
+  return JSON.stringify(g).replace('"@extras@"', '['.repeat(depth - 3) + ']'.repeat(depth - 3));
+});
+
+/** What a decoder made of a file, comparable across the two: an error kind, or the levels' digests. */
+const jsView = (o) => (o instanceof PmwError ? o.name : o.levels.map((l) => l.sha256));
+const pyView = (o) => (o.error ? (KIND[o.error] ?? `python ${o.error}`) : o.levels.map((l) => l.sha256));
+
+/**
+ * Every case [label, bytes, want] gives `want` here and in the reference reader: an error kind
+ * ('LimitError', ...) or, for 'decodes', the levels of `original`.
+ */
+async function bothGive(original, cases) {
+  const same = jsView(await jsOutcome(original));
+  const wanted = cases.map(([, , want]) => (want === 'decodes' ? same : want));
+  for (const [i, [label, bytes]] of cases.entries()) {
+    assert.deepEqual(jsView(await jsOutcome(bytes)), wanted[i], `${label}: this decoder`);
+  }
+  if (!python()) return;
+  const dir = mkdtempSync(join(tmpdir(), 'pmwm-json-chunk-'));
+  try {
+    const paths = cases.map(([, bytes], i) => { const p = join(dir, `${i}.pmw`); writeFileSync(p, bytes); return p; });
+    decodeFiles(paths).forEach((r, i) => assert.deepEqual(pyView(r), wanted[i], `${cases[i][0]}: the reference reader`));
+  } finally {
+    rmSync(dir, { recursive: true, force: true });
+  }
+}
+
+test('a JSON chunk nested deeper than MAX_JSON_DEPTH is a LimitError naming it, in both readers; to the limit it decodes', async () => {
+  const file = load('grid-hole.plain.v2.pmw');
+  const deep = await jsOutcome(nested(file, 3000));
+  assert.equal(deep.name, 'LimitError');
+  assert.match(deep.message, new RegExp(`more than ${MAX_JSON_DEPTH} levels deep \\(MAX_JSON_DEPTH\\)`));
+  const open = '['.repeat(MAX_JSON_DEPTH);
+  const close = ']'.repeat(MAX_JSON_DEPTH);
+  const extras = (json) => (t) => `${t.slice(0, -1)},"extras":${json}}`;
+  await bothGive(file, [
+    ['nested 65 deep', nested(file, MAX_JSON_DEPTH + 1), 'LimitError'],
+    ['nested 3000 deep (the reviver overflowed the stack)', nested(file, 3000), 'LimitError'],
+    ['nested 100000 deep', nested(file, 100000), 'LimitError'],
+    ['nested 64 deep', nested(file, MAX_JSON_DEPTH), 'decodes'],
+    ['brackets in a string', withText(file, extras(`{"a":"${open}"}`)), 'decodes'],
+    ['brackets after an escaped quote', withText(file, extras(`{"a":"\\"${open}"}`)), 'decodes'],
+    ['brackets after an escaped backslash', withText(file, extras(`{"a":"\\\\","b":${open}${close}}`)), 'LimitError'],
+  ]);
+});
+
+test('the depth scan: strings skipped as JSON has them, the outermost value level 1', () => {
+  const scan = (text, limit) => jsonTooDeep(new TextEncoder().encode(text), limit);
+  assert.equal(scan('[[]]', 2), false);
+  assert.equal(scan('[[[]]]', 2), true);
+  assert.equal(scan('{"a":[{}]}', 3), false);
+  assert.equal(scan('{"a":[{"b":[]}]}', 3), true);
+  assert.equal(scan('["[[[["]', 1), false);
+  assert.equal(scan('["\\"[[[["]', 1), false);
+  assert.equal(scan('["\\\\",[[[]]]]', 1), true);
+  assert.equal(scan('[]]]][[', 1), false); // closers first: the running depth, as the reference scan has it
+});
