@@ -168,3 +168,131 @@ def test_every_file_the_encoder_writes_is_within_the_readers_depth(tmp_path):
     assert len(decoded(data)) > 1
     with pytest.raises(LimitError):  # one level more is refused: the output is exactly at the limit
         decoded(nested(data, depth + 1))
+
+
+# --- integer members written as floats (spec README, JSON numbers) ----------------------------------------
+
+
+def _edit(data: bytes, change) -> bytes:
+    """``data`` with ``change(gltf, primitive, extension)`` applied to its JSON (the BIN kept)."""
+    gltf, bin_payload = split(data)
+    prim = gltf["meshes"][0]["primitives"][0]
+    change(gltf, prim, prim["extensions"][NAME])
+    return framed(json.dumps(gltf).encode(), bin_payload)
+
+
+def _floats(path):
+    """A change making the integer member at ``path`` (keys from the primitive's extension object, or
+    from the document after a leading ``"/"``) a float of the same value."""
+    def change(gltf, prim, ext):
+        target = gltf if path[0] == "/" else ext
+        keys = path[1:] if path[0] == "/" else path
+        for key in keys[:-1]:
+            target = target[key] if not callable(key) else key(gltf, prim, ext)
+        last = keys[-1]
+        target[last] = [float(x) for x in target[last]] if isinstance(target[last], list) else float(target[last])
+    return change
+
+
+def _view_of_chunks(gltf, prim, ext):
+    return gltf["bufferViews"][ext["chunks"]["bufferView"]]
+
+
+def _byte_offsets_as_floats(gltf, prim, ext):
+    table = ext["chunks"]
+    offsets = [0.0]
+    for length in table["byteLengths"][:-1]:
+        offsets.append(offsets[-1] + length)
+    table["byteOffsets"] = offsets
+
+
+INTEGRAL_FLOATS = {  # the probe's cases (grid bits, accessor count, bufferView offset, ...) and the rest of the kinds
+    "grid bits": ("grid-hole.plain.v2.pmw", _floats(["grid", "bits"])),
+    "version": ("grid-hole.plain.v2.pmw", _floats(["version"])),
+    "payload version": ("grid-hole.plain.v2.pmw", _floats(["payload", "version"])),
+    "vertexCount, faceCount": ("grid-hole.plain.v2.pmw",
+                               lambda g, p, e: (_floats(["vertexCount"])(g, p, e), _floats(["faceCount"])(g, p, e))),
+    "chunk table arrays": ("grid-hole.plain.v2.pmw", lambda g, p, e: [_floats(["chunks", k])(g, p, e) for k in
+                                                                      ("bufferView", "byteLengths", "vertexCounts", "faceCounts")]),
+    "chunk table byteOffsets": ("grid-hole.plain.v2.pmw", _byte_offsets_as_floats),
+    "packed table count": ("sphere-pillows.draco.packed.v2.pmw", _floats(["chunks", "count"])),
+    "firstFaceChunk": ("sphere-pillows.draco.packed.v2.pmw", _floats(["firstFaceChunk"])),
+    "Draco attribute id and bufferView": ("sphere-pillows.draco.packed.v2.pmw", lambda g, p, e: (
+        p["extensions"]["KHR_draco_mesh_compression"]["attributes"].update(
+            POSITION=float(p["extensions"]["KHR_draco_mesh_compression"]["attributes"]["POSITION"])),
+        p["extensions"]["KHR_draco_mesh_compression"].update(
+            bufferView=float(p["extensions"]["KHR_draco_mesh_compression"]["bufferView"])))),
+    "baseVertexCount": ("bowtie.welded-draco.v1.pmw", _floats(["baseVertexCount"])),
+    "v1 chunk entries": ("bowtie.welded-draco.v1.pmw", lambda g, p, e: [
+        _floats(["chunks", k, key])(g, p, e) for k in range(len(e["chunks"]))
+        for key in ("bufferView", "byteLength", "uncompressedLength", "splits", "vertexCount", "faceCount")]),
+    "attribute bits": ("sphere-attributes.plain.v2.pmw", lambda g, p, e: [a.update(bits=float(a["bits"])) for a in e["attributes"]]),
+    "primitive POSITION, indices, mode": ("sphere-attributes.plain.v2.pmw", lambda g, p, e: (
+        p["attributes"].update({s: float(i) for s, i in p["attributes"].items()}),
+        p.update(indices=float(p["indices"]), mode=float(p["mode"])))),
+    "accessors": ("sphere-attributes.plain.v2.pmw", lambda g, p, e: [
+        a.update({k: float(a[k]) for k in ("bufferView", "byteOffset", "componentType", "count") if k in a})
+        for a in g["accessors"]]),
+    "bufferViews and the buffer": ("sphere-attributes.plain.v2.pmw", lambda g, p, e: (
+        [v.update({k: float(v[k]) for k in ("buffer", "byteOffset", "byteLength", "target") if k in v}) for v in g["bufferViews"]],
+        g["buffers"][0].update(byteLength=float(g["buffers"][0]["byteLength"])))),
+    "scene and nodes": ("grid-hole.plain.v2.pmw", lambda g, p, e: (
+        g.update(scene=float(g.get("scene", 0))), [n.update(mesh=float(n["mesh"])) for n in g["nodes"] if "mesh" in n])),
+}
+
+
+@pytest.mark.parametrize("case", sorted(INTEGRAL_FLOATS))
+def test_integer_members_written_as_integral_floats_decode_as_the_integers(case):
+    name, change = INTEGRAL_FLOATS[case]
+    data = conformance(name)
+    edited = _edit(data, change)
+    assert b".0" in edited[: 20 + int.from_bytes(edited[12:16], "little")]
+    assert same_levels(decoded(edited), decoded(data))
+
+
+def test_integers_written_with_an_exponent_decode_as_the_integers():
+    data = conformance("grid-hole.plain.v2.pmw")
+    edited = with_text(data, lambda t: t.replace('"bits":16,', '"bits":1.6e1,').replace('"version":1,', '"version":1e0,', 1))
+    assert b"1.6e1" in edited and b"1e0" in edited
+    assert same_levels(decoded(edited), decoded(data))
+
+
+@pytest.mark.parametrize("change, match", [
+    (lambda g, p, e: e["grid"].update(bits=16.5), "grid/bits"),
+    (lambda g, p, e: e["chunks"].update(count=e["chunks"]["count"] + 0.5), "count"),
+    (lambda g, p, e: g["accessors"][p["attributes"]["POSITION"]].update(count=648.5), "count"),
+    (lambda g, p, e: p.update(indices=p["indices"] + 0.5), "accessor"),
+])
+def test_an_integer_member_with_a_fraction_is_still_a_format_error(change, match):
+    with pytest.raises(FormatError, match=match):
+        decoded(_edit(conformance("sphere-pillows.draco.packed.v2.pmw"), change))
+
+
+@pytest.mark.parametrize("payload_version", [1, 2])
+def test_integral_floats_keep_a_marked_file_s_macs(payload_version):
+    """The MACs' canonical JSON writes an integer member as an integer however the file writes it
+    (bitstream.md 6.3): a JSON tool rewriting 16 as 16.0 keeps every MAC; ``0.0`` of a number member stays."""
+    from conftest import marked_sphere
+
+    data, key, _ = marked_sphere(5, payload_version=payload_version)
+
+    def change(gltf, prim, ext):
+        for member in ("version", "vertexCount", "faceCount"):
+            ext[member] = float(ext[member])
+        ext["grid"]["bits"] = float(ext["grid"]["bits"])
+        ext["payload"]["version"] = float(ext["payload"]["version"])
+        for member in ("bits", "width", "height", "levels", "codes", "carriers"):
+            ext["watermark"][member] = float(ext["watermark"][member])
+        if payload_version == 1:
+            for entry in ext["chunks"]:
+                for member in ("byteLength", "uncompressedLength", "splits", "vertexCount", "faceCount", "batches"):
+                    entry[member] = float(entry[member])
+        else:
+            ext["chunks"]["count"] = float(ext["chunks"]["count"])
+
+    edited = _edit(data, change)
+    decoder = StreamDecoder(key)
+    results = decoder.feed(edited)
+    decoder.close()
+    assert decoder.mac_checked == len(results) > 1 and not decoder.mac_failed and not decoder.mac_missing
+    assert same_levels(decoded(edited), decoded(data))

@@ -27,7 +27,7 @@ import numpy as np
 
 from ..constants import EXTENSION_NAME, FORMAT_VERSION, MAX_CHUNKS
 from ..errors import FormatError, UnsupportedVersionError
-from .gltf import SHOWN_LIMIT, json_kind
+from .gltf import SHOWN_LIMIT, document_integers, integer_shape, json_kind, with_integers
 from .layout import DIGEST_SIZE
 
 SCHEMA_DIR = Path(__file__).with_name("schema")
@@ -296,11 +296,31 @@ def payload_version(ext: dict) -> int:
 
 
 @functools.lru_cache(maxsize=None)
+def _schemas() -> dict:
+    """The extension's JSON schemas by file name (``$id``)."""
+    return {p.name: json.loads(p.read_text()) for p in SCHEMA_DIR.glob("*.schema.json")}
+
+
+@functools.lru_cache(maxsize=None)
+def _document_integers() -> dict:
+    """Where a ``.pmw`` document holds integers: glTF's integer members and the extension's, as its schemas type them."""
+    return integer_shape(document_integers({EXTENSION_NAME: {"$ref": PRIMITIVE_SCHEMA}}), _schemas())
+
+
+def integer_members(gltf: dict) -> dict:
+    """A parsed ``.pmw`` document (in place) with every member glTF 2.0 or the extension's schemas type
+    ``integer`` that holds an integral float made an ``int`` (``16.0`` -> ``16``: one value in JSON;
+    spec README, *JSON numbers*), so every reader of the document sees ints; returns it.  Members typed
+    ``number`` keep their floats (``0.0`` stays ``0.0``: the MACs' canonical JSON writes it so)."""
+    return with_integers(gltf, _document_integers())
+
+
+@functools.lru_cache(maxsize=None)
 def _validator():
     import jsonschema
     from referencing import Registry, Resource
 
-    schemas = {p.name: json.loads(p.read_text()) for p in SCHEMA_DIR.glob("*.schema.json")}
+    schemas = _schemas()
     registry = Registry().with_resources((name, Resource.from_contents(s)) for name, s in schemas.items())
     schema = schemas[PRIMITIVE_SCHEMA]
     cls = jsonschema.validators.validator_for(schema)

@@ -74,6 +74,127 @@ VECTOR_WIDTH = {name: width for width, name in WIDTH_TYPE.items()}
 _REQUIRED = object()
 
 
+def json_integer(value):
+    """``value`` as an ``int`` when it is a JSON integer, else None.
+
+    A JSON integer is a number with an integral value: ``16``, ``16.0`` and ``1.6e1`` are one value
+    (JSON does not tell them apart and JavaScript cannot; spec README, *JSON numbers*); a bool is none.
+    """
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, int):
+        return value
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    return None
+
+
+_INTEGER = {"type": "integer"}
+
+
+def _array_of(properties: dict) -> dict:
+    return {"items": {"properties": properties}}
+
+
+def _integers(*names) -> dict:
+    return {name: _INTEGER for name in names}
+
+
+_TEXTURE_INFO = {"properties": _integers("index", "texCoord")}
+
+
+def document_integers(primitive_extensions: dict) -> dict:
+    """The members a glTF 2.0 document types ``integer`` (the glTF 2.0 JSON schema's, and
+    ``KHR_draco_mesh_compression``'s), as a JSON schema of the document for :func:`integer_shape`,
+    with ``primitive_extensions`` (``{name: schema}``) the schemas of other extension objects of a
+    mesh primitive.  Members of other extensions are not listed."""
+    draco = {"properties": {"bufferView": _INTEGER, "attributes": {"additionalProperties": _INTEGER}}}
+    primitive = {
+        **_integers("indices", "material", "mode"),
+        "attributes": {"additionalProperties": _INTEGER}, "targets": {"items": {"additionalProperties": _INTEGER}},
+        "extensions": {"properties": {DRACO_EXTENSION: draco, **primitive_extensions}},
+    }
+    sparse = {"properties": {"count": _INTEGER, "indices": {"properties": _integers("bufferView", "byteOffset", "componentType")},
+                             "values": {"properties": _integers("bufferView", "byteOffset")}}}
+    return {"properties": {
+        "scene": _INTEGER,
+        "scenes": _array_of({"nodes": {"items": _INTEGER}}),
+        "nodes": _array_of({**_integers("camera", "skin", "mesh"), "children": {"items": _INTEGER}}),
+        "meshes": _array_of({"primitives": _array_of(primitive)}),
+        "accessors": _array_of({**_integers("bufferView", "byteOffset", "componentType", "count"), "sparse": sparse}),
+        "bufferViews": _array_of(_integers("buffer", "byteOffset", "byteLength", "byteStride", "target")),
+        "buffers": _array_of(_integers("byteLength")),
+        "images": _array_of(_integers("bufferView")),
+        "textures": _array_of(_integers("sampler", "source")),
+        "samplers": _array_of(_integers("magFilter", "minFilter", "wrapS", "wrapT")),
+        "skins": _array_of({**_integers("inverseBindMatrices", "skeleton"), "joints": {"items": _INTEGER}}),
+        "animations": _array_of({
+            "channels": _array_of({"sampler": _INTEGER, "target": {"properties": _integers("node")}}),
+            "samplers": _array_of(_integers("input", "output"))}),
+        "materials": _array_of({
+            "pbrMetallicRoughness": {"properties": {"baseColorTexture": _TEXTURE_INFO, "metallicRoughnessTexture": _TEXTURE_INFO}},
+            "normalTexture": _TEXTURE_INFO, "occlusionTexture": _TEXTURE_INFO, "emissiveTexture": _TEXTURE_INFO}),
+    }}
+
+
+def integer_shape(schema, schemas=None):
+    """Where a JSON schema types a value ``integer``: a tree of dicts (``integer``: bool, ``properties``:
+    {name: tree}, ``additional``: tree, ``items``: tree) for :func:`with_integers`, or None when nothing
+    in it is.  Follows ``$ref`` (a name in ``schemas``), ``properties``, ``additionalProperties``,
+    ``items`` and every branch of ``allOf`` / ``anyOf`` / ``oneOf`` / ``then`` / ``else`` (merged: a
+    member typed ``integer`` in one branch is an integer wherever it occurs)."""
+    if not isinstance(schema, dict):
+        return None
+    parts = [schema] + ([schemas[schema["$ref"]]] if "$ref" in schema else [])
+    parts += [branch for key in ("allOf", "anyOf", "oneOf") for branch in schema.get(key, ())]
+    parts += [schema[key] for key in ("then", "else") if key in schema]
+    tree = {"integer": False, "properties": {}, "additional": None, "items": None}
+    for part in parts:
+        if part is schema:
+            tree["integer"] |= part.get("type") == "integer"
+            for name, sub in part.get("properties", {}).items():
+                tree["properties"][name] = _merged(tree["properties"].get(name), integer_shape(sub, schemas))
+            tree["additional"] = _merged(tree["additional"], integer_shape(part.get("additionalProperties"), schemas))
+            tree["items"] = _merged(tree["items"], integer_shape(part.get("items"), schemas))
+        else:
+            tree = _merged(tree, integer_shape(part, schemas))
+    tree["properties"] = {name: sub for name, sub in tree["properties"].items() if sub is not None}
+    if not (tree["integer"] or tree["properties"] or tree["additional"] or tree["items"]):
+        return None
+    return tree
+
+
+def _merged(a, b):
+    """Two :func:`integer_shape` trees as one (either may be None)."""
+    if a is None or b is None:
+        return a if b is None else b
+    names = set(a["properties"]) | set(b["properties"])
+    return {"integer": a["integer"] or b["integer"],
+            "properties": {n: _merged(a["properties"].get(n), b["properties"].get(n)) for n in names},
+            "additional": _merged(a["additional"], b["additional"]), "items": _merged(a["items"], b["items"])}
+
+
+def with_integers(value, shape):
+    """``value`` (parsed JSON) with every member :func:`integer_shape` tree ``shape`` types integer that
+    holds a number of integral value made an ``int`` (:func:`json_integer`; ``16.0`` -> ``16``), in place;
+    returns the value.  Other numbers stay as they are (a ``1.0`` typed ``number`` stays a float); a
+    member of another JSON type is left for the checks that read it.  Recursion follows ``shape``, never
+    deeper than the schema."""
+    if shape is None:
+        return value
+    if shape["integer"] and isinstance(value, float) and json_integer(value) is not None:
+        return json_integer(value)
+    if isinstance(value, dict):
+        for name, member in value.items():
+            sub = shape["properties"].get(name, shape["additional"])
+            if sub is not None:
+                value[name] = with_integers(member, sub)
+    elif isinstance(value, list) and shape["items"] is not None:
+        for i, member in enumerate(value):
+            value[i] = with_integers(member, shape["items"])
+    return value
+
+
 def float32_numbers(values) -> list:
     """float32 ``values`` (any shape, flattened) as the floats whose JSON text is the shortest
     decimal reading back to the same float32 (``0.1``, not ``0.10000000149011612``): glTF stores

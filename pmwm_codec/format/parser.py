@@ -54,7 +54,7 @@ from ..errors import ChecksumError, FormatError, LimitError, TruncatedError
 from ..progressive.grid import Grid
 from ..sources import byte_view
 from . import base as _base
-from .extension import base_digest, check_extension, chunk_entries, digest, payload_version
+from .extension import base_digest, check_extension, chunk_entries, digest, integer_members, payload_version
 from .gltf import check_finite_numbers, check_json_text_depth, find_extension_primitives, uint, view_range
 from .layout import (
     ALIGNMENT,
@@ -488,6 +488,7 @@ def _load_json(text: bytes):
     if not isinstance(gltf, dict):
         raise FormatError("GLB JSON chunk: top level is not an object")
     check_finite_numbers(gltf, "GLB JSON chunk", FormatError)
+    integer_members(gltf)  # 16.0 where an integer belongs is 16 (spec README, JSON numbers)
     exts = []
     for _, _, prim in find_extension_primitives(gltf, EXTENSION_NAME):
         ext = check_extension(prim["extensions"][EXTENSION_NAME])
