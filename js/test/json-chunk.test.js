@@ -102,3 +102,58 @@ test('the depth scan: strings skipped as JSON has them, the outermost value leve
   assert.equal(scan('["\\\\",[[[]]]]', 1), true);
   assert.equal(scan('[]]]][[', 1), false); // closers first: the running depth, as the reference scan has it
 });
+
+/** A number written as an integral float: `@float(16)` in an edited document becomes `16.0` in its text. */
+const float = (n) => `@float:${n}`;
+/** `bytes` with `change(gltf, primitive, extension)` applied to its document, `float(n)` values written `n.0`. */
+const withFloats = (bytes, change) => withText(bytes, (t) => {
+  const g = JSON.parse(t);
+  const p = g.meshes[0].primitives[0];
+  change(g, p, p.extensions.PMWM_progressive_mesh);
+  return JSON.stringify(g).replace(/"@float:(-?\d+)"/g, '$1.0');
+});
+const floats = (obj, keys) => { for (const k of keys) if (obj[k] !== undefined) obj[k] = Array.isArray(obj[k]) ? obj[k].map(float) : float(obj[k]); };
+
+test('an integer member written as an integral float (16.0, 1.6e1) is that integer in both readers (spec/README.md "JSON numbers")', async () => {
+  const grid = load('grid-hole.plain.v2.pmw');
+  const pillows = load('sphere-pillows.draco.packed.v2.pmw');
+  const welded = load('bowtie.welded-draco.v1.pmw');
+  const attributes = load('sphere-attributes.plain.v2.pmw');
+  await bothGive(grid, [
+    ['grid bits 16.0', withFloats(grid, (g, p, e) => floats(e.grid, ['bits'])), 'decodes'],
+    ['version, payload version, counts', withFloats(grid, (g, p, e) => { floats(e, ['version', 'vertexCount', 'faceCount']); floats(e.payload, ['version']); }), 'decodes'],
+    ['chunk table arrays', withFloats(grid, (g, p, e) => floats(e.chunks, ['bufferView', 'byteLengths', 'vertexCounts', 'faceCounts'])), 'decodes'],
+    ['chunk table byteOffsets', withFloats(grid, (g, p, e) => {
+      let at = 0;
+      e.chunks.byteOffsets = e.chunks.byteLengths.map((n) => { const o = at; at += n; return float(o); });
+    }), 'decodes'],
+    ['scene and node mesh', withFloats(grid, (g) => { g.scene = float(g.scene ?? 0); for (const n of g.nodes) floats(n, ['mesh']); }), 'decodes'],
+    ['grid bits 1.6e1, version 1e0', withText(grid, (t) => t.replace('"bits":16,', '"bits":1.6e1,').replace('"version":1,', '"version":1e0,')), 'decodes'],
+    ['grid bits 16.5', withFloats(grid, (g, p, e) => { e.grid.bits = 16.5; }), 'FormatError'],
+  ]);
+  await bothGive(pillows, [
+    ['packed count, firstFaceChunk', withFloats(pillows, (g, p, e) => { floats(e.chunks, ['count']); floats(e, ['firstFaceChunk']); }), 'decodes'],
+    ['Draco attribute id and bufferView', withFloats(pillows, (g, p) => {
+      const draco = p.extensions.KHR_draco_mesh_compression;
+      floats(draco, ['bufferView']);
+      floats(draco.attributes, ['POSITION']);
+    }), 'decodes'],
+    ['packed count 10.5', withFloats(pillows, (g, p, e) => { e.chunks.count += 0.5; }), 'FormatError'],
+  ]);
+  await bothGive(welded, [
+    ['baseVertexCount, v1 chunk entries', withFloats(welded, (g, p, e) => {
+      floats(e, ['baseVertexCount']);
+      for (const c of e.chunks) floats(c, ['bufferView', 'byteLength', 'uncompressedLength', 'splits', 'vertexCount', 'faceCount']);
+    }), 'decodes'],
+  ]);
+  await bothGive(attributes, [
+    ['attribute bits', withFloats(attributes, (g, p, e) => { for (const a of e.attributes) floats(a, ['bits']); }), 'decodes'],
+    ['primitive attributes, indices, mode', withFloats(attributes, (g, p) => { floats(p.attributes, Object.keys(p.attributes)); floats(p, ['indices', 'mode']); }), 'decodes'],
+    ['accessors, bufferViews, buffer', withFloats(attributes, (g) => {
+      for (const a of g.accessors) floats(a, ['bufferView', 'byteOffset', 'componentType', 'count']);
+      for (const v of g.bufferViews) floats(v, ['buffer', 'byteOffset', 'byteLength', 'target']);
+      floats(g.buffers[0], ['byteLength']);
+    }), 'decodes'],
+    ['POSITION index 0.5', withFloats(attributes, (g, p) => { p.attributes.POSITION += 0.5; }), 'FormatError'],
+  ]);
+});
