@@ -296,3 +296,16 @@ def test_integral_floats_keep_a_marked_file_s_macs(payload_version):
     decoder.close()
     assert decoder.mac_checked == len(results) > 1 and not decoder.mac_failed and not decoder.mac_missing
     assert same_levels(decoded(edited), decoded(data))
+
+
+# --- members that mean nothing -------------------------------------------------------------------------
+
+
+def test_a_faces_member_on_a_version_1_chunk_entry_means_nothing():
+    """Face chunks exist in payload version 2 only (bitstream.md 8.6): ``"faces": true`` on a version 1
+    entry is a member the schema does not know (Python took it for a face chunk: AttributeError)."""
+    data = conformance("grid-hole.plain.v1.pmw")
+    edited = _edit(data, lambda g, p, e: [entry.update(faces=True) for entry in e["chunks"]])
+    assert same_levels(decoded(edited), decoded(data))
+    info = pmwm_codec.inspect(edited)
+    assert not any(chunk["face_chunk"] for chunk in info["chunks"])

@@ -157,3 +157,10 @@ test('an integer member written as an integral float (16.0, 1.6e1) is that integ
     ['POSITION index 0.5', withFloats(attributes, (g, p) => { p.attributes.POSITION += 0.5; }), 'FormatError'],
   ]);
 });
+
+test('a "faces" member on a version 1 chunk entry means nothing: face chunks are payload version 2\'s (spec/bitstream.md §8.6)', async () => {
+  const v1 = load('grid-hole.plain.v1.pmw');
+  await bothGive(v1, [
+    ['faces: true on every v1 entry', withFloats(v1, (g, p, e) => { for (const c of e.chunks) c.faces = true; }), 'decodes'],
+  ]);
+});

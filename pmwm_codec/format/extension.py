@@ -116,7 +116,8 @@ def chunk_entries(ext: dict, base_vertices: int) -> list:
     ``byteLength``, ``digest``, ``vertexCount``, ``faceCount``, ``geometricError``, ``mac`` when
     the table has MACs, and the derived ``splits`` (vertices added: one per split, the
     first chunk counted from the base's ``base_vertices``), ``uncompressedLength``
-    (= ``byteLength``), and ``faces`` True on a face chunk (from ``firstFaceChunk`` on, bitstream.md §8.6).
+    (= ``byteLength``), and ``faces`` True on a face chunk (from ``firstFaceChunk`` on, bitstream.md §8.6;
+    ask :func:`is_face_chunk`, as a version 1 entry is the file's own object).
     FormatError when the table's arrays disagree or the packed bytes are malformed.
     """
     table = ext["chunks"]
@@ -152,6 +153,14 @@ def chunk_entries(ext: dict, base_vertices: int) -> list:
             entry["faces"] = True
         entries.append(entry)
     return entries
+
+
+def is_face_chunk(ext: dict, entry: dict) -> bool:
+    """Whether ``entry`` (one of :func:`chunk_entries`' for ``ext``) is a face chunk (bitstream.md §8.6).
+    Only payload version 2 has face chunks, marked by :func:`chunk_entries` from ``firstFaceChunk``: a
+    member ``faces`` that a version 1 entry carries in the file is one the schema does not know, which
+    means nothing (the JavaScript decoder's ``checkChunk`` reads it the same way)."""
+    return payload_version(ext) == 2 and entry.get("faces") is True
 
 
 def _json_columns(table: dict) -> dict:
