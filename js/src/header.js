@@ -6,7 +6,7 @@
 import { FormatError, LimitError, UnsupportedError } from './errors.js';
 import { unpackChunkTable } from './chunktable.js';
 import {
-  DRACO_EXTENSION, EXTENSION, FORMAT_VERSION, MAX_CHUNK_BYTES, MAX_CHUNKS,
+  DRACO_EXTENSION, EXTENSION, FORMAT_VERSION, MAX_ATTRIBUTES, MAX_CHUNK_BYTES, MAX_CHUNKS,
   MAX_DECOMPRESSED_CHUNK_BYTES, MAX_FACES, MAX_JSON_BYTES, MAX_JSON_DEPTH, MAX_VERTICES, PAYLOAD_CODEC, PAYLOAD_VERSIONS,
 } from './constants.js';
 
@@ -341,6 +341,7 @@ export function baseVertexCount(gltf, prim, ext, what) {
 function basePlan(gltf, prim, ext, bufferLength, what) {
   const attributes = given(ext.attributes, []);
   if (!Array.isArray(attributes)) throw new FormatError(`${what}: attributes is not an array`);
+  if (attributes.length > MAX_ATTRIBUTES) throw new FormatError(`${what}: more than ${MAX_ATTRIBUTES} attributes (the schema's maxItems)`);
   const grids = attributes.map((a, i) => {
     if (!isObj(a) || typeof a.semantic !== 'string' || a.semantic === 'POSITION') {
       throw new FormatError(`${what}: attribute ${i} has no valid semantic`);

@@ -11,6 +11,7 @@ import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { test } from 'node:test';
 import { MAX_JSON_DEPTH, PmwError } from '../src/index.js';
+import { MAX_ATTRIBUTES } from '../src/constants.js';
 import { jsonTooDeep } from '../src/header.js';
 import { CONFORMANCE, jsOutcome } from './lib/helpers.js';
 import { decodeFiles, python } from './lib/python.js';
@@ -163,4 +164,25 @@ test('a "faces" member on a version 1 chunk entry means nothing: face chunks are
   await bothGive(v1, [
     ['faces: true on every v1 entry', withFloats(v1, (g, p, e) => { for (const c of e.chunks) c.faces = true; }), 'decodes'],
   ]);
+});
+
+test('at most MAX_ATTRIBUTES (the schema\'s maxItems) progressive attributes: 17 are a FormatError in both readers, 16 decode', async () => {
+  const schema = JSON.parse(readFileSync(join(CONFORMANCE, '..', 'schema', 'mesh.primitive.PMWM_progressive_mesh.schema.json'), 'utf8'));
+  assert.equal(schema.properties.attributes.maxItems, MAX_ATTRIBUTES);
+  const file = load('sphere-attributes.plain.v2.pmw');
+  /** The base alone (no chunk: a split would carry other columns), its TEXCOORD_0 entry repeated to `n` entries. */
+  const repeated = (n) => withFloats(file, (g, p, e) => {
+    e.chunks = { byteLengths: [], vertexCounts: [], faceCounts: [], geometricErrors: [], digests: '' };
+    e.vertexCount = g.accessors[p.attributes.POSITION].count;
+    e.faceCount = g.accessors[p.indices].count / 3;
+    delete e.baseDigest; // it covers the attribute columns
+    const uv = e.attributes.find((a) => a.semantic === 'TEXCOORD_0');
+    e.attributes = Array.from({ length: n }, () => ({ ...uv }));
+  });
+  const sixteen = repeated(MAX_ATTRIBUTES);
+  await bothGive(sixteen, [
+    ['16 attributes', sixteen, 'decodes'],
+    ['17 attributes', repeated(MAX_ATTRIBUTES + 1), 'FormatError'],
+  ]);
+  assert.equal((await jsOutcome(sixteen)).levels.length, 1);
 });
