@@ -309,3 +309,34 @@ def test_a_faces_member_on_a_version_1_chunk_entry_means_nothing():
     assert same_levels(decoded(edited), decoded(data))
     info = pmwm_codec.inspect(edited)
     assert not any(chunk["face_chunk"] for chunk in info["chunks"])
+
+
+# --- attribute names -----------------------------------------------------------------------------------
+
+
+def _glb_attribute(glb: bytes, semantic: str) -> np.ndarray:
+    """The float32 values of the first primitive's ``semantic`` accessor in a GLB (tightly packed)."""
+    gltf, bin_payload = split(glb)
+    acc = gltf["accessors"][gltf["meshes"][0]["primitives"][0]["attributes"][semantic]]
+    view = gltf["bufferViews"][acc["bufferView"]]
+    width = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}[acc["type"]]
+    start = view.get("byteOffset", 0) + acc.get("byteOffset", 0)
+    return np.frombuffer(bin_payload, "<f4", acc["count"] * width, start).reshape(-1, width)
+
+
+def test_a_decoded_level_renormalizes_normal_and_tangent_only_not_names_starting_so():
+    """spec README, Seams and attributes: NORMAL and TANGENT are written at unit length; a custom
+    ``NORMAL_1`` keeps its decoded values, as the JavaScript decoder gives them."""
+    data = conformance("sphere-attributes.plain.v2.pmw")
+
+    def rename(gltf, prim, ext):
+        prim["attributes"]["NORMAL_1"] = prim["attributes"].pop("NORMAL")
+        next(a for a in ext["attributes"] if a["semantic"] == "NORMAL")["semantic"] = "NORMAL_1"
+
+    renamed = _edit(data, rename)
+    raw = StreamDecoder().feed(renamed)[0].parts[0].attribute_values()["NORMAL_1"]
+    written = _glb_attribute(pmwm_codec.decode_asset(renamed, chunks=0), "NORMAL_1")
+    assert np.array_equal(written, raw)
+    normal = _glb_attribute(pmwm_codec.decode_asset(data, chunks=0), "NORMAL")
+    assert np.array_equal(normal, raw) is False
+    assert np.allclose(np.linalg.norm(normal, axis=1), 1.0, atol=1e-6)
