@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import base64
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +14,7 @@ import pytest
 
 import pmwm_codec
 from pmwm_codec import constants, shapes
-from pmwm_codec.errors import FormatError, LimitError, PmwError
+from pmwm_codec.errors import FormatError, LimitError, PmwError, UnsupportedVersionError
 from pmwm_codec.format import gltf as gltf_module
 from pmwm_codec.format.glb import frame_glb
 from pmwm_codec.stream import StreamDecoder
@@ -340,3 +341,72 @@ def test_a_decoded_level_renormalizes_normal_and_tangent_only_not_names_starting
     normal = _glb_attribute(pmwm_codec.decode_asset(data, chunks=0), "NORMAL")
     assert np.array_equal(normal, raw) is False
     assert np.allclose(np.linalg.norm(normal, axis=1), 1.0, atol=1e-6)
+
+
+# --- the kind of each refusal (spec README, Kinds of refusal) --------------------------------------------
+
+
+def _glb_version(version: int):
+    def change(data: bytes) -> bytes:
+        return data[:4] + version.to_bytes(4, "little") + data[8:]
+    return change
+
+
+def _member(path, value):
+    """A change setting the member at ``path`` of the extension object (``"/"`` first: of the document)."""
+    def change(gltf, prim, ext):
+        target = gltf if path[0] == "/" else ext
+        keys = path[1:] if path[0] == "/" else path
+        for key in keys[:-1]:
+            target = target[key]
+        target[keys[-1]] = value
+    return change
+
+
+def _position_count(value):
+    return lambda g, p, e: g["accessors"][p["attributes"]["POSITION"]].update(count=value)
+
+
+V1, V2, PACKED, MARKED = "grid-hole.plain.v1.pmw", "grid-hole.plain.v2.pmw", "grid-hole.plain.packed.v2.pmw", "sphere.exact-watermark.v1.pmw"
+REFUSALS = [  # (file, change of the JSON or of the bytes, kind, what the message names)
+    (V2, _member(["vertexCount"], None), FormatError, "vertexCount"),
+    (V2, _member(["vertexCount"], True), FormatError, "vertexCount"),
+    (V2, _member(["vertexCount"], "1"), FormatError, "vertexCount"),
+    (V2, _member(["vertexCount"], 1.5), FormatError, "vertexCount"),
+    (V2, _member(["faceCount"], -1), FormatError, "faceCount"),
+    (V2, _member(["vertexCount"], 1 << 27), LimitError, "vertexCount"),
+    (V2, _member(["vertexCount"], 1e300), LimitError, "vertexCount"),
+    (V2, _member(["version"], 1 << 60), UnsupportedVersionError, "version 1152921504606846976 is newer"),
+    (V2, _member(["version"], 1e300), UnsupportedVersionError, "version a 301-digit integer is newer"),
+    (V2, _member(["payload", "codec"], "pmwm-vsplitx"), UnsupportedVersionError, "payload 'pmwm-vsplitx' version 2"),
+    (V2, _member(["payload", "version"], 3), UnsupportedVersionError, "payload 'pmwm-vsplit' version 3"),
+    (V1, _member(["payload"], {"codec": "pmwm-vsplit", "version": 3}), UnsupportedVersionError, "version 3"),
+    (V2, _member(["payload"], None), FormatError, "payload must be an object"),
+    (V2, _member(["payload"], {}), FormatError, "payload must be an object"),
+    (V2, _member(["payload", "version"], "2"), FormatError, "payload must be an object"),
+    (V2, _glb_version(514), UnsupportedVersionError, "container version 514"),
+    (V2, _glb_version(1), UnsupportedVersionError, "container version 1"),
+    (MARKED, _member(["watermark", "carriers"], 1 << 27), LimitError, "carrier count"),
+    (MARKED, _member(["watermark", "carriers"], -1), FormatError, "carriers"),
+    (V2, lambda g, p, e: e["chunks"]["byteLengths"].__setitem__(0, 0), FormatError, "byteLengths/0"),
+    (V1, _member(["chunks", 0, "byteLength"], 0), FormatError, "byteLength"),
+    (V1, _member(["chunks", 0, "byteLength"], None), FormatError, "byteLength"),
+    (V1, _member(["chunks", 0, "uncompressedLength"], -1), FormatError, "uncompressedLength"),
+    (V1, _member(["chunks", 0, "vertexCount"], 1 << 27), LimitError, "vertices"),
+    (PACKED, _member(["chunks", "count"], constants.MAX_CHUNKS + 1), LimitError, "exceeds the limit of 65536 chunks"),
+    (PACKED, _member(["chunks", "count"], 1e300), LimitError, "exceeds the limit of 65536 chunks"),
+    (V1, _position_count(-1), FormatError, "count"),
+    (V1, _position_count(1 << 27), LimitError, "vertices exceed"),
+]
+
+
+@pytest.mark.parametrize("name, change, kind, named", REFUSALS, ids=[f"{i}-{r[3]}" for i, r in enumerate(REFUSALS)])
+def test_each_refusal_has_its_kind_before_any_level(name, change, kind, named):
+    data = conformance(name)
+    edited = change(data) if change.__code__.co_argcount == 1 else _edit(data, change)
+    decoder = StreamDecoder()
+    with pytest.raises(kind, match=re.escape(named)) as info:
+        decoder.feed(edited)  # the header's refusals come before the base mesh: no level is shown
+    if kind is FormatError:
+        assert not isinstance(info.value, (LimitError, UnsupportedVersionError)), info.value
+    assert "\n" not in str(info.value) and len(str(info.value)) < 240

@@ -50,9 +50,12 @@ def json_kind(value) -> str:
 
 
 def shown_value(value) -> str:
-    """``value`` for a one-line message: its ``repr`` when short, else its JSON kind (a long string, a table)."""
+    """``value`` for a one-line message: its ``repr`` when short, else its JSON kind (a long string, a table;
+    "a 301-digit integer")."""
     text = repr(value)
-    return text if len(text) <= SHOWN_LIMIT else json_kind(value)
+    if len(text) <= SHOWN_LIMIT:
+        return text
+    return f"a {len(text)}-digit integer" if json_kind(value) == "an integer" else json_kind(value)
 
 
 #: componentType -> little-endian numpy dtype string.

@@ -50,12 +50,12 @@ from ..constants import (
     MAX_JSON_BYTES,
     MAX_VERTICES,
 )
-from ..errors import ChecksumError, FormatError, LimitError, TruncatedError
+from ..errors import ChecksumError, FormatError, LimitError, TruncatedError, UnsupportedVersionError
 from ..progressive.grid import Grid
 from ..sources import byte_view
 from . import base as _base
 from .extension import base_digest, check_extension, chunk_entries, digest, integer_members, payload_version
-from .gltf import check_finite_numbers, check_json_text_depth, find_extension_primitives, uint, view_range
+from .gltf import check_finite_numbers, check_json_text_depth, find_extension_primitives, shown_value, uint, view_range
 from .layout import (
     ALIGNMENT,
     CHUNK_HEADER_SIZE,
@@ -155,8 +155,8 @@ def parse_preamble(data) -> tuple[int, int]:
         chunk = ChunkHeader.parse(head[GLB_HEADER_SIZE:PREAMBLE_SIZE])
     except ConstructError as exc:  # pragma: no cover - magic already checked
         raise FormatError(f"GLB header: {exc}".splitlines()[0]) from None
-    if glb.version != GLB_VERSION:
-        raise FormatError(f"GLB header: container version {glb.version}, expected {GLB_VERSION}")
+    if glb.version != GLB_VERSION:  # a container this reader does not implement (spec README, Conformance)
+        raise UnsupportedVersionError(f"GLB header: container version {glb.version}, expected {GLB_VERSION}")
     if chunk.type != CHUNK_TYPE_JSON:
         raise FormatError(f"GLB header: first chunk type {chunk.type!r}, expected {CHUNK_TYPE_JSON!r}")
     if chunk.length > MAX_JSON_BYTES:
@@ -198,9 +198,9 @@ def _plan(gltf: dict, exts: list, bin_capacity: int) -> _Plan:
         total_vertices += ext["vertexCount"]
         total_faces += ext["faceCount"]
     if total_vertices > MAX_VERTICES:
-        raise LimitError(f"{EXTENSION_NAME}: vertexCount {total_vertices} exceeds the limit {MAX_VERTICES}")
+        raise LimitError(f"{EXTENSION_NAME}: vertexCount {shown_value(total_vertices)} exceeds the limit {MAX_VERTICES}")
     if total_faces > MAX_FACES:
-        raise LimitError(f"{EXTENSION_NAME}: faceCount {total_faces} exceeds the limit {MAX_FACES}")
+        raise LimitError(f"{EXTENSION_NAME}: faceCount {shown_value(total_faces)} exceeds the limit {MAX_FACES}")
 
     views = gltf.get("bufferViews")
     base_end = 0
