@@ -10,7 +10,7 @@ import { mkdtempSync, readFileSync, rmSync, writeFileSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { test } from 'node:test';
-import { MAX_JSON_DEPTH, PmwError } from '../src/index.js';
+import { FormatError, MAX_JSON_DEPTH, PmwDecoder, PmwError } from '../src/index.js';
 import { MAX_ATTRIBUTES } from '../src/constants.js';
 import { jsonTooDeep } from '../src/header.js';
 import { CONFORMANCE, jsOutcome } from './lib/helpers.js';
@@ -185,4 +185,50 @@ test('at most MAX_ATTRIBUTES (the schema\'s maxItems) progressive attributes: 17
     ['17 attributes', repeated(MAX_ATTRIBUTES + 1), 'FormatError'],
   ]);
   assert.equal((await jsOutcome(sixteen)).levels.length, 1);
+});
+
+test('each refusal has the kind spec/README.md "Kinds of refusal" gives it, in both readers, before any level', async () => {
+  const v1 = load('grid-hole.plain.v1.pmw');
+  const v2 = load('grid-hole.plain.v2.pmw');
+  const packed = load('grid-hole.plain.packed.v2.pmw');
+  const marked = load('sphere.exact-watermark.v1.pmw');
+  const edit = (bytes, change) => withFloats(bytes, change);
+  const glbVersion = (bytes, version) => { const out = bytes.slice(); new DataView(out.buffer).setUint32(4, version, true); return out; };
+  const position = (g, p) => g.accessors[p.attributes.POSITION];
+  const cases = [
+    [v2, 'vertexCount null', edit(v2, (g, p, e) => { e.vertexCount = null; }), 'FormatError'],
+    [v2, 'vertexCount true', edit(v2, (g, p, e) => { e.vertexCount = true; }), 'FormatError'],
+    [v2, 'vertexCount "1"', edit(v2, (g, p, e) => { e.vertexCount = '1'; }), 'FormatError'],
+    [v2, 'vertexCount 1.5', edit(v2, (g, p, e) => { e.vertexCount = 1.5; }), 'FormatError'],
+    [v2, 'faceCount -1', edit(v2, (g, p, e) => { e.faceCount = -1; }), 'FormatError'],
+    [v2, 'vertexCount 2^27', edit(v2, (g, p, e) => { e.vertexCount = 2 ** 27; }), 'LimitError'],
+    [v2, 'vertexCount 1e300', edit(v2, (g, p, e) => { e.vertexCount = 1e300; }), 'LimitError'],
+    [v2, 'version 2^60', withText(v2, (t) => t.replace('"version":1,', '"version":1152921504606846976,')), 'UnsupportedError'],
+    [v2, 'payload codec pmwm-vsplitx', edit(v2, (g, p, e) => { e.payload.codec = 'pmwm-vsplitx'; }), 'UnsupportedError'],
+    [v2, 'payload version 3', edit(v2, (g, p, e) => { e.payload.version = 3; }), 'UnsupportedError'],
+    [v1, 'payload version 3 on a v1 file', edit(v1, (g, p, e) => { e.payload = { codec: 'pmwm-vsplit', version: 3 }; }), 'UnsupportedError'],
+    [v2, 'payload null', edit(v2, (g, p, e) => { e.payload = null; }), 'FormatError'],
+    [v2, 'payload {}', edit(v2, (g, p, e) => { e.payload = {}; }), 'FormatError'],
+    [v2, 'payload version "2"', edit(v2, (g, p, e) => { e.payload.version = '2'; }), 'FormatError'],
+    [v2, 'GLB container version 514', glbVersion(v2, 514), 'UnsupportedError'],
+    [v2, 'GLB container version 1', glbVersion(v2, 1), 'UnsupportedError'],
+    [marked, 'watermark carriers 2^27', edit(marked, (g, p, e) => { e.watermark.carriers = 2 ** 27; }), 'LimitError'],
+    [marked, 'watermark carriers -1', edit(marked, (g, p, e) => { e.watermark.carriers = -1; }), 'FormatError'],
+    [v2, 'array table byteLengths[0] 0', edit(v2, (g, p, e) => { e.chunks.byteLengths[0] = 0; }), 'FormatError'],
+    [v1, 'chunk byteLength 0', edit(v1, (g, p, e) => { e.chunks[0].byteLength = 0; }), 'FormatError'],
+    [v1, 'chunk byteLength null', edit(v1, (g, p, e) => { e.chunks[0].byteLength = null; }), 'FormatError'],
+    [v1, 'chunk uncompressedLength -1', edit(v1, (g, p, e) => { e.chunks[0].uncompressedLength = -1; }), 'FormatError'],
+    [v1, 'chunk vertexCount 2^27', edit(v1, (g, p, e) => { e.chunks[0].vertexCount = 2 ** 27; }), 'LimitError'],
+    [packed, 'packed count 65537', edit(packed, (g, p, e) => { e.chunks.count = 65537; }), 'LimitError'],
+    [packed, 'packed count 1e300', edit(packed, (g, p, e) => { e.chunks.count = 1e300; }), 'LimitError'],
+    [v1, 'POSITION count -1', edit(v1, (g, p) => { position(g, p).count = -1; }), 'FormatError'],
+    [v1, 'POSITION count 2^27', edit(v1, (g, p) => { position(g, p).count = 2 ** 27; }), 'LimitError'],
+  ];
+  for (const file of [v1, v2, packed, marked]) {
+    await bothGive(file, cases.filter(([f]) => f === file).map(([, label, bytes, kind]) => [label, bytes, kind]));
+  }
+  const levels = [];
+  const d = new PmwDecoder({ onLevel: (r) => levels.push(r.chunk) });
+  await assert.rejects(d.feed(edit(v2, (g, p, e) => { e.chunks.byteLengths[0] = 0; })), FormatError);
+  assert.deepEqual(levels, [], 'no level is shown before the table\'s refusal (it showed the base, then a digest error)');
 });
