@@ -99,6 +99,22 @@ export function jsonTooDeep(bytes, limit = MAX_JSON_DEPTH) {
   return false;
 }
 
+/**
+ * The checks of parseGlb that a parsed JSON value still shows, for a caller that has no JSON bytes (the
+ * glTF-Transform extension: its reader parses the text itself): a number that is not finite (1e999 parses
+ * to Infinity) is a FormatError, nesting deeper than MAX_JSON_DEPTH a LimitError. Walked without recursion.
+ */
+export function checkJsonTree(value, what = 'JSON chunk') {
+  const stack = [[value, 1]];
+  while (stack.length) {
+    const [v, depth] = stack.pop();
+    if (typeof v === 'number' && !Number.isFinite(v)) throw new FormatError(`${what}: holds a number that is not finite`);
+    if (v === null || typeof v !== 'object') continue;
+    if (depth > MAX_JSON_DEPTH) throw new LimitError(`${what}: JSON nested more than ${MAX_JSON_DEPTH} levels deep (MAX_JSON_DEPTH)`);
+    for (const child of Array.isArray(v) ? v : Object.values(v)) stack.push([child, depth + 1]);
+  }
+}
+
 /** Bytes needed before the JSON can be parsed: 20 (preamble), then 20 + J + 8 (BIN header). */
 export function preambleLength(bytes) {
   if (bytes.length < 20) return 20;
