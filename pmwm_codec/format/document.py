@@ -39,7 +39,6 @@ from ..constants import (
     MAX_ENCODE_VERTICES,
     MAX_INPUT_FILE_BYTES,
     MAX_JSON_BYTES,
-    MAX_JSON_DEPTH,
     MAX_RESOURCE_BYTES,
 )
 from ..errors import InputFormatError
@@ -245,7 +244,7 @@ CARRIED_EXTENSIONS = (
 def check_document(gltf: dict, name: str) -> None:
     """Refuse (InputFormatError) a glTF JSON the document code cannot walk safely.
 
-    Checks the nesting depth (:data:`MAX_JSON_DEPTH`), that no number is NaN or
+    Checks the nesting depth (:data:`~pmwm_codec.constants.MAX_JSON_DEPTH`), that no number is NaN or
     infinite (Python's JSON reader takes ``NaN``, ``Infinity`` and ``1e999``; JSON, and
     so the output, does not), that every array and object
     this module reads has the right JSON type, that every index reference the
