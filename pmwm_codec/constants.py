@@ -25,6 +25,11 @@ MAX_CHUNKS = 1 << 16
 MAX_JSON_BYTES = 64 << 20
 MAX_CHUNK_BYTES = 1 << 30  # one compressed chunk
 MAX_DECOMPRESSED_CHUNK_BYTES = 1 << 28  # 256 MiB: a 1M-vertex batch needs ~2 MB
+#: Deepest nesting of arrays / objects in JSON, the outermost value being level 1: a reader refuses a
+#: ``.pmw`` JSON chunk nested deeper, and the encoder input JSON (glTF, key files) nested deeper.  The
+#: encoder writes the input's own members (``extras``, extensions it carries) at the depth they had and
+#: its own at most 11 deep, so every file it writes is within the readers' limit.
+MAX_JSON_DEPTH = 64
 
 # --- limits of the encoder side, checked before its inputs are read into memory ---
 #: Largest mesh the encoder takes: it needs about 1.9 KB per vertex (measured on a
@@ -39,8 +44,6 @@ MAX_RESOURCE_BYTES = 1 << 30
 #: Largest input mesh / glTF / key file read whole into memory.
 MAX_INPUT_FILE_BYTES = 2 << 30
 MAX_KEY_FILE_BYTES = 64 << 20
-#: Deepest nesting of arrays / objects accepted in input JSON (glTF ``extras``, key files).
-MAX_JSON_DEPTH = 64
 #: Largest watermark image decoded (pixels, read from the header first): 4096 x 4096.
 #: It is downscaled to at most 256 x 256 anyway.
 MAX_WATERMARK_PIXELS = 1 << 24

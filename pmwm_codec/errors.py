@@ -32,7 +32,9 @@ class FormatError(PmwError, ValueError):
 
 
 class UnsupportedVersionError(FormatError):
-    """A ``.pmw`` written by a newer, incompatible format version."""
+    """A ``.pmw`` in a version this reader does not implement: a newer extension ``version``, a chunk
+    ``payload`` codec or version it does not know, a GLB container version other than 2 (spec README,
+    *Kinds of refusal*)."""
 
 
 class LimitError(FormatError):

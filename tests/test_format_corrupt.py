@@ -46,7 +46,7 @@ def test_rebuilding_an_unmodified_file_gives_the_same_bytes():
 
 @pytest.mark.parametrize("data, error, match", [
     (b"glTX" + DATA[4:], FormatError, "bad magic"),
-    (DATA[:4] + (1).to_bytes(4, "little") + DATA[8:], FormatError, "container version 1"),
+    (DATA[:4] + (1).to_bytes(4, "little") + DATA[8:], UnsupportedVersionError, "container version 1"),
     (DATA[:16] + b"JSOX" + DATA[20:], FormatError, "first chunk type"),
     (DATA[:12] + (constants.MAX_JSON_BYTES + 4).to_bytes(4, "little") + DATA[16:], LimitError, "JSON chunk"),
     (DATA[:12] + (6).to_bytes(4, "little") + DATA[16:], FormatError, "multiple of 4"),

@@ -26,7 +26,7 @@ const hex = (bytes) => Array.from(bytes, (b) => b.toString(16).padStart(2, '0'))
  */
 export function unpackChunkTable(count, packed, what = 'chunks') {
   const bad = (why) => new FormatError(`${what}: packed chunk table: ${why}`);
-  if (!Number.isSafeInteger(count) || count < 0) throw bad('count is not a non-negative integer');
+  if (!Number.isInteger(count) || count < 0) throw bad('count is not a non-negative integer');
   if (count > MAX_CHUNKS) throw new LimitError(`${what}: more than ${MAX_CHUNKS} chunks`);
   const longest = 1 + count * (DIGEST + MAC + ERROR + 3 * VARINT_MAX);
   if (typeof packed !== 'string' || packed.length > 4 * Math.ceil(longest / 3)) throw bad(`longer than ${count} chunks can need`);

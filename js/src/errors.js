@@ -1,10 +1,11 @@
 /**
- * Named errors of the decoder. Every failure on input bytes is a PmwError subclass:
+ * Named errors of the decoder, the kinds of spec/README.md "Kinds of refusal". Every failure on input bytes is a
+ * PmwError subclass:
  *
  *   PmwError
  *   ├── FormatError            the bytes break the format (spec/README.md, spec/bitstream.md)
  *   │   ├── LimitError         a declared size or count is over a limit (README "Limits")
- *   │   └── UnsupportedError   a version / payload codec this reader does not implement
+ *   │   └── UnsupportedError   a version / payload codec / GLB container version this reader does not implement
  *   ├── CorruptChunkError      a chunk's stored bytes do not match its BLAKE2b digest, or (chunk
  *   │                          null) the decoded base mesh does not match its baseDigest
  *   ├── TruncatedError         the stream ended before the base mesh was complete

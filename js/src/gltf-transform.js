@@ -32,7 +32,7 @@
 import { Extension, ExtensionProperty, Format, PropertyType, VertexLayout } from '@gltf-transform/core';
 import { createBLAKE2b } from 'hash-wasm';
 import { FormatError, PmwError } from './errors.js';
-import { baseVertexCount, chunkEntries, planDocument } from './header.js';
+import { baseVertexCount, checkJsonTree, chunkEntries, parseGlb, planDocument } from './header.js';
 import { packChunkTable } from './chunktable.js';
 
 /** BLAKE2b-128 (hash-wasm; WebAssembly compiles asynchronously, once, at import). */
@@ -130,10 +130,50 @@ function progressivePrimitives(document) {
   return out;
 }
 
+/** Whether a parsed glTF document has a primitive carrying the extension. */
+const carriesStream = (json) => (json.meshes ?? []).some((m) => m?.primitives?.some?.((p) => p?.extensions?.[NAME] !== undefined));
+
+/**
+ * The decoder's checks of a document glTF-Transform has parsed (src/header.js): the JSON values (checkJsonTree)
+ * and every progressive primitive (planDocument: extension objects, chunk tables, every base and chunk range).
+ * @returns the plan, or null when no primitive carries the extension
+ */
+function checkedPlan(context) {
+  const json = context.jsonDoc.json;
+  if (!carriesStream(json)) return null;
+  checkJsonTree(json);
+  return planDocument(json, context.jsonDoc.resources[GLB_BUFFER]?.byteLength ?? 0);
+}
+
+/**
+ * Runs every check the decoder makes of a .pmw's header on its raw bytes (src/header.js parseGlb and
+ * planDocument: the GLB framing, the JSON chunk's UTF-8, byte order mark, non-finite numbers and depth, every
+ * progressive primitive) and throws the decoder's named error; `PMWMProgressiveMesh.read()` cannot make those
+ * glTF-Transform's reader takes before any extension runs (js/README.md). Call it before `io.readBinary(bytes)`
+ * to accept exactly the files the decoder accepts. A GLB without the extension passes.
+ * @param {Uint8Array} bytes a whole GLB
+ */
+export function checkPmwHeader(bytes) {
+  const { gltf, binLength } = parseGlb(bytes);
+  if (carriesStream(gltf)) planDocument(gltf, binLength);
+}
+
 export class PMWMProgressiveMesh extends Extension {
   static EXTENSION_NAME = NAME;
   extensionName = NAME;
+  prereadTypes = [PropertyType.BUFFER];
   prewriteTypes = [PropertyType.BUFFER];
+
+  /**
+   * Before glTF-Transform reads the buffers, bufferViews and accessors: the document is checked as the decoder
+   * checks it (checkedPlan), so a stream the decoder refuses is refused with its named error, not with the
+   * TypeError or RangeError glTF-Transform's own reading of a bad base bufferView or stride would throw.
+   * @param {import('@gltf-transform/core').ReaderContext} context
+   */
+  preread(context, propertyType) {
+    if (propertyType === PropertyType.BUFFER) checkedPlan(context);
+    return this;
+  }
 
   /** @returns {ProgressiveMesh} a new, empty extension property */
   createProgressiveMesh() {
@@ -142,15 +182,16 @@ export class PMWMProgressiveMesh extends Extension {
 
   /**
    * Reads every progressive primitive's stream. The document is first checked as the decoder checks it
-   * (header.js planDocument: extension objects, chunk tables, every chunk's range in the BIN), so a stream
-   * the decoder would refuse is refused here with the same named error, never read short.
+   * (checkedPlan, as in preread), so a stream the decoder would refuse is refused here with the same named
+   * error, never read short.
    * @param {import('@gltf-transform/core').ReaderContext} context
    */
   read(context) {
     const json = context.jsonDoc.json;
-    if (!(json.meshes ?? []).some((m) => m?.primitives?.some?.((p) => p?.extensions?.[NAME] !== undefined))) return this;
+    const plan = checkedPlan(context);
+    if (plan === null) return this;
     const bin = context.jsonDoc.resources[GLB_BUFFER];
-    for (const { mesh, primitive: index, ext, chunks: placed, payloadVersion, base } of planDocument(json, bin?.byteLength ?? 0).primitives) {
+    for (const { mesh, primitive: index, ext, chunks: placed, payloadVersion, base } of plan.primitives) {
       const primitive = context.meshes[mesh].listPrimitives()[index];
       const entries = chunkEntries(ext, payloadVersion,
         baseVertexCount(json, json.meshes[mesh].primitives[index], ext, `mesh ${mesh} primitive ${index}`));

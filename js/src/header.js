@@ -6,8 +6,8 @@
 import { FormatError, LimitError, UnsupportedError } from './errors.js';
 import { unpackChunkTable } from './chunktable.js';
 import {
-  DRACO_EXTENSION, EXTENSION, FORMAT_VERSION, MAX_CHUNK_BYTES, MAX_CHUNKS,
-  MAX_DECOMPRESSED_CHUNK_BYTES, MAX_FACES, MAX_JSON_BYTES, MAX_VERTICES, PAYLOAD_CODEC, PAYLOAD_VERSIONS,
+  DRACO_EXTENSION, EXTENSION, FORMAT_VERSION, MAX_ATTRIBUTES, MAX_CHUNK_BYTES, MAX_CHUNKS,
+  MAX_DECOMPRESSED_CHUNK_BYTES, MAX_FACES, MAX_JSON_BYTES, MAX_JSON_DEPTH, MAX_VERTICES, PAYLOAD_CODEC, PAYLOAD_VERSIONS,
 } from './constants.js';
 
 const GLB_MAGIC = 0x46546c67; // 'glTF'
@@ -26,6 +26,15 @@ const isObj = (x) => x !== null && typeof x === 'object' && !Array.isArray(x);
 const given = (x, absent) => (x === undefined ? absent : x);
 /** A JSON Schema integer >= lo of any size (1e300 is one), as the schema check of the reference reader has it. */
 const isWhole = (lo) => (x) => Number.isInteger(x) && x >= lo;
+/**
+ * A count or size member, returned: a FormatError unless it is an integer >= lo (null, true, -1 and 1.5
+ * are no count), a LimitError over `max` (spec/README.md "Kinds of refusal"), as the reference reader has it.
+ */
+function checkCount(x, lo, max, what) {
+  if (!Number.isInteger(x) || x < lo) throw new FormatError(`${what} is not an integer >= ${lo}`);
+  if (x > max) throw new LimitError(`${what} ${x} is over the limit ${max}`);
+  return x;
+}
 /** A string of whole `digits`-digit groups of lowercase hex (exactly one group when `one`). */
 const isHex = (digits, one = true) => (x) => typeof x === 'string' && (one ? x.length === digits : x.length % digits === 0)
   && /^[0-9a-f]*$/.test(x);
@@ -50,7 +59,7 @@ const SCHEMA_FIELDS = {
     mode: [(x) => x === 'exact' || x === 'paper', '"exact" or "paper"', true], bits: [(x) => isInt(x, 1, 16), 'an integer in 1..16', true],
     scale: [(x) => isNum(x) && x > 0, 'a number > 0', true], width: [isWhole(1), 'an integer >= 1', true],
     height: [isWhole(1), 'an integer >= 1', true], levels: [isWhole(0), 'an integer >= 0', true],
-    codes: [isWhole(0), 'an integer >= 0', true], carriers: [(x) => isInt(x, 0, MAX_VERTICES), `an integer in 0..${MAX_VERTICES}`, true],
+    codes: [isWhole(0), 'an integer >= 0', true], carriers: [isWhole(0), 'an integer >= 0', true], // over MAX_VERTICES: checkExtension
     embedFrom: [isWhole(0), 'an integer >= 0'], binding: [(x) => x === 'ring-v2', '"ring-v2"'],
     keyFingerprint: [(x) => typeof x === 'string', 'a string'], layout: [isObj, 'an object'], extensions: [isObj, 'an object'],
   },
@@ -60,6 +69,49 @@ const SCHEMA_FIELDS = {
 function checkFields(obj, kind, what) {
   for (const [key, [ok, must, required]] of Object.entries(SCHEMA_FIELDS[kind])) {
     if (key in obj ? !ok(obj[key]) : required) throw new FormatError(`${what}: ${key} must be ${must}`);
+  }
+}
+
+/**
+ * Whether JSON text `bytes` nests more than `limit` arrays and objects deep (the outermost value is
+ * level 1), found by one scan of the bytes before they are parsed (spec/README.md, Conformance): a `"`
+ * after an even run of backslashes (none included) begins or ends a string; outside a string `[` / `{`
+ * open a level and `]` / `}` close one. The reference reader's `check_json_text_depth`
+ * (pmwm_codec/format/gltf.py) scans the same way, so both refuse the same bytes; JSON.parse's reviver
+ * then never recurses deeper than the limit.
+ */
+export function jsonTooDeep(bytes, limit = MAX_JSON_DEPTH) {
+  let depth = 0;
+  let inString = false;
+  let odd = false; // after an odd run of backslashes
+  for (let i = 0; i < bytes.length; i++) {
+    const b = bytes[i];
+    if (b === 0x5c) { odd = !odd; continue; }
+    if (b === 0x22) {
+      if (!odd) inString = !inString;
+    } else if (!inString) {
+      if (b === 0x5b || b === 0x7b) {
+        if (++depth > limit) return true;
+      } else if (b === 0x5d || b === 0x7d) depth--;
+    }
+    odd = false;
+  }
+  return false;
+}
+
+/**
+ * The checks of parseGlb that a parsed JSON value still shows, for a caller that has no JSON bytes (the
+ * glTF-Transform extension: its reader parses the text itself): a number that is not finite (1e999 parses
+ * to Infinity) is a FormatError, nesting deeper than MAX_JSON_DEPTH a LimitError. Walked without recursion.
+ */
+export function checkJsonTree(value, what = 'JSON chunk') {
+  const stack = [[value, 1]];
+  while (stack.length) {
+    const [v, depth] = stack.pop();
+    if (typeof v === 'number' && !Number.isFinite(v)) throw new FormatError(`${what}: holds a number that is not finite`);
+    if (v === null || typeof v !== 'object') continue;
+    if (depth > MAX_JSON_DEPTH) throw new LimitError(`${what}: JSON nested more than ${MAX_JSON_DEPTH} levels deep (MAX_JSON_DEPTH)`);
+    for (const child of Array.isArray(v) ? v : Object.values(v)) stack.push([child, depth + 1]);
   }
 }
 
@@ -110,7 +162,9 @@ export function parseGlb(bytes) {
   let gltf;
   try {
     // ignoreBOM keeps a byte order mark in the text, where JSON.parse refuses it (spec README, Conformance)
-    const text = new TextDecoder('utf-8', { fatal: true, ignoreBOM: true }).decode(bytes.subarray(20, 20 + jsonLength));
+    const json = bytes.subarray(20, 20 + jsonLength);
+    const text = new TextDecoder('utf-8', { fatal: true, ignoreBOM: true }).decode(json);
+    if (jsonTooDeep(json)) throw new LimitError(`JSON chunk: JSON nested more than ${MAX_JSON_DEPTH} levels deep (MAX_JSON_DEPTH)`);
     gltf = JSON.parse(text, finiteNumbers);
   } catch (e) {
     if (e instanceof FormatError) throw e;
@@ -155,20 +209,20 @@ function bufferView(gltf, index, bufferLength, what) {
  * A base accessor by index, its type and count checked (a Draco base's accessors too: they declare
  * the counts the Draco data must decode to, KHR_draco_mesh_compression).
  */
-function baseAccessor(gltf, index, what, { types, components }) {
+function baseAccessor(gltf, index, what, { types, components, max }) {
   const accessors = Array.isArray(gltf.accessors) ? gltf.accessors : [];
   const acc = isInt(index, 0, accessors.length - 1) ? accessors[index] : undefined;
   if (!isObj(acc)) throw new FormatError(`${what}: accessor ${index} does not exist`);
   const size = types[acc.componentType];
   const k = COMPONENTS[acc.type];
   if (!size || k !== components) throw new FormatError(`${what}: accessor ${index} has the wrong type`);
-  if (!isInt(acc.count, 0, MAX_FACES * 3)) throw new LimitError(`${what}: accessor count over the limit`);
+  checkCount(acc.count, 0, max, `${what}: accessor ${index}'s count`);
   return { acc, size, k };
 }
 
 /** An accessor read plan {view, offset, stride, count, components, componentType}, every byte in range. */
-function accessorPlan(gltf, index, bufferLength, what, { types, components }) {
-  const { acc, size, k } = baseAccessor(gltf, index, what, { types, components });
+function accessorPlan(gltf, index, bufferLength, what, { types, components, max }) {
+  const { acc, size, k } = baseAccessor(gltf, index, what, { types, components, max });
   const view = bufferView(gltf, acc.bufferView, bufferLength, what);
   const offset = given(acc.byteOffset, 0);
   const stride = view.stride ?? size * k;
@@ -259,15 +313,12 @@ function arrayColumns(table, what) {
 function checkChunk(gltf, c, j, bufferLength, what, version = 1) {
   if (!isObj(c)) throw new FormatError(`${what} chunks[${j}]: not an object`);
   checkFields(c, 'chunk', `${what} chunks[${j}]`);
-  if (!isInt(c.byteLength, 0, MAX_CHUNK_BYTES)) throw new LimitError(`${what} chunks[${j}]: byteLength over the limit`);
-  if (!isInt(c.uncompressedLength, 0, MAX_DECOMPRESSED_CHUNK_BYTES)) {
-    throw new LimitError(`${what} chunks[${j}]: uncompressedLength over the limit`);
-  }
-  for (const key of ['splits', 'vertexCount', 'faceCount']) {
-    if (!isInt(c[key], 0, key === 'faceCount' ? MAX_FACES : MAX_VERTICES)) {
-      throw new FormatError(`${what} chunks[${j}]: ${key} is not a count within the limits`);
-    }
-  }
+  // the schema's minimums: a chunk holds a byte, and a mesh after it a vertex
+  checkCount(c.byteLength, 1, MAX_CHUNK_BYTES, `${what} chunks[${j}]: byteLength`);
+  checkCount(c.uncompressedLength, 0, MAX_DECOMPRESSED_CHUNK_BYTES, `${what} chunks[${j}]: uncompressedLength`);
+  checkCount(c.splits, 0, MAX_VERTICES, `${what} chunks[${j}]: splits`);
+  checkCount(c.vertexCount, 1, MAX_VERTICES, `${what} chunks[${j}]: vertexCount`);
+  checkCount(c.faceCount, 0, MAX_FACES, `${what} chunks[${j}]: faceCount`);
   if (typeof c.geometricError !== 'number' || !(c.geometricError >= 0)) { // required by the chunk schema
     throw new FormatError(`${what} chunks[${j}]: geometricError is not a number >= 0`);
   }
@@ -297,7 +348,8 @@ function checkChunk(gltf, c, j, bufferLength, what, version = 1) {
 export function baseVertexCount(gltf, prim, ext, what) {
   const index = isObj(prim.attributes) ? prim.attributes.POSITION : undefined;
   const acc = Array.isArray(gltf.accessors) && isInt(index, 0, gltf.accessors.length - 1) ? gltf.accessors[index] : undefined;
-  if (!isObj(acc) || !isInt(acc.count, 0, MAX_VERTICES)) throw new FormatError('base mesh: no POSITION accessor count');
+  if (!isObj(acc)) throw new FormatError('base mesh: no POSITION accessor');
+  checkCount(acc.count, 0, MAX_VERTICES, 'base mesh: POSITION accessor count');
   if (ext.baseVertexCount === undefined) return acc.count;
   if (!isInt(ext.baseVertexCount, 1, acc.count)) {
     throw new FormatError(`${what}: baseVertexCount is not an integer in 1..${acc.count} (the stored vertices)`);
@@ -308,10 +360,15 @@ export function baseVertexCount(gltf, prim, ext, what) {
   return ext.baseVertexCount;
 }
 
+/** The base accessors' kinds: their component types and counts, and the limit of their element count. */
+const POSITION = { types: { [FLOAT]: 4 }, components: 3, max: MAX_VERTICES };
+const INDICES = { types: INDEX_TYPES, components: 1, max: 3 * MAX_FACES };
+
 /** The base mesh plan of one primitive: Draco bufferView or plain accessors, and its attribute grids. */
 function basePlan(gltf, prim, ext, bufferLength, what) {
   const attributes = given(ext.attributes, []);
   if (!Array.isArray(attributes)) throw new FormatError(`${what}: attributes is not an array`);
+  if (attributes.length > MAX_ATTRIBUTES) throw new FormatError(`${what}: more than ${MAX_ATTRIBUTES} attributes (the schema's maxItems)`);
   const grids = attributes.map((a, i) => {
     if (!isObj(a) || typeof a.semantic !== 'string' || a.semantic === 'POSITION') {
       throw new FormatError(`${what}: attribute ${i} has no valid semantic`);
@@ -326,16 +383,15 @@ function basePlan(gltf, prim, ext, bufferLength, what) {
     const ids = ['POSITION', ...grids.map((g) => g.semantic)].map((s) => draco.attributes[s]);
     if (!ids.every((id) => isInt(id, 0, 0xffff))) throw new FormatError(`${what}: Draco attribute ids missing`);
     const view = bufferView(gltf, draco.bufferView, bufferLength, what);
-    const vertices = baseAccessor(gltf, prim.attributes.POSITION, `${what} POSITION`, { types: { [FLOAT]: 4 }, components: 3 }).acc.count;
-    const corners = baseAccessor(gltf, prim.indices, `${what} indices`, { types: INDEX_TYPES, components: 1 }).acc.count;
+    const vertices = baseAccessor(gltf, prim.attributes.POSITION, `${what} POSITION`, POSITION).acc.count;
+    const corners = baseAccessor(gltf, prim.indices, `${what} indices`, INDICES).acc.count;
     if (corners % 3 !== 0) throw new FormatError(`${what}: index count ${corners} is not a multiple of 3`);
     return { draco: { view, positionId: ids[0], attributeIds: ids.slice(1), vertices, faces: corners / 3 }, grids, views: [view] };
   }
-  const position = accessorPlan(gltf, prim.attributes.POSITION, bufferLength, `${what} POSITION`,
-    { types: { [FLOAT]: 4 }, components: 3 });
-  const indices = accessorPlan(gltf, prim.indices, bufferLength, `${what} indices`, { types: INDEX_TYPES, components: 1 });
+  const position = accessorPlan(gltf, prim.attributes.POSITION, bufferLength, `${what} POSITION`, POSITION);
+  const indices = accessorPlan(gltf, prim.indices, bufferLength, `${what} indices`, INDICES);
   const attrs = grids.map((g) => accessorPlan(gltf, prim.attributes[g.semantic], bufferLength, `${what} ${g.semantic}`,
-    { types: { [FLOAT]: 4 }, components: g.origin.length }));
+    { types: { [FLOAT]: 4 }, components: g.origin.length, max: MAX_VERTICES }));
   const views = [position, indices, ...attrs].map((a) => a.view);
   return { plain: { position, indices, attributes: attrs }, grids, views };
 }
@@ -343,18 +399,28 @@ function basePlan(gltf, prim, ext, bufferLength, what) {
 /** Checks a primitive's extension object; returns its chunk payload version (1 or 2). */
 function checkExtension(ext, what) {
   if (!isObj(ext)) throw new FormatError(`${what}: extension is not an object`);
-  if (!isInt(ext.version, 0, Number.MAX_SAFE_INTEGER)) throw new FormatError(`${what}: version is not an integer`);
+  if (!Number.isInteger(ext.version)) throw new FormatError(`${what}: version is not an integer`);
+  // any integer above this reader's: 2^60 too (above 2^53 a JSON integer reads inexactly, but it is still newer)
   if (ext.version > FORMAT_VERSION) throw new UnsupportedError(`${what}: version ${ext.version} is newer than ${FORMAT_VERSION}`);
   if (ext.version < 1) throw new FormatError(`${what}: version ${ext.version}`);
   checkFields(ext, 'extension', what);
-  if (ext.watermark !== undefined) checkFields(ext.watermark, 'watermark', `${what}: watermark`);
+  if (ext.watermark !== undefined) {
+    checkFields(ext.watermark, 'watermark', `${what}: watermark`);
+    // a cut keeps the carriers of the whole stream (spec/README.md "Cutting a file"): bounded by the limit only
+    if (ext.watermark.carriers > MAX_VERTICES) {
+      throw new LimitError(`${what}: watermark: carriers ${ext.watermark.carriers} is over the limit ${MAX_VERTICES}`);
+    }
+  }
   if (isObj(ext.grid)) checkFields(ext.grid, 'grid', `${what}: grid`);
   const payload = given(ext.payload, { codec: PAYLOAD_CODEC, version: 1 });
-  if (!isObj(payload) || payload.codec !== PAYLOAD_CODEC || !PAYLOAD_VERSIONS.includes(payload.version)) {
-    throw new UnsupportedError(`${what}: unknown chunk payload codec`);
+  if (!isObj(payload) || typeof payload.codec !== 'string' || !Number.isInteger(payload.version)) {
+    throw new FormatError(`${what}: payload is not an object with a string codec and an integer version`);
   }
-  if (!isInt(ext.vertexCount, 0, MAX_VERTICES)) throw new LimitError(`${what}: vertexCount over the limit`);
-  if (!isInt(ext.faceCount, 0, MAX_FACES)) throw new LimitError(`${what}: faceCount over the limit`);
+  if (payload.codec !== PAYLOAD_CODEC || !PAYLOAD_VERSIONS.includes(payload.version)) { // as a newer version is
+    throw new UnsupportedError(`${what}: chunk payload ${JSON.stringify(payload.codec).slice(0, 40)} version ${payload.version} is not supported`);
+  }
+  checkCount(ext.vertexCount, 1, MAX_VERTICES, `${what}: vertexCount`);
+  checkCount(ext.faceCount, 0, MAX_FACES, `${what}: faceCount`);
   if (Array.isArray(ext.chunks) && ext.chunks.length > MAX_CHUNKS) throw new LimitError(`${what}: more than ${MAX_CHUNKS} chunks`);
   return payload.version;
 }

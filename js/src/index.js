@@ -10,7 +10,9 @@ import { PmwDecoder } from './decoder.js';
 
 export { PmwDecoder } from './decoder.js';
 export * from './errors.js';
-export { MAX_VERTICES, MAX_FACES, MAX_CHUNKS, MAX_JSON_BYTES, MAX_CHUNK_BYTES, MAX_DECOMPRESSED_CHUNK_BYTES } from './constants.js';
+export {
+  MAX_VERTICES, MAX_FACES, MAX_CHUNKS, MAX_JSON_BYTES, MAX_JSON_DEPTH, MAX_CHUNK_BYTES, MAX_DECOMPRESSED_CHUNK_BYTES,
+} from './constants.js';
 
 /**
  * Decodes a whole (or cut) .pmw file.

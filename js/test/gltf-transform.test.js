@@ -13,10 +13,10 @@ import { after, test } from 'node:test';
 import { Extension, NodeIO } from '@gltf-transform/core';
 import { KHRDracoMeshCompression } from '@gltf-transform/extensions';
 import draco3d from 'draco3d';
-import { PMWMProgressiveMesh, BaseMeshChangedError } from 'pmwm-progressive/gltf-transform';
+import { PMWMProgressiveMesh, BaseMeshChangedError, checkPmwHeader } from 'pmwm-progressive/gltf-transform';
 import { writePmwAsGlb } from 'pmwm-progressive/gltf-transform.config.mjs';
-import { FormatError, PmwDecoder, UnsupportedError } from '../src/index.js';
-import { chunkEntries } from '../src/header.js';
+import { FormatError, LimitError, MAX_JSON_DEPTH, PmwDecoder, UnsupportedError } from '../src/index.js';
+import { chunkEntries, parseGlb } from '../src/header.js';
 import { CONFORMANCE, conformanceFiles, levelDigest } from './lib/helpers.js';
 import { withJson } from './lib/rewrite.js';
 import { decodeFiles, python, ROOT } from './lib/python.js';
@@ -305,4 +305,46 @@ test('the README\'s round trip writes a .pmw; io.write(\'out.pmw\') (NodeIO: JSO
   } finally {
     rmSync(dir, { recursive: true, force: true });
   }
+});
+
+test('read() refuses, with the decoder\'s named error, what it can see of the JSON checks and a bad base view before glTF-Transform reads it; checkPmwHeader refuses the rest on the bytes', async () => {
+  const io = new NodeIO().registerExtensions([PMWMProgressiveMesh]);
+  const v1 = load('grid-hole.plain.v1.pmw');
+  const text = (bytes, edit) => { // the JSON text edited as text (JSON.stringify writes neither 1e999 nor a BOM)
+    const h = parseGlb(bytes);
+    const json = edit(new TextEncoder().encode(JSON.stringify(h.gltf)));
+    const padded = new Uint8Array((json.length + 3) & ~3).fill(0x20);
+    padded.set(json);
+    const bin = bytes.subarray(h.binStart - 8);
+    const out = new Uint8Array(20 + padded.length + bin.length);
+    out.set(bytes.subarray(0, 20));
+    out.set(padded, 20);
+    out.set(bin, 20 + padded.length);
+    new DataView(out.buffer).setUint32(8, out.length, true);
+    new DataView(out.buffer).setUint32(12, padded.length, true);
+    return out;
+  };
+  const replace = (from, to) => (json) => new TextEncoder().encode(new TextDecoder().decode(json).replace(from, to));
+  const position = (g) => g.accessors[g.meshes[0].primitives[0].attributes.POSITION];
+  const seen = [ // [what, bytes, the decoder's error], refused by read() too
+    ['1e999', text(v1, replace('"mesh":0', '"mesh":0,"extras":1e999')), FormatError],
+    ['JSON nested 65 deep', text(v1, replace('"mesh":0', `"mesh":0,"extras":${'['.repeat(MAX_JSON_DEPTH - 2)}${']'.repeat(MAX_JSON_DEPTH - 2)}`)), LimitError],
+    ['POSITION in buffer 1 (glTF-Transform: TypeError)', withJson(v1, (g) => { g.bufferViews[position(g).bufferView].buffer = 1; }), FormatError],
+    ['POSITION stride 16, past its view (glTF-Transform: RangeError)', withJson(v1, (g) => { g.bufferViews[position(g).bufferView].byteStride = 16; }), FormatError],
+  ];
+  for (const [what, bytes, Kind] of seen) {
+    await assert.rejects(new PmwDecoder().feed(bytes), Kind, `decoder: ${what}`);
+    assert.throws(() => checkPmwHeader(bytes), Kind, `checkPmwHeader: ${what}`);
+    await assert.rejects(io.readBinary(bytes), (e) => e instanceof Kind && e.constructor === Kind, what);
+  }
+  const unseen = [ // glTF-Transform's TextDecoder drops a BOM and replaces invalid UTF-8: read() never sees them (js/README.md)
+    ['a byte order mark', text(v1, (json) => new Uint8Array([0xef, 0xbb, 0xbf, ...json]))],
+    ['invalid UTF-8 in a string', text(v1, (json) => { const at = new TextDecoder().decode(json).indexOf('"pmwm_codec"') + 1; const out = json.slice(); out[at] = 0xff; return out; })],
+  ];
+  for (const [what, bytes] of unseen) {
+    await assert.rejects(new PmwDecoder().feed(bytes), FormatError, `decoder: ${what}`);
+    assert.throws(() => checkPmwHeader(bytes), FormatError, `checkPmwHeader: ${what}`);
+    await io.readBinary(bytes); // the limit js/README.md states
+  }
+  checkPmwHeader(v1); // a valid file passes
 });

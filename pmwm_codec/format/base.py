@@ -57,6 +57,7 @@ from .gltf import (
     find_extension_primitive,
     float32_numbers,
     item,
+    json_integer,
     uint,
     view_bytes,
 )
@@ -462,9 +463,9 @@ def welded_vertex_count(primitive: dict) -> int | None:
         return None
     if ext.get("attributes"):
         raise FormatError("base mesh: baseVertexCount (a welded base) with progressive attributes")
-    if isinstance(count, bool) or not isinstance(count, (int, float)) or count != int(count) or count < 1:
+    if json_integer(count) is None or count < 1:
         raise FormatError(f"base mesh: baseVertexCount {count!r} is not a positive integer")
-    return int(count)
+    return json_integer(count)
 
 
 def base_vertex_count(gltf: dict, primitive: dict) -> int:

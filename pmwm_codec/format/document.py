@@ -39,14 +39,13 @@ from ..constants import (
     MAX_ENCODE_VERTICES,
     MAX_INPUT_FILE_BYTES,
     MAX_JSON_BYTES,
-    MAX_JSON_DEPTH,
     MAX_RESOURCE_BYTES,
 )
 from ..errors import InputFormatError
 from ..sources import read_regular_file
 from .glb import split_glb
 from .gltf import (COMPONENT_DTYPES, COMPONENT_NAMES, DRACO_EXTENSION, FLOAT, INDEX_DTYPES, NORMALIZE_DIVISORS,
-                   TYPE_WIDTH, check_finite_numbers, element_rows, shown_value, uint, view_bytes)
+                   TYPE_WIDTH, check_finite_numbers, check_json_depth, element_rows, shown_value, uint, view_bytes)
 from .layout import CHUNK_HEADER_SIZE, CHUNK_TYPE_JSON, GLB_HEADER_SIZE, GLB_MAGIC, padded
 from .meshopt import EXTENSIONS as MESHOPT_EXTENSIONS
 from .meshopt import decompress as decompress_meshopt
@@ -245,7 +244,7 @@ CARRIED_EXTENSIONS = (
 def check_document(gltf: dict, name: str) -> None:
     """Refuse (InputFormatError) a glTF JSON the document code cannot walk safely.
 
-    Checks the nesting depth (:data:`MAX_JSON_DEPTH`), that no number is NaN or
+    Checks the nesting depth (:data:`~pmwm_codec.constants.MAX_JSON_DEPTH`), that no number is NaN or
     infinite (Python's JSON reader takes ``NaN``, ``Infinity`` and ``1e999``; JSON, and
     so the output, does not), that every array and object
     this module reads has the right JSON type, that every index reference the
@@ -262,7 +261,7 @@ def check_document(gltf: dict, name: str) -> None:
     (:data:`MAX_ENCODE_VERTICES`, :data:`MAX_ENCODE_FACES`) — all before any
     buffer is read or any array allocated.
     """
-    check_json_depth(gltf, name)
+    check_json_depth(gltf, name, error=InputFormatError)
     check_finite_numbers(gltf, name, InputFormatError)
     for key in _ARRAYS:
         _objects(gltf, key, key, name)
@@ -601,19 +600,6 @@ def _normalized_flag(acc: dict, where: str) -> bool:
                                f"({COMPONENT_NAMES.get(ctype, 'unknown')}); glTF normalizes only BYTE, "
                                "UNSIGNED_BYTE, SHORT and UNSIGNED_SHORT")
     return value
-
-
-def check_json_depth(doc, name: str, limit: int = MAX_JSON_DEPTH, error=InputFormatError) -> None:
-    """Refuse (``error``) JSON nested deeper than ``limit`` arrays/objects (walked without recursion)."""
-    stack = [(doc, 1)]
-    while stack:
-        value, depth = stack.pop()
-        children = value.values() if isinstance(value, dict) else value if isinstance(value, list) else None
-        if children is None:
-            continue
-        if depth > limit:
-            raise error(f"{name}: JSON nested more than {limit} levels deep")
-        stack.extend((child, depth + 1) for child in children if isinstance(child, (dict, list)))
 
 
 def read_accessor(gltf: dict, buffers, index: int) -> np.ndarray:

@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from ..constants import EXTENSION_NAME, FORMAT_VERSION, MAX_CHUNKS
-from ..errors import FormatError, UnsupportedVersionError
-from .gltf import SHOWN_LIMIT, json_kind
+from ..errors import FormatError, LimitError, UnsupportedVersionError
+from .gltf import SHOWN_LIMIT, document_integers, integer_shape, json_integer, json_kind, shown_value, with_integers
 from .layout import DIGEST_SIZE
 
 SCHEMA_DIR = Path(__file__).with_name("schema")
@@ -116,7 +116,8 @@ def chunk_entries(ext: dict, base_vertices: int) -> list:
     ``byteLength``, ``digest``, ``vertexCount``, ``faceCount``, ``geometricError``, ``mac`` when
     the table has MACs, and the derived ``splits`` (vertices added: one per split, the
     first chunk counted from the base's ``base_vertices``), ``uncompressedLength``
-    (= ``byteLength``), and ``faces`` True on a face chunk (from ``firstFaceChunk`` on, bitstream.md §8.6).
+    (= ``byteLength``), and ``faces`` True on a face chunk (from ``firstFaceChunk`` on, bitstream.md §8.6;
+    ask :func:`is_face_chunk`, as a version 1 entry is the file's own object).
     FormatError when the table's arrays disagree or the packed bytes are malformed.
     """
     table = ext["chunks"]
@@ -152,6 +153,14 @@ def chunk_entries(ext: dict, base_vertices: int) -> list:
             entry["faces"] = True
         entries.append(entry)
     return entries
+
+
+def is_face_chunk(ext: dict, entry: dict) -> bool:
+    """Whether ``entry`` (one of :func:`chunk_entries`' for ``ext``) is a face chunk (bitstream.md §8.6).
+    Only payload version 2 has face chunks, marked by :func:`chunk_entries` from ``firstFaceChunk``: a
+    member ``faces`` that a version 1 entry carries in the file is one the schema does not know, which
+    means nothing (the JavaScript decoder's ``checkChunk`` reads it the same way)."""
+    return payload_version(ext) == 2 and entry.get("faces") is True
 
 
 def _json_columns(table: dict) -> dict:
@@ -286,13 +295,52 @@ def chunk_start(views: list, entry: dict) -> int:
 
 
 def payload_version(ext: dict) -> int:
-    """The chunk payload version of an extension object (1 when it names none); FormatError for
-    a codec or version this reader does not know.  The one place readers dispatch on it."""
+    """The chunk payload version of an extension object (1 when it names none).  The one place readers
+    dispatch on it.  A ``payload`` that is not an object with a string ``codec`` and an integer ``version``
+    is a FormatError; a well-formed one this reader does not know (another codec, version 3) is an
+    :class:`UnsupportedVersionError`, as a newer extension ``version`` is (spec README, *Properties*)."""
     payload = ext.get("payload", {"codec": PAYLOAD_CODEC, "version": 1})
-    if not isinstance(payload, dict) or payload.get("codec") != PAYLOAD_CODEC or payload.get("version") not in PAYLOAD_VERSIONS \
-            or isinstance(payload.get("version"), bool):
-        raise FormatError(f"unknown chunk payload codec {str(payload)[:60]}")
-    return payload["version"]
+    version = json_integer(payload.get("version")) if isinstance(payload, dict) else None
+    if version is None or not isinstance(payload.get("codec"), str):
+        raise FormatError(f"{EXTENSION_NAME}: payload must be an object with a string codec and an integer version, "
+                          f"got {shown_value(payload)}")
+    if payload["codec"] != PAYLOAD_CODEC or version not in PAYLOAD_VERSIONS:
+        raise UnsupportedVersionError(
+            f"{EXTENSION_NAME}: chunk payload {shown_value(payload['codec'])} version {shown_value(version)} is not "
+            f"supported (this reader knows {PAYLOAD_CODEC} versions {', '.join(map(str, PAYLOAD_VERSIONS))})")
+    return version
+
+
+def chunk_count(ext: dict):
+    """The number of chunks an extension object declares (its ``chunks`` array's length, a packed table's
+    ``count``, an array table's ``byteLengths`` length), or None when it has no such number."""
+    chunks = ext.get("chunks")
+    if isinstance(chunks, list):
+        return len(chunks)
+    if isinstance(chunks, dict):
+        count = json_integer(chunks.get("count"))
+        return count if count is not None else len(chunks["byteLengths"]) if isinstance(chunks.get("byteLengths"), list) else None
+    return None
+
+
+@functools.lru_cache(maxsize=None)
+def _schemas() -> dict:
+    """The extension's JSON schemas by file name (``$id``)."""
+    return {p.name: json.loads(p.read_text()) for p in SCHEMA_DIR.glob("*.schema.json")}
+
+
+@functools.lru_cache(maxsize=None)
+def _document_integers() -> dict:
+    """Where a ``.pmw`` document holds integers: glTF's integer members and the extension's, as its schemas type them."""
+    return integer_shape(document_integers({EXTENSION_NAME: {"$ref": PRIMITIVE_SCHEMA}}), _schemas())
+
+
+def integer_members(gltf: dict) -> dict:
+    """A parsed ``.pmw`` document (in place) with every member glTF 2.0 or the extension's schemas type
+    ``integer`` that holds an integral float made an ``int`` (``16.0`` -> ``16``: one value in JSON;
+    spec README, *JSON numbers*), so every reader of the document sees ints; returns it.  Members typed
+    ``number`` keep their floats (``0.0`` stays ``0.0``: the MACs' canonical JSON writes it so)."""
+    return with_integers(gltf, _document_integers())
 
 
 @functools.lru_cache(maxsize=None)
@@ -300,7 +348,7 @@ def _validator():
     import jsonschema
     from referencing import Registry, Resource
 
-    schemas = {p.name: json.loads(p.read_text()) for p in SCHEMA_DIR.glob("*.schema.json")}
+    schemas = _schemas()
     registry = Registry().with_resources((name, Resource.from_contents(s)) for name, s in schemas.items())
     schema = schemas[PRIMITIVE_SCHEMA]
     cls = jsonschema.validators.validator_for(schema)
@@ -325,17 +373,24 @@ def check_extension(ext) -> dict:
     Raises
     ------
     UnsupportedVersionError
-        ``version`` is an integer newer than :data:`FORMAT_VERSION`.
+        ``version`` is an integer newer than :data:`FORMAT_VERSION`, or the ``payload`` one this reader
+        does not know (:func:`payload_version`).
+    LimitError
+        More chunks than :data:`~pmwm_codec.constants.MAX_CHUNKS`.
     FormatError
         Not an object, or the schema rejects it (message names the JSON path).
     """
     if not isinstance(ext, dict):
         raise FormatError(f"{EXTENSION_NAME}: extension must be a JSON object")
-    version = ext.get("version")
-    if isinstance(version, int) and not isinstance(version, bool) and version > FORMAT_VERSION:
+    version = json_integer(ext.get("version"))
+    if version is not None and version > FORMAT_VERSION:
         raise UnsupportedVersionError(
-            f"{EXTENSION_NAME}: version {version} is newer than this reader (version {FORMAT_VERSION})"
+            f"{EXTENSION_NAME}: version {shown_value(version)} is newer than this reader (version {FORMAT_VERSION})"
         )
+    payload_version(ext)  # an unknown payload is named as such, before the schema finds its chunks of another form
+    count = chunk_count(ext)
+    if count is not None and count > MAX_CHUNKS:  # a limit of spec README, Limits (the schema repeats it)
+        raise LimitError(f"{EXTENSION_NAME}: chunks: {shown_value(count)} exceeds the limit of {MAX_CHUNKS} chunks")
     import jsonschema
 
     # best_match descends into anyOf (chunks: an array of entries, or the version 2 table)

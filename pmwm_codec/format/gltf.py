@@ -16,7 +16,8 @@ import math
 
 import numpy as np
 
-from ..errors import FormatError
+from ..constants import MAX_JSON_DEPTH
+from ..errors import FormatError, LimitError
 from .layout import padded
 
 # accessor componentType
@@ -49,9 +50,12 @@ def json_kind(value) -> str:
 
 
 def shown_value(value) -> str:
-    """``value`` for a one-line message: its ``repr`` when short, else its JSON kind (a long string, a table)."""
+    """``value`` for a one-line message: its ``repr`` when short, else its JSON kind (a long string, a table;
+    "a 301-digit integer")."""
     text = repr(value)
-    return text if len(text) <= SHOWN_LIMIT else json_kind(value)
+    if len(text) <= SHOWN_LIMIT:
+        return text
+    return f"a {len(text)}-digit integer" if json_kind(value) == "an integer" else json_kind(value)
 
 
 #: componentType -> little-endian numpy dtype string.
@@ -71,6 +75,127 @@ WIDTH_TYPE = {1: "SCALAR", 2: "VEC2", 3: "VEC3", 4: "VEC4"}
 VECTOR_WIDTH = {name: width for width, name in WIDTH_TYPE.items()}
 
 _REQUIRED = object()
+
+
+def json_integer(value):
+    """``value`` as an ``int`` when it is a JSON integer, else None.
+
+    A JSON integer is a number with an integral value: ``16``, ``16.0`` and ``1.6e1`` are one value
+    (JSON does not tell them apart and JavaScript cannot; spec README, *JSON numbers*); a bool is none.
+    """
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, int):
+        return value
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    return None
+
+
+_INTEGER = {"type": "integer"}
+
+
+def _array_of(properties: dict) -> dict:
+    return {"items": {"properties": properties}}
+
+
+def _integers(*names) -> dict:
+    return {name: _INTEGER for name in names}
+
+
+_TEXTURE_INFO = {"properties": _integers("index", "texCoord")}
+
+
+def document_integers(primitive_extensions: dict) -> dict:
+    """The members a glTF 2.0 document types ``integer`` (the glTF 2.0 JSON schema's, and
+    ``KHR_draco_mesh_compression``'s), as a JSON schema of the document for :func:`integer_shape`,
+    with ``primitive_extensions`` (``{name: schema}``) the schemas of other extension objects of a
+    mesh primitive.  Members of other extensions are not listed."""
+    draco = {"properties": {"bufferView": _INTEGER, "attributes": {"additionalProperties": _INTEGER}}}
+    primitive = {
+        **_integers("indices", "material", "mode"),
+        "attributes": {"additionalProperties": _INTEGER}, "targets": {"items": {"additionalProperties": _INTEGER}},
+        "extensions": {"properties": {DRACO_EXTENSION: draco, **primitive_extensions}},
+    }
+    sparse = {"properties": {"count": _INTEGER, "indices": {"properties": _integers("bufferView", "byteOffset", "componentType")},
+                             "values": {"properties": _integers("bufferView", "byteOffset")}}}
+    return {"properties": {
+        "scene": _INTEGER,
+        "scenes": _array_of({"nodes": {"items": _INTEGER}}),
+        "nodes": _array_of({**_integers("camera", "skin", "mesh"), "children": {"items": _INTEGER}}),
+        "meshes": _array_of({"primitives": _array_of(primitive)}),
+        "accessors": _array_of({**_integers("bufferView", "byteOffset", "componentType", "count"), "sparse": sparse}),
+        "bufferViews": _array_of(_integers("buffer", "byteOffset", "byteLength", "byteStride", "target")),
+        "buffers": _array_of(_integers("byteLength")),
+        "images": _array_of(_integers("bufferView")),
+        "textures": _array_of(_integers("sampler", "source")),
+        "samplers": _array_of(_integers("magFilter", "minFilter", "wrapS", "wrapT")),
+        "skins": _array_of({**_integers("inverseBindMatrices", "skeleton"), "joints": {"items": _INTEGER}}),
+        "animations": _array_of({
+            "channels": _array_of({"sampler": _INTEGER, "target": {"properties": _integers("node")}}),
+            "samplers": _array_of(_integers("input", "output"))}),
+        "materials": _array_of({
+            "pbrMetallicRoughness": {"properties": {"baseColorTexture": _TEXTURE_INFO, "metallicRoughnessTexture": _TEXTURE_INFO}},
+            "normalTexture": _TEXTURE_INFO, "occlusionTexture": _TEXTURE_INFO, "emissiveTexture": _TEXTURE_INFO}),
+    }}
+
+
+def integer_shape(schema, schemas=None):
+    """Where a JSON schema types a value ``integer``: a tree of dicts (``integer``: bool, ``properties``:
+    {name: tree}, ``additional``: tree, ``items``: tree) for :func:`with_integers`, or None when nothing
+    in it is.  Follows ``$ref`` (a name in ``schemas``), ``properties``, ``additionalProperties``,
+    ``items`` and every branch of ``allOf`` / ``anyOf`` / ``oneOf`` / ``then`` / ``else`` (merged: a
+    member typed ``integer`` in one branch is an integer wherever it occurs)."""
+    if not isinstance(schema, dict):
+        return None
+    parts = [schema] + ([schemas[schema["$ref"]]] if "$ref" in schema else [])
+    parts += [branch for key in ("allOf", "anyOf", "oneOf") for branch in schema.get(key, ())]
+    parts += [schema[key] for key in ("then", "else") if key in schema]
+    tree = {"integer": False, "properties": {}, "additional": None, "items": None}
+    for part in parts:
+        if part is schema:
+            tree["integer"] |= part.get("type") == "integer"
+            for name, sub in part.get("properties", {}).items():
+                tree["properties"][name] = _merged(tree["properties"].get(name), integer_shape(sub, schemas))
+            tree["additional"] = _merged(tree["additional"], integer_shape(part.get("additionalProperties"), schemas))
+            tree["items"] = _merged(tree["items"], integer_shape(part.get("items"), schemas))
+        else:
+            tree = _merged(tree, integer_shape(part, schemas))
+    tree["properties"] = {name: sub for name, sub in tree["properties"].items() if sub is not None}
+    if not (tree["integer"] or tree["properties"] or tree["additional"] or tree["items"]):
+        return None
+    return tree
+
+
+def _merged(a, b):
+    """Two :func:`integer_shape` trees as one (either may be None)."""
+    if a is None or b is None:
+        return a if b is None else b
+    names = set(a["properties"]) | set(b["properties"])
+    return {"integer": a["integer"] or b["integer"],
+            "properties": {n: _merged(a["properties"].get(n), b["properties"].get(n)) for n in names},
+            "additional": _merged(a["additional"], b["additional"]), "items": _merged(a["items"], b["items"])}
+
+
+def with_integers(value, shape):
+    """``value`` (parsed JSON) with every member :func:`integer_shape` tree ``shape`` types integer that
+    holds a number of integral value made an ``int`` (:func:`json_integer`; ``16.0`` -> ``16``), in place;
+    returns the value.  Other numbers stay as they are (a ``1.0`` typed ``number`` stays a float); a
+    member of another JSON type is left for the checks that read it.  Recursion follows ``shape``, never
+    deeper than the schema."""
+    if shape is None:
+        return value
+    if shape["integer"] and isinstance(value, float) and json_integer(value) is not None:
+        return json_integer(value)
+    if isinstance(value, dict):
+        for name, member in value.items():
+            sub = shape["properties"].get(name, shape["additional"])
+            if sub is not None:
+                value[name] = with_integers(member, sub)
+    elif isinstance(value, list) and shape["items"] is not None:
+        for i, member in enumerate(value):
+            value[i] = with_integers(member, shape["items"])
+    return value
 
 
 def float32_numbers(values) -> list:
@@ -282,6 +407,62 @@ def check_finite_numbers(gltf: dict, name: str, error) -> None:
         elif isinstance(value, float) and not math.isfinite(value):
             shown = "NaN" if math.isnan(value) else "Infinity" if value > 0 else "-Infinity"
             raise error(f"{name}: {_json_path(path)} is {shown}, which JSON does not allow")
+
+
+#: Bytes of JSON text :func:`check_json_text_depth` looks at in one numpy pass.
+_SCAN_BLOCK = 1 << 20
+#: Depth step of each byte outside a string: ``[`` and ``{`` open (+1), ``]`` and ``}`` close (-1).
+_DEPTH_STEP = np.zeros(256, np.int64)
+_DEPTH_STEP[[ord("["), ord("{")]] = 1
+_DEPTH_STEP[[ord("]"), ord("}")]] = -1
+_QUOTE, _BACKSLASH = ord('"'), ord("\\")
+
+
+def check_json_text_depth(text, name: str, limit: int = MAX_JSON_DEPTH, error=LimitError) -> None:
+    """Refuse (``error`` naming :data:`~pmwm_codec.constants.MAX_JSON_DEPTH`) JSON text nested more than
+    ``limit`` arrays and objects deep (the outermost value is level 1), found in the bytes before they
+    are parsed: Python's JSON reader recurses once per level (a deep enough text raises RecursionError,
+    at a depth that depends on the stack).
+
+    The scan (spec README, Conformance): a ``"`` preceded by an even run of backslashes (none included)
+    toggles "inside a string"; outside a string ``[`` / ``{`` open a level and ``]`` / ``}`` close one;
+    nothing else counts.  On valid JSON this is its nesting depth; on any text it is what the JavaScript
+    decoder's scan (``jsonTooDeep`` in js/src/header.js) finds, so both refuse the same texts.  Linear,
+    in blocks of :data:`_SCAN_BLOCK` bytes, without recursion.
+    """
+    data = np.frombuffer(text, np.uint8)
+    depth, inside, odd = 0, False, False  # before the block: levels open, in a string, after an odd backslash run
+    for start in range(0, len(data), _SCAN_BLOCK):
+        block = data[start : start + _SCAN_BLOCK]
+        plain = np.flatnonzero(block != _BACKSLASH)
+        quotes = np.flatnonzero(block == _QUOTE)
+        at = np.searchsorted(plain, quotes)  # each quote's place among the bytes that are no backslash
+        run = np.where(at > 0, quotes - plain[np.maximum(at - 1, 0)] - 1, quotes + odd)  # backslashes before it
+        toggles = quotes[run % 2 == 0]
+        brackets = np.flatnonzero(_DEPTH_STEP[block])
+        outside = (np.searchsorted(toggles, brackets) % 2 == 1) == inside  # toggles before it, from the state before
+        running = depth + np.cumsum(np.where(outside, _DEPTH_STEP[block[brackets]], 0))
+        if running.size and running.max() > limit:
+            raise error(f"{name}: JSON nested more than {limit} levels deep (MAX_JSON_DEPTH)")
+        depth = int(running[-1]) if running.size else depth
+        inside ^= bool(len(toggles) % 2)
+        trailing = len(block) - 1 - int(plain[-1]) if plain.size else len(block) + odd
+        odd = bool(trailing % 2)
+    return None
+
+
+def check_json_depth(doc, name: str, limit: int = MAX_JSON_DEPTH, error=FormatError) -> None:
+    """Refuse (``error``) a parsed JSON value nested deeper than ``limit`` arrays/objects, the outermost
+    being level 1 (walked without recursion): :func:`check_json_text_depth` for a value already in memory."""
+    stack = [(doc, 1)]
+    while stack:
+        value, depth = stack.pop()
+        children = value.values() if isinstance(value, dict) else value if isinstance(value, list) else None
+        if children is None:
+            continue
+        if depth > limit:
+            raise error(f"{name}: JSON nested more than {limit} levels deep")
+        stack.extend((child, depth + 1) for child in children if isinstance(child, (dict, list)))
 
 
 def _json_path(path) -> str:

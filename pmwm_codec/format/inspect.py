@@ -19,7 +19,7 @@ from typing import Any
 
 from ..constants import EXTENSION_NAME
 from .base import base_counts, base_vertex_count
-from .extension import chunk_start
+from .extension import chunk_start, is_face_chunk
 from .gltf import DRACO_EXTENSION, find_extension_primitives
 from .reader import read_header
 from ..sources import Source
@@ -85,7 +85,7 @@ def _primitives(gltf: dict, exts, bin_offset: int, size):
             start = chunk_start(views, c)
             end = bin_offset + start + c["byteLength"]
             rows.append((start, {
-                "primitive": p, "splits": c["splits"], "face_chunk": bool(c.get("faces", False)),
+                "primitive": p, "splits": c["splits"], "face_chunk": is_face_chunk(ext, c),
                 "vertices": c["vertexCount"], "faces": c["faceCount"],
                 "bytes": c["byteLength"], "geometric_error": c.get("geometricError"),
                 "present": None if size is None else end <= size}))

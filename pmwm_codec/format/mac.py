@@ -44,7 +44,9 @@ def canonical_json(value) -> bytes:
     """UTF-8 JSON with sorted keys, no whitespace, ASCII escapes, floats as Python ``repr``.
 
     Integers are written in decimal; floats as the shortest text that reads back to the
-    same double (Python's ``repr``: ``0.1``, ``1.0``, ``1e-05``, ``1.5e+16``).
+    same double (Python's ``repr``: ``0.1``, ``1.0``, ``1e-05``, ``1.5e+16``).  A reader's extension
+    object has its integer members as ints already (:func:`~.extension.integer_members`: ``16.0`` in
+    the file is ``16`` here, bitstream.md §6.3).
     """
     return json.dumps(value, sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=False).encode("ascii")
 

@@ -26,7 +26,7 @@ first completed other events, returned after them and raised by the next ``feed`
 or ``close`` call, so every good chunk before a bad one is delivered): a bad digest is ``ChecksumError``
 (``.chunk`` = index; None for a base mesh whose ``baseDigest`` differs); bad magic, JSON, layout or extension fields are ``FormatError``;
 a newer extension ``version`` is ``UnsupportedVersionError``; declared sizes or counts
-over the limits of :mod:`pmwm_codec.constants` are ``LimitError``, checked before
+over the limits of :mod:`pmwm_codec.constants` (and JSON nested deeper than ``MAX_JSON_DEPTH``) are ``LimitError``, checked before
 anything of that size is allocated or decompressed.
 
 A parser is single-use: after ``close()`` or after it raised, it refuses more input.
@@ -50,12 +50,12 @@ from ..constants import (
     MAX_JSON_BYTES,
     MAX_VERTICES,
 )
-from ..errors import ChecksumError, FormatError, LimitError, TruncatedError
+from ..errors import ChecksumError, FormatError, LimitError, TruncatedError, UnsupportedVersionError
 from ..progressive.grid import Grid
 from ..sources import byte_view
 from . import base as _base
-from .extension import base_digest, check_extension, chunk_entries, digest, payload_version
-from .gltf import check_finite_numbers, find_extension_primitives, uint, view_range
+from .extension import base_digest, check_extension, chunk_entries, digest, integer_members, payload_version
+from .gltf import check_finite_numbers, check_json_text_depth, find_extension_primitives, shown_value, uint, view_range
 from .layout import (
     ALIGNMENT,
     CHUNK_HEADER_SIZE,
@@ -155,8 +155,8 @@ def parse_preamble(data) -> tuple[int, int]:
         chunk = ChunkHeader.parse(head[GLB_HEADER_SIZE:PREAMBLE_SIZE])
     except ConstructError as exc:  # pragma: no cover - magic already checked
         raise FormatError(f"GLB header: {exc}".splitlines()[0]) from None
-    if glb.version != GLB_VERSION:
-        raise FormatError(f"GLB header: container version {glb.version}, expected {GLB_VERSION}")
+    if glb.version != GLB_VERSION:  # a container this reader does not implement (spec README, Conformance)
+        raise UnsupportedVersionError(f"GLB header: container version {glb.version}, expected {GLB_VERSION}")
     if chunk.type != CHUNK_TYPE_JSON:
         raise FormatError(f"GLB header: first chunk type {chunk.type!r}, expected {CHUNK_TYPE_JSON!r}")
     if chunk.length > MAX_JSON_BYTES:
@@ -198,9 +198,9 @@ def _plan(gltf: dict, exts: list, bin_capacity: int) -> _Plan:
         total_vertices += ext["vertexCount"]
         total_faces += ext["faceCount"]
     if total_vertices > MAX_VERTICES:
-        raise LimitError(f"{EXTENSION_NAME}: vertexCount {total_vertices} exceeds the limit {MAX_VERTICES}")
+        raise LimitError(f"{EXTENSION_NAME}: vertexCount {shown_value(total_vertices)} exceeds the limit {MAX_VERTICES}")
     if total_faces > MAX_FACES:
-        raise LimitError(f"{EXTENSION_NAME}: faceCount {total_faces} exceeds the limit {MAX_FACES}")
+        raise LimitError(f"{EXTENSION_NAME}: faceCount {shown_value(total_faces)} exceeds the limit {MAX_FACES}")
 
     views = gltf.get("bufferViews")
     base_end = 0
@@ -477,12 +477,18 @@ def _load_json(text: bytes):
     import json
 
     try:
-        gltf = json.loads(text.decode("utf-8"))
-    except (UnicodeDecodeError, ValueError) as exc:
+        decoded = text.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise FormatError(f"GLB JSON chunk: not valid UTF-8 JSON ({str(exc).splitlines()[0]})") from None
+    check_json_text_depth(text, "GLB JSON chunk")  # before the parser recurses into it (spec README, Conformance)
+    try:
+        gltf = json.loads(decoded)
+    except ValueError as exc:
         raise FormatError(f"GLB JSON chunk: not valid UTF-8 JSON ({str(exc).splitlines()[0]})") from None
     if not isinstance(gltf, dict):
         raise FormatError("GLB JSON chunk: top level is not an object")
     check_finite_numbers(gltf, "GLB JSON chunk", FormatError)
+    integer_members(gltf)  # 16.0 where an integer belongs is 16 (spec README, JSON numbers)
     exts = []
     for _, _, prim in find_extension_primitives(gltf, EXTENSION_NAME):
         ext = check_extension(prim["extensions"][EXTENSION_NAME])

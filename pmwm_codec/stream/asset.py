@@ -537,13 +537,18 @@ def _without_progressive_geometry(gltf: dict, found) -> tuple:
     return doc, drop
 
 
+#: The attributes a decoded level writes at unit length (spec README, *Seams and attributes*): these glTF
+#: semantics exactly, not every name that starts like them (``NORMAL_1`` is a custom attribute, kept as decoded).
+RENORMALIZED = ("NORMAL", "TANGENT")
+
+
 def _write_level(prim: dict, part, out: BufferBuilder) -> None:
     """Give ``prim`` plain accessors (in ``out``) for the decoded ``part``: positions (n, 3)
     float32 with min/max, its attributes (NORMAL / TANGENT renormalized), uint32 indices."""
     attributes = {"POSITION": out.add_accessor(part.positions.astype(np.float32), FLOAT, ARRAY_BUFFER, minmax=True)}
     for semantic, values in part.attribute_values().items():
         values = values.astype(np.float32)
-        if semantic.startswith(("NORMAL", "TANGENT")):
+        if semantic in RENORMALIZED:
             values = _renormalized(values)
         attributes[semantic] = out.add_accessor(values, FLOAT, ARRAY_BUFFER)
     prim["attributes"] = attributes

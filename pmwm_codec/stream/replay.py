@@ -38,7 +38,7 @@ import numpy as np
 
 from ..errors import ChecksumError, FormatError, MeshError, TruncatedError
 from ..format import BaseEvent, ChunkEvent, HeaderEvent
-from ..format.extension import payload_version
+from ..format.extension import is_face_chunk, payload_version
 from ..format.records import unpack_batches
 from ..format.records_v2 import ChunkDecoder, decode_chunk, decode_face_chunk
 from ..progressive.grid import Grid
@@ -213,7 +213,7 @@ class Replay:
         scale = ext["watermark"]["scale"] if "watermark" in ext else None
         meta = ext["chunks"][event.chunk]
         out = []
-        face_chunk = meta.get("faces", False)
+        face_chunk = is_face_chunk(ext, meta)
         if face_chunk:
             self._faces(p, event, meta)
         for batch, own_topo in () if face_chunk else self._batches(p, event):
