@@ -131,6 +131,20 @@ def test_a_reused_0644_key_is_tightened_to_0600(inputs, tmp_path):
     assert encode(inputs, out).returncode == 0 and mode(key) == 0o600
 
 
+@pytest.mark.parametrize("before, after", [(0o400, 0o400), (0o640, 0o600), (0o604, 0o600)])
+def test_a_reused_key_is_never_loosened(inputs, tmp_path, before, after):
+    """Only group/other bits are cleared: a key its owner made read-only stays read-only."""
+    out, key = tmp_path / "a.pmw", tmp_path / "a.pmw.key.json"
+    assert encode(inputs, out).returncode == 0
+    os.chmod(key, before)
+    content = key.read_bytes()
+    assert encode(inputs, out).returncode == 0
+    assert mode(key) == after and key.read_bytes() == content
+    os.chmod(key, before)
+    pmwm_codec.encode(inputs / "b.ply", tmp_path / "b.pmw", watermark=inputs / "w1.png", key=key)
+    assert mode(key) == after and key.read_bytes() == content
+
+
 def test_re_encoding_with_the_default_key_gives_the_same_bytes(inputs, tmp_path):
     out = tmp_path / "a.pmw"
     assert encode(inputs, out).returncode == 0

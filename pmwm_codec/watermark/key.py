@@ -54,6 +54,7 @@ import json
 import os
 import re
 import secrets
+import stat
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -447,11 +448,13 @@ class KeySlot:
 
 
 def _make_private(path: str) -> None:
-    """Tighten a reused key file to 0600 (an older file may be 0644); never follows a link."""
+    """Tighten a reused key file: clear its group and other permission bits (an older file may be 0644:
+    it becomes 0600), never adding one (a key its owner made 0400 stays 0400); never follows a link."""
     fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
     try:
-        if os.fstat(fd).st_mode & 0o777 != KEY_FILE_MODE:
-            os.fchmod(fd, KEY_FILE_MODE)
+        mode = stat.S_IMODE(os.fstat(fd).st_mode)
+        if mode & 0o077:
+            os.fchmod(fd, mode & ~0o077)
     finally:
         os.close(fd)
 
