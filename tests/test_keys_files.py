@@ -406,3 +406,21 @@ def test_key_matches_is_null_for_a_file_without_a_watermark_image(capsys, inputs
     for key in (Path(str(other) + ".key.json"), Path(str(owner_only) + ".key.json")):
         r = pmw("verify", owner_only, "--key", key, "--json")
         assert json.loads(r.stdout)["key_matches"] is None
+
+
+@pytest.mark.parametrize("empty", ["", "  "])
+def test_an_empty_key_path_is_refused_up_front(capsys, inputs, tmp_path, monkeypatch, empty):
+    """``--key "$KEY"`` with KEY unset used to run the whole encode, then fail publishing the key, naming a
+    hidden temporary file of the parent directory; the API raised a FileNotFoundError."""
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "o.pmw"
+    _refused(*_cli(capsys, "encode", inputs / "a.ply", "-o", out, "--watermark", inputs / "w1.png", "--key", empty),
+             "--key", "empty path")
+    assert list(tmp_path.iterdir()) == []
+    assert encode(inputs, out).returncode == 0
+    _refused(*_cli(capsys, "verify", out, "--key", empty), "--key", "empty path")
+    with pytest.raises(WatermarkKeyError, match="empty key path"):
+        pmwm_codec.encode(inputs / "a.ply", tmp_path / "p.pmw", watermark=inputs / "w1.png", key=empty)
+    with pytest.raises(WatermarkKeyError, match="empty key path"):
+        next(pmwm_codec.iter_decode(out, key=empty))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o.pmw", "o.pmw.key.json"]

@@ -66,6 +66,17 @@ def os_error_message(exc: OSError) -> str:
     return f"{name}: {why}" if name else why
 
 
+def nonblank_path(option: str, what: str = "file"):
+    """An argparse ``type`` for a path option: refuses an empty or white-space name up front (an unset
+    variable in ``--key $KEY`` would otherwise be carried to the step that writes or reads it)."""
+    def parse(text):
+        if not text.strip():
+            raise argparse.ArgumentTypeError(f"an empty path ({text!r}) names no {what} (an unset variable in "
+                                             f"'{option} $VAR'?)")
+        return text
+    return parse
+
+
 def jsonable(value):
     """Copy of ``value`` where non-finite floats become None (``Infinity`` is not JSON)."""
     if isinstance(value, float) and not math.isfinite(value):

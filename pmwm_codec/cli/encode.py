@@ -12,8 +12,8 @@ from pmwm_codec.format.extension import DEFAULT_PAYLOAD_VERSION, PAYLOAD_VERSION
 from pmwm_codec.watermark.codec import MAX_BITS, MODES, CapacityError, shrink_watermark
 from pmwm_codec.watermark.image import load_watermark
 
-from .common import (Progress, UsageError, check_input_file, check_output_path, check_pmw_output, fmt_float, print_json,
-                     stage_progress)
+from .common import (Progress, UsageError, check_input_file, check_output_path, check_pmw_output, fmt_float,
+                     nonblank_path, print_json, stage_progress)
 
 
 def _int_in(lo, hi, what):
@@ -67,7 +67,7 @@ def add_parser(sub):
                         "or take too few values")
     p.add_argument("--no-owner", action="store_true",
                    help="with --watermark: write the exact layer only, no owner layer")
-    p.add_argument("--key", metavar="KEY", help="key file to use (if it exists) or to write (default: OUT.pmw.key.json)")
+    p.add_argument("--key", type=nonblank_path("--key", "key file"), metavar="KEY", help="key file to use (if it exists) or to write (default: OUT.pmw.key.json)")
     add_stream_options(p)
     p.add_argument("--fit", action="store_true",
                    help="shrink a watermark that does not fit to the largest size that does (with a notice)")

@@ -17,7 +17,7 @@ from pmwm_codec.http import UrlSource, is_url
 from pmwm_codec.verify import StreamVerification, verify_stream
 
 from .common import (EXIT_NOT_AUTHENTIC, EXIT_OK, Progress, UsageError, check_input_file, check_output_path,
-                     fmt_float, naming, print_json)
+                     fmt_float, naming, nonblank_path, print_json)
 
 
 def add_parser(sub):
@@ -28,7 +28,7 @@ def add_parser(sub):
     p.add_argument("input", metavar="IN.pmw|URL|MESH",
                    help="the .pmw, an http(s):// URL of one (read by Range requests when the server allows), or - for "
                         "standard input; with --reference, a mesh file that left the stream")
-    p.add_argument("--key", required=True, metavar="KEY", help="the key file written by pmw encode")
+    p.add_argument("--key", required=True, type=nonblank_path("--key", "key file"), metavar="KEY", help="the key file written by pmw encode")
     p.add_argument("--watermark", metavar="IMG", help="expected watermark image (default: the one in the key)")
     p.add_argument("--frames", metavar="DIR", help="write the partial watermark per chunk, an overview and a plot")
     p.add_argument("--reference", metavar="ORIGINAL.pmw",

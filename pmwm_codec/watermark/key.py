@@ -64,7 +64,7 @@ from ..errors import WatermarkKeyError
 from ..sources import read_regular_file, shown_path
 
 __all__ = ["WatermarkKey", "KeySlot", "KEY_FORMAT", "KEY_VERSION", "KEY_FILE_MODE", "KEY_SUFFIX", "refuse_symlink",
-           "refuse_key_target", "same_path"]
+           "refuse_key_target", "same_path", "checked_key_path"]
 
 KEY_FORMAT = "pmwm-key"
 KEY_VERSION = 1
@@ -230,7 +230,7 @@ class WatermarkKey:
     @classmethod
     def load(cls, path) -> "WatermarkKey":
         """Read a key file; any problem is a one-line :class:`WatermarkKeyError`."""
-        path = os.fspath(path)
+        path = checked_key_path(path)
         if shown_path(path) != path:  # a key's JSON given as its path: never echo it (the secret)
             raise WatermarkKeyError(f"{shown_path(path)}: no such key file")
         if not os.path.lexists(path):
@@ -347,9 +347,20 @@ def as_key(key) -> WatermarkKey | None:
     return WatermarkKey.load(key)
 
 
-def refuse_symlink(path) -> str:
-    """``path`` as a string; WatermarkKeyError if it is a symbolic link (a key is never written through one)."""
+def checked_key_path(path) -> str:
+    """``path`` as a string; WatermarkKeyError when it is empty or only white space (an unset variable in
+    ``--key $KEY``: the name of no file, which a key would be read from or published to only to fail)."""
     path = os.fspath(path)
+    if not (path if isinstance(path, str) else os.fsdecode(path)).strip():
+        raise WatermarkKeyError(f"an empty key path ({path!r}) names no key file (an unset variable?): give the "
+                                "key file's name")
+    return path
+
+
+def refuse_symlink(path) -> str:
+    """``path`` as a string; WatermarkKeyError if it is empty (:func:`checked_key_path`) or a symbolic link
+    (a key is never written through one)."""
+    path = checked_key_path(path)
     if os.path.islink(path):
         raise WatermarkKeyError(f"{path}: is a symbolic link; a key file is never written through one "
                                 "(name the real file with --key)")
