@@ -424,3 +424,18 @@ def test_an_empty_key_path_is_refused_up_front(capsys, inputs, tmp_path, monkeyp
     with pytest.raises(WatermarkKeyError, match="empty key path"):
         next(pmwm_codec.iter_decode(out, key=empty))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["o.pmw", "o.pmw.key.json"]
+
+
+def test_verify_refuses_a_key_whose_owner_id_was_edited(capsys, inputs, tmp_path):
+    """It used to verify ``authentic``, exit 0, with the owner layer ``absent``: the edited ID was read for."""
+    out, key = tmp_path / "a.pmw", tmp_path / "a.pmw.key.json"
+    assert encode(inputs, out).returncode == 0
+    doc = json.loads(key.read_text())
+    assert doc["owner_id"] is not None
+    doc["owner_id"] = f"{int(doc['owner_id'], 16) ^ 1:016x}"
+    edited = tmp_path / "edited.key.json"
+    edited.write_text(json.dumps(doc))
+    _refused(*_cli(capsys, "verify", out, "--key", edited), "edited.key.json", "not a valid watermark key", "checksum")
+    _refused(*_cli(capsys, "encode", inputs / "a.ply", "-o", tmp_path / "b.pmw", "--watermark", inputs / "w1.png",
+                   "--key", edited), "checksum")
+    assert not (tmp_path / "b.pmw").exists()

@@ -16,12 +16,22 @@ file), so a key reused for more assets (:class:`KeySlot`) is never rewritten.
 It is stored as a JSON file (``save``/``load``), written atomically with mode 0600 and
 never through a symbolic link::
 
-    {"format": "pmwm-key", "version": 1, "secret": "<64 hex>", "file_id": "...",
-     "owner_id": "<16 hex>", "params": {...}, "reference": {"width": s, "height": s, "png": "<base64 PNG>"}}
+    {"format": "pmwm-key", "version": 1, "secret": "<64 hex>", "fingerprint": "<16 hex>",
+     "checksum": "<32 hex>", "file_id": "...", "owner_id": "<16 hex>", "params": {...},
+     "reference": {"width": s, "height": s, "png": "<base64 PNG>"}}
 
 A file may carry :meth:`WatermarkKey.fingerprint` publicly: it identifies the key
 (HMAC-SHA256 of a fixed label) without revealing the secret, so a reader can tell
-"key of another file" from "watermark absent".
+"key of another file" from "watermark absent".  Both ``fingerprint`` and ``checksum`` are
+checked when present (keys written before the checksum have none and load as before):
+
+* ``fingerprint`` covers the secret: an edited secret is refused;
+* ``checksum`` (:meth:`WatermarkKey.checksum`) covers the rest: the first 32 hex digits of
+  HMAC-SHA256(secret, ``"pmwm/key-checksum/v1\\0"`` + the compact, key-sorted JSON of
+  ``{"file_id", "owner_id" (16 hex or null), "params", "reference": [height, width, SHA-256 hex of
+  the pixels, row by row] or null}``).  A hand-edited owner ID would otherwise verify the image
+  ``authentic`` beside an owner ``absent``, and an edited reference image would blame the file.
+  It detects edits and corruption; it is no protection against whoever holds the secret.
 
 **Keyed mappings** are defined by SHAKE-256 over the secret, so that any implementation
 (and any numpy version) reproduces them bit for bit — ``numpy.random.Generator`` methods
@@ -75,6 +85,7 @@ KEY_FILE_MODE = 0o600
 #: The key of ``OUT.pmw`` is ``OUT.pmw.key.json`` (``pmw encode``'s default); ``pmw serve`` never serves these.
 KEY_SUFFIX = ".key.json"
 _FINGERPRINT_LABEL = b"pmwm/fingerprint/v1"
+_CHECKSUM_LABEL = b"pmwm/key-checksum/v1\0"
 
 
 def _png_b64(image: np.ndarray) -> str:
@@ -85,14 +96,33 @@ def _png_b64(image: np.ndarray) -> str:
     return base64.b64encode(buf.getvalue()).decode("ascii")
 
 
-def _png_unb64(text: str) -> np.ndarray:
-    from PIL import Image
+def _reference_from_json(ref) -> np.ndarray:
+    """The (h, w) uint8 image of a key file's ``reference`` object; ValueError saying what is wrong with it
+    (worded to follow "reference watermark ")."""
+    from PIL import Image, UnidentifiedImageError
 
     from .image import check_image_size
 
-    with Image.open(io.BytesIO(base64.b64decode(text, validate=True))) as img:
-        check_image_size(img, "reference watermark")
-        return np.asarray(img.convert("L"), dtype=np.uint8).copy()
+    if not isinstance(ref, dict):
+        raise ValueError("is not an object")
+    try:
+        shape = (int(ref["height"]), int(ref["width"]))
+        data = base64.b64decode(ref["png"], validate=True)
+    except KeyError as exc:
+        raise ValueError(f"has no {exc.args[0]!r}") from None
+    except (TypeError, ValueError, binascii.Error):
+        raise ValueError('unreadable: "width" and "height" must be integers and "png" base64 text') from None
+    try:
+        with Image.open(io.BytesIO(data)) as img:
+            check_image_size(img, "image")
+            image = np.asarray(img.convert("L"), dtype=np.uint8).copy()
+    except UnidentifiedImageError:  # its message shows the buffer object's repr: never echoed
+        raise ValueError('unreadable: "png" is not an image') from None
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
+        raise ValueError(f"unreadable ({exc})") from None
+    if image.shape != shape:
+        raise ValueError(f"is {image.shape[1]}x{image.shape[0]}, declared {shape[1]}x{shape[0]}")
+    return image
 
 
 def _jsonable(obj):
@@ -157,6 +187,7 @@ class WatermarkKey:
             "version": KEY_VERSION,
             "secret": self.secret.hex(),
             "fingerprint": self.fingerprint(),
+            "checksum": self.checksum(),
             "file_id": self.file_id,
             "owner_id": self.owner_hex,
             "params": self.params,
@@ -192,16 +223,10 @@ class WatermarkKey:
             raise bad('"params" must be an object and "file_id" a string')
         reference = None
         if doc.get("reference") is not None:
-            from PIL import Image
-
-            ref = doc["reference"]
             try:
-                reference = _png_unb64(ref["png"])
-                shape = (int(ref["height"]), int(ref["width"]))
-            except (KeyError, TypeError, ValueError, OSError, binascii.Error, Image.DecompressionBombError) as exc:
-                raise bad(f"reference watermark unreadable: {exc}") from None
-            if reference.shape != shape:
-                raise bad(f"reference watermark is {reference.shape}, declared {shape}")
+                reference = _reference_from_json(doc["reference"])
+            except ValueError as exc:
+                raise bad(f"reference watermark {exc}") from None
         owner_id = doc.get("owner_id")
         if owner_id is not None:
             try:
@@ -211,6 +236,10 @@ class WatermarkKey:
         key = cls(secret, params, reference, file_id, owner_id)
         if "fingerprint" in doc and doc["fingerprint"] != key.fingerprint():
             raise bad("fingerprint does not match the secret")
+        if "checksum" in doc and not (isinstance(doc["checksum"], str)
+                                      and hmac.compare_digest(doc["checksum"], key.checksum())):
+            raise bad("its owner_id, reference, params or file_id changed after it was written: they do not "
+                      "match its checksum")
         return key
 
     def save(self, path) -> None:
@@ -249,6 +278,15 @@ class WatermarkKey:
     def fingerprint(self) -> str:
         """16 hex digits identifying the key, safe to publish (HMAC of a fixed label)."""
         return hmac.new(self.secret, _FINGERPRINT_LABEL, hashlib.sha256).hexdigest()[:16]
+
+    def checksum(self) -> str:
+        """32 hex digits over everything the key file states besides the secret (module docstring), keyed
+        by the secret: a key file whose owner ID, reference image, params or file id was edited is refused."""
+        ref = None if self.reference is None else [*self.reference.shape,
+                                                   hashlib.sha256(self.reference.tobytes()).hexdigest()]
+        body = json.dumps({"file_id": self.file_id, "owner_id": self.owner_hex, "params": self.params,
+                           "reference": ref}, sort_keys=True, separators=(",", ":"), default=_jsonable)
+        return hmac.new(self.secret, _CHECKSUM_LABEL + body.encode("utf-8"), hashlib.sha256).hexdigest()[:32]
 
     def owns(self, fingerprint: str | None) -> bool:
         """Whether a file carrying the public ``fingerprint`` can hold this key's mark
