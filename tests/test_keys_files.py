@@ -439,3 +439,20 @@ def test_verify_refuses_a_key_whose_owner_id_was_edited(capsys, inputs, tmp_path
     _refused(*_cli(capsys, "encode", inputs / "a.ply", "-o", tmp_path / "b.pmw", "--watermark", inputs / "w1.png",
                    "--key", edited), "checksum")
     assert not (tmp_path / "b.pmw").exists()
+
+
+def test_an_unmarked_encode_never_leaves_a_key_beside_a_file_it_does_not_verify(capsys, inputs, tmp_path):
+    """An encode without --watermark used to replace a marked ``a.pmw`` silently, its key left beside a file
+    it no longer verified (one with another image is refused: so is this one)."""
+    out, key = tmp_path / "a.pmw", tmp_path / "a.pmw.key.json"
+    assert encode(inputs, out).returncode == 0
+    before = (out.read_bytes(), key.read_bytes())
+    for extra in ([], ["--no-owner"], ["--key", tmp_path / "other.key.json"]):
+        _refused(*_cli(capsys, "encode", inputs / "a.ply", "-o", out, "-q", *extra), str(key), "writes no mark")
+    assert (out.read_bytes(), key.read_bytes()) == before and verdict(out, key) == (0, "authentic")
+    out.unlink()  # a key alone: an unmarked a.pmw beside it would not verify either
+    _refused(*_cli(capsys, "encode", inputs / "a.ply", "-o", out, "-q"), str(key))
+    assert sorted(p.name for p in tmp_path.iterdir()) == [key.name]
+    key.rename(tmp_path / "kept.json")  # the ways out the message names: the key moved away, or another name
+    assert _cli(capsys, "encode", inputs / "a.ply", "-o", out, "-q")[0] == 0
+    assert _cli(capsys, "encode", inputs / "a.ply", "-o", tmp_path / "plain.pmw", "-q")[0] == 0

@@ -74,7 +74,7 @@ from ..errors import WatermarkKeyError
 from ..sources import read_regular_file, shown_path
 
 __all__ = ["WatermarkKey", "KeySlot", "KEY_FORMAT", "KEY_VERSION", "KEY_FILE_MODE", "KEY_SUFFIX", "refuse_symlink",
-           "refuse_key_target", "same_path", "checked_key_path"]
+           "refuse_key_target", "refuse_unmarked_beside", "same_path", "checked_key_path"]
 
 KEY_FORMAT = "pmwm-key"
 KEY_VERSION = 1
@@ -428,6 +428,18 @@ def refuse_key_target(path, what: str) -> None:
     if is_key_file(path):
         raise WatermarkKeyError(f"{os.fspath(path)}: names a watermark key file; a {what} never replaces a key "
                                 "(a key file is never rewritten): give the output another name")
+
+
+def refuse_unmarked_beside(key_path, dst) -> None:
+    """WatermarkKeyError when an encode that writes no mark (no image, no owner layer) would write the
+    ``.pmw`` ``dst`` while ``key_path``, the key file an encode of ``dst`` reads and writes by default,
+    exists: the key would be left beside a file it no longer verifies (orphaned), as an encode with
+    another image would leave it, and that one is refused too (:class:`KeySlot`)."""
+    if key_path is not None and os.path.lexists(key_path):
+        raise WatermarkKeyError(f"{os.fspath(key_path)}: a watermark key lies beside {os.fspath(dst)}, and this "
+                                "encode writes no mark: the file would no longer verify with it; the key and the "
+                                "file are left untouched (write the output under another name, or move the key "
+                                "away first to replace the marked file)")
 
 
 def same_path(a, b) -> bool:
