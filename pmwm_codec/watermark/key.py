@@ -288,6 +288,21 @@ class WatermarkKey:
                            "reference": ref}, sort_keys=True, separators=(",", ":"), default=_jsonable)
         return hmac.new(self.secret, _CHECKSUM_LABEL + body.encode("utf-8"), hashlib.sha256).hexdigest()[:32]
 
+    def check_reference(self, image, source=None) -> None:
+        """OptionError when the reference watermark ``image`` (h, w), given to score a read against, is not
+        the size of this key's own: a key marks with one image (:class:`KeySlot`), so an image of another
+        size is never its mark and NC / PSNR against it mean nothing.  ``source``: the image as the caller
+        gave it (a path is named in the message).  Nothing to check without a key image or an ``image``."""
+        if self.reference is None or image is None or np.shape(image) == self.reference.shape:
+            return
+        from ..errors import OptionError
+
+        (h, w), (kh, kw) = np.shape(image), self.reference.shape
+        name = f" {shown_path(source)}" if isinstance(source, (str, bytes, os.PathLike)) else ""
+        raise OptionError(f"the reference watermark{name} is {w}x{h}, the key's is {kw}x{kh}: a key marks with one "
+                          "image, so one of another size is never its mark (give the image the file was marked "
+                          "with, or none to use the key's)")
+
     def owns(self, fingerprint: str | None) -> bool:
         """Whether a file carrying the public ``fingerprint`` can hold this key's mark
         (True when the file states none)."""
