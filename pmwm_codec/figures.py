@@ -417,12 +417,6 @@ def _missing_directories(directory: str) -> list:
     return missing
 
 
-def write_tamper(directory, positions, faces, flagged, watermark=None, *, title: str | None = None) -> str:
-    """Write ``tamper.png`` (:func:`tamper_figure`) into ``directory``; return its path."""
-    return write_pictures(directory, {TAMPER_NAME: tamper_figure(positions, faces, flagged, watermark,
-                                                                 title=title)})[0]
-
-
 def write_figures(results, directory, *, title: str | None = None, total_bytes: int | None = None,
                   bytes_received: int | None = None, k: int = 5, tamper=None) -> dict:
     """Write ``frame_NNN.png`` (see :func:`_frames`: where the watermark changed), ``overview.png``, ``metrics.png``

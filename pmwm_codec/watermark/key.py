@@ -402,7 +402,7 @@ def as_key(key) -> WatermarkKey | None:
 
 def checked_key_path(path) -> str:
     """``path`` as a string; WatermarkKeyError when it is empty or only white space (an unset variable in
-    ``--key $KEY``: the name of no file, which a key would be read from or published to only to fail)."""
+    ``--key $KEY``), before any work: otherwise only publishing the key would fail, naming a temporary file."""
     path = os.fspath(path)
     if not (path if isinstance(path, str) else os.fsdecode(path)).strip():
         raise WatermarkKeyError(f"an empty key path ({path!r}) names no key file (an unset variable?): give the "
