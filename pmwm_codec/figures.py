@@ -13,12 +13,14 @@ promise::
     tamper.png          (given a tamper map) the mesh with the flagged vertices in red, beside the
                         watermark read (:func:`tamper_figure`)
 
-The pieces are public for other uses: :func:`pick_levels`, :func:`overview`,
-:func:`metrics_plot`.
+Each set is written whole or not at all (:func:`write_pictures`): a failure or a Ctrl-C part-way leaves
+none of its pictures.  The pieces are public for other uses: :func:`pick_levels`, :func:`overview`,
+:func:`metrics_plot`, :func:`tamper_figure`.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 
@@ -26,7 +28,7 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
 from .errors import PmwError
-from .watermark.image import write_image
+from .watermark.image import png_bytes
 from .render import Camera, render
 
 INK = (40, 40, 48)
@@ -112,20 +114,18 @@ def watermark_tile(r, side: int) -> Image.Image:
     return Image.fromarray(np.asarray(r.watermark, np.uint8), "L").resize((side, side), Image.NEAREST).convert("RGB")
 
 
-def _frames(results, directory: str) -> list:
-    """Write ``frame_NNN.png`` (NNN = chunk boundary) where the watermark changed; return the paths.
+def _frames(results) -> dict:
+    """``{frame_NNN.png: picture}`` (NNN = chunk boundary) where the watermark changed.
 
     A frame is the watermark scaled up by a whole factor to at least ``FRAME_MIN_SIDE`` px.
     Once every code has been read the picture stops changing (later carriers repeat the
-    codes and only refine the mesh), so boundaries without a change write no frame.
+    codes and only refine the mesh), so boundaries without a change get no frame.
     """
-    frames = []
+    frames = {}
     for r in _framed(results):
         size = np.shape(r.watermark)[0]
         side = size * max(1, -(-FRAME_MIN_SIDE // max(size, 1)))
-        path = _frame_path(directory, r)
-        write_image(path, watermark_tile(r, side))
-        frames.append(path)
+        frames[_frame_name(r)] = watermark_tile(r, side)
     return frames
 
 
@@ -142,18 +142,18 @@ def _framed(results) -> list:
     return out
 
 
-def _frame_path(directory: str, r) -> str:
-    return os.path.join(directory, f"frame_{r.chunk:03d}.png")
+def _frame_name(r) -> str:
+    return f"frame_{r.chunk:03d}.png"
 
 
 def figure_paths(results, directory, *, tamper: bool = False) -> list:
-    """Every file :func:`write_figures` (and, with ``tamper``, :func:`write_tamper`) would write into
+    """Every file :func:`write_figures` (with ``tamper``: given a tamper map) would write into
     ``directory`` for ``results``, so a caller can check them all before any is written."""
     directory = os.fspath(directory)
-    paths = [_frame_path(directory, r) for r in _framed(results)] + [os.path.join(directory, OVERVIEW_NAME)]
+    names = [_frame_name(r) for r in _framed(results)] + [OVERVIEW_NAME]
     if any(r.nc is not None for r in results):
-        paths.append(os.path.join(directory, PLOT_NAME))
-    return paths + ([os.path.join(directory, TAMPER_NAME)] if tamper else [])
+        names.append(PLOT_NAME)
+    return [os.path.join(directory, name) for name in names + ([TAMPER_NAME] if tamper else [])]
 
 
 def overview(results, *, k: int = 5, tile=(220, 170), title: str | None = None, camera: Camera | None = None,
@@ -353,35 +353,93 @@ def tamper_figure(positions, faces, flagged, watermark=None, *, size: int = 360,
     return img
 
 
-def write_tamper(directory, positions, faces, flagged, watermark=None, *, title: str | None = None) -> str:
-    """Write ``tamper.png`` (:func:`tamper_figure`) into ``directory``; return its path."""
-    path = os.path.join(os.fspath(directory), TAMPER_NAME)
+def write_pictures(directory, pictures: dict) -> list:
+    """Write ``pictures`` (``{file name: Pillow image}``) into ``directory`` as PNG files, the set whole or
+    not at all; returns their paths.
+
+    Every picture is encoded, then staged beside its target (:func:`pmwm_codec.atomic.stage`), and only
+    when all are staged are they published, one rename each, with SIGINT/SIGTERM held back
+    (:func:`~pmwm_codec.atomic.signals_deferred`).  A failure or an interrupt before that leaves nothing:
+    no picture, and no directory this call made (a rename failing part-way removes the pictures it had
+    already published).  A directory that did not exist is created.  PmwError naming ``directory``
+    when a picture cannot be written.
+    """
+    from .atomic import discard, signals_deferred, stage
+
+    directory = os.fspath(directory)
+    encoded = {os.path.join(directory, name): png_bytes(image) for name, image in pictures.items()}
+    made = _missing_directories(directory)
+    staged = []
     try:
-        os.makedirs(os.fspath(directory), exist_ok=True)
-        write_image(path, tamper_figure(positions, faces, flagged, watermark, title=title))
-    except OSError as exc:
-        raise PmwError(f"{directory}: cannot write pictures ({exc.strerror or exc})") from None
-    return path
+        os.makedirs(directory, exist_ok=True)
+        for path, data in encoded.items():
+            staged.append(stage(path, [data]))
+        with signals_deferred():
+            _publish_all(staged)
+    except BaseException as exc:
+        for item in staged:
+            discard(item)
+        for parent in made:  # deepest first; a directory something else put a file in stays
+            with contextlib.suppress(OSError):
+                os.rmdir(parent)
+        if isinstance(exc, OSError):
+            raise PmwError(f"{directory}: cannot write pictures ({exc.strerror or exc})") from None
+        raise
+    return list(encoded)
+
+
+def _publish_all(staged: list) -> None:
+    """Publish every staged file, or (a rename failing) remove those already published and raise."""
+    from .atomic import publish
+
+    done = []
+    try:
+        for item in staged:
+            publish(item)
+            done.append(item.path)
+    except BaseException:
+        for path in done:
+            with contextlib.suppress(OSError):
+                os.unlink(path)
+        raise
+
+
+def _missing_directories(directory: str) -> list:
+    """The directories :func:`os.makedirs` would create for ``directory``, deepest first."""
+    missing = []
+    path = os.path.abspath(directory)
+    while not os.path.exists(path):
+        missing.append(path)
+        parent = os.path.dirname(path)
+        if parent == path:
+            break
+        path = parent
+    return missing
 
 
 def write_figures(results, directory, *, title: str | None = None, total_bytes: int | None = None,
-                  bytes_received: int | None = None, k: int = 5) -> dict:
-    """Write ``frame_NNN.png`` (see :func:`_frames`: where the watermark changed), ``overview.png``, ``metrics.png``.
+                  bytes_received: int | None = None, k: int = 5, tamper=None) -> dict:
+    """Write ``frame_NNN.png`` (see :func:`_frames`: where the watermark changed), ``overview.png``, ``metrics.png``
+    and, given ``tamper`` (the flagged vertex ids (f,) of the last result's mesh), ``tamper.png``
+    (:func:`tamper_figure`): the set whole or not at all (:func:`write_pictures`).
 
     ``total_bytes``: size of the complete file; ``bytes_received``: where the stream ended.
     Creates ``directory`` if needed.  Returns ``{"frames": [paths], "overview": path, "plot": path}``
-    (``plot`` is None when no result carries a watermark score).
+    (``plot`` is None when no result carries a watermark score), and ``"tamper": path`` given ``tamper``.
     """
     directory = os.fspath(directory)
-    try:
-        os.makedirs(directory, exist_ok=True)
-        frames = _frames(results, directory)
-        over = os.path.join(directory, OVERVIEW_NAME)
-        write_image(over, overview(results, k=k, title=title, total_bytes=total_bytes))
-        plot = None
-        if any(r.nc is not None for r in results):
-            plot = os.path.join(directory, PLOT_NAME)
-            write_image(plot, metrics_plot(results, title=title, total_bytes=total_bytes, bytes_received=bytes_received))
-    except OSError as exc:
-        raise PmwError(f"{directory}: cannot write pictures ({exc.strerror or exc})") from None
-    return {"frames": frames, "overview": over, "plot": plot}
+    pictures = _frames(results)
+    frames = [os.path.join(directory, name) for name in pictures]
+    pictures[OVERVIEW_NAME] = overview(results, k=k, title=title, total_bytes=total_bytes)
+    out = {"frames": frames, "overview": os.path.join(directory, OVERVIEW_NAME), "plot": None}
+    if any(r.nc is not None for r in results):
+        pictures[PLOT_NAME] = metrics_plot(results, title=title, total_bytes=total_bytes,
+                                           bytes_received=bytes_received)
+        out["plot"] = os.path.join(directory, PLOT_NAME)
+    if tamper is not None:
+        last = results[-1]
+        pictures[TAMPER_NAME] = tamper_figure(last.mesh.positions, last.mesh.faces, tamper, last.watermark,
+                                              title=title)
+        out["tamper"] = os.path.join(directory, TAMPER_NAME)
+    write_pictures(directory, pictures)
+    return out

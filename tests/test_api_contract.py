@@ -222,3 +222,37 @@ def test_the_typed_marker_ships_with_the_package():
     assert importlib.resources.files("pmwm_codec").joinpath("py.typed").is_file()
     pyproject = tomllib.loads((Path(pmwm_codec.__file__).parent.parent / "pyproject.toml").read_text())
     assert "py.typed" in pyproject["tool"]["setuptools"]["package-data"]["pmwm_codec"]
+
+
+@pytest.fixture(scope="module")
+def marked_16(tmp_path_factory):
+    """A .pmw marked with a 16x16 image, and its key file."""
+    d = tmp_path_factory.mktemp("marked16")
+    image = np.random.default_rng(3).integers(0, 256, (16, 16)).astype(np.uint8)
+    pmwm_codec.encode(shapes.icosphere(4, noise=0.01), d / "m.pmw", watermark=image, measure="none")
+    return d / "m.pmw", d / "m.pmw.key.json", image
+
+
+@pytest.mark.parametrize("size", [8, 32])
+def test_a_reference_watermark_of_another_size_than_the_keys_is_refused_before_any_result(tmp_path, marked_16, size):
+    """It gave nc and psnr_db None at every step, silently."""
+    from pmwm_codec.verify import verify_stream
+
+    pmw, key, image = marked_16
+    other = np.random.default_rng(4).integers(0, 256, (size, size)).astype(np.uint8)
+    steps = pmwm_codec.iter_decode(pmw, key=key, watermark=other)
+    with pytest.raises(OptionError, match=f"reference watermark is {size}x{size}, the key's is 16x16"):
+        next(steps)
+    read = []
+
+    def blocks():  # verify_stream refuses before it reads a byte
+        read.append(True)
+        yield pmw.read_bytes()
+    from PIL import Image
+
+    png = tmp_path / "other.png"
+    Image.fromarray(other).save(png)
+    with pytest.raises(OptionError, match=f"reference watermark {png} is {size}x{size}"):
+        verify_stream(blocks(), key, png)
+    assert read == []
+    assert list(pmwm_codec.iter_decode(pmw, key=key, watermark=image))[-1].nc == 1.0

@@ -218,6 +218,16 @@ def test_verify_with_another_watermark_is_not_authentic(work, capsys):
     assert strict_json(stdout)["verdict"] in ("not-authentic", "inconclusive")
 
 
+def test_verify_with_a_watermark_of_another_size_than_the_keys_is_refused(work, tmp_path, capsys):
+    """It was ``not-authentic`` with NC and PSNR None at every row: a key marks with one image, so an image
+    of another size cannot be its mark, and is refused (exit 2) as a key of another image is by encode."""
+    small = tmp_path / "small.png"
+    Image.fromarray(pattern(16)).save(small)
+    code, stdout, err = run(capsys, "verify", work["pmw"], "--key", work["key"], "--watermark", small)
+    assert code == 2 and stdout == "" and err.count("\n") == 1
+    assert f"{small} is 16x16, the key's is 32x32" in err
+
+
 def test_verify_of_an_unmarked_file_exits_1(work, tmp_path, capsys):
     plain = tmp_path / "plain.pmw"
     assert run(capsys, "encode", work["mesh"], "-o", plain, "-q")[0] == 0

@@ -112,6 +112,84 @@ def test_bad_key_files(tmp_path, content, message):
     assert "\n" not in str(info.value)
 
 
+def _png(image) -> str:
+    import base64
+    import io
+
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(image).save(buf, format="PNG")
+    return base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+@pytest.mark.parametrize("edit", ["owner_id", "params", "file_id", "reference pixel", "reference removed",
+                                  "checksum", "checksum not text"])
+def test_a_key_file_edited_after_it_was_written_is_refused(tmp_path, key, edit):
+    """A hand-edited owner ID used to be accepted: the image verified ``authentic``, the owner ``absent``."""
+    key.owner_id = 0x1234
+    path = tmp_path / "k.key.json"
+    key.save(path)
+    doc = json.loads(path.read_text())
+    if edit == "owner_id":
+        doc["owner_id"] = "0000000000000001"
+    elif edit == "params":
+        doc["params"]["bits"] = 9
+    elif edit == "file_id":
+        doc["file_id"] = "file-5678"
+    elif edit == "reference pixel":
+        changed = key.reference.copy()
+        changed[0, 0] ^= 0xFF
+        doc["reference"]["png"] = _png(changed)
+    elif edit == "reference removed":
+        del doc["reference"]
+    elif edit == "checksum":
+        doc["checksum"] = "0" * 32
+    else:
+        doc["checksum"] = 5
+    path.write_text(json.dumps(doc))
+    with pytest.raises(WatermarkKeyError, match="checksum") as info:
+        WatermarkKey.load(path)
+    assert str(info.value).startswith(f"{path}: not a valid watermark key") and "\n" not in str(info.value)
+
+
+def test_a_key_written_before_the_checksum_still_loads(tmp_path, key):
+    path = tmp_path / "k.key.json"
+    doc = key.to_json()
+    del doc["checksum"]
+    path.write_text(json.dumps(doc))
+    assert WatermarkKey.load(path) == key
+    key.save(path)
+    assert json.loads(path.read_text())["checksum"] == key.checksum() and WatermarkKey.load(path) == key
+
+
+@pytest.mark.parametrize("reference, message", [
+    ({"width": 16, "height": 16, "png": "AAAA"}, 'reference watermark unreadable: "png" is not an image'),
+    ({"width": 16, "height": 16, "png": "@@"}, "must be integers and \"png\" base64 text"),
+    ({"width": 16, "height": 16}, "reference watermark has no 'png'"),
+    ({"width": "x", "height": 16, "png": "AAAA"}, "must be integers"),
+    ([1, 2], "reference watermark is not an object"),
+    ({"width": 8, "height": 16, "png": None}, "base64 text"),
+])
+def test_an_unreadable_reference_is_named_without_python_internals(tmp_path, reference, message):
+    path = tmp_path / "k.key.json"
+    path.write_text(json.dumps({"format": "pmwm-key", "version": 1, "secret": SECRET.hex(), "reference": reference}))
+    with pytest.raises(WatermarkKeyError) as info:
+        WatermarkKey.load(path)
+    text = str(info.value)
+    assert message in text and "object at 0x" not in text and "BytesIO" not in text, text
+
+
+def test_a_reference_of_another_size_than_declared_is_named_in_pixels(tmp_path, key):
+    doc = key.to_json()
+    doc["reference"]["width"] = 8
+    del doc["checksum"]
+    path = tmp_path / "k.key.json"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(WatermarkKeyError, match="reference watermark is 16x16, declared 8x16"):
+        WatermarkKey.load(path)
+
+
 def test_missing_key_file(tmp_path):
     with pytest.raises(WatermarkKeyError, match="no such key file"):
         WatermarkKey.load(tmp_path / "nope.key")

@@ -131,6 +131,20 @@ def test_a_reused_0644_key_is_tightened_to_0600(inputs, tmp_path):
     assert encode(inputs, out).returncode == 0 and mode(key) == 0o600
 
 
+@pytest.mark.parametrize("before, after", [(0o400, 0o400), (0o640, 0o600), (0o604, 0o600)])
+def test_a_reused_key_is_never_loosened(inputs, tmp_path, before, after):
+    """Only group/other bits are cleared: a key its owner made read-only stays read-only."""
+    out, key = tmp_path / "a.pmw", tmp_path / "a.pmw.key.json"
+    assert encode(inputs, out).returncode == 0
+    os.chmod(key, before)
+    content = key.read_bytes()
+    assert encode(inputs, out).returncode == 0
+    assert mode(key) == after and key.read_bytes() == content
+    os.chmod(key, before)
+    pmwm_codec.encode(inputs / "b.ply", tmp_path / "b.pmw", watermark=inputs / "w1.png", key=key)
+    assert mode(key) == after and key.read_bytes() == content
+
+
 def test_re_encoding_with_the_default_key_gives_the_same_bytes(inputs, tmp_path):
     out = tmp_path / "a.pmw"
     assert encode(inputs, out).returncode == 0
@@ -392,3 +406,53 @@ def test_key_matches_is_null_for_a_file_without_a_watermark_image(capsys, inputs
     for key in (Path(str(other) + ".key.json"), Path(str(owner_only) + ".key.json")):
         r = pmw("verify", owner_only, "--key", key, "--json")
         assert json.loads(r.stdout)["key_matches"] is None
+
+
+@pytest.mark.parametrize("empty", ["", "  "])
+def test_an_empty_key_path_is_refused_up_front(capsys, inputs, tmp_path, monkeypatch, empty):
+    """``--key "$KEY"`` with KEY unset used to run the whole encode, then fail publishing the key, naming a
+    hidden temporary file of the parent directory; the API raised a FileNotFoundError."""
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "o.pmw"
+    _refused(*_cli(capsys, "encode", inputs / "a.ply", "-o", out, "--watermark", inputs / "w1.png", "--key", empty),
+             "--key", "empty path")
+    assert list(tmp_path.iterdir()) == []
+    assert encode(inputs, out).returncode == 0
+    _refused(*_cli(capsys, "verify", out, "--key", empty), "--key", "empty path")
+    with pytest.raises(WatermarkKeyError, match="empty key path"):
+        pmwm_codec.encode(inputs / "a.ply", tmp_path / "p.pmw", watermark=inputs / "w1.png", key=empty)
+    with pytest.raises(WatermarkKeyError, match="empty key path"):
+        next(pmwm_codec.iter_decode(out, key=empty))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o.pmw", "o.pmw.key.json"]
+
+
+def test_verify_refuses_a_key_whose_owner_id_was_edited(capsys, inputs, tmp_path):
+    """It used to verify ``authentic``, exit 0, with the owner layer ``absent``: the edited ID was read for."""
+    out, key = tmp_path / "a.pmw", tmp_path / "a.pmw.key.json"
+    assert encode(inputs, out).returncode == 0
+    doc = json.loads(key.read_text())
+    assert doc["owner_id"] is not None
+    doc["owner_id"] = f"{int(doc['owner_id'], 16) ^ 1:016x}"
+    edited = tmp_path / "edited.key.json"
+    edited.write_text(json.dumps(doc))
+    _refused(*_cli(capsys, "verify", out, "--key", edited), "edited.key.json", "not a valid watermark key", "checksum")
+    _refused(*_cli(capsys, "encode", inputs / "a.ply", "-o", tmp_path / "b.pmw", "--watermark", inputs / "w1.png",
+                   "--key", edited), "checksum")
+    assert not (tmp_path / "b.pmw").exists()
+
+
+def test_an_unmarked_encode_never_leaves_a_key_beside_a_file_it_does_not_verify(capsys, inputs, tmp_path):
+    """An encode without --watermark used to replace a marked ``a.pmw`` silently, its key left beside a file
+    it no longer verified (one with another image is refused: so is this one)."""
+    out, key = tmp_path / "a.pmw", tmp_path / "a.pmw.key.json"
+    assert encode(inputs, out).returncode == 0
+    before = (out.read_bytes(), key.read_bytes())
+    for extra in ([], ["--no-owner"], ["--key", tmp_path / "other.key.json"]):
+        _refused(*_cli(capsys, "encode", inputs / "a.ply", "-o", out, "-q", *extra), str(key), "writes no mark")
+    assert (out.read_bytes(), key.read_bytes()) == before and verdict(out, key) == (0, "authentic")
+    out.unlink()  # a key alone: an unmarked a.pmw beside it would not verify either
+    _refused(*_cli(capsys, "encode", inputs / "a.ply", "-o", out, "-q"), str(key))
+    assert sorted(p.name for p in tmp_path.iterdir()) == [key.name]
+    key.rename(tmp_path / "kept.json")  # the ways out the message names: the key moved away, or another name
+    assert _cli(capsys, "encode", inputs / "a.ply", "-o", out, "-q")[0] == 0
+    assert _cli(capsys, "encode", inputs / "a.ply", "-o", tmp_path / "plain.pmw", "-q")[0] == 0

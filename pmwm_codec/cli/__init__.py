@@ -5,42 +5,56 @@ Thin over the library: each subcommand lives in ``pmwm_codec/cli/<name>.py`` as
 script and the function tests call: ``main(["verify", "x.pmw", "--key", "k"])``.
 
 Exit status: 0 success (verify: authentic); 1 verify ran and the mark is absent,
-wrong or inconclusive; 2 bad input or usage, with one line on stderr.
+wrong or inconclusive; 2 bad input or usage, with one line on stderr; 130 interrupted
+(Ctrl-C), with one line on stderr.
+
+Nothing is imported here at module level: :func:`main` loads the subcommands (numpy, Pillow ...)
+inside its guard, so a Ctrl-C while they load is the one ``interrupted`` line too, not a traceback.
 """
 
 from __future__ import annotations
 
-from pmwm_codec import __version__
-
-from . import batch, cut, decode, demo, encode, info, serve, verify
-from .common import PROG, ArgumentParser, run_command
-
-COMMANDS = (encode, decode, cut, verify, info, demo, batch, serve)
+#: The subcommand modules, in the order ``pmw --help`` lists them.
+COMMANDS = ("encode", "decode", "cut", "verify", "info", "demo", "batch", "serve")
 #: Commands that do one job and exit: run as a process of their own (``argv`` None), a small mesh skips
 #: numba's start-up (:func:`pmwm_codec.progressive.topology.job_vertices`).  ``batch`` and ``serve``
 #: live on, and the tests' in-process calls keep numba.
 ONE_SHOT = {"encode", "decode", "cut", "verify", "demo"}
 
 
-def build_parser() -> ArgumentParser:
+def build_parser():
+    """The ``pmw`` argument parser, every subcommand added (imports them)."""
+    from importlib import import_module
+
+    from pmwm_codec import __version__
+
+    from .common import PROG, ArgumentParser
+
     parser = ArgumentParser(prog=PROG, description="Progressive, watermarked 3D meshes in glTF (.pmw).")
     parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=ArgumentParser)
     sub.required = True
-    for command in COMMANDS:
-        command.add_parser(sub)
+    for name in COMMANDS:
+        import_module(f"{__name__}.{name}").add_parser(sub)
     return parser
 
 
 def main(argv=None) -> int:
     """Run ``pmw`` with ``argv`` (default ``sys.argv[1:]``); returns the exit status."""
-    parser = build_parser()
     try:
-        args = parser.parse_args(argv)
-    except SystemExit as exc:  # usage errors (2), --help / --version (0)
-        return int(exc.code or 0)
-    if argv is None and args.command in ONE_SHOT:
-        from pmwm_codec.progressive.topology import one_shot_process
+        from .common import run_command
 
-        one_shot_process()
-    return run_command(args)
+        parser = build_parser()
+        try:
+            args = parser.parse_args(argv)
+        except SystemExit as exc:  # usage errors (2), --help / --version (0)
+            return int(exc.code or 0)
+        if argv is None and args.command in ONE_SHOT:
+            from pmwm_codec.progressive.topology import one_shot_process
+
+            one_shot_process()
+        return run_command(args)
+    except KeyboardInterrupt:  # while the modules load or the arguments are read (run_command answers later ones)
+        from .common import interrupted
+
+        return interrupted()

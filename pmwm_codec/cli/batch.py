@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import os
 
-from .common import EXIT_NOT_AUTHENTIC, EXIT_OK, Progress, UsageError, print_json
+from .common import EXIT_NOT_AUTHENTIC, EXIT_OK, Progress, UsageError, nonblank_path, print_json
 from .encode import add_stream_options, stream_options
 
 INSTALL_HINT = 'pmw batch needs Dask: pip install "pmwm_codec[batch]"'
@@ -55,8 +55,8 @@ def add_parser(sub):
     e.add_argument("-o", "--output", required=True, metavar="OUT_DIR", help="output folder (created)")
     e.add_argument("--watermark", metavar="IMG", help="watermark image for every asset")
     keys = e.add_mutually_exclusive_group()
-    keys.add_argument("--key", metavar="KEY", help="one collection key for every asset (loaded, or created)")
-    keys.add_argument("--keys-dir", metavar="DIR", help="write each asset's key under DIR "
+    keys.add_argument("--key", type=nonblank_path("--key", "key file"), metavar="KEY", help="one collection key for every asset (loaded, or created)")
+    keys.add_argument("--keys-dir", type=nonblank_path("--keys-dir", "directory"), metavar="DIR", help="write each asset's key under DIR "
                       "(default: OUT.pmw.key.json beside each output); a folder, not an input or an output")
     e.add_argument("--timeout", type=_positive(float, "--timeout"), metavar="S",
                    help="seconds per asset before its encoder is killed (default 600)")
@@ -73,8 +73,8 @@ def add_parser(sub):
                                     "read and counts as an error. Exit 0 when all are authentic.")
     v.add_argument("out_dir", metavar="OUT_DIR")
     keys = v.add_mutually_exclusive_group()
-    keys.add_argument("--key", metavar="KEY", help="the collection key")
-    keys.add_argument("--keys-dir", metavar="DIR", help="the folder of per-asset keys")
+    keys.add_argument("--key", type=nonblank_path("--key", "key file"), metavar="KEY", help="the collection key")
+    keys.add_argument("--keys-dir", type=nonblank_path("--keys-dir", "directory"), metavar="DIR", help="the folder of per-asset keys")
     v.add_argument("--watermark", metavar="IMG", help="expected watermark image (default: the one in each key)")
     _cluster_options(v)
     v.set_defaults(run=run_verify)

@@ -19,6 +19,7 @@ import time
 EXIT_OK = 0
 EXIT_NOT_AUTHENTIC = 1  # verify ran; the mark is absent, wrong or too weak to decide
 EXIT_BAD_INPUT = 2  # bad input or usage (argparse uses 2 too)
+EXIT_INTERRUPTED = 130  # Ctrl-C (128 + SIGINT, as a shell reports it)
 
 PROG = "pmw"
 
@@ -40,10 +41,40 @@ def error_line(message) -> str:
     return f"{PROG}: error: {text}"
 
 
+def interrupted() -> int:
+    """Say that the command was interrupted (one line on stderr); returns :data:`EXIT_INTERRUPTED`."""
+    sys.stderr.write(error_line("interrupted") + "\n")
+    return EXIT_INTERRUPTED
+
+
+def raised_by_interrupt(exc: BaseException) -> bool:
+    """Whether ``exc`` stands for a Ctrl-C: a KeyboardInterrupt, or an exception raised because of one
+    (a KeyboardInterrupt raised inside a compiled call, a numba kernel's, comes back as a SystemError
+    "returned a result with an exception set" whose cause is the KeyboardInterrupt)."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
 def os_error_message(exc: OSError) -> str:
     name = exc.filename if exc.filename is not None else ""
     why = exc.strerror or str(exc)
     return f"{name}: {why}" if name else why
+
+
+def nonblank_path(option: str, what: str = "file"):
+    """An argparse ``type`` for a path option: refuses an empty or white-space name up front (an unset
+    variable in ``--key $KEY`` would otherwise be carried to the step that writes or reads it)."""
+    def parse(text):
+        if not text.strip():
+            raise argparse.ArgumentTypeError(f"an empty path ({text!r}) names no {what} (an unset variable in "
+                                             f"'{option} $VAR'?)")
+        return text
+    return parse
 
 
 def jsonable(value):
@@ -250,6 +281,8 @@ def run_command(args) -> int:
     Named errors (PmwError, UsageError, OSError) keep their one-line messages; a
     MemoryError, a RecursionError or any other exception also ends as one line
     and exit 2 (never 1: that is ``verify``'s "not authentic"), without a traceback.
+    A Ctrl-C is ``interrupted`` and exit 130, also when it surfaces wrapped in another
+    exception (:func:`raised_by_interrupt`).
     Files are not cleaned up here: every output is published whole or not at all by
     the library (:func:`pmwm_codec.format.glb.write_parts`, :mod:`pmwm_codec.atomic`),
     so a failure leaves the old files or the new ones, never a part of one.
@@ -271,13 +304,14 @@ def _run_mapped(args) -> int:
     except OSError as exc:
         message = os_error_message(exc)
     except KeyboardInterrupt:
-        sys.stderr.write(error_line("interrupted") + "\n")
-        return 130
+        return interrupted()
     except MemoryError:
         message = "out of memory: the input is too large for this machine"
     except RecursionError:
         message = "the input is nested too deeply"
     except Exception as exc:  # the last net: one line, exit 2, never a traceback
+        if raised_by_interrupt(exc):
+            return interrupted()
         message = f"unexpected {type(exc).__name__}: {exc} (a bug of pmw: please report it with the input)"
     sys.stderr.write(error_line(message) + "\n")
     return EXIT_BAD_INPUT

@@ -12,8 +12,8 @@ from pmwm_codec.format.extension import DEFAULT_PAYLOAD_VERSION, PAYLOAD_VERSION
 from pmwm_codec.watermark.codec import MAX_BITS, MODES, CapacityError, shrink_watermark
 from pmwm_codec.watermark.image import load_watermark
 
-from .common import (Progress, UsageError, check_input_file, check_output_path, check_pmw_output, fmt_float, print_json,
-                     stage_progress)
+from .common import (Progress, UsageError, check_input_file, check_output_path, check_pmw_output, fmt_float,
+                     nonblank_path, print_json, stage_progress)
 
 
 def _int_in(lo, hi, what):
@@ -67,7 +67,7 @@ def add_parser(sub):
                         "or take too few values")
     p.add_argument("--no-owner", action="store_true",
                    help="with --watermark: write the exact layer only, no owner layer")
-    p.add_argument("--key", metavar="KEY", help="key file to use (if it exists) or to write (default: OUT.pmw.key.json)")
+    p.add_argument("--key", type=nonblank_path("--key", "key file"), metavar="KEY", help="key file to use (if it exists) or to write (default: OUT.pmw.key.json)")
     add_stream_options(p)
     p.add_argument("--fit", action="store_true",
                    help="shrink a watermark that does not fit to the largest size that does (with a notice)")
@@ -124,6 +124,11 @@ def run(args) -> int:
     check_pmw_output(args.output, inputs=(args.input, args.watermark))  # --key = -o: the library names it
     if args.key is not None and not os.path.exists(args.key):
         check_output_path(args.key, "key", inputs=(args.input, args.watermark), key=True)
+    if args.watermark is None and args.owner_id is None:  # no mark: never beside a key it would orphan
+        from pmwm_codec.stream.encoder import default_key_path
+        from pmwm_codec.watermark.key import refuse_unmarked_beside
+
+        refuse_unmarked_beside(default_key_path(args.output), args.output)
     progress = Progress(not (args.json or args.quiet))
     options = {**stream_options(args), "measure": args.measure, "progress": stage_progress(progress)}
     if args.owner_id is not None:

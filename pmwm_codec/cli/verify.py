@@ -17,7 +17,7 @@ from pmwm_codec.http import UrlSource, is_url
 from pmwm_codec.verify import StreamVerification, verify_stream
 
 from .common import (EXIT_NOT_AUTHENTIC, EXIT_OK, Progress, UsageError, check_input_file, check_output_path,
-                     fmt_float, naming, print_json)
+                     fmt_float, naming, nonblank_path, print_json)
 
 
 def add_parser(sub):
@@ -28,7 +28,7 @@ def add_parser(sub):
     p.add_argument("input", metavar="IN.pmw|URL|MESH",
                    help="the .pmw, an http(s):// URL of one (read by Range requests when the server allows), or - for "
                         "standard input; with --reference, a mesh file that left the stream")
-    p.add_argument("--key", required=True, metavar="KEY", help="the key file written by pmw encode")
+    p.add_argument("--key", required=True, type=nonblank_path("--key", "key file"), metavar="KEY", help="the key file written by pmw encode")
     p.add_argument("--watermark", metavar="IMG", help="expected watermark image (default: the one in the key)")
     p.add_argument("--frames", metavar="DIR", help="write the partial watermark per chunk, an overview and a plot")
     p.add_argument("--reference", metavar="ORIGINAL.pmw",
@@ -100,14 +100,8 @@ def run(args) -> int:
         name = "stdin" if args.input == "-" else os.path.basename(args.input.rstrip("/"))
         title = f"{name}: {outcome.verdict}" + ("" if outcome.end.complete else " (truncated)")
         pictures = write_figures(outcome.results, args.frames, title=title, total_bytes=outcome.total_length,
-                                 bytes_received=outcome.end.bytes_read)
-        if outcome.marked:
-            from pmwm_codec.figures import write_tamper
-
-            last = outcome.results[-1]
-            mesh = last.mesh
-            pictures["tamper"] = write_tamper(args.frames, mesh.positions, mesh.faces, outcome.flagged,
-                                              last.watermark, title=title)
+                                 bytes_received=outcome.end.bytes_read,
+                                 tamper=outcome.flagged if outcome.marked else None)
     if args.json:
         doc = outcome.as_json()
         if owners:
@@ -189,15 +183,15 @@ def run_reference(args) -> int:
     with naming(args.reference):
         v = verify_mesh(mesh, args.reference, args.key, args.watermark)
     if args.frames is not None:
-        from pmwm_codec.figures import TAMPER_NAME, write_tamper
-        from pmwm_codec.watermark.image import save_png
+        from pmwm_codec.figures import TAMPER_NAME, tamper_figure, write_pictures
+        from pmwm_codec.watermark.image import gray_image
 
-        watermark = os.path.join(args.frames, "watermark.png")
-        _check_pictures(args, [watermark, os.path.join(args.frames, TAMPER_NAME)])
-        os.makedirs(args.frames, exist_ok=True)
-        save_png(watermark, v.watermark)
-        write_tamper(args.frames, mesh.positions, mesh.faces, v.flagged, v.watermark,
-                     title=f"{os.path.basename(args.input)}: {v.verdict}")
+        names = ("watermark.png", TAMPER_NAME)
+        _check_pictures(args, [os.path.join(args.frames, name) for name in names])
+        title = f"{os.path.basename(args.input)}: {v.verdict}"
+        write_pictures(args.frames, {names[0]: gray_image(v.watermark),
+                                     names[1]: tamper_figure(mesh.positions, mesh.faces, v.flagged, v.watermark,
+                                                             title=title)})
     if args.json:
         print_json(v.as_json())
     elif not args.quiet:

@@ -328,6 +328,7 @@ def verify_mesh(mesh, reference_source, key, watermark=None, *, tolerance: float
         from ..watermark.image import load_watermark
 
         ref_image, _ = load_watermark(watermark)
+        key.check_reference(ref_image, watermark)  # before the correspondence search
 
     corr = correspondence or correspond(m.positions, m.faces, ref.scene_positions, ref.scene_faces,
                                         tolerance=tolerance)

@@ -9,7 +9,9 @@ Contract
 * ``key``: a :class:`~pmwm_codec.watermark.key.WatermarkKey` or a key file path; a key
   whose fingerprint differs from the file's is read like any other and the verdict is
   ``not-authentic`` (the owner of a key may ask "is my mark in this file?" of any file);
-* ``watermark``: the expected image (path or (s, s) array); default the key's own.
+* ``watermark``: the expected image (path or (s, s) array); default the key's own.  One of
+  another size than the key's is refused (OptionError) before anything is read: a key marks
+  with one image, so it is never the mark.
 
 The verdict is the stream verifier's (:mod:`pmwm_codec.watermark.verify`):
 ``authentic`` | ``tampered`` | ``not-authentic`` | ``inconclusive``; a file without a
@@ -118,6 +120,8 @@ def verify_stream(source: Source, key: WatermarkKey | str | os.PathLike[str], wa
     if watermark is not None:
         reference, _ = load_watermark(watermark)
     key = as_key(key)
+    if key is not None:  # before anything is read
+        key.check_reference(reference, watermark)
     decoder = StreamDecoder(key, reference, copy=keep_meshes, check_key=False)
     gen = iter_results(source, decoder)
     results = []

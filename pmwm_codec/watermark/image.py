@@ -167,24 +167,34 @@ def load_watermark(path_or_array, max_size: int | None = DEFAULT_MAX_SIZE):
     return np.ascontiguousarray(gray), notices
 
 
-def save_png(path, image) -> None:
-    """Write an (h, w) uint8 (or 0..255 numeric, clipped) image as a grayscale PNG."""
+def gray_image(image) -> Image.Image:
+    """A Pillow grayscale image of an (h, w) uint8 (or 0..255 numeric, clipped) array."""
     a = np.asarray(image)
     if a.ndim != 2 or a.size == 0:
         raise ValueError(f"expected a non-empty 2-D image, got shape {a.shape}")
     if a.dtype != np.uint8:
         a = np.clip(np.rint(a.astype(np.float64)), 0, 255).astype(np.uint8)
-    write_image(path, Image.fromarray(a, mode="L"))
+    return Image.fromarray(a, mode="L")
+
+
+def save_png(path, image) -> None:
+    """Write an (h, w) uint8 (or 0..255 numeric, clipped) image as a grayscale PNG."""
+    write_image(path, gray_image(image))
+
+
+def png_bytes(image: Image.Image) -> bytes:
+    """A Pillow ``image`` encoded as PNG."""
+    buf = io.BytesIO()
+    image.save(buf, format="PNG")
+    return buf.getvalue()
 
 
 def write_image(path, image: Image.Image) -> None:
     """Write a Pillow ``image`` as a PNG at ``path``, whole or not at all (an interrupted run leaves no cut file)."""
     from ..atomic import write_atomic
 
-    buf = io.BytesIO()
-    image.save(buf, format="PNG")
     try:
-        write_atomic(os.fspath(path), [buf.getvalue()])
+        write_atomic(os.fspath(path), [png_bytes(image)])
     except OSError as exc:
         raise PmwError(f"{os.fspath(path)}: cannot write PNG ({exc.strerror or exc})") from None
 

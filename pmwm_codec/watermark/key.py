@@ -16,12 +16,22 @@ file), so a key reused for more assets (:class:`KeySlot`) is never rewritten.
 It is stored as a JSON file (``save``/``load``), written atomically with mode 0600 and
 never through a symbolic link::
 
-    {"format": "pmwm-key", "version": 1, "secret": "<64 hex>", "file_id": "...",
-     "owner_id": "<16 hex>", "params": {...}, "reference": {"width": s, "height": s, "png": "<base64 PNG>"}}
+    {"format": "pmwm-key", "version": 1, "secret": "<64 hex>", "fingerprint": "<16 hex>",
+     "checksum": "<32 hex>", "file_id": "...", "owner_id": "<16 hex>", "params": {...},
+     "reference": {"width": s, "height": s, "png": "<base64 PNG>"}}
 
 A file may carry :meth:`WatermarkKey.fingerprint` publicly: it identifies the key
 (HMAC-SHA256 of a fixed label) without revealing the secret, so a reader can tell
-"key of another file" from "watermark absent".
+"key of another file" from "watermark absent".  Both ``fingerprint`` and ``checksum`` are
+checked when present (keys written before the checksum have none and load as before):
+
+* ``fingerprint`` covers the secret: an edited secret is refused;
+* ``checksum`` (:meth:`WatermarkKey.checksum`) covers the rest: the first 32 hex digits of
+  HMAC-SHA256(secret, ``"pmwm/key-checksum/v1\\0"`` + the compact, key-sorted JSON of
+  ``{"file_id", "owner_id" (16 hex or null), "params", "reference": [height, width, SHA-256 hex of
+  the pixels, row by row] or null}``).  A hand-edited owner ID would otherwise verify the image
+  ``authentic`` beside an owner ``absent``, and an edited reference image would blame the file.
+  It detects edits and corruption; it is no protection against whoever holds the secret.
 
 **Keyed mappings** are defined by SHAKE-256 over the secret, so that any implementation
 (and any numpy version) reproduces them bit for bit — ``numpy.random.Generator`` methods
@@ -54,6 +64,7 @@ import json
 import os
 import re
 import secrets
+import stat
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -63,7 +74,7 @@ from ..errors import WatermarkKeyError
 from ..sources import read_regular_file, shown_path
 
 __all__ = ["WatermarkKey", "KeySlot", "KEY_FORMAT", "KEY_VERSION", "KEY_FILE_MODE", "KEY_SUFFIX", "refuse_symlink",
-           "refuse_key_target", "same_path"]
+           "refuse_key_target", "refuse_unmarked_beside", "same_path", "checked_key_path"]
 
 KEY_FORMAT = "pmwm-key"
 KEY_VERSION = 1
@@ -74,6 +85,7 @@ KEY_FILE_MODE = 0o600
 #: The key of ``OUT.pmw`` is ``OUT.pmw.key.json`` (``pmw encode``'s default); ``pmw serve`` never serves these.
 KEY_SUFFIX = ".key.json"
 _FINGERPRINT_LABEL = b"pmwm/fingerprint/v1"
+_CHECKSUM_LABEL = b"pmwm/key-checksum/v1\0"
 
 
 def _png_b64(image: np.ndarray) -> str:
@@ -84,14 +96,33 @@ def _png_b64(image: np.ndarray) -> str:
     return base64.b64encode(buf.getvalue()).decode("ascii")
 
 
-def _png_unb64(text: str) -> np.ndarray:
-    from PIL import Image
+def _reference_from_json(ref) -> np.ndarray:
+    """The (h, w) uint8 image of a key file's ``reference`` object; ValueError saying what is wrong with it
+    (worded to follow "reference watermark ")."""
+    from PIL import Image, UnidentifiedImageError
 
     from .image import check_image_size
 
-    with Image.open(io.BytesIO(base64.b64decode(text, validate=True))) as img:
-        check_image_size(img, "reference watermark")
-        return np.asarray(img.convert("L"), dtype=np.uint8).copy()
+    if not isinstance(ref, dict):
+        raise ValueError("is not an object")
+    try:
+        shape = (int(ref["height"]), int(ref["width"]))
+        data = base64.b64decode(ref["png"], validate=True)
+    except KeyError as exc:
+        raise ValueError(f"has no {exc.args[0]!r}") from None
+    except (TypeError, ValueError, binascii.Error):
+        raise ValueError('unreadable: "width" and "height" must be integers and "png" base64 text') from None
+    try:
+        with Image.open(io.BytesIO(data)) as img:
+            check_image_size(img, "image")
+            image = np.asarray(img.convert("L"), dtype=np.uint8).copy()
+    except UnidentifiedImageError:  # its message shows the buffer object's repr: never echoed
+        raise ValueError('unreadable: "png" is not an image') from None
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
+        raise ValueError(f"unreadable ({exc})") from None
+    if image.shape != shape:
+        raise ValueError(f"is {image.shape[1]}x{image.shape[0]}, declared {shape[1]}x{shape[0]}")
+    return image
 
 
 def _jsonable(obj):
@@ -156,6 +187,7 @@ class WatermarkKey:
             "version": KEY_VERSION,
             "secret": self.secret.hex(),
             "fingerprint": self.fingerprint(),
+            "checksum": self.checksum(),
             "file_id": self.file_id,
             "owner_id": self.owner_hex,
             "params": self.params,
@@ -191,16 +223,10 @@ class WatermarkKey:
             raise bad('"params" must be an object and "file_id" a string')
         reference = None
         if doc.get("reference") is not None:
-            from PIL import Image
-
-            ref = doc["reference"]
             try:
-                reference = _png_unb64(ref["png"])
-                shape = (int(ref["height"]), int(ref["width"]))
-            except (KeyError, TypeError, ValueError, OSError, binascii.Error, Image.DecompressionBombError) as exc:
-                raise bad(f"reference watermark unreadable: {exc}") from None
-            if reference.shape != shape:
-                raise bad(f"reference watermark is {reference.shape}, declared {shape}")
+                reference = _reference_from_json(doc["reference"])
+            except ValueError as exc:
+                raise bad(f"reference watermark {exc}") from None
         owner_id = doc.get("owner_id")
         if owner_id is not None:
             try:
@@ -210,6 +236,10 @@ class WatermarkKey:
         key = cls(secret, params, reference, file_id, owner_id)
         if "fingerprint" in doc and doc["fingerprint"] != key.fingerprint():
             raise bad("fingerprint does not match the secret")
+        if "checksum" in doc and not (isinstance(doc["checksum"], str)
+                                      and hmac.compare_digest(doc["checksum"], key.checksum())):
+            raise bad("its owner_id, reference, params or file_id changed after it was written: they do not "
+                      "match its checksum")
         return key
 
     def save(self, path) -> None:
@@ -229,7 +259,7 @@ class WatermarkKey:
     @classmethod
     def load(cls, path) -> "WatermarkKey":
         """Read a key file; any problem is a one-line :class:`WatermarkKeyError`."""
-        path = os.fspath(path)
+        path = checked_key_path(path)
         if shown_path(path) != path:  # a key's JSON given as its path: never echo it (the secret)
             raise WatermarkKeyError(f"{shown_path(path)}: no such key file")
         if not os.path.lexists(path):
@@ -248,6 +278,30 @@ class WatermarkKey:
     def fingerprint(self) -> str:
         """16 hex digits identifying the key, safe to publish (HMAC of a fixed label)."""
         return hmac.new(self.secret, _FINGERPRINT_LABEL, hashlib.sha256).hexdigest()[:16]
+
+    def checksum(self) -> str:
+        """32 hex digits over everything the key file states besides the secret (module docstring), keyed
+        by the secret: a key file whose owner ID, reference image, params or file id was edited is refused."""
+        ref = None if self.reference is None else [*self.reference.shape,
+                                                   hashlib.sha256(self.reference.tobytes()).hexdigest()]
+        body = json.dumps({"file_id": self.file_id, "owner_id": self.owner_hex, "params": self.params,
+                           "reference": ref}, sort_keys=True, separators=(",", ":"), default=_jsonable)
+        return hmac.new(self.secret, _CHECKSUM_LABEL + body.encode("utf-8"), hashlib.sha256).hexdigest()[:32]
+
+    def check_reference(self, image, source=None) -> None:
+        """OptionError when the reference watermark ``image`` (h, w), given to score a read against, is not
+        the size of this key's own: a key marks with one image (:class:`KeySlot`), so an image of another
+        size is never its mark and NC / PSNR against it mean nothing.  ``source``: the image as the caller
+        gave it (a path is named in the message).  Nothing to check without a key image or an ``image``."""
+        if self.reference is None or image is None or np.shape(image) == self.reference.shape:
+            return
+        from ..errors import OptionError
+
+        (h, w), (kh, kw) = np.shape(image), self.reference.shape
+        name = f" {shown_path(source)}" if isinstance(source, (str, bytes, os.PathLike)) else ""
+        raise OptionError(f"the reference watermark{name} is {w}x{h}, the key's is {kw}x{kh}: a key marks with one "
+                          "image, so one of another size is never its mark (give the image the file was marked "
+                          "with, or none to use the key's)")
 
     def owns(self, fingerprint: str | None) -> bool:
         """Whether a file carrying the public ``fingerprint`` can hold this key's mark
@@ -346,9 +400,20 @@ def as_key(key) -> WatermarkKey | None:
     return WatermarkKey.load(key)
 
 
-def refuse_symlink(path) -> str:
-    """``path`` as a string; WatermarkKeyError if it is a symbolic link (a key is never written through one)."""
+def checked_key_path(path) -> str:
+    """``path`` as a string; WatermarkKeyError when it is empty or only white space (an unset variable in
+    ``--key $KEY``), before any work: otherwise only publishing the key would fail, naming a temporary file."""
     path = os.fspath(path)
+    if not (path if isinstance(path, str) else os.fsdecode(path)).strip():
+        raise WatermarkKeyError(f"an empty key path ({path!r}) names no key file (an unset variable?): give the "
+                                "key file's name")
+    return path
+
+
+def refuse_symlink(path) -> str:
+    """``path`` as a string; WatermarkKeyError if it is empty (:func:`checked_key_path`) or a symbolic link
+    (a key is never written through one)."""
+    path = checked_key_path(path)
     if os.path.islink(path):
         raise WatermarkKeyError(f"{path}: is a symbolic link; a key file is never written through one "
                                 "(name the real file with --key)")
@@ -378,6 +443,18 @@ def refuse_key_target(path, what: str) -> None:
     if is_key_file(path):
         raise WatermarkKeyError(f"{os.fspath(path)}: names a watermark key file; a {what} never replaces a key "
                                 "(a key file is never rewritten): give the output another name")
+
+
+def refuse_unmarked_beside(key_path, dst) -> None:
+    """WatermarkKeyError when an encode that writes no mark (no image, no owner layer) would write the
+    ``.pmw`` ``dst`` while ``key_path``, the key file an encode of ``dst`` reads and writes by default,
+    exists: the key would be left beside a file it no longer verifies (orphaned), as an encode with
+    another image would leave it, and that one is refused too (:class:`KeySlot`)."""
+    if key_path is not None and os.path.lexists(key_path):
+        raise WatermarkKeyError(f"{os.fspath(key_path)}: a watermark key lies beside {os.fspath(dst)}, and this "
+                                "encode writes no mark: the file would no longer verify with it; the key and the "
+                                "file are left untouched (write the output under another name, or move the key "
+                                "away first to replace the marked file)")
 
 
 def same_path(a, b) -> bool:
@@ -447,11 +524,13 @@ class KeySlot:
 
 
 def _make_private(path: str) -> None:
-    """Tighten a reused key file to 0600 (an older file may be 0644); never follows a link."""
+    """Tighten a reused key file: clear its group and other permission bits (an older file may be 0644:
+    it becomes 0600), never adding one (a key its owner made 0400 stays 0400); never follows a link."""
     fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
     try:
-        if os.fstat(fd).st_mode & 0o777 != KEY_FILE_MODE:
-            os.fchmod(fd, KEY_FILE_MODE)
+        mode = stat.S_IMODE(os.fstat(fd).st_mode)
+        if mode & 0o077:
+            os.fchmod(fd, mode & ~0o077)
     finally:
         os.close(fd)
 

@@ -20,8 +20,8 @@ The verdict:
 * ``inconclusive`` -- fewer than :data:`MIN_CARRIERS` codes read (even one-bit
   codes then pass the test below only when all of them match: ``2**-32 < ALPHA``);
 * ``not-authentic`` -- ``matches`` within chance (binomial tail ``>= ALPHA``), or
-  the reference image cannot be the embedded one (another size, or
-  coefficients that do not fit the file's public bit layout);
+  the reference image cannot be the embedded one (another size than the file's
+  mark, or coefficients that do not fit the file's public bit layout);
 * ``tampered`` -- the mark is there (tail ``< ALPHA``) but at least one carrier
   is inconsistent, or the mesh holds vertices the reference does not explain
   (``foreign``, a graft);
@@ -89,7 +89,8 @@ def verdict(matches: int, read: int, bits: int, *, mismatched: int | None = None
 class Verifier:
     """Collects codes batch by batch (an :class:`~.codec.Extractor`) and scores them.
 
-    ``reference`` (s, s) uint8 is the original watermark (None: no scores);
+    ``reference`` (s, s) uint8 is the original watermark (None: no scores); one of another size than the
+    key's own image is refused (OptionError, :meth:`~.key.WatermarkKey.check_reference`);
     ``nbar`` the default reference length of :meth:`add` (None when every batch
     brings its own, as :meth:`add_carriers` does).  ``foreign`` (set by the caller):
     the checked mesh holds vertices the reference does not explain.
@@ -106,6 +107,7 @@ class Verifier:
         #: True when the reference cannot be what the file carries (other size or bit layout)
         self.mismatch = False
         if self.reference is not None:
+            key.check_reference(self.reference)  # an image of another size than the key's: OptionError
             self.expected = expected_codes(self.reference, key, params)
             self.mismatch = self.expected is None
 
