@@ -587,3 +587,52 @@ def test_an_empty_file_over_http_is_a_stream_cut_before_its_header(tmp_path, cap
         srv.shutdown()
         srv.server_close()
         thread.join(5)
+
+
+def _get(url, headers=None):
+    """``(status, headers, body)`` of a GET (an error status too)."""
+    try:
+        with urllib.request.urlopen(urllib.request.Request(url, headers=headers or {}), timeout=10) as r:
+            return r.status, r.headers, r.read()
+    except urllib.error.HTTPError as exc:
+        with exc:
+            return exc.code, exc.headers, exc.read()
+
+
+def test_serve_checks_a_folders_index_file_as_any_file(tmp_path):
+    """``GET /a/`` served ``a/index.html`` (or ``index.htm``) as the standard library picked it, without the checks
+    of ``translate_path``: a link out of the directory and a key file leaked (with or without ``Range``).  An index
+    file is still served when it passes them; a folder without one is 404 (no listing), without a final ``/``
+    a redirect."""
+    import os
+
+    site, outside = tmp_path / "site", tmp_path / "outside"
+    for d in (site / "a", site / "b", site / "c", site / "d", site / "e", outside):
+        d.mkdir(parents=True)
+    (outside / "secret.txt").write_text("not yours")
+    from pmwm_codec.watermark.key import WatermarkKey
+
+    key = WatermarkKey.generate(rng=np.random.default_rng(1))
+    key.save(outside / "owner.key.json")
+    os.symlink(outside / "secret.txt", site / "a" / "index.html")  # out of the directory
+    (site / "b" / "index.html").write_bytes(key.to_text())  # a key by its content
+    os.symlink(outside / "owner.key.json", site / "c" / "index.htm")  # a key by its name, out of the directory
+    (site / "d" / "index.html").write_text("<p>demo</p>")
+    (site / "index.html").write_bytes(key.to_text())
+    srv, thread = _serve(site, RangeRequestHandler)
+    base = f"http://127.0.0.1:{srv.server_address[1]}/"
+    try:
+        for headers in ({}, {"Range": "bytes=0-5"}):
+            for path in ("", "a/", "b/", "c/", "e/", "a/index.html", "b/index.html"):
+                status, _, body = _get(base + path, headers)
+                assert status == 404 and b"not yours" not in body and key.secret_hex.encode() not in body, (path, body)
+            status, _, body = _get(base + "d/", headers)
+            assert status in (200, 206) and b"<p>demo</p>".startswith(body), (status, body)
+        status, got, _ = _get(base + "d", {})  # a redirect (followed by urllib) to d/
+        assert status == 200
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+
+

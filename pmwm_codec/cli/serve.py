@@ -6,8 +6,8 @@ three.js plugin and the demo page can read a ``.pmw`` chunk by chunk.  Only file
 ``DIR`` are served: the standard library's path translation, then the path's real location
 (symbolic links followed) must be inside ``DIR``'s.  Key files (``*.key.json`` in any case: ``pmw encode``
 writes the secret key beside the ``.pmw``; or a key under any other name, ``--key site/k.json``) are never served, and directories are not listed
-(an ``index.html`` is served as usual).  It binds to 127.0.0.1 unless ``--host`` says
-otherwise.  Not a production server.
+(a folder's ``index.html``, or ``index.htm``, is served for ``GET /folder/`` after the same checks as any
+file).  It binds to 127.0.0.1 unless ``--host`` says otherwise.  Not a production server.
 """
 
 from __future__ import annotations
@@ -81,8 +81,20 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
         file's real location is outside the served directory (a symbolic link out of it), when it is a
         key file (:func:`~pmwm_codec.watermark.key.is_key_file`: by its name, or by its content), when it
         is neither a regular file nor a folder (a FIFO: opening it blocks the answer forever), or when the
-        name cannot be a file name (a NUL byte)."""
-        local = super().translate_path(path)
+        name cannot be a file name (a NUL byte).  A folder asked with a final ``/`` is its ``index.html``
+        (else ``index.htm``), through the same checks, and refused when it has none: given the folder, the
+        standard library's ``send_head`` would pick that file itself, unchecked."""
+        local = self._checked(super().translate_path(path))
+        if local.endswith("/") and os.path.isdir(local):
+            for name in ("index.html", "index.htm"):
+                index = os.path.join(local, name)
+                if os.path.isfile(index):
+                    return self._checked(index)
+            return _NOWHERE  # no listing either
+        return local
+
+    def _checked(self, local: str) -> str:
+        """``local`` when it may be served (:meth:`translate_path`), else :data:`_NOWHERE`."""
         try:
             real, root = os.path.realpath(local), os.path.realpath(self.directory)
         except (ValueError, OSError):
