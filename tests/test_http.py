@@ -636,3 +636,69 @@ def test_serve_checks_a_folders_index_file_as_any_file(tmp_path):
         thread.join(5)
 
 
+def _key_variants(key) -> dict:
+    """The same key file written as the key loader reads it and a byte pattern on its head does not."""
+    text = key.to_text().decode()
+    doc = json.loads(text)
+    order = ["reference", "params", "secret", "fingerprint", "file_id", "owner_id", "version", "format"]
+    return {
+        "escaped_value.json": text.replace('"pmwm-key"', '"pmwm\\u002dkey"'),
+        "escaped_name.json": text.replace('"format"', '"\\u0066ormat"'),
+        "padded.json": " " * 5000 + text,
+        "reordered.json": json.dumps({k: doc[k] for k in order if k in doc}, indent=2),  # format after 5 KB
+        "compact.txt": json.dumps(doc, separators=(",", ":")),
+    }
+
+
+def test_serve_refuses_every_key_the_key_loader_reads_whatever_its_spelling(tmp_path):
+    """A key file written with a JSON escape in ``format`` or its value, after 5000 blanks, or with ``format`` after
+    a large ``reference`` was served whole, secret included (``is_key_file`` tested a byte pattern on the first
+    4096 bytes); ``pmw verify --key`` reads each as the key.  Other JSON files are still served."""
+    from pmwm_codec.watermark.key import WatermarkKey, is_key_file
+
+    image = np.random.default_rng(2).integers(0, 256, (64, 64)).astype(np.uint8)  # a PNG of about 5 KB
+    key = WatermarkKey.generate(rng=np.random.default_rng(2), reference=image)
+    site = tmp_path / "site"
+    site.mkdir()
+    for name, text in _key_variants(key).items():
+        (site / name).write_text(text)
+        assert WatermarkKey.load(site / name) == key and is_key_file(site / name), name
+    (site / "scene.gltf").write_text(json.dumps({"asset": {"version": "2.0"}, "format": "pmwm-key-not"}))
+    (site / "escaped.json").write_text('{"name": "caf\\u00e9", "format": "other"}')
+    (site / "notes.json").write_text(" " * 5000 + '{"format": "pmwm-key-list"}')
+    srv, thread = _serve(site, RangeRequestHandler)
+    base = f"http://127.0.0.1:{srv.server_address[1]}/"
+    try:
+        for name in _key_variants(key):
+            for headers in ({}, {"Range": "bytes=0-"}):
+                status, _, body = _get(base + name, headers)
+                assert status == 404 and key.secret_hex.encode() not in body, name
+        for name in ("scene.gltf", "escaped.json", "notes.json"):
+            assert not is_key_file(site / name) and _get(base + name)[0] == 200, name
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+
+
+def test_is_key_file_refuses_at_least_what_it_refused(tmp_path):
+    """The check guards output paths too (a key file is never rewritten): every file the byte pattern on the
+    head named a key still is one, the loader's reading added to it."""
+    from pmwm_codec.watermark.key import is_key_file
+
+    cases = {
+        "nested.json": '{"x": {"format": "pmwm-key"}}',  # a key format named on the head, not at the top
+        "broken.json": '{"format": "pmwm-key", "secret": ',  # not JSON at all
+        "tail.json": '{"format" : "pmwm-key"}' + "x" * 70_000_000,  # over the key file size limit
+    }
+    for name, text in cases.items():
+        (tmp_path / name).write_text(text)
+        assert is_key_file(tmp_path / name), name
+    (tmp_path / "deep.json").write_text('{"a": ' * 100_000 + "1" + "}" * 100_000)
+    (tmp_path / "blank.json").write_text(" " * 10_000)
+    (tmp_path / "x.key.json").write_text("")  # by its name
+    assert not is_key_file(tmp_path / "deep.json") and not is_key_file(tmp_path / "blank.json")
+    assert is_key_file(tmp_path / "x.key.json") and is_key_file(tmp_path / "missing.KEY.json")
+    assert not is_key_file(tmp_path / "missing.json") and not is_key_file(tmp_path)
+
+
