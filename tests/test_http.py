@@ -702,3 +702,31 @@ def test_is_key_file_refuses_at_least_what_it_refused(tmp_path):
     assert not is_key_file(tmp_path / "missing.json") and not is_key_file(tmp_path)
 
 
+def test_serve_answers_a_range_with_a_stale_if_range_with_the_whole_file(tmp_path):
+    """``If-Range`` was ignored: a client resuming with the validator of a replaced file got a 206 slice of the new
+    file, which it would splice onto the old one (RFC 9110 §13.1.5: the whole file, 200)."""
+    import os
+
+    (tmp_path / "a.bin").write_bytes(b"x" * 100)
+    os.utime(tmp_path / "a.bin", (1_000_000_000, 1_000_000_000))
+    srv, thread = _serve(tmp_path, RangeRequestHandler)
+    url = f"http://127.0.0.1:{srv.server_address[1]}/a.bin"
+    try:
+        status, headers, _ = _get(url)
+        old_tag, old_date = headers["ETag"], headers["Last-Modified"]
+        for validator in (old_tag, old_date):
+            status, headers, body = _get(url, {"Range": "bytes=90-", "If-Range": validator})
+            assert status == 206 and body == b"x" * 10 and headers["Content-Range"] == "bytes 90-99/100"
+        (tmp_path / "a.bin").write_bytes(b"y" * 200)
+        os.utime(tmp_path / "a.bin", (1_000_000_100, 1_000_000_100))
+        for validator in (old_tag, old_date, "W/" + old_tag, "Thu, 01 Jan 1970 00:00:00 GMT", "not a date"):
+            status, headers, body = _get(url, {"Range": "bytes=90-", "If-Range": validator})
+            assert status == 200 and body == b"y" * 200 and "Content-Range" not in headers, validator
+        status, headers, body = _get(url, {"Range": "bytes=190-", "If-Range": _get(url)[1]["ETag"]})
+        assert status == 206 and body == b"y" * 10
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+
+

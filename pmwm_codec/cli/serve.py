@@ -7,14 +7,18 @@ three.js plugin and the demo page can read a ``.pmw`` chunk by chunk.  Only file
 (symbolic links followed) must be inside ``DIR``'s.  Key files (``*.key.json`` in any case: ``pmw encode``
 writes the secret key beside the ``.pmw``; or a key under any other name, ``--key site/k.json``) are never served, and directories are not listed
 (a folder's ``index.html``, or ``index.htm``, is served for ``GET /folder/`` after the same checks as any
-file).  It binds to 127.0.0.1 unless ``--host`` says otherwise.  Not a production server.
+file).  A ``Range`` with an ``If-Range`` whose validator is not the file's current one gets the whole file
+(200, RFC 9110 §13.1.5).  It binds to 127.0.0.1 unless ``--host`` says otherwise.  Not a production server.
 """
 
 from __future__ import annotations
 
+import datetime
+import email.utils
 import os
 import re
 import threading
+import time
 from functools import partial
 from http import HTTPStatus
 from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
@@ -125,7 +129,7 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
         info = os.fstat(f.fileno())
         size, self._etag = info.st_size, etag(info)
         span = parse_range(self.headers["Range"], size)
-        if span is None:
+        if span is None or not self._if_range_holds(info):
             f.close()
             return super().send_head()
         if span[0] >= size:
@@ -143,6 +147,25 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
         self.end_headers()
         f.seek(span[0])
         return f
+
+    def _if_range_holds(self, info: os.stat_result) -> bool:
+        """Whether a Range request's ``If-Range`` (RFC 9110 §13.1.5) lets the range be sent: no ``If-Range``,
+        or its validator is the file's current one, the strong :func:`etag` exactly, or the ``Last-Modified``
+        date exactly when that date is a strong validator (the file unchanged for a second since, §8.8.2.2).
+        Any other (a weak or old tag, another date, a date that does not parse): the whole file is sent."""
+        given = self.headers.get("If-Range")
+        if given is None:
+            return True
+        given = given.strip()
+        if given.startswith(('"', "W/")):
+            return given == etag(info)
+        try:
+            date = email.utils.parsedate_to_datetime(given)
+        except (TypeError, ValueError, IndexError, OverflowError):
+            return False
+        if date.tzinfo is None:
+            date = date.replace(tzinfo=datetime.timezone.utc)
+        return int(date.timestamp()) == int(info.st_mtime) and time.time() - info.st_mtime >= 1
 
     def send_header(self, keyword, value):
         if keyword.lower() == "content-length":
