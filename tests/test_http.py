@@ -730,3 +730,20 @@ def test_serve_answers_a_range_with_a_stale_if_range_with_the_whole_file(tmp_pat
         thread.join(5)
 
 
+@pytest.mark.parametrize("host", ["", " "])
+def test_pmw_serve_refuses_an_empty_host(tmp_path, capsys, monkeypatch, host):
+    """``--host ""`` bound every interface (0.0.0.0) without a word."""
+    from pmwm_codec.cli import serve
+
+    def bound(*args, **kwargs):
+        raise AssertionError("a server was made")
+
+    monkeypatch.setattr(serve, "make_server", bound)
+    code, _, err = _pmw(capsys, "serve", tmp_path, "--host", host, "--port", "0")
+    assert code == 2 and err.startswith("pmw: error: --host") and len(err.splitlines()) == 1, err
+
+
+def test_pmw_serve_names_a_host_it_cannot_listen_on(tmp_path, capsys):
+    """``--host 999.1.1.1`` said ``Name or service not known``, naming neither the option nor the host."""
+    code, _, err = _pmw(capsys, "serve", tmp_path, "--host", "999.1.1.1", "--port", "0")
+    assert code == 2 and "999.1.1.1" in err and len(err.splitlines()) == 1, err

@@ -8,7 +8,8 @@ three.js plugin and the demo page can read a ``.pmw`` chunk by chunk.  Only file
 writes the secret key beside the ``.pmw``; or a key under any other name, ``--key site/k.json``) are never served, and directories are not listed
 (a folder's ``index.html``, or ``index.htm``, is served for ``GET /folder/`` after the same checks as any
 file).  A ``Range`` with an ``If-Range`` whose validator is not the file's current one gets the whole file
-(200, RFC 9110 §13.1.5).  It binds to 127.0.0.1 unless ``--host`` says otherwise.  Not a production server.
+(200, RFC 9110 §13.1.5).  It binds to 127.0.0.1 unless ``--host`` says otherwise (never to every
+interface for an empty ``--host``).  Not a production server.
 """
 
 from __future__ import annotations
@@ -238,7 +239,14 @@ def run(args) -> int:
         raise UsageError(f"{args.directory}: not a directory")
     if not 0 <= args.port <= 65535:
         raise UsageError(f"--port {args.port}: not a TCP port (0..65535)")
-    server = make_server(args.directory, args.host, args.port)
+    if not args.host.strip():
+        raise UsageError(f"--host {args.host!r}: no address (an empty one binds every interface); give one, "
+                         "127.0.0.1 for this machine only or 0.0.0.0 for every interface")
+    try:
+        server = make_server(args.directory, args.host, args.port)
+    except OSError as exc:  # a name that does not resolve, an address not of this machine, a port in use
+        raise UsageError(f"--host {args.host} --port {args.port}: cannot listen there "
+                         f"({exc.strerror or exc})") from None
     server.verbose = True
     host, port = server.server_address[:2]
     print(f"serving {os.path.abspath(args.directory)} at http://{host}:{port}/ (Ctrl-C to stop)", flush=True)
