@@ -68,6 +68,27 @@ def stream_end(source, end):
     return end
 
 
+def _request_url(url: str) -> str:
+    """``url`` in ASCII, as a browser sends it (RFC 3987 §3.1): a non-ASCII host name in IDNA (``xn--``),
+    any other non-ASCII character percent-encoded as UTF-8 (``café.pmw``: ``caf%C3%A9.pmw``);
+    :class:`~pmwm_codec.errors.InputFormatError` when it cannot be (a host name label over 63 characters)."""
+    if url.isascii():
+        return url
+    scheme, _, rest = url.partition("://")
+    end = min((i for i in map(rest.find, "/?#") if i >= 0), default=len(rest))
+    netloc, tail = rest[:end], rest[end:]
+    try:
+        if not netloc.isascii():  # a host name and a port (a user name is refused before, an IPv6 address is ASCII)
+            host, colon, port = netloc.rpartition(":")
+            if not colon or port and not port.isdigit():
+                host, colon, port = netloc, "", ""
+            netloc = host.encode("idna").decode("ascii") + colon + port
+        tail = re.sub(r"[^\x00-\x7f]+", lambda m: urllib.parse.quote(m[0], safe="", errors="surrogateescape"), tail)
+    except UnicodeError as exc:
+        raise InputFormatError(f"{url}: not a valid URL ({exc})") from None
+    return f"{scheme}://{netloc}{tail}"
+
+
 class _HttpOnlyRedirects(urllib.request.HTTPRedirectHandler):
     """Follow redirects to ``http(s)://`` only (never ``file:`` or ``ftp:``)."""
 
@@ -102,6 +123,7 @@ class UrlSource:
             raise InputFormatError(f"{parts.scheme}://...@{parts.hostname}{parts.path}: a user name or password in "
                                    "the URL is not supported")
         self.url = url
+        self._target = _request_url(url)
         self.max_chunks = max_chunks
         self.whole_document = whole_document
         self.timeout = timeout
@@ -232,7 +254,7 @@ class UrlSource:
     # -- HTTP ---------------------------------------------------------------------
 
     def _open(self, start: int, end: int, past_end_ok: bool = False):
-        request = urllib.request.Request(self.url, headers={"Range": f"bytes={start}-{end - 1}",
+        request = urllib.request.Request(self._target, headers={"Range": f"bytes={start}-{end - 1}",
                                                            "Accept-Encoding": "identity"})
         self.requests += 1
         self._started, self._received = time.monotonic(), 0  # this answer's pace (:meth:`_read`)

@@ -747,3 +747,28 @@ def test_pmw_serve_names_a_host_it_cannot_listen_on(tmp_path, capsys):
     """``--host 999.1.1.1`` said ``Name or service not known``, naming neither the option nor the host."""
     code, _, err = _pmw(capsys, "serve", tmp_path, "--host", "999.1.1.1", "--port", "0")
     assert code == 2 and "999.1.1.1" in err and len(err.splitlines()) == 1, err
+
+
+def test_a_url_with_non_ascii_characters_is_sent_percent_encoded_as_a_browser_does(site, tmp_path, capsys):
+    """``http://host/café.pmw`` raised a bare ``UnicodeEncodeError`` (the command: "unexpected ... a bug of pmw");
+    the path is now sent as UTF-8 percent-encoded (``caf%C3%A9.pmw``), a host name in IDNA, and a host name that
+    has no IDNA form is a named error."""
+    import shutil
+
+    shutil.copy(site / "x.pmw", site / "café.pmw")
+    srv, thread = _serve(site, RangeRequestHandler)
+    base = f"http://127.0.0.1:{srv.server_address[1]}/"
+    try:
+        assert pmwm_codec.decode(base + "café.pmw") == pmwm_codec.decode(site / "x.pmw")
+        code, out, err = _pmw(capsys, "info", base + "café.pmw?v=é#à", "--json")
+        assert code == 0 and json.loads(out)["chunks_total"] == inspect(site / "x.pmw")["chunks_total"], err
+        code, _, err = _pmw(capsys, "decode", base + "nowhere-é.pmw", "-o", tmp_path / "x.obj")
+        assert code == 2 and "404" in err and "bug of pmw" not in err and len(err.splitlines()) == 1, err
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+    with pytest.raises(InputFormatError, match="not a valid URL"):
+        pmwm_codec.decode("http://" + "é" * 70 + ".example/x.pmw")
+    code, _, err = _pmw(capsys, "verify", "http://" + "é" * 70 + ".example/x.pmw", "--key", site / "x.pmw.key.json")
+    assert code == 2 and "not a valid URL" in err and len(err.splitlines()) == 1, err
