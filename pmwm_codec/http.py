@@ -152,7 +152,7 @@ class UrlSource:
             if not self.ranged:
                 yield from self._plain(response)
                 return
-            head = self._body(response, 0, PREAMBLE_SIZE)
+            head = self._fetch(0, PREAMBLE_SIZE, response)
         yield head
         if len(head) < PREAMBLE_SIZE:
             return
@@ -178,16 +178,30 @@ class UrlSource:
             start = end
         self.stopped = ends[-1] < parse_preamble(preamble)[0]
 
-    def _fetch(self, start: int, end: int) -> bytes:
-        """Bytes ``[start, end)`` by one Range request; fewer (or none) when the file ends first."""
-        with self._open(start, end, past_end_ok=True) as response:
-            if response.status == 416:  # the served file ends before ``start``: a cut stream
-                return b""
-            if response.status != 206:
-                raise InputFormatError(f"{self.url}: the server answered a Range request with status "
-                                       f"{response.status} after honouring one")
-            self._check_encoding(response)
-            return self._body(response, start, end)
+    def _fetch(self, start: int, end: int, response=None) -> bytes:
+        """Bytes ``[start, end)`` by Range requests (``response``: the first one's answer, already open).
+
+        A server may answer with fewer bytes than asked (RFC 9110 §14.4: it caps the size of its
+        answers, say): the rest is asked for, until the range is complete.  Fewer bytes come back
+        (or none) only when the file ends first, or an answer's body ends before the bytes its
+        ``Content-Range`` announced (a cut stream).
+        """
+        parts, at = [], start
+        while at < end:
+            with response or self._open(at, end, past_end_ok=True) as answer:
+                response = None
+                if answer.status == 416:  # the served file ends before ``at``: a cut stream
+                    break
+                if answer.status != 206:
+                    raise InputFormatError(f"{self.url}: the server answered a Range request with status "
+                                           f"{answer.status} after honouring one")
+                self._check_encoding(answer)
+                block, last = self._body(answer, at, end)
+            parts.append(block)
+            at += len(block)
+            if at < last or self.file_size is not None and at >= self.file_size:
+                break  # the connection ended early, or the file ends here
+        return b"".join(parts)
 
     def _check_encoding(self, response) -> None:
         """Refuse a ranged answer in a content coding (gzip ...): its byte ranges are not the file's.
@@ -197,16 +211,18 @@ class UrlSource:
             raise InputFormatError(f"{self.url}: the server sent the file {coding}-encoded (Content-Encoding) although "
                                    "asked for identity" + (" in a Range answer" if response.status == 206 else ""))
 
-    def _body(self, response, start: int, end: int) -> bytes:
-        """The body of a 206 answer for ``[start, end)``, its Content-Range checked.
+    def _body(self, response, start: int, end: int) -> tuple:
+        """``(body, last)``: the body of a 206 answer for ``[start, end)`` and the end of the bytes its
+        ``Content-Range`` says it holds, ``[start, last)``: ``last <= end`` (the server may send fewer
+        bytes than asked), the body shorter when the connection ends early.
 
         The file's size, ``ETag`` and ``Last-Modified`` must stay the ones the first answer gave (a file
-        replaced while it is read is refused, even by one of the same size); the server may end the
-        range early at the end of the file.
+        replaced while it is read is refused, even by one of the same size).
         """
         given = response.headers.get("Content-Range", "")
         match = _CONTENT_RANGE.match(given)
-        if match is None or int(match[1]) != start or int(match[2]) > end - 1:
+        if match is None or int(match[1]) != start or not start <= int(match[2]) < end \
+                or match[3] != "*" and int(match[2]) >= int(match[3]):
             raise InputFormatError(f"{self.url}: Content-Range {given!r} does not answer bytes {start}-{end - 1}")
         validators = {name: response.headers.get(name) for name in ("ETag", "Last-Modified")}
         if self._size is None:
@@ -219,14 +235,15 @@ class UrlSource:
                 if first is not None and validators[name] is not None and validators[name] != first:
                     raise InputFormatError(f"{self.url}: the file changed while it was read ({name} {first}, "
                                            f"now {validators[name]})")
+        last = int(match[2]) + 1
         parts, size = [], 0
-        while size < end - start:
-            block = self._read(response, min(self.block_size, end - start - size))
+        while size < last - start:
+            block = self._read(response, min(self.block_size, last - start - size))
             if not block:
                 break
             parts.append(block)
             size += len(block)
-        return b"".join(parts)
+        return b"".join(parts), last
 
     # -- plain mode ---------------------------------------------------------------
 

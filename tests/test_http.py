@@ -7,6 +7,7 @@ down by its fixture; one honours ``Range``, one ignores it (plain 200 answers).
 from __future__ import annotations
 
 import json
+import re
 import threading
 from pathlib import Path
 import urllib.request
@@ -772,3 +773,51 @@ def test_a_url_with_non_ascii_characters_is_sent_percent_encoded_as_a_browser_do
         pmwm_codec.decode("http://" + "é" * 70 + ".example/x.pmw")
     code, _, err = _pmw(capsys, "verify", "http://" + "é" * 70 + ".example/x.pmw", "--key", site / "x.pmw.key.json")
     assert code == 2 and "not a valid URL" in err and len(err.splitlines()) == 1, err
+
+
+class Capping(RangeRequestHandler):
+    """A server that answers a Range request with at most ``cap`` bytes; its ``Content-Range`` says which, and the
+    file's whole size (RFC 9110 lets a server send fewer bytes than asked)."""
+
+    cap = 300
+
+    def send_head(self):
+        match = re.match(r"bytes=(\d+)-(\d+)$", self.headers.get("Range", ""))
+        if match:
+            del self.headers["Range"]
+            self.headers["Range"] = f"bytes={match[1]}-{min(int(match[2]), int(match[1]) + self.cap - 1)}"
+        return super().send_head()
+
+
+@pytest.mark.parametrize("cap", [7, 300])
+def test_a_server_that_sends_shorter_ranges_than_asked_is_asked_for_the_rest(site, tmp_path, capsys, cap):
+    """An answer shorter than asked was taken for the end of the file, though its Content-Range said the file went
+    on: ``pmw decode URL`` exited 0 with the base mesh of a complete file, ``pmw cut URL`` kept 2 of its chunks,
+    ``pmw verify URL`` said truncated; a cap under the base mesh's size made each say "truncated" of a complete
+    file.  The reader now asks for the rest of each range."""
+    handler = type("Capped", (Capping,), {"cap": cap})
+    srv, thread = _serve(site, handler)
+    url = f"http://127.0.0.1:{srv.server_address[1]}/x.pmw"
+    key = site / "x.pmw.key.json"
+    try:
+        source = UrlSource(url)
+        assert pmwm_codec.decode(source) == pmwm_codec.decode(site / "x.pmw")
+        assert source.ranged and source.bytes_fetched == (site / "x.pmw").stat().st_size
+        for command in (["decode", "-o", tmp_path / "{}.obj", "--json"], ["cut", "-o", tmp_path / "{}.pmw", "--json"],
+                        ["verify", "--key", key, "--json"]):
+            argv = [str(a).format("remote") for a in command[1:]]
+            code, out, err = _pmw(capsys, command[0], url, *argv)
+            assert code == 0, err
+            argv = [str(a).format("local") for a in command[1:]]
+            _, local, _ = _pmw(capsys, command[0], site / "x.pmw", *argv)
+            got, want = json.loads(out), json.loads(local)
+            assert {k: v for k, v in got.items() if k not in ("output", "input")} == \
+                {k: v for k, v in want.items() if k not in ("output", "input")}, command[0]
+            assert got.get("complete", True) and not got.get("truncated")
+        assert (tmp_path / "remote.pmw").read_bytes() == (tmp_path / "local.pmw").read_bytes()
+        assert (tmp_path / "remote.obj").read_bytes() == (tmp_path / "local.obj").read_bytes()
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+
