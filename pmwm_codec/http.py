@@ -43,7 +43,7 @@ from .sources import DEFAULT_BLOCK_SIZE
 DEFAULT_TIMEOUT = 30.0
 #: Bytes per second an answer must average once it has taken longer than the timeout.
 MIN_RATE = 1024
-_CONTENT_RANGE = re.compile(r"bytes\s+(\d+)-(\d+)/(\d+|\*)\s*$")
+_CONTENT_RANGE = re.compile(r"bytes\s+(\d{1,19})-(\d{1,19})/(\d{1,19}|\*)\s*$")  # (int() of 5000 digits raises)
 
 
 def is_url(source) -> bool:

@@ -821,3 +821,22 @@ def test_a_server_that_sends_shorter_ranges_than_asked_is_asked_for_the_rest(sit
         srv.server_close()
         thread.join(5)
 
+
+class HugeContentRange(RangeRequestHandler):
+    """A ``Content-Range`` with 5000-digit numbers (``int()`` of so many digits raises ``ValueError``)."""
+
+    def send_header(self, keyword, value):
+        if keyword == "Content-Range":
+            value = "bytes 0-" + "9" * 5000 + "/" + "9" * 5000
+        super().send_header(keyword, value)
+
+
+def test_a_content_range_of_thousands_of_digits_is_a_named_error(site):
+    srv, thread = _serve(site, HugeContentRange)
+    try:
+        with pytest.raises(InputFormatError, match="does not answer bytes 0-19"):
+            pmwm_codec.decode(f"http://127.0.0.1:{srv.server_address[1]}/x.pmw")
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
