@@ -25,6 +25,7 @@ or ``Last-Modified``).
 from __future__ import annotations
 
 import http.client
+import os
 import re
 import time
 import urllib.error
@@ -32,12 +33,13 @@ import urllib.parse
 import urllib.request
 import zlib
 
-from .errors import InputFormatError
+from .constants import MAX_INPUT_FILE_BYTES
+from .errors import FormatError, InputFormatError, LimitError
 from .format import ContainerParser, HeaderEvent
 from .format.extension import chunk_start
 from .format.layout import CHUNK_HEADER_SIZE, PREAMBLE_SIZE
 from .format.parser import parse_preamble
-from .sources import DEFAULT_BLOCK_SIZE
+from .sources import DEFAULT_BLOCK_SIZE, iter_blocks, read_all, resolve_stdin
 
 #: Seconds a connection may stay silent before the read fails.
 DEFAULT_TIMEOUT = 30.0
@@ -248,25 +250,34 @@ class UrlSource:
     # -- plain mode ---------------------------------------------------------------
 
     def _plain(self, response):
-        """The body of a plain GET, in blocks; stopped after ``max_chunks`` chunks."""
+        """The body of a plain GET, in blocks, up to the file length its GLB header declares, or to the end
+        of chunk ``max_chunks``: nothing past it is read.  A body that goes on after that length (more bytes
+        than the file holds, or a compressed body that decodes to more) is refused once the file's bytes
+        are given."""
         if response.status != 200:
             raise InputFormatError(f"{self.url}: HTTP status {response.status}")
         coding = _coding(response)
         undo = None if coding is None else _DECODERS[coding]()
         length = response.headers.get("Content-Length", "")
-        self.file_size = int(length) if coding is None and length.isdigit() else None
-        head, stop, offset = bytearray(), None, 0
+        self.file_size = int(length) if coding is None and length.isdigit() and len(length) < 20 else None
+        head, stop, offset, over = bytearray(), None, 0, False
         while stop is None or offset < stop:
             want = self.block_size if stop is None else min(self.block_size, stop - offset)
             block = self._read(response, want) if undo is None else self._undo(response, undo, want)
             if not block:
                 return
-            offset += len(block)
-            if stop is None and self.max_chunks is not None:
+            if stop is None:
                 head += block
-                stop = _plain_stop(bytes(head), self.max_chunks, self.whole_document)
+                stop = _plain_stop(head, self.max_chunks, self.whole_document)
+                if stop is not None and offset + len(block) > stop:
+                    block, over = block[: stop - offset], True
+            offset += len(block)
             yield block
-        self.stopped = stop < parse_preamble(bytes(head))[0]
+        total = parse_preamble(head)[0]
+        self.stopped = stop < total
+        if not self.stopped and (over or (self._read(response, 1) if undo is None else self._undo(response, undo, 1))):
+            raise InputFormatError(f"{self.url}: the server sends more than the {total:,} bytes the file's GLB "
+                                   "header declares")
 
     # -- HTTP ---------------------------------------------------------------------
 
@@ -337,14 +348,44 @@ def _coding(response):
     return None if coding in ("", "identity") else coding
 
 
-def _plain_stop(head: bytes, max_chunks: int, whole_document: bool = False):
-    """Where a plain read may stop, once ``head`` holds the JSON and the BIN header (else None)."""
+def _plain_stop(head, max_chunks: int | None, whole_document: bool = False):
+    """Where a plain read stops (the file's declared length, or the end of chunk ``max_chunks``), once
+    ``head`` (bytes-like) holds the preamble (with ``max_chunks``: the JSON and the BIN header); else None."""
     if len(head) < PREAMBLE_SIZE:
         return None
-    _, json_length = parse_preamble(head)
+    total, json_length = parse_preamble(head)
+    if max_chunks is None:
+        return total
     if len(head) < PREAMBLE_SIZE + json_length + CHUNK_HEADER_SIZE:
         return None
-    return plan_ranges(head, max_chunks, whole_document)[-1]
+    return plan_ranges(head[:total], max_chunks, whole_document)[-1]  # (bytes past the file: not the parser's)
+
+
+def read_declared(source) -> bytes:
+    """All bytes of the ``.pmw`` ``source`` (a URL, ``"-"``, any source :mod:`pmwm_codec.sources` takes),
+    for a reader that needs them at once: of a stream, never more than its GLB header declares.
+
+    A stream (a URL, standard input, a file object, an iterable) that goes on past that length is
+    refused as soon as it does (FormatError: nothing past that block is read), and so is a declared
+    length over the input limit (:data:`~pmwm_codec.constants.MAX_INPUT_FILE_BYTES`, LimitError); one
+    that ends first gives the bytes it had (a cut file).  A path or bytes are read whole, as they are
+    (what the file holds: the reader then names the bytes after its length).
+    """
+    source = resolve_stdin(as_source(source))
+    if isinstance(source, (str, os.PathLike, bytes, bytearray, memoryview)):
+        return read_all(source)
+    parts, size, total = [], 0, None
+    for block in iter_blocks(source, DEFAULT_BLOCK_SIZE):
+        parts.append(bytes(block))
+        size += len(block)
+        if total is None and size >= PREAMBLE_SIZE:
+            total = parse_preamble(b"".join(parts)[:PREAMBLE_SIZE])[0]
+            if total > MAX_INPUT_FILE_BYTES:
+                raise LimitError(f"GLB header: a file of {total:,} bytes, more than the limit of "
+                                 f"{MAX_INPUT_FILE_BYTES:,} for a stream read whole")
+        if total is not None and size > total:
+            raise FormatError(f"GLB: more bytes after the declared file length {total} (a stream: not read further)")
+    return b"".join(parts)
 
 
 def plan_ranges(head: bytes, max_chunks: int | None = None, whole_document: bool = False) -> list:

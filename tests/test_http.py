@@ -6,6 +6,7 @@ down by its fixture; one honours ``Range``, one ignores it (plain 200 answers).
 
 from __future__ import annotations
 
+import io
 import json
 import re
 import threading
@@ -840,3 +841,122 @@ def test_a_content_range_of_thousands_of_digits_is_a_named_error(site):
         srv.shutdown()
         srv.server_close()
         thread.join(5)
+
+
+TAIL = 256 << 20  # zeros after the file: more than any reader may hold for a 10 KB file
+
+
+@pytest.fixture(scope="module")
+def owner_site(tmp_path_factory):
+    """A directory with ``x.pmw`` whose key has an owner ID (the owner layer reads a stream twice)."""
+    from pmwm_codec.watermark.key import WatermarkKey
+
+    d = tmp_path_factory.mktemp("owner-site")
+    image = np.random.default_rng(3).integers(0, 256, (16, 16)).astype(np.uint8)
+    pmwm_codec.encode(shapes.icosphere(3, noise=0.05), d / "x.pmw", watermark=image, measure="none")
+    assert WatermarkKey.load(d / "x.pmw.key.json").owner_id is not None
+    return d
+
+
+class Padded(IgnoringRange):
+    """A server that ignores ``Range`` and sends the file followed by :data:`TAIL` zero bytes (``Content-Length``
+    says so); ``gzip``: all of it gzip-encoded (a 256 KB answer that decodes to 256 MB)."""
+
+    gzip = False
+
+    def send_head(self):
+        import zlib
+
+        self._span = None
+        data = Path(self.translate_path(self.path)).read_bytes()
+        if self.gzip:
+            packer = zlib.compressobj(9, zlib.DEFLATED, 16 + zlib.MAX_WBITS)
+            zeros = bytes(1 << 20)
+            self._parts = [packer.compress(data)] + [packer.compress(zeros) for _ in range(TAIL >> 20)] + [packer.flush()]
+        else:
+            self._parts = None
+        size = sum(map(len, self._parts)) if self.gzip else len(data) + TAIL
+        self.send_response(200)
+        if self.gzip:
+            self.send_header("Content-Encoding", "gzip")
+        self.send_header("Content-Length", str(size))
+        self.end_headers()
+        self._data = data
+        return io.BytesIO(b"")
+
+    def copyfile(self, source, outputfile):
+        parts = self._parts or [self._data] + [bytes(1 << 20)] * (TAIL >> 20)
+        for part in parts:
+            _count_sent(self.server, len(part))
+            outputfile.write(part)
+
+
+def _count_sent(server, n):
+    with server.count_lock:
+        server.bytes_sent += n
+
+
+class Endless(io.RawIOBase):
+    """Standard input of a ``.pmw`` followed by :data:`TAIL` zero bytes; ``given`` counts the bytes read."""
+
+    def __init__(self, data: bytes):
+        self.data, self.given = data, 0
+
+    def readable(self):
+        return True
+
+    def readinto(self, buffer):
+        n = min(len(buffer), len(self.data) + TAIL - self.given)
+        head = self.data[self.given : self.given + n]
+        buffer[: len(head)] = head
+        buffer[len(head) : n] = bytes(n - len(head))
+        self.given += n
+        return n
+
+
+@pytest.mark.parametrize("gzip", [False, True])
+def test_verify_url_reads_no_more_than_the_file_declares(owner_site, capsys, gzip):
+    """``pmw verify URL`` with a key that has an owner ID read the whole body into memory before parsing it: a server
+    that sends the file then 1 GiB of zeros (or a gzip bomb) took it to 2.1 GB, a ``Content-Length`` of 10^12 to
+    15.7 GB.  The reader stops at the GLB header's declared length and refuses a body that goes on."""
+    site = owner_site
+    key = site / "x.pmw.key.json"
+    srv, thread = _serve(site, type("P", (Padded,), {"gzip": gzip}))
+    url = f"http://127.0.0.1:{srv.server_address[1]}/x.pmw"
+    size = (site / "x.pmw").stat().st_size
+    try:
+        code, _, err = _pmw(capsys, "verify", url, "--key", key)
+        assert code == 2 and f"more than the {size:,} bytes the file's GLB header declares" in err, err
+        assert len(err.splitlines()) == 1
+        from pmwm_codec.http import read_declared
+
+        source = UrlSource(url)
+        with pytest.raises(InputFormatError, match="GLB header declares"):
+            read_declared(source)
+        assert source.bytes_fetched <= size + (1 << 16) + 1  # the file, then one byte (compressed: fewer)
+        srv.bytes_sent = 0
+        mesh = pmwm_codec.decode(UrlSource(url, max_chunks=2), chunks=2)  # stopped early: no refusal
+        assert mesh == pmwm_codec.decode(site / "x.pmw", chunks=2)
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+    assert srv.bytes_sent < TAIL // 4  # the zeros were not all sent: the reader went away
+
+
+@pytest.mark.parametrize("command", ["verify", "decode"])
+def test_a_stream_on_standard_input_is_read_no_further_than_its_declared_length(owner_site, tmp_path, capsys,
+                                                                                 monkeypatch, command):
+    """``pmw verify -`` (a key with an owner ID) and ``pmw decode - -o x.glb`` read all of standard input into memory
+    before parsing it: a .pmw followed by 1 GiB of zeros took 2.1 GB."""
+    import sys
+
+    site = owner_site
+    data = (site / "x.pmw").read_bytes()
+    stdin = Endless(data)
+    monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(io.BufferedReader(stdin)))
+    argv = ["--key", site / "x.pmw.key.json"] if command == "verify" else ["-o", tmp_path / "x.glb"]
+    code, _, err = _pmw(capsys, command, "-", *argv)
+    assert code == 2 and f"after the declared file length {len(data)}" in err and len(err.splitlines()) == 1, err
+    assert stdin.given < len(data) + (4 << 20), stdin.given
+    assert not (tmp_path / "x.glb").exists()
