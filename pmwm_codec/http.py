@@ -24,9 +24,12 @@ or ``Last-Modified``).
 
 from __future__ import annotations
 
+import contextlib
 import http.client
 import os
 import re
+import socket
+import threading
 import time
 import urllib.error
 import urllib.parse
@@ -41,9 +44,10 @@ from .format.layout import CHUNK_HEADER_SIZE, PREAMBLE_SIZE
 from .format.parser import parse_preamble
 from .sources import DEFAULT_BLOCK_SIZE, iter_blocks, read_all, resolve_stdin
 
-#: Seconds a connection may stay silent before the read fails.
+#: Seconds one network step may take (a request up to its answer's head, one read of a body), and the
+#: first seconds of a transfer its pace is not judged.
 DEFAULT_TIMEOUT = 30.0
-#: Bytes per second an answer must average once it has taken longer than the timeout.
+#: Bytes per second a transfer must average once its network time passes the timeout (:meth:`UrlSource._step`).
 MIN_RATE = 1024
 _CONTENT_RANGE = re.compile(r"bytes\s+(\d{1,19})-(\d{1,19})/(\d{1,19}|\*)\s*$")  # (int() of 5000 digits raises)
 
@@ -135,13 +139,16 @@ class UrlSource:
         self.ranged = None
         self.stopped = False
         self.file_size = None
-        self._opener = urllib.request.build_opener(_HttpOnlyRedirects)
+        self._watch = _Watchdog()
+        self._waited = 0.0
+        self._opener = urllib.request.build_opener(_HttpOnlyRedirects, *self._watch.handlers())
 
     def __repr__(self):
         return f"UrlSource({self.url!r})"
 
     def __iter__(self):
         self.requests = self.bytes_fetched = 0
+        self._waited = 0.0
         self._size = self._validators = self.file_size = None
         self.stopped = False
         response = self._open(0, PREAMBLE_SIZE, past_end_ok=True)
@@ -285,9 +292,10 @@ class UrlSource:
         request = urllib.request.Request(self._target, headers={"Range": f"bytes={start}-{end - 1}",
                                                            "Accept-Encoding": "identity"})
         self.requests += 1
-        self._started, self._received = time.monotonic(), 0  # this answer's pace (:meth:`_read`)
+        self._watch.fd = None  # until this request connects
         try:
-            return self._opener.open(request, timeout=self.timeout)
+            with self._step():
+                return self._opener.open(request, timeout=self.timeout)
         except urllib.error.HTTPError as exc:
             if past_end_ok and exc.code == 416:
                 return exc  # a response object too (status 416, empty body)
@@ -320,20 +328,122 @@ class UrlSource:
                 return block
 
     def _read(self, response, size: int) -> bytes:
-        """Up to ``size`` bytes of the body as they come (``b""`` at its end).  A server silent for ``timeout``
-        seconds fails the read, and so does one that trickles: past ``timeout`` seconds, an answer whose
-        bytes came slower than :data:`MIN_RATE` on average (a byte every few seconds never times out)."""
-        try:
-            block = response.read1(size)
-        except (OSError, ValueError, http.client.HTTPException) as exc:  # reset, timeout, broken chunked encoding
-            raise InputFormatError(f"{self.url}: cannot read ({exc})") from None
-        self.bytes_fetched += len(block)
-        self._received += len(block)
-        elapsed = time.monotonic() - self._started
-        if block and elapsed > self.timeout and self._received < MIN_RATE * elapsed:
-            raise InputFormatError(f"{self.url}: cannot read (the server stalls: {self._received:,} bytes in "
-                                   f"{elapsed:.0f} s, under {MIN_RATE:,} bytes/s)")
+        """Up to ``size`` bytes of the body as they come (``b""`` at its end), in one :meth:`_step`."""
+        with self._step():
+            try:
+                block = response.read1(size)
+            except (OSError, ValueError, http.client.HTTPException) as exc:  # reset, timeout, broken chunked encoding
+                raise InputFormatError(f"{self.url}: cannot read ({exc})") from None
+            self.bytes_fetched += len(block)
         return block
+
+    @contextlib.contextmanager
+    def _step(self):
+        """One network step (a request up to its answer's head, or one read of a body), timed.
+
+        The rule: all the steps of an iteration take at most ``max(timeout, bytes_fetched / MIN_RATE)``
+        seconds (past the first ``timeout`` seconds the transfer averages :data:`MIN_RATE`, over all its
+        requests: a server that trickles every answer of a thousand ranges fails as one that trickles
+        one answer), and one step at most ``timeout``.  The time the reader spends between steps
+        (decoding what arrived) is not counted.  A step that outlives its share is cut off by
+        :class:`_Watchdog` (a socket timeout bounds each wait for a byte, not a step: a status line or a
+        body sent a byte every few seconds never trips it).  So a transfer ends within about
+        ``max(timeout, size / MIN_RATE)`` seconds of network time, ``size`` the bytes it reads.
+        """
+        allowed = min(self.timeout, max(self.timeout, self.bytes_fetched / MIN_RATE) - self._waited)
+        if allowed <= 0:
+            raise self._stalled()
+        started = time.monotonic()
+        self._watch.start(allowed)
+        try:
+            yield
+        except BaseException as exc:
+            cut = self._watch.stop()
+            self._waited += time.monotonic() - started
+            if cut and isinstance(exc, Exception):  # the error of a connection cut off: say why it was
+                raise self._stalled() from None
+            raise
+        cut = self._watch.stop()
+        self._waited += time.monotonic() - started
+        if cut or self._waited > max(self.timeout, self.bytes_fetched / MIN_RATE):
+            raise self._stalled()
+
+    def _stalled(self) -> InputFormatError:
+        """The error of a transfer that broke the rule of :meth:`_step`."""
+        if self._waited > max(self.timeout, self.bytes_fetched / MIN_RATE):
+            why = f"{self.bytes_fetched:,} bytes in {self._waited:.0f} s, under {MIN_RATE:,} bytes/s"
+        else:
+            why = f"no answer or read done in {self.timeout:g} s"
+        return InputFormatError(f"{self.url}: cannot read (the server stalls: {why})")
+
+
+class _Watchdog:
+    """Shuts down the connection of a network step that outlives its time (:meth:`UrlSource._step`), so the
+    read blocked on it returns.  The HTTP handlers it makes note the socket of each connection as it is
+    made (its file descriptor: a TLS socket wraps the same one) in ``fd``."""
+
+    def __init__(self):
+        self.fd = None
+        self._lock = threading.Lock()
+        self._step = 0  # which step is timed (a timer of an earlier one does nothing)
+        self._cut = False
+        self._timer = None
+
+    def handlers(self) -> tuple:
+        """An HTTP and an HTTPS handler for ``urllib.request.build_opener`` whose connections note their socket."""
+        watch = self
+
+        class Noted(http.client.HTTPConnection):
+            def connect(self):
+                super().connect()
+                watch.fd = self.sock.fileno()
+
+        class NotedTls(http.client.HTTPSConnection, Noted):  # Noted.connect runs before the TLS handshake
+            pass
+
+        class Http(urllib.request.HTTPHandler):
+            def do_open(self, http_class, req, **kwargs):
+                return super().do_open(Noted, req, **kwargs)
+
+        class Https(urllib.request.HTTPSHandler):
+            def do_open(self, http_class, req, **kwargs):
+                return super().do_open(NotedTls, req, **kwargs)
+
+        return Http(), Https()
+
+    def start(self, seconds: float) -> None:
+        """Time a step: its connection is shut down in ``seconds`` unless :meth:`stop` comes first."""
+        with self._lock:
+            self._step += 1
+            self._cut = False
+            self._timer = threading.Timer(seconds, self._fire, (self._step,))
+        self._timer.daemon = True
+        self._timer.start()
+
+    def stop(self) -> bool:
+        """End the step's timing; whether its connection was cut off."""
+        with self._lock:
+            self._step += 1
+            if self._timer is not None:
+                self._timer.cancel()
+                self._timer = None
+            return self._cut
+
+    def _fire(self, step: int) -> None:
+        with self._lock:
+            if step != self._step or self.fd is None:
+                return
+            self._cut = True
+            try:
+                sock = socket.socket(fileno=self.fd)
+            except OSError:
+                return
+            try:
+                sock.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+            finally:
+                sock.detach()  # the descriptor stays the connection's, closed with it
 
 
 #: Content codings a plain answer may come in, undone as it is read (gzip with its header, deflate as zlib).

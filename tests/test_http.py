@@ -960,3 +960,73 @@ def test_a_stream_on_standard_input_is_read_no_further_than_its_declared_length(
     assert code == 2 and f"after the declared file length {len(data)}" in err and len(err.splitlines()) == 1, err
     assert stdin.given < len(data) + (4 << 20), stdin.given
     assert not (tmp_path / "x.glb").exists()
+
+
+class Dripping(RangeRequestHandler):
+    """A server that spreads every answer over 0.5 s, whatever its size: each ends well within any timeout."""
+
+    def copyfile(self, source, outputfile):
+        import time
+
+        data = source.read(self._length)
+        for i in range(5):
+            outputfile.write(data[i * len(data) // 5 : (i + 1) * len(data) // 5])
+            outputfile.flush()
+            time.sleep(0.1)
+
+
+def test_a_server_that_drips_every_range_answer_is_a_stall_of_the_whole_transfer(site, monkeypatch):
+    """The pace was judged per answer: a server that sent each of the many Range answers slowly, but within the
+    timeout, held ``pmw verify URL`` for the number of requests times the timeout (65,536 chunks x 30 s).  The
+    transfer as a whole must now average ``MIN_RATE`` past its first ``timeout`` seconds of network time."""
+    import time
+
+    from pmwm_codec import http
+
+    monkeypatch.setattr(http, "MIN_RATE", 20_000)  # so that a 0.5 s answer of a few KB is too slow
+    srv, thread = _serve(site, Dripping)
+    url = f"http://127.0.0.1:{srv.server_address[1]}/x.pmw"
+    try:
+        start = time.monotonic()
+        source = UrlSource(url, timeout=1)
+        with pytest.raises(InputFormatError, match=r"the server stalls: [\d,]+ bytes in \d s, under 20,000 bytes/s"):
+            pmwm_codec.decode(source)
+        assert time.monotonic() - start < 2.5 and source.requests <= 4
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+
+
+def test_a_server_that_drips_its_answers_head_is_cut_off_after_the_timeout(tmp_path, capsys):
+    """A status line and headers sent a byte every 0.2 s never trip a socket timeout: the read of one answer's head
+    took as long as the server liked (here 8 s, then "cannot read (RemoteDisconnected ...)")."""
+    import socket
+    import time
+
+    listener = socket.create_server(("127.0.0.1", 0))
+    done = threading.Event()
+
+    def answer():
+        conn, _ = listener.accept()
+        with conn:
+            conn.recv(65536)
+            for byte in b"HTTP/1.1 200 OK\r\nX-Slow: " + b"x" * 40:
+                if done.wait(0.2):
+                    return
+                try:
+                    conn.sendall(bytes([byte]))
+                except OSError:
+                    return
+
+    thread = threading.Thread(target=answer, daemon=True)
+    thread.start()
+    try:
+        start = time.monotonic()
+        with pytest.raises(InputFormatError, match=r"the server stalls: 0 bytes in 1 s"):
+            pmwm_codec.decode(UrlSource(f"http://127.0.0.1:{listener.getsockname()[1]}/x.pmw", timeout=1))
+        assert time.monotonic() - start < 3
+    finally:
+        done.set()
+        listener.close()
+        thread.join(10)
