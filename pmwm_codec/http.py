@@ -7,19 +7,23 @@ the first bytes with a ``Range`` request:
 * the server honours it (``206``): the GLB preamble (20 bytes), then the JSON and
   the BIN chunk header, then, planned from the chunk index, the base mesh (everything
   before the first chunk) and every chunk's byte range in stream order, one request
-  each, and finally the padding up to the file length.  With ``max_chunks=N`` it stops
-  after the N-th chunk: nothing after it is requested.
+  each (and one more for the rest of a range whenever the server answers with fewer
+  bytes than asked), and finally the padding up to the file length.  With
+  ``max_chunks=N`` it stops after the N-th chunk: nothing after it is requested.
 * the server ignores it (``200``): the body is read as one plain streamed GET, in
-  blocks, stopped after the N-th chunk when ``max_chunks`` is given; a gzip or deflate
+  blocks, up to the file length the GLB header declares (a body that goes on is
+  refused), stopped after the N-th chunk when ``max_chunks`` is given; a gzip or deflate
   ``Content-Encoding`` is undone as it is read (a ranged answer in one is refused).
 
 A connection that ends early is a cut stream, read with the same semantics as a cut
-file (every complete chunk is delivered).  Only ``http://`` and ``https://`` URLs are
+file (every complete chunk is delivered).  Time is bounded for the whole transfer, not
+per request (:meth:`UrlSource._step`).  Only ``http://`` and ``https://`` URLs are
 accepted, and only where the caller passed one (:func:`is_url`): nothing read from a
 file ever makes us fetch anything; a redirect to another scheme is refused.  Network
 failures and inconsistent servers raise :class:`~pmwm_codec.errors.InputFormatError`
 naming the URL, and so does a file that changes between the requests (its size, ``ETag``
-or ``Last-Modified``).
+or ``Last-Modified``).  :func:`read_declared` reads a stream whole (a URL, standard
+input) no further than its declared length.
 """
 
 from __future__ import annotations
