@@ -872,7 +872,8 @@ class Padded(IgnoringRange):
         if self.gzip:
             packer = zlib.compressobj(9, zlib.DEFLATED, 16 + zlib.MAX_WBITS)
             zeros = bytes(1 << 20)
-            self._parts = [packer.compress(data)] + [packer.compress(zeros) for _ in range(TAIL >> 20)] + [packer.flush()]
+            self._parts = [packer.compress(data)] + [packer.compress(zeros) for _ in range(TAIL >> 20)]
+            self._parts.append(packer.flush())
         else:
             self._parts = None
         size = sum(map(len, self._parts)) if self.gzip else len(data) + TAIL
