@@ -7,43 +7,53 @@ the first bytes with a ``Range`` request:
 * the server honours it (``206``): the GLB preamble (20 bytes), then the JSON and
   the BIN chunk header, then, planned from the chunk index, the base mesh (everything
   before the first chunk) and every chunk's byte range in stream order, one request
-  each, and finally the padding up to the file length.  With ``max_chunks=N`` it stops
-  after the N-th chunk: nothing after it is requested.
+  each (and one more for the rest of a range whenever the server answers with fewer
+  bytes than asked), and finally the padding up to the file length.  With
+  ``max_chunks=N`` it stops after the N-th chunk: nothing after it is requested.
 * the server ignores it (``200``): the body is read as one plain streamed GET, in
-  blocks, stopped after the N-th chunk when ``max_chunks`` is given; a gzip or deflate
+  blocks, up to the file length the GLB header declares (a body that goes on is
+  refused), stopped after the N-th chunk when ``max_chunks`` is given; a gzip or deflate
   ``Content-Encoding`` is undone as it is read (a ranged answer in one is refused).
 
 A connection that ends early is a cut stream, read with the same semantics as a cut
-file (every complete chunk is delivered).  Only ``http://`` and ``https://`` URLs are
+file (every complete chunk is delivered).  Time is bounded for the whole transfer, not
+per request (:meth:`UrlSource._step`).  Only ``http://`` and ``https://`` URLs are
 accepted, and only where the caller passed one (:func:`is_url`): nothing read from a
 file ever makes us fetch anything; a redirect to another scheme is refused.  Network
 failures and inconsistent servers raise :class:`~pmwm_codec.errors.InputFormatError`
 naming the URL, and so does a file that changes between the requests (its size, ``ETag``
-or ``Last-Modified``).
+or ``Last-Modified``).  :func:`read_declared` reads a stream whole (a URL, standard
+input) no further than its declared length.
 """
 
 from __future__ import annotations
 
+import contextlib
 import http.client
+import os
 import re
+import socket
+import threading
 import time
 import urllib.error
 import urllib.parse
 import urllib.request
 import zlib
 
-from .errors import InputFormatError
+from .constants import MAX_INPUT_FILE_BYTES
+from .errors import FormatError, InputFormatError, LimitError
 from .format import ContainerParser, HeaderEvent
 from .format.extension import chunk_start
 from .format.layout import CHUNK_HEADER_SIZE, PREAMBLE_SIZE
 from .format.parser import parse_preamble
-from .sources import DEFAULT_BLOCK_SIZE
+from .sources import DEFAULT_BLOCK_SIZE, iter_blocks, read_all, resolve_stdin
 
-#: Seconds a connection may stay silent before the read fails.
+#: Seconds one network step may take (a request up to its answer's head, one read of a body), and the
+#: first seconds of a transfer its pace is not judged.
 DEFAULT_TIMEOUT = 30.0
-#: Bytes per second an answer must average once it has taken longer than the timeout.
+#: Bytes per second a transfer must average once its network time passes the timeout (:meth:`UrlSource._step`).
 MIN_RATE = 1024
-_CONTENT_RANGE = re.compile(r"bytes\s+(\d+)-(\d+)/(\d+|\*)\s*$")
+_CONTENT_RANGE = re.compile(r"bytes\s+(\d{1,19})-(\d{1,19})/(\d{1,19}|\*)\s*$")  # (int() of 5000 digits raises)
 
 
 def is_url(source) -> bool:
@@ -66,6 +76,27 @@ def stream_end(source, end):
 
         return replace(end, complete=source.file_size == end.total_length)
     return end
+
+
+def _request_url(url: str) -> str:
+    """``url`` in ASCII, as a browser sends it (RFC 3987 §3.1): a non-ASCII host name in IDNA (``xn--``),
+    any other non-ASCII character percent-encoded as UTF-8 (``café.pmw``: ``caf%C3%A9.pmw``);
+    :class:`~pmwm_codec.errors.InputFormatError` when it cannot be (a host name label over 63 characters)."""
+    if url.isascii():
+        return url
+    scheme, _, rest = url.partition("://")
+    end = min((i for i in map(rest.find, "/?#") if i >= 0), default=len(rest))
+    netloc, tail = rest[:end], rest[end:]
+    try:
+        if not netloc.isascii():  # a host name and a port (a user name is refused before, an IPv6 address is ASCII)
+            host, colon, port = netloc.rpartition(":")
+            if not colon or port and not port.isdigit():
+                host, colon, port = netloc, "", ""
+            netloc = host.encode("idna").decode("ascii") + colon + port
+        tail = re.sub(r"[^\x00-\x7f]+", lambda m: urllib.parse.quote(m[0], safe="", errors="surrogateescape"), tail)
+    except UnicodeError as exc:
+        raise InputFormatError(f"{url}: not a valid URL ({exc})") from None
+    return f"{scheme}://{netloc}{tail}"
 
 
 class _HttpOnlyRedirects(urllib.request.HTTPRedirectHandler):
@@ -102,6 +133,7 @@ class UrlSource:
             raise InputFormatError(f"{parts.scheme}://...@{parts.hostname}{parts.path}: a user name or password in "
                                    "the URL is not supported")
         self.url = url
+        self._target = _request_url(url)
         self.max_chunks = max_chunks
         self.whole_document = whole_document
         self.timeout = timeout
@@ -111,13 +143,16 @@ class UrlSource:
         self.ranged = None
         self.stopped = False
         self.file_size = None
-        self._opener = urllib.request.build_opener(_HttpOnlyRedirects)
+        self._watch = _Watchdog()
+        self._waited = 0.0
+        self._opener = urllib.request.build_opener(_HttpOnlyRedirects, *self._watch.handlers())
 
     def __repr__(self):
         return f"UrlSource({self.url!r})"
 
     def __iter__(self):
         self.requests = self.bytes_fetched = 0
+        self._waited = 0.0
         self._size = self._validators = self.file_size = None
         self.stopped = False
         response = self._open(0, PREAMBLE_SIZE, past_end_ok=True)
@@ -130,7 +165,7 @@ class UrlSource:
             if not self.ranged:
                 yield from self._plain(response)
                 return
-            head = self._body(response, 0, PREAMBLE_SIZE)
+            head = self._fetch(0, PREAMBLE_SIZE, response)
         yield head
         if len(head) < PREAMBLE_SIZE:
             return
@@ -156,16 +191,30 @@ class UrlSource:
             start = end
         self.stopped = ends[-1] < parse_preamble(preamble)[0]
 
-    def _fetch(self, start: int, end: int) -> bytes:
-        """Bytes ``[start, end)`` by one Range request; fewer (or none) when the file ends first."""
-        with self._open(start, end, past_end_ok=True) as response:
-            if response.status == 416:  # the served file ends before ``start``: a cut stream
-                return b""
-            if response.status != 206:
-                raise InputFormatError(f"{self.url}: the server answered a Range request with status "
-                                       f"{response.status} after honouring one")
-            self._check_encoding(response)
-            return self._body(response, start, end)
+    def _fetch(self, start: int, end: int, response=None) -> bytes:
+        """Bytes ``[start, end)`` by Range requests (``response``: the first one's answer, already open).
+
+        A server may answer with fewer bytes than asked (RFC 9110 §14.4: it caps the size of its
+        answers, say): the rest is asked for, until the range is complete.  Fewer bytes come back
+        (or none) only when the file ends first, or an answer's body ends before the bytes its
+        ``Content-Range`` announced (a cut stream).
+        """
+        parts, at = [], start
+        while at < end:
+            with response or self._open(at, end, past_end_ok=True) as answer:
+                response = None
+                if answer.status == 416:  # the served file ends before ``at``: a cut stream
+                    break
+                if answer.status != 206:
+                    raise InputFormatError(f"{self.url}: the server answered a Range request with status "
+                                           f"{answer.status} after honouring one")
+                self._check_encoding(answer)
+                block, last = self._body(answer, at, end)
+            parts.append(block)
+            at += len(block)
+            if at < last or self.file_size is not None and at >= self.file_size:
+                break  # the connection ended early, or the file ends here
+        return b"".join(parts)
 
     def _check_encoding(self, response) -> None:
         """Refuse a ranged answer in a content coding (gzip ...): its byte ranges are not the file's.
@@ -175,16 +224,18 @@ class UrlSource:
             raise InputFormatError(f"{self.url}: the server sent the file {coding}-encoded (Content-Encoding) although "
                                    "asked for identity" + (" in a Range answer" if response.status == 206 else ""))
 
-    def _body(self, response, start: int, end: int) -> bytes:
-        """The body of a 206 answer for ``[start, end)``, its Content-Range checked.
+    def _body(self, response, start: int, end: int) -> tuple:
+        """``(body, last)``: the body of a 206 answer for ``[start, end)`` and the end of the bytes its
+        ``Content-Range`` says it holds, ``[start, last)``: ``last <= end`` (the server may send fewer
+        bytes than asked), the body shorter when the connection ends early.
 
         The file's size, ``ETag`` and ``Last-Modified`` must stay the ones the first answer gave (a file
-        replaced while it is read is refused, even by one of the same size); the server may end the
-        range early at the end of the file.
+        replaced while it is read is refused, even by one of the same size).
         """
         given = response.headers.get("Content-Range", "")
         match = _CONTENT_RANGE.match(given)
-        if match is None or int(match[1]) != start or int(match[2]) > end - 1:
+        if match is None or int(match[1]) != start or not start <= int(match[2]) < end \
+                or match[3] != "*" and int(match[2]) >= int(match[3]):
             raise InputFormatError(f"{self.url}: Content-Range {given!r} does not answer bytes {start}-{end - 1}")
         validators = {name: response.headers.get(name) for name in ("ETag", "Last-Modified")}
         if self._size is None:
@@ -197,47 +248,58 @@ class UrlSource:
                 if first is not None and validators[name] is not None and validators[name] != first:
                     raise InputFormatError(f"{self.url}: the file changed while it was read ({name} {first}, "
                                            f"now {validators[name]})")
+        last = int(match[2]) + 1
         parts, size = [], 0
-        while size < end - start:
-            block = self._read(response, min(self.block_size, end - start - size))
+        while size < last - start:
+            block = self._read(response, min(self.block_size, last - start - size))
             if not block:
                 break
             parts.append(block)
             size += len(block)
-        return b"".join(parts)
+        return b"".join(parts), last
 
     # -- plain mode ---------------------------------------------------------------
 
     def _plain(self, response):
-        """The body of a plain GET, in blocks; stopped after ``max_chunks`` chunks."""
+        """The body of a plain GET, in blocks, up to the file length its GLB header declares, or to the end
+        of chunk ``max_chunks``: nothing past it is read.  A body that goes on after that length (more bytes
+        than the file holds, or a compressed body that decodes to more) is refused once the file's bytes
+        are given."""
         if response.status != 200:
             raise InputFormatError(f"{self.url}: HTTP status {response.status}")
         coding = _coding(response)
         undo = None if coding is None else _DECODERS[coding]()
         length = response.headers.get("Content-Length", "")
-        self.file_size = int(length) if coding is None and length.isdigit() else None
-        head, stop, offset = bytearray(), None, 0
+        self.file_size = int(length) if coding is None and length.isdigit() and len(length) < 20 else None
+        head, stop, offset, over = bytearray(), None, 0, False
         while stop is None or offset < stop:
             want = self.block_size if stop is None else min(self.block_size, stop - offset)
             block = self._read(response, want) if undo is None else self._undo(response, undo, want)
             if not block:
                 return
-            offset += len(block)
-            if stop is None and self.max_chunks is not None:
+            if stop is None:
                 head += block
-                stop = _plain_stop(bytes(head), self.max_chunks, self.whole_document)
+                stop = _plain_stop(head, self.max_chunks, self.whole_document)
+                if stop is not None and offset + len(block) > stop:
+                    block, over = block[: stop - offset], True
+            offset += len(block)
             yield block
-        self.stopped = stop < parse_preamble(bytes(head))[0]
+        total = parse_preamble(head)[0]
+        self.stopped = stop < total
+        if not self.stopped and (over or (self._read(response, 1) if undo is None else self._undo(response, undo, 1))):
+            raise InputFormatError(f"{self.url}: the server sends more than the {total:,} bytes the file's GLB "
+                                   "header declares")
 
     # -- HTTP ---------------------------------------------------------------------
 
     def _open(self, start: int, end: int, past_end_ok: bool = False):
-        request = urllib.request.Request(self.url, headers={"Range": f"bytes={start}-{end - 1}",
+        request = urllib.request.Request(self._target, headers={"Range": f"bytes={start}-{end - 1}",
                                                            "Accept-Encoding": "identity"})
         self.requests += 1
-        self._started, self._received = time.monotonic(), 0  # this answer's pace (:meth:`_read`)
+        self._watch.fd = None  # until this request connects
         try:
-            return self._opener.open(request, timeout=self.timeout)
+            with self._step():
+                return self._opener.open(request, timeout=self.timeout)
         except urllib.error.HTTPError as exc:
             if past_end_ok and exc.code == 416:
                 return exc  # a response object too (status 416, empty body)
@@ -270,20 +332,122 @@ class UrlSource:
                 return block
 
     def _read(self, response, size: int) -> bytes:
-        """Up to ``size`` bytes of the body as they come (``b""`` at its end).  A server silent for ``timeout``
-        seconds fails the read, and so does one that trickles: past ``timeout`` seconds, an answer whose
-        bytes came slower than :data:`MIN_RATE` on average (a byte every few seconds never times out)."""
-        try:
-            block = response.read1(size)
-        except (OSError, ValueError, http.client.HTTPException) as exc:  # reset, timeout, broken chunked encoding
-            raise InputFormatError(f"{self.url}: cannot read ({exc})") from None
-        self.bytes_fetched += len(block)
-        self._received += len(block)
-        elapsed = time.monotonic() - self._started
-        if block and elapsed > self.timeout and self._received < MIN_RATE * elapsed:
-            raise InputFormatError(f"{self.url}: cannot read (the server stalls: {self._received:,} bytes in "
-                                   f"{elapsed:.0f} s, under {MIN_RATE:,} bytes/s)")
+        """Up to ``size`` bytes of the body as they come (``b""`` at its end), in one :meth:`_step`."""
+        with self._step():
+            try:
+                block = response.read1(size)
+            except (OSError, ValueError, http.client.HTTPException) as exc:  # reset, timeout, broken chunked encoding
+                raise InputFormatError(f"{self.url}: cannot read ({exc})") from None
+            self.bytes_fetched += len(block)
         return block
+
+    @contextlib.contextmanager
+    def _step(self):
+        """One network step (a request up to its answer's head, or one read of a body), timed.
+
+        The rule: all the steps of an iteration take at most ``max(timeout, bytes_fetched / MIN_RATE)``
+        seconds (past the first ``timeout`` seconds the transfer averages :data:`MIN_RATE`, over all its
+        requests: a server that trickles every answer of a thousand ranges fails as one that trickles
+        one answer), and one step at most ``timeout``.  The time the reader spends between steps
+        (decoding what arrived) is not counted.  A step that outlives its share is cut off by
+        :class:`_Watchdog` (a socket timeout bounds each wait for a byte, not a step: a status line or a
+        body sent a byte every few seconds never trips it).  So a transfer ends within about
+        ``max(timeout, size / MIN_RATE)`` seconds of network time, ``size`` the bytes it reads.
+        """
+        allowed = min(self.timeout, max(self.timeout, self.bytes_fetched / MIN_RATE) - self._waited)
+        if allowed <= 0:
+            raise self._stalled()
+        started = time.monotonic()
+        self._watch.start(allowed)
+        try:
+            yield
+        except BaseException as exc:
+            cut = self._watch.stop()
+            self._waited += time.monotonic() - started
+            if cut and isinstance(exc, Exception):  # the error of a connection cut off: say why it was
+                raise self._stalled() from None
+            raise
+        cut = self._watch.stop()
+        self._waited += time.monotonic() - started
+        if cut or self._waited > max(self.timeout, self.bytes_fetched / MIN_RATE):
+            raise self._stalled()
+
+    def _stalled(self) -> InputFormatError:
+        """The error of a transfer that broke the rule of :meth:`_step`."""
+        if self._waited > max(self.timeout, self.bytes_fetched / MIN_RATE):
+            why = f"{self.bytes_fetched:,} bytes in {self._waited:.0f} s, under {MIN_RATE:,} bytes/s"
+        else:
+            why = f"no answer or read done in {self.timeout:g} s"
+        return InputFormatError(f"{self.url}: cannot read (the server stalls: {why})")
+
+
+class _Watchdog:
+    """Shuts down the connection of a network step that outlives its time (:meth:`UrlSource._step`), so the
+    read blocked on it returns.  The HTTP handlers it makes note the socket of each connection as it is
+    made (its file descriptor: a TLS socket wraps the same one) in ``fd``."""
+
+    def __init__(self):
+        self.fd = None
+        self._lock = threading.Lock()
+        self._step = 0  # which step is timed (a timer of an earlier one does nothing)
+        self._cut = False
+        self._timer = None
+
+    def handlers(self) -> tuple:
+        """An HTTP and an HTTPS handler for ``urllib.request.build_opener`` whose connections note their socket."""
+        watch = self
+
+        class Noted(http.client.HTTPConnection):
+            def connect(self):
+                super().connect()
+                watch.fd = self.sock.fileno()
+
+        class NotedTls(http.client.HTTPSConnection, Noted):  # Noted.connect runs before the TLS handshake
+            pass
+
+        class Http(urllib.request.HTTPHandler):
+            def do_open(self, http_class, req, **kwargs):
+                return super().do_open(Noted, req, **kwargs)
+
+        class Https(urllib.request.HTTPSHandler):
+            def do_open(self, http_class, req, **kwargs):
+                return super().do_open(NotedTls, req, **kwargs)
+
+        return Http(), Https()
+
+    def start(self, seconds: float) -> None:
+        """Time a step: its connection is shut down in ``seconds`` unless :meth:`stop` comes first."""
+        with self._lock:
+            self._step += 1
+            self._cut = False
+            self._timer = threading.Timer(seconds, self._fire, (self._step,))
+        self._timer.daemon = True
+        self._timer.start()
+
+    def stop(self) -> bool:
+        """End the step's timing; whether its connection was cut off."""
+        with self._lock:
+            self._step += 1
+            if self._timer is not None:
+                self._timer.cancel()
+                self._timer = None
+            return self._cut
+
+    def _fire(self, step: int) -> None:
+        with self._lock:
+            if step != self._step or self.fd is None:
+                return
+            self._cut = True
+            try:
+                sock = socket.socket(fileno=self.fd)
+            except OSError:
+                return
+            try:
+                sock.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+            finally:
+                sock.detach()  # the descriptor stays the connection's, closed with it
 
 
 #: Content codings a plain answer may come in, undone as it is read (gzip with its header, deflate as zlib).
@@ -298,14 +462,44 @@ def _coding(response):
     return None if coding in ("", "identity") else coding
 
 
-def _plain_stop(head: bytes, max_chunks: int, whole_document: bool = False):
-    """Where a plain read may stop, once ``head`` holds the JSON and the BIN header (else None)."""
+def _plain_stop(head, max_chunks: int | None, whole_document: bool = False):
+    """Where a plain read stops (the file's declared length, or the end of chunk ``max_chunks``), once
+    ``head`` (bytes-like) holds the preamble (with ``max_chunks``: the JSON and the BIN header); else None."""
     if len(head) < PREAMBLE_SIZE:
         return None
-    _, json_length = parse_preamble(head)
+    total, json_length = parse_preamble(head)
+    if max_chunks is None:
+        return total
     if len(head) < PREAMBLE_SIZE + json_length + CHUNK_HEADER_SIZE:
         return None
-    return plan_ranges(head, max_chunks, whole_document)[-1]
+    return plan_ranges(head[:total], max_chunks, whole_document)[-1]  # (bytes past the file: not the parser's)
+
+
+def read_declared(source) -> bytes:
+    """All bytes of the ``.pmw`` ``source`` (a URL, ``"-"``, any source :mod:`pmwm_codec.sources` takes),
+    for a reader that needs them at once: of a stream, never more than its GLB header declares.
+
+    A stream (a URL, standard input, a file object, an iterable) that goes on past that length is
+    refused as soon as it does (FormatError: nothing past that block is read), and so is a declared
+    length over the input limit (:data:`~pmwm_codec.constants.MAX_INPUT_FILE_BYTES`, LimitError); one
+    that ends first gives the bytes it had (a cut file).  A path or bytes are read whole, as they are
+    (what the file holds: the reader then names the bytes after its length).
+    """
+    source = resolve_stdin(as_source(source))
+    if isinstance(source, (str, os.PathLike, bytes, bytearray, memoryview)):
+        return read_all(source)
+    parts, size, total = [], 0, None
+    for block in iter_blocks(source, DEFAULT_BLOCK_SIZE):
+        parts.append(bytes(block))
+        size += len(block)
+        if total is None and size >= PREAMBLE_SIZE:
+            total = parse_preamble(b"".join(parts)[:PREAMBLE_SIZE])[0]
+            if total > MAX_INPUT_FILE_BYTES:
+                raise LimitError(f"GLB header: a file of {total:,} bytes, more than the limit of "
+                                 f"{MAX_INPUT_FILE_BYTES:,} for a stream read whole")
+        if total is not None and size > total:
+            raise FormatError(f"GLB: more bytes after the declared file length {total} (a stream: not read further)")
+    return b"".join(parts)
 
 
 def plan_ranges(head: bytes, max_chunks: int | None = None, whole_document: bool = False) -> list:

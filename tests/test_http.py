@@ -6,7 +6,9 @@ down by its fixture; one honours ``Range``, one ignores it (plain 200 answers).
 
 from __future__ import annotations
 
+import io
 import json
+import re
 import threading
 from pathlib import Path
 import urllib.request
@@ -587,3 +589,445 @@ def test_an_empty_file_over_http_is_a_stream_cut_before_its_header(tmp_path, cap
         srv.shutdown()
         srv.server_close()
         thread.join(5)
+
+
+def _get(url, headers=None):
+    """``(status, headers, body)`` of a GET (an error status too)."""
+    try:
+        with urllib.request.urlopen(urllib.request.Request(url, headers=headers or {}), timeout=10) as r:
+            return r.status, r.headers, r.read()
+    except urllib.error.HTTPError as exc:
+        with exc:
+            return exc.code, exc.headers, exc.read()
+
+
+def test_serve_checks_a_folders_index_file_as_any_file(tmp_path):
+    """``GET /a/`` served ``a/index.html`` (or ``index.htm``) as the standard library picked it, without the checks
+    of ``translate_path``: a link out of the directory and a key file leaked (with or without ``Range``).  An index
+    file is still served when it passes them; a folder without one is 404 (no listing), without a final ``/``
+    a redirect."""
+    import os
+
+    site, outside = tmp_path / "site", tmp_path / "outside"
+    for d in (site / "a", site / "b", site / "c", site / "d", site / "e", outside):
+        d.mkdir(parents=True)
+    (outside / "secret.txt").write_text("not yours")
+    from pmwm_codec.watermark.key import WatermarkKey
+
+    key = WatermarkKey.generate(rng=np.random.default_rng(1))
+    key.save(outside / "owner.key.json")
+    os.symlink(outside / "secret.txt", site / "a" / "index.html")  # out of the directory
+    (site / "b" / "index.html").write_bytes(key.to_text())  # a key by its content
+    os.symlink(outside / "owner.key.json", site / "c" / "index.htm")  # a key by its name, out of the directory
+    (site / "d" / "index.html").write_text("<p>demo</p>")
+    (site / "index.html").write_bytes(key.to_text())
+    srv, thread = _serve(site, RangeRequestHandler)
+    base = f"http://127.0.0.1:{srv.server_address[1]}/"
+    try:
+        for headers in ({}, {"Range": "bytes=0-5"}):
+            for path in ("", "a/", "b/", "c/", "e/", "a/index.html", "b/index.html"):
+                status, _, body = _get(base + path, headers)
+                assert status == 404 and b"not yours" not in body and key.secret_hex.encode() not in body, (path, body)
+            status, _, body = _get(base + "d/", headers)
+            assert status in (200, 206) and b"<p>demo</p>".startswith(body), (status, body)
+        status, got, _ = _get(base + "d", {})  # a redirect (followed by urllib) to d/
+        assert status == 200
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+
+
+def _key_variants(key) -> dict:
+    """The same key file written as the key loader reads it and a byte pattern on its head does not."""
+    text = key.to_text().decode()
+    doc = json.loads(text)
+    order = ["reference", "params", "secret", "fingerprint", "file_id", "owner_id", "version", "format"]
+    return {
+        "escaped_value.json": text.replace('"pmwm-key"', '"pmwm\\u002dkey"'),
+        "escaped_name.json": text.replace('"format"', '"\\u0066ormat"'),
+        "padded.json": " " * 5000 + text,
+        "reordered.json": json.dumps({k: doc[k] for k in order if k in doc}, indent=2),  # format after 5 KB
+        "compact.txt": json.dumps(doc, separators=(",", ":")),
+    }
+
+
+def test_serve_refuses_every_key_the_key_loader_reads_whatever_its_spelling(tmp_path):
+    """A key file written with a JSON escape in ``format`` or its value, after 5000 blanks, or with ``format`` after
+    a large ``reference`` was served whole, secret included (``is_key_file`` tested a byte pattern on the first
+    4096 bytes); ``pmw verify --key`` reads each as the key.  Other JSON files are still served."""
+    from pmwm_codec.watermark.key import WatermarkKey, is_key_file
+
+    image = np.random.default_rng(2).integers(0, 256, (64, 64)).astype(np.uint8)  # a PNG of about 5 KB
+    key = WatermarkKey.generate(rng=np.random.default_rng(2), reference=image)
+    site = tmp_path / "site"
+    site.mkdir()
+    for name, text in _key_variants(key).items():
+        (site / name).write_text(text)
+        assert WatermarkKey.load(site / name) == key and is_key_file(site / name), name
+    (site / "scene.gltf").write_text(json.dumps({"asset": {"version": "2.0"}, "format": "pmwm-key-not"}))
+    (site / "escaped.json").write_text('{"name": "caf\\u00e9", "format": "other"}')
+    (site / "notes.json").write_text(" " * 5000 + '{"format": "pmwm-key-list"}')
+    srv, thread = _serve(site, RangeRequestHandler)
+    base = f"http://127.0.0.1:{srv.server_address[1]}/"
+    try:
+        for name in _key_variants(key):
+            for headers in ({}, {"Range": "bytes=0-"}):
+                status, _, body = _get(base + name, headers)
+                assert status == 404 and key.secret_hex.encode() not in body, name
+        for name in ("scene.gltf", "escaped.json", "notes.json"):
+            assert not is_key_file(site / name) and _get(base + name)[0] == 200, name
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+
+
+def test_is_key_file_refuses_at_least_what_it_refused(tmp_path):
+    """The check guards output paths too (a key file is never rewritten): every file the byte pattern on the
+    head named a key still is one, the loader's reading added to it."""
+    from pmwm_codec.watermark.key import is_key_file
+
+    cases = {
+        "nested.json": '{"x": {"format": "pmwm-key"}}',  # a key format named on the head, not at the top
+        "broken.json": '{"format": "pmwm-key", "secret": ',  # not JSON at all
+        "tail.json": '{"format" : "pmwm-key"}' + "x" * 70_000_000,  # over the key file size limit
+    }
+    for name, text in cases.items():
+        (tmp_path / name).write_text(text)
+        assert is_key_file(tmp_path / name), name
+    (tmp_path / "deep.json").write_text('{"a": ' * 100_000 + "1" + "}" * 100_000)
+    (tmp_path / "blank.json").write_text(" " * 10_000)
+    (tmp_path / "x.key.json").write_text("")  # by its name
+    assert not is_key_file(tmp_path / "deep.json") and not is_key_file(tmp_path / "blank.json")
+    assert is_key_file(tmp_path / "x.key.json") and is_key_file(tmp_path / "missing.KEY.json")
+    assert not is_key_file(tmp_path / "missing.json") and not is_key_file(tmp_path)
+
+
+def test_serve_answers_a_range_with_a_stale_if_range_with_the_whole_file(tmp_path):
+    """``If-Range`` was ignored: a client resuming with the validator of a replaced file got a 206 slice of the new
+    file, which it would splice onto the old one (RFC 9110 §13.1.5: the whole file, 200)."""
+    import os
+
+    (tmp_path / "a.bin").write_bytes(b"x" * 100)
+    os.utime(tmp_path / "a.bin", (1_000_000_000, 1_000_000_000))
+    srv, thread = _serve(tmp_path, RangeRequestHandler)
+    url = f"http://127.0.0.1:{srv.server_address[1]}/a.bin"
+    try:
+        status, headers, _ = _get(url)
+        old_tag, old_date = headers["ETag"], headers["Last-Modified"]
+        for validator in (old_tag, old_date):
+            status, headers, body = _get(url, {"Range": "bytes=90-", "If-Range": validator})
+            assert status == 206 and body == b"x" * 10 and headers["Content-Range"] == "bytes 90-99/100"
+        (tmp_path / "a.bin").write_bytes(b"y" * 200)
+        os.utime(tmp_path / "a.bin", (1_000_000_100, 1_000_000_100))
+        for validator in (old_tag, old_date, "W/" + old_tag, "Thu, 01 Jan 1970 00:00:00 GMT", "not a date"):
+            status, headers, body = _get(url, {"Range": "bytes=90-", "If-Range": validator})
+            assert status == 200 and body == b"y" * 200 and "Content-Range" not in headers, validator
+        status, headers, body = _get(url, {"Range": "bytes=190-", "If-Range": _get(url)[1]["ETag"]})
+        assert status == 206 and body == b"y" * 10
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+
+
+@pytest.mark.parametrize("host", ["", " "])
+def test_pmw_serve_refuses_an_empty_host(tmp_path, capsys, monkeypatch, host):
+    """``--host ""`` bound every interface (0.0.0.0) without a word."""
+    from pmwm_codec.cli import serve
+
+    def bound(*args, **kwargs):
+        raise AssertionError("a server was made")
+
+    monkeypatch.setattr(serve, "make_server", bound)
+    code, _, err = _pmw(capsys, "serve", tmp_path, "--host", host, "--port", "0")
+    assert code == 2 and err.startswith("pmw: error: --host") and len(err.splitlines()) == 1, err
+
+
+def test_pmw_serve_names_a_host_it_cannot_listen_on(tmp_path, capsys):
+    """``--host 999.1.1.1`` said ``Name or service not known``, naming neither the option nor the host."""
+    code, _, err = _pmw(capsys, "serve", tmp_path, "--host", "999.1.1.1", "--port", "0")
+    assert code == 2 and "999.1.1.1" in err and len(err.splitlines()) == 1, err
+
+
+def test_a_url_with_non_ascii_characters_is_sent_percent_encoded_as_a_browser_does(site, tmp_path, capsys):
+    """``http://host/café.pmw`` raised a bare ``UnicodeEncodeError`` (the command: "unexpected ... a bug of pmw");
+    the path is now sent as UTF-8 percent-encoded (``caf%C3%A9.pmw``), a host name in IDNA, and a host name that
+    has no IDNA form is a named error."""
+    import shutil
+
+    shutil.copy(site / "x.pmw", site / "café.pmw")
+    srv, thread = _serve(site, RangeRequestHandler)
+    base = f"http://127.0.0.1:{srv.server_address[1]}/"
+    try:
+        assert pmwm_codec.decode(base + "café.pmw") == pmwm_codec.decode(site / "x.pmw")
+        code, out, err = _pmw(capsys, "info", base + "café.pmw?v=é#à", "--json")
+        assert code == 0 and json.loads(out)["chunks_total"] == inspect(site / "x.pmw")["chunks_total"], err
+        code, _, err = _pmw(capsys, "decode", base + "nowhere-é.pmw", "-o", tmp_path / "x.obj")
+        assert code == 2 and "404" in err and "bug of pmw" not in err and len(err.splitlines()) == 1, err
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+    with pytest.raises(InputFormatError, match="not a valid URL"):
+        pmwm_codec.decode("http://" + "é" * 70 + ".example/x.pmw")
+    code, _, err = _pmw(capsys, "verify", "http://" + "é" * 70 + ".example/x.pmw", "--key", site / "x.pmw.key.json")
+    assert code == 2 and "not a valid URL" in err and len(err.splitlines()) == 1, err
+
+
+class Capping(RangeRequestHandler):
+    """A server that answers a Range request with at most ``cap`` bytes; its ``Content-Range`` says which, and the
+    file's whole size (RFC 9110 lets a server send fewer bytes than asked)."""
+
+    cap = 300
+
+    def send_head(self):
+        match = re.match(r"bytes=(\d+)-(\d+)$", self.headers.get("Range", ""))
+        if match:
+            del self.headers["Range"]
+            self.headers["Range"] = f"bytes={match[1]}-{min(int(match[2]), int(match[1]) + self.cap - 1)}"
+        return super().send_head()
+
+
+@pytest.mark.parametrize("cap", [7, 300])
+def test_a_server_that_sends_shorter_ranges_than_asked_is_asked_for_the_rest(site, tmp_path, capsys, cap):
+    """An answer shorter than asked was taken for the end of the file, though its Content-Range said the file went
+    on: ``pmw decode URL`` exited 0 with the base mesh of a complete file, ``pmw cut URL`` kept 2 of its chunks,
+    ``pmw verify URL`` said truncated; a cap under the base mesh's size made each say "truncated" of a complete
+    file.  The reader now asks for the rest of each range."""
+    handler = type("Capped", (Capping,), {"cap": cap})
+    srv, thread = _serve(site, handler)
+    url = f"http://127.0.0.1:{srv.server_address[1]}/x.pmw"
+    key = site / "x.pmw.key.json"
+    try:
+        source = UrlSource(url)
+        assert pmwm_codec.decode(source) == pmwm_codec.decode(site / "x.pmw")
+        assert source.ranged and source.bytes_fetched == (site / "x.pmw").stat().st_size
+        for command in (["decode", "-o", tmp_path / "{}.obj", "--json"], ["cut", "-o", tmp_path / "{}.pmw", "--json"],
+                        ["verify", "--key", key, "--json"]):
+            argv = [str(a).format("remote") for a in command[1:]]
+            code, out, err = _pmw(capsys, command[0], url, *argv)
+            assert code == 0, err
+            argv = [str(a).format("local") for a in command[1:]]
+            _, local, _ = _pmw(capsys, command[0], site / "x.pmw", *argv)
+            got, want = json.loads(out), json.loads(local)
+            assert {k: v for k, v in got.items() if k not in ("output", "input")} == \
+                {k: v for k, v in want.items() if k not in ("output", "input")}, command[0]
+            assert got.get("complete", True) and not got.get("truncated")
+        assert (tmp_path / "remote.pmw").read_bytes() == (tmp_path / "local.pmw").read_bytes()
+        assert (tmp_path / "remote.obj").read_bytes() == (tmp_path / "local.obj").read_bytes()
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+
+
+class HugeContentRange(RangeRequestHandler):
+    """A ``Content-Range`` with 5000-digit numbers (``int()`` of so many digits raises ``ValueError``)."""
+
+    def send_header(self, keyword, value):
+        if keyword == "Content-Range":
+            value = "bytes 0-" + "9" * 5000 + "/" + "9" * 5000
+        super().send_header(keyword, value)
+
+
+def test_a_content_range_of_thousands_of_digits_is_a_named_error(site):
+    srv, thread = _serve(site, HugeContentRange)
+    try:
+        with pytest.raises(InputFormatError, match="does not answer bytes 0-19"):
+            pmwm_codec.decode(f"http://127.0.0.1:{srv.server_address[1]}/x.pmw")
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+
+
+TAIL = 256 << 20  # zeros after the file: more than any reader may hold for a 10 KB file
+
+
+@pytest.fixture(scope="module")
+def owner_site(tmp_path_factory):
+    """A directory with ``x.pmw`` whose key has an owner ID (the owner layer reads a stream twice)."""
+    from pmwm_codec.watermark.key import WatermarkKey
+
+    d = tmp_path_factory.mktemp("owner-site")
+    image = np.random.default_rng(3).integers(0, 256, (16, 16)).astype(np.uint8)
+    pmwm_codec.encode(shapes.icosphere(3, noise=0.05), d / "x.pmw", watermark=image, measure="none")
+    assert WatermarkKey.load(d / "x.pmw.key.json").owner_id is not None
+    return d
+
+
+class Padded(IgnoringRange):
+    """A server that ignores ``Range`` and sends the file followed by :data:`TAIL` zero bytes (``Content-Length``
+    says so); ``gzip``: all of it gzip-encoded (a 256 KB answer that decodes to 256 MB)."""
+
+    gzip = False
+
+    def send_head(self):
+        import zlib
+
+        self._span = None
+        data = Path(self.translate_path(self.path)).read_bytes()
+        if self.gzip:
+            packer = zlib.compressobj(9, zlib.DEFLATED, 16 + zlib.MAX_WBITS)
+            zeros = bytes(1 << 20)
+            self._parts = [packer.compress(data)] + [packer.compress(zeros) for _ in range(TAIL >> 20)]
+            self._parts.append(packer.flush())
+        else:
+            self._parts = None
+        size = sum(map(len, self._parts)) if self.gzip else len(data) + TAIL
+        self.send_response(200)
+        if self.gzip:
+            self.send_header("Content-Encoding", "gzip")
+        self.send_header("Content-Length", str(size))
+        self.end_headers()
+        self._data = data
+        return io.BytesIO(b"")
+
+    def copyfile(self, source, outputfile):
+        parts = self._parts or [self._data] + [bytes(1 << 20)] * (TAIL >> 20)
+        for part in parts:
+            _count_sent(self.server, len(part))
+            outputfile.write(part)
+
+
+def _count_sent(server, n):
+    with server.count_lock:
+        server.bytes_sent += n
+
+
+class Endless(io.RawIOBase):
+    """Standard input of a ``.pmw`` followed by :data:`TAIL` zero bytes; ``given`` counts the bytes read."""
+
+    def __init__(self, data: bytes):
+        self.data, self.given = data, 0
+
+    def readable(self):
+        return True
+
+    def readinto(self, buffer):
+        n = min(len(buffer), len(self.data) + TAIL - self.given)
+        head = self.data[self.given : self.given + n]
+        buffer[: len(head)] = head
+        buffer[len(head) : n] = bytes(n - len(head))
+        self.given += n
+        return n
+
+
+@pytest.mark.parametrize("gzip", [False, True])
+def test_verify_url_reads_no_more_than_the_file_declares(owner_site, capsys, gzip):
+    """``pmw verify URL`` with a key that has an owner ID read the whole body into memory before parsing it: a server
+    that sends the file then 1 GiB of zeros (or a gzip bomb) took it to 2.1 GB, a ``Content-Length`` of 10^12 to
+    15.7 GB.  The reader stops at the GLB header's declared length and refuses a body that goes on."""
+    site = owner_site
+    key = site / "x.pmw.key.json"
+    srv, thread = _serve(site, type("P", (Padded,), {"gzip": gzip}))
+    url = f"http://127.0.0.1:{srv.server_address[1]}/x.pmw"
+    size = (site / "x.pmw").stat().st_size
+    try:
+        code, _, err = _pmw(capsys, "verify", url, "--key", key)
+        assert code == 2 and f"more than the {size:,} bytes the file's GLB header declares" in err, err
+        assert len(err.splitlines()) == 1
+        from pmwm_codec.http import read_declared
+
+        source = UrlSource(url)
+        with pytest.raises(InputFormatError, match="GLB header declares"):
+            read_declared(source)
+        assert source.bytes_fetched <= size + (1 << 16) + 1  # the file, then one byte (compressed: fewer)
+        srv.bytes_sent = 0
+        mesh = pmwm_codec.decode(UrlSource(url, max_chunks=2), chunks=2)  # stopped early: no refusal
+        assert mesh == pmwm_codec.decode(site / "x.pmw", chunks=2)
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+    assert srv.bytes_sent < TAIL // 4  # the zeros were not all sent: the reader went away
+
+
+@pytest.mark.parametrize("command", ["verify", "decode"])
+def test_a_stream_on_standard_input_is_read_no_further_than_its_declared_length(owner_site, tmp_path, capsys,
+                                                                                 monkeypatch, command):
+    """``pmw verify -`` (a key with an owner ID) and ``pmw decode - -o x.glb`` read all of standard input into memory
+    before parsing it: a .pmw followed by 1 GiB of zeros took 2.1 GB."""
+    import sys
+
+    site = owner_site
+    data = (site / "x.pmw").read_bytes()
+    stdin = Endless(data)
+    monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(io.BufferedReader(stdin)))
+    argv = ["--key", site / "x.pmw.key.json"] if command == "verify" else ["-o", tmp_path / "x.glb"]
+    code, _, err = _pmw(capsys, command, "-", *argv)
+    assert code == 2 and f"after the declared file length {len(data)}" in err and len(err.splitlines()) == 1, err
+    assert stdin.given < len(data) + (4 << 20), stdin.given
+    assert not (tmp_path / "x.glb").exists()
+
+
+class Dripping(RangeRequestHandler):
+    """A server that spreads every answer over 0.5 s, whatever its size: each ends well within any timeout."""
+
+    def copyfile(self, source, outputfile):
+        import time
+
+        data = source.read(self._length)
+        for i in range(5):
+            outputfile.write(data[i * len(data) // 5 : (i + 1) * len(data) // 5])
+            outputfile.flush()
+            time.sleep(0.1)
+
+
+def test_a_server_that_drips_every_range_answer_is_a_stall_of_the_whole_transfer(site, monkeypatch):
+    """The pace was judged per answer: a server that sent each of the many Range answers slowly, but within the
+    timeout, held ``pmw verify URL`` for the number of requests times the timeout (65,536 chunks x 30 s).  The
+    transfer as a whole must now average ``MIN_RATE`` past its first ``timeout`` seconds of network time."""
+    import time
+
+    from pmwm_codec import http
+
+    monkeypatch.setattr(http, "MIN_RATE", 20_000)  # so that a 0.5 s answer of a few KB is too slow
+    srv, thread = _serve(site, Dripping)
+    url = f"http://127.0.0.1:{srv.server_address[1]}/x.pmw"
+    try:
+        start = time.monotonic()
+        source = UrlSource(url, timeout=1)
+        with pytest.raises(InputFormatError, match=r"the server stalls: [\d,]+ bytes in \d s, under 20,000 bytes/s"):
+            pmwm_codec.decode(source)
+        assert time.monotonic() - start < 2.5 and source.requests <= 4
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+
+
+def test_a_server_that_drips_its_answers_head_is_cut_off_after_the_timeout(tmp_path, capsys):
+    """A status line and headers sent a byte every 0.2 s never trip a socket timeout: the read of one answer's head
+    took as long as the server liked (here 8 s, then "cannot read (RemoteDisconnected ...)")."""
+    import socket
+    import time
+
+    listener = socket.create_server(("127.0.0.1", 0))
+    done = threading.Event()
+
+    def answer():
+        conn, _ = listener.accept()
+        with conn:
+            conn.recv(65536)
+            for byte in b"HTTP/1.1 200 OK\r\nX-Slow: " + b"x" * 40:
+                if done.wait(0.2):
+                    return
+                try:
+                    conn.sendall(bytes([byte]))
+                except OSError:
+                    return
+
+    thread = threading.Thread(target=answer, daemon=True)
+    thread.start()
+    try:
+        start = time.monotonic()
+        with pytest.raises(InputFormatError, match=r"the server stalls: 0 bytes in 1 s"):
+            pmwm_codec.decode(UrlSource(f"http://127.0.0.1:{listener.getsockname()[1]}/x.pmw", timeout=1))
+        assert time.monotonic() - start < 3
+    finally:
+        done.set()
+        listener.close()
+        thread.join(10)

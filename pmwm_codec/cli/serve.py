@@ -6,15 +6,20 @@ three.js plugin and the demo page can read a ``.pmw`` chunk by chunk.  Only file
 ``DIR`` are served: the standard library's path translation, then the path's real location
 (symbolic links followed) must be inside ``DIR``'s.  Key files (``*.key.json`` in any case: ``pmw encode``
 writes the secret key beside the ``.pmw``; or a key under any other name, ``--key site/k.json``) are never served, and directories are not listed
-(an ``index.html`` is served as usual).  It binds to 127.0.0.1 unless ``--host`` says
-otherwise.  Not a production server.
+(a folder's ``index.html``, or ``index.htm``, is served for ``GET /folder/`` after the same checks as any
+file).  A ``Range`` with an ``If-Range`` whose validator is not the file's current one gets the whole file
+(200, RFC 9110 §13.1.5).  It binds to 127.0.0.1 unless ``--host`` says otherwise (never to every
+interface for an empty ``--host``).  Not a production server.
 """
 
 from __future__ import annotations
 
+import datetime
+import email.utils
 import os
 import re
 import threading
+import time
 from functools import partial
 from http import HTTPStatus
 from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
@@ -81,8 +86,20 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
         file's real location is outside the served directory (a symbolic link out of it), when it is a
         key file (:func:`~pmwm_codec.watermark.key.is_key_file`: by its name, or by its content), when it
         is neither a regular file nor a folder (a FIFO: opening it blocks the answer forever), or when the
-        name cannot be a file name (a NUL byte)."""
-        local = super().translate_path(path)
+        name cannot be a file name (a NUL byte).  A folder asked with a final ``/`` is its ``index.html``
+        (else ``index.htm``), through the same checks, and refused when it has none: given the folder, the
+        standard library's ``send_head`` would pick that file itself, unchecked."""
+        local = self._checked(super().translate_path(path))
+        if local.endswith("/") and os.path.isdir(local):
+            for name in ("index.html", "index.htm"):
+                index = os.path.join(local, name)
+                if os.path.isfile(index):
+                    return self._checked(index)
+            return _NOWHERE  # no listing either
+        return local
+
+    def _checked(self, local: str) -> str:
+        """``local`` when it may be served (:meth:`translate_path`), else :data:`_NOWHERE`."""
         try:
             real, root = os.path.realpath(local), os.path.realpath(self.directory)
         except (ValueError, OSError):
@@ -113,7 +130,7 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
         info = os.fstat(f.fileno())
         size, self._etag = info.st_size, etag(info)
         span = parse_range(self.headers["Range"], size)
-        if span is None:
+        if span is None or not self._if_range_holds(info):
             f.close()
             return super().send_head()
         if span[0] >= size:
@@ -131,6 +148,25 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
         self.end_headers()
         f.seek(span[0])
         return f
+
+    def _if_range_holds(self, info: os.stat_result) -> bool:
+        """Whether a Range request's ``If-Range`` (RFC 9110 §13.1.5) lets the range be sent: no ``If-Range``,
+        or its validator is the file's current one, the strong :func:`etag` exactly, or the ``Last-Modified``
+        date exactly when that date is a strong validator (the file unchanged for a second since, §8.8.2.2).
+        Any other (a weak or old tag, another date, a date that does not parse): the whole file is sent."""
+        given = self.headers.get("If-Range")
+        if given is None:
+            return True
+        given = given.strip()
+        if given.startswith(('"', "W/")):
+            return given == etag(info)
+        try:
+            date = email.utils.parsedate_to_datetime(given)
+        except (TypeError, ValueError, IndexError, OverflowError):
+            return False
+        if date.tzinfo is None:
+            date = date.replace(tzinfo=datetime.timezone.utc)
+        return int(date.timestamp()) == int(info.st_mtime) and time.time() - info.st_mtime >= 1
 
     def send_header(self, keyword, value):
         if keyword.lower() == "content-length":
@@ -203,7 +239,14 @@ def run(args) -> int:
         raise UsageError(f"{args.directory}: not a directory")
     if not 0 <= args.port <= 65535:
         raise UsageError(f"--port {args.port}: not a TCP port (0..65535)")
-    server = make_server(args.directory, args.host, args.port)
+    if not args.host.strip():
+        raise UsageError(f"--host {args.host!r}: no address (an empty one binds every interface); give one, "
+                         "127.0.0.1 for this machine only or 0.0.0.0 for every interface")
+    try:
+        server = make_server(args.directory, args.host, args.port)
+    except OSError as exc:  # a name that does not resolve, an address not of this machine, a port in use
+        raise UsageError(f"--host {args.host} --port {args.port}: cannot listen there "
+                         f"({exc.strerror or exc})") from None
     server.verbose = True
     host, port = server.server_address[:2]
     print(f"serving {os.path.abspath(args.directory)} at http://{host}:{port}/ (Ctrl-C to stop)", flush=True)

@@ -84,9 +84,9 @@ def run(args) -> int:
         with naming(args.input):
             key = pmwm_codec.load_key(args.key)
             if key.owner_id is not None and (source == "-" or url):
-                from pmwm_codec.sources import read_all
+                from pmwm_codec.http import read_declared
 
-                source = read_all(source)  # read twice below: the image, then the owner layer
+                source = read_declared(source)  # read twice below: the image, then the owner layer
             outcome = verify_stream(source, key, args.watermark, keep_meshes=args.frames is not None,
                                     progress=progress)
             owners = _owner_boundaries(source, key)

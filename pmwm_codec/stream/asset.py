@@ -68,7 +68,7 @@ from ..format.gltf import (
     view_bytes,
 )
 from ..mesh import Mesh, checked_mesh
-from ..sources import read_all
+from ..http import read_declared
 from .cut import data_not_arrived
 from .decoder import StreamDecoder
 from .encoder import EncodeReport, PrimitiveJob, encode_document
@@ -404,7 +404,7 @@ def decode_asset(src, chunks=None):
     follows the base meshes) are left out with the textures that use them; the
     decoder's ``notices`` say which.
     """
-    data = read_all(src)
+    data = read_declared(src)  # a stream: no further than the GLB header declares
     decoder = StreamDecoder(copy=False, max_chunks=chunks)
     results = decoder.feed(data)
     end = decoder.close()

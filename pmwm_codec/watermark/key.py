@@ -422,19 +422,47 @@ def refuse_symlink(path) -> str:
 
 def is_key_file(path) -> bool:
     """Whether ``path`` names a key file: a name ending :data:`KEY_SUFFIX` (any case), or an existing
-    regular file whose first bytes are a JSON object naming ``"format": "pmwm-key"``."""
+    regular file that :meth:`WatermarkKey.load` would take for a key: UTF-8 JSON of at most
+    :data:`~pmwm_codec.constants.MAX_KEY_FILE_BYTES` whose value is an object with ``"format": "pmwm-key"``,
+    read as the loader reads it (escapes such as ``"pmwm\\u002dkey"``, blanks before the object, the
+    members in any order).  A file whose first 4096 bytes name that format in plain bytes
+    (``"format": "pmwm-key"`` after a ``{``) counts too, whatever follows: the check refuses at least
+    what it always refused.  Only a file that starts (after blanks) with ``{`` is read past its head."""
+    import stat
+
     path = os.fspath(path)
     if path.lower().endswith(KEY_SUFFIX):
         return True
     try:
         if not os.path.isfile(path):
             return False
-        with open(path, "rb") as fh:
-            head = fh.read(4096)
-    except OSError:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
+    except (OSError, ValueError):
         return False
-    text = head.lstrip()
-    return text.startswith(b"{") and re.search(rb'"format"\s*:\s*"' + KEY_FORMAT.encode() + b'"', text) is not None
+    with os.fdopen(fd, "rb") as fh:
+        try:
+            info = os.fstat(fd)
+            if not stat.S_ISREG(info.st_mode):  # replaced by a FIFO since isfile: never read (it blocks)
+                return False
+            os.set_blocking(fd, True)
+            head = fh.read(4096)
+            text = head.lstrip()
+            if text.startswith(b"{") and re.search(rb'"format"\s*:\s*"' + KEY_FORMAT.encode() + b'"', text):
+                return True
+            if info.st_size > MAX_KEY_FILE_BYTES or head.lstrip(b" \t\r\n")[:1] not in (b"{", b""):
+                return False  # the loader reads no such file: larger than any key, or not a JSON object
+            raw = head + fh.read(MAX_KEY_FILE_BYTES + 1 - len(head))
+        except OSError:
+            return False
+    if len(raw) > MAX_KEY_FILE_BYTES or not raw.lstrip(b" \t\r\n").startswith(b"{"):
+        return False
+    if b"\\" not in raw and KEY_FORMAT.encode() not in raw:
+        return False  # without an escape, the format's name is written as it is: no need to parse
+    try:
+        doc = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError, RecursionError):  # the loader takes none of these for a key
+        return False
+    return isinstance(doc, dict) and doc.get("format") == KEY_FORMAT
 
 
 def refuse_key_target(path, what: str) -> None:
