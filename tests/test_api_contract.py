@@ -222,3 +222,39 @@ def test_the_typed_marker_ships_with_the_package():
     assert importlib.resources.files("pmwm_codec").joinpath("py.typed").is_file()
     pyproject = tomllib.loads((Path(pmwm_codec.__file__).parent.parent / "pyproject.toml").read_text())
     assert "py.typed" in pyproject["tool"]["setuptools"]["package-data"]["pmwm_codec"]
+
+
+class _ShortWrites(io.RawIOBase):
+    """A raw file whose ``write()`` takes at most ``most`` bytes a call (legal: it returns the count), and after
+    ``stall_after`` bytes returns ``stall`` (None: a non-blocking file that is not ready)."""
+
+    def __init__(self, most=100, stall_after=None, stall=None):
+        self.data, self.most, self.stall_after, self.stall = bytearray(), most, stall_after, stall
+
+    def writable(self):
+        return True
+
+    def write(self, b):
+        if self.stall_after is not None and len(self.data) >= self.stall_after:
+            return self.stall
+        b = bytes(b)[: self.most]
+        self.data += b
+        return len(b)
+
+
+def test_a_raw_file_objects_short_writes_are_written_again_until_the_whole_pmw_is_out(tmp_path):
+    """``encode`` ignored the count ``write()`` returned: it reported success with 2,229 of 14,904 bytes in
+    the file object, a valid prefix that decodes to a coarser mesh, and published the new key."""
+    out = _ShortWrites()
+    report = pmwm_codec.encode(MESH, out, watermark=_image(0), key=tmp_path / "k.key.json", measure="none")
+    assert report["bytes"] == len(out.data)
+    assert pmwm_codec.decode(bytes(out.data)).vertex_count == MESH.vertex_count
+    assert pmwm_codec.verify_stream(bytes(out.data), tmp_path / "k.key.json").verdict == "authentic"
+
+
+@pytest.mark.parametrize("stall, words", [(None, "gave None"), (0, "wrote nothing")])
+def test_a_file_object_that_stops_taking_bytes_is_an_error_and_the_new_key_is_not_kept(tmp_path, stall, words):
+    out = _ShortWrites(stall_after=300, stall=stall)
+    with pytest.raises(OptionError, match=f"write\\(\\) {words}.* after [0-9,]+ of [0-9,]+ bytes: the output is incomplete"):
+        pmwm_codec.encode(MESH, out, watermark=_image(0), key=tmp_path / "k.key.json", measure="none")
+    assert list(tmp_path.iterdir()) == []  # the key of a file that was not written whole is not published
