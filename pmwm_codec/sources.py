@@ -114,17 +114,19 @@ def check_file_object(fileobj, what: str, use: str) -> None:
     kind = type(fileobj).__name__
     if getattr(fileobj, "closed", False) is True:
         raise OptionError(f"{what}: the file object ({kind}) is closed")
-    mode = getattr(fileobj, "mode", None)
-    if isinstance(fileobj, io.TextIOBase) or (isinstance(mode, str) and "b" not in mode):
-        raise OptionError(f"{what}: a file object in text mode ({kind}, its {use}() takes str): open the file in "
-                          f"binary mode ('{use[0]}b')")
-    able = getattr(fileobj, use + "able", None)
+    mode = getattr(fileobj, "mode", None)  # of a file-like of no io class: "w" is text (a zip member's "r" is not)
+    binary = isinstance(fileobj, (io.BufferedIOBase, io.RawIOBase))
+    if isinstance(fileobj, io.TextIOBase) or (not binary and isinstance(mode, str) and "b" not in mode):
+        raise OptionError(f"{what}: a file object in text mode ({kind}, its {use}() "
+                          f"{'gives' if use == 'read' else 'takes'} str): open the file in binary mode ('{use[0]}b')")
+    able_name, doing = {"read": ("readable", "reading"), "write": ("writable", "writing")}[use]
+    able = getattr(fileobj, able_name, None)
     try:
         usable = able() if callable(able) else True
     except (OSError, ValueError):
         usable = True  # no answer: its read() / write() will say
     if usable is False:
-        raise OptionError(f"{what}: the file object ({kind}) is not open for {use}ing")
+        raise OptionError(f"{what}: the file object ({kind}) is not open for {doing}")
     try:
         blocking = os.get_blocking(fileobj.fileno())
     except (AttributeError, OSError, ValueError, TypeError):  # no descriptor (BytesIO): never waits
@@ -263,6 +265,20 @@ def read_regular_file(path, limit: int, error, label=None, *, follow_symlinks: b
     if size > limit:
         raise error(f"{label}: more than the limit of {limit:,} bytes")
     return b"".join(chunks)
+
+
+def path_argument(path, what: str) -> str:
+    """``path`` (``str``, ``bytes`` or ``os.PathLike``) as a ``str`` file name;
+    :class:`~pmwm_codec.errors.OptionError` naming ``what`` for anything else (a file object, an int,
+    None: a function that takes a file by its name)."""
+    try:
+        if isinstance(path, (str, bytes, os.PathLike)):
+            return os.fsdecode(os.fspath(path))
+    except TypeError:  # an os.PathLike whose __fspath__ gives neither str nor bytes
+        pass
+    from .errors import OptionError
+
+    raise OptionError(f"{what} must be a file name (str, bytes or os.PathLike), got {type(path).__name__}")
 
 
 def check_input_path(path, what: str) -> str:

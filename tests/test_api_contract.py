@@ -224,6 +224,56 @@ def test_the_typed_marker_ships_with_the_package():
     assert "py.typed" in pyproject["tool"]["setuptools"]["package-data"]["pmwm_codec"]
 
 
+# --- outputs: a destination is checked before any work, and a file object gets every byte ---------------------
+
+
+@pytest.fixture
+def no_work(monkeypatch):
+    """Fails the test if the encode gets as far as reading the mesh: a refusal must come before any work."""
+    def read(src):
+        raise AssertionError("the encode started its work before refusing its destination")
+    monkeypatch.setattr(pmwm_codec, "_as_mesh", read)
+
+
+def _text_file(tmp_path):
+    return open(tmp_path / "text.pmw", "w")
+
+
+def _closed_file(tmp_path):
+    fh = open(tmp_path / "closed.pmw", "wb")
+    fh.close()
+    return fh
+
+
+@pytest.mark.parametrize("dst, words", [
+    ("adir", "adir: is a directory; give a file name for the .pmw"),
+    ("slash.pmw/", "slash.pmw/: ends with '/'"),
+    ("nodir/x.pmw", "directory .*nodir does not exist"),
+    ("/dev/null", "/dev/null: is not a regular file"),
+    ("", "the .pmw path is empty"),
+    (_text_file, "text mode.*open the file in binary mode"),
+    (lambda tmp_path: io.StringIO(), "text mode"),
+    (_closed_file, "is closed"),
+    (lambda tmp_path: open(tmp_path / "adir" / "r.pmw", "rb"), "not open for writing"),
+])
+def test_a_destination_that_cannot_take_the_pmw_is_refused_before_any_work(tmp_path, monkeypatch, no_work, dst,
+                                                                            words):
+    """Each was a bare OSError or TypeError raised after the whole encode (simplify, embed, measure), and
+    ``slash.pmw/`` named a hidden temporary file."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "adir").mkdir()
+    (tmp_path / "adir" / "r.pmw").write_bytes(b"")
+    target = dst(tmp_path) if callable(dst) else dst
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
+    with pytest.raises(OptionError, match=words) as info:
+        pmwm_codec.encode(MESH, target)
+    assert ".tmp" not in str(info.value)
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["adir", *before] and os.listdir(tmp_path / "adir") == ["r.pmw"]
+    if hasattr(target, "close"):
+        target.close()
+
+
 class _ShortWrites(io.RawIOBase):
     """A raw file whose ``write()`` takes at most ``most`` bytes a call (legal: it returns the count), and after
     ``stall_after`` bytes returns ``stall`` (None: a non-blocking file that is not ready)."""
@@ -258,3 +308,27 @@ def test_a_file_object_that_stops_taking_bytes_is_an_error_and_the_new_key_is_no
     with pytest.raises(OptionError, match=f"write\\(\\) {words}.* after [0-9,]+ of [0-9,]+ bytes: the output is incomplete"):
         pmwm_codec.encode(MESH, out, watermark=_image(0), key=tmp_path / "k.key.json", measure="none")
     assert list(tmp_path.iterdir()) == []  # the key of a file that was not written whole is not published
+
+
+def test_a_non_blocking_file_object_is_refused_before_any_work(tmp_path, no_work):
+    """A non-blocking pipe took 4,024 of 14,856 bytes (the rest: ``write()`` returned None) and encode said OK."""
+    r, w = os.pipe()
+    os.set_blocking(w, False)
+    with os.fdopen(r, "rb") as reader, os.fdopen(w, "wb", buffering=0) as dst:
+        with pytest.raises(OptionError, match="non-blocking mode"):
+            pmwm_codec.encode(MESH, dst, watermark=_image(0), key=tmp_path / "k.key.json")
+        dst.close()
+        assert reader.read() == b""
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("key, words", [("", "the key path is empty"), ("nodir/k.key.json", "nodir does not exist"),
+                                        ("kdir/", "ends with '/'"), ("x" * 300 + ".key.json", "File name too long")])
+def test_a_key_path_no_key_can_be_written_at_is_refused_before_any_work(tmp_path, monkeypatch, no_work, key, words):
+    """``key=''`` (an unset variable) was taken until the publish step, which raised FileNotFoundError naming a
+    hidden temporary file in the parent directory."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(OptionError, match=words) as info:
+        pmwm_codec.encode(MESH, "m.pmw", watermark=_image(0), key=key)
+    assert ".tmp" not in str(info.value)
+    assert list(tmp_path.iterdir()) == [] and not any(".tmp" in p.name for p in tmp_path.parent.iterdir())
