@@ -332,3 +332,60 @@ def test_a_key_path_no_key_can_be_written_at_is_refused_before_any_work(tmp_path
         pmwm_codec.encode(MESH, "m.pmw", watermark=_image(0), key=key)
     assert ".tmp" not in str(info.value)
     assert list(tmp_path.iterdir()) == [] and not any(".tmp" in p.name for p in tmp_path.parent.iterdir())
+
+
+# --- read_mesh / write_mesh: the arguments, and a key file is never a mesh's target ---------------------------
+
+
+@pytest.mark.parametrize("name", ["secret.obj", "secret.ply", "secret.stl", "secret.glb", "secret.gltf", "m.key.json"])
+def test_write_mesh_never_replaces_a_key_file_as_pmw_decode_does_not(tmp_path, name):
+    """``write_mesh('secret.ply', mesh)`` wrote the mesh over a key saved under that name (``pmw decode`` refused)."""
+    pmwm_codec.encode(MESH, tmp_path / "a.pmw", watermark=_image(0), measure="none")
+    key = (tmp_path / "a.pmw.key.json").read_bytes()
+    (tmp_path / name).write_bytes(key)
+    with pytest.raises(WatermarkKeyError, match="names a watermark key file; a mesh never replaces a key"):
+        pmwm_codec.write_mesh(tmp_path / name, MESH)
+    assert (tmp_path / name).read_bytes() == key
+
+
+def test_write_mesh_never_replaces_a_key_file_beside_a_gltf_as_its_buffer(tmp_path):
+    pmwm_codec.encode(MESH, tmp_path / "a.pmw", watermark=_image(0), measure="none")
+    key = (tmp_path / "a.pmw.key.json").read_bytes()
+    (tmp_path / "m.bin").write_bytes(key)
+    with pytest.raises(WatermarkKeyError, match="m.bin: names a watermark key file"):
+        pmwm_codec.write_mesh(tmp_path / "m.gltf", MESH)
+    assert (tmp_path / "m.bin").read_bytes() == key and not (tmp_path / "m.gltf").exists()
+
+
+@pytest.mark.parametrize("path, mesh, error, words", [
+    ("w.pmw", MESH, OptionError, "unknown output format '.pmw'"),
+    ("-", MESH, OptionError, "not to standard output"),
+    ("adir.obj", MESH, OptionError, "is a directory"),
+    ("nodir/w.obj", MESH, OptionError, "nodir does not exist"),
+    (io.BytesIO(), MESH, OptionError, "must be a file name .*got BytesIO"),
+    (5, MESH, OptionError, "must be a file name .*got int"),
+    ("w.obj", None, OptionError, "mesh must be a Mesh, got NoneType"),
+    ("w.obj", (MESH.positions, MESH.faces), OptionError, "mesh must be a Mesh, got tuple"),
+    ("w.obj", pmwm_codec.Mesh(MESH.positions, MESH.faces[:, :2]), pmwm_codec.errors.MeshError, "must be triangles"),
+    ("w.obj", pmwm_codec.Mesh(MESH.positions, MESH.faces + 10 ** 6), pmwm_codec.errors.MeshError, "out of range"),
+])
+def test_write_mesh_names_a_wrong_argument_with_a_pmw_error_and_writes_nothing(tmp_path, monkeypatch, path, mesh,
+                                                                               error, words):
+    """Each raised ValueError, TypeError (``os.fspath``), AttributeError (``.positions``) or OSError."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "adir.obj").mkdir()
+    with pytest.raises(error, match=words):
+        pmwm_codec.write_mesh(path, mesh)
+    assert [p.name for p in tmp_path.iterdir()] == ["adir.obj"]
+
+
+def test_read_mesh_takes_a_file_name_and_names_anything_else(tmp_path):
+    """``read_mesh(b"/path/cow.obj")`` said "no such file" for an existing file; a file object, an int or None
+    raised TypeError from ``os.fspath``."""
+    src = tmp_path / "m.obj"
+    pmwm_codec.write_mesh(src, MESH)
+    assert pmwm_codec.read_mesh(os.fsencode(src)) == pmwm_codec.read_mesh(src)
+    with open(src, "rb") as fh:
+        for wrong in (fh, 5, None):
+            with pytest.raises(OptionError, match=f"the mesh path must be a file name .*got {type(wrong).__name__}"):
+                pmwm_codec.read_mesh(wrong)
