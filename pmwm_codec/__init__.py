@@ -74,6 +74,10 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
     in-memory ``(gltf dict, buffers)``) whose triangle primitives all become progressive
     while materials, textures and nodes are kept (see :mod:`pmwm_codec.stream.asset`).
 
+    ``dst``: a path, checked before any work (:func:`~pmwm_codec.options.check_destination`), or a
+    binary file object, open, writable and blocking, that gets every byte
+    (:func:`~pmwm_codec.atomic.write_stream`; a new key file is not kept when it does not).
+
     ``watermark``: image path or (s, s) array; ``key``: a WatermarkKey (never modified, not
     saved), a key file path, or None (the key file ``dst + ".key.json"`` when ``dst`` is a
     path).  A key file path follows :class:`~pmwm_codec.watermark.key.KeySlot`: an existing
