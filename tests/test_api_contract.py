@@ -15,6 +15,7 @@ import pytest
 import pmwm_codec
 from pmwm_codec import shapes
 from pmwm_codec.errors import InputFormatError, OptionError, PmwError, WatermarkKeyError
+from samples import closed_file
 
 MESH = shapes.demo_mesh(60)
 
@@ -239,12 +240,6 @@ def _text_file(tmp_path):
     return open(tmp_path / "text.pmw", "w")
 
 
-def _closed_file(tmp_path):
-    fh = open(tmp_path / "closed.pmw", "wb")
-    fh.close()
-    return fh
-
-
 @pytest.mark.parametrize("dst, words", [
     ("adir", "adir: is a directory; give a file name for the .pmw"),
     ("slash.pmw/", "slash.pmw/: ends with '/'"),
@@ -253,7 +248,7 @@ def _closed_file(tmp_path):
     ("", "the .pmw path is empty"),
     (_text_file, "text mode.*open the file in binary mode"),
     (lambda tmp_path: io.StringIO(), "text mode"),
-    (_closed_file, "is closed"),
+    (lambda tmp_path: closed_file(tmp_path / "closed.pmw", "wb"), "is closed"),
     (lambda tmp_path: open(tmp_path / "adir" / "r.pmw", "rb"), "not open for writing"),
 ])
 def test_a_destination_that_cannot_take_the_pmw_is_refused_before_any_work(tmp_path, monkeypatch, no_work, dst,

@@ -14,6 +14,7 @@ from pmwm_codec.errors import ChecksumError, FormatError, OptionError, Truncated
 from pmwm_codec.progressive.grid import Grid
 from pmwm_codec.stream import StreamDecoder, encode_mesh
 from pmwm_codec.progressive.topology import face_keys
+from samples import closed_file
 
 
 def small_mesh():
@@ -232,12 +233,6 @@ def test_every_reader_reads_any_bytes_like_source_as_its_bytes(kind):
         assert read(source()) == read(same), name
 
 
-def _closed_file(path):
-    fh = open(path, "rb")
-    fh.close()
-    return fh
-
-
 @pytest.mark.parametrize("kind, words", [
     ("closed file", "the file object \\(BufferedReader\\) is closed"),
     ("file open for writing", "not open for reading"),
@@ -265,7 +260,7 @@ def test_every_reader_refuses_a_file_object_it_cannot_read_whole_with_one_named_
         os.set_blocking(r, False)
         return os.fdopen(r, "rb", buffering=0)
 
-    make = {"closed file": lambda: _closed_file(path), "file open for writing": lambda: open(tmp_path / "w", "wb"),
+    make = {"closed file": lambda: closed_file(path), "file open for writing": lambda: open(tmp_path / "w", "wb"),
             "non-blocking pipe": non_blocking_pipe, "read() gives None": NoDataYet}[kind]
     for name, read in _READERS.items():
         source = make()
