@@ -74,6 +74,10 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
     in-memory ``(gltf dict, buffers)``) whose triangle primitives all become progressive
     while materials, textures and nodes are kept (see :mod:`pmwm_codec.stream.asset`).
 
+    ``dst``: a path, checked before any work (:func:`~pmwm_codec.options.check_destination`), or a
+    binary file object, open, writable and blocking, that gets every byte
+    (:func:`~pmwm_codec.atomic.write_stream`; a new key file is not kept when it does not).
+
     ``watermark``: image path or (s, s) array; ``key``: a WatermarkKey (never modified, not
     saved), a key file path, or None (the key file ``dst + ".key.json"`` when ``dst`` is a
     path).  A key file path follows :class:`~pmwm_codec.watermark.key.KeySlot`: an existing
@@ -101,6 +105,9 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
     check_source(src)
     check_destination(dst, inputs=(src, watermark))
     options = checked_options(options)
+    image, notices = _as_watermark(watermark)
+    asked = options.get("owner_id")
+    key_obj, key_slot, options["owner_id"] = _key_for(key, image, dst, asked, inputs=(src, watermark))
     asset = is_asset_path(src) or isinstance(src, tuple)
     mesh = None if asset else _as_mesh(src)
     if asset and not isinstance(src, tuple) and not os.path.exists(src):
@@ -108,9 +115,6 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
         from .sources import shown_path
 
         raise InputFormatError(f"{shown_path(src)}: no such file")
-    image, notices = _as_watermark(watermark)
-    asked = options.get("owner_id")
-    key_obj, key_slot, options["owner_id"] = _key_for(key, image, dst, asked)
     options["key_slot"] = key_slot
     if image is not None and asked is None and options["owner_id"] is None:
         notices.append("the key names no owner id (written before the owner layer): no owner layer written")
@@ -131,14 +135,17 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
     return doc
 
 
-def _key_for(key, image, dst, owner_id=None) -> tuple:
+def _key_for(key, image, dst, owner_id=None, inputs=()) -> tuple:
     """``(key object or None, KeySlot or None, owner ID or None)`` for an encode of ``image``
     (and/or the owner layer) to ``dst``; ``owner_id`` as :func:`encode` takes it, resolved.
 
-    Checked before any work: a refused key file costs nothing.
+    Checked before any work (before the mesh is read): a refused key file costs nothing.  A key
+    path that names no file yet must be one a new key can be published at
+    (:func:`~pmwm_codec.options.check_output_path`: not empty, no directory, not one of ``inputs``).
     """
     from .stream.encoder import default_key_path
     from .errors import OptionError, WatermarkKeyError
+    from .options import check_output_path
     from .watermark.key import FROM_KEY, KeySlot, WatermarkKey, check_key_object, same_path
 
     if owner_id is False or (owner_id is None and image is None):
@@ -160,6 +167,8 @@ def _key_for(key, image, dst, owner_id=None) -> tuple:
     if isinstance(dst, (str, os.PathLike)) and same_path(path, dst):
         raise WatermarkKeyError(f"{os.fspath(path)}: the key file would be the .pmw itself (the .pmw would "
                                 "replace the key just written): give the key another name")
+    if not os.path.lexists(path):  # an existing key file (or what stands there) is KeySlot's to judge
+        path = check_output_path(path, "key", inputs=inputs, key=True)
     slot = KeySlot.open(path, image, owner_id)
     return slot.existing, slot, slot.owner_id
 

@@ -13,6 +13,11 @@ Contract
   (:func:`check_replaceable`).
 * Modes: ``mode=None`` gives ``0666 & ~umask`` (as ``open`` would); a given mode (keys:
   0600) is set with ``fchmod`` whatever the umask.
+* Errors name the file asked for (an ``OSError`` whose ``filename`` is the target: "File too
+  large", "No space left on device"), never a temporary name; temporary names are cut to fit the
+  file system's 255-byte limit on a name.
+* :func:`write_stream` writes to a caller's binary file object, which cannot be atomic: every byte
+  is written (a raw file's short writes are written again) or an error says how many were.
 * :func:`write_atomic` = stage + publish; :func:`directory_lock` serialises writers of
   the same directories (``flock`` on the directories themselves: nothing is left on
   disk, and the lock dies with its process); :func:`signals_deferred` holds SIGINT,
@@ -33,8 +38,8 @@ import stat
 import tempfile
 from dataclasses import dataclass
 
-__all__ = ["Staged", "stage", "publish", "discard", "write_atomic", "directory_lock", "signals_deferred",
-           "fault_point", "current_umask", "check_replaceable"]
+__all__ = ["Staged", "stage", "publish", "discard", "write_atomic", "write_stream", "directory_lock",
+           "signals_deferred", "fault_point", "current_umask", "check_replaceable"]
 
 _DEFERRED_SIGNALS = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
 
@@ -67,9 +72,35 @@ def current_umask() -> int:
     return mask
 
 
+#: The longest file name (bytes) most file systems take (NAME_MAX); a temporary name is kept within it.
+NAME_MAX = 255
+
+
+def _temp_stem(path: str) -> str:
+    """The start of ``path``'s temporary names: ``.NAME`` with NAME cut so that ``.NAME.<12 hex>.tmp`` (or
+    mkstemp's ``.NAME.<8 chars>.tmp``) fits :data:`NAME_MAX` bytes (a 250-byte name is valid; its
+    temporary name must be too)."""
+    base = os.path.basename(os.path.abspath(path))
+    while len(os.fsencode(base)) > NAME_MAX - 19:
+        base = base[:-1]
+    return "." + base
+
+
 def _temp_name(path: str) -> str:
-    directory, base = os.path.split(os.path.abspath(path))
-    return os.path.join(directory, f".{base}.{secrets.token_hex(6)}.tmp")
+    directory = os.path.dirname(os.path.abspath(path))
+    return os.path.join(directory, f"{_temp_stem(path)}.{secrets.token_hex(6)}.tmp")
+
+
+@contextlib.contextmanager
+def _naming(path: str):
+    """An OSError raised inside the block names ``path``, the file asked for (a write that fails with
+    "File too large" names no file; a rename names the temporary file first)."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename == path and exc.filename2 is None:
+            raise
+        raise OSError(exc.errno, exc.strerror or str(exc), path) from None
 
 
 def check_replaceable(path) -> None:
@@ -98,7 +129,7 @@ def _open_staged(path: str, mode: int | None) -> Staged:
         except OSError:
             pass  # the file system has no O_TMPFILE: a named temporary file
     try:
-        fd, temp = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".", suffix=".tmp")
+        fd, temp = tempfile.mkstemp(dir=directory, prefix=_temp_stem(path) + ".", suffix=".tmp")
     except OSError as exc:  # name the file asked for, not the temporary one
         raise OSError(exc.errno, f"cannot write a file in {directory} ({exc.strerror})", path) from None
     try:
@@ -117,12 +148,13 @@ def stage(path, parts, mode: int | None = None) -> Staged:
     """
     staged = _open_staged(os.fspath(path), mode)
     try:
-        view_parts = (memoryview(p).cast("B") for p in parts)
-        for part in view_parts:
-            while part:
-                part = part[os.write(staged.fd, part):]
-        fault_point("stage-written")
-        os.fsync(staged.fd)
+        with _naming(staged.path):
+            view_parts = (memoryview(p).cast("B") for p in parts)
+            for part in view_parts:
+                while part:
+                    part = part[os.write(staged.fd, part):]
+            fault_point("stage-written")
+            os.fsync(staged.fd)
     except BaseException:
         discard(staged)
         raise
@@ -132,17 +164,18 @@ def stage(path, parts, mode: int | None = None) -> Staged:
 def publish(staged: Staged) -> None:
     """Move the staged file over its target (one rename) and make it durable."""
     check_replaceable(staged.path)  # before the staged file gets a name: nothing to clean up
-    if staged.temp is None:
-        temp = _temp_name(staged.path)
-        proc = os.open("/proc/self/fd", os.O_RDONLY)
-        try:  # linkat(proc, "fd", AT_FDCWD, temp, AT_SYMLINK_FOLLOW): name the nameless file
-            os.link(str(staged.fd), temp, src_dir_fd=proc, follow_symlinks=True)
-        finally:
-            os.close(proc)
-        staged.temp = temp
-    os.close(staged.fd)
-    staged.fd = -1
-    os.replace(staged.temp, staged.path)
+    with _naming(staged.path):
+        if staged.temp is None:
+            temp = _temp_name(staged.path)
+            proc = os.open("/proc/self/fd", os.O_RDONLY)
+            try:  # linkat(proc, "fd", AT_FDCWD, temp, AT_SYMLINK_FOLLOW): name the nameless file
+                os.link(str(staged.fd), temp, src_dir_fd=proc, follow_symlinks=True)
+            finally:
+                os.close(proc)
+            staged.temp = temp
+        os.close(staged.fd)
+        staged.fd = -1
+        os.replace(staged.temp, staged.path)
     staged.temp = None
     _fsync_directory(staged.directory)
 
@@ -170,6 +203,51 @@ def write_atomic(path, parts, mode: int | None = None) -> int:
         discard(staged)
         raise
     return sum(len(memoryview(p).cast("B")) for p in parts)
+
+
+def write_stream(stream, parts, what: str = "dst") -> int:
+    """Write every byte of the bytes-like ``parts`` to the caller's binary file object ``stream``, then
+    flush it; returns the byte count.
+
+    A raw file's ``write()`` may take less than it is given and return the count (a pipe, a
+    socket): the rest is written again until all is.  A count of 0, None from an
+    :class:`io.RawIOBase` (a non-blocking file that is not ready) or a ``write()`` that refuses
+    bytes (a text stream) is an :class:`~pmwm_codec.errors.OptionError` naming ``what`` and how
+    many bytes went out; a ``write()`` of any other object that returns None (a file-like object
+    without a return value) is taken to have written everything.  A caller's stream cannot be
+    written atomically: after an error the bytes already written stay in it.
+    """
+    import io
+    import numbers
+
+    from .errors import OptionError
+
+    total = sum(len(memoryview(p).cast("B")) for p in parts)
+    done = 0
+    for part in parts:
+        view = memoryview(part).cast("B")
+        given = part  # the part itself first (file-likes that want bytes), what is left of it after a short write
+        while view:
+            try:
+                count = stream.write(given)
+            except TypeError as exc:  # a text stream: str only
+                raise OptionError(f"{what}: the file object's write() refused bytes ({exc}): open the file in "
+                                  "binary mode ('wb')") from None
+            if count is None and not isinstance(stream, io.RawIOBase):
+                count = len(view)
+            if isinstance(count, bool) or not isinstance(count, numbers.Integral) or not 0 < count <= len(view):
+                why = ("gave None (a non-blocking file that is not ready)" if count is None else
+                       "wrote nothing" if count == 0 else
+                       f"returned {count} for {len(view):,} bytes" if isinstance(count, numbers.Integral) else
+                       f"returned a {type(count).__name__}, not a byte count")
+                raise OptionError(f"{what}: the file object's write() {why} after {done:,} of {total:,} bytes: "
+                                  "the output is incomplete")
+            done += count
+            view = given = view[count:]
+    flush = getattr(stream, "flush", None)
+    if callable(flush):
+        flush()
+    return total
 
 
 @contextlib.contextmanager

@@ -28,7 +28,7 @@ import numpy as np
 
 from .constants import MAX_ENCODE_FACES, MAX_ENCODE_VERTICES, MAX_GRID_BITS, MAX_INPUT_FILE_BYTES
 from .errors import DegenerateMeshError, InputFormatError, MeshError
-from .sources import check_input_path, read_regular_file
+from .sources import check_input_path, path_argument, read_regular_file
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")
 
@@ -103,37 +103,8 @@ def checked_mesh(positions, faces, attributes=None, *, name="mesh") -> Mesh:
         :class:`~pmwm_codec.errors.DegenerateMeshError` (a MeshError) when the data is
         well formed but every triangle is degenerate.
     """
-    try:
-        pos = np.asarray(positions, dtype=np.float64)
-        tri = np.asarray(faces)
-    except (TypeError, ValueError) as exc:
-        raise MeshError(f"{name}: vertex or face data is not numeric ({exc})") from None
-    if pos.size and (pos.ndim != 2 or pos.shape[1] != 3):
-        raise MeshError(f"{name}: positions must be (n, 3), got shape {pos.shape}")
-    if pos.ndim != 2 or pos.shape[0] == 0:
-        raise MeshError(f"{name}: the mesh has no vertices")
-    if tri.size == 0:
-        raise MeshError(f"{name}: the mesh has no triangles")
-    if tri.ndim != 2 or tri.shape[1] != 3:
-        raise MeshError(f"{name}: faces must be triangles, got shape {tri.shape}")
-    if tri.dtype.kind not in "iufb":
-        raise MeshError(f"{name}: face indices are not numbers (dtype {tri.dtype})")
-    if not np.issubdtype(tri.dtype, np.integer):
-        if not np.all(np.equal(np.mod(tri, 1), 0)):
-            raise MeshError(f"{name}: face indices are not integers")
-    tri = tri.astype(np.int64, copy=False)  # (the face filter below copies: the caller's array is never kept)
-    finite = np.isfinite(pos)
-    if not finite.all():
-        bad = ~finite.all(axis=1)
-        count = int(bad.sum())
-        raise MeshError(
-            f"{name}: {count} {'vertex has' if count == 1 else 'vertices have'} NaN or infinite coordinates "
-            f"(first at vertex {int(np.argmax(bad))})"
-        )
+    pos, tri = mesh_arrays(positions, faces, name)
     n = pos.shape[0]
-    if tri.min() < 0 or tri.max() >= n:
-        worst = int(tri.max()) if tri.max() >= n else int(tri.min())
-        raise MeshError(f"{name}: face index {worst} out of range for {n} vertices")
 
     attrs = {}
     for key, value in (attributes or {}).items():
@@ -164,6 +135,47 @@ def checked_mesh(positions, faces, attributes=None, *, name="mesh") -> Mesh:
     if unreferenced:
         cleanup["unreferenced_vertices"] = unreferenced
     return Mesh(np.ascontiguousarray(pos), np.ascontiguousarray(tri), attrs, cleanup)
+
+
+def mesh_arrays(positions, faces, name: str = "mesh") -> tuple:
+    """``(positions (n, 3) float64, faces (m, 3) int64)`` of raw arrays once they are known to be a triangle
+    mesh: numeric, of those shapes, not empty, finite, every face index naming a vertex (the faces
+    may be degenerate, the vertices unreferenced; :func:`checked_mesh` goes on to drop them).
+
+    Raises MeshError naming ``name`` otherwise.
+    """
+    try:
+        pos = np.asarray(positions, dtype=np.float64)
+        tri = np.asarray(faces)
+    except (TypeError, ValueError) as exc:
+        raise MeshError(f"{name}: vertex or face data is not numeric ({exc})") from None
+    if pos.size and (pos.ndim != 2 or pos.shape[1] != 3):
+        raise MeshError(f"{name}: positions must be (n, 3), got shape {pos.shape}")
+    if pos.ndim != 2 or pos.shape[0] == 0:
+        raise MeshError(f"{name}: the mesh has no vertices")
+    if tri.size == 0:
+        raise MeshError(f"{name}: the mesh has no triangles")
+    if tri.ndim != 2 or tri.shape[1] != 3:
+        raise MeshError(f"{name}: faces must be triangles, got shape {tri.shape}")
+    if tri.dtype.kind not in "iufb":
+        raise MeshError(f"{name}: face indices are not numbers (dtype {tri.dtype})")
+    if not np.issubdtype(tri.dtype, np.integer):
+        if not np.all(np.equal(np.mod(tri, 1), 0)):
+            raise MeshError(f"{name}: face indices are not integers")
+    tri = tri.astype(np.int64, copy=False)  # (checked_mesh's face filter copies: it never keeps the caller's array)
+    finite = np.isfinite(pos)
+    if not finite.all():
+        bad = ~finite.all(axis=1)
+        count = int(bad.sum())
+        raise MeshError(
+            f"{name}: {count} {'vertex has' if count == 1 else 'vertices have'} NaN or infinite coordinates "
+            f"(first at vertex {int(np.argmax(bad))})"
+        )
+    n = pos.shape[0]
+    if tri.min() < 0 or tri.max() >= n:
+        worst = int(tri.max()) if tri.max() >= n else int(tri.min())
+        raise MeshError(f"{name}: face index {worst} out of range for {n} vertices")
+    return pos, tri
 
 
 #: PLY property types that are integers (face indices must be one of them).
@@ -240,8 +252,9 @@ def _check_extent(pos: np.ndarray, tri: np.ndarray, name: str) -> None:
                         f"the mesh would collapse onto one cell of any position grid (at most {MAX_GRID_BITS} bits)")
 
 
-def read_mesh(path: str | os.PathLike[str]) -> Mesh:
-    """Read a triangle mesh from OBJ, PLY, STL, glTF or GLB.
+def read_mesh(path: str | bytes | os.PathLike[str]) -> Mesh:
+    """Read a triangle mesh from OBJ, PLY, STL, glTF or GLB at ``path`` (a file name: ``str``, ``bytes``
+    or ``os.PathLike``).
 
     Polygons are fan-triangulated; STL triangle soups have identical corners
     merged.  For glTF/GLB the triangle primitives of the default scene are merged
@@ -250,12 +263,14 @@ def read_mesh(path: str | os.PathLike[str]) -> Mesh:
 
     Raises
     ------
+    OptionError
+        ``path`` is not a file name (a file object, None, an int).
     InputFormatError
         Missing file, unknown suffix, or a file that does not parse as a mesh.
     MeshError
         See :func:`checked_mesh`.
     """
-    path = os.fspath(path)
+    path = path_argument(path, "the mesh path")
     name = check_input_path(path, "a mesh file")
     suffix = os.path.splitext(path)[1].lower()
     if suffix not in MESH_SUFFIXES:

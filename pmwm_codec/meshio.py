@@ -32,9 +32,12 @@ import os
 
 import numpy as np
 
+from .errors import OptionError
 from .format.document import glb_to_gltf
 from .format.glb import glb_parts, write_parts
-from .mesh import Mesh
+from .mesh import Mesh, mesh_arrays
+from .options import check_output_path
+from .sources import shown_path
 
 __all__ = ["WRITE_SUFFIXES", "write_mesh", "write_asset"]
 
@@ -46,16 +49,30 @@ _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963  # glTF bufferView target
 _TRIANGLES = 4
 
 
-def write_mesh(path: str | os.PathLike[str], mesh: Mesh) -> None:
-    """Write ``mesh`` to ``path`` (str or os.PathLike), format by suffix (see the module docstring).
+def write_mesh(path: str | bytes | os.PathLike[str], mesh: Mesh) -> None:
+    """Write ``mesh`` to ``path`` (a file name: str, bytes or os.PathLike), format by suffix (see the module
+    docstring).
 
-    ``mesh.positions`` (n, 3) float is stored as float32, ``mesh.faces`` (m, 3) int as uint32.
-    Raises ValueError for a suffix not in :data:`WRITE_SUFFIXES`.
+    ``mesh.positions`` (n, 3) float is stored as float32, ``mesh.faces`` (m, 3) int as uint32.  The path is
+    checked before anything is written, as ``pmw decode -o`` checks it
+    (:func:`~pmwm_codec.options.check_output_path`; for ``.gltf`` its ``.bin`` too).
+
+    Raises
+    ------
+    OptionError
+        ``path`` is not a file name, is ``-``, a directory, a device, in a missing directory, or has a suffix
+        not in :data:`WRITE_SUFFIXES`; ``mesh`` is not a :class:`~pmwm_codec.mesh.Mesh`.
+    WatermarkKeyError
+        ``path`` (or the ``.bin`` of a ``.gltf``) names a watermark key file: a key is never replaced.
+    MeshError
+        The mesh's arrays are not a triangle mesh (:func:`~pmwm_codec.mesh.mesh_arrays`).
     """
-    path = os.fspath(path)
-    suffix = _suffix(path, WRITE_SUFFIXES)
-    positions = np.ascontiguousarray(mesh.positions, dtype="<f4")
-    faces = np.ascontiguousarray(mesh.faces, dtype="<u4")
+    path, suffix = _checked_output(path, WRITE_SUFFIXES)
+    if not isinstance(mesh, Mesh):
+        raise OptionError(f"write_mesh: mesh must be a Mesh, got {type(mesh).__name__}")
+    pos, tri = mesh_arrays(mesh.positions, mesh.faces, "write_mesh: mesh")
+    positions = np.ascontiguousarray(pos, dtype="<f4")
+    faces = np.ascontiguousarray(tri, dtype="<u4")
     if suffix == ".gltf":
         _write_gltf(path, positions, faces)
         return
@@ -63,19 +80,25 @@ def write_mesh(path: str | os.PathLike[str], mesh: Mesh) -> None:
     _write(path, writer(positions, faces))
 
 
-def write_asset(path, glb: bytes) -> None:
-    """Write the bytes of an ordinary GLB document as ``.glb``, or as ``.gltf`` (buffer embedded as base64)."""
-    path = os.fspath(path)
-    suffix = _suffix(path, (".glb", ".gltf"))
+def write_asset(path: str | bytes | os.PathLike[str], glb) -> None:
+    """Write the bytes-like ``glb`` of an ordinary GLB document as ``.glb``, or as ``.gltf`` (buffer
+    embedded as base64); ``path`` is checked as :func:`write_mesh` checks it."""
+    from .sources import byte_view
+
+    path, suffix = _checked_output(path, (".glb", ".gltf"))
+    glb = byte_view(glb, "write_asset: glb")
     _write(path, [glb if suffix == ".glb" else glb_to_gltf(glb)])
 
 
-def _suffix(path: str, allowed) -> str:
+def _checked_output(path, allowed) -> tuple:
+    """``(path as str, its suffix)`` once :func:`~pmwm_codec.options.check_output_path` passed it and the suffix
+    is one of ``allowed``; OptionError or WatermarkKeyError otherwise."""
+    path = check_output_path(path, "mesh")
     suffix = os.path.splitext(path)[1].lower()
     if suffix not in allowed:
-        raise ValueError(
-            f"{path}: unknown output format {suffix or '(no suffix)'!r}; use one of {', '.join(allowed)}")
-    return suffix
+        raise OptionError(
+            f"{shown_path(path)}: unknown output format {suffix or '(no suffix)'!r}; use one of {', '.join(allowed)}")
+    return path, suffix
 
 
 def _write(path: str, parts) -> None:
@@ -114,7 +137,7 @@ def _glb_parts(positions, faces) -> list:
 def _write_gltf(path: str, positions, faces) -> None:
     """The JSON at ``path`` and its buffer at ``<stem>.bin`` (written first, so the JSON never dangles)."""
     doc, binary, _ = _gltf_document(positions, faces)
-    bin_path = os.path.splitext(path)[0] + ".bin"
+    bin_path = check_output_path(os.path.splitext(path)[0] + ".bin", "mesh")  # a key there is never replaced
     doc["buffers"][0]["uri"] = os.path.basename(bin_path)
     _write(bin_path, binary)
     _write(path, [(json.dumps(doc, indent=1) + "\n").encode("utf-8")])

@@ -8,6 +8,7 @@ naming the option and the value: never a ``KeyError`` or ``TypeError`` from deep
 
 from __future__ import annotations
 
+import errno
 import math
 import numbers
 import os
@@ -15,7 +16,8 @@ import os
 from .constants import MAX_GRID_BITS, MIN_GRID_BITS
 from .errors import OptionError
 
-__all__ = ["checked_options", "check_source", "check_destination", "checked_chunks", "refuse_mesh_suffix"]
+__all__ = ["checked_options", "check_source", "check_destination", "check_output_path", "checked_chunks",
+           "refuse_mesh_suffix"]
 
 
 def _int(name, lo, hi=None):
@@ -152,25 +154,66 @@ def check_source(src) -> None:
 
 
 def check_destination(dst, inputs=()) -> None:
-    """OptionError unless ``dst`` is a path or a binary file object (``write``); a path must not be
-    ``"-"``, name one of the ``inputs`` paths, or carry another mesh format's suffix (a ``.pmw`` is a
-    GLB); a key file is never its target (:func:`~pmwm_codec.watermark.key.refuse_key_target`)."""
-    from .sources import shown_path
-    from .watermark.key import refuse_key_target, same_path
+    """OptionError unless ``dst`` is a path or a binary file object a ``.pmw`` can be written to whole.
+
+    A path goes through :func:`check_output_path` (not ``"-"``, a directory, a device, a missing
+    directory, one of the ``inputs`` paths or a key file) and must not carry another mesh format's
+    suffix (a ``.pmw`` is a GLB); a file object through
+    :func:`~pmwm_codec.sources.check_file_object` (open, binary, writable, blocking).
+    """
+    from .sources import check_file_object
 
     if not _is_path(dst):
         if not callable(getattr(dst, "write", None)):
             raise OptionError(f"dst must be a path or a binary file open for writing, got {type(dst).__name__}")
+        check_file_object(dst, "dst", "write")
         return
-    path = os.fspath(dst)
-    if path == "-":
-        raise OptionError("dst '-': a .pmw is written to a file or a file object, not to a name for standard output")
+    path = check_output_path(dst, ".pmw", inputs=inputs)
     refuse_mesh_suffix(path)
+
+
+def check_output_path(path, what: str, inputs=(), key: bool = False) -> str:
+    """``path`` (a ``str``, ``bytes`` or ``os.PathLike`` naming an output, a ``what``: ".pmw", "mesh", "key")
+    as a ``str`` once it is known that a file can be published there, checked before any work.
+
+    Raises OptionError when it is not a path, is empty (an unset variable), ``-`` (nothing goes to
+    standard output), ends with a separator or is a directory, is a device, FIFO or socket
+    (:func:`~pmwm_codec.atomic.check_replaceable`), cannot be a file name (too long, a file as a
+    directory), when its directory is missing or not writable, or when it is one of the ``inputs``
+    paths; WatermarkKeyError when, unless it is itself a ``key``, it names a key file
+    (:func:`~pmwm_codec.watermark.key.refuse_key_target`).  The messages are those of ``pmw``.
+    """
+    from .atomic import check_replaceable
+    from .sources import path_argument, shown_path
+    from .watermark.key import refuse_key_target, same_path
+
+    path = path_argument(path, f"the {what} path")
+    shown = shown_path(path)
+    if path == "":
+        raise OptionError(f"the {what} path is empty (an unset variable?): give a file name")
+    if path == "-":
+        raise OptionError(f"-: the {what} is written to a file, not to standard output; give a file name")
+    if not key:
+        refuse_key_target(path, what)
+    if os.path.isdir(path):
+        raise OptionError(f"{shown}: is a directory; give a file name for the {what}")
+    if path.endswith(os.sep) or (os.altsep and path.endswith(os.altsep)):
+        raise OptionError(f"{shown}: ends with '{path[-1]}', so it names a directory; give a file name for the {what}")
+    try:
+        check_replaceable(path)
+    except OSError as exc:
+        why = exc.strerror if exc.errno == errno.EEXIST else f"{shown}: cannot write {what} ({exc.strerror or exc})"
+        raise OptionError(why) from None
+    directory = os.path.dirname(os.path.abspath(path)) or "."
+    if not os.path.isdir(directory):
+        raise OptionError(f"{shown}: cannot write {what}: directory {directory} does not exist")
+    if not os.access(directory, os.W_OK):
+        raise OptionError(f"{shown}: cannot write {what}: directory {directory} is not writable")
     for source in inputs:
         if _is_path(source) and same_path(source, path):
-            raise OptionError(f"{shown_path(path)}: is also the input {shown_path(source)}; writing it would "
-                              "replace the input")
-    refuse_key_target(path, ".pmw")
+            raise OptionError(f"{shown}: is also the input {shown_path(source)}; give the {what} another name "
+                              "(writing it would replace the input)")
+    return path
 
 
 def refuse_mesh_suffix(path) -> None:

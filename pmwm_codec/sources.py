@@ -4,13 +4,21 @@ Every reader of the package takes a *source*:
 
 * a path (``str`` or ``os.PathLike``);
 * ``"-"`` or ``sys.stdin``: standard input, read as bytes;
-* bytes-like (``bytes``, ``bytearray``, ``memoryview``);
-* a binary file object (anything with ``read``; ``read1`` is preferred);
+* bytes-like: anything with the buffer protocol (``bytes``, ``bytearray``, ``memoryview`` of any
+  shape or stride, ``array.array``, a numpy array), read as its bytes in C order;
+* a binary file object (anything with ``read``; ``read1`` is preferred), open, readable and blocking;
 * an iterable of bytes-like blocks.
+
+:func:`checked_source` is the one gate: every reader (:func:`iter_blocks`, :func:`read_all`,
+:func:`source_size`, :func:`pmwm_codec.format.reader.read_header`) takes its source through it, so
+each accepts the same sources and refuses the rest with the same
+:class:`~pmwm_codec.errors.OptionError` (an int, ``None``, a file opened in text mode, a closed
+file, a non-blocking file, blocks that are not bytes).
 """
 
 from __future__ import annotations
 
+import io
 import os
 import sys
 from collections.abc import Iterable
@@ -31,16 +39,42 @@ def resolve_stdin(source):
     return source
 
 
-def iter_blocks(source, block_size: int = DEFAULT_BLOCK_SIZE):
-    """Yield the bytes of ``source`` as bytes-like blocks of at most ``block_size`` bytes.
+def checked_source(source):
+    """``source`` in the form the readers take it; :class:`~pmwm_codec.errors.OptionError` naming it when
+    it is none of the sources listed in the module docstring.
 
-    Bytes-like sources come out whole, as one block; an iterable's blocks come out
-    as they are.  A path is opened and closed here; a file object is not closed.
+    Returns a path (``str`` / ``os.PathLike``, unchanged), a flat byte memoryview (format ``"B"``,
+    C-contiguous; a strided buffer is copied: :func:`byte_view`), a file object known to be open,
+    binary, readable and blocking (:func:`check_file_object`; ``"-"`` and ``sys.stdin`` are
+    ``sys.stdin.buffer``), or an iterable, whose blocks :func:`iter_blocks` checks as they come.
     """
-    if isinstance(source, (bytes, bytearray, memoryview)):
+    source = resolve_stdin(source)
+    if isinstance(source, (str, os.PathLike)):
+        return source
+    if _has_buffer(source):
+        return byte_view(source, "the source")
+    if hasattr(source, "read"):
+        check_file_object(source, "the source", "read")
+        return source
+    if not hasattr(source, "__iter__"):
+        from .errors import OptionError
+
+        raise OptionError(f"the source must be a path, '-', bytes, a binary file object or an iterable of byte "
+                          f"blocks, got {type(source).__name__}")
+    return source
+
+
+def iter_blocks(source, block_size: int = DEFAULT_BLOCK_SIZE):
+    """Yield the bytes of ``source`` (:func:`checked_source`) as flat bytes-like blocks of at most
+    ``block_size`` bytes.
+
+    A bytes-like source comes out whole, as one block; an iterable's blocks come out as they
+    are (as byte memoryviews).  A path is opened and closed here; a file object is not closed.
+    """
+    source = checked_source(source)
+    if isinstance(source, memoryview):
         yield source
         return
-    source = resolve_stdin(source)
     if isinstance(source, (str, os.PathLike)):
         with open_regular_file(source) as fh:
             yield from iter_blocks(fh, block_size)
@@ -48,40 +82,106 @@ def iter_blocks(source, block_size: int = DEFAULT_BLOCK_SIZE):
     if hasattr(source, "read"):
         read = getattr(source, "read1", None) or source.read
         while True:
-            block = read(block_size)
+            block = read_block(read, block_size)
             if not block:
                 return
-            byte_view(block, "the file object's read()")
             yield block
         return
-    if not hasattr(source, "__iter__"):
+    for block in source:
+        yield byte_view(block, "a block of the source")
+
+
+def read_block(read, size: int) -> memoryview:
+    """``read(size)`` of a source's file object as a flat byte memoryview (empty at the end);
+    OptionError when it gives None (a non-blocking file with no data ready: the end of the
+    data would be taken for the end of the file) or anything but bytes."""
+    block = read(size)
+    if block is None:
         from .errors import OptionError
 
-        raise OptionError(f"the source must be a path, '-', bytes, a binary file object or an iterable of byte "
-                          f"blocks, got {type(source).__name__}")
-    for block in source:
-        byte_view(block, "a block of the source")
-        yield block
+        raise OptionError("the source: the file object's read() gave None (a non-blocking file with no data ready); "
+                          "give a blocking file")
+    return byte_view(block, "the file object's read()")
+
+
+def check_file_object(fileobj, what: str, use: str) -> None:
+    """OptionError naming ``what`` unless the file object ``fileobj`` can ``use`` (``"read"`` or
+    ``"write"``) bytes whole: open, binary (not a ``TextIOBase``, no text ``mode``), readable /
+    writable, and blocking (a non-blocking file reads or writes nothing when it is not ready: a
+    ``.pmw`` would be cut short, and the end of the data taken for the end of the file)."""
+    from .errors import OptionError
+
+    kind = type(fileobj).__name__
+    if getattr(fileobj, "closed", False) is True:
+        raise OptionError(f"{what}: the file object ({kind}) is closed")
+    mode = getattr(fileobj, "mode", None)  # of a file-like of no io class: "w" is text (a zip member's "r" is not)
+    binary = isinstance(fileobj, (io.BufferedIOBase, io.RawIOBase))
+    if isinstance(fileobj, io.TextIOBase) or (not binary and isinstance(mode, str) and "b" not in mode):
+        raise OptionError(f"{what}: a file object in text mode ({kind}, its {use}() "
+                          f"{'gives' if use == 'read' else 'takes'} str): open the file in binary mode ('{use[0]}b')")
+    able_name, doing = {"read": ("readable", "reading"), "write": ("writable", "writing")}[use]
+    able = getattr(fileobj, able_name, None)
+    try:
+        usable = able() if callable(able) else True
+    except (OSError, ValueError):
+        usable = True  # no answer: its read() / write() will say
+    if usable is False:
+        raise OptionError(f"{what}: the file object ({kind}) is not open for {doing}")
+    try:
+        blocking = os.get_blocking(fileobj.fileno())
+    except (AttributeError, OSError, ValueError, TypeError):  # no descriptor (BytesIO): never waits
+        blocking = True
+    if not blocking:
+        raise OptionError(f"{what}: the file object ({kind}) is in non-blocking mode, where a {use} that would wait "
+                          f"does nothing; give a blocking file (os.set_blocking(fd, True))")
+
+
+def _has_buffer(obj) -> bool:
+    """Whether ``obj`` has the buffer protocol (bytes, bytearray, memoryview, array.array, numpy arrays)."""
+    if isinstance(obj, (bytes, bytearray, memoryview)):
+        return True
+    try:
+        memoryview(obj)
+    except TypeError:
+        return False
+    return True
 
 
 def byte_view(data, what: str) -> memoryview:
-    """``data`` as a flat byte memoryview; :class:`~pmwm_codec.errors.OptionError` naming ``what`` when it
-    is not bytes-like (a ``str`` from a file opened in text mode, say)."""
+    """``data`` as a flat, C-contiguous byte memoryview (a strided buffer, such as ``memoryview(a)[::2]``
+    or a transposed array, is copied in C order); :class:`~pmwm_codec.errors.OptionError` naming
+    ``what`` when it has no buffer (a ``str`` from a file opened in text mode, say)."""
     try:
-        return memoryview(data).cast("B")
+        view = memoryview(data)
     except TypeError:
         from .errors import OptionError
 
         hint = ": open the file in binary mode ('rb')" if isinstance(data, str) else ""
-        raise OptionError(f"{what}: bytes-like data expected (bytes, bytearray, memoryview), got "
+        raise OptionError(f"{what}: bytes-like data expected (bytes, bytearray, memoryview, a numpy array), got "
                           f"{type(data).__name__}{hint}") from None
+    if not view.c_contiguous:
+        view = memoryview(view.tobytes())
+    return view.cast("B")
 
 
 def read_all(source) -> bytes:
-    """All bytes of ``source`` as one ``bytes`` object."""
-    if isinstance(source, (bytes, bytearray, memoryview)):
-        return bytes(source)
-    return b"".join(bytes(b) for b in iter_blocks(source, 1 << 20))
+    """All bytes of ``source`` (:func:`checked_source`) as one ``bytes`` object."""
+    source = checked_source(source)
+    if isinstance(source, memoryview):
+        return source.tobytes()
+    return b"".join(iter_blocks(source, 1 << 20))
+
+
+def source_size(source) -> int | None:
+    """The byte size of ``source`` (:func:`checked_source`): a bytes-like source's, a path's (a regular
+    file's size on disk), or None when it cannot be known without reading it all (a file object, an
+    iterable, standard input)."""
+    source = checked_source(source)
+    if isinstance(source, memoryview):
+        return source.nbytes
+    if isinstance(source, (str, os.PathLike)):
+        return os.path.getsize(source)
+    return None
 
 
 def shown_path(path) -> str:
@@ -165,6 +265,20 @@ def read_regular_file(path, limit: int, error, label=None, *, follow_symlinks: b
     if size > limit:
         raise error(f"{label}: more than the limit of {limit:,} bytes")
     return b"".join(chunks)
+
+
+def path_argument(path, what: str) -> str:
+    """``path`` (``str``, ``bytes`` or ``os.PathLike``) as a ``str`` file name;
+    :class:`~pmwm_codec.errors.OptionError` naming ``what`` for anything else (a file object, an int,
+    None: a function that takes a file by its name)."""
+    try:
+        if isinstance(path, (str, bytes, os.PathLike)):
+            return os.fsdecode(os.fspath(path))
+    except TypeError:  # an os.PathLike whose __fspath__ gives neither str nor bytes
+        pass
+    from .errors import OptionError
+
+    raise OptionError(f"{what} must be a file name (str, bytes or os.PathLike), got {type(path).__name__}")
 
 
 def check_input_path(path, what: str) -> str:

@@ -2,7 +2,8 @@
 
 Nothing here reads files: an icosphere (deliberately not a unit sphere and
 off-centre, so a swapped Draco attribute or a lost origin shows in the bounding
-radius) and a ``.pmw`` built from it with random opaque chunk payloads.
+radius) and a ``.pmw`` built from it with random opaque chunk payloads; and a closed
+file object, a source or destination every reader and writer must refuse by name.
 """
 
 from __future__ import annotations
@@ -80,3 +81,10 @@ def edit_chunk_table(ext: dict, edit) -> None:
     entries = chunk_entries(ext, 0)
     edit(entries)
     ext["chunks"] = compact_chunks(entries)
+
+
+def closed_file(path, mode: str = "rb"):
+    """A file object of ``path`` opened in ``mode`` ("wb" creates the file) and closed."""
+    fh = open(path, mode)
+    fh.close()
+    return fh

@@ -15,6 +15,7 @@ import pytest
 import pmwm_codec
 from pmwm_codec import shapes
 from pmwm_codec.errors import InputFormatError, OptionError, PmwError, WatermarkKeyError
+from samples import closed_file
 
 MESH = shapes.demo_mesh(60)
 
@@ -256,3 +257,164 @@ def test_a_reference_watermark_of_another_size_than_the_keys_is_refused_before_a
         verify_stream(blocks(), key, png)
     assert read == []
     assert list(pmwm_codec.iter_decode(pmw, key=key, watermark=image))[-1].nc == 1.0
+
+
+# --- outputs: a destination is checked before any work, and a file object gets every byte ---------------------
+
+
+@pytest.fixture
+def no_work(monkeypatch):
+    """Fails the test if the encode gets as far as reading the mesh: a refusal must come before any work."""
+    def read(src):
+        raise AssertionError("the encode started its work before refusing its destination")
+    monkeypatch.setattr(pmwm_codec, "_as_mesh", read)
+
+
+def _text_file(tmp_path):
+    return open(tmp_path / "text.pmw", "w")
+
+
+@pytest.mark.parametrize("dst, words", [
+    ("adir", "adir: is a directory; give a file name for the .pmw"),
+    ("slash.pmw/", "slash.pmw/: ends with '/'"),
+    ("nodir/x.pmw", "directory .*nodir does not exist"),
+    ("/dev/null", "/dev/null: is not a regular file"),
+    ("", "the .pmw path is empty"),
+    (_text_file, "text mode.*open the file in binary mode"),
+    (lambda tmp_path: io.StringIO(), "text mode"),
+    (lambda tmp_path: closed_file(tmp_path / "closed.pmw", "wb"), "is closed"),
+    (lambda tmp_path: open(tmp_path / "adir" / "r.pmw", "rb"), "not open for writing"),
+])
+def test_a_destination_that_cannot_take_the_pmw_is_refused_before_any_work(tmp_path, monkeypatch, no_work, dst,
+                                                                            words):
+    """Each was a bare OSError or TypeError raised after the whole encode (simplify, embed, measure), and
+    ``slash.pmw/`` named a hidden temporary file."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "adir").mkdir()
+    (tmp_path / "adir" / "r.pmw").write_bytes(b"")
+    target = dst(tmp_path) if callable(dst) else dst
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
+    with pytest.raises(OptionError, match=words) as info:
+        pmwm_codec.encode(MESH, target)
+    assert ".tmp" not in str(info.value)
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["adir", *before] and os.listdir(tmp_path / "adir") == ["r.pmw"]
+    if hasattr(target, "close"):
+        target.close()
+
+
+class _ShortWrites(io.RawIOBase):
+    """A raw file whose ``write()`` takes at most ``most`` bytes a call (legal: it returns the count), and after
+    ``stall_after`` bytes returns ``stall`` (None: a non-blocking file that is not ready)."""
+
+    def __init__(self, most=100, stall_after=None, stall=None):
+        self.data, self.most, self.stall_after, self.stall = bytearray(), most, stall_after, stall
+
+    def writable(self):
+        return True
+
+    def write(self, b):
+        if self.stall_after is not None and len(self.data) >= self.stall_after:
+            return self.stall
+        b = bytes(b)[: self.most]
+        self.data += b
+        return len(b)
+
+
+def test_a_raw_file_objects_short_writes_are_written_again_until_the_whole_pmw_is_out(tmp_path):
+    """``encode`` ignored the count ``write()`` returned: it reported success with 2,229 of 14,904 bytes in
+    the file object, a valid prefix that decodes to a coarser mesh, and published the new key."""
+    out = _ShortWrites()
+    report = pmwm_codec.encode(MESH, out, watermark=_image(0), key=tmp_path / "k.key.json", measure="none")
+    assert report["bytes"] == len(out.data)
+    assert pmwm_codec.decode(bytes(out.data)).vertex_count == MESH.vertex_count
+    assert pmwm_codec.verify_stream(bytes(out.data), tmp_path / "k.key.json").verdict == "authentic"
+
+
+@pytest.mark.parametrize("stall, words", [(None, "gave None"), (0, "wrote nothing")])
+def test_a_file_object_that_stops_taking_bytes_is_an_error_and_the_new_key_is_not_kept(tmp_path, stall, words):
+    out = _ShortWrites(stall_after=300, stall=stall)
+    with pytest.raises(OptionError, match=f"write\\(\\) {words}.* after [0-9,]+ of [0-9,]+ bytes: the output is incomplete"):
+        pmwm_codec.encode(MESH, out, watermark=_image(0), key=tmp_path / "k.key.json", measure="none")
+    assert list(tmp_path.iterdir()) == []  # the key of a file that was not written whole is not published
+
+
+def test_a_non_blocking_file_object_is_refused_before_any_work(tmp_path, no_work):
+    """A non-blocking pipe took 4,024 of 14,856 bytes (the rest: ``write()`` returned None) and encode said OK."""
+    r, w = os.pipe()
+    os.set_blocking(w, False)
+    with os.fdopen(r, "rb") as reader, os.fdopen(w, "wb", buffering=0) as dst:
+        with pytest.raises(OptionError, match="non-blocking mode"):
+            pmwm_codec.encode(MESH, dst, watermark=_image(0), key=tmp_path / "k.key.json")
+        dst.close()
+        assert reader.read() == b""
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("key, words", [("", "the key path is empty"), ("nodir/k.key.json", "nodir does not exist"),
+                                        ("kdir/", "ends with '/'"), ("x" * 300 + ".key.json", "File name too long")])
+def test_a_key_path_no_key_can_be_written_at_is_refused_before_any_work(tmp_path, monkeypatch, no_work, key, words):
+    """``key=''`` (an unset variable) was taken until the publish step, which raised FileNotFoundError naming a
+    hidden temporary file in the parent directory."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(OptionError, match=words) as info:
+        pmwm_codec.encode(MESH, "m.pmw", watermark=_image(0), key=key)
+    assert ".tmp" not in str(info.value)
+    assert list(tmp_path.iterdir()) == [] and not any(".tmp" in p.name for p in tmp_path.parent.iterdir())
+
+
+# --- read_mesh / write_mesh: the arguments, and a key file is never a mesh's target ---------------------------
+
+
+@pytest.mark.parametrize("name", ["secret.obj", "secret.ply", "secret.stl", "secret.glb", "secret.gltf", "m.key.json"])
+def test_write_mesh_never_replaces_a_key_file_as_pmw_decode_does_not(tmp_path, name):
+    """``write_mesh('secret.ply', mesh)`` wrote the mesh over a key saved under that name (``pmw decode`` refused)."""
+    pmwm_codec.encode(MESH, tmp_path / "a.pmw", watermark=_image(0), measure="none")
+    key = (tmp_path / "a.pmw.key.json").read_bytes()
+    (tmp_path / name).write_bytes(key)
+    with pytest.raises(WatermarkKeyError, match="names a watermark key file; a mesh never replaces a key"):
+        pmwm_codec.write_mesh(tmp_path / name, MESH)
+    assert (tmp_path / name).read_bytes() == key
+
+
+def test_write_mesh_never_replaces_a_key_file_beside_a_gltf_as_its_buffer(tmp_path):
+    pmwm_codec.encode(MESH, tmp_path / "a.pmw", watermark=_image(0), measure="none")
+    key = (tmp_path / "a.pmw.key.json").read_bytes()
+    (tmp_path / "m.bin").write_bytes(key)
+    with pytest.raises(WatermarkKeyError, match="m.bin: names a watermark key file"):
+        pmwm_codec.write_mesh(tmp_path / "m.gltf", MESH)
+    assert (tmp_path / "m.bin").read_bytes() == key and not (tmp_path / "m.gltf").exists()
+
+
+@pytest.mark.parametrize("path, mesh, error, words", [
+    ("w.pmw", MESH, OptionError, "unknown output format '.pmw'"),
+    ("-", MESH, OptionError, "not to standard output"),
+    ("adir.obj", MESH, OptionError, "is a directory"),
+    ("nodir/w.obj", MESH, OptionError, "nodir does not exist"),
+    (io.BytesIO(), MESH, OptionError, "must be a file name .*got BytesIO"),
+    (5, MESH, OptionError, "must be a file name .*got int"),
+    ("w.obj", None, OptionError, "mesh must be a Mesh, got NoneType"),
+    ("w.obj", (MESH.positions, MESH.faces), OptionError, "mesh must be a Mesh, got tuple"),
+    ("w.obj", pmwm_codec.Mesh(MESH.positions, MESH.faces[:, :2]), pmwm_codec.errors.MeshError, "must be triangles"),
+    ("w.obj", pmwm_codec.Mesh(MESH.positions, MESH.faces + 10 ** 6), pmwm_codec.errors.MeshError, "out of range"),
+])
+def test_write_mesh_names_a_wrong_argument_with_a_pmw_error_and_writes_nothing(tmp_path, monkeypatch, path, mesh,
+                                                                               error, words):
+    """Each raised ValueError, TypeError (``os.fspath``), AttributeError (``.positions``) or OSError."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "adir.obj").mkdir()
+    with pytest.raises(error, match=words):
+        pmwm_codec.write_mesh(path, mesh)
+    assert [p.name for p in tmp_path.iterdir()] == ["adir.obj"]
+
+
+def test_read_mesh_takes_a_file_name_and_names_anything_else(tmp_path):
+    """``read_mesh(b"/path/cow.obj")`` said "no such file" for an existing file; a file object, an int or None
+    raised TypeError from ``os.fspath``."""
+    src = tmp_path / "m.obj"
+    pmwm_codec.write_mesh(src, MESH)
+    assert pmwm_codec.read_mesh(os.fsencode(src)) == pmwm_codec.read_mesh(src)
+    with open(src, "rb") as fh:
+        for wrong in (fh, 5, None):
+            with pytest.raises(OptionError, match=f"the mesh path must be a file name .*got {type(wrong).__name__}"):
+                pmwm_codec.read_mesh(wrong)

@@ -181,3 +181,34 @@ def test_file_without_chunks_is_complete_after_the_base():
     events = list(iter_events(data))
     assert [type(e) for e in events] == [HeaderEvent, BaseEvent, EndEvent]
     assert events[-1].complete
+
+
+@pytest.mark.parametrize("tmpfile", ["nameless (O_TMPFILE)", "named"])
+def test_a_file_whose_name_is_near_the_255_byte_limit_is_published(tmp_path, monkeypatch, tmpfile):
+    """The temporary name ``.NAME.<12 hex>.tmp`` of a valid 250-byte NAME was 18 bytes over the limit: the
+    write failed with "File name too long" though the name asked for was valid."""
+    from pmwm_codec import atomic
+
+    if tmpfile == "named":
+        monkeypatch.delattr(atomic.os, "O_TMPFILE", raising=False)
+    path = tmp_path / ("é" * 100 + "x" * 46 + ".pmw")  # 250 bytes in UTF-8
+    assert len(os.fsencode(path.name)) == 250
+    atomic.write_atomic(path, [b"data"])
+    assert os.listdir(tmp_path) == [path.name] and path.read_bytes() == b"data"
+
+
+def test_a_write_over_the_file_size_limit_names_the_file_asked_for(tmp_path):
+    """Under ``ulimit -f`` encode, decode and cut said "File too large" without naming any file."""
+    import resource
+    import subprocess
+    import sys
+
+    path = tmp_path / "big.pmw"
+    code = ("import sys; from pmwm_codec.atomic import write_atomic\n"
+            "try: write_atomic(sys.argv[1], [bytes(64 << 10)])\n"
+            "except OSError as exc: print(exc.filename, '|', exc.strerror)\n")
+    out = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, check=True,
+                         preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (16 << 10, 16 << 10)),
+                         env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
+    assert out.stdout.strip() == f"{path} | File too large"
+    assert os.listdir(tmp_path) == []

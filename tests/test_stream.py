@@ -14,6 +14,7 @@ from pmwm_codec.errors import ChecksumError, FormatError, OptionError, Truncated
 from pmwm_codec.progressive.grid import Grid
 from pmwm_codec.stream import StreamDecoder, encode_mesh
 from pmwm_codec.progressive.topology import face_keys
+from samples import closed_file
 
 
 def small_mesh():
@@ -190,7 +191,7 @@ def test_feeding_anything_but_bytes_is_an_option_error_that_leaves_the_decoder_u
 
 @pytest.mark.parametrize("source, words", [
     (5, "the source must be a path.*got int"), (None, "got NoneType"),
-    (io.StringIO("glTF"), "read\\(\\).*got str: open the file in binary mode"),
+    (io.StringIO("glTF"), "text mode.*open the file in binary mode"),
     (["glTF"], "a block of the source.*got str"), ([b"glTF", 7], "a block of the source.*got int"),
 ])
 def test_every_reader_names_a_source_it_cannot_read(source, words):
@@ -201,3 +202,70 @@ def test_every_reader_names_a_source_it_cannot_read(source, words):
             source.seek(0)
         with pytest.raises(OptionError, match=words):
             read(source)
+
+
+_READERS = {"decode": lambda s: pmwm_codec.decode(s).face_count, "iter_decode": lambda s: len(list(pmwm_codec.iter_decode(s))),
+            "decode_asset": pmwm_codec.decode_asset, "cut": pmwm_codec.cut,
+            "inspect": lambda s: {k: v for k, v in pmwm_codec.inspect(s).items() if k != "file"}}
+
+
+def _strided(data: bytes) -> memoryview:
+    """A non-contiguous memoryview whose bytes are ``data``: every other byte of a twice-as-long buffer."""
+    buf = np.zeros(2 * len(data), np.uint8)
+    buf[::2] = np.frombuffer(data, np.uint8)
+    return memoryview(buf)[::2]
+
+
+@pytest.mark.parametrize("kind", ["numpy uint8 array", "numpy (n, 4) array", "non-contiguous memoryview",
+                                  "blocks of numpy arrays"])
+def test_every_reader_reads_any_bytes_like_source_as_its_bytes(kind):
+    """A numpy array was read as zeros by decode_asset (``bytes(np.uint8(71))`` is 71 zero bytes), as nothing by
+    cut and raised IndexError in inspect; a strided memoryview was refused by decode ("expected (... memoryview),
+    got memoryview") and raised TypeError in cut."""
+    data = _cached_small_file()
+    data = data + b"\0" * (-len(data) % 4)  # a GLB is 4-byte aligned already; the (n, 4) view needs it
+    blocks = [data[i:i + 999] for i in range(0, len(data), 999)]
+    source, same = {"numpy uint8 array": (lambda: np.frombuffer(data, np.uint8), data),
+                    "numpy (n, 4) array": (lambda: np.frombuffer(data, np.uint8).reshape(-1, 4), data),
+                    "non-contiguous memoryview": (lambda: _strided(data), data),
+                    "blocks of numpy arrays": (lambda: [np.frombuffer(b, np.uint8) for b in blocks], blocks)}[kind]
+    for name, read in _READERS.items():
+        assert read(source()) == read(same), name
+
+
+@pytest.mark.parametrize("kind, words", [
+    ("closed file", "the file object \\(BufferedReader\\) is closed"),
+    ("file open for writing", "not open for reading"),
+    ("non-blocking pipe", "non-blocking mode"),
+    ("read() gives None", "read\\(\\) gave None"),
+])
+def test_every_reader_refuses_a_file_object_it_cannot_read_whole_with_one_named_error(tmp_path, kind, words):
+    """A closed file raised ValueError ("read of closed file"); a non-blocking file whose read() gives None (no
+    data ready) was read as ending there: a silently shorter file."""
+    import os
+
+    path = tmp_path / "m.pmw"
+    path.write_bytes(_cached_small_file())
+
+    class NoDataYet(io.RawIOBase):
+        def readable(self):
+            return True
+
+        def readinto(self, b):
+            return None
+
+    def non_blocking_pipe():
+        r, w = os.pipe()
+        os.write(w, _cached_small_file()[:1000])
+        os.set_blocking(r, False)
+        return os.fdopen(r, "rb", buffering=0)
+
+    make = {"closed file": lambda: closed_file(path), "file open for writing": lambda: open(tmp_path / "w", "wb"),
+            "non-blocking pipe": non_blocking_pipe, "read() gives None": NoDataYet}[kind]
+    for name, read in _READERS.items():
+        source = make()
+        try:
+            with pytest.raises(OptionError, match=words):
+                read(source)
+        finally:
+            source.close()

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 import zstandard
 
-from ..atomic import write_atomic
+from ..atomic import write_atomic, write_stream
 from ..constants import EXTENSION_NAME, FORMAT_VERSION, MAX_CHUNK_BYTES, MAX_CHUNKS, MAX_DECOMPRESSED_CHUNK_BYTES
 from ..errors import FormatError, InputFormatError
 from .base import EncodedBase, decode_base_attributes
@@ -423,15 +423,12 @@ def split_glb(data, name: str = "GLB") -> tuple:
 
 
 def write_parts(dst, parts) -> int:
-    """Write assembled parts to a path (atomically, mode ``0666 & ~umask``) or a binary file;
-    return the byte count.  See :mod:`pmwm_codec.atomic`."""
-    size = sum(len(p) for p in parts)
+    """Write assembled parts to a path (atomically, mode ``0666 & ~umask``) or a binary file object
+    (every byte, or an error: :func:`~pmwm_codec.atomic.write_stream`); return the byte count.
+    See :mod:`pmwm_codec.atomic`."""
     if not isinstance(dst, (str, os.PathLike)):
-        for part in parts:
-            dst.write(part)
-        return size
-    write_atomic(dst, parts)
-    return size
+        return write_stream(dst, parts)
+    return write_atomic(dst, parts)
 
 
 def build_pmw(*, base: EncodedBase, chunks, chunk_meta, extension: dict, zstd_level: int = 10) -> bytes:

@@ -22,7 +22,7 @@ from .base import base_counts, base_vertex_count
 from .extension import chunk_start, is_face_chunk
 from .gltf import DRACO_EXTENSION, find_extension_primitives
 from .reader import read_header
-from ..sources import Source
+from ..sources import Source, source_size
 
 __all__ = ["inspect"]
 
@@ -41,7 +41,7 @@ def inspect(source: Source) -> dict[str, Any]:
     source = as_source(source, 0)  # a URL: the header only is fetched
     header = read_header(source)
     gltf = header.gltf_json
-    size = _size(source)
+    size = source_size(source)
     prims, rows = _primitives(gltf, header.extensions or (header.extension,), header.bin_offset, size)
     chunks = [dict(chunk=i + 1, **row) for i, (_, row) in enumerate(sorted(rows, key=lambda r: r[0]))]
     complete = None if size is None else size >= header.total_length
@@ -90,15 +90,6 @@ def _primitives(gltf: dict, exts, bin_offset: int, size):
                 "bytes": c["byteLength"], "geometric_error": c.get("geometricError"),
                 "present": None if size is None else end <= size}))
     return prims, rows
-
-
-def _size(source):
-    """The byte size of ``source``, or None when it cannot be known without reading it all."""
-    if isinstance(source, (bytes, bytearray, memoryview)):
-        return len(source)
-    if isinstance(source, (str, os.PathLike)) and source != "-":
-        return os.path.getsize(source)
-    return None
 
 
 def _name(source):

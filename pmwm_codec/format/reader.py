@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 
 from ..errors import TruncatedError
-from ..sources import DEFAULT_BLOCK_SIZE, byte_view, iter_blocks, open_regular_file, resolve_stdin
+from ..sources import DEFAULT_BLOCK_SIZE, checked_source, iter_blocks, open_regular_file, read_block
 from .layout import PREAMBLE_SIZE
 from .parser import ContainerParser, HeaderEvent
 
@@ -33,7 +33,7 @@ def read_header(source) -> HeaderEvent:
     A file object is left just after the JSON chunk.  Raises TruncatedError if the
     JSON is incomplete.
     """
-    source = resolve_stdin(source)
+    source = checked_source(source)
     if isinstance(source, (str, os.PathLike)):
         with open_regular_file(source) as fh:  # a FIFO never blocks; a directory is a named error
             return read_header(fh)
@@ -45,8 +45,7 @@ def read_header(source) -> HeaderEvent:
     pending = b""
     while True:
         if reader is not None:
-            block = reader(wanted - got)
-            byte_view(block, "the file object's read()")
+            block = read_block(reader, wanted - got)
         else:
             block = pending or next(blocks, b"")
             block, pending = block[: wanted - got], block[wanted - got :]
