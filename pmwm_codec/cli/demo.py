@@ -7,6 +7,7 @@ import os
 import time
 
 import pmwm_codec
+from pmwm_codec.atomic import write_atomic
 from pmwm_codec.figures import write_figures
 from pmwm_codec.shapes import demo_mesh
 from pmwm_codec.verify import verify_stream
@@ -54,8 +55,7 @@ def run(args) -> int:
     with open(pmw, "rb") as fh:
         data = fh.read()
     cut = os.path.join(out, "demo-cut.pmw")
-    with open(cut, "wb") as fh:
-        fh.write(data[: int(len(data) * CUT_FRACTION)])
+    write_atomic(cut, [data[: int(len(data) * CUT_FRACTION)]])  # whole or not at all, as every output
     say(f"3. cut the file at a third: {cut} ({int(len(data) * CUT_FRACTION):,} of {len(data):,} bytes)")
 
     for step, (label, path, sub) in enumerate((("cut", cut, "cut"), ("whole", pmw, "whole")), start=4):
