@@ -346,6 +346,17 @@ def test_info_of_a_truncated_file(work, tmp_path, capsys):
     assert "TRUNCATED" in run(capsys, "info", cut)[1]
 
 
+def test_info_refuses_bytes_after_the_declared_length_as_decode_does(work, tmp_path, capsys):
+    """A file longer than its GLB header says is refused by decode and verify; info said "complete"."""
+    longer = tmp_path / "longer.pmw"
+    longer.write_bytes(work["pmw"].read_bytes() + b"\0" * 100)
+    for argv in (("info", longer), ("info", longer, "--json"), ("decode", longer, "-o", tmp_path / "out.obj")):
+        code, stdout, err = run(capsys, *argv)
+        assert code == 2 and stdout == "", argv
+        assert "100 bytes after the declared file length" in err and err.count("\n") == 1, err
+    assert not (tmp_path / "out.obj").exists()
+
+
 # -- bad input: exit 2, one line, no traceback, nothing left behind -----------------------
 
 def _bad_cases(work, d):

@@ -21,6 +21,7 @@ from ..constants import EXTENSION_NAME
 from .base import base_counts, base_vertex_count
 from .extension import chunk_start, is_face_chunk
 from .gltf import DRACO_EXTENSION, find_extension_primitives
+from .parser import trailing_bytes
 from .reader import read_header
 from ..sources import Source, source_size
 
@@ -42,6 +43,8 @@ def inspect(source: Source) -> dict[str, Any]:
     header = read_header(source)
     gltf = header.gltf_json
     size = source_size(source)
+    if size is not None and size > header.total_length:
+        raise trailing_bytes(size, header.total_length)  # as decode and verify refuse it
     prims, rows = _primitives(gltf, header.extensions or (header.extension,), header.bin_offset, size)
     chunks = [dict(chunk=i + 1, **row) for i, (_, row) in enumerate(sorted(rows, key=lambda r: r[0]))]
     complete = None if size is None else size >= header.total_length

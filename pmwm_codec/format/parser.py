@@ -145,6 +145,13 @@ class EndEvent:
 # ------------------------------------------------------------------ header sniff
 
 
+def trailing_bytes(size: int, total: int) -> FormatError:
+    """The error of a file of ``size`` bytes longer than the GLB's declared ``total`` length (every reader
+    refuses the bytes after it: they are no part of the file, and a reader that took them would disagree
+    with one that stopped at the declared length)."""
+    return FormatError(f"GLB: {size - total} bytes after the declared file length {total}")
+
+
 def parse_preamble(data) -> tuple[int, int]:
     """``(total_length, json_length)`` from the first 20 bytes, or FormatError/LimitError."""
     head = bytes(data[:PREAMBLE_SIZE])
@@ -413,7 +420,7 @@ class ContainerParser:
                 return None
             self._total, self._json_length = parse_preamble(head)
             if self._received > self._total:
-                raise FormatError(f"GLB: {self._received - self._total} bytes after the declared file length {self._total}")
+                raise trailing_bytes(self._received, self._total)
             self._state = _JSON
             return True
         if state == _JSON:
