@@ -427,3 +427,36 @@ def test_valid_lights_and_material_variants_are_carried(capsys, tmp_path, mesh):
     mapping = out["meshes"][0]["primitives"][0]["extensions"]["KHR_materials_variants"]["mappings"][0]
     assert mapping == {"material": 0, "variants": [1]}
     assert len(out["extensions"]["KHR_lights_punctual"]["lights"]) == 1
+
+
+def _floats_for_integers(value, shape):
+    """``value`` with every member the glTF schema types integer written as a float (``3`` -> ``3.0``)."""
+    if shape is None:
+        return value
+    if shape["integer"] and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if isinstance(value, dict):
+        return {k: _floats_for_integers(v, shape["properties"].get(k, shape["additional"])) for k, v in value.items()}
+    if isinstance(value, list) and shape["items"] is not None:
+        return [_floats_for_integers(v, shape["items"]) for v in value]
+    return value
+
+
+def test_integers_written_as_integral_floats_encode_as_the_integers_and_come_out_as_ints(capsys, tmp_path, mesh):
+    """JSON does not tell ``3`` from ``3.0`` (spec README, *JSON numbers*): a document whose every integer
+    member is an integral float (as some writers emit) encodes exactly as the integer document, and the
+    ``.pmw`` holds ints (the Khronos validator refuses ``3.0`` where glTF wants an integer).  A fractional
+    value is still refused by name."""
+    from pmwm_codec.format.gltf import _gltf_integers
+
+    doc = gltf_doc(mesh, images=[PNG_URI])
+    doc["samplers"] = [{"magFilter": 9729, "wrapS": 33648}]
+    doc["textures"][0]["sampler"] = 0
+    floated = _floats_for_integers(json.loads(json.dumps(doc)), _gltf_integers())
+    assert floated["accessors"][0]["count"] == float(mesh.vertex_count) and isinstance(floated["scene"], float)
+    plain = encoded(capsys, tmp_path / "a", doc)
+    gltf = encoded(capsys, tmp_path / "b", floated)
+    assert json.dumps(gltf, sort_keys=True) == json.dumps(plain, sort_keys=True)  # ints, not "3.0"
+    assert (tmp_path / "a" / "out.pmw").read_bytes() == (tmp_path / "b" / "out.pmw").read_bytes()
+    floated["accessors"][0]["count"] = mesh.vertex_count + 0.5
+    refused(capsys, tmp_path / "c", floated, "accessors[0]", "count")

@@ -244,7 +244,7 @@ WRONG_TYPES = {
     "count is 2^36": lambda d: d["accessors"][0].update(count=1 << 36),
     "count is 2^36 without a bufferView": lambda d: d["accessors"][1].pop("bufferView") and
     d["accessors"][1].update(count=3 << 34),
-    "count is a float": lambda d: d["accessors"][0].update(count=42.0),
+    "count is fractional": lambda d: d["accessors"][0].update(count=42.5),  # 42.0 is the integer 42
     "byteStride is negative": lambda d: d["bufferViews"][0].update(byteStride=-12),
     "byteStride is 2": lambda d: d["bufferViews"][0].update(byteStride=2),
     "byteOffset is negative": lambda d: d["accessors"][0].update(byteOffset=-4),

@@ -45,7 +45,8 @@ from ..errors import InputFormatError
 from ..sources import read_regular_file
 from .glb import split_glb
 from .gltf import (COMPONENT_DTYPES, COMPONENT_NAMES, DRACO_EXTENSION, FLOAT, INDEX_DTYPES, NORMALIZE_DIVISORS,
-                   TYPE_WIDTH, check_finite_numbers, check_json_depth, element_rows, shown_value, uint, view_bytes)
+                   TYPE_WIDTH, check_finite_numbers, check_json_depth, element_rows, gltf_integers, shown_value, uint,
+                   view_bytes)
 from .layout import CHUNK_HEADER_SIZE, CHUNK_TYPE_JSON, GLB_HEADER_SIZE, GLB_MAGIC, padded
 from .meshopt import EXTENSIONS as MESHOPT_EXTENSIONS
 from .meshopt import decompress as decompress_meshopt
@@ -259,10 +260,12 @@ def check_document(gltf: dict, name: str) -> None:
     :data:`CARRIED_EXTENSIONS`), and that the triangle primitives
     declare no more vertices and faces in total than the encoder takes
     (:data:`MAX_ENCODE_VERTICES`, :data:`MAX_ENCODE_FACES`) — all before any
-    buffer is read or any array allocated.
+    buffer is read or any array allocated.  Members glTF types ``integer`` that hold an integral
+    float are made ints first, in place (:func:`~.gltf.gltf_integers`).
     """
     check_json_depth(gltf, name, error=InputFormatError)
     check_finite_numbers(gltf, name, InputFormatError)
+    gltf_integers(gltf)  # "count": 3.0 is the integer 3 (JSON does not tell them apart), in place
     for key in _ARRAYS:
         _objects(gltf, key, key, name)
     for key in ("extensionsUsed", "extensionsRequired"):

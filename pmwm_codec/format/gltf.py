@@ -12,6 +12,8 @@ another class (``error=InputFormatError`` for input assets).
 
 from __future__ import annotations
 
+import functools
+
 import math
 
 import numpy as np
@@ -165,6 +167,19 @@ def integer_shape(schema, schemas=None):
     if not (tree["integer"] or tree["properties"] or tree["additional"] or tree["items"]):
         return None
     return tree
+
+
+@functools.lru_cache(maxsize=None)
+def _gltf_integers() -> dict:
+    return integer_shape(document_integers({}))
+
+
+def gltf_integers(gltf: dict) -> dict:
+    """A parsed glTF 2.0 document (in place) with every member glTF's schema types ``integer`` that holds an
+    integral float made an ``int`` (``"count": 3.0`` -> ``3``; :func:`with_integers`): the encoder takes
+    an input document's integers as the readers take a ``.pmw``'s (spec README, *JSON numbers*) and writes
+    them as integers.  Members of extensions other than Draco's are left as they are."""
+    return with_integers(gltf, _gltf_integers())
 
 
 def _merged(a, b):
