@@ -220,6 +220,20 @@ def test_a_crop_grafted_onto_another_mesh_is_never_authentic(marked):
     assert r.verdict != "authentic", r.as_json()
 
 
+def test_a_graft_beside_the_whole_marked_mesh_is_tampered_and_its_vertices_are_the_ones_flagged(marked):
+    """Every code still reads (the marked mesh is whole), so the failing carriers flag nothing: the tamper
+    map must name the grafted vertices themselves (it was empty beside ``tampered``: outside probe)."""
+    data, key, _img, ref = marked
+    other = shapes.torus(12, 6)
+    size = _diagonal(ref.positions)
+    host = np.asarray(other.positions, np.float64) * 0.1 * size + ref.positions.max(axis=0) + 0.2 * size
+    positions = np.concatenate([ref.positions, host])
+    faces = np.concatenate([ref.faces, np.asarray(other.faces) + len(ref.positions)])
+    r = verify_mesh((positions, faces), data, key)
+    assert r.verdict == "tampered" and r.foreign, r.as_json()
+    assert r.tamper()["flagged"] == list(range(len(ref.positions), len(positions)))
+
+
 # ------------------------------------------------------------------- what must stay authentic
 
 

@@ -84,7 +84,7 @@ class MeshVerification:
     methods); ``watermark`` (s, s) uint8 the recovered image; ``key_matches`` False
     when the reference's public key fingerprint is another key's (then ``not-authentic``);
     ``flagged`` (f,) int64
-    vertices of the checked mesh whose carrier code no longer reads (the tamper map);
+    vertices of the checked mesh whose carrier code no longer reads, and the grafted ones (``foreign``; the tamper map);
     ``foreign`` the mesh holds vertices no reference vertex explains (registration only:
     farther than the tolerance from every reference vertex); ``binding`` the file's
     (``""``: a legacy mark, never ``authentic``).
@@ -339,10 +339,11 @@ def verify_mesh(mesh, reference_source, key, watermark=None, *, tolerance: float
     index = corr.index[order]
     nbars = None if corr.valid.all() else _partial_nbars(ref, ref.split(pts), corr)
     verifier = read_given(ref, pts, key, ref_image, nbars=nbars)
-    verifier.foreign = _foreign_vertices(m, ref, corr, tolerance) > 0 or len(apart) > 0
+    grafted = _foreign_vertices(m, ref, corr, tolerance)
+    verifier.foreign = len(grafted) > 0 or len(apart) > 0
     est = verifier.estimate()
     flagged = index[np.concatenate([ref.scene_rows(verifier.tamper(ref.starts)), apart])]
-    flagged = np.unique(flagged[flagged >= 0])
+    flagged = np.unique(np.concatenate([flagged[flagged >= 0], grafted]))  # a graft's vertices are named too
     owns = key.owns(ref.params.fingerprint)
     return MeshVerification(
         verdict=est.verdict if owns else "not-authentic", key_matches=owns, nc=est.nc, psnr_db=est.psnr_db, centered_nc=est.centered_nc, ber=est.ber,
@@ -373,18 +374,18 @@ def _robust_similarity(points: np.ndarray, target: np.ndarray, ok: np.ndarray, r
     return moved
 
 
-def _foreign_vertices(mesh: Mesh, ref: Reference, corr: Correspondence, tolerance: float) -> int:
-    """How many vertices of ``mesh`` lie farther than ``tolerance`` reference mean edges from every
-    reference vertex once registered (a graft); 0 for the topological correspondences (bijections)."""
+def _foreign_vertices(mesh: Mesh, ref: Reference, corr: Correspondence, tolerance: float) -> np.ndarray:
+    """The vertices (k,) int64 of ``mesh`` that lie farther than ``tolerance`` reference mean edges from every
+    reference vertex once registered (a graft); none for the topological correspondences (bijections)."""
     if corr.method != "registration":
-        return 0
+        return np.zeros(0, np.int64)
     from scipy.spatial import cKDTree
 
     from ..progressive.topology import mean_edge_length
 
     unit = tolerance * mean_edge_length(ref.scene_positions, ref.scene_faces)
     dist, _ = cKDTree(ref.scene_positions).query(corr.transform(np.asarray(mesh.positions, np.float64)))
-    return int(np.count_nonzero(dist > unit))
+    return np.flatnonzero(dist > unit).astype(np.int64)
 
 
 def read_given(ref: Reference, positions: np.ndarray, key, reference_image=None, *, nbars=None) -> Verifier:
