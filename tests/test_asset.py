@@ -513,6 +513,50 @@ def test_decoding_an_asset_to_obj_writes_the_scene_as_shown(tmp_path, capsys):
     assert owner_of_mesh(tmp_path / "a.obj", key).verdict == "present"
 
 
+@pytest.mark.parametrize("mode", [4, 5, 6])
+def test_decoding_to_obj_keeps_the_triangles_the_scene_shows_that_are_not_progressive(tmp_path, capsys, monkeypatch,
+                                                                                       mode):
+    """A triangle primitive the encoder passes through (here a strip or fan, or plain triangles added to a
+    ``.pmw``'s scene) is part of the scene as shown: the OBJ / PLY / STL holds it, placed by its node, as
+    the GLB does (it was dropped, so an OBJ of a file with a graft read as the marked mesh alone: outside
+    probe).  Standard input too."""
+    import io as _io
+
+    from pmwm_codec import read_mesh
+    from pmwm_codec.cli import main
+    from pmwm_codec.format.glb import split_glb
+
+    b = DocBuilder()
+    sphere = shapes.icosphere(3, noise=0.05, seed=2)
+    ring = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [0, 2, 0], [1, 2, 0]], np.float32)
+    order = {4: [0, 1, 2, 2, 1, 3, 2, 3, 4, 4, 3, 5], 5: [0, 1, 2, 3, 4, 5], 6: [2, 0, 1, 3, 5, 4]}[mode]
+    plain = {"attributes": {"POSITION": b.accessor(ring, 5126, "VEC3", 34962, True)},
+             "indices": b.accessor(np.array(order, np.uint16), 5123, "SCALAR", 34963), "mode": mode,
+             "targets": [{"POSITION": b.accessor(np.zeros_like(ring), 5126, "VEC3", 34962, True)}]}  # passed through
+    b.doc.update(scene=0, scenes=[{"nodes": [0, 1]}],
+                 nodes=[{"mesh": 0, "translation": [0.0, 3.0, 0.0]}, {"mesh": 1, "translation": [5.0, 0.0, 0.0]}],
+                 meshes=[{"primitives": [b.triangles(sphere, uv=False)]}, {"primitives": [plain]}])
+    (tmp_path / "a.glb").write_bytes(b.glb())
+    assert main(["encode", str(tmp_path / "a.glb"), "-o", str(tmp_path / "a.pmw"), "-q"]) == 0
+    gltf, _ = split_glb((tmp_path / "a.pmw").read_bytes(), "a.pmw")
+    assert "extensions" not in gltf["meshes"][1]["primitives"][0]  # not progressive
+    capsys.readouterr()
+    faces = {4: 4, 5: 4, 6: 4}[mode]
+    for out in ("a.obj", "a.ply", "a.stl"):
+        assert main(["decode", str(tmp_path / "a.pmw"), "-o", str(tmp_path / out), "--json"]) == 0
+        report = json.loads(capsys.readouterr().out)
+        assert (report["vertices"], report["faces"]) == (sphere.vertex_count + 6, sphere.face_count + faces), out
+    obj = read_mesh(tmp_path / "a.obj")
+    assert np.allclose(obj.positions[sphere.vertex_count:], ring + [5.0, 0.0, 0.0], atol=1e-6)
+    tri = obj.positions[obj.faces[sphere.face_count:]]
+    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    assert np.all(normals[:, 2] * np.sign(normals[0, 2]) > 0)  # one winding throughout, as a renderer draws it
+    assert np.allclose(obj.positions[: sphere.vertex_count].mean(0), sphere.positions.mean(0) + [0, 3, 0], atol=1e-4)
+    monkeypatch.setattr("sys.stdin", _io.TextIOWrapper(_io.BytesIO((tmp_path / "a.pmw").read_bytes())))
+    assert main(["decode", "-", "-o", str(tmp_path / "s.obj"), "-q"]) == 0
+    assert (tmp_path / "s.obj").read_bytes() == (tmp_path / "a.obj").read_bytes()
+
+
 def test_decoding_an_asset_whose_placements_do_not_read_to_obj_says_so(tmp_path, capsys):
     """GPU instancing draws a mesh where its accessors say, which the OBJ cannot follow: each primitive
     is written once as stored, and a notice names why."""

@@ -15,7 +15,9 @@ import os
 
 from pmwm_codec.http import as_source, is_url, stream_end
 from pmwm_codec.meshio import WRITE_SUFFIXES, write_asset, write_mesh
-from pmwm_codec.stream.asset import decode_asset, scene_as_shown
+from pmwm_codec.format.glb import split_glb
+from pmwm_codec.format.reader import read_header
+from pmwm_codec.stream.asset import decode_asset, plain_triangle_primitives, posed_notes, scene_as_shown
 from pmwm_codec.stream.decoder import StreamDecoder
 from pmwm_codec.stream.reader import decode_stream
 
@@ -48,21 +50,34 @@ def run(args) -> int:
         check_input_file(args.input, ".pmw file")
     check_output_path(args.output, "mesh", inputs=() if url else (args.input,))
     notices = []
-    source = as_source(args.input, args.chunks, whole_document=suffix in (".glb", ".gltf"))
     with naming(args.input):
+        # an OBJ / PLY / STL of a scene that also shows plain triangles needs their data, which may follow the
+        # chunks: the whole document (a URL's header is known only once it is read, see below)
+        plain = suffix not in (".glb", ".gltf") and not url and _shows_plain_triangles(args.input)
+        source = as_source(args.input, args.chunks, whole_document=plain or suffix in (".glb", ".gltf"))
         if suffix in (".glb", ".gltf"):  # the whole document: its images may follow the chunks
             glb, end, decoder = decode_asset(source, chunks=args.chunks)
             last, notices = decoder.last, decoder.notices
             write_asset(args.output, glb)
             counts = (last.vertices, last.faces_count)  # the document's meshes, placed by its nodes
-        else:  # a URL read by ranges fetches nothing after chunk N
-            decoder = StreamDecoder(copy=False, max_chunks=args.chunks)
-            last, end = decode_stream(source, decoder=decoder)
-            mesh, why = scene_as_shown(decoder.header.gltf_json if decoder.header is not None else None, last)
+        else:
+            if not plain:  # a URL read by ranges fetches nothing after chunk N
+                decoder = StreamDecoder(copy=False, max_chunks=args.chunks)
+                last, end = decode_stream(source, decoder=decoder)
+                gltf = decoder.header.gltf_json if decoder.header is not None else None
+                if url and plain_triangle_primitives(gltf):  # read again, whole
+                    plain, source = True, as_source(args.input, args.chunks, whole_document=True)
+                else:
+                    mesh, why = scene_as_shown(gltf, last)
+            if plain:
+                glb, end, decoder = decode_asset(source, chunks=args.chunks)
+                doc, bin_chunk = split_glb(glb, "the decoded asset")
+                mesh, why = scene_as_shown(decoder.header.gltf_json, decoder.last, plain=(doc, [bin_chunk]))
+                notices += decoder.notices + posed_notes(decoder.header.gltf_json)
             write_mesh(args.output, mesh)
             counts = (mesh.vertex_count, mesh.face_count)  # what the file holds: a mesh shown twice, twice
             if why is not None:
-                notices.append(f"{why}: the {suffix[1:].upper()} file holds each progressive primitive once, as "
+                notices.append(f"{why}: the {suffix[1:].upper()} file holds each primitive once, as "
                                "stored, not placed by the scene's nodes; decode to .glb to keep the scene")
     end = stream_end(source, end)  # a URL read up to chunk N: the file on the server may be whole
     out = {"vertices": int(counts[0]), "faces": int(counts[1]), "chunks_applied": int(end.chunks_applied),
@@ -79,6 +94,16 @@ def run(args) -> int:
         print(f"{args.output}: {out['vertices']:,} vertices, {out['faces']:,} faces "
               f"(base + {out['chunks_applied']} of {out['chunks_total']} chunks; {state})")
     return 0
+
+
+def _shows_plain_triangles(src) -> bool:
+    """Whether the scene of the ``.pmw`` at path ``src`` (its header alone is read) shows triangles that are
+    not progressive (:func:`~pmwm_codec.stream.asset.plain_triangle_primitives`), whose data an OBJ / PLY /
+    STL of the scene as shown needs; standard input, which cannot be read twice, is read whole in any
+    case (True)."""
+    if src == "-":
+        return True
+    return bool(plain_triangle_primitives(read_header(src).gltf_json))
 
 
 def _chunk_notices(asked, end) -> list:

@@ -65,6 +65,7 @@ from ..format.gltf import (
     progressive_placements,
     scene_mesh,
     uses_extension,
+    world_placements,
     view_bytes,
 )
 from ..mesh import Mesh, checked_mesh
@@ -428,25 +429,102 @@ def decode_asset(src, chunks=None):
     return b"".join(glb_parts(kept, out.parts, out.length)), end, decoder
 
 
-def scene_as_shown(gltf: dict | None, result) -> tuple:
+#: glTF primitive modes drawn as triangles.
+TRIANGLE_STRIP, TRIANGLE_FAN = 5, 6
+
+
+def plain_triangle_primitives(gltf: dict | None) -> list:
+    """``[(mesh index, primitive index)]`` of the primitives of ``gltf`` (a ``.pmw``'s document) that are
+    drawn as triangles (TRIANGLES, TRIANGLE_STRIP, TRIANGLE_FAN) but not progressive: geometry the asset
+    shows that the stream does not carry (the encoder passes such primitives through: morphs, skins,
+    strips, or any added later).  Only meshes the scene shows count (every mesh without nodes)."""
+    if not gltf:
+        return []
+    progressive = {(mi, pi) for mi, pi, _ in find_extension_primitives(gltf, EXTENSION_NAME)}
+    shown = set(placements_by_mesh(gltf)) if gltf.get("nodes") else None
+    out = []
+    for mi, mesh in enumerate(gltf.get("meshes", [])):
+        if shown is not None and mi not in shown:
+            continue
+        for pi, prim in enumerate(mesh.get("primitives", [])):
+            if (mi, pi) not in progressive and prim.get("mode", TRIANGLES) in (TRIANGLES, TRIANGLE_STRIP, TRIANGLE_FAN) \
+                    and "POSITION" in prim.get("attributes", {}):
+                out.append((mi, pi))
+    return out
+
+
+def posed_notes(gltf: dict | None) -> list:
+    """Notes for an OBJ / PLY / STL of the scene: the non-progressive triangle meshes it shows skinned or
+    with morph weights, which such a file holds at their stored positions (the bind pose, no morph), placed
+    by their nodes, while a glTF viewer poses them (:func:`plain_triangle_primitives`)."""
+    if not gltf:
+        return []
+    skinned = {n.get("mesh") for n in gltf.get("nodes", []) if isinstance(n, dict) and "skin" in n}
+    notes = []
+    for mi in sorted({mi for mi, _ in plain_triangle_primitives(gltf)}):
+        mesh = gltf["meshes"][mi]
+        weights = mesh.get("weights") if isinstance(mesh.get("weights"), list) else []
+        if mi in skinned:
+            notes.append(f"mesh {mi} is skinned: the file holds it in its stored pose, not posed by its joints")
+        elif any(isinstance(w, (int, float)) and w != 0 for w in weights):
+            notes.append(f"mesh {mi} has morph weights: the file holds its stored positions, not morphed")
+    return notes
+
+
+def _plain_triangles(doc: dict, buffers, mi: int, pi: int) -> tuple:
+    """``(positions (n, 3) float64, faces (m, 3) int64)`` of primitive ``pi`` of mesh ``mi`` of a plain
+    document (strips and fans as triangles, glTF 2.0 3.7.2.1; degenerate ones kept as stored)."""
+    prim = doc["meshes"][mi]["primitives"][pi]
+    positions = read_accessor(doc, buffers, prim["attributes"]["POSITION"])[:, :3]
+    order = (read_accessor(doc, buffers, prim["indices"])[:, 0] if "indices" in prim
+             else np.arange(len(positions), dtype=np.int64))
+    mode = prim.get("mode", TRIANGLES)
+    if mode == TRIANGLE_STRIP and len(order) >= 3:
+        i = np.arange(len(order) - 2)
+        even = (i % 2 == 0)[:, None]
+        faces = np.where(even, np.stack([order[i], order[i + 1], order[i + 2]], 1),
+                         np.stack([order[i + 1], order[i], order[i + 2]], 1))
+    elif mode == TRIANGLE_FAN and len(order) >= 3:
+        i = np.arange(1, len(order) - 1)
+        faces = np.stack([np.full(len(i), order[0]), order[i], order[i + 1]], 1)
+    else:
+        faces = order[: len(order) // 3 * 3].reshape(-1, 3)
+    if len(faces) and (faces.min() < 0 or faces.max() >= len(positions)):
+        raise InputFormatError(f"mesh {mi} primitive {pi}: an index past its {len(positions)} vertices")
+    return np.asarray(positions, np.float64), np.asarray(faces, np.int64)
+
+
+def scene_as_shown(gltf: dict | None, result, plain=None) -> tuple:
     """A level as the asset's scene shows it, for formats without nodes (OBJ, PLY, STL).
 
     ``gltf`` the ``.pmw``'s document (None: a mesh file's), ``result`` a
-    :class:`~pmwm_codec.stream.decoder.PartialResult`.  Returns ``(Mesh, None)``: every progressive
-    primitive placed by its nodes' world matrices, once per node that shows it, a mirrored showing
-    with its winding reversed (:func:`~pmwm_codec.format.gltf.scene_mesh`, oriented), as glTF
-    converters flatten a scene; the parts as stored when the scene shows each once where it is
-    stored.  ``(the parts as stored, why)`` when the placements do not read (GPU instancing, a mesh
-    the scene does not show, a scale of zero; ``why`` a phrase).
+    :class:`~pmwm_codec.stream.decoder.PartialResult`, ``plain`` ``(document, [BIN bytes])`` of the
+    asset decoded (:func:`decode_asset`) when the scene shows triangles that are not progressive
+    (:func:`plain_triangle_primitives`; None: it shows none).  Returns ``(Mesh, None)``: every
+    progressive primitive placed by its nodes' world matrices, once per node that shows it, a mirrored
+    showing with its winding reversed (:func:`~pmwm_codec.format.gltf.scene_mesh`, oriented), as glTF
+    converters flatten a scene, then the other triangle primitives the same way; the parts as stored
+    when the scene shows each once where it is stored.  ``(the parts as stored, why)`` when the
+    placements do not read (GPU instancing, a mesh the scene does not show, a scale of zero; ``why`` a
+    phrase).
     """
+    others = [] if plain is None else plain_triangle_primitives(gltf)
+    parts = [(p.positions, p.faces) for p in result.parts]
+    parts += [_plain_triangles(plain[0], plain[1], mi, pi) for mi, pi in others]
+    stored = [[np.eye(4)] for _ in parts]  # each part once, where it is stored
     if gltf is None or not placed_by_nodes(gltf):
-        return result.mesh, None
-    frames, why = progressive_placements(gltf, EXTENSION_NAME)
-    if frames is None:
-        return result.mesh, why
-    positions, faces, _ = scene_mesh([p.positions for p in result.parts], [p.faces for p in result.parts], frames,
-                                     oriented=True)
-    return Mesh(positions, faces), None
+        if not others:
+            return result.mesh, None
+        frames, why = stored, None
+    else:
+        meshes = [mi for mi, _, _ in find_extension_primitives(gltf, EXTENSION_NAME)] + [mi for mi, _ in others]
+        frames, why = world_placements(gltf, meshes)
+        if frames is None:
+            if not others:
+                return result.mesh, why
+            frames = stored
+    positions, faces, _ = scene_mesh([p for p, _ in parts], [f for _, f in parts], frames, oriented=True)
+    return Mesh(positions, faces), why
 
 
 def _data_end(doc: dict) -> int:
