@@ -319,6 +319,54 @@ def test_a_reference_out_of_range_or_of_the_wrong_type_is_refused_by_its_path(ca
     refused(capsys, tmp_path, doc, said)
 
 
+def _with_normals(doc, mesh, width):
+    """``doc`` with a NORMAL attribute of ``width`` components (VEC3 is glTF's)."""
+    normals = np.zeros((mesh.vertex_count, width), "<f4")
+    view = append_view(doc, normals.tobytes())
+    doc["accessors"].append({"bufferView": view, "componentType": 5126, "count": mesh.vertex_count,
+                             "type": {2: "VEC2", 3: "VEC3", 4: "VEC4"}[width]})
+    doc["meshes"][0]["primitives"][0]["attributes"]["NORMAL"] = len(doc["accessors"]) - 1
+
+
+#: Members of the wrong shape that the Khronos validator rejects and the encoder used to copy into the ``.pmw``
+#: (outside probe 2, F7): ``(edit, words of the one-line refusal)``.
+SHAPES = {
+    "a matrix of 15 numbers": (lambda d, m: d["nodes"][0].update(matrix=[1.0] * 15), "nodes[0].matrix must be 16 numbers"),
+    "a matrix beside a translation": (lambda d, m: d["nodes"][0].update(matrix=np.eye(4).ravel().tolist(),
+                                                                     translation=[1.0, 2.0, 3.0]),
+                                      "nodes[0] has a matrix and translation"),
+    "a rotation of 3 numbers": (lambda d, m: d["nodes"][0].update(rotation=[0.0, 0.0, 1.0]),
+                                "nodes[0].rotation must be 4 numbers"),
+    "a scale that is a string": (lambda d, m: d["nodes"][0].update(scale="big"), "nodes[0].scale must be 3 numbers"),
+    "a translation holding a string": (lambda d, m: d["nodes"][0].update(translation=[0.0, "1", 0.0]),
+                                       "nodes[0].translation must be 3 numbers"),
+    "a VEC2 NORMAL": (lambda d, m: _with_normals(d, m, 2), "attributes.NORMAL", "NORMAL is VEC3"),
+    "a mesh without primitives": (lambda d, m: d["meshes"].append({"primitives": []}), "meshes[1] has no primitives"),
+    "weights for morph targets it has not": (lambda d, m: d["meshes"][0].update(weights=[0.5, 0.5]),
+                                             "meshes[0].weights"),
+    "indices in a vertex bufferView": (lambda d, m: d["bufferViews"][1].update(target=34962),
+                                       "bufferViews[1].target is 34962, but it holds indices"),
+    "positions in an index bufferView": (lambda d, m: d["bufferViews"][0].update(target=34963),
+                                         "bufferViews[0].target is 34963, but it holds vertex data"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(SHAPES))
+def test_members_of_the_wrong_shape_are_refused_by_their_path(capsys, tmp_path, mesh, case):
+    edit, *said = SHAPES[case]
+    doc = gltf_doc(mesh)
+    edit(doc, mesh)
+    refused(capsys, tmp_path, doc, *said)
+
+
+def test_valid_transforms_normals_and_targets_still_encode(capsys, tmp_path, mesh):
+    doc = gltf_doc(mesh)
+    doc["nodes"] = [{"mesh": 0, "translation": [1, 2, 3], "rotation": [0, 0, 0, 1], "scale": [2, 2, 2]}]
+    doc["bufferViews"][0]["target"], doc["bufferViews"][1]["target"] = 34962, 34963
+    _with_normals(doc, mesh, 3)
+    assert encoded(capsys, tmp_path, doc)["nodes"] == doc["nodes"]
+
+
 @pytest.mark.parametrize("roots, said", [([0, 0], "scenes[0].nodes[1] names nodes[0] again"),
                                          ([0, 1], "scenes[0].nodes[1] names nodes[1], a child of nodes[0]")])
 def test_a_scene_naming_a_root_twice_or_a_child_as_a_root_is_refused(capsys, tmp_path, mesh, roots, said):

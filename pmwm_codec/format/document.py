@@ -297,6 +297,7 @@ def check_document(gltf: dict, name: str) -> None:
     for i, anim in enumerate(gltf.get("animations", [])):
         _check_animation(anim, f"animations[{i}]", gltf.get("accessors", []), count["nodes"], name)
     for i, node in enumerate(gltf.get("nodes", [])):
+        _check_node_transform(node, f"nodes[{i}]", name)
         _check_extensions(node, f"nodes[{i}]", n_acc, name, "EXT_mesh_gpu_instancing")
         for key, kind in (("mesh", "meshes"), ("skin", "skins"), ("camera", "cameras")):
             _ref(node, key, count[kind], f"nodes[{i}]", name, key)
@@ -494,21 +495,82 @@ def _kind(acc: dict) -> str:
     return f"a {acc['type']} of {COMPONENT_NAMES[ctype]} ({ctype})"
 
 
+#: The accessor types glTF 2.0 (3.7.2.1) allows a vertex attribute of each semantic (the name without
+#: its ``_n`` set index), and in a morph target (3.7.2.2).
+ATTRIBUTE_TYPES = {"POSITION": ("VEC3",), "NORMAL": ("VEC3",), "TANGENT": ("VEC4",), "TEXCOORD": ("VEC2",),
+                   "COLOR": ("VEC3", "VEC4"), "JOINTS": ("VEC4",), "WEIGHTS": ("VEC4",)}
+TARGET_TYPES = {"POSITION": ("VEC3",), "NORMAL": ("VEC3",), "TANGENT": ("VEC3",), "TEXCOORD": ("VEC2",),
+                "COLOR": ("VEC3", "VEC4")}
+#: bufferView targets (glTF 2.0, 5.11): vertex data, indices.
+ARRAY_BUFFER_TARGET, ELEMENT_ARRAY_BUFFER = 34962, 34963
+
+
+def _check_attribute(acc: dict, semantic: str, target: bool, where: str, views: list, name: str) -> None:
+    """A vertex attribute's accessor ``acc``: of the type glTF gives its semantic (``NORMAL`` a VEC3 ...;
+    custom ``_NAME`` semantics any), in a bufferView not marked as holding indices."""
+    base = semantic.split("_")[0] if semantic[:1] != "_" else ""
+    allowed = (TARGET_TYPES if target else ATTRIBUTE_TYPES).get(base if base in ("TEXCOORD", "COLOR", "JOINTS", "WEIGHTS")
+                                                                 else semantic)
+    if allowed is not None and acc["type"] not in allowed:
+        raise InputFormatError(f"{name}: {where}: accessor is {_kind(acc)}; glTF's {semantic} is "
+                               + " or ".join(allowed))
+    _check_view_target(acc, ARRAY_BUFFER_TARGET, where, views, name)
+
+
+def _check_view_target(acc: dict, expected: int, where: str, views: list, name: str) -> None:
+    """Refuse an accessor whose bufferView declares the other ``target`` (vertex data in a view marked for
+    indices, or indices in one marked for vertex data): the output would say the same, invalid glTF."""
+    view = acc.get("bufferView")
+    target = views[view].get("target") if isinstance(view, int) and 0 <= view < len(views) else None
+    if target is not None and target != expected:
+        what = "indices" if expected == ELEMENT_ARRAY_BUFFER else "vertex data"
+        raise InputFormatError(f"{name}: {where}: bufferViews[{view}].target is {target}, but it holds {what} "
+                               f"({expected})")
+
+
+def _check_node_transform(node: dict, where: str, name: str) -> None:
+    """A node's transform: ``matrix`` 16 numbers, or any of ``translation`` (3), ``rotation`` (4, a
+    quaternion), ``scale`` (3) -- not both (glTF 2.0, 5.25)."""
+    for key, size in (("matrix", 16), ("translation", 3), ("rotation", 4), ("scale", 3)):
+        if key in node:
+            value = node[key]
+            if not (isinstance(value, list) and len(value) == size
+                    and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in value)):
+                raise InputFormatError(f"{name}: {where}.{key} must be {size} numbers, got {shown_value(value)}")
+    if "matrix" in node and any(key in node for key in ("translation", "rotation", "scale")):
+        raise InputFormatError(f"{name}: {where} has a matrix and translation / rotation / scale; glTF allows one "
+                               "or the other")
+
+
 def _check_meshes(gltf: dict, n_acc: int, n_views: int, name: str) -> None:
     vertices = faces = 0
     accessors, n_materials = gltf.get("accessors", []), len(gltf.get("materials", []))
+    views = gltf.get("bufferViews", [])
     for mi, mesh in enumerate(gltf.get("meshes", [])):
-        for pi, prim in enumerate(_objects(mesh, "primitives", f"meshes[{mi}].primitives", name)):
+        primitives = _objects(mesh, "primitives", f"meshes[{mi}].primitives", name)
+        if not primitives:
+            raise InputFormatError(f"{name}: meshes[{mi}] has no primitives (glTF: at least one)")
+        for pi, prim in enumerate(primitives):
             where = f"meshes[{mi}].primitives[{pi}]"
             attrs = _object(prim.get("attributes", {}), f"{where}.attributes", name)
             for semantic in attrs:
                 _ref(attrs, semantic, n_acc, f"{where}.attributes", name, "accessor")
-            for ti, target in enumerate(_objects(prim, "targets", f"{where}.targets", name)):
+                _check_attribute(accessors[attrs[semantic]], semantic, False, f"{where}.attributes.{semantic}",
+                                 views, name)
+            targets = _objects(prim, "targets", f"{where}.targets", name)
+            for ti, target in enumerate(targets):
                 for semantic in target:
                     _ref(target, semantic, n_acc, f"{where}.targets[{ti}]", name, "accessor")
+                    _check_attribute(accessors[target[semantic]], semantic, True,
+                                     f"{where}.targets[{ti}].{semantic}", views, name)
+            weights = mesh.get("weights")
+            if weights is not None and (not isinstance(weights, list) or len(weights) != len(targets)):
+                raise InputFormatError(f"{name}: meshes[{mi}].weights must hold one number per morph target of "
+                                       f"its primitives ({len(targets)}), got {shown_value(weights)}")
             _ref(prim, "indices", n_acc, where, name, "accessor")
             if "indices" in prim:
                 _check_indices_accessor(accessors[prim["indices"]], f"{where}.indices", prim["indices"], name)
+                _check_view_target(accessors[prim["indices"]], ELEMENT_ARRAY_BUFFER, f"{where}.indices", views, name)
             _ref(prim, "material", n_materials, where, name, "material")
             uint(prim, "mode", f"{name}: {where}", 4, error=InputFormatError)
             draco = _check_extensions(prim, where, n_acc, name, DRACO_EXTENSION)
