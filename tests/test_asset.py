@@ -546,6 +546,9 @@ def test_decoding_to_obj_keeps_the_triangles_the_scene_shows_that_are_not_progre
         assert main(["decode", str(tmp_path / "a.pmw"), "-o", str(tmp_path / out), "--json"]) == 0
         report = json.loads(capsys.readouterr().out)
         assert (report["vertices"], report["faces"]) == (sphere.vertex_count + 6, sphere.face_count + faces), out
+    assert main(["decode", str(tmp_path / "a.pmw"), "-o", str(tmp_path / "a2.glb"), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)  # what the GLB stores: every triangle primitive, once
+    assert (report["vertices"], report["faces"]) == (sphere.vertex_count + 6, sphere.face_count + faces)
     obj = read_mesh(tmp_path / "a.obj")
     assert np.allclose(obj.positions[sphere.vertex_count:], ring + [5.0, 0.0, 0.0], atol=1e-6)
     tri = obj.positions[obj.faces[sphere.face_count:]]

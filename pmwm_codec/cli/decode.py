@@ -59,7 +59,7 @@ def run(args) -> int:
             glb, end, decoder = decode_asset(source, chunks=args.chunks)
             last, notices = decoder.last, decoder.notices
             write_asset(args.output, glb)
-            counts = (last.vertices, last.faces_count)  # the document's meshes, placed by its nodes
+            counts = _stored_triangles(split_glb(glb, "the decoded asset")[0])  # each stored once
         else:
             if not plain:  # a URL read by ranges fetches nothing after chunk N
                 decoder = StreamDecoder(copy=False, max_chunks=args.chunks)
@@ -94,6 +94,22 @@ def run(args) -> int:
         print(f"{args.output}: {out['vertices']:,} vertices, {out['faces']:,} faces "
               f"(base + {out['chunks_applied']} of {out['chunks_total']} chunks; {state})")
     return 0
+
+
+def _stored_triangles(doc: dict) -> tuple:
+    """``(vertices, triangles)`` of the triangle primitives a decoded glTF document stores (each primitive
+    once, as the file holds it; strips and fans counted as the triangles they draw), from its JSON."""
+    accessors, vertices, faces = doc.get("accessors", []), 0, 0
+    for mesh in doc.get("meshes", []):
+        for prim in mesh.get("primitives", []):
+            mode = prim.get("mode", 4)
+            if mode not in (4, 5, 6) or "POSITION" not in prim.get("attributes", {}):
+                continue
+            n = accessors[prim["attributes"]["POSITION"]]["count"]
+            corners = accessors[prim["indices"]]["count"] if "indices" in prim else n
+            vertices += n
+            faces += corners // 3 if mode == 4 else max(0, corners - 2)
+    return vertices, faces
 
 
 def _shows_plain_triangles(src) -> bool:
