@@ -357,6 +357,51 @@ def test_info_refuses_bytes_after_the_declared_length_as_decode_does(work, tmp_p
     assert not (tmp_path / "out.obj").exists()
 
 
+def _base_end(data: bytes) -> int:
+    """Bytes a reader needs before the base mesh is whole (the parser's own count, from a prefix's refusal)."""
+    import re
+
+    from pmwm_codec.errors import TruncatedError
+    from pmwm_codec.format.reader import read_header, read_through_base
+
+    with pytest.raises(TruncatedError) as exc:  # the header and the BIN chunk's, no base byte
+        read_through_base(data[: read_header(data).bin_offset])
+    return int(re.search(r"needs (\d+) bytes", str(exc.value)).group(1))
+
+
+@pytest.mark.parametrize("damage", ["ends inside the base", "BIN chunk length", "BIN chunk type"])
+def test_info_refuses_what_decode_refuses_before_it_shows_a_mesh(work, tmp_path, capsys, damage):
+    """A file ending inside its base mesh, or with a wrong BIN chunk header, is exit 2 for decode, cut and
+    verify; info said exit 0 ("TRUNCATED, 0 chunks present", or even "complete", with the base listed)."""
+    import struct
+
+    data = work["pmw"].read_bytes()
+    bin_header = 20 + struct.unpack_from("<I", data, 12)[0]
+    if damage == "ends inside the base":
+        data = data[: _base_end(data) - 1]
+        said = "before the base mesh was complete"
+    elif damage == "BIN chunk length":
+        data = data[:bin_header] + struct.pack("<I", struct.unpack_from("<I", data, bin_header)[0] + 64) \
+            + data[bin_header + 4:]
+        said = "BIN chunk of"
+    else:
+        data = data[: bin_header + 4] + b"XXXX" + data[bin_header + 8:]
+        said = "second chunk type"
+    bad = tmp_path / "bad.pmw"
+    bad.write_bytes(data)
+    for argv in (("info", bad), ("info", bad, "--json"), ("decode", bad, "-o", tmp_path / "o.obj")):
+        code, stdout, err = run(capsys, *argv)
+        assert code == 2 and stdout == "" and said in err and err.count("\n") == 1, (argv, err)
+
+
+def test_info_of_a_file_ending_right_after_its_base_lists_no_chunk(work, tmp_path, capsys):
+    data = work["pmw"].read_bytes()
+    cut = tmp_path / "base.pmw"
+    cut.write_bytes(data[: _base_end(data)])
+    info = _info(capsys, cut)
+    assert info["truncated"] is True and info["chunks_present"] == 0
+
+
 # -- bad input: exit 2, one line, no traceback, nothing left behind -----------------------
 
 def _bad_cases(work, d):

@@ -1,4 +1,4 @@
-"""``pmw info IN.pmw``: the structure of a ``.pmw`` from its header and JSON alone (no decoding)."""
+"""``pmw info IN.pmw``: the structure of a ``.pmw`` from its header and JSON (no chunk decoded)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from .common import check_input_file, naming, print_json
 
 
 def add_parser(sub):
-    p = sub.add_parser("info", help="structure of a .pmw from its header (no decoding)",
-                       description="Show the structure of a .pmw from its header and glTF JSON alone: counts, base "
+    p = sub.add_parser("info", help="structure of a .pmw from its header (no chunk decoded)",
+                       description="Show the structure of a .pmw from its header and glTF JSON (no chunk decoded): counts, base "
                                    "codec, grid, chunk table, public watermark parameters, complete or truncated.")
     p.add_argument("input", metavar="IN.pmw|URL", help="the .pmw, or an http(s):// URL of one (its header is fetched)")
     p.add_argument("--json", action="store_true", help="print one JSON object")

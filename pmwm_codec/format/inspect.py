@@ -1,9 +1,12 @@
-"""The structure of a ``.pmw`` from its header and glTF JSON alone (no decoding).
+"""The structure of a ``.pmw`` from its header and glTF JSON (no chunk decoded).
 
 Contract
 --------
-:func:`inspect` ``(source) -> dict`` reads only the 20-byte preamble and the JSON chunk
-(:func:`~pmwm_codec.format.parser.read_header`) and returns the ``pmw info --json``
+:func:`inspect` ``(source) -> dict`` reads the 20-byte preamble and the JSON chunk
+(:func:`~pmwm_codec.format.parser.read_header`) -- of a file or bytes, whose size is known, also
+the BIN chunk header and the base meshes (:func:`~.reader.read_through_base`), so that it refuses
+what every reader refuses before it shows a mesh: bytes after the declared length, a bad BIN chunk
+header, a file ending before its base meshes -- and returns the ``pmw info --json``
 object: counts (totals over every progressive primitive), base codec, grid, payload
 codec, public watermark parameters, one row per primitive, and the chunk table in
 stream order (the order the bytes arrive) with each chunk's byte count and whether
@@ -22,7 +25,7 @@ from .base import base_counts, base_vertex_count
 from .extension import chunk_start, is_face_chunk
 from .gltf import DRACO_EXTENSION, find_extension_primitives
 from .parser import trailing_bytes
-from .reader import read_header
+from .reader import read_header, read_through_base
 from ..sources import Source, source_size
 
 __all__ = ["inspect"]
@@ -45,6 +48,8 @@ def inspect(source: Source) -> dict[str, Any]:
     size = source_size(source)
     if size is not None and size > header.total_length:
         raise trailing_bytes(size, header.total_length)  # as decode and verify refuse it
+    if size is not None:  # what decode refuses before it shows a mesh: a bad BIN chunk header, no whole base
+        read_through_base(source)
     prims, rows = _primitives(gltf, header.extensions or (header.extension,), header.bin_offset, size)
     chunks = [dict(chunk=i + 1, **row) for i, (_, row) in enumerate(sorted(rows, key=lambda r: r[0]))]
     complete = None if size is None else size >= header.total_length

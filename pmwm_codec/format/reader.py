@@ -12,7 +12,7 @@ import os
 from ..errors import TruncatedError
 from ..sources import DEFAULT_BLOCK_SIZE, checked_source, iter_blocks, open_regular_file, read_block
 from .layout import PREAMBLE_SIZE
-from .parser import ContainerParser, HeaderEvent
+from .parser import BaseEvent, ContainerParser, HeaderEvent
 
 
 def iter_events(source, block_size: int = DEFAULT_BLOCK_SIZE):
@@ -25,6 +25,19 @@ def iter_events(source, block_size: int = DEFAULT_BLOCK_SIZE):
     for block in iter_blocks(source, block_size):
         yield from parser.feed(block)
     yield parser.close()
+
+
+def read_through_base(source, block_size: int = DEFAULT_BLOCK_SIZE) -> None:
+    """Parse ``source`` from its start through its base meshes, as every reader does before it shows a
+    mesh: the preamble, the JSON, the BIN chunk header and each base mesh (decoded, its ``baseDigest``
+    checked); no chunk is read.  Raises the parser's named errors, TruncatedError when ``source`` ends
+    before the bases are complete."""
+    parser = ContainerParser()
+    for block in iter_blocks(source, block_size):
+        for start in range(0, len(block), block_size):  # a bytes source comes as one block
+            if any(isinstance(e, BaseEvent) for e in parser.feed(block[start:start + block_size])):
+                return
+    parser.close()
 
 
 def read_header(source) -> HeaderEvent:
