@@ -208,6 +208,11 @@ def test_cli_owner_only_encode_then_blind_verify_of_the_decoded_mesh(tmp_path, b
     assert main(["verify", str(out), "--key", str(key), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["owner"]["verdict"] == "present" and all("owner" in c for c in doc["chunks"])
+    other = tmp_path / "other.json"  # another owner's key: the text names the key's ID, never the bits read as one
+    WatermarkKey.generate(owner_id=0x1234, rng=np.random.default_rng(3)).save(other)
+    assert main(["verify", str(out), "--key", str(other)]) == 1
+    last = capsys.readouterr().out.splitlines()[-1]
+    assert last.startswith("owner 0000000000001234: absent (read as ") and "bits differ" in last, last
 
 
 def test_a_pmw_renamed_glb_is_verified_as_the_stream_and_refused_as_a_plain_mesh(tmp_path, blob, capsys):

@@ -144,11 +144,11 @@ def owner_report(owners, key) -> str:
 
 
 def _owner_line(o, key) -> str:
-    """``ID: verdict`` of an owner read: the key's ID when ``present`` (the bits read beside it when some
-    differ), else the bits read."""
-    if o.verdict == "present" and o.bit_errors:
-        return f"{key.owner_hex}: present (read as {o.id}: {o.bit_errors} of {o.bits} bits differ)"
-    return f"{key.owner_hex if o.verdict == 'present' else o.id}: {o.verdict}"
+    """``ID: verdict`` of an owner read, the ID always the key's (the bits read are no ID unless ``present``):
+    with the bits read beside it when some differ."""
+    if o.verdict == "present" and not o.bit_errors:
+        return f"{key.owner_hex}: present"
+    return f"{key.owner_hex}: {o.verdict} (read as {o.id}: {o.bit_errors} of {o.bits} bits differ)"
 
 
 def run_owner(args) -> int:
