@@ -4,7 +4,9 @@
 layer blind.  Exit status: 0 authentic (a mesh: owner ``present``; a ``.pmw`` without an
 image watermark: owner ``present`` at the end); 1 tampered, not-authentic, absent or inconclusive;
 2 bad input.  A chunk whose keyed MAC fails is named on its own line ("chunk 7: not written
-by the key holder (MAC mismatch)").
+by the key holder (MAC mismatch)"), and so is a scene that is not the key holder's (its ``sceneMac``
+fails: verdict ``tampered``), not arrived yet or not covered, and a file that holds only a prefix of
+the key holder's stream ("a prefix of the key holder's stream: 746 of 2,839 carriers read").
 ``--frames DIR`` also draws the tamper map (``tamper.png``: flagged vertices in red).
 """
 
@@ -227,6 +229,8 @@ def report(o: StreamVerification, pictures=None) -> str:
         why = "no codes read yet"
     lines.append(f"verdict: {o.verdict} ({why})" + (_tamper_note(o.tamper(), o.binding) if o.marked else ""))
     lines += o.mac_notes()
+    if o.stream_note():
+        lines.append(o.stream_note())
     if pictures:
         lines.append(f"pictures: {len(pictures['frames'])} frames, {pictures['overview']}"
                      + (f", {pictures['plot']}" if pictures.get("plot") else ""))

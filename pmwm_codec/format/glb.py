@@ -21,8 +21,9 @@ Contract (DESIGN.md §4)
   one base64 string -- 64-bit digests, MACs, geometric errors rounded up to float32, varints).
 * Every extension object gets the keyless ``baseDigest`` of its decoded base mesh
   (:func:`~.extension.base_digest`).  Given a MAC key (a watermarked file), every chunk gets
-  its keyed ``mac`` and the extension object its ``baseMac`` (:mod:`.mac`; a caller's
-  ``baseMac``, ``baseDigest`` or ``mac`` is never copied).
+  its keyed ``mac`` and every extension object the document's ``sceneMac`` (the same value on each)
+  and its ``baseMac``, which covers the ``sceneMac`` (:mod:`.mac`; a caller's ``baseMac``,
+  ``baseDigest``, ``sceneMac`` or ``mac`` is never copied).
 * The extension object sits on the mesh primitive under ``EXTENSION_NAME``, is listed in
   ``extensionsUsed`` and never in ``extensionsRequired``; ``KHR_draco_mesh_compression``
   is in both lists only when the base mesh uses it.
@@ -51,7 +52,7 @@ from .extension import (
     CHUNK_META_FIELDS, DERIVED_FIELDS, RESERVED_FIELDS, TABLE_ARRAYS, base_digest, check_extension, digest, float32_up,
     pack_chunk_table, payload_version,
 )
-from .mac import base_mac, chunk_mac
+from .mac import SCENE_MAC, base_mac, chunk_mac, scene_data_end, scene_mac
 from .layout import (
     CHUNK_HEADER_SIZE,
     CHUNK_TYPE_BIN,
@@ -112,11 +113,12 @@ def assemble_document(doc: dict, kept_bin: bytes, prims, order, zstd_level: int 
         The stream order of every chunk (each primitive's chunks in increasing order).
     mac_key : bytes, optional
         The watermark key's :meth:`~pmwm_codec.watermark.key.WatermarkKey.mac_key`: every
-        extension object gets a ``baseMac`` and every chunk entry a ``mac``
-        (:mod:`.mac`); without it the file has no MACs.
+        extension object gets the document's ``sceneMac`` and its ``baseMac`` (over the
+        ``sceneMac`` too), every chunk entry a ``mac`` (:mod:`.mac`); without it the file
+        has no MACs.
     """
     _check_primitives(prims, order)
-    checks = _base_checks(prims, mac_key)
+    checks = _base_checks(prims)
     views = [dict(v) for v in doc.get("bufferViews", [])]
     accessors = copy.deepcopy(doc.get("accessors", []))
     bin_parts = []
@@ -126,30 +128,48 @@ def assemble_document(doc: dict, kept_bin: bytes, prims, order, zstd_level: int 
         bin_parts.append(kept_bin)
     index, offset = _index_chunks(prims, order, views, bin_parts, bases_end + len(kept_bin), zstd_level)
     if mac_key is not None:
+        # sceneMac first: it leaves the extension objects out, and baseMac covers it
+        draft = _document(doc, _merge_primitives(doc, prims, primitives_json, index, checks), accessors, views, offset,
+                          used, required)
+        scene = _scene_mac(mac_key, draft, bin_parts)
         for p, prim in enumerate(prims):
+            ordinal, fields, attributes = checks[p]
+            fields[SCENE_MAC] = scene
+            public = {"version": FORMAT_VERSION, **prim.extension, SCENE_MAC: scene}
+            fields["baseMac"] = base_mac(mac_key, ordinal, public, prim.base.positions_int, prim.base.faces, attributes)
             for k, entry in enumerate(index[p]):
-                entry["mac"] = chunk_mac(mac_key, checks[p][1]["baseMac"], checks[p][0], k, entry, prim.chunks[k],
+                entry["mac"] = chunk_mac(mac_key, fields["baseMac"], ordinal, k, entry, prim.chunks[k],
                                          payload_version(prim.extension))
     meshes = _merge_primitives(doc, prims, primitives_json, index, checks)
     gltf = _document(doc, meshes, accessors, views, offset, used, required)
     return glb_parts(gltf, bin_parts, offset)
 
 
-def _base_checks(prims, mac_key) -> list:
-    """Per primitive of ``prims``: ``(ordinal, fields)``, the ordinal being its rank in
-    mesh/primitive order (the reader's numbering) and ``fields`` the extension fields that
-    check its decoded base: ``baseDigest`` always, ``baseMac`` with ``mac_key``."""
+def _scene_mac(mac_key: bytes, gltf: dict, bin_parts) -> str:
+    """The ``sceneMac`` of the document ``gltf`` about to be written with BIN ``bin_parts`` (:mod:`.mac`)."""
+    end, data = scene_data_end(gltf), bytearray()
+    for part in bin_parts:  # the document's own data lies before the chunks: join no further than it needs
+        if len(data) >= end:
+            break
+        data += part
+    try:
+        return scene_mac(mac_key, gltf, data)
+    except FormatError as exc:
+        raise ValueError(f"write_pmw: the document's data cannot be read for its scene MAC ({exc})") from None
+
+
+def _base_checks(prims) -> list:
+    """Per primitive of ``prims``: ``(ordinal, fields, attributes)``, the ordinal being its rank in
+    mesh/primitive order (the reader's numbering), ``fields`` the extension fields that check its
+    decoded base (``baseDigest``; the caller adds ``sceneMac`` and ``baseMac`` with a MAC key) and
+    ``attributes`` the base's decoded progressive attributes."""
     rank = {place: r for r, place in enumerate(sorted((p.mesh, p.primitive) for p in prims))}
     out = []
     for prim in prims:
         base, ordinal = prim.base, rank[(prim.mesh, prim.primitive)]
         mini = {"accessors": base.accessors, "bufferViews": base.buffer_views}
         attributes = decode_base_attributes(mini, base.data, base.primitive, prim.extension.get("attributes", ()))
-        fields = {"baseDigest": base_digest(base.positions_int, base.faces, attributes)}
-        if mac_key is not None:
-            public = {"version": FORMAT_VERSION, **prim.extension}
-            fields["baseMac"] = base_mac(mac_key, ordinal, public, base.positions_int, base.faces, attributes)
-        out.append((ordinal, fields))
+        out.append((ordinal, {"baseDigest": base_digest(base.positions_int, base.faces, attributes)}, attributes))
     return out
 
 
@@ -309,7 +329,7 @@ def _merge_primitives(doc: dict, prims, primitives_json, index, checks) -> list:
     primitive plus the extension object (other properties and extensions kept)."""
     meshes = copy.deepcopy(doc.get("meshes", []))
     for p, (prim, pj) in enumerate(zip(prims, primitives_json)):
-        own = {k: v for k, v in prim.extension.items() if k not in DERIVED_FIELDS}
+        own = {k: v for k, v in prim.extension.items() if k not in DERIVED_FIELDS and k != SCENE_MAC}
         chunks = compact_chunks(index[p]) if payload_version(prim.extension) == 2 else index[p]
         ext = {"version": FORMAT_VERSION, **own, "chunks": chunks, **checks[p][1]}
         try:

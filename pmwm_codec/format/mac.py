@@ -1,4 +1,4 @@
-"""Keyed chunk authentication: the ``baseMac`` of a progressive primitive and the ``mac`` of a chunk.
+"""Keyed authentication: the ``baseMac`` of a progressive primitive, the ``mac`` of a chunk, the ``sceneMac``.
 
 The public ``digest`` of a chunk catches accidental damage, but anyone can recompute it
 after changing the bytes.  A file written with a watermark key also carries MACs that
@@ -15,6 +15,13 @@ only the key holder can compute (normative text: ``spec/bitstream.md`` §6.3):
   its chunk table stores, :data:`CHUNK_MAC_FIELDS_V2`) and the raw (decompressed) payload.
   The entry holds the ``digest`` of the stored bytes, so the stored bytes are covered too.
 
+* ``sceneMac`` on every extension object (one value): BLAKE2b-128 keyed the same way over
+  the rest of the document as a reader shows it (:func:`scene_document`: the glTF JSON without
+  ``buffers``, with each bufferView reference replaced by the ordinal of a content field holding
+  the bytes it reads, each progressive primitive's extension object and Draco object left out,
+  its base accessors ``null``) and those content fields.  It is set before ``baseMac``, which
+  covers it, so stripping it breaks ``baseMac``.
+
 Every field of the MAC input is framed as ``uint64_le(len) || bytes``; JSON values are
 written canonically by :func:`canonical_json`.  Everything a ``pmw cut`` rewrites is left
 out, so a cut file keeps valid MACs for the chunks it keeps.
@@ -22,10 +29,16 @@ out, so a cut file keeps valid MACs for the chunks it keeps.
 
 from __future__ import annotations
 
+import copy
 import hmac
 import json
 
+import numpy as np
+
+from ..constants import EXTENSION_NAME
+from ..errors import FormatError
 from .extension import base_mesh_fields, framed_blake2b, payload_version
+from .gltf import COMPONENT_DTYPES, DRACO_EXTENSION, INDEX_DTYPES, TYPE_WIDTH, element_rows
 from .parser import BaseEvent, ChunkEvent, HeaderEvent
 
 #: Extension fields left out of ``baseMac``: set per cut (counts, chunk list), the MAC itself, or
@@ -38,6 +51,9 @@ CHUNK_MAC_EXCLUDED = ("bufferView", "mac")
 CHUNK_MAC_FIELDS_V2 = ("byteLength", "digest", "faceCount", "geometricError", "vertexCount")
 _BASE_LABEL = b"pmwm/base-mac/v1"
 _CHUNK_LABEL = b"pmwm/chunk-mac/v1"
+_SCENE_LABEL = b"pmwm/scene-mac/v1"
+#: The extension field that holds the scene MAC (the same value on every progressive primitive).
+SCENE_MAC = "sceneMac"
 
 
 def canonical_json(value) -> bytes:
@@ -76,6 +92,177 @@ def chunk_mac(mac_key: bytes, base_mac_hex: str, primitive: int, chunk: int, ent
     place = int(primitive).to_bytes(4, "little") + int(chunk).to_bytes(4, "little")
     return framed_blake2b([_CHUNK_LABEL, bytes.fromhex(base_mac_hex), place, canonical_json(fields),
                            bytes(memoryview(payload).cast("B"))], key=mac_key)
+
+
+def scene_document(gltf: dict) -> tuple:
+    """``(S, sources)``: what ``sceneMac`` covers of the glTF JSON ``gltf`` (not modified), bitstream.md §6.3.
+
+    ``S`` is a copy of ``gltf`` without ``buffers`` and ``bufferViews``, in which
+
+    * every progressive primitive's ``PMWM_progressive_mesh`` object is ``{}`` and its
+      ``KHR_draco_mesh_compression`` object is left out (``baseMac`` and the chunk MACs cover them),
+      and the accessors its base reads (``POSITION``, ``indices`` and the attributes named in the
+      extension's ``attributes``) are ``null`` (``baseMac`` covers the base they decode to, however
+      it is encoded);
+    * every other bufferView reference (an accessor's, its sparse ``indices`` and ``values``, an
+      image's, a Draco object's) keeps its key ``bufferView`` with the *ordinal of its content field*
+      as value, and the holder loses its ``byteOffset``;
+    * every number with an integral value is an integer (``1.0`` is ``1``): JSON has one number type.
+
+    ``sources`` lists, per content field in ordinal order, ``(view, byteOffset, count, item size,
+    strided)``: the ``count`` elements of ``item size`` bytes the reference reads from bufferView
+    ``view`` (at ``byteOffset``, every ``byteStride`` bytes when ``strided`` and the view has one).
+    Content fields are numbered in document order: accessors (bufferView, then sparse indices, then
+    sparse values), images, then the Draco objects of the other primitives in mesh/primitive order.
+    Nothing a ``pmw cut`` rewrites is in ``S``: the chunk table, counts, bufferViews and buffers.
+    FormatError when a reference's JSON is malformed (the writer never writes such a document).
+    """
+    doc = {k: copy.deepcopy(v) for k, v in gltf.items() if k not in ("buffers", "bufferViews")}
+    sources = []
+    base = set()
+    for mesh in _list(doc.get("meshes")):
+        for prim in _list(mesh.get("primitives") if isinstance(mesh, dict) else None):
+            exts = prim.get("extensions") if isinstance(prim, dict) else None
+            if not isinstance(exts, dict) or EXTENSION_NAME not in exts:
+                continue
+            ext = exts[EXTENSION_NAME]
+            attributes = prim.get("attributes") if isinstance(prim.get("attributes"), dict) else {}
+            names = ["POSITION"] + [a.get("semantic") for a in _list(ext.get("attributes") if isinstance(ext, dict) else None)
+                                    if isinstance(a, dict)]
+            base.update(attributes[n] for n in names if n in attributes)
+            if "indices" in prim:
+                base.add(prim["indices"])
+            exts[EXTENSION_NAME] = {}
+            exts.pop(DRACO_EXTENSION, None)
+    accessors = _list(doc.get("accessors"))
+    for i, acc in enumerate(accessors):
+        if i in base:
+            accessors[i] = None
+            continue
+        if not isinstance(acc, dict):
+            continue
+        width, dtype = TYPE_WIDTH.get(acc.get("type")), COMPONENT_DTYPES.get(acc.get("componentType"))
+        if "bufferView" in acc:
+            if width is None or dtype is None:
+                raise FormatError(f"accessor {i}: unknown type or componentType")
+            _reference(acc, sources, _count(acc), np.dtype(dtype).itemsize * width, True)
+        sparse = acc.get("sparse")
+        if isinstance(sparse, dict):
+            n = _count(sparse)
+            indices, values = sparse.get("indices"), sparse.get("values")
+            if not isinstance(indices, dict) or not isinstance(values, dict) or width is None or dtype is None:
+                raise FormatError(f"accessor {i}: malformed sparse")
+            index_dtype = INDEX_DTYPES.get(indices.get("componentType"))
+            if index_dtype is None:
+                raise FormatError(f"accessor {i}: sparse indices componentType is not an index type")
+            _reference(indices, sources, n, np.dtype(index_dtype).itemsize, False)
+            _reference(values, sources, n, np.dtype(dtype).itemsize * width, False)
+    for image in _list(doc.get("images")):
+        if isinstance(image, dict) and "bufferView" in image:
+            _reference(image, sources, 1, None, False)
+    for mesh in _list(doc.get("meshes")):
+        for prim in _list(mesh.get("primitives") if isinstance(mesh, dict) else None):
+            exts = prim.get("extensions") if isinstance(prim, dict) else None
+            draco = exts.get(DRACO_EXTENSION) if isinstance(exts, dict) else None
+            if isinstance(draco, dict) and "bufferView" in draco:
+                _reference(draco, sources, 1, None, False)
+    return _integral_numbers(doc), sources
+
+
+def _list(value) -> list:
+    return value if isinstance(value, list) else []
+
+
+def _count(holder: dict) -> int:
+    count = holder.get("count")
+    if isinstance(count, float) and count.is_integer():
+        count = int(count)
+    if isinstance(count, bool) or not isinstance(count, int) or count < 0:
+        raise FormatError(f"count {count!r} is not a non-negative integer")
+    return count
+
+
+def _reference(holder: dict, sources: list, count: int, item, strided: bool) -> None:
+    """Record the content ``holder``'s bufferView reference reads (``item`` None: the whole view) and
+    replace the reference by its ordinal (in place)."""
+    view = holder["bufferView"]
+    offset = holder.pop("byteOffset", 0)
+    for value in (view, offset):
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            raise FormatError(f"bufferView reference {value!r} is not a non-negative integer")
+    sources.append((int(view), int(offset), count, item, strided))
+    holder["bufferView"] = len(sources) - 1
+
+
+def _integral_numbers(value):
+    """``value`` with every float of integral value as an int (``1.0`` -> ``1``, ``-0.0`` -> ``0``)."""
+    if isinstance(value, float):
+        return int(value) if value.is_integer() else value
+    if isinstance(value, dict):
+        return {k: _integral_numbers(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_integral_numbers(v) for v in value]
+    return value
+
+
+def scene_data_end(gltf: dict) -> int:
+    """Where the BIN data the scene MAC reads ends (0: none; references that do not read ignored)."""
+    try:
+        _, sources = scene_document(gltf)
+    except (FormatError, TypeError, ValueError, RecursionError):
+        return 0
+    views = _list(gltf.get("bufferViews"))
+    end = 0
+    for view, *_ in sources:
+        if 0 <= view < len(views) and isinstance(views[view], dict):
+            try:
+                end = max(end, int(views[view].get("byteOffset", 0)) + int(views[view]["byteLength"]))
+            except (KeyError, TypeError, ValueError):
+                pass
+    return end
+
+
+def _contents(gltf: dict, sources, bin_data):
+    """Each content field of ``sources`` (:func:`scene_document`) read from ``bin_data`` (buffer 0)."""
+    views = _list(gltf.get("bufferViews"))
+    data = memoryview(bin_data).cast("B")
+    for view_index, offset, count, item, strided in sources:
+        if not 0 <= view_index < len(views) or not isinstance(views[view_index], dict):
+            raise FormatError(f"bufferView {view_index} does not exist")
+        view = views[view_index]
+        if view.get("buffer", 0) != 0:
+            raise FormatError(f"bufferView {view_index} is not in the GLB BIN buffer")
+        start, length = view.get("byteOffset", 0), view.get("byteLength")
+        if isinstance(start, bool) or isinstance(length, bool) or not isinstance(start, int) or not isinstance(length, int) \
+                or start < 0 or length < 0 or start + length > len(data):
+            raise FormatError(f"bufferView {view_index} does not lie in the BIN chunk")
+        raw = data[start : start + length]
+        if item is None:
+            yield raw
+            continue
+        stride = view.get("byteStride") if strided else None
+        stride = item if stride is None else stride
+        if isinstance(stride, bool) or not isinstance(stride, int) or stride < item:
+            raise FormatError(f"bufferView {view_index}: byteStride {stride!r} is smaller than its {item}-byte elements")
+        if count and offset + (count - 1) * stride + item > length:
+            raise FormatError(f"bufferView {view_index}: {count} elements at offset {offset} read past its end")
+        yield element_rows(raw, np.uint8, count, item, offset, stride).tobytes() if count else b""
+
+
+def scene_mac(mac_key: bytes, gltf: dict, bin_data) -> str:
+    """32 hex digits: the ``sceneMac`` of the glTF JSON ``gltf`` whose BIN chunk starts with ``bin_data``
+    (at least :func:`scene_data_end` bytes).  FormatError (or ValueError for a non-finite number) when the
+    document has no canonical form."""
+    doc, sources = scene_document(gltf)
+    return framed_blake2b(_scene_fields(doc, sources, gltf, bin_data), key=mac_key)
+
+
+def _scene_fields(doc, sources, gltf, bin_data):
+    yield _SCENE_LABEL
+    yield canonical_json(doc)
+    yield from _contents(gltf, sources, bin_data)
 
 
 def same_mac(expected: str, found) -> bool:

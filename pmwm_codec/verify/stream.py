@@ -19,7 +19,13 @@ watermark is ``not-authentic``.  ``tamper`` lists the vertices of the decoded me
 carrier code no longer reads (:meth:`~pmwm_codec.watermark.verify.Verifier.tamper`).  Keyed
 chunk authentication comes on top: a marked file whose base or any chunk fails its MAC (or
 carries none: written before MACs, or stripped) is ``not-authentic`` whatever the watermark
-reads, and :meth:`StreamVerification.mac_notes` names every such chunk.
+reads, and :meth:`StreamVerification.mac_notes` names every such chunk.  The ``sceneMac`` (bitstream.md
+§6.3: the nodes, scenes, materials, images, other meshes, animations ... the file shows around its
+progressive meshes) is checked once the data it covers has arrived: a mismatch turns ``authentic``
+into ``tampered`` (the mark is there, the document around it was changed); a file written before it
+(no ``sceneMac``) is verified as before, with a note that the scene is not covered.
+``whole_stream`` says whether every carrier of the key holder's stream was read (a ``pmw cut`` file or
+a prefix verifies ``authentic`` too: it is what the key holder wrote, as far as it goes).
 :meth:`StreamVerification.as_json` is the ``pmw verify --json`` object
 (non-finite floats such as the PSNR of a bit-exact watermark stay ``inf``; the command
 prints them as ``null``).
@@ -33,10 +39,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..format.mac import SCENE_MAC, same_mac, scene_data_end, scene_mac
 from ..stream import StreamDecoder, iter_results
 from ..stream.decoder import StreamEnd
 from ..watermark import load_watermark
-from ..sources import Source
+from ..sources import Source, iter_blocks
 from ..watermark.key import WatermarkKey, as_key
 
 __all__ = ["StreamVerification", "verify_stream"]
@@ -52,8 +59,13 @@ class StreamVerification:
     watermark; ``total_length``: the size of the complete file in bytes; ``key_matches``:
     False when the file's public key fingerprint is another key's (verdict ``not-authentic``), None
     when the file carries no watermark image (no fingerprint to compare);
-    ``mac``: ``{"checked": n, "failed": [chunk numbers], "missing": [chunk numbers]}`` (chunk 0
-    is the base meshes) -- the keyed MACs checked, failed and absent.
+    ``mac``: ``{"checked": n, "failed": [chunk numbers], "missing": [chunk numbers], "scene": s}`` (chunk 0
+    is the base meshes) -- the keyed MACs checked, failed and absent, and the ``sceneMac``'s answer
+    ``s``: True (the document around the progressive meshes is the key holder's), False (it is not),
+    None (the file has no ``sceneMac``, or its data has not arrived: ``scene`` says which).
+    ``scene``: ``"match"``, ``"mismatch"``, ``"not arrived"``, ``"not covered"`` (a marked file without
+    ``sceneMac``) or ``""`` (no key, or no watermark).  ``carriers_total``: the carriers of the key
+    holder's whole stream (the MACed ``watermark.carriers``; 0 without a watermark).
     ``flagged`` (f,) int64 the tamper map (vertex ids of the last level's decoded mesh);
     ``binding`` the mark's keyed binding (``""``: a legacy mark).
     """
@@ -69,6 +81,16 @@ class StreamVerification:
     mac: dict | None = None
     flagged: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     binding: str = ""
+    scene: str = ""
+    carriers_total: int = 0
+
+    @property
+    def whole_stream(self) -> bool | None:
+        """Every carrier of the key holder's stream was read (None: the file carries no watermark).
+        False for a ``pmw cut`` file or a prefix: what the key holder wrote, but not all of it."""
+        if not self.marked:
+            return None
+        return self.codes_read == self.carriers_total
 
     def tamper(self) -> dict:
         """``{"flagged": [vertex ids of the decoded mesh whose carrier code no longer reads], "fraction"}``."""
@@ -76,7 +98,8 @@ class StreamVerification:
         return {"flagged": [int(i) for i in self.flagged], "fraction": len(self.flagged) / max(1, vertices)}
 
     def mac_notes(self) -> list:
-        """One line per chunk whose bytes are not the key holder's (MAC failed, or absent)."""
+        """One line per chunk whose bytes are not the key holder's (MAC failed, or absent), and one for
+        the scene when it differs, has not arrived or is not covered."""
         if not self.mac:
             return []
         notes = [f"{_chunk_name(c)}: not written by the key holder (MAC mismatch)" for c in self.mac["failed"]]
@@ -85,7 +108,15 @@ class StreamVerification:
             where = "the file" if len(missing) == len(self.results) else ", ".join(_chunk_name(c) for c in missing)
             notes.append(f"{where}: no MAC, the bytes cannot be attributed to the key holder "
                          "(written before keyed chunk authentication, or stripped)")
+        if self.scene in _SCENE_NOTES:
+            notes.append(_SCENE_NOTES[self.scene])
         return notes
+
+    def stream_note(self) -> str | None:
+        """``a prefix of the key holder's stream: R of T carriers read`` when not every carrier was read."""
+        if self.whole_stream is not False:
+            return None
+        return f"a prefix of the key holder's stream: {self.codes_read:,} of {self.carriers_total:,} carriers read"
 
     def as_json(self) -> dict:
         """The ``pmw verify --json`` object (without ``pictures``, which only the command writes)."""
@@ -94,13 +125,83 @@ class StreamVerification:
                 "chunks_total": int(self.end.chunks_total), "chunks": chunks, "final": chunks[-1],
                 "verdict": self.verdict, "bytes_read": int(self.end.bytes_read),
                 "total_length": int(self.total_length), "codes_matched": self.codes_matched,
-                "codes_read": self.codes_read, "key_matches": self.key_matches, "mac": self.mac,
+                "codes_read": self.codes_read, "carriers_total": self.carriers_total,
+                "whole_stream": self.whole_stream, "key_matches": self.key_matches, "mac": self.mac,
                 "tamper": self.tamper(), "binding": self.binding or None}
+
+
+_SCENE = "the scene (nodes, materials, other meshes)"
+#: The note line of each ``StreamVerification.scene`` answer that needs one.
+_SCENE_NOTES = {
+    "mismatch": f"{_SCENE} differs from what the key holder wrote (sceneMac mismatch)",
+    "not arrived": f"{_SCENE}: not checked, the data it covers has not arrived",
+    "not covered": f"{_SCENE}: not covered, the file has no sceneMac (written before it): "
+                   "the verdict speaks for the progressive meshes only",
+}
 
 
 def _chunk_name(number: int) -> str:
     """``chunk N`` for a chunk row, ``base mesh`` for row 0."""
     return f"chunk {number}" if number else "base mesh"
+
+
+class _SceneData:
+    """The bytes of a stream the scene MAC needs, kept as the decoder reads it: everything until the
+    decoder has the JSON, then the file up to the end of the data :func:`~..format.mac.scene_data_end`
+    names (nothing more when no extension object carries a ``sceneMac``)."""
+
+    def __init__(self, decoder: StreamDecoder):
+        self.decoder = decoder
+        self.pieces: list = []
+        self.length = 0
+        self.limit: int | None = None
+
+    def blocks(self, source):
+        for block in iter_blocks(source):
+            self._keep(block)
+            yield block
+
+    def _keep(self, block) -> None:
+        header = self.decoder.header
+        if self.limit is None and header is not None:
+            wanted = any(ext.get(SCENE_MAC) is not None for ext in header.extensions)
+            self.limit = header.bin_offset + scene_data_end(header.gltf_json) if wanted else 0
+            self._trim()
+        block = memoryview(block).cast("B")
+        room = len(block) if self.limit is None else max(0, self.limit - self.length)
+        if room:
+            piece = block[:room]
+            self.pieces.append(piece if piece.readonly else bytes(piece))  # a caller may reuse a mutable block
+            self.length += len(piece)
+
+    def _trim(self) -> None:
+        kept, length = [], 0
+        for piece in self.pieces:
+            if length >= self.limit:
+                break
+            piece = piece[: self.limit - length]
+            kept.append(piece)
+            length += len(piece)
+        self.pieces, self.length = kept, length
+
+    def check(self, key: WatermarkKey, end: StreamEnd) -> bool | None | str:
+        """The scene MAC's answer: True / False, ``"not arrived"`` (a stream cut short before the data
+        it covers; a complete file whose data cannot be read is False), or None (no ``sceneMac``)."""
+        header = self.decoder.header
+        found = [ext.get(SCENE_MAC) for ext in header.extensions]
+        if all(f is None for f in found):
+            return None
+        if self.limit is None:  # the JSON came in the last block
+            self.limit = header.bin_offset + scene_data_end(header.gltf_json)
+        self._trim()
+        if self.length < self.limit and not end.complete and self.limit - header.bin_offset <= _buffer_length(header):
+            return "not arrived"
+        data = b"".join(self.pieces)[header.bin_offset:]
+        try:
+            expected = scene_mac(key.mac_key(), header.gltf_json, data)
+        except (ValueError, TypeError, OverflowError, RecursionError):
+            return False  # no canonical form, or data that cannot be read: never the key holder's writer's
+        return all(same_mac(expected, f) for f in found)
 
 
 def verify_stream(source: Source, key: WatermarkKey | str | os.PathLike[str], watermark: np.ndarray | str | None = None, *,
@@ -123,7 +224,8 @@ def verify_stream(source: Source, key: WatermarkKey | str | os.PathLike[str], wa
     if key is not None:  # before anything is read
         key.check_reference(reference, watermark)
     decoder = StreamDecoder(key, reference, copy=keep_meshes, check_key=False)
-    gen = iter_results(source, decoder)
+    scene_data = _SceneData(decoder)
+    gen = iter_results(scene_data.blocks(source), decoder)
     results = []
     while True:
         try:
@@ -138,7 +240,7 @@ def verify_stream(source: Source, key: WatermarkKey | str | os.PathLike[str], wa
             progress(f"chunk {r.chunk}/{r.chunks_total}", r.chunk / max(1, r.chunks_total))
     v = decoder.verifier
     owns = decoder.watermark_params is None or key is None or key.owns(decoder.watermark_params.fingerprint)
-    mac = {"checked": decoder.mac_checked, "failed": decoder.mac_failed, "missing": decoder.mac_missing}
+    mac = {"checked": decoder.mac_checked, "failed": decoder.mac_failed, "missing": decoder.mac_missing, "scene": None}
     # key_matches None: the file carries no watermark image, so no key fingerprint to compare (an owner
     # layer alone is answered by ``owner``: one owner's key marks many files)
     out = StreamVerification(results, end, "not-authentic", 0, 0, v is not None, decoder.header.total_length,
@@ -149,6 +251,30 @@ def verify_stream(source: Source, key: WatermarkKey | str | os.PathLike[str], wa
         # vertex ids of the decoded mesh: the primitives' current meshes, concatenated in stream order
         out.flagged = v.tamper(np.cumsum([0] + decoder.vertex_counts()[:-1]))
         out.binding = v.params.binding
+        out.carriers_total = int(v.params.carriers)
+        if key is not None:
+            _check_scene(out, scene_data.check(key, end), mac)
         if mac["failed"] or mac["missing"]:
             out.verdict = "not-authentic"  # bytes the key holder did not write (or cannot be shown to have)
     return out
+
+
+def _buffer_length(header) -> int:
+    """``buffers[0].byteLength`` of the stream's JSON (the parser checked it)."""
+    return int(header.gltf_json["buffers"][0]["byteLength"])
+
+
+def _check_scene(out: StreamVerification, answer, mac: dict) -> None:
+    """Record the scene MAC's ``answer`` (:meth:`_SceneData.check`) in ``out`` and ``mac``; a mismatch makes
+    an authentic mark ``tampered``: the mark is the key holder's, the document shown around it is not."""
+    mac["scene"] = answer if isinstance(answer, bool) else None
+    if answer is True:
+        out.scene = "match"
+    elif answer is False:
+        out.scene = "mismatch"
+        if out.verdict == "authentic":
+            out.verdict = "tampered"
+    elif answer == "not arrived":
+        out.scene = answer
+    elif not mac["missing"]:  # MACs but no sceneMac: written before it (a file without MACs is named already)
+        out.scene = "not covered"
