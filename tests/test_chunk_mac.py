@@ -304,3 +304,26 @@ def test_a_changed_v2_chunk_table_value_fails_that_chunk_s_mac():
     outcome = verify_stream(_rewrite_json(data, change), key)
     assert 2 in outcome.mac["failed"]  # chunk rows count from 1 (row 0 is the base)
     assert outcome.verdict == "not-authentic"
+
+
+@pytest.mark.parametrize("same_file", [True, False])
+def test_bases_of_different_files_spliced_into_one_fail_though_each_mac_matches(same_file):
+    """Every progressive primitive of a file carries its ``fileId`` (spec README); a file whose primitives
+    come from two files marked with one key has valid MACs everywhere -- each base and chunk is the key
+    holder's -- but was never written so.  The bases then fail together (outside probe 1)."""
+    from pmwm_codec.format.mac import MacChecker, base_mac
+    from pmwm_codec.format.parser import BaseEvent, HeaderEvent
+
+    data, key, _ = marked_sphere(7)
+    header = read_header(data)
+    gltf, binary = split_glb(data)
+    prim = gltf["meshes"][0]["primitives"][0]
+    ext0 = header.extension
+    positions, faces = decode_base(gltf, binary, Grid.from_config(ext0["grid"]), prim)
+    attributes = decode_base_attributes(gltf, binary, prim, ext0.get("attributes", ()))
+    ext1 = {**ext0, "fileId": ext0["fileId"] if same_file else "0123456789abcdef"}
+    ext1["baseMac"] = base_mac(key.mac_key(), 1, ext1, positions, faces, attributes)
+    checker = MacChecker(key.mac_key())
+    checker.on_event(HeaderEvent(gltf, ext0, header.total_length, 0, (ext0, ext1), header.bin_offset))
+    assert checker.on_event(BaseEvent(positions, faces, 0, 0, attributes)) is NotImplemented
+    assert checker.on_event(BaseEvent(positions, faces, 0, 1, attributes)) is same_file

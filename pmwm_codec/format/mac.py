@@ -284,7 +284,9 @@ class MacChecker:
     :meth:`on_event` returns, for the last :class:`~.parser.BaseEvent` of the bases and
     for every :class:`~.parser.ChunkEvent`: True (the MAC matches: written by the key
     holder), False (it does not) or None (the file carries no MAC there); otherwise
-    ``NotImplemented`` (nothing to report yet).
+    ``NotImplemented`` (nothing to report yet).  The bases are False together when their MACs
+    match but their extension objects name different ``fileId``s: every progressive primitive
+    of a file shares one (spec README), so these are primitives of several files spliced into one.
     """
 
     def __init__(self, mac_key: bytes):
@@ -301,6 +303,8 @@ class MacChecker:
             self._bases.append(None if found is None else _verified(lambda: same_mac(
                 base_mac(self._key, event.primitive, ext, event.positions_int, event.faces, event.attributes_int), found)))
             if len(self._bases) == len(self._exts):
+                if len({repr(e.get("fileId")) for e in self._exts}) > 1 and all(self._bases):
+                    return False  # each base the key holder's, but of different files: primitives spliced together
                 return combine(self._bases)
         elif isinstance(event, ChunkEvent):
             ext = self._exts[event.primitive]
