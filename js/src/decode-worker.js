@@ -3,7 +3,8 @@
  *
  * Messages in: {type: 'start', maxChunks, bases} (the Draco bases three.js decoded, see dracoFromBases),
  * {type: 'feed', id, bytes: Uint8Array}, {type: 'close', id}. Out: {type: 'ready'} once loaded;
- * {id, results} per feed, each result with `mesh.parts[p]` {positions, indices, attributes} (buffers
+ * {id, results} per feed (with `error` too when a chunk failed after
+ * the levels it holds: every later request fails), each result with `mesh.parts[p]` {positions, indices, attributes} (buffers
  * transferred); {id, end, levels} for close (levels: how many levels this worker decoded); {id, error}
  * (serializeError) for any failure.
  */
@@ -31,9 +32,11 @@ async function handle(msg) {
     const buffers = new Set();
     const results = (await decoder.feed(msg.bytes)).map((r) => packLevel(r, buffers));
     levels += results.length;
-    self.postMessage({ id: msg.id, results }, [...buffers]);
+    // a chunk that failed after others of this piece: their levels, and the error (every later call fails)
+    const failed = decoder.error ? { error: serializeError(decoder.error) } : {};
+    self.postMessage({ id: msg.id, results, ...failed }, [...buffers]);
   } else if (msg.type === 'close') {
-    self.postMessage({ id: msg.id, end: decoder.close(), levels });
+    self.postMessage({ id: msg.id, end: await decoder.close(), levels });
   }
 }
 

@@ -23,12 +23,15 @@ const TINY = Math.fround(1e-30);
 
 export class PmwDecoder {
   /**
-   * @param {{draco?: DracoDecoder, maxChunks?: number, snapshots?: boolean, onLevel?: Function}} options
+   * @param {{draco?: DracoDecoder, maxChunks?: number, snapshots?: boolean, onLevel?: Function,
+   *   onCallbackError?: Function}} options
    *   maxChunks: apply no chunk after this many; snapshots: attach `mesh` (see snapshot()) to every result;
-   *   onLevel(result, decoder): called as each level is reached, before the next chunk is applied
+   *   onLevel(result, decoder): called as each level is reached, before the next chunk is applied;
+   *   onCallbackError(error): given what onLevel throws (default: console.error); the decode goes on
    */
-  constructor({ draco, maxChunks = Infinity, snapshots = false, onLevel } = {}) {
+  constructor({ draco, maxChunks = Infinity, snapshots = false, onLevel, onCallbackError } = {}) {
     this.onLevel = onLevel;
+    this.onCallbackError = onCallbackError;
     this.draco = draco;
     if (maxChunks !== Infinity && !(Number.isSafeInteger(maxChunks) && maxChunks >= 0)) {
       throw new RangeError(`maxChunks must be a whole number >= 0 (or Infinity), not ${maxChunks}`);
@@ -41,44 +44,64 @@ export class PmwDecoder {
     this.plan = null;
     this.states = null;
     this.coders = null;
+    this.bases = null; // the decoded base meshes, kept to rebuild the last good level after a chunk failed half applied
     this.chunksApplied = 0;
     this.closed = false;
     this.failed = null;
+    this.overflow = false; // the feed that brought the header brought bytes past the GLB length too
+    this.broken = false; // a chunk failed after it began to change the mesh: snapshot() rebuilds the last good level
+    this.pending = 0;
     this.queue = Promise.resolve();
+    this.end = null;
   }
+
+  /** The error that broke the stream (every later feed() and close() rejects with it), else null. */
+  get error() { return this.failed; }
 
   /**
    * Appends `bytes` (a Uint8Array, an ArrayBuffer as `await response.arrayBuffer()` gives, or any
    * typed array or DataView: its bytes); resolves to the results that became available (possibly
-   * none). Anything else rejects with a TypeError and leaves the decoder as it was.
+   * none). The bytes are copied before feed() returns: the caller may reuse its buffer at once.
+   * Anything else rejects with a TypeError and leaves the decoder as it was; so does a feed() after
+   * close(). When a chunk fails after others of the same feed() were applied, it resolves to those
+   * levels (every complete chunk before the bad one is delivered) and the failure comes from the next
+   * feed() or close() (and `error` holds it); a failure with no level before it rejects at once.
    */
   feed(bytes) {
     let piece;
     try {
       piece = asBytes(bytes);
+      if (this.closed) throw new TypeError('PmwDecoder.feed() after close(): the decoder is single-use');
     } catch (e) {
       return Promise.reject(e);
     }
-    const run = this.queue.then(() => this.#feed(piece));
-    this.queue = run.catch(() => {});
+    // nothing queued: run now (the bytes are appended before this returns); else queue a copy
+    const run = this.pending ? (() => { const copy = piece.slice(); return this.queue.then(() => this.#feed(copy)); })()
+      : this.#feed(piece);
+    this.pending++;
+    const settled = () => { this.pending--; };
+    this.queue = run.then(settled, settled);
     return run;
   }
 
   async #feed(bytes) {
-    if (this.closed) throw new FormatError('the decoder was already closed');
     if (this.failed) throw this.failed;
+    const out = [];
     try {
-      this.#append(bytes);
-      return await this.#advance();
+      // bytes past the GLB length are refused, after the chunks before them (each complete chunk is delivered)
+      const room = this.header ? this.header.length - this.received : Infinity;
+      this.#append(bytes.length > room ? bytes.subarray(0, room) : bytes);
+      await this.#advance(out);
+      if (bytes.length > room || this.overflow) throw new FormatError('more bytes than the GLB length');
     } catch (e) {
       this.failed = e;
-      throw e;
+      if (!out.length) throw e;
     }
+    return out; // after a failure, the levels this feed reached before it: the next call throws
   }
 
   #append(bytes) {
     const need = this.received + bytes.length;
-    if (this.header && need > this.header.length) throw new FormatError('more bytes than the GLB length');
     if (need > this.buf.length) {
       const cap = Math.min(Math.max(need, 2 * this.buf.length, 1024), this.header ? this.header.length : Infinity);
       const grown = new Uint8Array(cap);
@@ -89,30 +112,29 @@ export class PmwDecoder {
     this.received = need;
   }
 
-  async #advance() {
-    const out = [];
+  /** Decodes what the bytes received allow, pushing each level's result to `out` as it is reached. */
+  async #advance(out) {
     const data = this.buf.subarray(0, this.received);
     if (!this.header) {
-      if (this.received < 20) return out;
+      if (this.received < 20) return;
       checkPreamble(data); // a JSON chunk over the limit is refused before it is buffered
-      if (this.received < preambleLength(data)) return out;
+      if (this.received < preambleLength(data)) return;
       this.header = parseGlb(data);
-      if (this.received > this.header.length) throw new FormatError('more bytes than the GLB length');
+      if (this.received > this.header.length) { // the bytes past it are let go; this feed fails after its levels
+        this.received = this.header.length;
+        this.overflow = true;
+      }
       this.plan = planDocument(this.header.gltf, this.header.binLength);
       await initChunkFrames();
     }
     const { binStart } = this.header;
     const bin = () => this.buf.subarray(binStart, this.received);
     if (!this.states) {
-      if (this.received < binStart + this.plan.baseEnd) return out;
-      const states = [];
-      for (const prim of this.plan.primitives) {
-        const b = await decodeBase(bin(), prim, this.draco);
-        states.push(new MeshState(b.values, b.faces, b.n, b.m, b.D, prim.vertexCount, prim.faceCount));
-      }
-      // payload version 2: per primitive, the probability table its chunks carry on (spec §8.1)
-      this.coders = this.plan.primitives.map((p, i) => (p.payloadVersion === 2 ? new ChunkDecoderV2(states[i]) : null));
-      this.states = states;
+      if (this.received < binStart + this.plan.baseEnd) return;
+      const bases = [];
+      for (const prim of this.plan.primitives) bases.push(await decodeBase(bin(), prim, this.draco));
+      [this.states, this.coders] = this.#start(bases);
+      this.bases = bases;
       out.push(this.#result(binStart + this.plan.baseEnd));
     }
     const { stream } = this.plan;
@@ -120,19 +142,31 @@ export class PmwDecoder {
       const c = stream[this.chunksApplied];
       const end = binStart + c.offset + c.length;
       if (this.received < end) break;
-      this.#apply(c, this.buf.subarray(binStart + c.offset, end));
+      this.#apply(this.states, this.coders, this.chunksApplied, this.buf.subarray(binStart + c.offset, end), true);
       this.chunksApplied++;
       out.push(this.#result(end));
     }
-    return out;
   }
 
-  #apply(c, stored) {
-    const index = this.chunksApplied;
-    const state = this.states[c.primitive];
-    const payload = openChunk(stored, c, index);
+  /** Fresh mesh states (and payload version 2 coders) holding the decoded base meshes. */
+  #start(bases) {
+    const states = bases.map((b, i) => {
+      const prim = this.plan.primitives[i];
+      return new MeshState(b.values, b.faces, b.n, b.m, b.D, prim.vertexCount, prim.faceCount);
+    });
+    // payload version 2: per primitive, the probability table its chunks carry on (spec §8.1)
+    const coders = this.plan.primitives.map((p, i) => (p.payloadVersion === 2 ? new ChunkDecoderV2(states[i]) : null));
+    return [states, coders];
+  }
+
+  /** Applies chunk `index` (its stored bytes) to `states`; `live`: a failure past the chunk's checks marks them broken. */
+  #apply(states, coders, index, stored, live) {
+    const c = this.plan.stream[index];
+    const state = states[c.primitive];
+    const payload = openChunk(stored, c, index); // digest and frame: nothing changed yet when they fail
+    if (live) this.broken = true;
     try {
-      if (c.payloadVersion === 2) this.coders[c.primitive].decodeChunk(payload, c); // splits, or a face chunk (c.faces)
+      if (c.payloadVersion === 2) coders[c.primitive].decodeChunk(payload, c); // splits, or a face chunk (c.faces)
       else state.applyPayload(unpackPayload(payload, state.D, state.capN));
     } catch (e) {
       if (e instanceof FormatError) e.message = `chunk ${index + 1}: ${e.message}`;
@@ -141,6 +175,23 @@ export class PmwDecoder {
     if (state.n !== c.vertexCount || state.m !== c.faceCount) {
       throw new FormatError(`chunk ${index + 1}: vertex/face counts differ from its index entry`);
     }
+    if (live) this.broken = false;
+  }
+
+  /**
+   * A chunk failed half applied: the states of the last good level, rebuilt from the base meshes and
+   * the chunks applied before it (the bytes are all still here). Runs once, only after such a failure.
+   */
+  #repair() {
+    const [states, coders] = this.#start(this.bases);
+    const { binStart } = this.header;
+    for (let k = 0; k < this.chunksApplied; k++) {
+      const c = this.plan.stream[k];
+      this.#apply(states, coders, k, this.buf.subarray(binStart + c.offset, binStart + c.offset + c.length), false);
+    }
+    this.states = states;
+    this.coders = coders;
+    this.broken = false;
   }
 
   #result(bytesRead) {
@@ -152,7 +203,13 @@ export class PmwDecoder {
       parts,
     };
     if (this.snapshots) r.mesh = this.snapshot();
-    this.onLevel?.(r, this);
+    if (this.onLevel) {
+      try {
+        this.onLevel(r, this);
+      } catch (e) { // the caller's bug is not the stream's failure: reported, and the decode goes on
+        reportCallbackError(this.onCallbackError, e);
+      }
+    }
     return r;
   }
 
@@ -165,9 +222,12 @@ export class PmwDecoder {
    * (exact, as the reference decoder's int64; never for a valid stream, whose values are < 2^30).
    * With one progressive primitive, positions, positionsInt and indices ARE parts[0]'s arrays (the
    * same objects, not copies): writing to one shows in the other.
+   * After a failure, the last good level (the one the last result reported): a chunk that failed is
+   * never shown, even half applied.
    */
   snapshot() {
-    if (this.failed) throw this.failed; // a chunk may be half applied: never shown as a level
+    if (this.broken) this.#repair();
+    if (!this.states && this.failed) throw this.failed; // the stream broke before its base mesh
     if (!this.states) throw new TruncatedError('no base mesh yet', this.received, this.#baseBytes());
     const parts = this.states.map((s, p) => partSnapshot(s, this.plan.primitives[p]));
     if (parts.length === 1) {
@@ -197,12 +257,19 @@ export class PmwDecoder {
   }
 
   /**
-   * Ends the stream. @returns {{complete: boolean, bytesReceived: number, totalLength: number,
-   * chunksApplied: number, chunkCount: number}}; TruncatedError when no base mesh arrived.
+   * Ends the stream, once the feeds queued before it are done (it needs no await of them). Resolves to
+   * {complete: boolean, bytesReceived: number, totalLength: number, chunksApplied: number, chunkCount: number};
+   * rejects with the error that broke the stream, or a TruncatedError when no base mesh arrived. A later
+   * feed() is a TypeError; a second close() settles as the first.
    */
   close() {
-    if (this.failed) throw this.failed;
     this.closed = true;
+    this.end ??= this.queue.then(() => this.#close());
+    return this.end;
+  }
+
+  #close() {
+    if (this.failed) throw this.failed;
     if (!this.states) {
       throw new TruncatedError(`stream ended after ${this.received} bytes, before the base mesh (${this.#baseBytes()} bytes)`,
         this.received, this.#baseBytes());
@@ -213,6 +280,19 @@ export class PmwDecoder {
       bytesReceived: this.received, totalLength: this.header.length, chunksApplied: this.chunksApplied, chunkCount,
     };
   }
+}
+
+/** Hands what a caller's callback threw to `handler` (itself guarded), else to console.error. */
+export function reportCallbackError(handler, error) {
+  try {
+    if (handler) {
+      handler(error);
+      return;
+    }
+  } catch (e) {
+    error = e;
+  }
+  console.error('pmwm-progressive: a callback threw (the decode goes on):', error);
 }
 
 /** The bytes of `data` (ArrayBuffer, typed array or DataView) as a Uint8Array view; TypeError for anything else. */

@@ -1,6 +1,7 @@
 /**
  * Named errors of the decoder, the kinds of spec/README.md "Kinds of refusal". Every failure on input bytes is a
- * PmwError subclass:
+ * PmwError subclass, and so are the three.js plugin's failures to get a stream (FetchError) or to match it to the
+ * document three.js parsed (StreamMismatchError):
  *
  *   PmwError
  *   ├── FormatError            the bytes break the format (spec/README.md, spec/bitstream.md)
@@ -9,7 +10,14 @@
  *   ├── CorruptChunkError      a chunk's stored bytes do not match its BLAKE2b digest, or (chunk
  *   │                          null) the decoded base mesh does not match its baseDigest
  *   ├── TruncatedError         the stream ended before the base mesh was complete
- *   └── DracoError             the Draco base mesh could not be decoded
+ *   ├── DracoError             the Draco base mesh could not be decoded
+ *   ├── FetchError             (three.js plugin) the stream could not be fetched: an HTTP status that is no answer
+ *   │                          to the request (404, 500; `.status`), or a network failure (`.status` undefined,
+ *   │                          `.cause` the fetch API's error); `.url`. Not a fault of the file's bytes: retry later
+ *   └── StreamMismatchError    (three.js plugin) the stream read from `options.url` is not the document three.js
+ *                              parsed (its PMWM_progressive_mesh objects differ: another file, or another version)
+ *
+ * Misuse of the push decoder (feed() after close()) is a TypeError, as writing to a closed WritableStream is.
  */
 export class PmwError extends Error {
   constructor(message, options) {
@@ -35,3 +43,17 @@ export class TruncatedError extends PmwError {
   }
 }
 export class DracoError extends PmwError {}
+export class FetchError extends PmwError {
+  /** @param {{url?: string, status?: number, cause?: unknown}} details */
+  constructor(message, { url, status, cause } = {}) {
+    super(message, cause === undefined ? undefined : { cause });
+    this.url = url;
+    this.status = status;
+  }
+}
+export class StreamMismatchError extends PmwError {
+  constructor(message, url) {
+    super(message);
+    this.url = url;
+  }
+}

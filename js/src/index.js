@@ -27,7 +27,7 @@ export {
 export async function decodePmw(bytes, { chunks, draco } = {}) {
   const decoder = new PmwDecoder({ draco, maxChunks: chunks ?? Infinity });
   const results = await decoder.feed(bytes);
-  const end = decoder.close();
+  const end = await decoder.close();
   const mesh = decoder.snapshot();
   return {
     ...mesh, chunksApplied: end.chunksApplied, chunkCount: end.chunkCount, complete: end.complete,

@@ -13,7 +13,11 @@
  * at most to the full resolution; draw range grown) and calls `onChunk`. Stops: `maxChunks`, `maxGeometricError`
  * (the first chunk whose geometricError is at most this), `byteBudget` (no byte past it is used, but the
  * base is: below it, the base is the level shown). A stop, a stop condition or a failure cancels the rest of a
- * streamed GET.
+ * streamed GET; `stop()` (or `options.signal` aborting) aborts the request in flight at once. A Range answer
+ * shorter than asked is followed by a request for the rest. The levels decoded before a failure stay drawn;
+ * `done` rejects with it (HTTP and network failures: FetchError). The stream must be the document three.js
+ * parsed (its PMWM_progressive_mesh objects), else StreamMismatchError before anything is drawn. What onBase,
+ * onChunk, onDone throw goes to onCallbackError (else console.error), never failing the load.
  * `loadProgressive(loader, url)` fetches only the bytes up to the base first, so the base is shown
  * before any chunk is downloaded. Decoding (`worker`): in a module Worker (decode-worker.js) when the
  * header's full vertex count exceeds `workerThreshold` (default 100,000) or `worker: true`; on the main
@@ -21,7 +25,8 @@
  * the same levels, arrays and named errors either way (worker-decoder.js).
  */
 import { Box3, BufferAttribute, LoaderUtils, Sphere } from 'three';
-import { FormatError, TruncatedError } from './errors.js';
+import { reportCallbackError } from './decoder.js';
+import { FetchError, FormatError, PmwError, StreamMismatchError, TruncatedError } from './errors.js';
 import { checkPreamble, parseGlb, planDocument, preambleLength } from './header.js';
 import { createDecoder, threeName } from './worker-decoder.js';
 
@@ -31,9 +36,9 @@ export class PMWMProgressivePlugin {
   /**
    * @param {object} parser the GLTFParser
    * @param {{url?: string, range?: boolean, maxChunks?: number, maxGeometricError?: number,
-   *   byteBudget?: number, onBase?: Function, onChunk?: Function, onDone?: Function, fetch?: Function,
-   *   prefix?: Uint8Array, reader?: object, worker?: 'auto'|boolean, workerThreshold?: number,
-   *   workerUrl?: string|URL}} options
+   *   byteBudget?: number, onBase?: Function, onChunk?: Function, onDone?: Function, onCallbackError?: Function,
+   *   fetch?: Function, signal?: AbortSignal, prefix?: Uint8Array, reader?: object, worker?: 'auto'|boolean,
+   *   workerThreshold?: number, workerUrl?: string|URL}} options
    *   onChunk({chunk, chunksTotal, vertexCount, faceCount, bytesRead, bytesFetched, requests})
    *   worker: 'auto' (default: a worker above workerThreshold vertices), true, false (main thread);
    *   workerUrl: the decode-worker.js to start (default: next to this module)
@@ -47,7 +52,7 @@ export class PMWMProgressivePlugin {
   async afterRoot(gltf) {
     const targets = await progressiveTargets(this.parser, gltf);
     if (!targets.length) return;
-    const run = new ProgressiveRun(targets, this.options);
+    const run = new ProgressiveRun(targets, this.options, this.parser.json);
     gltf.userData = gltf.userData ?? {};
     gltf.userData.pmwm = run;
     run.done = run.start();
@@ -80,22 +85,43 @@ async function progressiveTargets(parser, gltf) {
   return [...byKey.values()].sort((a, b) => a.mesh - b.mesh || a.primitive - b.primitive);
 }
 
-/** One progressive load: reads the stream, feeds a decoder (PmwDecoder or WorkerDecoder), refreshes the geometries. */
+/**
+ * One progressive load: reads the stream, feeds a decoder (PmwDecoder or WorkerDecoder), refreshes the geometries.
+ * `json`: the document three.js parsed (parser.json); the stream must hold the same PMWM_progressive_mesh objects.
+ */
 export class ProgressiveRun {
-  constructor(targets, options) {
+  constructor(targets, options, json = null) {
     this.targets = targets;
     this.options = options;
+    this.json = json;
+    this.checked = false;
     this.levels = [];
     this.bytesFetched = 0;
     this.requests = 0;
     this.stopped = false;
-    const { maxChunks = Infinity, worker = 'auto', workerThreshold, workerUrl } = options;
+    // aborts the request in flight on stop(); loadProgressive's own (its streamed GET's body) when it made one
+    this.controller = options.controller ?? new AbortController();
+    const { maxChunks = Infinity, worker = 'auto', workerThreshold, workerUrl, signal } = options;
     this.decoder = createDecoder({ bases: threeDracoBases(targets), maxChunks, worker, workerThreshold, workerUrl,
       keep: [options.prefix?.buffer] });
+    if (signal?.aborted) this.stop();
+    else if (signal) {
+      const onAbort = () => this.stop();
+      signal.addEventListener('abort', onAbort, { once: true });
+      this.unlink = () => signal.removeEventListener('abort', onAbort);
+    }
   }
 
-  /** Stops reading after the chunk being read. */
-  stop() { this.stopped = true; }
+  /**
+   * Stops: the request in flight is aborted at once (no more bytes are awaited), no chunk after the level
+   * shown is applied, and `done` resolves with the outcome (`stopped: true`). The base that loadProgressive
+   * already holds is still made level 0.
+   */
+  stop() {
+    if (this.stopped) return;
+    this.stopped = true;
+    this.controller.abort();
+  }
 
   /**
    * The bytes this run may feed: up to the end of the last chunk wanted (maxChunks, maxGeometricError)
@@ -109,6 +135,7 @@ export class ProgressiveRun {
     if (!plan) return received < 20 ? 20 : headerEndOf(this); // the header first: then the limit is known
     const { stream } = plan;
     const base = header.binStart + (stream.length ? stream[0].offset : plan.baseEnd);
+    if (this.stopped) return Math.max(base, received); // stopped: the base (when held) and no chunk more
     const want = this.chunksWanted();
     const last = stream[want - 1];
     const wanted = want === stream.length ? Infinity : last ? header.binStart + last.offset + last.length : base;
@@ -118,25 +145,58 @@ export class ProgressiveRun {
   async start() {
     const o = this.options;
     const fetchFn = o.fetch ?? globalThis.fetch.bind(globalThis);
-    const source = o.reader ? continueReader(o.prefix, o.reader, this)
+    const source = o.reader ? continueReader(o.prefix, o.reader, this, o.url)
       : readStream(o.url, fetchFn, o.range ?? true, this, o.prefix);
     let end;
     try {
       for await (const piece of source) {
-        if (this.stopped) break;
+        if (this.stopped && this.levels.length) break; // the prefix loadProgressive holds still makes the base
         const results = await this.decoder.feed(piece);
-        for (const r of results) this.#level(r);
-        if (this.#enough()) break;
+        if (!this.checked && this.decoder.header) this.#checkDocument(); // before any base is decoded
+        for (const r of results) this.#level(r); // a chunk failed after them: those levels still show
+        if (this.decoder.error || this.#enough()) break;
       }
-      end = await this.decoder.close();
+      end = await this.decoder.close().catch((e) => {
+        // stopped before the base reached the decoder (a plugin of the caller's): three.js' base stays
+        if (this.stopped && !this.levels.length && !this.decoder.error && e instanceof TruncatedError) {
+          const { header, plan, received } = this.decoder;
+          return { complete: false, bytesReceived: received, totalLength: header?.length ?? null, chunksApplied: 0,
+            chunkCount: plan?.stream.length ?? null };
+        }
+        throw e;
+      });
     } finally {
+      this.unlink?.();
       this.decoder.dispose?.();
       this.#release();
     }
     const outcome = { ...end, bytesFetched: this.bytesFetched, requests: this.requests, levels: this.levels.length,
-      workerLevels: this.decoder.workerLevels ?? 0 };
-    o.onDone?.(outcome);
+      workerLevels: this.decoder.workerLevels ?? 0, stopped: this.stopped };
+    this.#call(o.onDone, outcome);
     return outcome;
+  }
+
+  /** Calls a callback of the caller's: what it throws is reported (onCallbackError, else console.error), not the run's failure. */
+  #call(callback, event) {
+    if (!callback) return;
+    try {
+      callback(event);
+    } catch (e) {
+      reportCallbackError(this.options.onCallbackError, e);
+    }
+  }
+
+  /**
+   * The stream's header is in: its PMWM_progressive_mesh objects (each primitive's, with their fileId, baseDigest
+   * and chunk digests) must be those of the document three.js parsed, else StreamMismatchError (nothing drawn).
+   */
+  #checkDocument() {
+    this.checked = true;
+    if (!this.json) return;
+    if (progressiveObjects(this.decoder.header.gltf) !== progressiveObjects(this.json)) {
+      throw new StreamMismatchError(`${this.options.url}: the stream there is not the document three.js parsed (their `
+        + `${EXTENSION_NAME} objects differ): the model is left as three.js loaded it`, this.options.url);
+    }
   }
 
   /**
@@ -146,7 +206,8 @@ export class ProgressiveRun {
   #release() {
     const { header, plan, received, chunksApplied, workerLevels } = this.decoder;
     this.decoder = { header, plan, received, chunksApplied, workerLevels };
-    this.options = { ...this.options, prefix: undefined, reader: undefined };
+    this.options = { ...this.options, prefix: undefined, reader: undefined, controller: undefined };
+    this.json = null;
   }
 
   /** The number of chunks worth reading, once the header is known (geometric error, maxChunks). */
@@ -184,9 +245,18 @@ export class ProgressiveRun {
     const event = { ...r, bytesFetched: this.bytesFetched, requests: this.requests };
     delete event.mesh;
     this.levels.push(event);
-    if (r.chunk === 0) this.options.onBase?.(event);
-    else this.options.onChunk?.(event);
+    this.#call(r.chunk === 0 ? this.options.onBase : this.options.onChunk, event);
   }
+}
+
+/** The PMWM_progressive_mesh objects of a glTF document, where they are, as one string (the same JSON: the same string). */
+function progressiveObjects(json) {
+  const found = [json?.extensions?.[EXTENSION_NAME] ?? null];
+  (json?.meshes ?? []).forEach((mesh, m) => mesh?.primitives?.forEach((prim, p) => {
+    const ext = prim?.extensions?.[EXTENSION_NAME];
+    if (ext) found.push([m, p, ext]);
+  }));
+  return JSON.stringify(found);
 }
 
 /**
@@ -266,13 +336,91 @@ function threeDracoBases(targets) {
   });
 }
 
+/** What a network wait gives when the run (or load) was stopped or aborted meanwhile: the caller ends quietly. */
+const STOPPED = Symbol('stopped');
+
+/**
+ * `promise`'s value, or STOPPED as soon as `signal` aborts (the promise is left to settle unseen: a fetch or read
+ * that ignores the signal is not waited for). A rejection is the network's failure: a FetchError (`.cause` the
+ * fetch API's error), or STOPPED when `signal` aborted.
+ */
+function guard(promise, signal, url) {
+  return new Promise((resolve, reject) => {
+    if (signal?.aborted) {
+      promise.catch(() => {});
+      resolve(STOPPED);
+      return;
+    }
+    const onAbort = () => resolve(STOPPED);
+    signal?.addEventListener('abort', onAbort, { once: true });
+    promise.then(resolve, (e) => (signal?.aborted ? resolve(STOPPED) : reject(networkError(url, e))))
+      .finally(() => signal?.removeEventListener('abort', onAbort));
+  });
+}
+
+/** A failure of fetch() or of reading a body (TypeError: terminated, network error...) as a FetchError. */
+function networkError(url, e) {
+  if (e instanceof PmwError) return e;
+  return new FetchError(`${url}: the request failed (${e?.message ?? e})`, { url, cause: e });
+}
+
+/** An answer whose status is no answer to the request: a FetchError with its status (its body is not read). */
+function httpError(url, res, what = '') {
+  res.body?.cancel().catch(() => {});
+  return new FetchError(`${url}: HTTP ${res.status}${what}`, { url, status: res.status });
+}
+
+/** {first, last, size} of an answer's Content-Range (size undefined for `*`), null when absent or not readable (CORS). */
+function contentRange(res) {
+  const m = /^\s*bytes\s+(\d+)-(\d+)\/(\d+|\*)\s*$/i.exec(res.headers?.get?.('Content-Range') ?? '');
+  return m && { first: Number(m[1]), last: Number(m[2]), size: m[3] === '*' ? undefined : Number(m[3]) };
+}
+
+/**
+ * The bytes [start, stop) of `url` by Range requests, block by block as the answers come: a server may answer
+ * with fewer bytes than asked (RFC 9110 §14.4), and the rest is then asked for, so the blocks fall short of
+ * `stop` only when the file ends first (a 416, an empty answer, or the size its Content-Range gives). `first`:
+ * the answer to a request for [start, stop) already made. Ends quietly when `signal` aborts; an answer other than
+ * 206/416, a Content-Range starting elsewhere, or a failed request is a FetchError. `count.requests` counts the
+ * requests made here.
+ */
+async function* rangeBlocks(fetchFn, url, start, stop, signal, count, first) {
+  let at = start;
+  while (at < stop) {
+    let res = first;
+    first = undefined;
+    if (!res) {
+      res = await guard(fetchFn(url, { headers: { Range: `bytes=${at}-${stop - 1}` }, signal }), signal, url);
+      if (res === STOPPED) return;
+      count.requests++;
+    }
+    if (res.status === 416) { // the file ends before `at`
+      res.body?.cancel().catch(() => {});
+      return;
+    }
+    if (res.status !== 206) throw httpError(url, res, ` to a Range request (bytes ${at}-${stop - 1})`);
+    const span = contentRange(res);
+    if (span && span.first !== at) {
+      throw httpError(url, res, `: its Content-Range (${res.headers.get('Content-Range')}) does not answer bytes ${at}-${stop - 1}`);
+    }
+    const body = await guard(res.arrayBuffer(), signal, url);
+    if (body === STOPPED) return;
+    const block = new Uint8Array(body, 0, Math.min(body.byteLength, stop - at));
+    if (!block.length) return; // nothing past `at`: the file ends there
+    at += block.length;
+    yield block;
+    if (span?.size !== undefined && at >= span.size) return; // the file ends here
+  }
+}
+
 /** Bytes already read (`prefix`) then the rest of a ReadableStream reader, within the run's byte limit. */
-async function* continueReader(prefix, reader, run) {
+async function* continueReader(prefix, reader, run, url) {
   let done = false;
   try {
     if (prefix?.length) yield* withinLimit(prefix, run);
     while (!run.stopped && run.decoder.received < run.byteLimit()) {
-      const next = await reader.read();
+      const next = await guard(reader.read(), run.controller.signal, url);
+      if (next === STOPPED) return;
       if (next.done) { done = true; return; }
       run.bytesFetched += next.value.length;
       yield* withinLimit(next.value, run);
@@ -296,41 +444,42 @@ function* withinLimit(piece, run) {
 
 /** The file at `url`: by Range requests (when allowed and honoured), else one streamed GET. */
 async function* readStream(url, fetchFn, range, run, prefix) {
-  if (!url) throw new FormatError('PMWMProgressivePlugin: no url to read the stream from (options.url)');
+  if (!url) throw new TypeError('PMWMProgressivePlugin: no url to read the stream from (options.url)');
+  const { signal } = run.controller;
   let start = 0;
   if (prefix?.length) {
     yield* withinLimit(prefix, run);
     start = prefix.length;
   } else {
-    const first = await fetchFn(url, range ? { headers: { Range: 'bytes=0-19' } } : {});
+    if (run.stopped) return;
+    const first = await guard(fetchFn(url, range ? { headers: { Range: 'bytes=0-19' }, signal } : { signal }), signal, url);
+    if (first === STOPPED) return;
     run.requests++;
-    if (!first.ok) throw new FormatError(`${url}: HTTP ${first.status}`);
+    if (!first.ok) throw httpError(url, first);
     if (first.status !== 206) {
-      yield* continueReader(null, first.body.getReader(), run);
+      yield* continueReader(null, first.body.getReader(), run, url);
       return;
     }
-    const head = new Uint8Array(await first.arrayBuffer());
-    const got = head.length; // a piece yielded may be transferred to the decode worker (then empty here)
-    run.bytesFetched += got;
-    yield head;
-    if (got < 20) return;
-    start = 20;
+    for await (const block of rangeBlocks(fetchFn, url, 0, 20, signal, run, first)) {
+      const got = block.length; // a piece yielded may be transferred to the decode worker (then empty here)
+      run.bytesFetched += got;
+      start += got;
+      yield block;
+    }
+    if (start < 20) return; // the file ends within its preamble
   }
   for (const end of rangeEnds(run, preambleLength(prefix ?? new Uint8Array(0)))) {
     if (run.stopped) return;
     if (end <= start) continue;
     const stop = Math.min(end, run.byteLimit());
     if (stop <= start) return;
-    const res = await fetchFn(url, { headers: { Range: `bytes=${start}-${stop - 1}` } });
-    run.requests++;
-    if (res.status === 416) return;
-    if (res.status !== 206) throw new FormatError(`${url}: HTTP ${res.status} to a Range request`);
-    const block = new Uint8Array(await res.arrayBuffer());
-    const got = block.length;
-    run.bytesFetched += got;
-    yield block;
-    if (got < stop - start || stop < end) return;
-    start = end;
+    for await (const block of rangeBlocks(fetchFn, url, start, stop, signal, run)) {
+      const got = block.length;
+      run.bytesFetched += got;
+      start += got;
+      yield block;
+    }
+    if (start < stop || stop < end) return; // the file ended, or the byte limit
   }
 }
 
@@ -356,19 +505,28 @@ function headerEndOf(run) {
  * first: by Range requests, or the start of one fetch stream. three.js shows that base; a
  * PMWMProgressivePlugin registered for this load only then refines it from the rest (not fetched twice).
  * Do not also register the plugin on `loader` yourself. Options as PMWMProgressivePlugin's. A GLB
- * without the extension loads whole, as it is; a file that ends before those bytes is a TruncatedError.
+ * without the extension loads whole, as it is; a file that ends before those bytes is a TruncatedError;
+ * an HTTP error or a failed request a FetchError. `options.signal` (an AbortSignal): aborted before this
+ * resolves, it rejects with `signal.reason` (as fetch() does; an AbortError DOMException unless the caller
+ * gave another reason); aborted later, it stops the run as `gltf.userData.pmwm.stop()` does.
  * @param {string|URL} href the .pmw's URL
  * @returns {Promise<object>} the gltf; `gltf.userData.pmwm.done` resolves when the stream ends
  */
 export async function loadProgressive(loader, href, options = {}) {
+  const { signal } = options;
+  signal?.throwIfAborted();
   const given = String(href); // a URL object as well (new URL('./model.pmw', import.meta.url))
   // as GLTFLoader.load: the loader's path and its manager's URL modifier, its request headers and credentials
   const url = loader.manager?.resolveURL?.((loader.path ?? '') + given) ?? given;
   const resourcePath = options.path ?? (loader.resourcePath || (loader.path
     ? LoaderUtils.resolveURL(LoaderUtils.extractUrlBase(given), loader.path) : LoaderUtils.extractUrlBase(given)));
+  // aborts every request of this load, those of its run included (the run's stop() aborts it too)
+  const controller = new AbortController();
+  const onAbort = () => controller.abort(signal.reason);
+  signal?.addEventListener('abort', onAbort, { once: true });
   const baseFetch = options.fetch ?? globalThis.fetch.bind(globalThis);
   const fetchFn = (target, init = {}) => baseFetch(target, { ...init, headers: { ...loader.requestHeader, ...init.headers },
-    ...(loader.withCredentials ? { credentials: 'include' } : {}) });
+    ...(loader.withCredentials ? { credentials: 'include' } : {}), signal: init.signal ?? controller.signal });
   const stats = { bytesFetched: 0, requests: 0 };
   let prefix = new Uint8Array(0); // a view of `kept`, whose capacity doubles: appending stays linear
   let kept = prefix;
@@ -394,29 +552,37 @@ export async function loadProgressive(loader, href, options = {}) {
     const { stream } = planDocument(header.gltf, header.binLength);
     return (known = stream.length ? header.binStart + stream[0].offset : header.length);
   };
-  const res = await fetchFn(url, options.range === false ? {} : { headers: { Range: 'bytes=0-19' } });
-  stats.requests++;
-  if (!res.ok) throw new FormatError(`${url}: HTTP ${res.status}`);
+  /** Range requests for the bytes up to `end` (short answers: the rest asked for), while the file lasts. */
+  const getRange = async (end, first) => {
+    for await (const block of rangeBlocks(fetchFn, url, prefix.length, end, controller.signal, stats, first)) append(block);
+  };
   let reader = null;
   let gltf;
   try {
+    const res = await guard(fetchFn(url, options.range === false ? {} : { headers: { Range: 'bytes=0-19' } }),
+      controller.signal, url);
+    if (res === STOPPED) throw signal.reason;
+    stats.requests++;
+    if (!res.ok) throw httpError(url, res);
     if (res.status === 206) {
-      append(new Uint8Array(await res.arrayBuffer()));
-      if (prefix.length === 20) await getRange(fetchFn, url, 20, needed(), append, stats);
-      if (prefix.length === preambleLength(prefix)) await getRange(fetchFn, url, prefix.length, needed(), append, stats);
+      await getRange(20, res);
+      if (prefix.length === 20) await getRange(needed());
+      if (prefix.length === preambleLength(prefix)) await getRange(needed());
     } else {
       reader = res.body.getReader();
       while (prefix.length < needed()) {
-        const { value, done } = await reader.read();
-        if (done) break;
-        append(value);
+        const next = await guard(reader.read(), controller.signal, url);
+        if (next === STOPPED || next.done) break;
+        append(next.value);
       }
     }
+    signal?.throwIfAborted();
     if (prefix.length < needed()) {
       throw new TruncatedError(`${url}: the file ended after ${prefix.length} bytes, before its base mesh and what `
         + `comes before the first chunk (${needed()} bytes)`, prefix.length, needed());
     }
-    const factory = (parser) => new PMWMProgressivePlugin(parser, { ...options, url, prefix, reader, fetch: fetchFn });
+    const factory = (parser) => new PMWMProgressivePlugin(parser, { ...options, url, prefix, reader, fetch: fetchFn,
+      controller });
     loader.register(factory);
     try {
       gltf = await loader.parseAsync(baseGlb(prefix).buffer, resourcePath);
@@ -424,25 +590,23 @@ export async function loadProgressive(loader, href, options = {}) {
       loader.unregister(factory);
     }
   } catch (e) {
+    signal?.removeEventListener('abort', onAbort);
     reader?.cancel().catch(() => {}); // a failed load reads no more of a streamed GET
+    if (signal?.aborted) throw signal.reason; // aborted: the reason, whatever the request in flight threw
     throw e;
   }
+  signal?.removeEventListener('abort', onAbort); // from here the run follows the signal (it aborts `controller`)
   if (!gltf.userData?.pmwm) reader?.cancel().catch(() => {}); // no stream to refine: nothing more is read
   const run = gltf.userData?.pmwm;
   if (run) {
     run.bytesFetched += stats.bytesFetched;
     run.requests += stats.requests;
   }
+  if (signal?.aborted) { // aborted while three.js parsed the base: the run is stopped (it follows the signal)
+    run?.stop();
+    throw signal.reason;
+  }
   return gltf;
-}
-
-async function getRange(fetchFn, url, start, end, append, stats) {
-  if (end <= start) return;
-  const res = await fetchFn(url, { headers: { Range: `bytes=${start}-${end - 1}` } });
-  stats.requests++;
-  if (res.status === 416) return; // the file ends before `start`: the caller finds it short
-  if (res.status !== 206) throw new FormatError(`${url}: HTTP ${res.status} to a Range request`);
-  append(new Uint8Array(await res.arrayBuffer()));
 }
 
 /** A prefix of a .pmw as a GLB three.js accepts: the GLB and BIN lengths cut to the bytes present. */

@@ -91,6 +91,8 @@ export class WorkerDecoder {
   get plan() { return this.local ? this.local.plan : this.#plan; }
   get received() { return this.local ? this.local.received : this.#received; }
   get chunksApplied() { return this.local ? this.local.chunksApplied : this.#chunksApplied; }
+  /** The error that broke the stream (as PmwDecoder's `error`), else null. */
+  get error() { return this.local ? this.local.error : this.failed; }
   /** Whether decoding runs in a worker (false until the header decided it). */
   get inWorker() { return this.worker !== null; }
 
@@ -167,7 +169,7 @@ export class WorkerDecoder {
   }
 
   #reply(msg) {
-    if (msg.error) {
+    if (msg.error && !msg.results) {
       this.#fail(reviveError(msg.error)); // rejects the request it answers with the rest
       return;
     }
@@ -176,6 +178,8 @@ export class WorkerDecoder {
     if (msg.results?.length) this.#chunksApplied = msg.results[msg.results.length - 1].chunk;
     if (msg.levels !== undefined) this.workerLevels = msg.levels;
     waiting?.resolve(msg.results ?? msg.end);
+    // a chunk failed after the levels of this piece: those are delivered, every later call fails
+    if (msg.error) this.#fail(reviveError(msg.error));
   }
 
   /** Rejects every pending request with `error` (and every later call), ends the worker. */
@@ -200,7 +204,7 @@ export class WorkerDecoder {
     }
     if (!this.local) { // less than a header arrived: the main-thread decoder reports it
       this.local = localDecoder(this.options);
-      await this.local.feed(this.buf.subarray(0, this.#received));
+      await this.local.feed(this.buf.subarray(0, this.#received)).catch(() => {}); // close() says why
     }
     return this.local.close();
   }

@@ -173,6 +173,27 @@ for (const subject of SUBJECTS) {
       assert.deepEqual([inWorker.result.errorName, inWorker.result.errorMessage],
         [main.result.errorName, main.result.errorMessage]);
     });
+
+    test('a corrupt last chunk leaves the last good level drawn and reported, by Range and by one streamed GET, in the worker and on the main thread',
+      opts(), async () => {
+        const header = parseGlb(bytes);
+        const { stream } = planDocument(header.gltf, header.binLength);
+        const K = stream.length;
+        const corrupt = bytes.slice();
+        corrupt[header.binStart + stream[K - 1].offset + stream[K - 1].length - 1] ^= 0x40;
+        const name = `corrupt-last-${path.basename(subject.src)}`;
+        fs.writeFileSync(path.join(tmp, name), corrupt);
+        const good = await decodePmw(bytes, { chunks: K - 1 });
+        for (const [server, query] of [[servers.fast, 'worker=0'], [servers.fast, 'worker=1'],
+          [servers.plain, 'worker=0&range=0'], [servers.plain, 'worker=1&range=0']]) {
+          const { result, levels, arrays } = await load(server, `/data/${name}`, query, { failing: true, arrays: true });
+          assert.equal(result.errorName, 'CorruptChunkError', query);
+          // the page records the base once loaded, then each onChunk
+          assert.deepEqual(levels.map((l) => l.chunk), [...Array(K).keys()], `${query}: onChunk of every good chunk`);
+          assert.deepEqual(arrays.positions, Array.from(good.positions), query);
+          assert.deepEqual(arrays.indices, Array.from(good.indices), query);
+        }
+      });
   });
 }
 

@@ -22,7 +22,7 @@ for (const file of conformanceFiles()) {
     const want = readNpz(new Uint8Array(readFileSync(join(CONFORMANCE, file.replace(/\.pmw$/, '.expected.npz')))));
     const decoder = new PmwDecoder({ snapshots: true });
     const results = await decoder.feed(bytes);
-    assert.equal(decoder.close().complete, true);
+    assert.equal((await decoder.close()).complete, true);
     assert.deepEqual(results.map((r) => r.bytesRead), asNumbers(want.chunk_bytes.data));
     assert.deepEqual(results.flatMap((r) => [r.vertexCount, r.faceCount]), asNumbers(want.counts.data));
     if (want.part_counts) {

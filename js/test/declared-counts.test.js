@@ -72,7 +72,7 @@ async function decode(bytes) {
   let error = null;
   try {
     await decoder.feed(bytes);
-    decoder.close();
+    await decoder.close();
   } catch (e) {
     error = e;
   }
@@ -134,7 +134,7 @@ test('a valid file\'s arrays start at its base\'s size, stay within twice each l
       },
     });
     const results = await decoder.feed(read(name));
-    assert.equal(decoder.close().complete, true);
+    assert.equal((await decoder.close()).complete, true);
     const want = readNpz(read(name.replace(/\.pmw$/, '.expected.npz')));
     assert.deepEqual(results.map((r) => levelDigest(r.mesh)), want.level_sha256.data, name);
     const [base] = capacities;

@@ -20,7 +20,7 @@ try {
   })}\n`);
   const decoder = new PmwDecoder({ onLevel: write });
   await decoder.feed(bytes);
-  const end = decoder.close();
+  const end = await decoder.close();
   process.stdout.write(`${JSON.stringify({ end })}\n`);
 } catch (e) {
   process.stderr.write(`dump: error: ${e.name}: ${e.message}\n`);

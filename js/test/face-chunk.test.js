@@ -222,7 +222,7 @@ test('every prefix of a file ending in a face chunk with new vertices gives the 
     const d = new PmwDecoder();
     const shown = (await d.feed(bytes.subarray(0, cut))).map((r) => r.bytesRead);
     assert.deepEqual(shown, want.levels.filter((l) => l.bytesRead <= cut).map((l) => l.bytesRead), `cut ${cut}`);
-    assert.equal(d.close().complete, cut === bytes.length);
+    assert.equal((await d.close()).complete, cut === bytes.length);
     assert.equal(levelDigest(d.snapshot()), want.levels[shown.length - 1].sha256, `cut ${cut}`);
   }
 });
@@ -522,7 +522,7 @@ test('a whole file whose last chunk is a face chunk with new vertices: they reac
   assert.deepEqual(entries(patched).slice(-2).map((c) => [c.faces, c.splits]), [[false, stream[K - 2].splits], [true, 3]]);
   const d = new PmwDecoder({ snapshots: true });
   const levels = await d.feed(patched);
-  assert.equal(d.close().complete, true);
+  assert.equal((await d.close()).complete, true);
   const mesh = levels[levels.length - 1].mesh;
   assert.deepEqual([levels[levels.length - 1].vertexCount, levels[levels.length - 1].faceCount], [n + 3, m + 4]);
   assert.deepEqual(Array.from(mesh.indices.subarray(0, 3 * m)), Array.from(before.indices));

@@ -24,7 +24,7 @@ async function outcome(bytes, what) {
   const timer = new Promise((_, reject) => setTimeout(() => reject(new Error(`${what}: decode did not end in 5 s`)), 5000).unref());
   try {
     await Promise.race([d.feed(bytes), timer]);
-    d.close();
+    await d.close();
     return 'ok';
   } catch (e) {
     if (!(e instanceof PmwError)) assert.fail(`${what}: ${e?.name}: ${e?.message}\n${e?.stack}`);

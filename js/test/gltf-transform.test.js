@@ -61,7 +61,7 @@ const withoutViews = (ext) => ({ ...ext, chunks: ext.chunks.map(({ bufferView, b
 async function levels(bytes) {
   const decoder = new PmwDecoder({ snapshots: true });
   const results = await decoder.feed(bytes);
-  assert.equal(decoder.close().complete, true);
+  assert.equal((await decoder.close()).complete, true);
   return results.map((r) => ({ vertices: r.vertexCount, faces: r.faceCount, digest: levelDigest(r.mesh) }));
 }
 
@@ -235,7 +235,7 @@ for (const file of ['grid-hole.plain.v1.pmw', 'sphere-attributes.plain.packed.v2
     document.getRoot().listScenes()[0].addChild(document.createNode('copy').setMesh(copy));
     const decoder = new PmwDecoder();
     await decoder.feed(await io.writeBinary(document)); // was: 'chunks overlap each other or the base meshes'
-    assert.equal(decoder.close().complete, true);
+    assert.equal((await decoder.close()).complete, true);
     const [full] = (await levels(original)).slice(-1);
     const { parts } = decoder.snapshot();
     assert.equal(parts.length, 2);

@@ -75,11 +75,11 @@ test('every prefix of a version 2 file gives the levels of its whole chunks, or 
     const shown = (await d.feed(bytes.subarray(0, cut))).map((r) => r.bytesRead);
     if (cut < baseEnd) {
       assert.deepEqual(shown, [], `cut ${cut}`);
-      assert.throws(() => d.close(), TruncatedError, `cut ${cut}`);
+      await assert.rejects(d.close(), TruncatedError, `cut ${cut}`);
       continue;
     }
     assert.deepEqual(shown, want.levels.filter((l) => l.bytesRead <= cut).map((l) => l.bytesRead), `cut ${cut}`);
-    assert.equal(d.close().complete, false);
+    assert.equal((await d.close()).complete, false);
     assert.equal(levelDigest(d.snapshot()), want.levels[shown.length - 1].sha256, `cut ${cut}`);
   }
 });

@@ -17,7 +17,7 @@ async function levels(bytes, pieces) {
   const d = new PmwDecoder({ snapshots: true });
   const out = [];
   for (const piece of pieces(bytes)) out.push(...await d.feed(piece));
-  return { out, end: d.close() };
+  return { out, end: await d.close() };
 }
 
 for (const file of conformanceFiles()) {
@@ -59,7 +59,7 @@ test('a file cut before its base mesh is complete is reported truncated with byt
   for (const cutAt of [0, 7, 20, 500, out[0].bytesRead - 1]) {
     const d = new PmwDecoder();
     assert.deepEqual(await d.feed(bytes.subarray(0, cutAt)), []);
-    assert.throws(() => d.close(), (e) => e instanceof TruncatedError && e.bytesReceived === cutAt);
+    await assert.rejects(d.close(), (e) => e instanceof TruncatedError && e.bytesReceived === cutAt);
   }
 });
 
@@ -68,8 +68,16 @@ test('a chunk whose stored bytes change is corrupt, named, and neither it nor la
   const { out } = await levels(bytes, (b) => [b]);
   bytes[out[1].bytesRead - 3] ^= 0x10; // inside chunk 0
   const d = new PmwDecoder();
-  await assert.rejects(d.feed(bytes), (e) => e instanceof CorruptChunkError && e.chunk === 0);
-  await assert.rejects(d.feed(new Uint8Array(0)), CorruptChunkError);
+  // the base came in the same feed: it is delivered, and the error comes from the next call
+  assert.deepEqual((await d.feed(bytes)).map((r) => r.chunk), [0]);
+  assert.ok(d.error instanceof CorruptChunkError && d.error.chunk === 0);
+  assert.equal(d.chunksApplied, 0);
+  await assert.rejects(d.feed(new Uint8Array(0)), (e) => e instanceof CorruptChunkError && e.chunk === 0);
+  await assert.rejects(d.close(), CorruptChunkError);
+  // the base alone first: the feed that brings the bad chunk (and no good level) rejects at once
+  const e = new PmwDecoder();
+  assert.equal((await e.feed(bytes.subarray(0, out[0].bytesRead))).length, 1);
+  await assert.rejects(e.feed(bytes.subarray(out[0].bytesRead)), (x) => x instanceof CorruptChunkError && x.chunk === 0);
 });
 
 test('bytes beyond the GLB length are a format error', async () => {
@@ -134,7 +142,7 @@ test('decodePmw and feed take an ArrayBuffer or any typed array as bytes, and re
   await d.feed(new Uint16Array(buffer, 0, 10)); // the first 20 bytes, by their bytes
   for (const wrong of ['glTF', [103, 108, 84, 70], null, 7]) await assert.rejects(d.feed(wrong), TypeError);
   await d.feed(new Uint8Array(buffer, 20)); // the refusals left the decoder as it was
-  assert.equal(d.close().complete, true);
+  assert.equal((await d.close()).complete, true);
 });
 
 test('a Draco decoder of the caller\'s that fails or gives no mesh ends in a DracoError', async () => {

@@ -59,7 +59,7 @@ export async function failure(bytes) {
   try {
     const d = new PmwDecoder();
     await d.feed(bytes);
-    d.close();
+    await d.close();
     return null;
   } catch (e) {
     if (!(e instanceof PmwError)) throw e;
@@ -78,7 +78,7 @@ export async function jsLevels(bytes) {
     bytesRead: r.bytesRead, vertexCount: r.vertexCount, faceCount: r.faceCount,
     parts: r.parts.map((p) => [p.vertexCount, p.faceCount]), sha256: levelDigest(r.mesh),
   }));
-  return { levels, end: d.close(), last: results[results.length - 1].mesh };
+  return { levels, end: await d.close(), last: results[results.length - 1].mesh };
 }
 
 /** What this decoder makes of `bytes`: its PmwError, or jsLevels(bytes) when it decodes them. */

@@ -1,7 +1,10 @@
 // A static file server on 127.0.0.1 (free port) with single-range Range support, for the tests.
 // Counts body bytes sent (`stats.bytes`) and requests; `ranges: false` answers every GET whole (200);
 // `delayMs` waits before each response (a throttled network); `mounts` serves more directories under
-// URL prefixes ({'/data/': dir}: /data/x is dir/x).
+// URL prefixes ({'/data/': dir}: /data/x is dir/x). Per request, query parameters of a .pmw's URL:
+// `cap=N` answers a Range request with at most N bytes (a short 206, as RFC 9110 allows), `fail=K` answers
+// the K-th request for that URL (path and query) with HTTP 500, `cut=N` drops the connection after N bytes
+// of a whole (200) answer, `stall=N` sends N bytes of a whole answer (at most all but one) and then nothing more (never ends).
 import fs from 'node:fs';
 import http from 'node:http';
 import path from 'node:path';
@@ -10,9 +13,11 @@ const TYPES = { '.html': 'text/html', '.js': 'text/javascript', '.mjs': 'text/ja
   '.pmw': 'model/gltf-binary', '.json': 'application/json' };
 
 export async function startServer(root, { ranges = true, delayMs = 0, mounts = {} } = {}) {
-  const stats = { bytes: 0, requests: 0, log: [] };
+  const stats = { bytes: 0, requests: 0, log: [], asked: {} };
   const server = http.createServer(async (req, res) => {
     stats.requests++;
+    const query = new URL(req.url, 'http://x').searchParams;
+    const asked = (stats.asked[req.url] = (stats.asked[req.url] ?? 0) + 1);
     let rel = decodeURIComponent(new URL(req.url, 'http://x').pathname);
     const mount = Object.keys(mounts).find((prefix) => rel.startsWith(prefix));
     const base = mount ? mounts[mount] : root;
@@ -22,6 +27,9 @@ export async function startServer(root, { ranges = true, delayMs = 0, mounts = {
       res.writeHead(404, { 'Content-Length': 0 }); res.end(); return;
     }
     if (delayMs && file.endsWith('.pmw')) await new Promise((r) => setTimeout(r, delayMs));
+    if (query.get('fail') && Number(query.get('fail')) === asked) {
+      res.writeHead(500, { 'Content-Length': 0 }); res.end(); return;
+    }
     const data = fs.readFileSync(file);
     const type = TYPES[path.extname(file)] ?? 'application/octet-stream';
     const m = ranges && /^bytes=(\d*)-(\d*)$/.exec(req.headers.range ?? '');
@@ -29,6 +37,7 @@ export async function startServer(root, { ranges = true, delayMs = 0, mounts = {
     if (m && (m[1] || m[2])) {
       let start = m[1] === '' ? Math.max(0, data.length - Number(m[2])) : Number(m[1]);
       let end = m[1] === '' || m[2] === '' ? data.length : Math.min(Number(m[2]) + 1, data.length);
+      if (query.get('cap')) end = Math.min(end, start + Number(query.get('cap')));
       if (start >= data.length || end <= start) {
         res.writeHead(416, { 'Content-Range': `bytes */${data.length}`, 'Content-Length': 0 }); res.end(); return;
       }
@@ -39,6 +48,12 @@ export async function startServer(root, { ranges = true, delayMs = 0, mounts = {
       res.writeHead(200, { 'Content-Type': type, 'Content-Length': body.length, 'Cache-Control': 'no-store' });
     }
     if (file.endsWith('.pmw')) { stats.bytes += body.length; stats.log.push(req.headers.range ?? 'whole'); }
+    const only = body === data ? query.get('cut') ?? query.get('stall') : null; // a whole answer, cut or stalled
+    if (only !== null) {
+      res.write(body.subarray(0, Math.min(Number(only), body.length - 1))); // never the whole body: it never ends
+      if (query.get('cut')) setTimeout(() => res.socket?.destroy(), 20); // else: stalls until closed
+      return;
+    }
     res.end(body);
   });
   await new Promise((resolve) => server.listen(0, '127.0.0.1', resolve));

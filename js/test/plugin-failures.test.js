@@ -1,0 +1,204 @@
+// The three.js plugin when things go wrong: a corrupt chunk (the levels before it stay drawn and reported),
+// stop() and AbortSignal (prompt, the drawn level kept), short 206 answers (the rest asked for), HTTP and
+// network failures (FetchError), a registered plugin whose url holds another document (StreamMismatchError),
+// and callbacks of the caller's that throw.
+import assert from 'node:assert/strict';
+import fs from 'node:fs';
+import os from 'node:os';
+import path from 'node:path';
+import { after, before, test } from 'node:test';
+import { GLTFLoader } from 'three/examples/jsm/loaders/GLTFLoader.js';
+import { parseGlb, planDocument } from '../src/header.js';
+import { CorruptChunkError, decodePmw, FetchError, FormatError, PmwError, StreamMismatchError } from '../src/index.js';
+import { loadProgressive, PMWMProgressivePlugin } from '../src/three-plugin.js';
+import { CONFORMANCE } from './lib/helpers.js';
+import { startServer } from './lib/server.js';
+
+const NAME = 'sphere-attributes.plain.v1.pmw'; // plain base, attributes, 10 chunks
+const OTHER = 'grid-hole.plain.v1.pmw';
+const bytes = new Uint8Array(fs.readFileSync(path.join(CONFORMANCE, NAME)));
+const { binStart, binLength, gltf: json } = parseGlb(bytes);
+const stream = planDocument(json, binLength).stream;
+const K = stream.length;
+const baseEnd = binStart + stream[0].offset; // the bytes before the first chunk
+let tmp;
+const servers = {};
+
+before(async () => {
+  tmp = fs.mkdtempSync(path.join(os.tmpdir(), 'pmwm-plugin-'));
+  for (const f of [NAME, OTHER]) fs.copyFileSync(path.join(CONFORMANCE, f), path.join(tmp, f));
+  const corrupt = bytes.slice();
+  corrupt[binStart + stream[K - 1].offset + stream[K - 1].length - 1] ^= 0x40; // the last chunk's digest differs
+  fs.writeFileSync(path.join(tmp, 'corrupt-last.pmw'), corrupt);
+  servers.ranges = await startServer(tmp);
+  servers.plain = await startServer(tmp, { ranges: false });
+});
+after(async () => {
+  await servers.ranges.close();
+  await servers.plain.close();
+  fs.rmSync(tmp, { recursive: true, force: true });
+});
+
+function theMesh(gltf) {
+  let mesh = null;
+  gltf.scene.traverse((o) => { if (o.isMesh) mesh = o; });
+  return mesh;
+}
+
+/** The drawn level of `gltf`'s mesh: {vertices, positions, indices}. */
+function drawn(gltf) {
+  const g = theMesh(gltf).geometry;
+  const level = g.userData.pmwmLevel;
+  if (!level) return { vertices: g.getAttribute('position').count, base: true };
+  return { vertices: level.vertices, positions: g.getAttribute('position').array.slice(0, level.vertices * 3),
+    indices: g.index.array.slice(0, g.drawRange.count) };
+}
+
+const settle = (promise, ms) => Promise.race([promise.then((v) => ({ value: v }), (e) => ({ error: e })),
+  new Promise((r) => setTimeout(() => r('pending'), ms))]);
+
+for (const kind of ['ranges', 'plain']) {
+  test(`a corrupt last chunk (${kind}): the last good level stays drawn, its events fired, done rejects with the error`, async () => {
+    const good = await decodePmw(bytes, { chunks: K - 1 });
+    const events = [];
+    const gltf = await loadProgressive(new GLTFLoader(), `${servers[kind].url}corrupt-last.pmw`, {
+      onBase: (e) => events.push(`B${e.chunk}`), onChunk: (e) => events.push(e.chunk), onDone: () => events.push('D') });
+    await assert.rejects(gltf.userData.pmwm.done, (e) => e instanceof CorruptChunkError && e.chunk === K - 1);
+    assert.deepEqual(events, ['B0', ...Array.from({ length: K - 1 }, (_, i) => i + 1)]);
+    const d = drawn(gltf);
+    assert.equal(d.vertices, good.positions.length / 3);
+    assert.deepEqual(d.positions, good.positions);
+    assert.deepEqual(d.indices, good.indices);
+  });
+}
+
+test('stop() right after loadProgressive resolves: the base stays, done resolves {complete: false, chunksApplied: 0}, onDone is called', async () => {
+  const base = await decodePmw(bytes, { chunks: 0 });
+  for (const [kind, query] of [['ranges', ''], ['plain', ''], ['plain', '?stall=100000']]) {
+    const done = [];
+    const gltf = await loadProgressive(new GLTFLoader(), `${servers[kind].url}${NAME}${query}`, { onDone: (o) => done.push(o) });
+    gltf.userData.pmwm.stop();
+    const outcome = await gltf.userData.pmwm.done;
+    assert.equal(outcome.complete, false, kind + query);
+    assert.equal(outcome.chunksApplied, 0, kind + query);
+    assert.equal(outcome.levels, 1, kind + query);
+    assert.equal(outcome.stopped, true, kind + query);
+    assert.deepEqual(done, [outcome], kind + query);
+    assert.deepEqual(drawn(gltf).positions, base.positions, kind + query);
+  }
+});
+
+test('stop() aborts the request in flight: done settles at once on a stalled stream, the drawn level kept', async () => {
+  const stalled = `${servers.plain.url}${NAME}?stall=${baseEnd + 200}`; // the base, then nothing more
+  const gltf = await loadProgressive(new GLTFLoader(), stalled, {});
+  await new Promise((r) => setTimeout(r, 100));
+  const t0 = Date.now();
+  gltf.userData.pmwm.stop();
+  const out = await settle(gltf.userData.pmwm.done, 2000);
+  assert.notEqual(out, 'pending', 'done did not settle after stop()');
+  assert.ok(Date.now() - t0 < 1000);
+  assert.equal(out.value.chunksApplied, 0);
+  assert.equal(out.value.stopped, true);
+  assert.equal(drawn(gltf).vertices, (await decodePmw(bytes, { chunks: 0 })).positions.length / 3);
+});
+
+test('an AbortSignal already aborted rejects loadProgressive at once with its reason, fetching nothing', async () => {
+  const requests = servers.ranges.stats.requests;
+  const controller = new AbortController();
+  controller.abort();
+  await assert.rejects(loadProgressive(new GLTFLoader(), servers.ranges.url + NAME, { signal: controller.signal }),
+    { name: 'AbortError' });
+  const reason = new Error('navigated away');
+  await assert.rejects(loadProgressive(new GLTFLoader(), servers.ranges.url + NAME, { signal: AbortSignal.abort(reason) }),
+    (e) => e === reason);
+  assert.equal(servers.ranges.stats.requests, requests);
+});
+
+test('an AbortSignal aborted mid-stream stops the run promptly (done resolves, the level drawn kept); during the base load it rejects', async () => {
+  const controller = new AbortController();
+  const gltf = await loadProgressive(new GLTFLoader(), `${servers.plain.url}${NAME}?stall=${baseEnd + 200}`,
+    { signal: controller.signal });
+  await new Promise((r) => setTimeout(r, 100));
+  controller.abort();
+  const out = await settle(gltf.userData.pmwm.done, 2000);
+  assert.notEqual(out, 'pending', 'done did not settle after abort()');
+  assert.equal(out.value.stopped, true);
+  assert.equal(out.value.complete, false);
+  assert.ok(drawn(gltf).vertices > 0);
+  // aborted while the bytes before the first chunk are still coming: loadProgressive rejects with the reason
+  const early = new AbortController();
+  const loading = loadProgressive(new GLTFLoader(), `${servers.plain.url}${NAME}?stall=100`, { signal: early.signal });
+  setTimeout(() => early.abort(), 100);
+  const res = await settle(loading, 2000);
+  assert.notEqual(res, 'pending');
+  assert.equal(res.error?.name, 'AbortError');
+});
+
+test('Range answers shorter than asked: the rest is asked for, the load completes (no false truncation)', async () => {
+  const full = await decodePmw(bytes);
+  for (const cap of [7, 300, 1000]) {
+    const gltf = await loadProgressive(new GLTFLoader(), `${servers.ranges.url}${NAME}?cap=${cap}`);
+    const outcome = await gltf.userData.pmwm.done;
+    assert.equal(outcome.complete, true, `cap ${cap}`);
+    assert.equal(outcome.chunksApplied, K, `cap ${cap}`);
+    assert.equal(outcome.bytesFetched, bytes.length, `cap ${cap}`);
+    assert.deepEqual(drawn(gltf).positions, full.positions, `cap ${cap}`);
+  }
+  // a registered plugin reading by Range (three.js has the whole file)
+  const loader = new GLTFLoader();
+  loader.register((parser) => new PMWMProgressivePlugin(parser, { url: `${servers.ranges.url}${NAME}?cap=500` }));
+  const gltf = await loader.parseAsync(bytes.slice().buffer, '');
+  assert.equal((await gltf.userData.pmwm.done).chunksApplied, K);
+});
+
+test('HTTP errors and network failures are FetchError (status, url, cause), not FormatError or a raw TypeError', async () => {
+  const url404 = servers.ranges.url + 'no-such.pmw';
+  await assert.rejects(loadProgressive(new GLTFLoader(), url404),
+    (e) => e instanceof FetchError && e instanceof PmwError && !(e instanceof FormatError) && e.status === 404 && e.url === url404);
+  await assert.rejects(loadProgressive(new GLTFLoader(), `${servers.ranges.url}${NAME}?fail=1`),
+    (e) => e instanceof FetchError && e.status === 500);
+  // a 500 on the 6th Range request: the levels before it stay drawn
+  const gltf = await loadProgressive(new GLTFLoader(), `${servers.ranges.url}${NAME}?fail=6`);
+  await assert.rejects(gltf.userData.pmwm.done, (e) => e instanceof FetchError && e.status === 500);
+  assert.ok(drawn(gltf).vertices > 0);
+  // the connection dropped mid-body: during the base load, then after it
+  await assert.rejects(loadProgressive(new GLTFLoader(), `${servers.plain.url}${NAME}?cut=100`),
+    (e) => e instanceof FetchError && e.status === undefined && e.cause instanceof Error);
+  const cut = await loadProgressive(new GLTFLoader(), `${servers.plain.url}${NAME}?cut=${baseEnd + 1000}`);
+  await assert.rejects(cut.userData.pmwm.done, (e) => e instanceof FetchError && e.status === undefined);
+  // a fetch that cannot connect at all
+  await assert.rejects(loadProgressive(new GLTFLoader(), 'http://127.0.0.1:1/x.pmw'), FetchError);
+});
+
+test('a plugin registered with a fixed url refuses to refine another document with that url\'s stream', async () => {
+  const url = servers.ranges.url + NAME;
+  const loader = new GLTFLoader();
+  loader.register((parser) => new PMWMProgressivePlugin(parser, { url }));
+  const first = await loader.parseAsync(bytes.slice().buffer, ''); // three.js read the whole file itself
+  assert.equal((await first.userData.pmwm.done).complete, true);
+  const otherBytes = new Uint8Array(fs.readFileSync(path.join(tmp, OTHER)));
+  const other = await loader.parseAsync(otherBytes.slice().buffer, ''); // another file, the same loader
+  const before = theMesh(other).geometry.getAttribute('position').array.slice();
+  await assert.rejects(other.userData.pmwm.done, (e) => e instanceof StreamMismatchError && e.url === url);
+  const g = theMesh(other).geometry;
+  assert.equal(g.userData.pmwmLevel, undefined, 'no level of the other stream was drawn');
+  assert.deepEqual(g.getAttribute('position').array, before, 'left as three.js loaded it');
+  assert.equal(g.getAttribute('position').count, (await decodePmw(otherBytes, { chunks: 0 })).positions.length / 3);
+});
+
+test('a callback that throws is reported (onCallbackError) and the load goes on to the full mesh', async () => {
+  const full = await decodePmw(bytes);
+  for (const kind of ['ranges', 'plain']) {
+    const reported = [];
+    const chunks = [];
+    const boom = (where) => () => { throw new Error(where); };
+    const gltf = await loadProgressive(new GLTFLoader(), servers[kind].url + NAME, {
+      onBase: boom('base'), onChunk: (e) => { chunks.push(e.chunk); if (e.chunk === 3) throw new Error('chunk 3'); },
+      onDone: boom('done'), onCallbackError: (e) => reported.push(e.message) });
+    const outcome = await gltf.userData.pmwm.done;
+    assert.equal(outcome.complete, true, kind);
+    assert.equal(chunks.length, K, kind);
+    assert.deepEqual(reported, ['base', 'chunk 3', 'done'], kind);
+    assert.deepEqual(drawn(gltf).positions, full.positions, kind);
+  }
+});
