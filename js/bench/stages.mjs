@@ -71,7 +71,7 @@ async function full() {
   const t = clock();
   const d = new PmwDecoder();
   await d.feed(bytes);
-  d.close();
+  await d.close();
   const t1 = clock();
   d.snapshot();
   return { decode: (t1 - t) / 1000, snapshot: (clock() - t1) / 1000 };

@@ -46,7 +46,7 @@ const isHex = (digits, one = true) => (x) => typeof x === 'string' && (one ? x.l
  */
 const SCHEMA_FIELDS = {
   extension: {
-    baseMac: [isHex(32), '32 lowercase hex digits'], baseDigest: [isHex(16), '16 lowercase hex digits'], fileId: [(x) => typeof x === 'string', 'a string'],
+    baseMac: [isHex(32), '32 lowercase hex digits'], sceneMac: [isHex(32), '32 lowercase hex digits'], baseDigest: [isHex(16), '16 lowercase hex digits'], fileId: [(x) => typeof x === 'string', 'a string'],
     watermark: [isObj, 'an object'], extensions: [isObj, 'an object'],
   },
   grid: { extensions: [isObj, 'an object'] },

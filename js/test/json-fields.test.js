@@ -70,6 +70,8 @@ test('the extension\'s fields this decoder does not otherwise read have the form
     ['baseMac upper case', v1, (g, p, e) => { e.baseMac = 'A'.repeat(32); }, /baseMac must be/],
     ['baseMac 31 digits', packed, (g, p, e) => { e.baseMac = 'a'.repeat(31); }, /baseMac must be/],
     ['baseMac null', packed, (g, p, e) => { e.baseMac = null; }, /baseMac must be/],
+    ['sceneMac a number', v1, (g, p, e) => { e.sceneMac = 7; }, /sceneMac must be 32 lowercase hex digits/],
+    ['sceneMac 31 digits', packed, (g, p, e) => { e.sceneMac = 'a'.repeat(31); }, /sceneMac must be/],
     ['baseDigest a number', packed, (g, p, e) => { e.baseDigest = 7; }, /baseDigest must be 16 lowercase hex digits/],
     ['baseDigest upper case', packed, (g, p, e) => { e.baseDigest = 'A'.repeat(16); }, /baseDigest must be/],
     ['baseDigest 32 digits', v1, (g, p, e) => { e.baseDigest = 'a'.repeat(32); }, /baseDigest must be/],
