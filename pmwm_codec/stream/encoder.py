@@ -47,7 +47,7 @@ from ..format.records import pack_batches
 from ..format.records_v2 import FaceChunk, pack_chunks
 from ..mesh import Mesh, bounds
 from ..progressive.build import ProgressiveMesh, build_progressive
-from ..progressive.grid import AttributeGrid, Grid
+from ..progressive.grid import AttributeGrid, Grid, float32_spacing
 from ..progressive.seams import twin_rows, weld_groups
 from ..progressive.simplify import CollapseLog, deferred_and_twin_faces, simplify
 from ..progressive.topology import job_vertices, mean_edge_length
@@ -281,6 +281,8 @@ def encode_document(
         raise ValueError(f"payload_version must be one of {PAYLOAD_VERSIONS}, not {payload_version!r}")
     if grid_bits is None:
         grid_bits = wm.DEFAULT_GRID_BITS[mode] if watermark is not None else DEFAULT_GRID_BITS
+    _check_moved_grids([job.mesh for job in jobs], grid_bits,
+                       _moved_reach(watermark is not None, mode, bits, step_units, owner_id is not None))
     owner_notices = []
     # a key that already names the owner ID: a key file reused as it is, or a key given (a collection's)
     kept_owner = key_slot.existing if key_slot is not None else key
@@ -495,24 +497,74 @@ def _quantize(mesh: Mesh, grid: Grid) -> tuple:
     return grid, np.concatenate(columns, axis=1), specs
 
 
-def _survives_float32(grid: Grid, q: np.ndarray) -> bool:
-    """Whether the grid points ``q`` (n, 3) int64 come back from the float32 positions glTF stores."""
+def _survives_float32(grid: Grid, q: np.ndarray, reach: tuple | None = None) -> bool:
+    """Whether the grid points ``q`` (n, 3) int64 come back from the float32 positions glTF stores; with
+    ``reach`` (:func:`_moved_reach`: vertices will move to grid points the input does not hold), whether
+    every grid point of their box widened by ``reach`` does (:meth:`Grid.carries_float32`)."""
+    if reach is not None:
+        lo, hi = bounds(grid.dequantize(q))
+        far = reach[0] * grid.step + reach[1] * float(np.linalg.norm(hi - lo))
+        return grid.carries_float32(lo - far, hi + far)
     try:
         return bool(np.array_equal(grid.from_float32(grid.to_float32(q)), q))
     except PmwError:  # FormatError: a stored coordinate off the grid
         return False
 
 
-def _float32_refusal(positions: np.ndarray, grid: Grid) -> str:
-    """Why ``grid`` cannot carry ``positions`` (n, 3) float through float32, and the finest grid that can."""
-    reach = float(np.abs(positions).max())
+#: Bits per code of a paper-mode watermark when none are asked for (:func:`~pmwm_codec.watermark.codec.plan`).
+_PAPER_BITS = 12
+#: How far the owner layer may move a vertex, as a fraction of the bounding-box diagonal: it moves
+#: vertices along rays from the area centroid, never out of their shell (64 shells between two
+#: quantiles of the vertex norms, so a shell is under 1/64 of the diagonal wide).
+_OWNER_REACH = 0.02
+
+
+def _moved_reach(watermark: bool, mode: str, bits, step_units, owner: bool) -> tuple | None:
+    """``(grid steps, fraction of the bbox diagonal)``: how far from the input the watermark and the
+    owner layer may put a vertex, or None when neither moves any.
+
+    A watermark code moves its vertex along the ray from its ring's centroid into the nearest bin of
+    its code: at most one period, ``2**bits`` codes of ``step_units`` grid steps each
+    (:func:`~pmwm_codec.watermark.codec.place_codes`), plus the neighbouring lattice point it picks
+    (one step per axis) and the retries that move a clashing carrier (up to three per axis)."""
+    if not watermark and not owner:
+        return None
+    steps = 0.0
+    if watermark:
+        b = bits if bits is not None else (wm.MAX_EXACT_BITS if mode == "exact" else _PAPER_BITS)
+        unit = wm.DEFAULT_STEP_UNITS.get(mode, 2.0) if step_units is None else float(step_units)
+        steps = float(1 << int(b)) * unit + 4.0
+    return steps, (_OWNER_REACH if owner else 0.0)
+
+
+def _check_moved_grids(meshes: list, grid_bits: int, reach: tuple | None) -> None:
+    """Refuse (PmwError, :func:`_float32_refusal`) before any work a grid of ``grid_bits`` bits on which
+    the watermark or the owner layer (``reach``: :func:`_moved_reach`) would move vertices of
+    ``meshes`` to points float32 cannot carry: every point of its box, widened by the reach, must
+    come back.  The input's own points are checked in :func:`_quantize` (a mesh nobody moves, float32
+    input far from the origin, stays exact on any grid: only its own points are stored)."""
+    if reach is None:
+        return
+    for mesh, grid in zip(meshes, position_grids(meshes, grid_bits)):
+        if not _survives_float32(grid, grid.quantize(mesh.positions), reach):
+            raise PmwError(_float32_refusal(mesh.positions, grid, reach))
+
+
+def _float32_refusal(positions: np.ndarray, grid: Grid, reach: tuple | None = None) -> str:
+    """Why ``grid`` cannot carry ``positions`` (n, 3) float through float32 (with ``reach``, the grid
+    points of their box the watermark / owner layer may move vertices to: :func:`_survives_float32`),
+    and the finest grid that can."""
+    extreme = float(np.abs(positions).max())
     extent = grid.step * ((1 << grid.bits) - 1)
     why = (f"a {grid.bits}-bit position grid (step {grid.step:.3g}) does not survive the float32 positions glTF "
-           f"stores: the mesh spans {extent:.6g} but lies up to {reach:.6g} from the origin, where float32 steps "
-           f"are {float(np.spacing(np.float32(reach))):.3g}")
+           f"stores: the mesh spans {extent:.6g} but lies up to {extreme:.6g} from the origin, where float32 steps "
+           f"are {float(float32_spacing(extreme)):.3g}")
+    if reach is not None:
+        why += (" (the watermark and the owner layer move vertices to grid points the input does not hold: every "
+                "grid point of its box must survive)")
     for bits in range(grid.bits - 1, MIN_GRID_BITS - 1, -1):
         coarse = Grid.fit(positions, bits)
-        if _survives_float32(coarse, coarse.quantize(positions)):
+        if _survives_float32(coarse, coarse.quantize(positions), reach):
             return f"{why}; the finest grid that does is --grid-bits {bits} (or move the mesh nearer the origin)"
     return f"{why}; no grid of {MIN_GRID_BITS} bits or more does: move the mesh nearer the origin"
 
