@@ -42,6 +42,7 @@ from ..format.base import EncodedBase, with_attributes
 from ..atomic import directory_lock, discard, fault_point, publish, signals_deferred, stage
 from ..format.glb import ProgressivePrimitive, assemble_document, write_parts
 from ..format.gltf import owner_placements, scene_mesh
+from ..format.gltf import COMPONENT_DTYPES, FLOAT
 from ..format.extension import DEFAULT_PAYLOAD_VERSION, PAYLOAD_CODEC, PAYLOAD_VERSIONS
 from ..format.records import pack_batches
 from ..format.records_v2 import FaceChunk, pack_chunks
@@ -181,10 +182,34 @@ class PrimitiveWork:
 
 #: Grid bits of progressive attributes, by semantic prefix (others: 14).
 ATTRIBUTE_BITS = {"NORMAL": 14, "TANGENT": 14, "TEXCOORD": 14, "COLOR": 12}
+#: An integer attribute (a non-normalized integer accessor: feature IDs, ``_BATCHID``) is carried
+#: exactly, on a grid of step 1; float32 (the base's accessors) holds every integer up to this.
+FLOAT32_EXACT_INTEGERS = 1 << 24
+#: numpy dtype -> glTF componentType of the integer attributes.
+_INTEGER_TYPES = {np.dtype(dtype): ctype for ctype, dtype in COMPONENT_DTYPES.items() if ctype != FLOAT}
 
 
 def _attribute_bits(semantic: str) -> int:
     return ATTRIBUTE_BITS.get(semantic.split("_")[0], 14)
+
+
+def _attribute_grid(semantic: str, values: np.ndarray) -> tuple:
+    """``(AttributeGrid, extra spec members)`` of one attribute's ``values`` (n, k).
+
+    Float values: :data:`ATTRIBUTE_BITS` over each component's range.  Integer values (an integer
+    dtype: a non-normalized integer accessor): step 1 from each component's minimum, as many bits as
+    the widest span needs (at least 8), so every vertex keeps its exact integer; an application-specific
+    attribute (``_FEATURE_ID_0``) also names its componentType, which a decoded level writes it with
+    (the standard semantics, integers only under KHR_mesh_quantization, are written as FLOAT)."""
+    if not np.issubdtype(values.dtype, np.integer):
+        return AttributeGrid.fit(np.asarray(values, np.float64), _attribute_bits(semantic)), {}
+    if values.size and int(np.abs(values.astype(np.int64)).max()) > FLOAT32_EXACT_INTEGERS:
+        raise PmwError(f"{semantic}: integers beyond {FLOAT32_EXACT_INTEGERS:,}, which float32 cannot hold exactly")
+    lo = values.min(axis=0).astype(np.int64)
+    span = int((values.max(axis=0).astype(np.int64) - lo).max())
+    grid = AttributeGrid(max(MIN_GRID_BITS, span.bit_length()), tuple(float(x) for x in lo), (1.0,) * len(lo))
+    ctype = _INTEGER_TYPES.get(values.dtype)
+    return grid, ({"componentType": ctype} if semantic.startswith("_") and ctype is not None else {})
 
 
 def encode_mesh(mesh: Mesh, dst, **options) -> EncodeReport:
@@ -487,12 +512,12 @@ def _quantize(mesh: Mesh, grid: Grid) -> tuple:
         raise PmwError(_float32_refusal(mesh.positions, grid))
     specs, columns = [], [q]
     for semantic in sorted(mesh.attributes):
-        values = np.asarray(mesh.attributes[semantic], np.float64).reshape(mesh.vertex_count, -1)
-        agrid = AttributeGrid.fit(values, _attribute_bits(semantic))
-        ints = agrid.from_float32(values, semantic)
+        values = np.asarray(mesh.attributes[semantic]).reshape(mesh.vertex_count, -1)
+        agrid, extra = _attribute_grid(semantic, values)
+        ints = agrid.from_float32(values.astype(np.float64), semantic)
         if not np.array_equal(agrid.from_float32(agrid.to_float32(ints), semantic), ints):
             raise PmwError(f"{semantic}: values too large for float32 at {agrid.bits} bits")
-        specs.append({"semantic": semantic, **agrid.get_config()})
+        specs.append({"semantic": semantic, **agrid.get_config(), **extra})
         columns.append(ints)
     return grid, np.concatenate(columns, axis=1), specs
 
