@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..constants import DEFAULT_GRID_BITS, MIN_GRID_BITS
+from ..constants import DEFAULT_GRID_BITS, MAX_GRID_BITS, MIN_GRID_BITS
 from ..distortion import combine_meshes, decoded_positions, full_distortion, measure_method
 from ..errors import OwnerLayerError, PmwError
 from ..format import encode_base
@@ -189,20 +189,51 @@ FLOAT32_EXACT_INTEGERS = 1 << 24
 _INTEGER_TYPES = {np.dtype(dtype): ctype for ctype, dtype in COMPONENT_DTYPES.items() if ctype != FLOAT}
 
 
-def _attribute_bits(semantic: str) -> int:
-    return ATTRIBUTE_BITS.get(semantic.split("_")[0], 14)
+#: TEXCOORD_n: a grid step of at most ``2**-TEXCOORD_STEP_BITS`` units of texture space (one unit: the
+#: texture's width), whatever the coordinates' range, so the error stays within half of it, 1/16384
+#: of the texture (a quarter of a texel at 4096², 1/16 at 1024²): the 14 bits of
+#: :data:`ATTRIBUTE_BITS` cover a span up to 2 (the usual 0..1, and a little over), a wider one (tiled
+#: UVs, an outlier) gets more bits, up to 30 and as many as float32 carries at the coordinates' size.
+TEXCOORD_STEP_BITS = 13
+
+
+def _attribute_bits(semantic: str, values: np.ndarray | None = None) -> int:
+    """Grid bits of a float attribute: :data:`ATTRIBUTE_BITS` by semantic prefix (others 14); TEXCOORD_n
+    as many more as its ``values`` (n, k) span needs (:data:`TEXCOORD_STEP_BITS`)."""
+    prefix = semantic.split("_")[0]
+    bits = ATTRIBUTE_BITS.get(prefix, 14)
+    if prefix == "TEXCOORD" and values is not None and values.size:
+        span = float(np.ptp(values, axis=0).max())
+        need = int(np.ceil(np.log2(span * float(1 << TEXCOORD_STEP_BITS) + 1.0)))
+        bits = min(MAX_GRID_BITS, max(bits, need))
+    return bits
+
+
+def _carries(grid: AttributeGrid, values: np.ndarray, semantic: str) -> bool:
+    """Whether ``values`` (n, k) float64 on ``grid`` come back from the float32 the base stores."""
+    try:
+        ints = grid.from_float32(values, semantic)
+        return bool(np.array_equal(grid.from_float32(grid.to_float32(ints), semantic), ints))
+    except PmwError:  # FormatError: a stored value off the grid
+        return False
 
 
 def _attribute_grid(semantic: str, values: np.ndarray) -> tuple:
     """``(AttributeGrid, extra spec members)`` of one attribute's ``values`` (n, k).
 
-    Float values: :data:`ATTRIBUTE_BITS` over each component's range.  Integer values (an integer
+    Float values: :func:`_attribute_bits` over each component's range (TEXCOORD_n: fewer where float32
+    cannot carry that many at the values' size, never under :data:`ATTRIBUTE_BITS`).  Integer values (an integer
     dtype: a non-normalized integer accessor): step 1 from each component's minimum, as many bits as
     the widest span needs (at least 8), so every vertex keeps its exact integer; an application-specific
     attribute (``_FEATURE_ID_0``) also names its componentType, which a decoded level writes it with
     (the standard semantics, integers only under KHR_mesh_quantization, are written as FLOAT)."""
     if not np.issubdtype(values.dtype, np.integer):
-        return AttributeGrid.fit(np.asarray(values, np.float64), _attribute_bits(semantic)), {}
+        values = np.asarray(values, np.float64)
+        bits, floor = _attribute_bits(semantic, values), _attribute_bits(semantic)
+        grid = AttributeGrid.fit(values, bits)
+        while grid.bits > floor and not _carries(grid, values, semantic):  # finer than float32 holds them
+            grid = AttributeGrid.fit(values, grid.bits - 1)
+        return grid, {}
     if values.size and int(np.abs(values.astype(np.int64)).max()) > FLOAT32_EXACT_INTEGERS:
         raise PmwError(f"{semantic}: integers beyond {FLOAT32_EXACT_INTEGERS:,}, which float32 cannot hold exactly")
     lo = values.min(axis=0).astype(np.int64)
