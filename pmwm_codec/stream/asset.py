@@ -367,6 +367,8 @@ def encode_asset(src, dst, *, strip_image_profiles: bool = False, **options) -> 
     name = None if isinstance(src, tuple) else os.path.basename(os.fspath(src))
     jobs, drop, planned = plan_asset(gltf, buffers, name)
     notices += planned
+    for job in jobs:  # the accessors' names, which the base's accessors keep
+        job.names = _accessor_names(gltf, gltf["meshes"][job.mesh_index]["primitives"][job.primitive_index])
     _forget_input_draco(gltf, jobs)
     doc, kept_bin = repack(gltf, buffers, drop)
     report = encode_document(doc, kept_bin, jobs, dst, **options)
@@ -435,10 +437,11 @@ def decode_asset(src, chunks=None):
     needed = _data_end(doc)
     if not end.complete and needed > len(data) - bin_start:  # other meshes' data, cut before it: as pmw cut says
         raise data_not_arrived(len(data), bin_start + needed)
+    names = [_accessor_names(gltf, gltf["meshes"][mi]["primitives"][pi]) for mi, pi, _ in found]
     kept, kept_bin = repack(doc, [data[bin_start:]], drop)
     out = BufferBuilder(kept["bufferViews"], kept["accessors"], [kept_bin], len(kept_bin))
-    for (mi, pi, _), part in zip(found, results[-1].parts):
-        _write_level(kept["meshes"][mi]["primitives"][pi], part, out)
+    for (mi, pi, _), part, named in zip(found, results[-1].parts, names):
+        _write_level(kept["meshes"][mi]["primitives"][pi], part, out, named)
     forget_extension(kept, EXTENSION_NAME, keys=("extensionsUsed",))
     if not uses_extension(kept, DRACO_EXTENSION):
         forget_extension(kept, DRACO_EXTENSION)
@@ -637,10 +640,19 @@ def _without_progressive_geometry(gltf: dict, found) -> tuple:
 RENORMALIZED = ("NORMAL", "TANGENT")
 
 
-def _write_level(prim: dict, part, out: BufferBuilder) -> None:
+def _accessor_names(gltf: dict, prim: dict) -> dict:
+    """``{semantic or "indices": name}`` of the accessors of ``prim`` that have a string ``name``."""
+    accessors = gltf.get("accessors", [])
+    used = {**prim.get("attributes", {}), **({"indices": prim["indices"]} if "indices" in prim else {})}
+    return {what: accessors[i]["name"] for what, i in used.items()
+            if isinstance(i, int) and 0 <= i < len(accessors) and isinstance(accessors[i].get("name"), str)}
+
+
+def _write_level(prim: dict, part, out: BufferBuilder, names: dict | None = None) -> None:
     """Give ``prim`` plain accessors (in ``out``) for the decoded ``part``: positions (n, 3)
     float32 with min/max, its attributes (NORMAL / TANGENT renormalized; an attribute whose grid names
-    a ``componentType``, an integer one, as those integers), uint32 indices."""
+    a ``componentType``, an integer one, as those integers), uint32 indices; each named as ``names``
+    (``{semantic or "indices": name}``: the stored accessors') has it."""
     attributes = {"POSITION": out.add_accessor(part.positions.astype(np.float32), FLOAT, ARRAY_BUFFER, minmax=True)}
     types = {spec["semantic"]: spec.get("componentType") for spec in part.attributes}
     for semantic, values in part.attribute_values().items():
@@ -654,6 +666,10 @@ def _write_level(prim: dict, part, out: BufferBuilder) -> None:
     prim["attributes"] = attributes
     prim["indices"] = out.add_accessor(np.asarray(part.faces, np.uint32).reshape(-1), UNSIGNED_INT, ELEMENT_ARRAY_BUFFER)
     prim["mode"] = TRIANGLES
+    for what, name in (names or {}).items():
+        index = prim["indices"] if what == "indices" else attributes.get(what)
+        if index is not None:
+            out.accessors[index]["name"] = name
 
 
 def _add_vertex_integers(out: BufferBuilder, values: np.ndarray, component_type: int) -> int:

@@ -113,13 +113,15 @@ class PrimitiveJob:
     (n, k) float); ``locked`` (n,) bool marks vertices that must stay in the base
     (borders shared with other primitives; vertices sharing a position inside the
     primitive are seams, collapsed in pairs: :mod:`~pmwm_codec.progressive.seams`); ``mesh_index`` and
-    ``primitive_index`` say where it sits in the document.
+    ``primitive_index`` say where it sits in the document; ``names`` the names of its input accessors
+    (``{semantic or "indices": name}``), which the base's accessors keep (a decoded level's then do).
     """
 
     mesh: Mesh
     mesh_index: int = 0
     primitive_index: int = 0
     locked: np.ndarray | None = None
+    names: dict | None = None
 
 
 @dataclass(frozen=True)
@@ -850,11 +852,24 @@ def _primitives(doc, kept_bin, work, order, params, key, payload_version: int = 
             extension["watermark"] = w.params.get_config()
         meta = chunk_meta(w.pm, w.groups, w.grid.step)
         job = w.job
-        prims.append(ProgressivePrimitive(job.mesh_index, job.primitive_index, w.base, payloads, meta, extension))
+        prims.append(ProgressivePrimitive(job.mesh_index, job.primitive_index, _named(w.base, job.names), payloads,
+                                          meta, extension))
     file_id = content_file_id(doc, kept_bin, prims, order, key)
     for prim in prims:
         prim.extension["fileId"] = file_id
     return prims, file_id
+
+
+def _named(base: EncodedBase, names: dict | None) -> EncodedBase:
+    """``base`` whose accessors carry ``names`` (``{semantic or "indices": name}``, the input's)."""
+    if not names:
+        return base
+    accessors = [dict(a) for a in base.accessors]
+    slots = {**base.primitive.get("attributes", {}), "indices": base.primitive.get("indices")}
+    for what, name in names.items():
+        if slots.get(what) is not None:
+            accessors[slots[what]]["name"] = name
+    return dataclasses.replace(base, accessors=accessors)
 
 
 def _publish(dst, parts, key: WatermarkKey | None, key_slot: KeySlot | None) -> int:
