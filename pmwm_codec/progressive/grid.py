@@ -26,6 +26,23 @@ from ..errors import FormatError
 from ..mesh import bounds
 
 
+#: :meth:`Grid.carries_float32`: the float32 spacing must be below ``step * FLOAT32_SLACK``.  A
+#: stored value is within half a spacing of ``origin + q * step``; the float64 arithmetic of the
+#: writer (``origin + q * step``) and the reader (``(p - origin) / step``) adds under ``2**-26``
+#: spacings, so this keeps ``|(p - origin) / step - q|`` strictly below one half.
+FLOAT32_SLACK = 1.0 - 2.0**-20
+
+
+def float32_spacing(magnitude) -> np.ndarray:
+    """The float32 spacing (float64) at each of ``magnitude`` (>= 0, any shape): the gap above the
+    float32 nearest to it (the larger gap when that float32 is a power of two); inf where float32
+    overflows."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        f = np.asarray(magnitude, np.float64).astype(np.float32)
+        gap = np.spacing(f).astype(np.float64)
+    return np.where(np.isfinite(f), gap, np.inf)
+
+
 @dataclass(frozen=True)
 class Grid:
     """A uniform grid: ``origin`` (3,) float64, ``step`` float, ``bits`` int."""
@@ -71,6 +88,17 @@ class Grid:
         finite or falls outside ``[0, 2**bits)``.
         """
         return _checked_grid_ints(positions, np.asarray(self.origin), self.step, self.bits, f"{what}: positions")
+
+    def carries_float32(self, lo, hi) -> bool:
+        """Whether *every* grid point inside the box ``[lo, hi]`` ((3,) float positions) comes back
+        from the float32 a file stores (``from_float32(to_float32(q)) == q``), whichever points
+        those are: on each axis the float32 spacing at the coordinate of largest magnitude must be
+        below ``step`` (by :data:`FLOAT32_SLACK`, which covers the float64 arithmetic of both
+        sides).  A float32 value is then at most half a spacing, under half a step, from its grid
+        point, so it rounds back; where the spacing exceeds the step, some float32 cell holds two
+        grid points and they cannot both come back (a property of the grid, not of given points)."""
+        lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+        return bool(np.all(float32_spacing(np.maximum(np.abs(lo), np.abs(hi))) < self.step * FLOAT32_SLACK))
 
     def get_config(self) -> dict:
         """The extension JSON form ``{"bits": int, "origin": [x, y, z], "step": float}``."""

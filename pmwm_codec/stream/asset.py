@@ -73,6 +73,9 @@ from ..http import read_declared
 from .cut import data_not_arrived
 from .decoder import StreamDecoder
 from .encoder import EncodeReport, PrimitiveJob, encode_document
+from .encoder import FLOAT32_EXACT_INTEGERS
+from ..format.gltf import COMPONENT_DTYPES
+from ..format.layout import padded
 
 ASSET_SUFFIXES = (".glb", ".gltf")
 
@@ -225,8 +228,22 @@ def _accessor_arrays(gltf, buffers, prim) -> tuple:
         if semantic == "POSITION":
             continue
         values = read_accessor(gltf, buffers, idx)
-        extra[semantic] = values.astype(np.float64)
+        if np.issubdtype(values.dtype, np.integer):  # a non-normalized integer accessor: exact integers
+            extra[semantic] = _integer_values(gltf, idx, values, semantic)
+        else:
+            extra[semantic] = values.astype(np.float64)
     return positions, faces, extra
+
+
+def _integer_values(gltf, index: int, values: np.ndarray, semantic: str) -> np.ndarray:
+    """An integer attribute's ``values`` (n, k) int64 as its accessor's own component dtype, which
+    tells the encoder to carry them exactly (step 1) and a decoded level to write them with that
+    componentType (:func:`~pmwm_codec.stream.encoder._attribute_grid`).  :class:`_PassThrough` when
+    float32, which the base stores them in, cannot hold them all exactly."""
+    if values.size and int(np.abs(values).max()) > FLOAT32_EXACT_INTEGERS:
+        raise _PassThrough(f"{semantic} holds integers beyond {FLOAT32_EXACT_INTEGERS:,}, which the progressive "
+                           "stream cannot carry exactly")
+    return values.astype(COMPONENT_DTYPES[gltf["accessors"][index]["componentType"]])
 
 
 def _draco_arrays(gltf, buffers, prim, draco) -> tuple:
@@ -350,6 +367,8 @@ def encode_asset(src, dst, *, strip_image_profiles: bool = False, **options) -> 
     name = None if isinstance(src, tuple) else os.path.basename(os.fspath(src))
     jobs, drop, planned = plan_asset(gltf, buffers, name)
     notices += planned
+    for job in jobs:  # the accessors' names, which the base's accessors keep
+        job.names = _accessor_names(gltf, gltf["meshes"][job.mesh_index]["primitives"][job.primitive_index])
     _forget_input_draco(gltf, jobs)
     doc, kept_bin = repack(gltf, buffers, drop)
     report = encode_document(doc, kept_bin, jobs, dst, **options)
@@ -418,10 +437,11 @@ def decode_asset(src, chunks=None):
     needed = _data_end(doc)
     if not end.complete and needed > len(data) - bin_start:  # other meshes' data, cut before it: as pmw cut says
         raise data_not_arrived(len(data), bin_start + needed)
+    names = [_accessor_names(gltf, gltf["meshes"][mi]["primitives"][pi]) for mi, pi, _ in found]
     kept, kept_bin = repack(doc, [data[bin_start:]], drop)
     out = BufferBuilder(kept["bufferViews"], kept["accessors"], [kept_bin], len(kept_bin))
-    for (mi, pi, _), part in zip(found, results[-1].parts):
-        _write_level(kept["meshes"][mi]["primitives"][pi], part, out)
+    for (mi, pi, _), part, named in zip(found, results[-1].parts, names):
+        _write_level(kept["meshes"][mi]["primitives"][pi], part, out, named)
     forget_extension(kept, EXTENSION_NAME, keys=("extensionsUsed",))
     if not uses_extension(kept, DRACO_EXTENSION):
         forget_extension(kept, DRACO_EXTENSION)
@@ -620,18 +640,54 @@ def _without_progressive_geometry(gltf: dict, found) -> tuple:
 RENORMALIZED = ("NORMAL", "TANGENT")
 
 
-def _write_level(prim: dict, part, out: BufferBuilder) -> None:
+def _accessor_names(gltf: dict, prim: dict) -> dict:
+    """``{semantic or "indices": name}`` of the accessors of ``prim`` that have a string ``name``."""
+    accessors = gltf.get("accessors", [])
+    used = {**prim.get("attributes", {}), **({"indices": prim["indices"]} if "indices" in prim else {})}
+    return {what: accessors[i]["name"] for what, i in used.items()
+            if isinstance(i, int) and 0 <= i < len(accessors) and isinstance(accessors[i].get("name"), str)}
+
+
+def _write_level(prim: dict, part, out: BufferBuilder, names: dict | None = None) -> None:
     """Give ``prim`` plain accessors (in ``out``) for the decoded ``part``: positions (n, 3)
-    float32 with min/max, its attributes (NORMAL / TANGENT renormalized), uint32 indices."""
+    float32 with min/max, its attributes (NORMAL / TANGENT renormalized; an attribute whose grid names
+    a ``componentType``, an integer one, as those integers), uint32 indices; each named as ``names``
+    (``{semantic or "indices": name}``: the stored accessors') has it."""
     attributes = {"POSITION": out.add_accessor(part.positions.astype(np.float32), FLOAT, ARRAY_BUFFER, minmax=True)}
+    types = {spec["semantic"]: spec.get("componentType") for spec in part.attributes}
     for semantic, values in part.attribute_values().items():
         values = values.astype(np.float32)
+        if types.get(semantic) is not None:
+            attributes[semantic] = _add_vertex_integers(out, values, types[semantic])
+            continue
         if semantic in RENORMALIZED:
             values = _renormalized(values)
         attributes[semantic] = out.add_accessor(values, FLOAT, ARRAY_BUFFER)
     prim["attributes"] = attributes
     prim["indices"] = out.add_accessor(np.asarray(part.faces, np.uint32).reshape(-1), UNSIGNED_INT, ELEMENT_ARRAY_BUFFER)
     prim["mode"] = TRIANGLES
+    for what, name in (names or {}).items():
+        index = prim["indices"] if what == "indices" else attributes.get(what)
+        if index is not None:
+            out.accessors[index]["name"] = name
+
+
+def _add_vertex_integers(out: BufferBuilder, values: np.ndarray, component_type: int) -> int:
+    """Append integer vertex values ((n, k) float32 holding whole numbers) as an accessor of
+    ``component_type`` (not normalized); each element padded to 4 bytes (glTF 2.0 3.6.2.4: a vertex
+    attribute's elements start on 4-byte boundaries) with the view's ``byteStride``.  Returns its index."""
+    dtype = np.dtype(COMPONENT_DTYPES[component_type])
+    ints = np.rint(values.astype(np.float64)).astype(dtype).reshape(len(values), -1)
+    item = ints.shape[1] * dtype.itemsize
+    stride = padded(item)
+    rows = np.zeros((len(ints), stride), np.uint8)
+    rows[:, :item] = ints.view(np.uint8).reshape(len(ints), item)
+    view = out.add_view(rows.tobytes(), ARRAY_BUFFER)
+    if stride != item:
+        out.views[view]["byteStride"] = stride
+    out.accessors.append({"bufferView": view, "componentType": component_type, "count": len(ints),
+                          "type": "SCALAR" if ints.shape[1] == 1 else f"VEC{ints.shape[1]}"})
+    return len(out.accessors) - 1
 
 
 def _renormalized(values: np.ndarray) -> np.ndarray:

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..constants import DEFAULT_GRID_BITS, MIN_GRID_BITS
+from ..constants import DEFAULT_GRID_BITS, MAX_GRID_BITS, MIN_GRID_BITS
 from ..distortion import combine_meshes, decoded_positions, full_distortion, measure_method
 from ..errors import OwnerLayerError, PmwError
 from ..format import encode_base
@@ -42,12 +42,13 @@ from ..format.base import EncodedBase, with_attributes
 from ..atomic import directory_lock, discard, fault_point, publish, signals_deferred, stage
 from ..format.glb import ProgressivePrimitive, assemble_document, write_parts
 from ..format.gltf import owner_placements, scene_mesh
+from ..format.gltf import COMPONENT_DTYPES, FLOAT
 from ..format.extension import DEFAULT_PAYLOAD_VERSION, PAYLOAD_CODEC, PAYLOAD_VERSIONS
 from ..format.records import pack_batches
 from ..format.records_v2 import FaceChunk, pack_chunks
 from ..mesh import Mesh, bounds
 from ..progressive.build import ProgressiveMesh, build_progressive
-from ..progressive.grid import AttributeGrid, Grid
+from ..progressive.grid import AttributeGrid, Grid, float32_spacing
 from ..progressive.seams import twin_rows, weld_groups
 from ..progressive.simplify import CollapseLog, deferred_and_twin_faces, simplify
 from ..progressive.topology import job_vertices, mean_edge_length
@@ -112,13 +113,15 @@ class PrimitiveJob:
     (n, k) float); ``locked`` (n,) bool marks vertices that must stay in the base
     (borders shared with other primitives; vertices sharing a position inside the
     primitive are seams, collapsed in pairs: :mod:`~pmwm_codec.progressive.seams`); ``mesh_index`` and
-    ``primitive_index`` say where it sits in the document.
+    ``primitive_index`` say where it sits in the document; ``names`` the names of its input accessors
+    (``{semantic or "indices": name}``), which the base's accessors keep (a decoded level's then do).
     """
 
     mesh: Mesh
     mesh_index: int = 0
     primitive_index: int = 0
     locked: np.ndarray | None = None
+    names: dict | None = None
 
 
 @dataclass(frozen=True)
@@ -181,10 +184,65 @@ class PrimitiveWork:
 
 #: Grid bits of progressive attributes, by semantic prefix (others: 14).
 ATTRIBUTE_BITS = {"NORMAL": 14, "TANGENT": 14, "TEXCOORD": 14, "COLOR": 12}
+#: An integer attribute (a non-normalized integer accessor: feature IDs, ``_BATCHID``) is carried
+#: exactly, on a grid of step 1; float32 (the base's accessors) holds every integer up to this.
+FLOAT32_EXACT_INTEGERS = 1 << 24
+#: numpy dtype -> glTF componentType of the integer attributes.
+_INTEGER_TYPES = {np.dtype(dtype): ctype for ctype, dtype in COMPONENT_DTYPES.items() if ctype != FLOAT}
 
 
-def _attribute_bits(semantic: str) -> int:
-    return ATTRIBUTE_BITS.get(semantic.split("_")[0], 14)
+#: TEXCOORD_n: a grid step of at most ``2**-TEXCOORD_STEP_BITS`` units of texture space (one unit: the
+#: texture's width), whatever the coordinates' range, so the error stays within half of it, 1/16384
+#: of the texture (a quarter of a texel at 4096², 1/16 at 1024²): the 14 bits of
+#: :data:`ATTRIBUTE_BITS` cover a span up to 2 (the usual 0..1, and a little over), a wider one (tiled
+#: UVs, an outlier) gets more bits, up to 30 and as many as float32 carries at the coordinates' size.
+TEXCOORD_STEP_BITS = 13
+
+
+def _attribute_bits(semantic: str, values: np.ndarray | None = None) -> int:
+    """Grid bits of a float attribute: :data:`ATTRIBUTE_BITS` by semantic prefix (others 14); TEXCOORD_n
+    as many more as its ``values`` (n, k) span needs (:data:`TEXCOORD_STEP_BITS`)."""
+    prefix = semantic.split("_")[0]
+    bits = ATTRIBUTE_BITS.get(prefix, 14)
+    if prefix == "TEXCOORD" and values is not None and values.size:
+        span = float(np.ptp(values, axis=0).max())
+        need = int(np.ceil(np.log2(span * float(1 << TEXCOORD_STEP_BITS) + 1.0)))
+        bits = min(MAX_GRID_BITS, max(bits, need))
+    return bits
+
+
+def _carries(grid: AttributeGrid, values: np.ndarray, semantic: str) -> bool:
+    """Whether ``values`` (n, k) float64 on ``grid`` come back from the float32 the base stores."""
+    try:
+        ints = grid.from_float32(values, semantic)
+        return bool(np.array_equal(grid.from_float32(grid.to_float32(ints), semantic), ints))
+    except PmwError:  # FormatError: a stored value off the grid
+        return False
+
+
+def _attribute_grid(semantic: str, values: np.ndarray) -> tuple:
+    """``(AttributeGrid, extra spec members)`` of one attribute's ``values`` (n, k).
+
+    Float values: :func:`_attribute_bits` over each component's range (TEXCOORD_n: fewer where float32
+    cannot carry that many at the values' size, never under :data:`ATTRIBUTE_BITS`).  Integer values (an integer
+    dtype: a non-normalized integer accessor): step 1 from each component's minimum, as many bits as
+    the widest span needs (at least 8), so every vertex keeps its exact integer; an application-specific
+    attribute (``_FEATURE_ID_0``) also names its componentType, which a decoded level writes it with
+    (the standard semantics, integers only under KHR_mesh_quantization, are written as FLOAT)."""
+    if not np.issubdtype(values.dtype, np.integer):
+        values = np.asarray(values, np.float64)
+        bits, floor = _attribute_bits(semantic, values), _attribute_bits(semantic)
+        grid = AttributeGrid.fit(values, bits)
+        while grid.bits > floor and not _carries(grid, values, semantic):  # finer than float32 holds them
+            grid = AttributeGrid.fit(values, grid.bits - 1)
+        return grid, {}
+    if values.size and int(np.abs(values.astype(np.int64)).max()) > FLOAT32_EXACT_INTEGERS:
+        raise PmwError(f"{semantic}: integers beyond {FLOAT32_EXACT_INTEGERS:,}, which float32 cannot hold exactly")
+    lo = values.min(axis=0).astype(np.int64)
+    span = int((values.max(axis=0).astype(np.int64) - lo).max())
+    grid = AttributeGrid(max(MIN_GRID_BITS, span.bit_length()), tuple(float(x) for x in lo), (1.0,) * len(lo))
+    ctype = _INTEGER_TYPES.get(values.dtype)
+    return grid, ({"componentType": ctype} if semantic.startswith("_") and ctype is not None else {})
 
 
 def encode_mesh(mesh: Mesh, dst, **options) -> EncodeReport:
@@ -281,6 +339,8 @@ def encode_document(
         raise ValueError(f"payload_version must be one of {PAYLOAD_VERSIONS}, not {payload_version!r}")
     if grid_bits is None:
         grid_bits = wm.DEFAULT_GRID_BITS[mode] if watermark is not None else DEFAULT_GRID_BITS
+    _check_moved_grids([job.mesh for job in jobs], grid_bits,
+                       _moved_reach(watermark is not None, mode, bits, step_units, owner_id is not None))
     owner_notices = []
     # a key that already names the owner ID: a key file reused as it is, or a key given (a collection's)
     kept_owner = key_slot.existing if key_slot is not None else key
@@ -485,34 +545,84 @@ def _quantize(mesh: Mesh, grid: Grid) -> tuple:
         raise PmwError(_float32_refusal(mesh.positions, grid))
     specs, columns = [], [q]
     for semantic in sorted(mesh.attributes):
-        values = np.asarray(mesh.attributes[semantic], np.float64).reshape(mesh.vertex_count, -1)
-        agrid = AttributeGrid.fit(values, _attribute_bits(semantic))
-        ints = agrid.from_float32(values, semantic)
+        values = np.asarray(mesh.attributes[semantic]).reshape(mesh.vertex_count, -1)
+        agrid, extra = _attribute_grid(semantic, values)
+        ints = agrid.from_float32(values.astype(np.float64), semantic)
         if not np.array_equal(agrid.from_float32(agrid.to_float32(ints), semantic), ints):
             raise PmwError(f"{semantic}: values too large for float32 at {agrid.bits} bits")
-        specs.append({"semantic": semantic, **agrid.get_config()})
+        specs.append({"semantic": semantic, **agrid.get_config(), **extra})
         columns.append(ints)
     return grid, np.concatenate(columns, axis=1), specs
 
 
-def _survives_float32(grid: Grid, q: np.ndarray) -> bool:
-    """Whether the grid points ``q`` (n, 3) int64 come back from the float32 positions glTF stores."""
+def _survives_float32(grid: Grid, q: np.ndarray, reach: tuple | None = None) -> bool:
+    """Whether the grid points ``q`` (n, 3) int64 come back from the float32 positions glTF stores; with
+    ``reach`` (:func:`_moved_reach`: vertices will move to grid points the input does not hold), whether
+    every grid point of their box widened by ``reach`` does (:meth:`Grid.carries_float32`)."""
+    if reach is not None:
+        lo, hi = bounds(grid.dequantize(q))
+        far = reach[0] * grid.step + reach[1] * float(np.linalg.norm(hi - lo))
+        return grid.carries_float32(lo - far, hi + far)
     try:
         return bool(np.array_equal(grid.from_float32(grid.to_float32(q)), q))
     except PmwError:  # FormatError: a stored coordinate off the grid
         return False
 
 
-def _float32_refusal(positions: np.ndarray, grid: Grid) -> str:
-    """Why ``grid`` cannot carry ``positions`` (n, 3) float through float32, and the finest grid that can."""
-    reach = float(np.abs(positions).max())
+#: Bits per code of a paper-mode watermark when none are asked for (:func:`~pmwm_codec.watermark.codec.plan`).
+_PAPER_BITS = 12
+#: How far the owner layer may move a vertex, as a fraction of the bounding-box diagonal: it moves
+#: vertices along rays from the area centroid, never out of their shell (64 shells between two
+#: quantiles of the vertex norms, so a shell is under 1/64 of the diagonal wide).
+_OWNER_REACH = 0.02
+
+
+def _moved_reach(watermark: bool, mode: str, bits, step_units, owner: bool) -> tuple | None:
+    """``(grid steps, fraction of the bbox diagonal)``: how far from the input the watermark and the
+    owner layer may put a vertex, or None when neither moves any.
+
+    A watermark code moves its vertex along the ray from its ring's centroid into the nearest bin of
+    its code: at most one period, ``2**bits`` codes of ``step_units`` grid steps each
+    (:func:`~pmwm_codec.watermark.codec.place_codes`), plus the neighbouring lattice point it picks
+    (one step per axis) and the retries that move a clashing carrier (up to three per axis)."""
+    if not watermark and not owner:
+        return None
+    steps = 0.0
+    if watermark:
+        b = bits if bits is not None else (wm.MAX_EXACT_BITS if mode == "exact" else _PAPER_BITS)
+        unit = wm.DEFAULT_STEP_UNITS.get(mode, 2.0) if step_units is None else float(step_units)
+        steps = float(1 << int(b)) * unit + 4.0
+    return steps, (_OWNER_REACH if owner else 0.0)
+
+
+def _check_moved_grids(meshes: list, grid_bits: int, reach: tuple | None) -> None:
+    """Refuse (PmwError, :func:`_float32_refusal`) before any work a grid of ``grid_bits`` bits on which
+    the watermark or the owner layer (``reach``: :func:`_moved_reach`) would move vertices of
+    ``meshes`` to points float32 cannot carry: every point of its box, widened by the reach, must
+    come back.  The input's own points are checked in :func:`_quantize` (a mesh nobody moves, float32
+    input far from the origin, stays exact on any grid: only its own points are stored)."""
+    if reach is None:
+        return
+    for mesh, grid in zip(meshes, position_grids(meshes, grid_bits)):
+        if not _survives_float32(grid, grid.quantize(mesh.positions), reach):
+            raise PmwError(_float32_refusal(mesh.positions, grid, reach))
+
+
+def _float32_refusal(positions: np.ndarray, grid: Grid, reach: tuple | None = None) -> str:
+    """Why ``grid`` cannot carry ``positions`` (n, 3) float through float32 (with ``reach``, the grid
+    points of their box the watermark / owner layer may move vertices to: :func:`_survives_float32`),
+    and the finest grid that can."""
+    extreme = float(np.abs(positions).max())
     extent = grid.step * ((1 << grid.bits) - 1)
     why = (f"a {grid.bits}-bit position grid (step {grid.step:.3g}) does not survive the float32 positions glTF "
-           f"stores: the mesh spans {extent:.6g} but lies up to {reach:.6g} from the origin, where float32 steps "
-           f"are {float(np.spacing(np.float32(reach))):.3g}")
+           f"stores: the mesh spans {extent:.6g} but lies up to {extreme:.6g} from the origin, where float32 steps "
+           f"are {float(float32_spacing(extreme)):.3g}")
+    if reach is not None:
+        why += (" (the watermark and the owner layer move vertices to grid points the input does not hold: every "
+                "grid point of its box must survive)")
     for bits in range(grid.bits - 1, MIN_GRID_BITS - 1, -1):
         coarse = Grid.fit(positions, bits)
-        if _survives_float32(coarse, coarse.quantize(positions)):
+        if _survives_float32(coarse, coarse.quantize(positions), reach):
             return f"{why}; the finest grid that does is --grid-bits {bits} (or move the mesh nearer the origin)"
     return f"{why}; no grid of {MIN_GRID_BITS} bits or more does: move the mesh nearer the origin"
 
@@ -742,11 +852,24 @@ def _primitives(doc, kept_bin, work, order, params, key, payload_version: int = 
             extension["watermark"] = w.params.get_config()
         meta = chunk_meta(w.pm, w.groups, w.grid.step)
         job = w.job
-        prims.append(ProgressivePrimitive(job.mesh_index, job.primitive_index, w.base, payloads, meta, extension))
+        prims.append(ProgressivePrimitive(job.mesh_index, job.primitive_index, _named(w.base, job.names), payloads,
+                                          meta, extension))
     file_id = content_file_id(doc, kept_bin, prims, order, key)
     for prim in prims:
         prim.extension["fileId"] = file_id
     return prims, file_id
+
+
+def _named(base: EncodedBase, names: dict | None) -> EncodedBase:
+    """``base`` whose accessors carry ``names`` (``{semantic or "indices": name}``, the input's)."""
+    if not names:
+        return base
+    accessors = [dict(a) for a in base.accessors]
+    slots = {**base.primitive.get("attributes", {}), "indices": base.primitive.get("indices")}
+    for what, name in names.items():
+        if slots.get(what) is not None:
+            accessors[slots[what]]["name"] = name
+    return dataclasses.replace(base, accessors=accessors)
 
 
 def _publish(dst, parts, key: WatermarkKey | None, key_slot: KeySlot | None) -> int:

@@ -1,0 +1,115 @@
+"""Attribute precision (outside probe 2, F6): TEXCOORD_n keeps a step of at most 2**-13 of the texture
+whatever the coordinates' range (tiled UVs, an outlier), so its error stays under 1/16384 of the texture;
+the other semantics keep ATTRIBUTE_BITS over their range; the rule is stated in README and --help."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pmwm_codec import shapes
+from pmwm_codec.cli import build_parser
+from pmwm_codec.format.document import load_document, read_accessor
+from pmwm_codec.format.glb import glb_parts
+from pmwm_codec.format.layout import padded
+from pmwm_codec.stream.asset import decode_asset, encode_asset
+from pmwm_codec.stream.encoder import TEXCOORD_STEP_BITS, _attribute_bits, _attribute_grid
+
+from conftest import ROOT
+
+BOUND = 2.0**-TEXCOORD_STEP_BITS / 2  # 1/16384 of the texture
+
+
+def _uv_asset(path, uv: np.ndarray):
+    """A sphere with ``uv`` (n, 2) float32 as TEXCOORD_0 (n = 642)."""
+    mesh = shapes.icosphere(3, 1.0, noise=0.02)
+    views, accessors, parts = [], [], []
+
+    def add(array, component, type_, target, minmax=False):
+        raw = np.ascontiguousarray(array).tobytes()
+        views.append({"buffer": 0, "byteOffset": sum(len(p) for p in parts), "byteLength": len(raw), "target": target})
+        parts.append(raw + bytes(padded(len(raw)) - len(raw)))
+        acc = {"bufferView": len(views) - 1, "componentType": component, "count": len(array), "type": type_}
+        if minmax:
+            acc.update(min=array.min(0).tolist(), max=array.max(0).tolist())
+        accessors.append(acc)
+        return len(accessors) - 1
+
+    attributes = {"POSITION": add(mesh.positions.astype(np.float32), 5126, "VEC3", 34962, True),
+                  "TEXCOORD_0": add(uv.astype(np.float32), 5126, "VEC2", 34962)}
+    indices = add(mesh.faces.astype(np.uint32).ravel(), 5125, "SCALAR", 34963)
+    doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+           "meshes": [{"primitives": [{"attributes": attributes, "indices": indices}]}],
+           "accessors": accessors, "bufferViews": views}
+    length = sum(len(p) for p in parts)
+    doc["buffers"] = [{"byteLength": length}]
+    path.write_bytes(b"".join(glb_parts(doc, parts, length)))
+    return mesh
+
+
+def _uv_error(tmp_path, uv) -> tuple:
+    """``(largest TEXCOORD_0 error of the full decode, the .pmw's TEXCOORD_0 grid bits)``."""
+    mesh = _uv_asset(tmp_path / "uv.glb", uv)
+    encode_asset(tmp_path / "uv.glb", tmp_path / "uv.pmw", measure=False)
+    pmw, _ = load_document(tmp_path / "uv.pmw")
+    spec = pmw["meshes"][0]["primitives"][0]["extensions"]["PMWM_progressive_mesh"]["attributes"][0]
+    glb, _, _ = decode_asset(tmp_path / "uv.pmw")
+    (tmp_path / "out.glb").write_bytes(glb)
+    doc, buffers = load_document(tmp_path / "out.glb")
+    prim = doc["meshes"][0]["primitives"][0]
+    positions = read_accessor(doc, buffers, prim["attributes"]["POSITION"])
+    got = read_accessor(doc, buffers, prim["attributes"]["TEXCOORD_0"])
+    from scipy.spatial import cKDTree
+
+    _, vertex = cKDTree(mesh.positions).query(positions)
+    return float(np.abs(got - uv.astype(np.float32)[vertex]).max()), spec["bits"]
+
+
+def test_the_bits_by_semantic_and_range():
+    rng = np.random.default_rng(0)
+    unit = np.vstack([[0.0, 0.0], [1.0, 1.0], rng.uniform(0, 1, (100, 2))])  # spans exactly 1
+    assert _attribute_bits("TEXCOORD_0", unit) == 14  # the usual 0..1: as before
+    assert _attribute_bits("TEXCOORD_1", unit * 1.99) == 14  # up to a span of 2
+    assert _attribute_bits("TEXCOORD_0", unit * 64) == 20
+    assert _attribute_bits("TEXCOORD_0", np.vstack([unit, [[500.0, 500.0]]])) == 22
+    assert _attribute_bits("TEXCOORD_0", unit * 1e9) == 30  # capped
+    assert _attribute_bits("NORMAL", unit * 64) == 14 and _attribute_bits("COLOR_0", unit) == 12
+    assert _attribute_bits("_TEMP", unit * 1e6) == 14
+    for span in (0.5, 1.0, 1.99, 64.0, 500.0, 1e4):  # the rule: a step of at most 2**-13
+        grid, _ = _attribute_grid("TEXCOORD_0", np.vstack([unit * 0, unit * 0 + span]))
+        assert max(grid.step) <= 2.0**-TEXCOORD_STEP_BITS or grid.bits < _attribute_bits("TEXCOORD_0", [[0], [span]])
+
+
+@pytest.mark.parametrize("scale, outlier", [(64.0, False), (1.0, True)])
+def test_tiled_or_outlying_texture_coordinates_keep_a_sixteen_thousandth_of_the_texture(tmp_path, scale, outlier):
+    uv = np.random.default_rng(1).uniform(0, 1, (642, 2)) * scale
+    if outlier:
+        uv[7] = (500.0, 500.0)  # one vertex far out: it coarsened every other vertex's UVs
+    error, bits = _uv_error(tmp_path, uv)
+    assert error <= BOUND, (error, bits)
+    assert bits > 14
+
+
+def test_unit_texture_coordinates_keep_fourteen_bits(tmp_path):
+    uv = np.random.default_rng(2).uniform(-0.02, 1.02, (642, 2))  # spot's span: 1.04
+    error, bits = _uv_error(tmp_path, uv)
+    assert bits == 14 and error <= BOUND
+
+
+def test_coordinates_float32_cannot_resolve_that_finely_get_the_bits_it_can(tmp_path):
+    uv = np.random.default_rng(3).uniform(0, 5000, (642, 2))  # float32 steps of 4.9e-4 near 5000
+    grid, _ = _attribute_grid("TEXCOORD_0", uv)  # float64 values: 26 bits (steps of 7.5e-5) would not come back
+    assert 14 < grid.bits < 26
+    ints = grid.from_float32(uv, "TEXCOORD_0")
+    assert np.array_equal(grid.from_float32(grid.to_float32(ints), "TEXCOORD_0"), ints)
+    error, bits = _uv_error(tmp_path, uv)  # float32 input: its own values come back (the error is float32's)
+    assert error <= BOUND
+
+
+def test_the_precision_is_stated_in_help_and_readme():
+    parser = build_parser()
+    encode = parser._subparsers._group_actions[0].choices["encode"]
+    text = " ".join(encode.format_help().split())
+    assert "TEXCOORD_n a step of at most 1/8192" in text and "COLOR_n 12" in text and "integer attributes" in text
+    readme = " ".join((ROOT / "README.md").read_text().split())
+    assert "TEXCOORD_n a step of at most 2^-13" in readme and "`ATTRIBUTE_BITS`" in readme
