@@ -99,3 +99,24 @@ def test_the_watermark_moves_no_vertex_farther_than_the_reach_the_grid_check_all
         _, after = _decoded_ints(marked.getvalue())
         moved = np.abs(after - before).max()
         assert 0 < moved <= steps, (moved, steps)
+
+
+@pytest.mark.parametrize("offset, bits", [(1000.0, 15), (10000.0, 11)])
+def test_the_float32_decode_of_a_marked_mesh_far_out_verifies_authentic_against_its_pmw(offset, bits):
+    """Far from the origin float32's rounding is a good part of a grid step: a decoded mesh stored as
+    float32 (a GLB) read ``tampered`` against its own ``.pmw`` (outside probe 2, F2). A vertex that is in
+    float32 exactly its counterpart's stored position is that position: float32 storage is no edit."""
+    import pmwm_codec
+    from pmwm_codec.verify import verify_mesh
+
+    m = shapes.icosphere(4, noise=0.02, seed=1)
+    rng = np.random.default_rng(3)
+    buf = io.BytesIO()
+    key = encode_mesh(Mesh(m.positions + offset, m.faces), buf, watermark=rng.integers(0, 256, (16, 16)).astype(np.uint8),
+                      key=WatermarkKey.generate(rng=rng), grid_bits=bits).key
+    decoded = pmwm_codec.decode(buf.getvalue())
+    stored = decoded.positions.astype(np.float32).astype(np.float64)
+    assert verify_mesh((stored, decoded.faces), buf.getvalue(), key).verdict == "authentic"
+    moved = stored.copy()
+    moved[:40] += 3 * (float(np.ptp(m.positions)) / 2**bits)  # three grid steps: an edit, not storage
+    assert verify_mesh((moved, decoded.faces), buf.getvalue(), key).verdict != "authentic"

@@ -336,6 +336,7 @@ def verify_mesh(mesh, reference_source, key, watermark=None, *, tolerance: float
     pts[corr.valid] = np.asarray(m.positions, np.float64)[corr.index[corr.valid]]
     order = ref.showing_order(pts)
     pts, apart = ref.stored(pts[order])
+    pts = _float32_storage_undone(pts, ref.positions)
     index = corr.index[order]
     nbars = None if corr.valid.all() else _partial_nbars(ref, ref.split(pts), corr)
     verifier = read_given(ref, pts, key, ref_image, nbars=nbars)
@@ -372,6 +373,19 @@ def _robust_similarity(points: np.ndarray, target: np.ndarray, ok: np.ndarray, r
             break
         use = keep
     return moved
+
+
+def _float32_storage_undone(points: np.ndarray, stored: np.ndarray) -> np.ndarray:
+    """``points`` (n, 3) float64 (NaN: no counterpart) with every row that is, in float32, exactly its
+    counterpart's stored position in ``stored`` (n, 3) float64 replaced by that position: float32 storage
+    (glTF's) is no edit, and far from the origin its rounding, a good part of a grid step, would otherwise
+    move the rings the codes are bound to."""
+    same = np.all(points.astype(np.float32) == stored.astype(np.float32), axis=1)
+    if not same.any():
+        return points
+    out = points.copy()
+    out[same] = stored[same]
+    return out
 
 
 def _foreign_vertices(mesh: Mesh, ref: Reference, corr: Correspondence, tolerance: float) -> np.ndarray:
