@@ -4,7 +4,13 @@ Each line::
 
     {"input": "/abs/in.obj", "input_sha256": "<64 hex>" | null, "output": "/abs/out/in.obj.pmw",
      "status": "ok" | "failed" | "skipped" | "timeout", "error": "<one line>" | null,
-     "seconds": 1.25, "bytes": 10724 | null, "vertices": 800 | null, "settings_sha256": "<64 hex>"}
+     "seconds": 1.25, "bytes": 10724 | null, "vertices": 800 | null, "settings_sha256": "<64 hex>",
+     "output_sha256": "<64 hex>" | null}
+
+``bytes`` and ``output_sha256`` are the output's size and SHA-256 as the row found it (ok: as written;
+skipped: as checked): a re-run skips an asset only while its output still has them, so an output
+truncated or damaged since (a partial copy or sync) is redone.  A row of an older run has no
+``output_sha256``; its size alone is compared.
 
 ``settings_sha256`` names what the output was made with besides the input (see
 :func:`settings_sha256`): a re-run with another watermark or key redoes the asset.
@@ -24,7 +30,8 @@ __all__ = ["LEDGER_NAME", "FIELDS", "STATUSES", "read_ledger", "last_rows", "Led
            "settings_sha256"]
 
 LEDGER_NAME = "pmw-batch.jsonl"
-FIELDS = ("input", "input_sha256", "output", "status", "error", "seconds", "bytes", "vertices", "settings_sha256")
+FIELDS = ("input", "input_sha256", "output", "status", "error", "seconds", "bytes", "vertices", "settings_sha256",
+          "output_sha256")
 STATUSES = ("ok", "failed", "skipped", "timeout")
 
 

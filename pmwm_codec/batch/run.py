@@ -185,7 +185,9 @@ def check_key_places(assets, out_dir, key=None, keys_dir=None) -> None:
 
 def _jobs(assets, out_dir, image, key, keys_dir, timeout, force, options=None) -> list[EncodeJob]:
     """One EncodeJob per asset, with the ledger's verdict on what was done before (with the same settings)."""
-    previous = last_rows(read_ledger(os.path.join(out_dir, LEDGER_NAME)))
+    rows = read_ledger(os.path.join(out_dir, LEDGER_NAME))
+    previous = last_rows(rows)
+    written = last_rows(r for r in rows if r["status"] == "ok")  # what each output was when it was written
     mode = "collection" if key is not None else "keys-dir" if keys_dir is not None else "beside"
     settings = settings_sha256(image, mode, None if key is None else key.fingerprint(), options)
     jobs = []
@@ -199,9 +201,15 @@ def _jobs(assets, out_dir, image, key, keys_dir, timeout, force, options=None) -
         prior = previous.get(asset.input) or {}
         done = prior.get("status") in ("ok", "skipped") and prior.get("output") == asset.output \
             and prior.get("settings_sha256") == settings
+        # the output's size and digest: those of the row that wrote it (a skipped row of an older run recorded
+        # the size it found, which may be that of a damaged file)
+        made = written.get(asset.input) or {}
+        if not all(made.get(f) == prior.get(f) for f in ("output", "settings_sha256", "input_sha256")):
+            made = prior
         jobs.append(EncodeJob(asset.input, asset.output, job_key, key_path, image, timeout, force,
                               prior.get("input_sha256") if done else None, prior.get("vertices") if done else None,
-                              settings, dict(options or {}), asset.root))
+                              settings, dict(options or {}), asset.root,
+                              made.get("bytes") if done else None, made.get("output_sha256") if done else None))
     return jobs
 
 

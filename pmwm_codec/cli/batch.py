@@ -49,7 +49,8 @@ def add_parser(sub):
                                     "a glob or a manifest (one path a line) — into OUT_DIR/<relative path>.pmw. "
                                     "A ledger OUT_DIR/pmw-batch.jsonl records each attempt; a re-run skips assets "
                                     "already done with the same input and settings (watermark, key, the options "
-                                    "below as 'pmw encode' takes them). "
+                                    "below as 'pmw encode' takes them) whose output is still the one the ledger "
+                                    "records (its size and SHA-256). "
                                     "Exit 0 all ok, 1 some failed, 2 bad usage.")
     e.add_argument("src", metavar="SRC", help="folder, glob (quote it) or manifest file")
     e.add_argument("-o", "--output", required=True, metavar="OUT_DIR", help="output folder (created)")
@@ -70,7 +71,8 @@ def add_parser(sub):
                         description="Verify every .pmw under OUT_DIR with one collection key (--key), the keys "
                                     "under --keys-dir, or the key beside each file. Symlinked folders are not "
                                     "entered; a file or key whose real path leaves OUT_DIR (or --keys-dir) is not "
-                                    "read and counts as an error. Exit 0 when all are authentic.")
+                                    "read and counts as an error; a file that ends before its declared length is 'truncated', not "
+                                    "authentic. Exit 0 when all are authentic.")
     v.add_argument("out_dir", metavar="OUT_DIR")
     keys = v.add_mutually_exclusive_group()
     keys.add_argument("--key", type=nonblank_path("--key", "key file"), metavar="KEY", help="the collection key")
