@@ -86,6 +86,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, client
             yield client
         return
     workers = local_workers(workers, tasks)
+    _quiet_resource_tracker()
     with dask.config.set(LOCAL_WORKER_CONFIG), _sigint_ignored():
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
                                silence_logs=logging.ERROR)
@@ -148,6 +149,43 @@ def check_scheduler(address: str, seconds: float | None = None) -> None:
 def _one_line(exc: BaseException) -> str:
     text = " ".join(str(exc).split())
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def _quiet_resource_tracker() -> None:
+    """Start multiprocessing's resource tracker (if it is not running yet) with its stderr on the null device.
+
+    The local cluster's worker processes are started through queues whose semaphores the tracker of this
+    process records; when this process is killed outright (``kill -9``), the tracker removes them and
+    warns about each "leaked semaphore" on the terminal, after the command has ended.  Its removal is the
+    cleanup wanted; its warning is noise.  (fd 2 is pointed elsewhere only while the tracker starts.)"""
+    from multiprocessing import resource_tracker
+
+    tracker = getattr(resource_tracker, "_resource_tracker", None)
+    if tracker is None or getattr(tracker, "_fd", 0) is not None:
+        return  # running already (or an implementation we do not know): left as it is
+    import sys
+
+    with contextlib.suppress(Exception):
+        sys.stderr.flush()
+    saved = os.dup(2)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)
+        resource_tracker.ensure_running()
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
+
+
+def _restore_sigint(scheduler) -> bool:
+    """Whether the encoders take SIGINT back (:class:`~.tasks.EncodeJob`): on our own workers, which ignore it
+    for the run's sake (:func:`_sigint_ignored`), unless this process had it ignored itself (a background job
+    of a script, ``nohup``: a Ctrl-C aimed elsewhere must not kill the run's encoders either); never on the
+    workers of a ``--scheduler``, whose SIGINT is theirs."""
+    import signal
+
+    return not scheduler and signal.getsignal(signal.SIGINT) is not signal.SIG_IGN
 
 
 @contextlib.contextmanager
@@ -247,7 +285,7 @@ def check_key_places(assets, out_dir, key=None, keys_dir=None) -> None:
             raise BatchError(why)
 
 
-def _jobs(assets, out_dir, image, key, keys_dir, timeout, force, options=None) -> list[EncodeJob]:
+def _jobs(assets, out_dir, image, key, keys_dir, timeout, force, options=None, restore_sigint=True) -> list[EncodeJob]:
     """One EncodeJob per asset, with the ledger's verdict on what was done before (with the same settings)."""
     rows = read_ledger(os.path.join(out_dir, LEDGER_NAME))
     previous = last_rows(rows)
@@ -273,7 +311,8 @@ def _jobs(assets, out_dir, image, key, keys_dir, timeout, force, options=None) -
         jobs.append(EncodeJob(asset.input, asset.output, job_key, key_path, image, timeout, force,
                               prior.get("input_sha256") if done else None, prior.get("vertices") if done else None,
                               settings, dict(options or {}), asset.root,
-                              made.get("bytes") if done else None, made.get("output_sha256") if done else None))
+                              made.get("bytes") if done else None, made.get("output_sha256") if done else None,
+                              restore_sigint))
     return jobs
 
 
@@ -313,7 +352,7 @@ def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, worke
         from pmwm_codec.watermark.image import load_watermark
 
         image = load_watermark(watermark)[0]
-    jobs = _jobs(assets, out_dir, image, key_obj, keys_dir, timeout, force, options)
+    jobs = _jobs(assets, out_dir, image, key_obj, keys_dir, timeout, force, options, _restore_sigint(scheduler))
     # Everything refused so far (a watermark, a key or its folder) made nothing.  The cluster comes next (a
     # --scheduler must answer), and only then OUT_DIR and a new collection key; a run that fails before its
     # first task removes exactly what it made.

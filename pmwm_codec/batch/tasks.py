@@ -46,6 +46,8 @@ class EncodeJob:
     older run: the size alone is compared).  ``options``: the
     :func:`pmwm_codec.encode` options of every asset of the run.  ``root``: the folder a
     folder or glob SRC names, which the input's real path must not leave (None: no bound).
+    ``restore_sigint``: whether the encoder takes SIGINT back to its default (the run's local workers
+    ignore it for the run's sake); False leaves it as the worker has it (an ignored SIGINT stays ignored).
     """
 
     input: str
@@ -62,6 +64,7 @@ class EncodeJob:
     root: str | None = None
     prior_bytes: int | None = None
     prior_output_sha256: str | None = None
+    restore_sigint: bool = True
 
 
 def encode_task(job: EncodeJob) -> dict:
@@ -143,7 +146,7 @@ def _encode_in_child(job: EncodeJob) -> dict:
             os.makedirs(os.path.dirname(path), exist_ok=True)
     _remove_leftovers(job)  # of a run killed before (one run per OUT_DIR at a time)
     payload = {"src": job.input, "dst": job.output, "watermark": job.watermark, "key": job.key,
-               "options": job.options or {}}
+               "options": job.options or {}, "restore_sigint": job.restore_sigint}
     if multiprocessing.current_process().daemon:
         result = _run_interpreter(payload, job.timeout)
     else:
@@ -162,9 +165,15 @@ def _run_forked(payload: dict, timeout) -> dict:
     ctx = multiprocessing.get_context("forkserver")
     ctx.set_forkserver_preload(_PRELOAD)
     receive, send = ctx.Pipe(duplex=False)
-    proc = ctx.Process(target=child_main, args=(payload, send), name="pmw-encode")
-    proc.start()
-    send.close()
+    # the child's lifeline: this process keeps the writing end open (never writes) until the child has ended;
+    # when this process ends first (the run killed), the child reads the end of the pipe and stops quietly
+    lifeline, alive = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=child_main, args=(payload, send, lifeline), name="pmw-encode")
+    try:
+        proc.start()
+    finally:
+        send.close()
+        lifeline.close()
     try:
         if not receive.poll(timeout):
             proc.kill()
@@ -173,14 +182,32 @@ def _run_forked(payload: dict, timeout) -> dict:
             return receive.recv()
         except EOFError:
             proc.join()
-            return {"status": "failed", "error": f"encoder process died (exit status {proc.exitcode})"}
+            return {"status": "failed", "error": _died(proc.exitcode)}
     finally:
         receive.close()
         proc.join()
+        alive.close()
+
+
+def _died(status: int | None, why: str = "") -> str:
+    """The error of an encoder that ended without a result: its signal by name, or its exit status."""
+    import signal
+
+    if status is not None and status < 0:
+        try:
+            name = signal.Signals(-status).name
+        except ValueError:
+            name = f"signal {-status}"
+        text = f"encoder process killed by {name}"
+    else:
+        text = f"encoder process died (exit status {status})"
+    return f"{text}: {why}" if why else text
 
 
 def _run_interpreter(payload: dict, timeout) -> dict:
-    proc = subprocess.Popen([sys.executable, "-m", "pmwm_codec.batch.child"], stdin=subprocess.PIPE,
+    # not ``-m pmwm_codec.batch.child``: the package imports that module first, and runpy's RuntimeWarning
+    # about it was the last line of every such child's stderr, taken for the reason it died
+    proc = subprocess.Popen([sys.executable, "-c", _CHILD_MAIN], stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_child_env())
     try:
         out, err = proc.communicate(pickle.dumps(payload), timeout=timeout)
@@ -192,8 +219,11 @@ def _run_interpreter(payload: dict, timeout) -> dict:
     try:
         return json.loads(lines[-1])
     except (IndexError, ValueError):
-        why = (err.decode("utf-8", "replace").strip().splitlines() or [""])[-1]
-        return {"status": "failed", "error": f"encoder process died (exit status {proc.returncode}) {why}".strip()}
+        why = (err.decode("utf-8", "replace").strip().splitlines() or [""])[-1] if proc.returncode >= 0 else ""
+        return {"status": "failed", "error": _died(proc.returncode, why.strip())}
+
+
+_CHILD_MAIN = "import sys; from pmwm_codec.batch.child import main; sys.exit(main())"
 
 
 def _remove_leftovers(job: EncodeJob) -> None:
