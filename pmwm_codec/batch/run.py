@@ -88,8 +88,11 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, client
     workers = local_workers(workers, tasks)
     _quiet_resource_tracker()
     with dask.config.set(LOCAL_WORKER_CONFIG), _sigint_ignored():
+        # logs at CRITICAL: a worker logs an ERROR with a traceback when the scheduler closes under its heartbeat,
+        # as it does at the end of every run (a run's own failures are its rows); the scheduler's HTTP server
+        # (no dashboard) on a free port of the loopback: on 8787, taken, it warned on stderr
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                               silence_logs=logging.ERROR)
+                               silence_logs=logging.CRITICAL, scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
     with cluster, Client(cluster) as client:
         yield client
 
