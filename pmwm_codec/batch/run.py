@@ -373,7 +373,12 @@ def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, worke
                 counts = dict.fromkeys(("ok", "skipped", "failed", "timeout"), 0)
                 failures = []
                 for row in _results(client, encode_task, jobs):
-                    ledger.write(row)
+                    try:
+                        ledger.write(row)
+                    except OSError as exc:  # a full disk: the run cannot record, so it stops, and says what is left
+                        left = len(jobs) - sum(counts.values())
+                        raise OSError(exc.errno, f"{exc.strerror}; the run stopped with {left} of {len(jobs)} assets "
+                                      "not recorded (a re-run does them)", exc.filename) from None
                     counts[row["status"]] += 1
                     if row["status"] in ("failed", "timeout"):
                         failures.append(row)
