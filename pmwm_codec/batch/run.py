@@ -170,15 +170,20 @@ def _quiet_resource_tracker() -> None:
 
     with contextlib.suppress(Exception):
         sys.stderr.flush()
-    saved = os.dup(2)
-    devnull = os.open(os.devnull, os.O_WRONLY)
     try:
-        os.dup2(devnull, 2)
-        resource_tracker.ensure_running()
+        saved = os.dup(2)
+    except OSError:  # no standard error to keep quiet
+        return
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(devnull, 2)
+            resource_tracker.ensure_running()
+        finally:
+            os.dup2(saved, 2)
+            os.close(devnull)
     finally:
-        os.dup2(saved, 2)
         os.close(saved)
-        os.close(devnull)
 
 
 def _restore_sigint(scheduler) -> bool:
