@@ -1,18 +1,21 @@
-"""Encode one asset in a process of its own: :func:`child_main` (forked) or ``python -m pmwm_codec.batch.child``.
+"""Encode one asset in a process of its own: :func:`child_main` (forked) or :func:`main` (a fresh interpreter).
 
 The batch task (:func:`pmwm_codec.batch.tasks.encode_task`) starts this process so that
 it can kill it at the per-asset timeout, and so that a crash in a native library takes
 down one asset, not the worker.  A forked child gets the job dict as an argument and sends
-the result dict through a pipe; the interpreter form reads a pickled job dict on standard input
+the result dict through a pipe, and watches a second pipe that the worker holds open (its end
+closes when the worker ends, however); the interpreter form watches its parent process, and reads a
+pickled job dict on standard input
 (``src``, ``dst``, ``watermark`` ((s, s) uint8 array or None), ``key`` (WatermarkKey,
-key path or None), ``options`` (the :func:`pmwm_codec.encode` options) — trusted: written by our
-own task), one JSON object on standard output::
+key path or None), ``options`` (the :func:`pmwm_codec.encode` options), ``restore_sigint``
+(:func:`_signals`) — trusted: written by our own task), one JSON object on standard output::
 
     {"status": "ok", "bytes": 10724, "vertices": 800, "key_path": "...", "error": null}
     {"status": "failed", "error": "<one line>", ...}
 
 The encode itself is one call of :func:`pmwm_codec.encode`, which writes the ``.pmw``
-atomically and, for a key path (or None), the key file.
+atomically and, for a key path (or None), the key file.  A SIGTERM, or the end of the worker (the run
+killed), stops it quietly: what it was writing is removed, no traceback, no result (:class:`Stopped`).
 """
 
 from __future__ import annotations
@@ -47,27 +50,130 @@ def encode_job(job: dict) -> dict:
             "key_path": report.get("key_path")}
 
 
-def _default_sigint() -> None:
-    """The run's workers ignore SIGINT (:func:`pmwm_codec.batch.run.dask_client`); an encoder does not: a
-    Ctrl-C of the run ends it (without a traceback), so it never outlives the run."""
+class Stopped(BaseException):
+    """Raised in the encoder's main thread by a SIGTERM, or when the worker that started it is gone: the encode
+    stops where it is (a file being written is removed, as on any failure) and nothing is reported."""
+
+
+#: Seconds an encoder has to stop once its worker is gone, before it exits without cleaning up (a native call
+#: that does not return); the next run removes what such an exit leaves (:func:`~.tasks._remove_leftovers`).
+GRACE = 5.0
+_state = {"reporting": False}
+
+
+def _on_sigterm(signum, frame):
+    _state["stopping"] = True
+    if not _state["reporting"]:
+        raise Stopped()
+
+
+def _signals(restore_sigint: bool) -> None:
+    """The encoder's signals.  SIGINT: back to the default when ``restore_sigint`` (the run's local workers
+    ignore it only so that a Ctrl-C stops the run once, in the client: :func:`pmwm_codec.batch.run.dask_client`;
+    an encoder then dies with the run); left as inherited otherwise, so that an ignored SIGINT (a run started
+    as a background job of a script, ``nohup``) stays ignored.  SIGTERM: stop quietly (:class:`Stopped`)."""
     import signal
 
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    if restore_sigint:
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, _on_sigterm)
 
 
-def child_main(job: dict, connection) -> None:
-    """Entry of a forked child: encode, send the result dict through ``connection``."""
-    _default_sigint()
-    connection.send(encode_job(job))
-    connection.close()
+def _parent_gone() -> None:
+    """The worker is gone (the run was killed): stop the encode in the main thread, then exit in any case."""
+    import os
+    import signal
+    import time
+
+    if _state["reporting"]:
+        return
+    os.kill(os.getpid(), signal.SIGTERM)
+    time.sleep(GRACE)
+    os._exit(1)
+
+
+def _watch(wait) -> None:
+    """Call :func:`_parent_gone` when ``wait()`` returns or raises, from a daemon thread."""
+    import threading
+
+    def watch():
+        try:
+            wait()
+        except BaseException:  # noqa: BLE001 - the end of the wait is the news
+            pass
+        _parent_gone()
+
+    threading.Thread(target=watch, name="pmw-watch-worker", daemon=True).start()
+
+
+def _wait_pipe_closed(lifeline):
+    """Wait until the worker's end of ``lifeline`` closes (it never writes): the worker ended."""
+    def wait():
+        while True:
+            lifeline.recv_bytes()
+    return wait
+
+
+def _wait_reparented():
+    """Wait until this process's parent changes (the worker that ran it ended)."""
+    import os
+    import time
+
+    parent = os.getppid()
+
+    def wait():
+        while os.getppid() == parent:
+            time.sleep(0.25)
+    return wait
+
+
+def _stop_quietly() -> None:
+    """End after a :class:`Stopped` or a lost worker: by SIGTERM's default action (exit status -15, as an
+    encoder killed by it), without a traceback or a result."""
+    import os
+    import signal
+
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    os.kill(os.getpid(), signal.SIGTERM)
+    os._exit(1)
+
+
+def child_main(job: dict, connection, lifeline=None) -> None:
+    """Entry of a forked child: encode, send the result dict through ``connection``.  ``lifeline``: a pipe
+    end whose other end the worker holds open until this process has ended; when it closes first, the
+    worker is gone, and the encode stops (never a traceback of a result sent to no one)."""
+    _signals(job.get("restore_sigint", True))
+    if lifeline is not None:
+        _watch(_wait_pipe_closed(lifeline))
+    try:
+        result = _encode(job)
+        connection.send(result)
+        connection.close()
+    except (Stopped, OSError, EOFError):  # stopped, or the worker went away while we reported
+        _stop_quietly()
+
+
+def _encode(job: dict) -> dict:
+    """:func:`encode_job`, then no more stopping (:class:`Stopped` when a stop came during it: a SIGTERM that
+    a compiled call turned into another error is still a stop, not a failed asset)."""
+    result = encode_job(job)
+    _state["reporting"] = True
+    if _state.get("stopping"):
+        raise Stopped()
+    return result
 
 
 def main() -> int:
-    _default_sigint()
+    """Entry of ``python -c 'from pmwm_codec.batch.child import main; ...'`` (a daemonic worker's encoder)."""
     job = pickle.loads(sys.stdin.buffer.read())
-    result = encode_job(job)
-    sys.stdout.write(json.dumps(result) + "\n")
-    sys.stdout.flush()
+    _signals(job.get("restore_sigint", True))
+    _watch(_wait_reparented())
+    try:
+        result = _encode(job)
+        sys.stdout.write(json.dumps(result) + "\n")
+        sys.stdout.flush()
+    except (Stopped, OSError, EOFError):
+        _stop_quietly()
     return 0
 
 

@@ -4,7 +4,13 @@ Each line::
 
     {"input": "/abs/in.obj", "input_sha256": "<64 hex>" | null, "output": "/abs/out/in.obj.pmw",
      "status": "ok" | "failed" | "skipped" | "timeout", "error": "<one line>" | null,
-     "seconds": 1.25, "bytes": 10724 | null, "vertices": 800 | null, "settings_sha256": "<64 hex>"}
+     "seconds": 1.25, "bytes": 10724 | null, "vertices": 800 | null, "settings_sha256": "<64 hex>",
+     "output_sha256": "<64 hex>" | null}
+
+``bytes`` and ``output_sha256`` are the output's size and SHA-256 as the row found it (ok: as written;
+skipped: as checked): a re-run skips an asset only while its output still has them, so an output
+truncated or damaged since (a partial copy or sync) is redone.  A row of an older run has no
+``output_sha256``; its size alone is compared.
 
 ``settings_sha256`` names what the output was made with besides the input (see
 :func:`settings_sha256`): a re-run with another watermark or key redoes the asset.
@@ -16,6 +22,7 @@ next :class:`LedgerWriter` terminates before appending.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -24,7 +31,8 @@ __all__ = ["LEDGER_NAME", "FIELDS", "STATUSES", "read_ledger", "last_rows", "Led
            "settings_sha256"]
 
 LEDGER_NAME = "pmw-batch.jsonl"
-FIELDS = ("input", "input_sha256", "output", "status", "error", "seconds", "bytes", "vertices", "settings_sha256")
+FIELDS = ("input", "input_sha256", "output", "status", "error", "seconds", "bytes", "vertices", "settings_sha256",
+          "output_sha256")
 STATUSES = ("ok", "failed", "skipped", "timeout")
 
 
@@ -84,11 +92,16 @@ def last_rows(rows) -> dict:
 
 
 class LedgerWriter:
-    """Append rows to the ledger; a context manager (the file stays open for the run)."""
+    """Append rows to the ledger; a context manager (the file stays open for the run).
+
+    Each row is one ``write`` of its whole line, unbuffered; a row that cannot be written whole (a full
+    disk) is taken back (the file cut to where it was, when it can be) and the OSError names the ledger and
+    the row's input: that asset has no row, and the next run does it again.
+    """
 
     def __init__(self, path):
         self.path = os.fspath(path)
-        self._fh = None
+        self._fd = None
 
     def __enter__(self):
         cut = False
@@ -96,16 +109,40 @@ class LedgerWriter:
             with open(self.path, "rb") as fh:
                 fh.seek(-1, os.SEEK_END)
                 cut = fh.read(1) != b"\n"
-        self._fh = open(self.path, "a", encoding="utf-8")
-        if cut:
-            self._fh.write("\n")
+        self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
+        try:
+            if cut:
+                self._append(b"\n")
+        except OSError as exc:
+            self.__exit__()
+            raise OSError(exc.errno, exc.strerror or str(exc), self.path) from None
         return self
 
+    def _append(self, data: bytes) -> None:
+        try:
+            size = os.fstat(self._fd).st_size
+        except OSError:
+            size = None
+        view = memoryview(data)
+        try:
+            while view:
+                view = view[os.write(self._fd, view):]
+        except OSError:
+            if size is not None:
+                with contextlib.suppress(OSError):
+                    os.ftruncate(self._fd, size)  # no cut line left behind
+            raise
+
     def write(self, row: dict) -> None:
-        line = json.dumps({name: row.get(name) for name in FIELDS}, allow_nan=False)
-        self._fh.write(line + "\n")
-        self._fh.flush()
+        line = json.dumps({name: row.get(name) for name in FIELDS}, allow_nan=False) + "\n"
+        try:
+            self._append(line.encode("utf-8"))
+        except OSError as exc:
+            raise OSError(exc.errno, f"{exc.strerror or exc} (the row of {row.get('input')} was not written)",
+                          self.path) from None
 
     def __exit__(self, *exc):
-        self._fh.close()
+        if self._fd is not None:
+            fd, self._fd = self._fd, None
+            os.close(fd)
         return False

@@ -6,7 +6,7 @@ this package installed and see the same paths (shared filesystem).  The client i
 ledger's only writer: it appends each row as its task finishes, so a killed run loses at
 most the rows of the assets then running, and those are redone by the next run.
 
-A collection key is created (or loaded) here, once, saved before any task starts, and
+A collection key is created (or loaded) here, once, saved once the cluster is reached and before any task starts, and
 passed to every task as an object: no task writes it, and every output verifies with it.
 """
 
@@ -77,19 +77,123 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, client
         yield client
         return
     if scheduler:
+        check_scheduler(scheduler)
         try:
-            client = Client(scheduler, timeout="15s")
-        except (OSError, TimeoutError) as exc:
-            raise BatchError(f"{scheduler}: cannot reach the Dask scheduler ({exc})") from None
+            client = Client(scheduler, timeout=f"{CONNECT_TIMEOUT:g}s")
+        except Exception as exc:  # noqa: BLE001 - reached a moment ago: whatever fails now, it is the connection
+            raise BatchError(f"{scheduler}: cannot reach the Dask scheduler ({_one_line(exc)})") from None
         with client:
             yield client
         return
     workers = local_workers(workers, tasks)
+    _quiet_resource_tracker()
     with dask.config.set(LOCAL_WORKER_CONFIG), _sigint_ignored():
+        # logs at CRITICAL: a worker logs an ERROR with a traceback when the scheduler closes under its heartbeat,
+        # as it does at the end of every run (a run's own failures are its rows); the scheduler's HTTP server
+        # (no dashboard) on a free port of the loopback: on 8787, taken, it warned on stderr
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                               silence_logs=logging.ERROR)
+                               silence_logs=logging.CRITICAL, scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
     with cluster, Client(cluster) as client:
         yield client
+
+
+#: Seconds to reach a ``--scheduler`` (its port), and then for its first answer (the Dask handshake).
+CONNECT_TIMEOUT = 15.0
+HANDSHAKE_TIMEOUT = 5.0
+
+
+def check_scheduler(address: str, seconds: float | None = None) -> None:
+    """BatchError (one line) unless a Dask scheduler answers at ``address``: its port within ``seconds``
+    (default :data:`CONNECT_TIMEOUT`), then its handshake within :data:`HANDSHAKE_TIMEOUT` more.
+
+    A malformed address (an unknown scheme, ``tcp://[::1``, ``tls://`` without a TLS configuration)
+    is refused as such; a port that takes the connection but is not Dask (an HTTP server) is refused
+    when no Dask handshake comes (``distributed.Client``'s own timeout does not cover that wait).
+    Runs in a thread of its own, so that a caller with an event loop running can call it too.
+    """
+    import asyncio
+    import threading
+
+    from distributed.comm import connect
+    from distributed.security import Security
+
+    seconds = CONNECT_TIMEOUT if seconds is None else seconds
+    bound = seconds + HANDSHAKE_TIMEOUT
+
+    async def probe():
+        args = Security().get_connection_args("client")
+        comm = await asyncio.wait_for(connect(address, timeout=seconds, **args), bound)
+        await comm.close()
+
+    failure = []
+
+    def run():
+        try:
+            asyncio.run(probe())
+        except BaseException as exc:  # noqa: BLE001 - reported below, in the caller's thread
+            failure.append(exc)
+
+    thread = threading.Thread(target=run, name="pmw-scheduler-check", daemon=True)
+    thread.start()
+    thread.join(bound + 5)
+    if thread.is_alive():
+        raise BatchError(f"{address}: no Dask scheduler answered within {bound:g} s")
+    if not failure:
+        return
+    exc = failure[0]
+    if isinstance(exc, (ValueError, TypeError)):  # distributed's words for an address it cannot use
+        raise BatchError(f"{address}: not a usable Dask scheduler address ({_one_line(exc)})") from None
+    if isinstance(exc, asyncio.TimeoutError) and "Timed out trying to connect" not in str(exc):
+        raise BatchError(f"{address}: connected, but no Dask scheduler answered within {bound:g} s "
+                         "(another service on that port?)") from None
+    raise BatchError(f"{address}: cannot reach the Dask scheduler ({_one_line(exc)})") from None
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def _quiet_resource_tracker() -> None:
+    """Start multiprocessing's resource tracker (if it is not running yet) with its stderr on the null device.
+
+    The local cluster's worker processes are started through queues whose semaphores the tracker of this
+    process records; when this process is killed outright (``kill -9``), the tracker removes them and
+    warns about each "leaked semaphore" on the terminal, after the command has ended.  Its removal is the
+    cleanup wanted; its warning is noise.  (fd 2 is pointed elsewhere only while the tracker starts.)"""
+    from multiprocessing import resource_tracker
+
+    tracker = getattr(resource_tracker, "_resource_tracker", None)
+    if tracker is None or getattr(tracker, "_fd", 0) is not None:
+        return  # running already (or an implementation we do not know): left as it is
+    import sys
+
+    with contextlib.suppress(Exception):
+        sys.stderr.flush()
+    try:
+        saved = os.dup(2)
+    except OSError:  # no standard error to keep quiet
+        return
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(devnull, 2)
+            resource_tracker.ensure_running()
+        finally:
+            os.dup2(saved, 2)
+            os.close(devnull)
+    finally:
+        os.close(saved)
+
+
+def _restore_sigint(scheduler) -> bool:
+    """Whether the encoders take SIGINT back (:class:`~.tasks.EncodeJob`): on our own workers, which ignore it
+    for the run's sake (:func:`_sigint_ignored`), unless this process had it ignored itself (a background job
+    of a script, ``nohup``: a Ctrl-C aimed elsewhere must not kill the run's encoders either); never on the
+    workers of a ``--scheduler``, whose SIGINT is theirs."""
+    import signal
+
+    return not scheduler and signal.getsignal(signal.SIGINT) is not signal.SIG_IGN
 
 
 @contextlib.contextmanager
@@ -118,6 +222,14 @@ def collection_key(key_path, watermark):
     ``watermark`` is given).  An existing key whose reference differs from ``watermark``
     is refused: every asset must verify with the one key.
     """
+    image, key, new = _collection_key(key_path, watermark)
+    if new:
+        key.save(key_path)
+    return image, key
+
+
+def _collection_key(key_path, watermark):
+    """``(image, key, new)``: :func:`collection_key` without saving a new key (``new``: True for one made here)."""
     from pmwm_codec.watermark.image import load_watermark
     from pmwm_codec.watermark.key import WatermarkKey
 
@@ -130,12 +242,10 @@ def collection_key(key_path, watermark):
             image = key.reference
         elif key.reference is not None and not np.array_equal(key.reference, image):
             raise BatchError(f"{key_path}: the key was made for another watermark image than {watermark}")
-        return image, key
+        return image, key, False
     if image is None:
         raise BatchError(f"{key_path}: no such key; give --watermark to create a collection key")
-    key = WatermarkKey.generate(reference=image)
-    key.save(key_path)
-    return image, key
+    return image, WatermarkKey.generate(reference=image), True
 
 
 def check_key_places(assets, out_dir, key=None, keys_dir=None) -> None:
@@ -183,9 +293,11 @@ def check_key_places(assets, out_dir, key=None, keys_dir=None) -> None:
             raise BatchError(why)
 
 
-def _jobs(assets, out_dir, image, key, keys_dir, timeout, force, options=None) -> list[EncodeJob]:
+def _jobs(assets, out_dir, image, key, keys_dir, timeout, force, options=None, restore_sigint=True) -> list[EncodeJob]:
     """One EncodeJob per asset, with the ledger's verdict on what was done before (with the same settings)."""
-    previous = last_rows(read_ledger(os.path.join(out_dir, LEDGER_NAME)))
+    rows = read_ledger(os.path.join(out_dir, LEDGER_NAME))
+    previous = last_rows(rows)
+    written = last_rows(r for r in rows if r["status"] == "ok")  # what each output was when it was written
     mode = "collection" if key is not None else "keys-dir" if keys_dir is not None else "beside"
     settings = settings_sha256(image, mode, None if key is None else key.fingerprint(), options)
     jobs = []
@@ -199,9 +311,16 @@ def _jobs(assets, out_dir, image, key, keys_dir, timeout, force, options=None) -
         prior = previous.get(asset.input) or {}
         done = prior.get("status") in ("ok", "skipped") and prior.get("output") == asset.output \
             and prior.get("settings_sha256") == settings
+        # the output's size and digest: those of the row that wrote it (a skipped row of an older run recorded
+        # the size it found, which may be that of a damaged file)
+        made = written.get(asset.input) or {}
+        if not all(made.get(f) == prior.get(f) for f in ("output", "settings_sha256", "input_sha256")):
+            made = prior
         jobs.append(EncodeJob(asset.input, asset.output, job_key, key_path, image, timeout, force,
                               prior.get("input_sha256") if done else None, prior.get("vertices") if done else None,
-                              settings, dict(options or {}), asset.root))
+                              settings, dict(options or {}), asset.root,
+                              made.get("bytes") if done else None, made.get("output_sha256") if done else None,
+                              restore_sigint))
     return jobs
 
 
@@ -231,33 +350,53 @@ def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, worke
     except (ValueError, OSError) as exc:
         raise BatchError(str(exc)) from None
     check_key_places(assets, out_dir, key, keys_dir)  # before anything is made: no key, no OUT_DIR
-    created = not os.path.isdir(out_dir)
-    os.makedirs(out_dir, exist_ok=True)  # before the key: a new collection key may go inside it
-    try:
-        image, key_obj = (None, None)
-        if key is not None:
-            image, key_obj = collection_key(key, watermark)
-        elif watermark is not None:
-            from pmwm_codec.watermark.image import load_watermark
+    image, key_obj, new_key = None, None, False
+    if key is not None:
+        image, key_obj, new_key = _collection_key(key, watermark)
+        folder = os.path.dirname(os.path.abspath(key))
+        if new_key and not os.path.isdir(folder) and folder != out_dir:
+            raise BatchError(f"{key}: cannot make the collection key there: no folder {folder}")
+    elif watermark is not None:
+        from pmwm_codec.watermark.image import load_watermark
 
-            image = load_watermark(watermark)[0]
-        jobs = _jobs(assets, out_dir, image, key_obj, keys_dir, timeout, force, options)
-        start = time.monotonic()
-        counts = dict.fromkeys(("ok", "skipped", "failed", "timeout"), 0)
-        failures = []
-        with dask_client(workers, scheduler, client, len(jobs)) as client, \
-                LedgerWriter(os.path.join(out_dir, LEDGER_NAME)) as ledger:
-            for row in _results(client, encode_task, jobs):
-                ledger.write(row)
-                counts[row["status"]] += 1
-                if row["status"] in ("failed", "timeout"):
-                    failures.append(row)
-                if progress is not None:
-                    progress(_progress_counts(counts, len(jobs), client, start))
-    except (PmwError, OSError):  # refused (a watermark, a key or its folder, a scheduler): not even OUT_DIR made
-        if created:
-            with contextlib.suppress(OSError):
-                os.rmdir(out_dir)  # only when still empty
+        image = load_watermark(watermark)[0]
+    jobs = _jobs(assets, out_dir, image, key_obj, keys_dir, timeout, force, options, _restore_sigint(scheduler))
+    # Everything refused so far (a watermark, a key or its folder) made nothing.  The cluster comes next (a
+    # --scheduler must answer), and only then OUT_DIR and a new collection key; a run that fails before its
+    # first task removes exactly what it made.
+    created_dir, made_key, started = False, None, False
+    try:
+        with dask_client(workers, scheduler, client, len(jobs)) as client:
+            created_dir = not os.path.isdir(out_dir)
+            os.makedirs(out_dir, exist_ok=True)  # before the key: a new collection key may go inside it
+            if new_key:
+                key_obj.save(key)
+                made_key = key
+            with LedgerWriter(os.path.join(out_dir, LEDGER_NAME)) as ledger:
+                started = True
+                start = time.monotonic()
+                counts = dict.fromkeys(("ok", "skipped", "failed", "timeout"), 0)
+                failures = []
+                for row in _results(client, encode_task, jobs):
+                    try:
+                        ledger.write(row)
+                    except OSError as exc:  # a full disk: the run cannot record, so it stops, and says what is left
+                        left = len(jobs) - sum(counts.values())
+                        raise OSError(exc.errno, f"{exc.strerror}; the run stopped with {left} of {len(jobs)} assets "
+                                      "not recorded (a re-run does them)", exc.filename) from None
+                    counts[row["status"]] += 1
+                    if row["status"] in ("failed", "timeout"):
+                        failures.append(row)
+                    if progress is not None:
+                        progress(_progress_counts(counts, len(jobs), client, start))
+    except BaseException:
+        if not started:  # refused (a scheduler, the key's place, OUT_DIR itself) or interrupted before any work
+            if made_key is not None:
+                with contextlib.suppress(OSError):
+                    os.unlink(made_key)
+            if created_dir:
+                with contextlib.suppress(OSError):
+                    os.rmdir(out_dir)  # only when still empty
         raise
     return {"assets": len(jobs), **counts, "seconds": round(time.monotonic() - start, 3),
             "ledger": os.path.join(out_dir, LEDGER_NAME), "failures": failures}

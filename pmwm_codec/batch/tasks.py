@@ -41,9 +41,13 @@ class EncodeJob:
     per-asset key file that must exist beside a done output (None for a collection key or
     no watermark).  ``watermark``: (s, s) uint8 array or None.  ``prior_sha256`` /
     ``prior_vertices``: the ledger's last ok/skipped row for this input, if any, made with
-    the same ``settings`` (:func:`pmwm_codec.batch.ledger.settings_sha256`).  ``options``: the
+    the same ``settings`` (:func:`pmwm_codec.batch.ledger.settings_sha256`), and ``prior_bytes`` /
+    ``prior_output_sha256``: the size and digest its output had then (the digest None for a row of an
+    older run: the size alone is compared).  ``options``: the
     :func:`pmwm_codec.encode` options of every asset of the run.  ``root``: the folder a
     folder or glob SRC names, which the input's real path must not leave (None: no bound).
+    ``restore_sigint``: whether the encoder takes SIGINT back to its default (the run's local workers
+    ignore it for the run's sake); False leaves it as the worker has it (an ignored SIGINT stays ignored).
     """
 
     input: str
@@ -58,13 +62,16 @@ class EncodeJob:
     settings: str | None = None
     options: dict | None = None
     root: str | None = None
+    prior_bytes: int | None = None
+    prior_output_sha256: str | None = None
+    restore_sigint: bool = True
 
 
 def encode_task(job: EncodeJob) -> dict:
     """Encode (or skip) one asset; returns its ledger row."""
     start = time.monotonic()
     row = {"input": job.input, "input_sha256": None, "output": job.output, "status": "failed", "error": None,
-           "bytes": None, "vertices": None, "settings_sha256": job.settings}
+           "bytes": None, "vertices": None, "settings_sha256": job.settings, "output_sha256": None}
     row["error"] = outside_root(job.input, job.root)  # a symlink out of SRC's folder: never read
     if row["error"] is None:
         try:
@@ -74,21 +81,45 @@ def encode_task(job: EncodeJob) -> dict:
         except PmwError as exc:  # not a regular file: never read
             row["error"] = str(exc)
         else:
-            if _done_before(job, row["input_sha256"]):
-                row.update(status="skipped", bytes=os.path.getsize(job.output), vertices=job.prior_vertices)
+            done = _done_before(job, row["input_sha256"])
+            if done is not None:
+                row.update(status="skipped", bytes=done[0], output_sha256=done[1], vertices=job.prior_vertices)
             else:
                 try:
                     row.update(_encode_in_child(job))
                 except OSError as exc:  # its output's folder cannot be made (a file in its place ...)
                     row["error"] = f"{exc.filename or job.output}: {exc.strerror or exc}"
+                if row["status"] == "ok":
+                    row["output_sha256"] = _output_sha256(job.output)
     row["seconds"] = round(time.monotonic() - start, 3)
     return row
 
 
-def _done_before(job: EncodeJob, sha: str) -> bool:
+def _done_before(job: EncodeJob, sha: str) -> tuple[int, str] | None:
+    """``(bytes, sha256)`` of the output when the ledger says this asset is done and the output (and its key)
+    is still what the ledger recorded; None when it must be (re)done: an output truncated or altered since
+    its row (a partial copy or sync) is redone, never skipped as done."""
     if job.force or job.prior_sha256 != sha or not os.path.isfile(job.output):
-        return False
-    return job.key_path is None or os.path.isfile(job.key_path)
+        return None
+    if job.key_path is not None and not os.path.isfile(job.key_path):
+        return None
+    try:
+        size = os.path.getsize(job.output)
+    except OSError:
+        return None
+    if job.prior_bytes is None or size != job.prior_bytes:
+        return None
+    digest = _output_sha256(job.output)
+    if digest is None or (job.prior_output_sha256 is not None and digest != job.prior_output_sha256):
+        return None
+    return size, digest
+
+
+def _output_sha256(path: str) -> str | None:
+    try:
+        return sha256_file(path)
+    except (OSError, PmwError):
+        return None
 
 
 def _child_env() -> dict:
@@ -115,7 +146,7 @@ def _encode_in_child(job: EncodeJob) -> dict:
             os.makedirs(os.path.dirname(path), exist_ok=True)
     _remove_leftovers(job)  # of a run killed before (one run per OUT_DIR at a time)
     payload = {"src": job.input, "dst": job.output, "watermark": job.watermark, "key": job.key,
-               "options": job.options or {}}
+               "options": job.options or {}, "restore_sigint": job.restore_sigint}
     if multiprocessing.current_process().daemon:
         result = _run_interpreter(payload, job.timeout)
     else:
@@ -134,9 +165,15 @@ def _run_forked(payload: dict, timeout) -> dict:
     ctx = multiprocessing.get_context("forkserver")
     ctx.set_forkserver_preload(_PRELOAD)
     receive, send = ctx.Pipe(duplex=False)
-    proc = ctx.Process(target=child_main, args=(payload, send), name="pmw-encode")
-    proc.start()
-    send.close()
+    # the child's lifeline: this process keeps the writing end open (never writes) until the child has ended;
+    # when this process ends first (the run killed), the child reads the end of the pipe and stops quietly
+    lifeline, alive = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=child_main, args=(payload, send, lifeline), name="pmw-encode")
+    try:
+        proc.start()
+    finally:
+        send.close()
+        lifeline.close()
     try:
         if not receive.poll(timeout):
             proc.kill()
@@ -145,14 +182,32 @@ def _run_forked(payload: dict, timeout) -> dict:
             return receive.recv()
         except EOFError:
             proc.join()
-            return {"status": "failed", "error": f"encoder process died (exit status {proc.exitcode})"}
+            return {"status": "failed", "error": _died(proc.exitcode)}
     finally:
         receive.close()
         proc.join()
+        alive.close()
+
+
+def _died(status: int | None, why: str = "") -> str:
+    """The error of an encoder that ended without a result: its signal by name, or its exit status."""
+    import signal
+
+    if status is not None and status < 0:
+        try:
+            name = signal.Signals(-status).name
+        except ValueError:
+            name = f"signal {-status}"
+        text = f"encoder process killed by {name}"
+    else:
+        text = f"encoder process died (exit status {status})"
+    return f"{text}: {why}" if why else text
 
 
 def _run_interpreter(payload: dict, timeout) -> dict:
-    proc = subprocess.Popen([sys.executable, "-m", "pmwm_codec.batch.child"], stdin=subprocess.PIPE,
+    # not ``-m pmwm_codec.batch.child``: the package imports that module first, and runpy's RuntimeWarning
+    # about it was the last line of every such child's stderr, taken for the reason it died
+    proc = subprocess.Popen([sys.executable, "-c", _CHILD_MAIN], stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_child_env())
     try:
         out, err = proc.communicate(pickle.dumps(payload), timeout=timeout)
@@ -164,8 +219,11 @@ def _run_interpreter(payload: dict, timeout) -> dict:
     try:
         return json.loads(lines[-1])
     except (IndexError, ValueError):
-        why = (err.decode("utf-8", "replace").strip().splitlines() or [""])[-1]
-        return {"status": "failed", "error": f"encoder process died (exit status {proc.returncode}) {why}".strip()}
+        why = (err.decode("utf-8", "replace").strip().splitlines() or [""])[-1] if proc.returncode >= 0 else ""
+        return {"status": "failed", "error": _died(proc.returncode, why.strip())}
+
+
+_CHILD_MAIN = "import sys; from pmwm_codec.batch.child import main; sys.exit(main())"
 
 
 def _remove_leftovers(job: EncodeJob) -> None:
@@ -194,6 +252,10 @@ VERIFY_REMEDY = "name the file and its key to verify it: pmw verify FILE --key K
 def verify_task(path: str, key, watermark=None, root: str | None = None, key_root: str | None = None) -> dict:
     """Verify one ``.pmw`` with ``key`` (WatermarkKey or key path): ``{file, verdict, error}``.
 
+    ``verdict``: :func:`pmwm_codec.verify.verify_stream`'s, or ``truncated`` for a file that ends before
+    its declared length whose part there verifies authentic (a cut file is not a whole output), or
+    ``error``; ``error`` says why (for any incomplete file: how much of it is there).
+
     ``root``: the folder the run names (OUT_DIR), which the real path of ``path`` must not
     leave; ``key_root``: the folder a key path must not leave (OUT_DIR for the key beside the
     file, ``--keys-dir``), None for a key named as is.  A file (or key) that leaves its folder
@@ -210,7 +272,16 @@ def verify_task(path: str, key, watermark=None, root: str | None = None, key_roo
         if why is not None:
             return {"file": path, "verdict": "error", "error": why}
     try:
-        verdict = verify_stream(path, key, watermark).verdict
+        outcome = verify_stream(path, key, watermark)
     except (PmwError, OSError, ValueError) as exc:
         return {"file": path, "verdict": "error", "error": one_line(exc)}
-    return {"file": path, "verdict": verdict, "error": None}
+    end = outcome.end
+    if end.complete:
+        return {"file": path, "verdict": outcome.verdict, "error": None}
+    # a file cut short (a partial copy or sync) is not a whole output, whatever its prefix verifies as
+    applied = outcome.results[-1].chunk if outcome.results else 0
+    what = (f"the file ends at {end.bytes_read:,} of its {outcome.total_length:,} bytes, base + {applied} of "
+            f"{end.chunks_total} chunks")
+    if outcome.verdict == "authentic":
+        return {"file": path, "verdict": "truncated", "error": f"{what}; the part there verifies authentic"}
+    return {"file": path, "verdict": outcome.verdict, "error": f"truncated: {what}"}

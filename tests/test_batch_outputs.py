@@ -1,0 +1,101 @@
+"""``pmw batch``: an output damaged after its run (truncated by a partial copy or sync, or altered) is never taken
+for done by a re-run, and ``pmw batch verify`` never counts a file that is not whole as authentic."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pmwm_codec import shapes
+from pmwm_codec.meshio import write_mesh
+
+pytest.importorskip("distributed")
+
+from pmwm_codec.batch import LEDGER_NAME, encode_batch, read_ledger, verify_batch  # noqa: E402
+from pmwm_codec.batch.run import dask_client  # noqa: E402
+from pmwm_codec.verify import verify_stream  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+IMAGE = (np.indices((8, 8)).sum(0) % 2 * 255).astype(np.uint8)
+
+
+@pytest.fixture(scope="module")
+def client():
+    with dask_client(workers=1) as c:
+        yield c
+
+
+@pytest.fixture
+def encoded(tmp_path, client):
+    """Three assets encoded into ``tmp/out`` (a key beside each output); returns (src, out)."""
+    src, out = tmp_path / "src", tmp_path / "out"
+    src.mkdir()
+    for i in range(3):
+        write_mesh(src / f"m{i}.obj", shapes.icosphere(3, noise=0.01, seed=i + 1))
+    assert encode_batch(src, out, watermark=IMAGE, client=client)["ok"] == 3
+    return src, out
+
+
+def _truncate(path: Path, size: int) -> None:
+    path.write_bytes(path.read_bytes()[:size])
+
+
+def _statuses(out: Path, count: int) -> dict:
+    return {Path(r["input"]).name: r["status"] for r in read_ledger(out / LEDGER_NAME)[-count:]}
+
+
+def test_a_rerun_redoes_an_output_truncated_or_altered_since_its_ledger_row(encoded, client):
+    src, out = encoded
+    rows = read_ledger(out / LEDGER_NAME)
+    assert all(r["output_sha256"] and r["bytes"] == os.path.getsize(r["output"]) for r in rows)
+    whole = (out / "m0.obj.pmw").read_bytes()
+    _truncate(out / "m0.obj.pmw", 3000)  # a partial copy: the size differs
+    data = bytearray((out / "m1.obj.pmw").read_bytes())
+    data[-10] ^= 0xFF  # the same size, another byte: the digest differs
+    (out / "m1.obj.pmw").write_bytes(bytes(data))
+    summary = encode_batch(src, out, watermark=IMAGE, client=client)
+    assert (summary["ok"], summary["skipped"]) == (2, 1)
+    assert _statuses(out, 3) == {"m0.obj": "ok", "m1.obj": "ok", "m2.obj": "skipped"}
+    assert (out / "m0.obj.pmw").read_bytes() == whole  # redone with its key: the same bytes
+    for i in range(3):
+        pmw = out / f"m{i}.obj.pmw"
+        outcome = verify_stream(pmw, f"{pmw}.key.json")
+        assert outcome.verdict == "authentic" and outcome.end.complete
+    assert encode_batch(src, out, watermark=IMAGE, client=client)["skipped"] == 3  # and then done
+
+
+def test_a_ledger_of_an_older_run_without_digests_still_redoes_a_truncated_output(encoded, client):
+    """Rows of an older run hold no output digest, and its skipped rows recorded the size they found (that of
+    a damaged file): the size the output was written with counts."""
+    src, out = encoded
+    ledger = out / LEDGER_NAME
+    rows = [{k: v for k, v in r.items() if k != "output_sha256"} for r in read_ledger(ledger)]
+    _truncate(out / "m0.obj.pmw", 3000)
+    skipped = dict(rows[[Path(r["input"]).name for r in rows].index("m0.obj")], status="skipped", bytes=3000)
+    ledger.write_text("".join(json.dumps(r) + "\n" for r in [*rows, skipped]))
+    summary = encode_batch(src, out, watermark=IMAGE, client=client)
+    assert (summary["ok"], summary["skipped"]) == (1, 2)
+    assert _statuses(out, 3)["m0.obj"] == "ok"
+    assert verify_stream(out / "m0.obj.pmw", out / "m0.obj.pmw.key.json").end.complete
+
+
+def test_batch_verify_reports_a_truncated_file_as_truncated_and_exits_1(encoded, client):
+    _, out = encoded
+    _truncate(out / "m1.obj.pmw", 3000)
+    doc = verify_batch(out, client=client)
+    assert (doc["files"], doc["authentic"]) == (3, 2)
+    bad = [r for r in doc["results"] if r["verdict"] != "authentic"]
+    assert [(Path(r["file"]).name, r["verdict"]) for r in bad] == [("m1.obj.pmw", "truncated")]
+    assert "ends at 3,000 of its" in bad[0]["error"]
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    done = subprocess.run([sys.executable, "-m", "pmwm_codec", "batch", "verify", str(out), "--workers", "1"],
+                          capture_output=True, text=True, env=env, timeout=300)
+    assert done.returncode == 1, done.stderr
+    assert f"  truncated: {out / 'm1.obj.pmw'} (the file ends at 3,000 of its" in done.stdout
+    assert done.stdout.rstrip().endswith("2 of 3 files authentic")

@@ -1,0 +1,161 @@
+"""``pmw batch`` and signals: a SIGTERM stops the run as a Ctrl-C does (one line, exit 143); when the run is
+killed outright its encoders end at once and quietly (they finished their asset, then printed a BrokenPipeError
+traceback, and the resource tracker a "leaked semaphore" warning, after the command had ended); an encoder keeps
+an ignored SIGINT ignored (a Ctrl-C aimed elsewhere killed the encoders of a background run)."""
+
+from __future__ import annotations
+
+import json
+import os
+import pickle
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pmwm_codec import shapes
+from pmwm_codec.meshio import write_mesh
+
+pytest.importorskip("distributed")
+
+from pmwm_codec.batch import LEDGER_NAME, read_ledger  # noqa: E402
+from pmwm_codec.batch import tasks  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+ASSETS = 24
+
+
+@pytest.fixture(scope="module")
+def library(tmp_path_factory):
+    from PIL import Image
+
+    root = tmp_path_factory.mktemp("signals")
+    (root / "src").mkdir()
+    for i in range(ASSETS):
+        write_mesh(root / "src" / f"t{i:02d}.obj", shapes.torus(48, 24, twist=0.01 * i))
+    Image.fromarray((np.indices((16, 16)).sum(0) % 2 * 255).astype(np.uint8)).save(root / "wm.png")
+    return root
+
+
+def _start(library, out, sigint=signal.SIG_DFL):
+    argv = [sys.executable, "-m", "pmwm_codec", "batch", "encode", str(library / "src"), "-o", str(out),
+            "--watermark", str(library / "wm.png"), "--workers", "2", "-q"]
+    return subprocess.Popen(argv, env=dict(os.environ, PYTHONPATH=str(ROOT)), start_new_session=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, sigint))
+
+
+def _wait_rows(proc, out: Path, rows: int) -> None:
+    deadline = time.monotonic() + 240
+    while len(read_ledger(out / LEDGER_NAME)) < rows and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert proc.poll() is None, "the run ended before the signal"
+
+
+def _left(session: int) -> list:
+    ps = subprocess.run(["ps", "-o", "pid=,stat=,args=", "-s", str(session)], capture_output=True, text=True).stdout
+    return [line for line in ps.splitlines() if not line.split()[1].startswith("Z")]
+
+
+def _finish(proc, seconds=120):
+    """Stdout and stderr to their end: until every process holding them (orphaned encoders too) has ended."""
+    try:
+        return proc.communicate(timeout=seconds)
+    finally:
+        if _left(proc.pid):
+            os.killpg(proc.pid, signal.SIGKILL)
+
+
+def _consistent(out: Path) -> None:
+    assert (out / LEDGER_NAME).read_bytes().endswith(b"\n")
+    assert not [p for p in out.rglob("*") if p.name.endswith(".tmp")]
+    for row in read_ledger(out / LEDGER_NAME):
+        assert row["status"] == "ok" and os.path.getsize(row["output"]) == row["bytes"]
+
+
+def test_sigterm_of_the_batch_stops_it_like_ctrl_c_in_one_line_with_exit_143_and_leaves_no_process(library,
+                                                                                                   tmp_path):
+    out = tmp_path / "out"
+    proc = _start(library, out)
+    _wait_rows(proc, out, 3)
+    os.kill(proc.pid, signal.SIGTERM)  # the command alone, as timeout, systemd or docker stop send it
+    _, err = _finish(proc)
+    assert proc.returncode == 143 and err == "pmw: error: terminated\n", (proc.returncode, err)
+    time.sleep(1)
+    assert not _left(proc.pid)
+    _consistent(out)
+
+
+def test_kill_9_of_the_batch_ends_its_encoders_at_once_without_a_word(library, tmp_path):
+    out = tmp_path / "out"
+    proc = _start(library, out)
+    _wait_rows(proc, out, 3)
+    os.kill(proc.pid, signal.SIGKILL)  # encoders are running: each must notice its worker is gone
+    start = time.monotonic()
+    _, err = _finish(proc)
+    assert proc.returncode == -9
+    assert err == "", err  # no BrokenPipeError traceback of an encoder, no resource-tracker warning
+    assert time.monotonic() - start < 30
+    time.sleep(1)
+    assert not _left(proc.pid)
+    _consistent(out)
+
+
+def test_encoders_of_a_run_started_with_sigint_ignored_keep_it_ignored(library, tmp_path):
+    """A background job of a script starts with SIGINT ignored; a Ctrl-C of its process group killed in-flight
+    encoders (``exit status -2`` rows) while the run went on."""
+    out = tmp_path / "out"
+    proc = _start(library, out, sigint=signal.SIG_IGN)
+    _wait_rows(proc, out, 2)
+    while proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGINT)
+        time.sleep(0.1)
+    _, err = _finish(proc)
+    assert (proc.returncode, err) == (0, "")
+    rows = read_ledger(out / LEDGER_NAME)
+    assert len(rows) == ASSETS and {r["status"] for r in rows} == {"ok"}
+
+
+def test_the_interpreter_form_of_the_encoder_prints_nothing_but_its_result(tmp_path):
+    """``python -m pmwm_codec.batch.child`` printed runpy's RuntimeWarning on every start, and a dead encoder's
+    error quoted that warning as its reason (external ``dask worker``s)."""
+    write_mesh(tmp_path / "a.obj", shapes.icosphere(2, noise=0.01))
+    payload = {"src": str(tmp_path / "a.obj"), "dst": str(tmp_path / "a.obj.pmw"), "watermark": None, "key": None,
+               "options": {}}
+    done = subprocess.run([sys.executable, "-c", tasks._CHILD_MAIN], input=pickle.dumps(payload),
+                          capture_output=True, env=tasks._child_env(), timeout=120)
+    assert done.returncode == 0 and done.stderr == b""
+    assert json.loads(done.stdout)["status"] == "ok"
+    assert tasks._died(-9) == "encoder process killed by SIGKILL"
+    assert tasks._died(3, "MemoryError") == "encoder process died (exit status 3): MemoryError"
+
+
+def test_an_encoder_whose_worker_is_gone_stops_and_removes_what_it_was_writing(tmp_path):
+    """The interpreter form's parent ends mid-encode: the encoder stops within its grace time, silently."""
+    write_mesh(tmp_path / "big.obj", shapes.icosphere(5, noise=0.01))
+    payload = {"src": str(tmp_path / "big.obj"), "dst": str(tmp_path / "big.obj.pmw"),
+               "watermark": np.full((8, 8), 255, np.uint8), "key": None, "options": {}}
+    # a parent that starts the encoder, hands it the job and ends at once
+    parent = ("import os, subprocess, sys\n"
+              f"p = subprocess.Popen([sys.executable, '-c', {tasks._CHILD_MAIN!r}], stdin=subprocess.PIPE)\n"
+              "p.stdin.write(sys.stdin.buffer.read()); p.stdin.close()\n"
+              "print(p.pid, flush=True)\n"
+              "import time; time.sleep(1.0); os._exit(0)\n")
+    done = subprocess.run([sys.executable, "-c", parent], input=pickle.dumps(payload), capture_output=True,
+                          env=tasks._child_env(), timeout=120)
+    child = int(done.stdout.split()[0])
+    deadline = time.monotonic() + 20
+    while time.monotonic() < deadline:
+        try:
+            os.kill(child, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.1)
+    else:
+        pytest.fail("the encoder outlived its parent by 20 s")
+    assert done.stderr == b""
+    assert sorted(os.listdir(tmp_path)) == ["big.obj"]
