@@ -48,7 +48,7 @@ from ..format.records_v2 import FaceChunk, pack_chunks
 from ..mesh import Mesh, bounds
 from ..progressive.build import ProgressiveMesh, build_progressive
 from ..progressive.grid import AttributeGrid, Grid
-from ..progressive.seams import twin_rows, weld_groups
+from ..progressive.seams import grid_weld, snap_near_copies, twin_rows, weld_groups
 from ..progressive.simplify import CollapseLog, deferred_and_twin_faces, simplify
 from ..progressive.topology import job_vertices, mean_edge_length
 from ..watermark import codec as wm
@@ -530,6 +530,13 @@ def _quantize_and_simplify(jobs, grid_bits: int, base_vertices, say, defer_faces
     for i, job in enumerate(jobs):
         grid, values, specs = _quantize(job.mesh, grids[i])
         faces, positions, locked = job.mesh.faces, job.mesh.positions, job.locked
+        # a seam's copies a hair apart (float noise) on one grid point, even where the grid rounds between them
+        q = values[:, :3]
+        snapped = snap_near_copies(q, positions, faces, grid.step, locked)
+        if snapped is not q:
+            values = np.concatenate([snapped, values[:, 3:]], axis=1)
+        if locked is not None:
+            locked = _locked_with_grid_copies(values[:, :3], locked)
         late, twin = (deferred_and_twin_faces(values[:, :3], faces) if defer_faces
                       else (np.zeros(len(faces), bool), None))
         if late.any() and locked is not None:  # a locked vertex stays in the base: its faces are not deferred
@@ -544,11 +551,24 @@ def _quantize_and_simplify(jobs, grid_bits: int, base_vertices, say, defer_faces
             # specks are told by their vertices), so a triple keeps its face count in the core
             twin = twin[~late]
         target = default_base_target(len(values)) if base_vertices is None else int(base_vertices)
-        log = simplify(values[:, :3], faces, target_vertices=target, locked=locked, weld=weld_groups(positions),
-                       twin=twin)
+        # seam copies on the grid the stream lives on (copies a grid step apart or less are one point there)
+        weld = grid_weld(values[:, :3], faces, positions)
+        log = simplify(values[:, :3], faces, target_vertices=target, locked=locked, weld=weld, twin=twin)
         work.append(PrimitiveWork(job, grid, values, specs, log, **extra))
         say("simplify", (i + 1) / len(jobs))
     return work
+
+
+def _locked_with_grid_copies(q: np.ndarray, locked: np.ndarray) -> np.ndarray:
+    """(n,) bool: ``locked`` (n,) bool (:func:`~pmwm_codec.stream.asset._lock_shared_positions`: a border with
+    another primitive) with every vertex on the grid point ``q`` (n, 3) int64 of a locked one: copies that
+    land on one grid point are one position in the stream, and stay in the base together."""
+    same = weld_groups(q)
+    if same is None or not locked.any():
+        return locked
+    hit = np.zeros(len(q), bool)
+    hit[same[locked]] = True
+    return hit[same]
 
 
 def _naming_locked_tips(faces: np.ndarray, late: np.ndarray, locked: np.ndarray) -> np.ndarray:
