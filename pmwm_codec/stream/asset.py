@@ -69,6 +69,7 @@ from ..format.gltf import (
     view_bytes,
 )
 from ..mesh import Mesh, checked_mesh
+from ..progressive.seams import weld_groups
 from ..http import read_declared
 from .cut import data_not_arrived
 from .decoder import StreamDecoder
@@ -133,7 +134,7 @@ def plan_asset(gltf: dict, buffers, name: str | None = None) -> tuple:
     by_mesh = {}
     for mi, pi, prim, where in candidates:
         try:
-            mesh = _primitive_mesh(gltf, buffers, prim, where)
+            mesh, welded = _primitive_mesh(gltf, buffers, prim, where)
         except _PassThrough as exc:
             pass_through(prim, str(exc))
             continue
@@ -141,6 +142,9 @@ def plan_asset(gltf: dict, buffers, name: str | None = None) -> tuple:
             if name:
                 raise type(exc)(f"{name}: {exc}") from None
             raise
+        if welded:
+            notices.append(f"{where}: {welded} duplicate vertices (same position and attributes) welded; it decodes "
+                           f"with {mesh.vertex_count} vertices")
         job = PrimitiveJob(mesh, mi, pi)
         jobs.append(job)
         by_mesh.setdefault(mi, []).append(job)
@@ -187,8 +191,10 @@ def _why_not(prim: dict):
     return None
 
 
-def _primitive_mesh(gltf, buffers, prim, where) -> Mesh:
-    """The primitive's geometry and attributes as a checked :class:`Mesh` (Draco input decoded).
+def _primitive_mesh(gltf, buffers, prim, where) -> tuple:
+    """``(mesh, welded)``: the primitive's geometry and attributes as a checked :class:`Mesh` (Draco input
+    decoded) with its exact duplicates welded (:func:`_welded`: the glTF vertices of the decoded primitive
+    are the welded ones), and how many vertices that weld removed.
 
     Validation is :func:`~pmwm_codec.mesh.checked_mesh`'s, as for a mesh file.  Raises
     :class:`_PassThrough` for a valid primitive that is not made progressive, and
@@ -203,9 +209,31 @@ def _primitive_mesh(gltf, buffers, prim, where) -> Mesh:
     except (_PassThrough, MeshError, InputFormatError) as exc:
         raise type(exc)(f"{where}: {exc}") from None
     try:
-        return checked_mesh(positions, faces, extra, name=where)
+        return _welded(checked_mesh(positions, faces, extra, name=where), where)
     except DegenerateMeshError as exc:  # well formed, nothing to make progressive
         raise _PassThrough(str(exc)) from None
+
+
+def _welded(mesh: Mesh, where: str) -> tuple:
+    """``mesh`` with its exact duplicates welded: vertices with the same position and the same value of every
+    attribute are one vertex, the first of them (vertices keep their order).  A triangle soup (a non-indexed
+    primitive, every corner its own vertex, as three.js non-indexed geometry and STL converters write
+    it) becomes the indexed mesh it is, whose seams the simplifier can collapse; as a soup each position
+    had about six copies and stayed in the base.  Faces the weld makes degenerate are dropped (counted
+    in ``cleanup``).  Returns ``(mesh, how many vertices the weld removed)``; a mesh without duplicates
+    comes back as it is."""
+    rows = [mesh.positions] + [np.asarray(v, np.float64).reshape(mesh.vertex_count, -1)
+                               for _, v in sorted(mesh.attributes.items())]
+    weld = weld_groups(np.concatenate(rows, axis=1))
+    if weld is None:
+        return mesh, 0
+    keep = weld == np.arange(mesh.vertex_count)
+    index = np.cumsum(keep) - 1
+    faces = index[weld[mesh.faces]]
+    welded = checked_mesh(mesh.positions[keep], faces, {k: v[keep] for k, v in mesh.attributes.items()}, name=where)
+    welded.cleanup = {k: welded.cleanup.get(k, 0) + mesh.cleanup.get(k, 0)
+                      for k in sorted({*welded.cleanup, *mesh.cleanup})}
+    return welded, int(mesh.vertex_count - keep.sum())
 
 
 def _accessor_arrays(gltf, buffers, prim) -> tuple:

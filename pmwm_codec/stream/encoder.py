@@ -304,7 +304,9 @@ def encode_document(
     def stages(jobs):
         """Stages 1-5 over ``jobs``: ``(work, notices, order, carriers, params)``."""
         work = _quantize_and_simplify(jobs, grid_bits, base_vertices, say, defer_faces=payload_version == 2)
+        unrefined = _unrefined_notices(work, base_vertices, doc)
         work, notices = _encode_bases(work, base_codec)
+        notices = unrefined + notices
         work, order, slots, carriers = _plan_chunks(work, min_chunk_splits)
         params = None
         if watermark is not None:
@@ -557,6 +559,81 @@ def _quantize_and_simplify(jobs, grid_bits: int, base_vertices, say, defer_faces
         work.append(PrimitiveWork(job, grid, values, specs, log, **extra))
         say("simplify", (i + 1) / len(jobs))
     return work
+
+
+def _unrefined_notices(work, base_vertices, doc: dict) -> list:
+    """Notices for the primitives of ``work`` (stage 1's) that got no vertex split: their base is the whole
+    primitive.  One notice for those too small to refine (no more vertices than their base target,
+    ``base_vertices`` or :func:`~pmwm_codec.stream.chunking.default_base_target`), and one per other
+    primitive saying which of its vertices had to stay (seam corners, borders with other primitives).
+    ``doc``: the document (an asset's has an ``asset`` member; a mesh file's is "the mesh")."""
+    small, notices = [], []
+    for w in work:
+        if any(len(b.u) for b in w.log.batches):
+            continue
+        where = _primitive_name(doc, w.job, len(work))
+        n = len(w.values)
+        target = default_base_target(n) if base_vertices is None else int(base_vertices)
+        if n <= target:
+            small.append((where, n))
+            continue
+        notices.append(f"{where}: not made progressive (0 vertex splits: the base is the whole primitive): "
+                       + _why_unrefined(w))
+    if small:
+        names = ", ".join(w for w, _ in small[:_NAMES_QUOTED])
+        names += f" and {len(small) - _NAMES_QUOTED} more" if len(small) > _NAMES_QUOTED else ""
+        bound = f"--base-vertices {int(base_vertices)}" if base_vertices is not None else "a base keeps (at least 64)"
+        size = (f"it has {small[0][1]} vertices, no more than" if len(small) == 1
+                else "each has no more vertices than")
+        notices.insert(0, f"{names}: not made progressive (0 vertex splits): {size} {bound}, so the base is all of it")
+    return notices
+
+
+#: How many primitives a notice names before "and k more".
+_NAMES_QUOTED = 3
+
+
+def _primitive_name(doc: dict, job: PrimitiveJob, count: int) -> str:
+    """How notices name a primitive: ``mesh i (name) primitive j`` in an asset, "the mesh" for a mesh file."""
+    if "asset" not in doc and count == 1:
+        return "the mesh"
+    meshes = doc.get("meshes")
+    mesh = meshes[job.mesh_index] if isinstance(meshes, list) and job.mesh_index < len(meshes) else {}
+    name = mesh.get("name") if isinstance(mesh, dict) else None
+    return f"mesh {job.mesh_index}" + (f" ({name})" if isinstance(name, str) and name else "") + \
+        f" primitive {job.primitive_index}"
+
+
+def _why_unrefined(w: PrimitiveWork) -> str:
+    """Why the simplifier removed no vertex of ``w`` although it has more than its base target: how many of
+    its vertices are seam corners (three or more copies of a position on the grid), on borders with other
+    primitives (locked), seam copies (two), and the rest."""
+    job = w.job
+    faces, positions, locked = job.mesh.faces, job.mesh.positions, job.locked
+    if w.core is not None:  # the vertices the simplifier saw, and the faces among them
+        local = np.full(job.mesh.vertex_count, -1, np.int64)
+        local[w.core] = np.arange(len(w.core))
+        faces = local[faces][(local[faces] >= 0).all(axis=1)]
+        positions = positions[w.core]
+        locked = None if locked is None else locked[w.core]
+    q, n = w.values[:, :3], len(w.values)
+    weld = grid_weld(q, faces, positions)
+    size = np.ones(n, np.int64) if weld is None else np.bincount(weld, minlength=n)[weld]
+    corner = size >= 3
+    border = np.zeros(n, bool) if locked is None else _locked_with_grid_copies(q, locked) & ~corner
+    seam = (size == 2) & ~border
+    why = []
+    if corner.any():
+        why.append(f"{int(corner.sum())} share their position with two or more other vertices (seam corners, kept "
+                   "in the base: per-face normals or UVs, as flat shading has at every vertex)")
+    if border.any():
+        why.append(f"{int(border.sum())} lie on borders with other primitives (kept in the base)")
+    if seam.any():
+        why.append(f"{int(seam.sum())} are seam copies (removed only in pairs, along a seam between two copies)")
+    rest = n - int(corner.sum() + border.sum() + seam.sum())
+    if rest:
+        why.append(f"no collapse of the other {rest} keeps the surface valid")
+    return f"of its {n} vertices, " + "; ".join(why)
 
 
 def _locked_with_grid_copies(q: np.ndarray, locked: np.ndarray) -> np.ndarray:
