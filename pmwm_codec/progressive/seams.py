@@ -7,6 +7,11 @@ one side alone would open a crack.  The simplifier (:mod:`.simplify`) therefore
 never removes a seam vertex (a vertex whose position another live vertex of the
 primitive shares) by an ordinary collapse; it removes it here, as a *seam pair*.
 
+Positions are grid integers: the encoder finds the copies with :func:`grid_weld` (exact
+float copies, and vertices on one grid point on a cut of the index mesh, whose input floats
+may differ by rounding noise), after :func:`snap_near_copies` put copies that rounded to
+neighbouring grid points on one.
+
 Rule (everything in the pre-batch mesh; ``pos`` is a vertex's position):
 
 * **Seam vertex.**  ``u`` is a seam vertex when another live vertex has its

@@ -17,10 +17,17 @@ with an error naming the primitive.
 Every other vertex attribute (NORMAL, TANGENT, TEXCOORD_n, COLOR_n, custom)
 rides with the splits on its own integer grid.
 
+Duplicates.  A primitive's exact duplicate vertices (the same position and the same
+value of every attribute: a non-indexed primitive, a triangle soup) are welded first
+(:func:`_welded`), keeping the first of each and the vertex order; the decoded
+primitive has the welded vertices, and a notice says how many were welded.
+
 Seams.  glTF vertices are already split where UVs or normals jump; the copies
 share a position.  Inside one primitive the simplifier collapses both sides of a
 seam together, in the same batch (:mod:`~pmwm_codec.progressive.seams`), so both
-sides have identical positions at every level of detail (no cracks).  A vertex
+sides have identical positions at every level of detail (no cracks).  Copies are
+found on the position grid (:func:`~pmwm_codec.progressive.seams.grid_weld`): a
+seam whose sides differ by float noise is one seam.  A vertex
 that coincides in the scene with a vertex of another *primitive* (a border between
 primitives: of one glTF mesh, or of meshes whose nodes place them to meet) is locked: it
 stays in the base mesh.  Collapses elsewhere may still land *on* seam or border vertices (the kept vertex
@@ -297,7 +304,11 @@ def _lock_shared_positions(gltf: dict, jobs) -> None:
     positions, where two vertices coincide within :data:`SCENE_TOLERANCE` of the coordinates' size (the
     float32 rounding of stored coordinates, carried through different matrices, keeps a border's copies
     that far apart); a mesh shown several times (or not, or under a malformed node) at its stored
-    positions, coinciding exactly with those of meshes shown at the same world matrices."""
+    positions, coinciding exactly with those of meshes shown at the same world matrices.
+
+    Once the grids are fitted, the encoder locks every other vertex of the primitive on the grid point of a
+    locked one too (:func:`~pmwm_codec.stream.encoder._locked_with_grid_copies`): copies that land on one
+    grid point are one position in the stream."""
     shown = placements_by_mesh(gltf) if gltf.get("nodes") else {}
     counts = [job.mesh.vertex_count for job in jobs]
     owner = np.repeat(np.arange(len(jobs)), counts)
