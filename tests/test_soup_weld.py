@@ -142,3 +142,15 @@ def test_an_indexed_primitive_without_duplicates_is_planned_as_stored():
     got = jobs[0].mesh
     assert np.array_equal(got.positions, mesh.positions.astype(np.float32))
     assert np.array_equal(got.faces, mesh.faces) and not any("duplicate" in n for n in notices)
+
+
+def test_an_indexed_primitive_keeps_its_duplicate_vertices():
+    """Only a soup (every face corner its own vertex) is welded: an indexed primitive's vertices are its
+    author's, duplicates and all (gltfpack writes a few), and decode as stored."""
+    mesh = shapes.uv_torus(16, 8)
+    faces = mesh.faces.copy()
+    faces[0, 0] = mesh.vertex_count  # a duplicate of vertex faces[0, 0], named by one corner
+    dup = Mesh(np.r_[mesh.positions, mesh.positions[mesh.faces[0, :1]]], faces,
+               {"TEXCOORD_0": np.r_[mesh.attributes["TEXCOORD_0"], mesh.attributes["TEXCOORD_0"][mesh.faces[0, :1]]]})
+    jobs, _, notices = plan_asset(*gltf_of(dup))
+    assert jobs[0].mesh.vertex_count == dup.vertex_count and not any("duplicate" in n for n in notices)

@@ -17,10 +17,12 @@ with an error naming the primitive.
 Every other vertex attribute (NORMAL, TANGENT, TEXCOORD_n, COLOR_n, custom)
 rides with the splits on its own integer grid.
 
-Duplicates.  A primitive's exact duplicate vertices (the same position and the same
-value of every attribute: a non-indexed primitive, a triangle soup) are welded first
-(:func:`_welded`), keeping the first of each and the vertex order; the decoded
-primitive has the welded vertices, and a notice says how many were welded.
+Triangle soups.  A primitive whose every face corner is its own vertex (non-indexed,
+or indices naming each vertex once) has its exact duplicate vertices (the same
+position and the same value of every attribute) welded first (:func:`_welded`),
+keeping the first of each and the vertex order; the decoded primitive has the welded
+vertices (indexed), and a notice says how many were welded.  Indexed primitives are
+kept as stored.
 
 Seams.  glTF vertices are already split where UVs or normals jump; the copies
 share a position.  Inside one primitive the simplifier collapses both sides of a
@@ -200,8 +202,8 @@ def _why_not(prim: dict):
 
 def _primitive_mesh(gltf, buffers, prim, where) -> tuple:
     """``(mesh, welded)``: the primitive's geometry and attributes as a checked :class:`Mesh` (Draco input
-    decoded) with its exact duplicates welded (:func:`_welded`: the glTF vertices of the decoded primitive
-    are the welded ones), and how many vertices that weld removed.
+    decoded), a triangle soup's exact duplicates welded (:func:`_welded`: the glTF vertices of the decoded
+    primitive are the welded ones), and how many vertices that weld removed.
 
     Validation is :func:`~pmwm_codec.mesh.checked_mesh`'s, as for a mesh file.  Raises
     :class:`_PassThrough` for a valid primitive that is not made progressive, and
@@ -222,13 +224,19 @@ def _primitive_mesh(gltf, buffers, prim, where) -> tuple:
 
 
 def _welded(mesh: Mesh, where: str) -> tuple:
-    """``mesh`` with its exact duplicates welded: vertices with the same position and the same value of every
-    attribute are one vertex, the first of them (vertices keep their order).  A triangle soup (a non-indexed
-    primitive, every corner its own vertex, as three.js non-indexed geometry and STL converters write
-    it) becomes the indexed mesh it is, whose seams the simplifier can collapse; as a soup each position
-    had about six copies and stayed in the base.  Faces the weld makes degenerate are dropped (counted
-    in ``cleanup``).  Returns ``(mesh, how many vertices the weld removed)``; a mesh without duplicates
-    comes back as it is."""
+    """``mesh`` with its exact duplicates welded when it is a triangle soup: vertices with the same position and
+    the same value of every attribute are one vertex, the first of them (vertices keep their order).
+
+    A soup (a non-indexed primitive, or indices naming every vertex once: every corner its own vertex, as
+    three.js non-indexed geometry and STL converters write it) becomes the indexed mesh it is, whose seams
+    the simplifier can collapse; as a soup each position had about six copies and stayed in the base.
+    Faces the weld makes degenerate are dropped (counted in ``cleanup``).  A primitive whose vertices the
+    faces share is indexed by its author and kept as stored, duplicates and all (gltfpack keeps a few where
+    its compressed attributes differ in a bit and its plain ones do not: one weld would make the two
+    encodes of one file differ).  Returns ``(mesh, how many vertices the weld removed)``; a mesh not
+    welded comes back as it is."""
+    if np.bincount(mesh.faces.reshape(-1), minlength=mesh.vertex_count).max() > 1:
+        return mesh, 0
     rows = [mesh.positions] + [np.asarray(v, np.float64).reshape(mesh.vertex_count, -1)
                                for _, v in sorted(mesh.attributes.items())]
     weld = weld_groups(np.concatenate(rows, axis=1))
