@@ -48,9 +48,10 @@ from ..format.records_v2 import FaceChunk, pack_chunks
 from ..mesh import Mesh, bounds
 from ..progressive.build import ProgressiveMesh, build_progressive
 from ..progressive.grid import AttributeGrid, Grid
-from ..progressive.seams import grid_weld, snap_near_copies, twin_rows, weld_groups
+from ..progressive.seams import twin_rows, weld_groups
 from ..progressive.simplify import CollapseLog, deferred_and_twin_faces, simplify
 from ..progressive.topology import job_vertices, mean_edge_length
+from ..progressive.seams import grid_weld, snap_near_copies  # (the seam copies of stage 1)
 from ..watermark import codec as wm
 from ..watermark.key import KEY_FILE_MODE, KEY_SUFFIX, KeySlot, WatermarkKey
 from .chunking import (
