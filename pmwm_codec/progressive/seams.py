@@ -7,6 +7,11 @@ one side alone would open a crack.  The simplifier (:mod:`.simplify`) therefore
 never removes a seam vertex (a vertex whose position another live vertex of the
 primitive shares) by an ordinary collapse; it removes it here, as a *seam pair*.
 
+Positions are grid integers: the encoder finds the copies with :func:`grid_weld` (exact
+float copies, and vertices on one grid point on a cut of the index mesh, whose input floats
+may differ by rounding noise), after :func:`snap_near_copies` put copies that rounded to
+neighbouring grid points on one.
+
 Rule (everything in the pre-batch mesh; ``pos`` is a vertex's position):
 
 * **Seam vertex.**  ``u`` is a seam vertex when another live vertex has its
@@ -51,19 +56,24 @@ from .topology import compiled, csr, expand
 
 
 def weld_groups(positions: np.ndarray) -> np.ndarray | None:
-    """(n,) int64: the smallest vertex id with each vertex's exact position; None when all differ.
+    """(n,) int64: the smallest vertex id with each vertex's exact row; None when all rows differ.
 
-    ``positions`` (n, 3) float; -0.0 and 0.0 are the same position.  One sort of a 64-bit
-    hash of the rows finds the candidates; only rows whose hash repeats are compared exactly.
+    ``positions`` (n, d) float (or int: grid integers, exact in float64 below 2**53); -0.0 and
+    0.0 are the same value.  One sort of a 64-bit hash of the rows finds the candidates; only
+    rows whose hash repeats are compared exactly.  (Any ``d``: positions, or positions with
+    every attribute, :func:`~pmwm_codec.stream.asset._primitive_mesh`'s duplicate weld.)
     """
-    pts = np.ascontiguousarray(np.asarray(positions, np.float64) + 0.0)
-    n = len(pts)
+    pts = np.asarray(positions, np.float64)
+    pts = np.ascontiguousarray(pts.reshape(len(pts), -1) + 0.0)
+    n, d = pts.shape
     if n < 2:
         return None
-    bits = pts.view(np.uint64).reshape(n, 3)
-    h = bits[:, 0] * np.uint64(0x9E3779B97F4A7C15)
-    h ^= bits[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F)
-    h ^= bits[:, 2] * np.uint64(0x165667B19E3779F9)
+    bits = pts.view(np.uint64).reshape(n, d)
+    h = np.zeros(n, np.uint64)
+    for k in range(d):
+        h ^= bits[:, k] * _HASH_FACTORS[k % len(_HASH_FACTORS)]
+        if k >= len(_HASH_FACTORS):  # more columns than factors: mix before reusing one
+            h = (h << np.uint64(13)) | (h >> np.uint64(51))
     cand = _repeated_hashes(h)
     if len(cand) == 0:
         return None
@@ -74,6 +84,138 @@ def weld_groups(positions: np.ndarray) -> np.ndarray | None:
     weld = np.arange(n, dtype=np.int64)
     weld[cand] = rep[inverse]
     return None if np.array_equal(weld, np.arange(n)) else weld
+
+
+#: Odd 64-bit multipliers of :func:`weld_groups`' row hash, one per column (the first three as they were).
+_HASH_FACTORS = tuple(np.uint64(x) for x in (
+    0x9E3779B97F4A7C15, 0xC2B2AE3D27D4EB4F, 0x165667B19E3779F9, 0x27D4EB2F165667C5,
+    0x85EBCA77C2B2AE63, 0xFF51AFD7ED558CCD, 0xC4CEB9FE1A85EC53, 0x94D049BB133111EB,
+))
+
+
+def grid_weld(q: np.ndarray, faces: np.ndarray, positions: np.ndarray) -> np.ndarray | None:
+    """(n,) int64 seam copies on the position grid, as :func:`weld_groups` gives them (the smallest
+    vertex id of each group); None when there are none.
+
+    The stream lives on the grid: two vertices on one grid point ``q`` (n, 3) int64 are one
+    point at every level of the decode, even when their input ``positions`` (n, 3) float differ
+    by less than a grid step (a trig-built UV sphere's seam columns: ``sin(2 pi)`` is not 0).
+    Copies are therefore
+
+    * vertices with exactly equal input positions (:func:`weld_groups`, every one of them, as
+      before), and
+    * vertices on one grid point that both lie on a *cut* of the index mesh ``faces`` (m, 3):
+      an end of a boundary half-edge that has a partner, a boundary half-edge running the other
+      way between the same two grid points (module docstring).  That is where a seam's two
+      sides are, and the only place two copies moved apart open a crack.
+
+    Vertices that the grid alone puts on one point and that lie inside the surface (a dense
+    scan on a coarse grid) are not copies: they cannot crack, and as seam vertices they would
+    all stay in the base (several base vertices on one grid point, which the weld of a Draco
+    base cannot tell apart).  With no such grid-only copies the result is
+    ``weld_groups(positions)`` itself.
+    """
+    exact = weld_groups(positions)
+    on_grid = weld_groups(q)
+    if on_grid is None or (exact is not None and np.array_equal(exact, on_grid)):
+        return exact
+    n = len(q)
+    cut = _cut_vertices(on_grid, np.asarray(faces, np.int64).reshape(-1, 3), n)
+    # each copy's links: to its exact group's first vertex, and (on a cut) to the first cut vertex of its grid
+    # point; the groups are the connected parts, named by their smallest id
+    first_cut = np.full(n, n, np.int64)
+    ids = np.arange(n, dtype=np.int64)
+    np.minimum.at(first_cut, on_grid[cut], ids[cut])
+    link = np.where(cut, first_cut[on_grid], ids)
+    exact = ids if exact is None else exact
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    graph = coo_matrix((np.ones(2 * n, np.int8), (np.r_[ids, ids], np.r_[exact, link])), shape=(n, n))
+    _, part = connected_components(graph, directed=False)
+    first = np.full(n, n, np.int64)
+    np.minimum.at(first, part, ids)
+    weld = first[part]
+    return None if np.array_equal(weld, ids) else weld
+
+
+#: Boundary vertices closer than this fraction of a grid step in every coordinate are one point
+#: (:func:`snap_near_copies`): seam copies that float rounding put a hair apart.
+NEAR_COPY_STEPS = 1.0 / 16.0
+
+
+def snap_near_copies(q: np.ndarray, positions: np.ndarray, faces: np.ndarray, step: float,
+                     locked: np.ndarray | None = None) -> np.ndarray:
+    """(n, 3) int64: the grid points ``q`` (n, 3) int64 of ``positions`` (n, 3) float with every group of
+    *near copies* on one of them; ``q`` itself when nothing moves.
+
+    Near copies are boundary vertices of the index mesh ``faces`` (m, 3), not joined by an edge,
+    whose positions differ by at most ``NEAR_COPY_STEPS * step`` in every coordinate (``step``: the
+    grid's).  A seam's copies computed by trigonometry differ by float noise (``sin(2 pi)`` is
+    -2.4e-16, not 0), and where the grid's rounding boundary falls between them (0 of a mesh
+    spanning ``[-1, 1]`` lands half-way between two grid points) they round to neighbouring grid
+    points: the seam would be open by a step at full resolution and could never be coarsened as a
+    pair.  Each group takes the grid point of its smallest locked vertex (a border with another
+    primitive never moves), or of its smallest vertex; locked vertices elsewhere stay.  A moved
+    vertex decodes at most ``(0.5 + NEAR_COPY_STEPS)`` steps from its input in each coordinate.
+    Vertices inside the surface are left as they are: they cannot open a crack.
+    """
+    n = len(q)
+    faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    a = faces.reshape(-1)
+    b = faces[:, [1, 2, 0]].reshape(-1)
+    key = np.minimum(a, b) * n + np.maximum(a, b)
+    edges, count = np.unique(key, return_counts=True)
+    rim = np.unique(np.r_[edges[count == 1] // n, edges[count == 1] % n])
+    if len(rim) < 2:
+        return q
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(np.asarray(positions, np.float64)[rim]).query_pairs(
+        NEAR_COPY_STEPS * float(step), p=np.inf, output_type="ndarray")
+    if len(pairs) == 0:
+        return q
+    i, j = rim[pairs[:, 0]], rim[pairs[:, 1]]
+    keep = np.any(q[i] != q[j], axis=1)  # pairs on one grid point already are copies there
+    if not keep.any():
+        return q
+    keep &= ~np.isin(np.minimum(i, j) * n + np.maximum(i, j), edges)  # two ends of an edge are not copies
+    i, j = i[keep], j[keep]
+    if len(i) == 0:
+        return q
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    members = np.unique(np.r_[i, j])
+    local = np.searchsorted(members, np.r_[i, j])
+    k = len(members)
+    graph = coo_matrix((np.ones(len(local) // 2, np.int8), (local[: len(i)], local[len(i):])), shape=(k, k))
+    _, part = connected_components(graph, directed=False)
+    fixed = np.zeros(k, bool) if locked is None else np.asarray(locked, bool)[members]
+    rank = np.where(fixed, members, members + n)  # the smallest locked member first, then the smallest one
+    lead = np.full(part.max() + 1, 2 * n, np.int64)
+    np.minimum.at(lead, part, rank)
+    lead = lead % n
+    move = ~fixed
+    out = q.copy()
+    out[members[move]] = q[lead[part[move]]]
+    return out
+
+
+def _cut_vertices(pid: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
+    """(n,) bool: the ends of boundary half-edges of ``faces`` (m, 3) that have a partner, a boundary
+    half-edge the other way between the same two points (``pid`` (n,) int64: each vertex's point)."""
+    a = faces.reshape(-1)
+    b = faces[:, [1, 2, 0]].reshape(-1)
+    _, edge, count = np.unique(np.minimum(a, b) * n + np.maximum(a, b), return_inverse=True, return_counts=True)
+    boundary = (count[edge.reshape(-1)] == 1) & (pid[a] != pid[b])
+    a, b = a[boundary], b[boundary]
+    fwd = pid[a] * n + pid[b]
+    partnered = np.isin(pid[b] * n + pid[a], fwd)
+    out = np.zeros(n, bool)
+    out[a[partnered]] = True
+    out[b[partnered]] = True
+    return out
 
 
 def local_groups(weld: np.ndarray, vids: np.ndarray, loc: np.ndarray) -> np.ndarray:

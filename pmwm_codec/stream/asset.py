@@ -17,10 +17,19 @@ with an error naming the primitive.
 Every other vertex attribute (NORMAL, TANGENT, TEXCOORD_n, COLOR_n, custom)
 rides with the splits on its own integer grid.
 
+Triangle soups.  A primitive whose every face corner is its own vertex (non-indexed,
+or indices naming each vertex once) has its exact duplicate vertices (the same
+position and the same value of every attribute) welded first (:func:`_welded`),
+keeping the first of each and the vertex order; the decoded primitive has the welded
+vertices (indexed), and a notice says how many were welded.  Indexed primitives are
+kept as stored.
+
 Seams.  glTF vertices are already split where UVs or normals jump; the copies
 share a position.  Inside one primitive the simplifier collapses both sides of a
 seam together, in the same batch (:mod:`~pmwm_codec.progressive.seams`), so both
-sides have identical positions at every level of detail (no cracks).  A vertex
+sides have identical positions at every level of detail (no cracks).  Copies are
+found on the position grid (:func:`~pmwm_codec.progressive.seams.grid_weld`): a
+seam whose sides differ by float noise is one seam.  A vertex
 that coincides in the scene with a vertex of another *primitive* (a border between
 primitives: of one glTF mesh, or of meshes whose nodes place them to meet) is locked: it
 stays in the base mesh.  Collapses elsewhere may still land *on* seam or border vertices (the kept vertex
@@ -69,6 +78,7 @@ from ..format.gltf import (
     view_bytes,
 )
 from ..mesh import Mesh, checked_mesh
+from ..progressive.seams import weld_groups
 from ..http import read_declared
 from .cut import data_not_arrived
 from .decoder import StreamDecoder
@@ -136,7 +146,7 @@ def plan_asset(gltf: dict, buffers, name: str | None = None) -> tuple:
     by_mesh = {}
     for mi, pi, prim, where in candidates:
         try:
-            mesh = _primitive_mesh(gltf, buffers, prim, where)
+            mesh, welded = _primitive_mesh(gltf, buffers, prim, where)
         except _PassThrough as exc:
             pass_through(prim, str(exc))
             continue
@@ -144,6 +154,9 @@ def plan_asset(gltf: dict, buffers, name: str | None = None) -> tuple:
             if name:
                 raise type(exc)(f"{name}: {exc}") from None
             raise
+        if welded:
+            notices.append(f"{where}: {welded} duplicate vertices (same position and attributes) welded; it decodes "
+                           f"with {mesh.vertex_count} vertices")
         job = PrimitiveJob(mesh, mi, pi)
         jobs.append(job)
         by_mesh.setdefault(mi, []).append(job)
@@ -190,8 +203,10 @@ def _why_not(prim: dict):
     return None
 
 
-def _primitive_mesh(gltf, buffers, prim, where) -> Mesh:
-    """The primitive's geometry and attributes as a checked :class:`Mesh` (Draco input decoded).
+def _primitive_mesh(gltf, buffers, prim, where) -> tuple:
+    """``(mesh, welded)``: the primitive's geometry and attributes as a checked :class:`Mesh` (Draco input
+    decoded), a triangle soup's exact duplicates welded (:func:`_welded`: the glTF vertices of the decoded
+    primitive are the welded ones), and how many vertices that weld removed.
 
     Validation is :func:`~pmwm_codec.mesh.checked_mesh`'s, as for a mesh file.  Raises
     :class:`_PassThrough` for a valid primitive that is not made progressive, and
@@ -206,9 +221,37 @@ def _primitive_mesh(gltf, buffers, prim, where) -> Mesh:
     except (_PassThrough, MeshError, InputFormatError) as exc:
         raise type(exc)(f"{where}: {exc}") from None
     try:
-        return checked_mesh(positions, faces, extra, name=where)
+        return _welded(checked_mesh(positions, faces, extra, name=where), where)
     except DegenerateMeshError as exc:  # well formed, nothing to make progressive
         raise _PassThrough(str(exc)) from None
+
+
+def _welded(mesh: Mesh, where: str) -> tuple:
+    """``mesh`` with its exact duplicates welded when it is a triangle soup: vertices with the same position and
+    the same value of every attribute are one vertex, the first of them (vertices keep their order).
+
+    A soup (a non-indexed primitive, or indices naming every vertex once: every corner its own vertex, as
+    three.js non-indexed geometry and STL converters write it) becomes the indexed mesh it is, whose seams
+    the simplifier can collapse; as a soup each position had about six copies and stayed in the base.
+    Faces the weld makes degenerate are dropped (counted in ``cleanup``).  A primitive whose vertices the
+    faces share is indexed by its author and kept as stored, duplicates and all (gltfpack keeps a few where
+    its compressed attributes differ in a bit and its plain ones do not: one weld would make the two
+    encodes of one file differ).  Returns ``(mesh, how many vertices the weld removed)``; a mesh not
+    welded comes back as it is."""
+    if np.bincount(mesh.faces.reshape(-1), minlength=mesh.vertex_count).max() > 1:
+        return mesh, 0
+    rows = [mesh.positions] + [np.asarray(v, np.float64).reshape(mesh.vertex_count, -1)
+                               for _, v in sorted(mesh.attributes.items())]
+    weld = weld_groups(np.concatenate(rows, axis=1))
+    if weld is None:
+        return mesh, 0
+    keep = weld == np.arange(mesh.vertex_count)
+    index = np.cumsum(keep) - 1
+    faces = index[weld[mesh.faces]]
+    welded = checked_mesh(mesh.positions[keep], faces, {k: v[keep] for k, v in mesh.attributes.items()}, name=where)
+    welded.cleanup = {k: welded.cleanup.get(k, 0) + mesh.cleanup.get(k, 0)
+                      for k in sorted({*welded.cleanup, *mesh.cleanup})}
+    return welded, int(mesh.vertex_count - keep.sum())
 
 
 def _accessor_arrays(gltf, buffers, prim) -> tuple:
@@ -286,7 +329,11 @@ def _lock_shared_positions(gltf: dict, jobs) -> None:
     positions, where two vertices coincide within :data:`SCENE_TOLERANCE` of the coordinates' size (the
     float32 rounding of stored coordinates, carried through different matrices, keeps a border's copies
     that far apart); a mesh shown several times (or not, or under a malformed node) at its stored
-    positions, coinciding exactly with those of meshes shown at the same world matrices."""
+    positions, coinciding exactly with those of meshes shown at the same world matrices.
+
+    Once the grids are fitted, the encoder locks every other vertex of the primitive on the grid point of a
+    locked one too (:func:`~pmwm_codec.stream.encoder._locked_with_grid_copies`): copies that land on one
+    grid point are one position in the stream."""
     shown = placements_by_mesh(gltf) if gltf.get("nodes") else {}
     counts = [job.mesh.vertex_count for job in jobs]
     owner = np.repeat(np.arange(len(jobs)), counts)

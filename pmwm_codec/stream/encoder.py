@@ -52,6 +52,7 @@ from ..progressive.grid import AttributeGrid, Grid, float32_spacing
 from ..progressive.seams import twin_rows, weld_groups
 from ..progressive.simplify import CollapseLog, deferred_and_twin_faces, simplify
 from ..progressive.topology import job_vertices, mean_edge_length
+from ..progressive.seams import grid_weld, snap_near_copies  # (the seam copies of stage 1)
 from ..watermark import codec as wm
 from ..watermark.key import KEY_FILE_MODE, KEY_SUFFIX, KeySlot, WatermarkKey
 from .chunking import (
@@ -364,7 +365,9 @@ def encode_document(
     def stages(jobs):
         """Stages 1-5 over ``jobs``: ``(work, notices, order, carriers, params)``."""
         work = _quantize_and_simplify(jobs, grid_bits, base_vertices, say, defer_faces=payload_version == 2)
+        unrefined = _unrefined_notices(work, base_vertices, doc)
         work, notices = _encode_bases(work, base_codec)
+        notices = unrefined + notices
         work, order, slots, carriers = _plan_chunks(work, min_chunk_splits)
         params = None
         if watermark is not None:
@@ -640,6 +643,13 @@ def _quantize_and_simplify(jobs, grid_bits: int, base_vertices, say, defer_faces
     for i, job in enumerate(jobs):
         grid, values, specs = _quantize(job.mesh, grids[i])
         faces, positions, locked = job.mesh.faces, job.mesh.positions, job.locked
+        # a seam's copies a hair apart (float noise) on one grid point, even where the grid rounds between them
+        q = values[:, :3]
+        snapped = snap_near_copies(q, positions, faces, grid.step, locked)
+        if snapped is not q:
+            values = np.concatenate([snapped, values[:, 3:]], axis=1)
+        if locked is not None:
+            locked = _locked_with_grid_copies(values[:, :3], locked)
         late, twin = (deferred_and_twin_faces(values[:, :3], faces) if defer_faces
                       else (np.zeros(len(faces), bool), None))
         if late.any() and locked is not None:  # a locked vertex stays in the base: its faces are not deferred
@@ -654,11 +664,99 @@ def _quantize_and_simplify(jobs, grid_bits: int, base_vertices, say, defer_faces
             # specks are told by their vertices), so a triple keeps its face count in the core
             twin = twin[~late]
         target = default_base_target(len(values)) if base_vertices is None else int(base_vertices)
-        log = simplify(values[:, :3], faces, target_vertices=target, locked=locked, weld=weld_groups(positions),
-                       twin=twin)
+        # seam copies on the grid the stream lives on (copies a grid step apart or less are one point there)
+        weld = grid_weld(values[:, :3], faces, positions)
+        log = simplify(values[:, :3], faces, target_vertices=target, locked=locked, weld=weld, twin=twin)
         work.append(PrimitiveWork(job, grid, values, specs, log, **extra))
         say("simplify", (i + 1) / len(jobs))
     return work
+
+
+def _unrefined_notices(work, base_vertices, doc: dict) -> list:
+    """Notices for the primitives of ``work`` (stage 1's) that got no vertex split: their base is the whole
+    primitive.  One notice for those too small to refine (no more vertices than their base target,
+    ``base_vertices`` or :func:`~pmwm_codec.stream.chunking.default_base_target`), and one per other
+    primitive saying which of its vertices had to stay (seam corners, borders with other primitives).
+    ``doc``: the document (an asset's has an ``asset`` member; a mesh file's is "the mesh")."""
+    small, notices = [], []
+    for w in work:
+        if any(len(b.u) for b in w.log.batches):
+            continue
+        where = _primitive_name(doc, w.job, len(work))
+        n = len(w.values)
+        target = default_base_target(n) if base_vertices is None else int(base_vertices)
+        if n <= target:
+            small.append((where, n))
+            continue
+        notices.append(f"{where}: not made progressive (0 vertex splits: the base is the whole primitive): "
+                       + _why_unrefined(w))
+    if small:
+        names = ", ".join(w for w, _ in small[:_NAMES_QUOTED])
+        names += f" and {len(small) - _NAMES_QUOTED} more" if len(small) > _NAMES_QUOTED else ""
+        bound = f"--base-vertices {int(base_vertices)}" if base_vertices is not None else "a base keeps (at least 64)"
+        size = (f"it has {small[0][1]} vertices, no more than" if len(small) == 1
+                else "each has no more vertices than")
+        notices.insert(0, f"{names}: not made progressive (0 vertex splits): {size} {bound}, so the base is all of it")
+    return notices
+
+
+#: How many primitives a notice names before "and k more".
+_NAMES_QUOTED = 3
+
+
+def _primitive_name(doc: dict, job: PrimitiveJob, count: int) -> str:
+    """How notices name a primitive: ``mesh i (name) primitive j`` in an asset, "the mesh" for a mesh file."""
+    if "asset" not in doc and count == 1:
+        return "the mesh"
+    meshes = doc.get("meshes")
+    mesh = meshes[job.mesh_index] if isinstance(meshes, list) and job.mesh_index < len(meshes) else {}
+    name = mesh.get("name") if isinstance(mesh, dict) else None
+    return f"mesh {job.mesh_index}" + (f" ({name})" if isinstance(name, str) and name else "") + \
+        f" primitive {job.primitive_index}"
+
+
+def _why_unrefined(w: PrimitiveWork) -> str:
+    """Why the simplifier removed no vertex of ``w`` although it has more than its base target: how many of
+    its vertices are seam corners (three or more copies of a position on the grid), on borders with other
+    primitives (locked), seam copies (two), and the rest."""
+    job = w.job
+    faces, positions, locked = job.mesh.faces, job.mesh.positions, job.locked
+    if w.core is not None:  # the vertices the simplifier saw, and the faces among them
+        local = np.full(job.mesh.vertex_count, -1, np.int64)
+        local[w.core] = np.arange(len(w.core))
+        faces = local[faces][(local[faces] >= 0).all(axis=1)]
+        positions = positions[w.core]
+        locked = None if locked is None else locked[w.core]
+    q, n = w.values[:, :3], len(w.values)
+    weld = grid_weld(q, faces, positions)
+    size = np.ones(n, np.int64) if weld is None else np.bincount(weld, minlength=n)[weld]
+    corner = size >= 3
+    border = np.zeros(n, bool) if locked is None else _locked_with_grid_copies(q, locked) & ~corner
+    seam = (size == 2) & ~border
+    why = []
+    if corner.any():
+        why.append(f"{int(corner.sum())} share their position with two or more other vertices (seam corners, kept "
+                   "in the base: per-face normals or UVs, as flat shading has at every vertex)")
+    if border.any():
+        why.append(f"{int(border.sum())} lie on borders with other primitives (kept in the base)")
+    if seam.any():
+        why.append(f"{int(seam.sum())} are seam copies (removed only in pairs, along a seam between two copies)")
+    rest = n - int(corner.sum() + border.sum() + seam.sum())
+    if rest:
+        why.append(f"no collapse of the other {rest} keeps the surface valid")
+    return f"of its {n} vertices, " + "; ".join(why)
+
+
+def _locked_with_grid_copies(q: np.ndarray, locked: np.ndarray) -> np.ndarray:
+    """(n,) bool: ``locked`` (n,) bool (:func:`~pmwm_codec.stream.asset._lock_shared_positions`: a border with
+    another primitive) with every vertex on the grid point ``q`` (n, 3) int64 of a locked one: copies that
+    land on one grid point are one position in the stream, and stay in the base together."""
+    same = weld_groups(q)
+    if same is None or not locked.any():
+        return locked
+    hit = np.zeros(len(q), bool)
+    hit[same[locked]] = True
+    return hit[same]
 
 
 def _naming_locked_tips(faces: np.ndarray, late: np.ndarray, locked: np.ndarray) -> np.ndarray:
