@@ -15,7 +15,9 @@ from __future__ import annotations
 import io
 
 import numpy as np
+import pytest
 
+from pmwm_codec import shapes
 from pmwm_codec.format.document import load_document, read_accessor
 from pmwm_codec.mesh import Mesh, checked_mesh
 from pmwm_codec.progressive.grid import AttributeGrid, Grid
@@ -214,3 +216,25 @@ def test_a_lock_reaches_every_copy_on_its_grid_point():
     locked = np.array([False, False, True, False])
     assert _locked_with_grid_copies(q, locked).tolist() == [True, False, True, False]
     assert _locked_with_grid_copies(q, np.zeros(4, bool)).tolist() == [False] * 4
+
+
+@pytest.mark.parametrize("numba", [True, False])
+def test_the_rim_is_the_ends_of_the_edges_of_one_face(monkeypatch, numba):
+    """:func:`seams._rim` (no edge table of the whole mesh) against the edge table's definition, compiled and
+    not, on a mesh with holes, a flipped face and a fin (an edge of three faces)."""
+    from pmwm_codec.progressive import seams, topology
+
+    monkeypatch.setattr(topology, "USE_NUMBA", numba and topology.USE_NUMBA)
+    mesh = shapes.icosphere(3, noise=0.01, seed=4)
+    faces = np.asarray(mesh.faces, np.int64)
+    rng = np.random.default_rng(5)
+    faces = faces[rng.random(len(faces)) > 0.05]  # holes
+    faces[3] = faces[3, [0, 2, 1]]  # a face the other way round
+    faces = np.concatenate([faces, [[faces[10, 0], faces[10, 1], faces[40, 2]]]])  # a fin
+    n = mesh.vertex_count
+    a, b = faces.reshape(-1), faces[:, [1, 2, 0]].reshape(-1)
+    edges, count = np.unique(np.minimum(a, b) * n + np.maximum(a, b), return_counts=True)
+    expected = np.unique(np.r_[edges[count == 1] // n, edges[count == 1] % n])
+    assert len(expected) > 10
+    np.testing.assert_array_equal(seams._rim(faces, n), expected)
+    assert len(seams._rim(np.asarray(mesh.faces, np.int64), n)) == 0  # a closed surface has none

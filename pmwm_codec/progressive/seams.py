@@ -162,11 +162,7 @@ def snap_near_copies(q: np.ndarray, positions: np.ndarray, faces: np.ndarray, st
     """
     n = len(q)
     faces = np.asarray(faces, np.int64).reshape(-1, 3)
-    a = faces.reshape(-1)
-    b = faces[:, [1, 2, 0]].reshape(-1)
-    key = np.minimum(a, b) * n + np.maximum(a, b)
-    edges, count = np.unique(key, return_counts=True)
-    rim = np.unique(np.r_[edges[count == 1] // n, edges[count == 1] % n])
+    rim = _rim(faces, n)
     if len(rim) < 2:
         return q
     from scipy.spatial import cKDTree
@@ -179,6 +175,9 @@ def snap_near_copies(q: np.ndarray, positions: np.ndarray, faces: np.ndarray, st
     keep = np.any(q[i] != q[j], axis=1)  # pairs on one grid point already are copies there
     if not keep.any():
         return q
+    near = faces[np.isin(faces, np.r_[i[keep], j[keep]]).any(axis=1)]  # the faces around the candidates
+    a, b = near.reshape(-1), near[:, [1, 2, 0]].reshape(-1)
+    edges = np.minimum(a, b) * n + np.maximum(a, b)
     keep &= ~np.isin(np.minimum(i, j) * n + np.maximum(i, j), edges)  # two ends of an edge are not copies
     i, j = i[keep], j[keep]
     if len(i) == 0:
@@ -200,6 +199,52 @@ def snap_near_copies(q: np.ndarray, positions: np.ndarray, faces: np.ndarray, st
     out = q.copy()
     out[members[move]] = q[lead[part[move]]]
     return out
+
+
+def _rim(faces: np.ndarray, n: int) -> np.ndarray:
+    """The vertices (k,) int64, ascending, of the edges of ``faces`` (m, 3) int64 over ``n`` vertices that
+    have one face (boundary edges), without an edge table of the whole mesh (a closed mesh has none).
+
+    Around a vertex inside a surface every neighbour follows it in one face and precedes it in another,
+    so the sums over its corners of a random 64-bit weight of the next vertex and of the previous one
+    agree modulo 2**64; a boundary edge leaves them apart (but with probability 2**-64).  Those vertices
+    are candidates, and the edges between two candidates --
+    every face of such an edge holds a candidate, so its count is whole -- are counted exactly."""
+    weight = np.random.default_rng(0x5EA3).integers(0, 2**63, n, dtype=np.int64)
+    kernel = compiled(_rim_kernel)
+    if kernel is not None:
+        maybe, touching = kernel(faces, weight, n)
+    else:  # the same sums modulo 2**64
+        corner = faces.reshape(-1)
+        maybe = np.zeros(n, np.uint64)
+        with np.errstate(over="ignore"):
+            np.add.at(maybe, corner, weight[faces[:, [1, 2, 0]].reshape(-1)].astype(np.uint64))
+            np.subtract.at(maybe, corner, weight[faces[:, [2, 0, 1]].reshape(-1)].astype(np.uint64))
+        maybe = maybe != 0
+        touching = maybe[faces].any(axis=1)
+    if not maybe.any():
+        return np.zeros(0, np.int64)
+    near = faces[touching]
+    a, b = near.reshape(-1), near[:, [1, 2, 0]].reshape(-1)
+    both = maybe[a] & maybe[b]
+    edges, count = np.unique(np.minimum(a, b)[both] * n + np.maximum(a, b)[both], return_counts=True)
+    return np.unique(np.r_[edges[count == 1] // n, edges[count == 1] % n])
+
+
+def _rim_kernel(faces, weight, n):
+    """Compiled first step of :func:`_rim`: ``(maybe (n,) bool, touching (m,) bool)``, the vertices whose
+    corners' next and previous vertices weigh differently (sums modulo 2**64) and the faces that hold one."""
+    total = np.zeros(n, np.uint64)
+    for f in range(len(faces)):
+        for c in range(3):
+            v = faces[f, c]
+            total[v] += np.uint64(weight[faces[f, (c + 1) % 3]])
+            total[v] -= np.uint64(weight[faces[f, (c + 2) % 3]])
+    maybe = total != 0
+    touching = np.zeros(len(faces), np.bool_)
+    for f in range(len(faces)):
+        touching[f] = maybe[faces[f, 0]] or maybe[faces[f, 1]] or maybe[faces[f, 2]]
+    return maybe, touching
 
 
 def _cut_vertices(pid: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
