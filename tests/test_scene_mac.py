@@ -408,3 +408,34 @@ EXAMPLE_S = (
     b'[0]}],"textures":[{"source":0}]}'
 )
 EXAMPLE_MAC = "7bf93886522788412dcefd8fddd2a768"
+
+
+# --- verify --reference: the reference must be the key holder's file as written ------------------------
+
+
+@pytest.mark.parametrize("edit", ["node matrix shear", "node scale", "extra mesh in the scene"])
+def test_a_mesh_checked_against_an_edited_reference_is_not_authentic(capsys, tmp_path, sphere, edit):
+    """The decoded mesh of an edited file, checked against that same edited file as its reference, matched
+    code for code and read ``authentic``: nothing checked the reference's MACs (an attacker hands in both).
+    Against the key holder's file as written the same mesh was already refused; now the reference's MACs are
+    checked as ``pmw verify FILE.pmw`` checks them."""
+    import pmwm_codec
+
+    data, key = sphere
+    edited = _rewrite(data, EDITS[edit])
+    (tmp_path / "ref.pmw").write_bytes(edited)
+    key.save(tmp_path / "k.json")
+    assert main(["decode", str(tmp_path / "ref.pmw"), "-o", str(tmp_path / "shown.obj"), "-q"]) == 0
+    capsys.readouterr()
+    status = main(["verify", str(tmp_path / "shown.obj"), "--reference", str(tmp_path / "ref.pmw"), "--key",
+                   str(tmp_path / "k.json"), "--json"])
+    doc = json.loads(capsys.readouterr().out)
+    assert (status, doc["verdict"], doc["reference_mac"]["scene"]) == (1, "not-authentic", False)
+    status = main(["verify", str(tmp_path / "shown.obj"), "--reference", str(tmp_path / "ref.pmw"), "--key",
+                   str(tmp_path / "k.json")])
+    assert status == 1 and "the reference is not the key holder's file as written" in capsys.readouterr().out
+    untouched = pmwm_codec.decode(data)  # the key holder's own file as reference: authentic, its scene covered
+    from pmwm_codec.verify import verify_mesh
+
+    ok = verify_mesh((untouched.positions, untouched.faces), data, key)
+    assert ok.verdict == "authentic" and ok.reference_mac["scene"] is True and ok.reference_mac["failed"] == []

@@ -201,6 +201,8 @@ def run_reference(args) -> int:
               f"({100 * v.coverage:.1f}% of its vertices); {v.carriers_read:,} of {v.carriers_total:,} codes read")
         print(f"NC {fmt_float(v.nc, 4)}  PSNR {fmt_float(v.psnr_db, 2)} dB  BER {fmt_float(v.ber, 4)}"
               + ("  (bit-exact)" if v.bit_exact else ""))
+        if v.reference_note():
+            print(v.reference_note())
         print(f"verdict: {v.verdict}" + _tamper_note(v.tamper(), v.binding)
               + ("" if v.key_matches else " (the reference is marked with another key: its key fingerprint differs)"))
     return EXIT_OK if v.verdict == "authentic" else EXIT_NOT_AUTHENTIC

@@ -265,6 +265,17 @@ def _scene_fields(doc, sources, gltf, bin_data):
     yield from _contents(gltf, sources, bin_data)
 
 
+def scene_matches(mac_key: bytes, gltf: dict, bin_data, found) -> bool:
+    """Whether every ``sceneMac`` in ``found`` (the extension objects' values) is the one ``mac_key`` gives
+    the document ``gltf`` with BIN data ``bin_data`` (at least :func:`scene_data_end` bytes); False when
+    the document has no canonical form or its data cannot be read (never so from the key holder's writer)."""
+    try:
+        expected = scene_mac(mac_key, gltf, bin_data)
+    except (ValueError, TypeError, OverflowError, RecursionError):
+        return False
+    return all(same_mac(expected, f) for f in found)
+
+
 def same_mac(expected: str, found) -> bool:
     """Constant-time comparison of a computed MAC with the file's (False when the file has none)."""
     return isinstance(found, str) and hmac.compare_digest(expected, found)
@@ -293,6 +304,25 @@ class MacChecker:
         self._key = mac_key
         self._exts = ()
         self._bases = []
+        #: what :meth:`tally` has seen: MACs checked, and the chunk numbers (0: the bases) whose MAC
+        #: failed or is missing
+        self.checked = 0
+        self.failed: list = []
+        self.missing: list = []
+
+    def tally(self, event):
+        """:meth:`on_event`, with its answer recorded in ``checked`` / ``failed`` / ``missing``."""
+        authentic = self.on_event(event)
+        if authentic is NotImplemented:
+            return authentic
+        number = event.index + 1 if isinstance(event, ChunkEvent) else 0
+        if authentic is None:
+            self.missing.append(number)
+        else:
+            self.checked += 1
+            if not authentic:
+                self.failed.append(number)
+        return authentic
 
     def on_event(self, event):
         if isinstance(event, HeaderEvent):

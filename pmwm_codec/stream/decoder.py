@@ -182,9 +182,9 @@ class StreamDecoder:
         #: what a user should know about this decode (one line each), e.g. parts of a cut file left out
         self.notices: list = []
         self._macs = MacChecker(key.mac_key()) if key is not None else None
-        #: chunk numbers (0: the base meshes) whose MAC failed / that carry no MAC (with a key)
-        self.mac_failed: list = []
-        self.mac_missing: list = []
+        #: chunk numbers (0: the base meshes) whose MAC failed / that carry no MAC (with a key: the checker's lists)
+        self.mac_failed: list = [] if self._macs is None else self._macs.failed
+        self.mac_missing: list = [] if self._macs is None else self._macs.missing
         self.mac_checked = 0
 
     def vertex_counts(self) -> list:
@@ -251,17 +251,9 @@ class StreamDecoder:
         """The MAC answer for ``event`` (True/False/None), recorded in ``mac_*``; None without a key."""
         if self._macs is None:
             return None
-        authentic = self._macs.on_event(event)
-        if authentic is NotImplemented:
-            return None
-        number = event.index + 1 if isinstance(event, ChunkEvent) else 0
-        if authentic is None:
-            self.mac_missing.append(number)
-        else:
-            self.mac_checked += 1
-            if not authentic:
-                self.mac_failed.append(number)
-        return authentic
+        authentic = self._macs.tally(event)
+        self.mac_checked = self._macs.checked
+        return None if authentic is NotImplemented else authentic
 
     def _on_header(self, event: HeaderEvent):
         self.header = event

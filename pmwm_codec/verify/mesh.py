@@ -51,6 +51,7 @@ from ..errors import FormatError, MeshError, PmwError, WatermarkKeyError
 from ..format import EndEvent, HeaderEvent, iter_events
 from ..format.extension import EXTENSION_NAME
 from ..format.gltf import placed_by_nodes, progressive_placements, scene_mesh
+from ..format.mac import SCENE_MAC, MacChecker, scene_matches
 from ..mesh import Mesh, checked_mesh, read_mesh
 from ..progressive.topology import unique_edges
 from ..sources import read_all
@@ -87,7 +88,9 @@ class MeshVerification:
     vertices of the checked mesh whose carrier code no longer reads, and the grafted ones (``foreign``; the tamper map);
     ``foreign`` the mesh holds vertices no reference vertex explains (registration only:
     farther than the tolerance from every reference vertex); ``binding`` the file's
-    (``""``: a legacy mark, never ``authentic``).
+    (``""``: a legacy mark, never ``authentic``); ``reference_mac`` the key holder's MACs over the
+    reference file (:meth:`Reference.authenticate`): a reference whose base, chunks or scene fail them is
+    not the key holder's file, so nothing checked against it is ``authentic``.
     """
 
     verdict: str
@@ -112,6 +115,7 @@ class MeshVerification:
     flagged: np.ndarray | None = None
     foreign: bool = False
     binding: str = ""
+    reference_mac: dict | None = None
 
     def tamper(self) -> dict:
         """``{"flagged": [mesh vertex ids whose carrier code no longer reads], "fraction": of the mesh's vertices}``."""
@@ -133,7 +137,19 @@ class MeshVerification:
             "registration_rms": num(self.registration_rms), "vertices": self.vertices, "faces": self.faces,
             "reference_vertices": self.reference_vertices, "key_matches": self.key_matches,
             "tamper": self.tamper(), "foreign": self.foreign, "binding": self.binding or None,
+            "reference_mac": self.reference_mac,
         }
+
+    def reference_note(self) -> str | None:
+        """A line saying why the reference is not the key holder's file as written (None when it is, or
+        when it carries no MAC to tell)."""
+        macs = self.reference_mac or {}
+        parts = [f"{'chunk ' + str(c) if c else 'its base mesh'}" for c in macs.get("failed", [])]
+        if macs.get("scene") is False:
+            parts.append("its scene (nodes, materials, other meshes)")
+        if not parts:
+            return None
+        return "the reference is not the key holder's file as written (MAC mismatch: " + ", ".join(parts) + ")"
 
 
 def _as_mesh(mesh) -> Mesh:
@@ -174,6 +190,7 @@ class Reference:
     scene_faces: np.ndarray | None = None
     spans: list | None = None
     part_faces: list | None = None
+    data: bytes = b""
 
     def __post_init__(self):
         #: (P + 1,) int64: where each primitive's rows start in ``positions``.
@@ -307,7 +324,21 @@ class Reference:
         if placed_by_nodes(header.gltf_json):
             placements = progressive_placements(header.gltf_json, EXTENSION_NAME)[0]
         return cls(events, wm.WatermarkParams.from_config(cfg), parts, positions,
-                   np.concatenate([f + a for f, a in zip(faces, starts)]), placements, part_faces=faces)
+                   np.concatenate([f + a for f, a in zip(faces, starts)]), placements, part_faces=faces,
+                   data=bytes(data))
+
+    def authenticate(self, key) -> dict:
+        """The key holder's MACs over this file, as ``pmw verify FILE.pmw`` checks them (bitstream.md §6.3):
+        ``{"checked": n, "failed": [chunk numbers, 0 the bases], "missing": [...], "scene": True | False |
+        None}`` (``scene`` None: the file carries no ``sceneMac``)."""
+        checker = MacChecker(key.mac_key())
+        for event in self.events:
+            checker.tally(event)
+        header = self.events[0]
+        found = [ext.get(SCENE_MAC) for ext in header.extensions or (header.extension,)]
+        scene = None if all(f is None for f in found) else \
+            scene_matches(key.mac_key(), header.gltf_json, self.data[header.bin_offset:], found)
+        return {"checked": checker.checked, "failed": checker.failed, "missing": checker.missing, "scene": scene}
 
 
 def verify_mesh(mesh, reference_source, key, watermark=None, *, tolerance: float = 0.5,
@@ -346,8 +377,10 @@ def verify_mesh(mesh, reference_source, key, watermark=None, *, tolerance: float
     flagged = index[np.concatenate([ref.scene_rows(verifier.tamper(ref.starts)), apart])]
     flagged = np.unique(np.concatenate([flagged[flagged >= 0], grafted]))  # a graft's vertices are named too
     owns = key.owns(ref.params.fingerprint)
+    macs = ref.authenticate(key) if owns else None
+    written = macs is None or (not macs["failed"] and macs["scene"] is not False)  # the reference as the key holder wrote it
     return MeshVerification(
-        verdict=est.verdict if owns else "not-authentic", key_matches=owns, nc=est.nc, psnr_db=est.psnr_db, centered_nc=est.centered_nc, ber=est.ber,
+        verdict=est.verdict if owns and written else "not-authentic", key_matches=owns, reference_mac=macs, nc=est.nc, psnr_db=est.psnr_db, centered_nc=est.centered_nc, ber=est.ber,
         code_match=est.code_match, carriers_read=est.carriers_read, carriers_total=ref.params.carriers,
         correspondence=corr.method, coverage=corr.coverage, registration_rms=corr.rms,
         vertices=m.vertex_count, faces=m.face_count, reference_vertices=len(ref.scene_positions),

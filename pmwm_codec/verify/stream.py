@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..format.mac import SCENE_MAC, same_mac, scene_data_end, scene_mac
+from ..format.mac import SCENE_MAC, scene_data_end, scene_matches
 from ..stream import StreamDecoder, iter_results
 from ..stream.decoder import StreamEnd
 from ..watermark import load_watermark
@@ -196,12 +196,7 @@ class _SceneData:
         self._trim()
         if self.length < self.limit and not end.complete and self.limit - header.bin_offset <= _buffer_length(header):
             return "not arrived"
-        data = b"".join(self.pieces)[header.bin_offset:]
-        try:
-            expected = scene_mac(key.mac_key(), header.gltf_json, data)
-        except (ValueError, TypeError, OverflowError, RecursionError):
-            return False  # no canonical form, or data that cannot be read: never the key holder's writer's
-        return all(same_mac(expected, f) for f in found)
+        return scene_matches(key.mac_key(), header.gltf_json, b"".join(self.pieces)[header.bin_offset:], found)
 
 
 def verify_stream(source: Source, key: WatermarkKey | str | os.PathLike[str], watermark: np.ndarray | str | None = None, *,
