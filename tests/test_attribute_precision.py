@@ -10,12 +10,11 @@ import pytest
 from pmwm_codec import shapes
 from pmwm_codec.cli import build_parser
 from pmwm_codec.format.document import load_document, read_accessor
-from pmwm_codec.format.glb import glb_parts
-from pmwm_codec.format.layout import padded
 from pmwm_codec.stream.asset import decode_asset, encode_asset
 from pmwm_codec.stream.encoder import TEXCOORD_STEP_BITS, _attribute_bits, _attribute_grid
 
 from conftest import ROOT
+from test_asset import DocBuilder
 
 BOUND = 2.0**-TEXCOORD_STEP_BITS / 2  # 1/16384 of the texture
 
@@ -23,27 +22,13 @@ BOUND = 2.0**-TEXCOORD_STEP_BITS / 2  # 1/16384 of the texture
 def _uv_asset(path, uv: np.ndarray):
     """A sphere with ``uv`` (n, 2) float32 as TEXCOORD_0 (n = 642)."""
     mesh = shapes.icosphere(3, 1.0, noise=0.02)
-    views, accessors, parts = [], [], []
-
-    def add(array, component, type_, target, minmax=False):
-        raw = np.ascontiguousarray(array).tobytes()
-        views.append({"buffer": 0, "byteOffset": sum(len(p) for p in parts), "byteLength": len(raw), "target": target})
-        parts.append(raw + bytes(padded(len(raw)) - len(raw)))
-        acc = {"bufferView": len(views) - 1, "componentType": component, "count": len(array), "type": type_}
-        if minmax:
-            acc.update(min=array.min(0).tolist(), max=array.max(0).tolist())
-        accessors.append(acc)
-        return len(accessors) - 1
-
-    attributes = {"POSITION": add(mesh.positions.astype(np.float32), 5126, "VEC3", 34962, True),
-                  "TEXCOORD_0": add(uv.astype(np.float32), 5126, "VEC2", 34962)}
-    indices = add(mesh.faces.astype(np.uint32).ravel(), 5125, "SCALAR", 34963)
-    doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
-           "meshes": [{"primitives": [{"attributes": attributes, "indices": indices}]}],
-           "accessors": accessors, "bufferViews": views}
-    length = sum(len(p) for p in parts)
-    doc["buffers"] = [{"byteLength": length}]
-    path.write_bytes(b"".join(glb_parts(doc, parts, length)))
+    b = DocBuilder()
+    attributes = {"POSITION": b.accessor(mesh.positions.astype(np.float32), 5126, "VEC3", 34962, True),
+                  "TEXCOORD_0": b.accessor(uv.astype(np.float32), 5126, "VEC2", 34962)}
+    indices = b.accessor(mesh.faces.astype(np.uint32).ravel(), 5125, "SCALAR", 34963)
+    b.doc.update(scene=0, scenes=[{"nodes": [0]}], nodes=[{"mesh": 0}],
+                 meshes=[{"primitives": [{"attributes": attributes, "indices": indices}]}])
+    path.write_bytes(b.glb())
     return mesh
 
 

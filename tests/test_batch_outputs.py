@@ -9,7 +9,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from pmwm_codec import shapes
@@ -18,17 +17,11 @@ from pmwm_codec.meshio import write_mesh
 pytest.importorskip("distributed")
 
 from pmwm_codec.batch import LEDGER_NAME, encode_batch, read_ledger, verify_batch  # noqa: E402
-from pmwm_codec.batch.run import dask_client  # noqa: E402
 from pmwm_codec.verify import verify_stream  # noqa: E402
 
+from test_batch_refusals import IMAGE, client  # noqa: E402,F401 (a fixture)
+
 ROOT = Path(__file__).resolve().parents[1]
-IMAGE = (np.indices((8, 8)).sum(0) % 2 * 255).astype(np.uint8)
-
-
-@pytest.fixture(scope="module")
-def client():
-    with dask_client(workers=1) as c:
-        yield c
 
 
 @pytest.fixture

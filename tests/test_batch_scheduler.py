@@ -12,29 +12,16 @@ import threading
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
-
-from pmwm_codec import shapes
-from pmwm_codec.meshio import write_mesh
 
 pytest.importorskip("distributed")
 
 from pmwm_codec.batch import run  # noqa: E402
 from pmwm_codec.cli import main  # noqa: E402
 
+from test_batch_refusals import lib  # noqa: E402,F401 (a fixture: tmp/lib/a.obj and tmp/wm.png)
+
 ROOT = Path(__file__).resolve().parents[1]
-IMAGE = (np.indices((8, 8)).sum(0) % 2 * 255).astype(np.uint8)
-
-
-@pytest.fixture
-def lib(tmp_path):
-    from PIL import Image
-
-    (tmp_path / "lib").mkdir()
-    write_mesh(tmp_path / "lib" / "a.obj", shapes.icosphere(2, noise=0.01, seed=1))
-    Image.fromarray(IMAGE).save(tmp_path / "wm.png")
-    return tmp_path
 
 
 def _one_line(capsys, *words) -> str:

@@ -27,6 +27,8 @@ from pmwm_codec.stream import replay as replay_module
 from pmwm_codec.stream.asset import decode_asset, encode_asset
 from pmwm_codec.stream.encoder import _locked_with_grid_copies
 
+from test_seams import assert_same_vertices_and_triangles
+
 
 def trig_sphere(width: int = 24, height: int = 16) -> Mesh:
     """A bumpy UV sphere as three.js ``SphereGeometry`` builds it (poles included), float32 as glTF
@@ -131,21 +133,7 @@ def test_a_trig_sphere_with_a_near_identical_seam_has_no_open_edge_at_any_batch(
     for spec in full.attributes:
         grid = AttributeGrid.from_config(spec)
         want.append(grid.from_float32(mesh.attributes[spec["semantic"]], spec["semantic"]))
-    want = np.concatenate(want, axis=1)
-    got = np.concatenate([full.positions_int, full.attributes_int], axis=1)
-    assert len(np.unique(want, axis=0)) == len(want) == len(got)
-    order_w, order_g = np.lexsort(want.T[::-1]), np.lexsort(got.T[::-1])
-    assert np.array_equal(want[order_w], got[order_g])
-    to_input = np.empty(len(got), np.int64)
-    to_input[order_g] = order_w
-    assert np.array_equal(_rotated(to_input[full.faces]), _rotated(mesh.faces))
-
-
-def _rotated(faces: np.ndarray) -> np.ndarray:
-    """Faces rotated to start at their smallest id (orientation kept), rows sorted."""
-    k = np.argmin(faces, axis=1)
-    rot = np.take_along_axis(faces, (k[:, None] + np.arange(3)) % 3, axis=1)
-    return rot[np.lexsort(rot.T[::-1])]
+    assert_same_vertices_and_triangles(np.concatenate(want, axis=1), mesh.faces, full)
 
 
 def _glb(mesh: Mesh) -> tuple:

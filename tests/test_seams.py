@@ -98,15 +98,20 @@ def _quantized_rows(mesh: Mesh, part) -> np.ndarray:
 
 def _assert_exact_round_trip(mesh: Mesh, part) -> None:
     """The decoded vertices are the input's grid values, one for one, and the faces the same triangles."""
-    want = _quantized_rows(mesh, part)
+    assert_same_vertices_and_triangles(_quantized_rows(mesh, part), mesh.faces, part)
+
+
+def assert_same_vertices_and_triangles(want: np.ndarray, faces: np.ndarray, part) -> None:
+    """``part``'s decoded vertices (grid positions, then attributes) are the rows ``want`` (n, D) int64, one
+    for one in some order, and its faces the triangles ``faces`` (m, 3) of those rows."""
     got = np.concatenate([part.positions_int, part.attributes_int], axis=1)
-    assert len(np.unique(want, axis=0)) == len(want)  # each row names one vertex
+    assert len(np.unique(want, axis=0)) == len(want) == len(got)  # each row names one vertex
     order_w = np.lexsort(want.T[::-1])
     order_g = np.lexsort(got.T[::-1])
     assert np.array_equal(want[order_w], got[order_g])
     to_input = np.empty(len(got), np.int64)
     to_input[order_g] = order_w
-    assert np.array_equal(_rotate(to_input[part.faces]), _rotate(mesh.faces))
+    assert np.array_equal(_rotate(to_input[part.faces]), _rotate(faces))
 
 
 def _rotate(faces: np.ndarray) -> np.ndarray:

@@ -16,6 +16,7 @@ import os
 from pmwm_codec.http import as_source, is_url, stream_end
 from pmwm_codec.meshio import WRITE_SUFFIXES, write_asset, write_mesh
 from pmwm_codec.format.glb import split_glb
+from pmwm_codec.format.gltf import TRIANGLE_MODES, TRIANGLES
 from pmwm_codec.format.reader import read_header
 from pmwm_codec.stream.asset import decode_asset, plain_triangle_primitives, posed_notes, scene_as_shown
 from pmwm_codec.stream.decoder import StreamDecoder
@@ -102,13 +103,13 @@ def _stored_triangles(doc: dict) -> tuple:
     accessors, vertices, faces = doc.get("accessors", []), 0, 0
     for mesh in doc.get("meshes", []):
         for prim in mesh.get("primitives", []):
-            mode = prim.get("mode", 4)
-            if mode not in (4, 5, 6) or "POSITION" not in prim.get("attributes", {}):
+            mode = prim.get("mode", TRIANGLES)
+            if mode not in TRIANGLE_MODES or "POSITION" not in prim.get("attributes", {}):
                 continue
             n = accessors[prim["attributes"]["POSITION"]]["count"]
             corners = accessors[prim["indices"]]["count"] if "indices" in prim else n
             vertices += n
-            faces += corners // 3 if mode == 4 else max(0, corners - 2)
+            faces += corners // 3 if mode == TRIANGLES else max(0, corners - 2)
     return vertices, faces
 
 

@@ -36,6 +36,9 @@ ELEMENT_ARRAY_BUFFER = 34963
 
 # primitive mode
 TRIANGLES = 4
+#: primitive modes also drawn as triangles (glTF 2.0, 3.7.2.1), and the three together.
+TRIANGLE_STRIP, TRIANGLE_FAN = 5, 6
+TRIANGLE_MODES = (TRIANGLES, TRIANGLE_STRIP, TRIANGLE_FAN)
 
 DRACO_EXTENSION = "KHR_draco_mesh_compression"
 

@@ -63,6 +63,9 @@ from ..format.gltf import (
     DRACO_EXTENSION,
     ELEMENT_ARRAY_BUFFER,
     FLOAT,
+    TRIANGLE_FAN,
+    TRIANGLE_MODES,
+    TRIANGLE_STRIP,
     TRIANGLES,
     UNSIGNED_INT,
     BufferBuilder,
@@ -496,10 +499,6 @@ def decode_asset(src, chunks=None):
     return b"".join(glb_parts(kept, out.parts, out.length)), end, decoder
 
 
-#: glTF primitive modes drawn as triangles.
-TRIANGLE_STRIP, TRIANGLE_FAN = 5, 6
-
-
 def plain_triangle_primitives(gltf: dict | None) -> list:
     """``[(mesh index, primitive index)]`` of the primitives of ``gltf`` (a ``.pmw``'s document) that are
     drawn as triangles (TRIANGLES, TRIANGLE_STRIP, TRIANGLE_FAN) but not progressive: geometry the asset
@@ -514,7 +513,7 @@ def plain_triangle_primitives(gltf: dict | None) -> list:
         if shown is not None and mi not in shown:
             continue
         for pi, prim in enumerate(mesh.get("primitives", [])):
-            if (mi, pi) not in progressive and prim.get("mode", TRIANGLES) in (TRIANGLES, TRIANGLE_STRIP, TRIANGLE_FAN) \
+            if (mi, pi) not in progressive and prim.get("mode", TRIANGLES) in TRIANGLE_MODES \
                     and "POSITION" in prim.get("attributes", {}):
                 out.append((mi, pi))
     return out
