@@ -249,7 +249,13 @@ def _rim_kernel(faces, weight, n):
 
 def _cut_vertices(pid: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
     """(n,) bool: the ends of boundary half-edges of ``faces`` (m, 3) that have a partner, a boundary
-    half-edge the other way between the same two points (``pid`` (n,) int64: each vertex's point)."""
+    half-edge the other way between the same two points (``pid`` (n,) int64: each vertex's point).
+
+    A partner runs between other vertices than its half-edge (the same two vertices would make one edge of
+    two faces), so one end at least is a vertex whose point another vertex has: only the faces holding one
+    are read, and every edge with such an end has all its faces among them (its count is exact)."""
+    shared = np.bincount(pid, minlength=n)[pid] > 1
+    faces = faces[shared[faces].any(axis=1)]
     a = faces.reshape(-1)
     b = faces[:, [1, 2, 0]].reshape(-1)
     _, edge, count = np.unique(np.minimum(a, b) * n + np.maximum(a, b), return_inverse=True, return_counts=True)
@@ -332,7 +338,7 @@ def pair_up(hu, hv, he, g, et, src, dst, opp, vv) -> tuple:
     keep &= (et.find(hu[i], hu[j]) < 0) & (et.find(hv[i], hu[j]) < 0) & (et.find(hv[j], hu[i]) < 0)
     i, j = i[keep], j[keep]
     wing_i, wing_j = opp[et.he0[he[i]]], opp[et.he0[he[j]]]
-    keep = (g[wing_i] != g[wing_j]) & _welded_link(hu[i], hu[j], hv[i], g, vv)
+    keep = (g[wing_i] != g[wing_j]) & _welded_link(hu[i], hu[j], hv[i], g, vv, copies)
     return i[keep], j[keep]
 
 
@@ -351,20 +357,76 @@ def _impure(g, et, src, dst, n) -> np.ndarray:
     return out
 
 
-def _welded_link(u1, u2, v1, g, vv) -> np.ndarray:
+def _welded_link(u1, u2, v1, g, vv, copies) -> np.ndarray:
     """(p,) bool: the welded ``u`` (copies u1, u2) and ``v`` (every copy of ``pos(v1)``)
-    share exactly two neighbour positions."""
+    share exactly two neighbour positions.  ``copies`` (n,) int64: the size of each group of ``g``."""
     n = len(g)
     vv_start, vv_nbr = vv
+    # every copy of pos(v1): the seam vertices of its group (seam vertices sorted by group, searched), or v1 alone
+    seam = np.flatnonzero(copies[g] > 1)
+    seam = seam[np.argsort(g[seam], kind="stable")]
+    keys = g[seam]
+    kernel = compiled(_welded_link_kernel)
+    if kernel is not None:
+        return kernel(u1, u2, v1, g, vv_start, vv_nbr, seam, keys)
     p = np.arange(len(u1), dtype=np.int64)
     own_a, pos_a = expand(vv_start, np.concatenate([u1, u2]))
     side_a = np.unique(np.concatenate([p, p])[own_a] * n + g[vv_nbr[pos_a]])
-    members_start, members = csr(g, np.arange(n), n)
-    own_m, pos_m = expand(members_start, g[v1])
-    own_b, pos_b = expand(vv_start, members[pos_m])
+    bounds = np.empty(2 * len(v1), np.int64)  # each v1's run of ``keys``, as a CSR of 2 entries a row
+    bounds[0::2] = np.searchsorted(keys, g[v1], "left")
+    bounds[1::2] = np.searchsorted(keys, g[v1], "right")
+    alone = np.flatnonzero(bounds[0::2] == bounds[1::2])
+    own_m, pos_m = expand(bounds, 2 * p)
+    own_m = np.concatenate([own_m, alone])
+    own_b, pos_b = expand(vv_start, np.concatenate([seam[pos_m], v1[alone]]))
     side_b = np.unique(own_m[own_b] * n + g[vv_nbr[pos_b]])
     common = np.intersect1d(side_a, side_b, assume_unique=True) // n
     return np.bincount(common, minlength=len(u1)) == 2
+
+
+def _welded_link_kernel(u1, u2, v1, g, vv_start, vv_nbr, seam, keys):
+    """Compiled :func:`_welded_link`, pair by pair: the neighbour positions ``g`` of ``u1`` and ``u2``, and of
+    every copy of ``pos(v1)`` (the ``seam`` vertices whose group ``keys`` (ascending) is ``g[v1]``, or ``v1``
+    alone when there are none), each sorted, then their distinct common values counted."""
+    out = np.zeros(len(u1), np.bool_)
+    one = np.empty(1, np.int64)
+    for k in range(len(u1)):
+        a = np.empty(vv_start[u1[k] + 1] - vv_start[u1[k]] + vv_start[u2[k] + 1] - vv_start[u2[k]], np.int64)
+        j = 0
+        for u in (u1[k], u2[k]):
+            for q in range(vv_start[u], vv_start[u + 1]):
+                a[j] = g[vv_nbr[q]]
+                j += 1
+        lo = np.searchsorted(keys, g[v1[k]], "left")
+        hi = np.searchsorted(keys, g[v1[k]], "right")
+        one[0] = v1[k]
+        copies = seam[lo:hi] if hi > lo else one
+        size = 0
+        for x in copies:
+            size += vv_start[x + 1] - vv_start[x]
+        b = np.empty(size, np.int64)
+        j = 0
+        for x in copies:
+            for q in range(vv_start[x], vv_start[x + 1]):
+                b[j] = g[vv_nbr[q]]
+                j += 1
+        a.sort()
+        b.sort()
+        i = j = common = 0
+        while i < len(a) and j < len(b):
+            if a[i] < b[j]:
+                i += 1
+            elif a[i] > b[j]:
+                j += 1
+            else:
+                common += 1
+                x = a[i]
+                while i < len(a) and a[i] == x:
+                    i += 1
+                while j < len(b) and b[j] == x:
+                    j += 1
+        out[k] = common == 2
+    return out
 
 
 def choose_pairs(hu, hv, i, j, cost, vv, n: int, rounds: int = 32) -> np.ndarray:

@@ -440,10 +440,11 @@ def _one_batch(P, Q, live, frozen_ext, budget, weld=None, twin=None):
     if cand is None and seam is None:
         return None
     pairs = None if seam is None else _seam_pairs(Q, src, dst, frozen, seam, g, mesh, ends)
-    if pairs is not None:
-        cand = _unblocked(cand, pairs, vv, n)
+    # the ordinary candidates must be independent of the chosen seam pairs (left out as the affordable ones are
+    # picked, one pass over the candidates)
+    blocked = None if pairs is None else seams.blocked_by(pairs[0], pairs[1], vv, n)
     for quantile in (BATCH_QUANTILE, 1.0):  # all candidates when no affordable one is legal
-        part = None if cand is None else _affordable(*cand, quantile)
+        part = None if cand is None else _affordable(*cand, quantile, blocked)
         win = _ordinary_winners(part, mesh, n) if part is not None else np.zeros(0, np.int64)
         if len(win) or pairs is not None or quantile >= 1.0:
             break
@@ -625,37 +626,6 @@ def _seam_pairs(Q, src, dst, frozen, seam, g, mesh, ends):
     return hu[rows], hv[rows], he[rows], hcost[rows]
 
 
-def _unblocked(cand, pairs, vv, n):
-    """The ordinary candidates independent of the chosen seam ``pairs`` (None when none are)."""
-    if cand is None:
-        return None
-    no_remove, no_keep = seams.blocked_by(pairs[0], pairs[1], vv, n)
-    kernel = compiled(_unblocked_kernel)
-    if kernel is not None:
-        out = kernel(*cand, no_remove, no_keep)
-        return out if len(out[0]) else None
-    keep = ~no_remove[cand[0]] & ~no_keep[cand[1]]
-    return tuple(x[keep] for x in cand) if keep.any() else None
-
-
-def _unblocked_kernel(cu, cv, ce, cost, no_remove, no_keep):
-    """Compiled end of :func:`_unblocked`: the rows (a,) of the four (c,) candidate arrays whose removed vertex
-    is not in ``no_remove`` (n,) bool and kept vertex not in ``no_keep`` (n,) bool, in one pass to mark them and
-    one to copy them (not four masked gathers)."""
-    keep = np.empty(len(cu), np.bool_)
-    k = 0
-    for i in range(len(cu)):
-        keep[i] = not no_remove[cu[i]] and not no_keep[cv[i]]
-        k += keep[i]
-    out = (np.empty(k, np.int64), np.empty(k, np.int64), np.empty(k, np.int64), np.empty(k, np.float64))
-    j = 0
-    for i in range(len(cu)):
-        if keep[i]:
-            out[0][j], out[1][j], out[2][j], out[3][j] = cu[i], cv[i], ce[i], cost[i]
-            j += 1
-    return out
-
-
 def _merge_pairs(cand, win, pairs, budget):
     """``(cu, cv, ce, cost)`` of a batch: ordinary winners ``win`` (indices into ``cand``) and
     seam ``pairs`` (:func:`_seam_pairs`), cut to ``budget`` removed vertices with pairs whole."""
@@ -668,35 +638,56 @@ def _merge_pairs(cand, win, pairs, budget):
     return tuple(np.concatenate(cols) for cols in zip(*parts, (x[rows] for x in pairs)))
 
 
-def _affordable(cu, cv, ce, cost, quantile: float):
+def _affordable(cu, cv, ce, cost, quantile: float, blocked=None):
     """The candidates (grouped by ``cu``, as from :func:`_candidates`) whose cost is at most
-    the ``quantile`` of the per-vertex cheapest costs; all of them when ``quantile >= 1``."""
+    the ``quantile`` of the per-vertex cheapest costs; all of them when ``quantile >= 1``.
+
+    ``blocked``: None, or ``(no_remove, no_keep)`` (n,) bool (:func:`.seams.blocked_by` of the batch's seam
+    pairs): the candidates whose removed vertex is in ``no_remove`` or kept vertex in ``no_keep`` are left out
+    first, and the quantile is of what is left (None, or no rows, when nothing is: the same to the callers).
+    """
+    kernel = compiled(_affordable_kernel)
+    if blocked is not None and (kernel is None or quantile >= 1.0 or len(cu) == 0):
+        keep = ~blocked[0][cu] & ~blocked[1][cv]
+        if not keep.any():
+            return None
+        cu, cv, ce, cost = cu[keep], cv[keep], ce[keep], cost[keep]
+        blocked = None
     if quantile >= 1.0 or len(cu) == 0:
         return cu, cv, ce, cost
-    kernel = compiled(_affordable_kernel)
     if kernel is None:
         keep = cost <= np.quantile(cost[_group_starts(cu)], quantile)
         return cu[keep], cv[keep], ce[keep], cost[keep]
-    return kernel(cu, cv, ce, cost, quantile)
+    none = np.zeros(0, np.bool_)
+    return kernel(cu, cv, ce, cost, quantile, *((none, none) if blocked is None else blocked))
 
 
-def _affordable_kernel(cu, cv, ce, cost, quantile):
+def _affordable_kernel(cu, cv, ce, cost, quantile, no_remove, no_keep):
     """Compiled :func:`_affordable` (0 <= quantile < 1, c >= 1): the rows (a,) of the four (c,) arrays
-    with ``cost`` at most :func:`_quantile_kernel` of the groups' first costs."""
-    firsts = np.empty(len(cu), np.float64)  # cost[_group_starts(cu)]
+    not blocked (``no_remove`` / ``no_keep`` (n,) bool, or both empty: none is) with ``cost`` at most
+    :func:`_quantile_kernel` of the groups' first costs (each group's first row not blocked)."""
+    ok = np.ones(len(cu), np.bool_)
+    if len(no_remove):
+        for i in range(len(cu)):
+            ok[i] = not no_remove[cu[i]] and not no_keep[cv[i]]
+    firsts = np.empty(len(cu), np.float64)  # cost[_group_starts(cu)] of the rows not blocked
     g = 0
+    last = -1
     for i in range(len(cu)):
-        if i == 0 or cu[i] != cu[i - 1]:
+        if ok[i] and cu[i] != last:
             firsts[g] = cost[i]
             g += 1
+            last = cu[i]
+    if g == 0:
+        return np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0, np.float64)
     limit = _quantile_kernel(firsts[:g], quantile)
     k = 0
     for i in range(len(cost)):
-        k += cost[i] <= limit
+        k += ok[i] and cost[i] <= limit
     out = (np.empty(k, np.int64), np.empty(k, np.int64), np.empty(k, np.int64), np.empty(k, np.float64))
     j = 0
     for i in range(len(cost)):
-        if cost[i] <= limit:
+        if ok[i] and cost[i] <= limit:
             out[0][j], out[1][j], out[2][j], out[3][j] = cu[i], cv[i], ce[i], cost[i]
             j += 1
     return out
