@@ -102,8 +102,7 @@ export class ProgressiveRun {
     // aborts the request in flight on stop(); loadProgressive's own (its streamed GET's body) when it made one
     this.controller = options.controller ?? new AbortController();
     const { maxChunks = Infinity, worker = 'auto', workerThreshold, workerUrl, signal } = options;
-    this.decoder = createDecoder({ bases: threeDracoBases(targets), maxChunks, worker, workerThreshold, workerUrl,
-      keep: [options.prefix?.buffer] });
+    this.decoder = createDecoder({ bases: threeDracoBases(targets), maxChunks, worker, workerThreshold, workerUrl });
     if (signal?.aborted) this.stop();
     else if (signal) {
       const onAbort = () => this.stop();
@@ -437,7 +436,7 @@ function* withinLimit(piece, run) {
     const room = run.byteLimit() - run.decoder.received;
     if (room <= 0) return;
     const part = rest.subarray(0, room);
-    rest = rest.subarray(part.length); // before the yield: a part fed to a worker may take its buffer with it
+    rest = rest.subarray(part.length);
     yield part;
   }
 }
@@ -461,7 +460,7 @@ async function* readStream(url, fetchFn, range, run, prefix) {
       return;
     }
     for await (const block of rangeBlocks(fetchFn, url, 0, 20, signal, run, first)) {
-      const got = block.length; // a piece yielded may be transferred to the decode worker (then empty here)
+      const got = block.length;
       run.bytesFetched += got;
       start += got;
       yield block;
