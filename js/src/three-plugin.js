@@ -5,7 +5,9 @@
  *   const gltf = await loader.loadAsync(url);       // or: await loadProgressive(loader, url, options)
  *   await gltf.userData.pmwm.done;                   // {complete, chunksApplied, bytesFetched, ...}
  *
- * three.js reads the base mesh itself (the extension is optional). The plugin then reads the stream
+ * three.js reads the base mesh itself (the extension is optional). When three.js holds the whole file
+ * (GLTFLoader.load downloads it whole, or parse() was given it), the plugin decodes the stream from those bytes
+ * (three.js' JSON text and BIN chunk: heldFile), fetching nothing. Else it reads the stream
  * from `options.url` (default: the URL the loader was given, when `loadProgressive` is used):
  * by HTTP `Range` requests when the server honours them (preamble, JSON, base, then one request per
  * chunk in stream order, nothing after the last chunk it needs), else as one `fetch` stream. Each
@@ -27,7 +29,7 @@
 import { Box3, BufferAttribute, LoaderUtils, Sphere } from 'three';
 import { reportCallbackError } from './decoder.js';
 import { FetchError, FormatError, PmwError, StreamMismatchError, TruncatedError } from './errors.js';
-import { checkPreamble, parseGlb, planDocument, preambleLength } from './header.js';
+import { checkPreamble, glbHead, parseGlb, planDocument, preambleLength } from './header.js';
 import { createDecoder, threeName } from './worker-decoder.js';
 
 export const EXTENSION_NAME = 'PMWM_progressive_mesh';
@@ -52,7 +54,9 @@ export class PMWMProgressivePlugin {
   async afterRoot(gltf) {
     const targets = await progressiveTargets(this.parser, gltf);
     if (!targets.length) return;
-    const run = new ProgressiveRun(targets, this.options, this.parser.json);
+    // the whole file three.js read (GLTFLoader.load, or parse() of it): the stream is there, not fetched again
+    const held = this.options.prefix || this.options.reader ? null : heldFile(this.parser);
+    const run = new ProgressiveRun(targets, held ? { ...this.options, held } : this.options, this.parser.json);
     gltf.userData = gltf.userData ?? {};
     gltf.userData.pmwm = run;
     run.done = run.start();
@@ -145,7 +149,8 @@ export class ProgressiveRun {
     const o = this.options;
     const fetchFn = o.fetch ?? globalThis.fetch.bind(globalThis);
     const source = o.reader ? continueReader(o.prefix, o.reader, this, o.url)
-      : readStream(o.url, fetchFn, o.range ?? true, this, o.prefix);
+      : o.held ? heldPieces(o.held, this)
+        : readStream(o.url, fetchFn, o.range ?? true, this, o.prefix);
     let end;
     try {
       for await (const piece of source) {
@@ -205,7 +210,7 @@ export class ProgressiveRun {
   #release() {
     const { header, plan, received, chunksApplied, workerLevels } = this.decoder;
     this.decoder = { header, plan, received, chunksApplied, workerLevels };
-    this.options = { ...this.options, prefix: undefined, reader: undefined, controller: undefined };
+    this.options = { ...this.options, prefix: undefined, reader: undefined, controller: undefined, held: undefined };
     this.json = null;
   }
 
@@ -438,6 +443,53 @@ function* withinLimit(piece, run) {
     const part = rest.subarray(0, room);
     rest = rest.subarray(part.length);
     yield part;
+  }
+}
+
+/**
+ * The whole .pmw three.js parsed, when it holds it (GLTFLoader.load downloaded it, or parse() was given it): its
+ * JSON text and BIN chunk, which three.js keeps (parser.extensions.KHR_binary_glTF; the file's own bytes are not
+ * kept). {head, bin}: the bytes before the BIN data, rebuilt (the JSON text encoded again, a byte order mark its
+ * TextDecoder dropped put back), and the BIN data: the file's bytes, as the head has the length the file's header
+ * leaves the JSON. null when three.js holds less than the stream: no BIN, a BIN short of the buffer the JSON
+ * declares (a base cut before the chunks, as loadProgressive's), or JSON text that does not encode back to its
+ * chunk's bytes for sure (of another length, or holding U+FFFD); the plugin then reads the stream from its url.
+ */
+function heldFile(parser) {
+  const glb = parser.extensions?.KHR_binary_glTF;
+  if (!(glb?.body instanceof ArrayBuffer) || typeof glb.content !== 'string' || glb.header?.version !== 2) return null;
+  const bin = new Uint8Array(glb.body);
+  if (!(bin.length >= parser.json.buffers?.[0]?.byteLength)) return null;
+  // U+FFFD: maybe invalid UTF-8 three.js' TextDecoder replaced (a format error the stream read again refuses)
+  if (glb.content.includes('\uFFFD')) return null;
+  const jsonLength = glb.header.length - 28 - bin.length;
+  let json = new TextEncoder().encode(glb.content);
+  if (json.length + 3 === jsonLength) {
+    const marked = new Uint8Array(jsonLength);
+    marked.set([0xef, 0xbb, 0xbf]);
+    marked.set(json, 3);
+    json = marked;
+  }
+  return json.length === jsonLength ? { head: glbHead(json, bin.length, glb.header.version), bin } : null;
+}
+
+/**
+ * The file three.js holds (heldFile) in the pieces Range requests would bring: the head in two (the preamble,
+ * then the rest), the base, each chunk, within the run's byte limit. No copy: views of the head and of three.js'
+ * BIN (the decoder copies what it is fed).
+ */
+function* heldPieces({ head, bin }, run) {
+  const total = head.length + bin.length;
+  let start = 0;
+  for (const end of rangeEnds(run, head.length)) {
+    while (start < Math.min(end, total)) {
+      const stop = Math.min(end, total, run.byteLimit());
+      if (run.stopped || stop <= start) return;
+      const piece = start < head.length ? head.subarray(start, Math.min(stop, head.length))
+        : bin.subarray(start - head.length, stop - head.length);
+      start += piece.length;
+      yield piece;
+    }
   }
 }
 

@@ -1,6 +1,7 @@
 // The three.js plugin when things go wrong: a corrupt chunk (the levels before it stay drawn and reported),
 // stop() and AbortSignal (prompt, the drawn level kept), short 206 answers (the rest asked for), HTTP and
-// network failures (FetchError), a registered plugin whose url holds another document (StreamMismatchError),
+// network failures (FetchError), a registered plugin whose url holds another document (StreamMismatchError, when
+// three.js parsed only a base; a whole file refines from its own bytes),
 // and callbacks of the caller's that throw.
 import assert from 'node:assert/strict';
 import fs from 'node:fs';
@@ -10,7 +11,7 @@ import { after, before, test } from 'node:test';
 import { GLTFLoader } from 'three/examples/jsm/loaders/GLTFLoader.js';
 import { parseGlb, planDocument } from '../src/header.js';
 import { CorruptChunkError, decodePmw, FetchError, FormatError, PmwError, StreamMismatchError } from '../src/index.js';
-import { loadProgressive, PMWMProgressivePlugin } from '../src/three-plugin.js';
+import { baseGlb, loadProgressive, PMWMProgressivePlugin } from '../src/three-plugin.js';
 import { CONFORMANCE } from './lib/helpers.js';
 import { startServer } from './lib/server.js';
 
@@ -20,7 +21,12 @@ const bytes = new Uint8Array(fs.readFileSync(path.join(CONFORMANCE, NAME)));
 const { binStart, binLength, gltf: json } = parseGlb(bytes);
 const stream = planDocument(json, binLength).stream;
 const K = stream.length;
-const baseEnd = binStart + stream[0].offset; // the bytes before the first chunk
+/** The length of the bytes of a .pmw before its first chunk. */
+function endOfBase(file) {
+  const header = parseGlb(file);
+  return header.binStart + planDocument(header.gltf, header.binLength).stream[0].offset;
+}
+const baseEnd = endOfBase(bytes);
 let tmp;
 const servers = {};
 
@@ -144,11 +150,13 @@ test('Range answers shorter than asked: the rest is asked for, the load complete
     assert.equal(outcome.bytesFetched, bytes.length, `cap ${cap}`);
     assert.deepEqual(drawn(gltf).positions, full.positions, `cap ${cap}`);
   }
-  // a registered plugin reading by Range (three.js has the whole file)
+  // a registered plugin reading by Range (three.js parsed only the base: the stream is read from the url)
   const loader = new GLTFLoader();
   loader.register((parser) => new PMWMProgressivePlugin(parser, { url: `${servers.ranges.url}${NAME}?cap=500` }));
-  const gltf = await loader.parseAsync(bytes.slice().buffer, '');
-  assert.equal((await gltf.userData.pmwm.done).chunksApplied, K);
+  const gltf = await loader.parseAsync(baseGlb(bytes.subarray(0, baseEnd)).buffer, '');
+  const outcome = await gltf.userData.pmwm.done;
+  assert.equal(outcome.chunksApplied, K);
+  assert.equal(outcome.bytesFetched, bytes.length);
 });
 
 test('HTTP errors and network failures are FetchError (status, url, cause), not FormatError or a raw TypeError', async () => {
@@ -170,14 +178,20 @@ test('HTTP errors and network failures are FetchError (status, url, cause), not 
   await assert.rejects(loadProgressive(new GLTFLoader(), 'http://127.0.0.1:1/x.pmw'), FetchError);
 });
 
-test('a plugin registered with a fixed url refuses to refine another document with that url\'s stream', async () => {
+test('a registered plugin with a fixed url refines a whole file from its own bytes, a base from the url if the same document', async () => {
   const url = servers.ranges.url + NAME;
   const loader = new GLTFLoader();
   loader.register((parser) => new PMWMProgressivePlugin(parser, { url }));
-  const first = await loader.parseAsync(bytes.slice().buffer, ''); // three.js read the whole file itself
+  const requests = servers.ranges.stats.requests;
+  const first = await loader.parseAsync(bytes.slice().buffer, ''); // three.js holds the whole file
   assert.equal((await first.userData.pmwm.done).complete, true);
   const otherBytes = new Uint8Array(fs.readFileSync(path.join(tmp, OTHER)));
-  const other = await loader.parseAsync(otherBytes.slice().buffer, ''); // another file, the same loader
+  const whole = await loader.parseAsync(otherBytes.slice().buffer, ''); // another whole file, the same loader
+  assert.equal((await whole.userData.pmwm.done).complete, true);
+  assert.deepEqual(drawn(whole).positions, (await decodePmw(otherBytes)).positions);
+  assert.equal(servers.ranges.stats.requests, requests, 'the stream of a whole file is not read from the url');
+  // three.js given only the other file's base: its stream is read from the url, which holds another document
+  const other = await loader.parseAsync(baseGlb(otherBytes.subarray(0, endOfBase(otherBytes))).buffer, '');
   const before = theMesh(other).geometry.getAttribute('position').array.slice();
   await assert.rejects(other.userData.pmwm.done, (e) => e instanceof StreamMismatchError && e.url === url);
   const g = theMesh(other).geometry;
