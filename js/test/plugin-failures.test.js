@@ -2,7 +2,7 @@
 // stop() and AbortSignal (prompt, the drawn level kept), short 206 answers (the rest asked for), HTTP and
 // network failures (FetchError), a registered plugin whose url holds another document (StreamMismatchError, when
 // three.js parsed only a base; a whole file refines from its own bytes),
-// and callbacks of the caller's that throw.
+// a server that stalls (stallTimeout: FetchError), and callbacks of the caller's that throw.
 import assert from 'node:assert/strict';
 import fs from 'node:fs';
 import os from 'node:os';
@@ -11,7 +11,7 @@ import { after, before, test } from 'node:test';
 import { GLTFLoader } from 'three/examples/jsm/loaders/GLTFLoader.js';
 import { parseGlb, planDocument } from '../src/header.js';
 import { CorruptChunkError, decodePmw, FetchError, FormatError, PmwError, StreamMismatchError } from '../src/index.js';
-import { baseGlb, loadProgressive, PMWMProgressivePlugin } from '../src/three-plugin.js';
+import { baseGlb, loadProgressive, PMWMProgressivePlugin, STALL_TIMEOUT_MS } from '../src/three-plugin.js';
 import { CONFORMANCE } from './lib/helpers.js';
 import { startServer } from './lib/server.js';
 
@@ -198,6 +198,45 @@ test('a registered plugin with a fixed url refines a whole file from its own byt
   assert.equal(g.userData.pmwmLevel, undefined, 'no level of the other stream was drawn');
   assert.deepEqual(g.getAttribute('position').array, before, 'left as three.js loaded it');
   assert.equal(g.getAttribute('position').count, (await decodePmw(otherBytes, { chunks: 0 })).positions.length / 3);
+});
+
+test('a server that stops sending (connection open, no bytes) fails the load after stallTimeout with a FetchError naming the URL and the seconds, the levels decoded kept',
+  async () => {
+    const chunkEnd = (k) => binStart + stream[k - 1].offset + stream[k - 1].length;
+    const cases = [ // [server, the file's bytes sent before the stall, the level then drawn]
+      ['plain', baseEnd + 200, 0], // a streamed GET: in chunk 1
+      ['ranges', chunkEnd(2) + 10, 2], // Range requests: in the request for chunk 3
+    ];
+    for (const [kind, stall, level] of cases) {
+      const url = `${servers[kind].url}${NAME}?stall=${stall}`;
+      const expected = await decodePmw(bytes, { chunks: level });
+      const chunks = [];
+      const gltf = await loadProgressive(new GLTFLoader(), url, { stallTimeout: 300, onChunk: (e) => chunks.push(e.chunk) });
+      const t0 = Date.now();
+      const out = await settle(gltf.userData.pmwm.done, 5000);
+      assert.notEqual(out, 'pending', `${kind}: done did not settle on a stalled stream`);
+      assert.ok(Date.now() - t0 < 3000, kind);
+      const e = out.error;
+      assert.ok(e instanceof FetchError && e.url === url && e.status === undefined, `${kind}: ${e}`);
+      assert.ok(e.message.includes(url) && e.message.includes('0.3 s'), e.message);
+      assert.deepEqual(chunks, [...Array(level)].map((_, i) => i + 1), kind);
+      assert.deepEqual(drawn(gltf).positions, expected.positions, kind);
+    }
+    // stalled before the base is in: loadProgressive itself rejects
+    const early = `${servers.plain.url}${NAME}?stall=100`;
+    const res = await settle(loadProgressive(new GLTFLoader(), early, { stallTimeout: 300 }), 5000);
+    assert.ok(res.error instanceof FetchError && res.error.url === early && res.error.message.includes('0.3 s'), String(res.error));
+  });
+
+test('stallTimeout defaults to 30 s, 0 waits for ever (until stop()), and anything but a number >= 0 is a RangeError', async () => {
+  assert.equal(STALL_TIMEOUT_MS, 30000);
+  const gltf = await loadProgressive(new GLTFLoader(), `${servers.plain.url}${NAME}?stall=${baseEnd + 200}`, { stallTimeout: 0 });
+  assert.equal(await settle(gltf.userData.pmwm.done, 800), 'pending');
+  gltf.userData.pmwm.stop();
+  assert.equal((await gltf.userData.pmwm.done).stopped, true);
+  for (const stallTimeout of [-1, NaN, '30000', null]) {
+    await assert.rejects(loadProgressive(new GLTFLoader(), servers.ranges.url + NAME, { stallTimeout }), RangeError);
+  }
 });
 
 test('a callback that throws is reported (onCallbackError) and the load goes on to the full mesh', async () => {
