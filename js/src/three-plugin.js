@@ -374,19 +374,25 @@ function guard(promise, net, url) {
       resolve(STOPPED);
       return;
     }
-    const onAbort = () => resolve(STOPPED);
+    let timer = null;
+    const settled = () => {
+      clearTimeout(timer); // also when aborted: a promise that ignores the signal may never settle
+      signal.removeEventListener('abort', onAbort);
+    };
+    const onAbort = () => {
+      settled();
+      resolve(STOPPED);
+    };
     signal.addEventListener('abort', onAbort, { once: true });
-    const timer = ms > 0 && ms < 2 ** 31 ? setTimeout(() => {
-      const stalled = new FetchError(`${url}: no bytes came for ${ms / 1000} s (stallTimeout): the request was aborted`,
-        { url });
-      reject(stalled); // before the abort, whose STOPPED comes too late
-      net.abort(stalled);
-    }, ms) : null;
-    promise.then(resolve, (e) => (signal.aborted ? resolve(STOPPED) : reject(networkError(url, e))))
-      .finally(() => {
-        clearTimeout(timer);
-        signal.removeEventListener('abort', onAbort);
-      });
+    if (ms > 0 && ms < 2 ** 31) {
+      timer = setTimeout(() => {
+        const stalled = new FetchError(`${url}: no bytes came for ${ms / 1000} s (stallTimeout): the request was aborted`,
+          { url });
+        reject(stalled); // before the abort, whose STOPPED comes too late
+        net.abort(stalled);
+      }, ms);
+    }
+    promise.then(resolve, (e) => (signal.aborted ? resolve(STOPPED) : reject(networkError(url, e)))).finally(settled);
   });
 }
 
