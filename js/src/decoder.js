@@ -296,7 +296,7 @@ export function reportCallbackError(handler, error) {
 }
 
 /** The bytes of `data` (ArrayBuffer, typed array or DataView) as a Uint8Array view; TypeError for anything else. */
-function asBytes(data) {
+export function asBytes(data) {
   if (data instanceof Uint8Array) return data;
   if (ArrayBuffer.isView(data)) return new Uint8Array(data.buffer, data.byteOffset, data.byteLength);
   if (data instanceof ArrayBuffer || (typeof SharedArrayBuffer === 'function' && data instanceof SharedArrayBuffer)) {

@@ -151,6 +151,24 @@ export function checkPreamble(bytes) {
   return { length, jsonLength };
 }
 
+/**
+ * The bytes of a GLB before its BIN chunk's data: the 12-byte header, the JSON chunk (`json`: its bytes, padding
+ * included) and the BIN chunk's 8-byte header, for a BIN chunk of `binLength` bytes ending the file.
+ */
+export function glbHead(json, binLength, version = 2) {
+  const head = new Uint8Array(28 + json.length);
+  const dv = new DataView(head.buffer);
+  dv.setUint32(0, GLB_MAGIC, true);
+  dv.setUint32(4, version, true);
+  dv.setUint32(8, head.length + binLength, true);
+  dv.setUint32(12, json.length, true);
+  dv.setUint32(16, JSON_TYPE, true);
+  head.set(json, 20);
+  dv.setUint32(20 + json.length, binLength, true);
+  dv.setUint32(24 + json.length, BIN_TYPE, true);
+  return head;
+}
+
 export function parseGlb(bytes) {
   const dv = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength);
   const { length, jsonLength } = checkPreamble(bytes);

@@ -5,7 +5,9 @@
  *   const gltf = await loader.loadAsync(url);       // or: await loadProgressive(loader, url, options)
  *   await gltf.userData.pmwm.done;                   // {complete, chunksApplied, bytesFetched, ...}
  *
- * three.js reads the base mesh itself (the extension is optional). The plugin then reads the stream
+ * three.js reads the base mesh itself (the extension is optional). When three.js holds the whole file
+ * (GLTFLoader.load downloads it whole, or parse() was given it), the plugin decodes the stream from those bytes
+ * (three.js' JSON text and BIN chunk: heldFile), fetching nothing. Else it reads the stream
  * from `options.url` (default: the URL the loader was given, when `loadProgressive` is used):
  * by HTTP `Range` requests when the server honours them (preamble, JSON, base, then one request per
  * chunk in stream order, nothing after the last chunk it needs), else as one `fetch` stream. Each
@@ -14,9 +16,11 @@
  * (the first chunk whose geometricError is at most this), `byteBudget` (no byte past it is used, but the
  * base is: below it, the base is the level shown). A stop, a stop condition or a failure cancels the rest of a
  * streamed GET; `stop()` (or `options.signal` aborting) aborts the request in flight at once. A Range answer
- * shorter than asked is followed by a request for the rest. The levels decoded before a failure stay drawn;
- * `done` rejects with it (HTTP and network failures: FetchError). The stream must be the document three.js
- * parsed (its PMWM_progressive_mesh objects), else StreamMismatchError before anything is drawn. What onBase,
+ * shorter than asked is followed by a request for the rest. A request that brings nothing (head, or next body
+ * bytes) for `stallTimeout` ms (default 30 s, STALL_TIMEOUT_MS; 0: no limit) is aborted: a FetchError. The levels
+ * decoded before a failure stay drawn; `done` rejects with it (HTTP and network failures, stalls: FetchError).
+ * The stream must be the document three.js parsed (its PMWM_progressive_mesh objects), else StreamMismatchError
+ * before anything is drawn. What onBase,
  * onChunk, onDone throw goes to onCallbackError (else console.error), never failing the load.
  * `loadProgressive(loader, url)` fetches only the bytes up to the base first, so the base is shown
  * before any chunk is downloaded. Decoding (`worker`): in a module Worker (decode-worker.js) when the
@@ -27,7 +31,7 @@
 import { Box3, BufferAttribute, LoaderUtils, Sphere } from 'three';
 import { reportCallbackError } from './decoder.js';
 import { FetchError, FormatError, PmwError, StreamMismatchError, TruncatedError } from './errors.js';
-import { checkPreamble, parseGlb, planDocument, preambleLength } from './header.js';
+import { checkPreamble, glbHead, parseGlb, planDocument, preambleLength } from './header.js';
 import { createDecoder, threeName } from './worker-decoder.js';
 
 export const EXTENSION_NAME = 'PMWM_progressive_mesh';
@@ -37,8 +41,8 @@ export class PMWMProgressivePlugin {
    * @param {object} parser the GLTFParser
    * @param {{url?: string, range?: boolean, maxChunks?: number, maxGeometricError?: number,
    *   byteBudget?: number, onBase?: Function, onChunk?: Function, onDone?: Function, onCallbackError?: Function,
-   *   fetch?: Function, signal?: AbortSignal, prefix?: Uint8Array, reader?: object, worker?: 'auto'|boolean,
-   *   workerThreshold?: number, workerUrl?: string|URL}} options
+   *   fetch?: Function, signal?: AbortSignal, stallTimeout?: number, prefix?: Uint8Array, reader?: object,
+   *   worker?: 'auto'|boolean, workerThreshold?: number, workerUrl?: string|URL}} options
    *   onChunk({chunk, chunksTotal, vertexCount, faceCount, bytesRead, bytesFetched, requests})
    *   worker: 'auto' (default: a worker above workerThreshold vertices), true, false (main thread);
    *   workerUrl: the decode-worker.js to start (default: next to this module)
@@ -52,7 +56,9 @@ export class PMWMProgressivePlugin {
   async afterRoot(gltf) {
     const targets = await progressiveTargets(this.parser, gltf);
     if (!targets.length) return;
-    const run = new ProgressiveRun(targets, this.options, this.parser.json);
+    // the whole file three.js read (GLTFLoader.load, or parse() of it): the stream is there, not fetched again
+    const held = this.options.prefix || this.options.reader ? null : heldFile(this.parser);
+    const run = new ProgressiveRun(targets, held ? { ...this.options, held } : this.options, this.parser.json);
     gltf.userData = gltf.userData ?? {};
     gltf.userData.pmwm = run;
     run.done = run.start();
@@ -101,9 +107,9 @@ export class ProgressiveRun {
     this.stopped = false;
     // aborts the request in flight on stop(); loadProgressive's own (its streamed GET's body) when it made one
     this.controller = options.controller ?? new AbortController();
+    this.net = network(this.controller, options.stallTimeout);
     const { maxChunks = Infinity, worker = 'auto', workerThreshold, workerUrl, signal } = options;
-    this.decoder = createDecoder({ bases: threeDracoBases(targets), maxChunks, worker, workerThreshold, workerUrl,
-      keep: [options.prefix?.buffer] });
+    this.decoder = createDecoder({ bases: threeDracoBases(targets), maxChunks, worker, workerThreshold, workerUrl });
     if (signal?.aborted) this.stop();
     else if (signal) {
       const onAbort = () => this.stop();
@@ -146,7 +152,8 @@ export class ProgressiveRun {
     const o = this.options;
     const fetchFn = o.fetch ?? globalThis.fetch.bind(globalThis);
     const source = o.reader ? continueReader(o.prefix, o.reader, this, o.url)
-      : readStream(o.url, fetchFn, o.range ?? true, this, o.prefix);
+      : o.held ? heldPieces(o.held, this)
+        : readStream(o.url, fetchFn, o.range ?? true, this, o.prefix);
     let end;
     try {
       for await (const piece of source) {
@@ -206,7 +213,7 @@ export class ProgressiveRun {
   #release() {
     const { header, plan, received, chunksApplied, workerLevels } = this.decoder;
     this.decoder = { header, plan, received, chunksApplied, workerLevels };
-    this.options = { ...this.options, prefix: undefined, reader: undefined, controller: undefined };
+    this.options = { ...this.options, prefix: undefined, reader: undefined, controller: undefined, held: undefined };
     this.json = null;
   }
 
@@ -339,23 +346,91 @@ function threeDracoBases(targets) {
 /** What a network wait gives when the run (or load) was stopped or aborted meanwhile: the caller ends quietly. */
 const STOPPED = Symbol('stopped');
 
+/** Milliseconds a request may go without bringing anything (its answer's head, or the next bytes of its body) by default. */
+export const STALL_TIMEOUT_MS = 30000;
+
 /**
- * `promise`'s value, or STOPPED as soon as `signal` aborts (the promise is left to settle unseen: a fetch or read
- * that ignores the signal is not waited for). A rejection is the network's failure: a FetchError (`.cause` the
- * fetch API's error), or STOPPED when `signal` aborted.
+ * What the network waits of one load share: `signal`, whose abort ends them quietly (STOPPED), and `stallTimeout`
+ * (ms; 0 or Infinity: none), past which a wait aborts `controller` (the request, its body) and fails with a FetchError.
  */
-function guard(promise, signal, url) {
+function network(controller, stallTimeout = STALL_TIMEOUT_MS) {
+  if (typeof stallTimeout !== 'number' || !(stallTimeout >= 0)) {
+    throw new RangeError(`stallTimeout must be a number of milliseconds >= 0 (0: no limit), not ${stallTimeout}`);
+  }
+  return { signal: controller.signal, stallTimeout, abort: (reason) => controller.abort(reason) };
+}
+
+/**
+ * `promise`'s value (one wait for the network: a fetch's answer, one read of a body), or STOPPED as soon as
+ * `net.signal` aborts (the promise is left to settle unseen: a fetch or read that ignores the signal is not waited
+ * for). A rejection is the network's failure: a FetchError (`.cause` the fetch API's error), or STOPPED when the
+ * signal aborted. A wait longer than `net.stallTimeout` is a stall: the request is aborted, a FetchError.
+ */
+function guard(promise, net, url) {
+  const { signal, stallTimeout: ms } = net;
   return new Promise((resolve, reject) => {
-    if (signal?.aborted) {
+    if (signal.aborted) {
       promise.catch(() => {});
       resolve(STOPPED);
       return;
     }
-    const onAbort = () => resolve(STOPPED);
-    signal?.addEventListener('abort', onAbort, { once: true });
-    promise.then(resolve, (e) => (signal?.aborted ? resolve(STOPPED) : reject(networkError(url, e))))
-      .finally(() => signal?.removeEventListener('abort', onAbort));
+    let timer = null;
+    const settled = () => {
+      clearTimeout(timer); // also when aborted: a promise that ignores the signal may never settle
+      signal.removeEventListener('abort', onAbort);
+    };
+    const onAbort = () => {
+      settled();
+      resolve(STOPPED);
+    };
+    signal.addEventListener('abort', onAbort, { once: true });
+    if (ms > 0 && ms < 2 ** 31) {
+      timer = setTimeout(() => {
+        const stalled = new FetchError(`${url}: no bytes came for ${ms / 1000} s (stallTimeout): the request was aborted`,
+          { url });
+        reject(stalled); // before the abort, whose STOPPED comes too late
+        net.abort(stalled);
+      }, ms);
+    }
+    promise.then(resolve, (e) => (signal.aborted ? resolve(STOPPED) : reject(networkError(url, e)))).finally(settled);
   });
+}
+
+/**
+ * The body of the answer `res`, read piece by piece (each read one wait: the stall timeout bounds the time between
+ * bytes, not the whole body), at most `limit` bytes (more is cancelled, unread); STOPPED when aborted meanwhile.
+ */
+async function readBody(res, net, url, limit) {
+  if (!res.body?.getReader) { // a fetch of the caller's whose answers have no body stream: one wait
+    const body = await guard(res.arrayBuffer(), net, url);
+    return body === STOPPED ? body : new Uint8Array(body, 0, Math.min(body.byteLength, limit));
+  }
+  const reader = res.body.getReader();
+  const pieces = [];
+  let length = 0;
+  let done = false;
+  try {
+    while (length <= limit) { // the read after `limit` bytes ends the body, or brings bytes not asked for
+      const next = await guard(reader.read(), net, url);
+      if (next === STOPPED) return STOPPED;
+      if (next.done) {
+        done = true;
+        break;
+      }
+      pieces.push(next.value);
+      length += next.value.length;
+    }
+  } finally {
+    if (!done) reader.cancel().catch(() => {});
+  }
+  if (pieces.length === 1 && length <= limit) return pieces[0];
+  const body = new Uint8Array(Math.min(length, limit));
+  let at = 0;
+  for (const piece of pieces) {
+    body.set(piece.subarray(0, body.length - at), at);
+    at += Math.min(piece.length, body.length - at);
+  }
+  return body;
 }
 
 /** A failure of fetch() or of reading a body (TypeError: terminated, network error...) as a FetchError. */
@@ -380,17 +455,17 @@ function contentRange(res) {
  * The bytes [start, stop) of `url` by Range requests, block by block as the answers come: a server may answer
  * with fewer bytes than asked (RFC 9110 §14.4), and the rest is then asked for, so the blocks fall short of
  * `stop` only when the file ends first (a 416, an empty answer, or the size its Content-Range gives). `first`:
- * the answer to a request for [start, stop) already made. Ends quietly when `signal` aborts; an answer other than
+ * the answer to a request for [start, stop) already made. Ends quietly when `net.signal` aborts; an answer other than
  * 206/416, a Content-Range starting elsewhere, or a failed request is a FetchError. `count.requests` counts the
  * requests made here.
  */
-async function* rangeBlocks(fetchFn, url, start, stop, signal, count, first) {
+async function* rangeBlocks(fetchFn, url, start, stop, net, count, first) {
   let at = start;
   while (at < stop) {
     let res = first;
     first = undefined;
     if (!res) {
-      res = await guard(fetchFn(url, { headers: { Range: `bytes=${at}-${stop - 1}` }, signal }), signal, url);
+      res = await guard(fetchFn(url, { headers: { Range: `bytes=${at}-${stop - 1}` }, signal: net.signal }), net, url);
       if (res === STOPPED) return;
       count.requests++;
     }
@@ -403,9 +478,8 @@ async function* rangeBlocks(fetchFn, url, start, stop, signal, count, first) {
     if (span && span.first !== at) {
       throw httpError(url, res, `: its Content-Range (${res.headers.get('Content-Range')}) does not answer bytes ${at}-${stop - 1}`);
     }
-    const body = await guard(res.arrayBuffer(), signal, url);
-    if (body === STOPPED) return;
-    const block = new Uint8Array(body, 0, Math.min(body.byteLength, stop - at));
+    const block = await readBody(res, net, url, stop - at);
+    if (block === STOPPED) return;
     if (!block.length) return; // nothing past `at`: the file ends there
     at += block.length;
     yield block;
@@ -419,7 +493,7 @@ async function* continueReader(prefix, reader, run, url) {
   try {
     if (prefix?.length) yield* withinLimit(prefix, run);
     while (!run.stopped && run.decoder.received < run.byteLimit()) {
-      const next = await guard(reader.read(), run.controller.signal, url);
+      const next = await guard(reader.read(), run.net, url);
       if (next === STOPPED) return;
       if (next.done) { done = true; return; }
       run.bytesFetched += next.value.length;
@@ -437,22 +511,70 @@ function* withinLimit(piece, run) {
     const room = run.byteLimit() - run.decoder.received;
     if (room <= 0) return;
     const part = rest.subarray(0, room);
-    rest = rest.subarray(part.length); // before the yield: a part fed to a worker may take its buffer with it
+    rest = rest.subarray(part.length);
     yield part;
+  }
+}
+
+/**
+ * The whole .pmw three.js parsed, when it holds it (GLTFLoader.load downloaded it, or parse() was given it): its
+ * JSON text and BIN chunk, which three.js keeps (parser.extensions.KHR_binary_glTF; the file's own bytes are not
+ * kept). {head, bin}: the bytes before the BIN data, rebuilt (the JSON text encoded again, a byte order mark its
+ * TextDecoder dropped put back), and the BIN data: the file's bytes, as the head has the length the file's header
+ * leaves the JSON. null when three.js holds less than the stream: no BIN, a BIN short of the buffer the JSON
+ * declares (a base cut before the chunks, as loadProgressive's), or JSON text that does not encode back to its
+ * chunk's bytes for sure (of another length, or holding U+FFFD); the plugin then reads the stream from its url.
+ */
+function heldFile(parser) {
+  const glb = parser.extensions?.KHR_binary_glTF;
+  if (!(glb?.body instanceof ArrayBuffer) || typeof glb.content !== 'string' || glb.header?.version !== 2) return null;
+  const bin = new Uint8Array(glb.body);
+  if (!(bin.length >= parser.json.buffers?.[0]?.byteLength)) return null;
+  // U+FFFD: maybe invalid UTF-8 three.js' TextDecoder replaced (a format error the stream read again refuses)
+  if (glb.content.includes('\uFFFD')) return null;
+  const jsonLength = glb.header.length - 28 - bin.length;
+  let json = new TextEncoder().encode(glb.content);
+  if (json.length + 3 === jsonLength) {
+    const marked = new Uint8Array(jsonLength);
+    marked.set([0xef, 0xbb, 0xbf]);
+    marked.set(json, 3);
+    json = marked;
+  }
+  return json.length === jsonLength ? { head: glbHead(json, bin.length, glb.header.version), bin } : null;
+}
+
+/**
+ * The file three.js holds (heldFile) in the pieces Range requests would bring: the head in two (the preamble,
+ * then the rest), the base, each chunk, within the run's byte limit. No copy: views of the head and of three.js'
+ * BIN (the decoder copies what it is fed).
+ */
+function* heldPieces({ head, bin }, run) {
+  const total = head.length + bin.length;
+  let start = 0;
+  for (const end of rangeEnds(run, head.length)) {
+    while (start < Math.min(end, total)) {
+      const stop = Math.min(end, total, run.byteLimit());
+      if (run.stopped || stop <= start) return;
+      const piece = start < head.length ? head.subarray(start, Math.min(stop, head.length))
+        : bin.subarray(start - head.length, stop - head.length);
+      start += piece.length;
+      yield piece;
+    }
   }
 }
 
 /** The file at `url`: by Range requests (when allowed and honoured), else one streamed GET. */
 async function* readStream(url, fetchFn, range, run, prefix) {
   if (!url) throw new TypeError('PMWMProgressivePlugin: no url to read the stream from (options.url)');
-  const { signal } = run.controller;
+  const { net } = run;
   let start = 0;
   if (prefix?.length) {
     yield* withinLimit(prefix, run);
     start = prefix.length;
   } else {
     if (run.stopped) return;
-    const first = await guard(fetchFn(url, range ? { headers: { Range: 'bytes=0-19' }, signal } : { signal }), signal, url);
+    const { signal } = net;
+    const first = await guard(fetchFn(url, range ? { headers: { Range: 'bytes=0-19' }, signal } : { signal }), net, url);
     if (first === STOPPED) return;
     run.requests++;
     if (!first.ok) throw httpError(url, first);
@@ -460,8 +582,8 @@ async function* readStream(url, fetchFn, range, run, prefix) {
       yield* continueReader(null, first.body.getReader(), run, url);
       return;
     }
-    for await (const block of rangeBlocks(fetchFn, url, 0, 20, signal, run, first)) {
-      const got = block.length; // a piece yielded may be transferred to the decode worker (then empty here)
+    for await (const block of rangeBlocks(fetchFn, url, 0, 20, net, run, first)) {
+      const got = block.length;
       run.bytesFetched += got;
       start += got;
       yield block;
@@ -473,7 +595,7 @@ async function* readStream(url, fetchFn, range, run, prefix) {
     if (end <= start) continue;
     const stop = Math.min(end, run.byteLimit());
     if (stop <= start) return;
-    for await (const block of rangeBlocks(fetchFn, url, start, stop, signal, run)) {
+    for await (const block of rangeBlocks(fetchFn, url, start, stop, net, run)) {
       const got = block.length;
       run.bytesFetched += got;
       start += got;
@@ -506,7 +628,7 @@ function headerEndOf(run) {
  * PMWMProgressivePlugin registered for this load only then refines it from the rest (not fetched twice).
  * Do not also register the plugin on `loader` yourself. Options as PMWMProgressivePlugin's. A GLB
  * without the extension loads whole, as it is; a file that ends before those bytes is a TruncatedError;
- * an HTTP error or a failed request a FetchError. `options.signal` (an AbortSignal): aborted before this
+ * an HTTP error, a failed or stalled request (`options.stallTimeout`) a FetchError. `options.signal` (an AbortSignal): aborted before this
  * resolves, it rejects with `signal.reason` (as fetch() does; an AbortError DOMException unless the caller
  * gave another reason); aborted later, it stops the run as `gltf.userData.pmwm.stop()` does.
  * @param {string|URL} href the .pmw's URL
@@ -522,6 +644,7 @@ export async function loadProgressive(loader, href, options = {}) {
     ? LoaderUtils.resolveURL(LoaderUtils.extractUrlBase(given), loader.path) : LoaderUtils.extractUrlBase(given)));
   // aborts every request of this load, those of its run included (the run's stop() aborts it too)
   const controller = new AbortController();
+  const net = network(controller, options.stallTimeout);
   const onAbort = () => controller.abort(signal.reason);
   signal?.addEventListener('abort', onAbort, { once: true });
   const baseFetch = options.fetch ?? globalThis.fetch.bind(globalThis);
@@ -554,13 +677,12 @@ export async function loadProgressive(loader, href, options = {}) {
   };
   /** Range requests for the bytes up to `end` (short answers: the rest asked for), while the file lasts. */
   const getRange = async (end, first) => {
-    for await (const block of rangeBlocks(fetchFn, url, prefix.length, end, controller.signal, stats, first)) append(block);
+    for await (const block of rangeBlocks(fetchFn, url, prefix.length, end, net, stats, first)) append(block);
   };
   let reader = null;
   let gltf;
   try {
-    const res = await guard(fetchFn(url, options.range === false ? {} : { headers: { Range: 'bytes=0-19' } }),
-      controller.signal, url);
+    const res = await guard(fetchFn(url, options.range === false ? {} : { headers: { Range: 'bytes=0-19' } }), net, url);
     if (res === STOPPED) throw signal.reason;
     stats.requests++;
     if (!res.ok) throw httpError(url, res);
@@ -571,7 +693,7 @@ export async function loadProgressive(loader, href, options = {}) {
     } else {
       reader = res.body.getReader();
       while (prefix.length < needed()) {
-        const next = await guard(reader.read(), controller.signal, url);
+        const next = await guard(reader.read(), net, url);
         if (next === STOPPED || next.done) break;
         append(next.value);
       }

@@ -6,8 +6,9 @@
  * planDocument as PmwDecoder) and decides: a worker when `worker` is true, or when it is 'auto' and the
  * header's full vertex count (all progressive primitives) exceeds `workerThreshold`; else, or when no
  * worker starts (no `Worker` global as in Node, a blocked or missing script), a PmwDecoder on the main
- * thread: the same results either way. With a worker, every fed piece is posted (its ArrayBuffer
- * transferred unless listed in `keep`) and each level comes back as `result.mesh.parts[p]`
+ * thread: the same results either way. feed() copies its bytes before it returns, as PmwDecoder.feed does (the
+ * caller may reuse its buffer at once); with a worker, that copy is posted (its ArrayBuffer transferred, never the
+ * caller's) and each level comes back as `result.mesh.parts[p]`
  * `{positions (n*3) Float32Array, indices (m*3) Uint32Array, attributes {semantic: Float32Array}}`
  * (transferred); a failure comes back as the same named error (errors.js class, message, fields).
  *
@@ -16,7 +17,7 @@
  * inside workers, so when that worker fails to load, its module graph is loaded again as blob: URLs
  * with bare names ('hash-wasm', 'zstddec') resolved by the page (`import.meta.resolve`).
  */
-import { PmwDecoder } from './decoder.js';
+import { asBytes, PmwDecoder } from './decoder.js';
 import * as errors from './errors.js';
 import { FormatError } from './errors.js';
 import { checkPreamble, parseGlb, planDocument, preambleLength } from './header.js';
@@ -57,7 +58,7 @@ export function dracoFromBases(bases) {
  * A PmwDecoder (snapshots on: every result carries its level's `mesh`) or, unless `worker` is false or
  * there is no Worker, a WorkerDecoder.
  * @param {{bases: object[], maxChunks?: number, worker?: 'auto'|boolean, workerThreshold?: number,
- *   workerUrl?: string|URL, keep?: ArrayBuffer[]}} options
+ *   workerUrl?: string|URL}} options
  */
 export function createDecoder(options) {
   if (options.worker === false || typeof globalThis.Worker !== 'function') return localDecoder(options);
@@ -96,20 +97,30 @@ export class WorkerDecoder {
   /** Whether decoding runs in a worker (false until the header decided it). */
   get inWorker() { return this.worker !== null; }
 
-  /** Appends `bytes`; resolves to the results that became available (as PmwDecoder.feed). */
+  /**
+   * Appends `bytes` (as PmwDecoder.feed: a Uint8Array, ArrayBuffer, typed array or DataView, copied before this
+   * returns, so the caller may reuse its buffer at once; else a TypeError); resolves to the results that became
+   * available.
+   */
   feed(bytes) {
-    const run = this.queue.then(() => this.#feed(bytes));
+    let piece;
+    try {
+      piece = asBytes(bytes).slice(); // the feeds queue: the caller's bytes may have changed by the time this one runs
+    } catch (e) {
+      return Promise.reject(e);
+    }
+    const run = this.queue.then(() => this.#feed(piece));
     this.queue = run.catch(() => {});
     return run;
   }
 
+  /** `bytes`: feed()'s own copy (its buffer is transferred to the worker). */
   async #feed(bytes) {
     if (this.local) return this.local.feed(bytes);
     if (this.failed) throw this.failed;
     if (this.worker) {
       this.#received += bytes.length;
-      const keep = (this.options.keep ?? []).includes(bytes.buffer);
-      return this.#post({ type: 'feed', bytes }, keep ? [] : [bytes.buffer]);
+      return this.#post({ type: 'feed', bytes }, [bytes.buffer]);
     }
     const data = this.#append(bytes);
     if (data.length >= 20) checkPreamble(data); // as PmwDecoder: a JSON chunk over the limit is refused before it is buffered

@@ -1,7 +1,8 @@
 // The three.js plugin when things go wrong: a corrupt chunk (the levels before it stay drawn and reported),
 // stop() and AbortSignal (prompt, the drawn level kept), short 206 answers (the rest asked for), HTTP and
-// network failures (FetchError), a registered plugin whose url holds another document (StreamMismatchError),
-// and callbacks of the caller's that throw.
+// network failures (FetchError), a registered plugin whose url holds another document (StreamMismatchError, when
+// three.js parsed only a base; a whole file refines from its own bytes),
+// a server that stalls (stallTimeout: FetchError), and callbacks of the caller's that throw.
 import assert from 'node:assert/strict';
 import fs from 'node:fs';
 import os from 'node:os';
@@ -10,7 +11,7 @@ import { after, before, test } from 'node:test';
 import { GLTFLoader } from 'three/examples/jsm/loaders/GLTFLoader.js';
 import { parseGlb, planDocument } from '../src/header.js';
 import { CorruptChunkError, decodePmw, FetchError, FormatError, PmwError, StreamMismatchError } from '../src/index.js';
-import { loadProgressive, PMWMProgressivePlugin } from '../src/three-plugin.js';
+import { baseGlb, loadProgressive, PMWMProgressivePlugin, STALL_TIMEOUT_MS } from '../src/three-plugin.js';
 import { CONFORMANCE } from './lib/helpers.js';
 import { startServer } from './lib/server.js';
 
@@ -20,7 +21,12 @@ const bytes = new Uint8Array(fs.readFileSync(path.join(CONFORMANCE, NAME)));
 const { binStart, binLength, gltf: json } = parseGlb(bytes);
 const stream = planDocument(json, binLength).stream;
 const K = stream.length;
-const baseEnd = binStart + stream[0].offset; // the bytes before the first chunk
+/** The length of the bytes of a .pmw before its first chunk. */
+function endOfBase(file) {
+  const header = parseGlb(file);
+  return header.binStart + planDocument(header.gltf, header.binLength).stream[0].offset;
+}
+const baseEnd = endOfBase(bytes);
 let tmp;
 const servers = {};
 
@@ -144,11 +150,13 @@ test('Range answers shorter than asked: the rest is asked for, the load complete
     assert.equal(outcome.bytesFetched, bytes.length, `cap ${cap}`);
     assert.deepEqual(drawn(gltf).positions, full.positions, `cap ${cap}`);
   }
-  // a registered plugin reading by Range (three.js has the whole file)
+  // a registered plugin reading by Range (three.js parsed only the base: the stream is read from the url)
   const loader = new GLTFLoader();
   loader.register((parser) => new PMWMProgressivePlugin(parser, { url: `${servers.ranges.url}${NAME}?cap=500` }));
-  const gltf = await loader.parseAsync(bytes.slice().buffer, '');
-  assert.equal((await gltf.userData.pmwm.done).chunksApplied, K);
+  const gltf = await loader.parseAsync(baseGlb(bytes.subarray(0, baseEnd)).buffer, '');
+  const outcome = await gltf.userData.pmwm.done;
+  assert.equal(outcome.chunksApplied, K);
+  assert.equal(outcome.bytesFetched, bytes.length);
 });
 
 test('HTTP errors and network failures are FetchError (status, url, cause), not FormatError or a raw TypeError', async () => {
@@ -170,20 +178,65 @@ test('HTTP errors and network failures are FetchError (status, url, cause), not 
   await assert.rejects(loadProgressive(new GLTFLoader(), 'http://127.0.0.1:1/x.pmw'), FetchError);
 });
 
-test('a plugin registered with a fixed url refuses to refine another document with that url\'s stream', async () => {
+test('a registered plugin with a fixed url refines a whole file from its own bytes, a base from the url if the same document', async () => {
   const url = servers.ranges.url + NAME;
   const loader = new GLTFLoader();
   loader.register((parser) => new PMWMProgressivePlugin(parser, { url }));
-  const first = await loader.parseAsync(bytes.slice().buffer, ''); // three.js read the whole file itself
+  const requests = servers.ranges.stats.requests;
+  const first = await loader.parseAsync(bytes.slice().buffer, ''); // three.js holds the whole file
   assert.equal((await first.userData.pmwm.done).complete, true);
   const otherBytes = new Uint8Array(fs.readFileSync(path.join(tmp, OTHER)));
-  const other = await loader.parseAsync(otherBytes.slice().buffer, ''); // another file, the same loader
+  const whole = await loader.parseAsync(otherBytes.slice().buffer, ''); // another whole file, the same loader
+  assert.equal((await whole.userData.pmwm.done).complete, true);
+  assert.deepEqual(drawn(whole).positions, (await decodePmw(otherBytes)).positions);
+  assert.equal(servers.ranges.stats.requests, requests, 'the stream of a whole file is not read from the url');
+  // three.js given only the other file's base: its stream is read from the url, which holds another document
+  const other = await loader.parseAsync(baseGlb(otherBytes.subarray(0, endOfBase(otherBytes))).buffer, '');
   const before = theMesh(other).geometry.getAttribute('position').array.slice();
   await assert.rejects(other.userData.pmwm.done, (e) => e instanceof StreamMismatchError && e.url === url);
   const g = theMesh(other).geometry;
   assert.equal(g.userData.pmwmLevel, undefined, 'no level of the other stream was drawn');
   assert.deepEqual(g.getAttribute('position').array, before, 'left as three.js loaded it');
   assert.equal(g.getAttribute('position').count, (await decodePmw(otherBytes, { chunks: 0 })).positions.length / 3);
+});
+
+test('a server that stops sending (connection open, no bytes) fails the load after stallTimeout with a FetchError naming the URL and the seconds, the levels decoded kept',
+  async () => {
+    const chunkEnd = (k) => binStart + stream[k - 1].offset + stream[k - 1].length;
+    const cases = [ // [server, the file's bytes sent before the stall, the level then drawn]
+      ['plain', baseEnd + 200, 0], // a streamed GET: in chunk 1
+      ['ranges', chunkEnd(2) + 10, 2], // Range requests: in the request for chunk 3
+    ];
+    for (const [kind, stall, level] of cases) {
+      const url = `${servers[kind].url}${NAME}?stall=${stall}`;
+      const expected = await decodePmw(bytes, { chunks: level });
+      const chunks = [];
+      const gltf = await loadProgressive(new GLTFLoader(), url, { stallTimeout: 300, onChunk: (e) => chunks.push(e.chunk) });
+      const t0 = Date.now();
+      const out = await settle(gltf.userData.pmwm.done, 5000);
+      assert.notEqual(out, 'pending', `${kind}: done did not settle on a stalled stream`);
+      assert.ok(Date.now() - t0 < 3000, kind);
+      const e = out.error;
+      assert.ok(e instanceof FetchError && e.url === url && e.status === undefined, `${kind}: ${e}`);
+      assert.ok(e.message.includes(url) && e.message.includes('0.3 s'), e.message);
+      assert.deepEqual(chunks, [...Array(level)].map((_, i) => i + 1), kind);
+      assert.deepEqual(drawn(gltf).positions, expected.positions, kind);
+    }
+    // stalled before the base is in: loadProgressive itself rejects
+    const early = `${servers.plain.url}${NAME}?stall=100`;
+    const res = await settle(loadProgressive(new GLTFLoader(), early, { stallTimeout: 300 }), 5000);
+    assert.ok(res.error instanceof FetchError && res.error.url === early && res.error.message.includes('0.3 s'), String(res.error));
+  });
+
+test('stallTimeout defaults to 30 s, 0 waits for ever (until stop()), and anything but a number >= 0 is a RangeError', async () => {
+  assert.equal(STALL_TIMEOUT_MS, 30000);
+  const gltf = await loadProgressive(new GLTFLoader(), `${servers.plain.url}${NAME}?stall=${baseEnd + 200}`, { stallTimeout: 0 });
+  assert.equal(await settle(gltf.userData.pmwm.done, 800), 'pending');
+  gltf.userData.pmwm.stop();
+  assert.equal((await gltf.userData.pmwm.done).stopped, true);
+  for (const stallTimeout of [-1, NaN, '30000', null]) {
+    await assert.rejects(loadProgressive(new GLTFLoader(), servers.ranges.url + NAME, { stallTimeout }), RangeError);
+  }
 });
 
 test('a callback that throws is reported (onCallbackError) and the load goes on to the full mesh', async () => {

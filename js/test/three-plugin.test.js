@@ -7,13 +7,18 @@ import { after, before, test } from 'node:test';
 import { fileURLToPath } from 'node:url';
 import { GLTFLoader } from 'three/examples/jsm/loaders/GLTFLoader.js';
 import { parseGlb, planDocument } from '../src/header.js';
-import { decodePmw, LimitError, MAX_JSON_BYTES, PmwDecoder, TruncatedError } from '../src/index.js';
+import { decodePmw, FormatError, LimitError, MAX_JSON_BYTES, PmwDecoder, TruncatedError } from '../src/index.js';
 import { BufferAttribute, BufferGeometry, LoadingManager } from 'three';
 import { loadProgressive, PMWMProgressivePlugin, ProgressiveRun, refreshGeometry } from '../src/three-plugin.js';
 import { dracoFromBases, WorkerDecoder } from '../src/worker-decoder.js';
 import { encodeCase, python } from './lib/python.js';
 import { glb, withJson } from './lib/rewrite.js';
 import { startServer } from './lib/server.js';
+
+// three.js' FileLoader (GLTFLoader.load) reports progress with ProgressEvent, which Node lacks
+globalThis.ProgressEvent ??= class ProgressEvent extends Event {
+  constructor(type, init = {}) { super(type); Object.assign(this, init); }
+};
 
 const conformance = path.resolve(path.dirname(fileURLToPath(import.meta.url)), '../../spec/conformance');
 const NAME = 'sphere-attributes.plain.v1.pmw'; // plain base (no Draco), attributes, 10 chunks
@@ -196,6 +201,52 @@ test('a byte budget below the base mesh shows the base as level 0 and applies no
       assert.equal(theMesh(gltf).geometry.userData.pmwmLevel.vertices, base.positions.length / 3, kind);
     }
   }
+});
+
+test('a registered plugin refines from the file GLTFLoader.load downloaded: one request, the file served once', async () => {
+  const full = await decodePmw(bytes);
+  const two = await decodePmw(bytes, { chunks: 2 });
+  for (const kind of ['ranges', 'plain']) {
+    for (const options of [{}, { maxChunks: 2 }]) {
+      const server = servers[kind];
+      const [requests, served] = [server.stats.requests, server.stats.bytes];
+      const url = server.url + NAME;
+      const chunks = [];
+      const loader = new GLTFLoader();
+      loader.register((parser) => new PMWMProgressivePlugin(parser, { ...options, url, onChunk: (e) => chunks.push(e.chunk) }));
+      const gltf = await loader.loadAsync(url);
+      const outcome = await gltf.userData.pmwm.done;
+      const what = `${kind} ${JSON.stringify(options)}`;
+      const want = options.maxChunks ? two : full;
+      assert.equal(outcome.chunksApplied, want.chunksApplied, what);
+      assert.equal(outcome.complete, !options.maxChunks, what);
+      assert.deepEqual(chunks, [...Array(want.chunksApplied)].map((_, i) => i + 1), what);
+      const g = theMesh(gltf).geometry;
+      assert.deepEqual(g.getAttribute('position').array.subarray(0, want.positions.length), want.positions, what);
+      assert.deepEqual(g.index.array.subarray(0, g.drawRange.count), want.indices, what);
+      assert.equal(server.stats.requests - requests, 1, `${what}: GLTFLoader's request only`);
+      assert.equal(server.stats.bytes - served, bytes.length, `${what}: the file served once`);
+      assert.deepEqual([outcome.requests, outcome.bytesFetched], [0, 0], `${what}: the plugin fetched nothing`);
+    }
+  }
+  // a JSON chunk led by a byte order mark (three.js' TextDecoder drops it): the bytes rebuilt keep it, so the
+  // stream is refused as the file is (spec/README.md, Conformance), and still nothing is fetched again
+  const J = new DataView(bytes.buffer).getUint32(12, true);
+  const json = new Uint8Array(J + 4).fill(0x20);
+  json.set([0xef, 0xbb, 0xbf, ...bytes.subarray(20, 20 + J)]);
+  const marked = new Uint8Array(bytes.length + 4);
+  marked.set(bytes.subarray(0, 20));
+  marked.set(json, 20);
+  marked.set(bytes.subarray(20 + J), 24 + J);
+  new DataView(marked.buffer).setUint32(8, marked.length, true);
+  new DataView(marked.buffer).setUint32(12, J + 4, true);
+  await serving({ 'marked.pmw': marked }, async (server) => {
+    const loader = new GLTFLoader();
+    loader.register((parser) => new PMWMProgressivePlugin(parser, { url: `${server.url}marked.pmw` }));
+    const gltf = await loader.loadAsync(`${server.url}marked.pmw`);
+    await assert.rejects(gltf.userData.pmwm.done, (e) => e instanceof FormatError && /not valid UTF-8 JSON/.test(e.message));
+    assert.equal(server.stats.requests, 1);
+  });
 });
 
 test('a progressive mesh the scene leaves out is decoded in order, and each shown mesh gets its own primitive\'s levels',

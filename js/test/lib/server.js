@@ -4,7 +4,8 @@
 // URL prefixes ({'/data/': dir}: /data/x is dir/x). Per request, query parameters of a .pmw's URL:
 // `cap=N` answers a Range request with at most N bytes (a short 206, as RFC 9110 allows), `fail=K` answers
 // the K-th request for that URL (path and query) with HTTP 500, `cut=N` drops the connection after N bytes
-// of a whole (200) answer, `stall=N` sends N bytes of a whole answer (at most all but one) and then nothing more (never ends).
+// of a whole (200) answer, `stall=N` sends N bytes of a whole answer (at most all but one) and then nothing more (never ends),
+// and of a Range answer reaching past byte N of the file, the bytes before byte N and then nothing more.
 import fs from 'node:fs';
 import http from 'node:http';
 import path from 'node:path';
@@ -34,6 +35,7 @@ export async function startServer(root, { ranges = true, delayMs = 0, mounts = {
     const type = TYPES[path.extname(file)] ?? 'application/octet-stream';
     const m = ranges && /^bytes=(\d*)-(\d*)$/.exec(req.headers.range ?? '');
     let body = data;
+    let from = 0; // the offset in the file of the body's first byte
     if (m && (m[1] || m[2])) {
       let start = m[1] === '' ? Math.max(0, data.length - Number(m[2])) : Number(m[1]);
       let end = m[1] === '' || m[2] === '' ? data.length : Math.min(Number(m[2]) + 1, data.length);
@@ -42,15 +44,19 @@ export async function startServer(root, { ranges = true, delayMs = 0, mounts = {
         res.writeHead(416, { 'Content-Range': `bytes */${data.length}`, 'Content-Length': 0 }); res.end(); return;
       }
       body = data.subarray(start, end);
+      from = start;
       res.writeHead(206, { 'Content-Type': type, 'Content-Length': body.length, 'Accept-Ranges': 'bytes',
         'Content-Range': `bytes ${start}-${end - 1}/${data.length}`, 'Cache-Control': 'no-store' });
     } else {
       res.writeHead(200, { 'Content-Type': type, 'Content-Length': body.length, 'Cache-Control': 'no-store' });
     }
     if (file.endsWith('.pmw')) { stats.bytes += body.length; stats.log.push(req.headers.range ?? 'whole'); }
-    const only = body === data ? query.get('cut') ?? query.get('stall') : null; // a whole answer, cut or stalled
+    const stall = query.get('stall');
+    let only = body === data ? query.get('cut') ?? stall : null; // a whole answer, cut or stalled
+    if (only !== null) only = Math.min(Number(only), body.length - 1); // never the whole body: it never ends
+    else if (stall !== null && from + body.length > Number(stall)) only = Math.max(0, Number(stall) - from); // a Range answer
     if (only !== null) {
-      res.write(body.subarray(0, Math.min(Number(only), body.length - 1))); // never the whole body: it never ends
+      res.write(body.subarray(0, only));
       if (query.get('cut')) setTimeout(() => res.socket?.destroy(), 20); // else: stalls until closed
       return;
     }
