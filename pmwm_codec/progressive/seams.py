@@ -504,6 +504,8 @@ def within_budget(cost_single, cost_pair, budget: int) -> tuple:
     index arrays: the longest prefix of all units in cost order (stable, singles first on
     ties) whose vertex count stays within ``budget``.
     """
+    if len(cost_single) + 2 * len(cost_pair) <= budget:  # everything fits: no order to find
+        return np.arange(len(cost_single)), np.arange(len(cost_pair))
     cost = np.concatenate([cost_single, cost_pair])
     size = np.r_[np.ones(len(cost_single), np.int64), np.full(len(cost_pair), 2, np.int64)]
     order = np.argsort(cost, kind="stable")
