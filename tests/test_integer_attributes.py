@@ -85,3 +85,45 @@ def test_integers_float32_cannot_hold_are_not_made_progressive_the_encoder_says_
     _asset(tmp_path / "big.glb", ids, UNSIGNED_INT)
     with pytest.raises(Exception, match="no triangle primitive.*_FEATURE_ID_0 holds integers beyond 16,777,216"):
         encode_asset(tmp_path / "big.glb", tmp_path / "big.pmw", measure=False)
+
+
+def test_a_draco_input_keeps_its_integer_and_normalized_attributes_as_its_accessors_declare(tmp_path):
+    """Draco stores an integer attribute's raw integers: a normalized UNSIGNED_BYTE colour came back as FLOAT
+    values up to 255 (a viewer clamps them: white) and feature ids as FLOATs like 4.9998; now the colour is
+    mapped to [0, 1] as its accessor says, and the ids stay exact integers of their componentType."""
+    import DracoPy
+
+    mesh = shapes.icosphere(3, 1.0, noise=0.02)
+    n = mesh.vertex_count
+    ids = (np.arange(n) % 7).astype(np.uint16)
+    colour = np.random.default_rng(1).integers(0, 256, (n, 3)).astype(np.uint8)
+    data = DracoPy.encode(mesh.positions.astype(np.float32), mesh.faces.astype(np.uint32), quantization_bits=16,
+                          colors=colour, generic_attributes={1: ids.reshape(-1, 1)}, preserve_order=True)
+    unique = {a["attribute_type"]: a["unique_id"] for a in DracoPy.decode(data).attributes}  # 0 position, 2 colour, 4 generic
+    data += bytes(padded(len(data)) - len(data))
+    doc = {
+        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+        "extensionsUsed": ["KHR_draco_mesh_compression"], "extensionsRequired": ["KHR_draco_mesh_compression"],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "COLOR_0": 1, "_FEATURE_ID_0": 2}, "indices": 3,
+                                    "extensions": {"KHR_draco_mesh_compression": {"bufferView": 0, "attributes": {
+                                        "POSITION": unique[0], "COLOR_0": unique[2], "_FEATURE_ID_0": unique[4]}}}}]}],
+        "accessors": [
+            {"componentType": FLOAT, "count": n, "type": "VEC3", "min": mesh.positions.min(0).tolist(),
+             "max": mesh.positions.max(0).tolist()},
+            {"componentType": UNSIGNED_BYTE, "normalized": True, "count": n, "type": "VEC3"},
+            {"componentType": UNSIGNED_SHORT, "count": n, "type": "SCALAR"},
+            {"componentType": UNSIGNED_INT, "count": mesh.faces.size, "type": "SCALAR"}],
+        "bufferViews": [{"buffer": 0, "byteLength": len(data)}], "buffers": [{"byteLength": len(data)}],
+    }
+    (tmp_path / "draco.glb").write_bytes(b"".join(glb_parts(doc, [data], len(data))))
+    encode_asset(tmp_path / "draco.glb", tmp_path / "draco.pmw", measure=False)
+    glb, _, _ = decode_asset(tmp_path / "draco.pmw")
+    (tmp_path / "out.glb").write_bytes(glb)
+    out, buffers = load_document(tmp_path / "out.glb")
+    prim = out["meshes"][0]["primitives"][0]
+    _, vertex = cKDTree(mesh.positions).query(read_accessor(out, buffers, prim["attributes"]["POSITION"]))
+    acc = out["accessors"][prim["attributes"]["_FEATURE_ID_0"]]
+    assert acc["componentType"] == UNSIGNED_SHORT
+    assert np.array_equal(read_accessor(out, buffers, prim["attributes"]["_FEATURE_ID_0"])[:, 0], ids[vertex])
+    got = read_accessor(out, buffers, prim["attributes"]["COLOR_0"])
+    assert np.abs(got - colour[vertex] / 255.0).max() < 1e-3

@@ -738,6 +738,20 @@ def _sparse_part(gltf, buffers, part, dtype, n, width, what):
     return np.frombuffer(raw, dtype=dtype, count=n * width, offset=offset).reshape(n, width)
 
 
+def as_declared(gltf: dict, index: int, values: np.ndarray) -> np.ndarray:
+    """Integer ``values`` (count, width) of accessor ``index`` decoded elsewhere (a Draco attribute's raw
+    integers) as :func:`read_accessor` gives that accessor: float64 for FLOAT or normalized data (mapped to
+    [0, 1] / [-1, 1] as the glTF specification says), int64 for integer data."""
+    try:
+        acc = gltf["accessors"][index]
+        ctype = acc["componentType"]
+    except (KeyError, IndexError, TypeError):
+        ctype = None
+    if ctype not in COMPONENT_DTYPES:
+        raise InputFormatError(f"accessor {index}: malformed")
+    return _normalized(values, ctype, _normalized_flag(acc, f"accessors[{index}]"))
+
+
 def _normalized(values, ctype, normalized):
     if ctype == FLOAT:
         return values.astype(np.float64)

@@ -52,7 +52,7 @@ import numpy as np
 
 from ..constants import EXTENSION_NAME
 from ..errors import DegenerateMeshError, InputFormatError, MeshError, PmwError
-from ..format.document import view_sites
+from ..format.document import as_declared, view_sites
 from ..format.document import (check_document, is_progressive, label_images, load_document, progressive_refusal,
                                read_accessor, repack)
 from ..format.document import strip_image_profiles as _strip_profiles
@@ -316,8 +316,16 @@ def _draco_arrays(gltf, buffers, prim, draco) -> tuple:
         attribute = decoded.get_attribute_by_unique_id(ids[semantic])
         if attribute is None:
             raise InputFormatError(f"Draco data has no attribute {ids[semantic]} for {semantic}")
-        data = np.asarray(attribute["data"], dtype=np.float64)
-        values[semantic] = data.reshape(len(data), -1)
+        data = np.asarray(attribute["data"])
+        data = data.reshape(len(data), -1)
+        if semantic != "POSITION" and np.issubdtype(data.dtype, np.integer):
+            # Draco keeps an integer attribute's raw integers: normalized ones (colours as UNSIGNED_BYTE) are
+            # mapped as the accessor says, and exact integers (feature ids) stay integers
+            data = as_declared(gltf, prim["attributes"][semantic], data)
+        if np.issubdtype(data.dtype, np.integer):
+            values[semantic] = _integer_values(gltf, prim["attributes"][semantic], data, semantic)
+        else:
+            values[semantic] = data.astype(np.float64)
     faces = np.asarray(decoded.faces, dtype=np.int64).reshape(-1, 3)
     positions = values.pop("POSITION")
     return positions, faces, values
