@@ -13,26 +13,28 @@ The public API (DESIGN.md §5)::
 from __future__ import annotations
 
 import os
-from typing import TYPE_CHECKING, Any, BinaryIO, Union
-
-import numpy as np
 
 from .errors import PmwError
-from .mesh import Mesh, checked_mesh, read_mesh
-from .sources import Source
 
-#: What :func:`encode` reads: a mesh file (OBJ, PLY, STL, glTF/GLB) or glTF asset path, a :class:`Mesh`,
-#: or an in-memory glTF asset ``(gltf dict, list of buffers)``.
-MeshSource = Union[str, "os.PathLike[str]", Mesh, tuple]
-#: Where :func:`encode` writes: a path or a binary file object.
-Destination = Union[str, "os.PathLike[str]", BinaryIO]
-#: A watermark image: a path (PNG ...) or a square (s, s) array.
-WatermarkImage = Union[str, "os.PathLike[str]", np.ndarray, None]
-#: A key: a :class:`~pmwm_codec.watermark.key.WatermarkKey`, a key file path, or None.
-KeyLike = Union["WatermarkKey", str, "os.PathLike[str]", None]
+# Nothing else at module level (numpy, the mesh module, even typing: ``_LAZY`` and :func:`_type_aliases`
+# below): the ``pmw`` console script imports this package before :func:`pmwm_codec.cli.main` can answer a
+# Ctrl-C with its one line, so whatever loads here is a window in which a Ctrl-C prints a traceback.
+TYPE_CHECKING = False
 
 if TYPE_CHECKING:  # for type checkers only: importing these here would make ``import pmwm_codec`` heavy
     from collections.abc import Iterator
+    from typing import Any, BinaryIO, Union
+
+    import numpy as np
+
+    from .sources import Source
+
+    MeshSource = Union[str, "os.PathLike[str]", "Mesh", tuple]
+    Destination = Union[str, "os.PathLike[str]", BinaryIO]
+    WatermarkImage = Union[str, "os.PathLike[str]", "np.ndarray", None]
+    KeyLike = Union["WatermarkKey", str, "os.PathLike[str]", None]
+
+    from .mesh import Mesh, checked_mesh, read_mesh
 
     from .format.inspect import inspect
     from .meshio import write_mesh
@@ -46,6 +48,8 @@ __version__ = "0.1.0"
 
 
 def _as_mesh(src: MeshSource) -> Mesh:
+    from .mesh import Mesh, checked_mesh, read_mesh
+
     if isinstance(src, Mesh):
         return checked_mesh(src.positions, src.faces, src.attributes)
     return read_mesh(src)
@@ -187,6 +191,7 @@ def decode(src: Source, chunks: int | None = None) -> Mesh:
     the document: attributes (texture coordinates, normals ...), materials and nodes.
     """
     from .http import as_source
+    from .mesh import Mesh
     from .options import checked_chunks
     from .stream.reader import decode_stream
 
@@ -247,8 +252,30 @@ def cut(src: Source, chunks: int | None = None) -> bytes:
 
 
 #: Functions of heavier modules, imported on first use so that ``import pmwm_codec`` stays light.
-_LAZY = {"inspect": ".format.inspect", "verify_stream": ".verify.stream", "write_mesh": ".meshio"}
-__all__ += list(_LAZY)
+_LAZY = {"inspect": ".format.inspect", "verify_stream": ".verify.stream", "write_mesh": ".meshio",
+         "Mesh": ".mesh", "read_mesh": ".mesh", "checked_mesh": ".mesh"}
+__all__ += ["inspect", "verify_stream", "write_mesh"]  # Mesh, read_mesh: listed above
+
+
+def _type_aliases() -> dict:
+    """The public type aliases (built on first use: importing typing is a cost ``import pmwm_codec`` avoids)."""
+    from typing import BinaryIO, Union
+
+    from .sources import Source
+
+    return {
+        # what every reader takes: a path, bytes, a binary file, an iterable of blocks (or an http(s) URL)
+        "Source": Source,
+        # what encode reads: a mesh file (OBJ, PLY, STL, glTF/GLB) or glTF asset path, a Mesh,
+        # or an in-memory glTF asset (gltf dict, list of buffers)
+        "MeshSource": Union[str, "os.PathLike[str]", "Mesh", tuple],
+        # where encode writes: a path or a binary file object
+        "Destination": Union[str, "os.PathLike[str]", BinaryIO],
+        # a watermark image: a path (PNG ...) or a square (s, s) array
+        "WatermarkImage": Union[str, "os.PathLike[str]", "np.ndarray", None],
+        # a key: a WatermarkKey, a key file path, or None
+        "KeyLike": Union["WatermarkKey", str, "os.PathLike[str]", None],
+    }
 
 
 def __getattr__(name: str) -> Any:
@@ -256,4 +283,8 @@ def __getattr__(name: str) -> Any:
         from importlib import import_module
 
         return getattr(import_module(_LAZY[name], __name__), name)
+    if name in ("Source", "MeshSource", "Destination", "WatermarkImage", "KeyLike"):
+        aliases = _type_aliases()
+        globals().update(aliases)
+        return aliases[name]
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

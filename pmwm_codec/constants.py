@@ -30,6 +30,12 @@ MAX_DECOMPRESSED_CHUNK_BYTES = 1 << 28  # 256 MiB: a 1M-vertex batch needs ~2 MB
 #: encoder writes the input's own members (``extras``, extensions it carries) at the depth they had and
 #: its own at most 11 deep, so every file it writes is within the readers' limit.
 MAX_JSON_DEPTH = 64
+#: Most JSON values the keyed ``sceneMac`` reads (spec/bitstream.md §6.3): the glTF JSON without ``buffers``
+#: and ``bufferViews``, every object, array, string, number, literal and the document itself counted once.  Its
+#: canonical form is copied and hashed whole (a few seconds at this limit): a legal 64 MiB of ``extras`` (30M
+#: values) cost a verify 280 s and 5 GB.  A writer refuses a document over it; a verifier reads a scene over it as
+#: not the key holder's (a mismatch), without copying it.
+MAX_SCENE_VALUES = 1 << 22
 
 # --- limits of the encoder side, checked before its inputs are read into memory ---
 #: Largest mesh the encoder takes: it needs about 1.9 KB per vertex (measured on a

@@ -6,7 +6,6 @@ import json
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -27,6 +26,8 @@ from pmwm_codec.batch.ledger import LedgerWriter  # noqa: E402
 from pmwm_codec.batch.tasks import EncodeJob, encode_task  # noqa: E402
 from pmwm_codec.cli import main  # noqa: E402
 from pmwm_codec.verify import verify_stream  # noqa: E402
+
+from test_batch_scheduler import dask_cluster  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 GOOD = {
@@ -227,53 +228,18 @@ def test_a_timed_out_asset_is_killed_and_leaves_nothing(tmp_path):
     assert sorted(os.listdir(out.parent)) == []
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _wait_for_workers(address: str, count: int, timeout: float = 120) -> None:
-    from distributed import Client
-
-    with Client(address, timeout="60s") as client:
-        client.wait_for_workers(count, timeout=timeout)
-
-
 def test_a_dask_scheduler_and_two_workers_give_the_same_bytes_as_the_local_run(library, tmp_path, client):
     root, src = library
-    dask = shutil.which("dask", path=os.path.dirname(sys.executable)) or shutil.which("dask")
-    if dask is None:
-        pytest.skip("the dask command is not installed")
     key = tmp_path / "collection.key.json"
     local, remote = tmp_path / "local", tmp_path / "remote"
     common = ["--watermark", str(root / "wm.png"), "--key", str(key)]
     doc = encode_batch(src, local, watermark=root / "wm.png", key=key, client=client)
     assert doc["ok"] == len(GOOD)
-    port = _free_port()
-    address = f"tcp://127.0.0.1:{port}"
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
-                              env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)]
-    try:
-        for _ in range(2):
-            procs.append(subprocess.Popen([dask, "worker", address, "--host", "127.0.0.1", "--nthreads", "1",
-                                           "--no-dashboard"], env=env, stdout=subprocess.DEVNULL,
-                                          stderr=subprocess.DEVNULL, start_new_session=True))
-        _wait_for_workers(address, 2)
+    with dask_cluster(2) as (address, _):
         status, doc = _run_json(["batch", "encode", str(src), "-o", str(remote), *common, "--scheduler", address])
         assert status == 1 and doc["ok"] == len(GOOD) and doc["failed"] == len(BROKEN)
         status, doc = _run_json(["batch", "verify", str(remote), "--key", str(key), "--scheduler", address])
         assert status == 0 and doc["authentic"] == doc["files"] == len(GOOD)
-    finally:
-        for proc in reversed(procs):
-            os.killpg(proc.pid, signal.SIGTERM)
-        for proc in reversed(procs):
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
     for name in GOOD:
         assert (remote / (name + ".pmw")).read_bytes() == (local / (name + ".pmw")).read_bytes()
     assert not list(remote.rglob("*.key.json")) and not list(local.rglob("*.key.json"))

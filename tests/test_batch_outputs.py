@@ -92,3 +92,53 @@ def test_batch_verify_reports_a_truncated_file_as_truncated_and_exits_1(encoded,
     assert done.returncode == 1, done.stderr
     assert f"  truncated: {out / 'm1.obj.pmw'} (the file ends at 3,000 of its" in done.stdout
     assert done.stdout.rstrip().endswith("2 of 3 files authentic")
+
+
+# --- hard links: outputs shared with a snapshot of OUT_DIR, with each other, with an input -----------------
+
+
+def _tree_bytes(root: Path) -> dict:
+    return {p.relative_to(root): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def test_a_forced_rerun_never_changes_a_hard_linked_snapshot_of_the_output_folder_ledger_included(encoded, client,
+                                                                                                   tmp_path):
+    """``cp -al out snap`` (or an ``rsync --link-dest`` backup) shares every file of OUT_DIR.  The outputs and keys
+    are published by a rename, which leaves the snapshot's names alone, but the ledger was appended in place: the
+    snapshot's ledger got the new run's rows, naming outputs it does not hold."""
+    src, out = encoded
+    snap = tmp_path / "snap"
+    subprocess.run(["cp", "-al", str(out), str(snap)], check=True)
+    before = _tree_bytes(snap)
+    doc = encode_batch(src, out, watermark=IMAGE, client=client, force=True)
+    assert doc["ok"] == 3
+    assert _tree_bytes(snap) == before
+    assert os.stat(out / LEDGER_NAME).st_nlink == 1 and len(read_ledger(out / LEDGER_NAME)) == 6
+    assert not [p for p in out.rglob("*") if p.name.endswith(".tmp")]
+    assert encode_batch(src, out, watermark=IMAGE, client=client)["skipped"] == 3
+
+
+def test_batch_verify_verifies_each_name_of_a_hard_linked_pmw_with_its_own_key(encoded, client):
+    src, out = encoded
+    os.link(out / "m0.obj.pmw", out / "copy.pmw")
+    os.link(out / "m1.obj.pmw.key.json", out / "copy.pmw.key.json")  # another asset's key: not this file's
+    doc = verify_batch(out, client=client)
+    verdicts = {Path(r["file"]).name: r["verdict"] for r in doc["results"]}
+    assert verdicts == {"copy.pmw": "not-authentic", "m0.obj.pmw": "authentic", "m1.obj.pmw": "authentic",
+                        "m2.obj.pmw": "authentic"}
+    os.replace(out / "m0.obj.pmw.key.json", out / "copy.pmw.key.json")
+    os.link(out / "copy.pmw.key.json", out / "m0.obj.pmw.key.json")
+    assert verify_batch(out, client=client)["authentic"] == 4
+
+
+def test_an_output_that_is_a_hard_link_of_its_input_is_a_failed_asset_and_the_input_is_kept(tmp_path, client):
+    src, out = tmp_path / "src", tmp_path / "out"
+    src.mkdir()
+    out.mkdir()
+    write_mesh(src / "m.obj", shapes.icosphere(2, noise=0.01, seed=1))
+    kept = (src / "m.obj").read_bytes()
+    os.link(src / "m.obj", out / "m.obj.pmw")
+    doc = encode_batch(src, out, watermark=IMAGE, client=client)
+    assert (doc["ok"], doc["failed"]) == (0, 1)
+    assert "is also the input" in doc["failures"][0]["error"]
+    assert (src / "m.obj").read_bytes() == kept and (out / "m.obj.pmw").read_bytes() == kept

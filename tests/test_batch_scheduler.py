@@ -4,7 +4,11 @@ nothing behind: no OUT_DIR, no new collection key."""
 
 from __future__ import annotations
 
+import contextlib
+import json
 import os
+import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -12,6 +16,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 pytest.importorskip("distributed")
@@ -119,3 +124,101 @@ def test_check_scheduler_bounds_the_handshake_wait(silent_port, monkeypatch):
     with pytest.raises(run.BatchError, match="no Dask scheduler answered within 2 s"):
         run.check_scheduler(f"tcp://127.0.0.1:{silent_port}", seconds=1.0)
     assert time.monotonic() - start < 10
+
+
+@contextlib.contextmanager
+def dask_cluster(workers: int = 1):
+    """A ``dask scheduler`` on a free port of the loopback and ``workers`` ``dask worker`` processes (one thread each),
+    every one a session of its own: ``(address, procs)``, procs[0] the scheduler; all ended after."""
+    dask = shutil.which("dask", path=os.path.dirname(sys.executable)) or shutil.which("dask")
+    if dask is None:
+        pytest.skip("the dask command is not installed")
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    procs = [_session([dask, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"])]
+    try:
+        for _ in range(workers):
+            procs.append(start_worker(address))
+        wait_for_workers(address, workers)
+        yield address, procs
+    finally:
+        for proc in reversed(procs):
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGTERM)
+        for proc in reversed(procs):
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+
+
+def _session(argv):
+    return subprocess.Popen(argv, env=dict(os.environ, PYTHONPATH=str(ROOT)), stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+
+
+def start_worker(address: str):
+    """A ``dask worker`` of one thread for the scheduler at ``address`` (a session of its own)."""
+    dask = shutil.which("dask", path=os.path.dirname(sys.executable)) or shutil.which("dask")
+    return _session([dask, "worker", address, "--host", "127.0.0.1", "--nthreads", "1", "--no-dashboard"])
+
+
+def wait_for_workers(address: str, count: int, timeout: float = 120) -> None:
+    from distributed import Client
+
+    with Client(address, timeout="60s") as client:
+        client.wait_for_workers(count, timeout=timeout)
+
+
+def test_a_run_whose_every_worker_dies_stops_in_one_line_after_the_no_worker_timeout_and_a_rerun_resumes(tmp_path):
+    """Every worker of a --scheduler cluster killed mid-run: the run waited forever (Dask keeps the tasks for a
+    worker that never comes).  It stops once the cluster has had no worker for --no-worker-timeout seconds: one
+    line, exit 2, the ledger whole (a row per asset done), and the next run, on a new worker, does the rest."""
+    from PIL import Image
+
+    from pmwm_codec import shapes
+    from pmwm_codec.batch import LEDGER_NAME, read_ledger
+    from pmwm_codec.meshio import write_mesh
+
+    assets = 6
+    (tmp_path / "lib").mkdir()
+    for i in range(assets):
+        write_mesh(tmp_path / "lib" / f"m{i}.obj", shapes.icosphere(2, noise=0.01, seed=i))
+    Image.fromarray(np.full((8, 8), 255, np.uint8)).save(tmp_path / "wm.png")
+    out = tmp_path / "out"
+    with dask_cluster() as (address, procs):
+        argv = [sys.executable, "-m", "pmwm_codec", "batch", "encode", str(tmp_path / "lib"), "-o", str(out),
+                "--watermark", str(tmp_path / "wm.png"), "--scheduler", address, "--json"]
+        run_ = subprocess.Popen([*argv, "--no-worker-timeout", "3"], env=dict(os.environ, PYTHONPATH=str(ROOT)),
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + 240
+        while not read_ledger(out / LEDGER_NAME) and run_.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        os.killpg(procs[1].pid, signal.SIGKILL)  # the one worker (and its encoder) gone mid-run
+        killed = time.monotonic()
+        try:
+            stdout, stderr = run_.communicate(timeout=90)
+        finally:
+            if run_.poll() is None:
+                run_.kill()
+                run_.communicate()
+        waited = time.monotonic() - killed
+        done = read_ledger(out / LEDGER_NAME)
+        assert (run_.returncode, stdout) == (2, "")
+        assert stderr.count("\n") == 1 and stderr.startswith(
+            "pmw: error: the Dask cluster has had no worker for 3 s (all gone?); the run stopped with "), stderr
+        assert f" of {assets} assets not done (a re-run does them)" in stderr and "Traceback" not in stderr
+        assert 3 <= waited < 60
+        assert 1 <= len(done) < assets
+        assert (out / LEDGER_NAME).read_bytes().endswith(b"\n")
+        assert not [p for p in out.rglob("*") if p.name.endswith(".tmp")]
+        for row in done:
+            assert row["status"] == "ok" and os.path.getsize(row["output"]) == row["bytes"]
+        procs.append(start_worker(address))
+        wait_for_workers(address, 1)
+        again = subprocess.run(argv, env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True, text=True,
+                               timeout=300)
+    assert again.returncode == 0, again.stderr
+    summary = json.loads(again.stdout)
+    assert (summary["skipped"], summary["ok"]) == (len(done), assets - len(done))

@@ -49,14 +49,67 @@ def _default_sigint():
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
+def _run(tmp_path, argv, **kwargs) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", *argv], cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(ROOT)},
+                          capture_output=True, text=True, timeout=120, preexec_fn=_default_sigint, **kwargs)
+
+
+def _interrupted_on_import(tmp_path, module, command) -> None:
+    r = _run(tmp_path, [_SIGINT_ON_IMPORT, module, *command])
+    assert (r.returncode, r.stderr) == (130, "pmw: error: interrupted\n")
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize("module", ["pmwm_codec.cli.common", "pmwm_codec.cli.encode", "PIL"])
 @pytest.mark.parametrize("command", [["info", "x.pmw"], ["encode", "x.obj", "-o", "y.pmw"]], ids=["info", "encode"])
 def test_sigint_while_the_command_loads_its_modules_is_one_line_and_exit_130(tmp_path, module, command):
-    r = subprocess.run([sys.executable, "-c", _SIGINT_ON_IMPORT, module, *command], cwd=tmp_path,
-                       env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True, timeout=120,
-                       preexec_fn=_default_sigint)
-    assert (r.returncode, r.stderr) == (130, "pmw: error: interrupted\n")
-    assert list(tmp_path.iterdir()) == []
+    _interrupted_on_import(tmp_path, module, command)
+
+
+@pytest.mark.parametrize("module", ["numpy", "pmwm_codec.mesh", "datetime"])
+def test_sigint_while_the_console_script_imports_the_package_is_one_line_not_a_traceback(tmp_path, module):
+    """``import pmwm_codec`` (the console script's first import, before :func:`main` runs) loaded numpy and the
+    mesh module: a Ctrl-C in those ~0.1 s was a traceback.  They now load inside main's guard; and a Ctrl-C that
+    numpy's compiled loading turns into an ImportError (its import of ``datetime`` interrupted) is still one
+    ``interrupted`` line, not numpy's "Importing the numpy C-extensions failed"."""
+    _interrupted_on_import(tmp_path, module, ["info", "x.pmw"])
+
+
+def test_the_console_script_loads_nothing_but_the_package_and_its_errors_before_main():
+    """What loads before :func:`main` runs is the window in which a Ctrl-C cannot be answered in one line."""
+    code = "import sys; before = set(sys.modules); import pmwm_codec.cli; print(sorted(set(sys.modules) - before))"
+    r = subprocess.run([sys.executable, "-c", code], env={**os.environ, "PYTHONPATH": str(ROOT)},
+                       capture_output=True, text=True, timeout=60, check=True)
+    assert r.stdout.split() == ["['pmwm_codec',", "'pmwm_codec.cli',", "'pmwm_codec.errors']"]
+
+
+#: The console script as pip writes it (``[project.scripts] pmw = "pmwm_codec.cli:main"``).
+_CONSOLE_SCRIPT = "import re, sys\nfrom pmwm_codec.cli import main\nsys.exit(main())"
+#: Modules of the package the console script imports before :func:`main` runs (a few ms out of pmw's reach).
+_BEFORE_MAIN = ("pmwm_codec/__init__.py", "pmwm_codec/errors.py", "pmwm_codec/cli/__init__.py")
+
+
+@pytest.mark.parametrize("delay", [0, 0.01, 0.02, 0.03, 0.05, 0.08, 0.12, 0.2])
+def test_a_ctrl_c_at_any_early_moment_is_never_a_traceback_from_pmw_or_what_it_loads(tmp_path, delay):
+    """SIGINT sent at fixed moments of a start: the command ends killed by it before Python takes it (nothing
+    said), with the one ``interrupted`` line and 130, or with its own answer when it ended first.  A traceback
+    is CPython's own, from its start-up or the script's import line, before any of pmw runs: never in numpy,
+    Pillow, or a module of the package past the few that the console script itself imports."""
+    import re
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-c", _CONSOLE_SCRIPT, "info", "x.pmw"], cwd=tmp_path,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)}, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint)
+    time.sleep(delay)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    frames = re.findall(r'File "([^"]+)", line \d+, in (\S+)', err)
+    late = [(f, fn) for f, fn in frames if f.startswith(str(ROOT)) and not (f.endswith(_BEFORE_MAIN) and fn == "<module>")]
+    assert not late and not [f for f, _ in frames if "/numpy/" in f or "/PIL/" in f], err
+    if "Traceback" not in err:
+        assert (proc.returncode, err) in ((-signal.SIGINT, ""), (130, "pmw: error: interrupted\n"),
+                                          (2, "pmw: error: x.pmw: no such .pmw file\n")), err
 
 
 @pytest.fixture

@@ -6,6 +6,7 @@ down by its fixture; one honours ``Range``, one ignores it (plain 200 answers).
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import re
@@ -51,6 +52,30 @@ def _serve(directory, handler):
     thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
     thread.start()
     return server, thread
+
+
+@contextlib.contextmanager
+def _served(directory, handler):
+    """``directory`` served by ``handler`` on a free port of the loopback: yields the URL of its ``x.pmw``."""
+    srv, thread = _serve(directory, handler)
+    try:
+        yield f"http://127.0.0.1:{srv.server_address[1]}/x.pmw"
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+
+
+def _decode_stalls(url: str, match: str, seconds: float) -> UrlSource:
+    """``pmwm_codec.decode`` of ``url`` (a 1 s timeout) is the stall error ``match`` within ``seconds``: the source."""
+    import time
+
+    start = time.monotonic()
+    source = UrlSource(url, timeout=1)
+    with pytest.raises(InputFormatError, match=match):
+        pmwm_codec.decode(source)
+    assert time.monotonic() - start < seconds
+    return source
 
 
 @pytest.fixture(params=["ranges", "no-ranges"])
@@ -505,18 +530,8 @@ class Trickling(RangeRequestHandler):
 
 def test_a_server_that_trickles_is_a_named_error_not_a_read_of_hours(site):
     """A byte every 0.1 s never trips the socket timeout: a .pmw of a few KB took hours, a large one days."""
-    import time
-
-    srv, thread = _serve(site, Trickling)
-    try:
-        start = time.monotonic()
-        with pytest.raises(InputFormatError, match="the server stalls"):
-            pmwm_codec.decode(UrlSource(f"http://127.0.0.1:{srv.server_address[1]}/x.pmw", timeout=1))
-        assert time.monotonic() - start < 5
-    finally:
-        srv.shutdown()
-        srv.server_close()
-        thread.join(5)
+    with _served(site, Trickling) as url:
+        _decode_stalls(url, "the server stalls", 5)
 
 
 def test_serve_answers_say_accept_ranges_once_and_name_the_files_version(tmp_path):
@@ -980,30 +995,18 @@ def test_a_server_that_drips_every_range_answer_is_a_stall_of_the_whole_transfer
     """The pace was judged per answer: a server that sent each of the many Range answers slowly, but within the
     timeout, held ``pmw verify URL`` for the number of requests times the timeout (65,536 chunks x 30 s).  The
     transfer as a whole must now average ``MIN_RATE`` past its first ``timeout`` seconds of network time."""
-    import time
-
     from pmwm_codec import http
 
     monkeypatch.setattr(http, "MIN_RATE", 20_000)  # so that a 0.5 s answer of a few KB is too slow
-    srv, thread = _serve(site, Dripping)
-    url = f"http://127.0.0.1:{srv.server_address[1]}/x.pmw"
-    try:
-        start = time.monotonic()
-        source = UrlSource(url, timeout=1)
-        with pytest.raises(InputFormatError, match=r"the server stalls: [\d,]+ bytes in \d s, under 20,000 bytes/s"):
-            pmwm_codec.decode(source)
-        assert time.monotonic() - start < 2.5 and source.requests <= 4
-    finally:
-        srv.shutdown()
-        srv.server_close()
-        thread.join(5)
+    with _served(site, Dripping) as url:
+        source = _decode_stalls(url, r"the server stalls: [\d,]+ bytes in \d s, under 20,000 bytes/s", 2.5)
+        assert source.requests <= 4
 
 
 def test_a_server_that_drips_its_answers_head_is_cut_off_after_the_timeout(tmp_path, capsys):
     """A status line and headers sent a byte every 0.2 s never trip a socket timeout: the read of one answer's head
     took as long as the server liked (here 8 s, then "cannot read (RemoteDisconnected ...)")."""
     import socket
-    import time
 
     listener = socket.create_server(("127.0.0.1", 0))
     done = threading.Event()
@@ -1023,10 +1026,7 @@ def test_a_server_that_drips_its_answers_head_is_cut_off_after_the_timeout(tmp_p
     thread = threading.Thread(target=answer, daemon=True)
     thread.start()
     try:
-        start = time.monotonic()
-        with pytest.raises(InputFormatError, match=r"the server stalls: 0 bytes in 1 s"):
-            pmwm_codec.decode(UrlSource(f"http://127.0.0.1:{listener.getsockname()[1]}/x.pmw", timeout=1))
-        assert time.monotonic() - start < 3
+        _decode_stalls(f"http://127.0.0.1:{listener.getsockname()[1]}/x.pmw", r"the server stalls: 0 bytes in 1 s", 3)
     finally:
         done.set()
         listener.close()

@@ -11,12 +11,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from PIL import Image
 
 from pmwm_codec import shapes
 from pmwm_codec.cli import main
-from pmwm_codec.constants import EXTENSION_NAME
-from pmwm_codec.format import read_header
-from pmwm_codec.format.glb import glb_parts, split_glb
+from pmwm_codec.constants import EXTENSION_NAME, MAX_JSON_DEPTH, MAX_SCENE_VALUES
+from pmwm_codec.errors import LimitError
+from pmwm_codec.format import mac, read_header
+from pmwm_codec.format.glb import frame_glb, glb_parts, split_glb
 from pmwm_codec.format.gltf import find_extension_primitives
 from pmwm_codec.format.layout import padded
 from pmwm_codec.format.mac import canonical_json, scene_data_end, scene_document, scene_mac
@@ -439,3 +441,57 @@ def test_a_mesh_checked_against_an_edited_reference_is_not_authentic(capsys, tmp
 
     ok = verify_mesh((untouched.positions, untouched.faces), data, key)
     assert ok.verdict == "authentic" and ok.reference_mac["scene"] is True and ok.reference_mac["failed"] == []
+
+
+# --- the work the scene MAC does is bounded (MAX_JSON_DEPTH, MAX_SCENE_VALUES) ---------------------
+
+
+def _with_node_extras(data: bytes, text: str) -> bytes:
+    """The file with its first node's ``extras`` the JSON ``text`` (framed by hand: json.dumps would recurse)."""
+    gltf, binary = split_glb(data)
+    gltf["nodes"][0]["extras"] = "@extras@"
+    doc = json.dumps(gltf, separators=(",", ":")).replace('"@extras@"', text)
+    return b"".join(frame_glb(doc.encode(), [bytes(binary)], len(binary)))
+
+
+def test_extras_nested_100k_deep_are_refused_by_the_reader_in_one_line_before_the_scene_mac(capsys, tmp_path, sphere):
+    """Deep nesting never reaches the scene MAC's walk (nor Python's recursion limit): the reader refuses JSON
+    nested more than MAX_JSON_DEPTH levels from its text, before parsing it."""
+    data, key = sphere
+    path, key_path = tmp_path / "x.pmw", tmp_path / "x.key.json"
+    path.write_bytes(_with_node_extras(data, "[" * 100_000 + "]" * 100_000))
+    key.save(key_path)
+    assert main(["verify", str(path), "--key", str(key_path)]) == 2
+    assert capsys.readouterr() == ("", f"pmw: error: {path}: GLB JSON chunk: JSON nested more than {MAX_JSON_DEPTH} "
+                                       "levels deep (MAX_JSON_DEPTH)\n")
+
+
+def test_a_scene_of_more_than_max_scene_values_is_a_mismatch_found_without_copying_it(capsys, tmp_path, sphere):
+    """A legal but wide document (a node's extras of 2 x MAX_SCENE_VALUES numbers, 16 MiB of JSON) was copied and
+    hashed whole, twice: 30M values cost a verify 280 s and 5 GB.  The scene MAC now stops at MAX_SCENE_VALUES:
+    no writer writes such a scene, so it is a mismatch (tampered), found in the time of reading the JSON."""
+    import time
+
+    data, key = sphere
+    wide = _with_node_extras(data, "[" + ",".join(["1"] * (2 * MAX_SCENE_VALUES)) + "]")
+    with pytest.raises(LimitError, match="more than 4,194,304 JSON values"):
+        scene_document(split_glb(wide)[0])
+    start = time.monotonic()
+    status, doc = _verify_json(capsys, tmp_path, wide, key)
+    assert time.monotonic() - start < 30
+    assert (status, doc["verdict"], doc["mac"]["scene"]) == (1, "tampered", False)
+
+
+def test_a_document_of_more_than_max_scene_values_is_refused_by_the_writer_with_nothing_written(capsys, tmp_path,
+                                                                                                monkeypatch):
+    """A key holder's file must verify: a marked file whose scene is over MAX_SCENE_VALUES is never written."""
+    monkeypatch.setattr(mac, "MAX_SCENE_VALUES", 60)
+    gltf, buffers = _textured_asset()
+    src, out = tmp_path / "scene.glb", tmp_path / "scene.pmw"
+    src.write_bytes(b"".join(frame_glb(json.dumps(gltf).encode(), buffers, len(buffers[0]))))
+    Image.fromarray((np.indices((16, 16)).sum(0) % 2 * 200 + 30).astype(np.uint8)).save(tmp_path / "wm.png")
+    assert main(["encode", str(src), "-o", str(out), "--watermark", str(tmp_path / "wm.png"), "-q"]) == 2
+    assert capsys.readouterr().err == ("pmw: error: the scene holds more than 60 JSON values (MAX_SCENE_VALUES, "
+                                       "spec/bitstream.md §6.3): too many for its sceneMac\n")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.glb", "wm.png"]
+    assert main(["encode", str(src), "-o", str(out), "-q"]) == 0  # no key, no scene MAC: no limit

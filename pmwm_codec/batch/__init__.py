@@ -11,8 +11,8 @@ importing :mod:`.run` imports Dask only when a batch starts.
 """
 
 from .ledger import FIELDS, LEDGER_NAME, read_ledger
-from .run import DEFAULT_TIMEOUT, BatchError, encode_batch, verify_batch
+from .run import DEFAULT_TIMEOUT, NO_WORKER_TIMEOUT, BatchError, encode_batch, verify_batch
 from .sources import Asset, expand_sources
 
-__all__ = ["Asset", "BatchError", "DEFAULT_TIMEOUT", "FIELDS", "LEDGER_NAME", "encode_batch", "expand_sources",
-           "read_ledger", "verify_batch"]
+__all__ = ["Asset", "BatchError", "DEFAULT_TIMEOUT", "FIELDS", "LEDGER_NAME", "NO_WORKER_TIMEOUT", "encode_batch",
+           "expand_sources", "read_ledger", "verify_batch"]

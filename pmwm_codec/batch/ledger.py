@@ -91,12 +91,42 @@ def last_rows(rows) -> dict:
     return {row["input"]: row for row in rows}
 
 
+def unshare(path: str) -> None:
+    """Give the file at ``path`` a copy of its own when it is one of several names of a file (a hard link: a
+    ``cp -al`` or ``rsync --link-dest`` snapshot of OUT_DIR shares it), published by a rename, so that what is
+    appended next goes into this ledger only, never into the snapshot's.  Any other file is left as it is."""
+    import shutil
+    import stat
+    import uuid
+
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return
+    if not stat.S_ISREG(st.st_mode) or st.st_nlink < 2:
+        return
+    folder, name = os.path.split(os.path.abspath(path))
+    temp = os.path.join(folder, f".{name}.{uuid.uuid4().hex[:12]}.tmp")
+    try:
+        shutil.copyfile(path, temp)
+        os.chmod(temp, stat.S_IMODE(st.st_mode))
+        with open(temp, "rb+") as fh:
+            os.fsync(fh.fileno())
+        os.replace(temp, path)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            os.unlink(temp)
+        raise OSError(exc.errno, f"{exc.strerror or exc} (copying the ledger, a hard link, to a file of its own)",
+                      path) from None
+
+
 class LedgerWriter:
     """Append rows to the ledger; a context manager (the file stays open for the run).
 
     Each row is one ``write`` of its whole line, unbuffered; a row that cannot be written whole (a full
     disk) is taken back (the file cut to where it was, when it can be) and the OSError names the ledger and
-    the row's input: that asset has no row, and the next run does it again.
+    the row's input: that asset has no row, and the next run does it again.  A ledger that is a hard link is
+    given a file of its own first (:func:`unshare`): rows are never appended to another tree's ledger.
     """
 
     def __init__(self, path):
@@ -104,6 +134,7 @@ class LedgerWriter:
         self._fd = None
 
     def __enter__(self):
+        unshare(self.path)
         cut = False
         if os.path.exists(self.path) and os.path.getsize(self.path):
             with open(self.path, "rb") as fh:

@@ -29,12 +29,20 @@ from .sources import KEY_SUFFIX, PMW_SUFFIX, expand_sources
 from .tasks import EncodeJob, encode_task, verify_task
 
 __all__ = ["BatchError", "dask_client", "encode_batch", "verify_batch", "collection_key", "check_key_places",
-           "DEFAULT_TIMEOUT"]
+           "DEFAULT_TIMEOUT", "NO_WORKER_TIMEOUT"]
 
 DEFAULT_TIMEOUT = 600.0  # seconds per asset
 #: The longest per-asset timeout: a wait the operating system takes (epoll counts int milliseconds: ~24 days);
 #: an infinite one made every asset a lost task (OverflowError).
 MAX_TIMEOUT = 1e6
+#: Seconds a run goes on while its cluster has no worker before it stops (``--no-worker-timeout``): Dask keeps
+#: the tasks of a cluster whose every worker died waiting for a new one, and the run waited forever.  Long
+#: enough for a worker to be restarted, or an adaptive cluster to start one; a long encode is not cut by it.
+NO_WORKER_TIMEOUT = 120.0
+#: Seconds between two looks at the cluster's worker count while no result comes.
+WORKER_CHECK_INTERVAL = 1.0
+#: Seconds between two looks for finished tasks (as :func:`distributed.as_completed` waits).
+_POLL = 0.1
 
 
 class BatchError(PmwError, ValueError):
@@ -325,7 +333,8 @@ def _jobs(assets, out_dir, image, key, keys_dir, timeout, force, options=None, r
 
 
 def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, workers=None, scheduler=None,
-                 timeout=DEFAULT_TIMEOUT, force=False, progress=None, client=None, options=None) -> dict:
+                 timeout=DEFAULT_TIMEOUT, force=False, progress=None, client=None, options=None,
+                 no_worker_timeout=NO_WORKER_TIMEOUT) -> dict:
     """Encode every asset of ``src`` into ``out_dir``; returns the run's summary.
 
     ``options``: :func:`pmwm_codec.encode` options for every asset (``mode``, ``grid_bits``,
@@ -335,13 +344,14 @@ def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, worke
     per-asset keys go (default: beside each output).  ``client``: a ``distributed.Client`` to
     use instead of starting one (``workers`` and ``scheduler`` are then ignored).  ``progress(counts)`` is called after
     every finished asset with ``done total ok skipped failed timeout running rate``.
+    ``no_worker_timeout``: seconds the run goes on while the cluster has no worker before it stops
+    (BatchError; the ledger whole, a re-run does the rest).
     Summary: ``assets ok skipped failed timeout seconds ledger failures`` (failures: rows).
     """
     if key is not None and keys_dir is not None:
         raise BatchError("give --key (one collection key) or --keys-dir (a key per asset), not both")
-    if isinstance(timeout, bool) or not isinstance(timeout, numbers.Real) or not 0 < timeout <= MAX_TIMEOUT:
-        raise BatchError(f"--timeout must be a number of seconds in (0, {MAX_TIMEOUT:g}], got {timeout!r} "
-                         "(a longer wait cannot be asked of the operating system)")
+    _check_seconds(timeout, "--timeout")
+    _check_seconds(no_worker_timeout, "--no-worker-timeout")
     if client is None and not scheduler:
         local_workers(workers)  # refused before anything is read or made
     out_dir = os.path.abspath(os.fspath(out_dir))
@@ -377,7 +387,7 @@ def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, worke
                 start = time.monotonic()
                 counts = dict.fromkeys(("ok", "skipped", "failed", "timeout"), 0)
                 failures = []
-                for row in _results(client, encode_task, jobs):
+                for row in _results(client, encode_task, jobs, no_worker_timeout):
                     try:
                         ledger.write(row)
                     except OSError as exc:  # a full disk: the run cannot record, so it stops, and says what is left
@@ -402,6 +412,12 @@ def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, worke
             "ledger": os.path.join(out_dir, LEDGER_NAME), "failures": failures}
 
 
+def _check_seconds(value, option: str) -> None:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not 0 < value <= MAX_TIMEOUT:
+        raise BatchError(f"{option} must be a number of seconds in (0, {MAX_TIMEOUT:g}], got {value!r} "
+                         "(a longer wait cannot be asked of the operating system)")
+
+
 def _progress_counts(counts, total, client, start) -> dict:
     done = sum(counts.values())
     elapsed = max(time.monotonic() - start, 1e-9)
@@ -409,20 +425,61 @@ def _progress_counts(counts, total, client, start) -> dict:
     return {"done": done, "total": total, **counts, "running": min(slots, total - done), "rate": done / elapsed}
 
 
-def _results(client, function, jobs):
-    """Submit ``function(job)`` per job; yield each result as it finishes (a lost task: a failed row)."""
+def _results(client, function, jobs, no_worker_timeout=NO_WORKER_TIMEOUT, what="assets"):
+    """Submit ``function(job)`` per job; yield each result as it finishes (a lost task: a failed row).
+
+    BatchError (one line: how many of the ``what`` got no result) when the cluster has had no worker for
+    ``no_worker_timeout`` seconds while tasks wait (its workers all died, or none ever joined); the tasks
+    left are cancelled, and the results yielded before stand (a re-run of an encode does the rest)."""
     from distributed import as_completed
 
     token = uuid.uuid4().hex[:8]
     futures = {client.submit(function, job, pure=False, key=f"pmw-{function.__name__}-{token}-{i}"): job
                for i, job in enumerate(jobs)}
-    for future in as_completed(futures):
-        job = futures.pop(future)
-        if future.status == "finished":
-            yield future.result()
-        else:  # the worker died under the task (KilledWorker) or the task raised
-            yield _lost(job, future.exception())
-        future.release()
+    pending = as_completed(futures)
+    watch = _WorkerWatch(client, no_worker_timeout)
+    while not pending.is_empty():
+        finished = pending.next_batch(block=False)
+        if not finished:
+            if watch.gone():
+                with contextlib.suppress(Exception):  # a cluster that cannot take the cancel lets them go with the client
+                    client.cancel(list(futures))
+                raise BatchError(f"the Dask cluster has had no worker for {no_worker_timeout:g} s (all gone?); the run "
+                                 f"stopped with {len(futures)} of {len(jobs)} {what} not done (a re-run does them)")
+            time.sleep(_POLL)
+            continue
+        for future in finished:
+            job = futures.pop(future)
+            if future.status == "finished":
+                yield future.result()
+            else:  # the worker died under the task (KilledWorker) or the task raised
+                yield _lost(job, future.exception())
+            future.release()
+
+
+class _WorkerWatch:
+    """How long the cluster of ``client`` has had no worker (looked at every :data:`WORKER_CHECK_INTERVAL` s;
+    a scheduler that does not answer counts as one without workers)."""
+
+    def __init__(self, client, timeout: float):
+        self.client, self.timeout = client, timeout
+        self.checked = self.since = None
+
+    def gone(self) -> bool:
+        """Whether there has been no worker for ``timeout`` seconds."""
+        now = time.monotonic()
+        if self.checked is not None and now - self.checked < WORKER_CHECK_INTERVAL:
+            return self.since is not None and now - self.since >= self.timeout
+        try:
+            workers = len(self.client.nthreads())
+        except Exception:  # noqa: BLE001 - the scheduler is gone or not answering: no worker either
+            workers = 0
+        self.checked = time.monotonic()
+        if workers:
+            self.since = None
+        elif self.since is None:
+            self.since = now
+        return self.since is not None and self.checked - self.since >= self.timeout
 
 
 def _lost(job, exc) -> dict:
@@ -435,16 +492,18 @@ def _lost(job, exc) -> dict:
 
 
 def verify_batch(out_dir, *, key=None, keys_dir=None, watermark=None, workers=None, scheduler=None,
-                 progress=None, client=None) -> dict:
+                 progress=None, client=None, no_worker_timeout=NO_WORKER_TIMEOUT) -> dict:
     """Verify every ``.pmw`` under ``out_dir``: with the collection ``key``, with per-asset keys
     under ``keys_dir``, or (default) with the key beside each file.
 
     Returns ``{"files", "authentic", "results": [{file, verdict, error}, ...]}`` (sorted by file).
     Symlinked folders are not entered, and a file or key whose real path leaves its folder
     (``out_dir``, or ``keys_dir`` for the keys there) is not read: an ``error`` result saying so.
+    ``no_worker_timeout``: as :func:`encode_batch`'s (BatchError when the cluster has no worker that long).
     """
     if key is not None and keys_dir is not None:
         raise BatchError("give --key (one collection key) or --keys-dir (a key per asset), not both")
+    _check_seconds(no_worker_timeout, "--no-worker-timeout")
     if client is None and not scheduler:
         local_workers(workers)
     out_dir = os.path.abspath(os.fspath(out_dir))
@@ -465,7 +524,7 @@ def verify_batch(out_dir, *, key=None, keys_dir=None, watermark=None, workers=No
             for path in files]
     results = []
     with dask_client(workers, scheduler, client, len(jobs)) as client:
-        for result in _results(client, _verify_job, jobs):
+        for result in _results(client, _verify_job, jobs, no_worker_timeout, "files"):
             results.append(result)
             if progress is not None:
                 progress({"done": len(results), "total": len(jobs), "rate": None})

@@ -41,20 +41,60 @@ def build_parser():
 
 def main(argv=None) -> int:
     """Run ``pmw`` with ``argv`` (default ``sys.argv[1:]``); returns the exit status."""
+    noted: list = []
     try:
-        from .common import run_command
-
-        parser = build_parser()
+        previous = _note_interrupts(noted)
         try:
-            args = parser.parse_args(argv)
-        except SystemExit as exc:  # usage errors (2), --help / --version (0)
-            return int(exc.code or 0)
+            from .common import run_command
+
+            parser = build_parser()
+            try:
+                args = parser.parse_args(argv)
+            except SystemExit as exc:  # usage errors (2), --help / --version (0)
+                return int(exc.code or 0)
+        finally:
+            _restore_sigint(previous)
+        if noted:  # a Ctrl-C that a module's loading swallowed
+            raise KeyboardInterrupt
         if argv is None and args.command in ONE_SHOT:
             from pmwm_codec.progressive.topology import one_shot_process
 
             one_shot_process()
         return run_command(args)
+    except Exception as exc:  # noqa: BLE001 - only when a Ctrl-C came while the modules loaded; else raised again
+        if not noted:
+            raise
+        from .common import interrupted
+
+        return interrupted()
     except KeyboardInterrupt:  # while the modules load or the arguments are read (run_command answers later ones)
         from .common import interrupted
 
         return interrupted()
+
+
+def _note_interrupts(noted: list):
+    """While the modules load: a SIGINT raises KeyboardInterrupt as Python's own handler does, and is noted in
+    ``noted``, because a compiled module's loading may turn it into another error (numpy's C extension, its
+    import of ``datetime`` interrupted, raises an ImportError that has lost the KeyboardInterrupt).  Only where
+    Python's own handler is in place, in the main thread (an ignored SIGINT stays ignored); returns the handler
+    to restore (None: nothing changed)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread() \
+            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        return None
+
+    def note(signum, frame):
+        noted.append(signum)
+        raise KeyboardInterrupt
+
+    return signal.signal(signal.SIGINT, note)
+
+
+def _restore_sigint(previous) -> None:
+    if previous is not None:
+        import signal
+
+        signal.signal(signal.SIGINT, previous)

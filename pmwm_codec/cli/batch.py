@@ -85,6 +85,9 @@ def _cluster_options(p) -> None:
                    help="local Dask worker processes (default: one per CPU)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="run on an existing Dask cluster (tcp://host:8786) "
                    "whose workers have pmwm_codec installed and share the file system")
+    p.add_argument("--no-worker-timeout", type=_positive(float, "--no-worker-timeout"), metavar="S",
+                   help="seconds the run goes on while the cluster has no worker (all died, none joined) before it "
+                        "stops, exit 2 (default 120)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
 
@@ -143,6 +146,10 @@ def _library():
     return batch
 
 
+def _no_worker_timeout(args, batch) -> float:
+    return args.no_worker_timeout or batch.NO_WORKER_TIMEOUT
+
+
 def _bar(args) -> Progress:
     progress = Progress(not (args.json or args.quiet))
 
@@ -166,7 +173,7 @@ def run_encode(args) -> int:
         summary = batch.encode_batch(args.src, args.output, watermark=args.watermark, key=args.key,
                                      keys_dir=args.keys_dir, workers=args.workers, scheduler=args.scheduler,
                                      timeout=args.timeout or batch.DEFAULT_TIMEOUT, force=args.force, progress=show,
-                                     options=options)
+                                     options=options, no_worker_timeout=_no_worker_timeout(args, batch))
     finally:
         show.bar.done()
     if args.json:
@@ -200,7 +207,8 @@ def run_verify(args) -> int:
     show = _bar(args)
     try:
         outcome = batch.verify_batch(args.out_dir, key=args.key, keys_dir=args.keys_dir, watermark=args.watermark,
-                                     workers=args.workers, scheduler=args.scheduler, progress=show)
+                                     workers=args.workers, scheduler=args.scheduler, progress=show,
+                                     no_worker_timeout=_no_worker_timeout(args, batch))
     finally:
         show.bar.done()
     if args.json:

@@ -45,7 +45,7 @@ import zstandard
 
 from ..atomic import write_atomic, write_stream
 from ..constants import EXTENSION_NAME, FORMAT_VERSION, MAX_CHUNK_BYTES, MAX_CHUNKS, MAX_DECOMPRESSED_CHUNK_BYTES
-from ..errors import FormatError, InputFormatError
+from ..errors import FormatError, InputFormatError, LimitError
 from .base import EncodedBase, decode_base_attributes
 from .gltf import DRACO_EXTENSION, without_defaults
 from .extension import (
@@ -154,6 +154,8 @@ def _scene_mac(mac_key: bytes, gltf: dict, bin_parts) -> str:
         data += part
     try:
         return scene_mac(mac_key, gltf, data)
+    except LimitError:  # a document too large to MAC (the input's): refused in one line, nothing written
+        raise
     except FormatError as exc:
         raise ValueError(f"write_pmw: the document's data cannot be read for its scene MAC ({exc})") from None
 

@@ -415,16 +415,21 @@ def check_finite_numbers(gltf: dict, name: str, error) -> None:
     """Refuse (``error`` naming the member, e.g. ``accessors[3].min[0]``) a NaN or infinite number
     anywhere in a parsed JSON document: Python's reader takes ``NaN``, ``Infinity`` and ``1e999``, JSON
     does not, and writing one back fails (walked without recursion; paths built only for the culprit)."""
-    stack = [(gltf, None)]  # (value, path as a (parent path, key) chain)
-    while stack:
+    def refuse(value, path):
+        shown = "NaN" if math.isnan(value) else "Infinity" if value > 0 else "-Infinity"
+        raise error(f"{name}: {_json_path(path)} is {shown}, which JSON does not allow")
+
+    if isinstance(gltf, float) and not math.isfinite(gltf):
+        refuse(gltf, None)
+    stack = [(gltf, None)] if isinstance(gltf, (dict, list)) else []  # (container, path as a (parent path, key) chain)
+    while stack:  # the scalars of a container are checked in place: only containers go on the stack
         value, path = stack.pop()
-        if isinstance(value, dict):
-            stack.extend((child, (path, key)) for key, child in value.items())
-        elif isinstance(value, list):
-            stack.extend((child, (path, i)) for i, child in enumerate(value))
-        elif isinstance(value, float) and not math.isfinite(value):
-            shown = "NaN" if math.isnan(value) else "Infinity" if value > 0 else "-Infinity"
-            raise error(f"{name}: {_json_path(path)} is {shown}, which JSON does not allow")
+        for key, child in (value.items() if isinstance(value, dict) else enumerate(value)):
+            if isinstance(child, float):
+                if not math.isfinite(child):
+                    refuse(child, (path, key))
+            elif isinstance(child, (dict, list)):
+                stack.append((child, (path, key)))
 
 
 #: Bytes of JSON text :func:`check_json_text_depth` looks at in one numpy pass.

@@ -29,14 +29,13 @@ out, so a cut file keeps valid MACs for the chunks it keeps.
 
 from __future__ import annotations
 
-import copy
 import hmac
 import json
 
 import numpy as np
 
-from ..constants import EXTENSION_NAME
-from ..errors import FormatError
+from ..constants import EXTENSION_NAME, MAX_SCENE_VALUES
+from ..errors import FormatError, LimitError
 from .extension import base_mesh_fields, framed_blake2b, payload_version
 from .gltf import COMPONENT_DTYPES, DRACO_EXTENSION, INDEX_DTYPES, TYPE_WIDTH, element_rows
 from .parser import BaseEvent, ChunkEvent, HeaderEvent
@@ -117,7 +116,7 @@ def scene_document(gltf: dict) -> tuple:
     Nothing a ``pmw cut`` rewrites is in ``S``: the chunk table, counts, bufferViews and buffers.
     FormatError when a reference's JSON is malformed (the writer never writes such a document).
     """
-    doc = {k: copy.deepcopy(v) for k, v in gltf.items() if k not in ("buffers", "bufferViews")}
+    doc = _scene_copy({k: v for k, v in gltf.items() if k not in ("buffers", "bufferViews")})
     sources = []
     base = set()
     for mesh in _list(doc.get("meshes")):
@@ -166,7 +165,7 @@ def scene_document(gltf: dict) -> tuple:
             draco = exts.get(DRACO_EXTENSION) if isinstance(exts, dict) else None
             if isinstance(draco, dict) and "bufferView" in draco:
                 _reference(draco, sources, 1, None, False)
-    return _integral_numbers(doc), sources
+    return doc, sources
 
 
 def _list(value) -> list:
@@ -196,15 +195,38 @@ def _reference(holder: dict, sources: list, count: int, item, strided: bool) -> 
     holder["bufferView"] = len(sources) - 1
 
 
-def _integral_numbers(value):
-    """``value`` with every float of integral value as an int (``1.0`` -> ``1``, ``-0.0`` -> ``0``)."""
-    if isinstance(value, float):
-        return int(value) if value.is_integer() else value
-    if isinstance(value, dict):
-        return {k: _integral_numbers(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_integral_numbers(v) for v in value]
-    return value
+def _scene_copy(value, limit: int | None = None):
+    """A copy of the JSON ``value`` with every float of integral value as an int (``1.0`` -> ``1``, ``-0.0`` ->
+    ``0``), walked without recursion; LimitError, before copying a container, when the values counted so far
+    pass ``limit`` (default :data:`~pmwm_codec.constants.MAX_SCENE_VALUES`; objects, arrays and scalars,
+    ``value`` itself included)."""
+    limit = MAX_SCENE_VALUES if limit is None else limit
+    top = [value]
+    if not isinstance(value, (dict, list)):
+        stack, top[0] = [], _integral(value)
+    else:
+        stack = [(top, 0)]  # (holder, place): a container still to copy, at holder[place]
+    count = 1
+    while stack:
+        holder, place = stack.pop()
+        item = holder[place]
+        count += len(item)
+        if count > limit:
+            raise LimitError(f"the scene holds more than {limit:,} JSON values (MAX_SCENE_VALUES, spec/bitstream.md "
+                             "§6.3): too many for its sceneMac")
+        copied = holder[place] = dict(item) if isinstance(item, dict) else list(item)
+        for key in (copied.keys() if isinstance(copied, dict) else range(len(copied))):
+            child = copied[key]
+            if isinstance(child, float):
+                if child.is_integer():
+                    copied[key] = int(child)
+            elif isinstance(child, (dict, list)):
+                stack.append((copied, key))
+    return top[0]
+
+
+def _integral(value):
+    return int(value) if isinstance(value, float) and value.is_integer() else value
 
 
 def scene_data_end(gltf: dict) -> int:
