@@ -142,3 +142,19 @@ def test_an_output_that_is_a_hard_link_of_its_input_is_a_failed_asset_and_the_in
     assert (doc["ok"], doc["failed"]) == (0, 1)
     assert "is also the input" in doc["failures"][0]["error"]
     assert (src / "m.obj").read_bytes() == kept and (out / "m.obj.pmw").read_bytes() == kept
+
+
+def test_a_ledger_that_is_a_symlink_is_refused_and_the_file_it_names_is_never_appended_to(tmp_path, client):
+    """The ledger is appended in place: a ``pmw-batch.jsonl`` planted in OUT_DIR as a link to another file (a
+    shell profile, another tree's ledger) made the run append its rows there."""
+    src, out = tmp_path / "src", tmp_path / "out"
+    src.mkdir()
+    out.mkdir()
+    write_mesh(src / "m.obj", shapes.icosphere(2, noise=0.01, seed=1))
+    victim = tmp_path / "profile"
+    victim.write_text("precious\n")
+    (out / LEDGER_NAME).symlink_to(victim)
+    with pytest.raises(OSError, match="is a symbolic link: the ledger is appended in place"):
+        encode_batch(src, out, watermark=IMAGE, client=client)
+    assert victim.read_text() == "precious\n"
+    assert sorted(p.name for p in out.iterdir()) == [LEDGER_NAME]  # nothing made: no output, no key

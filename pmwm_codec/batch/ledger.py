@@ -23,6 +23,7 @@ next :class:`LedgerWriter` terminates before appending.
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import json
 import os
@@ -126,7 +127,8 @@ class LedgerWriter:
     Each row is one ``write`` of its whole line, unbuffered; a row that cannot be written whole (a full
     disk) is taken back (the file cut to where it was, when it can be) and the OSError names the ledger and
     the row's input: that asset has no row, and the next run does it again.  A ledger that is a hard link is
-    given a file of its own first (:func:`unshare`): rows are never appended to another tree's ledger.
+    given a file of its own first (:func:`unshare`): rows are never appended to another tree's ledger; one that
+    is a symbolic link is refused (OSError): it could make the run append to any file the link names.
     """
 
     def __init__(self, path):
@@ -134,13 +136,16 @@ class LedgerWriter:
         self._fd = None
 
     def __enter__(self):
+        if os.path.islink(self.path):  # appended in place: through a link it could be any file of the user's
+            raise OSError(errno.ELOOP, "is a symbolic link: the ledger is appended in place, never through a link "
+                          "(remove the link)", self.path)
         unshare(self.path)
         cut = False
         if os.path.exists(self.path) and os.path.getsize(self.path):
             with open(self.path, "rb") as fh:
                 fh.seek(-1, os.SEEK_END)
                 cut = fh.read(1) != b"\n"
-        self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
+        self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o666)
         try:
             if cut:
                 self._append(b"\n")
