@@ -417,6 +417,39 @@ def test_a_file_replaced_by_one_of_the_same_size_between_range_requests_is_refus
         thread.join(5)
 
 
+def test_a_file_replaced_by_a_shorter_one_between_range_requests_is_refused_not_read_as_cut(site, tmp_path, capsys):
+    """After the base and chunk 1, ``x.pmw`` is replaced by a file that ends there: ``pmw serve`` answers the next
+    range with 416 (and the new size and ETag).  The reader took that 416 for the end of a cut download and
+    verified the prefix ``authentic``, exit 0, although the server had said the file holds those bytes."""
+    import os
+    import shutil
+
+    served = tmp_path / "site"
+    served.mkdir()
+    shutil.copy(site / "x.pmw", served / "x.pmw")
+    (served / "short.pmw").write_bytes((site / "x.pmw").read_bytes()[: _prefix_end(site / "x.pmw", 1)])
+    os.utime(served / "short.pmw", ns=(1, 1))
+
+    class Shrunk(RangeRequestHandler):
+        """``x.pmw`` for the preamble, the JSON, the base and chunk 1; then ``short.pmw`` in its place."""
+
+        def translate_path(self, path):
+            self.server.requests = getattr(self.server, "requests", 0) + 1
+            return super().translate_path(path if self.server.requests <= 4 else "/short.pmw")
+
+    srv, thread = _serve(served, Shrunk)
+    try:
+        code, out, err = _pmw(capsys, "verify", f"http://127.0.0.1:{srv.server_address[1]}/x.pmw",
+                              "--key", site / "x.pmw.key.json")
+        assert srv.requests == 5
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+    assert code == 2 and err.startswith("pmw: error: ") and len(err.splitlines()) == 1, (code, err)
+    assert "the file changed while it was read" in err and "verdict" not in out
+
+
 def test_every_reader_of_the_library_takes_a_url_as_its_command_does(server, site):
     """``decode_asset``, ``cut``, ``inspect`` and ``verify_stream`` took a URL for a file name (``...: no such
     file``), though ``pmw decode``, ``pmw cut``, ``pmw info`` and ``pmw verify`` take one."""
