@@ -74,7 +74,7 @@ from ..errors import WatermarkKeyError
 from ..sources import read_regular_file, shown_path
 
 __all__ = ["WatermarkKey", "KeySlot", "KEY_FORMAT", "KEY_VERSION", "KEY_FILE_MODE", "KEY_SUFFIX", "refuse_symlink",
-           "refuse_key_target", "refuse_unmarked_beside", "same_path", "checked_key_path"]
+           "refuse_key_target", "refuse_unmarked_beside", "refuse_orphaned_beside", "same_path", "checked_key_path"]
 
 KEY_FORMAT = "pmwm-key"
 KEY_VERSION = 1
@@ -478,11 +478,27 @@ def refuse_unmarked_beside(key_path, dst) -> None:
     ``.pmw`` ``dst`` while ``key_path``, the key file an encode of ``dst`` reads and writes by default,
     exists: the key would be left beside a file it no longer verifies (orphaned), as an encode with
     another image would leave it, and that one is refused too (:class:`KeySlot`)."""
-    if key_path is not None and os.path.lexists(key_path):
-        raise WatermarkKeyError(f"{os.fspath(key_path)}: a watermark key lies beside {os.fspath(dst)}, and this "
-                                "encode writes no mark: the file would no longer verify with it; the key and the "
-                                "file are left untouched (write the output under another name, or move the key "
-                                "away first to replace the marked file)")
+    refuse_orphaned_beside(key_path, dst, marked=False)
+
+
+def refuse_orphaned_beside(key_path, dst, marked: bool, key: "WatermarkKey | None" = None) -> None:
+    """WatermarkKeyError when an encode of the ``.pmw`` ``dst`` would leave ``key_path`` (its default key
+    file, ``OUT.pmw.key.json``, when it exists) beside a file it no longer verifies: the encode writes no
+    mark (``marked`` false), or marks with another key than that file's: ``key``, the key it marks with
+    (None: a new one).  A key of the same secret (a copy of the key file) still verifies: not refused."""
+    if key_path is None or not os.path.lexists(key_path):
+        return
+    if marked and key is not None:
+        try:
+            if WatermarkKey.load(key_path).secret == key.secret:
+                return
+        except WatermarkKeyError:
+            pass
+    what = "writes no mark" if not marked else "marks it with another key"
+    raise WatermarkKeyError(f"{os.fspath(key_path)}: a watermark key lies beside {os.fspath(dst)}, and this "
+                            f"encode {what}: the file would no longer verify with it; the key and the "
+                            "file are left untouched (write the output under another name, or move the key "
+                            "away first to replace the marked file)")
 
 
 def same_path(a, b) -> bool:
