@@ -106,7 +106,9 @@ def _reference_from_json(ref) -> np.ndarray:
     if not isinstance(ref, dict):
         raise ValueError("is not an object")
     try:
-        shape = (int(ref["height"]), int(ref["width"]))
+        if not (_is_int(ref["height"]) and _is_int(ref["width"])):
+            raise TypeError
+        shape = (ref["height"], ref["width"])
         data = base64.b64decode(ref["png"], validate=True)
     except KeyError as exc:
         raise ValueError(f"has no {exc.args[0]!r}") from None
@@ -123,6 +125,11 @@ def _reference_from_json(ref) -> np.ndarray:
     if image.shape != shape:
         raise ValueError(f"is {image.shape[1]}x{image.shape[0]}, declared {shape[1]}x{shape[0]}")
     return image
+
+
+def _is_int(value) -> bool:
+    """Whether a JSON value is an integer (``16``; not ``16.0``, ``"16"`` or ``true``)."""
+    return isinstance(value, int) and not isinstance(value, bool)
 
 
 def _jsonable(obj):
@@ -209,7 +216,7 @@ class WatermarkKey:
         check_json_depth(doc, source, error=WatermarkKeyError)
         if not isinstance(doc, dict) or doc.get("format") != KEY_FORMAT:
             raise bad(f'"format" is not "{KEY_FORMAT}"')
-        if doc.get("version") != KEY_VERSION:
+        if not _is_int(doc.get("version")) or doc["version"] != KEY_VERSION:
             raise bad(f"unsupported key version {doc.get('version')!r}")
         try:
             secret = bytes.fromhex(doc["secret"])
@@ -228,6 +235,8 @@ class WatermarkKey:
             except ValueError as exc:
                 raise bad(f"reference watermark {exc}") from None
         owner_id = doc.get("owner_id")
+        if owner_id is not None and not isinstance(owner_id, str):  # a number's digits are not its hex digits
+            raise bad(f'"owner_id" must be a string of hexadecimal digits or null, not {type(owner_id).__name__}')
         if owner_id is not None:
             try:
                 owner_id = parse_owner_id(owner_id)
