@@ -716,6 +716,29 @@ def test_serve_refuses_every_key_the_key_loader_reads_whatever_its_spelling(tmp_
         thread.join(5)
 
 
+def test_serve_never_sends_a_key_saved_with_a_byte_order_mark(tmp_path):
+    """A key file re-saved by an editor that puts a UTF-8 BOM first (the key loader then refuses it, but the secret
+    is all there) was served whole under another name, and an output could replace it."""
+    from pmwm_codec.watermark.key import WatermarkKey, is_key_file
+
+    key = WatermarkKey.generate(rng=np.random.default_rng(5))
+    site = tmp_path / "site"
+    site.mkdir()
+    for name, text in _key_variants(key).items():
+        (site / name).write_bytes(b"\xef\xbb\xbf" + text.encode())
+        assert is_key_file(site / name), name
+    srv, thread = _serve(site, RangeRequestHandler)
+    try:
+        for name in _key_variants(key):
+            for headers in ({}, {"Range": "bytes=0-"}):
+                status, _, body = _get(f"http://127.0.0.1:{srv.server_address[1]}/{name}", headers)
+                assert status == 404 and key.secret_hex.encode() not in body, name
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+
+
 def test_is_key_file_refuses_at_least_what_it_refused(tmp_path):
     """The check guards output paths too (a key file is never rewritten): every file the byte pattern on the
     head named a key still is one, the loader's reading added to it."""

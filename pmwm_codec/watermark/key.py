@@ -436,7 +436,9 @@ def is_key_file(path) -> bool:
     read as the loader reads it (escapes such as ``"pmwm\\u002dkey"``, blanks before the object, the
     members in any order).  A file whose first 4096 bytes name that format in plain bytes
     (``"format": "pmwm-key"`` after a ``{``) counts too, whatever follows: the check refuses at least
-    what it always refused.  Only a file that starts (after blanks) with ``{`` is read past its head."""
+    what it always refused, and so does a key saved with a UTF-8 byte order mark before it (which the loader
+    refuses, but which holds the secret all the same).  Only a file that starts (after blanks) with ``{`` is
+    read past its head."""
     import stat
 
     path = os.fspath(path)
@@ -454,7 +456,7 @@ def is_key_file(path) -> bool:
             if not stat.S_ISREG(info.st_mode):  # replaced by a FIFO since isfile: never read (it blocks)
                 return False
             os.set_blocking(fd, True)
-            head = fh.read(4096)
+            head = fh.read(4096).removeprefix(b"\xef\xbb\xbf")  # a UTF-8 BOM (an editor's): still the secret
             text = head.lstrip()
             if text.startswith(b"{") and re.search(rb'"format"\s*:\s*"' + KEY_FORMAT.encode() + b'"', text):
                 return True
