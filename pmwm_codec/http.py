@@ -45,7 +45,7 @@ from .errors import FormatError, InputFormatError, LimitError
 from .format import ContainerParser, HeaderEvent
 from .format.extension import chunk_start
 from .format.layout import CHUNK_HEADER_SIZE, PREAMBLE_SIZE
-from .format.parser import parse_preamble
+from .format.parser import parse_preamble, trailing_bytes
 from .sources import DEFAULT_BLOCK_SIZE, iter_blocks, read_all, resolve_stdin
 
 #: Seconds one network step may take (a request up to its answer's head, one read of a body), and the
@@ -174,8 +174,10 @@ class UrlSource:
     # -- Range mode --------------------------------------------------------------
 
     def _ranges(self, preamble: bytes):
-        """After the preamble: JSON + BIN header, then the planned ranges, in order."""
-        _, json_length = parse_preamble(preamble)
+        """After the preamble: JSON + BIN header, then the planned ranges, in order (a file longer than its
+        GLB header declares is refused: :meth:`_check_length`)."""
+        total, json_length = parse_preamble(preamble)
+        self._check_length(total)
         header_end = PREAMBLE_SIZE + json_length + CHUNK_HEADER_SIZE
         rest = self._fetch(PREAMBLE_SIZE, header_end)
         yield rest
@@ -189,7 +191,14 @@ class UrlSource:
             if len(block) < end - start:
                 return  # the server stopped: a cut stream
             start = end
-        self.stopped = ends[-1] < parse_preamble(preamble)[0]
+        self.stopped = ends[-1] < total
+
+    def _check_length(self, total: int) -> None:
+        """FormatError when the file's size as the server gave it is more than ``total``, the length its GLB
+        header declares: every reader refuses the bytes after it (a file on disk, standard input), and so does
+        a read that stops before them (``max_chunks``)."""
+        if self.file_size is not None and self.file_size > total:
+            raise trailing_bytes(self.file_size, total)
 
     def _fetch(self, start: int, end: int, response=None) -> bytes:
         """Bytes ``[start, end)`` by Range requests (``response``: the first one's answer, already open).
@@ -300,6 +309,8 @@ class UrlSource:
             if stop is None:
                 head += block
                 stop = _plain_stop(head, self.max_chunks, self.whole_document)
+                if stop is not None:
+                    self._check_length(parse_preamble(head)[0])
                 if stop is not None and offset + len(block) > stop:
                     block, over = block[: stop - offset], True
             offset += len(block)

@@ -21,7 +21,7 @@ import pmwm_codec
 from pmwm_codec import shapes
 from pmwm_codec.cli import main
 from pmwm_codec.cli.serve import RangeRequestHandler, make_server, parse_range
-from pmwm_codec.errors import InputFormatError
+from pmwm_codec.errors import FormatError, InputFormatError, PmwError
 from pmwm_codec.format.inspect import inspect
 from pmwm_codec.http import UrlSource, is_url
 
@@ -448,6 +448,32 @@ def test_a_file_replaced_by_a_shorter_one_between_range_requests_is_refused_not_
         thread.join(5)
     assert code == 2 and err.startswith("pmw: error: ") and len(err.splitlines()) == 1, (code, err)
     assert "the file changed while it was read" in err and "verdict" not in out
+
+
+@pytest.mark.parametrize("handler", [RangeRequestHandler, IgnoringRange])
+def test_a_file_longer_than_its_glb_header_declares_is_refused_over_http_as_on_disk(site, tmp_path, capsys, handler):
+    """A file with bytes after its declared GLB length is refused on disk and on standard input, whole or up to
+    chunk 2; served by ranges it verified ``authentic`` (its size, in every Content-Range, never compared), and
+    with ``--chunks 2`` or plainly (its Content-Length) it decoded: one file, two answers."""
+    served = tmp_path / "site"
+    served.mkdir()
+    (served / "j.pmw").write_bytes((site / "x.pmw").read_bytes() + b"JUNKJUNK")
+    srv, thread = _serve(served, handler)
+    try:
+        url = f"http://127.0.0.1:{srv.server_address[1]}/j.pmw"
+        for argv in (["verify", url, "--key", site / "x.pmw.key.json"], ["info", url],
+                     ["decode", url, "--chunks", 2, "-o", tmp_path / "j.obj"]):
+            for where in (served / "j.pmw", url):
+                code, out, err = _pmw(capsys, *[where if a == url else a for a in argv])
+                assert code == 2 and len(err.splitlines()) == 1, (argv, where, err)
+                assert "8 bytes after the declared file length" in err, err
+        with pytest.raises(FormatError, match="after the declared file length"):
+            pmwm_codec.decode(url, chunks=2)
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+    assert not (tmp_path / "j.obj").exists()
 
 
 def test_every_reader_of_the_library_takes_a_url_as_its_command_does(server, site):
@@ -982,18 +1008,27 @@ def test_verify_url_reads_no_more_than_the_file_declares(owner_site, capsys, gzi
     url = f"http://127.0.0.1:{srv.server_address[1]}/x.pmw"
     size = (site / "x.pmw").stat().st_size
     try:
+        # a plain body's Content-Length that says the file goes on past its GLB length is refused before the
+        # bytes past it are read (as a file with bytes after its GLB length is on disk, even up to chunk 2)
+        refusal = "more than the {size:,} bytes the file's GLB header declares" if gzip else \
+            "TAIL bytes after the declared file length {size}"
+        refusal = refusal.format(size=size).replace("TAIL", str(TAIL))
         code, _, err = _pmw(capsys, "verify", url, "--key", key)
-        assert code == 2 and f"more than the {size:,} bytes the file's GLB header declares" in err, err
+        assert code == 2 and refusal in err, err
         assert len(err.splitlines()) == 1
         from pmwm_codec.http import read_declared
 
         source = UrlSource(url)
-        with pytest.raises(InputFormatError, match="GLB header declares"):
+        with pytest.raises(PmwError, match=re.escape(refusal)):
             read_declared(source)
         assert source.bytes_fetched <= size + (1 << 16) + 1  # the file, then one byte (compressed: fewer)
         srv.bytes_sent = 0
-        mesh = pmwm_codec.decode(UrlSource(url, max_chunks=2), chunks=2)  # stopped early: no refusal
-        assert mesh == pmwm_codec.decode(site / "x.pmw", chunks=2)
+        if gzip:  # its decoded length is not known before it is read: stopped early, no refusal
+            mesh = pmwm_codec.decode(UrlSource(url, max_chunks=2), chunks=2)
+            assert mesh == pmwm_codec.decode(site / "x.pmw", chunks=2)
+        else:
+            with pytest.raises(FormatError, match=re.escape(refusal)):
+                pmwm_codec.decode(UrlSource(url, max_chunks=2), chunks=2)
     finally:
         srv.shutdown()
         srv.server_close()
