@@ -380,6 +380,18 @@ def test_a_gzipped_plain_answer_is_decoded_and_a_gzipped_range_answer_refused(si
             thread.join(5)
 
 
+def _replaced_after(requests: int, path: str):
+    """A Range handler that serves the file asked for ``requests`` times, then the one at ``path`` in its place
+    (the server counts its requests in ``requests``)."""
+
+    class Replaced(RangeRequestHandler):
+        def translate_path(self, asked):
+            self.server.requests = getattr(self.server, "requests", 0) + 1
+            return super().translate_path(asked if self.server.requests <= requests else path)
+
+    return Replaced
+
+
 def test_a_file_replaced_by_one_of_the_same_size_between_range_requests_is_refused(tmp_path):
     """Only the size was compared: a file replaced by another of the same size (here two base vertices swapped,
     which no digest covers) decoded to a mesh neither file holds, silently.  ``pmw serve`` now sends ``ETag``
@@ -400,14 +412,7 @@ def test_a_file_replaced_by_one_of_the_same_size_between_range_requests_is_refus
     (site / "b.pmw").write_bytes(bytes(data))
     os.utime(site / "b.pmw", ns=(1, 1))
 
-    class Replaced(RangeRequestHandler):
-        """Serves ``a.pmw`` for the first two requests (preamble, JSON), then ``b.pmw`` in its place."""
-
-        def translate_path(self, path):
-            self.server.requests = getattr(self.server, "requests", 0) + 1
-            return super().translate_path(path if self.server.requests <= 2 else "/b.pmw")
-
-    srv, thread = _serve(site, Replaced)
+    srv, thread = _serve(site, _replaced_after(2, "/b.pmw"))  # after the preamble and the JSON
     try:
         with pytest.raises(InputFormatError, match="the file changed while it was read"):
             pmwm_codec.decode(f"http://127.0.0.1:{srv.server_address[1]}/a.pmw", chunks=0)  # the base only
@@ -430,14 +435,7 @@ def test_a_file_replaced_by_a_shorter_one_between_range_requests_is_refused_not_
     (served / "short.pmw").write_bytes((site / "x.pmw").read_bytes()[: _prefix_end(site / "x.pmw", 1)])
     os.utime(served / "short.pmw", ns=(1, 1))
 
-    class Shrunk(RangeRequestHandler):
-        """``x.pmw`` for the preamble, the JSON, the base and chunk 1; then ``short.pmw`` in its place."""
-
-        def translate_path(self, path):
-            self.server.requests = getattr(self.server, "requests", 0) + 1
-            return super().translate_path(path if self.server.requests <= 4 else "/short.pmw")
-
-    srv, thread = _serve(served, Shrunk)
+    srv, thread = _serve(served, _replaced_after(4, "/short.pmw"))  # after the preamble, the JSON, the base, chunk 1
     try:
         code, out, err = _pmw(capsys, "verify", f"http://127.0.0.1:{srv.server_address[1]}/x.pmw",
                               "--key", site / "x.pmw.key.json")
