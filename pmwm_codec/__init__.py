@@ -148,8 +148,7 @@ def _key_for(key, image, dst, owner_id=None, inputs=()) -> tuple:
     from .stream.encoder import default_key_path
     from .errors import OptionError, WatermarkKeyError
     from .options import check_output_path
-    from .watermark.key import (FROM_KEY, KeySlot, WatermarkKey, check_key_object, refuse_orphaned_beside,
-                                 refuse_unmarked_beside, same_path)
+    from .watermark.key import FROM_KEY, KeySlot, WatermarkKey, check_key_object, refuse_orphaned_beside, same_path
 
     if owner_id is False or (owner_id is None and image is None):
         owner_id = None
@@ -157,7 +156,7 @@ def _key_for(key, image, dst, owner_id=None, inputs=()) -> tuple:
         owner_id = FROM_KEY
     if image is None and owner_id is None:  # no mark: never written beside a key it would leave verifying nothing
         if isinstance(dst, (str, os.PathLike)):
-            refuse_unmarked_beside(default_key_path(dst), dst)
+            refuse_orphaned_beside(default_key_path(dst), dst, marked=False)
         return None, None, None
     if key is not None and not isinstance(key, (str, os.PathLike)):
         if not isinstance(key, WatermarkKey):

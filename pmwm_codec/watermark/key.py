@@ -74,7 +74,7 @@ from ..errors import WatermarkKeyError
 from ..sources import read_regular_file, shown_path
 
 __all__ = ["WatermarkKey", "KeySlot", "KEY_FORMAT", "KEY_VERSION", "KEY_FILE_MODE", "KEY_SUFFIX", "refuse_symlink",
-           "refuse_key_target", "refuse_unmarked_beside", "refuse_orphaned_beside", "same_path", "checked_key_path"]
+           "refuse_key_target", "refuse_orphaned_beside", "same_path", "checked_key_path"]
 
 KEY_FORMAT = "pmwm-key"
 KEY_VERSION = 1
@@ -484,19 +484,12 @@ def refuse_key_target(path, what: str) -> None:
                                 "(a key file is never rewritten): give the output another name")
 
 
-def refuse_unmarked_beside(key_path, dst) -> None:
-    """WatermarkKeyError when an encode that writes no mark (no image, no owner layer) would write the
-    ``.pmw`` ``dst`` while ``key_path``, the key file an encode of ``dst`` reads and writes by default,
-    exists: the key would be left beside a file it no longer verifies (orphaned), as an encode with
-    another image would leave it, and that one is refused too (:class:`KeySlot`)."""
-    refuse_orphaned_beside(key_path, dst, marked=False)
-
-
 def refuse_orphaned_beside(key_path, dst, marked: bool, key: "WatermarkKey | None" = None) -> None:
     """WatermarkKeyError when an encode of the ``.pmw`` ``dst`` would leave ``key_path`` (its default key
     file, ``OUT.pmw.key.json``, when it exists) beside a file it no longer verifies: the encode writes no
     mark (``marked`` false), or marks with another key than that file's: ``key``, the key it marks with
-    (None: a new one).  A key of the same secret (a copy of the key file) still verifies: not refused."""
+    (None: a new one), as an encode with another image would (:class:`KeySlot` refuses that one).  A key of
+    the same secret (a copy of the key file) still verifies: not refused."""
     if key_path is None or not os.path.lexists(key_path):
         return
     if marked and key is not None:
