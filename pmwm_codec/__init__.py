@@ -144,15 +144,15 @@ def _key_for(key, image, dst, owner_id=None, inputs=()) -> tuple:
     (and/or the owner layer) to ``dst``; ``owner_id`` as :func:`encode` takes it, resolved.
 
     Checked before any work (before the mesh is read): a refused key file costs nothing.  An encode
-    that writes no mark to a path beside a key file (``OUT.pmw.key.json``) is refused
-    (:func:`~pmwm_codec.watermark.key.refuse_unmarked_beside`).  A key
+    that writes no mark to a path beside a key file (``OUT.pmw.key.json``), or marks it with another key,
+    is refused (:func:`~pmwm_codec.watermark.key.refuse_orphaned_beside`).  A key
     path that names no file yet must be one a new key can be published at
     (:func:`~pmwm_codec.options.check_output_path`: not empty, no directory, not one of ``inputs``).
     """
     from .stream.encoder import default_key_path
     from .errors import OptionError, WatermarkKeyError
     from .options import check_output_path
-    from .watermark.key import FROM_KEY, KeySlot, WatermarkKey, check_key_object, refuse_unmarked_beside, same_path
+    from .watermark.key import FROM_KEY, KeySlot, WatermarkKey, check_key_object, refuse_orphaned_beside, same_path
 
     if owner_id is False or (owner_id is None and image is None):
         owner_id = None
@@ -160,13 +160,14 @@ def _key_for(key, image, dst, owner_id=None, inputs=()) -> tuple:
         owner_id = FROM_KEY
     if image is None and owner_id is None:  # no mark: never written beside a key it would leave verifying nothing
         if isinstance(dst, (str, os.PathLike)):
-            refuse_unmarked_beside(default_key_path(dst), dst)
+            refuse_orphaned_beside(default_key_path(dst), dst, marked=False)
         return None, None, None
     if key is not None and not isinstance(key, (str, os.PathLike)):
         if not isinstance(key, WatermarkKey):
             raise OptionError(f"key must be a WatermarkKey, a key file path or None, got {type(key).__name__}")
         resolved = key.owner_id if owner_id == FROM_KEY else owner_id
         check_key_object(key, image, resolved)
+        refuse_orphaned_beside(default_key_path(dst), dst, marked=True, key=key)
         return key, None, resolved
     path = default_key_path(dst) if key is None else key
     if path is None:
@@ -178,6 +179,9 @@ def _key_for(key, image, dst, owner_id=None, inputs=()) -> tuple:
     if not os.path.lexists(path):  # an existing key file (or what stands there) is KeySlot's to judge
         path = check_output_path(path, "key", inputs=inputs, key=True)
     slot = KeySlot.open(path, image, owner_id)
+    beside = default_key_path(dst)
+    if beside is not None and not same_path(path, beside):
+        refuse_orphaned_beside(beside, dst, marked=True, key=slot.existing)
     return slot.existing, slot, slot.owner_id
 
 

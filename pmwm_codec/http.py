@@ -45,7 +45,7 @@ from .errors import FormatError, InputFormatError, LimitError
 from .format import ContainerParser, HeaderEvent
 from .format.extension import chunk_start
 from .format.layout import CHUNK_HEADER_SIZE, PREAMBLE_SIZE
-from .format.parser import parse_preamble
+from .format.parser import parse_preamble, trailing_bytes
 from .sources import DEFAULT_BLOCK_SIZE, iter_blocks, read_all, resolve_stdin
 
 #: Seconds one network step may take (a request up to its answer's head, one read of a body), and the
@@ -174,8 +174,10 @@ class UrlSource:
     # -- Range mode --------------------------------------------------------------
 
     def _ranges(self, preamble: bytes):
-        """After the preamble: JSON + BIN header, then the planned ranges, in order."""
-        _, json_length = parse_preamble(preamble)
+        """After the preamble: JSON + BIN header, then the planned ranges, in order (a file longer than its
+        GLB header declares is refused: :meth:`_check_length`)."""
+        total, json_length = parse_preamble(preamble)
+        self._check_length(total)
         header_end = PREAMBLE_SIZE + json_length + CHUNK_HEADER_SIZE
         rest = self._fetch(PREAMBLE_SIZE, header_end)
         yield rest
@@ -189,7 +191,14 @@ class UrlSource:
             if len(block) < end - start:
                 return  # the server stopped: a cut stream
             start = end
-        self.stopped = ends[-1] < parse_preamble(preamble)[0]
+        self.stopped = ends[-1] < total
+
+    def _check_length(self, total: int) -> None:
+        """FormatError when the file's size as the server gave it is more than ``total``, the length its GLB
+        header declares: every reader refuses the bytes after it (a file on disk, standard input), and so does
+        a read that stops before them (``max_chunks``)."""
+        if self.file_size is not None and self.file_size > total:
+            raise trailing_bytes(self.file_size, total)
 
     def _fetch(self, start: int, end: int, response=None) -> bytes:
         """Bytes ``[start, end)`` by Range requests (``response``: the first one's answer, already open).
@@ -203,7 +212,8 @@ class UrlSource:
         while at < end:
             with response or self._open(at, end, past_end_ok=True) as answer:
                 response = None
-                if answer.status == 416:  # the served file ends before ``at``: a cut stream
+                if answer.status == 416:  # the served file ends before ``at``: a cut stream, unless it said it did not
+                    self._check_unsatisfiable(answer, at)
                     break
                 if answer.status != 206:
                     raise InputFormatError(f"{self.url}: the server answered a Range request with status "
@@ -237,17 +247,11 @@ class UrlSource:
         if match is None or int(match[1]) != start or not start <= int(match[2]) < end \
                 or match[3] != "*" and int(match[2]) >= int(match[3]):
             raise InputFormatError(f"{self.url}: Content-Range {given!r} does not answer bytes {start}-{end - 1}")
-        validators = {name: response.headers.get(name) for name in ("ETag", "Last-Modified")}
         if self._size is None:
-            self._size, self._validators = match[3], validators
+            self._size, self._validators = match[3], self._validators_of(response)
             self.file_size = int(match[3]) if match[3].isdigit() else None
-        elif match[3] != self._size:
-            raise InputFormatError(f"{self.url}: the file changed while it was read (size {self._size}, now {match[3]})")
         else:
-            for name, first in self._validators.items():
-                if first is not None and validators[name] is not None and validators[name] != first:
-                    raise InputFormatError(f"{self.url}: the file changed while it was read ({name} {first}, "
-                                           f"now {validators[name]})")
+            self._check_same_file(response, match[3])
         last = int(match[2]) + 1
         parts, size = [], 0
         while size < last - start:
@@ -257,6 +261,31 @@ class UrlSource:
             parts.append(block)
             size += len(block)
         return b"".join(parts), last
+
+    @staticmethod
+    def _validators_of(response) -> dict:
+        return {name: response.headers.get(name) for name in ("ETag", "Last-Modified")}
+
+    def _check_same_file(self, response, size: str | None) -> None:
+        """InputFormatError when ``response`` (a later answer) shows another file than the first answer did:
+        another size (``size``, from its ``Content-Range``; None: not said), ``ETag`` or ``Last-Modified``."""
+        if size is not None and size != self._size:
+            raise InputFormatError(f"{self.url}: the file changed while it was read (size {self._size}, now {size})")
+        for name, now in self._validators_of(response).items():
+            first = self._validators[name]
+            if first is not None and now is not None and now != first:
+                raise InputFormatError(f"{self.url}: the file changed while it was read ({name} {first}, now {now})")
+
+    def _check_unsatisfiable(self, response, at: int) -> None:
+        """A 416 for bytes from ``at`` on, after earlier answers: a cut stream when the file ends before ``at``
+        (its size not known, or known and at most ``at``); when ``at`` is inside the size the server gave, the file
+        shrank or was replaced (InputFormatError, never a cut stream)."""
+        if self.file_size is None or at >= self.file_size:
+            return
+        match = re.match(r"bytes\s+\*/(\d{1,19})\s*$", response.headers.get("Content-Range") or "")
+        self._check_same_file(response, match and match[1])
+        raise InputFormatError(f"{self.url}: the file changed while it was read (the server has no bytes from "
+                               f"{at:,} on, in a file of {self.file_size:,} bytes)")
 
     # -- plain mode ---------------------------------------------------------------
 
@@ -280,6 +309,8 @@ class UrlSource:
             if stop is None:
                 head += block
                 stop = _plain_stop(head, self.max_chunks, self.whole_document)
+                if stop is not None:
+                    self._check_length(parse_preamble(head)[0])
                 if stop is not None and offset + len(block) > stop:
                     block, over = block[: stop - offset], True
             offset += len(block)

@@ -152,6 +152,12 @@ def test_a_rerun_with_another_watermark_or_key_is_never_skipped_as_done(tmp_path
     redo = encode_batch(src, out, watermark=second, client=client)  # never skipped as if done
     assert redo["failed"] == 2 and all("key holds another watermark" in r["error"] for r in redo["failures"])
     assert {p: p.read_bytes() for p in out.glob("*.pmw*")} == before  # the keys' own outputs untouched
+    # under other keys, the keys beside the outputs (what ``verify_batch(out)`` reads) would no longer verify them
+    redo = encode_batch(src, out, watermark=second, keys_dir=tmp_path / "keys2", client=client)
+    assert redo["failed"] == 2 and all("marks it with another key" in r["error"] for r in redo["failures"])
+    assert {p: p.read_bytes() for p in out.glob("*.pmw*")} == before
+    for old_key in out.glob("*.pmw.key.json"):  # moved away, as the message says
+        old_key.rename(tmp_path / old_key.name)
     assert encode_batch(src, out, watermark=second, keys_dir=tmp_path / "keys2", client=client)["ok"] == 2
     for i in range(2):
         pmw = out / f"m{i}.obj.pmw"

@@ -22,7 +22,7 @@ import pmwm_codec
 from pmwm_codec import shapes
 from pmwm_codec.cli import main
 from pmwm_codec.cli.serve import RangeRequestHandler, make_server, parse_range
-from pmwm_codec.errors import InputFormatError
+from pmwm_codec.errors import FormatError, InputFormatError, PmwError
 from pmwm_codec.format.inspect import inspect
 from pmwm_codec.http import UrlSource, is_url
 
@@ -405,6 +405,18 @@ def test_a_gzipped_plain_answer_is_decoded_and_a_gzipped_range_answer_refused(si
             thread.join(5)
 
 
+def _replaced_after(requests: int, path: str):
+    """A Range handler that serves the file asked for ``requests`` times, then the one at ``path`` in its place
+    (the server counts its requests in ``requests``)."""
+
+    class Replaced(RangeRequestHandler):
+        def translate_path(self, asked):
+            self.server.requests = getattr(self.server, "requests", 0) + 1
+            return super().translate_path(asked if self.server.requests <= requests else path)
+
+    return Replaced
+
+
 def test_a_file_replaced_by_one_of_the_same_size_between_range_requests_is_refused(tmp_path):
     """Only the size was compared: a file replaced by another of the same size (here two base vertices swapped,
     which no digest covers) decoded to a mesh neither file holds, silently.  ``pmw serve`` now sends ``ETag``
@@ -425,14 +437,7 @@ def test_a_file_replaced_by_one_of_the_same_size_between_range_requests_is_refus
     (site / "b.pmw").write_bytes(bytes(data))
     os.utime(site / "b.pmw", ns=(1, 1))
 
-    class Replaced(RangeRequestHandler):
-        """Serves ``a.pmw`` for the first two requests (preamble, JSON), then ``b.pmw`` in its place."""
-
-        def translate_path(self, path):
-            self.server.requests = getattr(self.server, "requests", 0) + 1
-            return super().translate_path(path if self.server.requests <= 2 else "/b.pmw")
-
-    srv, thread = _serve(site, Replaced)
+    srv, thread = _serve(site, _replaced_after(2, "/b.pmw"))  # after the preamble and the JSON
     try:
         with pytest.raises(InputFormatError, match="the file changed while it was read"):
             pmwm_codec.decode(f"http://127.0.0.1:{srv.server_address[1]}/a.pmw", chunks=0)  # the base only
@@ -440,6 +445,58 @@ def test_a_file_replaced_by_one_of_the_same_size_between_range_requests_is_refus
         srv.shutdown()
         srv.server_close()
         thread.join(5)
+
+
+def test_a_file_replaced_by_a_shorter_one_between_range_requests_is_refused_not_read_as_cut(site, tmp_path, capsys):
+    """After the base and chunk 1, ``x.pmw`` is replaced by a file that ends there: ``pmw serve`` answers the next
+    range with 416 (and the new size and ETag).  The reader took that 416 for the end of a cut download and
+    verified the prefix ``authentic``, exit 0, although the server had said the file holds those bytes."""
+    import os
+    import shutil
+
+    served = tmp_path / "site"
+    served.mkdir()
+    shutil.copy(site / "x.pmw", served / "x.pmw")
+    (served / "short.pmw").write_bytes((site / "x.pmw").read_bytes()[: _prefix_end(site / "x.pmw", 1)])
+    os.utime(served / "short.pmw", ns=(1, 1))
+
+    srv, thread = _serve(served, _replaced_after(4, "/short.pmw"))  # after the preamble, the JSON, the base, chunk 1
+    try:
+        code, out, err = _pmw(capsys, "verify", f"http://127.0.0.1:{srv.server_address[1]}/x.pmw",
+                              "--key", site / "x.pmw.key.json")
+        assert srv.requests == 5
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+    assert code == 2 and err.startswith("pmw: error: ") and len(err.splitlines()) == 1, (code, err)
+    assert "the file changed while it was read" in err and "verdict" not in out
+
+
+@pytest.mark.parametrize("handler", [RangeRequestHandler, IgnoringRange])
+def test_a_file_longer_than_its_glb_header_declares_is_refused_over_http_as_on_disk(site, tmp_path, capsys, handler):
+    """A file with bytes after its declared GLB length is refused on disk and on standard input, whole or up to
+    chunk 2; served by ranges it verified ``authentic`` (its size, in every Content-Range, never compared), and
+    with ``--chunks 2`` or plainly (its Content-Length) it decoded: one file, two answers."""
+    served = tmp_path / "site"
+    served.mkdir()
+    (served / "j.pmw").write_bytes((site / "x.pmw").read_bytes() + b"JUNKJUNK")
+    srv, thread = _serve(served, handler)
+    try:
+        url = f"http://127.0.0.1:{srv.server_address[1]}/j.pmw"
+        for argv in (["verify", url, "--key", site / "x.pmw.key.json"], ["info", url],
+                     ["decode", url, "--chunks", 2, "-o", tmp_path / "j.obj"]):
+            for where in (served / "j.pmw", url):
+                code, out, err = _pmw(capsys, *[where if a == url else a for a in argv])
+                assert code == 2 and len(err.splitlines()) == 1, (argv, where, err)
+                assert "8 bytes after the declared file length" in err, err
+        with pytest.raises(FormatError, match="after the declared file length"):
+            pmwm_codec.decode(url, chunks=2)
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+    assert not (tmp_path / "j.obj").exists()
 
 
 def test_every_reader_of_the_library_takes_a_url_as_its_command_does(server, site):
@@ -698,6 +755,29 @@ def test_serve_refuses_every_key_the_key_loader_reads_whatever_its_spelling(tmp_
         thread.join(5)
 
 
+def test_serve_never_sends_a_key_saved_with_a_byte_order_mark(tmp_path):
+    """A key file re-saved by an editor that puts a UTF-8 BOM first (the key loader then refuses it, but the secret
+    is all there) was served whole under another name, and an output could replace it."""
+    from pmwm_codec.watermark.key import WatermarkKey, is_key_file
+
+    key = WatermarkKey.generate(rng=np.random.default_rng(5))
+    site = tmp_path / "site"
+    site.mkdir()
+    for name, text in _key_variants(key).items():
+        (site / name).write_bytes(b"\xef\xbb\xbf" + text.encode())
+        assert is_key_file(site / name), name
+    srv, thread = _serve(site, RangeRequestHandler)
+    try:
+        for name in _key_variants(key):
+            for headers in ({}, {"Range": "bytes=0-"}):
+                status, _, body = _get(f"http://127.0.0.1:{srv.server_address[1]}/{name}", headers)
+                assert status == 404 and key.secret_hex.encode() not in body, name
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+
+
 def test_is_key_file_refuses_at_least_what_it_refused(tmp_path):
     """The check guards output paths too (a key file is never rewritten): every file the byte pattern on the
     head named a key still is one, the loader's reading added to it."""
@@ -941,18 +1021,27 @@ def test_verify_url_reads_no_more_than_the_file_declares(owner_site, capsys, gzi
     url = f"http://127.0.0.1:{srv.server_address[1]}/x.pmw"
     size = (site / "x.pmw").stat().st_size
     try:
+        # a plain body's Content-Length that says the file goes on past its GLB length is refused before the
+        # bytes past it are read (as a file with bytes after its GLB length is on disk, even up to chunk 2)
+        refusal = "more than the {size:,} bytes the file's GLB header declares" if gzip else \
+            "TAIL bytes after the declared file length {size}"
+        refusal = refusal.format(size=size).replace("TAIL", str(TAIL))
         code, _, err = _pmw(capsys, "verify", url, "--key", key)
-        assert code == 2 and f"more than the {size:,} bytes the file's GLB header declares" in err, err
+        assert code == 2 and refusal in err, err
         assert len(err.splitlines()) == 1
         from pmwm_codec.http import read_declared
 
         source = UrlSource(url)
-        with pytest.raises(InputFormatError, match="GLB header declares"):
+        with pytest.raises(PmwError, match=re.escape(refusal)):
             read_declared(source)
         assert source.bytes_fetched <= size + (1 << 16) + 1  # the file, then one byte (compressed: fewer)
         srv.bytes_sent = 0
-        mesh = pmwm_codec.decode(UrlSource(url, max_chunks=2), chunks=2)  # stopped early: no refusal
-        assert mesh == pmwm_codec.decode(site / "x.pmw", chunks=2)
+        if gzip:  # its decoded length is not known before it is read: stopped early, no refusal
+            mesh = pmwm_codec.decode(UrlSource(url, max_chunks=2), chunks=2)
+            assert mesh == pmwm_codec.decode(site / "x.pmw", chunks=2)
+        else:
+            with pytest.raises(FormatError, match=re.escape(refusal)):
+                pmwm_codec.decode(UrlSource(url, max_chunks=2), chunks=2)
     finally:
         srv.shutdown()
         srv.server_close()

@@ -163,6 +163,31 @@ def test_a_key_written_before_the_checksum_still_loads(tmp_path, key):
     assert json.loads(path.read_text())["checksum"] == key.checksum() and WatermarkKey.load(path) == key
 
 
+@pytest.mark.parametrize("member, value, message", [
+    ("owner_id", 1234, '"owner_id" must be a string'),  # read as the hex digits "1234", the checksum matching
+    ("version", True, "unsupported key version True"),
+    ("version", 1.0, "unsupported key version 1.0"),
+    ("width", 16.0, "must be integers"),
+    ("height", "16", "must be integers"),
+])
+@pytest.mark.parametrize("checksum", [True, False])
+def test_a_key_file_member_of_the_wrong_type_is_refused_not_read_as_another_value(tmp_path, key, member, value,
+                                                                                   message, checksum):
+    """A number where the key writes text was taken for it: an owner ID written 1234 was read as the hex digits
+    0x1234 (with or without the checksum: it covers the ID read), a width of 16.0 or "16" as 16, a version true
+    as 1; a key file is read as written or refused, with one line."""
+    key.owner_id = 0x1234
+    doc = key.to_json()
+    if not checksum:
+        del doc["checksum"]
+    (doc["reference"] if member in ("width", "height") else doc)[member] = value
+    path = tmp_path / "k.key.json"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(WatermarkKeyError, match=message) as info:
+        WatermarkKey.load(path)
+    assert str(info.value).startswith(f"{path}: not a valid watermark key") and "\n" not in str(info.value)
+
+
 @pytest.mark.parametrize("reference, message", [
     ({"width": 16, "height": 16, "png": "AAAA"}, 'reference watermark unreadable: "png" is not an image'),
     ({"width": 16, "height": 16, "png": "@@"}, "must be integers and \"png\" base64 text"),

@@ -474,3 +474,27 @@ def test_the_library_refuses_an_unmarked_encode_beside_a_key_as_the_command_line
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
     pmwm_codec.encode(mesh, tmp_path / "b.pmw", measure="none")  # another name: no key beside it
     assert (tmp_path / "b.pmw").exists() and not (tmp_path / "b.pmw.key.json").exists()
+
+
+def test_a_marked_encode_with_another_key_never_leaves_the_key_beside_a_file_it_does_not_verify(capsys, inputs,
+                                                                                                  tmp_path):
+    """``--key other.json -o a.pmw`` (a new key, or another existing one) replaced a marked ``a.pmw``, exit 0,
+    leaving ``a.pmw.key.json`` beside a file it no longer verified (as an unmarked encode or one of another image
+    would, and those are refused).  A copy of that key (the same secret) still verifies: it is taken."""
+    out, key = tmp_path / "a.pmw", tmp_path / "a.pmw.key.json"
+    assert encode(inputs, out).returncode == 0
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    assert pmw("encode", inputs / "b.ply", "-o", tmp_path / "o.pmw", "--watermark", inputs / "w1.png", "-q",
+               "--key", tmp_path / "other.json").returncode == 0
+    before["other.json"] = (tmp_path / "other.json").read_bytes()
+    (tmp_path / "o.pmw").unlink()
+    for named in ("new.json", "other.json"):
+        _refused(*_cli(capsys, "encode", inputs / "a.ply", "-o", out, "-q", "--watermark", inputs / "w1.png",
+                       "--key", tmp_path / named), str(key), "another key")
+    with pytest.raises(WatermarkKeyError, match="another key"):
+        pmwm_codec.encode(inputs / "a.ply", out, watermark=inputs / "w1.png", key=WatermarkKey.generate(),
+                          measure="none")
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before and verdict(out, key) == (0, "authentic")
+    (tmp_path / "copy.json").write_bytes(key.read_bytes())
+    assert encode(inputs, out, "w1.png", "--key", tmp_path / "copy.json").returncode == 0
+    assert verdict(out, key) == (0, "authentic")

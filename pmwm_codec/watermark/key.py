@@ -74,7 +74,7 @@ from ..errors import WatermarkKeyError
 from ..sources import read_regular_file, shown_path
 
 __all__ = ["WatermarkKey", "KeySlot", "KEY_FORMAT", "KEY_VERSION", "KEY_FILE_MODE", "KEY_SUFFIX", "refuse_symlink",
-           "refuse_key_target", "refuse_unmarked_beside", "same_path", "checked_key_path"]
+           "refuse_key_target", "refuse_orphaned_beside", "same_path", "checked_key_path"]
 
 KEY_FORMAT = "pmwm-key"
 KEY_VERSION = 1
@@ -106,7 +106,9 @@ def _reference_from_json(ref) -> np.ndarray:
     if not isinstance(ref, dict):
         raise ValueError("is not an object")
     try:
-        shape = (int(ref["height"]), int(ref["width"]))
+        if not (_is_int(ref["height"]) and _is_int(ref["width"])):
+            raise TypeError
+        shape = (ref["height"], ref["width"])
         data = base64.b64decode(ref["png"], validate=True)
     except KeyError as exc:
         raise ValueError(f"has no {exc.args[0]!r}") from None
@@ -123,6 +125,11 @@ def _reference_from_json(ref) -> np.ndarray:
     if image.shape != shape:
         raise ValueError(f"is {image.shape[1]}x{image.shape[0]}, declared {shape[1]}x{shape[0]}")
     return image
+
+
+def _is_int(value) -> bool:
+    """Whether a JSON value is an integer (``16``; not ``16.0``, ``"16"`` or ``true``)."""
+    return isinstance(value, int) and not isinstance(value, bool)
 
 
 def _jsonable(obj):
@@ -209,7 +216,7 @@ class WatermarkKey:
         check_json_depth(doc, source, error=WatermarkKeyError)
         if not isinstance(doc, dict) or doc.get("format") != KEY_FORMAT:
             raise bad(f'"format" is not "{KEY_FORMAT}"')
-        if doc.get("version") != KEY_VERSION:
+        if not _is_int(doc.get("version")) or doc["version"] != KEY_VERSION:
             raise bad(f"unsupported key version {doc.get('version')!r}")
         try:
             secret = bytes.fromhex(doc["secret"])
@@ -228,6 +235,8 @@ class WatermarkKey:
             except ValueError as exc:
                 raise bad(f"reference watermark {exc}") from None
         owner_id = doc.get("owner_id")
+        if owner_id is not None and not isinstance(owner_id, str):  # a number's digits are not its hex digits
+            raise bad(f'"owner_id" must be a string of hexadecimal digits or null, not {type(owner_id).__name__}')
         if owner_id is not None:
             try:
                 owner_id = parse_owner_id(owner_id)
@@ -427,7 +436,9 @@ def is_key_file(path) -> bool:
     read as the loader reads it (escapes such as ``"pmwm\\u002dkey"``, blanks before the object, the
     members in any order).  A file whose first 4096 bytes name that format in plain bytes
     (``"format": "pmwm-key"`` after a ``{``) counts too, whatever follows: the check refuses at least
-    what it always refused.  Only a file that starts (after blanks) with ``{`` is read past its head."""
+    what it always refused, and so does a key saved with a UTF-8 byte order mark before it (which the loader
+    refuses, but which holds the secret all the same).  Only a file that starts (after blanks) with ``{`` is
+    read past its head."""
     import stat
 
     path = os.fspath(path)
@@ -445,7 +456,7 @@ def is_key_file(path) -> bool:
             if not stat.S_ISREG(info.st_mode):  # replaced by a FIFO since isfile: never read (it blocks)
                 return False
             os.set_blocking(fd, True)
-            head = fh.read(4096)
+            head = fh.read(4096).removeprefix(b"\xef\xbb\xbf")  # a UTF-8 BOM (an editor's): still the secret
             text = head.lstrip()
             if text.startswith(b"{") and re.search(rb'"format"\s*:\s*"' + KEY_FORMAT.encode() + b'"', text):
                 return True
@@ -473,16 +484,25 @@ def refuse_key_target(path, what: str) -> None:
                                 "(a key file is never rewritten): give the output another name")
 
 
-def refuse_unmarked_beside(key_path, dst) -> None:
-    """WatermarkKeyError when an encode that writes no mark (no image, no owner layer) would write the
-    ``.pmw`` ``dst`` while ``key_path``, the key file an encode of ``dst`` reads and writes by default,
-    exists: the key would be left beside a file it no longer verifies (orphaned), as an encode with
-    another image would leave it, and that one is refused too (:class:`KeySlot`)."""
-    if key_path is not None and os.path.lexists(key_path):
-        raise WatermarkKeyError(f"{os.fspath(key_path)}: a watermark key lies beside {os.fspath(dst)}, and this "
-                                "encode writes no mark: the file would no longer verify with it; the key and the "
-                                "file are left untouched (write the output under another name, or move the key "
-                                "away first to replace the marked file)")
+def refuse_orphaned_beside(key_path, dst, marked: bool, key: "WatermarkKey | None" = None) -> None:
+    """WatermarkKeyError when an encode of the ``.pmw`` ``dst`` would leave ``key_path`` (its default key
+    file, ``OUT.pmw.key.json``, when it exists) beside a file it no longer verifies: the encode writes no
+    mark (``marked`` false), or marks with another key than that file's: ``key``, the key it marks with
+    (None: a new one), as an encode with another image would (:class:`KeySlot` refuses that one).  A key of
+    the same secret (a copy of the key file) still verifies: not refused."""
+    if key_path is None or not os.path.lexists(key_path):
+        return
+    if marked and key is not None:
+        try:
+            if WatermarkKey.load(key_path).secret == key.secret:
+                return
+        except WatermarkKeyError:
+            pass
+    what = "writes no mark" if not marked else "marks it with another key"
+    raise WatermarkKeyError(f"{os.fspath(key_path)}: a watermark key lies beside {os.fspath(dst)}, and this "
+                            f"encode {what}: the file would no longer verify with it; the key and the "
+                            "file are left untouched (write the output under another name, or move the key "
+                            "away first to replace the marked file)")
 
 
 def same_path(a, b) -> bool:
