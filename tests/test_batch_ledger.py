@@ -27,8 +27,10 @@ def test_a_ledger_on_a_full_device_is_named_with_the_asset_whose_row_was_lost(tm
     if not os.path.exists("/dev/full"):
         pytest.skip("no /dev/full")
     ledger = tmp_path / LEDGER_NAME
-    ledger.symlink_to("/dev/full")
     with LedgerWriter(ledger) as writer, pytest.raises(OSError) as caught:
+        full = os.open("/dev/full", os.O_WRONLY)  # the ledger's descriptor now writes to a full device (a
+        os.dup2(full, writer._fd)  # ledger that is a symlink is refused, so the device is not linked in)
+        os.close(full)
         writer.write(ROW)
     assert caught.value.errno == errno.ENOSPC and caught.value.filename == str(ledger)
     assert "the row of /lib/a.obj was not written" in str(caught.value)
