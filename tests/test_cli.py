@@ -121,6 +121,18 @@ def test_encode_without_watermark_writes_no_key(tmp_path, capsys):
     assert doc["watermark"] is None and not (tmp_path / "t.pmw.key.json").exists()
 
 
+def test_encode_without_watermark_names_every_image_option_it_ignores(tmp_path, capsys):
+    """--bits, --mode paper and --fit shape only the image's mark: without --watermark they change
+    nothing in the file, which a note says (as for --embed-from), never silently."""
+    src = write_obj(tmp_path / "t.obj", shapes.torus(24, 12))
+    code, stdout, err = run(capsys, "encode", src, "-o", tmp_path / "t.pmw", "--bits", "4", "--mode", "paper",
+                            "--fit", "--embed-from", "3", "--json")
+    assert code == 0, err
+    notices = strict_json(stdout)["notices"]
+    for name in ("--bits", "--mode paper", "--fit", "--embed-from"):
+        assert f"{name} ignored: no --watermark" in notices, notices
+
+
 def test_encode_options_reach_the_file(work, tmp_path, capsys):
     out = tmp_path / "p.pmw"
     code, stdout, err = run(capsys, "encode", work["mesh"], "-o", out, "--watermark", work["mark"], "--mode", "paper",
