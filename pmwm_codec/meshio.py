@@ -34,7 +34,7 @@ import os
 
 import numpy as np
 
-from .errors import OptionError
+from .errors import MeshError, OptionError
 from .format.document import glb_to_gltf
 from .format.glb import glb_parts, write_parts
 from .mesh import Mesh, mesh_arrays
@@ -67,13 +67,18 @@ def write_mesh(path: str | bytes | os.PathLike[str], mesh: Mesh) -> None:
     WatermarkKeyError
         ``path`` names a watermark key file: a key is never replaced.
     MeshError
-        The mesh's arrays are not a triangle mesh (:func:`~pmwm_codec.mesh.mesh_arrays`).
+        The mesh's arrays are not a triangle mesh (:func:`~pmwm_codec.mesh.mesh_arrays`), or a coordinate
+        overflows float32 (it would be written as infinite).
     """
     path, suffix = _checked_output(path, WRITE_SUFFIXES)
     if not isinstance(mesh, Mesh):
         raise OptionError(f"write_mesh: mesh must be a Mesh, got {type(mesh).__name__}")
     pos, tri = mesh_arrays(mesh.positions, mesh.faces, "write_mesh: mesh")
-    positions = np.ascontiguousarray(pos, dtype="<f4")
+    with np.errstate(over="ignore"):
+        positions = np.ascontiguousarray(pos, dtype="<f4")
+    if not np.isfinite(positions).all():
+        raise MeshError(f"write_mesh: mesh: a coordinate of {np.abs(pos).max():.6g} overflows the float32 "
+                        "every format stores")
     faces = np.ascontiguousarray(tri, dtype="<u4")
     writer = {".glb": _glb_parts, ".gltf": _gltf_parts, ".obj": _obj_parts, ".ply": _ply_parts,
               ".stl": _stl_parts}[suffix]

@@ -396,6 +396,14 @@ def test_write_mesh_never_replaces_a_key_file_beside_a_gltf_as_its_buffer(tmp_pa
     ("w.obj", (MESH.positions, MESH.faces), OptionError, "mesh must be a Mesh, got tuple"),
     ("w.obj", pmwm_codec.Mesh(MESH.positions, MESH.faces[:, :2]), pmwm_codec.errors.MeshError, "must be triangles"),
     ("w.obj", pmwm_codec.Mesh(MESH.positions, MESH.faces + 10 ** 6), pmwm_codec.errors.MeshError, "out of range"),
+    # a complex position lost its imaginary part and a bool index named vertex 0 or 1 (a numpy warning at most);
+    # a coordinate past float32's range was written as infinite
+    ("w.obj", pmwm_codec.Mesh(MESH.positions + 1j, MESH.faces), pmwm_codec.errors.MeshError,
+     "positions must be real numbers, got dtype complex128"),
+    ("w.obj", pmwm_codec.Mesh(MESH.positions, MESH.faces.astype(bool)), pmwm_codec.errors.MeshError,
+     r"face indices are not numbers \(dtype bool\)"),
+    ("w.ply", pmwm_codec.Mesh(MESH.positions * 1e300, MESH.faces), pmwm_codec.errors.MeshError,
+     "a coordinate of .*e\\+300 overflows the float32 every format stores"),
 ])
 def test_write_mesh_names_a_wrong_argument_with_a_pmw_error_and_writes_nothing(tmp_path, monkeypatch, path, mesh,
                                                                                error, words):
@@ -405,6 +413,17 @@ def test_write_mesh_names_a_wrong_argument_with_a_pmw_error_and_writes_nothing(t
     with pytest.raises(error, match=words):
         pmwm_codec.write_mesh(path, mesh)
     assert [p.name for p in tmp_path.iterdir()] == ["adir.obj"]
+
+
+@pytest.mark.parametrize("mesh, words", [
+    (pmwm_codec.Mesh(MESH.positions + 1j, MESH.faces), "positions must be real numbers, got dtype complex128"),
+    (pmwm_codec.Mesh(MESH.positions, MESH.faces.astype(bool)), r"face indices are not numbers \(dtype bool\)"),
+])
+def test_encode_refuses_complex_positions_and_bool_faces_and_writes_nothing(tmp_path, mesh, words):
+    """encode() took a complex position as its real part and a bool face index as vertex 0 or 1."""
+    with pytest.raises(pmwm_codec.errors.MeshError, match=words):
+        pmwm_codec.encode(mesh, tmp_path / "m.pmw", measure="none")
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_read_mesh_takes_a_file_name_and_names_anything_else(tmp_path):
