@@ -426,6 +426,25 @@ def test_encode_refuses_complex_positions_and_bool_faces_and_writes_nothing(tmp_
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("call, error, words", [
+    (lambda: pmwm_codec.encode("a\0b.obj", "m.pmw"), pmwm_codec.errors.InputFormatError, "no such file"),
+    (lambda: pmwm_codec.encode(MESH, "a\0b.pmw"), OptionError, r"cannot write \.pmw \(embedded null byte\)"),
+    (lambda: pmwm_codec.encode(MESH, "m.pmw", watermark="a\0b.png"), pmwm_codec.errors.InputFormatError,
+     "no such file"),
+    (lambda: pmwm_codec.encode(MESH, "m.pmw", watermark=_image(0), key="a\0b.json"), OptionError,
+     r"cannot write key \(embedded null byte\)"),
+    (lambda: pmwm_codec.write_mesh("a\0b.obj", MESH), OptionError, r"cannot write mesh \(embedded null byte\)"),
+])
+def test_a_path_with_a_nul_is_a_pmw_error_and_writes_nothing(tmp_path, monkeypatch, call, error, words):
+    """A NUL in a path made os.lstat / os.path.samefile raise a bare ValueError out of encode and write_mesh
+    (the readers already said "no such file"); the string is never copied into the message."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(error, match=words) as caught:
+        call()
+    assert "\0" not in str(caught.value) and "not a file name" in str(caught.value)
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_read_mesh_takes_a_file_name_and_names_anything_else(tmp_path):
     """``read_mesh(b"/path/cow.obj")`` said "no such file" for an existing file; a file object, an int or None
     raised TypeError from ``os.fspath``."""
