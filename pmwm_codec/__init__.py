@@ -173,11 +173,11 @@ def _key_for(key, image, dst, owner_id=None, inputs=()) -> tuple:
     if path is None:
         raise OptionError("a mark written to a file object needs key= (a WatermarkKey kept by the caller, or a key "
                           "file path): the key made here would be lost, and nothing could verify the file")
+    if not os.path.lexists(path):  # an existing key file (or what stands there) is KeySlot's to judge
+        path = check_output_path(path, "key", inputs=inputs, key=True)
     if isinstance(dst, (str, os.PathLike)) and same_path(path, dst):
         raise WatermarkKeyError(f"{os.fspath(path)}: the key file would be the .pmw itself (the .pmw would "
                                 "replace the key just written): give the key another name")
-    if not os.path.lexists(path):  # an existing key file (or what stands there) is KeySlot's to judge
-        path = check_output_path(path, "key", inputs=inputs, key=True)
     slot = KeySlot.open(path, image, owner_id)
     beside = default_key_path(dst)
     if beside is not None and not same_path(path, beside):

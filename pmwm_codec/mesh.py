@@ -145,10 +145,14 @@ def mesh_arrays(positions, faces, name: str = "mesh") -> tuple:
     Raises MeshError naming ``name`` otherwise.
     """
     try:
-        pos = np.asarray(positions, dtype=np.float64)
+        pos = np.asarray(positions)
+        real = pos.dtype.kind not in "bc"  # float64 would take True as 1 and drop an imaginary part (a warning)
+        pos = pos.astype(np.float64, copy=False) if real else pos
         tri = np.asarray(faces)
     except (TypeError, ValueError) as exc:
         raise MeshError(f"{name}: vertex or face data is not numeric ({exc})") from None
+    if not real:
+        raise MeshError(f"{name}: positions must be real numbers, got dtype {pos.dtype}")
     if pos.size and (pos.ndim != 2 or pos.shape[1] != 3):
         raise MeshError(f"{name}: positions must be (n, 3), got shape {pos.shape}")
     if pos.ndim != 2 or pos.shape[0] == 0:
@@ -157,7 +161,7 @@ def mesh_arrays(positions, faces, name: str = "mesh") -> tuple:
         raise MeshError(f"{name}: the mesh has no triangles")
     if tri.ndim != 2 or tri.shape[1] != 3:
         raise MeshError(f"{name}: faces must be triangles, got shape {tri.shape}")
-    if tri.dtype.kind not in "iufb":
+    if tri.dtype.kind not in "iuf":  # a bool is no index (True would name vertex 1)
         raise MeshError(f"{name}: face indices are not numbers (dtype {tri.dtype})")
     if not np.issubdtype(tri.dtype, np.integer):
         if not np.all(np.equal(np.mod(tri, 1), 0)):

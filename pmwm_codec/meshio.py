@@ -10,7 +10,10 @@ suffix of ``path``:
 ``.ply``   binary little-endian PLY (float x, y, z; ``uchar uint`` face lists)
 ``.stl``   binary STL (one float32 normal and three float32 corners per face)
 ``.glb``   a minimal glTF binary: one node, one mesh, float32 POSITION, uint32 indices
-``.gltf``  the same document as JSON, its buffer in ``<stem>.bin`` beside it
+``.gltf``  the same document as JSON, self-contained: its buffer a base64 ``data:`` URI, as
+           :func:`write_asset` and ``pmw decode -o X.gltf`` write it (no second file: a ``.bin``
+           beside it would replace a file the caller never named, and a name such as ``50%41.gltf``
+           is no safe URI)
 
 Positions are stored as float32 in every format (the precision of glTF; 9 significant
 digits round-trip a float32 exactly) and indices as uint32.  Attributes are not written.
@@ -27,12 +30,11 @@ untouched, and a new file gets the mode ``0666 & ~umask``.  GLB framing is
 from __future__ import annotations
 
 import io
-import json
 import os
 
 import numpy as np
 
-from .errors import OptionError
+from .errors import MeshError, OptionError
 from .format.document import glb_to_gltf
 from .format.glb import glb_parts, write_parts
 from .mesh import Mesh, mesh_arrays
@@ -55,7 +57,7 @@ def write_mesh(path: str | bytes | os.PathLike[str], mesh: Mesh) -> None:
 
     ``mesh.positions`` (n, 3) float is stored as float32, ``mesh.faces`` (m, 3) int as uint32.  The path is
     checked before anything is written, as ``pmw decode -o`` checks it
-    (:func:`~pmwm_codec.options.check_output_path`; for ``.gltf`` its ``.bin`` too).
+    (:func:`~pmwm_codec.options.check_output_path`); it is the only file written.
 
     Raises
     ------
@@ -63,20 +65,23 @@ def write_mesh(path: str | bytes | os.PathLike[str], mesh: Mesh) -> None:
         ``path`` is not a file name, is ``-``, a directory, a device, in a missing directory, or has a suffix
         not in :data:`WRITE_SUFFIXES`; ``mesh`` is not a :class:`~pmwm_codec.mesh.Mesh`.
     WatermarkKeyError
-        ``path`` (or the ``.bin`` of a ``.gltf``) names a watermark key file: a key is never replaced.
+        ``path`` names a watermark key file: a key is never replaced.
     MeshError
-        The mesh's arrays are not a triangle mesh (:func:`~pmwm_codec.mesh.mesh_arrays`).
+        The mesh's arrays are not a triangle mesh (:func:`~pmwm_codec.mesh.mesh_arrays`), or a coordinate
+        overflows float32 (it would be written as infinite).
     """
     path, suffix = _checked_output(path, WRITE_SUFFIXES)
     if not isinstance(mesh, Mesh):
         raise OptionError(f"write_mesh: mesh must be a Mesh, got {type(mesh).__name__}")
     pos, tri = mesh_arrays(mesh.positions, mesh.faces, "write_mesh: mesh")
-    positions = np.ascontiguousarray(pos, dtype="<f4")
+    with np.errstate(over="ignore"):
+        positions = np.ascontiguousarray(pos, dtype="<f4")
+    if not np.isfinite(positions).all():
+        raise MeshError(f"write_mesh: mesh: a coordinate of {np.abs(pos).max():.6g} overflows the float32 "
+                        "every format stores")
     faces = np.ascontiguousarray(tri, dtype="<u4")
-    if suffix == ".gltf":
-        _write_gltf(path, positions, faces)
-        return
-    writer = {".glb": _glb_parts, ".obj": _obj_parts, ".ply": _ply_parts, ".stl": _stl_parts}[suffix]
+    writer = {".glb": _glb_parts, ".gltf": _gltf_parts, ".obj": _obj_parts, ".ply": _ply_parts,
+              ".stl": _stl_parts}[suffix]
     _write(path, writer(positions, faces))
 
 
@@ -134,13 +139,8 @@ def _glb_parts(positions, faces) -> list:
     return glb_parts(doc, binary, length)
 
 
-def _write_gltf(path: str, positions, faces) -> None:
-    """The JSON at ``path`` and its buffer at ``<stem>.bin`` (written first, so the JSON never dangles)."""
-    doc, binary, _ = _gltf_document(positions, faces)
-    bin_path = check_output_path(os.path.splitext(path)[0] + ".bin", "mesh")  # a key there is never replaced
-    doc["buffers"][0]["uri"] = os.path.basename(bin_path)
-    _write(bin_path, binary)
-    _write(path, [(json.dumps(doc, indent=1) + "\n").encode("utf-8")])
+def _gltf_parts(positions, faces) -> list:
+    return [glb_to_gltf(b"".join(_glb_parts(positions, faces)))]  # the .glb's document, buffer inline
 
 
 def _obj_parts(positions, faces) -> list:

@@ -193,6 +193,8 @@ def check_output_path(path, what: str, inputs=(), key: bool = False) -> str:
         raise OptionError(f"the {what} path is empty (an unset variable?): give a file name")
     if path == "-":
         raise OptionError(f"-: the {what} is written to a file, not to standard output; give a file name")
+    if "\0" in path:  # os.lstat & co. raise ValueError, no OSError
+        raise OptionError(f"{shown}: cannot write {what} (embedded null byte)")
     if not key:
         refuse_key_target(path, what)
     if os.path.isdir(path):
@@ -209,8 +211,8 @@ def check_output_path(path, what: str, inputs=(), key: bool = False) -> str:
         raise OptionError(f"{shown}: cannot write {what}: directory {directory} does not exist")
     if not os.access(directory, os.W_OK):
         raise OptionError(f"{shown}: cannot write {what}: directory {directory} is not writable")
-    for source in inputs:
-        if _is_path(source) and same_path(source, path):
+    for source in inputs:  # a name with a NUL names no file (its reader says so), so not this one
+        if _is_path(source) and "\0" not in os.fsdecode(os.fspath(source)) and same_path(source, path):
             raise OptionError(f"{shown}: is also the input {shown_path(source)}; give the {what} another name "
                               "(writing it would replace the input)")
     return path

@@ -381,9 +381,8 @@ def test_write_mesh_never_replaces_a_key_file_beside_a_gltf_as_its_buffer(tmp_pa
     pmwm_codec.encode(MESH, tmp_path / "a.pmw", watermark=_image(0), measure="none")
     key = (tmp_path / "a.pmw.key.json").read_bytes()
     (tmp_path / "m.bin").write_bytes(key)
-    with pytest.raises(WatermarkKeyError, match="m.bin: names a watermark key file"):
-        pmwm_codec.write_mesh(tmp_path / "m.gltf", MESH)
-    assert (tmp_path / "m.bin").read_bytes() == key and not (tmp_path / "m.gltf").exists()
+    pmwm_codec.write_mesh(tmp_path / "m.gltf", MESH)  # self-contained: the .bin beside it is not its buffer
+    assert (tmp_path / "m.bin").read_bytes() == key and (tmp_path / "m.gltf").exists()
 
 
 @pytest.mark.parametrize("path, mesh, error, words", [
@@ -397,6 +396,14 @@ def test_write_mesh_never_replaces_a_key_file_beside_a_gltf_as_its_buffer(tmp_pa
     ("w.obj", (MESH.positions, MESH.faces), OptionError, "mesh must be a Mesh, got tuple"),
     ("w.obj", pmwm_codec.Mesh(MESH.positions, MESH.faces[:, :2]), pmwm_codec.errors.MeshError, "must be triangles"),
     ("w.obj", pmwm_codec.Mesh(MESH.positions, MESH.faces + 10 ** 6), pmwm_codec.errors.MeshError, "out of range"),
+    # a complex position lost its imaginary part and a bool index named vertex 0 or 1 (a numpy warning at most);
+    # a coordinate past float32's range was written as infinite
+    ("w.obj", pmwm_codec.Mesh(MESH.positions + 1j, MESH.faces), pmwm_codec.errors.MeshError,
+     "positions must be real numbers, got dtype complex128"),
+    ("w.obj", pmwm_codec.Mesh(MESH.positions, MESH.faces.astype(bool)), pmwm_codec.errors.MeshError,
+     r"face indices are not numbers \(dtype bool\)"),
+    ("w.ply", pmwm_codec.Mesh(MESH.positions * 1e300, MESH.faces), pmwm_codec.errors.MeshError,
+     "a coordinate of .*e\\+300 overflows the float32 every format stores"),
 ])
 def test_write_mesh_names_a_wrong_argument_with_a_pmw_error_and_writes_nothing(tmp_path, monkeypatch, path, mesh,
                                                                                error, words):
@@ -406,6 +413,36 @@ def test_write_mesh_names_a_wrong_argument_with_a_pmw_error_and_writes_nothing(t
     with pytest.raises(error, match=words):
         pmwm_codec.write_mesh(path, mesh)
     assert [p.name for p in tmp_path.iterdir()] == ["adir.obj"]
+
+
+@pytest.mark.parametrize("mesh, words", [
+    (pmwm_codec.Mesh(MESH.positions + 1j, MESH.faces), "positions must be real numbers, got dtype complex128"),
+    (pmwm_codec.Mesh(MESH.positions, MESH.faces.astype(bool)), r"face indices are not numbers \(dtype bool\)"),
+])
+def test_encode_refuses_complex_positions_and_bool_faces_and_writes_nothing(tmp_path, mesh, words):
+    """encode() took a complex position as its real part and a bool face index as vertex 0 or 1."""
+    with pytest.raises(pmwm_codec.errors.MeshError, match=words):
+        pmwm_codec.encode(mesh, tmp_path / "m.pmw", measure="none")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("call, error, words", [
+    (lambda: pmwm_codec.encode("a\0b.obj", "m.pmw"), pmwm_codec.errors.InputFormatError, "no such file"),
+    (lambda: pmwm_codec.encode(MESH, "a\0b.pmw"), OptionError, r"cannot write \.pmw \(embedded null byte\)"),
+    (lambda: pmwm_codec.encode(MESH, "m.pmw", watermark="a\0b.png"), pmwm_codec.errors.InputFormatError,
+     "no such file"),
+    (lambda: pmwm_codec.encode(MESH, "m.pmw", watermark=_image(0), key="a\0b.json"), OptionError,
+     r"cannot write key \(embedded null byte\)"),
+    (lambda: pmwm_codec.write_mesh("a\0b.obj", MESH), OptionError, r"cannot write mesh \(embedded null byte\)"),
+])
+def test_a_path_with_a_nul_is_a_pmw_error_and_writes_nothing(tmp_path, monkeypatch, call, error, words):
+    """A NUL in a path made os.lstat / os.path.samefile raise a bare ValueError out of encode and write_mesh
+    (the readers already said "no such file"); the string is never copied into the message."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(error, match=words) as caught:
+        call()
+    assert "\0" not in str(caught.value) and "not a file name" in str(caught.value)
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_read_mesh_takes_a_file_name_and_names_anything_else(tmp_path):

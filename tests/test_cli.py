@@ -121,6 +121,18 @@ def test_encode_without_watermark_writes_no_key(tmp_path, capsys):
     assert doc["watermark"] is None and not (tmp_path / "t.pmw.key.json").exists()
 
 
+def test_encode_without_watermark_names_every_image_option_it_ignores(tmp_path, capsys):
+    """--bits, --mode paper and --fit shape only the image's mark: without --watermark they change
+    nothing in the file, which a note says (as for --embed-from), never silently."""
+    src = write_obj(tmp_path / "t.obj", shapes.torus(24, 12))
+    code, stdout, err = run(capsys, "encode", src, "-o", tmp_path / "t.pmw", "--bits", "4", "--mode", "paper",
+                            "--fit", "--embed-from", "3", "--json")
+    assert code == 0, err
+    notices = strict_json(stdout)["notices"]
+    for name in ("--bits", "--mode paper", "--fit", "--embed-from"):
+        assert f"{name} ignored: no --watermark" in notices, notices
+
+
 def test_encode_options_reach_the_file(work, tmp_path, capsys):
     out = tmp_path / "p.pmw"
     code, stdout, err = run(capsys, "encode", work["mesh"], "-o", out, "--watermark", work["mark"], "--mode", "paper",
@@ -491,6 +503,18 @@ def test_python_dash_m_pmwm_codec_runs_the_command():
                           timeout=120)
     assert done.returncode == 0, done.stderr
     assert done.stdout.startswith("usage: pmw") and "decode" in done.stdout and "verify" in done.stdout
+
+
+def test_encode_of_a_mesh_beyond_float32_is_one_line_without_a_numpy_warning(tmp_path):
+    """A coordinate past float32's range made numpy warn ("overflow encountered in cast", two lines
+    with a source path) on stderr before the one-line refusal."""
+    src = tmp_path / "far.obj"
+    src.write_text("v 1e39 0 0\nv 0 1 0\nv 0 0 1\nv 1 1 1\nf 1 2 3\nf 1 2 4\nf 2 3 4\nf 1 3 4\n")
+    done = subprocess.run([sys.executable, "-m", "pmwm_codec", "encode", str(src), "-o", str(tmp_path / "far.pmw")],
+                          cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and done.stdout == ""
+    assert done.stderr.count("\n") == 1 and done.stderr.startswith("pmw: error: ") and "float32" in done.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["far.obj"]
 
 
 def test_decode_to_stl_round_trips_through_read_mesh(work, tmp_path, capsys):

@@ -40,7 +40,7 @@ def test_every_format_reads_back_with_read_mesh(mesh, tmp_path, suffix):
         assert np.array_equal(back.positions.astype(np.float32), mesh.positions.astype(np.float32))  # float32 exact
         assert np.array_equal(back.faces, mesh.faces)
     written = sorted(p.name for p in tmp_path.iterdir())
-    assert written == (["m.bin", "m.gltf"] if suffix == ".gltf" else [path.name])  # no temp file left
+    assert written == [path.name]  # no temp file left, no second file (a .gltf's buffer is inline)
     assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~current_umask()  # the umask decides
 
 
@@ -57,10 +57,17 @@ def test_glb_is_framed_by_glb_parts_and_loads_in_pygltflib(mesh, tmp_path):
     assert gltf.accessors[prim.indices].componentType == pygltflib.UNSIGNED_INT
 
 
-def test_gltf_keeps_its_buffer_in_a_bin_beside_it(mesh, tmp_path):
-    write_mesh(tmp_path / "m.gltf", mesh)
-    doc = json.loads((tmp_path / "m.gltf").read_text())
-    assert doc["buffers"] == [{"byteLength": (tmp_path / "m.bin").stat().st_size, "uri": "m.bin"}]
+def test_gltf_is_self_contained_and_never_replaces_the_bin_beside_it(mesh, tmp_path):
+    """A .gltf's buffer went to ``<stem>.bin``: a file the caller never named was replaced, and its
+    name went into the URI unescaped (``x%41.gltf`` read its buffer back from ``xA.bin``)."""
+    (tmp_path / "x%41.bin").write_bytes(b"the caller's own data")
+    write_mesh(tmp_path / "xA.gltf", shapes.icosphere(2))
+    write_mesh(tmp_path / "x%41.gltf", mesh)
+    assert (tmp_path / "x%41.bin").read_bytes() == b"the caller's own data"
+    doc = json.loads((tmp_path / "x%41.gltf").read_text())
+    assert doc["buffers"][0]["uri"].startswith("data:application/octet-stream;base64,")
+    assert same_triangles(pmwm_codec.read_mesh(tmp_path / "x%41.gltf"), mesh)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x%41.bin", "x%41.gltf", "xA.gltf"]
 
 
 def test_stl_is_binary_with_unit_normals(mesh, tmp_path):

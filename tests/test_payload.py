@@ -82,6 +82,18 @@ def test_widths_follow_the_band_ranges():
     assert layout.total_bits == 3 * 8 + 1 + 0 + 2 * 3 + 2 * 3
 
 
+def test_an_all_zero_stream_still_packs_one_bit_per_first_band_coefficient():
+    """An all-black image's coefficients are all 0: its layout must not be empty (a reader
+    refuses a message of 0 bits), so the first band gets width 1."""
+    img = np.zeros((16, 16), np.uint8)
+    stream = haar.to_stream(haar.forward_int(img, 4), 4)
+    layout = BitLayout.for_coefficients(stream, haar.bands(16, 4))
+    assert layout.band_widths.tolist()[0] == 1 and not any(layout.band_widths.tolist()[1:])
+    assert layout.total_bits == 1
+    coefficients, count = unpack(pack(stream, layout), layout)
+    assert count == 256 and not coefficients.any()
+
+
 def test_layout_does_not_publish_coefficients():
     """A 1x1 band must still travel in the bits, not in the public config."""
     img = np.full((8, 8), 200, np.uint8)

@@ -184,3 +184,13 @@ def test_watermark_parameters_no_number_can_hold_are_a_format_error(field, value
     params, _ = wm.plan(image, WatermarkKey.generate(rng=np.random.default_rng(1)), 500)
     with pytest.raises(FormatError):
         wm.WatermarkParams.from_config({**params.get_config(), field: value})
+
+
+def test_an_all_black_watermark_verifies_authentic_with_its_own_key(tmp_path):
+    """An image of zeros packs to a message of one bit; before, it packed to none and the file
+    written was refused by its own verify ("bit layout ... does not match")."""
+    out = tmp_path / "black.pmw"
+    pmwm_codec.encode(shapes.icosphere(4, 1.0, noise=0.05), out, watermark=np.zeros((16, 16), np.uint8))
+    result = pmwm_codec.verify_stream(out, str(out) + ".key.json")
+    assert result.verdict == "authentic"
+    assert not result.results[-1].watermark.any()

@@ -142,8 +142,10 @@ def run(args) -> int:
             extra.append("--no-owner ignored: no --watermark, so the file carries no mark")
     if args.key is not None and args.watermark is None and args.owner_id is None:
         extra.append("--key ignored: no --watermark, so the file carries no mark and needs no key")
-    if args.embed_from is not None and args.watermark is None:
-        extra.append("--embed-from ignored: no --watermark")
+    if args.watermark is None:  # the image's options: none of them changes a file without an image
+        given = {"--embed-from": args.embed_from is not None, "--bits": args.bits is not None,
+                 f"--mode {args.mode}": args.mode != STREAM_DEFAULTS["mode"], "--fit": args.fit}
+        extra += [f"{name} ignored: no --watermark" for name, on in given.items() if on]
     try:
         report = _encode_fitting(args, options, extra)
     except ValueError as exc:

@@ -78,8 +78,11 @@ class Grid:
         return out
 
     def to_float32(self, q: np.ndarray) -> np.ndarray:
-        """(n, 3) int grid coordinates -> the float32 positions a file stores (``origin + q * step``)."""
-        return self.dequantize(q).astype(np.float32)
+        """(n, 3) int grid coordinates -> the float32 positions a file stores (``origin + q * step``);
+        a coordinate beyond float32's range is infinite, without a warning (:meth:`from_float32` refuses
+        it: the encoder's check that the grid survives float32 names the mesh instead)."""
+        with np.errstate(over="ignore"):
+            return self.dequantize(q).astype(np.float32)
 
     def from_float32(self, positions: np.ndarray, what: str = "base mesh") -> np.ndarray:
         """Stored positions (n, 3) float -> grid integers (n, 3) int64 (``round((p - origin) / step)``).
@@ -142,8 +145,10 @@ class AttributeGrid:
         return len(self.origin)
 
     def to_float32(self, q: np.ndarray) -> np.ndarray:
-        """(n, k) int grid values -> the float32 values a file stores."""
-        return (np.asarray(self.origin) + q.astype(np.float64) * np.asarray(self.step)).astype(np.float32)
+        """(n, k) int grid values -> the float32 values a file stores (beyond float32: infinite, as
+        :meth:`Grid.to_float32`)."""
+        with np.errstate(over="ignore"):
+            return (np.asarray(self.origin) + q.astype(np.float64) * np.asarray(self.step)).astype(np.float32)
 
     def from_float32(self, values: np.ndarray, what: str) -> np.ndarray:
         """Stored values (n, k) float -> grid integers (n, k) int64; FormatError (naming

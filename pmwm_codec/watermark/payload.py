@@ -8,7 +8,8 @@ chosen from the band's actual values, and an *offset-binary* code ``code = value
   ``width = bit_length(max)``;
 * a **signed** band has ``low = -2^(width-1)`` and the smallest ``width`` with
   ``-2^(width-1) <= min`` and ``max < 2^(width-1)`` (two's complement with its top bit
-  flipped); a band of zeros has width 0 and costs no bits (its values are 0).
+  flipped); a band of zeros has width 0 and costs no bits (its values are 0), except that
+  a stream of zeros gives its first band width 1, so no message is empty.
 
 ``low`` follows from ``(signed, width)``, so the public layout reveals each band's order of
 magnitude but no coefficient value (a per-band minimum would give away 1x1 bands
@@ -101,6 +102,10 @@ class BitLayout:
             else:  # need -2^(w-1) <= lo and hi <= 2^(w-1) - 1
                 w = 1 + max((-lo - 1).bit_length(), max(hi, 0).bit_length())
                 rows.append((start, stop, 1, w))
+        if rows and not any(r[3] and r[1] > r[0] for r in rows):
+            # a stream of zeros (an all-black image) would pack to no bits, a message no reader
+            # takes (spec/watermark.md §3: `codes` > 0): its first band gets one bit
+            rows[0] = (rows[0][0], rows[0][1], 0, 1)
         layout = cls(rows)
         if layout.count != v.size:
             raise ValueError(f"bands cover {layout.count} coefficients, stream has {v.size}")
