@@ -250,3 +250,11 @@ def test_mappings_follow_the_written_definition():
         assert k.bits(sid, n).tolist() == [(raw[i // 8] >> (i % 8)) & 1 for i in range(n)]
     fp = hmac.new(SECRET, b"pmwm/fingerprint/v1", hashlib.sha256).hexdigest()[:16]
     assert k.fingerprint() == fp
+
+
+def test_same_path_answers_for_a_path_holding_a_nul_instead_of_raising():
+    """os.stat raises ValueError, not OSError, on a NUL in a path: same_path let it out of every caller."""
+    from pmwm_codec.watermark.key import same_path
+
+    assert same_path("out\0.pmw", "./out\0.pmw") and not same_path("out\0.pmw", "out.pmw")
+    assert same_path(b"k\0.json", b"k\0.json")

@@ -509,6 +509,9 @@ def same_path(a, b) -> bool:
     """Whether the paths ``a`` and ``b`` name one file: the same existing file (links included), or
     the same place once symbolic links and ``..`` are resolved (for names not written yet)."""
     a, b = os.fspath(a), os.fspath(b)
+    if any((b"\0" if isinstance(x, bytes) else "\0") in x for x in (a, b)):  # names no file (os.stat would
+        # raise ValueError): compared as written
+        return os.path.normpath(os.path.abspath(a)) == os.path.normpath(os.path.abspath(b))
     try:
         if os.path.samefile(a, b):
             return True
