@@ -120,3 +120,12 @@ def test_the_float32_decode_of_a_marked_mesh_far_out_verifies_authentic_against_
     moved = stored.copy()
     moved[:40] += 3 * (float(np.ptp(m.positions)) / 2**bits)  # three grid steps: an edit, not storage
     assert verify_mesh((moved, decoded.faces), buf.getvalue(), key).verdict != "authentic"
+
+
+def test_a_mesh_past_float32s_range_is_told_to_scale_not_to_move():
+    """Coordinates of 1e39 were told to "move the mesh nearer the origin": no place or grid can store them."""
+    import pmwm_codec
+
+    sphere = shapes.icosphere(2)
+    with pytest.raises(PmwError, match="beyond float32's range .* cannot be stored at all: scale the mesh down$"):
+        pmwm_codec.encode(Mesh(sphere.positions * 1e39, sphere.faces), io.BytesIO(), measure=False)

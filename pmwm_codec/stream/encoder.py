@@ -623,6 +623,9 @@ def _float32_refusal(positions: np.ndarray, grid: Grid, reach: tuple | None = No
     if reach is not None:
         why += (" (the watermark and the owner layer move vertices to grid points the input does not hold: every "
                 "grid point of its box must survive)")
+    if not np.isfinite(float32_spacing(extreme)):  # past float32's range: no place or grid helps, only a scale
+        return (f"{why}; coordinates beyond float32's range ({float(np.finfo(np.float32).max):.3g}) cannot be "
+                "stored at all: scale the mesh down")
     for bits in range(grid.bits - 1, MIN_GRID_BITS - 1, -1):
         coarse = Grid.fit(positions, bits)
         if _survives_float32(coarse, coarse.quantize(positions), reach):
