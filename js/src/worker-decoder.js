@@ -86,6 +86,8 @@ export class WorkerDecoder {
     this.pending = new Map();
     this.nextId = 0;
     this.queue = Promise.resolve();
+    this.closed = false;
+    this.end = null;
   }
 
   get header() { return this.local ? this.local.header : this.#header; }
@@ -106,6 +108,7 @@ export class WorkerDecoder {
     let piece;
     try {
       piece = asBytes(bytes).slice(); // the feeds queue: the caller's bytes may have changed by the time this one runs
+      if (this.closed) throw new TypeError('WorkerDecoder.feed() after close(): the decoder is single-use');
     } catch (e) {
       return Promise.reject(e);
     }
@@ -204,8 +207,17 @@ export class WorkerDecoder {
   /** Ends the worker, if any (after close() or a failure it already ended). */
   dispose() { this.worker?.terminate(); }
 
-  /** Ends the stream (as PmwDecoder.close, but async): {complete, chunksApplied, ...} or the named error. */
-  async close() {
+  /**
+   * Ends the stream (as PmwDecoder.close, but async): {complete, chunksApplied, ...} or the named error. From the
+   * call on, a feed() is a TypeError; a second close() settles as the first.
+   */
+  close() {
+    this.closed = true;
+    this.end ??= this.#close();
+    return this.end;
+  }
+
+  async #close() {
     await this.queue;
     if (this.failed) throw this.failed;
     if (this.worker) {

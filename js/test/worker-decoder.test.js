@@ -59,3 +59,16 @@ test('WorkerDecoder.feed copies its input: overwriting the buffer right after fe
     assert.deepEqual(levels(main.results), expected);
   }
 });
+
+test('WorkerDecoder: feed() after close() is a TypeError and a second close() settles as the first, as PmwDecoder', async () => {
+  const d = new WorkerDecoder({ bases: [], worker: false });
+  await d.feed(bytes);
+  const end = await d.close();
+  assert.equal(end.complete, true);
+  await assert.rejects(d.feed(new Uint8Array(0)), (e) => e instanceof TypeError && /after close\(\)/.test(e.message));
+  assert.deepEqual(await d.close(), end, 'a second close() gives the same end');
+  const e = new WorkerDecoder({ bases: [], worker: false });
+  const closing = e.close(); // refused from the call on, before the close settles
+  await assert.rejects(e.feed(bytes), TypeError);
+  await assert.rejects(closing, { name: 'TruncatedError' });
+});
