@@ -79,12 +79,16 @@ class NodeDracoLoader {
 			for (const name in attributeIDs) {
 				const attribute = decoder.GetAttributeByUniqueId(mesh, attributeIDs[name]);
 				if (!attribute || attribute.ptr === 0) throw new Error(`no Draco attribute with unique id ${attributeIDs[name]}`);
-				if (attributeTypes[name] !== 'Float32Array') throw new Error(`attribute type ${attributeTypes[name]} not handled`);
+				// the typed array GLTFLoader asks for (the accessor's componentType), as DRACOLoader reads it
+				const TypedArray = globalThis[attributeTypes[name]];
+				const type = { Float32Array: draco.DT_FLOAT32, Int8Array: draco.DT_INT8, Int16Array: draco.DT_INT16,
+					Int32Array: draco.DT_INT32, Uint8Array: draco.DT_UINT8, Uint16Array: draco.DT_UINT16, Uint32Array: draco.DT_UINT32 }[attributeTypes[name]];
+				if (type === undefined) throw new Error(`attribute type ${attributeTypes[name]} not handled`);
 				const size = attribute.num_components();
-				const bytes = count * size * 4;
+				const bytes = count * size * TypedArray.BYTES_PER_ELEMENT;
 				const ptr = draco._malloc(bytes);
-				decoder.GetAttributeDataArrayForAllPoints(mesh, attribute, draco.DT_FLOAT32, bytes, ptr);
-				const data = new Float32Array(draco.HEAPF32.buffer, ptr, count * size).slice();
+				decoder.GetAttributeDataArrayForAllPoints(mesh, attribute, type, bytes, ptr);
+				const data = new TypedArray(draco.HEAPF32.buffer, ptr, count * size).slice();
 				draco._free(ptr);
 				geometry.setAttribute(name, new THREE.BufferAttribute(data, size));
 			}
