@@ -13,7 +13,8 @@
 //   three.js renamed them (position, normal, uv, color, skinIndex, ...; unknown ones keep the
 //   glTF name), box: the geometry's own bounding box, in mesh space, from the loaded values)
 //
-// validator: Khronos glTF-Validator (npm gltf-validator) on the file bytes.
+// validator: Khronos glTF-Validator (npm gltf-validator) on the file bytes (bytes it cannot read as
+//            glTF at all, which it throws on: one error, code NOT_GLTF, with its message).
 // three:     three.js GLTFLoader.parse() in plain Node on the GLB ArrayBuffer.  The real
 //            DRACOLoader needs Web Workers and fetch(), which Node lacks; for
 //            KHR_draco_mesh_compression we register a stand-in that has the DRACOLoader
@@ -106,7 +107,13 @@ class NodeDracoLoader {
 }
 
 async function validate(bytes) {
-	const report = await validator.validateBytes(new Uint8Array(bytes), { maxIssues: 1000, externalResourceFunction: () => Promise.reject(new Error('no external resources')) });
+	let report;
+	try {
+		report = await validator.validateBytes(new Uint8Array(bytes), { maxIssues: 1000, externalResourceFunction: () => Promise.reject(new Error('no external resources')) });
+	} catch (error) {  // bytes that are neither GLB nor JSON glTF: the validator throws instead of reporting
+		return { errors: 1, warnings: 0, infos: 0, hints: 0, codes: { NOT_GLTF: 1 },
+			messages: [{ code: 'NOT_GLTF', severity: 0, message: String(error && error.message || error) }] };
+	}
 	const codes = {};
 	for (const m of report.issues.messages) codes[m.code] = (codes[m.code] || 0) + 1;
 	return {
