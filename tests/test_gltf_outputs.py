@@ -134,7 +134,8 @@ def test_decoded_glb_and_gltf_levels_are_validator_clean_and_three_js_sees_what_
         for suffix in (".glb", ".gltf"):
             paths.append(tmp_path / f"level{chunks}{suffix}")
             capsys.readouterr()
-            assert main(["decode", str(tmp_path / "in.pmw"), "-o", str(paths[-1]), "--chunks", chunks, "--json"]) in (0, None)
+            argv = ["decode", str(tmp_path / "in.pmw"), "-o", str(paths[-1]), "--chunks", chunks, "--json"]
+            assert main(argv) in (0, None)
             said.append(json.loads(capsys.readouterr().out))
     results = _check([tmp_path / "in.glb", *paths])
     source = results[0]["three"]
@@ -148,8 +149,10 @@ def test_decoded_glb_and_gltf_levels_are_validator_clean_and_three_js_sees_what_
         for got, want in zip(three["primitives"], source["primitives"]):
             assert {k: v[0] for k, v in got["attributes"].items()} == {k: v[0] for k, v in want["attributes"].items()}
         coloured = three["primitives"][1]["attributes"]
-        assert coloured["color"] == [4, False, "Float32Array"] and coloured["_feature_id_0"] == [1, False, "Uint16Array"]
-    assert (results[-1]["three"]["vertices"], results[-1]["three"]["triangles"]) == (source["vertices"], source["triangles"])
+        assert coloured["color"] == [4, False, "Float32Array"]
+        assert coloured["_feature_id_0"] == [1, False, "Uint16Array"]
+    full = results[-1]["three"]
+    assert (full["vertices"], full["triangles"]) == (source["vertices"], source["triangles"])
     for got, want in zip(results[-1]["three"]["primitives"], source["primitives"]):
         assert np.allclose(got["box"], want["box"], atol=1e-4)
 
@@ -169,17 +172,18 @@ def test_three_js_reads_compressed_inputs_and_their_decoded_level_has_the_same_g
         mesh = shapes.icosphere(3, 1.0, noise=0.02)
         n = mesh.vertex_count
         colour = np.random.default_rng(1).integers(0, 256, (n, 3)).astype(np.uint8)
+        ids = (np.arange(n) % 7).astype(np.uint16).reshape(-1, 1)
         data = DracoPy.encode(mesh.positions.astype(np.float32), mesh.faces.astype(np.uint32), quantization_bits=16,
-                              colors=colour, generic_attributes={1: (np.arange(n) % 7).astype(np.uint16).reshape(-1, 1)},
-                              preserve_order=True)
+                              colors=colour, generic_attributes={1: ids}, preserve_order=True)
         unique = {a["attribute_type"]: a["unique_id"] for a in DracoPy.decode(data).attributes}
         data += bytes(padded(len(data)) - len(data))
         doc = {
             "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
             "extensionsUsed": ["KHR_draco_mesh_compression"], "extensionsRequired": ["KHR_draco_mesh_compression"],
-            "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "COLOR_0": 1, "_FEATURE_ID_0": 2}, "indices": 3,
-                                        "extensions": {"KHR_draco_mesh_compression": {"bufferView": 0, "attributes": {
-                                            "POSITION": unique[0], "COLOR_0": unique[2], "_FEATURE_ID_0": unique[4]}}}}]}],
+            "meshes": [{"primitives": [{
+                "attributes": {"POSITION": 0, "COLOR_0": 1, "_FEATURE_ID_0": 2}, "indices": 3,
+                "extensions": {"KHR_draco_mesh_compression": {"bufferView": 0, "attributes": {
+                    "POSITION": unique[0], "COLOR_0": unique[2], "_FEATURE_ID_0": unique[4]}}}}]}],
             "accessors": [
                 {"componentType": FLOAT, "count": n, "type": "VEC3", "min": mesh.positions.min(0).tolist(),
                  "max": mesh.positions.max(0).tolist()},
