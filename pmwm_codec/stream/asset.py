@@ -705,10 +705,13 @@ def _accessor_names(gltf: dict, prim: dict) -> dict:
 def _write_level(prim: dict, part, out: BufferBuilder, names: dict | None = None) -> None:
     """Give ``prim`` plain accessors (in ``out``) for the decoded ``part``: positions (n, 3)
     float32 with min/max, its attributes (NORMAL / TANGENT renormalized; an attribute whose grid names
-    a ``componentType``, an integer one, as those integers), uint32 indices; each named as ``names``
-    (``{semantic or "indices": name}``: the stored accessors') has it."""
+    a ``componentType``, an integer one, as those integers, but UNSIGNED_INT as FLOAT), uint32 indices;
+    each named as ``names`` (``{semantic or "indices": name}``: the stored accessors') has it."""
     attributes = {"POSITION": out.add_accessor(part.positions.astype(np.float32), FLOAT, ARRAY_BUFFER, minmax=True)}
-    types = {spec["semantic"]: spec.get("componentType") for spec in part.attributes}
+    # UNSIGNED_INT is glTF's for indices only (validator: MESH_PRIMITIVE_ATTRIBUTES_ACCESSOR_UNSIGNED_INT; an
+    # input that used it was invalid): its integers, at most 2^24, are written as the exact FLOATs they are
+    types = {spec["semantic"]: spec.get("componentType") for spec in part.attributes
+             if spec.get("componentType") != UNSIGNED_INT}
     for semantic, values in part.attribute_values().items():
         values = values.astype(np.float32)
         if types.get(semantic) is not None:

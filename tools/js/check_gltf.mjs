@@ -5,9 +5,16 @@
 //
 // Each line: {"file", "bytes",
 //   "validator": {"errors", "warnings", "infos", "hints", "codes": {CODE: count}, "messages": [...]},
-//   "three": {"ok", "meshes", "vertices", "triangles", "radius", "center", "draco", "textures", "mapped", "error"}}
+//   "three": {"ok", "meshes", "vertices", "triangles", "radius", "center", "draco", "textures", "mapped",
+//             "primitives": [{"mode", "vertices", "indices", "morphTargets",
+//                             "attributes": {NAME: [itemSize, normalized, arrayType]}, "box": [min, max]}],
+//             "error"}}
+//   (primitives: one entry per THREE.Mesh/Line/Points in traversal order, attribute names as
+//   three.js renamed them (position, normal, uv, color, skinIndex, ...; unknown ones keep the
+//   glTF name), box: the geometry's own bounding box, in mesh space, from the loaded values)
 //
-// validator: Khronos glTF-Validator (npm gltf-validator) on the file bytes.
+// validator: Khronos glTF-Validator (npm gltf-validator) on the file bytes (bytes it cannot read as
+//            glTF at all, which it throws on: one error, code NOT_GLTF, with its message).
 // three:     three.js GLTFLoader.parse() in plain Node on the GLB ArrayBuffer.  The real
 //            DRACOLoader needs Web Workers and fetch(), which Node lacks; for
 //            KHR_draco_mesh_compression we register a stand-in that has the DRACOLoader
@@ -25,8 +32,20 @@ import { createRequire } from 'node:module';
 import validator from 'gltf-validator';
 import * as THREE from 'three';
 import { GLTFLoader } from 'three/examples/jsm/loaders/GLTFLoader.js';
+import { MeshoptDecoder } from 'three/examples/jsm/libs/meshopt_decoder.module.js';
 
 const here = path.dirname(fileURLToPath(import.meta.url));
+
+// A .gltf's data: URI buffers go through three.js's FileLoader (fetch, which Node has), whose
+// progress callback builds a ProgressEvent (a DOM class Node lacks): a minimal one.
+if (typeof globalThis.ProgressEvent === 'undefined') {
+	globalThis.ProgressEvent = class ProgressEvent extends Event {
+		constructor(type, { lengthComputable = false, loaded = 0, total = 0 } = {}) {
+			super(type);
+			Object.assign(this, { lengthComputable, loaded, total });
+		}
+	};
+}
 
 function loadDracoModule() {
 	const file = path.join(here, 'node_modules/three/examples/jsm/libs/draco/draco_decoder.js');
@@ -61,12 +80,16 @@ class NodeDracoLoader {
 			for (const name in attributeIDs) {
 				const attribute = decoder.GetAttributeByUniqueId(mesh, attributeIDs[name]);
 				if (!attribute || attribute.ptr === 0) throw new Error(`no Draco attribute with unique id ${attributeIDs[name]}`);
-				if (attributeTypes[name] !== 'Float32Array') throw new Error(`attribute type ${attributeTypes[name]} not handled`);
+				// the typed array GLTFLoader asks for (the accessor's componentType), as DRACOLoader reads it
+				const TypedArray = globalThis[attributeTypes[name]];
+				const type = { Float32Array: draco.DT_FLOAT32, Int8Array: draco.DT_INT8, Int16Array: draco.DT_INT16,
+					Int32Array: draco.DT_INT32, Uint8Array: draco.DT_UINT8, Uint16Array: draco.DT_UINT16, Uint32Array: draco.DT_UINT32 }[attributeTypes[name]];
+				if (type === undefined) throw new Error(`attribute type ${attributeTypes[name]} not handled`);
 				const size = attribute.num_components();
-				const bytes = count * size * 4;
+				const bytes = count * size * TypedArray.BYTES_PER_ELEMENT;
 				const ptr = draco._malloc(bytes);
-				decoder.GetAttributeDataArrayForAllPoints(mesh, attribute, draco.DT_FLOAT32, bytes, ptr);
-				const data = new Float32Array(draco.HEAPF32.buffer, ptr, count * size).slice();
+				decoder.GetAttributeDataArrayForAllPoints(mesh, attribute, type, bytes, ptr);
+				const data = new TypedArray(draco.HEAPF32.buffer, ptr, count * size).slice();
 				draco._free(ptr);
 				geometry.setAttribute(name, new THREE.BufferAttribute(data, size));
 			}
@@ -84,7 +107,13 @@ class NodeDracoLoader {
 }
 
 async function validate(bytes) {
-	const report = await validator.validateBytes(new Uint8Array(bytes), { maxIssues: 1000, externalResourceFunction: () => Promise.reject(new Error('no external resources')) });
+	let report;
+	try {
+		report = await validator.validateBytes(new Uint8Array(bytes), { maxIssues: 1000, externalResourceFunction: () => Promise.reject(new Error('no external resources')) });
+	} catch (error) {  // bytes that are neither GLB nor JSON glTF: the validator throws instead of reporting
+		return { errors: 1, warnings: 0, infos: 0, hints: 0, codes: { NOT_GLTF: 1 },
+			messages: [{ code: 'NOT_GLTF', severity: 0, message: String(error && error.message || error) }] };
+	}
 	const codes = {};
 	for (const m of report.issues.messages) codes[m.code] = (codes[m.code] || 0) + 1;
 	return {
@@ -98,6 +127,7 @@ async function loadThree(bytes) {
 	const loader = new GLTFLoader();
 	const draco = new NodeDracoLoader();
 	loader.setDRACOLoader(draco);
+	loader.setMeshoptDecoder(MeshoptDecoder);  // EXT/KHR_meshopt_compression (WebAssembly, runs in Node)
 	// Node has no image decoder (TextureLoader/ImageBitmapLoader need a DOM): a plugin hands
 	// GLTFLoader an empty THREE.Texture per texture index, so materials still resolve their maps.
 	let textures = 0;
@@ -127,9 +157,20 @@ async function loadThree(bytes) {
 			const p = object.geometry.attributes.position, v = new THREE.Vector3();
 			for (let i = 0; i < p.count; i++) radius = Math.max(radius, v.fromBufferAttribute(p, i).applyMatrix4(object.matrixWorld).distanceTo(sphere.center));
 		});
+		const primitives = [];
+		gltf.scene.traverse((object) => {
+			if (!(object.isMesh || object.isLine || object.isPoints)) return;
+			const g = object.geometry, attributes = {};
+			for (const [name, a] of Object.entries(g.attributes)) attributes[name] = [a.itemSize, a.normalized, a.array.constructor.name];
+			g.computeBoundingBox();
+			const box = g.attributes.position ? [g.boundingBox.min.toArray(), g.boundingBox.max.toArray()] : null;
+			primitives.push({ mode: object.type, vertices: g.attributes.position ? g.attributes.position.count : 0,
+				indices: g.index ? g.index.count : null, morphTargets: Object.keys(g.morphAttributes).length ? (g.morphAttributes.position || []).length : 0,
+				attributes, box });
+		});
 		let mapped = 0;
 		gltf.scene.traverse((object) => { if (object.isMesh && object.material && object.material.map) mapped += 1; });
-		return { ok: true, meshes, vertices, triangles, radius, center: sphere.center.toArray(), draco: draco.used, textures, mapped, warnings };
+		return { ok: true, meshes, vertices, triangles, radius, center: sphere.center.toArray(), draco: draco.used, textures, mapped, primitives, warnings };
 	} catch (error) {
 		return { ok: false, error: String(error && error.message || error), draco: draco.used, warnings };
 	} finally {
