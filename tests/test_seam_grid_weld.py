@@ -27,7 +27,7 @@ from pmwm_codec.stream import replay as replay_module
 from pmwm_codec.stream.asset import decode_asset, encode_asset
 from pmwm_codec.stream.encoder import _locked_with_grid_copies
 
-from test_seams import assert_same_vertices_and_triangles
+from test_seams import assert_same_vertices_and_triangles, unpartnered_edges
 
 
 def trig_sphere(width: int = 24, height: int = 16) -> Mesh:
@@ -52,21 +52,6 @@ def trig_sphere(width: int = 24, height: int = 16) -> Mesh:
                 faces.append((b, c, d))
     attrs = {"NORMAL": n.astype(np.float32).astype(np.float64), "TEXCOORD_0": uv.astype(np.float32).astype(np.float64)}
     return checked_mesh(positions, np.array(faces), attrs)  # the top pole's last copy is on no face
-
-
-def unpartnered_edges(positions: np.ndarray, faces: np.ndarray) -> int:
-    """Boundary half-edges of (positions (n, 3), faces (m, 3)) without a partner (module docstring)."""
-    pts = np.asarray(positions)[:, :3]
-    _, pid = np.unique(pts, axis=0, return_inverse=True)
-    pid = pid.reshape(-1)
-    a = faces.reshape(-1)
-    b = faces[:, [1, 2, 0]].reshape(-1)
-    n = len(pts)
-    edge, count = np.unique(np.minimum(a, b) * n + np.maximum(a, b), return_inverse=True, return_counts=True)[1:]
-    boundary = count[edge.reshape(-1)] == 1
-    fwd = pid[a[boundary]] * n + pid[b[boundary]]
-    back = pid[b[boundary]] * n + pid[a[boundary]]
-    return int(np.count_nonzero(~np.isin(back, fwd)))
 
 
 def test_the_trig_spheres_copies_differ_as_floats_and_some_round_to_neighbouring_grid_points():
