@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .topology import compiled, csr, expand
+from .topology import compiled, expand
 
 
 def weld_groups(positions: np.ndarray) -> np.ndarray | None:
