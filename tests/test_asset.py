@@ -350,22 +350,30 @@ def test_placed_by_nodes_tells_transforms_and_instances_apart(nodes, placed):
     assert placed_by_nodes(doc) is placed
 
 
+@pytest.mark.parametrize("noisy", [False, True], ids=["equal-copies", "copies-a-float32-step-apart"])
 @pytest.mark.parametrize("one_mesh", [True, False], ids=["one-mesh", "one-mesh-each"])
-def test_primitives_that_share_positions_share_one_grid_and_decode_without_a_crack(tmp_path, one_mesh):
+def test_primitives_that_share_positions_share_one_grid_and_decode_without_a_crack(tmp_path, one_mesh, noisy):
     """A surface cut into primitives (its cut borders in both) decodes watertight: the parts share one grid,
     so a border position is one grid point in each and comes back as one float32 (on grids of their own,
     the copies came back up to a grid step apart: a crack along every cut).  A primitive sharing no
-    position keeps a grid of its own bounding box."""
+    position keeps a grid of its own bounding box.  ``noisy``: the middle part's copy of every position is
+    written one float32 step away, as an exporter's float noise leaves a border: the parts still share one
+    grid and each border position still decodes to one float32 (the parts used to get grids of their own,
+    and all 94 copies of the first border decoded apart, up to about a grid step)."""
     from pmwm_codec.constants import EXTENSION_NAME
     from pmwm_codec.format.reader import read_header
 
     blob = shapes.icosphere(4, 1.0, noise=0.03, seed=3)
+    blob = shapes.Mesh(blob.positions.astype(np.float32).astype(np.float64), blob.faces)
     x = blob.positions[blob.faces].mean(1)[:, 0]
     b = DocBuilder()
     prims = []
-    for rows in (x < -0.2, (x >= -0.2) & (x < 0.5), x >= 0.5):
+    for k, rows in enumerate((x < -0.2, (x >= -0.2) & (x < 0.5), x >= 0.5)):
         used, inverse = np.unique(blob.faces[rows], return_inverse=True)
-        prims.append(b.triangles(shapes.Mesh(blob.positions[used], inverse.reshape(-1, 3)), uv=False))
+        stored = blob.positions[used]
+        if noisy and k == 1:
+            stored = np.nextafter(stored.astype(np.float32), np.float32(np.inf)).astype(np.float64)
+        prims.append(b.triangles(shapes.Mesh(stored, inverse.reshape(-1, 3)), uv=False))
     apart = shapes.torus(24, 12)
     prims.append(b.triangles(shapes.Mesh(apart.positions * 0.1 + 5.0, apart.faces), uv=False))
     if one_mesh:

@@ -86,7 +86,7 @@ from ..http import read_declared
 from .cut import data_not_arrived
 from .decoder import StreamDecoder
 from .encoder import EncodeReport, PrimitiveJob, encode_document
-from .encoder import FLOAT32_EXACT_INTEGERS
+from .encoder import FLOAT32_EXACT_INTEGERS, SCENE_TOLERANCE
 from ..format.gltf import COMPONENT_DTYPES
 from ..format.layout import padded
 
@@ -99,10 +99,6 @@ def is_asset_path(path) -> bool:
 
 #: How many pass-through reasons the "no triangle primitive" error quotes.
 _REASONS_QUOTED = 3
-#: Two vertices of different primitives coincide in the scene within this fraction of the coordinates'
-#: size (16 float32 rounding steps: the copies of a border stored in different frames and put back
-#: by their nodes' matrices land that close; distinct vertices of a mesh are much farther apart).
-SCENE_TOLERANCE = 2.0**-20
 
 
 class _PassThrough(Exception):

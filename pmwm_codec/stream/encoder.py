@@ -340,7 +340,7 @@ def encode_document(
         raise ValueError(f"payload_version must be one of {PAYLOAD_VERSIONS}, not {payload_version!r}")
     if grid_bits is None:
         grid_bits = wm.DEFAULT_GRID_BITS[mode] if watermark is not None else DEFAULT_GRID_BITS
-    _check_moved_grids([job.mesh for job in jobs], grid_bits,
+    _check_moved_grids(jobs, grid_bits,
                        _moved_reach(watermark is not None, mode, bits, step_units, owner_id is not None))
     owner_notices = []
     # a key that already names the owner ID: a key file reused as it is, or a key given (a collection's)
@@ -434,7 +434,7 @@ def _mark_owner(jobs, key: WatermarkKey, strength, grid_bits: int, doc: dict) ->
 
     frames, _ = owner_placements(doc, [job.mesh_index for job in jobs])
     strength = owner.DEFAULT_STRENGTH if strength is None else float(strength)
-    grids = position_grids([job.mesh for job in jobs], grid_bits)
+    grids = position_grids(jobs, grid_bits)
     # several primitives: marked as the read will see them, on their grids (copies of a position that
     # grids of their own round apart, where meshes placed by different transforms meet, are two
     # positions there too), so the layer's frame is the read's; one primitive: its own positions
@@ -462,7 +462,7 @@ def _mark_owner(jobs, key: WatermarkKey, strength, grid_bits: int, doc: dict) ->
         if not np.array_equal(m, np.eye(4)):
             shift = np.linalg.solve(m[:3, :3], shift.T).T
         marked.append(dataclasses.replace(job, mesh=dataclasses.replace(job.mesh, positions=p + shift)))
-    grids = position_grids([job.mesh for job in marked], grid_bits)  # as stage 1 fits them
+    grids = position_grids(marked, grid_bits)  # as stage 1 fits them
     stored = [grid.dequantize(grid.quantize(job.mesh.positions)) for job, grid in zip(marked, grids)]
     why = _owner_check(stored, [job.mesh.faces for job in marked], key, frames)
     return (marked, None) if why is None else (None, why)
@@ -499,15 +499,26 @@ def _owner_unreadable(why: str, fallback: bool, notices: list, watermark: bool, 
         _notice(notices, f"{what}: the file carries the image watermark only, and its key names no owner id")
 
 
-def position_grids(meshes: list, grid_bits: int) -> list:
-    """The position grid (:class:`~pmwm_codec.progressive.grid.Grid`) of each of ``meshes`` (a list of
-    :class:`Mesh`): primitives that share a position (a surface cut into primitives, its cut border in
-    each) share one grid, spanning all of them, so a shared position is one grid point in every one and
-    decodes to the same float32 in each: no crack opens between them, and the owner layer, whose
-    statistics count a position once (:mod:`~pmwm_codec.watermark.owner`), reads them as one surface.
-    Every other primitive's grid spans its own bounding box."""
+#: Two vertices of different primitives coincide within this fraction of the coordinates' size (16 float32
+#: rounding steps: the copies of a border stored in different frames and put back by their nodes' matrices
+#: land that close, and so do copies written with float noise; distinct vertices of a mesh are much farther
+#: apart): in the scene (:func:`~pmwm_codec.stream.asset._lock_shared_positions`), and between the borders
+#: the asset locked, as stored (:func:`border_pairs`).
+SCENE_TOLERANCE = 2.0**-20
+
+
+def position_grids(jobs: list, grid_bits: int) -> list:
+    """The position grid (:class:`~pmwm_codec.progressive.grid.Grid`) of each of ``jobs`` (a list of
+    :class:`PrimitiveJob`): primitives that share a position (a surface cut into primitives, its cut border in
+    each: equal positions, or locked border vertices within :data:`SCENE_TOLERANCE` of each other, which float
+    noise leaves apart: :func:`border_pairs`) share one grid, spanning all of them, so a shared position is one
+    grid point in every one (:func:`borders_on_one_point` puts the noisy copies there) and decodes to the same
+    float32 in each: no crack opens between them, and the owner layer, whose statistics count a position once
+    (:mod:`~pmwm_codec.watermark.owner`), reads them as one surface.  Every other primitive's grid spans its
+    own bounding box."""
+    meshes = [job.mesh for job in jobs]
     boxes = [np.stack(bounds(m.positions)) for m in meshes]
-    label = _sharing_groups([m.positions for m in meshes])
+    label = _sharing_groups([m.positions for m in meshes], _owners(jobs)[border_pairs(jobs)])
     grids = {}
     for g in np.unique(label):
         members = np.flatnonzero(label == g)
@@ -516,9 +527,71 @@ def position_grids(meshes: list, grid_bits: int) -> list:
     return [grids[int(g)] for g in label]
 
 
-def _sharing_groups(positions: list) -> np.ndarray:
+def _owners(jobs: list) -> np.ndarray:
+    """(N,) int64: the job of every vertex of ``jobs``' meshes taken one after the other."""
+    return np.repeat(np.arange(len(jobs)), [job.mesh.vertex_count for job in jobs])
+
+
+def border_pairs(jobs: list) -> np.ndarray:
+    """(p, 2) int64: pairs of vertices of different primitives of ``jobs`` (indices into their meshes' vertices
+    taken one after the other), both locked (:attr:`PrimitiveJob.locked`: a border with another primitive in the
+    scene), whose stored positions differ by at most :data:`SCENE_TOLERANCE` of the coordinates' size in every
+    coordinate: a border's two copies, equal or a few float32 rounding steps apart."""
+    if len(jobs) < 2 or all(job.locked is None or not job.locked.any() for job in jobs):
+        return np.zeros((0, 2), np.int64)
+    from scipy.spatial import cKDTree
+
+    starts = np.cumsum([0] + [job.mesh.vertex_count for job in jobs])
+    index = np.concatenate([starts[k] + np.flatnonzero(job.locked) for k, job in enumerate(jobs)
+                            if job.locked is not None])
+    points = np.concatenate([np.asarray(job.mesh.positions, np.float64)[job.locked] for job in jobs
+                             if job.locked is not None])
+    size = float(np.abs(points).max(initial=0.0))
+    pairs = cKDTree(points).query_pairs(SCENE_TOLERANCE * size, p=np.inf, output_type="ndarray")
+    pairs = index[pairs.reshape(-1, 2)]
+    owner = _owners(jobs)
+    return pairs[owner[pairs[:, 0]] != owner[pairs[:, 1]]]
+
+
+def borders_on_one_point(values: list, jobs: list) -> list:
+    """``values`` (a list of (n_i, D) int64 grid values, positions first, one per job of ``jobs``, on the grids
+    of :func:`position_grids`) with every group of a border's copies in different primitives
+    (:func:`border_pairs`, joined through shared members) on the grid point of its first copy (the first
+    primitive's, its smallest vertex): copies a float noise apart can fall on either side of a rounding
+    boundary and would decode a grid step apart, a crack along the border at every level.  The arrays that
+    change are copies; the others are returned as they are."""
+    pairs = border_pairs(jobs)
+    if len(pairs) == 0:
+        return values
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    members, local = np.unique(pairs, return_inverse=True)
+    local = local.reshape(-1, 2)
+    k = len(members)
+    graph = coo_matrix((np.ones(len(local), np.int8), (local[:, 0], local[:, 1])), shape=(k, k))
+    _, part = connected_components(graph, directed=False)
+    lead = np.full(part.max() + 1, members.max() + 1, np.int64)
+    np.minimum.at(lead, part, members)  # members ascending: the first copy of each group
+    q = np.concatenate([v[:, :3] for v in values])
+    target = q[lead[part]]
+    moves = np.any(q[members] != target, axis=1)
+    if not moves.any():
+        return values
+    q[members[moves]] = target[moves]
+    starts = np.cumsum([0] + [len(v) for v in values])
+    out = []
+    for k, v in enumerate(values):
+        rows = q[starts[k] : starts[k + 1]]
+        out.append(v if np.array_equal(rows, v[:, :3]) else np.concatenate([rows, v[:, 3:]], axis=1))
+    return out
+
+
+def _sharing_groups(positions: list, near: np.ndarray | None = None) -> np.ndarray:
     """(k,) int64: a group label for each of ``positions`` (a list of (n_i, 3) float arrays), the smallest
-    index of the arrays it shares an exactly equal position with, directly or through others."""
+    index of the arrays it shares an exactly equal position with, directly or through others; ``near``
+    (p, 2) int64: pairs of arrays that share a position within a tolerance too (:func:`border_pairs`'
+    owners)."""
     label = np.arange(len(positions))
     if len(positions) < 2:
         return label
@@ -527,7 +600,10 @@ def _sharing_groups(positions: list) -> np.ndarray:
     order = np.lexsort((owner, *points.T[::-1]))
     p, o = points[order], owner[order]
     same = np.all(p[1:] == p[:-1], axis=1) & (o[1:] != o[:-1])
-    pairs = np.unique(np.stack([o[:-1][same], o[1:][same]], 1), axis=0)
+    pairs = np.stack([o[:-1][same], o[1:][same]], 1)
+    if near is not None and len(near):
+        pairs = np.concatenate([pairs, near])
+    pairs = np.unique(pairs, axis=0)
     for _ in range(len(positions)):  # relax to the smallest label of each connected group
         before = label.copy()
         for a, b in pairs:
@@ -598,15 +674,16 @@ def _moved_reach(watermark: bool, mode: str, bits, step_units, owner: bool) -> t
     return steps, (_OWNER_REACH if owner else 0.0)
 
 
-def _check_moved_grids(meshes: list, grid_bits: int, reach: tuple | None) -> None:
+def _check_moved_grids(jobs: list, grid_bits: int, reach: tuple | None) -> None:
     """Refuse (PmwError, :func:`_float32_refusal`) before any work a grid of ``grid_bits`` bits on which
-    the watermark or the owner layer (``reach``: :func:`_moved_reach`) would move vertices of
-    ``meshes`` to points float32 cannot carry: every point of its box, widened by the reach, must
+    the watermark or the owner layer (``reach``: :func:`_moved_reach`) would move vertices of the meshes of
+    ``jobs`` to points float32 cannot carry: every point of its box, widened by the reach, must
     come back.  The input's own points are checked in :func:`_quantize` (a mesh nobody moves, float32
     input far from the origin, stays exact on any grid: only its own points are stored)."""
     if reach is None:
         return
-    for mesh, grid in zip(meshes, position_grids(meshes, grid_bits)):
+    for job, grid in zip(jobs, position_grids(jobs, grid_bits)):
+        mesh = job.mesh
         if not _survives_float32(grid, grid.quantize(mesh.positions), reach):
             raise PmwError(_float32_refusal(mesh.positions, grid, reach))
 
@@ -642,9 +719,10 @@ def _quantize_and_simplify(jobs, grid_bits: int, base_vertices, say, defer_faces
     """
     work = []
     say("simplify", 0.0)
-    grids = position_grids([job.mesh for job in jobs], grid_bits)
+    quantized = [_quantize(job.mesh, grid) for job, grid in zip(jobs, position_grids(jobs, grid_bits))]
+    on_one_point = borders_on_one_point([values for _, values, _ in quantized], jobs)
     for i, job in enumerate(jobs):
-        grid, values, specs = _quantize(job.mesh, grids[i])
+        grid, values, specs = quantized[i][0], on_one_point[i], quantized[i][2]
         faces, positions, locked = job.mesh.faces, job.mesh.positions, job.locked
         # a seam's copies a hair apart (float noise) on one grid point, even where the grid rounds between them
         q = values[:, :3]
