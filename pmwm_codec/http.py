@@ -19,11 +19,13 @@ A connection that ends early is a cut stream, read with the same semantics as a 
 file (every complete chunk is delivered).  Time is bounded for the whole transfer, not
 per request (:meth:`UrlSource._step`).  Only ``http://`` and ``https://`` URLs are
 accepted, and only where the caller passed one (:func:`is_url`): nothing read from a
-file ever makes us fetch anything; a redirect to another scheme is refused.  Network
-failures and inconsistent servers raise :class:`~pmwm_codec.errors.InputFormatError`
-naming the URL, and so does a file that changes between the requests (its size, ``ETag``
-or ``Last-Modified``).  :func:`read_declared` reads a stream whole (a URL, standard
-input) no further than its declared length.
+file ever makes us fetch anything; a redirect to another scheme, or to a URL with a user
+name or password, is refused.  Network failures and inconsistent servers raise
+:class:`~pmwm_codec.errors.InputFormatError` naming the URL (a redirect's target as
+:func:`shown_url` shows it: never its password or query), and so does a file that
+changes between the requests (its size, ``ETag`` or ``Last-Modified``).
+:func:`read_declared` reads a stream whole (a URL, standard input) no further than its
+declared length.
 """
 
 from __future__ import annotations
@@ -78,15 +80,35 @@ def stream_end(source, end):
     return end
 
 
+def _split(url: str) -> tuple:
+    """``(start, netloc, tail)`` of a URL: ``scheme://`` (empty when there is none), the authority up to the
+    first ``/``, ``?`` or ``#`` (a user name and password, the host, the port) and the path, query and fragment."""
+    scheme, sep, rest = url.partition("://")
+    if not sep:
+        return "", "", url
+    end = min((i for i in map(rest.find, "/?#") if i >= 0), default=len(rest))
+    return scheme + sep, rest[:end], rest[end:]
+
+
+def shown_url(url: str) -> str:
+    """``url`` (a server's, or one refused for its password) as a message names it: without a user name and
+    password (``...@``) or a query and fragment (``?...``), where a redirect to a signed link carries its
+    credentials (``?X-Amz-Signature=``, ``?token=``), which must not be copied into a terminal or a log; the
+    scheme, host, port and path say which file it is.  The URL the caller named is named as it was given
+    (refused at once if it holds a password): its query is the caller's own, already on the command line."""
+    start, netloc, tail = _split(url)
+    at = "...@" if "@" in netloc else ""
+    path = re.split(r"[?#]", tail, maxsplit=1)
+    return start + at + netloc.rpartition("@")[2] + path[0] + ("?..." if len(path) > 1 else "")
+
+
 def _request_url(url: str) -> str:
     """``url`` in ASCII, as a browser sends it (RFC 3987 §3.1): a non-ASCII host name in IDNA (``xn--``),
     any other non-ASCII character percent-encoded as UTF-8 (``café.pmw``: ``caf%C3%A9.pmw``);
     :class:`~pmwm_codec.errors.InputFormatError` when it cannot be (a host name label over 63 characters)."""
     if url.isascii():
         return url
-    scheme, _, rest = url.partition("://")
-    end = min((i for i in map(rest.find, "/?#") if i >= 0), default=len(rest))
-    netloc, tail = rest[:end], rest[end:]
+    start, netloc, tail = _split(url)
     try:
         if not netloc.isascii():  # a host name and a port (a user name is refused before, an IPv6 address is ASCII)
             host, colon, port = netloc.rpartition(":")
@@ -96,15 +118,22 @@ def _request_url(url: str) -> str:
         tail = re.sub(r"[^\x00-\x7f]+", lambda m: urllib.parse.quote(m[0], safe="", errors="surrogateescape"), tail)
     except UnicodeError as exc:
         raise InputFormatError(f"{url}: not a valid URL ({exc})") from None
-    return f"{scheme}://{netloc}{tail}"
+    return f"{start}{netloc}{tail}"
 
 
 class _HttpOnlyRedirects(urllib.request.HTTPRedirectHandler):
-    """Follow redirects to ``http(s)://`` only (never ``file:`` or ``ftp:``)."""
+    """Follow redirects to ``http(s)://`` URLs without a user name or password only (never ``file:`` or
+    ``ftp:``; credentials from a server would go where the caller sent none); ``url``: the URL the caller named,
+    which the refusal names first."""
+
+    def __init__(self, url: str):
+        self.url = url
 
     def redirect_request(self, req, fp, code, msg, headers, newurl):
-        if not is_url(newurl):
-            raise InputFormatError(f"{req.full_url}: redirected to {newurl!r}, not an http(s) URL")
+        why = "not an http(s) URL" if not is_url(newurl) else \
+            "a URL with a user name or password (not supported)" if "@" in _split(newurl)[1] else None
+        if why:
+            raise InputFormatError(f"{self.url}: redirected to {shown_url(newurl)}, {why}")
         return super().redirect_request(req, fp, code, msg, headers, newurl)
 
 
@@ -123,15 +152,13 @@ class UrlSource:
     def __init__(self, url: str, *, max_chunks: int | None = None, whole_document: bool = False,
                  timeout: float = DEFAULT_TIMEOUT, block_size: int = DEFAULT_BLOCK_SIZE):
         if not is_url(url):
-            raise InputFormatError(f"{url}: not an http:// or https:// URL")
+            raise InputFormatError(f"{shown_url(str(url))}: not an http:// or https:// URL")
+        if "@" in _split(url)[1]:  # before any other check, whose message would show it: never echoed, a password
+            raise InputFormatError(f"{shown_url(url)}: a user name or password in the URL is not supported")
         try:
-            parts = urllib.parse.urlsplit(url)
-            parts.port  # noqa: B018 - a port out of range or not a number raises here
+            urllib.parse.urlsplit(url).port  # noqa: B018 - a port out of range or not a number raises here
         except ValueError as exc:
             raise InputFormatError(f"{url}: not a valid URL ({exc})") from None
-        if parts.username is not None or parts.password is not None:  # never echoed: a password
-            raise InputFormatError(f"{parts.scheme}://...@{parts.hostname}{parts.path}: a user name or password in "
-                                   "the URL is not supported")
         self.url = url
         self._target = _request_url(url)
         self.max_chunks = max_chunks
@@ -145,7 +172,7 @@ class UrlSource:
         self.file_size = None
         self._watch = _Watchdog()
         self._waited = 0.0
-        self._opener = urllib.request.build_opener(_HttpOnlyRedirects, *self._watch.handlers())
+        self._opener = urllib.request.build_opener(_HttpOnlyRedirects(self.url), *self._watch.handlers())
 
     def __repr__(self):
         return f"UrlSource({self.url!r})"

@@ -537,13 +537,49 @@ def test_pmw_decode_of_a_url_up_to_chunk_n_says_the_file_is_complete_as_for_the_
     ("http://[::1/x.pmw", "not a valid URL"), ("http://127.0.0.1:99999/x.pmw", "not a valid URL"),
     ("http://127.0.0.1:1/a b.pmw", "not a valid URL"), ("http://127.0.0.1:1/x.pmw\r\nX-Injected: 1", "not a valid URL"),
     ("http://me:hunter2@127.0.0.1:1/x.pmw", "user name or password in the URL is not supported"),
+    # a password beside a port out of range or a host that does not parse: echoed whole
+    ("http://me:hunter2@127.0.0.1:99999/x.pmw", "user name or password in the URL is not supported"),
+    ("http://me:hunter2@[::1/x.pmw", "user name or password in the URL is not supported"),
 ])
 def test_a_url_that_cannot_be_fetched_is_named_without_its_password(tmp_path, capsys, url, words):
     """Each ended as ``unexpected ValueError / InvalidURL (a bug of pmw)``, or for a URL with a password as a
-    name lookup of ``me:hunter2@127.0.0.1`` that echoed the password."""
+    name lookup of ``me:hunter2@127.0.0.1`` that echoed the password; a password beside a port out of range or a
+    host that does not parse was echoed in the error line."""
     code, out, err = _pmw(capsys, "decode", url, "-o", tmp_path / "x.obj")
     assert code == 2 and len(err.splitlines()) == 1 and words in err and "bug of pmw" not in err, err
     assert "hunter2" not in err and not (tmp_path / "x.obj").exists()
+
+
+class Redirecting(RangeRequestHandler):
+    """A server that answers every request with a redirect to ``location`` (``{port}``: its own port)."""
+
+    location = ""
+
+    def send_head(self):
+        self.send_response(302)
+        self.send_header("Location", self.location.format(port=self.server.server_address[1]))
+        self.send_header("Content-Length", "0")
+        self.end_headers()
+        return None
+
+
+@pytest.mark.parametrize("location", [
+    "ftp://user:s3cret@files.example/x.pmw?token=t0ken",
+    "https://user:s3cret@127.0.0.1:1/x.pmw?X-Amz-Signature=t0ken",
+    "http://user:s3cret@127.0.0.1:{port}/x.pmw",
+])
+def test_a_refused_redirect_is_named_without_the_servers_credentials(site, tmp_path, capsys, location):
+    """The refusal of a redirect to another scheme echoed the server's ``Location`` whole, password and token
+    included; a redirect to an http(s) URL with a user name and password was followed, the credentials taken for
+    part of the host name (``cannot read (Name or service not known)``).  Both are refused, in one line that
+    names the target without them."""
+    handler = type("Redirected", (Redirecting,), {"location": location})
+    with _served(site, handler) as url:
+        for argv in (["decode", url, "-o", tmp_path / "x.obj"], ["verify", url, "--key", site / "x.pmw.key.json"]):
+            code, out, err = _pmw(capsys, *argv)
+            assert code == 2 and err.startswith(f"pmw: error: {url}: redirected to ") and "verdict" not in out, err
+            assert len(err.splitlines()) == 1 and "...@" in err and "s3cret" not in err and "t0ken" not in err, err
+    assert not (tmp_path / "x.obj").exists()
 
 
 def test_a_server_that_does_not_speak_http_is_a_named_error(tmp_path, capsys):
