@@ -17,13 +17,13 @@ the first bytes with a ``Range`` request:
 
 A connection that ends early is a cut stream, read with the same semantics as a cut
 file (every complete chunk is delivered).  Time is bounded for the whole transfer, not
-per request (:meth:`UrlSource._step`).  Only ``http://`` and ``https://`` URLs are
-accepted, and only where the caller passed one (:func:`is_url`): nothing read from a
-file ever makes us fetch anything; a redirect to another scheme, or to a URL with a user
-name or password, is refused.  Network failures and inconsistent servers raise
-:class:`~pmwm_codec.errors.InputFormatError` naming the URL (a redirect's target as
-:func:`shown_url` shows it: never its password or query), and so does a file that
-changes between the requests (its size, ``ETag`` or ``Last-Modified``).
+per request, a host name's lookup included (:meth:`UrlSource._step`).  Only ``http://``
+and ``https://`` URLs are accepted, and only where the caller passed one (:func:`is_url`):
+nothing read from a file ever makes us fetch anything; a redirect to another scheme, or
+to a URL with a user name or password, is refused.  Network failures and inconsistent
+servers raise :class:`~pmwm_codec.errors.InputFormatError` naming the URL (a redirect's
+target as :func:`shown_url` shows it: never its password or query), and so does a file
+that changes between the requests (its size, ``ETag`` or ``Last-Modified``).
 :func:`read_declared` reads a stream whole (a URL, standard input) no further than its
 declared length.
 """
@@ -50,8 +50,8 @@ from .format.layout import CHUNK_HEADER_SIZE, PREAMBLE_SIZE
 from .format.parser import parse_preamble, trailing_bytes
 from .sources import DEFAULT_BLOCK_SIZE, iter_blocks, read_all, resolve_stdin
 
-#: Seconds one network step may take (a request up to its answer's head, one read of a body), and the
-#: first seconds of a transfer its pace is not judged.
+#: Seconds one network step may take (a host name's lookup, a request up to its answer's head, one read of a
+#: body), and the first seconds of a transfer its pace is not judged.
 DEFAULT_TIMEOUT = 30.0
 #: Bytes per second a transfer must average once its network time passes the timeout (:meth:`UrlSource._step`).
 MIN_RATE = 1024
@@ -401,7 +401,8 @@ class UrlSource:
 
     @contextlib.contextmanager
     def _step(self):
-        """One network step (a request up to its answer's head, or one read of a body), timed.
+        """One network step (a host name's lookup with the connection, a request up to its answer's head, or one
+        read of a body), timed.
 
         The rule: all the steps of an iteration take at most ``max(timeout, bytes_fetched / MIN_RATE)``
         seconds (past the first ``timeout`` seconds the transfer averages :data:`MIN_RATE`, over all its
@@ -442,7 +443,8 @@ class UrlSource:
 class _Watchdog:
     """Shuts down the connection of a network step that outlives its time (:meth:`UrlSource._step`), so the
     read blocked on it returns.  The HTTP handlers it makes note the socket of each connection as it is
-    made (its file descriptor: a TLS socket wraps the same one) in ``fd``."""
+    made (its file descriptor: a TLS socket wraps the same one) in ``fd``, and look its host name up within
+    the step's time (:meth:`connection`)."""
 
     def __init__(self):
         self.fd = None
@@ -450,6 +452,7 @@ class _Watchdog:
         self._step = 0  # which step is timed (a timer of an earlier one does nothing)
         self._cut = False
         self._timer = None
+        self._deadline = None  # when the timed step's time is up (time.monotonic())
 
     def handlers(self) -> tuple:
         """An HTTP and an HTTPS handler for ``urllib.request.build_opener`` whose connections note their socket."""
@@ -457,6 +460,7 @@ class _Watchdog:
 
         class Noted(http.client.HTTPConnection):
             def connect(self):
+                self._create_connection = watch.connection
                 super().connect()
                 watch.fd = self.sock.fileno()
 
@@ -473,11 +477,44 @@ class _Watchdog:
 
         return Http(), Https()
 
+    def connection(self, address: tuple, timeout, source_address=None) -> socket.socket:
+        """``socket.create_connection(address, ...)`` with the host name looked up within the timed step's time.
+
+        ``getaddrinfo`` cannot be cut off (a resolver that does not answer blocks it for as long as it likes,
+        and there is no socket yet to shut down): it runs in a daemon thread, left to end on its own when the
+        time is up, and the step fails then with an OSError naming the host.  The connection is made to the
+        addresses it gave, in its order."""
+        host, port = address
+        found = {}
+
+        def look_up():
+            try:
+                found["addresses"] = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+            except OSError as exc:
+                found["error"] = exc
+
+        seconds = None if self._deadline is None else max(0.0, self._deadline - time.monotonic())
+        lookup = threading.Thread(target=look_up, name=f"pmw-resolve-{host}", daemon=True)
+        lookup.start()
+        lookup.join(seconds)
+        if lookup.is_alive():
+            raise TimeoutError(f"the name lookup (DNS) of {host} gave no answer in {seconds:.1f} s")
+        if "error" in found:
+            raise found["error"]
+        error = OSError(f"no address for the host name {host}")
+        for *_, sockaddr in found["addresses"]:
+            try:
+                return socket.create_connection(sockaddr[:2], timeout, source_address)
+            except OSError as exc:
+                error = exc
+        raise error
+
     def start(self, seconds: float) -> None:
         """Time a step: its connection is shut down in ``seconds`` unless :meth:`stop` comes first."""
         with self._lock:
             self._step += 1
             self._cut = False
+            self._deadline = time.monotonic() + seconds
             self._timer = threading.Timer(seconds, self._fire, (self._step,))
         self._timer.daemon = True
         self._timer.start()

@@ -1156,3 +1156,28 @@ def test_a_server_that_drips_its_answers_head_is_cut_off_after_the_timeout(tmp_p
         done.set()
         listener.close()
         thread.join(10)
+
+
+def test_a_host_name_lookup_that_stalls_is_cut_off_after_the_timeout(site, monkeypatch):
+    """``getaddrinfo`` blocks for as long as the resolver takes, and the watchdog had no connection to cut off: a
+    lookup that never answered held the reader for ever.  It is now given the step's time and named."""
+    import socket
+    import time
+
+    lookup = socket.getaddrinfo
+
+    def resolver(host, *args, **kwargs):
+        if host == "slow.example":
+            time.sleep(4)
+        return lookup("127.0.0.1" if host.endswith(".example") else host, *args, **kwargs)
+
+    monkeypatch.setattr(socket, "getaddrinfo", resolver)
+    with _served(site, RangeRequestHandler) as url:
+        quick = UrlSource(url.replace("127.0.0.1", "quick.example"), timeout=1)  # the addresses it gives are used
+        assert pmwm_codec.decode(quick) == pmwm_codec.decode(site / "x.pmw") and quick.ranged
+        start = time.monotonic()
+        with pytest.raises(InputFormatError) as info:
+            pmwm_codec.decode(UrlSource(url.replace("127.0.0.1", "slow.example"), timeout=1))
+        assert time.monotonic() - start < 2.5
+    assert re.fullmatch(r"http://slow\.example:\d+/x\.pmw: cannot read \(the name lookup \(DNS\) of slow\.example gave "
+                        r"no answer in [01]\.\d s\)", str(info.value)), info.value
