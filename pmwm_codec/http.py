@@ -16,14 +16,15 @@ the first bytes with a ``Range`` request:
   ``Content-Encoding`` is undone as it is read (a ranged answer in one is refused).
 
 A connection that ends early is a cut stream, read with the same semantics as a cut
-file (every complete chunk is delivered).  Time is bounded for the whole transfer, not
-per request, a host name's lookup included (:meth:`UrlSource._step`).  Only ``http://``
-and ``https://`` URLs are accepted, and only where the caller passed one (:func:`is_url`):
-nothing read from a file ever makes us fetch anything; a redirect to another scheme, or
-to a URL with a user name or password, is refused.  Network failures and inconsistent
-servers raise :class:`~pmwm_codec.errors.InputFormatError` naming the URL (a redirect's
-target as :func:`shown_url` shows it: never its password or query), and so does a file
-that changes between the requests (its size, ``ETag`` or ``Last-Modified``).
+file (every complete chunk is delivered).  A server that sends nothing for ``timeout``
+seconds stalls, and the whole transfer is bounded too, not per request, a host name's
+lookup included (:meth:`UrlSource._step`).  Only ``http://`` and ``https://`` URLs are
+accepted, and only where the caller passed one (:func:`is_url`): nothing read from a
+file ever makes us fetch anything; a redirect to another scheme, or to a URL with a user
+name or password, is refused.  Network failures and inconsistent servers raise
+:class:`~pmwm_codec.errors.InputFormatError` naming the URL (a redirect's target as
+:func:`shown_url` shows it: never its password or query), and so does a file that
+changes between the requests (its size, ``ETag`` or ``Last-Modified``).
 :func:`read_declared` reads a stream whole (a URL, standard input) no further than its
 declared length.
 """
@@ -51,10 +52,12 @@ from .format.parser import parse_preamble, trailing_bytes
 from .sources import DEFAULT_BLOCK_SIZE, iter_blocks, read_all, resolve_stdin
 
 #: Seconds one network step may take (a host name's lookup, a request up to its answer's head, one read of a
-#: body), and the first seconds of a transfer its pace is not judged.
+#: body: a server that sends nothing that long stalls), and the network time a transfer has before its pace counts.
 DEFAULT_TIMEOUT = 30.0
-#: Bytes per second a transfer must average once its network time passes the timeout (:meth:`UrlSource._step`).
-MIN_RATE = 1024
+#: Bytes per second a transfer must average past its first ``timeout`` seconds of network time
+#: (:meth:`UrlSource._step`): a floor under any link HTTP runs on (512 bit/s), so that only a server that holds
+#: the reader with a trickle is refused, not a slow link.
+MIN_RATE = 64
 _CONTENT_RANGE = re.compile(r"bytes\s+(\d{1,19})-(\d{1,19})/(\d{1,19}|\*)\s*$")  # (int() of 5000 digits raises)
 
 
@@ -402,18 +405,20 @@ class UrlSource:
     @contextlib.contextmanager
     def _step(self):
         """One network step (a host name's lookup with the connection, a request up to its answer's head, or one
-        read of a body), timed.
+        read of a body: it ends as soon as any byte arrives), timed.
 
-        The rule: all the steps of an iteration take at most ``max(timeout, bytes_fetched / MIN_RATE)``
-        seconds (past the first ``timeout`` seconds the transfer averages :data:`MIN_RATE`, over all its
-        requests: a server that trickles every answer of a thousand ranges fails as one that trickles
-        one answer), and one step at most ``timeout``.  The time the reader spends between steps
-        (decoding what arrived) is not counted.  A step that outlives its share is cut off by
-        :class:`_Watchdog` (a socket timeout bounds each wait for a byte, not a step: a status line or a
-        body sent a byte every few seconds never trips it).  So a transfer ends within about
-        ``max(timeout, size / MIN_RATE)`` seconds of network time, ``size`` the bytes it reads.
+        The rule: one step takes at most ``timeout`` seconds (a server that sends nothing that long stalls, as the
+        JavaScript reader's ``stallTimeout`` says), and all the steps of an iteration at most
+        ``timeout + bytes_fetched / MIN_RATE`` seconds: past its first ``timeout`` seconds the transfer averages
+        :data:`MIN_RATE`, over all its requests (a server that trickles every answer of a thousand ranges fails
+        as one that trickles one answer).  Each byte received buys ``1 / MIN_RATE`` s, so a slow link that keeps
+        bringing bytes is never cut off, while a server that holds the reader with a trickle is, within about
+        ``timeout + size / MIN_RATE`` seconds, ``size`` the bytes it sends (not the size it declares, which is the
+        server's to choose).  The time the reader spends between steps (decoding what arrived) is not counted.
+        A step that outlives its share is cut off by :class:`_Watchdog` (a socket timeout bounds each wait for a
+        byte, not a step: a status line or a body sent a byte every few seconds never trips it).
         """
-        allowed = min(self.timeout, max(self.timeout, self.bytes_fetched / MIN_RATE) - self._waited)
+        allowed = min(self.timeout, self._budget() - self._waited)
         if allowed <= 0:
             raise self._stalled()
         started = time.monotonic()
@@ -428,13 +433,18 @@ class UrlSource:
             raise
         cut = self._watch.stop()
         self._waited += time.monotonic() - started
-        if cut or self._waited > max(self.timeout, self.bytes_fetched / MIN_RATE):
+        if cut or self._waited > self._budget():
             raise self._stalled()
+
+    def _budget(self) -> float:
+        """The seconds of network time the transfer may have taken so far (:meth:`_step`)."""
+        return self.timeout + self.bytes_fetched / MIN_RATE
 
     def _stalled(self) -> InputFormatError:
         """The error of a transfer that broke the rule of :meth:`_step`."""
-        if self._waited > max(self.timeout, self.bytes_fetched / MIN_RATE):
-            why = f"{self.bytes_fetched:,} bytes in {self._waited:.0f} s, under {MIN_RATE:,} bytes/s"
+        if self._waited > self._budget():
+            why = (f"{self.bytes_fetched:,} bytes in {self._waited:.0f} s, under {MIN_RATE:,} bytes/s after the "
+                   f"first {self.timeout:g} s")
         else:
             why = f"no answer or read done in {self.timeout:g} s"
         return InputFormatError(f"{self.url}: cannot read (the server stalls: {why})")

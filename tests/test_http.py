@@ -1158,6 +1158,37 @@ def test_a_server_that_drips_its_answers_head_is_cut_off_after_the_timeout(tmp_p
         thread.join(10)
 
 
+class Steady(RangeRequestHandler):
+    """A slow link: every answer sent at ``rate`` bytes a second, a tenth of that every 0.1 s."""
+
+    rate = 800
+
+    def copyfile(self, source, outputfile):
+        import time
+
+        left = self._length
+        while left:
+            block = source.read(min(left, self.rate // 10))
+            if not block:
+                return
+            outputfile.write(block)
+            outputfile.flush()
+            left -= len(block)
+            time.sleep(0.1)
+
+
+def test_a_slow_link_that_keeps_bringing_bytes_is_read_to_the_end(site):
+    """A link at 800 bytes/s failed as ``the server stalls: 820 bytes in 1 s, under 1,024 bytes/s`` once past the
+    timeout, though bytes kept coming (the JavaScript reader, which cuts off only a server that sends nothing for
+    ``stallTimeout``, read it): the floor is now ``MIN_RATE``, 64 bytes/s, and a trickle under it still stalls."""
+    with _served(site, Steady) as url:
+        source = UrlSource(url, max_chunks=0, timeout=1)  # ~2.5 KB: ~3 s
+        assert pmwm_codec.decode(source, chunks=0) == pmwm_codec.decode(site / "x.pmw", chunks=0)
+        assert source.bytes_fetched == _prefix_end(site / "x.pmw", 0)
+    with _served(site, type("Trickle", (Steady,), {"rate": 20})) as url:  # 2 bytes every 0.1 s
+        _decode_stalls(url, r"the server stalls: \d+ bytes in \d s, under 64 bytes/s after the first 1 s", 3)
+
+
 def test_a_host_name_lookup_that_stalls_is_cut_off_after_the_timeout(site, monkeypatch):
     """``getaddrinfo`` blocks for as long as the resolver takes, and the watchdog had no connection to cut off: a
     lookup that never answered held the reader for ever.  It is now given the step's time and named."""
