@@ -405,11 +405,11 @@ def test_a_gzipped_plain_answer_is_decoded_and_a_gzipped_range_answer_refused(si
             thread.join(5)
 
 
-def _replaced_after(requests: int, path: str):
-    """A Range handler that serves the file asked for ``requests`` times, then the one at ``path`` in its place
+def _replaced_after(requests: int, path: str, handler=RangeRequestHandler):
+    """A Range ``handler`` that serves the file asked for ``requests`` times, then the one at ``path`` in its place
     (the server counts its requests in ``requests``)."""
 
-    class Replaced(RangeRequestHandler):
+    class Replaced(handler):
         def translate_path(self, asked):
             self.server.requests = getattr(self.server, "requests", 0) + 1
             return super().translate_path(asked if self.server.requests <= requests else path)
@@ -445,6 +445,60 @@ def test_a_file_replaced_by_one_of_the_same_size_between_range_requests_is_refus
         srv.shutdown()
         srv.server_close()
         thread.join(5)
+
+
+class Unversioned(RangeRequestHandler):
+    """A Range server that sends neither ``ETag`` nor ``Last-Modified`` (nothing obliges a server to): only the size in
+    its ``Content-Range`` tells a reader that the file changed."""
+
+    def send_header(self, keyword, value):
+        if keyword.lower() not in ("etag", "last-modified"):
+            super().send_header(keyword, value)
+
+
+@pytest.mark.parametrize("handler", [Unversioned, RangeRequestHandler])
+def test_a_file_replaced_by_one_of_the_same_size_is_refused_with_or_without_validators(tmp_path, capsys, handler):
+    """``pmw decode URL`` and ``pmw verify URL`` of a file replaced, between two Range requests, by another of the same
+    size: its base (two vertices swapped) after the JSON, or its chunk 2 (a byte changed) after the base.  A server
+    without ``ETag`` and ``Last-Modified`` cannot say so, but the bytes of the other file fail the digests of the
+    first one's index (``baseDigest``, each chunk's): exit 2, one line, nothing written, never a mix of the two files
+    read as one.  With validators the change is named as such."""
+    import os
+
+    from pmwm_codec.format.reader import read_header
+    from pmwm_codec.http import plan_ranges
+
+    site = tmp_path / "site"
+    site.mkdir()
+    image = np.random.default_rng(3).integers(0, 256, (16, 16)).astype(np.uint8)
+    pmwm_codec.encode(shapes.icosphere(3), site / "a.pmw", watermark=image, base_codec="plain", measure="none")
+    data = (site / "a.pmw").read_bytes()
+    header = read_header(data)
+    position = header.gltf_json["meshes"][0]["primitives"][0]["attributes"]["POSITION"]
+    view = header.gltf_json["bufferViews"][header.gltf_json["accessors"][position]["bufferView"]]
+    start = header.bin_offset + view.get("byteOffset", 0)
+    swapped = data[:start] + data[start + 12 : start + 24] + data[start : start + 12] + data[start + 24 :]
+    chunk_2_end = plan_ranges(data)[2]
+    (site / "base.pmw").write_bytes(swapped)
+    (site / "chunk.pmw").write_bytes(data[: chunk_2_end - 1] + bytes([data[chunk_2_end - 1] ^ 0xFF]) + data[chunk_2_end:])
+    for name in ("base.pmw", "chunk.pmw"):
+        os.utime(site / name, ns=(1, 1))  # another ETag and Last-Modified than a.pmw's, where they are sent
+    key = site / "a.pmw.key.json"
+    # after the preamble and the JSON: the base; after the base and chunk 1: chunk 2
+    for other, requests, refusal in (("base.pmw", 2, "base mesh: baseDigest mismatch"),
+                                     ("chunk.pmw", 4, "chunk 2: digest mismatch")):
+        for command, argv in (("decode", ["-o", tmp_path / "a.obj"]), ("verify", ["--key", key, "--json"])):
+            srv, thread = _serve(site, _replaced_after(requests, "/" + other, handler))
+            try:
+                code, out, err = _pmw(capsys, command, f"http://127.0.0.1:{srv.server_address[1]}/a.pmw", *argv)
+            finally:
+                srv.shutdown()
+                srv.server_close()
+                thread.join(5)
+            if handler is RangeRequestHandler:
+                refusal = "the file changed while it was read"
+            assert code == 2 and refusal in err and len(err.splitlines()) == 1 and out == "", (other, command, err)
+            assert not (tmp_path / "a.obj").exists()
 
 
 def test_a_file_replaced_by_a_shorter_one_between_range_requests_is_refused_not_read_as_cut(site, tmp_path, capsys):
