@@ -830,14 +830,22 @@ def test_serve_refuses_every_key_the_key_loader_reads_whatever_its_spelling(tmp_
     (site / "scene.gltf").write_text(json.dumps({"asset": {"version": "2.0"}, "format": "pmwm-key-not"}))
     (site / "escaped.json").write_text('{"name": "caf\\u00e9", "format": "other"}')
     (site / "notes.json").write_text(" " * 5000 + '{"format": "pmwm-key-list"}')
+    _check_served_keys(site, key, served=("scene.gltf", "escaped.json", "notes.json"))
+
+
+def _check_served_keys(site, key, encoding="utf-8", served=()):
+    """``site`` served: each file of ``_key_variants(key)`` (written there in ``encoding``) is 404 with or without
+    ``Range``, the secret nowhere in the answer; each file named in ``served`` is no key, and served."""
+    from pmwm_codec.watermark.key import is_key_file
+
     srv, thread = _serve(site, RangeRequestHandler)
     base = f"http://127.0.0.1:{srv.server_address[1]}/"
     try:
         for name in _key_variants(key):
             for headers in ({}, {"Range": "bytes=0-"}):
                 status, _, body = _get(base + name, headers)
-                assert status == 404 and key.secret_hex.encode() not in body, name
-        for name in ("scene.gltf", "escaped.json", "notes.json"):
+                assert status == 404 and key.secret_hex.encode(encoding) not in body, name
+        for name in served:
             assert not is_key_file(site / name) and _get(base + name)[0] == 200, name
     finally:
         srv.shutdown()
@@ -856,16 +864,64 @@ def test_serve_never_sends_a_key_saved_with_a_byte_order_mark(tmp_path):
     for name, text in _key_variants(key).items():
         (site / name).write_bytes(b"\xef\xbb\xbf" + text.encode())
         assert is_key_file(site / name), name
-    srv, thread = _serve(site, RangeRequestHandler)
-    try:
-        for name in _key_variants(key):
-            for headers in ({}, {"Range": "bytes=0-"}):
-                status, _, body = _get(f"http://127.0.0.1:{srv.server_address[1]}/{name}", headers)
-                assert status == 404 and key.secret_hex.encode() not in body, name
-    finally:
-        srv.shutdown()
-        srv.server_close()
-        thread.join(5)
+    _check_served_keys(site, key)
+
+
+@pytest.mark.parametrize("encoding", ["utf-16-le", "utf-16-be", "utf-32-le", "utf-32-be"])
+@pytest.mark.parametrize("bom", [False, True])
+def test_serve_never_sends_a_key_in_another_unicode_encoding(tmp_path, encoding, bom):
+    """A key file re-saved as UTF-16 (an editor's "Unicode") or UTF-32, with a byte order mark or without, was served
+    whole: the loader cannot read it, but it holds the secret all the same.  Other JSON in those encodings, and
+    files that only look like them, are still served."""
+    import codecs
+
+    from pmwm_codec.watermark.key import WatermarkKey, is_key_file
+
+    key = WatermarkKey.generate(rng=np.random.default_rng(6))
+    mark = {"utf-16-le": codecs.BOM_UTF16_LE, "utf-16-be": codecs.BOM_UTF16_BE, "utf-32-le": codecs.BOM_UTF32_LE,
+            "utf-32-be": codecs.BOM_UTF32_BE}[encoding] if bom else b""
+    site = tmp_path / "site"
+    site.mkdir()
+    for name, text in _key_variants(key).items():
+        (site / name).write_bytes(mark + text.encode(encoding))
+        assert is_key_file(site / name), name
+    (site / "scene.gltf").write_bytes(mark + json.dumps({"asset": {"version": "2.0"}}).encode(encoding))
+    (site / "data.bin").write_bytes(b"{\0\0\0" + bytes(range(256)))  # the NULs of UTF-32: not a key all the same
+    _check_served_keys(site, key, encoding, served=("scene.gltf", "data.bin"))
+
+
+def test_is_key_file_reads_a_large_file_that_is_no_key_in_blocks_and_a_large_key_whole(tmp_path):
+    """Any JSON object up to 64 MiB was read whole, and parsed when it held a backslash or ``pmwm-key`` anywhere (a
+    .gltf whose buffer is a ``data:`` URI with its ``/`` escaped, a list that names ``pmwm-key-list``): ``pmw serve``
+    did so for every request of such a file (a 60 MB .gltf: 0.4-1.4 s and 450 MB a request).  Such a file is now
+    read a block at a time, for the format's value as a JSON string, and no more is held; a key is still a key with
+    its format after a reference image of 1.4 MB, in UTF-8 or UTF-16."""
+    import base64
+    import tracemalloc
+
+    from pmwm_codec.watermark.key import WatermarkKey, is_key_file
+
+    data = base64.b64encode(np.random.default_rng(7).integers(0, 256, 9_000_000, dtype=np.uint8).tobytes()).decode()
+    (tmp_path / "scene.gltf").write_text(json.dumps(  # 12 MB, and a backslash in every block
+        {"asset": {"version": "2.0"}, "buffers": [{"uri": "data:application/octet-stream;base64," + data}]}
+    ).replace("/", "\\/"))
+    (tmp_path / "list.json").write_text(json.dumps({"items": list(range(1_500_000)), "format": "pmwm-key-list"}))
+    for name in ("scene.gltf", "list.json"):
+        tracemalloc.start()
+        try:
+            assert not is_key_file(tmp_path / name), name
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        assert peak < 6 << 20, (name, peak)
+    image = np.random.default_rng(8).integers(0, 256, (1024, 1024)).astype(np.uint8)
+    key = WatermarkKey.generate(rng=np.random.default_rng(8), reference=image)
+    doc = key.to_json()
+    text = json.dumps({"reference": doc.pop("reference"), **doc})  # the format 1.4 MB in
+    (tmp_path / "k.json").write_text(text)
+    assert WatermarkKey.load(tmp_path / "k.json") == key and is_key_file(tmp_path / "k.json")
+    (tmp_path / "k.json").write_bytes(text.encode("utf-16"))
+    assert is_key_file(tmp_path / "k.json")
 
 
 def test_is_key_file_refuses_at_least_what_it_refused(tmp_path):
