@@ -247,6 +247,72 @@ def test_serve_answers_only_for_files_inside_its_directory_and_never_with_a_key(
         thread.join(5)
 
 
+class Planting(RangeRequestHandler):
+    """A handler that calls ``server.plant(False)`` before it translates (and, before the fix, checked) the path
+    asked for and ``server.plant(True)`` after: what stands there is swapped between the check and the open, every
+    time, as a process racing the server would do at the worst moment."""
+
+    def translate_path(self, path):
+        self.server.plant(False)
+        local = super().translate_path(path)
+        self.server.plant(True)
+        return local
+
+
+def test_serve_checks_the_file_it_opened_not_the_path_it_checked(tmp_path):
+    """``pmw serve`` checked a path (its real location inside the directory, not a key, a regular file), then opened
+    it by name: a name swapped meanwhile for a link out of the directory (or a folder on the way for one), for a key
+    file or for a FIFO was served (the FIFO held the answer forever).  The file is now opened one component at a
+    time without following links, and the checks are made on what was opened: 404 for each, nothing of it sent."""
+    import os
+    import shutil
+
+    from pmwm_codec.watermark.key import WatermarkKey
+
+    site, outside = tmp_path / "site", tmp_path / "outside"
+    site.mkdir()
+    outside.mkdir()
+    (outside / "secret.txt").write_text("not yours")
+    key = WatermarkKey.generate(rng=np.random.default_rng(9))
+
+    def swap(path, good, planted):
+        """``plant(bad)``: ``planted(path)`` where ``path`` stands when ``bad``, else ``good(path)``."""
+
+        def plant(bad):
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path)
+            elif os.path.lexists(path):
+                path.unlink()
+            (planted if bad else good)(path)
+
+        return plant
+
+    def ok(path):
+        path.write_text("ok")
+
+    cases = {  # what is asked for: what stands there at the check, and at the open
+        "a.txt": swap(site / "a.txt", ok, lambda path: path.symlink_to(outside / "secret.txt")),
+        "sub/secret.txt": swap(site / "sub", lambda path: path.mkdir(), lambda path: path.symlink_to(outside)),
+        "k.txt": swap(site / "k.txt", ok, lambda path: path.write_bytes(key.to_text())),
+        "p.txt": swap(site / "p.txt", ok, lambda path: os.mkfifo(path)),
+    }
+    srv, thread = _serve(site, Planting)
+    base = f"http://127.0.0.1:{srv.server_address[1]}/"
+    try:
+        for asked, plant in cases.items():
+            srv.plant = plant
+            for headers in ({}, {"Range": "bytes=0-"}):
+                status, _, body = _get(base + asked, headers)
+                assert status == 404 and b"not yours" not in body and key.secret_hex.encode() not in body, asked
+        cases["a.txt"](False)
+        srv.plant = lambda bad: None  # nothing swapped: "ok" is served
+        assert _get(base + "a.txt")[2] == b"ok"
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+
+
 def _prefix_end(path, n: int) -> int:
     """Bytes of ``path`` up to the end of chunk ``n`` (0: the end of the data before the first chunk)."""
     from pmwm_codec.http import plan_ranges
