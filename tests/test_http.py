@@ -1058,6 +1058,53 @@ def test_pmw_serve_names_a_host_it_cannot_listen_on(tmp_path, capsys):
     assert code == 2 and "999.1.1.1" in err and len(err.splitlines()) == 1, err
 
 
+def _ipv6_loopback() -> bool:
+    """Whether this machine can listen on ``::1``."""
+    import socket
+
+    try:
+        with socket.socket(socket.AF_INET6) as probe:
+            probe.bind(("::1", 0))
+    except OSError:
+        return False
+    return True
+
+
+@pytest.mark.skipif(not _ipv6_loopback(), reason="no IPv6 loopback on this machine")
+def test_pmw_serve_listens_on_an_ipv6_address_and_names_it_in_brackets(site):
+    """``pmw serve --host ::1`` (or ``::``) was ``cannot listen there (Address family for hostname not supported)``:
+    the server was IPv4 only.  It listens, prints its URL with the address in brackets, and the reader reads it."""
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-m", "pmwm_codec", "serve", str(site), "--port", "0", "--host", "::1"],
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+                            cwd=Path(__file__).resolve().parents[1])
+    try:
+        line = proc.stdout.readline()
+        assert re.fullmatch(r"serving .* at http://\[::1\]:\d+/ \(Ctrl-C to stop\)\n", line), line
+        source = UrlSource(line.split(" at ")[1].split()[0] + "x.pmw", max_chunks=1)
+        assert pmwm_codec.decode(source, chunks=1) == pmwm_codec.decode(site / "x.pmw", chunks=1) and source.ranged
+    finally:
+        proc.terminate()
+        proc.wait(10)
+        proc.stdout.close()
+    from pmwm_codec.cli.serve import server_url
+
+    for host, shown in (("[::1]", "[::1]"), ("::", "[::]")):
+        srv = make_server(site, host, 0)
+        thread = threading.Thread(target=srv.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
+        thread.start()
+        try:
+            url = server_url(srv)
+            assert re.fullmatch(rf"http://{re.escape(shown)}:\d+/", url), url
+            assert pmwm_codec.decode(url.replace("[::]", "[::1]") + "x.pmw") == pmwm_codec.decode(site / "x.pmw")
+        finally:
+            srv.shutdown()
+            srv.server_close()
+            thread.join(5)
+
+
 def test_a_url_with_non_ascii_characters_is_sent_percent_encoded_as_a_browser_does(site, tmp_path, capsys):
     """``http://host/café.pmw`` raised a bare ``UnicodeEncodeError`` (the command: "unexpected ... a bug of pmw");
     the path is now sent as UTF-8 percent-encoded (``caf%C3%A9.pmw``), a host name in IDNA, and a host name that

@@ -12,16 +12,19 @@ beside the ``.pmw``; or a key under any other name, ``--key site/k.json``) are n
 and directories are not listed (a folder's ``index.html``, or ``index.htm``, is served for
 ``GET /folder/`` after the same checks as any file).  A ``Range`` with an ``If-Range`` whose validator is not the file's current one gets the whole file
 (200, RFC 9110 §13.1.5).  It binds to 127.0.0.1 unless ``--host`` says otherwise (never to every
-interface for an empty ``--host``).  Not a production server.
+interface for an empty ``--host``), or an IPv6 address (``::1``, ``::``; its URL in brackets).  Not a production
+server.
 """
 
 from __future__ import annotations
 
+import contextlib
 import datetime
 import email.utils
 import errno
 import os
 import re
+import socket
 import stat
 import threading
 import time
@@ -46,7 +49,8 @@ def add_parser(sub):
                                    "demos of progressive loading (pmw verify URL, the three.js plugin). Ctrl-C stops it.")
     p.add_argument("directory", metavar="DIR", help="the directory to serve")
     p.add_argument("--port", type=int, default=8000, help="TCP port (default 8000; 0: any free port)")
-    p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only)")
+    p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only); an "
+                                                       "IPv6 address too, ::1 or :: (every interface)")
     p.set_defaults(run=run)
 
 
@@ -310,16 +314,39 @@ class _Server(ThreadingHTTPServer):
             super().handle_error(request, client_address)
 
 
+class _Server6(_Server):
+    """:class:`_Server` on an IPv6 address; on ``::`` (every interface) it takes IPv4 clients too where the system
+    lets it, as ``python -m http.server --bind ::`` does."""
+
+    address_family = socket.AF_INET6
+
+    def server_bind(self):
+        with contextlib.suppress(AttributeError, OSError):
+            self.socket.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 0)
+        super().server_bind()
+
+
 def make_server(directory, host: str = "127.0.0.1", port: int = 0, handler=RangeRequestHandler):
     """A ``ThreadingHTTPServer`` serving ``directory`` with ``handler``; not started.
 
-    It counts body bytes in ``bytes_sent`` (under ``count_lock``).
+    ``host``: a name or an IPv4 address, or an IPv6 address (``::1``; in brackets too, ``[::1]``).  It counts body
+    bytes in ``bytes_sent`` (under ``count_lock``).
     """
-    server = _Server((host, port), partial(handler, directory=os.fspath(directory)))
+    if host.startswith("[") and host.endswith("]"):
+        host = host[1:-1]
+    server_class = _Server6 if ":" in host else _Server  # (a name or an IPv4 address has no colon)
+    server = server_class((host, port), partial(handler, directory=os.fspath(directory)))
     server.bytes_sent = 0
     server.count_lock = threading.Lock()
     server.daemon_threads = True
     return server
+
+
+def server_url(server) -> str:
+    """The URL of the root of what ``server`` serves: an IPv6 address in brackets (``http://[::1]:8000/``, a zone's
+    ``%`` as ``%25``, RFC 6874)."""
+    host, port = server.server_address[:2]
+    return f"http://[{host.replace('%', '%25')}]:{port}/" if ":" in host else f"http://{host}:{port}/"
 
 
 def run(args) -> int:
@@ -336,8 +363,7 @@ def run(args) -> int:
         raise UsageError(f"--host {args.host} --port {args.port}: cannot listen there "
                          f"({exc.strerror or exc})") from None
     server.verbose = True
-    host, port = server.server_address[:2]
-    print(f"serving {os.path.abspath(args.directory)} at http://{host}:{port}/ (Ctrl-C to stop)", flush=True)
+    print(f"serving {os.path.abspath(args.directory)} at {server_url(server)} (Ctrl-C to stop)", flush=True)
     try:
         server.serve_forever()
     except KeyboardInterrupt:
