@@ -462,7 +462,7 @@ class _Watchdog:
         self._step = 0  # which step is timed (a timer of an earlier one does nothing)
         self._cut = False
         self._timer = None
-        self._deadline = None  # when the timed step's time is up (time.monotonic())
+        self._deadline = None  # when the timed step's time is up (time.monotonic()); None: no step is timed
 
     def handlers(self) -> tuple:
         """An HTTP and an HTTPS handler for ``urllib.request.build_opener`` whose connections note their socket."""
@@ -533,6 +533,7 @@ class _Watchdog:
         """End the step's timing; whether its connection was cut off."""
         with self._lock:
             self._step += 1
+            self._deadline = None
             if self._timer is not None:
                 self._timer.cancel()
                 self._timer = None
