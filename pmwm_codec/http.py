@@ -16,14 +16,17 @@ the first bytes with a ``Range`` request:
   ``Content-Encoding`` is undone as it is read (a ranged answer in one is refused).
 
 A connection that ends early is a cut stream, read with the same semantics as a cut
-file (every complete chunk is delivered).  Time is bounded for the whole transfer, not
-per request (:meth:`UrlSource._step`).  Only ``http://`` and ``https://`` URLs are
+file (every complete chunk is delivered).  A server that sends nothing for ``timeout``
+seconds stalls, and the whole transfer is bounded too, not per request, a host name's
+lookup included (:meth:`UrlSource._step`).  Only ``http://`` and ``https://`` URLs are
 accepted, and only where the caller passed one (:func:`is_url`): nothing read from a
-file ever makes us fetch anything; a redirect to another scheme is refused.  Network
-failures and inconsistent servers raise :class:`~pmwm_codec.errors.InputFormatError`
-naming the URL, and so does a file that changes between the requests (its size, ``ETag``
-or ``Last-Modified``).  :func:`read_declared` reads a stream whole (a URL, standard
-input) no further than its declared length.
+file ever makes us fetch anything; a redirect to another scheme, or to a URL with a user
+name or password, is refused.  Network failures and inconsistent servers raise
+:class:`~pmwm_codec.errors.InputFormatError` naming the URL (a redirect's target as
+:func:`shown_url` shows it: never its password or query), and so does a file that
+changes between the requests (its size, ``ETag`` or ``Last-Modified``).
+:func:`read_declared` reads a stream whole (a URL, standard input) no further than its
+declared length.
 """
 
 from __future__ import annotations
@@ -48,11 +51,13 @@ from .format.layout import CHUNK_HEADER_SIZE, PREAMBLE_SIZE
 from .format.parser import parse_preamble, trailing_bytes
 from .sources import DEFAULT_BLOCK_SIZE, iter_blocks, read_all, resolve_stdin
 
-#: Seconds one network step may take (a request up to its answer's head, one read of a body), and the
-#: first seconds of a transfer its pace is not judged.
+#: Seconds one network step may take (a host name's lookup, a request up to its answer's head, one read of a
+#: body: a server that sends nothing that long stalls), and the network time a transfer has before its pace counts.
 DEFAULT_TIMEOUT = 30.0
-#: Bytes per second a transfer must average once its network time passes the timeout (:meth:`UrlSource._step`).
-MIN_RATE = 1024
+#: Bytes per second a transfer must average past its first ``timeout`` seconds of network time
+#: (:meth:`UrlSource._step`): a floor under any link HTTP runs on (512 bit/s), so that only a server that holds
+#: the reader with a trickle is refused, not a slow link.
+MIN_RATE = 64
 _CONTENT_RANGE = re.compile(r"bytes\s+(\d{1,19})-(\d{1,19})/(\d{1,19}|\*)\s*$")  # (int() of 5000 digits raises)
 
 
@@ -78,15 +83,35 @@ def stream_end(source, end):
     return end
 
 
+def _split(url: str) -> tuple:
+    """``(start, netloc, tail)`` of a URL: ``scheme://`` (empty when there is none), the authority up to the
+    first ``/``, ``?`` or ``#`` (a user name and password, the host, the port) and the path, query and fragment."""
+    scheme, sep, rest = url.partition("://")
+    if not sep:
+        return "", "", url
+    end = min((i for i in map(rest.find, "/?#") if i >= 0), default=len(rest))
+    return scheme + sep, rest[:end], rest[end:]
+
+
+def shown_url(url: str) -> str:
+    """``url`` (a server's, or one refused for its password) as a message names it: without a user name and
+    password (``...@``) or a query and fragment (``?...``), where a redirect to a signed link carries its
+    credentials (``?X-Amz-Signature=``, ``?token=``), which must not be copied into a terminal or a log; the
+    scheme, host, port and path say which file it is.  The URL the caller named is named as it was given
+    (refused at once if it holds a password): its query is the caller's own, already on the command line."""
+    start, netloc, tail = _split(url)
+    at = "...@" if "@" in netloc else ""
+    path = re.split(r"[?#]", tail, maxsplit=1)
+    return start + at + netloc.rpartition("@")[2] + path[0] + ("?..." if len(path) > 1 else "")
+
+
 def _request_url(url: str) -> str:
     """``url`` in ASCII, as a browser sends it (RFC 3987 §3.1): a non-ASCII host name in IDNA (``xn--``),
     any other non-ASCII character percent-encoded as UTF-8 (``café.pmw``: ``caf%C3%A9.pmw``);
     :class:`~pmwm_codec.errors.InputFormatError` when it cannot be (a host name label over 63 characters)."""
     if url.isascii():
         return url
-    scheme, _, rest = url.partition("://")
-    end = min((i for i in map(rest.find, "/?#") if i >= 0), default=len(rest))
-    netloc, tail = rest[:end], rest[end:]
+    start, netloc, tail = _split(url)
     try:
         if not netloc.isascii():  # a host name and a port (a user name is refused before, an IPv6 address is ASCII)
             host, colon, port = netloc.rpartition(":")
@@ -96,15 +121,22 @@ def _request_url(url: str) -> str:
         tail = re.sub(r"[^\x00-\x7f]+", lambda m: urllib.parse.quote(m[0], safe="", errors="surrogateescape"), tail)
     except UnicodeError as exc:
         raise InputFormatError(f"{url}: not a valid URL ({exc})") from None
-    return f"{scheme}://{netloc}{tail}"
+    return f"{start}{netloc}{tail}"
 
 
 class _HttpOnlyRedirects(urllib.request.HTTPRedirectHandler):
-    """Follow redirects to ``http(s)://`` only (never ``file:`` or ``ftp:``)."""
+    """Follow redirects to ``http(s)://`` URLs without a user name or password only (never ``file:`` or
+    ``ftp:``; credentials from a server would go where the caller sent none); ``url``: the URL the caller named,
+    which the refusal names first."""
+
+    def __init__(self, url: str):
+        self.url = url
 
     def redirect_request(self, req, fp, code, msg, headers, newurl):
-        if not is_url(newurl):
-            raise InputFormatError(f"{req.full_url}: redirected to {newurl!r}, not an http(s) URL")
+        why = "not an http(s) URL" if not is_url(newurl) else \
+            "a URL with a user name or password (not supported)" if "@" in _split(newurl)[1] else None
+        if why:
+            raise InputFormatError(f"{self.url}: redirected to {shown_url(newurl)}, {why}")
         return super().redirect_request(req, fp, code, msg, headers, newurl)
 
 
@@ -123,15 +155,13 @@ class UrlSource:
     def __init__(self, url: str, *, max_chunks: int | None = None, whole_document: bool = False,
                  timeout: float = DEFAULT_TIMEOUT, block_size: int = DEFAULT_BLOCK_SIZE):
         if not is_url(url):
-            raise InputFormatError(f"{url}: not an http:// or https:// URL")
+            raise InputFormatError(f"{shown_url(str(url))}: not an http:// or https:// URL")
+        if "@" in _split(url)[1]:  # before any other check, whose message would show it: never echoed, a password
+            raise InputFormatError(f"{shown_url(url)}: a user name or password in the URL is not supported")
         try:
-            parts = urllib.parse.urlsplit(url)
-            parts.port  # noqa: B018 - a port out of range or not a number raises here
+            urllib.parse.urlsplit(url).port  # noqa: B018 - a port out of range or not a number raises here
         except ValueError as exc:
             raise InputFormatError(f"{url}: not a valid URL ({exc})") from None
-        if parts.username is not None or parts.password is not None:  # never echoed: a password
-            raise InputFormatError(f"{parts.scheme}://...@{parts.hostname}{parts.path}: a user name or password in "
-                                   "the URL is not supported")
         self.url = url
         self._target = _request_url(url)
         self.max_chunks = max_chunks
@@ -145,7 +175,7 @@ class UrlSource:
         self.file_size = None
         self._watch = _Watchdog()
         self._waited = 0.0
-        self._opener = urllib.request.build_opener(_HttpOnlyRedirects, *self._watch.handlers())
+        self._opener = urllib.request.build_opener(_HttpOnlyRedirects(self.url), *self._watch.handlers())
 
     def __repr__(self):
         return f"UrlSource({self.url!r})"
@@ -374,18 +404,21 @@ class UrlSource:
 
     @contextlib.contextmanager
     def _step(self):
-        """One network step (a request up to its answer's head, or one read of a body), timed.
+        """One network step (a host name's lookup with the connection, a request up to its answer's head, or one
+        read of a body: it ends as soon as any byte arrives), timed.
 
-        The rule: all the steps of an iteration take at most ``max(timeout, bytes_fetched / MIN_RATE)``
-        seconds (past the first ``timeout`` seconds the transfer averages :data:`MIN_RATE`, over all its
-        requests: a server that trickles every answer of a thousand ranges fails as one that trickles
-        one answer), and one step at most ``timeout``.  The time the reader spends between steps
-        (decoding what arrived) is not counted.  A step that outlives its share is cut off by
-        :class:`_Watchdog` (a socket timeout bounds each wait for a byte, not a step: a status line or a
-        body sent a byte every few seconds never trips it).  So a transfer ends within about
-        ``max(timeout, size / MIN_RATE)`` seconds of network time, ``size`` the bytes it reads.
+        The rule: one step takes at most ``timeout`` seconds (a server that sends nothing that long stalls, as the
+        JavaScript reader's ``stallTimeout`` says), and all the steps of an iteration at most
+        ``timeout + bytes_fetched / MIN_RATE`` seconds: past its first ``timeout`` seconds the transfer averages
+        :data:`MIN_RATE`, over all its requests (a server that trickles every answer of a thousand ranges fails
+        as one that trickles one answer).  Each byte received buys ``1 / MIN_RATE`` s, so a slow link that keeps
+        bringing bytes is never cut off, while a server that holds the reader with a trickle is, within about
+        ``timeout + size / MIN_RATE`` seconds, ``size`` the bytes it sends (not the size it declares, which is the
+        server's to choose).  The time the reader spends between steps (decoding what arrived) is not counted.
+        A step that outlives its share is cut off by :class:`_Watchdog` (a socket timeout bounds each wait for a
+        byte, not a step: a status line or a body sent a byte every few seconds never trips it).
         """
-        allowed = min(self.timeout, max(self.timeout, self.bytes_fetched / MIN_RATE) - self._waited)
+        allowed = min(self.timeout, self._budget() - self._waited)
         if allowed <= 0:
             raise self._stalled()
         started = time.monotonic()
@@ -400,13 +433,18 @@ class UrlSource:
             raise
         cut = self._watch.stop()
         self._waited += time.monotonic() - started
-        if cut or self._waited > max(self.timeout, self.bytes_fetched / MIN_RATE):
+        if cut or self._waited > self._budget():
             raise self._stalled()
+
+    def _budget(self) -> float:
+        """The seconds of network time the transfer may have taken so far (:meth:`_step`)."""
+        return self.timeout + self.bytes_fetched / MIN_RATE
 
     def _stalled(self) -> InputFormatError:
         """The error of a transfer that broke the rule of :meth:`_step`."""
-        if self._waited > max(self.timeout, self.bytes_fetched / MIN_RATE):
-            why = f"{self.bytes_fetched:,} bytes in {self._waited:.0f} s, under {MIN_RATE:,} bytes/s"
+        if self._waited > self._budget():
+            why = (f"{self.bytes_fetched:,} bytes in {self._waited:.0f} s, under {MIN_RATE:,} bytes/s after the "
+                   f"first {self.timeout:g} s")
         else:
             why = f"no answer or read done in {self.timeout:g} s"
         return InputFormatError(f"{self.url}: cannot read (the server stalls: {why})")
@@ -415,7 +453,8 @@ class UrlSource:
 class _Watchdog:
     """Shuts down the connection of a network step that outlives its time (:meth:`UrlSource._step`), so the
     read blocked on it returns.  The HTTP handlers it makes note the socket of each connection as it is
-    made (its file descriptor: a TLS socket wraps the same one) in ``fd``."""
+    made (its file descriptor: a TLS socket wraps the same one) in ``fd``, and look its host name up within
+    the step's time (:meth:`connection`)."""
 
     def __init__(self):
         self.fd = None
@@ -423,6 +462,7 @@ class _Watchdog:
         self._step = 0  # which step is timed (a timer of an earlier one does nothing)
         self._cut = False
         self._timer = None
+        self._deadline = None  # when the timed step's time is up (time.monotonic()); None: no step is timed
 
     def handlers(self) -> tuple:
         """An HTTP and an HTTPS handler for ``urllib.request.build_opener`` whose connections note their socket."""
@@ -430,6 +470,7 @@ class _Watchdog:
 
         class Noted(http.client.HTTPConnection):
             def connect(self):
+                self._create_connection = watch.connection
                 super().connect()
                 watch.fd = self.sock.fileno()
 
@@ -446,11 +487,44 @@ class _Watchdog:
 
         return Http(), Https()
 
+    def connection(self, address: tuple, timeout, source_address=None) -> socket.socket:
+        """``socket.create_connection(address, ...)`` with the host name looked up within the timed step's time.
+
+        ``getaddrinfo`` cannot be cut off (a resolver that does not answer blocks it for as long as it likes,
+        and there is no socket yet to shut down): it runs in a daemon thread, left to end on its own when the
+        time is up, and the step fails then with an OSError naming the host.  The connection is made to the
+        addresses it gave, in its order."""
+        host, port = address
+        found = {}
+
+        def look_up():
+            try:
+                found["addresses"] = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+            except OSError as exc:
+                found["error"] = exc
+
+        seconds = None if self._deadline is None else max(0.0, self._deadline - time.monotonic())
+        lookup = threading.Thread(target=look_up, name=f"pmw-resolve-{host}", daemon=True)
+        lookup.start()
+        lookup.join(seconds)
+        if lookup.is_alive():
+            raise TimeoutError(f"the name lookup (DNS) of {host} gave no answer in {seconds:.1f} s")
+        if "error" in found:
+            raise found["error"]
+        error = OSError(f"no address for the host name {host}")
+        for *_, sockaddr in found["addresses"]:
+            try:
+                return socket.create_connection(sockaddr[:2], timeout, source_address)
+            except OSError as exc:
+                error = exc
+        raise error
+
     def start(self, seconds: float) -> None:
         """Time a step: its connection is shut down in ``seconds`` unless :meth:`stop` comes first."""
         with self._lock:
             self._step += 1
             self._cut = False
+            self._deadline = time.monotonic() + seconds
             self._timer = threading.Timer(seconds, self._fire, (self._step,))
         self._timer.daemon = True
         self._timer.start()
@@ -459,6 +533,7 @@ class _Watchdog:
         """End the step's timing; whether its connection was cut off."""
         with self._lock:
             self._step += 1
+            self._deadline = None
             if self._timer is not None:
                 self._timer.cancel()
                 self._timer = None

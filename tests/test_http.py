@@ -247,6 +247,72 @@ def test_serve_answers_only_for_files_inside_its_directory_and_never_with_a_key(
         thread.join(5)
 
 
+class Planting(RangeRequestHandler):
+    """A handler that calls ``server.plant(False)`` before it translates (and, before the fix, checked) the path
+    asked for and ``server.plant(True)`` after: what stands there is swapped between the check and the open, every
+    time, as a process racing the server would do at the worst moment."""
+
+    def translate_path(self, path):
+        self.server.plant(False)
+        local = super().translate_path(path)
+        self.server.plant(True)
+        return local
+
+
+def test_serve_checks_the_file_it_opened_not_the_path_it_checked(tmp_path):
+    """``pmw serve`` checked a path (its real location inside the directory, not a key, a regular file), then opened
+    it by name: a name swapped meanwhile for a link out of the directory (or a folder on the way for one), for a key
+    file or for a FIFO was served (the FIFO held the answer forever).  The file is now opened one component at a
+    time without following links, and the checks are made on what was opened: 404 for each, nothing of it sent."""
+    import os
+    import shutil
+
+    from pmwm_codec.watermark.key import WatermarkKey
+
+    site, outside = tmp_path / "site", tmp_path / "outside"
+    site.mkdir()
+    outside.mkdir()
+    (outside / "secret.txt").write_text("not yours")
+    key = WatermarkKey.generate(rng=np.random.default_rng(9))
+
+    def swap(path, good, planted):
+        """``plant(bad)``: ``planted(path)`` where ``path`` stands when ``bad``, else ``good(path)``."""
+
+        def plant(bad):
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path)
+            elif os.path.lexists(path):
+                path.unlink()
+            (planted if bad else good)(path)
+
+        return plant
+
+    def ok(path):
+        path.write_text("ok")
+
+    cases = {  # what is asked for: what stands there at the check, and at the open
+        "a.txt": swap(site / "a.txt", ok, lambda path: path.symlink_to(outside / "secret.txt")),
+        "sub/secret.txt": swap(site / "sub", lambda path: path.mkdir(), lambda path: path.symlink_to(outside)),
+        "k.txt": swap(site / "k.txt", ok, lambda path: path.write_bytes(key.to_text())),
+        "p.txt": swap(site / "p.txt", ok, lambda path: os.mkfifo(path)),
+    }
+    srv, thread = _serve(site, Planting)
+    base = f"http://127.0.0.1:{srv.server_address[1]}/"
+    try:
+        for asked, plant in cases.items():
+            srv.plant = plant
+            for headers in ({}, {"Range": "bytes=0-"}):
+                status, _, body = _get(base + asked, headers)
+                assert status == 404 and b"not yours" not in body and key.secret_hex.encode() not in body, asked
+        cases["a.txt"](False)
+        srv.plant = lambda bad: None  # nothing swapped: "ok" is served
+        assert _get(base + "a.txt")[2] == b"ok"
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+
+
 def _prefix_end(path, n: int) -> int:
     """Bytes of ``path`` up to the end of chunk ``n`` (0: the end of the data before the first chunk)."""
     from pmwm_codec.http import plan_ranges
@@ -405,11 +471,11 @@ def test_a_gzipped_plain_answer_is_decoded_and_a_gzipped_range_answer_refused(si
             thread.join(5)
 
 
-def _replaced_after(requests: int, path: str):
-    """A Range handler that serves the file asked for ``requests`` times, then the one at ``path`` in its place
+def _replaced_after(requests: int, path: str, handler=RangeRequestHandler):
+    """A Range ``handler`` that serves the file asked for ``requests`` times, then the one at ``path`` in its place
     (the server counts its requests in ``requests``)."""
 
-    class Replaced(RangeRequestHandler):
+    class Replaced(handler):
         def translate_path(self, asked):
             self.server.requests = getattr(self.server, "requests", 0) + 1
             return super().translate_path(asked if self.server.requests <= requests else path)
@@ -445,6 +511,60 @@ def test_a_file_replaced_by_one_of_the_same_size_between_range_requests_is_refus
         srv.shutdown()
         srv.server_close()
         thread.join(5)
+
+
+class Unversioned(RangeRequestHandler):
+    """A Range server that sends neither ``ETag`` nor ``Last-Modified`` (nothing obliges a server to): only the size in
+    its ``Content-Range`` tells a reader that the file changed."""
+
+    def send_header(self, keyword, value):
+        if keyword.lower() not in ("etag", "last-modified"):
+            super().send_header(keyword, value)
+
+
+@pytest.mark.parametrize("handler", [Unversioned, RangeRequestHandler])
+def test_a_file_replaced_by_one_of_the_same_size_is_refused_with_or_without_validators(tmp_path, capsys, handler):
+    """``pmw decode URL`` and ``pmw verify URL`` of a file replaced, between two Range requests, by another of the same
+    size: its base (two vertices swapped) after the JSON, or its chunk 2 (a byte changed) after the base.  A server
+    without ``ETag`` and ``Last-Modified`` cannot say so, but the bytes of the other file fail the digests of the
+    first one's index (``baseDigest``, each chunk's): exit 2, one line, nothing written, never a mix of the two files
+    read as one.  With validators the change is named as such."""
+    import os
+
+    from pmwm_codec.format.reader import read_header
+    from pmwm_codec.http import plan_ranges
+
+    site = tmp_path / "site"
+    site.mkdir()
+    image = np.random.default_rng(3).integers(0, 256, (16, 16)).astype(np.uint8)
+    pmwm_codec.encode(shapes.icosphere(3), site / "a.pmw", watermark=image, base_codec="plain", measure="none")
+    data = (site / "a.pmw").read_bytes()
+    header = read_header(data)
+    position = header.gltf_json["meshes"][0]["primitives"][0]["attributes"]["POSITION"]
+    view = header.gltf_json["bufferViews"][header.gltf_json["accessors"][position]["bufferView"]]
+    start = header.bin_offset + view.get("byteOffset", 0)
+    swapped = data[:start] + data[start + 12 : start + 24] + data[start : start + 12] + data[start + 24 :]
+    chunk_2_end = plan_ranges(data)[2]
+    (site / "base.pmw").write_bytes(swapped)
+    (site / "chunk.pmw").write_bytes(data[: chunk_2_end - 1] + bytes([data[chunk_2_end - 1] ^ 0xFF]) + data[chunk_2_end:])
+    for name in ("base.pmw", "chunk.pmw"):
+        os.utime(site / name, ns=(1, 1))  # another ETag and Last-Modified than a.pmw's, where they are sent
+    key = site / "a.pmw.key.json"
+    # after the preamble and the JSON: the base; after the base and chunk 1: chunk 2
+    for other, requests, refusal in (("base.pmw", 2, "base mesh: baseDigest mismatch"),
+                                     ("chunk.pmw", 4, "chunk 2: digest mismatch")):
+        for command, argv in (("decode", ["-o", tmp_path / "a.obj"]), ("verify", ["--key", key, "--json"])):
+            srv, thread = _serve(site, _replaced_after(requests, "/" + other, handler))
+            try:
+                code, out, err = _pmw(capsys, command, f"http://127.0.0.1:{srv.server_address[1]}/a.pmw", *argv)
+            finally:
+                srv.shutdown()
+                srv.server_close()
+                thread.join(5)
+            if handler is RangeRequestHandler:
+                refusal = "the file changed while it was read"
+            assert code == 2 and refusal in err and len(err.splitlines()) == 1 and out == "", (other, command, err)
+            assert not (tmp_path / "a.obj").exists()
 
 
 def test_a_file_replaced_by_a_shorter_one_between_range_requests_is_refused_not_read_as_cut(site, tmp_path, capsys):
@@ -537,13 +657,49 @@ def test_pmw_decode_of_a_url_up_to_chunk_n_says_the_file_is_complete_as_for_the_
     ("http://[::1/x.pmw", "not a valid URL"), ("http://127.0.0.1:99999/x.pmw", "not a valid URL"),
     ("http://127.0.0.1:1/a b.pmw", "not a valid URL"), ("http://127.0.0.1:1/x.pmw\r\nX-Injected: 1", "not a valid URL"),
     ("http://me:hunter2@127.0.0.1:1/x.pmw", "user name or password in the URL is not supported"),
+    # a password beside a port out of range or a host that does not parse: echoed whole
+    ("http://me:hunter2@127.0.0.1:99999/x.pmw", "user name or password in the URL is not supported"),
+    ("http://me:hunter2@[::1/x.pmw", "user name or password in the URL is not supported"),
 ])
 def test_a_url_that_cannot_be_fetched_is_named_without_its_password(tmp_path, capsys, url, words):
     """Each ended as ``unexpected ValueError / InvalidURL (a bug of pmw)``, or for a URL with a password as a
-    name lookup of ``me:hunter2@127.0.0.1`` that echoed the password."""
+    name lookup of ``me:hunter2@127.0.0.1`` that echoed the password; a password beside a port out of range or a
+    host that does not parse was echoed in the error line."""
     code, out, err = _pmw(capsys, "decode", url, "-o", tmp_path / "x.obj")
     assert code == 2 and len(err.splitlines()) == 1 and words in err and "bug of pmw" not in err, err
     assert "hunter2" not in err and not (tmp_path / "x.obj").exists()
+
+
+class Redirecting(RangeRequestHandler):
+    """A server that answers every request with a redirect to ``location`` (``{port}``: its own port)."""
+
+    location = ""
+
+    def send_head(self):
+        self.send_response(302)
+        self.send_header("Location", self.location.format(port=self.server.server_address[1]))
+        self.send_header("Content-Length", "0")
+        self.end_headers()
+        return None
+
+
+@pytest.mark.parametrize("location", [
+    "ftp://user:s3cret@files.example/x.pmw?token=t0ken",
+    "https://user:s3cret@127.0.0.1:1/x.pmw?X-Amz-Signature=t0ken",
+    "http://user:s3cret@127.0.0.1:{port}/x.pmw",
+])
+def test_a_refused_redirect_is_named_without_the_servers_credentials(site, tmp_path, capsys, location):
+    """The refusal of a redirect to another scheme echoed the server's ``Location`` whole, password and token
+    included; a redirect to an http(s) URL with a user name and password was followed, the credentials taken for
+    part of the host name (``cannot read (Name or service not known)``).  Both are refused, in one line that
+    names the target without them."""
+    handler = type("Redirected", (Redirecting,), {"location": location})
+    with _served(site, handler) as url:
+        for argv in (["decode", url, "-o", tmp_path / "x.obj"], ["verify", url, "--key", site / "x.pmw.key.json"]):
+            code, out, err = _pmw(capsys, *argv)
+            assert code == 2 and err.startswith(f"pmw: error: {url}: redirected to ") and "verdict" not in out, err
+            assert len(err.splitlines()) == 1 and "...@" in err and "s3cret" not in err and "t0ken" not in err, err
+    assert not (tmp_path / "x.obj").exists()
 
 
 def test_a_server_that_does_not_speak_http_is_a_named_error(tmp_path, capsys):
@@ -740,14 +896,22 @@ def test_serve_refuses_every_key_the_key_loader_reads_whatever_its_spelling(tmp_
     (site / "scene.gltf").write_text(json.dumps({"asset": {"version": "2.0"}, "format": "pmwm-key-not"}))
     (site / "escaped.json").write_text('{"name": "caf\\u00e9", "format": "other"}')
     (site / "notes.json").write_text(" " * 5000 + '{"format": "pmwm-key-list"}')
+    _check_served_keys(site, key, served=("scene.gltf", "escaped.json", "notes.json"))
+
+
+def _check_served_keys(site, key, encoding="utf-8", served=()):
+    """``site`` served: each file of ``_key_variants(key)`` (written there in ``encoding``) is 404 with or without
+    ``Range``, the secret nowhere in the answer; each file named in ``served`` is no key, and served."""
+    from pmwm_codec.watermark.key import is_key_file
+
     srv, thread = _serve(site, RangeRequestHandler)
     base = f"http://127.0.0.1:{srv.server_address[1]}/"
     try:
         for name in _key_variants(key):
             for headers in ({}, {"Range": "bytes=0-"}):
                 status, _, body = _get(base + name, headers)
-                assert status == 404 and key.secret_hex.encode() not in body, name
-        for name in ("scene.gltf", "escaped.json", "notes.json"):
+                assert status == 404 and key.secret_hex.encode(encoding) not in body, name
+        for name in served:
             assert not is_key_file(site / name) and _get(base + name)[0] == 200, name
     finally:
         srv.shutdown()
@@ -766,16 +930,64 @@ def test_serve_never_sends_a_key_saved_with_a_byte_order_mark(tmp_path):
     for name, text in _key_variants(key).items():
         (site / name).write_bytes(b"\xef\xbb\xbf" + text.encode())
         assert is_key_file(site / name), name
-    srv, thread = _serve(site, RangeRequestHandler)
-    try:
-        for name in _key_variants(key):
-            for headers in ({}, {"Range": "bytes=0-"}):
-                status, _, body = _get(f"http://127.0.0.1:{srv.server_address[1]}/{name}", headers)
-                assert status == 404 and key.secret_hex.encode() not in body, name
-    finally:
-        srv.shutdown()
-        srv.server_close()
-        thread.join(5)
+    _check_served_keys(site, key)
+
+
+@pytest.mark.parametrize("encoding", ["utf-16-le", "utf-16-be", "utf-32-le", "utf-32-be"])
+@pytest.mark.parametrize("bom", [False, True])
+def test_serve_never_sends_a_key_in_another_unicode_encoding(tmp_path, encoding, bom):
+    """A key file re-saved as UTF-16 (an editor's "Unicode") or UTF-32, with a byte order mark or without, was served
+    whole: the loader cannot read it, but it holds the secret all the same.  Other JSON in those encodings, and
+    files that only look like them, are still served."""
+    import codecs
+
+    from pmwm_codec.watermark.key import WatermarkKey, is_key_file
+
+    key = WatermarkKey.generate(rng=np.random.default_rng(6))
+    mark = {"utf-16-le": codecs.BOM_UTF16_LE, "utf-16-be": codecs.BOM_UTF16_BE, "utf-32-le": codecs.BOM_UTF32_LE,
+            "utf-32-be": codecs.BOM_UTF32_BE}[encoding] if bom else b""
+    site = tmp_path / "site"
+    site.mkdir()
+    for name, text in _key_variants(key).items():
+        (site / name).write_bytes(mark + text.encode(encoding))
+        assert is_key_file(site / name), name
+    (site / "scene.gltf").write_bytes(mark + json.dumps({"asset": {"version": "2.0"}}).encode(encoding))
+    (site / "data.bin").write_bytes(b"{\0\0\0" + bytes(range(256)))  # the NULs of UTF-32: not a key all the same
+    _check_served_keys(site, key, encoding, served=("scene.gltf", "data.bin"))
+
+
+def test_is_key_file_reads_a_large_file_that_is_no_key_in_blocks_and_a_large_key_whole(tmp_path):
+    """Any JSON object up to 64 MiB was read whole, and parsed when it held a backslash or ``pmwm-key`` anywhere (a
+    .gltf whose buffer is a ``data:`` URI with its ``/`` escaped, a list that names ``pmwm-key-list``): ``pmw serve``
+    did so for every request of such a file (a 60 MB .gltf: 0.4-1.4 s and 450 MB a request).  Such a file is now
+    read a block at a time, for the format's value as a JSON string, and no more is held; a key is still a key with
+    its format after a reference image of 1.4 MB, in UTF-8 or UTF-16."""
+    import base64
+    import tracemalloc
+
+    from pmwm_codec.watermark.key import WatermarkKey, is_key_file
+
+    data = base64.b64encode(np.random.default_rng(7).integers(0, 256, 9_000_000, dtype=np.uint8).tobytes()).decode()
+    (tmp_path / "scene.gltf").write_text(json.dumps(  # 12 MB, and a backslash in every block
+        {"asset": {"version": "2.0"}, "buffers": [{"uri": "data:application/octet-stream;base64," + data}]}
+    ).replace("/", "\\/"))
+    (tmp_path / "list.json").write_text(json.dumps({"items": list(range(1_500_000)), "format": "pmwm-key-list"}))
+    for name in ("scene.gltf", "list.json"):
+        tracemalloc.start()
+        try:
+            assert not is_key_file(tmp_path / name), name
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        assert peak < 6 << 20, (name, peak)
+    image = np.random.default_rng(8).integers(0, 256, (1024, 1024)).astype(np.uint8)
+    key = WatermarkKey.generate(rng=np.random.default_rng(8), reference=image)
+    doc = key.to_json()
+    text = json.dumps({"reference": doc.pop("reference"), **doc})  # the format 1.4 MB in
+    (tmp_path / "k.json").write_text(text)
+    assert WatermarkKey.load(tmp_path / "k.json") == key and is_key_file(tmp_path / "k.json")
+    (tmp_path / "k.json").write_bytes(text.encode("utf-16"))
+    assert is_key_file(tmp_path / "k.json")
 
 
 def test_is_key_file_refuses_at_least_what_it_refused(tmp_path):
@@ -844,6 +1056,53 @@ def test_pmw_serve_names_a_host_it_cannot_listen_on(tmp_path, capsys):
     """``--host 999.1.1.1`` said ``Name or service not known``, naming neither the option nor the host."""
     code, _, err = _pmw(capsys, "serve", tmp_path, "--host", "999.1.1.1", "--port", "0")
     assert code == 2 and "999.1.1.1" in err and len(err.splitlines()) == 1, err
+
+
+def _ipv6_loopback() -> bool:
+    """Whether this machine can listen on ``::1``."""
+    import socket
+
+    try:
+        with socket.socket(socket.AF_INET6) as probe:
+            probe.bind(("::1", 0))
+    except OSError:
+        return False
+    return True
+
+
+@pytest.mark.skipif(not _ipv6_loopback(), reason="no IPv6 loopback on this machine")
+def test_pmw_serve_listens_on_an_ipv6_address_and_names_it_in_brackets(site):
+    """``pmw serve --host ::1`` (or ``::``) was ``cannot listen there (Address family for hostname not supported)``:
+    the server was IPv4 only.  It listens, prints its URL with the address in brackets, and the reader reads it."""
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-m", "pmwm_codec", "serve", str(site), "--port", "0", "--host", "::1"],
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+                            cwd=Path(__file__).resolve().parents[1])
+    try:
+        line = proc.stdout.readline()
+        assert re.fullmatch(r"serving .* at http://\[::1\]:\d+/ \(Ctrl-C to stop\)\n", line), line
+        source = UrlSource(line.split(" at ")[1].split()[0] + "x.pmw", max_chunks=1)
+        assert pmwm_codec.decode(source, chunks=1) == pmwm_codec.decode(site / "x.pmw", chunks=1) and source.ranged
+    finally:
+        proc.terminate()
+        proc.wait(10)
+        proc.stdout.close()
+    from pmwm_codec.cli.serve import server_url
+
+    for host, shown in (("[::1]", "[::1]"), ("::", "[::]")):
+        srv = make_server(site, host, 0)
+        thread = threading.Thread(target=srv.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
+        thread.start()
+        try:
+            url = server_url(srv)
+            assert re.fullmatch(rf"http://{re.escape(shown)}:\d+/", url), url
+            assert pmwm_codec.decode(url.replace("[::]", "[::1]") + "x.pmw") == pmwm_codec.decode(site / "x.pmw")
+        finally:
+            srv.shutdown()
+            srv.server_close()
+            thread.join(5)
 
 
 def test_a_url_with_non_ascii_characters_is_sent_percent_encoded_as_a_browser_does(site, tmp_path, capsys):
@@ -1120,3 +1379,59 @@ def test_a_server_that_drips_its_answers_head_is_cut_off_after_the_timeout(tmp_p
         done.set()
         listener.close()
         thread.join(10)
+
+
+class Steady(RangeRequestHandler):
+    """A slow link: every answer sent at ``rate`` bytes a second, a tenth of that every 0.1 s."""
+
+    rate = 800
+
+    def copyfile(self, source, outputfile):
+        import time
+
+        left = self._length
+        while left:
+            block = source.read(min(left, self.rate // 10))
+            if not block:
+                return
+            outputfile.write(block)
+            outputfile.flush()
+            left -= len(block)
+            time.sleep(0.1)
+
+
+def test_a_slow_link_that_keeps_bringing_bytes_is_read_to_the_end(site):
+    """A link at 800 bytes/s failed as ``the server stalls: 820 bytes in 1 s, under 1,024 bytes/s`` once past the
+    timeout, though bytes kept coming (the JavaScript reader, which cuts off only a server that sends nothing for
+    ``stallTimeout``, read it): the floor is now ``MIN_RATE``, 64 bytes/s, and a trickle under it still stalls."""
+    with _served(site, Steady) as url:
+        source = UrlSource(url, max_chunks=0, timeout=1)  # ~2.5 KB: ~3 s
+        assert pmwm_codec.decode(source, chunks=0) == pmwm_codec.decode(site / "x.pmw", chunks=0)
+        assert source.bytes_fetched == _prefix_end(site / "x.pmw", 0)
+    with _served(site, type("Trickle", (Steady,), {"rate": 20})) as url:  # 2 bytes every 0.1 s
+        _decode_stalls(url, r"the server stalls: \d+ bytes in \d s, under 64 bytes/s after the first 1 s", 3)
+
+
+def test_a_host_name_lookup_that_stalls_is_cut_off_after_the_timeout(site, monkeypatch):
+    """``getaddrinfo`` blocks for as long as the resolver takes, and the watchdog had no connection to cut off: a
+    lookup that never answered held the reader for ever.  It is now given the step's time and named."""
+    import socket
+    import time
+
+    lookup = socket.getaddrinfo
+
+    def resolver(host, *args, **kwargs):
+        if host == "slow.example":
+            time.sleep(4)
+        return lookup("127.0.0.1" if host.endswith(".example") else host, *args, **kwargs)
+
+    monkeypatch.setattr(socket, "getaddrinfo", resolver)
+    with _served(site, RangeRequestHandler) as url:
+        quick = UrlSource(url.replace("127.0.0.1", "quick.example"), timeout=1)  # the addresses it gives are used
+        assert pmwm_codec.decode(quick) == pmwm_codec.decode(site / "x.pmw") and quick.ranged
+        start = time.monotonic()
+        with pytest.raises(InputFormatError) as info:
+            pmwm_codec.decode(UrlSource(url.replace("127.0.0.1", "slow.example"), timeout=1))
+        assert time.monotonic() - start < 2.5
+    assert re.fullmatch(r"http://slow\.example:\d+/x\.pmw: cannot read \(the name lookup \(DNS\) of slow\.example gave "
+                        r"no answer in [01]\.\d s\)", str(info.value)), info.value

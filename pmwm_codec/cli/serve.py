@@ -3,34 +3,44 @@
 The standard library's ``http.server`` plus single-range ``Range: bytes=a-b`` requests
 (``206 Partial Content``, ``416`` when unsatisfiable), so that ``pmw verify URL``, the
 three.js plugin and the demo page can read a ``.pmw`` chunk by chunk.  Only files under
-``DIR`` are served: the standard library's path translation, then the path's real location
-(symbolic links followed) must be inside ``DIR``'s.  Key files (``*.key.json`` in any case: ``pmw encode``
-writes the secret key beside the ``.pmw``; or a key under any other name, ``--key site/k.json``) are never served, and directories are not listed
-(a folder's ``index.html``, or ``index.htm``, is served for ``GET /folder/`` after the same checks as any
-file).  A ``Range`` with an ``If-Range`` whose validator is not the file's current one gets the whole file
+``DIR`` are served: the standard library's path translation, then the file is opened one
+component at a time below ``DIR`` without following symbolic links (one is followed only
+when its target lies inside ``DIR``: :func:`open_inside`), and the checks are made on the
+file opened, so a name swapped for a link, a key or a FIFO between a check and the open
+serves nothing.  Key files (``*.key.json`` in any case: ``pmw encode`` writes the secret key
+beside the ``.pmw``; or a key under any other name, ``--key site/k.json``) are never served,
+and directories are not listed (a folder's ``index.html``, or ``index.htm``, is served for
+``GET /folder/`` after the same checks as any file).  A ``Range`` with an ``If-Range`` whose validator is not the file's current one gets the whole file
 (200, RFC 9110 §13.1.5).  It binds to 127.0.0.1 unless ``--host`` says otherwise (never to every
-interface for an empty ``--host``).  Not a production server.
+interface for an empty ``--host``), or an IPv6 address (``::1``, ``::``; its URL in brackets).  Not a production
+server.
 """
 
 from __future__ import annotations
 
+import contextlib
 import datetime
 import email.utils
+import errno
 import os
 import re
+import socket
+import stat
 import threading
 import time
+import urllib.parse
 from functools import partial
 from http import HTTPStatus
 from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 
-from pmwm_codec.watermark.key import is_key_file  # never served: the secret key files, by name or by content
+from pmwm_codec.watermark.key import KEY_SUFFIX, is_key_file  # never served: the secret key files, by name or content
 
 from .common import UsageError
 
 _RANGE = re.compile(r"bytes=(\d*)-(\d*)\s*$")
-#: What :meth:`RangeRequestHandler.translate_path` gives for a path it refuses: no file can be there.
-_NOWHERE = os.path.join(os.devnull, "refused")
+#: Symbolic links :func:`open_inside` follows in one path at most (the kernel's own limit, ELOOP).
+_MAX_LINKS = 40
+_CLOEXEC = getattr(os, "O_CLOEXEC", 0)
 
 
 def add_parser(sub):
@@ -39,7 +49,8 @@ def add_parser(sub):
                                    "demos of progressive loading (pmw verify URL, the three.js plugin). Ctrl-C stops it.")
     p.add_argument("directory", metavar="DIR", help="the directory to serve")
     p.add_argument("--port", type=int, default=8000, help="TCP port (default 8000; 0: any free port)")
-    p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only)")
+    p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only); an "
+                                                       "IPv6 address too, ::1 or :: (every interface)")
     p.set_defaults(run=run)
 
 
@@ -81,73 +92,110 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
 
     protocol_version = "HTTP/1.1"
 
-    def translate_path(self, path):
-        """The standard library's translation, refused (a path where no file can be: 404) when the
-        file's real location is outside the served directory (a symbolic link out of it), when it is a
-        key file (:func:`~pmwm_codec.watermark.key.is_key_file`: by its name, or by its content), when it
-        is neither a regular file nor a folder (a FIFO: opening it blocks the answer forever), or when the
-        name cannot be a file name (a NUL byte).  A folder asked with a final ``/`` is its ``index.html``
-        (else ``index.htm``), through the same checks, and refused when it has none: given the folder, the
-        standard library's ``send_head`` would pick that file itself, unchecked."""
-        local = self._checked(super().translate_path(path))
-        if local.endswith("/") and os.path.isdir(local):
-            for name in ("index.html", "index.htm"):
-                index = os.path.join(local, name)
-                if os.path.isfile(index):
-                    return self._checked(index)
-            return _NOWHERE  # no listing either
-        return local
-
-    def _checked(self, local: str) -> str:
-        """``local`` when it may be served (:meth:`translate_path`), else :data:`_NOWHERE`."""
-        try:
-            real, root = os.path.realpath(local), os.path.realpath(self.directory)
-        except (ValueError, OSError):
-            return _NOWHERE
-        if os.path.commonpath([real, root]) != root or is_key_file(real) or is_key_file(local):
-            return _NOWHERE
-        if os.path.exists(real) and not (os.path.isfile(real) or os.path.isdir(real)):
-            return _NOWHERE
-        return local
-
-    def list_directory(self, path):
-        """No listings: the names in a folder are not the client's business (a key file's among them)."""
-        self.send_error(HTTPStatus.NOT_FOUND, "No directory listing")
-        return None
-
     def send_head(self):
+        """The answer's status and headers; the file to send (None: nothing more to send).
+
+        The file the standard library's translation names is opened by :func:`open_inside` and checked as
+        opened (``fstat``, its content): a folder asked with a final ``/`` is its ``index.html`` (else
+        ``index.htm``), without one 404 (no listing), asked without it a redirect to it; anything but a regular
+        file (a FIFO: reading it would block the answer forever), a key file (:func:`is_key_file`: by the name
+        asked for or the real one, or by its content) and a name no file can have (a NUL byte) is 404.  Then
+        a usable single ``Range`` (:func:`parse_range`) whose ``If-Range`` holds gets 206 (416 past the end),
+        anything else the whole file: 200, or 304 for an ``If-Modified-Since`` the file has not changed since."""
         self._etag = self._length = None
-        path = self.translate_path(self.path)
-        if os.path.isfile(path):
-            self._etag = etag(os.stat(path))
-        if "Range" not in self.headers or not os.path.isfile(path):
-            return super().send_head()
-        try:
-            f = open(path, "rb")
-        except OSError:
+        local = self.translate_path(self.path)
+        opened = self._open(local)
+        if opened is not None and stat.S_ISDIR(os.fstat(opened[0]).st_mode):
+            os.close(opened[0])
+            parts = urllib.parse.urlsplit(self.path)
+            if not parts.path.endswith("/"):  # a redirect to the folder, as the standard library answers
+                self.send_response(HTTPStatus.MOVED_PERMANENTLY)
+                self.send_header("Location", urllib.parse.urlunsplit(parts._replace(path=parts.path + "/")))
+                self.send_header("Content-Length", "0")
+                self.end_headers()
+                return None
+            local, opened = self._index(local)
+        if opened is None:
             self.send_error(HTTPStatus.NOT_FOUND, "File not found")
             return None
-        info = os.fstat(f.fileno())
-        size, self._etag = info.st_size, etag(info)
-        span = parse_range(self.headers["Range"], size)
-        if span is None or not self._if_range_holds(info):
+        fd, real = opened
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode) or local.lower().endswith(KEY_SUFFIX) or is_key_file(real, fd):
+            os.close(fd)
+            self.send_error(HTTPStatus.NOT_FOUND, "File not found")
+            return None
+        os.set_blocking(fd, True)
+        f = os.fdopen(fd, "rb")
+        try:
+            return self._answer(f, info, local)
+        except BaseException:
             f.close()
-            return super().send_head()
-        if span[0] >= size:
+            raise
+
+    def _open(self, local: str):
+        """``(fd, real path)`` of ``local`` (a path :meth:`translate_path` gave) opened by :func:`open_inside`
+        below the served directory; None when there is no such file there, or it cannot be served from there."""
+        directory = os.path.join(self.directory, "")
+        if not local.startswith(directory):
+            return None
+        try:
+            return open_inside(self.directory, local[len(directory):])
+        except (OSError, ValueError):  # missing, outside, unreadable; a NUL byte
+            return None
+
+    def _index(self, folder: str) -> tuple:
+        """``(path, opened)`` of the folder's ``index.html``, else ``index.htm``: the first that is a regular file
+        (:meth:`_open`); ``(folder, None)`` when neither is."""
+        for name in ("index.html", "index.htm"):
+            path = os.path.join(folder, name)
+            opened = self._open(path)
+            if opened is not None:
+                if stat.S_ISREG(os.fstat(opened[0]).st_mode):
+                    return path, opened
+                os.close(opened[0])
+        return folder, None
+
+    def _answer(self, f, info: os.stat_result, local: str):
+        """The status and headers for the regular file open as ``f`` (``info``: its ``fstat``), named ``local``."""
+        size, self._etag = info.st_size, etag(info)
+        span = parse_range(self.headers["Range"], size) if "Range" in self.headers else None
+        if span is None or not self._if_range_holds(info):
+            if self._not_modified(info):
+                f.close()
+                self.send_response(HTTPStatus.NOT_MODIFIED)
+                self.end_headers()
+                return None
+            self.send_response(HTTPStatus.OK)
+            span = (0, size)
+        elif span[0] >= size:
             f.close()
             self.send_response(HTTPStatus.REQUESTED_RANGE_NOT_SATISFIABLE)
             self.send_header("Content-Range", f"bytes */{size}")
             self.send_header("Content-Length", "0")
             self.end_headers()
             return None
-        self.send_response(HTTPStatus.PARTIAL_CONTENT)
-        self.send_header("Content-Type", self.guess_type(path))
-        self.send_header("Content-Range", f"bytes {span[0]}-{span[1] - 1}/{size}")
+        else:
+            self.send_response(HTTPStatus.PARTIAL_CONTENT)
+            self.send_header("Content-Range", f"bytes {span[0]}-{span[1] - 1}/{size}")
+        self.send_header("Content-Type", self.guess_type(local))
         self.send_header("Content-Length", str(span[1] - span[0]))
         self.send_header("Last-Modified", self.date_time_string(info.st_mtime))
         self.end_headers()
         f.seek(span[0])
         return f
+
+    def _not_modified(self, info: os.stat_result) -> bool:
+        """Whether a whole-file request's ``If-Modified-Since`` (without ``If-None-Match``) is not older than the
+        file's last modification, to the second (304, as the standard library answers)."""
+        if "If-Modified-Since" not in self.headers or "If-None-Match" in self.headers:
+            return False
+        try:
+            since = email.utils.parsedate_to_datetime(self.headers["If-Modified-Since"])
+        except (TypeError, ValueError, IndexError, OverflowError):
+            return False
+        if since.tzinfo is None:
+            since = since.replace(tzinfo=datetime.timezone.utc)
+        return since.tzinfo is datetime.timezone.utc and int(info.st_mtime) <= since.timestamp()
 
     def _if_range_holds(self, info: os.stat_result) -> bool:
         """Whether a Range request's ``If-Range`` (RFC 9110 §13.1.5) lets the range be sent: no ``If-Range``,
@@ -200,6 +248,50 @@ class RangeRequestHandler(SimpleHTTPRequestHandler):
             super().log_message(format, *args)
 
 
+def open_inside(root, relative: str) -> tuple:
+    """``(fd, real)``: the file or folder the path ``relative`` names below ``root``, opened read-only
+    without blocking (a FIFO opens at once: the caller looks at it with ``fstat`` first), and its real path.
+
+    Each component is opened relative to the folder opened before it (``dir_fd``) with ``O_NOFOLLOW``: what it
+    opens is what is there at that moment, never what a path pointed to when it was checked.  A symbolic link met
+    on the way (``readlink``) is followed only when its target, resolved, lies inside ``root``: the walk starts
+    again from ``root`` along that target, so a link inside the tree is served and one out of it (or swapped in
+    meanwhile) is not.  OSError when the file is not there, a link leads out of ``root`` (``EACCES``) or there are
+    more than :data:`_MAX_LINKS` of them; ValueError for a name with a NUL byte."""
+    root = os.path.realpath(root)
+    parts, links = relative.split(os.sep), 0
+    if ".." in parts:
+        raise OSError(errno.EACCES, "outside the served directory")
+    while True:
+        parts = [part for part in parts if part not in ("", ".")]
+        fd = os.open(root, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | _CLOEXEC)
+        try:
+            for i, part in enumerate(parts):
+                last = i == len(parts) - 1
+                flags = os.O_RDONLY | os.O_NOFOLLOW | _CLOEXEC | (os.O_NONBLOCK if last else os.O_DIRECTORY)
+                try:
+                    opened = os.open(part, flags, dir_fd=fd)
+                except OSError as exc:
+                    try:
+                        target = os.readlink(part, dir_fd=fd)
+                    except OSError:
+                        raise exc from None  # not a link: missing, not a folder ...
+                    break
+                os.close(fd)
+                fd = opened
+            else:
+                return fd, os.path.join(root, *parts)
+        except BaseException:
+            os.close(fd)
+            raise
+        os.close(fd)
+        links += 1
+        resolved = os.path.realpath(os.path.join(root, *parts[:i], target))
+        if links > _MAX_LINKS or os.path.commonpath([resolved, root]) != root:
+            raise OSError(errno.EACCES if links <= _MAX_LINKS else errno.ELOOP, "outside the served directory")
+        parts = os.path.relpath(resolved, root).split(os.sep) + parts[i + 1:]
+
+
 def etag(info: os.stat_result) -> str:
     """A strong ``ETag`` of a file from its ``stat``: size and modification time (nanoseconds)."""
     return f'"{info.st_size:x}-{info.st_mtime_ns:x}"'
@@ -222,16 +314,39 @@ class _Server(ThreadingHTTPServer):
             super().handle_error(request, client_address)
 
 
+class _Server6(_Server):
+    """:class:`_Server` on an IPv6 address; on ``::`` (every interface) it takes IPv4 clients too where the system
+    lets it, as ``python -m http.server --bind ::`` does."""
+
+    address_family = socket.AF_INET6
+
+    def server_bind(self):
+        with contextlib.suppress(AttributeError, OSError):
+            self.socket.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 0)
+        super().server_bind()
+
+
 def make_server(directory, host: str = "127.0.0.1", port: int = 0, handler=RangeRequestHandler):
     """A ``ThreadingHTTPServer`` serving ``directory`` with ``handler``; not started.
 
-    It counts body bytes in ``bytes_sent`` (under ``count_lock``).
+    ``host``: a name or an IPv4 address, or an IPv6 address (``::1``; in brackets too, ``[::1]``).  It counts body
+    bytes in ``bytes_sent`` (under ``count_lock``).
     """
-    server = _Server((host, port), partial(handler, directory=os.fspath(directory)))
+    if host.startswith("[") and host.endswith("]"):
+        host = host[1:-1]
+    server_class = _Server6 if ":" in host else _Server  # (a name or an IPv4 address has no colon)
+    server = server_class((host, port), partial(handler, directory=os.fspath(directory)))
     server.bytes_sent = 0
     server.count_lock = threading.Lock()
     server.daemon_threads = True
     return server
+
+
+def server_url(server) -> str:
+    """The URL of the root of what ``server`` serves: an IPv6 address in brackets (``http://[::1]:8000/``, a zone's
+    ``%`` as ``%25``, RFC 6874)."""
+    host, port = server.server_address[:2]
+    return f"http://[{host.replace('%', '%25')}]:{port}/" if ":" in host else f"http://{host}:{port}/"
 
 
 def run(args) -> int:
@@ -248,8 +363,7 @@ def run(args) -> int:
         raise UsageError(f"--host {args.host} --port {args.port}: cannot listen there "
                          f"({exc.strerror or exc})") from None
     server.verbose = True
-    host, port = server.server_address[:2]
-    print(f"serving {os.path.abspath(args.directory)} at http://{host}:{port}/ (Ctrl-C to stop)", flush=True)
+    print(f"serving {os.path.abspath(args.directory)} at {server_url(server)} (Ctrl-C to stop)", flush=True)
     try:
         server.serve_forever()
     except KeyboardInterrupt:
