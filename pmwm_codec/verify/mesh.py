@@ -47,7 +47,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import FormatError, MeshError, PmwError, WatermarkKeyError
+from ..errors import FormatError, InputFormatError, MeshError, WatermarkKeyError
 from ..format import EndEvent, HeaderEvent, iter_events
 from ..format.extension import EXTENSION_NAME
 from ..format.gltf import placed_by_nodes, progressive_placements, scene_mesh
@@ -300,13 +300,13 @@ class Reference:
         try:
             data = read_all(source)
         except OSError as exc:
-            raise PmwError(f"cannot read the reference file: {exc}") from None
+            raise InputFormatError(f"cannot read the reference file: {exc}") from None
         events = list(iter_events(data))
         header = events[0]
         assert isinstance(header, HeaderEvent)
         cfg = header.extension.get("watermark")
         if cfg is None:
-            raise PmwError("the reference file carries no watermark")
+            raise InputFormatError("the reference file carries no watermark")
         end = events[-1]
         if isinstance(end, EndEvent) and not end.complete:
             raise FormatError("the reference file is cut short: verify against the complete original")

@@ -26,7 +26,7 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont, UnidentifiedImageError
 
 from ..constants import MAX_WATERMARK_PIXELS
-from ..errors import InputFormatError, PmwError
+from ..errors import InputFormatError, OptionError
 from ..sources import check_input_path
 
 __all__ = ["load_watermark", "save_png", "make_text_watermark", "DEFAULT_MAX_SIZE"]
@@ -190,13 +190,14 @@ def png_bytes(image: Image.Image) -> bytes:
 
 
 def write_image(path, image: Image.Image) -> None:
-    """Write a Pillow ``image`` as a PNG at ``path``, whole or not at all (an interrupted run leaves no cut file)."""
+    """Write a Pillow ``image`` as a PNG at ``path``, whole or not at all (an interrupted run leaves no cut file);
+    OptionError naming ``path`` when it cannot be written."""
     from ..atomic import write_atomic
 
     try:
         write_atomic(os.fspath(path), [png_bytes(image)])
     except OSError as exc:
-        raise PmwError(f"{os.fspath(path)}: cannot write PNG ({exc.strerror or exc})") from None
+        raise OptionError(f"{os.fspath(path)}: cannot write PNG ({exc.strerror or exc})") from None
 
 
 def make_text_watermark(text: str, size: int = 64) -> np.ndarray:
