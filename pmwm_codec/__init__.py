@@ -96,20 +96,24 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
     with a notice when on by default), ``zstd_level``, ``measure`` (``"vertices"`` | ``"sampled"`` |
     ``"none"``), ``payload_version`` (2, the default: range-coded chunks and the compact chunk
     table; 1: the zstd payload and per-chunk index of files written before),
-    ``strip_image_profiles`` (assets).
+    ``strip_image_profiles`` (assets).  Without a ``watermark``, ``mode``, ``bits``, ``embed_from`` and
+    ``step_units`` change nothing in the file: each one given says so in a notice
+    (:func:`~pmwm_codec.options.ignored_without_image`, ``"bits ignored: no watermark"``).
     Returns the report dict (the
     ``pmw encode --json`` fields, plus ``notices`` and ``key_path``).
     """
     from dataclasses import replace
 
     from .stream.asset import encode_asset, is_asset_path
-    from .options import check_destination, check_source, checked_options
+    from .options import check_destination, check_source, checked_options, ignored_without_image, image_options_given
     from .stream.encoder import encode_mesh
 
     check_source(src)
     check_destination(dst, inputs=(src, watermark))
     options = checked_options(options)
     image, notices = _as_watermark(watermark)
+    if image is None:
+        notices += ignored_without_image(image_options_given(options))
     asked = options.get("owner_id")
     key_obj, key_slot, options["owner_id"] = _key_for(key, image, dst, asked, inputs=(src, watermark))
     asset = is_asset_path(src) or isinstance(src, tuple)

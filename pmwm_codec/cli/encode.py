@@ -9,6 +9,7 @@ import pmwm_codec
 from pmwm_codec.constants import MAX_GRID_BITS, MIN_GRID_BITS
 from pmwm_codec.distortion import MEASURES
 from pmwm_codec.format.extension import DEFAULT_PAYLOAD_VERSION, PAYLOAD_VERSIONS
+from pmwm_codec.options import IMAGE_OPTIONS, ignored_without_image
 from pmwm_codec.watermark.codec import MAX_BITS, MODES, CapacityError, shrink_watermark
 from pmwm_codec.watermark.image import load_watermark
 
@@ -145,7 +146,8 @@ def run(args) -> int:
     if args.watermark is None:  # the image's options: none of them changes a file without an image
         given = {"--embed-from": args.embed_from is not None, "--bits": args.bits is not None,
                  f"--mode {args.mode}": args.mode != STREAM_DEFAULTS["mode"], "--fit": args.fit}
-        extra += [f"{name} ignored: no --watermark" for name, on in given.items() if on]
+        extra += ignored_without_image([name for name, on in given.items() if on], "--watermark")
+        options = {name: value for name, value in options.items() if name not in IMAGE_OPTIONS}  # said above
     try:
         report = _encode_fitting(args, options, extra)
     except ValueError as exc:
