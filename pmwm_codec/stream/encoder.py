@@ -867,10 +867,10 @@ def _plan_watermark(work, watermark, key, carriers: int, slots, mode, bits, step
         need = wm.splits_needed(watermark, mode, bits)
         if carriers - start < need:
             fit = wm.largest_fitting_size(watermark, carriers - start, bits=bits, mode=mode)
-            hint = "; " + wm.fit_hint(fit, " from there") if fit else ""
+            hint = "; " + wm.fit_hint(" from there") if fit else ""
             raise wm.CapacityError(
                 f"embedding from vertex split {start:,} leaves {carriers - start:,} of {carriers:,} splits; "
-                f"the watermark needs {need:,} in {mode} mode: start earlier{hint}", fit
+                f"{{watermark}} needs {need:,} in {mode} mode: start earlier{hint}", fit, int(watermark.shape[0])
             )
     void = _twin_slots(work, key, slots)  # seam twins carry nothing (spec/watermark.md, "Repeated points")
     readable = carriers - start - int(np.count_nonzero(void >= start))

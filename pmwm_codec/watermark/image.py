@@ -130,6 +130,14 @@ def load_watermark(path_or_array, max_size: int | None = DEFAULT_MAX_SIZE):
     notices : list[str]
         One line per change made to the input (empty when it was used as is).
     """
+    gray, notices = read_watermark(path_or_array)
+    image, made = square_watermark(gray, max_size)
+    return image, notices + made
+
+
+def read_watermark(path_or_array) -> tuple:
+    """``(gray (h, w) uint8, notices)``: the image :func:`load_watermark` takes, as given (grayscale, 0..255),
+    before it is made a ``2^k`` square (:func:`square_watermark`)."""
     notices: list[str] = []
     if isinstance(path_or_array, Image.Image):
         gray = _to_gray(path_or_array, notices)
@@ -142,8 +150,13 @@ def load_watermark(path_or_array, max_size: int | None = DEFAULT_MAX_SIZE):
         gray = _array_to_gray(path_or_array, notices)
     if gray.size == 0:
         raise InputFormatError("watermark image is empty")
-    gray = np.clip(np.rint(gray), 0, 255).astype(np.uint8)
+    return np.clip(np.rint(gray), 0, 255).astype(np.uint8), notices
 
+
+def square_watermark(gray: np.ndarray, max_size: int | None = DEFAULT_MAX_SIZE) -> tuple:
+    """``(image (s, s) uint8, notices)``: ``gray`` (h, w) uint8 downscaled (aspect kept) when a side exceeds
+    ``max_size``, then padded to the next ``2^k`` square (module docstring), one notice per change."""
+    notices: list[str] = []
     h, w = gray.shape
     if max_size is not None:
         if max_size < 1 or max_size & (max_size - 1):
