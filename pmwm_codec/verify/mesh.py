@@ -51,7 +51,7 @@ from ..errors import FormatError, InputFormatError, MeshError, WatermarkKeyError
 from ..format import EndEvent, HeaderEvent, iter_events
 from ..format.extension import EXTENSION_NAME
 from ..format.gltf import placed_by_nodes, progressive_placements, scene_mesh
-from ..format.mac import SCENE_MAC, MacChecker, scene_matches
+from ..format.mac import SCENE_MAC, MacChecker, Scene
 from ..mesh import Mesh, checked_mesh, read_mesh
 from ..progressive.topology import unique_edges
 from ..sources import read_all
@@ -146,7 +146,8 @@ class MeshVerification:
         macs = self.reference_mac or {}
         parts = [f"{'chunk ' + str(c) if c else 'its base mesh'}" for c in macs.get("failed", [])]
         if macs.get("scene") is False:
-            parts.append("its scene (nodes, materials, other meshes)")
+            why = macs.get("scene_error")
+            parts.append("its scene (nodes, materials, other meshes" + (f"; {why}" if why else "") + ")")
         if not parts:
             return None
         return "the reference is not the key holder's file as written (MAC mismatch: " + ", ".join(parts) + ")"
@@ -330,15 +331,18 @@ class Reference:
     def authenticate(self, key) -> dict:
         """The key holder's MACs over this file, as ``pmw verify FILE.pmw`` checks them (bitstream.md §6.3):
         ``{"checked": n, "failed": [chunk numbers, 0 the bases], "missing": [...], "scene": True | False |
-        None}`` (``scene`` None: the file carries no ``sceneMac``)."""
+        None, "scene_error": why}`` (``scene`` None: the file carries no ``sceneMac``; ``scene_error`` the line
+        saying why a scene that has no canonical form is not the key holder's, e.g. one over
+        ``MAX_SCENE_VALUES``: :meth:`~pmwm_codec.format.mac.Scene.check`)."""
         checker = MacChecker(key.mac_key())
         for event in self.events:
             checker.tally(event)
         header = self.events[0]
         found = [ext.get(SCENE_MAC) for ext in header.extensions or (header.extension,)]
-        scene = None if all(f is None for f in found) else \
-            scene_matches(key.mac_key(), header.gltf_json, self.data[header.bin_offset:], found)
-        return {"checked": checker.checked, "failed": checker.failed, "missing": checker.missing, "scene": scene}
+        scene, why = (None, None) if all(f is None for f in found) else \
+            Scene(header.gltf_json).check(key.mac_key(), self.data[header.bin_offset:], found)
+        return {"checked": checker.checked, "failed": checker.failed, "missing": checker.missing, "scene": scene,
+                "scene_error": why}
 
 
 def verify_mesh(mesh, reference_source, key, watermark=None, *, tolerance: float = 0.5,
