@@ -37,7 +37,7 @@ import numpy as np
 from ..constants import EXTENSION_NAME, MAX_SCENE_VALUES
 from ..errors import FormatError, LimitError
 from .extension import base_mesh_fields, framed_blake2b, payload_version
-from .gltf import COMPONENT_DTYPES, DRACO_EXTENSION, INDEX_DTYPES, TYPE_WIDTH, element_rows
+from .gltf import COMPONENT_DTYPES, DRACO_EXTENSION, INDEX_DTYPES, TYPE_WIDTH, element_rows, gc_paused
 from .parser import BaseEvent, ChunkEvent, HeaderEvent
 
 #: Extension fields left out of ``baseMac``: set per cut (counts, chunk list), the MAC itself, or
@@ -249,7 +249,8 @@ class Scene:
         self.gltf = gltf
         self.doc, self.sources, self.error = None, [], None
         try:
-            self.doc, self.sources = scene_document(gltf)
+            with gc_paused():  # the copy makes a container per one of the document's
+                self.doc, self.sources = scene_document(gltf)
         except (ValueError, TypeError, OverflowError, RecursionError) as exc:  # FormatError and LimitError among them
             self.error = exc
 
