@@ -73,3 +73,26 @@ def test_the_collector_does_not_walk_a_large_document_while_it_is_built(sphere):
         gc.callbacks.remove(count)
     assert verdict == "tampered" and len(starts) < 100, len(starts)
     assert gc.isenabled()
+
+
+def test_verify_reads_the_image_and_the_owner_layer_in_one_pass(monkeypatch, tmp_path, capsys):
+    """A key with an owner ID (every key ``pmw encode --watermark`` writes) made ``pmw verify`` decode the
+    stream twice, its JSON parsed twice: once for the image, once for the owner layer."""
+    import numpy as np
+
+    import pmwm_codec
+    from pmwm_codec import shapes
+    from pmwm_codec.cli import main
+
+    out = tmp_path / "m.pmw"
+    image = np.random.default_rng(6).integers(0, 256, (8, 8)).astype(np.uint8)
+    report = pmwm_codec.encode(shapes.icosphere(4, noise=0.01), out, watermark=image, measure="none")
+    assert report.get("owner_id")
+    parsed = []
+    load = parser._load_json
+    monkeypatch.setattr(parser, "_load_json", lambda text: parsed.append(1) or load(text))
+    assert main(["verify", str(out), "--key", report["key_path"], "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["verdict"] == "authentic" and doc["owner"]["verdict"] == "present"
+    assert all(row["owner"]["verdict"] in ("present", "absent", "inconclusive") for row in doc["chunks"])
+    assert len(parsed) == 1

@@ -216,12 +216,15 @@ class _SceneData:
 
 
 def verify_stream(source: Source, key: WatermarkKey | str | os.PathLike[str], watermark: np.ndarray | str | None = None, *,
-                  keep_meshes: bool = False, progress: Callable[[str, float], None] | None = None) -> StreamVerification:
+                  keep_meshes: bool = False, progress: Callable[[str, float], None] | None = None,
+                  each: Callable[[object, dict], None] | None = None) -> StreamVerification:
     """Decode ``source`` with ``key`` and score the watermark at every chunk boundary.
 
     ``keep_meshes``: keep a copy of every level's mesh in the results (for pictures);
     otherwise the results hold only the numbers and the partial watermark.
     ``progress``: optional ``progress(label, fraction)`` called after every boundary.
+    ``each``: optional ``each(result, gltf)`` called at every boundary with the result, its meshes copied,
+    and the stream's glTF JSON (the owner layer read in the same pass: :class:`~.owner.OwnerReader`).
     Raises the decoder's named errors (:class:`~pmwm_codec.errors.PmwError`), e.g.
     TruncatedError when the file ends before its base mesh.  ``source`` may be an http(s) URL.
     """
@@ -234,7 +237,7 @@ def verify_stream(source: Source, key: WatermarkKey | str | os.PathLike[str], wa
     key = as_key(key)
     if key is not None:  # before anything is read
         key.check_reference(reference, watermark)
-    decoder = StreamDecoder(key, reference, copy=keep_meshes, check_key=False)
+    decoder = StreamDecoder(key, reference, copy=keep_meshes or each is not None, check_key=False)
     scene_data = _SceneData(decoder)
     gen = iter_results(scene_data.blocks(source), decoder)
     results = []
@@ -244,7 +247,9 @@ def verify_stream(source: Source, key: WatermarkKey | str | os.PathLike[str], wa
         except StopIteration as stop:
             end = stop.value
             break
-        if not keep_meshes:  # views into the decoder: drop them, keep the numbers
+        if each is not None:
+            each(r, decoder.header.gltf_json)
+        if not keep_meshes:  # views into the decoder (or copies only ``each`` needed): drop them, keep the numbers
             r.parts = []
         results.append(r)
         if progress is not None:
