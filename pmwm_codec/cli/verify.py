@@ -197,7 +197,9 @@ def run_reference(args) -> int:
         print(f"{args.input}: {v.vertices:,} vertices matched to the reference by {v.correspondence} "
               f"({100 * v.coverage:.1f}% of its vertices); {v.carriers_read:,} of {v.carriers_total:,} codes read")
         print(f"NC {fmt_float(v.nc, 4)}  PSNR {fmt_float(v.psnr_db, 2)} dB  BER {fmt_float(v.ber, 4)}"
-              + ("  (bit-exact)" if v.bit_exact else ""))
+              + ("  (bit-exact)" if v.bit_exact and not v.image_note else ""))
+        if v.image_note:  # a bit-exact image the verdict does not vouch for: said so, not marked a match
+            print(v.image_note)
         if v.reference_note():
             print(v.reference_note())
         print(f"verdict: {v.verdict}" + _tamper_note(v.tamper(), v.binding)
@@ -228,6 +230,8 @@ def report(o: StreamVerification, pictures=None) -> str:
         why = "no codes read yet"
     lines.append(f"verdict: {o.verdict} ({why})" + (_tamper_note(o.tamper(), o.binding) if o.marked else ""))
     lines += o.mac_notes()
+    if o.image_note():
+        lines.append(o.image_note())
     if o.stream_note():
         lines.append(o.stream_note())
     if pictures:

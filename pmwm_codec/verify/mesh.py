@@ -58,7 +58,7 @@ from ..sources import read_all
 from ..stream.replay import Replay
 from ..watermark import codec as wm
 from ..watermark.key import as_key
-from ..watermark.verify import Verifier
+from ..watermark.verify import Verifier, image_note
 from .correspond import Correspondence, correspond, umeyama
 
 __all__ = ["MeshVerification", "verify_mesh"]
@@ -90,7 +90,9 @@ class MeshVerification:
     farther than the tolerance from every reference vertex); ``binding`` the file's
     (``""``: a legacy mark, never ``authentic``); ``reference_mac`` the key holder's MACs over the
     reference file (:meth:`Reference.authenticate`): a reference whose base, chunks or scene fail them is
-    not the key holder's file, so nothing checked against it is ``authentic``.
+    not the key holder's file, so nothing checked against it is ``authentic``; ``image_note`` the line
+    saying that a bit-exact ``watermark`` beside another verdict than ``authentic`` is no match the verdict
+    makes (:func:`~pmwm_codec.watermark.verify.image_note`), else None.
     """
 
     verdict: str
@@ -116,6 +118,7 @@ class MeshVerification:
     foreign: bool = False
     binding: str = ""
     reference_mac: dict | None = None
+    image_note: str | None = None
 
     def tamper(self) -> dict:
         """``{"flagged": [mesh vertex ids whose carrier code no longer reads], "fraction": of the mesh's vertices}``."""
@@ -137,7 +140,7 @@ class MeshVerification:
             "registration_rms": num(self.registration_rms), "vertices": self.vertices, "faces": self.faces,
             "reference_vertices": self.reference_vertices, "key_matches": self.key_matches,
             "tamper": self.tamper(), "foreign": self.foreign, "binding": self.binding or None,
-            "reference_mac": self.reference_mac,
+            "reference_mac": self.reference_mac, "image_note": self.image_note,
         }
 
     def reference_note(self) -> str | None:
@@ -383,8 +386,12 @@ def verify_mesh(mesh, reference_source, key, watermark=None, *, tolerance: float
     owns = key.owns(ref.params.fingerprint)
     macs = ref.authenticate(key) if owns else None
     written = macs is None or (not macs["failed"] and macs["scene"] is not False)  # the reference as the key holder wrote it
+    verdict = est.verdict if owns and written else "not-authentic"
+    why = ([] if written else ["the reference is not the key holder's file as written"]) + \
+        (["vertices the reference does not explain"] if verifier.foreign else [])
     return MeshVerification(
-        verdict=est.verdict if owns and written else "not-authentic", key_matches=owns, reference_mac=macs, nc=est.nc, psnr_db=est.psnr_db, centered_nc=est.centered_nc, ber=est.ber,
+        image_note=image_note(verdict, est.bit_exact, est.inconsistent, "; ".join(why)),
+        verdict=verdict, key_matches=owns, reference_mac=macs, nc=est.nc, psnr_db=est.psnr_db, centered_nc=est.centered_nc, ber=est.ber,
         code_match=est.code_match, carriers_read=est.carriers_read, carriers_total=ref.params.carriers,
         correspondence=corr.method, coverage=corr.coverage, registration_rms=corr.rms,
         vertices=m.vertex_count, faces=m.face_count, reference_vertices=len(ref.scene_positions),

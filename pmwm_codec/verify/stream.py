@@ -45,6 +45,7 @@ from ..stream.decoder import StreamEnd
 from ..watermark import load_watermark
 from ..sources import Source, iter_blocks
 from ..watermark.key import WatermarkKey, as_key
+from ..watermark.verify import image_note
 
 __all__ = ["StreamVerification", "verify_stream"]
 
@@ -69,7 +70,8 @@ class StreamVerification:
     ``sceneMac``) or ``""`` (no key, or no watermark).  ``carriers_total``: the carriers of the key
     holder's whole stream (the MACed ``watermark.carriers``; 0 without a watermark).
     ``flagged`` (f,) int64 the tamper map (vertex ids of the last level's decoded mesh);
-    ``binding`` the mark's keyed binding (``""``: a legacy mark).
+    ``binding`` the mark's keyed binding (``""``: a legacy mark).  The NC / PSNR of ``results`` are of the
+    image extracted; :meth:`image_note` says when a bit-exact one stands beside another verdict.
     """
 
     results: list
@@ -116,6 +118,17 @@ class StreamVerification:
             notes.append(_SCENE_NOTES[self.scene])
         return notes
 
+    def image_note(self) -> str | None:
+        """The line saying that a bit-exact image beside another verdict than ``authentic`` is no match the verdict
+        makes (:func:`~pmwm_codec.watermark.verify.image_note`), or None."""
+        est = self.results[-1].estimate if self.results else None
+        if est is None:
+            return None
+        why = ("the mark is intact, the scene around it is not the key holder's" if self.scene == "mismatch" else
+               "bytes not shown to be the key holder's" if self.mac and (self.mac["failed"] or self.mac["missing"])
+               else "")
+        return image_note(self.verdict, est.bit_exact, est.inconsistent, why)
+
     def stream_note(self) -> str | None:
         """``a prefix of the key holder's stream: R of T carriers read`` when not every carrier was read."""
         if self.whole_stream is not False:
@@ -131,7 +144,7 @@ class StreamVerification:
                 "total_length": int(self.total_length), "codes_matched": self.codes_matched,
                 "codes_read": self.codes_read, "carriers_total": self.carriers_total,
                 "whole_stream": self.whole_stream, "key_matches": self.key_matches, "mac": self.mac,
-                "tamper": self.tamper(), "binding": self.binding or None}
+                "tamper": self.tamper(), "binding": self.binding or None, "image_note": self.image_note()}
 
 
 _SCENE = "the scene (nodes, materials, other meshes)"
