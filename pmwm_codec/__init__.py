@@ -55,12 +55,16 @@ def _as_mesh(src: MeshSource) -> Mesh:
     return read_mesh(src)
 
 
-def _as_watermark(watermark):
+def _as_watermark(watermark) -> tuple:
+    """``(image (s, s) uint8, notices, (width, height) as given)`` of a watermark image argument
+    (:func:`~pmwm_codec.watermark.image.load_watermark`); ``(None, [], None)`` for None."""
     if watermark is None:
-        return None, []
-    from .watermark.image import load_watermark
+        return None, [], None
+    from .watermark.image import read_watermark, square_watermark
 
-    return load_watermark(watermark)
+    gray, notices = read_watermark(watermark)
+    image, made = square_watermark(gray)
+    return image, notices + made, gray.shape[::-1]
 
 
 def load_key(key: KeyLike) -> WatermarkKey | None:
@@ -96,20 +100,25 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
     with a notice when on by default), ``zstd_level``, ``measure`` (``"vertices"`` | ``"sampled"`` |
     ``"none"``), ``payload_version`` (2, the default: range-coded chunks and the compact chunk
     table; 1: the zstd payload and per-chunk index of files written before),
-    ``strip_image_profiles`` (assets).
+    ``strip_image_profiles`` (assets).  Without a ``watermark``, ``mode``, ``bits``, ``embed_from`` and
+    ``step_units`` change nothing in the file: each one given says so in a notice
+    (:func:`~pmwm_codec.options.ignored_without_image`, ``"bits ignored: no watermark"``).
     Returns the report dict (the
     ``pmw encode --json`` fields, plus ``notices`` and ``key_path``).
     """
     from dataclasses import replace
 
     from .stream.asset import encode_asset, is_asset_path
-    from .options import check_destination, check_source, checked_options
+    from .options import check_destination, check_source, checked_options, ignored_without_image, image_options_given
     from .stream.encoder import encode_mesh
+    from .watermark.codec import CapacityError
 
     check_source(src)
     check_destination(dst, inputs=(src, watermark))
     options = checked_options(options)
-    image, notices = _as_watermark(watermark)
+    image, notices, given = _as_watermark(watermark)
+    if image is None:
+        notices += ignored_without_image(image_options_given(options))
     asked = options.get("owner_id")
     key_obj, key_slot, options["owner_id"] = _key_for(key, image, dst, asked, inputs=(src, watermark))
     asset = is_asset_path(src) or isinstance(src, tuple)
@@ -125,11 +134,14 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
     # the owner layer on by default (under a watermark) is left out, with a notice, where it could not be
     # read back; one asked for by its ID is refused there (OwnerLayerError, nothing written)
     options["owner_fallback"] = image is not None and asked is None
-    if asset:
-        report = encode_asset(src, dst, watermark=image, key=key_obj, **options)
-    else:
-        options.pop("strip_image_profiles", None)
-        report = encode_mesh(mesh, dst, watermark=image, key=key_obj, **options)
+    try:
+        if asset:
+            report = encode_asset(src, dst, watermark=image, key=key_obj, **options)
+        else:
+            options.pop("strip_image_profiles", None)
+            report = encode_mesh(mesh, dst, watermark=image, key=key_obj, **options)
+    except CapacityError as exc:  # named as the caller gave it, not as the square it was made
+        raise exc.as_given(*given) from None
     key_path = None if key_slot is None else key_slot.path
     cleanup = {} if mesh is None else mesh.cleanup
     dropped = [f"dropped {v} {k.replace('_', ' ')}" for k, v in cleanup.items()]
@@ -223,7 +235,7 @@ def iter_decode(src: Source, key: KeyLike = None, watermark: WatermarkImage = No
 
     reference = None
     if watermark is not None:
-        reference, _ = _as_watermark(watermark)
+        reference, _, _ = _as_watermark(watermark)
     decoder = StreamDecoder(load_key(key), reference)
     yield from iter_results(as_source(src), decoder)
 

@@ -2,9 +2,11 @@
 
 Everything a reader or the tools raise for bad input is a :class:`PmwError`, so
 callers (and the ``pmw`` tool, which maps them to exit status 2) can catch one
-type.  Truncation is *not* an error of the file: a cut stream yields every
-complete chunk; :class:`TruncatedError` is raised only when not even the base
-mesh is complete.
+type; each refusal is raised as the subclass naming its kind (a mesh it cannot use,
+an input of the wrong kind, a ``.pmw`` that breaks the format, a key, an option or an
+output), never as the base class itself.  Truncation is *not* an error of the file: a
+cut stream yields every complete chunk; :class:`TruncatedError` is raised only when not
+even the base mesh is complete.
 """
 
 
@@ -13,7 +15,8 @@ class PmwError(Exception):
 
 
 class MeshError(PmwError, ValueError):
-    """A mesh that cannot be used: empty, NaN/inf coordinates, bad face indices."""
+    """A mesh that cannot be used: empty, NaN/inf coordinates, bad face indices, coordinates or attribute
+    values float32 cannot carry on the grid asked for, an asset with no triangle primitive to encode."""
 
 
 class DegenerateMeshError(MeshError):
@@ -24,7 +27,8 @@ class DegenerateMeshError(MeshError):
 
 
 class InputFormatError(PmwError, ValueError):
-    """An input file that is not a readable mesh or image."""
+    """An input file that is not a readable mesh or image, or not of the kind the call needs (a
+    ``--reference`` ``.pmw`` that cannot be read or carries no watermark)."""
 
 
 class FormatError(PmwError, ValueError):
@@ -72,5 +76,6 @@ class OwnerLayerError(PmwError, ValueError):
 
 class OptionError(PmwError, ValueError):
     """An option of :func:`pmwm_codec.encode` that is unknown or out of its range, or a ``src`` / ``dst``
-    it cannot take (an output that would replace an input, ``"-"``, a GLB named as another format); a
-    reader's source or data of a kind it cannot read (an int, a ``str`` from a file opened in text mode)."""
+    it cannot take (an output that would replace an input, ``"-"``, a GLB named as another format, an output
+    file or picture that cannot be written); a reader's source or data of a kind it cannot read (an int, a
+    ``str`` from a file opened in text mode)."""

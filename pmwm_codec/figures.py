@@ -27,7 +27,7 @@ import os
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from .errors import PmwError
+from .errors import OptionError
 from .watermark.image import png_bytes
 from .render import Camera, render
 
@@ -361,7 +361,7 @@ def write_pictures(directory, pictures: dict) -> list:
     when all are staged are they published, one rename each, with SIGINT/SIGTERM held back
     (:func:`~pmwm_codec.atomic.signals_deferred`).  A failure or an interrupt before that leaves nothing:
     no picture, and no directory this call made (a rename failing part-way removes the pictures it had
-    already published).  A directory that did not exist is created.  PmwError naming ``directory``
+    already published).  A directory that did not exist is created.  OptionError naming ``directory``
     when a picture cannot be written.
     """
     from .atomic import discard, signals_deferred, stage
@@ -383,7 +383,7 @@ def write_pictures(directory, pictures: dict) -> list:
             with contextlib.suppress(OSError):
                 os.rmdir(parent)
         if isinstance(exc, OSError):
-            raise PmwError(f"{directory}: cannot write pictures ({exc.strerror or exc})") from None
+            raise OptionError(f"{directory}: cannot write pictures ({exc.strerror or exc})") from None
         raise
     return list(encoded)
 

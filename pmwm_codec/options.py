@@ -17,7 +17,12 @@ from .constants import MAX_GRID_BITS, MIN_GRID_BITS
 from .errors import OptionError
 
 __all__ = ["checked_options", "check_source", "check_destination", "check_output_path", "checked_chunks",
-           "refuse_mesh_suffix"]
+           "refuse_mesh_suffix", "IMAGE_OPTIONS", "image_options_given", "ignored_without_image"]
+
+#: The :func:`pmwm_codec.encode` options that shape only the watermark image's mark, each with the value it has
+#: when not given: an encode without a watermark writes the same file whatever they are, and says so
+#: (:func:`ignored_without_image`).
+IMAGE_OPTIONS = {"mode": "exact", "bits": None, "embed_from": None, "step_units": None}
 
 
 def _int(name, lo, hi=None):
@@ -135,6 +140,20 @@ def checked_options(options: dict) -> dict:
     if out.get("mode") == "paper" and out.get("bits") is not None and out["bits"] < 2:
         raise OptionError(f"bits must be at least 2 in paper mode, got {out['bits']}")
     return out
+
+
+def image_options_given(options: dict) -> list:
+    """The :data:`IMAGE_OPTIONS` of ``options`` (:func:`checked_options`) given another value than their default,
+    spelled as Python gives them (``bits``, ``mode='paper'``), in :data:`IMAGE_OPTIONS` order."""
+    return [f"{name}={options[name]!r}" if name == "mode" else name
+            for name, default in IMAGE_OPTIONS.items() if options.get(name, default) != default]
+
+
+def ignored_without_image(names, image: str = "watermark") -> list:
+    """The notice of each option of ``names`` (as the caller spells them: ``bits``; ``pmw encode``: ``--bits``)
+    that an encode without a watermark image ignores, ``image`` naming that argument as the caller does
+    (``--watermark``): ``"bits ignored: no watermark"``.  The one wording of the library and the command line."""
+    return [f"{name} ignored: no {image}" for name in names]
 
 
 def _is_path(x) -> bool:

@@ -108,10 +108,10 @@ def test_start_zero_writes_no_embed_from_field():
 
 def test_a_start_leaving_too_few_splits_is_refused_with_the_numbers():
     img = _image(32)  # paper mode: 1,024 coefficients, one split each
-    with pytest.raises(wm.CapacityError, match=r"leaves 998 of 2,498 splits; the watermark needs 1,024"):
+    with pytest.raises(wm.CapacityError, match=r"leaves 998 of 2,498 splits; a 32x32 watermark needs 1,024"):
         _encode(1500, img, mode="paper")
     _encode(1474, img, mode="paper")  # exactly enough
-    with pytest.raises(wm.CapacityError, match=r"leaves \d+ of 2,498 splits; the watermark needs"):
+    with pytest.raises(wm.CapacityError, match=r"leaves \d+ of 2,498 splits; a 32x32 watermark needs"):
         _encode(0.99, img)
 
 

@@ -9,7 +9,8 @@ import pmwm_codec
 from pmwm_codec.constants import MAX_GRID_BITS, MIN_GRID_BITS
 from pmwm_codec.distortion import MEASURES
 from pmwm_codec.format.extension import DEFAULT_PAYLOAD_VERSION, PAYLOAD_VERSIONS
-from pmwm_codec.watermark.codec import MAX_BITS, MODES, CapacityError, shrink_watermark
+from pmwm_codec.options import IMAGE_OPTIONS, ignored_without_image
+from pmwm_codec.watermark.codec import MAX_BITS, MODES, CapacityError, shrink_watermark, watermark_words
 from pmwm_codec.watermark.image import load_watermark
 
 from .common import (Progress, UsageError, check_input_file, check_output_path, check_pmw_output, fmt_float,
@@ -145,7 +146,8 @@ def run(args) -> int:
     if args.watermark is None:  # the image's options: none of them changes a file without an image
         given = {"--embed-from": args.embed_from is not None, "--bits": args.bits is not None,
                  f"--mode {args.mode}": args.mode != STREAM_DEFAULTS["mode"], "--fit": args.fit}
-        extra += [f"{name} ignored: no --watermark" for name, on in given.items() if on]
+        extra += ignored_without_image([name for name, on in given.items() if on], "--watermark")
+        options = {name: value for name, value in options.items() if name not in IMAGE_OPTIONS}  # said above
     try:
         report = _encode_fitting(args, options, extra)
     except ValueError as exc:
@@ -172,7 +174,7 @@ def _encode_fitting(args, options: dict, notices: list) -> dict:
             raise
         image, _ = load_watermark(args.watermark)
         size = exc.largest_size
-        notices.append(f"--fit: watermark shrunk from {image.shape[0]}x{image.shape[0]} to {size}x{size}, "
+        notices.append(f"--fit: {watermark_words(exc.size, exc.given)} shrunk to {size}x{size}, "
                        "the largest size this mesh carries")
         return pmwm_codec.encode(args.input, args.output, watermark=shrink_watermark(image, size), key=args.key,
                                  **options)

@@ -85,13 +85,10 @@ def run(args) -> int:
     try:
         with naming(args.input):
             key = pmwm_codec.load_key(args.key)
-            if key.owner_id is not None and (source == "-" or url):
-                from pmwm_codec.http import read_declared
-
-                source = read_declared(source)  # read twice below: the image, then the owner layer
+            reader = _owner_reader(key)  # the owner layer read in the same pass as the image
             outcome = verify_stream(source, key, args.watermark, keep_meshes=args.frames is not None,
-                                    progress=progress)
-            owners = _owner_boundaries(source, key)
+                                    progress=progress, each=None if reader is None else reader.add)
+            owners = [] if reader is None else reader.boundaries
     finally:
         progress.done()
     pictures = None
@@ -122,13 +119,13 @@ def run(args) -> int:
     return EXIT_OK if outcome.verdict == "authentic" else EXIT_NOT_AUTHENTIC
 
 
-def _owner_boundaries(source, key) -> list:
-    """The owner layer at every chunk boundary (empty when the key carries no owner id)."""
+def _owner_reader(key):
+    """An :class:`~pmwm_codec.verify.owner.OwnerReader` for the key's owner layer (None: the key carries no owner id)."""
     if key.owner_id is None:
-        return []
-    from pmwm_codec.verify.owner import owner_of_stream
+        return None
+    from pmwm_codec.verify.owner import OwnerReader
 
-    return owner_of_stream(source, key)
+    return OwnerReader(key)
 
 
 def owner_report(owners, key) -> str:
@@ -200,7 +197,9 @@ def run_reference(args) -> int:
         print(f"{args.input}: {v.vertices:,} vertices matched to the reference by {v.correspondence} "
               f"({100 * v.coverage:.1f}% of its vertices); {v.carriers_read:,} of {v.carriers_total:,} codes read")
         print(f"NC {fmt_float(v.nc, 4)}  PSNR {fmt_float(v.psnr_db, 2)} dB  BER {fmt_float(v.ber, 4)}"
-              + ("  (bit-exact)" if v.bit_exact else ""))
+              + ("  (bit-exact)" if v.bit_exact and not v.image_note else ""))
+        if v.image_note:  # a bit-exact image the verdict does not vouch for: said so, not marked a match
+            print(v.image_note)
         if v.reference_note():
             print(v.reference_note())
         print(f"verdict: {v.verdict}" + _tamper_note(v.tamper(), v.binding)
@@ -231,6 +230,8 @@ def report(o: StreamVerification, pictures=None) -> str:
         why = "no codes read yet"
     lines.append(f"verdict: {o.verdict} ({why})" + (_tamper_note(o.tamper(), o.binding) if o.marked else ""))
     lines += o.mac_notes()
+    if o.image_note():
+        lines.append(o.image_note())
     if o.stream_note():
         lines.append(o.stream_note())
     if pictures:

@@ -52,7 +52,7 @@ from .extension import (
     CHUNK_META_FIELDS, DERIVED_FIELDS, RESERVED_FIELDS, TABLE_ARRAYS, base_digest, check_extension, digest, float32_up,
     pack_chunk_table, payload_version,
 )
-from .mac import SCENE_MAC, base_mac, chunk_mac, scene_data_end, scene_mac
+from .mac import SCENE_MAC, Scene, base_mac, chunk_mac
 from .layout import (
     CHUNK_HEADER_SIZE,
     CHUNK_TYPE_BIN,
@@ -147,13 +147,14 @@ def assemble_document(doc: dict, kept_bin: bytes, prims, order, zstd_level: int 
 
 def _scene_mac(mac_key: bytes, gltf: dict, bin_parts) -> str:
     """The ``sceneMac`` of the document ``gltf`` about to be written with BIN ``bin_parts`` (:mod:`.mac`)."""
-    end, data = scene_data_end(gltf), bytearray()
+    scene = Scene(gltf)  # built once: its data's end, then its MAC
+    end, data = scene.data_end(), bytearray()
     for part in bin_parts:  # the document's own data lies before the chunks: join no further than it needs
         if len(data) >= end:
             break
         data += part
     try:
-        return scene_mac(mac_key, gltf, data)
+        return scene.mac(mac_key, data)
     except LimitError:  # a document too large to MAC (the input's): refused in one line, nothing written
         raise
     except FormatError as exc:

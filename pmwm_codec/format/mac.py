@@ -37,7 +37,7 @@ import numpy as np
 from ..constants import EXTENSION_NAME, MAX_SCENE_VALUES
 from ..errors import FormatError, LimitError
 from .extension import base_mesh_fields, framed_blake2b, payload_version
-from .gltf import COMPONENT_DTYPES, DRACO_EXTENSION, INDEX_DTYPES, TYPE_WIDTH, element_rows
+from .gltf import COMPONENT_DTYPES, DRACO_EXTENSION, INDEX_DTYPES, TYPE_WIDTH, element_rows, gc_paused
 from .parser import BaseEvent, ChunkEvent, HeaderEvent
 
 #: Extension fields left out of ``baseMac``: set per cut (counts, chunk list), the MAC itself, or
@@ -195,6 +195,10 @@ def _reference(holder: dict, sources: list, count: int, item, strided: bool) -> 
     holder["bufferView"] = len(sources) - 1
 
 
+#: JSON scalars :func:`_scene_copy` keeps as they are (exact types: a subclass, or a float, is looked at one by one).
+_PLAIN = frozenset((int, str, bool, type(None)))
+
+
 def _scene_copy(value, limit: int | None = None):
     """A copy of the JSON ``value`` with every float of integral value as an int (``1.0`` -> ``1``, ``-0.0`` ->
     ``0``), walked without recursion; LimitError, before copying a container, when the values counted so far
@@ -215,6 +219,8 @@ def _scene_copy(value, limit: int | None = None):
             raise LimitError(f"the scene holds more than {limit:,} JSON values (MAX_SCENE_VALUES, spec/bitstream.md "
                              "§6.3): too many for its sceneMac")
         copied = holder[place] = dict(item) if isinstance(item, dict) else list(item)
+        if _PLAIN.issuperset(map(type, copied.values() if isinstance(copied, dict) else copied)):
+            continue  # integers, strings, true, false, null: nothing to change, nothing below (one pass in C)
         for key in (copied.keys() if isinstance(copied, dict) else range(len(copied))):
             child = copied[key]
             if isinstance(child, float):
@@ -229,21 +235,62 @@ def _integral(value):
     return int(value) if isinstance(value, float) and value.is_integer() else value
 
 
+class Scene:
+    """What ``sceneMac`` covers of the glTF JSON ``gltf`` (not modified), built once (:func:`scene_document`)
+    for every question a writer or a verifier asks of it: where the BIN data it reads ends
+    (:meth:`data_end`), its MAC (:meth:`mac`), whether the file's MACs are it (:meth:`check`).
+
+    ``doc`` and ``sources`` as :func:`scene_document` returns them; ``error`` the exception it raised
+    instead (a :class:`~pmwm_codec.errors.LimitError` over :data:`~pmwm_codec.constants.MAX_SCENE_VALUES`, a
+    FormatError for a malformed reference ...): the document has no canonical form, so no sceneMac is its.
+    """
+
+    def __init__(self, gltf: dict):
+        self.gltf = gltf
+        self.doc, self.sources, self.error = None, [], None
+        try:
+            with gc_paused():  # the copy makes a container per one of the document's
+                self.doc, self.sources = scene_document(gltf)
+        except (ValueError, TypeError, OverflowError, RecursionError) as exc:  # FormatError and LimitError among them
+            self.error = exc
+
+    def data_end(self) -> int:
+        """Where the BIN data the scene MAC reads ends (0: none, or no canonical form; references that do not
+        read ignored)."""
+        views = _list(self.gltf.get("bufferViews"))
+        end = 0
+        for view, *_ in self.sources:
+            if 0 <= view < len(views) and isinstance(views[view], dict):
+                try:
+                    end = max(end, int(views[view].get("byteOffset", 0)) + int(views[view]["byteLength"]))
+                except (KeyError, TypeError, ValueError):
+                    pass
+        return end
+
+    def mac(self, mac_key: bytes, bin_data) -> str:
+        """32 hex digits: the ``sceneMac`` of the document whose BIN chunk starts with ``bin_data`` (at least
+        :meth:`data_end` bytes).  Raises :attr:`error` (LimitError, FormatError ...), or FormatError (a
+        ValueError for a non-finite number) when the data cannot be read: the document has no canonical form."""
+        if self.error is not None:
+            raise self.error
+        return framed_blake2b(_scene_fields(self.doc, self.sources, self.gltf, bin_data), key=mac_key)
+
+    def check(self, mac_key: bytes, bin_data, found) -> tuple:
+        """``(matches, why)``: whether every ``sceneMac`` in ``found`` (the extension objects' values) is the one
+        ``mac_key`` gives this document with BIN data ``bin_data`` (at least :meth:`data_end` bytes); ``why``
+        None, or, when the document has no canonical form or its data cannot be read (never so from the key
+        holder's writer: ``matches`` False), the one line saying why (``the scene holds more than 4,194,304
+        JSON values (MAX_SCENE_VALUES ...``)."""
+        try:
+            expected = self.mac(mac_key, bin_data)
+        except (ValueError, TypeError, OverflowError, RecursionError) as exc:
+            return False, str(exc) or type(exc).__name__
+        return all(same_mac(expected, f) for f in found), None
+
+
 def scene_data_end(gltf: dict) -> int:
-    """Where the BIN data the scene MAC reads ends (0: none; references that do not read ignored)."""
-    try:
-        _, sources = scene_document(gltf)
-    except (FormatError, TypeError, ValueError, RecursionError):
-        return 0
-    views = _list(gltf.get("bufferViews"))
-    end = 0
-    for view, *_ in sources:
-        if 0 <= view < len(views) and isinstance(views[view], dict):
-            try:
-                end = max(end, int(views[view].get("byteOffset", 0)) + int(views[view]["byteLength"]))
-            except (KeyError, TypeError, ValueError):
-                pass
-    return end
+    """:meth:`Scene.data_end` of ``gltf`` (build a :class:`Scene` to ask it more than this)."""
+    return Scene(gltf).data_end()
 
 
 def _contents(gltf: dict, sources, bin_data):
@@ -274,28 +321,14 @@ def _contents(gltf: dict, sources, bin_data):
 
 
 def scene_mac(mac_key: bytes, gltf: dict, bin_data) -> str:
-    """32 hex digits: the ``sceneMac`` of the glTF JSON ``gltf`` whose BIN chunk starts with ``bin_data``
-    (at least :func:`scene_data_end` bytes).  FormatError (or ValueError for a non-finite number) when the
-    document has no canonical form."""
-    doc, sources = scene_document(gltf)
-    return framed_blake2b(_scene_fields(doc, sources, gltf, bin_data), key=mac_key)
+    """:meth:`Scene.mac` of ``gltf`` (build a :class:`Scene` to ask it more than this)."""
+    return Scene(gltf).mac(mac_key, bin_data)
 
 
 def _scene_fields(doc, sources, gltf, bin_data):
     yield _SCENE_LABEL
     yield canonical_json(doc)
     yield from _contents(gltf, sources, bin_data)
-
-
-def scene_matches(mac_key: bytes, gltf: dict, bin_data, found) -> bool:
-    """Whether every ``sceneMac`` in ``found`` (the extension objects' values) is the one ``mac_key`` gives
-    the document ``gltf`` with BIN data ``bin_data`` (at least :func:`scene_data_end` bytes); False when
-    the document has no canonical form or its data cannot be read (never so from the key holder's writer)."""
-    try:
-        expected = scene_mac(mac_key, gltf, bin_data)
-    except (ValueError, TypeError, OverflowError, RecursionError):
-        return False
-    return all(same_mac(expected, f) for f in found)
 
 
 def same_mac(expected: str, found) -> bool:

@@ -55,7 +55,7 @@ from ..progressive.grid import Grid
 from ..sources import byte_view
 from . import base as _base
 from .extension import base_digest, check_extension, chunk_entries, digest, integer_members, payload_version
-from .gltf import check_finite_numbers, check_json_text_depth, find_extension_primitives, shown_value, uint, view_range
+from .gltf import check_json_text_depth, find_extension_primitives, loads_finite, shown_value, uint, view_range
 from .layout import (
     ALIGNMENT,
     CHUNK_HEADER_SIZE,
@@ -481,20 +481,19 @@ class ContainerParser:
 
 
 def _load_json(text: bytes):
-    import json
-
     try:
         decoded = text.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise FormatError(f"GLB JSON chunk: not valid UTF-8 JSON ({str(exc).splitlines()[0]})") from None
     check_json_text_depth(text, "GLB JSON chunk")  # before the parser recurses into it (spec README, Conformance)
-    try:
-        gltf = json.loads(decoded)
+    try:  # a NaN or infinite number is refused, named, as the parser reads it (spec README, Conformance)
+        gltf = loads_finite(decoded, "GLB JSON chunk", FormatError)
+    except FormatError:
+        raise
     except ValueError as exc:
         raise FormatError(f"GLB JSON chunk: not valid UTF-8 JSON ({str(exc).splitlines()[0]})") from None
     if not isinstance(gltf, dict):
         raise FormatError("GLB JSON chunk: top level is not an object")
-    check_finite_numbers(gltf, "GLB JSON chunk", FormatError)
     integer_members(gltf)  # 16.0 where an integer belongs is 16 (spec README, JSON numbers)
     exts = []
     for _, _, prim in find_extension_primitives(gltf, EXTENSION_NAME):

@@ -51,7 +51,7 @@ import os
 import numpy as np
 
 from ..constants import EXTENSION_NAME
-from ..errors import DegenerateMeshError, InputFormatError, MeshError, PmwError
+from ..errors import DegenerateMeshError, InputFormatError, MeshError
 from ..format.document import as_declared, view_sites
 from ..format.document import (check_document, is_progressive, label_images, load_document, progressive_refusal,
                                read_accessor, repack)
@@ -118,7 +118,7 @@ def plan_asset(gltf: dict, buffers, name: str | None = None) -> tuple:
     that does not decode ...: what :func:`~pmwm_codec.mesh.checked_mesh` refuses in
     a mesh file) is refused: :class:`MeshError` / :class:`InputFormatError` naming
     the primitive (after ``name``, the file's, when given).  So is an asset with no
-    primitive to make progressive (:class:`PmwError` quoting why).
+    primitive to make progressive (:class:`MeshError` quoting why).
     """
     jobs, notices, reasons = [], [], []
     users = {i: 1 for i in _accessors_outside_meshes(gltf)}  # accessor -> number of users kept as they are
@@ -163,7 +163,7 @@ def plan_asset(gltf: dict, buffers, name: str | None = None) -> tuple:
         why = "; ".join(reasons[:_REASONS_QUOTED])
         if len(reasons) > _REASONS_QUOTED:
             why += f"; {len(reasons) - _REASONS_QUOTED} more"
-        raise PmwError("the asset has no triangle primitive that can be made progressive" + (f" ({why})" if why else ""))
+        raise MeshError("the asset has no triangle primitive that can be made progressive" + (f" ({why})" if why else ""))
     _lock_shared_positions(gltf, jobs)
 
     drop = set()

@@ -36,7 +36,7 @@ import numpy as np
 
 from ..constants import DEFAULT_GRID_BITS, MAX_GRID_BITS, MIN_GRID_BITS
 from ..distortion import combine_meshes, decoded_positions, full_distortion, measure_method
-from ..errors import OwnerLayerError, PmwError
+from ..errors import MeshError, OwnerLayerError, PmwError
 from ..format import encode_base
 from ..format.base import EncodedBase, with_attributes
 from ..atomic import directory_lock, discard, fault_point, publish, signals_deferred, stage
@@ -238,7 +238,7 @@ def _attribute_grid(semantic: str, values: np.ndarray) -> tuple:
             grid = AttributeGrid.fit(values, grid.bits - 1)
         return grid, {}
     if values.size and int(np.abs(values.astype(np.int64)).max()) > FLOAT32_EXACT_INTEGERS:
-        raise PmwError(f"{semantic}: integers beyond {FLOAT32_EXACT_INTEGERS:,}, which float32 cannot hold exactly")
+        raise MeshError(f"{semantic}: integers beyond {FLOAT32_EXACT_INTEGERS:,}, which float32 cannot hold exactly")
     lo = values.min(axis=0).astype(np.int64)
     span = int((values.max(axis=0).astype(np.int64) - lo).max())
     grid = AttributeGrid(max(MIN_GRID_BITS, span.bit_length()), tuple(float(x) for x in lo), (1.0,) * len(lo))
@@ -617,18 +617,18 @@ def _quantize(mesh: Mesh, grid: Grid) -> tuple:
     """``(grid, values (n, D) int64, attribute grids)`` of one mesh on its position ``grid``
     (:func:`position_grids`): positions, then attributes.
 
-    Raises PmwError when the positions or an attribute's grid values do not survive a float32 round trip.
+    Raises MeshError when the positions or an attribute's grid values do not survive a float32 round trip.
     """
     q = grid.quantize(mesh.positions)
     if not _survives_float32(grid, q):
-        raise PmwError(_float32_refusal(mesh.positions, grid))
+        raise MeshError(_float32_refusal(mesh.positions, grid))
     specs, columns = [], [q]
     for semantic in sorted(mesh.attributes):
         values = np.asarray(mesh.attributes[semantic]).reshape(mesh.vertex_count, -1)
         agrid, extra = _attribute_grid(semantic, values)
         ints = agrid.from_float32(values.astype(np.float64), semantic)
         if not np.array_equal(agrid.from_float32(agrid.to_float32(ints), semantic), ints):
-            raise PmwError(f"{semantic}: values too large for float32 at {agrid.bits} bits")
+            raise MeshError(f"{semantic}: values too large for float32 at {agrid.bits} bits")
         specs.append({"semantic": semantic, **agrid.get_config(), **extra})
         columns.append(ints)
     return grid, np.concatenate(columns, axis=1), specs
@@ -675,7 +675,7 @@ def _moved_reach(watermark: bool, mode: str, bits, step_units, owner: bool) -> t
 
 
 def _check_moved_grids(jobs: list, grid_bits: int, reach: tuple | None) -> None:
-    """Refuse (PmwError, :func:`_float32_refusal`) before any work a grid of ``grid_bits`` bits on which
+    """Refuse (MeshError, :func:`_float32_refusal`) before any work a grid of ``grid_bits`` bits on which
     the watermark or the owner layer (``reach``: :func:`_moved_reach`) would move vertices of the meshes of
     ``jobs`` to points float32 cannot carry: every point of its box, widened by the reach, must
     come back.  The input's own points are checked in :func:`_quantize` (a mesh nobody moves, float32
@@ -685,7 +685,7 @@ def _check_moved_grids(jobs: list, grid_bits: int, reach: tuple | None) -> None:
     for job, grid in zip(jobs, position_grids(jobs, grid_bits)):
         mesh = job.mesh
         if not _survives_float32(grid, grid.quantize(mesh.positions), reach):
-            raise PmwError(_float32_refusal(mesh.positions, grid, reach))
+            raise MeshError(_float32_refusal(mesh.positions, grid, reach))
 
 
 def _float32_refusal(positions: np.ndarray, grid: Grid, reach: tuple | None = None) -> str:
@@ -900,7 +900,7 @@ def _encode_base(w: PrimitiveWork, codec: str) -> tuple:
     try:
         base = encode_base(q[base_ids], local[log.base_corners], w.grid, codec=codec)
     except ValueError as exc:
-        raise PmwError(f"cannot store the base mesh: {exc}") from None
+        raise MeshError(f"cannot store the base mesh: {exc}") from None
     base_order = base_ids[np.asarray(base.vertex_map, dtype=np.int64)]
     if w.attribute_grids:
         offsets = np.cumsum([3] + [len(spec["origin"]) for spec in w.attribute_grids])
@@ -945,10 +945,10 @@ def _plan_watermark(work, watermark, key, carriers: int, slots, mode, bits, step
         need = wm.splits_needed(watermark, mode, bits)
         if carriers - start < need:
             fit = wm.largest_fitting_size(watermark, carriers - start, bits=bits, mode=mode)
-            hint = "; " + wm.fit_hint(fit, " from there") if fit else ""
+            hint = "; " + wm.fit_hint(" from there") if fit else ""
             raise wm.CapacityError(
                 f"embedding from vertex split {start:,} leaves {carriers - start:,} of {carriers:,} splits; "
-                f"the watermark needs {need:,} in {mode} mode: start earlier{hint}", fit
+                f"{{watermark}} needs {need:,} in {mode} mode: start earlier{hint}", fit, int(watermark.shape[0])
             )
     void = _twin_slots(work, key, slots)  # seam twins carry nothing (spec/watermark.md, "Repeated points")
     readable = carriers - start - int(np.count_nonzero(void >= start))

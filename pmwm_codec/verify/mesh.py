@@ -47,18 +47,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import FormatError, MeshError, PmwError, WatermarkKeyError
+from ..errors import FormatError, InputFormatError, MeshError, WatermarkKeyError
 from ..format import EndEvent, HeaderEvent, iter_events
 from ..format.extension import EXTENSION_NAME
 from ..format.gltf import placed_by_nodes, progressive_placements, scene_mesh
-from ..format.mac import SCENE_MAC, MacChecker, scene_matches
+from ..format.mac import SCENE_MAC, MacChecker, Scene
 from ..mesh import Mesh, checked_mesh, read_mesh
 from ..progressive.topology import unique_edges
 from ..sources import read_all
 from ..stream.replay import Replay
 from ..watermark import codec as wm
 from ..watermark.key import as_key
-from ..watermark.verify import Verifier
+from ..watermark.verify import Verifier, image_note
 from .correspond import Correspondence, correspond, umeyama
 
 __all__ = ["MeshVerification", "verify_mesh"]
@@ -90,7 +90,9 @@ class MeshVerification:
     farther than the tolerance from every reference vertex); ``binding`` the file's
     (``""``: a legacy mark, never ``authentic``); ``reference_mac`` the key holder's MACs over the
     reference file (:meth:`Reference.authenticate`): a reference whose base, chunks or scene fail them is
-    not the key holder's file, so nothing checked against it is ``authentic``.
+    not the key holder's file, so nothing checked against it is ``authentic``; ``image_note`` the line
+    saying that a bit-exact ``watermark`` beside another verdict than ``authentic`` is no match the verdict
+    makes (:func:`~pmwm_codec.watermark.verify.image_note`), else None.
     """
 
     verdict: str
@@ -116,6 +118,7 @@ class MeshVerification:
     foreign: bool = False
     binding: str = ""
     reference_mac: dict | None = None
+    image_note: str | None = None
 
     def tamper(self) -> dict:
         """``{"flagged": [mesh vertex ids whose carrier code no longer reads], "fraction": of the mesh's vertices}``."""
@@ -137,7 +140,7 @@ class MeshVerification:
             "registration_rms": num(self.registration_rms), "vertices": self.vertices, "faces": self.faces,
             "reference_vertices": self.reference_vertices, "key_matches": self.key_matches,
             "tamper": self.tamper(), "foreign": self.foreign, "binding": self.binding or None,
-            "reference_mac": self.reference_mac,
+            "reference_mac": self.reference_mac, "image_note": self.image_note,
         }
 
     def reference_note(self) -> str | None:
@@ -146,7 +149,8 @@ class MeshVerification:
         macs = self.reference_mac or {}
         parts = [f"{'chunk ' + str(c) if c else 'its base mesh'}" for c in macs.get("failed", [])]
         if macs.get("scene") is False:
-            parts.append("its scene (nodes, materials, other meshes)")
+            why = macs.get("scene_error")
+            parts.append("its scene (nodes, materials, other meshes" + (f"; {why}" if why else "") + ")")
         if not parts:
             return None
         return "the reference is not the key holder's file as written (MAC mismatch: " + ", ".join(parts) + ")"
@@ -300,13 +304,13 @@ class Reference:
         try:
             data = read_all(source)
         except OSError as exc:
-            raise PmwError(f"cannot read the reference file: {exc}") from None
+            raise InputFormatError(f"cannot read the reference file: {exc}") from None
         events = list(iter_events(data))
         header = events[0]
         assert isinstance(header, HeaderEvent)
         cfg = header.extension.get("watermark")
         if cfg is None:
-            raise PmwError("the reference file carries no watermark")
+            raise InputFormatError("the reference file carries no watermark")
         end = events[-1]
         if isinstance(end, EndEvent) and not end.complete:
             raise FormatError("the reference file is cut short: verify against the complete original")
@@ -330,15 +334,18 @@ class Reference:
     def authenticate(self, key) -> dict:
         """The key holder's MACs over this file, as ``pmw verify FILE.pmw`` checks them (bitstream.md §6.3):
         ``{"checked": n, "failed": [chunk numbers, 0 the bases], "missing": [...], "scene": True | False |
-        None}`` (``scene`` None: the file carries no ``sceneMac``)."""
+        None, "scene_error": why}`` (``scene`` None: the file carries no ``sceneMac``; ``scene_error`` the line
+        saying why a scene that has no canonical form is not the key holder's, e.g. one over
+        ``MAX_SCENE_VALUES``: :meth:`~pmwm_codec.format.mac.Scene.check`)."""
         checker = MacChecker(key.mac_key())
         for event in self.events:
             checker.tally(event)
         header = self.events[0]
         found = [ext.get(SCENE_MAC) for ext in header.extensions or (header.extension,)]
-        scene = None if all(f is None for f in found) else \
-            scene_matches(key.mac_key(), header.gltf_json, self.data[header.bin_offset:], found)
-        return {"checked": checker.checked, "failed": checker.failed, "missing": checker.missing, "scene": scene}
+        scene, why = (None, None) if all(f is None for f in found) else \
+            Scene(header.gltf_json).check(key.mac_key(), self.data[header.bin_offset:], found)
+        return {"checked": checker.checked, "failed": checker.failed, "missing": checker.missing, "scene": scene,
+                "scene_error": why}
 
 
 def verify_mesh(mesh, reference_source, key, watermark=None, *, tolerance: float = 0.5,
@@ -379,8 +386,12 @@ def verify_mesh(mesh, reference_source, key, watermark=None, *, tolerance: float
     owns = key.owns(ref.params.fingerprint)
     macs = ref.authenticate(key) if owns else None
     written = macs is None or (not macs["failed"] and macs["scene"] is not False)  # the reference as the key holder wrote it
+    verdict = est.verdict if owns and written else "not-authentic"
+    why = ([] if written else ["the reference is not the key holder's file as written"]) + \
+        (["vertices the reference does not explain"] if verifier.foreign else [])
     return MeshVerification(
-        verdict=est.verdict if owns and written else "not-authentic", key_matches=owns, reference_mac=macs, nc=est.nc, psnr_db=est.psnr_db, centered_nc=est.centered_nc, ber=est.ber,
+        image_note=image_note(verdict, est.bit_exact, est.inconsistent, "; ".join(why)),
+        verdict=verdict, key_matches=owns, reference_mac=macs, nc=est.nc, psnr_db=est.psnr_db, centered_nc=est.centered_nc, ber=est.ber,
         code_match=est.code_match, carriers_read=est.carriers_read, carriers_total=ref.params.carriers,
         correspondence=corr.method, coverage=corr.coverage, registration_rms=corr.rms,
         vertices=m.vertex_count, faces=m.face_count, reference_vertices=len(ref.scene_positions),

@@ -36,7 +36,7 @@ from ..stream import StreamDecoder, iter_results
 from ..watermark.key import as_key
 from ..watermark.owner import OwnerResult, detect, distinct_mesh
 
-__all__ = ["OwnerBoundary", "owner_key", "owner_of_mesh", "owner_of_stream", "owner_view", "pieces",
+__all__ = ["OwnerBoundary", "OwnerReader", "owner_key", "owner_of_mesh", "owner_of_stream", "owner_view", "pieces",
            "MAX_PIECES", "MIN_PIECE_VERTICES"]
 
 #: At most this many pieces of a mesh are read besides the whole mesh (the largest distinct ones).
@@ -204,16 +204,32 @@ def _triangle_meshes(gltf: dict) -> list:
 
 def owner_of_stream(source, key) -> list:
     """``[OwnerBoundary]`` of a ``.pmw`` (see the module contract), base mesh first."""
-    key = owner_key(key)
-    out = []
+    reader = OwnerReader(key)
     decoder = StreamDecoder(None, None, copy=True)
-    frames = None
     for r in iter_results(source, decoder):
-        if frames is None:
-            frames = _frames(decoder.header.gltf_json)
-        positions, faces, _ = scene_mesh([p.positions for p in r.parts], [p.faces for p in r.parts], frames)
-        out.append(OwnerBoundary(r.chunk, int(r.bytes_read), int(r.vertices), detect(positions, faces, key)))
-    return out
+        reader.add(r, decoder.header.gltf_json)
+    return reader.boundaries
+
+
+class OwnerReader:
+    """The owner layer read at every chunk boundary of a stream another reader decodes (``pmw verify`` reads
+    the image and the owner in one pass): :meth:`add` each result in stream order; ``boundaries`` the
+    :class:`OwnerBoundary` list :func:`owner_of_stream` returns."""
+
+    def __init__(self, key):
+        self.key = owner_key(key)
+        self.boundaries: list = []
+        self._frames = None
+
+    def add(self, result, gltf: dict) -> None:
+        """Read the layer from ``result`` (a :class:`~pmwm_codec.stream.PartialResult` whose parts hold the
+        meshes of its boundary: copies, or views not yet moved on) of the stream whose glTF JSON is ``gltf``."""
+        if self._frames is None:
+            self._frames = _frames(gltf)
+        positions, faces, _ = scene_mesh([p.positions for p in result.parts], [p.faces for p in result.parts],
+                                         self._frames)
+        self.boundaries.append(OwnerBoundary(result.chunk, int(result.bytes_read), int(result.vertices),
+                                             detect(positions, faces, self.key)))
 
 
 def _frames(gltf: dict) -> list:

@@ -39,12 +39,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..format.mac import SCENE_MAC, scene_data_end, scene_matches
+from ..format.mac import SCENE_MAC, Scene
 from ..stream import StreamDecoder, iter_results
 from ..stream.decoder import StreamEnd
 from ..watermark import load_watermark
 from ..sources import Source, iter_blocks
 from ..watermark.key import WatermarkKey, as_key
+from ..watermark.verify import image_note
 
 __all__ = ["StreamVerification", "verify_stream"]
 
@@ -59,15 +60,18 @@ class StreamVerification:
     watermark; ``total_length``: the size of the complete file in bytes; ``key_matches``:
     False when the file's public key fingerprint is another key's (verdict ``not-authentic``), None
     when the file carries no watermark image (no fingerprint to compare);
-    ``mac``: ``{"checked": n, "failed": [chunk numbers], "missing": [chunk numbers], "scene": s}`` (chunk 0
-    is the base meshes) -- the keyed MACs checked, failed and absent, and the ``sceneMac``'s answer
-    ``s``: True (the document around the progressive meshes is the key holder's), False (it is not),
-    None (the file has no ``sceneMac``, or its data has not arrived: ``scene`` says which).
+    ``mac``: ``{"checked": n, "failed": [chunk numbers], "missing": [chunk numbers], "scene": s, "scene_error":
+    why}`` (chunk 0 is the base meshes) -- the keyed MACs checked, failed and absent, and the ``sceneMac``'s
+    answer ``s``: True (the document around the progressive meshes is the key holder's), False (it is not),
+    None (the file has no ``sceneMac``, or its data has not arrived: ``scene`` says which); ``why`` None, or
+    the line saying why a scene is False without a MAC to compare: it has no canonical form (more than
+    ``MAX_SCENE_VALUES`` JSON values, a bufferView reference that does not read).
     ``scene``: ``"match"``, ``"mismatch"``, ``"not arrived"``, ``"not covered"`` (a marked file without
     ``sceneMac``) or ``""`` (no key, or no watermark).  ``carriers_total``: the carriers of the key
     holder's whole stream (the MACed ``watermark.carriers``; 0 without a watermark).
     ``flagged`` (f,) int64 the tamper map (vertex ids of the last level's decoded mesh);
-    ``binding`` the mark's keyed binding (``""``: a legacy mark).
+    ``binding`` the mark's keyed binding (``""``: a legacy mark).  The NC / PSNR of ``results`` are of the
+    image extracted; :meth:`image_note` says when a bit-exact one stands beside another verdict.
     """
 
     results: list
@@ -108,9 +112,22 @@ class StreamVerification:
             where = "the file" if len(missing) == len(self.results) else ", ".join(_chunk_name(c) for c in missing)
             notes.append(f"{where}: no MAC, the bytes cannot be attributed to the key holder "
                          "(written before keyed chunk authentication, or stripped)")
-        if self.scene in _SCENE_NOTES:
+        if self.scene == "mismatch" and self.mac.get("scene_error"):  # no canonical form: over MAX_SCENE_VALUES ...
+            notes.append(f"{_SCENE} is not the key holder's: {self.mac['scene_error']}")
+        elif self.scene in _SCENE_NOTES:
             notes.append(_SCENE_NOTES[self.scene])
         return notes
+
+    def image_note(self) -> str | None:
+        """The line saying that a bit-exact image beside another verdict than ``authentic`` is no match the verdict
+        makes (:func:`~pmwm_codec.watermark.verify.image_note`), or None."""
+        est = self.results[-1].estimate if self.results else None
+        if est is None:
+            return None
+        why = ("the mark is intact, the scene around it is not the key holder's" if self.scene == "mismatch" else
+               "bytes not shown to be the key holder's" if self.mac and (self.mac["failed"] or self.mac["missing"])
+               else "")
+        return image_note(self.verdict, est.bit_exact, est.inconsistent, why)
 
     def stream_note(self) -> str | None:
         """``a prefix of the key holder's stream: R of T carriers read`` when not every carrier was read."""
@@ -127,7 +144,7 @@ class StreamVerification:
                 "total_length": int(self.total_length), "codes_matched": self.codes_matched,
                 "codes_read": self.codes_read, "carriers_total": self.carriers_total,
                 "whole_stream": self.whole_stream, "key_matches": self.key_matches, "mac": self.mac,
-                "tamper": self.tamper(), "binding": self.binding or None}
+                "tamper": self.tamper(), "binding": self.binding or None, "image_note": self.image_note()}
 
 
 _SCENE = "the scene (nodes, materials, other meshes)"
@@ -147,14 +164,25 @@ def _chunk_name(number: int) -> str:
 
 class _SceneData:
     """The bytes of a stream the scene MAC needs, kept as the decoder reads it: everything until the
-    decoder has the JSON, then the file up to the end of the data :func:`~..format.mac.scene_data_end`
-    names (nothing more when no extension object carries a ``sceneMac``)."""
+    decoder has the JSON, then the file up to the end of the data its :class:`~..format.mac.Scene` reads
+    (nothing more when no extension object carries a ``sceneMac``).  The scene is built once, when the
+    JSON is in, and checked with the same copy (its cost grows with the document, up to
+    ``MAX_SCENE_VALUES`` values)."""
 
     def __init__(self, decoder: StreamDecoder):
         self.decoder = decoder
         self.pieces: list = []
         self.length = 0
         self.limit: int | None = None
+        self.scene: Scene | None = None
+
+    def _start(self, header) -> None:
+        """Build the scene of ``header``'s JSON and set :attr:`limit` (0 when no ``sceneMac`` asks for it)."""
+        if any(ext.get(SCENE_MAC) is not None for ext in header.extensions):
+            self.scene = Scene(header.gltf_json)
+            self.limit = header.bin_offset + self.scene.data_end()
+        else:
+            self.limit = 0
 
     def blocks(self, source):
         for block in iter_blocks(source):
@@ -164,8 +192,7 @@ class _SceneData:
     def _keep(self, block) -> None:
         header = self.decoder.header
         if self.limit is None and header is not None:
-            wanted = any(ext.get(SCENE_MAC) is not None for ext in header.extensions)
-            self.limit = header.bin_offset + scene_data_end(header.gltf_json) if wanted else 0
+            self._start(header)
             self._trim()
         block = memoryview(block).cast("B")
         room = len(block) if self.limit is None else max(0, self.limit - self.length)
@@ -184,28 +211,33 @@ class _SceneData:
             length += len(piece)
         self.pieces, self.length = kept, length
 
-    def check(self, key: WatermarkKey, end: StreamEnd) -> bool | None | str:
-        """The scene MAC's answer: True / False, ``"not arrived"`` (a stream cut short before the data
-        it covers; a complete file whose data cannot be read is False), or None (no ``sceneMac``)."""
+    def check(self, key: WatermarkKey, end: StreamEnd) -> tuple:
+        """``(answer, why)``: the scene MAC's answer, True / False, ``"not arrived"`` (a stream cut short
+        before the data it covers; a complete file whose data cannot be read is False), or None (no
+        ``sceneMac``); ``why`` the line saying why a scene with no canonical form is False (one over
+        ``MAX_SCENE_VALUES``: :meth:`~..format.mac.Scene.check`), else None."""
         header = self.decoder.header
         found = [ext.get(SCENE_MAC) for ext in header.extensions]
         if all(f is None for f in found):
-            return None
+            return None, None
         if self.limit is None:  # the JSON came in the last block
-            self.limit = header.bin_offset + scene_data_end(header.gltf_json)
+            self._start(header)
         self._trim()
         if self.length < self.limit and not end.complete and self.limit - header.bin_offset <= _buffer_length(header):
-            return "not arrived"
-        return scene_matches(key.mac_key(), header.gltf_json, b"".join(self.pieces)[header.bin_offset:], found)
+            return "not arrived", None
+        return self.scene.check(key.mac_key(), b"".join(self.pieces)[header.bin_offset:], found)
 
 
 def verify_stream(source: Source, key: WatermarkKey | str | os.PathLike[str], watermark: np.ndarray | str | None = None, *,
-                  keep_meshes: bool = False, progress: Callable[[str, float], None] | None = None) -> StreamVerification:
+                  keep_meshes: bool = False, progress: Callable[[str, float], None] | None = None,
+                  each: Callable[[object, dict], None] | None = None) -> StreamVerification:
     """Decode ``source`` with ``key`` and score the watermark at every chunk boundary.
 
     ``keep_meshes``: keep a copy of every level's mesh in the results (for pictures);
     otherwise the results hold only the numbers and the partial watermark.
     ``progress``: optional ``progress(label, fraction)`` called after every boundary.
+    ``each``: optional ``each(result, gltf)`` called at every boundary with the result, its meshes copied,
+    and the stream's glTF JSON (the owner layer read in the same pass: :class:`~.owner.OwnerReader`).
     Raises the decoder's named errors (:class:`~pmwm_codec.errors.PmwError`), e.g.
     TruncatedError when the file ends before its base mesh.  ``source`` may be an http(s) URL.
     """
@@ -218,7 +250,7 @@ def verify_stream(source: Source, key: WatermarkKey | str | os.PathLike[str], wa
     key = as_key(key)
     if key is not None:  # before anything is read
         key.check_reference(reference, watermark)
-    decoder = StreamDecoder(key, reference, copy=keep_meshes, check_key=False)
+    decoder = StreamDecoder(key, reference, copy=keep_meshes or each is not None, check_key=False)
     scene_data = _SceneData(decoder)
     gen = iter_results(scene_data.blocks(source), decoder)
     results = []
@@ -228,14 +260,17 @@ def verify_stream(source: Source, key: WatermarkKey | str | os.PathLike[str], wa
         except StopIteration as stop:
             end = stop.value
             break
-        if not keep_meshes:  # views into the decoder: drop them, keep the numbers
+        if each is not None:
+            each(r, decoder.header.gltf_json)
+        if not keep_meshes:  # views into the decoder (or copies only ``each`` needed): drop them, keep the numbers
             r.parts = []
         results.append(r)
         if progress is not None:
             progress(f"chunk {r.chunk}/{r.chunks_total}", r.chunk / max(1, r.chunks_total))
     v = decoder.verifier
     owns = decoder.watermark_params is None or key is None or key.owns(decoder.watermark_params.fingerprint)
-    mac = {"checked": decoder.mac_checked, "failed": decoder.mac_failed, "missing": decoder.mac_missing, "scene": None}
+    mac = {"checked": decoder.mac_checked, "failed": decoder.mac_failed, "missing": decoder.mac_missing, "scene": None,
+           "scene_error": None}
     # key_matches None: the file carries no watermark image, so no key fingerprint to compare (an owner
     # layer alone is answered by ``owner``: one owner's key marks many files)
     out = StreamVerification(results, end, "not-authentic", 0, 0, v is not None, decoder.header.total_length,
@@ -259,9 +294,10 @@ def _buffer_length(header) -> int:
     return int(header.gltf_json["buffers"][0]["byteLength"])
 
 
-def _check_scene(out: StreamVerification, answer, mac: dict) -> None:
-    """Record the scene MAC's ``answer`` (:meth:`_SceneData.check`) in ``out`` and ``mac``; a mismatch makes
-    an authentic mark ``tampered``: the mark is the key holder's, the document shown around it is not."""
+def _check_scene(out: StreamVerification, checked: tuple, mac: dict) -> None:
+    """Record the scene MAC's answer and why (:meth:`_SceneData.check`) in ``out`` and ``mac``; a mismatch
+    makes an authentic mark ``tampered``: the mark is the key holder's, the document shown around it is not."""
+    answer, mac["scene_error"] = checked
     mac["scene"] = answer if isinstance(answer, bool) else None
     if answer is True:
         out.scene = "match"

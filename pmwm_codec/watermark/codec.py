@@ -83,12 +83,45 @@ class CapacityError(PmwError, ValueError):
     """The mesh has too few vertex splits to carry the watermark.
 
     ``largest_size``: the side of the largest power-of-two watermark (the image shrunk
-    with :func:`shrink_watermark`) that fits, or None when none does.
+    with :func:`shrink_watermark`) that fits, or None when none does; ``size``: the side of the
+    square watermark that does not fit; ``given``: ``(width, height)`` of the image as the caller gave
+    it, when it was downscaled or padded to that square (None: taken as it is).  ``message`` names the
+    watermark and what fits by the fields ``{watermark}`` and ``{fit}``, filled from these
+    (:func:`watermark_words`, :func:`fit_words`), so :meth:`as_given` can name them as given.
     """
 
-    def __init__(self, message: str, largest_size: int | None = None):
-        super().__init__(message)
-        self.largest_size = largest_size
+    def __init__(self, message: str, largest_size: int | None = None, size: int | None = None,
+                 given: tuple | None = None):
+        self.template, self.largest_size, self.size, self.given = message, largest_size, size, given
+        super().__init__(message.format(watermark=watermark_words(size, given),
+                                        fit=fit_words(largest_size, size, given)))
+
+    def as_given(self, width: int, height: int) -> "CapacityError":
+        """This error naming the watermark as given, ``width`` x ``height`` pixels (itself when that is
+        the square it carries)."""
+        if (width, height) == (self.size, self.size) or self.size is None:
+            return self
+        return CapacityError(self.template, self.largest_size, self.size, (int(width), int(height)))
+
+
+def watermark_words(size: int | None, given: tuple | None = None) -> str:
+    """How a capacity error names a watermark of side ``size``: ``a 256x256 watermark``, or, ``given`` as
+    another ``(width, height)``, ``the 300x200 watermark (carried as a 256x256 square)``."""
+    if given is None:
+        return f"a {size}x{size} watermark" if size else "the watermark"
+    return f"the {given[0]}x{given[1]} watermark (carried as a {size}x{size} square)"
+
+
+def fit_words(fit: int | None, size: int | None, given: tuple | None = None) -> str:
+    """The largest square ``fit`` that fits, ``32x32``; with the image ``given`` as another ``(width,
+    height)`` than the ``size`` square, also that image at the scale :func:`shrink_watermark` gives it:
+    ``32x32 (this image at 32x21, padded)``."""
+    if not fit:
+        return ""
+    if given is None or given[0] == given[1]:
+        return f"{fit}x{fit}"
+    scale = fit / max(given)
+    return f"{fit}x{fit} (this image at {max(1, round(given[0] * scale))}x{max(1, round(given[1] * scale))}, padded)"
 
 
 def shrink_watermark(image: np.ndarray, size: int) -> np.ndarray:
@@ -621,21 +654,21 @@ def plan(image: np.ndarray, key, carriers: int, *, mode: str = "exact", bits: in
     return params, codes
 
 
-def fit_hint(fit: int, where: str = "") -> str:
-    """The capacity errors' pointer to ``--fit``: the largest size ``fit`` that fits (``where``: from where)."""
-    return f"the largest that fits{where} is {fit}x{fit} (pmw encode --fit shrinks it to that)"
+def fit_hint(where: str = "") -> str:
+    """The capacity errors' pointer to ``--fit``, the largest size that fits left as the field ``{fit}`` of
+    :class:`CapacityError` (``where``: from where)."""
+    return f"the largest that fits{where} is {{fit}} (pmw encode --fit shrinks it to that)"
 
 
 def _capacity_error(image: np.ndarray, message_bits: int, carriers: int, bits: int | None) -> CapacityError:
     """The error for a watermark that does not fit, naming the largest size that does."""
-    size = int(image.shape[0])
     limit = MAX_EXACT_BITS if bits is None else MAX_BITS
     fit = largest_fitting_size(image, carriers, bits=bits)
-    hint = fit_hint(fit) if fit else "no smaller image fits either"
+    hint = fit_hint() if fit else "no smaller image fits either"
     return CapacityError(
-        f"a {size}x{size} watermark needs {message_bits} bits; this mesh has {carriers} vertex splits "
+        f"{{watermark}} needs {message_bits:,} bits; this mesh has {carriers:,} vertex splits "
         f"(at most {limit} bits each{'' if bits is None else f', {bits} requested'}): {hint}; "
-        "or use a finer mesh, or --mode paper", fit)
+        "or use a finer mesh, or --mode paper", fit, int(image.shape[0]))
 
 
 # --------------------------------------------------------------------------- decoder

@@ -26,7 +26,7 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont, UnidentifiedImageError
 
 from ..constants import MAX_WATERMARK_PIXELS
-from ..errors import InputFormatError, PmwError
+from ..errors import InputFormatError, OptionError
 from ..sources import check_input_path
 
 __all__ = ["load_watermark", "save_png", "make_text_watermark", "DEFAULT_MAX_SIZE"]
@@ -130,6 +130,14 @@ def load_watermark(path_or_array, max_size: int | None = DEFAULT_MAX_SIZE):
     notices : list[str]
         One line per change made to the input (empty when it was used as is).
     """
+    gray, notices = read_watermark(path_or_array)
+    image, made = square_watermark(gray, max_size)
+    return image, notices + made
+
+
+def read_watermark(path_or_array) -> tuple:
+    """``(gray (h, w) uint8, notices)``: the image :func:`load_watermark` takes, as given (grayscale, 0..255),
+    before it is made a ``2^k`` square (:func:`square_watermark`)."""
     notices: list[str] = []
     if isinstance(path_or_array, Image.Image):
         gray = _to_gray(path_or_array, notices)
@@ -142,8 +150,13 @@ def load_watermark(path_or_array, max_size: int | None = DEFAULT_MAX_SIZE):
         gray = _array_to_gray(path_or_array, notices)
     if gray.size == 0:
         raise InputFormatError("watermark image is empty")
-    gray = np.clip(np.rint(gray), 0, 255).astype(np.uint8)
+    return np.clip(np.rint(gray), 0, 255).astype(np.uint8), notices
 
+
+def square_watermark(gray: np.ndarray, max_size: int | None = DEFAULT_MAX_SIZE) -> tuple:
+    """``(image (s, s) uint8, notices)``: ``gray`` (h, w) uint8 downscaled (aspect kept) when a side exceeds
+    ``max_size``, then padded to the next ``2^k`` square (module docstring), one notice per change."""
+    notices: list[str] = []
     h, w = gray.shape
     if max_size is not None:
         if max_size < 1 or max_size & (max_size - 1):
@@ -190,13 +203,14 @@ def png_bytes(image: Image.Image) -> bytes:
 
 
 def write_image(path, image: Image.Image) -> None:
-    """Write a Pillow ``image`` as a PNG at ``path``, whole or not at all (an interrupted run leaves no cut file)."""
+    """Write a Pillow ``image`` as a PNG at ``path``, whole or not at all (an interrupted run leaves no cut file);
+    OptionError naming ``path`` when it cannot be written."""
     from ..atomic import write_atomic
 
     try:
         write_atomic(os.fspath(path), [png_bytes(image)])
     except OSError as exc:
-        raise PmwError(f"{os.fspath(path)}: cannot write PNG ({exc.strerror or exc})") from None
+        raise OptionError(f"{os.fspath(path)}: cannot write PNG ({exc.strerror or exc})") from None
 
 
 def make_text_watermark(text: str, size: int = 64) -> np.ndarray:

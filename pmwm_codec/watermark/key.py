@@ -79,6 +79,11 @@ __all__ = ["WatermarkKey", "KeySlot", "KEY_FORMAT", "KEY_VERSION", "KEY_FILE_MOD
 
 KEY_FORMAT = "pmwm-key"
 KEY_VERSION = 1
+#: The members a key file of :data:`KEY_VERSION` may hold (:meth:`WatermarkKey.to_json`), and those of its
+#: ``reference`` object: any other is refused by name, never read as if understood (a typo such as
+#: ``owner_idd``, or a member of a later version, which raises the ``version`` with it).
+KEY_MEMBERS = ("format", "version", "secret", "fingerprint", "checksum", "file_id", "owner_id", "params", "reference")
+REFERENCE_MEMBERS = ("width", "height", "png")
 SECRET_BYTES = 32
 #: Mode of every key file written, whatever the umask or an older file's mode.
 KEY_FILE_MODE = 0o600
@@ -106,6 +111,9 @@ def _reference_from_json(ref) -> np.ndarray:
 
     if not isinstance(ref, dict):
         raise ValueError("is not an object")
+    unknown = _unknown_member(ref, REFERENCE_MEMBERS, "key's reference")
+    if unknown:
+        raise ValueError(f"has {unknown}")
     try:
         if not (_is_int(ref["height"]) and _is_int(ref["width"])):
             raise TypeError
@@ -126,6 +134,18 @@ def _reference_from_json(ref) -> np.ndarray:
     if image.shape != shape:
         raise ValueError(f"is {image.shape[1]}x{image.shape[0]}, declared {shape[1]}x{shape[0]}")
     return image
+
+
+def _unknown_member(doc: dict, members: tuple, what: str = "key") -> str | None:
+    """``unknown member "owner_idd": a version 1 key holds format, ...`` for the first member of ``doc`` not
+    in ``members`` (its name as JSON text, at most 40 characters of it; ``what``: what holds them); None when
+    every one is known."""
+    for name in doc:
+        if name not in members:
+            shown = json.dumps(name)
+            shown = shown if len(shown) <= 40 else shown[:36] + '..."'
+            return f"unknown member {shown}: a version {KEY_VERSION} {what} holds {', '.join(members)}"
+    return None
 
 
 def _is_int(value) -> bool:
@@ -219,6 +239,9 @@ class WatermarkKey:
             raise bad(f'"format" is not "{KEY_FORMAT}"')
         if not _is_int(doc.get("version")) or doc["version"] != KEY_VERSION:
             raise bad(f"unsupported key version {doc.get('version')!r}")
+        unknown = _unknown_member(doc, KEY_MEMBERS)
+        if unknown:
+            raise bad(unknown)
         try:
             secret = bytes.fromhex(doc["secret"])
         except (KeyError, TypeError, ValueError):

@@ -238,6 +238,25 @@ class WatermarkEstimate:
     inconsistent: int = 0
 
 
+def image_note(verdict: str, bit_exact: bool, failing: int = 0, why: str = "") -> str | None:
+    """The line that keeps the figures of a bit-exact image (NC 1, PSNR infinite) from reading as a match the
+    ``verdict`` does not make (README, "NC and PSNR beside the verdict"); None when the verdict is
+    ``authentic`` or the image is not bit-exact.
+
+    The figures are of the image extracted, each message bit voted over its copies: ``failing`` codes that no
+    longer read (the tamper map's carriers) are outvoted where a bit's other copies read, which many copies
+    of 1-bit codes (a two-tone image's) always do, so a ``tampered`` mesh can still give the image whole.
+    ``why``: what else keeps the verdict from ``authentic`` (the scene, bytes the key holder did not write)."""
+    if verdict == "authentic" or not bit_exact:
+        return None
+    reasons = [f"{failing:,} code{'s' if failing != 1 else ''} that no longer read, outvoted by the other copies of "
+               "their bits"] if failing else []
+    reasons += [why] if why else []
+    return (f"the image extracted is bit-exact (NC 1, PSNR inf) but the verdict is {verdict}"
+            + (f" ({'; '.join(reasons)})" if reasons else "")
+            + ": the figures describe the image read, not a match the verdict vouches for")
+
+
 def code_ber(received: np.ndarray, expected: np.ndarray, bits: int) -> float | None:
     """Bit error rate of the codes read (``received >= 0``) against ``expected``; None if none read."""
     got = received >= 0
