@@ -97,7 +97,7 @@ def test_untouched_file_passes_every_mac_and_stays_authentic():
     assert decoder.mac_checked == len(results) and not decoder.mac_failed and not decoder.mac_missing
     outcome = verify_stream(data, key)
     assert outcome.verdict == "authentic"
-    assert outcome.mac == {"checked": len(results), "failed": [], "missing": [], "scene": True}
+    assert outcome.mac == {"checked": len(results), "failed": [], "missing": [], "scene": True, "scene_error": None}
     assert all(row["authentic_bytes"] is True for row in outcome.as_json()["chunks"])
 
 
