@@ -29,10 +29,10 @@ def two_tone(tmp_path_factory):
     return root / "m.pmw", report["key_path"]
 
 
-def _moved(path, count: int) -> tuple:
+def _moved(path, count: int, seed: int = 0) -> tuple:
     mesh = pmwm_codec.decode(path)
     positions = mesh.positions.copy()
-    rng = np.random.default_rng(0)
+    rng = np.random.default_rng(seed)
     moved = rng.choice(len(positions), count, replace=False)
     positions[moved] += rng.normal(0, 0.003, (count, 3))
     return positions, mesh.faces
@@ -40,12 +40,16 @@ def _moved(path, count: int) -> tuple:
 
 def test_a_tampered_mesh_whose_image_still_reads_says_what_the_figures_are(two_tone, tmp_path, capsys):
     path, key = two_tone
-    v = verify_mesh(_moved(path, 3), path, key)
+    # the key is new each run, and a moved vertex that is no carrier, or keeps its code, leaves the verdict
+    # authentic (a mesh file has no MAC): the first of a few moves that changes a code is taken
+    found = ((s, verify_mesh(_moved(path, 3, s), path, key)) for s in range(20))
+    seed, v = next(((s, v) for s, v in found if v.verdict == "tampered" and v.bit_exact), (None, None))
+    assert seed is not None
     assert v.verdict == "tampered" and v.bit_exact and v.psnr_db == float("inf")  # the image extracted, as it is
     assert v.image_note.startswith("the image extracted is bit-exact (NC 1, PSNR inf) but the verdict is tampered (")
     assert "no longer read, outvoted by the other copies of their bits" in v.image_note
     assert v.as_json()["image_note"] == v.image_note
-    write_mesh(tmp_path / "t.obj", pmwm_codec.Mesh(*_moved(path, 3)))
+    write_mesh(tmp_path / "t.obj", pmwm_codec.Mesh(*_moved(path, 3, seed)))
     assert main(["verify", str(tmp_path / "t.obj"), "--reference", str(path), "--key", key]) == 1
     out = capsys.readouterr().out
     assert "(bit-exact)" not in out and v.image_note in out.splitlines(), out
