@@ -202,3 +202,21 @@ def test_the_verify_task_checks_the_real_paths_itself_so_a_link_planted_after_li
     assert r["verdict"] == "error" and "outside" in r["error"]
     alias = verify_task(str(pub / "alias.pmw"), str(pub / "alias.pmw.key.json"), None, str(pub))
     assert alias["verdict"] == "authentic"
+
+
+# --- an OUT_DIR that is not a folder: named as such (it was named as its ledger's path, "Not a directory") -------
+
+
+@pytest.mark.parametrize("where", ["file", "below a file", "device"])
+def test_an_out_dir_that_is_not_a_folder_is_named_as_such_and_nothing_is_made(lib, capsys, where):
+    mesh = lib / "lib" / "a.obj"
+    out = {"file": mesh, "below a file": mesh / "out", "device": Path("/dev/null")}[where]
+    before = _tree(lib)
+    status = main(["batch", "encode", str(lib / "lib"), "-o", str(out), "--watermark", str(lib / "wm.png"),
+                   "--workers", "1", "-q"])
+    assert status == 2
+    if where == "below a file":
+        _one_line(capsys, f"pmw: error: {out}: cannot be made: {mesh} is not a folder")
+    else:
+        _one_line(capsys, f"pmw: error: {out}: exists and is not a folder; -o names the folder the outputs go in")
+    assert _tree(lib) == before

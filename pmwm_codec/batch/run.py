@@ -354,6 +354,7 @@ def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, worke
     _check_seconds(no_worker_timeout, "--no-worker-timeout")
     if client is None and not scheduler:
         local_workers(workers)  # refused before anything is read or made
+    _check_out_dir(out_dir)
     out_dir = os.path.abspath(os.fspath(out_dir))
     try:
         assets = expand_sources(src, out_dir)
@@ -410,6 +411,21 @@ def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, worke
         raise
     return {"assets": len(jobs), **counts, "seconds": round(time.monotonic() - start, 3),
             "ledger": os.path.join(out_dir, LEDGER_NAME), "failures": failures}
+
+
+def _check_out_dir(out_dir) -> None:
+    """BatchError (one line, before anything is read or made) when OUT_DIR is, or lies below, something that is
+    not a folder (a mesh, ``/dev/null``): it was reported as its ledger's path, ``out/pmw-batch.jsonl: Not a
+    directory``."""
+    shown = os.fspath(out_dir)
+    existing = os.path.abspath(shown)
+    while not os.path.lexists(existing) and os.path.dirname(existing) != existing:
+        existing = os.path.dirname(existing)
+    if os.path.isdir(existing):
+        return
+    if existing == os.path.abspath(shown):
+        raise BatchError(f"{shown}: exists and is not a folder; -o names the folder the outputs go in")
+    raise BatchError(f"{shown}: cannot be made: {existing} is not a folder")
 
 
 def _check_seconds(value, option: str) -> None:
