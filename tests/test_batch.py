@@ -308,6 +308,16 @@ def test_a_glob_over_two_symlink_loops_ends_at_once(tmp_path):
     assert done.returncode == 0 and done.stdout.split() == ["a/x.obj"], done.stderr
 
 
+def test_a_manifest_written_with_a_byte_order_mark_and_crlf_names_its_first_file(library, tmp_path):
+    """A manifest saved by a Windows editor starts with a UTF-8 byte order mark: it was taken into the first path,
+    which then named no file (a failed asset)."""
+    root, src = library
+    manifest = tmp_path / "list.txt"
+    manifest.write_bytes(b"\xef\xbb\xbf" + f"{src / 'a.obj'}\r\n{src / 'b.ply'}\r\n".encode())
+    assets = expand_sources(manifest, tmp_path / "o")
+    assert [a.input for a in assets] == [str(src / "a.obj"), str(src / "b.ply")]
+
+
 def test_a_manifest_longer_than_the_limit_is_refused_never_cut(library, tmp_path, monkeypatch):
     """A manifest past the characters read used to be cut there silently: the paths after it, and one cut in
     two, left out of the run (exit 0)."""

@@ -168,7 +168,7 @@ MAX_MANIFEST_CHARS = 1 << 26
 
 def _manifest(path: str) -> list[str]:
     base = os.path.dirname(os.path.abspath(path))
-    with open(path, encoding="utf-8") as fh:
+    with open(path, encoding="utf-8-sig") as fh:  # a byte order mark (a Windows editor's) is not a path
         try:
             text = fh.read(MAX_MANIFEST_CHARS + 1)
         except UnicodeDecodeError:
