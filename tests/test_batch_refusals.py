@@ -220,3 +220,15 @@ def test_an_out_dir_that_is_not_a_folder_is_named_as_such_and_nothing_is_made(li
     else:
         _one_line(capsys, f"pmw: error: {out}: exists and is not a folder; -o names the folder the outputs go in")
     assert _tree(lib) == before
+
+
+@pytest.mark.parametrize("command", ["encode", "verify"])
+def test_an_empty_out_dir_is_refused_not_taken_for_the_current_folder(lib, capsys, monkeypatch, command):
+    """``-o ''`` (an unset variable in ``-o $OUT``) was the current folder: the outputs, keys and ledger went there."""
+    monkeypatch.chdir(lib)
+    before = _tree(lib)
+    argv = ["batch", "encode", "lib", "-o", "", "--watermark", "wm.png", "--workers", "1", "-q"] \
+        if command == "encode" else ["batch", "verify", " ", "--workers", "1", "-q"]
+    assert main(argv) == 2
+    _one_line(capsys, "an empty path", "names no folder")
+    assert _tree(lib) == before
