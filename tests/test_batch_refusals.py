@@ -232,3 +232,11 @@ def test_an_empty_out_dir_is_refused_not_taken_for_the_current_folder(lib, capsy
     assert main(argv) == 2
     _one_line(capsys, "an empty path", "names no folder")
     assert _tree(lib) == before
+
+
+def test_an_empty_src_is_named_as_empty(lib, capsys, monkeypatch):
+    monkeypatch.chdir(lib)
+    before = _tree(lib)
+    assert main(["batch", "encode", "", "-o", "out", "--workers", "1", "-q"]) == 2
+    _one_line(capsys, "pmw: error: an empty SRC ('') names no folder, file or glob (an unset variable?)")
+    assert _tree(lib) == before

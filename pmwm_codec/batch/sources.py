@@ -55,6 +55,8 @@ def expand_sources(src, out_dir) -> list[Asset]:
     Raises ValueError with a one-line message when ``src`` names nothing usable.
     """
     src = os.fspath(src)
+    if not src.strip():
+        raise ValueError(f"an empty SRC ({src!r}) names no folder, file or glob (an unset variable?)")
     out_dir = os.path.abspath(os.fspath(out_dir))
     confine = True
     if os.path.isdir(src):
