@@ -275,6 +275,49 @@ def test_sources_mirror_the_tree_from_a_folder_a_glob_and_a_manifest(library, tm
     assert [a.relative for a in expand_sources(manifest, tmp_path / "o")] == ["a.obj", "sub/c.stl"]
 
 
+def test_a_glob_enters_no_symlinked_folder_and_takes_nothing_under_the_output_folder(tmp_path):
+    """``**`` followed symlinked folders, which a folder SRC never enters: a link to a folder above
+    (``lib/a/loop -> ..``) made one file some forty assets, each encoded to its own deeper output."""
+    lib = tmp_path / "lib"
+    (lib / "a").mkdir(parents=True)
+    write_mesh(lib / "a" / "x.obj", shapes.icosphere(1))
+    (lib / "a" / "loop").symlink_to("..")
+    (lib / "out").mkdir()
+    write_mesh(lib / "out" / "decoded.obj", shapes.icosphere(1))
+    assert [a.relative for a in expand_sources(str(lib / "**" / "*.obj"), lib / "out")] == ["a/x.obj"]
+    assert [a.relative for a in expand_sources(str(lib / "*" / "*.obj"), tmp_path / "o")] == ["a/x.obj", "out/decoded.obj"]
+    (tmp_path / "named").symlink_to(lib)  # a link the user names is followed, as a folder SRC's is
+    assert [a.relative for a in expand_sources(str(tmp_path / "named" / "**" / "x.obj"), tmp_path / "o")] == ["a/x.obj"]
+
+
+def test_a_glob_over_two_symlink_loops_ends_at_once(tmp_path):
+    """With a second link (``lib/b -> a`` beside ``lib/a/loop -> ..``) the expansion of ``lib/**/*.obj`` never
+    ended (the paths through the links grow exponentially): the run hung before it made anything."""
+    lib = tmp_path / "lib"
+    (lib / "a").mkdir(parents=True)
+    write_mesh(lib / "a" / "x.obj", shapes.icosphere(1))
+    (lib / "a" / "loop").symlink_to("..")
+    (lib / "b").symlink_to("a")
+    code = ("import sys; from pmwm_codec.batch import expand_sources; "
+            "print(*[a.relative for a in expand_sources(sys.argv[1], sys.argv[2])])")
+    try:
+        done = subprocess.run([sys.executable, "-c", code, str(lib / "**" / "*.obj"), str(tmp_path / "out")],
+                              capture_output=True, text=True, timeout=60, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    except subprocess.TimeoutExpired:
+        pytest.fail("the glob did not end within 60 s")
+    assert done.returncode == 0 and done.stdout.split() == ["a/x.obj"], done.stderr
+
+
+def test_a_manifest_written_with_a_byte_order_mark_and_crlf_names_its_first_file(library, tmp_path):
+    """A manifest saved by a Windows editor starts with a UTF-8 byte order mark: it was taken into the first path,
+    which then named no file (a failed asset)."""
+    root, src = library
+    manifest = tmp_path / "list.txt"
+    manifest.write_bytes(b"\xef\xbb\xbf" + f"{src / 'a.obj'}\r\n{src / 'b.ply'}\r\n".encode())
+    assets = expand_sources(manifest, tmp_path / "o")
+    assert [a.input for a in assets] == [str(src / "a.obj"), str(src / "b.ply")]
+
+
 def test_a_manifest_longer_than_the_limit_is_refused_never_cut(library, tmp_path, monkeypatch):
     """A manifest past the characters read used to be cut there silently: the paths after it, and one cut in
     two, left out of the run (exit 0)."""

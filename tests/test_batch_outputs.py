@@ -158,3 +158,22 @@ def test_a_ledger_that_is_a_symlink_is_refused_and_the_file_it_names_is_never_ap
         encode_batch(src, out, watermark=IMAGE, client=client)
     assert victim.read_text() == "precious\n"
     assert sorted(p.name for p in out.iterdir()) == [LEDGER_NAME]  # nothing made: no output, no key
+
+
+def test_a_failed_asset_leaves_no_empty_folder_behind(tmp_path, client):
+    """A failed asset's output folder (``out/bad/deeper`` for ``src/bad/deeper/broken.obj``) was made for it and
+    left behind, empty; one an output went into stays, and so does a folder that was there before the run."""
+    src, out = tmp_path / "src", tmp_path / "out"
+    (src / "bad" / "deeper").mkdir(parents=True)
+    (src / "bad" / "deeper" / "broken.obj").write_bytes(b"v 1 2\nf 1 2 9\n")
+    (src / "good").mkdir()
+    write_mesh(src / "good" / "m.obj", shapes.icosphere(2, noise=0.01, seed=1))
+    (src / "mine").mkdir()
+    (src / "mine" / "broken.obj").write_bytes(b"")
+    (out / "mine").mkdir(parents=True)  # the user's own folder
+    keys = tmp_path / "keys"
+    summary = encode_batch(src, out, watermark=IMAGE, keys_dir=keys, client=client)
+    assert (summary["ok"], summary["failed"]) == (1, 2)
+    assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*")) == [
+        "good", "good/m.obj.pmw", "mine", LEDGER_NAME]
+    assert sorted(p.relative_to(keys).as_posix() for p in keys.rglob("*")) == ["good", "good/m.obj.pmw.key.json"]

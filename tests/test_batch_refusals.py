@@ -202,3 +202,41 @@ def test_the_verify_task_checks_the_real_paths_itself_so_a_link_planted_after_li
     assert r["verdict"] == "error" and "outside" in r["error"]
     alias = verify_task(str(pub / "alias.pmw"), str(pub / "alias.pmw.key.json"), None, str(pub))
     assert alias["verdict"] == "authentic"
+
+
+# --- an OUT_DIR that is not a folder: named as such (it was named as its ledger's path, "Not a directory") -------
+
+
+@pytest.mark.parametrize("where", ["file", "below a file", "device"])
+def test_an_out_dir_that_is_not_a_folder_is_named_as_such_and_nothing_is_made(lib, capsys, where):
+    mesh = lib / "lib" / "a.obj"
+    out = {"file": mesh, "below a file": mesh / "out", "device": Path("/dev/null")}[where]
+    before = _tree(lib)
+    status = main(["batch", "encode", str(lib / "lib"), "-o", str(out), "--watermark", str(lib / "wm.png"),
+                   "--workers", "1", "-q"])
+    assert status == 2
+    if where == "below a file":
+        _one_line(capsys, f"pmw: error: {out}: cannot be made: {mesh} is not a folder")
+    else:
+        _one_line(capsys, f"pmw: error: {out}: exists and is not a folder; -o names the folder the outputs go in")
+    assert _tree(lib) == before
+
+
+@pytest.mark.parametrize("command", ["encode", "verify"])
+def test_an_empty_out_dir_is_refused_not_taken_for_the_current_folder(lib, capsys, monkeypatch, command):
+    """``-o ''`` (an unset variable in ``-o $OUT``) was the current folder: the outputs, keys and ledger went there."""
+    monkeypatch.chdir(lib)
+    before = _tree(lib)
+    argv = ["batch", "encode", "lib", "-o", "", "--watermark", "wm.png", "--workers", "1", "-q"] \
+        if command == "encode" else ["batch", "verify", " ", "--workers", "1", "-q"]
+    assert main(argv) == 2
+    _one_line(capsys, "an empty path", "names no folder")
+    assert _tree(lib) == before
+
+
+def test_an_empty_src_is_named_as_empty(lib, capsys, monkeypatch):
+    monkeypatch.chdir(lib)
+    before = _tree(lib)
+    assert main(["batch", "encode", "", "-o", "out", "--workers", "1", "-q"]) == 2
+    _one_line(capsys, "pmw: error: an empty SRC ('') names no folder, file or glob (an unset variable?)")
+    assert _tree(lib) == before

@@ -496,6 +496,16 @@ def test_demo_writes_its_pictures(tmp_path, capsys):
     assert "truncated" in stdout and "authentic" in stdout and str(out / "cut" / "overview.png") in stdout
 
 
+@pytest.mark.parametrize("out", ["", "  "])
+def test_demo_with_an_empty_out_names_the_option_in_one_line(tmp_path, capsys, monkeypatch, out):
+    """``--out ''`` (an unset variable in ``--out $DIR``) said only "pmw: error: No such file or directory"."""
+    monkeypatch.chdir(tmp_path)
+    code, stdout, err = run(capsys, "demo", "--out", out)
+    assert code == 2 and stdout == "" and err.count("\n") == 1, err
+    assert err.startswith("pmw: error: argument --out: an empty path") and "'--out $VAR'" in err, err
+    assert list(tmp_path.iterdir()) == []
+
+
 # -- the package entry point and the library behind the command ----------------------------
 
 def test_python_dash_m_pmwm_codec_runs_the_command():

@@ -288,3 +288,28 @@ def _keys(node):
     elif isinstance(node, list):
         for item in node:
             yield from _keys(item)
+
+
+def test_pmw_cut_never_leaves_a_key_beside_a_file_it_does_not_verify(tmp_path, capsys):
+    """``pmw cut other.pmw -o b.pmw`` replaced ``b.pmw`` while ``b.pmw.key.json`` stayed beside it: the key no longer
+    verified the file there (``pmw encode`` refuses that).  A cut of the key's own file still replaces it."""
+    mine, my_key, _ = marked_sphere(6)
+    other, _, _ = marked_sphere(7)
+    unmarked = io.BytesIO()
+    from pmwm_codec.stream import encode_mesh
+
+    encode_mesh(shapes.icosphere(3), unmarked)
+    src = {"mine": tmp_path / "mine.pmw", "other": tmp_path / "other.pmw", "unmarked": tmp_path / "unmarked.pmw"}
+    src["mine"].write_bytes(mine)
+    src["other"].write_bytes(other)
+    src["unmarked"].write_bytes(unmarked.getvalue())
+    out = tmp_path / "b.pmw"
+    out.write_bytes(mine)
+    my_key.save(str(out) + ".key.json")
+    for name, why in (("other", "is marked with another key"), ("unmarked", "carries no watermark")):
+        assert main(["cut", str(src[name]), "-o", str(out), "--chunks", "1"]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and f"{out}.key.json: a watermark key lies beside {out}, and the cut file {why}" in err
+        assert out.read_bytes() == mine
+    assert main(["cut", str(src["mine"]), "-o", str(out), "--chunks", "1", "-q"]) == 0
+    assert out.read_bytes() == cut(mine, 1)

@@ -124,3 +124,13 @@ def test_an_obj_face_past_the_last_vertex_is_named_in_the_files_own_numbering_to
     assert err.endswith("face index 8 out of range for 3 vertices (counted from 0; 9 in an OBJ file, whose numbering "
                         "starts at 1)") and "\n" not in err
     assert not (tmp_path / "bad.pmw").exists()
+
+
+@pytest.mark.parametrize("argv", [["info", ""], ["cut", " ", "-o", "x.pmw"], ["decode", "", "-o", "x.obj"]])
+def test_an_empty_input_path_is_named_as_empty(tmp_path, capsys, monkeypatch, argv):
+    """``pmw info $UNSET`` said ``pmw: error: : no such .pmw file``: a message that names nothing."""
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1 and err.startswith("pmw: error: an empty path ("), err
+    assert "names no .pmw file (an unset variable?)" in err and list(tmp_path.iterdir()) == []

@@ -70,20 +70,67 @@ def settings_sha256(image, key_mode: str, key_fingerprint: str | None, options: 
     return h.hexdigest()
 
 
-def read_ledger(path) -> list[dict]:
-    """Every well-formed row of the ledger at ``path`` (none when it does not exist)."""
-    rows = []
+#: The type each field of a well-formed row has (or None): a row edited by hand into another shape is not one.
+_FIELD_TYPES = {"input": str, "input_sha256": str, "output": str, "status": str, "error": str,
+                "seconds": (int, float), "bytes": int, "vertices": int, "settings_sha256": str, "output_sha256": str}
+
+
+def _no_constant(name):
+    raise ValueError(f"{name} is not JSON")  # NaN, Infinity: a row that could never be written back
+
+
+def _well_formed(row) -> bool:
+    if not isinstance(row, dict) or row.get("status") not in STATUSES or not isinstance(row.get("input"), str):
+        return False
+    return all(row.get(name) is None or (isinstance(row[name], kind) and not isinstance(row[name], bool))
+               for name, kind in _FIELD_TYPES.items())
+
+
+def _open_ledger(path):
+    """The ledger at ``path`` opened for reading, or None when there is none.  A symbolic link, a FIFO, a device
+    or a folder in its place is an OSError naming it, before anything is read (a FIFO never blocks the run, a
+    link to ``/dev/zero`` is never read without end): the run appends to this file in place."""
+    import stat
+
+    path = os.fspath(path)
+    if os.path.islink(path):
+        raise OSError(errno.ELOOP, "is a symbolic link: the ledger is appended in place, never through a link "
+                      "(remove the link)", path)
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
     try:
-        with open(path, encoding="utf-8", errors="replace") as fh:
-            for line in fh:
-                try:
-                    row = json.loads(line)
-                except ValueError:
-                    continue  # a line cut by a killed run
-                if isinstance(row, dict) and row.get("status") in STATUSES and isinstance(row.get("input"), str):
-                    rows.append(row)
+        fd = os.open(path, flags)
     except FileNotFoundError:
-        pass
+        return None
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            what = "a folder" if stat.S_ISDIR(mode) else "not a regular file (a FIFO, a device or a socket)"
+            raise OSError(errno.EINVAL, f"is {what}: the ledger is a file the run appends to (move it away)", path)
+        os.set_blocking(fd, True)
+        return os.fdopen(fd, "r", encoding="utf-8", errors="replace")
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def read_ledger(path) -> list[dict]:
+    """Every well-formed row of the ledger at ``path`` (none when it does not exist).
+
+    A line that is not a JSON object of the row's fields with their types (cut by a killed run, or edited by
+    hand: a ``NaN``, a count written as text) is left out: its asset is done again.  OSError, before anything
+    is read, when the ledger is a symbolic link or not a regular file (:func:`_open_ledger`)."""
+    rows = []
+    fh = _open_ledger(path)
+    if fh is None:
+        return rows
+    with fh:
+        for line in fh:
+            try:
+                row = json.loads(line, parse_constant=_no_constant)
+            except (ValueError, RecursionError):
+                continue  # a line cut by a killed run, or not a row
+            if _well_formed(row):
+                rows.append(row)
     return rows
 
 

@@ -354,6 +354,7 @@ def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, worke
     _check_seconds(no_worker_timeout, "--no-worker-timeout")
     if client is None and not scheduler:
         local_workers(workers)  # refused before anything is read or made
+    _check_out_dir(out_dir)
     out_dir = os.path.abspath(os.fspath(out_dir))
     try:
         assets = expand_sources(src, out_dir)
@@ -371,6 +372,7 @@ def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, worke
 
         image = load_watermark(watermark)[0]
     jobs = _jobs(assets, out_dir, image, key_obj, keys_dir, timeout, force, options, _restore_sigint(scheduler))
+    folders = _missing_folders(jobs, out_dir)  # the tasks make them; those a finished run leaves empty go again
     # Everything refused so far (a watermark, a key or its folder) made nothing.  The cluster comes next (a
     # --scheduler must answer), and only then OUT_DIR and a new collection key; a run that fails before its
     # first task removes exactly what it made.
@@ -408,8 +410,48 @@ def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, worke
                 with contextlib.suppress(OSError):
                     os.rmdir(out_dir)  # only when still empty
         raise
+    _remove_empty(folders)  # every task has ended: no output is on its way into them
     return {"assets": len(jobs), **counts, "seconds": round(time.monotonic() - start, 3),
             "ledger": os.path.join(out_dir, LEDGER_NAME), "failures": failures}
+
+
+def _missing_folders(jobs, out_dir: str) -> set:
+    """The folders an output or a key of ``jobs`` goes in that do not exist yet (below ``out_dir``; for a key under
+    ``--keys-dir``, up to the first that exists): the tasks make them as they go."""
+    missing, seen = set(), set()
+    for job in jobs:
+        for path in (job.output, job.key_path):
+            here = None if path is None else os.path.dirname(path)
+            while here is not None and here not in seen and here != out_dir and os.path.dirname(here) != here:
+                seen.add(here)
+                if os.path.lexists(here):
+                    break
+                missing.add(here)
+                here = os.path.dirname(here)
+    return missing
+
+
+def _remove_empty(folders) -> None:
+    """Remove those of ``folders`` that are empty, the deepest first: a failed asset's output folder (``out/sub``
+    for ``lib/sub/broken.obj``) was left behind, empty."""
+    for folder in sorted(folders, key=lambda f: f.count(os.sep), reverse=True):
+        with contextlib.suppress(OSError):
+            os.rmdir(folder)
+
+
+def _check_out_dir(out_dir) -> None:
+    """BatchError (one line, before anything is read or made) when OUT_DIR is, or lies below, something that is
+    not a folder (a mesh, ``/dev/null``): it was reported as its ledger's path, ``out/pmw-batch.jsonl: Not a
+    directory``."""
+    shown = os.fspath(out_dir)
+    existing = os.path.abspath(shown)
+    while not os.path.lexists(existing) and os.path.dirname(existing) != existing:
+        existing = os.path.dirname(existing)
+    if os.path.isdir(existing):
+        return
+    if existing == os.path.abspath(shown):
+        raise BatchError(f"{shown}: exists and is not a folder; -o names the folder the outputs go in")
+    raise BatchError(f"{shown}: cannot be made: {existing} is not a folder")
 
 
 def _check_seconds(value, option: str) -> None:

@@ -4,7 +4,8 @@ SRC is one of
 
 * a folder: every ``.obj .ply .stl .glb .gltf`` file below it (recursively, sorted; files
   under OUT_DIR are left out when OUT_DIR lies inside SRC; symlinked folders are not entered);
-* a glob (``lib/**/*.glb``; ``**`` recurses): the matching mesh files;
+* a glob (``lib/**/*.glb``; ``**`` recurses): the matching mesh files (as for a folder: not through a
+  symlinked folder below the folder the glob starts from, nor under OUT_DIR);
 
   in both, a file whose real path (symlinks resolved) lies outside the folder SRC names
   is refused, a failed row of the ledger that says so: a symlink planted in a library
@@ -24,7 +25,7 @@ lies inside OUT_DIR by construction (relative paths never start with ``..``).
 
 from __future__ import annotations
 
-import glob
+import fnmatch
 import os
 from dataclasses import dataclass
 
@@ -54,6 +55,8 @@ def expand_sources(src, out_dir) -> list[Asset]:
     Raises ValueError with a one-line message when ``src`` names nothing usable.
     """
     src = os.fspath(src)
+    if not src.strip():
+        raise ValueError(f"an empty SRC ({src!r}) names no folder, file or glob (an unset variable?)")
     out_dir = os.path.abspath(os.fspath(out_dir))
     confine = True
     if os.path.isdir(src):
@@ -66,9 +69,8 @@ def expand_sources(src, out_dir) -> list[Asset]:
         inputs = _manifest(src)
         root, confine = _common_root(inputs), False
     elif _MAGIC & set(src):
-        inputs = sorted({os.path.abspath(p) for p in glob.glob(src, recursive=True)
-                         if os.path.isfile(p) and _is_mesh(p)})
         root = _glob_root(src)
+        inputs = _globbed(src, root, out_dir)
     else:
         raise ValueError(f"{src}: no such folder, file or glob match")
     if not inputs:
@@ -113,13 +115,62 @@ def _walk(root: str, out_dir: str) -> list[str]:
     return sorted(found)
 
 
+def _globbed(pattern: str, root: str, out_dir: str) -> list[str]:
+    """The mesh files ``pattern`` matches, listed as a folder SRC lists them: by walking ``root`` (the folder the
+    pattern starts from) without entering a symlinked folder or OUT_DIR (when it lies inside ``root``), each file
+    matched against the rest of the pattern as :mod:`glob` matches (``**`` any number of folders, ``*`` ``?``
+    ``[...]`` within a name, a leading dot matched only by a leading dot).
+
+    :func:`glob.glob` followed symlinked folders: a link to a folder above (``lib/a/loop -> ..``) made one file
+    some forty assets, and two such links (``lib/b -> a`` besides) never ended (exponential in the links)."""
+    rest = [part for part in pattern.split(os.sep)[len(_glob_fixed(pattern)):] if part not in ("", ".")]
+    skip = out_dir if out_dir != root and _inside(out_dir, root) else None
+    deepest = None if "**" in rest else len(rest) - 1  # folders below root a match can lie in
+    found = []
+    for here, dirs, files in os.walk(root):
+        depth = 0 if here == root else os.path.relpath(here, root).count(os.sep) + 1
+        if deepest is not None and depth >= deepest:
+            dirs[:] = []
+        dirs[:] = sorted(d for d in dirs if skip is None or not _inside(os.path.join(here, d), skip))
+        folders = [] if here == root else os.path.relpath(here, root).split(os.sep)
+        for name in files:
+            path = os.path.join(here, name)
+            if _is_mesh(name) and _matches(tuple(folders + [name]), tuple(rest)) and os.path.isfile(path):
+                found.append(path)
+    return sorted(found)
+
+
+def _matches(names: tuple, parts: tuple) -> bool:
+    """Whether the path components ``names`` match the glob components ``parts``."""
+    from functools import lru_cache
+
+    @lru_cache(maxsize=None)
+    def match(i: int, j: int) -> bool:
+        if j == len(parts):
+            return i == len(names)
+        if parts[j] == "**":  # nothing, or one more folder (the file too when it ends the pattern); none hidden
+            more = i < len(names) - 1 or (i < len(names) and j == len(parts) - 1)
+            return match(i, j + 1) or (more and not names[i].startswith(".") and match(i + 1, j))
+        return i < len(names) and _name_matches(names[i], parts[j]) and match(i + 1, j + 1)
+
+    return match(0, 0)
+
+
+def _name_matches(name: str, part: str) -> bool:
+    if not (_MAGIC & set(part)):
+        return name == part
+    if name.startswith(".") and not part.startswith("."):
+        return False
+    return fnmatch.fnmatchcase(name, part)
+
+
 #: The largest manifest read (characters): far more paths than a run takes; a longer one is refused, never cut.
 MAX_MANIFEST_CHARS = 1 << 26
 
 
 def _manifest(path: str) -> list[str]:
     base = os.path.dirname(os.path.abspath(path))
-    with open(path, encoding="utf-8") as fh:
+    with open(path, encoding="utf-8-sig") as fh:  # a byte order mark (a Windows editor's) is not a path
         try:
             text = fh.read(MAX_MANIFEST_CHARS + 1)
         except UnicodeDecodeError:
@@ -132,15 +183,19 @@ def _manifest(path: str) -> list[str]:
     return list(dict.fromkeys(named))  # duplicates once, order kept
 
 
-def _glob_root(pattern: str) -> str:
-    """The folder a glob starts from: its leading components without ``* ? [``."""
-    parts = pattern.split(os.sep)
+def _glob_fixed(pattern: str) -> list[str]:
+    """The leading components of a glob without ``* ? [`` (never its last one)."""
     fixed = []
-    for part in parts[:-1]:
+    for part in pattern.split(os.sep)[:-1]:
         if _MAGIC & set(part):
             break
         fixed.append(part)
-    return os.path.abspath(os.sep.join(fixed) or ("/" if pattern.startswith(os.sep) else "."))
+    return fixed
+
+
+def _glob_root(pattern: str) -> str:
+    """The folder a glob starts from: its leading components without ``* ? [``."""
+    return os.path.abspath(os.sep.join(_glob_fixed(pattern)) or ("/" if pattern.startswith(os.sep) else "."))
 
 
 def _common_root(inputs: list[str]) -> str:

@@ -107,7 +107,8 @@ def add_parser(sub):
                                     "records (its size and SHA-256). "
                                     "Exit 0 all ok, 1 some failed, 2 bad usage.")
     e.add_argument("src", metavar="SRC", help="folder, glob (quote it) or manifest file")
-    e.add_argument("-o", "--output", required=True, metavar="OUT_DIR", help="output folder (created)")
+    e.add_argument("-o", "--output", required=True, type=nonblank_path("-o", "folder"), metavar="OUT_DIR",
+                   help="output folder (created)")
     e.add_argument("--watermark", metavar="IMG", help="watermark image for every asset")
     keys = e.add_mutually_exclusive_group()
     keys.add_argument("--key", type=nonblank_path("--key", "key file"), metavar="KEY", help="one collection key for every asset (loaded, or created)")
@@ -127,7 +128,7 @@ def add_parser(sub):
                                     "entered; a file or key whose real path leaves OUT_DIR (or --keys-dir) is not "
                                     "read and counts as an error; a file that ends before its declared length is 'truncated', not "
                                     "authentic. Exit 0 when all are authentic.")
-    v.add_argument("out_dir", metavar="OUT_DIR")
+    v.add_argument("out_dir", type=nonblank_path("OUT_DIR", "folder"), metavar="OUT_DIR")
     keys = v.add_mutually_exclusive_group()
     keys.add_argument("--key", type=nonblank_path("--key", "key file"), metavar="KEY", help="the collection key")
     keys.add_argument("--keys-dir", type=nonblank_path("--keys-dir", "directory"), metavar="DIR", help="the folder of per-asset keys")

@@ -250,6 +250,8 @@ def check_input_file(path, what: str = "file") -> None:
     """Fail (UsageError) unless ``path`` is ``-`` or an existing regular file."""
     if path == "-":
         return
+    if not path.strip():  # an unset variable: "pmw: error: : no such file" named nothing
+        raise UsageError(f"an empty path ({path!r}) names no {what} (an unset variable?)")
     if not os.path.exists(path):
         raise UsageError(f"{path}: no such {what}")
     if os.path.isdir(path):

@@ -40,6 +40,7 @@ def run(args) -> int:
     check_pmw_output(args.output, inputs=() if url else (args.input,))
     with naming(args.input):
         result = cut_file(as_source(args.input, args.chunks, whole_document=True), args.chunks)
+    _refuse_orphaned_key(args.output, result.data)
     write_parts(args.output, [result.data])
     notices = []
     if args.chunks is not None and args.chunks > result.chunks:
@@ -56,3 +57,28 @@ def run(args) -> int:
     if not args.quiet:
         print(f"{args.output}: {out['bytes']:,} bytes, base + {result.chunks} of {result.chunks_total} chunks")
     return 0
+
+
+def _refuse_orphaned_key(output, data: bytes) -> None:
+    """UsageError when a key file lies beside ``output`` (``OUT.pmw.key.json``, as ``pmw encode`` writes it) and the
+    cut ``data`` does not carry that key's mark (its key fingerprint): replacing the file would leave the key beside
+    a file it does not verify, which ``pmw encode`` refuses too.  A cut of the key's own file is taken."""
+    import os
+
+    from pmwm_codec.format.reader import read_header
+    from pmwm_codec.watermark.key import KEY_SUFFIX, WatermarkKey, WatermarkKeyError
+
+    key_path = os.fspath(output) + KEY_SUFFIX
+    if not os.path.lexists(key_path):
+        return
+    marks = (read_header(data).extension.get("watermark") or {}).get("keyFingerprint")
+    try:
+        if marks is not None and WatermarkKey.load(key_path).fingerprint() == marks:
+            return
+    except WatermarkKeyError:
+        pass
+    what = "carries no watermark" if marks is None else "is marked with another key"
+    raise UsageError(f"{key_path}: a watermark key lies beside {output}, and the cut file {what}: the key would be "
+                     "left beside a file it does not verify; the key and the file are left untouched (write the cut "
+                     "under another name, or move the key away first)")
+

@@ -13,7 +13,7 @@ from pmwm_codec.shapes import demo_mesh
 from pmwm_codec.verify import verify_stream
 from pmwm_codec.watermark import make_text_watermark, save_png
 
-from .common import Progress, UsageError, fmt_float, stage_progress
+from .common import Progress, UsageError, fmt_float, nonblank_path, stage_progress
 
 CUT_FRACTION = 1 / 3
 
@@ -23,7 +23,8 @@ def add_parser(sub):
                        description="Needs no input: builds a mesh and a text watermark, encodes them into a .pmw, "
                                    "cuts the file at a third of its bytes, verifies the cut and the whole file, and "
                                    "writes pictures of the mesh refining and the watermark sharpening.")
-    p.add_argument("--out", default="pmw-demo", metavar="DIR", help="output directory (default ./pmw-demo)")
+    p.add_argument("--out", default="pmw-demo", type=nonblank_path("--out", "directory"), metavar="DIR",
+                   help="output directory (default ./pmw-demo)")
     p.add_argument("--resolution", type=int, default=180, help=argparse.SUPPRESS)
     p.set_defaults(run=run)
 
