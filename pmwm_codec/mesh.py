@@ -351,7 +351,7 @@ def _read_obj(path, name):
                 parts = line.split(None, 4)
                 verts.append((float(parts[1]), float(parts[2]), float(parts[3])))
             elif line.startswith("f "):
-                if len(tris) + line.count(" ") - 2 > MAX_ENCODE_FACES:
+                if len(tris) + max(1, line.count(" ") - 2) > MAX_ENCODE_FACES:
                     raise InputFormatError(f"{name}: more than {MAX_ENCODE_FACES:,} triangles (the encoder's limit)")
                 _add_polygon(line, tris, name, len(verts))
     except InputFormatError:
@@ -424,10 +424,14 @@ def _read_obj_columns(lines: list):
 def _add_polygon(line: str, tris: list, name: str, read: int) -> None:
     """Fan-triangulate the ``f`` record ``line`` into ``tris`` as 0-based vertex ids: OBJ indices are
     1-based, or negative counting back from the ``read`` vertices before the record (``-1``: the
-    last of them).  InputFormatError for 0, an index beyond the limit or before the first vertex."""
+    last of them).  InputFormatError for a record without indices, 0, an index beyond the limit or
+    before the first vertex.  A record of one or two vertices (exporters write an edge so: Blender
+    reads it as one) is a degenerate face, one triangle repeating a corner, which
+    :func:`checked_mesh` drops and counts (``degenerate_faces``) as it does a triangle naming a vertex twice."""
     idx = [int(tok.split("/", 1)[0]) for tok in line.split()[1:]]
-    if len(idx) < 3:
-        raise InputFormatError(f"{name}: a face with fewer than 3 vertices")
+    if not idx:
+        raise InputFormatError(f"{name}: a face with no vertices")
+    idx += idx[-1:] * (3 - len(idx))
     for i in idx:
         if i == 0 or abs(i) > MAX_ENCODE_VERTICES:
             raise InputFormatError(f"{name}: face index {i} cannot name a vertex (at most {MAX_ENCODE_VERTICES:,})")

@@ -209,6 +209,22 @@ def test_a_negative_index_before_the_first_vertex_is_named(tmp_path):
         mesh_mod._read_obj(str(path), "m.obj")
 
 
+def test_an_obj_edge_written_as_a_two_vertex_face_is_dropped_as_degenerate_not_refused(tmp_path):
+    """A scene exported with some edges as ``f a b`` records (a 10 MB robotics scene has 201 among its 125k
+    faces; Blender reads them as edges) was refused whole ("a face with fewer than 3 vertices"): such a record
+    is a degenerate face, dropped and counted as one naming a vertex twice is, and the encode says so."""
+    mesh = shapes.icosphere(1)
+    text = "".join(f"v {x:.17g} {y:.17g} {z:.17g}\n" for x, y, z in mesh.positions)
+    text += "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in mesh.faces[:10])
+    text += "f 1 2\nf -1\n" + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in mesh.faces[10:])
+    (tmp_path / "edges.obj").write_text(text)
+    got = pmwm_codec.read_mesh(tmp_path / "edges.obj")
+    assert np.array_equal(got.positions, mesh.positions) and np.array_equal(got.faces, mesh.faces)
+    assert got.cleanup == {"degenerate_faces": 2}
+    report = pmwm_codec.encode(tmp_path / "edges.obj", tmp_path / "edges.pmw", measure="none")
+    assert "dropped 2 degenerate faces" in report["notices"]
+
+
 def test_an_obj_saved_with_a_byte_order_mark_reads_its_first_vertex(tmp_path):
     """A UTF-8 byte-order mark (Notepad's "UTF-8 with BOM") hid the first ``v`` record: every face then named
     the vertex after the one meant, and the mesh encoded with exit 0 as the wrong triangles."""
