@@ -262,9 +262,10 @@ def read_mesh(path: str | bytes | os.PathLike[str]) -> Mesh:
     or ``os.PathLike``).
 
     Polygons are fan-triangulated; STL triangle soups have identical corners
-    merged.  For glTF/GLB the triangle primitives of the default scene are merged
-    into one mesh with node transforms applied (the asset pipeline keeps the
-    document structure; this function only wants geometry).
+    merged, and so do OBJ and PLY soups (every face corner its own vertex:
+    :func:`_soup_welded`).  For glTF/GLB the triangle primitives of the default
+    scene are merged into one mesh with node transforms applied (the asset
+    pipeline keeps the document structure; this function only wants geometry).
 
     Raises
     ------
@@ -288,7 +289,7 @@ def read_mesh(path: str | bytes | os.PathLike[str]) -> Mesh:
         raise InputFormatError(f"{name}: {size:,} bytes, more than the limit of {MAX_INPUT_FILE_BYTES:,}")
     if suffix == ".obj":
         positions, faces = _read_obj(path, name)
-        return checked_mesh(positions, faces, name=name)
+        return _soup_welded(positions, faces, name)
     if suffix == ".ply":
         _check_ply_header(path, name)
     elif suffix == ".stl":
@@ -351,7 +352,7 @@ def _read_obj(path, name):
                 parts = line.split(None, 4)
                 verts.append((float(parts[1]), float(parts[2]), float(parts[3])))
             elif line.startswith("f "):
-                if len(tris) + line.count(" ") - 2 > MAX_ENCODE_FACES:
+                if len(tris) + max(1, line.count(" ") - 2) > MAX_ENCODE_FACES:
                     raise InputFormatError(f"{name}: more than {MAX_ENCODE_FACES:,} triangles (the encoder's limit)")
                 _add_polygon(line, tris, name, len(verts))
     except InputFormatError:
@@ -424,10 +425,14 @@ def _read_obj_columns(lines: list):
 def _add_polygon(line: str, tris: list, name: str, read: int) -> None:
     """Fan-triangulate the ``f`` record ``line`` into ``tris`` as 0-based vertex ids: OBJ indices are
     1-based, or negative counting back from the ``read`` vertices before the record (``-1``: the
-    last of them).  InputFormatError for 0, an index beyond the limit or before the first vertex."""
+    last of them).  InputFormatError for a record without indices, 0, an index beyond the limit or
+    before the first vertex.  A record of one or two vertices (exporters write an edge so: Blender
+    reads it as one) is a degenerate face, one triangle repeating a corner, which
+    :func:`checked_mesh` drops and counts (``degenerate_faces``) as it does a triangle naming a vertex twice."""
     idx = [int(tok.split("/", 1)[0]) for tok in line.split()[1:]]
-    if len(idx) < 3:
-        raise InputFormatError(f"{name}: a face with fewer than 3 vertices")
+    if not idx:
+        raise InputFormatError(f"{name}: a face with no vertices")
+    idx += idx[-1:] * (3 - len(idx))
     for i in idx:
         if i == 0 or abs(i) > MAX_ENCODE_VERTICES:
             raise InputFormatError(f"{name}: face index {i} cannot name a vertex (at most {MAX_ENCODE_VERTICES:,})")
@@ -463,4 +468,33 @@ def _read_with_trimesh(path, name, suffix):
     if suffix == ".stl" and faces.size:
         positions, inverse = np.unique(positions, axis=0, return_inverse=True)
         faces = inverse.reshape(-1)[faces]
+        return checked_mesh(positions, faces, name=name)
+    if suffix == ".ply":
+        return _soup_welded(positions, faces, name)
     return checked_mesh(positions, faces, name=name)
+
+
+def _soup_welded(positions: np.ndarray, faces: np.ndarray, name: str) -> Mesh:
+    """:func:`checked_mesh` of an OBJ's or PLY's arrays, a triangle soup's exact duplicates welded first.
+
+    A soup (faces naming every vertex at most once: every corner its own vertex, as flat-shaded OBJ exports
+    with per-face normals write it) becomes the indexed mesh it is, as the STL reader and the glTF soup weld
+    (:func:`pmwm_codec.stream.asset._welded`) make it: vertices at the same position are one vertex, the
+    first of them, in the order read (only positions are read, so that is every attribute the mesh has).
+    Unwelded, each position had a copy per face around it and stayed in the base (no vertex split).  The
+    vertices removed are counted in ``cleanup["duplicate_soup_vertices"]``; a mesh whose faces share a
+    vertex is indexed by its author and kept as stored."""
+    tri = np.asarray(faces)
+    n = len(positions)
+    if tri.ndim != 2 or tri.size == 0 or tri.min() < 0 or tri.max() >= n \
+            or np.bincount(tri.reshape(-1), minlength=n).max() > 1:
+        return checked_mesh(positions, faces, name=name)  # (checked_mesh names what is wrong)
+    from .progressive.seams import weld_groups
+
+    weld = weld_groups(np.asarray(positions, np.float64)) if np.isfinite(positions).all() else None
+    if weld is None:
+        return checked_mesh(positions, faces, name=name)
+    keep = weld == np.arange(n)
+    mesh = checked_mesh(positions[keep], (np.cumsum(keep) - 1)[weld[tri]], name=name)
+    mesh.cleanup = {**mesh.cleanup, "duplicate_soup_vertices": int(n - keep.sum())}
+    return mesh

@@ -209,6 +209,60 @@ def test_a_negative_index_before_the_first_vertex_is_named(tmp_path):
         mesh_mod._read_obj(str(path), "m.obj")
 
 
+def test_an_obj_edge_written_as_a_two_vertex_face_is_dropped_as_degenerate_not_refused(tmp_path):
+    """A scene exported with some edges as ``f a b`` records (a 10 MB robotics scene has 201 among its 125k
+    faces; Blender reads them as edges) was refused whole ("a face with fewer than 3 vertices"): such a record
+    is a degenerate face, dropped and counted as one naming a vertex twice is, and the encode says so."""
+    mesh = shapes.icosphere(1)
+    text = "".join(f"v {x:.17g} {y:.17g} {z:.17g}\n" for x, y, z in mesh.positions)
+    text += "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in mesh.faces[:10])
+    text += "f 1 2\nf -1\n" + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in mesh.faces[10:])
+    (tmp_path / "edges.obj").write_text(text)
+    got = pmwm_codec.read_mesh(tmp_path / "edges.obj")
+    assert np.array_equal(got.positions, mesh.positions) and np.array_equal(got.faces, mesh.faces)
+    assert got.cleanup == {"degenerate_faces": 2}
+    report = pmwm_codec.encode(tmp_path / "edges.obj", tmp_path / "edges.pmw", measure="none")
+    assert "dropped 2 degenerate faces" in report["notices"]
+
+
+def _soup_text(mesh, normals: bool) -> str:
+    """OBJ of ``mesh`` as a flat-shaded exporter writes it: every face corner its own ``v`` (and ``vn``)."""
+    corners = mesh.positions[mesh.faces.reshape(-1)]
+    text = "".join(f"v {x:.17g} {y:.17g} {z:.17g}\n" for x, y, z in corners)
+    if normals:
+        text += "vn 0 0 1\n" + "".join(f"f {i + 1}//1 {i + 2}//1 {i + 3}//1\n" for i in range(0, len(corners), 3))
+    else:
+        text += "".join(f"f {i + 1} {i + 2} {i + 3}\n" for i in range(0, len(corners), 3))
+    return text
+
+
+@pytest.mark.parametrize("normals", [True, False], ids=["with-vn", "plain"])
+def test_a_flat_shaded_obj_soup_is_welded_and_becomes_progressive(tmp_path, normals):
+    """An OBJ written as a triangle soup (every face corner its own vertex, as flat-shaded exports with per-face
+    normals write robot collision meshes) read as one vertex per corner: every position had a copy per face
+    around it, all stayed in the base and the file had no vertex split.  The reader drops the normals, so the
+    copies are exact duplicates: they are welded, as STL corners and glTF soups are, and the encode says so."""
+    mesh = shapes.icosphere(3, noise=0.01)
+    (tmp_path / "soup.obj").write_text(_soup_text(mesh, normals))
+    got = pmwm_codec.read_mesh(tmp_path / "soup.obj")
+    assert got.vertex_count == mesh.vertex_count and got.face_count == mesh.face_count
+    assert np.array_equal(got.positions[got.faces], mesh.positions[mesh.faces])  # the same triangles, corner for corner
+    assert got.cleanup == {"duplicate_soup_vertices": 3 * mesh.face_count - mesh.vertex_count}
+    report = pmwm_codec.encode(tmp_path / "soup.obj", tmp_path / "soup.pmw", measure="none")
+    indexed = pmwm_codec.encode(mesh, tmp_path / "indexed.pmw", measure="none")
+    assert report["vsplits"] == indexed["vsplits"] > 0.9 * mesh.vertex_count
+    assert f"dropped {3 * mesh.face_count - mesh.vertex_count} duplicate soup vertices" in report["notices"]
+
+
+def test_an_indexed_obj_keeps_its_duplicate_positions_as_stored(tmp_path):
+    """Only a soup is welded: an OBJ whose faces share vertices is indexed by its author, duplicates and all."""
+    mesh = shapes.uv_torus(16, 8)  # a seam: positions written twice, faces sharing vertices
+    assert len(np.unique(mesh.positions, axis=0)) < mesh.vertex_count
+    write_mesh(tmp_path / "seam.obj", mesh)
+    got = pmwm_codec.read_mesh(tmp_path / "seam.obj")
+    assert got.vertex_count == mesh.vertex_count and got.cleanup == {}
+
+
 def test_an_obj_saved_with_a_byte_order_mark_reads_its_first_vertex(tmp_path):
     """A UTF-8 byte-order mark (Notepad's "UTF-8 with BOM") hid the first ``v`` record: every face then named
     the vertex after the one meant, and the mesh encoded with exit 0 as the wrong triangles."""

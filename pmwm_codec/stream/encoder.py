@@ -55,6 +55,7 @@ from ..progressive.topology import job_vertices, mean_edge_length
 from ..progressive.seams import grid_weld, snap_near_copies  # (the seam copies of stage 1)
 from ..watermark import codec as wm
 from ..watermark.key import KEY_FILE_MODE, KEY_SUFFIX, KeySlot, WatermarkKey
+from ..watermark.verify import MIN_CARRIERS
 from .chunking import (
     FIRST_CHUNK_SPLITS,
     carrier_slots,
@@ -952,6 +953,12 @@ def _plan_watermark(work, watermark, key, carriers: int, slots, mode, bits, step
             )
     void = _twin_slots(work, key, slots)  # seam twins carry nothing (spec/watermark.md, "Repeated points")
     readable = carriers - start - int(np.count_nonzero(void >= start))
+    if readable < MIN_CARRIERS:
+        where = f"from vertex split {start:,} on " if start else ""
+        raise wm.CapacityError(
+            f"the mesh has {max(readable, 0):,} vertex splits {where}that can carry a watermark code; a mark needs "
+            f"{MIN_CARRIERS} to verify (with fewer, pmw verify can only call it inconclusive)"
+            + ("; start earlier" if start else "; encode without --watermark (--owner-id alone may fit)"))
     params, codes = wm.plan(watermark, key, readable, mode=mode, bits=bits, nbar=1.0, step_units=step_units)
     params.embed_from = start
     step = wm.DEFAULT_STEP_UNITS[mode] if step_units is None else float(step_units)
