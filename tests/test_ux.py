@@ -134,3 +134,26 @@ def test_an_empty_input_path_is_named_as_empty(tmp_path, capsys, monkeypatch, ar
     out, err = capsys.readouterr()
     assert out == "" and err.count("\n") == 1 and err.startswith("pmw: error: an empty path ("), err
     assert "names no .pmw file (an unset variable?)" in err and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("name, text, kind", [
+    ("scene.gltf", b'{\n  "asset": {"version": "2.0"}}', "a glTF JSON file"),
+    ("mesh.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "an OBJ mesh"),
+    ("mesh.ply", b"ply\nformat ascii 1.0\nend_header\n", "a PLY mesh"),
+    ("mesh.stl", b"solid x\nendsolid x\n", "an STL mesh"),
+    ("noise.pmw", bytes(range(7, 107)), None),
+])
+def test_a_file_that_is_no_pmw_is_named_for_what_it_is(tmp_path, capsys, name, text, kind):
+    """``pmw info`` / ``decode`` of a mesh or a glTF JSON said only ``bad magic b'{\\n "'``: the line now says what
+    the file looks like and what makes a .pmw of it; bytes that look like nothing known keep the plain line."""
+    path = tmp_path / name
+    path.write_bytes(text)
+    for argv in (["info", str(path)], ["decode", str(path), "-o", str(tmp_path / "out.obj")]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "bad magic" in err[0], err
+        if kind is None:
+            assert err[0].endswith("not a glTF binary"), err
+        else:
+            assert f"({kind}, not a .pmw: pmw encode makes one)" in err[0], err
+    assert not (tmp_path / "out.obj").exists()

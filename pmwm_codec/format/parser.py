@@ -152,11 +152,26 @@ def trailing_bytes(size: int, total: int) -> FormatError:
     return FormatError(f"GLB: {size - total} bytes after the declared file length {total}")
 
 
+#: What the first bytes of a file that is no GLB say it is (:func:`_what_else`): text formats by their first word.
+_TEXT_KINDS = ((b"{", "a glTF JSON file"), (b"ply", "a PLY mesh"), (b"solid", "an STL mesh"),
+               (b"v ", "an OBJ mesh"), (b"#", "a text file, an OBJ mesh perhaps"))
+
+
+def _what_else(head: bytes) -> str:
+    """``" (a glTF JSON file, not a .pmw: pmw encode makes one)"`` when the first bytes ``head`` of a file that is
+    no GLB show what it is (:data:`_TEXT_KINDS`), else ``""``."""
+    text = head.lstrip(b"\xef\xbb\xbf").lstrip()
+    for start, kind in _TEXT_KINDS:
+        if text.startswith(start):
+            return f" ({kind}, not a .pmw: pmw encode makes one)"
+    return ""
+
+
 def parse_preamble(data) -> tuple[int, int]:
     """``(total_length, json_length)`` from the first 20 bytes, or FormatError/LimitError."""
     head = bytes(data[:PREAMBLE_SIZE])
     if head[:4] != GLB_MAGIC:
-        raise FormatError(f"GLB header: bad magic {head[:4]!r}, not a glTF binary")
+        raise FormatError(f"GLB header: bad magic {head[:4]!r}, not a glTF binary{_what_else(head)}")
     try:
         glb = GlbHeader.parse(head[:GLB_HEADER_SIZE])
         chunk = ChunkHeader.parse(head[GLB_HEADER_SIZE:PREAMBLE_SIZE])
