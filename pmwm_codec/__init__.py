@@ -102,7 +102,8 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
     table; 1: the zstd payload and per-chunk index of files written before),
     ``strip_image_profiles`` (assets).  Without a ``watermark``, ``mode``, ``bits``, ``embed_from`` and
     ``step_units`` change nothing in the file: each one given says so in a notice
-    (:func:`~pmwm_codec.options.ignored_without_image`, ``"bits ignored: no watermark"``).
+    (:func:`~pmwm_codec.options.ignored_without_image`, ``"bits ignored: no watermark"``), and so does
+    ``owner_strength`` without an ``owner_id`` or a watermark (no owner layer).
     Returns the report dict (the
     ``pmw encode --json`` fields, plus ``notices`` and ``key_path``).
     """
@@ -120,6 +121,8 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
     if image is None:
         notices += ignored_without_image(image_options_given(options))
     asked = options.get("owner_id")
+    if image is None and (asked is None or asked is False) and options.get("owner_strength") is not None:
+        notices.append("owner_strength ignored: no owner layer (an owner_id, or a watermark, makes one)")
     key_obj, key_slot, options["owner_id"] = _key_for(key, image, dst, asked, inputs=(src, watermark))
     asset = is_asset_path(src) or isinstance(src, tuple)
     mesh = None if asset else _as_mesh(src)

@@ -46,3 +46,15 @@ def test_the_command_line_says_it_once_in_its_own_words(tmp_path, capsys):
     notices = json.loads(capsys.readouterr().out)["notices"]
     ignored = [n for n in notices if "ignored" in n]
     assert ignored == ["--bits ignored: no --watermark", "--mode paper ignored: no --watermark"], notices
+
+
+def test_the_library_names_an_owner_strength_it_ignores_without_an_owner_layer():
+    """``owner_strength`` shapes the owner layer alone: without an ``owner_id`` or a watermark there is none."""
+    note = "owner_strength ignored: no owner layer (an owner_id, or a watermark, makes one)"
+    for owner_id in (None, False):
+        report = pmwm_codec.encode(MESH, io.BytesIO(), measure="none", owner_strength=0.1, owner_id=owner_id)
+        assert report.get("owner_id") is None and note in report["notices"], report["notices"]
+    key = pmwm_codec.watermark.key.WatermarkKey.generate(rng=np.random.default_rng(3))
+    marked = pmwm_codec.encode(shapes.icosphere(4, noise=0.02), io.BytesIO(), measure="none", owner_strength=0.1,
+                               owner_id=key.owner_hex, key=key)
+    assert marked["owner_id"] == key.owner_hex and not any("ignored" in n for n in marked["notices"]), marked
