@@ -60,11 +60,9 @@ def _as_watermark(watermark) -> tuple:
     (:func:`~pmwm_codec.watermark.image.load_watermark`); ``(None, [], None)`` for None."""
     if watermark is None:
         return None, [], None
-    from .watermark.image import read_watermark, square_watermark
+    from .watermark.image import load_watermark_given
 
-    gray, notices = read_watermark(watermark)
-    image, made = square_watermark(gray)
-    return image, notices + made, gray.shape[::-1]
+    return load_watermark_given(watermark)
 
 
 def load_key(key: KeyLike) -> WatermarkKey | None:

@@ -177,3 +177,21 @@ def test_a_failed_asset_leaves_no_empty_folder_behind(tmp_path, client):
     assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*")) == [
         "good", "good/m.obj.pmw", "mine", LEDGER_NAME]
     assert sorted(p.relative_to(keys).as_posix() for p in keys.rglob("*")) == ["good", "good/m.obj.pmw.key.json"]
+
+
+@pytest.mark.parametrize("collection", [False, True], ids=["key-beside", "collection-key"])
+def test_a_watermark_too_large_for_an_asset_is_named_as_the_user_gave_it(tmp_path, client, collection):
+    """A batch's failed row named the padded square (``a 256x256 watermark needs ...``) where ``pmw encode`` names
+    the image as given: the run loads the image once and sends the square, so its size as given goes with it."""
+    from PIL import Image
+    import numpy as np
+
+    src, out = tmp_path / "src", tmp_path / "out"
+    src.mkdir()
+    write_mesh(src / "t.obj", shapes.torus(24, 12))
+    pixels = np.random.default_rng(0).integers(0, 256, (200, 300)).astype(np.uint8)
+    Image.fromarray(pixels).save(tmp_path / "w.png")
+    key = str(tmp_path / "c.key.json") if collection else None
+    assert encode_batch(src, out, watermark=tmp_path / "w.png", key=key, client=client)["failed"] == 1
+    (row,) = read_ledger(out / LEDGER_NAME)
+    assert ": the 300x200 watermark (carried as a 256x256 square) needs " in row["error"], row["error"]

@@ -38,10 +38,15 @@ def one_line(exc: BaseException) -> str:
 def encode_job(job: dict) -> dict:
     """Run one encode; every failure becomes a ``failed`` result (never raises)."""
     import pmwm_codec
+    from pmwm_codec.watermark.codec import CapacityError
 
     try:
-        report = pmwm_codec.encode(job["src"], job["dst"], watermark=job.get("watermark"), key=job.get("key"),
-                                   **job.get("options", {}))
+        try:
+            report = pmwm_codec.encode(job["src"], job["dst"], watermark=job.get("watermark"), key=job.get("key"),
+                                       **job.get("options", {}))
+        except CapacityError as exc:  # named as the user gave the image, not as the square it was made
+            given = job.get("watermark_given")
+            raise exc if given is None else exc.as_given(*given) from None
     except Exception as exc:  # the isolation boundary: the reason goes to the ledger
         if isinstance(exc, OSError) and exc.filename is not None:
             return {"status": "failed", "error": f"{exc.filename}: {exc.strerror or exc}"}

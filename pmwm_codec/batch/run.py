@@ -230,18 +230,19 @@ def collection_key(key_path, watermark):
     ``watermark`` is given).  An existing key whose reference differs from ``watermark``
     is refused: every asset must verify with the one key.
     """
-    image, key, new = _collection_key(key_path, watermark)
+    image, key, new, _ = _collection_key(key_path, watermark)
     if new:
         key.save(key_path)
     return image, key
 
 
 def _collection_key(key_path, watermark):
-    """``(image, key, new)``: :func:`collection_key` without saving a new key (``new``: True for one made here)."""
-    from pmwm_codec.watermark.image import load_watermark
+    """``(image, key, new, given)``: :func:`collection_key` without saving a new key (``new``: True for one made
+    here; ``given``: the watermark's (width, height) as given, None without one)."""
+    from pmwm_codec.watermark.image import load_watermark_given
     from pmwm_codec.watermark.key import WatermarkKey
 
-    image = None if watermark is None else load_watermark(watermark)[0]
+    image, _, given = (None, None, None) if watermark is None else load_watermark_given(watermark)
     if os.path.exists(key_path):
         key = WatermarkKey.load(key_path)
         if image is None:
@@ -250,10 +251,10 @@ def _collection_key(key_path, watermark):
             image = key.reference
         elif key.reference is not None and not np.array_equal(key.reference, image):
             raise BatchError(f"{key_path}: the key was made for another watermark image than {watermark}")
-        return image, key, False
+        return image, key, False, given
     if image is None:
         raise BatchError(f"{key_path}: no such key; give --watermark to create a collection key")
-    return image, WatermarkKey.generate(reference=image), True
+    return image, WatermarkKey.generate(reference=image), True, given
 
 
 def check_key_places(assets, out_dir, key=None, keys_dir=None) -> None:
@@ -301,8 +302,10 @@ def check_key_places(assets, out_dir, key=None, keys_dir=None) -> None:
             raise BatchError(why)
 
 
-def _jobs(assets, out_dir, image, key, keys_dir, timeout, force, options=None, restore_sigint=True) -> list[EncodeJob]:
-    """One EncodeJob per asset, with the ledger's verdict on what was done before (with the same settings)."""
+def _jobs(assets, out_dir, image, key, keys_dir, timeout, force, options=None, restore_sigint=True,
+          given=None) -> list[EncodeJob]:
+    """One EncodeJob per asset, with the ledger's verdict on what was done before (with the same settings);
+    ``given``: the watermark's (width, height) as the user gave it (:attr:`EncodeJob.watermark_given`)."""
     rows = read_ledger(os.path.join(out_dir, LEDGER_NAME))
     previous = last_rows(rows)
     written = last_rows(r for r in rows if r["status"] == "ok")  # what each output was when it was written
@@ -328,7 +331,7 @@ def _jobs(assets, out_dir, image, key, keys_dir, timeout, force, options=None, r
                               prior.get("input_sha256") if done else None, prior.get("vertices") if done else None,
                               settings, dict(options or {}), asset.root,
                               made.get("bytes") if done else None, made.get("output_sha256") if done else None,
-                              restore_sigint))
+                              restore_sigint, given))
     return jobs
 
 
@@ -361,17 +364,17 @@ def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, worke
     except (ValueError, OSError) as exc:
         raise BatchError(str(exc)) from None
     check_key_places(assets, out_dir, key, keys_dir)  # before anything is made: no key, no OUT_DIR
-    image, key_obj, new_key = None, None, False
+    image, key_obj, new_key, given = None, None, False, None
     if key is not None:
-        image, key_obj, new_key = _collection_key(key, watermark)
+        image, key_obj, new_key, given = _collection_key(key, watermark)
         folder = os.path.dirname(os.path.abspath(key))
         if new_key and not os.path.isdir(folder) and folder != out_dir:
             raise BatchError(f"{key}: cannot make the collection key there: no folder {folder}")
     elif watermark is not None:
-        from pmwm_codec.watermark.image import load_watermark
+        from pmwm_codec.watermark.image import load_watermark_given
 
-        image = load_watermark(watermark)[0]
-    jobs = _jobs(assets, out_dir, image, key_obj, keys_dir, timeout, force, options, _restore_sigint(scheduler))
+        image, _, given = load_watermark_given(watermark)
+    jobs = _jobs(assets, out_dir, image, key_obj, keys_dir, timeout, force, options, _restore_sigint(scheduler), given)
     folders = _missing_folders(jobs, out_dir)  # the tasks make them; those a finished run leaves empty go again
     # Everything refused so far (a watermark, a key or its folder) made nothing.  The cluster comes next (a
     # --scheduler must answer), and only then OUT_DIR and a new collection key; a run that fails before its

@@ -48,6 +48,8 @@ class EncodeJob:
     folder or glob SRC names, which the input's real path must not leave (None: no bound).
     ``restore_sigint``: whether the encoder takes SIGINT back to its default (the run's local workers
     ignore it for the run's sake); False leaves it as the worker has it (an ignored SIGINT stays ignored).
+    ``watermark_given``: the watermark's (width, height) as the user gave it, before it was made the square
+    ``watermark`` (a capacity error names it so), or None.
     """
 
     input: str
@@ -65,6 +67,7 @@ class EncodeJob:
     prior_bytes: int | None = None
     prior_output_sha256: str | None = None
     restore_sigint: bool = True
+    watermark_given: tuple | None = None
 
 
 def encode_task(job: EncodeJob) -> dict:
@@ -146,7 +149,7 @@ def _encode_in_child(job: EncodeJob) -> dict:
             os.makedirs(os.path.dirname(path), exist_ok=True)
     _remove_leftovers(job)  # of a run killed before (one run per OUT_DIR at a time)
     payload = {"src": job.input, "dst": job.output, "watermark": job.watermark, "key": job.key,
-               "options": job.options or {}, "restore_sigint": job.restore_sigint}
+               "options": job.options or {}, "restore_sigint": job.restore_sigint, "watermark_given": job.watermark_given}
     if multiprocessing.current_process().daemon:
         result = _run_interpreter(payload, job.timeout)
     else:

@@ -130,9 +130,17 @@ def load_watermark(path_or_array, max_size: int | None = DEFAULT_MAX_SIZE):
     notices : list[str]
         One line per change made to the input (empty when it was used as is).
     """
+    image, notices, _ = load_watermark_given(path_or_array, max_size)
+    return image, notices
+
+
+def load_watermark_given(path_or_array, max_size: int | None = DEFAULT_MAX_SIZE) -> tuple:
+    """``(image (s, s) uint8, notices, (width, height))``: :func:`load_watermark`'s image and notices, and the size
+    of the image as given, before it was made a square (a :class:`~pmwm_codec.watermark.codec.CapacityError`
+    names it so: :meth:`~pmwm_codec.watermark.codec.CapacityError.as_given`)."""
     gray, notices = read_watermark(path_or_array)
     image, made = square_watermark(gray, max_size)
-    return image, notices + made
+    return image, notices + made, gray.shape[::-1]
 
 
 def read_watermark(path_or_array) -> tuple:
