@@ -485,7 +485,8 @@ def _replaced_after(requests: int, path: str, handler=RangeRequestHandler):
 
 def test_a_file_replaced_by_one_of_the_same_size_between_range_requests_is_refused(tmp_path):
     """Only the size was compared: a file replaced by another of the same size (here two base vertices swapped,
-    which no digest covers) decoded to a mesh neither file holds, silently.  ``pmw serve`` now sends ``ETag``
+    which no digest covered when this was found; ``baseDigest`` does now) decoded to a mesh neither file holds,
+    silently.  ``pmw serve`` now sends ``ETag``
     and ``Last-Modified`` with its Range answers and the reader compares them."""
     import os
 
