@@ -425,13 +425,14 @@ def _read_obj_columns(lines: list):
 def _add_polygon(line: str, tris: list, name: str, read: int) -> None:
     """Fan-triangulate the ``f`` record ``line`` into ``tris`` as 0-based vertex ids: OBJ indices are
     1-based, or negative counting back from the ``read`` vertices before the record (``-1``: the
-    last of them).  InputFormatError for a record without indices, 0, an index beyond the limit or
-    before the first vertex.  A record of one or two vertices (exporters write an edge so: Blender
+    last of them).  A record without indices (``f`` and blanks) names nothing and adds nothing, as in the
+    column reader (:func:`_read_obj_columns`, which skips it).  InputFormatError for an index 0, beyond the
+    limit or before the first vertex.  A record of one or two vertices (exporters write an edge so: Blender
     reads it as one) is a degenerate face, one triangle repeating a corner, which
     :func:`checked_mesh` drops and counts (``degenerate_faces``) as it does a triangle naming a vertex twice."""
     idx = [int(tok.split("/", 1)[0]) for tok in line.split()[1:]]
     if not idx:
-        raise InputFormatError(f"{name}: a face with no vertices")
+        return
     idx += idx[-1:] * (3 - len(idx))
     for i in idx:
         if i == 0 or abs(i) > MAX_ENCODE_VERTICES:

@@ -225,6 +225,18 @@ def test_an_obj_edge_written_as_a_two_vertex_face_is_dropped_as_degenerate_not_r
     assert "dropped 2 degenerate faces" in report["notices"]
 
 
+@pytest.mark.parametrize("quad", [False, True], ids=["triangles", "with-a-quad"])
+def test_an_obj_face_record_without_indices_is_skipped_by_either_reader(tmp_path, quad):
+    """A blank ``f`` record (``f`` and spaces) was skipped when every other face was a triangle (the column
+    reader) and refused the whole file ("a face with no vertices") when one was a quad (the record reader): the
+    same record, two answers.  It names nothing: both readers skip it."""
+    text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf  \n" + ("f 2 4 3 1\n" if quad else "f 2 4 3\n")
+    (tmp_path / "blank.obj").write_text(text)
+    got = pmwm_codec.read_mesh(tmp_path / "blank.obj")
+    expected = [[0, 1, 2], [1, 3, 2], [1, 2, 0]] if quad else [[0, 1, 2], [1, 3, 2]]
+    assert got.faces.tolist() == expected and got.vertex_count == 4
+
+
 def _soup_text(mesh, normals: bool) -> str:
     """OBJ of ``mesh`` as a flat-shaded exporter writes it: every face corner its own ``v`` (and ``vn``)."""
     corners = mesh.positions[mesh.faces.reshape(-1)]
