@@ -389,6 +389,12 @@ def summary(rows: list) -> str:
         rep = r["report"]
         lines.append(f"  {100 * rep['base_vertices'] / rep['vertices']:5.1f}% {rep['base_vertices']}/{rep['vertices']} "
                      f"{r['file']} {rep['notices']}")
+    marked = [r for r in ok if r.get("mark")]
+    for label in ("wm", "owner"):
+        given = [r for r in marked if f"{label}_encode" in r]
+        verified = sum((r.get(f"{label}_verify") or [None])[0] == 0 for r in given)
+        refused = sum(r[f"{label}_encode"] != 0 for r in given)
+        lines.append(f"{label} marks: {len(given)} files sampled, {verified} verified, {refused} refused at encode")
     lines.append("not ok:")
     lines += [f"  {r.get('outcome')} {r['file']} {(r.get('refusal') or str(r.get('findings')))[:250]}"
               for r in rows if r.get("outcome") != "ok"]
