@@ -60,25 +60,14 @@ def run(args) -> int:
 
 
 def _refuse_orphaned_key(output, data: bytes) -> None:
-    """UsageError when a key file lies beside ``output`` (``OUT.pmw.key.json``, as ``pmw encode`` writes it) and the
-    cut ``data`` does not carry that key's mark (its key fingerprint): replacing the file would leave the key beside
-    a file it does not verify, which ``pmw encode`` refuses too.  A cut of the key's own file is taken."""
+    """Refused (:func:`~pmwm_codec.watermark.key.refuse_orphaned_beside`, as ``pmw encode`` refuses it) when a key
+    file lies beside ``output`` (``OUT.pmw.key.json``) and the cut ``data`` does not carry that key's mark: replacing
+    the file would leave the key beside a file it does not verify.  A cut of the key's own file is taken."""
     import os
 
     from pmwm_codec.format.reader import read_header
-    from pmwm_codec.watermark.key import KEY_SUFFIX, WatermarkKey, WatermarkKeyError
+    from pmwm_codec.watermark.key import KEY_SUFFIX, refuse_orphaned_beside
 
-    key_path = os.fspath(output) + KEY_SUFFIX
-    if not os.path.lexists(key_path):
-        return
     marks = (read_header(data).extension.get("watermark") or {}).get("keyFingerprint")
-    try:
-        if marks is not None and WatermarkKey.load(key_path).fingerprint() == marks:
-            return
-    except WatermarkKeyError:
-        pass
-    what = "carries no watermark" if marks is None else "is marked with another key"
-    raise UsageError(f"{key_path}: a watermark key lies beside {output}, and the cut file {what}: the key would be "
-                     "left beside a file it does not verify; the key and the file are left untouched (write the cut "
-                     "under another name, or move the key away first)")
-
+    refuse_orphaned_beside(os.fspath(output) + KEY_SUFFIX, output, marks is not None, fingerprint=marks,
+                           writer="the cut file", states=("carries no watermark", "is marked with another key"))

@@ -573,23 +573,29 @@ def refuse_key_target(path, what: str) -> None:
                                 "(a key file is never rewritten): give the output another name")
 
 
-def refuse_orphaned_beside(key_path, dst, marked: bool, key: "WatermarkKey | None" = None) -> None:
-    """WatermarkKeyError when an encode of the ``.pmw`` ``dst`` would leave ``key_path`` (its default key
-    file, ``OUT.pmw.key.json``, when it exists) beside a file it no longer verifies: the encode writes no
-    mark (``marked`` false), or marks with another key than that file's: ``key``, the key it marks with
-    (None: a new one), as an encode with another image would (:class:`KeySlot` refuses that one).  A key of
-    the same secret (a copy of the key file) still verifies: not refused."""
+def refuse_orphaned_beside(key_path, dst, marked: bool, key: "WatermarkKey | None" = None, *,
+                           fingerprint: str | None = None, writer: str = "this encode",
+                           states: tuple = ("writes no mark", "marks it with another key")) -> None:
+    """WatermarkKeyError when writing the ``.pmw`` ``dst`` would leave ``key_path`` (its default key
+    file, ``OUT.pmw.key.json``, when it exists) beside a file it no longer verifies: the file written carries no
+    mark (``marked`` false), or another key's than that file's: ``key``, the key it marks with (None: a new one),
+    as an encode with another image would (:class:`KeySlot` refuses that one), or ``fingerprint``, the key
+    fingerprint the file written names (``pmw cut``).  A key of the same secret (a copy of the key file), or of
+    that fingerprint, still verifies: not refused.  ``writer`` / ``states``: what writes the file and what its
+    file then does (no mark, another key's), as the message says them."""
     if key_path is None or not os.path.lexists(key_path):
         return
-    if marked and key is not None:
+    if marked and (key is not None or fingerprint is not None):
         try:
-            if WatermarkKey.load(key_path).secret == key.secret:
+            beside = WatermarkKey.load(key_path)
+            if (key is not None and beside.secret == key.secret) or \
+                    (fingerprint is not None and beside.fingerprint() == fingerprint):
                 return
         except WatermarkKeyError:
             pass
-    what = "writes no mark" if not marked else "marks it with another key"
-    raise WatermarkKeyError(f"{os.fspath(key_path)}: a watermark key lies beside {os.fspath(dst)}, and this "
-                            f"encode {what}: the file would no longer verify with it; the key and the "
+    what = states[1] if marked else states[0]
+    raise WatermarkKeyError(f"{os.fspath(key_path)}: a watermark key lies beside {os.fspath(dst)}, and {writer} "
+                            f"{what}: the file would no longer verify with it; the key and the "
                             "file are left untouched (write the output under another name, or move the key "
                             "away first to replace the marked file)")
 
