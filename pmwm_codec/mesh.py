@@ -28,7 +28,7 @@ import numpy as np
 
 from .constants import MAX_ENCODE_FACES, MAX_ENCODE_VERTICES, MAX_GRID_BITS, MAX_INPUT_FILE_BYTES
 from .errors import DegenerateMeshError, InputFormatError, MeshError
-from .sources import check_input_path, path_argument, read_regular_file
+from .sources import bom_codec, check_input_path, path_argument, read_regular_file
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")
 
@@ -332,12 +332,7 @@ def _read_obj(path, name):
     face line's triangles are counted from its spaces before it is split), and
     every face index must name an existing vertex.
     """
-    data = read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name)
-    try:
-        text = data.decode("utf-8-sig", errors="strict")  # a byte-order mark (Windows editors) is not a record
-    except UnicodeDecodeError:
-        raise InputFormatError(f"{name}: not a text OBJ file") from None
-    del data
+    text = _obj_text(read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name), name)
     lines = _obj_lines(text)
     fast = _read_obj_columns(lines)
     if fast is not None:
@@ -362,6 +357,28 @@ def _read_obj(path, name):
     if not verts or not tris:
         raise MeshError(f"{name}: the mesh has no vertices or no faces")
     return np.array(verts, dtype=np.float64), np.array(tris, dtype=np.int64)
+
+
+def _obj_text(data: bytes, name: str) -> str:
+    """The text of an OBJ file's bytes ``data``: UTF-8, or what its byte order mark names (a Windows editor's
+    UTF-8, UTF-16 or UTF-32 mark, dropped), else Latin-1 (older exporters write their object and material
+    names in the system's 8-bit code page, ``usemtl Terraind\\xe6k``: every ``v`` / ``f`` record is ASCII,
+    the same in both, and the names are not read).  InputFormatError for binary data: a NUL byte outside
+    a marked UTF-16 / UTF-32 text, or text its mark's codec cannot decode."""
+    codec = bom_codec(data[:4])
+    try:
+        if codec is not None:
+            return data.decode(codec)
+        if b"\0" in data:
+            raise UnicodeDecodeError("utf-8", data, 0, 1, "a NUL byte")
+        try:
+            return data.decode("utf-8")
+        except UnicodeDecodeError:
+            return data.decode("latin-1")
+    except UnicodeDecodeError:
+        raise InputFormatError(f"{name}: not a text OBJ file (binary data" +
+                               (f", or not the {codec.upper().removesuffix('-SIG')} its byte order mark names)"
+                                if codec else ")")) from None
 
 
 def _obj_lines(text: str) -> list:
@@ -435,8 +452,12 @@ def _add_polygon(line: str, tris: list, name: str, read: int) -> None:
         return
     idx += idx[-1:] * (3 - len(idx))
     for i in idx:
-        if i == 0 or abs(i) > MAX_ENCODE_VERTICES:
-            raise InputFormatError(f"{name}: face index {i} cannot name a vertex (at most {MAX_ENCODE_VERTICES:,})")
+        if i == 0:
+            raise InputFormatError(f"{name}: face index 0 names no vertex (OBJ counts vertices from 1, or back "
+                                   "from -1 for the last one read)")
+        if abs(i) > MAX_ENCODE_VERTICES:
+            raise InputFormatError(f"{name}: face index {i} cannot name a vertex (at most {MAX_ENCODE_VERTICES:,}, "
+                                   "the encoder's limit)")
         if i < -read:
             raise InputFormatError(f"{name}: face index {i} counts back past the first vertex ({read} read before it)")
     idx = [i - 1 if i > 0 else read + i for i in idx]

@@ -18,11 +18,26 @@ file, a non-blocking file, blocks that are not bytes).
 
 from __future__ import annotations
 
+import codecs
 import io
 import os
 import sys
 from collections.abc import Iterable
 from typing import BinaryIO, Union
+
+#: Byte order marks and the codecs they name, longest first (UTF-32 LE's starts with UTF-16 LE's).
+BYTE_ORDER_MARKS = ((codecs.BOM_UTF32_LE, "utf-32"), (codecs.BOM_UTF32_BE, "utf-32"), (codecs.BOM_UTF8, "utf-8-sig"),
+                    (codecs.BOM_UTF16_LE, "utf-16"), (codecs.BOM_UTF16_BE, "utf-16"))
+
+
+def bom_codec(head: bytes) -> str | None:
+    """The codec whose byte order mark ``head`` (a text file's first bytes) starts with: ``"utf-8-sig"``,
+    ``"utf-16"`` or ``"utf-32"`` (each drops its mark when decoding), or None when it starts with none."""
+    for bom, codec in BYTE_ORDER_MARKS:
+        if head.startswith(bom):
+            return codec
+    return None
+
 
 #: What every ``.pmw`` reader takes (the list above); the readers of the public API also take an
 #: ``http://`` or ``https://`` URL (a ``str``, :mod:`pmwm_codec.http`).

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import codecs
 import json
 import stat
 
@@ -284,6 +285,37 @@ def test_an_obj_saved_with_a_byte_order_mark_reads_its_first_vertex(tmp_path):
     with_bom, plain = pmwm_codec.read_mesh(tmp_path / "bom.obj"), pmwm_codec.read_mesh(tmp_path / "plain.obj")
     assert np.array_equal(with_bom.positions, plain.positions) and np.array_equal(with_bom.faces, plain.faces)
     assert with_bom.positions[with_bom.faces[0]].tolist() == [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
+
+
+@pytest.mark.parametrize("encoding", ["latin-1", "utf-16-be", "utf-16-le", "utf-32"])
+def test_an_obj_in_an_eight_bit_code_page_or_marked_utf16_reads_as_its_records(tmp_path, encoding):
+    """An OBJ whose material name is in Latin-1 (3ds Max's Max2Obj: ``usemtl Terraind\\xe6k``, assimp's regr01.obj)
+    or that an editor saved as UTF-16 with its byte order mark (assimp's box_UTF16BE.obj) was refused whole as "not a
+    text OBJ file": its ``v`` / ``f`` records are plain ASCII and read the same."""
+    text = "# d\u00e6k\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 5 5 5\ng Terraind\u00e6k\nusemtl Terraind\u00e6k\nf 1 2 3\nf 2 4 3\n"
+    mark = {"latin-1": b"", "utf-16-be": codecs.BOM_UTF16_BE, "utf-16-le": codecs.BOM_UTF16_LE, "utf-32": b""}[encoding]
+    (tmp_path / "coded.obj").write_bytes(mark + text.encode(encoding))
+    (tmp_path / "plain.obj").write_text(text, encoding="utf-8")
+    coded, plain = pmwm_codec.read_mesh(tmp_path / "coded.obj"), pmwm_codec.read_mesh(tmp_path / "plain.obj")
+    assert np.array_equal(coded.positions, plain.positions) and np.array_equal(coded.faces, plain.faces)
+    assert plain.face_count == 2
+
+
+@pytest.mark.parametrize("data", [b"v 0 0 0\x00\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", b"\xff\xfe\x00\xd8v\x00"])
+def test_binary_data_named_obj_is_refused_as_not_text(tmp_path, data):
+    """Latin-1 reads any byte: a NUL byte (no OBJ has one) or text its own byte order mark does not describe is
+    still refused in one line, not read as records."""
+    (tmp_path / "bin.obj").write_bytes(data)
+    with pytest.raises(mesh_mod.InputFormatError, match="not a text OBJ file"):
+        pmwm_codec.read_mesh(tmp_path / "bin.obj")
+
+
+def test_an_obj_face_index_0_is_named_as_obj_counting_from_1(tmp_path):
+    """``f 0 7 8 5`` (assimp's invalid/malformed.obj) was refused as "cannot name a vertex (at most 4,194,304)",
+    a limit it is nowhere near; index 0 is what OBJ's numbering from 1 leaves out."""
+    (tmp_path / "m.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 0 2 3\n")
+    with pytest.raises(mesh_mod.InputFormatError, match="face index 0 names no vertex .OBJ counts vertices from 1"):
+        pmwm_codec.read_mesh(tmp_path / "m.obj")
 
 
 def test_a_ply_value_past_float32_is_refused_in_one_line_without_a_warning(tmp_path):

@@ -72,7 +72,7 @@ import numpy as np
 
 from ..constants import MAX_KEY_FILE_BYTES
 from ..errors import WatermarkKeyError
-from ..sources import read_regular_file, shown_path
+from ..sources import bom_codec, read_regular_file, shown_path
 
 __all__ = ["WatermarkKey", "KeySlot", "KEY_FORMAT", "KEY_VERSION", "KEY_FILE_MODE", "KEY_SUFFIX", "refuse_symlink",
            "refuse_key_target", "refuse_orphaned_beside", "same_path", "checked_key_path"]
@@ -556,10 +556,9 @@ def _utf8_blocks(fh, head: bytes, codec: str):
 def _json_codec(head: bytes) -> str:
     """The codec of JSON text that starts with ``head``: by its byte order mark, else by where the NUL bytes of its
     first four bytes fall (RFC 4627 §3: its first two characters are ASCII); UTF-8 when neither says."""
-    for bom, codec in ((codecs.BOM_UTF32_LE, "utf-32"), (codecs.BOM_UTF32_BE, "utf-32"), (codecs.BOM_UTF8, "utf-8-sig"),
-                       (codecs.BOM_UTF16_LE, "utf-16"), (codecs.BOM_UTF16_BE, "utf-16")):
-        if head.startswith(bom):
-            return codec
+    marked = bom_codec(head)
+    if marked is not None:
+        return marked
     nuls = tuple(byte == 0 for byte in head[:4])
     return {(True, True, True, False): "utf-32-be", (False, True, True, True): "utf-32-le",
             (True, False, True, False): "utf-16-be", (False, True, False, True): "utf-16-le"}.get(nuls, "utf-8")
