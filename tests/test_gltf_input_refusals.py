@@ -508,3 +508,39 @@ def test_integers_written_as_integral_floats_encode_as_the_integers_and_come_out
     assert (tmp_path / "a" / "out.pmw").read_bytes() == (tmp_path / "b" / "out.pmw").read_bytes()
     floated["accessors"][0]["count"] = mesh.vertex_count + 0.5
     refused(capsys, tmp_path / "c", floated, "accessors[0]", "count")
+
+
+@pytest.mark.parametrize("asset", [{"version": "1.0"}, {"version": 1}, None])
+def test_a_gltf_1_document_is_named_as_one(capsys, tmp_path, mesh, asset):
+    """glTF 1.0 files (assimp's test models, collada2gltf's output: collections keyed by id, the version a string,
+    a number, or no ``asset`` at all) were refused as "accessors must be an array, got dict", which names a
+    symptom: the line now says the file is glTF 1.0 and how to upgrade it."""
+    doc = gltf_doc(mesh)
+    doc["accessors"] = {f"accessor_{i}": acc for i, acc in enumerate(doc["accessors"])}
+    if asset is None:
+        del doc["asset"]
+    else:
+        doc["asset"] = asset
+    refused(capsys, tmp_path, doc, "a glTF 1.0 document", "reads glTF 2.0", "gltf-pipeline")
+
+
+def test_a_gltf_2_document_with_an_object_for_an_array_is_still_named_by_member(capsys, tmp_path, mesh):
+    """A 2.0 document (its ``asset.version`` says so) whose ``accessors`` is an object is malformed, not 1.0."""
+    doc = gltf_doc(mesh)
+    doc["accessors"] = {"a": doc["accessors"][0]}
+    refused(capsys, tmp_path, doc, "accessors must be an array")
+
+
+@pytest.mark.parametrize("version, words", [(1, ("a GLB version 1 (glTF 1.0) file", "gltf-pipeline")),
+                                            (3, ("GLB version 3, not glTF 2.0's 2",))])
+def test_a_glb_of_another_container_version_is_named_not_called_cut_short(capsys, tmp_path, mesh, version, words):
+    """A glTF 1.0 binary (KHR_binary_glTF: version 1, its second word the length, then a content length and
+    format) was read as a 2.0 GLB and refused as "GLB is cut short (17721 of 17754 bytes)"; any other
+    version is named as such."""
+    from pmwm_codec.format.glb import join_glb
+
+    src = tmp_path / "m.glb"
+    src.write_bytes(join_glb({"asset": {"version": "1.0"}}, b"", version=version))
+    assert_refused(*run_encode(capsys, tmp_path, src), "m.glb", *words)
+    with pytest.raises(InputFormatError, match="m.glb: .*GLB version"):
+        pmwm_codec.encode(src, tmp_path / "api.pmw", measure="none")

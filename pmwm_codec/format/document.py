@@ -43,7 +43,7 @@ from ..constants import (
 )
 from ..errors import InputFormatError
 from ..sources import read_regular_file
-from .glb import split_glb
+from .glb import GLTF_1_ADVICE, split_glb
 from .gltf import (COMPONENT_DTYPES, COMPONENT_NAMES, DRACO_EXTENSION, FLOAT, INDEX_DTYPES, NORMALIZE_DIVISORS,
                    TYPE_WIDTH, check_finite_numbers, check_json_depth, element_rows, gltf_integers, shown_value, uint,
                    view_bytes)
@@ -242,6 +242,19 @@ CARRIED_EXTENSIONS = (
 )
 
 
+def _refuse_gltf_1(gltf: dict, name: str) -> None:
+    """InputFormatError naming a glTF 1.0 document as one (its ``asset.version`` says 1.x, or, as 1.0 files
+    written without ``asset`` have it, its collections are objects keyed by id), not by the first member
+    whose glTF 2.0 type it lacks ("accessors must be an array, got dict")."""
+    asset = gltf.get("asset")
+    version = asset.get("version") if isinstance(asset, dict) else None
+    keyed = next((key for key in _ARRAYS if isinstance(gltf.get(key), dict)), None)
+    major = str(version).split(".")[0] if isinstance(version, (str, int, float)) and version is not True else None
+    if major == "1" or (version is None and keyed):  # 1.0 files wrote the version as a string or a number
+        why = f"asset.version {version!r}" if major == "1" else f"its {keyed} keyed by id"
+        raise InputFormatError(f"{name}: a glTF 1.0 document ({why}); {GLTF_1_ADVICE}")
+
+
 def check_document(gltf: dict, name: str) -> None:
     """Refuse (InputFormatError) a glTF JSON the document code cannot walk safely.
 
@@ -264,6 +277,7 @@ def check_document(gltf: dict, name: str) -> None:
     float are made ints first, in place (:func:`~.gltf.gltf_integers`).
     """
     check_json_depth(gltf, name, error=InputFormatError)
+    _refuse_gltf_1(gltf, name)
     check_finite_numbers(gltf, name, InputFormatError)
     gltf_integers(gltf)  # "count": 3.0 is the integer 3 (JSON does not tell them apart), in place
     for key in _ARRAYS:

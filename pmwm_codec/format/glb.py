@@ -411,6 +411,11 @@ def join_glb(gltf: dict, bin_payload, *, version: int = GLB_VERSION) -> bytes:
     return b"".join(frame_glb(text, [payload], len(payload), version))
 
 
+#: What a glTF 1.0 input is told (its GLB framing, its id-keyed collections and its techniques are not glTF 2.0's).
+GLTF_1_ADVICE = ("pmw reads glTF 2.0: upgrade it first (glTF-Pipeline, gltf-pipeline -i IN -o OUT, writes glTF 2.0 "
+                 "from a 1.0 file)")
+
+
 def split_glb(data, name: str = "GLB") -> tuple:
     """``(gltf dict, BIN chunk bytes)`` of a GLB, read leniently (for input assets).
 
@@ -425,6 +430,10 @@ def split_glb(data, name: str = "GLB") -> tuple:
         header = GlbHeader.parse(data[:GLB_HEADER_SIZE])
     except Exception:
         raise InputFormatError(f"{name}: not a GLB file") from None
+    if header.version == 1:  # KHR_binary_glTF: a glTF 1.0 document in a differently framed container
+        raise InputFormatError(f"{name}: a GLB version 1 (glTF 1.0) file; {GLTF_1_ADVICE}")
+    if header.version != GLB_VERSION:
+        raise InputFormatError(f"{name}: GLB version {header.version}, not glTF 2.0's {GLB_VERSION}")
     if header.length > len(data):
         raise InputFormatError(f"{name}: GLB is cut short ({len(data)} of {header.length} bytes)")
     pos = GLB_HEADER_SIZE
