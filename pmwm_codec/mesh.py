@@ -198,6 +198,7 @@ def _check_ply_header(path, name) -> None:
         raise InputFormatError(f"{name}: not a PLY file (no 'ply' ... 'end_header' header in its first 64 KiB)")
     element = None
     limits = {"vertex": MAX_ENCODE_VERTICES, "face": MAX_ENCODE_FACES}
+    declared = {}
     for line in head[:end].decode("ascii", "replace").splitlines():
         words = line.split()
         if words[:1] == ["element"] and len(words) == 3:
@@ -206,9 +207,13 @@ def _check_ply_header(path, name) -> None:
             if count < 0 or count > limits.get(element, count):
                 raise InputFormatError(f"{name}: PLY declares {words[2]} {element} elements "
                                        f"(the encoder takes 0..{limits.get(element, count):,})")
+            declared[element] = count
         elif words[:2] == ["property", "list"] and element == "face" and len(words) == 5:
             if words[2] not in _PLY_INTEGER_TYPES or words[3] not in _PLY_INTEGER_TYPES:
                 raise InputFormatError(f"{name}: PLY face indices are of type {words[2]}/{words[3]}, not integers")
+    if not declared.get("face") and not declared.get("tristrips"):  # a scan's point cloud: said before its data is
+        raise MeshError(f"{name}: the file holds no triangle mesh (its PLY header declares "  # read (cut short or not)
+                        f"{declared.get('vertex', 0):,} vertices and no faces: a point cloud)")
 
 
 def _check_stl_header(path, name) -> None:

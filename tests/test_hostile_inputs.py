@@ -368,7 +368,7 @@ def test_gltf_points_and_degenerate_primitives_still_pass_through(capsys, tmp_pa
     captured = capsys.readouterr()
     assert status == 0, captured.err
     notices = json.loads(captured.out)["notices"]
-    assert "mesh 0 primitive 1: mode 0 is not TRIANGLES; passed through unchanged" in notices
+    assert "mesh 0 primitive 1: mode 0 (POINTS) does not draw triangles; passed through unchanged" in notices
     assert "mesh 0 primitive 2: every triangle is degenerate; passed through unchanged" in notices
     assert out.exists()
     doc, _ = load_document(out)
@@ -380,7 +380,8 @@ def test_gltf_with_nothing_to_make_progressive_says_why(capsys, tmp_path):
     src = tmp_path / "m.glb"
     src.write_bytes(glb_of([(0, cloud, None)]))
     assert_refused(*run_encode(capsys, tmp_path, src),
-                   "no triangle primitive that can be made progressive (mesh 0 primitive 0: mode 0 is not TRIANGLES)")
+                   "no triangle primitive that can be made progressive (mesh 0 primitive 0: mode 0 (POINTS) does not draw "
+                   "triangles)")
 
 
 @pytest.mark.parametrize("value, shown", [(float("nan"), "NaN"), (float("inf"), "Infinity"), (float("-inf"), "-Infinity")])

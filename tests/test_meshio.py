@@ -318,6 +318,21 @@ def test_an_obj_face_index_0_is_named_as_obj_counting_from_1(tmp_path):
         pmwm_codec.read_mesh(tmp_path / "m.obj")
 
 
+@pytest.mark.parametrize("cut", [False, True])
+def test_a_ply_point_cloud_is_named_as_one_cut_short_or_not(tmp_path, cut):
+    """A PLY that declares vertices and no faces (a scan's point cloud, assimp's pond.0.ply, 69 bytes short) was
+    refused as trimesh's "cannot read as PLY: PLY is unexpected length!": the header already says what it is."""
+    from pmwm_codec.errors import MeshError
+
+    header = ("ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+              "property float z\nend_header\n").encode()
+    body = np.arange(9, dtype="<f4").tobytes()
+    (tmp_path / "cloud.ply").write_bytes(header + (body[:-5] if cut else body))
+    with pytest.raises(MeshError, match="cloud.ply: the file holds no triangle mesh .its PLY header declares 3 "
+                                        "vertices and no faces: a point cloud"):
+        pmwm_codec.read_mesh(tmp_path / "cloud.ply")
+
+
 def test_a_ply_value_past_float32_is_refused_in_one_line_without_a_warning(tmp_path):
     """An ASCII PLY ``property float`` of 1e39 was refused (exit 2) after trimesh's ``RuntimeWarning: overflow
     encountered in cast`` and its source line: three lines on stderr where the rule is one."""

@@ -45,8 +45,8 @@ from ..errors import InputFormatError
 from ..sources import read_regular_file
 from .glb import GLTF_1_ADVICE, split_glb
 from .gltf import (COMPONENT_DTYPES, COMPONENT_NAMES, DRACO_EXTENSION, FLOAT, INDEX_DTYPES, NORMALIZE_DIVISORS,
-                   TYPE_WIDTH, check_finite_numbers, check_json_depth, element_rows, gltf_integers, shown_value, uint,
-                   view_bytes)
+                   TRIANGLE_MODES, TRIANGLES, TYPE_WIDTH, check_finite_numbers, check_json_depth, element_rows,
+                   gltf_integers, shown_value, uint, view_bytes)
 from .layout import CHUNK_HEADER_SIZE, CHUNK_TYPE_JSON, GLB_HEADER_SIZE, GLB_MAGIC, padded
 from .meshopt import EXTENSIONS as MESHOPT_EXTENSIONS
 from .meshopt import decompress as decompress_meshopt
@@ -591,9 +591,11 @@ def _check_meshes(gltf: dict, n_acc: int, n_views: int, name: str) -> None:
             if draco is not None:
                 _ref(draco, "bufferView", n_views, f"{where}.extensions.{DRACO_EXTENSION}", name, "bufferView",
                      required=True)
-            if prim.get("mode", 4) == 4 and "POSITION" in attrs:
+            mode = prim.get("mode", TRIANGLES)
+            if mode in TRIANGLE_MODES and "POSITION" in attrs:
+                corners = _count(accessors[prim["indices"] if "indices" in prim else attrs["POSITION"]])
                 vertices += _count(accessors[attrs["POSITION"]])
-                faces += _count(accessors[prim["indices"]]) // 3 if "indices" in prim else 0
+                faces += corners // 3 if mode == TRIANGLES else max(corners - 2, 0)
     if vertices > MAX_ENCODE_VERTICES or faces > MAX_ENCODE_FACES:
         raise InputFormatError(
             f"{name}: {vertices:,} vertices and {faces:,} faces in its triangle primitives; the encoder's limit is "

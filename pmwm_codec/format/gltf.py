@@ -44,6 +44,24 @@ TRIANGLE_MODES = (TRIANGLES, TRIANGLE_STRIP, TRIANGLE_FAN)
 
 DRACO_EXTENSION = "KHR_draco_mesh_compression"
 
+
+def triangle_list(order: np.ndarray, mode: int) -> np.ndarray:
+    """The triangles (m, 3) int64 that a primitive of ``mode`` (one of :data:`TRIANGLE_MODES`) draws from its
+    vertex ``order`` (k,) (its indices, or 0..n-1 without), each wound as glTF 2.0 3.7.2.1 says: a strip's
+    triangle i is (v_i, v_i+1, v_i+2) for even i and (v_i+1, v_i, v_i+2) for odd i, a fan's (v_0, v_i+1, v_i+2).
+    Fewer than three vertices draw nothing; TRIANGLES drops a last incomplete triple (its readers refuse one
+    first, where that matters).  Degenerate triangles (a strip's restarts) are kept."""
+    order = np.asarray(order, np.int64).reshape(-1)
+    if mode == TRIANGLES or len(order) < 3:
+        return order[: len(order) // 3 * 3].reshape(-1, 3)
+    i = np.arange(len(order) - 2)
+    if mode == TRIANGLE_STRIP:
+        odd = i % 2 == 1
+        return np.stack([np.where(odd, order[i + 1], order[i]), np.where(odd, order[i], order[i + 1]), order[i + 2]], 1)
+    if mode == TRIANGLE_FAN:
+        return np.stack([np.full(len(i), order[0]), order[i + 1], order[i + 2]], 1)
+    raise ValueError(f"mode {mode} does not draw triangles")
+
 #: JSON names of the Python types a parsed JSON value can have (for messages).
 JSON_KINDS = {dict: "an object", list: "an array", str: "a string", bool: "a boolean", int: "an integer",
               float: "a number", type(None): "null"}

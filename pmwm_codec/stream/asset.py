@@ -6,10 +6,12 @@ document over unchanged: materials, textures, images (external ones embedded),
 samplers, the node tree with names and transforms, scenes, cameras, skins,
 animations, ``extras`` and extensions it does not know.
 
-Eligible: ``mode`` TRIANGLES, a POSITION, no morph ``targets``, no ``JOINTS_n`` /
+Eligible: ``mode`` TRIANGLES, TRIANGLE_STRIP or TRIANGLE_FAN (a strip or fan becomes the list of
+triangles it draws, :func:`~pmwm_codec.format.gltf.triangle_list`, its restarts dropped; the ``.pmw``
+stores TRIANGLES), a POSITION, no morph ``targets``, no ``JOINTS_n`` /
 ``WEIGHTS_n`` (skinned).  Draco-compressed input primitives are decoded first
 (attributes looked up by their Draco unique ids).  Any other primitive
-(points, lines, strips, morphs, skins; triangles that are all degenerate) passes
+(points, lines, morphs, skins; triangles that are all degenerate) passes
 through untouched, with a notice.  Invalid data is never passed through: an
 eligible primitive goes through :func:`~pmwm_codec.mesh.checked_mesh` as a mesh
 file does, and a face index out of range or a NaN position refuses the asset
@@ -63,7 +65,6 @@ from ..format.gltf import (
     DRACO_EXTENSION,
     ELEMENT_ARRAY_BUFFER,
     FLOAT,
-    TRIANGLE_FAN,
     TRIANGLE_MODES,
     TRIANGLE_STRIP,
     TRIANGLES,
@@ -72,6 +73,7 @@ from ..format.gltf import (
     find_extension_primitives,
     forget_extension,
     place,
+    triangle_list,
     placed_by_nodes,
     placements_by_mesh,
     progressive_placements,
@@ -189,9 +191,14 @@ def _accessors_outside_meshes(gltf: dict) -> set:
     return used
 
 
+#: glTF 2.0's modes that draw points and lines (3.7.2.1), named in a notice.
+_POINT_AND_LINE_MODES = {0: "POINTS", 1: "LINES", 2: "LINE_LOOP", 3: "LINE_STRIP"}
+
+
 def _why_not(prim: dict):
-    if prim.get("mode", TRIANGLES) != TRIANGLES:
-        return f"mode {prim.get('mode')} is not TRIANGLES"
+    if prim.get("mode", TRIANGLES) not in TRIANGLE_MODES:
+        shown = _POINT_AND_LINE_MODES.get(prim.get("mode"))
+        return f"mode {prim.get('mode')}{f' ({shown})' if shown else ''} does not draw triangles"
     attrs = prim.get("attributes", {})
     if "POSITION" not in attrs:
         return "no POSITION"
@@ -258,13 +265,13 @@ def _accessor_arrays(gltf, buffers, prim) -> tuple:
     attrs = prim["attributes"]
     positions = read_accessor(gltf, buffers, attrs["POSITION"]).astype(np.float64)
     n = len(positions)
-    if "indices" in prim:
-        faces = read_accessor(gltf, buffers, prim["indices"]).reshape(-1)
-    else:
-        faces = np.arange(n)
-    if len(faces) % 3:
-        raise MeshError(f"index count {len(faces)} is not a multiple of 3")
-    faces = faces.reshape(-1, 3)
+    order = read_accessor(gltf, buffers, prim["indices"]).reshape(-1) if "indices" in prim else np.arange(n)
+    mode = prim.get("mode", TRIANGLES)
+    if mode == TRIANGLES and len(order) % 3:
+        raise MeshError(f"index count {len(order)} is not a multiple of 3")
+    faces = triangle_list(order, mode)
+    if mode == TRIANGLE_STRIP:  # a strip's restarts (an index repeated to join two strips) draw nothing
+        faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
     extra = {}
     for semantic, idx in attrs.items():
         if semantic == "POSITION":
@@ -548,17 +555,7 @@ def _plain_triangles(doc: dict, buffers, mi: int, pi: int) -> tuple:
     positions = read_accessor(doc, buffers, prim["attributes"]["POSITION"])[:, :3]
     order = (read_accessor(doc, buffers, prim["indices"])[:, 0] if "indices" in prim
              else np.arange(len(positions), dtype=np.int64))
-    mode = prim.get("mode", TRIANGLES)
-    if mode == TRIANGLE_STRIP and len(order) >= 3:
-        i = np.arange(len(order) - 2)
-        even = (i % 2 == 0)[:, None]
-        faces = np.where(even, np.stack([order[i], order[i + 1], order[i + 2]], 1),
-                         np.stack([order[i + 1], order[i], order[i + 2]], 1))
-    elif mode == TRIANGLE_FAN and len(order) >= 3:
-        i = np.arange(1, len(order) - 1)
-        faces = np.stack([np.full(len(i), order[0]), order[i], order[i + 1]], 1)
-    else:
-        faces = order[: len(order) // 3 * 3].reshape(-1, 3)
+    faces = triangle_list(order, prim.get("mode", TRIANGLES))
     if len(faces) and (faces.min() < 0 or faces.max() >= len(positions)):
         raise InputFormatError(f"mesh {mi} primitive {pi}: an index past its {len(positions)} vertices")
     return np.asarray(positions, np.float64), np.asarray(faces, np.int64)

@@ -30,7 +30,7 @@ import numpy as np
 from ..errors import WatermarkKeyError
 from ..format.extension import EXTENSION_NAME
 from ..format.document import sniff_json
-from ..format.gltf import find_extension_primitives, owner_placements, scene_mesh
+from ..format.gltf import TRIANGLE_MODES, TRIANGLES, find_extension_primitives, owner_placements, scene_mesh
 from ..mesh import Mesh, checked_mesh, read_mesh
 from ..stream import StreamDecoder, iter_results
 from ..watermark.key import as_key
@@ -195,11 +195,12 @@ def owner_view(path) -> Mesh:
 
 
 def _triangle_meshes(gltf: dict) -> list:
-    """Indices of the meshes of ``gltf`` with a primitive of triangles (``mode`` 4, the default)."""
+    """Indices of the meshes of ``gltf`` with a primitive drawn as triangles (:data:`TRIANGLE_MODES`: the
+    primitives the encoder makes progressive)."""
     meshes = gltf.get("meshes")
     return [i for i, m in enumerate(meshes if isinstance(meshes, list) else [])
             if isinstance(m, dict) and isinstance(m.get("primitives"), list)
-            and any(isinstance(p, dict) and p.get("mode", 4) == 4 for p in m["primitives"])]
+            and any(isinstance(p, dict) and p.get("mode", TRIANGLES) in TRIANGLE_MODES for p in m["primitives"])]
 
 
 def owner_of_stream(source, key) -> list:
