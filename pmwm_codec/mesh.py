@@ -227,9 +227,10 @@ def _check_stl_header(path, name) -> None:
     if head.lstrip().startswith(b"solid") and (b"facet" in head or b"endsolid" in head):
         try:
             head.decode("ascii")
-            return
         except UnicodeDecodeError:
             pass
+        else:
+            return _check_ascii_stl(path, name)
     if len(head) < 84:
         raise InputFormatError(f"{name}: not an STL file (a binary STL has an 84-byte header; the file has {size} bytes)")
     count = int.from_bytes(head[80:84], "little")
@@ -239,6 +240,47 @@ def _check_stl_header(path, name) -> None:
         why = "cut short" if size < 84 + 50 * count else "bytes after its last triangle"
         raise InputFormatError(f"{name}: binary STL declares {count:,} triangles ({84 + 50 * count:,} bytes) "
                                f"but the file has {size:,} bytes ({why})")
+
+
+#: An ASCII STL ``vertex`` record that is not the keyword and three numbers (a regular expression over the file's
+#: bytes: the structure is checked at C speed before the reader parses it).
+_STL_BAD_VERTEX = re.compile(rb"^[ \t]*vertex(?![ \t]+[-+.0-9eEinfINFaA]+[ \t]+[-+.0-9eEinfINFaA]+[ \t]+"
+                             rb"[-+.0-9eEinfINFaA]+[ \t]*\r?$).*$", re.M)
+_STL_FACET, _STL_VERTEX = re.compile(rb"^[ \t]*facet\b", re.M), re.compile(rb"^[ \t]*vertex\b", re.M)
+#: A facet's loop of exactly three ``vertex`` records (the screen), and any loop (the diagnosis).
+_STL_LOOP3 = re.compile(rb"loop[ \t]*\r?\n(?:[ \t]*vertex[^\n]*\n){3}[ \t]*endloop")
+_STL_LOOP = re.compile(rb"\bouter[ \t]+loop\b(.*?)\bendloop\b", re.S)
+
+
+def _check_ascii_stl(path, name) -> None:
+    """Refuse an ASCII STL whose facets do not each hold three ``vertex`` records, naming the facet (the
+    reader's own words were numpy's: "cannot reshape array of size 40 into shape (3)", OpenSCAD's
+    toomanyvertices.stl; a facet of four beside one of two was read as wrong triangles, exit 0).  A count of
+    the loops of three screens the file; the diagnosis (:func:`ascii_stl_problem`) runs only when it differs
+    from the facets'."""
+    data = read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name)
+    if len(_STL_LOOP3.findall(data)) != data.count(b"endfacet"):
+        problem = ascii_stl_problem(data)
+        if problem:
+            raise InputFormatError(f"{name}: {problem}")
+
+
+def ascii_stl_problem(data: bytes):
+    """What is malformed in the ASCII STL ``data`` (one phrase: a ``vertex`` record that is not the keyword
+    and three numbers, with its line, or facets and vertex records that do not come three to one), else None."""
+    bad = _STL_BAD_VERTEX.search(data)
+    if bad is not None:
+        line = data.count(b"\n", 0, bad.start()) + 1
+        return f"malformed ASCII STL record (line {line}): {bad.group().strip()[:60].decode('ascii', 'replace')!r}"
+    for loop in _STL_LOOP.finditer(data):
+        corners = len(_STL_VERTEX.findall(loop.group(1)))
+        if corners != 3:
+            line = data.count(b"\n", 0, loop.start()) + 1
+            return f"malformed ASCII STL: the facet at line {line} has {corners} vertex records, not three"
+    facets, vertices = len(_STL_FACET.findall(data)), len(_STL_VERTEX.findall(data))
+    if vertices != 3 * facets:
+        return f"ASCII STL with {facets:,} facets and {vertices:,} vertex records (a facet has three vertices)"
+    return None
 
 
 def _check_extent(pos: np.ndarray, tri: np.ndarray, name: str) -> None:
@@ -482,7 +524,10 @@ def _read_with_trimesh(path, name, suffix):
             else:
                 loaded = trimesh.load(path, process=False, force=None)
     except Exception as exc:  # trimesh raises many types on garbage
-        raise InputFormatError(f"{name}: cannot read as {suffix[1:].upper()}: {exc}".splitlines()[0]) from None
+        data = read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name) if suffix == ".stl" else b""
+        problem = ascii_stl_problem(data) if data.lstrip().startswith(b"solid") else None  # named, not the parser's words
+        raise InputFormatError(f"{name}: {problem}" if problem else
+                               f"{name}: cannot read as {suffix[1:].upper()}: {exc}".splitlines()[0]) from None
     if isinstance(loaded, trimesh.Scene):
         geoms = [g for g in loaded.dump(concatenate=False) if isinstance(g, trimesh.Trimesh)]
         if not geoms:

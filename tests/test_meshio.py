@@ -333,6 +333,32 @@ def test_a_ply_point_cloud_is_named_as_one_cut_short_or_not(tmp_path, cut):
         pmwm_codec.read_mesh(tmp_path / "cloud.ply")
 
 
+ASCII_FACET = "facet normal 0 0 1\n outer loop\n  vertex 0 0 0\n  vertex 1 0 0\n  vertex 0 1 0\n endloop\nendfacet\n"
+
+
+@pytest.mark.parametrize("body, words", [
+    (ASCII_FACET + ASCII_FACET.replace("vertex 0 1 0\n", "vertex 0 1 0\n  vertex 1 1 0\n"),
+     "malformed ASCII STL: the facet at line 10 has 4 vertex records, not three"),
+    (ASCII_FACET.replace("vertex 0 1 0\n", "vertex 0 1 0\n  vertex 1 1 0\n") + ASCII_FACET.replace("  vertex 0 1 0\n", ""),
+     "malformed ASCII STL: the facet at line 3 has 4 vertex records, not three"),  # 6 records: read as 2 wrong triangles
+    (ASCII_FACET + ASCII_FACET.replace("vertex 1 0 0", "vertex 1 0 blah"), "malformed ASCII STL record (line 12): 'vertex 1 0 blah'"),
+    (ASCII_FACET.replace("vertex 0 0 0", "vertex 0 0"), "malformed ASCII STL record (line 4): 'vertex 0 0'"),
+])
+def test_a_malformed_ascii_stl_is_named_by_its_record(tmp_path, body, words):
+    """OpenSCAD's test STLs: a facet of four vertices was refused in numpy's words ("cannot reshape array of size
+    40 into shape (3)"), a vertex of text in numpy's ("could not be read to its end due to unmatched data"); a
+    facet of four beside a facet of two was read as two wrong triangles, exit 0."""
+    (tmp_path / "m.stl").write_text("solid m\n" + body + "endsolid m\n")
+    with pytest.raises(mesh_mod.InputFormatError) as exc:
+        pmwm_codec.read_mesh(tmp_path / "m.stl")
+    assert str(exc.value) == "m.stl: " + words
+
+
+def test_a_well_formed_ascii_stl_still_reads(tmp_path):
+    (tmp_path / "m.stl").write_text("solid m\n" + ASCII_FACET + ASCII_FACET.replace("0 0 0", "1 1 1e+0") + "endsolid m\n")
+    assert pmwm_codec.read_mesh(tmp_path / "m.stl").face_count == 2
+
+
 def test_a_ply_value_past_float32_is_refused_in_one_line_without_a_warning(tmp_path):
     """An ASCII PLY ``property float`` of 1e39 was refused (exit 2) after trimesh's ``RuntimeWarning: overflow
     encountered in cast`` and its source line: three lines on stderr where the rule is one."""
