@@ -2,7 +2,7 @@
 
 The public API (DESIGN.md §5)::
 
-    mesh   = pmwm_codec.read_mesh(path)                       # OBJ, PLY, STL, glTF/GLB -> Mesh
+    mesh   = pmwm_codec.read_mesh(path)                       # OBJ, PLY, STL, OFF, glTF/GLB -> Mesh
     report = pmwm_codec.encode(src, dst, watermark=None, key=None, **options)
     mesh   = pmwm_codec.decode(src, chunks=None)              # path, bytes, binary file or http(s) URL
     data   = pmwm_codec.cut(src, chunks=None)                 # a valid, smaller .pmw (bytes)
@@ -283,7 +283,7 @@ def _type_aliases() -> dict:
     return {
         # what every reader takes: a path, bytes, a binary file, an iterable of blocks (or an http(s) URL)
         "Source": Source,
-        # what encode reads: a mesh file (OBJ, PLY, STL, glTF/GLB) or glTF asset path, a Mesh,
+        # what encode reads: a mesh file (OBJ, PLY, STL, OFF, glTF/GLB) or glTF asset path, a Mesh,
         # or an in-memory glTF asset (gltf dict, list of buffers)
         "MeshSource": Union[str, "os.PathLike[str]", "Mesh", tuple],
         # where encode writes: a path or a binary file object

@@ -30,7 +30,7 @@ from .constants import MAX_ENCODE_FACES, MAX_ENCODE_VERTICES, MAX_GRID_BITS, MAX
 from .errors import DegenerateMeshError, InputFormatError, MeshError
 from .sources import bom_codec, check_input_path, path_argument, read_regular_file
 
-MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")
+MESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 
 
 @dataclass
@@ -305,7 +305,7 @@ def _check_extent(pos: np.ndarray, tri: np.ndarray, name: str) -> None:
 
 
 def read_mesh(path: str | bytes | os.PathLike[str]) -> Mesh:
-    """Read a triangle mesh from OBJ, PLY, STL, glTF or GLB at ``path`` (a file name: ``str``, ``bytes``
+    """Read a triangle mesh from OBJ, PLY, STL, OFF, glTF or GLB at ``path`` (a file name: ``str``, ``bytes``
     or ``os.PathLike``).
 
     Polygons are fan-triangulated; STL triangle soups have identical corners
@@ -334,8 +334,8 @@ def read_mesh(path: str | bytes | os.PathLike[str]) -> Mesh:
     size = os.stat(path).st_size
     if size > MAX_INPUT_FILE_BYTES:
         raise InputFormatError(f"{name}: {size:,} bytes, more than the limit of {MAX_INPUT_FILE_BYTES:,}")
-    if suffix == ".obj":
-        positions, faces = _read_obj(path, name)
+    if suffix in (".obj", ".off"):
+        positions, faces = (_read_obj if suffix == ".obj" else _read_off)(path, name)
         return _soup_welded(positions, faces, name)
     if suffix == ".ply":
         _check_ply_header(path, name)
@@ -379,7 +379,7 @@ def _read_obj(path, name):
     face line's triangles are counted from its spaces before it is split), and
     every face index must name an existing vertex.
     """
-    text = _obj_text(read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name), name)
+    text = _mesh_text(read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name), name, "OBJ")
     lines = _obj_lines(text)
     fast = _read_obj_columns(lines)
     if fast is not None:
@@ -406,12 +406,12 @@ def _read_obj(path, name):
     return np.array(verts, dtype=np.float64), np.array(tris, dtype=np.int64)
 
 
-def _obj_text(data: bytes, name: str) -> str:
-    """The text of an OBJ file's bytes ``data``: UTF-8, or what its byte order mark names (a Windows editor's
-    UTF-8, UTF-16 or UTF-32 mark, dropped), else Latin-1 (older exporters write their object and material
-    names in the system's 8-bit code page, ``usemtl Terraind\\xe6k``: every ``v`` / ``f`` record is ASCII,
-    the same in both, and the names are not read).  InputFormatError for binary data: a NUL byte outside
-    a marked UTF-16 / UTF-32 text, or text its mark's codec cannot decode."""
+def _mesh_text(data: bytes, name: str, kind: str) -> str:
+    """The text of a ``kind`` (OBJ, OFF) file's bytes ``data``: UTF-8, or what its byte order mark names (a Windows
+    editor's UTF-8, UTF-16 or UTF-32 mark, dropped), else Latin-1 (older exporters write their object and material
+    names in the system's 8-bit code page, ``usemtl Terraind\\xe6k``: every record read is ASCII, the same in
+    both, and the names are not read).  InputFormatError for binary data: a NUL byte outside a marked UTF-16 /
+    UTF-32 text, or text its mark's codec cannot decode."""
     codec = bom_codec(data[:4])
     try:
         if codec is not None:
@@ -423,9 +423,114 @@ def _obj_text(data: bytes, name: str) -> str:
         except UnicodeDecodeError:
             return data.decode("latin-1")
     except UnicodeDecodeError:
-        raise InputFormatError(f"{name}: not a text OBJ file (binary data" +
+        raise InputFormatError(f"{name}: not a text {kind} file (binary data" +
                                (f", or not the {codec.upper().removesuffix('-SIG')} its byte order mark names)"
                                 if codec else ")")) from None
+
+
+#: An OFF header keyword (Geomview's ``[ST][C][N][4][n]OFF``) and what follows it on its line.
+_OFF_HEADER = re.compile(r"((?:ST)?C?N?(4)?(n)?OFF)(.*)")
+
+
+def _read_off(path, name) -> tuple:
+    """Parse an OFF file (Object File Format: Geomview's, CGAL's, the Princeton Shape Benchmark's and ModelNet's):
+    ``(positions (n, 3) float64, faces (m, 3) int64)``, polygons fan-triangulated as an OBJ's are.
+
+    The header keyword (``OFF``, ``COFF``, ``NOFF``, ``STOFF``, ...; ModelNet writes the counts on its line,
+    ``OFF490 1010 0``), then the vertex and face counts, then one vertex a line (its first three numbers: the
+    position; normals, colours and texture coordinates after them are not read) and one face a line (its corner
+    count k, k indices counted from 0, then an optional colour).  ``#`` starts a comment.  Counts are checked
+    against the encoder's limits before anything is stored.  InputFormatError, naming the line, for a binary
+    or 4D / nD OFF, a missing or malformed record, a face index past the vertices; MeshError for a file of no
+    faces (a point cloud).  A face of one or two corners is a degenerate triangle, dropped and counted by
+    :func:`checked_mesh` as an OBJ's is."""
+    text = _mesh_text(read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name), name, "OFF")
+    if "#" in text:
+        text = re.sub(r"#[^\n]*", "", text)
+    lines = [line for line in text.splitlines() if line.strip()]
+    head = _OFF_HEADER.fullmatch(lines[0].strip()) if lines else None
+    if head is None:
+        raise InputFormatError(f"{name}: not an OFF file (its first record is not an OFF keyword such as OFF or COFF)")
+    if head.group(2) or head.group(3):
+        raise InputFormatError(f"{name}: a {head.group(1)} file holds vertices of another dimension than 3")
+    rest = head.group(4).split()
+    if rest[:1] == ["BINARY"]:
+        raise InputFormatError(f"{name}: a binary OFF file; pmw reads OFF as text")
+    at = 1
+    if not rest:
+        rest, at = (lines[1].split() if len(lines) > 1 else []), 2
+    try:
+        n_vertices, n_faces = int(rest[0]), int(rest[1])
+    except (IndexError, ValueError):
+        raise InputFormatError(f"{name}: malformed OFF counts: {' '.join(rest)[:60]!r} (vertices, faces, edges)") from None
+    if not 0 <= n_vertices <= MAX_ENCODE_VERTICES or not 0 <= n_faces <= MAX_ENCODE_FACES:
+        raise InputFormatError(f"{name}: OFF declares {n_vertices:,} vertices and {n_faces:,} faces (the encoder takes "
+                               f"0..{MAX_ENCODE_VERTICES:,} and 0..{MAX_ENCODE_FACES:,})")
+    if n_faces == 0:
+        raise MeshError(f"{name}: the file holds no triangle mesh (its OFF header declares {n_vertices:,} vertices and "
+                        "no faces: a point cloud)")
+    if len(lines) < at + n_vertices + n_faces:
+        raise InputFormatError(f"{name}: OFF declares {n_vertices:,} vertices and {n_faces:,} faces but holds "
+                               f"{max(len(lines) - at, 0):,} records (cut short)")
+    positions = _off_rows(lines[at: at + n_vertices], 3, name, at, "vertex")
+    polygons = lines[at + n_vertices: at + n_vertices + n_faces]
+    faces = _off_faces(polygons, name, at + n_vertices)
+    return positions, faces
+
+
+def _off_rows(records: list, width: int, name: str, first: int, what: str) -> np.ndarray:
+    """The first ``width`` numbers of each of ``records`` (OFF lines, the first of them record ``first`` of the
+    file counting from 0) as an (n, width) float64 array; the records all of one length are parsed at once."""
+    fields = records[0].split()
+    if all(len(r.split()) == len(fields) for r in records) and len(fields) >= width:
+        try:
+            return np.array(" ".join(records).split(), np.float64).reshape(len(records), -1)[:, :width]
+        except ValueError:
+            pass  # the record that does not parse is named below
+    out = np.empty((len(records), width), np.float64)
+    for i, record in enumerate(records):
+        values = record.split()[:width]
+        try:
+            if len(values) < width:
+                raise ValueError(record)
+            out[i] = [float(x) for x in values]
+        except ValueError:
+            raise InputFormatError(f"{name}: malformed OFF {what} record (record {first + i + 1}): "
+                                   f"{record.strip()[:60]!r}") from None
+    return out
+
+
+def _off_faces(records: list, name: str, first: int) -> np.ndarray:
+    """The triangles (m, 3) int64 of OFF face ``records`` (``k i_1 .. i_k [colour]`` each), fan-triangulated; the
+    common file of one corner count throughout at once, the rest record by record."""
+    fields = [r.split() for r in records]
+    k0 = fields[0][0]
+    if k0.isdigit() and int(k0) >= 3 and all(f[0] == k0 and len(f) == len(fields[0]) for f in fields):
+        k = int(k0)
+        if len(fields[0]) > k:
+            try:
+                idx = np.array([f[1: k + 1] for f in fields], np.int64)
+            except ValueError:
+                idx = None  # named record by record below
+            if idx is not None:
+                if len(idx) * (k - 2) > MAX_ENCODE_FACES:
+                    raise InputFormatError(f"{name}: more than {MAX_ENCODE_FACES:,} triangles (the encoder's limit)")
+                return np.stack([np.repeat(idx[:, 0], k - 2), idx[:, 1:-1].reshape(-1), idx[:, 2:].reshape(-1)], 1)
+    tris = []
+    for i, f in enumerate(fields):
+        try:
+            k = int(f[0])
+            idx = [int(x) for x in f[1: k + 1]]
+            if k < 1 or len(idx) < k:
+                raise ValueError
+        except ValueError:
+            raise InputFormatError(f"{name}: malformed OFF face record (record {first + i + 1}): "
+                                   f"{records[i].strip()[:60]!r}") from None
+        if len(tris) + max(k - 2, 1) > MAX_ENCODE_FACES:
+            raise InputFormatError(f"{name}: more than {MAX_ENCODE_FACES:,} triangles (the encoder's limit)")
+        idx += idx[-1:] * (3 - len(idx))  # a face of one or two corners: a degenerate triangle, dropped and counted
+        tris.extend((idx[0], idx[j], idx[j + 1]) for j in range(1, len(idx) - 1))
+    return np.array(tris, np.int64).reshape(-1, 3)
 
 
 def _obj_lines(text: str) -> list:

@@ -99,7 +99,7 @@ def add_parser(sub):
     cmds = p.add_subparsers(dest="batch_command", metavar="encode|verify", parser_class=type(p))
     cmds.required = True
     e = cmds.add_parser("encode", help="every mesh of SRC -> OUT_DIR/<relative path>.pmw",
-                        description="Encode every mesh (OBJ, PLY, STL, glTF/GLB) of SRC — a folder (recursively), "
+                        description="Encode every mesh (OBJ, PLY, STL, OFF, glTF/GLB) of SRC — a folder (recursively), "
                                     "a glob or a manifest (one path a line) — into OUT_DIR/<relative path>.pmw. "
                                     "A ledger OUT_DIR/pmw-batch.jsonl records each attempt; a re-run skips assets "
                                     "already done with the same input and settings (watermark, key, the options "

@@ -53,7 +53,7 @@ def _owner_id(text):
 def add_parser(sub):
     p = sub.add_parser(
         "encode", help="mesh (+ watermark) -> progressive .pmw",
-        description="Encode a mesh (OBJ, PLY, STL) or a glTF asset (GLB/glTF: every triangle primitive becomes "
+        description="Encode a mesh (OBJ, PLY, STL, OFF) or a glTF asset (GLB/glTF: every triangle primitive becomes "
                     "progressive, materials, textures and nodes are kept) into a progressive .pmw; with --watermark, "
                     "hide the image in the vertex splits and write the secret key beside the output.")
     p.add_argument("input", help="mesh file")

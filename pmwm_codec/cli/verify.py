@@ -1,6 +1,6 @@
 """``pmw verify IN.pmw|URL|- --key KEY``: read the watermark at every chunk boundary and decide.
 
-``pmw verify MESH --key KEY`` (OBJ, PLY, STL, glTF/GLB, no ``--reference``) reads the owner
+``pmw verify MESH --key KEY`` (OBJ, PLY, STL, OFF, glTF/GLB, no ``--reference``) reads the owner
 layer blind.  Exit status: 0 authentic (a mesh: owner ``present``; a ``.pmw`` without an
 image watermark: owner ``present`` at the end); 1 tampered, not-authentic, absent or inconclusive;
 2 bad input.  A chunk whose keyed MAC fails is named on its own line ("chunk 7: not written

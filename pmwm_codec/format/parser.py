@@ -155,7 +155,8 @@ def trailing_bytes(size: int, total: int) -> FormatError:
 #: What the first bytes of a file that is no GLB say it is (:func:`_what_else`): text formats by their first word, at
 #: most 4 bytes of it (a streamed file is refused as soon as its first 4 bytes are in).
 _TEXT_KINDS = ((b"{", "a glTF JSON file"), (b"ply", "a PLY mesh"), (b"soli", "an STL mesh"),
-               (b"v ", "an OBJ mesh"), (b"#", "a text file, an OBJ mesh perhaps"))
+               (b"v ", "an OBJ mesh"), (b"OFF", "an OFF mesh"), (b"COFF", "an OFF mesh"),
+               (b"#", "a text file, an OBJ mesh perhaps"))
 
 
 def _what_else(head: bytes) -> str:

@@ -3,7 +3,7 @@
 Contract
 --------
 * :func:`owner_of_mesh` ``(mesh, key) -> OwnerResult``: ``mesh`` a :class:`~pmwm_codec.mesh.Mesh`,
-  a mesh file path (OBJ, PLY, STL, glTF/GLB: :func:`owner_view`) or a
+  a mesh file path (OBJ, PLY, STL, OFF, glTF/GLB: :func:`owner_view`) or a
   ``(positions (n, 3), faces (m, 3))`` pair; no original is needed.  A mesh made of separate pieces
   (:func:`pieces`: an OBJ of a scene that shows the marked object twice, a marked object exported
   beside others) is read whole and piece by piece, and the best read counts; its false-alarm

@@ -1,0 +1,98 @@
+"""OFF meshes (Geomview's Object File Format: CGAL's data, the Princeton Shape Benchmark, ModelNet) are read.
+
+``pmw encode mesh.off`` was "unknown mesh format '.off'", and trimesh's own OFF reader fails on numpy 2 for a
+file that mixes polygon sizes (6 of CGAL's 139 OFF meshes).  Every reader of a mesh file (``read_mesh``,
+``pmw encode``, ``pmw verify``, ``pmw batch``) now takes OFF: one vertex a line, one polygon a line (its corner
+count, indices from 0, an optional colour), fan-triangulated as an OBJ's polygons are.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import pmwm_codec
+from pmwm_codec import shapes
+from pmwm_codec.cli import main
+from pmwm_codec.errors import InputFormatError, MeshError
+
+
+def off_text(mesh, keyword="OFF", header_counts_inline=False, comments=False, colours=False) -> str:
+    lines = [keyword + (f" {mesh.vertex_count} {mesh.face_count} 0" if header_counts_inline else "")]
+    if comments:
+        lines.insert(0, "# made by a test")
+        lines.append("")
+    if not header_counts_inline:
+        lines.append(f"{mesh.vertex_count} {mesh.face_count} 0")
+    for p in mesh.positions:
+        lines.append(" ".join(repr(float(x)) for x in p) + (" 0.5 0.5 0.5 1" if colours else "")
+                     + ("  # a vertex" if comments else ""))
+    for f in mesh.faces:
+        lines.append("3 " + " ".join(map(str, f)) + (" 255 0 0" if colours else ""))
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize("form", [{}, {"keyword": "COFF", "colours": True}, {"header_counts_inline": True},
+                                  {"comments": True}])
+def test_an_off_mesh_reads_as_its_obj_does(tmp_path, form):
+    mesh = shapes.icosphere(3, noise=0.05, seed=4)
+    (tmp_path / "m.obj").write_text("".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in mesh.positions.tolist())
+                                    + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in mesh.faces.tolist()))
+    (tmp_path / "m.off").write_text(off_text(mesh, **form))
+    off, obj = pmwm_codec.read_mesh(tmp_path / "m.off"), pmwm_codec.read_mesh(tmp_path / "m.obj")
+    assert np.array_equal(off.positions, obj.positions) and np.array_equal(off.faces, obj.faces)
+    assert np.array_equal(off.positions, mesh.positions) and np.array_equal(off.faces, mesh.faces)
+
+
+def test_off_polygons_of_mixed_sizes_are_fan_triangulated_as_obj_polygons(tmp_path):
+    """A quad, a pentagon and triangles (the kind trimesh's reader fails on): the same triangles as the OBJ."""
+    pts = "0 0 0\n1 0 0\n1 1 0\n0 1 0\n2 0 0\n3 1 0\n2 2 0\n"
+    (tmp_path / "m.off").write_text("OFF\n7 3 0\n" + pts + "4 0 1 2 3\n5 1 4 5 6 2\n3 0 2 3\n")
+    (tmp_path / "m.obj").write_text("".join(f"v {line}\n" for line in pts.splitlines()) + "f 1 2 3 4\nf 2 5 6 7 3\nf 1 3 4\n")
+    off, obj = pmwm_codec.read_mesh(tmp_path / "m.off"), pmwm_codec.read_mesh(tmp_path / "m.obj")
+    assert off.face_count == 6 and np.array_equal(off.faces, obj.faces)
+
+
+@pytest.mark.parametrize("text, error, words", [
+    ("OFF\n3 1 0\n0 0 0\n1 0 0\n", InputFormatError, "OFF declares 3 vertices and 1 faces but holds 2 records (cut short)"),
+    ("OFF\n3 1 0\n0 0 0\n1 0 x\n0 1 0\n3 0 1 2\n", InputFormatError, "malformed OFF vertex record (record 4): '1 0 x'"),
+    ("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1\n", InputFormatError, "malformed OFF face record (record 6): '3 0 1'"),
+    ("OFF\n3 0 0\n0 0 0\n1 0 0\n0 1 0\n", MeshError, "no triangle mesh (its OFF header declares 3 vertices and no faces"),
+    ("OFF BINARY\n", InputFormatError, "a binary OFF file"),
+    ("4OFF\n1 1 0\n0 0 0 0\n", InputFormatError, "a 4OFF file holds vertices of another dimension than 3"),
+    ("OFF\n99999999 1 0\n", InputFormatError, "OFF declares 99,999,999 vertices"),
+    ("ply\n", InputFormatError, "not an OFF file"),
+    ("OFF\nthree 1 0\n", InputFormatError, "malformed OFF counts: 'three 1 0'"),
+    ("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n", MeshError, "face index 7 out of range for 3 vertices"),
+])
+def test_a_malformed_off_is_refused_in_one_line_naming_the_problem(tmp_path, capsys, text, error, words):
+    (tmp_path / "m.off").write_text(text)
+    with pytest.raises(error) as exc:
+        pmwm_codec.read_mesh(tmp_path / "m.off")
+    assert words in str(exc.value)
+    assert main(["encode", str(tmp_path / "m.off"), "-o", str(tmp_path / "m.pmw")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0] and not (tmp_path / "m.pmw").exists()
+
+
+def test_an_off_mesh_encodes_verifies_and_batches(tmp_path, capsys):
+    mesh = shapes.icosphere(4, noise=0.03, seed=5)
+    src = tmp_path / "in" / "m.off"
+    src.parent.mkdir()
+    src.write_text(off_text(mesh))
+    assert main(["encode", str(src), "-o", str(tmp_path / "m.pmw"), "--owner-id", "abc", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["vertices"] == mesh.vertex_count and report["vsplits"] > 0
+    assert main(["decode", str(tmp_path / "m.pmw"), "-o", str(tmp_path / "back.off")]) == 2  # OFF is read, not written
+    capsys.readouterr()
+    assert main(["decode", str(tmp_path / "m.pmw"), "-o", str(tmp_path / "back.obj"), "-q"]) == 0
+    text = "\n".join(f"v {x} {y} {z}" for x, y, z in pmwm_codec.read_mesh(tmp_path / "back.obj").positions)
+    faces = pmwm_codec.read_mesh(tmp_path / "back.obj").faces
+    (tmp_path / "back.off").write_text(f"OFF\n{len(text.splitlines())} {len(faces)} 0\n" + text.replace("v ", "")
+                                       + "\n" + "\n".join("3 " + " ".join(map(str, f)) for f in faces) + "\n")
+    assert main(["verify", str(tmp_path / "back.off"), "--key", str(tmp_path / "m.pmw.key.json"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["owner"]["verdict"] == "present"
+    assert main(["batch", "encode", str(tmp_path / "in"), "-o", str(tmp_path / "out"), "-q"]) == 0
+    assert (tmp_path / "out" / "m.off.pmw").exists()  # the batch tree keeps the source name (m.obj.pmw beside it)
