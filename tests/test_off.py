@@ -96,3 +96,9 @@ def test_an_off_mesh_encodes_verifies_and_batches(tmp_path, capsys):
     assert json.loads(capsys.readouterr().out)["owner"]["verdict"] == "present"
     assert main(["batch", "encode", str(tmp_path / "in"), "-o", str(tmp_path / "out"), "-q"]) == 0
     assert (tmp_path / "out" / "m.off.pmw").exists()  # the batch tree keeps the source name (m.obj.pmw beside it)
+
+
+def test_modelnet_s_counts_glued_to_the_keyword_read(tmp_path):
+    """ModelNet's OFF files write ``OFF490 1010 0``: the keyword and the counts on one line, with no space."""
+    (tmp_path / "m.off").write_text("OFF4 2 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2 3\n")
+    assert pmwm_codec.read_mesh(tmp_path / "m.off").faces.tolist() == [[0, 1, 2], [0, 2, 3]]
