@@ -23,6 +23,8 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import re
+import stat
 
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
@@ -418,7 +420,7 @@ def _missing_directories(directory: str) -> list:
 
 
 def write_figures(results, directory, *, title: str | None = None, total_bytes: int | None = None,
-                  bytes_received: int | None = None, k: int = 5, tamper=None) -> dict:
+                  bytes_received: int | None = None, k: int = 5, tamper=None, inputs=()) -> dict:
     """Write ``frame_NNN.png`` (see :func:`_frames`: where the watermark changed), ``overview.png``, ``metrics.png``
     and, given ``tamper`` (the flagged vertex ids (f,) of the last result's mesh), ``tamper.png``
     (:func:`tamper_figure`): the set whole or not at all (:func:`write_pictures`).
@@ -426,6 +428,11 @@ def write_figures(results, directory, *, title: str | None = None, total_bytes: 
     ``total_bytes``: size of the complete file; ``bytes_received``: where the stream ended.
     Creates ``directory`` if needed.  Returns ``{"frames": [paths], "overview": path, "plot": path}``
     (``plot`` is None when no result carries a watermark score), and ``"tamper": path`` given ``tamper``.
+
+    Pictures of this set that an earlier run left in ``directory`` and this one does not write (frames of
+    other chunks, a ``metrics.png`` or ``tamper.png`` this file has none of) are removed once the new set is
+    published (:func:`remove_stale`): the folder shows one file's pictures, not a mix of two.  ``inputs`` (the
+    command's input paths) are never removed.
     """
     directory = os.fspath(directory)
     pictures = _frames(results)
@@ -442,4 +449,31 @@ def write_figures(results, directory, *, title: str | None = None, total_bytes: 
                                               title=title)
         out["tamper"] = os.path.join(directory, TAMPER_NAME)
     write_pictures(directory, pictures)
+    remove_stale(directory, set(pictures), inputs)
     return out
+
+
+#: The names :func:`write_figures` writes: a stale one of them is removed by the next write into the folder.
+FIGURE_NAMES = re.compile(r"frame_\d{3,}\.png|" + "|".join(re.escape(n) for n in (OVERVIEW_NAME, PLOT_NAME, TAMPER_NAME)))
+
+
+def remove_stale(directory: str, written: set, inputs=()) -> list:
+    """Remove the regular files in ``directory`` whose names are :data:`FIGURE_NAMES` but not ``written``
+    (links, folders and the ``inputs`` paths are left); returns the paths removed.  A file that cannot be
+    removed stays (the pictures just written are what the command reports)."""
+    kept = set()
+    for path in inputs:
+        with contextlib.suppress(OSError, TypeError, ValueError):
+            st = os.stat(path)
+            kept.add((st.st_dev, st.st_ino))
+    removed = []
+    with os.scandir(directory) as entries:
+        for entry in entries:
+            if entry.name in written or not FIGURE_NAMES.fullmatch(entry.name):
+                continue
+            with contextlib.suppress(OSError):
+                st = entry.stat(follow_symlinks=False)
+                if stat.S_ISREG(st.st_mode) and (st.st_dev, st.st_ino) not in kept:
+                    os.unlink(entry.path)
+                    removed.append(entry.path)
+    return removed

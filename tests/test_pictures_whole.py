@@ -24,10 +24,13 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope="module")
 def marked(tmp_path_factory):
+    from pmwm_codec.watermark.image import save_png
+
     d = tmp_path_factory.mktemp("marked")
-    data, key, _ = marked_sphere(4)
+    data, key, image = marked_sphere(4)
     (d / "m.pmw").write_bytes(data)
     key.save(d / "m.key.json")
+    save_png(d / "mark.png", image)
     return d / "m.pmw", d / "m.key.json"
 
 
@@ -107,3 +110,38 @@ def test_verify_of_a_mesh_writes_its_two_pictures_together(marked, tmp_path, mon
     argv[-2] = str(tmp_path / "g")
     assert main(argv) == 130 and capsys.readouterr().err == "pmw: error: interrupted\n"
     assert not (tmp_path / "g").exists()
+
+
+def test_a_second_run_into_the_folder_leaves_only_its_own_pictures(marked, tmp_path):
+    """A folder verified into twice showed a mix: the second file's frames beside the first's later ones (and
+    its metrics.png or tamper.png when the second run draws none).  Stale pictures of the set are removed once
+    the new set is published; anything else in the folder, links, and the command's own inputs stay."""
+    pmw, key = marked
+    frames = tmp_path / "f"
+    assert _verify(marked, frames) == 0
+    first = {p.name for p in frames.iterdir()}
+    cut = tmp_path / "cut.pmw"
+    data = pmw.read_bytes()
+    cut.write_bytes(data[: 2 * len(data) // 3])
+    (frames / "notes.txt").write_text("mine")
+    (frames / "frame_999.png").symlink_to(tmp_path / "elsewhere.png")
+    reference = frames / "frame_998.png"  # the expected image kept under a frame's name: an input of the run
+    reference.write_bytes((pmw.parent / "mark.png").read_bytes())
+    code = main(["verify", str(cut), "--key", str(key), "--frames", str(frames), "--watermark", str(reference), "-q",
+                 "--json"])
+    assert code in (0, 1)
+    second = {p.name for p in frames.iterdir()} - {"notes.txt", "frame_999.png", "frame_998.png"}
+    drawn = {n for n in first if n.startswith("frame_")}
+    assert second < first and {n for n in second if n.startswith("frame_")} < drawn  # fewer chunks: fewer frames
+    assert (frames / "notes.txt").read_text() == "mine" and (frames / "frame_999.png").is_symlink()
+    assert reference.exists()
+
+
+def test_remove_stale_touches_only_the_sets_names(tmp_path):
+    for name in ("frame_001.png", "frame_002.png", "frame_0123.png", "overview.png", "metrics.png", "tamper.png",
+                 "frame_1.png", "frame_001.png.bak", "other.png"):
+        (tmp_path / name).write_bytes(b"x")
+    removed = figures.remove_stale(str(tmp_path), {"frame_001.png", "overview.png"})
+    assert sorted(os.path.basename(p) for p in removed) == ["frame_002.png", "frame_0123.png", "metrics.png", "tamper.png"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frame_001.png", "frame_001.png.bak", "frame_1.png",
+                                                          "other.png", "overview.png"]

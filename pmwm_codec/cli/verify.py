@@ -100,7 +100,8 @@ def run(args) -> int:
         title = f"{name}: {outcome.verdict}" + ("" if outcome.end.complete else " (truncated)")
         pictures = write_figures(outcome.results, args.frames, title=title, total_bytes=outcome.total_length,
                                  bytes_received=outcome.end.bytes_read,
-                                 tamper=outcome.flagged if outcome.marked else None)
+                                 tamper=outcome.flagged if outcome.marked else None,
+                                 inputs=[p for p in (args.input, args.key, args.watermark) if p and p != "-"])
     if args.json:
         doc = outcome.as_json()
         if owners:
