@@ -9,6 +9,7 @@ suffix of ``path``:
 ``.obj``   ASCII Wavefront OBJ (``v`` and ``f`` records, 1-based, 9 significant digits)
 ``.ply``   binary little-endian PLY (float x, y, z; ``uchar uint`` face lists)
 ``.stl``   binary STL (one float32 normal and three float32 corners per face)
+``.off``   ASCII OFF (``OFF``, the counts, a vertex a line, ``3 i j k`` a face, 0-based, 9 significant digits)
 ``.glb``   a minimal glTF binary: one node, one mesh, float32 POSITION, uint32 indices
 ``.gltf``  the same document as JSON, self-contained: its buffer a base64 ``data:`` URI, as
            :func:`write_asset` and ``pmw decode -o X.gltf`` write it (no second file: a ``.bin``
@@ -43,7 +44,7 @@ from .sources import shown_path
 
 __all__ = ["WRITE_SUFFIXES", "write_mesh", "write_asset"]
 
-WRITE_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl")
+WRITE_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl", ".off")
 GENERATOR = "pmwm_codec (pmw decode)"
 
 _FLOAT, _UINT = 5126, 5125  # glTF componentType
@@ -81,7 +82,7 @@ def write_mesh(path: str | bytes | os.PathLike[str], mesh: Mesh) -> None:
                         "every format stores")
     faces = np.ascontiguousarray(tri, dtype="<u4")
     writer = {".glb": _glb_parts, ".gltf": _gltf_parts, ".obj": _obj_parts, ".ply": _ply_parts,
-              ".stl": _stl_parts}[suffix]
+              ".stl": _stl_parts, ".off": _off_parts}[suffix]
     _write(path, writer(positions, faces))
 
 
@@ -148,6 +149,16 @@ def _obj_parts(positions, faces) -> list:
     buf.write(f"# {GENERATOR}: {len(positions)} vertices, {len(faces)} faces\n")
     np.savetxt(buf, positions.astype(np.float64), fmt="v %.9g %.9g %.9g")
     np.savetxt(buf, faces.astype(np.int64) + 1, fmt="f %d %d %d")
+    return [buf.getvalue().encode("ascii")]
+
+
+def _off_parts(positions, faces) -> list:
+    """OFF as Geomview defined it: the keyword, the counts, a vertex a line, a triangle a line (no comment: a
+    strict reader takes none)."""
+    buf = io.StringIO()
+    buf.write(f"OFF\n{len(positions)} {len(faces)} 0\n")
+    np.savetxt(buf, positions.astype(np.float64), fmt="%.9g %.9g %.9g")
+    np.savetxt(buf, faces.astype(np.int64), fmt="3 %d %d %d")
     return [buf.getvalue().encode("ascii")]
 
 

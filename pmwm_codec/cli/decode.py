@@ -1,4 +1,4 @@
-"""``pmw decode IN.pmw|URL|- -o OUT.(glb|gltf|obj|ply|stl) [--chunks N]``: a level of detail as a plain mesh.
+"""``pmw decode IN.pmw|URL|- -o OUT.(glb|gltf|obj|ply|stl|off) [--chunks N]``: a level of detail as a plain mesh.
 
 glTF outputs keep the whole document (materials, textures, nodes) through
 :func:`pmwm_codec.stream.asset.decode_asset`; the other formats get the geometry through
@@ -32,7 +32,7 @@ def add_parser(sub):
                     "at full resolution or after --chunks N vertex-split chunks.")
     p.add_argument("input", metavar="IN.pmw|URL", help="the .pmw, an http(s):// URL of one (read by Range requests "
                                                          "when the server allows), or - for standard input")
-    p.add_argument("-o", "--output", required=True, metavar="OUT", help="output mesh: .glb, .gltf, .obj, .ply or .stl")
+    p.add_argument("-o", "--output", required=True, metavar="OUT", help="output mesh: .glb, .gltf, .obj, .ply, .stl or .off")
     p.add_argument("--chunks", type=int, metavar="N", help="stop after the base mesh and N chunks")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success (notes still go to stderr)")
