@@ -90,7 +90,7 @@ def owner_prefix(mesh, seed: int) -> tuple:
     buf = io.BytesIO()
     key = encode_mesh(mesh, buf, key=key, owner_id=OWNER_ID + seed).key
     data = buf.getvalue()
-    bounds = owner_of_stream(data, key)
+    bounds = owner_of_stream(data, key, every=True)  # every boundary read: the byte at which it is present, exactly
     first = len(bounds)
     while first > 0 and bounds[first - 1].owner.verdict == "present":
         first -= 1

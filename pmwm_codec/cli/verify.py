@@ -106,7 +106,7 @@ def run(args) -> int:
         doc = outcome.as_json()
         if owners:
             for chunk, boundary in zip(doc["chunks"], owners):
-                chunk["owner"] = boundary.owner.as_json()
+                chunk["owner"] = {**boundary.owner.as_json(), "read_at_chunk": boundary.read_at}
             doc["owner"] = owners[-1].owner.as_json()
         if pictures is not None:
             doc["pictures"] = pictures
@@ -130,10 +130,12 @@ def _owner_reader(key):
 
 
 def owner_report(owners, key) -> str:
-    """Human lines: the owner layer per chunk boundary (``key`` the key read with), and from how many
-    bytes it is present."""
+    """Human lines: the owner layer at each chunk boundary it was read at (``key`` the key read with), and from
+    how many bytes it is present."""
     lines = [f"{'chunk':>5} {'bytes':>11} {'vertices':>9}  owner"]
-    for b in owners:
+    for b in owners:  # the boundaries it was read at (one between carries the read before it)
+        if b.read_at != b.chunk:
+            continue
         o = b.owner
         lines.append(f"{b.chunk:>5} {b.bytes_read:>11,} {b.vertices:>9,}  {o.verdict} ({o.bit_errors}/64 bit errors, "
                      f"P_fa {o.false_alarm_probability:.1e})")

@@ -12,9 +12,12 @@ Contract
   or STL as it is; a glTF/GLB's triangle primitives in the view
   :func:`~pmwm_codec.format.gltf.owner_placements` gives (the scene as shown, flattened, or, when no
   mesh is shown once or the placements do not read, each mesh once where it is stored).
-* :func:`owner_of_stream` ``(source, key) -> list[OwnerBoundary]``: a ``.pmw`` (path, bytes,
-  binary file; whole or cut) decoded chunk by chunk, the owner read at each boundary,
-  base mesh first; its primitives are placed in the same view, as a decoded asset's are.
+* :func:`owner_of_stream` ``(source, key, every=False) -> list[OwnerBoundary]``: a ``.pmw`` (path, bytes,
+  binary file; whole or cut) decoded chunk by chunk, an :class:`OwnerBoundary` at each boundary,
+  base mesh first; its primitives are placed in the same view, as a decoded asset's are.  The layer is
+  read at the base, at the last boundary, and wherever the level has at least :data:`REREAD_GROWTH`
+  more vertices than at the last read; a boundary between carries the last read (``read_at``).
+  ``every=True`` reads it at every boundary.
 
 ``key``: a :class:`~pmwm_codec.watermark.key.WatermarkKey` or key file path carrying
 ``owner_id``; a key without one raises :class:`~pmwm_codec.errors.WatermarkKeyError`.
@@ -44,6 +47,11 @@ MAX_PIECES = 8
 #: A piece with fewer distinct vertices is not read on its own: too few to fill the layer's 64 shells
 #: reliably (the encoder refuses meshes whose shells would stay empty, and no marked mesh is this small).
 MIN_PIECE_VERTICES = 500
+#: A stream's level is read again when it has at least this fraction more vertices than the level last read
+#: (and always at the base and at the last boundary).  A multi-primitive asset streams in hundreds of small
+#: chunks (2CylinderEngine: 442 for 46k splits), and a read that finds an error searches all its views: read
+#: at every boundary, ``pmw verify`` took 190 s there (0.42 s a read); levels this close read the same.
+REREAD_GROWTH = 1 / 16
 #: Only the largest components this many are grouped by their bounding boxes (a scan's thousands of
 #: specks would make the grouping quadratic, and a speck changes no piece's read).
 MAX_GROUPED = 256
@@ -51,16 +59,22 @@ MAX_GROUPED = 256
 
 @dataclass
 class OwnerBoundary:
-    """The owner layer as read after ``chunk`` chunks (``bytes_read`` bytes, ``vertices``)."""
+    """The owner layer after ``chunk`` chunks (``bytes_read`` bytes, ``vertices``), as read from the level of
+    chunk ``read_at`` (this one, or the last read before it: :data:`REREAD_GROWTH`)."""
 
     chunk: int
     bytes_read: int
     vertices: int
     owner: OwnerResult
+    read_at: int = -1
+
+    def __post_init__(self):
+        if self.read_at < 0:
+            self.read_at = self.chunk
 
     def as_json(self) -> dict:
         return {"chunk": self.chunk, "bytes_read": self.bytes_read, "vertices": self.vertices,
-                **self.owner.as_json()}
+                **self.owner.as_json(), "read_at_chunk": self.read_at}
 
 
 def owner_key(key):
@@ -203,9 +217,9 @@ def _triangle_meshes(gltf: dict) -> list:
             and any(isinstance(p, dict) and p.get("mode", TRIANGLES) in TRIANGLE_MODES for p in m["primitives"])]
 
 
-def owner_of_stream(source, key) -> list:
+def owner_of_stream(source, key, every: bool = False) -> list:
     """``[OwnerBoundary]`` of a ``.pmw`` (see the module contract), base mesh first."""
-    reader = OwnerReader(key)
+    reader = OwnerReader(key, every=every)
     decoder = StreamDecoder(None, None, copy=True)
     for r in iter_results(source, decoder):
         reader.add(r, decoder.header.gltf_json)
@@ -213,24 +227,48 @@ def owner_of_stream(source, key) -> list:
 
 
 class OwnerReader:
-    """The owner layer read at every chunk boundary of a stream another reader decodes (``pmw verify`` reads
-    the image and the owner in one pass): :meth:`add` each result in stream order; ``boundaries`` the
-    :class:`OwnerBoundary` list :func:`owner_of_stream` returns."""
+    """The owner layer at every chunk boundary of a stream another reader decodes (``pmw verify`` reads the
+    image and the owner in one pass): :meth:`add` each result in stream order; :attr:`boundaries` the
+    :class:`OwnerBoundary` list :func:`owner_of_stream` returns.  The layer is read at the first boundary, at
+    each whose level has :data:`REREAD_GROWTH` more vertices than the last read, and at the last one added
+    (read when :attr:`boundaries` is asked for; the boundaries between carry the last read); ``every``:
+    at each."""
 
-    def __init__(self, key):
+    def __init__(self, key, every: bool = False):
         self.key = owner_key(key)
-        self.boundaries: list = []
+        self.every = every
+        self._boundaries: list = []
         self._frames = None
+        self._read_vertices = None
+        self._pending = None  # (positions, faces) of the last boundary added, when it was not read
+
+    @property
+    def boundaries(self) -> list:
+        """The :class:`OwnerBoundary` of every boundary added, the last one read."""
+        if self._pending is not None:
+            last = self._boundaries[-1]
+            self._boundaries[-1] = OwnerBoundary(last.chunk, last.bytes_read, last.vertices,
+                                                 detect(*self._pending, self.key))
+            self._read_vertices, self._pending = last.vertices, None
+        return self._boundaries
 
     def add(self, result, gltf: dict) -> None:
-        """Read the layer from ``result`` (a :class:`~pmwm_codec.stream.PartialResult` whose parts hold the
+        """Take the boundary of ``result`` (a :class:`~pmwm_codec.stream.PartialResult` whose parts hold the
         meshes of its boundary: copies, or views not yet moved on) of the stream whose glTF JSON is ``gltf``."""
         if self._frames is None:
             self._frames = _frames(gltf)
         positions, faces, _ = scene_mesh([p.positions for p in result.parts], [p.faces for p in result.parts],
                                          self._frames)
-        self.boundaries.append(OwnerBoundary(result.chunk, int(result.bytes_read), int(result.vertices),
-                                             detect(positions, faces, self.key)))
+        vertices = int(result.vertices)
+        if self.every or self._read_vertices is None or vertices >= self._read_vertices * (1 + REREAD_GROWTH):
+            self._pending = None
+            self._read_vertices = vertices
+            self._boundaries.append(OwnerBoundary(result.chunk, int(result.bytes_read), vertices,
+                                                  detect(positions, faces, self.key)))
+            return
+        read = next(b for b in reversed(self._boundaries) if b.read_at == b.chunk)
+        self._boundaries.append(OwnerBoundary(result.chunk, int(result.bytes_read), vertices, read.owner, read.chunk))
+        self._pending = (np.array(positions, copy=True), np.array(faces, copy=True))
 
 
 def _frames(gltf: dict) -> list:
