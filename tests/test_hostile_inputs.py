@@ -380,8 +380,16 @@ def test_gltf_with_nothing_to_make_progressive_says_why(capsys, tmp_path):
     src = tmp_path / "m.glb"
     src.write_bytes(glb_of([(0, cloud, None)]))
     assert_refused(*run_encode(capsys, tmp_path, src),
-                   "no triangle primitive that can be made progressive (mesh 0 primitive 0: mode 0 (POINTS) does not draw "
-                   "triangles)")
+                   "m.glb: the asset has no triangle primitive that can be made progressive (mesh 0 primitive 0: mode 0 "
+                   "(POINTS) does not draw triangles)")
+
+
+def test_gltf_with_no_mesh_at_all_is_named_with_its_file_and_says_so(capsys, tmp_path):
+    """assimp's SceneWithoutNodes.gltf (a scene, no node, no mesh) was refused with no file name and no reason."""
+    src = tmp_path / "m.gltf"
+    src.write_text(json.dumps({"asset": {"version": "2.0"}, "scene": 0, "scenes": [{}]}))
+    assert_refused(*run_encode(capsys, tmp_path, src),
+                   "m.gltf: the asset has no triangle primitive that can be made progressive (it has no mesh)")
 
 
 @pytest.mark.parametrize("value, shown", [(float("nan"), "NaN"), (float("inf"), "Infinity"), (float("-inf"), "-Infinity")])

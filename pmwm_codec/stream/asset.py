@@ -165,7 +165,10 @@ def plan_asset(gltf: dict, buffers, name: str | None = None) -> tuple:
         why = "; ".join(reasons[:_REASONS_QUOTED])
         if len(reasons) > _REASONS_QUOTED:
             why += f"; {len(reasons) - _REASONS_QUOTED} more"
-        raise MeshError("the asset has no triangle primitive that can be made progressive" + (f" ({why})" if why else ""))
+        if not why:  # nothing passed through: say what the document holds instead
+            why = "it has no mesh" if not gltf.get("meshes") else "its meshes have no primitive"
+        raise MeshError(f"{name + ': ' if name else ''}the asset has no triangle primitive that can be made "
+                        f"progressive ({why})")
     _lock_shared_positions(gltf, jobs)
 
     drop = set()
