@@ -41,8 +41,10 @@ What each check proves (a finding names the one that failed):
 * Third parties (glTF / GLB inputs, when ``tools/js/node_modules`` exists): the Khronos validator
   finds no error in the ``.pmw`` nor in the decoded GLB (``validator-error``) and three.js loads
   both (``three-load``; ``validator-failed`` when ``check_gltf.mjs`` itself fails); the input's
-  validator errors and codes are kept in ``input_validator`` (information, not a finding: garbage
-  in is told apart from a fault).
+  validator errors and codes are kept in ``input_validator`` (information, not a finding), and an
+  error of a code the input's errors have too (``validator-error-as-input``), or a three.js failure
+  with the input's own message (``three-load-as-input``), is garbage in, carried over: told apart
+  from a fault, still listed.
 * ``cut --chunks K`` (half the chunks) writes a file whose ``decode`` equals ``decode(chunks=K)``
   of the whole one (for an asset, the OBJ of ``pmw decode --chunks K`` of the whole one) (``cut-differs``,
   ``cut-failed``).
@@ -392,7 +394,7 @@ class Probe:
     def validated(self, base: str) -> None:
         """Third parties read what ``pmw`` writes: the Khronos glTF validator reports no error and three.js
         loads (``tools/js/check_gltf.mjs``) the ``.pmw`` and the decoded GLB (``validator-error``,
-        ``three-load``); the input's validator errors are kept as information (``input_validator``), so a
+        ``three-load``; ``-as-input`` when the input has the same error); the input's validator errors are kept as information (``input_validator``), so a
         finding can be told from garbage in.  Skipped without ``tools/js/node_modules``."""
         if not os.path.isdir(os.path.join(HERE, "js", "node_modules")) or shutil.which("node") is None:
             self.res["validated"] = False
@@ -405,17 +407,23 @@ class Probe:
             self.finding("validator-failed", f"check_gltf.mjs rc={p.returncode}: {p.stderr.strip()[-300:]}")
             return
         self.res["validated"] = True
+        v, three = lines[2]["validator"], lines[2]["three"]
+        self.res["input_validator"] = {"errors": v["errors"], "codes": {c: n for c, n in v["codes"].items()},
+                                       "three_ok": three["ok"]}
+        given = {m["code"] for m in v["messages"] if m["severity"] == 0}
         for name, line in zip(("pmw", "glb"), lines):
             v = line["validator"]
             if v["errors"]:
-                first = "; ".join(f"{m['code']} {m.get('pointer') or ''} {m['message'][:80]}"
-                                  for m in v["messages"] if m["severity"] == 0)[:300]
-                self.finding("validator-error", f"{name}: {v['errors']} errors {v['codes']}: {first}")
+                errors = [m for m in v["messages"] if m["severity"] == 0]
+                first = "; ".join(f"{m['code']} {m.get('pointer') or ''} {m['message'][:80]}" for m in errors)[:300]
+                # every error listed (the first 20 messages) of a kind the input has too: garbage in, carried over
+                inherited = len(errors) == v["errors"] and {m["code"] for m in errors} <= given
+                self.finding("validator-error-as-input" if inherited else "validator-error",
+                             f"{name}: {v['errors']} errors {v['codes']}: {first}")
             if not line["three"]["ok"]:
-                self.finding("three-load", f"{name}: {line['three'].get('error', '')[:300]}")
-        v = lines[2]["validator"]
-        self.res["input_validator"] = {"errors": v["errors"], "codes": {c: n for c, n in v["codes"].items()},
-                                       "three_ok": lines[2]["three"]["ok"]}
+                same = not three["ok"] and three.get("error") == line["three"].get("error")
+                self.finding("three-load-as-input" if same else "three-load",
+                             f"{name}: {line['three'].get('error', '')[:300]}")
 
     def prefixes(self, data: bytes) -> None:
         """Random byte prefixes (a download that stopped) decode or raise a one-line PmwError."""
