@@ -228,7 +228,8 @@ class Probe:
             return
         positions, faces = read_obj(base + "-cut.obj")
         if asset:
-            rc, _, _ = self.pmw("decode-k", "decode", base + ".pmw", "-o", base + "-k.obj", "--chunks", str(k), "--json")
+            rc, _, _ = self.pmw("decode-k", "decode", base + ".pmw", "-o", base + "-k.obj", "--chunks", str(k),
+                                "--json")
             if rc != 0:
                 self.finding("cut-failed", f"decode --chunks {k} of the whole file rc={rc}")
                 return
@@ -363,9 +364,11 @@ class Probe:
             self.res["roundtrip_skipped"] = why
             return
         self.res["input_vertices"], self.res["input_faces"] = inp.vertex_count, inp.face_count
-        keep = (dec_faces[:, 0] != dec_faces[:, 1]) & (dec_faces[:, 1] != dec_faces[:, 2]) & (dec_faces[:, 0] != dec_faces[:, 2])
+        a, b, c = dec_faces.T
+        keep = (a != b) & (b != c) & (a != c)
         used = np.unique(dec_faces[keep])
-        welded = any("duplicate vertices (same position and attributes) welded" in n for n in report.get("notices") or [])
+        welded = any("duplicate vertices (same position and attributes) welded" in n
+                     for n in report.get("notices") or [])
         counts = (len(used), int(keep.sum()))
         if (counts != (inp.vertex_count, inp.face_count) if not welded
                 else counts[0] > inp.vertex_count or counts[1] > inp.face_count):
@@ -394,8 +397,9 @@ class Probe:
     def validated(self, base: str) -> None:
         """Third parties read what ``pmw`` writes: the Khronos glTF validator reports no error and three.js
         loads (``tools/js/check_gltf.mjs``) the ``.pmw`` and the decoded GLB (``validator-error``,
-        ``three-load``; ``-as-input`` when the input has the same error); the input's validator errors are kept as information (``input_validator``), so a
-        finding can be told from garbage in.  Skipped without ``tools/js/node_modules``."""
+        ``three-load``; ``-as-input`` when the input has the same error); the input's validator errors are
+        kept as information (``input_validator``), so a finding can be told from garbage in.  Skipped
+        without ``tools/js/node_modules``."""
         if not os.path.isdir(os.path.join(HERE, "js", "node_modules")) or shutil.which("node") is None:
             self.res["validated"] = False
             return
@@ -608,7 +612,8 @@ def summary(rows: list) -> str:
     lines.append(f"assets: {sum(r['file'].lower().endswith(ASSETS) for r in rows)} files, "
                  f"{sum('max_err_tol' in r for r in ok)} scene round trips checked, skipped: {dict(skipped)}; "
                  f"{sum(bool(r.get('validated')) for r in ok)} validated, "
-                 f"{sum(bool((r.get('input_validator') or {}).get('errors')) for r in ok)} inputs with validator errors")
+                 f"{sum(bool((r.get('input_validator') or {}).get('errors')) for r in ok)} inputs with validator "
+                 "errors")
     lines.append("not ok:")
     lines += [f"  {r.get('outcome')} {r['file']} {(r.get('refusal') or str(r.get('findings')))[:250]}"
               for r in rows if r.get("outcome") != "ok"]
