@@ -1,7 +1,7 @@
 """Robustness probe: every mesh file under a folder through the ``pmw`` command and the library, one JSON line each.
 
 ``python tools/probe_meshes.py DIR [--out results.jsonl] [--timeout 120] [--mark-every 12] [--limit N]``
-takes every ``.obj``, ``.stl`` and ``.ply`` file under ``DIR`` (any case), smallest first, and
+takes every ``.obj``, ``.stl``, ``.ply``, ``.gltf`` and ``.glb`` file under ``DIR`` (any case), smallest first, and
 probes each in a fresh process (``--worker``, killed with its children after ``--timeout``
 seconds), in a temporary directory of its own.  The process runs the command line as
 ``python -m pmwm_codec`` of the tree this file lives in (``sys.executable``, ``PYTHONPATH`` set
@@ -11,7 +11,8 @@ gets one JSON line in ``--out`` (its ``outcome``: ``ok``, ``refused``, ``error``
 ``kind`` and a ``detail``); a second run skips the files already there, so an interrupted run
 resumes.  The outcome table is printed at the end; ``--summary`` prints it from ``--out`` alone.
 ``tools/pybullet_meshes.py`` fetches 1,203 third-party meshes for it (``~/.cache/pmwm_codec/
-pybullet/pybullet_data``).
+pybullet/pybullet_data``), ``tools/gltf_meshes.py`` 135 glTF / GLB assets and 42 more meshes
+(``~/.cache/pmwm_codec/gltf``).
 
 What each check proves (a finding names the one that failed):
 
@@ -20,18 +21,36 @@ What each check proves (a finding names the one that failed):
   report or another exit status (``bad-exit``, ``traceback``, ``unexpected``,
   ``refusal-not-one-line``, ``bad-json``); a file made without any vertex split says why in its
   notices (``no-splits-silent``).
-* ``decode`` to OBJ and ``info --json`` of the whole file succeed (else outcome ``decode-failed``).
-* Round trip on the grid: the decoded mesh has the vertex and face counts the encoder reported
+* ``decode`` to OBJ and ``info --json`` of the whole file succeed, and for a glTF / GLB input
+  ``decode`` to GLB (else outcome ``decode-failed``).
+* Round trip on the grid (OBJ, STL, PLY inputs): the decoded mesh has the vertex and face counts the encoder reported
   (``count-mismatch``) and those of the input (``roundtrip-counts``); its positions lie on the
-  file's grid (``off-grid``) within half a step of the input's, or, for near-copies the encoder
+  file's grid (``off-grid``; far from the origin, to within half a float32 spacing, which a file
+  stores) within half a step (plus that) of the input's, or, for near-copies the encoder
   snaps together, of the nearest input vertex (``roundtrip-positions``; ``snapped-copies`` notes
   the snapped ones); its faces are the input's, as oriented triples of grid points
   (``roundtrip-faces``).
+* Round trip of a glTF / GLB input (:meth:`Probe.compare_asset` says what each proves): every
+  primitive still there in its mode, one passed through (skinned, morph, not triangles) with its
+  input positions bit for bit and its morph targets, a progressive one with every attribute name
+  (``primitive-lost``, ``passthrough-differs``, ``attributes-lost``); the progressive primitives hold
+  the counts the encoder reported (``count-mismatch``); the scene as the decoded OBJ shows it has
+  the counts of ``read_mesh`` of the input (``roundtrip-counts``) and its positions within a bound
+  derived from each primitive's grid step and its nodes' transforms (``roundtrip-positions``).
+  Where that scene check is not sound it is skipped, the reason in ``roundtrip_skipped``.
+* Third parties (glTF / GLB inputs, when ``tools/js/node_modules`` exists): the Khronos validator
+  finds no error in the ``.pmw`` nor in the decoded GLB (``validator-error``) and three.js loads
+  both (``three-load``; ``validator-failed`` when ``check_gltf.mjs`` itself fails); the input's
+  validator errors and codes are kept in ``input_validator`` (information, not a finding), and an
+  error of a code the input's errors have too (``validator-error-as-input``), or a three.js failure
+  with the input's own message (``three-load-as-input``), is garbage in, carried over: told apart
+  from a fault, still listed.
 * ``cut --chunks K`` (half the chunks) writes a file whose ``decode`` equals ``decode(chunks=K)``
-  of the whole one (``cut-differs``, ``cut-failed``).
+  of the whole one (for an asset, the OBJ of ``pmw decode --chunks K`` of the whole one) (``cut-differs``,
+  ``cut-failed``).
 * Every level (``iter_decode``) decodes (``iter-decode``); when the full mesh is watertight (every
-  boundary half-edge, by position, has its reverse), so is every coarser level: no cracks
-  (``cracks``).
+  boundary half-edge, by position, has its reverse; for an asset, the last level, since its OBJ
+  also holds the primitives no level carries), so is every coarser level: no cracks (``cracks``).
 * Six random byte prefixes decode or raise a one-line ``PmwError``, nothing else
   (``prefix-decode``, ``prefix-multiline``).
 * Every ``--mark-every``-th file (by rank, smallest first): a 32x32 watermark (``--fit``) and an
@@ -57,7 +76,9 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
-MESHES = (".obj", ".stl", ".ply")
+ASSETS = (".gltf", ".glb")
+MESHES = (".obj", ".stl", ".ply") + ASSETS
+DRACO = "KHR_draco_mesh_compression"
 OWNER_ID = "1234abcd"
 PREFIXES = 6
 
@@ -121,20 +142,28 @@ class Probe:
                                                        "chunks", "bytes", "seconds", "notices")}
         if rep.get("vsplits", 0) == 0 and not rep.get("notices"):
             self.finding("no-splits-silent", "encode made no vertex split and said nothing")
-        rc, _, _ = self.pmw("decode", "decode", base + ".pmw", "-o", base + ".obj", "--json")
+        asset = self.path.lower().endswith(ASSETS)
+        rc, dec, _ = self.pmw("decode", "decode", base + ".pmw", "-o", base + ".obj", "--json")
         rc_info, info, _ = self.pmw("info", "info", base + ".pmw", "--json")
-        if rc != 0 or rc_info != 0 or info is None:
+        rc_glb = self.pmw("decode-glb", "decode", base + ".pmw", "-o", base + ".glb", "--json")[0] if asset else 0
+        if rc != 0 or rc_info != 0 or info is None or rc_glb != 0:
             self.res["outcome"] = "decode-failed"
             return
         positions, faces = read_obj(base + ".obj")
         try:
-            self.compare(pmwm_codec.read_mesh(self.path), positions, faces, info["grid"], rep)
+            if asset:
+                self.compare_asset(positions, faces, rep, base, (dec or {}).get("notices") or [])
+            else:
+                self.compare(pmwm_codec.read_mesh(self.path), positions, faces, info["grid"], rep)
         except Exception:  # noqa: BLE001 -- a probe bug is reported, not fatal
             self.finding("probe-error", traceback.format_exc()[-400:])
-        self.cut(base, int(rep["chunks"]) // 2)
+        if asset:
+            self.validated(base)
+        self.cut(base, int(rep["chunks"]) // 2, asset)
         with open(base + ".pmw", "rb") as f:
             data = f.read()
-        self.levels(data, watertight=unpartnered_edges(positions.astype(np.float32), faces) == 0)
+        # an asset's OBJ also holds the primitives passed through, which no level carries: its last level decides
+        self.levels(data, watertight=None if asset else unpartnered_edges(positions.astype(np.float32), faces) == 0)
         self.prefixes(data)
         if mark:
             self.marked(base)
@@ -153,9 +182,14 @@ class Probe:
         qi = np.rint((inp.positions - origin) / step).astype(np.int64)
         qd_float = (dec_pos - origin) / step
         qd = np.rint(qd_float).astype(np.int64)
-        off = np.abs(qd_float - qd).max(initial=0)
+        # a file stores float32: far from the origin a grid point is off by up to half a float32 spacing
+        # (the encoder guarantees the grid index comes back, not the grid point: Grid.carries_float32)
+        from pmwm_codec.progressive.grid import float32_spacing
+        f32 = float32_spacing(np.abs(dec_pos).max(axis=0, initial=0)) / (2 * step)
+        off = (np.abs(qd_float - qd) - f32).max(initial=0)
+        self.res["float32_steps"] = float(f32.max(initial=0))
         if off > 0.01:
-            self.finding("off-grid", f"decoded positions off the grid by {off:.3g} steps")
+            self.finding("off-grid", f"decoded positions off the grid by {off:.3g} steps more than float32 explains")
         a, b = qi[np.lexsort(qi.T[::-1])], qd[np.lexsort(qd.T[::-1])]
         if a.shape == b.shape and not np.array_equal(a, b):
             # near-copies (within 1/16 step) share one grid point: measure against the nearest input vertex
@@ -163,7 +197,7 @@ class Probe:
             dist = cKDTree(inp.positions).query(dec_pos, p=np.inf)[0].max() / step
             self.res["max_err_steps"] = float(dist)
             moved = int((np.abs(a - b).max(axis=1) > 0).sum())
-            if dist > 0.5 + 1 / 16 + 0.01:
+            if dist > 0.5 + 1 / 16 + 0.01 + f32.max(initial=0):
                 self.finding("roundtrip-positions", f"{moved} sorted grid rows differ; nearest input vertex "
                              f"up to {dist:.3f} steps away")
             else:
@@ -171,7 +205,7 @@ class Probe:
         elif a.shape == b.shape:
             err = np.abs(np.sort(dec_pos, axis=0) - np.sort(inp.positions, axis=0)).max(initial=0) / step
             self.res["max_err_steps"] = float(err)
-            if err > 0.51:
+            if err > 0.51 + f32.max(initial=0):
                 self.finding("roundtrip-positions", f"max error {err:.3f} grid steps")
         pid = np.unique(np.concatenate([qi, qd]), axis=0, return_inverse=True)[1].reshape(-1)
         fi, fd = canonical_faces(pid[:len(qi)][inp.faces]), canonical_faces(pid[len(qi):][dec_faces])
@@ -180,8 +214,9 @@ class Probe:
             self.finding("roundtrip-faces", f"{len(si - sd)} input faces missing, {len(sd - si)} extra "
                          f"(as position triples; {len(fi)} vs {len(fd)} rows)")
 
-    def cut(self, base: str, k: int) -> None:
-        """``pmw cut --chunks k`` then ``pmw decode`` equals the library's ``decode(chunks=k)``."""
+    def cut(self, base: str, k: int, asset: bool = False) -> None:
+        """``pmw cut --chunks k`` then ``pmw decode`` equals the library's ``decode(chunks=k)`` (an asset's:
+        ``pmw decode --chunks k`` of the whole file, whose OBJ also holds the primitives passed through)."""
         import pmwm_codec
 
         rc, _, _ = self.pmw("cut", "cut", base + ".pmw", "-o", base + "-cut.pmw", "--chunks", str(k), "--json")
@@ -192,29 +227,207 @@ class Probe:
         if rc != 0:
             return
         positions, faces = read_obj(base + "-cut.obj")
-        ref = pmwm_codec.decode(base + ".pmw", chunks=k)
+        if asset:
+            rc, _, _ = self.pmw("decode-k", "decode", base + ".pmw", "-o", base + "-k.obj", "--chunks", str(k),
+                                "--json")
+            if rc != 0:
+                self.finding("cut-failed", f"decode --chunks {k} of the whole file rc={rc}")
+                return
+            ref = pmwm_codec.mesh.Mesh(*read_obj(base + "-k.obj"))
+        else:
+            ref = pmwm_codec.decode(base + ".pmw", chunks=k)
         if not (np.array_equal(positions.astype(np.float32), np.asarray(ref.positions, np.float32))
                 and np.array_equal(faces, ref.faces)):
             self.finding("cut-differs", f"cut at {k} decodes differently from decode --chunks {k}")
 
-    def levels(self, data: bytes, watertight: bool) -> None:
-        """Every level decodes; a watertight full mesh has no crack at any coarser level."""
+    def levels(self, data: bytes, watertight: bool | None) -> None:
+        """Every level decodes; a watertight full mesh has no crack at any coarser level (``watertight``
+        None: the last level decided, every level's unpartnered edges counted on the way)."""
         import pmwm_codec
 
-        self.res["watertight"] = bool(watertight)
-        cracks, count = [], 0
+        cracks, count, last = [], 0, 0
         try:
             for step in pmwm_codec.iter_decode(data):
                 count += 1
-                if watertight:
-                    c = unpartnered_edges(np.asarray(step.mesh.positions, np.float32), np.asarray(step.mesh.faces))
-                    if c:
-                        cracks.append((step.chunk, c))
+                if watertight is not False:
+                    last = unpartnered_edges(np.asarray(step.mesh.positions, np.float32), np.asarray(step.mesh.faces))
+                    if last:
+                        cracks.append((step.chunk, last))
         except Exception:  # noqa: BLE001 -- any failure is the finding
             self.finding("iter-decode", traceback.format_exc()[-400:])
+        if watertight is None:
+            watertight = count > 0 and last == 0
+            cracks = cracks if watertight else []
+        self.res["watertight"] = bool(watertight)
         self.res["levels"] = count
         if cracks:
             self.finding("cracks", f"levels with unpartnered edges (chunk, count): {cracks[:8]} of {count}")
+
+    def compare_asset(self, dec_pos, dec_faces, report, base: str, notices: list) -> None:
+        """An asset's round trip: its primitives, the counts the encoder reported, and the scene as shown.
+
+        * Primitives (``primitive-lost``, ``passthrough-differs``, ``attributes-lost``): the decoded GLB
+          has the input's meshes, each with its primitives in their modes (input read by the library's
+          ``load_document``); a primitive the encoder passed through (no extension in the ``.pmw``) has
+          the input's POSITION values, bit for bit, and its morph targets; a progressive one keeps
+          every attribute name.
+        * ``count-mismatch``: the progressive primitives of the decoded GLB hold the vertex and face
+          counts the encoder reported.
+        * The scene (``roundtrip-counts``, ``roundtrip-positions``): ``pmwm_codec.read_mesh`` of the
+          input (trimesh's reader: the default scene's triangle primitives placed by their nodes, one
+          mesh) against the decoded OBJ (the scene as ``pmw decode`` shows it).  Counts: the faces not
+          degenerate by index and the vertices they use are equal (at most the input's when the
+          encoder welded a soup's duplicates, a notice).  Positions: every decoded vertex lies within
+          ``tol`` (max norm) of some input vertex and every input vertex within ``tol`` of some decoded
+          one.  A progressive primitive's vertex is within ``(1/2 + 1/16) step`` per axis of its input
+          (half a step of rounding; near-copies within 1/16 step snap together), ``step`` its
+          ``grid.step``; a node's linear part ``L`` maps that box into one of ``|L|_inf`` (largest row
+          sum of absolute values) times as wide, so ``tol`` is the largest such bound over the
+          progressive primitives and their showings (the matrices are the library's
+          ``placements_by_mesh``: only the bound depends on them, the positions compared are
+          trimesh's), plus float32 rounding of the grid points (4 ulp of the grid's extent, scaled by
+          ``|L|_inf``) and the OBJ's 9 digits.  This proves each side is within ``tol`` of the other as
+          point sets (a vertex moved further, dropped or added is found; a face's corners swapped among
+          nearby vertices is not).  Not sound, so skipped with the reason in ``roundtrip_skipped``
+          (not a finding): triangle fans or Draco data in the input (trimesh 5 reads neither), GPU
+          instancing or placements that do not read (the OBJ holds the parts as stored, a notice),
+          and inputs ``read_mesh`` refuses.
+        """
+        import pmwm_codec
+        from pmwm_codec.constants import EXTENSION_NAME
+        from pmwm_codec.format.document import load_document, read_accessor
+        from pmwm_codec.format.glb import split_glb
+        from pmwm_codec.format.gltf import find_extension_primitives, placements_by_mesh
+
+        with open(base + ".pmw", "rb") as f:
+            pmw_doc = split_glb(f.read(), "the .pmw")[0]
+        with open(base + ".glb", "rb") as f:
+            out_doc, out_bin = split_glb(f.read(), "the decoded GLB")
+        found = {(mi, pi): prim["extensions"][EXTENSION_NAME]
+                 for mi, pi, prim in find_extension_primitives(pmw_doc, EXTENSION_NAME)}
+        in_doc, in_buffers = load_document(self.path)
+
+        def accessor(doc, buffers, index):
+            return read_accessor(doc, buffers, index)
+
+        # the primitives, each still there
+        in_meshes, out_meshes = in_doc.get("meshes", []), out_doc.get("meshes", [])
+        if len(in_meshes) != len(out_meshes):
+            self.finding("primitive-lost", f"input {len(in_meshes)} meshes, decoded GLB {len(out_meshes)}")
+        vertices = faces = 0
+        for mi, (m_in, m_out) in enumerate(zip(in_meshes, out_meshes)):
+            p_in, p_out = m_in.get("primitives", []), m_out.get("primitives", [])
+            if len(p_in) != len(p_out):
+                self.finding("primitive-lost", f"mesh {mi}: input {len(p_in)} primitives, decoded {len(p_out)}")
+            for pi, (a, b) in enumerate(zip(p_in, p_out)):
+                where = f"mesh {mi} primitive {pi}"
+                if a.get("mode", 4) != b.get("mode", 4):
+                    self.finding("primitive-lost", f"{where}: mode {a.get('mode', 4)} decoded as {b.get('mode', 4)}")
+                lost = set(a.get("attributes", {})) - set(b.get("attributes", {}))
+                if lost:
+                    self.finding("attributes-lost", f"{where}: {sorted(lost)} missing in the decoded GLB")
+                if (mi, pi) in found:
+                    vertices += out_doc["accessors"][b["attributes"]["POSITION"]]["count"]
+                    faces += out_doc["accessors"][b.get("indices", b["attributes"]["POSITION"])]["count"] // 3
+                    continue
+                if len(a.get("targets") or []) != len(b.get("targets") or []):
+                    self.finding("passthrough-differs", f"{where}: {len(a.get('targets') or [])} morph targets "
+                                 f"decoded as {len(b.get('targets') or [])}")
+                if "POSITION" in a.get("attributes", {}) and "POSITION" in b.get("attributes", {}):
+                    try:
+                        want = accessor(in_doc, in_buffers, a["attributes"]["POSITION"])
+                    except Exception:  # noqa: BLE001 -- data the library's reader refuses: nothing to compare
+                        continue
+                    got = accessor(out_doc, [out_bin], b["attributes"]["POSITION"])
+                    if want.shape != got.shape or not np.array_equal(want, got):
+                        self.finding("passthrough-differs", f"{where}: POSITION {want.shape} decoded as {got.shape}, "
+                                     "not the same values")
+        if (vertices, faces) != (report["vertices"], report["faces"]):
+            self.finding("count-mismatch", f"decoded GLB's progressive primitives {vertices} v / {faces} f, "
+                         f"encoder reported {report['vertices']} v / {report['faces']} f")
+
+        # the scene as shown, against the library's own reader of the input
+        prims = [p for m in in_meshes for p in m.get("primitives", [])]
+        why = None
+        if any(p.get("mode") == 6 for p in prims):
+            why = "the input has triangle fans, which trimesh does not read"
+        elif any(DRACO in (p.get("extensions") or {}) for p in prims):
+            why = "the input has Draco-compressed primitives, which trimesh does not read"
+        elif any("not placed by the scene's nodes" in n for n in notices):
+            why = "the decoded OBJ holds the primitives as stored (decode's notice)"
+        if why is None:
+            try:
+                inp = pmwm_codec.read_mesh(self.path)
+            except pmwm_codec.errors.PmwError as exc:
+                why = f"read_mesh refuses the input: {str(exc)[:200]}"
+        if why is not None:
+            self.res["roundtrip_skipped"] = why
+            return
+        self.res["input_vertices"], self.res["input_faces"] = inp.vertex_count, inp.face_count
+        a, b, c = dec_faces.T
+        keep = (a != b) & (b != c) & (a != c)
+        used = np.unique(dec_faces[keep])
+        welded = any("duplicate vertices (same position and attributes) welded" in n
+                     for n in report.get("notices") or [])
+        counts = (len(used), int(keep.sum()))
+        if (counts != (inp.vertex_count, inp.face_count) if not welded
+                else counts[0] > inp.vertex_count or counts[1] > inp.face_count):
+            self.finding("roundtrip-counts", f"input scene {inp.vertex_count} v / {inp.face_count} f, decoded OBJ "
+                         f"{counts[0]} v / {counts[1]} f (used, not degenerate){' after a weld' if welded else ''}")
+        shown = placements_by_mesh(pmw_doc) if pmw_doc.get("nodes") else {}
+        tol = 0.0
+        for (mi, _), ext in found.items():
+            grid = ext["grid"]
+            step = float(grid["step"])
+            extent = float(np.abs(grid["origin"]).max()) + 2.0 ** int(grid.get("bits", 24)) * step
+            for matrix in shown.get(mi, [np.eye(4)]) if pmw_doc.get("nodes") else [np.eye(4)]:
+                scale = float(np.abs(np.asarray(matrix)[:3, :3]).sum(axis=1).max()) if matrix is not None else 1.0
+                tol = max(tol, scale * ((0.5 + 1 / 16) * step + 4 * 2.0 ** -24 * extent))
+        if len(dec_pos) == 0 or inp.vertex_count == 0:
+            return
+        tol += 1e-8 * float(np.abs(inp.positions).max())
+        from scipy.spatial import cKDTree
+        there = cKDTree(inp.positions).query(dec_pos[used], p=np.inf)[0].max()
+        back = cKDTree(dec_pos[used]).query(inp.positions, p=np.inf)[0].max()
+        self.res["max_err_tol"] = float(max(there, back) / tol) if tol > 0 else None
+        if max(there, back) > tol:
+            self.finding("roundtrip-positions", f"decoded vertex up to {there:.4g} from the input, input vertex up to "
+                         f"{back:.4g} from the decoded; bound {tol:.4g}")
+
+    def validated(self, base: str) -> None:
+        """Third parties read what ``pmw`` writes: the Khronos glTF validator reports no error and three.js
+        loads (``tools/js/check_gltf.mjs``) the ``.pmw`` and the decoded GLB (``validator-error``,
+        ``three-load``; ``-as-input`` when the input has the same error); the input's validator errors are
+        kept as information (``input_validator``), so a finding can be told from garbage in.  Skipped
+        without ``tools/js/node_modules``."""
+        if not os.path.isdir(os.path.join(HERE, "js", "node_modules")) or shutil.which("node") is None:
+            self.res["validated"] = False
+            return
+        files = [base + ".pmw", base + ".glb", self.path]
+        p = subprocess.run(["node", os.path.join(HERE, "js", "check_gltf.mjs"), *files], capture_output=True,
+                           text=True, cwd=self.work)
+        lines = [json.loads(line) for line in p.stdout.splitlines() if line.startswith("{")]
+        if p.returncode != 0 or len(lines) != len(files):
+            self.finding("validator-failed", f"check_gltf.mjs rc={p.returncode}: {p.stderr.strip()[-300:]}")
+            return
+        self.res["validated"] = True
+        v, three = lines[2]["validator"], lines[2]["three"]
+        self.res["input_validator"] = {"errors": v["errors"], "codes": {c: n for c, n in v["codes"].items()},
+                                       "three_ok": three["ok"]}
+        given = {m["code"] for m in v["messages"] if m["severity"] == 0}
+        for name, line in zip(("pmw", "glb"), lines):
+            v = line["validator"]
+            if v["errors"]:
+                errors = [m for m in v["messages"] if m["severity"] == 0]
+                first = "; ".join(f"{m['code']} {m.get('pointer') or ''} {m['message'][:80]}" for m in errors)[:300]
+                # every error listed (the first 20 messages) of a kind the input has too: garbage in, carried over
+                inherited = len(errors) == v["errors"] and {m["code"] for m in errors} <= given
+                self.finding("validator-error-as-input" if inherited else "validator-error",
+                             f"{name}: {v['errors']} errors {v['codes']}: {first}")
+            if not line["three"]["ok"]:
+                same = not three["ok"] and three.get("error") == line["three"].get("error")
+                self.finding("three-load-as-input" if same else "three-load",
+                             f"{name}: {line['three'].get('error', '')[:300]}")
 
     def prefixes(self, data: bytes) -> None:
         """Random byte prefixes (a download that stopped) decode or raise a one-line PmwError."""
@@ -395,6 +608,12 @@ def summary(rows: list) -> str:
         verified = sum((r.get(f"{label}_verify") or [None])[0] == 0 for r in given)
         refused = sum(r[f"{label}_encode"] != 0 for r in given)
         lines.append(f"{label} marks: {len(given)} files sampled, {verified} verified, {refused} refused at encode")
+    skipped = collections.Counter(r["roundtrip_skipped"].split(":")[0] for r in ok if r.get("roundtrip_skipped"))
+    lines.append(f"assets: {sum(r['file'].lower().endswith(ASSETS) for r in rows)} files, "
+                 f"{sum('max_err_tol' in r for r in ok)} scene round trips checked, skipped: {dict(skipped)}; "
+                 f"{sum(bool(r.get('validated')) for r in ok)} validated, "
+                 f"{sum(bool((r.get('input_validator') or {}).get('errors')) for r in ok)} inputs with validator "
+                 "errors")
     lines.append("not ok:")
     lines += [f"  {r.get('outcome')} {r['file']} {(r.get('refusal') or str(r.get('findings')))[:250]}"
               for r in rows if r.get("outcome") != "ok"]
