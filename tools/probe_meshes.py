@@ -1,8 +1,8 @@
 """Robustness probe: every mesh file under a folder through the ``pmw`` command and the library, one JSON line each.
 
 ``python tools/probe_meshes.py DIR [--out results.jsonl] [--timeout 120] [--mark-every 12] [--limit N]``
-takes every ``.obj``, ``.stl``, ``.ply``, ``.gltf`` and ``.glb`` file under ``DIR`` (any case), smallest first, and
-probes each in a fresh process (``--worker``, killed with its children after ``--timeout``
+takes every ``.obj``, ``.stl``, ``.ply``, ``.off``, ``.gltf`` and ``.glb`` file under ``DIR`` (any case),
+smallest first, and probes each in a fresh process (``--worker``, killed with its children after ``--timeout``
 seconds), in a temporary directory of its own.  The process runs the command line as
 ``python -m pmwm_codec`` of the tree this file lives in (``sys.executable``, ``PYTHONPATH`` set
 to the repository root) and the library from that tree, so it probes this checkout.  Each file
@@ -77,7 +77,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 ASSETS = (".gltf", ".glb")
-MESHES = (".obj", ".stl", ".ply") + ASSETS
+MESHES = (".obj", ".stl", ".ply", ".off") + ASSETS
 DRACO = "KHR_draco_mesh_compression"
 OWNER_ID = "1234abcd"
 PREFIXES = 6

@@ -202,6 +202,9 @@ def _why_not(prim: dict):
     if prim.get("mode", TRIANGLES) not in TRIANGLE_MODES:
         shown = _POINT_AND_LINE_MODES.get(prim.get("mode"))
         return f"mode {prim.get('mode')}{f' ({shown})' if shown else ''} does not draw triangles"
+    if prim.get("mode", TRIANGLES) != TRIANGLES and DRACO_EXTENSION in (prim.get("extensions") or {}):
+        return f"a Draco-compressed strip or fan (mode {prim['mode']}) is not made progressive"  # which order its
+        # decoded indices take is the extension's to say, not ours to guess
     attrs = prim.get("attributes", {})
     if "POSITION" not in attrs:
         return "no POSITION"
