@@ -154,3 +154,42 @@ def test_an_indexed_primitive_keeps_its_duplicate_vertices():
                {"TEXCOORD_0": np.r_[mesh.attributes["TEXCOORD_0"], mesh.attributes["TEXCOORD_0"][mesh.faces[0, :1]]]})
     jobs, _, notices = plan_asset(*gltf_of(dup))
     assert jobs[0].mesh.vertex_count == dup.vertex_count and not any("duplicate" in n for n in notices)
+
+
+def test_a_mesh_whose_faces_disagree_on_orientation_says_why_it_stays_in_the_base():
+    """CGAL's blobby-shuffled.off (blobby.off with faces flipped at random) kept 1,952 of its 2,027 vertices in
+    the base (blobby.off: 64) and the encoder said nothing; a collapse never crosses an edge two faces run the
+    same way.  The notice names those edges and what to do."""
+    import io
+
+    import pmwm_codec
+
+    ico = shapes.icosphere(4)
+    faces = ico.faces.copy()
+    flip = np.random.default_rng(5).random(len(faces)) < 0.5
+    faces[flip] = faces[flip][:, ::-1]
+    consistent = pmwm_codec.encode(ico, io.BytesIO(), measure=False)
+    shuffled = pmwm_codec.encode(Mesh(ico.positions, faces), io.BytesIO(), measure=False)
+    assert not [n for n in consistent["notices"] if "stay in the base" in n]
+    assert shuffled["base_vertices"] > ico.vertex_count // 4 > consistent["base_vertices"]
+    said = [n for n in shuffled["notices"] if "stay in the base" in n]
+    assert len(said) == 1 and said[0].startswith(f"the mesh: {shuffled['base_vertices']:,} of its {ico.vertex_count:,} "
+                                                 "vertices stay in the base (target 64): ")
+    assert "edges run the same way in two faces" in said[0] and "orient the faces consistently" in said[0]
+
+
+def test_a_positions_only_mesh_with_duplicate_points_names_them_as_duplicates_not_flat_shading(tmp_path):
+    """CGAL's boeing.off: faces that share points through separate vertices (no attribute at all) were described as
+    "per-face normals or UVs, as flat shading has"; a mesh file's copies are one point written several times."""
+    import io
+
+    import pmwm_codec
+
+    ico = shapes.icosphere(3)
+    p = ico.positions[ico.faces]
+    keep = np.arange(ico.face_count) % 7 == 0  # a seventh of the faces share their corners; the rest stand apart
+    positions = np.concatenate([ico.positions, p[~keep].reshape(-1, 3)])
+    faces = np.concatenate([ico.faces[keep], ico.vertex_count + np.arange(3 * (~keep).sum()).reshape(-1, 3)])
+    report = pmwm_codec.encode(Mesh(positions, faces), io.BytesIO(), measure=False)
+    said = [n for n in report["notices"] if "base" in n and "share their position" in n]
+    assert said and "one point written as separate vertices" in said[0] and "flat shading" not in said[0]

@@ -762,11 +762,15 @@ def _unrefined_notices(work, base_vertices, doc: dict) -> list:
     ``doc``: the document (an asset's has an ``asset`` member; a mesh file's is "the mesh")."""
     small, notices = [], []
     for w in work:
-        if any(len(b.u) for b in w.log.batches):
-            continue
         where = _primitive_name(doc, w.job, len(work))
         n = len(w.values)
         target = default_base_target(n) if base_vertices is None else int(base_vertices)
+        removed = sum(len(b.u) for b in w.log.batches)
+        if removed:
+            if n - removed > max(4 * target, n // 4):  # refined, but far from its base target
+                notices.append(f"{where}: {n - removed:,} of its {n:,} vertices stay in the base (target {target:,}): "
+                               + _why_unrefined(w, refined=True))
+            continue
         if n <= target:
             small.append((where, n))
             continue
@@ -797,10 +801,11 @@ def _primitive_name(doc: dict, job: PrimitiveJob, count: int) -> str:
         f" primitive {job.primitive_index}"
 
 
-def _why_unrefined(w: PrimitiveWork) -> str:
-    """Why the simplifier removed no vertex of ``w`` although it has more than its base target: how many of
-    its vertices are seam corners (three or more copies of a position on the grid), on borders with other
-    primitives (locked), seam copies (two), and the rest."""
+def _why_unrefined(w: PrimitiveWork, refined: bool = False) -> str:
+    """Why the simplifier removed no vertex of ``w`` (``refined``: so few) although it has more than its base
+    target: how many of its vertices are seam corners (three or more copies of a position on the grid), on
+    borders with other primitives (locked), seam copies (two), and the rest; and how many of its edges run the
+    same way in two faces (faces oriented against their neighbours, which no collapse crosses)."""
     job = w.job
     faces, positions, locked = job.mesh.faces, job.mesh.positions, job.locked
     if w.core is not None:  # the vertices the simplifier saw, and the faces among them
@@ -817,16 +822,38 @@ def _why_unrefined(w: PrimitiveWork) -> str:
     seam = (size == 2) & ~border
     why = []
     if corner.any():
-        why.append(f"{int(corner.sum())} share their position with two or more other vertices (seam corners, kept "
-                   "in the base: per-face normals or UVs, as flat shading has at every vertex)")
+        why.append(f"{int(corner.sum())} share their position with two or more other vertices " + (
+            "(seam corners, kept in the base: per-face normals or UVs, as flat shading has at every vertex)"
+            if job.mesh.attributes else "(one point written as separate vertices, kept in the base: weld them to "
+                                         "stream it)"))
     if border.any():
         why.append(f"{int(border.sum())} lie on borders with other primitives (kept in the base)")
     if seam.any():
         why.append(f"{int(seam.sum())} are seam copies (removed only in pairs, along a seam between two copies)")
     rest = n - int(corner.sum() + border.sum() + seam.sum())
+    against = _edges_run_twice(faces)
+    if refined:
+        why = [] if not why else ["of them, " + "; ".join(why)]
+        if against:
+            why.append(f"{against:,} edges run the same way in two faces (faces oriented against their "
+                       "neighbours, which no collapse crosses: orient the faces consistently to stream them)")
+        return "; ".join(why) or "no other collapse keeps the surface valid"
     if rest:
-        why.append(f"no collapse of the other {rest} keeps the surface valid")
+        why.append(f"no collapse of the other {rest} keeps the surface valid"
+                   + (f" ({against:,} edges run the same way in two faces: faces oriented against their "
+                      "neighbours, which no collapse crosses)" if against else ""))
     return f"of its {n} vertices, " + "; ".join(why)
+
+
+def _edges_run_twice(faces: np.ndarray) -> int:
+    """How many directed edges of ``faces`` (m, 3) int two or more faces share (an edge two faces run the same
+    way: one of them is oriented against the other)."""
+    if not len(faces):
+        return 0
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]).astype(np.int64)
+    key = edges[:, 0] * (int(edges.max()) + 1) + edges[:, 1]
+    _, counts = np.unique(key, return_counts=True)
+    return int((counts > 1).sum())
 
 
 def _locked_with_grid_copies(q: np.ndarray, locked: np.ndarray) -> np.ndarray:
