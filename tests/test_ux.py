@@ -141,6 +141,7 @@ def test_an_empty_input_path_is_named_as_empty(tmp_path, capsys, monkeypatch, ar
     ("mesh.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "an OBJ mesh"),
     ("mesh.ply", b"ply\nformat ascii 1.0\nend_header\n", "a PLY mesh"),
     ("mesh.stl", b"solid x\nendsolid x\n", "an STL mesh"),
+    ("mesh.off", b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n", "an OFF mesh"),
     ("noise.pmw", bytes(range(7, 107)), None),
 ])
 def test_a_file_that_is_no_pmw_is_named_for_what_it_is(tmp_path, capsys, name, text, kind):
