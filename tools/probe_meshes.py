@@ -267,8 +267,8 @@ class Probe:
         """An asset's round trip: its primitives, the counts the encoder reported, and the scene as shown.
 
         * Primitives (``primitive-lost``, ``passthrough-differs``, ``attributes-lost``): the decoded GLB
-          has the input's meshes, each with its primitives in their modes (input read by the library's
-          ``load_document``); a primitive the encoder passed through (no extension in the ``.pmw``) has
+          has the input's meshes, each with its primitives in their modes (a strip or fan made progressive:
+          TRIANGLES, the triangles it draws; input read by the library's ``load_document``); a primitive the encoder passed through (no extension in the ``.pmw``) has
           the input's POSITION values, bit for bit, and its morph targets; a progressive one keeps
           every attribute name.
         * ``count-mismatch``: the progressive primitives of the decoded GLB hold the vertex and face
@@ -321,7 +321,8 @@ class Probe:
                 self.finding("primitive-lost", f"mesh {mi}: input {len(p_in)} primitives, decoded {len(p_out)}")
             for pi, (a, b) in enumerate(zip(p_in, p_out)):
                 where = f"mesh {mi} primitive {pi}"
-                if a.get("mode", 4) != b.get("mode", 4):
+                drawn = 4 if (mi, pi) in found and a.get("mode", 4) in (5, 6) else a.get("mode", 4)
+                if drawn != b.get("mode", 4):  # a progressive strip or fan is the list of triangles it draws
                     self.finding("primitive-lost", f"{where}: mode {a.get('mode', 4)} decoded as {b.get('mode', 4)}")
                 lost = set(a.get("attributes", {})) - set(b.get("attributes", {}))
                 if lost:
