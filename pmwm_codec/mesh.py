@@ -178,7 +178,8 @@ def mesh_arrays(positions, faces, name: str = "mesh") -> tuple:
     n = pos.shape[0]
     if tri.min() < 0 or tri.max() >= n:
         worst = int(tri.max()) if tri.max() >= n else int(tri.min())
-        numbering = f"; {worst + 1} in an OBJ file, whose numbering starts at 1" if worst >= n else ""
+        numbering = (f"; {worst + 1} in an OBJ file, whose numbering starts at 1"
+                     if worst >= n and str(name).lower().endswith(".obj") else "")  # OFF, PLY, glTF count from 0
         raise MeshError(f"{name}: face index {worst} out of range for {n} vertices (counted from 0{numbering})")
     return pos, tri
 
