@@ -803,9 +803,11 @@ def _primitive_name(doc: dict, job: PrimitiveJob, count: int) -> str:
 
 def _why_unrefined(w: PrimitiveWork, refined: bool = False) -> str:
     """Why the simplifier removed no vertex of ``w`` (``refined``: so few) although it has more than its base
-    target: how many of its vertices are seam corners (three or more copies of a position on the grid), on
-    borders with other primitives (locked), seam copies (two), and the rest; and how many of its edges run the
-    same way in two faces (faces oriented against their neighbours, which no collapse crosses)."""
+    target: how many separate parts it is, when three vertices a part are a tenth of what stayed or more (a
+    scene of thousands of boxes); how many of its vertices are seam corners (three or more copies of a position
+    on the grid), on borders with other primitives (locked), seam copies (two), and the rest; and how many of
+    its edges run the same way in two faces (faces oriented against their neighbours, which no collapse
+    crosses)."""
     job = w.job
     faces, positions, locked = job.mesh.faces, job.mesh.positions, job.locked
     if w.core is not None:  # the vertices the simplifier saw, and the faces among them
@@ -832,8 +834,12 @@ def _why_unrefined(w: PrimitiveWork, refined: bool = False) -> str:
         why.append(f"{int(seam.sum())} are seam copies (removed only in pairs, along a seam between two copies)")
     rest = n - int(corner.sum() + border.sum() + seam.sum())
     against = _edges_run_twice(faces)
+    parts, floor = _separate_parts(faces if weld is None else weld[faces], n)
+    kept = n - sum(len(b.u) for b in w.log.batches)
+    lead = [f"the surface is {parts:,} separate parts, which no collapse joins, each keeping at least three "
+            f"vertices ({floor:,} in all)"] if parts > 1 and floor * 10 >= kept else []
     if refined:
-        why = [] if not why else ["of them, " + "; ".join(why)]
+        why = ([] if not why else ["of them, " + "; ".join(why)]) + lead
         if against:
             why.append(f"{against:,} edges run the same way in two faces (faces oriented against their "
                        "neighbours, which no collapse crosses: orient the faces consistently to stream them)")
@@ -842,7 +848,28 @@ def _why_unrefined(w: PrimitiveWork, refined: bool = False) -> str:
         why.append(f"no collapse of the other {rest} keeps the surface valid"
                    + (f" ({against:,} edges run the same way in two faces: faces oriented against their "
                       "neighbours, which no collapse crosses)" if against else ""))
-    return f"of its {n} vertices, " + "; ".join(why)
+    return "; ".join([f"of its {n} vertices, " + "; ".join(why)] + lead)
+
+
+def _separate_parts(faces: np.ndarray, n: int) -> tuple:
+    """``(parts, floor)``: how many connected parts the faces (m, 3) int of a mesh of ``n`` vertices make (through
+    shared vertices; pass faces through the grid weld so that seam copies join their parts), and the fewest
+    vertices they can be coarsened to, three a part (or all of a smaller one's): a half-edge collapse moves a
+    vertex onto a neighbour, so it never joins two parts nor leaves a part without a face."""
+    if not len(faces):
+        return 0, 0
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    faces = np.asarray(faces, np.int64)
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]]])
+    graph = coo_matrix((np.ones(len(edges), np.int8), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    used = np.zeros(n, bool)
+    used[faces.ravel()] = True
+    size = np.bincount(label[used])
+    size = size[size > 0]
+    return len(size), int(np.minimum(size, 3).sum())
 
 
 def _edges_run_twice(faces: np.ndarray) -> int:
