@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import contextlib
 import http.client
+import ipaddress
 import os
 import re
 import socket
@@ -164,6 +165,8 @@ class UrlSource:
             raise InputFormatError(f"{url}: not a valid URL ({exc})") from None
         self.url = url
         self._target = _request_url(url)
+        netloc = _split(self._target)[1]  # the Host header without an IPv6 literal's zone, which is the client's
+        self._host = re.sub(r"%[^\]]*\]", "]", netloc) if netloc.startswith("[") and "%" in netloc else None
         self.max_chunks = max_chunks
         self.whole_document = whole_document
         self.timeout = timeout
@@ -356,6 +359,8 @@ class UrlSource:
     def _open(self, start: int, end: int, past_end_ok: bool = False):
         request = urllib.request.Request(self._target, headers={"Range": f"bytes={start}-{end - 1}",
                                                            "Accept-Encoding": "identity"})
+        if self._host:  # (its own request's only: a redirect's is its target's)
+            request.add_unredirected_header("Host", self._host)
         self.requests += 1
         self._watch.fd = None  # until this request connects
         try:
@@ -493,8 +498,15 @@ class _Watchdog:
         ``getaddrinfo`` cannot be cut off (a resolver that does not answer blocks it for as long as it likes,
         and there is no socket yet to shut down): it runs in a daemon thread, left to end on its own when the
         time is up, and the step fails then with an OSError naming the host.  The connection is made to the
-        addresses it gave, in its order."""
+        addresses it gave, in its order, each as it gave it: an IPv6 address with its flow info and scope id
+        (a link-local address is no address without its zone, and a second lookup of the bare address, as
+        ``create_connection`` makes, loses it).  An IPv6 literal's zone comes as the URL writes it, ``%25``
+        (RFC 6874: ``[fe80::1%25eth0]``), and goes to ``getaddrinfo`` as ``%`` (``fe80::1%eth0``)."""
         host, port = address
+        zone = ""
+        if ":" in host and "%" in host:  # an IPv6 literal with a zone
+            host = urllib.parse.unquote(host)
+            zone = host.partition("%")[2]
         found = {}
 
         def look_up():
@@ -510,13 +522,28 @@ class _Watchdog:
         if lookup.is_alive():
             raise TimeoutError(f"the name lookup (DNS) of {host} gave no answer in {seconds:.1f} s")
         if "error" in found:
+            if zone and not _is_interface(zone):
+                raise OSError(f"no network interface {zone!r} on this machine (the zone of "
+                              f"{host.partition('%')[0]})") from None
             raise found["error"]
         error = OSError(f"no address for the host name {host}")
-        for *_, sockaddr in found["addresses"]:
+        for family, kind, proto, _, sockaddr in found["addresses"]:
+            sock = None
             try:
-                return socket.create_connection(sockaddr[:2], timeout, source_address)
+                sock = socket.socket(family, kind, proto)
+                if timeout is not socket._GLOBAL_DEFAULT_TIMEOUT:  # (create_connection's default: leave it)
+                    sock.settimeout(timeout)
+                if source_address:
+                    sock.bind(source_address)
+                sock.connect(sockaddr)
+                return sock
             except OSError as exc:
                 error = exc
+                if sock is not None:
+                    sock.close()
+                if family == socket.AF_INET6 and not sockaddr[3] and ipaddress.ip_address(sockaddr[0]).is_link_local:
+                    error = OSError(f"{sockaddr[0]} is a link-local address: the URL names its network interface "
+                                    f"after it, [{sockaddr[0]}%25eth0] ({exc.strerror or exc})")
         raise error
 
     def start(self, seconds: float) -> None:
@@ -554,6 +581,17 @@ class _Watchdog:
                 pass
             finally:
                 sock.detach()  # the descriptor stays the connection's, closed with it
+
+
+def _is_interface(zone: str) -> bool:
+    """Whether ``zone`` (an IPv6 address's zone: an interface's name or index) names a network interface here."""
+    if zone.isdigit():
+        return True  # an index: getaddrinfo takes any
+    try:
+        socket.if_nametoindex(zone)
+    except (OSError, ValueError):
+        return False
+    return True
 
 
 #: Content codings a plain answer may come in, undone as it is read (gzip with its header, deflate as zlib).

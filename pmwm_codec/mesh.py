@@ -653,26 +653,46 @@ def _read_with_trimesh(path, name, suffix):
 
 
 def _soup_welded(positions: np.ndarray, faces: np.ndarray, name: str) -> Mesh:
-    """:func:`checked_mesh` of an OBJ's or PLY's arrays, a triangle soup's exact duplicates welded first.
+    """:func:`checked_mesh` of an OBJ's, OFF's or PLY's arrays, a triangle soup's exact duplicates welded first
+    (:func:`weld_soup`: only positions are read, so that is every attribute the mesh has).
 
-    A soup (faces naming every vertex at most once: every corner its own vertex, as flat-shaded OBJ exports
-    with per-face normals write it) becomes the indexed mesh it is, as the STL reader and the glTF soup weld
-    (:func:`pmwm_codec.stream.asset._welded`) make it: vertices at the same position are one vertex, the
-    first of them, in the order read (only positions are read, so that is every attribute the mesh has).
     Unwelded, each position had a copy per face around it and stayed in the base (no vertex split).  The
     vertices removed are counted in ``cleanup["duplicate_soup_vertices"]``; a mesh whose faces share a
     vertex is indexed by its author and kept as stored."""
-    tri = np.asarray(faces)
+    welded = weld_soup(positions, faces, name=name)
+    if welded is None:
+        return checked_mesh(positions, faces, name=name)  # (checked_mesh names what is wrong)
+    mesh, removed = welded
+    mesh.cleanup = {**mesh.cleanup, "duplicate_soup_vertices": removed}
+    return mesh
+
+
+def weld_soup(positions, faces, attributes=None, *, name="mesh") -> tuple | None:
+    """``(mesh, removed)``: a triangle soup as the indexed mesh it is, or None when it is no soup or has no
+    duplicates (the caller keeps what it has).
+
+    A soup has faces naming every vertex at most once: every corner its own vertex, as flat-shaded OBJ
+    exports, three.js non-indexed geometry and STL converters write it.  Vertices with the same position
+    and the same value of every attribute (``attributes``, {name: (n, ...) array}) are one vertex, the
+    first of them; vertices keep their order.  ``mesh`` is :func:`checked_mesh`'s (faces the weld makes
+    degenerate dropped and counted in its ``cleanup``), ``removed`` how many vertices the weld removed.
+    Faces that are not an index array of ``positions``, and positions that are not finite, are no soup:
+    :func:`checked_mesh` of the caller's arrays names what is wrong.  Serves the mesh file readers
+    (:func:`_soup_welded`) and the glTF primitives (:func:`pmwm_codec.stream.asset._welded`)."""
+    attributes = attributes or {}
+    positions, tri = np.asarray(positions), np.asarray(faces)
     n = len(positions)
     if tri.ndim != 2 or tri.size == 0 or tri.min() < 0 or tri.max() >= n \
-            or np.bincount(tri.reshape(-1), minlength=n).max() > 1:
-        return checked_mesh(positions, faces, name=name)  # (checked_mesh names what is wrong)
+            or np.bincount(tri.reshape(-1), minlength=n).max() > 1 or not np.isfinite(positions).all():
+        return None
     from .progressive.seams import weld_groups
 
-    weld = weld_groups(np.asarray(positions, np.float64)) if np.isfinite(positions).all() else None
+    rows = [np.asarray(positions, np.float64)] + [np.asarray(v, np.float64).reshape(n, -1)
+                                                  for _, v in sorted(attributes.items())]
+    weld = weld_groups(np.concatenate(rows, axis=1))
     if weld is None:
-        return checked_mesh(positions, faces, name=name)
+        return None
     keep = weld == np.arange(n)
-    mesh = checked_mesh(positions[keep], (np.cumsum(keep) - 1)[weld[tri]], name=name)
-    mesh.cleanup = {**mesh.cleanup, "duplicate_soup_vertices": int(n - keep.sum())}
-    return mesh
+    mesh = checked_mesh(positions[keep], (np.cumsum(keep) - 1)[weld[tri]],
+                        {k: v[keep] for k, v in attributes.items()}, name=name)
+    return mesh, int(n - keep.sum())

@@ -275,6 +275,34 @@ def test_sources_mirror_the_tree_from_a_folder_a_glob_and_a_manifest(library, tm
     assert [a.relative for a in expand_sources(manifest, tmp_path / "o")] == ["a.obj", "sub/c.stl"]
 
 
+def test_outputs_that_differ_only_in_letter_case_encode_the_first_and_refuse_the_other(tmp_path, client):
+    """``A.OBJ`` and ``a.obj`` (or ``Chairs/oak.obj`` and ``chairs/oak.obj``) in a library made on Linux write one
+    output on a case-insensitive file system (macOS, Windows): both were encoded, and there one asset's ``.pmw``
+    and key silently replaced the other's.  The outputs are compared case-folded: the first is encoded, the
+    other is a failed row that names it, read by no one and written nowhere."""
+    lib = tmp_path / "lib"
+    for name in ("A.OBJ", "a.obj", "Chairs/oak.obj", "b.obj", "chairs/oak.obj"):
+        (lib / name).parent.mkdir(parents=True, exist_ok=True)
+        write_mesh(lib / name, shapes.icosphere(1, noise=0.01, seed=len(name)))
+    summary = encode_batch(lib, tmp_path / "out", client=client)
+    assert (summary["ok"], summary["failed"]) == (3, 2), summary
+    errors = {Path(r["input"]).relative_to(lib).as_posix(): r["error"] for r in summary["failures"]}
+    assert errors == {
+        "a.obj": f"{lib / 'a.obj'}: its output a.obj.pmw is A.OBJ.pmw (of {lib / 'A.OBJ'}) but for letter case, one "
+                 "file on a case-insensitive file system (macOS, Windows); not encoded (rename one of the two to "
+                 "encode both)",
+        "chairs/oak.obj": f"{lib / 'chairs' / 'oak.obj'}: its output chairs/oak.obj.pmw is Chairs/oak.obj.pmw (of "
+                          f"{lib / 'Chairs' / 'oak.obj'}) but for letter case, one file on a case-insensitive file "
+                          "system (macOS, Windows); not encoded (rename one of the two to encode both)"}
+    assert all(r["input_sha256"] is None for r in summary["failures"])  # never read
+    written = sorted(p.relative_to(tmp_path / "out").as_posix() for p in (tmp_path / "out").rglob("*.pmw"))
+    assert written == ["A.OBJ.pmw", "Chairs/oak.obj.pmw", "b.obj.pmw"]
+    assert not (tmp_path / "out" / "chairs").exists()  # the refused asset's folder is never made
+    assets = expand_sources(lib, tmp_path / "out")
+    assert [(a.relative, a.clash is not None) for a in assets] == [
+        ("A.OBJ", False), ("Chairs/oak.obj", False), ("a.obj", True), ("b.obj", False), ("chairs/oak.obj", True)]
+
+
 def test_a_glob_enters_no_symlinked_folder_and_takes_nothing_under_the_output_folder(tmp_path):
     """``**`` followed symlinked folders, which a folder SRC never enters: a link to a folder above
     (``lib/a/loop -> ..``) made one file some forty assets, each encoded to its own deeper output."""

@@ -1436,3 +1436,110 @@ def test_a_host_name_lookup_that_stalls_is_cut_off_after_the_timeout(site, monke
         assert time.monotonic() - start < 2.5
     assert re.fullmatch(r"http://slow\.example:\d+/x\.pmw: cannot read \(the name lookup \(DNS\) of slow\.example gave "
                         r"no answer in [01]\.\d s\)", str(info.value)), info.value
+
+
+def test_an_ipv6_address_is_connected_to_with_its_scope_id(monkeypatch, capsys, tmp_path):
+    """The connection was made by ``create_connection(sockaddr[:2])``: a second lookup of the bare address, which
+    lost an IPv6 address's scope id, so a link-local server (``fe80::``, no address without its interface) could
+    not be reached.  The address ``getaddrinfo`` gives goes to ``connect`` whole, and a URL's zone (RFC 6874:
+    ``%25eth7``) goes to ``getaddrinfo`` as ``%eth7``."""
+    import socket
+
+    lookup, asked, connected = socket.getaddrinfo, [], []
+    scoped = [(socket.AF_INET6, socket.SOCK_STREAM, 6, "", ("fe80::1", 8000, 0, 7))]
+
+    def resolver(host, *args, **kwargs):  # this machine's getaddrinfo, with an interface 7 named eth7
+        asked.append(host)
+        return scoped if host in ("linklocal.example", "fe80::1%eth7") else lookup(host, *args, **kwargs)
+
+    def connect(sock, address):
+        connected.append((sock.family, address))
+        raise ConnectionRefusedError("refused here")
+
+    monkeypatch.setattr(socket, "getaddrinfo", resolver)
+    monkeypatch.setattr(socket.socket, "connect", connect)
+    for url, host in (("http://linklocal.example:8000/x.pmw", "linklocal.example"),
+                      ("http://[fe80::1%25eth7]:8000/x.pmw", "fe80::1%eth7")):
+        asked.clear()
+        connected.clear()
+        code, _, err = _pmw(capsys, "decode", url, "-o", tmp_path / "x.obj")
+        assert asked == [host] and connected == [(socket.AF_INET6, ("fe80::1", 8000, 0, 7))], (asked, connected)
+        assert code == 2 and err == f"pmw: error: {url}: cannot read (refused here)\n", err
+    assert not (tmp_path / "x.obj").exists()
+
+
+class HostNoting(RangeRequestHandler):
+    """Notes the ``Host`` header of every request in ``hosts``."""
+
+    hosts = []
+
+    def parse_request(self):
+        ok = super().parse_request()
+        if ok:
+            self.hosts.append(self.headers["Host"])
+        return ok
+
+
+@pytest.mark.skipif(not _ipv6_loopback(), reason="no IPv6 loopback on this machine")
+def test_a_url_on_the_ipv6_loopback_is_still_read(site):
+    """The connection made from the address ``getaddrinfo`` gives, not by ``create_connection``: ``[::1]`` reads
+    as it did, its ``Host`` header as the URL writes it."""
+    handler = type("Noting", (HostNoting,), {"hosts": []})
+    srv = make_server(site, "::1", 0, handler)
+    thread = threading.Thread(target=srv.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
+    thread.start()
+    try:
+        source = UrlSource(f"http://[::1]:{srv.server_address[1]}/x.pmw")
+        assert pmwm_codec.decode(source) == pmwm_codec.decode(site / "x.pmw") and source.ranged
+        assert set(handler.hosts) == {f"[::1]:{srv.server_address[1]}"}
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+
+
+def _link_local() -> tuple | None:
+    """``(address, interface name, interface index)`` of a link-local IPv6 address of this machine (Linux), or None."""
+    try:
+        with open("/proc/net/if_inet6") as rows:
+            for hexed, index, _, scope, _, name in (row.split() for row in rows):
+                if scope == "20":  # link scope
+                    return ":".join(hexed[i:i + 4] for i in range(0, 32, 4)), name, int(index, 16)
+    except (OSError, ValueError):
+        pass
+    return None
+
+
+@pytest.mark.skipif(_link_local() is None, reason="no link-local IPv6 address on this machine")
+def test_a_link_local_url_with_its_zone_is_read_and_a_zone_of_no_interface_named(site, tmp_path, capsys):
+    """``http://[fe80::...%25eth0]:port/x.pmw`` (RFC 6874) was ``cannot read ([Errno -2] Name or service not
+    known)``: the zone reached ``getaddrinfo`` as ``25eth0``, and the scope id it gives was dropped.  It reads,
+    the ``Host`` header without the zone (the client's business, as curl sends it); a zone that names no interface,
+    or none at all, is one line naming what is missing."""
+    import socket
+    from functools import partial
+
+    from pmwm_codec.cli.serve import _Server6
+
+    address, name, index = _link_local()
+    handler = type("Noting", (HostNoting,), {"hosts": []})
+    srv = _Server6((address, 0, 0, index), partial(handler, directory=str(site)))
+    thread = threading.Thread(target=srv.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
+    thread.start()
+    shown = socket.getnameinfo((address, 0, 0, index), socket.NI_NUMERICHOST)[0].partition("%")[0]
+    port = srv.server_address[1]
+    try:
+        source = UrlSource(f"http://[{shown}%25{name}]:{port}/x.pmw")
+        assert pmwm_codec.decode(source) == pmwm_codec.decode(site / "x.pmw") and source.ranged
+        assert set(handler.hosts) == {f"[{shown}]:{port}"}
+        for zone, words in (("%25nosuch0", f"no network interface 'nosuch0' on this machine (the zone of {shown})"),
+                            ("", f"{shown} is a link-local address: the URL names its network interface after it")):
+            url = f"http://[{shown}{zone}]:{port}/x.pmw"
+            code, _, err = _pmw(capsys, "decode", url, "-o", tmp_path / "x.obj")
+            assert code == 2 and err.startswith(f"pmw: error: {url}: cannot read ({words}") and \
+                len(err.splitlines()) == 1, err
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+    assert not (tmp_path / "x.obj").exists()

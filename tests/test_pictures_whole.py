@@ -137,6 +137,37 @@ def test_a_second_run_into_the_folder_leaves_only_its_own_pictures(marked, tmp_p
     assert reference.exists()
 
 
+def test_a_mesh_verified_into_a_folder_used_before_leaves_only_its_two_pictures(marked, tmp_path):
+    """``pmw verify MESH --reference REF --frames DIR`` wrote its ``watermark.png`` and ``tamper.png`` beside the
+    frames, ``overview.png`` and ``metrics.png`` an earlier ``pmw verify FILE.pmw --frames DIR`` had left: the
+    folder showed two runs' pictures.  They are removed as the stream form removes them once the two are
+    published; anything else, a link of a set's name (and what it points to), and the command's inputs stay."""
+    import pmwm_codec
+    from pmwm_codec.meshio import write_mesh
+
+    pmw, key = marked
+    frames = tmp_path / "f"
+    assert _verify(marked, frames) == 0
+    first = {p.name for p in frames.iterdir()}
+    assert {"overview.png", "metrics.png", "tamper.png", "frame_000.png"} <= first and len(first) > 5
+    (frames / "notes.txt").write_text("mine")
+    (tmp_path / "elsewhere.png").write_bytes(b"not a picture of this run")
+    for link in ("frame_999.png", "metrics.png"):
+        (frames / link).unlink(missing_ok=True)
+        (frames / link).symlink_to(tmp_path / "elsewhere.png")
+    expected = frames / "frame_998.png"  # the expected image kept under a frame's name: an input of the run
+    expected.write_bytes((pmw.parent / "mark.png").read_bytes())
+    mesh = tmp_path / "m.ply"
+    write_mesh(mesh, pmwm_codec.decode(pmw))
+    assert main(["verify", str(mesh), "--reference", str(pmw), "--key", str(key), "--frames", str(frames),
+                 "--watermark", str(expected), "-q"]) == 0
+    assert sorted(p.name for p in frames.iterdir()) == ["frame_998.png", "frame_999.png", "metrics.png", "notes.txt",
+                                                        "tamper.png", "watermark.png"]
+    assert (frames / "frame_999.png").is_symlink() and (frames / "metrics.png").is_symlink()
+    assert (tmp_path / "elsewhere.png").read_bytes() == b"not a picture of this run"
+    assert (frames / "notes.txt").read_text() == "mine" and expected.read_bytes() == (pmw.parent / "mark.png").read_bytes()
+
+
 def test_remove_stale_touches_only_the_sets_names(tmp_path):
     for name in ("frame_001.png", "frame_002.png", "frame_0123.png", "overview.png", "metrics.png", "tamper.png",
                  "frame_1.png", "frame_001.png.bak", "other.png"):

@@ -103,6 +103,35 @@ def _rotated(faces: np.ndarray) -> np.ndarray:
     return rot[np.lexsort(rot.T[::-1])]
 
 
+def test_one_weld_serves_an_obj_soup_and_a_gltf_soup(tmp_path):
+    """The mesh readers and the glTF primitives weld a soup through one function (there were two copies of
+    the logic): the same soup read as an OBJ and planned as a non-indexed primitive is the mesh
+    :func:`~pmwm_codec.mesh.weld_soup` gives, the OBJ counting the weld in its cleanup, the primitive in its
+    notice; vertices that differ in an attribute stay apart, and a mesh whose faces share vertices is none
+    of its business."""
+    from pmwm_codec.mesh import read_mesh, weld_soup
+
+    mesh = shapes.icosphere(2, 1.0, noise=0.02)
+    corners = mesh.positions.astype(np.float32).astype(np.float64)[mesh.faces.reshape(-1)]  # exact in both files
+    soup = np.arange(len(corners)).reshape(-1, 3)
+    welded, removed = weld_soup(corners, soup, name="soup")
+    assert welded.vertex_count == mesh.vertex_count and removed == len(corners) - mesh.vertex_count
+    (tmp_path / "soup.obj").write_text("".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in corners.tolist())
+                                       + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in soup.tolist()))
+    obj = read_mesh(tmp_path / "soup.obj")
+    jobs, _, notices = plan_asset(*gltf_of(Mesh(corners, soup, {}, {}), indexed=False))
+    for got in (obj, jobs[0].mesh):
+        assert np.array_equal(got.positions, welded.positions) and np.array_equal(got.faces, welded.faces)
+    assert obj.cleanup == {"duplicate_soup_vertices": removed} and jobs[0].mesh.cleanup == {}
+    assert notices == [f"mesh 0 primitive 0: {removed} duplicate vertices (same position and attributes) welded; "
+                       f"it decodes with {mesh.vertex_count} vertices"]
+    uv = np.zeros((len(corners), 2))
+    uv[0] = 0.5  # the first corner differs from its copies in its UV: it stays its own vertex
+    apart, fewer = weld_soup(corners, soup, {"TEXCOORD_0": uv}, name="soup")
+    assert apart.vertex_count == mesh.vertex_count + 1 and fewer == removed - 1
+    assert weld_soup(mesh.positions, mesh.faces) is None  # indexed by its author: kept as stored
+
+
 def test_a_flat_shaded_primitive_with_no_split_says_why(tmp_path):
     """Per-face normals: every position has a copy per face around it (three or more), all stay in the base.
     The encoder says the primitive got no split and why (it said nothing)."""

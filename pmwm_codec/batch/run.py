@@ -331,7 +331,7 @@ def _jobs(assets, out_dir, image, key, keys_dir, timeout, force, options=None, r
                               prior.get("input_sha256") if done else None, prior.get("vertices") if done else None,
                               settings, dict(options or {}), asset.root,
                               made.get("bytes") if done else None, made.get("output_sha256") if done else None,
-                              restore_sigint, given))
+                              restore_sigint, given, asset.clash))
     return jobs
 
 

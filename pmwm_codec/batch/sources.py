@@ -20,14 +20,19 @@ folder a glob starts from, or the deepest folder common to the manifest's entrie
     OUT_DIR/<relative path>.pmw            e.g. chairs/oak.obj -> OUT_DIR/chairs/oak.obj.pmw
 
 The suffix is kept so that ``oak.obj`` and ``oak.ply`` never collide.  Every output
-lies inside OUT_DIR by construction (relative paths never start with ``..``).
+lies inside OUT_DIR by construction (relative paths never start with ``..``).  Two inputs
+whose outputs differ only in letter case (``A.OBJ`` and ``a.obj``; ``Chairs/oak.obj`` and
+``chairs/oak.obj``, a manifest naming one file in two spellings on macOS) would write one file on a
+case-insensitive file system (macOS, Windows: OUT_DIR, or a copy of it, may well be one):
+the first (in the order listed) is encoded and the other is refused, a failed row of the
+ledger that names the first (:attr:`Asset.clash`).
 """
 
 from __future__ import annotations
 
 import fnmatch
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from pmwm_codec.mesh import MESH_SUFFIXES
 from pmwm_codec.watermark.key import KEY_SUFFIX
@@ -47,6 +52,8 @@ class Asset:
     output: str
     root: str | None = None
     """The folder a folder or glob SRC names: the input's real path must stay inside it (None: named as is)."""
+    clash: str | None = None
+    """Why the asset is not encoded: its output is an earlier asset's but for letter case (None: it is not)."""
 
 
 def expand_sources(src, out_dir) -> list[Asset]:
@@ -75,7 +82,7 @@ def expand_sources(src, out_dir) -> list[Asset]:
         raise ValueError(f"{src}: no such folder, file or glob match")
     if not inputs:
         raise ValueError(f"{src}: no mesh files ({', '.join(MESH_SUFFIXES)}) found")
-    return [_asset(path, root, out_dir, root if confine else None) for path in inputs]
+    return _case_clashes([_asset(path, root, out_dir, root if confine else None) for path in inputs])
 
 
 #: What an ``outside_root`` refusal suggests for an input of ``pmw batch encode``.
@@ -94,6 +101,21 @@ def outside_root(path: str, root: str | None, remedy: str = ENCODE_REMEDY) -> st
     if _inside(real, os.path.realpath(root)):
         return None
     return f"{path}: resolves through a symlink to {real}, outside {root}; refused ({remedy})"
+
+
+def _case_clashes(assets: list[Asset]) -> list[Asset]:
+    """``assets``, each whose output is an earlier one's but for letter case (``str.casefold``) refused in its
+    :attr:`Asset.clash`: on a case-insensitive file system the two are one file, one asset's ``.pmw`` (and
+    key) written over the other's."""
+    first = {}
+    for i, asset in enumerate(assets):
+        earlier = first.setdefault(asset.output.casefold(), asset)
+        if earlier is not asset:
+            assets[i] = replace(asset, clash=(
+                f"{asset.input}: its output {asset.relative}{PMW_SUFFIX} is {earlier.relative}{PMW_SUFFIX} (of "
+                f"{earlier.input}) but for letter case, one file on a case-insensitive file system (macOS, "
+                "Windows); not encoded (rename one of the two to encode both)"))
+    return assets
 
 
 def _is_mesh(path: str) -> bool:

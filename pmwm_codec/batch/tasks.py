@@ -49,7 +49,8 @@ class EncodeJob:
     ``restore_sigint``: whether the encoder takes SIGINT back to its default (the run's local workers
     ignore it for the run's sake); False leaves it as the worker has it (an ignored SIGINT stays ignored).
     ``watermark_given``: the watermark's (width, height) as the user gave it, before it was made the square
-    ``watermark`` (a capacity error names it so), or None.
+    ``watermark`` (a capacity error names it so), or None.  ``clash``: why the asset is refused before it is
+    read (its output is another asset's but for letter case: :attr:`pmwm_codec.batch.sources.Asset.clash`).
     """
 
     input: str
@@ -68,6 +69,7 @@ class EncodeJob:
     prior_output_sha256: str | None = None
     restore_sigint: bool = True
     watermark_given: tuple | None = None
+    clash: str | None = None
 
 
 def encode_task(job: EncodeJob) -> dict:
@@ -75,7 +77,8 @@ def encode_task(job: EncodeJob) -> dict:
     start = time.monotonic()
     row = {"input": job.input, "input_sha256": None, "output": job.output, "status": "failed", "error": None,
            "bytes": None, "vertices": None, "settings_sha256": job.settings, "output_sha256": None}
-    row["error"] = outside_root(job.input, job.root)  # a symlink out of SRC's folder: never read
+    # never read: an asset whose output another's is but for letter case, a symlink out of SRC's folder
+    row["error"] = job.clash or outside_root(job.input, job.root)
     if row["error"] is None:
         try:
             row["input_sha256"] = sha256_file(job.input)

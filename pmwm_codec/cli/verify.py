@@ -185,7 +185,7 @@ def run_reference(args) -> int:
     with naming(args.reference):
         v = verify_mesh(mesh, args.reference, args.key, args.watermark)
     if args.frames is not None:
-        from pmwm_codec.figures import TAMPER_NAME, tamper_figure, write_pictures
+        from pmwm_codec.figures import TAMPER_NAME, remove_stale, tamper_figure, write_pictures
         from pmwm_codec.watermark.image import gray_image
 
         names = ("watermark.png", TAMPER_NAME)
@@ -194,6 +194,9 @@ def run_reference(args) -> int:
         write_pictures(args.frames, {names[0]: gray_image(v.watermark),
                                      names[1]: tamper_figure(mesh.positions, mesh.faces, v.flagged, v.watermark,
                                                              title=title)})
+        # an earlier run's frames, overview and plot: the folder shows this mesh's pictures, as the stream form's does
+        remove_stale(args.frames, set(names),
+                     [p for p in (args.input, args.key, args.watermark, args.reference) if p and p != "-"])
     if args.json:
         print_json(v.as_json())
     elif not args.quiet:

@@ -61,7 +61,7 @@ def weld_groups(positions: np.ndarray) -> np.ndarray | None:
     ``positions`` (n, d) float (or int: grid integers, exact in float64 below 2**53); -0.0 and
     0.0 are the same value.  One sort of a 64-bit hash of the rows finds the candidates; only
     rows whose hash repeats are compared exactly.  (Any ``d``: positions, or positions with
-    every attribute, :func:`~pmwm_codec.stream.asset._primitive_mesh`'s duplicate weld.)
+    every attribute, :func:`~pmwm_codec.mesh.weld_soup`'s duplicate weld.)
     """
     pts = np.asarray(positions, np.float64)
     pts = np.ascontiguousarray(pts.reshape(len(pts), -1) + 0.0)

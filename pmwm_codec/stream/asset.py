@@ -82,8 +82,7 @@ from ..format.gltf import (
     world_placements,
     view_bytes,
 )
-from ..mesh import Mesh, checked_mesh
-from ..progressive.seams import weld_groups
+from ..mesh import Mesh, checked_mesh, weld_soup
 from ..http import read_declared
 from .cut import data_not_arrived
 from .decoder import StreamDecoder
@@ -239,31 +238,21 @@ def _primitive_mesh(gltf, buffers, prim, where) -> tuple:
 
 
 def _welded(mesh: Mesh, where: str) -> tuple:
-    """``mesh`` with its exact duplicates welded when it is a triangle soup: vertices with the same position and
-    the same value of every attribute are one vertex, the first of them (vertices keep their order).
+    """``(mesh, how many vertices the weld removed)``: a checked primitive with its exact duplicates welded
+    when it is a triangle soup (:func:`~pmwm_codec.mesh.weld_soup`: the same position and the same value of
+    every attribute), its ``cleanup`` counts and the weld's added up.
 
-    A soup (a non-indexed primitive, or indices naming every vertex once: every corner its own vertex, as
-    three.js non-indexed geometry and STL converters write it) becomes the indexed mesh it is, whose seams
-    the simplifier can collapse; as a soup each position had about six copies and stayed in the base.
-    Faces the weld makes degenerate are dropped (counted in ``cleanup``).  A primitive whose vertices the
-    faces share is indexed by its author and kept as stored, duplicates and all (gltfpack keeps a few where
-    its compressed attributes differ in a bit and its plain ones do not: one weld would make the two
-    encodes of one file differ).  Returns ``(mesh, how many vertices the weld removed)``; a mesh not
-    welded comes back as it is."""
-    if np.bincount(mesh.faces.reshape(-1), minlength=mesh.vertex_count).max() > 1:
+    A soup (a non-indexed primitive, or indices naming every vertex once) becomes the indexed mesh it is,
+    whose seams the simplifier can collapse; as a soup each position had about six copies and stayed in the
+    base.  A primitive whose vertices the faces share is indexed by its author and kept as stored,
+    duplicates and all (gltfpack keeps a few where its compressed attributes differ in a bit and its plain
+    ones do not: one weld would make the two encodes of one file differ); it comes back as it is, with 0."""
+    welded = weld_soup(mesh.positions, mesh.faces, mesh.attributes, name=where)
+    if welded is None:
         return mesh, 0
-    rows = [mesh.positions] + [np.asarray(v, np.float64).reshape(mesh.vertex_count, -1)
-                               for _, v in sorted(mesh.attributes.items())]
-    weld = weld_groups(np.concatenate(rows, axis=1))
-    if weld is None:
-        return mesh, 0
-    keep = weld == np.arange(mesh.vertex_count)
-    index = np.cumsum(keep) - 1
-    faces = index[weld[mesh.faces]]
-    welded = checked_mesh(mesh.positions[keep], faces, {k: v[keep] for k, v in mesh.attributes.items()}, name=where)
-    welded.cleanup = {k: welded.cleanup.get(k, 0) + mesh.cleanup.get(k, 0)
-                      for k in sorted({*welded.cleanup, *mesh.cleanup})}
-    return welded, int(mesh.vertex_count - keep.sum())
+    out, removed = welded
+    out.cleanup = {k: out.cleanup.get(k, 0) + mesh.cleanup.get(k, 0) for k in sorted({*out.cleanup, *mesh.cleanup})}
+    return out, removed
 
 
 def _accessor_arrays(gltf, buffers, prim) -> tuple:
