@@ -421,6 +421,23 @@ def _search_objective(n: np.ndarray, rho: np.ndarray, lo: float, width: float, x
     return float(np.abs(tot / np.maximum(np.bincount(s, minlength=BINS), 1)).sum())
 
 
+def _remembered(objective):
+    """``objective`` (of a frame offset x (5,) float64) that computes each x once: the pattern searches
+    step back onto points they have been at, and climbs from different starts meet (a fifth of the
+    evaluations of a ``pmw verify`` were repeats: 2CylinderEngine, 4,973 of 24,609).  Keyed by x's exact
+    bytes, so every value is the one computed before it."""
+    seen = {}
+
+    def remembered(x: np.ndarray) -> float:
+        key = np.asarray(x, np.float64).tobytes()
+        value = seen.get(key)
+        if value is None:
+            value = seen[key] = objective(x)
+        return value
+
+    return remembered
+
+
 def _within_box(x: np.ndarray) -> bool:
     """Whether the frame offset ``x`` (5,) (see :func:`_search_objective`) moves no norm's shell
     position by more than :data:`SEARCH_BOX` widths: |centroid offset| + the larger bound offset."""
@@ -484,7 +501,8 @@ def _frames_in_order(points: np.ndarray, faces: np.ndarray, full: bool = True):
     rho = np.linalg.norm(d, axis=1)
     n = d / np.maximum(rho, 1e-300)[:, None]
     every = -(-len(points) // GRID_POINTS)
-    objectives = tuple(functools.partial(_search_objective, n[::m], rho[::m], lo, width) for m in (every, 1))
+    objectives = tuple(_remembered(functools.partial(_search_objective, n[::m], rho[::m], lo, width))
+                       for m in (every, 1))
     zero = np.zeros(5)
     if full:
         grid = np.stack(np.meshgrid(*[SEARCH_GRID] * 5, indexing="ij"), -1).reshape(-1, 5)
