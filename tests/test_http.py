@@ -1543,3 +1543,34 @@ def test_a_link_local_url_with_its_zone_is_read_and_a_zone_of_no_interface_named
         srv.server_close()
         thread.join(5)
     assert not (tmp_path / "x.obj").exists()
+
+
+@pytest.mark.skipif(_link_local() is None, reason="no link-local IPv6 address on this machine")
+def test_pmw_serve_listens_on_a_link_local_address_with_its_zone_and_prints_a_url_that_reads(site):
+    """``pmw serve --host fe80::...%eth0`` was ``cannot listen there (Invalid argument)``: the zone's scope id was
+    dropped at bind, as the reader dropped it at connect.  It listens, its URL names the zone (``%25eth0``, RFC 6874),
+    and that URL reads; a zone of no interface is still one line, exit 2."""
+    import socket
+    import subprocess
+    import sys
+
+    address, name, _ = _link_local()
+    shown = socket.getnameinfo((address, 0), socket.NI_NUMERICHOST)[0].partition("%")[0]
+    from pmwm_codec.cli.serve import server_url
+
+    srv = make_server(site, f"{shown}%{name}", 0)
+    thread = threading.Thread(target=srv.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
+    thread.start()
+    try:
+        url = server_url(srv)
+        assert re.fullmatch(rf"http://\[{re.escape(shown)}%25{re.escape(name)}\]:\d+/", url), url
+        assert pmwm_codec.decode(url + "x.pmw") == pmwm_codec.decode(site / "x.pmw")
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+    done = subprocess.run([sys.executable, "-m", "pmwm_codec", "serve", str(site), "--port", "0",
+                           "--host", f"{shown}%nosuch0"], capture_output=True, text=True, timeout=60,
+                          cwd=Path(__file__).resolve().parents[1])
+    assert done.returncode == 2 and done.stderr.startswith(f"pmw: error: --host {shown}%nosuch0 --port 0: cannot "
+                                                           "listen there (") and len(done.stderr.splitlines()) == 1

@@ -329,13 +329,17 @@ class _Server6(_Server):
 def make_server(directory, host: str = "127.0.0.1", port: int = 0, handler=RangeRequestHandler):
     """A ``ThreadingHTTPServer`` serving ``directory`` with ``handler``; not started.
 
-    ``host``: a name or an IPv4 address, or an IPv6 address (``::1``; in brackets too, ``[::1]``).  It counts body
+    ``host``: a name or an IPv4 address, or an IPv6 address (``::1``; in brackets too, ``[::1]``; a link-local one
+    with its zone, ``fe80::1%eth0``).  It counts body
     bytes in ``bytes_sent`` (under ``count_lock``).
     """
     if host.startswith("[") and host.endswith("]"):
         host = host[1:-1]
+    address = (host, port)
+    if ":" in host:  # an IPv6 address; with its zone (fe80::1%eth0), the interface's scope id binds with it
+        address = socket.getaddrinfo(host, port, socket.AF_INET6, socket.SOCK_STREAM)[0][4]
     server_class = _Server6 if ":" in host else _Server  # (a name or an IPv4 address has no colon)
-    server = server_class((host, port), partial(handler, directory=os.fspath(directory)))
+    server = server_class(address, partial(handler, directory=os.fspath(directory)))
     server.bytes_sent = 0
     server.count_lock = threading.Lock()
     server.daemon_threads = True
@@ -346,6 +350,10 @@ def server_url(server) -> str:
     """The URL of the root of what ``server`` serves: an IPv6 address in brackets (``http://[::1]:8000/``, a zone's
     ``%`` as ``%25``, RFC 6874)."""
     host, port = server.server_address[:2]
+    scope = server.server_address[3] if len(server.server_address) > 3 else 0
+    if scope and "%" not in host:  # a link-local address: the URL names its interface (getsockname gives its index)
+        with contextlib.suppress(OSError):
+            host += "%" + socket.if_indextoname(scope)
     return f"http://[{host.replace('%', '%25')}]:{port}/" if ":" in host else f"http://{host}:{port}/"
 
 
