@@ -160,7 +160,11 @@ export class ProgressiveRun {
         if (this.stopped && this.levels.length) break; // the prefix loadProgressive holds still makes the base
         const results = await this.decoder.feed(piece);
         if (!this.checked && this.decoder.header) this.#checkDocument(); // before any base is decoded
-        for (const r of results) this.#level(r); // a chunk failed after them: those levels still show
+        for (const r of results) { // a chunk failed after them: those levels still show
+          // stopped meanwhile (by onChunk of an earlier level of this piece, or during the feed): none after the level drawn
+          if (this.stopped && this.levels.length) break;
+          this.#level(r);
+        }
         if (this.decoder.error || this.#enough()) break;
       }
       end = await this.decoder.close().catch((e) => {
@@ -177,6 +181,9 @@ export class ProgressiveRun {
       this.decoder.dispose?.();
       this.#release();
     }
+    // stopped with levels of the last piece decoded but not drawn: the outcome is the level drawn
+    const shown = this.levels.at(-1)?.chunk;
+    if (shown !== undefined && shown < end.chunksApplied) end = { ...end, complete: false, chunksApplied: shown };
     const outcome = { ...end, bytesFetched: this.bytesFetched, requests: this.requests, levels: this.levels.length,
       workerLevels: this.decoder.workerLevels ?? 0, stopped: this.stopped };
     this.#call(o.onDone, outcome);
