@@ -247,12 +247,17 @@ export class ProgressiveRun {
     return want < plan.stream.length && this.decoder.chunksApplied >= want; // all of them: read on to the end
   }
 
-  /** Draws level `r` (its `mesh`: the decoder's snapshot at that level) and reports it. */
+  /**
+   * Draws level `r` and reports it. Its `mesh.parts[p]`: primitive p's arrays at that level when the level changed it
+   * (the base: every primitive), else null: that geometry is left as it is (no copy, no upload), as on many
+   * primitives a level refines one.
+   */
   #level(r) {
     const { mesh } = r;
     const { primitives } = this.decoder.plan;
     for (const t of this.targets) {
       const p = primitives.findIndex((q) => q.mesh === t.mesh && q.primitive === t.primitive);
+      if (!mesh.parts[p]) continue;
       const geometries = new Set(t.objects.map((o) => o.geometry));
       for (const g of geometries) refreshGeometry(g, mesh.parts[p], primitives[p].vertexCount, primitives[p].faceCount);
     }

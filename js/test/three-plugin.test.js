@@ -269,6 +269,44 @@ test('a progressive mesh the scene leaves out is decoded in order, and each show
     }
   });
 
+test('a level rewrites only the geometry of the primitive its chunk refines: the others are neither copied nor uploaded again',
+  { skip: python() ? false : 'no Python that imports pmwm_codec (set PYTHON)' }, async () => {
+    const dir = fs.mkdtempSync(path.join(os.tmpdir(), 'pmwm-three-'));
+    try {
+      encodeCase('two-meshes.plain', 2, path.join(dir, 'two.pmw')); // mesh 0 and mesh 1, one progressive primitive each
+      const data = new Uint8Array(fs.readFileSync(path.join(dir, 'two.pmw')));
+      const { gltf: json, binLength } = parseGlb(data);
+      const { stream } = planDocument(json, binLength);
+      assert.deepEqual(new Set(stream.map((c) => c.primitive)), new Set([0, 1]));
+      const full = await decodePmw(data);
+      await serving({ 'two.pmw': data }, async (server) => {
+        for (const range of [true, false]) {
+          let scene = null;
+          const loader = new GLTFLoader();
+          loader.register(() => ({ name: 'scene', afterRoot: (result) => { scene = result.scene; } }));
+          const geometries = () => scene.children.map((node) => node.geometry);
+          let seen = null;
+          const rewritten = [];
+          const gltf = await loadProgressive(loader, `${server.url}two.pmw`, { range, onChunk: (e) => {
+            const now = geometries().map((g) => g.userData.pmwmLevel);
+            rewritten.push([e.chunk, now.flatMap((level, p) => (seen && level === seen[p] ? [] : [p]))]);
+            seen = now;
+          } });
+          await gltf.userData.pmwm.done;
+          // chunk 1 is the first level after the base: compared from chunk 2 on, only its chunk's primitive changes
+          assert.deepEqual(rewritten.slice(1), stream.slice(1).map((c, k) => [k + 2, [c.primitive]]), `range ${range}`);
+          geometries().forEach((g, p) => {
+            const part = full.parts[p];
+            assert.deepEqual(g.getAttribute('position').array.subarray(0, part.positions.length), part.positions);
+            assert.deepEqual(g.index.array.subarray(0, g.drawRange.count), part.indices);
+          });
+        }
+      });
+    } finally {
+      fs.rmSync(dir, { recursive: true, force: true });
+    }
+  });
+
 test('each level\'s bounding box and sphere are those of its own vertices, not of the zeros past them', async () => {
   const geometry = new BufferGeometry();
   refreshGeometry(geometry, { positions: new Float32Array(6), indices: Uint32Array.of(0, 1, 0), attributes: {} }, 100, 200);
