@@ -74,7 +74,8 @@ export class PMWMProgressivePlugin {
 async function progressiveTargets(parser, gltf) {
   const byKey = new Map();
   const add = (object) => {
-    const assoc = parser.associations.get(object);
+    let assoc = parser.associations.get(object);
+    if (assoc?.meshes === undefined) assoc = instancedAssociation(parser, object) ?? assoc;
     if (!object.isMesh || !assoc || assoc.meshes === undefined) return;
     const prim = parser.json.meshes?.[assoc.meshes]?.primitives?.[assoc.primitives ?? 0];
     if (!prim?.extensions?.[EXTENSION_NAME]) return;
@@ -89,6 +90,21 @@ async function progressiveTargets(parser, gltf) {
   }));
   for (const m of unseen) (await parser.getDependency('mesh', m)).traverse(add);
   return [...byKey.values()].sort((a, b) => a.mesh - b.mesh || a.primitive - b.primitive);
+}
+
+/**
+ * {meshes, primitives} of an InstancedMesh three.js built for a node with EXT_mesh_gpu_instancing, else undefined. Its
+ * GLTFMeshGpuInstancing makes new objects, associated with the node only ({nodes}: the node's object, when its mesh
+ * has one primitive) or not at all (the children of the node's Group, one per primitive in order), and the
+ * associations of the meshes they replace are dropped once the scene is loaded.
+ */
+function instancedAssociation(parser, object) {
+  if (!object.isInstancedMesh) return undefined;
+  const own = parser.associations.get(object)?.nodes !== undefined;
+  const node = parser.associations.get(own ? object : object.parent)?.nodes;
+  const def = parser.json.nodes?.[node];
+  if (def?.mesh === undefined || !def.extensions?.EXT_mesh_gpu_instancing) return undefined;
+  return { meshes: def.mesh, primitives: own ? 0 : object.parent.children.indexOf(object) };
 }
 
 /**
@@ -260,6 +276,9 @@ export class ProgressiveRun {
       if (!mesh.parts[p]) continue;
       const geometries = new Set(t.objects.map((o) => o.geometry));
       for (const g of geometries) refreshGeometry(g, mesh.parts[p], primitives[p].vertexCount, primitives[p].faceCount);
+      for (const o of t.objects) { // an InstancedMesh keeps bounds of its own, computed once: computed again from the level
+        if (o.isInstancedMesh) o.boundingSphere = o.boundingBox = null;
+      }
     }
     const event = { ...r, bytesFetched: this.bytesFetched, requests: this.requests };
     delete event.mesh;
@@ -302,7 +321,9 @@ export function refreshGeometry(geometry, part, capV, capF) {
       // an attribute the stream does not carry has no value for a new vertex: dropped, as the reference
       // writer drops it from a level (normals are recomputed below)
       const carried = new Set(['position', 'normal', ...Object.keys(part.attributes).map(threeName)]);
-      for (const name of Object.keys(geometry.attributes)) if (!carried.has(name)) geometry.deleteAttribute(name);
+      for (const [name, attribute] of Object.entries(geometry.attributes)) {
+        if (!carried.has(name) && !attribute.isInstancedBufferAttribute) geometry.deleteAttribute(name); // per instance: kept
+      }
     }
     if (!had || vertices !== had.vertices) {
       geometry.setAttribute('position', new BufferAttribute(new Float32Array(vertices * 3), 3));

@@ -153,6 +153,34 @@ test('loadProgressive loads a GLB without PMWM_progressive_mesh as it is (no str
   }
 });
 
+test('a progressive mesh drawn by EXT_mesh_gpu_instancing (a three.js InstancedMesh) is refined, and its bounds follow', async () => {
+  // three.js builds a new InstancedMesh for the node, and keeps no association of its mesh once the scene is loaded
+  const instanced = withJson(bytes, (gltf) => {
+    gltf.accessors.push({ componentType: 5126, count: 3, type: 'VEC3' }); // no bufferView: three instances at the origin
+    gltf.nodes[0].extensions = { EXT_mesh_gpu_instancing: { attributes: { TRANSLATION: gltf.accessors.length - 1 } } };
+    gltf.extensionsUsed.push('EXT_mesh_gpu_instancing');
+  });
+  const full = await decodePmw(bytes);
+  for (const ranges of [true, false]) {
+    await serving({ 'instanced.pmw': instanced }, async (server) => {
+      const gltf = await loadProgressive(new GLTFLoader(), `${server.url}instanced.pmw`);
+      const mesh = theMesh(gltf);
+      assert.equal(mesh.isInstancedMesh, true);
+      assert.equal(mesh.count, 3);
+      mesh.computeBoundingSphere(); // as three.js' frustum culling does, once: null until then
+      const base = mesh.boundingSphere.clone();
+      assert.equal((await gltf.userData.pmwm?.done)?.complete, true, 'no run, or an incomplete one');
+      const g = mesh.geometry;
+      assert.equal(g.userData.pmwmLevel.vertices, full.positions.length / 3);
+      assert.deepEqual(g.getAttribute('position').array.subarray(0, full.positions.length), full.positions);
+      assert.deepEqual(g.index.array.subarray(0, g.drawRange.count), full.indices);
+      if (mesh.boundingSphere === null) mesh.computeBoundingSphere();
+      assert.notDeepEqual(mesh.boundingSphere, base, 'the InstancedMesh keeps the bounding sphere of the base');
+      assert.deepEqual(mesh.boundingSphere, g.boundingSphere);
+    }, { ranges });
+  }
+});
+
 /** A fetch answering every request with the whole file as a stream of `size`-byte pieces; `log` records bytes read and a cancel. */
 function streamingFetch(data, log = {}, size = 500) {
   return async () => {
