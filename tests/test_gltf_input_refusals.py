@@ -348,6 +348,12 @@ SHAPES = {
                                        "bufferViews[1].target is 34962, but it holds indices"),
     "positions in an index bufferView": (lambda d, m: d["bufferViews"][0].update(target=34963),
                                          "bufferViews[0].target is 34963, but it holds vertex data"),
+    # assimp's glTF2/wrongTypes/badString.gltf: its copy in the .pmw failed three.js' GLTFLoader (name.replace)
+    "a scene name that is a number": (lambda d, m: d["scenes"][0].update(name=42), "scenes[0].name must be a string"),
+    "a node name that is an object": (lambda d, m: d["nodes"][0].update(name={"a": 1}),
+                                      "nodes[0].name must be a string"),
+    "a material name that is null": (lambda d, m: d["materials"][0].update(name=None),
+                                     "materials[0].name must be a string"),
 }
 
 

@@ -5,7 +5,7 @@
  * {type: 'feed', id, bytes: Uint8Array}, {type: 'close', id}. Out: {type: 'ready'} once loaded;
  * {id, results} per feed (with `error` too when a chunk failed after
  * the levels it holds: every later request fails), each result with `mesh.parts[p]` {positions, indices, attributes} (buffers
- * transferred); {id, end, levels} for close (levels: how many levels this worker decoded); {id, error}
+ * transferred) for the primitive its level changed, null for the others; {id, end, levels} for close (levels: how many levels this worker decoded); {id, error}
  * (serializeError) for any failure.
  */
 import { PmwDecoder } from './decoder.js';
@@ -16,7 +16,9 @@ let levels = 0;
 
 /** A result with only the arrays the plugin draws, and the ArrayBuffers to transfer (each once). */
 function packLevel(r, buffers) {
-  const parts = r.mesh.parts.map(({ positions, indices, attributes }) => {
+  const parts = r.mesh.parts.map((part) => {
+    if (!part) return null; // a primitive this level left as it was
+    const { positions, indices, attributes } = part;
     buffers.add(positions.buffer);
     buffers.add(indices.buffer);
     for (const values of Object.values(attributes)) buffers.add(values.buffer);
@@ -27,7 +29,7 @@ function packLevel(r, buffers) {
 
 async function handle(msg) {
   if (msg.type === 'start') {
-    decoder = new PmwDecoder({ draco: dracoFromBases(msg.bases), maxChunks: msg.maxChunks, snapshots: true });
+    decoder = new PmwDecoder({ draco: dracoFromBases(msg.bases), maxChunks: msg.maxChunks, snapshots: 'changed' });
   } else if (msg.type === 'feed') {
     const buffers = new Set();
     const results = (await decoder.feed(msg.bytes)).map((r) => packLevel(r, buffers));

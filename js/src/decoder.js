@@ -23,9 +23,11 @@ const TINY = Math.fround(1e-30);
 
 export class PmwDecoder {
   /**
-   * @param {{draco?: DracoDecoder, maxChunks?: number, snapshots?: boolean, onLevel?: Function,
+   * @param {{draco?: DracoDecoder, maxChunks?: number, snapshots?: boolean|'changed', onLevel?: Function,
    *   onCallbackError?: Function}} options
    *   maxChunks: apply no chunk after this many; snapshots: attach `mesh` (see snapshot()) to every result;
+   *   'changed': `mesh: {parts}` with parts[p] as snapshot()'s only for the primitive the level changed (the base:
+   *   every one), null for the others (a copy of every part per level costs levels x mesh size on many primitives);
    *   onLevel(result, decoder): called as each level is reached, before the next chunk is applied;
    *   onCallbackError(error): given what onLevel throws (default: console.error); the decode goes on
    */
@@ -202,7 +204,11 @@ export class PmwDecoder {
       faceCount: parts.reduce((a, p) => a + p.faceCount, 0),
       parts,
     };
-    if (this.snapshots) r.mesh = this.snapshot();
+    if (this.snapshots === 'changed') {
+      const changed = this.chunksApplied ? this.plan.stream[this.chunksApplied - 1].primitive : -1;
+      const { primitives } = this.plan;
+      r.mesh = { parts: this.states.map((s, p) => (changed < 0 || p === changed ? partSnapshot(s, primitives[p]) : null)) };
+    } else if (this.snapshots) r.mesh = this.snapshot();
     if (this.onLevel) {
       try {
         this.onLevel(r, this);

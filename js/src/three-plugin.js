@@ -74,7 +74,8 @@ export class PMWMProgressivePlugin {
 async function progressiveTargets(parser, gltf) {
   const byKey = new Map();
   const add = (object) => {
-    const assoc = parser.associations.get(object);
+    let assoc = parser.associations.get(object);
+    if (assoc?.meshes === undefined) assoc = instancedAssociation(parser, object) ?? assoc;
     if (!object.isMesh || !assoc || assoc.meshes === undefined) return;
     const prim = parser.json.meshes?.[assoc.meshes]?.primitives?.[assoc.primitives ?? 0];
     if (!prim?.extensions?.[EXTENSION_NAME]) return;
@@ -89,6 +90,21 @@ async function progressiveTargets(parser, gltf) {
   }));
   for (const m of unseen) (await parser.getDependency('mesh', m)).traverse(add);
   return [...byKey.values()].sort((a, b) => a.mesh - b.mesh || a.primitive - b.primitive);
+}
+
+/**
+ * {meshes, primitives} of an InstancedMesh three.js built for a node with EXT_mesh_gpu_instancing, else undefined. Its
+ * GLTFMeshGpuInstancing makes new objects, associated with the node only ({nodes}: the node's object, when its mesh
+ * has one primitive) or not at all (the children of the node's Group, one per primitive in order), and the
+ * associations of the meshes they replace are dropped once the scene is loaded.
+ */
+function instancedAssociation(parser, object) {
+  if (!object.isInstancedMesh) return undefined;
+  const own = parser.associations.get(object)?.nodes !== undefined;
+  const node = parser.associations.get(own ? object : object.parent)?.nodes;
+  const def = parser.json.nodes?.[node];
+  if (def?.mesh === undefined || !def.extensions?.EXT_mesh_gpu_instancing) return undefined;
+  return { meshes: def.mesh, primitives: own ? 0 : object.parent.children.indexOf(object) };
 }
 
 /**
@@ -160,7 +176,11 @@ export class ProgressiveRun {
         if (this.stopped && this.levels.length) break; // the prefix loadProgressive holds still makes the base
         const results = await this.decoder.feed(piece);
         if (!this.checked && this.decoder.header) this.#checkDocument(); // before any base is decoded
-        for (const r of results) this.#level(r); // a chunk failed after them: those levels still show
+        for (const r of results) { // a chunk failed after them: those levels still show
+          // stopped meanwhile (by onChunk of an earlier level of this piece, or during the feed): none after the level drawn
+          if (this.stopped && this.levels.length) break;
+          this.#level(r);
+        }
         if (this.decoder.error || this.#enough()) break;
       }
       end = await this.decoder.close().catch((e) => {
@@ -177,6 +197,9 @@ export class ProgressiveRun {
       this.decoder.dispose?.();
       this.#release();
     }
+    // stopped with levels of the last piece decoded but not drawn: the outcome is the level drawn
+    const shown = this.levels.at(-1)?.chunk;
+    if (shown !== undefined && shown < end.chunksApplied) end = { ...end, complete: false, chunksApplied: shown };
     const outcome = { ...end, bytesFetched: this.bytesFetched, requests: this.requests, levels: this.levels.length,
       workerLevels: this.decoder.workerLevels ?? 0, stopped: this.stopped };
     this.#call(o.onDone, outcome);
@@ -240,14 +263,22 @@ export class ProgressiveRun {
     return want < plan.stream.length && this.decoder.chunksApplied >= want; // all of them: read on to the end
   }
 
-  /** Draws level `r` (its `mesh`: the decoder's snapshot at that level) and reports it. */
+  /**
+   * Draws level `r` and reports it. Its `mesh.parts[p]`: primitive p's arrays at that level when the level changed it
+   * (the base: every primitive), else null: that geometry is left as it is (no copy, no upload), as on many
+   * primitives a level refines one.
+   */
   #level(r) {
     const { mesh } = r;
     const { primitives } = this.decoder.plan;
     for (const t of this.targets) {
       const p = primitives.findIndex((q) => q.mesh === t.mesh && q.primitive === t.primitive);
+      if (!mesh.parts[p]) continue;
       const geometries = new Set(t.objects.map((o) => o.geometry));
       for (const g of geometries) refreshGeometry(g, mesh.parts[p], primitives[p].vertexCount, primitives[p].faceCount);
+      for (const o of t.objects) { // an InstancedMesh keeps bounds of its own, computed once: computed again from the level
+        if (o.isInstancedMesh) o.boundingSphere = o.boundingBox = null;
+      }
     }
     const event = { ...r, bytesFetched: this.bytesFetched, requests: this.requests };
     delete event.mesh;
@@ -290,7 +321,9 @@ export function refreshGeometry(geometry, part, capV, capF) {
       // an attribute the stream does not carry has no value for a new vertex: dropped, as the reference
       // writer drops it from a level (normals are recomputed below)
       const carried = new Set(['position', 'normal', ...Object.keys(part.attributes).map(threeName)]);
-      for (const name of Object.keys(geometry.attributes)) if (!carried.has(name)) geometry.deleteAttribute(name);
+      for (const [name, attribute] of Object.entries(geometry.attributes)) {
+        if (!carried.has(name) && !attribute.isInstancedBufferAttribute) geometry.deleteAttribute(name); // per instance: kept
+      }
     }
     if (!had || vertices !== had.vertices) {
       geometry.setAttribute('position', new BufferAttribute(new Float32Array(vertices * 3), 3));

@@ -10,7 +10,7 @@
  * caller may reuse its buffer at once); with a worker, that copy is posted (its ArrayBuffer transferred, never the
  * caller's) and each level comes back as `result.mesh.parts[p]`
  * `{positions (n*3) Float32Array, indices (m*3) Uint32Array, attributes {semantic: Float32Array}}`
- * (transferred); a failure comes back as the same named error (errors.js class, message, fields).
+ * (transferred) for the primitive the level changed (the base: every one), null for the others; a failure comes back as the same named error (errors.js class, message, fields).
  *
  * Starting the worker: first `new Worker(url, {type: 'module'})` (bundlers rewrite this form, and it
  * is all a page needs once import maps reach workers); Chromium does not apply the page's import map
@@ -55,7 +55,7 @@ export function dracoFromBases(bases) {
 }
 
 /**
- * A PmwDecoder (snapshots on: every result carries its level's `mesh`) or, unless `worker` is false or
+ * A PmwDecoder (snapshots 'changed': every result carries the parts its level changed, `mesh.parts`) or, unless `worker` is false or
  * there is no Worker, a WorkerDecoder.
  * @param {{bases: object[], maxChunks?: number, worker?: 'auto'|boolean, workerThreshold?: number,
  *   workerUrl?: string|URL}} options
@@ -66,7 +66,7 @@ export function createDecoder(options) {
 }
 
 function localDecoder({ bases, maxChunks = Infinity }) {
-  return new PmwDecoder({ draco: dracoFromBases(bases), maxChunks, snapshots: true });
+  return new PmwDecoder({ draco: dracoFromBases(bases), maxChunks, snapshots: 'changed' });
 }
 
 /** PmwDecoder's push interface (feed, close, header, plan, received, chunksApplied) over a worker. */

@@ -140,6 +140,34 @@ test('an AbortSignal aborted mid-stream stops the run promptly (done resolves, t
   assert.equal(res.error?.name, 'AbortError');
 });
 
+test('stop() or an abort from onChunk draws no later level, even of the same streamed piece (the level stopped at stays, done says it)',
+  async () => {
+    // a streamed GET brings the whole file in one or two pieces: the decoder gives every chunk of a piece at once
+    const at = 2;
+    const level = await decodePmw(bytes, { chunks: at });
+    for (const [how, kind] of [['stop', 'plain'], ['signal', 'plain'], ['stop', 'ranges']]) {
+      const what = `${how} ${kind}`;
+      const controller = new AbortController();
+      const events = [];
+      let run;
+      const gltf = await loadProgressive(new GLTFLoader(), servers[kind].url + NAME, { signal: controller.signal,
+        onChunk: (e) => {
+          events.push(e.chunk);
+          if (e.chunk === at) (how === 'stop' ? run.stop() : controller.abort());
+        } });
+      run = gltf.userData.pmwm;
+      const outcome = await run.done;
+      assert.deepEqual(events, [1, 2], what);
+      assert.equal(outcome.stopped, true, what);
+      assert.equal(outcome.complete, false, what);
+      assert.equal(outcome.chunksApplied, at, what);
+      assert.equal(outcome.levels, at + 1, what);
+      const d = drawn(gltf);
+      assert.deepEqual(d.positions, level.positions, what);
+      assert.deepEqual(d.indices, level.indices, what);
+    }
+  });
+
 test('Range answers shorter than asked: the rest is asked for, the load completes (no false truncation)', async () => {
   const full = await decodePmw(bytes);
   for (const cap of [7, 300, 1000]) {

@@ -153,6 +153,34 @@ test('loadProgressive loads a GLB without PMWM_progressive_mesh as it is (no str
   }
 });
 
+test('a progressive mesh drawn by EXT_mesh_gpu_instancing (a three.js InstancedMesh) is refined, and its bounds follow', async () => {
+  // three.js builds a new InstancedMesh for the node, and keeps no association of its mesh once the scene is loaded
+  const instanced = withJson(bytes, (gltf) => {
+    gltf.accessors.push({ componentType: 5126, count: 3, type: 'VEC3' }); // no bufferView: three instances at the origin
+    gltf.nodes[0].extensions = { EXT_mesh_gpu_instancing: { attributes: { TRANSLATION: gltf.accessors.length - 1 } } };
+    gltf.extensionsUsed.push('EXT_mesh_gpu_instancing');
+  });
+  const full = await decodePmw(bytes);
+  for (const ranges of [true, false]) {
+    await serving({ 'instanced.pmw': instanced }, async (server) => {
+      const gltf = await loadProgressive(new GLTFLoader(), `${server.url}instanced.pmw`);
+      const mesh = theMesh(gltf);
+      assert.equal(mesh.isInstancedMesh, true);
+      assert.equal(mesh.count, 3);
+      mesh.computeBoundingSphere(); // as three.js' frustum culling does, once: null until then
+      const base = mesh.boundingSphere.clone();
+      assert.equal((await gltf.userData.pmwm?.done)?.complete, true, 'no run, or an incomplete one');
+      const g = mesh.geometry;
+      assert.equal(g.userData.pmwmLevel.vertices, full.positions.length / 3);
+      assert.deepEqual(g.getAttribute('position').array.subarray(0, full.positions.length), full.positions);
+      assert.deepEqual(g.index.array.subarray(0, g.drawRange.count), full.indices);
+      if (mesh.boundingSphere === null) mesh.computeBoundingSphere();
+      assert.notDeepEqual(mesh.boundingSphere, base, 'the InstancedMesh keeps the bounding sphere of the base');
+      assert.deepEqual(mesh.boundingSphere, g.boundingSphere);
+    }, { ranges });
+  }
+});
+
 /** A fetch answering every request with the whole file as a stream of `size`-byte pieces; `log` records bytes read and a cancel. */
 function streamingFetch(data, log = {}, size = 500) {
   return async () => {
@@ -263,6 +291,44 @@ test('a progressive mesh the scene leaves out is decoded in order, and each show
         assert.equal(shown.userData.pmwmLevel.vertices, part.positions.length / 3);
         assert.deepEqual(shown.getAttribute('position').array.subarray(0, part.positions.length), part.positions);
         assert.deepEqual(shown.index.array.subarray(0, part.indices.length), part.indices);
+      });
+    } finally {
+      fs.rmSync(dir, { recursive: true, force: true });
+    }
+  });
+
+test('a level rewrites only the geometry of the primitive its chunk refines: the others are neither copied nor uploaded again',
+  { skip: python() ? false : 'no Python that imports pmwm_codec (set PYTHON)' }, async () => {
+    const dir = fs.mkdtempSync(path.join(os.tmpdir(), 'pmwm-three-'));
+    try {
+      encodeCase('two-meshes.plain', 2, path.join(dir, 'two.pmw')); // mesh 0 and mesh 1, one progressive primitive each
+      const data = new Uint8Array(fs.readFileSync(path.join(dir, 'two.pmw')));
+      const { gltf: json, binLength } = parseGlb(data);
+      const { stream } = planDocument(json, binLength);
+      assert.deepEqual(new Set(stream.map((c) => c.primitive)), new Set([0, 1]));
+      const full = await decodePmw(data);
+      await serving({ 'two.pmw': data }, async (server) => {
+        for (const range of [true, false]) {
+          let scene = null;
+          const loader = new GLTFLoader();
+          loader.register(() => ({ name: 'scene', afterRoot: (result) => { scene = result.scene; } }));
+          const geometries = () => scene.children.map((node) => node.geometry);
+          let seen = null;
+          const rewritten = [];
+          const gltf = await loadProgressive(loader, `${server.url}two.pmw`, { range, onChunk: (e) => {
+            const now = geometries().map((g) => g.userData.pmwmLevel);
+            rewritten.push([e.chunk, now.flatMap((level, p) => (seen && level === seen[p] ? [] : [p]))]);
+            seen = now;
+          } });
+          await gltf.userData.pmwm.done;
+          // chunk 1 is the first level after the base: compared from chunk 2 on, only its chunk's primitive changes
+          assert.deepEqual(rewritten.slice(1), stream.slice(1).map((c, k) => [k + 2, [c.primitive]]), `range ${range}`);
+          geometries().forEach((g, p) => {
+            const part = full.parts[p];
+            assert.deepEqual(g.getAttribute('position').array.subarray(0, part.positions.length), part.positions);
+            assert.deepEqual(g.index.array.subarray(0, g.drawRange.count), part.indices);
+          });
+        }
       });
     } finally {
       fs.rmSync(dir, { recursive: true, force: true });

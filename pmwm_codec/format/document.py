@@ -261,7 +261,7 @@ def check_document(gltf: dict, name: str) -> None:
     Checks the nesting depth (:data:`~pmwm_codec.constants.MAX_JSON_DEPTH`), that no number is NaN or
     infinite (Python's JSON reader takes ``NaN``, ``Infinity`` and ``1e999``; JSON, and
     so the output, does not), that every array and object
-    this module reads has the right JSON type, that every index reference the
+    this module reads has the right JSON type (and every ``name`` of theirs a string), that every index reference the
     output keeps (scene, scene and child nodes, a node's mesh / skin / camera, a
     primitive's accessors and material, textures' images and samplers, materials'
     textures, skins' joints, animations' samplers, accessors and target nodes,
@@ -281,7 +281,10 @@ def check_document(gltf: dict, name: str) -> None:
     check_finite_numbers(gltf, name, InputFormatError)
     gltf_integers(gltf)  # "count": 3.0 is the integer 3 (JSON does not tell them apart), in place
     for key in _ARRAYS:
-        _objects(gltf, key, key, name)
+        for i, item in enumerate(_objects(gltf, key, key, name)):
+            # copied into the output: a name three.js' GLTFLoader cannot sanitize (name.replace) fails its load
+            if "name" in item and not isinstance(item["name"], str):
+                raise InputFormatError(f"{name}: {key}[{i}].name must be a string, got {shown_value(item['name'])}")
     for key in ("extensionsUsed", "extensionsRequired"):
         if not all(isinstance(e, str) for e in _list(gltf, key, key, name)):
             raise InputFormatError(f"{name}: {key} must be an array of strings")

@@ -118,10 +118,12 @@ CASES = {
 
 
 #: name -> (meshes (one mesh of one primitive each), the nodes of the scene (node i shows mesh i), encoder
-#: options): documents whose scene leaves progressive meshes out
+#: options): documents of one primitive per mesh, some of which the scene may leave out
 SCENES = {
     "unseen-first-mesh.plain": lambda: ([shapes.grid(18, 16, hole=True), shapes.torus(24, 12, twist=0.1)], [1],
                                         dict(base_codec="plain")),
+    "two-meshes.plain": lambda: ([shapes.grid(18, 16, hole=True), shapes.torus(24, 12, twist=0.1)], [0, 1],
+                                 dict(base_codec="plain")),
 }
 
 
