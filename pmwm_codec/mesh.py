@@ -74,6 +74,18 @@ class Mesh:
     __hash__ = None  # mutable arrays: not hashable (as the dataclass had it)
 
 
+def vertex_components(faces: np.ndarray, n: int) -> tuple:
+    """``(count, label (n,) int32)``: the connected parts of a mesh of ``n`` vertices whose ``faces`` (m, 3) int join
+    the vertices they name (scipy's labels: a vertex no face names is a part of its own)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]]])
+    graph = coo_matrix((np.ones(len(edges), np.int8), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    return connected_components(graph, directed=False)
+
+
 def bounds(points: np.ndarray) -> tuple:
     """``(lo, hi)``, each (d,) of the dtype of ``points`` (n, d), n >= 1: its columns' minima and maxima,
     ``points.min(0)`` and ``points.max(0)``.  Column by column: numpy reduces a narrow array over its

@@ -46,7 +46,7 @@ from ..format.gltf import COMPONENT_DTYPES, FLOAT
 from ..format.extension import DEFAULT_PAYLOAD_VERSION, PAYLOAD_CODEC, PAYLOAD_VERSIONS
 from ..format.records import pack_batches
 from ..format.records_v2 import FaceChunk, pack_chunks
-from ..mesh import Mesh, bounds
+from ..mesh import Mesh, bounds, vertex_components
 from ..progressive.build import ProgressiveMesh, build_progressive
 from ..progressive.grid import AttributeGrid, Grid, float32_spacing
 from ..progressive.seams import twin_rows, weld_groups
@@ -858,13 +858,7 @@ def _separate_parts(faces: np.ndarray, n: int) -> tuple:
     vertex onto a neighbour, so it never joins two parts nor leaves a part without a face."""
     if not len(faces):
         return 0, 0
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    faces = np.asarray(faces, np.int64)
-    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]]])
-    graph = coo_matrix((np.ones(len(edges), np.int8), (edges[:, 0], edges[:, 1])), shape=(n, n))
-    _, label = connected_components(graph, directed=False)
+    _, label = vertex_components(faces, n)
     used = np.zeros(n, bool)
     used[faces.ravel()] = True
     size = np.bincount(label[used])

@@ -34,7 +34,7 @@ from ..errors import WatermarkKeyError
 from ..format.extension import EXTENSION_NAME
 from ..format.document import sniff_json
 from ..format.gltf import TRIANGLE_MODES, TRIANGLES, find_extension_primitives, owner_placements, scene_mesh
-from ..mesh import Mesh, checked_mesh, read_mesh
+from ..mesh import Mesh, checked_mesh, read_mesh, vertex_components
 from ..stream import StreamDecoder, iter_results
 from ..watermark.key import as_key
 from ..watermark.owner import OwnerResult, detect, distinct_mesh
@@ -116,16 +116,11 @@ def pieces(mesh: Mesh) -> list:
     one another (a similarity apart: equal counts, equal sorted distances from the centroid relative
     to their mean) one is kept.  Nothing here depends on a key: the reads are chosen before any is
     compared with an ID, as the false-alarm bound requires."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     points, faces = distinct_mesh(mesh.positions, mesh.faces)
     if len(faces) == 0:
         return []
     n = len(points)
-    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]]])
-    graph = coo_matrix((np.ones(len(edges), np.int8), (edges[:, 0], edges[:, 1])), shape=(n, n))
-    count, label = connected_components(graph, directed=False)
+    count, label = vertex_components(faces, n)
     face_label = label[faces[:, 0]]
     used = np.zeros(n, bool)
     used[faces.ravel()] = True
@@ -268,7 +263,7 @@ class OwnerReader:
             return
         read = next(b for b in reversed(self._boundaries) if b.read_at == b.chunk)
         self._boundaries.append(OwnerBoundary(result.chunk, int(result.bytes_read), vertices, read.owner, read.chunk))
-        self._pending = (np.array(positions, copy=True), np.array(faces, copy=True))
+        self._pending = (positions, faces)  # scene_mesh's own arrays (concatenated): no view of the decoder's
 
 
 def _frames(gltf: dict) -> list:
