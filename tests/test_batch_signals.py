@@ -159,3 +159,28 @@ def test_an_encoder_whose_worker_is_gone_stops_and_removes_what_it_was_writing(t
         pytest.fail("the encoder outlived its parent by 20 s")
     assert done.stderr == b""
     assert sorted(os.listdir(tmp_path)) == ["big.obj"]
+
+
+_STOP_WHILE_THE_WATCH_STARTS = """
+import multiprocessing, threading, time
+from pmwm_codec.batch import child
+
+start = threading.Thread.start
+def slow_start(self):  # the main thread still inside Thread.start when the watch's stop arrives
+    start(self)
+    time.sleep(2)
+threading.Thread.start = slow_start
+reader, writer = multiprocessing.Pipe(duplex=False)
+writer.close()  # the worker is already gone
+child.child_main({"restore_sigint": True}, None, reader)
+"""
+
+
+def test_an_encoder_whose_worker_is_gone_as_it_starts_ends_without_a_word():
+    """A fresh-clone CI run of ``test_kill_9_of_the_batch_ends_its_encoders_at_once_without_a_word`` printed an
+    encoder's ``Stopped`` traceback: its worker was killed as it started, and the stop (SIGTERM from the watch
+    thread) came while the main thread was still in ``Thread.start``, before the ``try`` that ends quietly.  The
+    same moment, made certain: exit by SIGTERM, nothing on stderr."""
+    done = subprocess.run([sys.executable, "-c", _STOP_WHILE_THE_WATCH_STARTS], capture_output=True, text=True,
+                          timeout=60, cwd=ROOT)
+    assert (done.returncode, done.stderr) == (-signal.SIGTERM, "")

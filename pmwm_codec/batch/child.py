@@ -147,10 +147,10 @@ def child_main(job: dict, connection, lifeline=None) -> None:
     """Entry of a forked child: encode, send the result dict through ``connection``.  ``lifeline``: a pipe
     end whose other end the worker holds open until this process has ended; when it closes first, the
     worker is gone, and the encode stops (never a traceback of a result sent to no one)."""
-    _signals(job.get("restore_sigint", True))
-    if lifeline is not None:
-        _watch(_wait_pipe_closed(lifeline))
-    try:
+    try:  # a stop can come as soon as SIGTERM has its handler: while the watch starts, its news already in
+        _signals(job.get("restore_sigint", True))
+        if lifeline is not None:
+            _watch(_wait_pipe_closed(lifeline))
         result = _encode(job)
         connection.send(result)
         connection.close()
@@ -171,9 +171,9 @@ def _encode(job: dict) -> dict:
 def main() -> int:
     """Entry of ``python -c 'from pmwm_codec.batch.child import main; ...'`` (a daemonic worker's encoder)."""
     job = pickle.loads(sys.stdin.buffer.read())
-    _signals(job.get("restore_sigint", True))
-    _watch(_wait_reparented())
-    try:
+    try:  # (as :func:`child_main`: a stop while the watch starts is a stop)
+        _signals(job.get("restore_sigint", True))
+        _watch(_wait_reparented())
         result = _encode(job)
         sys.stdout.write(json.dumps(result) + "\n")
         sys.stdout.flush()
