@@ -185,6 +185,7 @@ class Probe:
         # a file stores float32: far from the origin a grid point is off by up to half a float32 spacing
         # (the encoder guarantees the grid index comes back, not the grid point: Grid.carries_float32)
         from pmwm_codec.progressive.grid import float32_spacing
+        from pmwm_codec.progressive.topology import canonical_faces
         f32 = float32_spacing(np.abs(dec_pos).max(axis=0, initial=0)) / (2 * step)
         off = (np.abs(qd_float - qd) - f32).max(initial=0)
         self.res["float32_steps"] = float(f32.max(initial=0))
@@ -207,12 +208,18 @@ class Probe:
             self.res["max_err_steps"] = float(err)
             if err > 0.51 + f32.max(initial=0):
                 self.finding("roundtrip-positions", f"max error {err:.3f} grid steps")
-        pid = np.unique(np.concatenate([qi, qd]), axis=0, return_inverse=True)[1].reshape(-1)
+        rows, pid = np.unique(np.concatenate([qi, qd]), axis=0, return_inverse=True)
+        pid = pid.reshape(-1)
         fi, fd = canonical_faces(pid[:len(qi)][inp.faces]), canonical_faces(pid[len(qi):][dec_faces])
         if fi.shape != fd.shape or not np.array_equal(fi, fd):
             si, sd = set(map(tuple, fi.tolist())), set(map(tuple, fd.tolist()))
-            self.finding("roundtrip-faces", f"{len(si - sd)} input faces missing, {len(sd - si)} extra "
-                         f"(as position triples; {len(fi)} vs {len(fd)} rows)")
+            missing, extra = sorted(si - sd), sorted(sd - si)
+            snapped = "snapped-copies" in {f["kind"] for f in self.res["findings"]}
+            if snapped and len(missing) == len(extra) and snapped_faces(rows, missing, extra):
+                self.finding("snapped-copies", f"{len(missing)} faces have corners on copies moved by a step")
+            else:
+                self.finding("roundtrip-faces", f"{len(missing)} input faces missing, {len(extra)} extra "
+                             f"(as position triples; {len(fi)} vs {len(fd)} rows)")
 
     def cut(self, base: str, k: int, asset: bool = False) -> None:
         """``pmw cut --chunks k`` then ``pmw decode`` equals the library's ``decode(chunks=k)`` (an asset's:
@@ -478,17 +485,22 @@ def read_obj(path: str):
     return positions, faces
 
 
-def canonical_faces(faces: np.ndarray) -> np.ndarray:
-    """Each triangle rotated to start at its smallest index (orientation kept), rows sorted."""
-    if len(faces) == 0:
-        return faces
-    rots = [faces[:, [(s + j) % 3 for j in range(3)]] for s in range(3)]
-    best = rots[0]
-    for r in rots[1:]:
-        less = (r[:, 0] < best[:, 0]) | ((r[:, 0] == best[:, 0]) & ((r[:, 1] < best[:, 1])
-                                                                   | ((r[:, 1] == best[:, 1]) & (r[:, 2] < best[:, 2]))))
-        best = np.where(less[:, None], r, best)
-    return best[np.lexsort(best.T[::-1])]
+def snapped_faces(rows: np.ndarray, missing: list, extra: list, limit: int = 4096) -> bool:
+    """Whether the input faces ``missing`` and the decoded faces ``extra`` (triples of ids into the grid
+    ``rows`` (r, 3) int64) pair up one to one, each pair's corners (same orientation, any rotation)
+    at most one grid step apart on every axis: the faces of near-copies the encoder put on one grid
+    point.  False beyond ``limit`` faces (not checked)."""
+    if len(missing) > limit:
+        return False
+    left = [rows[list(t)] for t in extra]
+    for t in missing:
+        face = rows[list(t)]
+        match = next((i for i, other in enumerate(left)
+                      if any(np.abs(face - np.roll(other, s, axis=0)).max() <= 1 for s in range(3))), None)
+        if match is None:
+            return False
+        left.pop(match)
+    return True
 
 
 def unpartnered_edges(pts: np.ndarray, faces: np.ndarray) -> int:
