@@ -5,7 +5,8 @@
 // `cap=N` answers a Range request with at most N bytes (a short 206, as RFC 9110 allows), `fail=K` answers
 // the K-th request for that URL (path and query) with HTTP 500, `cut=N` drops the connection after N bytes
 // of a whole (200) answer, `stall=N` sends N bytes of a whole answer (at most all but one) and then nothing more (never ends),
-// and of a Range answer reaching past byte N of the file, the bytes before byte N and then nothing more; `drip=MS`
+// and of a Range answer reaching past byte N of the file, both send the bytes before byte N, then drop the connection
+// (cut) or send nothing more (stall); `drip=MS`
 // sends the body in pieces of 1,000 bytes, MS ms apart (`stats.sending`: the bodies being sent; `stats.dropped`: those
 // whose connection the client closed before their end).
 import fs from 'node:fs';
@@ -53,10 +54,10 @@ export async function startServer(root, { ranges = true, delayMs = 0, mounts = {
       res.writeHead(200, { 'Content-Type': type, 'Content-Length': body.length, 'Cache-Control': 'no-store' });
     }
     if (file.endsWith('.pmw')) { stats.bytes += body.length; stats.log.push(req.headers.range ?? 'whole'); }
-    const stall = query.get('stall');
-    let only = body === data ? query.get('cut') ?? stall : null; // a whole answer, cut or stalled
+    const stop = query.get('cut') ?? query.get('stall');
+    let only = body === data ? stop : null; // a whole answer, cut or stalled
     if (only !== null) only = Math.min(Number(only), body.length - 1); // never the whole body: it never ends
-    else if (stall !== null && from + body.length > Number(stall)) only = Math.max(0, Number(stall) - from); // a Range answer
+    else if (stop !== null && from + body.length > Number(stop)) only = Math.max(0, Number(stop) - from); // a Range answer
     if (only !== null) {
       res.write(body.subarray(0, only));
       if (query.get('cut')) setTimeout(() => res.socket?.destroy(), 20); // else: stalls until closed
