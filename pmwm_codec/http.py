@@ -4,12 +4,13 @@
 :mod:`pmwm_codec.sources`), so every reader takes it as it takes a file.  It asks for
 the first bytes with a ``Range`` request:
 
-* the server honours it (``206``): the GLB preamble (20 bytes), then the JSON and
-  the BIN chunk header, then, planned from the chunk index, the base mesh (everything
-  before the first chunk) and every chunk's byte range in stream order, one request
-  each (and one more for the rest of a range whenever the server answers with fewer
-  bytes than asked), and finally the padding up to the file length.  With
-  ``max_chunks=N`` it stops after the N-th chunk: nothing after it is requested.
+* the server honours it (``206``): three requests (:func:`plan_ranges`), the GLB
+  preamble (20 bytes), the JSON with the BIN chunk header, then everything the reader
+  needs after them in one: the base mesh and the chunks in stream order, up to the file
+  length, or with ``max_chunks=N`` up to the end of the N-th chunk (nothing after it is
+  requested).  Its body is handed on as it arrives, so each chunk reaches the decoder
+  as soon as its own bytes are in; a server that answers with fewer bytes than asked
+  is asked for the rest, as often as it takes.
 * the server ignores it (``200``): the body is read as one plain streamed GET, in
   blocks, up to the file length the GLB header declares (a body that goes on is
   refused), stopped after the N-th chunk when ``max_chunks`` is given; a gzip or deflate
@@ -31,6 +32,7 @@ declared length.
 
 from __future__ import annotations
 
+import bisect
 import contextlib
 import http.client
 import ipaddress
@@ -207,8 +209,9 @@ class UrlSource:
     # -- Range mode --------------------------------------------------------------
 
     def _ranges(self, preamble: bytes):
-        """After the preamble: JSON + BIN header, then the planned ranges, in order (a file longer than its
-        GLB header declares is refused: :meth:`_check_length`)."""
+        """After the preamble: the JSON + BIN header, then the rest :func:`plan_ranges` plans, as it arrives, in blocks
+        cut where the base and each chunk end (:func:`_cut`; a file longer than its GLB header declares is refused:
+        :meth:`_check_length`)."""
         total, json_length = parse_preamble(preamble)
         self._check_length(total)
         header_end = PREAMBLE_SIZE + json_length + CHUNK_HEADER_SIZE
@@ -216,15 +219,13 @@ class UrlSource:
         yield rest
         if len(rest) < header_end - PREAMBLE_SIZE:
             return
-        start = header_end
-        ends = plan_ranges(preamble + rest, self.max_chunks, self.whole_document)
-        for end in ends:
-            block = self._fetch(start, end)
+        header = _header(preamble + rest)
+        (stop,) = _plan(header, self.max_chunks, self.whole_document)
+        at = header_end
+        for block in _cut(self._blocks(at, stop), at, _part_ends(header)):
+            at += len(block)
             yield block
-            if len(block) < end - start:
-                return  # the server stopped: a cut stream
-            start = end
-        self.stopped = ends[-1] < total
+        self.stopped = at == stop < total  # (fewer bytes: the server stopped, a cut stream)
 
     def _check_length(self, total: int) -> None:
         """FormatError when the file's size as the server gave it is more than ``total``, the length its GLB
@@ -234,30 +235,39 @@ class UrlSource:
             raise trailing_bytes(self.file_size, total)
 
     def _fetch(self, start: int, end: int, response=None) -> bytes:
-        """Bytes ``[start, end)`` by Range requests (``response``: the first one's answer, already open).
+        """Bytes ``[start, end)`` at once (:meth:`_blocks` joined)."""
+        return b"".join(self._blocks(start, end, response))
+
+    def _blocks(self, start: int, end: int, response=None):
+        """Bytes ``[start, end)`` by Range requests (``response``: the first one's answer, already open), yielded
+        block by block as they arrive (:meth:`_read`), so that a reader decodes each chunk as soon as its bytes
+        are in; closing the generator closes the answer being read.
 
         A server may answer with fewer bytes than asked (RFC 9110 §14.4: it caps the size of its
-        answers, say): the rest is asked for, until the range is complete.  Fewer bytes come back
-        (or none) only when the file ends first, or an answer's body ends before the bytes its
+        answers, say): the rest is asked for, until the range is complete.  Fewer bytes come (or
+        none) only when the file ends first, or an answer's body ends before the bytes its
         ``Content-Range`` announced (a cut stream).
         """
-        parts, at = [], start
+        at = start
         while at < end:
             with response or self._open(at, end, past_end_ok=True) as answer:
                 response = None
                 if answer.status == 416:  # the served file ends before ``at``: a cut stream, unless it said it did not
                     self._check_unsatisfiable(answer, at)
-                    break
+                    return
                 if answer.status != 206:
                     raise InputFormatError(f"{self.url}: the server answered a Range request with status "
                                            f"{answer.status} after honouring one")
                 self._check_encoding(answer)
-                block, last = self._body(answer, at, end)
-            parts.append(block)
-            at += len(block)
-            if at < last or self.file_size is not None and at >= self.file_size:
-                break  # the connection ended early, or the file ends here
-        return b"".join(parts)
+                last = self._answered(answer, at, end)
+                while at < last:
+                    block = self._read(answer, min(self.block_size, last - at))
+                    if not block:
+                        return  # the connection ended early: a cut stream
+                    at += len(block)
+                    yield block
+            if self.file_size is not None and at >= self.file_size:
+                return  # the file ends here
 
     def _check_encoding(self, response) -> None:
         """Refuse a ranged answer in a content coding (gzip ...): its byte ranges are not the file's.
@@ -267,10 +277,9 @@ class UrlSource:
             raise InputFormatError(f"{self.url}: the server sent the file {coding}-encoded (Content-Encoding) although "
                                    "asked for identity" + (" in a Range answer" if response.status == 206 else ""))
 
-    def _body(self, response, start: int, end: int) -> tuple:
-        """``(body, last)``: the body of a 206 answer for ``[start, end)`` and the end of the bytes its
-        ``Content-Range`` says it holds, ``[start, last)``: ``last <= end`` (the server may send fewer
-        bytes than asked), the body shorter when the connection ends early.
+    def _answered(self, response, start: int, end: int) -> int:
+        """The end of the bytes a 206 answer for ``[start, end)`` holds, ``[start, last)``, as its ``Content-Range``
+        says: ``last <= end`` (the server may send fewer bytes than asked).
 
         The file's size, ``ETag`` and ``Last-Modified`` must stay the ones the first answer gave (a file
         replaced while it is read is refused, even by one of the same size).
@@ -285,15 +294,7 @@ class UrlSource:
             self.file_size = int(match[3]) if match[3].isdigit() else None
         else:
             self._check_same_file(response, match[3])
-        last = int(match[2]) + 1
-        parts, size = [], 0
-        while size < last - start:
-            block = self._read(response, min(self.block_size, last - start - size))
-            if not block:
-                break
-            parts.append(block)
-            size += len(block)
-        return b"".join(parts), last
+        return int(match[2]) + 1
 
     @staticmethod
     def _validators_of(response) -> dict:
@@ -647,32 +648,72 @@ def read_declared(source) -> bytes:
 
 
 def plan_ranges(head: bytes, max_chunks: int | None = None, whole_document: bool = False) -> list:
-    """Absolute end offsets of the reads after the header: the base, each chunk, the tail.
+    """The Range requests after the header, as their absolute end offsets: one, ``[stop]``.
 
-    ``head``: at least the preamble, the JSON and the BIN chunk header, checked here
-    by the container parser (structure, limits, chunk ranges).  The first range ends
-    where the first chunk starts (the base meshes and the data they reference), then
-    one range per chunk in stream order (gaps before a chunk go with it), then the
-    padding up to the file length; with ``max_chunks`` the list stops after that chunk,
-    unless ``whole_document`` asks for the document's other data too (images, plain meshes:
-    every bufferView that holds no chunk) and some of it lies past that chunk: then it goes
-    on to the end.
+    ``head``: at least the preamble, the JSON and the BIN chunk header, checked here by the container
+    parser (structure, limits, chunk ranges).  The request goes from the end of the BIN chunk header to
+    ``stop``: the base meshes (everything before the first chunk), then the chunks in stream order, up to
+    the file length; with ``max_chunks`` up to the end of that chunk instead (gaps before a chunk go with
+    it), unless ``whole_document`` asks for the document's other data too (images, plain meshes: every
+    bufferView that holds no chunk) and some of it lies past that chunk: then up to the file length.
+
+    One streamed request, not one per chunk: a chunk comes no later for being in a long answer (its bytes
+    are handed on as they arrive), and every request more would cost a round trip (the JavaScript reader,
+    js/src/three-plugin.js ``requestEnd``, plans the same requests).
     """
+    return _plan(_header(head), max_chunks, whole_document)
+
+
+def _header(head: bytes) -> HeaderEvent:
+    """The header of ``head`` (at least the preamble, the JSON and the BIN chunk header), checked by the container
+    parser (structure, limits, chunk ranges)."""
     parser = ContainerParser()
     header = next((e for e in parser.feed(head) if isinstance(e, HeaderEvent)), None)
     if header is None:  # pragma: no cover - the caller passes the whole header
         raise InputFormatError("the glTF JSON did not arrive whole")
+    return header
+
+
+def _chunk_ranges(header: HeaderEvent) -> list:
+    """``[(start, end)]``: the absolute byte range of each chunk, in stream order."""
     views = header.gltf_json["bufferViews"]
-    chunk_ranges = sorted(
-        (header.bin_offset + chunk_start(views, c), header.bin_offset + chunk_start(views, c) + c["byteLength"])
-        for ext in header.extensions for c in ext["chunks"])
-    ends = [start for start, _ in chunk_ranges[:1]] + [end for _, end in chunk_ranges]
-    if max_chunks is not None and max_chunks < len(chunk_ranges):
-        if not (whole_document and _data_end(header) > ends[max_chunks]):
-            return ends[: max_chunks + 1]
-    if not ends or ends[-1] < header.total_length:
-        ends.append(header.total_length)
-    return ends
+    starts = sorted((header.bin_offset + chunk_start(views, c), int(c["byteLength"]))
+                    for ext in header.extensions for c in ext["chunks"])
+    return [(start, start + length) for start, length in starts]
+
+
+def _plan(header: HeaderEvent, max_chunks: int | None, whole_document: bool) -> list:
+    """:func:`plan_ranges` of a parsed header."""
+    chunks = _chunk_ranges(header)
+    if max_chunks is not None and max_chunks < len(chunks):
+        stop = chunks[max_chunks - 1][1] if max_chunks else chunks[0][0]  # the end of that chunk, or of the base
+        if not (whole_document and _data_end(header) > stop):
+            return [stop]
+    return [header.total_length]
+
+
+def _part_ends(header: HeaderEvent) -> list:
+    """The absolute offsets where the parts of the file after its header end, in order: the base (all before the first
+    chunk), each chunk."""
+    chunks = _chunk_ranges(header)
+    return [start for start, _ in chunks[:1]] + [end for _, end in chunks]
+
+
+def _cut(blocks, start: int, ends: list):
+    """``blocks`` (the file's bytes from offset ``start`` on) cut at each offset of ``ends`` (sorted), as byte views, so
+    that a block holds at most the end of one part of the file: a reader then decodes, and yields, each chunk as soon
+    as its bytes are in, before the next chunk that came in the same block (a block of the network holds many small
+    chunks)."""
+    k = bisect.bisect_right(ends, start)
+    for block in blocks:
+        view = memoryview(block)  # (its parts: views, not copies)
+        while view:
+            while k < len(ends) and ends[k] <= start:
+                k += 1
+            size = len(view) if k == len(ends) else min(len(view), ends[k] - start)
+            start += size
+            yield view[:size]
+            view = view[size:]
 
 
 def _data_end(header) -> int:

@@ -38,6 +38,20 @@ class IgnoringRange(RangeRequestHandler):
         SimpleHTTPRequestHandler.end_headers(self)
 
 
+class Capping(RangeRequestHandler):
+    """A server that answers a Range request with at most ``cap`` bytes; its ``Content-Range`` says which, and the
+    file's whole size (RFC 9110 lets a server send fewer bytes than asked)."""
+
+    cap = 300
+
+    def send_head(self):
+        match = re.match(r"bytes=(\d+)-(\d+)$", self.headers.get("Range", ""))
+        if match:
+            del self.headers["Range"]
+            self.headers["Range"] = f"bytes={match[1]}-{min(int(match[2]), int(match[1]) + self.cap - 1)}"
+        return super().send_head()
+
+
 @pytest.fixture(scope="module")
 def site(tmp_path_factory):
     """A directory with ``x.pmw`` (icosphere(3), watermarked, several chunks) and its key file."""
@@ -146,10 +160,76 @@ def test_decode_url_with_chunks_fetches_only_the_bytes_it_needs_by_ranges(server
         if server.ranges:
             # exactly the prefix up to the end of chunk n: nothing after it was sent
             assert server.bytes_sent == source.bytes_fetched == _prefix_end(site / "x.pmw", n) < size
-            assert source.ranged and source.requests == 2 + 1 + n
+            assert source.ranged and source.requests == 3  # the preamble, the JSON, then the rest up to chunk n
         else:
             assert not source.ranged and source.requests == 1
             assert source.bytes_fetched >= _prefix_end(site / "x.pmw", n)
+
+
+@pytest.fixture(scope="module")
+def many(tmp_path_factory):
+    """A directory with ``x.pmw``: 12 primitives, 68 chunks (as js/test/lib/levels.py's ``many-primitives.plain``)."""
+    from pmwm_codec.stream.encoder import PrimitiveJob, encode_document
+
+    d = tmp_path_factory.mktemp("many")
+    meshes = [shapes.torus(24, 12, twist=0.1 * k) for k in range(12)]
+    doc = {"scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+           "meshes": [{"primitives": [{} for _ in meshes]}]}
+    jobs = [PrimitiveJob(m, 0, i) for i, m in enumerate(meshes)]
+    encode_document(doc, b"", jobs, d / "x.pmw", base_codec="plain", min_chunk_splits=30, measure="none")
+    return d
+
+
+def test_a_file_of_many_chunks_is_read_in_three_range_requests(many):
+    """The preamble, the JSON with the BIN header, then everything wanted after them in one answer: three requests
+    whatever the number of chunks (there was one per chunk: 70 for these 68, each a round trip)."""
+    path = many / "x.pmw"
+    assert inspect(path)["chunks_total"] >= 60
+    with _served(many, RangeRequestHandler) as url:
+        for n in (None, 0, 10):
+            source = UrlSource(url, max_chunks=n)
+            assert pmwm_codec.decode(source, chunks=n) == pmwm_codec.decode(path, chunks=n)
+            assert source.requests == 3
+            assert source.bytes_fetched == (path.stat().st_size if n is None else _prefix_end(path, n))
+
+
+class Holding(RangeRequestHandler):
+    """A Range server that sends the bytes of an answer before the file offset ``server.hold``, then waits until
+    ``server.release`` is set (10 s at most) to send the rest; ``server.held`` says whether an answer waited."""
+
+    def copyfile(self, source, outputfile):
+        body = source.read(self._length)
+        cut = min(max(self.server.hold - (source.tell() - len(body)), 0), len(body))
+        outputfile.write(body[:cut])
+        outputfile.flush()
+        if cut < len(body):
+            self.server.held = True
+            self.server.release.wait(10)
+        outputfile.write(body[cut:])
+
+
+def test_each_chunk_reaches_the_reader_as_its_bytes_arrive_not_when_its_answer_ends(many):
+    """All the chunks come in one answer, which is handed to the decoder as it arrives: level k is decoded while the
+    server still holds the bytes after chunk k back (a reader that waited for the whole answer would wait 10 s)."""
+    k = 5
+    path = many / "x.pmw"
+    srv, thread = _serve(many, Holding)
+    srv.hold, srv.release, srv.held = _prefix_end(path, k), threading.Event(), False
+    try:
+        source = UrlSource(f"http://127.0.0.1:{srv.server_address[1]}/x.pmw")
+        chunks = []
+        for result in pmwm_codec.iter_decode(source):
+            chunks.append(result.chunk)
+            if result.chunk == k:
+                assert srv.held and not srv.release.is_set(), "level k came only after its answer ended"
+                srv.release.set()
+        assert chunks == list(range(inspect(path)["chunks_total"] + 1))
+        assert source.requests == 3
+    finally:
+        srv.release.set()
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
 
 
 def test_decode_url_string_reads_the_whole_stream(server, site):
@@ -526,10 +606,11 @@ class Unversioned(RangeRequestHandler):
 @pytest.mark.parametrize("handler", [Unversioned, RangeRequestHandler])
 def test_a_file_replaced_by_one_of_the_same_size_is_refused_with_or_without_validators(tmp_path, capsys, handler):
     """``pmw decode URL`` and ``pmw verify URL`` of a file replaced, between two Range requests, by another of the same
-    size: its base (two vertices swapped) after the JSON, or its chunk 2 (a byte changed) after the base.  A server
-    without ``ETag`` and ``Last-Modified`` cannot say so, but the bytes of the other file fail the digests of the
-    first one's index (``baseDigest``, each chunk's): exit 2, one line, nothing written, never a mix of the two files
-    read as one.  With validators the change is named as such."""
+    size: its base (two vertices swapped) after the JSON, or its chunk 2 (a byte changed) after the JSON or, by a
+    server that answers with 2,000 bytes at most, after chunk 1.  A server without ``ETag`` and ``Last-Modified``
+    cannot say so, but the bytes of the other file fail the digests of the first one's index (``baseDigest``, each
+    chunk's): exit 2, one line, nothing written, never a mix of the two files read as one.  With validators the
+    change is named as such."""
     import os
 
     from pmwm_codec.format.reader import read_header
@@ -545,17 +626,21 @@ def test_a_file_replaced_by_one_of_the_same_size_is_refused_with_or_without_vali
     view = header.gltf_json["bufferViews"][header.gltf_json["accessors"][position]["bufferView"]]
     start = header.bin_offset + view.get("byteOffset", 0)
     swapped = data[:start] + data[start + 12 : start + 24] + data[start : start + 12] + data[start + 24 :]
-    chunk_2_end = plan_ranges(data)[2]
+    chunk_1_end, chunk_2_end = plan_ranges(data, 1)[0], plan_ranges(data, 2)[0]
     (site / "base.pmw").write_bytes(swapped)
     (site / "chunk.pmw").write_bytes(data[: chunk_2_end - 1] + bytes([data[chunk_2_end - 1] ^ 0xFF]) + data[chunk_2_end:])
     for name in ("base.pmw", "chunk.pmw"):
         os.utime(site / name, ns=(1, 1))  # another ETag and Last-Modified than a.pmw's, where they are sent
     key = site / "a.pmw.key.json"
-    # after the preamble and the JSON: the base; after the base and chunk 1: chunk 2
-    for other, requests, refusal in (("base.pmw", 2, "base mesh: baseDigest mismatch"),
-                                     ("chunk.pmw", 4, "chunk 2: digest mismatch")):
+    capped = type("Capped", (Capping, handler), {"cap": 2000})
+    after_chunk_1 = 2 + -(-(chunk_1_end - header.bin_offset) // 2000)  # the preamble, the JSON, the answers to chunk 1
+    assert header.bin_offset + 2000 * (after_chunk_1 - 2) < chunk_2_end  # the next answer holds chunk 2's last byte
+    # after the preamble and the JSON: the base, or chunk 2; by short answers, after chunk 1: chunk 2
+    for other, requests, serving, refusal in (("base.pmw", 2, handler, "base mesh: baseDigest mismatch"),
+                                              ("chunk.pmw", 2, handler, "chunk 2: digest mismatch"),
+                                              ("chunk.pmw", after_chunk_1, capped, "chunk 2: digest mismatch")):
         for command, argv in (("decode", ["-o", tmp_path / "a.obj"]), ("verify", ["--key", key, "--json"])):
-            srv, thread = _serve(site, _replaced_after(requests, "/" + other, handler))
+            srv, thread = _serve(site, _replaced_after(requests, "/" + other, serving))
             try:
                 code, out, err = _pmw(capsys, command, f"http://127.0.0.1:{srv.server_address[1]}/a.pmw", *argv)
             finally:
@@ -569,23 +654,28 @@ def test_a_file_replaced_by_one_of_the_same_size_is_refused_with_or_without_vali
 
 
 def test_a_file_replaced_by_a_shorter_one_between_range_requests_is_refused_not_read_as_cut(site, tmp_path, capsys):
-    """After the base and chunk 1, ``x.pmw`` is replaced by a file that ends there: ``pmw serve`` answers the next
-    range with 416 (and the new size and ETag).  The reader took that 416 for the end of a cut download and
-    verified the prefix ``authentic``, exit 0, although the server had said the file holds those bytes."""
+    """After the base and chunk 1 (the answer of a server that cut it there), ``x.pmw`` is replaced by a file that ends
+    there: ``pmw serve`` answers the request for the rest with 416 (and the new size and ETag).  The reader took that
+    416 for the end of a cut download and verified the prefix ``authentic``, exit 0, although the server had said the
+    file holds those bytes."""
     import os
     import shutil
+
+    from pmwm_codec.format.reader import read_header
 
     served = tmp_path / "site"
     served.mkdir()
     shutil.copy(site / "x.pmw", served / "x.pmw")
-    (served / "short.pmw").write_bytes((site / "x.pmw").read_bytes()[: _prefix_end(site / "x.pmw", 1)])
+    chunk_1_end = _prefix_end(site / "x.pmw", 1)
+    (served / "short.pmw").write_bytes((site / "x.pmw").read_bytes()[:chunk_1_end])
     os.utime(served / "short.pmw", ns=(1, 1))
+    capped = type("Capped", (Capping,), {"cap": chunk_1_end - read_header((site / "x.pmw").read_bytes()).bin_offset})
 
-    srv, thread = _serve(served, _replaced_after(4, "/short.pmw"))  # after the preamble, the JSON, the base, chunk 1
+    srv, thread = _serve(served, _replaced_after(3, "/short.pmw", capped))  # the preamble, the JSON, up to chunk 1
     try:
         code, out, err = _pmw(capsys, "verify", f"http://127.0.0.1:{srv.server_address[1]}/x.pmw",
                               "--key", site / "x.pmw.key.json")
-        assert srv.requests == 5
+        assert srv.requests == 4
     finally:
         srv.shutdown()
         srv.server_close()
@@ -1131,26 +1221,14 @@ def test_a_url_with_non_ascii_characters_is_sent_percent_encoded_as_a_browser_do
     assert code == 2 and "not a valid URL" in err and len(err.splitlines()) == 1, err
 
 
-class Capping(RangeRequestHandler):
-    """A server that answers a Range request with at most ``cap`` bytes; its ``Content-Range`` says which, and the
-    file's whole size (RFC 9110 lets a server send fewer bytes than asked)."""
-
-    cap = 300
-
-    def send_head(self):
-        match = re.match(r"bytes=(\d+)-(\d+)$", self.headers.get("Range", ""))
-        if match:
-            del self.headers["Range"]
-            self.headers["Range"] = f"bytes={match[1]}-{min(int(match[2]), int(match[1]) + self.cap - 1)}"
-        return super().send_head()
-
-
 @pytest.mark.parametrize("cap", [7, 300])
 def test_a_server_that_sends_shorter_ranges_than_asked_is_asked_for_the_rest(site, tmp_path, capsys, cap):
     """An answer shorter than asked was taken for the end of the file, though its Content-Range said the file went
     on: ``pmw decode URL`` exited 0 with the base mesh of a complete file, ``pmw cut URL`` kept 2 of its chunks,
     ``pmw verify URL`` said truncated; a cap under the base mesh's size made each say "truncated" of a complete
     file.  The reader now asks for the rest of each range."""
+    from pmwm_codec.format.reader import read_header
+
     handler = type("Capped", (Capping,), {"cap": cap})
     srv, thread = _serve(site, handler)
     url = f"http://127.0.0.1:{srv.server_address[1]}/x.pmw"
@@ -1158,7 +1236,14 @@ def test_a_server_that_sends_shorter_ranges_than_asked_is_asked_for_the_rest(sit
     try:
         source = UrlSource(url)
         assert pmwm_codec.decode(source) == pmwm_codec.decode(site / "x.pmw")
-        assert source.ranged and source.bytes_fetched == (site / "x.pmw").stat().st_size
+        size, header_end = (site / "x.pmw").stat().st_size, read_header((site / "x.pmw").read_bytes()).bin_offset
+        assert source.ranged and source.bytes_fetched == size
+
+        def answers(start, end):
+            return -(-(end - start) // cap)
+
+        # the three requests planned (the preamble, the JSON, the rest), and one for the rest of each short answer
+        assert source.requests == answers(0, 20) + answers(20, header_end) + answers(header_end, size)
         for command in (["decode", "-o", tmp_path / "{}.obj", "--json"], ["cut", "-o", tmp_path / "{}.pmw", "--json"],
                         ["verify", "--key", key, "--json"]):
             argv = [str(a).format("remote") for a in command[1:]]
@@ -1327,8 +1412,9 @@ def test_a_stream_on_standard_input_is_read_no_further_than_its_declared_length(
     assert not (tmp_path / "x.glb").exists()
 
 
-class Dripping(RangeRequestHandler):
-    """A server that spreads every answer over 0.5 s, whatever its size: each ends well within any timeout."""
+class Dripping(Capping):
+    """A server that spreads every answer (of 300 bytes at most: many of them) over 0.5 s, whatever its size: each ends
+    well within any timeout."""
 
     def copyfile(self, source, outputfile):
         import time
@@ -1346,7 +1432,7 @@ def test_a_server_that_drips_every_range_answer_is_a_stall_of_the_whole_transfer
     transfer as a whole must now average ``MIN_RATE`` past its first ``timeout`` seconds of network time."""
     from pmwm_codec import http
 
-    monkeypatch.setattr(http, "MIN_RATE", 20_000)  # so that a 0.5 s answer of a few KB is too slow
+    monkeypatch.setattr(http, "MIN_RATE", 20_000)  # so that a 0.5 s answer of 300 bytes is too slow
     with _served(site, Dripping) as url:  # a 2 s timeout: no single 0.5 s answer nears it, even on a loaded machine
         source = _decode_stalls(url, r"the server stalls: [\d,]+ bytes in \d s, under 20,000 bytes/s", 6, timeout=2)
         assert source.requests <= 10

@@ -9,24 +9,27 @@
  * (GLTFLoader.load downloads it whole, or parse() was given it), the plugin decodes the stream from those bytes
  * (three.js' JSON text and BIN chunk: heldFile), fetching nothing. Else it reads the stream
  * from `options.url` (default: the URL the loader was given, when `loadProgressive` is used):
- * by HTTP `Range` requests when the server honours them (preamble, JSON, base, then one request per
- * chunk in stream order, nothing after the last chunk it needs), else as one `fetch` stream. Each
+ * by HTTP `Range` requests when the server honours them, three whatever the number of chunks (requestEnd; the
+ * Python reader, pmwm_codec.http.plan_ranges, makes the same): the preamble, the JSON with the BIN chunk header, then
+ * all it needs after them in one answer, the base and the chunks in stream order up to the end of the last chunk it
+ * needs (nothing after it is requested: readEnd), else as one `fetch` stream. Either way the answer's body is fed to
+ * the decoder as it arrives, so each chunk is applied as soon as its own bytes are in. Each
  * applied chunk rewrites the primitive's BufferGeometry (arrays grown by doubling with the levels,
  * at most to the full resolution; draw range grown) and calls `onChunk`. Stops: `maxChunks`, `maxGeometricError`
- * (the first chunk whose geometricError is at most this), `byteBudget` (no byte past it is used, but the
- * base is: below it, the base is the level shown). A stop, a stop condition or a failure cancels the rest of a
- * streamed GET; `stop()` (or `options.signal` aborting) aborts the request in flight at once. A Range answer
- * shorter than asked is followed by a request for the rest. A request that brings nothing (head, or next body
- * bytes) for `stallTimeout` ms (default 30 s, STALL_TIMEOUT_MS; 0: no limit) is aborted: a FetchError. The levels
+ * (the first chunk whose geometricError is at most this), `byteBudget` (the chunks that end within it: no byte past
+ * it is used, but the base is: below it, the base is the level shown). A stop, a stop condition or a failure cancels
+ * the rest of the answer being read; `stop()` (or `options.signal` aborting) aborts the request in flight at once. A
+ * Range answer shorter than asked is followed by a request for the rest. A request that brings nothing (head, or next
+ * body bytes) for `stallTimeout` ms (default 30 s, STALL_TIMEOUT_MS; 0: no limit) is aborted: a FetchError. The levels
  * decoded before a failure stay drawn; `done` rejects with it (HTTP and network failures, stalls: FetchError).
  * The stream must be the document three.js parsed (its PMWM_progressive_mesh objects), else StreamMismatchError
  * before anything is drawn. What onBase,
  * onChunk, onDone throw goes to onCallbackError (else console.error), never failing the load.
- * `loadProgressive(loader, url)` fetches only the bytes up to the base first, so the base is shown
- * before any chunk is downloaded. Decoding (`worker`): in a module Worker (decode-worker.js) when the
- * header's full vertex count exceeds `workerThreshold` (default 100,000) or `worker: true`; on the main
- * thread when `worker: false`, below the threshold, or when no worker starts (Node: no Worker global);
- * the same levels, arrays and named errors either way (worker-decoder.js).
+ * `loadProgressive(loader, url)` reads the bytes up to the base first and has three.js show that base before any
+ * chunk is read; the plugin then reads on from the same answer (its chunks already on their way). Decoding
+ * (`worker`): in a module Worker (decode-worker.js) when the header's full vertex count exceeds `workerThreshold`
+ * (default 100,000) or `worker: true`; on the main thread when `worker: false`, below the threshold, or when no
+ * worker starts (Node: no Worker global); the same levels, arrays and named errors either way (worker-decoder.js).
  */
 import { Box3, BufferAttribute, LoaderUtils, Sphere } from 'three';
 import { reportCallbackError } from './decoder.js';
@@ -41,9 +44,10 @@ export class PMWMProgressivePlugin {
    * @param {object} parser the GLTFParser
    * @param {{url?: string, range?: boolean, maxChunks?: number, maxGeometricError?: number,
    *   byteBudget?: number, onBase?: Function, onChunk?: Function, onDone?: Function, onCallbackError?: Function,
-   *   fetch?: Function, signal?: AbortSignal, stallTimeout?: number, prefix?: Uint8Array, reader?: object,
-   *   worker?: 'auto'|boolean, workerThreshold?: number, workerUrl?: string|URL}} options
+   *   fetch?: Function, signal?: AbortSignal, stallTimeout?: number, prefix?: Uint8Array, rest?: AsyncIterator,
+   *   count?: object, worker?: 'auto'|boolean, workerThreshold?: number, workerUrl?: string|URL}} options
    *   onChunk({chunk, chunksTotal, vertexCount, faceCount, bytesRead, bytesFetched, requests})
+   *   prefix, rest, count: loadProgressive's (the bytes it read, the body it reads on from, its counts)
    *   worker: 'auto' (default: a worker above workerThreshold vertices), true, false (main thread);
    *   workerUrl: the decode-worker.js to start (default: next to this module)
    */
@@ -57,7 +61,7 @@ export class PMWMProgressivePlugin {
     const targets = await progressiveTargets(this.parser, gltf);
     if (!targets.length) return;
     // the whole file three.js read (GLTFLoader.load, or parse() of it): the stream is there, not fetched again
-    const held = this.options.prefix || this.options.reader ? null : heldFile(this.parser);
+    const held = this.options.rest ? null : heldFile(this.parser);
     const run = new ProgressiveRun(targets, held ? { ...this.options, held } : this.options, this.parser.json);
     gltf.userData = gltf.userData ?? {};
     gltf.userData.pmwm = run;
@@ -112,14 +116,16 @@ function instancedAssociation(parser, object) {
  * `json`: the document three.js parsed (parser.json); the stream must hold the same PMWM_progressive_mesh objects.
  */
 export class ProgressiveRun {
+  #wants = null;
+
   constructor(targets, options, json = null) {
     this.targets = targets;
     this.options = options;
     this.json = json;
     this.checked = false;
     this.levels = [];
-    this.bytesFetched = 0;
-    this.requests = 0;
+    // {bytesFetched, requests}: loadProgressive's own, which counts the requests it made for the base too
+    this.count = options.count ?? { bytesFetched: 0, requests: 0 };
     this.stopped = false;
     // aborts the request in flight on stop(); loadProgressive's own (its streamed GET's body) when it made one
     this.controller = options.controller ?? new AbortController();
@@ -134,6 +140,12 @@ export class ProgressiveRun {
     }
   }
 
+  /** The body bytes received so far, those loadProgressive read for the base included. */
+  get bytesFetched() { return this.count.bytesFetched; }
+
+  /** The HTTP requests made so far, loadProgressive's included. */
+  get requests() { return this.count.requests; }
+
   /**
    * Stops: the request in flight is aborted at once (no more bytes are awaited), no chunk after the level
    * shown is applied, and `done` resolves with the outcome (`stopped: true`). The base that loadProgressive
@@ -146,30 +158,34 @@ export class ProgressiveRun {
   }
 
   /**
-   * The bytes this run may feed: up to the end of the last chunk wanted (maxChunks, maxGeometricError)
-   * and `byteBudget`, but never fewer than the bytes before the first chunk (preamble, JSON, base: what
-   * three.js shows), so a budget below the base gives that base as level 0. A chunk past them is never
-   * fed (never applied, nor its digest checked), whatever pieces a streamed GET brings.
+   * The bytes this run may feed: up to readEnd (the end of the last chunk wanted), which is never before the
+   * first chunk (preamble, JSON, base: what three.js shows), so a budget below the base gives that base as level 0.
+   * A chunk past them is never fed (never applied, nor its digest checked), whatever pieces a streamed GET brings.
    */
   byteLimit() {
-    const budget = this.options.byteBudget ?? Infinity;
     const { plan, header, received } = this.decoder;
-    if (!plan) return received < 20 ? 20 : headerEndOf(this); // the header first: then the limit is known
-    const { stream } = plan;
-    const base = header.binStart + (stream.length ? stream[0].offset : plan.baseEnd);
-    if (this.stopped) return Math.max(base, received); // stopped: the base (when held) and no chunk more
-    const want = this.chunksWanted();
-    const last = stream[want - 1];
-    const wanted = want === stream.length ? Infinity : last ? header.binStart + last.offset + last.length : base;
-    return Math.max(Math.min(budget, wanted), base);
+    if (!plan) return preambleLength(receivedBytes(this)); // the header first: then the limit is known
+    if (this.stopped) return Math.max(baseEnd(header, plan), received); // stopped: the base (held) and no chunk more
+    return this.#wanted().end;
+  }
+
+  /**
+   * {chunks, end}: the number of chunks this run reads (chunksWanted) and where their bytes end (readEnd), once the
+   * header is parsed; found once (the options and the plan stay), as the parts are fed one by one.
+   */
+  #wanted() {
+    const { header, plan } = this.decoder;
+    const { options } = this;
+    this.#wants ??= { chunks: chunksWanted(plan, header.binStart, options), end: readEnd(header, plan, options) };
+    return this.#wants;
   }
 
   async start() {
     const o = this.options;
     const fetchFn = o.fetch ?? globalThis.fetch.bind(globalThis);
-    const source = o.reader ? continueReader(o.prefix, o.reader, this, o.url)
+    const source = o.rest ? continueReader(o.prefix, o.rest, this)
       : o.held ? heldPieces(o.held, this)
-        : readStream(o.url, fetchFn, o.range ?? true, this, o.prefix);
+        : readStream(o.url, fetchFn, o.range ?? true, this);
     let end;
     try {
       for await (const piece of source) {
@@ -236,30 +252,14 @@ export class ProgressiveRun {
   #release() {
     const { header, plan, received, chunksApplied, workerLevels } = this.decoder;
     this.decoder = { header, plan, received, chunksApplied, workerLevels };
-    this.options = { ...this.options, prefix: undefined, reader: undefined, controller: undefined, held: undefined };
+    this.options = { ...this.options, prefix: undefined, rest: undefined, controller: undefined, held: undefined };
     this.json = null;
-  }
-
-  /** The number of chunks worth reading, once the header is known (geometric error, maxChunks). */
-  chunksWanted() {
-    const plan = this.decoder.plan;
-    let want = Math.min(plan.stream.length, this.options.maxChunks ?? Infinity);
-    const target = this.options.maxGeometricError;
-    if (target !== undefined) {
-      // a primitive without chunks is as fine as this stream makes it: it never holds the stop back
-      const current = plan.primitives.map((p) => (p.chunks.length ? Infinity : 0));
-      for (let k = 0; k < plan.stream.length; k++) {
-        current[plan.stream[k].primitive] = plan.stream[k].geometricError;
-        if (Math.max(...current) <= target) { want = Math.min(want, k + 1); break; }
-      }
-    }
-    return want;
   }
 
   #enough() {
     const plan = this.decoder.plan;
     if (!plan || !this.levels.length) return false;
-    const want = this.chunksWanted();
+    const want = this.#wanted().chunks;
     return want < plan.stream.length && this.decoder.chunksApplied >= want; // all of them: read on to the end
   }
 
@@ -430,40 +430,39 @@ function guard(promise, net, url) {
 }
 
 /**
- * The body of the answer `res`, read piece by piece (each read one wait: the stall timeout bounds the time between
- * bytes, not the whole body), at most `limit` bytes (more is cancelled, unread); STOPPED when aborted meanwhile.
+ * The body of the answer `res`, piece by piece as it arrives (each read one wait: the stall timeout bounds the time
+ * between pieces, not the whole body), at most `limit` bytes (more is cancelled, unread), each piece's bytes counted in
+ * `count.bytesFetched`. Ends quietly when `net.signal` aborts; ending the iteration early cancels the rest of the body.
  */
-async function readBody(res, net, url, limit) {
+async function* bodyPieces(res, net, url, limit, count) {
   if (!res.body?.getReader) { // a fetch of the caller's whose answers have no body stream: one wait
     const body = await guard(res.arrayBuffer(), net, url);
-    return body === STOPPED ? body : new Uint8Array(body, 0, Math.min(body.byteLength, limit));
+    if (body === STOPPED) return;
+    const piece = new Uint8Array(body, 0, Math.min(body.byteLength, limit));
+    count.bytesFetched += piece.length;
+    yield piece;
+    return;
   }
   const reader = res.body.getReader();
-  const pieces = [];
-  let length = 0;
   let done = false;
   try {
-    while (length <= limit) { // the read after `limit` bytes ends the body, or brings bytes not asked for
+    for (let left = limit; ;) {
+      // (a read after `limit` bytes: the body's end, the connection kept for the next request, or bytes not asked for)
       const next = await guard(reader.read(), net, url);
-      if (next === STOPPED) return STOPPED;
+      if (next === STOPPED) return;
       if (next.done) {
         done = true;
-        break;
+        return;
       }
-      pieces.push(next.value);
-      length += next.value.length;
+      if (!left) return;
+      const piece = next.value.length > left ? next.value.subarray(0, left) : next.value;
+      left -= piece.length;
+      count.bytesFetched += piece.length;
+      yield piece;
     }
   } finally {
     if (!done) reader.cancel().catch(() => {});
   }
-  if (pieces.length === 1 && length <= limit) return pieces[0];
-  const body = new Uint8Array(Math.min(length, limit));
-  let at = 0;
-  for (const piece of pieces) {
-    body.set(piece.subarray(0, body.length - at), at);
-    at += Math.min(piece.length, body.length - at);
-  }
-  return body;
 }
 
 /** A failure of fetch() or of reading a body (TypeError: terminated, network error...) as a FetchError. */
@@ -485,12 +484,12 @@ function contentRange(res) {
 }
 
 /**
- * The bytes [start, stop) of `url` by Range requests, block by block as the answers come: a server may answer
- * with fewer bytes than asked (RFC 9110 §14.4), and the rest is then asked for, so the blocks fall short of
- * `stop` only when the file ends first (a 416, an empty answer, or the size its Content-Range gives). `first`:
+ * The bytes [start, stop) of `url` by Range requests, piece by piece as the answers' bodies bring them (bodyPieces): a
+ * server may answer with fewer bytes than asked (RFC 9110 §14.4), and the rest is then asked for, so the pieces fall
+ * short of `stop` only when the file ends first (a 416, an empty answer, or the size its Content-Range gives). `first`:
  * the answer to a request for [start, stop) already made. Ends quietly when `net.signal` aborts; an answer other than
- * 206/416, a Content-Range starting elsewhere, or a failed request is a FetchError. `count.requests` counts the
- * requests made here.
+ * 206/416, a Content-Range starting elsewhere, or a failed request is a FetchError. `count` counts the requests made
+ * here and the bytes received.
  */
 async function* rangeBlocks(fetchFn, url, start, stop, net, count, first) {
   let at = start;
@@ -511,37 +510,42 @@ async function* rangeBlocks(fetchFn, url, start, stop, net, count, first) {
     if (span && span.first !== at) {
       throw httpError(url, res, `: its Content-Range (${res.headers.get('Content-Range')}) does not answer bytes ${at}-${stop - 1}`);
     }
-    const block = await readBody(res, net, url, stop - at);
-    if (block === STOPPED) return;
-    if (!block.length) return; // nothing past `at`: the file ends there
-    at += block.length;
-    yield block;
+    const from = at;
+    for await (const piece of bodyPieces(res, net, url, stop - at, count)) {
+      at += piece.length;
+      yield piece;
+    }
+    if (net.signal.aborted || at === from) return; // stopped, or nothing past `at`: the file ends there
     if (span?.size !== undefined && at >= span.size) return; // the file ends here
   }
 }
 
-/** Bytes already read (`prefix`) then the rest of a ReadableStream reader, within the run's byte limit. */
-async function* continueReader(prefix, reader, run, url) {
-  let done = false;
+/**
+ * Bytes already read (`prefix`), then the pieces of `rest` (an async iterator of the file's next bytes: the body
+ * being read, rangeStream or bodyPieces), within the run's byte limit. Stopped, at the limit, enough chunks, or a
+ * failure: `rest` is ended, which cancels the rest of its body (not downloaded).
+ */
+async function* continueReader(prefix, rest, run) {
   try {
     if (prefix?.length) yield* withinLimit(prefix, run);
     while (!run.stopped && run.decoder.received < run.byteLimit()) {
-      const next = await guard(reader.read(), run.net, url);
-      if (next === STOPPED) return;
-      if (next.done) { done = true; return; }
-      run.bytesFetched += next.value.length;
+      const next = await rest.next();
+      if (next.done) return;
       yield* withinLimit(next.value, run);
     }
   } finally {
-    // stopped, at the limit, enough chunks, or a failure: the rest of the body is not downloaded
-    if (!done) reader.cancel().catch(() => {});
+    rest.return().catch(() => {});
   }
 }
 
-/** `piece` up to the run's byte limit, in parts where the limit grows as the header is read. */
+/**
+ * `piece` up to the run's byte limit, in parts that end where a part of the file ends (partEnd: the preamble, the
+ * JSON, the base, each chunk), so that each level is drawn and reported as soon as its chunk is decoded, before the
+ * next chunk the piece holds is (and the limit, which grows as the header is read, is known for each part).
+ */
 function* withinLimit(piece, run) {
   for (let rest = piece; rest.length;) {
-    const room = run.byteLimit() - run.decoder.received;
+    const room = Math.min(run.byteLimit(), partEnd(run)) - run.decoder.received;
     if (room <= 0) return;
     const part = rest.subarray(0, room);
     rest = rest.subarray(part.length);
@@ -576,89 +580,129 @@ function heldFile(parser) {
   return json.length === jsonLength ? { head: glbHead(json, bin.length, glb.header.version), bin } : null;
 }
 
-/**
- * The file three.js holds (heldFile) in the pieces Range requests would bring: the head in two (the preamble,
- * then the rest), the base, each chunk, within the run's byte limit. No copy: views of the head and of three.js'
- * BIN (the decoder copies what it is fed).
- */
+/** The file three.js holds (heldFile), fed in parts (withinLimit). No copy: views of the head and of three.js' BIN. */
 function* heldPieces({ head, bin }, run) {
-  const total = head.length + bin.length;
+  for (const bytes of [head, bin]) {
+    for (const part of withinLimit(bytes, run)) {
+      if (run.stopped) return;
+      yield part;
+    }
+  }
+}
+
+/**
+ * The file offset where the part of the file the run's decoder is in ends: the preamble, the JSON with the BIN chunk
+ * header, the base (all before the first chunk), a chunk, the tail.
+ */
+function partEnd(run) {
+  const { plan, header, received } = run.decoder;
+  if (!plan) return preambleLength(receivedBytes(run));
+  const base = baseEnd(header, plan);
+  if (received < base) return base;
+  const { stream } = plan;
+  const end = (k) => header.binStart + stream[k].offset + stream[k].length;
+  let [lo, hi] = [0, stream.length]; // the first chunk that ends after `received`
+  while (lo < hi) {
+    const mid = (lo + hi) >> 1;
+    if (end(mid) <= received) lo = mid + 1; else hi = mid;
+  }
+  return lo < stream.length ? end(lo) : header.length;
+}
+
+/** The file at `url`: by Range requests (when allowed and honoured: rangeStream), else one streamed GET. */
+async function* readStream(url, fetchFn, range, run) {
+  if (!url) throw new TypeError('PMWMProgressivePlugin: no url to read the stream from (options.url)');
+  if (run.stopped) return;
+  const { net, count } = run;
+  const first = await guard(fetchFn(url, range ? { headers: { Range: 'bytes=0-19' }, signal: net.signal }
+    : { signal: net.signal }), net, url);
+  if (first === STOPPED) return;
+  count.requests++;
+  if (!first.ok) throw httpError(url, first);
+  const wanted = () => run.byteLimit(); // the decoder has parsed the header
+  yield* continueReader(null, first.status === 206
+    ? rangeStream(fetchFn, url, net, count, first, () => requestEnd(receivedBytes(run), wanted))
+    : bodyPieces(first, net, url, Infinity, count), run);
+}
+
+/**
+ * The file at `url` from its start by Range requests, piece by piece as the answers' bodies bring them (rangeBlocks):
+ * `first` is the answer to the request for the preamble, already made; then a request up to each end `nextEnd()`
+ * gives (requestEnd), asked once the bytes before it have been taken. Ends when the file ends first, or when
+ * `nextEnd()` gives no more than the bytes read.
+ */
+async function* rangeStream(fetchFn, url, net, count, first, nextEnd) {
   let start = 0;
-  for (const end of rangeEnds(run, head.length)) {
-    while (start < Math.min(end, total)) {
-      const stop = Math.min(end, total, run.byteLimit());
-      if (run.stopped || stop <= start) return;
-      const piece = start < head.length ? head.subarray(start, Math.min(stop, head.length))
-        : bin.subarray(start - head.length, stop - head.length);
+  for (let end = 20, answer = first; end > start; end = nextEnd(), answer = undefined) {
+    for await (const piece of rangeBlocks(fetchFn, url, start, end, net, count, answer)) {
       start += piece.length;
       yield piece;
     }
+    if (start < end) return; // the file ended, or the read was stopped
   }
 }
 
-/** The file at `url`: by Range requests (when allowed and honoured), else one streamed GET. */
-async function* readStream(url, fetchFn, range, run, prefix) {
-  if (!url) throw new TypeError('PMWMProgressivePlugin: no url to read the stream from (options.url)');
-  const { net } = run;
-  let start = 0;
-  if (prefix?.length) {
-    yield* withinLimit(prefix, run);
-    start = prefix.length;
-  } else {
-    if (run.stopped) return;
-    const { signal } = net;
-    const first = await guard(fetchFn(url, range ? { headers: { Range: 'bytes=0-19' }, signal } : { signal }), net, url);
-    if (first === STOPPED) return;
-    run.requests++;
-    if (!first.ok) throw httpError(url, first);
-    if (first.status !== 206) {
-      yield* continueReader(null, first.body.getReader(), run, url);
-      return;
-    }
-    for await (const block of rangeBlocks(fetchFn, url, 0, 20, net, run, first)) {
-      const got = block.length;
-      run.bytesFetched += got;
-      start += got;
-      yield block;
-    }
-    if (start < 20) return; // the file ends within its preamble
-  }
-  for (const end of rangeEnds(run, preambleLength(prefix ?? new Uint8Array(0)))) {
-    if (run.stopped) return;
-    if (end <= start) continue;
-    const stop = Math.min(end, run.byteLimit());
-    if (stop <= start) return;
-    for await (const block of rangeBlocks(fetchFn, url, start, stop, net, run)) {
-      const got = block.length;
-      run.bytesFetched += got;
-      start += got;
-      yield block;
-    }
-    if (start < stop || stop < end) return; // the file ended, or the byte limit
-  }
+/**
+ * The end of the next Range request of a read from the file's start, `head` being the bytes read so far: the requests
+ * are the preamble (20 bytes), the JSON with the BIN chunk header, then everything wanted after them in one request
+ * (the base and the chunks, streamed: each chunk is applied as soon as its own bytes are in), up to `wanted()`
+ * (readEnd). Three requests, however many chunks: pmwm_codec.http.plan_ranges plans the same.
+ */
+function requestEnd(head, wanted) {
+  const headerEnd = preambleLength(head); // 20 while the preamble is not in
+  return head.length < headerEnd ? headerEnd : wanted();
 }
 
-/** Absolute end offsets to request: the header, then (once it is parsed) the base, each chunk, the tail. */
-function* rangeEnds(run, knownHeaderEnd) {
-  yield run.decoder.header ? 0 : knownHeaderEnd > 20 ? knownHeaderEnd : headerEndOf(run);
-  const { plan, header } = run.decoder;
-  if (!plan) return;
+/** The file offset of the first chunk (the end of the base and all before it); with no chunk, of the base's end. */
+function baseEnd(header, plan) {
+  return header.binStart + (plan.stream.length ? plan.stream[0].offset : plan.baseEnd);
+}
+
+/**
+ * The number of chunks a load reads, from the stream's `plan` (planDocument) and the stops of `options`: at most
+ * `maxChunks`; up to the first chunk at which every primitive is within `maxGeometricError` (a primitive without
+ * chunks is as fine as this stream makes it: it never holds the stop back); those that end within `byteBudget`
+ * bytes of the file (`binStart`: the file offset of the BIN data).
+ */
+export function chunksWanted(plan, binStart, options) {
   const { stream } = plan;
-  const bin = header.binStart;
-  if (stream.length) yield bin + stream[0].offset;
-  const want = run.chunksWanted();
-  for (let k = 0; k < want; k++) yield bin + stream[k].offset + stream[k].length;
-  if (want === stream.length) yield header.length;
+  let want = Math.min(stream.length, options.maxChunks ?? Infinity);
+  const target = options.maxGeometricError;
+  if (target !== undefined) {
+    const current = plan.primitives.map((p) => (p.chunks.length ? Infinity : 0));
+    for (let k = 0; k < want; k++) {
+      current[stream[k].primitive] = stream[k].geometricError;
+      if (Math.max(...current) <= target) { want = k + 1; break; }
+    }
+  }
+  const budget = options.byteBudget ?? Infinity;
+  while (want > 0 && binStart + stream[want - 1].offset + stream[want - 1].length > budget) want--;
+  return want;
 }
 
-function headerEndOf(run) {
-  return preambleLength(run.decoder.buf.subarray(0, run.decoder.received));
+/**
+ * The end (a file offset) of the bytes a load reads: the end of the last chunk wanted (chunksWanted), or when every
+ * chunk is wanted the file's end (within `byteBudget`); never before the first chunk (baseEnd: three.js shows that
+ * base, so a budget below it still gives it as level 0). Nothing after it is requested.
+ */
+export function readEnd(header, plan, options) {
+  const want = chunksWanted(plan, header.binStart, options);
+  const last = plan.stream[want - 1];
+  const end = want === plan.stream.length ? Math.min(header.length, options.byteBudget ?? Infinity)
+    : last ? header.binStart + last.offset + last.length : 0;
+  return Math.max(end, baseEnd(header, plan));
+}
+
+/** The bytes the run's decoder has been fed. */
+function receivedBytes(run) {
+  return run.decoder.buf.subarray(0, run.decoder.received);
 }
 
 /**
  * Loads `url` with `loader`, reading only the bytes before the first chunk (the base and what it uses)
- * first: by Range requests, or the start of one fetch stream. three.js shows that base; a
- * PMWMProgressivePlugin registered for this load only then refines it from the rest (not fetched twice).
+ * first: by Range requests (requestEnd), or the start of one fetch stream. three.js shows that base; a
+ * PMWMProgressivePlugin registered for this load only then refines it from the rest of the same answer (not
+ * fetched twice, no request more).
  * Do not also register the plugin on `loader` yourself. Options as PMWMProgressivePlugin's. A GLB
  * without the extension loads whole, as it is; a file that ends before those bytes is a TruncatedError;
  * an HTTP error, a failed or stalled request (`options.stallTimeout`) a FetchError. `options.signal` (an AbortSignal): aborted before this
@@ -683,7 +727,7 @@ export async function loadProgressive(loader, href, options = {}) {
   const baseFetch = options.fetch ?? globalThis.fetch.bind(globalThis);
   const fetchFn = (target, init = {}) => baseFetch(target, { ...init, headers: { ...loader.requestHeader, ...init.headers },
     ...(loader.withCredentials ? { credentials: 'include' } : {}), signal: init.signal ?? controller.signal });
-  const stats = { bytesFetched: 0, requests: 0 };
+  const count = { bytesFetched: 0, requests: 0 }; // the run's counts (it counts on)
   let prefix = new Uint8Array(0); // a view of `kept`, whose capacity doubles: appending stays linear
   let kept = prefix;
   const append = (b) => {
@@ -694,69 +738,61 @@ export async function loadProgressive(loader, href, options = {}) {
     }
     kept.set(b, prefix.length);
     prefix = kept.subarray(0, prefix.length + b.length);
-    stats.bytesFetched += b.length;
   };
-  // the bytes three.js needs: the preamble, the JSON, then everything before the first chunk (a GLB
-  // without the extension: all of it, loaded as it is); known once the JSON is in (parsed once)
+  // the bytes three.js needs (`base`: the preamble, the JSON, then everything before the first chunk; a GLB
+  // without the extension: all of it, loaded as it is) and those the load reads (`end`: readEnd); known once the
+  // JSON is in (parsed once)
   let known;
   const needed = () => {
-    if (known !== undefined) return known;
+    if (known !== undefined) return known.base;
     if (prefix.length >= 20) checkPreamble(prefix); // a JSON chunk over the limit: refused before it is fetched
     if (prefix.length < 20 || prefix.length < preambleLength(prefix)) return preambleLength(prefix);
     const header = parseGlb(prefix);
-    if (!header.gltf.extensionsUsed?.includes?.(EXTENSION_NAME)) return (known = header.length);
-    const { stream } = planDocument(header.gltf, header.binLength);
-    return (known = stream.length ? header.binStart + stream[0].offset : header.length);
+    if (!header.gltf.extensionsUsed?.includes?.(EXTENSION_NAME)) known = { base: header.length, end: header.length };
+    else {
+      const plan = planDocument(header.gltf, header.binLength);
+      known = { base: plan.stream.length ? baseEnd(header, plan) : header.length, end: readEnd(header, plan, options) };
+    }
+    return known.base;
   };
-  /** Range requests for the bytes up to `end` (short answers: the rest asked for), while the file lasts. */
-  const getRange = async (end, first) => {
-    for await (const block of rangeBlocks(fetchFn, url, prefix.length, end, net, stats, first)) append(block);
-  };
-  let reader = null;
+  // the file's bytes as they come (Range requests: rangeStream, else one streamed GET); the plugin reads on from it
+  let rest = null;
   let gltf;
   try {
     const res = await guard(fetchFn(url, options.range === false ? {} : { headers: { Range: 'bytes=0-19' } }), net, url);
     if (res === STOPPED) throw signal.reason;
-    stats.requests++;
+    count.requests++;
     if (!res.ok) throw httpError(url, res);
-    if (res.status === 206) {
-      await getRange(20, res);
-      if (prefix.length === 20) await getRange(needed());
-      if (prefix.length === preambleLength(prefix)) await getRange(needed());
-    } else {
-      reader = res.body.getReader();
-      while (prefix.length < needed()) {
-        const next = await guard(reader.read(), net, url);
-        if (next === STOPPED || next.done) break;
-        append(next.value);
-      }
+    const wanted = () => { needed(); return known.end; }; // the JSON is in
+    rest = res.status === 206 ? rangeStream(fetchFn, url, net, count, res, () => requestEnd(prefix, wanted))
+      : bodyPieces(res, net, url, Infinity, count);
+    while (prefix.length < needed()) {
+      const next = await rest.next();
+      if (next.done) break;
+      append(next.value);
     }
     signal?.throwIfAborted();
     if (prefix.length < needed()) {
       throw new TruncatedError(`${url}: the file ended after ${prefix.length} bytes, before its base mesh and what `
         + `comes before the first chunk (${needed()} bytes)`, prefix.length, needed());
     }
-    const factory = (parser) => new PMWMProgressivePlugin(parser, { ...options, url, prefix, reader, fetch: fetchFn,
-      controller });
+    const factory = (parser) => new PMWMProgressivePlugin(parser, { ...options, url, prefix, rest, fetch: fetchFn,
+      controller, count });
     loader.register(factory);
     try {
-      gltf = await loader.parseAsync(baseGlb(prefix).buffer, resourcePath);
+      gltf = await loader.parseAsync(baseGlb(prefix.subarray(0, needed())).buffer, resourcePath);
     } finally {
       loader.unregister(factory);
     }
   } catch (e) {
     signal?.removeEventListener('abort', onAbort);
-    reader?.cancel().catch(() => {}); // a failed load reads no more of a streamed GET
+    rest?.return().catch(() => {}); // a failed load reads no more of the body in flight
     if (signal?.aborted) throw signal.reason; // aborted: the reason, whatever the request in flight threw
     throw e;
   }
   signal?.removeEventListener('abort', onAbort); // from here the run follows the signal (it aborts `controller`)
-  if (!gltf.userData?.pmwm) reader?.cancel().catch(() => {}); // no stream to refine: nothing more is read
+  if (!gltf.userData?.pmwm) rest.return().catch(() => {}); // no stream to refine: nothing more is read
   const run = gltf.userData?.pmwm;
-  if (run) {
-    run.bytesFetched += stats.bytesFetched;
-    run.requests += stats.requests;
-  }
   if (signal?.aborted) { // aborted while three.js parsed the base: the run is stopped (it follows the signal)
     run?.stop();
     throw signal.reason;

@@ -27,6 +27,8 @@ function endOfBase(file) {
   return header.binStart + planDocument(header.gltf, header.binLength).stream[0].offset;
 }
 const baseEnd = endOfBase(bytes);
+/** The file offset where chunk k (1-based) ends. */
+const chunkEnd = (k) => binStart + stream[k - 1].offset + stream[k - 1].length;
 let tmp;
 const servers = {};
 
@@ -193,15 +195,22 @@ test('HTTP errors and network failures are FetchError (status, url, cause), not 
     (e) => e instanceof FetchError && e instanceof PmwError && !(e instanceof FormatError) && e.status === 404 && e.url === url404);
   await assert.rejects(loadProgressive(new GLTFLoader(), `${servers.ranges.url}${NAME}?fail=1`),
     (e) => e instanceof FetchError && e.status === 500);
-  // a 500 on the 6th Range request: the levels before it stay drawn
-  const gltf = await loadProgressive(new GLTFLoader(), `${servers.ranges.url}${NAME}?fail=6`);
+  // a 500 on a request for the rest of a short answer (300 bytes each), two after the base: the levels before stay
+  const toBase = 1 + Math.ceil((binStart - 20) / 300) + Math.ceil((baseEnd - binStart) / 300);
+  const gltf = await loadProgressive(new GLTFLoader(), `${servers.ranges.url}${NAME}?cap=300&fail=${toBase + 2}`);
   await assert.rejects(gltf.userData.pmwm.done, (e) => e instanceof FetchError && e.status === 500);
   assert.ok(drawn(gltf).vertices > 0);
   // the connection dropped mid-body: during the base load, then after it
   await assert.rejects(loadProgressive(new GLTFLoader(), `${servers.plain.url}${NAME}?cut=100`),
     (e) => e instanceof FetchError && e.status === undefined && e.cause instanceof Error);
-  const cut = await loadProgressive(new GLTFLoader(), `${servers.plain.url}${NAME}?cut=${baseEnd + 1000}`);
-  await assert.rejects(cut.userData.pmwm.done, (e) => e instanceof FetchError && e.status === undefined);
+  for (const kind of ['plain', 'ranges']) { // by Range: in the answer that holds the base and every chunk
+    const chunks = [];
+    const cut = await loadProgressive(new GLTFLoader(), `${servers[kind].url}${NAME}?cut=${chunkEnd(2) + 10}`,
+      { onChunk: (e) => chunks.push(e.chunk) });
+    await assert.rejects(cut.userData.pmwm.done, (e) => e instanceof FetchError && e.status === undefined, kind);
+    assert.deepEqual(chunks, [1, 2], `${kind}: the levels before the cut drawn`);
+    assert.deepEqual(drawn(cut).positions, (await decodePmw(bytes, { chunks: 2 })).positions, kind);
+  }
   // a fetch that cannot connect at all
   await assert.rejects(loadProgressive(new GLTFLoader(), 'http://127.0.0.1:1/x.pmw'), FetchError);
 });
@@ -230,10 +239,9 @@ test('a registered plugin with a fixed url refines a whole file from its own byt
 
 test('a server that stops sending (connection open, no bytes) fails the load after stallTimeout with a FetchError naming the URL and the seconds, the levels decoded kept',
   async () => {
-    const chunkEnd = (k) => binStart + stream[k - 1].offset + stream[k - 1].length;
     const cases = [ // [server, the file's bytes sent before the stall, the level then drawn]
       ['plain', baseEnd + 200, 0], // a streamed GET: in chunk 1
-      ['ranges', chunkEnd(2) + 10, 2], // Range requests: in the request for chunk 3
+      ['ranges', chunkEnd(2) + 10, 2], // Range requests: in chunk 3, in the request for all after the JSON
     ];
     for (const [kind, stall, level] of cases) {
       const url = `${servers[kind].url}${NAME}?stall=${stall}`;

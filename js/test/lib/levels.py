@@ -114,6 +114,9 @@ CASES = {
                              dict(base_codec="draco", grid_bits=14)),
     # a base Draco stores with copies of its non-manifold vertices, welded back by readers
     "welded.draco": lambda: (shapes.bowtie(), dict(base_codec="draco")),
+    # a stream of many chunks (68, in 12 primitives), as a scene of many parts has
+    "many-primitives.plain": lambda: ([shapes.torus(24, 12, twist=0.1 * k) for k in range(12)],
+                                      dict(base_codec="plain")),
 }
 
 

@@ -7,7 +7,7 @@
  * $PMW_PYTHONPATH names another checkout of the repository to test against instead of this one:
  * its pmwm_codec package and its spec/conformance files (TREE).
  */
-import { spawnSync } from 'node:child_process';
+import { execFile, spawnSync } from 'node:child_process';
 import { existsSync } from 'node:fs';
 import { dirname, join, resolve } from 'node:path';
 import { fileURLToPath } from 'node:url';
@@ -57,6 +57,21 @@ export function decodeFiles(files) {
 /** Writes `out` (.glb): `pmw decode FILE --chunks N`, the reference decoder's level N as an ordinary GLB. */
 export function decodeToGlb(file, chunks, out) {
   run(['-m', 'pmwm_codec', 'decode', file, '--chunks', String(chunks), '-o', out, '-q']);
+}
+
+/**
+ * Reads the .pmw at `url` with the reference reader's UrlSource (pmwm_codec.http) up to `maxChunks` chunks (every one
+ * when undefined), in a child process that leaves this one's event loop free (a server of the test's may answer it).
+ */
+export function readUrl(url, maxChunks) {
+  const code = 'import sys\nfrom pmwm_codec.http import UrlSource\n'
+    + 'for _ in UrlSource(sys.argv[1], max_chunks=int(sys.argv[2]) if sys.argv[2] else None): pass';
+  return new Promise((resolve, reject) => {
+    execFile(python(), ['-c', code, url, String(maxChunks ?? '')], { env: env() }, (error, stdout, stderr) => {
+      if (error) reject(new Error(`reading ${url} with pmwm_codec.http failed: ${stderr || error}`));
+      else resolve();
+    });
+  });
 }
 
 function run(args) {

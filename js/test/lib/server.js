@@ -5,7 +5,10 @@
 // `cap=N` answers a Range request with at most N bytes (a short 206, as RFC 9110 allows), `fail=K` answers
 // the K-th request for that URL (path and query) with HTTP 500, `cut=N` drops the connection after N bytes
 // of a whole (200) answer, `stall=N` sends N bytes of a whole answer (at most all but one) and then nothing more (never ends),
-// and of a Range answer reaching past byte N of the file, the bytes before byte N and then nothing more.
+// and of a Range answer reaching past byte N of the file, both send the bytes before byte N, then drop the connection
+// (cut) or send nothing more (stall); `drip=MS`
+// sends the body in pieces of 1,000 bytes, MS ms apart (`stats.sending`: the bodies being sent; `stats.dropped`: those
+// whose connection the client closed before their end).
 import fs from 'node:fs';
 import http from 'node:http';
 import path from 'node:path';
@@ -14,7 +17,7 @@ const TYPES = { '.html': 'text/html', '.js': 'text/javascript', '.mjs': 'text/ja
   '.pmw': 'model/gltf-binary', '.json': 'application/json' };
 
 export async function startServer(root, { ranges = true, delayMs = 0, mounts = {} } = {}) {
-  const stats = { bytes: 0, requests: 0, log: [], asked: {} };
+  const stats = { bytes: 0, requests: 0, log: [], asked: {}, sending: 0, dropped: 0 };
   const server = http.createServer(async (req, res) => {
     stats.requests++;
     const query = new URL(req.url, 'http://x').searchParams;
@@ -51,16 +54,28 @@ export async function startServer(root, { ranges = true, delayMs = 0, mounts = {
       res.writeHead(200, { 'Content-Type': type, 'Content-Length': body.length, 'Cache-Control': 'no-store' });
     }
     if (file.endsWith('.pmw')) { stats.bytes += body.length; stats.log.push(req.headers.range ?? 'whole'); }
-    const stall = query.get('stall');
-    let only = body === data ? query.get('cut') ?? stall : null; // a whole answer, cut or stalled
+    const stop = query.get('cut') ?? query.get('stall');
+    let only = body === data ? stop : null; // a whole answer, cut or stalled
     if (only !== null) only = Math.min(Number(only), body.length - 1); // never the whole body: it never ends
-    else if (stall !== null && from + body.length > Number(stall)) only = Math.max(0, Number(stall) - from); // a Range answer
+    else if (stop !== null && from + body.length > Number(stop)) only = Math.max(0, Number(stop) - from); // a Range answer
     if (only !== null) {
       res.write(body.subarray(0, only));
       if (query.get('cut')) setTimeout(() => res.socket?.destroy(), 20); // else: stalls until closed
       return;
     }
-    res.end(body);
+    const drip = Number(query.get('drip') ?? 0);
+    if (drip) {
+      stats.sending++;
+      let closed = false;
+      res.on('close', () => { closed = true; });
+      for (let at = 0; at < body.length && !closed; at += 1000) {
+        res.write(body.subarray(at, at + 1000));
+        await new Promise((r) => setTimeout(r, drip));
+      }
+      stats.sending--;
+      if (closed) stats.dropped++;
+    }
+    res.end(drip ? undefined : body);
   });
   await new Promise((resolve) => server.listen(0, '127.0.0.1', resolve));
   const url = `http://127.0.0.1:${server.address().port}/`;
