@@ -277,6 +277,39 @@ def test_range_server_answers_206_with_content_range(site):
         thread.join(5)
 
 
+class NoDelayNoted(RangeRequestHandler):
+    """Notes whether each connection it answers has TCP_NODELAY set."""
+
+    seen: list = []
+
+    def handle(self):
+        import socket
+
+        self.seen.append(self.connection.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY) != 0)
+        super().handle()
+
+
+def test_serve_sends_its_answers_without_waiting_for_the_clients_acknowledgement(site):
+    """TCP_NODELAY on every connection: with Nagle's rule the second answer on a kept-alive connection waited for the
+    client's delayed acknowledgement of the first (Node's fetch and Chromium: ~22 ms a request against pmw serve)."""
+    import http.client
+
+    NoDelayNoted.seen = []
+    srv, thread = _serve(site, NoDelayNoted)
+    try:
+        conn = http.client.HTTPConnection("127.0.0.1", srv.server_address[1], timeout=10)
+        for start in (0, 20):  # two answers on one kept-alive connection
+            conn.request("GET", "/x.pmw", headers={"Range": f"bytes={start}-{start + 9}"})
+            answer = conn.getresponse()
+            assert answer.status == 206 and len(answer.read()) == 10
+        conn.close()
+        assert NoDelayNoted.seen == [True]
+    finally:
+        srv.shutdown()
+        srv.server_close()
+        thread.join(5)
+
+
 def test_serve_answers_only_for_files_inside_its_directory_and_never_with_a_key(tmp_path):
     """A symbolic link out of the directory, a key file (``pmw encode`` writes the secret key beside the
     ``.pmw``), a FIFO, a directory listing and a NUL byte all get 404, with or without ``Range``; a link that stays
