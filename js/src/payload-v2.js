@@ -117,11 +117,10 @@ const round = (x) => Math.floor(x + 0.5);
 
 /**
  * The candidate start of rank r of an arc of L faces in a fan of d (spec §8.4.2 "Start rank"):
- * len[g] the length from v to the corner a of incidence g (#gather), lens[t] (t < d) that of
- * fan[t], lens[32 + c] the score of start c.
+ * lens[t] (t < d) the length from v to the corner a of fan[t] (#fanLengths), lens[32 + c] the
+ * score of start c.
  */
-function arcStart(r, fan, d, ncand, L, len, lens) {
-  for (let t = 0; t < d; t++) lens[t] = len[fan[t]];
+function arcStart(r, d, ncand, L, lens) {
   for (let c = 0; c < ncand; c++) {
     let sc = 0.0;
     for (let j = 1, t = c + 1 === d ? 0 : c + 1; j < L; j++, t = t + 1 === d ? 0 : t + 1) sc += lens[t]; // t = (c + j) mod d
@@ -169,7 +168,6 @@ export class ChunkDecoderV2 {
     // scratch arrays (see #grow), declared here so that the object keeps one shape
     for (const name of ['head', 'tail', 'nxt', 'val', 'stamp', 'stamp2', 'v', 'gstart', 'inc', 'a', 'b', 'creatorOf',
       'created', 'wings', 'ringCount', 'ringClass', 'up', 'near', 'fstart', 'fnames']) this[name] = new Int32Array(0);
-    this.len = new Float64Array(0);
     this.ringSums = new Float64Array(0);
     this.ringNormals = new Float64Array(0);
     this.fresh = 0; // new vertices named so far by the face chunk being decoded
@@ -515,15 +513,13 @@ export class ChunkDecoderV2 {
 
   /**
    * Split vertex w's incidences from g on (§6.1 step 1, as §8.4.2 needs them: its corner list in
-   * face-slot order): corner inc[g], the corners after / before it a[g], b[g], the length len[g]
-   * from w to a[g] (§8.4.2 "Start rank": the corners' values loaded while the list is walked); and
-   * cnt[x] += 1 (saturating at 2) for every distinct neighbour x > w of w. Returns the next g.
+   * face-slot order): corner inc[g], the corners after / before it a[g], b[g]; and cnt[x] += 1
+   * (saturating at 2) for every distinct neighbour x > w of w. Returns the next g.
    */
   #gather(w, g) {
-    const { head, nxt, inc, a, b, len, stamp, cnt } = this;
-    const { faces, values, D } = this.state;
+    const { head, nxt, inc, a, b, stamp, cnt } = this;
+    const { faces } = this.state;
     const e = this.#nextEpoch();
-    const pw = w * D;
     for (let c = head[w]; c >= 0; c = nxt[c], g++) {
       const r = c % 3;
       const x = faces[r === 2 ? c - 2 : c + 1];
@@ -531,11 +527,6 @@ export class ChunkDecoderV2 {
       inc[g] = c;
       a[g] = x;
       b[g] = y;
-      const px = x * D;
-      const dx = values[px] - values[pw];
-      const dy = values[px + 1] - values[pw + 1];
-      const dz = values[px + 2] - values[pw + 2];
-      len[g] = Math.sqrt((dx * dx + dy * dy) + dz * dz);
       if (x > w && stamp[x] !== e) { // x is not marked yet: no SPLIT bit
         stamp[x] = e;
         if (cnt[x] < 2) cnt[x]++;
@@ -559,7 +550,6 @@ export class ChunkDecoderV2 {
     const v = this.#grow('v', n, Int32Array, capN);
     const gstart = this.#grow('gstart', n + 1, Int32Array, capN + 1);
     for (const name of ['inc', 'a', 'b']) this.#grow(name, 3 * m, Int32Array, 3 * capM);
-    this.#grow('len', 3 * m, Float64Array, 3 * capM);
     this.#grow('sym', 3 * m, Uint8Array, 3 * capM);
     const cnt = this.#grow('cnt', n, Uint8Array, capN);
     const { vc } = this;
@@ -662,9 +652,9 @@ export class ChunkDecoderV2 {
     for (let i = 0; i < k; i++) {
       const g0 = gstart[i];
       const g1 = gstart[i + 1];
-      const kind = this.#symbols(rc, g0, g1 - g0);
-      const u = n + i;
       const vi = v[i];
+      const kind = this.#symbols(rc, vi, g0, g1 - g0);
+      const u = n + i;
       head[u] = -1;
       head[vi] = -1;
       for (let g = g0; g < g1; g++) {
@@ -687,7 +677,7 @@ export class ChunkDecoderV2 {
    * §8.4.2: the symbols sym[g0 .. g0+d) of a split's incidences. Returns the fan's kind (1 closed,
    * 2 open) when they are an arc (its start in this.fan at arcFirst, its length arcLength), else 0.
    */
-  #symbols(rc, g0, d) {
+  #symbols(rc, vi, g0, d) {
     const { sym, fan } = this;
     const kind = d >= 1 && d <= MAX_ARC_FAN ? this.#fanOf(g0, d) : 0;
     if (kind === 0 || rc.bit(P_ESCAPE)) {
@@ -703,7 +693,7 @@ export class ChunkDecoderV2 {
     const ncand = kind === 1 ? d : d - L + 1;
     const r = rc.uint(block(B_RANK + Math.min(ncand, 16) - 1), 'an arc start rank');
     if (r >= ncand) throw new FormatError('chunk payload: an arc start rank is out of range');
-    const s = arcStart(r, fan, d, ncand, L, this.len, this.lens);
+    const s = arcStart(r, d, ncand, L, this.#fanLengths(vi, d));
     const left = kind === 2 && s === 0 ? rc.bit(P_WING) : 1;
     const right = kind === 2 && s + L === d ? rc.bit(P_WING + 1) : 1;
     for (let t = 0; t < d; t++) {
@@ -713,6 +703,24 @@ export class ChunkDecoderV2 {
     this.arcFirst = s;
     this.arcLength = L;
     return kind;
+  }
+
+  /**
+   * §8.4.2 "Start rank": lens[t] = the length from split vertex vi to the corner a of fan[t], t < d
+   * (the values of the mesh before the batch). Returns lens.
+   */
+  #fanLengths(vi, d) {
+    const { values, D } = this.state;
+    const { a, fan, lens } = this;
+    const pv = vi * D;
+    for (let t = 0; t < d; t++) {
+      const px = a[fan[t]] * D;
+      const dx = values[px] - values[pv];
+      const dy = values[px + 1] - values[pv + 1];
+      const dz = values[px + 2] - values[pv + 2];
+      lens[t] = Math.sqrt((dx * dx + dy * dy) + dz * dz);
+    }
+    return lens;
   }
 
   /**
