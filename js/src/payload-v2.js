@@ -177,13 +177,13 @@ export class ChunkDecoderV2 {
   }
 
   /**
-   * Scratch array `name` with at least `size` (<= max) elements, grown geometrically up to `max`
-   * (contents kept when `keep`; a new array is otherwise filled with `fillValue` when given).
+   * Scratch array `name` with at least `size` (<= max) elements, grown geometrically up to `max`,
+   * or to `max` at once when an eighth of it is asked (contents kept when `keep`, zeros otherwise).
    */
-  #grow(name, size, Type, max, fillValue, keep = false) {
+  #grow(name, size, Type, max, keep = false) {
     let arr = this[name];
     if (arr.length < size) {
-      const cap = Math.min(Math.max(size, 2 * arr.length), Math.max(size, max));
+      const cap = size > max / 8 ? Math.max(size, max) : Math.min(Math.max(size, 2 * arr.length), max);
       const old = arr;
       try {
         arr = new Type(cap);
@@ -191,7 +191,6 @@ export class ChunkDecoderV2 {
         if (!(e instanceof RangeError)) throw e;
         throw new LimitError(`cannot allocate ${cap} scratch entries (${e.message})`);
       }
-      if (fillValue !== undefined) arr.fill(fillValue);
       if (keep) arr.set(old);
       this[name] = arr;
     }
@@ -466,8 +465,8 @@ export class ChunkDecoderV2 {
     for (let c = 0; c < 3 * m; c++) this.#append(faces[c], c);
     this.#grow('val', n, Int32Array, capN);
     this.#grow('vc', n, Uint8Array, capN);
-    this.#grow('stamp', n, Int32Array, capN, 0, true);
-    this.#grow('stamp2', n, Int32Array, capN, 0, true);
+    this.#grow('stamp', n, Int32Array, capN, true);
+    this.#grow('stamp2', n, Int32Array, capN, true);
     for (let w = 0; w < n; w++) this.#setValence(w, this.#valence(w));
     this.listsN = n;
     this.listsM = m;
@@ -637,12 +636,12 @@ export class ChunkDecoderV2 {
   #splits(rc, n, k) {
     const { faces, capN, D } = this.state;
     const { inc, a, b, sym, v, gstart } = this;
-    const head = this.#grow('head', n + k, Int32Array, capN, undefined, true);
-    this.#grow('tail', n + k, Int32Array, capN, undefined, true);
-    this.#grow('val', n + k, Int32Array, capN, undefined, true);
-    this.#grow('vc', n + k, Uint8Array, capN, undefined, true);
-    this.#grow('stamp', n + k, Int32Array, capN, 0, true);
-    this.#grow('stamp2', n + k, Int32Array, capN, 0, true);
+    const head = this.#grow('head', n + k, Int32Array, capN, true);
+    this.#grow('tail', n + k, Int32Array, capN, true);
+    this.#grow('val', n + k, Int32Array, capN, true);
+    this.#grow('vc', n + k, Uint8Array, capN, true);
+    this.#grow('stamp', n + k, Int32Array, capN, true);
+    this.#grow('stamp2', n + k, Int32Array, capN, true);
     this.#grow('ringSums', k * D, Float64Array, capN * D);
     this.#grow('ringNormals', 3 * k, Float64Array, 3 * capN);
     this.#grow('ringCount', k, Int32Array, capN);
@@ -757,7 +756,7 @@ export class ChunkDecoderV2 {
     }
     st.reserve(0, st.m + added);
     const { faces } = st;
-    this.#grow('nxt', 3 * (st.m + added), Int32Array, 3 * capM, undefined, true);
+    this.#grow('nxt', 3 * (st.m + added), Int32Array, 3 * capM, true);
     let f = 3 * st.m;
     for (let word = 0; word < words; word++) {
       for (let bits = created[word]; bits !== 0; bits &= bits - 1) {
