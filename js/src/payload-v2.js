@@ -82,6 +82,12 @@ const FB_VALUE = 5; // + min(q, 3): residual of a new vertex's value q
 /** Size of a face chunk's own probability table: 32 single probabilities, 9 integer blocks. */
 export const FACE_PROBS = P_INT + 9 * INT_BLOCK;
 const TWO53 = 2 ** 53;
+/**
+ * The corners after and before corner c in its face are c + AFTER[c % 3] and c + BEFORE[c % 3] (a
+ * table, not a branch: the face loads of a corner walk do not wait on a guessed branch).
+ */
+const AFTER = Int8Array.of(1, 1, -2);
+const BEFORE = Int8Array.of(2, -1, -1);
 /** Neighbour lists up to this long are sorted in place by insertion, longer ones by TypedArray sort. */
 const SHORT_LIST = 32;
 
@@ -521,8 +527,8 @@ export class ChunkDecoderV2 {
     const e = this.#nextEpoch();
     for (let c = head[w]; c >= 0; c = nxt[c], g++) {
       const r = c % 3;
-      const x = faces[r === 2 ? c - 2 : c + 1];
-      const y = faces[r === 0 ? c + 2 : c - 1];
+      const x = faces[c + AFTER[r]];
+      const y = faces[c + BEFORE[r]];
       inc[g] = c;
       a[g] = x;
       b[g] = y;
