@@ -532,14 +532,13 @@ export class ChunkDecoderV2 {
       inc[g] = c;
       a[g] = x;
       b[g] = y;
-      if (x > w && stamp[x] !== e) { // x is not marked yet: no SPLIT bit
-        stamp[x] = e;
-        if (cnt[x] < 2) cnt[x]++;
-      }
-      if (y > w && stamp[y] !== e) {
-        stamp[y] = e;
-        if (cnt[y] < 2) cnt[y]++;
-      }
+      // x > w is not marked yet (no SPLIT bit); the counts are updated without branches on the mesh
+      const cx = cnt[x];
+      cnt[x] = cx + ((x > w) & (stamp[x] !== e) & (cx < 2));
+      stamp[x] = e;
+      const cy = cnt[y];
+      cnt[y] = cy + ((y > w) & (stamp[y] !== e) & (cy < 2));
+      stamp[y] = e;
     }
     return g;
   }
