@@ -189,7 +189,9 @@ export class ChunkDecoderV2 {
   #grow(name, size, Type, max, keep = false) {
     let arr = this[name];
     if (arr.length < size) {
-      const cap = size > max / 8 ? Math.max(size, max) : Math.min(Math.max(size, 2 * arr.length), max);
+      // (every call here runs on every growth: a call first made in optimised code deoptimises it)
+      const room = Math.max(size, max);
+      const cap = size > max / 8 ? room : Math.min(Math.max(size, 2 * arr.length), room);
       const old = arr;
       try {
         arr = new Type(cap);
