@@ -14,8 +14,7 @@
  * that a batch costs its mask bits plus the work of its splits, not a pass over the mesh (#lists
  * builds them on a primitive's first chunk and after a face chunk). Per batch:
  * - #mask decodes one bit per vertex; each marked vertex lists its incidences (its corner list,
- *   in face-slot order: corner, a, b, and the length to a that ranks arc starts) and adds itself
- *   to its neighbours' counts (#gather);
+ *   in face-slot order: corner, a, b) and adds itself to its neighbours' counts (#gather);
  * - #splits then takes the splits one by one while their incidences are at hand: the symbols
  *   (#fanOf, arcStart), the moved corners and the relisting of v and u, the ring sums and normal
  *   that §8.4.3 reads (#ring: only values of the mesh before the batch), and the valences (the
@@ -534,7 +533,8 @@ export class ChunkDecoderV2 {
       inc[g] = c;
       a[g] = x;
       b[g] = y;
-      // x > w is not marked yet (no SPLIT bit); the counts are updated without branches on the mesh
+      // counted when above w (not decided yet: no SPLIT bit) and met first here; no branch on either
+      // (a vertex below w, whose count is no longer read, keeps its cnt: x > w is 0)
       const cx = cnt[x];
       cnt[x] = cx + ((x > w) & (stamp[x] !== e) & (cx < 2));
       stamp[x] = e;
@@ -680,8 +680,9 @@ export class ChunkDecoderV2 {
   }
 
   /**
-   * §8.4.2: the symbols sym[g0 .. g0+d) of a split's incidences. Returns the fan's kind (1 closed,
-   * 2 open) when they are an arc (its start in this.fan at arcFirst, its length arcLength), else 0.
+   * §8.4.2: the symbols sym[g0 .. g0+d) of the incidences of a split of vertex vi. Returns the
+   * fan's kind (1 closed, 2 open) when they are an arc (its start in this.fan at arcFirst, its
+   * length arcLength), else 0.
    */
   #symbols(rc, vi, g0, d) {
     const { sym, fan } = this;
