@@ -14,8 +14,7 @@
  * that a batch costs its mask bits plus the work of its splits, not a pass over the mesh (#lists
  * builds them on a primitive's first chunk and after a face chunk). Per batch:
  * - #mask decodes one bit per vertex; each marked vertex lists its incidences (its corner list,
- *   in face-slot order: corner, a, b, and the length to a that ranks arc starts) and adds itself
- *   to its neighbours' counts (#gather);
+ *   in face-slot order: corner, a, b) and adds itself to its neighbours' counts (#gather);
  * - #splits then takes the splits one by one while their incidences are at hand: the symbols
  *   (#fanOf, arcStart), the moved corners and the relisting of v and u, the ring sums and normal
  *   that §8.4.3 reads (#ring: only values of the mesh before the batch), and the valences (the
@@ -82,6 +81,12 @@ const FB_VALUE = 5; // + min(q, 3): residual of a new vertex's value q
 /** Size of a face chunk's own probability table: 32 single probabilities, 9 integer blocks. */
 export const FACE_PROBS = P_INT + 9 * INT_BLOCK;
 const TWO53 = 2 ** 53;
+/**
+ * The corners after and before corner c in its face are c + AFTER[c % 3] and c + BEFORE[c % 3] (a
+ * table, not a branch: the face loads of a corner walk do not wait on a guessed branch).
+ */
+const AFTER = Int8Array.of(1, 1, -2);
+const BEFORE = Int8Array.of(2, -1, -1);
 /** Neighbour lists up to this long are sorted in place by insertion, longer ones by TypedArray sort. */
 const SHORT_LIST = 32;
 
@@ -117,11 +122,10 @@ const round = (x) => Math.floor(x + 0.5);
 
 /**
  * The candidate start of rank r of an arc of L faces in a fan of d (spec §8.4.2 "Start rank"):
- * len[g] the length from v to the corner a of incidence g (#gather), lens[t] (t < d) that of
- * fan[t], lens[32 + c] the score of start c.
+ * lens[t] (t < d) the length from v to the corner a of fan[t] (#fanLengths), lens[32 + c] the
+ * score of start c.
  */
-function arcStart(r, fan, d, ncand, L, len, lens) {
-  for (let t = 0; t < d; t++) lens[t] = len[fan[t]];
+function arcStart(r, d, ncand, L, lens) {
   for (let c = 0; c < ncand; c++) {
     let sc = 0.0;
     for (let j = 1, t = c + 1 === d ? 0 : c + 1; j < L; j++, t = t + 1 === d ? 0 : t + 1) sc += lens[t]; // t = (c + j) mod d
@@ -169,7 +173,6 @@ export class ChunkDecoderV2 {
     // scratch arrays (see #grow), declared here so that the object keeps one shape
     for (const name of ['head', 'tail', 'nxt', 'val', 'stamp', 'stamp2', 'v', 'gstart', 'inc', 'a', 'b', 'creatorOf',
       'created', 'wings', 'ringCount', 'ringClass', 'up', 'near', 'fstart', 'fnames']) this[name] = new Int32Array(0);
-    this.len = new Float64Array(0);
     this.ringSums = new Float64Array(0);
     this.ringNormals = new Float64Array(0);
     this.fresh = 0; // new vertices named so far by the face chunk being decoded
@@ -179,13 +182,15 @@ export class ChunkDecoderV2 {
   }
 
   /**
-   * Scratch array `name` with at least `size` (<= max) elements, grown geometrically up to `max`
-   * (contents kept when `keep`; a new array is otherwise filled with `fillValue` when given).
+   * Scratch array `name` with at least `size` (<= max) elements, grown geometrically up to `max`,
+   * or to `max` at once when an eighth of it is asked (contents kept when `keep`, zeros otherwise).
    */
-  #grow(name, size, Type, max, fillValue, keep = false) {
+  #grow(name, size, Type, max, keep = false) {
     let arr = this[name];
     if (arr.length < size) {
-      const cap = Math.min(Math.max(size, 2 * arr.length), Math.max(size, max));
+      // (every call here runs on every growth: a call first made in optimised code deoptimises it)
+      const room = Math.max(size, max);
+      const cap = size > max / 8 ? room : Math.min(Math.max(size, 2 * arr.length), room);
       const old = arr;
       try {
         arr = new Type(cap);
@@ -193,7 +198,6 @@ export class ChunkDecoderV2 {
         if (!(e instanceof RangeError)) throw e;
         throw new LimitError(`cannot allocate ${cap} scratch entries (${e.message})`);
       }
-      if (fillValue !== undefined) arr.fill(fillValue);
       if (keep) arr.set(old);
       this[name] = arr;
     }
@@ -468,8 +472,8 @@ export class ChunkDecoderV2 {
     for (let c = 0; c < 3 * m; c++) this.#append(faces[c], c);
     this.#grow('val', n, Int32Array, capN);
     this.#grow('vc', n, Uint8Array, capN);
-    this.#grow('stamp', n, Int32Array, capN, 0, true);
-    this.#grow('stamp2', n, Int32Array, capN, 0, true);
+    this.#grow('stamp', n, Int32Array, capN, true);
+    this.#grow('stamp2', n, Int32Array, capN, true);
     for (let w = 0; w < n; w++) this.#setValence(w, this.#valence(w));
     this.listsN = n;
     this.listsM = m;
@@ -515,35 +519,28 @@ export class ChunkDecoderV2 {
 
   /**
    * Split vertex w's incidences from g on (§6.1 step 1, as §8.4.2 needs them: its corner list in
-   * face-slot order): corner inc[g], the corners after / before it a[g], b[g], the length len[g]
-   * from w to a[g] (§8.4.2 "Start rank": the corners' values loaded while the list is walked); and
-   * cnt[x] += 1 (saturating at 2) for every distinct neighbour x > w of w. Returns the next g.
+   * face-slot order): corner inc[g], the corners after / before it a[g], b[g]; and cnt[x] += 1
+   * (saturating at 2) for every distinct neighbour x > w of w. Returns the next g.
    */
   #gather(w, g) {
-    const { head, nxt, inc, a, b, len, stamp, cnt } = this;
-    const { faces, values, D } = this.state;
+    const { head, nxt, inc, a, b, stamp, cnt } = this;
+    const { faces } = this.state;
     const e = this.#nextEpoch();
-    const pw = w * D;
     for (let c = head[w]; c >= 0; c = nxt[c], g++) {
       const r = c % 3;
-      const x = faces[r === 2 ? c - 2 : c + 1];
-      const y = faces[r === 0 ? c + 2 : c - 1];
+      const x = faces[c + AFTER[r]];
+      const y = faces[c + BEFORE[r]];
       inc[g] = c;
       a[g] = x;
       b[g] = y;
-      const px = x * D;
-      const dx = values[px] - values[pw];
-      const dy = values[px + 1] - values[pw + 1];
-      const dz = values[px + 2] - values[pw + 2];
-      len[g] = Math.sqrt((dx * dx + dy * dy) + dz * dz);
-      if (x > w && stamp[x] !== e) { // x is not marked yet: no SPLIT bit
-        stamp[x] = e;
-        if (cnt[x] < 2) cnt[x]++;
-      }
-      if (y > w && stamp[y] !== e) {
-        stamp[y] = e;
-        if (cnt[y] < 2) cnt[y]++;
-      }
+      // counted when above w (not decided yet: no SPLIT bit) and met first here; no branch on either
+      // (a vertex below w, whose count is no longer read, keeps its cnt: x > w is 0)
+      const cx = cnt[x];
+      cnt[x] = cx + ((x > w) & (stamp[x] !== e) & (cx < 2));
+      stamp[x] = e;
+      const cy = cnt[y];
+      cnt[y] = cy + ((y > w) & (stamp[y] !== e) & (cy < 2));
+      stamp[y] = e;
     }
     return g;
   }
@@ -559,7 +556,6 @@ export class ChunkDecoderV2 {
     const v = this.#grow('v', n, Int32Array, capN);
     const gstart = this.#grow('gstart', n + 1, Int32Array, capN + 1);
     for (const name of ['inc', 'a', 'b']) this.#grow(name, 3 * m, Int32Array, 3 * capM);
-    this.#grow('len', 3 * m, Float64Array, 3 * capM);
     this.#grow('sym', 3 * m, Uint8Array, 3 * capM);
     const cnt = this.#grow('cnt', n, Uint8Array, capN);
     const { vc } = this;
@@ -647,12 +643,12 @@ export class ChunkDecoderV2 {
   #splits(rc, n, k) {
     const { faces, capN, D } = this.state;
     const { inc, a, b, sym, v, gstart } = this;
-    const head = this.#grow('head', n + k, Int32Array, capN, undefined, true);
-    this.#grow('tail', n + k, Int32Array, capN, undefined, true);
-    this.#grow('val', n + k, Int32Array, capN, undefined, true);
-    this.#grow('vc', n + k, Uint8Array, capN, undefined, true);
-    this.#grow('stamp', n + k, Int32Array, capN, 0, true);
-    this.#grow('stamp2', n + k, Int32Array, capN, 0, true);
+    const head = this.#grow('head', n + k, Int32Array, capN, true);
+    this.#grow('tail', n + k, Int32Array, capN, true);
+    this.#grow('val', n + k, Int32Array, capN, true);
+    this.#grow('vc', n + k, Uint8Array, capN, true);
+    this.#grow('stamp', n + k, Int32Array, capN, true);
+    this.#grow('stamp2', n + k, Int32Array, capN, true);
     this.#grow('ringSums', k * D, Float64Array, capN * D);
     this.#grow('ringNormals', 3 * k, Float64Array, 3 * capN);
     this.#grow('ringCount', k, Int32Array, capN);
@@ -662,9 +658,9 @@ export class ChunkDecoderV2 {
     for (let i = 0; i < k; i++) {
       const g0 = gstart[i];
       const g1 = gstart[i + 1];
-      const kind = this.#symbols(rc, g0, g1 - g0);
-      const u = n + i;
       const vi = v[i];
+      const kind = this.#symbols(rc, vi, g0, g1 - g0);
+      const u = n + i;
       head[u] = -1;
       head[vi] = -1;
       for (let g = g0; g < g1; g++) {
@@ -684,10 +680,11 @@ export class ChunkDecoderV2 {
   }
 
   /**
-   * §8.4.2: the symbols sym[g0 .. g0+d) of a split's incidences. Returns the fan's kind (1 closed,
-   * 2 open) when they are an arc (its start in this.fan at arcFirst, its length arcLength), else 0.
+   * §8.4.2: the symbols sym[g0 .. g0+d) of the incidences of a split of vertex vi. Returns the
+   * fan's kind (1 closed, 2 open) when they are an arc (its start in this.fan at arcFirst, its
+   * length arcLength), else 0.
    */
-  #symbols(rc, g0, d) {
+  #symbols(rc, vi, g0, d) {
     const { sym, fan } = this;
     const kind = d >= 1 && d <= MAX_ARC_FAN ? this.#fanOf(g0, d) : 0;
     if (kind === 0 || rc.bit(P_ESCAPE)) {
@@ -703,7 +700,7 @@ export class ChunkDecoderV2 {
     const ncand = kind === 1 ? d : d - L + 1;
     const r = rc.uint(block(B_RANK + Math.min(ncand, 16) - 1), 'an arc start rank');
     if (r >= ncand) throw new FormatError('chunk payload: an arc start rank is out of range');
-    const s = arcStart(r, fan, d, ncand, L, this.len, this.lens);
+    const s = arcStart(r, d, ncand, L, this.#fanLengths(vi, d));
     const left = kind === 2 && s === 0 ? rc.bit(P_WING) : 1;
     const right = kind === 2 && s + L === d ? rc.bit(P_WING + 1) : 1;
     for (let t = 0; t < d; t++) {
@@ -713,6 +710,24 @@ export class ChunkDecoderV2 {
     this.arcFirst = s;
     this.arcLength = L;
     return kind;
+  }
+
+  /**
+   * §8.4.2 "Start rank": lens[t] = the length from split vertex vi to the corner a of fan[t], t < d
+   * (the values of the mesh before the batch). Returns lens.
+   */
+  #fanLengths(vi, d) {
+    const { values, D } = this.state;
+    const { a, fan, lens } = this;
+    const pv = vi * D;
+    for (let t = 0; t < d; t++) {
+      const px = a[fan[t]] * D;
+      const dx = values[px] - values[pv];
+      const dy = values[px + 1] - values[pv + 1];
+      const dz = values[px + 2] - values[pv + 2];
+      lens[t] = Math.sqrt((dx * dx + dy * dy) + dz * dz);
+    }
+    return lens;
   }
 
   /**
@@ -749,7 +764,7 @@ export class ChunkDecoderV2 {
     }
     st.reserve(0, st.m + added);
     const { faces } = st;
-    this.#grow('nxt', 3 * (st.m + added), Int32Array, 3 * capM, undefined, true);
+    this.#grow('nxt', 3 * (st.m + added), Int32Array, 3 * capM, true);
     let f = 3 * st.m;
     for (let word = 0; word < words; word++) {
       for (let bits = created[word]; bits !== 0; bits &= bits - 1) {
