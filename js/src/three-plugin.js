@@ -130,6 +130,7 @@ export class ProgressiveRun {
     // aborts the request in flight on stop(); loadProgressive's own (its streamed GET's body) when it made one
     this.controller = options.controller ?? new AbortController();
     this.net = network(this.controller, options.stallTimeout);
+    checkStops(options);
     const { maxChunks = Infinity, worker = 'auto', workerThreshold, workerUrl, signal } = options;
     this.decoder = createDecoder({ bases: threeDracoBases(targets), maxChunks, worker, workerThreshold, workerUrl });
     if (signal?.aborted) this.stop();
@@ -391,6 +392,19 @@ function network(controller, stallTimeout = STALL_TIMEOUT_MS) {
     throw new RangeError(`stallTimeout must be a number of milliseconds >= 0 (0: no limit), not ${stallTimeout}`);
   }
   return { signal: controller.signal, stallTimeout, abort: (reason) => controller.abort(reason) };
+}
+
+/**
+ * RangeError unless the stops of `options` are what they say: `byteBudget` a number of bytes >= 0 and
+ * `maxGeometricError` a number >= 0 (Infinity allowed, or absent), as `maxChunks` and `stallTimeout` are checked (a
+ * budget of 'abc' made every later offset NaN, and the load showed the base as if stopped there).
+ */
+function checkStops({ byteBudget, maxGeometricError }) {
+  for (const [name, value, unit] of [['byteBudget', byteBudget, 'a number of bytes'], ['maxGeometricError', maxGeometricError, 'a number']]) {
+    if (value !== undefined && (typeof value !== 'number' || !(value >= 0))) {
+      throw new RangeError(`${name} must be ${unit} >= 0 (or Infinity), not ${value}`);
+    }
+  }
 }
 
 /**
@@ -722,6 +736,7 @@ export async function loadProgressive(loader, href, options = {}) {
   // aborts every request of this load, those of its run included (the run's stop() aborts it too)
   const controller = new AbortController();
   const net = network(controller, options.stallTimeout);
+  checkStops(options);
   const onAbort = () => controller.abort(signal.reason);
   signal?.addEventListener('abort', onAbort, { once: true });
   const baseFetch = options.fetch ?? globalThis.fetch.bind(globalThis);

@@ -275,6 +275,24 @@ test('stallTimeout defaults to 30 s, 0 waits for ever (until stop()), and anythi
   }
 });
 
+test('byteBudget and maxGeometricError other than a number >= 0 are a RangeError before anything is fetched, by either way in', async () => {
+  const requests = [];
+  const fetch = (url, init) => { requests.push(url); return globalThis.fetch(url, init); };
+  const bad = [{ byteBudget: 'abc' }, { byteBudget: NaN }, { byteBudget: -1 }, { byteBudget: '4000' }, { byteBudget: null },
+    { maxGeometricError: 'x' }, { maxGeometricError: NaN }, { maxGeometricError: -0.5 }];
+  for (const stops of bad) {
+    await assert.rejects(loadProgressive(new GLTFLoader(), servers.ranges.url + NAME, { ...stops, fetch }), RangeError, JSON.stringify(stops));
+    const loader = new GLTFLoader();
+    loader.register((parser) => new PMWMProgressivePlugin(parser, { url: servers.ranges.url + NAME, ...stops, fetch }));
+    await assert.rejects(loader.parseAsync(baseGlb(bytes.subarray(0, baseEnd)).buffer, ''), RangeError, JSON.stringify(stops));
+  }
+  assert.deepEqual(requests, []);
+  for (const stops of [{ byteBudget: 0 }, { byteBudget: Infinity }, { maxGeometricError: 0 }, { maxGeometricError: Infinity }]) {
+    const gltf = await loadProgressive(new GLTFLoader(), servers.ranges.url + NAME, stops);
+    assert.ok((await gltf.userData.pmwm.done).chunksApplied >= 0);
+  }
+});
+
 test('a callback that throws is reported (onCallbackError) and the load goes on to the full mesh', async () => {
   const full = await decodePmw(bytes);
   for (const kind of ['ranges', 'plain']) {
