@@ -287,9 +287,11 @@ test('byteBudget and maxGeometricError other than a number >= 0 are a RangeError
     await assert.rejects(loader.parseAsync(baseGlb(bytes.subarray(0, baseEnd)).buffer, ''), RangeError, JSON.stringify(stops));
   }
   assert.deepEqual(requests, []);
-  for (const stops of [{ byteBudget: 0 }, { byteBudget: Infinity }, { maxGeometricError: 0 }, { maxGeometricError: Infinity }]) {
+  // the edges are valid stops: 0 bytes gives the base, Infinity every chunk; an error of Infinity is met by chunk 1, 0 by the last
+  for (const [stops, applied] of [[{ byteBudget: 0 }, 0], [{ byteBudget: Infinity }, K], [{ maxGeometricError: Infinity }, 1],
+    [{ maxGeometricError: 0 }, K]]) {
     const gltf = await loadProgressive(new GLTFLoader(), servers.ranges.url + NAME, stops);
-    assert.ok((await gltf.userData.pmwm.done).chunksApplied >= 0);
+    assert.equal((await gltf.userData.pmwm.done).chunksApplied, applied, JSON.stringify(stops));
   }
 });
 
