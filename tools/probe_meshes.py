@@ -485,11 +485,11 @@ def read_obj(path: str):
     return positions, faces
 
 
-def snapped_faces(rows: np.ndarray, missing: list, extra: list, limit: int = 4096) -> bool:
+def snapped_faces(rows: np.ndarray, missing: list, extra: list, limit: int = 512) -> bool:
     """Whether the input faces ``missing`` and the decoded faces ``extra`` (triples of ids into the grid
     ``rows`` (r, 3) int64) pair up one to one, each pair's corners (same orientation, any rotation)
     at most one grid step apart on every axis: the faces of near-copies the encoder put on one grid
-    point.  False beyond ``limit`` faces (not checked)."""
+    point.  False beyond ``limit`` faces (not checked: the pairing is quadratic)."""
     if len(missing) > limit:
         return False
     left = [rows[list(t)] for t in extra]
