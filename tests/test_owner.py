@@ -102,6 +102,40 @@ def test_shell_score_is_zero_at_shell_edges_and_peaks_at_a_quarter_and_three_qua
     assert np.all(np.abs(owner.g_of_t(np.linspace(0, 1, 1001))) <= 1 + 1e-12)
 
 
+def test_the_search_statistic_is_the_shell_score_to_within_a_billionth():
+    """The frame search's polynomial g agrees with -sin(2 pi t) everywhere in [0, 1), edges and folds included."""
+    t = np.concatenate([np.linspace(0.0, 1.0, 200001)[:-1], [0.25, 0.5, 0.75, np.nextafter(1.0, 0.0), 1e-300]])
+    assert np.abs(owner._g_poly(t) - owner.g_of_t(t)).max() < 1e-9
+
+
+@pytest.mark.parametrize("use", [False, True], ids=["numpy", "compiled"])
+def test_the_frame_search_objective_is_the_same_bits_compiled_and_in_numpy(use, monkeypatch):
+    """sum_k |S_k| of many frame offsets, on strided views as the coarse search takes them: the compiled loop
+    and the numpy path agree bit for bit, and both agree with the objective taken with numpy's sine."""
+    from pmwm_codec.progressive import topology
+
+    if use and not topology.USE_NUMBA:
+        pytest.skip("numba is not installed")
+    rng = np.random.default_rng(11)
+    d = rng.normal(size=(30000, 3))
+    rho = np.linalg.norm(d, axis=1) + rng.random(30000)
+    n = d / np.linalg.norm(d, axis=1)[:, None]
+    lo, width = float(rho.min()) + 0.1, float(rho.max() - rho.min()) / (owner.BINS + 2)
+    offsets = rng.uniform(-0.4, 0.4, (40, 5))
+    values = []
+    for flag in (False, use):
+        monkeypatch.setattr(topology, "USE_NUMBA", flag)
+        values.append([owner._search_objective(n[::m], rho[::m], lo, width, x) for m, x in zip([1, 3] * 20, offsets)])
+    assert values[0] == values[1]
+    for (m, x), value in zip(zip([1, 3] * 20, offsets), values[0]):
+        u = (rho[::m] - n[::m] @ (x[:3] * width) - lo - x[3] * width) / (width * (1.0 + (x[4] - x[3]) / owner.BINS))
+        u = u[(u >= 0.0) & (u < owner.BINS)]
+        s = u.astype(np.int64)
+        tot = np.bincount(s, weights=owner.g_of_t(u - s), minlength=owner.BINS)
+        assert value == pytest.approx(np.abs(tot / np.maximum(np.bincount(s, minlength=owner.BINS), 1)).sum(),
+                                      rel=1e-9)
+
+
 def test_embedding_flow_keeps_every_vertex_in_its_shell_and_in_order():
     """The flow's profile is 0 and flat at both edges, so each tabled flow maps [0, 1] onto itself, increasing."""
     assert owner._h_of_t(np.array([0.0, 1.0])) == pytest.approx([0.0, 0.0])
