@@ -879,6 +879,23 @@ def test_the_areas_of_every_un_smoothed_view_come_from_three_cross_products(blob
         assert np.allclose(areas(a), direct, rtol=1e-12, atol=1e-15 * direct.max())
 
 
+def test_the_un_smoothed_views_areas_are_the_same_bits_compiled_and_in_numpy(blob, monkeypatch):
+    from pmwm_codec.progressive import topology
+
+    if not topology.USE_NUMBA:
+        pytest.skip("numba is not installed")
+    points, inverse = owner._distinct_index(blob.positions)
+    faces = inverse[blob.faces]
+    u = owner._umbrella(points, faces)
+    got = []
+    for use in (False, True):
+        monkeypatch.setattr(topology, "USE_NUMBA", use)
+        areas = owner._view_areas(points, u, faces)
+        got.append([areas(a) for a in (0.0, 0.3, 1.7, 4.0)])
+    for plain, fast in zip(*got):
+        assert np.array_equal(plain, fast)
+
+
 @pytest.mark.parametrize("iterations", [10, 30])
 def test_a_smoothed_mesh_reads_present_through_one_step_back(blob, marked, monkeypatch, iterations):
     """Laplacian smoothing shrinks the surface unevenly by tenths of a shell: read as it is, the marked mesh
