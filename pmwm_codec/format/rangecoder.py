@@ -360,7 +360,10 @@ class Decoder:
     """Decoding state over ``payload`` (bytes-like) with the probability table ``probs`` (updated in place)."""
 
     def __init__(self, payload, probs: np.ndarray):
-        self.buf = np.frombuffer(bytes(payload), np.uint8)
+        # a writable copy (as ``bytes(payload)`` copied before): the compiled kernels that decode take the same
+        # array type as the ones that code, so numba compiles each of them once, not once per mode (a readonly
+        # array is another type: the first encode and decode on a machine compiled the payload kernels twice)
+        self.buf = np.frombuffer(bytearray(payload), np.uint8)
         head = self.buf[:4].tolist() + [0] * max(0, 4 - len(self.buf))
         code = int.from_bytes(bytes(head), "big")
         self.ds = np.array([MASK32, code, 4, 1 if len(self.buf) < 4 else 0], np.int64)

@@ -500,9 +500,9 @@ def _split_symbols(lo, hi, vv, a, b, P, sym, fan, work, epoch, lens, scores, arc
         r = rc.dec_uint(ds, buf, probs, rank_ctx)
         if r < 0 or r >= ncand:
             return -1
-        s = _arc_rank(fan, d, kind == 1, L, 0, a, vv, P, lens, scores, r)
+        s = _arc_rank(fan, d, kind == 1, L, np.int64(0), a, vv, P, lens, scores, r)
     else:
-        rc.enc_uint(es, out, probs, rank_ctx, _arc_rank(fan, d, kind == 1, L, s, a, vv, P, lens, scores, -1))
+        rc.enc_uint(es, out, probs, rank_ctx, _arc_rank(fan, d, kind == 1, L, s, a, vv, P, lens, scores, np.int64(-1)))
     if kind == 1:
         left, right = 1, 1
     else:

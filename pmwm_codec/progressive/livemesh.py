@@ -209,7 +209,8 @@ def _edges_by_vertex(F, n, vf_start, vf_corner, ring):
     for x in range(n):
         wmax = max(wmax, vf_start[x + 1] - vf_start[x])
     buf = np.empty(2 * wmax, np.int64)
-    x, ne = _vertex_edges(0, 0, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0, he1, down, boundary, flags)
+    zero = np.int64(0)  # not a literal (see :func:`~.topology.kernel_helper`)
+    x, ne = _vertex_edges(zero, zero, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0, he1, down, boundary, flags)
     while x < n:  # more boundary or non-manifold edges than that: grow (outside the vertex loop, which stays fast)
         cap = min(h, max(cap + cap // 2, ne + 2 * wmax))
         lo, hi, count = _grown(lo, cap, ne), _grown(hi, cap, ne), _grown(count, cap, ne)

@@ -1282,7 +1282,7 @@ def _legal_kernel(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_st
     marks the vertices on an edge with more than two faces (:func:`_fin_vertices`), ``twin_edge`` (e,)
     bool the pillows' edges (:func:`_twin_counts`)."""
     return _legal_marked(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_start, vv_nbr, vf_start, vf_face,
-                         fin, twin_edge, np.full(len(fcount), -1, np.int64), 0)
+                         fin, twin_edge, np.full(len(fcount), -1, np.int64), np.int64(0))
 
 
 @kernel_helper(allocates=True)
