@@ -39,6 +39,30 @@ def build_parser():
     return parser
 
 
+def _explain_first_compile() -> None:
+    """At a terminal, say why a machine's first runs are slow, once, when a kernel first compiles (numba's
+    disk cache has none yet: about a minute for the first encode, not again)."""
+    import sys
+
+    from .common import _isatty, notice
+
+    if not _isatty(sys.stderr):
+        return
+    from pmwm_codec.progressive.topology import on_first_compile
+
+    def say():
+        sys.stderr.write("\r")  # over a progress bar's line, if one is drawn (the note is longer)
+        notice(FIRST_COMPILE)
+        sys.stderr.flush()
+
+    on_first_compile(say)
+
+
+#: The note :func:`_explain_first_compile` writes.
+FIRST_COMPILE = ("compiling the numba kernels for this machine (once: up to a minute or two; later runs load them "
+                 "from numba's cache)")
+
+
 def main(argv=None) -> int:
     """Run ``pmw`` with ``argv`` (default ``sys.argv[1:]``); returns the exit status."""
     noted: list = []
@@ -60,6 +84,7 @@ def main(argv=None) -> int:
             from pmwm_codec.progressive.topology import one_shot_process
 
             one_shot_process()
+            _explain_first_compile()
         return run_command(args)
     except Exception as exc:  # noqa: BLE001 - only when a Ctrl-C came while the modules loaded; else raised again
         if not noted:

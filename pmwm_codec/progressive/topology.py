@@ -126,6 +126,40 @@ def _load_numba():
         for g, name, fn, flags in _HELPERS:
             g[name] = _COMPILED.setdefault(fn, _jit(fn, **flags))
         prefetch = _prefetch_intrinsic()
+        if _first_compile:
+            _listen_for_compiles()
+
+
+_first_compile: list = []  # callbacks of :func:`on_first_compile` not called yet
+
+
+def on_first_compile(callback) -> None:
+    """Call ``callback()`` (no arguments) once, when a kernel first compiles in this process, i.e. is not
+    found in numba's disk cache: on a machine's first runs (the first encode compiles for about a minute);
+    never when numba is absent or every kernel loads from the cache.  The command line tells a user at a
+    terminal why it is slow (:func:`pmwm_codec.cli.main`)."""
+    _first_compile.append(callback)
+    if _numba is not None and len(_first_compile) == 1:
+        _listen_for_compiles()
+
+
+def _listen_for_compiles() -> None:
+    """Register a listener for numba's ``numba:compile`` event (numba's event API: it starts only on a
+    cache miss) that calls the :func:`on_first_compile` callbacks at the first one (afterwards it has
+    none to call)."""
+    from numba.core import event
+
+    class FirstCompile(event.Listener):
+        def on_start(self, ev):
+            callbacks = list(_first_compile)
+            _first_compile.clear()
+            for callback in callbacks:
+                callback()
+
+        def on_end(self, ev):
+            pass
+
+    event.register("numba:compile", FirstCompile())
 
 
 def prefetch(array, i):
