@@ -20,17 +20,26 @@ const XXH64_EMPTY_LOW32 = 0x51d8e999;
 let blake = null;
 let zstd = null;
 
-/** Loads the BLAKE2b and zstd WebAssembly modules once (async: browsers compile wasm asynchronously). */
-export async function initChunkFrames() {
-  if (blake && zstd) return;
-  const decoder = new ZSTDDecoder();
-  const [hasher] = await Promise.all([createBLAKE2b(128), decoder.init()]);
+/**
+ * Loads the BLAKE2b and (unless `zstd` is false) the zstd WebAssembly modules once (async: browsers
+ * compile wasm asynchronously). Only payload version 1 chunks are zstd frames: a stream of version 2
+ * chunks only needs BLAKE2b, and skipping zstd takes its load off a first decode (in Node, zstddec
+ * fetches its embedded module as a data: URL, which loads Node's fetch implementation first:
+ * about 40 ms of a cold process's decode of the Stanford bunny, more than its BLAKE2b and Draco).
+ * @param {{zstd?: boolean}} [options]
+ */
+export async function initChunkFrames({ zstd: withZstd = true } = {}) {
+  if (blake && (zstd || !withZstd)) return;
+  const decoder = withZstd && !zstd ? new ZSTDDecoder() : null;
+  const [hasher] = await Promise.all([blake ?? createBLAKE2b(128), decoder?.init()]);
   blake ??= hasher;
   zstd ??= decoder;
 }
 
-function ready() {
-  if (blake === null || zstd === null) throw new Error('initChunkFrames() was not awaited');
+function ready(needZstd = false) {
+  if (blake === null || (needZstd && zstd === null)) {
+    throw new Error(`initChunkFrames(${needZstd ? '' : '{zstd: false}'}) was not awaited`);
+  }
 }
 
 /** True when BLAKE2b-128 of `stored` equals the 32-digit lowercase hex `digest`, or begins with the
@@ -127,7 +136,7 @@ export function openChunk(stored, chunk, index) {
  * @returns {Uint8Array} a fresh array, not a view of the WebAssembly memory
  */
 export function inflate(frame, contentSize, what) {
-  ready();
+  ready(true);
   const out = zstd.decode(frame, contentSize);
   // zstddec returns the bytes ZSTD_decompress wrote: none (an error code) unless the frame decoded
   // and its checksum matched

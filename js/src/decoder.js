@@ -127,7 +127,8 @@ export class PmwDecoder {
         this.overflow = true;
       }
       this.plan = planDocument(this.header.gltf, this.header.binLength);
-      await initChunkFrames();
+      // zstd only for payload version 1 chunks (a version 2 stream's first decode does not load it)
+      await initChunkFrames({ zstd: this.plan.stream.some((c) => c.payloadVersion !== 2) });
     }
     const { binStart } = this.header;
     const bin = () => this.buf.subarray(binStart, this.received);
