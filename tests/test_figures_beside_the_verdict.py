@@ -75,5 +75,10 @@ def test_an_authentic_file_and_a_damaged_image_have_no_note(two_tone):
     path, key = two_tone
     assert verify_stream(path, key).image_note() is None  # authentic: the match is the verdict's
     assert verify_stream(path, key).as_json()["image_note"] is None
-    v = verify_mesh(_moved(path, 40), path, key)
-    assert v.verdict == "tampered" and not v.bit_exact and v.image_note is None  # the figures show the damage
+    # the key is new each run: 40 moved vertices damage the image read for most keys, and for some the other
+    # copies of every damaged bit outvote it (bit-exact, and then the note is due: the test above); the first
+    # of a few moves that damages it is taken (one fixed move failed for about one key in three)
+    found = (verify_mesh(_moved(path, 40, s), path, key) for s in range(20))
+    v = next((v for v in found if not v.bit_exact), None)
+    assert v is not None
+    assert v.verdict == "tampered" and v.image_note is None  # the figures show the damage
