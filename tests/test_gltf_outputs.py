@@ -81,7 +81,7 @@ def test_decoded_levels_of_an_unsigned_int_feature_id_input_are_validator_clean(
 
 
 def _mixed_asset(path):
-    """A skinned sphere (JOINTS_0 / WEIGHTS_0, passed through), a torus with normalized UNSIGNED_BYTE colours
+    """A skinned sphere (JOINTS_0 / WEIGHTS_0, made progressive), a torus with normalized UNSIGNED_BYTE colours
     and UNSIGNED_SHORT feature ids (made progressive) and a torus with a morph target (passed through)."""
     from pmwm_codec import shapes
     from test_asset import DocBuilder

@@ -84,7 +84,7 @@ export async function decodeBase(bin, prim, draco) {
   } else {
     positions = readAccessor(bin, base.plain.position);
     indices = readAccessor(bin, base.plain.indices);
-    attributes = base.plain.attributes.map((plan) => readAccessor(bin, plan));
+    attributes = base.plain.attributes.map((plan) => readAccessor(bin, plan, true));
   }
   const n = positions.length / 3;
   const D = 3 + base.grids.reduce((s, g) => s + g.origin.length, 0);

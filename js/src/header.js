@@ -382,6 +382,10 @@ export function baseVertexCount(gltf, prim, ext, what) {
 const POSITION = { types: { [FLOAT]: 4 }, components: 3, max: MAX_VERTICES };
 const INDICES = { types: INDEX_TYPES, components: 1, max: 3 * MAX_FACES };
 
+/** Element sizes of the integer componentTypes a plain base may store a progressive attribute with: the one its
+ * `componentType` names (UNSIGNED_INT, 5125, is stored as FLOAT; spec/README.md, attributes). */
+const STORED_INTEGER_SIZES = { 5120: 1, 5121: 1, 5122: 2, 5123: 2 };
+
 /** The base mesh plan of one primitive: Draco bufferView or plain accessors, and its attribute grids. */
 function basePlan(gltf, prim, ext, bufferLength, what) {
   const attributes = given(ext.attributes, []);
@@ -408,8 +412,18 @@ function basePlan(gltf, prim, ext, bufferLength, what) {
   }
   const position = accessorPlan(gltf, prim.attributes.POSITION, bufferLength, `${what} POSITION`, POSITION);
   const indices = accessorPlan(gltf, prim.indices, bufferLength, `${what} indices`, INDICES);
-  const attrs = grids.map((g) => accessorPlan(gltf, prim.attributes[g.semantic], bufferLength, `${what} ${g.semantic}`,
-    { types: { [FLOAT]: 4 }, components: g.origin.length, max: MAX_VERTICES }));
+  const attrs = grids.map((g, i) => {
+    // FLOAT, or the integer componentType the attribute names (spec/README.md, attributes: JOINTS_n)
+    const named = STORED_INTEGER_SIZES[attributes[i].componentType];
+    const types = named ? { [FLOAT]: 4, [attributes[i].componentType]: named } : { [FLOAT]: 4 };
+    const where = `${what} ${g.semantic}`;
+    const plan = accessorPlan(gltf, prim.attributes[g.semantic], bufferLength, where,
+      { types, components: g.origin.length, max: MAX_VERTICES });
+    if (plan.componentType !== FLOAT && gltf.accessors[prim.attributes[g.semantic]].normalized === true) {
+      throw new FormatError(`${where}: an integer base attribute must not be normalized`);
+    }
+    return plan;
+  });
   const views = [position, indices, ...attrs].map((a) => a.view);
   return { plain: { position, indices, attributes: attrs }, grids, views };
 }
@@ -513,19 +527,22 @@ export function planDocument(gltf, binLength) {
   return { primitives, stream, baseEnd };
 }
 
-/** Reads an accessor into a new typed array: Float32Array (count*k) or Uint32Array for indices. */
-export function readAccessor(bin, plan) {
+/** DataView getter and element size of each componentType. */
+const READERS = { 5120: ['getInt8', 1], 5121: ['getUint8', 1], 5122: ['getInt16', 2], 5123: ['getUint16', 2],
+  5125: ['getUint32', 4], [FLOAT]: ['getFloat32', 4] };
+
+/**
+ * Reads an accessor into a new typed array (count*k): Float32Array for FLOAT and for a vertex attribute's
+ * integers (`attribute` true: their values, exact), Uint32Array for indices.
+ */
+export function readAccessor(bin, plan, attribute = false) {
   const { count, components: k, stride, componentType } = plan;
   const start = plan.view.offset + plan.offset;
   const dv = new DataView(bin.buffer, bin.byteOffset + start, Math.max(0, bin.byteLength - start));
-  const out = componentType === FLOAT ? new Float32Array(count * k) : new Uint32Array(count * k);
-  const size = componentType === 5123 ? 2 : 4;
+  const out = componentType === FLOAT || attribute ? new Float32Array(count * k) : new Uint32Array(count * k);
+  const [get, size] = READERS[componentType];
   for (let i = 0; i < count; i++) {
-    for (let c = 0; c < k; c++) {
-      const at = i * stride + c * size;
-      out[i * k + c] = componentType === FLOAT ? dv.getFloat32(at, true)
-        : componentType === 5125 ? dv.getUint32(at, true) : dv.getUint16(at, true);
-    }
+    for (let c = 0; c < k; c++) out[i * k + c] = dv[get](i * stride + c * size, true);
   }
   return out;
 }

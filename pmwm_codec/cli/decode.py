@@ -70,6 +70,7 @@ def run(args) -> int:
                     plain, source = True, as_source(args.input, args.chunks, whole_document=True)
                 else:
                     mesh, why = scene_as_shown(gltf, last)
+                    notices += posed_notes(gltf)  # a progressive skinned mesh
             if plain:
                 glb, end, decoder = decode_asset(source, chunks=args.chunks)
                 doc, bin_chunk = split_glb(glb, "the decoded asset")

@@ -44,6 +44,7 @@ from ..progressive.grid import AttributeGrid, Grid
 from ..progressive.topology import same_face_set
 from .gltf import (
     ARRAY_BUFFER,
+    COMPONENT_DTYPES,
     DRACO_EXTENSION,
     BufferBuilder,
     ELEMENT_ARRAY_BUFFER,
@@ -511,15 +512,26 @@ def decode_base_attributes(gltf: dict, bin_data, primitive: dict, attributes) ->
         grid = AttributeGrid.from_config(spec)
         acc = item(gltf.get("accessors"), primitive["attributes"][semantic], "base mesh: accessor")
         width = VECTOR_WIDTH.get(acc.get("type"))
-        if acc.get("componentType") != FLOAT or width is None or width != grid.width:
-            raise FormatError(f"base mesh: {semantic} must be a FLOAT accessor with {grid.width} components")
+        ctype = acc.get("componentType")
+        if ctype not in {FLOAT, stored_type(spec)} or acc.get("normalized") or width is None or width != grid.width:
+            named = "" if stored_type(spec) == FLOAT else f" or a componentType {stored_type(spec)} one"
+            raise FormatError(f"base mesh: {semantic} must be a FLOAT accessor{named} with {grid.width} components")
         if uint(acc, "count", f"base mesh: {semantic} accessor") != n:
             raise FormatError(f"base mesh: {semantic} has {acc.get('count')} values for {n} vertices")
-        values = accessor_array(gltf, acc, bin_data, "<f4", n, width, f"base mesh: {semantic}")
-        columns.append(grid.from_float32(values, semantic))
+        values = accessor_array(gltf, acc, bin_data, COMPONENT_DTYPES[ctype], n, width, f"base mesh: {semantic}")
+        columns.append(grid.from_float32(values.astype(np.float32), semantic))  # integers: below 2^24, exact
     if not columns:
         return np.zeros((n, 0), dtype=np.int64)
     return np.concatenate(columns, axis=1)
+
+
+def stored_type(spec: dict) -> int:
+    """The componentType a plain base stores the progressive attribute ``spec`` (an extension ``attributes``
+    entry) with: the integer componentType it names (its exact integers: ``JOINTS_n`` must be UNSIGNED_BYTE or
+    UNSIGNED_SHORT for a viewer to skin with the base), FLOAT for UNSIGNED_INT (which glTF allows for indices
+    only) and for every other attribute.  A reader takes FLOAT too (files written before integer bases)."""
+    ctype = spec.get("componentType")
+    return FLOAT if ctype is None or ctype == UNSIGNED_INT else int(ctype)
 
 
 def with_attributes(base: EncodedBase, attributes) -> EncodedBase:
@@ -537,6 +549,8 @@ def with_attributes(base: EncodedBase, attributes) -> EncodedBase:
     out = BufferBuilder(views, accessors, [base.data], len(base.data))
     for spec, ints in attributes:
         stored = AttributeGrid.from_config(spec).to_float32(ints).astype("<f4")
-        primitive["attributes"][spec["semantic"]] = out.add_accessor(stored, FLOAT, ARRAY_BUFFER)
+        ctype = stored_type(spec)
+        primitive["attributes"][spec["semantic"]] = (out.add_accessor(stored, FLOAT, ARRAY_BUFFER) if ctype == FLOAT
+                                                     else out.add_vertex_integers(stored, ctype, ARRAY_BUFFER))
     return replace(base, data=b"".join(out.parts), buffer_views=views, accessors=accessors, primitive=primitive)
 

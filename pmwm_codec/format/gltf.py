@@ -430,6 +430,23 @@ class BufferBuilder:
         self.accessors.append(acc)
         return len(self.accessors) - 1
 
+    def add_vertex_integers(self, values: np.ndarray, component_type: int, target: int | None = None) -> int:
+        """Append integer vertex values ((n, k) holding whole numbers, any dtype) as an accessor of
+        ``component_type`` (not normalized), each element padded to 4 bytes (glTF 2.0 3.6.2.4: a vertex
+        attribute's elements start on 4-byte boundaries) with the view's ``byteStride``.  Returns its index."""
+        dtype = np.dtype(COMPONENT_DTYPES[component_type])
+        ints = np.rint(np.asarray(values, np.float64)).astype(dtype).reshape(len(values), -1)
+        item = ints.shape[1] * dtype.itemsize
+        stride = padded(item)
+        rows = np.zeros((len(ints), stride), np.uint8)
+        rows[:, :item] = ints.view(np.uint8).reshape(len(ints), item)
+        view = self.add_view(rows.tobytes(), target)
+        if stride != item:
+            self.views[view]["byteStride"] = stride
+        self.accessors.append({"bufferView": view, "componentType": component_type, "count": len(ints),
+                               "type": "SCALAR" if ints.shape[1] == 1 else f"VEC{ints.shape[1]}"})
+        return len(self.accessors) - 1
+
 
 def check_finite_numbers(gltf: dict, name: str, error) -> None:
     """Refuse (``error`` naming the member, e.g. ``accessors[3].min[0]``) a NaN or infinite number

@@ -8,11 +8,12 @@ animations, ``extras`` and extensions it does not know.
 
 Eligible: ``mode`` TRIANGLES, TRIANGLE_STRIP or TRIANGLE_FAN (a strip or fan becomes the list of
 triangles it draws, :func:`~pmwm_codec.format.gltf.triangle_list`, its restarts dropped; the ``.pmw``
-stores TRIANGLES), a POSITION, no morph ``targets``, no ``JOINTS_n`` /
-``WEIGHTS_n`` (skinned).  Draco-compressed input primitives are decoded first
+stores TRIANGLES), a POSITION, no morph ``targets``.  Draco-compressed input primitives are decoded first
 (attributes looked up by their Draco unique ids).  Any other primitive
-(points, lines, morphs, skins; triangles that are all degenerate) passes
-through untouched, with a notice.  Invalid data is never passed through: an
+(points, lines, morphs; triangles that are all degenerate) passes
+through untouched, with a notice.  A skinned primitive is made progressive like any other: its
+``JOINTS_n`` ride as exact integers (written back with their componentType, in the base too) and its
+``WEIGHTS_n`` on a grid as fine as float32 carries them, so that every level's weights still sum to 1.  Invalid data is never passed through: an
 eligible primitive goes through :func:`~pmwm_codec.mesh.checked_mesh` as a mesh
 file does, and a face index out of range or a NaN position refuses the asset
 with an error naming the primitive.
@@ -89,7 +90,6 @@ from .decoder import StreamDecoder
 from .encoder import EncodeReport, PrimitiveJob, encode_document
 from .encoder import FLOAT32_EXACT_INTEGERS, SCENE_TOLERANCE
 from ..format.gltf import COMPONENT_DTYPES
-from ..format.layout import padded
 
 ASSET_SUFFIXES = (".glb", ".gltf")
 
@@ -112,7 +112,7 @@ def plan_asset(gltf: dict, buffers, name: str | None = None) -> tuple:
     Returns ``(jobs: list[PrimitiveJob], drop_accessors: set, notices: list[str])``.
 
     A primitive that is valid but not made progressive (points, lines, strips,
-    morphs, skins, triangles that are all degenerate, Draco data with attributes
+    morphs, triangles that are all degenerate, Draco data with attributes
     outside the Draco stream) passes through with a notice.  A triangle primitive
     whose data is invalid (face index out of range, NaN/inf positions, an index
     count that is not a multiple of 3, an accessor that cannot be read, Draco data
@@ -209,8 +209,6 @@ def _why_not(prim: dict):
         return "no POSITION"
     if prim.get("targets"):
         return "morph targets are not made progressive"
-    if any(k.startswith(("JOINTS_", "WEIGHTS_")) for k in attrs):
-        return "skinned primitives are not made progressive"
     return None
 
 
@@ -508,7 +506,7 @@ def decode_asset(src, chunks=None):
 def plain_triangle_primitives(gltf: dict | None) -> list:
     """``[(mesh index, primitive index)]`` of the primitives of ``gltf`` (a ``.pmw``'s document) that are
     drawn as triangles (TRIANGLES, TRIANGLE_STRIP, TRIANGLE_FAN) but not progressive: geometry the asset
-    shows that the stream does not carry (the encoder passes such primitives through: morphs, skins,
+    shows that the stream does not carry (the encoder passes such primitives through: morphs,
     strips, or any added later).  Only meshes the scene shows count (every mesh without nodes)."""
     if not gltf:
         return []
@@ -526,14 +524,16 @@ def plain_triangle_primitives(gltf: dict | None) -> list:
 
 
 def posed_notes(gltf: dict | None) -> list:
-    """Notes for an OBJ / PLY / STL of the scene: the non-progressive triangle meshes it shows skinned or
-    with morph weights, which such a file holds at their stored positions (the bind pose, no morph), placed
-    by their nodes, while a glTF viewer poses them (:func:`plain_triangle_primitives`)."""
+    """Notes for an OBJ / PLY / STL of the scene: the triangle meshes it shows skinned (progressive or not) or
+    with morph weights (non-progressive, :func:`plain_triangle_primitives`), which such a file holds at their
+    stored positions (the bind pose, no morph), placed by their nodes, while a glTF viewer poses them."""
     if not gltf:
         return []
     skinned = {n.get("mesh") for n in gltf.get("nodes", []) if isinstance(n, dict) and "skin" in n}
+    shown = set(placements_by_mesh(gltf)) if gltf.get("nodes") else None
+    progressive = {mi for mi, _, _ in find_extension_primitives(gltf, EXTENSION_NAME) if shown is None or mi in shown}
     notes = []
-    for mi in sorted({mi for mi, _ in plain_triangle_primitives(gltf)}):
+    for mi in sorted({mi for mi, _ in plain_triangle_primitives(gltf)} | progressive):
         mesh = gltf["meshes"][mi]
         weights = mesh.get("weights") if isinstance(mesh.get("weights"), list) else []
         if mi in skinned:
@@ -703,7 +703,7 @@ def _write_level(prim: dict, part, out: BufferBuilder, names: dict | None = None
     for semantic, values in part.attribute_values().items():
         values = values.astype(np.float32)
         if types.get(semantic) is not None:
-            attributes[semantic] = _add_vertex_integers(out, values, types[semantic])
+            attributes[semantic] = out.add_vertex_integers(values, types[semantic], ARRAY_BUFFER)
             continue
         if semantic in RENORMALIZED:
             values = _renormalized(values)
@@ -715,24 +715,6 @@ def _write_level(prim: dict, part, out: BufferBuilder, names: dict | None = None
         index = prim["indices"] if what == "indices" else attributes.get(what)
         if index is not None:
             out.accessors[index]["name"] = name
-
-
-def _add_vertex_integers(out: BufferBuilder, values: np.ndarray, component_type: int) -> int:
-    """Append integer vertex values ((n, k) float32 holding whole numbers) as an accessor of
-    ``component_type`` (not normalized); each element padded to 4 bytes (glTF 2.0 3.6.2.4: a vertex
-    attribute's elements start on 4-byte boundaries) with the view's ``byteStride``.  Returns its index."""
-    dtype = np.dtype(COMPONENT_DTYPES[component_type])
-    ints = np.rint(values.astype(np.float64)).astype(dtype).reshape(len(values), -1)
-    item = ints.shape[1] * dtype.itemsize
-    stride = padded(item)
-    rows = np.zeros((len(ints), stride), np.uint8)
-    rows[:, :item] = ints.view(np.uint8).reshape(len(ints), item)
-    view = out.add_view(rows.tobytes(), ARRAY_BUFFER)
-    if stride != item:
-        out.views[view]["byteStride"] = stride
-    out.accessors.append({"bufferView": view, "componentType": component_type, "count": len(ints),
-                          "type": "SCALAR" if ints.shape[1] == 1 else f"VEC{ints.shape[1]}"})
-    return len(out.accessors) - 1
 
 
 def _renormalized(values: np.ndarray) -> np.ndarray:
