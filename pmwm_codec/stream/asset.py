@@ -13,7 +13,8 @@ stores TRIANGLES), a POSITION, no morph ``targets``.  Draco-compressed input pri
 (points, lines, morphs; triangles that are all degenerate) passes
 through untouched, with a notice.  A skinned primitive is made progressive like any other: its
 ``JOINTS_n`` ride as exact integers (written back with their componentType, in the base too) and its
-``WEIGHTS_n`` on a grid as fine as float32 carries them, so that every level's weights still sum to 1.  Invalid data is never passed through: an
+``WEIGHTS_n`` on the grid of step 2^-24 from 0, so that every level's weights still sum to 1
+(:func:`~pmwm_codec.stream.encoder._attribute_grid`).  Invalid data is never passed through: an
 eligible primitive goes through :func:`~pmwm_codec.mesh.checked_mesh` as a mesh
 file does, and a face index out of range or a NaN position refuses the asset
 with an error naming the primitive.
