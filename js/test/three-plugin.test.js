@@ -297,6 +297,46 @@ test('a progressive mesh the scene leaves out is decoded in order, and each show
     }
   });
 
+test('a skinned primitive streams into a SkinnedMesh: every level\'s skin indices are whole and its weights sum to 1, '
+  + 'the full level\'s are the decoder\'s', { skip: python() ? false : 'no Python that imports pmwm_codec (set PYTHON)' },
+async () => {
+  const dir = fs.mkdtempSync(path.join(os.tmpdir(), 'pmwm-three-'));
+  try {
+    encodeCase('skinned.plain', 2, path.join(dir, 'skinned.pmw')); // JOINTS_0 UNSIGNED_BYTE (in the base too), WEIGHTS_0
+    const data = new Uint8Array(fs.readFileSync(path.join(dir, 'skinned.pmw')));
+    const full = await decodePmw(data);
+    await serving({ 'skinned.pmw': data }, async (server) => {
+      let scene = null; // the base's scene, before any chunk
+      const loader = new GLTFLoader();
+      loader.register(() => ({ name: 'scene', afterRoot: (result) => { scene = result.scene; } }));
+      const checked = [];
+      const check = () => { // the level shown now: indices 0 or 1 (the two joints), weights summing to 1
+        const g = theMesh({ scene }).geometry;
+        const n = g.userData.pmwmLevel.vertices;
+        const joints = g.getAttribute('skinIndex').array.subarray(0, 4 * n);
+        const weights = g.getAttribute('skinWeight').array.subarray(0, 4 * n);
+        assert.ok(joints.every((j) => j === 0 || j === 1), `level of ${n} vertices: skin indices`);
+        for (let i = 0; i < n; i++) {
+          const sum = weights[4 * i] + weights[4 * i + 1] + weights[4 * i + 2] + weights[4 * i + 3];
+          assert.ok(Math.abs(sum - 1) < 3e-7, `level of ${n} vertices: vertex ${i}'s weights sum to ${sum}`);
+        }
+        checked.push(n);
+      };
+      const gltf = await loadProgressive(loader, `${server.url}skinned.pmw`, { onChunk: () => check() });
+      const mesh = theMesh(gltf);
+      assert.ok(mesh.isSkinnedMesh, 'a SkinnedMesh');
+      assert.equal((await gltf.userData.pmwm.done).complete, true);
+      const n = full.positions.length / 3;
+      assert.equal(mesh.geometry.userData.pmwmLevel.vertices, n);
+      assert.deepEqual(mesh.geometry.getAttribute('skinIndex').array.subarray(0, 4 * n), full.parts[0].attributes.JOINTS_0);
+      assert.deepEqual(mesh.geometry.getAttribute('skinWeight').array.subarray(0, 4 * n), full.parts[0].attributes.WEIGHTS_0);
+      assert.ok(checked.length >= 2 && checked.at(-1) === n, `levels checked: ${checked}`);
+    });
+  } finally {
+    fs.rmSync(dir, { recursive: true, force: true });
+  }
+});
+
 test('a level rewrites only the geometry of the primitive its chunk refines: the others are neither copied nor uploaded again',
   { skip: python() ? false : 'no Python that imports pmwm_codec (set PYTHON)' }, async () => {
     const dir = fs.mkdtempSync(path.join(os.tmpdir(), 'pmwm-three-'));

@@ -130,7 +130,30 @@ SCENES = {
 }
 
 
+def _skinned_sphere() -> Mesh:
+    """A noisy sphere bent by two joints along z: JOINTS_0 UNSIGNED_BYTE (0 and 1), WEIGHTS_0 (1 - t, t)."""
+    sphere = shapes.icosphere(3, 1.0, noise=0.02, seed=4)
+    t = ((sphere.positions[:, 2] + 1) / 2).clip(0, 1)
+    joints = np.zeros((sphere.vertex_count, 4), np.uint8)
+    joints[:, 1] = 1
+    weights = np.zeros((sphere.vertex_count, 4), np.float32)
+    weights[:, 1] = t
+    weights[:, 0] = 1 - weights[:, 1].astype(np.float64)
+    return Mesh(sphere.positions, sphere.faces, {"JOINTS_0": joints, "WEIGHTS_0": weights.astype(np.float64)})
+
+
+#: name -> (mesh, options): a skinned primitive, in a document whose first node skins it with two joints
+SKINNED = {"skinned.plain": lambda: (_skinned_sphere(), dict(base_codec="plain"))}
+
+
 def _write(case: str, version: int, out: str) -> None:
+    if case in SKINNED:
+        mesh, options = SKINNED[case]()
+        doc = {"scene": 0, "scenes": [{"nodes": [0, 1]}], "skins": [{"joints": [1, 2]}],
+               "nodes": [{"mesh": 0, "skin": 0}, {"name": "j0", "children": [2]}, {"name": "j1", "translation": [0, 0, 1.0]}],
+               "meshes": [{"primitives": [{}]}]}
+        encode_document(doc, b"", [PrimitiveJob(mesh, 0, 0)], out, payload_version=version, **OPTIONS, **options)
+        return
     if case in SCENES:
         meshes, shown, options = SCENES[case]()
         doc = {"scene": 0, "scenes": [{"nodes": shown}], "nodes": [{"mesh": i} for i in range(len(meshes))],
