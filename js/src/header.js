@@ -382,9 +382,14 @@ export function baseVertexCount(gltf, prim, ext, what) {
 const POSITION = { types: { [FLOAT]: 4 }, components: 3, max: MAX_VERTICES };
 const INDICES = { types: INDEX_TYPES, components: 1, max: 3 * MAX_FACES };
 
-/** Element sizes of the integer componentTypes a plain base may store a progressive attribute with: the one its
- * `componentType` names (UNSIGNED_INT, 5125, is stored as FLOAT; spec/README.md, attributes). */
-const STORED_INTEGER_SIZES = { 5120: 1, 5121: 1, 5122: 2, 5123: 2 };
+/** DataView getter and element size of each componentType an accessor read here may have. */
+const READERS = { 5120: ['getInt8', 1], 5121: ['getUint8', 1], 5122: ['getInt16', 2], 5123: ['getUint16', 2],
+  5125: ['getUint32', 4], [FLOAT]: ['getFloat32', 4] };
+
+/** Element size of an integer componentType a plain base may store a progressive attribute with: the one its
+ * `componentType` names (UNSIGNED_INT, 5125, is stored as FLOAT; spec/README.md, attributes), else undefined. */
+const storedIntegerSize = (type) => (Number.isInteger(type) && type !== 5125 && type !== FLOAT
+  ? READERS[type]?.[1] : undefined);
 
 /** The base mesh plan of one primitive: Draco bufferView or plain accessors, and its attribute grids. */
 function basePlan(gltf, prim, ext, bufferLength, what) {
@@ -414,7 +419,7 @@ function basePlan(gltf, prim, ext, bufferLength, what) {
   const indices = accessorPlan(gltf, prim.indices, bufferLength, `${what} indices`, INDICES);
   const attrs = grids.map((g, i) => {
     // FLOAT, or the integer componentType the attribute names (spec/README.md, attributes: JOINTS_n)
-    const named = STORED_INTEGER_SIZES[attributes[i].componentType];
+    const named = storedIntegerSize(attributes[i].componentType);
     const types = named ? { [FLOAT]: 4, [attributes[i].componentType]: named } : { [FLOAT]: 4 };
     const where = `${what} ${g.semantic}`;
     const plan = accessorPlan(gltf, prim.attributes[g.semantic], bufferLength, where,
@@ -526,10 +531,6 @@ export function planDocument(gltf, binLength) {
   for (const args of counted) checkFinalCounts(...args);
   return { primitives, stream, baseEnd };
 }
-
-/** DataView getter and element size of each componentType. */
-const READERS = { 5120: ['getInt8', 1], 5121: ['getUint8', 1], 5122: ['getInt16', 2], 5123: ['getUint16', 2],
-  5125: ['getUint32', 4], [FLOAT]: ['getFloat32', 4] };
 
 /**
  * Reads an accessor into a new typed array (count*k): Float32Array for FLOAT and for a vertex attribute's
