@@ -691,12 +691,21 @@ def weld_soup(positions, faces, attributes=None, *, name="mesh") -> tuple | None
     Faces that are not an index array of ``positions``, and positions that are not finite, are no soup:
     :func:`checked_mesh` of the caller's arrays names what is wrong.  Serves the mesh file readers
     (:func:`_soup_welded`) and the glTF primitives (:func:`pmwm_codec.stream.asset._welded`)."""
-    attributes = attributes or {}
     positions, tri = np.asarray(positions), np.asarray(faces)
     n = len(positions)
     if tri.ndim != 2 or tri.size == 0 or tri.min() < 0 or tri.max() >= n \
             or np.bincount(tri.reshape(-1), minlength=n).max() > 1 or not np.isfinite(positions).all():
         return None
+    return weld_duplicates(positions, tri, attributes, name=name)
+
+
+def weld_duplicates(positions, faces, attributes=None, *, name="mesh") -> tuple | None:
+    """:func:`weld_soup`'s weld for any mesh whose ``faces`` (m, 3) index ``positions`` (n, 3) (soup or
+    not): ``(mesh, removed)``, or None when no two vertices have the same position and the same value of
+    every attribute.  The first of each group is kept, vertices keep their order."""
+    attributes = attributes or {}
+    positions, tri = np.asarray(positions), np.asarray(faces)
+    n = len(positions)
     from .progressive.seams import weld_groups
 
     rows = [np.asarray(positions, np.float64)] + [np.asarray(v, np.float64).reshape(n, -1)

@@ -133,14 +133,15 @@ def test_one_weld_serves_an_obj_soup_and_a_gltf_soup(tmp_path):
 
 
 def test_a_flat_shaded_primitive_with_no_split_says_why(tmp_path):
-    """Per-face normals: every position has a copy per face around it (three or more), all stay in the base.
-    The encoder says the primitive got no split and why (it said nothing)."""
+    """Per-face normals it must keep (beside a TANGENT, which a viewer ignores without NORMAL: test_flat_shading):
+    every position has a copy per face around it (three or more), all stay in the base.  The encoder says the
+    primitive got no split and why (it said nothing)."""
     ico = shapes.icosphere(3)
     p = ico.positions[ico.faces]  # (m, 3, 3): each face its own three vertices
     normal = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
     flat = Mesh(p.reshape(-1, 3), np.arange(3 * ico.face_count).reshape(-1, 3),
-                {"NORMAL": np.repeat(normal, 3, axis=0)})
+                {"NORMAL": np.repeat(normal, 3, axis=0), "TANGENT": np.tile([1.0, 0.0, 0.0, 1.0], (3 * ico.face_count, 1))})
     report = encode_asset(gltf_of(flat), tmp_path / "flat.pmw", measure=False)
     assert report.vsplits == 0 and report.base_vertices == report.vertices
     said = [n for n in report.notices if "not made progressive" in n]

@@ -337,6 +337,37 @@ async () => {
   }
 });
 
+test('a flat-shaded primitive, its NORMAL dropped by the encoder, is shaded flat at every level: no normal attribute '
+  + 'is made for it, and the full level is the decoder\'s', { skip: python() ? false : 'no Python that imports pmwm_codec (set PYTHON)' },
+async () => {
+  const dir = fs.mkdtempSync(path.join(os.tmpdir(), 'pmwm-three-'));
+  try {
+    encodeCase('flat.plain', 2, path.join(dir, 'flat.pmw')); // a sphere whose every NORMAL was its face's normal
+    const data = new Uint8Array(fs.readFileSync(path.join(dir, 'flat.pmw')));
+    const full = await decodePmw(data);
+    assert.equal(full.parts[0].attributes.NORMAL, undefined);
+    await serving({ 'flat.pmw': data }, async (server) => {
+      let scene = null; // the base's scene, before any chunk
+      const loader = new GLTFLoader();
+      loader.register(() => ({ name: 'scene', afterRoot: (result) => { scene = result.scene; } }));
+      const checked = [];
+      const check = () => {
+        const mesh = theMesh({ scene });
+        assert.ok(mesh.material.flatShading, 'the material shades flat');
+        assert.equal(mesh.geometry.getAttribute('normal'), undefined);
+        checked.push(mesh.geometry.userData.pmwmLevel.vertices);
+      };
+      const gltf = await loadProgressive(loader, `${server.url}flat.pmw`, { onChunk: () => check() });
+      assert.equal((await gltf.userData.pmwm.done).complete, true);
+      const geometry = theMesh(gltf).geometry, n = full.positions.length / 3;
+      assert.deepEqual(geometry.getAttribute('position').array.subarray(0, 3 * n), full.parts[0].positions);
+      assert.ok(checked.length >= 2 && checked[0] < n && checked.at(-1) === n, `levels checked: ${checked}`);
+    });
+  } finally {
+    fs.rmSync(dir, { recursive: true, force: true });
+  }
+});
+
 test('a level rewrites only the geometry of the primitive its chunk refines: the others are neither copied nor uploaded again',
   { skip: python() ? false : 'no Python that imports pmwm_codec (set PYTHON)' }, async () => {
     const dir = fs.mkdtempSync(path.join(os.tmpdir(), 'pmwm-three-'));

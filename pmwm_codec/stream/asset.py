@@ -28,6 +28,11 @@ keeping the first of each and the vertex order; the decoded primitive has the we
 vertices (indexed), and a notice says how many were welded.  Indexed primitives are
 kept as stored.
 
+Flat shading.  A primitive whose NORMAL is every face's own normal (and that has no TANGENT)
+has it dropped and its copies welded (:func:`flat_normals`): glTF viewers compute flat normals
+for a primitive without NORMAL, so it looks the same, and it streams (with a copy of each
+position per face around it, it stayed whole in the base).
+
 Seams.  glTF vertices are already split where UVs or normals jump; the copies
 share a position.  Inside one primitive the simplifier collapses both sides of a
 seam together, in the same batch (:mod:`~pmwm_codec.progressive.seams`), so both
@@ -84,7 +89,7 @@ from ..format.gltf import (
     world_placements,
     view_bytes,
 )
-from ..mesh import Mesh, checked_mesh, weld_soup
+from ..mesh import Mesh, checked_mesh, weld_duplicates, weld_soup
 from ..http import read_declared
 from .cut import data_not_arrived
 from .decoder import StreamDecoder
@@ -147,7 +152,7 @@ def plan_asset(gltf: dict, buffers, name: str | None = None) -> tuple:
     by_mesh = {}
     for mi, pi, prim, where in candidates:
         try:
-            mesh, welded = _primitive_mesh(gltf, buffers, prim, where)
+            mesh, welded, flat = _primitive_mesh(gltf, buffers, prim, where)
         except _PassThrough as exc:
             pass_through(prim, str(exc))
             continue
@@ -155,7 +160,11 @@ def plan_asset(gltf: dict, buffers, name: str | None = None) -> tuple:
             if name:
                 raise type(exc)(f"{name}: {exc}") from None
             raise
-        if welded:
+        if flat:
+            notices.append(f"{where}: flat shaded (every NORMAL is its face's normal): NORMAL dropped, so that "
+                           f"glTF viewers compute the same flat normals at every level, and {welded} copies welded; "
+                           f"it decodes with {mesh.vertex_count} vertices, without NORMAL")
+        elif welded:
             notices.append(f"{where}: {welded} duplicate vertices (same position and attributes) welded; it decodes "
                            f"with {mesh.vertex_count} vertices")
         job = PrimitiveJob(mesh, mi, pi)
@@ -214,9 +223,10 @@ def _why_not(prim: dict):
 
 
 def _primitive_mesh(gltf, buffers, prim, where) -> tuple:
-    """``(mesh, welded)``: the primitive's geometry and attributes as a checked :class:`Mesh` (Draco input
-    decoded), a triangle soup's exact duplicates welded (:func:`_welded`: the glTF vertices of the decoded
-    primitive are the welded ones), and how many vertices that weld removed.
+    """``(mesh, welded, flat)``: the primitive's geometry and attributes as a checked :class:`Mesh` (Draco input
+    decoded), a triangle soup's exact duplicates welded, or a flat-shaded primitive's after its NORMAL is dropped
+    (:func:`_welded`: the glTF vertices of the decoded primitive are the welded ones), how many vertices that
+    weld removed and whether NORMAL was dropped.
 
     Validation is :func:`~pmwm_codec.mesh.checked_mesh`'s, as for a mesh file.  Raises
     :class:`_PassThrough` for a valid primitive that is not made progressive, and
@@ -237,21 +247,63 @@ def _primitive_mesh(gltf, buffers, prim, where) -> tuple:
 
 
 def _welded(mesh: Mesh, where: str) -> tuple:
-    """``(mesh, how many vertices the weld removed)``: a checked primitive with its exact duplicates welded
-    when it is a triangle soup (:func:`~pmwm_codec.mesh.weld_soup`: the same position and the same value of
-    every attribute), its ``cleanup`` counts and the weld's added up.
+    """``(mesh, how many vertices the weld removed, flat)``: a checked primitive with its exact duplicates
+    welded when it is a triangle soup (:func:`~pmwm_codec.mesh.weld_soup`: the same position and the same
+    value of every attribute), or when its normals are flat (``flat`` True: :func:`flat_normals`, its NORMAL
+    dropped first, every duplicate welded, soup or not), its ``cleanup`` counts and the weld's added up.
 
     A soup (a non-indexed primitive, or indices naming every vertex once) becomes the indexed mesh it is,
     whose seams the simplifier can collapse; as a soup each position had about six copies and stayed in the
     base.  A primitive whose vertices the faces share is indexed by its author and kept as stored,
     duplicates and all (gltfpack keeps a few where its compressed attributes differ in a bit and its plain
-    ones do not: one weld would make the two encodes of one file differ); it comes back as it is, with 0."""
-    welded = weld_soup(mesh.positions, mesh.faces, mesh.attributes, name=where)
+    ones do not: one weld would make the two encodes of one file differ); it comes back as it is, with 0.
+
+    A flat-shaded primitive has a copy of each position per normal around it, three or more, which keep it
+    whole in the base (seam corners).  When its NORMAL is what a glTF viewer computes without one (glTF 2.0,
+    3.7.2.1: flat normals) it is dropped: the primitive looks the same at every level, and its copies weld
+    into the surface they are, which streams."""
+    flat = flat_normals(mesh)
+    if flat:
+        mesh = Mesh(mesh.positions, mesh.faces, {k: v for k, v in mesh.attributes.items() if k != "NORMAL"},
+                    cleanup=mesh.cleanup)
+        welded = weld_duplicates(mesh.positions, mesh.faces, mesh.attributes, name=where)
+    else:
+        welded = weld_soup(mesh.positions, mesh.faces, mesh.attributes, name=where)
     if welded is None:
-        return mesh, 0
+        return mesh, 0, flat
     out, removed = welded
     out.cleanup = {k: out.cleanup.get(k, 0) + mesh.cleanup.get(k, 0) for k in sorted({*out.cleanup, *mesh.cleanup})}
-    return out, removed
+    return out, removed, flat
+
+
+#: A normal is its face's (:func:`flat_normals`) within this angle: well below what shading shows, well above
+#: float32's rounding of a unit vector and of the positions an exporter computed it from.
+FLAT_NORMAL_DEGREES = 0.25
+
+
+def flat_normals(mesh: Mesh) -> bool:
+    """True when ``mesh`` has a NORMAL (n, 3) and no TANGENT, and every corner of every face with an area
+    has its face's unit normal (by its winding: ``(b - a) x (c - a)``) for NORMAL, within
+    :data:`FLAT_NORMAL_DEGREES`: what a glTF viewer computes for a primitive without NORMAL (glTF 2.0,
+    3.7.2.1, "client implementations MUST calculate flat normals").  Not with TANGENT, which a viewer
+    ignores once NORMAL is gone; not when no face has an area."""
+    normal = mesh.attributes.get("NORMAL")
+    if normal is None or "TANGENT" in mesh.attributes or mesh.face_count == 0:
+        return False
+    p = np.asarray(mesh.positions, np.float64)[mesh.faces]  # (m, 3 corners, 3)
+    cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    area = np.linalg.norm(cross, axis=1)
+    scale = float(np.ptp(mesh.positions, axis=0).max()) if mesh.vertex_count else 0.0
+    drawn = area > (scale * scale) * 1e-12  # a face with no area shows nothing: its corners' normals say nothing
+    if not drawn.any():
+        return False
+    unit = cross[drawn] / area[drawn, None]
+    given = np.asarray(normal, np.float64).reshape(mesh.vertex_count, -1)[:, :3][mesh.faces[drawn]]  # (k, 3, 3)
+    length = np.linalg.norm(given, axis=2)
+    if not (length > 0).all():
+        return False
+    cos = np.einsum("kcj,kj->kc", given, unit) / length
+    return bool((cos >= np.cos(np.radians(FLAT_NORMAL_DEGREES))).all())
 
 
 def _accessor_arrays(gltf, buffers, prim) -> tuple:

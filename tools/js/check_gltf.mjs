@@ -7,11 +7,13 @@
 //   "validator": {"errors", "warnings", "infos", "hints", "codes": {CODE: count}, "messages": [...]},
 //   "three": {"ok", "meshes", "vertices", "triangles", "radius", "center", "draco", "textures", "mapped",
 //             "primitives": [{"mode", "vertices", "indices", "morphTargets",
-//                             "attributes": {NAME: [itemSize, normalized, arrayType]}, "box": [min, max]}],
+//                             "attributes": {NAME: [itemSize, normalized, arrayType]}, "box": [min, max],
+//                             "flatShading"}],
 //             "error"}}
 //   (primitives: one entry per THREE.Mesh/Line/Points in traversal order, attribute names as
 //   three.js renamed them (position, normal, uv, color, skinIndex, ...; unknown ones keep the
-//   glTF name), box: the geometry's own bounding box, in mesh space, from the loaded values)
+//   glTF name), box: the geometry's own bounding box, in mesh space, from the loaded values,
+//   flatShading: its material shades each face flat, as GLTFLoader makes it for a primitive without NORMAL)
 //
 // validator: Khronos glTF-Validator (npm gltf-validator) on the file bytes (bytes it cannot read as
 //            glTF at all, which it throws on: one error, code NOT_GLTF, with its message).
@@ -166,7 +168,7 @@ async function loadThree(bytes) {
 			const box = g.attributes.position ? [g.boundingBox.min.toArray(), g.boundingBox.max.toArray()] : null;
 			primitives.push({ mode: object.type, vertices: g.attributes.position ? g.attributes.position.count : 0,
 				indices: g.index ? g.index.count : null, morphTargets: Object.keys(g.morphAttributes).length ? (g.morphAttributes.position || []).length : 0,
-				attributes, box });
+				attributes, box, flatShading: Boolean(object.material && !Array.isArray(object.material) && object.material.flatShading) });
 		});
 		let mapped = 0;
 		gltf.scene.traverse((object) => { if (object.isMesh && object.material && object.material.map) mapped += 1; });

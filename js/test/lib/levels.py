@@ -146,7 +146,37 @@ def _skinned_sphere() -> Mesh:
 SKINNED = {"skinned.plain": lambda: (_skinned_sphere(), dict(base_codec="plain"))}
 
 
+def _flat_document() -> tuple:
+    """``(gltf, [buffer])``: a noisy sphere written flat shaded, as exporters write it: each face its own three
+    vertices (indexed) with its face's normal as NORMAL (float32)."""
+    sphere = shapes.icosphere(3, 1.0, noise=0.02, seed=4)
+    corners = sphere.positions[sphere.faces].reshape(-1, 3).astype(np.float32)
+    p = corners.astype(np.float64).reshape(-1, 3, 3)
+    normal = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    normal = np.repeat(normal / np.linalg.norm(normal, axis=1, keepdims=True), 3, axis=0).astype(np.float32)
+    index = np.arange(len(corners), dtype=np.uint32)
+    parts = [corners.tobytes(), normal.tobytes(), index.tobytes()]
+    offsets = np.cumsum([0] + [len(b) for b in parts])
+    doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "NORMAL": 1}, "indices": 2}]}],
+           "buffers": [{"byteLength": int(offsets[-1])}],
+           "bufferViews": [{"buffer": 0, "byteOffset": int(offsets[i]), "byteLength": len(b)} for i, b in enumerate(parts)],
+           "accessors": [{"bufferView": 0, "componentType": 5126, "count": len(corners), "type": "VEC3",
+                          "min": corners.min(0).tolist(), "max": corners.max(0).tolist()},
+                         {"bufferView": 1, "componentType": 5126, "count": len(corners), "type": "VEC3"},
+                         {"bufferView": 2, "componentType": 5125, "count": len(index), "type": "SCALAR"}]}
+    return doc, [b"".join(parts)]
+
+
+#: name -> (document, options): assets encoded as `pmw encode` reads a glTF file (pmwm_codec.encode of the document)
+ASSETS = {"flat.plain": lambda: (_flat_document(), dict(base_codec="plain"))}
+
+
 def _write(case: str, version: int, out: str) -> None:
+    if case in ASSETS:
+        document, options = ASSETS[case]()
+        encode(document, out, payload_version=version, **OPTIONS, **options)
+        return
     if case in SKINNED:
         mesh, options = SKINNED[case]()
         doc = {"scene": 0, "scenes": [{"nodes": [0, 1]}], "skins": [{"joints": [1, 2]}],
