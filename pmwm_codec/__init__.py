@@ -98,7 +98,8 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
     with a notice when on by default), ``zstd_level``, ``measure`` (``"vertices"`` | ``"sampled"`` |
     ``"none"``), ``payload_version`` (2, the default: range-coded chunks and the compact chunk
     table; 1: the zstd payload and per-chunk index of files written before),
-    ``strip_image_profiles`` (assets).  Without a ``watermark``, ``mode``, ``bits``, ``embed_from`` and
+    ``strip_image_profiles`` and ``keep_flat_normals`` (assets: a flat-shaded primitive keeps its NORMAL,
+    and stays in the base).  Without a ``watermark``, ``mode``, ``bits``, ``embed_from`` and
     ``step_units`` change nothing in the file: each one given says so in a notice
     (:func:`~pmwm_codec.options.ignored_without_image`, ``"bits ignored: no watermark"``), and so does
     ``owner_strength`` without an ``owner_id`` or a watermark (no owner layer).
@@ -140,6 +141,7 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
             report = encode_asset(src, dst, watermark=image, key=key_obj, **options)
         else:
             options.pop("strip_image_profiles", None)
+            options.pop("keep_flat_normals", None)
             report = encode_mesh(mesh, dst, watermark=image, key=key_obj, **options)
     except CapacityError as exc:  # named as the caller gave it, not as the square it was made
         raise exc.as_given(*given) from None

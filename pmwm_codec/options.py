@@ -123,6 +123,7 @@ def _options() -> dict:
         "payload_version": _int("payload_version", min(PAYLOAD_VERSIONS), max(PAYLOAD_VERSIONS)),
         "measure": _measure,
         "strip_image_profiles": _flag("strip_image_profiles"),
+        "keep_flat_normals": _flag("keep_flat_normals"),
         "progress": _callable("progress"),
     }
 
@@ -135,7 +136,8 @@ def checked_options(options: dict) -> dict:
     for name, value in options.items():
         if name not in checks:
             raise OptionError(f"unknown option {name!r} (one of {', '.join(checks)})")
-        nullable = name not in ("mode", "base_codec", "zstd_level", "payload_version", "strip_image_profiles")
+        nullable = name not in ("mode", "base_codec", "zstd_level", "payload_version", "strip_image_profiles",
+                                "keep_flat_normals")
         out[name] = value if value is None and nullable else checks[name](value)
     if out.get("mode") == "paper" and out.get("bits") is not None and out["bits"] < 2:
         raise OptionError(f"bits must be at least 2 in paper mode, got {out['bits']}")

@@ -157,3 +157,32 @@ def test_a_flat_shaded_pmw_and_its_levels_are_validator_clean_and_three_js_shade
         assert report["errors"] == report["warnings"] == 0 and not new, report
         (prim,) = result["three"]["primitives"]
         assert prim["flatShading"] and "normal" not in prim["attributes"], prim
+
+
+def test_keep_flat_normals_keeps_them_on_the_command_line_and_in_the_api(tmp_path, capsys):
+    """``pmw encode --keep-flat-normals`` (``keep_flat_normals=True``) is for a viewer or a tool that reads NORMAL:
+    the primitive keeps it, with every copy, and stays in the base (the notice says why); the option is a flag,
+    refused as any other with a value that is not one, and ignored for a mesh file, which has no NORMAL."""
+    import pmwm_codec
+    from pmwm_codec.cli import main
+    from pmwm_codec.errors import OptionError
+
+    sphere = _flat_asset(tmp_path / "flat.glb", subdivisions=3)
+    assert main(["encode", str(tmp_path / "flat.glb"), "-o", str(tmp_path / "kept.pmw"), "--keep-flat-normals",
+                 "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["vertices"] == 3 * sphere.face_count and report["vsplits"] == 0
+    assert any("flat shading" in n for n in report["notices"])
+    glb, _, _ = decode_asset(tmp_path / "kept.pmw", None)
+    assert "NORMAL" in _level(glb)[0]
+    report = pmwm_codec.encode(str(tmp_path / "flat.glb"), str(tmp_path / "api.pmw"), keep_flat_normals=True,
+                               measure="none")
+    assert report["vsplits"] == 0
+    assert pmwm_codec.encode(str(tmp_path / "flat.glb"), str(tmp_path / "dropped.pmw"), measure="none")["vsplits"] > 0
+    with pytest.raises(OptionError, match="keep_flat_normals"):
+        pmwm_codec.encode(str(tmp_path / "flat.glb"), str(tmp_path / "bad.pmw"), keep_flat_normals="yes")
+    assert not (tmp_path / "bad.pmw").exists()
+    mesh_file = tmp_path / "sphere.obj"
+    pmwm_codec.write_mesh(mesh_file, sphere)
+    assert pmwm_codec.encode(str(mesh_file), str(tmp_path / "obj.pmw"), keep_flat_normals=True,
+                             measure="none")["vsplits"] > 0

@@ -107,6 +107,9 @@ def add_stream_options(p) -> None:
     p.add_argument("--strip-image-profiles", action="store_true",
                    help="glTF assets: drop colour-profile chunks from PNG textures (same pixels; "
                         "the glTF validator warns on them)")
+    p.add_argument("--keep-flat-normals", action="store_true",
+                   help="glTF assets: keep a flat-shaded primitive's NORMAL (by default dropped, as viewers "
+                        "compute the same flat normals, so that it streams; kept, it stays in the base)")
 
 
 def stream_options(args, *, defaults: bool = True) -> dict:
@@ -119,6 +122,8 @@ def stream_options(args, *, defaults: bool = True) -> dict:
             options[name] = getattr(args, name)
     if args.strip_image_profiles:
         options["strip_image_profiles"] = True
+    if args.keep_flat_normals:
+        options["keep_flat_normals"] = True
     return options
 
 

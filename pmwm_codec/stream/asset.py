@@ -112,7 +112,7 @@ class _PassThrough(Exception):
     """A valid primitive that is not made progressive; the message names it and says why."""
 
 
-def plan_asset(gltf: dict, buffers, name: str | None = None) -> tuple:
+def plan_asset(gltf: dict, buffers, name: str | None = None, *, keep_flat_normals: bool = False) -> tuple:
     """Split a document's primitives into progressive jobs and pass-throughs.
 
     Returns ``(jobs: list[PrimitiveJob], drop_accessors: set, notices: list[str])``.
@@ -125,7 +125,8 @@ def plan_asset(gltf: dict, buffers, name: str | None = None) -> tuple:
     that does not decode ...: what :func:`~pmwm_codec.mesh.checked_mesh` refuses in
     a mesh file) is refused: :class:`MeshError` / :class:`InputFormatError` naming
     the primitive (after ``name``, the file's, when given).  So is an asset with no
-    primitive to make progressive (:class:`MeshError` quoting why).
+    primitive to make progressive (:class:`MeshError` quoting why).  ``keep_flat_normals``: a flat-shaded
+    primitive keeps its NORMAL (:func:`_welded`), and its copies, in the base.
     """
     jobs, notices, reasons = [], [], []
     users = {i: 1 for i in _accessors_outside_meshes(gltf)}  # accessor -> number of users kept as they are
@@ -152,7 +153,7 @@ def plan_asset(gltf: dict, buffers, name: str | None = None) -> tuple:
     by_mesh = {}
     for mi, pi, prim, where in candidates:
         try:
-            mesh, welded, flat = _primitive_mesh(gltf, buffers, prim, where)
+            mesh, welded, flat = _primitive_mesh(gltf, buffers, prim, where, keep_flat_normals)
         except _PassThrough as exc:
             pass_through(prim, str(exc))
             continue
@@ -222,7 +223,7 @@ def _why_not(prim: dict):
     return None
 
 
-def _primitive_mesh(gltf, buffers, prim, where) -> tuple:
+def _primitive_mesh(gltf, buffers, prim, where, keep_flat_normals: bool = False) -> tuple:
     """``(mesh, welded, flat)``: the primitive's geometry and attributes as a checked :class:`Mesh` (Draco input
     decoded), a triangle soup's exact duplicates welded, or a flat-shaded primitive's after its NORMAL is dropped
     (:func:`_welded`: the glTF vertices of the decoded primitive are the welded ones), how many vertices that
@@ -241,12 +242,12 @@ def _primitive_mesh(gltf, buffers, prim, where) -> tuple:
     except (_PassThrough, MeshError, InputFormatError) as exc:
         raise type(exc)(f"{where}: {exc}") from None
     try:
-        return _welded(checked_mesh(positions, faces, extra, name=where), where)
+        return _welded(checked_mesh(positions, faces, extra, name=where), where, keep_flat_normals)
     except DegenerateMeshError as exc:  # well formed, nothing to make progressive
         raise _PassThrough(str(exc)) from None
 
 
-def _welded(mesh: Mesh, where: str) -> tuple:
+def _welded(mesh: Mesh, where: str, keep_flat_normals: bool = False) -> tuple:
     """``(mesh, how many vertices the weld removed, flat)``: a checked primitive with its exact duplicates
     welded when it is a triangle soup (:func:`~pmwm_codec.mesh.weld_soup`: the same position and the same
     value of every attribute), or when its normals are flat (``flat`` True: :func:`flat_normals`, its NORMAL
@@ -261,8 +262,9 @@ def _welded(mesh: Mesh, where: str) -> tuple:
     A flat-shaded primitive has a copy of each position per normal around it, three or more, which keep it
     whole in the base (seam corners).  When its NORMAL is what a glTF viewer computes without one (glTF 2.0,
     3.7.2.1: flat normals) it is dropped: the primitive looks the same at every level, and its copies weld
-    into the surface they are, which streams."""
-    flat = flat_normals(mesh)
+    into the surface they are, which streams; unless ``keep_flat_normals`` (for a viewer or a tool that
+    reads NORMAL)."""
+    flat = not keep_flat_normals and flat_normals(mesh)
     if flat:
         mesh = Mesh(mesh.positions, mesh.faces, {k: v for k, v in mesh.attributes.items() if k != "NORMAL"},
                     cleanup=mesh.cleanup)
@@ -447,13 +449,15 @@ def _refuse_external_uris(gltf: dict) -> None:
                                    "holds its images (a bufferView or a data: URI)")
 
 
-def encode_asset(src, dst, *, strip_image_profiles: bool = False, **options) -> EncodeReport:
+def encode_asset(src, dst, *, strip_image_profiles: bool = False, keep_flat_normals: bool = False,
+                 **options) -> EncodeReport:
     """Encode a glTF asset (path, or ``(gltf dict, buffers)``) into a ``.pmw`` at ``dst``.
 
     Options as :func:`~pmwm_codec.stream.encoder.encode_document`, plus
     ``strip_image_profiles``: drop colour-profile / pixel-aspect chunks from PNG
     textures (same pixels; the glTF validator warns on them).  Images are otherwise
-    carried byte for byte.  The report's ``notices`` say which primitives passed
+    carried byte for byte.  ``keep_flat_normals``: a flat-shaded primitive keeps its NORMAL (and stays in
+    the base; :func:`plan_asset`).  The report's ``notices`` say which primitives passed
     through and why; a primitive with invalid data is refused (see :func:`plan_asset`).
     """
     if isinstance(src, tuple):  # checked as a file's document is (load_document), but it has no folder
@@ -472,7 +476,7 @@ def encode_asset(src, dst, *, strip_image_profiles: bool = False, **options) -> 
         if count:
             notices.append(f"removed colour-profile metadata from {count} PNG image(s)")
     name = None if isinstance(src, tuple) else os.path.basename(os.fspath(src))
-    jobs, drop, planned = plan_asset(gltf, buffers, name)
+    jobs, drop, planned = plan_asset(gltf, buffers, name, keep_flat_normals=keep_flat_normals)
     notices += planned
     for job in jobs:  # the accessors' names, which the base's accessors keep
         job.names = _accessor_names(gltf, gltf["meshes"][job.mesh_index]["primitives"][job.primitive_index])
