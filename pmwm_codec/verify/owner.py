@@ -235,35 +235,38 @@ class OwnerReader:
         self._boundaries: list = []
         self._frames = None
         self._read_vertices = None
-        self._pending = None  # (positions, faces) of the last boundary added, when it was not read
+        self._pending = None  # (positions, faces) lists of the last boundary's parts, when it was not read
 
     @property
     def boundaries(self) -> list:
         """The :class:`OwnerBoundary` of every boundary added, the last one read."""
         if self._pending is not None:
             last = self._boundaries[-1]
+            positions, faces, _ = scene_mesh(*self._pending, self._frames)
             self._boundaries[-1] = OwnerBoundary(last.chunk, last.bytes_read, last.vertices,
-                                                 detect(*self._pending, self.key))
+                                                 detect(positions, faces, self.key))
             self._read_vertices, self._pending = last.vertices, None
         return self._boundaries
 
     def add(self, result, gltf: dict) -> None:
         """Take the boundary of ``result`` (a :class:`~pmwm_codec.stream.PartialResult` whose parts hold the
-        meshes of its boundary: copies, or views not yet moved on) of the stream whose glTF JSON is ``gltf``."""
+        meshes of its boundary as copies, which the reader may keep until the next :meth:`add`: a decoder made
+        with ``copy=True``) of the stream whose glTF JSON is ``gltf``.  The scene is put together
+        (:func:`~pmwm_codec.format.gltf.scene_mesh`) only for the boundaries read."""
         if self._frames is None:
             self._frames = _frames(gltf)
-        positions, faces, _ = scene_mesh([p.positions for p in result.parts], [p.faces for p in result.parts],
-                                         self._frames)
+        meshes = ([p.positions for p in result.parts], [p.faces for p in result.parts])
         vertices = int(result.vertices)
         if self.every or self._read_vertices is None or vertices >= self._read_vertices * (1 + REREAD_GROWTH):
             self._pending = None
             self._read_vertices = vertices
+            positions, faces, _ = scene_mesh(*meshes, self._frames)
             self._boundaries.append(OwnerBoundary(result.chunk, int(result.bytes_read), vertices,
                                                   detect(positions, faces, self.key)))
             return
         read = next(b for b in reversed(self._boundaries) if b.read_at == b.chunk)
         self._boundaries.append(OwnerBoundary(result.chunk, int(result.bytes_read), vertices, read.owner, read.chunk))
-        self._pending = (positions, faces)  # scene_mesh's own arrays (concatenated): no view of the decoder's
+        self._pending = meshes  # the parts' own copies: kept until the next boundary replaces them
 
 
 def _frames(gltf: dict) -> list:
