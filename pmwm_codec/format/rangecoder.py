@@ -439,6 +439,19 @@ def encode_array(kind: np.ndarray, ctx: np.ndarray, values: np.ndarray, n_probs:
     return enc.finish()
 
 
+def encode_uint(enc: Encoder, base: int, value: int) -> None:
+    """Code one unsigned integer (:func:`enc_uint`, the block at ``probs[base]``) on ``enc``'s stream (room made
+    with :meth:`Encoder.reserve`)."""
+    _kernel(enc_uint)(enc.es, enc.out, enc.probs, np.int64(base), np.int64(value))
+
+
+def decode_uint(dec: Decoder, base: int) -> int:
+    """The next unsigned integer of ``dec``'s stream (:func:`dec_uint`, the block at ``probs[base]``); -1 for an
+    invalid one.  (A chunk's batch count: the one integer read outside the payload kernels, by the helper itself
+    rather than by :func:`decode_array`, whose four inlined kinds a machine's first decode compiled for ~3 s.)"""
+    return int(_kernel(dec_uint)(dec.ds, dec.buf, dec.probs, np.int64(base)))
+
+
 def decode_array(payload, kind: np.ndarray, ctx: np.ndarray, n_probs: int) -> np.ndarray:
     """Inverse of :func:`encode_array`: (s,) int64.  FormatError on an invalid or mis-terminated stream."""
     dec = Decoder(payload, new_probs(n_probs))

@@ -636,20 +636,21 @@ def _split_values(S, i, vv, u, P, ring, nrm, es, out, ds, buf, probs, decode):
         elif abs(ny) >= abs(nz):
             dom, ax0, ax1 = 1, 0, 2
     base = _block(B_GEOMETRY + 3 * cls)
-    for role in range(3):
-        q = ax0 if role == 0 else (ax1 if role == 1 else dom)
-        if role < 2 or nn == 0.0:
-            pred = _floor_half(_axis(q, ph0, ph1, ph2))
+    for role in range(D):  # the three position roles, then the attributes; one call site of :func:`_value`
+        if role >= 3:  # (each inlined call site compiles the range coder's integer once more)
+            q = role
+            pred = S[i, q] // (2 * c)
+            ctx = _block(B_ATTRIBUTE + min(q - 3, ATTRIBUTE_CONTEXTS - 1))
         else:
-            x0 = np.float64(P[u, ax0]) - _axis(ax0, ph0, ph1, ph2)
-            x1 = np.float64(P[u, ax1]) - _axis(ax1, ph0, ph1, ph2)
-            pred = _floor_half(_axis(q, ph0, ph1, ph2) - (x0 * _axis(ax0, nx, ny, nz) + x1 * _axis(ax1, nx, ny, nz))
-                               / _axis(q, nx, ny, nz))
-        if _value(pred, base + role * INT_BLOCK, q, u, P, es, out, ds, buf, probs, decode) != 0:
-            return -1
-    for q in range(3, D):
-        pred = S[i, q] // (2 * c)
-        ctx = _block(B_ATTRIBUTE + min(q - 3, ATTRIBUTE_CONTEXTS - 1))
+            q = ax0 if role == 0 else (ax1 if role == 1 else dom)
+            ctx = base + role * INT_BLOCK
+            if role < 2 or nn == 0.0:
+                pred = _floor_half(_axis(q, ph0, ph1, ph2))
+            else:
+                x0 = np.float64(P[u, ax0]) - _axis(ax0, ph0, ph1, ph2)
+                x1 = np.float64(P[u, ax1]) - _axis(ax1, ph0, ph1, ph2)
+                pred = _floor_half(_axis(q, ph0, ph1, ph2) - (x0 * _axis(ax0, nx, ny, nz) + x1 * _axis(ax1, nx, ny, nz))
+                                   / _axis(q, nx, ny, nz))
         if _value(pred, ctx, q, u, P, es, out, ds, buf, probs, decode) != 0:
             return -1
     return 0
@@ -778,8 +779,7 @@ class ChunkPacker:
             self.lists.sync(self.state)
         self.enc = enc = rc.Encoder(self.probs)
         enc.reserve(INT_DECISIONS)
-        rc._kernel(rc._enc_array_kernel)(enc.es, enc.out, enc.probs, np.array([2]), np.array([_block(B_BATCHES)]),
-                                         np.array([batches - 1]))
+        rc.encode_uint(enc, _block(B_BATCHES), batches - 1)
 
     def end(self) -> None:
         """Close the chunk: its payload is appended to :attr:`payloads`."""
@@ -922,10 +922,10 @@ def decode_chunk(payload, state, model: ChunkDecoder, listed: bool = True):
     FormatError / LimitError on any invalid code, count or termination.
     """
     dec = rc.Decoder(payload, model.probs)
-    count = np.zeros(1, np.int64)
-    if rc._kernel(rc._dec_array_kernel)(dec.ds, dec.buf, dec.probs, np.array([2]), np.array([_block(B_BATCHES)]), count):
+    count = rc.decode_uint(dec, _block(B_BATCHES))
+    if count < 0:
         raise FormatError("chunk payload: invalid batch count")
-    batches = int(count[0]) + 1
+    batches = count + 1
     if batches > MAX_BATCHES_PER_CHUNK:
         raise LimitError(f"chunk payload: batch count {batches} outside 1..{MAX_BATCHES_PER_CHUNK}")
     lists = model.lists_for(state)
