@@ -487,22 +487,27 @@ def _split_symbols(lo, hi, vv, a, b, P, sym, fan, work, epoch, lens, scores, arc
             else:
                 rc.enc_tree(es, out, probs, P_SYMBOL, 3, sym[t])
         return 0
-    len_ctx = _block(B_LENGTH + min(d, 16) - 1)
-    if decode:
-        L = rc.dec_uint(ds, buf, probs, len_ctx) + 1
-        if L < 1 or L > d:
-            return -1
-    else:
-        rc.enc_uint(es, out, probs, len_ctx, L - 1)
-    ncand = d if kind == 1 else d - L + 1
-    rank_ctx = _block(B_RANK + min(ncand, 16) - 1)
-    if decode:
-        r = rc.dec_uint(ds, buf, probs, rank_ctx)
-        if r < 0 or r >= ncand:
-            return -1
-        s = _arc_rank(fan, d, kind == 1, L, np.int64(0), a, vv, P, lens, scores, r)
-    else:
-        rc.enc_uint(es, out, probs, rank_ctx, _arc_rank(fan, d, kind == 1, L, s, a, vv, P, lens, scores, np.int64(-1)))
+    ncand = 0
+    for step in range(2):  # the arc's length, then its start's rank: one inlined call site of the integer coder
+        if step == 0:
+            ctx, value = _block(B_LENGTH + min(d, 16) - 1), L - 1
+        else:
+            ncand = d if kind == 1 else d - L + 1
+            ctx = _block(B_RANK + min(ncand, 16) - 1)
+            if not decode:
+                value = _arc_rank(fan, d, kind == 1, L, s, a, vv, P, lens, scores, np.int64(-1))
+        if not decode:
+            rc.enc_uint(es, out, probs, ctx, value)
+            continue
+        value = rc.dec_uint(ds, buf, probs, ctx)
+        if step == 0:
+            L = value + 1
+            if L < 1 or L > d:
+                return -1
+        else:
+            if value < 0 or value >= ncand:
+                return -1
+            s = _arc_rank(fan, d, kind == 1, L, np.int64(0), a, vv, P, lens, scores, value)
     if kind == 1:
         left, right = 1, 1
     else:
