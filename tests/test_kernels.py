@@ -484,6 +484,23 @@ def test_the_affordable_candidates_and_offer_ranks_are_the_same_on_both_paths(mo
             assert (cost[first] <= 1e-13).all()
 
 
+def test_the_compiled_quantile_is_numpys_on_ties_sorted_and_reversed_input():
+    """_quantile_kernel's own selection (quickselect, not numpy's partition) gives np.quantile's value, bit for
+    bit: random, few distinct values, all equal, sorted and reversed (a quickselect's hard cases), one value."""
+    pytest.importorskip("numba")
+    from pmwm_codec.progressive import simplify
+
+    kernel = topology.compiled(simplify._quantile_kernel)
+    rng = np.random.default_rng(29)
+    for trial in range(400):
+        g = int(rng.integers(1, 40)) if trial % 2 else int(rng.integers(1, 20000))
+        x = [rng.random(g) * 10.0 ** (trial % 9 - 4), rng.integers(0, 4, g).astype(np.float64), np.full(g, 0.5),
+             np.sort(rng.random(g)), np.sort(rng.random(g))[::-1].copy()][trial % 5]
+        for q in (0.0, 0.3, 0.5, 0.75, 0.999):
+            got = kernel(x.copy(), q)
+            assert got == np.quantile(x, q) and np.signbit(got) == np.signbit(np.quantile(x, q)), (trial, g, q)
+
+
 def test_grouped_symbols_match_the_argsort(kernels):
     """The payload encoder's symbols moved from face-slot order to the grouped order of distinct corners."""
     from pmwm_codec.format.records_v2 import _grouped_symbols

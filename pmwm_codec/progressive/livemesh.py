@@ -224,7 +224,8 @@ def _edges_by_vertex(F, n, vf_start, vf_corner, ring):
 def _grown(a, cap, k):
     """A (cap,) array holding ``a``'s first ``k`` entries (the rest uninitialised)."""
     out = np.empty(cap, a.dtype)
-    out[:k] = a[:k]
+    for i in range(k):  # a loop, not a slice copy: that compiles numba's shape-mismatch error path (~0.5 s)
+        out[i] = a[i]
     return out
 
 
