@@ -120,6 +120,26 @@ def test_split_topology_refuses_bad_wing_counts_on_both_paths(kernels, bad):
     assert state.n == len(pm.base_positions) and np.array_equal(state.current_faces(), faces_before)
 
 
+def test_a_kernel_helper_whose_name_another_definition_took_is_named_when_numba_loads(monkeypatch):
+    """A helper's module global becomes its dispatcher when numba loads; a later ``def`` of the same name in the
+    module (a quickselect helper named ``_select`` beside the simplifier's ``_select``) had the helper swapped
+    in where the other was called ("too many arguments"), and only where numba loaded after the import."""
+    pytest.importorskip("numba")
+
+    def helper(a):
+        return a
+
+    def other(a, b):
+        return a + b
+
+    module = {"helper": other}  # the helper's name, then bound to another function
+    monkeypatch.setattr(topology, "_HELPERS", topology._HELPERS + [(module, "helper", helper, {})])
+    monkeypatch.setattr(topology, "_numba", None)
+    with pytest.raises(RuntimeError, match="kernel helper .*helper is no longer its module's 'helper'"):
+        topology._load_numba()
+    assert module["helper"] is other
+
+
 def test_kernels_compile_without_a_writable_cache(monkeypatch):
     """numba refuses ``cache=True`` when no cache dir is writable; the kernel then compiles uncached."""
     numba = pytest.importorskip("numba")

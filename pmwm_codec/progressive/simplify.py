@@ -711,7 +711,7 @@ def _quantile_kernel(x, q):
     else:
         gamma = virtual - lo
     part = x.copy()
-    a = _select(part, lo)
+    a = _kth_smallest(part, lo)
     b = a
     if hi != lo:
         b = part[lo + 1]
@@ -722,7 +722,7 @@ def _quantile_kernel(x, q):
 
 
 @kernel_helper
-def _select(a, k):
+def _kth_smallest(a, k):
     """The ``k``-th smallest of ``a`` (g,) float64 without NaN, 0 <= k < g, by quickselect (Hoare's partition),
     ``a`` reordered in place so that no value after position k is smaller: ``np.partition``'s order statistic
     without numpy's partition, whose compilation took ~1.5 s of a machine's first encode."""

@@ -124,6 +124,11 @@ def _load_numba():
 
         _numba = numba
         for g, name, fn, flags in _HELPERS:
+            here = g.get(name)
+            if here is not fn and here is not _COMPILED.get(fn):  # another definition took the helper's name in
+                # its module (numba loaded again finds the helper's own dispatcher there): swapping
+                # the global would put the helper where the other is called (a bug, named here)
+                raise RuntimeError(f"kernel helper {fn.__module__}.{name} is no longer its module's {name!r}")
             g[name] = _COMPILED.setdefault(fn, _jit(fn, **flags))
         prefetch = _prefetch_intrinsic()
         if _first_compile:
