@@ -297,75 +297,70 @@ test('a progressive mesh the scene leaves out is decoded in order, and each show
     }
   });
 
-test('a skinned primitive streams into a SkinnedMesh: every level\'s skin indices are whole and its weights sum to 1, '
-  + 'the full level\'s are the decoder\'s', { skip: python() ? false : 'no Python that imports pmwm_codec (set PYTHON)' },
-async () => {
+/**
+ * Encodes the js/test/lib/levels.py case `name` (payload version 2), streams it through the plugin from a local
+ * server and calls `onLevel(mesh)` with the mesh the base's scene shows after each chunk; resolves to
+ * `{gltf, full}` (the loaded asset, complete, and the decoder's full level) once the stream has ended.
+ */
+async function streamCase(name, onLevel) {
   const dir = fs.mkdtempSync(path.join(os.tmpdir(), 'pmwm-three-'));
   try {
-    encodeCase('skinned.plain', 2, path.join(dir, 'skinned.pmw')); // JOINTS_0 UNSIGNED_BYTE (in the base too), WEIGHTS_0
-    const data = new Uint8Array(fs.readFileSync(path.join(dir, 'skinned.pmw')));
+    encodeCase(name, 2, path.join(dir, 'case.pmw'));
+    const data = new Uint8Array(fs.readFileSync(path.join(dir, 'case.pmw')));
     const full = await decodePmw(data);
-    await serving({ 'skinned.pmw': data }, async (server) => {
+    let gltf = null;
+    await serving({ 'case.pmw': data }, async (server) => {
       let scene = null; // the base's scene, before any chunk
       const loader = new GLTFLoader();
       loader.register(() => ({ name: 'scene', afterRoot: (result) => { scene = result.scene; } }));
-      const checked = [];
-      const check = () => { // the level shown now: indices 0 or 1 (the two joints), weights summing to 1
-        const g = theMesh({ scene }).geometry;
-        const n = g.userData.pmwmLevel.vertices;
-        const joints = g.getAttribute('skinIndex').array.subarray(0, 4 * n);
-        const weights = g.getAttribute('skinWeight').array.subarray(0, 4 * n);
-        assert.ok(joints.every((j) => j === 0 || j === 1), `level of ${n} vertices: skin indices`);
-        for (let i = 0; i < n; i++) {
-          const sum = weights[4 * i] + weights[4 * i + 1] + weights[4 * i + 2] + weights[4 * i + 3];
-          assert.ok(Math.abs(sum - 1) < 3e-7, `level of ${n} vertices: vertex ${i}'s weights sum to ${sum}`);
-        }
-        checked.push(n);
-      };
-      const gltf = await loadProgressive(loader, `${server.url}skinned.pmw`, { onChunk: () => check() });
-      const mesh = theMesh(gltf);
-      assert.ok(mesh.isSkinnedMesh, 'a SkinnedMesh');
+      gltf = await loadProgressive(loader, `${server.url}case.pmw`, { onChunk: () => onLevel(theMesh({ scene })) });
       assert.equal((await gltf.userData.pmwm.done).complete, true);
-      const n = full.positions.length / 3;
-      assert.equal(mesh.geometry.userData.pmwmLevel.vertices, n);
-      assert.deepEqual(mesh.geometry.getAttribute('skinIndex').array.subarray(0, 4 * n), full.parts[0].attributes.JOINTS_0);
-      assert.deepEqual(mesh.geometry.getAttribute('skinWeight').array.subarray(0, 4 * n), full.parts[0].attributes.WEIGHTS_0);
-      assert.ok(checked.length >= 2 && checked.at(-1) === n, `levels checked: ${checked}`);
     });
+    return { gltf, full };
   } finally {
     fs.rmSync(dir, { recursive: true, force: true });
   }
+}
+
+test('a skinned primitive streams into a SkinnedMesh: every level\'s skin indices are whole and its weights sum to 1, '
+  + 'the full level\'s are the decoder\'s', { skip: python() ? false : 'no Python that imports pmwm_codec (set PYTHON)' },
+async () => {
+  const checked = [];
+  // JOINTS_0 UNSIGNED_BYTE (in the base too), WEIGHTS_0
+  const { gltf, full } = await streamCase('skinned.plain', (shown) => { // indices 0 or 1 (the two joints), weights summing to 1
+    const g = shown.geometry;
+    const n = g.userData.pmwmLevel.vertices;
+    const joints = g.getAttribute('skinIndex').array.subarray(0, 4 * n);
+    const weights = g.getAttribute('skinWeight').array.subarray(0, 4 * n);
+    assert.ok(joints.every((j) => j === 0 || j === 1), `level of ${n} vertices: skin indices`);
+    for (let i = 0; i < n; i++) {
+      const sum = weights[4 * i] + weights[4 * i + 1] + weights[4 * i + 2] + weights[4 * i + 3];
+      assert.ok(Math.abs(sum - 1) < 3e-7, `level of ${n} vertices: vertex ${i}'s weights sum to ${sum}`);
+    }
+    checked.push(n);
+  });
+  const mesh = theMesh(gltf);
+  assert.ok(mesh.isSkinnedMesh, 'a SkinnedMesh');
+  const n = full.positions.length / 3;
+  assert.equal(mesh.geometry.userData.pmwmLevel.vertices, n);
+  assert.deepEqual(mesh.geometry.getAttribute('skinIndex').array.subarray(0, 4 * n), full.parts[0].attributes.JOINTS_0);
+  assert.deepEqual(mesh.geometry.getAttribute('skinWeight').array.subarray(0, 4 * n), full.parts[0].attributes.WEIGHTS_0);
+  assert.ok(checked.length >= 2 && checked.at(-1) === n, `levels checked: ${checked}`);
 });
 
 test('a flat-shaded primitive, its NORMAL dropped by the encoder, is shaded flat at every level: no normal attribute '
   + 'is made for it, and the full level is the decoder\'s', { skip: python() ? false : 'no Python that imports pmwm_codec (set PYTHON)' },
 async () => {
-  const dir = fs.mkdtempSync(path.join(os.tmpdir(), 'pmwm-three-'));
-  try {
-    encodeCase('flat.plain', 2, path.join(dir, 'flat.pmw')); // a sphere whose every NORMAL was its face's normal
-    const data = new Uint8Array(fs.readFileSync(path.join(dir, 'flat.pmw')));
-    const full = await decodePmw(data);
-    assert.equal(full.parts[0].attributes.NORMAL, undefined);
-    await serving({ 'flat.pmw': data }, async (server) => {
-      let scene = null; // the base's scene, before any chunk
-      const loader = new GLTFLoader();
-      loader.register(() => ({ name: 'scene', afterRoot: (result) => { scene = result.scene; } }));
-      const checked = [];
-      const check = () => {
-        const mesh = theMesh({ scene });
-        assert.ok(mesh.material.flatShading, 'the material shades flat');
-        assert.equal(mesh.geometry.getAttribute('normal'), undefined);
-        checked.push(mesh.geometry.userData.pmwmLevel.vertices);
-      };
-      const gltf = await loadProgressive(loader, `${server.url}flat.pmw`, { onChunk: () => check() });
-      assert.equal((await gltf.userData.pmwm.done).complete, true);
-      const geometry = theMesh(gltf).geometry, n = full.positions.length / 3;
-      assert.deepEqual(geometry.getAttribute('position').array.subarray(0, 3 * n), full.parts[0].positions);
-      assert.ok(checked.length >= 2 && checked[0] < n && checked.at(-1) === n, `levels checked: ${checked}`);
-    });
-  } finally {
-    fs.rmSync(dir, { recursive: true, force: true });
-  }
+  const checked = [];
+  const { gltf, full } = await streamCase('flat.plain', (shown) => { // a sphere whose every NORMAL was its face's normal
+    assert.ok(shown.material.flatShading, 'the material shades flat');
+    assert.equal(shown.geometry.getAttribute('normal'), undefined);
+    checked.push(shown.geometry.userData.pmwmLevel.vertices);
+  });
+  assert.equal(full.parts[0].attributes.NORMAL, undefined);
+  const geometry = theMesh(gltf).geometry, n = full.positions.length / 3;
+  assert.deepEqual(geometry.getAttribute('position').array.subarray(0, 3 * n), full.parts[0].positions);
+  assert.ok(checked.length >= 2 && checked[0] < n && checked.at(-1) === n, `levels checked: ${checked}`);
 });
 
 test('a level rewrites only the geometry of the primitive its chunk refines: the others are neither copied nor uploaded again',
