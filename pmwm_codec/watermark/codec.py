@@ -683,7 +683,8 @@ class Extractor:
     ``alternates`` (carriers, A) int64: per code slot the message symbols the carrier's
     code reads as, column 0 with its ring descriptor as computed, the others with its
     ambiguous readings (-1: none; A = :data:`ALTERNATIVES`); ``received`` is column 0
-    (-1: unread).
+    (-1: unread).  ``written``: the code slots :meth:`add` has written since a reader last took them
+    (:meth:`take_written`), so that a reader keeping counts updates them for those only.
     """
 
     params: WatermarkParams
@@ -692,10 +693,25 @@ class Extractor:
     alternates: np.ndarray = field(default=None)
     offset: int = 0
     void_seen: int = 0  # seam twins so far (at or after embed_from)
+    written: list = field(default_factory=list)
 
     def __post_init__(self):
         self.alternates = np.full((self.params.carriers, ALTERNATIVES), -1, dtype=np.int64)
         self._prf_key = binding_key(self.key) if self.params.binding else None
+        self._layout = None
+
+    def take_written(self) -> np.ndarray:
+        """The code slots (w,) int64, ascending and distinct, that :meth:`add` wrote since the last call."""
+        out = np.unique(np.concatenate(self.written)) if self.written else np.zeros(0, np.int64)
+        self.written = []
+        return out
+
+    @property
+    def layout(self) -> BitLayout:
+        """The exact mode's bit layout (parsed once from the parameters)."""
+        if self._layout is None:
+            self._layout = BitLayout.from_config(self.params.layout)
+        return self._layout
 
     @property
     def received(self) -> np.ndarray:
@@ -735,6 +751,7 @@ class Extractor:
                 raise ValueError("a bound watermark is read with the ring descriptors of its carriers")
             offsets = binding_offsets(self._prf_key, stream, descriptor, self.params.bits, rows, alternatives=True)
             self.alternates[slots[live]] = np.where(offsets >= 0, (codes[:, None] - offsets) % (1 << self.params.bits), -1)
+        self.written.append(slots[live])
         return slots[live], rows
 
     @property
@@ -755,11 +772,7 @@ class Extractor:
             sym = np.where(got, received, 0)
             raw = bits_from_symbols(sym, b, b * p.carriers) ^ self.key.bits(0, b * p.carriers)
             known = np.repeat(got, b)
-            bits_, ok = vote(raw, known, p.codes)
-            prefix = int(np.argmin(ok)) if not ok.all() else len(ok)
-            layout = BitLayout.from_config(p.layout)
-            values, count = unpack(bits_[:prefix], layout)
-            return values, count
+            return voted_prefix(*vote(raw, known, p.codes), self.layout)
         q = p.codes
         slot_code = np.arange(p.carriers) % q
         values = np.zeros(q, dtype=np.float64)
@@ -782,7 +795,18 @@ class Extractor:
     def image(self, received: np.ndarray | None = None) -> tuple[np.ndarray, int]:
         """(size, size) uint8 partial watermark and the number of coefficients it used (``received``: see
         :meth:`coefficients`)."""
-        p = self.params
         values, count = self.coefficients(received)
-        img = haar.reconstruct_prefix(values, p.size, p.levels, integer=(p.mode == "exact"))
-        return img, count
+        return self.image_of(values), count
+
+    def image_of(self, values: np.ndarray) -> np.ndarray:
+        """(size, size) uint8: the image of the coefficient stream prefix ``values`` (c,) (missing ones zero)."""
+        p = self.params
+        return haar.reconstruct_prefix(values, p.size, p.levels, integer=(p.mode == "exact"))
+
+
+def voted_prefix(bits: np.ndarray, known: np.ndarray, layout: BitLayout) -> tuple[np.ndarray, int]:
+    """The exact mode's coefficient prefix from the voted message: ``bits`` (codes,) uint8 and ``known``
+    (codes,) bool (:func:`~.payload.vote`: False where no copy arrived or the copies tie) ->
+    ``(values (c,) int64, c)``, every coefficient complete in the bits before the first unknown one."""
+    prefix = int(np.argmin(known)) if not known.all() else len(known)
+    return unpack(bits[:prefix], layout)

@@ -110,6 +110,8 @@ class Verifier:
             key.check_reference(self.reference)  # an image of another size than the key's: OptionError
             self.expected = expected_codes(self.reference, key, params)
             self.mismatch = self.expected is None
+        self.tally = Tally(params, key, self.expected)
+        self._last_image = None  # (agreeing, known bits, image, count) of the last exact-mode estimate
 
     def add(self, batch_index: int, points: np.ndarray, centroid: np.ndarray, nbar=None, scale=None,
             known=None, descriptor=None, twin=None):
@@ -125,13 +127,15 @@ class Verifier:
         if carriers.vertices is not None:
             self.support.append((carriers.primitive, slots, carriers.vertices[rows], desc, rows))
 
+    def counted(self) -> "Tally":
+        """The :class:`Tally`, brought up to date with the codes read since it was last asked for."""
+        self.tally.update(self.extractor.take_written(), self.extractor.alternates)
+        return self.tally
+
     def matches(self) -> tuple[int, int]:
         """``(codes matching the reference under their ring as read, codes read)`` so far."""
-        got = self.extractor.received >= 0
-        read = int(got.sum())
-        if self.expected is None:
-            return 0, read
-        return int(np.count_nonzero(self.extractor.received[got] == self.expected[got])), read
+        t = self.counted()
+        return t.matches, t.read
 
     def inconsistent(self) -> np.ndarray:
         """(carriers,) bool: read, and consistent with no reading of the ring (False without a reference)."""
@@ -146,8 +150,8 @@ class Verifier:
             return "not-authentic"
         if self.expected is None:
             return "inconclusive"
-        m, n = self.matches()
-        return verdict(m, n, self.params.bits, mismatched=int(self.inconsistent().sum()), foreign=self.foreign,
+        t = self.counted()
+        return verdict(t.matches, t.read, self.params.bits, mismatched=t.inconsistent, foreign=self.foreign,
                        bound=bool(self.params.binding))
 
     def tamper(self, offsets=None) -> np.ndarray:
@@ -186,16 +190,24 @@ class Verifier:
         return np.flatnonzero(flag).astype(np.int64)
 
     def estimate(self) -> "WatermarkEstimate":
-        """The partial watermark so far, scored against the reference (one scoring for every reader)."""
-        received = self.extractor.received
-        m, n = self.matches()
-        if self.expected is not None and n and chance_tail(m, n, self.params.bits) < ALPHA:
-            # the mark is there: a ring value on a boundary takes the reading the expected code agrees
-            # with.  Only then -- a wrong key or an unmarked mesh would otherwise be pulled toward
-            # the reference image through its ambiguous carriers.
-            agree = (self.extractor.alternates == self.expected[:, None]).any(axis=1)
-            received = np.where(agree, self.expected, received)
-        img, count = self.extractor.image(received)
+        """The partial watermark so far, scored against the reference (one scoring for every reader).
+
+        Its cost follows the codes read since the last estimate (:class:`Tally`), not every code read, so that a
+        stream's estimate at each of its chunk boundaries does not grow with the file; the image is rebuilt
+        only when the voted message it comes from changed (paper mode: from every code, each time)."""
+        t = self.counted()
+        m, n = t.matches, t.read
+        # the mark is there: a ring value on a boundary takes the reading the expected code agrees with.  Only
+        # then -- a wrong key or an unmarked mesh would otherwise be pulled toward the reference image through
+        # its ambiguous carriers.
+        agreeing = self.expected is not None and n > 0 and chance_tail(m, n, self.params.bits) < ALPHA
+        if self.params.mode == "exact":
+            img, count = self._exact_image(t, agreeing)
+        else:
+            received = self.extractor.received
+            if agreeing:
+                received = np.where(t.agree, self.expected, received)
+            img, count = self.extractor.image(received)
         out = WatermarkEstimate(img, int(count), n, self.verdict(), self.params.carriers)
         if self.reference is not None and self.reference.shape == img.shape:
             r, x = self.reference.astype(np.float64), img.astype(np.float64)
@@ -205,9 +217,96 @@ class Verifier:
             out.bit_exact = bool(np.array_equal(img, self.reference))
         if self.expected is not None:
             out.code_match = (m / n) if n else None
-            out.ber = code_ber(received, self.expected, self.params.bits)
-            out.inconsistent = int(self.inconsistent().sum())
+            out.ber = (t.errors_disagreeing if agreeing else t.errors) / (self.params.bits * n) if n else None
+            out.inconsistent = t.inconsistent
         return out
+
+    def _exact_image(self, t: "Tally", agreeing: bool) -> tuple[np.ndarray, int]:
+        """The exact mode's ``(image, coefficients)`` from the tally's votes (``agreeing``: the votes with
+        every carrier that agrees with its expected code counted as that code), the last image again when
+        the known part of the voted message is what it was (a copy: each estimate owns its image)."""
+        bits, known = t.voted(agreeing)
+        prefix = int(np.argmin(known)) if not known.all() else len(known)
+        last = self._last_image
+        if last is not None and last[0] == agreeing and np.array_equal(last[1], bits[:prefix]):
+            return last[2].copy(), last[3]
+        values, count = wm.voted_prefix(bits, known, self.extractor.layout)
+        img = self.extractor.image_of(values)
+        self._last_image = (agreeing, bits[:prefix].copy(), img, count)
+        return img, count
+
+
+class Tally:
+    """Running counts over the code slots read, kept up to date slot by slot (:meth:`update` with the slots
+    written since the last update), so that what a :class:`Verifier` reports at a stream's every chunk boundary
+    costs what the boundary brought rather than every carrier again (a 445-chunk asset read each of its
+    31,118 carriers at each boundary).
+
+    Per slot (``(carriers,)`` arrays, as last counted): ``got`` bool read; ``match`` bool its code equals the
+    expected one under its ring as read; ``agree`` bool some reading of its ring gives the expected code;
+    ``err`` int64 bits in which its code differs from the expected one.  Totals over the slots read:
+    ``read``, ``matches``, ``inconsistent`` (read and agreeing under no reading), ``errors`` and
+    ``errors_disagreeing`` (the bit errors of the slots that do not agree).  Exact mode also keeps the
+    majority votes of the message bits (:func:`~.payload.vote`'s counts), with the codes as read and with every
+    agreeing slot's code taken as the expected one (:meth:`voted`).  Without an expected code (no reference)
+    only ``got`` and ``read`` mean anything.
+    """
+
+    def __init__(self, params: wm.WatermarkParams, key, expected: np.ndarray | None):
+        c, self.bits = int(params.carriers), int(params.bits)
+        self.expected = expected
+        self.got, self.match, self.agree = (np.zeros(c, bool) for _ in range(3))
+        self.err = np.zeros(c, np.int64)
+        self.read = self.matches = self.inconsistent = self.errors = self.errors_disagreeing = 0
+        self.codes = int(params.codes) if params.mode == "exact" else 0
+        if self.codes:
+            self.whitening = key.bits(0, self.bits * c).reshape(c, self.bits)  # (carriers, bits) uint8
+            self.votes = np.zeros((2, 2, self.codes), np.int64)  # [as read | agreeing as expected][zeros | ones]
+            self.counted = np.full((2, c), -1, np.int64)  # the codes the votes hold for each slot (-1: none)
+
+    def update(self, slots: np.ndarray, alternates: np.ndarray) -> None:
+        """Count the slots ``slots`` (w,) int64 (distinct) again from ``alternates`` (carriers, A) int64
+        (:class:`~.codec.Extractor`'s: column 0 the code as read, -1 unread)."""
+        if len(slots) == 0:
+            return
+        self._count(slots, -1)
+        code = alternates[slots, 0]
+        got = code >= 0
+        self.got[slots] = got
+        if self.expected is not None:
+            expected = self.expected[slots]
+            self.match[slots] = got & (code == expected)
+            self.agree[slots] = got & (alternates[slots] == expected[:, None]).any(axis=1)
+            diff = np.where(got, code ^ expected, 0)
+            self.err[slots] = sum((diff >> b) & 1 for b in range(self.bits))
+        if self.codes:
+            agreeing = np.where(self.agree[slots], self.expected[slots], code) if self.expected is not None else code
+            self.counted[:, slots] = np.where(got, np.stack([code, agreeing]), -1)
+        self._count(slots, 1)
+
+    def _count(self, slots: np.ndarray, sign: int) -> None:
+        """Add (``sign`` 1) or take away (-1) the slots' part of every total, as last counted."""
+        got = slots[self.got[slots]]
+        disagree = got[~self.agree[got]]
+        self.read += sign * len(got)
+        if self.expected is not None:
+            self.matches += sign * int(np.count_nonzero(self.match[got]))
+            self.inconsistent += sign * len(disagree)
+            self.errors += sign * int(self.err[got].sum())
+            self.errors_disagreeing += sign * int(self.err[disagree].sum())
+        if self.codes:
+            b = self.bits
+            position = (b * got[:, None] + np.arange(b)) % self.codes  # the message bit each code bit carries
+            for variant in (0, 1):
+                bits = (self.counted[variant, got][:, None] >> np.arange(b - 1, -1, -1)) & 1
+                bits ^= self.whitening[got]
+                np.add.at(self.votes[variant], (bits.ravel(), position.ravel()), sign)
+
+    def voted(self, agreeing: bool) -> tuple[np.ndarray, np.ndarray]:
+        """The voted message, :func:`~.payload.vote`'s ``(bits (codes,) uint8, known (codes,) bool)``, from the
+        codes as read or (``agreeing``) with every agreeing slot's code taken as the expected one."""
+        zeros, ones = self.votes[int(agreeing)]
+        return (ones > zeros).astype(np.uint8), ones != zeros
 
 
 @dataclass
