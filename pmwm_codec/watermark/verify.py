@@ -244,7 +244,7 @@ class Tally:
 
     Per slot (``(carriers,)`` arrays, as last counted): ``got`` bool read; ``match`` bool its code equals the
     expected one under its ring as read; ``agree`` bool some reading of its ring gives the expected code;
-    ``err`` int64 bits in which its code differs from the expected one.  Totals over the slots read:
+    ``err`` uint8 bits in which its code differs from the expected one.  Totals over the slots read:
     ``read``, ``matches``, ``inconsistent`` (read and agreeing under no reading), ``errors`` and
     ``errors_disagreeing`` (the bit errors of the slots that do not agree).  Exact mode also keeps the
     majority votes of the message bits (:func:`~.payload.vote`'s counts), with the codes as read and with every
@@ -256,13 +256,13 @@ class Tally:
         c, self.bits = int(params.carriers), int(params.bits)
         self.expected = expected
         self.got, self.match, self.agree = (np.zeros(c, bool) for _ in range(3))
-        self.err = np.zeros(c, np.int64)
+        self.err = np.zeros(c, np.uint8)  # at most ``bits`` (<= 16)
         self.read = self.matches = self.inconsistent = self.errors = self.errors_disagreeing = 0
         self.codes = int(params.codes) if params.mode == "exact" else 0
         if self.codes:
             self.whitening = key.bits(0, self.bits * c).reshape(c, self.bits)  # (carriers, bits) uint8
             self.votes = np.zeros((2, 2, self.codes), np.int64)  # [as read | agreeing as expected][zeros | ones]
-            self.counted = np.full((2, c), -1, np.int64)  # the codes the votes hold for each slot (-1: none)
+            self.counted = np.full((2, c), -1, np.int32)  # the codes the votes hold for each slot (-1: none)
 
     def update(self, slots: np.ndarray, alternates: np.ndarray) -> None:
         """Count the slots ``slots`` (w,) int64 (distinct) again from ``alternates`` (carriers, A) int64
@@ -292,8 +292,8 @@ class Tally:
         if self.expected is not None:
             self.matches += sign * int(np.count_nonzero(self.match[got]))
             self.inconsistent += sign * len(disagree)
-            self.errors += sign * int(self.err[got].sum())
-            self.errors_disagreeing += sign * int(self.err[disagree].sum())
+            self.errors += sign * int(self.err[got].sum(dtype=np.int64))
+            self.errors_disagreeing += sign * int(self.err[disagree].sum(dtype=np.int64))
         if self.codes:
             b = self.bits
             position = (b * got[:, None] + np.arange(b)) % self.codes  # the message bit each code bit carries
