@@ -235,38 +235,40 @@ class OwnerReader:
         self._boundaries: list = []
         self._frames = None
         self._read_vertices = None
-        self._pending = None  # (positions, faces) lists of the last boundary's parts, when it was not read
+        self._pending = None  # the last boundary's parts, when it was not read
 
     @property
     def boundaries(self) -> list:
         """The :class:`OwnerBoundary` of every boundary added, the last one read."""
         if self._pending is not None:
             last = self._boundaries[-1]
-            positions, faces, _ = scene_mesh(*self._pending, self._frames)
-            self._boundaries[-1] = OwnerBoundary(last.chunk, last.bytes_read, last.vertices,
-                                                 detect(positions, faces, self.key))
+            self._boundaries[-1] = OwnerBoundary(last.chunk, last.bytes_read, last.vertices, self._read(self._pending))
             self._read_vertices, self._pending = last.vertices, None
         return self._boundaries
 
     def add(self, result, gltf: dict) -> None:
         """Take the boundary of ``result`` (a :class:`~pmwm_codec.stream.PartialResult` whose parts hold the
         meshes of its boundary as copies, which the reader may keep until the next :meth:`add`: a decoder made
-        with ``copy=True``) of the stream whose glTF JSON is ``gltf``.  The scene is put together
-        (:func:`~pmwm_codec.format.gltf.scene_mesh`) only for the boundaries read."""
+        with ``copy=True``) of the stream whose glTF JSON is ``gltf``.  The parts' positions are dequantized and
+        the scene put together (:func:`~pmwm_codec.format.gltf.scene_mesh`) only for the boundaries read: a
+        boundary costs what its chunk brought, not every primitive again."""
         if self._frames is None:
             self._frames = _frames(gltf)
-        meshes = ([p.positions for p in result.parts], [p.faces for p in result.parts])
         vertices = int(result.vertices)
         if self.every or self._read_vertices is None or vertices >= self._read_vertices * (1 + REREAD_GROWTH):
             self._pending = None
             self._read_vertices = vertices
-            positions, faces, _ = scene_mesh(*meshes, self._frames)
             self._boundaries.append(OwnerBoundary(result.chunk, int(result.bytes_read), vertices,
-                                                  detect(positions, faces, self.key)))
+                                                  self._read(result.parts)))
             return
         read = next(b for b in reversed(self._boundaries) if b.read_at == b.chunk)
         self._boundaries.append(OwnerBoundary(result.chunk, int(result.bytes_read), vertices, read.owner, read.chunk))
-        self._pending = meshes  # the parts' own copies: kept until the next boundary replaces them
+        self._pending = result.parts  # the parts' own copies: kept until the next boundary replaces them
+
+    def _read(self, parts: list):
+        """The layer read from the scene of ``parts`` (:class:`~pmwm_codec.stream.decoder.Part`)."""
+        positions, faces, _ = scene_mesh([p.positions for p in parts], [p.faces for p in parts], self._frames)
+        return detect(positions, faces, self.key)
 
 
 def _frames(gltf: dict) -> list:
