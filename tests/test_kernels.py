@@ -579,3 +579,32 @@ def test_a_prefetch_hint_compiles_for_rows_and_items_and_changes_nothing(kernels
     kernel = topology.compiled(hint_all) if kernels else hint_all
     assert kernel(rows, items, index) == 29 + 4
     assert np.array_equal(rows, before[0]) and np.array_equal(items, before[1])
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_seam_pairs_chosen_are_the_same_on_both_paths(monkeypatch, seed):
+    """seams.choose_pairs: Luby rounds over (n,) arrays in numpy, over the pairs only compiled; random pairs of
+    half collapses on a real neighbour CSR (many conflicts, tied costs, a vertex in several pairs)."""
+    pytest.importorskip("numba")
+    from pmwm_codec.progressive import seams
+    from pmwm_codec.progressive.livemesh import live_mesh
+
+    rng = np.random.default_rng(seed)
+    mesh = shapes.icosphere(3, 1.0)
+    faces = np.asarray(mesh.faces, np.int64)
+    n = mesh.vertex_count
+    live = live_mesh(faces, np.ones(len(faces), bool), np.ones(n, bool))
+    h = 400
+    e = rng.integers(0, len(live.et.lo), h)
+    flip = rng.random(h) < 0.5
+    hu = np.where(flip, live.et.lo[e], live.et.hi[e])
+    hv = np.where(flip, live.et.hi[e], live.et.lo[e])
+    p = 150
+    i, j = rng.integers(0, h, p), rng.integers(0, h, p)
+    cost = rng.integers(0, 20, p).astype(np.float64)  # ties
+    out = []
+    for use in (False, True):
+        monkeypatch.setattr(topology, "USE_NUMBA", use)
+        out.append(seams.choose_pairs(hu, hv, i, j, cost, live.vv, n, rounds=3 + seed))
+    assert 0 < len(out[0]) < p
+    assert out[0].dtype == out[1].dtype and np.array_equal(out[0], out[1])

@@ -442,6 +442,9 @@ def choose_pairs(hu, hv, i, j, cost, vv, n: int, rounds: int = 32) -> np.ndarray
     rank[np.argsort(cost, kind="stable")] = np.arange(p)
     u = np.concatenate([hu[i], hu[j]])
     v = np.concatenate([hv[i], hv[j]])
+    kernel = compiled(_choose_pairs_kernel)
+    if kernel is not None:
+        return kernel(u, v, rank, vv[0], vv[1], n, rounds)
     half_rank = np.concatenate([rank, rank])
     in_play = np.ones(p, bool)
     chosen = np.zeros(p, bool)
@@ -464,6 +467,53 @@ def choose_pairs(hu, hv, i, j, cost, vv, n: int, rounds: int = 32) -> np.ndarray
             break
         chosen |= win
         in_play &= ~win
+    return np.flatnonzero(chosen)
+
+
+def _choose_pairs_kernel(u, v, rank, vv_start, vv_nbr, n, rounds):
+    """Compiled :func:`choose_pairs` (the same pairs): ``u`` / ``v`` (2p,) int64 the halves' removed and
+    kept vertices (first halves, then second halves), ``rank`` (p,) int64 the pairs' ranks.  A round marks
+    the halves of the pairs in play or chosen at their vertices in two (n,) arrays, made once and reset at
+    the entries it marked, and tests the pairs in play only: a round costs the pairs, not the mesh."""
+    p = len(rank)
+    big = p + 1
+    removed = np.full(n, big, np.int64)
+    kept = np.full(n, big, np.int64)
+    in_play = np.ones(p, np.bool_)
+    chosen = np.zeros(p, np.bool_)
+    lower = np.empty(p, np.int64)
+    for _ in range(rounds):
+        for h in range(2 * p):  # the halves of the pairs in play or chosen; a chosen one blocks everyone
+            q = h % p
+            if in_play[q] or chosen[q]:
+                r = -1 if chosen[q] else rank[q]
+                removed[u[h]] = min(removed[u[h]], r)
+                kept[v[h]] = min(kept[v[h]], r)
+        for q in range(p):
+            if not in_play[q]:
+                continue
+            low = big
+            for h in (q, q + p):
+                low = min(low, removed[u[h]], kept[v[h]])
+                for t in range(vv_start[u[h]], vv_start[u[h] + 1]):
+                    low = min(low, removed[vv_nbr[t]], kept[vv_nbr[t]])
+                for t in range(vv_start[v[h]], vv_start[v[h] + 1]):
+                    low = min(low, removed[vv_nbr[t]])
+            lower[q] = low
+        won = False
+        for q in range(p):
+            if in_play[q]:
+                if lower[q] < 0:  # in conflict with a chosen pair
+                    in_play[q] = False
+                elif lower[q] >= rank[q]:
+                    chosen[q] = True
+                    in_play[q] = False
+                    won = True
+        for h in range(2 * p):
+            removed[u[h]] = big
+            kept[v[h]] = big
+        if not won:
+            break
     return np.flatnonzero(chosen)
 
 
