@@ -808,5 +808,9 @@ def voted_prefix(bits: np.ndarray, known: np.ndarray, layout: BitLayout) -> tupl
     """The exact mode's coefficient prefix from the voted message: ``bits`` (codes,) uint8 and ``known``
     (codes,) bool (:func:`~.payload.vote`: False where no copy arrived or the copies tie) ->
     ``(values (c,) int64, c)``, every coefficient complete in the bits before the first unknown one."""
-    prefix = int(np.argmin(known)) if not known.all() else len(known)
-    return unpack(bits[:prefix], layout)
+    return unpack(bits[: known_prefix(known)], layout)
+
+
+def known_prefix(known: np.ndarray) -> int:
+    """How many of the voted message's bits (``known`` (codes,) bool) come before the first unknown one."""
+    return int(np.argmin(known)) if not known.all() else len(known)

@@ -226,7 +226,7 @@ class Verifier:
         every carrier that agrees with its expected code counted as that code), the last image again when
         the known part of the voted message is what it was (a copy: each estimate owns its image)."""
         bits, known = t.voted(agreeing)
-        prefix = int(np.argmin(known)) if not known.all() else len(known)
+        prefix = wm.known_prefix(known)
         last = self._last_image
         if last is not None and last[0] == agreeing and np.array_equal(last[1], bits[:prefix]):
             return last[2].copy(), last[3]
