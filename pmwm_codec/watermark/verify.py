@@ -277,8 +277,7 @@ class Tally:
             expected = self.expected[slots]
             self.match[slots] = got & (code == expected)
             self.agree[slots] = got & (alternates[slots] == expected[:, None]).any(axis=1)
-            diff = np.where(got, code ^ expected, 0)
-            self.err[slots] = sum((diff >> b) & 1 for b in range(self.bits))
+            self.err[slots] = bit_errors(np.where(got, code, expected), expected, self.bits)
         if self.codes:
             agreeing = np.where(self.agree[slots], self.expected[slots], code) if self.expected is not None else code
             self.counted[:, slots] = np.where(got, np.stack([code, agreeing]), -1)
@@ -361,9 +360,14 @@ def code_ber(received: np.ndarray, expected: np.ndarray, bits: int) -> float | N
     got = received >= 0
     if expected is None or not got.any():
         return None
-    diff = (received[got] ^ expected[got]).astype(np.uint64)
-    errors = sum(int(np.count_nonzero((diff >> np.uint64(b)) & np.uint64(1))) for b in range(bits))
-    return errors / (bits * int(got.sum()))
+    return int(bit_errors(received[got], expected[got], bits).sum()) / (bits * int(got.sum()))
+
+
+def bit_errors(codes: np.ndarray, expected: np.ndarray, bits: int) -> np.ndarray:
+    """(k,) uint8: in how many of their ``bits`` low bits the codes (k,) int64 (each read, >= 0) differ from
+    ``expected`` (k,) int64."""
+    diff = codes ^ expected
+    return sum(((diff >> b) & 1).astype(np.uint8) for b in range(bits)) if bits else np.zeros(len(diff), np.uint8)
 
 
 def expected_codes(reference: np.ndarray, key, params: wm.WatermarkParams):
