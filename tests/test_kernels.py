@@ -608,3 +608,25 @@ def test_seam_pairs_chosen_are_the_same_on_both_paths(monkeypatch, seed):
         out.append(seams.choose_pairs(hu, hv, i, j, cost, live.vv, n, rounds=3 + seed))
     assert 0 < len(out[0]) < p
     assert out[0].dtype == out[1].dtype and np.array_equal(out[0], out[1])
+
+
+def test_siphash_is_the_same_on_both_paths(monkeypatch):
+    """codec.siphash24: lanes sorted and hashed block by block in numpy, lane by lane compiled; random keys and
+    messages of every length up to 40 bytes, and none."""
+    pytest.importorskip("numba")
+    from pmwm_codec.watermark import codec
+
+    rng = np.random.default_rng(17)
+    nbytes = rng.integers(0, 41, 300)
+    message = np.zeros((300, 48), np.uint8)
+    for i, n in enumerate(nbytes):
+        message[i, :n] = rng.integers(0, 256, n)
+    key = rng.integers(0, 256, 16).astype(np.uint8).tobytes()
+    out = []
+    for use in (False, True):
+        monkeypatch.setattr(topology, "USE_NUMBA", use)
+        out.append(codec.siphash24(key, message, nbytes))
+        assert len(codec.siphash24(key, np.zeros((0, 8), np.uint8), np.zeros(0, np.int64))) == 0
+    distinct = {message[i, :n].tobytes() for i, n in enumerate(nbytes)}
+    assert out[0].dtype == out[1].dtype == np.uint64 and len(np.unique(out[0])) == len(distinct)
+    assert np.array_equal(out[0], out[1])

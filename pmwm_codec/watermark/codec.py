@@ -62,6 +62,7 @@ import numpy as np
 from ..constants import MAX_VERTICES
 from ..errors import PmwError
 from ..progressive.seams import twin_rows
+from ..progressive.topology import compiled, kernel_helper
 from . import haar
 from .payload import BitLayout, bits_from_symbols, pack, repeat_to_capacity, symbols, unpack, vote
 
@@ -405,6 +406,10 @@ def siphash24(key: bytes, message: np.ndarray, nbytes: np.ndarray) -> np.ndarray
     """
     nbytes = np.asarray(nbytes, np.int64)
     k0, k1 = np.frombuffer(bytes(key[:16]), "<u8").astype(np.uint64)
+    kernel = compiled(_siphash_kernel)
+    if kernel is not None:  # lane by lane: a batch of a few carriers costs a few hashes, not ~200 numpy calls
+        words = np.ascontiguousarray(np.asarray(message, np.uint8)).view("<u8").astype(np.uint64)
+        return kernel(_SIP_IV ^ np.array([k0, k1, k0, k1], np.uint64), words, nbytes)
     order = np.argsort(-nbytes, kind="stable")
     full = nbytes[order] // 8  # whole blocks; then the last block: the tail bytes and the length byte
     words = np.ascontiguousarray(np.asarray(message, np.uint8)[order]).view("<u8").astype(np.uint64)
@@ -426,6 +431,55 @@ def siphash24(key: bytes, message: np.ndarray, nbytes: np.ndarray) -> np.ndarray
     out = np.empty(len(full), np.uint64)
     out[order] = state[0] ^ state[1] ^ state[2] ^ state[3]
     return out
+
+
+def _siphash_kernel(init, words, nbytes):
+    """Compiled :func:`siphash24`: ``init`` (4,) uint64 the keyed initial state (v0, v1, v2, v3), ``words``
+    (w, W) uint64 each message's zero-padded bytes as little-endian words, ``nbytes`` (w,) int64 their
+    lengths; (w,) uint64, one lane after another (every operation on uint64: a mixed int64 one would be a
+    float in numba)."""
+    out = np.empty(len(nbytes), np.uint64)
+    ff, shift = np.uint64(0xFF), np.uint64(56)
+    for i in range(len(nbytes)):
+        v0, v1, v2, v3 = init[0], init[1], init[2], init[3]
+        full = nbytes[i] // 8
+        for j in range(full + 1):
+            m = words[i, j] if j < full else words[i, full] | ((np.uint64(nbytes[i]) & ff) << shift)
+            v3 ^= m
+            for _ in range(2):
+                v0, v1, v2, v3 = _sip_round(v0, v1, v2, v3)
+            v0 ^= m
+        v2 ^= ff
+        for _ in range(4):
+            v0, v1, v2, v3 = _sip_round(v0, v1, v2, v3)
+        out[i] = v0 ^ v1 ^ v2 ^ v3
+    return out
+
+
+@kernel_helper(inline=True)
+def _sip_round(v0, v1, v2, v3):
+    """One SipRound on four uint64 words (:func:`_sip_rounds`, one lane)."""
+    v0 += v1
+    v2 += v3
+    v1 = _rotl64(v1, 13)
+    v3 = _rotl64(v3, 16)
+    v1 ^= v0
+    v3 ^= v2
+    v0 = _rotl64(v0, 32)
+    v2 += v1
+    v0 += v3
+    v1 = _rotl64(v1, 17)
+    v3 = _rotl64(v3, 21)
+    v1 ^= v2
+    v3 ^= v0
+    v2 = _rotl64(v2, 32)
+    return v0, v1, v2, v3
+
+
+@kernel_helper(inline=True)
+def _rotl64(x, r):
+    """``x <<< r`` of a uint64 word (0 < r < 64)."""
+    return (x << np.uint64(r)) | (x >> np.uint64(64 - r))
 
 
 def binding_key(key) -> bytes:
