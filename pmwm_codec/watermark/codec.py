@@ -458,22 +458,21 @@ def _siphash_kernel(init, words, nbytes):
 
 @kernel_helper(inline=True)
 def _sip_round(v0, v1, v2, v3):
-    """One SipRound on four uint64 words (:func:`_sip_rounds`, one lane)."""
-    v0 += v1
-    v2 += v3
-    v1 = _rotl64(v1, 13)
-    v3 = _rotl64(v3, 16)
-    v1 ^= v0
-    v3 ^= v2
-    v0 = _rotl64(v0, 32)
-    v2 += v1
-    v0 += v3
-    v1 = _rotl64(v1, 17)
-    v3 = _rotl64(v3, 21)
-    v1 ^= v2
-    v3 ^= v0
-    v2 = _rotl64(v2, 32)
+    """One SipRound on four uint64 words (:func:`_sip_rounds`, one lane): two halves, the second with v0 and v2
+    swapped and its own rotations."""
+    v0, v1, v2, v3 = _sip_half(v0, v1, v2, v3, 13, 16)
+    v2, v1, v0, v3 = _sip_half(v2, v1, v0, v3, 17, 21)
     return v0, v1, v2, v3
+
+
+@kernel_helper(inline=True)
+def _sip_half(a, b, c, d, rb, rd):
+    """Half a SipRound: ``a += b; c += d; b <<<= rb; d <<<= rd; b ^= a; d ^= c; a <<<= 32``."""
+    a += b
+    c += d
+    b = _rotl64(b, rb) ^ a
+    d = _rotl64(d, rd) ^ c
+    return _rotl64(a, 32), b, c, d
 
 
 @kernel_helper(inline=True)
