@@ -811,7 +811,11 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, count, boundary, edge_flags, f
     A vertex's row of the neighbour CSR lists its edges in the order :func:`_usable` meets them
     (edges where it is the low end, then where it is the high end, each in edge order), so the
     usable collapses of ``u`` are its row minus the excluded edges, sorted stably by cost as in
-    :func:`_cheapest_per_group` (NaN last).  ``boundary`` / ``edge_flags`` (n,): the live mesh's
+    :func:`_cheapest_per_group` (NaN last).  The sort counts each collapse's place (the costs before
+    it or equal and earlier in the row) instead of moving entries, a loop with no branch on the costs;
+    it compares the costs' bits as int64: a cost is ``+0.0``, ``-0.0`` (an error rounded to zero) or
+    positive, inf or NaN (:func:`_quadric_at` sums), so with the sign bit cleared and every NaN given
+    one value above inf's, the bits order the costs as the floats do, NaN last.  ``boundary`` / ``edge_flags`` (n,): the live mesh's
     (:class:`~.livemesh.LiveMesh`); a vertex on an edge of more than two faces has its row searched
     for one that is no pillow's.  ``rows``: None, every vertex (one pass over the vertices for their
     own quadric errors first), or (r,) int64, ascending, the vertices to visit (the errors of their
@@ -833,6 +837,8 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, count, boundary, edge_flags, f
             width = max(width, vv_start[u + 1] - vv_start[u])
     buf_p = np.empty(width, np.int64)  # row positions of u's usable collapses, by cost
     buf_c = np.empty(width, np.float64)  # their costs
+    bits = buf_c.view(np.int64)
+    buf_k = np.empty(width, np.int64)  # their sort keys: the costs' bits, every NaN one (the largest) value
     own = np.empty(n, np.float64)  # quadric_error(Q, P), vertex by vertex
     if rows is None:
         for x in range(n):
@@ -858,17 +864,18 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, count, boundary, edge_flags, f
             if (bu > 0 and ce != 1) or ce > 2:
                 continue
             c = _quadric_at(q, P, vv_nbr[p]) + own[vv_nbr[p]]
-            t = m  # stable: move left past strictly greater costs only (NaN counts as greatest)
-            if c == c:
-                while t > 0 and (buf_c[t - 1] > c or buf_c[t - 1] != buf_c[t - 1]):
-                    buf_p[t], buf_c[t] = buf_p[t - 1], buf_c[t - 1]
-                    t -= 1
-            buf_p[t], buf_c[t] = p, c
+            buf_p[m], buf_c[m] = p, c
+            buf_k[m] = bits[m] & 0x7FFFFFFFFFFFFFFF if c == c else 0x7FF8000000000000
             m += 1
-        for j in range(min(m, tries)):
-            p = buf_p[j]
-            out_u[k], out_v[k], out_e[k], out_c[k] = u, vv_nbr[p], vv_edge[p], buf_c[j]
-            k += 1
+        for i in range(m):  # each collapse's place in cost order, ties in row order: counted, no branch
+            key = buf_k[i]
+            t = 0
+            for j in range(m):
+                t += (buf_k[j] < key) | ((buf_k[j] == key) & (j < i))
+            if t < tries:
+                p = buf_p[i]
+                out_u[k + t], out_v[k + t], out_e[k + t], out_c[k + t] = u, vv_nbr[p], vv_edge[p], buf_c[i]
+        k += min(m, tries)
     return out_u[:k], out_v[:k], out_e[:k], out_c[:k]
 
 
