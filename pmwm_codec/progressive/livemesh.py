@@ -177,16 +177,6 @@ def _vertex_faces(F, n):
     return vf_start, vf_corner, fcount, ring
 
 
-@kernel_helper
-def _insert(buf, k, key):
-    """Insert ``key`` into the first ``k`` entries of ``buf``, kept ascending."""
-    t = k
-    while t > 0 and buf[t - 1] > key:
-        buf[t] = buf[t - 1]
-        t -= 1
-    buf[t] = key
-
-
 @kernel_helper(allocates=True)
 def _edges_by_vertex(F, n, vf_start, vf_corner, ring):
     """Kernel part of :func:`_live_mesh_kernel`: the edge table of ``F`` built vertex by vertex
@@ -208,7 +198,7 @@ def _edges_by_vertex(F, n, vf_start, vf_corner, ring):
     wmax = 0
     for x in range(n):
         wmax = max(wmax, vf_start[x + 1] - vf_start[x])
-    buf = np.empty(2 * wmax, np.int64)
+    buf = np.empty(4 * wmax + 2, np.int64)  # the keys of a vertex, then sorted (:func:`_vertex_edges`)
     zero = np.int64(0)  # not a literal (see :func:`~.topology.kernel_helper`)
     x, ne = _vertex_edges(zero, zero, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0, he1, down, boundary, flags)
     while x < n:  # more boundary or non-manifold edges than that: grow (outside the vertex loop, which stays fast)
@@ -239,15 +229,19 @@ def _vertex_edges(x0, ne, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0,
 
     Every vertex ``x`` in turn gathers the half-edges of its corners that run to or from a higher
     vertex ``y`` (and its own outgoing self-loops) as one packed key ``(y << shift | half-edge) << 1 |
-    into x`` in ``buf`` (scratch, 2 * the largest face count; the direction bit below the half-edge,
-    which no two entries share), then sorts them by insertion (one comparison per step): its edges as
-    the low end, in edge order.  The gathering writes both keys of every corner and keeps the wanted
-    ones by advancing the count or not: a branch there, taken at random about half the time, cost a
-    tenth of the edge pass in mispredictions."""
+    into x`` in the first half of ``buf`` (scratch, (4 w + 2,) int64 for the largest face count w; the
+    direction bit below the half-edge, which no two entries share), then writes each key to its place
+    in the second half (from ``len(buf) // 2`` on), the number of keys below it: its edges as the low end,
+    in edge order.  Neither step branches on the keys: the gathering writes both keys of every corner
+    and keeps the wanted ones by advancing the count or not (a branch there, taken at random about half
+    the time, cost a tenth of the edge pass in mispredictions), and counting the keys below each one
+    (k**2 comparisons, k ~ 6) builds the live mesh in 0.90-0.98x the time an insertion sort took (its
+    steps mispredict)."""
     shift = 1
     while (1 << shift) < len(vf_corner):  # half-edge ids are below 3m, the corner count
         shift += 1
     low = (1 << shift) - 1
+    half = len(buf) // 2
     for x in range(x0, n):
         k = 0
         for p in range(vf_start[x], vf_start[x + 1]):  # every key written, kept (k advanced) or not: no branch
@@ -257,15 +251,19 @@ def _vertex_edges(x0, ne, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0,
             k += y1 >= x
             buf[k] = (((y2 << shift) | (hc + 2 if hc % 3 == 0 else hc - 1)) << 1) | 1  # y2 -> x: the previous corner
             k += y2 > x
-        for i in range(1, k):
-            _insert(buf, i, buf[i])
+        for i in range(k):  # each key to its place, ascending: the keys before it, counted
+            key = buf[i]
+            t = half
+            for j in range(k):
+                t += buf[j] < key
+            buf[t] = key
         if ne + k > len(lo):
             return x, ne
-        j = 0
-        while j < k:
+        j = half
+        while j < half + k:
             s = j
             y = buf[s] >> (shift + 1)
-            while j < k and buf[j] >> (shift + 1) == y:
+            while j < half + k and buf[j] >> (shift + 1) == y:
                 j += 1
             c = j - s
             lo[ne], hi[ne], count[ne] = x, y, c
