@@ -1334,7 +1334,7 @@ def _legal_marked(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_st
     ok = np.ones(len(cu), np.bool_)
     for j in range(len(cu)):
         i = token + j
-        if j % LEGAL_CHUNK == 0 and _touch(cu, cv, ce, j, min(j + LEGAL_CHUNK, len(cu)), count, he0, opp, fcount,
+        if j % LEGAL_CHUNK == 0 and _touch(cu, cv, ce, j, min(j + LEGAL_CHUNK, len(cu)), count, he0, he1, opp, fcount,
                                            vv_start, vv_nbr, vv_edge, vf_start, vf_face, F, P) < 0:
             ok[j] = not ok[j]  # never (counts and ids are not negative): the loads must not be dropped
         u, v, e = cu[j], cv[j], ce[j]
@@ -1367,16 +1367,19 @@ LEGAL_CHUNK = 16
 
 
 @kernel_helper
-def _touch(cu, cv, ce, i0, i1, count, he0, opp, fcount, vv_start, vv_nbr, vv_edge, vf_start, vf_face, F, P):
-    """Read what the legality tests of candidates ``i0 .. i1 - 1`` will read first (their edge, their
-    vertices' rows, the faces of the removed vertex and their corners' positions) in one loop with no
-    branch on the values, so that the cache misses of the chunk overlap instead of coming one test at a
-    time (the candidates are scattered over the mesh: the winners of a selection round).  Returns a
-    sum of the counts and ids it read (never negative), which the caller tests so that the loads stay."""
+def _touch(cu, cv, ce, i0, i1, count, he0, he1, opp, fcount, vv_start, vv_nbr, vv_edge, vf_start, vf_face, F, P):
+    """Read what the legality tests of candidates ``i0 .. i1 - 1`` will read first (their edge, its
+    deleted faces' third vertices and their face counts, their vertices' rows, the faces of the removed
+    vertex and their corners' positions) in one loop with no branch on the values, so that the cache
+    misses of the chunk overlap instead of coming one test at a time (the candidates are scattered over
+    the mesh: the winners of a selection round).  Returns a sum of the counts and ids it read (never
+    negative), which the caller tests so that the loads stay.  (The second deleted face and the removed
+    vertex's neighbours, read here too, made the selection 0.91-0.94x as long.)"""
     acc = 0
     for i in range(i0, i1):
         u, v, e = cu[i], cv[i], ce[i]
-        acc += count[e] + opp[he0[e]] + fcount[u] + vv_nbr[vv_start[v]] + vv_edge[vv_start[u]]
+        acc += count[e] + fcount[opp[he0[e]]] + fcount[opp[max(he1[e], 0)]] + fcount[u] + vv_nbr[vv_start[v]] \
+            + vv_edge[vv_start[u]] + vv_nbr[vv_start[u]]
         for p in range(vf_start[u], vf_start[u + 1]):
             f = vf_face[p]
             acc += (P[F[f, 0], 0] > 0.0) + (P[F[f, 1], 0] > 0.0) + (P[F[f, 2], 0] > 0.0)
