@@ -348,8 +348,10 @@ def simplify(
     vert_alive[corners.ravel()] = True
     live = live_mesh(corners, face_alive, vert_alive)
     boundary = live.et.he0[live.et.count == 1]  # the input's boundary half-edges, in edge order (every face is live)
-    # positions and quadrics of the live vertices, in local ids (:func:`_kept_rows` from batch to batch)
+    # positions and quadrics of the live vertices and the quadrics' errors at them, in local ids (:func:`_kept_rows`
+    # from batch to batch; :func:`_apply` updates the errors where it merges quadrics)
     P, Q = _local_rows(pos, face_quadrics(pos, corners, n, live.fids[boundary // 3] * 3 + boundary % 3), live.vids)
+    own = quadric_error(Q, P)
     frozen_ext = np.zeros(n, bool) if locked is None else np.asarray(locked, bool).copy()
     twin = twin_faces(corners) if twin is None else np.asarray(twin, bool)
     twin = twin if twin.any() else None
@@ -363,11 +365,11 @@ def simplify(
             ids = live.vids, live.fids, live.loc
             live = None  # the previous batch's edge tables and adjacency freed before the next ones are made
             live = live_mesh(corners, face_alive, vert_alive, ids)
-            P, Q = _kept_rows(P, Q, ids[0], vert_alive)
-        batch = _one_batch(P, Q, live, frozen_ext, alive_count - target_vertices, weld, twin)
+            P, Q, own = _kept_rows(P, Q, own, ids[0], vert_alive)
+        batch = _one_batch(P, Q, own, live, frozen_ext, alive_count - target_vertices, weld, twin)
         if batch is None:
             break
-        _apply(batch, corners, face_alive, vert_alive, Q, live.loc)
+        _apply(batch, corners, face_alive, vert_alive, P, Q, own, live.loc)
         alive_count -= len(batch.u)
         log.batches.append(batch)
 
@@ -377,15 +379,16 @@ def simplify(
     return log
 
 
-def _apply(batch, corners, face_alive, vert_alive, Q, loc):
+def _apply(batch, corners, face_alive, vert_alive, P, Q, own, loc):
     """Apply a :class:`CollapseBatch` to the simplifier's state in place: delete its faces, rewrite
-    the moved corners ``u -> v``, retire ``u`` and merge its quadric into ``v``'s (``Q`` (n, 10) float64,
-    the batch's local quadrics, ``loc`` (N,) int64 its original -> local ids; the batch's ``u`` and ``v``
+    the moved corners ``u -> v``, retire ``u``, merge its quadric into ``v``'s and evaluate that at ``v``
+    (``P`` (n, 3), ``Q`` (n, 10) and ``own`` (n,) float64, the batch's local positions, quadrics and
+    ``quadric_error(Q, P)``; ``loc`` (N,) int64 its original -> local ids; the batch's ``u`` and ``v``
     are disjoint, every ``v`` once)."""
     kernel = compiled(_apply_kernel)
     if kernel is not None:
         kernel(batch.u, batch.v, batch.del_left, batch.del_right, batch.moved_face, batch.moved_by,
-               corners, face_alive, vert_alive, Q, loc)
+               corners, face_alive, vert_alive, P, Q, own, loc)
         return
     dead = np.concatenate([batch.del_left[batch.del_left >= 0], batch.del_right[batch.del_right >= 0]])
     face_alive[dead] = False
@@ -393,11 +396,13 @@ def _apply(batch, corners, face_alive, vert_alive, Q, loc):
     sub = corners[mf]
     corners[mf] = np.where(sub == batch.u[batch.moved_by][:, None], batch.v[batch.moved_by][:, None], sub)
     vert_alive[batch.u] = False
-    Q[loc[batch.v]] += Q[loc[batch.u]]
+    kept = loc[batch.v]
+    Q[kept] += Q[loc[batch.u]]
+    own[kept] = quadric_error(Q[kept], P[kept])
 
 
-def _apply_kernel(u, v, del_left, del_right, moved_face, moved_by, corners, face_alive, vert_alive, Q, loc):
-    """Compiled :func:`_apply` (the same state afterwards, the same quadric bits)."""
+def _apply_kernel(u, v, del_left, del_right, moved_face, moved_by, corners, face_alive, vert_alive, P, Q, own, loc):
+    """Compiled :func:`_apply` (the same state afterwards, the same quadric and error bits)."""
     for i in range(len(u)):
         for f in (del_left[i], del_right[i]):
             if f >= 0:
@@ -406,6 +411,7 @@ def _apply_kernel(u, v, del_left, del_right, moved_face, moved_by, corners, face
         a, b = loc[u[i]], loc[v[i]]
         for j in range(Q.shape[1]):
             Q[b, j] = Q[b, j] + Q[a, j]
+        own[b] = _quadric_at(_quadric_row(Q, b), P, b)
     for k in range(len(moved_face)):
         f, i = moved_face[k], moved_by[k]
         for c in range(3):
@@ -413,11 +419,12 @@ def _apply_kernel(u, v, del_left, del_right, moved_face, moved_by, corners, face
                 corners[f, c] = v[i]
 
 
-def _one_batch(P, Q, live, frozen_ext, budget, weld=None, twin=None):
+def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None):
     """Choose and describe one batch of independent legal collapses (or None).
 
     ``live`` is the :class:`~.livemesh.LiveMesh` of the simplifier's live faces, P (n, 3) and Q (n, 10)
-    float64 its vertices' positions and quadrics (local ids), frozen_ext (N,) bool the simplifier's
+    float64 its vertices' positions and quadrics (local ids), ``own`` (n,) float64 ``quadric_error(Q, P)``,
+    frozen_ext (N,) bool the simplifier's
     frozen vertices (original ids); at most ``budget`` vertices are removed (the cheapest collapses).
     ``weld`` (N,) int64 or None: seam copies (see :func:`simplify`).  The work is done on the live mesh
     renumbered compactly ("local" ids) and returned in original ids.  ``twin`` (M,) bool or None: the
@@ -436,10 +443,10 @@ def _one_batch(P, Q, live, frozen_ext, budget, weld=None, twin=None):
     twins = _twin_counts(et, F, None if twin is None else twin[fids], n)
     mesh = (et, F, P, opp, fcount, vv, vf, vv_edge, twins[0])
     ends = live.boundary, live.edge_flags
-    cand = _candidates(mesh, ends, Q, src, frozen if seam is None else frozen | seam, twins)
+    cand = _candidates(mesh, ends, Q, src, frozen if seam is None else frozen | seam, twins, own=own)
     if cand is None and seam is None:
         return None
-    pairs = None if seam is None else _seam_pairs(Q, src, dst, frozen, seam, g, mesh, ends)
+    pairs = None if seam is None else _seam_pairs(Q, own, src, dst, frozen, seam, g, mesh, ends)
     # the ordinary candidates must be independent of the chosen seam pairs (left out as the affordable ones are
     # picked, one pass over the candidates)
     blocked = None if pairs is None else seams.blocked_by(pairs[0], pairs[1], vv, n)
@@ -489,20 +496,20 @@ def _local_rows_kernel(pos, quad, vids):
     return P, Q
 
 
-def _kept_rows(P, Q, vids, vert_alive):
-    """The rows of ``P`` (n, 3) and ``Q`` (n, 10) float64 (the live vertices ``vids`` (n,) int64 of the
-    batch before, in local ids) whose vertices are still alive (``vert_alive`` (N,) bool): the next
-    batch's local rows, in its order.  Compiled: moved down in place (views of P and Q; the batch
-    before must be done with them), so that every batch reads the rows of the one before, not the
-    whole mesh's original arrays."""
+def _kept_rows(P, Q, own, vids, vert_alive):
+    """The rows of ``P`` (n, 3), ``Q`` (n, 10) and ``own`` (n,) float64 (the live vertices ``vids`` (n,)
+    int64 of the batch before, in local ids) whose vertices are still alive (``vert_alive`` (N,) bool):
+    the next batch's local rows, in its order.  Compiled: moved down in place (views of P, Q and own;
+    the batch before must be done with them), so that every batch reads the rows of the one before,
+    not the whole mesh's original arrays."""
     kernel = compiled(_kept_rows_kernel)
     if kernel is None:
         keep = vert_alive[vids]
-        return P[keep], Q[keep]
-    return kernel(P, Q, vids, vert_alive)
+        return P[keep], Q[keep], own[keep]
+    return kernel(P, Q, own, vids, vert_alive)
 
 
-def _kept_rows_kernel(P, Q, vids, vert_alive):
+def _kept_rows_kernel(P, Q, own, vids, vert_alive):
     """Compiled :func:`_kept_rows`."""
     k = 0
     for i in range(len(vids)):
@@ -511,8 +518,9 @@ def _kept_rows_kernel(P, Q, vids, vert_alive):
                 P[k, j] = P[i, j]
             for j in range(Q.shape[1]):
                 Q[k, j] = Q[i, j]
+            own[k] = own[i]
             k += 1
-    return P[:k], Q[:k]
+    return P[:k], Q[:k], own[:k]
 
 
 def _described(et, src, opp, vids, fids, Q, cu, cv, ce, cost):
@@ -599,16 +607,16 @@ def _fin_vertices(et, n):
     return fin
 
 
-def _seam_pairs(Q, src, dst, frozen, seam, g, mesh, ends):
+def _seam_pairs(Q, own, src, dst, frozen, seam, g, mesh, ends):
     """The seam pairs of this batch (:mod:`.seams`), or None.
 
-    Q (n, 10) quadrics, src / dst (3m,) half-edges, frozen / seam (n,) bool, g (n,) int64 seam
-    groups, ``mesh`` as in :func:`_ordinary_winners`, ``ends`` as in :func:`_candidates`.  Returns ``(cu, cv, ce, cost)``, each
-    (2p,) (int64 / float64 half costs): first halves, then second halves in the same order
-    (pair ``k`` is rows ``k`` and ``p + k``).
+    Q (n, 10) quadrics, ``own`` (n,) their errors (:func:`_candidates`), src / dst (3m,) half-edges,
+    frozen / seam (n,) bool, g (n,) int64 seam groups, ``mesh`` as in :func:`_ordinary_winners`, ``ends``
+    as in :func:`_candidates`.  Returns ``(cu, cv, ce, cost)``, each (2p,) (int64 / float64 half costs):
+    first halves, then second halves in the same order (pair ``k`` is rows ``k`` and ``p + k``).
     """
     et, F, P, opp, fcount, vv, vf, _, _ = mesh
-    halves = _candidates(mesh, ends, Q, src, frozen | ~seam, rows=np.flatnonzero(seam & ~frozen))
+    halves = _candidates(mesh, ends, Q, src, frozen | ~seam, rows=np.flatnonzero(seam & ~frozen), own=own)
     if halves is None:
         return None
     hu, hv, he, hcost = halves
@@ -773,27 +781,29 @@ def _to_original(table, local):
     return np.where(local >= 0, table[np.maximum(local, 0)], -1)
 
 
-def _candidates(mesh, ends, Q, src, frozen_ext, twins=None, rows=None):
+def _candidates(mesh, ends, Q, src, frozen_ext, twins=None, rows=None, own=None):
     """Candidate collapses on the local mesh, grouped by removed vertex, cheapest first.
 
     ``mesh`` as in :func:`_ordinary_winners`, ``ends`` the live mesh's ``(boundary, edge_flags)``
     (:class:`~.livemesh.LiveMesh`), Q (n, 10) quadrics, ``src`` (3m,) the half-edge sources, frozen_ext
-    (n,) bool, ``twins`` the doubled faces' edges and counts (:func:`_twin_counts`; None: none).  Returns ``(cu, cv, ce, cost)`` ((c,) int64 removed vertex,
-    kept vertex, edge; (c,) float64 quadric cost), at most ``TRIES`` per removed vertex, or None
-    when there is none.  ``rows`` (r,) int64, ascending: the only vertices ``frozen_ext`` leaves free,
-    when they are few (the compiled kernel then visits only them); None: every vertex.
+    (n,) bool, ``twins`` the doubled faces' edges and counts (:func:`_twin_counts`; None: none).
+    Returns ``(cu, cv, ce, cost)`` ((c,) int64 removed vertex, kept vertex, edge; (c,) float64 quadric
+    cost), at most ``TRIES`` per removed vertex, or None when there is none.  ``rows`` (r,) int64,
+    ascending: the only vertices ``frozen_ext`` leaves free, when they are few (the compiled kernel then
+    visits only them); None: every vertex.  ``own`` (n,) float64: ``quadric_error(Q, P)``, the second
+    term of every cost (:func:`simplify` carries it from batch to batch, as it does Q); None: computed.
     """
     et, F, P, _, fcount, vv, _, vv_edge, _ = mesh
     n = len(P)
     if twins is None:
         twins = _twin_counts(et, F, None, n)
+    # (Q_u + Q_v)(p_v) = Q_u(p_v) + Q_v(p_v); the second term is one value per vertex
+    own = quadric_error(Q, P) if own is None else own
     kernel = compiled(_candidates_kernel)
     if kernel is not None:
         cu, cv, ce, cost = kernel(vv[0], vv[1], vv_edge, et.count, ends[0], ends[1], fcount, frozen_ext, twins[0],
-                                  twins[1], Q, P, TRIES, rows)
+                                  twins[1], Q, P, own, TRIES, rows)
         return (cu, cv, ce, cost) if len(cu) else None
-    # (Q_u + Q_v)(p_v) = Q_u(p_v) + Q_v(p_v); the second term is one value per vertex
-    own = quadric_error(Q, P)
     cu, cv, ce = _usable(F, et, src, frozen_ext, twins, n)
     if len(cu) == 0:
         return None
@@ -805,21 +815,22 @@ def _candidates(mesh, ends, Q, src, frozen_ext, twins=None, rows=None):
 
 
 def _candidates_kernel(vv_start, vv_nbr, vv_edge, count, boundary, edge_flags, fcount, frozen_ext, twin_edge, extra,
-                       Q, P, tries, rows):
+                       Q, P, own, tries, rows):
     """Compiled :func:`_candidates` (same arrays, same order), one vertex at a time.
 
     A vertex's row of the neighbour CSR lists its edges in the order :func:`_usable` meets them
     (edges where it is the low end, then where it is the high end, each in edge order), so the
     usable collapses of ``u`` are its row minus the excluded edges, sorted stably by cost as in
     :func:`_cheapest_per_group` (NaN last).  The sort counts each collapse's place (the costs before
-    it or equal and earlier in the row) instead of moving entries, a loop with no branch on the costs;
-    it compares the costs' bits as int64: a cost is ``+0.0``, ``-0.0`` (an error rounded to zero) or
-    positive, inf or NaN (:func:`_quadric_at` sums), so with the sign bit cleared and every NaN given
-    one value above inf's, the bits order the costs as the floats do, NaN last.  ``boundary`` / ``edge_flags`` (n,): the live mesh's
-    (:class:`~.livemesh.LiveMesh`); a vertex on an edge of more than two faces has its row searched
-    for one that is no pillow's.  ``rows``: None, every vertex (one pass over the vertices for their
-    own quadric errors first), or (r,) int64, ascending, the vertices to visit (the errors of their
-    neighbours only: the cost is the rows', not the mesh's; a separate compilation).
+    it or equal and earlier in the row) instead of moving entries, a loop with no branch on the
+    costs; it compares the costs' bits as int64: a cost is ``+0.0``, ``-0.0`` (an error rounded to
+    zero) or positive, inf or NaN (:func:`_quadric_at` sums), so with the sign bit cleared and every
+    NaN given one value above inf's, the bits order the costs as the floats do, NaN last.  (A top-3
+    insertion by selects, no branch either, took 1.1x as long.)  ``boundary`` / ``edge_flags`` (n,):
+    the live mesh's (:class:`~.livemesh.LiveMesh`); a vertex on an edge of more than two faces has its
+    row searched for one that is no pillow's.  ``own`` (n,) float64: the vertices' quadric errors
+    (:func:`_candidates`).  ``rows``: None, every vertex, or (r,) int64, ascending, the vertices to
+    visit (a separate compilation).
     """
     n = len(fcount)
     r = n if rows is None else len(rows)
@@ -839,15 +850,6 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, count, boundary, edge_flags, f
     buf_c = np.empty(width, np.float64)  # their costs
     bits = buf_c.view(np.int64)
     buf_k = np.empty(width, np.int64)  # their sort keys: the costs' bits, every NaN one (the largest) value
-    own = np.empty(n, np.float64)  # quadric_error(Q, P), vertex by vertex
-    if rows is None:
-        for x in range(n):
-            own[x] = _quadric_at(_quadric_row(Q, x), P, x)
-    else:
-        for u in rows:
-            for p in range(vv_start[u], vv_start[u + 1]):
-                x = vv_nbr[p]
-                own[x] = _quadric_at(_quadric_row(Q, x), P, x)
     k = 0
     for i in range(r):
         u = i if rows is None else rows[i]
