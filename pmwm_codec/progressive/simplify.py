@@ -271,7 +271,11 @@ def _plane_weight(q: np.ndarray) -> np.ndarray:
 
 
 def quadric_error(q: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Evaluate quadrics (k, 10) at points (k, 3): returns (k,) float64 >= 0 (clipped)."""
+    """Evaluate quadrics (k, 10) at points (k, 3) float64: returns (k,) float64 >= 0 (clipped).  Compiled:
+    row by row (:func:`_quadric_error_kernel`, the same bits, no (k,) temporaries)."""
+    kernel = compiled(_quadric_error_kernel)
+    if kernel is not None:
+        return kernel(q, p)
     x, y, z = p.T
     a2, ab, ac, ad, b2, bc, bd, c2, cd, d2 = q.T
     err = (
@@ -280,6 +284,14 @@ def quadric_error(q: np.ndarray, p: np.ndarray) -> np.ndarray:
         + c2 * z * z + 2 * cd * z + d2
     )
     return np.maximum(err, 0.0)
+
+
+def _quadric_error_kernel(q, p):
+    """Compiled :func:`quadric_error`: :func:`_quadric_at` row by row."""
+    out = np.empty(len(q), np.float64)
+    for i in range(len(q)):
+        out[i] = _quadric_at(_quadric_row(q, i), p, i)
+    return out
 
 
 @kernel_helper
