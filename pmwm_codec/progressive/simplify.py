@@ -522,16 +522,16 @@ def _kept_rows(P, Q, own, vids, vert_alive):
 
 
 def _kept_rows_kernel(P, Q, own, vids, vert_alive):
-    """Compiled :func:`_kept_rows`."""
+    """Compiled :func:`_kept_rows`: every row moved down to the next free row, kept (the count advanced) or
+    not, no branch on the flags (a batch removes about every 7th vertex, scattered)."""
     k = 0
     for i in range(len(vids)):
-        if vert_alive[vids[i]]:
-            for j in range(P.shape[1]):
-                P[k, j] = P[i, j]
-            for j in range(Q.shape[1]):
-                Q[k, j] = Q[i, j]
-            own[k] = own[i]
-            k += 1
+        for j in range(P.shape[1]):
+            P[k, j] = P[i, j]
+        for j in range(Q.shape[1]):
+            Q[k, j] = Q[i, j]
+        own[k] = own[i]
+        k += vert_alive[vids[i]]
     return P[:k], Q[:k], own[:k]
 
 
@@ -777,13 +777,13 @@ def _group_starts(cu):
 
 
 def _group_starts_kernel(cu):
-    """Compiled :func:`_group_starts`."""
+    """Compiled :func:`_group_starts` (every index written, kept by advancing the count or not: no branch
+    on the runs, of 1 to TRIES rows)."""
     out = np.empty(len(cu), np.int64)
     k = 0
     for i in range(len(cu)):
-        if i == 0 or cu[i] != cu[i - 1]:
-            out[k] = i
-            k += 1
+        out[k] = i
+        k += i == 0 or cu[i] != cu[i - 1]
     return out[:k]
 
 
@@ -1230,7 +1230,8 @@ def _moved_faces(vf, F, cu, cv):
 
 
 def _moved_faces_kernel(vf_start, vf_face, F, cu, cv):
-    """Compiled :func:`_moved_faces`: the same two (j,) int64 arrays."""
+    """Compiled :func:`_moved_faces`: the same two (j,) int64 arrays (every face written, kept by advancing
+    the count or not: which of ``u``'s faces hold ``v`` is no branch to predict)."""
     total = 0
     for i in range(len(cu)):
         total += vf_start[cu[i] + 1] - vf_start[cu[i]]
@@ -1241,10 +1242,9 @@ def _moved_faces_kernel(vf_start, vf_face, F, cu, cv):
         v = cv[i]
         for p in range(vf_start[cu[i]], vf_start[cu[i] + 1]):
             f = vf_face[p]
-            if F[f, 0] != v and F[f, 1] != v and F[f, 2] != v:
-                face[k] = f
-                owner[k] = i
-                k += 1
+            face[k] = f
+            owner[k] = i
+            k += (F[f, 0] != v) & (F[f, 1] != v) & (F[f, 2] != v)
     return face[:k], owner[:k]
 
 
