@@ -1662,9 +1662,17 @@ def _offer_ranks(cu, cost):
     (flat CAD regions, all zero) let only a few local minima win each round.
     """
     c = len(cu)
-    # floor(2 log2(cost + 1e-12 + 1e-9 max)), in place: the same values without four (c,) temporaries;
-    # a cost rounded below zero counts as zero (its log2 was NaN, which a cast made x86's smallest integer
-    # and the compiled ranking then asked for a counting array of 2**63 entries)
+    shuffle = np.random.default_rng(c).permutation(c)
+    # the bucket floor(2 log2(cost + 1e-12 + 1e-9 max)); compiled, all but numpy's log2 in two kernels (a pass
+    # each, not eight; their arithmetic is numpy's, rounding for rounding)
+    kernel = compiled(_ranks_kernel)
+    if kernel is not None:
+        y = compiled(_log_argument_kernel)(cost)
+        np.log2(y, out=y)
+        return kernel(y, shuffle)
+    # in place: the same values without four (c,) temporaries; a cost rounded below zero counts as zero (its log2
+    # was NaN, which a cast made x86's smallest integer and the compiled ranking then asked for a counting array
+    # of 2**63 entries)
     y = np.maximum(cost, 0.0)
     y += 1e-12
     y += 1e-9 * float(np.max(cost, where=np.isfinite(cost), initial=0.0))  # a NaN or inf cost moves no other
@@ -1673,10 +1681,6 @@ def _offer_ranks(cu, cost):
     np.floor(y, out=y)
     y[~np.isfinite(y)] = _LAST_BUCKET  # a NaN or infinite cost ranks last, alike on every CPU (a cast of NaN is not)
     bucket = y.astype(np.int64)
-    shuffle = np.random.default_rng(c).permutation(c)
-    kernel = compiled(_ranks_kernel)
-    if kernel is not None:
-        return kernel(bucket, shuffle)
     bucket -= bucket.min(initial=0)
     # argsort(bucket * c + shuffle) without a sort of c keys: candidates in shuffle order,
     # then grouped by bucket (few distinct values) stably
@@ -1688,13 +1692,33 @@ def _offer_ranks(cu, cost):
     return rank
 
 
-def _ranks_kernel(bucket, shuffle):
-    """Compiled end of :func:`_offer_ranks`: the (c,) int64 ranks of the candidates with cost buckets
-    ``bucket`` (c,) int64 (changed in place) and tie order ``shuffle`` (c,) int64, a permutation: one
-    counting pass over the buckets, then the candidates ranked in shuffle order within their bucket."""
-    c = len(bucket)
+def _log_argument_kernel(cost):
+    """Compiled start of :func:`_offer_ranks`: (c,) float64 ``np.maximum(cost, 0.0) + 1e-12 + 1e-9 * m``
+    of ``cost`` (c,) float64, m the largest finite cost or 0.0, added in that order."""
+    top = 0.0
+    for i in range(len(cost)):
+        x = cost[i]
+        if x > top and x - x == 0.0:  # finite
+            top = x
+    shift = 1e-9 * top
+    y = np.empty(len(cost), np.float64)
+    for i in range(len(cost)):
+        x = cost[i]
+        y[i] = ((x if (x >= 0.0 or x != x) else 0.0) + 1e-12) + shift  # np.maximum's choice (NaN kept)
+    return y
+
+
+def _ranks_kernel(y, shuffle):
+    """Compiled end of :func:`_offer_ranks`: the (c,) int64 ranks of the candidates with ``y`` (c,) float64
+    the log2 of :func:`_log_argument_kernel` (turned into the cost buckets in place) and tie order
+    ``shuffle`` (c,) int64, a permutation: one counting pass over the buckets, then the candidates ranked
+    in shuffle order within their bucket."""
+    c = len(y)
+    bucket = y.view(np.int64)
     low = 0
     for i in range(c):
+        b = np.floor(y[i] * 2.0)
+        bucket[i] = np.int64(b) if b - b == 0.0 else np.int64(_LAST_BUCKET)  # NaN or inf: last
         low = min(low, bucket[i])
     high = 0
     for i in range(c):
