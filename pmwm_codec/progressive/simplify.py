@@ -776,6 +776,7 @@ def _group_starts(cu):
     return kernel(cu)
 
 
+@kernel_helper(allocates=True)
 def _group_starts_kernel(cu):
     """Compiled :func:`_group_starts` (every index written, kept by advancing the count or not: no branch
     on the runs, of 1 to TRIES rows)."""
@@ -1550,8 +1551,10 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
     """
     vv_edge, count, he0, he1, F, P, opp, fcount, vf_start, vf_face, fin, twin_edge = mesh
     big = len(cu) + 1
-    starts = np.flatnonzero(np.concatenate((np.ones(1, np.bool_), cu[1:] != cu[:-1])))
-    ends = np.append(starts[1:], len(cu))
+    starts = _group_starts_kernel(cu)  # one pass (flatnonzero of a concatenation took three and four arrays)
+    ends = np.empty(len(starts), np.int64)
+    for g in range(len(starts)):
+        ends[g] = starts[g + 1] if g + 1 < len(starts) else len(cu)
     front = starts.copy()
     play = np.arange(len(starts))  # groups in play, ascending: the first ``live`` entries
     live = len(starts)
