@@ -1545,7 +1545,8 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
     arguments.  (``_conflicts``' same-kept-vertex rule is implied by its kept-vertex-next-to-a-
     lower-ranked-removed-vertex rule, since every winner's removed vertex neighbours its kept one.)
     The groups still in play are kept as a list, ascending, compacted after every round (a round
-    visits them only, not every group).  Round ``r``'s offers are written as ``rank + (rounds - 1 - r)
+    visits them only, not every group).  That list and the round's winners are written entry by entry,
+    each kept by advancing a count or not (no branch on who wins or stays in play: 0.94x the time).  Round ``r``'s offers are written as ``rank + (rounds - 1 - r)
     * big``: an offer left from an earlier round is above every limit of a later one, so the offers
     are never reset (a pass over the groups in play per round less).
     """
@@ -1578,9 +1579,8 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
         for j in range(live):
             g = play[j]
             o = front[g]
-            if not _nbr_below(vv_start, vv_nbr, offer, cu[o], rank[o] + 1 + above):
-                wg[w], wo[w] = g, o
-                w += 1
+            wg[w], wo[w] = g, o
+            w += not _nbr_below(vv_start, vv_nbr, offer, cu[o], rank[o] + 1 + above)
         if w == 0:
             break
         wu, wv = cu[wo[:w]], cv[wo[:w]]
@@ -1604,9 +1604,8 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
         kept = 0  # out of play: no candidate left, or the group's vertex blocked
         for j in range(live):
             g = play[j]
-            if front[g] < ends[g] and not flags[2, cu[starts[g]]]:
-                play[kept] = g
-                kept += 1
+            play[kept] = g
+            kept += (front[g] < ends[g]) & (not flags[2, cu[starts[g]]])
         live = kept
     return out[:n_out]
 
