@@ -838,19 +838,21 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, count, boundary, edge_flags, f
     it or equal and earlier in the row) instead of moving entries, a loop with no branch on the
     costs; it compares the costs' bits as int64: a cost is ``+0.0``, ``-0.0`` (an error rounded to
     zero) or positive, inf or NaN (:func:`_quadric_at` sums), so with the sign bit cleared and every
-    NaN given one value above inf's, the bits order the costs as the floats do, NaN last.  (A top-3
-    insertion by selects, no branch either, took 1.1x as long.)  ``boundary`` / ``edge_flags`` (n,):
-    the live mesh's (:class:`~.livemesh.LiveMesh`); a vertex on an edge of more than two faces has its
-    row searched for one that is no pillow's.  ``own`` (n,) float64: the vertices' quadric errors
-    (:func:`_candidates`).  ``rows``: None, every vertex, or (r,) int64, ascending, the vertices to
-    visit (a separate compilation).
+    NaN given one value above inf's, the bits order the costs as the floats do, NaN last; each collapse
+    is then written at its place, or (past the first ``tries``) at a spare last entry, without a branch
+    (that branch took a fifth of the kernel's time).  (A top-3 insertion by selects took 1.1x as
+    long.)  ``boundary`` / ``edge_flags`` (n,): the live mesh's (:class:`~.livemesh.LiveMesh`); a
+    vertex on an edge of more than two faces has its row searched for one that is no pillow's.
+    ``own`` (n,) float64: the vertices' quadric errors (:func:`_candidates`).  ``rows``: None, every
+    vertex, or (r,) int64, ascending, the vertices to visit (a separate compilation).
     """
     n = len(fcount)
     r = n if rows is None else len(rows)
-    out_u = np.empty(tries * r, np.int64)
-    out_v = np.empty(tries * r, np.int64)
-    out_e = np.empty(tries * r, np.int64)
-    out_c = np.empty(tries * r, np.float64)
+    spare = tries * r  # the outputs' last entry: where the collapses past a vertex's first tries are written
+    out_u = np.empty(spare + 1, np.int64)
+    out_v = np.empty(spare + 1, np.int64)
+    out_e = np.empty(spare + 1, np.int64)
+    out_c = np.empty(spare + 1, np.float64)
     if rows is None:
         width = 0
         for x in range(n):  # the widest row (a loop: np.diff compiled for ~1 s on a machine's first encode)
@@ -887,9 +889,9 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, count, boundary, edge_flags, f
             t = 0
             for j in range(m):
                 t += (buf_k[j] < key) | ((buf_k[j] == key) & (j < i))
-            if t < tries:
-                p = buf_p[i]
-                out_u[k + t], out_v[k + t], out_e[k + t], out_c[k + t] = u, vv_nbr[p], vv_edge[p], buf_c[i]
+            p = buf_p[i]
+            j = k + t if t < tries else spare  # no branch on the place either: past the first tries, a spare entry
+            out_u[j], out_v[j], out_e[j], out_c[j] = u, vv_nbr[p], vv_edge[p], buf_c[i]
         k += min(m, tries)
     return out_u[:k], out_v[:k], out_e[:k], out_c[:k]
 
@@ -1545,10 +1547,11 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
     arguments.  (``_conflicts``' same-kept-vertex rule is implied by its kept-vertex-next-to-a-
     lower-ranked-removed-vertex rule, since every winner's removed vertex neighbours its kept one.)
     The groups still in play are kept as a list, ascending, compacted after every round (a round
-    visits them only, not every group).  That list and the round's winners are written entry by entry,
-    each kept by advancing a count or not (no branch on who wins or stays in play: 0.94x the time).  Round ``r``'s offers are written as ``rank + (rounds - 1 - r)
-    * big``: an offer left from an earlier round is above every limit of a later one, so the offers
-    are never reset (a pass over the groups in play per round less).
+    visits them only, not every group).  That list and the round's winners are written entry by
+    entry, each kept by advancing a count or not (no branch on who wins or stays in play: 0.94x the
+    time).  Round ``r``'s offers are written as ``rank + (rounds - 1 - r) * big``: an offer left from
+    an earlier round is above every limit of a later one, so the offers are never reset (a pass over
+    the groups in play per round less).
     """
     vv_edge, count, he0, he1, F, P, opp, fcount, vf_start, vf_face, fin, twin_edge = mesh
     big = len(cu) + 1
