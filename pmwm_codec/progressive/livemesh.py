@@ -132,17 +132,16 @@ def _compact_kernel(corners, face_alive, vert_alive, vids0, fids0, loc):
     int64, -1 except at ``vids0``, filled in place."""
     vids = np.empty(len(vids0), np.int64)
     n = 0
-    for x in vids0:
-        loc[x] = n if vert_alive[x] else -1
-        if vert_alive[x]:
-            vids[n] = x
-            n += 1
+    for x in vids0:  # no branch on the flags (a batch removes about every 7th vertex and face, scattered)
+        alive = vert_alive[x]
+        loc[x] = n if alive else -1
+        vids[n] = x
+        n += alive
     fids = np.empty(len(fids0), np.int64)
     m = 0
     for f in fids0:
-        if face_alive[f]:
-            fids[m] = f
-            m += 1
+        fids[m] = f
+        m += face_alive[f]
     F = np.empty((m, 3), np.int64)
     for i in range(m):
         for c in range(3):
@@ -177,16 +176,6 @@ def _vertex_faces(F, n):
     return vf_start, vf_corner, fcount, ring
 
 
-@kernel_helper
-def _insert(buf, k, key):
-    """Insert ``key`` into the first ``k`` entries of ``buf``, kept ascending."""
-    t = k
-    while t > 0 and buf[t - 1] > key:
-        buf[t] = buf[t - 1]
-        t -= 1
-    buf[t] = key
-
-
 @kernel_helper(allocates=True)
 def _edges_by_vertex(F, n, vf_start, vf_corner, ring):
     """Kernel part of :func:`_live_mesh_kernel`: the edge table of ``F`` built vertex by vertex
@@ -208,7 +197,7 @@ def _edges_by_vertex(F, n, vf_start, vf_corner, ring):
     wmax = 0
     for x in range(n):
         wmax = max(wmax, vf_start[x + 1] - vf_start[x])
-    buf = np.empty(2 * wmax, np.int64)
+    buf = np.empty(2 * max(2 * wmax, 8) + 2, np.int64)  # a vertex's keys, then sorted (:func:`_vertex_edges`)
     zero = np.int64(0)  # not a literal (see :func:`~.topology.kernel_helper`)
     x, ne = _vertex_edges(zero, zero, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0, he1, down, boundary, flags)
     while x < n:  # more boundary or non-manifold edges than that: grow (outside the vertex loop, which stays fast)
@@ -229,6 +218,38 @@ def _grown(a, cap, k):
     return out
 
 
+@kernel_helper(inline=True)
+def _network8(buf, k, half):
+    """Sort the keys ``buf[:k]`` (k <= 8, int64, below the largest int64) into ``buf[half:half + k]``,
+    ``half >= 8``, by a sorting network of 19 comparators (each a min and a max, no branch; it sorts
+    every 0-1 input of 8, hence every input) on the keys padded to 8 with the largest int64
+    (``buf[k:8]`` and ``buf[half + k:half + 8]`` overwritten)."""
+    for i in range(k, 8):
+        buf[i] = 0x7FFFFFFFFFFFFFFF
+    x0, x1, x2, x3, x4, x5, x6, x7 = buf[0], buf[1], buf[2], buf[3], buf[4], buf[5], buf[6], buf[7]
+    x0, x1 = min(x0, x1), max(x0, x1)
+    x2, x3 = min(x2, x3), max(x2, x3)
+    x4, x5 = min(x4, x5), max(x4, x5)
+    x6, x7 = min(x6, x7), max(x6, x7)
+    x0, x2 = min(x0, x2), max(x0, x2)
+    x1, x3 = min(x1, x3), max(x1, x3)
+    x4, x6 = min(x4, x6), max(x4, x6)
+    x5, x7 = min(x5, x7), max(x5, x7)
+    x1, x2 = min(x1, x2), max(x1, x2)
+    x5, x6 = min(x5, x6), max(x5, x6)
+    x0, x4 = min(x0, x4), max(x0, x4)
+    x3, x7 = min(x3, x7), max(x3, x7)
+    x1, x5 = min(x1, x5), max(x1, x5)
+    x2, x6 = min(x2, x6), max(x2, x6)
+    x1, x4 = min(x1, x4), max(x1, x4)
+    x3, x6 = min(x3, x6), max(x3, x6)
+    x2, x4 = min(x2, x4), max(x2, x4)
+    x3, x5 = min(x3, x5), max(x3, x5)
+    x3, x4 = min(x3, x4), max(x3, x4)
+    buf[half], buf[half + 1], buf[half + 2], buf[half + 3] = x0, x1, x2, x3
+    buf[half + 4], buf[half + 5], buf[half + 6], buf[half + 7] = x4, x5, x6, x7
+
+
 @kernel_helper
 def _vertex_edges(x0, ne, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0, he1, down, boundary, flags):
     """Kernel part of :func:`_edges_by_vertex`: the edges of the vertices from ``x0`` on, written from
@@ -239,15 +260,19 @@ def _vertex_edges(x0, ne, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0,
 
     Every vertex ``x`` in turn gathers the half-edges of its corners that run to or from a higher
     vertex ``y`` (and its own outgoing self-loops) as one packed key ``(y << shift | half-edge) << 1 |
-    into x`` in ``buf`` (scratch, 2 * the largest face count; the direction bit below the half-edge,
-    which no two entries share), then sorts them by insertion (one comparison per step): its edges as
-    the low end, in edge order.  The gathering writes both keys of every corner and keeps the wanted
-    ones by advancing the count or not: a branch there, taken at random about half the time, cost a
-    tenth of the edge pass in mispredictions."""
+    into x`` in the first half of ``buf`` (scratch, (2 max(2 w, 8) + 2,) int64 for the largest face count
+    w; the direction bit below the half-edge, which no two entries share), then sorts them into the
+    second half (from ``len(buf) // 2`` on): its edges as the low end, in edge order.  Neither step
+    branches on the keys: the gathering writes both keys of every corner and keeps the wanted ones by
+    advancing the count or not (a branch there, taken at random about half the time, cost a tenth of
+    the edge pass in mispredictions); up to 8 keys (k ~ 6) go through a sorting network
+    (:func:`_network8`), more each to its place, the number of keys below it (k**2 comparisons).  An
+    insertion sort, whose steps mispredict, made the live mesh 1.05-1.15x as long."""
     shift = 1
     while (1 << shift) < len(vf_corner):  # half-edge ids are below 3m, the corner count
         shift += 1
     low = (1 << shift) - 1
+    half = len(buf) // 2
     for x in range(x0, n):
         k = 0
         for p in range(vf_start[x], vf_start[x + 1]):  # every key written, kept (k advanced) or not: no branch
@@ -257,15 +282,22 @@ def _vertex_edges(x0, ne, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0,
             k += y1 >= x
             buf[k] = (((y2 << shift) | (hc + 2 if hc % 3 == 0 else hc - 1)) << 1) | 1  # y2 -> x: the previous corner
             k += y2 > x
-        for i in range(1, k):
-            _insert(buf, i, buf[i])
+        if k <= 8:
+            _network8(buf, k, half)
+        else:
+            for i in range(k):  # each key to its place, ascending: the keys before it, counted
+                key = buf[i]
+                t = half
+                for j in range(k):
+                    t += buf[j] < key
+                buf[t] = key
         if ne + k > len(lo):
             return x, ne
-        j = 0
-        while j < k:
+        j = half
+        while j < half + k:
             s = j
             y = buf[s] >> (shift + 1)
-            while j < k and buf[j] >> (shift + 1) == y:
+            while j < half + k and buf[j] >> (shift + 1) == y:
                 j += 1
             c = j - s
             lo[ne], hi[ne], count[ne] = x, y, c

@@ -271,7 +271,11 @@ def _plane_weight(q: np.ndarray) -> np.ndarray:
 
 
 def quadric_error(q: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Evaluate quadrics (k, 10) at points (k, 3): returns (k,) float64 >= 0 (clipped)."""
+    """Evaluate quadrics (k, 10) at points (k, 3) float64: returns (k,) float64 >= 0 (clipped).  Compiled:
+    row by row (:func:`_quadric_error_kernel`, the same bits, no (k,) temporaries)."""
+    kernel = compiled(_quadric_error_kernel)
+    if kernel is not None:
+        return kernel(q, p)
     x, y, z = p.T
     a2, ab, ac, ad, b2, bc, bd, c2, cd, d2 = q.T
     err = (
@@ -280,6 +284,14 @@ def quadric_error(q: np.ndarray, p: np.ndarray) -> np.ndarray:
         + c2 * z * z + 2 * cd * z + d2
     )
     return np.maximum(err, 0.0)
+
+
+def _quadric_error_kernel(q, p):
+    """Compiled :func:`quadric_error`: :func:`_quadric_at` row by row."""
+    out = np.empty(len(q), np.float64)
+    for i in range(len(q)):
+        out[i] = _quadric_at(_quadric_row(q, i), p, i)
+    return out
 
 
 @kernel_helper
@@ -348,8 +360,10 @@ def simplify(
     vert_alive[corners.ravel()] = True
     live = live_mesh(corners, face_alive, vert_alive)
     boundary = live.et.he0[live.et.count == 1]  # the input's boundary half-edges, in edge order (every face is live)
-    # positions and quadrics of the live vertices, in local ids (:func:`_kept_rows` from batch to batch)
+    # positions and quadrics of the live vertices and the quadrics' errors at them, in local ids (:func:`_kept_rows`
+    # from batch to batch; :func:`_apply` updates the errors where it merges quadrics)
     P, Q = _local_rows(pos, face_quadrics(pos, corners, n, live.fids[boundary // 3] * 3 + boundary % 3), live.vids)
+    own = quadric_error(Q, P)
     frozen_ext = np.zeros(n, bool) if locked is None else np.asarray(locked, bool).copy()
     twin = twin_faces(corners) if twin is None else np.asarray(twin, bool)
     twin = twin if twin.any() else None
@@ -363,11 +377,11 @@ def simplify(
             ids = live.vids, live.fids, live.loc
             live = None  # the previous batch's edge tables and adjacency freed before the next ones are made
             live = live_mesh(corners, face_alive, vert_alive, ids)
-            P, Q = _kept_rows(P, Q, ids[0], vert_alive)
-        batch = _one_batch(P, Q, live, frozen_ext, alive_count - target_vertices, weld, twin)
+            P, Q, own = _kept_rows(P, Q, own, ids[0], vert_alive)
+        batch = _one_batch(P, Q, own, live, frozen_ext, alive_count - target_vertices, weld, twin)
         if batch is None:
             break
-        _apply(batch, corners, face_alive, vert_alive, Q, live.loc)
+        _apply(batch, corners, face_alive, vert_alive, P, Q, own, live.loc)
         alive_count -= len(batch.u)
         log.batches.append(batch)
 
@@ -377,15 +391,16 @@ def simplify(
     return log
 
 
-def _apply(batch, corners, face_alive, vert_alive, Q, loc):
+def _apply(batch, corners, face_alive, vert_alive, P, Q, own, loc):
     """Apply a :class:`CollapseBatch` to the simplifier's state in place: delete its faces, rewrite
-    the moved corners ``u -> v``, retire ``u`` and merge its quadric into ``v``'s (``Q`` (n, 10) float64,
-    the batch's local quadrics, ``loc`` (N,) int64 its original -> local ids; the batch's ``u`` and ``v``
+    the moved corners ``u -> v``, retire ``u``, merge its quadric into ``v``'s and evaluate that at ``v``
+    (``P`` (n, 3), ``Q`` (n, 10) and ``own`` (n,) float64, the batch's local positions, quadrics and
+    ``quadric_error(Q, P)``; ``loc`` (N,) int64 its original -> local ids; the batch's ``u`` and ``v``
     are disjoint, every ``v`` once)."""
     kernel = compiled(_apply_kernel)
     if kernel is not None:
         kernel(batch.u, batch.v, batch.del_left, batch.del_right, batch.moved_face, batch.moved_by,
-               corners, face_alive, vert_alive, Q, loc)
+               corners, face_alive, vert_alive, P, Q, own, loc)
         return
     dead = np.concatenate([batch.del_left[batch.del_left >= 0], batch.del_right[batch.del_right >= 0]])
     face_alive[dead] = False
@@ -393,11 +408,13 @@ def _apply(batch, corners, face_alive, vert_alive, Q, loc):
     sub = corners[mf]
     corners[mf] = np.where(sub == batch.u[batch.moved_by][:, None], batch.v[batch.moved_by][:, None], sub)
     vert_alive[batch.u] = False
-    Q[loc[batch.v]] += Q[loc[batch.u]]
+    kept = loc[batch.v]
+    Q[kept] += Q[loc[batch.u]]
+    own[kept] = quadric_error(Q[kept], P[kept])
 
 
-def _apply_kernel(u, v, del_left, del_right, moved_face, moved_by, corners, face_alive, vert_alive, Q, loc):
-    """Compiled :func:`_apply` (the same state afterwards, the same quadric bits)."""
+def _apply_kernel(u, v, del_left, del_right, moved_face, moved_by, corners, face_alive, vert_alive, P, Q, own, loc):
+    """Compiled :func:`_apply` (the same state afterwards, the same quadric and error bits)."""
     for i in range(len(u)):
         for f in (del_left[i], del_right[i]):
             if f >= 0:
@@ -406,6 +423,7 @@ def _apply_kernel(u, v, del_left, del_right, moved_face, moved_by, corners, face
         a, b = loc[u[i]], loc[v[i]]
         for j in range(Q.shape[1]):
             Q[b, j] = Q[b, j] + Q[a, j]
+        own[b] = _quadric_at(_quadric_row(Q, b), P, b)
     for k in range(len(moved_face)):
         f, i = moved_face[k], moved_by[k]
         for c in range(3):
@@ -413,11 +431,12 @@ def _apply_kernel(u, v, del_left, del_right, moved_face, moved_by, corners, face
                 corners[f, c] = v[i]
 
 
-def _one_batch(P, Q, live, frozen_ext, budget, weld=None, twin=None):
+def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None):
     """Choose and describe one batch of independent legal collapses (or None).
 
     ``live`` is the :class:`~.livemesh.LiveMesh` of the simplifier's live faces, P (n, 3) and Q (n, 10)
-    float64 its vertices' positions and quadrics (local ids), frozen_ext (N,) bool the simplifier's
+    float64 its vertices' positions and quadrics (local ids), ``own`` (n,) float64 ``quadric_error(Q, P)``,
+    frozen_ext (N,) bool the simplifier's
     frozen vertices (original ids); at most ``budget`` vertices are removed (the cheapest collapses).
     ``weld`` (N,) int64 or None: seam copies (see :func:`simplify`).  The work is done on the live mesh
     renumbered compactly ("local" ids) and returned in original ids.  ``twin`` (M,) bool or None: the
@@ -436,10 +455,10 @@ def _one_batch(P, Q, live, frozen_ext, budget, weld=None, twin=None):
     twins = _twin_counts(et, F, None if twin is None else twin[fids], n)
     mesh = (et, F, P, opp, fcount, vv, vf, vv_edge, twins[0])
     ends = live.boundary, live.edge_flags
-    cand = _candidates(mesh, ends, Q, src, frozen if seam is None else frozen | seam, twins)
+    cand = _candidates(mesh, ends, Q, src, frozen if seam is None else frozen | seam, twins, own=own)
     if cand is None and seam is None:
         return None
-    pairs = None if seam is None else _seam_pairs(Q, src, dst, frozen, seam, g, mesh, ends)
+    pairs = None if seam is None else _seam_pairs(Q, own, src, dst, frozen, seam, g, mesh, ends)
     # the ordinary candidates must be independent of the chosen seam pairs (left out as the affordable ones are
     # picked, one pass over the candidates)
     blocked = None if pairs is None else seams.blocked_by(pairs[0], pairs[1], vv, n)
@@ -489,30 +508,31 @@ def _local_rows_kernel(pos, quad, vids):
     return P, Q
 
 
-def _kept_rows(P, Q, vids, vert_alive):
-    """The rows of ``P`` (n, 3) and ``Q`` (n, 10) float64 (the live vertices ``vids`` (n,) int64 of the
-    batch before, in local ids) whose vertices are still alive (``vert_alive`` (N,) bool): the next
-    batch's local rows, in its order.  Compiled: moved down in place (views of P and Q; the batch
-    before must be done with them), so that every batch reads the rows of the one before, not the
-    whole mesh's original arrays."""
+def _kept_rows(P, Q, own, vids, vert_alive):
+    """The rows of ``P`` (n, 3), ``Q`` (n, 10) and ``own`` (n,) float64 (the live vertices ``vids`` (n,)
+    int64 of the batch before, in local ids) whose vertices are still alive (``vert_alive`` (N,) bool):
+    the next batch's local rows, in its order.  Compiled: moved down in place (views of P, Q and own;
+    the batch before must be done with them), so that every batch reads the rows of the one before,
+    not the whole mesh's original arrays."""
     kernel = compiled(_kept_rows_kernel)
     if kernel is None:
         keep = vert_alive[vids]
-        return P[keep], Q[keep]
-    return kernel(P, Q, vids, vert_alive)
+        return P[keep], Q[keep], own[keep]
+    return kernel(P, Q, own, vids, vert_alive)
 
 
-def _kept_rows_kernel(P, Q, vids, vert_alive):
-    """Compiled :func:`_kept_rows`."""
+def _kept_rows_kernel(P, Q, own, vids, vert_alive):
+    """Compiled :func:`_kept_rows`: every row moved down to the next free row, kept (the count advanced) or
+    not, no branch on the flags (a batch removes about every 7th vertex, scattered)."""
     k = 0
     for i in range(len(vids)):
-        if vert_alive[vids[i]]:
-            for j in range(P.shape[1]):
-                P[k, j] = P[i, j]
-            for j in range(Q.shape[1]):
-                Q[k, j] = Q[i, j]
-            k += 1
-    return P[:k], Q[:k]
+        for j in range(P.shape[1]):
+            P[k, j] = P[i, j]
+        for j in range(Q.shape[1]):
+            Q[k, j] = Q[i, j]
+        own[k] = own[i]
+        k += vert_alive[vids[i]]
+    return P[:k], Q[:k], own[:k]
 
 
 def _described(et, src, opp, vids, fids, Q, cu, cv, ce, cost):
@@ -599,16 +619,16 @@ def _fin_vertices(et, n):
     return fin
 
 
-def _seam_pairs(Q, src, dst, frozen, seam, g, mesh, ends):
+def _seam_pairs(Q, own, src, dst, frozen, seam, g, mesh, ends):
     """The seam pairs of this batch (:mod:`.seams`), or None.
 
-    Q (n, 10) quadrics, src / dst (3m,) half-edges, frozen / seam (n,) bool, g (n,) int64 seam
-    groups, ``mesh`` as in :func:`_ordinary_winners`, ``ends`` as in :func:`_candidates`.  Returns ``(cu, cv, ce, cost)``, each
-    (2p,) (int64 / float64 half costs): first halves, then second halves in the same order
-    (pair ``k`` is rows ``k`` and ``p + k``).
+    Q (n, 10) quadrics, ``own`` (n,) their errors (:func:`_candidates`), src / dst (3m,) half-edges,
+    frozen / seam (n,) bool, g (n,) int64 seam groups, ``mesh`` as in :func:`_ordinary_winners`, ``ends``
+    as in :func:`_candidates`.  Returns ``(cu, cv, ce, cost)``, each (2p,) (int64 / float64 half costs):
+    first halves, then second halves in the same order (pair ``k`` is rows ``k`` and ``p + k``).
     """
     et, F, P, opp, fcount, vv, vf, _, _ = mesh
-    halves = _candidates(mesh, ends, Q, src, frozen | ~seam, rows=np.flatnonzero(seam & ~frozen))
+    halves = _candidates(mesh, ends, Q, src, frozen | ~seam, rows=np.flatnonzero(seam & ~frozen), own=own)
     if halves is None:
         return None
     hu, hv, he, hcost = halves
@@ -665,7 +685,8 @@ def _affordable(cu, cv, ce, cost, quantile: float, blocked=None):
 def _affordable_kernel(cu, cv, ce, cost, quantile, no_remove, no_keep):
     """Compiled :func:`_affordable` (0 <= quantile < 1, c >= 1): the rows (a,) of the four (c,) arrays
     not blocked (``no_remove`` / ``no_keep`` (n,) bool, or both empty: none is) with ``cost`` at most
-    :func:`_quantile_kernel` of the groups' first costs (each group's first row not blocked)."""
+    :func:`_quantile_kernel` of the groups' first costs (each group's first row not blocked), as views
+    of (a + 1,) arrays (rows are written before they are known to be kept: 0.88x the time)."""
     ok = np.ones(len(cu), np.bool_)
     if len(no_remove):
         for i in range(len(cu)):
@@ -673,24 +694,23 @@ def _affordable_kernel(cu, cv, ce, cost, quantile, no_remove, no_keep):
     firsts = np.empty(len(cu), np.float64)  # cost[_group_starts(cu)] of the rows not blocked
     g = 0
     last = -1
-    for i in range(len(cu)):
-        if ok[i] and cu[i] != last:
-            firsts[g] = cost[i]
-            g += 1
-            last = cu[i]
+    for i in range(len(cu)):  # every row written, kept (g advanced) or not: no branch on the rows
+        firsts[g] = cost[i]
+        g += ok[i] and cu[i] != last
+        last = cu[i] if ok[i] else last
     if g == 0:
         return np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0, np.float64)
     limit = _quantile_kernel(firsts[:g], quantile)
     k = 0
     for i in range(len(cost)):
         k += ok[i] and cost[i] <= limit
-    out = (np.empty(k, np.int64), np.empty(k, np.int64), np.empty(k, np.int64), np.empty(k, np.float64))
+    ou, ov, oe = np.empty(k + 1, np.int64), np.empty(k + 1, np.int64), np.empty(k + 1, np.int64)
+    oc = np.empty(k + 1, np.float64)
     j = 0
-    for i in range(len(cost)):
-        if ok[i] and cost[i] <= limit:
-            out[0][j], out[1][j], out[2][j], out[3][j] = cu[i], cv[i], ce[i], cost[i]
-            j += 1
-    return out
+    for i in range(len(cost)):  # likewise (about half the rows are kept, at random: a branch mispredicted)
+        ou[j], ov[j], oe[j], oc[j] = cu[i], cv[i], ce[i], cost[i]
+        j += ok[i] and cost[i] <= limit
+    return ou[:k], ov[:k], oe[:k], oc[:k]
 
 
 @kernel_helper(allocates=True)
@@ -756,14 +776,15 @@ def _group_starts(cu):
     return kernel(cu)
 
 
+@kernel_helper(allocates=True)
 def _group_starts_kernel(cu):
-    """Compiled :func:`_group_starts`."""
+    """Compiled :func:`_group_starts` (every index written, kept by advancing the count or not: no branch
+    on the runs, of 1 to TRIES rows)."""
     out = np.empty(len(cu), np.int64)
     k = 0
     for i in range(len(cu)):
-        if i == 0 or cu[i] != cu[i - 1]:
-            out[k] = i
-            k += 1
+        out[k] = i
+        k += i == 0 or cu[i] != cu[i - 1]
     return out[:k]
 
 
@@ -773,27 +794,29 @@ def _to_original(table, local):
     return np.where(local >= 0, table[np.maximum(local, 0)], -1)
 
 
-def _candidates(mesh, ends, Q, src, frozen_ext, twins=None, rows=None):
+def _candidates(mesh, ends, Q, src, frozen_ext, twins=None, rows=None, own=None):
     """Candidate collapses on the local mesh, grouped by removed vertex, cheapest first.
 
     ``mesh`` as in :func:`_ordinary_winners`, ``ends`` the live mesh's ``(boundary, edge_flags)``
     (:class:`~.livemesh.LiveMesh`), Q (n, 10) quadrics, ``src`` (3m,) the half-edge sources, frozen_ext
-    (n,) bool, ``twins`` the doubled faces' edges and counts (:func:`_twin_counts`; None: none).  Returns ``(cu, cv, ce, cost)`` ((c,) int64 removed vertex,
-    kept vertex, edge; (c,) float64 quadric cost), at most ``TRIES`` per removed vertex, or None
-    when there is none.  ``rows`` (r,) int64, ascending: the only vertices ``frozen_ext`` leaves free,
-    when they are few (the compiled kernel then visits only them); None: every vertex.
+    (n,) bool, ``twins`` the doubled faces' edges and counts (:func:`_twin_counts`; None: none).
+    Returns ``(cu, cv, ce, cost)`` ((c,) int64 removed vertex, kept vertex, edge; (c,) float64 quadric
+    cost), at most ``TRIES`` per removed vertex, or None when there is none.  ``rows`` (r,) int64,
+    ascending: the only vertices ``frozen_ext`` leaves free, when they are few (the compiled kernel then
+    visits only them); None: every vertex.  ``own`` (n,) float64: ``quadric_error(Q, P)``, the second
+    term of every cost (:func:`simplify` carries it from batch to batch, as it does Q); None: computed.
     """
     et, F, P, _, fcount, vv, _, vv_edge, _ = mesh
     n = len(P)
     if twins is None:
         twins = _twin_counts(et, F, None, n)
+    # (Q_u + Q_v)(p_v) = Q_u(p_v) + Q_v(p_v); the second term is one value per vertex
+    own = quadric_error(Q, P) if own is None else own
     kernel = compiled(_candidates_kernel)
     if kernel is not None:
         cu, cv, ce, cost = kernel(vv[0], vv[1], vv_edge, et.count, ends[0], ends[1], fcount, frozen_ext, twins[0],
-                                  twins[1], Q, P, TRIES, rows)
+                                  twins[1], Q, P, own, TRIES, rows)
         return (cu, cv, ce, cost) if len(cu) else None
-    # (Q_u + Q_v)(p_v) = Q_u(p_v) + Q_v(p_v); the second term is one value per vertex
-    own = quadric_error(Q, P)
     cu, cv, ce = _usable(F, et, src, frozen_ext, twins, n)
     if len(cu) == 0:
         return None
@@ -805,24 +828,31 @@ def _candidates(mesh, ends, Q, src, frozen_ext, twins=None, rows=None):
 
 
 def _candidates_kernel(vv_start, vv_nbr, vv_edge, count, boundary, edge_flags, fcount, frozen_ext, twin_edge, extra,
-                       Q, P, tries, rows):
+                       Q, P, own, tries, rows):
     """Compiled :func:`_candidates` (same arrays, same order), one vertex at a time.
 
     A vertex's row of the neighbour CSR lists its edges in the order :func:`_usable` meets them
     (edges where it is the low end, then where it is the high end, each in edge order), so the
     usable collapses of ``u`` are its row minus the excluded edges, sorted stably by cost as in
-    :func:`_cheapest_per_group` (NaN last).  ``boundary`` / ``edge_flags`` (n,): the live mesh's
-    (:class:`~.livemesh.LiveMesh`); a vertex on an edge of more than two faces has its row searched
-    for one that is no pillow's.  ``rows``: None, every vertex (one pass over the vertices for their
-    own quadric errors first), or (r,) int64, ascending, the vertices to visit (the errors of their
-    neighbours only: the cost is the rows', not the mesh's; a separate compilation).
+    :func:`_cheapest_per_group` (NaN last).  The sort counts each collapse's place (the costs before
+    it or equal and earlier in the row) instead of moving entries, a loop with no branch on the
+    costs; it compares the costs' bits as int64: a cost is ``+0.0``, ``-0.0`` (an error rounded to
+    zero) or positive, inf or NaN (:func:`_quadric_at` sums), so with the sign bit cleared and every
+    NaN given one value above inf's, the bits order the costs as the floats do, NaN last; each collapse
+    is then written at its place, or (past the first ``tries``) at a spare last entry, without a branch
+    (that branch took a fifth of the kernel's time).  (A top-3 insertion by selects took 1.1x as
+    long.)  ``boundary`` / ``edge_flags`` (n,): the live mesh's (:class:`~.livemesh.LiveMesh`); a
+    vertex on an edge of more than two faces has its row searched for one that is no pillow's.
+    ``own`` (n,) float64: the vertices' quadric errors (:func:`_candidates`).  ``rows``: None, every
+    vertex, or (r,) int64, ascending, the vertices to visit (a separate compilation).
     """
     n = len(fcount)
     r = n if rows is None else len(rows)
-    out_u = np.empty(tries * r, np.int64)
-    out_v = np.empty(tries * r, np.int64)
-    out_e = np.empty(tries * r, np.int64)
-    out_c = np.empty(tries * r, np.float64)
+    spare = tries * r  # the outputs' last entry: where the collapses past a vertex's first tries are written
+    out_u = np.empty(spare + 1, np.int64)
+    out_v = np.empty(spare + 1, np.int64)
+    out_e = np.empty(spare + 1, np.int64)
+    out_c = np.empty(spare + 1, np.float64)
     if rows is None:
         width = 0
         for x in range(n):  # the widest row (a loop: np.diff compiled for ~1 s on a machine's first encode)
@@ -833,15 +863,8 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, count, boundary, edge_flags, f
             width = max(width, vv_start[u + 1] - vv_start[u])
     buf_p = np.empty(width, np.int64)  # row positions of u's usable collapses, by cost
     buf_c = np.empty(width, np.float64)  # their costs
-    own = np.empty(n, np.float64)  # quadric_error(Q, P), vertex by vertex
-    if rows is None:
-        for x in range(n):
-            own[x] = _quadric_at(_quadric_row(Q, x), P, x)
-    else:
-        for u in rows:
-            for p in range(vv_start[u], vv_start[u + 1]):
-                x = vv_nbr[p]
-                own[x] = _quadric_at(_quadric_row(Q, x), P, x)
+    bits = buf_c.view(np.int64)
+    buf_k = np.empty(width, np.int64)  # their sort keys: the costs' bits, every NaN one (the largest) value
     k = 0
     for i in range(r):
         u = i if rows is None else rows[i]
@@ -858,17 +881,18 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, count, boundary, edge_flags, f
             if (bu > 0 and ce != 1) or ce > 2:
                 continue
             c = _quadric_at(q, P, vv_nbr[p]) + own[vv_nbr[p]]
-            t = m  # stable: move left past strictly greater costs only (NaN counts as greatest)
-            if c == c:
-                while t > 0 and (buf_c[t - 1] > c or buf_c[t - 1] != buf_c[t - 1]):
-                    buf_p[t], buf_c[t] = buf_p[t - 1], buf_c[t - 1]
-                    t -= 1
-            buf_p[t], buf_c[t] = p, c
+            buf_p[m], buf_c[m] = p, c
+            buf_k[m] = bits[m] & 0x7FFFFFFFFFFFFFFF if c == c else 0x7FF8000000000000
             m += 1
-        for j in range(min(m, tries)):
-            p = buf_p[j]
-            out_u[k], out_v[k], out_e[k], out_c[k] = u, vv_nbr[p], vv_edge[p], buf_c[j]
-            k += 1
+        for i in range(m):  # each collapse's place in cost order, ties in row order: counted, no branch
+            key = buf_k[i]
+            t = 0
+            for j in range(m):
+                t += (buf_k[j] < key) | ((buf_k[j] == key) & (j < i))
+            p = buf_p[i]
+            j = k + t if t < tries else spare  # no branch on the place either: past the first tries, a spare entry
+            out_u[j], out_v[j], out_e[j], out_c[j] = u, vv_nbr[p], vv_edge[p], buf_c[i]
+        k += min(m, tries)
     return out_u[:k], out_v[:k], out_e[:k], out_c[:k]
 
 
@@ -1209,7 +1233,8 @@ def _moved_faces(vf, F, cu, cv):
 
 
 def _moved_faces_kernel(vf_start, vf_face, F, cu, cv):
-    """Compiled :func:`_moved_faces`: the same two (j,) int64 arrays."""
+    """Compiled :func:`_moved_faces`: the same two (j,) int64 arrays (every face written, kept by advancing
+    the count or not: which of ``u``'s faces hold ``v`` is no branch to predict)."""
     total = 0
     for i in range(len(cu)):
         total += vf_start[cu[i] + 1] - vf_start[cu[i]]
@@ -1220,10 +1245,9 @@ def _moved_faces_kernel(vf_start, vf_face, F, cu, cv):
         v = cv[i]
         for p in range(vf_start[cu[i]], vf_start[cu[i] + 1]):
             f = vf_face[p]
-            if F[f, 0] != v and F[f, 1] != v and F[f, 2] != v:
-                face[k] = f
-                owner[k] = i
-                k += 1
+            face[k] = f
+            owner[k] = i
+            k += (F[f, 0] != v) & (F[f, 1] != v) & (F[f, 2] != v)
     return face[:k], owner[:k]
 
 
@@ -1327,7 +1351,7 @@ def _legal_marked(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_st
     ok = np.ones(len(cu), np.bool_)
     for j in range(len(cu)):
         i = token + j
-        if j % LEGAL_CHUNK == 0 and _touch(cu, cv, ce, j, min(j + LEGAL_CHUNK, len(cu)), count, he0, opp, fcount,
+        if j % LEGAL_CHUNK == 0 and _touch(cu, cv, ce, j, min(j + LEGAL_CHUNK, len(cu)), count, he0, he1, opp, fcount,
                                            vv_start, vv_nbr, vv_edge, vf_start, vf_face, F, P) < 0:
             ok[j] = not ok[j]  # never (counts and ids are not negative): the loads must not be dropped
         u, v, e = cu[j], cv[j], ce[j]
@@ -1360,16 +1384,19 @@ LEGAL_CHUNK = 16
 
 
 @kernel_helper
-def _touch(cu, cv, ce, i0, i1, count, he0, opp, fcount, vv_start, vv_nbr, vv_edge, vf_start, vf_face, F, P):
-    """Read what the legality tests of candidates ``i0 .. i1 - 1`` will read first (their edge, their
-    vertices' rows, the faces of the removed vertex and their corners' positions) in one loop with no
-    branch on the values, so that the cache misses of the chunk overlap instead of coming one test at a
-    time (the candidates are scattered over the mesh: the winners of a selection round).  Returns a
-    sum of the counts and ids it read (never negative), which the caller tests so that the loads stay."""
+def _touch(cu, cv, ce, i0, i1, count, he0, he1, opp, fcount, vv_start, vv_nbr, vv_edge, vf_start, vf_face, F, P):
+    """Read what the legality tests of candidates ``i0 .. i1 - 1`` will read first (their edge, its
+    deleted faces' third vertices and their face counts, their vertices' rows, the faces of the removed
+    vertex and their corners' positions) in one loop with no branch on the values, so that the cache
+    misses of the chunk overlap instead of coming one test at a time (the candidates are scattered over
+    the mesh: the winners of a selection round).  Returns a sum of the counts and ids it read (never
+    negative), which the caller tests so that the loads stay.  (The second deleted face and the removed
+    vertex's neighbours, read here too, made the selection 0.91-0.94x as long.)"""
     acc = 0
     for i in range(i0, i1):
         u, v, e = cu[i], cv[i], ce[i]
-        acc += count[e] + opp[he0[e]] + fcount[u] + vv_nbr[vv_start[v]] + vv_edge[vv_start[u]]
+        acc += count[e] + fcount[opp[he0[e]]] + fcount[opp[max(he1[e], 0)]] + fcount[u] + vv_nbr[vv_start[v]] \
+            + vv_edge[vv_start[u]] + vv_nbr[vv_start[u]]
         for p in range(vf_start[u], vf_start[u + 1]):
             f = vf_face[p]
             acc += (P[F[f, 0], 0] > 0.0) + (P[F[f, 1], 0] > 0.0) + (P[F[f, 2], 0] > 0.0)
@@ -1520,14 +1547,18 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
     arguments.  (``_conflicts``' same-kept-vertex rule is implied by its kept-vertex-next-to-a-
     lower-ranked-removed-vertex rule, since every winner's removed vertex neighbours its kept one.)
     The groups still in play are kept as a list, ascending, compacted after every round (a round
-    visits them only, not every group).  Round ``r``'s offers are written as ``rank + (rounds - 1 - r)
-    * big``: an offer left from an earlier round is above every limit of a later one, so the offers
-    are never reset (a pass over the groups in play per round less).
+    visits them only, not every group).  That list and the round's winners are written entry by
+    entry, each kept by advancing a count or not (no branch on who wins or stays in play: 0.94x the
+    time).  Round ``r``'s offers are written as ``rank + (rounds - 1 - r) * big``: an offer left from
+    an earlier round is above every limit of a later one, so the offers are never reset (a pass over
+    the groups in play per round less).
     """
     vv_edge, count, he0, he1, F, P, opp, fcount, vf_start, vf_face, fin, twin_edge = mesh
     big = len(cu) + 1
-    starts = np.flatnonzero(np.concatenate((np.ones(1, np.bool_), cu[1:] != cu[:-1])))
-    ends = np.append(starts[1:], len(cu))
+    starts = _group_starts_kernel(cu)  # one pass (flatnonzero of a concatenation took three and four arrays)
+    ends = np.empty(len(starts), np.int64)
+    for g in range(len(starts)):
+        ends[g] = starts[g + 1] if g + 1 < len(starts) else len(cu)
     front = starts.copy()
     play = np.arange(len(starts))  # groups in play, ascending: the first ``live`` entries
     live = len(starts)
@@ -1551,9 +1582,8 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
         for j in range(live):
             g = play[j]
             o = front[g]
-            if not _nbr_below(vv_start, vv_nbr, offer, cu[o], rank[o] + 1 + above):
-                wg[w], wo[w] = g, o
-                w += 1
+            wg[w], wo[w] = g, o
+            w += not _nbr_below(vv_start, vv_nbr, offer, cu[o], rank[o] + 1 + above)
         if w == 0:
             break
         wu, wv = cu[wo[:w]], cv[wo[:w]]
@@ -1577,9 +1607,8 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
         kept = 0  # out of play: no candidate left, or the group's vertex blocked
         for j in range(live):
             g = play[j]
-            if front[g] < ends[g] and not flags[2, cu[starts[g]]]:
-                play[kept] = g
-                kept += 1
+            play[kept] = g
+            kept += (front[g] < ends[g]) & (not flags[2, cu[starts[g]]])
         live = kept
     return out[:n_out]
 
@@ -1638,9 +1667,17 @@ def _offer_ranks(cu, cost):
     (flat CAD regions, all zero) let only a few local minima win each round.
     """
     c = len(cu)
-    # floor(2 log2(cost + 1e-12 + 1e-9 max)), in place: the same values without four (c,) temporaries;
-    # a cost rounded below zero counts as zero (its log2 was NaN, which a cast made x86's smallest integer
-    # and the compiled ranking then asked for a counting array of 2**63 entries)
+    shuffle = np.random.default_rng(c).permutation(c)
+    # the bucket floor(2 log2(cost + 1e-12 + 1e-9 max)); compiled, all but numpy's log2 in two kernels (a pass
+    # each, not eight; their arithmetic is numpy's, rounding for rounding)
+    kernel = compiled(_ranks_kernel)
+    if kernel is not None:
+        y = compiled(_log_argument_kernel)(cost)
+        np.log2(y, out=y)
+        return kernel(y, shuffle)
+    # in place: the same values without four (c,) temporaries; a cost rounded below zero counts as zero (its log2
+    # was NaN, which a cast made x86's smallest integer and the compiled ranking then asked for a counting array
+    # of 2**63 entries)
     y = np.maximum(cost, 0.0)
     y += 1e-12
     y += 1e-9 * float(np.max(cost, where=np.isfinite(cost), initial=0.0))  # a NaN or inf cost moves no other
@@ -1649,10 +1686,6 @@ def _offer_ranks(cu, cost):
     np.floor(y, out=y)
     y[~np.isfinite(y)] = _LAST_BUCKET  # a NaN or infinite cost ranks last, alike on every CPU (a cast of NaN is not)
     bucket = y.astype(np.int64)
-    shuffle = np.random.default_rng(c).permutation(c)
-    kernel = compiled(_ranks_kernel)
-    if kernel is not None:
-        return kernel(bucket, shuffle)
     bucket -= bucket.min(initial=0)
     # argsort(bucket * c + shuffle) without a sort of c keys: candidates in shuffle order,
     # then grouped by bucket (few distinct values) stably
@@ -1664,13 +1697,33 @@ def _offer_ranks(cu, cost):
     return rank
 
 
-def _ranks_kernel(bucket, shuffle):
-    """Compiled end of :func:`_offer_ranks`: the (c,) int64 ranks of the candidates with cost buckets
-    ``bucket`` (c,) int64 (changed in place) and tie order ``shuffle`` (c,) int64, a permutation: one
-    counting pass over the buckets, then the candidates ranked in shuffle order within their bucket."""
-    c = len(bucket)
+def _log_argument_kernel(cost):
+    """Compiled start of :func:`_offer_ranks`: (c,) float64 ``np.maximum(cost, 0.0) + 1e-12 + 1e-9 * m``
+    of ``cost`` (c,) float64, m the largest finite cost or 0.0, added in that order."""
+    top = 0.0
+    for i in range(len(cost)):
+        x = cost[i]
+        if x > top and x - x == 0.0:  # finite
+            top = x
+    shift = 1e-9 * top
+    y = np.empty(len(cost), np.float64)
+    for i in range(len(cost)):
+        x = cost[i]
+        y[i] = ((x if (x >= 0.0 or x != x) else 0.0) + 1e-12) + shift  # np.maximum's choice (NaN kept)
+    return y
+
+
+def _ranks_kernel(y, shuffle):
+    """Compiled end of :func:`_offer_ranks`: the (c,) int64 ranks of the candidates with ``y`` (c,) float64
+    the log2 of :func:`_log_argument_kernel` (turned into the cost buckets in place) and tie order
+    ``shuffle`` (c,) int64, a permutation: one counting pass over the buckets, then the candidates ranked
+    in shuffle order within their bucket."""
+    c = len(y)
+    bucket = y.view(np.int64)
     low = 0
     for i in range(c):
+        b = np.floor(y[i] * 2.0)
+        bucket[i] = np.int64(b) if b - b == 0.0 else np.int64(_LAST_BUCKET)  # NaN or inf: last
         low = min(low, bucket[i])
     high = 0
     for i in range(c):
