@@ -295,6 +295,8 @@ def test_the_candidate_collapses_are_the_same_on_both_paths(monkeypatch, name):
         rng = np.random.default_rng(3)
         Q = rng.integers(0, 3, (k, 10)).astype(np.float64)
         Q[::7, 9] = np.nan
+        Q[3::11, 9] = np.inf  # infinite costs, ranked between the finite ones and NaN
+        Q[5::13] = -0.0  # zero quadrics: costs of -0.0 and 0.0, which tie
         frozen = rng.random(k) < 0.1
         P = np.asarray(mesh.positions, np.float64)[live.vids]
         src, _, opp = topology.half_edges(live.F)
@@ -630,3 +632,15 @@ def test_siphash_is_the_same_on_both_paths(monkeypatch):
     distinct = {message[i, :n].tobytes() for i, n in enumerate(nbytes)}
     assert out[0].dtype == out[1].dtype == np.uint64 and len(np.unique(out[0])) == len(distinct)
     assert np.array_equal(out[0], out[1])
+
+
+def test_the_extent_checks_median_is_numpys():
+    """mesh._median (one partition) gives float(np.median(x)) bit for bit: odd and even lengths, ties, one value."""
+    from pmwm_codec import mesh as meshmod
+
+    rng = np.random.default_rng(23)
+    for trial in range(500):
+        k = int(rng.integers(1, 60))
+        x = rng.random(k) * 10.0 ** int(rng.integers(-8, 8)) if trial % 3 else rng.integers(1, 4, k).astype(np.float64)
+        got, want = meshmod._median(x), float(np.median(x))
+        assert got == want and np.signbit(got) == np.signbit(want), (x, got, want)

@@ -884,14 +884,14 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, count, boundary, edge_flags, f
             buf_p[m], buf_c[m] = p, c
             buf_k[m] = bits[m] & 0x7FFFFFFFFFFFFFFF if c == c else 0x7FF8000000000000
             m += 1
-        for i in range(m):  # each collapse's place in cost order, ties in row order: counted, no branch
-            key = buf_k[i]
+        for s in range(m):  # each collapse's place in cost order, ties in row order: counted, no branch
+            key = buf_k[s]
             t = 0
             for j in range(m):
-                t += (buf_k[j] < key) | ((buf_k[j] == key) & (j < i))
-            p = buf_p[i]
+                t += (buf_k[j] < key) | ((buf_k[j] == key) & (j < s))
+            p = buf_p[s]
             j = k + t if t < tries else spare  # no branch on the place either: past the first tries, a spare entry
-            out_u[j], out_v[j], out_e[j], out_c[j] = u, vv_nbr[p], vv_edge[p], buf_c[i]
+            out_u[j], out_v[j], out_e[j], out_c[j] = u, vv_nbr[p], vv_edge[p], buf_c[s]
         k += min(m, tries)
     return out_u[:k], out_v[:k], out_e[:k], out_c[:k]
 
