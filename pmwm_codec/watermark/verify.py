@@ -46,7 +46,7 @@ import numpy as np
 from . import codec as wm
 from . import haar
 from .metrics import centered_nc, nc, psnr
-from .payload import BitLayout, pack, repeat_to_capacity, symbols
+from .payload import BitLayout, bits_from_symbols, pack, repeat_to_capacity, symbols
 
 ALPHA = 1e-9
 MIN_CARRIERS = 32
@@ -297,8 +297,7 @@ class Tally:
             b = self.bits
             position = (b * got[:, None] + np.arange(b)) % self.codes  # the message bit each code bit carries
             for variant in (0, 1):
-                bits = (self.counted[variant, got][:, None] >> np.arange(b - 1, -1, -1)) & 1
-                bits ^= self.whitening[got]
+                bits = bits_from_symbols(self.counted[variant, got], b, b * len(got)).reshape(-1, b) ^ self.whitening[got]
                 np.add.at(self.votes[variant], (bits.ravel(), position.ravel()), sign)
 
     def voted(self, agreeing: bool) -> tuple[np.ndarray, np.ndarray]:
