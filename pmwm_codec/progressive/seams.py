@@ -93,7 +93,8 @@ _HASH_FACTORS = tuple(np.uint64(x) for x in (
 ))
 
 
-def grid_weld(q: np.ndarray, faces: np.ndarray, positions: np.ndarray) -> np.ndarray | None:
+def grid_weld(q: np.ndarray, faces: np.ndarray, positions: np.ndarray,
+              on_grid: np.ndarray | None | bool = False) -> np.ndarray | None:
     """(n,) int64 seam copies on the position grid, as :func:`weld_groups` gives them (the smallest
     vertex id of each group); None when there are none.
 
@@ -113,10 +114,11 @@ def grid_weld(q: np.ndarray, faces: np.ndarray, positions: np.ndarray) -> np.nda
     scan on a coarse grid) are not copies: they cannot crack, and as seam vertices they would
     all stay in the base (several base vertices on one grid point, which the weld of a Draco
     base cannot tell apart).  With no such grid-only copies the result is
-    ``weld_groups(positions)`` itself.
+    ``weld_groups(positions)`` itself.  ``on_grid``: ``weld_groups(q)`` when the caller has it (None
+    included).
     """
     exact = weld_groups(positions)
-    on_grid = weld_groups(q)
+    on_grid = weld_groups(q) if on_grid is False else on_grid  # the caller's weld_groups(q), None included
     if on_grid is None or (exact is not None and np.array_equal(exact, on_grid)):
         return exact
     n = len(q)

@@ -84,6 +84,9 @@ BATCH_QUANTILE = 0.5
 #: A batch whose winners are fewer than this fraction of the vertices offering a collapse is
 #: chosen again among the legal candidates only (see :func:`_unstalled`).
 STALL_FRACTION = 1 / 32
+#: The first batches (at most this many) take the vertices that share a grid point with another first
+#: (:func:`coincident_vertices`).
+SHARED_FIRST_BATCHES = 4
 
 
 @dataclass
@@ -324,6 +327,7 @@ def simplify(
     locked: np.ndarray | None = None,
     weld: np.ndarray | None = None,
     twin: np.ndarray | None = None,
+    points: np.ndarray | None = None,
 ) -> CollapseLog:
     """Coarsen a mesh by batches of independent half-edge collapses.
 
@@ -345,6 +349,10 @@ def simplify(
         position are removed only in seam pairs (:mod:`.seams`); None: no seams.
     twin : (m,) bool, optional
         :func:`twin_faces` of ``faces``, when the caller has it (:func:`deferred_and_twin_faces`).
+    points : (n,) int64, optional
+        ``weld_groups(positions)`` (:func:`~.seams.weld_groups`: the first vertex on each vertex's point),
+        when the caller has it.  Vertices on a point that another vertex (not a seam copy of theirs) shares
+        go first (:func:`coincident_vertices`).
 
     Returns
     -------
@@ -370,6 +378,8 @@ def simplify(
     log = CollapseLog(n, m, None, None, None, [])
 
     alive_count = int(vert_alive.sum())
+    points = seams.weld_groups(pos) if points is None and alive_count > target_vertices else points
+    shared = None if points is None else coincident_vertices(points, vert_alive, weld)
     for b in range(max_batches):
         if alive_count <= target_vertices:
             break
@@ -378,17 +388,48 @@ def simplify(
             live = None  # the previous batch's edge tables and adjacency freed before the next ones are made
             live = live_mesh(corners, face_alive, vert_alive, ids)
             P, Q, own = _kept_rows(P, Q, own, ids[0], vert_alive)
-        batch = _one_batch(P, Q, own, live, frozen_ext, alive_count - target_vertices, weld, twin)
+        first = None
+        if shared is not None and len(shared):
+            first = np.zeros(n, bool)
+            first[shared] = True
+        batch = _one_batch(P, Q, own, live, frozen_ext, alive_count - target_vertices, weld, twin, first)
         if batch is None:
             break
         _apply(batch, corners, face_alive, vert_alive, P, Q, own, live.loc)
         alive_count -= len(batch.u)
         log.batches.append(batch)
+        if first is not None:
+            shared = coincident_vertices(points, vert_alive, weld, shared) if b + 1 < SHARED_FIRST_BATCHES else None
 
     log.base_vertices = np.flatnonzero(vert_alive)
     log.base_faces = np.flatnonzero(face_alive)
     log.base_corners = corners[log.base_faces]
     return log
+
+
+def coincident_vertices(points: np.ndarray, alive: np.ndarray, weld: np.ndarray | None = None,
+                        among: np.ndarray | None = None) -> np.ndarray:
+    """(k,) int64, ascending: the ``alive`` (n,) bool vertices on a point that another alive vertex shares,
+    other than their own seam copies.  ``points`` (n,) int64: the first vertex on each vertex's point
+    (:func:`~.seams.weld_groups` of the grid positions, one value per point); ``weld`` (n,) int64 or None the
+    seam copies (:func:`simplify`'s); ``among`` (j,) int64 or None: look only at these vertices (an earlier
+    answer: vertices only leave the mesh, so a point once free of others stays free).
+
+    A base with two such vertices cannot be stored by Draco's own vertex order: a reader welds a Draco base's
+    copies by grid point (spec README, "Welded base"), which would merge them, so the base falls back to
+    Draco's sequential coder, about three times the bytes (a scan's base: 3.2 -> 10.4 KB).  :func:`simplify`
+    offers their collapses first in its first batches, while nearly every collapse is legal (at four times
+    the target vertex count, a scan's two such vertices had no legal collapse left)."""
+    n = len(points)
+    if among is None:
+        among = np.flatnonzero(np.bincount(points, minlength=n)[points] > 1)  # every vertex on a point of two
+    among = among[alive[among]]
+    point = points[among]
+    seam = among if weld is None else weld[among]
+    order = np.lexsort((seam, point))
+    p, s = point[order], seam[order]
+    second = (p[1:] == p[:-1]) & (s[1:] != s[:-1])  # a point's second (third, ...) seam group
+    return among[np.isin(point, p[1:][second])]
 
 
 def _apply(batch, corners, face_alive, vert_alive, P, Q, own, loc):
@@ -431,7 +472,7 @@ def _apply_kernel(u, v, del_left, del_right, moved_face, moved_by, corners, face
                 corners[f, c] = v[i]
 
 
-def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None):
+def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None, first=None):
     """Choose and describe one batch of independent legal collapses (or None).
 
     ``live`` is the :class:`~.livemesh.LiveMesh` of the simplifier's live faces, P (n, 3) and Q (n, 10)
@@ -440,7 +481,8 @@ def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None):
     frozen vertices (original ids); at most ``budget`` vertices are removed (the cheapest collapses).
     ``weld`` (N,) int64 or None: seam copies (see :func:`simplify`).  The work is done on the live mesh
     renumbered compactly ("local" ids) and returned in original ids.  ``twin`` (M,) bool or None: the
-    doubled faces (:func:`twin_faces`).
+    doubled faces (:func:`twin_faces`).  ``first`` (N,) bool or None: vertices whose collapses are offered
+    first (ranked as costing nothing; the batch records their true costs).
     """
     vids, fids, loc, F, et, vv, vf, fcount = (live.vids, live.fids, live.loc, live.F, live.et, live.vv, live.vf,
                                               live.fcount)
@@ -458,6 +500,9 @@ def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None):
     cand = _candidates(mesh, ends, Q, src, frozen if seam is None else frozen | seam, twins, own=own)
     if cand is None and seam is None:
         return None
+    first = None if first is None or cand is None else (first[vids] if seam is None else first[vids] & ~seam)
+    if first is not None and first[cand[0]].any():  # their collapses rank as costing nothing
+        cand = cand[:3] + (np.where(first[cand[0]], 0.0, cand[3]),)
     pairs = None if seam is None else _seam_pairs(Q, own, src, dst, frozen, seam, g, mesh, ends)
     # the ordinary candidates must be independent of the chosen seam pairs (left out as the affordable ones are
     # picked, one pass over the candidates)
@@ -481,6 +526,8 @@ def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None):
         cu, cv, ce, cost = _merge_pairs(cand, win, pairs, budget)
         if len(cu) == 0:
             return None
+    if first is not None:  # their true costs (as _candidates computes them: the same bits)
+        cost = np.where(first[cu], quadric_error(np.take(Q, cu, axis=0), np.take(P, cv, axis=0)) + own[cv], cost)
     moved_face, moved_by = _moved_faces(vf, F, cu, cv)
     u, v, del_left, wing_left, del_right, wing_right, error = _described(et, src, opp, vids, fids, Q, cu, cv, ce, cost)
     return CollapseBatch(u=u, v=v, del_left=del_left, del_right=del_right, wing_left=wing_left, wing_right=wing_right,

@@ -759,8 +759,10 @@ def _quantize_and_simplify(jobs, grid_bits: int, base_vertices, say, defer_faces
             twin = twin[~late]
         target = default_base_target(len(values)) if base_vertices is None else int(base_vertices)
         # seam copies on the grid the stream lives on (copies a grid step apart or less are one point there)
-        weld = grid_weld(values[:, :3], faces, positions)
-        log = simplify(values[:, :3], faces, target_vertices=target, locked=locked, weld=weld, twin=twin)
+        points = weld_groups(values[:, :3])
+        weld = grid_weld(values[:, :3], faces, positions, points)
+        log = simplify(values[:, :3], faces, target_vertices=target, locked=locked, weld=weld, twin=twin,
+                       points=np.arange(len(values)) if points is None else points)
         work.append(PrimitiveWork(job, grid, values, specs, log, **extra))
         say("simplify", (i + 1) / len(jobs))
     return work
