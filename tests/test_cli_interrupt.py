@@ -112,8 +112,11 @@ def test_a_ctrl_c_at_any_early_moment_is_never_a_traceback_from_pmw_or_what_it_l
     late = [(f, fn) for f, fn in frames if f.startswith(str(ROOT)) and not (f.endswith(_BEFORE_MAIN) and fn == "<module>")]
     assert not late and not [f for f, _ in frames if "/numpy/" in f or "/PIL/" in f], err
     if "Traceback" not in err:
-        assert (proc.returncode, err) in ((-signal.SIGINT, ""), (130, "pmw: error: interrupted\n"),
-                                          (2, "pmw: error: x.pmw: no such .pmw file\n")), err
+        answer = "pmw: error: x.pmw: no such .pmw file\n"
+        # the answer given, then killed by the signal on the way out (the default handler is back by then: seen
+        # once under load, 0.2 s in)
+        assert (proc.returncode, err) in ((-signal.SIGINT, ""), (130, "pmw: error: interrupted\n"), (2, answer),
+                                          (-signal.SIGINT, answer)), err
 
 
 @pytest.fixture
