@@ -301,6 +301,41 @@ def test_a_stalled_batch_is_chosen_again_among_the_legal_candidates_only(name):
     assert S._unstalled(cand, enough, mesh, n) is cand
 
 
+def test_after_a_stalled_batch_every_later_one_selects_among_the_legal_candidates_from_the_start(monkeypatch):
+    """The batch that stalls (here: made to, the third) is chosen again among the legal candidates; every batch
+    after it is given ``legal_only`` and selects once, among those only; the ones before are not."""
+    from pmwm_codec.progressive import simplify as S
+
+    mesh = shapes.icosphere(4, 1.0, noise=0.05)
+    q = Grid.fit(mesh.positions, 14).quantize(mesh.positions)
+    calls, selections = [], []
+    one_batch, unstalled, winners = S._one_batch, S._unstalled, S._ordinary_winners
+
+    def recorded(*args):
+        calls.append(args[9])
+        return one_batch(*args)
+
+    def stalls_third(cand, win, mesh, n):
+        return S._legal_only(cand, mesh) if len(calls) == 3 else unstalled(cand, win, mesh, n)
+
+    def counted(cand, mesh, n):
+        selections.append(len(calls))
+        if len(calls) > 3:  # after the stall: only legal candidates are offered
+            assert S._legal(*cand[:3], mesh).all()
+        return winners(cand, mesh, n)
+
+    monkeypatch.setattr(S, "_one_batch", recorded)
+    monkeypatch.setattr(S, "_unstalled", stalls_third)
+    monkeypatch.setattr(S, "_ordinary_winners", counted)
+    log = S.simplify(q, mesh.faces, target_vertices=64)
+    assert calls[:3] == [False, False, False] and all(calls[3:]) and len(calls) > 5
+    # the stalled batch selected twice (its legal candidates are a strict subset here), each later one once
+    assert selections.count(3) == 2 and all(selections.count(b) == 1 for b in range(4, len(calls) + 1))
+    assert len(log.base_vertices) <= 64
+    for batch in log.batches[3:]:
+        assert len(batch.u) and np.all(batch.cost >= 0)
+
+
 def test_the_cow_coarsens_to_its_base_target_at_grid_14():
     """The cow stalled at 72 base vertices at grid 14 (target 64) before stalled batches were chosen again."""
     from pmwm_codec.stream.chunking import default_base_target

@@ -380,6 +380,7 @@ def simplify(
     alive_count = int(vert_alive.sum())
     points = seams.weld_groups(pos) if points is None and alive_count > target_vertices else points
     shared = None if points is None else coincident_vertices(points, vert_alive, weld)
+    legal_only = False
     for b in range(max_batches):
         if alive_count <= target_vertices:
             break
@@ -392,7 +393,12 @@ def simplify(
         if shared is not None and len(shared):
             first = np.zeros(n, bool)
             first[shared] = True
-        batch = _one_batch(P, Q, own, live, frozen_ext, alive_count - target_vertices, weld, twin, first)
+        batch, stalled = _one_batch(P, Q, own, live, frozen_ext, alive_count - target_vertices, weld, twin, first,
+                                    legal_only)
+        # once a batch stalls, the illegal offers that held it hold the later ones too (the illegal share of the
+        # candidates grows as the mesh coarsens: dragon23k, 14 % at batch 15 of 61, 72 % at batch 53): the
+        # batches after it select among the legal candidates from the start
+        legal_only = legal_only or stalled
         if batch is None:
             break
         _apply(batch, corners, face_alive, vert_alive, P, Q, own, live.loc)
@@ -472,8 +478,8 @@ def _apply_kernel(u, v, del_left, del_right, moved_face, moved_by, corners, face
                 corners[f, c] = v[i]
 
 
-def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None, first=None):
-    """Choose and describe one batch of independent legal collapses (or None).
+def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None, first=None, legal_only=False):
+    """Choose and describe one batch of independent legal collapses: ``(CollapseBatch or None, stalled)``.
 
     ``live`` is the :class:`~.livemesh.LiveMesh` of the simplifier's live faces, P (n, 3) and Q (n, 10)
     float64 its vertices' positions and quadrics (local ids), ``own`` (n,) float64 ``quadric_error(Q, P)``,
@@ -482,7 +488,9 @@ def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None, first=
     ``weld`` (N,) int64 or None: seam copies (see :func:`simplify`).  The work is done on the live mesh
     renumbered compactly ("local" ids) and returned in original ids.  ``twin`` (M,) bool or None: the
     doubled faces (:func:`twin_faces`).  ``first`` (N,) bool or None: vertices whose collapses are offered
-    first (ranked as costing nothing; the batch records their true costs).
+    first (ranked as costing nothing; the batch records their true costs).  ``legal_only``: select among
+    the legal candidates from the start; ``stalled``: this batch did (``legal_only``, or it stalled:
+    :func:`_unstalled`).
     """
     vids, fids, loc, F, et, vv, vf, fcount = (live.vids, live.fids, live.loc, live.F, live.et, live.vv, live.vf,
                                               live.fcount)
@@ -499,7 +507,7 @@ def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None, first=
     ends = live.boundary, live.edge_flags
     cand = _candidates(mesh, ends, Q, src, frozen if seam is None else frozen | seam, twins, own=own)
     if cand is None and seam is None:
-        return None
+        return None, legal_only
     first = None if first is None or cand is None else (first[vids] if seam is None else first[vids] & ~seam)
     if first is not None and first[cand[0]].any():  # their collapses rank as costing nothing
         cand = cand[:3] + (np.where(first[cand[0]], 0.0, cand[3]),)
@@ -509,14 +517,16 @@ def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None, first=
     blocked = None if pairs is None else seams.blocked_by(pairs[0], pairs[1], vv, n)
     for quantile in (BATCH_QUANTILE, 1.0):  # all candidates when no affordable one is legal
         part = None if cand is None else _affordable(*cand, quantile, blocked)
+        part = _legal_only(part, mesh) if legal_only else part
         win = _ordinary_winners(part, mesh, n) if part is not None else np.zeros(0, np.int64)
         if len(win) or pairs is not None or quantile >= 1.0:
             break
-    cand = _unstalled(part, win, mesh, n)
+    cand = part if legal_only else _unstalled(part, win, mesh, n)
+    stalled = legal_only or cand is not part
     if cand is not part:
         win = _ordinary_winners(cand, mesh, n)
     if len(win) == 0 and pairs is None:
-        return None
+        return None, stalled
     if pairs is None:
         if len(win) > budget:
             win = win[np.argsort(cand[3][win], kind="stable")[:budget]]
@@ -525,13 +535,13 @@ def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None, first=
     else:
         cu, cv, ce, cost = _merge_pairs(cand, win, pairs, budget)
         if len(cu) == 0:
-            return None
+            return None, stalled
     if first is not None:  # their true costs (as _candidates computes them: the same bits)
         cost = np.where(first[cu], quadric_error(np.take(Q, cu, axis=0), np.take(P, cv, axis=0)) + own[cv], cost)
     moved_face, moved_by = _moved_faces(vf, F, cu, cv)
     u, v, del_left, wing_left, del_right, wing_right, error = _described(et, src, opp, vids, fids, Q, cu, cv, ce, cost)
     return CollapseBatch(u=u, v=v, del_left=del_left, del_right=del_right, wing_left=wing_left, wing_right=wing_right,
-                         moved_face=fids[moved_face], moved_by=moved_by, cost=cost, error=error)
+                         moved_face=fids[moved_face], moved_by=moved_by, cost=cost, error=error), stalled
 
 
 def _local_rows(pos, quad, vids):
@@ -629,6 +639,14 @@ def _unstalled(cand, win, mesh, n):
         return cand
     offering = len(_group_starts(cand[0]))
     if len(win) >= STALL_FRACTION * offering:
+        return cand
+    return _legal_only(cand, mesh)
+
+
+def _legal_only(cand, mesh):
+    """The legal candidates of ``cand = (cu, cv, ce, cost)`` (:func:`_legal`), or ``cand`` itself when all or
+    none are (``mesh`` as in :func:`_ordinary_winners`)."""
+    if cand is None or len(cand[0]) == 0:
         return cand
     ok = _legal(cand[0], cand[1], cand[2], mesh)
     if ok.all() or not ok.any():
