@@ -1,5 +1,6 @@
-"""A base never keeps two vertices on one grid point (other than seam copies): Draco's own vertex order could
-not store it (its copies are welded by grid point), and its sequential coder costs about three times the bytes."""
+"""The simplifier removes vertices that share a grid point with another (other than seam copies) first, so that
+the base keeps none of them where a legal collapse can remove them: Draco's own vertex order could not store such a
+base (its copies are welded by grid point), and its sequential coder costs about three times the bytes."""
 
 import io
 
