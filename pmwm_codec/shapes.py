@@ -102,6 +102,28 @@ def components(*meshes: Mesh, spacing: float = 3.0) -> Mesh:
     return Mesh(np.concatenate(verts), np.concatenate(faces))
 
 
+def kissing(count: int = 3, subdivisions: int = 2) -> Mesh:
+    """``count`` icospheres around the origin, each touching it with a vertex of its own: distinct vertices on
+    one point (not welded, as a scan's touching pieces come), which stay in the base as seam copies do.
+    A Draco base tells them apart by its weld attribute (spec README, "Welded base")."""
+    parts = []
+    for k in range(count):
+        sphere = icosphere(subdivisions, 1.0, noise=0.02, seed=k)
+        tip = int(np.argmin(sphere.positions[:, 2]))
+        angle = 2 * np.pi * k / count
+        c, s = np.cos(angle), np.sin(angle)
+        turn = np.array([[1, 0, 0], [0, c, -s], [0, s, c]]) if k else np.eye(3)
+        pts = (sphere.positions - sphere.positions[tip]) @ turn.T
+        pts[tip] = 0.0  # exactly on the shared point
+        parts.append(Mesh(pts, sphere.faces))
+    verts, faces, off = [], [], 0
+    for part in parts:
+        verts.append(part.positions)
+        faces.append(part.faces + off)
+        off += part.vertex_count
+    return Mesh(np.concatenate(verts), np.concatenate(faces).astype(np.int64))
+
+
 def bowtie() -> Mesh:
     """Non-manifold test piece: two fans sharing one vertex, plus a fin (an edge with three faces)."""
     sphere_a = icosphere(2, 1.0)

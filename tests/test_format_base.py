@@ -69,12 +69,33 @@ def test_draco_attribute_id_is_read_back_not_assumed(mesh, monkeypatch):
     assert np.array_equal(pos, enc.positions_int)
 
 
-def test_draco_keeps_the_order_of_a_base_whose_vertices_share_a_position(mesh):
+def test_a_base_whose_distinct_vertices_share_a_grid_point_keeps_dracos_order_with_the_weld_attribute(mesh):
     ints, faces, grid = mesh
     dup = np.vstack([ints, ints[:1]])  # two vertices at one grid point: matching them by position is ambiguous
     tri = np.vstack([faces, [[len(ints), faces[0, 1], faces[0, 2]]]])
     enc = basecodec.encode_base(dup, tri, grid, codec="draco")
+    # Draco's own order (not its sequential coder), the two told apart by their ordinals on the point
+    assert enc.codec == "draco" and enc.notice is None and enc.welded_count == len(dup)
+    assert basecodec.WELD_ATTRIBUTE in enc.primitive["attributes"]
+    assert np.array_equal(enc.positions_int, dup[enc.vertex_map])
+    gltf, prim = _welded_gltf(enc)
+    pos, tri_back = basecodec.decode_base(gltf, enc.data, grid, prim)
+    assert np.array_equal(pos, enc.positions_int) and same_face_set(enc.vertex_map[tri_back], tri)
+    # without the attribute the weld merges the two: the file is refused, not read as another mesh
+    del prim["attributes"][basecodec.WELD_ATTRIBUTE]
+    with pytest.raises(FormatError, match="welding gives"):
+        basecodec.decode_base(gltf, enc.data, grid, prim)
+
+
+def test_the_sequential_coder_keeps_the_order_of_a_base_whose_vertices_share_a_position(mesh, monkeypatch):
+    ints, faces, grid = mesh
+    dup = np.vstack([ints, ints[:1]])
+    tri = np.vstack([faces, [[len(ints), faces[0, 1], faces[0, 2]]]])
+    real = basecodec._try_draco
+    monkeypatch.setattr(basecodec, "_try_draco", lambda *a: "refused" if not a[3] else real(*a))  # own order refused
+    enc = basecodec.encode_base(dup, tri, grid, codec="draco")
     assert enc.codec == "draco" and enc.notice is None and enc.welded_count is None  # Draco's sequential coding
+    assert basecodec.WELD_ATTRIBUTE not in enc.primitive["attributes"]
     assert np.array_equal(enc.vertex_map, np.arange(len(dup))) and np.array_equal(enc.positions_int, dup)
     gltf, prim = _gltf_of(enc)
     pos, tri_back = basecodec.decode_base(gltf, enc.data, grid, prim)
@@ -152,9 +173,26 @@ def test_a_wrong_weld_declaration_is_a_format_error(bowtie_base, edit, message):
 def test_weld_keeps_the_first_copy_and_numbers_kept_vertices_in_stored_order():
     pos = np.array([[5, 0, 0], [1, 1, 1], [5, 0, 0], [2, 2, 2], [1, 1, 1]], np.int64)
     faces = np.array([[0, 1, 3], [2, 3, 4]], np.int64)
-    kept, welded = basecodec.weld(pos, faces)
+    kept, welded, ordinals = basecodec.weld(pos, faces)
     assert kept.tolist() == [[5, 0, 0], [1, 1, 1], [2, 2, 2]]
     assert welded.tolist() == [[0, 1, 2], [0, 2, 1]]
+    assert ordinals.tolist() == [0, 0, 0]
+
+
+def test_weld_with_ordinals_keeps_distinct_vertices_on_one_point_apart():
+    # the spec's example with a weld attribute: stored vertex 2 is another vertex on (5,0,0), 4 a copy of 1
+    pos = np.array([[5, 0, 0], [1, 1, 1], [5, 0, 0], [2, 2, 2], [1, 1, 1]], np.int64)
+    faces = np.array([[0, 1, 3], [2, 3, 4]], np.int64)
+    kept, welded, ordinals = basecodec.weld(pos, faces, np.array([0, 0, 1, 0, 0]))
+    assert kept.tolist() == [[5, 0, 0], [1, 1, 1], [5, 0, 0], [2, 2, 2]]
+    assert welded.tolist() == [[0, 1, 3], [2, 3, 1]]
+    assert ordinals.tolist() == [0, 0, 1, 0]
+
+
+def test_point_ordinals_number_the_vertices_of_each_point_in_vertex_order():
+    pos = np.array([[1, 0, 0], [2, 0, 0], [1, 0, 0], [1, 0, 0], [3, 0, 0], [2, 0, 0]], np.int64)
+    assert basecodec.point_ordinals(pos).tolist() == [0, 0, 1, 2, 0, 1]
+    assert basecodec.point_ordinals(pos[:0]).tolist() == []
 
 
 @given(st.lists(st.integers(0, 5), min_size=3, max_size=40), st.integers(0, 2**31))
@@ -163,7 +201,7 @@ def test_weld_gives_each_distinct_position_once_and_every_corner_its_position(la
     rng = np.random.default_rng(seed)
     pos = np.array([[x, 2 * x, -x] for x in labels], np.int64)
     faces = rng.integers(0, len(pos), size=(7, 3))
-    kept, welded = basecodec.weld(pos, faces)
+    kept, welded, _ = basecodec.weld(pos, faces)
     assert len(np.unique(kept, axis=0)) == len(kept) == len(set(labels))
     assert np.array_equal(kept[welded], pos[faces])
     firsts = sorted({labels.index(x) for x in labels})

@@ -135,17 +135,20 @@ def test_counts_claimed_past_the_records_cost_the_memory_of_what_is_decoded(samp
     assert outcomes <= {"FormatError", "LimitError"} and outcomes
 
 
-@pytest.fixture(scope="module")
-def welded():
+@pytest.fixture(scope="module", params=["bowtie.welded-draco.packed.v2.pmw", "kissing.welded-draco.packed.v2.pmw"])
+def welded(request):
+    """A base with Draco's copies of non-manifold vertices, and one whose weld attribute keeps distinct vertices on
+    one point apart."""
     from pathlib import Path
 
-    return (Path(__file__).resolve().parents[1] / "spec" / "conformance" / "bowtie.welded-draco.packed.v2.pmw").read_bytes()
+    return (Path(__file__).resolve().parents[1] / "spec" / "conformance" / request.param).read_bytes()
 
 
 @SETTINGS
 @given(data=st.data())
 def test_byte_mutations_and_cuts_of_a_welded_draco_base_end_in_named_errors(sample, welded, data):
-    """The weld's inputs (the Draco base, the POSITION accessor count, baseVertexCount) edited byte by byte."""
+    """The weld's inputs (the Draco base, the POSITION accessor count, baseVertexCount, the weld attribute) edited
+    byte by byte."""
     b = bytearray(welded)
     for i, v in data.draw(st.lists(st.tuples(st.integers(0, len(b) - 1), st.integers(0, 255)), max_size=6)):
         b[i] = v

@@ -1,6 +1,7 @@
 """The simplifier removes vertices that share a grid point with another (other than seam copies) first, so that
-the base keeps none of them where a legal collapse can remove them: Draco's own vertex order could not store such a
-base (its copies are welded by grid point), and its sequential coder costs about three times the bytes."""
+the base keeps none of them where a legal collapse can remove them: Draco's own vertex order stores such a base only
+with the weld attribute (its copies are welded by grid point), and not at all with a face on two of them (Draco drops
+it), where its sequential coder costs about three times the bytes."""
 
 import io
 

@@ -1,6 +1,7 @@
 """Welded bases (spec README, "Welded base"): a non-manifold base keeps Draco's edgebreaker coder,
 whose copies of non-manifold vertices every reader welds back, end to end through the file, the
-key's MACs, a cut and the viewers' checkers."""
+key's MACs, a cut and the viewers' checkers; a base whose distinct vertices share a grid point
+keeps it too, its weld attribute (``_PMWM_WELD``) telling them apart."""
 
 from __future__ import annotations
 
@@ -32,12 +33,16 @@ def _ext(gltf):
     return gltf["meshes"][0]["primitives"][0]["extensions"]["PMWM_progressive_mesh"]
 
 
-@pytest.fixture(scope="module")
-def welded():
-    mesh = shapes.bowtie()
+def _encoded(mesh):
+    """``(mesh, .pmw bytes, report)`` of a default encode."""
     buf = io.BytesIO()
     report = pmwm_codec.encode(mesh, buf)
     return mesh, buf.getvalue(), report
+
+
+@pytest.fixture(scope="module")
+def welded():
+    return _encoded(shapes.bowtie())
 
 
 def test_a_non_manifold_base_is_stored_by_edgebreaker_and_declares_its_welded_count(welded):
@@ -108,11 +113,105 @@ def test_a_marked_welded_file_verifies_authentic_and_a_changed_count_does_not(tm
     assert len(err) == 1 and err[0].startswith("pmw: error:") and "Traceback" not in err[0]
 
 
+@pytest.fixture(scope="module")
+def kissing():
+    return _encoded(shapes.kissing())
+
+
+def _prim(data):
+    return _prim_of(_json(data))
+
+
+def _grid_points(data):
+    """(k, 3) grid integers of the base's vertices, as decoded (welded)."""
+    base = pmwm_codec.decode(data, chunks=0)
+    return Grid.from_config(_ext(_json(data))["grid"]).quantize(base.positions)
+
+
+def test_distinct_vertices_on_one_point_keep_edgebreaker_with_the_weld_attribute(kissing):
+    mesh, data, report = kissing
+    prim = _prim(data)
+    points = _grid_points(data)
+    # the three spheres' own vertices on the shared point are all in the base, on one grid point
+    assert len(points) - len(np.unique(points, axis=0)) >= 2
+    assert report["base_codec"] == "draco" and "_PMWM_WELD" in prim["attributes"]
+    assert prim["extensions"]["KHR_draco_mesh_compression"]["attributes"].keys() == {"POSITION", "_PMWM_WELD"}
+    assert _ext(_json(data))["baseVertexCount"] == report["base_vertices"] == len(points)
+    out = pmwm_codec.decode(data)
+    grid = Grid.from_config(_ext(_json(data))["grid"])
+    assert _oriented_triangles(grid.quantize(out.positions), out.faces) == _oriented_triangles(
+        grid.quantize(mesh.positions), mesh.faces)
+
+
+def test_the_weld_attribute_saves_what_the_sequential_coder_costs(kissing):
+    from pmwm_codec.format import base as basecodec
+
+    _, data, _ = kissing
+    base = pmwm_codec.decode(data, chunks=0)
+    grid = Grid.from_config(_ext(_json(data))["grid"])
+    edgebreaker = _json(data)["bufferViews"][0]["byteLength"]
+    sequential = basecodec._try_draco(grid.quantize(base.positions), base.faces, grid, True, 7)
+    assert edgebreaker < len(sequential.data)
+
+
+def _edited(data, edit):
+    gltf, binary = split_glb(data)
+    edit(gltf)
+    return b"".join(glb_parts(gltf, [binary], len(binary)))
+
+
+def _no_weld_count(g):
+    del _ext(g)["baseVertexCount"]
+
+
+def _weld_not_scalar(g):
+    g["accessors"][_prim_of(g)["attributes"]["_PMWM_WELD"]]["type"] = "VEC2"
+
+
+def _weld_float(g):
+    g["accessors"][_prim_of(g)["attributes"]["_PMWM_WELD"]]["componentType"] = 5126
+
+
+def _weld_count_off(g):
+    g["accessors"][_prim_of(g)["attributes"]["_PMWM_WELD"]]["count"] += 1
+
+
+def _weld_dropped(g):
+    del _prim_of(g)["attributes"]["_PMWM_WELD"]
+
+
+def _weld_id_missing(g):
+    del _prim_of(g)["extensions"]["KHR_draco_mesh_compression"]["attributes"]["_PMWM_WELD"]
+
+
+def _prim_of(g):
+    return g["meshes"][0]["primitives"][0]
+
+
+@pytest.mark.parametrize("edit, message", [
+    (_no_weld_count, "without baseVertexCount"),
+    (_weld_not_scalar, "UNSIGNED_BYTE or UNSIGNED_SHORT SCALAR"),
+    (_weld_float, "UNSIGNED_BYTE or UNSIGNED_SHORT SCALAR"),
+    (_weld_count_off, "values for"),
+    (_weld_dropped, "welding gives"),  # the three vertices on one point weld into one
+    (_weld_id_missing, "no _PMWM_WELD id"),
+], ids=["no-baseVertexCount", "vec2", "float", "count", "dropped", "no-draco-id"])
+def test_a_wrong_weld_attribute_is_refused_with_one_line(kissing, tmp_path, capsys, edit, message):
+    _, data, _ = kissing
+    path = tmp_path / "edited.pmw"
+    path.write_bytes(_edited(data, edit))
+    assert main(["decode", str(path), "-o", str(tmp_path / "out.obj")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("pmw: error:") and message in err[0], err
+    assert not (tmp_path / "out.obj").exists()
+
+
 @pytest.mark.node
 @pytest.mark.skipif(shutil.which("node") is None, reason="node is not on PATH")
 @pytest.mark.skipif(not (JS / "node_modules").is_dir(), reason="tools/js/node_modules is absent: run `npm ci --prefix tools/js`")
-def test_validator_and_three_js_take_a_welded_file_as_it_is_stored(welded, tmp_path):
-    _, data, _ = welded
+@pytest.mark.parametrize("which", ["welded", "kissing"])
+def test_validator_and_three_js_take_a_welded_file_as_it_is_stored(which, request, tmp_path):
+    _, data, _ = request.getfixturevalue(which)
     path = tmp_path / "welded.pmw"
     path.write_bytes(data)
     proc = subprocess.run(["node", str(JS / "check_gltf.mjs"), str(path)], capture_output=True, text=True, timeout=120)

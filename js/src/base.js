@@ -4,7 +4,7 @@
  */
 import { framedDigest } from './chunkframe.js';
 import { CorruptChunkError, DracoError, FormatError, PmwError } from './errors.js';
-import { readAccessor } from './header.js';
+import { WELD_ATTRIBUTE, readAccessor } from './header.js';
 
 const BASE_DIGEST_LABEL = new TextEncoder().encode('pmwm/base-digest/v1');
 
@@ -55,19 +55,30 @@ export async function decodeBase(bin, prim, draco) {
   let positions;
   let attributes;
   let indices;
+  let ordinals = null; // the weld attribute's values, one per stored vertex
   if (base.draco) {
     const { view, positionId, attributeIds } = base.draco;
     const decoder = draco ?? await defaultDraco();
     let out;
     try {
-      out = await decoder.decode(bin.subarray(view.offset, view.offset + view.length), { positionId, attributeIds });
+      const ids = base.draco.weldId == null ? attributeIds : [...attributeIds, base.draco.weldId];
+      out = await decoder.decode(bin.subarray(view.offset, view.offset + view.length), { positionId, attributeIds: ids });
     } catch (e) {
       if (e instanceof PmwError) throw e;
       throw new DracoError(`Draco decoding failed (${e?.message ?? e})`, { cause: e }); // a decoder of the caller's
     }
     ({ positions, attributes = [], indices } = out ?? {});
-    if (!positions || !indices || !Array.isArray(attributes) || attributes.length !== attributeIds.length) {
-      throw new DracoError(`the Draco decoder gave no {positions, indices, attributes: [${attributeIds.length} arrays]}`);
+    const asked = attributeIds.length + (base.draco.weldId == null ? 0 : 1);
+    if (!positions || !indices || !Array.isArray(attributes) || attributes.length !== asked) {
+      throw new DracoError(`the Draco decoder gave no {positions, indices, attributes: [${asked} arrays]}`);
+    }
+    if (base.draco.weldId != null) {
+      const a = attributes[attributes.length - 1];
+      ordinals = a?.values ?? a;
+      if (!ordinals || (a.components !== undefined && a.components !== 1)) {
+        throw new DracoError(`the Draco decoder gave no ${WELD_ATTRIBUTE} of one component`);
+      }
+      attributes = attributes.slice(0, -1);
     }
     if (positions.length !== 3 * base.draco.vertices || indices.length !== 3 * base.draco.faces) {
       throw new FormatError(`base mesh: Draco decoded ${positions.length / 3} vertices / ${indices.length / 3} faces, `
@@ -85,6 +96,7 @@ export async function decodeBase(bin, prim, draco) {
     positions = readAccessor(bin, base.plain.position);
     indices = readAccessor(bin, base.plain.indices);
     attributes = base.plain.attributes.map((plan) => readAccessor(bin, plan, true));
+    if (base.plain.weld) ordinals = readAccessor(bin, base.plain.weld, true);
   }
   const n = positions.length / 3;
   const D = 3 + base.grids.reduce((s, g) => s + g.origin.length, 0);
@@ -102,8 +114,9 @@ export async function decodeBase(bin, prim, draco) {
   });
   let faces = indices instanceof Uint32Array ? indices : Uint32Array.from(indices);
   let count = n;
+  if (ordinals !== null && ordinals.length !== n) throw new FormatError(`base mesh: ${WELD_ATTRIBUTE} count differs (${ordinals.length} values, ${n} stored vertices)`);
   if (base.welded != null) {
-    ({ values, faces, count } = weld(values, faces, n, D));
+    ({ values, faces, count } = weld(values, faces, n, D, ordinals));
     if (count !== base.welded) {
       throw new FormatError(`base mesh: welding gives ${count} vertices, baseVertexCount says ${base.welded}`);
     }
@@ -156,16 +169,17 @@ function checkBaseDigest(values, faces, n, D, prim) {
 
 /**
  * Welds a stored base's copies (spec/README.md "Welded base"): vertices with equal grid positions
- * are one vertex, the first of them in stored order; kept vertices are numbered in stored order and
- * every face corner names its kept vertex. `values` (n*D), `faces` (m*3) on n vertices; returns new
- * arrays and the kept count.
+ * (and equal values of the weld attribute, `ordinals`, when the base has it) are one vertex, the first
+ * of them in stored order; kept vertices are numbered in stored order and every face corner names its
+ * kept vertex. `values` (n*D), `faces` (m*3) on n vertices, `ordinals` (n) or null; returns new arrays
+ * and the kept count.
  */
-function weld(values, faces, n, D) {
+function weld(values, faces, n, D, ordinals) {
   const first = new Map();
   const number = new Uint32Array(n);
   const kept = [];
   for (let i = 0; i < n; i++) {
-    const key = `${values[i * D]},${values[i * D + 1]},${values[i * D + 2]}`;
+    const key = `${values[i * D]},${values[i * D + 1]},${values[i * D + 2]},${ordinals ? ordinals[i] : 0}`;
     const j = first.get(key);
     if (j === undefined) {
       first.set(key, kept.length);

@@ -32,7 +32,7 @@
 import { Extension, ExtensionProperty, Format, PropertyType, VertexLayout } from '@gltf-transform/core';
 import { createBLAKE2b } from 'hash-wasm';
 import { FormatError, PmwError } from './errors.js';
-import { baseVertexCount, checkJsonTree, chunkEntries, parseGlb, planDocument } from './header.js';
+import { WELD_ATTRIBUTE, baseVertexCount, checkJsonTree, chunkEntries, parseGlb, planDocument } from './header.js';
 import { packChunkTable } from './chunktable.js';
 
 /** BLAKE2b-128 (hash-wasm; WebAssembly compiles asynchronously, once, at import). */
@@ -114,6 +114,8 @@ export function baseFingerprint(primitive, info) {
     position?.getArray());
   section('indices', indices ? Uint32Array.from(indices.getArray()) : null);
   for (const { semantic } of info.attributes ?? []) section(semantic, primitive.getAttribute(semantic)?.getArray());
+  // a welded base's weld attribute: changed, the weld would give other vertices than the stream names
+  if (primitive.getAttribute(WELD_ATTRIBUTE)) section(WELD_ATTRIBUTE, primitive.getAttribute(WELD_ATTRIBUTE).getArray());
   const hex = hash.digest('hex');
   return { hex, vertices, faces };
 }

@@ -380,6 +380,9 @@ export function baseVertexCount(gltf, prim, ext, what) {
 
 /** The base accessors' kinds: their component types and counts, and the limit of their element count. */
 const POSITION = { types: { [FLOAT]: 4 }, components: 3, max: MAX_VERTICES };
+/** The base attribute that tells a welded base's distinct vertices on one grid point apart (spec/README.md "Welded base"). */
+export const WELD_ATTRIBUTE = '_PMWM_WELD';
+const WELD = { types: { 5121: 1, 5123: 2 }, components: 1, max: MAX_VERTICES };
 const INDICES = { types: INDEX_TYPES, components: 1, max: 3 * MAX_FACES };
 
 /** DataView getter and element size of each componentType an accessor read here may have. */
@@ -405,18 +408,32 @@ function basePlan(gltf, prim, ext, bufferLength, what) {
   if (!isObj(prim.attributes)) throw new FormatError(`${what}: primitive has no attributes`);
   if (given(prim.mode, 4) !== 4) throw new FormatError(`${what}: primitive mode is not TRIANGLES`);
   const draco = isObj(prim.extensions) ? prim.extensions[DRACO_EXTENSION] : undefined;
+  // the weld attribute: only on a welded base, one value per stored vertex
+  const welds = prim.attributes[WELD_ATTRIBUTE] !== undefined;
+  if (welds && ext.baseVertexCount === undefined) {
+    throw new FormatError(`${what}: ${WELD_ATTRIBUTE} without baseVertexCount (it serves the weld only)`);
+  }
+  const weldWhat = `${what} ${WELD_ATTRIBUTE}`;
+  const checkWeldCount = (count, vertices) => {
+    if (count !== vertices) throw new FormatError(`${weldWhat}: ${count} values for ${vertices} stored vertices`);
+  };
   if (draco !== undefined) {
     if (!isObj(draco) || !isObj(draco.attributes)) throw new FormatError(`${what}: invalid ${DRACO_EXTENSION}`);
-    const ids = ['POSITION', ...grids.map((g) => g.semantic)].map((s) => draco.attributes[s]);
+    const ids = ['POSITION', ...grids.map((g) => g.semantic), ...(welds ? [WELD_ATTRIBUTE] : [])].map((s) => draco.attributes[s]);
     if (!ids.every((id) => isInt(id, 0, 0xffff))) throw new FormatError(`${what}: Draco attribute ids missing`);
     const view = bufferView(gltf, draco.bufferView, bufferLength, what);
     const vertices = baseAccessor(gltf, prim.attributes.POSITION, `${what} POSITION`, POSITION).acc.count;
     const corners = baseAccessor(gltf, prim.indices, `${what} indices`, INDICES).acc.count;
     if (corners % 3 !== 0) throw new FormatError(`${what}: index count ${corners} is not a multiple of 3`);
-    return { draco: { view, positionId: ids[0], attributeIds: ids.slice(1), vertices, faces: corners / 3 }, grids, views: [view] };
+    if (welds) checkWeldCount(baseAccessor(gltf, prim.attributes[WELD_ATTRIBUTE], weldWhat, WELD).acc.count, vertices);
+    const attributeIds = ids.slice(1, 1 + grids.length);
+    return { draco: { view, positionId: ids[0], attributeIds, weldId: welds ? ids[ids.length - 1] : null, vertices,
+      faces: corners / 3 }, grids, views: [view] };
   }
   const position = accessorPlan(gltf, prim.attributes.POSITION, bufferLength, `${what} POSITION`, POSITION);
   const indices = accessorPlan(gltf, prim.indices, bufferLength, `${what} indices`, INDICES);
+  const weld = welds ? accessorPlan(gltf, prim.attributes[WELD_ATTRIBUTE], bufferLength, weldWhat, WELD) : null;
+  if (weld) checkWeldCount(weld.count, position.count);
   const attrs = grids.map((g, i) => {
     // FLOAT, or the integer componentType the attribute names (spec/README.md, attributes: JOINTS_n)
     const named = storedIntegerSize(attributes[i].componentType);
@@ -429,8 +446,8 @@ function basePlan(gltf, prim, ext, bufferLength, what) {
     }
     return plan;
   });
-  const views = [position, indices, ...attrs].map((a) => a.view);
-  return { plain: { position, indices, attributes: attrs }, grids, views };
+  const views = [position, indices, ...attrs, ...(weld ? [weld] : [])].map((a) => a.view);
+  return { plain: { position, indices, attributes: attrs, weld }, grids, views };
 }
 
 /** Checks a primitive's extension object; returns its chunk payload version (1 or 2). */

@@ -373,8 +373,23 @@ function threeDracoBases(targets) {
     const { geometry } = t.objects[0];
     return { ids: t.prim.extensions.KHR_draco_mesh_compression.attributes, indices: Uint32Array.from(geometry.index.array),
       attrs: Object.fromEntries(Object.entries(geometry.attributes).map(([k, a]) =>
-        [k, { values: Float32Array.from(a.array), components: a.itemSize }])) };
+        [k, { values: attributeValues(a), components: a.itemSize }])) };
   });
+}
+
+/**
+ * The values of a three.js attribute (count*itemSize), read through its stride: DRACOLoader stores an
+ * attribute of 1- or 2-byte components (the weld attribute, _PMWM_WELD) interleaved, 4 bytes a vertex.
+ */
+function attributeValues(a) {
+  if (!a.isInterleavedBufferAttribute) return Float32Array.from(a.array);
+  const { array, stride } = a.data;
+  const k = a.itemSize;
+  const out = new Float32Array(a.count * k);
+  for (let i = 0; i < a.count; i++) {
+    for (let c = 0; c < k; c++) out[i * k + c] = array[i * stride + a.offset + c];
+  }
+  return out;
 }
 
 /** What a network wait gives when the run (or load) was stopped or aborted meanwhile: the caller ends quietly. */

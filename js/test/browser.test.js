@@ -74,6 +74,9 @@ const SUBJECTS = [
   // three.js decodes the Draco base with its copies of non-manifold vertices; our decoder welds them
   { title: 'bowtie.welded-draco (welded Draco base)', src: '/spec/conformance/bowtie.welded-draco.packed.v2.pmw', skip: () => skip,
     bytes: () => fs.readFileSync(path.join(ROOT, 'spec/conformance/bowtie.welded-draco.packed.v2.pmw')) },
+  // three.js decodes the weld attribute (_PMWM_WELD) as an attribute of its own; our decoder welds by it
+  { title: 'kissing.welded-draco (weld attribute)', src: '/spec/conformance/kissing.welded-draco.packed.v2.pmw', skip: () => skip,
+    bytes: () => fs.readFileSync(path.join(ROOT, 'spec/conformance/kissing.welded-draco.packed.v2.pmw')) },
 ];
 
 for (const subject of SUBJECTS) {

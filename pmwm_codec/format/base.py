@@ -24,8 +24,10 @@ Draco's edgebreaker also splits a vertex on a non-manifold edge or at a non-mani
 point into copies at one position.  Rather than falling back to Draco's sequential
 coding (about 3x the bytes on scans), the encoder then writes the base's true vertex
 count as the extension's ``baseVertexCount`` and every reader *welds* the decoded
-copies (:func:`weld`, spec README "Welded base"); the encoder only does so when the
-base's grid positions are pairwise distinct, so the weld is exact.
+copies (:func:`weld`, spec README "Welded base").  A base whose distinct vertices share a grid point
+(pieces that touch, seam copies held in the base) carries, in the Draco data, the attribute
+:data:`WELD_ATTRIBUTE`: each stored vertex's ordinal among the base's vertices on its point, which the
+weld keys on beside the grid integers, so the weld is exact either way.
 
 :func:`decode_base` reads the primitive back from a glTF JSON dict and the BIN
 bytes, checking declared counts against :mod:`pmwm_codec.constants` before it
@@ -51,6 +53,7 @@ from .gltf import (
     FLOAT,
     INDEX_DTYPES,
     TRIANGLES,
+    UNSIGNED_BYTE,
     UNSIGNED_INT,
     UNSIGNED_SHORT,
     VECTOR_WIDTH,
@@ -64,8 +67,14 @@ from .gltf import (
 )
 from .layout import padded
 
-#: Draco GeometryAttribute::Type of POSITION.
+#: Draco GeometryAttribute::Type of POSITION and of a generic attribute.
 _DRACO_POSITION_TYPE = 0
+_DRACO_GENERIC_TYPE = 4
+#: The base primitive's attribute that tells apart a welded base's distinct vertices on one grid point
+#: (spec README, "Welded base"): an UNSIGNED_BYTE or UNSIGNED_SHORT SCALAR, one value per stored vertex.
+WELD_ATTRIBUTE = "_PMWM_WELD"
+#: The weld attribute's componentTypes and the largest ordinal each holds.
+WELD_TYPES = {UNSIGNED_BYTE: 0xFF, UNSIGNED_SHORT: 0xFFFF}
 
 
 @dataclass(frozen=True, eq=False)
@@ -245,6 +254,14 @@ def _try_draco(pos, tri, grid, preserve_order, level):
             & np.any(corners[:, 2] != corners[:, 0], axis=1)).any():
         # Draco refuses such a mesh, and says so on the process's stderr (C++): not asked at all
         return "every triangle has two corners on one grid point (Draco keeps none of them)"
+    # distinct vertices on one grid point: Draco's own order needs the weld attribute to tell them apart
+    # (the sequential coder keeps our order: no weld, no attribute)
+    ordinals = None if preserve_order else point_ordinals(pos)
+    if ordinals is not None and not ordinals.any():
+        ordinals = None
+    if ordinals is not None and ordinals.max() > WELD_TYPES[UNSIGNED_SHORT]:
+        return f"{int(ordinals.max()) + 1} vertices on one grid point (the weld attribute holds {WELD_TYPES[UNSIGNED_SHORT] + 1})"
+    weld_type = None if ordinals is None else min(t for t, top in WELD_TYPES.items() if ordinals.max() <= top)
     # Draco quantizes q = floor((p - origin) * (2**bits - 1) / range + 0.5) and
     # dequantizes origin + q * range / (2**bits - 1): with the grid's own origin
     # and range = step * (2**bits - 1) its integers are our grid integers.
@@ -253,6 +270,8 @@ def _try_draco(pos, tri, grid, preserve_order, level):
             stored, tri.astype(np.uint32), quantization_bits=bits, compression_level=level,
             quantization_range=float(grid.step * ((1 << bits) - 1)),
             quantization_origin=list(grid.origin), preserve_order=preserve_order,
+            generic_attributes=None if ordinals is None else {
+                0: ordinals.astype(COMPONENT_DTYPES[weld_type]).reshape(-1, 1)},
         )
         decoded = DracoPy.decode(encoded)
     except Exception as exc:  # DracoPy raises its own exception types
@@ -268,16 +287,24 @@ def _try_draco(pos, tri, grid, preserve_order, level):
         dint = grid.from_float32(dpos)
     except FormatError as exc:
         return str(exc)
+    dclass = None
+    if ordinals is not None:
+        if _DRACO_GENERIC_TYPE not in ids:
+            return "no weld attribute in the Draco output"
+        dclass = np.asarray(decoded.get_attribute_by_unique_id(ids[_DRACO_GENERIC_TYPE])["data"]).reshape(-1).astype(np.int64)
     welded_count = None
-    if dpos.shape[0] > pos.shape[0]:  # edgebreaker split non-manifold vertices: readers weld the copies
-        dint, dtri = weld(dint, dtri)
+    if dpos.shape[0] > pos.shape[0] or dclass is not None:
+        # edgebreaker split non-manifold vertices, or distinct vertices share a point: readers weld the copies
+        dint, dtri, kept_class = weld(dint, dtri, dclass)
         welded_count = pos.shape[0]
         if dint.shape[0] != welded_count:
             return f"welding the decoded copies gives {dint.shape[0]} vertices, not {welded_count}"
     if np.array_equal(dint, pos):  # the order kept (sequential coding): no matching needed, copies or not
         vertex_map = np.arange(pos.shape[0], dtype=np.int64)
-    else:
+    elif dclass is None:
         vertex_map = _match_vertices(dint, pos)
+    else:  # a vertex is its grid point and its ordinal there
+        vertex_map = _match_vertices(np.column_stack([dint, kept_class]), np.column_stack([pos, ordinals]))
     if vertex_map is None:
         return "decoded positions are not a permutation of the grid positions"
     if not same_face_set(vertex_map[dtri], tri):
@@ -289,8 +316,13 @@ def _try_draco(pos, tri, grid, preserve_order, level):
         {"componentType": index_type, "count": int(dtri.size), "type": "SCALAR"},
     ]
     attribute_ids = {"POSITION": int(ids[_DRACO_POSITION_TYPE])}
+    attributes = {"POSITION": 0}
+    if dclass is not None:
+        accessors.append({"componentType": weld_type, "count": int(dpos.shape[0]), "type": "SCALAR"})
+        attribute_ids[WELD_ATTRIBUTE] = int(ids[_DRACO_GENERIC_TYPE])
+        attributes[WELD_ATTRIBUTE] = 2
     primitive = {
-        "attributes": {"POSITION": 0}, "indices": 1,  # mode: TRIANGLES, the glTF default
+        "attributes": attributes, "indices": 1,  # mode: TRIANGLES, the glTF default
         "extensions": {DRACO_EXTENSION: {"bufferView": 0, "attributes": attribute_ids}},
     }
     data = bytes(encoded) + bytes(padded(len(encoded)) - len(encoded))
@@ -302,20 +334,42 @@ def _try_draco(pos, tri, grid, preserve_order, level):
     )
 
 
-def weld(positions_int: np.ndarray, faces: np.ndarray) -> tuple:
-    """Weld a stored base's copies (spec README, "Welded base"): vertices with equal grid
-    positions are one vertex, the first of them in stored order; the kept vertices are
-    numbered in stored order and every face corner names its kept vertex.
-
-    ``positions_int`` (n, 3) int64, ``faces`` (m, 3) int64 indexing it; returns the kept
-    positions (n', 3) int64 and the faces (m, 3) int64 on them."""
+def point_ordinals(positions_int: np.ndarray) -> np.ndarray:
+    """(n,) int64: each vertex's ordinal among the vertices on its grid point, in vertex order (0 for the
+    first, and for every vertex alone on its point).  ``positions_int`` (n, 3) int64.  These are the values of
+    a welded base's :data:`WELD_ATTRIBUTE` (spec README, "Welded base")."""
     n = positions_int.shape[0]
     if n == 0:
-        return positions_int, faces
-    _, first, inverse = np.unique(positions_int, axis=0, return_index=True, return_inverse=True)
+        return np.zeros(0, np.int64)
+    _, point = np.unique(positions_int, axis=0, return_inverse=True)
+    order = np.argsort(point.reshape(-1), kind="stable")  # by point, vertex order within one
+    sorted_point = point.reshape(-1)[order]
+    starts = np.flatnonzero(np.r_[True, sorted_point[1:] != sorted_point[:-1]])
+    runs = np.diff(np.r_[starts, n])
+    out = np.empty(n, np.int64)
+    out[order] = np.arange(n) - np.repeat(starts, runs)
+    return out
+
+
+def weld(positions_int: np.ndarray, faces: np.ndarray, ordinals: np.ndarray | None = None) -> tuple:
+    """Weld a stored base's copies (spec README, "Welded base"): vertices with equal grid
+    positions (and equal ``ordinals``, the :data:`WELD_ATTRIBUTE` values, when given) are one vertex,
+    the first of them in stored order; the kept vertices are numbered in stored order and every face
+    corner names its kept vertex.
+
+    ``positions_int`` (n, 3) int64, ``faces`` (m, 3) int64 indexing it, ``ordinals`` (n,) int64 or None;
+    returns the kept positions (n', 3) int64, the faces (m, 3) int64 on them and the kept vertices'
+    ordinals (n',) int64 (zeros without ``ordinals``)."""
+    n = positions_int.shape[0]
+    ordinals = np.zeros(n, np.int64) if ordinals is None else np.asarray(ordinals, np.int64).reshape(-1)
+    if n == 0:
+        return positions_int, faces, ordinals
+    key = np.column_stack([positions_int, ordinals])
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
     rank = np.empty(len(first), np.int64)
     rank[np.argsort(first)] = np.arange(len(first))
-    return positions_int[np.sort(first)], rank[inverse.reshape(-1)][faces]
+    kept = np.sort(first)
+    return positions_int[kept], rank[inverse.reshape(-1)][faces], ordinals[kept]
 
 
 def _match_vertices(decoded: np.ndarray, original: np.ndarray):
@@ -357,6 +411,8 @@ def base_views(gltf: dict, primitive: dict, progressive_attributes=()) -> list[i
         if semantic not in attributes:
             raise FormatError(f"base mesh: progressive attribute {semantic!r} is not an attribute of the primitive")
         extra.append(primitive["attributes"][semantic])
+    if WELD_ATTRIBUTE in attributes:
+        extra.append(attributes[WELD_ATTRIBUTE])
     for index in [attributes["POSITION"]] + ([primitive["indices"]] if "indices" in primitive else []) + extra:
         acc = item(accessors, index, "base mesh: accessor")
         if "bufferView" not in acc:
@@ -433,23 +489,44 @@ def decode_base(gltf: dict, bin_data, grid: Grid | dict, primitive: dict | None 
     base_views(gltf, primitive)
     n, m, ctype, pos_acc, idx_acc = base_counts(gltf, primitive)
     draco = (primitive.get("extensions") or {}).get(DRACO_EXTENSION)  # shape checked in base_views
+    weld_acc = weld_accessor(gltf, primitive, n)
+    ordinals = None
     if draco is not None:
-        positions, faces = _decode_draco(gltf, draco, bin_data, n, m)
+        positions, faces, ordinals = _decode_draco(gltf, draco, bin_data, n, m, weld_acc is not None)
     else:
         positions = accessor_array(gltf, pos_acc, bin_data, "<f4", n, 3, "base mesh: POSITION")
         faces = accessor_array(gltf, idx_acc, bin_data, INDEX_DTYPES[ctype], m, 3, "base mesh: indices",
                                vertex_attribute=False).astype(np.int64)
+        if weld_acc is not None:
+            ordinals = accessor_array(gltf, weld_acc, bin_data, COMPONENT_DTYPES[weld_acc["componentType"]], n, 1,
+                                      f"base mesh: {WELD_ATTRIBUTE}").reshape(-1).astype(np.int64)
     if faces.size and faces.max() >= n:
         raise FormatError(f"base mesh: face index {int(faces.max())} out of range [0, {n})")
     positions = _as_grid(grid).from_float32(positions)
     if welded_vertex_count(primitive) is not None:
         welded = base_vertex_count(gltf, primitive)  # at most the stored count
-        positions, faces = weld(positions, faces)
+        positions, faces, _ = weld(positions, faces, ordinals)
         if positions.shape[0] != welded:
             raise FormatError(f"base mesh: welding gives {positions.shape[0]} vertices, baseVertexCount says {welded}")
     if ((faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])).any():
         raise FormatError("base mesh: a face repeats a vertex (a valid base has only proper triangles)")
     return positions, faces
+
+
+def weld_accessor(gltf: dict, primitive: dict, n: int) -> dict | None:
+    """The accessor of the base's :data:`WELD_ATTRIBUTE`, or None without one; FormatError unless it is an
+    UNSIGNED_BYTE or UNSIGNED_SHORT SCALAR (not normalized) of the ``n`` stored vertices on a welded base."""
+    attributes = primitive.get("attributes") or {}
+    if WELD_ATTRIBUTE not in attributes:
+        return None
+    if welded_vertex_count(primitive) is None:
+        raise FormatError(f"base mesh: {WELD_ATTRIBUTE} without baseVertexCount (it serves the weld only)")
+    acc = item(gltf.get("accessors"), attributes[WELD_ATTRIBUTE], "base mesh: accessor")
+    if acc.get("componentType") not in WELD_TYPES or acc.get("type") != "SCALAR" or acc.get("normalized"):
+        raise FormatError(f"base mesh: {WELD_ATTRIBUTE} must be an UNSIGNED_BYTE or UNSIGNED_SHORT SCALAR accessor")
+    if uint(acc, "count", f"base mesh: {WELD_ATTRIBUTE} accessor") != n:
+        raise FormatError(f"base mesh: {WELD_ATTRIBUTE} has {acc.get('count')} values for {n} stored vertices")
+    return acc
 
 
 def welded_vertex_count(primitive: dict) -> int | None:
@@ -479,25 +556,37 @@ def base_vertex_count(gltf: dict, primitive: dict) -> int:
     return n if welded is None else welded
 
 
-def _decode_draco(gltf, draco, bin_data, n, m):
+def _decode_draco(gltf, draco, bin_data, n, m, welds=False):
+    """Positions (n, 3) float32, faces (m, 3) int64 and, when ``welds``, the :data:`WELD_ATTRIBUTE`
+    values (n,) int64 (else None) of a Draco base."""
     import DracoPy
 
     _, raw = view_bytes(gltf, [bin_data], draco.get("bufferView"), "base mesh: Draco")
     ids = draco.get("attributes")
     if not isinstance(ids, dict) or "POSITION" not in ids:
         raise FormatError(f"base mesh: {DRACO_EXTENSION}.attributes has no POSITION id")
+    if welds and WELD_ATTRIBUTE not in ids:
+        raise FormatError(f"base mesh: {DRACO_EXTENSION}.attributes has no {WELD_ATTRIBUTE} id")
     try:
         mesh = DracoPy.decode(bytes(raw))
         attribute = mesh.get_attribute_by_unique_id(ids["POSITION"])
+        welding = mesh.get_attribute_by_unique_id(ids[WELD_ATTRIBUTE]) if welds else None
     except Exception as exc:  # DracoPy raises its own exception types
         raise FormatError(f"base mesh: Draco data does not decode ({exc})") from None
-    if attribute is None:
-        raise FormatError(f"base mesh: Draco data has no attribute with unique id {ids['POSITION']!r}")
+    for name, found in (("POSITION", attribute), (WELD_ATTRIBUTE, welding if welds else True)):
+        if found is None:
+            raise FormatError(f"base mesh: Draco data has no attribute with unique id {ids[name]!r} ({name})")
     positions = np.asarray(attribute["data"], dtype=np.float32)
     faces = np.asarray(mesh.faces, dtype=np.int64)
     if positions.shape != (n, 3) or faces.reshape(-1, 3).shape != (m, 3):
         raise FormatError(f"base mesh: Draco decoded {positions.shape[0]} vertices / {faces.size // 3} faces, accessors declare {n} / {m}")
-    return positions, faces.reshape(-1, 3)
+    ordinals = None
+    if welds:
+        values = np.asarray(welding["data"])
+        if values.size != n or not np.issubdtype(values.dtype, np.integer) or (values < 0).any():
+            raise FormatError(f"base mesh: the Draco {WELD_ATTRIBUTE} is not one non-negative integer per vertex")
+        ordinals = values.reshape(-1).astype(np.int64)
+    return positions, faces.reshape(-1, 3), ordinals
 
 
 # ------------------------------------------------------------------ attributes

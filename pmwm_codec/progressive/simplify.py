@@ -421,11 +421,13 @@ def coincident_vertices(points: np.ndarray, alive: np.ndarray, weld: np.ndarray 
     seam copies (:func:`simplify`'s); ``among`` (j,) int64 or None: look only at these vertices (an earlier
     answer: vertices only leave the mesh, so a point once free of others stays free).
 
-    A base with two such vertices cannot be stored by Draco's own vertex order: a reader welds a Draco base's
-    copies by grid point (spec README, "Welded base"), which would merge them, so the base falls back to
-    Draco's sequential coder, about three times the bytes (a scan's base: 3.2 -> 10.4 KB).  :func:`simplify`
-    offers their collapses first in its first batches, while nearly every collapse is legal (at four times
-    the target vertex count, a scan's two such vertices had no legal collapse left)."""
+    A base with two such vertices needs the weld attribute to be stored in Draco's own vertex order (a reader
+    welds a Draco base's copies by grid point, spec README "Welded base"; the attribute tells them apart), and
+    one with a face on two of them cannot be (Draco drops a face with two corners at one position), so the
+    base falls back to Draco's sequential coder, about three times the bytes (a scan's base: 3.2 -> 10.4 KB,
+    before the weld attribute).  :func:`simplify` offers their collapses first in its first batches, while
+    nearly every collapse is legal (at four times the target vertex count, a scan's two such vertices had no
+    legal collapse left)."""
     n = len(points)
     if among is None:
         among = np.flatnonzero(np.bincount(points, minlength=n)[points] > 1)  # every vertex on a point of two
@@ -1027,10 +1029,10 @@ def _touch_others(faces: np.ndarray, chosen: np.ndarray, n: int) -> np.ndarray:
 def specks(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(m,) bool: the faces of ``faces`` (m, 3) int64 on *specks*: parts of the mesh with three vertices
     that the grid ``positions`` (n, 3) int64 puts on one point (a triangle of a scan smaller than a grid
-    step, alone or with its reverse or copies).  Kept, a speck leaves three base vertices on one grid
-    point, which the reader's weld of a Draco base cannot tell apart, and the encoder falls back to
-    Draco's sequential coder (the snowden bust at 14 bits: a 12.0 KB base instead of 3.7 KB); a face
-    chunk sends them instead (bitstream.md §8.6: a face of new vertices only)."""
+    step, alone or with its reverse or copies).  Kept, a speck is a face Draco's own order drops (its
+    corners share one position), and the encoder falls back to Draco's sequential coder (the snowden bust
+    at 14 bits: a 12.0 KB base instead of 3.7 KB); a face chunk sends them instead (bitstream.md §8.6: a
+    face of new vertices only)."""
     faces = np.asarray(faces, np.int64).reshape(-1, 3)
     point = _point_faces(np.asarray(positions), faces)
     if not point.any():
