@@ -380,6 +380,9 @@ def simplify(
     alive_count = int(vert_alive.sum())
     points = seams.weld_groups(pos) if points is None and alive_count > target_vertices else points
     shared = None if points is None else coincident_vertices(points, vert_alive, weld)
+    # vertices on a grid point another vertex shares: no collapse may put two on one face (:func:`_no_new_slivers`)
+    on_shared = None if points is None else np.bincount(points, minlength=n)[points] > 1
+    on_shared = on_shared if on_shared is not None and on_shared.any() else None
     legal_only = False
     for b in range(max_batches):
         if alive_count <= target_vertices:
@@ -394,7 +397,7 @@ def simplify(
             first = np.zeros(n, bool)
             first[shared] = True
         batch, stalled = _one_batch(P, Q, own, live, frozen_ext, alive_count - target_vertices, weld, twin, first,
-                                    legal_only)
+                                    legal_only, None if on_shared is None else (points, on_shared))
         # once a batch stalls, the illegal offers that held it hold the later ones too (the illegal share of the
         # candidates grows as the mesh coarsens: dragon23k, 14 % at batch 15 of 61, 72 % at batch 53): the
         # batches after it select among the legal candidates from the start
@@ -480,7 +483,8 @@ def _apply_kernel(u, v, del_left, del_right, moved_face, moved_by, corners, face
                 corners[f, c] = v[i]
 
 
-def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None, first=None, legal_only=False):
+def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None, first=None, legal_only=False,
+               shared=None):
     """Choose and describe one batch of independent legal collapses: ``(CollapseBatch or None, stalled)``.
 
     ``live`` is the :class:`~.livemesh.LiveMesh` of the simplifier's live faces, P (n, 3) and Q (n, 10)
@@ -492,7 +496,9 @@ def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None, first=
     doubled faces (:func:`twin_faces`).  ``first`` (N,) bool or None: vertices whose collapses are offered
     first (ranked as costing nothing; the batch records their true costs).  ``legal_only``: select among
     the legal candidates from the start; ``stalled``: this batch did (``legal_only``, or it stalled:
-    :func:`_unstalled`).
+    :func:`_unstalled`).  ``shared``: ``(points, on_shared)`` (N,) int64 and (N,) bool, the first vertex on each
+    vertex's grid point and the vertices on a point another shares, or None (none does): no collapse may leave a
+    face with two corners on one point (:func:`_no_new_slivers`).
     """
     vids, fids, loc, F, et, vv, vf, fcount = (live.vids, live.fids, live.loc, live.F, live.et, live.vv, live.vf,
                                               live.fcount)
@@ -538,12 +544,49 @@ def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None, first=
         cu, cv, ce, cost = _merge_pairs(cand, win, pairs, budget)
         if len(cu) == 0:
             return None, stalled
+    moved_face, moved_by = _moved_faces(vf, F, cu, cv)
+    if shared is not None and len(moved_face):  # no collapse may put two corners of a face on one grid point
+        keep = _no_new_slivers(shared[0][vids], shared[1][vids], F, g, cu, cv, moved_face, moved_by)
+        if not keep.all():
+            cu, cv, ce, cost = cu[keep], cv[keep], ce[keep], cost[keep]
+            if len(cu) == 0:
+                return None, stalled
+            moved_face, moved_by = _moved_faces(vf, F, cu, cv)
     if first is not None:  # their true costs (as _candidates computes them: the same bits)
         cost = np.where(first[cu], quadric_error(np.take(Q, cu, axis=0), np.take(P, cv, axis=0)) + own[cv], cost)
-    moved_face, moved_by = _moved_faces(vf, F, cu, cv)
     u, v, del_left, wing_left, del_right, wing_right, error = _described(et, src, opp, vids, fids, Q, cu, cv, ce, cost)
     return CollapseBatch(u=u, v=v, del_left=del_left, del_right=del_right, wing_left=wing_left, wing_right=wing_right,
                          moved_face=fids[moved_face], moved_by=moved_by, cost=cost, error=error), stalled
+
+
+def _no_new_slivers(point, on_shared, F, g, cu, cv, moved_face, moved_by):
+    """(k,) bool: the collapses ``cu -> cv`` ((k,) int64 local ids) that leave no face with two corners on one grid
+    point that had none (``point`` (n,) int64 a point id per live vertex, ``on_shared`` (n,) bool: on a point another
+    vertex shares): a *sliver*, which Draco's own order drops from a base (it drops faces whose corners share a
+    position), and which no later collapse removes when the two are seam copies (copies move together: ``g`` (n,)
+    int64, :func:`~.seams.local_groups`, or None: no copies; a face that gets two copies is refused too).  A seam
+    copy's collapse that is refused takes the collapses of its whole seam group with it.  ``F`` (f, 3) the live
+    faces, ``moved_face`` / ``moved_by`` (j,) int64 :func:`_moved_faces`'.  Only a face moved onto a vertex that
+    shares its point can become one: only those are looked at."""
+    rows = np.flatnonzero(on_shared[cv[moved_by]])
+    keep = np.ones(len(cu), bool)
+    if not len(rows):
+        return keep
+    by = moved_by[rows]
+    tri = F[moved_face[rows]]
+    new = np.where(tri == cu[by][:, None], cv[by][:, None], tri)
+
+    def pair(t, key):
+        a, b, c = key[t[:, 0]], key[t[:, 1]], key[t[:, 2]]
+        return (a == b) | (b == c) | (c == a)
+
+    made = pair(new, point) & ~pair(tri, point)
+    if g is not None:  # two copies on a face: no later collapse parts them (a face on one point and another may)
+        made |= pair(new, g) & ~pair(tri, g)
+    keep[by[made]] = False
+    if not keep.all() and g is not None:
+        keep &= ~(np.isin(g[cu], g[cu[~keep]]) & (np.bincount(g, minlength=len(g))[g[cu]] > 1))
+    return keep
 
 
 def _local_rows(pos, quad, vids):

@@ -184,6 +184,8 @@ class PrimitiveWork:
     late_values: np.ndarray | None = None
 
 
+#: Rounds of sliver deferral (:func:`_sliver_faces`): deferring slivers opens new boundary ears beside them.
+SLIVER_ROUNDS = 4
 #: Grid bits of progressive attributes, by semantic prefix (others: 14).
 ATTRIBUTE_BITS = {"NORMAL": 14, "TANGENT": 14, "TEXCOORD": 14, "COLOR": 12}
 #: WEIGHTS_n (skin weights, in [0, 1]): the grid of step 2^-WEIGHTS_BITS from 0 (one bit more, to hold 1), so
@@ -746,21 +748,9 @@ def _quantize_and_simplify(jobs, grid_bits: int, base_vertices, say, defer_faces
             locked = _locked_with_grid_copies(values[:, :3], locked)
         late, twin = (deferred_and_twin_faces(values[:, :3], faces) if defer_faces
                       else (np.zeros(len(faces), bool), None))
-        if late.any() and locked is not None:  # a locked vertex stays in the base: its faces are not deferred
-            late &= ~_naming_locked_tips(faces, late, locked)
-        extra = {}
-        if late.any():  # the core mesh, renumbered (no copies when nothing is deferred)
-            core, tips, local = _core_vertices(job.mesh.vertex_count, faces, late)
-            extra = dict(core=core, tips=tips, late=local[faces[late]], late_values=values[tips])
-            values, positions, faces = values[core], positions[core], local[faces[~late]]
-            locked = None if locked is None else locked[core]
-            # the core's own doubled faces: ``late`` takes every face of a vertex triple or none (pillows and
-            # specks are told by their vertices), so a triple keeps its face count in the core
-            twin = twin[~late]
+        values, positions, faces, locked, twin, late, extra, points, weld = _core_and_copies(
+            job.mesh.vertex_count, values, positions, faces, locked, twin, late, defer_faces)
         target = default_base_target(len(values)) if base_vertices is None else int(base_vertices)
-        # seam copies on the grid the stream lives on (copies a grid step apart or less are one point there)
-        points = weld_groups(values[:, :3])
-        weld = grid_weld(values[:, :3], faces, positions, points)
         log = simplify(values[:, :3], faces, target_vertices=target, locked=locked, weld=weld, twin=twin,
                        points=np.arange(len(values)) if points is None else points)
         work.append(PrimitiveWork(job, grid, values, specs, log, **extra))
@@ -917,6 +907,91 @@ def _named_only_by(faces: np.ndarray, late: np.ndarray, n: int) -> np.ndarray:
     only_late[faces[late].ravel()] = True
     only_late[faces[~late].ravel()] = False
     return only_late
+
+
+def _core_and_copies(n: int, values, positions, faces, locked, twin, late, defer_slivers: bool) -> tuple:
+    """The mesh the simplifier sees: ``(values, positions, faces, locked, twin, late, extra, points, weld)``.
+
+    ``n`` vertices with ``values`` (n, D) int64 (grid positions first), ``positions`` (n, 3) float, ``faces``
+    (m, 3) int64, ``locked`` (n,) bool or None, ``twin`` (m,) bool or None and ``late`` (m,) bool, the faces a face
+    chunk sends (:func:`~pmwm_codec.progressive.simplify.deferred_and_twin_faces`).  Returned: the *core*, the
+    vertices some face outside ``late`` names, renumbered (their values, positions, faces, locked and twin rows),
+    ``late`` as it ends, ``extra`` (the :class:`PrimitiveWork` fields of the deferred faces: none when nothing is),
+    ``points`` (:func:`weld_groups` of the core's grid positions: None when all are distinct) and ``weld`` (its seam
+    copies, :func:`grid_weld`).  With ``defer_slivers``, the core's slivers (:func:`_sliver_faces`) are deferred
+    too, in up to :data:`SLIVER_ROUNDS` rounds (deferring them opens new boundary ears beside them)."""
+    out = None
+    for attempt in range(SLIVER_ROUNDS + 1):
+        if late.any() and locked is not None:  # a locked vertex stays in the base: its faces are not deferred
+            late &= ~_naming_locked_tips(faces, late, locked)
+        c_values, c_positions, c_faces, c_locked, c_twin, extra = values, positions, faces, locked, twin, {}
+        if late.any():  # the core mesh, renumbered (no copies when nothing is deferred)
+            core, tips, local = _core_vertices(n, faces, late)
+            extra = dict(core=core, tips=tips, late=local[faces[late]], late_values=values[tips])
+            c_values, c_positions, c_faces = values[core], positions[core], local[faces[~late]]
+            c_locked = None if locked is None else locked[core]
+            # the core's own doubled faces: ``late`` takes every face of a vertex triple or none (pillows and
+            # specks are told by their vertices), so a triple keeps its face count in the core
+            c_twin = twin[~late]
+        # seam copies on the grid the stream lives on (copies a grid step apart or less are one point there)
+        points = weld_groups(c_values[:, :3])
+        weld = grid_weld(c_values[:, :3], c_faces, c_positions, points)
+        out = c_values, c_positions, c_faces, c_locked, c_twin, late, extra, points, weld
+        if not defer_slivers or points is None or attempt == SLIVER_ROUNDS:  # no two vertices on one point: none
+            break
+        slivers = _sliver_faces(points, c_faces, weld)
+        if not slivers.any() or slivers.all():  # a core of slivers only: the base keeps them (as it keeps specks)
+            break
+        late = late.copy()
+        late[np.flatnonzero(~late)[slivers]] = True
+    return out
+
+
+def _sliver_faces(points: np.ndarray, faces: np.ndarray, weld: np.ndarray | None) -> np.ndarray:
+    """(m,) bool: the *slivers* of ``faces`` (m, 3) int64: faces with two corners on one grid point (``points``
+    (n,) int64, :func:`weld_groups` of the grid positions) that no collapse is sure to remove: one of the two is a
+    seam copy (``weld`` (n,) int64, :func:`~pmwm_codec.progressive.seams.grid_weld`'s, or None: no copies; copies
+    move together), or the edge between them has no other face (a boundary ear; not when one of the two has no
+    other face: a flap's tip, which the other collapses into), counting the slivers found as gone (taking one
+    away can leave an ear beside it).  Kept to the base, a sliver is a face Draco's own order drops (its corners
+    share a position), and the base falls back to Draco's sequential coder (dragon437k: 55 KB instead of 15 KB);
+    a face chunk sends them instead (bitstream.md §8.6)."""
+    m, n = len(faces), len(points)
+    p0, p1, p2 = points[faces[:, 0]], points[faces[:, 1]], points[faces[:, 2]]
+    on_point = np.flatnonzero((p0 == p1) | (p1 == p2) | (p2 == p0))
+    out = np.zeros(m, bool)
+    if not len(on_point):
+        return out
+    p = points[faces[on_point]]
+    pair = np.stack([p[:, 0] == p[:, 1], p[:, 1] == p[:, 2], p[:, 2] == p[:, 0]], axis=1)
+    copy = None if weld is None else np.bincount(weld, minlength=n)[weld] > 1
+    # the faces of the vertices of those faces: every face on such an edge is among them
+    mark = np.zeros(n, bool)
+    mark[faces[on_point].ravel()] = True
+    near = np.flatnonzero(mark[faces[:, 0]] | mark[faces[:, 1]] | mark[faces[:, 2]])
+    spot = np.full(m, -1, np.int64)
+    spot[near] = np.arange(len(near))
+    tri = faces[near]
+    ends = np.sort(np.stack([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]], axis=1), axis=2)
+    keys, edge, counts = np.unique(ends[..., 0] * n + ends[..., 1], return_inverse=True, return_counts=True)
+    edge = edge.reshape(-1, 3)  # each near face's edges, as indices into keys
+    faces_at = np.bincount(tri.ravel(), minlength=n)  # a vertex's faces (complete for the marked ones)
+    first = [pair[:, k] for k in range(3)]
+    slot = spot[on_point]
+    while True:
+        # a flap's tip (a vertex of one face) is no obstacle: the other corner collapses into it, taking the face
+        tip = faces_at == 1
+        found = np.zeros(len(on_point), bool)
+        for k, (i, j) in enumerate(((0, 1), (1, 2), (2, 0))):
+            a, b = faces[on_point, i], faces[on_point, j]
+            ear = first[k] & (counts[edge[slot, k]] == 1) & ~tip[a] & ~tip[b]
+            found |= ear if copy is None else ear | (first[k] & (copy[a] | copy[b]))
+        new = found & ~out[on_point]
+        if not new.any():
+            return out
+        out[on_point[new]] = True
+        np.subtract.at(counts, edge[slot[new]].ravel(), 1)  # the faces found are gone: their edges and corners
+        np.subtract.at(faces_at, faces[on_point[new]].ravel(), 1)
 
 
 def _core_vertices(n: int, faces: np.ndarray, late: np.ndarray) -> tuple:
