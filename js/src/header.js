@@ -416,6 +416,7 @@ function basePlan(gltf, prim, ext, bufferLength, what) {
   const weldWhat = `${what} ${WELD_ATTRIBUTE}`;
   const checkWeldCount = (count, vertices) => {
     if (count !== vertices) throw new FormatError(`${weldWhat}: ${count} values for ${vertices} stored vertices`);
+    if (gltf.accessors[prim.attributes[WELD_ATTRIBUTE]].normalized === true) throw new FormatError(`${weldWhat}: normalized`);
   };
   if (draco !== undefined) {
     if (!isObj(draco) || !isObj(draco.attributes)) throw new FormatError(`${what}: invalid ${DRACO_EXTENSION}`);

@@ -60,6 +60,21 @@ test('a Draco base\'s accessors declare what the Draco data decodes to: indices 
   ]);
 });
 
+test('a welded base\'s weld attribute (_PMWM_WELD) is an unnormalized UNSIGNED_BYTE or UNSIGNED_SHORT SCALAR of every stored vertex, with baseVertexCount', async () => {
+  const file = 'kissing.welded-draco.packed.v2.pmw';
+  const weld = (gltf, prim) => gltf.accessors[prim.attributes._PMWM_WELD];
+  await bothRefuse([
+    ['without baseVertexCount', file, (g, p, e) => { delete e.baseVertexCount; }, /_PMWM_WELD without baseVertexCount/],
+    ['VEC2', file, (g, p) => { weld(g, p).type = 'VEC2'; }, /_PMWM_WELD: accessor \d+ has the wrong type/],
+    ['FLOAT', file, (g, p) => { weld(g, p).componentType = 5126; }, /wrong type/],
+    ['normalized', file, (g, p) => { weld(g, p).normalized = true; }, /_PMWM_WELD: normalized/],
+    ['one value more than the stored vertices', file, (g, p) => { weld(g, p).count += 1; }, /values for \d+ stored vertices/],
+    ['dropped: the distinct vertices on one point weld into one', file, (g, p) => { delete p.attributes._PMWM_WELD; },
+      /welding gives \d+ vertices, baseVertexCount says/],
+    ['no Draco id', file, (g, p) => { delete p.extensions.KHR_draco_mesh_compression.attributes._PMWM_WELD; }, /Draco attribute ids missing/],
+  ]);
+});
+
 test('the extension\'s fields this decoder does not otherwise read have the form the schema gives them', async () => {
   const v1 = 'sphere.exact-watermark.v1.pmw';
   const arrays = 'sphere.exact-watermark.v2.pmw';
