@@ -75,6 +75,24 @@ def test_bench_rd_measures_every_boundary_and_fits_prefixes_in_the_lod_bytes():
     assert md.count("| torus | 14 |") == 2 * len(bench_rd.FRACTIONS) + 1  # same bytes, placement, the stream
 
 
+def test_bench_rd_same_bytes_only_gives_the_full_runs_same_bytes_cells_and_skips_the_diagnostics():
+    mesh = shapes.torus(64, 32, twist=0.2)
+    full = bench_rd.measure("torus", mesh, 14, 3000, lambda s: None)
+    quick = bench_rd.measure("torus", mesh, 14, 3000, lambda s: None, same_bytes_only=True)
+    assert [c[:2] for c in quick["curve"]] == [c[:2] for c in full["curve"]]
+    assert quick["curve"][0] == full["curve"][0]  # the base is always measured
+    for a, b in zip(full["lods"], quick["lods"]):
+        for key in ("lod_bytes", "lod_error", "prefix", "prefix_chunks", "prefix_no_json"):
+            assert a[key] == b[key], key
+        assert b["ours_k_error"] is None and b["placed_error"] is None and b["snapped_error"] is None
+    skipped = [c for c in quick["curve"] if c[2] is None]
+    assert skipped, "a prefix that no LOD picks is not measured"
+    md = bench_rd.render([{**quick, "samples": 3000}], {"cpu": "x", "cores": 2, "load": (0, 0, 0), "python": "3",
+                                                        "numpy": "2", "DracoPy": "2", "fast_simplification": "0",
+                                                        "git": "abc"}, "python tools/bench_rd.py", None)
+    assert md.count("| torus | 14 |") == len(bench_rd.FRACTIONS) + 1 and "not measured" in md
+
+
 def test_level_clusters_send_every_vertex_to_a_vertex_of_the_level():
     mesh = shapes.torus(32, 16)
     log = simplify(mesh.positions, mesh.faces, target_vertices=40)

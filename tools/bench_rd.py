@@ -208,8 +208,12 @@ def snapped(mesh: Mesh, lod: Mesh) -> Mesh:
 
 
 # ----------------------------------------------------------------------------- measure
-def measure(name: str, mesh: Mesh, bits: int, samples: int, log) -> dict:
-    """Every boundary's error, the LODs' errors, and the same-bytes / same-vertex comparisons."""
+def measure(name: str, mesh: Mesh, bits: int, samples: int, log, same_bytes_only: bool = False) -> dict:
+    """Every boundary's error, the LODs' errors, and the same-bytes / same-vertex comparisons.
+
+    ``same_bytes_only`` measures the base and each LOD's longest fitting prefix only, and skips the
+    same-vertex and placement diagnostics (their fields are ``None``): on a mesh of several hundred
+    thousand vertices those cost most of the run."""
     t0 = time.perf_counter()
     diag = float(np.linalg.norm(np.ptp(mesh.positions, axis=0)))
 
@@ -217,35 +221,46 @@ def measure(name: str, mesh: Mesh, bits: int, samples: int, log) -> dict:
         return rms_surface_distance(mesh, m, samples) / diag
 
     blob, levels, clog = our_stream(mesh, bits)
-    curve = [(b, nv, err(m)) for b, nv, m in levels]
     index = glb_parts(blob)["json"]
+    lods = lod_chain(mesh, bits)
+    wanted = set(range(len(levels)))
+    if same_bytes_only:
+        wanted = {0} | {i for x in lods for i in (_last_fitting(levels, x["bytes"], 0), _last_fitting(levels, x["bytes"], index))
+                        if i is not None}
+    curve = [(b, nv, err(m) if i in wanted else None) for i, (b, nv, m) in enumerate(levels)]
     rows = []
-    for lod in lod_chain(mesh, bits):
-        fits = [c for c in curve if c[0] <= lod["bytes"]]
-        no_json = [c for c in curve if c[0] - index <= lod["bytes"]]
+    for lod in lods:
+        fit, free = _last_fitting(levels, lod["bytes"], 0), _last_fitting(levels, lod["bytes"], index)
         k = lod["raw"].vertex_count
-        core, faces, rep = level_clusters(mesh, clog, k, bits)
-        ours_k = compact(core.positions, faces)
-        rows.append({
-            "fraction": lod["fraction"], "lod_vertices": k, "lod_faces": lod["raw"].face_count,
-            "lod_bytes": lod["bytes"], "lod_error": err(lod["draco"]),
-            "prefix": fits[-1] if fits else None, "prefix_chunks": len(fits) - 1,
-            "prefix_no_json": no_json[-1] if no_json else None,
-            "raw_error": err(lod["raw"]), "ours_k_vertices": ours_k.vertex_count, "ours_k_error": err(ours_k),
-            "placed_error": err(placed_level(core, faces, rep)), "snapped_error": err(snapped(mesh, lod["raw"])),
-        })
+        row = {"fraction": lod["fraction"], "lod_vertices": k, "lod_faces": lod["raw"].face_count,
+               "lod_bytes": lod["bytes"], "lod_error": err(lod["draco"]),
+               "prefix": None if fit is None else curve[fit], "prefix_chunks": -1 if fit is None else fit,
+               "prefix_no_json": None if free is None else curve[free],
+               "raw_error": None, "ours_k_vertices": None, "ours_k_error": None, "placed_error": None, "snapped_error": None}
+        if not same_bytes_only:
+            core, faces, rep = level_clusters(mesh, clog, k, bits)
+            ours_k = compact(core.positions, faces)
+            row.update(raw_error=err(lod["raw"]), ours_k_vertices=ours_k.vertex_count, ours_k_error=err(ours_k),
+                       placed_error=err(placed_level(core, faces, rep)), snapped_error=err(snapped(mesh, lod["raw"])))
+        rows.append(row)
     log(f"[{name} grid {bits}] {len(blob):,} B, {len(levels) - 1} chunks, {time.perf_counter() - t0:.1f} s")
     return {"name": name, "bits": bits, "vertices": mesh.vertex_count, "faces": mesh.face_count,
             "bytes": len(blob), "json": index, "curve": curve, "lods": rows}
 
 
+def _last_fitting(levels: list, budget: int, free: int):
+    """Index of the last boundary whose prefix, less ``free`` bytes, fits in ``budget``; ``None`` if none does."""
+    fits = [i for i, lv in enumerate(levels) if lv[0] - free <= budget]
+    return fits[-1] if fits else None
+
+
 # ----------------------------------------------------------------------------- report
-def fmt_err(e: float) -> str:
-    return f"{e:.2e}"
+def fmt_err(e) -> str:
+    return "-" if e is None else f"{e:.2e}"
 
 
-def ratio(a: float, b: float) -> str:
-    return f"{a / b:.2f}x" if b > 0 else "-"
+def ratio(a, b) -> str:
+    return f"{a / b:.2f}x" if a is not None and b else "-"
 
 
 def render(results, info, command: str, plot) -> str:
@@ -272,21 +287,24 @@ def render(results, info, command: str, plot) -> str:
             free = f"{q[1]:,} V: {ratio(q[2], x['lod_error'])}" if q else "nothing fits"
             rows.append([r["name"], r["bits"], f"{100 * x['fraction']:g}%", f"{x['lod_vertices']:,}",
                          f"{x['lod_bytes']:,}", fmt_err(x["lod_error"]), ours, ratio(p[2], x["lod_error"]) if p else "-", free,
-                         fmt_err(x["ours_k_error"]) + ("" if x["ours_k_vertices"] == x["lod_vertices"]
+                         fmt_err(x["ours_k_error"]) + ("" if x["ours_k_vertices"] in (None, x["lod_vertices"])
                                                        else f" (base: {x['ours_k_vertices']:,} V)"),
                          fmt_err(x["raw_error"]), ratio(x["ours_k_error"], x["raw_error"])])
     L.append(table(["mesh", "grid", "LOD", "LOD V", "LOD Draco B", "LOD error", "ours in those bytes",
                     "ours / LOD", "without the JSON: ours / LOD", "ours at LOD V", "fast-simpl. LOD", "ordering ratio"], rows))
-    L += ["", "Placement against selection (no bits involved): our level at the LOD's vertex count as the stream "
-          "has it (every vertex an input vertex: half-edge collapses) and with every vertex that absorbed others "
-          "moved to the minimum of the summed quadrics of its cluster (where a full-edge collapse puts it; "
-          "`placed_level`); the fast-simplification LOD as it is (full-edge collapses) and with every vertex "
-          "snapped to the nearest input vertex (`snapped`). Errors over the LOD's (uncompressed):", ""]
-    L.append(table(["mesh", "grid", "LOD", "ours (half-edge)", "ours, quadric placement", "fast-simpl. LOD",
-                    "fast-simpl. LOD snapped to input vertices"],
-                   [[r["name"], r["bits"], f"{100 * x['fraction']:g}%", ratio(x["ours_k_error"], x["raw_error"]),
-                     ratio(x["placed_error"], x["raw_error"]), fmt_err(x["raw_error"]),
-                     ratio(x["snapped_error"], x["raw_error"])] for r in results for x in r["lods"]]))
+    if all(x["placed_error"] is None for r in results for x in r["lods"]):
+        L += ["", "Same-vertex and placement diagnostics not measured (`--same-bytes-only`)."]
+    else:
+        L += ["", "Placement against selection (no bits involved): our level at the LOD's vertex count as the stream "
+              "has it (every vertex an input vertex: half-edge collapses) and with every vertex that absorbed others "
+              "moved to the minimum of the summed quadrics of its cluster (where a full-edge collapse puts it; "
+              "`placed_level`); the fast-simplification LOD as it is (full-edge collapses) and with every vertex "
+              "snapped to the nearest input vertex (`snapped`). Errors over the LOD's (uncompressed):", ""]
+        L.append(table(["mesh", "grid", "LOD", "ours (half-edge)", "ours, quadric placement", "fast-simpl. LOD",
+                        "fast-simpl. LOD snapped to input vertices"],
+                       [[r["name"], r["bits"], f"{100 * x['fraction']:g}%", ratio(x["ours_k_error"], x["raw_error"]),
+                         ratio(x["placed_error"], x["raw_error"]), fmt_err(x["raw_error"]),
+                         ratio(x["snapped_error"], x["raw_error"])] for r in results for x in r["lods"]]))
     L += ["", "Our stream (whole file, base mesh = the first renderable one):", ""]
     L.append(table(["mesh", "grid", "file B", "chunks", "JSON B", "base B (all bytes before it)", "base V",
                     "error at base"],
@@ -312,7 +330,7 @@ def plot(results, path: str) -> None:
     for i, name in enumerate(names):
         mine = [r for r in results if r["name"] == name]
         xs = [np.log10(c[0]) for r in mine for c in r["curve"]] + [np.log10(x["lod_bytes"]) for r in mine for x in r["lods"]]
-        ys = [np.log10(max(c[2], 1e-9)) for r in mine for c in r["curve"]]
+        ys = [np.log10(max(c[2], 1e-9)) for r in mine for c in r["curve"] if c[2] is not None]
         ys += [np.log10(max(x["lod_error"], 1e-9)) for r in mine for x in r["lods"]]
         ox, oy = (i % cols) * w, (i // cols) * h
         xlim, ylim = (np.floor(min(xs) * 4) / 4, np.ceil(max(xs) * 4) / 4), (np.floor(min(ys) * 2) / 2, np.ceil(max(ys) * 2) / 2)
@@ -321,7 +339,8 @@ def plot(results, path: str) -> None:
         d.text((ox + 62, oy + 8), name, font=font(14), fill=INK)
         for r in mine:
             c = colors.get(r["bits"], INK)
-            panel.series([np.log10(p[0]) for p in r["curve"]], [np.log10(max(p[2], 1e-9)) for p in r["curve"]], c)
+            pts = [p for p in r["curve"] if p[2] is not None]
+            panel.series([np.log10(p[0]) for p in pts], [np.log10(max(p[2], 1e-9)) for p in pts], c)
             for x in r["lods"]:
                 px, py = panel.px(np.log10(x["lod_bytes"]), np.log10(max(x["lod_error"], 1e-9)))
                 d.rectangle([px - 6, py - 6, px + 6, py + 6], outline=c, width=2)
@@ -354,6 +373,9 @@ def main(argv=None):
     ap.add_argument("--mesh", action="append", help="only these meshes (corpus names without .obj; repeatable)")
     ap.add_argument("--bits", type=int, nargs="+", default=[16, 14], help="grid bits (default: 16 14)")
     ap.add_argument("--samples", type=int, default=100_000, help="sample points per surface")
+    ap.add_argument("--same-bytes-only", action="store_true",
+                    help="measure only the base and each LOD's fitting prefix; skip the same-vertex and placement "
+                         "diagnostics (minutes instead of tens of minutes on a mesh of ~500k vertices)")
     ap.add_argument("--write", metavar="MARKDOWN", help=f"replace the '{SECTION}' section and write {PLOT}")
     ap.add_argument("--section", default=SECTION, help="section title to replace")
     args = ap.parse_args(argv)
@@ -363,7 +385,8 @@ def main(argv=None):
     results = []
     for name, mesh in load_meshes(args.corpus, args.mesh):
         for bits in args.bits:
-            results.append({**measure(name, mesh, bits, args.samples, log), "samples": args.samples})
+            results.append({**measure(name, mesh, bits, args.samples, log, args.same_bytes_only),
+                            "samples": args.samples})
     if args.write:
         plot(results, os.path.join(ROOT, PLOT))
     publish(render(results, info, command.strip(), PLOT if args.write else None), args.write, args.section, log)
