@@ -332,3 +332,38 @@ def test_a_base_whose_triangles_all_fall_onto_grid_points_leaves_draco_unasked_a
     out, err = capfd.readouterr()
     assert err == ""
     assert pmwm_codec.decode(str(tmp_path / "s.pmw")).face_count == report["faces"]
+
+
+def _fan_of_copies(k: int):
+    """``k`` separate triangles whose apexes are ``k`` distinct vertices on one grid point (the other
+    corners each on their own point): ordinals 0 .. k - 1 on the apex's point."""
+    angle = np.arange(2 * k) * (2 * np.pi / (2 * k))
+    rim = np.c_[np.cos(angle), np.sin(angle), np.zeros(2 * k)]
+    pos = np.vstack([np.zeros((k, 3)) + [0.0, 0.0, 1.0], rim])
+    faces = np.c_[np.arange(k), k + 2 * np.arange(k), k + 2 * np.arange(k) + 1]
+    ints, grid = to_grid(pos, bits=16)
+    assert len(np.unique(ints[k:], axis=0)) == 2 * k and len(np.unique(ints[:k], axis=0)) == 1
+    return ints, faces, grid
+
+
+def test_more_than_255_vertices_on_one_point_take_an_unsigned_short_weld_attribute():
+    ints, faces, grid = _fan_of_copies(300)
+    enc = basecodec.encode_base(ints, faces, grid, codec="draco")
+    assert enc.codec == "draco" and enc.welded_count == len(ints)  # Draco's own order, welded back
+    weld = enc.accessors[enc.primitive["attributes"][basecodec.WELD_ATTRIBUTE]]
+    assert weld["componentType"] == basecodec.UNSIGNED_SHORT
+    gltf, prim = _welded_gltf(enc)
+    pos, tri = basecodec.decode_base(gltf, enc.data, grid, prim)
+    assert np.array_equal(pos, enc.positions_int) and same_face_set(enc.vertex_map[tri], faces)
+
+
+def test_more_vertices_on_one_point_than_the_weld_attribute_counts_fall_back_to_the_sequential_coder():
+    ints, faces, grid = _fan_of_copies(basecodec.WELD_TYPES[basecodec.UNSIGNED_SHORT] + 2)
+    why = basecodec._try_draco(ints, faces, Grid.from_config(grid), False, 7)
+    assert isinstance(why, str) and "65536" in why.replace(",", "")
+    enc = basecodec.encode_base(ints, faces, grid, codec="draco")
+    assert enc.codec == "draco" and enc.welded_count is None  # the sequential coder keeps our order: no weld
+    assert basecodec.WELD_ATTRIBUTE not in enc.primitive["attributes"]
+    gltf, prim = _gltf_of(enc)
+    pos, tri = basecodec.decode_base(gltf, enc.data, grid, prim)
+    assert np.array_equal(pos, ints) and np.array_equal(tri, faces)

@@ -43,6 +43,7 @@ import numpy as np
 from ..constants import MAX_FACES, MAX_VERTICES
 from ..errors import FormatError, LimitError
 from ..progressive.grid import AttributeGrid, Grid
+from ..progressive.seams import weld_groups
 from ..progressive.topology import same_face_set
 from .gltf import (
     ARRAY_BUFFER,
@@ -261,7 +262,9 @@ def _try_draco(pos, tri, grid, preserve_order, level):
         ordinals = None
     if ordinals is not None and ordinals.max() > WELD_TYPES[UNSIGNED_SHORT]:
         return f"{int(ordinals.max()) + 1} vertices on one grid point (the weld attribute holds {WELD_TYPES[UNSIGNED_SHORT] + 1})"
-    weld_type = None if ordinals is None else min(t for t, top in WELD_TYPES.items() if ordinals.max() <= top)
+    # the smallest component type that holds the largest ordinal
+    weld_type = None if ordinals is None else min(
+        (top, t) for t, top in WELD_TYPES.items() if ordinals.max() <= top)[1]
     # Draco quantizes q = floor((p - origin) * (2**bits - 1) / range + 0.5) and
     # dequantizes origin + q * range / (2**bits - 1): with the grid's own origin
     # and range = step * (2**bits - 1) its integers are our grid integers.
@@ -339,15 +342,14 @@ def point_ordinals(positions_int: np.ndarray) -> np.ndarray:
     first, and for every vertex alone on its point).  ``positions_int`` (n, 3) int64.  These are the values of
     a welded base's :data:`WELD_ATTRIBUTE` (spec README, "Welded base")."""
     n = positions_int.shape[0]
-    if n == 0:
-        return np.zeros(0, np.int64)
-    _, point = np.unique(positions_int, axis=0, return_inverse=True)
-    order = np.argsort(point.reshape(-1), kind="stable")  # by point, vertex order within one
-    sorted_point = point.reshape(-1)[order]
-    starts = np.flatnonzero(np.r_[True, sorted_point[1:] != sorted_point[:-1]])
-    runs = np.diff(np.r_[starts, n])
+    groups = weld_groups(positions_int)  # the first vertex on each vertex's point
+    if groups is None:
+        return np.zeros(n, np.int64)
+    order = np.argsort(groups, kind="stable")  # by point, vertex order within one
+    sorted_group = groups[order]
+    starts = np.flatnonzero(np.r_[True, sorted_group[1:] != sorted_group[:-1]])
     out = np.empty(n, np.int64)
-    out[order] = np.arange(n) - np.repeat(starts, runs)
+    out[order] = np.arange(n) - np.repeat(starts, np.diff(np.r_[starts, n]))
     return out
 
 

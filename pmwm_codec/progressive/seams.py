@@ -64,10 +64,10 @@ def weld_groups(positions: np.ndarray) -> np.ndarray | None:
     every attribute, :func:`~pmwm_codec.mesh.weld_soup`'s duplicate weld.)
     """
     pts = np.asarray(positions, np.float64)
+    if len(pts) < 2:  # (before the reshape: an empty array has no column count to infer)
+        return None
     pts = np.ascontiguousarray(pts.reshape(len(pts), -1) + 0.0)
     n, d = pts.shape
-    if n < 2:
-        return None
     bits = pts.view(np.uint64).reshape(n, d)
     h = np.zeros(n, np.uint64)
     for k in range(d):

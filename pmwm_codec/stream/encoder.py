@@ -748,7 +748,7 @@ def _quantize_and_simplify(jobs, grid_bits: int, base_vertices, say, defer_faces
             locked = _locked_with_grid_copies(values[:, :3], locked)
         late, twin = (deferred_and_twin_faces(values[:, :3], faces) if defer_faces
                       else (np.zeros(len(faces), bool), None))
-        values, positions, faces, locked, twin, late, extra, points, weld = _core_and_copies(
+        values, positions, faces, locked, twin, extra, points, weld = _core_and_copies(
             job.mesh.vertex_count, values, positions, faces, locked, twin, late, defer_faces)
         target = default_base_target(len(values)) if base_vertices is None else int(base_vertices)
         log = simplify(values[:, :3], faces, target_vertices=target, locked=locked, weld=weld, twin=twin,
@@ -910,13 +910,13 @@ def _named_only_by(faces: np.ndarray, late: np.ndarray, n: int) -> np.ndarray:
 
 
 def _core_and_copies(n: int, values, positions, faces, locked, twin, late, defer_slivers: bool) -> tuple:
-    """The mesh the simplifier sees: ``(values, positions, faces, locked, twin, late, extra, points, weld)``.
+    """The mesh the simplifier sees: ``(values, positions, faces, locked, twin, extra, points, weld)``.
 
     ``n`` vertices with ``values`` (n, D) int64 (grid positions first), ``positions`` (n, 3) float, ``faces``
     (m, 3) int64, ``locked`` (n,) bool or None, ``twin`` (m,) bool or None and ``late`` (m,) bool, the faces a face
     chunk sends (:func:`~pmwm_codec.progressive.simplify.deferred_and_twin_faces`).  Returned: the *core*, the
-    vertices some face outside ``late`` names, renumbered (their values, positions, faces, locked and twin rows),
-    ``late`` as it ends, ``extra`` (the :class:`PrimitiveWork` fields of the deferred faces: none when nothing is),
+    vertices some face outside the final ``late`` names, renumbered (their values, positions, faces, locked and twin
+    rows), ``extra`` (the :class:`PrimitiveWork` fields of the deferred faces: none when nothing is),
     ``points`` (:func:`weld_groups` of the core's grid positions: None when all are distinct) and ``weld`` (its seam
     copies, :func:`grid_weld`).  With ``defer_slivers``, the core's slivers (:func:`_sliver_faces`) are deferred
     too, in up to :data:`SLIVER_ROUNDS` rounds (deferring them opens new boundary ears beside them)."""
@@ -936,7 +936,7 @@ def _core_and_copies(n: int, values, positions, faces, locked, twin, late, defer
         # seam copies on the grid the stream lives on (copies a grid step apart or less are one point there)
         points = weld_groups(c_values[:, :3])
         weld = grid_weld(c_values[:, :3], c_faces, c_positions, points)
-        out = c_values, c_positions, c_faces, c_locked, c_twin, late, extra, points, weld
+        out = c_values, c_positions, c_faces, c_locked, c_twin, extra, points, weld
         if not defer_slivers or points is None or attempt == SLIVER_ROUNDS:  # no two vertices on one point: none
             break
         slivers = _sliver_faces(points, c_faces, weld)
