@@ -104,7 +104,8 @@ def test_spec_constants_of_face_chunks_match_the_code():
 def _random_case(seed: int):
     """``(values (n, D), faces (m, 3), new faces, new values)``: a random mesh and random faces to add,
     some along its edges (as pillows are), some reversed or repeated, some naming new vertices (one
-    or two to a face beside an existing vertex, or three: specks, parts of new vertices only)."""
+    or two to a face beside an existing vertex; three that other faces name too: fins and bubbles
+    beyond the mesh; or three of their own: specks, parts of new vertices only)."""
     rng = np.random.default_rng(seed)
     n, D = int(rng.integers(3, 40)), int(rng.integers(3, 6))
     values = rng.integers(0, 1 << 16, (n, D))
@@ -115,12 +116,15 @@ def _random_case(seed: int):
         for f in before[rng.integers(m, size=int(rng.integers(0, 6)))]:
             if f[0] != f[1]:
                 new.append([f[0], f[1], before[rng.integers(m), 2]])
-    t = int(rng.integers(0, 5))
+    t = int(rng.integers(0, 7))
     for j in range(t):  # a new vertex off an existing pair, sometimes a second one beside it
         x = rng.choice(n, 2, replace=False)
         new.append([x[0], x[1], n + j])
         if j and rng.random() < 0.5:
             new.append([x[0], n + j - 1, n + j])
+    for j in range(2, t):  # faces of new vertices only that others name too (a fin, a bubble), any corner first
+        if rng.random() < 0.4:
+            new.append(list(n + rng.permutation([j, j - 1, int(rng.integers(0, j - 1))])))
     new = np.array([f for f in new if len(set(int(v) for v in f)) == 3] or [[0, 1, 2]], np.int64)
     twins = rng.random(len(new)) < 0.5
     new = np.concatenate([new, new[twins][:, [0, 2, 1]], new[rng.random(len(new)) < 0.1]])
@@ -481,14 +485,19 @@ def test_specks_need_three_vertices_of_their_own_on_one_grid_point():
     assert specks(P, F[[0, 1, 2, 3, 4, 5]]).tolist() == [True, True, False, False, False, False]
 
 
-def test_faces_of_new_vertices_the_encoder_cannot_order_are_refused_not_miscoded():
-    # (4,6,7) numbers 4, 6, 7 as 4, 5, 6; (5,6,8) then starts at the next new vertex, 7, and names 6
-    # (numbered 5) after it: a raw id is coded after a face's first vertex, so the rows cannot be coded
-    # in this order (the reference encoder sends only specks as faces of new vertices)
-    with pytest.raises(ValueError, match="numbered before its first vertex"):
-        r2.pack_face_chunk(TETRA_VALUES, TETRAHEDRON, [[4, 6, 7], [5, 6, 8]], np.zeros((5, 3), np.int64))
-    stored, order = r2.pack_face_chunk(TETRA_VALUES, TETRAHEDRON, [[4, 5, 8], [5, 6, 7]], np.zeros((5, 3), np.int64))
-    assert _decode(stored, TETRA_VALUES, TETRAHEDRON, 5, 2)[1][4:].tolist() == [[4, 5, 6], [5, 7, 8]]
+def test_faces_of_new_vertices_that_other_faces_name_are_coded_in_an_order_the_decoder_can_follow():
+    # (4,6,7) names 4, 6, 7 as 4, 5, 6; (5,6,8) in that order would start at the next new vertex, 7, and
+    # name 6 (numbered 5) after it: a raw id coded after a face's first vertex.  The encoder takes the faces
+    # of new vertices only by their first named vertex instead: (6,8,5) rotated, from 5 (6's number) on.
+    for new in ([[4, 6, 7], [5, 6, 8]], [[4, 5, 8], [5, 6, 7]], [[0, 1, 6], [4, 5, 6], [5, 6, 7], [4, 7, 8]]):
+        new = np.array(new, np.int64)
+        values = np.arange(15, dtype=np.int64).reshape(5, 3) * 7
+        stored, order = r2.pack_face_chunk(TETRA_VALUES, TETRAHEDRON, new, values)
+        got, faces = _decode(stored, TETRA_VALUES, TETRAHEDRON, 5, len(new))
+        final = np.arange(9)
+        final[4 + order] = 4 + np.arange(5)  # the caller's new vertex -> the id it decodes as
+        assert _face_multiset(faces[4:]) == _face_multiset(final[new])
+        assert np.array_equal(got[4:], values[order])
 
 
 @pytest.mark.parametrize("vertex_step, face_step", [(20_000_000, 2), (0, 50_000_000)])

@@ -1454,9 +1454,9 @@ def _face_kernel(flat, m, n, t, P, head, nxt, stamp, tag, ctr, coded, rename, up
 
     Encode: ``coded`` (G, 4) int64 rows ``(a, b, c, twin)``, ``a`` the smallest of the three, ids ``>= n``
     naming the caller's new vertices, whose values are in ``P[n:n + t]`` in the caller's order; rows
-    whose ``a`` is new (faces of new vertices only) after the others, in an order that names each such
-    ``a`` as the next new vertex or after it was named, before the face's other new vertices (else -9,
-    -10: the reference encoder only writes such rows for specks); the kernel turns a twin row to
+    whose ``a`` is new (faces of new vertices only) after the others, which the kernel takes in the order
+    of :func:`_next_new_row` (spec §8.6, the reference encoder), each rotated to start at the vertex
+    it is taken for, so that its other new vertices are named after it; the kernel turns a twin row to
     ``(a, c, b)`` when that fits the neighbour lists better (:func:`_fit`), writes final ids into
     ``coded``, fills ``rename`` (t,) (caller's new vertex -> final id) and codes the values; the
     caller then reorders ``P[n:n + t]``.  Decode:
@@ -1477,6 +1477,20 @@ def _face_kernel(flat, m, n, t, P, head, nxt, stamp, tag, ctr, coded, rename, up
         rc.enc_uint(es, out, probs, _face_block(FB_COUNT), g - 1)
     a = 0
     added = 0
+    # encode: the rows of faces of new vertices only (from g0 on) are taken in the order
+    # :func:`_next_new_row` gives (each rotated to the vertex it is taken for)
+    g0 = g
+    if not decode:
+        for i in range(g):
+            if coded[i, 0] >= n:
+                g0 = i
+                break
+    pool = coded[g0:].copy()
+    done = np.zeros(len(pool), np.bool_)
+    tip_start, tip_rows = _rows_by_new_vertex(pool, n, t)
+    named = np.full(t, -1, np.int64)  # final id - n -> the caller's id of that new vertex
+    walk = np.zeros(3, np.int64)  # the final id visited, a cursor into its rows, the first pool row maybe unused
+    pre0 = pre1 = pre2 = np.int64(0)  # the caller's ids of a face of new vertices only
     for i in range(g):
         if decode:
             gap = rc.dec_uint(ds, buf, probs, _face_block(FB_GAP))
@@ -1484,6 +1498,19 @@ def _face_kernel(flat, m, n, t, P, head, nxt, stamp, tag, ctr, coded, rename, up
                 return -1
             a += gap
         else:
+            if i >= g0:
+                if i == g0:  # the new vertices the faces with an old vertex named, by final id
+                    for j in range(t):
+                        if rename[j] >= 0:
+                            named[rename[j] - n] = n + j
+                    walk[0] = n
+                    if fresh[0] > 0:
+                        walk[1] = tip_start[named[0] - n]
+                r, first = _next_new_row(pool, done, tip_start, tip_rows, named, walk, n, fresh[0])
+                for q in range(3):  # rotated to start at ``first`` (the orientation kept)
+                    coded[i, q] = pool[r, (q + (1 if pool[r, 1] == first else 2 if pool[r, 2] == first else 0)) % 3]
+                coded[i, 3] = pool[r, 3]
+                pre0, pre1, pre2 = coded[i, 0], coded[i, 1], coded[i, 2]
             x = coded[i, 0]
             if x >= n:  # a new vertex: already named, or named here (the next one)
                 if rename[x - n] < 0:
@@ -1521,6 +1548,9 @@ def _face_kernel(flat, m, n, t, P, head, nxt, stamp, tag, ctr, coded, rename, up
         if decode:
             twin = rc.dec_bit(ds, buf, probs, F_TWIN)
         else:
+            if i >= g0:  # its new vertices, named now if not before
+                for y in (pre0, pre1, pre2):
+                    named[rename[y - n] - n] = y
             coded[i, 1], coded[i, 2] = b, c
             twin = coded[i, 3]
             rc.enc_bit(es, out, probs, F_TWIN, twin)
@@ -1540,6 +1570,60 @@ def _face_kernel(flat, m, n, t, P, head, nxt, stamp, tag, ctr, coded, rename, up
     if _face_values(flat, m, added, n, t, P, es, out, ds, buf, probs, decode) != 0:
         return -8
     return added
+
+
+@kernel_helper(allocates=True)
+def _rows_by_new_vertex(rows, n, t):
+    """``(start (t + 1,), rows_of (3G,))`` int64: the rows of ``rows`` (G, 4) int64 that name each new vertex
+    ``n + j`` (ids ``>= n``), ascending, as rows ``start[j] .. start[j + 1] - 1`` of ``rows_of`` (CSR)."""
+    start = np.zeros(t + 1, np.int64)
+    for r in range(len(rows)):
+        for q in range(3):
+            if rows[r, q] >= n:
+                start[rows[r, q] - n + 1] += 1
+    for j in range(t):
+        start[j + 1] += start[j]
+    fill = start[:t].copy()
+    rows_of = np.empty(max(start[t], 1), np.int64)
+    for r in range(len(rows)):
+        for q in range(3):
+            if rows[r, q] >= n:
+                rows_of[fill[rows[r, q] - n]] = r
+                fill[rows[r, q] - n] += 1
+    return start, rows_of
+
+
+@kernel_helper
+def _next_new_row(pool, done, tip_start, tip_rows, named, walk, n, fresh):
+    """The next face of new vertices only a face chunk codes (encode, spec §8.6 *reference encoder*):
+    ``(row of pool, the caller's id of the vertex it starts at)``.  ``pool`` (G, 4) int64: those rows
+    (caller's ids, each starting at its smallest), ``done`` (G,) bool the ones taken; ``tip_start`` /
+    ``tip_rows`` (:func:`_rows_by_new_vertex`); ``named`` (t,) int64 the caller's id of each final id
+    ``n ..  n + fresh - 1``; ``walk`` (3,) int64: the final id being visited, a cursor into its rows, the
+    first pool row maybe not taken.
+
+    The named new vertices are visited in the order of their final ids, each taking the rows not
+    taken yet that name it (it is their smallest named vertex: its rows come when their first vertex
+    is, ascending); when every named one is visited, the first row not taken starts at its first
+    vertex, the next new vertex.  So every face's first vertex is named before or as it is coded,
+    its later ones after it, and the first vertices never go down."""
+    while walk[0] < n + fresh:
+        x = named[walk[0] - n] - n
+        while walk[1] < tip_start[x + 1]:
+            r = tip_rows[walk[1]]
+            walk[1] += 1
+            if not done[r]:
+                done[r] = True
+                return r, x + n
+        walk[0] += 1
+        if walk[0] < n + fresh:
+            walk[1] = tip_start[named[walk[0] - n] - n]
+    while done[walk[2]]:
+        walk[2] += 1
+    r = walk[2]
+    done[r] = True
+    walk[1] = tip_start[pool[r, 0] - n]  # it is named next, as final id walk[0]
+    return r, pool[r, 0]
 
 
 @kernel_helper(allocates=True)
