@@ -14,7 +14,8 @@ The sequence puts face chunks between chunks that split (the reference encoder o
 last), so that a decoder must read the splits after them against the mesh the face chunks left,
 new vertices included; its values have D = 5 columns (x, y, z and two attribute-like columns), and
 its face chunks add vertices: flap tips named by one pillow, pairs of new vertices on one face (the
-second predicted from the first), and new vertices named again by a later face (a raw id).
+second predicted from the first), new vertices named again by a later face (a raw id), and faces of new
+vertices only that name new vertices other faces name (a bubble beyond the mesh, its faces in any rotation).
 """
 
 import json
@@ -54,8 +55,8 @@ def new_faces(state, seed):
     """Faces to append to ``state`` and the values of the new vertices they name (ids n, n+1, ...):
     pillows (x, y, z) + (x, z, y) on paths x-y-z of mesh edges, the reverse of an existing face
     alone, a lone face between vertices far apart (coded raw), flaps (x, y, tip) + (y, x, tip) on
-    mesh edges, a pillow with two new vertices (x, u, w) + (x, w, u), and a face naming a flap's tip
-    again."""
+    mesh edges, a pillow with two new vertices (x, u, w) + (x, w, u), a face naming a flap's tip
+    again, and three faces of new vertices only beyond it, naming three more new vertices and u and w."""
     rng = np.random.default_rng(seed)
     n = state.n
     faces = state.faces[: state.m]
@@ -86,6 +87,11 @@ def new_faces(state, seed):
     values += [P[x] + rng.integers(-9, 10, D), P[x] + rng.integers(-9, 10, D)]
     out += [(x, u, w), (x, w, u)]
     out.append((int(rng.integers(n)), n, u))  # the first flap's tip and u named again
+    # beyond the mesh: p < q, named q first by a face of x, then faces of new vertices only naming them
+    # (the first starts at p, numbered after q: the encoder rotates it to start at q) and u and w
+    p, q, r = n + len(values), n + len(values) + 1, n + len(values) + 2
+    values += [P[x] + rng.integers(-9, 10, D) for _ in range(3)]
+    out += [(x, q, p), (p, q, r), (r, w, u), (q, u, r)]
     order = rng.permutation(len(out))
     return np.array(out, np.int64)[order], np.array(values, np.int64)
 
