@@ -1485,10 +1485,11 @@ def _face_kernel(flat, m, n, t, P, head, nxt, stamp, tag, ctr, coded, rename, up
             if coded[i, 0] >= n:
                 g0 = i
                 break
+    tips = 0 if decode else t  # (the decoder needs none of this)
     pool = coded[g0:].copy()
     done = np.zeros(len(pool), np.bool_)
-    tip_start, tip_rows = _rows_by_new_vertex(pool, n, t)
-    named = np.full(t, -1, np.int64)  # final id - n -> the caller's id of that new vertex
+    tip_start, tip_rows = _rows_by_new_vertex(pool, n, tips)
+    named = np.full(tips, -1, np.int64)  # final id - n -> the caller's id of that new vertex
     walk = np.zeros(3, np.int64)  # the final id visited, a cursor into its rows, the first pool row maybe unused
     pre0 = pre1 = pre2 = np.int64(0)  # the caller's ids of a face of new vertices only
     for i in range(g):
