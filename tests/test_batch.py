@@ -215,7 +215,7 @@ def test_ctrl_c_halfway_is_one_line_and_exit_130_and_leaves_no_process_behind(li
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
-    assert proc.returncode == 130
+    assert proc.returncode == 130, err
     assert "Traceback" not in err and err.strip().splitlines()[-1] == "pmw: error: interrupted", err
     time.sleep(1)
     ps = subprocess.run(["ps", "-o", "pid=,stat=,args=", "-g", str(proc.pid)], capture_output=True, text=True).stdout
