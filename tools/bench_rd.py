@@ -31,6 +31,8 @@ Meshes: every ``*.obj`` of ``../shared/corpus`` (skipped when absent) and a gene
 
     python tools/bench_rd.py                         # print the Markdown report
     python tools/bench_rd.py --write BENCHMARKS.md   # also replace its section, plot in docs/
+    python tools/bench_rd.py --corpus /tmp/heldout --mesh dragon437k --same-bytes-only
+                                                     # the same-bytes cells only (minutes on a 437k mesh)
 """
 
 from __future__ import annotations
