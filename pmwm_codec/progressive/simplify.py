@@ -68,7 +68,7 @@ import numpy as np
 
 from . import seams
 from .livemesh import boundary_half_edges, live_mesh
-from .topology import compiled, expand, face_keys, group_order, half_edges, kernel_helper
+from .topology import compiled, expand, face_keys, group_order, half_edges, kernel_helper, two_alike
 
 #: A moved face's normal may turn by at most this much (cosine bound).
 MIN_NORMAL_COS = 0.0
@@ -575,14 +575,9 @@ def _no_new_slivers(point, on_shared, F, g, cu, cv, moved_face, moved_by):
     by = moved_by[rows]
     tri = F[moved_face[rows]]
     new = np.where(tri == cu[by][:, None], cv[by][:, None], tri)
-
-    def pair(t, key):
-        a, b, c = key[t[:, 0]], key[t[:, 1]], key[t[:, 2]]
-        return (a == b) | (b == c) | (c == a)
-
-    made = pair(new, point) & ~pair(tri, point)
+    made = two_alike(point[new]) & ~two_alike(point[tri])
     if g is not None:  # two copies on a face: no later collapse parts them (a face on one point and another may)
-        made |= pair(new, g) & ~pair(tri, g)
+        made |= two_alike(g[new]) & ~two_alike(g[tri])
     keep[by[made]] = False
     if not keep.all() and g is not None:
         keep &= ~(np.isin(g[cu], g[cu[~keep]]) & (np.bincount(g, minlength=len(g))[g[cu]] > 1))

@@ -331,6 +331,13 @@ def face_keys(faces: np.ndarray):
     return np.take_along_axis(faces, idx, axis=1)
 
 
+def two_alike(keys: np.ndarray) -> np.ndarray:
+    """(m,) bool: the rows of ``keys`` (m, 3) (a value per face corner: a grid point, a seam group) with two
+    equal values; a face whose corners ``keys`` tells apart has none."""
+    a, b, c = keys[:, 0], keys[:, 1], keys[:, 2]
+    return (a == b) | (b == c) | (c == a)
+
+
 def unique_edges(faces: np.ndarray) -> np.ndarray:
     """Undirected edges of ``faces`` (m, 3) int: (e, 2) int64 rows ``(lo, hi)``, ``lo < hi``.
 

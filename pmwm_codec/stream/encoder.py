@@ -51,7 +51,7 @@ from ..progressive.build import ProgressiveMesh, build_progressive
 from ..progressive.grid import AttributeGrid, Grid, float32_spacing
 from ..progressive.seams import twin_rows, weld_groups
 from ..progressive.simplify import CollapseLog, deferred_and_twin_faces, simplify
-from ..progressive.topology import job_vertices, mean_edge_length
+from ..progressive.topology import job_vertices, mean_edge_length, two_alike
 from ..progressive.seams import grid_weld, snap_near_copies  # (the seam copies of stage 1)
 from ..watermark import codec as wm
 from ..watermark.key import KEY_FILE_MODE, KEY_SUFFIX, KeySlot, WatermarkKey
@@ -957,8 +957,7 @@ def _sliver_faces(points: np.ndarray, faces: np.ndarray, weld: np.ndarray | None
     share a position), and the base falls back to Draco's sequential coder (dragon437k: 55 KB instead of 15 KB);
     a face chunk sends them instead (bitstream.md §8.6)."""
     m, n = len(faces), len(points)
-    p0, p1, p2 = points[faces[:, 0]], points[faces[:, 1]], points[faces[:, 2]]
-    on_point = np.flatnonzero((p0 == p1) | (p1 == p2) | (p2 == p0))
+    on_point = np.flatnonzero(two_alike(points[faces]))
     out = np.zeros(m, bool)
     if not len(on_point):
         return out
