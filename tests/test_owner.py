@@ -37,7 +37,7 @@ def test_round_trip_reads_the_keys_owner_id_with_no_errors_within_the_distortion
     key, pos = marked
     r = owner.detect(pos, blob.faces, key)
     assert r.id == key.owner_hex and r.bit_errors == 0 and r.verdict == "present"
-    assert r.false_alarm_probability == pytest.approx(owner.FRAMES * 2.0**-64)
+    assert r.false_alarm_probability == pytest.approx(owner.HYPOTHESES * 2.0**-64)
     assert _rms_of_diagonal(blob.positions, pos) < 0.0002  # the issue's budget: 0.02% of the diagonal
 
 
@@ -82,15 +82,55 @@ def test_embedding_moves_vertices_radially_and_keeps_coincident_ones_together(bl
     assert cos.min() > 1 - 1e-6  # the centroid moves a little with the marking; the rays barely do
 
 
+def _least_margin(soft, key):
+    """The smallest of soft values (64,) times the side its bit is coded to, under the alternative coding that
+    reads the key's ID best."""
+    coded = owner._coded(key, key.owner_id)[np.argmin(owner._errors_each(soft, key))]
+    return float((np.where(coded == 1, 1.0, -1.0) * soft).min())
+
+
 def test_rms_budget_raises_every_margin_and_stays_within_the_budget(blob, marked):
     key, pos = marked
     bare = owner.embed(blob.positions, blob.faces, key, rms_budget=None)
-    _, whiten = owner._layout(key)
-    sides = np.where((owner.id_to_bits(key.owner_id) ^ whiten) == 1, 1.0, -1.0)
-    margin_bare = (sides * owner.read_soft(bare, blob.faces, key)).min()
-    margin = (sides * owner.read_soft(pos, blob.faces, key)).min()
+    margin_bare = _least_margin(owner.read_soft(bare, blob.faces, key), key)
+    margin = _least_margin(owner.read_soft(pos, blob.faces, key), key)
     assert owner.DEFAULT_STRENGTH <= margin_bare < margin
     assert _rms_of_diagonal(blob.positions, bare) < _rms_of_diagonal(blob.positions, pos) <= owner.DEFAULT_RMS_BUDGET
+
+
+@pytest.mark.parametrize("row", [0, 5, owner.ALTERNATIVES - 1])
+def test_a_mark_under_any_alternative_coding_reads_the_keys_id_exactly(blob, monkeypatch, row):
+    """Whichever coding the encoder takes, the read finds it and reports the key's ID itself; row 0 is the
+    coding of marks made before there was a choice, so they still read."""
+    key = WatermarkKey.generate(rng=np.random.default_rng(11))
+    monkeypatch.setattr(owner, "_chosen_sides", lambda points, count, faces, sides, *a, **kw: sides[row])
+    pos = owner.embed(blob.positions, blob.faces, key)
+    assert not np.all(owner._alternatives(key)[row] == 0) or row == 0
+    r = owner.detect(pos, blob.faces, key)
+    assert (r.id, r.bit_errors, r.verdict) == (key.owner_hex, 0, "present")
+    errors = owner._errors_each(owner.read_soft(pos, blob.faces, key), key)
+    assert errors[row] == 0 and np.all(np.delete(errors, row) > 14)  # the other codings read the ID as noise
+
+
+def test_choosing_the_coding_the_mesh_leans_to_raises_the_margins_on_a_coarse_mesh(monkeypatch):
+    """On a mesh of ~40 vertices a shell an unmarked shell's score is as large as the margin the budget buys;
+    the encoder takes the coding whose shells lean its way (cow and spot, 2.9k vertices: the margin level
+    +19-36%; BENCHMARKS.md "Owner layer"): here the median margin read, averaged over 4 keys, is at least 3%
+    higher (measured: 8%), within the same RMS budget."""
+    m = shapes.icosphere(4, 1.0, noise=0.03, seed=5)
+    pos, faces = m.positions * np.array([1.0, 0.7, 0.5]), m.faces
+    chosen, first = [], []
+    pick = owner._chosen_sides
+    for k in range(4):
+        key = WatermarkKey.generate(rng=np.random.default_rng(30 + k))
+        for out, how in ((chosen, pick), (first, lambda points, count, faces, sides, *a, **kw: sides[0])):
+            monkeypatch.setattr(owner, "_chosen_sides", how)
+            marked = owner.embed(pos, faces, key)
+            assert _rms_of_diagonal(pos, marked) <= owner.DEFAULT_RMS_BUDGET * (1 + 1e-9)
+            soft = owner.read_soft(marked, faces, key)
+            coded = owner._coded(key, key.owner_id)[np.argmin(owner._errors_each(soft, key))]
+            out.append(float(np.median(np.where(coded == 1, 1.0, -1.0) * soft)))
+    assert np.mean(chosen) > 1.03 * np.mean(first)
 
 
 def test_shell_score_is_zero_at_shell_edges_and_peaks_at_a_quarter_and_three_quarters():
@@ -184,12 +224,22 @@ def test_owner_id_wider_than_64_bits_is_refused(blob):
         owner.embed(blob.positions, blob.faces, key, owner_id=1 << 64)
 
 
-def test_false_alarm_probability_is_the_union_bound_of_the_binomial_tail_over_the_frames_read():
-    tail = lambda e: sum(math.comb(64, i) for i in range(e + 1)) / 2**64  # noqa: E731
+def _tail(e):
+    """P(at most e of 64 fair coins come up wrong), exactly."""
+    return sum(math.comb(64, i) for i in range(e + 1)) / 2**64
+
+
+def _expected_least(n):
+    """The expected fewest errors among n independent reads of 64 fair coins."""
+    return sum((1.0 - _tail(e)) ** n for e in range(64))
+
+
+def test_false_alarm_probability_is_the_union_bound_of_the_binomial_tail_over_the_codings_read():
+    assert owner.HYPOTHESES == owner.FRAMES * owner.ALTERNATIVES == 192
     assert owner.false_alarm_probability(0, frames=1) == 2.0**-64
-    assert owner.false_alarm_probability(8) == pytest.approx(owner.FRAMES * tail(8))
-    assert owner.false_alarm_probability(7) < owner.PRESENT_BELOW < owner.false_alarm_probability(8)  # spec: <= 7
-    assert owner.false_alarm_probability(17) < owner.ABSENT_FROM <= owner.false_alarm_probability(18)  # spec: >= 18
+    assert owner.false_alarm_probability(8) == pytest.approx(owner.HYPOTHESES * _tail(8))
+    assert owner.false_alarm_probability(6) < owner.PRESENT_BELOW < owner.false_alarm_probability(7)  # spec: <= 6
+    assert owner.false_alarm_probability(14) < owner.ABSENT_FROM <= owner.false_alarm_probability(15)  # spec: >= 15
     assert owner.false_alarm_probability(64) == 1.0 and owner.false_alarm_probability(40) == 1.0
 
 
@@ -206,9 +256,11 @@ def test_wrong_key_errors_stay_within_the_stated_false_alarm_bound(blob, marked)
         assert r.verdict != "present"
         errors.append(r.bit_errors)
     errors = np.array(errors)
-    for e in (20, 24, 26):  # bound 0.006, 0.08, 0.25; the fraction's sd over 200 keys is <= 0.03
-        assert np.mean(errors <= e) <= owner.false_alarm_probability(e) + 0.05
-    assert 26 < errors.mean() <= 33 and 2 < errors.std() < 6
+    for e in (14, 16, 18):  # bound 0.0007, 0.007, 0.06; the fraction's sd over 200 keys is <= 0.02
+        assert np.mean(errors <= e) <= owner.false_alarm_probability(e) + 0.03
+    # each key's best of its codings: no better than HYPOTHESES independent fair reads would give (the bound's
+    # model), no worse than ALTERNATIVES of them (one view); the mean's sd over 200 keys is ~0.15
+    assert _expected_least(owner.HYPOTHESES) - 0.6 <= errors.mean() <= _expected_least(owner.ALTERNATIVES) + 0.6
 
 
 def test_key_serialises_the_owner_id(tmp_path):
@@ -237,7 +289,7 @@ def test_cli_owner_only_encode_then_blind_verify_of_the_decoded_mesh(tmp_path, b
     assert main(["verify", str(tmp_path / "d.ply"), "--key", str(key), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)  # the CLI's key is random: a few bit errors may occur
     assert doc["owner"]["verdict"] == "present" and doc["owner"]["bits"] == 64
-    assert bin(int(doc["owner"]["id"], 16) ^ 0x00C0FFEE00C0FFEE).count("1") == doc["owner"]["bit_errors"] <= 7
+    assert bin(int(doc["owner"]["id"], 16) ^ 0x00C0FFEE00C0FFEE).count("1") == doc["owner"]["bit_errors"] <= 6
     assert main(["verify", str(src), "--key", str(key), "-q"]) == 1  # the unmarked original
     assert main(["verify", str(out), "--key", str(key), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
@@ -367,8 +419,7 @@ def test_frame_search_reads_through_an_estimate_a_fifth_of_a_shell_off(blob, mar
     soft = np.zeros(owner.BINS)
     inside = shell >= 0
     soft[owner._layout(key)[0]] = np.bincount(shell[inside], owner.g_of_t(t[inside]), owner.BINS)
-    unsearched = (soft > 0).astype(np.uint8) ^ owner._layout(key)[1]
-    assert np.count_nonzero(unsearched != owner.id_to_bits(key.owner_id)) > 8  # the offset frame alone fails
+    assert owner._bit_errors(soft, key) > 8  # the offset frame alone fails, under every alternative coding
     r = owner.detect(pos, blob.faces, key)
     assert r.bit_errors == 0 and r.verdict == "present"
 
@@ -951,7 +1002,10 @@ def test_the_spec_states_the_piece_rule_with_the_readers_numbers():
     assert f"the {reader.MAX_GROUPED} largest are also grouped" in text
     assert f"at least {reader.MIN_PIECE_VERTICES} distinct positions" in text
     assert f"at most {reader.MAX_PIECES} are kept" in text
-    assert f"`{owner.FRAMES} (1 + P)`" in text
+    assert f"`{owner.HYPOTHESES} (1 + P)`" in text
+    assert f"{owner.ALTERNATIVES} **alternative codings**" in text and "row 0, which is all zero" in text
+    assert owner.ALT_STREAM_ID == int.from_bytes(b"owneralt", "big") and 'int.from_bytes(b"owneralt", "big")' in text
+    assert f"the {owner.FRAMES} x {owner.ALTERNATIVES} = {owner.HYPOTHESES} codings read" in text
 
 
 def test_a_stream_of_many_small_chunks_is_read_where_its_level_has_grown_and_at_its_end(tmp_path, blob, monkeypatch,

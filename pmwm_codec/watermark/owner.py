@@ -24,8 +24,11 @@ transport noise at embedding time):
    main error source after quantization), and it is one harmonic, the one coordinate noise
    attenuates least (:func:`g_of_t`).
 4. **Keyed code.**  With the key's SHAKE-256 mappings (stream id :data:`STREAM_ID`):
-   ``coded = owner_bits XOR key.bits(STREAM_ID, 64)``; shell ``k`` carries coded bit
-   ``key.permutation(STREAM_ID, 64)[k]``; a bit's soft value is its shell's score.
+   ``coded = owner_bits XOR key.bits(STREAM_ID, 64) XOR alternative[j]``; shell ``k`` carries
+   coded bit ``key.permutation(STREAM_ID, 64)[k]``; a bit's soft value is its shell's score.
+   The :data:`ALTERNATIVES` rows ``alternative`` are keyed too (:func:`_alternatives`, row 0 all
+   zero); the encoder picks ``j`` for the mesh (:func:`_chosen_sides`: informed coding, the shells
+   asked for the side their unmarked score leans to cost less), the read tries every ``j``.
 5. **Embed.**  Each shell's ``t`` values follow the flow of ``h`` (the scaled gradient of
    ``g``, ramped to 0 at the shell edges) to an amplitude per shell: vertices move radially,
    never out of their shell, toward t = 3/4 (coded 1) or 1/4 (coded 0).  The flow is tabled once (:func:`_flow_table`);
@@ -66,18 +69,19 @@ transport noise at embedding time):
    0.000, 3 keys).  The four views of the mesh as it is are read first; unless one reads the
    key's ID without an error the two un-smoothed ones are read too, and of the views read the
    one with the fewest errors counts (``FRAMES = 6`` views in the false-alarm bound).  The bit
-   is the sign of its soft value (0: erased, counted as an error); XOR the whitening bits gives
-   the ID read.
+   is the sign of its soft value (0: erased, counted as an error); XOR the whitening bits and the
+   alternative coding that reads the key's ID with the fewest errors gives the ID read.
 
 **False alarm.**  For a mesh not marked with this key (unmarked, or marked with another
 key) the whitening bits are independent fair coins, and nothing the read chooses before
-comparing with the ID (the six views) depends on the key, so in each view every read
-bit matches the key's ID with probability 1/2 independently: ``e`` or fewer errors has
-probability ``T(e) = sum_{i<=e} C(64, i) / 2^64`` (exact, computed with integers), and the
-best of the six views at most ``P(e) = 6 T(e)`` (the union bound; stated).  The verdict
-is ``present`` when ``P(bit_errors) < 1e-9`` (at most 7 errors: 2.3e-10; 8 errors give
-1.7e-9), ``absent`` when ``P >= 1e-3`` (18 errors or more), ``inconclusive`` in between or when fewer than
-``MIN_BITS_READ`` bits could be read at all.
+comparing with the ID (the six views) depends on the key, so in each view and under each
+alternative coding every read bit matches the key's coded ID with probability 1/2
+independently: ``e`` or fewer errors has probability ``T(e) = sum_{i<=e} C(64, i) / 2^64``
+(exact, computed with integers), and the best of the 6 x 32 codings read at most ``P(e) =
+192 T(e)`` (the union bound; stated).  The verdict is ``present`` when ``P(bit_errors) <
+1e-9`` (at most 6 errors: 8.7e-10; 7 errors give 7.3e-9), ``absent`` when ``P >= 1e-3`` (15
+errors or more), ``inconclusive`` in between or when fewer than ``MIN_BITS_READ`` bits could be
+read at all.
 """
 
 from __future__ import annotations
@@ -154,6 +158,18 @@ COARSE_STEP = 0.05
 #: Keyed-mapping stream id of the owner layer (the ASCII of "owner"; the exact layer uses
 #: chunk numbers, far below it).
 STREAM_ID = int.from_bytes(b"owner", "big")
+#: Codings of one ID the encoder chooses among (:func:`_chosen_sides`): coded = ID XOR whitening XOR
+#: alternative ``j``, the alternatives keyed rows of :func:`_alternatives` (row 0 all zero: the coding of
+#: marks made before there was a choice).  The encoder takes the one whose shells' sides the unmarked mesh
+#: already leans to most (the highest margin level the RMS budget reaches); the read compares the ID with
+#: every alternative, so the false-alarm bound counts ``FRAMES * ALTERNATIVES`` codings.  32 is the most
+#: that keeps ``present`` at 6 errors or fewer (64 would take it to 5); measured against one coding (5 keys,
+#: the same budget): cow noise 0.30% BER 0.094 -> 0.053, spot 0.128 -> 0.028, spot smoothing 30 iterations
+#: 0.400 -> 0.006, fandisk 8-bit 0.122 -> 0.031 (BENCHMARKS.md "Owner layer").
+ALTERNATIVES = 32
+ALT_STREAM_ID = int.from_bytes(b"owneralt", "big")
+#: Codings a read compares with the key's ID: every view (:data:`FRAMES`) under every alternative.
+HYPOTHESES = FRAMES * ALTERNATIVES
 PRESENT_BELOW = 1e-9
 ABSENT_FROM = 1e-3
 #: Fewer readable bits than this: inconclusive (the mesh is too small to say).
@@ -208,10 +224,11 @@ class OwnerResult:
 def false_alarm_probability(bit_errors: int, bits: int = OWNER_BITS, frames: int | None = None) -> float:
     """``min(1, frames * T)``, T = P(at most ``bit_errors`` mismatches among ``bits`` fair independent
     coins) computed exactly: a bound (the union bound) on the chance that the best of ``frames``
-    reads (default :data:`FRAMES`), each of fair coins, has that few errors."""
+    codings read (default :data:`HYPOTHESES`: every view under every alternative), each of fair
+    coins, has that few errors."""
     e = max(0, min(int(bit_errors), bits))
     tail = math.fsum(math.comb(bits, i) for i in range(e + 1)) / 2.0**bits
-    return min(1.0, (FRAMES if frames is None else frames) * tail)
+    return min(1.0, (HYPOTHESES if frames is None else frames) * tail)
 
 
 def id_to_bits(owner_id: int) -> np.ndarray:
@@ -743,6 +760,14 @@ class _Tables:
     sq: np.ndarray
 
 
+@dataclass
+class _Costs:
+    """The part of :class:`_Tables` that prices margins: ``margin``, ``sq`` (BINS, _FLOW_A) float64."""
+
+    margin: np.ndarray
+    sq: np.ndarray
+
+
 def _tables(points: np.ndarray, count: np.ndarray, frame: tuple, shell_side: np.ndarray,
             fixed: np.ndarray | None = None) -> _Tables:
     """:class:`_Tables` of ``points`` (k, 3) (``count`` (k,) original vertices each) in ``frame``.
@@ -766,17 +791,17 @@ def _tables(points: np.ndarray, count: np.ndarray, frame: tuple, shell_side: np.
     return _Tables(frame, shell, t, rho, d, flows, margin, sq)
 
 
-def _amplitudes(tab: _Tables, target: np.ndarray) -> tuple:
-    """``(a (BINS,) in [0, 1], sum of squared displacements)``: the least tabled-and-interpolated
-    amplitude per shell whose margin reaches ``target`` (BINS,) (1 where none does)."""
-    rows = np.arange(BINS)
-    j = np.count_nonzero(tab.margin < target[:, None], axis=1)
-    jj = np.clip(j, 1, _FLOW_A - 1)
-    m0, m1 = tab.margin[rows, jj - 1], tab.margin[rows, jj]
-    frac = np.clip(np.divide(target - m0, m1 - m0, out=np.ones(BINS), where=m1 > m0), 0.0, 1.0)
+def _amplitudes(tab, target: np.ndarray) -> tuple:
+    """``(a (..., BINS) in [0, 1], sum of squared displacements (...))``: the least tabled-and-interpolated
+    amplitude per shell whose margin reaches ``target`` (..., BINS) (1 where none does); ``tab`` a
+    :class:`_Tables` or :class:`_Costs` (``margin``, ``sq`` (..., BINS, _FLOW_A), the same leading axes)."""
+    j = np.count_nonzero(tab.margin < target[..., None], axis=-1)
+    jj = np.clip(j, 1, _FLOW_A - 1)[..., None]
+    m0, m1 = (np.take_along_axis(tab.margin, i, axis=-1)[..., 0] for i in (jj - 1, jj))
+    frac = np.clip(np.divide(target - m0, m1 - m0, out=np.ones(m0.shape), where=m1 > m0), 0.0, 1.0)
     frac = np.where(j == 0, 0.0, np.where(j >= _FLOW_A, 1.0, frac))
-    sq = tab.sq[rows, jj - 1] * (1.0 - frac) + tab.sq[rows, jj] * frac
-    return (jj - 1 + frac) / (_FLOW_A - 1), float(sq.sum())
+    sq0, sq1 = (np.take_along_axis(tab.sq, i, axis=-1)[..., 0] for i in (jj - 1, jj))
+    return (jj[..., 0] - 1 + frac) / (_FLOW_A - 1), (sq0 * (1.0 - frac) + sq1 * frac).sum(axis=-1)
 
 
 def _goals(c: float, shape: np.ndarray, strength: float) -> np.ndarray:
@@ -787,16 +812,26 @@ def _goals(c: float, shape: np.ndarray, strength: float) -> np.ndarray:
 def _best_margin(tab: _Tables, extra: np.ndarray, strength: float, limit_sq: float, shape: np.ndarray) -> np.ndarray:
     """The highest goals (:func:`_goals`) whose amplitudes (targets ``goals + extra``) keep the
     sum of squared displacements within ``limit_sq`` (``strength`` everywhere when even it does not)."""
-    cost = lambda c: _amplitudes(tab, _goals(c, shape, strength) + extra)[1]  # noqa: E731
-    if cost(0.0) > limit_sq:
-        return _goals(0.0, shape, strength)
-    lo, hi = 0.0, 1.0 / float(shape.min())
-    if cost(hi) <= limit_sq:
-        return _goals(hi, shape, strength)
+    costs = _Costs(tab.margin[None], tab.sq[None])
+    return _goals(float(_best_levels(costs, extra, strength, limit_sq, shape)[0][0]), shape, strength)
+
+
+def _best_levels(costs: _Costs, extra: np.ndarray, strength: float, limit_sq: float, shape: np.ndarray) -> tuple:
+    """``(levels (r,), cost at level 0 (r,))`` of ``r`` sets of shells (``costs``' margin and sq (r, BINS,
+    _FLOW_A)): the highest level ``c`` whose goals (:func:`_goals`; targets ``goals + extra``) keep the sum
+    of squared displacements within ``limit_sq``, found by bisection (0 when even ``strength`` everywhere
+    is over the budget)."""
+    cost = lambda c: _amplitudes(costs, _goals(c[:, None], shape, strength) + extra)[1]  # noqa: E731
+    rows = len(costs.margin)
+    at_zero = cost(np.zeros(rows))
+    top = np.full(rows, 1.0 / float(shape.min()))
+    lo, hi = np.zeros(rows), top.copy()
     for _ in range(24):
         mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if cost(mid) <= limit_sq else (lo, mid)
-    return _goals(lo, shape, strength)
+        fits = cost(mid) <= limit_sq
+        lo, hi = np.where(fits, mid, lo), np.where(fits, hi, mid)
+    levels = np.where(at_zero > limit_sq, 0.0, np.where(cost(top) <= limit_sq, top, lo))
+    return levels, at_zero
 
 
 def _shape(shell: np.ndarray) -> np.ndarray:
@@ -902,8 +937,6 @@ def embed(positions, faces, key, owner_id: int | None = None, strength: float = 
     owner_id = key.owner_id if owner_id is None else owner_id
     if owner_id is None:
         raise ValueError("the key carries no owner id")
-    shell_bit, whiten = _layout(key)
-    shell_side = np.where((id_to_bits(owner_id) ^ whiten) == 1, 1.0, -1.0)[shell_bit]
     if len(pos0) < 2:
         return pos0.copy()
     points, inverse = _distinct_index(pos0)
@@ -914,7 +947,36 @@ def embed(positions, faces, key, owner_id: int | None = None, strength: float = 
     if fixed is not None:
         still = np.zeros(len(points), bool)
         still[inverse[np.asarray(fixed, bool).reshape(-1)]] = True
-    return _mark(points, count, faces, shell_side, float(strength), limit_sq, still)[inverse]
+    sides = _chosen_sides(points, count, faces, _sides(key, owner_id), float(strength), limit_sq, still)
+    return _mark(points, count, faces, sides, float(strength), limit_sq, still)[inverse]
+
+
+def _sides(key, owner_id: int) -> np.ndarray:
+    """(ALTERNATIVES, BINS) float64 +-1: the side each shell is pushed to under each alternative coding
+    (+1: coded 1, ``S > 0``)."""
+    return np.where(_coded(key, owner_id) == 1, 1.0, -1.0)[:, _layout(key)[0]]
+
+
+def _chosen_sides(points: np.ndarray, count: np.ndarray, faces: np.ndarray, sides: np.ndarray, strength: float,
+                  limit_sq: float, fixed: np.ndarray | None = None) -> np.ndarray:
+    """(BINS,) float64 +-1: the row of ``sides`` (ALTERNATIVES, BINS) whose margins the budget lifts highest.
+
+    Every alternative codes the same ID; on the unmarked distinct ``points`` (k, 3) (``count`` (k,)
+    original vertices each, ``faces`` (m, 3), ``fixed`` as in :func:`_mark`) in their estimated frame,
+    a shell's margin and displacement against its amplitude are tabled once per side (:func:`_tables`),
+    and each alternative's highest margin level within ``limit_sq`` (:func:`_best_levels`) is compared:
+    the shells whose unmarked score already leans to the side an alternative asks cost it little (on
+    2.9k-vertex meshes an eighth of the shells took half of the displacement).  Ties: the first row.
+    """
+    frame = _frame(points, faces)
+    if frame[2] == 0:
+        return sides[0]
+    up, down = (_tables(points, count, frame, np.full(BINS, s), fixed) for s in (1.0, -1.0))
+    pick = (sides > 0)[:, :, None]
+    costs = _Costs(np.where(pick, up.margin, down.margin), np.where(pick, up.sq, down.sq))
+    levels, at_zero = _best_levels(costs, np.zeros(BINS), strength, limit_sq, _shape(up.shell))
+    # over the budget even at ``strength`` everywhere: the alternative that costs least there
+    return sides[int(np.argmax(np.where(levels > 0, levels, -at_zero)))]
 
 
 def unreadable(positions, faces, step: float) -> str | None:
@@ -957,6 +1019,19 @@ def _layout(key) -> tuple:
     return key.permutation(STREAM_ID, BINS), key.bits(STREAM_ID, OWNER_BITS)
 
 
+def _alternatives(key) -> np.ndarray:
+    """(ALTERNATIVES, 64) uint8 of 0 / 1: the key's alternative codings (:data:`ALTERNATIVES`), row ``j``
+    the ``64 j``-th to ``64 j + 63``-th of ``bits(ALT_STREAM_ID, 64 ALTERNATIVES)``, row 0 all zero."""
+    rows = key.bits(ALT_STREAM_ID, OWNER_BITS * ALTERNATIVES).reshape(ALTERNATIVES, OWNER_BITS).copy()
+    rows[0] = 0
+    return rows
+
+
+def _coded(key, owner_id: int) -> np.ndarray:
+    """(ALTERNATIVES, 64) uint8: ``owner_id``'s coded bits under each alternative (ID XOR whitening XOR row)."""
+    return (id_to_bits(owner_id) ^ _layout(key)[1])[None, :] ^ _alternatives(key)
+
+
 def mesh_scores(positions, faces) -> tuple:
     """The key-independent part of a read: ``(S (FRAMES, BINS) float64, mass (FRAMES, BINS) int64)``
     of a mesh (positions (n, 3), faces (m, 3)) in each frame it is read in; :func:`detect` with
@@ -966,15 +1041,22 @@ def mesh_scores(positions, faces) -> tuple:
 
 def best_frame(soft: np.ndarray, key) -> int:
     """The frame (row of ``soft`` (FRAMES, 64), the soft values read in each) whose bits differ
-    least from the key's owner ID (erased bits count as errors); 0 when the key carries none."""
+    least from the key's owner ID under the best alternative (erased bits count as errors); 0 when
+    the key carries none."""
     return 0 if key.owner_id is None else int(np.argmin(_bit_errors(soft, key)))
 
 
+def _errors_each(soft: np.ndarray, key) -> np.ndarray:
+    """int64 (..., ALTERNATIVES): bits of soft coded values (..., 64) that differ from ``key``'s owner ID
+    coded under each alternative (:func:`_coded`), erased bits (0) counted."""
+    wrong = ((soft > 0).astype(np.uint8)[..., None, :] != _coded(key, key.owner_id)) | (soft == 0)[..., None, :]
+    return np.count_nonzero(wrong, axis=-1)
+
+
 def _bit_errors(soft: np.ndarray, key):
-    """Bits of soft coded values (..., 64) that differ from ``key``'s owner ID, erased bits (0) counted:
-    int64 of shape (...)."""
-    read = (soft > 0).astype(np.uint8) ^ _layout(key)[1]
-    return np.count_nonzero((read != id_to_bits(key.owner_id)) | (soft == 0), axis=-1)
+    """Bits of soft coded values (..., 64) that differ from ``key``'s owner ID under the alternative that
+    reads it best (:func:`_errors_each`), erased bits (0) counted: int64 of shape (...)."""
+    return _errors_each(soft, key).min(axis=-1)
 
 
 def _soft_rows(scores: tuple, key) -> np.ndarray:
@@ -1011,8 +1093,8 @@ def read_soft(positions, faces, key, scores: tuple | None = None) -> np.ndarray:
     it read the key's ID with an error: the first that reads it without one is the view
     :func:`_view_read` picks, so a transported mesh, which reads it in its estimated frame, pays for
     no frame search and no un-smoothing.  The bound of
-    :func:`false_alarm_probability` covers the best of all :data:`FRAMES` views, so it covers the best
-    of those read.  ``scores``: :func:`mesh_scores` of the mesh, when already computed (positions and
+    :func:`false_alarm_probability` covers the best of all :data:`FRAMES` views under every alternative
+    coding, so it covers the best of those read.  ``scores``: :func:`mesh_scores` of the mesh, when already computed (positions and
     faces unused; the same answer).
     """
     if scores is None:
@@ -1038,7 +1120,7 @@ def _views_in_order(points: np.ndarray, faces: np.ndarray):
 
 def _verdict(soft: np.ndarray, key, reads: int = 1) -> tuple:
     """``(bit errors, erased, false-alarm probability, verdict)`` of soft coded values (64,) read for
-    ``key`` (which carries an ID), the best of ``reads`` reads of :data:`FRAMES` views each."""
+    ``key`` (which carries an ID), the best of ``reads`` reads of :data:`HYPOTHESES` codings each."""
     erased = int(np.count_nonzero(soft == 0))
     errors = int(_bit_errors(soft, key))
     return (errors, erased, *judge(errors, erased, reads))
@@ -1046,9 +1128,9 @@ def _verdict(soft: np.ndarray, key, reads: int = 1) -> tuple:
 
 def judge(errors: int, erased: int, reads: int = 1) -> tuple:
     """``(false-alarm probability, verdict)`` of a read with ``errors`` bit errors of which ``erased`` are
-    erased bits, when it is the best of ``reads`` independent reads (each of :data:`FRAMES` views: the
-    union bound over ``reads * FRAMES`` views)."""
-    p = false_alarm_probability(errors, frames=FRAMES * int(reads))
+    erased bits, when it is the best of ``reads`` independent reads (each of :data:`HYPOTHESES` codings:
+    the union bound over ``reads * HYPOTHESES`` of them)."""
+    p = false_alarm_probability(errors, frames=HYPOTHESES * int(reads))
     if OWNER_BITS - erased < MIN_BITS_READ:
         verdict = "inconclusive"
     elif p < PRESENT_BELOW:
@@ -1072,5 +1154,6 @@ def detect(positions, faces, key, scores: tuple | None = None, reads: int = 1) -
     read = (soft > 0).astype(np.uint8) ^ _layout(key)[1]
     if key.owner_id is None:
         return OwnerResult(bits_to_hex(read), OWNER_BITS, int(np.count_nonzero(soft == 0)), 1.0, "inconclusive")
+    read ^= _alternatives(key)[int(np.argmin(_errors_each(soft, key)))]  # the ID read under the best coding
     errors, erased, p, verdict = _verdict(soft, key, reads)
     return OwnerResult(bits_to_hex(read), errors, erased, p, verdict)
