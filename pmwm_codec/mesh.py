@@ -28,6 +28,7 @@ import numpy as np
 
 from .constants import MAX_ENCODE_FACES, MAX_ENCODE_VERTICES, MAX_GRID_BITS, MAX_INPUT_FILE_BYTES
 from .errors import DegenerateMeshError, InputFormatError, MeshError
+from .progressive.topology import two_alike
 from .sources import bom_codec, check_input_path, path_argument, read_regular_file
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
@@ -125,7 +126,7 @@ def checked_mesh(positions, faces, attributes=None, *, name="mesh") -> Mesh:
             raise MeshError(f"{name}: attribute {key} has {arr.shape[0]} rows for {n} vertices")
         attrs[key] = arr
 
-    degenerate = (tri[:, 0] == tri[:, 1]) | (tri[:, 1] == tri[:, 2]) | (tri[:, 0] == tri[:, 2])
+    degenerate = two_alike(tri)  # faces repeating a vertex
     tri = np.compress(~degenerate, tri, axis=0)  # tri[~degenerate], a copy, in a quarter of the time
     if tri.shape[0] == 0:
         raise DegenerateMeshError(f"{name}: every triangle is degenerate")

@@ -44,7 +44,7 @@ from ..constants import MAX_FACES, MAX_VERTICES
 from ..errors import FormatError, LimitError
 from ..progressive.grid import AttributeGrid, Grid
 from ..progressive.seams import weld_groups
-from ..progressive.topology import same_face_set
+from ..progressive.topology import same_face_set, two_alike
 from .gltf import (
     ARRAY_BUFFER,
     COMPONENT_DTYPES,
@@ -510,7 +510,7 @@ def decode_base(gltf: dict, bin_data, grid: Grid | dict, primitive: dict | None 
         positions, faces, _ = weld(positions, faces, ordinals)
         if positions.shape[0] != welded:
             raise FormatError(f"base mesh: welding gives {positions.shape[0]} vertices, baseVertexCount says {welded}")
-    if ((faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])).any():
+    if two_alike(faces).any():
         raise FormatError("base mesh: a face repeats a vertex (a valid base has only proper triangles)")
     return positions, faces
 

@@ -90,6 +90,7 @@ from ..format.gltf import (
     view_bytes,
 )
 from ..mesh import Mesh, checked_mesh, weld_duplicates, weld_soup
+from ..progressive.topology import two_alike
 from ..http import read_declared
 from .cut import data_not_arrived
 from .decoder import StreamDecoder
@@ -319,7 +320,7 @@ def _accessor_arrays(gltf, buffers, prim) -> tuple:
         raise MeshError(f"index count {len(order)} is not a multiple of 3")
     faces = triangle_list(order, mode)
     if mode == TRIANGLE_STRIP:  # a strip's restarts (an index repeated to join two strips) draw nothing
-        faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
+        faces = faces[~two_alike(faces)]
     extra = {}
     for semantic, idx in attrs.items():
         if semantic == "POSITION":
