@@ -222,15 +222,17 @@ def write_benchmarks(text: str, command: str) -> None:
 
 
 def unmarked_table(keys: int) -> str:
-    """Every unmarked corpus mesh read with ``keys`` random keys (seed 7): present count and error statistics."""
+    """Every unmarked corpus mesh read with ``keys`` random keys (seed 7): present and absent counts, error statistics."""
     rng = np.random.default_rng(7)
-    lines = [f"| unmarked mesh | vertices | present of {keys} keys | min errors | errors mean, sd |", "|---|---|---|---|---|"]
+    lines = [f"| unmarked mesh | vertices | present of {keys} keys | absent of {keys} | min errors | errors mean, sd |",
+             "|---|---|---|---|---|---|"]
     for path in sorted(p for p in CORPUS.iterdir() if p.suffix in (".obj", ".glb", ".ply", ".stl")):
         m = read_mesh(path)
         scores = owner.mesh_scores(m.positions, m.faces)  # key-independent: read once
         rs = [owner.detect(m.positions, m.faces, WatermarkKey.generate(rng=rng), scores=scores) for _ in range(keys)]
         e = np.array([r.bit_errors for r in rs])
-        lines.append(f"| {path.name} | {len(m.positions):,} | {sum(r.verdict == 'present' for r in rs)} | {e.min()} | "
+        lines.append(f"| {path.name} | {len(m.positions):,} | {sum(r.verdict == 'present' for r in rs)} | "
+                     f"{sum(r.verdict == 'absent' for r in rs)} | {e.min()} | "
                      f"{e.mean():.1f}, {e.std():.1f} |")
     return "\n".join(lines)
 
