@@ -919,36 +919,22 @@ def test_the_umbrella_operator_is_the_mean_of_the_neighbours_minus_the_point():
         assert np.allclose(u[v], closed.positions[ring].mean(0) - closed.positions[v])
 
 
-def test_the_areas_of_every_un_smoothed_view_come_from_three_cross_products(blob):
-    """``_view_areas`` (a quadratic in the step) gives the areas measured on each view directly."""
+def test_the_un_smoothed_view_is_three_explicit_steps_back_along_the_umbrella(blob):
+    """``_unsmoothed_view`` of the umbrella's powers is ``Q`` steps of ``a / Q``, each with the umbrella of the
+    positions the step before left (the operator is linear in the positions, so its powers serve every ``a``)."""
     points, inverse = owner._distinct_index(blob.positions)
     faces = inverse[blob.faces]
-    u = owner._umbrella(points, faces)
-    areas = owner._view_areas(points, u, faces)
+    powers = owner._umbrella_powers(points, faces)
+    assert len(powers) == owner.UNSMOOTH_STEPS + 1 == 4
     for a in (0.0, 0.3, 1.7, 4.0):
-        direct = owner._vertex_areas(points - a * u, faces)
-        assert np.allclose(areas(a), direct, rtol=1e-12, atol=1e-15 * direct.max())
-
-
-def test_the_un_smoothed_views_areas_are_the_same_bits_compiled_and_in_numpy(blob, monkeypatch):
-    from pmwm_codec.progressive import topology
-
-    if not topology.USE_NUMBA:
-        pytest.skip("numba is not installed")
-    points, inverse = owner._distinct_index(blob.positions)
-    faces = inverse[blob.faces]
-    u = owner._umbrella(points, faces)
-    got = []
-    for use in (False, True):
-        monkeypatch.setattr(topology, "USE_NUMBA", use)
-        areas = owner._view_areas(points, u, faces)
-        got.append([areas(a) for a in (0.0, 0.3, 1.7, 4.0)])
-    for plain, fast in zip(*got):
-        assert np.array_equal(plain, fast)
+        p = points
+        for _ in range(owner.UNSMOOTH_STEPS):
+            p = p - a / owner.UNSMOOTH_STEPS * owner._umbrella(p, faces)
+        assert np.allclose(owner._unsmoothed_view(powers, a), p, rtol=0, atol=1e-12 * np.abs(points).max())
 
 
 @pytest.mark.parametrize("iterations", [10, 30])
-def test_a_smoothed_mesh_reads_present_through_one_step_back(blob, marked, monkeypatch, iterations):
+def test_a_smoothed_mesh_reads_present_through_steps_back(blob, marked, monkeypatch, iterations):
     """Laplacian smoothing shrinks the surface unevenly by tenths of a shell: read as it is, the marked mesh
     after 10 or 30 iterations is absent; the read's un-smoothed view reads it present."""
     key, pos = marked
@@ -959,6 +945,22 @@ def test_a_smoothed_mesh_reads_present_through_one_step_back(blob, marked, monke
     assert owner.detect(smoothed, blob.faces, key).verdict == "absent"
 
 
+def test_on_a_coarse_mesh_three_steps_back_read_what_one_step_misses(monkeypatch):
+    """On ~40 vertices a shell the neighbours lie shells apart, and 30 smoothing iterations are far from the
+    first-order reach of one step back: with one step 4 keys read 3-7 errors, with three none."""
+    m = shapes.icosphere(4, 1.0, noise=0.03, seed=5)
+    pos, faces = m.positions * np.array([1.0, 0.7, 0.5]), m.faces
+    errors = {}
+    for steps in (1, owner.UNSMOOTH_STEPS):
+        monkeypatch.setattr(owner, "UNSMOOTH_STEPS", steps)
+        errors[steps] = []
+        for k in range(4):
+            key = WatermarkKey.generate(rng=np.random.default_rng(40 + k))
+            smoothed = _laplacian_smoothing(owner.embed(pos, faces, key), faces, 30)
+            errors[steps].append(owner.detect(smoothed, faces, key).bit_errors)
+    assert errors[owner.UNSMOOTH_STEPS] == [0, 0, 0, 0] and sum(errors[1]) > 8
+
+
 def test_the_un_smoothing_step_is_chosen_by_the_mesh_alone(blob, marked):
     """The step comes from sum |S_k| in the estimated frame, not from any key: the more iterations of
     smoothing, the larger the step back."""
@@ -967,8 +969,8 @@ def test_the_un_smoothing_step_is_chosen_by_the_mesh_alone(blob, marked):
     def step(positions):
         p, inverse = owner._distinct_index(positions)
         faces = inverse[blob.faces]
-        view = owner._unsmoothed(p, faces)
-        return min(owner.UNSMOOTH, key=lambda a: np.abs(view - (p - a * owner._umbrella(p, faces))).max())
+        view, powers = owner._unsmoothed(p, faces), owner._umbrella_powers(p, faces)
+        return min(owner.UNSMOOTH, key=lambda a: np.abs(view - owner._unsmoothed_view(powers, a)).max())
 
     steps = [step(_laplacian_smoothing(pos, blob.faces, it)) for it in (5, 20, 30)]
     assert steps[0] < steps[1] < steps[2]

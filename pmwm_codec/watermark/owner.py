@@ -61,12 +61,12 @@ transport noise at embedding time):
    stream estimate their frame 0.2-0.3 widths off and the search could lock onto the
    alias).  Laplacian smoothing also shrinks the curved parts of the surface radially by
    tenths of a shell width, unevenly, which moves ``t`` itself: no frame undoes that, and
-   the read also takes the mesh **un-smoothed** (:func:`_unsmoothed`), one explicit step
-   back ``p - a U(p)`` with the umbrella operator ``U``, the step ``a`` the one whose
+   the read also takes the mesh **un-smoothed** (:func:`_unsmoothed`), three explicit steps
+   back ``(I - a/3 U)^3 p`` with the umbrella operator ``U``, the step ``a`` the one whose
    estimated frame has the highest ``sum_k |S_k|``, in its estimated frame and the one a
    pattern search climbs to from it
    (the 23k-vertex dragon after 30 iterations: BER 0.089 -> 0.000, the fandisk 0.411 ->
-   0.000, 3 keys).  The four views of the mesh as it is are read first; unless one reads the
+   0.000, 3 keys, with one step; the 2.9k-vertex cow 0.372 -> 0.003 with three instead of one).  The four views of the mesh as it is are read first; unless one reads the
    key's ID without an error the two un-smoothed ones are read too, and of the views read the
    one with the fewest errors counts (``FRAMES = 6`` views in the false-alarm bound).  The bit
    is the sign of its soft value (0: erased, counted as an error); XOR the whitening bits and the
@@ -135,15 +135,23 @@ SEARCH_STEPS = (0.1, 0.05, 0.025, 0.0125)
 #: Climbs of the search, from the best points of its coarse grid (measured, 5 keys: on the 23k-vertex
 #: dragon after 30 smoothing iterations 1 climb reads BER 0.175, 4 climbs 0.100, 8 climbs 0.100).
 SEARCH_STARTS = 4
-#: Un-smoothing steps the read tries (:func:`_unsmoothed`): the mesh is also read at ``p - a U(p)``
-#: (``U`` the umbrella operator: each point's neighbours' mean minus the point) for the ``a`` of these
-#: (1/4 to 4 in steps of sqrt 2) whose estimated frame has the highest ``sum_k |S_k|``.  Laplacian
-#: smoothing shrinks the curved parts of a surface radially by tenths of a shell width, unevenly, which
-#: moves ``t`` and reads bits inverted; one explicit step back undoes most of it.  ``sum_k |S_k|`` peaks
+#: Un-smoothing steps the read tries (:func:`_unsmoothed`): the mesh is also read at ``(I - a/Q U)^Q p``
+#: (``U`` the umbrella operator: each point's neighbours' mean minus the point; ``Q`` =
+#: :data:`UNSMOOTH_STEPS`) for the ``a`` of these (1/4 to 4 in steps of sqrt 2) whose estimated frame has
+#: the highest ``sum_k |S_k|``.  Laplacian smoothing shrinks the curved parts of a surface radially by
+#: tenths of a shell width, unevenly, which moves ``t`` and reads bits inverted; explicit steps back
+#: undo most of it.  ``sum_k |S_k|`` peaks
 #: near the step that undoes the smoothing (about 0.05 per iteration of the benchmark's smoothing:
 #: 1/4 after 5, 1 after 20, 1.4 after 30 on a marked 10k-vertex test mesh) and picks at random on a
 #: mesh that was not smoothed, which the views of the mesh as it is read anyway.
 UNSMOOTH = tuple(0.25 * 2.0 ** (j / 2) for j in range(9))
+#: The un-smoothing step ``a`` is taken in this many explicit steps of ``a / UNSMOOTH_STEPS``, the umbrella of
+#: each applied to the last: ``(I - a/Q U)^Q`` is nearer the inverse of the smoothing, ``(I - lambda U)^-N``
+#: (``a ~ N lambda``; ``Q`` = 1 is first order only), where the mesh's neighbours lie far apart against a
+#: shell, as on a mesh of a few thousand vertices.  Measured (5 keys, the benchmark's smoothing): cow /
+#: spot after 30 iterations BER 0.372 / 0.100 with 1 step, 0.028 / 0.000 with 2, 0.003 / 0.000 with 3,
+#: 0.000 / 0.000 with 4; the fandisk and the 23k-vertex dragon 0.000 with 1 and 3 (BENCHMARKS.md).
+UNSMOOTH_STEPS = 3
 #: Views a read tries (:func:`_read_frames`): in the mesh as it is, the estimate, the searched frame and its
 #: two half-shell aliases (:func:`_searched_frames`: ``AS_IS``); in the mesh un-smoothed (:func:`_unsmoothed`),
 #: the estimate and the frame one climb reaches.  The un-smoothed ones are read unless one of the first
@@ -611,71 +619,46 @@ def _umbrella(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 def _unsmoothed(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(k, 3) float64: ``points - a * umbrella`` (:func:`_umbrella`) for the step ``a`` with the highest
-    ``sum_k |S_k|`` in its estimated frame (:func:`_frame`): the best of :data:`UNSMOOTH`, then
-    refined by factors of 2^(+-1/4) and 2^(+-1/8) about it (ties: the earlier); ``points`` (k, 3)
-    float64 distinct positions, ``faces`` (m, 3) indexing them.
+    """(k, 3) float64: :func:`_unsmoothed_view` of the step ``a`` with the highest ``sum_k |S_k|`` in its
+    estimated frame (:func:`_frame`): the best of :data:`UNSMOOTH`, then refined by factors of 2^(+-1/4)
+    and 2^(+-1/8) about it (ties: the earlier); ``points`` (k, 3) float64 distinct positions, ``faces``
+    (m, 3) indexing them.
 
-    One explicit step of the reverse of Laplacian smoothing: a smoothed surface read so has its
-    vertices back near the shell positions the marking gave them (``sum_k |S_k|`` peaks within
-    a tenth of the step that undoes it).  The choice depends on the mesh alone, not on a key.
+    Explicit steps of the reverse of Laplacian smoothing: a smoothed surface read so has its vertices
+    back near the shell positions the marking gave them (``sum_k |S_k|`` peaks within a tenth of the
+    step that undoes it).  The choice depends on the mesh alone, not on a key.
     """
-    u = _umbrella(points, faces)
-    areas = _view_areas(points, u, faces)
+    powers = _umbrella_powers(points, faces)
 
     @functools.cache
     def score(a):
-        p = points - a * u
-        return float(np.abs(_frame_scores(p, _frame(p, faces, areas(a)))[0]).sum())
+        p = _unsmoothed_view(powers, a)
+        return float(np.abs(_frame_scores(p, _frame(p, faces))[0]).sum())
 
     best = max(UNSMOOTH, key=score)
     for factor in (2.0**0.25, 2.0**0.125):
         best = max((best, best * factor, best / factor), key=score)
-    return points - best * u
+    return _unsmoothed_view(powers, best)
 
 
-def _view_areas(points: np.ndarray, u: np.ndarray, faces: np.ndarray):
-    """``areas(a)``: :func:`_vertex_areas` of ``points - a * u`` ((k, 3) each; ``faces`` (m, 3)) for any
-    step ``a``, as (k,) float64, from three cross products taken once.
-
-    :func:`_relaxed` is linear in the positions, so a relaxed face's edge vectors are ``e - a d``
-    and twice its area ``|e1 x e2 - a (e1 x d2 + d1 x e2) + a^2 d1 x d2|`` (equal to the direct
-    computation up to rounding).
-    """
-    faces = np.asarray(faces, np.int64).reshape(-1, 3)
-    k = len(points)
-    if len(faces) == 0:
-        return lambda a: np.ones(k)
-    r, q = _relaxed(points, faces)[faces], _relaxed(u, faces)[faces]
-    e1, e2, d1, d2 = r[:, 1] - r[:, 0], r[:, 2] - r[:, 0], q[:, 1] - q[:, 0], q[:, 2] - q[:, 0]
-    c0, c1, c2 = np.cross(e1, e2), np.cross(e1, d2) + np.cross(d1, e2), np.cross(d1, d2)
-    corner = faces.ravel()
-    kernel = compiled(_view_areas_py) if len(faces) >= _COMPILED_FACES else None
-
-    def areas(a):
-        if kernel is not None:
-            w = kernel(c0, c1, c2, a, faces, k)
-        else:
-            area = 0.5 * np.linalg.norm(c0 - a * c1 + (a * a) * c2, axis=1)
-            w = np.bincount(corner, weights=np.repeat(area / 3.0, 3), minlength=k)
-        return w if w.sum() > 0 else np.ones(k)
-
-    return areas
+def _umbrella_powers(points: np.ndarray, faces: np.ndarray) -> list:
+    """``[U^j p for j in 0 .. UNSMOOTH_STEPS]``, each (k, 3) float64: ``points`` (k, 3) and the umbrella
+    operator (:func:`_umbrella`, linear in the positions; ``faces`` (m, 3)) applied to each power in turn."""
+    powers = [np.asarray(points, np.float64)]
+    for _ in range(UNSMOOTH_STEPS):
+        powers.append(_umbrella(powers[-1], faces))
+    return powers
 
 
-def _view_areas_py(c0, c1, c2, a, faces, k):
-    """Kernel of :func:`_view_areas`' ``areas(a)``: (k,) float64, a third of ``|c0 - a c1 + a^2 c2| / 2`` (each
-    (m, 3) float64) added to each corner of ``faces`` (m, 3) int64, in the numpy path's order (the same bits)."""
-    w = np.zeros(k)
-    aa = a * a
-    for f in range(faces.shape[0]):
-        x = c0[f, 0] - a * c1[f, 0] + aa * c2[f, 0]
-        y = c0[f, 1] - a * c1[f, 1] + aa * c2[f, 1]
-        z = c0[f, 2] - a * c1[f, 2] + aa * c2[f, 2]
-        third = 0.5 * math.sqrt(x * x + y * y + z * z) / 3.0
-        for c in range(3):
-            w[faces[f, c]] += third
-    return w
+def _unsmoothed_view(powers: list, a: float) -> np.ndarray:
+    """(k, 3) float64: ``(I - a/Q U)^Q p`` = ``sum_j C(Q, j) (-a/Q)^j U^j p`` from ``powers`` (the list of
+    :func:`_umbrella_powers`, ``Q + 1`` terms): ``Q`` explicit steps of ``a / Q`` back along the umbrella,
+    each step's umbrella that of the positions the step before left."""
+    q = len(powers) - 1
+    view = powers[0].copy()
+    for j in range(1, q + 1):
+        view += math.comb(q, j) * (-a / q) ** j * powers[j]
+    return view
 
 
 def _read_frames(points: np.ndarray, faces: np.ndarray, unsmoothed: bool = True) -> list:
