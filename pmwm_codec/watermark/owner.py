@@ -171,9 +171,10 @@ STREAM_ID = int.from_bytes(b"owner", "big")
 #: marks made before there was a choice).  The encoder takes the one whose shells' sides the unmarked mesh
 #: already leans to most (the highest margin level the RMS budget reaches); the read compares the ID with
 #: every alternative, so the false-alarm bound counts ``FRAMES * ALTERNATIVES`` codings.  32 is the most
-#: that keeps ``present`` at 6 errors or fewer (64 would take it to 5); measured against one coding (5 keys,
-#: the same budget): cow noise 0.30% BER 0.094 -> 0.053, spot 0.128 -> 0.028, spot smoothing 30 iterations
-#: 0.400 -> 0.006, fandisk 8-bit 0.122 -> 0.031 (BENCHMARKS.md "Owner layer").
+#: that keeps ``present`` at 6 errors or fewer (64 would take it to 5); measured against one coding
+#: (``tools/owner_attacks.py``, 5 keys, the same budget): cow / spot noise 0.30% BER 0.147 / 0.078 -> 0.044 /
+#: 0.044, 9-bit quantization 0.097 / 0.066 -> 0.059 / 0.025, fandisk 8-bit 0.078 -> 0.059 (BENCHMARKS.md
+#: "Owner layer").
 ALTERNATIVES = 32
 ALT_STREAM_ID = int.from_bytes(b"owneralt", "big")
 #: Codings a read compares with the key's ID: every view (:data:`FRAMES`) under every alternative.
@@ -745,7 +746,8 @@ class _Tables:
 
 @dataclass
 class _Costs:
-    """The part of :class:`_Tables` that prices margins: ``margin``, ``sq`` (BINS, _FLOW_A) float64."""
+    """The part of :class:`_Tables` that prices margins: ``margin``, ``sq`` (..., BINS, _FLOW_A) float64 (one
+    set of shells, or a leading axis of several: :func:`_best_levels`)."""
 
     margin: np.ndarray
     sq: np.ndarray
