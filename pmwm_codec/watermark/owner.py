@@ -956,10 +956,15 @@ def _chosen_sides(points: np.ndarray, count: np.ndarray, faces: np.ndarray, side
     frame = _frame(points, faces)
     if frame[2] == 0:
         return sides[0]
-    up, down = (_tables(points, count, frame, np.full(BINS, s), fixed) for s in (1.0, -1.0))
+    priced = {}
+    for side in (1.0, -1.0):  # one table at a time: each holds (k, _FLOW_A) flows, only its prices are kept
+        tab = _tables(points, count, frame, np.full(BINS, side), fixed)
+        priced[side], shape = (tab.margin, tab.sq), _shape(tab.shell)
+        del tab
+    (m_up, sq_up), (m_down, sq_down) = priced[1.0], priced[-1.0]
     pick = (sides > 0)[:, :, None]
-    costs = _Costs(np.where(pick, up.margin, down.margin), np.where(pick, up.sq, down.sq))
-    levels, at_zero = _best_levels(costs, np.zeros(BINS), strength, limit_sq, _shape(up.shell))
+    costs = _Costs(np.where(pick, m_up, m_down), np.where(pick, sq_up, sq_down))
+    levels, at_zero = _best_levels(costs, np.zeros(BINS), strength, limit_sq, shape)
     # over the budget even at ``strength`` everywhere: the alternative that costs least there
     return sides[int(np.argmax(np.where(levels > 0, levels, -at_zero)))]
 
