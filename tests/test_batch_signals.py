@@ -184,3 +184,24 @@ def test_an_encoder_whose_worker_is_gone_as_it_starts_ends_without_a_word():
     done = subprocess.run([sys.executable, "-c", _STOP_WHILE_THE_WATCH_STARTS], capture_output=True, text=True,
                           timeout=60, cwd=ROOT)
     assert (done.returncode, done.stderr) == (-signal.SIGTERM, "")
+
+
+_ORPHANED_REQUEST = """
+import multiprocessing, multiprocessing.forkserver as fs, os, socket, sys
+multiprocessing.get_context("forkserver").set_forkserver_preload([sys.argv[1]])
+fs.ensure_running()
+with socket.socket(socket.AF_UNIX) as s:  # a worker that dies before it sends its request's descriptors
+    s.connect(fs._forkserver._forkserver_address)
+os.waitpid(fs._forkserver._forkserver_pid, 0)  # the forkserver reads the end of the request and ends
+"""
+
+
+@pytest.mark.parametrize("preload, quiet", [("pmwm_codec.batch.warm", True), ("json", False)])
+def test_a_forkserver_whose_worker_dies_mid_request_ends_without_a_traceback(preload, quiet):
+    """A run killed while a worker asks its forkserver for an encoder left multiprocessing's EOFError traceback on
+    the terminal after the command had ended (the test above, once in a full run); the batch's forkserver imports
+    ``pmwm_codec.batch.warm``, which ends it quietly.  Without it (``json`` preloaded) the traceback shows."""
+    done = subprocess.run([sys.executable, "-c", _ORPHANED_REQUEST, preload], capture_output=True, text=True,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert (done.stderr == "") if quiet else ("EOFError" in done.stderr), done.stderr
