@@ -116,14 +116,17 @@ def read_cell(V, F, key, coding):
     vertices reads its bit wrong with probability ~ Q(sqrt(n) * mean / sd).
     """
     result = owner_of_mesh(Mesh(V, F), key)
-    parts = pieces(Mesh(V, F))
-    errors = min(int(owner._errors_each(owner._soft_rows(owner.mesh_scores(m.positions, m.faces), key), key)[:, coding].min())
-                 for m in [Mesh(V, F)] + parts)
-    if parts:
-        return result, errors, float("nan"), float("nan"), float("nan")
     points, inverse = owner._distinct_index(V)
     views = owner._read_frames(points, inverse[np.asarray(F, np.int64)])
     scores = owner._scores_of(views)
+    parts = pieces(Mesh(V, F))
+
+    def written(scores):  # errors of the coding written, in the best view
+        return int(owner._errors_each(owner._soft_rows(scores, key), key)[:, coding].min())
+
+    errors = min([written(scores)] + [written(owner.mesh_scores(m.positions, m.faces)) for m in parts])
+    if parts:
+        return result, errors, float("nan"), float("nan"), float("nan")
     shell, t, _, _ = owner._shells(*views[owner._view_read(scores, key)])
     inside = shell >= 0
     g = owner.g_of_t(t[inside])

@@ -868,7 +868,7 @@ def _worst(marked: np.ndarray, faces: np.ndarray, shell_side: np.ndarray, seed: 
 
 
 def _mark(points: np.ndarray, count: np.ndarray, faces: np.ndarray, shell_side: np.ndarray,
-          strength: float, limit_sq: float, fixed: np.ndarray | None = None) -> np.ndarray:
+          strength: float, limit_sq: float, fixed: np.ndarray | None = None, frame: tuple | None = None) -> np.ndarray:
     """The marked distinct positions (k, 3): the feedback loop of :func:`embed`.
 
     Each round takes the frame of the current marked points, tables every shell's margin and
@@ -879,12 +879,13 @@ def _mark(points: np.ndarray, count: np.ndarray, faces: np.ndarray, shell_side: 
     transport; a shell short of its margin in any of them gets that shortfall (x
     :data:`_OVERSHOOT`) added to its ``extra``.  Stops when none is short or after
     :data:`_ROUNDS` rounds (a mesh too small for 64 bits may keep a few short bits).  ``fixed`` (k,)
-    bool or None: points that never move (they count in the scores).
+    bool or None: points that never move (they count in the scores).  ``frame``: :func:`_frame` of
+    ``points``, when the caller has it (the first round's).
     """
     extra = np.zeros(BINS)
     marked = points
-    for _ in range(_ROUNDS):
-        frame = _frame(marked, faces)
+    for round_ in range(_ROUNDS):
+        frame = frame if round_ == 0 and frame is not None else _frame(marked, faces)
         if frame[2] == 0:
             return points
         tab = _tables(points, count, frame, shell_side, fixed)
@@ -932,8 +933,9 @@ def embed(positions, faces, key, owner_id: int | None = None, strength: float = 
     if fixed is not None:
         still = np.zeros(len(points), bool)
         still[inverse[np.asarray(fixed, bool).reshape(-1)]] = True
-    sides = _chosen_sides(points, count, faces, _sides(key, owner_id), float(strength), limit_sq, still)
-    return _mark(points, count, faces, sides, float(strength), limit_sq, still)[inverse]
+    frame = _frame(points, faces)  # the unmarked points' frame: the choice of coding's and the first round's
+    sides = _chosen_sides(points, count, faces, _sides(key, owner_id), float(strength), limit_sq, still, frame)
+    return _mark(points, count, faces, sides, float(strength), limit_sq, still, frame)[inverse]
 
 
 def _sides(key, owner_id: int) -> np.ndarray:
@@ -943,7 +945,7 @@ def _sides(key, owner_id: int) -> np.ndarray:
 
 
 def _chosen_sides(points: np.ndarray, count: np.ndarray, faces: np.ndarray, sides: np.ndarray, strength: float,
-                  limit_sq: float, fixed: np.ndarray | None = None) -> np.ndarray:
+                  limit_sq: float, fixed: np.ndarray | None = None, frame: tuple | None = None) -> np.ndarray:
     """(BINS,) float64 +-1: the row of ``sides`` (ALTERNATIVES, BINS) whose margins the budget lifts highest.
 
     Every alternative codes the same ID; on the unmarked distinct ``points`` (k, 3) (``count`` (k,)
@@ -952,8 +954,9 @@ def _chosen_sides(points: np.ndarray, count: np.ndarray, faces: np.ndarray, side
     and each alternative's highest margin level within ``limit_sq`` (:func:`_best_levels`) is compared:
     the shells whose unmarked score already leans to the side an alternative asks cost it little (on
     2.9k-vertex meshes an eighth of the shells took half of the displacement).  Ties: the first row.
+    ``frame``: :func:`_frame` of ``points``, when the caller has it.
     """
-    frame = _frame(points, faces)
+    frame = _frame(points, faces) if frame is None else frame
     if frame[2] == 0:
         return sides[0]
     priced = {}
