@@ -137,6 +137,21 @@ def test_weld_groups_name_the_smallest_copy_and_treat_signed_zeros_alike():
     assert weld_groups(np.eye(3)) is None
 
 
+def test_weld_groups_match_a_row_by_row_comparison_and_never_weld_a_nan():
+    rng = np.random.default_rng(7)
+    for d in (3, 5):
+        rows = rng.integers(-3, 4, (400, d)).astype(np.float64)  # many repeats, negative values among them
+        rows[rng.random(400) < 0.1] *= -0.0  # signed zeros
+        rows[rng.integers(0, 400, 12), rng.integers(0, d, 12)] = np.nan
+        expect = np.arange(400)
+        for i in range(400):  # the smallest row equal to row i (NaN equals nothing, itself included)
+            same = np.flatnonzero((rows == rows[i]).all(axis=1))
+            expect[i] = same[0] if len(same) else i
+        weld = weld_groups(rows)
+        assert weld is not None and weld.tolist() == expect.tolist()
+        assert (weld[np.isnan(rows).any(axis=1)] == np.flatnonzero(np.isnan(rows).any(axis=1))).all()
+
+
 @pytest.mark.parametrize("name", sorted(SEAMED))
 def test_seams_never_crack_at_any_batch_and_collapse_in_twin_pairs(name, monkeypatch):
     mesh = SEAMED[name]()

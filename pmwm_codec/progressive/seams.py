@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .topology import compiled, expand
+from .topology import any_corner, compiled, expand
 
 
 def weld_groups(positions: np.ndarray) -> np.ndarray | None:
@@ -75,15 +75,29 @@ def weld_groups(positions: np.ndarray) -> np.ndarray | None:
         if k >= len(_HASH_FACTORS):  # more columns than factors: mix before reusing one
             h = (h << np.uint64(13)) | (h >> np.uint64(51))
     cand = _repeated_hashes(h)
+    cand = cand[~np.isnan(pts[cand]).any(axis=1)] if len(cand) else cand  # a NaN equals nothing: no copies
     if len(cand) == 0:
         return None
-    _, inverse = np.unique(pts[cand], axis=0, return_inverse=True)
-    inverse = inverse.reshape(-1)
+    inverse = _row_groups(bits[cand])
     rep = np.full(int(inverse.max()) + 1, n, np.int64)
     np.minimum.at(rep, inverse, cand)
     weld = np.arange(n, dtype=np.int64)
     weld[cand] = rep[inverse]
     return None if np.array_equal(weld, np.arange(n)) else weld
+
+
+def _row_groups(rows: np.ndarray) -> np.ndarray:
+    """(c,) int64: a group number for each row of ``rows`` (c, d) uint64, equal exactly when the rows are
+    (numbered in the rows' lexicographic order; one lexsort of the columns, ~5x faster than
+    ``np.unique(axis=0)`` on a scan's shared points)."""
+    order = np.lexsort(rows.T[::-1])
+    s = rows[order]
+    new = np.ones(len(s), bool)
+    if len(s) > 1:
+        new[1:] = (s[1:] != s[:-1]).any(axis=1) if s.shape[1] > 1 else s[1:, 0] != s[:-1, 0]
+    inverse = np.empty(len(s), np.int64)
+    inverse[order] = np.cumsum(new) - 1
+    return inverse
 
 
 #: Odd 64-bit multipliers of :func:`weld_groups`' row hash, one per column (the first three as they were).
@@ -223,7 +237,7 @@ def _rim(faces: np.ndarray, n: int) -> np.ndarray:
             np.add.at(maybe, corner, weight[faces[:, [1, 2, 0]].reshape(-1)].astype(np.uint64))
             np.subtract.at(maybe, corner, weight[faces[:, [2, 0, 1]].reshape(-1)].astype(np.uint64))
         maybe = maybe != 0
-        touching = maybe[faces].any(axis=1)
+        touching = any_corner(maybe, faces)
     if not maybe.any():
         return np.zeros(0, np.int64)
     near = faces[touching]
@@ -257,7 +271,7 @@ def _cut_vertices(pid: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
     two faces), so one end at least is a vertex whose point another vertex has: only the faces holding one
     are read, and every edge with such an end has all its faces among them (its count is exact)."""
     shared = np.bincount(pid, minlength=n)[pid] > 1
-    faces = faces[shared[faces].any(axis=1)]
+    faces = faces[any_corner(shared, faces)]
     a = faces.reshape(-1)
     b = faces[:, [1, 2, 0]].reshape(-1)
     _, edge, count = np.unique(np.minimum(a, b) * n + np.maximum(a, b), return_inverse=True, return_counts=True)

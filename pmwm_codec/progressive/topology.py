@@ -331,6 +331,13 @@ def face_keys(faces: np.ndarray):
     return np.take_along_axis(faces, idx, axis=1)
 
 
+def any_corner(flags: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(m,) bool: the faces of ``faces`` (m, 3) int with a corner whose vertex has ``flags`` (n,) bool;
+    ``flags[faces].any(axis=1)``, the three columns or-ed (numpy's ``any`` along a row of three is
+    ~10x the time on a scan's faces)."""
+    return flags[faces[:, 0]] | flags[faces[:, 1]] | flags[faces[:, 2]]
+
+
 def two_alike(keys: np.ndarray) -> np.ndarray:
     """(m,) bool: the rows of ``keys`` (m, 3) (a value per face corner: a grid point, a seam group) with two
     equal values; a face whose corners ``keys`` tells apart has none."""

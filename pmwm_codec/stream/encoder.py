@@ -971,8 +971,9 @@ def _sliver_faces(points: np.ndarray, faces: np.ndarray, weld: np.ndarray | None
     spot = np.full(m, -1, np.int64)
     spot[near] = np.arange(len(near))
     tri = faces[near]
-    ends = np.sort(np.stack([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]], axis=1), axis=2)
-    keys, edge, counts = np.unique(ends[..., 0] * n + ends[..., 1], return_inverse=True, return_counts=True)
+    nxt = tri[:, [1, 2, 0]]  # each near face's edges (0 1), (1 2), (2 0), as undirected keys
+    _, edge, counts = np.unique(np.minimum(tri, nxt) * n + np.maximum(tri, nxt), return_inverse=True,
+                                   return_counts=True)
     edge = edge.reshape(-1, 3)  # each near face's edges, as indices into keys
     faces_at = np.bincount(tri.ravel(), minlength=n)  # a vertex's faces (complete for the marked ones)
     first = [pair[:, k] for k in range(3)]
