@@ -63,6 +63,73 @@ def test_transport_leaves_no_bit_error(blob, marked):
         assert owner.detect(np.asarray(d.points, np.float64), np.asarray(d.faces).reshape(-1, 3), key).bit_errors == 0
 
 
+def _gapped_ellipsoid():
+    """An ellipsoid whose norms leave most of one shell of its estimated frame empty (the vertices of that
+    shell's middle 85% moved radially to the nearer of its bounds: a gap, as between a teapot's body and lid)."""
+    m = shapes.icosphere(4)
+    pos, faces = m.positions * np.array([1.0, 0.7, 0.45]), m.faces
+    points, inverse = owner._distinct_index(pos)
+    c, lo, w = owner._frame(points, inverse[faces])
+    d = pos - c
+    r = np.linalg.norm(d, axis=1)
+    a, b = lo + 32.075 * w, lo + 32.925 * w
+    gap = (r > a) & (r < b)
+    return Mesh(np.where(gap[:, None], c + d * (np.where(r - a < b - r, a, b) / r)[:, None], pos), faces)
+
+
+def test_a_gap_in_the_norms_is_marked_in_a_frame_the_read_finds_so_no_bit_is_lost():
+    mesh = _gapped_ellipsoid()
+    points, inverse = owner._distinct_index(mesh.positions)
+    faces = inverse[mesh.faces]
+    assert owner._reach(points, owner._frame(points, faces)).min() < owner.DEFAULT_STRENGTH  # a shell short
+    frame, offset = owner._embedding_frame(points, faces, owner.DEFAULT_STRENGTH)
+    assert offset is not None and owner._reach(points, frame).min() >= owner.REACH_FACTOR * owner.DEFAULT_STRENGTH
+    rng = np.random.default_rng(5)
+    estimate_errors = []
+    for _ in range(4):
+        key = WatermarkKey.generate(rng=rng)
+        pos = owner.embed(mesh.positions, mesh.faces, key)
+        for p in (pos, pos.astype(np.float32).astype(np.float64), _grid_quantize(pos, 14, np.random.default_rng(3))):
+            r = owner.detect(p, mesh.faces, key)
+            assert r.bit_errors == 0 and r.verdict == "present"
+        assert _rms_of_diagonal(mesh.positions, pos) < 0.0002
+        with pytest.MonkeyPatch.context() as mp:  # the same keys marked in the estimate lose bits
+            mp.setattr(owner, "_embedding_frame", lambda p, f, s: (owner._frame(p, f), None))
+            estimate_errors.append(owner.detect(owner.embed(mesh.positions, mesh.faces, key), mesh.faces, key).bit_errors)
+    assert sum(e > 0 for e in estimate_errors) >= 2
+
+
+def test_a_mark_in_the_searched_grid_is_kept_unless_one_in_the_estimate_reads_better(monkeypatch):
+    mesh = _gapped_ellipsoid()
+    key = WatermarkKey.generate(rng=np.random.default_rng(5))
+    reads = []
+    real = owner._read_errors
+
+    def counted(points, faces, k):
+        reads.append(real(points, faces, k))
+        return reads[-1]
+
+    monkeypatch.setattr(owner, "_read_errors", counted)
+    pos = owner.embed(mesh.positions, mesh.faces, key)
+    assert len(reads) == 2 and reads[0] < reads[1]  # the offset frame's mark read better: kept
+    assert owner.detect(pos, mesh.faces, key).bit_errors == reads[0]
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(owner, "_embedding_frame", lambda p, f, s: (owner._frame(p, f), None))
+        plain = owner.embed(mesh.positions, mesh.faces, key)
+    monkeypatch.setattr(owner, "_read_errors", lambda points, faces, k: 5)  # a tie: the offset frame's mark
+    assert np.array_equal(owner.embed(mesh.positions, mesh.faces, key), pos)
+    scores = iter([6, 5])  # the estimate's reads better: its mark
+    monkeypatch.setattr(owner, "_read_errors", lambda points, faces, k: next(scores))
+    assert np.array_equal(owner.embed(mesh.positions, mesh.faces, key), plain)
+
+
+def test_a_mesh_whose_every_shell_can_be_marked_is_marked_in_its_estimated_frame(blob):
+    points, inverse = owner._distinct_index(blob.positions)
+    faces = inverse[blob.faces]
+    frame, offset = owner._embedding_frame(points, faces, owner.DEFAULT_STRENGTH)
+    assert offset is None and all(np.array_equal(x, y) for x, y in zip(frame, owner._frame(points, faces)))
+
+
 def test_duplicated_vertices_do_not_change_what_is_read(blob, marked):
     """Seam duplicates (and the vertices Draco splits at them) count once: the soft values are equal."""
     key, pos = marked
