@@ -130,6 +130,27 @@ def test_a_mesh_whose_every_shell_can_be_marked_is_marked_in_its_estimated_frame
     assert offset is None and all(np.array_equal(x, y) for x, y in zip(frame, owner._frame(points, faces)))
 
 
+def test_the_encoders_read_back_counts_the_pieces_a_mesh_file_is_read_in(monkeypatch):
+    """6 errors read ``present`` from one read (8.7e-10) and not from the best of two (1.7e-9): the encoder's
+    check must read as ``pmw verify MESH`` does, whole and piece by piece, or it lets through a layer the
+    decoded mesh reads ``inconclusive`` (a sphere beside a second large piece)."""
+    from pmwm_codec.stream import encoder
+    from pmwm_codec.verify import owner as verify_owner
+
+    def six_errors(positions, faces, key, scores=None, reads=1):
+        p, verdict = owner.judge(6, 0, reads)
+        return owner.OwnerResult(key.owner_hex, 6, 0, p, verdict)
+
+    monkeypatch.setattr(verify_owner, "detect", six_errors)
+    key = WatermarkKey.generate(rng=np.random.default_rng(3))
+    one = shapes.icosphere(3)  # 642 vertices: a piece of its own beside another
+    two = Mesh(np.concatenate([one.positions, one.positions * 0.5 + 3.0]), np.concatenate([one.faces, one.faces + 642]))
+    assert owner.judge(6, 0, 1)[1] == "present" and owner.judge(6, 0, 2)[1] != "present"
+    assert encoder._owner_check([one.positions], [one.faces], key, [[np.eye(4)]]) is None
+    why = encoder._owner_check([two.positions], [two.faces], key, [[np.eye(4)]])
+    assert why is not None and "6 of its 64 bits" in why
+
+
 def test_duplicated_vertices_do_not_change_what_is_read(blob, marked):
     """Seam duplicates (and the vertices Draco splits at them) count once: the soft values are equal."""
     key, pos = marked
@@ -584,6 +605,20 @@ def test_an_explicit_owner_id_the_mesh_cannot_carry_is_refused_and_nothing_is_wr
     assert main(["encode", str(torus), "-o", str(out / "t.pmw"), "--owner-id", "ff", "-q"]) == 2
     assert "too few distinct values" in capsys.readouterr().err
     assert _files(out) == []  # no .pmw, no key
+
+
+def test_a_mesh_too_large_for_float32_is_refused_in_one_line_with_the_owner_layer_asked(tmp_path, capsys):
+    import warnings
+
+    src = tmp_path / "big.obj"  # a diagonal whose square is past float64: no overflow warning before the refusal
+    src.write_text("v 0 0 0\nv 1e160 0 0\nv 0 1e160 0\nf 1 2 3\n")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        code = main(["encode", str(src), "-o", str(tmp_path / "b.pmw"), "--owner-id", "1"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "float32" in err
+    assert [str(w.message) for w in caught] == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["big.obj"]
 
 
 def test_the_default_owner_layer_is_left_out_with_a_notice_where_it_cannot_be_read_back(tmp_path, capsys):

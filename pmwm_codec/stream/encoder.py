@@ -487,11 +487,13 @@ def _owner_check(positions: list, faces: list, key: WatermarkKey, frames: list) 
     """Why the owner layer does not read back ``present`` from the primitives' stored positions (a list
     of (n_i, 3)) and faces (a list of (m_i, 3)), each placed once per world matrix of its mesh
     (``frames``, :func:`~pmwm_codec.format.gltf.owner_placements`) and taken as one mesh, as ``pmw
-    verify`` reads a decoded stream (:func:`~pmwm_codec.watermark.owner.detect`), or None when it does."""
-    from ..watermark import owner
+    verify`` reads the mesh file of a decoded stream (:func:`~pmwm_codec.verify.owner.owner_of_mesh`: whole and
+    piece by piece, the false-alarm bound over every read: a mesh of two large pieces reads ``present`` with
+    one error less than one piece does), or None when it does."""
+    from ..verify.owner import owner_of_mesh
 
     points, tris, _ = scene_mesh(positions, faces, frames)
-    read = owner.detect(points, tris, key)
+    read = owner_of_mesh(Mesh(points, tris), key)
     if read.verdict == "present":
         return None
     return f"pmw verify would read {read.bit_errors} of its {read.bits} bits wrong from the file: {read.verdict}"
@@ -655,7 +657,8 @@ def _survives_float32(grid: Grid, q: np.ndarray, reach: tuple | None = None) -> 
     every grid point of their box widened by ``reach`` does (:meth:`Grid.carries_float32`)."""
     if reach is not None:
         lo, hi = bounds(grid.dequantize(q))
-        far = reach[0] * grid.step + reach[1] * float(np.linalg.norm(hi - lo))
+        with np.errstate(over="ignore"):  # a diagonal past float64 (extents ~1e154 and up) is inf: no float32 holds it
+            far = reach[0] * grid.step + reach[1] * float(np.linalg.norm(hi - lo))
         return grid.carries_float32(lo - far, hi + far)
     try:
         return bool(np.array_equal(grid.from_float32(grid.to_float32(q)), q))
