@@ -204,7 +204,7 @@ _PLY_INTEGER_TYPES = {"char", "uchar", "short", "ushort", "int", "uint",
 
 def _check_ply_header(path, name) -> None:
     """Refuse a PLY whose header declares more vertices / faces than the encoder takes,
-    or face indices that are not integers, before trimesh allocates anything."""
+    or face indices that are not integers, before anything is allocated (:func:`~pmwm_codec.ply.read_ply` reads it)."""
     with open(path, "rb") as fh:
         head = fh.read(1 << 16)
     end = head.find(b"end_header")
@@ -364,7 +364,11 @@ def read_mesh(path: str | bytes | os.PathLike[str]) -> Mesh:
         return _soup_welded(positions, faces, name)
     if suffix == ".ply":
         _check_ply_header(path, name)
-    elif suffix == ".stl":
+        from .ply import read_ply
+
+        data = read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name)
+        return _soup_welded(*read_ply(data, name, MAX_ENCODE_FACES), name)
+    if suffix == ".stl":
         _check_stl_header(path, name)
     else:
         from .format.document import is_progressive, progressive_refusal, sniff_json
@@ -645,8 +649,8 @@ def _read_with_trimesh(path, name, suffix):
     import trimesh
 
     try:
-        # trimesh's parsers warn (an ASCII PLY value past float32 "overflow encountered in cast") where the
-        # value becomes inf, which checked_mesh refuses in one line: the warning would be two lines more
+        # trimesh's parsers warn ("overflow encountered in cast") where a value past float32 becomes inf, which
+        # checked_mesh refuses in one line: the warning would be two lines more
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             if isinstance(path, io.BytesIO):
@@ -671,8 +675,6 @@ def _read_with_trimesh(path, name, suffix):
         positions, inverse = np.unique(positions, axis=0, return_inverse=True)
         faces = inverse.reshape(-1)[faces]
         return checked_mesh(positions, faces, name=name)
-    if suffix == ".ply":
-        return _soup_welded(positions, faces, name)
     return checked_mesh(positions, faces, name=name)
 
 

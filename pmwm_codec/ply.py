@@ -1,0 +1,345 @@
+"""Reading a triangle mesh from a PLY file (Stanford's polygon format), ASCII or binary, strictly.
+
+A PLY header names its format (``ascii``, ``binary_little_endian``, ``binary_big_endian``) and its elements
+in file order, each with a count and properties: scalars (``property float x``) or lists (``property list uchar
+int vertex_indices``: a count, then that many items).  The mesh is the ``vertex`` element's ``x``, ``y``, ``z``
+and the ``face`` element's ``vertex_indices`` (or ``vertex_index``) lists, polygons fan-triangulated as an OBJ's
+are, or a ``tristrips`` element's strips (-1 restarts a strip); every other element and property is read past.
+
+Every record must be what the header declares: an ASCII record holds exactly its properties' values, one
+record a line, integers where the type is an integer (a face index ``2.7`` is refused, not truncated), and no
+data follows the last element; a binary file is exactly as long as its records.  A file cut short, a list
+whose count does not match its items, or a value that does not parse is refused in one line naming it
+(:class:`~pmwm_codec.errors.InputFormatError`) -- never read as a smaller or different mesh.  Binary faces
+of mixed corner counts (triangles and quads, as MeshLab writes them) are read too.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from .errors import InputFormatError
+
+#: PLY scalar type -> numpy type (both spellings of the specification).
+TYPES = {
+    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
+    "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
+}
+#: The names a face's corner list goes by.
+FACE_LISTS = ("vertex_indices", "vertex_index")
+
+
+def read_ply(data: bytes, name: str, max_faces: int) -> tuple:
+    """``(positions (n, 3) float64, faces (m, 3) int64)`` of the PLY file ``data``; at most ``max_faces``
+    triangles (InputFormatError beyond).  See the module docstring for what is refused."""
+    end = data.find(b"end_header")
+    if not data.startswith(b"ply") or end < 0:
+        raise InputFormatError(f"{name}: not a PLY file (no 'ply' ... 'end_header' header)")
+    body = data.index(b"\n", end) + 1 if b"\n" in data[end:] else len(data)
+    fmt, elements = _header(data[:end].decode("ascii", "replace"), name)
+    if fmt == "ascii":
+        values = _ascii_elements(data[body:], elements, name)
+    else:
+        values = _binary_elements(data[body:], elements, "<" if fmt == "binary_little_endian" else ">", name)
+    return _mesh(values, elements, name, max_faces)
+
+
+def _header(text: str, name: str) -> tuple:
+    """``(format, [(element, count, [(property, None or count type, type)])])`` of a PLY header's text."""
+    fmt, elements = None, []
+    for line in text.splitlines()[1:]:
+        words = line.split()
+        if not words or words[0] in ("comment", "obj_info"):
+            continue
+        if words[0] == "format" and len(words) == 3 and words[1] in ("ascii", "binary_little_endian",
+                                                                        "binary_big_endian"):
+            fmt = words[1]
+        elif words[0] == "element" and len(words) == 3 and words[2].isdigit():
+            elements.append((words[1], int(words[2]), []))
+        elif words[0] == "property" and elements and len(words) == 3 and words[1] in TYPES:
+            elements[-1][2].append((words[2], None, TYPES[words[1]]))
+        elif (words[0] == "property" and elements and len(words) == 5 and words[1] == "list"
+              and words[2] in TYPES and words[3] in TYPES and TYPES[words[2]][0] in "iu"):
+            elements[-1][2].append((words[4], TYPES[words[2]], TYPES[words[3]]))
+        else:
+            raise InputFormatError(f"{name}: malformed PLY header line {line.strip()[:60]!r}")
+    if fmt is None:
+        raise InputFormatError(f"{name}: its PLY header names no format (ascii, binary_little_endian or "
+                               "binary_big_endian)")
+    return fmt, elements
+
+
+def _ascii_elements(body: bytes, elements: list, name: str) -> list:
+    """Each element's values (:func:`_values`) from ASCII records, one a line (blank lines skipped).  The
+    tokens are split once and counted line by line with numpy (a split per line took twice trimesh's time)."""
+    bad = _NOT_NUMERIC.search(body)
+    if bad is not None:
+        raise InputFormatError(f"{name}: byte {bad.group()!r} in the records of an ASCII PLY (numbers only)")
+    tokens = body.split()
+    per_line = _tokens_per_line(body)
+    at, used, out = 0, 0, []
+    for element, count, props in elements:
+        widths = per_line[at: at + count]
+        if len(widths) < count:
+            raise InputFormatError(f"{name}: PLY declares {count:,} {element} records but holds {len(widths):,} "
+                                   "lines for them (cut short, or not one record a line)")
+        size = int(widths.sum())
+        out.append(_ascii_records(tokens[used: used + size], widths, props, element, name, at))
+        at, used = at + count, used + size
+    if at < len(per_line):
+        raise InputFormatError(f"{name}: data after the last PLY element (line {at + 1} after the header: "
+                               f"{b' '.join(tokens[used: used + int(per_line[at])]).decode()[:60]!r})")
+    return out
+
+
+def _tokens_per_line(body: bytes) -> np.ndarray:
+    """(lines,) int64: the whitespace-separated tokens on each line of ``body`` that holds any."""
+    data = np.frombuffer(body, np.uint8)
+    if not len(data):
+        return np.zeros(0, np.int64)
+    newline = data == 10
+    word = ~(newline | (data == 32) | ((data >= 9) & (data <= 13)))
+    start = word & ~np.concatenate([[False], word[:-1]])
+    counts = np.bincount(np.cumsum(newline)[start], minlength=int(newline.sum()) + 1)
+    return counts[counts > 0]
+
+
+#: What no ASCII PLY record holds: a byte other than ASCII letters, digits, signs, points and white space
+#: (numpy and Python read ``1_0`` as 10 and Arabic-Indic digits as digits).
+_NOT_NUMERIC = re.compile(rb"[^0-9A-Za-z+\-.\s]")
+
+
+def _ascii_records(tokens: list, widths: np.ndarray, props: list, element: str, name: str, first: int) -> dict:
+    """One element's values (:func:`_values`) from its records' ``tokens`` (bytes), ``widths[i]`` of them on
+    record i: records of one shape (every list as long as in the first) at once, else record by record."""
+    if not len(widths):
+        return _values([], props)
+    lengths = _list_lengths(tokens[: widths[0]], props)
+    if lengths is not None and (widths == widths[0]).all():
+        try:
+            return _columns(np.array(tokens).reshape(len(widths), -1), props, lengths)
+        except ValueError:
+            pass  # the record that does not parse is named below
+    rows, at = [], 0
+    for i, w in enumerate(widths.tolist()):
+        words = tokens[at: at + w]
+        row = _ascii_record(words, props)
+        if row is None:
+            raise InputFormatError(f"{name}: malformed PLY {element} record (line {first + i + 1} after the header): "
+                                   f"{b' '.join(words).decode()[:60]!r}")
+        rows.append(row)
+        at += w
+    return _values(rows, props)
+
+
+def _list_lengths(words: list, props: list):
+    """The list lengths of the record ``words`` (strings) of ``props``, or None when they do not fit it."""
+    at, lengths = 0, []
+    for _, count, _ in props:
+        if count is None:
+            at += 1
+            continue
+        if at >= len(words) or not words[at].isdigit():  # (str or bytes)
+            return None
+        lengths.append(int(words[at]))
+        at += 1 + lengths[-1]
+    return lengths if at == len(words) else None
+
+
+def _columns(table: np.ndarray, props: list, lengths: list) -> dict:
+    """:func:`_values` of records of one shape, ``table`` (count, w) str, each list ``lengths[k]`` long;
+    ValueError when a value does not parse as its type or a list's count is not its length."""
+    at, k, out = 0, 0, {}
+    for p, count, kind in props:
+        if count is None:
+            out[p] = _parsed(table[:, at], kind)
+            at += 1
+            continue
+        if not (table[:, at] == np.array(str(lengths[k])).astype(table.dtype)).all():
+            raise ValueError("a list's count differs")
+        items = _parsed(table[:, at + 1: at + 1 + lengths[k]], kind)
+        out[p] = (np.full(len(table), lengths[k], np.int64), items.reshape(-1))
+        at, k = at + 1 + lengths[k], k + 1
+    return out
+
+
+def _parsed(tokens: np.ndarray, kind: str) -> np.ndarray:
+    """``tokens`` (str array) as the declared numpy ``kind``, widened to int64 or float64: ValueError for an
+    integer type's token that is not an integer (``2.7``) or out of its range; a ``float`` past float32's
+    range is infinite, as a binary file's would be (refused later, as every infinite coordinate is)."""
+    if kind[0] in "iu":
+        values = tokens.astype(np.int64)
+        info = np.iinfo(kind)
+        if values.size and (values.min() < info.min or values.max() > info.max):
+            raise ValueError("an integer out of its type's range")
+        return values
+    values = tokens.astype(np.float64)
+    if kind == "f4":
+        with np.errstate(over="ignore"):
+            values = values.astype(np.float32).astype(np.float64)
+    return values
+
+
+def _ascii_record(words: list, props: list):
+    """One ASCII record's values (a list: a number per scalar property, an array per list), or None when the
+    words are not exactly the properties' values."""
+    at, row = 0, []
+    try:
+        for _, count, kind in props:
+            if count is None:
+                row.append(_parsed(np.array(words[at: at + 1]), kind)[0])
+                at += 1
+                continue
+            k = int(words[at])
+            items = words[at + 1: at + 1 + k]
+            if k < 0 or len(items) < k:
+                return None
+            row.append(_parsed(np.array(items), kind))
+            at += 1 + k
+    except (IndexError, ValueError):
+        return None
+    return row if at == len(words) else None
+
+
+def _values(rows: list, props: list) -> dict:
+    """``{property: (count,) array}`` for scalars, ``{property: (lengths (count,) int64, items (sum,))}`` for
+    lists, from records read one at a time (``rows``: a list per record, as :func:`_ascii_record`'s)."""
+    out = {}
+    for j, (p, count, _) in enumerate(props):
+        column = [row[j] for row in rows]
+        if count is None:
+            out[p] = np.array(column)
+        else:
+            out[p] = (np.array([len(v) for v in column], np.int64),
+                      np.concatenate(column) if column else np.zeros(0, np.int64))
+    return out
+
+
+def _binary_elements(body: bytes, elements: list, order: str, name: str) -> list:
+    """Each element's values (:func:`_values`) from binary records (byte ``order`` ``<`` or ``>``)."""
+    at, out = 0, []
+    for element, count, props in elements:
+        values, at = _binary_records(body, at, count, props, order, element, name)
+        out.append(values)
+    if at != len(body):
+        raise InputFormatError(f"{name}: {len(body) - at:,} bytes after the last PLY element")
+    return out
+
+
+def _binary_records(body: bytes, at: int, count: int, props: list, order: str, element: str, name: str) -> tuple:
+    """``(values, end)``: ``count`` records of ``props`` from byte ``at``: at once when every list has the
+    length the first record's has, else record by record."""
+    short = InputFormatError(f"{name}: PLY declares {count:,} {element} records but the file ends before them "
+                             "(cut short)")
+    lengths, pos = [], at
+    for _, c, kind in props if count else []:  # the first record's list lengths
+        if c is not None:
+            if pos + np.dtype(c).itemsize > len(body):
+                raise short
+            lengths.append(int(np.frombuffer(body, order + c, 1, pos)[0]))
+            pos += np.dtype(c).itemsize + lengths[-1] * np.dtype(kind).itemsize
+        else:
+            pos += np.dtype(kind).itemsize
+    if count == 0 or min(lengths, default=0) < 0:
+        if count:
+            raise InputFormatError(f"{name}: a PLY {element} list of negative length")
+        return _values([], props), at
+    fixed = _record_dtype(props, lengths, order)
+    if at + count * fixed.itemsize <= len(body):
+        rec = np.frombuffer(body, fixed, count, at)
+        if all((rec[f"n{k}"] == n).all() for k, n in enumerate(lengths)):
+            out, k = {}, 0
+            for p, c, kind in props:
+                v = rec[p].astype(np.float64 if kind[0] == "f" else np.int64)
+                out[p] = v if c is None else (np.full(count, lengths[k], np.int64), v.reshape(-1))
+                k += c is not None
+            return out, at + count * fixed.itemsize
+    rows = []
+    for _ in range(count):  # lists of mixed lengths (triangles and quads): one record at a time
+        row = []
+        for _, c, kind in props:
+            n = 1
+            if c is not None:
+                if at + np.dtype(c).itemsize > len(body):
+                    raise short
+                n = int(np.frombuffer(body, order + c, 1, at)[0])
+                at += np.dtype(c).itemsize
+            if n < 0:
+                raise InputFormatError(f"{name}: a PLY {element} list of negative length")
+            if at + n * np.dtype(kind).itemsize > len(body):
+                raise short
+            v = np.frombuffer(body, order + kind, n, at).astype(np.float64 if kind[0] == "f" else np.int64)
+            row.append(v if c is not None else v[0])
+            at += n * np.dtype(kind).itemsize
+        rows.append(row)
+    return _values(rows, props), at
+
+
+def _record_dtype(props: list, lengths: list, order: str) -> np.dtype:
+    """The packed structured dtype of a record whose lists have ``lengths`` (count fields ``n0``, ``n1``, ...)."""
+    fields, k = [], 0
+    for p, c, kind in props:
+        if c is not None:
+            fields.append((f"n{k}", order + c))
+            fields.append((p, order + kind, (lengths[k],)))
+            k += 1
+        else:
+            fields.append((p, order + kind))
+    return np.dtype(fields)
+
+
+def _mesh(values: list, elements: list, name: str, max_faces: int) -> tuple:
+    """The positions (n, 3) float64 and triangles (m, 3) int64 of the parsed elements."""
+    found = {}
+    for (element, _, _), v in zip(elements, values):
+        found.setdefault(element, v)
+    vertex = found.get("vertex", {})
+    if not all(axis in vertex for axis in "xyz"):
+        raise InputFormatError(f"{name}: its PLY vertex element has no x, y and z properties")
+    positions = np.stack([np.asarray(vertex[axis], np.float64) for axis in "xyz"], axis=1)
+    polygons = next((found["face"][p] for p in FACE_LISTS if p in found.get("face", {})), None)
+    strips = found.get("tristrips", {}).get("vertex_indices")
+    if polygons is None and strips is None:
+        raise InputFormatError(f"{name}: its PLY face element has no vertex_indices list")
+    parts = []
+    if polygons is not None:
+        parts.append(_fans(*polygons, name, max_faces))
+    if strips is not None:
+        parts.append(_strips(*strips))
+    faces = np.concatenate(parts)
+    if len(faces) > max_faces:
+        raise InputFormatError(f"{name}: more than {max_faces:,} triangles (the encoder's limit)")
+    return positions, faces
+
+
+def _fans(lengths: np.ndarray, items: np.ndarray, name: str, max_faces: int) -> np.ndarray:
+    """(t, 3) int64: polygons of ``lengths`` (p,) corners, their indices ``items`` one after another, each
+    fan-triangulated in order (a polygon of one or two corners: one degenerate triangle, dropped and counted
+    later as an OBJ's is)."""
+    if (lengths <= 0).any():
+        raise InputFormatError(f"{name}: a PLY face of no corners")
+    tris = np.maximum(lengths - 2, 1)
+    if tris.sum() > max_faces:
+        raise InputFormatError(f"{name}: more than {max_faces:,} triangles (the encoder's limit)")
+    start = np.cumsum(lengths) - lengths
+    poly = np.repeat(np.arange(len(lengths)), tris)
+    j = np.arange(len(poly)) - np.repeat(np.cumsum(tris) - tris, tris) + 1  # 1 .. k - 2 within each polygon
+    last = lengths[poly] - 1
+    items = items.astype(np.int64)
+    return np.stack([items[start[poly]], items[start[poly] + np.minimum(j, last)],
+                     items[start[poly] + np.minimum(j + 1, last)]], axis=1)
+
+
+def _strips(lengths: np.ndarray, items: np.ndarray) -> np.ndarray:
+    """(t, 3) int64: the triangles of triangle strips (-1 restarts one; every other triangle turned so that
+    all face one way)."""
+    out = []
+    for strip in np.split(items.astype(np.int64), np.cumsum(lengths)[:-1]):
+        for run in np.split(strip, np.flatnonzero(strip < 0)):
+            run = run[run >= 0]
+            out.extend((run[i], run[i + 1], run[i + 2]) if i % 2 == 0 else (run[i + 1], run[i], run[i + 2])
+                       for i in range(len(run) - 2))
+    return np.array(out, np.int64).reshape(-1, 3)
