@@ -233,12 +233,13 @@ def _check_ply_header(path, name) -> None:
 def _check_stl_header(path, name) -> None:
     """Refuse a binary STL that declares more triangles than the encoder takes, or whose size is not
     what its triangle count says (cut short, or trailing bytes).  A file is ASCII STL when it starts
-    with ``solid`` and its first KiB is text holding ``facet`` or ``endsolid`` (binary headers may
-    start with ``solid`` too)."""
+    with ``solid`` and its first KiB is text holding ``facet`` or ``endsolid``, in any case (binary
+    headers may start with ``solid`` too; some CAD exporters write the keywords in capitals)."""
     size = os.stat(path).st_size
     with open(path, "rb") as fh:
         head = fh.read(1024)
-    if head.lstrip().startswith(b"solid") and (b"facet" in head or b"endsolid" in head):
+    low = head.lstrip().lower()
+    if low.startswith(b"solid") and (b"facet" in low or b"endsolid" in low):
         try:
             head.decode("ascii")
         except UnicodeDecodeError:
@@ -272,11 +273,13 @@ def _check_ascii_stl(path, name) -> None:
     toomanyvertices.stl; a facet of four beside one of two was read as wrong triangles, exit 0).  A count of
     the loops of three screens the file; the diagnosis (:func:`ascii_stl_problem`) runs only when it differs
     from the facets'."""
-    data = read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name)
+    data = read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name).lower()  # keywords in any case
     if len(_STL_LOOP3.findall(data)) != data.count(b"endfacet"):
         problem = ascii_stl_problem(data)
         if problem:
             raise InputFormatError(f"{name}: {problem}")
+    if b"endsolid" not in data:
+        raise InputFormatError(f"{name}: an ASCII STL without its closing 'endsolid' (cut short)")
 
 
 def ascii_stl_problem(data: bytes):
@@ -421,7 +424,7 @@ def _read_obj(path, name):
                 if len(verts) >= MAX_ENCODE_VERTICES:
                     raise InputFormatError(f"{name}: more than {MAX_ENCODE_VERTICES:,} vertices (the encoder's limit)")
                 parts = line.split(None, 4)
-                verts.append((float(parts[1]), float(parts[2]), float(parts[3])))
+                verts.append((_number(parts[1]), _number(parts[2]), _number(parts[3])))
             elif line.startswith("f "):
                 if len(tris) + max(1, line.count(" ") - 2) > MAX_ENCODE_FACES:
                     raise InputFormatError(f"{name}: more than {MAX_ENCODE_FACES:,} triangles (the encoder's limit)")
@@ -511,7 +514,7 @@ def _off_rows(records: list, width: int, name: str, first: int, what: str) -> np
     """The first ``width`` numbers of each of ``records`` (OFF lines, the first of them record ``first`` of the
     file counting from 0) as an (n, width) float64 array; the records all of one length are parsed at once."""
     fields = records[0].split()
-    if all(len(r.split()) == len(fields) for r in records) and len(fields) >= width:
+    if all(len(r.split()) == len(fields) for r in records) and len(fields) >= width and _plain(records):
         try:
             return np.array(" ".join(records).split(), np.float64).reshape(len(records), -1)[:, :width]
         except ValueError:
@@ -522,7 +525,7 @@ def _off_rows(records: list, width: int, name: str, first: int, what: str) -> np
         try:
             if len(values) < width:
                 raise ValueError(record)
-            out[i] = [float(x) for x in values]
+            out[i] = [_number(x) for x in values]
         except ValueError:
             raise InputFormatError(f"{name}: malformed OFF {what} record (record {first + i + 1}): "
                                    f"{record.strip()[:60]!r}") from None
@@ -534,7 +537,8 @@ def _off_faces(records: list, name: str, first: int) -> np.ndarray:
     common file of one corner count throughout at once, the rest record by record."""
     fields = [r.split() for r in records]
     k0 = fields[0][0]
-    if k0.isdigit() and int(k0) >= 3 and all(f[0] == k0 and len(f) == len(fields[0]) for f in fields):
+    if k0.isdigit() and int(k0) >= 3 and all(f[0] == k0 and len(f) == len(fields[0]) for f in fields) \
+            and _plain(records):
         k = int(k0)
         if len(fields[0]) > k:
             try:
@@ -548,8 +552,8 @@ def _off_faces(records: list, name: str, first: int) -> np.ndarray:
     tris = []
     for i, f in enumerate(fields):
         try:
-            k = int(f[0])
-            idx = [int(x) for x in f[1: k + 1]]
+            k = _integer(f[0])
+            idx = [_integer(x) for x in f[1: k + 1]]
             if k < 1 or len(idx) < k:
                 raise ValueError
         except ValueError:
@@ -560,6 +564,35 @@ def _off_faces(records: list, name: str, first: int) -> np.ndarray:
         idx += idx[-1:] * (3 - len(idx))  # a face of one or two corners: a degenerate triangle, dropped and counted
         tris.extend((idx[0], idx[j], idx[j + 1]) for j in range(1, len(idx) - 1))
     return np.array(tris, np.int64).reshape(-1, 3)
+
+
+#: A number as OBJ and OFF write them: ASCII digits (Python's float() and int() also take ``1_0`` as 10 and
+#: other scripts' digits, which no exporter writes: refused, not read as another number).
+_NUMBER = re.compile(r"[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?|[-+]?(?:inf|infinity|nan)", re.I)
+_INTEGER = re.compile(r"[-+]?[0-9]+")
+
+
+def _plain(records: list) -> bool:
+    """Whether ``records`` (text lines) hold only ASCII letters, digits, signs, points and blanks (numpy's
+    parsers, like :func:`float`, read ``1_0`` and other scripts' digits: such records go record by record)."""
+    return _NOT_PLAIN.search("\n".join(records)) is None
+
+
+_NOT_PLAIN = re.compile(r"[^0-9A-Za-z+\-.\s]|[^\x00-\x7f]")
+
+
+def _number(token: str) -> float:
+    """``float(token)`` of a number as files write it (:data:`_NUMBER`); ValueError for anything else."""
+    if _NUMBER.fullmatch(token) is None:
+        raise ValueError(token)
+    return float(token)
+
+
+def _integer(token: str) -> int:
+    """``int(token)`` of ASCII digits with an optional sign; ValueError for anything else."""
+    if _INTEGER.fullmatch(token) is None:
+        raise ValueError(token)
+    return int(token)
 
 
 def _obj_lines(text: str) -> list:
@@ -628,7 +661,7 @@ def _add_polygon(line: str, tris: list, name: str, read: int) -> None:
     limit or before the first vertex.  A record of one or two vertices (exporters write an edge so: Blender
     reads it as one) is a degenerate face, one triangle repeating a corner, which
     :func:`checked_mesh` drops and counts (``degenerate_faces``) as it does a triangle naming a vertex twice."""
-    idx = [int(tok.split("/", 1)[0]) for tok in line.split()[1:]]
+    idx = [_integer(tok.split("/", 1)[0]) for tok in line.split()[1:]]
     if not idx:
         return
     idx += idx[-1:] * (3 - len(idx))
@@ -659,6 +692,7 @@ def _read_with_trimesh(path, name, suffix):
                 loaded = trimesh.load(path, process=False, force=None)
     except Exception as exc:  # trimesh raises many types on garbage
         data = read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name) if suffix == ".stl" else b""
+        data = data.lower()  # keywords in any case
         problem = ascii_stl_problem(data) if data.lstrip().startswith(b"solid") else None  # named, not the parser's words
         raise InputFormatError(f"{name}: {problem}" if problem else
                                f"{name}: cannot read as {suffix[1:].upper()}: {exc}".splitlines()[0]) from None

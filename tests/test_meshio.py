@@ -359,6 +359,32 @@ def test_a_well_formed_ascii_stl_still_reads(tmp_path):
     assert pmwm_codec.read_mesh(tmp_path / "m.stl").face_count == 2
 
 
+def test_an_ascii_stl_in_capitals_reads_and_one_cut_before_endsolid_is_named(tmp_path):
+    """Some CAD exporters write the keywords in capitals: such a file was taken for a binary STL "declaring
+    1,347,374,924 triangles"; a file cut before its ``endsolid`` was "no triangle mesh"."""
+    (tmp_path / "up.stl").write_text(("solid m\n" + ASCII_FACET + ASCII_FACET.replace("0 0 0", "1 1 1") +
+                                      "endsolid m\n").upper())
+    assert pmwm_codec.read_mesh(tmp_path / "up.stl").face_count == 2
+    (tmp_path / "cut.stl").write_text("solid m\n" + ASCII_FACET)
+    with pytest.raises(mesh_mod.InputFormatError, match=r"^cut.stl: an ASCII STL without its closing 'endsolid' \(cut short\)$"):
+        pmwm_codec.read_mesh(tmp_path / "cut.stl")
+
+
+@pytest.mark.parametrize("suffix, text, record", [
+    (".obj", "v 1_0 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\n# a comment: the record reader\n", "'v 1_0 0 0'"),
+    (".obj", "v \u0661 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\n", "'v \u0661 0 0'"),
+    (".obj", "v 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3_0\n", "'f 1 2 3_0'"),
+    (".off", "OFF\n3 1 0\n1_0 0 0\n0 1 0\n0 0 1\n3 0 1 2\n", "'1_0 0 0'"),
+    (".off", "OFF\n3 1 0\n1 0 0\n0 1 0\n0 0 1\n3 0 1 \u0662\n", "'3 0 1 \u0662'"),
+])
+def test_a_number_only_pythons_parsers_take_is_refused_not_read_as_another(tmp_path, suffix, text, record):
+    """float('1_0') is 10 and int('\u0662') is 2: a record of them was read as those numbers, exit 0."""
+    (tmp_path / ("m" + suffix)).write_text(text, encoding="utf-8")
+    with pytest.raises(mesh_mod.InputFormatError, match="malformed") as exc:
+        pmwm_codec.read_mesh(tmp_path / ("m" + suffix))
+    assert record in str(exc.value)
+
+
 def test_a_ply_value_past_float32_is_refused_in_one_line_without_a_warning(tmp_path):
     """An ASCII PLY ``property float`` of 1e39 was refused (exit 2) after trimesh's ``RuntimeWarning: overflow
     encountered in cast`` and its source line: three lines on stderr where the rule is one."""
