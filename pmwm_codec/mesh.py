@@ -412,6 +412,8 @@ def _read_obj(path, name):
     every face index must name an existing vertex.
     """
     text = _mesh_text(read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name), name, "OBJ")
+    if "#" in text:  # a comment runs to the end of its line, after a record too (f 1 2 3 # the lid)
+        text = re.sub(r"#[^\n]*", "", text)
     lines = _obj_lines(text)
     fast = _read_obj_columns(lines)
     if fast is not None:

@@ -370,6 +370,12 @@ def test_an_ascii_stl_in_capitals_reads_and_one_cut_before_endsolid_is_named(tmp
         pmwm_codec.read_mesh(tmp_path / "cut.stl")
 
 
+def test_an_obj_comment_after_a_record_is_a_comment(tmp_path):
+    (tmp_path / "c.obj").write_text("# a cube's corner\nv 0 0 0 # origin\nv 1 0 0\nv 0 1 0\nf 1 2 3 # the one face\n")
+    mesh = pmwm_codec.read_mesh(tmp_path / "c.obj")
+    assert mesh.vertex_count == 3 and mesh.faces.tolist() == [[0, 1, 2]]
+
+
 @pytest.mark.parametrize("suffix, text, record", [
     (".obj", "v 1_0 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\n# a comment: the record reader\n", "'v 1_0 0 0'"),
     (".obj", "v \u0661 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\n", "'v \u0661 0 0'"),
