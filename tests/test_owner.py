@@ -177,6 +177,20 @@ def _least_margin(soft, key):
     return float((np.where(coded == 1, 1.0, -1.0) * soft).min())
 
 
+def test_the_layer_never_costs_more_than_the_issues_rms_whatever_the_strength_asks():
+    """Margins that the simulated transport keeps asking for can take the displacement past the budget (the
+    beetle: 0.0201% for one key of five); it is scaled back to 0.02% of the diagonal, and still reads."""
+    m = shapes.icosphere(4, 1.0, noise=0.03, seed=3)
+    pos = m.positions * np.array([1.0, 0.7, 0.5])
+    key = WatermarkKey.generate(rng=np.random.default_rng(7))
+    marked = owner.embed(pos, m.faces, key, strength=0.3)  # uncapped: 0.0218%
+    assert _rms_of_diagonal(pos, marked) <= owner.MAX_RMS * (1 + 1e-9)
+    assert _rms_of_diagonal(pos, marked) > 0.99 * owner.MAX_RMS
+    assert owner.detect(marked, m.faces, key).bit_errors == 0
+    moved = owner._capped(pos, pos + np.array([[3.0, 0, 0]] * len(pos)), np.ones(len(pos)), 0.5)
+    assert np.allclose(moved - pos, [0.5, 0, 0])  # scaled along the displacement itself
+
+
 def test_rms_budget_raises_every_margin_and_stays_within_the_budget(blob, marked):
     key, pos = marked
     bare = owner.embed(blob.positions, blob.faces, key, rms_budget=None)
