@@ -82,6 +82,9 @@ def _ascii_elements(body: bytes, elements: list, name: str) -> list:
     per_line = _tokens_per_line(body)
     at, used, out = 0, 0, []
     for element, count, props in elements:
+        if not props:  # an element of no properties holds no data
+            out.append({})
+            continue
         widths = per_line[at: at + count]
         if len(widths) < count:
             raise InputFormatError(f"{name}: PLY declares {count:,} {element} records but holds {len(widths):,} "
@@ -234,6 +237,8 @@ def _binary_records(body: bytes, at: int, count: int, props: list, order: str, e
     length the first record's has, else record by record."""
     short = InputFormatError(f"{name}: PLY declares {count:,} {element} records but the file ends before them "
                              "(cut short)")
+    if not props:  # an element of no properties holds no data
+        return {}, at
     lengths, pos = [], at
     for _, c, kind in props if count else []:  # the first record's list lengths
         if c is not None:

