@@ -126,6 +126,10 @@ def _ascii_records(tokens: list, widths: np.ndarray, props: list, element: str, 
             return _columns(np.array(tokens).reshape(len(widths), -1), props, lengths)
         except ValueError:
             pass  # the record that does not parse is named below
+    try:  # lists of mixed lengths: the tokens sorted by property record by record, each property parsed at once
+        return _sorted_columns(tokens, widths, props)
+    except (ValueError, IndexError):
+        pass
     rows, at = [], 0
     for i, w in enumerate(widths.tolist()):
         words = tokens[at: at + w]
@@ -136,6 +140,35 @@ def _ascii_records(tokens: list, widths: np.ndarray, props: list, element: str, 
         rows.append(row)
         at += w
     return _values(rows, props)
+
+
+def _sorted_columns(tokens: list, widths: np.ndarray, props: list) -> dict:
+    """:func:`_values` of records whose lists differ in length: one pass over the records puts each token with
+    its property (no number parsed in it), then each property's tokens are parsed at once (:func:`_parsed`);
+    ValueError when a record does not fit ``props`` or a value does not parse (then named record by record)."""
+    scalars = [[] for _ in props]
+    lengths = [[] for _ in props]
+    at = 0
+    for w in widths.tolist():
+        end = at + w
+        for j, (_, count, _) in enumerate(props):
+            if count is None:
+                scalars[j].append(tokens[at])
+                at += 1
+                continue
+            if not tokens[at].isdigit():
+                raise ValueError("a list count that is not a count")
+            k = int(tokens[at])
+            scalars[j].extend(tokens[at + 1: at + 1 + k])
+            lengths[j].append(k)
+            at += 1 + k
+        if at != end:
+            raise ValueError("a record that does not fit its properties")
+    out = {}
+    for j, (p, count, kind) in enumerate(props):
+        values = _parsed(np.array(scalars[j]), kind) if scalars[j] else np.zeros(0, np.int64)
+        out[p] = values if count is None else (np.array(lengths[j], np.int64), values)
+    return out
 
 
 def _list_lengths(words: list, props: list):

@@ -93,8 +93,7 @@ def _row_groups(rows: np.ndarray) -> np.ndarray:
     order = np.lexsort(rows.T[::-1])
     s = rows[order]
     new = np.ones(len(s), bool)
-    if len(s) > 1:
-        new[1:] = (s[1:] != s[:-1]).any(axis=1) if s.shape[1] > 1 else s[1:, 0] != s[:-1, 0]
+    new[1:] = (s[1:] != s[:-1]).any(axis=1)
     inverse = np.empty(len(s), np.int64)
     inverse[order] = np.cumsum(new) - 1
     return inverse
