@@ -90,7 +90,11 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
     key file is reused untouched when it holds this watermark, refused
     (WatermarkKeyError, nothing written) otherwise or when it is a symbolic link; a new one
     is written (0600) just before the ``.pmw``, so a failure at any moment leaves the old
-    pair or the new one.  Options: ``mode``, ``bits``, ``grid_bits``, ``base_codec``,
+    pair or the new one.  Without a ``watermark``, a ``key`` given here marks with what it holds: its own
+    reference image (as if given as ``watermark``, so one key marks every asset alike; the owner layer under it
+    as with any watermark), or, holding no image, its owner ID alone (as ``owner_id``); a key file that does
+    not exist is refused then (WatermarkKeyError, before any work) unless an ``owner_id`` is given, and so is
+    a key holding neither.  Options: ``mode``, ``bits``, ``grid_bits``, ``base_codec``,
     ``base_vertices``, ``embed_from`` (first split carrying a code: index or fraction), ``owner_id`` (the owner layer: a 64-bit int, alone or under the watermark; default
     with a watermark: the key's owner ID, random for a new key, none for a key written
     before the owner layer; False: no owner layer; a layer that would not read back from the
@@ -117,10 +121,13 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
     check_destination(dst, inputs=(src, watermark))
     options = checked_options(options)
     image, notices, given = _as_watermark(watermark)
+    from_key = None  # the key whose own image is the watermark (no watermark given)
+    if image is None and key is not None:
+        image, from_key = _key_watermark(key, options.get("owner_id"))
     if image is None:
         notices += ignored_without_image(image_options_given(options))
     asked = options.get("owner_id")
-    if image is None and (asked is None or asked is False) and options.get("owner_strength") is not None:
+    if image is None and (asked is False or (asked is None and key is None)) and options.get("owner_strength") is not None:
         notices.append("owner_strength ignored: no owner layer (an owner_id, or a watermark, makes one)")
     key_obj, key_slot, options["owner_id"] = _key_for(key, image, dst, asked, inputs=(src, watermark))
     asset = is_asset_path(src) or isinstance(src, tuple)
@@ -132,7 +139,7 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
         raise InputFormatError(f"{shown_path(src)}: no such file")
     options["key_slot"] = key_slot
     if image is not None and asked is None and options["owner_id"] is None:
-        notices.append("the key names no owner id (written before the owner layer): no owner layer written")
+        notices.append("the key names no owner id (written before the owner layer, or without it): no owner layer written")
     # the owner layer on by default (under a watermark) is left out, with a notice, where it could not be
     # read back; one asked for by its ID is refused there (OwnerLayerError, nothing written)
     options["owner_fallback"] = image is not None and asked is None
@@ -144,6 +151,12 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
             options.pop("keep_flat_normals", None)
             report = encode_mesh(mesh, dst, watermark=image, key=key_obj, **options)
     except CapacityError as exc:  # named as the caller gave it, not as the square it was made
+        if from_key is not None:  # never shrunk (--fit): the key marks with this image only
+            from .watermark.codec import fit_hint
+            for where in ("", " from there"):
+                exc.template = exc.template.replace(fit_hint(where), "the key marks with its own image only, "
+                                                    "so --fit cannot shrink it")
+            raise CapacityError(f"{from_key}: " + exc.template, None, exc.size) from None
         raise exc.as_given(*given) from None
     key_path = None if key_slot is None else key_slot.path
     cleanup = {} if mesh is None else mesh.cleanup
@@ -152,6 +165,36 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
     if options.get("owner_id") is not None and report.key is not None and report.key.owner_id is not None:
         doc["owner_id"] = report.key.owner_hex  # the owner layer is in the file
     return doc
+
+
+def _key_watermark(key, owner_id=None) -> tuple:
+    """``(image (s, s) uint8 or None, the key's name or None)``: what an encode given no watermark marks
+    with when it names a ``key`` (a WatermarkKey, or a key file path): the key's own reference image, so that
+    one key marks every asset alike (as ``pmw batch encode --key`` does); None for a key that holds none (its
+    owner ID alone is marked: :func:`_key_for`).  WatermarkKeyError (before any work) for a key file that does
+    not exist when no ``owner_id`` is given (a key named to mark with is never made up: a mistyped path would
+    leave the file marked under a new random key), and for a key that holds neither an image nor an owner ID
+    (nothing to mark with); ``owner_id`` False (no owner layer) takes the image alone, as with a watermark."""
+    from .errors import WatermarkKeyError
+    from .watermark.key import WatermarkKey
+
+    name = "the key object"
+    if isinstance(key, (str, os.PathLike)):
+        name = os.fspath(key)
+        if not os.path.lexists(key):
+            if owner_id is None:
+                raise WatermarkKeyError(f"{name}: no such key file: an encode with no watermark image and no owner "
+                                        "ID marks with an existing key (--watermark or --owner-id make a new one)")
+            return None, None
+        key = WatermarkKey.load(key)
+    if not isinstance(key, WatermarkKey):
+        return None, None  # _key_for names what is wrong with it
+    if key.reference is not None:
+        return key.reference, name
+    if key.owner_id is None and owner_id is None:
+        raise WatermarkKeyError(f"{name}: the key holds no watermark image and names no "
+                                "owner ID: nothing to mark with (give a watermark image or an owner ID)")
+    return None, None
 
 
 def _key_for(key, image, dst, owner_id=None, inputs=()) -> tuple:
@@ -169,7 +212,7 @@ def _key_for(key, image, dst, owner_id=None, inputs=()) -> tuple:
     from .options import check_output_path
     from .watermark.key import FROM_KEY, KeySlot, WatermarkKey, check_key_object, refuse_orphaned_beside, same_path
 
-    if owner_id is False or (owner_id is None and image is None):
+    if owner_id is False or (owner_id is None and image is None and key is None):
         owner_id = None
     elif owner_id is None:
         owner_id = FROM_KEY

@@ -7,6 +7,7 @@ or with a file size limit (RLIMIT_FSIZE: writes fail with EFBIG, as on a full di
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import resource
@@ -143,6 +144,59 @@ def test_a_reused_key_is_never_loosened(inputs, tmp_path, before, after):
     os.chmod(key, before)
     pmwm_codec.encode(inputs / "b.ply", tmp_path / "b.pmw", watermark=inputs / "w1.png", key=key)
     assert mode(key) == after and key.read_bytes() == content
+
+
+def test_a_key_named_without_a_watermark_marks_with_its_own_image_and_owner_id(capsys, inputs, tmp_path):
+    """``pmw encode IN -o OUT --key K`` without ``--watermark`` wrote an unmarked file (a note said the key was
+    ignored) where its user asked for their mark: one key now marks every asset alike, with the image it holds
+    and its owner ID (the same bytes as naming the image), as ``pmw batch encode --key`` does."""
+    key = tmp_path / "k.json"
+    assert encode(inputs, tmp_path / "a.pmw", "w1.png", "--key", key).returncode == 0
+    first = key.read_bytes()
+    status, err = _cli(capsys, "encode", inputs / "a.ply", "-o", tmp_path / "again.pmw", "-q", "--key", key)
+    assert (status, err) == (0, [])
+    assert (tmp_path / "again.pmw").read_bytes() == (tmp_path / "a.pmw").read_bytes() and key.read_bytes() == first
+    r = pmw("verify", tmp_path / "again.pmw", "--key", key, "--json")
+    doc = json.loads(r.stdout)
+    assert r.returncode == 0 and doc["verdict"] == "authentic" and doc["owner"]["verdict"] == "present"
+    report = pmwm_codec.encode(inputs / "a.ply", tmp_path / "lib.pmw", key=key, measure="none")  # the library alike
+    assert report["watermark"] is not None and report["owner_id"] == WatermarkKey.load(key).owner_hex
+    assert (tmp_path / "lib.pmw").read_bytes() == (tmp_path / "a.pmw").read_bytes()
+
+
+def test_an_owner_key_named_alone_marks_its_owner_id(capsys, inputs, tmp_path):
+    key = tmp_path / "owner.json"
+    assert pmw("encode", inputs / "a.ply", "-o", tmp_path / "o.pmw", "--owner-id", "c0ffee", "--key", key,
+               "-q").returncode == 0
+    status, err = _cli(capsys, "encode", inputs / "a.ply", "-o", tmp_path / "o2.pmw", "-q", "--key", key)
+    assert (status, err) == (0, [])
+    assert (tmp_path / "o2.pmw").read_bytes() == (tmp_path / "o.pmw").read_bytes()
+    r = pmw("verify", tmp_path / "o2.pmw", "--key", key, "--json")
+    assert r.returncode == 0 and json.loads(r.stdout)["owner"]["id"] == "0000000000c0ffee"
+
+
+def test_a_key_named_without_a_mark_to_make_it_with_is_refused_and_nothing_is_written(capsys, inputs, tmp_path):
+    """A missing key file named without --watermark or --owner-id (a mistyped path, most likely) is refused:
+    never an unmarked file, never a new random key the user did not ask for; a key holding neither an image
+    nor an owner ID is refused too (nothing to mark with)."""
+    _refused(*_cli(capsys, "encode", inputs / "a.ply", "-o", tmp_path / "x.pmw", "--key", tmp_path / "typo.json"),
+             "typo.json: no such key file", "--owner-id")
+    bare = dataclasses.replace(WatermarkKey.generate(), owner_id=None)
+    with pytest.raises(WatermarkKeyError, match="nothing to mark with"):
+        pmwm_codec.encode(inputs / "a.ply", tmp_path / "x.pmw", key=bare, measure="none")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_key_whose_image_does_not_fit_is_refused_and_fit_does_not_shrink_it(capsys, inputs, tmp_path):
+    """--fit shrinks a watermark given as an image; the one a key holds is its mark, never another size."""
+    key = tmp_path / "k.json"
+    assert encode(inputs, tmp_path / "a.pmw", "w1.png", "--key", key).returncode == 0
+    small = tmp_path / "small.ply"
+    write_mesh(small, shapes.icosphere(2))  # 162 vertices: 98 splits, too few for a 16x16 image
+    before = sorted(p.name for p in tmp_path.iterdir())
+    _refused(*_cli(capsys, "encode", small, "-o", tmp_path / "s.pmw", "--fit", "--key", key), "k.json: ",
+             "--fit cannot shrink it")
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
 
 
 def test_re_encoding_with_the_default_key_gives_the_same_bytes(inputs, tmp_path):
@@ -447,8 +501,11 @@ def test_an_unmarked_encode_never_leaves_a_key_beside_a_file_it_does_not_verify(
     out, key = tmp_path / "a.pmw", tmp_path / "a.pmw.key.json"
     assert encode(inputs, out).returncode == 0
     before = (out.read_bytes(), key.read_bytes())
-    for extra in ([], ["--no-owner"], ["--key", tmp_path / "other.key.json"]):
+    for extra in ([], ["--no-owner"]):
         _refused(*_cli(capsys, "encode", inputs / "a.ply", "-o", out, "-q", *extra), str(key), "writes no mark")
+    # a key named without a mark to make it with: refused as such (it used to be ignored: no mark)
+    _refused(*_cli(capsys, "encode", inputs / "a.ply", "-o", out, "-q", "--key", tmp_path / "other.key.json"),
+             "other.key.json: no such key file")
     assert (out.read_bytes(), key.read_bytes()) == before and verdict(out, key) == (0, "authentic")
     out.unlink()  # a key alone: an unmarked a.pmw beside it would not verify either
     _refused(*_cli(capsys, "encode", inputs / "a.ply", "-o", out, "-q"), str(key))

@@ -68,7 +68,7 @@ def add_parser(sub):
                         "or take too few values")
     p.add_argument("--no-owner", action="store_true",
                    help="with --watermark: write the exact layer only, no owner layer")
-    p.add_argument("--key", type=nonblank_path("--key", "key file"), metavar="KEY", help="key file to use (if it exists) or to write (default: OUT.pmw.key.json)")
+    p.add_argument("--key", type=nonblank_path("--key", "key file"), metavar="KEY", help="key file to use (if it exists) or to write (default: OUT.pmw.key.json). Without --watermark an existing key marks with what it holds: its own watermark image (one key marks every asset alike) or, holding none, its owner ID alone; a key that does not exist then needs --owner-id")
     add_stream_options(p)
     p.add_argument("--fit", action="store_true",
                    help="shrink a watermark that does not fit to the largest size that does (with a notice)")
@@ -142,13 +142,13 @@ def run(args) -> int:
     if args.no_owner and args.owner_id is not None:
         raise UsageError("--no-owner and --owner-id exclude each other")
     extra = []
+    image = args.watermark is not None or _key_image(args)  # an image to mark with: given, or the key's own
     if args.no_owner:
         options["owner_id"] = False
-        if args.watermark is None:
-            extra.append("--no-owner ignored: no --watermark, so the file carries no mark")
-    if args.key is not None and args.watermark is None and args.owner_id is None:
-        extra.append("--key ignored: no --watermark, so the file carries no mark and needs no key")
-    if args.watermark is None:  # the image's options: none of them changes a file without an image
+        if not image:
+            extra.append("--no-owner ignored: no --watermark, so the file carries no mark" if args.key is None else
+                         "--no-owner: no watermark image (none given, none in --key), so the file carries no mark")
+    if not image:  # the image's options: none of them changes a file without an image
         given = {"--embed-from": args.embed_from is not None, "--bits": args.bits is not None,
                  f"--mode {args.mode}": args.mode != STREAM_DEFAULTS["mode"], "--fit": args.fit}
         extra += ignored_without_image([name for name, on in given.items() if on], "--watermark")
@@ -169,13 +169,25 @@ def run(args) -> int:
     return 0
 
 
+def _key_image(args) -> bool:
+    """Whether the existing ``--key`` holds a watermark image, which an encode without ``--watermark`` marks
+    with (the library's rule: one key marks every asset alike); a key file that cannot be read is the
+    library's to refuse (one line, exit 2)."""
+    if args.key is None or not os.path.isfile(args.key):
+        return False
+    try:
+        return pmwm_codec.load_key(args.key).reference is not None
+    except pmwm_codec.PmwError:
+        return False
+
+
 def _encode_fitting(args, options: dict, notices: list) -> dict:
     """Encode; with ``--fit``, a watermark too large for the mesh is shrunk to the largest
     size that fits (the library's CapacityError names it) and the encode runs again."""
     try:
         return pmwm_codec.encode(args.input, args.output, watermark=args.watermark, key=args.key, **options)
     except CapacityError as exc:
-        if not args.fit or not exc.largest_size:
+        if not args.fit or not exc.largest_size or args.watermark is None:
             raise
         image, _ = load_watermark(args.watermark)
         size = exc.largest_size
