@@ -227,7 +227,8 @@ def collection_key(key_path, watermark):
     """``(image, key)`` for a collection: load ``key_path`` or create it (with ``watermark``) and save it.
 
     image: (s, s) uint8, the watermark every asset carries (the key's reference when no
-    ``watermark`` is given).  An existing key whose reference differs from ``watermark``
+    ``watermark`` is given; None for an existing key of no image that names an owner ID: the owner
+    layer alone).  An existing key whose reference differs from ``watermark``
     is refused: every asset must verify with the one key.
     """
     image, key, new, _ = _collection_key(key_path, watermark)
@@ -246,10 +247,14 @@ def _collection_key(key_path, watermark):
     if os.path.exists(key_path):
         key = WatermarkKey.load(key_path)
         if image is None:
-            if key.reference is None:
-                raise BatchError(f"{key_path}: the key holds no watermark image; give --watermark")
-            image = key.reference
-        elif key.reference is not None and not np.array_equal(key.reference, image):
+            if key.reference is None and key.owner_id is None:
+                raise BatchError(f"{key_path}: the key holds no watermark image and names no owner id; give "
+                                 "--watermark")
+            image = key.reference  # None: the key's owner ID alone marks every asset (the owner layer)
+        elif key.reference is None:  # as pmw encode refuses it: the files would not verify with the key alone
+            raise BatchError(f"{key_path}: the key holds no watermark image (the owner layer alone), so it cannot "
+                             f"mark with {watermark}; name a new --key, or leave --watermark out")
+        elif not np.array_equal(key.reference, image):
             raise BatchError(f"{key_path}: the key was made for another watermark image than {watermark}")
         return image, key, False, given
     if image is None:
@@ -370,6 +375,9 @@ def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, worke
         folder = os.path.dirname(os.path.abspath(key))
         if new_key and not os.path.isdir(folder) and folder != out_dir:
             raise BatchError(f"{key}: cannot make the collection key there: no folder {folder}")
+        if image is None and (options or {}).get("owner_id") is False:
+            raise BatchError(f"{key}: the key holds no watermark image, so --no-owner would leave every asset "
+                             "unmarked")
     elif watermark is not None:
         from pmwm_codec.watermark.image import load_watermark_given
 
@@ -541,7 +549,9 @@ def verify_batch(out_dir, *, key=None, keys_dir=None, watermark=None, workers=No
     """Verify every ``.pmw`` under ``out_dir``: with the collection ``key``, with per-asset keys
     under ``keys_dir``, or (default) with the key beside each file.
 
-    Returns ``{"files", "authentic", "results": [{file, verdict, error}, ...]}`` (sorted by file).
+    Returns ``{"files", "authentic", "present", "results": [{file, verdict, error}, ...]}`` (sorted by file;
+    ``present``: the files of the owner layer alone, their key holding no image, whose layer reads ``present``:
+    :func:`~.tasks.verify_task`).
     Symlinked folders are not entered, and a file or key whose real path leaves its folder
     (``out_dir``, or ``keys_dir`` for the keys there) is not read: an ``error`` result saying so.
     ``no_worker_timeout``: as :func:`encode_batch`'s (BatchError when the cluster has no worker that long).
@@ -575,7 +585,7 @@ def verify_batch(out_dir, *, key=None, keys_dir=None, watermark=None, workers=No
                 progress({"done": len(results), "total": len(jobs), "rate": None})
     results.sort(key=lambda r: r["file"])
     return {"files": len(results), "authentic": sum(r["verdict"] == "authentic" for r in results),
-            "results": results}
+            "present": sum(r["verdict"] == "present" for r in results), "results": results}
 
 
 def _verify_job(job) -> dict:

@@ -260,15 +260,19 @@ def verify_task(path: str, key, watermark=None, root: str | None = None, key_roo
 
     ``verdict``: :func:`pmwm_codec.verify.verify_stream`'s, or ``truncated`` for a file that ends before
     its declared length whose part there verifies authentic (a cut file is not a whole output), or
-    ``error``; ``error`` says why (for any incomplete file: how much of it is there).
+    ``error``; ``error`` says why (for any incomplete file: how much of it is there).  A file of the owner
+    layer alone (its key holds no image and names an owner ID) has the owner layer's verdict, read from the
+    whole file: ``present``, ``absent`` or ``inconclusive``.
 
     ``root``: the folder the run names (OUT_DIR), which the real path of ``path`` must not
     leave; ``key_root``: the folder a key path must not leave (OUT_DIR for the key beside the
     file, ``--keys-dir``), None for a key named as is.  A file (or key) that leaves its folder
     is never read: an ``error`` result that says so (:func:`~pmwm_codec.batch.sources.outside_root`).
     """
+    from pmwm_codec import load_key
     from pmwm_codec.errors import PmwError
     from pmwm_codec.verify import verify_stream
+    from pmwm_codec.verify.owner import OwnerReader
 
     from .child import one_line
 
@@ -278,16 +282,31 @@ def verify_task(path: str, key, watermark=None, root: str | None = None, key_roo
         if why is not None:
             return {"file": path, "verdict": "error", "error": why}
     try:
-        outcome = verify_stream(path, key, watermark)
+        key = load_key(key)
+        # a key of no image marks the owner layer alone: the layer read from the whole file is the verdict
+        reader = OwnerReader(key, last_only=True) if key.reference is None and key.owner_id is not None else None
+        outcome = verify_stream(path, key, watermark, each=None if reader is None else reader.add)
+        owner = None if reader is None or outcome.marked or not reader.boundaries else reader.boundaries[-1].owner
     except (PmwError, OSError, ValueError) as exc:
         return {"file": path, "verdict": "error", "error": one_line(exc)}
     end = outcome.end
+    if end.complete and owner is not None:
+        why = None if owner.verdict == "present" else (f"the owner layer reads {owner.bit_errors} of {owner.bits} "
+                                                        "bits wrong")
+        return {"file": path, "verdict": owner.verdict, "error": why}
     if end.complete:
         return {"file": path, "verdict": outcome.verdict, "error": None}
     # a file cut short (a partial copy or sync) is not a whole output, whatever its prefix verifies as
     applied = outcome.results[-1].chunk if outcome.results else 0
     what = (f"the file ends at {end.bytes_read:,} of its {outcome.total_length:,} bytes, base + {applied} of "
             f"{end.chunks_total} chunks")
-    if outcome.verdict == "authentic":
+    if owner is not None:
+        verdict = owner.verdict
+        if verdict == "present":
+            return {"file": path, "verdict": "truncated", "error": f"{what}; the owner layer of the part there "
+                                                                    "reads present"}
+    else:
+        verdict = outcome.verdict
+    if verdict == "authentic":
         return {"file": path, "verdict": "truncated", "error": f"{what}; the part there verifies authentic"}
-    return {"file": path, "verdict": outcome.verdict, "error": f"truncated: {what}"}
+    return {"file": path, "verdict": verdict, "error": f"truncated: {what}"}

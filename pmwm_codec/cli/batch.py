@@ -216,10 +216,12 @@ def run_verify(args) -> int:
         print_json(outcome)
     elif not args.quiet:
         for r in outcome["results"]:
-            if r["verdict"] != "authentic":
+            if r["verdict"] not in ("authentic", "present"):
                 error = r["error"] or ""
                 if error.startswith(r["file"] + ": "):  # the path once, not twice
                     error = error[len(r["file"]) + 2:]
                 print(f"  {r['verdict']}: {r['file']}" + (f" ({error})" if error else ""))
-        print(f"{outcome['authentic']} of {outcome['files']} files authentic")
-    return EXIT_OK if outcome["authentic"] == outcome["files"] else EXIT_NOT_AUTHENTIC
+        print(f"{outcome['authentic']} of {outcome['files']} files authentic" if not outcome["present"] else
+              f"{outcome['authentic'] + outcome['present']} of {outcome['files']} files verified ("
+              f"{outcome['present']} of the owner layer alone: present)")
+    return EXIT_OK if outcome["authentic"] + outcome["present"] == outcome["files"] else EXIT_NOT_AUTHENTIC

@@ -65,7 +65,7 @@ class OwnerBoundary:
     chunk: int
     bytes_read: int
     vertices: int
-    owner: OwnerResult
+    owner: OwnerResult | None  # None only until read (OwnerReader.last_only)
     read_at: int = -1
 
     def __post_init__(self):
@@ -227,11 +227,13 @@ class OwnerReader:
     :class:`OwnerBoundary` list :func:`owner_of_stream` returns.  The layer is read at the first boundary, at
     each whose level has :data:`REREAD_GROWTH` more vertices than the last read, and at the last one added
     (read when :attr:`boundaries` is asked for; the boundaries between carry the last read); ``every``:
-    at each."""
+    at each; ``last_only``: at the last one only (:attr:`boundaries` is then that one boundary: a verdict on
+    the whole file, as ``pmw batch verify`` gives)."""
 
-    def __init__(self, key, every: bool = False):
+    def __init__(self, key, every: bool = False, last_only: bool = False):
         self.key = owner_key(key)
         self.every = every
+        self.last_only = last_only
         self._boundaries: list = []
         self._frames = None
         self._read_vertices = None
@@ -255,6 +257,10 @@ class OwnerReader:
         if self._frames is None:
             self._frames = _frames(gltf)
         vertices = int(result.vertices)
+        if self.last_only:  # read when asked for (boundaries), and only that one
+            self._boundaries = [OwnerBoundary(result.chunk, int(result.bytes_read), vertices, None)]
+            self._pending = result.parts
+            return
         if self.every or self._read_vertices is None or vertices >= self._read_vertices * (1 + REREAD_GROWTH):
             self._pending = None
             self._read_vertices = vertices
