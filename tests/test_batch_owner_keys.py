@@ -107,3 +107,27 @@ def test_an_owner_only_key_with_a_watermark_is_refused_as_pmw_encode_refuses_it(
             "--watermark", tmp_path / "w.png", "--workers", "1")
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "holds no watermark image" in r.stderr
     assert not (tmp_path / "none").exists()
+
+
+def test_owner_id_marks_each_asset_with_a_key_of_its_own_and_a_rerun_skips_them(catalogue, tmp_path):
+    out = tmp_path / "out"
+    r = pmw("batch", "encode", catalogue / "src", "-o", out, "--owner-id", "0x77", "--workers", "1", "--json")
+    assert r.returncode == 0 and json.loads(r.stdout)["ok"] == 2
+    keys = sorted(out.glob("*.pmw.key.json"))
+    assert len(keys) == 2 and all(json.loads(k.read_text())["owner_id"] == "0000000000000077" for k in keys)
+    r = pmw("batch", "verify", out, "--workers", "1", "--json")  # each with the key beside it
+    assert r.returncode == 0 and json.loads(r.stdout)["present"] == 2
+    again = pmw("batch", "encode", catalogue / "src", "-o", out, "--owner-id", "0x77", "--workers", "1", "--json")
+    assert again.returncode == 0 and json.loads(again.stdout)["skipped"] == 2
+
+
+def test_owner_id_with_a_new_collection_key_makes_it_and_an_existing_key_must_name_it(catalogue, tmp_path):
+    key = tmp_path / "store.key.json"
+    r = pmw("batch", "encode", catalogue / "src", "-o", tmp_path / "out", "--owner-id", "0x78", "--key", key,
+            "--workers", "1", "-q")
+    assert r.returncode == 0 and json.loads(key.read_text())["owner_id"] == "0000000000000078"
+    assert pmw("batch", "verify", tmp_path / "out", "--key", key, "--workers", "1").returncode == 0
+    r = pmw("batch", "encode", catalogue / "src", "-o", tmp_path / "other", "--owner-id", "0x79", "--key", key,
+            "--workers", "1")
+    assert r.returncode == 2 and "names owner id 0000000000000078, not 0000000000000079" in r.stderr
+    assert not (tmp_path / "other").exists()

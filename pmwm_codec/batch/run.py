@@ -223,21 +223,28 @@ def _sigint_ignored():
         signal.signal(signal.SIGINT, previous)
 
 
-def collection_key(key_path, watermark):
+def collection_key(key_path, watermark, owner_id=None):
     """``(image, key)`` for a collection: load ``key_path`` or create it (with ``watermark``) and save it.
 
     image: (s, s) uint8, the watermark every asset carries (the key's reference when no
     ``watermark`` is given; None for an existing key of no image that names an owner ID: the owner
-    layer alone).  An existing key whose reference differs from ``watermark``
-    is refused: every asset must verify with the one key.
+    layer alone).  An existing key whose reference differs from ``watermark``, or whose owner ID is not
+    ``owner_id`` (an int; None: the key's own, random for a new key), is refused: every asset must verify
+    with the one key.  A new key needs a ``watermark`` or an ``owner_id`` (then it marks the owner layer alone).
     """
-    image, key, new, _ = _collection_key(key_path, watermark)
+    image, key, new, _ = _collection_key(key_path, watermark, owner_id)
     if new:
         key.save(key_path)
     return image, key
 
 
-def _collection_key(key_path, watermark):
+def _owner_given(options) -> int | None:
+    """The owner ID the run's encode ``options`` set (``--owner-id``), or None (none set, or False: no layer)."""
+    owner = (options or {}).get("owner_id")
+    return None if owner is None or isinstance(owner, bool) else int(owner)
+
+
+def _collection_key(key_path, watermark, owner_id=None):
     """``(image, key, new, given)``: :func:`collection_key` without saving a new key (``new``: True for one made
     here; ``given``: the watermark's (width, height) as given, None without one)."""
     from pmwm_codec.watermark.image import load_watermark_given
@@ -256,10 +263,13 @@ def _collection_key(key_path, watermark):
                              f"mark with {watermark}; name a new --key, or leave --watermark out")
         elif not np.array_equal(key.reference, image):
             raise BatchError(f"{key_path}: the key was made for another watermark image than {watermark}")
+        if owner_id is not None and key.owner_id != owner_id:
+            raise BatchError(f"{key_path}: the key names " + ("no owner id" if key.owner_id is None else
+                             f"owner id {key.owner_hex}") + f", not {owner_id:016x} (name a new --key)")
         return image, key, False, given
-    if image is None:
-        raise BatchError(f"{key_path}: no such key; give --watermark to create a collection key")
-    return image, WatermarkKey.generate(reference=image), True, given
+    if image is None and owner_id is None:
+        raise BatchError(f"{key_path}: no such key; give --watermark or --owner-id to create a collection key")
+    return image, WatermarkKey.generate(reference=image, owner_id=owner_id), True, given
 
 
 def check_key_places(assets, out_dir, key=None, keys_dir=None) -> None:
@@ -317,8 +327,9 @@ def _jobs(assets, out_dir, image, key, keys_dir, timeout, force, options=None, r
     mode = "collection" if key is not None else "keys-dir" if keys_dir is not None else "beside"
     settings = settings_sha256(image, mode, None if key is None else key.fingerprint(), options)
     jobs = []
+    marked = image is not None or _owner_given(options) is not None  # a mark needs a key per asset
     for asset in assets:
-        if image is None or key is not None:
+        if not marked or key is not None:
             job_key, key_path = key, None
         elif keys_dir is not None:
             job_key = key_path = os.path.join(os.path.abspath(keys_dir), asset.relative + PMW_SUFFIX + KEY_SUFFIX)
@@ -371,7 +382,7 @@ def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, worke
     check_key_places(assets, out_dir, key, keys_dir)  # before anything is made: no key, no OUT_DIR
     image, key_obj, new_key, given = None, None, False, None
     if key is not None:
-        image, key_obj, new_key, given = _collection_key(key, watermark)
+        image, key_obj, new_key, given = _collection_key(key, watermark, _owner_given(options))
         folder = os.path.dirname(os.path.abspath(key))
         if new_key and not os.path.isdir(folder) and folder != out_dir:
             raise BatchError(f"{key}: cannot make the collection key there: no folder {folder}")

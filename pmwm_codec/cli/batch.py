@@ -63,7 +63,7 @@ def _terminable(run):
                 exc = exc.__cause__ or exc.__context__
             raise
     return wrapped
-from .encode import add_stream_options, stream_options
+from .encode import add_stream_options, owner_id_arg, stream_options
 
 INSTALL_HINT = 'pmw batch needs Dask: pip install "pmwm_codec[batch]"'
 
@@ -118,8 +118,13 @@ def add_parser(sub):
                    help="seconds per asset before its encoder is killed (default 600)")
     e.add_argument("--force", action="store_true", help="redo assets the ledger records as done")
     add_stream_options(e)
-    e.add_argument("--no-owner", action="store_true",
-                   help="with --watermark: write the exact layer only, no owner layer")
+    owner = e.add_mutually_exclusive_group()
+    owner.add_argument("--owner-id", type=owner_id_arg, metavar="HEX",
+                       help="the 64-bit owner ID of every asset's owner layer (as 'pmw encode --owner-id'; alone, "
+                            "without --watermark, the only mark); with --key: the ID of a new collection key, or "
+                            "the one an existing key must name")
+    owner.add_argument("--no-owner", action="store_true",
+                       help="with --watermark: write the exact layer only, no owner layer")
     _cluster_options(e)
     e.set_defaults(run=_terminable(run_encode))
     v = cmds.add_parser("verify", help="verify every .pmw under OUT_DIR",
@@ -165,6 +170,8 @@ def _bar(args) -> Progress:
 def run_encode(args) -> int:
     batch = _library()
     options = stream_options(args, defaults=False)  # the ledger's settings: only what differs from the defaults
+    if args.owner_id is not None:
+        options["owner_id"] = args.owner_id
     if args.no_owner:
         if args.watermark is None and args.key is None:
             raise UsageError("--no-owner needs --watermark (or a collection --key): without a mark there is no owner layer")

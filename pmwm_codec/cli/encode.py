@@ -41,7 +41,7 @@ def _start(text):
     return value
 
 
-def _owner_id(text):
+def owner_id_arg(text):
     from pmwm_codec.watermark.key import parse_owner_id
 
     try:
@@ -59,7 +59,7 @@ def add_parser(sub):
     p.add_argument("input", help="mesh file")
     p.add_argument("-o", "--output", required=True, metavar="OUT.pmw", help="the .pmw to write")
     p.add_argument("--watermark", metavar="IMG", help="grayscale watermark image (made square, 2^k)")
-    p.add_argument("--owner-id", type=_owner_id, metavar="HEX",
+    p.add_argument("--owner-id", type=owner_id_arg, metavar="HEX",
                    help="the 64-bit owner ID (1-16 hex digits, a 0x before them allowed) of the owner layer, which survives transport and "
                         "processing and is read blind by 'pmw verify MESH --key KEY' (default with --watermark: the "
                         "key's, random for a new key, left out with a note where it would not read back); alone, "
