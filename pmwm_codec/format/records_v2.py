@@ -458,7 +458,7 @@ def _connectivity_kernel(gstart, a, b, v, P, sym, S, ring, nrm, arc, fan, work, 
     return 0
 
 
-@kernel_helper
+@kernel_helper(inline=True)
 def _split_symbols(lo, hi, vv, a, b, P, sym, fan, work, epoch, lens, scores, arc, es, out, ds, buf, probs, decode):
     """Code or decode the symbols of one split's incidences ``lo .. hi - 1`` (spec §8.4.2); 0, or -1 on an
     invalid code.  ``fan`` / ``work`` / ``epoch``: :func:`_fan`'s.  ``arc`` (3,) int64: when the
