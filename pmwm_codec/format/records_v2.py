@@ -361,6 +361,7 @@ def _arc_rank(fan, d, closed, L, s, a, vv, P, lens, scores, choose):
         fx, fy, fz = np.float64(x), np.float64(y), np.float64(z)
         lens[t] = np.sqrt((fx * fx + fy * fy) + fz * fz)
     ncand = d if closed else d - L + 1
+    best, best_score = 0, -1.0  # the start of rank 0 (the first of highest score), found on the way
     for c in range(ncand):
         sc = 0.0
         t = c
@@ -368,16 +369,17 @@ def _arc_rank(fan, d, closed, L, s, a, vv, P, lens, scores, choose):
             t = t + 1 if t + 1 < d else 0  # (c + j) mod d
             sc += lens[t]
         scores[c] = sc
+        if sc > best_score:
+            best, best_score = c, sc
     if choose < 0:
         r = 0
         for c in range(ncand):
             if scores[c] > scores[s] or (scores[c] == scores[s] and c < s):
                 r += 1
         return r
-    # the start of rank `choose` in choose + 1 passes (mostly 1 or 2): each takes the first start
-    # of highest score among those after the previous pass's in rank order
-    best, best_score = -1, np.inf
-    for _ in range(choose + 1):
+    # the start of rank `choose` in choose more passes (mostly none or one): each takes the first start
+    # of highest score among those after the previous pass's in rank order (scores are finite and >= 0)
+    for _ in range(choose):
         prev, prev_score = best, best_score
         best = -1
         for c in range(ncand):
