@@ -1236,7 +1236,7 @@ def _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, head, tail, nxt, split
         if ahead and i + 1 < k:  # the next split's corners, loaded while this split is worked on
             _prefetch_rows(flat, inc, gstart[i + 1], gstart[i + 2])
             _prefetch_rows(nxt, inc, gstart[i + 1], gstart[i + 2])
-        head[u], tail[u], head[v[i]], tail[v[i]] = -1, -1, -1, -1
+        last_u, last_v = -1, -1  # the two lists rebuilt in locals: each corner's successor written once
         for t in range(gstart[i], gstart[i + 1]):
             c = inc[t]
             if sym[t] != 0:  # its face's other corners as they were before the batch: a[t], b[t]
@@ -1250,7 +1250,19 @@ def _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, head, tail, nxt, split
                     j += 1
                     created[c >> 5] |= 1 << (c & 31)
                     lo_word, hi_word = min(lo_word, c >> 5), max(hi_word, (c >> 5) + 1)
-            _append_corner(u if sym[t] != 0 else v[i], c, head, tail, nxt)
+                if last_u < 0:
+                    head[u] = c
+                else:
+                    nxt[last_u] = c
+                last_u = c
+            else:
+                if last_v < 0:
+                    head[v[i]] = c
+                else:
+                    nxt[last_v] = c
+                last_v = c
+        _end_list(u, last_u, head, tail, nxt)
+        _end_list(v[i], last_v, head, tail, nxt)
     slot = 3 * m0
     word, bits = lo_word - 1, 0  # the naming corners in ascending order (a cursor over the bitmap)
     # on large meshes two cursors run ahead: one asks for the creator entries LINK_AHEAD corners on, one
@@ -1304,6 +1316,16 @@ def _next_created(created, word, bits, hi_word):
         bits = created[word]
     low = bits & -bits
     return 32 * word + _DE_BRUIJN[((low * 0x077CB531) & 0xFFFFFFFF) >> 27], word, bits ^ low
+
+
+@kernel_helper
+def _end_list(w, last, head, tail, nxt):
+    """Close ``w``'s list at its last corner ``last`` (-1: the list is empty)."""
+    if last < 0:
+        head[w] = -1
+    else:
+        nxt[last] = -1
+    tail[w] = last
 
 
 @kernel_helper
