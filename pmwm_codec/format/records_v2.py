@@ -202,6 +202,7 @@ def _mark_above(w, t, flat, head, nxt, below, inc, a, b):
     return t
 
 
+@kernel_helper
 def _mask_kernel(flat, n, head, nxt, valence, below, sel, marked, gstart, inc, a, b, es, out, ds, buf, probs, decode):
     """Code (``decode`` 0, the bits ``sel`` (n,) int64) or decode (1) a batch's selection mask over the
     mesh of the corner lists (:class:`CornerLists` arrays, ``flat`` (3M,) int64 its face slots).
@@ -360,6 +361,7 @@ def _arc_rank(fan, d, closed, L, s, a, vv, P, lens, scores, choose):
         fx, fy, fz = np.float64(x), np.float64(y), np.float64(z)
         lens[t] = np.sqrt((fx * fx + fy * fy) + fz * fz)
     ncand = d if closed else d - L + 1
+    best, best_score = 0, -1.0  # the start of rank 0 (the first of highest score), found on the way
     for c in range(ncand):
         sc = 0.0
         t = c
@@ -367,16 +369,17 @@ def _arc_rank(fan, d, closed, L, s, a, vv, P, lens, scores, choose):
             t = t + 1 if t + 1 < d else 0  # (c + j) mod d
             sc += lens[t]
         scores[c] = sc
+        if sc > best_score:
+            best, best_score = c, sc
     if choose < 0:
         r = 0
         for c in range(ncand):
             if scores[c] > scores[s] or (scores[c] == scores[s] and c < s):
                 r += 1
         return r
-    # the start of rank `choose` in choose + 1 passes (mostly 1 or 2): each takes the first start
-    # of highest score among those after the previous pass's in rank order
-    best, best_score = -1, np.inf
-    for _ in range(choose + 1):
+    # the start of rank `choose` in choose more passes (mostly none or one): each takes the first start
+    # of highest score among those after the previous pass's in rank order (scores are finite and >= 0)
+    for _ in range(choose):
         prev, prev_score = best, best_score
         best = -1
         for c in range(ncand):
@@ -433,20 +436,19 @@ def _arc_of(fan, d, kind, sym):
     return s, L, left, right
 
 
-@kernel_helper(allocates=True)
-def _connectivity_kernel(gstart, a, b, v, P, sym, S, ring, nrm, arc, es, out, ds, buf, probs, decode):
+@kernel_helper
+def _connectivity_kernel(gstart, a, b, v, P, sym, S, ring, nrm, arc, fan, work, lens, scores, es, out, ds, buf, probs,
+                         decode):
     """Code or decode the incidence symbols ``sym`` (I,) uint8 of a batch, split by split, and
     take each split's ring statistics (:func:`_ring_stats`) while its rows are at hand.
 
     ``gstart[i] .. gstart[i+1] - 1``: split i's incidences in face-slot order; ``a`` / ``b`` (I,)
     the corners after / before the split vertex.  Fills ``S`` (k, D) int64, ``ring`` (k, 2) int64,
-    ``nrm`` (k, 3) float64 and ``arc`` (k, 3) int64 (:func:`_split_symbols`).  Returns 0, or
-    (decode) -1 on an invalid code.
+    ``nrm`` (k, 3) float64 and ``arc`` (k, 3) int64 (:func:`_split_symbols`).  Scratch: ``fan`` (MAX_ARC_FAN,)
+    int64, ``work`` (FAN_WORK,) int64 zeros (:func:`_fan`), ``lens`` / ``scores`` (MAX_ARC_FAN,) float64
+    (:func:`_arc_rank`).  Returns 0, or (decode) -1 on an invalid code.
     """
-    fan, work = np.empty(MAX_ARC_FAN, np.int64), np.zeros(FAN_WORK, np.int64)
     ahead = len(P) >= PREFETCH_VERTICES
-    lens = np.empty(MAX_ARC_FAN, np.float64)
-    scores = np.empty(MAX_ARC_FAN, np.float64)
     for i in range(len(v)):
         lo, hi = gstart[i], gstart[i + 1]
         if ahead and i + 1 < len(v):  # the next split's ring values, loaded while this split is worked on
@@ -458,7 +460,7 @@ def _connectivity_kernel(gstart, a, b, v, P, sym, S, ring, nrm, arc, es, out, ds
     return 0
 
 
-@kernel_helper
+@kernel_helper(inline=True)
 def _split_symbols(lo, hi, vv, a, b, P, sym, fan, work, epoch, lens, scores, arc, es, out, ds, buf, probs, decode):
     """Code or decode the symbols of one split's incidences ``lo .. hi - 1`` (spec §8.4.2); 0, or -1 on an
     invalid code.  ``fan`` / ``work`` / ``epoch``: :func:`_fan`'s.  ``arc`` (3,) int64: when the
@@ -1067,12 +1069,18 @@ def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, spli
     :func:`_values_kernel`).  Returns the number of new faces, or a negative code (:data:`_BATCH_ERRORS`).
     """
     k, D = len(v), P.shape[1]
+    # every array the steps use is made here: the steps are compiled without reference counting (each
+    # array's count taken with an atomic instruction), which their loops would otherwise do per split
     S, ring, nrm = np.empty((k, D), np.int64), np.empty((k, 2), np.int64), np.empty((k, 3))
     arc = np.empty((k, 3), np.int64)
-    if _connectivity_kernel(gstart, a, b, v, P, sym, S, ring, nrm, arc, es, out, ds, buf, probs, decode) != 0:
+    fan, work = np.empty(MAX_ARC_FAN, np.int64), np.zeros(FAN_WORK, np.int64)
+    lens, scores = np.empty(MAX_ARC_FAN, np.float64), np.empty(MAX_ARC_FAN, np.float64)
+    if _connectivity_kernel(gstart, a, b, v, P, sym, S, ring, nrm, arc, fan, work, lens, scores, es, out, ds, buf,
+                            probs, decode) != 0:
         return -1
+    named = np.empty((2 * k, 4), np.int64)  # two new faces a split at most (more: refused before any is named)
     new_faces, rewritten = _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, head, tail, nxt, split, created,
-                                        creator)
+                                        creator, named)
     if new_faces < 0:
         return new_faces
     if not decode and len(res) != 0:
@@ -1083,18 +1091,22 @@ def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, spli
                 P[n0 + i, q] = S[i, q] // (2 * ring[i, 0]) + res[i, q]
     if _values_kernel(v, P, n0, S, ring, nrm, es, out, ds, buf, probs, decode, rsum, rcount) != 0:
         return -4
-    _update_valences(n0, v, a, b, sym, gstart, arc, flat, head, nxt, valence, stamp, tag, ctr, rewritten)
+    own, near, flags = np.empty((k, 2), np.int64), np.empty(2 * MAX_ARC_FAN, np.int64), np.empty(2 * MAX_ARC_FAN, np.int64)
+    _update_valences(n0, v, a, b, sym, gstart, arc, flat, head, nxt, valence, stamp, tag, ctr, rewritten, own, near,
+                     flags)
     return new_faces
 
 
-@kernel_helper(allocates=True)
-def _update_valences(n0, v, a, b, sym, gstart, arc, flat, head, nxt, valence, stamp, tag, ctr, rewritten):
+@kernel_helper
+def _update_valences(n0, v, a, b, sym, gstart, arc, flat, head, nxt, valence, stamp, tag, ctr, rewritten, own, near,
+                     flags):
     """The valences a batch changed, after its topology.  A ring vertex ``x`` of split i gains ``u``
     when a face of ``u`` holds it and loses ``v`` when no face of ``v`` holds it any more; ``v`` and
     ``u`` count the distinct ring vertices of their faces, plus each other (in O(1) for the arc of
     a closed fan, ``arc`` (k, 3) of :func:`_split_symbols`: :func:`_arc_valences`).  That holds when
     no face held a moved corner and another split vertex (``rewritten`` False: every valid batch);
-    else every ring, split and new vertex is recounted from its faces."""
+    else every ring, split and new vertex is recounted from its faces.  Scratch: ``own`` (k, 2) int64,
+    ``near`` / ``flags`` (2 * MAX_ARC_FAN,) int64."""
     k = len(v)
     if rewritten:
         for i in range(k):
@@ -1105,8 +1117,8 @@ def _update_valences(n0, v, a, b, sym, gstart, arc, flat, head, nxt, valence, st
             valence[v[i]] = _valence(v[i], flat, head, nxt, stamp, ctr)
             valence[n0 + i] = _valence(n0 + i, flat, head, nxt, stamp, ctr)
         return
-    own = np.ones((k, 2), np.int64)  # valences of u and v after the split
-    near, flags = np.empty(2 * MAX_ARC_FAN, np.int64), np.empty(2 * MAX_ARC_FAN, np.int64)
+    for i in range(k):  # own: the valences of u and v after the split
+        own[i, 0], own[i, 1] = 1, 1
     for i in range(k):
         lo, hi = gstart[i], gstart[i + 1]
         if arc[i, 0] >= 0 and _arc_valences(lo, hi, a, v[i], arc[i], valence, own[i]):
@@ -1188,8 +1200,8 @@ _DE_BRUIJN = np.array([0, 1, 28, 2, 29, 14, 24, 3, 30, 22, 20, 15, 25, 17, 4, 8,
                        18, 6, 11, 5, 10, 9], np.int64)
 
 
-@kernel_helper(allocates=True)
-def _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, head, tail, nxt, split, created, creator):
+@kernel_helper
+def _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, head, tail, nxt, split, created, creator, named):
     """Spec §6.1 steps 1-3 on the face slots and the corner lists: the moved corners become
     ``u`` (and its list), the new faces are appended in face-slot order of the incidences naming
     them.  Returns ``(new faces, rewritten)``: new faces -2 when a split names none or more than
@@ -1199,7 +1211,8 @@ def _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, head, tail, nxt, split
     word), zeros on entry and on return; ``creator`` (3M,) int32, at a corner naming new faces
     (read only where ``created`` has the corner's bit) the row of ``named`` that holds them, made
     as the corners move: (u, v, a of the left face or -1, b of the right face or -1), so that
-    the faces are written from one row each, not from the batch's arrays at scattered places."""
+    the faces are written from one row each, not from the batch's arrays at scattered places: ``named``
+    (at least new faces, 4) int64 scratch, its rows in the order the corners move."""
     k = len(v)
     new_faces = 0
     for i in range(k):
@@ -1217,14 +1230,13 @@ def _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, head, tail, nxt, split
     rewritten = False
     ahead = len(head) >= PREFETCH_VERTICES
     lo_word, hi_word = len(created), 0
-    named = np.empty((new_faces, 4), np.int64)
     j = 0
     for i in range(k):  # split i's corners, ascending: the moved ones to u, the others stay with v
         u = n0 + i
         if ahead and i + 1 < k:  # the next split's corners, loaded while this split is worked on
             _prefetch_rows(flat, inc, gstart[i + 1], gstart[i + 2])
             _prefetch_rows(nxt, inc, gstart[i + 1], gstart[i + 2])
-        head[u], tail[u], head[v[i]], tail[v[i]] = -1, -1, -1, -1
+        last_u, last_v = -1, -1  # the two lists rebuilt in locals: each corner's successor written once
         for t in range(gstart[i], gstart[i + 1]):
             c = inc[t]
             if sym[t] != 0:  # its face's other corners as they were before the batch: a[t], b[t]
@@ -1238,7 +1250,19 @@ def _link_splits(flat, m0, n0, v, inc, a, b, sym, gstart, head, tail, nxt, split
                     j += 1
                     created[c >> 5] |= 1 << (c & 31)
                     lo_word, hi_word = min(lo_word, c >> 5), max(hi_word, (c >> 5) + 1)
-            _append_corner(u if sym[t] != 0 else v[i], c, head, tail, nxt)
+                if last_u < 0:
+                    head[u] = c
+                else:
+                    nxt[last_u] = c
+                last_u = c
+            else:
+                if last_v < 0:
+                    head[v[i]] = c
+                else:
+                    nxt[last_v] = c
+                last_v = c
+        _end_list(u, last_u, head, tail, nxt)
+        _end_list(v[i], last_v, head, tail, nxt)
     slot = 3 * m0
     word, bits = lo_word - 1, 0  # the naming corners in ascending order (a cursor over the bitmap)
     # on large meshes two cursors run ahead: one asks for the creator entries LINK_AHEAD corners on, one
@@ -1292,6 +1316,16 @@ def _next_created(created, word, bits, hi_word):
         bits = created[word]
     low = bits & -bits
     return 32 * word + _DE_BRUIJN[((low * 0x077CB531) & 0xFFFFFFFF) >> 27], word, bits ^ low
+
+
+@kernel_helper
+def _end_list(w, last, head, tail, nxt):
+    """Close ``w``'s list at its last corner ``last`` (-1: the list is empty)."""
+    if last < 0:
+        head[w] = -1
+    else:
+        nxt[last] = -1
+    tail[w] = last
 
 
 @kernel_helper
