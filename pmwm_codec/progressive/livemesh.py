@@ -121,7 +121,7 @@ def boundary_half_edges(faces: np.ndarray, n: int) -> np.ndarray:
 def _boundary_kernel(faces, n):
     """Compiled :func:`boundary_half_edges` (the edge pass of :func:`_live_mesh_kernel`)."""
     vf_start, vf_corner, _, ring = _vertex_faces(faces, n)
-    _, _, count, he0, _, _, _, _ = _edges_by_vertex(faces, n, vf_start, vf_corner, ring)
+    _, _, count, he0, _, _, _, _, _, _ = _edges_by_vertex(faces, n, vf_start, vf_corner, ring)
     return he0[count == 1]
 
 
@@ -143,9 +143,10 @@ def _compact_kernel(corners, face_alive, vert_alive, vids0, fids0, loc):
         fids[m] = f
         m += face_alive[f]
     F = np.empty((m, 3), np.int64)
-    for i in range(m):
-        for c in range(3):
-            F[i, c] = loc[corners[fids[i], c]]
+    for i in range(m):  # the face's corners read into locals first (a store to F could alias them: reloads)
+        f = fids[i]
+        a, b, c = corners[f, 0], corners[f, 1], corners[f, 2]
+        F[i, 0], F[i, 1], F[i, 2] = loc[a], loc[b], loc[c]
     return vids[:n], fids[:m], loc, F
 
 
@@ -166,32 +167,42 @@ def _vertex_faces(F, n):
     fill = vf_start[:-1].copy()
     vf_corner = np.empty(3 * len(F), np.int64)
     ring = np.empty((3 * len(F), 2), np.int32)
-    for f in range(len(F)):
-        for c in range(3):
-            s = fill[F[f, c]]
-            vf_corner[s] = 3 * f + c
-            ring[s, 0] = F[f, c + 1 if c < 2 else 0]
-            ring[s, 1] = F[f, c - 1 if c > 0 else 2]
-            fill[F[f, c]] += 1
+    for f in range(len(F)):  # the corners held in locals (a store to vf_corner could alias F or fill: reloads)
+        a, b, c = F[f, 0], F[f, 1], F[f, 2]
+        sa = fill[a]
+        vf_corner[sa], ring[sa, 0], ring[sa, 1] = 3 * f, b, c
+        fill[a] = sa + 1
+        sb = fill[b]  # a degenerate face repeats a vertex: its next corner goes to the next place
+        vf_corner[sb], ring[sb, 0], ring[sb, 1] = 3 * f + 1, c, a
+        fill[b] = sb + 1
+        sc = fill[c]
+        vf_corner[sc], ring[sc, 0], ring[sc, 1] = 3 * f + 2, a, b
+        fill[c] = sc + 1
     return vf_start, vf_corner, fcount, ring
 
 
 @kernel_helper(allocates=True)
 def _edges_by_vertex(F, n, vf_start, vf_corner, ring):
     """Kernel part of :func:`_live_mesh_kernel`: the edge table of ``F`` built vertex by vertex
-    (:func:`_vertex_edges`).
+    (:func:`_vertex_edges`), with the vertex -> neighbours CSR of :class:`LiveMesh`.
 
-    Returns ``(lo, hi, count, he0, he1)`` (e,) int64 as in :class:`~.topology.EdgeTable`, ``down``
-    (n,) int64 (edges where each vertex is the high end) and :class:`LiveMesh`'s ``boundary`` and
-    ``edge_flags``.  The edge arrays are views of arrays sized
+    Returns ``(lo, hi, count, he0, he1)`` (e,) int64 as in :class:`~.topology.EdgeTable`, ``vv_start``
+    (n + 1,), ``vv_nbr`` and ``vv_edge`` (2e,) int64 and :class:`LiveMesh`'s ``boundary`` and
+    ``edge_flags``; ``vf_corner`` (3m,) int64 is turned from corners into faces in place (``f = corner //
+    3``, :class:`LiveMesh`'s ``vf``).  The edge and neighbour arrays are views of arrays sized
     for a closed mesh's edges and a little more (grown by half when short), not for every half-edge
     (about twice the edges), which views would keep alive with the live mesh (+137 MB peak on a
-    1.1M-vertex encode); nor copies (5-8 % of the live mesh's time).
+    1.1M-vertex encode); nor copies (5-8 % of the live mesh's time).  The neighbour rows' first parts
+    (each vertex's edges as the low end) are written as the vertices' edges are made, their second
+    parts in one pass over the edges after.
     """
     h = 3 * len(F)
     cap = min(h, h // 2 + h // 32 + 16)
     lo, hi, count = np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.int64)
     he0, he1 = np.empty(cap, np.int64), np.empty(cap, np.int64)
+    vv_nbr, vv_edge = np.empty(2 * cap, np.int64), np.empty(2 * cap, np.int64)
+    vv_start = np.zeros(n + 1, np.int64)
+    fill = np.empty(n, np.int64)  # each row's second part: where its next entry goes
     down = np.zeros(n, np.int64)
     boundary, flags = np.zeros(n, np.int64), np.zeros(n, np.uint8)
     wmax = 0
@@ -199,14 +210,22 @@ def _edges_by_vertex(F, n, vf_start, vf_corner, ring):
         wmax = max(wmax, vf_start[x + 1] - vf_start[x])
     buf = np.empty(2 * max(2 * wmax, 8) + 2, np.int64)  # a vertex's keys, then sorted (:func:`_vertex_edges`)
     zero = np.int64(0)  # not a literal (see :func:`~.topology.kernel_helper`)
-    x, ne = _vertex_edges(zero, zero, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0, he1, down, boundary, flags)
+    x, ne = _vertex_edges(zero, zero, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0, he1, down, boundary, flags,
+                          vv_start, vv_nbr, vv_edge, fill)
     while x < n:  # more boundary or non-manifold edges than that: grow (outside the vertex loop, which stays fast)
         cap = min(h, max(cap + cap // 2, ne + 2 * wmax))
         lo, hi, count = _grown(lo, cap, ne), _grown(hi, cap, ne), _grown(count, cap, ne)
         he0, he1 = _grown(he0, cap, ne), _grown(he1, cap, ne)
-        x, ne = _vertex_edges(x, ne, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0, he1, down, boundary,
-                              flags)
-    return lo[:ne], hi[:ne], count[:ne], he0[:ne], he1[:ne], down, boundary, flags
+        vv_nbr, vv_edge = _grown(vv_nbr, 2 * cap, vv_start[x]), _grown(vv_edge, 2 * cap, vv_start[x])
+        x, ne = _vertex_edges(x, ne, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0, he1, down, boundary, flags,
+                              vv_start, vv_nbr, vv_edge, fill)
+    for e in range(ne):  # each row's second part: the edges where its vertex is the high end, in edge order
+        y = hi[e]
+        p = fill[y]
+        vv_nbr[p] = lo[e]
+        vv_edge[p] = e
+        fill[y] = p + 1
+    return lo[:ne], hi[:ne], count[:ne], he0[:ne], he1[:ne], vv_start, vv_nbr[:2 * ne], vv_edge[:2 * ne], boundary, flags
 
 
 @kernel_helper(allocates=True)
@@ -251,12 +270,16 @@ def _network8(buf, k, half):
 
 
 @kernel_helper
-def _vertex_edges(x0, ne, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0, he1, down, boundary, flags):
+def _vertex_edges(x0, ne, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0, he1, down, boundary, flags, vv_start,
+                  vv_nbr, vv_edge, fill):
     """Kernel part of :func:`_edges_by_vertex`: the edges of the vertices from ``x0`` on, written from
     entry ``ne`` on of ``lo`` / ``hi`` / ``count`` / ``he0`` / ``he1`` (each (cap,) int64; ``down``,
     ``boundary`` and ``flags`` (n,) counted and marked as in :class:`LiveMesh`), until the next vertex's
-    would not fit: returns ``(x, ne)``, the first vertex not written (``n``: none left) and the edges
-    written.
+    might not fit: returns ``(x, ne)``, the first vertex not written (``n``: none left) and the edges
+    written.  Each vertex's row of the neighbour CSR is placed as it is reached (``vv_start`` (n + 1,)
+    int64: the edges where a vertex is the high end are all made by then, ``down``) and its first part
+    written (``vv_nbr`` / ``vv_edge`` (2 cap,) int64), ``fill`` (n,) int64 set to where its second part
+    starts; the vertex's entries of ``vf_corner`` become faces (``// 3``) as they are read.
 
     Every vertex ``x`` in turn gathers the half-edges of its corners that run to or from a higher
     vertex ``y`` (and its own outgoing self-loops) as one packed key ``(y << shift | half-edge) << 1 |
@@ -273,14 +296,20 @@ def _vertex_edges(x0, ne, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0,
         shift += 1
     low = (1 << shift) - 1
     half = len(buf) // 2
+    h = len(vf_corner)
     for x in range(x0, n):
+        a, b = vf_start[x], vf_start[x + 1]
+        if ne + min(2 * (b - a), h - ne) > len(lo):  # at most two keys a corner, and no more edges than corners
+            return x, ne
         k = 0
-        for p in range(vf_start[x], vf_start[x + 1]):  # every key written, kept (k advanced) or not: no branch
+        for p in range(a, b):  # every key written, kept (k advanced) or not: no branch
             hc = vf_corner[p]
+            f = np.int64(np.uint64(hc) // np.uint64(3))  # unsigned: no rounding fix-up for negatives
+            vf_corner[p] = f
             y1, y2 = np.int64(ring[p, 0]), np.int64(ring[p, 1])
             buf[k] = ((y1 << shift) | hc) << 1  # half-edge x -> y1
             k += y1 >= x
-            buf[k] = (((y2 << shift) | (hc + 2 if hc % 3 == 0 else hc - 1)) << 1) | 1  # y2 -> x: the previous corner
+            buf[k] = (((y2 << shift) | (hc + 2 if hc == 3 * f else hc - 1)) << 1) | 1  # y2 -> x: the previous corner
             k += y2 > x
         if k <= 8:
             _network8(buf, k, half)
@@ -291,8 +320,7 @@ def _vertex_edges(x0, ne, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0,
                 for j in range(k):
                     t += buf[j] < key
                 buf[t] = key
-        if ne + k > len(lo):
-            return x, ne
+        row = vv_start[x]
         j = half
         while j < half + k:
             s = j
@@ -303,6 +331,8 @@ def _vertex_edges(x0, ne, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0,
             lo[ne], hi[ne], count[ne] = x, y, c
             he0[ne] = (buf[s] >> 1) & low
             he1[ne] = (buf[s + 1] >> 1) & low if c >= 2 else -1
+            vv_nbr[row], vv_edge[row] = y, ne
+            row += 1
             down[y] += 1
             if c == 1:
                 boundary[x] += 1
@@ -314,6 +344,8 @@ def _vertex_edges(x0, ne, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0,
                 flags[x] |= 2
                 flags[y] |= 2
             ne += 1
+        fill[x] = row
+        vv_start[x + 1] = row + down[x]  # every edge with x as its high end is made (a self-loop just now)
     return n, ne
 
 
@@ -322,26 +354,8 @@ def _live_mesh_kernel(corners, face_alive, vert_alive, vids0, fids0, loc):
     ``loc`` as in :func:`_compact_kernel`."""
     vids, fids, loc, F = _compact_kernel(corners, face_alive, vert_alive, vids0, fids0, loc)
     n = len(vids)
-    vf_start, vf_corner, fcount, ring = _vertex_faces(F, n)
-    lo, hi, count, he0, he1, down, boundary, flags = _edges_by_vertex(F, n, vf_start, vf_corner, ring)
-    ne = len(lo)
-    vv_start = np.zeros(n + 1, np.int64)
-    for e in range(ne):
-        vv_start[lo[e] + 1] += 1
-    for x in range(n):
-        vv_start[x + 1] += vv_start[x] + down[x]
-    fill = vv_start[:-1].copy()
-    vv_nbr = np.empty(2 * ne, np.int64)
-    vv_edge = np.empty(2 * ne, np.int64)
-    for e in range(ne):  # each row: edges where the vertex is the low end, then the high end
-        vv_nbr[fill[lo[e]]] = hi[e]
-        vv_edge[fill[lo[e]]] = e
-        fill[lo[e]] += 1
-    for e in range(ne):
-        vv_nbr[fill[hi[e]]] = lo[e]
-        vv_edge[fill[hi[e]]] = e
-        fill[hi[e]] += 1
+    vf_start, vf_face, fcount, ring = _vertex_faces(F, n)
+    lo, hi, count, he0, he1, vv_start, vv_nbr, vv_edge, boundary, flags = _edges_by_vertex(F, n, vf_start, vf_face,
+                                                                                            ring)
     edges = (lo * n + hi, lo, hi, count, he0, he1)
-    for p in range(len(vf_corner)):  # corners -> faces in place (no second (3m,) array)
-        vf_corner[p] //= 3
-    return vids, fids, loc, F, edges, vv_start, vv_nbr, vv_edge, vf_start, vf_corner, fcount, boundary, flags
+    return vids, fids, loc, F, edges, vv_start, vv_nbr, vv_edge, vf_start, vf_face, fcount, boundary, flags
