@@ -4,9 +4,10 @@ Each batch of :func:`~pmwm_codec.progressive.simplify.simplify` works on the liv
 renumbered compactly ("local" ids, in the order of the original ids) and needs its edge
 table, its vertex -> neighbours and vertex -> faces adjacencies and the face count of every
 vertex.  :func:`live_mesh` builds all of them: with numba, in one compiled kernel (the vertex ->
-corners table by a counting sort, then every vertex's edges to higher vertices from its own
-corners, in edge order, so the half-edges are never sorted as a whole); without numba, with the
-functions of :mod:`.topology`.  Both paths return the same arrays, entry for entry.
+faces table and every vertex's half-edges to and from higher vertices by one counting sort, then
+every vertex's edges to higher vertices from its own half-edges, in edge order, so the half-edges
+are never sorted as a whole); without numba, with the functions of :mod:`.topology`.  Both paths
+return the same arrays, entry for entry.
 """
 
 from __future__ import annotations
@@ -120,8 +121,8 @@ def boundary_half_edges(faces: np.ndarray, n: int) -> np.ndarray:
 
 def _boundary_kernel(faces, n):
     """Compiled :func:`boundary_half_edges` (the edge pass of :func:`_live_mesh_kernel`)."""
-    vf_start, vf_corner, _, ring = _vertex_faces(faces, n)
-    _, _, count, he0, _, _, _, _, _, _ = _edges_by_vertex(faces, n, vf_start, vf_corner, ring)
+    vf_start, _, _, key_start, keys = _vertex_faces(faces, n)
+    _, _, count, he0, _, _, _, _, _, _ = _edges_by_vertex(faces, n, vf_start, key_start, keys)
     return he0[count == 1]
 
 
@@ -152,44 +153,83 @@ def _compact_kernel(corners, face_alive, vert_alive, vids0, fids0, loc):
 
 @kernel_helper(allocates=True)
 def _vertex_faces(F, n):
-    """Kernel part of :func:`_live_mesh_kernel`: the vertex -> corners CSR of ``F`` (m, 3) int64,
-    corners ``3 f + c`` ascending in every row: ``(vf_start (n + 1,), vf_corner (3m,), fcount (n,),
-    ring (3m, 2))`` with ``ring`` (int32: half the memory traffic; vertex ids are below the encoder's
-    vertex limit) the corner's next and previous vertex in its face (so the edge pass reads the rows in
-    order instead of looking up faces)."""
+    """Kernel part of :func:`_live_mesh_kernel`: the vertex -> faces CSR of ``F`` (m, 3) int64 (one entry per
+    corner, faces ascending in every row) and every vertex's edge keys (:func:`_vertex_edges`) in a CSR of their
+    own, both by one counting sort: ``(vf_start (n + 1,), vf_face (3m,), fcount (n,), key_start (n + 1,), keys
+    (3m + 1,))``, all int64.
+
+    A corner ``3 f + c`` at ``x`` gives two keys: its half-edge ``x -> y`` (the next corner's vertex) as
+    ``(y << shift | 3 f + c) << 1``, kept when ``y >= x``, and the previous corner's half-edge ``z -> x`` as
+    ``(z << shift | that corner) << 1 | 1``, kept when ``z > x`` (``shift`` the bits of 3m); ``x``'s row holds the
+    kept ones (the half-edges to and from its higher neighbours, and its own outgoing self-loops), in no order.
+    The counts are made with the face counts; each key is written where it goes if kept, at the spare last entry
+    if not (no branch on the vertex order, which is random: a branch per key mispredicted about half the time)."""
+    h = 3 * len(F)
+    shift = 1
+    while (1 << shift) < h:  # half-edge ids are below 3m, the corner count
+        shift += 1
     fcount = np.zeros(n, np.int64)
+    kcount = np.zeros(n, np.int64)
     for f in range(len(F)):
-        for c in range(3):
-            fcount[F[f, c]] += 1
+        a, b, c = F[f, 0], F[f, 1], F[f, 2]
+        fcount[a] += 1
+        kcount[a] += (b >= a) + (c > a)
+        fcount[b] += 1
+        kcount[b] += (c >= b) + (a > b)
+        fcount[c] += 1
+        kcount[c] += (a >= c) + (b > c)
     vf_start = np.zeros(n + 1, np.int64)
+    key_start = np.zeros(n + 1, np.int64)
     for x in range(n):
         vf_start[x + 1] = vf_start[x] + fcount[x]
+        key_start[x + 1] = key_start[x] + kcount[x]
     fill = vf_start[:-1].copy()
-    vf_corner = np.empty(3 * len(F), np.int64)
-    ring = np.empty((3 * len(F), 2), np.int32)
-    for f in range(len(F)):  # the corners held in locals (a store to vf_corner could alias F or fill: reloads)
+    kfill = key_start[:-1].copy()
+    vf_face = np.empty(h, np.int64)
+    keys = np.empty(key_start[n] + 1, np.int64)
+    spare = key_start[n]
+    for f in range(len(F)):  # the corners held in locals (a store could alias F or the fills: reloads)
         a, b, c = F[f, 0], F[f, 1], F[f, 2]
-        sa = fill[a]
-        vf_corner[sa], ring[sa, 0], ring[sa, 1] = 3 * f, b, c
-        fill[a] = sa + 1
-        sb = fill[b]  # a degenerate face repeats a vertex: its next corner goes to the next place
-        vf_corner[sb], ring[sb, 0], ring[sb, 1] = 3 * f + 1, c, a
-        fill[b] = sb + 1
-        sc = fill[c]
-        vf_corner[sc], ring[sc, 0], ring[sc, 1] = 3 * f + 2, a, b
-        fill[c] = sc + 1
-    return vf_start, vf_corner, fcount, ring
+        h0, h1, h2 = 3 * f, 3 * f + 1, 3 * f + 2
+        s = fill[a]
+        vf_face[s] = f
+        fill[a] = s + 1
+        t = kfill[a]  # corner 0 at a: a -> b is half-edge h0, c -> a is h2
+        keys[t if b >= a else spare] = ((b << shift) | h0) << 1
+        t += b >= a
+        keys[t if c > a else spare] = (((c << shift) | h2) << 1) | 1
+        t += c > a
+        kfill[a] = t
+        s = fill[b]  # a degenerate face repeats a vertex: its next corner goes to the next place
+        vf_face[s] = f
+        fill[b] = s + 1
+        t = kfill[b]  # corner 1 at b: b -> c is h1, a -> b is h0
+        keys[t if c >= b else spare] = ((c << shift) | h1) << 1
+        t += c >= b
+        keys[t if a > b else spare] = (((a << shift) | h0) << 1) | 1
+        t += a > b
+        kfill[b] = t
+        s = fill[c]
+        vf_face[s] = f
+        fill[c] = s + 1
+        t = kfill[c]  # corner 2 at c: c -> a is h2, b -> c is h1
+        keys[t if a >= c else spare] = ((a << shift) | h2) << 1
+        t += a >= c
+        keys[t if b > c else spare] = (((b << shift) | h1) << 1) | 1
+        t += b > c
+        kfill[c] = t
+    return vf_start, vf_face, fcount, key_start, keys
 
 
 @kernel_helper(allocates=True)
-def _edges_by_vertex(F, n, vf_start, vf_corner, ring):
+def _edges_by_vertex(F, n, vf_start, key_start, keys):
     """Kernel part of :func:`_live_mesh_kernel`: the edge table of ``F`` built vertex by vertex
-    (:func:`_vertex_edges`), with the vertex -> neighbours CSR of :class:`LiveMesh`.
+    (:func:`_vertex_edges`, from :func:`_vertex_faces`' key rows), with the vertex -> neighbours CSR of
+    :class:`LiveMesh`.
 
     Returns ``(lo, hi, count, he0, he1)`` (e,) int64 as in :class:`~.topology.EdgeTable`, ``vv_start``
     (n + 1,), ``vv_nbr`` and ``vv_edge`` (2e,) int64 and :class:`LiveMesh`'s ``boundary`` and
-    ``edge_flags``; ``vf_corner`` (3m,) int64 is turned from corners into faces in place (``f = corner //
-    3``, :class:`LiveMesh`'s ``vf``).  The edge and neighbour arrays are views of arrays sized
+    ``edge_flags``.  The edge and neighbour arrays are views of arrays sized
     for a closed mesh's edges and a little more (grown by half when short), not for every half-edge
     (about twice the edges), which views would keep alive with the live mesh (+137 MB peak on a
     1.1M-vertex encode); nor copies (5-8 % of the live mesh's time).  The neighbour rows' first parts
@@ -205,19 +245,22 @@ def _edges_by_vertex(F, n, vf_start, vf_corner, ring):
     fill = np.empty(n, np.int64)  # each row's second part: where its next entry goes
     down = np.zeros(n, np.int64)
     boundary, flags = np.zeros(n, np.int64), np.zeros(n, np.uint8)
-    wmax = 0
+    kmax = 0
     for x in range(n):
-        wmax = max(wmax, vf_start[x + 1] - vf_start[x])
-    buf = np.empty(2 * max(2 * wmax, 8) + 2, np.int64)  # a vertex's keys, then sorted (:func:`_vertex_edges`)
+        kmax = max(kmax, key_start[x + 1] - key_start[x])
+    buf = np.empty(2 * max(kmax, 8) + 2, np.int64)  # a vertex's keys, then sorted (:func:`_vertex_edges`)
+    shift = 1
+    while (1 << shift) < h:  # as :func:`_vertex_faces`
+        shift += 1
     zero = np.int64(0)  # not a literal (see :func:`~.topology.kernel_helper`)
-    x, ne = _vertex_edges(zero, zero, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0, he1, down, boundary, flags,
+    x, ne = _vertex_edges(zero, zero, n, shift, key_start, keys, buf, lo, hi, count, he0, he1, down, boundary, flags,
                           vv_start, vv_nbr, vv_edge, fill)
     while x < n:  # more boundary or non-manifold edges than that: grow (outside the vertex loop, which stays fast)
-        cap = min(h, max(cap + cap // 2, ne + 2 * wmax))
+        cap = min(h, max(cap + cap // 2, ne + kmax))
         lo, hi, count = _grown(lo, cap, ne), _grown(hi, cap, ne), _grown(count, cap, ne)
         he0, he1 = _grown(he0, cap, ne), _grown(he1, cap, ne)
         vv_nbr, vv_edge = _grown(vv_nbr, 2 * cap, vv_start[x]), _grown(vv_edge, 2 * cap, vv_start[x])
-        x, ne = _vertex_edges(x, ne, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0, he1, down, boundary, flags,
+        x, ne = _vertex_edges(x, ne, n, shift, key_start, keys, buf, lo, hi, count, he0, he1, down, boundary, flags,
                               vv_start, vv_nbr, vv_edge, fill)
     for e in range(ne):  # each row's second part: the edges where its vertex is the high end, in edge order
         y = hi[e]
@@ -270,47 +313,33 @@ def _network8(buf, k, half):
 
 
 @kernel_helper
-def _vertex_edges(x0, ne, n, vf_start, vf_corner, ring, buf, lo, hi, count, he0, he1, down, boundary, flags, vv_start,
+def _vertex_edges(x0, ne, n, shift, key_start, keys, buf, lo, hi, count, he0, he1, down, boundary, flags, vv_start,
                   vv_nbr, vv_edge, fill):
     """Kernel part of :func:`_edges_by_vertex`: the edges of the vertices from ``x0`` on, written from
     entry ``ne`` on of ``lo`` / ``hi`` / ``count`` / ``he0`` / ``he1`` (each (cap,) int64; ``down``,
     ``boundary`` and ``flags`` (n,) counted and marked as in :class:`LiveMesh`), until the next vertex's
-    might not fit: returns ``(x, ne)``, the first vertex not written (``n``: none left) and the edges
+    would not fit: returns ``(x, ne)``, the first vertex not written (``n``: none left) and the edges
     written.  Each vertex's row of the neighbour CSR is placed as it is reached (``vv_start`` (n + 1,)
     int64: the edges where a vertex is the high end are all made by then, ``down``) and its first part
     written (``vv_nbr`` / ``vv_edge`` (2 cap,) int64), ``fill`` (n,) int64 set to where its second part
-    starts; the vertex's entries of ``vf_corner`` become faces (``// 3``) as they are read.
+    starts.
 
-    Every vertex ``x`` in turn gathers the half-edges of its corners that run to or from a higher
-    vertex ``y`` (and its own outgoing self-loops) as one packed key ``(y << shift | half-edge) << 1 |
-    into x`` in the first half of ``buf`` (scratch, (2 max(2 w, 8) + 2,) int64 for the largest face count
-    w; the direction bit below the half-edge, which no two entries share), then sorts them into the
-    second half (from ``len(buf) // 2`` on): its edges as the low end, in edge order.  Neither step
-    branches on the keys: the gathering writes both keys of every corner and keeps the wanted ones by
-    advancing the count or not (a branch there, taken at random about half the time, cost a tenth of
-    the edge pass in mispredictions); up to 8 keys (k ~ 6) go through a sorting network
-    (:func:`_network8`), more each to its place, the number of keys below it (k**2 comparisons).  An
-    insertion sort, whose steps mispredict, made the live mesh 1.05-1.15x as long."""
-    shift = 1
-    while (1 << shift) < len(vf_corner):  # half-edge ids are below 3m, the corner count
-        shift += 1
+    Every vertex ``x`` in turn takes its row of packed keys ``(y << shift | half-edge) << 1 | into x``
+    (:func:`_vertex_faces`: the half-edges to and from its higher neighbours ``y``; the direction bit below the
+    half-edge, which no two keys share) into the first half of ``buf`` (scratch, (2 max(k, 8) + 2,) int64 for the
+    longest row k) and sorts them into the second half (from ``len(buf) // 2`` on): its edges as the low end, in
+    edge order.  Up to 8 keys (k ~ 6) go through a sorting network (:func:`_network8`), more each to its place,
+    the number of keys below it (k**2 comparisons).  An insertion sort, whose steps mispredict, made the live
+    mesh 1.05-1.15x as long."""
     low = (1 << shift) - 1
     half = len(buf) // 2
-    h = len(vf_corner)
     for x in range(x0, n):
-        a, b = vf_start[x], vf_start[x + 1]
-        if ne + min(2 * (b - a), h - ne) > len(lo):  # at most two keys a corner, and no more edges than corners
+        a, b = key_start[x], key_start[x + 1]
+        k = b - a
+        if ne + k > len(lo):  # no more edges than keys
             return x, ne
-        k = 0
-        for p in range(a, b):  # every key written, kept (k advanced) or not: no branch
-            hc = vf_corner[p]
-            f = np.int64(np.uint64(hc) // np.uint64(3))  # unsigned: no rounding fix-up for negatives
-            vf_corner[p] = f
-            y1, y2 = np.int64(ring[p, 0]), np.int64(ring[p, 1])
-            buf[k] = ((y1 << shift) | hc) << 1  # half-edge x -> y1
-            k += y1 >= x
-            buf[k] = (((y2 << shift) | (hc + 2 if hc == 3 * f else hc - 1)) << 1) | 1  # y2 -> x: the previous corner
-            k += y2 > x
+        for i in range(k):
+            buf[i] = keys[a + i]
         if k <= 8:
             _network8(buf, k, half)
         else:
@@ -354,8 +383,8 @@ def _live_mesh_kernel(corners, face_alive, vert_alive, vids0, fids0, loc):
     ``loc`` as in :func:`_compact_kernel`."""
     vids, fids, loc, F = _compact_kernel(corners, face_alive, vert_alive, vids0, fids0, loc)
     n = len(vids)
-    vf_start, vf_face, fcount, ring = _vertex_faces(F, n)
-    lo, hi, count, he0, he1, vv_start, vv_nbr, vv_edge, boundary, flags = _edges_by_vertex(F, n, vf_start, vf_face,
-                                                                                            ring)
+    vf_start, vf_face, fcount, key_start, keys = _vertex_faces(F, n)
+    lo, hi, count, he0, he1, vv_start, vv_nbr, vv_edge, boundary, flags = _edges_by_vertex(F, n, vf_start, key_start,
+                                                                                            keys)
     edges = (lo * n + hi, lo, hi, count, he0, he1)
     return vids, fids, loc, F, edges, vv_start, vv_nbr, vv_edge, vf_start, vf_face, fcount, boundary, flags
