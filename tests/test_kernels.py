@@ -506,6 +506,23 @@ def test_the_affordable_candidates_and_offer_ranks_are_the_same_on_both_paths(mo
             assert (cost[first] <= 1e-13).all()
 
 
+def test_faces_touching_others_are_the_same_on_both_paths(monkeypatch):
+    """_touch_others (deferred pillows, specks): compiled and numpy, on random faces and choices (none, some,
+    all chosen; repeated vertices)."""
+    from pmwm_codec.progressive import simplify
+
+    rng = np.random.default_rng(41)
+    for trial in range(60):
+        n = int(rng.integers(3, 200))
+        faces = rng.integers(0, n, (int(rng.integers(1, 300)), 3))
+        chosen = rng.random(len(faces)) < [0.0, 0.1, 0.5, 0.95, 1.0][trial % 5]
+        out = []
+        for use in (False, NUMBA):
+            monkeypatch.setattr(topology, "USE_NUMBA", use)
+            out.append(simplify._touch_others(faces, chosen, n))
+        assert out[0].dtype == out[1].dtype == bool and np.array_equal(out[0], out[1]), trial
+
+
 def test_the_compiled_quantile_is_numpys_on_ties_sorted_and_reversed_input():
     """_quantile_kernel's own selection (quickselect, from 2,048 values after a radix pass; not numpy's partition)
     gives np.quantile's value, bit for bit: random, few distinct values, all equal, sorted and reversed (a

@@ -1102,10 +1102,28 @@ def deferred_pillows(faces: np.ndarray, reverse: tuple | None = None) -> np.ndar
 
 def _touch_others(faces: np.ndarray, chosen: np.ndarray, n: int) -> np.ndarray:
     """(m,) bool: the faces of ``faces`` (m, 3) int64 over ``n`` vertices with a vertex that some face
-    outside ``chosen`` (m,) bool also names."""
+    outside ``chosen`` (m,) bool also names (compiled: two passes over the faces, no (m, 3) gather and
+    ``any`` along its short axis)."""
+    kernel = compiled(_touch_others_kernel)
+    if kernel is not None:
+        return kernel(np.ascontiguousarray(faces, np.int64), np.ascontiguousarray(chosen, np.bool_), n)
     elsewhere = np.zeros(n, bool)
     elsewhere[faces[~chosen].ravel()] = True
     return elsewhere[faces].any(axis=1)
+
+
+def _touch_others_kernel(faces, chosen, n):
+    """Compiled :func:`_touch_others`: the same (m,) bool."""
+    elsewhere = np.zeros(n, np.bool_)
+    for f in range(len(faces)):
+        if not chosen[f]:
+            elsewhere[faces[f, 0]] = True
+            elsewhere[faces[f, 1]] = True
+            elsewhere[faces[f, 2]] = True
+    out = np.empty(len(faces), np.bool_)
+    for f in range(len(faces)):
+        out[f] = elsewhere[faces[f, 0]] | elsewhere[faces[f, 1]] | elsewhere[faces[f, 2]]
+    return out
 
 
 def specks(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
