@@ -983,25 +983,25 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, count, boundary, edge_flags, f
     A vertex's row of the neighbour CSR lists its edges in the order :func:`_usable` meets them
     (edges where it is the low end, then where it is the high end, each in edge order), so the
     usable collapses of ``u`` are its row minus the excluded edges, sorted stably by cost as in
-    :func:`_cheapest_per_group` (NaN last).  The sort counts each collapse's place (the costs before
-    it or equal and earlier in the row) instead of moving entries, a loop with no branch on the
-    costs; it compares the costs' bits as int64: a cost is ``+0.0``, ``-0.0`` (an error rounded to
-    zero) or positive, inf or NaN (:func:`_quadric_at` sums), so with the sign bit cleared and every
-    NaN given one value above inf's, the bits order the costs as the floats do, NaN last; each collapse
-    is then written at its place, or (past the first ``tries``) at a spare last entry, without a branch
-    (that branch took a fifth of the kernel's time).  (A top-3 insertion by selects took 1.1x as
-    long.)  ``boundary`` / ``edge_flags`` (n,): the live mesh's (:class:`~.livemesh.LiveMesh`); a
+    :func:`_cheapest_per_group` (NaN last), of which the first ``tries`` are kept.  Each of those is the
+    cheapest not yet taken, the first of equals (row order), found by a scan of the row's keys with no
+    branch on them (a running minimum by selects), then marked taken with a key above every other; the
+    keys are the costs' bits as int64: a cost is ``+0.0``, ``-0.0`` (an error rounded to zero) or
+    positive, inf or NaN (:func:`_quadric_at` sums), so with the sign bit cleared and every NaN given one
+    value above inf's, the bits order the costs as the floats do, NaN last.  (Counting every collapse's
+    place, k**2 comparisons, and writing the ones past the first ``tries`` to a spare entry took 1.2x as
+    long; a top-3 insertion by selects 1.1x that.)  ``boundary`` / ``edge_flags`` (n,): the live mesh's
+    (:class:`~.livemesh.LiveMesh`); a
     vertex on an edge of more than two faces has its row searched for one that is no pillow's.
     ``own`` (n,) float64: the vertices' quadric errors (:func:`_candidates`).  ``rows``: None, every
     vertex, or (r,) int64, ascending, the vertices to visit (a separate compilation).
     """
     n = len(fcount)
     r = n if rows is None else len(rows)
-    spare = tries * r  # the outputs' last entry: where the collapses past a vertex's first tries are written
-    out_u = np.empty(spare + 1, np.int64)
-    out_v = np.empty(spare + 1, np.int64)
-    out_e = np.empty(spare + 1, np.int64)
-    out_c = np.empty(spare + 1, np.float64)
+    out_u = np.empty(tries * r, np.int64)
+    out_v = np.empty(tries * r, np.int64)
+    out_e = np.empty(tries * r, np.int64)
+    out_c = np.empty(tries * r, np.float64)
     if rows is None:
         width = 0
         for x in range(n):  # the widest row (a loop: np.diff compiled for ~1 s on a machine's first encode)
@@ -1010,7 +1010,7 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, count, boundary, edge_flags, f
         width = 0
         for u in rows:
             width = max(width, vv_start[u + 1] - vv_start[u])
-    buf_p = np.empty(width, np.int64)  # row positions of u's usable collapses, by cost
+    buf_p = np.empty(width, np.int64)  # row positions of u's usable collapses
     buf_c = np.empty(width, np.float64)  # their costs
     bits = buf_c.view(np.int64)
     buf_k = np.empty(width, np.int64)  # their sort keys: the costs' bits, every NaN one (the largest) value
@@ -1033,14 +1033,16 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, count, boundary, edge_flags, f
             buf_p[m], buf_c[m] = p, c
             buf_k[m] = bits[m] & 0x7FFFFFFFFFFFFFFF if c == c else 0x7FF8000000000000
             m += 1
-        for s in range(m):  # each collapse's place in cost order, ties in row order: counted, no branch
-            key = buf_k[s]
-            t = 0
-            for j in range(m):
-                t += (buf_k[j] < key) | ((buf_k[j] == key) & (j < s))
+        for t in range(min(m, tries)):  # the cheapest left, ties in row order (the first): a min scan, no branch
+            best = buf_k[0]
+            s = 0
+            for j in range(1, m):
+                lower = buf_k[j] < best
+                best = buf_k[j] if lower else best
+                s = j if lower else s
+            buf_k[s] = 0x7FFFFFFFFFFFFFFF  # taken: above every key
             p = buf_p[s]
-            j = k + t if t < tries else spare  # no branch on the place either: past the first tries, a spare entry
-            out_u[j], out_v[j], out_e[j], out_c[j] = u, vv_nbr[p], vv_edge[p], buf_c[s]
+            out_u[k + t], out_v[k + t], out_e[k + t], out_c[k + t] = u, vv_nbr[p], vv_edge[p], buf_c[s]
         k += min(m, tries)
     return out_u[:k], out_v[:k], out_e[:k], out_c[:k]
 
