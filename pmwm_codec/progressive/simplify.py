@@ -1025,10 +1025,12 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, count, boundary, edge_flags, f
             continue  # not one disk or half-disk of faces
         q = _quadric_row(Q, u)
         m = 0
+        some = bu > 0 or edge_flags[u] & 2  # else every edge at u has two faces: none to leave out
         for p in range(a, b):
-            ce = count[vv_edge[p]]
-            if (bu > 0 and ce != 1) or ce > 2:
-                continue
+            if some:
+                ce = count[vv_edge[p]]
+                if (bu > 0 and ce != 1) or ce > 2:
+                    continue
             c = _quadric_at(q, P, vv_nbr[p]) + own[vv_nbr[p]]
             buf_p[m], buf_c[m] = p, c
             buf_k[m] = bits[m] & 0x7FFFFFFFFFFFFFFF if c == c else 0x7FF8000000000000
