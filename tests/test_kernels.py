@@ -523,6 +523,21 @@ def test_faces_touching_others_are_the_same_on_both_paths(monkeypatch):
         assert out[0].dtype == out[1].dtype == bool and np.array_equal(out[0], out[1]), trial
 
 
+def test_fin_vertices_are_the_same_on_both_paths(monkeypatch):
+    """_fin_vertices (the ends of edges of more than two faces): compiled and numpy, on random faces."""
+    from pmwm_codec.progressive import simplify
+
+    rng = np.random.default_rng(43)
+    for trial in range(40):
+        n = int(rng.integers(3, 100))
+        et = topology.edge_table(rng.integers(0, n, (int(rng.integers(1, 200)), 3)), n)
+        out = []
+        for use in (False, NUMBA):
+            monkeypatch.setattr(topology, "USE_NUMBA", use)
+            out.append(simplify._fin_vertices(et, n))
+        assert out[0].dtype == out[1].dtype == bool and np.array_equal(out[0], out[1]), trial
+
+
 def test_the_compiled_quantile_is_numpys_on_ties_sorted_and_reversed_input():
     """_quantile_kernel's own selection (quickselect, from 2,048 values after a radix pass; not numpy's partition)
     gives np.quantile's value, bit for bit: random, few distinct values, all equal, sorted and reversed (a

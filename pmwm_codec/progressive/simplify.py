@@ -716,11 +716,24 @@ def _ordinary_winners(cand, mesh, n):
 
 
 def _fin_vertices(et, n):
-    """(n,) bool: the vertices on an edge of ``et`` with more than two faces."""
+    """(n,) bool: the vertices on an edge of ``et`` with more than two faces (compiled: one pass over the edges)."""
+    kernel = compiled(_fin_vertices_kernel)
+    if kernel is not None:
+        return kernel(et.count, et.lo, et.hi, n)
     fin = np.zeros(n, bool)
     many = et.count > 2
     fin[et.lo[many]] = True
     fin[et.hi[many]] = True
+    return fin
+
+
+def _fin_vertices_kernel(count, lo, hi, n):
+    """Compiled :func:`_fin_vertices`: the same (n,) bool."""
+    fin = np.zeros(n, np.bool_)
+    for e in range(len(count)):
+        if count[e] > 2:
+            fin[lo[e]] = True
+            fin[hi[e]] = True
     return fin
 
 
