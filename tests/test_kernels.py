@@ -232,8 +232,8 @@ def test_the_live_mesh_is_the_same_on_both_paths_with_degenerate_faces(monkeypat
     for field in ("keys", "lo", "hi", "count", "he0", "he1"):
         assert np.array_equal(getattr(plain.et, field), getattr(fast.et, field)), field
     assert (plain.et.lo == plain.et.hi).any()  # the self-loops are there
-    for a, b in zip(plain.vv + plain.vf + (plain.vv_edge, plain.fcount, plain.boundary, plain.edge_flags),
-                    fast.vv + fast.vf + (fast.vv_edge, fast.fcount, fast.boundary, fast.edge_flags)):
+    for a, b in zip(plain.vv + plain.vf + (plain.vv_edge, plain.fcount, plain.boundary, plain.edge_flags, plain.opp),
+                    fast.vv + fast.vf + (fast.vv_edge, fast.fcount, fast.boundary, fast.edge_flags, fast.opp)):
         assert np.array_equal(a, b)
     assert plain.edge_flags.any()  # an edge of three faces (a degenerate face's self-loop) marks its vertex
 
@@ -244,7 +244,7 @@ def test_the_live_mesh_is_the_same_on_both_paths(monkeypatch, name):
     mesh = _ODD_MESHES[name]
     face_alive = np.random.default_rng(1).random(mesh.face_count) < 0.8  # some faces dead, some vertices too
     plain, fast = _live_both_ways(monkeypatch, mesh, face_alive)
-    for field in ("vids", "fids", "loc", "F", "vv_edge", "fcount", "boundary", "edge_flags"):
+    for field in ("vids", "fids", "loc", "F", "vv_edge", "fcount", "boundary", "edge_flags", "opp"):
         assert np.array_equal(getattr(plain, field), getattr(fast, field)), field
     for field in ("keys", "lo", "hi", "count", "he0", "he1"):
         assert np.array_equal(getattr(plain.et, field), getattr(fast.et, field)), field
@@ -272,7 +272,7 @@ def test_the_live_mesh_from_the_previous_one_is_the_fresh_one(monkeypatch, name,
         vert_alive[faces[face_alive].ravel()] = True
         chained = live_mesh(faces, face_alive, vert_alive, prev)
         fresh = live_mesh(faces, face_alive, vert_alive)
-        for field in ("vids", "fids", "loc", "F", "vv_edge", "fcount", "boundary", "edge_flags"):
+        for field in ("vids", "fids", "loc", "F", "vv_edge", "fcount", "boundary", "edge_flags", "opp"):
             assert np.array_equal(getattr(chained, field), getattr(fresh, field)), field
         for a, b in zip(chained.vv + chained.vf, fresh.vv + fresh.vf):
             assert np.array_equal(a, b)

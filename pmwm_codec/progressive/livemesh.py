@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .topology import EdgeTable, compiled, csr, edge_table, kernel_helper
+from .topology import EdgeTable, compiled, csr, edge_table, half_edges, kernel_helper
 
 
 @dataclass
@@ -49,6 +49,8 @@ class LiveMesh:
     edge_flags : (n,) uint8
         What edges each vertex is on: bit 1, an edge of two faces whose half-edges run the same way
         (inconsistently oriented); bit 2, an edge of more than two faces.
+    opp : (3m,) int64
+        The corner opposite every half-edge (``opposite`` of :func:`~.topology.half_edges` of ``F``).
     """
 
     vids: np.ndarray
@@ -62,6 +64,7 @@ class LiveMesh:
     fcount: np.ndarray
     boundary: np.ndarray
     edge_flags: np.ndarray
+    opp: np.ndarray
 
 
 def live_mesh(corners: np.ndarray, face_alive: np.ndarray, vert_alive: np.ndarray,
@@ -82,11 +85,11 @@ def live_mesh(corners: np.ndarray, face_alive: np.ndarray, vert_alive: np.ndarra
         vids0, fids0, loc = prev
     kernel = compiled(_live_mesh_kernel)
     if kernel is not None:
-        vids, fids, loc, F, edges, vv_start, vv_nbr, vv_edge, vf_start, vf_face, fcount, boundary, flags = \
+        vids, fids, loc, F, opp, edges, vv_start, vv_nbr, vv_edge, vf_start, vf_face, fcount, boundary, flags = \
             kernel(corners, face_alive, vert_alive, vids0, fids0, loc)
         et = EdgeTable(len(vids), *edges)
         return LiveMesh(vids, fids, loc, F, et, (vv_start, vv_nbr), vv_edge, (vf_start, vf_face), fcount, boundary,
-                        flags)
+                        flags, opp)
     fids = fids0[face_alive[fids0]]
     vids = vids0[vert_alive[vids0]]
     loc[vids0] = -1
@@ -106,7 +109,8 @@ def live_mesh(corners: np.ndarray, face_alive: np.ndarray, vert_alive: np.ndarra
     for bit, e in ((1, same), (2, np.flatnonzero(et.count > 2))):
         flags[et.lo[e]] |= bit
         flags[et.hi[e]] |= bit
-    return LiveMesh(vids, fids, loc, F, et, vv, vv_edge, vf, np.bincount(F.ravel(), minlength=n), boundary, flags)
+    return LiveMesh(vids, fids, loc, F, et, vv, vv_edge, vf, np.bincount(F.ravel(), minlength=n), boundary, flags,
+                    half_edges(F, with_dst=False)[2])
 
 
 def boundary_half_edges(faces: np.ndarray, n: int) -> np.ndarray:
@@ -128,7 +132,7 @@ def _boundary_kernel(faces, n):
 
 @kernel_helper(allocates=True)
 def _compact_kernel(corners, face_alive, vert_alive, vids0, fids0, loc):
-    """Kernel part of :func:`_live_mesh_kernel`: ``(vids, fids, loc, F)`` as in :class:`LiveMesh`, from
+    """Kernel part of :func:`_live_mesh_kernel`: ``(vids, fids, loc, F, opp)`` as in :class:`LiveMesh`, from
     ``vids0`` / ``fids0`` (ascending int64: every live vertex / face and maybe dead ones) and ``loc`` (N,)
     int64, -1 except at ``vids0``, filled in place."""
     vids = np.empty(len(vids0), np.int64)
@@ -144,11 +148,13 @@ def _compact_kernel(corners, face_alive, vert_alive, vids0, fids0, loc):
         fids[m] = f
         m += face_alive[f]
     F = np.empty((m, 3), np.int64)
+    opp = np.empty(3 * m, np.int64)
     for i in range(m):  # the face's corners read into locals first (a store to F could alias them: reloads)
         f = fids[i]
-        a, b, c = corners[f, 0], corners[f, 1], corners[f, 2]
-        F[i, 0], F[i, 1], F[i, 2] = loc[a], loc[b], loc[c]
-    return vids[:n], fids[:m], loc, F
+        a, b, c = loc[corners[f, 0]], loc[corners[f, 1]], loc[corners[f, 2]]
+        F[i, 0], F[i, 1], F[i, 2] = a, b, c
+        opp[3 * i], opp[3 * i + 1], opp[3 * i + 2] = c, a, b
+    return vids[:n], fids[:m], loc, F, opp
 
 
 @kernel_helper(allocates=True)
@@ -381,10 +387,10 @@ def _vertex_edges(x0, ne, n, shift, key_start, keys, buf, lo, hi, count, he0, he
 def _live_mesh_kernel(corners, face_alive, vert_alive, vids0, fids0, loc):
     """Compiled :func:`live_mesh`: the same arrays (see there), as a flat tuple; ``vids0``, ``fids0`` and
     ``loc`` as in :func:`_compact_kernel`."""
-    vids, fids, loc, F = _compact_kernel(corners, face_alive, vert_alive, vids0, fids0, loc)
+    vids, fids, loc, F, opp = _compact_kernel(corners, face_alive, vert_alive, vids0, fids0, loc)
     n = len(vids)
     vf_start, vf_face, fcount, key_start, keys = _vertex_faces(F, n)
     lo, hi, count, he0, he1, vv_start, vv_nbr, vv_edge, boundary, flags = _edges_by_vertex(F, n, vf_start, key_start,
                                                                                             keys)
     edges = (lo * n + hi, lo, hi, count, he0, he1)
-    return vids, fids, loc, F, edges, vv_start, vv_nbr, vv_edge, vf_start, vf_face, fcount, boundary, flags
+    return vids, fids, loc, F, opp, edges, vv_start, vv_nbr, vv_edge, vf_start, vf_face, fcount, boundary, flags

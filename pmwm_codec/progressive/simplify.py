@@ -509,7 +509,8 @@ def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None, first=
     seam = None if g is None else seams.seam_mask(g)
     if seam is not None and not seam.any():
         g = seam = None
-    src, dst, opp = half_edges(F, with_dst=seam is not None)  # only the seam pairs read dst
+    src, opp = F.reshape(-1), live.opp
+    dst = None if seam is None else half_edges(F)[1]  # only the seam pairs read dst
     twins = _twin_counts(et, F, None if twin is None else twin[fids], n)
     mesh = (et, F, P, opp, fcount, vv, vf, vv_edge, twins[0])
     ends = live.boundary, live.edge_flags
