@@ -66,7 +66,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import seams
+from . import seams, topology
 from .livemesh import boundary_half_edges, live_mesh
 from .topology import compiled, expand, face_keys, group_order, half_edges, kernel_helper, two_alike
 
@@ -1565,7 +1565,7 @@ def _legal_marked(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_st
 
 
 #: :func:`_legal_kernel` reads the rows of this many candidates ahead (:func:`_touch`).
-LEGAL_CHUNK = 16
+LEGAL_CHUNK = 32
 
 
 @kernel_helper
@@ -1767,6 +1767,9 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
         for j in range(live):
             g = play[j]
             o = front[g]
+            if j + 16 < live:  # the rows ahead: their starts 16 groups ahead, their first entries 8 ahead
+                topology.prefetch(vv_start, cu[starts[play[j + 16]]])
+                topology.prefetch(vv_nbr, vv_start[cu[starts[play[j + 8]]]])
             wg[w], wo[w] = g, o
             w += not _nbr_below(vv_start, vv_nbr, offer, cu[o], rank[o] + 1 + above)
         if w == 0:
