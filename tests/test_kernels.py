@@ -232,8 +232,8 @@ def test_the_live_mesh_is_the_same_on_both_paths_with_degenerate_faces(monkeypat
     for field in ("keys", "lo", "hi", "count", "he0", "he1"):
         assert np.array_equal(getattr(plain.et, field), getattr(fast.et, field)), field
     assert (plain.et.lo == plain.et.hi).any()  # the self-loops are there
-    for a, b in zip(plain.vv + plain.vf + (plain.vv_edge, plain.fcount, plain.boundary, plain.edge_flags),
-                    fast.vv + fast.vf + (fast.vv_edge, fast.fcount, fast.boundary, fast.edge_flags)):
+    for a, b in zip(plain.vv + plain.vf + (plain.vv_edge, plain.fcount, plain.boundary, plain.edge_flags, plain.opp),
+                    fast.vv + fast.vf + (fast.vv_edge, fast.fcount, fast.boundary, fast.edge_flags, fast.opp)):
         assert np.array_equal(a, b)
     assert plain.edge_flags.any()  # an edge of three faces (a degenerate face's self-loop) marks its vertex
 
@@ -244,7 +244,7 @@ def test_the_live_mesh_is_the_same_on_both_paths(monkeypatch, name):
     mesh = _ODD_MESHES[name]
     face_alive = np.random.default_rng(1).random(mesh.face_count) < 0.8  # some faces dead, some vertices too
     plain, fast = _live_both_ways(monkeypatch, mesh, face_alive)
-    for field in ("vids", "fids", "loc", "F", "vv_edge", "fcount", "boundary", "edge_flags"):
+    for field in ("vids", "fids", "loc", "F", "vv_edge", "fcount", "boundary", "edge_flags", "opp"):
         assert np.array_equal(getattr(plain, field), getattr(fast, field)), field
     for field in ("keys", "lo", "hi", "count", "he0", "he1"):
         assert np.array_equal(getattr(plain.et, field), getattr(fast.et, field)), field
@@ -272,7 +272,7 @@ def test_the_live_mesh_from_the_previous_one_is_the_fresh_one(monkeypatch, name,
         vert_alive[faces[face_alive].ravel()] = True
         chained = live_mesh(faces, face_alive, vert_alive, prev)
         fresh = live_mesh(faces, face_alive, vert_alive)
-        for field in ("vids", "fids", "loc", "F", "vv_edge", "fcount", "boundary", "edge_flags"):
+        for field in ("vids", "fids", "loc", "F", "vv_edge", "fcount", "boundary", "edge_flags", "opp"):
             assert np.array_equal(getattr(chained, field), getattr(fresh, field)), field
         for a, b in zip(chained.vv + chained.vf, fresh.vv + fresh.vf):
             assert np.array_equal(a, b)
@@ -506,9 +506,42 @@ def test_the_affordable_candidates_and_offer_ranks_are_the_same_on_both_paths(mo
             assert (cost[first] <= 1e-13).all()
 
 
+def test_faces_touching_others_are_the_same_on_both_paths(monkeypatch):
+    """_touch_others (deferred pillows, specks): compiled and numpy, on random faces and choices (none, some,
+    all chosen; repeated vertices)."""
+    from pmwm_codec.progressive import simplify
+
+    rng = np.random.default_rng(41)
+    for trial in range(60):
+        n = int(rng.integers(3, 200))
+        faces = rng.integers(0, n, (int(rng.integers(1, 300)), 3))
+        chosen = rng.random(len(faces)) < [0.0, 0.1, 0.5, 0.95, 1.0][trial % 5]
+        out = []
+        for use in (False, NUMBA):
+            monkeypatch.setattr(topology, "USE_NUMBA", use)
+            out.append(simplify._touch_others(faces, chosen, n))
+        assert out[0].dtype == out[1].dtype == bool and np.array_equal(out[0], out[1]), trial
+
+
+def test_fin_vertices_are_the_same_on_both_paths(monkeypatch):
+    """_fin_vertices (the ends of edges of more than two faces): compiled and numpy, on random faces."""
+    from pmwm_codec.progressive import simplify
+
+    rng = np.random.default_rng(43)
+    for trial in range(40):
+        n = int(rng.integers(3, 100))
+        et = topology.edge_table(rng.integers(0, n, (int(rng.integers(1, 200)), 3)), n)
+        out = []
+        for use in (False, NUMBA):
+            monkeypatch.setattr(topology, "USE_NUMBA", use)
+            out.append(simplify._fin_vertices(et, n))
+        assert out[0].dtype == out[1].dtype == bool and np.array_equal(out[0], out[1]), trial
+
+
 def test_the_compiled_quantile_is_numpys_on_ties_sorted_and_reversed_input():
-    """_quantile_kernel's own selection (quickselect, not numpy's partition) gives np.quantile's value, bit for
-    bit: random, few distinct values, all equal, sorted and reversed (a quickselect's hard cases), one value."""
+    """_quantile_kernel's own selection (quickselect, from 2,048 values after a radix pass; not numpy's partition)
+    gives np.quantile's value, bit for bit: random, few distinct values, all equal, sorted and reversed (a
+    quickselect's hard cases), one value."""
     pytest.importorskip("numba")
     from pmwm_codec.progressive import simplify
 

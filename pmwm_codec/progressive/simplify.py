@@ -66,7 +66,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import seams
+from . import seams, topology
 from .livemesh import boundary_half_edges, live_mesh
 from .topology import compiled, expand, face_keys, group_order, half_edges, kernel_helper, two_alike
 
@@ -509,7 +509,8 @@ def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None, first=
     seam = None if g is None else seams.seam_mask(g)
     if seam is not None and not seam.any():
         g = seam = None
-    src, dst, opp = half_edges(F, with_dst=seam is not None)  # only the seam pairs read dst
+    src, opp = F.reshape(-1), live.opp
+    dst = None if seam is None else half_edges(F)[1]  # only the seam pairs read dst
     twins = _twin_counts(et, F, None if twin is None else twin[fids], n)
     mesh = (et, F, P, opp, fcount, vv, vf, vv_edge, twins[0])
     ends = live.boundary, live.edge_flags
@@ -716,11 +717,24 @@ def _ordinary_winners(cand, mesh, n):
 
 
 def _fin_vertices(et, n):
-    """(n,) bool: the vertices on an edge of ``et`` with more than two faces."""
+    """(n,) bool: the vertices on an edge of ``et`` with more than two faces (compiled: one pass over the edges)."""
+    kernel = compiled(_fin_vertices_kernel)
+    if kernel is not None:
+        return kernel(et.count, et.lo, et.hi, n)
     fin = np.zeros(n, bool)
     many = et.count > 2
     fin[et.lo[many]] = True
     fin[et.hi[many]] = True
+    return fin
+
+
+def _fin_vertices_kernel(count, lo, hi, n):
+    """Compiled :func:`_fin_vertices`: the same (n,) bool."""
+    fin = np.zeros(n, np.bool_)
+    for e in range(len(count)):
+        if count[e] > 2:
+            fin[lo[e]] = True
+            fin[hi[e]] = True
     return fin
 
 
@@ -835,7 +849,10 @@ def _quantile_kernel(x, q):
         gamma = virtual + 1.0
     else:
         gamma = virtual - lo
-    part = x.copy()
+    if hi != lo and len(x) >= _RADIX_FROM:
+        part, lo = _radix_bucket(x, lo)  # the rows of the buckets holding both order statistics, and lo among them
+    else:
+        part = x.copy()
     a = _kth_smallest(part, lo)
     b = a
     if hi != lo:
@@ -844,6 +861,47 @@ def _quantile_kernel(x, q):
             b = min(b, part[t])
     diff = b - a
     return b - diff * (1.0 - gamma) if gamma >= 0.5 else a + diff * gamma
+
+
+#: :func:`_quantile_kernel` narrows larger inputs down by :func:`_radix_bucket` first (below it, the partitions'
+#: mispredicted branches cost less than two passes).
+_RADIX_FROM = 2048
+
+
+@kernel_helper(allocates=True)
+def _radix_bucket(x, k):
+    """``(part, j)``: the values of ``x`` (g,) float64, C-contiguous, no NaN, 0 <= k < g - 1, whose keys share their top
+    14 bits with the ``k``-th or ``k + 1``-th smallest's (a float's bits as an unsigned key that orders as the floats do,
+    -0.0 just below 0.0), and ``j``, the rank of the ``k``-th smallest among them: ``_kth_smallest(part, j)`` and the
+    smallest after it are the order statistics ``k`` and ``k + 1`` of ``x``.  Two passes (a histogram of the top bits,
+    then the rows of the one or two buckets copied, each row written and kept by advancing the count or not), no
+    branch on the values: a quickselect of all g values mispredicts about one branch a value a partition, and several
+    partitions; the buckets hold a few percent of the values (14 bits: the exponent and 3 bits of the mantissa)."""
+    bits = x.view(np.uint64)
+    top = np.uint64(0x8000000000000000)
+    hist = np.zeros(1 << 14, np.int64)
+    for i in range(len(x)):
+        u = bits[i]
+        hist[np.int64(((u ^ ((np.uint64(0) - (u >> np.uint64(63))) | top))) >> np.uint64(50))] += 1
+    below = 0
+    b0 = 0
+    while below + hist[b0] <= k:
+        below += hist[b0]
+        b0 += 1
+    b1 = b0
+    if below + hist[b0] <= k + 1:  # the next order statistic is the next bucket's smallest
+        b1 = b0 + 1
+        while hist[b1] == 0:
+            b1 += 1
+    size = hist[b0] + (hist[b1] if b1 != b0 else 0)
+    part = np.empty(size + 1, np.float64)  # a spare last entry: the rows not kept are written there last
+    j = 0
+    for i in range(len(x)):
+        u = bits[i]
+        b = np.int64(((u ^ ((np.uint64(0) - (u >> np.uint64(63))) | top))) >> np.uint64(50))
+        part[j] = x[i]
+        j += (b == b0) | (b == b1)
+    return part[:size], k - below
 
 
 @kernel_helper
@@ -939,25 +997,25 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, count, boundary, edge_flags, f
     A vertex's row of the neighbour CSR lists its edges in the order :func:`_usable` meets them
     (edges where it is the low end, then where it is the high end, each in edge order), so the
     usable collapses of ``u`` are its row minus the excluded edges, sorted stably by cost as in
-    :func:`_cheapest_per_group` (NaN last).  The sort counts each collapse's place (the costs before
-    it or equal and earlier in the row) instead of moving entries, a loop with no branch on the
-    costs; it compares the costs' bits as int64: a cost is ``+0.0``, ``-0.0`` (an error rounded to
-    zero) or positive, inf or NaN (:func:`_quadric_at` sums), so with the sign bit cleared and every
-    NaN given one value above inf's, the bits order the costs as the floats do, NaN last; each collapse
-    is then written at its place, or (past the first ``tries``) at a spare last entry, without a branch
-    (that branch took a fifth of the kernel's time).  (A top-3 insertion by selects took 1.1x as
-    long.)  ``boundary`` / ``edge_flags`` (n,): the live mesh's (:class:`~.livemesh.LiveMesh`); a
+    :func:`_cheapest_per_group` (NaN last), of which the first ``tries`` are kept.  Each of those is the
+    cheapest not yet taken, the first of equals (row order), found by a scan of the row's keys with no
+    branch on them (a running minimum by selects), then marked taken with a key above every other; the
+    keys are the costs' bits as int64: a cost is ``+0.0``, ``-0.0`` (an error rounded to zero) or
+    positive, inf or NaN (:func:`_quadric_at` sums), so with the sign bit cleared and every NaN given one
+    value above inf's, the bits order the costs as the floats do, NaN last.  (Counting every collapse's
+    place, k**2 comparisons, and writing the ones past the first ``tries`` to a spare entry took 1.2x as
+    long; a top-3 insertion by selects 1.1x that.)  ``boundary`` / ``edge_flags`` (n,): the live mesh's
+    (:class:`~.livemesh.LiveMesh`); a
     vertex on an edge of more than two faces has its row searched for one that is no pillow's.
     ``own`` (n,) float64: the vertices' quadric errors (:func:`_candidates`).  ``rows``: None, every
     vertex, or (r,) int64, ascending, the vertices to visit (a separate compilation).
     """
     n = len(fcount)
     r = n if rows is None else len(rows)
-    spare = tries * r  # the outputs' last entry: where the collapses past a vertex's first tries are written
-    out_u = np.empty(spare + 1, np.int64)
-    out_v = np.empty(spare + 1, np.int64)
-    out_e = np.empty(spare + 1, np.int64)
-    out_c = np.empty(spare + 1, np.float64)
+    out_u = np.empty(tries * r, np.int64)
+    out_v = np.empty(tries * r, np.int64)
+    out_e = np.empty(tries * r, np.int64)
+    out_c = np.empty(tries * r, np.float64)
     if rows is None:
         width = 0
         for x in range(n):  # the widest row (a loop: np.diff compiled for ~1 s on a machine's first encode)
@@ -966,7 +1024,7 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, count, boundary, edge_flags, f
         width = 0
         for u in rows:
             width = max(width, vv_start[u + 1] - vv_start[u])
-    buf_p = np.empty(width, np.int64)  # row positions of u's usable collapses, by cost
+    buf_p = np.empty(width, np.int64)  # row positions of u's usable collapses
     buf_c = np.empty(width, np.float64)  # their costs
     bits = buf_c.view(np.int64)
     buf_k = np.empty(width, np.int64)  # their sort keys: the costs' bits, every NaN one (the largest) value
@@ -981,22 +1039,26 @@ def _candidates_kernel(vv_start, vv_nbr, vv_edge, count, boundary, edge_flags, f
             continue  # not one disk or half-disk of faces
         q = _quadric_row(Q, u)
         m = 0
+        some = bu > 0 or edge_flags[u] & 2  # else every edge at u has two faces: none to leave out
         for p in range(a, b):
-            ce = count[vv_edge[p]]
-            if (bu > 0 and ce != 1) or ce > 2:
-                continue
+            if some:
+                ce = count[vv_edge[p]]
+                if (bu > 0 and ce != 1) or ce > 2:
+                    continue
             c = _quadric_at(q, P, vv_nbr[p]) + own[vv_nbr[p]]
             buf_p[m], buf_c[m] = p, c
             buf_k[m] = bits[m] & 0x7FFFFFFFFFFFFFFF if c == c else 0x7FF8000000000000
             m += 1
-        for s in range(m):  # each collapse's place in cost order, ties in row order: counted, no branch
-            key = buf_k[s]
-            t = 0
-            for j in range(m):
-                t += (buf_k[j] < key) | ((buf_k[j] == key) & (j < s))
+        for t in range(min(m, tries)):  # the cheapest left, ties in row order (the first): a min scan, no branch
+            best = buf_k[0]
+            s = 0
+            for j in range(1, m):
+                lower = buf_k[j] < best
+                best = buf_k[j] if lower else best
+                s = j if lower else s
+            buf_k[s] = 0x7FFFFFFFFFFFFFFF  # taken: above every key
             p = buf_p[s]
-            j = k + t if t < tries else spare  # no branch on the place either: past the first tries, a spare entry
-            out_u[j], out_v[j], out_e[j], out_c[j] = u, vv_nbr[p], vv_edge[p], buf_c[s]
+            out_u[k + t], out_v[k + t], out_e[k + t], out_c[k + t] = u, vv_nbr[p], vv_edge[p], buf_c[s]
         k += min(m, tries)
     return out_u[:k], out_v[:k], out_e[:k], out_c[:k]
 
@@ -1058,10 +1120,28 @@ def deferred_pillows(faces: np.ndarray, reverse: tuple | None = None) -> np.ndar
 
 def _touch_others(faces: np.ndarray, chosen: np.ndarray, n: int) -> np.ndarray:
     """(m,) bool: the faces of ``faces`` (m, 3) int64 over ``n`` vertices with a vertex that some face
-    outside ``chosen`` (m,) bool also names."""
+    outside ``chosen`` (m,) bool also names (compiled: two passes over the faces, no (m, 3) gather and
+    ``any`` along its short axis)."""
+    kernel = compiled(_touch_others_kernel)
+    if kernel is not None:
+        return kernel(np.ascontiguousarray(faces, np.int64), np.ascontiguousarray(chosen, np.bool_), n)
     elsewhere = np.zeros(n, bool)
     elsewhere[faces[~chosen].ravel()] = True
     return elsewhere[faces].any(axis=1)
+
+
+def _touch_others_kernel(faces, chosen, n):
+    """Compiled :func:`_touch_others`: the same (m,) bool."""
+    elsewhere = np.zeros(n, np.bool_)
+    for f in range(len(faces)):
+        if not chosen[f]:
+            elsewhere[faces[f, 0]] = True
+            elsewhere[faces[f, 1]] = True
+            elsewhere[faces[f, 2]] = True
+    out = np.empty(len(faces), np.bool_)
+    for f in range(len(faces)):
+        out[f] = elsewhere[faces[f, 0]] | elsewhere[faces[f, 1]] | elsewhere[faces[f, 2]]
+    return out
 
 
 def specks(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -1485,7 +1565,7 @@ def _legal_marked(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_st
 
 
 #: :func:`_legal_kernel` reads the rows of this many candidates ahead (:func:`_touch`).
-LEGAL_CHUNK = 16
+LEGAL_CHUNK = 32
 
 
 @kernel_helper
@@ -1687,6 +1767,9 @@ def _select_kernel(cu, cv, ce, rank, vv_start, vv_nbr, n, rounds, mesh):
         for j in range(live):
             g = play[j]
             o = front[g]
+            if j + 16 < live:  # the rows ahead: their starts 16 groups ahead, their first entries 8 ahead
+                topology.prefetch(vv_start, cu[starts[play[j + 16]]])
+                topology.prefetch(vv_nbr, vv_start[cu[starts[play[j + 8]]]])
             wg[w], wo[w] = g, o
             w += not _nbr_below(vv_start, vv_nbr, offer, cu[o], rank[o] + 1 + above)
         if w == 0:
