@@ -1565,7 +1565,7 @@ def _legal_marked(cu, cv, ce, vv_edge, count, he0, he1, F, P, opp, fcount, vv_st
 
 
 #: :func:`_legal_kernel` reads the rows of this many candidates ahead (:func:`_touch`).
-LEGAL_CHUNK = 32
+LEGAL_CHUNK = 16
 
 
 @kernel_helper
