@@ -196,35 +196,29 @@ def _vertex_faces(F, n):
     spare = key_start[n]
     for f in range(len(F)):  # the corners held in locals (a store could alias F or the fills: reloads)
         a, b, c = F[f, 0], F[f, 1], F[f, 2]
-        h0, h1, h2 = 3 * f, 3 * f + 1, 3 * f + 2
-        s = fill[a]
-        vf_face[s] = f
-        fill[a] = s + 1
-        t = kfill[a]  # corner 0 at a: a -> b is half-edge h0, c -> a is h2
-        keys[t if b >= a else spare] = ((b << shift) | h0) << 1
-        t += b >= a
-        keys[t if c > a else spare] = (((c << shift) | h2) << 1) | 1
-        t += c > a
-        kfill[a] = t
-        s = fill[b]  # a degenerate face repeats a vertex: its next corner goes to the next place
-        vf_face[s] = f
-        fill[b] = s + 1
-        t = kfill[b]  # corner 1 at b: b -> c is h1, a -> b is h0
-        keys[t if c >= b else spare] = ((c << shift) | h1) << 1
-        t += c >= b
-        keys[t if a > b else spare] = (((a << shift) | h0) << 1) | 1
-        t += a > b
-        kfill[b] = t
-        s = fill[c]
-        vf_face[s] = f
-        fill[c] = s + 1
-        t = kfill[c]  # corner 2 at c: c -> a is h2, b -> c is h1
-        keys[t if a >= c else spare] = ((a << shift) | h2) << 1
-        t += a >= c
-        keys[t if b > c else spare] = (((b << shift) | h1) << 1) | 1
-        t += b > c
-        kfill[c] = t
+        h0, h1, h2 = 3 * f, 3 * f + 1, 3 * f + 2  # a -> b, b -> c, c -> a
+        # a degenerate face repeats a vertex: its next corner goes to the next place (the fills are read again)
+        _corner_keys(a, b, c, h0, h2, f, shift, fill, vf_face, kfill, keys, spare)
+        _corner_keys(b, c, a, h1, h0, f, shift, fill, vf_face, kfill, keys, spare)
+        _corner_keys(c, a, b, h2, h1, f, shift, fill, vf_face, kfill, keys, spare)
     return vf_start, vf_face, fcount, key_start, keys
+
+
+@kernel_helper(inline=True)
+def _corner_keys(x, y, z, out, into, f, shift, fill, vf_face, kfill, keys, spare):
+    """:func:`_vertex_faces`' step for the corner of face ``f`` at ``x``, whose next vertex is ``y`` (half-edge
+    ``out``: x -> y) and previous ``z`` (half-edge ``into``: z -> x): ``f`` into ``x``'s faces row, and both
+    half-edge keys written, kept (``x``'s key row advanced) only when the other end is higher (``y`` may equal
+    ``x``: an outgoing self-loop), else at the ``spare`` last entry."""
+    s = fill[x]
+    vf_face[s] = f
+    fill[x] = s + 1
+    t = kfill[x]
+    keys[t if y >= x else spare] = ((y << shift) | out) << 1
+    t += y >= x
+    keys[t if z > x else spare] = (((z << shift) | into) << 1) | 1
+    t += z > x
+    kfill[x] = t
 
 
 @kernel_helper(allocates=True)
