@@ -93,8 +93,8 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
     pair or the new one.  Without a ``watermark``, a ``key`` given here marks with what it holds: its own
     reference image (as if given as ``watermark``, so one key marks every asset alike; the owner layer under it
     as with any watermark), or, holding no image, its owner ID alone (as ``owner_id``); a key file that does
-    not exist is refused then (WatermarkKeyError, before any work) unless an ``owner_id`` is given, and so is
-    a key holding neither.  Options: ``mode``, ``bits``, ``grid_bits``, ``base_codec``,
+    not exist is refused then (WatermarkKeyError, before any work) unless an ``owner_id`` makes it, and so is
+    a key holding neither, or no image with ``owner_id=False`` (nothing would be marked).  Options: ``mode``, ``bits``, ``grid_bits``, ``base_codec``,
     ``base_vertices``, ``embed_from`` (first split carrying a code: index or fraction), ``owner_id`` (the owner layer: a 64-bit int, alone or under the watermark; default
     with a watermark: the key's owner ID, random for a new key, none for a key written
     before the owner layer; False: no owner layer; a layer that would not read back from the
@@ -152,11 +152,7 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
             report = encode_mesh(mesh, dst, watermark=image, key=key_obj, **options)
     except CapacityError as exc:  # named as the caller gave it, not as the square it was made
         if from_key is not None:  # never shrunk (--fit): the key marks with this image only
-            from .watermark.codec import fit_hint
-            for where in ("", " from there"):
-                exc.template = exc.template.replace(fit_hint(where), "the key marks with its own image only, "
-                                                    "so --fit cannot shrink it")
-            raise CapacityError(f"{from_key}: " + exc.template, None, exc.size) from None
+            raise exc.of_key(from_key) from None
         raise exc.as_given(*given) from None
     key_path = None if key_slot is None else key_slot.path
     cleanup = {} if mesh is None else mesh.cleanup
@@ -172,9 +168,10 @@ def _key_watermark(key, owner_id=None) -> tuple:
     with when it names a ``key`` (a WatermarkKey, or a key file path): the key's own reference image, so that
     one key marks every asset alike (as ``pmw batch encode --key`` does); None for a key that holds none (its
     owner ID alone is marked: :func:`_key_for`).  WatermarkKeyError (before any work) for a key file that does
-    not exist when no ``owner_id`` is given (a key named to mark with is never made up: a mistyped path would
-    leave the file marked under a new random key), and for a key that holds neither an image nor an owner ID
-    (nothing to mark with); ``owner_id`` False (no owner layer) takes the image alone, as with a watermark."""
+    not exist unless an ``owner_id`` (an int) makes it (a key named to mark with is never made up: a mistyped path
+    would leave the file unmarked, or marked under a new random key), and for a key that would mark nothing: one
+    holding neither an image nor an owner ID, or no image with ``owner_id`` False (no owner layer); an image key
+    with ``owner_id`` False marks the image alone, as with a watermark."""
     from .errors import WatermarkKeyError
     from .watermark.key import WatermarkKey
 
@@ -182,7 +179,7 @@ def _key_watermark(key, owner_id=None) -> tuple:
     if isinstance(key, (str, os.PathLike)):
         name = os.fspath(key)
         if not os.path.lexists(key):
-            if owner_id is None:
+            if owner_id is None or owner_id is False:
                 raise WatermarkKeyError(f"{name}: no such key file: an encode with no watermark image and no owner "
                                         "ID marks with an existing key (--watermark or --owner-id make a new one)")
             return None, None
@@ -191,6 +188,9 @@ def _key_watermark(key, owner_id=None) -> tuple:
         return None, None  # _key_for names what is wrong with it
     if key.reference is not None:
         return key.reference, name
+    if owner_id is False:
+        raise WatermarkKeyError(f"{name}: the key holds no watermark image, so without the owner layer (--no-owner) "
+                                "nothing would be marked")
     if key.owner_id is None and owner_id is None:
         raise WatermarkKeyError(f"{name}: the key holds no watermark image and names no "
                                 "owner ID: nothing to mark with (give a watermark image or an owner ID)")

@@ -50,13 +50,20 @@ def catalogue(tmp_path_factory):
     return root
 
 
-def test_an_owner_key_marks_every_asset_and_batch_verify_reads_them_present(catalogue):
+@pytest.fixture(scope="module")
+def marked(catalogue):
+    """``catalogue/out``: the catalogue encoded with the owner-only key, and that key's bytes before."""
     key = catalogue / "owner.key.json"
     before = key.read_bytes()
     r = pmw("batch", "encode", catalogue / "src", "-o", catalogue / "out", "--key", key, "--workers", "1", "-q")
     assert r.returncode == 0, r.stderr
-    assert key.read_bytes() == before  # the collection key is never rewritten
-    outputs = sorted((catalogue / "out").glob("*.pmw"))
+    return catalogue / "out", before
+
+
+def test_an_owner_key_marks_every_asset_and_batch_verify_reads_them_present(catalogue, marked):
+    key = catalogue / "owner.key.json"
+    assert key.read_bytes() == marked[1]  # the collection key is never rewritten
+    outputs = sorted(marked[0].glob("*.pmw"))
     assert len(outputs) == 2
     one = json.loads(pmw("verify", outputs[0], "--key", key, "--json").stdout)
     assert one["owner"]["verdict"] == "present" and one["owner"]["id"] == "0000000000000abc"
@@ -68,18 +75,14 @@ def test_an_owner_key_marks_every_asset_and_batch_verify_reads_them_present(cata
     assert text.returncode == 0 and "2 of 2 files verified (2 of the owner layer alone: present)" in text.stdout
 
 
-def test_another_owner_key_reads_them_absent_and_exits_1(catalogue):
-    if not (catalogue / "out").exists():
-        pytest.skip("needs the encode of the test before")
+def test_another_owner_key_reads_them_absent_and_exits_1(catalogue, marked):
     r = pmw("batch", "verify", catalogue / "out", "--key", catalogue / "other.key.json", "--workers", "1", "--json")
     doc = json.loads(r.stdout)
     assert r.returncode == 1 and doc["present"] == 0
     assert all(x["verdict"] in ("absent", "inconclusive") and "bits wrong" in x["error"] for x in doc["results"])
 
 
-def test_a_cut_owner_only_file_is_not_counted_present(catalogue, tmp_path):
-    if not (catalogue / "out").exists():
-        pytest.skip("needs the encode of the test before")
+def test_a_cut_owner_only_file_is_not_counted_present(catalogue, marked, tmp_path):
     out = tmp_path / "out"
     out.mkdir()
     data = (catalogue / "out" / "m0.ply.pmw").read_bytes()

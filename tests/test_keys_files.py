@@ -187,15 +187,32 @@ def test_a_key_named_without_a_mark_to_make_it_with_is_refused_and_nothing_is_wr
     assert list(tmp_path.iterdir()) == []
 
 
+def test_no_owner_with_a_key_that_would_then_mark_nothing_is_refused(capsys, inputs, tmp_path):
+    """``--no-owner`` with a missing key, or with a key of the owner layer alone, wrote an unmarked file (exit 0)."""
+    owner = tmp_path / "owner.json"
+    assert pmw("encode", inputs / "a.ply", "-o", tmp_path / "o.pmw", "--owner-id", "7", "--key", owner,
+               "-q").returncode == 0
+    before = sorted(p.name for p in tmp_path.iterdir())
+    _refused(*_cli(capsys, "encode", inputs / "a.ply", "-o", tmp_path / "x.pmw", "--no-owner", "--key",
+                   tmp_path / "missing.json"), "missing.json: no such key file")
+    _refused(*_cli(capsys, "encode", inputs / "a.ply", "-o", tmp_path / "x.pmw", "--no-owner", "--key", owner),
+             "owner.json: the key holds no watermark image", "nothing would be marked")
+    with pytest.raises(WatermarkKeyError, match="no such key file"):
+        pmwm_codec.encode(inputs / "a.ply", tmp_path / "x.pmw", key=tmp_path / "missing.json", owner_id=False)
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
 def test_a_key_whose_image_does_not_fit_is_refused_and_fit_does_not_shrink_it(capsys, inputs, tmp_path):
-    """--fit shrinks a watermark given as an image; the one a key holds is its mark, never another size."""
-    key = tmp_path / "k.json"
+    """--fit shrinks a watermark given as an image; the one a key holds is its mark, never another size.  The key's
+    name is no format field (a name with braces crashed the message: KeyError)."""
+    key = tmp_path / "k{x}.json"
     assert encode(inputs, tmp_path / "a.pmw", "w1.png", "--key", key).returncode == 0
     small = tmp_path / "small.ply"
     write_mesh(small, shapes.icosphere(2))  # 162 vertices: 98 splits, too few for a 16x16 image
     before = sorted(p.name for p in tmp_path.iterdir())
-    _refused(*_cli(capsys, "encode", small, "-o", tmp_path / "s.pmw", "--fit", "--key", key), "k.json: ",
-             "--fit cannot shrink it")
+    for extra in ([], ["--fit"]):
+        _refused(*_cli(capsys, "encode", small, "-o", tmp_path / "s.pmw", "--key", key, *extra), "k{x}.json: a 16x16 "
+                 "watermark needs", "a key marks with its own image only, never shrunk")
     assert sorted(p.name for p in tmp_path.iterdir()) == before
 
 

@@ -47,7 +47,7 @@ def owner_id_arg(text):
     try:
         return parse_owner_id(text)
     except ValueError as exc:
-        raise argparse.ArgumentTypeError(f"--owner-id: {exc}") from None
+        raise argparse.ArgumentTypeError(str(exc)) from None  # argparse names the option
 
 
 def add_parser(sub):
@@ -146,8 +146,7 @@ def run(args) -> int:
     if args.no_owner:
         options["owner_id"] = False
         if not image:
-            extra.append("--no-owner ignored: no --watermark, so the file carries no mark" if args.key is None else
-                         "--no-owner: no watermark image (none given, none in --key), so the file carries no mark")
+            extra.append("--no-owner ignored: no --watermark, so the file carries no mark")  # with --key: refused
     if not image:  # the image's options: none of them changes a file without an image
         given = {"--embed-from": args.embed_from is not None, "--bits": args.bits is not None,
                  f"--mode {args.mode}": args.mode != STREAM_DEFAULTS["mode"], "--fit": args.fit}

@@ -97,6 +97,18 @@ class CapacityError(PmwError, ValueError):
         super().__init__(message.format(watermark=watermark_words(size, given),
                                         fit=fit_words(largest_size, size, given)))
 
+    def of_key(self, name: str) -> "CapacityError":
+        """This error for the image a key file ``name`` holds (an encode given no watermark marks with it): named
+        after the key, and with no pointer to ``--fit``, which never shrinks a key's image (the key marks with that
+        image only).  An error that is not about the image's size (too few vertex splits for any) is itself."""
+        if "{watermark}" not in self.template:
+            return self
+        template = self.template
+        for where in ("", " from there"):
+            template = template.replace(fit_hint(where), KEY_IMAGE_HINT)
+        shown = name.replace("{", "{{").replace("}", "}}")  # a file name is no format field
+        return CapacityError(f"{shown}: {template}", None, self.size, None)
+
     def as_given(self, width: int, height: int) -> "CapacityError":
         """This error naming the watermark as given, ``width`` x ``height`` pixels (itself when that is
         the square it carries)."""
@@ -705,6 +717,10 @@ def plan(image: np.ndarray, key, carriers: int, *, mode: str = "exact", bits: in
     params.fingerprint = key.fingerprint()
     params.binding = BINDING
     return params, codes
+
+
+#: What a capacity error of a key's own image says instead of :func:`fit_hint` (:meth:`CapacityError.of_key`).
+KEY_IMAGE_HINT = "a key marks with its own image only, never shrunk (--fit shrinks an image given with --watermark)"
 
 
 def fit_hint(where: str = "") -> str:
