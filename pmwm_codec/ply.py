@@ -17,6 +17,7 @@ of mixed corner counts (triangles and quads, as MeshLab writes them) are read to
 from __future__ import annotations
 
 import re
+from array import array
 
 import numpy as np
 
@@ -295,25 +296,49 @@ def _binary_records(body: bytes, at: int, count: int, props: list, order: str, e
                 out[p] = v if c is None else (np.full(count, lengths[k], np.int64), v.reshape(-1))
                 k += c is not None
             return out, at + count * fixed.itemsize
-    rows = []
-    for _ in range(count):  # lists of mixed lengths (triangles and quads): one record at a time
-        row = []
-        for _, c, kind in props:
+    return _mixed_records(body, at, count, props, order, element, name, short)
+
+
+def _mixed_records(body: bytes, at: int, count: int, props: list, order: str, element: str, name: str,
+                   short: InputFormatError) -> tuple:
+    """:func:`_binary_records` of records whose lists differ in length (triangles and quads): one pass over the
+    records finds where each property of each starts (a record's list counts place the next record), reading
+    only the counts; then every property is gathered from those places at once.  ``(values, end)``."""
+    layout = []  # per property: count size (0: a scalar), count reader, item size
+    for _, c, kind in props:
+        csize = np.dtype(c).itemsize if c is not None else 0
+        signed = c is not None and c[0] == "i"
+        layout.append((csize, signed, np.dtype(kind).itemsize))
+    big = "big" if order == ">" else "little"
+    starts = [array("q") for _ in props]  # where each record's value(s) of a property start (8 bytes an entry,
+    lengths = [array("q") for _ in props]  # not a Python int object each)
+    pos, end = at, len(body)
+    for _ in range(count):
+        for j, (csize, signed, isize) in enumerate(layout):
             n = 1
-            if c is not None:
-                if at + np.dtype(c).itemsize > len(body):
+            if csize:
+                if pos + csize > end:
                     raise short
-                n = int(np.frombuffer(body, order + c, 1, at)[0])
-                at += np.dtype(c).itemsize
-            if n < 0:
-                raise InputFormatError(f"{name}: a PLY {element} list of negative length")
-            if at + n * np.dtype(kind).itemsize > len(body):
-                raise short
-            v = np.frombuffer(body, order + kind, n, at).astype(np.float64 if kind[0] == "f" else np.int64)
-            row.append(v if c is not None else v[0])
-            at += n * np.dtype(kind).itemsize
-        rows.append(row)
-    return _values(rows, props), at
+                n = int.from_bytes(body[pos: pos + csize], big, signed=signed)
+                if n < 0:
+                    raise InputFormatError(f"{name}: a PLY {element} list of negative length")
+                pos += csize
+                lengths[j].append(n)
+            starts[j].append(pos)
+            pos += n * isize
+        if pos > end:
+            raise short
+    raw = np.frombuffer(body, np.uint8)
+    out = {}
+    for j, (p, c, kind) in enumerate(props):
+        isize = layout[j][2]
+        first = np.frombuffer(starts[j], np.int64)
+        n = np.frombuffer(lengths[j], np.int64) if c is not None else np.ones(count, np.int64)
+        item = np.repeat(first, n) + isize * (np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n))
+        data = raw[item[:, None] + np.arange(isize)].reshape(-1).view(order + kind)
+        v = data.astype(np.float64 if kind[0] == "f" else np.int64)
+        out[p] = v if c is None else (n, v)
+    return out, pos
 
 
 def _record_dtype(props: list, lengths: list, order: str) -> np.dtype:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from pmwm_codec.errors import InputFormatError
 from pmwm_codec.mesh import read_mesh
@@ -124,3 +125,48 @@ def test_an_element_of_no_properties_holds_no_data():
     for data in (_ascii(), _binary("<")):
         extra = data.replace(b"end_header", b"element note 3\nend_header")
         assert read_ply(extra, "m.ply", 100)[1].tolist() == TRIANGLES
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.data())
+def test_binary_records_of_mixed_shapes_read_as_written(data):
+    """Faces of 1-7 corners in any mix, with scalars before and after the corner list and a second list, every
+    count and item type and both byte orders: each property reads back as written (the mixed-shape reader walks
+    the records' counts, then gathers each property at once)."""
+    order = data.draw(st.sampled_from("<>"))
+    count_type = data.draw(st.sampled_from([("uchar", "u1"), ("ushort", "u2"), ("int", "i4"), ("uint", "u4")]))
+    item_type = data.draw(st.sampled_from([("int", "i4"), ("uint", "u4"), ("ushort", "u2")]))
+    polygons = data.draw(st.lists(st.lists(st.integers(0, 6), min_size=1, max_size=7), min_size=1, max_size=40))
+    if all(len(p) == len(polygons[0]) for p in polygons):
+        polygons.append([0] * (len(polygons[0]) % 7 + 1))  # at least two shapes
+    tags = data.draw(st.lists(st.integers(0, 255), min_size=len(polygons), max_size=len(polygons)))
+    fmt = "binary_little_endian" if order == "<" else "binary_big_endian"
+    header = (f"ply\nformat {fmt} 1.0\nelement vertex 7\nproperty float x\nproperty float y\nproperty float z\n"
+              f"element face {len(polygons)}\nproperty uchar tag\nproperty list {count_type[0]} {item_type[0]} "
+              f"vertex_indices\nproperty short weight\nproperty list uchar float uv\nend_header\n")
+    out = bytearray(header.encode()) + POSITIONS.astype(order + "f4").tobytes()
+    for p, tag in zip(polygons, tags):
+        out += bytes([tag]) + np.array(len(p), order + count_type[1]).tobytes()
+        out += np.array(p, order + item_type[1]).tobytes() + np.array(-tag, order + "i2").tobytes()
+        out += bytes([len(p) % 3]) + np.arange(len(p) % 3, dtype=order + "f4").tobytes()
+    from pmwm_codec.ply import _binary_elements, _header
+
+    body = bytes(out)
+    start = body.index(b"end_header\n") + len(b"end_header\n")
+    _, elements = _header(body[: body.index(b"end_header")].decode(), "m.ply")
+    _, face = _binary_elements(body[start:], elements, order, "m.ply")
+    assert face["tag"].tolist() == tags and face["weight"].tolist() == [-t for t in tags]
+    lengths, items = face["vertex_indices"]
+    assert lengths.tolist() == [len(p) for p in polygons] and items.tolist() == [i for p in polygons for i in p]
+    uv_lengths, uv = face["uv"]
+    assert uv_lengths.tolist() == [len(p) % 3 for p in polygons]
+    assert uv.tolist() == [float(j) for p in polygons for j in range(len(p) % 3)]
+    assert read_ply(body, "m.ply", 1000)[1].shape == (sum(max(len(p) - 2, 1) for p in polygons), 3)
+
+
+def test_a_negative_list_count_in_mixed_binary_records_is_refused():
+    header = ("ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+              "property float z\nelement face 2\nproperty list char int vertex_indices\nend_header\n").encode()
+    body = np.zeros(9, "<f4").tobytes() + bytes([3]) + np.arange(3, dtype="<i4").tobytes() + bytes([0xFF])
+    with pytest.raises(InputFormatError, match="list of negative length"):
+        read_ply(header + body, "m.ply", 10)
