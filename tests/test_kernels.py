@@ -506,6 +506,22 @@ def test_the_affordable_candidates_and_offer_ranks_are_the_same_on_both_paths(mo
             assert (cost[first] <= 1e-13).all()
 
 
+def test_the_compiled_permutation_draws_numpys_stream():
+    """pcg64.permutation (SeedSequence, PCG64 and Generator.permutation redone in a kernel) gives
+    ``np.random.default_rng(seed).permutation(c)``: seeds of one and two 32-bit words (0, 2**32 - 1,
+    2**32, ...), c from 0 past 2**16 (the masks of every width), the candidate counts _offer_ranks seeds with."""
+    pytest.importorskip("numba")
+    from pmwm_codec.progressive import pcg64
+
+    perm = topology.compiled(pcg64.permutation)
+    seeds = (0, 1, 2, 3, 17, 1000, 65536, 2**31, 2**32 - 1, 2**32, 2**32 + 7, 2**40 + 3, 2**63 - 1)
+    for seed in seeds:
+        for c in (0, 1, 2, 3, 10, 257, 5000):
+            assert np.array_equal(perm(seed, c), np.random.default_rng(seed).permutation(c)), (seed, c)
+    for c in (*range(0, 600, 7), 70001):
+        assert np.array_equal(perm(c, c), np.random.default_rng(c).permutation(c)), c
+
+
 def test_faces_touching_others_are_the_same_on_both_paths(monkeypatch):
     """_touch_others (deferred pillows, specks): compiled and numpy, on random faces and choices (none, some,
     all chosen; repeated vertices)."""

@@ -66,7 +66,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import seams, topology
+from . import pcg64, seams, topology
 from .livemesh import boundary_half_edges, live_mesh
 from .topology import compiled, expand, face_keys, group_order, half_edges, kernel_helper, two_alike
 
@@ -1855,14 +1855,15 @@ def _offer_ranks(cu, cost):
     (flat CAD regions, all zero) let only a few local minima win each round.
     """
     c = len(cu)
-    shuffle = np.random.default_rng(c).permutation(c)
     # the bucket floor(2 log2(cost + 1e-12 + 1e-9 max)); compiled, all but numpy's log2 in two kernels (a pass
-    # each, not eight; their arithmetic is numpy's, rounding for rounding)
+    # each, not eight; their arithmetic is numpy's, rounding for rounding), the second drawing the tie order
+    # itself (:func:`.pcg64.permutation`, numpy's draws)
     kernel = compiled(_ranks_kernel)
     if kernel is not None:
         y = compiled(_log_argument_kernel)(cost)
         np.log2(y, out=y)
-        return kernel(y, shuffle)
+        return kernel(y)
+    shuffle = np.random.default_rng(c).permutation(c)
     # in place: the same values without four (c,) temporaries; a cost rounded below zero counts as zero (its log2
     # was NaN, which a cast made x86's smallest integer and the compiled ranking then asked for a counting array
     # of 2**63 entries)
@@ -1901,12 +1902,13 @@ def _log_argument_kernel(cost):
     return y
 
 
-def _ranks_kernel(y, shuffle):
+def _ranks_kernel(y):
     """Compiled end of :func:`_offer_ranks`: the (c,) int64 ranks of the candidates with ``y`` (c,) float64
-    the log2 of :func:`_log_argument_kernel` (turned into the cost buckets in place) and tie order
-    ``shuffle`` (c,) int64, a permutation: one counting pass over the buckets, then the candidates ranked
-    in shuffle order within their bucket."""
+    the log2 of :func:`_log_argument_kernel` (turned into the cost buckets in place) and the tie order
+    ``default_rng(c).permutation(c)`` (:func:`.pcg64.permutation`): one counting pass over the buckets, then
+    the candidates ranked in shuffle order within their bucket."""
     c = len(y)
+    shuffle = pcg64.permutation(c, c)
     bucket = y.view(np.int64)
     low = 0
     for i in range(c):
