@@ -213,12 +213,7 @@ def _replay_batch(j, cb, state, positions, vid, face_src, moved_by, embed) -> Sp
     Updates ``state``, ``vid`` (new vertices get their decoded ids) and ``face_src`` (the
     appended faces get their input face ids) in place; ``moved_by`` is scratch.
     """
-    k = len(cb.u)
-    vf = vid[cb.v]
-    order = np.argsort(vf, kind="stable")  # splits sorted by their decoded kept vertex
-    rank = np.empty(k, dtype=np.int64)
-    rank[order] = np.arange(k)
-    v_sorted = vf[order]
+    order, rank, v_sorted = _split_order(vid[cb.v])
 
     inc, owner = find_incidences(state, v_sorted)
     symbols = _symbols(state, inc, owner, vid, face_src, moved_by, cb, order, rank)
@@ -234,6 +229,17 @@ def _replay_batch(j, cb, state, positions, vid, face_src, moved_by, embed) -> Sp
     return SplitBatch(v_sorted, symbols, residual)
 
 
+def _split_order(vf: np.ndarray) -> tuple:
+    """The splits of a batch sorted by their decoded kept vertex ``vf`` (k,) int64 (distinct: a batch keeps
+    each vertex once): ``(order, rank, v_sorted)`` (k,) int64, ``rank`` the inverse of ``order``.  Distinct
+    keys have one sorted order: numpy's default sort finds it (~4x faster than its stable one, a timsort
+    here)."""
+    order = np.argsort(vf)
+    rank = np.empty(len(vf), dtype=np.int64)
+    rank[order] = np.arange(len(vf))
+    return order, rank, vf[order]
+
+
 def _replay_packed(cb, state, positions, vid, face_src, face_dst, moved_by, packer) -> SplitBatch:
     """:func:`_replay_batch` without an embedder, by the packer's path: ``packer``
     (:class:`~pmwm_codec.format.records_v2.ChunkPacker` over ``state``, in a chunk) codes the batch's
@@ -243,11 +249,7 @@ def _replay_packed(cb, state, positions, vid, face_src, face_dst, moved_by, pack
     the batch in version 1 terms (its symbols and residuals listed when first read)."""
     k = len(cb.u)
     n0, m0 = state.n, state.m
-    vf = vid[cb.v]
-    order = np.argsort(vf, kind="stable")  # splits sorted by their decoded kept vertex
-    rank = np.empty(k, dtype=np.int64)
-    rank[order] = np.arange(k)
-    v_sorted = vf[order]
+    order, rank, v_sorted = _split_order(vid[cb.v])
     gstart, inc, a, b = packer.mask(v_sorted)
     sym = _packed_symbols(gstart, inc, a, b, vid, face_dst, moved_by, cb, order, rank)
     u_in = cb.u[order]
