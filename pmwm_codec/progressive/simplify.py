@@ -374,7 +374,7 @@ def simplify(
     own = quadric_error(Q, P)
     frozen_ext = np.zeros(n, bool) if locked is None else np.asarray(locked, bool).copy()
     twin = twin_faces(corners) if twin is None else np.asarray(twin, bool)
-    twin = twin if twin.any() else None
+    twin = np.flatnonzero(twin) if twin.any() else None  # the doubled faces' ids (a scan's: a few, of ~50k faces)
     log = CollapseLog(n, m, None, None, None, [])
 
     alive_count = int(vert_alive.sum())
@@ -396,7 +396,8 @@ def simplify(
         if shared is not None and len(shared):
             first = np.zeros(n, bool)
             first[shared] = True
-        batch, stalled = _one_batch(P, Q, own, live, frozen_ext, alive_count - target_vertices, weld, twin, first,
+        doubled = None if twin is None else live.loc[corners[twin[face_alive[twin]]]]
+        batch, stalled = _one_batch(P, Q, own, live, frozen_ext, alive_count - target_vertices, weld, doubled, first,
                                     legal_only, None if on_shared is None else (points, on_shared))
         # once a batch stalls, the illegal offers that held it hold the later ones too (the illegal share of the
         # candidates grows as the mesh coarsens: dragon23k, 14 % at batch 15 of 61, 72 % at batch 53): the
@@ -492,8 +493,8 @@ def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None, first=
     frozen_ext (N,) bool the simplifier's
     frozen vertices (original ids); at most ``budget`` vertices are removed (the cheapest collapses).
     ``weld`` (N,) int64 or None: seam copies (see :func:`simplify`).  The work is done on the live mesh
-    renumbered compactly ("local" ids) and returned in original ids.  ``twin`` (M,) bool or None: the
-    doubled faces (:func:`twin_faces`).  ``first`` (N,) bool or None: vertices whose collapses are offered
+    renumbered compactly ("local" ids) and returned in original ids.  ``twin`` (t, 3) int64 or None: the
+    live doubled faces (:func:`twin_faces`) in local ids, in face order.  ``first`` (N,) bool or None: vertices whose collapses are offered
     first (ranked as costing nothing; the batch records their true costs).  ``legal_only``: select among
     the legal candidates from the start; ``stalled``: this batch did (``legal_only``, or it stalled:
     :func:`_unstalled`).  ``shared``: ``(points, on_shared)`` (N,) int64 and (N,) bool, the first vertex on each
@@ -511,7 +512,7 @@ def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None, first=
         g = seam = None
     src, opp = F.reshape(-1), live.opp
     dst = None if seam is None else half_edges(F)[1]  # only the seam pairs read dst
-    twins = _twin_counts(et, F, None if twin is None else twin[fids], n)
+    twins = _twin_counts(et, twin, n)
     mesh = (et, F, P, opp, fcount, vv, vf, vv_edge, twins[0])
     ends = live.boundary, live.edge_flags
     cand = _candidates(mesh, ends, Q, src, frozen if seam is None else frozen | seam, twins, own=own)
@@ -972,7 +973,7 @@ def _candidates(mesh, ends, Q, src, frozen_ext, twins=None, rows=None, own=None)
     et, F, P, _, fcount, vv, _, vv_edge, _ = mesh
     n = len(P)
     if twins is None:
-        twins = _twin_counts(et, F, None, n)
+        twins = _twin_counts(et, None, n)
     # (Q_u + Q_v)(p_v) = Q_u(p_v) + Q_v(p_v); the second term is one value per vertex
     own = quadric_error(Q, P) if own is None else own
     kernel = compiled(_candidates_kernel)
@@ -1296,21 +1297,20 @@ def _reverse_pairs_kernel(faces, n):
     return pairs, size
 
 
-def _twin_counts(et, F, twin, n):
-    """``(twin_edge (e,) bool, extra (n,) int64)`` of the local mesh with the doubled faces ``twin``
-    (m,) bool (or None).  A doubled pair is a closed two-face "pillow" on the surface: glued onto it
+def _twin_counts(et, Ft, n):
+    """``(twin_edge (e,) bool, extra (n,) int64)`` of the local mesh (edge table ``et``) whose doubled faces
+    are ``Ft`` (t, 3) int64 (local ids, in face order; None: none).  A doubled pair is a closed two-face "pillow" on the surface: glued onto it
     along its three edges, or a flap glued along one edge whose third vertex (its tip) has no other
     face.  ``twin_edge`` marks the edges of exactly one pillow whose other faces are two (the
     surface's) or none (a flap's free edges): the edges a pillow makes non-manifold, or adds.
     ``extra`` counts, on each vertex, its pillow faces minus its pillows' free edges: a vertex
     whose other faces are a disk has ``extra`` more faces than edges."""
     twin_edge = np.zeros(len(et.keys), bool)
-    if twin is None or not twin.any():
+    if Ft is None or not len(Ft):
         return twin_edge, np.zeros(n, np.int64)
     kernel = compiled(_twin_counts_kernel)
     if kernel is not None:
-        return kernel(F, twin, et.keys, et.lo, et.hi, et.count, n)
-    Ft = F[twin]
+        return kernel(Ft, et.keys, et.lo, et.hi, et.count, n)
     ids = np.concatenate([et.find(Ft[:, j], Ft[:, (j + 1) % 3]) for j in range(3)])
     on_edge = np.bincount(ids, minlength=len(et.keys))
     free = (on_edge == 2) & (et.count == 2)
@@ -1319,30 +1319,30 @@ def _twin_counts(et, F, twin, n):
     return twin_edge, np.bincount(Ft.ravel(), minlength=n) - po
 
 
-def _twin_counts_kernel(F, twin, keys, lo, hi, count, n):
-    """Compiled :func:`_twin_counts` (the same two arrays) in two passes over the doubled faces ``twin`` (m,)
-    bool of ``F`` (m, 3) int64, their edges found by a binary search of the edge table's sorted ``keys`` (e,):
-    the doubled faces on each edge and the corners on each vertex, then each edge with two of them once."""
-    on_edge = np.zeros(len(keys), np.int64)
+def _twin_counts_kernel(Ft, keys, lo, hi, count, n):
+    """Compiled :func:`_twin_counts` (the same two arrays) in two passes over the doubled faces ``Ft`` (t, 3)
+    int64, their edges found by a binary search of the edge table's sorted ``keys`` (e,): the doubled faces on
+    each edge (int8, counted up to 3: only two matters) and the corners on each vertex, then each edge with
+    two of them once."""
+    on_edge = np.zeros(len(keys), np.int8)
     extra = np.zeros(n, np.int64)
-    for f in range(len(F)):
-        if twin[f]:
-            for j in range(3):
-                a, b = F[f, j], F[f, (j + 1) % 3]
-                on_edge[np.searchsorted(keys, min(a, b) * n + max(a, b))] += 1
-                extra[a] += 1
+    for f in range(len(Ft)):
+        for j in range(3):
+            a, b = Ft[f, j], Ft[f, (j + 1) % 3]
+            e = np.searchsorted(keys, min(a, b) * n + max(a, b))
+            on_edge[e] = min(on_edge[e] + 1, 3)
+            extra[a] += 1
     twin_edge = np.zeros(len(keys), np.bool_)
-    for f in range(len(F)):
-        if twin[f]:
-            for j in range(3):
-                a, b = F[f, j], F[f, (j + 1) % 3]
-                e = np.searchsorted(keys, min(a, b) * n + max(a, b))
-                if on_edge[e] == 2:
-                    on_edge[e] = -1  # counted once
-                    twin_edge[e] = count[e] == 4 or count[e] == 2
-                    if count[e] == 2:  # a flap's free edge
-                        extra[lo[e]] -= 1
-                        extra[hi[e]] -= 1
+    for f in range(len(Ft)):
+        for j in range(3):
+            a, b = Ft[f, j], Ft[f, (j + 1) % 3]
+            e = np.searchsorted(keys, min(a, b) * n + max(a, b))
+            if on_edge[e] == 2:
+                on_edge[e] = -1  # counted once
+                twin_edge[e] = count[e] == 4 or count[e] == 2
+                if count[e] == 2:  # a flap's free edge
+                    extra[lo[e]] -= 1
+                    extra[hi[e]] -= 1
     return twin_edge, extra
 
 
