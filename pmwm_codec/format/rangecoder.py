@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import FormatError
-from ..progressive.topology import kernel_helper
+from ..progressive.topology import compiled, kernel_helper
 
 PROB_BITS = 11
 PROB_ONE = 1 << PROB_BITS
@@ -387,8 +387,6 @@ class Decoder:
 
 def _kernel(fn):
     """``fn`` compiled when numba is available, else the plain function."""
-    from ..progressive.topology import compiled
-
     jit = compiled(fn)
     return jit if jit is not None else getattr(fn, "py_func", fn)
 

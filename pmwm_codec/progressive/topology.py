@@ -91,11 +91,13 @@ def compiled(fn):
     """
     if not USE_NUMBA or _plain_job:
         return None
-    _load_numba()
-    fn = getattr(fn, "py_func", fn)  # a kernel_helper that is also called as a kernel
-    jit = _COMPILED.get(fn)
+    jit = _COMPILED.get(fn) if _numba is not None else None  # the common case: a kernel already called
     if jit is None:
-        jit = _COMPILED[fn] = _jit(fn)
+        _load_numba()
+        fn = getattr(fn, "py_func", fn)  # a kernel_helper that is also called as a kernel
+        jit = _COMPILED.get(fn)
+        if jit is None:
+            jit = _COMPILED[fn] = _jit(fn)
     return jit
 
 
