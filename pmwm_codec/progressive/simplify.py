@@ -519,8 +519,9 @@ def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None, first=
     if cand is None and seam is None:
         return None, legal_only
     first = None if first is None or cand is None else (first[vids] if seam is None else first[vids] & ~seam)
-    if first is not None and first[cand[0]].any():  # their collapses rank as costing nothing
-        cand = cand[:3] + (np.where(first[cand[0]], 0.0, cand[3]),)
+    hit = None if first is None else first[cand[0]]
+    if hit is not None and hit.any():  # their collapses rank as costing nothing (cand's own cost array, fresh)
+        cand[3][hit] = 0.0
     pairs = None if seam is None else _seam_pairs(Q, own, src, dst, frozen, seam, g, mesh, ends)
     # the ordinary candidates must be independent of the chosen seam pairs (left out as the affordable ones are
     # picked, one pass over the candidates)
@@ -554,8 +555,10 @@ def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None, first=
             if len(cu) == 0:
                 return None, stalled
             moved_face, moved_by = _moved_faces(vf, F, cu, cv)
-    if first is not None:  # their true costs (as _candidates computes them: the same bits)
-        cost = np.where(first[cu], quadric_error(np.take(Q, cu, axis=0), np.take(P, cv, axis=0)) + own[cv], cost)
+    rows = None if first is None else np.flatnonzero(first[cu])
+    if rows is not None and len(rows):  # their true costs (as _candidates computes them, row by row: the same bits)
+        cost = cost.copy()
+        cost[rows] = quadric_error(np.take(Q, cu[rows], axis=0), np.take(P, cv[rows], axis=0)) + own[cv[rows]]
     u, v, del_left, wing_left, del_right, wing_right, error = _described(et, src, opp, vids, fids, Q, cu, cv, ce, cost)
     return CollapseBatch(u=u, v=v, del_left=del_left, del_right=del_right, wing_left=wing_left, wing_right=wing_right,
                          moved_face=fids[moved_face], moved_by=moved_by, cost=cost, error=error), stalled
