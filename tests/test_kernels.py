@@ -40,6 +40,28 @@ def test_group_order_is_a_stable_argsort(kernels):
         assert np.array_equal(topology.group_order(keys, n), np.argsort(keys, kind="stable"))
 
 
+def test_edge_ids_and_face_corner_tests_are_the_same_on_both_paths(monkeypatch):
+    """topology.edge_ids (compiled: a hash table, numbered by first row; numpy: np.unique, by sorted key) numbers
+    the undirected edges one to one, with their row counts; any_corner and two_alike_at are numpy's
+    expressions, on both paths."""
+    rng = np.random.default_rng(3)
+    for n, m in ((3, 1), (40, 300), (5000, 20000)):
+        faces = rng.integers(0, n, (m, 3))
+        flags = rng.random(n) < 0.1
+        point = np.arange(n) % 7
+        a, b = faces.reshape(-1), faces[:, [1, 2, 0]].reshape(-1)
+        keys = np.minimum(a, b) * n + np.maximum(a, b)
+        _, key_id, key_count = np.unique(keys, return_inverse=True, return_counts=True)
+        for use in (False, NUMBA):
+            monkeypatch.setattr(topology, "USE_NUMBA", use)
+            ids, counts = topology.edge_ids(a, b, n)
+            assert ids.dtype == counts.dtype == np.int64 and len(counts) == len(key_count)
+            assert len(np.unique(key_id * len(counts) + ids)) == len(counts)  # one number per edge, one edge per number
+            assert np.array_equal(counts[ids], key_count[key_id])
+            assert np.array_equal(topology.any_corner(flags, faces), flags[faces].any(axis=1))
+            assert np.array_equal(topology.two_alike_at(point, faces), topology.two_alike(point[faces]))
+
+
 def test_edge_table_is_the_same_on_both_paths(monkeypatch):
     mesh = shapes.torus(30, 12)
     tables = []

@@ -51,7 +51,7 @@ from ..progressive.build import ProgressiveMesh, build_progressive
 from ..progressive.grid import AttributeGrid, Grid, float32_spacing
 from ..progressive.seams import twin_rows, weld_groups
 from ..progressive.simplify import CollapseLog, deferred_and_twin_faces, simplify
-from ..progressive.topology import job_vertices, mean_edge_length, two_alike
+from ..progressive.topology import any_corner, edge_ids, job_vertices, mean_edge_length, two_alike_at
 from ..progressive.seams import grid_weld, snap_near_copies  # (the seam copies of stage 1)
 from ..watermark import codec as wm
 from ..watermark.key import KEY_FILE_MODE, KEY_SUFFIX, KeySlot, WatermarkKey
@@ -960,7 +960,7 @@ def _sliver_faces(points: np.ndarray, faces: np.ndarray, weld: np.ndarray | None
     share a position), and the base falls back to Draco's sequential coder (dragon437k: 55 KB instead of 15 KB);
     a face chunk sends them instead (bitstream.md §8.6)."""
     m, n = len(faces), len(points)
-    on_point = np.flatnonzero(two_alike(points[faces]))
+    on_point = np.flatnonzero(two_alike_at(points, faces))
     out = np.zeros(m, bool)
     if not len(on_point):
         return out
@@ -970,14 +970,13 @@ def _sliver_faces(points: np.ndarray, faces: np.ndarray, weld: np.ndarray | None
     # the faces of the vertices of those faces: every face on such an edge is among them
     mark = np.zeros(n, bool)
     mark[faces[on_point].ravel()] = True
-    near = np.flatnonzero(mark[faces[:, 0]] | mark[faces[:, 1]] | mark[faces[:, 2]])
+    near = np.flatnonzero(any_corner(mark, faces))
     spot = np.full(m, -1, np.int64)
     spot[near] = np.arange(len(near))
     tri = faces[near]
-    nxt = tri[:, [1, 2, 0]]  # each near face's edges (0 1), (1 2), (2 0), as undirected keys
-    _, edge, counts = np.unique(np.minimum(tri, nxt) * n + np.maximum(tri, nxt), return_inverse=True,
-                                   return_counts=True)
-    edge = edge.reshape(-1, 3)  # each near face's edges, as indices into keys
+    nxt = tri[:, [1, 2, 0]]  # each near face's edges (0 1), (1 2), (2 0)
+    edge, counts = edge_ids(tri.reshape(-1), nxt.reshape(-1), n)
+    edge = edge.reshape(-1, 3)  # each near face's edges, as indices into counts
     faces_at = np.bincount(tri.ravel(), minlength=n)  # a vertex's faces (complete for the marked ones)
     first = [pair[:, k] for k in range(3)]
     slot = spot[on_point]
