@@ -907,8 +907,8 @@ def _named_only_by(faces: np.ndarray, late: np.ndarray, n: int) -> np.ndarray:
     """(n,) bool: the vertices of a mesh of ``n`` vertices that faces of ``late`` (m,) bool name and no
     other face of ``faces`` (m, 3) does (the tips a face chunk brings)."""
     only_late = np.zeros(n, bool)
-    only_late[faces[late].ravel()] = True
-    only_late[faces[~late].ravel()] = False
+    only_late[np.compress(late, faces, axis=0).ravel()] = True  # faces[late], a copy in a quarter of the time
+    only_late[np.compress(~late, faces, axis=0).ravel()] = False
     return only_late
 
 
@@ -930,8 +930,11 @@ def _core_and_copies(n: int, values, positions, faces, locked, twin, late, defer
         c_values, c_positions, c_faces, c_locked, c_twin, extra = values, positions, faces, locked, twin, {}
         if late.any():  # the core mesh, renumbered (no copies when nothing is deferred)
             core, tips, local = _core_vertices(n, faces, late)
-            extra = dict(core=core, tips=tips, late=local[faces[late]], late_values=values[tips])
-            c_values, c_positions, c_faces = values[core], positions[core], local[faces[~late]]
+            # (np.take and np.compress: the same rows as fancy and boolean indexing, in a quarter of the time)
+            extra = dict(core=core, tips=tips, late=np.take(local, np.compress(late, faces, axis=0)),
+                         late_values=values[tips])
+            c_values, c_positions = np.take(values, core, axis=0), np.take(positions, core, axis=0)
+            c_faces = np.take(local, np.compress(~late, faces, axis=0))
             c_locked = None if locked is None else locked[core]
             # the core's own doubled faces: ``late`` takes every face of a vertex triple or none (pillows and
             # specks are told by their vertices), so a triple keeps its face count in the core
