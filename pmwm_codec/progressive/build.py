@@ -151,7 +151,7 @@ def build_progressive(
             batches.append(_replay_packed(cb, state, positions, vid, face_src, face_dst, moved_by, packer))
             if j + 1 in stops:
                 packer.end()
-        errors.append(float(cb.error.max()) if len(cb.u) else 0.0)
+        errors.append(float(np.maximum.reduce(cb.error)) if len(cb.u) else 0.0)  # cb.error.max()
 
     if state.n != n or state.m != m or np.any(face_src < 0):
         raise AssertionError("progressive build did not reach the full mesh")  # a bug, not bad input
@@ -254,7 +254,7 @@ def _replay_packed(cb, state, positions, vid, face_src, face_dst, moved_by, pack
     sym = _packed_symbols(gstart, inc, a, b, vid, face_dst, moved_by, cb, order, rank)
     u_in = cb.u[order]
     vid[u_in] = n0 + np.arange(k)
-    state.positions[n0 : n0 + k] = np.take(positions, u_in, axis=0)
+    np.take(positions, u_in, axis=0, out=state.positions[n0 : n0 + k])
     batch = packer.split(v_sorted, gstart, inc, a, b, sym)
     _name_appended_faces(face_src, face_dst, state.faces[m0 : state.m], m0, n0, cb, order)
     return batch

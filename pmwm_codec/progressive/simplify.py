@@ -1325,9 +1325,13 @@ def _twin_counts(et, Ft, n):
 def _twin_counts_kernel(Ft, keys, lo, hi, count, n):
     """Compiled :func:`_twin_counts` (the same two arrays) in two passes over the doubled faces ``Ft`` (t, 3)
     int64, their edges found by a binary search of the edge table's sorted ``keys`` (e,): the doubled faces on
-    each edge (int8, counted up to 3: only two matters) and the corners on each vertex, then each edge with
-    two of them once."""
-    on_edge = np.zeros(len(keys), np.int8)
+    each edge (int8, counted up to 3: only two matters; only their edges' entries set) and the corners on each
+    vertex, then each edge with two of them once."""
+    on_edge = np.empty(len(keys), np.int8)
+    for f in range(len(Ft)):
+        for j in range(3):
+            a, b = Ft[f, j], Ft[f, (j + 1) % 3]
+            on_edge[np.searchsorted(keys, min(a, b) * n + max(a, b))] = 0
     extra = np.zeros(n, np.int64)
     for f in range(len(Ft)):
         for j in range(3):
