@@ -62,6 +62,30 @@ def test_edge_ids_and_face_corner_tests_are_the_same_on_both_paths(monkeypatch):
             assert np.array_equal(topology.two_alike_at(point, faces), topology.two_alike(point[faces]))
 
 
+def test_the_first_edges_of_the_extent_check_are_the_same_on_both_paths(monkeypatch):
+    """mesh._first_edges (the extent check's sample): compiled and numpy, every face and a stride, zero-length
+    edges left out; a mesh below SMALL_JOB_VERTICES never asks for the kernel (reading it loads no numba)."""
+    from pmwm_codec import mesh as mesh_module
+
+    big = shapes.torus(80, 30)
+    pos = np.asarray(big.positions, np.float64).copy()
+    tri = np.asarray(big.faces, np.int64)
+    pos[tri[::5, 1]] = pos[tri[::5, 0]]  # some first edges of length zero
+    assert len(pos) >= topology.SMALL_JOB_VERTICES
+    out = []
+    for use in (False, NUMBA):
+        monkeypatch.setattr(topology, "USE_NUMBA", use)
+        out.append([mesh_module._first_edges(pos, tri, stride) for stride in (1, 3)])
+    for a, b in zip(*out):
+        assert a.dtype == b.dtype and np.array_equal(a, b) and len(a) and (a > 0).all()
+    asked = []
+    monkeypatch.setattr(topology, "USE_NUMBA", NUMBA)
+    monkeypatch.setattr(mesh_module, "compiled", lambda fn: asked.append(fn))
+    small = shapes.icosphere(2)
+    mesh_module._first_edges(np.asarray(small.positions, np.float64), np.asarray(small.faces, np.int64), 1)
+    assert not asked
+
+
 def test_edge_table_is_the_same_on_both_paths(monkeypatch):
     mesh = shapes.torus(30, 12)
     tables = []
@@ -530,7 +554,8 @@ def test_the_affordable_candidates_and_offer_ranks_are_the_same_on_both_paths(mo
 
 def test_the_compiled_permutation_draws_numpys_stream():
     """pcg64.permutation (SeedSequence, PCG64 and Generator.permutation redone in a kernel) gives
-    ``np.random.default_rng(seed).permutation(c)``: seeds of one and two 32-bit words (0, 2**32 - 1,
+    ``np.random.default_rng(seed).permutation(c)`` and pcg64.integers_63 its ``integers(0, 2**63, n)``: seeds
+    of one and two 32-bit words (0, 2**32 - 1,
     2**32, ...), c from 0 past 2**16 (the masks of every width), the candidate counts _offer_ranks seeds with."""
     pytest.importorskip("numba")
     from pmwm_codec.progressive import pcg64
@@ -542,6 +567,10 @@ def test_the_compiled_permutation_draws_numpys_stream():
             assert np.array_equal(perm(seed, c), np.random.default_rng(seed).permutation(c)), (seed, c)
     for c in (*range(0, 600, 7), 70001):
         assert np.array_equal(perm(c, c), np.random.default_rng(c).permutation(c)), c
+    integers = topology.compiled(pcg64.integers_63)  # seams._rim's weights
+    for seed in (0, 1, 0x5EA3, 2**40 + 3):
+        for n in (0, 1, 2, 1000, 100001):
+            assert np.array_equal(integers(seed, n), np.random.default_rng(seed).integers(0, 2**63, n, dtype=np.int64))
 
 
 def test_faces_touching_others_are_the_same_on_both_paths(monkeypatch):

@@ -1,10 +1,11 @@
 """numpy's seeded random streams, ``np.random.default_rng(seed)``, drawn inside compiled kernels.
 
-The encoder's bytes depend on one such stream: the tie order of the simplifier's offers
-(:func:`~.simplify._offer_ranks`: ``default_rng(c).permutation(c)`` for ``c`` candidates, a batch).
-Its numpy path draws it from numpy; its compiled kernel draws the same values here, without a
-``Generator`` built per batch (its seeding alone took ~6.5 us) and without numpy's shuffle, which calls
-the bit generator through a function pointer for every draw (~8 ns a value; here ~3).
+The encoder's bytes depend on such streams: the tie order of the simplifier's offers
+(:func:`~.simplify._offer_ranks`: ``default_rng(c).permutation(c)`` for ``c`` candidates, a batch) and the
+vertex weights that find a mesh's rim (:func:`~.seams._rim`: ``integers(0, 2**63, n)``).  Their numpy paths
+draw them from numpy; their compiled kernels draw the same values here, without a ``Generator`` built per
+call (its seeding alone took ~6.5 us) and without numpy's shuffle, which calls the bit generator through a
+function pointer for every draw (~8 ns a value; here ~3).
 
 What numpy does, step by step (numpy 1.17 and later; the stream is frozen by numpy's compatibility
 policy for the bit generator, and ``permutation`` / ``shuffle`` have drawn the same way since):
@@ -18,7 +19,8 @@ policy for the bit generator, and ``permutation`` / ``shuffle`` have drawn the s
   its high half for the next 32-bit draw;
 * ``Generator.permutation(c)``: ``arange(c)`` shuffled by Fisher-Yates from the top, position ``i``
   swapped with ``j`` drawn in ``[0, i]`` by masked rejection (32-bit draws masked to the bits of ``i``,
-  redrawn while above it).
+  redrawn while above it);
+* ``Generator.integers(0, 2**63, n, dtype=np.int64)``: Lemire's bounded draws (:func:`integers_63`).
 
 :func:`tests.test_kernels` compares these with numpy's own draws.
 """
@@ -143,4 +145,18 @@ def permutation(seed, c):
                 break
         j = np.int64(r & mask)
         out[i], out[j] = out[j], out[i]
+    return out
+
+
+@kernel_helper(allocates=True)
+def integers_63(seed, n):
+    """``np.random.default_rng(seed).integers(0, 2**63, n, dtype=np.int64)``: (n,) int64 (n >= 0, 0 <= seed <
+    2**63).  numpy draws a bound of 2**63 by Lemire's method over 64-bit outputs: the high half of
+    ``output * 2**63`` is ``output >> 1``, and the low half, ``(output & 1) << 63``, is never below the
+    rejection threshold (``2**64 % 2**63 = 0``): one output per value, its top 63 bits."""
+    hi, lo, inc_hi, inc_lo = seeded(seed)
+    out = np.empty(n, np.int64)
+    for i in range(n):
+        hi, lo = _step(hi, lo, inc_hi, inc_lo)
+        out[i] = np.int64(_output(hi, lo) >> np.uint64(1))
     return out

@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import pcg64
 from .topology import any_corner, compiled, expand, kernel_helper
 
 
@@ -227,6 +228,10 @@ def snap_near_copies(q: np.ndarray, positions: np.ndarray, faces: np.ndarray, st
     return out
 
 
+#: The seed of :func:`_rim`'s random vertex weights.
+RIM_SEED = 0x5EA3
+
+
 def _rim(faces: np.ndarray, n: int) -> np.ndarray:
     """The vertices (k,) int64, ascending, of the edges of ``faces`` (m, 3) int64 over ``n`` vertices that
     have one face (boundary edges), without an edge table of the whole mesh (a closed mesh has none).
@@ -235,12 +240,14 @@ def _rim(faces: np.ndarray, n: int) -> np.ndarray:
     so the sums over its corners of a random 64-bit weight of the next vertex and of the previous one
     agree modulo 2**64; a boundary edge leaves them apart (but with probability 2**-64).  Those vertices
     are candidates, and the edges between two candidates --
-    every face of such an edge holds a candidate, so its count is whole -- are counted exactly."""
-    weight = np.random.default_rng(0x5EA3).integers(0, 2**63, n, dtype=np.int64)
+    every face of such an edge holds a candidate, so its count is whole -- are counted exactly.  The weights
+    are ``default_rng(RIM_SEED).integers(0, 2**63, n)``, drawn by the compiled kernel itself
+    (:func:`.pcg64.integers_63`)."""
     kernel = compiled(_rim_kernel)
     if kernel is not None:
-        maybe, touching = kernel(faces, weight, n)
+        maybe, touching = kernel(faces, RIM_SEED, n)
     else:  # the same sums modulo 2**64
+        weight = np.random.default_rng(RIM_SEED).integers(0, 2**63, n, dtype=np.int64)
         corner = faces.reshape(-1)
         maybe = np.zeros(n, np.uint64)
         with np.errstate(over="ignore"):
@@ -257,9 +264,11 @@ def _rim(faces: np.ndarray, n: int) -> np.ndarray:
     return np.unique(np.r_[edges[count == 1] // n, edges[count == 1] % n])
 
 
-def _rim_kernel(faces, weight, n):
+def _rim_kernel(faces, seed, n):
     """Compiled first step of :func:`_rim`: ``(maybe (n,) bool, touching (m,) bool)``, the vertices whose
-    corners' next and previous vertices weigh differently (sums modulo 2**64) and the faces that hold one."""
+    corners' next and previous vertices weigh differently (sums modulo 2**64; the weights drawn from ``seed``)
+    and the faces that hold one."""
+    weight = pcg64.integers_63(seed, n)
     total = np.zeros(n, np.uint64)
     for f in range(len(faces)):
         for c in range(3):
