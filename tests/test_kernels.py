@@ -86,6 +86,25 @@ def test_the_first_edges_of_the_extent_check_are_the_same_on_both_paths(monkeypa
     assert not asked
 
 
+def test_the_splits_order_is_the_same_on_both_paths(monkeypatch):
+    """build._split_order (compiled: a bitmap read word by word; numpy: argsort) of distinct keys: none, one,
+    keys on a word's edges (0, 63, 64, n - 1), dense and sparse batches."""
+    from pmwm_codec.progressive import build
+
+    rng = np.random.default_rng(9)
+    cases = [(np.zeros(0, np.int64), 5), (np.array([0], np.int64), 1), (np.array([64, 63, 0, 129, 127], np.int64), 130)]
+    cases += [(rng.choice(n, k, replace=False).astype(np.int64), n) for n, k in ((64, 64), (1000, 7), (5000, 4000))]
+    for vf, n in cases:
+        out = []
+        for use in (False, NUMBA):
+            monkeypatch.setattr(topology, "USE_NUMBA", use)
+            out.append(build._split_order(vf, n))
+        order = np.argsort(vf, kind="stable")
+        for got in out:
+            assert np.array_equal(got[0], order) and np.array_equal(got[2], vf[order])
+            assert np.array_equal(got[1][order], np.arange(len(vf)))
+
+
 def test_edge_table_is_the_same_on_both_paths(monkeypatch):
     mesh = shapes.torus(30, 12)
     tables = []
