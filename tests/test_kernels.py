@@ -40,6 +40,71 @@ def test_group_order_is_a_stable_argsort(kernels):
         assert np.array_equal(topology.group_order(keys, n), np.argsort(keys, kind="stable"))
 
 
+def test_edge_ids_and_face_corner_tests_are_the_same_on_both_paths(monkeypatch):
+    """topology.edge_ids (compiled: a hash table, numbered by first row; numpy: np.unique, by sorted key) numbers
+    the undirected edges one to one, with their row counts; any_corner and two_alike_at are numpy's
+    expressions, on both paths."""
+    rng = np.random.default_rng(3)
+    for n, m in ((3, 1), (40, 300), (5000, 20000)):
+        faces = rng.integers(0, n, (m, 3))
+        flags = rng.random(n) < 0.1
+        point = np.arange(n) % 7
+        a, b = faces.reshape(-1), faces[:, [1, 2, 0]].reshape(-1)
+        keys = np.minimum(a, b) * n + np.maximum(a, b)
+        _, key_id, key_count = np.unique(keys, return_inverse=True, return_counts=True)
+        for use in (False, NUMBA):
+            monkeypatch.setattr(topology, "USE_NUMBA", use)
+            ids, counts = topology.edge_ids(a, b, n)
+            assert ids.dtype == counts.dtype == np.int64 and len(counts) == len(key_count)
+            assert len(np.unique(key_id * len(counts) + ids)) == len(counts)  # one number per edge, one edge per number
+            assert np.array_equal(counts[ids], key_count[key_id])
+            assert np.array_equal(topology.any_corner(flags, faces), flags[faces].any(axis=1))
+            assert np.array_equal(topology.two_alike_at(point, faces), topology.two_alike(point[faces]))
+
+
+def test_the_first_edges_of_the_extent_check_are_the_same_on_both_paths(monkeypatch):
+    """mesh._first_edges (the extent check's sample): compiled and numpy, every face and a stride, zero-length
+    edges left out; a mesh below SMALL_JOB_VERTICES never asks for the kernel (reading it loads no numba)."""
+    from pmwm_codec import mesh as mesh_module
+
+    big = shapes.torus(80, 30)
+    pos = np.asarray(big.positions, np.float64).copy()
+    tri = np.asarray(big.faces, np.int64)
+    pos[tri[::5, 1]] = pos[tri[::5, 0]]  # some first edges of length zero
+    assert len(pos) >= topology.SMALL_JOB_VERTICES
+    out = []
+    for use in (False, NUMBA):
+        monkeypatch.setattr(topology, "USE_NUMBA", use)
+        out.append([mesh_module._first_edges(pos, tri, stride) for stride in (1, 3)])
+    for a, b in zip(*out):
+        assert a.dtype == b.dtype and np.array_equal(a, b) and len(a) and (a > 0).all()
+    asked = []
+    monkeypatch.setattr(topology, "USE_NUMBA", NUMBA)
+    monkeypatch.setattr(mesh_module, "compiled", lambda fn: asked.append(fn))
+    small = shapes.icosphere(2)
+    mesh_module._first_edges(np.asarray(small.positions, np.float64), np.asarray(small.faces, np.int64), 1)
+    assert not asked
+
+
+def test_the_splits_order_is_the_same_on_both_paths(monkeypatch):
+    """build._split_order (compiled: a bitmap read word by word; numpy: argsort) of distinct keys: none, one,
+    keys on a word's edges (0, 63, 64, n - 1), dense and sparse batches."""
+    from pmwm_codec.progressive import build
+
+    rng = np.random.default_rng(9)
+    cases = [(np.zeros(0, np.int64), 5), (np.array([0], np.int64), 1), (np.array([64, 63, 0, 129, 127], np.int64), 130)]
+    cases += [(rng.choice(n, k, replace=False).astype(np.int64), n) for n, k in ((64, 64), (1000, 7), (5000, 4000))]
+    for vf, n in cases:
+        out = []
+        for use in (False, NUMBA):
+            monkeypatch.setattr(topology, "USE_NUMBA", use)
+            out.append(build._split_order(vf, n))
+        order = np.argsort(vf, kind="stable")
+        for got in out:
+            assert np.array_equal(got[0], order) and np.array_equal(got[2], vf[order])
+            assert np.array_equal(got[1][order], np.arange(len(vf)))
+
+
 def test_edge_table_is_the_same_on_both_paths(monkeypatch):
     mesh = shapes.torus(30, 12)
     tables = []
@@ -506,6 +571,27 @@ def test_the_affordable_candidates_and_offer_ranks_are_the_same_on_both_paths(mo
             assert (cost[first] <= 1e-13).all()
 
 
+def test_the_compiled_permutation_draws_numpys_stream():
+    """pcg64.permutation (SeedSequence, PCG64 and Generator.permutation redone in a kernel) gives
+    ``np.random.default_rng(seed).permutation(c)`` and pcg64.integers_63 its ``integers(0, 2**63, n)``: seeds
+    of one and two 32-bit words (0, 2**32 - 1,
+    2**32, ...), c from 0 past 2**16 (the masks of every width), the candidate counts _offer_ranks seeds with."""
+    pytest.importorskip("numba")
+    from pmwm_codec.progressive import pcg64
+
+    perm = topology.compiled(pcg64.permutation)
+    seeds = (0, 1, 2, 3, 17, 1000, 65536, 2**31, 2**32 - 1, 2**32, 2**32 + 7, 2**40 + 3, 2**63 - 1)
+    for seed in seeds:
+        for c in (0, 1, 2, 3, 10, 257, 5000):
+            assert np.array_equal(perm(seed, c), np.random.default_rng(seed).permutation(c)), (seed, c)
+    for c in (*range(0, 600, 7), 70001):
+        assert np.array_equal(perm(c, c), np.random.default_rng(c).permutation(c)), c
+    integers = topology.compiled(pcg64.integers_63)  # seams._rim's weights
+    for seed in (0, 1, 0x5EA3, 2**40 + 3):
+        for n in (0, 1, 2, 1000, 100001):
+            assert np.array_equal(integers(seed, n), np.random.default_rng(seed).integers(0, 2**63, n, dtype=np.int64))
+
+
 def test_faces_touching_others_are_the_same_on_both_paths(monkeypatch):
     """_touch_others (deferred pillows, specks): compiled and numpy, on random faces and choices (none, some,
     all chosen; repeated vertices)."""
@@ -592,7 +678,7 @@ def test_twin_counts_are_the_same_on_both_paths(monkeypatch, make):
     out = []
     for use in (False, NUMBA):
         monkeypatch.setattr(topology, "USE_NUMBA", use)
-        out.append(S._twin_counts(live.et, live.F, twin, len(live.vids)))
+        out.append(S._twin_counts(live.et, live.F[twin], len(live.vids)))
     assert twin.any() and out[0][0].any()
     for a, b in zip(*out):
         assert a.dtype == b.dtype and np.array_equal(a, b)

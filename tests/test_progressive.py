@@ -142,7 +142,7 @@ def test_a_collapse_may_delete_a_face_beside_the_edge_a_flap_hangs_from(monkeypa
     live = live_mesh(mesh.faces.copy(), np.ones(mesh.face_count, bool), np.ones(mesh.vertex_count, bool))
     F, et = live.F, live.et
     src, _, opp = half_edges(F)
-    twin_edge, _ = S._twin_counts(et, F, S.twin_faces(F), len(P))
+    twin_edge, _ = S._twin_counts(et, F[S.twin_faces(F)], len(P))
     cu, cv = [], []
     for a, b, _tip in F[S.twin_faces(F)][0::2]:
         for f in F[(F == a).any(1) & (F == b).any(1) & ~S.twin_faces(F)]:

@@ -211,3 +211,60 @@ def test_the_rim_is_the_ends_of_the_edges_of_one_face(monkeypatch, numba):
     assert len(expected) > 10
     np.testing.assert_array_equal(seams._rim(faces, n), expected)
     assert len(seams._rim(np.asarray(mesh.faces, np.int64), n)) == 0  # a closed surface has none
+
+
+def _grid_weld_whole_graph(q, faces, positions):
+    """grid_weld as it was first written: the connected parts of a graph of every vertex (a self loop on
+    each vertex without a copy), the reference of the graph of the linked vertices only."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from pmwm_codec.progressive.seams import _cut_vertices
+
+    exact, on_grid = weld_groups(positions), weld_groups(q)
+    if on_grid is None or (exact is not None and np.array_equal(exact, on_grid)):
+        return exact
+    n = len(q)
+    cut = _cut_vertices(on_grid, np.asarray(faces, np.int64).reshape(-1, 3), n)
+    ids = np.arange(n, dtype=np.int64)
+    first_cut = np.full(n, n, np.int64)
+    np.minimum.at(first_cut, on_grid[cut], ids[cut])
+    link = np.where(cut, first_cut[on_grid], ids)
+    exact = ids if exact is None else exact
+    graph = coo_matrix((np.ones(2 * n, np.int8), (np.r_[ids, ids], np.r_[exact, link])), shape=(n, n))
+    _, part = connected_components(graph, directed=False)
+    first = np.full(n, n, np.int64)
+    np.minimum.at(first, part, ids)
+    weld = first[part]
+    return None if np.array_equal(weld, ids) else weld
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_cut_vertices_and_the_grid_weld_are_the_same_on_both_paths(monkeypatch, seed):
+    """_cut_vertices (compiled: hash tables; numpy: sorts) and grid_weld (its graph of the linked vertices
+    only) against the whole-graph reference, on a trig sphere's seams and poles with random copies: exact
+    ones, grid-only ones inside the surface, and faces cut loose along random edges (boundary half-edges,
+    partnered or not)."""
+    from pmwm_codec.progressive import seams, topology
+
+    rng = np.random.default_rng(seed)
+    mesh = trig_sphere(12 + seed, 9)
+    pos = np.asarray(mesh.positions, np.float64).copy()
+    faces = np.asarray(mesh.faces, np.int64).copy()
+    n = len(pos)
+    dup = rng.choice(n, 6, replace=False)  # exact copies of some vertices, and near ones (one grid point)
+    pos[dup[:3]] = pos[rng.choice(n, 3)]
+    pos[dup[3:]] = pos[rng.choice(n, 3)] + 1e-9
+    cut = rng.choice(len(faces), len(faces) // 4, replace=False)  # faces on copies of their corners
+    extra = faces[cut].reshape(-1)
+    faces[cut] = (n + np.arange(len(extra))).reshape(-1, 3)
+    pos = np.concatenate([pos, pos[extra]])
+    q = np.rint(pos * 200).astype(np.int64)
+    pid = weld_groups(q)
+    out = []
+    for use in (False, True):
+        monkeypatch.setattr(topology, "USE_NUMBA", use)
+        out.append((seams._cut_vertices(pid, faces, len(q)), grid_weld(q, faces, pos)))
+        assert np.array_equal(out[-1][1], _grid_weld_whole_graph(q, faces, pos))
+    assert out[0][0].any() and np.array_equal(out[0][0], out[1][0])
+    assert np.array_equal(out[0][1], out[1][1])

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import FormatError
-from ..progressive.topology import kernel_helper
+from ..progressive.topology import compiled, kernel_helper
 
 PROB_BITS = 11
 PROB_ONE = 1 << PROB_BITS
@@ -343,10 +343,11 @@ class Encoder:
 
     def reserve(self, decisions: int) -> None:
         """Make room for ``decisions`` more coded decisions (and the flush)."""
-        need = int(self.es[4]) + 16 + BYTES_PER_DECISION * int(decisions)
-        if need > len(self.out):
-            grown = np.zeros(max(need, 2 * len(self.out)), np.uint8)
-            grown[: len(self.out)] = self.out
+        pos = int(self.es[4])
+        need = pos + 16 + BYTES_PER_DECISION * int(decisions)
+        if need > len(self.out):  # the kernels only write bytes (at es[4] on): the bytes written are all there is
+            grown = np.empty(max(need, 2 * len(self.out)), np.uint8)
+            grown[:pos] = self.out[:pos]
             self.out = grown
 
     def finish(self) -> bytes:
@@ -387,8 +388,6 @@ class Decoder:
 
 def _kernel(fn):
     """``fn`` compiled when numba is available, else the plain function."""
-    from ..progressive.topology import compiled
-
     jit = compiled(fn)
     return jit if jit is not None else getattr(fn, "py_func", fn)
 

@@ -36,7 +36,7 @@ import numpy as np
 from ..errors import FormatError, LimitError
 from ..progressive import topology
 from ..progressive.topology import compiled, face_keys, kernel_helper
-from ..progressive.vsplit import SplitBatch, SplitTopology, _ring_lists, new_face_count
+from ..progressive.vsplit import SplitBatch, SplitTopology, _ring_lists
 from . import rangecoder as rc
 from .rangecoder import INT_BLOCK, INT_DECISIONS
 
@@ -777,6 +777,7 @@ class ChunkPacker:
         self.payloads = []
         self.enc = None
         self.buffers = None  # the mask's outputs, reused from batch to batch (:func:`_mask_buffers`)
+        self.sel = None  # (N,) int64 the mask's input bits, zeros between batches
 
     def begin(self, batches: int) -> None:
         """Start a chunk of ``batches`` batches: its batch count."""
@@ -813,9 +814,11 @@ class ChunkPacker:
         (k + 1,), inc, a, b (I,))`` int64 (:func:`_mask_kernel`), views of buffers the next batch reuses."""
         state = self.state
         n, m, k = state.n, state.m, len(v)
-        if k == 0 or v[0] < 0 or v[-1] >= n or np.any(np.diff(v) <= 0) or n + k > len(state.positions):
+        if k == 0 or v[0] < 0 or v[-1] >= n or not (v[1:] > v[:-1]).all() or n + k > len(state.positions):
             raise ValueError("payload v2: split vertices empty, out of range or not increasing")
-        sel = np.zeros(n, np.int64)
+        if self.sel is None or len(self.sel) < n:
+            self.sel = np.zeros(len(state.positions), np.int64)
+        sel = self.sel
         sel[v] = 1
         self.enc.reserve(n)
         enc, lists = self.enc, self.lists
@@ -825,6 +828,7 @@ class ChunkPacker:
         _, corners = rc._kernel(_mask_kernel)(state.faces.reshape(-1), n, lists.head, lists.nxt, lists.valence,
                                               lists.below, sel, marked[:k], gstart[: k + 1], inc, a, b, enc.es,
                                               enc.out, _NO_STATE, _NO_BYTES, enc.probs, 0)
+        sel[v] = 0
         return gstart[: k + 1], inc[:corners], a[:corners], b[:corners]
 
     def split(self, v, gstart, inc, a, b, sym, res=None):
@@ -846,7 +850,7 @@ class ChunkPacker:
             raise ValueError(f"payload v2: {_BATCH_ERRORS[new_faces]}")
         state.n, state.m = n + k, m + new_faces
         lists.n, lists.m = state.n, state.m
-        return _packed_batch(v, n, state.positions, inc, sym, rsum, rcount)
+        return _packed_batch(v, n, state.positions, inc, sym, rsum, rcount, new_faces)
 
     def face_chunk(self, chunk: FaceChunk) -> np.ndarray:
         """Code the face chunk ``chunk`` and apply it (:func:`_pack_face_chunk`); returns its ``order``."""
@@ -994,14 +998,15 @@ def _decode_batch(dec, state, lists, buffers, listed):
     lists.n, lists.m = state.n, state.m
     if not listed:
         return None, None
-    return _listed_batch(v, n, state.positions, gstart, inc, a, b, sym, rsum, rcount)
+    return _listed_batch(v, n, state.positions, gstart, inc, a, b, sym, rsum, rcount, new_faces)
 
 
-def _listed_batch(v, n0, positions, gstart, inc, a, b, sym, rsum, rcount) -> tuple:
+def _listed_batch(v, n0, positions, gstart, inc, a, b, sym, rsum, rcount, new_faces) -> tuple:
     """``(DecodedBatch, SplitTopology)`` of a batch :func:`_batch_kernel` applied: ``v`` (k,) int64 its split
     vertices, ``n0`` the vertex count before it, ``positions`` (N, D) the values it wrote, ``gstart`` /
     ``inc`` / ``a`` / ``b`` / ``sym`` its incidences grouped by split (:func:`_mask_kernel`), ``rsum`` /
-    ``rcount`` its ring sums; what version 1 terms need of them is listed when first asked."""
+    ``rcount`` its ring sums, ``new_faces`` the faces it appended; what version 1 terms need of them is
+    listed when first asked."""
     k = len(v)
     u = n0 + np.arange(k)
 
@@ -1018,31 +1023,33 @@ def _listed_batch(v, n0, positions, gstart, inc, a, b, sym, rsum, rcount) -> tup
         return _ring_lists(v, sym[order], own, a[order], b[order])
 
     topo = SplitTopology(u, rsum, rcount, incidence_lists, ring)
-    return DecodedBatch(v, positions, topo, lambda: sym[face_slot_order()[2]], sym), topo
+    return DecodedBatch(v, positions, topo, lambda: sym[face_slot_order()[2]], sym, new_faces), topo
 
 
-def _packed_batch(v, n0, positions, inc, sym, rsum, rcount) -> DecodedBatch:
+def _packed_batch(v, n0, positions, inc, sym, rsum, rcount, new_faces) -> DecodedBatch:
     """A batch :meth:`ChunkPacker.split` applied, in version 1 terms (as :func:`_listed_batch`), holding
     only what its symbols in face-slot order and its residuals are listed from when first read: ``sym``
     (I,) uint8 grouped by split, a copy of their corners ``inc`` (I,) in int32 (corners < 2**31; the
     mask's buffers are reused), the ring sums ``rsum`` (k, D) / ``rcount`` (k,) and ``positions``
-    (N, D), which hold the new values at ``n0 ..``."""
+    (N, D), which hold the new values at ``n0 ..``; ``new_faces`` the faces it appended."""
     corners = inc.astype(np.int32)
     topo = SplitTopology(n0 + np.arange(len(v)), rsum, rcount, None)
-    return DecodedBatch(v, positions, topo, lambda: sym[np.argsort(corners, kind="stable")], sym)
+    return DecodedBatch(v, positions, topo, lambda: sym[np.argsort(corners, kind="stable")], sym, new_faces)
 
 
 class DecodedBatch(SplitBatch):
     """A decoded batch in version 1 terms (:class:`~pmwm_codec.progressive.vsplit.SplitBatch`):
     its symbols in face-slot order and its residuals, listed only when first read (a plain
-    decode reads neither)."""
+    decode reads neither), and the count of faces it appended (:func:`_batch_kernel`'s, the
+    count :func:`~pmwm_codec.progressive.vsplit.new_face_count` makes of its symbols)."""
 
-    def __init__(self, v, positions, topo, symbols, grouped):
+    def __init__(self, v, positions, topo, symbols, grouped, new_faces):
         self.v = v
         self._positions, self._topo, self._symbols, self._grouped = positions, topo, symbols, grouped
+        self._new_faces = int(new_faces)
 
     def new_face_count(self) -> int:
-        return new_face_count(self._grouped)  # a count: any order of the symbols
+        return self._new_faces
 
     @cached_property
     def symbols(self) -> np.ndarray:

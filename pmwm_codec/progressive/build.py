@@ -151,7 +151,7 @@ def build_progressive(
             batches.append(_replay_packed(cb, state, positions, vid, face_src, face_dst, moved_by, packer))
             if j + 1 in stops:
                 packer.end()
-        errors.append(float(cb.error.max()) if len(cb.u) else 0.0)
+        errors.append(float(np.maximum.reduce(cb.error)) if len(cb.u) else 0.0)  # cb.error.max()
 
     if state.n != n or state.m != m or np.any(face_src < 0):
         raise AssertionError("progressive build did not reach the full mesh")  # a bug, not bad input
@@ -213,12 +213,7 @@ def _replay_batch(j, cb, state, positions, vid, face_src, moved_by, embed) -> Sp
     Updates ``state``, ``vid`` (new vertices get their decoded ids) and ``face_src`` (the
     appended faces get their input face ids) in place; ``moved_by`` is scratch.
     """
-    k = len(cb.u)
-    vf = vid[cb.v]
-    order = np.argsort(vf, kind="stable")  # splits sorted by their decoded kept vertex
-    rank = np.empty(k, dtype=np.int64)
-    rank[order] = np.arange(k)
-    v_sorted = vf[order]
+    order, rank, v_sorted = _split_order(vid[cb.v], state.n)
 
     inc, owner = find_incidences(state, v_sorted)
     symbols = _symbols(state, inc, owner, vid, face_src, moved_by, cb, order, rank)
@@ -234,6 +229,51 @@ def _replay_batch(j, cb, state, positions, vid, face_src, moved_by, embed) -> Sp
     return SplitBatch(v_sorted, symbols, residual)
 
 
+def _split_order(vf: np.ndarray, n: int) -> tuple:
+    """The splits of a batch sorted by their decoded kept vertex ``vf`` (k,) int64 (distinct, in ``[0, n)``: a
+    batch keeps each vertex once): ``(order, rank, v_sorted)`` (k,) int64, ``rank`` the inverse of ``order``.
+    Distinct keys have one sorted order: numpy's default sort finds it (~4x faster than its stable one, a
+    timsort here); compiled, a bitmap of the n vertices read word by word (:func:`_split_order_kernel`)."""
+    kernel = compiled(_split_order_kernel)
+    if kernel is not None:
+        return kernel(vf, n)
+    order = np.argsort(vf)
+    rank = np.empty(len(vf), dtype=np.int64)
+    rank[order] = np.arange(len(vf))
+    return order, rank, vf[order]
+
+
+#: De Bruijn table: the bit index of a 64-bit word with one bit set, at ``(word * _DE_BRUIJN) >> 58``.
+_DE_BRUIJN = 0x03F79D71B4CA8B09
+_BIT_OF = np.zeros(64, np.int64)
+_BIT_OF[[((1 << b) * _DE_BRUIJN & (2**64 - 1)) >> 58 for b in range(64)]] = np.arange(64)
+
+
+def _split_order_kernel(vf, n):
+    """Compiled :func:`_split_order`: each key's bit set in an (n / 64,) bitmap and its row kept in an (n,)
+    array (only the keys' entries written), then the words read in order, their set bits lowest first."""
+    k = len(vf)
+    bits = np.zeros(n // 64 + 1, np.uint64)
+    row = np.empty(n, np.int64)
+    lo, hi = n, -1
+    for i in range(k):
+        d = vf[i]
+        row[d] = i
+        bits[d >> 6] |= np.uint64(1) << np.uint64(d & 63)
+        lo, hi = min(lo, d >> 6), max(hi, d >> 6)
+    order, rank, v_sorted = np.empty(k, np.int64), np.empty(k, np.int64), np.empty(k, np.int64)
+    s = 0
+    for w in range(lo, hi + 1):
+        word = bits[w]
+        while word:
+            low = word & (np.uint64(0) - word)
+            d = (w << 6) + _BIT_OF[np.int64((low * np.uint64(_DE_BRUIJN)) >> np.uint64(58))]
+            order[s], rank[row[d]], v_sorted[s] = row[d], s, d
+            s += 1
+            word ^= low
+    return order, rank, v_sorted
+
+
 def _replay_packed(cb, state, positions, vid, face_src, face_dst, moved_by, packer) -> SplitBatch:
     """:func:`_replay_batch` without an embedder, by the packer's path: ``packer``
     (:class:`~pmwm_codec.format.records_v2.ChunkPacker` over ``state``, in a chunk) codes the batch's
@@ -243,16 +283,12 @@ def _replay_packed(cb, state, positions, vid, face_src, face_dst, moved_by, pack
     the batch in version 1 terms (its symbols and residuals listed when first read)."""
     k = len(cb.u)
     n0, m0 = state.n, state.m
-    vf = vid[cb.v]
-    order = np.argsort(vf, kind="stable")  # splits sorted by their decoded kept vertex
-    rank = np.empty(k, dtype=np.int64)
-    rank[order] = np.arange(k)
-    v_sorted = vf[order]
+    order, rank, v_sorted = _split_order(vid[cb.v], n0)
     gstart, inc, a, b = packer.mask(v_sorted)
     sym = _packed_symbols(gstart, inc, a, b, vid, face_dst, moved_by, cb, order, rank)
     u_in = cb.u[order]
     vid[u_in] = n0 + np.arange(k)
-    state.positions[n0 : n0 + k] = np.take(positions, u_in, axis=0)
+    np.take(positions, u_in, axis=0, out=state.positions[n0 : n0 + k])
     batch = packer.split(v_sorted, gstart, inc, a, b, sym)
     _name_appended_faces(face_src, face_dst, state.faces[m0 : state.m], m0, n0, cb, order)
     return batch

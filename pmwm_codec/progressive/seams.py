@@ -52,7 +52,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .topology import any_corner, compiled, expand
+from . import pcg64
+from .topology import any_corner, compiled, expand, kernel_helper
 
 
 def weld_groups(positions: np.ndarray) -> np.ndarray | None:
@@ -146,11 +147,22 @@ def grid_weld(q: np.ndarray, faces: np.ndarray, positions: np.ndarray,
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    graph = coo_matrix((np.ones(2 * n, np.int8), (np.r_[ids, ids], np.r_[exact, link])), shape=(n, n))
-    _, part = connected_components(graph, directed=False)
-    first = np.full(n, n, np.int64)
-    np.minimum.at(first, part, ids)
-    weld = first[part]
+    # the graph of the vertices with a link to another (every other vertex is a part of its own: a scan's
+    # vertices are nearly all alone, and a graph of all of them took ~20 ms at 437k vertices)
+    linked = (exact != ids) | (link != ids)
+    member = linked.copy()
+    member[exact[linked]] = True
+    member[link[linked]] = True
+    members = np.flatnonzero(member)
+    weld = ids.copy()
+    if len(members):
+        local = np.searchsorted(members, np.r_[members, members, exact[members], link[members]])
+        k = len(members)
+        graph = coo_matrix((np.ones(2 * k, np.int8), (local[: 2 * k], local[2 * k:])), shape=(k, k))
+        _, part = connected_components(graph, directed=False)
+        first = np.full(k, n, np.int64)
+        np.minimum.at(first, part, members)
+        weld[members] = first[part]
     return None if np.array_equal(weld, ids) else weld
 
 
@@ -216,6 +228,10 @@ def snap_near_copies(q: np.ndarray, positions: np.ndarray, faces: np.ndarray, st
     return out
 
 
+#: The seed of :func:`_rim`'s random vertex weights.
+RIM_SEED = 0x5EA3
+
+
 def _rim(faces: np.ndarray, n: int) -> np.ndarray:
     """The vertices (k,) int64, ascending, of the edges of ``faces`` (m, 3) int64 over ``n`` vertices that
     have one face (boundary edges), without an edge table of the whole mesh (a closed mesh has none).
@@ -224,12 +240,14 @@ def _rim(faces: np.ndarray, n: int) -> np.ndarray:
     so the sums over its corners of a random 64-bit weight of the next vertex and of the previous one
     agree modulo 2**64; a boundary edge leaves them apart (but with probability 2**-64).  Those vertices
     are candidates, and the edges between two candidates --
-    every face of such an edge holds a candidate, so its count is whole -- are counted exactly."""
-    weight = np.random.default_rng(0x5EA3).integers(0, 2**63, n, dtype=np.int64)
+    every face of such an edge holds a candidate, so its count is whole -- are counted exactly.  The weights
+    are ``default_rng(RIM_SEED).integers(0, 2**63, n)``, drawn by the compiled kernel itself
+    (:func:`.pcg64.integers_63`)."""
     kernel = compiled(_rim_kernel)
     if kernel is not None:
-        maybe, touching = kernel(faces, weight, n)
+        maybe, touching = kernel(faces, RIM_SEED, n)
     else:  # the same sums modulo 2**64
+        weight = np.random.default_rng(RIM_SEED).integers(0, 2**63, n, dtype=np.int64)
         corner = faces.reshape(-1)
         maybe = np.zeros(n, np.uint64)
         with np.errstate(over="ignore"):
@@ -246,9 +264,11 @@ def _rim(faces: np.ndarray, n: int) -> np.ndarray:
     return np.unique(np.r_[edges[count == 1] // n, edges[count == 1] % n])
 
 
-def _rim_kernel(faces, weight, n):
+def _rim_kernel(faces, seed, n):
     """Compiled first step of :func:`_rim`: ``(maybe (n,) bool, touching (m,) bool)``, the vertices whose
-    corners' next and previous vertices weigh differently (sums modulo 2**64) and the faces that hold one."""
+    corners' next and previous vertices weigh differently (sums modulo 2**64; the weights drawn from ``seed``)
+    and the faces that hold one."""
+    weight = pcg64.integers_63(seed, n)
     total = np.zeros(n, np.uint64)
     for f in range(len(faces)):
         for c in range(3):
@@ -268,7 +288,12 @@ def _cut_vertices(pid: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
 
     A partner runs between other vertices than its half-edge (the same two vertices would make one edge of
     two faces), so one end at least is a vertex whose point another vertex has: only the faces holding one
-    are read, and every edge with such an end has all its faces among them (its count is exact)."""
+    are read, and every edge with such an end has all its faces among them (its count is exact).  Compiled:
+    two hash tables, of those faces' edges and of the boundary half-edges' point pairs, instead of a sort
+    of the edges and one of the pairs (:func:`_cut_vertices_kernel`, the same vertices)."""
+    kernel = compiled(_cut_vertices_kernel)
+    if kernel is not None:
+        return kernel(pid, faces, n)
     shared = np.bincount(pid, minlength=n)[pid] > 1
     faces = faces[any_corner(shared, faces)]
     a = faces.reshape(-1)
@@ -282,6 +307,74 @@ def _cut_vertices(pid: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
     out[a[partnered]] = True
     out[b[partnered]] = True
     return out
+
+
+def _cut_vertices_kernel(pid, faces, n):
+    """Compiled :func:`_cut_vertices` (the same (n,) bool): the faces with a corner on a shared point, their
+    edges counted in an open-addressing table (:func:`_hash_slot`), then their boundary half-edges between two
+    points put in a second table by ``(point, point)``, and the ends of those whose reverse pair is there
+    marked."""
+    count = np.zeros(n, np.int64)
+    for v in range(n):
+        count[pid[v]] += 1
+    shared = np.empty(n, np.bool_)
+    for v in range(n):
+        shared[v] = count[pid[v]] > 1
+    near = np.empty(len(faces), np.int64)
+    k = 0
+    for f in range(len(faces)):  # every face written, kept by advancing the count or not
+        near[k] = f
+        k += shared[faces[f, 0]] | shared[faces[f, 1]] | shared[faces[f, 2]]
+    bits = 1
+    while (1 << bits) < 6 * k:
+        bits += 1
+    size = 1 << bits
+    keys = np.full(size, -1, np.int64)
+    uses = np.zeros(size, np.int64)
+    slot = np.empty(3 * k, np.int64)  # the table slot of each near half-edge's edge
+    for t in range(k):
+        f = near[t]
+        for c in range(3):
+            a, b = faces[f, c], faces[f, (c + 1) % 3]
+            key = min(a, b) * n + max(a, b)
+            j = _hash_slot(key, bits)
+            while keys[j] >= 0 and keys[j] != key:
+                j = (j + 1) & (size - 1)
+            keys[j] = key
+            uses[j] += 1
+            slot[3 * t + c] = j
+    pairs = np.full(size, -1, np.int64)  # the boundary half-edges' (point, point) keys (as many as half-edges)
+    for t in range(k):
+        f = near[t]
+        for c in range(3):
+            a, b = faces[f, c], faces[f, (c + 1) % 3]
+            if uses[slot[3 * t + c]] == 1 and pid[a] != pid[b]:
+                key = pid[a] * n + pid[b]
+                j = _hash_slot(key, bits)
+                while pairs[j] >= 0 and pairs[j] != key:
+                    j = (j + 1) & (size - 1)
+                pairs[j] = key
+    out = np.zeros(n, np.bool_)
+    for t in range(k):
+        f = near[t]
+        for c in range(3):
+            a, b = faces[f, c], faces[f, (c + 1) % 3]
+            if uses[slot[3 * t + c]] == 1 and pid[a] != pid[b]:
+                key = pid[b] * n + pid[a]
+                j = _hash_slot(key, bits)
+                while pairs[j] >= 0 and pairs[j] != key:
+                    j = (j + 1) & (size - 1)
+                if pairs[j] == key:
+                    out[a] = True
+                    out[b] = True
+    return out
+
+
+@kernel_helper
+def _hash_slot(key, bits):
+    """The first slot of the non-negative int64 ``key`` in a table of ``2**bits`` slots: Fibonacci hashing (the
+    top bits of the key times 2**64 / golden ratio)."""
+    return np.int64((np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - bits))
 
 
 def local_groups(weld: np.ndarray, vids: np.ndarray, loc: np.ndarray) -> np.ndarray:

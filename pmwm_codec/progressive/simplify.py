@@ -66,7 +66,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import seams, topology
+from . import pcg64, seams, topology
 from .livemesh import boundary_half_edges, live_mesh
 from .topology import compiled, expand, face_keys, group_order, half_edges, kernel_helper, two_alike
 
@@ -374,7 +374,7 @@ def simplify(
     own = quadric_error(Q, P)
     frozen_ext = np.zeros(n, bool) if locked is None else np.asarray(locked, bool).copy()
     twin = twin_faces(corners) if twin is None else np.asarray(twin, bool)
-    twin = twin if twin.any() else None
+    twin = np.flatnonzero(twin) if twin.any() else None  # the doubled faces' ids (a scan's: a few, of ~50k faces)
     log = CollapseLog(n, m, None, None, None, [])
 
     alive_count = int(vert_alive.sum())
@@ -396,7 +396,8 @@ def simplify(
         if shared is not None and len(shared):
             first = np.zeros(n, bool)
             first[shared] = True
-        batch, stalled = _one_batch(P, Q, own, live, frozen_ext, alive_count - target_vertices, weld, twin, first,
+        doubled = None if twin is None else live.loc[corners[twin[face_alive[twin]]]]
+        batch, stalled = _one_batch(P, Q, own, live, frozen_ext, alive_count - target_vertices, weld, doubled, first,
                                     legal_only, None if on_shared is None else (points, on_shared))
         # once a batch stalls, the illegal offers that held it hold the later ones too (the illegal share of the
         # candidates grows as the mesh coarsens: dragon23k, 14 % at batch 15 of 61, 72 % at batch 53): the
@@ -492,8 +493,8 @@ def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None, first=
     frozen_ext (N,) bool the simplifier's
     frozen vertices (original ids); at most ``budget`` vertices are removed (the cheapest collapses).
     ``weld`` (N,) int64 or None: seam copies (see :func:`simplify`).  The work is done on the live mesh
-    renumbered compactly ("local" ids) and returned in original ids.  ``twin`` (M,) bool or None: the
-    doubled faces (:func:`twin_faces`).  ``first`` (N,) bool or None: vertices whose collapses are offered
+    renumbered compactly ("local" ids) and returned in original ids.  ``twin`` (t, 3) int64 or None: the
+    live doubled faces (:func:`twin_faces`) in local ids, in face order.  ``first`` (N,) bool or None: vertices whose collapses are offered
     first (ranked as costing nothing; the batch records their true costs).  ``legal_only``: select among
     the legal candidates from the start; ``stalled``: this batch did (``legal_only``, or it stalled:
     :func:`_unstalled`).  ``shared``: ``(points, on_shared)`` (N,) int64 and (N,) bool, the first vertex on each
@@ -511,15 +512,16 @@ def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None, first=
         g = seam = None
     src, opp = F.reshape(-1), live.opp
     dst = None if seam is None else half_edges(F)[1]  # only the seam pairs read dst
-    twins = _twin_counts(et, F, None if twin is None else twin[fids], n)
+    twins = _twin_counts(et, twin, n)
     mesh = (et, F, P, opp, fcount, vv, vf, vv_edge, twins[0])
     ends = live.boundary, live.edge_flags
     cand = _candidates(mesh, ends, Q, src, frozen if seam is None else frozen | seam, twins, own=own)
     if cand is None and seam is None:
         return None, legal_only
     first = None if first is None or cand is None else (first[vids] if seam is None else first[vids] & ~seam)
-    if first is not None and first[cand[0]].any():  # their collapses rank as costing nothing
-        cand = cand[:3] + (np.where(first[cand[0]], 0.0, cand[3]),)
+    hit = None if first is None else first[cand[0]]
+    if hit is not None and hit.any():  # their collapses rank as costing nothing (cand's own cost array, fresh)
+        cand[3][hit] = 0.0
     pairs = None if seam is None else _seam_pairs(Q, own, src, dst, frozen, seam, g, mesh, ends)
     # the ordinary candidates must be independent of the chosen seam pairs (left out as the affordable ones are
     # picked, one pass over the candidates)
@@ -553,8 +555,10 @@ def _one_batch(P, Q, own, live, frozen_ext, budget, weld=None, twin=None, first=
             if len(cu) == 0:
                 return None, stalled
             moved_face, moved_by = _moved_faces(vf, F, cu, cv)
-    if first is not None:  # their true costs (as _candidates computes them: the same bits)
-        cost = np.where(first[cu], quadric_error(np.take(Q, cu, axis=0), np.take(P, cv, axis=0)) + own[cv], cost)
+    rows = None if first is None else np.flatnonzero(first[cu])
+    if rows is not None and len(rows):  # their true costs (as _candidates computes them, row by row: the same bits)
+        cost = cost.copy()
+        cost[rows] = quadric_error(np.take(Q, cu[rows], axis=0), np.take(P, cv[rows], axis=0)) + own[cv[rows]]
     u, v, del_left, wing_left, del_right, wing_right, error = _described(et, src, opp, vids, fids, Q, cu, cv, ce, cost)
     return CollapseBatch(u=u, v=v, del_left=del_left, del_right=del_right, wing_left=wing_left, wing_right=wing_right,
                          moved_face=fids[moved_face], moved_by=moved_by, cost=cost, error=error), stalled
@@ -972,7 +976,7 @@ def _candidates(mesh, ends, Q, src, frozen_ext, twins=None, rows=None, own=None)
     et, F, P, _, fcount, vv, _, vv_edge, _ = mesh
     n = len(P)
     if twins is None:
-        twins = _twin_counts(et, F, None, n)
+        twins = _twin_counts(et, None, n)
     # (Q_u + Q_v)(p_v) = Q_u(p_v) + Q_v(p_v); the second term is one value per vertex
     own = quadric_error(Q, P) if own is None else own
     kernel = compiled(_candidates_kernel)
@@ -1296,21 +1300,20 @@ def _reverse_pairs_kernel(faces, n):
     return pairs, size
 
 
-def _twin_counts(et, F, twin, n):
-    """``(twin_edge (e,) bool, extra (n,) int64)`` of the local mesh with the doubled faces ``twin``
-    (m,) bool (or None).  A doubled pair is a closed two-face "pillow" on the surface: glued onto it
+def _twin_counts(et, Ft, n):
+    """``(twin_edge (e,) bool, extra (n,) int64)`` of the local mesh (edge table ``et``) whose doubled faces
+    are ``Ft`` (t, 3) int64 (local ids, in face order; None: none).  A doubled pair is a closed two-face "pillow" on the surface: glued onto it
     along its three edges, or a flap glued along one edge whose third vertex (its tip) has no other
     face.  ``twin_edge`` marks the edges of exactly one pillow whose other faces are two (the
     surface's) or none (a flap's free edges): the edges a pillow makes non-manifold, or adds.
     ``extra`` counts, on each vertex, its pillow faces minus its pillows' free edges: a vertex
     whose other faces are a disk has ``extra`` more faces than edges."""
     twin_edge = np.zeros(len(et.keys), bool)
-    if twin is None or not twin.any():
+    if Ft is None or not len(Ft):
         return twin_edge, np.zeros(n, np.int64)
     kernel = compiled(_twin_counts_kernel)
     if kernel is not None:
-        return kernel(F, twin, et.keys, et.lo, et.hi, et.count, n)
-    Ft = F[twin]
+        return kernel(Ft, et.keys, et.lo, et.hi, et.count, n)
     ids = np.concatenate([et.find(Ft[:, j], Ft[:, (j + 1) % 3]) for j in range(3)])
     on_edge = np.bincount(ids, minlength=len(et.keys))
     free = (on_edge == 2) & (et.count == 2)
@@ -1319,30 +1322,34 @@ def _twin_counts(et, F, twin, n):
     return twin_edge, np.bincount(Ft.ravel(), minlength=n) - po
 
 
-def _twin_counts_kernel(F, twin, keys, lo, hi, count, n):
-    """Compiled :func:`_twin_counts` (the same two arrays) in two passes over the doubled faces ``twin`` (m,)
-    bool of ``F`` (m, 3) int64, their edges found by a binary search of the edge table's sorted ``keys`` (e,):
-    the doubled faces on each edge and the corners on each vertex, then each edge with two of them once."""
-    on_edge = np.zeros(len(keys), np.int64)
+def _twin_counts_kernel(Ft, keys, lo, hi, count, n):
+    """Compiled :func:`_twin_counts` (the same two arrays) in two passes over the doubled faces ``Ft`` (t, 3)
+    int64, their edges found by a binary search of the edge table's sorted ``keys`` (e,): the doubled faces on
+    each edge (int8, counted up to 3: only two matters; only their edges' entries set) and the corners on each
+    vertex, then each edge with two of them once."""
+    on_edge = np.empty(len(keys), np.int8)
+    for f in range(len(Ft)):
+        for j in range(3):
+            a, b = Ft[f, j], Ft[f, (j + 1) % 3]
+            on_edge[np.searchsorted(keys, min(a, b) * n + max(a, b))] = 0
     extra = np.zeros(n, np.int64)
-    for f in range(len(F)):
-        if twin[f]:
-            for j in range(3):
-                a, b = F[f, j], F[f, (j + 1) % 3]
-                on_edge[np.searchsorted(keys, min(a, b) * n + max(a, b))] += 1
-                extra[a] += 1
+    for f in range(len(Ft)):
+        for j in range(3):
+            a, b = Ft[f, j], Ft[f, (j + 1) % 3]
+            e = np.searchsorted(keys, min(a, b) * n + max(a, b))
+            on_edge[e] = min(on_edge[e] + 1, 3)
+            extra[a] += 1
     twin_edge = np.zeros(len(keys), np.bool_)
-    for f in range(len(F)):
-        if twin[f]:
-            for j in range(3):
-                a, b = F[f, j], F[f, (j + 1) % 3]
-                e = np.searchsorted(keys, min(a, b) * n + max(a, b))
-                if on_edge[e] == 2:
-                    on_edge[e] = -1  # counted once
-                    twin_edge[e] = count[e] == 4 or count[e] == 2
-                    if count[e] == 2:  # a flap's free edge
-                        extra[lo[e]] -= 1
-                        extra[hi[e]] -= 1
+    for f in range(len(Ft)):
+        for j in range(3):
+            a, b = Ft[f, j], Ft[f, (j + 1) % 3]
+            e = np.searchsorted(keys, min(a, b) * n + max(a, b))
+            if on_edge[e] == 2:
+                on_edge[e] = -1  # counted once
+                twin_edge[e] = count[e] == 4 or count[e] == 2
+                if count[e] == 2:  # a flap's free edge
+                    extra[lo[e]] -= 1
+                    extra[hi[e]] -= 1
     return twin_edge, extra
 
 
@@ -1855,14 +1862,15 @@ def _offer_ranks(cu, cost):
     (flat CAD regions, all zero) let only a few local minima win each round.
     """
     c = len(cu)
-    shuffle = np.random.default_rng(c).permutation(c)
     # the bucket floor(2 log2(cost + 1e-12 + 1e-9 max)); compiled, all but numpy's log2 in two kernels (a pass
-    # each, not eight; their arithmetic is numpy's, rounding for rounding)
+    # each, not eight; their arithmetic is numpy's, rounding for rounding), the second drawing the tie order
+    # itself (:func:`.pcg64.permutation`, numpy's draws)
     kernel = compiled(_ranks_kernel)
     if kernel is not None:
         y = compiled(_log_argument_kernel)(cost)
         np.log2(y, out=y)
-        return kernel(y, shuffle)
+        return kernel(y)
+    shuffle = np.random.default_rng(c).permutation(c)
     # in place: the same values without four (c,) temporaries; a cost rounded below zero counts as zero (its log2
     # was NaN, which a cast made x86's smallest integer and the compiled ranking then asked for a counting array
     # of 2**63 entries)
@@ -1901,12 +1909,13 @@ def _log_argument_kernel(cost):
     return y
 
 
-def _ranks_kernel(y, shuffle):
+def _ranks_kernel(y):
     """Compiled end of :func:`_offer_ranks`: the (c,) int64 ranks of the candidates with ``y`` (c,) float64
-    the log2 of :func:`_log_argument_kernel` (turned into the cost buckets in place) and tie order
-    ``shuffle`` (c,) int64, a permutation: one counting pass over the buckets, then the candidates ranked
-    in shuffle order within their bucket."""
+    the log2 of :func:`_log_argument_kernel` (turned into the cost buckets in place) and the tie order
+    ``default_rng(c).permutation(c)`` (:func:`.pcg64.permutation`): one counting pass over the buckets, then
+    the candidates ranked in shuffle order within their bucket."""
     c = len(y)
+    shuffle = pcg64.permutation(c, c)
     bucket = y.view(np.int64)
     low = 0
     for i in range(c):

@@ -91,11 +91,13 @@ def compiled(fn):
     """
     if not USE_NUMBA or _plain_job:
         return None
-    _load_numba()
-    fn = getattr(fn, "py_func", fn)  # a kernel_helper that is also called as a kernel
-    jit = _COMPILED.get(fn)
+    jit = _COMPILED.get(fn) if _numba is not None else None  # the common case: a kernel already called
     if jit is None:
-        jit = _COMPILED[fn] = _jit(fn)
+        _load_numba()
+        fn = getattr(fn, "py_func", fn)  # a kernel_helper that is also called as a kernel
+        jit = _COMPILED.get(fn)
+        if jit is None:
+            jit = _COMPILED[fn] = _jit(fn)
     return jit
 
 
@@ -299,6 +301,45 @@ def edge_table(faces: np.ndarray, n: int) -> EdgeTable:
     return EdgeTable(n, ks[starts], lo[he0], hi[he0], count, he0, he1)
 
 
+def edge_ids(a: np.ndarray, b: np.ndarray, n: int) -> tuple:
+    """A number for each undirected edge ``(a, b)`` ((k,) int64 vertex ids in ``[0, n)``): ``(ids (k,),
+    counts (e,))`` int64, ``ids`` equal exactly when the edges are, ``counts[ids[i]]`` the edge's rows.  The
+    numbering is only an identity: numpy's is the sorted keys' (``np.unique``), the compiled one's the
+    edges' first rows' (an open-addressing table, no sort: :func:`_edge_ids_kernel`)."""
+    kernel = compiled(_edge_ids_kernel)
+    if kernel is not None:
+        return kernel(np.asarray(a, np.int64), np.asarray(b, np.int64), n)
+    _, ids, counts = np.unique(np.minimum(a, b) * n + np.maximum(a, b), return_inverse=True, return_counts=True)
+    return ids.reshape(-1), counts
+
+
+def _edge_ids_kernel(a, b, n):
+    """Compiled :func:`edge_ids`: each key ``min * n + max`` looked up in a table of at least twice as many
+    slots (Fibonacci hashing); a new key gets the next number."""
+    k = len(a)
+    bits = 1
+    while (1 << bits) < 2 * k:
+        bits += 1
+    size = 1 << bits
+    keys = np.full(size, -1, np.int64)
+    num = np.empty(size, np.int64)
+    ids = np.empty(k, np.int64)
+    counts = np.zeros(k, np.int64)
+    e = 0
+    for i in range(k):
+        key = min(a[i], b[i]) * n + max(a[i], b[i])
+        j = np.int64((np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - bits))
+        while keys[j] >= 0 and keys[j] != key:
+            j = (j + 1) & (size - 1)
+        if keys[j] < 0:
+            keys[j] = key
+            num[j] = e
+            e += 1
+        ids[i] = num[j]
+        counts[num[j]] += 1
+    return ids, counts[:e]
+
+
 def csr(groups: np.ndarray, values: np.ndarray, n: int):
     """Group ``values`` by ``groups`` (ids in [0, n)): returns ``(start (n+1,), values sorted)``."""
     order = group_order(groups, n)
@@ -334,8 +375,19 @@ def face_keys(faces: np.ndarray):
 def any_corner(flags: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(m,) bool: the faces of ``faces`` (m, 3) int with a corner whose vertex has ``flags`` (n,) bool;
     ``flags[faces].any(axis=1)``, the three columns or-ed (numpy's ``any`` along a row of three is
-    ~10x the time on a scan's faces)."""
+    ~10x the time on a scan's faces); compiled, one pass (:func:`_any_corner_kernel`)."""
+    kernel = compiled(_any_corner_kernel) if faces.dtype == np.int64 and flags.dtype == np.bool_ else None
+    if kernel is not None:
+        return kernel(flags, np.ascontiguousarray(faces))
     return flags[faces[:, 0]] | flags[faces[:, 1]] | flags[faces[:, 2]]
+
+
+def _any_corner_kernel(flags, faces):
+    """Compiled :func:`any_corner`."""
+    out = np.empty(len(faces), np.bool_)
+    for f in range(len(faces)):
+        out[f] = flags[faces[f, 0]] | flags[faces[f, 1]] | flags[faces[f, 2]]
+    return out
 
 
 def two_alike(keys: np.ndarray) -> np.ndarray:
@@ -343,6 +395,24 @@ def two_alike(keys: np.ndarray) -> np.ndarray:
     equal values; a face whose corners ``keys`` tells apart has none."""
     a, b, c = keys[:, 0], keys[:, 1], keys[:, 2]
     return (a == b) | (b == c) | (c == a)
+
+
+def two_alike_at(values: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(m,) bool: ``two_alike(values[faces])`` for ``values`` (n,) int64 and ``faces`` (m, 3) int64, compiled
+    without the (m, 3) gather (:func:`_two_alike_at_kernel`)."""
+    kernel = compiled(_two_alike_at_kernel) if faces.dtype == np.int64 and values.dtype == np.int64 else None
+    if kernel is not None:
+        return kernel(values, np.ascontiguousarray(faces))
+    return two_alike(values[faces])
+
+
+def _two_alike_at_kernel(values, faces):
+    """Compiled :func:`two_alike_at`."""
+    out = np.empty(len(faces), np.bool_)
+    for f in range(len(faces)):
+        a, b, c = values[faces[f, 0]], values[faces[f, 1]], values[faces[f, 2]]
+        out[f] = (a == b) | (b == c) | (c == a)
+    return out
 
 
 def unique_edges(faces: np.ndarray) -> np.ndarray:

@@ -51,7 +51,7 @@ from ..progressive.build import ProgressiveMesh, build_progressive
 from ..progressive.grid import AttributeGrid, Grid, float32_spacing
 from ..progressive.seams import twin_rows, weld_groups
 from ..progressive.simplify import CollapseLog, deferred_and_twin_faces, simplify
-from ..progressive.topology import job_vertices, mean_edge_length, two_alike
+from ..progressive.topology import any_corner, edge_ids, job_vertices, mean_edge_length, two_alike_at
 from ..progressive.seams import grid_weld, snap_near_copies  # (the seam copies of stage 1)
 from ..watermark import codec as wm
 from ..watermark.key import KEY_FILE_MODE, KEY_SUFFIX, KeySlot, WatermarkKey
@@ -907,8 +907,8 @@ def _named_only_by(faces: np.ndarray, late: np.ndarray, n: int) -> np.ndarray:
     """(n,) bool: the vertices of a mesh of ``n`` vertices that faces of ``late`` (m,) bool name and no
     other face of ``faces`` (m, 3) does (the tips a face chunk brings)."""
     only_late = np.zeros(n, bool)
-    only_late[faces[late].ravel()] = True
-    only_late[faces[~late].ravel()] = False
+    only_late[np.compress(late, faces, axis=0).ravel()] = True  # faces[late], a copy in a quarter of the time
+    only_late[np.compress(~late, faces, axis=0).ravel()] = False
     return only_late
 
 
@@ -930,8 +930,11 @@ def _core_and_copies(n: int, values, positions, faces, locked, twin, late, defer
         c_values, c_positions, c_faces, c_locked, c_twin, extra = values, positions, faces, locked, twin, {}
         if late.any():  # the core mesh, renumbered (no copies when nothing is deferred)
             core, tips, local = _core_vertices(n, faces, late)
-            extra = dict(core=core, tips=tips, late=local[faces[late]], late_values=values[tips])
-            c_values, c_positions, c_faces = values[core], positions[core], local[faces[~late]]
+            # (np.take and np.compress: the same rows as fancy and boolean indexing, in a quarter of the time)
+            extra = dict(core=core, tips=tips, late=np.take(local, np.compress(late, faces, axis=0)),
+                         late_values=values[tips])
+            c_values, c_positions = np.take(values, core, axis=0), np.take(positions, core, axis=0)
+            c_faces = np.take(local, np.compress(~late, faces, axis=0))
             c_locked = None if locked is None else locked[core]
             # the core's own doubled faces: ``late`` takes every face of a vertex triple or none (pillows and
             # specks are told by their vertices), so a triple keeps its face count in the core
@@ -960,7 +963,7 @@ def _sliver_faces(points: np.ndarray, faces: np.ndarray, weld: np.ndarray | None
     share a position), and the base falls back to Draco's sequential coder (dragon437k: 55 KB instead of 15 KB);
     a face chunk sends them instead (bitstream.md §8.6)."""
     m, n = len(faces), len(points)
-    on_point = np.flatnonzero(two_alike(points[faces]))
+    on_point = np.flatnonzero(two_alike_at(points, faces))
     out = np.zeros(m, bool)
     if not len(on_point):
         return out
@@ -970,14 +973,13 @@ def _sliver_faces(points: np.ndarray, faces: np.ndarray, weld: np.ndarray | None
     # the faces of the vertices of those faces: every face on such an edge is among them
     mark = np.zeros(n, bool)
     mark[faces[on_point].ravel()] = True
-    near = np.flatnonzero(mark[faces[:, 0]] | mark[faces[:, 1]] | mark[faces[:, 2]])
+    near = np.flatnonzero(any_corner(mark, faces))
     spot = np.full(m, -1, np.int64)
     spot[near] = np.arange(len(near))
     tri = faces[near]
-    nxt = tri[:, [1, 2, 0]]  # each near face's edges (0 1), (1 2), (2 0), as undirected keys
-    _, edge, counts = np.unique(np.minimum(tri, nxt) * n + np.maximum(tri, nxt), return_inverse=True,
-                                   return_counts=True)
-    edge = edge.reshape(-1, 3)  # each near face's edges, as indices into keys
+    nxt = tri[:, [1, 2, 0]]  # each near face's edges (0 1), (1 2), (2 0)
+    edge, counts = edge_ids(tri.reshape(-1), nxt.reshape(-1), n)
+    edge = edge.reshape(-1, 3)  # each near face's edges, as indices into counts
     faces_at = np.bincount(tri.ravel(), minlength=n)  # a vertex's faces (complete for the marked ones)
     first = [pair[:, k] for k in range(3)]
     slot = spot[on_point]
