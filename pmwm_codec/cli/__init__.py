@@ -85,6 +85,9 @@ def main(argv=None) -> int:
 
             one_shot_process()
             _explain_first_compile()
+            from pmwm_codec.compile_ahead import arm
+
+            arm(args.command)  # a second process compiles the kernels needed later, on a cold cache
         return run_command(args)
     except Exception as exc:  # noqa: BLE001 - only when a Ctrl-C came while the modules loaded; else raised again
         if not noted:
