@@ -105,7 +105,7 @@ def start(plan) -> Helper | None:
     if _helper is None:
         try:
             _helper = Helper(plan)
-        except OSError:
+        except Exception:  # noqa: BLE001 - called from numba's compile event: a failure here must not fail the compile
             return None
     return _helper
 
@@ -132,16 +132,17 @@ class Helper:
 
         root = os.path.dirname(os.path.dirname(os.path.abspath(pmwm_codec.__file__)))
         env = dict(os.environ)
-        if env.get("NUMBA_CACHE_DIR"):  # the same cache, whatever the helper's working directory
+        if env.get("NUMBA_CACHE_DIR"):  # the directory numba read at its import, were the command to change its own
             env["NUMBA_CACHE_DIR"] = os.path.abspath(env["NUMBA_CACHE_DIR"])
         self.busy: dict = {}  # kernel name -> compiles the helper has started and not saved
-        self.alive = True
+        self.alive = False
         self.cond = threading.Condition()
+        _install_cache_hooks(before_load=self.wait_for)
+        _listen(self.tell)
         self.proc = subprocess.Popen([sys.executable, "-c", _BOOT, root, *plan], stdin=subprocess.PIPE,
                                      stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=env)
+        self.alive = True
         threading.Thread(target=self._read, name="pmw-compile-ahead", daemon=True).start()
-        _install_cache_hooks(before_load=self.wait_for)
-        _listen(lambda name: self.tell(name))
 
     def _read(self) -> None:
         """Follow the helper's lines until it exits; then reap it and wake every waiter."""
@@ -171,6 +172,8 @@ class Helper:
 
     def tell(self, name: str) -> None:
         """Tell the helper that the command compiles ``name`` (the helper skips it)."""
+        if not self.alive:
+            return
         try:
             self.proc.stdin.write(b"+" + name.encode() + b"\n")
             self.proc.stdin.flush()
@@ -267,6 +270,8 @@ def child(plan) -> None:
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C is the command's: the helper ends with it
+    with contextlib.suppress(OSError):  # spare CPU only: on a busy machine the command keeps its share
+        os.nice(10)
     signal.signal(signal.SIGTERM, _end_soon)
     signal.signal(signal.SIGHUP, _end_soon)
     messages = os.fdopen(os.dup(1), "wb", buffering=0)
