@@ -34,10 +34,12 @@ messages to the command go on a pipe of their own).  It never outlives the comma
 from the command, which the system closes when the command exits however it exits (``kill -9``
 included), and it ends at that end of file (:func:`_watch_parent`).
 
-Where it runs: only for the commands in :data:`PLANS` run as a process of their own (not
-``pmwm_codec.encode`` in a user's process, not ``pmw batch`` / ``serve``), only when a kernel is
-compiled (numba in use, the cache cold: never on the small-mesh path, which does not load numba), on a
-machine with two CPUs or more for this process, and not with ``PMW_COMPILE_AHEAD=0``.
+Where it runs: only for the one-shot commands that will run the payload coder or its decoder, run as a
+process of their own (:func:`pmwm_codec.cli.ahead_plan`; not ``pmwm_codec.encode`` in a user's process,
+not ``pmw batch`` / ``serve``), only when a kernel is compiled (numba in use, the cache cold: never on the
+small-mesh path, which does not load numba), on a machine with two CPUs or more for this process, and not
+with ``PMW_COMPILE_AHEAD=0``.  It runs at a lower priority (``nice`` 10): it takes spare CPU, not the
+command's.
 """
 
 from __future__ import annotations
@@ -49,16 +51,10 @@ import threading
 
 #: ``PMW_COMPILE_AHEAD=0`` (or ``off``, ``no``, ``false``) in the environment: never start the helper.
 ENV = "PMW_COMPILE_AHEAD"
-#: What the helper runs for each command, in plain Python, to note the kernels' arguments: ``encode``
-#: (the payload coder's kernels in encode mode) and / or ``decode`` (the decoder's).  ``verify`` decodes
-#: first, then reads the marks (kernels of :mod:`pmwm_codec.watermark`, small, compiled by the command).
-PLANS = {
-    "encode": ("encode",),
-    "demo": ("encode", "decode"),
-    "decode": ("decode",),
-    "cut": ("decode",),
-    "verify": ("decode",),
-}
+#: The steps of :func:`small_job` a helper can note the kernels of: ``"encode"`` (the payload coder's, version 2,
+#: in encode mode) and ``"decode"`` (the decoder's); a command's *plan* is those it will run (see
+#: :func:`pmwm_codec.cli.ahead_plan`).
+STEPS = ("encode", "decode")
 #: Modules whose kernels the helper runs as plain Python: theirs are their own twins (the same results,
 #: slowly), where the simplifier's and the watermark's twins are numpy code that calls no kernel.
 CAPTURED = frozenset({"pmwm_codec.format.records_v2", "pmwm_codec.format.rangecoder"})
@@ -87,11 +83,10 @@ def wanted() -> bool:
     return topology.USE_NUMBA and cpus() >= 2
 
 
-def arm(command: str) -> None:
-    """In the process of a one-shot ``pmw COMMAND``: start the helper (:func:`start`) when a kernel first
-    compiles, if ``COMMAND`` has a plan and a helper is :func:`wanted`."""
-    plan = PLANS.get(command)
-    if plan is None or not wanted():
+def arm(plan) -> None:
+    """In the process of a one-shot ``pmw`` command that will run the steps ``plan`` (of :data:`STEPS`): start
+    the helper (:func:`start`) when a kernel first compiles, if there is a plan and a helper is :func:`wanted`."""
+    if not plan or not wanted():
         return
     from .progressive.topology import on_first_compile
 
@@ -99,15 +94,31 @@ def arm(command: str) -> None:
 
 
 def start(plan) -> Helper | None:
-    """Start this process's helper for ``plan`` (a :data:`PLANS` value), once; None when it cannot start
+    """Start this process's helper for ``plan`` (steps of :data:`STEPS`), once; None when it cannot start
     (it is only an optimisation: the command compiles what it needs itself)."""
     global _helper
     if _helper is None:
         try:
+            if _batch_kernel_cached():
+                return None
             _helper = Helper(plan)
         except Exception:  # noqa: BLE001 - called from numba's compile event: a failure here must not fail the compile
             return None
     return _helper
+
+
+def _batch_kernel_cached() -> bool:
+    """Whether numba's cache holds the payload coder's batch kernel (:func:`~pmwm_codec.format.records_v2._batch_kernel`
+    and the helpers it calls: ~14 s of the ~16 s a helper would compile).  Without it a helper is worth its start
+    (~1.5 s of CPU); with it the rest is small (``pmw verify`` after a first encode compiles the decoder's
+    ``dec_uint`` and the owner layer's readers: 1-2 s)."""
+    from .format import records_v2
+    from .progressive.topology import compiled
+
+    try:
+        return bool(compiled(records_v2._batch_kernel)._cache._cache_file._load_index())  # numba's own index reader
+    except Exception:  # noqa: BLE001 - numba's internals moved: start the helper, as on a cold cache
+        return False
 
 
 def kernel_name(fn) -> str:
@@ -402,7 +413,7 @@ class _Capture:
 
 
 def capture(plan) -> list:
-    """``[(kernel, args), ...]``: the kernels a command with ``plan`` compiles (:data:`PLANS`), with the
+    """``[(kernel, args), ...]``: the kernels a command running the steps ``plan`` compiles, with the
     arguments of their first calls, in call order, from :func:`small_job` run with the kernels as plain Python
     (numba not loaded)."""
     from . import stream  # noqa: F401 - the kernels' modules, loaded before their helpers are swapped

@@ -123,6 +123,20 @@ def test_the_helper_compiles_the_signatures_the_command_asks_for():
         assert tuple(numba.typeof(a) for a in args) in [tuple(s) for s in dispatchers[fn].signatures], fn.__name__
 
 
+@needs_numba
+def test_no_helper_once_the_batch_kernel_is_in_the_cache(monkeypatch):
+    """What is left to compile then (a decoder's ``dec_uint``, the owner layer's readers) is smaller than a
+    helper's start."""
+    from pmwm_codec.format import records_v2
+
+    topology._load_numba()
+    compile_ahead.small_job()  # the batch kernel compiled, or loaded: in the cache either way
+    if not compile_ahead._batch_kernel_cached():
+        pytest.skip(f"no numba cache here: {topology.compiled(records_v2._batch_kernel)._cache!r}")
+    monkeypatch.setattr(compile_ahead, "_helper", None)
+    assert compile_ahead.start(("decode",)) is None
+
+
 def test_the_capture_leaves_the_kernels_as_they_were():
     before = {(id(g), name): g[name] for g, name, fn, flags in topology._HELPERS}
     compile_ahead.capture(("decode",))
@@ -147,9 +161,19 @@ def test_no_helper_where_it_cannot_help(monkeypatch):
     assert not compile_ahead.wanted()
 
 
-def test_only_one_shot_commands_that_compile_have_a_plan():
-    assert set(compile_ahead.PLANS) <= cli.ONE_SHOT
-    assert "info" not in compile_ahead.PLANS
+@pytest.mark.parametrize("argv, plan", [
+    (["encode", "m.obj", "-o", "m.pmw"], ("encode",)),
+    (["encode", "m.obj", "-o", "m.pmw", "--payload-version", "1"], ()),  # zstd columns: no payload kernel
+    (["demo"], ("encode", "decode")),
+    (["decode", "m.pmw", "-o", "m.obj"], ("decode",)),
+    (["cut", "m.pmw", "-o", "c.pmw", "--chunks", "2"], ("decode",)),
+    (["verify", "m.pmw", "--key", "k.json"], ("decode",)),
+    (["verify", "m.obj", "--key", "k.json"], ()),  # the owner layer of a mesh: no decoder
+    (["verify", "m.obj", "--reference", "m.pmw", "--key", "k.json"], ("decode",)),
+    (["info", "m.pmw"], ()),
+], ids=lambda v: " ".join(v) if isinstance(v, list) else None)
+def test_a_helper_is_planned_only_for_the_payload_kernels_a_command_will_run(argv, plan):
+    assert cli.ahead_plan(cli.build_parser().parse_args(argv)) == plan
 
 
 def test_a_command_run_in_process_arms_no_helper(monkeypatch, tmp_path):
@@ -157,7 +181,6 @@ def test_a_command_run_in_process_arms_no_helper(monkeypatch, tmp_path):
     library, ``pmw batch`` and ``pmw serve``."""
     armed = []
     monkeypatch.setattr(compile_ahead, "arm", armed.append)
-    assert cli.main(["info", str(tmp_path / "none.pmw")]) == 2
     assert cli.main(["decode", str(tmp_path / "none.pmw"), "-o", str(tmp_path / "x.obj")]) == 2
     assert armed == []
 
