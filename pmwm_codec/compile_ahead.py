@@ -38,8 +38,7 @@ Where it runs: only for the one-shot commands that will run the payload coder or
 process of their own (:func:`pmwm_codec.cli.ahead_plan`; not ``pmwm_codec.encode`` in a user's process,
 not ``pmw batch`` / ``serve``), only when a kernel is compiled (numba in use, the cache cold: never on the
 small-mesh path, which does not load numba), on a machine with two CPUs or more for this process, and not
-with ``PMW_COMPILE_AHEAD=0``.  It runs at a lower priority (``nice`` 10): it takes spare CPU, not the
-command's.
+with ``PMW_COMPILE_AHEAD=0``.
 """
 
 from __future__ import annotations
@@ -281,8 +280,9 @@ def child(plan) -> None:
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C is the command's: the helper ends with it
-    with contextlib.suppress(OSError):  # spare CPU only: on a busy machine the command keeps its share
-        os.nice(10)
+    # not niced: on a machine whose CPUs are all busy the command may wait for a kernel the helper is compiling,
+    # and a niced helper then got a tenth of a CPU (a first decode, two busy processes beside it: 31 and 50 s
+    # niced, 40 s each time not, 47-48 s without a helper)
     signal.signal(signal.SIGTERM, _end_soon)
     signal.signal(signal.SIGHUP, _end_soon)
     messages = os.fdopen(os.dup(1), "wb", buffering=0)
