@@ -280,11 +280,11 @@ def child(plan) -> None:
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C is the command's: the helper ends with it
-    # not niced: on a machine whose CPUs are all busy the command may wait for a kernel the helper is compiling,
-    # which a niced helper shares with the busy processes at a lower weight (nice 10: about a tenth of theirs).
-    # A first decode, two busy processes beside it: 31 and 50 s niced, 40 and 40 s not, 47 and 48 s without one
     signal.signal(signal.SIGTERM, _end_soon)
     signal.signal(signal.SIGHUP, _end_soon)
+    # Not niced: on a machine whose CPUs are all busy the command may wait for a kernel the helper is compiling,
+    # which a niced helper shares with the busy processes at a lower weight (nice 10: about a tenth of theirs).
+    # A first decode, two busy processes beside it: 31 and 50 s niced, 40 and 40 s not, 47 and 48 s without one.
     messages = os.fdopen(os.dup(1), "wb", buffering=0)
     quiet = os.open(os.devnull, os.O_RDWR)
     os.dup2(quiet, 1)  # nothing the helper may print reaches the command's terminal or its messages
