@@ -58,6 +58,25 @@ def _explain_first_compile() -> None:
     on_first_compile(say)
 
 
+def ahead_plan(args) -> tuple:
+    """The steps of :data:`pmwm_codec.compile_ahead.STEPS` the command ``args`` will run, whose kernels a helper
+    process may compile while the command compiles its first ones: ``"encode"``, the payload coder of version 2
+    (not ``--payload-version 1``, zstd columns); ``"decode"``, its decoder (a ``.pmw`` decoded, cut, verified,
+    or a ``--reference``'s; not ``verify MESH --key``, the owner layer alone).  () for none."""
+    command = args.command
+    if command == "encode":
+        return ("encode",) if args.payload_version != 1 else ()
+    if command == "demo":
+        return ("encode", "decode")
+    if command in ("decode", "cut"):
+        return ("decode",)
+    if command == "verify":
+        from .verify import _is_mesh_file
+
+        return ("decode",) if args.reference is not None or not _is_mesh_file(args.input) else ()
+    return ()
+
+
 #: The note :func:`_explain_first_compile` writes.
 FIRST_COMPILE = ("compiling the numba kernels for this machine (once: up to a minute or two; later runs load them "
                  "from numba's cache)")
@@ -85,6 +104,9 @@ def main(argv=None) -> int:
 
             one_shot_process()
             _explain_first_compile()
+            from pmwm_codec.compile_ahead import arm
+
+            arm(ahead_plan(args))  # on a cold cache a second process compiles the kernels needed later
         return run_command(args)
     except Exception as exc:  # noqa: BLE001 - only when a Ctrl-C came while the modules loaded; else raised again
         if not noted:

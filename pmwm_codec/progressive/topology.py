@@ -25,6 +25,10 @@ _numba = None  # the numba module, once loaded
 SMALL_JOB_VERTICES = 2000
 _one_shot = False
 _plain_job = False
+#: Set by :mod:`pmwm_codec.compile_ahead`'s helper process while it runs the kernels as plain Python to note
+#: their argument types: :func:`compiled` then gives ``_capture.recorder(fn)`` (the plain function, noting the
+#: arguments of its first call) instead of None or the dispatcher.
+_capture = None
 
 
 @dataclass
@@ -89,6 +93,8 @@ def compiled(fn):
     None when numba is absent or :data:`USE_NUMBA` is off; callers then run their numpy
     version, which computes the same result.
     """
+    if _capture is not None:
+        return _capture.recorder(fn)
     if not USE_NUMBA or _plain_job:
         return None
     jit = _COMPILED.get(fn) if _numba is not None else None  # the common case: a kernel already called
