@@ -247,6 +247,7 @@ def _install_cache_hooks(before_load=None, saved=None) -> None:
 
     from numba.core.caching import Cache
 
+    _check_numba_cache()
     load, save = Cache.load_overload, Cache.save_overload
 
     def load_overload(self, sig, target_context):
@@ -269,6 +270,21 @@ def _install_cache_hooks(before_load=None, saved=None) -> None:
                 saved(kernel_name(self._py_func))
 
     Cache.load_overload, Cache.save_overload = load_overload, save_overload
+
+
+def _check_numba_cache() -> None:
+    """RuntimeError unless numba's cache objects have what the hooks of :func:`_install_cache_hooks` read (numba's
+    internals, as of 0.59-0.68: a cache's ``_py_func``, ``_cache_path`` and ``_impl.locator``), checked on the batch
+    kernel's; a numba whose internals moved gets no hooks, hence no helper (the command compiles alone, as before),
+    rather than hooks that fail inside every compile."""
+    from .format import records_v2
+    from .progressive.topology import compiled
+
+    cache = compiled(records_v2._batch_kernel)._cache
+    if not all(hasattr(x, a) for x, a in ((cache, "_py_func"), (cache, "_cache_path"), (cache, "_impl"))) \
+            or not hasattr(cache._impl, "locator") or not callable(getattr(cache, "load_overload", None)) \
+            or not callable(getattr(cache, "save_overload", None)):
+        raise RuntimeError("numba's cache internals are not those compile_ahead knows")
 
 
 # ---------------------------------------------------------------------------------------- the helper

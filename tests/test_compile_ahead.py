@@ -137,6 +137,24 @@ def test_no_helper_once_the_batch_kernel_is_in_the_cache(monkeypatch):
     assert compile_ahead.start(("decode",)) is None
 
 
+@needs_numba
+def test_a_numba_whose_cache_internals_moved_gets_no_hooks_and_no_helper(monkeypatch):
+    """The hooks read numba's private cache attributes; where one is missing, the command compiles alone as it
+    did before the helper, and numba's own cache methods stay in place (no hook to fail inside every compile)."""
+    from numba.core.caching import Cache
+
+    from pmwm_codec.format import records_v2
+
+    topology._load_numba()
+    cache = topology.compiled(records_v2._batch_kernel)._cache
+    monkeypatch.delattr(cache, "_cache_path")
+    monkeypatch.setattr(compile_ahead, "_helper", None)
+    monkeypatch.setattr(compile_ahead, "_batch_kernel_cached", lambda: False)
+    load, save = Cache.load_overload, Cache.save_overload
+    assert compile_ahead.start(("decode",)) is None
+    assert (Cache.load_overload, Cache.save_overload) == (load, save)
+
+
 def test_the_capture_leaves_the_kernels_as_they_were():
     before = {(id(g), name): g[name] for g, name, fn, flags in topology._HELPERS}
     compile_ahead.capture(("decode",))
