@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import pcg64
+from . import pcg64, topology
 from .topology import any_corner, compiled, expand, kernel_helper
 
 
@@ -311,7 +311,7 @@ def _cut_vertices(pid: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
 
 def _cut_vertices_kernel(pid, faces, n):
     """Compiled :func:`_cut_vertices` (the same (n,) bool): the faces with a corner on a shared point, their
-    edges counted in an open-addressing table (:func:`_hash_slot`), then their boundary half-edges between two
+    edges counted in an open-addressing table (:func:`.topology.probe`), then their boundary half-edges between two
     points put in a second table by ``(point, point)``, and the ends of those whose reverse pair is there
     marked."""
     count = np.zeros(n, np.int64)
@@ -325,56 +325,39 @@ def _cut_vertices_kernel(pid, faces, n):
     for f in range(len(faces)):  # every face written, kept by advancing the count or not
         near[k] = f
         k += shared[faces[f, 0]] | shared[faces[f, 1]] | shared[faces[f, 2]]
-    bits = 1
-    while (1 << bits) < 6 * k:
-        bits += 1
-    size = 1 << bits
-    keys = np.full(size, -1, np.int64)
-    uses = np.zeros(size, np.int64)
+    bits = topology.table_bits(6 * k)
+    keys = np.full(1 << bits, -1, np.int64)
+    uses = np.zeros(1 << bits, np.int64)
     slot = np.empty(3 * k, np.int64)  # the table slot of each near half-edge's edge
     for t in range(k):
         f = near[t]
         for c in range(3):
             a, b = faces[f, c], faces[f, (c + 1) % 3]
             key = min(a, b) * n + max(a, b)
-            j = _hash_slot(key, bits)
-            while keys[j] >= 0 and keys[j] != key:
-                j = (j + 1) & (size - 1)
+            j = topology.probe(keys, key, bits)
             keys[j] = key
             uses[j] += 1
             slot[3 * t + c] = j
-    pairs = np.full(size, -1, np.int64)  # the boundary half-edges' (point, point) keys (as many as half-edges)
+    ends = np.empty((3 * k, 2), np.int64)  # the boundary half-edges between two points
+    nb = 0
     for t in range(k):
         f = near[t]
         for c in range(3):
             a, b = faces[f, c], faces[f, (c + 1) % 3]
-            if uses[slot[3 * t + c]] == 1 and pid[a] != pid[b]:
-                key = pid[a] * n + pid[b]
-                j = _hash_slot(key, bits)
-                while pairs[j] >= 0 and pairs[j] != key:
-                    j = (j + 1) & (size - 1)
-                pairs[j] = key
+            ends[nb, 0], ends[nb, 1] = a, b
+            nb += uses[slot[3 * t + c]] == 1 and pid[a] != pid[b]
+    pairs = np.full(1 << bits, -1, np.int64)  # their (point, point) keys (as many as half-edges)
+    for t in range(nb):
+        key = pid[ends[t, 0]] * n + pid[ends[t, 1]]
+        pairs[topology.probe(pairs, key, bits)] = key
     out = np.zeros(n, np.bool_)
-    for t in range(k):
-        f = near[t]
-        for c in range(3):
-            a, b = faces[f, c], faces[f, (c + 1) % 3]
-            if uses[slot[3 * t + c]] == 1 and pid[a] != pid[b]:
-                key = pid[b] * n + pid[a]
-                j = _hash_slot(key, bits)
-                while pairs[j] >= 0 and pairs[j] != key:
-                    j = (j + 1) & (size - 1)
-                if pairs[j] == key:
-                    out[a] = True
-                    out[b] = True
+    for t in range(nb):  # the ends of those whose reverse pair is there
+        a, b = ends[t, 0], ends[t, 1]
+        key = pid[b] * n + pid[a]
+        if pairs[topology.probe(pairs, key, bits)] == key:
+            out[a] = True
+            out[b] = True
     return out
-
-
-@kernel_helper
-def _hash_slot(key, bits):
-    """The first slot of the non-negative int64 ``key`` in a table of ``2**bits`` slots: Fibonacci hashing (the
-    top bits of the key times 2**64 / golden ratio)."""
-    return np.int64((np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - bits))
 
 
 def local_groups(weld: np.ndarray, vids: np.ndarray, loc: np.ndarray) -> np.ndarray:

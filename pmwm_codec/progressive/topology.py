@@ -319,24 +319,45 @@ def edge_ids(a: np.ndarray, b: np.ndarray, n: int) -> tuple:
     return ids.reshape(-1), counts
 
 
+@kernel_helper
+def hash_slot(key, bits):
+    """The first slot of the non-negative int64 ``key`` in a table of ``2**bits`` slots: Fibonacci hashing (the
+    top bits of the key times 2**64 / golden ratio)."""
+    return np.int64((np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - bits))
+
+
+@kernel_helper
+def table_bits(slots):
+    """The least ``bits >= 1`` with ``2**bits >= slots``: the size of an open-addressing table (:func:`probe`)."""
+    bits = 1
+    while (1 << bits) < slots:
+        bits += 1
+    return bits
+
+
+@kernel_helper
+def probe(keys, key, bits):
+    """The slot of ``key`` (>= 0) in the open-addressing table ``keys`` ((2**bits,) int64, -1 in an empty slot):
+    where it is, or the empty slot where it goes (linear probing from :func:`hash_slot`; the table never full)."""
+    j = hash_slot(key, bits)
+    while keys[j] >= 0 and keys[j] != key:
+        j = (j + 1) & ((1 << bits) - 1)
+    return j
+
+
 def _edge_ids_kernel(a, b, n):
     """Compiled :func:`edge_ids`: each key ``min * n + max`` looked up in a table of at least twice as many
-    slots (Fibonacci hashing); a new key gets the next number."""
+    slots (:func:`probe`); a new key gets the next number."""
     k = len(a)
-    bits = 1
-    while (1 << bits) < 2 * k:
-        bits += 1
-    size = 1 << bits
-    keys = np.full(size, -1, np.int64)
-    num = np.empty(size, np.int64)
+    bits = table_bits(2 * k)
+    keys = np.full(1 << bits, -1, np.int64)
+    num = np.empty(1 << bits, np.int64)
     ids = np.empty(k, np.int64)
     counts = np.zeros(k, np.int64)
     e = 0
     for i in range(k):
         key = min(a[i], b[i]) * n + max(a[i], b[i])
-        j = np.int64((np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - bits))
-        while keys[j] >= 0 and keys[j] != key:
-            j = (j + 1) & (size - 1)
+        j = probe(keys, key, bits)
         if keys[j] < 0:
             keys[j] = key
             num[j] = e
