@@ -41,7 +41,7 @@ def test_group_order_is_a_stable_argsort(kernels):
 
 
 def test_edge_ids_and_face_corner_tests_are_the_same_on_both_paths(monkeypatch):
-    """topology.edge_ids (compiled: a hash table, numbered by first row; numpy: np.unique, by sorted key) numbers
+    """topology.edge_ids (its key_ids compiled: a hash table, numbered by first row; numpy: np.unique, by sorted key) numbers
     the undirected edges one to one, with their row counts; any_corner and two_alike_at are numpy's
     expressions, on both paths."""
     rng = np.random.default_rng(3)

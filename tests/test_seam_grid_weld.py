@@ -241,7 +241,7 @@ def _grid_weld_whole_graph(q, faces, positions):
 
 @pytest.mark.parametrize("seed", range(6))
 def test_the_cut_vertices_and_the_grid_weld_are_the_same_on_both_paths(monkeypatch, seed):
-    """_cut_vertices (compiled: hash tables; numpy: sorts) and grid_weld (its graph of the linked vertices
+    """_cut_vertices (its edge and point-pair numbers compiled: a hash table; numpy: sorts) and grid_weld (its graph of the linked vertices
     only) against the whole-graph reference, on a trig sphere's seams and poles with random copies: exact
     ones, grid-only ones inside the surface, and faces cut loose along random edges (boundary half-edges,
     partnered or not)."""

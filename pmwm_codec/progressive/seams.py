@@ -288,75 +288,22 @@ def _cut_vertices(pid: np.ndarray, faces: np.ndarray, n: int) -> np.ndarray:
 
     A partner runs between other vertices than its half-edge (the same two vertices would make one edge of
     two faces), so one end at least is a vertex whose point another vertex has: only the faces holding one
-    are read, and every edge with such an end has all its faces among them (its count is exact).  Compiled:
-    two hash tables, of those faces' edges and of the boundary half-edges' point pairs, instead of a sort
-    of the edges and one of the pairs (:func:`_cut_vertices_kernel`, the same vertices)."""
-    kernel = compiled(_cut_vertices_kernel)
-    if kernel is not None:
-        return kernel(pid, faces, n)
+    are read (:func:`~.topology.any_corner`), and every edge with such an end has all its faces among them
+    (its count, :func:`~.topology.edge_ids`', is exact)."""
     shared = np.bincount(pid, minlength=n)[pid] > 1
-    faces = faces[any_corner(shared, faces)]
+    faces = np.compress(any_corner(shared, faces), faces, axis=0)
     a = faces.reshape(-1)
     b = faces[:, [1, 2, 0]].reshape(-1)
-    _, edge, count = np.unique(np.minimum(a, b) * n + np.maximum(a, b), return_inverse=True, return_counts=True)
-    boundary = (count[edge.reshape(-1)] == 1) & (pid[a] != pid[b])
+    edge, count = topology.edge_ids(a, b, n)
+    boundary = (count[edge] == 1) & (pid[a] != pid[b])
     a, b = a[boundary], b[boundary]
-    fwd = pid[a] * n + pid[b]
-    partnered = np.isin(pid[b] * n + pid[a], fwd)
+    ids, _ = topology.key_ids(np.r_[pid[a] * n + pid[b], pid[b] * n + pid[a]])  # forward, then reverse
+    forward = np.zeros(len(ids), bool)
+    forward[ids[: len(a)]] = True
+    partnered = forward[ids[len(a):]]  # the reverse pair is some half-edge's forward one
     out = np.zeros(n, bool)
     out[a[partnered]] = True
     out[b[partnered]] = True
-    return out
-
-
-def _cut_vertices_kernel(pid, faces, n):
-    """Compiled :func:`_cut_vertices` (the same (n,) bool): the faces with a corner on a shared point, their
-    edges counted in an open-addressing table (:func:`.topology.probe`), then their boundary half-edges between two
-    points put in a second table by ``(point, point)``, and the ends of those whose reverse pair is there
-    marked."""
-    count = np.zeros(n, np.int64)
-    for v in range(n):
-        count[pid[v]] += 1
-    shared = np.empty(n, np.bool_)
-    for v in range(n):
-        shared[v] = count[pid[v]] > 1
-    near = np.empty(len(faces), np.int64)
-    k = 0
-    for f in range(len(faces)):  # every face written, kept by advancing the count or not
-        near[k] = f
-        k += shared[faces[f, 0]] | shared[faces[f, 1]] | shared[faces[f, 2]]
-    bits = topology.table_bits(6 * k)
-    keys = np.full(1 << bits, -1, np.int64)
-    uses = np.zeros(1 << bits, np.int64)
-    slot = np.empty(3 * k, np.int64)  # the table slot of each near half-edge's edge
-    for t in range(k):
-        f = near[t]
-        for c in range(3):
-            a, b = faces[f, c], faces[f, (c + 1) % 3]
-            key = min(a, b) * n + max(a, b)
-            j = topology.probe(keys, key, bits)
-            keys[j] = key
-            uses[j] += 1
-            slot[3 * t + c] = j
-    ends = np.empty((3 * k, 2), np.int64)  # the boundary half-edges between two points
-    nb = 0
-    for t in range(k):
-        f = near[t]
-        for c in range(3):
-            a, b = faces[f, c], faces[f, (c + 1) % 3]
-            ends[nb, 0], ends[nb, 1] = a, b
-            nb += uses[slot[3 * t + c]] == 1 and pid[a] != pid[b]
-    pairs = np.full(1 << bits, -1, np.int64)  # their (point, point) keys (as many as half-edges)
-    for t in range(nb):
-        key = pid[ends[t, 0]] * n + pid[ends[t, 1]]
-        pairs[topology.probe(pairs, key, bits)] = key
-    out = np.zeros(n, np.bool_)
-    for t in range(nb):  # the ends of those whose reverse pair is there
-        a, b = ends[t, 0], ends[t, 1]
-        key = pid[b] * n + pid[a]
-        if pairs[topology.probe(pairs, key, bits)] == key:
-            out[a] = True
-            out[b] = True
     return out
 
 

@@ -308,58 +308,42 @@ def edge_table(faces: np.ndarray, n: int) -> EdgeTable:
 
 
 def edge_ids(a: np.ndarray, b: np.ndarray, n: int) -> tuple:
-    """A number for each undirected edge ``(a, b)`` ((k,) int64 vertex ids in ``[0, n)``): ``(ids (k,),
-    counts (e,))`` int64, ``ids`` equal exactly when the edges are, ``counts[ids[i]]`` the edge's rows.  The
-    numbering is only an identity: numpy's is the sorted keys' (``np.unique``), the compiled one's the
-    edges' first rows' (an open-addressing table, no sort: :func:`_edge_ids_kernel`)."""
-    kernel = compiled(_edge_ids_kernel)
+    """A number for each undirected edge ``(a, b)`` ((k,) int64 vertex ids in ``[0, n)``): :func:`key_ids` of
+    the keys ``min * n + max``."""
+    return key_ids(np.minimum(a, b) * n + np.maximum(a, b))
+
+
+def key_ids(keys: np.ndarray) -> tuple:
+    """A number for each of the ``keys`` ((k,) int64, >= 0): ``(ids (k,), counts (e,))`` int64, ``ids`` equal
+    exactly when the keys are, ``counts[ids[i]]`` the key's rows.  The numbering is only an identity: numpy's
+    is the sorted keys' (``np.unique``), the compiled one's the keys' first rows' (an open-addressing table,
+    no sort: :func:`_key_ids_kernel`)."""
+    kernel = compiled(_key_ids_kernel)
     if kernel is not None:
-        return kernel(np.asarray(a, np.int64), np.asarray(b, np.int64), n)
-    _, ids, counts = np.unique(np.minimum(a, b) * n + np.maximum(a, b), return_inverse=True, return_counts=True)
+        return kernel(np.asarray(keys, np.int64))
+    _, ids, counts = np.unique(keys, return_inverse=True, return_counts=True)
     return ids.reshape(-1), counts
 
 
-@kernel_helper
-def hash_slot(key, bits):
-    """The first slot of the non-negative int64 ``key`` in a table of ``2**bits`` slots: Fibonacci hashing (the
-    top bits of the key times 2**64 / golden ratio)."""
-    return np.int64((np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - bits))
-
-
-@kernel_helper
-def table_bits(slots):
-    """The least ``bits >= 1`` with ``2**bits >= slots``: the size of an open-addressing table (:func:`probe`)."""
+def _key_ids_kernel(keys):
+    """Compiled :func:`key_ids`: each key looked up in a table of at least twice as many slots (linear probing
+    from a Fibonacci hash: the top bits of the key times 2**64 / golden ratio); a new key gets the next number."""
+    k = len(keys)
     bits = 1
-    while (1 << bits) < slots:
+    while (1 << bits) < 2 * k:
         bits += 1
-    return bits
-
-
-@kernel_helper
-def probe(keys, key, bits):
-    """The slot of ``key`` (>= 0) in the open-addressing table ``keys`` ((2**bits,) int64, -1 in an empty slot):
-    where it is, or the empty slot where it goes (linear probing from :func:`hash_slot`; the table never full)."""
-    j = hash_slot(key, bits)
-    while keys[j] >= 0 and keys[j] != key:
-        j = (j + 1) & ((1 << bits) - 1)
-    return j
-
-
-def _edge_ids_kernel(a, b, n):
-    """Compiled :func:`edge_ids`: each key ``min * n + max`` looked up in a table of at least twice as many
-    slots (:func:`probe`); a new key gets the next number."""
-    k = len(a)
-    bits = table_bits(2 * k)
-    keys = np.full(1 << bits, -1, np.int64)
+    table = np.full(1 << bits, -1, np.int64)
     num = np.empty(1 << bits, np.int64)
     ids = np.empty(k, np.int64)
     counts = np.zeros(k, np.int64)
     e = 0
     for i in range(k):
-        key = min(a[i], b[i]) * n + max(a[i], b[i])
-        j = probe(keys, key, bits)
-        if keys[j] < 0:
-            keys[j] = key
+        key = keys[i]
+        j = np.int64((np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - bits))
+        while table[j] >= 0 and table[j] != key:
+            j = (j + 1) & ((1 << bits) - 1)
+        if table[j] < 0:
+            table[j] = key
             num[j] = e
             e += 1
         ids[i] = num[j]
