@@ -53,7 +53,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import pcg64, topology
-from .topology import any_corner, compiled, expand, kernel_helper
+from .topology import any_corner, compiled, expand
 
 
 def weld_groups(positions: np.ndarray) -> np.ndarray | None:
