@@ -131,6 +131,14 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
         notices.append("owner_strength ignored: no owner layer (an owner_id, or a watermark, makes one)")
     key_obj, key_slot, options["owner_id"] = _key_for(key, image, dst, asked, inputs=(src, watermark))
     asset = is_asset_path(src) or isinstance(src, tuple)
+    label = None  # a mesh file read as an asset (its appearance: pmwm_codec.meshdoc) is named as the file
+    if not asset and isinstance(src, (str, os.PathLike)) and os.path.exists(src):
+        from .meshdoc import read_appearance
+
+        document, read_notices = read_appearance(src)
+        notices += read_notices
+        if document is not None:
+            src, asset, label = document, True, os.path.basename(os.fspath(src))
     mesh = None if asset else _as_mesh(src)
     if asset and not isinstance(src, tuple) and not os.path.exists(src):
         from .errors import InputFormatError
@@ -145,7 +153,7 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
     options["owner_fallback"] = image is not None and asked is None
     try:
         if asset:
-            report = encode_asset(src, dst, watermark=image, key=key_obj, **options)
+            report = encode_asset(src, dst, watermark=image, key=key_obj, label=label, **options)
         else:
             options.pop("strip_image_profiles", None)
             options.pop("keep_flat_normals", None)

@@ -190,15 +190,29 @@ def _resolve_uri(uri, base_dir: str, name: str, budget: list) -> bytes:
         path = urllib.parse.unquote(uri)
         if _SCHEME.match(uri) or _SCHEME.match(path):
             raise InputFormatError(f"{name}: the uri {shown} is not a relative path (only files beside the asset are read)")
-        if "\0" in path or os.path.isabs(path) or path.startswith(("\\", "/")):
-            raise InputFormatError(f"{name}: the uri {shown} is an absolute path; only files inside the asset's folder are read")
-        root = os.path.realpath(base_dir)
-        target = os.path.realpath(os.path.join(root, path))
-        if os.path.commonpath([root, target]) != root or target == root:
-            raise InputFormatError(f"{name}: the uri {shown} leads outside the asset's folder")
-        blob = read_regular_file(target, budget[0], InputFormatError, f"{name}: the uri {shown}", follow_symlinks=False)
+        blob = read_beside(path, base_dir, f"{name}: the uri {shown}", budget)
     budget[0] -= len(blob)
     return blob
+
+
+def beside(path: str, base_dir: str, label: str) -> str:
+    """The real path of the file ``path`` names relative to ``base_dir``, which must stay inside that folder
+    (resolved too: ``..`` and symlinks included) -- the rule for every file an input names besides itself (a
+    ``.gltf``'s buffers and images, an OBJ's MTL files and their textures).  InputFormatError starting with
+    ``label`` for an absolute path, a NUL, or a path that leads outside the folder (or is the folder)."""
+    if "\0" in path or os.path.isabs(path) or path.startswith(("\\", "/")):
+        raise InputFormatError(f"{label} is an absolute path; only files inside the asset's folder are read")
+    root = os.path.realpath(base_dir)
+    target = os.path.realpath(os.path.join(root, path))
+    if os.path.commonpath([root, target]) != root or target == root:
+        raise InputFormatError(f"{label} leads outside the asset's folder")
+    return target
+
+
+def read_beside(path: str, base_dir: str, label: str, budget: list) -> bytes:
+    """The bytes of the regular file :func:`beside` finds, never read past ``budget[0]`` bytes (the caller
+    charges them) and not through a symlink as its last component; InputFormatError starting with ``label``."""
+    return read_regular_file(beside(path, base_dir, label), budget[0], InputFormatError, label, follow_symlinks=False)
 
 
 def _data_uri(uri: str, name: str, shown: str, limit: int) -> bytes:

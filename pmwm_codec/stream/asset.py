@@ -451,32 +451,34 @@ def _refuse_external_uris(gltf: dict) -> None:
 
 
 def encode_asset(src, dst, *, strip_image_profiles: bool = False, keep_flat_normals: bool = False,
-                 **options) -> EncodeReport:
+                 label: str | None = None, **options) -> EncodeReport:
     """Encode a glTF asset (path, or ``(gltf dict, buffers)``) into a ``.pmw`` at ``dst``.
 
     Options as :func:`~pmwm_codec.stream.encoder.encode_document`, plus
     ``strip_image_profiles``: drop colour-profile / pixel-aspect chunks from PNG
     textures (same pixels; the glTF validator warns on them).  Images are otherwise
     carried byte for byte.  ``keep_flat_normals``: a flat-shaded primitive keeps its NORMAL (and stays in
-    the base; :func:`plan_asset`).  The report's ``notices`` say which primitives passed
+    the base; :func:`plan_asset`).  ``label``: how messages name an in-memory document (default "the asset";
+    the mesh file it was read from: :mod:`pmwm_codec.meshdoc`).  The report's ``notices`` say which primitives passed
     through and why; a primitive with invalid data is refused (see :func:`plan_asset`).
     """
     if isinstance(src, tuple):  # checked as a file's document is (load_document), but it has no folder
+        label = label or "the asset"
         gltf, buffers = _json_copy(src[0]), list(src[1])
-        check_document(gltf, "the asset")
+        check_document(gltf, label)
         _refuse_external_uris(gltf)
-        gltf, buffers = decompress_meshopt(gltf, buffers, "the asset")
-        label_images(gltf, buffers, "the asset")
+        gltf, buffers = decompress_meshopt(gltf, buffers, label)
+        label_images(gltf, buffers, label)
     else:
         gltf, buffers = load_document(src)
     if is_progressive(gltf):  # a .pmw by another name: its glTF is the base mesh alone
-        raise InputFormatError(progressive_refusal("the asset" if isinstance(src, tuple) else os.path.basename(src)))
+        raise InputFormatError(progressive_refusal(label if isinstance(src, tuple) else os.path.basename(src)))
     notices = []
     if strip_image_profiles:
         count = _strip_profiles(gltf, buffers)
         if count:
             notices.append(f"removed colour-profile metadata from {count} PNG image(s)")
-    name = None if isinstance(src, tuple) else os.path.basename(os.fspath(src))
+    name = (None if label == "the asset" else label) if isinstance(src, tuple) else os.path.basename(os.fspath(src))
     jobs, drop, planned = plan_asset(gltf, buffers, name, keep_flat_normals=keep_flat_normals)
     notices += planned
     for job in jobs:  # the accessors' names, which the base's accessors keep

@@ -1,0 +1,502 @@
+"""Mesh files that carry more than geometry, read as in-memory glTF documents.
+
+A Wavefront OBJ with texture coordinates (``vt``), vertex colours (``v x y z r g b``) or materials (``mtllib``
+/ ``usemtl``, and the textures an MTL file names), and a PLY with vertex colours, texture coordinates or a
+texture (see :mod:`pmwm_codec.ply`), are encoded as a glTF asset is (:func:`~pmwm_codec.stream.asset.encode_asset`):
+their appearance rides with the splits, seams coarsen in pairs, the materials and images are kept.  A file with
+nothing but positions and faces (and normals, which alone do not make it an asset: :func:`obj_document`) is read
+by :func:`~pmwm_codec.mesh.read_mesh` as before.
+
+The pieces a reader hands over:
+
+``Part``
+    one triangle primitive: ``positions`` (n, 3) float32, ``indices`` (m, 3) uint32 into them,
+    ``attributes`` {glTF semantic: (n, k) float32} (``NORMAL`` unit vectors, ``TEXCOORD_0`` in glTF's
+    convention -- v grows downwards, so an OBJ's or PLY's ``v`` becomes ``1 - v`` --, ``COLOR_0`` in [0, 1]),
+    and the index of its :class:`Material` or None;
+``Material``
+    a name, a base colour (r, g, b, a) in [0, 1], a metal-free roughness, and the index of its base colour
+    and normal textures in the image list, or None;
+images
+    ``(bytes, media type, file name)`` -- PNG or JPEG, as glTF 2.0 core takes them (:func:`texture_image`).
+
+Every file a mesh file names besides itself (an MTL, a texture) is read under the rule a ``.gltf``'s files are
+(:func:`~pmwm_codec.format.document.beside`): a relative path inside the mesh file's folder, a regular file, no
+symlink as its last component, all resources together at most :data:`~pmwm_codec.constants.MAX_RESOURCE_BYTES`.
+A path that breaks the rule is refused (InputFormatError, exit 2: an input file never makes the encoder read
+outside what the user named); a file that is simply missing is left out with a notice (an OBJ shipped without
+its MTL still has its geometry and texture coordinates).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .constants import MAX_ENCODE_FACES, MAX_ENCODE_VERTICES, MAX_INPUT_FILE_BYTES, MAX_RESOURCE_BYTES
+from .errors import InputFormatError, MeshError
+
+
+@dataclass
+class Part:
+    """One triangle primitive (see the module docstring for the arrays' shapes and dtypes)."""
+
+    positions: np.ndarray
+    indices: np.ndarray
+    attributes: dict = field(default_factory=dict)
+    material: int | None = None
+
+
+@dataclass
+class Material:
+    """A glTF metallic-roughness material as a mesh file's material maps onto one (metallic 0)."""
+
+    name: str
+    color: tuple = (1.0, 1.0, 1.0, 1.0)
+    roughness: float = 1.0
+    texture: int | None = None
+    normal_texture: int | None = None
+    #: The file names an MTL gives for the two textures, read (into ``texture`` / ``normal_texture``) only
+    #: for the materials some face uses.
+    texture_file: str | None = None
+    normal_file: str | None = None
+
+
+def build_document(parts: list, materials: list, images: list, name: str) -> tuple:
+    """``(gltf dict, [bin bytes])``: one mesh of ``parts`` (one primitive each) under one node named ``name``,
+    ``materials`` and ``images`` (``(bytes, media type, file name)``; held as ``_bytes``, which
+    :func:`~pmwm_codec.format.document.repack` embeds) -- the in-memory document
+    :func:`~pmwm_codec.stream.asset.encode_asset` takes."""
+    blob = bytearray()
+    views, accessors, primitives = [], [], []
+
+    def add(array: np.ndarray, kind: str, ctype: int, target: int, bounds: bool = False) -> int:
+        data = np.ascontiguousarray(array).tobytes()
+        blob.extend(bytes(-len(blob) % 4))
+        views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(data), "target": target})
+        blob.extend(data)
+        acc = {"bufferView": len(views) - 1, "componentType": ctype, "count": int(len(array)), "type": kind}
+        if bounds:
+            acc["min"] = [float(v) for v in array.min(axis=0)]
+            acc["max"] = [float(v) for v in array.max(axis=0)]
+        accessors.append(acc)
+        return len(accessors) - 1
+
+    for part in parts:
+        attrs = {"POSITION": add(part.positions.astype(np.float32), "VEC3", 5126, 34962, bounds=True)}
+        for semantic, values in part.attributes.items():
+            attrs[semantic] = add(values.astype(np.float32), f"VEC{values.shape[1]}", 5126, 34962)
+        wide = len(part.positions) > 65535
+        indices = part.indices.astype(np.uint32 if wide else np.uint16).reshape(-1)
+        prim = {"attributes": attrs, "indices": add(indices, "SCALAR", 5125 if wide else 5123, 34963), "mode": 4}
+        if part.material is not None:
+            prim["material"] = part.material
+        primitives.append(prim)
+    gltf = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}],
+            "nodes": [{"mesh": 0, "name": name}], "meshes": [{"name": name, "primitives": primitives}],
+            "accessors": accessors, "bufferViews": views, "buffers": [{"byteLength": len(blob)}]}
+    if materials:
+        gltf["materials"] = [_material(m) for m in materials]
+    if images:
+        gltf["images"] = [{"name": file_name, "uri": file_name, "mimeType": kind, "_bytes": data}
+                          for data, kind, file_name in images]
+        gltf["textures"] = [{"source": i} for i in range(len(images))]
+    return gltf, [bytes(blob)]
+
+
+def _material(m: Material) -> dict:
+    pbr = {"baseColorFactor": [float(c) for c in m.color], "metallicFactor": 0.0, "roughnessFactor": float(m.roughness)}
+    if m.texture is not None:
+        pbr["baseColorTexture"] = {"index": m.texture}
+    out = {"name": m.name, "pbrMetallicRoughness": pbr}
+    if m.normal_texture is not None:
+        out["normalTexture"] = {"index": m.normal_texture}
+    if m.color[3] < 1.0:
+        out["alphaMode"] = "BLEND"
+    return out
+
+
+class Resources:
+    """The files a mesh file at ``path`` names besides itself, read under one budget (module docstring);
+    :meth:`image` keeps each texture once, however many materials name it."""
+
+    def __init__(self, path: str, notices: list):
+        self.base_dir = os.path.dirname(os.path.abspath(path))
+        self.name = os.path.basename(path)
+        self.notices = notices
+        self.budget = [MAX_RESOURCE_BYTES]
+        self.images: list = []
+        self._image_ids: dict = {}
+
+    def read(self, ref: str, what: str) -> bytes | None:
+        """The bytes of the file ``ref`` names (``what``: how the message names it, ``"the MTL file"``), or
+        None with a notice when it does not exist; InputFormatError when ``ref`` breaks the folder rule."""
+        from .format.document import beside, read_beside
+
+        label = f"{self.name}: {what} {_shown(ref)}"
+        if not os.path.lexists(beside(ref, self.base_dir, label)):
+            self.notices.append(f"{what} {_shown(ref)} is not beside {self.name}: left out")
+            return None
+        blob = read_beside(ref, self.base_dir, label, self.budget)
+        self.budget[0] -= len(blob)
+        return blob
+
+    def image(self, ref: str) -> int | None:
+        """The index of the texture ``ref`` names in :attr:`images`, read and made PNG or JPEG
+        (:func:`texture_image`) the first time; None (with a notice) where it cannot be."""
+        from .format.document import beside
+
+        key = beside(ref, self.base_dir, f"{self.name}: the texture {_shown(ref)}")
+        if key not in self._image_ids:
+            blob = self.read(ref, "the texture")
+            made = None if blob is None else texture_image(blob, ref, self.notices)
+            self._image_ids[key] = None
+            if made is not None:
+                self.images.append((*made, os.path.basename(ref.replace("\\", "/"))))
+                self._image_ids[key] = len(self.images) - 1
+        return self._image_ids[key]
+
+
+def _shown(ref: str) -> str:
+    return repr(ref if len(ref) <= 80 else ref[:77] + "...")
+
+
+def texture_image(blob: bytes, ref: str, notices: list) -> tuple | None:
+    """``(bytes, media type)`` of a texture file's bytes as glTF 2.0 core takes them: a PNG or JPEG byte for
+    byte; another format Pillow reads (TGA, BMP, TIFF, ...) re-written as a PNG of the same pixels, with a
+    notice; None, with a notice, for bytes no image format reads."""
+    from .format.document import sniff_image
+
+    kind = sniff_image(blob)
+    if kind in ("image/png", "image/jpeg"):
+        return blob, kind
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(io.BytesIO(blob)) as img:
+            img.load()
+            if img.mode not in ("RGB", "RGBA", "L", "LA"):
+                img = img.convert("RGBA" if "A" in img.getbands() or "transparency" in img.info else "RGB")
+            out = io.BytesIO()
+            img.save(out, format="PNG")
+    except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError) as exc:
+        notices.append(f"the texture {_shown(ref)} is not an image Pillow reads ({str(exc)[:60]}): left out")
+        return None
+    notices.append(f"the texture {_shown(ref)} re-written as PNG (glTF takes PNG or JPEG)")
+    return out.getvalue(), "image/png"
+
+
+# -- Wavefront OBJ ------------------------------------------------------------------------------------------
+
+#: Options of an MTL map statement and how many values each takes (``-o``, ``-s``, ``-t``: one to three).
+_MAP_OPTIONS = {"-blendu": 1, "-blendv": 1, "-boost": 1, "-mm": 2, "-o": 3, "-s": 3, "-t": 3, "-texres": 1,
+                "-clamp": 1, "-bm": 1, "-imfchan": 1, "-type": 1, "-cc": 1}
+_APPEARANCE = re.compile(r"^[ \t]*(?:vt[ \t]|mtllib[ \t]|usemtl[ \t])", re.M)
+_RECORD = re.compile(r"^[ \t]*(v|vt|vn|f|usemtl|mtllib)[ \t]+([^\n]*)", re.M)
+
+
+def read_appearance(path) -> tuple:
+    """``((gltf, buffers) or None, notices)`` of the mesh file at ``path``: the in-memory document of an OBJ
+    that carries appearance (:func:`obj_document`), else None -- geometry alone, which
+    :func:`~pmwm_codec.mesh.read_mesh` reads -- with what the encoder should say of what it leaves out."""
+    from .mesh import _mesh_text
+    from .sources import check_input_path, read_regular_file
+
+    path = os.fspath(path)
+    if os.path.splitext(path)[1].lower() != ".obj":
+        return None, []
+    name = check_input_path(path, "a mesh file")
+    size = os.stat(path).st_size
+    if size > MAX_INPUT_FILE_BYTES:
+        return None, []  # read_mesh names it
+    text = _mesh_text(read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name), name, "OBJ")
+    if "#" in text:
+        text = re.sub(r"#[^\n]*", "", text)
+    doc, notices = obj_document(path, text)
+    if doc is None and re.search(r"^[ \t]*vn[ \t]", text, re.M):
+        notices.append("normals (vn) not carried: the .pmw holds positions, and viewers shade it from them")
+    return doc, notices
+
+
+def obj_document(path, text: str) -> tuple:
+    """``((gltf, buffers) or None, notices)`` of the OBJ at ``path`` (its ``text``, comments removed): the
+    document when the OBJ carries appearance -- texture coordinates, vertex colours on every ``v`` record, or
+    materials that resolve to something -- else None (geometry alone).
+
+    A glTF vertex is each distinct (position, texture coordinate, normal) triple a face corner names, per
+    material; faces are fan-triangulated (a record of fewer than three corners draws nothing); a face's
+    material is the last ``usemtl`` before it (faces before any, or naming a material no MTL defines, have
+    none).  InputFormatError (one line) for an index that names nothing, a malformed record, or the
+    encoder's limits; MeshError for an OBJ with no faces."""
+    name = os.path.basename(path)
+    has_colours = False
+    if _APPEARANCE.search(text) is None:
+        first = re.search(r"^[ \t]*v[ \t]+([^\n]*)", text, re.M)
+        if first is None or len(first.group(1).split()) < 6:
+            return None, []  # no vt, no material, no colour on the first vertex: geometry only
+        has_colours = True
+    kinds, bodies = [], []
+    for m in _RECORD.finditer(text):
+        kinds.append(m.group(1))
+        bodies.append(m.group(2))
+    notices: list = []
+    try:
+        v = _rows([b for k, b in zip(kinds, bodies) if k == "v"], (3, 4, 6, 7), "v", name)
+        vt = _rows([b for k, b in zip(kinds, bodies) if k == "vt"], (1, 2, 3), "vt", name)
+        vn = _rows([b for k, b in zip(kinds, bodies) if k == "vn"], (3,), "vn", name)
+    except ValueError as exc:
+        raise InputFormatError(f"{name}: malformed OBJ record: {str(exc)[:60]}") from None
+    if len(v) > MAX_ENCODE_VERTICES:
+        raise InputFormatError(f"{name}: more than {MAX_ENCODE_VERTICES:,} vertices (the encoder's limit)")
+    colours = None
+    if v.shape[1] >= 6 and not np.isnan(v[:, 3:6]).any():
+        colours = v[:, 3:6] if v.shape[1] == 6 else v[:, 4:7]  # x y z r g b, or x y z w r g b
+        colours = np.clip(colours / (255.0 if colours.max() > 1.0 else 1.0), 0.0, 1.0)
+    elif has_colours:
+        return None, []
+    positions = v[:, :3]
+    resources = Resources(path, notices)
+    materials, by_name = _obj_materials([b for k, b in zip(kinds, bodies) if k == "mtllib"], resources)
+    corners, face_material = _obj_faces(kinds, bodies, name, by_name)
+    if len(vt) == 0 and colours is None and (face_material < 0).all():
+        return None, notices  # materials that did not resolve, no vt, no colours: geometry only
+    parts = _obj_parts(positions, vt, vn, colours, corners, face_material, notices, name)
+    if not parts:
+        raise MeshError(f"{name}: the mesh has no vertices or no faces")
+    used = sorted({p.material for p in parts if p.material is not None})
+    renumber = {old: new for new, old in enumerate(used)}
+    for p in parts:
+        p.material = None if p.material is None else renumber[p.material]
+    kept = [materials[i] for i in used]
+    for m in kept:  # the textures of the materials faces use, each read once
+        m.texture = None if m.texture_file is None else resources.image(m.texture_file)
+        m.normal_texture = None if m.normal_file is None else resources.image(m.normal_file)
+        if m.texture is not None:  # the texture is the colour (as Blender imports it); its alpha stays
+            m.color = (1.0, 1.0, 1.0, m.color[3])
+    return build_document(parts, kept, resources.images, os.path.splitext(name)[0]), notices
+
+
+def _rows(records: list, widths: tuple, kind: str, name: str) -> np.ndarray:
+    """(n, w) float64 of ``records`` (the text after each keyword); w the widest record, narrower ones padded
+    with NaN; ValueError (the record) for a record of a width not in ``widths`` or a token that is no number."""
+    if not records:
+        return np.zeros((0, min(widths)))
+    counts = np.fromiter((len(r.split()) for r in records), np.int64, len(records))
+    for w in np.unique(counts).tolist():
+        if w not in widths:
+            raise ValueError(f"{kind} {records[int(np.flatnonzero(counts == w)[0])].strip()}")
+    width = int(counts.max())
+    flat = " ".join(records).split()
+    try:
+        values = np.array(flat, dtype=np.float64)
+    except ValueError:
+        bad = next(t for t in flat if not _is_number(t))
+        raise ValueError(f"{kind} ... {bad}") from None
+    if (counts == width).all():
+        return values.reshape(-1, width)
+    out = np.full((len(records), width), np.nan)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    for w in np.unique(counts).tolist():
+        rows = np.flatnonzero(counts == w)
+        out[rows, :w] = values[starts[rows, None] + np.arange(w)]
+    return out
+
+
+def _is_number(token: str) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
+def _obj_materials(mtllibs: list, resources: Resources) -> tuple:
+    """``(materials, {name: index})`` of every MTL file the ``mtllib`` records name (a record may name several;
+    a name repeated is read once; a material defined twice keeps its first definition)."""
+    materials, by_name, seen = [], {}, set()
+    for record in mtllibs:
+        for ref in _mtllib_names(record):
+            if ref in seen:
+                continue
+            seen.add(ref)
+            blob = resources.read(ref, "the MTL file")
+            if blob is None:
+                continue
+            from .mesh import _mesh_text
+
+            for m in _parse_mtl(_mesh_text(blob, f"{resources.name}: {ref}", "MTL")):
+                if m.name not in by_name:
+                    by_name[m.name] = len(materials)
+                    materials.append(m)
+    return materials, by_name
+
+
+def _mtllib_names(record: str) -> list:
+    """The file names of an ``mtllib`` record: one name when the record is a single file name with spaces that
+    ends in ``.mtl`` (as some exporters write), else each word."""
+    record = record.strip().replace("\\", "/")
+    words = record.split()
+    if len(words) > 1 and record.lower().endswith(".mtl") and sum(w.lower().endswith(".mtl") for w in words) == 1:
+        return [record]
+    return words
+
+
+def _parse_mtl(text: str) -> list:
+    """The :class:`Material` of each ``newmtl`` of an MTL text: ``Kd`` and ``d`` (or ``Tr``, its complement)
+    make the base colour (white where the ``map_Kd`` texture is read, as Blender imports it: the texture is the
+    colour), ``Ns``
+    the roughness (``1 - sqrt(Ns / 1000)``), ``map_Kd`` the base colour texture and ``map_Bump`` / ``bump`` /
+    ``norm`` the normal texture; other statements are not carried."""
+    out, current, kd, alpha = [], None, None, 1.0
+
+    def close():
+        if current is not None:
+            current.color = (*(kd or (1.0, 1.0, 1.0)), alpha)
+            out.append(current)
+
+    for raw in text.splitlines():
+        words = raw.split("#", 1)[0].split()
+        if not words:
+            continue
+        key = words[0].lower()
+        if key == "newmtl":
+            close()
+            current, kd, alpha = Material(" ".join(words[1:]) or "material"), None, 1.0
+        elif current is None:
+            continue
+        elif key == "kd" and len(words) >= 4:
+            kd = tuple(min(max(_number_or(w, 1.0), 0.0), 1.0) for w in words[1:4])
+        elif key == "d" and len(words) >= 2:
+            alpha = min(max(_number_or(words[-1], 1.0), 0.0), 1.0)
+        elif key == "tr" and len(words) >= 2:
+            alpha = 1.0 - min(max(_number_or(words[-1], 0.0), 0.0), 1.0)
+        elif key == "ns" and len(words) >= 2:
+            current.roughness = float(1.0 - min(max(_number_or(words[1], 0.0), 0.0) / 1000.0, 1.0) ** 0.5)
+        elif key in ("map_kd", "map_bump", "bump", "norm") and len(words) >= 2:
+            ref = _map_file(words[1:])
+            if ref and key == "map_kd":
+                current.texture_file = ref
+            elif ref:
+                current.normal_file = ref
+    close()
+    return out
+
+
+def _number_or(token: str, default: float) -> float:
+    try:
+        value = float(token)
+    except ValueError:
+        return default
+    return value if np.isfinite(value) else default
+
+
+def _map_file(words: list) -> str:
+    """The file name of an MTL map statement's arguments: its options (``-s 1 1 1``, ``-bm 0.5``, ...)
+    skipped, the rest joined (a file name may hold spaces), backslashes read as slashes."""
+    i = 0
+    while i < len(words) and words[i].lower() in _MAP_OPTIONS:
+        n = _MAP_OPTIONS[words[i].lower()]
+        i += 1
+        taken = 0
+        while taken < n and i < len(words) - 1 and (_is_number(words[i]) or words[i] in ("on", "off")):
+            i += 1
+            taken += 1
+    return " ".join(words[i:]).replace("\\", "/")
+
+
+def _obj_faces(kinds: list, bodies: list, name: str, by_name: dict) -> tuple:
+    """``(corners (c, 3) int64, material per triangle (c / 3,) int64, -1 for none)``: each triangle's three corners as 0-based
+    (position, texture coordinate, normal) indices, -1 where a corner names none; relative (negative) indices
+    resolved against the records read before the face.  InputFormatError for an index 0, out of range, or a
+    corner that is not ``v``, ``v/t``, ``v//n`` or ``v/t/n``."""
+    counts = {"v": 0, "vt": 0, "vn": 0}
+    rows, mats, material = [], [], -1
+    for kind, body in zip(kinds, bodies):
+        if kind == "f":
+            corners = body.split()
+            if len(corners) < 3:
+                continue  # a point or an edge: draws no triangle
+            if len(rows) + 3 * (len(corners) - 2) > 3 * MAX_ENCODE_FACES:
+                raise InputFormatError(f"{name}: more than {MAX_ENCODE_FACES:,} triangles (the encoder's limit)")
+            ids = [_corner(c, counts, name) for c in corners]
+            for k in range(1, len(ids) - 1):
+                rows.extend((ids[0], ids[k], ids[k + 1]))
+                mats.append(material)
+        elif kind == "usemtl":
+            material = by_name.get(body.strip(), -1)
+        elif kind in counts:
+            counts[kind] += 1
+    if not rows:
+        raise MeshError(f"{name}: the mesh has no vertices or no faces")
+    return np.array(rows, dtype=np.int64), np.array(mats, dtype=np.int64)
+
+
+def _corner(token: str, counts: dict, name: str) -> tuple:
+    parts = token.split("/")
+    if len(parts) > 3 or not parts[0]:
+        raise InputFormatError(f"{name}: malformed OBJ face corner {token[:40]!r}")
+    out = []
+    for value, kind in zip(parts + [""] * (3 - len(parts)), ("v", "vt", "vn")):
+        if not value:
+            out.append(-1)
+            continue
+        try:
+            i = int(value)
+        except ValueError:
+            raise InputFormatError(f"{name}: malformed OBJ face corner {token[:40]!r}") from None
+        n = counts[kind]
+        if i == 0 or i > n or i < -n:
+            raise InputFormatError(f"{name}: face index {value} names no {kind} record ({n:,} read before the face)")
+        out.append(i - 1 if i > 0 else n + i)
+    return tuple(out)
+
+
+def _obj_parts(positions, vt, vn, colours, corners, face_material, notices, name) -> list:
+    """One :class:`Part` per material (faces of no material last): a glTF vertex per distinct corner triple."""
+    parts = []
+    keys = np.unique(face_material).tolist()
+    for key in keys[1:] + keys[:1] if keys[0] < 0 else keys:
+        tri = np.flatnonzero(face_material == key)
+        c = corners.reshape(-1, 3, 3)[tri].reshape(-1, 3)
+        degenerate = ((c[0::3, 0] == c[1::3, 0]) | (c[1::3, 0] == c[2::3, 0]) | (c[0::3, 0] == c[2::3, 0]))
+        if degenerate.any():
+            notices.append(f"dropped {int(degenerate.sum())} degenerate faces")
+            c = c.reshape(-1, 3, 3)[~degenerate].reshape(-1, 3)
+        if not len(c):
+            continue
+        attrs = {}
+        has_uv = bool(len(vt)) and (c[:, 1] >= 0).any()
+        has_normal = bool(len(vn)) and (c[:, 2] >= 0).any()
+        if has_normal and (c[:, 2] < 0).any():
+            notices.append(f"normals left out of {_part_name(key)}: {int((c[:, 2] < 0).sum()):,} corners name none")
+            has_normal = False
+        if has_uv and (c[:, 1] < 0).any():
+            notices.append(f"{int((c[:, 1] < 0).sum()):,} corners of {_part_name(key)} name no texture "
+                           "coordinate: given (0, 0)")
+        c = np.where(np.array([True, has_uv, has_normal])[None, :], c, -1)
+        unique, inverse = np.unique(c, axis=0, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        if has_uv:
+            uv = np.where(unique[:, 1:2] >= 0, vt[np.maximum(unique[:, 1], 0), :2], 0.0)
+            if vt.shape[1] == 1 or np.isnan(uv).any():  # a vt of one value: v is 0
+                uv = np.nan_to_num(uv, nan=0.0)
+            attrs["TEXCOORD_0"] = np.stack([uv[:, 0], 1.0 - uv[:, 1]], axis=1)
+        if has_normal:
+            n = vn[unique[:, 2]]
+            length = np.linalg.norm(n, axis=1, keepdims=True)
+            if (length < 1e-12).any() or not np.isfinite(length).all():
+                notices.append(f"normals left out of {_part_name(key)}: some are zero or not finite")
+            else:
+                attrs["NORMAL"] = n / length
+        if colours is not None:
+            attrs["COLOR_0"] = colours[unique[:, 0]]
+        parts.append(Part(positions[unique[:, 0]], inverse.reshape(-1, 3), attrs, None if key < 0 else key))
+    return parts
+
+
+def _part_name(material: int) -> str:
+    return "the faces of no material" if material < 0 else f"material {material}'s faces"
