@@ -33,6 +33,7 @@ from __future__ import annotations
 import io
 import os
 import re
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -412,7 +413,11 @@ def _obj_faces(kinds: list, bodies: list, name: str, by_name: dict) -> tuple:
     """``(corners (c, 3) int64, material per triangle (c / 3,) int64, -1 for none)``: each triangle's three corners as 0-based
     (position, texture coordinate, normal) indices, -1 where a corner names none; relative (negative) indices
     resolved against the records read before the face.  InputFormatError for an index 0, out of range, or a
-    corner that is not ``v``, ``v/t``, ``v//n`` or ``v/t/n``."""
+    corner that is not ``v``, ``v/t``, ``v//n`` or ``v/t/n``.  Read a column at a time when every corner has
+    one form (:func:`_obj_faces_columns`), else record by record (which names what is wrong)."""
+    fast = _obj_faces_columns(kinds, bodies, by_name)
+    if fast is not None:
+        return fast
     counts = {"v": 0, "vt": 0, "vn": 0}
     rows, mats, material = [], [], -1
     for kind, body in zip(kinds, bodies):
@@ -433,6 +438,59 @@ def _obj_faces(kinds: list, bodies: list, name: str, by_name: dict) -> tuple:
     if not rows:
         raise MeshError(f"{name}: the mesh has no vertices or no faces")
     return np.array(rows, dtype=np.int64), np.array(mats, dtype=np.int64)
+
+
+#: The corner forms of :func:`_obj_faces_columns`: (slashes per corner, "//" per corner) -> the columns the
+#: corner's numbers fill (position, texture coordinate, normal).
+_CORNER_FORMS = {(0, 0): (0,), (1, 0): (0, 1), (2, 1): (0, 2), (2, 0): (0, 1, 2)}
+
+
+def _obj_faces_columns(kinds: list, bodies: list, by_name: dict):
+    """:func:`_obj_faces`'s result read a column at a time (numpy over every corner: ~8x the record loop on the
+    437k-vertex dragon) when every corner of every face has one form and every index names a record; None for
+    anything else (the record loop then reads it or names what is wrong)."""
+    kind = np.array([{"v": 0, "vt": 1, "vn": 2, "f": 3, "usemtl": 4}.get(k, 5) for k in kinds], np.int8)
+    face_rows = np.flatnonzero(kind == 3)
+    faces = [bodies[i] for i in face_rows.tolist()]
+    if not faces:
+        return None
+    per_face = np.fromiter((len(b.split()) for b in faces), np.int64, len(faces))
+    if (per_face < 3).any() or int((per_face - 2).sum()) > MAX_ENCODE_FACES:
+        return None
+    text = " ".join(faces)
+    n = int(per_face.sum())
+    form = _CORNER_FORMS.get((text.count("/") // n, text.count("//") // n))
+    if form is None or text.count("/") % n or text.count("//") % n:
+        return None
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a token that is not an integer stops the reader: the record loop names it
+        try:
+            values = np.fromstring(text.replace("/", " "), dtype=np.int64, sep=" ")
+        except (ValueError, DeprecationWarning):
+            return None
+    if len(values) != n * len(form):
+        return None
+    ids = np.zeros((n, 3), np.int64)
+    ids[:, list(form)] = values.reshape(n, len(form))
+    before = np.stack([np.cumsum(kind == k)[face_rows] for k in range(3)], axis=1)  # records read before each face
+    before = np.repeat(before, per_face, axis=0)
+    named = np.zeros(3, bool)
+    named[list(form)] = True
+    named = np.broadcast_to(named, ids.shape)
+    if ((ids == 0) | (ids > before) | (ids < -before))[named].any():
+        return None
+    ids = np.where(ids > 0, ids - 1, np.where(named, before + ids, -1))
+    starts = np.concatenate([[0], np.cumsum(per_face)[:-1]])
+    tri_face = np.repeat(np.arange(len(faces)), per_face - 2)
+    j = np.arange(len(tri_face)) - np.repeat(np.cumsum(per_face - 2) - (per_face - 2), per_face - 2) + 1
+    first = starts[tri_face]
+    corners = np.stack([ids[first], ids[first + j], ids[first + j + 1]], axis=1).reshape(-1, 3)
+    use = np.flatnonzero(kind == 4)  # each face's material: the last usemtl before it
+    material = np.full(len(kinds), -1, np.int64)
+    material[use] = [by_name.get(bodies[i].strip(), -1) for i in use.tolist()]
+    last = np.maximum.accumulate(np.where(kind == 4, np.arange(len(kinds)), -1))[face_rows]
+    face_material = np.where(last >= 0, material[np.maximum(last, 0)], -1)
+    return corners, face_material[tri_face]
 
 
 def _corner(token: str, counts: dict, name: str) -> tuple:
@@ -478,8 +536,7 @@ def _obj_parts(positions, vt, vn, colours, corners, face_material, notices, name
             notices.append(f"{int((c[:, 1] < 0).sum()):,} corners of {_part_name(key)} name no texture "
                            "coordinate: given (0, 0)")
         c = np.where(np.array([True, has_uv, has_normal])[None, :], c, -1)
-        unique, inverse = np.unique(c, axis=0, return_inverse=True)
-        inverse = inverse.reshape(-1)
+        unique, inverse = _unique_corners(c)
         if has_uv:
             uv = np.where(unique[:, 1:2] >= 0, vt[np.maximum(unique[:, 1], 0), :2], 0.0)
             if vt.shape[1] == 1 or np.isnan(uv).any():  # a vt of one value: v is 0
@@ -496,6 +553,18 @@ def _obj_parts(positions, vt, vn, colours, corners, face_material, notices, name
             attrs["COLOR_0"] = colours[unique[:, 0]]
         parts.append(Part(positions[unique[:, 0]], inverse.reshape(-1, 3), attrs, None if key < 0 else key))
     return parts
+
+
+def _unique_corners(c: np.ndarray) -> tuple:
+    """``(unique (u, 3) int64, inverse (c,) int64)`` of the corner triples ``c`` (c, 3) int64 (-1 for none), as
+    ``np.unique(c, axis=0, return_inverse=True)`` gives them, through two 1-D uniques of int64 keys (~4x faster
+    than sorting rows)."""
+    t_span, n_span = int(c[:, 1].max()) + 2, int(c[:, 2].max()) + 2
+    pairs, first = np.unique(c[:, 0] * t_span + (c[:, 1] + 1), return_inverse=True)
+    keys, inverse = np.unique(first.reshape(-1) * n_span + (c[:, 2] + 1), return_inverse=True)
+    pair = pairs[keys // n_span]
+    unique = np.stack([pair // t_span, pair % t_span - 1, keys % n_span - 1], axis=1)
+    return unique, inverse.reshape(-1)
 
 
 def _part_name(material: int) -> str:
