@@ -214,13 +214,26 @@ def read_appearance(path) -> tuple:
     size = os.stat(path).st_size
     if size > MAX_INPUT_FILE_BYTES:
         return None, []  # read_mesh names it
-    text = _mesh_text(read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name), name, "OBJ")
+    text = _one_line_end(_mesh_text(read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name), name, "OBJ"))
     if "#" in text:
         text = re.sub(r"#[^\n]*", "", text)
     doc, notices = obj_document(path, text)
     if doc is None and re.search(r"^[ \t]*vn[ \t]", text, re.M):
         notices.append("normals (vn) not carried: the .pmw holds positions, and viewers shade it from them")
     return doc, notices
+
+
+#: What ends a line besides a line feed for :meth:`str.splitlines`, as :func:`~pmwm_codec.mesh.read_mesh` reads an
+#: OBJ (a classic Mac OS file's CR; NEL, byte 0x85, in a Latin-1 text) and :func:`_parse_mtl` an MTL.
+_LINE_BREAKS = re.compile(r"[\r\x0b\x0c\x1c-\x1e\x85\u2028\u2029]")
+
+
+def _one_line_end(text: str) -> str:
+    """``text`` with every line ended by a line feed (the records' regular expressions read lines so): its lines
+    are those of ``text.splitlines()``."""
+    if "\r\n" in text:
+        text = text.replace("\r\n", "\n")
+    return _LINE_BREAKS.sub("\n", text)
 
 
 def obj_document(path, text: str) -> tuple:
