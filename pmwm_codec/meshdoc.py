@@ -259,11 +259,13 @@ def obj_document(path, text: str) -> tuple:
         bodies.append(m.group(2))
     notices: list = []
     try:
-        v = _rows([b for k, b in zip(kinds, bodies) if k == "v"], (3, 4, 6, 7), "v", name)
-        vt = _rows([b for k, b in zip(kinds, bodies) if k == "vt"], (1, 2, 3), "vt", name)
+        v = _rows([b for k, b in zip(kinds, bodies) if k == "v"], (3, 4, 6, 7), "v", name, finite=True)
+        vt = _rows([b for k, b in zip(kinds, bodies) if k == "vt"], (1, 2, 3), "vt", name, finite=True)
         vn = _rows([b for k, b in zip(kinds, bodies) if k == "vn"], (3,), "vn", name)
+    except InputFormatError:
+        raise
     except ValueError as exc:
-        raise InputFormatError(f"{name}: malformed OBJ record: {str(exc)[:60]}") from None
+        raise InputFormatError(f"{name}: malformed OBJ record: {_printable(str(exc))[:60]}") from None
     if len(v) > MAX_ENCODE_VERTICES:
         raise InputFormatError(f"{name}: more than {MAX_ENCODE_VERTICES:,} vertices (the encoder's limit)")
     colours = None
@@ -294,9 +296,12 @@ def obj_document(path, text: str) -> tuple:
     return build_document(parts, kept, resources.images, os.path.splitext(name)[0]), notices
 
 
-def _rows(records: list, widths: tuple, kind: str, name: str) -> np.ndarray:
+def _rows(records: list, widths: tuple, kind: str, name: str, finite: bool = False) -> np.ndarray:
     """(n, w) float64 of ``records`` (the text after each keyword); w the widest record, narrower ones padded
-    with NaN; ValueError (the record) for a record of a width not in ``widths`` or a token that is no number."""
+    with NaN; ValueError (the record) for a record of a width not in ``widths`` or a token that is no number;
+    ``finite``: InputFormatError naming the first record holding a number float32 does not carry (NaN,
+    infinite, beyond its range: positions and texture coordinates, which a NaN would otherwise reach as the
+    padding's 0 or as an encoder's failure; a normal that is not finite is left out with a notice instead)."""
     if not records:
         return np.zeros((0, min(widths)))
     counts = np.fromiter((len(r.split()) for r in records), np.int64, len(records))
@@ -310,6 +315,10 @@ def _rows(records: list, widths: tuple, kind: str, name: str) -> np.ndarray:
     except ValueError:
         bad = next(t for t in flat if not _is_number(t))
         raise ValueError(f"{kind} ... {bad}") from None
+    if finite and not (np.abs(values) <= np.finfo(np.float32).max).all():
+        row = int(np.searchsorted(np.cumsum(counts), np.argmin(np.abs(values) <= np.finfo(np.float32).max), "right"))
+        raise InputFormatError(f"{name}: {kind} record {row + 1:,} holds a number float32 cannot carry (NaN, infinite "
+                               f"or beyond 3.4e38): {_printable(kind + ' ' + records[row])[:60]}")
     if (counts == width).all():
         return values.reshape(-1, width)
     out = np.full((len(records), width), np.nan)
@@ -318,6 +327,13 @@ def _rows(records: list, widths: tuple, kind: str, name: str) -> np.ndarray:
         rows = np.flatnonzero(counts == w)
         out[rows, :w] = values[starts[rows, None] + np.arange(w)]
     return out
+
+
+def _printable(text: str) -> str:
+    """``text`` as a message quotes it: its whitespace runs one space, any other character that does not print
+    (a terminal's escape sequence) escaped."""
+    text = " ".join(text.split())
+    return text if text.isprintable() else "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
 def _is_number(token: str) -> bool:
