@@ -169,7 +169,9 @@ def _shown(ref: str) -> str:
 def texture_image(blob: bytes, ref: str, notices: list) -> tuple | None:
     """``(bytes, media type)`` of a texture file's bytes as glTF 2.0 core takes them: a PNG or JPEG byte for
     byte; another format Pillow reads (TGA, BMP, TIFF, ...) re-written as a PNG of the same pixels, with a
-    notice; None, with a notice, for bytes no image format reads."""
+    notice; None, with a notice, for bytes no image format reads, and for an image of more pixels than Pillow
+    decodes without calling it a decompression bomb (``Image.MAX_IMAGE_PIXELS``; a BMP header of 54 bytes may
+    declare 10^8 pixels), never decoded."""
     from .format.document import sniff_image
 
     kind = sniff_image(blob)
@@ -178,13 +180,19 @@ def texture_image(blob: bytes, ref: str, notices: list) -> tuple | None:
     from PIL import Image, UnidentifiedImageError
 
     try:
-        with Image.open(io.BytesIO(blob)) as img:
-            img.load()
-            if img.mode not in ("RGB", "RGBA", "L", "LA"):
-                img = img.convert("RGBA" if "A" in img.getbands() or "transparency" in img.info else "RGB")
-            out = io.BytesIO()
-            img.save(out, format="PNG")
-    except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError) as exc:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)  # open() warns, and load() would decode
+            with Image.open(io.BytesIO(blob)) as img:
+                img.load()
+                if img.mode not in ("RGB", "RGBA", "L", "LA"):
+                    img = img.convert("RGBA" if "A" in img.getbands() or "transparency" in img.info else "RGB")
+                out = io.BytesIO()
+                img.save(out, format="PNG")
+    except (Image.DecompressionBombError, Image.DecompressionBombWarning):
+        notices.append(f"the texture {_shown(ref)} declares more pixels than the limit of {Image.MAX_IMAGE_PIXELS:,} "
+                       "(a decompression bomb?): left out")
+        return None
+    except (UnidentifiedImageError, OSError, ValueError) as exc:
         notices.append(f"the texture {_shown(ref)} is not an image Pillow reads ({str(exc)[:60]}): left out")
         return None
     notices.append(f"the texture {_shown(ref)} re-written as PNG (glTF takes PNG or JPEG)")
