@@ -34,6 +34,7 @@ import io
 import os
 import re
 import warnings
+import zlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -167,14 +168,18 @@ def _shown(ref: str) -> str:
 
 
 def texture_image(blob: bytes, ref: str, notices: list) -> tuple | None:
-    """``(bytes, media type)`` of a texture file's bytes as glTF 2.0 core takes them: a PNG or JPEG byte for
-    byte; another format Pillow reads (TGA, BMP, TIFF, ...) re-written as a PNG of the same pixels, with a
+    """``(bytes, media type)`` of a texture file's bytes as glTF 2.0 core takes them: a PNG (whole:
+    :func:`_png_damage`) or JPEG byte for byte; another format Pillow reads (TGA, BMP, TIFF, ...) re-written as a PNG of the same pixels, with a
     notice; None, with a notice, for bytes no image format reads, and for an image of more pixels than Pillow
     decodes without calling it a decompression bomb (``Image.MAX_IMAGE_PIXELS``; a BMP header of 54 bytes may
     declare 10^8 pixels), never decoded."""
     from .format.document import sniff_image
 
     kind = sniff_image(blob)
+    damage = _png_damage(blob) if kind == "image/png" else None
+    if damage is not None:
+        notices.append(f"the texture {_shown(ref)} is a damaged PNG ({damage}): left out")
+        return None
     if kind in ("image/png", "image/jpeg"):
         return blob, kind
     from PIL import Image, UnidentifiedImageError
@@ -197,6 +202,27 @@ def texture_image(blob: bytes, ref: str, notices: list) -> tuple | None:
         return None
     notices.append(f"the texture {_shown(ref)} re-written as PNG (glTF takes PNG or JPEG)")
     return out.getvalue(), "image/png"
+
+
+def _png_damage(blob: bytes) -> str | None:
+    """What is wrong with the chunks of a PNG's bytes (``blob``, the signature checked), or None: an ``IHDR``
+    first, every chunk whole with its CRC, an ``IEND`` last.  No pixel is decoded (a PNG is embedded byte for
+    byte, and a viewer decodes it: a truncated or corrupt one would be a texture no viewer shows)."""
+    pos, first = 8, True
+    while pos + 12 <= len(blob):
+        length = int.from_bytes(blob[pos:pos + 4], "big")
+        kind = blob[pos + 4:pos + 8]
+        end = pos + 12 + length
+        if first and kind != b"IHDR":
+            return "no IHDR chunk first"
+        if end > len(blob):
+            return f"truncated in its {kind.decode('latin-1')!r} chunk"
+        if zlib.crc32(blob[pos + 4:end - 4]) != int.from_bytes(blob[end - 4:end], "big"):
+            return f"the CRC of its {kind.decode('latin-1')!r} chunk does not match"
+        if kind == b"IEND":
+            return None
+        pos, first = end, False
+    return "truncated: no IEND chunk"
 
 
 # -- Wavefront OBJ ------------------------------------------------------------------------------------------
