@@ -169,10 +169,10 @@ def _shown(ref: str) -> str:
 
 def texture_image(blob: bytes, ref: str, notices: list) -> tuple | None:
     """``(bytes, media type)`` of a texture file's bytes as glTF 2.0 core takes them: a PNG (whole:
-    :func:`_png_damage`) or JPEG byte for byte; another format Pillow reads (TGA, BMP, TIFF, ...) re-written as a PNG of the same pixels, with a
-    notice; None, with a notice, for bytes no image format reads, and for an image of more pixels than Pillow
-    decodes without calling it a decompression bomb (``Image.MAX_IMAGE_PIXELS``; a BMP header of 54 bytes may
-    declare 10^8 pixels), never decoded."""
+    :func:`_png_damage`) or JPEG byte for byte; another format Pillow reads (TGA, BMP, TIFF, ...) re-written
+    as a PNG of the same pixels, with a notice; None, with a notice, for bytes no image format reads, a damaged
+    PNG, and an image of more pixels than Pillow decodes without calling it a decompression bomb
+    (``Image.MAX_IMAGE_PIXELS``; a BMP header of 54 bytes may declare 10^8 pixels), never decoded."""
     from .format.document import sniff_image
 
     kind = sniff_image(blob)
