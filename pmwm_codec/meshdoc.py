@@ -34,6 +34,7 @@ import io
 import os
 import re
 import warnings
+import zlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -167,28 +168,61 @@ def _shown(ref: str) -> str:
 
 
 def texture_image(blob: bytes, ref: str, notices: list) -> tuple | None:
-    """``(bytes, media type)`` of a texture file's bytes as glTF 2.0 core takes them: a PNG or JPEG byte for
-    byte; another format Pillow reads (TGA, BMP, TIFF, ...) re-written as a PNG of the same pixels, with a
-    notice; None, with a notice, for bytes no image format reads."""
+    """``(bytes, media type)`` of a texture file's bytes as glTF 2.0 core takes them: a PNG (whole:
+    :func:`_png_damage`) or JPEG byte for byte; another format Pillow reads (TGA, BMP, TIFF, ...) re-written
+    as a PNG of the same pixels, with a notice; None, with a notice, for bytes no image format reads, a damaged
+    PNG, and an image of more pixels than Pillow decodes without calling it a decompression bomb
+    (``Image.MAX_IMAGE_PIXELS``; a BMP header of 54 bytes may declare 10^8 pixels), never decoded."""
     from .format.document import sniff_image
 
     kind = sniff_image(blob)
+    damage = _png_damage(blob) if kind == "image/png" else None
+    if damage is not None:
+        notices.append(f"the texture {_shown(ref)} is a damaged PNG ({damage}): left out")
+        return None
     if kind in ("image/png", "image/jpeg"):
         return blob, kind
     from PIL import Image, UnidentifiedImageError
 
     try:
-        with Image.open(io.BytesIO(blob)) as img:
-            img.load()
-            if img.mode not in ("RGB", "RGBA", "L", "LA"):
-                img = img.convert("RGBA" if "A" in img.getbands() or "transparency" in img.info else "RGB")
-            out = io.BytesIO()
-            img.save(out, format="PNG")
-    except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError) as exc:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)  # open() warns, and load() would decode
+            with Image.open(io.BytesIO(blob)) as img:
+                img.load()
+                if img.mode not in ("RGB", "RGBA", "L", "LA"):
+                    img = img.convert("RGBA" if "A" in img.getbands() or "transparency" in img.info else "RGB")
+                out = io.BytesIO()
+                img.save(out, format="PNG")
+    except (Image.DecompressionBombError, Image.DecompressionBombWarning):
+        notices.append(f"the texture {_shown(ref)} declares more pixels than the limit of {Image.MAX_IMAGE_PIXELS:,} "
+                       "(a decompression bomb?): left out")
+        return None
+    except (UnidentifiedImageError, OSError, ValueError) as exc:
         notices.append(f"the texture {_shown(ref)} is not an image Pillow reads ({str(exc)[:60]}): left out")
         return None
     notices.append(f"the texture {_shown(ref)} re-written as PNG (glTF takes PNG or JPEG)")
     return out.getvalue(), "image/png"
+
+
+def _png_damage(blob: bytes) -> str | None:
+    """What is wrong with the chunks of a PNG's bytes (``blob``, the signature checked), or None: an ``IHDR``
+    first, every chunk whole with its CRC, an ``IEND`` last.  No pixel is decoded (a PNG is embedded byte for
+    byte, and a viewer decodes it: a truncated or corrupt one would be a texture no viewer shows)."""
+    pos, first = 8, True
+    while pos + 12 <= len(blob):
+        length = int.from_bytes(blob[pos:pos + 4], "big")
+        kind = blob[pos + 4:pos + 8]
+        end = pos + 12 + length
+        if first and kind != b"IHDR":
+            return "no IHDR chunk first"
+        if end > len(blob):
+            return f"truncated in its {kind.decode('latin-1')!r} chunk"
+        if zlib.crc32(blob[pos + 4:end - 4]) != int.from_bytes(blob[end - 4:end], "big"):
+            return f"the CRC of its {kind.decode('latin-1')!r} chunk does not match"
+        if kind == b"IEND":
+            return None
+        pos, first = end, False
+    return "truncated: no IEND chunk"
 
 
 # -- Wavefront OBJ ------------------------------------------------------------------------------------------
@@ -214,13 +248,26 @@ def read_appearance(path) -> tuple:
     size = os.stat(path).st_size
     if size > MAX_INPUT_FILE_BYTES:
         return None, []  # read_mesh names it
-    text = _mesh_text(read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name), name, "OBJ")
+    text = _one_line_end(_mesh_text(read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name), name, "OBJ"))
     if "#" in text:
         text = re.sub(r"#[^\n]*", "", text)
     doc, notices = obj_document(path, text)
     if doc is None and re.search(r"^[ \t]*vn[ \t]", text, re.M):
         notices.append("normals (vn) not carried: the .pmw holds positions, and viewers shade it from them")
     return doc, notices
+
+
+#: What ends a line besides a line feed for :meth:`str.splitlines`, as :func:`~pmwm_codec.mesh.read_mesh` reads an
+#: OBJ (a classic Mac OS file's CR; NEL, byte 0x85, in a Latin-1 text) and :func:`_parse_mtl` an MTL.
+_LINE_BREAKS = re.compile(r"[\r\x0b\x0c\x1c-\x1e\x85\u2028\u2029]")
+
+
+def _one_line_end(text: str) -> str:
+    """``text`` with every line ended by a line feed (the records' regular expressions read lines so): its lines
+    are those of ``text.splitlines()``."""
+    if "\r\n" in text:
+        text = text.replace("\r\n", "\n")
+    return _LINE_BREAKS.sub("\n", text)
 
 
 def obj_document(path, text: str) -> tuple:
@@ -246,11 +293,13 @@ def obj_document(path, text: str) -> tuple:
         bodies.append(m.group(2))
     notices: list = []
     try:
-        v = _rows([b for k, b in zip(kinds, bodies) if k == "v"], (3, 4, 6, 7), "v", name)
-        vt = _rows([b for k, b in zip(kinds, bodies) if k == "vt"], (1, 2, 3), "vt", name)
+        v = _rows([b for k, b in zip(kinds, bodies) if k == "v"], (3, 4, 6, 7), "v", name, finite=True)
+        vt = _rows([b for k, b in zip(kinds, bodies) if k == "vt"], (1, 2, 3), "vt", name, finite=True)
         vn = _rows([b for k, b in zip(kinds, bodies) if k == "vn"], (3,), "vn", name)
+    except InputFormatError:
+        raise
     except ValueError as exc:
-        raise InputFormatError(f"{name}: malformed OBJ record: {str(exc)[:60]}") from None
+        raise InputFormatError(f"{name}: malformed OBJ record: {_printable(str(exc))[:60]}") from None
     if len(v) > MAX_ENCODE_VERTICES:
         raise InputFormatError(f"{name}: more than {MAX_ENCODE_VERTICES:,} vertices (the encoder's limit)")
     colours = None
@@ -281,9 +330,12 @@ def obj_document(path, text: str) -> tuple:
     return build_document(parts, kept, resources.images, os.path.splitext(name)[0]), notices
 
 
-def _rows(records: list, widths: tuple, kind: str, name: str) -> np.ndarray:
+def _rows(records: list, widths: tuple, kind: str, name: str, finite: bool = False) -> np.ndarray:
     """(n, w) float64 of ``records`` (the text after each keyword); w the widest record, narrower ones padded
-    with NaN; ValueError (the record) for a record of a width not in ``widths`` or a token that is no number."""
+    with NaN; ValueError (the record) for a record of a width not in ``widths`` or a token that is no number;
+    ``finite``: InputFormatError naming the first record holding a number float32 does not carry (NaN,
+    infinite, beyond its range: positions and texture coordinates, which a NaN would otherwise reach as the
+    padding's 0 or as an encoder's failure; a normal that is not finite is left out with a notice instead)."""
     if not records:
         return np.zeros((0, min(widths)))
     counts = np.fromiter((len(r.split()) for r in records), np.int64, len(records))
@@ -297,6 +349,10 @@ def _rows(records: list, widths: tuple, kind: str, name: str) -> np.ndarray:
     except ValueError:
         bad = next(t for t in flat if not _is_number(t))
         raise ValueError(f"{kind} ... {bad}") from None
+    if finite and not (np.abs(values) <= np.finfo(np.float32).max).all():
+        row = int(np.searchsorted(np.cumsum(counts), np.argmin(np.abs(values) <= np.finfo(np.float32).max), "right"))
+        raise InputFormatError(f"{name}: {kind} record {row + 1:,} holds a number float32 cannot carry (NaN, infinite "
+                               f"or beyond 3.4e38): {_printable(kind + ' ' + records[row])[:60]}")
     if (counts == width).all():
         return values.reshape(-1, width)
     out = np.full((len(records), width), np.nan)
@@ -305,6 +361,13 @@ def _rows(records: list, widths: tuple, kind: str, name: str) -> np.ndarray:
         rows = np.flatnonzero(counts == w)
         out[rows, :w] = values[starts[rows, None] + np.arange(w)]
     return out
+
+
+def _printable(text: str) -> str:
+    """``text`` as a message quotes it: its whitespace runs one space, any other character that does not print
+    (a terminal's escape sequence) escaped."""
+    text = " ".join(text.split())
+    return text if text.isprintable() else "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
 def _is_number(token: str) -> bool:

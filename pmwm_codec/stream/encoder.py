@@ -211,10 +211,11 @@ TEXCOORD_STEP_BITS = 13
 
 def _attribute_bits(semantic: str, values: np.ndarray | None = None) -> int:
     """Grid bits of a float attribute: :data:`ATTRIBUTE_BITS` by semantic prefix (others 14); TEXCOORD_n
-    as many more as its ``values`` (n, k) span needs (:data:`TEXCOORD_STEP_BITS`)."""
+    as many more as its ``values`` (n, k) span needs (:data:`TEXCOORD_STEP_BITS`); values that are not all
+    finite have no span (the grid names them: "TEXCOORD_0 values are not finite")."""
     prefix = semantic.split("_")[0]
     bits = ATTRIBUTE_BITS.get(prefix, 14)
-    if prefix == "TEXCOORD" and values is not None and values.size:
+    if prefix == "TEXCOORD" and values is not None and values.size and np.isfinite(values).all():
         span = float(np.ptp(values, axis=0).max())
         need = int(np.ceil(np.log2(span * float(1 << TEXCOORD_STEP_BITS) + 1.0)))
         bits = min(MAX_GRID_BITS, max(bits, need))
