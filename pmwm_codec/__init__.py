@@ -118,7 +118,12 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
     from .watermark.codec import CapacityError
 
     check_source(src)
-    check_destination(dst, inputs=(src, watermark))
+    named = ()  # the files a mesh file names (its MTL, textures, .gltf buffers): never replaced by the output
+    if isinstance(src, (str, os.PathLike)) and isinstance(dst, (str, bytes, os.PathLike)) and os.path.exists(dst):
+        from .meshdoc import named_files
+
+        named = tuple(named_files(src))
+    check_destination(dst, inputs=(src, watermark, *named))
     options = checked_options(options)
     image, notices, given = _as_watermark(watermark)
     from_key = None  # the key whose own image is the watermark (no watermark given)

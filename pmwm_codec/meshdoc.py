@@ -257,6 +257,53 @@ def read_appearance(path) -> tuple:
     return doc, notices
 
 
+def named_files(path) -> list:
+    """The real paths of the files the mesh file at ``path`` names besides itself and the encoder would read: a
+    ``.gltf``'s / GLB's buffers and images (:func:`~pmwm_codec.format.document.named_files`), an OBJ's MTL files
+    and the textures they name (every material's); each once, inside the file's folder, existing (what
+    cannot be read is left out: the encode names it).  An output must not replace one of them (``pmw encode
+    scan.obj -o skin.png``), and ``pmw batch``'s ledger covers them (a changed texture redoes its asset)."""
+    from .format.document import beside, named_files as gltf_named_files
+    from .mesh import _mesh_text
+    from .sources import read_regular_file
+
+    path = os.fspath(path)
+    suffix = os.path.splitext(path)[1].lower()
+    if suffix in (".gltf", ".glb"):
+        return gltf_named_files(path)
+    if suffix != ".obj":
+        return []
+    base_dir, out = os.path.dirname(os.path.abspath(path)), []
+
+    def found(ref: str) -> str | None:
+        try:
+            target = beside(ref, base_dir, ref)
+        except InputFormatError:
+            return None
+        if os.path.isfile(target) and target not in out:
+            out.append(target)
+            return target
+        return None
+
+    try:
+        text = _one_line_end(_mesh_text(read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError), path, "OBJ"))
+    except (InputFormatError, OSError):
+        return []
+    for record in re.findall(r"^[ \t]*mtllib[ \t]+([^\n#]*)", text, re.M):
+        for ref in _mtllib_names(record):
+            mtl = found(ref)
+            try:
+                materials = [] if mtl is None else _parse_mtl(_one_line_end(_mesh_text(
+                    read_regular_file(mtl, MAX_RESOURCE_BYTES, InputFormatError), mtl, "MTL")))
+            except (InputFormatError, OSError):
+                continue
+            for m in materials:
+                for ref_file in (m.texture_file, m.normal_file):
+                    if ref_file:
+                        found(ref_file)
+    return out
+
+
 #: What ends a line besides a line feed for :meth:`str.splitlines`, as :func:`~pmwm_codec.mesh.read_mesh` reads an
 #: OBJ (a classic Mac OS file's CR; NEL, byte 0x85, in a Latin-1 text) and :func:`_parse_mtl` an MTL.
 _LINE_BREAKS = re.compile(r"[\r\x0b\x0c\x1c-\x1e\x85\u2028\u2029]")

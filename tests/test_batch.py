@@ -614,3 +614,26 @@ def test_a_timeout_the_operating_system_cannot_wait_is_refused_before_any_work(l
         assert main(["batch", "encode", str(src), "-o", str(tmp_path / "out"), "--timeout", "inf"]) == 2
         err = capsys.readouterr().err
         assert err.startswith("pmw: error: --timeout must be") and len(err.splitlines()) == 1, err
+
+
+def test_a_changed_texture_or_mtl_redoes_its_asset_and_nothing_else(tmp_path, client):
+    from PIL import Image
+
+    from test_obj_appearance import _torus_obj
+
+    src = tmp_path / "src"
+    src.mkdir()
+    _torus_obj(str(src), "t.obj", mtl="t.mtl")
+    (src / "t.mtl").write_text("newmtl skin\nmap_Kd skin.png\n")
+    Image.new("RGB", (4, 4), (10, 20, 30)).save(src / "skin.png")
+    write_mesh(src / "plain.obj", shapes.icosphere(2, noise=0.01, seed=1))
+    out = tmp_path / "out"
+    assert encode_batch(src, out, client=client)["ok"] == 2
+    assert encode_batch(src, out, client=client)["skipped"] == 2
+    Image.new("RGB", (4, 4), (30, 20, 10)).save(src / "skin.png")  # the OBJ's own bytes unchanged
+    summary = encode_batch(src, out, client=client)
+    assert (summary["ok"], summary["skipped"]) == (1, 1)
+    glb = pmwm_codec.decode_asset(str(out / "t.obj.pmw"))
+    assert glb.find(open(src / "skin.png", "rb").read()) > 0  # the new texture is in the output
+    (src / "t.mtl").write_text("newmtl skin\nKd 1 0 0\nmap_Kd skin.png\n")
+    assert encode_batch(src, out, client=client)["ok"] == 1

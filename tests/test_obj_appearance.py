@@ -248,3 +248,38 @@ def test_a_face_naming_nothing_is_one_line_naming_it(tmp_path, face, message):
     with pytest.raises(pmwm_codec.PmwError, match=re.escape(message)):
         pmwm_codec.encode(str(path), str(tmp_path / "bad.pmw"))
     assert not (tmp_path / "bad.pmw").exists()
+
+
+@pytest.mark.parametrize("target", ["t.mtl", "skin.png"])
+def test_the_output_never_replaces_a_file_the_obj_names(tmp_path, target):
+    path, *_ = _torus_obj(str(tmp_path))
+    _png(tmp_path / "skin.png")
+    (tmp_path / "t.mtl").write_text("newmtl skin\nmap_Kd skin.png\n")
+    before = (tmp_path / target).read_bytes()
+    run = subprocess.run([sys.executable, "-m", "pmwm_codec", "encode", path, "-o", str(tmp_path / target)],
+                         capture_output=True, text=True)
+    assert run.returncode == 2 and "is also the input" in run.stderr and len(run.stderr.splitlines()) == 1
+    assert (tmp_path / target).read_bytes() == before
+
+
+def test_the_files_an_obj_names_are_its_mtl_and_every_material_texture_inside_its_folder(tmp_path):
+    path, *_ = _torus_obj(str(tmp_path))
+    (tmp_path / "t.mtl").write_text("newmtl skin\nmap_Kd skin.png\nnewmtl other\nnorm -bm 0.5 bump.png\n"
+                                    "newmtl out\nmap_Kd ../x.png\nnewmtl gone\nmap_Kd gone.png\n")
+    for name in ("skin.png", "bump.png"):
+        _png(tmp_path / name)
+    _png(tmp_path.parent / "x.png")
+    assert meshdoc.named_files(path) == [os.path.realpath(tmp_path / n) for n in ("t.mtl", "skin.png", "bump.png")]
+
+
+def test_the_files_a_gltf_names_are_its_external_buffers_and_images_inside_its_folder(tmp_path):
+    gltf = {"asset": {"version": "2.0"},
+            "buffers": [{"uri": "a.bin", "byteLength": 4}, {"uri": "data:application/octet-stream;base64,AAAA",
+                                                            "byteLength": 3}],
+            "images": [{"uri": "tex%20x.png"}, {"uri": "../escape.png"}, {"uri": "http://host/x.png"},
+                       {"uri": "a.bin"}, {"uri": "missing.png"}]}
+    (tmp_path / "s.gltf").write_text(json.dumps(gltf))
+    (tmp_path / "a.bin").write_bytes(b"\0" * 4)
+    _png(tmp_path / "tex x.png")
+    _png(tmp_path.parent / "escape.png")
+    assert meshdoc.named_files(str(tmp_path / "s.gltf")) == [os.path.realpath(tmp_path / n) for n in ("a.bin", "tex x.png")]

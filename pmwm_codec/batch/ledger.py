@@ -28,7 +28,7 @@ import hashlib
 import json
 import os
 
-__all__ = ["LEDGER_NAME", "FIELDS", "STATUSES", "read_ledger", "last_rows", "LedgerWriter", "sha256_file",
+__all__ = ["LEDGER_NAME", "FIELDS", "STATUSES", "read_ledger", "last_rows", "LedgerWriter", "sha256_file", "input_sha256",
            "settings_sha256"]
 
 LEDGER_NAME = "pmw-batch.jsonl"
@@ -47,6 +47,23 @@ def sha256_file(path, block: int = 1 << 20) -> str:
         for piece in iter(lambda: fh.read(block), b""):
             h.update(piece)
     return h.hexdigest()
+
+
+def input_sha256(path) -> str:
+    """Hex SHA-256 of an input as the encode reads it: the file's own (:func:`sha256_file`) when it names no other
+    file, else one over it and every file it names (a ``.gltf``'s buffers and images, an OBJ's MTL files and
+    their textures, a PLY's textures: :func:`pmwm_codec.meshdoc.named_files`), with their paths relative to the
+    input's folder -- so a re-run redoes an asset whose texture changed, or moved, as it does one whose own
+    bytes did.  InputFormatError / OSError as :func:`sha256_file` for the input itself."""
+    from pmwm_codec.meshdoc import named_files
+
+    own = sha256_file(path)
+    named = named_files(path)
+    if not named:
+        return own
+    folder = os.path.dirname(os.path.realpath(path))
+    files = [[os.path.relpath(f, folder), sha256_file(f)] for f in named]
+    return hashlib.sha256(json.dumps({"input": own, "files": files}).encode()).hexdigest()
 
 
 def settings_sha256(image, key_mode: str, key_fingerprint: str | None, options: dict | None = None) -> str:

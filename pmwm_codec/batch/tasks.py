@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pmwm_codec.errors import PmwError
 
 from .child import child_main
-from .ledger import sha256_file
+from .ledger import input_sha256, sha256_file
 from .sources import outside_root
 
 __all__ = ["EncodeJob", "encode_task", "verify_task"]
@@ -81,7 +81,7 @@ def encode_task(job: EncodeJob) -> dict:
     row["error"] = job.clash or outside_root(job.input, job.root)
     if row["error"] is None:
         try:
-            row["input_sha256"] = sha256_file(job.input)
+            row["input_sha256"] = input_sha256(job.input)
         except OSError as exc:
             row["error"] = f"{job.input}: {exc.strerror or exc}"
         except PmwError as exc:  # not a regular file: never read

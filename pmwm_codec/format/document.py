@@ -143,6 +143,29 @@ def sniff_json(path) -> dict | None:
     return gltf if isinstance(gltf, dict) else None
 
 
+def named_files(path) -> list:
+    """The real paths of the files the ``.gltf`` / GLB at ``path`` names besides itself -- buffers and images by a
+    ``uri`` that is not a ``data:`` URI -- that are regular files inside its folder (:func:`beside`), each once,
+    in the order named; a uri the encoder would refuse, or whose file is missing, is left out (the encode names
+    it).  What a record of the input must cover besides the file (``pmw batch``'s ledger)."""
+    gltf = sniff_json(path)
+    out = []
+    base_dir = os.path.dirname(os.path.abspath(path))
+    for key in ("buffers", "images"):
+        items = gltf.get(key) if gltf is not None else None
+        for item in items if isinstance(items, list) else []:
+            uri = item.get("uri") if isinstance(item, dict) else None
+            if not isinstance(uri, str) or uri.startswith("data:") or _SCHEME.match(uri):
+                continue
+            try:
+                target = beside(urllib.parse.unquote(uri), base_dir, uri)
+            except InputFormatError:
+                continue
+            if os.path.isfile(target) and target not in out:
+                out.append(target)
+    return out
+
+
 def uses_meshopt(gltf: dict) -> bool:
     """Whether a glTF JSON lists EXT_ / KHR_meshopt_compression in ``extensionsUsed`` (:mod:`.meshopt`)."""
     used = gltf.get("extensionsUsed")
