@@ -428,6 +428,20 @@ def _checked_glb(path) -> io.BytesIO:
     return io.BytesIO(join_glb(doc, data))
 
 
+#: What ends a line besides a line feed for :meth:`str.splitlines` (a classic Mac OS file's CR; NEL, byte 0x85,
+#: in a Latin-1 text; form feed; U+2028 ...).
+_LINE_BREAKS = re.compile(r"[\r\x0b\x0c\x1c-\x1e\x85\u2028\u2029]")
+
+
+def one_line_end(text: str) -> str:
+    """``text`` with every line ended by a line feed, so that a comment (``#`` to the end of its line) and a record
+    end where :meth:`str.splitlines` ends lines: its lines are those of ``text.splitlines()`` (an OBJ or OFF of CR
+    line ends with a comment lost every record after it)."""
+    if "\r\n" in text:
+        text = text.replace("\r\n", "\n")
+    return _LINE_BREAKS.sub("\n", text)
+
+
 def _read_obj(path, name):
     """Parse ``v`` and ``f`` records of a Wavefront OBJ; returns float64 and int64 arrays.
 
@@ -436,7 +450,7 @@ def _read_obj(path, name):
     face line's triangles are counted from its spaces before it is split), and
     every face index must name an existing vertex.
     """
-    text = _mesh_text(read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name), name, "OBJ")
+    text = one_line_end(_mesh_text(read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name), name, "OBJ"))
     if "#" in text:  # a comment runs to the end of its line, after a record too (f 1 2 3 # the lid)
         text = re.sub(r"#[^\n]*", "", text)
     lines = _obj_lines(text)
@@ -503,7 +517,7 @@ def _read_off(path, name) -> tuple:
     or 4D / nD OFF, a missing or malformed record, a face index past the vertices; MeshError for a file of no
     faces (a point cloud).  A face of one or two corners is a degenerate triangle, dropped and counted by
     :func:`checked_mesh` as an OBJ's is."""
-    text = _mesh_text(read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name), name, "OFF")
+    text = one_line_end(_mesh_text(read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name), name, "OFF"))
     if "#" in text:
         text = re.sub(r"#[^\n]*", "", text)
     lines = [line for line in text.splitlines() if line.strip()]
@@ -647,7 +661,7 @@ def _read_obj_columns(lines: list):
     record-by-record reader then reads or rejects with its message (limits, bad indices, comments,
     mixed polygons, a malformed record)."""
     verts = [line[2:] for line in lines if line.startswith("v ")]
-    polys = [line[2:] for line in lines if line.startswith("f ")]
+    polys = [line[2:] for line in lines if line.startswith("f ") and line[2:].strip()]  # "f" alone names nothing
     if not verts or not polys or len(verts) > MAX_ENCODE_VERTICES:
         return None
     if max(map(len, verts)) > _COLUMN_RECORD or max(map(len, polys)) > _COLUMN_RECORD:
@@ -670,7 +684,7 @@ def _read_obj_columns(lines: list):
     faces = np.stack([np.repeat(idx[:, 0], k - 2), idx[:, 1:-1].reshape(-1), idx[:, 2:].reshape(-1)], axis=1)
     if (faces < 0).any():  # relative indices count back from the vertices read before their record
         is_v = np.fromiter((line.startswith("v ") for line in lines), bool, len(lines))
-        is_f = np.fromiter((line.startswith("f ") for line in lines), bool, len(lines))
+        is_f = np.fromiter((line.startswith("f ") and bool(line[2:].strip()) for line in lines), bool, len(lines))
         before = np.repeat(np.cumsum(is_v)[is_f], k - 2)[:, None]
         if ((faces < 0) & (before + faces < 0)).any():
             return None  # an index before the first vertex: the record reader names it

@@ -41,6 +41,7 @@ import numpy as np
 
 from .constants import MAX_ENCODE_FACES, MAX_ENCODE_VERTICES, MAX_INPUT_FILE_BYTES, MAX_RESOURCE_BYTES
 from .errors import InputFormatError, MeshError
+from .mesh import one_line_end
 
 
 @dataclass
@@ -231,6 +232,7 @@ def _png_damage(blob: bytes) -> str | None:
 _MAP_OPTIONS = {"-blendu": 1, "-blendv": 1, "-boost": 1, "-mm": 2, "-o": 3, "-s": 3, "-t": 3, "-texres": 1,
                 "-clamp": 1, "-bm": 1, "-imfchan": 1, "-type": 1, "-cc": 1}
 _APPEARANCE = re.compile(r"^[ \t]*(?:vt[ \t]|mtllib[ \t]|usemtl[ \t])", re.M)
+_COLOURED = re.compile(r"^[ \t]*v(?:[ \t]+[^ \t\n]+){6}", re.M)
 _RECORD = re.compile(r"^[ \t]*(v|vt|vn|f|usemtl|mtllib)[ \t]+([^\n]*)", re.M)
 
 
@@ -248,7 +250,7 @@ def read_appearance(path) -> tuple:
     size = os.stat(path).st_size
     if size > MAX_INPUT_FILE_BYTES:
         return None, []  # read_mesh names it
-    text = _one_line_end(_mesh_text(read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name), name, "OBJ"))
+    text = one_line_end(_mesh_text(read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name), name, "OBJ"))
     if "#" in text:
         text = re.sub(r"#[^\n]*", "", text)
     doc, notices = obj_document(path, text)
@@ -286,14 +288,14 @@ def named_files(path) -> list:
         return None
 
     try:
-        text = _one_line_end(_mesh_text(read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError), path, "OBJ"))
+        text = one_line_end(_mesh_text(read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError), path, "OBJ"))
     except (InputFormatError, OSError):
         return []
     for record in re.findall(r"^[ \t]*mtllib[ \t]+([^\n#]*)", text, re.M):
         for ref in _mtllib_names(record):
             mtl = found(ref)
             try:
-                materials = [] if mtl is None else _parse_mtl(_one_line_end(_mesh_text(
+                materials = [] if mtl is None else _parse_mtl(one_line_end(_mesh_text(
                     read_regular_file(mtl, MAX_RESOURCE_BYTES, InputFormatError), mtl, "MTL")))
             except (InputFormatError, OSError):
                 continue
@@ -302,19 +304,6 @@ def named_files(path) -> list:
                     if ref_file:
                         found(ref_file)
     return out
-
-
-#: What ends a line besides a line feed for :meth:`str.splitlines`, as :func:`~pmwm_codec.mesh.read_mesh` reads an
-#: OBJ (a classic Mac OS file's CR; NEL, byte 0x85, in a Latin-1 text) and :func:`_parse_mtl` an MTL.
-_LINE_BREAKS = re.compile(r"[\r\x0b\x0c\x1c-\x1e\x85\u2028\u2029]")
-
-
-def _one_line_end(text: str) -> str:
-    """``text`` with every line ended by a line feed (the records' regular expressions read lines so): its lines
-    are those of ``text.splitlines()``."""
-    if "\r\n" in text:
-        text = text.replace("\r\n", "\n")
-    return _LINE_BREAKS.sub("\n", text)
 
 
 def obj_document(path, text: str) -> tuple:
@@ -330,15 +319,13 @@ def obj_document(path, text: str) -> tuple:
     name = os.path.basename(path)
     has_colours = False
     if _APPEARANCE.search(text) is None:
-        first = re.search(r"^[ \t]*v[ \t]+([^\n]*)", text, re.M)
-        if first is None or len(first.group(1).split()) < 6:
-            return None, []  # no vt, no material, no colour on the first vertex: geometry only
+        if _COLOURED.search(text) is None:
+            return None, []  # no vt, no material, no v record of six numbers or more: geometry only
         has_colours = True
     kinds, bodies = [], []
     for m in _RECORD.finditer(text):
         kinds.append(m.group(1))
         bodies.append(m.group(2))
-    notices: list = []
     try:
         v = _rows([b for k, b in zip(kinds, bodies) if k == "v"], (3, 4, 6, 7), "v", name, finite=True)
         vt = _rows([b for k, b in zip(kinds, bodies) if k == "vt"], (1, 2, 3), "vt", name, finite=True)
@@ -349,12 +336,15 @@ def obj_document(path, text: str) -> tuple:
         raise InputFormatError(f"{name}: malformed OBJ record: {_printable(str(exc))[:60]}") from None
     if len(v) > MAX_ENCODE_VERTICES:
         raise InputFormatError(f"{name}: more than {MAX_ENCODE_VERTICES:,} vertices (the encoder's limit)")
-    colours = None
+    colours, notices = None, []
     if v.shape[1] >= 6 and not np.isnan(v[:, 3:6]).any():
         colours = v[:, 3:6] if v.shape[1] == 6 else v[:, 4:7]  # x y z r g b, or x y z w r g b
         colours = np.clip(colours / (255.0 if colours.max() > 1.0 else 1.0), 0.0, 1.0)
-    elif has_colours:
-        return None, []
+    elif has_colours or v.shape[1] >= 6:
+        notices = [f"vertex colours left out: {int(np.isnan(v[:, 3:6]).any(axis=1).sum()):,} of {len(v):,} v records "
+                   "have none"]
+        if has_colours:
+            return None, notices
     positions = v[:, :3]
     resources = Resources(path, notices)
     materials, by_name = _obj_materials([b for k, b in zip(kinds, bodies) if k == "mtllib"], resources)
@@ -513,10 +503,10 @@ def _map_file(words: list) -> str:
         n = _MAP_OPTIONS[words[i].lower()]
         i += 1
         taken = 0
-        while taken < n and i < len(words) - 1 and (_is_number(words[i]) or words[i] in ("on", "off")):
+        while taken < n and i < len(words) and (_is_number(words[i]) or words[i] in ("on", "off")):
             i += 1
             taken += 1
-    return " ".join(words[i:]).replace("\\", "/")
+    return " ".join(words[i:]).replace("\\", "/")  # "" for options alone (map_Kd -s 1 1 1): no file
 
 
 def _obj_faces(kinds: list, bodies: list, name: str, by_name: dict) -> tuple:

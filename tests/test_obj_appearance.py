@@ -283,3 +283,35 @@ def test_the_files_a_gltf_names_are_its_external_buffers_and_images_inside_its_f
     _png(tmp_path / "tex x.png")
     _png(tmp_path.parent / "escape.png")
     assert meshdoc.named_files(str(tmp_path / "s.gltf")) == [os.path.realpath(tmp_path / n) for n in ("a.bin", "tex x.png")]
+
+
+def test_colours_on_only_some_vertices_are_left_out_with_a_notice(tmp_path):
+    path = tmp_path / "c.obj"
+    mesh = shapes.icosphere(2)
+    rows = [f"v {x} {y} {z}" + (" 1 0 0" if i % 2 else "") for i, (x, y, z) in enumerate(mesh.positions)]
+    path.write_text("\n".join(rows + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in mesh.faces]) + "\n")
+    report = pmwm_codec.encode(str(path), io.BytesIO())
+    assert any(n.startswith(f"vertex colours left out: {len(rows) // 2:,} of {len(rows):,}") for n in report["notices"])
+
+
+def test_a_map_statement_of_options_alone_names_no_texture():
+    assert meshdoc._map_file("-s 1 1 1".split()) == ""
+    assert meshdoc._map_file("-s 1 1 1 1.png".split()) == "1.png"
+    assert meshdoc._map_file("-bm 0.5 my skin.png".split()) == "my skin.png"
+    assert meshdoc._map_file("-clamp on textures\\skin.png".split()) == "textures/skin.png"
+
+
+@pytest.mark.parametrize("end", ["\r", "\r\n", "\n"])
+def test_an_obj_of_any_line_end_with_comments_reads_every_record(tmp_path, end):
+    mesh = shapes.icosphere(1)
+    rows = ["# made by hand"] + [f"v {x} {y} {z} # a vertex" for x, y, z in mesh.positions]
+    rows += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in mesh.faces]
+    (tmp_path / "m.obj").write_bytes(end.join(rows).encode() + end.encode())
+    got = read_mesh(str(tmp_path / "m.obj"))
+    assert got.vertex_count == len(mesh.positions) and got.face_count == len(mesh.faces)
+
+
+def test_an_empty_face_record_beside_relative_indices_reads_as_the_record_reader_does(tmp_path):
+    # the column reader counted "f" alone among the faces whose relative indices it resolved: a ValueError
+    (tmp_path / "m.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf \nf 1 2 3 -1\n")
+    assert read_mesh(str(tmp_path / "m.obj")).faces.tolist() == [[0, 1, 2], [0, 2, 3]]
