@@ -113,3 +113,25 @@ def test_js_decoder_matches_python_on_an_asset_whose_primitives_carry_different_
     assert len(python) > 2 and len(python[-1]["parts"]) == 2
     js, end = _js_levels(node, dst)
     assert end["complete"] and js == python
+
+
+def test_js_decoder_matches_python_on_a_textured_coloured_obj_of_two_materials(tmp_path):
+    """An OBJ's appearance (pmwm_codec.meshdoc) streams as an asset: per-material primitives with TEXCOORD_0 and
+    COLOR_0; the JavaScript decoder reads every level of it as the Python one does."""
+    from test_obj_appearance import _torus_obj
+
+    node = _node()
+    path, *_ = _torus_obj(str(tmp_path), "t.obj", mtl="t.mtl", colours=True)
+    lines = open(path).read().splitlines()
+    faces = sorted((line for line in lines if line.startswith("f ")),
+                   key=lambda f: min(int(c.split("/")[0]) for c in f.split()[1:]))  # by ring: positions are
+    half = len(faces) // 2
+    lines = [line for line in lines if not line.startswith("f ")] + faces[:half] + ["usemtl bark"] + faces[half:]
+    (tmp_path / "t.obj").write_text("\n".join(lines) + "\n")  # the torus's second half another material
+    (tmp_path / "t.mtl").write_text("newmtl skin\nKd 0.8 0.5 0.4\nnewmtl bark\nKd 0.3 0.2 0.1\n")
+    dst = tmp_path / "t.pmw"
+    pmwm_codec.encode(path, str(dst), measure=False)
+    python = _python_levels(dst.read_bytes())
+    assert len(python) > 2 and len(python[-1]["parts"]) == 2
+    js, end = _js_levels(node, dst)
+    assert end["complete"] and js == python
