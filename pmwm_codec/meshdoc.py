@@ -670,13 +670,30 @@ def _obj_parts(positions, vt, vn, colours, corners, face_material, notices, name
 def _unique_corners(c: np.ndarray) -> tuple:
     """``(unique (u, 3) int64, inverse (c,) int64)`` of the corner triples ``c`` (c, 3) int64 (-1 for none), as
     ``np.unique(c, axis=0, return_inverse=True)`` gives them, through two 1-D uniques of int64 keys (~4x faster
-    than sorting rows)."""
-    t_span, n_span = int(c[:, 1].max()) + 2, int(c[:, 2].max()) + 2
-    pairs, first = np.unique(c[:, 0] * t_span + (c[:, 1] + 1), return_inverse=True)
-    keys, inverse = np.unique(first.reshape(-1) * n_span + (c[:, 2] + 1), return_inverse=True)
+    than sorting rows).  A column equal to the position's (a PLY's texture coordinates and normals, which are
+    its vertices') is left out of the keys, and keys of a small range are made unique through a table
+    (:func:`_unique_keys`): a 1M-vertex coloured PLY's corners in 0.1 s instead of 1.4."""
+    same = [j for j in (1, 2) if np.array_equal(c[:, j], c[:, 0])]
+    t, n = (np.full(len(c), -1, np.int64) if j in same else c[:, j] for j in (1, 2))
+    t_span, n_span = int(t.max()) + 2, int(n.max()) + 2
+    pairs, first = _unique_keys(c[:, 0] * t_span + (t + 1))
+    keys, inverse = _unique_keys(first * n_span + (n + 1))
     pair = pairs[keys // n_span]
     unique = np.stack([pair // t_span, pair % t_span - 1, keys % n_span - 1], axis=1)
-    return unique, inverse.reshape(-1)
+    unique[:, same] = unique[:, :1]
+    return unique, inverse
+
+
+def _unique_keys(keys: np.ndarray) -> tuple:
+    """``np.unique(keys, return_inverse=True)`` (the inverse flat) of non-negative int64 ``keys``: through a
+    table of their range where it is at most four times their count (no sort), else numpy's."""
+    top = int(keys.max())
+    if top < 4 * len(keys) + 1024:
+        seen = np.zeros(top + 1, bool)
+        seen[keys] = True
+        return np.flatnonzero(seen), (np.cumsum(seen) - 1)[keys]
+    values, inverse = np.unique(keys, return_inverse=True)
+    return values, inverse.reshape(-1)
 
 
 def _part_name(material: int) -> str:

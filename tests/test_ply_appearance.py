@@ -379,3 +379,21 @@ def test_a_large_coloured_ply_reads_with_whole_array_operations():
     (gltf, _), notices = ply_document("m.ply", data)
     assert time.perf_counter() - start < 1.0 and notices == []
     assert gltf["accessors"][0]["count"] == n
+
+
+@settings(max_examples=200, deadline=None)
+@given(rows=st.integers(1, 300), high=st.sampled_from([2, 40, 10 ** 6, 2 ** 20]),
+       same=st.sampled_from([(), (1,), (2,), (1, 2)]), none=st.sampled_from([(), (1,), (2,)]),
+       seed=st.integers(0, 2 ** 32 - 1))
+def test_corners_made_unique_by_keys_as_numpy_makes_them_by_row(rows, high, same, none, seed):
+    """meshdoc._unique_corners (a PLY's texture coordinates and normals often the vertex's own index) is
+    np.unique(axis=0)."""
+    from pmwm_codec.meshdoc import _unique_corners
+
+    c = np.random.default_rng(seed).integers(-1, high, (rows, 3))
+    c[:, 0] = np.abs(c[:, 0])
+    c[:, list(same)] = c[:, :1]
+    c[:, list(none)] = -1
+    unique, inverse = np.unique(c, axis=0, return_inverse=True)
+    mine = _unique_corners(c)
+    assert np.array_equal(mine[0], unique) and np.array_equal(mine[1], inverse.reshape(-1))
