@@ -268,7 +268,8 @@ def read_appearance(path) -> tuple:
 def named_files(path) -> list:
     """The real paths of the files the mesh file at ``path`` names besides itself and the encoder would read: a
     ``.gltf``'s / GLB's buffers and images (:func:`~pmwm_codec.format.document.named_files`), an OBJ's MTL files
-    and the textures they name (every material's); each once, inside the file's folder, existing (what
+    and the textures they name (every material's), a PLY's ``TextureFile`` textures (where it has texture
+    coordinates to map them: :func:`ply_document`); each once, inside the file's folder, existing (what
     cannot be read is left out: the encode names it).  An output must not replace one of them (``pmw encode
     scan.obj -o skin.png``), and ``pmw batch``'s ledger covers them (a changed texture redoes its asset)."""
     from .format.document import beside, named_files as gltf_named_files
@@ -279,7 +280,7 @@ def named_files(path) -> list:
     suffix = os.path.splitext(path)[1].lower()
     if suffix in (".gltf", ".glb"):
         return gltf_named_files(path)
-    if suffix != ".obj":
+    if suffix not in (".obj", ".ply"):
         return []
     base_dir, out = os.path.dirname(os.path.abspath(path)), []
 
@@ -293,6 +294,10 @@ def named_files(path) -> list:
             return target
         return None
 
+    if suffix == ".ply":
+        for ref in _ply_texture_files(path):
+            found(ref)
+        return out
     try:
         text = one_line_end(_mesh_text(read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError), path, "OBJ"))
     except (InputFormatError, OSError):
@@ -725,6 +730,19 @@ def _ply_appearance(path: str, name: str) -> tuple:
     return ply_document(path, read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name))
 
 
+def _ply_texture_files(path: str) -> list:
+    """The texture file names in the header of the PLY at ``path`` when it has
+    texture coordinates to map them, else none (nor for a header that does not parse)."""
+    from .ply import header_look
+
+    try:
+        with open(path, "rb") as fh:
+            look = header_look(fh.read(1 << 16), path)
+    except (InputFormatError, OSError):
+        return []
+    return look.textures if look.uv or look.wedge else []
+
+
 def ply_document(path, data: bytes) -> tuple:
     """``((gltf, buffers), notices)`` of the PLY file ``data`` (at ``path``) that carries appearance
     (:func:`pmwm_codec.ply.read_appearance`): vertex colours as COLOR_0, texture coordinates -- per vertex,
@@ -759,8 +777,8 @@ def ply_document(path, data: bytes) -> tuple:
     if ply.textures and not len(vt):
         notices += [f"the texture {_shown(t)} not carried: the PLY has no texture coordinates" for t in ply.textures]
     elif ply.textures:
-        materials = [Material(os.path.splitext(os.path.basename(t.replace("\\", "/")))[0] or f"texture {i}",
-                              texture_file=t.replace("\\", "/")) for i, t in enumerate(ply.textures)]
+        materials = [Material(os.path.splitext(os.path.basename(t))[0] or f"texture {i}",
+                              texture_file=t) for i, t in enumerate(ply.textures)]
         if ply.texnumber is None:
             face_material[:] = 0
             notices += [f"the texture {_shown(t)} not carried: no face names it (no texnumber)"

@@ -96,10 +96,12 @@ def _look(head: bytes, elements: list) -> Look:
 
 
 def _name(raw: bytes) -> str:
+    """A texture file name of a header, backslashes (a Windows exporter's) read as slashes."""
     try:
-        return raw.decode("utf-8")
+        text = raw.decode("utf-8")
     except UnicodeDecodeError:
-        return raw.decode("latin-1")
+        text = raw.decode("latin-1")
+    return text.replace("\\", "/")
 
 
 @dataclass
@@ -132,9 +134,9 @@ def read_appearance(data: bytes, name: str, max_faces: int) -> Appearance:
     vertex, face = found["vertex"], found.get("face", {})
     colours = uv = normals = wedge = texnumber = None
     if look.colour:
-        colours = np.stack([_unit(vertex[p], kinds[p]) for p in look.colour], axis=1)
+        colours = np.stack([_unit(_carried(vertex[p], "vertex", "colour", name), kinds[p]) for p in look.colour], 1)
     if look.uv:
-        uv = np.stack([np.asarray(vertex[p], np.float64) for p in look.uv], axis=1)
+        uv = np.stack([_carried(vertex[p], "vertex", "texture coordinate", name) for p in look.uv], axis=1)
     if look.normal:
         normals = np.stack([np.asarray(vertex[p], np.float64) for p in NORMAL_NAMES], axis=1)
     strips = len(faces) - (0 if fans is None else len(fans[0]))
@@ -146,11 +148,25 @@ def read_appearance(data: bytes, name: str, max_faces: int) -> Appearance:
             i = int(bad[0])
             raise InputFormatError(f"{name}: PLY face {i} has {int(lengths[i])} texcoord values for its "
                                    f"{int(corners[i])} corners (two a corner)")
-        pairs = np.asarray(items, np.float64).reshape(-1, 2)
+        pairs = _carried(items, "face", "texcoord value", name, np.cumsum(lengths)).reshape(-1, 2)
         wedge = np.concatenate([pairs[fans[0]], np.full((strips, 3, 2), np.nan)])
     if look.texnumber and fans is not None:
         texnumber = np.concatenate([np.asarray(face[TEXNUMBER], np.int64)[fans[1]], np.full(strips, -1, np.int64)])
     return Appearance(positions, faces, colours, uv, normals, wedge, texnumber, look.textures)
+
+
+def _carried(values: np.ndarray, element: str, what: str, name: str, ends=None) -> np.ndarray:
+    """``values`` as float64, refused (InputFormatError naming the first record: the one whose list ends past
+    it where ``ends`` gives where each record's list ends) where one is a number float32 does not carry (NaN,
+    infinite, beyond its range), as an OBJ's are: glTF's attributes are float32."""
+    values = np.asarray(values, np.float64)
+    bad = ~(np.abs(values) <= np.finfo(np.float32).max)
+    if bad.any():
+        at = int(np.argmax(bad))
+        record = at if ends is None else int(np.searchsorted(ends, at, "right"))
+        raise InputFormatError(f"{name}: PLY {element} {record:,} has a {what} float32 cannot carry (NaN, infinite "
+                               "or beyond 3.4e38)")
+    return values
 
 
 def _unit(values: np.ndarray, kind: str) -> np.ndarray:

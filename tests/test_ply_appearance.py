@@ -397,3 +397,57 @@ def test_corners_made_unique_by_keys_as_numpy_makes_them_by_row(rows, high, same
     unique, inverse = np.unique(c, axis=0, return_inverse=True)
     mine = _unique_corners(c)
     assert np.array_equal(mine[0], unique) and np.array_equal(mine[1], inverse.reshape(-1))
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+@pytest.mark.parametrize("what, says", [
+    ("colour", "PLY vertex 5 has a colour float32 cannot carry"),
+    ("uv", "PLY vertex 5 has a texture coordinate float32 cannot carry"),
+    ("texcoord", "PLY face 3 has a texcoord value float32 cannot carry"),
+])
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -1e300])
+def test_an_attribute_float32_cannot_carry_is_refused_in_one_line_naming_its_record(tmp_path, fmt, what, says, bad):
+    positions, faces = sphere()
+    n = len(positions)
+    values = np.where(np.arange(n) == 5, bad, 0.5)
+    vertex, face = xyz(positions), corners(faces)
+    if what == "colour":
+        vertex += [(c, "double", values) for c in ("red", "green", "blue")]
+    elif what == "uv":
+        vertex += [("u", "double", values), ("v", "double", np.full(n, 0.5))]
+    else:
+        wedge = np.full((len(faces), 6), 0.5)
+        wedge[3, 4] = bad
+        face += [("texcoord", "list uchar double", wedge)]
+    (tmp_path / "m.ply").write_bytes(ply_bytes(fmt, vertex, face))
+    with pytest.raises(InputFormatError) as err:
+        encoded(tmp_path / "m.ply")
+    assert str(err.value).startswith(f"m.ply: {says} (NaN, infinite") and "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("target", ["red.png", "m.ply"])
+def test_the_output_never_replaces_the_texture_a_ply_names(tmp_path, capsys, target):
+    from pmwm_codec.meshdoc import named_files
+
+    positions, faces, uv = seamed_sphere()
+    Image.new("RGB", (4, 4), (200, 10, 10)).save(tmp_path / "red.png")
+    Image.new("RGB", (4, 4)).save(tmp_path.parent / "out.png")
+    (tmp_path / "m.ply").write_bytes(ply_bytes("ascii", xyz(positions), corners(faces) + [
+        ("texcoord", "list uchar float", uv.reshape(len(faces), 6))],
+        comments=["TextureFile red.png", "TextureFile ../out.png", "TextureFile gone.png"]))
+    assert named_files(tmp_path / "m.ply") == [os.path.realpath(tmp_path / "red.png")]
+    before = (tmp_path / target).read_bytes()
+    assert main(["encode", str(tmp_path / "m.ply"), "-o", str(tmp_path / target)]) == 2
+    err = capsys.readouterr().err
+    assert "is also the input" in err and len(err.splitlines()) == 1
+    assert (tmp_path / target).read_bytes() == before
+
+
+def test_a_ply_without_texture_coordinates_names_no_texture(tmp_path):
+    from pmwm_codec.meshdoc import named_files
+
+    positions, faces = sphere()
+    Image.new("RGB", (2, 2)).save(tmp_path / "t.png")
+    (tmp_path / "m.ply").write_bytes(ply_bytes("binary_little_endian", xyz(positions) + [
+        (c, "uchar", np.zeros(len(positions))) for c in "rgb"], corners(faces), ["TextureFile t.png"]))
+    assert named_files(tmp_path / "m.ply") == []
