@@ -440,8 +440,8 @@ def _binary_records(body: bytes, at: int, count: int, props: list, order: str, e
         rec = np.frombuffer(body, fixed, count, at)
         if all((rec[f"n{k}"] == n).all() for k, n in enumerate(lengths)):
             out, k = {}, 0
-            for p, c, kind in props:
-                v = rec[p].astype(np.float64 if kind[0] == "f" else np.int64)
+            for j, (p, c, kind) in enumerate(props):
+                v = _widened(rec[f"v{j}"], kind)
                 out[p] = v if c is None else (np.full(count, lengths[k], np.int64), v.reshape(-1))
                 k += c is not None
             return out, at + count * fixed.itemsize
@@ -485,21 +485,30 @@ def _mixed_records(body: bytes, at: int, count: int, props: list, order: str, el
         n = np.frombuffer(lengths[j], np.int64) if c is not None else np.ones(count, np.int64)
         item = np.repeat(first, n) + isize * (np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n))
         data = raw[item[:, None] + np.arange(isize)].reshape(-1).view(order + kind)
-        v = data.astype(np.float64 if kind[0] == "f" else np.int64)
+        v = _widened(data, kind)
         out[p] = v if c is None else (n, v)
     return out, pos
 
 
+def _widened(values: np.ndarray, kind: str) -> np.ndarray:
+    """Binary values of numpy type ``kind`` as float64 or int64 (a signalling NaN made quiet without numpy's
+    RuntimeWarning: refused later, as every NaN coordinate is, or read past)."""
+    with np.errstate(invalid="ignore"):
+        return values.astype(np.float64 if kind[0] == "f" else np.int64)
+
+
 def _record_dtype(props: list, lengths: list, order: str) -> np.dtype:
-    """The packed structured dtype of a record whose lists have ``lengths`` (count fields ``n0``, ``n1``, ...)."""
+    """The packed structured dtype of a record whose lists have ``lengths``: property j's values in field
+    ``v{j}``, list k's count in ``n{k}`` (not the properties' names: a header may name two alike, or one
+    ``n0``; a name read twice is the last one's, as in an ASCII file)."""
     fields, k = [], 0
-    for p, c, kind in props:
+    for j, (_, c, kind) in enumerate(props):
         if c is not None:
             fields.append((f"n{k}", order + c))
-            fields.append((p, order + kind, (lengths[k],)))
+            fields.append((f"v{j}", order + kind, (lengths[k],)))
             k += 1
         else:
-            fields.append((p, order + kind))
+            fields.append((f"v{j}", order + kind))
     return np.dtype(fields)
 
 
