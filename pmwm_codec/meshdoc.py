@@ -233,8 +233,9 @@ _MAP_OPTIONS = {"-blendu": 1, "-blendv": 1, "-boost": 1, "-mm": 2, "-o": 3, "-s"
                 "-clamp": 1, "-bm": 1, "-imfchan": 1, "-type": 1, "-cc": 1}
 _APPEARANCE = re.compile(r"^[ \t]*(?:vt[ \t]|mtllib[ \t]|usemtl[ \t])", re.M)
 _COLOURED = re.compile(r"^[ \t]*v(?:[ \t]+[^ \t\n]+){6}", re.M)
-#: What the encoder says of a mesh file's normals when nothing else makes it an asset.
+#: What the encoder says of a mesh file's normals when nothing else makes it an asset, and of a PLY's face colours.
 _NORMALS_LEFT = "normals ({}) not carried: the .pmw holds positions, and viewers shade it from them"
+_FACE_COLOURS_LEFT = "the faces' colours not carried (a PLY's vertex colours are)"
 _RECORD = re.compile(r"^[ \t]*(v|vt|vn|f|usemtl|mtllib)[ \t]+([^\n]*)", re.M)
 
 
@@ -724,6 +725,7 @@ def _ply_appearance(path: str, name: str) -> tuple:
         return None, []
     if not look.appearance:
         notices = [_NORMALS_LEFT.format("nx, ny, nz")] if look.normal else []
+        notices += [_FACE_COLOURS_LEFT] if look.face_colour else []
         notices += [f"the texture {_shown(t)} not carried: the PLY has no texture coordinates" for t in look.textures]
         return None, notices
     _check_ply_header(path, name)
@@ -758,7 +760,7 @@ def ply_document(path, data: bytes) -> tuple:
     name = os.path.basename(path)
     ply = read_ply_appearance(data, name, MAX_ENCODE_FACES)
     positions, faces = mesh_arrays(ply.positions, ply.faces, name)
-    notices: list = []
+    notices: list = [_FACE_COLOURS_LEFT] if ply.face_colour else []
     vertex = faces.reshape(-1)
     vt, uv_ids = np.zeros((0, 2)), np.full(len(vertex), -1, np.int64)
     if ply.wedge is not None:

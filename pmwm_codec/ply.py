@@ -60,7 +60,8 @@ _TEXTURE_FILE = re.compile(rb"^[ \t]*comment[ \t]+TextureFile[ \t]+([^\r\n]*?)[ 
 class Look:
     """What a PLY header says its file carries besides positions and faces: the property names of the
     vertices' colour (3 or 4) and texture coordinates (2), whether vertices have normals and faces per-corner
-    texture coordinates or a texture number, and the texture files its comments name."""
+    texture coordinates, a texture number or colours (which are not carried), and the texture files its
+    comments name."""
 
     colour: tuple = ()
     uv: tuple = ()
@@ -68,6 +69,7 @@ class Look:
     wedge: bool = False
     texnumber: bool = False
     textures: list = field(default_factory=list)
+    face_colour: bool = False
 
     @property
     def appearance(self) -> bool:
@@ -92,7 +94,8 @@ def _look(head: bytes, elements: list) -> Look:
     colour = next((n if n[3] in vertex else n[:3] for n in COLOUR_NAMES if vertex.issuperset(n[:3])), ())
     return Look(colour, next((n for n in UV_NAMES if vertex.issuperset(n)), ()), vertex.issuperset(NORMAL_NAMES),
                 WEDGE_UV in face and bool(face & set(FACE_LISTS)), TEXNUMBER in scalars.get("face", set()),
-                [_name(m.group(1)) for m in _TEXTURE_FILE.finditer(head) if m.group(1)])
+                [_name(m.group(1)) for m in _TEXTURE_FILE.finditer(head) if m.group(1)],
+                any(scalars.get("face", set()).issuperset(n[:3]) for n in COLOUR_NAMES))
 
 
 def _name(raw: bytes) -> str:
@@ -109,8 +112,9 @@ class Appearance:
     """A PLY's mesh with what it carries besides (:func:`read_appearance`): ``positions`` (n, 3) float64,
     ``faces`` (m, 3) int64; per vertex ``colours`` (n, 3 or 4) in [0, 1], ``uv`` (n, 2) and ``normals``
     (n, 3), or None; per triangle corner ``wedge`` (m, 3, 2) texture coordinates (NaN for a triangle of a
-    strip, which has none) and per triangle ``texnumber`` (m,) int64 (-1 for a strip's), or None; and the
-    ``textures`` the header names.  Texture coordinates are the file's (v grows upwards)."""
+    strip, which has none) and per triangle ``texnumber`` (m,) int64 (-1 for a strip's), or None; the
+    ``textures`` the header names, and whether faces have colours (not read).  Texture coordinates are the
+    file's (v grows upwards)."""
 
     positions: np.ndarray
     faces: np.ndarray
@@ -120,6 +124,7 @@ class Appearance:
     wedge: np.ndarray | None
     texnumber: np.ndarray | None
     textures: list
+    face_colour: bool = False
 
 
 def read_appearance(data: bytes, name: str, max_faces: int) -> Appearance:
@@ -152,7 +157,7 @@ def read_appearance(data: bytes, name: str, max_faces: int) -> Appearance:
         wedge = np.concatenate([pairs[fans[0]], np.full((strips, 3, 2), np.nan)])
     if look.texnumber and fans is not None:
         texnumber = np.concatenate([np.asarray(face[TEXNUMBER], np.int64)[fans[1]], np.full(strips, -1, np.int64)])
-    return Appearance(positions, faces, colours, uv, normals, wedge, texnumber, look.textures)
+    return Appearance(positions, faces, colours, uv, normals, wedge, texnumber, look.textures, look.face_colour)
 
 
 def _carried(values: np.ndarray, element: str, what: str, name: str, ends=None) -> np.ndarray:

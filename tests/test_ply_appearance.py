@@ -474,3 +474,19 @@ def test_mutated_appearance_files_are_read_or_refused_by_name_never_another_erro
             ply_document("/nonexistent-folder/f.ply", data)
         except PmwError:
             pass
+
+
+@pytest.mark.parametrize("vertex_colours", [False, True])
+def test_face_colours_are_not_carried_and_the_encoder_says_so(tmp_path, vertex_colours):
+    positions, faces = sphere()
+    vertex = xyz(positions) + ([(c, "uchar", np.full(len(positions), 9)) for c in "rgb"] if vertex_colours else [])
+    face = corners(faces) + [(c, "uchar", np.full(len(faces), 200)) for c in ("red", "green", "blue")]
+    (tmp_path / "m.ply").write_bytes(ply_bytes("binary_little_endian", vertex, face))
+    pmw, report = encoded(tmp_path / "m.ply")
+    assert "the faces' colours not carried (a PLY's vertex colours are)" in report["notices"]
+    [(attrs, _, _, _)] = primitives(pmw)
+    assert ("COLOR_0" in attrs) == vertex_colours
+    if vertex_colours:
+        assert np.array_equal(np.rint(attrs["COLOR_0"] * 255), np.full((len(positions), 3), 9))
+    else:
+        assert pmw == encoded_plain(tmp_path / "m.ply")
