@@ -733,8 +733,8 @@ def _ply_appearance(path: str, name: str) -> tuple:
 
 
 def _ply_texture_files(path: str) -> list:
-    """The texture file names in the header of the PLY at ``path`` when it has
-    texture coordinates to map them, else none (nor for a header that does not parse)."""
+    """The texture file names in the header of the PLY at ``path`` when it has texture coordinates to map
+    them, else none (nor for a header that does not parse)."""
     from .ply import header_look
 
     try:
