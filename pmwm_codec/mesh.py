@@ -204,7 +204,10 @@ _PLY_INTEGER_TYPES = {"char", "uchar", "short", "ushort", "int", "uint",
 
 def _check_ply_header(path, name) -> None:
     """Refuse a PLY whose header declares more vertices / faces than the encoder takes,
-    or face indices that are not integers, before anything is allocated (:func:`~pmwm_codec.ply.read_ply` reads it)."""
+    or face indices that are not integers, before anything is allocated (:func:`~pmwm_codec.ply.read_ply` reads it;
+    a face's other lists, MeshLab's ``texcoord`` floats, are not indices)."""
+    from .ply import FACE_LISTS
+
     with open(path, "rb") as fh:
         head = fh.read(1 << 16)
     end = head.find(b"end_header")
@@ -222,7 +225,7 @@ def _check_ply_header(path, name) -> None:
                 raise InputFormatError(f"{name}: PLY declares {words[2]} {element} elements "
                                        f"(the encoder takes 0..{limits.get(element, count):,})")
             declared[element] = count
-        elif words[:2] == ["property", "list"] and element == "face" and len(words) == 5:
+        elif words[:2] == ["property", "list"] and element == "face" and len(words) == 5 and words[4] in FACE_LISTS:
             if words[2] not in _PLY_INTEGER_TYPES or words[3] not in _PLY_INTEGER_TYPES:
                 raise InputFormatError(f"{name}: PLY face indices are of type {words[2]}/{words[3]}, not integers")
     if not declared.get("face") and not declared.get("tristrips"):  # a scan's point cloud: said before its data is

@@ -4,7 +4,11 @@ A PLY header names its format (``ascii``, ``binary_little_endian``, ``binary_big
 in file order, each with a count and properties: scalars (``property float x``) or lists (``property list uchar
 int vertex_indices``: a count, then that many items).  The mesh is the ``vertex`` element's ``x``, ``y``, ``z``
 and the ``face`` element's ``vertex_indices`` (or ``vertex_index``) lists, polygons fan-triangulated as an OBJ's
-are, or a ``tristrips`` element's strips (-1 restarts a strip); every other element and property is read past.
+are, or a ``tristrips`` element's strips (-1 restarts a strip); every other element and property is read past
+by :func:`read_ply`.  :func:`read_appearance` reads a PLY's appearance besides (:class:`Appearance`): vertex
+colours and texture coordinates in their usual spellings, normals, and MeshLab's per-corner ``texcoord`` face
+lists, ``texnumber`` and ``comment TextureFile`` header lines; :func:`header_look` tells from the header alone
+whether a file has any (:mod:`pmwm_codec.meshdoc` makes such a file a glTF document).
 
 Every record must be what the header declares: an ASCII record holds exactly its properties' values, one
 record a line, integers where the type is an integer (a face index ``2.7`` is refused, not truncated), and no
@@ -18,6 +22,7 @@ from __future__ import annotations
 
 import re
 from array import array
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -36,16 +41,165 @@ FACE_LISTS = ("vertex_indices", "vertex_index")
 def read_ply(data: bytes, name: str, max_faces: int) -> tuple:
     """``(positions (n, 3) float64, faces (m, 3) int64)`` of the PLY file ``data``; at most ``max_faces``
     triangles (InputFormatError beyond).  See the module docstring for what is refused."""
+    elements, values, _ = _parsed_file(data, name)
+    return _mesh(values, elements, name, max_faces)[:2]
+
+
+#: The spellings of a vertex's colour channels (red, green, blue and an optional alpha), of its texture
+#: coordinates (u, v), of its normal, and of a face's per-corner texture coordinates and texture number (as
+#: MeshLab writes them, with ``comment TextureFile NAME`` header lines naming the textures in order).
+COLOUR_NAMES = (("red", "green", "blue", "alpha"), ("r", "g", "b", "a"),
+                ("diffuse_red", "diffuse_green", "diffuse_blue", "diffuse_alpha"))
+UV_NAMES = (("u", "v"), ("s", "t"), ("texture_u", "texture_v"), ("texture_s", "texture_t"))
+NORMAL_NAMES = ("nx", "ny", "nz")
+WEDGE_UV, TEXNUMBER = "texcoord", "texnumber"
+_TEXTURE_FILE = re.compile(rb"^[ \t]*comment[ \t]+TextureFile[ \t]+([^\r\n]*?)[ \t]*\r?$", re.M | re.I)
+
+
+@dataclass
+class Look:
+    """What a PLY header says its file carries besides positions and faces: the property names of the
+    vertices' colour (3 or 4) and texture coordinates (2), whether vertices have normals and faces per-corner
+    texture coordinates, a texture number or colours (which are not carried), and the texture files its
+    comments name."""
+
+    colour: tuple = ()
+    uv: tuple = ()
+    normal: bool = False
+    wedge: bool = False
+    texnumber: bool = False
+    textures: list = field(default_factory=list)
+    face_colour: bool = False
+
+    @property
+    def appearance(self) -> bool:
+        """Whether the file carries appearance (colours or texture coordinates: a texture needs the latter;
+        normals alone are not carried)."""
+        return bool(self.colour or self.uv or self.wedge)
+
+
+def header_look(head: bytes, name: str) -> Look:
+    """The :class:`Look` of a PLY file's first bytes (its whole header); InputFormatError for a header
+    :func:`read_ply` refuses too."""
+    head, _ = _split_header(head, name)
+    return _look(head, _header(head.decode("ascii", "replace"), name)[1])
+
+
+def _look(head: bytes, elements: list) -> Look:
+    """The :class:`Look` of a header's bytes ``head`` and its ``elements`` (:func:`_header`); the texture
+    names in UTF-8, else Latin-1 (as :func:`~pmwm_codec.mesh._mesh_text` reads an OBJ's)."""
+    scalars = {e: {p for p, c, _ in props if c is None} for e, _, props in reversed(elements)}
+    lists = {e: {p for p, c, _ in props if c is not None} for e, _, props in reversed(elements)}
+    vertex, face = scalars.get("vertex", set()), lists.get("face", set())
+    colour = next((n if n[3] in vertex else n[:3] for n in COLOUR_NAMES if vertex.issuperset(n[:3])), ())
+    return Look(colour, next((n for n in UV_NAMES if vertex.issuperset(n)), ()), vertex.issuperset(NORMAL_NAMES),
+                WEDGE_UV in face and bool(face & set(FACE_LISTS)), TEXNUMBER in scalars.get("face", set()),
+                [_name(m.group(1)) for m in _TEXTURE_FILE.finditer(head) if m.group(1)],
+                any(scalars.get("face", set()).issuperset(n[:3]) for n in COLOUR_NAMES))
+
+
+def _name(raw: bytes) -> str:
+    """A texture file name of a header, backslashes (a Windows exporter's) read as slashes."""
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        text = raw.decode("latin-1")
+    return text.replace("\\", "/")
+
+
+@dataclass
+class Appearance:
+    """A PLY's mesh with what it carries besides (:func:`read_appearance`): ``positions`` (n, 3) float64,
+    ``faces`` (m, 3) int64; per vertex ``colours`` (n, 3 or 4) in [0, 1], ``uv`` (n, 2) and ``normals``
+    (n, 3), or None; per triangle corner ``wedge`` (m, 3, 2) texture coordinates (NaN for a triangle of a
+    strip, which has none) and per triangle ``texnumber`` (m,) int64 (-1 for a strip's), or None; the
+    ``textures`` the header names, and whether faces have colours (not read).  Texture coordinates are the
+    file's (v grows upwards)."""
+
+    positions: np.ndarray
+    faces: np.ndarray
+    colours: np.ndarray | None
+    uv: np.ndarray | None
+    normals: np.ndarray | None
+    wedge: np.ndarray | None
+    texnumber: np.ndarray | None
+    textures: list
+    face_colour: bool = False
+
+
+def read_appearance(data: bytes, name: str, max_faces: int) -> Appearance:
+    """The :class:`Appearance` of the PLY file ``data`` (read and refused as :func:`read_ply` reads and
+    refuses it).  Colours of an integer type are read as glTF reads normalized integers (``uchar`` / 255,
+    ``ushort`` / 65535, ``char`` / 127, ...), floats as they are; both clamped to [0, 1].  InputFormatError
+    for a face whose ``texcoord`` list is not two values a corner."""
+    elements, values, head = _parsed_file(data, name)
+    positions, faces, found, fans = _mesh(values, elements, name, max_faces)
+    look = _look(head, elements)
+    kinds = {p: kind for p, c, kind in next((props for e, _, props in elements if e == "vertex"), [])}
+    vertex, face = found["vertex"], found.get("face", {})
+    colours = uv = normals = wedge = texnumber = None
+    if look.colour:
+        colours = np.stack([_unit(_carried(vertex[p], "vertex", "colour", name), kinds[p]) for p in look.colour], 1)
+    if look.uv:
+        uv = np.stack([_carried(vertex[p], "vertex", "texture coordinate", name) for p in look.uv], axis=1)
+    if look.normal:
+        normals = np.stack([np.asarray(vertex[p], np.float64) for p in NORMAL_NAMES], axis=1)
+    strips = len(faces) - (0 if fans is None else len(fans[0]))
+    if look.wedge and fans is not None:
+        corners = next(found["face"][p] for p in FACE_LISTS if p in face)[0]
+        lengths, items = face[WEDGE_UV]
+        bad = np.flatnonzero(lengths != 2 * corners)
+        if len(bad):
+            i = int(bad[0])
+            raise InputFormatError(f"{name}: PLY face {i} has {int(lengths[i])} texcoord values for its "
+                                   f"{int(corners[i])} corners (two a corner)")
+        pairs = _carried(items, "face", "texcoord value", name, np.cumsum(lengths)).reshape(-1, 2)
+        wedge = np.concatenate([pairs[fans[0]], np.full((strips, 3, 2), np.nan)])
+    if look.texnumber and fans is not None:
+        texnumber = np.concatenate([np.asarray(face[TEXNUMBER], np.int64)[fans[1]], np.full(strips, -1, np.int64)])
+    return Appearance(positions, faces, colours, uv, normals, wedge, texnumber, look.textures, look.face_colour)
+
+
+def _carried(values: np.ndarray, element: str, what: str, name: str, ends=None) -> np.ndarray:
+    """``values`` as float64, refused (InputFormatError naming the first record: the one whose list ends past
+    it where ``ends`` gives where each record's list ends) where one is a number float32 does not carry (NaN,
+    infinite, beyond its range), as an OBJ's are: glTF's attributes are float32."""
+    values = np.asarray(values, np.float64)
+    bad = ~(np.abs(values) <= np.finfo(np.float32).max)
+    if bad.any():
+        at = int(np.argmax(bad))
+        record = at if ends is None else int(np.searchsorted(ends, at, "right"))
+        raise InputFormatError(f"{name}: PLY {element} {record:,} has a {what} float32 cannot carry (NaN, infinite "
+                               "or beyond 3.4e38)")
+    return values
+
+
+def _unit(values: np.ndarray, kind: str) -> np.ndarray:
+    """A colour channel of numpy type ``kind`` in [0, 1] (:func:`read_appearance`)."""
+    values = np.asarray(values, np.float64)
+    if kind[0] in "iu":
+        values = values / np.iinfo(kind).max
+    return np.clip(values, 0.0, 1.0)
+
+
+def _split_header(data: bytes, name: str) -> tuple:
+    """``(the header's bytes, where the records start)`` of a PLY file's bytes (or of its first bytes)."""
     end = data.find(b"end_header")
     if not data.startswith(b"ply") or end < 0:
         raise InputFormatError(f"{name}: not a PLY file (no 'ply' ... 'end_header' header)")
     body = data.index(b"\n", end) + 1 if b"\n" in data[end:] else len(data)
-    fmt, elements = _header(data[:end].decode("ascii", "replace"), name)
+    return data[:end], body
+
+
+def _parsed_file(data: bytes, name: str) -> tuple:
+    """``(elements (:func:`_header`), each element's values, the header's bytes)`` of a PLY file's bytes."""
+    head, body = _split_header(data, name)
+    fmt, elements = _header(head.decode("ascii", "replace"), name)
     if fmt == "ascii":
         values = _ascii_elements(data[body:], elements, name)
     else:
         values = _binary_elements(data[body:], elements, "<" if fmt == "binary_little_endian" else ">", name)
-    return _mesh(values, elements, name, max_faces)
+    return elements, values, head
 
 
 def _header(text: str, name: str) -> tuple:
@@ -291,8 +445,8 @@ def _binary_records(body: bytes, at: int, count: int, props: list, order: str, e
         rec = np.frombuffer(body, fixed, count, at)
         if all((rec[f"n{k}"] == n).all() for k, n in enumerate(lengths)):
             out, k = {}, 0
-            for p, c, kind in props:
-                v = rec[p].astype(np.float64 if kind[0] == "f" else np.int64)
+            for j, (p, c, kind) in enumerate(props):
+                v = _widened(rec[f"v{j}"], kind)
                 out[p] = v if c is None else (np.full(count, lengths[k], np.int64), v.reshape(-1))
                 k += c is not None
             return out, at + count * fixed.itemsize
@@ -336,26 +490,38 @@ def _mixed_records(body: bytes, at: int, count: int, props: list, order: str, el
         n = np.frombuffer(lengths[j], np.int64) if c is not None else np.ones(count, np.int64)
         item = np.repeat(first, n) + isize * (np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n))
         data = raw[item[:, None] + np.arange(isize)].reshape(-1).view(order + kind)
-        v = data.astype(np.float64 if kind[0] == "f" else np.int64)
+        v = _widened(data, kind)
         out[p] = v if c is None else (n, v)
     return out, pos
 
 
+def _widened(values: np.ndarray, kind: str) -> np.ndarray:
+    """Binary values of numpy type ``kind`` as float64 or int64 (a signalling NaN made quiet without numpy's
+    RuntimeWarning: refused later, as every NaN coordinate is, or read past)."""
+    with np.errstate(invalid="ignore"):
+        return values.astype(np.float64 if kind[0] == "f" else np.int64)
+
+
 def _record_dtype(props: list, lengths: list, order: str) -> np.dtype:
-    """The packed structured dtype of a record whose lists have ``lengths`` (count fields ``n0``, ``n1``, ...)."""
+    """The packed structured dtype of a record whose lists have ``lengths``: property j's values in field
+    ``v{j}``, list k's count in ``n{k}`` (not the properties' names: a header may name two alike, or one
+    ``n0``; a name read twice is the last one's, as in an ASCII file)."""
     fields, k = [], 0
-    for p, c, kind in props:
+    for j, (_, c, kind) in enumerate(props):
         if c is not None:
             fields.append((f"n{k}", order + c))
-            fields.append((p, order + kind, (lengths[k],)))
+            fields.append((f"v{j}", order + kind, (lengths[k],)))
             k += 1
         else:
-            fields.append((p, order + kind))
+            fields.append((f"v{j}", order + kind))
     return np.dtype(fields)
 
 
 def _mesh(values: list, elements: list, name: str, max_faces: int) -> tuple:
-    """The positions (n, 3) float64 and triangles (m, 3) int64 of the parsed elements."""
+    """``(positions (n, 3) float64, triangles (m, 3) int64, {element: values} (the first of each name),
+    polygon corners)`` of the parsed elements: the last is None, or ``(corners (t, 3) int64, polygon (t,)
+    int64)`` -- where in the face list's items each of the first t triangles' corners is, and the face it
+    was fanned from (:func:`_fan_corners`); the strips' triangles follow them."""
     found = {}
     for (element, _, _), v in zip(elements, values):
         found.setdefault(element, v)
@@ -367,21 +533,23 @@ def _mesh(values: list, elements: list, name: str, max_faces: int) -> tuple:
     strips = found.get("tristrips", {}).get("vertex_indices")
     if polygons is None and strips is None:
         raise InputFormatError(f"{name}: its PLY face element has no vertex_indices list")
-    parts = []
+    parts, fans = [], None
     if polygons is not None:
-        parts.append(_fans(*polygons, name, max_faces))
+        fans = _fan_corners(polygons[0], name, max_faces)
+        parts.append(polygons[1].astype(np.int64)[fans[0]])
     if strips is not None:
         parts.append(_strips(*strips))
     faces = np.concatenate(parts)
     if len(faces) > max_faces:
         raise InputFormatError(f"{name}: more than {max_faces:,} triangles (the encoder's limit)")
-    return positions, faces
+    return positions, faces, found, fans
 
 
-def _fans(lengths: np.ndarray, items: np.ndarray, name: str, max_faces: int) -> np.ndarray:
-    """(t, 3) int64: polygons of ``lengths`` (p,) corners, their indices ``items`` one after another, each
-    fan-triangulated in order (a polygon of one or two corners: one degenerate triangle, dropped and counted
-    later as an OBJ's is)."""
+def _fan_corners(lengths: np.ndarray, name: str, max_faces: int) -> tuple:
+    """``(corners (t, 3) int64, polygon (t,) int64)``: polygons of ``lengths`` (p,) corners, their indices
+    one after another in a list's items, each fan-triangulated in order -- where in the items each triangle's
+    corners are, and which polygon it is of (a polygon of one or two corners: one degenerate triangle,
+    dropped and counted later as an OBJ's is)."""
     if (lengths <= 0).any():
         raise InputFormatError(f"{name}: a PLY face of no corners")
     tris = np.maximum(lengths - 2, 1)
@@ -391,9 +559,8 @@ def _fans(lengths: np.ndarray, items: np.ndarray, name: str, max_faces: int) -> 
     poly = np.repeat(np.arange(len(lengths)), tris)
     j = np.arange(len(poly)) - np.repeat(np.cumsum(tris) - tris, tris) + 1  # 1 .. k - 2 within each polygon
     last = lengths[poly] - 1
-    items = items.astype(np.int64)
-    return np.stack([items[start[poly]], items[start[poly] + np.minimum(j, last)],
-                     items[start[poly] + np.minimum(j + 1, last)]], axis=1)
+    first = start[poly]
+    return np.stack([first, first + np.minimum(j, last), first + np.minimum(j + 1, last)], axis=1), poly
 
 
 def _strips(lengths: np.ndarray, items: np.ndarray) -> np.ndarray:
