@@ -364,22 +364,30 @@ def test_a_coloured_point_cloud_is_named_as_before(tmp_path):
         encoded(tmp_path / "p.ply")
 
 
-def test_a_large_coloured_ply_reads_with_whole_array_operations():
-    """A 40,962-vertex coloured, textured mesh: ply_document in well under a second (no loop per vertex)."""
-    import time
-
+def test_a_large_coloured_textured_ply_reads_into_one_vertex_per_ply_vertex():
+    """A 40,962-vertex coloured mesh with a texture coordinate per vertex: one glTF vertex each, its colour and
+    coordinate its own (how fast it reads is the README's measure, not a test's)."""
+    from pmwm_codec.format.document import read_accessor
     from pmwm_codec.meshdoc import ply_document
 
     mesh = shapes.icosphere(6, 1.0)
     n = len(mesh.positions)
     rng = np.random.default_rng(0)
+    rng_values = {c: rng.integers(0, 256, n) for c in ("red", "green", "blue")}
+    rng_values.update(s=rng.random(n).astype(np.float32), t=rng.random(n).astype(np.float32))
     data = ply_bytes("binary_little_endian", xyz(mesh.positions) + [
-        (c, "uchar", rng.integers(0, 256, n)) for c in ("red", "green", "blue")] + [
-        ("s", "float", rng.random(n)), ("t", "float", rng.random(n))], corners(mesh.faces))
-    start = time.perf_counter()
-    (gltf, _), notices = ply_document("m.ply", data)
-    assert time.perf_counter() - start < 1.0 and notices == []
-    assert gltf["accessors"][0]["count"] == n
+        (c, "uchar", rng_values[c]) for c in ("red", "green", "blue")] + [
+        ("s", "float", rng_values["s"]), ("t", "float", rng_values["t"])], corners(mesh.faces))
+    (gltf, buffers), notices = ply_document("m.ply", data)
+    assert notices == [] and gltf["accessors"][0]["count"] == n
+    attrs = gltf["meshes"][0]["primitives"][0]["attributes"]
+    pos, rgb, uv = (read_accessor(gltf, buffers, attrs[k]) for k in ("POSITION", "COLOR_0", "TEXCOORD_0"))
+    order = np.lexsort(mesh.positions.astype(np.float32).T[::-1])
+    got = np.lexsort(pos.T[::-1])
+    assert np.array_equal(pos[got], mesh.positions.astype(np.float32)[order])
+    want_rgb = np.stack([rng_values[c] for c in ("red", "green", "blue")], axis=1) / 255.0
+    assert np.abs(rgb[got] - want_rgb[order]).max() < 1e-6
+    assert np.abs(uv[got] - np.stack([rng_values["s"], 1 - rng_values["t"]], axis=1)[order]).max() < 1e-6
 
 
 @settings(max_examples=200, deadline=None)
