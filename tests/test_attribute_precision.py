@@ -98,3 +98,38 @@ def test_the_precision_is_stated_in_help_and_readme():
     assert "TEXCOORD_n a step of at most 1/8192" in text and "COLOR_n 12" in text and "integer attributes" in text
     readme = " ".join((ROOT / "README.md").read_text().split())
     assert "TEXCOORD_n a step of at most 2^-13" in readme and "`ATTRIBUTE_BITS`" in readme
+
+
+def test_eight_bit_colours_ride_exactly_on_their_own_lattice_and_others_on_twelve_bits(tmp_path):
+    """A normalized UNSIGNED_BYTE COLOR_0 (k / 255) gets the 8-bit lattice (step 1/255 from its least value,
+    bits for its span) and comes back as the same float32; colours off that lattice keep 12 bits."""
+    rng = np.random.default_rng(5)
+    k = rng.integers(20, 200, (642, 4))
+    byte_colours = (k / np.float32(255)).astype(np.float32).astype(np.float64)
+    grid, extra = _attribute_grid("COLOR_0", byte_colours)
+    assert extra == {} and grid.bits == 8 and grid.step == (1 / 255,) * 4
+    assert grid.origin == tuple(float(x) / 255 for x in k.min(axis=0))
+    assert np.array_equal(grid.to_float32(grid.from_float32(byte_colours, "COLOR_0")), byte_colours.astype(np.float32))
+    assert _attribute_grid("COLOR_0", rng.random((642, 3)))[0].bits == 12
+    assert _attribute_grid("COLOR_0", byte_colours * 0.5 + 1e-4)[0].bits == 12  # near, not on, the lattice
+
+    mesh = shapes.icosphere(3, 1.0, noise=0.02)
+    b = DocBuilder()
+    attributes = {"POSITION": b.accessor(mesh.positions.astype(np.float32), 5126, "VEC3", 34962, True),
+                  "COLOR_0": b.accessor(k.astype(np.uint8), 5121, "VEC4", 34962)}
+    b.doc["accessors"][attributes["COLOR_0"]]["normalized"] = True
+    indices = b.accessor(mesh.faces.astype(np.uint32).ravel(), 5125, "SCALAR", 34963)
+    b.doc.update(scene=0, scenes=[{"nodes": [0]}], nodes=[{"mesh": 0}],
+                 meshes=[{"primitives": [{"attributes": attributes, "indices": indices}]}])
+    (tmp_path / "c.glb").write_bytes(b.glb())
+    encode_asset(tmp_path / "c.glb", tmp_path / "c.pmw", measure=False)
+    (tmp_path / "out.glb").write_bytes(decode_asset(str(tmp_path / "c.pmw"))[0])
+    out, buffers = load_document(tmp_path / "out.glb")
+    prim = out["meshes"][0]["primitives"][0]["attributes"]
+    got = read_accessor(out, buffers, prim["COLOR_0"])
+    pos = read_accessor(out, buffers, prim["POSITION"])
+    from scipy.spatial import cKDTree
+
+    distance, source = cKDTree(mesh.positions).query(pos)  # each decoded vertex's input vertex (grid: ~2.5e-5)
+    assert distance.max() < 1e-3 and len(np.unique(source)) == len(k)
+    assert np.array_equal(got, (k[source] / np.float32(255)).astype(np.float32))  # the input's float32, exactly

@@ -94,7 +94,7 @@ def add_stream_options(p) -> None:
     p.add_argument("--grid-bits", type=_int_in(MIN_GRID_BITS, MAX_GRID_BITS, "--grid-bits"), metavar="Q",
                    help="position grid resolution in bits (default 16; paper mode 22).  The vertex attributes of "
                         "glTF assets have grids of their own, over each component's range: NORMAL and TANGENT 14 "
-                        "bits, COLOR_n 12, other float attributes 14; TEXCOORD_n a step of at most 1/8192 of the "
+                        "bits, COLOR_n 12 (8-bit colours exact, on their own 8-bit lattice), other float attributes 14; TEXCOORD_n a step of at most 1/8192 of the "
                         "texture (error under 1/16384: a quarter texel at 4096x4096) whatever the range, up to 30 "
                         "bits; integer attributes (feature IDs) exact")
     p.add_argument("--base-codec", choices=("draco", "plain"), default=STREAM_DEFAULTS["base_codec"],

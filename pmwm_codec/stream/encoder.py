@@ -231,6 +231,27 @@ def _carries(grid: AttributeGrid, values: np.ndarray, semantic: str) -> bool:
         return False
 
 
+#: A COLOR_n whose every component is an 8-bit colour (k / 255: a normalized UNSIGNED_BYTE accessor, a PLY's
+#: or an OBJ's 0..255 colours) is carried on that lattice, exactly and in 8 bits rather than 12
+#: (:func:`_colour_lattice`); a value counts as one within this fraction of a lattice step (float32's rounding of
+#: k / 255 is 1.5e-5 of a step).
+COLOUR_LATTICE_TOLERANCE = 1e-3
+
+
+def _colour_lattice(values: np.ndarray) -> AttributeGrid | None:
+    """The grid of step 1/255 from each component's least value, as many bits as the widest span needs (8 at
+    most), when every value of ``values`` (n, k) float64 is an 8-bit colour k / 255 (within
+    :data:`COLOUR_LATTICE_TOLERANCE` of a step); else None (the 12-bit grid of :data:`ATTRIBUTE_BITS`)."""
+    if not values.size or not np.isfinite(values).all() or values.min() < 0.0 or values.max() > 1.0:
+        return None
+    k = np.rint(values * 255.0)
+    if np.abs(values * 255.0 - k).max() > COLOUR_LATTICE_TOLERANCE:
+        return None
+    lo = k.min(axis=0)
+    bits = max(MIN_GRID_BITS, int((k.max(axis=0) - lo).max()).bit_length())
+    return AttributeGrid(bits, tuple(float(x) / 255.0 for x in lo), (1.0 / 255.0,) * values.shape[1])
+
+
 def _attribute_grid(semantic: str, values: np.ndarray) -> tuple:
     """``(AttributeGrid, extra spec members)`` of one attribute's ``values`` (n, k).
 
@@ -247,6 +268,9 @@ def _attribute_grid(semantic: str, values: np.ndarray) -> tuple:
         if semantic.startswith("WEIGHTS_") and values.size and values.min() >= 0.0 and values.max() <= 1.0:
             k = values.shape[1]  # skin weights: multiples of 2^-24 from 0, each float32 in [1/2, 1] exactly
             return AttributeGrid(WEIGHTS_BITS + 1, (0.0,) * k, (2.0**-WEIGHTS_BITS,) * k), {}
+        lattice = _colour_lattice(values) if semantic.startswith("COLOR_") else None
+        if lattice is not None:
+            return lattice, {}
         bits, floor = _attribute_bits(semantic, values), _attribute_bits(semantic)
         grid = AttributeGrid.fit(values, bits)
         while grid.bits > floor and not _carries(grid, values, semantic):  # finer than float32 holds them
