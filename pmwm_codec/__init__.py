@@ -78,7 +78,10 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
 
     ``src``: a mesh file or :class:`Mesh`, or a glTF asset (``.glb`` / ``.gltf`` path, or an
     in-memory ``(gltf dict, buffers)``) whose triangle primitives all become progressive
-    while materials, textures and nodes are kept (see :mod:`pmwm_codec.stream.asset`).
+    while materials, textures and nodes are kept (see :mod:`pmwm_codec.stream.asset`).  An OBJ or PLY
+    file that carries appearance (texture coordinates, vertex colours, MTL materials and their textures)
+    is encoded as the glTF asset it describes (:mod:`pmwm_codec.meshdoc`); one of geometry alone as a mesh.
+    The files a mesh file names (an MTL, a texture, a ``.gltf``'s buffers) are never replaced by ``dst``.
 
     ``dst``: a path, checked before any work (:func:`~pmwm_codec.options.check_destination`), or a
     binary file object, open, writable and blocking, that gets every byte
