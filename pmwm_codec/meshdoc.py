@@ -136,24 +136,46 @@ class Resources:
         self._image_ids: dict = {}
 
     def read(self, ref: str, what: str) -> bytes | None:
-        """The bytes of the file ``ref`` names (``what``: how the message names it, ``"the MTL file"``), or
-        None with a notice when it does not exist; InputFormatError when ``ref`` breaks the folder rule."""
-        from .format.document import beside, read_beside
+        """The bytes of the file ``ref`` names (``what``: how the notice names it, ``"the MTL file"``), or None
+        with a notice when it is missing or cannot be read under the folder rule -- a path that leads outside
+        the mesh file's folder or is absolute, a symbolic link out of it, anything but a regular file (a FIFO
+        is never opened for reading), more bytes than the budget left: never read, the rest encoded (as
+        obj2gltf's secure mode does; an MTL and its textures are appearance, the geometry does not need them)."""
+        from .format.document import read_beside
 
-        label = f"{self.name}: {what} {_shown(ref)}"
-        if not os.path.lexists(beside(ref, self.base_dir, label)):
+        target = self._target(ref, what)
+        if target is None:
+            return None
+        if not os.path.lexists(target):
             self.notices.append(f"{what} {_shown(ref)} is not beside {self.name}: left out")
             return None
-        blob = read_beside(ref, self.base_dir, label, self.budget)
+        label = f"{self.name}: {what} {_shown(ref)}"
+        try:
+            blob = read_beside(ref, self.base_dir, label, self.budget)
+        except InputFormatError as exc:
+            self.notices.append(f"{what} {_shown(ref)} not read ({_reason(exc, label)}): left out")
+            return None
         self.budget[0] -= len(blob)
         return blob
+
+    def _target(self, ref: str, what: str) -> str | None:
+        """The real path ``ref`` names inside the folder (:func:`~pmwm_codec.format.document.beside`), or None
+        with a notice when it leads outside it or is absolute."""
+        from .format.document import beside
+
+        label = f"{self.name}: {what} {_shown(ref)}"
+        try:
+            return beside(ref, self.base_dir, label)
+        except InputFormatError as exc:
+            self.notices.append(f"{what} {_shown(ref)} not read ({_reason(exc, label)}): left out")
+            return None
 
     def image(self, ref: str) -> int | None:
         """The index of the texture ``ref`` names in :attr:`images`, read and made PNG or JPEG
         (:func:`texture_image`) the first time; None (with a notice) where it cannot be."""
-        from .format.document import beside
-
-        key = beside(ref, self.base_dir, f"{self.name}: the texture {_shown(ref)}")
+        key = self._target(ref, "the texture")
+        if key is None:
+            return None
         if key not in self._image_ids:
             blob = self.read(ref, "the texture")
             made = None if blob is None else texture_image(blob, ref, self.notices)
@@ -162,6 +184,13 @@ class Resources:
                 self.images.append((*made, os.path.basename(ref.replace("\\", "/"))))
                 self._image_ids[key] = len(self.images) - 1
         return self._image_ids[key]
+
+
+def _reason(exc: Exception, label: str) -> str:
+    """What an InputFormatError whose message starts with ``label`` says after it ("leads outside the asset's
+    folder", "is not a regular file" ...)."""
+    message = str(exc)
+    return (message[len(label):] if message.startswith(label) else message).strip(" :;")
 
 
 def _shown(ref: str) -> str:
@@ -655,6 +684,16 @@ def _obj_parts(positions, vt, vn, colours, corners, face_material, notices, name
                            "coordinate: given (0, 0)")
         c = np.where(np.array([True, has_uv, has_normal])[None, :], c, -1)
         unique, inverse = _unique_corners(c)
+        if has_normal:
+            locked, count = _seam_corners(unique)
+            if locked > HARD_NORMALS_SHARE * count:  # hard edges everywhere: carried, nothing would stream
+                plain = np.where(np.array([True, True, False])[None, :], c, -1)
+                unique_plain, inverse_plain = _unique_corners(plain)
+                if _seam_corners(unique_plain)[0] < locked:
+                    notices.append(f"normals not carried in {_part_name(key)}: their hard edges would keep {locked:,} "
+                                   f"of its {count:,} positions in the base (seam corners); viewers shade it "
+                                   "from its positions, flat")
+                    c, unique, inverse, has_normal = plain, unique_plain, inverse_plain, False
         if has_uv:
             uv = np.where(unique[:, 1:2] >= 0, vt[np.maximum(unique[:, 1], 0), :2], 0.0)
             if vt.shape[1] == 1 or np.isnan(uv).any():  # a vt of one value: v is 0
@@ -671,6 +710,19 @@ def _obj_parts(positions, vt, vn, colours, corners, face_material, notices, name
             attrs["COLOR_0"] = colours[unique[:, 0]]
         parts.append(Part(positions[unique[:, 0]], inverse.reshape(-1, 3), attrs, None if key < 0 else key))
     return parts
+
+
+#: Normals that leave more than this share of a primitive's positions as seam corners (three or more glTF
+#: vertices at one position, which stay in the base: a CAD part's hard edges, a normal per face around each
+#: corner) are not carried, with a notice: the primitive would not stream (pybullet's a1 thigh.obj: 1,931 of
+#: 1,954 positions).  Smooth normals, and a few creases, ride (a scan's: none; a soccer ball's: 1.3%).
+HARD_NORMALS_SHARE = 0.25
+
+
+def _seam_corners(unique: np.ndarray) -> tuple:
+    """``(positions carrying three or more of the glTF vertices unique (u, 3), positions)``."""
+    _, copies = np.unique(unique[:, 0], return_counts=True)
+    return int((copies >= 3).sum()), len(copies)
 
 
 def _unique_corners(c: np.ndarray) -> tuple:

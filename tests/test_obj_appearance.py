@@ -149,10 +149,12 @@ def test_a_texture_pillow_reads_but_gltf_does_not_take_is_rewritten_as_png(tmp_p
     ("t.mtl", "map_Kd /etc/hostname"), ("t.mtl", "map_Kd link.png"), ("link.mtl", None),
 ])
 def test_an_obj_never_makes_the_encoder_read_outside_its_folder(tmp_path, mtl, statement):
+    """A file an OBJ names outside its folder (a path out, an absolute one, a symlink out) is not read: the OBJ
+    encodes without it and a notice names it (obj2gltf's secure mode); the output holds none of its bytes."""
     folder = tmp_path / "asset"
     folder.mkdir()
     (tmp_path / "outside.mtl").write_text("newmtl skin\nKd 1 0 0\n")
-    _png(tmp_path / "outside.png")
+    outside = _png(tmp_path / "outside.png", colour=(1, 2, 3))
     os.symlink(tmp_path / "outside.png", folder / "link.png")
     os.symlink(tmp_path / "outside.mtl", folder / "link.mtl")
     path, *_ = _torus_obj(str(folder), mtl=mtl)
@@ -160,10 +162,13 @@ def test_an_obj_never_makes_the_encoder_read_outside_its_folder(tmp_path, mtl, s
     out = folder / "t.pmw"
     run = subprocess.run([sys.executable, "-m", "pmwm_codec", "encode", path, "-o", str(out)],
                          capture_output=True, text=True)
-    assert run.returncode == 2, run.stderr
-    assert len(run.stderr.strip().splitlines()) == 1 and "Traceback" not in run.stderr
-    assert re.search(r"outside the asset's folder|absolute path|symbolic link|not a regular file", run.stderr), run.stderr
-    assert sorted(os.listdir(folder)) == sorted(["t.obj", "t.mtl", "link.png", "link.mtl"])  # nothing written
+    assert run.returncode == 0, run.stderr
+    named = (statement or mtl).split()[-1]
+    assert re.search(rf"'{re.escape(named)}' not read \((leads outside the asset's folder|is an absolute path)", run.stdout)
+    glb = pmwm_codec.decode_asset(str(out))
+    assert outside not in glb and b"\"Kd\"" not in glb
+    gltf = json.loads(glb[20:20 + int.from_bytes(glb[12:16], "little")])
+    assert all(m["pbrMetallicRoughness"]["baseColorFactor"][:3] != [1.0, 0.0, 0.0] for m in gltf.get("materials", []))
 
 
 def test_an_obj_of_geometry_and_normals_encodes_as_before_and_says_so(tmp_path):
@@ -315,3 +320,36 @@ def test_an_empty_face_record_beside_relative_indices_reads_as_the_record_reader
     # the column reader counted "f" alone among the faces whose relative indices it resolved: a ValueError
     (tmp_path / "m.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf \nf 1 2 3 -1\n")
     assert read_mesh(str(tmp_path / "m.obj")).faces.tolist() == [[0, 1, 2], [0, 2, 3]]
+
+
+def _sphere_obj(path, normals: str) -> None:
+    """An icosphere with a vt per position and normals: ``smooth`` (one per position) or ``faceted`` (one per
+    face, a CAD part's hard edges everywhere)."""
+    mesh = shapes.icosphere(3)
+    p, f = mesh.positions, mesh.faces
+    lines = ["mtllib m.mtl", "usemtl paint"] + ["v %.9f %.9f %.9f" % tuple(x) for x in p]
+    lines += ["vt %.6f %.6f" % (0.5 + x[0] / 2, 0.5 + x[1] / 2) for x in p]
+    if normals == "smooth":
+        lines += ["vn %.6f %.6f %.6f" % tuple(x / np.linalg.norm(x)) for x in p]
+        lines += ["f " + " ".join(f"{i + 1}/{i + 1}/{i + 1}" for i in t) for t in f]
+    else:
+        n = np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]])
+        lines += ["vn %.6f %.6f %.6f" % tuple(x / np.linalg.norm(x)) for x in n]
+        lines += ["f " + " ".join(f"{i + 1}/{i + 1}/{k + 1}" for i in t) for k, t in enumerate(f)]
+    path.write_text("\n".join(lines) + "\n")
+    (path.parent / "m.mtl").write_text("newmtl paint\nKd 0.2 0.4 0.8\n")
+
+
+def test_hard_edged_normals_that_would_keep_the_mesh_in_its_base_are_not_carried_and_smooth_ones_are(tmp_path):
+    _sphere_obj(tmp_path / "faceted.obj", "faceted")
+    report = pmwm_codec.encode(str(tmp_path / "faceted.obj"), str(tmp_path / "faceted.pmw"))
+    assert any(n.startswith("normals not carried in material 0's faces: their hard edges would keep 642 of its 642")
+               for n in report["notices"]), report["notices"]
+    assert report["vertices"] == 642 and report["base_vertices"] < 100  # it streams
+    gltf, _ = _decoded(str(tmp_path / "faceted.pmw"))
+    assert "NORMAL" not in gltf["meshes"][0]["primitives"][0]["attributes"]
+    _sphere_obj(tmp_path / "smooth.obj", "smooth")
+    report = pmwm_codec.encode(str(tmp_path / "smooth.obj"), str(tmp_path / "smooth.pmw"))
+    assert not any("normals" in n for n in report["notices"]) and report["base_vertices"] < 100
+    gltf, _ = _decoded(str(tmp_path / "smooth.pmw"))
+    assert sorted(gltf["meshes"][0]["primitives"][0]["attributes"]) == ["NORMAL", "POSITION", "TEXCOORD_0"]

@@ -199,6 +199,11 @@ def test_an_obj_of_any_line_end_read_mesh_takes_is_encoded_plain_or_textured(tmp
     assert len(gltf["images"]) == 1 and gltf["materials"][0]["name"] == "skin"
 
 
+def _decoded_json_of(obj, pmw) -> dict:
+    pmwm_codec.encode(str(obj), str(pmw))
+    return _decoded_json(pmw)
+
+
 def _decoded_json(pmw) -> dict:
     import json
 
@@ -235,35 +240,46 @@ def refused(path, *words) -> str:
     return message
 
 
-def test_a_texture_that_is_a_fifo_is_refused_without_blocking(tmp_path):
+def left_out(path, *words) -> str:
+    """Encode the OBJ at ``path``: it encodes, one notice names the file it did not read and why (``words``),
+    and the output holds no image (what was left out was never read, so never embedded)."""
+    out = str(path) + ".pmw"
+    report = pmwm_codec.encode(str(path), out)
+    named = [n for n in report["notices"] if all(w in n for w in words)]
+    assert len(named) == 1 and named[0].endswith("left out") and "\n" not in named[0], report["notices"]
+    assert "images" not in _decoded_json(out)
+    return named[0]
+
+
+def test_a_texture_that_is_a_fifo_is_left_out_without_blocking(tmp_path):
     os.mkfifo(tmp_path / "skin.png")
-    refused(textured(tmp_path), "'skin.png'", "not a regular file")
+    left_out(textured(tmp_path), "'skin.png'", "not a regular file")
 
 
-def test_a_texture_that_is_a_directory_is_refused(tmp_path):
+def test_a_texture_that_is_a_directory_is_left_out(tmp_path):
     (tmp_path / "skin.png").mkdir()
-    refused(textured(tmp_path), "'skin.png'", "not a regular file")
+    left_out(textured(tmp_path), "'skin.png'", "not a regular file")
 
 
-def test_a_texture_symlinked_to_dev_zero_is_refused(tmp_path):
+def test_a_texture_symlinked_to_dev_zero_is_left_out_unread(tmp_path):
     os.symlink("/dev/zero", tmp_path / "skin.png")
-    refused(textured(tmp_path), "'skin.png'", "outside the asset's folder")
+    left_out(textured(tmp_path), "'skin.png'", "outside the asset's folder")
 
 
-def test_an_mtl_symlinked_to_dev_zero_is_refused(tmp_path):
+def test_an_mtl_symlinked_to_dev_zero_is_left_out_unread(tmp_path):
     path = textured(tmp_path)
     os.remove(tmp_path / "t.mtl")
     os.symlink("/dev/zero", tmp_path / "t.mtl")
-    refused(path, "'t.mtl'", "outside the asset's folder")
+    left_out(path, "'t.mtl'", "outside the asset's folder")
 
 
-def test_a_symlink_chain_leading_out_of_the_folder_is_refused(tmp_path):
+def test_a_symlink_chain_leading_out_of_the_folder_is_left_out_unread(tmp_path):
     folder = tmp_path / "asset"
     folder.mkdir()
     (tmp_path / "secret.png").write_bytes(png_bytes())
     os.symlink(tmp_path / "secret.png", folder / "b.png")
     os.symlink("b.png", folder / "a.png")
-    refused(textured(folder, "a.png"), "'a.png'", "outside the asset's folder")
+    left_out(textured(folder, "a.png"), "'a.png'", "outside the asset's folder")
 
 
 def test_a_symlink_chain_inside_the_folder_reads_the_file_once(tmp_path):
@@ -277,10 +293,10 @@ def test_a_symlink_chain_inside_the_folder_reads_the_file_once(tmp_path):
     assert len(_decoded_json(tmp_path / "t.pmw")["images"]) == 1
 
 
-def test_a_texture_over_the_resource_budget_is_refused(tmp_path, monkeypatch):
+def test_a_texture_over_the_resource_budget_is_left_out(tmp_path, monkeypatch):
     blob = png_bytes(64)
     monkeypatch.setattr(meshdoc, "MAX_RESOURCE_BYTES", len(blob) - 1)
-    refused(textured(tmp_path, files={"skin.png": blob}), "'skin.png'", "limit")
+    left_out(textured(tmp_path, files={"skin.png": blob}), "'skin.png'", "limit")
 
 
 def test_the_budget_is_shared_by_the_mtl_and_every_texture(tmp_path, monkeypatch):
@@ -290,9 +306,11 @@ def test_the_budget_is_shared_by_the_mtl_and_every_texture(tmp_path, monkeypatch
     monkeypatch.setattr(meshdoc, "MAX_RESOURCE_BYTES", len(mtl) + len(a) + len(b) - 1)
     path = textured(tmp_path, obj=obj, files={"a.png": a, "b.png": b})
     (tmp_path / "t.mtl").write_text(mtl)
-    refused(path, "'b.png'", "limit")
+    report = pmwm_codec.encode(str(path), str(tmp_path / "t.pmw"))
+    assert any("'b.png' not read" in n and n.endswith("left out") for n in report["notices"]), report["notices"]
+    assert len(_decoded_json(tmp_path / "t.pmw")["images"]) == 1  # a.png, read within the budget
     monkeypatch.setattr(meshdoc, "MAX_RESOURCE_BYTES", len(mtl) + len(a) + len(b))
-    assert pmwm_codec.encode(str(path), str(tmp_path / "t.pmw"))
+    assert len(_decoded_json_of(path, tmp_path / "t2.pmw")["images"]) == 2
 
 
 def bmp_header(width, height) -> bytes:
@@ -353,11 +371,11 @@ def test_a_percent_encoded_texture_name_is_read_literally_never_decoded(tmp_path
 
 
 @pytest.mark.parametrize("texture", ["..\\outside.png", "sub\\..\\..\\outside.png", "\\outside.png"])
-def test_a_windows_path_out_of_the_folder_is_refused(tmp_path, texture):
+def test_a_windows_path_out_of_the_folder_is_left_out_unread(tmp_path, texture):
     folder = tmp_path / "asset"
     (folder / "sub").mkdir(parents=True)
     (tmp_path / "outside.png").write_bytes(png_bytes())
-    message = refused(textured(folder, texture), "outside.png")
+    message = left_out(textured(folder, texture), "outside.png", "not read")
     assert "outside the asset's folder" in message or "absolute path" in message
 
 
@@ -417,11 +435,9 @@ def mark_png(path) -> str:
 
 
 BAD_OBJS = {
-    "escape": ("map_Kd ../outside.png", TEXTURED),
     "face": ("map_Kd skin.png", TEXTURED.replace("f 1/1 2/2 3/3 4/4", "f 1/1 2/2 9/3")),
     "corner": ("map_Kd skin.png", TEXTURED.replace("f 1/1 2/2 3/3 4/4", "f 1/1 2/2 /3")),
     "vt": ("map_Kd skin.png", TEXTURED.replace("vt 1 1", "vt nan 1")),
-    "fifo": ("map_Kd fifo.png", TEXTURED),
 }
 
 
