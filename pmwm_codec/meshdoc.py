@@ -392,7 +392,7 @@ def obj_document(path, text: str) -> tuple:
     corners, face_material = _obj_faces(kinds, bodies, name, by_name)
     if len(vt) == 0 and colours is None and (face_material < 0).all():
         return None, notices  # materials that did not resolve, no vt, no colours: geometry only
-    parts = _obj_parts(positions, vt, vn, colours, corners, face_material, notices, name)
+    parts = _obj_parts(positions, vt, vn, colours, corners, face_material, notices, materials)
     if not parts:
         raise MeshError(f"{name}: the mesh has no vertices or no faces")
     return _document(parts, materials, resources, name), notices
@@ -660,9 +660,16 @@ def _corner(token: str, counts: dict, name: str) -> tuple:
     return tuple(out)
 
 
-def _obj_parts(positions, vt, vn, colours, corners, face_material, notices, name) -> list:
-    """One :class:`Part` per material (faces of no material last): a glTF vertex per distinct corner triple."""
+def _obj_parts(positions, vt, vn, colours, corners, face_material, notices, materials) -> list:
+    """One :class:`Part` per material (faces of no material last): a glTF vertex per distinct corner triple.
+    ``positions`` (p, 3), ``vt`` (t, 1..3), ``vn`` (n, 3) float64, ``colours`` (p, 3|4) in [0, 1] or None;
+    ``corners`` (3m, 3) int64 (position, texture coordinate, normal; -1 none); ``face_material`` (m,) int64
+    indices into ``materials`` (the notices name them), -1 none."""
     parts = []
+
+    def _part_name(key: int) -> str:
+        return "the faces of no material" if key < 0 else f"the faces of material {materials[key].name!r}"
+
     keys = np.unique(face_material).tolist()
     for key in keys[1:] + keys[:1] if keys[0] < 0 else keys:
         tri = np.flatnonzero(face_material == key)
@@ -754,10 +761,6 @@ def _unique_keys(keys: np.ndarray) -> tuple:
     return values, inverse.reshape(-1)
 
 
-def _part_name(material: int) -> str:
-    return "the faces of no material" if material < 0 else f"material {material}'s faces"
-
-
 # -- PLY ----------------------------------------------------------------------------------------------------
 
 
@@ -845,7 +848,7 @@ def ply_document(path, data: bytes) -> tuple:
                                f"{len(materials)} the header names: left without one")
     corners = np.stack([vertex, uv_ids, normal_ids], axis=1)
     parts = _obj_parts(positions, vt, ply.normals if ply.normals is not None else np.zeros((0, 3)), ply.colours,
-                       corners, face_material, notices, name)
+                       corners, face_material, notices, materials)
     if not parts:
         raise MeshError(f"{name}: the mesh has no vertices or no faces")
     return _document(parts, materials, Resources(path, notices), name), notices
