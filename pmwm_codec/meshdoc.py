@@ -580,6 +580,8 @@ def _obj_faces_columns(kinds: list, bodies: list, by_name: dict):
     form = _CORNER_FORMS.get((text.count("/") // n, text.count("//") // n))
     if form is None or text.count("/") % n or text.count("//") % n:
         return None
+    if not _every_corner_has(text, n, 2 if 2 in form else len(form) - 1):
+        return None  # forms mixed so that the slashes average one form (f 1/4/1 2/5/1 3/6/1 and f 4 5 6)
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a token that is not an integer stops the reader: the record loop names it
         try:
@@ -609,6 +611,22 @@ def _obj_faces_columns(kinds: list, bodies: list, by_name: dict):
     last = np.maximum.accumulate(np.where(kind == 4, np.arange(len(kinds)), -1))[face_rows]
     face_material = np.where(last >= 0, material[np.maximum(last, 0)], -1)
     return corners, face_material[tri_face]
+
+
+#: The bytes :meth:`str.split` splits on that a face record may hold (its line breaks are gone: ``one_line_end``).
+_SPLITS = np.zeros(256, bool)
+_SPLITS[[9, 10, 11, 12, 13, 28, 29, 30, 31, 32]] = True
+
+
+def _every_corner_has(text: str, n: int, slashes: int) -> bool:
+    """Whether each of the ``n`` corners of the face records ``text`` (joined by spaces; ``n * slashes`` slashes in
+    all) holds ``slashes`` slashes: numpy over its bytes, two slashes in one corner when no separator lies between
+    them.  False for a separator :meth:`str.split` knows and this does not (the record loop reads it)."""
+    if not slashes:
+        return True  # no slash at all (counted by the caller)
+    raw = np.frombuffer(text.encode("utf-8", "replace"), np.uint8)
+    before = np.searchsorted(np.flatnonzero(_SPLITS[raw]), np.flatnonzero(raw == 47)).reshape(n, slashes)
+    return bool((before[:, 0] == before[:, -1]).all() and (before[1:, 0] > before[:-1, -1]).all())
 
 
 def _corner(token: str, counts: dict, name: str) -> tuple:

@@ -1,0 +1,75 @@
+"""Review of the OBJ / PLY appearance path (pmwm_codec.meshdoc): cases where it read a file otherwise than the
+plain reader (:func:`pmwm_codec.mesh.read_mesh`) does, or named the wrong problem."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
+
+import pmwm_codec
+from pmwm_codec import meshdoc
+from pmwm_codec.format.document import read_accessor
+from pmwm_codec.mesh import read_mesh
+
+
+def _triangles(gltf, buffers) -> set:
+    """Every triangle of a document as a frozenset of its corners' positions (rounded to 1e-6)."""
+    out = set()
+    for prim in gltf["meshes"][0]["primitives"]:
+        pos = read_accessor(gltf, buffers, prim["attributes"]["POSITION"])
+        tri = read_accessor(gltf, buffers, prim["indices"]).reshape(-1, 3)
+        out |= {frozenset(tuple(np.round(p, 6)) for p in pos[t]) for t in tri}
+    return out
+
+
+def _plain_triangles(path) -> set:
+    mesh = read_mesh(str(path))
+    return {frozenset(tuple(np.round(p, 6)) for p in mesh.positions[t]) for t in mesh.faces}
+
+
+def _document(path):
+    text = path.read_text()
+    return meshdoc.obj_document(str(path), text)
+
+
+_GRID = "".join(f"v {x} {y} {(x * y) % 3}\n" for y in range(4) for x in range(4))
+_UVS = "".join(f"vt {x / 3} {y / 3}\n" for y in range(4) for x in range(4))
+
+
+def test_faces_of_different_corner_forms_whose_slashes_average_one_form_draw_the_triangles_they_name(tmp_path):
+    # f 1/4/1 2/5/1 3/6/1 then f 4 5 6: six slashes over six corners, read a column at a time as six v/t corners
+    # (1/4 1/2 5/1 | 3/6 1/4 5/6): a wrong triangle and a dropped one, silently
+    path = tmp_path / "m.obj"
+    path.write_text(_GRID + _UVS + "vn 0 0 1\nf 1/4/1 2/5/1 3/6/1\nf 4 5 6\n")
+    (gltf, buffers), _ = _document(path)
+    assert _triangles(gltf, buffers) == _plain_triangles(path)
+
+
+@settings(max_examples=60, deadline=None)
+@given(forms=st.lists(st.sampled_from(["v", "v/t", "v//n", "v/t/n"]), min_size=3, max_size=12),
+       seed=st.integers(0, 2**16))
+@example(forms=["v/t/n"] * 3 + ["v"] * 3, seed=0)
+@example(forms=["v/t", "v/t/n", "v"], seed=1)
+def test_corners_of_mixed_forms_read_as_the_record_reader_reads_them(forms, seed):
+    rng = np.random.default_rng(seed)
+    kinds = ["v"] * 16 + ["vt"] * 16 + ["vn"] * 16
+    bodies = [f"{i} {i * i} 0" for i in range(16)] + ["0 0"] * 16 + ["0 0 1"] * 16
+    for start in range(0, len(forms) - 2, 3):
+        corners = []
+        for form in forms[start:start + 3]:
+            v, t, n = (int(x) for x in rng.integers(1, 17, 3))
+            corners.append(form.replace("v", str(v), 1).replace("t", str(t)).replace("n", str(n)))
+        kinds.append("f")
+        bodies.append(" ".join(corners))
+    fast = meshdoc._obj_faces_columns(kinds, bodies, {})
+    if fast is None:
+        return  # the record reader reads it
+    original = meshdoc._obj_faces_columns
+    try:
+        meshdoc._obj_faces_columns = lambda *a: None
+        slow = meshdoc._obj_faces(kinds, bodies, "x", {})
+    finally:
+        meshdoc._obj_faces_columns = original
+    assert np.array_equal(fast[0], slow[0]) and np.array_equal(fast[1], slow[1])
