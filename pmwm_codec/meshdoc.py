@@ -307,8 +307,8 @@ def named_files(path) -> list:
         for ref in _mtllib_names(record):
             mtl = found(ref)
             try:
-                materials = [] if mtl is None else _parse_mtl(one_line_end(_mesh_text(
-                    read_regular_file(mtl, MAX_RESOURCE_BYTES, InputFormatError), mtl, "MTL")))
+                materials = [] if mtl is None else _near_mtl(_parse_mtl(one_line_end(_mesh_text(
+                    read_regular_file(mtl, MAX_RESOURCE_BYTES, InputFormatError), mtl, "MTL"))), ref, base_dir)
             except (InputFormatError, OSError):
                 continue
             for m in materials:
@@ -447,11 +447,34 @@ def _obj_materials(mtllibs: list, resources: Resources) -> tuple:
                 continue
             from .mesh import _mesh_text
 
-            for m in _parse_mtl(_mesh_text(blob, f"{resources.name}: {ref}", "MTL")):
+            parsed = _parse_mtl(_mesh_text(blob, f"{resources.name}: {ref}", "MTL"))
+            for m in _near_mtl(parsed, ref, resources.base_dir):
                 if m.name not in by_name:
                     by_name[m.name] = len(materials)
                     materials.append(m)
     return materials, by_name
+
+
+def _near_mtl(materials: list, mtl_ref: str, base_dir: str) -> list:
+    """``materials`` (of the MTL file ``mtl_ref`` names, relative to the OBJ's folder ``base_dir``) with each
+    relative texture name made relative to the MTL's own folder where that is a subfolder and the texture is
+    there (``mtllib mats/a.mtl`` naming ``map_Kd skin.png``: ``mats/skin.png``, where Blender and three.js read
+    it), under the folder rule still; else as the MTL wrote it (beside the OBJ)."""
+    from .format.document import beside
+
+    folder = os.path.dirname(mtl_ref)
+    for m in materials if folder else []:
+        for attr in ("texture_file", "normal_file"):
+            ref = getattr(m, attr)
+            if not ref or ref.startswith("/") or os.path.isabs(ref):
+                continue
+            near = f"{folder}/{ref}"
+            try:
+                if os.path.lexists(beside(near, base_dir, near)):
+                    setattr(m, attr, near)
+            except InputFormatError:
+                continue
+    return materials
 
 
 def _mtllib_names(record: str) -> list:

@@ -73,3 +73,44 @@ def test_corners_of_mixed_forms_read_as_the_record_reader_reads_them(forms, seed
     finally:
         meshdoc._obj_faces_columns = original
     assert np.array_equal(fast[0], slow[0]) and np.array_equal(fast[1], slow[1])
+
+
+def _jpeg() -> bytes:
+    import io
+
+    from PIL import Image
+
+    out = io.BytesIO()
+    Image.new("RGB", (8, 8), (200, 10, 10)).save(out, "JPEG")
+    return out.getvalue()
+
+
+_QUAD = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nusemtl m\nf 1/1 2/2 3/3 4/4\n"
+
+
+@pytest.mark.parametrize("texture", ["a.jpg", "../textures/a.jpg"])
+def test_a_texture_named_beside_an_mtl_in_a_subfolder_is_embedded_and_named(tmp_path, texture):
+    # mtllib mats/scan.mtl, whose map_Kd a.jpg is mats/a.jpg (Blender and three.js read it there): it was looked
+    # for beside the OBJ only, and left out
+    (tmp_path / "mats").mkdir()
+    (tmp_path / "textures").mkdir()
+    at = tmp_path / ("mats/a.jpg" if texture == "a.jpg" else "textures/a.jpg")
+    at.write_bytes(_jpeg())
+    (tmp_path / "mats" / "scan.mtl").write_text(f"newmtl m\nmap_Kd {texture}\n")
+    path = tmp_path / "scan.obj"
+    path.write_text("mtllib mats/scan.mtl\n" + _QUAD)
+    report = pmwm_codec.encode(str(path), str(tmp_path / "scan.pmw"))
+    assert not any("not beside" in n for n in report["notices"]), report["notices"]
+    assert _jpeg() in pmwm_codec.decode_asset(str(tmp_path / "scan.pmw"))
+    assert str(at) in meshdoc.named_files(str(path))
+
+
+def test_a_texture_beside_the_obj_is_still_read_when_the_mtl_is_in_a_subfolder(tmp_path):
+    (tmp_path / "mats").mkdir()
+    (tmp_path / "a.jpg").write_bytes(_jpeg())
+    (tmp_path / "mats" / "scan.mtl").write_text("newmtl m\nmap_Kd a.jpg\n")
+    path = tmp_path / "scan.obj"
+    path.write_text("mtllib mats/scan.mtl\n" + _QUAD)
+    pmwm_codec.encode(str(path), str(tmp_path / "scan.pmw"))
+    assert _jpeg() in pmwm_codec.decode_asset(str(tmp_path / "scan.pmw"))
+    assert str(tmp_path / "a.jpg") in meshdoc.named_files(str(path))
