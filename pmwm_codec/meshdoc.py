@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .constants import MAX_ENCODE_FACES, MAX_ENCODE_VERTICES, MAX_INPUT_FILE_BYTES, MAX_RESOURCE_BYTES
-from .errors import InputFormatError, MeshError
+from .errors import DegenerateMeshError, InputFormatError, MeshError
 from .mesh import one_line_end
 
 
@@ -364,8 +364,8 @@ def obj_document(path, text: str) -> tuple:
     if len(vt) == 0 and colours is None and (face_material < 0).all():
         return None, notices  # materials that did not resolve, no vt, no colours: geometry only
     parts = _obj_parts(positions, vt, vn, colours, corners, face_material, notices, name)
-    if not parts:
-        raise MeshError(f"{name}: the mesh has no vertices or no faces")
+    if not parts:  # faces were read (else MeshError before), and every one was dropped
+        raise DegenerateMeshError(f"{name}: every triangle is degenerate")
     return _document(parts, materials, resources, name), notices
 
 
@@ -835,6 +835,6 @@ def ply_document(path, data: bytes) -> tuple:
     corners = np.stack([vertex, uv_ids, normal_ids], axis=1)
     parts = _obj_parts(positions, vt, ply.normals if ply.normals is not None else np.zeros((0, 3)), ply.colours,
                        corners, face_material, notices, name)
-    if not parts:
-        raise MeshError(f"{name}: the mesh has no vertices or no faces")
+    if not parts:  # faces were read (else MeshError before), and every one was dropped
+        raise DegenerateMeshError(f"{name}: every triangle is degenerate")
     return _document(parts, materials, Resources(path, notices), name), notices

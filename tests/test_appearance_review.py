@@ -114,3 +114,18 @@ def test_a_texture_beside_the_obj_is_still_read_when_the_mtl_is_in_a_subfolder(t
     pmwm_codec.encode(str(path), str(tmp_path / "scan.pmw"))
     assert _jpeg() in pmwm_codec.decode_asset(str(tmp_path / "scan.pmw"))
     assert str(tmp_path / "a.jpg") in meshdoc.named_files(str(path))
+
+
+@pytest.mark.parametrize("suffix, text", [
+    (".obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 1/1 2/1\n"),
+    (".ply", "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+             "property uchar red\nproperty uchar green\nproperty uchar blue\nelement face 1\n"
+             "property list uchar int vertex_indices\nend_header\n0 0 0 1 2 3\n1 0 0 1 2 3\n0 1 0 1 2 3\n3 0 0 1\n"),
+])
+def test_a_file_whose_every_triangle_is_degenerate_says_so_as_the_plain_reader_does(tmp_path, suffix, text):
+    # the appearance path said 'the mesh has no vertices or no faces' of a file that has both
+    path = tmp_path / ("m" + suffix)
+    path.write_text(text)
+    with pytest.raises(pmwm_codec.errors.DegenerateMeshError, match="every triangle is degenerate"):
+        pmwm_codec.encode(str(path), str(tmp_path / "m.pmw"))
+    assert not (tmp_path / "m.pmw").exists()
