@@ -488,16 +488,16 @@ def _mtllib_names(record: str) -> list:
 
 
 def _parse_mtl(text: str) -> list:
-    """The :class:`Material` of each ``newmtl`` of an MTL text: ``Kd`` and ``d`` (or ``Tr``, its complement)
-    make the base colour (white where the ``map_Kd`` texture is read, as Blender imports it: the texture is the
-    colour), ``Ns``
+    """The :class:`Material` of each ``newmtl`` of an MTL text: ``Kd`` and ``d`` (or, without a ``d``, ``Tr``, its
+    complement -- but ``Tr 1``, which MeshLab writes on every material as its opacity, is opaque) make the base
+    colour (white where the ``map_Kd`` texture is read, as Blender imports it: the texture is the colour), ``Ns``
     the roughness (``1 - sqrt(Ns / 1000)``), ``map_Kd`` the base colour texture and ``map_Bump`` / ``bump`` /
     ``norm`` the normal texture; other statements are not carried."""
-    out, current, kd, alpha = [], None, None, 1.0
+    out, current, kd, alpha, tr = [], None, None, None, None
 
     def close():
         if current is not None:
-            current.color = (*(kd or (1.0, 1.0, 1.0)), alpha)
+            current.color = (*(kd or (1.0, 1.0, 1.0)), alpha if alpha is not None else tr if tr is not None else 1.0)
             out.append(current)
 
     for raw in text.splitlines():
@@ -507,15 +507,16 @@ def _parse_mtl(text: str) -> list:
         key = words[0].lower()
         if key == "newmtl":
             close()
-            current, kd, alpha = Material(" ".join(words[1:]) or "material"), None, 1.0
+            current, kd, alpha, tr = Material(" ".join(words[1:]) or "material"), None, None, None
         elif current is None:
             continue
         elif key == "kd" and len(words) >= 4:
             kd = tuple(min(max(_number_or(w, 1.0), 0.0), 1.0) for w in words[1:4])
         elif key == "d" and len(words) >= 2:
             alpha = min(max(_number_or(words[-1], 1.0), 0.0), 1.0)
-        elif key == "tr" and len(words) >= 2:
-            alpha = 1.0 - min(max(_number_or(words[-1], 0.0), 0.0), 1.0)
+        elif key == "tr" and len(words) >= 2:  # 1 - d; but MeshLab writes its opacity, "Tr 1.000000", as Tr
+            tr = 1.0 - min(max(_number_or(words[-1], 0.0), 0.0), 1.0)
+            tr = 1.0 if tr == 0.0 else tr
         elif key == "ns" and len(words) >= 2:
             current.roughness = float(1.0 - min(max(_number_or(words[1], 0.0), 0.0) / 1000.0, 1.0) ** 0.5)
         elif key in ("map_kd", "map_bump", "bump", "norm") and len(words) >= 2:

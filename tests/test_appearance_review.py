@@ -129,3 +129,29 @@ def test_a_file_whose_every_triangle_is_degenerate_says_so_as_the_plain_reader_d
     with pytest.raises(pmwm_codec.errors.DegenerateMeshError, match="every triangle is degenerate"):
         pmwm_codec.encode(str(path), str(tmp_path / "m.pmw"))
     assert not (tmp_path / "m.pmw").exists()
+
+
+@pytest.mark.parametrize("statements, alpha", [
+    ("Tr 1.000000\n", 1.0),  # MeshLab's (vcglib's) MTL: Tr is its opacity, 1 on every material it writes
+    ("d 1\nTr 1\n", 1.0),  # d is the dissolve: it wins over Tr whichever comes first
+    ("Tr 1\nd 1\n", 1.0),
+    ("Tr 0.25\nd 0.5\n", 0.5),
+    ("Tr 0.25\n", 0.75),
+    ("d 0.4\n", 0.4),
+])
+def test_an_mtl_transparency_reads_as_the_alpha_its_writer_meant(statements, alpha):
+    # a MeshLab-exported textured OBJ came out with baseColorFactor alpha 0 and alphaMode BLEND: invisible
+    (material,) = meshdoc._parse_mtl("newmtl m\nKd 1 1 1\n" + statements + "map_Kd t.png\n")
+    assert material.color[3] == pytest.approx(alpha)
+
+
+def test_a_meshlab_textured_obj_encodes_an_opaque_material(tmp_path):
+    (tmp_path / "a.jpg").write_bytes(_jpeg())
+    (tmp_path / "scan.obj.mtl").write_text("newmtl material_0\nKa 0.200000 0.200000 0.200000\nKd 1.000000 1.000000 "
+                                           "1.000000\nKs 1.000000 1.000000 1.000000\nTr 1.000000\nillum 2\n"
+                                           "Ns 0.000000\nmap_Kd a.jpg\n")
+    path = tmp_path / "scan.obj"
+    path.write_text("mtllib ./scan.obj.mtl\n" + _QUAD.replace("usemtl m", "usemtl material_0"))
+    (gltf, _), _ = meshdoc.read_appearance(str(path))
+    (material,) = gltf["materials"]
+    assert material["pbrMetallicRoughness"]["baseColorFactor"][3] == 1.0 and "alphaMode" not in material
