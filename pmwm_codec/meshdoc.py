@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .constants import MAX_ENCODE_FACES, MAX_ENCODE_VERTICES, MAX_INPUT_FILE_BYTES, MAX_RESOURCE_BYTES
-from .errors import InputFormatError, MeshError
+from .errors import DegenerateMeshError, InputFormatError, MeshError
 from .mesh import one_line_end
 
 
@@ -336,8 +336,8 @@ def named_files(path) -> list:
         for ref in _mtllib_names(record):
             mtl = found(ref)
             try:
-                materials = [] if mtl is None else _parse_mtl(one_line_end(_mesh_text(
-                    read_regular_file(mtl, MAX_RESOURCE_BYTES, InputFormatError), mtl, "MTL")))
+                materials = [] if mtl is None else _near_mtl(_parse_mtl(one_line_end(_mesh_text(
+                    read_regular_file(mtl, MAX_RESOURCE_BYTES, InputFormatError), mtl, "MTL"))), ref, base_dir)
             except (InputFormatError, OSError):
                 continue
             for m in materials:
@@ -393,8 +393,8 @@ def obj_document(path, text: str) -> tuple:
     if len(vt) == 0 and colours is None and (face_material < 0).all():
         return None, notices  # materials that did not resolve, no vt, no colours: geometry only
     parts = _obj_parts(positions, vt, vn, colours, corners, face_material, notices, materials)
-    if not parts:
-        raise MeshError(f"{name}: the mesh has no vertices or no faces")
+    if not parts:  # faces were read (else MeshError before), and every one was dropped
+        raise DegenerateMeshError(f"{name}: every triangle is degenerate")
     return _document(parts, materials, resources, name), notices
 
 
@@ -476,11 +476,34 @@ def _obj_materials(mtllibs: list, resources: Resources) -> tuple:
                 continue
             from .mesh import _mesh_text
 
-            for m in _parse_mtl(_mesh_text(blob, f"{resources.name}: {ref}", "MTL")):
+            parsed = _parse_mtl(_mesh_text(blob, f"{resources.name}: {ref}", "MTL"))
+            for m in _near_mtl(parsed, ref, resources.base_dir):
                 if m.name not in by_name:
                     by_name[m.name] = len(materials)
                     materials.append(m)
     return materials, by_name
+
+
+def _near_mtl(materials: list, mtl_ref: str, base_dir: str) -> list:
+    """``materials`` (of the MTL file ``mtl_ref`` names, relative to the OBJ's folder ``base_dir``) with each
+    relative texture name made relative to the MTL's own folder where that is a subfolder and the texture is
+    there (``mtllib mats/a.mtl`` naming ``map_Kd skin.png``: ``mats/skin.png``, where Blender and three.js read
+    it), under the folder rule still; else as the MTL wrote it (beside the OBJ)."""
+    from .format.document import beside
+
+    folder = os.path.dirname(mtl_ref)
+    for m in materials if folder else []:
+        for attr in ("texture_file", "normal_file"):
+            ref = getattr(m, attr)
+            if not ref or ref.startswith("/") or os.path.isabs(ref):
+                continue
+            near = f"{folder}/{ref}"
+            try:
+                if os.path.lexists(beside(near, base_dir, near)):
+                    setattr(m, attr, near)
+            except InputFormatError:
+                continue
+    return materials
 
 
 def _mtllib_names(record: str) -> list:
@@ -494,16 +517,16 @@ def _mtllib_names(record: str) -> list:
 
 
 def _parse_mtl(text: str) -> list:
-    """The :class:`Material` of each ``newmtl`` of an MTL text: ``Kd`` and ``d`` (or ``Tr``, its complement)
-    make the base colour (white where the ``map_Kd`` texture is read, as Blender imports it: the texture is the
-    colour), ``Ns``
+    """The :class:`Material` of each ``newmtl`` of an MTL text: ``Kd`` and ``d`` (or, without a ``d``, ``Tr``, its
+    complement -- but ``Tr 1``, which MeshLab writes on every material as its opacity, is opaque) make the base
+    colour (white where the ``map_Kd`` texture is read, as Blender imports it: the texture is the colour), ``Ns``
     the roughness (``1 - sqrt(Ns / 1000)``), ``map_Kd`` the base colour texture and ``map_Bump`` / ``bump`` /
     ``norm`` the normal texture; other statements are not carried."""
-    out, current, kd, alpha = [], None, None, 1.0
+    out, current, kd, alpha, tr = [], None, None, None, None
 
     def close():
         if current is not None:
-            current.color = (*(kd or (1.0, 1.0, 1.0)), alpha)
+            current.color = (*(kd or (1.0, 1.0, 1.0)), alpha if alpha is not None else tr if tr is not None else 1.0)
             out.append(current)
 
     for raw in text.splitlines():
@@ -513,15 +536,16 @@ def _parse_mtl(text: str) -> list:
         key = words[0].lower()
         if key == "newmtl":
             close()
-            current, kd, alpha = Material(" ".join(words[1:]) or "material"), None, 1.0
+            current, kd, alpha, tr = Material(" ".join(words[1:]) or "material"), None, None, None
         elif current is None:
             continue
         elif key == "kd" and len(words) >= 4:
             kd = tuple(min(max(_number_or(w, 1.0), 0.0), 1.0) for w in words[1:4])
         elif key == "d" and len(words) >= 2:
             alpha = min(max(_number_or(words[-1], 1.0), 0.0), 1.0)
-        elif key == "tr" and len(words) >= 2:
-            alpha = 1.0 - min(max(_number_or(words[-1], 0.0), 0.0), 1.0)
+        elif key == "tr" and len(words) >= 2:  # 1 - d; but MeshLab writes its opacity, "Tr 1.000000", as Tr
+            tr = 1.0 - min(max(_number_or(words[-1], 0.0), 0.0), 1.0)
+            tr = 1.0 if tr == 0.0 else tr
         elif key == "ns" and len(words) >= 2:
             current.roughness = float(1.0 - min(max(_number_or(words[1], 0.0), 0.0) / 1000.0, 1.0) ** 0.5)
         elif key in ("map_kd", "map_bump", "bump", "norm") and len(words) >= 2:
@@ -609,6 +633,8 @@ def _obj_faces_columns(kinds: list, bodies: list, by_name: dict):
     form = _CORNER_FORMS.get((text.count("/") // n, text.count("//") // n))
     if form is None or text.count("/") % n or text.count("//") % n:
         return None
+    if not _every_corner_has(text, n, 2 if 2 in form else len(form) - 1):
+        return None  # forms mixed so that the slashes average one form (f 1/4/1 2/5/1 3/6/1 and f 4 5 6)
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a token that is not an integer stops the reader: the record loop names it
         try:
@@ -638,6 +664,22 @@ def _obj_faces_columns(kinds: list, bodies: list, by_name: dict):
     last = np.maximum.accumulate(np.where(kind == 4, np.arange(len(kinds)), -1))[face_rows]
     face_material = np.where(last >= 0, material[np.maximum(last, 0)], -1)
     return corners, face_material[tri_face]
+
+
+#: The bytes :meth:`str.split` splits on that a face record may hold (its line breaks are gone: ``one_line_end``).
+_SPLITS = np.zeros(256, bool)
+_SPLITS[[9, 10, 11, 12, 13, 28, 29, 30, 31, 32]] = True
+
+
+def _every_corner_has(text: str, n: int, slashes: int) -> bool:
+    """Whether each of the ``n`` corners of the face records ``text`` (joined by spaces; ``n * slashes`` slashes in
+    all) holds ``slashes`` slashes: numpy over its bytes, two slashes in one corner when no separator lies between
+    them.  False for a separator :meth:`str.split` knows and this does not (the record loop reads it)."""
+    if not slashes:
+        return True  # no slash at all (counted by the caller)
+    raw = np.frombuffer(text.encode("utf-8", "replace"), np.uint8)
+    before = np.searchsorted(np.flatnonzero(_SPLITS[raw]), np.flatnonzero(raw == 47)).reshape(n, slashes)
+    return bool((before[:, 0] == before[:, -1]).all() and (before[1:, 0] > before[:-1, -1]).all())
 
 
 def _corner(token: str, counts: dict, name: str) -> tuple:
@@ -849,6 +891,6 @@ def ply_document(path, data: bytes) -> tuple:
     corners = np.stack([vertex, uv_ids, normal_ids], axis=1)
     parts = _obj_parts(positions, vt, ply.normals if ply.normals is not None else np.zeros((0, 3)), ply.colours,
                        corners, face_material, notices, materials)
-    if not parts:
-        raise MeshError(f"{name}: the mesh has no vertices or no faces")
+    if not parts:  # faces were read (else MeshError before), and every one was dropped
+        raise DegenerateMeshError(f"{name}: every triangle is degenerate")
     return _document(parts, materials, Resources(path, notices), name), notices
