@@ -173,6 +173,7 @@ class Resources:
     def image(self, ref: str) -> int | None:
         """The index of the texture ``ref`` names in :attr:`images`, read and made PNG or JPEG
         (:func:`texture_image`) the first time; None (with a notice) where it cannot be."""
+        ref = self._by_name(ref)
         key = self._target(ref, "the texture")
         if key is None:
             return None
@@ -184,6 +185,26 @@ class Resources:
                 self.images.append((*made, os.path.basename(ref.replace("\\", "/"))))
                 self._image_ids[key] = len(self.images) - 1
         return self._image_ids[key]
+
+
+    def _by_name(self, ref: str) -> str:
+        """``ref``, or its last component where ``ref`` names no file inside the folder -- a path out of it, an
+        absolute one (a Windows exporter's ``C:/maps/skin.jpg``), one that names nothing -- and a file of that
+        name lies beside the mesh file, where obj2gltf and Blender look for it then (a notice says so)."""
+        from .format.document import beside
+
+        name = ref.rsplit("/", 1)[-1]
+        if not name or name == ref:
+            return ref
+        for candidate in (ref, name):
+            try:
+                if os.path.lexists(beside(candidate, self.base_dir, candidate)):
+                    if candidate is name:
+                        self.notices.append(f"the texture {_shown(ref)} read as {_shown(name)}, beside {self.name}")
+                    return candidate
+            except InputFormatError:
+                continue
+        return ref
 
 
 def _reason(exc: Exception, label: str) -> str:
@@ -319,10 +340,11 @@ def named_files(path) -> list:
             target = beside(ref, base_dir, ref)
         except InputFormatError:
             return None
-        if os.path.isfile(target) and target not in out:
+        if not os.path.isfile(target):
+            return None
+        if target not in out:
             out.append(target)
-            return target
-        return None
+        return target
 
     if suffix == ".ply":
         for ref in _ply_texture_files(path):
@@ -342,8 +364,8 @@ def named_files(path) -> list:
                 continue
             for m in materials:
                 for ref_file in (m.texture_file, m.normal_file):
-                    if ref_file:
-                        found(ref_file)
+                    if ref_file and found(ref_file) is None:
+                        found(ref_file.rsplit("/", 1)[-1])  # by its name beside the OBJ (Resources._by_name)
     return out
 
 
@@ -380,7 +402,8 @@ def obj_document(path, text: str) -> tuple:
     colours, notices = None, []
     if v.shape[1] >= 6 and not np.isnan(v[:, 3:6]).any():
         colours = v[:, 3:6] if v.shape[1] == 6 else v[:, 4:7]  # x y z r g b, or x y z w r g b
-        colours = np.clip(colours / (255.0 if colours.max() > 1.0 else 1.0), 0.0, 1.0)
+        # 0..255 where a value reaches 2 (a 0..1 colour a rounding over 1 is not one), else 0..1
+        colours = np.clip(colours / (255.0 if colours.max() >= 2.0 else 1.0), 0.0, 1.0)
     elif has_colours or v.shape[1] >= 6:
         notices = [f"vertex colours left out: {int(np.isnan(v[:, 3:6]).any(axis=1).sum()):,} of {len(v):,} v records "
                    "have none"]
@@ -577,7 +600,8 @@ def _map_file(words: list) -> str:
         while taken < n and i < len(words) and (_is_number(words[i]) or words[i] in ("on", "off")):
             i += 1
             taken += 1
-    return " ".join(words[i:]).replace("\\", "/")  # "" for options alone (map_Kd -s 1 1 1): no file
+    name = " ".join(words[i:]).replace("\\", "/")  # "" for options alone (map_Kd -s 1 1 1): no file
+    return name[1:-1] if len(name) > 1 and name[0] == name[-1] == '"' else name  # map_Kd "my skin.png"
 
 
 def _obj_faces(kinds: list, bodies: list, name: str, by_name: dict) -> tuple:

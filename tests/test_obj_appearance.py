@@ -353,3 +353,34 @@ def test_hard_edged_normals_that_would_keep_the_mesh_in_its_base_are_not_carried
     assert not any("normals" in n for n in report["notices"]) and report["base_vertices"] < 100
     gltf, _ = _decoded(str(tmp_path / "smooth.pmw"))
     assert sorted(gltf["meshes"][0]["primitives"][0]["attributes"]) == ["NORMAL", "POSITION", "TEXCOORD_0"]
+
+
+@pytest.mark.parametrize("statement", ["map_Kd C:\\maps\\skin.png", "map_Kd ../elsewhere/skin.png",
+                                       "map_Kd /home/artist/skin.png", 'map_Kd "skin.png"'])
+def test_a_texture_named_by_a_path_that_finds_nothing_is_read_by_its_name_beside_the_obj(tmp_path, statement):
+    """As obj2gltf and Blender do: a Windows exporter's absolute path, a path out of the folder or one that
+    names nothing is looked for by its file name beside the OBJ (never outside it); quotes are not the name."""
+    path, *_ = _torus_obj(str(tmp_path))
+    blob = _png(tmp_path / "skin.png")
+    (tmp_path / "t.mtl").write_text(f"newmtl skin\n{statement}\n")
+    report = pmwm_codec.encode(path, str(tmp_path / "t.pmw"))
+    assert pmwm_codec.decode_asset(str(tmp_path / "t.pmw")).count(blob) == 1
+    if '"' not in statement:
+        assert any(n.endswith("read as 'skin.png', beside t.obj") for n in report["notices"]), report["notices"]
+
+
+def test_obj_colours_of_0_to_1_rounded_just_over_1_are_not_taken_for_bytes(tmp_path):
+    path = tmp_path / "c.obj"
+    mesh = shapes.icosphere(1)
+    rows = [f"v {x} {y} {z} 1.0000001 0.5 0.25" for x, y, z in mesh.positions]
+    path.write_text("\n".join(rows + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in mesh.faces]) + "\n")
+    pmwm_codec.encode(str(path), str(tmp_path / "c.pmw"))
+    gltf, buffers = _decoded(str(tmp_path / "c.pmw"))
+    assert np.abs(_attribute(gltf, buffers, "COLOR_0") - [1.0, 0.5, 0.25]).max() < 1e-3
+
+
+def test_a_texture_found_by_its_name_is_among_the_files_the_obj_names(tmp_path):
+    path, *_ = _torus_obj(str(tmp_path))
+    _png(tmp_path / "skin.png")
+    (tmp_path / "t.mtl").write_text("newmtl skin\nmap_Kd C:\\maps\\skin.png\n")
+    assert meshdoc.named_files(path) == [os.path.realpath(tmp_path / n) for n in ("t.mtl", "skin.png")]
