@@ -106,7 +106,8 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
     ``"none"``), ``payload_version`` (2, the default: range-coded chunks and the compact chunk
     table; 1: the zstd payload and per-chunk index of files written before),
     ``strip_image_profiles`` and ``keep_flat_normals`` (assets: a flat-shaded primitive keeps its NORMAL,
-    and stays in the base).  Without a ``watermark``, ``mode``, ``bits``, ``embed_from`` and
+    and stays in the base), ``geometry_only`` (the positions and faces alone, as :func:`read_mesh` reads them:
+    an OBJ's or PLY's appearance, a glTF asset's document not carried).  Without a ``watermark``, ``mode``, ``bits``, ``embed_from`` and
     ``step_units`` change nothing in the file: each one given says so in a notice
     (:func:`~pmwm_codec.options.ignored_without_image`, ``"bits ignored: no watermark"``), and so does
     ``owner_strength`` without an ``owner_id`` or a watermark (no owner layer).
@@ -128,6 +129,11 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
         named = tuple(named_files(src))
     check_destination(dst, inputs=(src, watermark, *named))
     options = checked_options(options)
+    geometry_only = options.pop("geometry_only", False)
+    if geometry_only and isinstance(src, tuple):
+        from .errors import OptionError
+
+        raise OptionError("geometry_only takes a mesh file or a Mesh, not an in-memory glTF document")
     image, notices, given = _as_watermark(watermark)
     from_key = None  # the key whose own image is the watermark (no watermark given)
     if image is None and key is not None:
@@ -138,9 +144,9 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
     if image is None and (asked is False or (asked is None and key is None)) and options.get("owner_strength") is not None:
         notices.append("owner_strength ignored: no owner layer (an owner_id, or a watermark, makes one)")
     key_obj, key_slot, options["owner_id"] = _key_for(key, image, dst, asked, inputs=(src, watermark))
-    asset = is_asset_path(src) or isinstance(src, tuple)
+    asset = not geometry_only and (is_asset_path(src) or isinstance(src, tuple))
     label = None  # a mesh file read as an asset (its appearance: pmwm_codec.meshdoc) is named as the file
-    if not asset and isinstance(src, (str, os.PathLike)) and os.path.exists(src):
+    if not asset and not geometry_only and isinstance(src, (str, os.PathLike)) and os.path.exists(src):
         from .meshdoc import read_appearance
 
         document, read_notices = read_appearance(src)

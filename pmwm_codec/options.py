@@ -124,6 +124,7 @@ def _options() -> dict:
         "measure": _measure,
         "strip_image_profiles": _flag("strip_image_profiles"),
         "keep_flat_normals": _flag("keep_flat_normals"),
+        "geometry_only": _flag("geometry_only"),
         "progress": _callable("progress"),
     }
 
@@ -137,7 +138,7 @@ def checked_options(options: dict) -> dict:
         if name not in checks:
             raise OptionError(f"unknown option {name!r} (one of {', '.join(checks)})")
         nullable = name not in ("mode", "base_codec", "zstd_level", "payload_version", "strip_image_profiles",
-                                "keep_flat_normals")
+                                "keep_flat_normals", "geometry_only")
         out[name] = value if value is None and nullable else checks[name](value)
     if out.get("mode") == "paper" and out.get("bits") is not None and out["bits"] < 2:
         raise OptionError(f"bits must be at least 2 in paper mode, got {out['bits']}")

@@ -384,3 +384,19 @@ def test_a_texture_found_by_its_name_is_among_the_files_the_obj_names(tmp_path):
     _png(tmp_path / "skin.png")
     (tmp_path / "t.mtl").write_text("newmtl skin\nmap_Kd C:\\maps\\skin.png\n")
     assert meshdoc.named_files(path) == [os.path.realpath(tmp_path / n) for n in ("t.mtl", "skin.png")]
+
+
+def test_geometry_only_encodes_a_textured_obj_as_its_positions_and_faces_alone(tmp_path):
+    path, *_ = _torus_obj(str(tmp_path))
+    _png(tmp_path / "skin.png")
+    (tmp_path / "t.mtl").write_text("newmtl skin\nmap_Kd skin.png\n")
+    plain, through_file = io.BytesIO(), io.BytesIO()
+    pmwm_codec.encode(read_mesh(path), plain)
+    report = pmwm_codec.encode(path, through_file, geometry_only=True)
+    assert through_file.getvalue() == plain.getvalue() and report["notices"] == []
+    run = subprocess.run([sys.executable, "-m", "pmwm_codec", "encode", path, "-o", str(tmp_path / "g.pmw"),
+                          "--geometry-only", "--json"], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert (tmp_path / "g.pmw").read_bytes() == plain.getvalue()
+    with pytest.raises(pmwm_codec.PmwError, match="geometry_only takes a mesh file"):
+        pmwm_codec.encode(meshdoc.read_appearance(path)[0], io.BytesIO(), geometry_only=True)

@@ -110,6 +110,10 @@ def add_stream_options(p) -> None:
     p.add_argument("--keep-flat-normals", action="store_true",
                    help="glTF assets: keep a flat-shaded primitive's NORMAL (by default dropped, as viewers "
                         "compute the same flat normals, so that it streams; kept, it stays in the base)")
+    p.add_argument("--geometry-only", action="store_true",
+                   help="carry the input's positions and faces alone: an OBJ's or PLY's texture coordinates, "
+                        "colours and materials, and a glTF asset's document (its triangle primitives merged as "
+                        "its default scene places them), are not carried")
 
 
 def stream_options(args, *, defaults: bool = True) -> dict:
@@ -124,6 +128,8 @@ def stream_options(args, *, defaults: bool = True) -> dict:
         options["strip_image_profiles"] = True
     if args.keep_flat_normals:
         options["keep_flat_normals"] = True
+    if args.geometry_only:
+        options["geometry_only"] = True
     return options
 
 
