@@ -10,8 +10,9 @@ by :func:`~pmwm_codec.mesh.read_mesh` as before.
 The pieces a reader hands over:
 
 ``Part``
-    one triangle primitive: ``positions`` (n, 3) float32, ``indices`` (m, 3) uint32 into them,
-    ``attributes`` {glTF semantic: (n, k) float32} (``NORMAL`` unit vectors, ``TEXCOORD_0`` in glTF's
+    one triangle primitive: ``positions`` (n, 3) float, ``indices`` (m, 3) int into them,
+    ``attributes`` {glTF semantic: (n, k) float} (stored as float32 / uint16 or uint32 by
+    :func:`build_document`) (``NORMAL`` unit vectors, ``TEXCOORD_0`` in glTF's
     convention -- v grows downwards, so an OBJ's or PLY's ``v`` becomes ``1 - v`` --, ``COLOR_0`` in [0, 1]),
     and the index of its :class:`Material` or None;
 ``Material``
@@ -23,9 +24,11 @@ images
 Every file a mesh file names besides itself (an MTL, a texture) is read under the rule a ``.gltf``'s files are
 (:func:`~pmwm_codec.format.document.beside`): a relative path inside the mesh file's folder, a regular file, no
 symlink as its last component, all resources together at most :data:`~pmwm_codec.constants.MAX_RESOURCE_BYTES`.
-A path that breaks the rule is refused (InputFormatError, exit 2: an input file never makes the encoder read
-outside what the user named); a file that is simply missing is left out with a notice (an OBJ shipped without
-its MTL still has its geometry and texture coordinates).
+A file that breaks the rule is never read (an input file never makes the encoder read outside what the user
+named) and, as one that is missing, left out with a notice, the rest encoded (:class:`Resources`; obj2gltf's
+secure mode): an MTL and its textures are appearance the geometry does not need, where a ``.gltf``'s buffers,
+its geometry, are refused instead.  A texture path that finds nothing inside the folder is looked for by its
+file name beside the mesh file (:meth:`Resources._by_name`).
 """
 
 from __future__ import annotations
