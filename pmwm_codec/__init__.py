@@ -146,14 +146,18 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
     key_obj, key_slot, options["owner_id"] = _key_for(key, image, dst, asked, inputs=(src, watermark))
     asset = not geometry_only and (is_asset_path(src) or isinstance(src, tuple))
     label = None  # a mesh file read as an asset (its appearance: pmwm_codec.meshdoc) is named as the file
+    mesh = None
     if not asset and not geometry_only and isinstance(src, (str, os.PathLike)) and os.path.exists(src):
-        from .meshdoc import read_appearance
+        from .meshdoc import read_source
 
-        document, read_notices = read_appearance(src)
+        source, read_notices = read_source(src)  # the document its appearance describes, or its Mesh
         notices += read_notices
-        if document is not None:
-            src, asset, label = document, True, os.path.basename(os.fspath(src))
-    mesh = None if asset else _as_mesh(src)
+        if isinstance(source, tuple):
+            src, asset, label = source, True, os.path.basename(os.fspath(src))
+        else:
+            mesh = source
+    if mesh is None and not asset:
+        mesh = _as_mesh(src)
     if asset and not isinstance(src, tuple) and not os.path.exists(src):
         from .errors import InputFormatError
         from .sources import shown_path

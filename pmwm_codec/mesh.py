@@ -390,9 +390,10 @@ def read_mesh(path: str | bytes | os.PathLike[str]) -> Mesh:
     size = os.stat(path).st_size
     if size > MAX_INPUT_FILE_BYTES:
         raise InputFormatError(f"{name}: {size:,} bytes, more than the limit of {MAX_INPUT_FILE_BYTES:,}")
-    if suffix in (".obj", ".off"):
-        positions, faces = (_read_obj if suffix == ".obj" else _read_off)(path, name)
-        return _soup_welded(positions, faces, name)
+    if suffix == ".obj":
+        return obj_mesh(obj_text(path, name), name)
+    if suffix == ".off":
+        return _soup_welded(*_read_off(path, name), name)
     if suffix == ".ply":
         _check_ply_header(path, name)
         from .ply import read_ply
@@ -453,14 +454,32 @@ def _read_obj(path, name):
     face line's triangles are counted from its spaces before it is split), and
     every face index must name an existing vertex.
     """
+    return obj_arrays(obj_text(path, name), name)[:2]
+
+
+def obj_text(path, name) -> str:
+    """The text of the OBJ at ``path`` as its readers take it: decoded (:func:`_mesh_text`), every line ended by a
+    line feed (:func:`one_line_end`), comments cut (a comment runs to the end of its line, after a record too:
+    ``f 1 2 3 # the lid``).  Read once for both readers: :func:`obj_arrays` and
+    :func:`pmwm_codec.meshdoc.obj_document`."""
     text = one_line_end(_mesh_text(read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name), name, "OBJ"))
-    if "#" in text:  # a comment runs to the end of its line, after a record too (f 1 2 3 # the lid)
-        text = re.sub(r"#[^\n]*", "", text)
+    return re.sub(r"#[^\n]*", "", text) if "#" in text else text
+
+
+def obj_mesh(text: str, name: str) -> Mesh:
+    """The checked :class:`Mesh` of an OBJ's :func:`obj_text`, as :func:`read_mesh` reads the file."""
+    return _soup_welded(*obj_arrays(text, name)[:2], name)
+
+
+def obj_arrays(text: str, name: str) -> tuple:
+    """:func:`_read_obj`'s arrays of an OBJ's :func:`obj_text`, and the most numbers a ``v`` record holds
+    (``(positions (n, 3) float64, faces (m, 3) int64, widest int)``: six or more, vertex colours, which
+    :func:`pmwm_codec.meshdoc.read_source` then reads as an asset, learnt from the one parse)."""
     lines = _obj_lines(text)
     fast = _read_obj_columns(lines)
     if fast is not None:
         return fast
-    verts, tris = [], []
+    verts, tris, widest = [], [], 3
     line = ""
     try:
         for line in lines:
@@ -469,6 +488,8 @@ def _read_obj(path, name):
                     raise InputFormatError(f"{name}: more than {MAX_ENCODE_VERTICES:,} vertices (the encoder's limit)")
                 parts = line.split(None, 4)
                 verts.append((_number(parts[1]), _number(parts[2]), _number(parts[3])))
+                if len(parts) == 5 and widest < 6:
+                    widest = max(widest, 3 + len(parts[4].split()))
             elif line.startswith("f "):
                 if len(tris) + max(1, line.count(" ") - 2) > MAX_ENCODE_FACES:
                     raise InputFormatError(f"{name}: more than {MAX_ENCODE_FACES:,} triangles (the encoder's limit)")
@@ -479,7 +500,7 @@ def _read_obj(path, name):
         raise InputFormatError(f"{name}: malformed OBJ record: {line.strip()[:60]!r}") from None
     if not verts or not tris:
         raise MeshError(f"{name}: the mesh has no vertices or no faces")
-    return np.array(verts, dtype=np.float64), np.array(tris, dtype=np.int64)
+    return np.array(verts, dtype=np.float64), np.array(tris, dtype=np.int64), widest
 
 
 def _mesh_text(data: bytes, name: str, kind: str) -> str:
@@ -694,7 +715,7 @@ def _read_obj_columns(lines: list):
     else:
         before = 0
     faces = np.where(faces > 0, faces - 1, before + faces)
-    return np.ascontiguousarray(positions[:, :3]), faces
+    return np.ascontiguousarray(positions[:, :3]), faces, positions.shape[1]
 
 
 def _add_polygon(line: str, tris: list, name: str, read: int) -> None:
