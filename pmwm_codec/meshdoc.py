@@ -262,20 +262,17 @@ def _png_damage(blob: bytes) -> str | None:
     """What is wrong with the chunks of a PNG's bytes (``blob``, the signature checked), or None: an ``IHDR``
     first, every chunk whole with its CRC, an ``IEND`` last.  No pixel is decoded (a PNG is embedded byte for
     byte, and a viewer decodes it: a truncated or corrupt one would be a texture no viewer shows)."""
-    pos, first = 8, True
-    while pos + 12 <= len(blob):
-        length = int.from_bytes(blob[pos:pos + 4], "big")
-        kind = blob[pos + 4:pos + 8]
-        end = pos + 12 + length
-        if first and kind != b"IHDR":
+    from .format.document import png_chunks
+
+    for i, (kind, start, end) in enumerate(png_chunks(blob)):
+        if i == 0 and kind != b"IHDR":
             return "no IHDR chunk first"
         if end > len(blob):
             return f"truncated in its {kind.decode('latin-1')!r} chunk"
-        if zlib.crc32(blob[pos + 4:end - 4]) != int.from_bytes(blob[end - 4:end], "big"):
+        if zlib.crc32(blob[start + 4:end - 4]) != int.from_bytes(blob[end - 4:end], "big"):
             return f"the CRC of its {kind.decode('latin-1')!r} chunk does not match"
         if kind == b"IEND":
             return None
-        pos, first = end, False
     return "truncated: no IEND chunk"
 
 

@@ -985,19 +985,28 @@ PNG_PROFILE_CHUNKS = (b"iCCP", b"cHRM", b"gAMA", b"sRGB", b"pHYs")
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
+def png_chunks(blob: bytes):
+    """Yield ``(type, start, end)`` of each chunk of a PNG's bytes after its signature: ``start`` at its length
+    field, ``end`` after its CRC -- beyond ``len(blob)`` for a chunk cut short, the last one yielded then."""
+    pos = 8
+    while pos + 12 <= len(blob):
+        end = pos + 12 + int.from_bytes(blob[pos : pos + 4], "big")
+        yield blob[pos + 4 : pos + 8], pos, end
+        if end > len(blob):
+            return
+        pos = end
+
+
 def strip_png_profile(blob: bytes) -> bytes:
     """A PNG without its colour-space / pixel-aspect chunks (same pixels); other data unchanged."""
     if blob[:8] != PNG_SIGNATURE:
         return blob
-    out, pos = [blob[:8]], 8
-    while pos + 12 <= len(blob):
-        length = int.from_bytes(blob[pos : pos + 4], "big")
-        end = pos + 12 + length
+    out = [blob[:8]]
+    for kind, start, end in png_chunks(blob):
         if end > len(blob):
             return blob  # damaged: leave it alone
-        if blob[pos + 4 : pos + 8] not in PNG_PROFILE_CHUNKS:
-            out.append(blob[pos:end])
-        pos = end
+        if kind not in PNG_PROFILE_CHUNKS:
+            out.append(blob[start:end])
     return b"".join(out)
 
 
