@@ -137,6 +137,8 @@ class Resources:
         self.budget = [MAX_RESOURCE_BYTES]
         self.images: list = []
         self._image_ids: dict = {}
+        #: The real paths of the files read, in order (:func:`named_files`).
+        self.files: list = []
 
     def read(self, ref: str, what: str) -> bytes | None:
         """The bytes of the file ``ref`` names (``what``: how the notice names it, ``"the MTL file"``), or None
@@ -159,6 +161,7 @@ class Resources:
             self.notices.append(f"{what} {_shown(ref)} not read ({_reason(exc, label)}): left out")
             return None
         self.budget[0] -= len(blob)
+        self.files.append(target)
         return blob
 
     def _target(self, ref: str, what: str) -> str | None:
@@ -176,8 +179,7 @@ class Resources:
     def image(self, ref: str) -> int | None:
         """The index of the texture ``ref`` names in :attr:`images`, read and made PNG or JPEG
         (:func:`texture_image`) the first time; None (with a notice) where it cannot be."""
-        ref = self._by_name(ref)
-        key = self._target(ref, "the texture")
+        ref, key = self.locate(ref)
         if key is None:
             return None
         if key not in self._image_ids:
@@ -189,6 +191,11 @@ class Resources:
                 self._image_ids[key] = len(self.images) - 1
         return self._image_ids[key]
 
+    def locate(self, ref: str) -> tuple:
+        """``(the name the texture ``ref`` is read by (:meth:`_by_name`), its real path inside the folder or None
+        with a notice (:meth:`_target`))``; nothing is read."""
+        ref = self._by_name(ref)
+        return ref, self._target(ref, "the texture")
 
     def _by_name(self, ref: str) -> str:
         """``ref``, or its last component where ``ref`` names no file inside the folder -- a path out of it, an
@@ -339,9 +346,8 @@ def named_files(path) -> list:
     coordinates to map them: :func:`ply_document`); each once, inside the file's folder, existing (what
     cannot be read is left out: the encode names it).  An output must not replace one of them (``pmw encode
     scan.obj -o skin.png``), and ``pmw batch``'s ledger covers them (a changed texture redoes its asset)."""
-    from .format.document import beside, named_files as gltf_named_files
-    from .mesh import _mesh_text
-    from .sources import read_regular_file
+    from .format.document import named_files as gltf_named_files
+    from .mesh import obj_text
 
     path = os.fspath(path)
     suffix = os.path.splitext(path)[1].lower()
@@ -349,23 +355,22 @@ def named_files(path) -> list:
         return gltf_named_files(path)
     if suffix not in (".obj", ".ply"):
         return []
-    base_dir, out = os.path.dirname(os.path.abspath(path)), []
-
-    def found(ref: str) -> str | None:
-        try:
-            target = beside(ref, base_dir, ref)
-        except InputFormatError:
-            return None
-        if not os.path.isfile(target):
-            return None
-        if target not in out:
-            out.append(target)
-        return target
-
+    resources = Resources(path, [])  # the encoder's own rules; what a listing leaves out it does not say
     if suffix == ".ply":
-        for ref in _ply_texture_files(path):
-            found(ref)
-        return out
+        refs = _ply_texture_files(path)
+    else:
+        try:
+            text = obj_text(path, resources.name)
+        except (InputFormatError, OSError):
+            return []
+        materials, _ = _obj_materials(re.findall(r"^[ \t]*mtllib[ \t]+([^\n]*)", text, re.M), resources)
+        refs = [ref for m in materials for ref in (m.texture_file, m.normal_file) if ref]
+    out = list(resources.files)
+    for ref in refs:
+        target = resources.locate(ref)[1]
+        if target is not None and os.path.isfile(target) and target not in out:
+            out.append(target)
+    return out
     try:
         text = one_line_end(_mesh_text(read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError), path, "OBJ"))
     except (InputFormatError, OSError):
