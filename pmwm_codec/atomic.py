@@ -18,7 +18,8 @@ Contract
   file system's 255-byte limit on a name.
 * :func:`write_stream` writes to a caller's binary file object, which cannot be atomic: every byte
   is written (a raw file's short writes are written again) or an error says how many were.
-* :func:`write_atomic` = stage + publish; :func:`directory_lock` serialises writers of
+* :func:`write_atomic` = stage + publish; :func:`write_set` writes several files whole or not at
+  all (every one staged, then all published with signals held back); :func:`directory_lock` serialises writers of
   the same directories (``flock`` on the directories themselves: nothing is left on
   disk, and the lock dies with its process); :func:`signals_deferred` holds SIGINT,
   SIGTERM and SIGHUP back while a pair of files is published.
@@ -38,7 +39,7 @@ import stat
 import tempfile
 from dataclasses import dataclass
 
-__all__ = ["Staged", "stage", "publish", "discard", "write_atomic", "write_stream", "directory_lock",
+__all__ = ["Staged", "stage", "publish", "discard", "write_atomic", "write_set", "write_stream", "directory_lock",
            "signals_deferred", "fault_point", "current_umask", "check_replaceable"]
 
 _DEFERRED_SIGNALS = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
@@ -203,6 +204,31 @@ def write_atomic(path, parts, mode: int | None = None) -> int:
         discard(staged)
         raise
     return sum(len(memoryview(p).cast("B")) for p in parts)
+
+
+def write_set(files: dict) -> None:
+    """Write ``files`` (``{path: bytes-like parts}``) as one set: every file is staged (:func:`stage`), and
+    only when all are staged are they published, one rename each, with SIGINT / SIGTERM / SIGHUP held back
+    (:func:`signals_deferred`).  A failure or an interrupt before that leaves none of them; a rename failing
+    part-way removes the files of the set it had already published, then the exception propagates."""
+    staged = []
+    try:
+        for path, parts in files.items():
+            staged.append(stage(path, parts))
+        with signals_deferred():
+            done = []
+            try:
+                for item in staged:
+                    publish(item)
+                    done.append(item.path)
+            except BaseException:
+                for path in done:
+                    with contextlib.suppress(OSError):
+                        os.unlink(path)
+                raise
+    finally:
+        for item in staged:
+            discard(item)  # a published one is closed and nameless already: nothing to do
 
 
 def write_stream(stream, parts, what: str = "dst") -> int:

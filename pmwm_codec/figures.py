@@ -363,24 +363,18 @@ def write_pictures(directory, pictures: dict) -> list:
     when all are staged are they published, one rename each, with SIGINT/SIGTERM held back
     (:func:`~pmwm_codec.atomic.signals_deferred`).  A failure or an interrupt before that leaves nothing:
     no picture, and no directory this call made (a rename failing part-way removes the pictures it had
-    already published).  A directory that did not exist is created.  OptionError naming ``directory``
-    when a picture cannot be written.
+    already published: :func:`~pmwm_codec.atomic.write_set`).  A directory that did not exist is created.
+    OptionError naming ``directory`` when a picture cannot be written.
     """
-    from .atomic import discard, signals_deferred, stage
+    from .atomic import write_set
 
     directory = os.fspath(directory)
-    encoded = {os.path.join(directory, name): png_bytes(image) for name, image in pictures.items()}
+    encoded = {os.path.join(directory, name): [png_bytes(image)] for name, image in pictures.items()}
     made = _missing_directories(directory)
-    staged = []
     try:
         os.makedirs(directory, exist_ok=True)
-        for path, data in encoded.items():
-            staged.append(stage(path, [data]))
-        with signals_deferred():
-            _publish_all(staged)
+        write_set(encoded)
     except BaseException as exc:
-        for item in staged:
-            discard(item)
         for parent in made:  # deepest first; a directory something else put a file in stays
             with contextlib.suppress(OSError):
                 os.rmdir(parent)
@@ -388,22 +382,6 @@ def write_pictures(directory, pictures: dict) -> list:
             raise OptionError(f"{directory}: cannot write pictures ({exc.strerror or exc})") from None
         raise
     return list(encoded)
-
-
-def _publish_all(staged: list) -> None:
-    """Publish every staged file, or (a rename failing) remove those already published and raise."""
-    from .atomic import publish
-
-    done = []
-    try:
-        for item in staged:
-            publish(item)
-            done.append(item.path)
-    except BaseException:
-        for path in done:
-            with contextlib.suppress(OSError):
-                os.unlink(path)
-        raise
 
 
 def _missing_directories(directory: str) -> list:

@@ -66,6 +66,8 @@ class Material:
     roughness: float = 1.0
     texture: int | None = None
     normal_texture: int | None = None
+    #: glTF's metallicFactor: 0 for a mesh file's material; a decoded asset's own (:mod:`pmwm_codec.meshexport`).
+    metallic: float = 0.0
     #: The file names an MTL gives for the two textures, read (into ``texture`` / ``normal_texture``) only
     #: for the materials some face uses.
     texture_file: str | None = None
@@ -115,7 +117,7 @@ def build_document(parts: list, materials: list, images: list, name: str) -> tup
 
 
 def _material(m: Material) -> dict:
-    pbr = {"baseColorFactor": [float(c) for c in m.color], "metallicFactor": 0.0, "roughnessFactor": float(m.roughness)}
+    pbr = {"baseColorFactor": [float(c) for c in m.color], "metallicFactor": float(m.metallic), "roughnessFactor": float(m.roughness)}
     if m.texture is not None:
         pbr["baseColorTexture"] = {"index": m.texture}
     out = {"name": m.name, "pbrMetallicRoughness": pbr}

@@ -17,7 +17,9 @@ suffix of ``path``:
            is no safe URI)
 
 Positions are stored as float32 in every format (the precision of glTF; 9 significant
-digits round-trip a float32 exactly) and indices as uint32.  Attributes are not written.
+digits round-trip a float32 exactly) and indices as uint32.  Attributes are not written here: an asset's
+scene with its texture coordinates, normals, colours and materials goes to OBJ or PLY through
+:mod:`pmwm_codec.meshexport`.
 :func:`write_asset` writes the bytes of an ordinary GLB document (for instance from
 :func:`pmwm_codec.decode_asset`) as ``.glb``, or as a self-contained ``.gltf`` with the
 buffer as a base64 data URI.

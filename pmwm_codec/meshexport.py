@@ -1,0 +1,467 @@
+"""A decoded asset's scene written as an OBJ (with its MTL and textures) or a PLY that keeps its appearance.
+
+The mirror of :mod:`pmwm_codec.meshdoc`, which reads those files as glTF documents: ``pmw decode -o X.obj``
+(or ``.ply``) of a ``.pmw`` whose scene has texture coordinates, normals, vertex colours or materials writes
+them, where :func:`pmwm_codec.meshio.write_mesh` writes positions and faces alone.
+
+:func:`scene_parts` flattens the document as glTF converters do: every triangle primitive of every mesh the
+default scene shows, placed once per node that shows it (positions by the world matrix, normals by its inverse
+transpose, the winding reversed under a mirroring one), as :class:`Showing` s of
+:class:`~pmwm_codec.meshdoc.Part` s, with the materials mapped onto :class:`~pmwm_codec.meshdoc.Material` (the
+base colour, its alpha where ``alphaMode`` blends or masks, the roughness, the base colour and normal textures)
+and the images those use.  What such a file cannot hold (another texture set than the first, a texture
+transform, metallic-roughness, occlusion and emissive textures; in a PLY the materials themselves) is left out
+with a notice.
+
+:func:`write_scene` writes the files as one set (:func:`~pmwm_codec.atomic.write_set`: all or none):
+
+``X.obj``
+    ``mtllib X.mtl``; one ``o`` group per showing; ``v`` records welded within a showing (one per distinct
+    float32 position -- and colour, when the file has colours: ``v x y z r g b``), ``vt`` (``u, 1 - v``: OBJ's
+    ``v`` grows upwards, glTF's downwards) and ``vn`` records, each distinct value once, and ``usemtl`` /
+    ``f p/t/n`` records per part (``p``, ``p/t``, ``p//n`` as the part has them);
+``X.mtl``
+    one ``newmtl`` per material used: ``Kd`` (base colour), ``d`` (alpha), ``Ns`` (``1000 (1 - roughness)^2``,
+    the inverse of the reader's mapping), ``Pr`` / ``Pm`` (the PBR extension Blender reads), ``map_Kd`` and
+    ``map_Bump``;
+``X.ply``
+    binary little-endian, one vertex per glTF vertex (a PLY vertex has one value of each property): ``x y z``,
+    then ``nx ny nz`` (when every part has normals), ``s t`` (``u, 1 - v``; 0 where a part has none) and
+    ``red green blue alpha`` (uchar; white where a part has none, glTF's default) as the scene has them, faces
+    ``vertex_indices`` and, when the faces use more than one texture, ``texnumber`` (MeshLab's index into the
+    ``comment TextureFile`` lines; -1: none);
+``X_<k>.<ext>``
+    image ``k`` of the document, byte for byte (``.png``, ``.jpg``, ``.webp``, ``.ktx2`` ... by its media type).
+
+Every file name derives from the one the caller gave (never from a name inside the input); the caller checks
+them (:func:`sidecar_paths`).  Arrays: positions (n, 3) float64 in, float32 out; faces (m, 3) int64.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .format.document import read_accessor, sniff_image
+from .format.gltf import TRIANGLE_MODES, TRIANGLES, placements_by_mesh, triangle_list, view_bytes, world_placements
+from .errors import InputFormatError
+from .meshdoc import Material, Part
+
+__all__ = ["Scene", "Showing", "scene_parts", "shows_appearance", "sidecar_paths", "write_scene"]
+
+#: The vertex attributes an OBJ or PLY can carry (glTF semantics).
+CARRIED = ("NORMAL", "TEXCOORD_0", "COLOR_0")
+GENERATOR = "pmwm_codec (pmw decode)"
+_EXTENSIONS = {"image/png": ".png", "image/jpeg": ".jpg", "image/webp": ".webp", "image/ktx2": ".ktx2",
+               "image/avif": ".avif", "image/vnd-ms.dds": ".dds"}
+
+
+@dataclass
+class Showing:
+    """One mesh of the document as one node shows it: ``name`` and its triangle ``parts`` in world coordinates."""
+
+    name: str
+    parts: list = field(default_factory=list)
+
+
+@dataclass
+class Scene:
+    """:func:`scene_parts`' result: ``showings``, ``materials`` (:class:`~pmwm_codec.meshdoc.Material`, their
+    ``texture`` / ``normal_texture`` indices into ``images``), ``images`` (``(bytes, media type)``) and
+    ``notices`` (what the files will not hold)."""
+
+    showings: list
+    materials: list
+    images: list
+    notices: list
+
+
+def shows_appearance(gltf: dict | None) -> bool:
+    """Whether a triangle primitive of ``gltf`` (a ``.pmw``'s document, its JSON alone) that the scene shows
+    has a material or an attribute of :data:`CARRIED`: what an OBJ or PLY of it should hold beyond geometry."""
+    if not gltf:
+        return False
+    for _, prim in _shown_triangle_primitives(gltf):
+        if "material" in prim or any(s in prim.get("attributes", {}) for s in CARRIED):
+            return True
+    return False
+
+
+def _shown_triangle_primitives(gltf: dict):
+    """``(mesh index, primitive)`` of every triangle primitive with a POSITION of the meshes the scene shows
+    (every mesh of a document without nodes)."""
+    meshes = gltf.get("meshes")
+    shown = set(placements_by_mesh(gltf)) if gltf.get("nodes") else None
+    for mi, mesh in enumerate(meshes if isinstance(meshes, list) else []):
+        if shown is not None and mi not in shown:
+            continue
+        prims = mesh.get("primitives") if isinstance(mesh, dict) else None
+        for prim in prims if isinstance(prims, list) else []:
+            if isinstance(prim, dict) and prim.get("mode", TRIANGLES) in TRIANGLE_MODES \
+                    and "POSITION" in prim.get("attributes", {}):
+                yield mi, prim
+
+
+def scene_parts(gltf: dict, buffers) -> Scene:
+    """The scene of a decoded, ordinary glTF document (``gltf`` and its ``buffers``, as
+    :func:`~pmwm_codec.stream.asset.decode_asset`'s GLB splits into) flattened (module docstring).
+
+    A document whose placements do not read (GPU instancing, a mesh the scene does not show, a scale of zero)
+    gives each mesh once, as stored, with a notice saying why.  InputFormatError when an accessor or image of it
+    does not read."""
+    notices = []
+    meshes = sorted({mi for mi, _ in _shown_triangle_primitives(gltf)})
+    frames, why = world_placements(gltf, meshes)
+    if frames is None:
+        frames = [[np.eye(4)] for _ in meshes]
+        notices.append(f"{why}: the file holds each mesh once, as stored, not placed by the scene's nodes; "
+                       "decode to .glb to keep the scene")
+    materials, images, material_map = _materials(gltf, buffers, notices)
+    showings = []
+    for mi, matrices in zip(meshes, frames):
+        mesh = gltf["meshes"][mi]
+        stored = [_part(gltf, buffers, mi, prim, material_map) for m, prim in _shown_triangle_primitives(gltf)
+                  if m == mi]
+        name = _safe_name(mesh.get("name"), f"mesh_{mi}")
+        for k, matrix in enumerate(matrices):
+            shown = name if len(matrices) == 1 else f"{name}_{k}"
+            showings.append(Showing(shown, [_placed(part, matrix) for part in stored]))
+    for semantic, what in (("TEXCOORD_1", "a second texture set (TEXCOORD_1)"), ("COLOR_1", "a second colour set"),
+                           ("JOINTS_0", "skin weights")):
+        if any(semantic in prim.get("attributes", {}) for _, prim in _shown_triangle_primitives(gltf)):
+            notices.append(f"{what} is left out: an OBJ or PLY holds one set")
+    return Scene(showings, materials, images, notices)
+
+
+def _part(gltf: dict, buffers, mi: int, prim: dict, material_map: dict) -> Part:
+    attrs = prim["attributes"]
+    positions = read_accessor(gltf, buffers, attrs["POSITION"])[:, :3].astype(np.float64)
+    order = (read_accessor(gltf, buffers, prim["indices"])[:, 0] if "indices" in prim
+             else np.arange(len(positions), dtype=np.int64))
+    faces = triangle_list(order, prim.get("mode", TRIANGLES))
+    if len(faces) and (faces.min() < 0 or faces.max() >= len(positions)):
+        raise InputFormatError(f"mesh {mi}: a primitive's index is past its {len(positions)} vertices")
+    carried = {}
+    for semantic in CARRIED:
+        if semantic in attrs:
+            values = read_accessor(gltf, buffers, attrs[semantic]).astype(np.float64)
+            if len(values) != len(positions):
+                raise InputFormatError(f"mesh {mi}: {semantic} has {len(values)} values for {len(positions)} vertices")
+            carried[semantic] = values
+    if "COLOR_0" in carried and carried["COLOR_0"].shape[1] == 3:
+        carried["COLOR_0"] = np.hstack([carried["COLOR_0"], np.ones((len(positions), 1))])
+    return Part(positions, np.asarray(faces, np.int64), carried, material_map.get(prim.get("material")))
+
+
+def _placed(part: Part, matrix: np.ndarray) -> Part:
+    """``part`` moved by the world ``matrix`` (4, 4): positions by it, normals by its inverse transpose
+    (renormalised), the winding reversed where it mirrors."""
+    if np.array_equal(matrix, np.eye(4)):
+        return part
+    linear = matrix[:3, :3]
+    attrs = dict(part.attributes)
+    if "NORMAL" in attrs:
+        n = attrs["NORMAL"] @ np.linalg.inv(linear)  # (inverse transpose) applied to row vectors
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        attrs["NORMAL"] = np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+    faces = part.indices[:, [0, 2, 1]] if np.linalg.det(linear) < 0 else part.indices
+    return Part(part.positions @ linear.T + matrix[:3, 3], faces, attrs, part.material)
+
+
+def _materials(gltf: dict, buffers, notices: list) -> tuple:
+    """``(materials, images, {glTF material index: index into materials})`` of the materials some shown
+    triangle primitive uses, and the images they name (each once)."""
+    used = sorted({p["material"] for _, p in _shown_triangle_primitives(gltf) if isinstance(p.get("material"), int)})
+    doc_materials = gltf.get("materials", [])
+    materials, images, image_map, material_map, names = [], [], {}, {}, set()
+    left = set()
+
+    def image_of(ref, what: str):
+        if not isinstance(ref, dict) or not isinstance(ref.get("index"), int):
+            return None
+        if ref.get("texCoord", 0) != 0:
+            left.add(f"{what} is left out: it reads a second texture set")
+            return None
+        if "KHR_texture_transform" in (ref.get("extensions") or {}):
+            left.add(f"{what}'s transform (KHR_texture_transform) is left out: an MTL cannot say it")
+        source = _image_source(gltf, ref["index"])
+        if source is None:
+            return None
+        if source not in image_map:
+            image = gltf["images"][source]
+            if "bufferView" not in image:
+                return None
+            _, raw = view_bytes(gltf, buffers, image["bufferView"], f"images[{source}]", error=InputFormatError)
+            blob = bytes(raw)
+            kind = image.get("mimeType") or sniff_image(blob) or "application/octet-stream"
+            image_map[source] = len(images)
+            images.append((blob, kind))
+        return image_map[source]
+
+    for mi in used:
+        if mi >= len(doc_materials) or not isinstance(doc_materials[mi], dict):
+            continue
+        mat = doc_materials[mi]
+        pbr = mat.get("pbrMetallicRoughness") or {}
+        color = [float(c) for c in pbr.get("baseColorFactor", [1.0, 1.0, 1.0, 1.0])]
+        if mat.get("alphaMode", "OPAQUE") == "OPAQUE":
+            color[3] = 1.0
+        name = _safe_name(mat.get("name"), f"material_{mi}")
+        while name in names:
+            name = f"{name}_{mi}"
+        names.add(name)
+        out = Material(name, tuple(color), float(pbr.get("roughnessFactor", 1.0)),
+                       metallic=float(pbr.get("metallicFactor", 1.0)))
+        out.texture = image_of(pbr.get("baseColorTexture"), f"material {name}'s base colour texture")
+        out.normal_texture = image_of(mat.get("normalTexture"), f"material {name}'s normal texture")
+        for holder, key, what in ((pbr, "metallicRoughnessTexture", "metallic-roughness texture"),
+                                  (mat, "occlusionTexture", "occlusion texture"),
+                                  (mat, "emissiveTexture", "emissive texture")):
+            if key in holder:
+                left.add(f"material {name}'s {what} is left out: an MTL has no place for it")
+        material_map[mi] = len(materials)
+        materials.append(out)
+    notices.extend(sorted(left))
+    return materials, images, material_map
+
+
+def _image_source(gltf: dict, texture: int):
+    """The image a texture shows: its core ``source`` (PNG or JPEG), else an extension's (KTX2, WebP ...)."""
+    textures = gltf.get("textures", [])
+    if not 0 <= texture < len(textures) or not isinstance(textures[texture], dict):
+        return None
+    tex = textures[texture]
+    holders = [tex] + [e for e in (tex.get("extensions") or {}).values() if isinstance(e, dict)]
+    for holder in holders:
+        source = holder.get("source")
+        if isinstance(source, int) and 0 <= source < len(gltf.get("images", [])):
+            return source
+    return None
+
+
+def _safe_name(name, fallback: str) -> str:
+    """A name an OBJ / MTL record can hold: printable, no white space (a record splits there)."""
+    if not isinstance(name, str):
+        return fallback
+    name = re.sub(r"[^\x21-\x7e]+", "_", name).strip("_")
+    return name or fallback
+
+
+def sidecar_paths(path: str, scene: Scene) -> tuple:
+    """``(MTL path or None, [image paths])``: the files besides ``path`` (an ``.obj`` or ``.ply``) that
+    :func:`write_scene` writes for ``scene``: the MTL of an OBJ with materials (``X.mtl``), the images
+    (``X_<k>.<ext>``, in the order of :func:`_written_images`)."""
+    stem, suffix = os.path.splitext(path)
+    mtl = stem + ".mtl" if suffix.lower() == ".obj" and _obj_materials(scene) else None
+    return mtl, [_image_path(stem, k, kind) for k, (_, kind) in enumerate(_written_images(scene, suffix.lower()))]
+
+
+def _image_path(stem: str, k: int, kind: str) -> str:
+    return f"{stem}_{k}{_EXTENSIONS.get(kind, '.bin')}"
+
+
+def _obj_materials(scene: Scene) -> bool:
+    return any(part.material is not None for s in scene.showings for part in s.parts)
+
+
+def _written_images(scene: Scene, suffix: str) -> list:
+    """The images a file of ``suffix`` holds: every image of an OBJ's materials; a PLY's base colour textures."""
+    if suffix == ".obj":
+        return scene.images
+    used = sorted({scene.materials[p.material].texture for s in scene.showings for p in s.parts
+                   if p.material is not None and scene.materials[p.material].texture is not None})
+    return [scene.images[i] for i in used]
+
+
+def write_scene(path: str, scene: Scene) -> tuple:
+    """Write ``scene`` to ``path`` (``.obj`` or ``.ply``) and its :func:`sidecar_paths`, all or none.
+
+    Returns ``(vertices, faces, notices)``: the counts the file holds (an OBJ's welded ``v`` records, a PLY's
+    vertex elements) and what it leaves out beyond ``scene.notices``."""
+    from .atomic import write_set
+
+    suffix = os.path.splitext(path)[1].lower()
+    mtl, image_paths = sidecar_paths(path, scene)
+    names = [os.path.basename(p) for p in image_paths]
+    if suffix == ".obj":
+        text, vertices, faces = _obj_text(scene, None if mtl is None else os.path.basename(mtl))
+        files, notices = {path: [text]}, []
+        if mtl is not None:
+            files[mtl] = [_mtl_text(scene, names)]
+    elif suffix == ".ply":
+        parts, vertices, faces, notices = _ply_parts(scene, names)
+        files = {path: parts}
+    else:
+        raise ValueError(f"write_scene: {suffix!r} is neither .obj nor .ply")
+    for image_path, (blob, _) in zip(image_paths, _written_images(scene, suffix)):
+        files[image_path] = [blob]
+    write_set(files)
+    return vertices, faces, notices
+
+
+def _float32(values: np.ndarray) -> np.ndarray:
+    with np.errstate(over="ignore"):
+        return np.asarray(values, np.float64).astype(np.float32)
+
+
+def _unique_rows(rows: np.ndarray) -> tuple:
+    """``(unique rows in first-seen order, inverse (n,) int64)`` of a contiguous 2-D array (exact bytes)."""
+    rows = np.ascontiguousarray(rows)
+    if len(rows) == 0:
+        return rows, np.zeros(0, np.int64)
+    keys = rows.view(np.dtype((np.void, rows.dtype.itemsize * rows.shape[1]))).ravel()
+    _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+    order = np.argsort(first, kind="stable")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    return rows[first[order]], rank[inverse.ravel()].astype(np.int64)
+
+
+def _obj_text(scene: Scene, mtl_name: str | None) -> tuple:
+    """``(OBJ bytes, v records, f records)`` of ``scene`` (module docstring)."""
+    coloured = any("COLOR_0" in p.attributes for s in scene.showings for p in s.parts)
+    out = io.StringIO()
+    v_total = vt_total = vn_total = f_total = 0
+    body = io.StringIO()
+    for showing in scene.showings:
+        body.write(f"o {showing.name}\n")
+        pos = np.concatenate([_float32(p.positions) for p in showing.parts]) if showing.parts else np.zeros((0, 3), np.float32)
+        if not np.isfinite(pos).all():
+            raise InputFormatError("a coordinate of the decoded mesh overflows the float32 an OBJ's records hold")
+        if coloured:
+            colours = np.concatenate([_float32(p.attributes["COLOR_0"][:, :3]) if "COLOR_0" in p.attributes
+                                      else np.ones((len(p.positions), 3), np.float32) for p in showing.parts])
+            key = np.hstack([pos, colours])
+        else:
+            key = pos
+        welded, v_of = _unique_rows(key)
+        np.savetxt(body, welded.astype(np.float64), fmt="v" + " %.9g" * welded.shape[1])
+        starts = np.cumsum([0] + [len(p.positions) for p in showing.parts])
+        current = None
+        for k, part in enumerate(showing.parts):
+            p_idx = v_of[starts[k]:starts[k + 1]][part.indices] + 1 + v_total
+            columns = [p_idx]
+            t_idx = n_idx = None
+            if "TEXCOORD_0" in part.attributes:
+                uv = _float32(part.attributes["TEXCOORD_0"][:, :2] * [1.0, -1.0] + [0.0, 1.0])
+                values, t_of = _unique_rows(uv)
+                np.savetxt(body, values.astype(np.float64), fmt="vt %.9g %.9g")
+                t_idx = t_of[part.indices] + 1 + vt_total
+                vt_total += len(values)
+            if "NORMAL" in part.attributes:
+                values, n_of = _unique_rows(_float32(part.attributes["NORMAL"][:, :3]))
+                np.savetxt(body, values.astype(np.float64), fmt="vn %.9g %.9g %.9g")
+                n_idx = n_of[part.indices] + 1 + vn_total
+                vn_total += len(values)
+            if part.material is not None and part.material != current:
+                body.write(f"usemtl {scene.materials[part.material].name}\n")
+                current = part.material
+            elif part.material is None and current is not None:
+                body.write("usemtl default\n")
+                current = None
+            if t_idx is not None and n_idx is not None:
+                corner, columns = "%d/%d/%d", [p_idx, t_idx, n_idx]
+            elif t_idx is not None:
+                corner, columns = "%d/%d", [p_idx, t_idx]
+            elif n_idx is not None:
+                corner, columns = "%d//%d", [p_idx, n_idx]
+            else:
+                corner = "%d"
+            table = np.stack(columns, axis=2).reshape(len(part.indices), -1)  # (m, 3 * forms) corner by corner
+            np.savetxt(body, table, fmt="f " + " ".join([corner] * 3))
+            f_total += len(part.indices)
+        v_total += len(welded)
+    out.write(f"# {GENERATOR}: {v_total} vertices, {f_total} faces\n")
+    if mtl_name is not None:
+        out.write(f"mtllib {mtl_name}\n")
+    out.write(body.getvalue())
+    return out.getvalue().encode("utf-8", "surrogateescape"), v_total, f_total
+
+
+def _mtl_text(scene: Scene, image_names: list) -> bytes:
+    """The MTL of the materials ``scene``'s parts use (and ``default``, white, when a part has none after one
+    that has one), ``image_names[k]`` the file of image ``k``."""
+    used = sorted({p.material for s in scene.showings for p in s.parts if p.material is not None})
+    out = io.StringIO()
+    out.write(f"# {GENERATOR}: {len(used)} materials\n")
+    for m in [scene.materials[i] for i in used]:
+        r, g, b, a = m.color
+        roughness = min(max(m.roughness, 0.0), 1.0)
+        out.write(f"\nnewmtl {m.name}\nKa 0 0 0\nKd {r:.6g} {g:.6g} {b:.6g}\nKs 0 0 0\nd {a:.6g}\n"
+                  f"Ns {1000.0 * (1.0 - roughness) ** 2:.6g}\nPr {roughness:.6g}\nPm {m.metallic:.6g}\n"
+                  "illum 2\n")
+        if m.texture is not None:
+            out.write(f"map_Kd {image_names[m.texture]}\n")
+        if m.normal_texture is not None:
+            out.write(f"map_Bump {image_names[m.normal_texture]}\n")
+    if any(p.material is None for s in scene.showings for p in s.parts):
+        out.write("\nnewmtl default\nKd 1 1 1\nd 1\nillum 1\n")
+    return out.getvalue().encode("utf-8", "surrogateescape")
+
+
+def _ply_parts(scene: Scene, image_names: list) -> tuple:
+    """``(file parts, vertices, faces, notices)``: the binary PLY of ``scene`` (module docstring)."""
+    parts = [p for s in scene.showings for p in s.parts]
+    has = {s: any(s in p.attributes for p in parts) for s in CARRIED}
+    notices = []
+    if has["NORMAL"] and not all("NORMAL" in p.attributes for p in parts):  # a zero normal shades black
+        has["NORMAL"] = False
+        notices.append("normals are left out: some faces have none, and a PLY vertex has one of each property "
+                       "or none (decode to .obj or .glb to keep them)")
+    textures = sorted({scene.materials[p.material].texture for p in parts
+                       if p.material is not None and scene.materials[p.material].texture is not None})
+    texnumber = len(textures) > 1
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    header = ["property float x", "property float y", "property float z"]
+    if has["NORMAL"]:
+        fields += [("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]
+        header += ["property float nx", "property float ny", "property float nz"]
+    if has["TEXCOORD_0"]:
+        fields += [("s", "<f4"), ("t", "<f4")]
+        header += ["property float s", "property float t"]
+    if has["COLOR_0"]:
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1"), ("alpha", "u1")]
+        header += [f"property uchar {c}" for c in ("red", "green", "blue", "alpha")]
+    n = sum(len(p.positions) for p in parts)
+    m = sum(len(p.indices) for p in parts)
+    vert = np.zeros(n, dtype=fields)
+    face_fields = [("n", "u1"), ("i", "<u4", (3,))] + ([("tex", "<i4")] if texnumber else [])
+    face = np.zeros(m, dtype=face_fields)
+    at = fat = 0
+    for p in parts:
+        k, j = len(p.positions), len(p.indices)
+        pos = _float32(p.positions)
+        if not np.isfinite(pos).all():
+            raise InputFormatError("a coordinate of the decoded mesh overflows the float32 a PLY holds")
+        vert["x"][at:at + k], vert["y"][at:at + k], vert["z"][at:at + k] = pos.T
+        if has["NORMAL"]:
+            for c, col in zip(("nx", "ny", "nz"), p.attributes["NORMAL"][:, :3].T):
+                vert[c][at:at + k] = col
+        if "TEXCOORD_0" in p.attributes:
+            vert["s"][at:at + k] = p.attributes["TEXCOORD_0"][:, 0]
+            vert["t"][at:at + k] = 1.0 - p.attributes["TEXCOORD_0"][:, 1]
+        if has["COLOR_0"]:
+            rgba = p.attributes.get("COLOR_0", np.ones((k, 4)))
+            byte = np.rint(np.clip(rgba, 0.0, 1.0) * 255.0).astype(np.uint8)
+            for c, col in zip(("red", "green", "blue", "alpha"), byte.T):
+                vert[c][at:at + k] = col
+        face["n"][fat:fat + j] = 3
+        face["i"][fat:fat + j] = p.indices + at
+        if texnumber:
+            tex = scene.materials[p.material].texture if p.material is not None else None
+            face["tex"][fat:fat + j] = textures.index(tex) if tex is not None else -1
+        at, fat = at + k, fat + j
+    lines = ["ply", "format binary_little_endian 1.0", f"comment {GENERATOR}"]
+    lines += [f"comment TextureFile {name}" for name in image_names]
+    lines += [f"element vertex {n}"] + header + [f"element face {m}", "property list uchar uint vertex_indices"]
+    lines += ["property int texnumber"] if texnumber else []
+    lines += ["end_header"]
+    if any(p.material is not None and (scene.materials[p.material].color != (1.0, 1.0, 1.0, 1.0)
+                                       or scene.materials[p.material].normal_texture is not None) for p in parts):
+        notices.append("material colours and normal textures are left out: a PLY holds vertex colours and one "
+                       "texture per face; decode to .obj or .glb to keep them")
+    return [("\n".join(lines) + "\n").encode("utf-8", "surrogateescape"), vert.tobytes(), face.tobytes()], n, m, notices

@@ -1,0 +1,200 @@
+"""``pmw decode -o X.obj`` / ``X.ply`` keeps an asset's appearance (pmwm_codec.meshexport): the OBJ holds the
+decoded GLB's positions, texture coordinates and normals corner for corner, welded so that its seams are closed,
+with an MTL and the textures byte for byte beside it; the PLY its colours and texture coordinates; the files
+are written as a set, never over the input, and ``--geometry-only`` writes what it wrote before.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import pmwm_codec
+from pmwm_codec import meshdoc, ply, shapes
+from pmwm_codec.format.document import load_document, read_accessor
+from pmwm_codec.meshio import write_mesh
+
+from test_obj_appearance import _png, _torus_obj
+from test_seams import unpartnered_edges
+
+
+def pmw(*args):
+    return subprocess.run([sys.executable, "-m", "pmwm_codec", *map(str, args)], capture_output=True, text=True)
+
+
+def _textured(tmp_path, **options) -> tuple:
+    """``(.pmw path, texture bytes, encode report)`` of a UV torus OBJ with an MTL naming a PNG texture."""
+    path, *_ = _torus_obj(str(tmp_path), **options)
+    png = _png(tmp_path / "skin.png")
+    (tmp_path / "t.mtl").write_text("newmtl skin\nKd 0.8 0.5 0.25\nd 0.5\nNs 250\nmap_Kd skin.png\n")
+    out = tmp_path / "t.pmw"
+    report = pmwm_codec.encode(path, str(out))
+    return out, png, report
+
+
+def _corner_rows(gltf, buffers, semantics=("POSITION", "TEXCOORD_0")) -> np.ndarray:
+    """(m, 3 * width) float32: each triangle's corners, the named attributes side by side, of every primitive;
+    rows sorted (the order of faces is not part of the claim)."""
+    rows = []
+    for prim in gltf["meshes"][0]["primitives"]:
+        faces = read_accessor(gltf, buffers, prim["indices"]).reshape(-1, 3)
+        values = np.hstack([read_accessor(gltf, buffers, prim["attributes"][s]) for s in semantics]).astype(np.float32)
+        rows.append(values[faces].reshape(len(faces), -1))
+    rows = np.concatenate(rows)
+    return rows[np.lexsort(rows.T[::-1])]
+
+
+def _glb_document(pmw_path, tmp_path, chunks=None):
+    glb = tmp_path / f"ref{'' if chunks is None else chunks}.glb"
+    glb.write_bytes(pmwm_codec.decode_asset(str(pmw_path), chunks=chunks))
+    return load_document(str(glb))
+
+
+def test_an_obj_decoded_from_a_textured_asset_holds_its_corners_material_and_texture(tmp_path):
+    src, png, _ = _textured(tmp_path)
+    out = tmp_path / "out" / "back.obj"
+    out.parent.mkdir()
+    run = pmw("decode", src, "-o", out, "--json")
+    assert run.returncode == 0, run.stderr
+    report = json.loads(run.stdout)
+    assert report["files"] == [str(out), str(out.parent / "back.mtl"), str(out.parent / "back_0.png")]
+    gltf, buffers = _glb_document(src, tmp_path)
+    (back, back_buffers), notices = meshdoc.read_source(str(out))
+    assert notices == []
+    want, got = _corner_rows(gltf, buffers), _corner_rows(back, back_buffers)
+    assert got.shape == want.shape
+    assert np.array_equal(got[:, [0, 1, 2, 5, 6, 7, 10, 11, 12]], want[:, [0, 1, 2, 5, 6, 7, 10, 11, 12]])  # exact
+    assert np.abs(got - want).max() <= 2e-7  # texture coordinates: v flipped twice in float32
+    assert (out.parent / "back_0.png").read_bytes() == png  # the texture byte for byte
+    material = back["materials"][0]
+    assert material["name"] == "skin" and material["alphaMode"] == "BLEND"
+    assert material["pbrMetallicRoughness"]["baseColorFactor"] == pytest.approx([1.0, 1.0, 1.0, 0.5])
+    assert material["pbrMetallicRoughness"]["roughnessFactor"] == pytest.approx(0.5, abs=1e-6)
+    positions = read_accessor(gltf, buffers, gltf["meshes"][0]["primitives"][0]["attributes"]["POSITION"])
+    assert report["vertices"] == len(np.unique(positions.astype(np.float32), axis=0))  # one v a position
+
+
+def test_every_level_decoded_to_obj_is_welded_and_closed_along_its_seams(tmp_path):
+    src, _, encoded = _textured(tmp_path)
+    for level in (0, encoded["chunks"] // 2, None):
+        out = tmp_path / f"l{level}.obj"
+        run = pmw("decode", src, "-o", out, "--json", *(["--chunks", level] if level is not None else []))
+        assert run.returncode == 0, run.stderr
+        mesh = pmwm_codec.read_mesh(str(out))  # geometry alone: the welded v records
+        assert json.loads(run.stdout)["vertices"] == mesh.vertex_count
+        assert unpartnered_edges(mesh.positions, mesh.faces) == 0, level
+        gltf, buffers = _glb_document(src, tmp_path, level)
+        (back, back_buffers), _ = meshdoc.read_source(str(out))
+        assert np.array_equal(_corner_rows(back, back_buffers, ("POSITION",)),
+                              _corner_rows(gltf, buffers, ("POSITION",)))
+
+
+def test_a_ply_decoded_from_a_coloured_textured_asset_holds_its_colours_and_texture(tmp_path):
+    src, png, _ = _textured(tmp_path, colours=True)
+    out = tmp_path / "back.ply"
+    run = pmw("decode", src, "-o", out, "--json")
+    assert run.returncode == 0, run.stderr
+    assert json.loads(run.stdout)["files"] == [str(out), str(tmp_path / "back_0.png")]
+    assert (tmp_path / "back_0.png").read_bytes() == png
+    gltf, buffers = _glb_document(src, tmp_path)
+    prim = gltf["meshes"][0]["primitives"][0]
+    got = ply.read_appearance(out.read_bytes(), "back.ply", 10 ** 7)
+    assert got.textures == ["back_0.png"]
+    assert np.array_equal(got.positions.astype(np.float32),
+                          read_accessor(gltf, buffers, prim["attributes"]["POSITION"]).astype(np.float32))
+    want_rgb = read_accessor(gltf, buffers, prim["attributes"]["COLOR_0"])[:, :3]
+    assert np.abs(got.colours[:, :3] - want_rgb).max() <= 0.5 / 255 + 1e-9  # 8 bits a channel
+    uv = read_accessor(gltf, buffers, prim["attributes"]["TEXCOORD_0"])
+    assert np.abs(got.uv - np.stack([uv[:, 0], 1 - uv[:, 1]], 1)).max() <= 2e-7
+    assert any("material colours" in n for n in json.loads(run.stdout)["notices"])  # Kd 0.8 0.5 0.25: no place
+
+
+def test_a_scene_placed_by_a_mirroring_node_is_written_placed_with_its_normals_turned(tmp_path):
+    path, *_ = _torus_obj(str(tmp_path), mtl=None, normals=True)
+    (doc, buffers), _ = meshdoc.read_source(path)
+    matrix = np.diag([-2.0, 1.0, 0.5, 1.0])
+    matrix[:3, 3] = [3.0, -1.0, 0.25]
+    doc["nodes"][0]["matrix"] = [float(v) for v in matrix.T.reshape(-1)]  # glTF: column-major
+    src = tmp_path / "placed.pmw"
+    pmwm_codec.encode((doc, buffers), str(src))
+    out = tmp_path / "placed.obj"
+    run = pmw("decode", src, "-o", out)
+    assert run.returncode == 0, run.stderr
+    gltf, stored = _glb_document(src, tmp_path)
+    (back, back_buffers), _ = meshdoc.read_source(str(out))
+    prim, got_prim = gltf["meshes"][0]["primitives"][0], back["meshes"][0]["primitives"][0]
+    want_pos = read_accessor(gltf, stored, prim["attributes"]["POSITION"]) @ matrix[:3, :3].T + matrix[:3, 3]
+    normals = read_accessor(gltf, stored, prim["attributes"]["NORMAL"]) @ np.linalg.inv(matrix[:3, :3])
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    faces = read_accessor(gltf, stored, prim["indices"]).reshape(-1, 3)[:, [0, 2, 1]]  # mirrored: winding reversed
+    want = np.hstack([want_pos, normals]).astype(np.float32)[faces].reshape(len(faces), -1)
+    got_faces = read_accessor(back, back_buffers, got_prim["indices"]).reshape(-1, 3)
+    got = np.hstack([read_accessor(back, back_buffers, got_prim["attributes"][s]) for s in ("POSITION", "NORMAL")])
+    got = got.astype(np.float32)[got_faces].reshape(len(got_faces), -1)
+    # row for row, corners in order: each face placed, its normals turned, its winding reversed (a mirror)
+    assert np.abs(got[np.lexsort(got.T[::-1])] - want[np.lexsort(want.T[::-1])]).max() <= 1e-6
+
+
+def test_the_files_beside_an_obj_never_replace_the_input(tmp_path):
+    src, _, _ = _textured(tmp_path)
+    cunning = tmp_path / "o_0.png"  # the .pmw under the name the texture beside o.obj would get
+    cunning.write_bytes(src.read_bytes())
+    run = pmw("decode", cunning, "-o", tmp_path / "o.obj")
+    assert run.returncode == 2 and "is also the input" in run.stderr and "Traceback" not in run.stderr
+    assert cunning.read_bytes() == src.read_bytes() and not (tmp_path / "o.obj").exists()
+    assert not (tmp_path / "o.mtl").exists()
+
+
+def test_a_file_beside_the_obj_that_cannot_be_written_leaves_no_file_at_all(tmp_path):
+    src, _, _ = _textured(tmp_path)
+    (tmp_path / "o.mtl").mkdir()  # where the MTL would go
+    run = pmw("decode", src, "-o", tmp_path / "o.obj")
+    assert run.returncode == 2 and run.stderr.count("\n") == 1 and "o.mtl" in run.stderr
+    assert sorted(os.listdir(tmp_path)) == ["o.mtl", "skin.png", "t.mtl", "t.obj", "t.pmw"]
+
+
+def test_geometry_only_writes_the_positions_and_faces_it_wrote_before(tmp_path):
+    src, _, _ = _textured(tmp_path)
+    for suffix in (".obj", ".ply"):
+        out = tmp_path / f"g{suffix}"
+        run = pmw("decode", src, "-o", out, "--geometry-only", "--json")
+        assert run.returncode == 0, run.stderr
+        assert json.loads(run.stdout)["files"] == [str(out)]
+        write_mesh(tmp_path / f"want{suffix}", pmwm_codec.decode(str(src)))
+        assert out.read_bytes() == (tmp_path / f"want{suffix}").read_bytes()
+
+
+@pytest.mark.parametrize("suffix", [".stl", ".off"])
+def test_a_format_of_geometry_alone_says_what_it_leaves_out(tmp_path, suffix):
+    src, _, _ = _textured(tmp_path)
+    run = pmw("decode", src, "-o", tmp_path / f"g{suffix}", "--json")
+    assert run.returncode == 0, run.stderr
+    assert any("holds geometry alone" in n for n in json.loads(run.stdout)["notices"])
+
+
+def test_a_plain_mesh_decodes_to_the_obj_it_always_did(tmp_path):
+    mesh = shapes.demo_mesh(12)
+    src = tmp_path / "plain.pmw"
+    pmwm_codec.encode(mesh, str(src))
+    run = pmw("decode", src, "-o", tmp_path / "p.obj", "--json")
+    assert run.returncode == 0, run.stderr
+    assert json.loads(run.stdout)["files"] == [str(tmp_path / "p.obj")]
+    write_mesh(tmp_path / "want.obj", pmwm_codec.decode(str(src)))
+    assert (tmp_path / "p.obj").read_bytes() == (tmp_path / "want.obj").read_bytes()
+
+
+@pytest.mark.parametrize("name", ["ünïcødé скин.obj", "with space.ply"])
+def test_files_beside_an_output_of_any_name_are_named_by_it_and_read_back(tmp_path, name):
+    src, png, _ = _textured(tmp_path)
+    out = tmp_path / name
+    run = pmw("decode", src, "-o", out, "--json")
+    assert run.returncode == 0, run.stderr
+    stem = os.path.splitext(name)[0]
+    assert (tmp_path / f"{stem}_0.png").read_bytes() == png
+    (back, _), notices = meshdoc.read_source(str(out))
+    assert notices == [] and len(back["images"]) == 1
