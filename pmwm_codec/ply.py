@@ -139,7 +139,8 @@ def read_appearance(data: bytes, name: str, max_faces: int) -> Appearance:
     vertex, face = found["vertex"], found.get("face", {})
     colours = uv = normals = wedge = texnumber = None
     if look.colour:
-        colours = np.stack([_unit(_carried(vertex[p], "vertex", "colour", name), kinds[p]) for p in look.colour], 1)
+        colours = _unit(np.stack([_carried(vertex[p], "vertex", "colour", name) for p in look.colour], 1),
+                        [kinds[p] for p in look.colour])
     if look.uv:
         uv = np.stack([_carried(vertex[p], "vertex", "texture coordinate", name) for p in look.uv], axis=1)
     if look.normal:
@@ -174,11 +175,18 @@ def _carried(values: np.ndarray, element: str, what: str, name: str, ends=None) 
     return values
 
 
-def _unit(values: np.ndarray, kind: str) -> np.ndarray:
-    """A colour channel of numpy type ``kind`` in [0, 1] (:func:`read_appearance`)."""
-    values = np.asarray(values, np.float64)
-    if kind[0] in "iu":
-        values = values / np.iinfo(kind).max
+def _unit(values: np.ndarray, kinds: list) -> np.ndarray:
+    """Colours (n, k) float64 whose channel ``j`` was of numpy type ``kinds[j]``, in [0, 1]
+    (:func:`read_appearance`): an integer channel over its type's largest value (glTF's normalized integers);
+    float channels as they are -- but over 255 where one of them reaches 2, the rule an OBJ's colours follow
+    (exporters that write ``property float red`` in 0..255: a 0..1 colour a rounding over 1 is not one)."""
+    values = np.array(values, np.float64)
+    floats = [j for j, kind in enumerate(kinds) if kind[0] not in "iu"]
+    for j, kind in enumerate(kinds):
+        if kind[0] in "iu":
+            values[:, j] /= np.iinfo(kind).max
+    if floats and len(values) and values[:, floats].max() >= 2.0:
+        values[:, floats] /= 255.0
     return np.clip(values, 0.0, 1.0)
 
 

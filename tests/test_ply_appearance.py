@@ -15,7 +15,7 @@ from PIL import Image
 from scipy.spatial import cKDTree
 
 import pmwm_codec
-from pmwm_codec import shapes
+from pmwm_codec import ply, shapes
 from pmwm_codec.cli import main
 from pmwm_codec.errors import InputFormatError
 from pmwm_codec.format.document import load_document
@@ -500,3 +500,18 @@ def test_face_colours_are_not_carried_and_the_encoder_says_so(tmp_path, vertex_c
         assert np.array_equal(np.rint(attrs["COLOR_0"] * 255), np.full((len(positions), 3), 9))
     else:
         assert pmw == encoded_plain(tmp_path / "m.ply")
+
+
+@pytest.mark.parametrize("kind", ["float", "double"])
+def test_float_colours_written_in_0_to_255_are_read_over_255_as_an_objs_are(kind):
+    positions, faces = sphere()
+    rgb = np.random.default_rng(3).integers(0, 256, (len(positions), 3)).astype(np.float64)
+    rgb[0] = 255.0  # some channel reaches 2: the file's colours are 0..255
+    data = ply_bytes("ascii", xyz(positions) + [(c, kind, rgb[:, i]) for i, c in enumerate(("red", "green", "blue"))],
+                     corners(faces))
+    got = ply.read_appearance(data, "f.ply", 10 ** 6)
+    assert np.abs(got.colours - rgb / 255.0).max() <= 1e-7
+    unit = rgb / 255.0 * 0.999 + 0.0005  # 0..1 colours stay as they are
+    data = ply_bytes("ascii", xyz(positions) + [(c, kind, unit[:, i]) for i, c in enumerate(("red", "green", "blue"))],
+                     corners(faces))
+    assert np.abs(ply.read_appearance(data, "f.ply", 10 ** 6).colours - unit).max() <= 1e-7
