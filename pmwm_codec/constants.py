@@ -47,6 +47,9 @@ MAX_ENCODE_FACES = 1 << 23
 #: file inside the asset's folder, or a ``data:`` URI after decoding); larger is refused
 #: and never read past this many bytes.
 MAX_RESOURCE_BYTES = 1 << 30
+#: At most this many textures are written beside a decoded OBJ / PLY (:mod:`pmwm_codec.meshexport`): an input
+#: never makes ``pmw decode`` fill a folder with files; the rest are left out with a notice.
+MAX_WRITTEN_IMAGES = 256
 #: Largest input mesh / glTF / key file read whole into memory.
 MAX_INPUT_FILE_BYTES = 2 << 30
 MAX_KEY_FILE_BYTES = 64 << 20

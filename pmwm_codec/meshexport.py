@@ -48,7 +48,8 @@ import numpy as np
 
 from .format.document import read_accessor, sniff_image
 from .format.gltf import TRIANGLE_MODES, TRIANGLES, placements_by_mesh, triangle_list, view_bytes, world_placements
-from .errors import InputFormatError
+from .constants import MAX_WRITTEN_IMAGES
+from .errors import InputFormatError, OptionError
 from .meshdoc import Material, Part
 
 __all__ = ["Scene", "Showing", "scene_parts", "shows_appearance", "sidecar_paths", "write_scene"]
@@ -191,6 +192,10 @@ def _materials(gltf: dict, buffers, notices: list) -> tuple:
         source = _image_source(gltf, ref["index"])
         if source is None:
             return None
+        if source not in image_map and len(images) >= MAX_WRITTEN_IMAGES:
+            left.add(f"textures past the first {MAX_WRITTEN_IMAGES} are left out (at most that many files are "
+                     "written beside the output)")
+            return None
         if source not in image_map:
             image = gltf["images"][source]
             if "bufferView" not in image:
@@ -287,6 +292,10 @@ def write_scene(path: str, scene: Scene) -> tuple:
     suffix = os.path.splitext(path)[1].lower()
     mtl, image_paths = sidecar_paths(path, scene)
     names = [os.path.basename(p) for p in image_paths]
+    for named in names + ([os.path.basename(mtl)] if mtl else []):
+        if "\n" in named or "\r" in named:  # a record of the file would end inside the name
+            raise OptionError(f"{named!r}: the {suffix[1:].upper()} would name this file, and a line break ends "
+                              "the record naming it; give the output another name")
     if suffix == ".obj":
         text, vertices, faces = _obj_text(scene, None if mtl is None else os.path.basename(mtl))
         files, notices = {path: [text]}, []

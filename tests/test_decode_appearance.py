@@ -198,3 +198,29 @@ def test_files_beside_an_output_of_any_name_are_named_by_it_and_read_back(tmp_pa
     assert (tmp_path / f"{stem}_0.png").read_bytes() == png
     (back, _), notices = meshdoc.read_source(str(out))
     assert notices == [] and len(back["images"]) == 1
+
+
+def test_an_output_name_with_a_line_break_is_one_line_and_no_file(tmp_path):
+    src, _, _ = _textured(tmp_path)
+    out = tmp_path / "two\nlines.obj"
+    run = pmw("decode", src, "-o", out)
+    assert run.returncode == 2 and "line break" in run.stderr and "Traceback" not in run.stderr
+    assert sorted(os.listdir(tmp_path)) == ["skin.png", "t.mtl", "t.obj", "t.pmw"]
+
+
+def test_an_input_never_makes_decode_write_more_textures_than_the_limit(tmp_path, monkeypatch):
+    from pmwm_codec import meshexport
+
+    path, *_ = _torus_obj(str(tmp_path), mtl="t.mtl")
+    for k, colour in enumerate([(200, 0, 0), (0, 200, 0), (0, 0, 200)]):
+        _png(tmp_path / f"s{k}.png", colour=colour)
+    (tmp_path / "t.mtl").write_text("newmtl skin\nmap_Kd s0.png\nmap_Bump s1.png\n")
+    src = tmp_path / "t.pmw"
+    pmwm_codec.encode(path, str(src))
+    gltf, buffers = _glb_document(src, tmp_path)
+    assert len(meshexport.scene_parts(gltf, buffers).images) == 2
+    monkeypatch.setattr(meshexport, "MAX_WRITTEN_IMAGES", 1)
+    scene = meshexport.scene_parts(gltf, buffers)
+    assert len(scene.images) == 1 and any("past the first 1" in n for n in scene.notices)
+    meshexport.write_scene(str(tmp_path / "o.obj"), scene)
+    assert sorted(p for p in os.listdir(tmp_path) if p.startswith("o")) == ["o.mtl", "o.obj", "o_0.png"]
