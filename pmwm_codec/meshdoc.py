@@ -424,7 +424,7 @@ def obj_document(path, text: str) -> tuple:
         raise InputFormatError(f"{name}: more than {MAX_ENCODE_VERTICES:,} vertices (the encoder's limit)")
     colours, notices = None, []
     if v.shape[1] >= 6 and not np.isnan(v[:, 3:6]).any():
-        colours = v[:, 3:6] if v.shape[1] == 6 else v[:, 4:7]  # x y z r g b, or x y z w r g b
+        colours = v[:, 3:6]  # x y z r g b, or x y z r g b a (its alpha not carried), as three.js and Blender read them
         # 0..255 where a value reaches 2 (a 0..1 colour a rounding over 1 is not one), else 0..1
         colours = np.clip(colours / (255.0 if colours.max() >= 2.0 else 1.0), 0.0, 1.0)
     elif has_colours or v.shape[1] >= 6:

@@ -400,3 +400,13 @@ def test_geometry_only_encodes_a_textured_obj_as_its_positions_and_faces_alone(t
     assert (tmp_path / "g.pmw").read_bytes() == plain.getvalue()
     with pytest.raises(pmwm_codec.PmwError, match="geometry_only takes a mesh file"):
         pmwm_codec.encode(meshdoc.read_appearance(path)[0], io.BytesIO(), geometry_only=True)
+
+
+def test_a_seventh_number_on_a_coloured_v_record_is_an_alpha_after_the_colour_as_three_js_reads_it(tmp_path):
+    path, pos, uv, vid = _torus_obj(str(tmp_path), mtl=None, colours=True)
+    text = open(path).read()
+    with_alpha = re.sub(r"^(v .*)$", r"\1 0.5", text, flags=re.M)  # v x y z r g b a
+    (tmp_path / "a.obj").write_text(with_alpha)
+    (doc, buffers), _ = meshdoc.read_source(str(tmp_path / "a.obj"))
+    (want, want_buffers), _ = meshdoc.read_source(path)
+    assert np.array_equal(_attribute(doc, buffers, "COLOR_0"), _attribute(want, want_buffers, "COLOR_0"))
