@@ -13,7 +13,8 @@ The pieces a reader hands over:
     one triangle primitive: ``positions`` (n, 3) float, ``indices`` (m, 3) int into them,
     ``attributes`` {glTF semantic: (n, k) float} (stored as float32 / uint16 or uint32 by
     :func:`build_document`) (``NORMAL`` unit vectors, ``TEXCOORD_0`` in glTF's
-    convention -- v grows downwards, so an OBJ's or PLY's ``v`` becomes ``1 - v`` --, ``COLOR_0`` in [0, 1]),
+    convention -- v grows downwards, so an OBJ's or PLY's ``v`` becomes ``1 - v`` --, ``COLOR_0`` in [0, 1], linear
+    as glTF's colours are: a mesh file's sRGB-encoded colours decoded, :func:`linear_from_srgb`),
     and the index of its :class:`Material` or None;
 ``Material``
     a name, a base colour (r, g, b, a) in [0, 1], a metal-free roughness, and the index of its base colour
@@ -749,9 +750,29 @@ def _corner(token: str, counts: dict, name: str) -> tuple:
     return tuple(out)
 
 
+def linear_from_srgb(colours: np.ndarray) -> np.ndarray:
+    """(n, 3 | 4) float64: colours in [0, 1] as a mesh file holds them, sRGB-encoded (as three.js's OBJ and PLY
+    loaders and Blender take them), in the linear values glTF's COLOR_0 holds (glTF 2.0, 3.7.2.1); alpha as it
+    is.  The inverse of :func:`srgb_from_linear`."""
+    out = np.array(colours, np.float64)
+    c = out[:, :3]
+    out[:, :3] = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    return out
+
+
+def srgb_from_linear(colours: np.ndarray) -> np.ndarray:
+    """(n, 3 | 4) float64: glTF's linear COLOR_0 values (in [0, 1]) sRGB-encoded, as a mesh file holds its colours;
+    alpha as it is.  The inverse of :func:`linear_from_srgb`."""
+    out = np.clip(np.array(colours, np.float64), 0.0, 1.0)
+    c = out[:, :3]
+    out[:, :3] = np.where(c <= 0.0031308, c * 12.92, 1.055 * c ** (1 / 2.4) - 0.055)
+    return out
+
+
 def _obj_parts(positions, vt, vn, colours, corners, face_material, notices, materials) -> list:
     """One :class:`Part` per material (faces of no material last): a glTF vertex per distinct corner triple.
-    ``positions`` (p, 3), ``vt`` (t, 1..3), ``vn`` (n, 3) float64, ``colours`` (p, 3|4) in [0, 1] or None;
+    ``positions`` (p, 3), ``vt`` (t, 1..3), ``vn`` (n, 3) float64, ``colours`` (p, 3|4) in [0, 1] or None (sRGB:
+    COLOR_0 gets them linear, :func:`linear_from_srgb`);
     ``corners`` (3m, 3) int64 (position, texture coordinate, normal; -1 none); ``face_material`` (m,) int64
     indices into ``materials`` (the notices name them), -1 none."""
     parts = []
@@ -803,7 +824,7 @@ def _obj_parts(positions, vt, vn, colours, corners, face_material, notices, mate
             else:
                 attrs["NORMAL"] = n / length
         if colours is not None:
-            attrs["COLOR_0"] = colours[unique[:, 0]]
+            attrs["COLOR_0"] = linear_from_srgb(colours[unique[:, 0]])
         parts.append(Part(positions[unique[:, 0]], inverse.reshape(-1, 3), attrs, None if key < 0 else key))
     return parts
 

@@ -18,7 +18,8 @@ with a notice.
 ``X.obj``
     ``mtllib X.mtl``; one ``o`` group per showing; ``v`` records welded within a showing (one per distinct
     float32 position -- and colour, when the file has colours: ``v x y z r g b``), ``vt`` (``u, 1 - v``: OBJ's
-    ``v`` grows upwards, glTF's downwards) and ``vn`` records, each distinct value once, and ``usemtl`` /
+    ``v`` grows upwards, glTF's downwards) and ``vn`` records (colours sRGB-encoded, as mesh files hold them: the
+    inverse of the reading, :func:`~pmwm_codec.meshdoc.srgb_from_linear`), each distinct value once, and ``usemtl`` /
     ``f p/t/n`` records per part (``p``, ``p/t``, ``p//n`` as the part has them);
 ``X.mtl``
     one ``newmtl`` per material used: ``Kd`` (base colour), ``d`` (alpha), ``Ns`` (``1000 (1 - roughness)^2``,
@@ -50,7 +51,7 @@ from .format.document import read_accessor, sniff_image
 from .format.gltf import TRIANGLE_MODES, TRIANGLES, placements_by_mesh, triangle_list, view_bytes, world_placements
 from .constants import MAX_WRITTEN_IMAGES
 from .errors import InputFormatError, OptionError
-from .meshdoc import Material, Part
+from .meshdoc import Material, Part, srgb_from_linear
 
 __all__ = ["Scene", "Showing", "scene_parts", "shows_appearance", "sidecar_paths", "write_scene"]
 
@@ -342,8 +343,9 @@ def _obj_text(scene: Scene, mtl_name: str | None) -> tuple:
         if not np.isfinite(pos).all():
             raise InputFormatError("a coordinate of the decoded mesh overflows the float32 an OBJ's records hold")
         if coloured:
-            colours = np.concatenate([_float32(p.attributes["COLOR_0"][:, :3]) if "COLOR_0" in p.attributes
-                                      else np.ones((len(p.positions), 3), np.float32) for p in showing.parts])
+            colours = np.concatenate([_float32(srgb_from_linear(p.attributes["COLOR_0"])[:, :3])
+                                      if "COLOR_0" in p.attributes else np.ones((len(p.positions), 3), np.float32)
+                                      for p in showing.parts])
             key = np.hstack([pos, colours])
         else:
             key = pos
@@ -454,8 +456,8 @@ def _ply_parts(scene: Scene, image_names: list) -> tuple:
             vert["s"][at:at + k] = p.attributes["TEXCOORD_0"][:, 0]
             vert["t"][at:at + k] = 1.0 - p.attributes["TEXCOORD_0"][:, 1]
         if has["COLOR_0"]:
-            rgba = p.attributes.get("COLOR_0", np.ones((k, 4)))
-            byte = np.rint(np.clip(rgba, 0.0, 1.0) * 255.0).astype(np.uint8)
+            rgba = srgb_from_linear(p.attributes.get("COLOR_0", np.ones((k, 4))))
+            byte = np.rint(rgba * 255.0).astype(np.uint8)
             for c, col in zip(("red", "green", "blue", "alpha"), byte.T):
                 vert[c][at:at + k] = col
         face["n"][fat:fat + j] = 3

@@ -107,8 +107,8 @@ def test_a_ply_decoded_from_a_coloured_textured_asset_holds_its_colours_and_text
     assert got.textures == ["back_0.png"]
     assert np.array_equal(got.positions.astype(np.float32),
                           read_accessor(gltf, buffers, prim["attributes"]["POSITION"]).astype(np.float32))
-    want_rgb = read_accessor(gltf, buffers, prim["attributes"]["COLOR_0"])[:, :3]
-    assert np.abs(got.colours[:, :3] - want_rgb).max() <= 0.5 / 255 + 1e-9  # 8 bits a channel
+    want_rgb = meshdoc.srgb_from_linear(read_accessor(gltf, buffers, prim["attributes"]["COLOR_0"]))[:, :3]
+    assert np.abs(got.colours[:, :3] - want_rgb).max() <= 0.5 / 255 + 1e-9  # sRGB-encoded again, 8 bits a channel
     uv = read_accessor(gltf, buffers, prim["attributes"]["TEXCOORD_0"])
     assert np.abs(got.uv - np.stack([uv[:, 0], 1 - uv[:, 1]], 1)).max() <= 2e-7
     assert any("material colours" in n for n in json.loads(run.stdout)["notices"])  # Kd 0.8 0.5 0.25: no place

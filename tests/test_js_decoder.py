@@ -137,21 +137,19 @@ def test_js_decoder_matches_python_on_a_textured_coloured_obj_of_two_materials(t
     assert end["complete"] and js == python
 
 
-def test_js_decoder_matches_python_on_a_ply_of_8_bit_colours_on_their_own_lattice(tmp_path):
-    """A PLY's uchar colours ride on the 8-bit lattice (step 1/255, exact: encoder._colour_lattice); the
-    JavaScript decoder reads that grid's levels as the Python one does."""
-    from test_ply_appearance import corners, ply_bytes, xyz
-
+def test_js_decoder_matches_python_on_8_bit_colours_on_their_own_lattice(tmp_path):
+    """An asset's COLOR_0 of 8-bit values (k / 255, as a normalized UNSIGNED_BYTE accessor holds them) rides on
+    the 8-bit lattice (step 1/255, exact: encoder._colour_lattice); the JavaScript decoder reads that grid's
+    levels as the Python one does."""
     from pmwm_codec import shapes
+    from pmwm_codec.meshdoc import Part, build_document
 
     node = _node()
     mesh = shapes.icosphere(4, noise=0.01, seed=4)
     rgb = (np.clip((mesh.positions + 1) / 2, 0, 1) * 255).astype(np.uint8)
-    colours = [(c, "uchar", rgb[:, i]) for i, c in enumerate(("red", "green", "blue"))]
-    (tmp_path / "c.ply").write_bytes(ply_bytes("binary_little_endian", xyz(mesh.positions) + colours,
-                                               corners(mesh.faces)))
+    document = build_document([Part(mesh.positions, mesh.faces, {"COLOR_0": rgb / 255.0})], [], [], "c")
     dst = tmp_path / "c.pmw"
-    pmwm_codec.encode(str(tmp_path / "c.ply"), str(dst), measure=False)
+    pmwm_codec.encode(document, str(dst), measure=False)
     data = dst.read_bytes()
     ext = json.loads(data[20:20 + int.from_bytes(data[12:16], "little")])["meshes"][0]["primitives"][0]
     (colour,) = [a for a in ext["extensions"]["PMWM_progressive_mesh"]["attributes"] if a["semantic"] == "COLOR_0"]

@@ -120,7 +120,8 @@ def test_vertex_colours_come_back_within_the_colour_grid(tmp_path):
     got_pos, got_rgb = _attribute(gltf, buffers, "POSITION"), _attribute(gltf, buffers, "COLOR_0")
     rgb = (pos - pos.min(0)) / np.ptp(pos, 0)
     near = np.argmin(((got_pos[:, None, :] - pos[None]) ** 2).sum(-1), axis=1)
-    assert np.abs(got_rgb - rgb[near]).max() <= 1 / 4095 + 1e-6  # 12-bit colour grid (README)
+    want = meshdoc.linear_from_srgb(rgb)  # an OBJ's colours are sRGB-encoded, glTF's linear
+    assert np.abs(got_rgb - want[near]).max() <= 1 / 4095 + 1e-6  # 12-bit colour grid (README)
 
 
 def test_a_missing_mtl_is_a_notice_and_the_texture_coordinates_still_ride(tmp_path):
@@ -376,7 +377,8 @@ def test_obj_colours_of_0_to_1_rounded_just_over_1_are_not_taken_for_bytes(tmp_p
     path.write_text("\n".join(rows + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in mesh.faces]) + "\n")
     pmwm_codec.encode(str(path), str(tmp_path / "c.pmw"))
     gltf, buffers = _decoded(str(tmp_path / "c.pmw"))
-    assert np.abs(_attribute(gltf, buffers, "COLOR_0") - [1.0, 0.5, 0.25]).max() < 1e-3
+    want = meshdoc.linear_from_srgb(np.array([[1.0, 0.5, 0.25]]))[0]
+    assert np.abs(_attribute(gltf, buffers, "COLOR_0") - want).max() < 1e-3
 
 
 def test_a_texture_found_by_its_name_is_among_the_files_the_obj_names(tmp_path):

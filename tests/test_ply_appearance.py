@@ -20,6 +20,7 @@ from pmwm_codec.cli import main
 from pmwm_codec.errors import InputFormatError
 from pmwm_codec.format.document import load_document
 from pmwm_codec.mesh import read_mesh
+from pmwm_codec.meshdoc import linear_from_srgb, srgb_from_linear
 
 from samples import icosphere
 from test_asset import _seam_cracks
@@ -170,13 +171,14 @@ def test_vertex_colours_and_texture_coordinates_round_trip_in_every_format_and_t
     [(attrs, tris, material, _)] = primitives(pmw)
     assert material is None and ("NORMAL" in attrs) == normals and len(tris) == len(faces)
     attrs.pop("NORMAL", None)
-    expected = {"POSITION": positions, "COLOR_0": colours, "TEXCOORD_0": np.stack([uv[:, 0], 1 - uv[:, 1]], 1)}
+    expected = {"POSITION": positions, "COLOR_0": linear_from_srgb(colours),  # a PLY's colours are sRGB-encoded
+                "TEXCOORD_0": np.stack([uv[:, 0], 1 - uv[:, 1]], 1)}
     assert_same_vertices(expected, attrs, {"POSITION": position_step(positions), "COLOR_0": COLOUR_TOLERANCE,
                                            "TEXCOORD_0": UV_TOLERANCE})
-    if kind == "uchar":  # 8-bit colours come back exact
+    if kind == "uchar":  # 8-bit colours come back exact, sRGB-encoded again
         tree = cKDTree(positions)
         _, nearest = tree.query(attrs["POSITION"])
-        assert np.array_equal(np.rint(attrs["COLOR_0"].astype(np.float64) * 255), raw[nearest])
+        assert np.array_equal(np.rint(srgb_from_linear(attrs["COLOR_0"].astype(np.float64)) * 255), raw[nearest])
 
 
 def seamed_sphere():
@@ -387,7 +389,7 @@ def test_a_large_coloured_textured_ply_reads_into_one_vertex_per_ply_vertex():
     order = np.lexsort(mesh.positions.astype(np.float32).T[::-1])
     got = np.lexsort(pos.T[::-1])
     assert np.array_equal(pos[got], mesh.positions.astype(np.float32)[order])
-    want_rgb = np.stack([rng_values[c] for c in ("red", "green", "blue")], axis=1) / 255.0
+    want_rgb = linear_from_srgb(np.stack([rng_values[c] for c in ("red", "green", "blue")], axis=1) / 255.0)
     assert np.abs(rgb[got] - want_rgb[order]).max() < 1e-6
     assert np.abs(uv[got] - np.stack([rng_values["s"], 1 - rng_values["t"]], axis=1)[order]).max() < 1e-6
 
@@ -497,7 +499,7 @@ def test_face_colours_are_not_carried_and_the_encoder_says_so(tmp_path, vertex_c
     [(attrs, _, _, _)] = primitives(pmw)
     assert ("COLOR_0" in attrs) == vertex_colours
     if vertex_colours:
-        assert np.array_equal(np.rint(attrs["COLOR_0"] * 255), np.full((len(positions), 3), 9))
+        assert np.array_equal(np.rint(srgb_from_linear(attrs["COLOR_0"]) * 255), np.full((len(positions), 3), 9))
     else:
         assert pmw == encoded_plain(tmp_path / "m.ply")
 
