@@ -133,3 +133,34 @@ def test_eight_bit_colours_ride_exactly_on_their_own_lattice_and_others_on_twelv
     distance, source = cKDTree(mesh.positions).query(pos)  # each decoded vertex's input vertex (grid: ~2.5e-5)
     assert distance.max() < 1e-3 and len(np.unique(source)) == len(k)
     assert np.array_equal(got, (k[source] / np.float32(255)).astype(np.float32))  # the input's float32, exactly
+
+
+def test_srgb_colours_decoded_to_linear_ride_exactly_on_their_byte_grid():
+    """COLOR_0 values that are 8-bit sRGB colours decoded to linear (a PLY's or an OBJ's, meshdoc.linear_from_srgb)
+    get the ``srgb8`` grid: bytes from each component's least, bits for the span, the same float32 back (alpha on
+    k / 255); values near but off those float32 keep 12 bits; a stored value off the table, or a byte a split
+    would put outside 0..255, is a format error."""
+    from pmwm_codec.errors import FormatError
+    from pmwm_codec.meshdoc import linear_from_srgb
+    from pmwm_codec.progressive.grid import SRGB8_TO_LINEAR, AttributeGrid
+
+    rng = np.random.default_rng(8)
+    k = rng.integers(30, 150, (500, 4))
+    colours = linear_from_srgb(k / 255.0)
+    grid, extra = _attribute_grid("COLOR_0", colours)
+    assert extra == {} and grid.transfer == "srgb8" and grid.bits == 8 and grid.step == (1.0,) * 4  # 8 at least
+    assert grid.origin == tuple(float(x) for x in k.min(axis=0))
+    ints = grid.from_float32(colours, "COLOR_0")
+    assert np.array_equal(ints, k - k.min(axis=0))
+    assert np.array_equal(grid.to_float32(ints), colours.astype(np.float32))
+    assert np.array_equal(grid.to_float32(ints)[:, :3], SRGB8_TO_LINEAR[k[:, :3]])
+    assert AttributeGrid.from_config({"semantic": "COLOR_0", **grid.get_config()}) == grid
+    assert _attribute_grid("COLOR_0", colours * (1 - 1e-5))[0].transfer is None  # near, not on, the table
+    assert _attribute_grid("COLOR_0", colours * (1 - 1e-5))[0].bits == 12
+    with pytest.raises(FormatError, match="not the 8-bit sRGB colours"):
+        grid.from_float32(colours.astype(np.float32) * np.float32(1.0001), "COLOR_0")
+    with pytest.raises(FormatError, match="outside 0..255"):
+        grid.to_float32(np.full((1, 4), 255, np.int64))
+    for bad in ({"transfer": "gamma"}, {"origin": [0.5, 0, 0, 0]}, {"step": [2, 1, 1, 1]}, {"semantic": "NORMAL"}):
+        with pytest.raises(FormatError):
+            AttributeGrid.from_config({"semantic": "COLOR_0", **grid.get_config(), **bad})

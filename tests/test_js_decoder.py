@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 import pmwm_codec
+from pmwm_codec.meshdoc import srgb_from_linear
 from pmwm_codec.stream import StreamDecoder
 
 from conftest import CORPUS_MESHES, corpus_path
@@ -135,6 +136,52 @@ def test_js_decoder_matches_python_on_a_textured_coloured_obj_of_two_materials(t
     assert len(python) > 2 and len(python[-1]["parts"]) == 2
     js, end = _js_levels(node, dst)
     assert end["complete"] and js == python
+
+
+def test_js_decoder_matches_python_on_a_ply_of_8_bit_srgb_colours_on_their_byte_grid(tmp_path):
+    """A PLY's uchar colours (and alpha) are sRGB bytes, carried exact on their ``srgb8`` byte grid (spec/README.md,
+    attributes: transfer); the JavaScript decoder writes each byte's float32 as the Python one does, the base's
+    values mapped back to bytes (base.js srgb8Into) and every level's values (decoder.js dequantizeSrgb8)."""
+    from test_ply_appearance import corners, ply_bytes, xyz
+
+    from pmwm_codec import shapes
+
+    node = _node()
+    mesh = shapes.icosphere(4, noise=0.01, seed=4)
+    rgba = np.random.default_rng(7).integers(0, 256, (len(mesh.positions), 4)).astype(np.uint8)
+    colours = [(c, "uchar", rgba[:, i]) for i, c in enumerate(("red", "green", "blue", "alpha"))]
+    (tmp_path / "c.ply").write_bytes(ply_bytes("binary_little_endian", xyz(mesh.positions) + colours,
+                                               corners(mesh.faces)))
+    dst = tmp_path / "c.pmw"
+    pmwm_codec.encode(str(tmp_path / "c.ply"), str(dst), measure=False)
+    data = dst.read_bytes()
+    ext = json.loads(data[20:20 + int.from_bytes(data[12:16], "little")])["meshes"][0]["primitives"][0]
+    (colour,) = [a for a in ext["extensions"]["PMWM_progressive_mesh"]["attributes"] if a["semantic"] == "COLOR_0"]
+    assert colour["transfer"] == "srgb8" and colour["bits"] == 8 and colour["step"] == [1, 1, 1, 1]
+    python = _python_levels(data)
+    assert len(python) > 2
+    js, end = _js_levels(node, dst)
+    assert end["complete"] and js == python
+    script = ("import { readFileSync } from 'node:fs'; import { PmwDecoder } from './src/index.js';"
+              "const d = new PmwDecoder(); await d.feed(new Uint8Array(readFileSync(process.argv[1]))); await d.close();"
+              "const c = d.snapshot().parts[0].attributes.COLOR_0;"
+              "process.stdout.write(Buffer.from(c.buffer, c.byteOffset, c.byteLength).toString('hex'));")
+    out = subprocess.run([node, "--input-type=module", "-e", script, str(dst)], capture_output=True, text=True,
+                         cwd=ROOT / "js", timeout=120)
+    assert out.returncode == 0, out.stderr
+    dec = StreamDecoder()
+    last = dec.feed(data)[-1]
+    want = last.parts[0].attribute_values()["COLOR_0"]
+    assert bytes.fromhex(out.stdout) == np.ascontiguousarray(want, "<f4").tobytes()  # every float32, bit for bit
+    assert np.array_equal(np.rint(srgb_from_linear(want) * 255), _in_decoded_order(last, mesh.positions, rgba))
+
+
+def _in_decoded_order(level, positions: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """``values`` (one row per input vertex at ``positions``) in the order of the decoded ``level``'s vertices."""
+    from scipy.spatial import cKDTree
+
+    _, nearest = cKDTree(positions).query(level.parts[0].positions)
+    return values[nearest]
 
 
 def test_js_decoder_matches_python_on_8_bit_colours_on_their_own_lattice(tmp_path):

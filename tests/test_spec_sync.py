@@ -6,6 +6,7 @@ import re
 from pathlib import Path
 
 import jsonschema
+import numpy as np
 import pytest
 from referencing import Registry, Resource
 
@@ -229,3 +230,21 @@ def test_bitstream_base_digest_examples_are_what_the_reader_computes():
     assert f"`baseDigest` = `{base_digest(*triangle)}`" in section
     assert f"values `7, 8, 9`: `{base_digest(*triangle, [[7], [8], [9]])}`" in section
     assert f'b"{BASE_DIGEST_LABEL.decode()}"' in section and f"the {len(BASE_DIGEST_LABEL)}-byte label" in section
+
+
+def test_readme_srgb8_table_is_the_one_the_readers_use():
+    """spec/README.md's SRGB8_TO_LINEAR (float32 bit patterns) is the table of the Python reader and of the
+    JavaScript one (js/src/constants.js), bit for bit."""
+    import re
+
+    from pmwm_codec.progressive.grid import SRGB8_TO_LINEAR
+
+    readme = (SPEC / "README.md").read_text()
+    block = readme[readme.index("`SRGB8_TO_LINEAR[b]`, `b` = 0…255"):]
+    block = block[block.index("```") + 3:]
+    words = block[:block.index("```")].split()
+    assert [int(w, 16) for w in words] == SRGB8_TO_LINEAR.view(np.uint32).tolist()
+    js = (SPEC.parent / "js" / "src" / "constants.js").read_text()
+    js = js[js.index("export const SRGB8_TO_LINEAR"):]
+    assert [int(w, 16) for w in re.findall(r"0x([0-9a-f]{8})", js[:js.index("]).buffer")])] == \
+        SRGB8_TO_LINEAR.view(np.uint32).tolist()

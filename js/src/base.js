@@ -4,6 +4,7 @@
  */
 import { framedDigest } from './chunkframe.js';
 import { CorruptChunkError, DracoError, FormatError, PmwError } from './errors.js';
+import { SRGB8_TO_LINEAR } from './constants.js';
 import { WELD_ATTRIBUTE, readAccessor } from './header.js';
 
 const BASE_DIGEST_LABEL = new TextEncoder().encode('pmwm/base-digest/v1');
@@ -22,10 +23,48 @@ function quantizeInto(values, D, col0, floats, grid, what) {
   const k = grid.origin.length;
   const count = floats.length / k;
   const limit = 2 ** grid.bits;
+  if (grid.transfer === 'srgb8') {
+    srgb8Into(values, D, col0, floats, grid, what);
+    return;
+  }
   for (let i = 0; i < count; i++) {
     for (let c = 0; c < k; c++) {
       const q = rint((floats[i * k + c] - grid.origin[c]) / grid.step[c]);
       if (!Number.isFinite(q)) throw new FormatError(`base mesh: ${what} are not finite`);
+      if (q < 0 || q >= limit) throw new FormatError(`base mesh: ${what} lie outside the ${grid.bits}-bit grid`);
+      values[i * D + col0 + c] = q;
+    }
+  }
+}
+
+/**
+ * quantizeInto for a "srgb8" grid (spec/README.md, attributes: transfer): each stored float32 must be the value
+ * the grid writes for a byte b (red, green, blue: SRGB8_TO_LINEAR[b], found by bisection, the table rising; alpha:
+ * b / 255 rounded to float32); the integer is b - origin.
+ */
+function srgb8Into(values, D, col0, floats, grid, what) {
+  const k = grid.origin.length;
+  const count = floats.length / k;
+  const limit = 2 ** grid.bits;
+  for (let i = 0; i < count; i++) {
+    for (let c = 0; c < k; c++) {
+      const v = Math.fround(floats[i * k + c]);
+      let b;
+      if (c < 3) {
+        let lo = 0;
+        let hi = 255;
+        while (lo < hi) {
+          const mid = (lo + hi) >> 1;
+          if (SRGB8_TO_LINEAR[mid] < v) lo = mid + 1; else hi = mid;
+        }
+        b = lo;
+        if (SRGB8_TO_LINEAR[b] !== v) b = -1;
+      } else {
+        b = rint(v * 255);
+        if (!(b >= 0 && b <= 255) || Math.fround(b / 255) !== v) b = -1;
+      }
+      if (b < 0) throw new FormatError(`base mesh: ${what} are not the 8-bit sRGB colours of their grid`);
+      const q = b - grid.origin[c];
       if (q < 0 || q >= limit) throw new FormatError(`base mesh: ${what} lie outside the ${grid.bits}-bit grid`);
       values[i * D + col0 + c] = q;
     }

@@ -4,6 +4,7 @@
  * stream order), `close()` says whether the stream was complete or cut.
  */
 import { decodeBase } from './base.js';
+import { SRGB8_TO_LINEAR } from './constants.js';
 import { initChunkFrames, openChunk } from './chunkframe.js';
 import { FormatError, LimitError, TruncatedError } from './errors.js';
 import { checkPreamble, parseGlb, planDocument, preambleLength } from './header.js';
@@ -366,6 +367,7 @@ function dequantize(attributesInt, n, a, col, g) {
   const k = g.origin.length;
   const out = new Float32Array(n * k);
   const nk = NORMALIZED[g.semantic] ? Math.min(3, k) : 0;
+  if (g.transfer === 'srgb8') return dequantizeSrgb8(attributesInt, n, a, col, g);
   for (let i = 0, o = 0; i < n; i++, o += k) {
     for (let c = 0; c < k; c++) out[o + c] = g.origin[c] + attributesInt[i * a + col + c] * g.step[c];
     if (!nk) continue;
@@ -373,6 +375,23 @@ function dequantize(attributesInt, n, a, col, g) {
     for (let c = 0; c < nk; c++) squares = f(squares + f(out[o + c] * out[o + c]));
     const length = f(Math.sqrt(squares));
     if (length > 0) for (let c = 0; c < nk; c++) out[o + c] = out[o + c] / Math.max(length, TINY);
+  }
+  return out;
+}
+
+/**
+ * dequantize for a "srgb8" grid (spec/README.md, attributes: transfer): byte b = origin + i, 0..255 (else a
+ * format error); red, green and blue SRGB8_TO_LINEAR[b], alpha b / 255 rounded to float32.
+ */
+function dequantizeSrgb8(attributesInt, n, a, col, g) {
+  const k = g.origin.length;
+  const out = new Float32Array(n * k);
+  for (let i = 0, o = 0; i < n; i++, o += k) {
+    for (let c = 0; c < k; c++) {
+      const b = g.origin[c] + attributesInt[i * a + col + c];
+      if (!(b >= 0 && b <= 255)) throw new FormatError(`${g.semantic}: a colour's sRGB byte lies outside 0..255`);
+      out[o + c] = c < 3 ? SRGB8_TO_LINEAR[b] : b / 255;
+    }
   }
   return out;
 }

@@ -208,6 +208,24 @@ function checkGrid(grid, what, components) {
   return { bits: grid.bits, origin: origin.slice(), step: step.slice() };
 }
 
+/**
+ * An attribute's `transfer` (spec/README.md, attributes): absent, or "srgb8" on a COLOR_n of 3 or 4
+ * components with whole-number origins in 0..255 and steps of 1 (each component a byte: red, green and blue
+ * sRGB-encoded, written as SRGB8_TO_LINEAR[byte]; alpha written as byte / 255).
+ */
+function checkTransfer(a, what) {
+  if (a.transfer === undefined) return {};
+  const where = `${what}: ${a.semantic} grid`;
+  if (a.transfer !== 'srgb8') throw new FormatError(`${where}: transfer must be 'srgb8'`);
+  if (!a.semantic.startsWith('COLOR_') || ![3, 4].includes(a.origin.length)) {
+    throw new FormatError(`${where}: transfer 'srgb8' is for a COLOR_n of 3 or 4 components`);
+  }
+  if (!a.step.every((x) => x === 1) || !a.origin.every((x) => Number.isInteger(x) && x >= 0 && x <= 255)) {
+    throw new FormatError(`${where}: transfer 'srgb8' needs whole-number origins in 0..255 and steps of 1`);
+  }
+  return { transfer: 'srgb8' };
+}
+
 /** A bufferView of buffer 0 by index, with its range checked against the buffer. */
 function bufferView(gltf, index, bufferLength, what) {
   const views = Array.isArray(gltf.bufferViews) ? gltf.bufferViews : [];
@@ -403,7 +421,7 @@ function basePlan(gltf, prim, ext, bufferLength, what) {
     if (!isObj(a) || typeof a.semantic !== 'string' || a.semantic === 'POSITION') {
       throw new FormatError(`${what}: attribute ${i} has no valid semantic`);
     }
-    return { semantic: a.semantic, ...checkGrid(a, `${what}: ${a.semantic} grid`, 0) };
+    return { semantic: a.semantic, ...checkGrid(a, `${what}: ${a.semantic} grid`, 0), ...checkTransfer(a, what) };
   });
   if (!isObj(prim.attributes)) throw new FormatError(`${what}: primitive has no attributes`);
   if (given(prim.mode, 4) !== 4) throw new FormatError(`${what}: primitive mode is not TRIANGLES`);

@@ -117,17 +117,38 @@ class Grid:
         return cls(bits, origin, step)
 
 
+def _srgb8_to_linear() -> np.ndarray:
+    """(256,) float32: the linear value of each 8-bit sRGB-encoded value ``b`` (IEC 61966-2-1: ``s = b / 255``,
+    ``s / 12.92`` up to 0.04045, else ``((s + 0.055) / 1.055) ** 2.4``), computed in float64 and rounded to the
+    nearest float32; strictly increasing.  spec/README.md lists these 256 values (``tests/test_spec_sync.py``)."""
+    s = np.arange(256, dtype=np.float64) / 255.0
+    return np.where(s <= 0.04045, s / 12.92, ((s + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+#: :data:`SRGB8_TO_LINEAR` ``[b]``: what an ``srgb8`` :class:`AttributeGrid` writes for the byte ``b`` of a colour
+#: channel.
+SRGB8_TO_LINEAR = _srgb8_to_linear()
+#: The one ``transfer`` an :class:`AttributeGrid` may name (the extension's ``attributes[].transfer``).
+SRGB8 = "srgb8"
+
+
 @dataclass(frozen=True)
 class AttributeGrid:
     """A per-component grid for a vertex attribute of ``k`` components.
 
     ``bits`` int; ``origin`` and ``step`` tuples of ``k`` floats: value ``j`` of a
     vertex is ``origin[j] + q[j] * step[j]`` with ``0 <= q[j] < 2**bits``.
+
+    ``transfer`` ``"srgb8"`` (a COLOR_n of 8-bit sRGB-encoded colours decoded to linear, as a PLY's or an OBJ's
+    come: exact on 8 bits where a linear grid needs 12 and is not): every component is a byte ``b = origin[j] +
+    q[j]`` (``origin`` whole numbers, ``step`` 1), 0..255, the value :data:`SRGB8_TO_LINEAR` ``[b]`` for the
+    first three (red, green, blue) and ``b / 255`` for a fourth (alpha, linear) -- each rounded to float32.
     """
 
     bits: int
     origin: tuple
     step: tuple
+    transfer: str | None = None
 
     @classmethod
     def fit(cls, values: np.ndarray, bits: int) -> "AttributeGrid":
@@ -146,29 +167,71 @@ class AttributeGrid:
 
     def to_float32(self, q: np.ndarray) -> np.ndarray:
         """(n, k) int grid values -> the float32 values a file stores (beyond float32: infinite, as
-        :meth:`Grid.to_float32`)."""
+        :meth:`Grid.to_float32`); an ``srgb8`` grid's (class docstring): FormatError for a byte outside 0..255."""
+        if self.transfer == SRGB8:
+            b = np.asarray(self.origin, np.int64) + q.astype(np.int64)
+            if b.size and (b.min() < 0 or b.max() > 255):
+                raise FormatError("a colour's sRGB byte lies outside 0..255")
+            return self.to_float32_bytes(b)
         with np.errstate(over="ignore"):
             return (np.asarray(self.origin) + q.astype(np.float64) * np.asarray(self.step)).astype(np.float32)
 
     def from_float32(self, values: np.ndarray, what: str) -> np.ndarray:
         """Stored values (n, k) float -> grid integers (n, k) int64; FormatError (naming
-        ``what``) when a value is not finite or off the grid."""
+        ``what``) when a value is not finite or off the grid (of an ``srgb8`` grid: not one of the float32
+        values it writes)."""
+        if self.transfer == SRGB8:
+            return self._srgb8_ints(np.asarray(values, np.float64), f"base mesh: {what} values")
         return _checked_grid_ints(values, np.asarray(self.origin, np.float64), np.asarray(self.step, np.float64),
                                   self.bits, f"base mesh: {what} values", "their ")
 
+    def _srgb8_ints(self, values: np.ndarray, what: str) -> np.ndarray:
+        with np.errstate(invalid="ignore", over="ignore"):
+            stored = values.astype(np.float32)
+            b = np.rint(np.nan_to_num(values, nan=-1.0, posinf=-1.0, neginf=-1.0) * 255.0)
+        b = np.clip(b, 0, 255).astype(np.int64)
+        b[:, :3] = np.clip(np.searchsorted(SRGB8_TO_LINEAR, stored[:, :3]), 0, 255)
+        if not np.array_equal(self.to_float32_bytes(b), stored):  # float64 values: those that round to them
+            raise FormatError(f"{what} are not the 8-bit sRGB colours of their grid")
+        q = b - np.asarray(self.origin, np.int64)
+        if q.size and (q.min() < 0 or q.max() >= (1 << self.bits)):
+            raise FormatError(f"{what} lie outside their {self.bits}-bit grid")
+        return q
+
+    @staticmethod
+    def to_float32_bytes(b: np.ndarray) -> np.ndarray:
+        """(n, k) bytes 0..255 of an ``srgb8`` grid -> the float32 values it writes (class docstring)."""
+        out = (b / 255.0).astype(np.float32)
+        out[:, :3] = SRGB8_TO_LINEAR[b[:, :3]]
+        return out
+
     def get_config(self) -> dict:
-        """The extension JSON form ``{"bits": int, "origin": [k floats], "step": [k floats]}``."""
-        return {"bits": self.bits, "origin": list(self.origin), "step": list(self.step)}
+        """The extension JSON form ``{"bits": int, "origin": [k floats], "step": [k floats]}`` (and
+        ``"transfer": "srgb8"`` for such a grid)."""
+        out = {"bits": self.bits, "origin": list(self.origin), "step": list(self.step)}
+        if self.transfer is not None:
+            out["transfer"] = self.transfer
+        return out
 
     @classmethod
     def from_config(cls, config: dict) -> "AttributeGrid":
         """The grid of an extension ``attributes`` entry (other keys, e.g. ``semantic``, ignored);
         FormatError unless ``bits`` is in range and ``origin``/``step`` are equally long lists of
         finite numbers, every step positive."""
-        bits, origin, step = _check_config(config, f"{config.get('semantic', 'attribute')} grid", scalar_step=False)
+        what = f"{config.get('semantic', 'attribute')} grid"
+        bits, origin, step = _check_config(config, what, scalar_step=False)
         if len(origin) != len(step):
             raise FormatError(f"base mesh: {config.get('semantic')} grid has {len(origin)} origins and {len(step)} steps")
-        return cls(bits, origin, step)
+        transfer = config.get("transfer")
+        if transfer is not None:
+            if transfer != SRGB8:
+                raise FormatError(f"{what}: transfer must be {SRGB8!r}, got {transfer!r}")
+            semantic = config.get("semantic")
+            if not (isinstance(semantic, str) and semantic.startswith("COLOR_")) or len(origin) not in (3, 4):
+                raise FormatError(f"{what}: transfer {SRGB8!r} is for a COLOR_n of 3 or 4 components")
+            if any(x != 1.0 for x in step) or any(not (0 <= x <= 255 and x == int(x)) for x in origin):
+                raise FormatError(f"{what}: transfer {SRGB8!r} needs whole-number origins in 0..255 and steps of 1")
+        return cls(bits, origin, step, transfer)
 
 
 def _number(x) -> bool:

@@ -36,7 +36,7 @@ import numpy as np
 
 from ..constants import DEFAULT_GRID_BITS, MAX_GRID_BITS, MIN_GRID_BITS
 from ..distortion import combine_meshes, decoded_positions, full_distortion, measure_method
-from ..errors import MeshError, OwnerLayerError, PmwError
+from ..errors import FormatError, MeshError, OwnerLayerError, PmwError
 from ..format import encode_base
 from ..format.base import EncodedBase, with_attributes
 from ..atomic import directory_lock, discard, fault_point, publish, signals_deferred, stage
@@ -48,7 +48,7 @@ from ..format.records import pack_batches
 from ..format.records_v2 import FaceChunk, pack_chunks
 from ..mesh import Mesh, bounds, vertex_components
 from ..progressive.build import ProgressiveMesh, build_progressive
-from ..progressive.grid import AttributeGrid, Grid, float32_spacing
+from ..progressive.grid import SRGB8, AttributeGrid, Grid, float32_spacing
 from ..progressive.seams import twin_rows, weld_groups
 from ..progressive.simplify import CollapseLog, deferred_and_twin_faces, simplify
 from ..progressive.topology import any_corner, edge_ids, job_vertices, mean_edge_length, two_alike_at
@@ -239,17 +239,29 @@ COLOUR_LATTICE_TOLERANCE = 1e-3
 
 
 def _colour_lattice(values: np.ndarray) -> AttributeGrid | None:
-    """The grid of step 1/255 from each component's least value, as many bits as the widest span needs (8 at
-    most), when every value of ``values`` (n, k) float64 is an 8-bit colour k / 255 (within
-    :data:`COLOUR_LATTICE_TOLERANCE` of a step); else None (the 12-bit grid of :data:`ATTRIBUTE_BITS`)."""
+    """An exact 8-bit grid for ``values`` (n, k) float64 of a COLOR_n, as many bits as the widest span of bytes
+    needs (8 at most), from each component's least byte: the grid of step 1/255 when every value is an 8-bit
+    colour k / 255 (within :data:`COLOUR_LATTICE_TOLERANCE` of a step: a normalized UNSIGNED_BYTE accessor); the
+    ``srgb8`` grid (:class:`~pmwm_codec.progressive.grid.AttributeGrid`) when the red, green and blue values are
+    8-bit sRGB colours decoded to linear (as float32: a PLY's or an OBJ's colours) and an alpha is k / 255; else
+    None (the 12-bit grid of :data:`ATTRIBUTE_BITS`)."""
     if not values.size or not np.isfinite(values).all() or values.min() < 0.0 or values.max() > 1.0:
         return None
     k = np.rint(values * 255.0)
-    if np.abs(values * 255.0 - k).max() > COLOUR_LATTICE_TOLERANCE:
-        return None
-    lo = k.min(axis=0)
-    bits = max(MIN_GRID_BITS, int((k.max(axis=0) - lo).max()).bit_length())
-    return AttributeGrid(bits, tuple(float(x) / 255.0 for x in lo), (1.0 / 255.0,) * values.shape[1])
+    if np.abs(values * 255.0 - k).max() <= COLOUR_LATTICE_TOLERANCE:
+        lo = k.min(axis=0)
+        bits = max(MIN_GRID_BITS, int((k.max(axis=0) - lo).max()).bit_length())
+        return AttributeGrid(bits, tuple(float(x) / 255.0 for x in lo), (1.0 / 255.0,) * values.shape[1])
+    if values.shape[1] in (3, 4):
+        try:
+            b = AttributeGrid(MIN_GRID_BITS, (0.0,) * values.shape[1], (1.0,) * values.shape[1],
+                              SRGB8).from_float32(values, "COLOR")
+        except FormatError:
+            return None
+        lo = b.min(axis=0)
+        bits = max(MIN_GRID_BITS, int((b.max(axis=0) - lo).max()).bit_length())
+        return AttributeGrid(bits, tuple(float(x) for x in lo), (1.0,) * values.shape[1], SRGB8)
+    return None
 
 
 def _attribute_grid(semantic: str, values: np.ndarray) -> tuple:
