@@ -48,7 +48,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .format.document import read_accessor, sniff_image
-from .format.gltf import TRIANGLE_MODES, TRIANGLES, placements_by_mesh, triangle_list, view_bytes, world_placements
+from .format.gltf import (
+    TRIANGLE_MODES, TRIANGLES, item, placements_by_mesh, triangle_list, view_bytes, world_placements,
+)
 from .constants import MAX_WRITTEN_IMAGES
 from .errors import InputFormatError, OptionError
 from .meshdoc import Material, Part, srgb_from_linear
@@ -153,6 +155,8 @@ def _part(gltf: dict, buffers, mi: int, prim: dict, material_map: dict) -> Part:
             values = read_accessor(gltf, buffers, attrs[semantic]).astype(np.float64)
             if len(values) != len(positions):
                 raise InputFormatError(f"mesh {mi}: {semantic} has {len(values)} values for {len(positions)} vertices")
+            if not np.isfinite(values).all():  # an OBJ or PLY of it would not read back (nan, inf)
+                raise InputFormatError(f"mesh {mi}: a {semantic} value is not finite (NaN or infinite)")
             carried[semantic] = values
     if "COLOR_0" in carried and carried["COLOR_0"].shape[1] == 3:
         carried["COLOR_0"] = np.hstack([carried["COLOR_0"], np.ones((len(positions), 1))])
@@ -177,21 +181,29 @@ def _placed(part: Part, matrix: np.ndarray) -> Part:
 def _materials(gltf: dict, buffers, notices: list) -> tuple:
     """``(materials, images, {glTF material index: index into materials})`` of the materials some shown
     triangle primitive uses, and the images they name (each once)."""
-    used = sorted({p["material"] for _, p in _shown_triangle_primitives(gltf) if isinstance(p.get("material"), int)})
-    doc_materials = gltf.get("materials", [])
-    materials, images, image_map, material_map, names = [], [], {}, {}, set()
+    doc_materials = _array(gltf, "materials")
+    used = set()
+    for mesh, prim in _shown_triangle_primitives(gltf):
+        if "material" in prim:  # an index past the materials (or -1, which would pick the last) is no material
+            item(doc_materials, prim["material"], f"mesh {mesh}: a primitive's material", error=InputFormatError)
+            used.add(prim["material"])
+    materials, images, image_map, material_map, names = [], [], {}, {}, {"default"}  # default: see _mtl_text
     left = set()
 
     def image_of(ref, what: str):
-        if not isinstance(ref, dict) or not isinstance(ref.get("index"), int):
+        if ref is None:
             return None
+        if not isinstance(ref, dict):
+            raise InputFormatError(f"{what}: not a texture reference object")
+        texture = item(_array(gltf, "textures"), ref.get("index"), f"{what}: texture", error=InputFormatError)
         if ref.get("texCoord", 0) != 0:
             left.add(f"{what} is left out: it reads a second texture set")
             return None
-        if "KHR_texture_transform" in (ref.get("extensions") or {}):
+        if "KHR_texture_transform" in _object(ref, "extensions", what):
             left.add(f"{what}'s transform (KHR_texture_transform) is left out: an MTL cannot say it")
-        source = _image_source(gltf, ref["index"])
+        source = _image_source(gltf, texture, what)
         if source is None:
+            left.add(f"{what} is left out: its texture names no image")
             return None
         if source not in image_map and len(images) >= MAX_WRITTEN_IMAGES:
             left.add(f"textures past the first {MAX_WRITTEN_IMAGES} are left out (at most that many files are "
@@ -199,29 +211,31 @@ def _materials(gltf: dict, buffers, notices: list) -> tuple:
             return None
         if source not in image_map:
             image = gltf["images"][source]
-            if "bufferView" not in image:
+            if "bufferView" not in image:  # a file it names (uri): an input never makes decode read one
+                left.add(f"{what} is left out: its image is not in the file (a uri, which decode does not read)")
                 return None
             _, raw = view_bytes(gltf, buffers, image["bufferView"], f"images[{source}]", error=InputFormatError)
             blob = bytes(raw)
-            kind = image.get("mimeType") or sniff_image(blob) or "application/octet-stream"
+            declared = image.get("mimeType") if isinstance(image.get("mimeType"), str) else None
+            kind = sniff_image(blob) or declared or "application/octet-stream"  # the bytes name the file's suffix
             image_map[source] = len(images)
             images.append((blob, kind))
         return image_map[source]
 
-    for mi in used:
-        if mi >= len(doc_materials) or not isinstance(doc_materials[mi], dict):
-            continue
+    for mi in sorted(used):
         mat = doc_materials[mi]
-        pbr = mat.get("pbrMetallicRoughness") or {}
-        color = [float(c) for c in pbr.get("baseColorFactor", [1.0, 1.0, 1.0, 1.0])]
+        where = f"materials[{mi}]"
+        pbr = _object(mat, "pbrMetallicRoughness", where)
+        where += ".pbrMetallicRoughness"
+        color = _factor(pbr, "baseColorFactor", [1.0, 1.0, 1.0, 1.0], where)
         if mat.get("alphaMode", "OPAQUE") == "OPAQUE":
             color[3] = 1.0
         name = _safe_name(mat.get("name"), f"material_{mi}")
         while name in names:
             name = f"{name}_{mi}"
         names.add(name)
-        out = Material(name, tuple(color), float(pbr.get("roughnessFactor", 1.0)),
-                       metallic=float(pbr.get("metallicFactor", 1.0)))
+        out = Material(name, tuple(color), _factor(pbr, "roughnessFactor", 1.0, where),
+                       metallic=_factor(pbr, "metallicFactor", 1.0, where))
         out.texture = image_of(pbr.get("baseColorTexture"), f"material {name}'s base colour texture")
         out.normal_texture = image_of(mat.get("normalTexture"), f"material {name}'s normal texture")
         for holder, key, what in ((pbr, "metallicRoughnessTexture", "metallic-roughness texture"),
@@ -235,25 +249,52 @@ def _materials(gltf: dict, buffers, notices: list) -> tuple:
     return materials, images, material_map
 
 
-def _image_source(gltf: dict, texture: int):
-    """The image a texture shows: its core ``source`` (PNG or JPEG), else an extension's (KTX2, WebP ...)."""
-    textures = gltf.get("textures", [])
-    if not 0 <= texture < len(textures) or not isinstance(textures[texture], dict):
-        return None
-    tex = textures[texture]
-    holders = [tex] + [e for e in (tex.get("extensions") or {}).values() if isinstance(e, dict)]
+def _image_source(gltf: dict, tex: dict, what: str):
+    """The image a texture shows: its core ``source`` (PNG or JPEG), else an extension's (KTX2, WebP ...);
+    None when it names none.  InputFormatError when a source it names does not exist."""
+    holders = [tex] + [e for e in _object(tex, "extensions", f"{what}: its texture").values() if isinstance(e, dict)]
     for holder in holders:
-        source = holder.get("source")
-        if isinstance(source, int) and 0 <= source < len(gltf.get("images", [])):
-            return source
+        if "source" in holder:
+            item(_array(gltf, "images"), holder["source"], f"{what}: image", error=InputFormatError)
+            return holder["source"]
     return None
 
 
+def _array(gltf: dict, key: str) -> list:
+    """``gltf[key]``, a glTF array ([] when absent); InputFormatError when it is not one."""
+    value = gltf.get(key, [])
+    if not isinstance(value, list):
+        raise InputFormatError(f"the document's {key} is not an array")
+    return value
+
+
+def _object(holder: dict, key: str, what: str) -> dict:
+    """``holder[key]``, a JSON object ({} when absent); InputFormatError when it is not one."""
+    value = holder.get(key, {})
+    if not isinstance(value, dict):
+        raise InputFormatError(f"{what}: {key} is not an object")
+    return value
+
+
+def _factor(holder: dict, key: str, default, what: str):
+    """A material factor: a number (``default`` a float) or a list of as many numbers (``default`` a list),
+    as floats; InputFormatError when it is not."""
+    value = holder.get(key, default)
+    width = len(default) if isinstance(default, list) else None
+    values = value if isinstance(value, list) else [value]
+    if (width is None) == isinstance(value, list) or len(values) != (width or 1) \
+            or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in values):
+        raise InputFormatError(f"{what}.{key} is {str(value)[:40]!r}, not {f'{width} numbers' if width else 'a number'}")
+    out = [float(v) for v in values]
+    return out if width else out[0]
+
+
 def _safe_name(name, fallback: str) -> str:
-    """A name an OBJ / MTL record can hold: printable, no white space (a record splits there)."""
+    """A name an OBJ / MTL record can hold: printable, no white space (a record splits there), no ``#`` (a
+    comment starts there)."""
     if not isinstance(name, str):
         return fallback
-    name = re.sub(r"[^\x21-\x7e]+", "_", name).strip("_")
+    name = re.sub(r"[^\x21-\x22\x24-\x7e]+", "_", name).strip("_")  # and no #: a comment starts there
     return name or fallback
 
 
@@ -294,9 +335,10 @@ def write_scene(path: str, scene: Scene) -> tuple:
     mtl, image_paths = sidecar_paths(path, scene)
     names = [os.path.basename(p) for p in image_paths]
     for named in names + ([os.path.basename(mtl)] if mtl else []):
-        if "\n" in named or "\r" in named:  # a record of the file would end inside the name
-            raise OptionError(f"{named!r}: the {suffix[1:].upper()} would name this file, and a line break ends "
-                              "the record naming it; give the output another name")
+        why = _unrecordable(named, suffix)
+        if why:  # the record naming the file would not name it when read
+            raise OptionError(f"{named!r}: the {suffix[1:].upper()} would name this file, and {why} the record "
+                              "naming it; give the output another name")
     if suffix == ".obj":
         text, vertices, faces = _obj_text(scene, None if mtl is None else os.path.basename(mtl))
         files, notices = {path: [text]}, []
@@ -311,6 +353,22 @@ def write_scene(path: str, scene: Scene) -> tuple:
         files[image_path] = [blob]
     write_set(files)
     return vertices, faces, notices
+
+
+def _unrecordable(name: str, suffix: str) -> str | None:
+    """What keeps a ``mtllib`` / ``map_Kd`` record (``suffix`` .obj) or a PLY's ``comment TextureFile`` line
+    from naming the file ``name`` as readers read it, or None: a line break ends the record, another
+    character that is not printable (a tab, a vertical tab, U+2028) splits or ends it, white space at either
+    end is stripped, and in an OBJ or MTL a ``#`` starts a comment."""
+    if "\n" in name or "\r" in name:
+        return "a line break ends"
+    if not name.isprintable():
+        return "a character that is not printable (a tab, a form feed, a line separator) splits or ends"
+    if name != name.strip():
+        return "white space at an end of the name is stripped from"
+    if suffix == ".obj" and "#" in name:
+        return "a # starts a comment in"
+    return None
 
 
 def _float32(values: np.ndarray) -> np.ndarray:
@@ -337,13 +395,14 @@ def _obj_text(scene: Scene, mtl_name: str | None) -> tuple:
     out = io.StringIO()
     v_total = vt_total = vn_total = f_total = 0
     body = io.StringIO()
+    current = None  # the material of the last usemtl: it holds across o records
     for showing in scene.showings:
         body.write(f"o {showing.name}\n")
         pos = np.concatenate([_float32(p.positions) for p in showing.parts]) if showing.parts else np.zeros((0, 3), np.float32)
         if not np.isfinite(pos).all():
             raise InputFormatError("a coordinate of the decoded mesh overflows the float32 an OBJ's records hold")
         if coloured:
-            colours = np.concatenate([_float32(srgb_from_linear(p.attributes["COLOR_0"])[:, :3])
+            colours = np.concatenate([_float32(srgb_from_linear(p.attributes["COLOR_0"])[:, :3])  # clipped to 0..1
                                       if "COLOR_0" in p.attributes else np.ones((len(p.positions), 3), np.float32)
                                       for p in showing.parts])
             key = np.hstack([pos, colours])
@@ -352,7 +411,6 @@ def _obj_text(scene: Scene, mtl_name: str | None) -> tuple:
         welded, v_of = _unique_rows(key)
         np.savetxt(body, welded.astype(np.float64), fmt="v" + " %.9g" * welded.shape[1])
         starts = np.cumsum([0] + [len(p.positions) for p in showing.parts])
-        current = None
         for k, part in enumerate(showing.parts):
             p_idx = v_of[starts[k]:starts[k + 1]][part.indices] + 1 + v_total
             columns = [p_idx]

@@ -78,6 +78,7 @@ from ..format.gltf import (
     UNSIGNED_INT,
     BufferBuilder,
     find_extension_primitives,
+    item as gltf_item,
     forget_extension,
     place,
     triangle_list,
@@ -667,12 +668,21 @@ def _drop_images_not_arrived(doc: dict, available: int) -> list:
     """
     views = doc.get("bufferViews", [])
 
-    def arrived(image) -> bool:
-        view = views[image["bufferView"]] if "bufferView" in image else None
-        return view is None or view.get("byteOffset", 0) + view["byteLength"] <= available
+    def arrived(i: int, image) -> bool:
+        if not isinstance(image, dict):
+            raise InputFormatError(f"images[{i}] is not an object")
+        if "bufferView" not in image:
+            return True
+        view = gltf_item(views, image["bufferView"], f"images[{i}]: bufferView", error=InputFormatError)
+        start, length = view.get("byteOffset", 0), view.get("byteLength")
+        if any(isinstance(v, bool) or not isinstance(v, int) or v < 0 for v in (start, length)):
+            raise InputFormatError(f"images[{i}]: bufferView {image['bufferView']} has no byte range")
+        return start + length <= available
 
     images = doc.get("images", [])
-    missing = [i for i, image in enumerate(images) if not arrived(image)]
+    if not isinstance(images, list):
+        raise InputFormatError("the document's images is not an array")
+    missing = [i for i, image in enumerate(images) if not arrived(i, image)]
     if not missing:
         return []
     image_map = {i: n for n, i in enumerate(i for i in range(len(images)) if i not in missing)}
