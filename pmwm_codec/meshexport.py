@@ -49,9 +49,10 @@ import numpy as np
 
 from .format.document import read_accessor, sniff_image
 from .format.gltf import (
-    TRIANGLE_MODES, TRIANGLES, item, placements_by_mesh, triangle_list, view_bytes, world_placements,
+    TRIANGLE_MODES, TRIANGLES, find_extension_primitives, item, placements_by_mesh, triangle_list, view_bytes,
+    world_placements,
 )
-from .constants import MAX_WRITTEN_IMAGES
+from .constants import EXTENSION_NAME, MAX_WRITTEN_IMAGES
 from .errors import InputFormatError, OptionError
 from .meshdoc import Material, Part, srgb_from_linear
 
@@ -85,21 +86,29 @@ class Scene:
 
 
 def shows_appearance(gltf: dict | None) -> bool:
-    """Whether a triangle primitive of ``gltf`` (a ``.pmw``'s document, its JSON alone) that the scene shows
-    has a material or an attribute of :data:`CARRIED`: what an OBJ or PLY of it should hold beyond geometry."""
+    """Whether a triangle primitive of ``gltf`` (a ``.pmw``'s document, its JSON alone) that an OBJ or PLY of it
+    holds (:func:`_written_primitives`, its progressive meshes among them) has a material or an attribute of
+    :data:`CARRIED`: what such a file should hold beyond geometry."""
     if not gltf:
         return False
-    for _, prim in _shown_triangle_primitives(gltf):
+    for _, prim in _written_primitives(gltf, progressive_meshes(gltf)):
         if "material" in prim or any(s in prim.get("attributes", {}) for s in CARRIED):
             return True
     return False
 
 
-def _shown_triangle_primitives(gltf: dict):
-    """``(mesh index, primitive)`` of every triangle primitive with a POSITION of the meshes the scene shows
-    (every mesh of a document without nodes)."""
+def progressive_meshes(gltf: dict | None) -> list:
+    """The indices of the meshes of a ``.pmw``'s document (its JSON) that hold a progressive primitive."""
+    return sorted({mi for mi, _, _ in find_extension_primitives(gltf, EXTENSION_NAME)}) if gltf else []
+
+
+def _written_primitives(gltf: dict, also=()):
+    """``(mesh index, primitive)`` of every triangle primitive with a POSITION of the meshes an OBJ or PLY of
+    ``gltf`` holds: those the scene shows (every mesh of a document without nodes) and those ``also`` names (a
+    ``.pmw``'s progressive meshes, held shown or not, as
+    :func:`~pmwm_codec.stream.asset.scene_as_shown` holds them)."""
     meshes = gltf.get("meshes")
-    shown = set(placements_by_mesh(gltf)) if gltf.get("nodes") else None
+    shown = set(placements_by_mesh(gltf)) | set(also) if gltf.get("nodes") else None
     for mi, mesh in enumerate(meshes if isinstance(meshes, list) else []):
         if shown is not None and mi not in shown:
             continue
@@ -110,33 +119,35 @@ def _shown_triangle_primitives(gltf: dict):
                 yield mi, prim
 
 
-def scene_parts(gltf: dict, buffers) -> Scene:
+def scene_parts(gltf: dict, buffers, also=()) -> Scene:
     """The scene of a decoded, ordinary glTF document (``gltf`` and its ``buffers``, as
-    :func:`~pmwm_codec.stream.asset.decode_asset`'s GLB splits into) flattened (module docstring).
+    :func:`~pmwm_codec.stream.asset.decode_asset`'s GLB splits into) flattened (module docstring); ``also``: the
+    indices of the meshes held whether the scene shows them or not (the ``.pmw``'s progressive meshes,
+    :func:`progressive_meshes` of its JSON).
 
-    A document whose placements do not read (GPU instancing, a mesh the scene does not show, a scale of zero)
-    gives each mesh once, as stored, with a notice saying why.  InputFormatError when an accessor or image of it
-    does not read."""
+    A document whose placements do not read (GPU instancing, a mesh of ``also`` the scene does not show, a
+    scale of zero) gives each mesh once, as stored, with a notice saying why.  InputFormatError when an
+    accessor or image of it does not read."""
     notices = []
-    meshes = sorted({mi for mi, _ in _shown_triangle_primitives(gltf)})
+    written = list(_written_primitives(gltf, also))
+    meshes = sorted({mi for mi, _ in written})
     frames, why = world_placements(gltf, meshes)
     if frames is None:
         frames = [[np.eye(4)] for _ in meshes]
         notices.append(f"{why}: the file holds each mesh once, as stored, not placed by the scene's nodes; "
                        "decode to .glb to keep the scene")
-    materials, images, material_map = _materials(gltf, buffers, notices)
+    materials, images, material_map = _materials(gltf, buffers, written, notices)
     showings = []
     for mi, matrices in zip(meshes, frames):
         mesh = gltf["meshes"][mi]
-        stored = [_part(gltf, buffers, mi, prim, material_map) for m, prim in _shown_triangle_primitives(gltf)
-                  if m == mi]
+        stored = [_part(gltf, buffers, mi, prim, material_map) for m, prim in written if m == mi]
         name = _safe_name(mesh.get("name"), f"mesh_{mi}")
         for k, matrix in enumerate(matrices):
             shown = name if len(matrices) == 1 else f"{name}_{k}"
             showings.append(Showing(shown, [_placed(part, matrix) for part in stored]))
     for semantic, what in (("TEXCOORD_1", "a second texture set (TEXCOORD_1)"), ("COLOR_1", "a second colour set"),
                            ("JOINTS_0", "skin weights")):
-        if any(semantic in prim.get("attributes", {}) for _, prim in _shown_triangle_primitives(gltf)):
+        if any(semantic in prim.get("attributes", {}) for _, prim in written):
             notices.append(f"{what} is left out: an OBJ or PLY holds one set")
     return Scene(showings, materials, images, notices)
 
@@ -178,12 +189,12 @@ def _placed(part: Part, matrix: np.ndarray) -> Part:
     return Part(part.positions @ linear.T + matrix[:3, 3], faces, attrs, part.material)
 
 
-def _materials(gltf: dict, buffers, notices: list) -> tuple:
-    """``(materials, images, {glTF material index: index into materials})`` of the materials some shown
-    triangle primitive uses, and the images they name (each once)."""
+def _materials(gltf: dict, buffers, written: list, notices: list) -> tuple:
+    """``(materials, images, {glTF material index: index into materials})`` of the materials some primitive
+    of ``written`` (``(mesh index, primitive)``) uses, and the images they name (each once)."""
     doc_materials = _array(gltf, "materials")
     used = set()
-    for mesh, prim in _shown_triangle_primitives(gltf):
+    for mesh, prim in written:
         if "material" in prim:  # an index past the materials (or -1, which would pick the last) is no material
             item(doc_materials, prim["material"], f"mesh {mesh}: a primitive's material", error=InputFormatError)
             used.add(prim["material"])

@@ -224,3 +224,19 @@ def test_an_input_never_makes_decode_write_more_textures_than_the_limit(tmp_path
     assert len(scene.images) == 1 and any("past the first 1" in n for n in scene.notices)
     meshexport.write_scene(str(tmp_path / "o.obj"), scene)
     assert sorted(p for p in os.listdir(tmp_path) if p.startswith("o")) == ["o.mtl", "o.obj", "o_0.png"]
+
+
+def test_a_progressive_mesh_the_scene_does_not_show_is_held_as_stored_as_geometry_alone_is_and_said(tmp_path):
+    path, *_ = _torus_obj(str(tmp_path), mtl=None)
+    (doc, buffers), _ = meshdoc.read_source(path)
+    doc["scenes"][0]["nodes"] = []  # node 0 still shows mesh 0, but no scene has node 0
+    src = tmp_path / "hidden.pmw"
+    pmwm_codec.encode((doc, buffers), str(src))
+    styled, plain = (pmw("decode", src, "-o", tmp_path / f"{name}.obj", "--json", *extra)
+                     for name, extra in (("styled", ()), ("plain", ("--geometry-only",))))
+    assert styled.returncode == plain.returncode == 0, styled.stderr + plain.stderr
+    styled, plain = json.loads(styled.stdout), json.loads(plain.stdout)
+    assert styled["faces"] == plain["faces"] > 0
+    assert any("mesh 0 is not shown in the scene" in n for n in styled["notices"])
+    (back, _), _ = meshdoc.read_source(str(tmp_path / "styled.obj"))
+    assert "TEXCOORD_0" in back["meshes"][0]["primitives"][0]["attributes"]

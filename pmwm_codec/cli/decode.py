@@ -16,7 +16,7 @@ from __future__ import annotations
 import os
 
 from pmwm_codec.http import as_source, is_url, stream_end
-from pmwm_codec.meshexport import scene_parts, shows_appearance, sidecar_paths, write_scene
+from pmwm_codec.meshexport import progressive_meshes, scene_parts, shows_appearance, sidecar_paths, write_scene
 from pmwm_codec.meshio import WRITE_SUFFIXES, write_asset, write_mesh
 from pmwm_codec.format.glb import split_glb
 from pmwm_codec.format.gltf import TRIANGLE_MODES, TRIANGLES
@@ -85,8 +85,8 @@ def run(args) -> int:
                 glb, end, decoder = decode_asset(source, chunks=args.chunks)
                 doc, bin_chunk = split_glb(glb, "the decoded asset")
                 notices += decoder.notices + posed_notes(decoder.header.gltf_json)
-                if styled and shows_appearance(doc):
-                    scene = scene_parts(doc, [bin_chunk])
+                if styled and shows_appearance(decoder.header.gltf_json):
+                    scene = scene_parts(doc, [bin_chunk], also=progressive_meshes(decoder.header.gltf_json))
                 else:
                     mesh, why = scene_as_shown(decoder.header.gltf_json, decoder.last, plain=(doc, [bin_chunk]))
             if scene is not None:
