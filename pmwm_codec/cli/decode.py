@@ -35,7 +35,9 @@ def add_parser(sub):
                     "at full resolution or after --chunks N vertex-split chunks.")
     p.add_argument("input", metavar="IN.pmw|URL", help="the .pmw, an http(s):// URL of one (read by Range requests "
                                                          "when the server allows), or - for standard input")
-    p.add_argument("-o", "--output", required=True, metavar="OUT", help="output mesh: .glb, .gltf, .obj, .ply, .stl or .off")
+    p.add_argument("-o", "--output", required=True, metavar="OUT",
+                   help="output mesh: .glb, .gltf, .obj, .ply, .stl or .off (an asset's OBJ gets its MTL and "
+                        "textures beside it, a PLY its textures, named after OUT: X.obj, X.mtl, X_0.png ...)")
     p.add_argument("--chunks", type=int, metavar="N", help="stop after the base mesh and N chunks")
     p.add_argument("--geometry-only", action="store_true",
                    help="an OBJ or PLY gets positions and faces alone (default: an asset's texture coordinates, "

@@ -40,6 +40,8 @@ def text(i) -> str:
              f"  base mesh   {i['base_vertices']:,} vertices, {i['base_faces']:,} faces ({i['base_codec']})",
              f"  stream      {i['vsplits']:,} vertex splits in {i['chunks_total']} chunks",
              f"  grid        {g.get('bits')} bits, step {g.get('step', 0):.4g}"]
+    if len(i["primitives"]) == 1:  # what rides with the splits besides positions (several: per primitive below)
+        lines.append(f"  carries     {', '.join(i['primitives'][0]['attributes']) or 'positions only'}")
     if len(i["primitives"]) > 1:
         lines.append(f"  primitives  {len(i['primitives'])} progressive (one stream, one watermark):")
         for n, q in enumerate(i["primitives"]):
