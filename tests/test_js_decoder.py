@@ -13,6 +13,7 @@ import hashlib
 import json
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -205,3 +206,42 @@ def test_js_decoder_matches_python_on_8_bit_colours_on_their_own_lattice(tmp_pat
     assert len(python) > 2
     js, end = _js_levels(node, dst)
     assert end["complete"] and js == python
+
+
+@pytest.mark.parametrize("change, words", [
+    ({"transfer": "gamma"}, "srgb8"),
+    ({"origin": [300, 0, 0, 0]}, "origins in 0..255"),
+    ({"step": [2, 1, 1, 1]}, "steps of 1"),
+    ({"semantic": "NORMAL"}, None),  # then the base has no NORMAL: refused either way
+    ({"origin": [1, 1, 1, 1]}, None),  # a base byte below the origin, or other bytes than the digest's
+])
+def test_both_decoders_refuse_an_srgb8_grid_that_is_malformed_or_off_its_base(tmp_path, change, words):
+    """A crafted ``transfer`` / origin / step of an ``srgb8`` COLOR_0 is a format error in Python (one line, no
+    traceback, exit 2) and in JavaScript (a FormatError), never wrong colours."""
+    from test_chunk_mac import _rewrite_json
+    from test_ply_appearance import corners, ply_bytes, xyz
+
+    from pmwm_codec import shapes
+
+    node = _node()
+    mesh = shapes.icosphere(2)
+    rgba = np.random.default_rng(9).integers(20, 250, (len(mesh.positions), 4)).astype(np.uint8)
+    colours = [(c, "uchar", rgba[:, i]) for i, c in enumerate(("red", "green", "blue", "alpha"))]
+    (tmp_path / "c.ply").write_bytes(ply_bytes("binary_little_endian", xyz(mesh.positions) + colours,
+                                               corners(mesh.faces)))
+    pmwm_codec.encode(str(tmp_path / "c.ply"), str(tmp_path / "c.pmw"), measure=False)
+
+    def edit(gltf, binary):
+        (colour,) = gltf["meshes"][0]["primitives"][0]["extensions"]["PMWM_progressive_mesh"]["attributes"]
+        assert colour["transfer"] == "srgb8"
+        colour.update(change)
+
+    bad = tmp_path / "bad.pmw"
+    bad.write_bytes(_rewrite_json((tmp_path / "c.pmw").read_bytes(), edit))
+    run = subprocess.run([sys.executable, "-m", "pmwm_codec", "decode", str(bad), "-o", str(tmp_path / "o.glb")],
+                         capture_output=True, text=True)
+    assert run.returncode == 2 and "Traceback" not in run.stderr and run.stderr.count("\n") == 1, run.stderr
+    assert words is None or words in run.stderr
+    out = subprocess.run([node, str(DUMP), str(bad)], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2 and ("FormatError" in out.stderr or "CorruptChunkError" in out.stderr), out.stderr
+    assert words is None or words in out.stderr
