@@ -301,11 +301,13 @@ def _factor(holder: dict, key: str, default, what: str):
 
 
 def _safe_name(name, fallback: str) -> str:
-    """A name an OBJ / MTL record can hold: printable, no white space (a record splits there), no ``#`` (a
-    comment starts there)."""
+    """A name an OBJ / MTL record can hold (written as UTF-8, as Blender and three.js read it): each run of
+    characters that are white space (a record splits there), not printable, or ``#`` (a comment starts there)
+    becomes one ``_``; ``fallback`` for a name left empty or not a string."""
     if not isinstance(name, str):
         return fallback
-    name = re.sub(r"[^\x21-\x22\x24-\x7e]+", "_", name).strip("_")  # and no #: a comment starts there
+    kept = "".join(c if c.isprintable() and not c.isspace() and c != "#" else "\0" for c in name)
+    name = re.sub("\0+", "_", kept).strip("_")
     return name or fallback
 
 

@@ -240,3 +240,16 @@ def test_a_progressive_mesh_the_scene_does_not_show_is_held_as_stored_as_geometr
     assert any("mesh 0 is not shown in the scene" in n for n in styled["notices"])
     (back, _), _ = meshdoc.read_source(str(tmp_path / "styled.obj"))
     assert "TEXCOORD_0" in back["meshes"][0]["primitives"][0]["attributes"]
+
+
+def test_a_material_name_in_any_script_is_kept_and_reads_back(tmp_path):
+    path, *_ = _torus_obj(str(tmp_path))
+    _png(tmp_path / "skin.png")
+    (tmp_path / "t.mtl").write_text("newmtl skin\nmap_Kd skin.png\n")
+    (doc, buffers), _ = meshdoc.read_source(path)
+    doc["materials"][0]["name"] = "Кожа дракона #2"
+    src = tmp_path / "named.pmw"
+    pmwm_codec.encode((doc, buffers), str(src))
+    assert pmw("decode", src, "-o", tmp_path / "o.obj").returncode == 0
+    (back, _), notices = meshdoc.read_source(str(tmp_path / "o.obj"))
+    assert back["materials"][0]["name"] == "Кожа_дракона_2" and notices == []
