@@ -5,7 +5,8 @@ The mirror of :mod:`pmwm_codec.meshdoc`, which reads those files as glTF documen
 them, where :func:`pmwm_codec.meshio.write_mesh` writes positions and faces alone.
 
 :func:`scene_parts` flattens the document as glTF converters do: every triangle primitive of every mesh the
-default scene shows, placed once per node that shows it (positions by the world matrix, normals by its inverse
+default scene shows (and of each progressive mesh it does not show: as stored, with a notice), placed once per
+node that shows it (positions by the world matrix, normals by its inverse
 transpose, the winding reversed under a mirroring one), as :class:`Showing` s of
 :class:`~pmwm_codec.meshdoc.Part` s, with the materials mapped onto :class:`~pmwm_codec.meshdoc.Material` (the
 base colour, its alpha where ``alphaMode`` blends or masks, the roughness, the base colour and normal textures)
@@ -17,9 +18,9 @@ with a notice.
 
 ``X.obj``
     ``mtllib X.mtl``; one ``o`` group per showing; ``v`` records welded within a showing (one per distinct
-    float32 position -- and colour, when the file has colours: ``v x y z r g b``), ``vt`` (``u, 1 - v``: OBJ's
-    ``v`` grows upwards, glTF's downwards) and ``vn`` records (colours sRGB-encoded, as mesh files hold them: the
-    inverse of the reading, :func:`~pmwm_codec.meshdoc.srgb_from_linear`), each distinct value once, and ``usemtl`` /
+    float32 position -- and colour, when the file has colours: ``v x y z r g b``, sRGB-encoded as mesh files hold
+    them, the inverse of the reading: :func:`~pmwm_codec.meshdoc.srgb_from_linear`), ``vt`` (``u, 1 - v``: OBJ's
+    ``v`` grows upwards, glTF's downwards) and ``vn`` records, each distinct value once, and ``usemtl`` /
     ``f p/t/n`` records per part (``p``, ``p/t``, ``p//n`` as the part has them);
 ``X.mtl``
     one ``newmtl`` per material used: ``Kd`` (base colour), ``d`` (alpha), ``Ns`` (``1000 (1 - roughness)^2``,
@@ -28,7 +29,8 @@ with a notice.
 ``X.ply``
     binary little-endian, one vertex per glTF vertex (a PLY vertex has one value of each property): ``x y z``,
     then ``nx ny nz`` (when every part has normals), ``s t`` (``u, 1 - v``; 0 where a part has none) and
-    ``red green blue alpha`` (uchar; white where a part has none, glTF's default) as the scene has them, faces
+    ``red green blue alpha`` (uchar, sRGB-encoded; white where a part has none, glTF's default) as the scene has
+    them, faces
     ``vertex_indices`` and, when the faces use more than one texture, ``texnumber`` (MeshLab's index into the
     ``comment TextureFile`` lines; -1: none);
 ``X_<k>.<ext>``
@@ -56,7 +58,8 @@ from .constants import EXTENSION_NAME, MAX_WRITTEN_IMAGES
 from .errors import InputFormatError, OptionError
 from .meshdoc import Material, Part, srgb_from_linear
 
-__all__ = ["Scene", "Showing", "scene_parts", "shows_appearance", "sidecar_paths", "write_scene"]
+__all__ = ["Scene", "Showing", "progressive_meshes", "scene_parts", "shows_appearance", "sidecar_paths",
+           "write_scene"]
 
 #: The vertex attributes an OBJ or PLY can carry (glTF semantics).
 CARRIED = ("NORMAL", "TEXCOORD_0", "COLOR_0")
