@@ -529,14 +529,19 @@ def _mesh_text(data: bytes, name: str, kind: str) -> str:
 _OFF_HEADER = re.compile(r"((?:ST)?C?N?(4)?(n)?OFF)(.*)")
 
 
-def _read_off(path, name) -> tuple:
+def _read_off(path, name, appearance: bool = False) -> tuple:
     """Parse an OFF file (Object File Format: Geomview's, CGAL's, the Princeton Shape Benchmark's and ModelNet's):
-    ``(positions (n, 3) float64, faces (m, 3) int64)``, polygons fan-triangulated as an OBJ's are.
+    ``(positions (n, 3) float64, faces (m, 3) int64)``, polygons fan-triangulated as an OBJ's are; with
+    ``appearance``, ``(positions, faces, colours, face colours)``: ``colours`` (n, 3) float64 the red, green and
+    blue a ``C``-keyword file (``COFF``, ``CNOFF`` ...) gives each vertex after its position (and its normal, in an
+    ``N`` one), as written (0..1 floats or 0..255 integers), None without ``C``; ``face colours`` whether a face
+    record has numbers after its indices (a colour: not read).
 
     The header keyword (``OFF``, ``COFF``, ``NOFF``, ``STOFF``, ...; ModelNet writes the counts on its line,
     ``OFF490 1010 0``), then the vertex and face counts, then one vertex a line (its first three numbers: the
-    position; normals, colours and texture coordinates after them are not read) and one face a line (its corner
-    count k, k indices counted from 0, then an optional colour).  ``#`` starts a comment.  Counts are checked
+    position; then, as the keyword says, ``N`` a normal, ``C`` a colour (3 or 4 numbers), ``ST`` texture
+    coordinates: only the colour is read) and one face a line (its corner count k, k indices counted from 0, then
+    an optional colour).  ``#`` starts a comment.  Counts are checked
     against the encoder's limits before anything is stored.  InputFormatError, naming the line, for a binary
     or 4D / nD OFF, a missing or malformed record, a face index past the vertices; MeshError for a file of no
     faces (a point cloud).  A face of one or two corners is a degenerate triangle, dropped and counted by
@@ -569,10 +574,16 @@ def _read_off(path, name) -> tuple:
     if len(lines) < at + n_vertices + n_faces:
         raise InputFormatError(f"{name}: OFF declares {n_vertices:,} vertices and {n_faces:,} faces but holds "
                                f"{max(len(lines) - at, 0):,} records (cut short)")
-    positions = _off_rows(lines[at: at + n_vertices], 3, name, at, "vertex")
+    keyword = head.group(1)
+    coloured = appearance and "C" in keyword.replace("OFF", "")
+    first = 6 if "N" in keyword.replace("OFF", "") else 3  # where a colour starts: after a normal
+    rows = _off_rows(lines[at: at + n_vertices], first + 3 if coloured else 3, name, at, "vertex")
     polygons = lines[at + n_vertices: at + n_vertices + n_faces]
     faces = _off_faces(polygons, name, at + n_vertices)
-    return positions, faces
+    if not appearance:
+        return rows, faces
+    face_colours = any(len(r.split()) > _integer_or(r.split()[0], 0) + 1 for r in polygons)
+    return rows[:, :3], faces, (rows[:, first: first + 3] if coloured else None), face_colours
 
 
 def _off_rows(records: list, width: int, name: str, first: int, what: str) -> np.ndarray:
@@ -651,6 +662,14 @@ def _number(token: str) -> float:
     if _NUMBER.fullmatch(token) is None:
         raise ValueError(token)
     return float(token)
+
+
+def _integer_or(token: str, default: int) -> int:
+    """:func:`_integer` of ``token``, ``default`` where it is not one."""
+    try:
+        return _integer(token)
+    except ValueError:
+        return default
 
 
 def _integer(token: str) -> int:

@@ -323,9 +323,11 @@ def read_source(path) -> tuple:
 
     path = os.fspath(path)
     suffix = os.path.splitext(path)[1].lower()
-    if suffix not in (".obj", ".ply") or os.stat(path).st_size > MAX_INPUT_FILE_BYTES:
+    if suffix not in (".obj", ".ply", ".off") or os.stat(path).st_size > MAX_INPUT_FILE_BYTES:
         return read_mesh(path), []  # read_mesh names what is wrong
     name = check_input_path(path, "a mesh file")
+    if suffix == ".off":
+        return off_source(path, name)
     if suffix == ".ply":
         doc, notices = _ply_appearance(path, name)
         return (doc if doc is not None else read_mesh(path)), notices
@@ -340,6 +342,30 @@ def read_source(path) -> tuple:
     if doc is not None:
         return doc, notices
     return obj_mesh(text, name), notices + normals
+
+
+def off_source(path: str, name: str) -> tuple:
+    """``(source, notices)`` of an OFF file, read once: the in-memory document of a ``C`` one (``COFF``: its
+    vertex colours as COLOR_0, 0..255 where a value reaches 2, else 0..1, as an OBJ's), else its
+    :class:`~pmwm_codec.mesh.Mesh`; a note when faces carry colours (not read) or vertices normals (not
+    carried)."""
+    from .mesh import _read_off, _soup_welded, mesh_arrays
+
+    positions, faces, colours, face_colours = _read_off(path, name, appearance=True)
+    notices = ["the faces' colours not carried (an OFF's vertex colours are)"] if face_colours else []
+    if colours is None:
+        return _soup_welded(positions, faces, name), notices
+    if not np.isfinite(colours).all():
+        raise InputFormatError(f"{name}: an OFF vertex colour is not a finite number")
+    colours = np.clip(colours / (255.0 if colours.max(initial=0.0) >= 2.0 else 1.0), 0.0, 1.0)
+    positions, faces = mesh_arrays(positions, faces, name)
+    vertex = faces.reshape(-1)
+    none = np.full(len(vertex), -1, np.int64)
+    parts = _obj_parts(positions, np.zeros((0, 2)), np.zeros((0, 3)), colours, np.stack([vertex, none, none], 1),
+                       np.full(len(faces), -1, np.int64), notices, [])
+    if not parts:
+        raise DegenerateMeshError(f"{name}: every triangle is degenerate")
+    return _document(parts, [], Resources(path, notices), name), notices
 
 
 def named_files(path) -> list:

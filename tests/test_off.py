@@ -97,3 +97,44 @@ def test_modelnet_s_counts_glued_to_the_keyword_read(tmp_path):
     """ModelNet's OFF files write ``OFF490 1010 0``: the keyword and the counts on one line, with no space."""
     (tmp_path / "m.off").write_text("OFF4 2 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2 3\n")
     assert pmwm_codec.read_mesh(tmp_path / "m.off").faces.tolist() == [[0, 1, 2], [0, 2, 3]]
+
+
+@pytest.mark.parametrize("keyword, normals, scale, alpha", [("COFF", False, 255, True), ("COFF", False, 1, False),
+                                                           ("CNOFF", True, 255, True)])
+def test_an_off_s_vertex_colours_ride_as_colour_and_come_back_as_the_same_bytes(tmp_path, keyword, normals, scale,
+                                                                                 alpha):
+    """A ``C`` OFF's vertex colours (after the position, and after the normal in an ``N`` one; 0..255 integers
+    or 0..1 floats, an alpha or not) are sRGB colours, carried as COLOR_0 as a PLY's are: they had been dropped
+    without a word.  Decoded to PLY, the same bytes come back."""
+    from scipy.spatial import cKDTree
+
+    from pmwm_codec import ply
+
+    mesh = shapes.icosphere(2)
+    rgb = np.random.default_rng(3).integers(0, 256, (mesh.vertex_count, 3))
+    rgb[0] = 255
+    lines = [keyword, f"{mesh.vertex_count} {mesh.face_count} 0"]
+    for p, c in zip(mesh.positions, rgb):
+        normal = " 0 0 1" if normals else ""
+        colour = " ".join(str(int(v)) if scale == 255 else repr(float(v) / 255) for v in c) + (" 255" if alpha else "")
+        lines.append(" ".join(repr(float(x)) for x in p) + normal + " " + colour)
+    lines += ["3 " + " ".join(map(str, f)) for f in mesh.faces]
+    (tmp_path / "c.off").write_text("\n".join(lines) + "\n")
+    report = pmwm_codec.encode(str(tmp_path / "c.off"), str(tmp_path / "c.pmw"))
+    assert report["vertices"] == mesh.vertex_count and not any("colour" in n for n in report["notices"])
+    assert main(["decode", str(tmp_path / "c.pmw"), "-o", str(tmp_path / "back.ply"), "-q"]) == 0
+    back = ply.read_appearance((tmp_path / "back.ply").read_bytes(), "back.ply", 10 ** 6)
+    _, nearest = cKDTree(mesh.positions).query(back.positions)
+    assert np.array_equal(np.rint(back.colours[:, :3] * 255), rgb[nearest])
+
+
+def test_an_off_s_face_colours_are_not_carried_and_the_encoder_says_so(tmp_path):
+    mesh = shapes.icosphere(2)
+    (tmp_path / "f.off").write_text(off_text(mesh))
+    assert pmwm_codec.encode(str(tmp_path / "f.off"), str(tmp_path / "f.pmw"))["notices"] == []
+    lines = off_text(mesh).splitlines()
+    faces_from = 2 + mesh.vertex_count
+    (tmp_path / "g.off").write_text("\n".join(lines[:faces_from] + [f + " 255 0 0" for f in lines[faces_from:]]) + "\n")
+    report = pmwm_codec.encode(str(tmp_path / "g.off"), str(tmp_path / "g.pmw"))
+    assert "the faces' colours not carried (an OFF's vertex colours are)" in report["notices"]
+    assert (tmp_path / "g.pmw").read_bytes() == (tmp_path / "f.pmw").read_bytes()  # the geometry as before
