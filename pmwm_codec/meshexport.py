@@ -1,4 +1,4 @@
-"""A decoded asset's scene written as an OBJ (with its MTL and textures) or a PLY that keeps its appearance.
+"""A decoded asset's scene written as an OBJ (with its MTL and textures), a PLY or an OFF that keeps its appearance.
 
 The mirror of :mod:`pmwm_codec.meshdoc`, which reads those files as glTF documents: ``pmw decode -o X.obj``
 (or ``.ply``) of a ``.pmw`` whose scene has texture coordinates, normals, vertex colours or materials writes
@@ -33,6 +33,9 @@ with a notice.
     them, faces
     ``vertex_indices`` and, when the faces use more than one texture, ``texnumber`` (MeshLab's index into the
     ``comment TextureFile`` lines; -1: none);
+``X.off``
+    the showings welded as an OBJ's ``v`` records are; ``COFF`` with each vertex's sRGB-encoded colour (``r g b
+    a`` in 0..1, six decimals) when the scene has colours, else ``OFF``; no file beside it;
 ``X_<k>.<ext>``
     image ``k`` of the document, byte for byte (``.png``, ``.jpg``, ``.webp``, ``.ktx2`` ... by its media type).
 
@@ -332,9 +335,12 @@ def _obj_materials(scene: Scene) -> bool:
 
 
 def _written_images(scene: Scene, suffix: str) -> list:
-    """The images a file of ``suffix`` holds: every image of an OBJ's materials; a PLY's base colour textures."""
+    """The images a file of ``suffix`` holds: every image of an OBJ's materials; a PLY's base colour textures;
+    none beside an OFF."""
     if suffix == ".obj":
         return scene.images
+    if suffix == ".off":
+        return []
     used = sorted({scene.materials[p.material].texture for s in scene.showings for p in s.parts
                    if p.material is not None and scene.materials[p.material].texture is not None})
     return [scene.images[i] for i in used]
@@ -360,11 +366,14 @@ def write_scene(path: str, scene: Scene) -> tuple:
         files, notices = {path: [text]}, []
         if mtl is not None:
             files[mtl] = [_mtl_text(scene, names)]
+    elif suffix == ".off":
+        text, vertices, faces, notices = _off_text(scene)
+        files = {path: [text]}
     elif suffix == ".ply":
         parts, vertices, faces, notices = _ply_parts(scene, names)
         files = {path: parts}
     else:
-        raise ValueError(f"write_scene: {suffix!r} is neither .obj nor .ply")
+        raise ValueError(f"write_scene: {suffix!r} is none of .obj, .ply and .off")
     for image_path, (blob, _) in zip(image_paths, _written_images(scene, suffix)):
         files[image_path] = [blob]
     write_set(files)
@@ -405,6 +414,54 @@ def _unique_rows(rows: np.ndarray) -> tuple:
     return rows[first[order]], rank[inverse.ravel()].astype(np.int64)
 
 
+def _welded(showing: Showing, coloured: bool, kind: str) -> tuple:
+    """``(rows (v, 3 | 6) float32, [faces (m_k, 3) int64 into rows, per part])``: the showing's vertices welded,
+    one row per distinct float32 position (and sRGB-encoded colour, clipped to 0..1, when ``coloured``: white
+    for a part without COLOR_0, glTF's default), in the order first met.  InputFormatError (``kind`` the file)
+    when a coordinate overflows float32."""
+    parts = showing.parts
+    pos = np.concatenate([_float32(p.positions) for p in parts]) if parts else np.zeros((0, 3), np.float32)
+    if not np.isfinite(pos).all():
+        raise InputFormatError(f"a coordinate of the decoded mesh overflows the float32 {kind}'s records hold")
+    if coloured:
+        colours = np.concatenate([_float32(srgb_from_linear(p.attributes["COLOR_0"])[:, :3])
+                                  if "COLOR_0" in p.attributes else np.ones((len(p.positions), 3), np.float32)
+                                  for p in parts])
+        pos = np.hstack([pos, colours])
+    welded, v_of = _unique_rows(pos)
+    starts = np.cumsum([0] + [len(p.positions) for p in parts])
+    return welded, [v_of[starts[k]:starts[k + 1]][p.indices] for k, p in enumerate(parts)]
+
+
+def _off_text(scene: Scene) -> tuple:
+    """``(OFF bytes, vertices, faces, notices)``: the scene welded as an OBJ's ``v`` records are, ``COFF`` with
+    each vertex's colour (sRGB-encoded, ``r g b a`` in 0..1, six decimals: the same bytes back) when it has
+    colours; what an OFF cannot hold is left out with a note."""
+    coloured = any("COLOR_0" in p.attributes for s in scene.showings for p in s.parts)
+    rows, faces, total = [], [], 0
+    for showing in scene.showings:
+        welded, corners = _welded(showing, coloured, "an OFF")
+        faces += [c + total for c in corners]
+        rows.append(welded)
+        total += len(welded)
+    rows = np.concatenate(rows) if rows else np.zeros((0, 6 if coloured else 3), np.float32)
+    faces = np.concatenate(faces) if faces else np.zeros((0, 3), np.int64)
+    out = io.StringIO()
+    out.write(f"{'COFF' if coloured else 'OFF'}\n{len(rows)} {len(faces)} 0\n")
+    if coloured:
+        table = np.hstack([rows.astype(np.float64), np.ones((len(rows), 1))])
+        np.savetxt(out, table, fmt="%.9g %.9g %.9g %.6f %.6f %.6f %.6f")
+    else:
+        np.savetxt(out, rows.astype(np.float64), fmt="%.9g %.9g %.9g")
+    np.savetxt(out, faces, fmt="3 %d %d %d")
+    parts = [p for s in scene.showings for p in s.parts]
+    notices = []
+    if any(p.material is not None or "TEXCOORD_0" in p.attributes or "NORMAL" in p.attributes for p in parts):
+        notices.append("texture coordinates, normals and materials are left out: an OFF holds positions and vertex "
+                       "colours (decode to .obj, .ply or .glb to keep them)")
+    return out.getvalue().encode("ascii"), len(rows), len(faces), notices
+
+
 def _obj_text(scene: Scene, mtl_name: str | None) -> tuple:
     """``(OBJ bytes, v records, f records)`` of ``scene`` (module docstring)."""
     coloured = any("COLOR_0" in p.attributes for s in scene.showings for p in s.parts)
@@ -414,21 +471,10 @@ def _obj_text(scene: Scene, mtl_name: str | None) -> tuple:
     current = None  # the material of the last usemtl: it holds across o records
     for showing in scene.showings:
         body.write(f"o {showing.name}\n")
-        pos = np.concatenate([_float32(p.positions) for p in showing.parts]) if showing.parts else np.zeros((0, 3), np.float32)
-        if not np.isfinite(pos).all():
-            raise InputFormatError("a coordinate of the decoded mesh overflows the float32 an OBJ's records hold")
-        if coloured:
-            colours = np.concatenate([_float32(srgb_from_linear(p.attributes["COLOR_0"])[:, :3])  # clipped to 0..1
-                                      if "COLOR_0" in p.attributes else np.ones((len(p.positions), 3), np.float32)
-                                      for p in showing.parts])
-            key = np.hstack([pos, colours])
-        else:
-            key = pos
-        welded, v_of = _unique_rows(key)
+        welded, corners = _welded(showing, coloured, "an OBJ")
         np.savetxt(body, welded.astype(np.float64), fmt="v" + " %.9g" * welded.shape[1])
-        starts = np.cumsum([0] + [len(p.positions) for p in showing.parts])
-        for k, part in enumerate(showing.parts):
-            p_idx = v_of[starts[k]:starts[k + 1]][part.indices] + 1 + v_total
+        for part, p_idx in zip(showing.parts, corners):
+            p_idx = p_idx + 1 + v_total
             columns = [p_idx]
             t_idx = n_idx = None
             if "TEXCOORD_0" in part.attributes:

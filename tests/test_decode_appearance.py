@@ -174,7 +174,7 @@ def test_a_format_of_geometry_alone_says_what_it_leaves_out(tmp_path, suffix):
     src, _, _ = _textured(tmp_path)
     run = pmw("decode", src, "-o", tmp_path / f"g{suffix}", "--json")
     assert run.returncode == 0, run.stderr
-    assert any("holds geometry alone" in n for n in json.loads(run.stdout)["notices"])
+    assert any("left out" in n and "texture coordinates" in n for n in json.loads(run.stdout)["notices"])
 
 
 def test_a_plain_mesh_decodes_to_the_obj_it_always_did(tmp_path):
@@ -253,3 +253,19 @@ def test_a_material_name_in_any_script_is_kept_and_reads_back(tmp_path):
     assert pmw("decode", src, "-o", tmp_path / "o.obj").returncode == 0
     (back, _), notices = meshdoc.read_source(str(tmp_path / "o.obj"))
     assert back["materials"][0]["name"] == "Кожа_дракона_2" and notices == []
+
+
+def test_an_off_decoded_from_a_coloured_asset_is_a_coff_whose_colours_read_back_the_same(tmp_path):
+    src, _, _ = _textured(tmp_path, colours=True)
+    run = pmw("decode", src, "-o", tmp_path / "back.off", "--json")
+    assert run.returncode == 0, run.stderr
+    report = json.loads(run.stdout)
+    assert report["files"] == [str(tmp_path / "back.off")] and (tmp_path / "back.off").read_text().startswith("COFF\n")
+    assert any("texture coordinates, normals and materials are left out" in n for n in report["notices"])
+    (back, back_buffers), _ = meshdoc.read_source(str(tmp_path / "back.off"))
+    gltf, buffers = _glb_document(src, tmp_path)
+    want = _corner_rows(gltf, buffers, ("POSITION", "COLOR_0"))
+    got = _corner_rows(back, back_buffers, ("POSITION", "COLOR_0"))
+    assert np.array_equal(got.reshape(-1, 6)[:, :3], want.reshape(-1, 6)[:, :3])  # positions exact
+    assert np.abs(got - want).max() <= 2e-6  # colours written sRGB-encoded with six decimals
+    assert report["vertices"] == pmwm_codec.read_mesh(str(tmp_path / "back.off")).vertex_count

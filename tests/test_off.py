@@ -126,6 +126,12 @@ def test_an_off_s_vertex_colours_ride_as_colour_and_come_back_as_the_same_bytes(
     back = ply.read_appearance((tmp_path / "back.ply").read_bytes(), "back.ply", 10 ** 6)
     _, nearest = cKDTree(mesh.positions).query(back.positions)
     assert np.array_equal(np.rint(back.colours[:, :3] * 255), rgb[nearest])
+    assert main(["decode", str(tmp_path / "c.pmw"), "-o", str(tmp_path / "back.off"), "-q"]) == 0  # COFF out
+    from pmwm_codec.mesh import _read_off
+
+    positions, _, colours, _ = _read_off(str(tmp_path / "back.off"), "back.off", appearance=True)
+    _, nearest = cKDTree(mesh.positions).query(positions)
+    assert np.array_equal(np.rint(colours * 255), rgb[nearest])
 
 
 def test_an_off_s_face_colours_are_not_carried_and_the_encoder_says_so(tmp_path):

@@ -59,7 +59,7 @@ def run(args) -> int:
         check_input_file(args.input, ".pmw file")
     check_output_path(args.output, "mesh", inputs=() if url else (args.input,))
     notices = []
-    styled = suffix in (".obj", ".ply") and not args.geometry_only  # an OBJ / PLY may keep the appearance
+    styled = suffix in (".obj", ".ply", ".off") and not args.geometry_only  # may keep the appearance (OFF: colours)
     written = [args.output]
     with naming(args.input):
         # an OBJ / PLY / STL of a scene that also shows plain triangles, or an OBJ / PLY of one with texture
@@ -102,8 +102,8 @@ def run(args) -> int:
             else:
                 write_mesh(args.output, mesh)
                 counts = (mesh.vertex_count, mesh.face_count)  # what the file holds: a mesh shown twice, twice
-                if suffix in (".stl", ".off") and shows_appearance(decoder.header.gltf_json if decoder.header else None):
-                    notices.append(f"an {suffix[1:].upper()} file holds geometry alone: the asset's texture "
+                if suffix == ".stl" and shows_appearance(decoder.header.gltf_json if decoder.header else None):
+                    notices.append("an STL file holds geometry alone: the asset's texture "
                                    "coordinates, normals, colours and materials are left out (decode to .obj, "
                                    ".ply or .glb to keep them)")
             if why is not None:
