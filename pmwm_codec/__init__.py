@@ -328,6 +328,17 @@ def decode_asset(src: Source, chunks: int | None = None) -> bytes:
     return glb
 
 
+def decode_to(src: Source, dst, chunks: int | None = None, geometry_only: bool = False) -> dict:
+    """Decode a ``.pmw`` (a path, ``-``, an http(s) URL, bytes or a binary file; whole or cut) to the mesh file
+    ``dst`` (``.glb``, ``.gltf``, ``.obj``, ``.ply``, ``.stl`` or ``.off``) after ``chunks`` chunks, as ``pmw
+    decode`` does: an asset's OBJ, PLY or OFF keeps its texture coordinates, normals, colours and materials (an
+    OBJ its MTL and textures beside it) unless ``geometry_only``.  Returns ``pmw decode --json``'s object (and
+    ``bytes_read``); see :func:`pmwm_codec.stream.export.decode_to`."""
+    from .stream.export import decode_to as _decode_to
+
+    return _decode_to(src, dst, chunks=chunks, geometry_only=geometry_only)
+
+
 def cut(src: Source, chunks: int | None = None) -> bytes:
     """A valid, smaller ``.pmw`` (bytes) from any ``.pmw`` or prefix of one (an http(s) URL too): the base and the
     first ``chunks`` chunks (default: all that arrived whole).  See :mod:`pmwm_codec.stream.cut`."""
@@ -342,7 +353,7 @@ def cut(src: Source, chunks: int | None = None) -> bytes:
 #: Functions of heavier modules, imported on first use so that ``import pmwm_codec`` stays light.
 _LAZY = {"inspect": ".format.inspect", "verify_stream": ".verify.stream", "write_mesh": ".meshio",
          "Mesh": ".mesh", "read_mesh": ".mesh", "checked_mesh": ".mesh"}
-__all__ += ["inspect", "verify_stream", "write_mesh"]  # Mesh, read_mesh: listed above
+__all__ += ["inspect", "verify_stream", "write_mesh", "decode_to"]  # Mesh, read_mesh: listed above
 
 
 def _type_aliases() -> dict:

@@ -269,3 +269,18 @@ def test_an_off_decoded_from_a_coloured_asset_is_a_coff_whose_colours_read_back_
     assert np.array_equal(got.reshape(-1, 6)[:, :3], want.reshape(-1, 6)[:, :3])  # positions exact
     assert np.abs(got - want).max() <= 2e-6  # colours written sRGB-encoded with six decimals
     assert report["vertices"] == pmwm_codec.read_mesh(str(tmp_path / "back.off")).vertex_count
+
+
+def test_the_library_call_writes_what_the_command_writes_and_returns_its_json(tmp_path):
+    src, _, _ = _textured(tmp_path)
+    run = pmw("decode", src, "-o", tmp_path / "cli.obj", "--json", "--chunks", 2)
+    assert run.returncode == 0, run.stderr
+    result = pmwm_codec.decode_to(src, tmp_path / "api.obj", chunks=2)
+    assert result.pop("bytes_read") == src.stat().st_size
+    want = json.loads(run.stdout)
+    assert {k: v for k, v in result.items() if k not in ("output", "files")} == \
+        {k: v for k, v in want.items() if k not in ("output", "files")}
+    assert result["files"] == [str(tmp_path / "api.obj"), str(tmp_path / "api.mtl"), str(tmp_path / "api_0.png")]
+    assert (tmp_path / "api.obj").read_bytes().replace(b"api.mtl", b"cli.mtl") == (tmp_path / "cli.obj").read_bytes()
+    with pytest.raises(pmwm_codec.PmwError, match="is also the input"):
+        pmwm_codec.decode_to(src, src)
