@@ -144,3 +144,26 @@ def test_an_off_s_face_colours_are_not_carried_and_the_encoder_says_so(tmp_path)
     report = pmwm_codec.encode(str(tmp_path / "g.off"), str(tmp_path / "g.pmw"))
     assert "the faces' colours not carried (an OFF's vertex colours are)" in report["notices"]
     assert (tmp_path / "g.pmw").read_bytes() == (tmp_path / "f.pmw").read_bytes()  # the geometry as before
+
+
+def test_mutated_coloured_off_files_are_read_or_refused_by_name_never_another_error(tmp_path):
+    """600 copies of COFF / CNOFF files with bytes changed, cut out, put in or the end cut off: each reads
+    (meshdoc.off_source: the document of its colours, or a mesh) or is refused with a PmwError."""
+    from pmwm_codec.errors import PmwError
+    from pmwm_codec.meshdoc import off_source
+
+    from test_ply import mutations
+
+    mesh = shapes.icosphere(0)
+    rows = [" ".join(repr(float(x)) for x in p) for p in mesh.positions]
+    seeds = [("\n".join([k, f"{mesh.vertex_count} {mesh.face_count} 0"]
+                        + [r + extra + " 200 100 50 255" for r in rows]
+                        + ["3 " + " ".join(map(str, f)) + " 1 0 0" for f in mesh.faces]) + "\n").encode()
+             for k, extra in (("COFF", ""), ("CNOFF", " 0 0 1"))]
+    path = tmp_path / "m.off"
+    for data in mutations(seeds, 600, seed=11):
+        path.write_bytes(data)
+        try:
+            off_source(str(path), "m.off")
+        except PmwError:
+            pass
