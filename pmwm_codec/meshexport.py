@@ -347,10 +347,10 @@ def _written_images(scene: Scene, suffix: str) -> list:
 
 
 def write_scene(path: str, scene: Scene) -> tuple:
-    """Write ``scene`` to ``path`` (``.obj`` or ``.ply``) and its :func:`sidecar_paths`, all or none.
+    """Write ``scene`` to ``path`` (``.obj``, ``.ply`` or ``.off``) and its :func:`sidecar_paths`, all or none.
 
-    Returns ``(vertices, faces, notices)``: the counts the file holds (an OBJ's welded ``v`` records, a PLY's
-    vertex elements) and what it leaves out beyond ``scene.notices``."""
+    Returns ``(vertices, faces, notices)``: the counts the file holds (an OBJ's or OFF's welded vertices, a
+    PLY's vertex elements) and what it leaves out beyond ``scene.notices``."""
     from .atomic import write_set
 
     suffix = os.path.splitext(path)[1].lower()
