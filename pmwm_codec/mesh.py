@@ -579,10 +579,9 @@ def _read_off(path, name, appearance: bool = False) -> tuple:
     first = 6 if "N" in keyword.replace("OFF", "") else 3  # where a colour starts: after a normal
     rows = _off_rows(lines[at: at + n_vertices], first + 3 if coloured else 3, name, at, "vertex")
     polygons = lines[at + n_vertices: at + n_vertices + n_faces]
-    faces = _off_faces(polygons, name, at + n_vertices)
+    faces, face_colours = _off_faces(polygons, name, at + n_vertices)
     if not appearance:
         return rows, faces
-    face_colours = any(len(r.split()) > _integer_or(r.split()[0], 0) + 1 for r in polygons)
     return rows[:, :3], faces, (rows[:, first: first + 3] if coloured else None), face_colours
 
 
@@ -608,9 +607,10 @@ def _off_rows(records: list, width: int, name: str, first: int, what: str) -> np
     return out
 
 
-def _off_faces(records: list, name: str, first: int) -> np.ndarray:
-    """The triangles (m, 3) int64 of OFF face ``records`` (``k i_1 .. i_k [colour]`` each), fan-triangulated; the
-    common file of one corner count throughout at once, the rest record by record."""
+def _off_faces(records: list, name: str, first: int) -> tuple:
+    """``(triangles (m, 3) int64, whether a record has numbers after its indices: a face colour)`` of OFF face
+    ``records`` (``k i_1 .. i_k [colour]`` each), fan-triangulated; the common file of one corner count
+    throughout at once, the rest record by record."""
     fields = [r.split() for r in records]
     k0 = fields[0][0]
     if k0.isdigit() and int(k0) >= 3 and all(f[0] == k0 and len(f) == len(fields[0]) for f in fields) \
@@ -624,8 +624,9 @@ def _off_faces(records: list, name: str, first: int) -> np.ndarray:
             if idx is not None:
                 if len(idx) * (k - 2) > MAX_ENCODE_FACES:
                     raise InputFormatError(f"{name}: more than {MAX_ENCODE_FACES:,} triangles (the encoder's limit)")
-                return np.stack([np.repeat(idx[:, 0], k - 2), idx[:, 1:-1].reshape(-1), idx[:, 2:].reshape(-1)], 1)
-    tris = []
+                tris = np.stack([np.repeat(idx[:, 0], k - 2), idx[:, 1:-1].reshape(-1), idx[:, 2:].reshape(-1)], 1)
+                return tris, len(fields[0]) > k + 1
+    tris, coloured = [], False
     for i, f in enumerate(fields):
         try:
             k = _integer(f[0])
@@ -637,9 +638,10 @@ def _off_faces(records: list, name: str, first: int) -> np.ndarray:
                                    f"{records[i].strip()[:60]!r}") from None
         if len(tris) + max(k - 2, 1) > MAX_ENCODE_FACES:
             raise InputFormatError(f"{name}: more than {MAX_ENCODE_FACES:,} triangles (the encoder's limit)")
+        coloured = coloured or len(f) > k + 1
         idx += idx[-1:] * (3 - len(idx))  # a face of one or two corners: a degenerate triangle, dropped and counted
         tris.extend((idx[0], idx[j], idx[j + 1]) for j in range(1, len(idx) - 1))
-    return np.array(tris, np.int64).reshape(-1, 3)
+    return np.array(tris, np.int64).reshape(-1, 3), coloured
 
 
 #: A number as OBJ and OFF write them: ASCII digits (Python's float() and int() also take ``1_0`` as 10 and
@@ -662,14 +664,6 @@ def _number(token: str) -> float:
     if _NUMBER.fullmatch(token) is None:
         raise ValueError(token)
     return float(token)
-
-
-def _integer_or(token: str, default: int) -> int:
-    """:func:`_integer` of ``token``, ``default`` where it is not one."""
-    try:
-        return _integer(token)
-    except ValueError:
-        return default
 
 
 def _integer(token: str) -> int:

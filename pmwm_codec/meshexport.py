@@ -52,10 +52,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .format.document import read_accessor, sniff_image
+from .format.document import primitive_triangles, read_accessor, sniff_image
 from .format.gltf import (
-    TRIANGLE_MODES, TRIANGLES, find_extension_primitives, item, placements_by_mesh, triangle_list, view_bytes,
-    world_placements,
+    TRIANGLE_MODES, TRIANGLES, find_extension_primitives, item, placements_by_mesh, view_bytes, world_placements,
 )
 from .constants import EXTENSION_NAME, MAX_WRITTEN_IMAGES
 from .errors import InputFormatError, OptionError
@@ -160,12 +159,7 @@ def scene_parts(gltf: dict, buffers, also=()) -> Scene:
 
 def _part(gltf: dict, buffers, mi: int, prim: dict, material_map: dict) -> Part:
     attrs = prim["attributes"]
-    positions = read_accessor(gltf, buffers, attrs["POSITION"])[:, :3].astype(np.float64)
-    order = (read_accessor(gltf, buffers, prim["indices"])[:, 0] if "indices" in prim
-             else np.arange(len(positions), dtype=np.int64))
-    faces = triangle_list(order, prim.get("mode", TRIANGLES))
-    if len(faces) and (faces.min() < 0 or faces.max() >= len(positions)):
-        raise InputFormatError(f"mesh {mi}: a primitive's index is past its {len(positions)} vertices")
+    positions, faces = primitive_triangles(gltf, buffers, prim, f"mesh {mi}: a primitive")
     carried = {}
     for semantic in CARRIED:
         if semantic in attrs:
@@ -177,7 +171,7 @@ def _part(gltf: dict, buffers, mi: int, prim: dict, material_map: dict) -> Part:
             carried[semantic] = values
     if "COLOR_0" in carried and carried["COLOR_0"].shape[1] == 3:
         carried["COLOR_0"] = np.hstack([carried["COLOR_0"], np.ones((len(positions), 1))])
-    return Part(positions, np.asarray(faces, np.int64), carried, material_map.get(prim.get("material")))
+    return Part(positions, faces, carried, material_map.get(prim.get("material")))
 
 
 def _placed(part: Part, matrix: np.ndarray) -> Part:

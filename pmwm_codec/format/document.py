@@ -46,7 +46,7 @@ from ..sources import read_regular_file
 from .glb import GLTF_1_ADVICE, split_glb
 from .gltf import (COMPONENT_DTYPES, COMPONENT_NAMES, DRACO_EXTENSION, FLOAT, INDEX_DTYPES, NORMALIZE_DIVISORS,
                    TRIANGLE_MODES, TRIANGLES, TYPE_WIDTH, check_finite_numbers, check_json_depth, element_rows,
-                   gltf_integers, shown_value, uint, view_bytes)
+                   gltf_integers, shown_value, triangle_list, uint, view_bytes)
 from .layout import CHUNK_HEADER_SIZE, CHUNK_TYPE_JSON, GLB_HEADER_SIZE, GLB_MAGIC, padded
 from .meshopt import EXTENSIONS as MESHOPT_EXTENSIONS
 from .meshopt import decompress as decompress_meshopt
@@ -760,6 +760,19 @@ def read_accessor(gltf: dict, buffers, index: int) -> np.ndarray:
     if acc.get("sparse"):
         out = _apply_sparse(gltf, buffers, acc, out, what, normalized)
     return out
+
+
+def primitive_triangles(gltf: dict, buffers, prim: dict, what: str) -> tuple:
+    """``(positions (n, 3) float64, faces (m, 3) int64)`` of a triangle primitive ``prim`` of a loaded document
+    (strips and fans as the triangles they draw, glTF 2.0 3.7.2.1; degenerate ones kept as stored; no indices:
+    the vertices in order); InputFormatError naming ``what`` for an index past the vertices."""
+    positions = read_accessor(gltf, buffers, prim["attributes"]["POSITION"])[:, :3]
+    order = (read_accessor(gltf, buffers, prim["indices"])[:, 0] if "indices" in prim
+             else np.arange(len(positions), dtype=np.int64))
+    faces = triangle_list(order, prim.get("mode", TRIANGLES))
+    if len(faces) and (faces.min() < 0 or faces.max() >= len(positions)):
+        raise InputFormatError(f"{what}: an index past its {len(positions)} vertices")
+    return np.asarray(positions, np.float64), np.asarray(faces, np.int64)
 
 
 def _bounded_count(holder: dict, key: str, what: str) -> int:

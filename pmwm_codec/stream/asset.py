@@ -61,7 +61,7 @@ import numpy as np
 
 from ..constants import EXTENSION_NAME
 from ..errors import DegenerateMeshError, InputFormatError, MeshError
-from ..format.document import as_declared, view_sites
+from ..format.document import as_declared, primitive_triangles, view_sites
 from ..format.document import (check_document, is_progressive, label_images, load_document, progressive_refusal,
                                read_accessor, repack)
 from ..format.document import strip_image_profiles as _strip_profiles
@@ -607,14 +607,7 @@ def posed_notes(gltf: dict | None) -> list:
 def _plain_triangles(doc: dict, buffers, mi: int, pi: int) -> tuple:
     """``(positions (n, 3) float64, faces (m, 3) int64)`` of primitive ``pi`` of mesh ``mi`` of a plain
     document (strips and fans as triangles, glTF 2.0 3.7.2.1; degenerate ones kept as stored)."""
-    prim = doc["meshes"][mi]["primitives"][pi]
-    positions = read_accessor(doc, buffers, prim["attributes"]["POSITION"])[:, :3]
-    order = (read_accessor(doc, buffers, prim["indices"])[:, 0] if "indices" in prim
-             else np.arange(len(positions), dtype=np.int64))
-    faces = triangle_list(order, prim.get("mode", TRIANGLES))
-    if len(faces) and (faces.min() < 0 or faces.max() >= len(positions)):
-        raise InputFormatError(f"mesh {mi} primitive {pi}: an index past its {len(positions)} vertices")
-    return np.asarray(positions, np.float64), np.asarray(faces, np.int64)
+    return primitive_triangles(doc, buffers, doc["meshes"][mi]["primitives"][pi], f"mesh {mi} primitive {pi}")
 
 
 def scene_as_shown(gltf: dict | None, result, plain=None) -> tuple:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 
+from ..errors import OptionError
 from ..format.glb import split_glb
 from ..format.gltf import TRIANGLE_MODES, TRIANGLES
 from ..format.reader import read_header
@@ -44,8 +45,6 @@ def decode_to(src, dst, chunks: int | None = None, geometry_only: bool = False) 
     inputs = (src,) if local and os.fspath(src) != "-" else ()
     check_output_path(dst, "mesh", inputs=inputs)
     if suffix not in WRITE_SUFFIXES:
-        from ..errors import OptionError
-
         raise OptionError(f"{dst}: unknown output format {suffix or '(no suffix)'!r}; use one of {', '.join(WRITE_SUFFIXES)}")
     notices, written, why = [], [dst], None
     styled = suffix in (".obj", ".ply", ".off") and not geometry_only  # may keep the appearance (OFF: colours)
