@@ -75,3 +75,19 @@ def test_cut_file_is_flagged_by_the_validator_and_three_js_still_shows_the_base(
     (result,) = _check([path])
     assert "GLB_UNEXPECTED_END_OF_CHUNK_DATA" in result["validator"]["codes"]
     assert result["three"]["ok"] and result["three"]["vertices"] == base.vertex_count
+
+
+def test_a_draco_base_with_attributes_is_valid_and_three_js_reads_them_from_the_draco_data():
+    """The conformance file whose Draco base carries TEXCOORD_0 (Draco's texture coordinate), COLOR_0 and
+    _FEATURE_ID_0 (generic attributes) and the weld attribute: no validator error or warning, and three.js's
+    DRACOLoader gives every attribute with the type its accessor declares."""
+    path = Path(__file__).resolve().parents[1] / "spec" / "conformance" / "uv-torus-attributes.welded-draco.packed.v2.pmw"
+    (result,) = _check([path])
+    report = result["validator"]
+    assert (report["errors"], report["warnings"]) == (0, 0), report["messages"]
+    assert set(report["codes"]) <= ALLOWED_INFOS, report["codes"]
+    three = result["three"]
+    assert three["ok"] and three["draco"], three.get("error")
+    attributes = three["primitives"][0]["attributes"]
+    assert attributes["uv"] == [2, False, "Float32Array"] and attributes["color"] == [3, False, "Float32Array"]
+    assert attributes["_feature_id_0"] == [1, False, "Uint16Array"]

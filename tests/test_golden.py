@@ -45,6 +45,22 @@ def _sphere_with_attributes():
     return Mesh(p, sphere.faces, attributes={"NORMAL": normals, "TEXCOORD_0": uv})
 
 
+def _uv_torus_with_attributes():
+    """:func:`shapes.uv_torus` (UV seams: copies of one position in the base, which Draco's output welds back)
+    with a TEXCOORD_0, a COLOR_0 of 8-bit sRGB colours decoded to linear (the ``srgb8`` grid) and a
+    ``_FEATURE_ID_0`` of unsigned shorts: every kind of Draco attribute a base carries (spec README, *Base
+    mesh*)."""
+    from pmwm_codec.progressive.grid import SRGB8_TO_LINEAR
+
+    torus = shapes.uv_torus(24, 12)
+    n = len(torus.positions)
+    rng = np.random.default_rng(7)
+    colours = SRGB8_TO_LINEAR[rng.integers(0, 256, (n, 3))].astype(np.float64)
+    features = rng.integers(0, 300, (n, 1)).astype(np.uint16)
+    return Mesh(torus.positions, torus.faces,
+                attributes={**torus.attributes, "COLOR_0": colours, "_FEATURE_ID_0": features})
+
+
 CASES = {
     "grid-hole.plain": lambda: dict(mesh=shapes.grid(12, 10, hole=True), base_codec="plain"),
     "two-parts.draco": lambda: dict(
@@ -71,6 +87,8 @@ CASES = {
     "kissing.welded-draco": lambda: dict(mesh=shapes.kissing(), base_codec="draco"),
     # specks: triangles a 14-bit grid puts on one point, sent as faces of new vertices only (§8.6)
     "sphere-specks.draco": lambda: dict(mesh=shapes.specks(), base_codec="draco", grid_bits=14),
+    # a Draco base carrying attributes (texture coordinates, sRGB colours, feature ids), welded at its seams
+    "uv-torus-attributes.welded-draco": lambda: dict(mesh=_uv_torus_with_attributes(), base_codec="draco"),
     "sphere.exact-watermark-from-quarter": lambda: dict(
         mesh=shapes.icosphere(4, 1.2, noise=0.02), base_codec="draco", watermark=_stripes(16), embed_from=0.25,
         key=WatermarkKey.generate(rng=np.random.default_rng(2026)),
@@ -87,7 +105,8 @@ VERSIONS = (FORMAT_VERSION, 2)
 VARIANTS = ((FORMAT_VERSION, False), (2, False), (2, True))
 FROZEN = {(2, False)}
 #: Cases added after a frozen set was frozen: no file of that set.
-NOT_IN_FROZEN = {"bowtie.welded-draco", "sphere-pillows.draco", "sphere-specks.draco", "kissing.welded-draco"}
+NOT_IN_FROZEN = {"bowtie.welded-draco", "sphere-pillows.draco", "sphere-specks.draco", "kissing.welded-draco",
+                 "uv-torus-attributes.welded-draco"}
 CASE_VARIANTS = [
     pytest.param(name, version, packed, id=f"{'packed.' if packed else ''}v{version}-{name}")
     for name in sorted(CASES) for version, packed in VARIANTS

@@ -210,7 +210,7 @@ function checkBaseDigest(values, faces, n, D, prim) {
  * Welds a stored base's copies (spec/README.md "Welded base"): vertices with equal grid positions
  * (and equal values of the weld attribute, `ordinals`, when the base has it) are one vertex, the first
  * of them in stored order; kept vertices are numbered in stored order and every face corner names its
- * kept vertex. `values` (n*D), `faces` (m*3) on n vertices, `ordinals` (n) or null; returns new arrays
+ * kept vertex. Copies MUST carry equal attribute values (FormatError otherwise). `values` (n*D), `faces` (m*3) on n vertices, `ordinals` (n) or null; returns new arrays
  * and the kept count.
  */
 function weld(values, faces, n, D, ordinals) {
@@ -226,6 +226,11 @@ function weld(values, faces, n, D, ordinals) {
       kept.push(i);
     } else {
       number[i] = j;
+      for (let c = 3; c < D; c++) {
+        if (values[i * D + c] !== values[kept[j] * D + c]) {
+          throw new FormatError('base mesh: copies the weld joins carry different attribute values (spec README, Welded base)');
+        }
+      }
     }
   }
   const out = new Float64Array(kept.length * D);

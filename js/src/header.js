@@ -390,9 +390,6 @@ export function baseVertexCount(gltf, prim, ext, what) {
   if (!isInt(ext.baseVertexCount, 1, acc.count)) {
     throw new FormatError(`${what}: baseVertexCount is not an integer in 1..${acc.count} (the stored vertices)`);
   }
-  if (Array.isArray(ext.attributes) && ext.attributes.length) {
-    throw new FormatError(`${what}: baseVertexCount (a welded base) with progressive attributes`);
-  }
   return ext.baseVertexCount;
 }
 

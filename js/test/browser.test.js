@@ -77,6 +77,10 @@ const SUBJECTS = [
   // three.js decodes the weld attribute (_PMWM_WELD) as an attribute of its own; our decoder welds by it
   { title: 'kissing.welded-draco (weld attribute)', src: '/spec/conformance/kissing.welded-draco.packed.v2.pmw', skip: () => skip,
     bytes: () => fs.readFileSync(path.join(ROOT, 'spec/conformance/kissing.welded-draco.packed.v2.pmw')) },
+  // three.js decodes TEXCOORD_0, COLOR_0 and _FEATURE_ID_0 from the Draco base; our decoder welds its seam copies
+  { title: 'uv-torus-attributes.welded-draco (Draco base with attributes)',
+    src: '/spec/conformance/uv-torus-attributes.welded-draco.packed.v2.pmw', skip: () => skip,
+    bytes: () => fs.readFileSync(path.join(ROOT, 'spec/conformance/uv-torus-attributes.welded-draco.packed.v2.pmw')) },
 ];
 
 for (const subject of SUBJECTS) {

@@ -75,6 +75,17 @@ test('a welded base\'s weld attribute (_PMWM_WELD) is an unnormalized UNSIGNED_B
   ]);
 });
 
+test('the copies a weld joins carry the same attribute values: a Draco base with attributes whose weld attribute is dropped is refused', async () => {
+  const file = 'uv-torus-attributes.welded-draco.packed.v2.pmw';
+  const drop = (g, p) => { delete p.attributes._PMWM_WELD; delete p.extensions.KHR_draco_mesh_compression.attributes._PMWM_WELD; };
+  await bothRefuse([
+    // welded by position alone, the seams' copies (other texture coordinates, other colours) would join
+    ['weld attribute dropped', file, drop, /copies the weld joins carry different attribute values/],
+    ['a Draco attribute id missing', file, (g, p) => { delete p.extensions.KHR_draco_mesh_compression.attributes.COLOR_0; },
+      /Draco attribute ids missing/],
+  ]);
+});
+
 test('the extension\'s fields this decoder does not otherwise read have the form the schema gives them', async () => {
   const v1 = 'sphere.exact-watermark.v1.pmw';
   const arrays = 'sphere.exact-watermark.v2.pmw';

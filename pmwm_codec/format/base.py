@@ -29,13 +29,19 @@ copies (:func:`weld`, spec README "Welded base").  A base whose distinct vertice
 :data:`WELD_ATTRIBUTE`: each stored vertex's ordinal among the base's vertices on its point, which the
 weld keys on beside the grid integers, so the weld is exact either way.
 
+Progressive attributes (texture coordinates, colours, normals, joints) ride on either codec: plain
+accessors, or Draco attributes (``TEXCOORD_0`` as Draco's texture coordinate, quantized finer than the
+attribute grid and checked to round back; the others as generic attributes holding what a plain base
+stores), welded with the positions.
+
 :func:`decode_base` reads the primitive back from a glTF JSON dict and the BIN
 bytes, checking declared counts against :mod:`pmwm_codec.constants` before it
-allocates anything.
+allocates anything; :func:`read_base` with the attributes.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -58,6 +64,7 @@ from .gltf import (
     UNSIGNED_INT,
     UNSIGNED_SHORT,
     VECTOR_WIDTH,
+    WIDTH_TYPE,
     accessor_array,
     find_extension_primitive,
     float32_numbers,
@@ -70,7 +77,11 @@ from .layout import padded
 
 #: Draco GeometryAttribute::Type of POSITION and of a generic attribute.
 _DRACO_POSITION_TYPE = 0
+_DRACO_TEX_COORD_TYPE = 3
 _DRACO_GENERIC_TYPE = 4
+#: The DracoPy generic-attribute key (the Draco unique id) of the weld attribute; progressive attributes stored
+#: as generic Draco attributes take the keys after it.
+_WELD_KEY = 0
 #: The base primitive's attribute that tells apart a welded base's distinct vertices on one grid point
 #: (spec README, "Welded base"): an UNSIGNED_BYTE or UNSIGNED_SHORT SCALAR, one value per stored vertex.
 WELD_ATTRIBUTE = "_PMWM_WELD"
@@ -136,7 +147,8 @@ def _as_grid(grid) -> Grid:
     return grid if isinstance(grid, Grid) else Grid.from_config(grid)
 
 
-def encode_base(positions_int, faces, grid: Grid | dict, codec: str = "draco", *, draco_compression_level: int = 7) -> EncodedBase:
+def encode_base(positions_int, faces, grid: Grid | dict, codec: str = "draco", *, draco_compression_level: int = 7,
+                attributes=()) -> EncodedBase:
     """Encode a base mesh as a glTF primitive.
 
     Parameters
@@ -149,6 +161,10 @@ def encode_base(positions_int, faces, grid: Grid | dict, codec: str = "draco", *
     grid : Grid
         (or its config dict ``{"bits": q, "origin": [x, y, z], "step": s}``, checked).
     codec : "draco" or "plain"
+    attributes : list of ``(spec, ints (n, k) int64)``
+        Progressive attributes in the input's vertex order (``spec`` an extension ``attributes``
+        entry): a Draco base carries them as Draco attributes (:func:`_draco_attribute_plan`), a plain
+        one as accessors (:func:`with_attributes`).
 
     Returns
     -------
@@ -182,18 +198,23 @@ def encode_base(positions_int, faces, grid: Grid | dict, codec: str = "draco", *
     if pos.min() < 0 or pos.max() >= (1 << grid.bits):
         raise ValueError(f"encode_base: grid coordinates outside [0, 2**{grid.bits})")
 
+    attributes = [(spec, np.asarray(ints, np.int64).reshape(n, -1)) for spec, ints in attributes]
     if codec == "plain":
-        return _encode_plain(pos, tri, grid)
+        return with_attributes(_encode_plain(pos, tri, grid), attributes)
     if codec != "draco":
         raise ValueError(f"encode_base: codec must be 'draco' or 'plain', got {codec!r}")
     reason = "it has no faces"
     if m:
-        for preserve_order in (False, True):  # Draco's own vertex order first, then ours
-            result = _try_draco(pos, tri, grid, preserve_order, draco_compression_level)
-            if isinstance(result, EncodedBase):
-                return result
-            reason = result
-    base = _encode_plain(pos, tri, grid)
+        # Draco's own vertex order first, then ours; texture coordinates as Draco's own (quantized and
+        # predicted), else as generic floats
+        textures = (True, False) if any(spec["semantic"] == "TEXCOORD_0" for spec, _ in attributes) else (False,)
+        for preserve_order in (False, True):
+            for texture in textures:
+                result = _try_draco(pos, tri, grid, preserve_order, draco_compression_level, attributes, texture)
+                if isinstance(result, EncodedBase):
+                    return result
+                reason = result
+    base = with_attributes(_encode_plain(pos, tri, grid), attributes)
     notice = f"a base mesh is stored as plain accessors (same geometry, larger): Draco could not store it exactly ({reason})"
     return replace(base, notice=notice)
 
@@ -244,8 +265,10 @@ def _position_accessor(stored: np.ndarray, **extra) -> dict:
     }
 
 
-def _try_draco(pos, tri, grid, preserve_order, level):
-    """EncodedBase for a Draco encoding, or a string saying why it is not exact."""
+def _try_draco(pos, tri, grid, preserve_order, level, attributes=(), texture=False):
+    """EncodedBase for a Draco encoding, or a string saying why it is not exact.  ``attributes``: list of
+    ``(spec, ints (n, k) int64)`` in the order of ``pos`` (:func:`encode_base`); ``texture``: ``TEXCOORD_0``
+    as Draco's texture coordinate (:func:`_draco_attribute_plan`)."""
     import DracoPy
 
     bits = grid.bits
@@ -265,6 +288,11 @@ def _try_draco(pos, tri, grid, preserve_order, level):
     # the smallest component type that holds the largest ordinal
     weld_type = None if ordinals is None else min(
         (top, t) for t, top in WELD_TYPES.items() if ordinals.max() <= top)[1]
+    plan = _draco_attribute_plan(attributes, texture)
+    generic = {} if ordinals is None else {_WELD_KEY: ordinals.astype(COMPONENT_DTYPES[weld_type]).reshape(-1, 1)}
+    generic.update({p.key: p.values for p in plan if p.key is not None})
+    tex = next((p for p in plan if p.key is None), None)
+    extra = {} if tex is None else {"tex_coord": tex.values, "tex_coord_quantization_bits": tex.bits}
     # Draco quantizes q = floor((p - origin) * (2**bits - 1) / range + 0.5) and
     # dequantizes origin + q * range / (2**bits - 1): with the grid's own origin
     # and range = step * (2**bits - 1) its integers are our grid integers.
@@ -273,32 +301,48 @@ def _try_draco(pos, tri, grid, preserve_order, level):
             stored, tri.astype(np.uint32), quantization_bits=bits, compression_level=level,
             quantization_range=float(grid.step * ((1 << bits) - 1)),
             quantization_origin=list(grid.origin), preserve_order=preserve_order,
-            generic_attributes=None if ordinals is None else {
-                0: ordinals.astype(COMPONENT_DTYPES[weld_type]).reshape(-1, 1)},
+            generic_attributes=generic or None, **extra,
         )
         decoded = DracoPy.decode(encoded)
     except Exception as exc:  # DracoPy raises its own exception types
         return f"DracoPy failed ({exc})"
-    ids = {a["attribute_type"]: a["unique_id"] for a in decoded.attributes}
-    if _DRACO_POSITION_TYPE not in ids:
-        return "no POSITION attribute in the Draco output"
-    dpos = np.asarray(decoded.get_attribute_by_unique_id(ids[_DRACO_POSITION_TYPE])["data"], dtype=np.float32)
+    types = {}  # Draco attribute type -> the unique ids of that type
+    for a in decoded.attributes:
+        types.setdefault(a["attribute_type"], []).append(int(a["unique_id"]))
+    if len(types.get(_DRACO_POSITION_TYPE, ())) != 1 or (tex is not None and len(types.get(_DRACO_TEX_COORD_TYPE, ())) != 1):
+        return "no POSITION (or texture coordinate) attribute in the Draco output"
+    if not set(generic) <= set(types.get(_DRACO_GENERIC_TYPE, ())):
+        return "a generic attribute is missing from the Draco output"
+    ids = {p.spec["semantic"]: (types[_DRACO_TEX_COORD_TYPE][0] if p.key is None else p.key) for p in plan}
+    if ordinals is not None:
+        ids[WELD_ATTRIBUTE] = _WELD_KEY
+    ids["POSITION"] = types[_DRACO_POSITION_TYPE][0]
+    found = {}
+    for name, uid in ids.items():
+        attr = decoded.get_attribute_by_unique_id(uid)
+        if attr is None:
+            return f"no {name} attribute in the Draco output"
+        found[name] = np.asarray(attr["data"])
+    dpos = found["POSITION"].astype(np.float32).reshape(-1, 3)
     dtri = np.asarray(decoded.faces, dtype=np.int64).reshape(-1, 3)
     if dpos.shape[0] < pos.shape[0] or dtri.shape != tri.shape:
         return f"vertex/face count changed {pos.shape[0]}/{tri.shape[0]} -> {dpos.shape[0]}/{dtri.shape[0]}"
     try:
         dint = grid.from_float32(dpos)
-    except FormatError as exc:
+        dattr = [AttributeGrid.from_config(p.spec).from_float32(
+            found[p.spec["semantic"]].astype(np.float32).reshape(len(dpos), -1), p.spec["semantic"]) for p in plan]
+    except (FormatError, ValueError) as exc:
         return str(exc)
-    dclass = None
-    if ordinals is not None:
-        if _DRACO_GENERIC_TYPE not in ids:
-            return "no weld attribute in the Draco output"
-        dclass = np.asarray(decoded.get_attribute_by_unique_id(ids[_DRACO_GENERIC_TYPE])["data"]).reshape(-1).astype(np.int64)
+    dclass = None if ordinals is None else found[WELD_ATTRIBUTE].reshape(-1).astype(np.int64)
     welded_count = None
-    if dpos.shape[0] > pos.shape[0] or dclass is not None:
+    stored_count = dpos.shape[0]
+    if stored_count > pos.shape[0] or dclass is not None:
         # edgebreaker split non-manifold vertices, or distinct vertices share a point: readers weld the copies
-        dint, dtri, kept_class = weld(dint, dtri, dclass)
+        kept, number = weld_kept(dint, dclass)
+        if any((d[kept][number] != d).any() for d in dattr):
+            return "copies the weld joins carry different attribute values"
+        dint, dtri, dattr = dint[kept], number[dtri], [d[kept] for d in dattr]
+        kept_class = None if dclass is None else dclass[kept]
         welded_count = pos.shape[0]
         if dint.shape[0] != welded_count:
             return f"welding the decoded copies gives {dint.shape[0]} vertices, not {welded_count}"
@@ -312,20 +356,27 @@ def _try_draco(pos, tri, grid, preserve_order, level):
         return "decoded positions are not a permutation of the grid positions"
     if not same_face_set(vertex_map[dtri], tri):
         return "decoded faces differ from the input faces"
+    if any(not np.array_equal(d, ints[vertex_map]) for d, (_, ints) in zip(dattr, attributes)):
+        return "decoded attribute values differ from the input's"
     draco_view = {"buffer": 0, "byteOffset": 0, "byteLength": len(encoded)}
     index_type = UNSIGNED_SHORT if pos.shape[0] <= 0xFFFF else UNSIGNED_INT
     accessors = [
         _position_accessor(dpos),
         {"componentType": index_type, "count": int(dtri.size), "type": "SCALAR"},
     ]
-    attribute_ids = {"POSITION": int(ids[_DRACO_POSITION_TYPE])}
-    attributes = {"POSITION": 0}
+    attribute_ids = {"POSITION": int(ids["POSITION"])}
+    primitive_attributes = {"POSITION": 0}
+    for p in plan:
+        primitive_attributes[p.spec["semantic"]] = len(accessors)
+        attribute_ids[p.spec["semantic"]] = int(ids[p.spec["semantic"]])
+        accessors.append({"componentType": p.component_type, "count": int(stored_count),
+                          "type": WIDTH_TYPE[p.values.shape[1]]})
     if dclass is not None:
-        accessors.append({"componentType": weld_type, "count": int(dpos.shape[0]), "type": "SCALAR"})
-        attribute_ids[WELD_ATTRIBUTE] = int(ids[_DRACO_GENERIC_TYPE])
-        attributes[WELD_ATTRIBUTE] = 2
+        primitive_attributes[WELD_ATTRIBUTE] = len(accessors)
+        attribute_ids[WELD_ATTRIBUTE] = _WELD_KEY
+        accessors.append({"componentType": weld_type, "count": int(stored_count), "type": "SCALAR"})
     primitive = {
-        "attributes": attributes, "indices": 1,  # mode: TRIANGLES, the glTF default
+        "attributes": primitive_attributes, "indices": 1,  # mode: TRIANGLES, the glTF default
         "extensions": {DRACO_EXTENSION: {"bufferView": 0, "attributes": attribute_ids}},
     }
     data = bytes(encoded) + bytes(padded(len(encoded)) - len(encoded))
@@ -335,6 +386,49 @@ def _try_draco(pos, tri, grid, preserve_order, level):
         extensions_used=(DRACO_EXTENSION,), extensions_required=(DRACO_EXTENSION,),
         draco_attribute_ids=attribute_ids, welded_count=welded_count,
     )
+
+
+@dataclass(frozen=True)
+class _DracoAttribute:
+    """How a Draco base stores one progressive attribute: ``key`` its DracoPy generic-attribute key (its
+    unique id), or None for Draco's texture coordinate (``TEXCOORD_0``, quantized with ``bits``);
+    ``values`` (n, k) the array handed to DracoPy; ``component_type`` the accessor's."""
+
+    spec: dict
+    key: int | None
+    values: np.ndarray
+    component_type: int
+    bits: int = 0
+
+
+def _draco_attribute_plan(attributes, texture: bool = True) -> list:
+    """Per progressive attribute ``(spec, ints (n, k) int64)``, a :class:`_DracoAttribute`.
+
+    With ``texture``, ``TEXCOORD_0`` on a linear float grid rides as Draco's texture coordinate, which Draco predicts from the
+    positions and quantizes on its own grid (the base's range of values over ``2**bits - 1``): ``bits`` is
+    chosen so that Draco's step is at most a quarter of the smallest of ours, so every Draco value rounds back
+    to our integer (``_try_draco`` checks it, and falls back when not).  Every other attribute rides as a
+    generic attribute holding the values a plain base stores: the exact integers of an unsigned integer
+    attribute (``JOINTS_n``: a viewer skins the base with them), else float32 (Draco keeps generic floats
+    as they are)."""
+    plan, key = [], _WELD_KEY + 1
+    for spec, ints in attributes:
+        grid = AttributeGrid.from_config(spec)
+        stored = grid.to_float32(ints)
+        ctype = stored_type(spec)
+        if texture and spec["semantic"] == "TEXCOORD_0" and ctype == FLOAT and grid.transfer is None and stored.shape[1] == 2:
+            wide = stored.astype(np.float64)
+            span = float((wide.max(0) - wide.min(0)).max()) if len(wide) else 0.0
+            need = math.ceil(math.log2(4.0 * span / min(grid.step) + 1.0)) if span > 0 else 0
+            if 1 <= need <= 30:
+                plan.append(_DracoAttribute(spec, None, wide, FLOAT, need))
+                continue
+        if ctype in (UNSIGNED_BYTE, UNSIGNED_SHORT):
+            plan.append(_DracoAttribute(spec, key, np.rint(stored).astype(COMPONENT_DTYPES[ctype]), ctype))
+        else:
+            plan.append(_DracoAttribute(spec, key, stored.astype(np.float32), FLOAT))
+        key += 1
+    return plan
 
 
 def point_ordinals(positions_int: np.ndarray) -> np.ndarray:
@@ -362,16 +456,24 @@ def weld(positions_int: np.ndarray, faces: np.ndarray, ordinals: np.ndarray | No
     ``positions_int`` (n, 3) int64, ``faces`` (m, 3) int64 indexing it, ``ordinals`` (n,) int64 or None;
     returns the kept positions (n', 3) int64, the faces (m, 3) int64 on them and the kept vertices'
     ordinals (n',) int64 (zeros without ``ordinals``)."""
+    kept, number = weld_kept(positions_int, ordinals)
+    ordinals = np.zeros(positions_int.shape[0], np.int64) if ordinals is None else np.asarray(ordinals, np.int64).reshape(-1)
+    return positions_int[kept], number[faces], ordinals[kept]
+
+
+def weld_kept(positions_int: np.ndarray, ordinals: np.ndarray | None = None) -> tuple:
+    """``(kept (n',) int64, number (n,) int64)``: the stored vertices the weld keeps (ascending) and the
+    kept vertex each stored vertex becomes (:func:`weld`).  ``positions_int`` (n, 3) int64, ``ordinals``
+    (n,) int64 or None."""
     n = positions_int.shape[0]
     ordinals = np.zeros(n, np.int64) if ordinals is None else np.asarray(ordinals, np.int64).reshape(-1)
     if n == 0:
-        return positions_int, faces, ordinals
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
     key = np.column_stack([positions_int, ordinals])
     _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
     rank = np.empty(len(first), np.int64)
     rank[np.argsort(first)] = np.arange(len(first))
-    kept = np.sort(first)
-    return positions_int[kept], rank[inverse.reshape(-1)][faces], ordinals[kept]
+    return np.sort(first).astype(np.int64), rank[inverse.reshape(-1)]
 
 
 def _match_vertices(decoded: np.ndarray, original: np.ndarray):
@@ -484,35 +586,72 @@ def decode_base(gltf: dict, bin_data, grid: Grid | dict, primitive: dict | None 
         Bad accessors, counts over the limits (checked before allocating), index
         out of range, positions off the grid, undecodable Draco data.
     """
+    return read_base(gltf, bin_data, grid, primitive)[:2]
+
+
+def read_base(gltf: dict, bin_data, grid: Grid | dict, primitive: dict | None = None, attributes=()) -> tuple:
+    """:func:`decode_base` with the base's progressive ``attributes`` (the extension's ``attributes`` entries):
+    ``(positions_int (n, 3) int64, faces (m, 3) int64, values (n, a) int64)``, ``values`` every attribute's grid
+    integers side by side in the order of ``attributes`` (a = 0 without any), welded with the positions."""
     from ..constants import EXTENSION_NAME
 
     if primitive is None:
         primitive = find_extension_primitive(gltf, EXTENSION_NAME)[2]
-    base_views(gltf, primitive)
+    base_views(gltf, primitive, attributes)
     n, m, ctype, pos_acc, idx_acc = base_counts(gltf, primitive)
     draco = (primitive.get("extensions") or {}).get(DRACO_EXTENSION)  # shape checked in base_views
     weld_acc = weld_accessor(gltf, primitive, n)
-    ordinals = None
+    grids = [AttributeGrid.from_config(spec) for spec in attributes]
+    accs = [_attribute_accessor(gltf, primitive, spec, g, n) for spec, g in zip(attributes, grids)]
+    semantics = [spec["semantic"] for spec in attributes]
     if draco is not None:
-        positions, faces, ordinals = _decode_draco(gltf, draco, bin_data, n, m, weld_acc is not None)
+        names = ["POSITION"] + semantics + ([WELD_ATTRIBUTE] if weld_acc is not None else [])
+        stored, faces = _decode_draco(gltf, draco, bin_data, n, m, names, [3] + [g.width for g in grids] + [1])
     else:
-        positions = accessor_array(gltf, pos_acc, bin_data, "<f4", n, 3, "base mesh: POSITION")
+        stored = {"POSITION": accessor_array(gltf, pos_acc, bin_data, "<f4", n, 3, "base mesh: POSITION")}
         faces = accessor_array(gltf, idx_acc, bin_data, INDEX_DTYPES[ctype], m, 3, "base mesh: indices",
                                vertex_attribute=False).astype(np.int64)
+        for semantic, g, acc in zip(semantics, grids, accs):
+            stored[semantic] = accessor_array(gltf, acc, bin_data, COMPONENT_DTYPES[acc["componentType"]], n, g.width,
+                                              f"base mesh: {semantic}")
         if weld_acc is not None:
-            ordinals = accessor_array(gltf, weld_acc, bin_data, COMPONENT_DTYPES[weld_acc["componentType"]], n, 1,
-                                      f"base mesh: {WELD_ATTRIBUTE}").reshape(-1).astype(np.int64)
+            stored[WELD_ATTRIBUTE] = accessor_array(gltf, weld_acc, bin_data, COMPONENT_DTYPES[weld_acc["componentType"]],
+                                                    n, 1, f"base mesh: {WELD_ATTRIBUTE}")
     if faces.size and faces.max() >= n:
         raise FormatError(f"base mesh: face index {int(faces.max())} out of range [0, {n})")
-    positions = _as_grid(grid).from_float32(positions)
+    positions = _as_grid(grid).from_float32(stored["POSITION"])
+    columns = [g.from_float32(stored[s].astype(np.float32), s) for s, g in zip(semantics, grids)]  # integers: exact
+    values = np.concatenate(columns, axis=1) if columns else np.zeros((n, 0), np.int64)
     if welded_vertex_count(primitive) is not None:
         welded = base_vertex_count(gltf, primitive)  # at most the stored count
-        positions, faces, _ = weld(positions, faces, ordinals)
+        ordinals = stored.get(WELD_ATTRIBUTE)
+        if ordinals is not None:
+            ordinals = ordinals.reshape(-1)
+            if not np.issubdtype(ordinals.dtype, np.integer) or (ordinals < 0).any():
+                raise FormatError(f"base mesh: the {WELD_ATTRIBUTE} values are not non-negative integers")
+        kept, number = weld_kept(positions, ordinals)
+        if (values[kept][number] != values).any():
+            raise FormatError("base mesh: copies the weld joins carry different attribute values (spec README, Welded base)")
+        positions, faces, values = positions[kept], number[faces], values[kept]
         if positions.shape[0] != welded:
             raise FormatError(f"base mesh: welding gives {positions.shape[0]} vertices, baseVertexCount says {welded}")
     if two_alike(faces).any():
         raise FormatError("base mesh: a face repeats a vertex (a valid base has only proper triangles)")
-    return positions, faces
+    return positions, faces, values
+
+
+def _attribute_accessor(gltf: dict, primitive: dict, spec: dict, grid: AttributeGrid, n: int) -> dict:
+    """The base accessor of the progressive attribute ``spec``, checked: FLOAT or the componentType the
+    attribute names (:func:`stored_type`), not normalized, ``grid.width`` components, ``n`` values."""
+    semantic = spec["semantic"]
+    acc = item(gltf.get("accessors"), primitive["attributes"][semantic], "base mesh: accessor")
+    ctype = acc.get("componentType")
+    if ctype not in {FLOAT, stored_type(spec)} or acc.get("normalized") or VECTOR_WIDTH.get(acc.get("type")) != grid.width:
+        named = "" if stored_type(spec) == FLOAT else f" or a componentType {stored_type(spec)} one"
+        raise FormatError(f"base mesh: {semantic} must be a FLOAT accessor{named} with {grid.width} components")
+    if uint(acc, "count", f"base mesh: {semantic} accessor") != n:
+        raise FormatError(f"base mesh: {semantic} has {acc.get('count')} values for {n} stored vertices")
+    return acc
 
 
 def weld_accessor(gltf: dict, primitive: dict, n: int) -> dict | None:
@@ -533,16 +672,13 @@ def weld_accessor(gltf: dict, primitive: dict, n: int) -> dict | None:
 
 def welded_vertex_count(primitive: dict) -> int | None:
     """The extension's ``baseVertexCount`` (the base's vertex count after the weld) as an int, or
-    None when the base is not welded; FormatError unless it is a positive integer without
-    progressive attributes (a weld by position would merge their seams)."""
+    None when the base is not welded; FormatError unless it is a positive integer."""
     from ..constants import EXTENSION_NAME
 
     ext = (primitive.get("extensions") or {}).get(EXTENSION_NAME) or {}
     count = ext.get("baseVertexCount")
     if count is None:
         return None
-    if ext.get("attributes"):
-        raise FormatError("base mesh: baseVertexCount (a welded base) with progressive attributes")
     if json_integer(count) is None or count < 1:
         raise FormatError(f"base mesh: baseVertexCount {count!r} is not a positive integer")
     return json_integer(count)
@@ -558,62 +694,54 @@ def base_vertex_count(gltf: dict, primitive: dict) -> int:
     return n if welded is None else welded
 
 
-def _decode_draco(gltf, draco, bin_data, n, m, welds=False):
-    """Positions (n, 3) float32, faces (m, 3) int64 and, when ``welds``, the :data:`WELD_ATTRIBUTE`
-    values (n,) int64 (else None) of a Draco base."""
+def _decode_draco(gltf, draco, bin_data, n, m, names, widths) -> tuple:
+    """``({name: (n, k) array}, faces (m, 3) int64)`` of a Draco base: the Draco attribute of each of ``names``
+    (``POSITION``, progressive attributes, :data:`WELD_ATTRIBUTE`) by its unique id in
+    ``KHR_draco_mesh_compression.attributes``, checked to have ``n`` values of ``widths`` components."""
     import DracoPy
 
     _, raw = view_bytes(gltf, [bin_data], draco.get("bufferView"), "base mesh: Draco")
     ids = draco.get("attributes")
-    if not isinstance(ids, dict) or "POSITION" not in ids:
-        raise FormatError(f"base mesh: {DRACO_EXTENSION}.attributes has no POSITION id")
-    if welds and WELD_ATTRIBUTE not in ids:
-        raise FormatError(f"base mesh: {DRACO_EXTENSION}.attributes has no {WELD_ATTRIBUTE} id")
+    if not isinstance(ids, dict):
+        raise FormatError(f"base mesh: {DRACO_EXTENSION}.attributes is not an object")
+    for name in names:
+        if name not in ids:
+            raise FormatError(f"base mesh: {DRACO_EXTENSION}.attributes has no {name} id")
     try:
         mesh = DracoPy.decode(bytes(raw))
-        attribute = mesh.get_attribute_by_unique_id(ids["POSITION"])
-        welding = mesh.get_attribute_by_unique_id(ids[WELD_ATTRIBUTE]) if welds else None
+        found = {name: mesh.get_attribute_by_unique_id(ids[name]) for name in names}
     except Exception as exc:  # DracoPy raises its own exception types
         raise FormatError(f"base mesh: Draco data does not decode ({exc})") from None
-    for name, found in (("POSITION", attribute), (WELD_ATTRIBUTE, welding if welds else True)):
-        if found is None:
-            raise FormatError(f"base mesh: Draco data has no attribute with unique id {ids[name]!r} ({name})")
-    positions = np.asarray(attribute["data"], dtype=np.float32)
     faces = np.asarray(mesh.faces, dtype=np.int64)
-    if positions.shape != (n, 3) or faces.reshape(-1, 3).shape != (m, 3):
-        raise FormatError(f"base mesh: Draco decoded {positions.shape[0]} vertices / {faces.size // 3} faces, accessors declare {n} / {m}")
-    ordinals = None
-    if welds:
-        values = np.asarray(welding["data"])
-        if values.size != n or not np.issubdtype(values.dtype, np.integer) or (values < 0).any():
-            raise FormatError(f"base mesh: the Draco {WELD_ATTRIBUTE} is not one non-negative integer per vertex")
-        ordinals = values.reshape(-1).astype(np.int64)
-    return positions, faces.reshape(-1, 3), ordinals
+    out = {}
+    for name, width in zip(names, widths):
+        if found[name] is None:
+            raise FormatError(f"base mesh: Draco data has no attribute with unique id {ids[name]!r} ({name})")
+        values = np.asarray(found[name]["data"])
+        if values.size != n * width:
+            raise FormatError(f"base mesh: Draco decoded {values.size // width} {name} values, accessors declare {n}")
+        out[name] = values.reshape(n, width)
+    if faces.size != 3 * m:
+        raise FormatError(f"base mesh: Draco decoded {faces.size // 3} faces, accessors declare {m}")
+    if not np.issubdtype(out["POSITION"].dtype, np.floating):
+        raise FormatError("base mesh: the Draco POSITION is not a float attribute")
+    out["POSITION"] = out["POSITION"].astype(np.float32)
+    return out, faces.reshape(-1, 3)
 
 
 # ------------------------------------------------------------------ attributes
 
 
-def decode_base_attributes(gltf: dict, bin_data, primitive: dict, attributes) -> np.ndarray:
-    """The base's progressive attributes as (n, a) int64 grid integers (a = 0 without any)."""
-    n = base_vertex_count(gltf, primitive)
-    columns = []
-    for spec in attributes:
-        semantic = spec["semantic"]
-        grid = AttributeGrid.from_config(spec)
-        acc = item(gltf.get("accessors"), primitive["attributes"][semantic], "base mesh: accessor")
-        width = VECTOR_WIDTH.get(acc.get("type"))
-        ctype = acc.get("componentType")
-        if ctype not in {FLOAT, stored_type(spec)} or acc.get("normalized") or width is None or width != grid.width:
-            named = "" if stored_type(spec) == FLOAT else f" or a componentType {stored_type(spec)} one"
-            raise FormatError(f"base mesh: {semantic} must be a FLOAT accessor{named} with {grid.width} components")
-        if uint(acc, "count", f"base mesh: {semantic} accessor") != n:
-            raise FormatError(f"base mesh: {semantic} has {acc.get('count')} values for {n} vertices")
-        values = accessor_array(gltf, acc, bin_data, COMPONENT_DTYPES[ctype], n, width, f"base mesh: {semantic}")
-        columns.append(grid.from_float32(values.astype(np.float32), semantic))  # integers: below 2^24, exact
-    if not columns:
-        return np.zeros((n, 0), dtype=np.int64)
-    return np.concatenate(columns, axis=1)
+def decode_base_attributes(gltf: dict, bin_data, primitive: dict, attributes, grid: Grid | dict | None = None) -> np.ndarray:
+    """The base's progressive attributes as (n, a) int64 grid integers (a = 0 without any): :func:`read_base`'s
+    ``values``.  ``grid``: the base's position grid (the weld keys on it), default the primitive's extension's."""
+    if grid is None:
+        from ..constants import EXTENSION_NAME
+
+        grid = ((primitive.get("extensions") or {}).get(EXTENSION_NAME) or {}).get("grid")
+        if grid is None:
+            raise FormatError("base mesh: no grid to read the attributes with")
+    return read_base(gltf, bin_data, grid, primitive, attributes)[2]
 
 
 def stored_type(spec: dict) -> int:

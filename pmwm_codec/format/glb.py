@@ -171,7 +171,8 @@ def _base_checks(prims) -> list:
     for prim in prims:
         base, ordinal = prim.base, rank[(prim.mesh, prim.primitive)]
         mini = {"accessors": base.accessors, "bufferViews": base.buffer_views}
-        attributes = decode_base_attributes(mini, base.data, base.primitive, prim.extension.get("attributes", ()))
+        primitive = {**base.primitive, "extensions": {**base.primitive.get("extensions", {}), EXTENSION_NAME: prim.extension}}
+        attributes = decode_base_attributes(mini, base.data, primitive, prim.extension.get("attributes", ()))
         out.append((ordinal, {"baseDigest": base_digest(base.positions_int, base.faces, attributes)}, attributes))
     return out
 

@@ -38,7 +38,7 @@ from ..constants import DEFAULT_GRID_BITS, MAX_GRID_BITS, MIN_GRID_BITS
 from ..distortion import combine_meshes, decoded_positions, full_distortion, measure_method
 from ..errors import FormatError, MeshError, OwnerLayerError, PmwError
 from ..format import encode_base
-from ..format.base import EncodedBase, with_attributes
+from ..format.base import EncodedBase
 from ..atomic import directory_lock, discard, fault_point, publish, signals_deferred, stage
 from ..format.glb import ProgressivePrimitive, assemble_document, write_parts
 from ..format.gltf import owner_placements, scene_mesh
@@ -66,7 +66,6 @@ from .chunking import (
     stream_order,
 )
 
-_DRACO_ATTRIBUTES_NOTICE = "primitives with attributes keep a plain base (Draco carries positions only here)"
 
 
 @dataclass
@@ -1052,15 +1051,11 @@ def _core_vertices(n: int, faces: np.ndarray, late: np.ndarray) -> tuple:
 def _encode_bases(work, base_codec: str) -> tuple:
     """Stage 2: each primitive's base as the decoder will see it.
 
-    Returns ``(work, notices)``; primitives with attributes always get a plain base.
+    Returns ``(work, notices)``.
     """
     out, notices = [], []
     for w in work:
-        codec = base_codec
-        if w.attribute_grids and codec == "draco":
-            codec = "plain"
-            _notice(notices, _DRACO_ATTRIBUTES_NOTICE)
-        base, base_order = _encode_base(w, codec)
+        base, base_order = _encode_base(w, base_codec)
         _notice(notices, base.notice)
         out.append(dataclasses.replace(w, base=base, base_order=base_order))
     return out, notices
@@ -1077,17 +1072,13 @@ def _encode_base(w: PrimitiveWork, codec: str) -> tuple:
     base_ids = log.base_vertices
     local = np.full(len(q), -1, dtype=np.int64)
     local[base_ids] = np.arange(len(base_ids))
+    offsets = np.cumsum([3] + [len(spec["origin"]) for spec in w.attribute_grids])
+    attributes = [(spec, w.values[base_ids, offsets[j] : offsets[j + 1]]) for j, spec in enumerate(w.attribute_grids)]
     try:
-        base = encode_base(q[base_ids], local[log.base_corners], w.grid, codec=codec)
+        base = encode_base(q[base_ids], local[log.base_corners], w.grid, codec=codec, attributes=attributes)
     except ValueError as exc:
         raise MeshError(f"cannot store the base mesh: {exc}") from None
-    base_order = base_ids[np.asarray(base.vertex_map, dtype=np.int64)]
-    if w.attribute_grids:
-        offsets = np.cumsum([3] + [len(spec["origin"]) for spec in w.attribute_grids])
-        base = with_attributes(base, [
-            (spec, w.values[base_order, offsets[j] : offsets[j + 1]]) for j, spec in enumerate(w.attribute_grids)
-        ])
-    return base, base_order
+    return base, base_ids[np.asarray(base.vertex_map, dtype=np.int64)]
 
 
 def _plan_chunks(work, min_chunk_splits) -> tuple:
