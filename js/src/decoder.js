@@ -8,7 +8,7 @@ import { SRGB8_TO_LINEAR } from './constants.js';
 import { initChunkFrames, openChunk } from './chunkframe.js';
 import { FormatError, LimitError, TruncatedError } from './errors.js';
 import { checkPreamble, parseGlb, planDocument, preambleLength } from './header.js';
-import { ChunkDecoderV2 } from './payload-v2.js';
+import { ChunkDecoderV2, planeColumns } from './payload-v2.js';
 import { MeshState, unpackPayload } from './vsplit.js';
 
 /**
@@ -159,7 +159,8 @@ export class PmwDecoder {
       return new MeshState(b.values, b.faces, b.n, b.m, b.D, prim.vertexCount, prim.faceCount);
     });
     // payload version 2: per primitive, the probability table its chunks carry on (spec §8.1)
-    const coders = this.plan.primitives.map((p, i) => (p.payloadVersion === 2 ? new ChunkDecoderV2(states[i]) : null));
+    const coders = this.plan.primitives.map((p, i) => (p.payloadVersion === 2
+      ? new ChunkDecoderV2(states[i], planeColumns(p.base.grids)) : null));
     return [states, coders];
   }
 

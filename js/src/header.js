@@ -226,6 +226,16 @@ function checkTransfer(a, what) {
   return { transfer: 'srgb8' };
 }
 
+/**
+ * An attribute's `prediction` (spec/README.md, attributes): absent (the ring mean), or "plane" (payload version 2
+ * only, spec/bitstream.md §8.4.3; checked against the payload version in checkExtension).
+ */
+function checkPrediction(a, what) {
+  if (a.prediction === undefined) return {};
+  if (a.prediction !== 'plane') throw new FormatError(`${what}: ${a.semantic} prediction must be 'plane'`);
+  return { prediction: 'plane' };
+}
+
 /** A bufferView of buffer 0 by index, with its range checked against the buffer. */
 function bufferView(gltf, index, bufferLength, what) {
   const views = Array.isArray(gltf.bufferViews) ? gltf.bufferViews : [];
@@ -418,7 +428,8 @@ function basePlan(gltf, prim, ext, bufferLength, what) {
     if (!isObj(a) || typeof a.semantic !== 'string' || a.semantic === 'POSITION') {
       throw new FormatError(`${what}: attribute ${i} has no valid semantic`);
     }
-    return { semantic: a.semantic, ...checkGrid(a, `${what}: ${a.semantic} grid`, 0), ...checkTransfer(a, what) };
+    return { semantic: a.semantic, ...checkGrid(a, `${what}: ${a.semantic} grid`, 0), ...checkTransfer(a, what),
+      ...checkPrediction(a, what) };
   });
   if (!isObj(prim.attributes)) throw new FormatError(`${what}: primitive has no attributes`);
   if (given(prim.mode, 4) !== 4) throw new FormatError(`${what}: primitive mode is not TRIANGLES`);
@@ -492,6 +503,9 @@ function checkExtension(ext, what) {
   checkCount(ext.vertexCount, 1, MAX_VERTICES, `${what}: vertexCount`);
   checkCount(ext.faceCount, 0, MAX_FACES, `${what}: faceCount`);
   if (Array.isArray(ext.chunks) && ext.chunks.length > MAX_CHUNKS) throw new LimitError(`${what}: more than ${MAX_CHUNKS} chunks`);
+  if (payload.version !== 2 && Array.isArray(ext.attributes) && ext.attributes.some((a) => isObj(a) && a.prediction !== undefined)) {
+    throw new FormatError(`${what}: an attribute's prediction with chunk payload version ${payload.version} (version 2 only)`);
+  }
   return payload.version;
 }
 

@@ -49,9 +49,14 @@ const B_LENGTH = 1; // + min(d, 16) - 1
 const B_RANK = 17; // + min(c, 16) - 1
 const B_GEOMETRY = 33; // + 3 * cls + role
 const B_ATTRIBUTE = 129; // + min(j, 7)
+/** Attributes predicted on the ring's plane (§8.4.3): + 16 * min(j, 7) + the ring's spread class 0 .. 15. */
+const B_PLANE = 137;
+const PLANE_CLASSES = 16;
+/** Below this fraction of the product of its diagonal, the plane fit's determinant is singular (§8.4.3). */
+const PLANE_SINGULAR = 2 ** -20;
 const GEOMETRY_CLASSES = 32;
-/** Size of a primitive's probability table: 32 single probabilities, 137 integer blocks. */
-export const N_PROBS = P_INT + (B_ATTRIBUTE + 8) * INT_BLOCK;
+/** Size of a primitive's probability table: 32 single probabilities, 265 integer blocks. */
+export const N_PROBS = P_INT + (B_PLANE + 8 * PLANE_CLASSES) * INT_BLOCK;
 /** The bit of a split vertex in the mask's counts (cnt, which count marks up to 2). */
 const SPLIT = 4;
 /** Fans of more faces are never simple (their symbols are coded one by one). */
@@ -150,10 +155,26 @@ function arcStart(r, d, ncand, L, lens) {
   return best;
 }
 
+/**
+ * Per value column (3 positions, then each attribute's components), 1 where the attribute is predicted on the
+ * ring's plane (its extension entry's "prediction": "plane", §8.4.3); null when none is.
+ * @param {{origin: number[], prediction?: string}[]} grids the primitive's attribute grids, in extension order
+ */
+export function planeColumns(grids) {
+  const flags = [0, 0, 0];
+  for (const g of grids) for (let c = 0; c < g.origin.length; c++) flags.push(g.prediction === 'plane' ? 1 : 0);
+  return flags.some((f) => f === 1) ? Uint8Array.from(flags) : null;
+}
+
 export class ChunkDecoderV2 {
-  /** @param {import('./vsplit.js').MeshState} state the primitive's mesh, decoded into in place */
-  constructor(state) {
+  /**
+   * @param {import('./vsplit.js').MeshState} state the primitive's mesh, decoded into in place
+   * @param {Uint8Array|null} plane per value column, 1 where the attribute is predicted on the ring's plane
+   *   (its extension entry's "prediction": "plane", §8.4.3; see planeColumns), or null for none
+   */
+  constructor(state, plane = null) {
     this.state = state;
+    this.plane = plane;
     this.probs = newProbabilities(N_PROBS);
     this.fan = new Int32Array(MAX_ARC_FAN);
     this.succ = new Int32Array(MAX_ARC_FAN); // the successor of each incidence of a fan, -1 for none
@@ -168,6 +189,7 @@ export class ChunkDecoderV2 {
     this.listsN = -1;
     this.listsM = -1;
     this.epoch = 0;
+    this.spread = 0; // the spread #planePrediction found last
     this.arcFirst = 0; // the arc #symbols decoded last
     this.arcLength = 0;
     // scratch arrays (see #grow), declared here so that the object keeps one shape
@@ -1012,9 +1034,70 @@ export class ChunkDecoderV2 {
       const pk = nn > 0 ? ph[dom] - ((x0 - ph[i0]) * ph[3 + i0] + (x1 - ph[i1]) * ph[3 + i1]) / ph[3 + dom] : ph[dom];
       this.#put(rc, pu + dom, round(pk), base + 2 * INT_BLOCK);
       for (let q = 3; q < D; q++) {
-        this.#put(rc, pu + q, Math.floor(S[o + q] / two), block(B_ATTRIBUTE + Math.min(q - 3, 7)));
+        const mean = Math.floor(S[o + q] / two);
+        if (this.plane !== null && this.plane[q] === 1) {
+          const pred = this.#planePrediction(i, q, i0, i1, pu, pv, mean);
+          const cls = Math.min(bitLength(Math.floor(this.spread / two)), PLANE_CLASSES - 1);
+          this.#put(rc, pu + q, pred, block(B_PLANE + Math.min(q - 3, 7) * PLANE_CLASSES + cls));
+        } else {
+          this.#put(rc, pu + q, mean, block(B_ATTRIBUTE + Math.min(q - 3, 7)));
+        }
       }
     }
+  }
+
+  /**
+   * §8.4.3, plane prediction: value q of the new vertex (values at pu) of split i (kept vertex at pv), the
+   * affine function of the non-dominant axes i0, i1 fitted by least squares to the ring's corners (a, b of
+   * each face; v, a of a left face; v, b of a right face), at the new vertex, rounded and kept within the
+   * corners' and v's range widened by its span; `mean` when the fit is singular. Sets this.spread (the sum
+   * of |corner value - v's value|).
+   */
+  #planePrediction(i, q, i0, i1, pu, pv, mean) {
+    const { values, D } = this.state;
+    const { sym, a, b, gstart } = this;
+    const vq = values[pv + q];
+    const v0 = values[pv + i0];
+    const v1 = values[pv + i1];
+    let a00 = 0; let a01 = 0; let a11 = 0; let a0 = 0; let a1 = 0; let nn = 0;
+    let b0 = 0; let b1 = 0; let bw = 0;
+    let spread = 0; let lo = vq; let hi = vq;
+    for (let j = gstart[i]; j < gstart[i + 1]; j++) {
+      const s = sym[j];
+      if (s === 0) continue;
+      for (let t = 0; t < 6; t++) { // a, b; v, a for a left face (2, 4); v, b for a right face (3, 4)
+        if (((t === 2 || t === 3) && s !== 2 && s !== 4) || (t >= 4 && s !== 3 && s !== 4)) continue;
+        const k = (t === 0 || t === 3 ? a[j] : t === 1 || t === 5 ? b[j] : this.v[i]) * D;
+        const d0 = values[k + i0] - v0;
+        const d1 = values[k + i1] - v1;
+        const w = values[k + q] - vq;
+        a00 += d0 * d0;
+        a01 += d0 * d1;
+        a11 += d1 * d1;
+        a0 += d0;
+        a1 += d1;
+        nn += 1;
+        b0 += d0 * w;
+        b1 += d1 * w;
+        bw += w;
+        spread += Math.abs(w);
+        lo = Math.min(lo, values[k + q]);
+        hi = Math.max(hi, values[k + q]);
+      }
+    }
+    this.spread = spread;
+    const m00 = a11 * nn - a1 * a1;
+    const m01 = a01 * nn - a1 * a0;
+    const m02 = a01 * a1 - a11 * a0;
+    const det = (a00 * m00 - a01 * m01) + a0 * m02;
+    if (!(det > PLANE_SINGULAR * ((a00 * a11) * nn))) return mean;
+    const alpha = ((b0 * m00 - a01 * (b1 * nn - a1 * bw)) + a0 * (b1 * a1 - a11 * bw)) / det;
+    const beta = ((a00 * (b1 * nn - a1 * bw) - b0 * m01) + a0 * (a01 * bw - b1 * a0)) / det;
+    const gamma = ((a00 * (a11 * bw - a1 * b1) - a01 * (a01 * bw - b1 * a0)) + b0 * m02) / det;
+    const t0 = values[pu + i0] - v0;
+    const t1 = values[pu + i1] - v1;
+    const span = hi - lo; // the fit kept within the range widened by its span, before rounding (integer bounds)
+    return vq + round(Math.min(Math.max((alpha * t0 + beta * t1) + gamma, lo - span - vq), hi + span - vq));
   }
 
   /** values[at] = pred + SInt(ctx), checked |x| < 2^31; returns it. */

@@ -86,6 +86,16 @@ test('the copies a weld joins carry the same attribute values: a Draco base with
   ]);
 });
 
+test('an attribute\'s prediction is "plane", and with chunk payload version 2 only', async () => {
+  const file = 'uv-torus-plane.welded-draco.packed.v2.pmw';
+  const v1 = 'uv-torus-attributes.welded-draco.v1.pmw';
+  await bothRefuse([
+    ['another prediction', file, (g, p, e) => { e.attributes[0].prediction = 'mean'; }, /prediction must be 'plane'/],
+    ['a prediction that is not a string', file, (g, p, e) => { e.attributes[0].prediction = 1; }, /prediction must be 'plane'/],
+    ['plane with payload version 1', v1, (g, p, e) => { e.attributes[0].prediction = 'plane'; }, /prediction with chunk payload version 1/],
+  ]);
+});
+
 test('the extension\'s fields this decoder does not otherwise read have the form the schema gives them', async () => {
   const v1 = 'sphere.exact-watermark.v1.pmw';
   const arrays = 'sphere.exact-watermark.v2.pmw';

@@ -49,9 +49,9 @@ test('an integer bucket above 32 is a FormatError, for UInt and SInt', () => {
   }
 });
 
-test('a primitive\'s table has the 35104 probabilities of spec §8.3, every one 1024', () => {
-  assert.equal(N_PROBS, 32 + 137 * 256);
+test('a primitive\'s table has the 67872 probabilities of spec §8.3, every one 1024', () => {
+  assert.equal(N_PROBS, 32 + 265 * 256);
   const probs = newProbabilities(N_PROBS);
-  assert.equal(probs.length, 35104);
+  assert.equal(probs.length, 67872);
   assert.ok(probs.every((p) => p === 1024));
 });

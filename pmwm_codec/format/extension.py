@@ -400,4 +400,7 @@ def check_extension(ext) -> dict:
         raise FormatError(f"{EXTENSION_NAME}: {where}: {_schema_message(error)}")
     if version != FORMAT_VERSION:
         raise UnsupportedVersionError(f"{EXTENSION_NAME}: version {version} is not supported (this reader knows {FORMAT_VERSION})")
+    if payload_version(ext) != 2 and any("prediction" in a for a in ext.get("attributes", ())):
+        raise FormatError(f"{EXTENSION_NAME}: an attribute's prediction with chunk payload version {payload_version(ext)} "
+                          "(version 2 only)")
     return ext

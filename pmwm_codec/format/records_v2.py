@@ -9,7 +9,9 @@ symbols, final integer values) with models that need the mesh the chunk applies 
   splits the arc cannot express are coded symbol by symbol (escape);
 * geometry: positions predicted in the ring's frame (ring mean moved to ``v``'s height along the
   ring normal), two non-dominant grid axes against the prediction, the dominant axis against the
-  ring plane; attributes against the floored ring mean as in version 1.
+  ring plane; attributes against the floored ring mean as in version 1, or (``"prediction":
+  "plane"``) against the affine function of the position fitted over the ring
+  (:func:`_plane_prediction`), in contexts of the ring's spread.
 
 So encoding and decoding both walk the batches on a :class:`~pmwm_codec.progressive.vsplit.MeshState`:
 :func:`pack_chunks` takes the base state and every chunk's batches, :func:`decode_chunk` applies
@@ -60,7 +62,14 @@ B_GEOMETRY = 33  # + class * 3 + role, class 0..31, role 0..2
 GEOMETRY_CLASSES = 32
 B_ATTRIBUTE = B_GEOMETRY + 3 * GEOMETRY_CLASSES  # + min(component, 7)
 ATTRIBUTE_CONTEXTS = 8
-INT_BLOCKS = B_ATTRIBUTE + ATTRIBUTE_CONTEXTS
+#: Attributes predicted on the ring's plane (an extension ``attributes`` entry with ``"prediction":
+#: "plane"``, spec §8.4.3): + min(component, 7) * PLANE_CLASSES + the ring's spread class 0 .. 15.
+B_PLANE = B_ATTRIBUTE + ATTRIBUTE_CONTEXTS
+PLANE_CLASSES = 16
+#: Below this fraction of the product of its diagonal, the plane fit's determinant counts as singular
+#: (spec §8.4.3): the ring mean predicts instead.
+PLANE_SINGULAR = 2.0 ** -20
+INT_BLOCKS = B_PLANE + ATTRIBUTE_CONTEXTS * PLANE_CLASSES
 N_PROBS = P_INT + INT_BLOCKS * INT_BLOCK
 
 
@@ -593,9 +602,11 @@ def _ring_stats(lo, hi, a, b, vv, sym, P, S, ring, nrm, i):
 
 
 @kernel_helper
-def _values_kernel(v, P, n0, S, ring, nrm, es, out, ds, buf, probs, decode, rsum, rcount):
+def _values_kernel(v, P, n0, S, ring, nrm, gstart, a, b, sym, plane, es, out, ds, buf, probs, decode, rsum, rcount):
     """Code (from ``P[n0 + i]``) or decode (into it) the values of the new vertices, split by split,
-    given their rings (``S``, ``ring``, ``nrm`` of :func:`_connectivity_kernel`).
+    given their rings (``S``, ``ring``, ``nrm`` of :func:`_connectivity_kernel`; ``gstart``, ``a``, ``b``, ``sym``
+    the incidences it took them from, which the plane prediction walks again).  ``plane`` (D,) int64: 1 for
+    the value columns predicted on the ring's plane (:func:`plane_columns`), else 0.
 
     Also fills ``rsum`` (k, D) float64 / ``rcount`` (k,) int64, each split's ring sum and twice
     its face count (:class:`~pmwm_codec.progressive.vsplit.SplitTopology`'s ``ring_sum`` /
@@ -609,7 +620,8 @@ def _values_kernel(v, P, n0, S, ring, nrm, es, out, ds, buf, probs, decode, rsum
         for q in range(D):
             rsum[i, q] = np.float64(S[i, q])
         rcount[i] = 2 * c
-        status = _split_values(S, i, v[i], n0 + i, P, ring, nrm, es, out, ds, buf, probs, decode)
+        status = _split_values(S, i, v[i], n0 + i, P, ring, nrm, gstart[i], gstart[i + 1], a, b, sym, plane, es, out,
+                               ds, buf, probs, decode)
         if status != 0:
             return status
     return 0
@@ -621,10 +633,58 @@ def _axis(q, x0, x1, x2):
     return x0 if q == 0 else (x1 if q == 1 else x2)
 
 
+@kernel_helper
+def _plane_prediction(lo, hi, a, b, sym, vv, u, P, q, ax0, ax1, mean):
+    """``(prediction, spread)`` of value ``q`` of the new vertex ``u`` of a split of ``vv`` (spec §8.4.3): the
+    affine function of the two non-dominant position axes ``ax0`` / ``ax1`` fitted by least squares to the
+    ring's corners (the faces' other corners, as the ring sums ``S`` count them: incidences ``lo .. hi - 1``),
+    at ``u``'s position, rounded and kept within the range of the corners' and ``vv``'s values widened by its
+    span; ``mean`` (the floored ring mean) when the fit is singular.  ``spread`` = the sum over the corners of ``|value - value of vv|``."""
+    vq, v0, v1 = P[vv, q], P[vv, ax0], P[vv, ax1]
+    a00, a01, a11, a0, a1, nn = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    b0, b1, bw = 0.0, 0.0, 0.0
+    spread, lo_q, hi_q = 0, vq, vq
+    for j in range(lo, hi):
+        s = sym[j]
+        if s == 0:
+            continue
+        for t in range(6):  # a, b; then v, a for a left face (symbol 2 or 4); then v, b for a right face (3 or 4)
+            if (t == 2 or t == 3) and s != 2 and s != 4 or t >= 4 and s != 3 and s != 4:
+                continue
+            k = a[j] if t == 0 or t == 3 else (b[j] if t == 1 or t == 5 else vv)
+            d0, d1 = np.float64(P[k, ax0] - v0), np.float64(P[k, ax1] - v1)
+            wq = P[k, q] - vq
+            w = np.float64(wq)
+            a00 += d0 * d0
+            a01 += d0 * d1
+            a11 += d1 * d1
+            a0 += d0
+            a1 += d1
+            nn += 1.0
+            b0 += d0 * w
+            b1 += d1 * w
+            bw += w
+            spread += abs(wq)
+            lo_q = min(lo_q, P[k, q])
+            hi_q = max(hi_q, P[k, q])
+    m00, m01, m02 = a11 * nn - a1 * a1, a01 * nn - a1 * a0, a01 * a1 - a11 * a0
+    det = (a00 * m00 - a01 * m01) + a0 * m02
+    if not det > PLANE_SINGULAR * ((a00 * a11) * nn):
+        return mean, spread
+    alpha = ((b0 * m00 - a01 * (b1 * nn - a1 * bw)) + a0 * (b1 * a1 - a11 * bw)) / det
+    beta = ((a00 * (b1 * nn - a1 * bw) - b0 * m01) + a0 * (a01 * bw - b1 * a0)) / det
+    gamma = ((a00 * (a11 * bw - a1 * b1) - a01 * (a01 * bw - b1 * a0)) + b0 * m02) / det
+    t0, t1 = np.float64(P[u, ax0] - v0), np.float64(P[u, ax1] - v1)
+    span = hi_q - lo_q  # the fit kept within the range widened by its span, before rounding (integer bounds)
+    fit = min(max((alpha * t0 + beta * t1) + gamma, np.float64(lo_q - span - vq)), np.float64(hi_q + span - vq))
+    return vq + _floor_half(fit), spread
+
+
 @kernel_helper(inline=True)
-def _split_values(S, i, vv, u, P, ring, nrm, es, out, ds, buf, probs, decode):
+def _split_values(S, i, vv, u, P, ring, nrm, lo, hi, a, b, sym, plane, es, out, ds, buf, probs, decode):
     """Split ``i``'s new vertex ``u``: frame prediction from row ``i`` of ``S`` / ``ring`` / ``nrm``,
-    then its D values coded / decoded in order."""
+    then its D values coded / decoded in order (the ``plane`` columns by :func:`_plane_prediction` over the
+    incidences ``lo .. hi - 1``)."""
     D = P.shape[1]
     c, ell = ring[i, 0], ring[i, 1]
     nx, ny, nz = nrm[i, 0], nrm[i, 1], nrm[i, 2]
@@ -646,8 +706,13 @@ def _split_values(S, i, vv, u, P, ring, nrm, es, out, ds, buf, probs, decode):
     for role in range(D):  # the three position roles, then the attributes; one call site of :func:`_value`
         if role >= 3:  # (each inlined call site compiles the range coder's integer once more)
             q = role
-            pred = S[i, q] // (2 * c)
-            ctx = _block(B_ATTRIBUTE + min(q - 3, ATTRIBUTE_CONTEXTS - 1))
+            if plane[q] != 0:
+                pred, spread = _plane_prediction(lo, hi, a, b, sym, vv, u, P, q, ax0, ax1, S[i, q] // (2 * c))
+                ctx = _block(B_PLANE + min(q - 3, ATTRIBUTE_CONTEXTS - 1) * PLANE_CLASSES
+                             + min(rc.bit_length(spread // (2 * c)), PLANE_CLASSES - 1))
+            else:
+                pred = S[i, q] // (2 * c)
+                ctx = _block(B_ATTRIBUTE + min(q - 3, ATTRIBUTE_CONTEXTS - 1))
         else:
             q = ax0 if role == 0 else (ax1 if role == 1 else dom)
             ctx = base + role * INT_BLOCK
@@ -738,15 +803,16 @@ def _grouped_symbols_kernel(inc, symbols):
     return sym
 
 
-def pack_chunks(state, chunks) -> list:
-    """Encode every chunk of one primitive.
+def pack_chunks(state, chunks, plane=None) -> list:
+    """Encode every chunk of one primitive.  ``plane``: the columns predicted on the ring's plane
+    (:func:`plane_columns`), or None.
 
     ``state``: the primitive's :class:`~pmwm_codec.progressive.vsplit.MeshState` at the base
     (int64 values, D columns), advanced through every chunk; ``chunks``: list of lists of
     :class:`SplitBatch`, coarse to fine, or :class:`FaceChunk` (spec §8.6).  Returns one ``bytes``
     payload per chunk.
     """
-    packer = ChunkPacker(state)
+    packer = ChunkPacker(state, plane)
     for batches in chunks:
         if isinstance(batches, FaceChunk):
             packer.face_chunk(batches)
@@ -769,8 +835,9 @@ class ChunkPacker:
     :meth:`face_chunk` codes a face chunk.  ValueError for a batch the format cannot carry (no
     simplifier makes one)."""
 
-    def __init__(self, state):
+    def __init__(self, state, plane=None):
         self.state = state
+        self.plane = plane  # (D,) int64 the columns predicted on the ring's plane (plane_columns), or None
         self.probs = new_model()  # each chunk continues the table the chunk before it left
         self.lists = CornerLists(len(state.positions), len(state.faces))
         self.lists.sync(state)
@@ -844,8 +911,8 @@ class ChunkPacker:
         new_faces = rc._kernel(_batch_kernel)(state.faces.reshape(-1), m, n, state.positions, v, lists.head,
                                               lists.tail, lists.nxt, lists.valence, lists.stamp, lists.tag,
                                               lists.split, lists.created, lists.creator, lists.ctr, inc, a, b, sym,
-                                              gstart, rsum, rcount, _NO_RES if res is None else res, enc.es, enc.out,
-                                              _NO_STATE, _NO_BYTES, enc.probs, 0)
+                                              gstart, rsum, rcount, _NO_RES if res is None else res,
+                                              _columns(self.plane, D), enc.es, enc.out, _NO_STATE, _NO_BYTES, enc.probs, 0)
         if new_faces < 0:
             raise ValueError(f"payload v2: {_BATCH_ERRORS[new_faces]}")
         state.n, state.m = n + k, m + new_faces
@@ -861,6 +928,29 @@ class ChunkPacker:
         return order
 
 
+def plane_columns(attributes) -> np.ndarray | None:
+    """(D,) int64: 1 for each value column of an extension ``attributes`` list (spec README, attributes) whose
+    entry says ``"prediction": "plane"`` (spec §8.4.3), 0 for the positions and the other columns; None when
+    no entry does."""
+    flags = [0, 0, 0]
+    for spec in attributes or ():
+        flags += [1 if spec.get("prediction") == PLANE_PREDICTION else 0] * len(spec["origin"])
+    return np.array(flags, np.int64) if any(flags) else None
+
+
+#: The extension ``attributes`` entry's ``prediction`` value of an attribute predicted on the ring's plane.
+PLANE_PREDICTION = "plane"
+
+
+def _columns(plane, d: int) -> np.ndarray:
+    """``plane`` (D,) int64, or zeros of ``d`` columns when None."""
+    if plane is None:
+        return np.zeros(d, np.int64)
+    if len(plane) != d:
+        raise FormatError(f"payload v2: {len(plane)} prediction flags for {d} value columns")
+    return plane
+
+
 def new_model() -> np.ndarray:
     """The probability table of a primitive's first chunk: (N_PROBS,) int64, every entry 1024.
     Each chunk continues the table the chunk before it (of the same primitive) left."""
@@ -872,8 +962,9 @@ class ChunkDecoder:
     table (:func:`new_model`) and the :class:`CornerLists` of its mesh (made on the first chunk,
     then updated batch by batch).  One per primitive; :func:`decode_chunk` advances it."""
 
-    def __init__(self):
+    def __init__(self, plane=None):
         self.probs = new_model()
+        self.plane = plane  # (D,) int64 the columns predicted on the ring's plane (plane_columns), or None
         self.lists: CornerLists | None = None
         self.mask_out: tuple | None = None  # the last batch's mask outputs (mask_buffers)
         self.mask_spare: tuple | None = None  # the outputs of the batch before it
@@ -942,7 +1033,7 @@ def decode_chunk(payload, state, model: ChunkDecoder, listed: bool = True):
     lists = model.lists_for(state)
     for _ in range(batches):
         try:
-            yield _decode_batch(dec, state, lists, model.mask_buffers(state), listed)
+            yield _decode_batch(dec, state, lists, model.mask_buffers(state), listed, model.plane)
         except FormatError:
             lists.n = -1  # the lists may be half updated: rebuilt if anyone decodes on
             raise
@@ -964,7 +1055,7 @@ def _mask_buffers(m: int, cap: int) -> tuple:
     return (np.empty(cap, np.int64), np.empty(cap + 1, np.int64)) + tuple(np.empty(3 * m, np.int64) for _ in range(3))
 
 
-def _decode_batch(dec, state, lists, buffers, listed):
+def _decode_batch(dec, state, lists, buffers, listed, plane=None):
     """One batch: mask, then connectivity, topology and values in one kernel (:func:`_batch_kernel`).
     ``buffers``: the mask's outputs (:meth:`ChunkDecoder.mask_buffers`).  Returns what
     :func:`decode_chunk` yields (``listed``: whether the batch is listed)."""
@@ -991,7 +1082,8 @@ def _decode_batch(dec, state, lists, buffers, listed):
     new_faces = rc._kernel(_batch_kernel)(flat, m, n, state.positions, v, lists.head, lists.tail, lists.nxt,
                                           lists.valence, lists.stamp, lists.tag, lists.split, lists.created,
                                           lists.creator, lists.ctr, inc, a, b, sym, gstart, rsum, rcount, _NO_RES,
-                                          _NO_STATE, _NO_BYTES, dec.ds, dec.buf, dec.probs, 1)
+                                          _columns(plane, state.positions.shape[1]), _NO_STATE, _NO_BYTES, dec.ds,
+                                          dec.buf, dec.probs, 1)
     if new_faces < 0:
         raise FormatError(_BATCH_ERRORS[new_faces])
     state.n, state.m = n + k, m + new_faces
@@ -1061,7 +1153,7 @@ class DecodedBatch(SplitBatch):
 
 
 def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, split, created, creator, ctr, inc, a, b,
-                  sym, gstart, rsum, rcount, res, es, out, ds, buf, probs, decode):
+                  sym, gstart, rsum, rcount, res, plane, es, out, ds, buf, probs, decode):
     """Code (``decode`` 0) or decode (1) the connectivity and values of one batch whose split
     vertices ``v`` (k,) and incidences are known (:func:`_mask_kernel`), applying it to the face
     slots ``flat`` (3M,) int64, the values ``P`` (N, D) and the corner lists (:class:`CornerLists`
@@ -1072,7 +1164,7 @@ def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, spli
     split vertex (all (I,) int64).  ``sym`` (I,) uint8: the symbols (encode: given, decode:
     filled).  ``res`` (k, D) int64 (encode): the new values' residuals against the version 1
     prediction, written to ``P`` before they are coded; empty (encode): ``P[n0:n0 + k]`` already holds
-    the new values.  Fills ``rsum`` / ``rcount`` (see
+    the new values.  ``plane`` (D,) int64: the columns predicted on the ring's plane.  Fills ``rsum`` / ``rcount`` (see
     :func:`_values_kernel`).  Returns the number of new faces, or a negative code (:data:`_BATCH_ERRORS`).
     """
     k, D = len(v), P.shape[1]
@@ -1096,7 +1188,8 @@ def _batch_kernel(flat, m0, n0, P, v, head, tail, nxt, valence, stamp, tag, spli
                 return -4
             for q in range(D):
                 P[n0 + i, q] = S[i, q] // (2 * ring[i, 0]) + res[i, q]
-    if _values_kernel(v, P, n0, S, ring, nrm, es, out, ds, buf, probs, decode, rsum, rcount) != 0:
+    if _values_kernel(v, P, n0, S, ring, nrm, gstart, a, b, sym, plane, es, out, ds, buf, probs, decode, rsum,
+                      rcount) != 0:
         return -4
     own, near, flags = np.empty((k, 2), np.int64), np.empty(2 * MAX_ARC_FAN, np.int64), np.empty(2 * MAX_ARC_FAN, np.int64)
     _update_valences(n0, v, a, b, sym, gstart, arc, flat, head, nxt, valence, stamp, tag, ctr, rewritten, own, near,

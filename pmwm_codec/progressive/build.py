@@ -92,6 +92,7 @@ def build_progressive(
     late_faces: Optional[np.ndarray] = None,
     late_values: Optional[np.ndarray] = None,
     chunks: Optional[list] = None,
+    plane: Optional[np.ndarray] = None,
 ) -> ProgressiveMesh:
     """Replay ``log`` coarse to fine and emit :class:`SplitBatch` records.
 
@@ -117,6 +118,9 @@ def build_progressive(
         batch; an empty range, last, is the face chunk of the late faces): without ``embed``, the
         replay is the packer's own (:class:`~pmwm_codec.format.records_v2.ChunkPacker`), which codes
         each batch as it applies it (``payloads``); with ``embed`` they are ignored (the caller packs).
+    plane : (D,) int64, optional
+        The packer's value columns predicted on the ring's plane
+        (:func:`~pmwm_codec.format.records_v2.plane_columns`).
     """
     n, m = log.vertex_count, log.face_count
     order0, vid, base_faces, base_face_ids = _base_ids(log, base_vertex_order, base_faces_decoded)
@@ -130,7 +134,7 @@ def build_progressive(
         starts = {grp.start: len(grp) for grp in chunks if len(grp)}
         stops = {grp.stop for grp in chunks if len(grp)}
         state = MeshState(positions[order0], base_faces, n + t, m + n_late)  # room for the face chunk
-        packer = ChunkPacker(state)
+        packer = ChunkPacker(state, plane)
     else:
         state = MeshState(positions[order0], base_faces, n, m)
     face_src = np.full(m, -1, dtype=np.int64)  # decoded face id -> input face id

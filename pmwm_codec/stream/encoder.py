@@ -45,7 +45,7 @@ from ..format.gltf import owner_placements, scene_mesh
 from ..format.gltf import COMPONENT_DTYPES, FLOAT
 from ..format.extension import DEFAULT_PAYLOAD_VERSION, PAYLOAD_CODEC, PAYLOAD_VERSIONS
 from ..format.records import pack_batches
-from ..format.records_v2 import FaceChunk, pack_chunks
+from ..format.records_v2 import PLANE_PREDICTION, FaceChunk, pack_chunks, plane_columns
 from ..mesh import Mesh, bounds, vertex_components
 from ..progressive.build import ProgressiveMesh, build_progressive
 from ..progressive.grid import SRGB8, AttributeGrid, Grid, float32_spacing
@@ -1171,14 +1171,23 @@ def _build_records(work, say, payload_version: int = DEFAULT_PAYLOAD_VERSION) ->
     out = []
     say("records", 0.0)
     for p, w in enumerate(work):
+        if payload_version == 2:
+            w = dataclasses.replace(w, attribute_grids=[_with_prediction(spec) for spec in w.attribute_grids])
         pm = build_progressive(
             w.log, w.values, w.grid, base_vertex_order=w.base_order,
             base_faces_decoded=w.base.faces, embed=w.embedder, late_faces=w.late, late_values=w.late_values,
-            chunks=w.groups if payload_version == 2 else None,
+            chunks=w.groups if payload_version == 2 else None, plane=plane_columns(w.attribute_grids),
         )
         out.append(dataclasses.replace(w, pm=pm))
         say("records", (p + 1) / len(work))
     return out
+
+
+def _with_prediction(spec: dict) -> dict:
+    """An extension ``attributes`` entry of payload version 2 with its prediction: on the ring's plane (spec
+    bitstream.md §8.4.3) for an attribute of float values (texture coordinates, colours, normals), which vary
+    smoothly over the surface; the ring mean for an integer attribute (joints, feature ids)."""
+    return spec if "componentType" in spec else {**spec, "prediction": PLANE_PREDICTION}
 
 
 def _primitives(doc, kept_bin, work, order, params, key, payload_version: int = DEFAULT_PAYLOAD_VERSION) -> tuple:
@@ -1188,7 +1197,8 @@ def _primitives(doc, kept_bin, work, order, params, key, payload_version: int = 
         chunks = [[w.pm.batches[j] for j in grp] if len(grp) else FaceChunk(w.pm.late_faces, w.pm.late_values)
                   for grp in w.groups]
         if payload_version == 2:
-            payloads = w.pm.payloads if w.pm.payloads is not None else pack_chunks(w.pm.new_state(), chunks)
+            payloads = (w.pm.payloads if w.pm.payloads is not None
+                        else pack_chunks(w.pm.new_state(), chunks, plane_columns(w.attribute_grids)))
         else:
             payloads = [pack_batches(batches) for batches in chunks]
         extension = {

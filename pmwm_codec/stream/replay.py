@@ -40,7 +40,7 @@ from ..errors import ChecksumError, FormatError, MeshError, TruncatedError
 from ..format import BaseEvent, ChunkEvent, HeaderEvent
 from ..format.extension import is_face_chunk, payload_version
 from ..format.records import unpack_batches
-from ..format.records_v2 import ChunkDecoder, decode_chunk, decode_face_chunk
+from ..format.records_v2 import ChunkDecoder, decode_chunk, decode_face_chunk, plane_columns
 from ..progressive.grid import Grid
 from ..progressive.seams import twin_rows
 from ..progressive.topology import mean_edge_length
@@ -196,7 +196,7 @@ class Replay:
             self.states.append(MeshState(base, event.faces, n, m, dtype=np.float64, grow=True))
             shadow = decoded
         self.shadows.append(shadow)
-        self.models.append(ChunkDecoder() if payload_version(ext) == 2 else None)
+        self.models.append(ChunkDecoder(plane_columns(ext.get("attributes"))) if payload_version(ext) == 2 else None)
         self.base_faces.append(np.asarray(event.faces, np.int64))
         if self._nbar_override is not None:
             self.nbars.append(float(self._nbar_override[p]))
