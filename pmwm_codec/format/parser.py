@@ -470,8 +470,8 @@ class ContainerParser:
                 return None
             events = []
             for p, (prim, ext) in enumerate(zip(self._plan.primitives, self._plan.extensions)):
-                positions, faces = _base.decode_base(self._gltf, data, Grid.from_config(ext["grid"]), prim)
-                attributes = _base.decode_base_attributes(self._gltf, data, prim, ext.get("attributes", ()))
+                positions, faces, attributes = _base.read_base(self._gltf, data, Grid.from_config(ext["grid"]), prim,
+                                                               ext.get("attributes", ()))
                 _check_base_digest(ext, positions, faces, attributes, p, len(self._plan.extensions))
                 events.append(BaseEvent(positions, faces, self._bin_data + self._plan.base_end, p, attributes))
             self._state = _CHUNKS if self._plan.chunk_ranges else _TAIL
