@@ -162,7 +162,10 @@ test('an attribute added to a progressive base (the stream has no value of it fo
 // bowtie.welded-draco: a Draco base stored with copies of its non-manifold vertices; written plain, the
 // copies stay and readers still weld them (spec/README.md "Welded base"); kissing.welded-draco: its weld
 // attribute (_PMWM_WELD) is written plain too, and still keeps the distinct vertices on one point apart
-for (const file of ['two-primitives.draco.v1.pmw', 'bowtie.welded-draco.packed.v2.pmw', 'kissing.welded-draco.packed.v2.pmw']) test(`${file}: re-encoding the Draco base is refused, a plain base keeps the stream`, async () => {
+// uv-torus-*.welded-draco: a Draco base carrying attributes (TEXCOORD_0, COLOR_0, _FEATURE_ID_0) and its weld
+// attribute, written plain: a welded plain base with attributes (the second with plane prediction, §8.4.3)
+for (const file of ['two-primitives.draco.v1.pmw', 'bowtie.welded-draco.packed.v2.pmw', 'kissing.welded-draco.packed.v2.pmw',
+  'uv-torus-attributes.welded-draco.packed.v2.pmw', 'uv-torus-plane.welded-draco.packed.v2.pmw']) test(`${file}: re-encoding the Draco base is refused, a plain base keeps the stream`, async () => {
   const original = load(file);
   const io = new NodeIO().registerExtensions([PMWMProgressiveMesh, KHRDracoMeshCompression])
     .registerDependencies({
@@ -187,7 +190,7 @@ const gltfTransform = (...args) => spawnSync(CLI, [...args, '--config', CONFIG],
 
 // payload version 2 files too (chunks stored raw, spec/bitstream.md §8; chunk tables packed and in arrays, §6.2)
 const COPIED = ['sphere-attributes.plain.v1.pmw', 'two-primitives.draco.v1.pmw', 'bowtie.welded-draco.packed.v2.pmw',
-  'kissing.welded-draco.packed.v2.pmw',
+  'kissing.welded-draco.packed.v2.pmw', 'uv-torus-plane.welded-draco.packed.v2.pmw',
   ...conformanceFiles(2).filter((f) => f.startsWith('two-primitives'))];
 const copies = mkdtempSync(join(tmpdir(), 'pmw-gltf-transform-cli-'));
 after(() => rmSync(copies, { recursive: true, force: true }));
