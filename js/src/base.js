@@ -111,6 +111,14 @@ export async function decodeBase(bin, prim, draco) {
     if (!positions || !indices || !Array.isArray(attributes) || attributes.length !== asked) {
       throw new DracoError(`the Draco decoder gave no {positions, indices, attributes: [${asked} arrays]}`);
     }
+    // a decoder that says what type each attribute's data has (draco-node.js does): the one its accessor names
+    base.draco.dataTypes.slice(1).forEach((type, j) => {
+      const got = attributes[j]?.dataType;
+      if (got !== undefined && got !== type) {
+        const name = j < base.grids.length ? base.grids[j].semantic : WELD_ATTRIBUTE;
+        throw new FormatError(`base mesh: the Draco ${name} holds data of componentType ${got}, its accessor says ${type}`);
+      }
+    });
     if (base.draco.weldId != null) {
       const a = attributes[attributes.length - 1];
       ordinals = a?.values ?? a;

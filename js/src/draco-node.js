@@ -4,7 +4,7 @@
  * worker in a browser): see `DracoDecoder` in decoder.js.
  */
 import { createRequire } from 'node:module';
-import { DracoError } from './errors.js';
+import { DracoError, FormatError } from './errors.js';
 
 /**
  * draco3d's decoder module factory, required alone: `import draco3d from 'draco3d'` loads the package's
@@ -15,17 +15,32 @@ const createDecoderModule = createRequire(import.meta.url)('draco3d/draco_decode
 
 let modulePromise = null;
 
+/** Draco's integer data types: the DT_ constant's name, the heap view that reads it, its glTF componentType. */
+const INTEGER_TYPES = [['DT_INT8', 'HEAP8', 5120], ['DT_UINT8', 'HEAPU8', 5121], ['DT_INT16', 'HEAP16', 5122],
+  ['DT_UINT16', 'HEAPU16', 5123], ['DT_INT32', 'HEAP32', null], ['DT_UINT32', 'HEAPU32', 5125]];
+
+/**
+ * One attribute's values for all points: an integer attribute as its integers (read in its own type, never
+ * normalized, as DracoPy reads them), anything else converted to float32; `dataType` the glTF componentType its
+ * data has (5126 for float32), or null for another type (which no base accessor names).
+ */
 function copyAttribute(m, decoder, mesh, id, what) {
   const attr = decoder.GetAttributeByUniqueId(mesh, id);
   if (!attr || attr.ptr === 0) throw new DracoError(`Draco base mesh has no attribute with unique id ${id} (${what})`);
   const k = attr.num_components();
   const count = mesh.num_points() * k;
-  const ptr = m._malloc(count * 4);
+  const type = attr.data_type();
+  const integer = INTEGER_TYPES.find(([dt]) => m[dt] === type);
+  const heap = integer ? m[integer[1]] : m.HEAPF32;
+  const bytes = count * heap.BYTES_PER_ELEMENT;
+  const ptr = m._malloc(bytes);
   try {
-    if (!decoder.GetAttributeDataArrayForAllPoints(mesh, attr, m.DT_FLOAT32, count * 4, ptr)) {
-      throw new DracoError(`Draco attribute ${id} (${what}) does not convert to float`);
+    if (!decoder.GetAttributeDataArrayForAllPoints(mesh, attr, integer ? type : m.DT_FLOAT32, bytes, ptr)) {
+      throw new DracoError(`Draco attribute ${id} (${what}) does not convert to its values`);
     }
-    return { values: new Float32Array(m.HEAPF32.buffer, ptr, count).slice(), components: k };
+    const view = new heap.constructor(heap.buffer, ptr, count);
+    return { values: integer ? Float64Array.from(view) : view.slice(), components: k,
+      dataType: integer ? integer[2] : type === m.DT_FLOAT32 ? 5126 : null };
   } finally {
     m._free(ptr);
   }
@@ -56,6 +71,7 @@ export function createNodeDracoDecoder() {
         }
         const position = copyAttribute(m, decoder, mesh, positionId, 'POSITION');
         if (position.components !== 3) throw new DracoError('Draco POSITION does not have 3 components');
+        if (position.dataType !== 5126) throw new FormatError('base mesh: the Draco POSITION is not a float attribute');
         const attributes = attributeIds.map((id) => copyAttribute(m, decoder, mesh, id, `attribute ${id}`));
         return { positions: position.values, attributes, indices };
       } catch (e) {

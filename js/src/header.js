@@ -419,6 +419,19 @@ const READERS = { 5120: ['getInt8', 1], 5121: ['getUint8', 1], 5122: ['getInt16'
 const storedIntegerSize = (type) => (Number.isInteger(type) && type !== 5125 && type !== FLOAT
   ? READERS[type]?.[1] : undefined);
 
+/** The componentTypes (with their sizes) a base may store the progressive attribute `a` with: FLOAT, or the integer
+ * componentType the attribute names (spec/README.md, attributes: JOINTS_n). */
+function attributeTypesOf(a) {
+  const named = storedIntegerSize(a.componentType);
+  return named ? { [FLOAT]: 4, [a.componentType]: named } : { [FLOAT]: 4 };
+}
+
+/** A base attribute's accessor must not be normalized (an integer attribute's values are the integers themselves;
+ * glTF allows no normalized FLOAT), as the reference reader requires. */
+function checkAttributeNormalized(acc, where) {
+  if (acc.normalized === true) throw new FormatError(`${where}: a base attribute must not be normalized`);
+}
+
 /** The base mesh plan of one primitive: Draco bufferView or plain accessors, and its attribute grids. */
 function basePlan(gltf, prim, ext, bufferLength, what) {
   const attributes = given(ext.attributes, []);
@@ -453,24 +466,30 @@ function basePlan(gltf, prim, ext, bufferLength, what) {
     const corners = baseAccessor(gltf, prim.indices, `${what} indices`, INDICES).acc.count;
     if (corners % 3 !== 0) throw new FormatError(`${what}: index count ${corners} is not a multiple of 3`);
     if (welds) checkWeldCount(baseAccessor(gltf, prim.attributes[WELD_ATTRIBUTE], weldWhat, WELD).acc.count, vertices);
+    const attributeTypes = grids.map((g, i) => { // the accessors of the Draco attributes, as a plain base's
+      const where = `${what} ${g.semantic}`;
+      const { acc } = baseAccessor(gltf, prim.attributes[g.semantic], where,
+        { types: attributeTypesOf(attributes[i]), components: g.origin.length, max: MAX_VERTICES });
+      checkAttributeNormalized(acc, where);
+      if (acc.count !== vertices) throw new FormatError(`${where}: ${acc.count} values for ${vertices} stored vertices`);
+      return acc.componentType;
+    });
+    const weldType = welds ? gltf.accessors[prim.attributes[WELD_ATTRIBUTE]].componentType : null;
     const attributeIds = ids.slice(1, 1 + grids.length);
+    // the data type each Draco attribute must have: the one its accessor names (spec/README.md "Base mesh")
+    const dataTypes = [FLOAT, ...attributeTypes, ...(welds ? [weldType] : [])];
     return { draco: { view, positionId: ids[0], attributeIds, weldId: welds ? ids[ids.length - 1] : null, vertices,
-      faces: corners / 3 }, grids, views: [view] };
+      faces: corners / 3, dataTypes }, grids, views: [view] };
   }
   const position = accessorPlan(gltf, prim.attributes.POSITION, bufferLength, `${what} POSITION`, POSITION);
   const indices = accessorPlan(gltf, prim.indices, bufferLength, `${what} indices`, INDICES);
   const weld = welds ? accessorPlan(gltf, prim.attributes[WELD_ATTRIBUTE], bufferLength, weldWhat, WELD) : null;
   if (weld) checkWeldCount(weld.count, position.count);
   const attrs = grids.map((g, i) => {
-    // FLOAT, or the integer componentType the attribute names (spec/README.md, attributes: JOINTS_n)
-    const named = storedIntegerSize(attributes[i].componentType);
-    const types = named ? { [FLOAT]: 4, [attributes[i].componentType]: named } : { [FLOAT]: 4 };
     const where = `${what} ${g.semantic}`;
     const plan = accessorPlan(gltf, prim.attributes[g.semantic], bufferLength, where,
-      { types, components: g.origin.length, max: MAX_VERTICES });
-    if (plan.componentType !== FLOAT && gltf.accessors[prim.attributes[g.semantic]].normalized === true) {
-      throw new FormatError(`${where}: an integer base attribute must not be normalized`);
-    }
+      { types: attributeTypesOf(attributes[i]), components: g.origin.length, max: MAX_VERTICES });
+    checkAttributeNormalized(gltf.accessors[prim.attributes[g.semantic]], where);
     return plan;
   });
   const views = [position, indices, ...attrs, ...(weld ? [weld] : [])].map((a) => a.view);

@@ -86,6 +86,21 @@ test('the copies a weld joins carry the same attribute values: a Draco base with
   ]);
 });
 
+test('a Draco base\'s attribute accessors are checked as a plain base\'s, and name the type of the Draco data', async () => {
+  const file = 'uv-torus-attributes.welded-draco.packed.v2.pmw';
+  const acc = (g, p, semantic) => g.accessors[p.attributes[semantic]];
+  await bothRefuse([
+    ['TEXCOORD_0 VEC3', file, (g, p) => { acc(g, p, 'TEXCOORD_0').type = 'VEC3'; }, /TEXCOORD_0: accessor \d+ has the wrong type/],
+    ['TEXCOORD_0 one value more', file, (g, p) => { acc(g, p, 'TEXCOORD_0').count += 1; }, /TEXCOORD_0: \d+ values for \d+ stored vertices/],
+    ['TEXCOORD_0 normalized', file, (g, p) => { acc(g, p, 'TEXCOORD_0').normalized = true; }, /must not be normalized/],
+    // FLOAT is a type a plain base may store it with; the Draco data holds unsigned shorts
+    ['_FEATURE_ID_0 FLOAT over unsigned shorts', file, (g, p) => { acc(g, p, '_FEATURE_ID_0').componentType = 5126; },
+      /the Draco _FEATURE_ID_0 holds data of componentType 5123, its accessor says 5126/],
+    ['_PMWM_WELD UNSIGNED_SHORT over bytes', file, (g, p) => { acc(g, p, '_PMWM_WELD').componentType = 5123; },
+      /the Draco _PMWM_WELD holds data of componentType 5121, its accessor says 5123/],
+  ]);
+});
+
 test('an attribute\'s prediction is "plane", and with chunk payload version 2 only', async () => {
   const file = 'uv-torus-plane.welded-draco.packed.v2.pmw';
   const v1 = 'uv-torus-attributes.welded-draco.v1.pmw';

@@ -606,7 +606,8 @@ def read_base(gltf: dict, bin_data, grid: Grid | dict, primitive: dict | None = 
     semantics = [spec["semantic"] for spec in attributes]
     if draco is not None:
         names = ["POSITION"] + semantics + ([WELD_ATTRIBUTE] if weld_acc is not None else [])
-        stored, faces = _decode_draco(gltf, draco, bin_data, n, m, names, [3] + [g.width for g in grids] + [1])
+        types = [FLOAT] + [acc["componentType"] for acc in accs] + ([weld_acc["componentType"]] if weld_acc else [])
+        stored, faces = _decode_draco(gltf, draco, bin_data, n, m, names, [3] + [g.width for g in grids] + [1], types)
     else:
         stored = {"POSITION": accessor_array(gltf, pos_acc, bin_data, "<f4", n, 3, "base mesh: POSITION")}
         faces = accessor_array(gltf, idx_acc, bin_data, INDEX_DTYPES[ctype], m, 3, "base mesh: indices",
@@ -694,10 +695,16 @@ def base_vertex_count(gltf: dict, primitive: dict) -> int:
     return n if welded is None else welded
 
 
-def _decode_draco(gltf, draco, bin_data, n, m, names, widths) -> tuple:
+#: glTF componentType -> the Draco DataType of data of that type (spec README, *Base mesh*: a Draco attribute's data
+#: has the type its accessor names; readers convert nothing, so a normalized Draco attribute reads as its integers).
+_DRACO_DATA_TYPES = {5120: 1, 5121: 2, 5122: 3, 5123: 4, 5125: 6, FLOAT: 9}
+
+
+def _decode_draco(gltf, draco, bin_data, n, m, names, widths, types) -> tuple:
     """``({name: (n, k) array}, faces (m, 3) int64)`` of a Draco base: the Draco attribute of each of ``names``
     (``POSITION``, progressive attributes, :data:`WELD_ATTRIBUTE`) by its unique id in
-    ``KHR_draco_mesh_compression.attributes``, checked to have ``n`` values of ``widths`` components."""
+    ``KHR_draco_mesh_compression.attributes``, checked to have ``n`` values of ``widths`` components, of the data
+    type its accessor's componentType (``types``) names."""
     import DracoPy
 
     _, raw = view_bytes(gltf, [bin_data], draco.get("bufferView"), "base mesh: Draco")
@@ -714,17 +721,18 @@ def _decode_draco(gltf, draco, bin_data, n, m, names, widths) -> tuple:
         raise FormatError(f"base mesh: Draco data does not decode ({exc})") from None
     faces = np.asarray(mesh.faces, dtype=np.int64)
     out = {}
-    for name, width in zip(names, widths):
+    for name, width, ctype in zip(names, widths, types):
         if found[name] is None:
             raise FormatError(f"base mesh: Draco data has no attribute with unique id {ids[name]!r} ({name})")
+        if found[name].get("data_type") != _DRACO_DATA_TYPES.get(ctype):
+            kind = next((t for t, d in _DRACO_DATA_TYPES.items() if d == found[name].get("data_type")), None)
+            raise FormatError(f"base mesh: the Draco {name} holds data of componentType {kind}, its accessor says {ctype}")
         values = np.asarray(found[name]["data"])
         if values.size != n * width:
             raise FormatError(f"base mesh: Draco decoded {values.size // width} {name} values, accessors declare {n}")
         out[name] = values.reshape(n, width)
     if faces.size != 3 * m:
         raise FormatError(f"base mesh: Draco decoded {faces.size // 3} faces, accessors declare {m}")
-    if not np.issubdtype(out["POSITION"].dtype, np.floating):
-        raise FormatError("base mesh: the Draco POSITION is not a float attribute")
     out["POSITION"] = out["POSITION"].astype(np.float32)
     return out, faces.reshape(-1, 3)
 
