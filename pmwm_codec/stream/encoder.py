@@ -67,7 +67,6 @@ from .chunking import (
 )
 
 
-
 @dataclass
 class EncodeReport:
     """What an encode did; :meth:`as_json` gives the ``pmw encode --json`` object.
