@@ -159,3 +159,49 @@ def test_texture_coordinates_draco_cannot_quantize_exactly_ride_as_generic_float
 
     stored = DracoPy.decode(enc.data[: enc.buffer_views[0]["byteLength"]])
     assert 3 not in {a["attribute_type"] for a in stored.attributes}  # no Draco texture coordinate: a generic one
+
+
+# A triangle a tenth of a millimetre across with texture coordinates: Draco's encoder refuses its texture
+# coordinate at compression level 7 with our grid's range ("Failed to encode point attributes"), and says
+# so on the process's file descriptor 2; the encoder falls back to a generic attribute.
+_REFUSED_TRIANGLE_OBJ = """v 2.4e-05 -5e-07 -1.284e-04
+v -3.5e-06 -1.74e-05 -1.311e-04
+v -3.5e-06 -6e-07 -1.306e-04
+vt 0.89 0.98
+vt 0.92 0.99
+vt 0.91 0.98
+f 1/1 2/2 3/3
+"""
+
+
+def _run(tmp_path, code: str):
+    import subprocess
+    import sys
+
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+
+
+def test_draco_refusing_a_base_leaves_no_message_on_the_users_terminal(tmp_path):
+    (tmp_path / "tri.obj").write_text(_REFUSED_TRIANGLE_OBJ)
+    done = _run(tmp_path, "import sys; from pmwm_codec.cli import main; sys.exit(main(['encode', 'tri.obj', '-o', 'tri.pmw']))")
+    assert done.returncode == 0, done.stderr
+    assert "Draco" not in done.stderr, done.stderr
+    back = _run(tmp_path, "import sys; from pmwm_codec.cli import main; sys.exit(main(['decode', 'tri.pmw', '-o', 'back.obj']))")
+    assert back.returncode == 0 and "Draco" not in back.stderr, back.stderr
+    lines = (tmp_path / "back.obj").read_text().splitlines()
+    uv = sorted(tuple(float(x) for x in line.split()[1:3]) for line in lines if line.startswith("vt "))
+    assert np.allclose(uv, [(0.89, 0.98), (0.91, 0.98), (0.92, 0.99)], atol=1e-4)  # the texture coordinates kept
+
+
+def test_draco_messages_are_caught_and_other_output_on_stderr_is_passed_on(tmp_path):
+    done = _run(tmp_path, "\n".join([
+        "import os",
+        "from pmwm_codec.format.base import _draco_messages",
+        "with _draco_messages() as said:",
+        "    os.write(2, b'Draco encoding error: Failed to encode point attributes.\\n')",
+        "    os.write(2, b'another thread wrote this\\n')",
+        "print(said)",
+    ]))
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "['Draco encoding error: Failed to encode point attributes.']"
+    assert done.stderr == "another thread wrote this\n"

@@ -41,7 +41,11 @@ allocates anything; :func:`read_base` with the attributes.
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
+import sys
+import tempfile
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -256,6 +260,45 @@ def _encode_plain(pos: np.ndarray, tri: np.ndarray, grid: Grid) -> EncodedBase:
     )
 
 
+@contextlib.contextmanager
+def _draco_messages():
+    """Keep Draco's own messages off the process's standard error while the block runs; yields a list that
+    receives them (lines of text, after the block).
+
+    Draco's C++ encoder refuses some inputs at some settings (seen: the texture coordinates of parts a tenth
+    of a millimetre across, given our grid's quantization range, at compression level 7 and above: "Draco
+    encoding error: Failed to encode point attributes.") and writes that to file descriptor 2 beside the
+    exception DracoPy raises.  The encoder
+    tries Draco and falls back (:func:`encode_base`), so a refusal is an expected outcome, not the user's
+    concern: the lines become part of the fallback's reason.  Lines that are not Draco's (another thread's)
+    are written back to standard error after the block.  Without a file descriptor 2, nothing is captured.
+    """
+    said: list = []
+    try:
+        saved = os.dup(2)
+    except OSError:
+        yield said
+        return
+    with contextlib.suppress(Exception):
+        sys.stderr.flush()
+    try:
+        with tempfile.TemporaryFile() as capture:
+            os.dup2(capture.fileno(), 2)
+            try:
+                yield said
+            finally:
+                os.dup2(saved, 2)
+                capture.seek(0)
+                others = []
+                for line in capture.read().decode("utf-8", "replace").splitlines():
+                    (said if line.startswith("Draco") else others).append(line.strip())
+                if others:
+                    with contextlib.suppress(OSError):
+                        os.write(2, ("\n".join(others) + "\n").encode())
+    finally:
+        os.close(saved)
+
+
 def _position_accessor(stored: np.ndarray, **extra) -> dict:
     """POSITION accessor with exact float32 min/max (the validator compares them as float32),
     each written as the shortest decimal of its float32.  ``stored`` (n, 3) float32."""
@@ -296,16 +339,18 @@ def _try_draco(pos, tri, grid, preserve_order, level, attributes=(), texture=Fal
     # Draco quantizes q = floor((p - origin) * (2**bits - 1) / range + 0.5) and
     # dequantizes origin + q * range / (2**bits - 1): with the grid's own origin
     # and range = step * (2**bits - 1) its integers are our grid integers.
+    said: list = []
     try:
-        encoded = DracoPy.encode(
-            stored, tri.astype(np.uint32), quantization_bits=bits, compression_level=level,
-            quantization_range=float(grid.step * ((1 << bits) - 1)),
-            quantization_origin=list(grid.origin), preserve_order=preserve_order,
-            generic_attributes=generic or None, **extra,
-        )
+        with _draco_messages() as said:
+            encoded = DracoPy.encode(
+                stored, tri.astype(np.uint32), quantization_bits=bits, compression_level=level,
+                quantization_range=float(grid.step * ((1 << bits) - 1)),
+                quantization_origin=list(grid.origin), preserve_order=preserve_order,
+                generic_attributes=generic or None, **extra,
+            )
         decoded = DracoPy.decode(encoded)
     except Exception as exc:  # DracoPy raises its own exception types
-        return f"DracoPy failed ({exc})"
+        return f"DracoPy failed ({exc}{': ' + said[0] if said else ''})"
     types = {}  # Draco attribute type -> the unique ids of that type
     for a in decoded.attributes:
         types.setdefault(a["attribute_type"], []).append(int(a["unique_id"]))
