@@ -472,14 +472,15 @@ class Probe:
 
 
 def read_obj(path: str):
-    """Positions and triangles of an OBJ that ``pmw decode`` wrote (``v x y z`` and ``f a b c`` lines)."""
+    """Positions and triangles of an OBJ that ``pmw decode`` wrote (``v x y z`` and ``f a b c`` lines; a corner
+    ``a/t`` or ``a/t/n`` of a textured or shaded mesh counts by its position ``a``)."""
     v, f = [], []
     with open(path) as fh:
         for line in fh:
             if line.startswith("v "):
                 v.append(line[2:])
             elif line.startswith("f "):
-                f.append(line[2:])
+                f.append(" ".join(corner.split("/", 1)[0] for corner in line[2:].split()))
     positions = np.loadtxt(v, ndmin=2) if v else np.zeros((0, 3))
     faces = (np.loadtxt(f, dtype=np.int64, ndmin=2) - 1) if f else np.zeros((0, 3), np.int64)
     return positions, faces
