@@ -32,8 +32,8 @@ What each check proves (a finding names the one that failed):
   (``roundtrip-faces``).
 * Round trip of a glTF / GLB input (:meth:`Probe.compare_asset` says what each proves): every
   primitive still there in its mode, one passed through (skinned, morph, not triangles) with its
-  input positions bit for bit and its morph targets, a progressive one with every attribute name
-  (``primitive-lost``, ``passthrough-differs``, ``attributes-lost``); the progressive primitives hold
+  input positions bit for bit and its morph targets, a progressive one with every attribute name but
+  flat normals the encoder says it dropped (``primitive-lost``, ``passthrough-differs``, ``attributes-lost``); the progressive primitives hold
   the counts the encoder reported (``count-mismatch``); the scene as the decoded OBJ shows it has
   the counts of ``read_mesh`` of the input (``roundtrip-counts``) and its positions within a bound
   derived from each primitive's grid step and its nodes' transforms (``roundtrip-positions``).
@@ -63,6 +63,7 @@ import argparse
 import collections
 import json
 import os
+import re
 import resource
 import shutil
 import signal
@@ -143,6 +144,9 @@ class Probe:
         if rep.get("vsplits", 0) == 0 and not rep.get("notices"):
             self.finding("no-splits-silent", "encode made no vertex split and said nothing")
         asset = self.path.lower().endswith(ASSETS)
+        # an OBJ / PLY / OFF with texture coordinates, colours or materials is encoded as the glTF document it
+        # describes: its glTF vertices (seam copies) are what the encoder counts, its OBJ holds the positions
+        appearance = not asset and carries_appearance(self.path)
         rc, dec, _ = self.pmw("decode", "decode", base + ".pmw", "-o", base + ".obj", "--json")
         rc_info, info, _ = self.pmw("info", "info", base + ".pmw", "--json")
         rc_glb = self.pmw("decode-glb", "decode", base + ".pmw", "-o", base + ".glb", "--json")[0] if asset else 0
@@ -153,13 +157,15 @@ class Probe:
         try:
             if asset:
                 self.compare_asset(positions, faces, rep, base, (dec or {}).get("notices") or [])
+            elif appearance:
+                self.compare_points(pmwm_codec.read_mesh(self.path), positions, faces, info["grid"])
             else:
                 self.compare(pmwm_codec.read_mesh(self.path), positions, faces, info["grid"], rep)
         except Exception:  # noqa: BLE001 -- a probe bug is reported, not fatal
             self.finding("probe-error", traceback.format_exc()[-400:])
         if asset:
             self.validated(base)
-        self.cut(base, int(rep["chunks"]) // 2, asset)
+        self.cut(base, int(rep["chunks"]) // 2, asset or appearance)
         with open(base + ".pmw", "rb") as f:
             data = f.read()
         # an asset's OBJ also holds the primitives passed through, which no level carries: its last level decides
@@ -220,6 +226,28 @@ class Probe:
             else:
                 self.finding("roundtrip-faces", f"{len(missing)} input faces missing, {len(extra)} extra "
                              f"(as position triples; {len(fi)} vs {len(fd)} rows)")
+
+    def compare_points(self, inp, dec_pos, dec_faces, grid) -> None:
+        """The round trip of a mesh encoded with its appearance, on the grid: the decoded OBJ's positions
+        are the input's grid points, each once (``roundtrip-counts``, ``roundtrip-positions``), and its faces
+        the input's, as sets of grid points (``roundtrip-faces``).  Vertices of the input on one grid point
+        are one vertex of the OBJ (its texture coordinates and colours ride beside), so counts compare
+        distinct grid points."""
+        origin, step = np.asarray(grid["origin"], np.float64), float(grid["step"])
+        qi = np.rint((inp.positions - origin) / step).astype(np.int64)
+        qd = np.rint((dec_pos - origin) / step).astype(np.int64)
+        used = np.unique(qi[np.unique(inp.faces)], axis=0) if len(inp.faces) else np.zeros((0, 3), np.int64)
+        self.res["input_vertices"], self.res["input_faces"] = inp.vertex_count, inp.face_count
+        if len(qd) != len(np.unique(qd, axis=0)) or len(qd) != len(used) or len(dec_faces) != inp.face_count:
+            self.finding("roundtrip-counts", f"input {len(used)} grid points / {inp.face_count} f, decoded "
+                         f"{len(qd)} v ({len(np.unique(qd, axis=0))} points) / {len(dec_faces)} f")
+        elif not np.array_equal(np.unique(qd, axis=0), used):
+            self.finding("roundtrip-positions", "the decoded positions are not the input's grid points")
+        ti = {tuple(sorted(map(tuple, qi[f].tolist()))) for f in inp.faces}
+        td = {tuple(sorted(map(tuple, qd[f].tolist()))) for f in dec_faces}
+        if ti != td:
+            self.finding("roundtrip-faces", f"{len(ti - td)} input faces missing, {len(td - ti)} extra (as sets "
+                         "of grid points)")
 
     def cut(self, base: str, k: int, asset: bool = False) -> None:
         """``pmw cut --chunks k`` then ``pmw decode`` equals the library's ``decode(chunks=k)`` (an asset's:
@@ -332,6 +360,10 @@ class Probe:
                 if drawn != b.get("mode", 4):  # a progressive strip or fan is the list of triangles it draws
                     self.finding("primitive-lost", f"{where}: mode {a.get('mode', 4)} decoded as {b.get('mode', 4)}")
                 lost = set(a.get("attributes", {})) - set(b.get("attributes", {}))
+                # flat normals are dropped on purpose, with a notice naming the primitive (viewers compute them)
+                named = re.compile(rf"mesh {mi}( \(.*?\))? primitive {pi}\b")
+                said = [n for n in report.get("notices") or [] if "NORMAL dropped" in n and named.search(n)]
+                lost -= {"NORMAL"} if said else set()
                 if lost:
                     self.finding("attributes-lost", f"{where}: {sorted(lost)} missing in the decoded GLB")
                 if (mi, pi) in found:
@@ -374,14 +406,19 @@ class Probe:
         self.res["input_vertices"], self.res["input_faces"] = inp.vertex_count, inp.face_count
         a, b, c = dec_faces.T
         keep = (a != b) & (b != c) & (a != c)
+        # the OBJ writes a position once, its texture coordinates and normals beside (``f a/t/n``): what a
+        # round trip keeps is the distinct positions the faces use
         used = np.unique(dec_faces[keep])
+        used_positions = len(np.unique(dec_pos[used], axis=0))
+        ia, ib, ic = inp.faces.T
+        input_used = len(np.unique(inp.positions[np.unique(inp.faces[(ia != ib) & (ib != ic) & (ia != ic)])], axis=0))
         welded = any("duplicate vertices (same position and attributes) welded" in n
                      for n in report.get("notices") or [])
-        counts = (len(used), int(keep.sum()))
-        if (counts != (inp.vertex_count, inp.face_count) if not welded
-                else counts[0] > inp.vertex_count or counts[1] > inp.face_count):
-            self.finding("roundtrip-counts", f"input scene {inp.vertex_count} v / {inp.face_count} f, decoded OBJ "
-                         f"{counts[0]} v / {counts[1]} f (used, not degenerate){' after a weld' if welded else ''}")
+        counts = (used_positions, int(keep.sum()))
+        if (counts != (input_used, inp.face_count) if not welded
+                else counts[0] > input_used or counts[1] > inp.face_count):
+            self.finding("roundtrip-counts", f"input scene {input_used} positions / {inp.face_count} f, decoded OBJ "
+                         f"{counts[0]} positions / {counts[1]} f (used, not degenerate){' after a weld' if welded else ''}")
         shown = placements_by_mesh(pmw_doc) if pmw_doc.get("nodes") else {}
         tol = 0.0
         for (mi, _), ext in found.items():
@@ -473,17 +510,31 @@ class Probe:
 
 def read_obj(path: str):
     """Positions and triangles of an OBJ that ``pmw decode`` wrote (``v x y z`` and ``f a b c`` lines; a corner
-    ``a/t`` or ``a/t/n`` of a textured or shaded mesh counts by its position ``a``)."""
+    ``a/t`` or ``a/t/n`` of a textured or shaded mesh counts by its position ``a``, a coloured vertex's
+    ``v x y z r g b`` by its position)."""
     v, f = [], []
     with open(path) as fh:
         for line in fh:
             if line.startswith("v "):
-                v.append(line[2:])
+                v.append(" ".join(line[2:].split()[:3]))  # x y z (a coloured vertex adds r g b)
             elif line.startswith("f "):
                 f.append(" ".join(corner.split("/", 1)[0] for corner in line[2:].split()))
     positions = np.loadtxt(v, ndmin=2) if v else np.zeros((0, 3))
     faces = (np.loadtxt(f, dtype=np.int64, ndmin=2) - 1) if f else np.zeros((0, 3), np.int64)
     return positions, faces
+
+
+def carries_appearance(path: str) -> bool:
+    """Whether the encoder reads the OBJ / PLY / OFF at ``path`` as a glTF document (texture coordinates,
+    colours, materials: :func:`pmwm_codec.meshdoc.read_appearance`)."""
+    from pmwm_codec.meshdoc import read_appearance
+
+    if not path.lower().endswith((".obj", ".ply", ".off")):
+        return False
+    try:
+        return read_appearance(path)[0] is not None
+    except Exception:  # noqa: BLE001 -- a file the encoder refuses: not read as a document
+        return False
 
 
 def snapped_faces(rows: np.ndarray, missing: list, extra: list, limit: int = 512) -> bool:
@@ -580,6 +631,7 @@ def probe_file(path: str, mark: bool, timeout: float) -> dict:
 
 
 def run(root: str, out: str, timeout: float, mark_every: int, limit: int | None) -> list:
+    root = os.path.abspath(root)  # the workers run in directories of their own
     files = mesh_files(root)[:limit]
     done = {r["file"] for r in read_results(out)}
     for i, (size, rel) in enumerate(files):
