@@ -228,26 +228,40 @@ class Probe:
                              f"(as position triples; {len(fi)} vs {len(fd)} rows)")
 
     def compare_points(self, inp, dec_pos, dec_faces, grid) -> None:
-        """The round trip of a mesh encoded with its appearance, on the grid: the decoded OBJ's positions
-        are the input's grid points, each once (``roundtrip-counts``, ``roundtrip-positions``), and its faces
-        the input's, as sets of grid points (``roundtrip-faces``).  Vertices of the input on one grid point
-        are one vertex of the OBJ (its texture coordinates and colours ride beside), so counts compare
-        distinct grid points."""
-        origin, step = np.asarray(grid["origin"], np.float64), float(grid["step"])
-        qi = np.rint((inp.positions - origin) / step).astype(np.int64)
-        qd = np.rint((dec_pos - origin) / step).astype(np.int64)
-        used = np.unique(qi[np.unique(inp.faces)], axis=0) if len(inp.faces) else np.zeros((0, 3), np.int64)
+        """The round trip of a mesh encoded with its appearance (the OBJ writes each position once, its
+        texture coordinates and colours beside): every input vertex the faces use is within half a step
+        (plus 1/16 for near copies the encoder snaps together, plus float32 far from the origin) of a
+        decoded position and every decoded position of an input vertex (``roundtrip-positions``); no two
+        decoded positions are one grid point and there are no more of them than input positions
+        (``roundtrip-counts``); the faces are the input's, each input vertex taken as its nearest decoded
+        position (``roundtrip-faces``)."""
+        from scipy.spatial import cKDTree
+
+        from pmwm_codec.progressive.grid import float32_spacing
+
+        step = float(grid["step"])
+        used = np.unique(inp.faces) if len(inp.faces) else np.zeros(0, np.int64)
         self.res["input_vertices"], self.res["input_faces"] = inp.vertex_count, inp.face_count
-        if len(qd) != len(np.unique(qd, axis=0)) or len(qd) != len(used) or len(dec_faces) != inp.face_count:
-            self.finding("roundtrip-counts", f"input {len(used)} grid points / {inp.face_count} f, decoded "
-                         f"{len(qd)} v ({len(np.unique(qd, axis=0))} points) / {len(dec_faces)} f")
-        elif not np.array_equal(np.unique(qd, axis=0), used):
-            self.finding("roundtrip-positions", "the decoded positions are not the input's grid points")
-        ti = {tuple(sorted(map(tuple, qi[f].tolist()))) for f in inp.faces}
-        td = {tuple(sorted(map(tuple, qd[f].tolist()))) for f in dec_faces}
+        qd = np.rint((dec_pos - np.asarray(grid["origin"], np.float64)) / step).astype(np.int64)
+        distinct_in = len(np.unique(inp.positions[used], axis=0))
+        if len(np.unique(qd, axis=0)) != len(qd) or len(qd) > distinct_in or len(dec_faces) != inp.face_count:
+            self.finding("roundtrip-counts", f"input {distinct_in} positions / {inp.face_count} f, decoded "
+                         f"{len(qd)} v ({len(np.unique(qd, axis=0))} grid points) / {len(dec_faces)} f")
+            return
+        slack = 0.5 + 1 / 16 + 0.01 + (float32_spacing(np.abs(dec_pos).max(axis=0, initial=0)) / (2 * step)).max()
+        there, nearest = cKDTree(dec_pos).query(inp.positions[used], p=np.inf)
+        back = cKDTree(inp.positions[used]).query(dec_pos, p=np.inf)[0]
+        far = max(there.max(initial=0), back.max(initial=0)) / step
+        self.res["max_err_steps"] = float(far)
+        if far > slack:
+            self.finding("roundtrip-positions", f"a position {far:.3f} grid steps from the nearest on the other side")
+        to_dec = np.full(inp.vertex_count, -1, np.int64)
+        to_dec[used] = nearest
+        ti = {tuple(sorted(f)) for f in to_dec[inp.faces].tolist()}
+        td = {tuple(sorted(f)) for f in np.asarray(dec_faces).tolist()}
         if ti != td:
-            self.finding("roundtrip-faces", f"{len(ti - td)} input faces missing, {len(td - ti)} extra (as sets "
-                         "of grid points)")
+            self.finding("roundtrip-faces", f"{len(ti - td)} input faces missing, {len(td - ti)} extra (each input "
+                         "vertex as its nearest decoded position)")
 
     def cut(self, base: str, k: int, asset: bool = False) -> None:
         """``pmw cut --chunks k`` then ``pmw decode`` equals the library's ``decode(chunks=k)`` (an asset's:
@@ -404,20 +418,20 @@ class Probe:
             self.res["roundtrip_skipped"] = why
             return
         self.res["input_vertices"], self.res["input_faces"] = inp.vertex_count, inp.face_count
-        a, b, c = dec_faces.T
-        keep = (a != b) & (b != c) & (a != c)
         # the OBJ writes a position once, its texture coordinates and normals beside (``f a/t/n``): what a
-        # round trip keeps is the distinct positions the faces use
+        # round trip keeps is the faces not degenerate by position and the distinct positions they use (near
+        # copies may share a grid point: fewer positions, each within tol of the input's, checked below)
+        keep = _proper(dec_pos, dec_faces)
         used = np.unique(dec_faces[keep])
         used_positions = len(np.unique(dec_pos[used], axis=0))
-        ia, ib, ic = inp.faces.T
-        input_used = len(np.unique(inp.positions[np.unique(inp.faces[(ia != ib) & (ib != ic) & (ia != ic)])], axis=0))
+        in_keep = _proper(inp.positions, inp.faces)
+        input_used = len(np.unique(inp.positions[np.unique(inp.faces[in_keep])], axis=0))
         welded = any("duplicate vertices (same position and attributes) welded" in n
                      for n in report.get("notices") or [])
         counts = (used_positions, int(keep.sum()))
-        if (counts != (input_used, inp.face_count) if not welded
-                else counts[0] > input_used or counts[1] > inp.face_count):
-            self.finding("roundtrip-counts", f"input scene {input_used} positions / {inp.face_count} f, decoded OBJ "
+        if (counts[0] > input_used or counts[1] != int(in_keep.sum()) if not welded
+                else counts[0] > input_used or counts[1] > int(in_keep.sum())):
+            self.finding("roundtrip-counts", f"input scene {input_used} positions / {int(in_keep.sum())} f, decoded OBJ "
                          f"{counts[0]} positions / {counts[1]} f (used, not degenerate){' after a weld' if welded else ''}")
         shown = placements_by_mesh(pmw_doc) if pmw_doc.get("nodes") else {}
         tol = 0.0
@@ -522,6 +536,12 @@ def read_obj(path: str):
     positions = np.loadtxt(v, ndmin=2) if v else np.zeros((0, 3))
     faces = (np.loadtxt(f, dtype=np.int64, ndmin=2) - 1) if f else np.zeros((0, 3), np.int64)
     return positions, faces
+
+
+def _proper(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(m,) bool: the faces whose three corners are three different positions."""
+    c = np.asarray(positions)[np.asarray(faces, np.int64)]
+    return ~(np.all(c[:, 0] == c[:, 1], axis=1) | np.all(c[:, 1] == c[:, 2], axis=1) | np.all(c[:, 0] == c[:, 2], axis=1))
 
 
 def carries_appearance(path: str) -> bool:
