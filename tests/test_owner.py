@@ -1158,3 +1158,36 @@ def test_a_stream_of_many_small_chunks_is_read_where_its_level_has_grown_and_at_
     assert main(["verify", str(out), "--key", str(key), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert [c["owner"]["read_at_chunk"] for c in doc["chunks"]] == [b.read_at for b in some]
+
+
+def test_the_encoder_checks_the_layer_after_the_quantization_re_compression_applies(blob, marked):
+    """None when the layer reads present after 11- and 14-bit quantization (coincident positions merged, as
+    in the file Draco or gltfpack writes); a notice naming both read-backs when it does not (here: another
+    key, whose layer the mesh does not carry)."""
+    from pmwm_codec.stream.encoder import _transport_check
+
+    key, pos = marked
+    assert _transport_check(pos, blob.faces, key) is None
+    said = _transport_check(pos, blob.faces, WatermarkKey.generate(rng=np.random.default_rng(11)))
+    assert said is not None and "after 11-bit quantization" in said and "after 14-bit quantization" in said
+    assert said.startswith("the owner layer may not survive re-compression of this mesh")
+
+
+def test_a_layer_that_would_not_survive_re_compression_is_written_with_a_notice(tmp_path, blob, capsys, monkeypatch):
+    import pmwm_codec.stream.encoder as encoder
+
+    seen = []
+
+    def fragile(points, faces, key):
+        seen.append(len(points))
+        return f"{encoder._TRANSPORT_NOTICE}: (simulated)"
+
+    monkeypatch.setattr(encoder, "_transport_check", fragile)
+    src = tmp_path / "blob.obj"
+    _write_obj(src, blob)
+    out = tmp_path / "b.pmw"
+    assert main(["encode", str(src), "-o", str(out), "--owner-id", "00c0ffee00c0ffee", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert seen == [blob.vertex_count] and f"{encoder._TRANSPORT_NOTICE}: (simulated)" in doc["notices"]
+    assert main(["verify", str(out), "--key", str(tmp_path / "b.pmw.key.json"), "--json"]) == 0  # the layer is there
+    assert json.loads(capsys.readouterr().out)["owner"]["verdict"] == "present"
