@@ -39,8 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 
-import attacks as A  # noqa: E402
-from owner_attacks import uniform_quantize  # noqa: E402
+from owner_attacks import cells  # noqa: E402
 
 import pmwm_codec  # noqa: E402
 from pmwm_codec.errors import OwnerLayerError, PmwError  # noqa: E402
@@ -48,14 +47,10 @@ from pmwm_codec.mesh import Mesh  # noqa: E402
 from pmwm_codec.verify.owner import owner_of_mesh  # noqa: E402
 from pmwm_codec.watermark.key import WatermarkKey  # noqa: E402
 
-TRANSPORTS = [
-    ("float32", A.float32),
-    ("similarity + re-order + float32", A.chain(A.similarity, A.reorder, A.float32)),
-    ("Draco q14", lambda V, F, r: A.draco(V, F, r, 14)),
-    ("Draco q11", lambda V, F, r: A.draco(V, F, r, 11)),
-    ("16-bit + re-order", lambda V, F, r: uniform_quantize(V, F, r, 16)),
-    ("14-bit + re-order", lambda V, F, r: uniform_quantize(V, F, r, 14)),
-]
+#: Issue 14's cell 2, as tools/owner_attacks.py runs each.
+TRANSPORTS = [(name, attack) for name, attack in cells() if name in (
+    "float32", "similarity + re-order + float32", "Draco q14", "Draco q11", "16-bit quantization + re-order",
+    "14-bit quantization + re-order")]
 NOTICE = "the owner layer may not survive re-compression"
 
 
