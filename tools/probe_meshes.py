@@ -418,21 +418,6 @@ class Probe:
             self.res["roundtrip_skipped"] = why
             return
         self.res["input_vertices"], self.res["input_faces"] = inp.vertex_count, inp.face_count
-        # the OBJ writes a position once, its texture coordinates and normals beside (``f a/t/n``): what a
-        # round trip keeps is the faces not degenerate by position and the distinct positions they use (near
-        # copies may share a grid point: fewer positions, each within tol of the input's, checked below)
-        keep = _proper(dec_pos, dec_faces)
-        used = np.unique(dec_faces[keep])
-        used_positions = len(np.unique(dec_pos[used], axis=0))
-        in_keep = _proper(inp.positions, inp.faces)
-        input_used = len(np.unique(inp.positions[np.unique(inp.faces[in_keep])], axis=0))
-        welded = any("duplicate vertices (same position and attributes) welded" in n
-                     for n in report.get("notices") or [])
-        counts = (used_positions, int(keep.sum()))
-        if (counts[0] > input_used or counts[1] != int(in_keep.sum()) if not welded
-                else counts[0] > input_used or counts[1] > int(in_keep.sum())):
-            self.finding("roundtrip-counts", f"input scene {input_used} positions / {int(in_keep.sum())} f, decoded OBJ "
-                         f"{counts[0]} positions / {counts[1]} f (used, not degenerate){' after a weld' if welded else ''}")
         shown = placements_by_mesh(pmw_doc) if pmw_doc.get("nodes") else {}
         tol = 0.0
         for (mi, _), ext in found.items():
@@ -445,6 +430,22 @@ class Probe:
         if len(dec_pos) == 0 or inp.vertex_count == 0:
             return
         tol += 1e-8 * float(np.abs(inp.positions).max())
+        # the OBJ writes a position once, its texture coordinates and normals beside (``f a/t/n``): what a
+        # round trip keeps is the faces not degenerate by position and the distinct positions they use; near
+        # copies may share a grid point (fewer positions, each within tol of the input's, checked below),
+        # and a face whose corners lie within 2 tol of each other may land on one point
+        keep = _proper(dec_pos, dec_faces)
+        used = np.unique(dec_faces[keep])
+        used_positions = len(np.unique(dec_pos[used], axis=0))
+        in_keep, in_firm = _proper(inp.positions, inp.faces), _proper(inp.positions, inp.faces, 2 * tol)
+        input_used = len(np.unique(inp.positions[np.unique(inp.faces[in_keep])], axis=0))
+        welded = any("duplicate vertices (same position and attributes) welded" in n
+                     for n in report.get("notices") or [])
+        counts = (used_positions, int(keep.sum()))
+        if counts[0] > input_used or counts[1] > int(in_keep.sum()) or (not welded and counts[1] < int(in_firm.sum())):
+            self.finding("roundtrip-counts", f"input scene {input_used} positions / {int(in_keep.sum())} f "
+                         f"({int(in_firm.sum())} with no two corners within {2 * tol:.3g}), decoded OBJ {counts[0]} "
+                         f"positions / {counts[1]} f (used, not degenerate){' after a weld' if welded else ''}")
         from scipy.spatial import cKDTree
         there = cKDTree(inp.positions).query(dec_pos[used], p=np.inf)[0].max()
         back = cKDTree(dec_pos[used]).query(inp.positions, p=np.inf)[0].max()
@@ -538,10 +539,15 @@ def read_obj(path: str):
     return positions, faces
 
 
-def _proper(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(m,) bool: the faces whose three corners are three different positions."""
-    c = np.asarray(positions)[np.asarray(faces, np.int64)]
-    return ~(np.all(c[:, 0] == c[:, 1], axis=1) | np.all(c[:, 1] == c[:, 2], axis=1) | np.all(c[:, 0] == c[:, 2], axis=1))
+def _proper(positions: np.ndarray, faces: np.ndarray, tol: float = 0.0) -> np.ndarray:
+    """(m,) bool: the faces whose three corners are more than ``tol`` apart (max norm) from each other; with
+    ``tol`` 0, three different positions."""
+    c = np.asarray(positions, np.float64)[np.asarray(faces, np.int64)]
+
+    def apart(i, j):
+        return np.abs(c[:, i] - c[:, j]).max(axis=1) > tol
+
+    return apart(0, 1) & apart(1, 2) & apart(0, 2)
 
 
 def carries_appearance(path: str) -> bool:
