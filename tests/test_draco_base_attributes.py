@@ -205,3 +205,23 @@ def test_draco_messages_are_caught_and_other_output_on_stderr_is_passed_on(tmp_p
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "['Draco encoding error: Failed to encode point attributes.']"
     assert done.stderr == "another thread wrote this\n"
+
+
+def test_threads_catching_draco_messages_at_once_each_get_their_own_and_leave_stderr_as_it_was(tmp_path):
+    done = _run(tmp_path, "\n".join([
+        "import os, threading, time",
+        "from pmwm_codec.format.base import _draco_messages",
+        "got = {}",
+        "def work(k):",
+        "    for i in range(50):",
+        "        with _draco_messages() as said:",
+        "            time.sleep(0.0005)",  # another thread runs meanwhile
+        "            os.write(2, f'Draco {k} {i}\\n'.encode())",
+        "        got.setdefault(k, []).extend(said)",
+        "threads = [threading.Thread(target=work, args=(k,)) for k in range(4)]",
+        "[t.start() for t in threads]; [t.join() for t in threads]",
+        "os.write(2, b'after\\n')",
+        "print(all(got[k] == [f'Draco {k} {i}' for i in range(50)] for k in range(4)))",
+    ]))
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "True" and done.stderr == "after\n"

@@ -46,6 +46,7 @@ import math
 import os
 import sys
 import tempfile
+import threading
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -268,35 +269,41 @@ def _draco_messages():
     Draco's C++ encoder refuses some inputs at some settings (seen: the texture coordinates of parts a tenth
     of a millimetre across, given our grid's quantization range, at compression level 7 and above: "Draco
     encoding error: Failed to encode point attributes.") and writes that to file descriptor 2 beside the
-    exception DracoPy raises.  The encoder
-    tries Draco and falls back (:func:`encode_base`), so a refusal is an expected outcome, not the user's
-    concern: the lines become part of the fallback's reason.  Lines that are not Draco's (another thread's)
-    are written back to standard error after the block.  Without a file descriptor 2, nothing is captured.
+    exception DracoPy raises.  The encoder tries Draco and falls back (:func:`encode_base`), so a refusal is
+    an expected outcome, not the user's concern: the lines become part of the fallback's reason.  Lines that
+    are not Draco's (another thread's) are written back to standard error after the block.  One block at a
+    time in a process (a Dask worker of several threads encodes in each: the descriptor is the process's);
+    without a file descriptor 2, nothing is captured.
     """
-    said: list = []
-    try:
-        saved = os.dup(2)
-    except OSError:
-        yield said
-        return
-    with contextlib.suppress(Exception):
-        sys.stderr.flush()
-    try:
-        with tempfile.TemporaryFile() as capture:
-            os.dup2(capture.fileno(), 2)
-            try:
-                yield said
-            finally:
-                os.dup2(saved, 2)
-                capture.seek(0)
-                others = []
-                for line in capture.read().decode("utf-8", "replace").splitlines():
-                    (said if line.startswith("Draco") else others).append(line.strip())
-                if others:
-                    with contextlib.suppress(OSError):
-                        os.write(2, ("\n".join(others) + "\n").encode())
-    finally:
-        os.close(saved)
+    with _STDERR_LOCK:
+        said: list = []
+        try:
+            saved = os.dup(2)
+        except OSError:
+            yield said
+            return
+        with contextlib.suppress(Exception):
+            sys.stderr.flush()
+        try:
+            with tempfile.TemporaryFile() as capture:
+                os.dup2(capture.fileno(), 2)
+                try:
+                    yield said
+                finally:
+                    os.dup2(saved, 2)
+                    capture.seek(0)
+                    others = []
+                    for line in capture.read().decode("utf-8", "replace").splitlines():
+                        (said if line.startswith("Draco") else others).append(line.strip())
+                    if others:
+                        with contextlib.suppress(OSError):
+                            os.write(2, ("\n".join(others) + "\n").encode())
+        finally:
+            os.close(saved)
+
+
+#: :func:`_draco_messages` redirects the process's file descriptor 2: one thread at a time.
+_STDERR_LOCK = threading.Lock()
 
 
 def _position_accessor(stored: np.ndarray, **extra) -> dict:
