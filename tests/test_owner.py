@@ -621,6 +621,31 @@ def test_an_explicit_owner_id_the_mesh_cannot_carry_is_refused_and_nothing_is_wr
     assert _files(out) == []  # no .pmw, no key
 
 
+def _two_shells():
+    """A noisy sphere inside a noisy ellipsoid (two pieces): vertex norms in two lumps, 9 of the estimated
+    frame's 64 shells between them empty (few enough for the read-back to decide, as on CAD parts)."""
+    a, b = shapes.icosphere(4, 0.7, noise=0.04, seed=1), shapes.icosphere(4, 1.0, noise=0.04, seed=2)
+    return Mesh(np.vstack([a.positions, b.positions * np.array([1.0, 0.9, 0.8])]),
+                np.vstack([a.faces, b.faces + len(a.positions)]))
+
+
+def test_a_refusal_says_when_the_norms_leave_shells_empty(tmp_path, blob, monkeypatch):
+    """The read-back's refusal names the likeliest cause where there is one: empty shells."""
+    import pmwm_codec
+    import pmwm_codec.stream.encoder as encoder
+    from pmwm_codec.errors import OwnerLayerError
+
+    monkeypatch.setattr(encoder, "_owner_check", lambda *a: "pmw verify would read 12 of its 64 bits wrong (simulated)")
+    gapped = _two_shells()
+    assert 0 < owner.empty_shells(gapped.positions, gapped.faces) <= owner.OWNER_BITS - owner.MIN_BITS_READ
+    with pytest.raises(OwnerLayerError, match=r"\(simulated\); 9 of its 64 shells hold no vertex \(its vertex norms leave gaps\)"):
+        pmwm_codec.encode(gapped, tmp_path / "g.pmw", owner_id=0x1234)
+    with pytest.raises(OwnerLayerError) as refused:
+        pmwm_codec.encode(blob, tmp_path / "b.pmw", owner_id=0x1234)
+    assert "(simulated));" in str(refused.value) and "hold no vertex" not in str(refused.value)
+    assert _files(tmp_path) == []
+
+
 def test_a_mesh_too_large_for_float32_is_refused_in_one_line_with_the_owner_layer_asked(tmp_path, capsys):
     import warnings
 

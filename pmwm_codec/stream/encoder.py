@@ -518,9 +518,12 @@ def _mark_owner(jobs, key: WatermarkKey, strength, grid_bits: int, doc: dict, no
     grids = position_grids(marked, grid_bits)  # as stage 1 fits them
     stored = [grid.dequantize(grid.quantize(job.mesh.positions)) for job, grid in zip(marked, grids)]
     why = _owner_check(stored, [job.mesh.faces for job in marked], key, frames)
-    if why is not None:
-        return None, why
     points, tris, _ = scene_mesh(stored, [job.mesh.faces for job in marked], frames)
+    if why is not None:
+        empty = owner.empty_shells(points, tris)
+        if empty:  # the likeliest cause, said: the norms leave gaps (CAD parts: vertices on a few radii)
+            why += f"; {empty} of its {owner.BINS} shells hold no vertex (its vertex norms leave gaps)"
+        return None, why
     said = _transport_check(points, tris, key)
     if said is not None:
         _notice(notices, said)
