@@ -629,6 +629,35 @@ def _two_shells():
                 np.vstack([a.faces, b.faces + len(a.positions)]))
 
 
+def test_bits_no_vertex_carries_count_as_errors_but_not_against_the_verdict():
+    """Of 64 bits with 11 erased, the verdict weighs the 53 read: P = HYPOTHESES * T_53(wrong read)."""
+    p, verdict = owner.judge(11, 11)
+    assert verdict == "present" and p == pytest.approx(owner.HYPOTHESES * 2.0**-53)
+    assert owner.judge(11 + 3, 11)[1] == "present" and owner.judge(11 + 4, 11)[1] != "present"
+    assert owner.judge(14, 11)[0] == pytest.approx(owner.false_alarm_probability(3, bits=53))
+    assert owner.judge(6, 0) == (owner.false_alarm_probability(6), "present")  # nothing erased: as before
+    for errors, erased in ((6, 2), (10, 5), (20, 10)):  # never larger than counting the erased as wrong
+        assert owner.judge(errors, erased)[0] <= owner.false_alarm_probability(errors)
+    assert owner.judge(17, 17)[1] == "inconclusive"  # fewer than MIN_BITS_READ bits read
+
+
+def test_a_mesh_whose_norms_leave_shells_empty_reads_present_on_the_bits_it_carries(tmp_path, capsys):
+    mesh = _two_shells()
+    empty = owner.empty_shells(mesh.positions, mesh.faces)
+    key = WatermarkKey.generate(rng=np.random.default_rng(4))
+    marked = owner.embed(mesh.positions, mesh.faces, key)
+    for pos in (marked, _grid_quantize(marked, 14, np.random.default_rng(2))):
+        r = owner.detect(pos, mesh.faces, key)
+        assert r.verdict == "present" and r.erased == empty == r.bit_errors  # every bit read is right
+        assert r.as_json()["erased"] == empty
+    src = tmp_path / "two.obj"
+    _write_obj(src, Mesh(marked, mesh.faces))
+    key.save(tmp_path / "k.json")
+    assert main(["verify", str(src), "--key", str(tmp_path / "k.json")]) == 0
+    out = capsys.readouterr().out
+    assert f"{empty}/64 bits differ from the key's {key.owner_hex}, {empty} of them in shells no vertex falls in (not read)" in out
+
+
 def test_a_refusal_says_when_the_norms_leave_shells_empty(tmp_path, blob, monkeypatch):
     """The read-back's refusal names the likeliest cause where there is one: empty shells."""
     import pmwm_codec

@@ -150,7 +150,12 @@ def _owner_line(o, key) -> str:
     with the bits read beside it when some differ."""
     if o.verdict == "present" and not o.bit_errors:
         return f"{key.owner_hex}: present"
-    return f"{key.owner_hex}: {o.verdict} (read as {o.id}: {o.bit_errors} of {o.bits} bits differ)"
+    return f"{key.owner_hex}: {o.verdict} (read as {o.id}: {o.bit_errors} of {o.bits} bits differ{_erased(o)})"
+
+
+def _erased(o) -> str:
+    """How many of the bits that differ no vertex carried (not read: not counted against the verdict)."""
+    return f", {o.erased} of them in shells no vertex falls in (not read)" if o.erased else ""
 
 
 def run_owner(args) -> int:
@@ -168,7 +173,7 @@ def run_owner(args) -> int:
         print_json({"input": args.input, "vertices": mesh.vertex_count, "owner": o.as_json(), "verdict": o.verdict})
     elif not args.quiet:
         print(f"{args.input}: {mesh.vertex_count:,} vertices; owner read {o.id}: {o.bit_errors}/64 bits differ "
-              f"from the key's {key.owner_hex}, false-alarm probability {o.false_alarm_probability:.2e}")
+              f"from the key's {key.owner_hex}{_erased(o)}, false-alarm probability {o.false_alarm_probability:.2e}")
         print(f"verdict: {o.verdict}")
     return EXIT_OK if o.verdict == "present" else EXIT_NOT_AUTHENTIC
 

@@ -76,19 +76,26 @@ transport noise at embedding time):
    0.000, 3 keys, with one step; the 2.9k-vertex cow 0.372 -> 0.003 with three instead of one).  The four views of the mesh as it is are read first; unless one reads the
    key's ID without an error the two un-smoothed ones are read too, and of the views read the
    one with the fewest errors counts (``FRAMES = 6`` views in the false-alarm bound).  The bit
-   is the sign of its soft value (0: erased, counted as an error); XOR the whitening bits and the
-   alternative coding that reads the key's ID with the fewest errors gives the ID read.
+   is the sign of its soft value (0: erased, a shell no vertex falls in, counted as an error in
+   ``bit_errors``); XOR the whitening bits and the alternative coding that reads the key's ID with
+   the fewest errors gives the ID read.
 
 **False alarm.**  For a mesh not marked with this key (unmarked, or marked with another
 key) the whitening bits are independent fair coins, and nothing the read chooses before
 comparing with the ID (the six views) depends on the key, so in each view and under each
 alternative coding every read bit matches the key's coded ID with probability 1/2
-independently: ``e`` or fewer errors has probability ``T(e) = sum_{i<=e} C(64, i) / 2^64``
-(exact, computed with integers), and the best of the 6 x 32 codings read at most ``P(e) =
-192 T(e)`` (the union bound; stated).  The verdict is ``present`` when ``P(bit_errors) <
-1e-9`` (at most 6 errors: 8.7e-10; 7 errors give 7.3e-9), ``absent`` when ``P >= 1e-3`` (15
-errors or more), ``inconclusive`` in between or when fewer than ``MIN_BITS_READ`` bits could be
-read at all.
+independently.  Which bits a view reads at all (the shells a vertex falls in) is a property of
+the mesh and the view alone, so of ``n`` bits read, ``e`` or fewer mismatches has probability
+``T_n(e) = sum_{i<=e} C(n, i) / 2^n`` (exact, computed with integers), and whichever of the
+6 x 32 codings the read reports, ``P = 192 T_n(e)`` of it bounds the chance of so good a read
+by chance (the union bound over the codings, each ``T`` a p-value; stated).  An erased bit is
+not read: it counts in ``bit_errors`` but not against the verdict (CAD parts whose vertex norms
+leave shells empty: laikago's chassis, 11 of 64, read every other bit right and were refused
+when an erased bit counted as a wrong one).  With nothing erased (``n = 64``) the verdict is
+``present`` when ``P < 1e-9`` (at most 6 errors: 8.7e-10; 7 errors give 7.3e-9), ``absent``
+when ``P >= 1e-3`` (15 errors or more), ``inconclusive`` in between or when fewer than
+``MIN_BITS_READ`` bits could be read at all; with 11 erased, ``present`` takes at most 3 wrong
+of the 53 read.
 """
 
 from __future__ import annotations
@@ -228,8 +235,9 @@ class OwnerResult:
 
     ``id``: the 64 bits read, as 16 hex digits (most significant bit first);
     ``bit_errors``: bits that differ from the key's owner ID (erased bits included);
-    ``erased``: bits no vertex voted for; ``false_alarm_probability``: P(this few errors
-    | a mesh not marked with this key); ``verdict``: present | absent | inconclusive.
+    ``erased``: bits no vertex voted for (not read: they count in ``bit_errors``, not against the
+    verdict); ``false_alarm_probability``: P(this few errors among the bits read | a mesh not
+    marked with this key); ``verdict``: present | absent | inconclusive.
     """
 
     id: str
@@ -241,7 +249,7 @@ class OwnerResult:
 
     def as_json(self) -> dict:
         """The ``owner`` object of ``pmw verify --json``."""
-        return {"id": self.id, "bits": self.bits, "bit_errors": int(self.bit_errors),
+        return {"id": self.id, "bits": self.bits, "bit_errors": int(self.bit_errors), "erased": int(self.erased),
                 "false_alarm_probability": float(self.false_alarm_probability), "verdict": self.verdict}
 
 
@@ -1103,8 +1111,8 @@ def unreadable(positions, faces, step: float) -> str | None:
     * more than ``OWNER_BITS - MIN_BITS_READ`` shells hold no vertex at all (the norms take
       too few distinct values: a torus of 64 sides has 33): the embedding never moves a
       vertex out of its shell, so those bits stay erased, more than a read may miss and still
-      give a verdict (:data:`MIN_BITS_READ`), let alone ``present`` (at most 7 errors).  Fewer
-      empty shells are left to the read-back: the frame the read settles on may differ a little.
+      give a verdict (:data:`MIN_BITS_READ`).  Fewer empty shells are left to the read-back (their
+      bits are not read, :func:`judge`): the frame the read settles on may differ a little.
     """
     pos = np.asarray(positions, np.float64).reshape(-1, 3)
     points, inverse = _distinct_index(pos)
@@ -1252,8 +1260,9 @@ def _verdict(soft: np.ndarray, key, reads: int = 1) -> tuple:
 def judge(errors: int, erased: int, reads: int = 1) -> tuple:
     """``(false-alarm probability, verdict)`` of a read with ``errors`` bit errors of which ``erased`` are
     erased bits, when it is the best of ``reads`` independent reads (each of :data:`HYPOTHESES` codings:
-    the union bound over ``reads * HYPOTHESES`` of them)."""
-    p = false_alarm_probability(errors, frames=HYPOTHESES * int(reads))
+    the union bound over ``reads * HYPOTHESES`` of them).  The probability is of the bits read: ``errors -
+    erased`` mismatches among ``OWNER_BITS - erased`` (never more than counting the erased as wrong)."""
+    p = false_alarm_probability(errors - erased, bits=OWNER_BITS - erased, frames=HYPOTHESES * int(reads))
     if OWNER_BITS - erased < MIN_BITS_READ:
         verdict = "inconclusive"
     elif p < PRESENT_BELOW:
