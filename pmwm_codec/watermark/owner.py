@@ -1060,7 +1060,7 @@ def _read_errors(points: np.ndarray, faces: np.ndarray, key) -> int:
     """The bit errors :func:`read_soft` reads ``key``'s ID with from distinct ``points`` (k, 3) / ``faces``
     (m, 3) and from each of their simulated transports (:func:`_transports`), summed."""
     meshes = [points, *_transports(points, np.random.default_rng(len(points)))]
-    return sum(int(_bit_errors(read_soft(p, faces, key), key)) for p in meshes)
+    return sum(int(_bit_errors(read_soft(p, faces, key, fewest_errors=True), key)) for p in meshes)
 
 
 def _sides(key, owner_id: int) -> np.ndarray:
@@ -1170,11 +1170,22 @@ def mesh_scores(positions, faces) -> tuple:
     return _mesh_scores(positions, faces)
 
 
-def best_frame(soft: np.ndarray, key) -> int:
-    """The frame (row of ``soft`` (FRAMES, 64), the soft values read in each) whose bits differ
-    least from the key's owner ID under the best alternative (erased bits count as errors); 0 when
-    the key carries none."""
-    return 0 if key.owner_id is None else int(np.argmin(_bit_errors(soft, key)))
+def best_frame(soft: np.ndarray, key, fewest_errors: bool = False) -> int:
+    """The frame (row of ``soft`` (FRAMES, 64), the soft values read in each) whose read is the least
+    likely by chance: the smallest tail ``T_n(wrong)`` of its wrong bits among the ``n`` it reads, under
+    its best alternative (:func:`judge`), frames reading fewer than :data:`MIN_BITS_READ` bits last;
+    the first of equals.  With no bit erased, the frame whose bits differ least, as with
+    ``fewest_errors`` always (erased bits counted as wrong).  0 when the key carries none."""
+    if key.owner_id is None:
+        return 0
+    soft = np.asarray(soft).reshape(-1, OWNER_BITS)
+    errors = _bit_errors(soft, key)
+    if fewest_errors:
+        return int(np.argmin(errors))
+    read = OWNER_BITS - np.count_nonzero(soft == 0, axis=-1)
+    wrong = errors - (OWNER_BITS - read)  # an erased bit counts in _bit_errors: it is not read
+    rank = [(bool(n < MIN_BITS_READ), false_alarm_probability(int(w), bits=int(n), frames=1)) for n, w in zip(read, wrong)]
+    return min(range(len(rank)), key=rank.__getitem__)
 
 
 def _errors_each(soft: np.ndarray, key) -> np.ndarray:
@@ -1199,24 +1210,25 @@ def _soft_rows(scores: tuple, key) -> np.ndarray:
     return soft
 
 
-def _read_as_is(scores: tuple, key) -> int | None:
+def _read_as_is(scores: tuple, key, fewest_errors: bool = False) -> int | None:
     """The :func:`best_frame` of the first :data:`AS_IS` rows of ``scores`` ((rows, BINS) S and mass, rows
     in :func:`_read_frames` order) when it settles the read: it reads the key's ID without an error (the
     un-smoothed views could read no better), or the key carries no ID; else None.  (Stopping at
     ``present`` instead reported 5-7 errors where the un-smoothed views read none: the 23k-vertex dragon
     after 30 smoothing iterations, BER 0.072 against 0.000.)"""
     soft = _soft_rows((scores[0][:AS_IS], scores[1][:AS_IS]), key)
-    i = best_frame(soft, key)
+    i = best_frame(soft, key, fewest_errors)
     return i if key.owner_id is None or _bit_errors(soft[i], key) == 0 else None
 
 
-def _view_read(scores: tuple, key) -> int:
-    """The row of ``scores`` a read reports: :func:`_read_as_is`, else the best of all rows."""
-    i = _read_as_is(scores, key)
-    return best_frame(_soft_rows(scores, key), key) if i is None else i
+def _view_read(scores: tuple, key, fewest_errors: bool = False) -> int:
+    """The row of ``scores`` a read reports: :func:`_read_as_is`, else the best of all rows
+    (:func:`best_frame`)."""
+    i = _read_as_is(scores, key, fewest_errors)
+    return best_frame(_soft_rows(scores, key), key, fewest_errors) if i is None else i
 
 
-def read_soft(positions, faces, key, scores: tuple | None = None) -> np.ndarray:
+def read_soft(positions, faces, key, scores: tuple | None = None, fewest_errors: bool = False) -> np.ndarray:
     """Soft coded values (64,) float64 in [-1, 1] in the view of :func:`_view_read`: > 0 reads 1,
     < 0 reads 0, 0 is erased.
 
@@ -1226,7 +1238,8 @@ def read_soft(positions, faces, key, scores: tuple | None = None) -> np.ndarray:
     no frame search and no un-smoothing.  The bound of
     :func:`false_alarm_probability` covers the best of all :data:`FRAMES` views under every alternative
     coding, so it covers the best of those read.  ``scores``: :func:`mesh_scores` of the mesh, when already computed (positions and
-    faces unused; the same answer).
+    faces unused; the same answer).  ``fewest_errors``: of views that all read with an error, the one with
+    the fewest, erased bits counted (:func:`best_frame`; the embedding compares its marks so).
     """
     if scores is None:
         read = []
@@ -1236,7 +1249,7 @@ def read_soft(positions, faces, key, scores: tuple | None = None) -> np.ndarray:
             if key.owner_id is None or _bit_errors(soft, key) == 0:
                 return soft  # the first view without an error: the one :func:`_view_read` picks
         scores = (np.stack([s for s, _ in read]), np.stack([m for _, m in read]))
-    return _soft_rows(scores, key)[_view_read(scores, key)]
+    return _soft_rows(scores, key)[_view_read(scores, key, fewest_errors)]
 
 
 def _views_in_order(points: np.ndarray, faces: np.ndarray):
