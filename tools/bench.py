@@ -529,7 +529,8 @@ def simplify_profile(mesh, zstd_level) -> list:
 
 def decode_profile(blob: bytes) -> dict:
     """Time the decoder's parts on one full decode: container (digest + zstd), unpack, apply
-    (payload version 2: unpacking is decoding against the mesh, counted in apply)."""
+    (payload version 2: unpacking is decoding against the mesh, counted in apply).  Positions only: a
+    file whose primitive carries attributes is refused (its values and their prediction are not set up)."""
     from pmwm_codec.format import BaseEvent, ChunkEvent, ContainerParser, records_v2
     from pmwm_codec.format.extension import payload_version
     from pmwm_codec.progressive.vsplit import MeshState, apply_batch
@@ -541,6 +542,8 @@ def decode_profile(blob: bytes) -> dict:
     t_container = time.perf_counter() - t0
     header = events[0]
     ext = header.extension
+    if ext.get("attributes"):
+        raise ValueError("decode_profile: the stage breakdown is of meshes without attributes")
     t_unpack = t_apply = 0.0
     t = time.perf_counter()
     base = next(e for e in events if isinstance(e, BaseEvent))
