@@ -621,6 +621,11 @@ def test_an_explicit_owner_id_the_mesh_cannot_carry_is_refused_and_nothing_is_wr
     assert _files(out) == []  # no .pmw, no key
 
 
+def _empty_shells(mesh) -> int:
+    points, inverse = owner._distinct_index(mesh.positions)
+    return owner._empty_shells(points, owner._frame(points, inverse[mesh.faces]))
+
+
 def _two_shells():
     """A noisy sphere inside a noisy ellipsoid (two pieces): vertex norms in two lumps, 9 of the estimated
     frame's 64 shells between them empty (few enough for the read-back to decide, as on CAD parts)."""
@@ -643,7 +648,8 @@ def test_bits_no_vertex_carries_count_as_errors_but_not_against_the_verdict():
 
 def test_a_mesh_whose_norms_leave_shells_empty_reads_present_on_the_bits_it_carries(tmp_path, capsys):
     mesh = _two_shells()
-    empty = owner.empty_shells(mesh.positions, mesh.faces)
+    empty = _empty_shells(mesh)
+    assert 0 < empty <= owner.OWNER_BITS - owner.MIN_BITS_READ  # erased bits, few enough for a verdict
     key = WatermarkKey.generate(rng=np.random.default_rng(4))
     marked = owner.embed(mesh.positions, mesh.faces, key)
     for pos in (marked, _grid_quantize(marked, 14, np.random.default_rng(2))):
@@ -658,21 +664,18 @@ def test_a_mesh_whose_norms_leave_shells_empty_reads_present_on_the_bits_it_carr
     assert f"{empty}/64 bits differ from the key's {key.owner_hex}, {empty} of them in shells no vertex falls in (not read)" in out
 
 
-def test_a_refusal_says_when_the_norms_leave_shells_empty(tmp_path, blob, monkeypatch):
-    """The read-back's refusal names the likeliest cause where there is one: empty shells."""
-    import pmwm_codec
-    import pmwm_codec.stream.encoder as encoder
-    from pmwm_codec.errors import OwnerLayerError
+def test_a_refusal_says_how_many_of_the_bits_read_wrong_no_vertex_carries(blob, monkeypatch):
+    """The read-back's refusal counts the erased bits among the wrong ones, as ``pmw verify`` does."""
+    import pmwm_codec.verify.owner as verify_owner
+    from pmwm_codec.stream.encoder import _owner_check
 
-    monkeypatch.setattr(encoder, "_owner_check", lambda *a: "pmw verify would read 12 of its 64 bits wrong (simulated)")
-    gapped = _two_shells()
-    assert 0 < owner.empty_shells(gapped.positions, gapped.faces) <= owner.OWNER_BITS - owner.MIN_BITS_READ
-    with pytest.raises(OwnerLayerError, match=r"\(simulated\); 9 of its 64 shells hold no vertex \(its vertex norms leave gaps\)"):
-        pmwm_codec.encode(gapped, tmp_path / "g.pmw", owner_id=0x1234)
-    with pytest.raises(OwnerLayerError) as refused:
-        pmwm_codec.encode(blob, tmp_path / "b.pmw", owner_id=0x1234)
-    assert "(simulated));" in str(refused.value) and "hold no vertex" not in str(refused.value)
-    assert _files(tmp_path) == []
+    key = WatermarkKey.generate(rng=np.random.default_rng(3))
+    eye = [[np.eye(4)]]
+    for erased, said in ((9, "20 of its 64 bits wrong from the file, 9 of them in shells no vertex falls in: absent"),
+                         (0, "20 of its 64 bits wrong from the file: absent")):
+        monkeypatch.setattr(verify_owner, "owner_of_mesh",
+                            lambda mesh, key, erased=erased: owner.OwnerResult("0" * 16, 20, erased, 1.0, "absent"))
+        assert _owner_check([blob.positions], [blob.faces], key, eye).endswith(said)
 
 
 def test_a_mesh_too_large_for_float32_is_refused_in_one_line_with_the_owner_layer_asked(tmp_path, capsys):

@@ -518,12 +518,9 @@ def _mark_owner(jobs, key: WatermarkKey, strength, grid_bits: int, doc: dict, no
     grids = position_grids(marked, grid_bits)  # as stage 1 fits them
     stored = [grid.dequantize(grid.quantize(job.mesh.positions)) for job, grid in zip(marked, grids)]
     why = _owner_check(stored, [job.mesh.faces for job in marked], key, frames)
-    points, tris, _ = scene_mesh(stored, [job.mesh.faces for job in marked], frames)
     if why is not None:
-        empty = owner.empty_shells(points, tris)
-        if empty:  # the likeliest cause, said: the norms leave gaps (CAD parts: vertices on a few radii)
-            why += f"; {empty} of its {owner.BINS} shells hold no vertex (its vertex norms leave gaps)"
         return None, why
+    points, tris, _ = scene_mesh(stored, [job.mesh.faces for job in marked], frames)
     said = _transport_check(points, tris, key)
     if said is not None:
         _notice(notices, said)
@@ -581,7 +578,8 @@ def _owner_check(positions: list, faces: list, key: WatermarkKey, frames: list) 
     read = owner_of_mesh(Mesh(points, tris), key)
     if read.verdict == "present":
         return None
-    return f"pmw verify would read {read.bit_errors} of its {read.bits} bits wrong from the file: {read.verdict}"
+    erased = f", {read.erased} of them in shells no vertex falls in" if read.erased else ""
+    return f"pmw verify would read {read.bit_errors} of its {read.bits} bits wrong from the file{erased}: {read.verdict}"
 
 
 def _owner_unreadable(why: str, fallback: bool, notices: list, watermark: bool, reused: bool) -> None:

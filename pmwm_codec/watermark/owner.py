@@ -109,7 +109,7 @@ import numpy as np
 
 from ..progressive.topology import compiled, kernel_helper
 
-__all__ = ["OwnerResult", "embed", "detect", "distinct_mesh", "empty_shells", "judge", "unreadable", "false_alarm_probability", "OWNER_BITS", "DEFAULT_STRENGTH"]
+__all__ = ["OwnerResult", "embed", "detect", "distinct_mesh", "judge", "unreadable", "false_alarm_probability", "OWNER_BITS", "DEFAULT_STRENGTH"]
 
 OWNER_BITS = 64
 #: Radial shells, one per bit (two keyed shells per bit cost less RMS but read worse after
@@ -1131,16 +1131,8 @@ def unreadable(positions, faces, step: float) -> str | None:
     return None
 
 
-def empty_shells(positions, faces) -> int:
-    """How many of the :data:`BINS` shells of the mesh's estimated frame hold no vertex (positions (n, 3), faces
-    (m, 3)): the bits a mark there loses unless it is marked in another frame (:func:`_embedding_frame`)."""
-    points, inverse = _distinct_index(np.asarray(positions, np.float64).reshape(-1, 3))
-    f = np.asarray(faces, np.int64).reshape(-1, 3)
-    frame = _frame(points, inverse[f] if len(f) else f)
-    return _empty_shells(points, frame) if frame[2] > 0 else BINS
-
-
 def _empty_shells(points: np.ndarray, frame: tuple) -> int:
+    """How many of the :data:`BINS` shells of ``frame`` no point of ``points`` (k, 3) falls in."""
     shell = _shells(points, frame)[0]
     return BINS - int(np.count_nonzero(np.bincount(shell[shell >= 0], minlength=BINS)))
 
