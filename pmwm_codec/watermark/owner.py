@@ -75,7 +75,8 @@ transport noise at embedding time):
    (the 23k-vertex dragon after 30 iterations: BER 0.089 -> 0.000, the fandisk 0.411 ->
    0.000, 3 keys, with one step; the 2.9k-vertex cow 0.372 -> 0.003 with three instead of one).  The four views of the mesh as it is are read first; unless one reads the
    key's ID without an error the two un-smoothed ones are read too, and of the views read the
-   one with the fewest errors counts (``FRAMES = 6`` views in the false-alarm bound).  The bit
+   one least likely by chance counts (:func:`best_frame`: with no bit erased, the one with the
+   fewest errors; ``FRAMES = 6`` views in the false-alarm bound).  The bit
    is the sign of its soft value (0: erased, a shell no vertex falls in, counted as an error in
    ``bit_errors``); XOR the whitening bits and the alternative coding that reads the key's ID with
    the fewest errors gives the ID read.
