@@ -32,3 +32,17 @@ def test_a_sphere_is_refused_before_anything_is_written(tmp_path):
     row = owner_sweep.probe(str(tmp_path / "sphere.obj"), str(tmp_path))
     assert row["outcome"] == "refused" and "cannot be read back" in row["why"]
     assert not (tmp_path / "out.pmw").exists()
+
+
+def test_a_glb_asset_is_encoded_as_an_asset_and_read_from_the_glb_decode_writes(tmp_path):
+    import pmwm_codec
+    from pmwm_codec.stream.asset import decode_asset
+
+    m = shapes.icosphere(4, 1.0, noise=0.03, seed=6)
+    pmwm_codec.encode(Mesh(m.positions * np.array([1.0, 0.8, 0.6]), m.faces), tmp_path / "blob.pmw", measure="none")
+    (tmp_path / "in").mkdir()
+    (tmp_path / "in" / "blob.glb").write_bytes(decode_asset(str(tmp_path / "blob.pmw"))[0])
+    row = owner_sweep.probe(str(tmp_path / "in" / "blob.glb"), str(tmp_path))
+    assert row["outcome"] == "clean" and row["vertices"] == len(m.positions)
+    assert all(verdict == "present" for _, verdict in row["reads"].values()), row["reads"]
+    assert (tmp_path / "out.glb").exists()  # the decoded asset the reads were made on

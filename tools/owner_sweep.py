@@ -1,15 +1,17 @@
 """Owner layer on meshes from outside: what ``pmw encode --owner-id`` does with each, and whether it tells the truth.
 
-For up to ``--limit`` mesh files under ``DIR`` (``.obj``, ``.stl``, ``.ply``; their geometry, ``read_mesh``),
-those of ``--min-vertices`` to ``--max-vertices`` vertices, in an order shuffled by ``--seed``, each is
-encoded as the command line encodes it with an owner ID (``pmwm_codec.encode(..., owner_id=...)``, a key of
-its own), and the file is sorted into one of three outcomes:
+For up to ``--limit`` mesh files under ``DIR`` (``.obj``, ``.stl``, ``.ply``: their geometry, as ``read_mesh``
+reads it; ``.glb``, ``.gltf``: the asset, textures and scene kept), those of ``--min-vertices`` to
+``--max-vertices`` vertices, in an order shuffled by ``--seed``, each is encoded as the command line encodes
+it with an owner ID (``pmwm_codec.encode(..., owner_id=...)``, a key of its own), and the file is sorted
+into one of three outcomes:
 
 * ``refused``: the encoder said the layer cannot be read back from this mesh (nothing written);
 * ``noted``: written, with the notice that the layer may not survive re-compression;
 * ``clean``: written without a word about the layer.
 
-Then the full decode of every written file goes through the transports of issue 14's cell 2 (float32; a
+Then the full decode of every written file (an asset's: the GLB ``pmw decode`` writes, taken as ``pmw
+verify`` takes it, :func:`pmwm_codec.verify.owner.owner_view`) goes through the transports of issue 14's cell 2 (float32; a
 similarity, a re-ordering and float32; Draco q14 and q11 through DracoPy; 16- and 14-bit quantization on one
 cubic grid with re-ordering, as ``tools/owner_attacks.py`` runs them), and the ID is read blind
 (:func:`pmwm_codec.verify.owner.owner_of_mesh`, as ``pmw verify MESH`` reads it).  What it proves: a
@@ -44,7 +46,8 @@ from owner_attacks import cells  # noqa: E402
 import pmwm_codec  # noqa: E402
 from pmwm_codec.errors import OwnerLayerError, PmwError  # noqa: E402
 from pmwm_codec.mesh import Mesh  # noqa: E402
-from pmwm_codec.verify.owner import owner_of_mesh  # noqa: E402
+from pmwm_codec.stream.asset import decode_asset  # noqa: E402
+from pmwm_codec.verify.owner import owner_of_mesh, owner_view  # noqa: E402
 from pmwm_codec.watermark.key import WatermarkKey  # noqa: E402
 
 #: Issue 14's cell 2, as tools/owner_attacks.py runs each.
@@ -54,28 +57,39 @@ TRANSPORTS = [(name, attack) for name, attack in cells() if name in (
 NOTICE = "the owner layer may not survive re-compression"
 
 
+ASSETS = (".glb", ".gltf")
+
+
 def mesh_files(root: str) -> list:
     out = []
     for dirpath, _, names in os.walk(root):
-        out += [os.path.join(dirpath, n) for n in sorted(names) if n.lower().endswith((".obj", ".stl", ".ply"))]
+        out += [os.path.join(dirpath, n) for n in sorted(names)
+                if n.lower().endswith((".obj", ".stl", ".ply", *ASSETS))]
     return sorted(out)
 
 
 def probe(path: str, work: str) -> dict:
     """One mesh file: its outcome, notices and the transports' reads (see the module's docstring)."""
-    mesh = pmwm_codec.read_mesh(path)
-    row = {"vertices": int(mesh.vertex_count)}
+    asset = path.lower().endswith(ASSETS)
+    src = path if asset else pmwm_codec.read_mesh(path)
+    row = {"vertices": int(owner_view(path).vertex_count if asset else src.vertex_count)}
     key = WatermarkKey.generate(rng=np.random.default_rng(zlib.crc32(path.encode())))
     dst = os.path.join(work, "out.pmw")
     try:
-        report = pmwm_codec.encode(mesh, dst, key=key, owner_id=key.owner_id, measure="none")
+        report = pmwm_codec.encode(src, dst, key=key, owner_id=key.owner_id, measure="none")
     except OwnerLayerError as exc:
         row["outcome"], row["why"] = "refused", str(exc)[:300]
         return row
     notes = [n for n in report.get("notices") or [] if n.startswith(NOTICE)]
     row["outcome"] = "noted" if notes else "clean"
     row["notice"] = notes[0][:300] if notes else None
-    decoded = pmwm_codec.decode(dst)
+    if asset:
+        glb = os.path.join(work, "out.glb")
+        with open(glb, "wb") as fh:
+            fh.write(decode_asset(dst)[0])
+        decoded = owner_view(glb)
+    else:
+        decoded = pmwm_codec.decode(dst)
     V, F = np.asarray(decoded.positions, np.float64), np.asarray(decoded.faces, np.int64)
     row["reads"] = {}
     for name, attack in TRANSPORTS:
@@ -104,7 +118,7 @@ def main(argv=None) -> int:
             if len(rows) >= args.limit:
                 break
             try:
-                count = pmwm_codec.read_mesh(path).vertex_count
+                count = (owner_view(path) if path.lower().endswith(ASSETS) else pmwm_codec.read_mesh(path)).vertex_count
             except PmwError:
                 continue
             if not args.min_vertices <= count <= args.max_vertices:
