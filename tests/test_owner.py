@@ -1248,3 +1248,23 @@ def test_a_layer_that_would_not_survive_re_compression_is_written_with_a_notice(
     assert seen == [blob.vertex_count] and f"{encoder._TRANSPORT_NOTICE}: (simulated)" in doc["notices"]
     assert main(["verify", str(out), "--key", str(tmp_path / "b.pmw.key.json"), "--json"]) == 0  # the layer is there
     assert json.loads(capsys.readouterr().out)["owner"]["verdict"] == "present"
+
+
+def test_a_layer_that_reads_from_the_file_but_not_once_rounded_to_float32_is_refused(blob, monkeypatch):
+    """A decoded GLB, or a re-saved copy, holds the scene a few float32 steps away: the read-back reads that too."""
+    import pmwm_codec.verify.owner as verify_owner
+    from pmwm_codec.stream.encoder import _owner_check
+
+    key = WatermarkKey.generate(rng=np.random.default_rng(3))
+    seen = []
+
+    def read(mesh, key):
+        seen.append(mesh.positions.copy())
+        return owner.OwnerResult("0" * 16, 0, 0, 1e-20, "present") if len(seen) == 1 else \
+            owner.OwnerResult("0" * 16, 20, 5, 1.0, "absent")
+
+    monkeypatch.setattr(verify_owner, "owner_of_mesh", read)
+    said = _owner_check([blob.positions], [blob.faces], key, [[np.eye(4)]])
+    assert said.endswith("20 of its 64 bits wrong from the file's positions rounded to float32, as a decoded or "
+                         "re-saved copy holds them, 5 of them in shells no vertex falls in: absent")
+    assert np.array_equal(seen[1], seen[0].astype(np.float32)) and not np.array_equal(seen[1], seen[0])
