@@ -544,7 +544,10 @@ def test_spec_constants_of_the_coder_and_the_models_match_the_code():
     assert f"| `{r2.P_ESCAPE}` | escape flag" in text and f"| `{r2.P_WING}`, `{r2.P_WING + 1}` | left / right wing" in text
     assert f"`{r2.P_SYMBOL} … {r2.P_SYMBOL + 7}` | escaped symbol, `Tree({r2.P_SYMBOL}, 3)`" in text
     assert f"`{r2.B_GEOMETRY} + 3·cls + role` | position residual" in text
-    assert f"`{r2.B_ATTRIBUTE} + min(j, {r2.ATTRIBUTE_CONTEXTS - 1})` | residual of attribute" in text
+    assert f"`{r2.B_ATTRIBUTE} + min(j, {r2.ATTRIBUTE_CONTEXTS - 1})` | residual of value column `3 + j`" in text
+    assert (f"`{r2.B_PLANE} + {r2.PLANE_CLASSES}·min(j, {r2.ATTRIBUTE_CONTEXTS - 1}) + acls` | residual of value column "
+            f"`3 + j` (as above) predicted on the ring's plane") in text
+    assert f"`acls` 0 … {r2.PLANE_CLASSES - 1} the ring's spread class" in text
     assert f"`{r2.B_LENGTH} + min(d, 16) − 1`" in text and f"`{r2.B_RANK} + min(c, 16) − 1`" in text
     assert f"`1 <= d <= {r2.MAX_ARC_FAN}`" in text
     assert f"`|x| < 2^{r2.MAX_VALUE.bit_length() - 1}`" in text
