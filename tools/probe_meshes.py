@@ -158,7 +158,8 @@ class Probe:
             if asset:
                 self.compare_asset(positions, faces, rep, base, (dec or {}).get("notices") or [])
             elif appearance:
-                self.compare_points(pmwm_codec.read_mesh(self.path), positions, faces, info["grid"])
+                grids = [p["grid"] for p in info.get("primitives") or [] if p.get("grid")] or [info["grid"]]
+                self.compare_points(pmwm_codec.read_mesh(self.path), positions, faces, grids)
             else:
                 self.compare(pmwm_codec.read_mesh(self.path), positions, faces, info["grid"], rep)
         except Exception:  # noqa: BLE001 -- a probe bug is reported, not fatal
@@ -191,7 +192,6 @@ class Probe:
         # a file stores float32: far from the origin a grid point is off by up to half a float32 spacing
         # (the encoder guarantees the grid index comes back, not the grid point: Grid.carries_float32)
         from pmwm_codec.progressive.grid import float32_spacing
-        from pmwm_codec.progressive.topology import canonical_faces
         f32 = float32_spacing(np.abs(dec_pos).max(axis=0, initial=0)) / (2 * step)
         off = (np.abs(qd_float - qd) - f32).max(initial=0)
         self.res["float32_steps"] = float(f32.max(initial=0))
@@ -216,7 +216,7 @@ class Probe:
                 self.finding("roundtrip-positions", f"max error {err:.3f} grid steps")
         rows, pid = np.unique(np.concatenate([qi, qd]), axis=0, return_inverse=True)
         pid = pid.reshape(-1)
-        fi, fd = canonical_faces(pid[:len(qi)][inp.faces]), canonical_faces(pid[len(qi):][dec_faces])
+        fi, fd = _oriented(pid[:len(qi)][inp.faces]), _oriented(pid[len(qi):][dec_faces])
         if fi.shape != fd.shape or not np.array_equal(fi, fd):
             si, sd = set(map(tuple, fi.tolist())), set(map(tuple, fd.tolist()))
             missing, extra = sorted(si - sd), sorted(sd - si)
@@ -227,41 +227,46 @@ class Probe:
                 self.finding("roundtrip-faces", f"{len(missing)} input faces missing, {len(extra)} extra "
                              f"(as position triples; {len(fi)} vs {len(fd)} rows)")
 
-    def compare_points(self, inp, dec_pos, dec_faces, grid) -> None:
-        """The round trip of a mesh encoded with its appearance (the OBJ writes each position once, its
-        texture coordinates and colours beside): every input vertex the faces use is within half a step
-        (plus 1/16 for near copies the encoder snaps together, plus float32 far from the origin) of a
-        decoded position and every decoded position of an input vertex (``roundtrip-positions``); no two
-        decoded positions are one grid point and there are no more of them than input positions
-        (``roundtrip-counts``); the faces are the input's, each input vertex taken as its nearest decoded
-        position (``roundtrip-faces``)."""
+    def compare_points(self, inp, dec_pos, dec_faces, grids) -> None:
+        """The round trip of a mesh encoded with its appearance (the OBJ writes a position once per primitive,
+        its texture coordinates and colours beside; a primitive per material, each on its grid, ``grids`` the
+        primitives' ``grid`` objects): every input vertex the faces use is within half a step of the coarsest
+        grid (plus 1/16 for near copies the encoder snaps together, plus float32 far from the origin) of a
+        decoded position and every decoded position of an input vertex (``roundtrip-positions``); there are no
+        more distinct decoded positions than input positions, and with one primitive no two decoded vertices
+        on one grid point (``roundtrip-counts``); the faces are the input's, each vertex taken as its position
+        (an input vertex as its nearest decoded one; ``roundtrip-faces``)."""
         from scipy.spatial import cKDTree
 
         from pmwm_codec.progressive.grid import float32_spacing
 
-        step = float(grid["step"])
+        step = max(float(g["step"]) for g in grids)
         used = np.unique(inp.faces) if len(inp.faces) else np.zeros(0, np.int64)
         self.res["input_vertices"], self.res["input_faces"] = inp.vertex_count, inp.face_count
-        qd = np.rint((dec_pos - np.asarray(grid["origin"], np.float64)) / step).astype(np.int64)
+        points, at = np.unique(dec_pos, axis=0, return_inverse=True)
+        at = at.reshape(-1)
         distinct_in = len(np.unique(inp.positions[used], axis=0))
-        if len(np.unique(qd, axis=0)) != len(qd) or len(qd) > distinct_in or len(dec_faces) != inp.face_count:
+        one_grid = len(grids) == 1 and len(np.unique(np.rint((dec_pos - np.asarray(grids[0]["origin"], np.float64))
+                                                               / step), axis=0)) == len(dec_pos)
+        if len(points) > distinct_in or len(dec_faces) != inp.face_count or (len(grids) == 1 and not one_grid):
             self.finding("roundtrip-counts", f"input {distinct_in} positions / {inp.face_count} f, decoded "
-                         f"{len(qd)} v ({len(np.unique(qd, axis=0))} grid points) / {len(dec_faces)} f")
+                         f"{len(dec_pos)} v ({len(points)} positions) / {len(dec_faces)} f")
             return
         slack = 0.5 + 1 / 16 + 0.01 + (float32_spacing(np.abs(dec_pos).max(axis=0, initial=0)) / (2 * step)).max()
-        there, nearest = cKDTree(dec_pos).query(inp.positions[used], p=np.inf)
-        back = cKDTree(inp.positions[used]).query(dec_pos, p=np.inf)[0]
+        there, nearest = cKDTree(points).query(inp.positions[used], p=np.inf)
+        back = cKDTree(inp.positions[used]).query(points, p=np.inf)[0]
         far = max(there.max(initial=0), back.max(initial=0)) / step
         self.res["max_err_steps"] = float(far)
         if far > slack:
-            self.finding("roundtrip-positions", f"a position {far:.3f} grid steps from the nearest on the other side")
-        to_dec = np.full(inp.vertex_count, -1, np.int64)
-        to_dec[used] = nearest
-        ti = {tuple(sorted(f)) for f in to_dec[inp.faces].tolist()}
-        td = {tuple(sorted(f)) for f in np.asarray(dec_faces).tolist()}
+            self.finding("roundtrip-positions", f"a position {far:.3f} steps of the coarsest grid from the nearest "
+                         "on the other side")
+        to_point = np.full(inp.vertex_count, -1, np.int64)
+        to_point[used] = nearest
+        ti = {tuple(sorted(f)) for f in to_point[inp.faces].tolist()}
+        td = {tuple(sorted(f)) for f in at[np.asarray(dec_faces, np.int64)].tolist()}
         if ti != td:
-            self.finding("roundtrip-faces", f"{len(ti - td)} input faces missing, {len(td - ti)} extra (each input "
-                         "vertex as its nearest decoded position)")
+            self.finding("roundtrip-faces", f"{len(ti - td)} input faces missing, {len(td - ti)} extra (each vertex "
+                         "as its position, an input vertex as the nearest decoded one)")
 
     def cut(self, base: str, k: int, asset: bool = False) -> None:
         """``pmw cut --chunks k`` then ``pmw decode`` equals the library's ``decode(chunks=k)`` (an asset's:
@@ -537,6 +542,18 @@ def read_obj(path: str):
     positions = np.loadtxt(v, ndmin=2) if v else np.zeros((0, 3))
     faces = (np.loadtxt(f, dtype=np.int64, ndmin=2) - 1) if f else np.zeros((0, 3), np.int64)
     return positions, faces
+
+
+def _oriented(faces: np.ndarray) -> np.ndarray:
+    """(m, 3) int64 rows, sorted: each face of ``faces`` (m, 3) int64 (ids of grid points) as its canonical
+    oriented triple; a face with two corners on one grid point has no orientation, and is its sorted triple."""
+    from pmwm_codec.progressive.topology import face_keys
+
+    faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    flat = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
+    rows = face_keys(faces)
+    rows[flat] = np.sort(faces[flat], axis=1)
+    return rows[np.lexsort(rows.T[::-1])]
 
 
 def _proper(positions: np.ndarray, faces: np.ndarray, tol: float = 0.0) -> np.ndarray:
