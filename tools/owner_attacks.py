@@ -48,9 +48,7 @@ TAIL_AT = 16
 
 def uniform_quantize(V, F, rng, bits):
     """KHR_mesh_quantization / gltfpack: one cubic grid (max extent / (2^bits - 1)), then re-ordered."""
-    lo = V.min(0)
-    step = (V.max(0) - lo).max() / (2**bits - 1)
-    return A.reorder(np.round((V - lo) / step) * step + lo, F, rng)
+    return A.reorder(owner.on_storage_grid(np.asarray(V, np.float64), bits), F, rng)
 
 
 def beside_another(V, F, rng, share=0.1):

@@ -545,15 +545,13 @@ def _transport_check(points: np.ndarray, faces: np.ndarray, key: WatermarkKey) -
     meshes read 20-31 errors of 64 after 14-bit quantization with every margin met.
     """
     from ..verify.owner import owner_of_mesh
+    from ..watermark.owner import on_storage_grid
 
-    lo = points.min(0)
-    extent = float((points.max(0) - lo).max())
-    if not extent > 0:
+    if not float((points.max(0) - points.min(0)).max()) > 0:
         return None
     wrong = []
     for bits in TRANSPORT_CHECK_BITS:
-        step = extent / (2**bits - 1)
-        read = owner_of_mesh(Mesh(np.round((points - lo) / step) * step + lo, faces), key)
+        read = owner_of_mesh(Mesh(on_storage_grid(points, bits), faces), key)
         if read.verdict != "present":
             wrong.append(f"{read.bit_errors} of its {read.bits} bits wrong after {bits}-bit quantization ({read.verdict})")
     if not wrong:

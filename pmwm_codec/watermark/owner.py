@@ -875,15 +875,26 @@ def _move(tab: _Tables, amp: np.ndarray) -> np.ndarray:
     return centroid + tab.d * scale[:, None]
 
 
+def on_storage_grid(points: np.ndarray, bits: int) -> np.ndarray:
+    """(k, 3) float64: ``points`` (k, 3) on the grid Draco, glTF-Transform, gltfpack and KHR_mesh_quantization
+    store positions on: one cubic grid of ``2**bits - 1`` steps over the largest extent, from the bounding
+    box's corner, each point rounded to the nearest grid point."""
+    lo = points.min(0)
+    extent = float((points.max(0) - lo).max())
+    if not extent > 0:
+        return points.copy()
+    step = extent / (2**bits - 1)
+    return np.round((points - lo) / step) * step + lo
+
+
 def _transports(points: np.ndarray, rng: np.random.Generator):
     """The simulated transport of :data:`TRANSPORT_BITS`: yields (k, 3) float64 positions: float32, the
     grid Draco, gltfpack and KHR_mesh_quantization put the positions as stored on (axis-aligned from the
     bounding box's corner, rounded to the nearest point), then :data:`TRANSPORT_TRIALS` rotated, shifted
     grids."""
     yield points.astype(np.float32).astype(np.float64)
-    lo = points.min(0)
-    step = float((points.max(0) - lo).max()) / (2**TRANSPORT_BITS - 1)
-    yield np.round((points - lo) / step) * step + lo
+    step = float((points.max(0) - points.min(0)).max()) / (2**TRANSPORT_BITS - 1)
+    yield on_storage_grid(points, TRANSPORT_BITS)
     for _ in range(TRANSPORT_TRIALS):
         q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
         p = points @ q.T + rng.uniform(0.0, step, 3)
