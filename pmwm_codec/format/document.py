@@ -193,6 +193,8 @@ def _glb_document(data: bytes, name: str):
 
 #: A uri with a scheme (``file:``, ``http:`` ...): never fetched.
 _SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*:")
+#: ASCII white space, which a base64 data URI may hold between its characters.
+_NO_WHITE_SPACE = re.compile(r"[ \t\r\n\f\v]+")
 
 
 def _resolve_uri(uri, base_dir: str, name: str, budget: list) -> bytes:
@@ -214,6 +216,8 @@ def _resolve_uri(uri, base_dir: str, name: str, budget: list) -> bytes:
         if _SCHEME.match(uri) or _SCHEME.match(path):
             raise InputFormatError(f"{name}: the uri {shown} is not a relative path (only files beside the asset are read)")
         blob = read_beside(path, base_dir, f"{name}: the uri {shown}", budget)
+    if not blob:  # glTF: a buffer's and a bufferView's byteLength are at least 1; an empty image is none
+        raise InputFormatError(f"{name}: the uri {shown} holds no bytes")
     budget[0] -= len(blob)
     return blob
 
@@ -246,7 +250,10 @@ def _data_uri(uri: str, name: str, shown: str, limit: int) -> bytes:
     if base64_coded and len(payload) // 4 * 3 > limit:  # decoded size known before decoding
         raise InputFormatError(f"{name}: the data URI {shown} holds more than the limit of {limit:,} bytes")
     try:
-        blob = base64.b64decode(payload) if base64_coded else urllib.parse.unquote_to_bytes(payload)
+        # strict: a character outside the alphabet is an error, not dropped (``@@@@`` decoded to no bytes);
+        # ASCII white space (base64 broken over lines) is not part of the data
+        blob = base64.b64decode(_NO_WHITE_SPACE.sub("", payload), validate=True) if base64_coded else \
+            urllib.parse.unquote_to_bytes(payload)
     except (ValueError, TypeError):
         raise InputFormatError(f"{name}: the data URI {shown} does not decode") from None
     if len(blob) > limit:
