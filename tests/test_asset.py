@@ -649,3 +649,32 @@ def test_a_gltf_read_by_load_document_encodes_from_memory_with_its_external_imag
     with pytest.raises(InputFormatError, match=r"images\[0\]\.uri 'stripes.png' names a file"):
         encode_asset((gltf, buffers), tmp_path / "again.pmw", measure=False)
     assert not (tmp_path / "again.pmw").exists()
+
+
+@pytest.mark.parametrize("stripped", [0, 1])
+def test_a_primitive_whose_watermark_object_was_stripped_makes_the_file_not_authentic(tmp_path, capsys, stripped):
+    """One watermark covers every progressive primitive, each repeating its public parameters (spec README,
+    "Watermark over several primitives"): with one primitive's object stripped the others are still read
+    (verify refused the file with "every edge has zero length" when the second lost it, and said the file
+    carried no watermark when the first did), and the changed primitive fails its base MAC."""
+    from pmwm_codec.cli import main
+    from pmwm_codec.constants import EXTENSION_NAME
+    from pmwm_codec.format.glb import split_glb
+
+    src = two_mesh_asset(tmp_path)
+    key = WatermarkKey.generate(rng=np.random.default_rng(5))
+    mark = (np.indices((16, 16)).sum(0) % 2 * 200 + 30).astype(np.uint8)
+    encode_asset(src, tmp_path / "scene.pmw", watermark=mark, key=key, measure=False).key.save(tmp_path / "scene.pmw.key.json")
+    gltf, binary = split_glb((tmp_path / "scene.pmw").read_bytes())
+    exts = [p["extensions"][EXTENSION_NAME] for m in gltf["meshes"] for p in m["primitives"] if "extensions" in p]
+    assert len(exts) == 2 and all("watermark" in e for e in exts)
+    exts[stripped].pop("watermark")
+    (tmp_path / "stripped.pmw").write_bytes(b"".join(glb_parts(gltf, [binary], len(binary))))
+    capsys.readouterr()
+    for name, verdict, status in (("scene.pmw", "authentic", 0), ("stripped.pmw", "not-authentic", 1)):
+        assert main(["verify", str(tmp_path / name), "--key", str(tmp_path / "scene.pmw.key.json"), "--json"]) == status
+        out = json.loads(capsys.readouterr().out)
+        assert out["verdict"] == verdict and out["key_matches"] is True
+        assert out["codes_read"] > 0  # the primitive that kept its object is read
+        assert len(out["mac"]["failed"]) == (name == "stripped.pmw")  # the stripped primitive's base
+    assert main(["decode", str(tmp_path / "stripped.pmw"), "-o", str(tmp_path / "stripped.glb")]) == 0

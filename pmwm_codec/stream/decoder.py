@@ -259,7 +259,10 @@ class StreamDecoder:
         self.header = event
         self.chunks_total = event.chunk_count
         job_vertices(sum(int(e.get("vertexCount", 0)) for e in event.extensions))  # counts checked by the parser
-        cfg = event.extension.get("watermark")
+        # one watermark covers every progressive primitive, each repeating its public parameters (spec README,
+        # "Watermark over several primitives"): the first that carries one gives them (one whose object was
+        # stripped carries no carriers, and its base MAC says it was changed)
+        cfg = next((e["watermark"] for e in event.extensions if "watermark" in e), None)
         if cfg is None:
             return  # an unmarked file: nothing to read, the verdict will say so
         # A file cut by `pmw cut` holds fewer vertices than the stream the mark was spread
@@ -277,7 +280,7 @@ class StreamDecoder:
     def _start_verifier(self):
         if self.watermark_params is None:
             return
-        nbars = self._replay.nbars
+        nbars = [nb for nb, ext in zip(self._replay.nbars, self._replay.exts) if "watermark" in ext]
         if not all(np.isfinite(nb) and nb > 0 for nb in nbars):
             raise FormatError("base mesh: every edge has zero length, the watermark has no reference length")
         if self.key is not None:

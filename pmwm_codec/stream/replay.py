@@ -218,7 +218,7 @@ class Replay:
             self._faces(p, event, meta)
         for batch, own_topo in () if face_chunk else self._batches(p, event):
             self.batches_applied += 1
-            if not self.carriers and self.given is None:
+            if self.given is None and (not self.carriers or scale is None):
                 continue
             if self.given is None:
                 topo = own_topo
@@ -233,6 +233,8 @@ class Replay:
                 centroid = topo.centroid()
                 known = np.isfinite(points).all(axis=1) & np.isfinite(centroid).all(axis=1)
                 decoded = self.shadows[p].positions[own_topo.u, :3]
+            if scale is None:
+                continue  # a primitive without a watermark object carries none
             out.append(Carriers(p, self.batches_applied - 1, points, centroid, known, self.nbars[p], scale,
                                 topo.u, state.positions, topo, decoded))
         self.chunks_applied += 1
