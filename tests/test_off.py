@@ -167,3 +167,22 @@ def test_mutated_coloured_off_files_are_read_or_refused_by_name_never_another_er
             off_source(str(path), "m.off")
         except PmwError:
             pass
+
+
+@pytest.mark.parametrize("keyword, colours", [("NOFF", False), ("CNOFF", True)])
+def test_an_off_s_vertex_normals_are_not_carried_and_the_encoder_says_so(tmp_path, keyword, colours):
+    """An ``N`` OFF's vertex normals are not read (README: "its faces' colours and normals not read, with a
+    note"), as an OBJ's ``vn`` and a PLY's ``nx ny nz`` are not carried, which the encoder says: a NOFF's had
+    been dropped without a word."""
+    mesh = shapes.icosphere(2)
+    lines = [keyword, f"{mesh.vertex_count} {mesh.face_count} 0"]
+    for p in mesh.positions:
+        n = p / np.linalg.norm(p)
+        lines.append(" ".join(repr(float(x)) for x in (*p, *n)) + (" 0.5 0.5 0.5" if colours else ""))
+    lines += ["3 " + " ".join(map(str, f)) for f in mesh.faces]
+    (tmp_path / "n.off").write_text("\n".join(lines) + "\n")
+    report = pmwm_codec.encode(str(tmp_path / "n.off"), str(tmp_path / "n.pmw"))
+    assert report["vertices"] == mesh.vertex_count
+    assert any("normals" in n and "not carried" in n for n in report["notices"]), report["notices"]
+    (tmp_path / "p.off").write_text(off_text(mesh))
+    assert not any("normals" in n for n in pmwm_codec.encode(str(tmp_path / "p.off"), str(tmp_path / "p.pmw"))["notices"])
