@@ -68,11 +68,12 @@ def decode_to(src, dst, chunks: int | None = None, geometry_only: bool = False) 
             else:
                 mesh, why = scene_as_shown(gltf, last)
                 notices += posed_notes(gltf)  # a progressive skinned mesh
+                shown = gltf
         scene = None
         if plain:
             glb, end, decoder = decode_asset(source, chunks=chunks)
             doc, bin_chunk = split_glb(glb, "the decoded asset")
-            header = decoder.header.gltf_json
+            header = shown = decoder.header.gltf_json
             notices += decoder.notices + posed_notes(header)
             if styled and shows_appearance(header):
                 scene = scene_parts(doc, [bin_chunk], also=progressive_meshes(header))
@@ -96,11 +97,33 @@ def decode_to(src, dst, chunks: int | None = None, geometry_only: bool = False) 
         if why is not None:
             notices.append(f"{why}: the {suffix[1:].upper()} file holds each primitive once, as stored, not "
                            "placed by the scene's nodes; decode to .glb to keep the scene")
+        notices += _points_and_lines_left_out(shown, suffix)
     end = stream_end(source, end)  # a URL read up to chunk N: the file on the server may be whole
     return {"vertices": int(counts[0]), "faces": int(counts[1]), "chunks_applied": int(end.chunks_applied),
             "complete": bool(end.complete), "chunks_total": int(end.chunks_total), "truncated": bool(end.truncated),
             "output": dst, "files": written, "notices": _chunk_notices(chunks, end) + notices,
             "bytes_read": int(end.bytes_read)}
+
+
+#: glTF primitive modes that draw no triangles, by name.
+_POINT_AND_LINE_MODES = {0: "POINTS", 1: "LINES", 2: "LINE_LOOP", 3: "LINE_STRIP"}
+
+
+def _points_and_lines_left_out(gltf, suffix: str) -> list:
+    """A notice naming the primitives of the document ``gltf`` that draw points or lines (which the ``.pmw``
+    passes through, and a ``.glb`` / ``.gltf`` output keeps): an OBJ, PLY, STL or OFF output holds the scene's
+    triangles, so they are left out, and the decode says so rather than drop them without a word."""
+    named = []
+    for mi, mesh in enumerate((gltf or {}).get("meshes", []) if isinstance(gltf, dict) else []):
+        for pi, prim in enumerate(mesh.get("primitives", []) if isinstance(mesh, dict) else []):
+            mode = prim.get("mode", TRIANGLES) if isinstance(prim, dict) else TRIANGLES
+            if mode in _POINT_AND_LINE_MODES:
+                named.append(f"mesh {mi} primitive {pi} ({_POINT_AND_LINE_MODES[mode]})")
+    if not named:
+        return []
+    shown = ", ".join(named[:3]) + (f" and {len(named) - 3} more" if len(named) > 3 else "")
+    return [f"{shown}: points and lines are left out; the {suffix[1:].upper()} file holds the scene's triangles "
+            "(decode to .glb to keep them)"]
 
 
 def _stored_triangles(doc: dict) -> tuple:
