@@ -810,6 +810,7 @@ def _obj_parts(positions, vt, vn, colours, corners, face_material, notices, mate
         return "the faces of no material" if key < 0 else f"the faces of material {materials[key].name!r}"
 
     keys = np.unique(face_material).tolist()
+    used = np.zeros(len(positions), bool)  # the positions some kept face names
     for key in keys[1:] + keys[:1] if keys[0] < 0 else keys:
         tri = np.flatnonzero(face_material == key)
         c = corners.reshape(-1, 3, 3)[tri].reshape(-1, 3)
@@ -819,6 +820,7 @@ def _obj_parts(positions, vt, vn, colours, corners, face_material, notices, mate
             c = c.reshape(-1, 3, 3)[~degenerate].reshape(-1, 3)
         if not len(c):
             continue
+        used[c[:, 0]] = True
         attrs = {}
         has_uv = bool(len(vt)) and (c[:, 1] >= 0).any()
         has_normal = bool(len(vn)) and (c[:, 2] >= 0).any()
@@ -855,6 +857,8 @@ def _obj_parts(positions, vt, vn, colours, corners, face_material, notices, mate
         if colours is not None:
             attrs["COLOR_0"] = linear_from_srgb(colours[unique[:, 0]])
         parts.append(Part(positions[unique[:, 0]], inverse.reshape(-1, 3), attrs, None if key < 0 else key))
+    if parts and not used.all():  # as the geometry reader says it (checked_mesh's cleanup)
+        notices.append(f"dropped {int((~used).sum())} unreferenced vertices")
     return parts
 
 
