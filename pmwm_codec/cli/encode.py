@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import os
 
+import numpy as np
+
 import pmwm_codec
 from pmwm_codec.constants import MAX_GRID_BITS, MIN_GRID_BITS
 from pmwm_codec.distortion import MEASURES
@@ -12,6 +14,7 @@ from pmwm_codec.format.extension import DEFAULT_PAYLOAD_VERSION, PAYLOAD_VERSION
 from pmwm_codec.options import IMAGE_OPTIONS, ignored_without_image
 from pmwm_codec.watermark.codec import MAX_BITS, MODES, CapacityError, shrink_watermark, watermark_words
 from pmwm_codec.watermark.image import load_watermark
+from pmwm_codec.watermark.key import KEY_SUFFIX
 
 from .common import (Progress, UsageError, check_input_file, check_output_path, check_pmw_output, fmt_float,
                      nonblank_path, print_json, stage_progress)
@@ -188,9 +191,13 @@ def _key_image(args) -> bool:
 
 def _encode_fitting(args, options: dict, notices: list) -> dict:
     """Encode; with ``--fit``, a watermark too large for the mesh is shrunk to the largest
-    size that fits (the library's CapacityError names it) and the encode runs again."""
+    size that fits (the library's CapacityError names it) and the encode runs again.  An existing
+    key that holds this very image as ``--fit`` shrank it is reused with that image (:func:`_fitted_by_key`)."""
+    watermark = _fitted_by_key(args, notices)
+    if watermark is None:
+        watermark = args.watermark
     try:
-        return pmwm_codec.encode(args.input, args.output, watermark=args.watermark, key=args.key, **options)
+        return pmwm_codec.encode(args.input, args.output, watermark=watermark, key=args.key, **options)
     except CapacityError as exc:
         if not args.fit or not exc.largest_size or args.watermark is None:
             raise
@@ -200,6 +207,31 @@ def _encode_fitting(args, options: dict, notices: list) -> dict:
                        "the largest size this mesh carries")
         return pmwm_codec.encode(args.input, args.output, watermark=shrink_watermark(image, size), key=args.key,
                                  **options)
+
+
+def _fitted_by_key(args, notices: list):
+    """With ``--fit``, the image the existing key (``--key``, else ``OUT.pmw.key.json``) holds when it is
+    ``--watermark`` as ``--fit`` shrank it on an earlier run, with a note; else None.  Without this the same
+    command run again (or for the next asset of one collection key) was refused: the key holds the shrunk
+    image, which is not the image named, though it is the one ``--fit`` marks with."""
+    if not args.fit or args.watermark is None:
+        return None
+    path = args.key if args.key is not None else os.fspath(args.output) + KEY_SUFFIX
+    if not os.path.isfile(path):
+        return None
+    try:
+        reference = pmwm_codec.load_key(path).reference
+    except pmwm_codec.PmwError:
+        return None  # the library names what is wrong with it
+    if reference is None or reference.ndim != 2 or reference.shape[0] != reference.shape[1]:
+        return None
+    image, _ = load_watermark(args.watermark)
+    size = int(reference.shape[0])
+    if size >= image.shape[0] or not np.array_equal(shrink_watermark(image, size), reference):
+        return None
+    notices.append(f"--fit: {watermark_words(image.shape[0], None)} shrunk to {size}x{size}, as the key {path} "
+                   "holds it")
+    return reference
 
 
 def summary(src, dst, r) -> str:

@@ -164,6 +164,13 @@ def run_owner(args) -> int:
 
     check_input_file(args.input, "mesh file")
     check_input_file(args.key, "key file")
+    # this form reads the owner layer alone: no image is compared and no picture drawn, so an option asking for
+    # either would be dropped in silence (exit 0, nothing written); said instead, before any work
+    for option, given in (("--watermark", args.watermark), ("--frames", args.frames)):
+        if given is not None:
+            raise UsageError(f"{option}: 'pmw verify MESH --key KEY' (no --reference) reads the owner layer alone, "
+                             f"which compares no image and draws no picture; add --reference ORIGINAL.pmw to check "
+                             f"the image watermark (and write pictures), or leave {option} out")
     with naming(args.input):
         mesh = owner_view(args.input)
     with naming(args.key):
