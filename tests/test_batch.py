@@ -405,6 +405,15 @@ def test_bad_batch_usage_exits_2_with_one_line(argv, words, capsys):
     assert err.count("\n") == 1 and err.startswith("pmw: error:") and words in err
 
 
+def test_batch_verify_of_a_file_names_it_as_not_a_folder(tmp_path, capsys):
+    """A file given as OUT_DIR exists: the line says it is not a folder (it said "no such folder")."""
+    path = tmp_path / "demo.obj"
+    path.write_text("v 0 0 0\n")
+    assert main(["batch", "verify", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "is not a folder" in err and "no such" not in err
+
+
 def test_more_local_workers_than_four_per_cpu_are_refused_before_anything_is_made(library, tmp_path, capsys):
     """A thousand worker processes (each imports the library) would take the machine down: refused in one line,
     no output folder made, nothing started."""

@@ -315,3 +315,37 @@ def test_pmw_cut_never_leaves_a_key_beside_a_file_it_does_not_verify(tmp_path, c
         assert out.read_bytes() == mine
     assert main(["cut", str(src["mine"]), "-o", str(out), "--chunks", "1", "-q"]) == 0
     assert out.read_bytes() == cut(mine, 1)
+
+
+def test_a_cut_of_a_file_with_the_owner_layer_alone_is_taken_exactly_when_the_key_beside_reads_it(tmp_path, capsys):
+    """Such a file names no key fingerprint: the cut was refused beside its own key ("carries no watermark") though
+    ``pmw verify`` of the cut with that key said ``present``.  Now the key beside is read in the cut: taken when its
+    owner ID reads ``present``, refused (naming the owner read) when not: another key's file, a prefix too short."""
+    import shutil
+
+    from pmwm_codec.meshio import write_mesh
+
+    write_mesh(str(tmp_path / "m.obj"), shapes.demo_mesh())
+    src, other, out = tmp_path / "src.pmw", tmp_path / "other.pmw", tmp_path / "b.pmw"
+    for path in (src, other):  # the same ID under two keys (each encode makes its own secret)
+        assert main(["encode", str(tmp_path / "m.obj"), "-o", str(path), "--owner-id", "abc", "-q"]) == 0
+    shutil.copy(src, out)
+    shutil.copy(f"{src}.key.json", f"{out}.key.json")
+    capsys.readouterr()
+    assert main(["cut", str(src), "-o", str(out), "-q"]) == 0 and out.read_bytes() == src.read_bytes()
+    seen = set()
+    for source, chunks in ((other, None), (src, 0), (src, 1), (src, 3), (src, None)):
+        argv = ["cut", str(source), "-o", str(out)] + ([] if chunks is None else ["--chunks", str(chunks)])
+        assert main([*argv[:3], str(tmp_path / "probe.pmw"), "-q", *argv[4:]]) == 0  # the same cut, nothing beside
+        verified = main(["verify", str(tmp_path / "probe.pmw"), "--key", f"{out}.key.json", "-q"]) == 0
+        seen.add(verified)
+        capsys.readouterr()
+        before = out.read_bytes()
+        assert main([*argv, "-q"]) == (0 if verified else 2)
+        err = capsys.readouterr().err
+        if verified:
+            assert out.read_bytes() == (tmp_path / "probe.pmw").read_bytes()
+        else:
+            assert err.count("\n") == 1 and "does not read as the key's owner ID" in err and out.read_bytes() == before
+        (tmp_path / "probe.pmw").unlink()
+    assert seen == {True, False}  # both answers were put to the test

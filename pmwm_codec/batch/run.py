@@ -574,7 +574,7 @@ def verify_batch(out_dir, *, key=None, keys_dir=None, watermark=None, workers=No
         local_workers(workers)
     out_dir = os.path.abspath(os.fspath(out_dir))
     if not os.path.isdir(out_dir):
-        raise BatchError(f"{out_dir}: no such folder")
+        raise BatchError(f"{out_dir}: " + ("is not a folder" if os.path.exists(out_dir) else "no such folder"))
     files = sorted(os.path.join(here, f) for here, _, names in os.walk(out_dir) for f in names
                    if f.endswith(PMW_SUFFIX) and not f.startswith("."))
     if not files:

@@ -132,7 +132,7 @@ def add_parser(sub):
                                     "under --keys-dir, or the key beside each file. Symlinked folders are not "
                                     "entered; a file or key whose real path leaves OUT_DIR (or --keys-dir) is not "
                                     "read and counts as an error; a file that ends before its declared length is 'truncated', not "
-                                    "authentic. Exit 0 when all are authentic.")
+                                    "authentic. Exit 0 when every file is authentic (a file carrying the owner layer alone: present).")
     v.add_argument("out_dir", type=nonblank_path("OUT_DIR", "folder"), metavar="OUT_DIR")
     keys = v.add_mutually_exclusive_group()
     keys.add_argument("--key", type=nonblank_path("--key", "key file"), metavar="KEY", help="the collection key")

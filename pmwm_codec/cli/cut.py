@@ -62,12 +62,42 @@ def run(args) -> int:
 def _refuse_orphaned_key(output, data: bytes) -> None:
     """Refused (:func:`~pmwm_codec.watermark.key.refuse_orphaned_beside`, as ``pmw encode`` refuses it) when a key
     file lies beside ``output`` (``OUT.pmw.key.json``) and the cut ``data`` does not carry that key's mark: replacing
-    the file would leave the key beside a file it does not verify.  A cut of the key's own file is taken."""
+    the file would leave the key beside a file it does not verify.  A cut of the key's own file is taken: a file
+    with a watermark image names its key's fingerprint; one with the owner layer alone names none, and is taken
+    when the key beside reads its owner ID ``present`` in the cut's last level (:func:`_owner_read_beside`)."""
     import os
 
     from pmwm_codec.format.reader import read_header
     from pmwm_codec.watermark.key import KEY_SUFFIX, refuse_orphaned_beside
 
+    key_path = os.fspath(output) + KEY_SUFFIX
     marks = (read_header(data).extension.get("watermark") or {}).get("keyFingerprint")
-    refuse_orphaned_beside(os.fspath(output) + KEY_SUFFIX, output, marks is not None, fingerprint=marks,
-                           writer="the cut file", states=("carries no watermark", "is marked with another key"))
+    states = ("carries no watermark", "is marked with another key")
+    if marks is None:
+        read = _owner_read_beside(key_path, data)
+        if read == "present":
+            return
+        if read is not None:
+            states = (f"does not read as the key's owner ID (it carries no watermark image, and its owner layer "
+                      f"reads {read})", states[1])
+    refuse_orphaned_beside(key_path, output, marks is not None, fingerprint=marks, writer="the cut file", states=states)
+
+
+def _owner_read_beside(key_path: str, data: bytes) -> str | None:
+    """The owner verdict (``present`` | ``absent`` | ``inconclusive``) that the key at ``key_path`` reads in the last
+    level of the ``.pmw`` ``data``; None when no readable key with an owner ID lies there."""
+    import os
+
+    from pmwm_codec.errors import PmwError
+    from pmwm_codec.verify.owner import owner_of_stream
+    from pmwm_codec.watermark.key import WatermarkKey
+
+    if not os.path.isfile(key_path):
+        return None
+    try:
+        key = WatermarkKey.load(key_path)
+    except PmwError:
+        return None  # refused as any key beside a file it does not verify
+    if key.owner_id is None:
+        return None
+    return owner_of_stream(data, key, last_only=True)[-1].owner.verdict

@@ -16,7 +16,7 @@ from .common import UsageError, check_input_file, check_output_path, naming, not
 
 def add_parser(sub):
     p = sub.add_parser(
-        "decode", help=".pmw (whole, cut or on stdin) -> GLB/glTF/OBJ/PLY/STL",
+        "decode", help=".pmw (whole, cut or on stdin) -> GLB/glTF/OBJ/PLY/STL/OFF",
         description="Decode a .pmw (whole, truncated, or '-' for standard input) to an ordinary mesh file "
                     "at full resolution or after --chunks N vertex-split chunks.")
     p.add_argument("input", metavar="IN.pmw|URL", help="the .pmw, an http(s):// URL of one (read by Range requests "

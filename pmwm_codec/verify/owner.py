@@ -212,9 +212,10 @@ def _triangle_meshes(gltf: dict) -> list:
             and any(isinstance(p, dict) and p.get("mode", TRIANGLES) in TRIANGLE_MODES for p in m["primitives"])]
 
 
-def owner_of_stream(source, key, every: bool = False) -> list:
-    """``[OwnerBoundary]`` of a ``.pmw`` (see the module contract), base mesh first."""
-    reader = OwnerReader(key, every=every)
+def owner_of_stream(source, key, every: bool = False, last_only: bool = False) -> list:
+    """``[OwnerBoundary]`` of a ``.pmw`` (see the module contract), base mesh first; ``last_only``: the last
+    boundary alone (:class:`OwnerReader`)."""
+    reader = OwnerReader(key, every=every, last_only=last_only)
     decoder = StreamDecoder(None, None, copy=True)
     for r in iter_results(source, decoder):
         reader.add(r, decoder.header.gltf_json)
