@@ -200,10 +200,11 @@ class Holding(RangeRequestHandler):
     def copyfile(self, source, outputfile):
         body = source.read(self._length)
         cut = min(max(self.server.hold - (source.tell() - len(body)), 0), len(body))
+        if cut < len(body):  # said before the bytes go: the reader may decode level k before this thread runs on
+            self.server.held = True
         outputfile.write(body[:cut])
         outputfile.flush()
         if cut < len(body):
-            self.server.held = True
             self.server.release.wait(10)
         outputfile.write(body[cut:])
 
