@@ -31,8 +31,10 @@
  */
 import { Extension, ExtensionProperty, Format, PropertyType, VertexLayout } from '@gltf-transform/core';
 import { createBLAKE2b } from 'hash-wasm';
-import { FormatError, PmwError } from './errors.js';
-import { WELD_ATTRIBUTE, baseVertexCount, checkJsonTree, chunkEntries, parseGlb, planDocument } from './header.js';
+import { FormatError, PmwError, TruncatedError } from './errors.js';
+import {
+  WELD_ATTRIBUTE, baseVertexCount, checkJsonTree, checkPreamble, chunkEntries, parseGlb, planDocument, preambleLength,
+} from './header.js';
 import { packChunkTable } from './chunktable.js';
 
 /** BLAKE2b-128 (hash-wasm; WebAssembly compiles asynchronously, once, at import). */
@@ -156,6 +158,13 @@ function checkedPlan(context) {
  * @param {Uint8Array} bytes a whole GLB
  */
 export function checkPmwHeader(bytes) {
+  // bytes that end before the BIN chunk's header: the decoder's TruncatedError (after the preamble's own checks),
+  // not the RangeError of a DataView read past them
+  if (bytes.length >= 20) checkPreamble(bytes);
+  if (bytes.length < preambleLength(bytes)) {
+    throw new TruncatedError(`the GLB ended after ${bytes.length} bytes, before its JSON and BIN chunk headers `
+      + `(${preambleLength(bytes)} bytes)`, bytes.length, preambleLength(bytes));
+  }
   const { gltf, binLength } = parseGlb(bytes);
   if (carriesStream(gltf)) planDocument(gltf, binLength);
 }

@@ -15,7 +15,7 @@ import { KHRDracoMeshCompression } from '@gltf-transform/extensions';
 import draco3d from 'draco3d';
 import { PMWMProgressiveMesh, BaseMeshChangedError, checkPmwHeader } from 'pmwm-progressive/gltf-transform';
 import { writePmwAsGlb } from 'pmwm-progressive/gltf-transform.config.mjs';
-import { FormatError, LimitError, MAX_JSON_DEPTH, PmwDecoder, UnsupportedError } from '../src/index.js';
+import { FormatError, LimitError, MAX_JSON_DEPTH, PmwDecoder, TruncatedError, UnsupportedError } from '../src/index.js';
 import { chunkEntries, parseGlb } from '../src/header.js';
 import { CONFORMANCE, conformanceFiles, levelDigest } from './lib/helpers.js';
 import { withJson } from './lib/rewrite.js';
@@ -352,4 +352,20 @@ test('read() refuses, with the decoder\'s named error, what it can see of the JS
     await io.readBinary(bytes); // the limit js/README.md states
   }
   checkPmwHeader(v1); // a valid file passes
+});
+
+test('checkPmwHeader refuses bytes that end before the JSON and BIN chunk headers with a TruncatedError, as the decoder does', async () => {
+  const v1 = load(conformanceFiles().find((f) => f.endsWith('.v1.pmw')));
+  const jsonEnd = 28 + new DataView(v1.buffer, v1.byteOffset).getUint32(12, true);
+  for (const n of [0, 10, 19, 20, 30, jsonEnd - 1]) {
+    const prefix = v1.slice(0, n);
+    const decoder = new PmwDecoder();
+    await decoder.feed(prefix);
+    await assert.rejects(decoder.close(), TruncatedError); // the decoder's kind for a stream this short
+    assert.throws(() => checkPmwHeader(prefix), (e) => e instanceof TruncatedError && e.bytesReceived === n
+      && e.bytesNeeded === (n < 20 ? 20 : jsonEnd), `checkPmwHeader: ${n} bytes`);
+  }
+  const bad = v1.slice(0, 24);
+  bad[0] = 0; // the preamble's own checks still come first
+  assert.throws(() => checkPmwHeader(bad), FormatError);
 });
