@@ -240,3 +240,18 @@ def test_an_empty_src_is_named_as_empty(lib, capsys, monkeypatch):
     assert main(["batch", "encode", "", "-o", "out", "--workers", "1", "-q"]) == 2
     _one_line(capsys, "pmw: error: an empty SRC ('') names no folder, file or glob (an unset variable?)")
     assert _tree(lib) == before
+
+
+# --- batch verify: an expected watermark image or a --keys-dir that cannot be used is bad usage --------------------
+
+
+@pytest.mark.parametrize("option", ["--watermark", "--keys-dir"])
+def test_batch_verify_with_a_watermark_or_keys_dir_that_does_not_exist_is_one_line_exit_2(published, capsys, option):
+    """``pmw batch verify OUT --watermark nosuch.png`` (or ``--keys-dir nosuch``) started the cluster and gave one
+    ``error`` result per file, exit 1; ``pmw verify FILE --watermark nosuch.png`` says it once, exit 2."""
+    pub = published / "published"
+    for name in ("planted.pmw", "own.pmw", "alias.pmw"):
+        (pub / name).unlink()
+    missing = published / ("nosuch.png" if option == "--watermark" else "nosuch")
+    assert main(["batch", "verify", str(pub), option, str(missing), "--workers", "1", "--json"]) == 2
+    _one_line(capsys, str(missing), "no such")

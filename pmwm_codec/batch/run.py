@@ -579,6 +579,13 @@ def verify_batch(out_dir, *, key=None, keys_dir=None, watermark=None, workers=No
                    if f.endswith(PMW_SUFFIX) and not f.startswith("."))
     if not files:
         raise BatchError(f"{out_dir}: no .pmw files found")
+    if keys_dir is not None and not os.path.isdir(keys_dir):  # bad usage, not one error result per file
+        raise BatchError(f"{keys_dir}: " + ("is not a folder" if os.path.exists(keys_dir) else "no such folder")
+                         + "; --keys-dir names the folder of the per-asset keys")
+    if watermark is not None and isinstance(watermark, (str, os.PathLike)):
+        from pmwm_codec.watermark.image import load_watermark
+
+        load_watermark(watermark)  # an image that does not read is bad usage (as pmw verify), checked once, here
     if key is not None:
         from pmwm_codec.watermark.key import WatermarkKey
 
