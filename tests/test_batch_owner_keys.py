@@ -134,3 +134,17 @@ def test_owner_id_with_a_new_collection_key_makes_it_and_an_existing_key_must_na
             "--workers", "1")
     assert r.returncode == 2 and "names owner id 0000000000000078, not 0000000000000079" in r.stderr
     assert not (tmp_path / "other").exists()
+
+
+def test_a_rerun_with_the_collection_key_alone_skips_what_owner_id_and_that_key_made(catalogue, tmp_path):
+    """``--owner-id 0x7a --key K`` then ``--key K`` (the key names 0x7a; the same outputs) re-encoded every asset:
+    the repeated ID was hashed into the settings as an option of its own, so neither run took the other's for done."""
+    key = tmp_path / "store.key.json"
+    first = pmw("batch", "encode", catalogue / "src", "-o", tmp_path / "out", "--owner-id", "0x7a", "--key", key,
+                "--workers", "1", "--json")
+    assert first.returncode == 0 and json.loads(first.stdout)["ok"] == 2, first.stderr
+    again = pmw("batch", "encode", catalogue / "src", "-o", tmp_path / "out", "--key", key, "--workers", "1", "--json")
+    assert again.returncode == 0 and json.loads(again.stdout)["skipped"] == 2, again.stdout
+    back = pmw("batch", "encode", catalogue / "src", "-o", tmp_path / "out", "--owner-id", "0x7a", "--key", key,
+               "--workers", "1", "--json")
+    assert back.returncode == 0 and json.loads(back.stdout)["skipped"] == 2, back.stdout

@@ -325,7 +325,10 @@ def _jobs(assets, out_dir, image, key, keys_dir, timeout, force, options=None, r
     previous = last_rows(rows)
     written = last_rows(r for r in rows if r["status"] == "ok")  # what each output was when it was written
     mode = "collection" if key is not None else "keys-dir" if keys_dir is not None else "beside"
-    settings = settings_sha256(image, mode, None if key is None else key.fingerprint(), options)
+    hashed = dict(options or {})
+    if key is not None and _owner_given(hashed) is not None and _owner_given(hashed) == key.owner_id:
+        del hashed["owner_id"]  # the collection key names that ID itself: --owner-id repeating it changes nothing
+    settings = settings_sha256(image, mode, None if key is None else key.fingerprint(), hashed)
     jobs = []
     marked = image is not None or _owner_given(options) is not None  # a mark needs a key per asset
     for asset in assets:
