@@ -94,6 +94,14 @@ def test_batch_verify_reports_a_truncated_file_as_truncated_and_exits_1(encoded,
     assert done.stdout.rstrip().endswith("2 of 3 files authentic")
 
 
+def test_batch_verify_reports_a_file_cut_before_its_base_mesh_as_truncated_not_as_an_error(encoded, client):
+    _, out = encoded
+    _truncate(out / "m2.obj.pmw", 100)
+    bad = [r for r in verify_batch(out, client=client)["results"] if r["verdict"] != "authentic"]
+    assert [(Path(r["file"]).name, r["verdict"]) for r in bad] == [("m2.obj.pmw", "truncated")]  # was "error"
+    assert "before the base mesh was complete" in bad[0]["error"]
+
+
 # --- hard links: outputs shared with a snapshot of OUT_DIR, with each other, with an input -----------------
 
 

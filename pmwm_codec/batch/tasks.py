@@ -259,8 +259,9 @@ def verify_task(path: str, key, watermark=None, root: str | None = None, key_roo
     """Verify one ``.pmw`` with ``key`` (WatermarkKey or key path): ``{file, verdict, error}``.
 
     ``verdict``: :func:`pmwm_codec.verify.verify_stream`'s, or ``truncated`` for a file that ends before
-    its declared length whose part there verifies authentic (a cut file is not a whole output), or
-    ``error``; ``error`` says why (for any incomplete file: how much of it is there).  A file of the owner
+    its declared length (a cut file is not a whole output, whatever the part there reads; one that ends
+    before its base mesh too), or ``error``; ``error`` says why (for an incomplete file: how much of it is
+    there and what that part reads).  A file of the owner
     layer alone (its key holds no image and names an owner ID) has the owner layer's verdict, read from the
     whole file: ``present``, ``absent`` or ``inconclusive``.
 
@@ -270,7 +271,7 @@ def verify_task(path: str, key, watermark=None, root: str | None = None, key_roo
     is never read: an ``error`` result that says so (:func:`~pmwm_codec.batch.sources.outside_root`).
     """
     from pmwm_codec import load_key
-    from pmwm_codec.errors import PmwError
+    from pmwm_codec.errors import PmwError, TruncatedError
     from pmwm_codec.verify import verify_stream
     from pmwm_codec.verify.owner import OwnerReader
 
@@ -287,6 +288,8 @@ def verify_task(path: str, key, watermark=None, root: str | None = None, key_roo
         reader = OwnerReader(key, last_only=True) if key.reference is None and key.owner_id is not None else None
         outcome = verify_stream(path, key, watermark, each=None if reader is None else reader.add)
         owner = None if reader is None or outcome.marked or not reader.boundaries else reader.boundaries[-1].owner
+    except TruncatedError as exc:  # it ends before its base mesh: a cut file as any other
+        return {"file": path, "verdict": "truncated", "error": one_line(exc)}
     except (PmwError, OSError, ValueError) as exc:
         return {"file": path, "verdict": "error", "error": one_line(exc)}
     end = outcome.end
@@ -300,13 +303,8 @@ def verify_task(path: str, key, watermark=None, root: str | None = None, key_roo
     applied = outcome.results[-1].chunk if outcome.results else 0
     what = (f"the file ends at {end.bytes_read:,} of its {outcome.total_length:,} bytes, base + {applied} of "
             f"{end.chunks_total} chunks")
-    if owner is not None:
-        verdict = owner.verdict
-        if verdict == "present":
-            return {"file": path, "verdict": "truncated", "error": f"{what}; the owner layer of the part there "
-                                                                    "reads present"}
-    else:
-        verdict = outcome.verdict
-    if verdict == "authentic":
-        return {"file": path, "verdict": "truncated", "error": f"{what}; the part there verifies authentic"}
-    return {"file": path, "verdict": verdict, "error": f"truncated: {what}"}
+    # (an owner ID read absent from a prefix too short to carry it is no answer on the whole file: README, "never
+    # authentic" nor any other verdict of a whole file)
+    part = (f"the owner layer of the part there reads {owner.verdict}" if owner is not None else
+            f"the part there verifies {outcome.verdict}")
+    return {"file": path, "verdict": "truncated", "error": f"{what}; {part}"}
