@@ -352,7 +352,7 @@ def off_source(path: str, name: str) -> tuple:
     from .mesh import _read_off, _soup_welded, mesh_arrays
 
     keyword: list = []
-    positions, faces, colours, face_colours = _read_off(path, name, appearance=True, keyword=keyword)
+    positions, faces, colours, face_colours = _read_off(path, name, appearance=True, keyword_out=keyword)
     notices = ["the faces' colours not carried (an OFF's vertex colours are)"] if face_colours else []
     if "N" in keyword[0].replace("OFF", ""):  # NOFF, CNOFF ...: a normal after each position, not read
         notices.append(_NORMALS_LEFT.format(f"of the {keyword[0]} vertices"))

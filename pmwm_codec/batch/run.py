@@ -558,6 +558,11 @@ def _lost(job, exc) -> dict:
     return {"file": job[0], "verdict": "error", "error": f"task lost ({text})"}
 
 
+def _not_a_folder(path) -> str:
+    """What is wrong with ``path`` where a folder is wanted (it is none): ``is not a folder`` or ``no such folder``."""
+    return "is not a folder" if os.path.exists(path) else "no such folder"
+
+
 def verify_batch(out_dir, *, key=None, keys_dir=None, watermark=None, workers=None, scheduler=None,
                  progress=None, client=None, no_worker_timeout=NO_WORKER_TIMEOUT) -> dict:
     """Verify every ``.pmw`` under ``out_dir``: with the collection ``key``, with per-asset keys
@@ -577,14 +582,13 @@ def verify_batch(out_dir, *, key=None, keys_dir=None, watermark=None, workers=No
         local_workers(workers)
     out_dir = os.path.abspath(os.fspath(out_dir))
     if not os.path.isdir(out_dir):
-        raise BatchError(f"{out_dir}: " + ("is not a folder" if os.path.exists(out_dir) else "no such folder"))
+        raise BatchError(f"{out_dir}: {_not_a_folder(out_dir)}")
     files = sorted(os.path.join(here, f) for here, _, names in os.walk(out_dir) for f in names
                    if f.endswith(PMW_SUFFIX) and not f.startswith("."))
     if not files:
         raise BatchError(f"{out_dir}: no .pmw files found")
     if keys_dir is not None and not os.path.isdir(keys_dir):  # bad usage, not one error result per file
-        raise BatchError(f"{keys_dir}: " + ("is not a folder" if os.path.exists(keys_dir) else "no such folder")
-                         + "; --keys-dir names the folder of the per-asset keys")
+        raise BatchError(f"{keys_dir}: {_not_a_folder(keys_dir)}; --keys-dir names the folder of the per-asset keys")
     if watermark is not None and isinstance(watermark, (str, os.PathLike)):
         from pmwm_codec.watermark.image import load_watermark
 
