@@ -171,6 +171,25 @@ def wait_for_workers(address: str, count: int, timeout: float = 120) -> None:
         client.wait_for_workers(count, timeout=timeout)
 
 
+def _first_row(run_, ledger) -> None:
+    """Wait (up to 240 s) until the run ``run_`` has written a row to ``ledger``, or has ended."""
+    from pmwm_codec.batch import read_ledger
+
+    deadline = time.monotonic() + 240
+    while not read_ledger(ledger) and run_.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+
+
+def _finish(run_, seconds: float = 90):
+    """``(stdout, stderr)`` of the run ``run_`` once it has ended (killed after ``seconds``)."""
+    try:
+        return run_.communicate(timeout=seconds)
+    finally:
+        if run_.poll() is None:
+            run_.kill()
+            run_.communicate()
+
+
 def test_a_run_whose_every_worker_dies_stops_in_one_line_after_the_no_worker_timeout_and_a_rerun_resumes(tmp_path):
     """Every worker of a --scheduler cluster killed mid-run: the run waited forever (Dask keeps the tasks for a
     worker that never comes).  It stops once the cluster has had no worker for --no-worker-timeout seconds: one
@@ -192,17 +211,10 @@ def test_a_run_whose_every_worker_dies_stops_in_one_line_after_the_no_worker_tim
                 "--watermark", str(tmp_path / "wm.png"), "--scheduler", address, "--json"]
         run_ = subprocess.Popen([*argv, "--no-worker-timeout", "3"], env=dict(os.environ, PYTHONPATH=str(ROOT)),
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        deadline = time.monotonic() + 240
-        while not read_ledger(out / LEDGER_NAME) and run_.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)
+        _first_row(run_, out / LEDGER_NAME)
         os.killpg(procs[1].pid, signal.SIGKILL)  # the one worker (and its encoder) gone mid-run
         killed = time.monotonic()
-        try:
-            stdout, stderr = run_.communicate(timeout=90)
-        finally:
-            if run_.poll() is None:
-                run_.kill()
-                run_.communicate()
+        stdout, stderr = _finish(run_)
         waited = time.monotonic() - killed
         done = read_ledger(out / LEDGER_NAME)
         assert (run_.returncode, stdout) == (2, "")
@@ -222,3 +234,53 @@ def test_a_run_whose_every_worker_dies_stops_in_one_line_after_the_no_worker_tim
     assert again.returncode == 0, again.stderr
     summary = json.loads(again.stdout)
     assert (summary["skipped"], summary["ok"]) == (len(done), assets - len(done))
+
+
+def _encoders(procs) -> list:
+    """The encoder processes (``pmwm_codec.batch.child``) still alive in the sessions of ``procs``."""
+    found = []
+    for proc in procs:
+        ps = subprocess.run(["ps", "-o", "pid=,stat=,args=", "-s", str(proc.pid)], capture_output=True,
+                            text=True).stdout
+        found += [line for line in ps.splitlines() if "batch.child" in line and not line.split()[1].startswith("Z")]
+    return found
+
+
+def test_a_stopped_scheduler_run_leaves_no_output_its_ledger_does_not_name(tmp_path):
+    """A --scheduler run stopped by SIGTERM while encoders ran on the workers: Dask's cancel cannot reach a running
+    task, so those encoders went on and published their ``.pmw`` seconds after the command had ended, with no
+    ledger row.  The run's stop now reaches them (a Dask Event their tasks poll): each stops and removes what it
+    was writing, or, when it had already published, the run records its row before it exits."""
+    from PIL import Image
+
+    from pmwm_codec import shapes
+    from pmwm_codec.batch import LEDGER_NAME, read_ledger
+    from pmwm_codec.meshio import write_mesh
+
+    assets = 8
+    (tmp_path / "lib").mkdir()
+    for i in range(assets):
+        write_mesh(tmp_path / "lib" / f"m{i}.obj", shapes.torus(96, 48, twist=0.01 * i))
+    Image.fromarray((np.indices((16, 16)).sum(0) % 2 * 255).astype(np.uint8)).save(tmp_path / "wm.png")
+    out = tmp_path / "out"
+    with dask_cluster(workers=2) as (address, procs):
+        argv = [sys.executable, "-m", "pmwm_codec", "batch", "encode", str(tmp_path / "lib"), "-o", str(out),
+                "--watermark", str(tmp_path / "wm.png"), "--scheduler", address, "-q"]
+        run_ = subprocess.Popen(argv, env=dict(os.environ, PYTHONPATH=str(ROOT)), stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+        _first_row(run_, out / LEDGER_NAME)
+        assert run_.poll() is None and _encoders(procs[1:]), "no encoder was running when the run was stopped"
+        run_.send_signal(signal.SIGTERM)
+        _, stderr = _finish(run_)
+        assert (run_.returncode, stderr) == (143, "pmw: error: terminated\n")
+        deadline = time.monotonic() + 120  # until every encoder the run started has ended, one way or the other
+        while _encoders(procs[1:]) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not _encoders(procs[1:])
+        rows = read_ledger(out / LEDGER_NAME)
+        assert len(rows) < assets
+        assert {row["status"] for row in rows} == {"ok"}
+        assert sorted(row["output"] for row in rows) == sorted(str(p) for p in out.rglob("*.pmw"))
+        for row in rows:
+            assert os.path.getsize(row["output"]) == row["bytes"]
+        assert not [p for p in out.rglob("*") if p.name.endswith(".tmp")]

@@ -43,6 +43,9 @@ NO_WORKER_TIMEOUT = 120.0
 WORKER_CHECK_INTERVAL = 1.0
 #: Seconds between two looks for finished tasks (as :func:`distributed.as_completed` waits).
 _POLL = 0.1
+#: Seconds an interrupted run waits for its running encoders to stop (they poll the stop every
+#: :data:`~.tasks.STOP_POLL` s and then have :data:`~.child.GRACE` s to end), recording those that published.
+STOP_WAIT = 10.0
 
 
 class BatchError(PmwError, ValueError):
@@ -414,7 +417,10 @@ def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, worke
                 start = time.monotonic()
                 counts = dict.fromkeys(("ok", "skipped", "failed", "timeout"), 0)
                 failures = []
-                for row in _results(client, encode_task, jobs, no_worker_timeout):
+
+                def record(row):
+                    if row["status"] not in counts:  # ``stopped``: the run's own stop, nothing published
+                        return
                     try:
                         ledger.write(row)
                     except OSError as exc:  # a full disk: the run cannot record, so it stops, and says what is left
@@ -424,8 +430,21 @@ def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, worke
                     counts[row["status"]] += 1
                     if row["status"] in ("failed", "timeout"):
                         failures.append(row)
-                    if progress is not None:
-                        progress(_progress_counts(counts, len(jobs), client, start))
+
+                submitted = _Submitted(client, encode_task, jobs, stoppable=True)
+                try:
+                    for row in submitted.results(no_worker_timeout):
+                        record(row)
+                        if progress is not None:
+                            progress(_progress_counts(counts, len(jobs), client, start))
+                except BaseException:
+                    # interrupted, or stopped: the running encoders stop too; one that published first is
+                    # recorded (a row for every output there), the others end without a row (a re-run does them)
+                    with contextlib.suppress(Exception):
+                        for row in submitted.stop():
+                            if row.get("status") in ("ok", "skipped"):
+                                record(row)
+                    raise
     except BaseException:
         if not started:  # refused (a scheduler, the key's place, OUT_DIR itself) or interrupted before any work
             if made_key is not None:
@@ -493,35 +512,88 @@ def _progress_counts(counts, total, client, start) -> dict:
 
 
 def _results(client, function, jobs, no_worker_timeout=NO_WORKER_TIMEOUT, what="assets"):
-    """Submit ``function(job)`` per job; yield each result as it finishes (a lost task: a failed row).
+    """Submit ``function(job)`` per job; yield each result as it finishes (:meth:`_Submitted.results`)."""
+    yield from _Submitted(client, function, jobs).results(no_worker_timeout, what)
 
-    BatchError (one line: how many of the ``what`` got no result) when the cluster has had no worker for
-    ``no_worker_timeout`` seconds while tasks wait (its workers all died, or none ever joined); the tasks
-    left are cancelled, and the results yielded before stand (a re-run of an encode does the rest)."""
-    from distributed import as_completed
 
-    token = uuid.uuid4().hex[:8]
-    futures = {client.submit(function, job, pure=False, key=f"pmw-{function.__name__}-{token}-{i}"): job
-               for i, job in enumerate(jobs)}
-    pending = as_completed(futures)
-    watch = _WorkerWatch(client, no_worker_timeout)
-    while not pending.is_empty():
-        finished = pending.next_batch(block=False)
-        if not finished:
-            if watch.gone():
-                with contextlib.suppress(Exception):  # a cluster that cannot take the cancel lets them go with the client
-                    client.cancel(list(futures))
-                raise BatchError(f"the Dask cluster has had no worker for {no_worker_timeout:g} s (all gone?); the run "
-                                 f"stopped with {len(futures)} of {len(jobs)} {what} not done (a re-run does them)")
-            time.sleep(_POLL)
-            continue
+class _Submitted:
+    """``function(job)`` submitted per job on ``client``.  ``stoppable``: each call also gets ``stop=NAME``, the
+    name of a Dask Event that :meth:`stop` sets, which a running task polls (a cancel reaches only tasks that have
+    not started: Dask cannot stop a running one)."""
+
+    def __init__(self, client, function, jobs, stoppable: bool = False):
+        token = uuid.uuid4().hex[:8]
+        self.client, self.jobs, self.event = client, jobs, None
+        extra = {}
+        if stoppable:
+            from distributed import Event
+
+            self.event = Event(f"pmw-stop-{token}", client=client)
+            extra["stop"] = self.event.name
+        self.futures = {client.submit(function, job, pure=False, key=f"pmw-{function.__name__}-{token}-{i}",
+                                      **extra): job
+                        for i, job in enumerate(jobs)}
+
+    def results(self, no_worker_timeout=NO_WORKER_TIMEOUT, what="assets"):
+        """Yield each result as it finishes (a lost task: a failed row).
+
+        BatchError (one line: how many of the ``what`` got no result) when the cluster has had no worker for
+        ``no_worker_timeout`` seconds while tasks wait (its workers all died, or none ever joined); the tasks
+        left are cancelled, and the results yielded before stand (a re-run of an encode does the rest)."""
+        from distributed import as_completed
+
+        pending = as_completed(self.futures)
+        watch = _WorkerWatch(self.client, no_worker_timeout)
+        while not pending.is_empty():
+            finished = pending.next_batch(block=False)
+            if not finished:
+                if watch.gone():
+                    left = len(self.futures)
+                    with contextlib.suppress(Exception):  # a cluster that cannot take the cancel lets them go
+                        self.client.cancel(list(self.futures))
+                    raise BatchError(f"the Dask cluster has had no worker for {no_worker_timeout:g} s (all gone?); "
+                                     f"the run stopped with {left} of {len(self.jobs)} {what} not done (a re-run "
+                                     "does them)")
+                time.sleep(_POLL)
+                continue
+            yield from self._take(finished)
+
+    def _take(self, finished):
         for future in finished:
-            job = futures.pop(future)
+            job = self.futures.pop(future, None)
+            if job is None:
+                continue
             if future.status == "finished":
                 yield future.result()
             else:  # the worker died under the task (KilledWorker) or the task raised
                 yield _lost(job, future.exception())
             future.release()
+
+    def stop(self, seconds: float = STOP_WAIT):
+        """Stop the run: the tasks not started are cancelled, the running ones told to stop (the Event); yield the
+        results of those that end within ``seconds`` (an encoder that published its output before the stop
+        reached it has an ``ok`` row: recording it leaves no output the ledger does not name).  Never raises."""
+        try:
+            if self.event is not None:
+                self.event.set()
+            running = set()
+            for keys in self.client.processing().values():
+                running.update(keys)
+            queued = [f for f in self.futures if f.key not in running]
+            self.client.cancel(queued)
+            for future in queued:
+                self.futures.pop(future, None)
+            deadline = time.monotonic() + seconds
+            while self.futures and time.monotonic() < deadline:
+                finished = [f for f in self.futures if f.status in ("finished", "error", "cancelled", "lost")]
+                if finished:
+                    yield from self._take(finished)
+                else:
+                    time.sleep(_POLL)
+            if not self.futures and self.event is not None:
+                self.event.clear()  # every task has seen the stop or ended: the scheduler forgets the Event
+        except Exception:  # noqa: BLE001 - a cluster gone or not answering: nothing more comes back from it
+            return
 
 
 class _WorkerWatch:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 from pmwm_codec.errors import PmwError
 
-from .child import child_main
+from .child import GRACE, child_main
 from .ledger import input_sha256, sha256_file
 from .sources import outside_root
 
@@ -72,9 +72,19 @@ class EncodeJob:
     clash: str | None = None
 
 
-def encode_task(job: EncodeJob) -> dict:
-    """Encode (or skip) one asset; returns its ledger row."""
+#: Seconds between two looks of a running encode's task at the run's stop (:func:`encode_task`).
+STOP_POLL = 0.5
+
+
+def encode_task(job: EncodeJob, stop: str | None = None) -> dict:
+    """Encode (or skip) one asset; returns its ledger row.
+
+    ``stop``: the name of the run's stop Event (a Dask Event on the cluster the task runs on), looked at every
+    :data:`STOP_POLL` s while the encoder runs: once it is set (the run was interrupted), the encoder is stopped
+    (SIGTERM: what it was writing removed) and the row's status is ``stopped``, which is never recorded; an
+    encoder that published its output before the stop reached it keeps its ``ok`` row."""
     start = time.monotonic()
+    stopped = _stop_flag(stop)
     row = {"input": job.input, "input_sha256": None, "output": job.output, "status": "failed", "error": None,
            "bytes": None, "vertices": None, "settings_sha256": job.settings, "output_sha256": None}
     # never read: an asset whose output another's is but for letter case, a symlink out of SRC's folder
@@ -92,7 +102,7 @@ def encode_task(job: EncodeJob) -> dict:
                 row.update(status="skipped", bytes=done[0], output_sha256=done[1], vertices=job.prior_vertices)
             else:
                 try:
-                    row.update(_encode_in_child(job))
+                    row.update(_encode_in_child(job, stopped))
                 except OSError as exc:  # its output's folder cannot be made (a file in its place ...)
                     row["error"] = f"{exc.filename or job.output}: {exc.strerror or exc}"
                 if row["status"] == "ok":
@@ -140,8 +150,29 @@ def _child_env() -> dict:
     return env
 
 
-def _encode_in_child(job: EncodeJob) -> dict:
-    """Encode in a child process killed at ``job.timeout`` seconds; a status dict back.
+def _stop_flag(name: str | None):
+    """A callable telling whether the run's stop Event ``name`` is set (never True without a name, or off a
+    Dask worker; a scheduler that does not answer is no stop: its workers end with it)."""
+    if name is None:
+        return lambda: False
+    try:
+        from distributed import Event, get_client
+
+        event = Event(name, client=get_client())
+    except Exception:  # noqa: BLE001 - not on a worker (a direct call): nothing can set it
+        return lambda: False
+
+    def stopped() -> bool:
+        try:
+            return bool(event.is_set())
+        except Exception:  # noqa: BLE001
+            return False
+    return stopped
+
+
+def _encode_in_child(job: EncodeJob, stopped=lambda: False) -> dict:
+    """Encode in a child process killed at ``job.timeout`` seconds; a status dict back (``stopped``: the run's
+    stop, looked at every :data:`STOP_POLL` s; once True, the encoder is stopped and the status is ``stopped``).
 
     The child is forked from a forkserver that has the encoder imported (fast); a daemonic
     worker (``dask worker`` by default) may not have children of its own, so there the
@@ -153,12 +184,16 @@ def _encode_in_child(job: EncodeJob) -> dict:
     _remove_leftovers(job)  # of a run killed before (one run per OUT_DIR at a time)
     payload = {"src": job.input, "dst": job.output, "watermark": job.watermark, "key": job.key,
                "options": job.options or {}, "restore_sigint": job.restore_sigint, "watermark_given": job.watermark_given}
+    if stopped():  # the run stopped while this task waited to start
+        return {"status": "stopped", "error": "the run was stopped", "bytes": None, "vertices": None}
     if multiprocessing.current_process().daemon:
-        result = _run_interpreter(payload, job.timeout)
+        result = _run_interpreter(payload, job.timeout, stopped)
     else:
-        result = _run_forked(payload, job.timeout)
+        result = _run_forked(payload, job.timeout, stopped)
     if result["status"] == "timeout":
         result["error"] = f"{job.input}: no result within {job.timeout:g} s; encoder killed"
+    elif result["status"] == "stopped":
+        result["error"] = f"{job.input}: the run was stopped; encoder stopped"
     elif result["status"] == "failed" and job.input not in result["error"] \
             and os.path.basename(job.input) not in result["error"]:
         result["error"] = f"{job.input}: {result['error']}"
@@ -167,7 +202,22 @@ def _encode_in_child(job: EncodeJob) -> dict:
     return {k: result.get(k) for k in ("status", "error", "bytes", "vertices")}
 
 
-def _run_forked(payload: dict, timeout) -> dict:
+def _waits(timeout, stopped):
+    """Slices of at most :data:`STOP_POLL` s up to ``timeout`` s: yields each slice's length, and ends with
+    ``"timeout"`` or ``"stopped"`` (the caller stops waiting at a slice that brought the result)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            yield "timeout"
+            return
+        if stopped():
+            yield "stopped"
+            return
+        yield min(left, STOP_POLL)
+
+
+def _run_forked(payload: dict, timeout, stopped=lambda: False) -> dict:
     ctx = multiprocessing.get_context("forkserver")
     ctx.set_forkserver_preload(_PRELOAD)
     receive, send = ctx.Pipe(duplex=False)
@@ -181,9 +231,19 @@ def _run_forked(payload: dict, timeout) -> dict:
         send.close()
         lifeline.close()
     try:
-        if not receive.poll(timeout):
-            proc.kill()
-            return {"status": "timeout"}
+        for wait in _waits(timeout, stopped):
+            if wait == "timeout":
+                proc.kill()
+                return {"status": "timeout"}
+            if wait == "stopped":
+                # SIGTERM: the encoder removes what it was writing; one already reporting sends its result
+                proc.terminate()
+                proc.join(GRACE + 1)
+                if proc.is_alive():
+                    proc.kill()
+                return _received(receive) or {"status": "stopped"}
+            if receive.poll(wait):
+                break
         try:
             return receive.recv()
         except EOFError:
@@ -193,6 +253,14 @@ def _run_forked(payload: dict, timeout) -> dict:
         receive.close()
         proc.join()
         alive.close()
+
+
+def _received(receive) -> dict | None:
+    """The result an encoder sent before it ended, or None."""
+    try:
+        return receive.recv() if receive.poll(0) else None
+    except (EOFError, OSError):
+        return None
 
 
 def _died(status: int | None, why: str = "") -> str:
@@ -210,23 +278,45 @@ def _died(status: int | None, why: str = "") -> str:
     return f"{text}: {why}" if why else text
 
 
-def _run_interpreter(payload: dict, timeout) -> dict:
+def _run_interpreter(payload: dict, timeout, stopped=lambda: False) -> dict:
     # not ``-m pmwm_codec.batch.child``: the package imports that module first, and runpy's RuntimeWarning
     # about it was the last line of every such child's stderr, taken for the reason it died
     proc = subprocess.Popen([sys.executable, "-c", _CHILD_MAIN], stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_child_env())
-    try:
-        out, err = proc.communicate(pickle.dumps(payload), timeout=timeout)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.communicate()
-        return {"status": "timeout"}
+    given = pickle.dumps(payload)
+    for wait in _waits(timeout, stopped):
+        if wait == "timeout":
+            proc.kill()
+            proc.communicate()
+            return {"status": "timeout"}
+        if wait == "stopped":
+            proc.terminate()  # as in _run_forked: stopped quietly, or its result already on its way
+            try:
+                out, err = proc.communicate(timeout=GRACE + 1)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                out, err = proc.communicate()
+            return _last_json(out) or {"status": "stopped"}
+        try:
+            out, err = proc.communicate(given, timeout=wait)
+            break
+        except subprocess.TimeoutExpired:
+            given = None  # sent: a retried communicate() must not send it again
+    result = _last_json(out)
+    if result is not None:
+        return result
+    why = (err.decode("utf-8", "replace").strip().splitlines() or [""])[-1] if proc.returncode >= 0 else ""
+    return {"status": "failed", "error": _died(proc.returncode, why.strip())}
+
+
+def _last_json(out: bytes) -> dict | None:
+    """The JSON result on the last line of an encoder's standard output, or None."""
     lines = out.decode("utf-8", "replace").strip().splitlines()
     try:
-        return json.loads(lines[-1])
+        result = json.loads(lines[-1])
     except (IndexError, ValueError):
-        why = (err.decode("utf-8", "replace").strip().splitlines() or [""])[-1] if proc.returncode >= 0 else ""
-        return {"status": "failed", "error": _died(proc.returncode, why.strip())}
+        return None
+    return result if isinstance(result, dict) else None
 
 
 _CHILD_MAIN = "import sys; from pmwm_codec.batch.child import main; sys.exit(main())"
