@@ -199,15 +199,20 @@ def source_size(source) -> int | None:
     return None
 
 
+#: Control characters as :func:`shown_path` writes them (``\\n``, ``\\t``, ``\\x1b`` ...): a message stays one line.
+_ESCAPED = {c: repr(chr(c))[1:-1] for c in (*range(32), 127)}
+
+
 def shown_path(path) -> str:
-    """``path`` as an error message names it: as it is, unless it cannot be a file name a person typed
-    (a line break, a NUL, or over 512 characters: a file's content passed where its path belongs,
-    which must not be copied into a message or a log -- a key file's secret, say)."""
+    """``path`` as an error message names it: as it is (control characters escaped, ``a\\nb.obj``), unless it
+    cannot be a file name a person typed (a NUL, over 512 characters, or a line break in a name no file has: a
+    file's content passed where its path belongs, which must not be copied into a message or a log -- a key
+    file's secret, say).  A file named with a line break exists: its name is shown, escaped."""
     text = os.fspath(path)
     text = text if isinstance(text, str) else os.fsdecode(text)
-    if len(text) > 512 or "\n" in text or "\0" in text:
+    if len(text) > 512 or "\0" in text or (("\n" in text or "\r" in text) and not os.path.lexists(text)):
         return f"<a string of {len(text):,} characters, not a file name (a file's content given as its path?)>"
-    return text
+    return text.translate(_ESCAPED)
 
 
 def open_regular_file(path):
@@ -306,10 +311,10 @@ def check_input_path(path, what: str) -> str:
 
     path = os.fspath(path)
     shown = shown_path(path)
-    if shown != path or not os.path.exists(path):
+    if "\0" in path or not os.path.exists(path):
         raise InputFormatError(f"{shown}: no such file")
     if os.path.isdir(path):
-        raise InputFormatError(f"{path}: is a directory, not {what}")
+        raise InputFormatError(f"{shown}: is a directory, not {what}")
     if not os.path.isfile(path):
-        raise InputFormatError(f"{path}: not a regular file")
+        raise InputFormatError(f"{shown}: not a regular file")
     return os.path.basename(path) or path

@@ -455,3 +455,20 @@ def test_read_mesh_takes_a_file_name_and_names_anything_else(tmp_path):
         for wrong in (fh, 5, None):
             with pytest.raises(OptionError, match=f"the mesh path must be a file name .*got {type(wrong).__name__}"):
                 pmwm_codec.read_mesh(wrong)
+
+
+def test_a_file_whose_name_holds_a_line_break_is_read_and_named_escaped(tmp_path, monkeypatch):
+    """An existing ``a<LF>b.obj`` was refused as "no such file" (a line break marked a file's content given as
+    its path); a name no file has, with a line break, is still never copied into a message."""
+    from pmwm_codec.meshio import write_mesh
+    from pmwm_codec.sources import shown_path
+
+    monkeypatch.chdir(tmp_path)
+    write_mesh("a\nb.obj", MESH)
+    pmwm_codec.encode("a\nb.obj", "m.pmw", measure="none")
+    assert pmwm_codec.decode("m.pmw").vertex_count == MESH.vertex_count
+    assert shown_path("a\nb.obj") == "a\\nb.obj" and shown_path("tab\there") == "tab\\there"
+    with pytest.raises(pmwm_codec.errors.InputFormatError, match="not a file name") as caught:
+        pmwm_codec.encode("secret\nkey.obj", "n.pmw")
+    assert "secret" not in str(caught.value)
+    assert not os.path.exists("n.pmw")
