@@ -472,3 +472,18 @@ def test_a_file_whose_name_holds_a_line_break_is_read_and_named_escaped(tmp_path
         pmwm_codec.encode("secret\nkey.obj", "n.pmw")
     assert "secret" not in str(caught.value)
     assert not os.path.exists("n.pmw")
+
+
+@pytest.mark.parametrize("given", ['{"format": "pmwm-key", "secret": "00ff"}', '{"secret":\n"00ff"}'])
+def test_a_keys_json_given_as_its_path_is_never_echoed_by_the_command_line(tmp_path, monkeypatch, capsys, given):
+    """``pmw verify F --key "$(cat k.json)"``: the command line's own check printed the key's JSON (its secret) in
+    ``no such key file``; a name no file has that starts with ``{`` is taken for a file's content, as one with a
+    line break is."""
+    from pmwm_codec.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    pmwm_codec.encode(MESH, "m.pmw", measure="none")
+    assert main(["verify", "m.pmw", "--key", given]) == 2
+    out, err = capsys.readouterr()
+    assert err.count("\n") == 1 and "no such key file" in err and "not a file name" in err, err
+    assert "00ff" not in err + out

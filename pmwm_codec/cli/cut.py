@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from pmwm_codec.format.glb import write_parts
 from pmwm_codec.http import as_source, is_url
+from pmwm_codec.sources import shown_path
 from pmwm_codec.stream.cut import cut_file
 
 from .common import UsageError, check_input_file, check_pmw_output, naming, notice, print_json
@@ -55,7 +56,7 @@ def run(args) -> int:
     for note in notices:
         notice(note)
     if not args.quiet:
-        print(f"{args.output}: {out['bytes']:,} bytes, base + {result.chunks} of {result.chunks_total} chunks")
+        print(f"{shown_path(args.output)}: {out['bytes']:,} bytes, base + {result.chunks} of {result.chunks_total} chunks")
     return 0
 
 

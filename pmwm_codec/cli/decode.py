@@ -9,6 +9,7 @@ import os
 
 from pmwm_codec.http import is_url
 from pmwm_codec.meshio import WRITE_SUFFIXES
+from pmwm_codec.sources import shown_path
 from pmwm_codec.stream.export import decode_to
 
 from .common import UsageError, check_input_file, check_output_path, naming, notice, print_json
@@ -57,6 +58,6 @@ def run(args) -> int:
         state = "complete file" if out["complete"] else f"truncated file, {bytes_read:,} bytes"
         written = out["files"]
         beside = f" (with {', '.join(written[1:])})" if len(written) > 1 else ""
-        print(f"{args.output}{beside}: {out['vertices']:,} vertices, {out['faces']:,} faces "
+        print(f"{shown_path(args.output)}{beside}: {out['vertices']:,} vertices, {out['faces']:,} faces "
               f"(base + {out['chunks_applied']} of {out['chunks_total']} chunks; {state})")
     return 0

@@ -12,6 +12,7 @@ from pmwm_codec.constants import MAX_GRID_BITS, MIN_GRID_BITS
 from pmwm_codec.distortion import MEASURES
 from pmwm_codec.format.extension import DEFAULT_PAYLOAD_VERSION, PAYLOAD_VERSIONS
 from pmwm_codec.options import IMAGE_OPTIONS, ignored_without_image
+from pmwm_codec.sources import shown_path
 from pmwm_codec.watermark.codec import MAX_BITS, MODES, CapacityError, shrink_watermark, watermark_words
 from pmwm_codec.watermark.image import load_watermark
 from pmwm_codec.watermark.key import KEY_SUFFIX
@@ -237,7 +238,7 @@ def _fitted_by_key(args, notices: list):
 def summary(src, dst, r) -> str:
     """The human summary of an encode report."""
     d = r["distortion"] or {}
-    lines = [f"{os.path.basename(os.fspath(src))} -> {dst}  ({r['bytes']:,} bytes, {r['seconds']:.1f} s)",
+    lines = [f"{shown_path(os.path.basename(os.fspath(src)))} -> {shown_path(dst)}  ({r['bytes']:,} bytes, {r['seconds']:.1f} s)",
              f"  mesh        {r['vertices']:,} vertices, {r['faces']:,} faces",
              f"  base        {r['base_vertices']:,} vertices, {r['base_faces']:,} faces ({r.get('base_codec', '?')})",
              f"  stream      {r['vsplits']:,} vertex splits in {r['chunks']} chunks"]
@@ -254,7 +255,7 @@ def summary(src, dst, r) -> str:
         lines.append(f"  watermark   {w['width']}x{w['height']}, {w['mode']} mode, {w['bits']} bits per code, "
                      f"{held} on {w['embedded']:,} carriers")
         if r.get("key_path"):
-            lines.append(f"  key         {r['key_path']}  (secret: verify needs it)")
+            lines.append(f"  key         {shown_path(r['key_path'])}  (secret: verify needs it)")
     else:
         lines.append("  watermark   none")
     if r.get("owner_id"):

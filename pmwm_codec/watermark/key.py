@@ -293,17 +293,16 @@ class WatermarkKey:
     def load(cls, path) -> "WatermarkKey":
         """Read a key file; any problem is a one-line :class:`WatermarkKeyError`."""
         path = checked_key_path(path)
-        if shown_path(path) != path:  # a key's JSON given as its path: never echo it (the secret)
-            raise WatermarkKeyError(f"{shown_path(path)}: no such key file")
+        shown = shown_path(path)  # a key's JSON given as its path is never echoed (the secret)
         if not os.path.lexists(path):
-            raise WatermarkKeyError(f"{path}: no such key file")
-        raw = read_regular_file(path, MAX_KEY_FILE_BYTES, WatermarkKeyError, f"{path}: cannot read key file")
+            raise WatermarkKeyError(f"{shown}: no such key file")
+        raw = read_regular_file(path, MAX_KEY_FILE_BYTES, WatermarkKeyError, f"{shown}: cannot read key file")
         try:
             doc = json.loads(raw.decode("utf-8"))
         except (UnicodeDecodeError, ValueError):
-            raise WatermarkKeyError(f"{path}: not a watermark key (not JSON)") from None
+            raise WatermarkKeyError(f"{shown}: not a watermark key (not JSON)") from None
         except RecursionError:
-            raise WatermarkKeyError(f"{path}: not a watermark key (JSON nested too deeply)") from None
+            raise WatermarkKeyError(f"{shown}: not a watermark key (JSON nested too deeply)") from None
         return cls.from_json(doc, source=path)
 
     # --- public identity ----------------------------------------------------------------
