@@ -378,7 +378,10 @@ def _unrecordable(name: str, suffix: str) -> str | None:
     """What keeps a ``mtllib`` / ``map_Kd`` record (``suffix`` .obj) or a PLY's ``comment TextureFile`` line
     from naming the file ``name`` as readers read it, or None: a line break ends the record, another
     character that is not printable (a tab, a vertical tab, U+2028) splits or ends it, white space at either
-    end is stripped, and in an OBJ or MTL a ``#`` starts a comment."""
+    end is stripped, in an OBJ or MTL a ``#`` starts a comment, and an OBJ's or MTL's record must read back as
+    the name itself (:func:`~pmwm_codec.meshdoc._mtllib_names`, :func:`~pmwm_codec.meshdoc._map_file`: a run of
+    spaces is read as one, a backslash as a slash, a first word such as ``-s`` as a map option, a second name
+    ending ``.mtl`` as a second MTL file)."""
     if "\n" in name or "\r" in name:
         return "a line break ends"
     if not name.isprintable():
@@ -387,6 +390,12 @@ def _unrecordable(name: str, suffix: str) -> str | None:
         return "white space at an end of the name is stripped from"
     if suffix == ".obj" and "#" in name:
         return "a # starts a comment in"
+    if suffix == ".obj":  # read back as pmw encode reads it: an mtllib record, a map_Kd / map_Bump statement
+        from .meshdoc import _map_file, _mtllib_names
+
+        read = _mtllib_names(name) if name.lower().endswith(".mtl") else [_map_file(name.split())]
+        if read != [name]:
+            return f"it would be read as {' and '.join(map(repr, read))} from"
     return None
 
 

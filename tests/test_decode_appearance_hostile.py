@@ -194,6 +194,24 @@ def test_an_output_name_the_records_naming_its_files_cannot_hold_is_one_line_and
     _one_line_no_file(pmw("decode", src, "-o", tmp_path / name), tmp_path, kept, "another name")
 
 
+@pytest.mark.parametrize("name", ["a  b.obj", "m.mtl n.obj", "-s 1 1 1 x.obj", "back\\slash.obj"])
+def test_an_obj_output_name_whose_records_read_back_as_another_name_is_one_line_and_no_file(tmp_path, name):
+    """``mtllib`` / ``map_Kd`` records naming ``a  b.mtl`` / ``a  b_0.png`` were written, and read back (by ``pmw
+    encode``) as ``a b_0.png`` (a run of spaces as one), ``m.mtl`` and ``n.mtl`` (two MTL files), ``x_0.png``
+    (``-s 1 1 1`` a map option) or ``back/slash_0.png``: the OBJ lost its texture or materials with a notice."""
+    src = _textured(tmp_path)
+    kept = os.listdir(tmp_path)
+    _one_line_no_file(pmw("decode", src, "-o", tmp_path / name), tmp_path, kept, "another name")
+
+
+def test_an_obj_output_name_with_single_spaces_reads_back_with_its_texture(tmp_path):
+    src = _textured(tmp_path)
+    run = pmw("decode", src, "-o", tmp_path / "my scan.obj")
+    assert run.returncode == 0, run.stderr
+    (back, _), notices = meshdoc.read_source(str(tmp_path / "my scan.obj"))
+    assert notices == [] and len(back["images"]) == 1
+
+
 def test_an_output_name_with_a_hash_is_fine_for_a_ply(tmp_path):
     src = _textured(tmp_path)
     run = pmw("decode", src, "-o", tmp_path / "x#1.ply")
