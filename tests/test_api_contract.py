@@ -487,3 +487,21 @@ def test_a_keys_json_given_as_its_path_is_never_echoed_by_the_command_line(tmp_p
     out, err = capsys.readouterr()
     assert err.count("\n") == 1 and "no such key file" in err and "not a file name" in err, err
     assert "00ff" not in err + out
+
+
+def test_decode_to_takes_a_bytes_file_name_as_write_mesh_does(tmp_path, stream):
+    """``decode_to(src, b"x.obj")`` was refused as "unknown output format b'.obj'"."""
+    src = tmp_path / "s.pmw"
+    src.write_bytes(stream)
+    result = pmwm_codec.decode_to(str(src), os.fsencode(tmp_path / "x.obj"), chunks=1)
+    assert result["output"] == str(tmp_path / "x.obj") and (tmp_path / "x.obj").is_file()
+
+
+@pytest.mark.parametrize("dst", [io.BytesIO(), 5, None])
+def test_decode_to_names_a_destination_that_is_no_file_name_with_an_option_error(tmp_path, stream, dst):
+    """A file object, an int or None as ``dst`` raised a bare TypeError from os.fspath, not a PmwError."""
+    src = tmp_path / "s.pmw"
+    src.write_bytes(stream)
+    with pytest.raises(OptionError, match="must be a file name"):
+        pmwm_codec.decode_to(str(src), dst)
+    assert os.listdir(tmp_path) == ["s.pmw"]

@@ -39,11 +39,10 @@ def decode_to(src, dst, chunks: int | None = None, geometry_only: bool = False) 
     the output first: an OBJ's MTL and textures follow it) and ``notices``.  OptionError for an output that cannot
     be written (nothing is); the errors of the readers for an input that does not read."""
     chunks = checked_chunks(chunks)
-    dst = os.fspath(dst)
-    suffix = os.path.splitext(dst)[1].lower()
     local = isinstance(src, (str, os.PathLike)) and not is_url(src)
     inputs = (src,) if local and os.fspath(src) != "-" else ()
-    check_output_path(dst, "mesh", inputs=inputs)
+    dst = check_output_path(dst, "mesh", inputs=inputs)  # a str, or OptionError for what names no file
+    suffix = os.path.splitext(dst)[1].lower()
     if suffix not in WRITE_SUFFIXES:
         raise OptionError(f"{dst}: unknown output format {suffix or '(no suffix)'!r}; use one of {', '.join(WRITE_SUFFIXES)}")
     notices, written, why = [], [dst], None
