@@ -496,6 +496,21 @@ def test_demo_writes_its_pictures(tmp_path, capsys):
     assert "truncated" in stdout and "authentic" in stdout and str(out / "cut" / "overview.png") in stdout
 
 
+@pytest.mark.parametrize("blocker", ["folder at demo.pmw", "key of another image"])
+def test_demo_that_cannot_write_its_files_leaves_the_users_watermark_png_untouched(tmp_path, capsys, blocker):
+    """``pmw demo --out DIR`` wrote ``DIR/watermark.png`` first, over a file of the user's, then stopped at
+    ``demo.pmw`` (a folder there, or a key of another image beside it): exit 2 with the file already replaced."""
+    (tmp_path / "watermark.png").write_bytes(b"the user's own picture")
+    if blocker == "folder at demo.pmw":
+        (tmp_path / "demo.pmw").mkdir()
+    else:
+        pmwm_codec.encode(shapes.icosphere(3), str(tmp_path / "demo.pmw"), watermark=pattern(8))
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
+    code, stdout, err = run(capsys, "demo", "--out", tmp_path)
+    assert code == 2 and err.count("\n") == 1 and "Traceback" not in err, err
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()} == before
+
+
 @pytest.mark.parametrize("out", ["", "  "])
 def test_demo_with_an_empty_out_names_the_option_in_one_line(tmp_path, capsys, monkeypatch, out):
     """``--out ''`` (an unset variable in ``--out $DIR``) said only "pmw: error: No such file or directory"."""

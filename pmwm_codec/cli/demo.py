@@ -13,7 +13,7 @@ from pmwm_codec.shapes import demo_mesh
 from pmwm_codec.verify import verify_stream
 from pmwm_codec.watermark import make_text_watermark, save_png
 
-from .common import Progress, UsageError, fmt_float, nonblank_path, stage_progress
+from .common import Progress, UsageError, check_output_path, fmt_float, nonblank_path, stage_progress
 
 CUT_FRACTION = 1 / 3
 
@@ -33,29 +33,34 @@ def run(args) -> int:
     out = args.out
     if os.path.exists(out) and not os.path.isdir(out):
         raise UsageError(f"{out}: exists and is not a directory")
+    mark_path, pmw, cut = (os.path.join(out, name) for name in ("watermark.png", "demo.pmw", "demo-cut.pmw"))
+    if os.path.isdir(out):  # every name the demo writes, checked before the first is written
+        for path in (mark_path, pmw, cut):
+            check_output_path(path, "demo file")
+        for sub in ("cut", "whole"):
+            if os.path.lexists(os.path.join(out, sub)) and not os.path.isdir(os.path.join(out, sub)):
+                raise UsageError(f"{os.path.join(out, sub)}: exists and is not a directory (the demo writes its "
+                                 "pictures there)")
     os.makedirs(out, exist_ok=True)
     t0 = time.perf_counter()
     say = print
     mesh = demo_mesh(args.resolution)
     mark = make_text_watermark("PMWM", 64)
-    mark_path = os.path.join(out, "watermark.png")
-    save_png(mark_path, mark)
     say(f"1. built a mesh ({mesh.vertex_count:,} vertices, {mesh.face_count:,} faces) "
         f"and a 64x64 watermark: {mark_path}")
 
-    pmw = os.path.join(out, "demo.pmw")
     progress = Progress(True)
     try:
         r = pmwm_codec.encode(mesh, pmw, watermark=mark, progress=stage_progress(progress))
     finally:
         progress.done()
+    save_png(mark_path, mark)  # after the encode, which refuses a key of another image before writing anything
     d = r["distortion"]
     say(f"2. encoded {pmw}: {r['bytes']:,} bytes, base {r['base_vertices']:,} vertices + {r['vsplits']:,} splits "
         f"in {r['chunks']} chunks; mesh PSNR {fmt_float(d['psnr_db'], 1, ' dB')}; key {r['key_path']}")
 
     with open(pmw, "rb") as fh:
         data = fh.read()
-    cut = os.path.join(out, "demo-cut.pmw")
     write_atomic(cut, [data[: int(len(data) * CUT_FRACTION)]])  # whole or not at all, as every output
     say(f"3. cut the file at a third: {cut} ({int(len(data) * CUT_FRACTION):,} of {len(data):,} bytes)")
 
