@@ -218,3 +218,13 @@ def test_an_output_name_with_a_hash_is_fine_for_a_ply(tmp_path):
     assert run.returncode == 0, run.stderr
     (back, _), notices = meshdoc.read_source(str(tmp_path / "x#1.ply"))
     assert notices == [] and len(back["images"]) == 1
+
+
+def test_a_texture_beside_the_output_that_cannot_be_written_is_named_alone_not_as_the_inputs_fault(tmp_path):
+    """A folder where ``o_0.png`` goes said ``pmw: error: t.pmw: o_0.png: is a directory ...``, blaming the input."""
+    src = _textured(tmp_path)
+    (tmp_path / "o_0.png").mkdir()
+    kept = os.listdir(tmp_path)
+    run = pmw("decode", src, "-o", tmp_path / "o.obj")
+    _one_line_no_file(run, tmp_path, kept, "is a directory")
+    assert run.stderr.startswith(f"pmw: error: {tmp_path / 'o_0.png'}: is a directory"), run.stderr

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 
+from pmwm_codec.errors import OptionError
 from pmwm_codec.http import is_url
 from pmwm_codec.meshio import WRITE_SUFFIXES
 from pmwm_codec.sources import shown_path
@@ -46,7 +47,10 @@ def run(args) -> int:
         check_input_file(args.input, ".pmw file")
     check_output_path(args.output, "mesh", inputs=() if url else (args.input,))
     with naming(args.input):
-        out = decode_to(args.input, args.output, chunks=args.chunks, geometry_only=args.geometry_only)
+        try:
+            out = decode_to(args.input, args.output, chunks=args.chunks, geometry_only=args.geometry_only)
+        except OptionError as exc:  # an output (an OBJ's MTL, a texture beside it) that cannot be written,
+            raise UsageError(str(exc)) from None  # named alone: the input is not what is wrong
     bytes_read = out.pop("bytes_read")
     if args.json:
         print_json(out)
