@@ -210,8 +210,10 @@ def write_set(files: dict) -> None:
     """Write ``files`` (``{path: bytes-like parts}``) as one set: every file is staged (:func:`stage`), and
     only when all are staged are they published, one rename each, with SIGINT / SIGTERM / SIGHUP held back
     (:func:`signals_deferred`).  A failure or an interrupt before that leaves none of them; a rename failing
-    part-way removes the files of the set it had already published, then the exception propagates."""
-    staged = []
+    part-way puts back what the set had already replaced (each file it replaced is kept under a temporary
+    name, a hard link, until the whole set is in place) and removes what it had added, then the exception
+    propagates: the old set, as it was."""
+    staged, kept = [], {}
     try:
         for path, parts in files.items():
             staged.append(stage(path, parts))
@@ -219,16 +221,41 @@ def write_set(files: dict) -> None:
             done = []
             try:
                 for item in staged:
-                    publish(item)
-                    done.append(item.path)
+                    kept[item.path] = _keep(item.path)
+                    try:
+                        publish(item)
+                    finally:
+                        if item.fd < 0 and item.temp is None:  # renamed into place (its directory's fsync may fail)
+                            done.append(item.path)
             except BaseException:
                 for path in done:
                     with contextlib.suppress(OSError):
-                        os.unlink(path)
+                        if kept.get(path) is None:
+                            os.unlink(path)
+                        else:
+                            os.replace(kept.pop(path), path)
                 raise
     finally:
         for item in staged:
             discard(item)  # a published one is closed and nameless already: nothing to do
+        for old in kept.values():
+            if old is not None:
+                with contextlib.suppress(OSError):
+                    os.unlink(old)
+
+
+def _keep(path: str) -> str | None:
+    """A temporary second name (a hard link) of the regular file at ``path``, which :func:`write_set` puts back if
+    the set fails after replacing it; None when there is none (no file there, or one the file system cannot link:
+    it is then lost with the set, as before)."""
+    if not os.path.isfile(path) or os.path.islink(path):
+        return None
+    temp = _temp_name(path)
+    try:
+        os.link(path, temp, follow_symlinks=False)
+    except OSError:
+        return None
+    return temp
 
 
 def write_stream(stream, parts, what: str = "dst") -> int:

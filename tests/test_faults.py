@@ -167,3 +167,29 @@ def test_a_snapshot_of_a_growing_file_reports_what_has_arrived(marked):
     dec.feed(data[: cut_after + 10])
     end = dec.close()
     assert end.truncated and end.chunks_applied == partial[-1].chunk
+
+
+@pytest.mark.parametrize("order", [("m.obj", "m_0.png", "m.mtl"), ("m.obj", "m.mtl", "m_0.png")])
+def test_a_set_whose_rename_fails_part_way_leaves_the_old_set_as_it_was(tmp_path, monkeypatch, order):
+    """``write_set`` (an OBJ with its MTL and textures, ``--frames`` pictures) over an older set: a rename that
+    failed part-way removed the files it had published, and the older files they had replaced were gone with
+    them.  What the set replaced is now put back, what it added removed (here the new texture's rename fails)."""
+    import errno
+    import os
+
+    from pmwm_codec import atomic
+
+    old = {"m.obj": b"old obj", "m.mtl": b"old mtl"}
+    for name, data in old.items():
+        (tmp_path / name).write_bytes(data)
+    real = os.replace
+
+    def replace(src, dst):
+        if str(dst).endswith("m_0.png"):
+            raise OSError(errno.ENOSPC, "No space left on device", str(dst))
+        real(src, dst)
+
+    monkeypatch.setattr(os, "replace", replace)
+    with pytest.raises(OSError, match="No space left"):
+        atomic.write_set({str(tmp_path / name): [b"new " + name.encode()] for name in order})
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == old
