@@ -31,6 +31,8 @@ def add_parser(sub):
 
 def run(args) -> int:
     out = args.out
+    if out == "-":  # as verify --frames -: a folder named '-' in the current one is never what was meant
+        raise UsageError("-: --out writes files into a directory, not to standard output; give a directory name")
     if os.path.exists(out) and not os.path.isdir(out):
         raise UsageError(f"{out}: exists and is not a directory")
     mark_path, pmw, cut = (os.path.join(out, name) for name in ("watermark.png", "demo.pmw", "demo-cut.pmw"))
