@@ -215,6 +215,10 @@ def check_output_path(path, what: str, inputs=(), key: bool = False) -> str:
         raise OptionError(f"the {what} path is empty (an unset variable?): give a file name")
     if path == "-":
         raise OptionError(f"-: the {what} is written to a file, not to standard output; give a file name")
+    if "\0" not in path and _descriptor_link(path):  # /dev/stdout: the rename would replace the link itself
+        raise OptionError(f"{shown}: a link to an open file descriptor (standard output or error), which an "
+                          f"output never replaces; the {what} is written to a file, not to standard output: "
+                          "give a file name")
     if "\0" in path:  # os.lstat & co. raise ValueError, no OSError
         raise OptionError(f"{shown}: cannot write {what} (embedded null byte)")
     if not key:
@@ -238,6 +242,18 @@ def check_output_path(path, what: str, inputs=(), key: bool = False) -> str:
             raise OptionError(f"{shown}: is also the input {shown_path(source)}; give the {what} another name "
                               "(writing it would replace the input)")
     return path
+
+
+def _descriptor_link(path: str) -> bool:
+    """Whether ``path`` is a symbolic link to a process's open file descriptor, as ``/dev/stdout`` is (to
+    ``/proc/self/fd/1``; ``/dev/fd/1`` on macOS).  An output is published by a rename, which replaces a link
+    rather than writing through it: ``-o /dev/stdout`` would put the file in place of the system's link."""
+    try:
+        target = os.readlink(path)
+    except (OSError, ValueError):
+        return False
+    target = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(path)), target))
+    return target.startswith(("/proc/", "/dev/fd/"))
 
 
 def refuse_mesh_suffix(path) -> None:

@@ -3,13 +3,26 @@
 * ``pmw demo --out -`` made a folder named ``-`` in the current one and wrote the demo there, exit 0; the
   README's outputs are "never ``-`` (no output goes to standard output; nor is ``--frames -``)", and
   ``verify --frames -`` is refused.  It is now refused the same way: exit 2, one line, nothing made.
+* ``pmw encode IN -o /dev/stdout`` (and ``cut``, and ``pmwm_codec.encode(mesh, "/dev/stdout")``) exited 0 and,
+  run as root, replaced the system's ``/dev/stdout`` link with a regular file holding the ``.pmw``: an output
+  is published by a rename, which replaces a symbolic link rather than writing through it, and a link to a
+  file descriptor is neither a device nor a FIFO.  Every later ``> /dev/stdout`` in that container then
+  wrote to that file.  An output that is a link to an open file descriptor is now refused (exit 2, one line,
+  the link untouched).  The tests use a link of their own to ``/proc/self/fd/1``, as ``/dev/stdout`` is.
 """
 
 from __future__ import annotations
 
+import io
 import os
 
+import pytest
+
+import pmwm_codec
+from pmwm_codec import shapes
 from pmwm_codec.cli import main
+from pmwm_codec.errors import OptionError
+from pmwm_codec.meshio import write_mesh
 
 
 def test_demo_refuses_out_dash_and_makes_no_folder(tmp_path, capsys, monkeypatch):
@@ -18,3 +31,34 @@ def test_demo_refuses_out_dash_and_makes_no_folder(tmp_path, capsys, monkeypatch
     err = capsys.readouterr().err
     assert err.startswith("pmw: error: -: ") and "standard output" in err and err.count("\n") == 1
     assert os.listdir(tmp_path) == []
+
+
+needs_proc_fd = pytest.mark.skipif(not os.path.isdir("/proc/self/fd"), reason="no /proc/self/fd here")
+
+
+@needs_proc_fd
+@pytest.mark.parametrize("command", ["encode", "cut"])
+def test_an_output_linked_to_standard_output_is_refused_and_the_link_kept(tmp_path, capsys, command):
+    mesh = tmp_path / "m.obj"
+    write_mesh(mesh, shapes.demo_mesh(12))
+    source = mesh
+    if command == "cut":
+        source = tmp_path / "m.pmw"
+        assert main(["encode", str(mesh), "-o", str(source), "-q", "--measure", "none"]) == 0
+    link = tmp_path / "stdout"  # as /dev/stdout is
+    os.symlink("/proc/self/fd/1", link)
+    capsys.readouterr()
+    assert main([command, str(source), "-o", str(link), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"pmw: error: {link}: ") and "standard output" in err and err.count("\n") == 1
+    assert os.path.islink(link) and os.readlink(link) == "/proc/self/fd/1"
+
+
+@needs_proc_fd
+def test_the_library_refuses_an_output_linked_to_a_descriptor(tmp_path):
+    link = tmp_path / "out.pmw"
+    os.symlink("/proc/self/fd/2", link)
+    with pytest.raises(OptionError, match="file descriptor"):
+        pmwm_codec.encode(shapes.demo_mesh(12), str(link), measure="none")
+    assert os.path.islink(link)
+    pmwm_codec.encode(shapes.demo_mesh(12), io.BytesIO(), measure="none")  # a file object is still taken
