@@ -437,8 +437,11 @@ FIGURE_NAMES = re.compile(r"frame_\d{3,}\.png|" + "|".join(re.escape(n) for n in
 
 def remove_stale(directory: str, written: set, inputs=()) -> list:
     """Remove the regular files in ``directory`` whose names are :data:`FIGURE_NAMES` but not ``written``
-    (links, folders and the ``inputs`` paths are left); returns the paths removed.  A file that cannot be
-    removed stays (the pictures just written are what the command reports)."""
+    (links, folders, the ``inputs`` paths and key files under such a name are left: a key file is never
+    rewritten, nor removed); returns the paths removed.  A file that cannot be removed stays (the pictures
+    just written are what the command reports)."""
+    from .watermark.key import is_key_file
+
     kept = set()
     for path in inputs:
         with contextlib.suppress(OSError, TypeError, ValueError):
@@ -451,7 +454,7 @@ def remove_stale(directory: str, written: set, inputs=()) -> list:
                 continue
             with contextlib.suppress(OSError):
                 st = entry.stat(follow_symlinks=False)
-                if stat.S_ISREG(st.st_mode) and (st.st_dev, st.st_ino) not in kept:
+                if stat.S_ISREG(st.st_mode) and (st.st_dev, st.st_ino) not in kept and not is_key_file(entry.path):
                     os.unlink(entry.path)
                     removed.append(entry.path)
     return removed

@@ -9,6 +9,10 @@
   file descriptor is neither a device nor a FIFO.  Every later ``> /dev/stdout`` in that container then
   wrote to that file.  An output that is a link to an open file descriptor is now refused (exit 2, one line,
   the link untouched).  The tests use a link of their own to ``/proc/self/fd/1``, as ``/dev/stdout`` is.
+* ``pmw verify X.pmw --key K --frames DIR`` removes the pictures an earlier run left that this one does not
+  write (later frames ...), "not links, not the command's inputs, nothing else": a key file under such a name
+  (``frame_030.png`` holding a key) was removed with them, its secret lost, while writing a picture over the
+  same file is refused ("a key file is never rewritten").  Key files are now left, as links and inputs are.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from pmwm_codec import shapes
 from pmwm_codec.cli import main
 from pmwm_codec.errors import OptionError
 from pmwm_codec.meshio import write_mesh
+from pmwm_codec.watermark import WatermarkKey, make_text_watermark, save_png
 
 
 def test_demo_refuses_out_dash_and_makes_no_folder(tmp_path, capsys, monkeypatch):
@@ -62,3 +67,23 @@ def test_the_library_refuses_an_output_linked_to_a_descriptor(tmp_path):
         pmwm_codec.encode(shapes.demo_mesh(12), str(link), measure="none")
     assert os.path.islink(link)
     pmwm_codec.encode(shapes.demo_mesh(12), io.BytesIO(), measure="none")  # a file object is still taken
+
+
+def test_frames_never_remove_a_key_file_named_as_a_stale_picture(tmp_path, capsys):
+    mesh = tmp_path / "m.obj"
+    write_mesh(mesh, shapes.demo_mesh(40))
+    image = tmp_path / "mark.png"
+    save_png(image, make_text_watermark("P", 16))
+    pmw, key = tmp_path / "m.pmw", tmp_path / "m.pmw.key.json"
+    assert main(["encode", str(mesh), "-o", str(pmw), "--watermark", str(image), "-q", "--measure", "none"]) == 0
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    other = frames / "frame_999.png"  # a key under a picture's name, of a frame this run does not write
+    other.write_bytes(key.read_bytes())
+    stale = frames / "frame_998.png"  # a picture an earlier run left: still removed
+    stale.write_bytes(b"\x89PNG\r\n\x1a\n")
+    capsys.readouterr()
+    assert main(["verify", str(pmw), "--key", str(key), "--frames", str(frames), "-q"]) == 0
+    assert (frames / "overview.png").exists() and not stale.exists()
+    assert other.read_bytes() == key.read_bytes()
+    assert WatermarkKey.load(other).secret == WatermarkKey.load(key).secret
