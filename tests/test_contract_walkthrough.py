@@ -13,6 +13,10 @@
   write (later frames ...), "not links, not the command's inputs, nothing else": a key file under such a name
   (``frame_030.png`` holding a key) was removed with them, its secret lost, while writing a picture over the
   same file is refused ("a key file is never rewritten").  Key files are now left, as links and inputs are.
+* ``pmw encode scene.gltf`` read a buffer or image ``uri`` that names a watermark key file beside the asset
+  (``other.pmw.key.json``, or a key under any name) like any other file inside the asset's folder, and wrote
+  its bytes, the secret among them, into the ``.pmw`` meant for publishing: exit 0.  Such a uri is now refused
+  by name (exit 2, one line, nothing written), as an output never replaces a key.
 """
 
 from __future__ import annotations
@@ -87,3 +91,45 @@ def test_frames_never_remove_a_key_file_named_as_a_stale_picture(tmp_path, capsy
     assert (frames / "overview.png").exists() and not stale.exists()
     assert other.read_bytes() == key.read_bytes()
     assert WatermarkKey.load(other).secret == WatermarkKey.load(key).secret
+
+
+def _gltf_naming(uri: str, as_image: bool) -> dict:
+    """A one-quad glTF whose buffer 0 is ``x.bin``; ``uri`` is an image's (``as_image``) or a second buffer's,
+    which an image's bufferView reads."""
+    doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "material": 0}]}],
+           "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}],
+           "textures": [{"source": 0}],
+           "buffers": [{"byteLength": 60, "uri": "x.bin"}],
+           "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 48},
+                           {"buffer": 0, "byteOffset": 48, "byteLength": 12}],
+           "accessors": [{"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3",
+                          "min": [0, 0, 0], "max": [1, 1, 0]},
+                         {"bufferView": 1, "componentType": 5123, "count": 6, "type": "SCALAR"}]}
+    if as_image:
+        doc["images"] = [{"uri": uri, "mimeType": "image/png"}]
+    else:
+        doc["buffers"].append({"uri": uri, "byteLength": 64})
+        doc["bufferViews"].append({"buffer": 1, "byteOffset": 0, "byteLength": 64})
+        doc["images"] = [{"bufferView": 2, "mimeType": "image/png"}]
+    return doc
+
+
+@pytest.mark.parametrize("name", ["other.pmw.key.json", "texture.png"])
+@pytest.mark.parametrize("as_image", [True, False])
+def test_a_gltf_uri_naming_a_key_file_is_refused_and_the_secret_never_written(tmp_path, capsys, name, as_image):
+    import json
+
+    import numpy as np
+
+    positions = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], np.float32)
+    (tmp_path / "x.bin").write_bytes(positions.tobytes() + np.array([0, 1, 2, 1, 3, 2], np.uint16).tobytes())
+    WatermarkKey.generate(owner_id=0x5EED).save(tmp_path / name)
+    secret_hex = json.loads((tmp_path / name).read_text())["secret"]
+    (tmp_path / "scene.gltf").write_text(json.dumps(_gltf_naming(name, as_image)))
+    out = tmp_path / "scene.pmw"
+    capsys.readouterr()
+    assert main(["encode", str(tmp_path / "scene.gltf"), "-o", str(out), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("pmw: error: scene.gltf: ") and "key file" in err and err.count("\n") == 1
+    assert not out.exists() and secret_hex not in err

@@ -238,8 +238,16 @@ def beside(path: str, base_dir: str, label: str) -> str:
 
 def read_beside(path: str, base_dir: str, label: str, budget: list) -> bytes:
     """The bytes of the regular file :func:`beside` finds, never read past ``budget[0]`` bytes (the caller
-    charges them) and not through a symlink as its last component; InputFormatError starting with ``label``."""
-    return read_regular_file(beside(path, base_dir, label), budget[0], InputFormatError, label, follow_symlinks=False)
+    charges them) and not through a symlink as its last component; InputFormatError starting with ``label``,
+    also for a watermark key file (by name or content: :func:`~pmwm_codec.watermark.key.is_key_file`), whose
+    secret would otherwise ride in the output as a buffer's or an image's bytes."""
+    from ..watermark.key import is_key_file
+
+    target = beside(path, base_dir, label)
+    if is_key_file(target):
+        raise InputFormatError(f"{label} names a watermark key file, never read into an asset: its secret "
+                               "would be in the output")
+    return read_regular_file(target, budget[0], InputFormatError, label, follow_symlinks=False)
 
 
 def _data_uri(uri: str, name: str, shown: str, limit: int) -> bytes:
