@@ -48,9 +48,15 @@ DEFAULT_BLOCK_SIZE = 1 << 16
 
 
 def resolve_stdin(source):
-    """``sys.stdin.buffer`` for ``"-"`` or ``sys.stdin``; any other source unchanged."""
-    if isinstance(source, str) and source == "-" or source is sys.stdin:
-        return sys.stdin.buffer
+    """``sys.stdin.buffer`` for ``"-"`` or ``sys.stdin``; any other source unchanged.  OptionError for ``"-"``
+    when the process has no standard input (started with it closed, ``<&-``: ``sys.stdin`` is None)."""
+    if isinstance(source, str) and source == "-" or (source is not None and source is sys.stdin):
+        buffer = getattr(sys.stdin, "buffer", None)
+        if buffer is None:
+            from .errors import OptionError
+
+            raise OptionError("standard input is closed (or not a binary stream): nothing to read from '-'")
+        return buffer
     return source
 
 

@@ -17,6 +17,10 @@
   (``other.pmw.key.json``, or a key under any name) like any other file inside the asset's folder, and wrote
   its bytes, the secret among them, into the ``.pmw`` meant for publishing: exit 0.  Such a uri is now refused
   by name (exit 2, one line, nothing written), as an output never replaces a key.
+* ``pmw decode - -o x.obj <&-`` (a process started with standard input closed, as some daemons and job runners
+  start it) said ``unexpected AttributeError: 'NoneType' object has no attribute 'buffer' (a bug of pmw ...)``;
+  it now says that standard input is closed (exit 2, one line), and ``pmwm_codec.decode("-")`` raises an
+  OptionError saying so.
 """
 
 from __future__ import annotations
@@ -133,3 +137,17 @@ def test_a_gltf_uri_naming_a_key_file_is_refused_and_the_secret_never_written(tm
     err = capsys.readouterr().err
     assert err.startswith("pmw: error: scene.gltf: ") and "key file" in err and err.count("\n") == 1
     assert not out.exists() and secret_hex not in err
+
+
+@pytest.mark.parametrize("argv", [["decode", "-", "-o", "x.obj"], ["cut", "-", "-o", "x.pmw"], ["info", "-"],
+                                  ["verify", "-", "--key", "k.key.json"]])
+def test_a_closed_standard_input_is_named_not_a_bug(tmp_path, capsys, monkeypatch, argv):
+    monkeypatch.chdir(tmp_path)
+    WatermarkKey.generate(owner_id=1).save(tmp_path / "k.key.json")
+    monkeypatch.setattr("sys.stdin", None)  # what Python makes of a closed descriptor 0
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("pmw: error: ") and "standard input is closed" in err and err.count("\n") == 1
+    assert "unexpected" not in err and sorted(os.listdir(tmp_path)) == ["k.key.json"]
+    with pytest.raises(OptionError, match="standard input is closed"):
+        pmwm_codec.decode("-")
