@@ -21,6 +21,8 @@
   start it) said ``unexpected AttributeError: 'NoneType' object has no attribute 'buffer' (a bug of pmw ...)``;
   it now says that standard input is closed (exit 2, one line), and ``pmwm_codec.decode("-")`` raises an
   OptionError saying so.
+* ``pmw verify - --reference X.pmw --key K`` (a mesh piped in) said ``stdin: -: no such file``; it now says
+  that this form reads the mesh from a file, not standard input (exit 2, one line).
 """
 
 from __future__ import annotations
@@ -151,3 +153,13 @@ def test_a_closed_standard_input_is_named_not_a_bug(tmp_path, capsys, monkeypatc
     assert "unexpected" not in err and sorted(os.listdir(tmp_path)) == ["k.key.json"]
     with pytest.raises(OptionError, match="standard input is closed"):
         pmwm_codec.decode("-")
+
+
+def test_verify_reference_names_a_mesh_on_standard_input_as_unsupported(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    WatermarkKey.generate(owner_id=1).save(tmp_path / "k.key.json")
+    (tmp_path / "r.pmw").write_bytes(b"glTF")
+    assert main(["verify", "-", "--reference", "r.pmw", "--key", "k.key.json"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("pmw: error: -: ") and "standard input" in err and "no such file" not in err
+    assert err.count("\n") == 1

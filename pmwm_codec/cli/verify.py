@@ -189,6 +189,9 @@ def run_reference(args) -> int:
     """``pmw verify MESH --reference ORIGINAL.pmw --key KEY``: one verdict for a mesh file."""
     from pmwm_codec.verify.mesh import verify_mesh  # registration (scipy): loaded only for this form
 
+    if args.input == "-":  # read_mesh takes a file, whose suffix names its format
+        raise UsageError("-: verify MESH --reference reads the mesh from a file (its suffix names its format), "
+                         "not from standard input; give the mesh file's name")
     check_input_file(args.input, "mesh file")
     check_input_file(args.reference, "reference .pmw")
     _check_common(args)
