@@ -259,6 +259,8 @@ function baseAccessor(gltf, index, what, { types, components, max }) {
   const accessors = Array.isArray(gltf.accessors) ? gltf.accessors : [];
   const acc = isInt(index, 0, accessors.length - 1) ? accessors[index] : undefined;
   if (!isObj(acc)) throw new FormatError(`${what}: accessor ${index} does not exist`);
+  // spec/README.md, Base mesh: a viewer applies a sparse substitution, the readers decode the stored values
+  if (acc.sparse !== undefined) throw new FormatError(`${what}: accessor ${index} is sparse; a base accessor holds its values as stored`);
   const size = types[acc.componentType];
   const k = COMPONENTS[acc.type];
   if (!size || k !== components) throw new FormatError(`${what}: accessor ${index} has the wrong type`);

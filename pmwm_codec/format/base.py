@@ -552,6 +552,7 @@ def base_views(gltf: dict, primitive: dict, progressive_attributes=()) -> list[i
     attributes = primitive.get("attributes")
     if not isinstance(attributes, dict) or "POSITION" not in attributes:
         raise FormatError("base mesh: primitive has no POSITION attribute")
+    _refuse_sparse_base(gltf, primitive, progressive_attributes)
     extensions = primitive.get("extensions") or {}
     draco = extensions.get(DRACO_EXTENSION) if isinstance(extensions, dict) else None
     if draco is not None:
@@ -576,6 +577,24 @@ def base_views(gltf: dict, primitive: dict, progressive_attributes=()) -> list[i
         item(gltf.get("bufferViews"), acc["bufferView"], "base mesh: bufferView")
         views.append(acc["bufferView"])
     return views
+
+
+def _refuse_sparse_base(gltf: dict, primitive: dict, progressive_attributes=()) -> None:
+    """FormatError when an accessor of the base (``POSITION``, ``indices``, a progressive attribute, the weld
+    attribute) is sparse (spec README, *Base mesh*): a glTF viewer applies the substitution, the readers of this
+    extension decode the stored values, and the MACs cover what they decode (its accessors are ``null`` in the
+    ``sceneMac``'s document), so the base a viewer showed would not be the one verified."""
+    attributes = primitive.get("attributes")
+    accessors = gltf.get("accessors")
+    if not isinstance(attributes, dict) or not isinstance(accessors, list):
+        return
+    names = ["POSITION", WELD_ATTRIBUTE] + [s.get("semantic") for s in progressive_attributes if isinstance(s, dict)]
+    indices = [attributes[n] for n in names if n in attributes] + ([primitive["indices"]] if "indices" in primitive else [])
+    for index in map(json_integer, indices):
+        if index is not None and 0 <= index < len(accessors) and isinstance(accessors[index], dict) \
+                and "sparse" in accessors[index]:
+            raise FormatError(f"base mesh: accessor {index} is sparse; a base accessor holds its values as stored "
+                              "(spec README, Base mesh)")
 
 
 def base_counts(gltf: dict, primitive: dict):

@@ -1,0 +1,81 @@
+"""What a glTF viewer shows of a marked file is what ``pmw verify`` checked: constructs a viewer reads
+differently from the readers of this extension, outside the MACs (the base accessors are ``null`` in the
+``sceneMac``'s document, bufferViews are not in it at all), are refused by the reader, so that no edit of
+them, made without the key, verifies ``authentic`` (spec README, *Base mesh*)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pmwm_codec.cli import main
+from pmwm_codec.format.glb import glb_parts, split_glb
+
+from conftest import marked_sphere
+
+
+@pytest.fixture(scope="module")
+def plain():
+    """A marked icosphere with a plain base: ``(pmw bytes, key)``."""
+    data, key, _ = marked_sphere(5, base_codec="plain")
+    return data, key
+
+
+def _rewrite(data: bytes, change) -> bytes:
+    gltf, binary = split_glb(data)
+    binary = bytearray(binary)
+    change(gltf, binary)
+    gltf["buffers"][0]["byteLength"] = len(binary)
+    return b"".join(glb_parts(gltf, [bytes(binary)], len(binary)))
+
+
+def _append_view(gltf, binary, raw: bytes) -> int:
+    binary += bytes(-len(binary) % 4)
+    gltf["bufferViews"].append({"buffer": 0, "byteOffset": len(binary), "byteLength": len(raw)})
+    binary += raw
+    return len(gltf["bufferViews"]) - 1
+
+
+def _verify(capsys, tmp_path, data: bytes, key) -> tuple:
+    path, key_path = tmp_path / "x.pmw", tmp_path / "x.key.json"
+    path.write_bytes(data)
+    key.save(key_path)
+    capsys.readouterr()
+    status = main(["verify", str(path), "--key", str(key_path)])
+    captured = capsys.readouterr()
+    return status, captured.out + captured.err
+
+
+def _position_accessor(gltf) -> dict:
+    return gltf["accessors"][gltf["meshes"][0]["primitives"][0]["attributes"]["POSITION"]]
+
+
+def test_the_plain_file_itself_is_authentic(capsys, tmp_path, plain):
+    status, out = _verify(capsys, tmp_path, *plain)
+    assert status == 0 and "authentic" in out
+
+
+def _sparse_positions(gltf, binary):
+    """Every other base vertex moved to (0, 30, 0) by a sparse substitution, which every glTF viewer applies."""
+    acc = _position_accessor(gltf)
+    idx = np.arange(0, acc["count"], 2, dtype="<u2")
+    values = np.tile(np.array([[0, 30, 0]], "<f4"), (len(idx), 1))
+    acc["sparse"] = {"count": len(idx), "indices": {"bufferView": _append_view(gltf, binary, idx.tobytes()),
+                                                    "componentType": 5123},
+                     "values": {"bufferView": _append_view(gltf, binary, values.tobytes())}}
+
+
+def _sparse_indices(gltf, binary):
+    """The base's first triangle rewired by a sparse substitution of its indices."""
+    acc = gltf["accessors"][gltf["meshes"][0]["primitives"][0]["indices"]]
+    dtype = "<u2" if acc["componentType"] == 5123 else "<u4"
+    acc["sparse"] = {"count": 1, "indices": {"bufferView": _append_view(gltf, binary, np.array([0], "<u2").tobytes()),
+                                             "componentType": 5123},
+                     "values": {"bufferView": _append_view(gltf, binary, np.array([7], dtype).tobytes())}}
+
+
+@pytest.mark.parametrize("edit", [_sparse_positions, _sparse_indices])
+def test_a_sparse_substitution_on_a_base_accessor_is_refused_not_authentic(capsys, tmp_path, plain, edit):
+    data, key = plain
+    status, out = _verify(capsys, tmp_path, _rewrite(data, edit), key)
+    assert status == 2 and "sparse" in out and "authentic" not in out
