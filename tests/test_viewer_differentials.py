@@ -79,3 +79,28 @@ def test_a_sparse_substitution_on_a_base_accessor_is_refused_not_authentic(capsy
     data, key = plain
     status, out = _verify(capsys, tmp_path, _rewrite(data, edit), key)
     assert status == 2 and "sparse" in out and "authentic" not in out
+
+
+def _meshopt_position_view(gltf, binary):
+    """EXT_meshopt_compression on the base POSITION's bufferView, its stream elsewhere in the buffer (three.js decodes
+    it, once a viewer set a meshopt decoder, even without the extension in extensionsUsed); the view's own bytes, the
+    key holder's, left as they are."""
+    acc = _position_accessor(gltf)
+    view = gltf["bufferViews"][acc["bufferView"]]
+    stream = _append_view(gltf, binary, b"\xa0" + bytes(40))
+    at = gltf["bufferViews"].pop(stream)
+    view["extensions"] = {"EXT_meshopt_compression": {"buffer": 0, "byteOffset": at["byteOffset"], "byteLength": at["byteLength"],
+                                                      "byteStride": 12, "count": acc["count"], "mode": "ATTRIBUTES"}}
+
+
+def _meshopt_other_view(gltf, binary):
+    """The same on a bufferView that no accessor or image uses (the chunks' own view)."""
+    gltf["bufferViews"][-1]["extensions"] = {"KHR_meshopt_compression": {"buffer": 0, "byteLength": 4, "byteStride": 4,
+                                                                         "count": 1, "mode": "ATTRIBUTES"}}
+
+
+@pytest.mark.parametrize("edit", [_meshopt_position_view, _meshopt_other_view])
+def test_a_bufferview_carrying_an_extension_is_refused_not_authentic(capsys, tmp_path, plain, edit):
+    data, key = plain
+    status, out = _verify(capsys, tmp_path, _rewrite(data, edit), key)
+    assert status == 2 and "meshopt_compression" in out and "authentic" not in out

@@ -558,6 +558,12 @@ export function planDocument(gltf, binLength) {
   if (!isObj(buffers[0]) || buffers[0].uri !== undefined || !isInt(buffers[0].byteLength, 0, binLength)) {
     throw new FormatError('buffers[0] must be the GLB BIN chunk, at most its length');
   }
+  // spec/README.md, Base mesh: EXT_meshopt_compression on a view would make a viewer decode other bytes than the stored ones
+  (Array.isArray(gltf.bufferViews) ? gltf.bufferViews : []).forEach((view, i) => {
+    if (isObj(view) && view.extensions !== undefined && !(isObj(view.extensions) && Object.keys(view.extensions).length === 0)) {
+      throw new FormatError(`bufferViews[${i}] carries extensions; a .pmw's bufferViews hold their bytes as stored`);
+    }
+  });
   const bufferLength = buffers[0].byteLength;
   const primitives = [];
   const counted = []; // checkFinalCounts' arguments, checked once the stream's order is (its errors come first)

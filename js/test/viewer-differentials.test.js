@@ -61,3 +61,12 @@ test('a sparse substitution on a base accessor is a FormatError, not a base show
     await assert.rejects(decodePmw(changed), (e) => e instanceof FormatError && /sparse/.test(e.message), which);
   }
 });
+
+test('a bufferView carrying an extension (EXT_meshopt_compression) is a FormatError', async () => {
+  const changed = rewrite(bytes, (gltf) => {
+    const prim = gltf.meshes[0].primitives[0];
+    const view = gltf.bufferViews[gltf.accessors[prim.attributes.POSITION].bufferView];
+    view.extensions = { EXT_meshopt_compression: { buffer: 0, byteLength: 4, byteStride: 12, count: 1, mode: 'ATTRIBUTES' } };
+  });
+  await assert.rejects(decodePmw(changed), (e) => e instanceof FormatError && /bufferViews\[\d+\] carries extensions/.test(e.message));
+});

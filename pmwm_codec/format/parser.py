@@ -213,6 +213,12 @@ def _plan(gltf: dict, exts: list, bin_capacity: int) -> _Plan:
         raise FormatError("glTF JSON: no buffers[0] for the GLB BIN chunk")
     if "uri" in buffers[0]:
         raise FormatError("glTF JSON: buffers[0] has a uri; a .pmw keeps its data in the GLB BIN chunk")
+    views = gltf.get("bufferViews")
+    for i, view in enumerate(views if isinstance(views, list) else ()):
+        if isinstance(view, dict) and view.get("extensions"):
+            names = ", ".join(sorted(map(str, view["extensions"]))) if isinstance(view["extensions"], dict) else "extensions"
+            raise FormatError(f"glTF JSON: bufferViews[{i}] carries {names}; a .pmw's bufferViews hold their bytes as "
+                              "stored (a viewer would decode other bytes than the ones the digests and MACs cover)")
     buffer_length = uint(buffers[0], "byteLength", "buffers[0]")
     if buffer_length > bin_capacity:
         raise FormatError(f"glTF JSON: buffers[0].byteLength {buffer_length} exceeds the {bin_capacity} bytes the GLB length leaves")
