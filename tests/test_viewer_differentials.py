@@ -104,3 +104,29 @@ def test_a_bufferview_carrying_an_extension_is_refused_not_authentic(capsys, tmp
     data, key = plain
     status, out = _verify(capsys, tmp_path, _rewrite(data, edit), key)
     assert status == 2 and "meshopt_compression" in out and "authentic" not in out
+
+
+def _far_bounds(gltf, binary):
+    """POSITION min / max moved far off: three.js takes the bounding sphere from them and culls the mesh."""
+    acc = _position_accessor(gltf)
+    acc["min"], acc["max"] = [1000.0, 1000.0, 1000.0], [1000.001, 1000.001, 1000.001]
+
+
+def _bounds_one_off(gltf, binary):
+    acc = _position_accessor(gltf)
+    acc["max"] = [acc["max"][0] * 2, *acc["max"][1:]]
+
+
+@pytest.mark.parametrize("edit", [_far_bounds, _bounds_one_off])
+def test_position_bounds_other_than_the_stored_positions_are_refused_not_authentic(capsys, tmp_path, plain, edit):
+    data, key = plain
+    status, out = _verify(capsys, tmp_path, _rewrite(data, edit), key)
+    assert status == 2 and "is not the bound of its values" in out and "authentic" not in out
+
+
+def test_position_bounds_of_a_draco_base_are_checked_too(capsys, tmp_path):
+    data, key, _ = marked_sphere(6)
+    gltf, _ = split_glb(data)
+    assert "bufferView" not in _position_accessor(gltf)  # a Draco base
+    status, out = _verify(capsys, tmp_path, _rewrite(data, _far_bounds), key)
+    assert status == 2 and "is not the bound of its values" in out

@@ -89,6 +89,22 @@ async function defaultDraco() {
  * @returns {Promise<{values: Float64Array, faces: Uint32Array, n: number, m: number, D: number}>}
  *   values: (n*D) grid x, y, z then attribute components per vertex; faces: (m*3)
  */
+/** The POSITION accessor's min / max, where given, are the exact float32 bounds of the stored positions (spec/README.md, Base mesh). */
+function checkBounds(positions, n, bounds) {
+  if (!bounds || n === 0) return;
+  for (const name of ['min', 'max']) {
+    const given = bounds[name];
+    if (given === null) continue;
+    for (let c = 0; c < 3; c++) {
+      let b = positions[c];
+      for (let i = c; i < 3 * n; i += 3) b = name === 'min' ? Math.min(b, positions[i]) : Math.max(b, positions[i]);
+      if (Math.fround(b) !== Math.fround(given[c])) {
+        throw new FormatError(`base mesh: POSITION ${name} [${given}] is not the bound of its values`);
+      }
+    }
+  }
+}
+
 export async function decodeBase(bin, prim, draco) {
   const { base, grid } = prim;
   let positions;
@@ -146,6 +162,7 @@ export async function decodeBase(bin, prim, draco) {
     if (base.plain.weld) ordinals = readAccessor(bin, base.plain.weld, true);
   }
   const n = positions.length / 3;
+  checkBounds(positions, n, base.bounds);
   const D = 3 + base.grids.reduce((s, g) => s + g.origin.length, 0);
   if (indices.length % 3 !== 0) throw new FormatError('base mesh: index count is not a multiple of 3');
   for (let i = 0; i < indices.length; i++) {

@@ -481,7 +481,7 @@ function basePlan(gltf, prim, ext, bufferLength, what) {
     // the data type each Draco attribute must have: the one its accessor names (spec/README.md "Base mesh")
     const dataTypes = [FLOAT, ...attributeTypes, ...(welds ? [weldType] : [])];
     return { draco: { view, positionId: ids[0], attributeIds, weldId: welds ? ids[ids.length - 1] : null, vertices,
-      faces: corners / 3, dataTypes }, grids, views: [view] };
+      faces: corners / 3, dataTypes }, grids, views: [view], bounds: positionBounds(gltf, prim, what) };
   }
   const position = accessorPlan(gltf, prim.attributes.POSITION, bufferLength, `${what} POSITION`, POSITION);
   const indices = accessorPlan(gltf, prim.indices, bufferLength, `${what} indices`, INDICES);
@@ -495,7 +495,24 @@ function basePlan(gltf, prim, ext, bufferLength, what) {
     return plan;
   });
   const views = [position, indices, ...attrs, ...(weld ? [weld] : [])].map((a) => a.view);
-  return { plain: { position, indices, attributes: attrs, weld }, grids, views };
+  return { plain: { position, indices, attributes: attrs, weld }, grids, views, bounds: positionBounds(gltf, prim, what) };
+}
+
+/**
+ * The POSITION accessor's {min, max} (null members when absent), each three numbers (spec/README.md, Base mesh:
+ * decodeBase checks them against the stored positions; three.js culls by them, and no MAC covers them).
+ */
+function positionBounds(gltf, prim, what) {
+  const acc = gltf.accessors[prim.attributes.POSITION];
+  const out = {};
+  for (const name of ['min', 'max']) {
+    const v = acc[name];
+    if (v !== undefined && !(Array.isArray(v) && v.length === 3 && v.every((x) => typeof x === 'number'))) {
+      throw new FormatError(`${what}: POSITION ${name} is not three numbers`);
+    }
+    out[name] = v ?? null;
+  }
+  return out;
 }
 
 /** Checks a primitive's extension object; returns its chunk payload version (1 or 2). */

@@ -70,3 +70,11 @@ test('a bufferView carrying an extension (EXT_meshopt_compression) is a FormatEr
   });
   await assert.rejects(decodePmw(changed), (e) => e instanceof FormatError && /bufferViews\[\d+\] carries extensions/.test(e.message));
 });
+
+test('POSITION min / max other than the bounds of the stored positions are a FormatError', async () => {
+  const changed = rewrite(bytes, (gltf) => {
+    const acc = gltf.accessors[gltf.meshes[0].primitives[0].attributes.POSITION];
+    acc.min = [1000, 1000, 1000]; acc.max = [1000.001, 1000.001, 1000.001];
+  });
+  await assert.rejects(decodePmw(changed), (e) => e instanceof FormatError && /is not the bound of its values/.test(e.message));
+});

@@ -691,6 +691,7 @@ def read_base(gltf: dict, bin_data, grid: Grid | dict, primitive: dict | None = 
                                                     n, 1, f"base mesh: {WELD_ATTRIBUTE}")
     if faces.size and faces.max() >= n:
         raise FormatError(f"base mesh: face index {int(faces.max())} out of range [0, {n})")
+    _check_bounds(pos_acc, stored["POSITION"])
     positions = _as_grid(grid).from_float32(stored["POSITION"])
     columns = [g.from_float32(stored[s].astype(np.float32), s) for s, g in zip(semantics, grids)]  # integers: exact
     values = np.concatenate(columns, axis=1) if columns else np.zeros((n, 0), np.int64)
@@ -710,6 +711,23 @@ def read_base(gltf: dict, bin_data, grid: Grid | dict, primitive: dict | None = 
     if two_alike(faces).any():
         raise FormatError("base mesh: a face repeats a vertex (a valid base has only proper triangles)")
     return positions, faces, values
+
+
+def _check_bounds(acc: dict, stored: np.ndarray) -> None:
+    """FormatError unless the POSITION accessor's ``min`` / ``max``, where given, are the exact float32 bounds of the
+    ``stored`` (n, 3) positions (spec README, *Base mesh*): three.js takes a mesh's bounding box and sphere from them
+    and culls by them, and they are outside every MAC (the base accessors are ``null`` in the ``sceneMac``'s document)."""
+    for name, bound in (("min", np.min), ("max", np.max)):
+        if name not in acc:
+            continue
+        given = acc[name]
+        if not isinstance(given, list) or len(given) != 3 or not all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) for x in given):
+            raise FormatError(f"base mesh: POSITION {name} is not three numbers")
+        if stored.shape[0] and not np.array_equal(np.asarray(given, np.float64).astype(np.float32),
+                                                  bound(stored, axis=0).astype(np.float32)):
+            raise FormatError(f"base mesh: POSITION {name} {given} is not the bound of its values "
+                              f"{float32_numbers(bound(stored, axis=0))} (spec README, Base mesh)")
 
 
 def _attribute_accessor(gltf: dict, primitive: dict, spec: dict, grid: AttributeGrid, n: int) -> dict:
