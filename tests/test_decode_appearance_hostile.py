@@ -204,19 +204,13 @@ def test_an_obj_output_name_whose_records_read_back_as_another_name_is_one_line_
     _one_line_no_file(pmw("decode", src, "-o", tmp_path / name), tmp_path, kept, "another name")
 
 
-def test_an_obj_output_name_with_single_spaces_reads_back_with_its_texture(tmp_path):
+@pytest.mark.parametrize("name", ["my scan.obj", "x#1.ply"])
+def test_an_output_name_its_format_records_as_it_is_reads_back_with_its_texture(tmp_path, name):
+    """Single spaces in an OBJ's name, a ``#`` in a PLY's (a comment only in an OBJ or MTL)."""
     src = _textured(tmp_path)
-    run = pmw("decode", src, "-o", tmp_path / "my scan.obj")
+    run = pmw("decode", src, "-o", tmp_path / name)
     assert run.returncode == 0, run.stderr
-    (back, _), notices = meshdoc.read_source(str(tmp_path / "my scan.obj"))
-    assert notices == [] and len(back["images"]) == 1
-
-
-def test_an_output_name_with_a_hash_is_fine_for_a_ply(tmp_path):
-    src = _textured(tmp_path)
-    run = pmw("decode", src, "-o", tmp_path / "x#1.ply")
-    assert run.returncode == 0, run.stderr
-    (back, _), notices = meshdoc.read_source(str(tmp_path / "x#1.ply"))
+    (back, _), notices = meshdoc.read_source(str(tmp_path / name))
     assert notices == [] and len(back["images"]) == 1
 
 
