@@ -119,7 +119,7 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
     from .stream.asset import encode_asset, is_asset_path
     from .options import check_destination, check_source, checked_options, ignored_without_image, image_options_given
     from .stream.encoder import encode_mesh
-    from .watermark.codec import CapacityError
+    from .watermark.codec import MAX_EXACT_BITS, CapacityError
 
     check_source(src)
     named = ()  # the files a mesh file names (its MTL, textures, .gltf buffers): never replaced by the output
@@ -140,6 +140,10 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
         image, from_key = _key_watermark(key, options.get("owner_id"))
     if image is None:
         notices += ignored_without_image(image_options_given(options))
+    elif options.get("mode") in (None, "exact") and (options.get("bits") or 0) > MAX_EXACT_BITS:
+        notices.append(f"{options['bits']} bits per code: past the {MAX_EXACT_BITS} exact mode is made for (about 70 dB "
+                       "mesh PSNR), each bit more doubles how far a code may move its vertex: expect the mesh visibly "
+                       "changed (fewer bits, or a finer mesh, keep it close)")
     asked = options.get("owner_id")
     if image is None and (asked is False or (asked is None and key is None)) and options.get("owner_strength") is not None:
         notices.append("owner_strength ignored: no owner layer (an owner_id, or a watermark, makes one)")
