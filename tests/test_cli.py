@@ -628,3 +628,14 @@ def test_an_output_that_is_the_file_standard_input_reads_is_refused(work, tmp_pa
     assert proc.returncode == 2 and proc.stderr.startswith("pmw: error: ") and len(proc.stderr.splitlines()) == 1
     assert "is also the input" in proc.stderr, proc.stderr
     assert target.read_bytes() == work["pmw"].read_bytes()
+
+
+def test_encode_quiet_prints_no_summary_but_its_notes_on_stderr(tmp_path, capsys):
+    """``encode -q`` dropped every note (``--fit`` shrank the image, the owner layer left out ...), while ``decode -q``
+    and ``cut -q`` send theirs to stderr: now encode does too, and prints nothing else."""
+    mesh = write_obj(tmp_path / "sphere.obj", shapes.icosphere(3, 1.0, noise=0.01))
+    Image.fromarray(pattern(64)).save(tmp_path / "big.png")
+    code, stdout, err = run(capsys, "encode", mesh, "-o", tmp_path / "s.pmw", "--watermark", tmp_path / "big.png",
+                            "--fit", "-q")
+    assert code == 0 and stdout == "" and (tmp_path / "s.pmw").stat().st_size > 0
+    assert err and all(line.startswith("pmw: note: ") for line in err.splitlines()) and "--fit" in err, err

@@ -18,7 +18,7 @@ from pmwm_codec.watermark.image import load_watermark
 from pmwm_codec.watermark.key import KEY_SUFFIX
 
 from .common import (Progress, UsageError, check_input_file, check_output_path, check_pmw_output, fmt_float,
-                     nonblank_path, print_json, stage_progress)
+                     nonblank_path, notice, print_json, stage_progress)
 
 
 def _int_in(lo, hi, what):
@@ -80,7 +80,7 @@ def add_parser(sub):
                    help="distortion: vertices (default: exact RMS/PSNR, Hausdorff bounded by the largest vertex "
                         "displacement), sampled (Metro-style surface Hausdorff, slower) or none")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success (notes still go to stderr)")
     p.set_defaults(run=run)
 
 
@@ -175,6 +175,9 @@ def run(args) -> int:
         print_json(report)
     elif not args.quiet:
         print(summary(args.input, args.output, report))
+    else:  # no summary; its notes (what was adjusted, left out or shrunk) still go to stderr, as decode's and cut's
+        for note in report["notices"]:
+            notice(note)
     return 0
 
 
