@@ -269,6 +269,9 @@ def test_a_stopped_scheduler_run_leaves_no_output_its_ledger_does_not_name(tmp_p
         run_ = subprocess.Popen(argv, env=dict(os.environ, PYTHONPATH=str(ROOT)), stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, text=True)
         _first_row(run_, out / LEDGER_NAME)
+        deadline = time.monotonic() + 60  # the next encoders starting (both workers may have just finished one)
+        while run_.poll() is None and not _encoders(procs[1:]) and time.monotonic() < deadline:
+            time.sleep(0.05)
         assert run_.poll() is None and _encoders(procs[1:]), "no encoder was running when the run was stopped"
         run_.send_signal(signal.SIGTERM)
         _, stderr = _finish(run_)
