@@ -639,3 +639,11 @@ def test_encode_quiet_prints_no_summary_but_its_notes_on_stderr(tmp_path, capsys
                             "--fit", "-q")
     assert code == 0 and stdout == "" and (tmp_path / "s.pmw").stat().st_size > 0
     assert err and all(line.startswith("pmw: note: ") for line in err.splitlines()) and "--fit" in err, err
+
+
+@pytest.mark.parametrize("output, words", [("dir", "is a directory"), ("-", "not to standard output")])
+def test_decode_names_a_folder_or_dash_as_output_for_what_it_is(work, tmp_path, capsys, output, words):
+    """``decode -o somedir`` and ``decode -o -`` said "unknown output format '(no suffix)'"."""
+    (tmp_path / "dir").mkdir()
+    code, stdout, err = run(capsys, "decode", work["pmw"], "-o", tmp_path / output if output != "-" else "-")
+    assert code == 2 and stdout == "" and words in err and "unknown output format" not in err, err

@@ -36,16 +36,16 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    suffix = os.path.splitext(args.output)[1].lower()
-    if suffix not in WRITE_SUFFIXES:
-        raise UsageError(f"{args.output}: unknown output format {suffix or '(no suffix)'!r}; "
-                         f"use one of {', '.join(WRITE_SUFFIXES)}")
     if args.chunks is not None and args.chunks < 0:
         raise UsageError(f"--chunks must be >= 0, got {args.chunks}")
     url = is_url(args.input)
     if not url:
         check_input_file(args.input, ".pmw file")
-    check_output_path(args.output, "mesh", inputs=() if url else (args.input,))
+    check_output_path(args.output, "mesh", inputs=() if url else (args.input,))  # '-', a folder: named as such
+    suffix = os.path.splitext(args.output)[1].lower()
+    if suffix not in WRITE_SUFFIXES:
+        raise UsageError(f"{shown_path(args.output)}: unknown output format {suffix or '(no suffix)'!r}; "
+                         f"use one of {', '.join(WRITE_SUFFIXES)}")
     with naming(args.input):
         try:
             out = decode_to(args.input, args.output, chunks=args.chunks, geometry_only=args.geometry_only)
