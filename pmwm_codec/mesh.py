@@ -529,7 +529,7 @@ def _mesh_text(data: bytes, name: str, kind: str) -> str:
 _OFF_HEADER = re.compile(r"((?:ST)?C?N?(4)?(n)?OFF)(.*)")
 
 
-def _read_off(path, name, appearance: bool = False, keyword_out: list | None = None) -> tuple:
+def _read_off(path, name, appearance: bool = False, header_out: list | None = None) -> tuple:
     """Parse an OFF file (Object File Format: Geomview's, CGAL's, the Princeton Shape Benchmark's and ModelNet's):
     ``(positions (n, 3) float64, faces (m, 3) int64)``, polygons fan-triangulated as an OBJ's are; with
     ``appearance``, ``(positions, faces, colours, face colours)``: ``colours`` (n, 3) float64 the red, green and
@@ -541,8 +541,9 @@ def _read_off(path, name, appearance: bool = False, keyword_out: list | None = N
     ``OFF490 1010 0``), then the vertex and face counts, then one vertex a line (its first three numbers: the
     position; then, as the keyword says, ``N`` a normal, ``C`` a colour (3 or 4 numbers), ``ST`` texture
     coordinates: only the colour is read) and one face a line (its corner count k, k indices counted from 0, then
-    an optional colour).  ``keyword_out``, a list, gets the file's header keyword appended (``NOFF`` ...: whether its
-    vertices carry normals, which are not read).  ``#`` starts a comment.  Counts are checked
+    an optional colour).  ``header_out``, a list, gets the file's header keyword appended (``NOFF`` ...: whether its
+    vertices carry normals, which are not read), then the number of records after the faces its header declares
+    (not read: readers stop at the declared count).  ``#`` starts a comment.  Counts are checked
     against the encoder's limits before anything is stored.  InputFormatError, naming the line, for a binary
     or 4D / nD OFF, a missing or malformed record, a face index past the vertices; MeshError for a file of no
     faces (a point cloud).  A face of one or two corners is a degenerate triangle, dropped and counted by
@@ -576,8 +577,8 @@ def _read_off(path, name, appearance: bool = False, keyword_out: list | None = N
         raise InputFormatError(f"{name}: OFF declares {n_vertices:,} vertices and {n_faces:,} faces but holds "
                                f"{max(len(lines) - at, 0):,} records (cut short)")
     keyword = head.group(1)
-    if keyword_out is not None:
-        keyword_out.append(keyword)
+    if header_out is not None:
+        header_out += [keyword, len(lines) - (at + n_vertices + n_faces)]
     coloured = appearance and "C" in keyword.replace("OFF", "")
     first = 6 if "N" in keyword.replace("OFF", "") else 3  # where a colour starts: after a normal
     rows = _off_rows(lines[at: at + n_vertices], first + 3 if coloured else 3, name, at, "vertex")

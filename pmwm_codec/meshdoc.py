@@ -351,11 +351,15 @@ def off_source(path: str, name: str) -> tuple:
     carried)."""
     from .mesh import _read_off, _soup_welded, mesh_arrays
 
-    keyword: list = []
-    positions, faces, colours, face_colours = _read_off(path, name, appearance=True, keyword_out=keyword)
+    header: list = []
+    positions, faces, colours, face_colours = _read_off(path, name, appearance=True, header_out=header)
+    keyword, past = header
     notices = ["the faces' colours not carried (an OFF's vertex colours are)"] if face_colours else []
-    if "N" in keyword[0].replace("OFF", ""):  # NOFF, CNOFF ...: a normal after each position, not read
-        notices.append(_NORMALS_LEFT.format(f"of the {keyword[0]} vertices"))
+    if "N" in keyword.replace("OFF", ""):  # NOFF, CNOFF ...: a normal after each position, not read
+        notices.append(_NORMALS_LEFT.format(f"of the {keyword} vertices"))
+    if past:  # as other readers, the declared count is what is read
+        notices.append(f"{past:,} record{'s' if past != 1 else ''} after the faces the OFF header declares left out "
+                       "(its face count ends the mesh, as other readers read it)")
     if colours is None:
         return _soup_welded(positions, faces, name), notices
     if not np.isfinite(colours).all():

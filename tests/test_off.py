@@ -186,3 +186,16 @@ def test_an_off_s_vertex_normals_are_not_carried_and_the_encoder_says_so(tmp_pat
     assert any("normals" in n and "not carried" in n for n in report["notices"]), report["notices"]
     (tmp_path / "p.off").write_text(off_text(mesh))
     assert not any("normals" in n for n in pmwm_codec.encode(str(tmp_path / "p.off"), str(tmp_path / "p.pmw"))["notices"])
+
+
+def test_records_after_the_faces_an_off_declares_are_left_out_and_the_encoder_says_so(tmp_path):
+    """Face records past the header's count were ignored without a word (helper-123): the declared count is read,
+    as other readers read it, and a note says how many records were left out."""
+    mesh = shapes.icosphere(2)
+    (tmp_path / "f.off").write_text(off_text(mesh))
+    extra = ["3 0 1 2", "3 1 2 3"]
+    (tmp_path / "g.off").write_text(off_text(mesh) + "\n".join(extra) + "\n")
+    report = pmwm_codec.encode(str(tmp_path / "g.off"), str(tmp_path / "g.pmw"))
+    assert "2 records after the faces the OFF header declares left out" in " ".join(report["notices"]), report["notices"]
+    assert pmwm_codec.encode(str(tmp_path / "f.off"), str(tmp_path / "f.pmw"))["notices"] == []
+    assert (tmp_path / "g.pmw").read_bytes() == (tmp_path / "f.pmw").read_bytes()  # the declared faces alone
