@@ -237,10 +237,11 @@ def test_a_run_whose_every_worker_dies_stops_in_one_line_after_the_no_worker_tim
 
 
 def _encoders(procs) -> list:
-    """The encoder processes (``pmwm_codec.batch.child``) still alive in the sessions of ``procs``."""
+    """The encoder processes (``pmwm_codec.batch.child``) still alive in the sessions of ``procs`` (``ps -ww``: without
+    it ps cuts each line at 80 columns, before the module's name under a long interpreter path)."""
     found = []
     for proc in procs:
-        ps = subprocess.run(["ps", "-o", "pid=,stat=,args=", "-s", str(proc.pid)], capture_output=True,
+        ps = subprocess.run(["ps", "-ww", "-o", "pid=,stat=,args=", "-s", str(proc.pid)], capture_output=True,
                             text=True).stdout
         found += [line for line in ps.splitlines() if "batch.child" in line and not line.split()[1].startswith("Z")]
     return found
