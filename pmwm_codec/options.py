@@ -215,12 +215,12 @@ def check_output_path(path, what: str, inputs=(), key: bool = False) -> str:
         raise OptionError(f"the {what} path is empty (an unset variable?): give a file name")
     if path == "-":
         raise OptionError(f"-: the {what} is written to a file, not to standard output; give a file name")
-    if "\0" not in path and _descriptor_link(path):  # /dev/stdout: the rename would replace the link itself
+    if "\0" in path:  # os.lstat & co. raise ValueError, no OSError
+        raise OptionError(f"{shown}: cannot write {what} (embedded null byte)")
+    if _descriptor_link(path):  # /dev/stdout: the rename would replace the link itself
         raise OptionError(f"{shown}: a link to an open file descriptor (standard output or error), which an "
                           f"output never replaces; the {what} is written to a file, not to standard output: "
                           "give a file name")
-    if "\0" in path:  # os.lstat & co. raise ValueError, no OSError
-        raise OptionError(f"{shown}: cannot write {what} (embedded null byte)")
     if not key:
         refuse_key_target(path, what)
     if os.path.isdir(path):

@@ -212,8 +212,8 @@ _ESCAPED = {c: repr(chr(c))[1:-1] for c in (*range(32), 127)}
 def shown_path(path) -> str:
     """``path`` as an error message names it: as it is (control characters escaped, ``a\\nb.obj``), unless it
     cannot be a file name a person typed (a NUL, over 512 characters, or a line break or a leading ``{`` in a name
-    no file has: a file's content -- a key's JSON -- passed where its path belongs, which must not be copied into a message or a log -- a key
-    file's secret, say).  A file named with a line break exists: its name is shown, escaped."""
+    no file has): a file's content passed where its path belongs, which must not be copied into a message or a
+    log (a key's JSON: its secret).  An existing file named with a line break is shown, escaped."""
     text = os.fspath(path)
     text = text if isinstance(text, str) else os.fsdecode(text)
     if len(text) > 512 or "\0" in text or (("\n" in text or "\r" in text or text.lstrip().startswith("{"))

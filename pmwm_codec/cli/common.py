@@ -252,8 +252,8 @@ def check_input_file(path, what: str = "file") -> None:
         return
     if not path.strip():  # an unset variable: "pmw: error: : no such file" named nothing
         raise UsageError(f"an empty path ({path!r}) names no {what} (an unset variable?)")
-    from pmwm_codec.sources import shown_path  # named as the library names it: a key's JSON given as its path is
-                                               # never echoed
+    from pmwm_codec.sources import shown_path  # as the library names it: a key's JSON given as a path never echoed
+
     if not os.path.exists(path):
         raise UsageError(f"{shown_path(path)}: no such {what}")
     if os.path.isdir(path):
