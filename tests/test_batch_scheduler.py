@@ -247,8 +247,6 @@ def _encoders(procs) -> list:
     return found
 
 
-@pytest.mark.xfail(strict=False, reason="a known window left open: a SIGTERM reaching an encoder after it published but "
-                   "before it reported stops it without a row (seen once in CI); the task should then record the output")
 def test_a_stopped_scheduler_run_leaves_no_output_its_ledger_does_not_name(tmp_path):
     """A --scheduler run stopped by SIGTERM while encoders ran on the workers: Dask's cancel cannot reach a running
     task, so those encoders went on and published their ``.pmw`` seconds after the command had ended, with no

@@ -205,3 +205,41 @@ def test_a_forkserver_whose_worker_dies_mid_request_ends_without_a_traceback(pre
                           env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=300)
     assert done.returncode == 0, done.stderr
     assert (done.stderr == "") if quiet else ("EOFError" in done.stderr), done.stderr
+
+
+_STOPPED_AS_IT_PUBLISHES = """
+import json, multiprocessing, sys, types
+import numpy as np
+from pmwm_codec.batch import tasks
+
+src, dst, form = sys.argv[1:]
+if form == "interpreter":  # the encoder of a daemonic worker (``dask worker``): a fresh interpreter
+    tasks.multiprocessing = types.SimpleNamespace(current_process=lambda: types.SimpleNamespace(daemon=True))
+job = tasks.EncodeJob(input=src, output=dst, key_path=dst + ".key.json", timeout=300.0,
+                      watermark=np.full((8, 8), 255, np.uint8))
+print(json.dumps(tasks.encode_task(job)))
+"""
+
+
+@pytest.mark.parametrize("form", ["forked", "interpreter"])
+def test_an_encoder_stopped_the_moment_it_published_still_gets_its_row(tmp_path, form):
+    """A SIGTERM that reaches an encoder while it publishes is held back until the key and the ``.pmw`` are in
+    place, and then stops it before it reports: a stopped ``--scheduler`` run left such an output without a ledger
+    row (CI, once).  The moment, made certain by the ``published:TERM`` fault point: the task's row is ``ok`` and
+    names the output as it is (bytes, digest, vertex count), beside its key."""
+    from pmwm_codec.batch.ledger import sha256_file
+    from pmwm_codec.format.inspect import inspect
+
+    mesh = shapes.icosphere(3, noise=0.01)
+    write_mesh(tmp_path / "a.obj", mesh)
+    dst = tmp_path / "out" / "a.obj.pmw"
+    done = subprocess.run([sys.executable, "-c", _STOPPED_AS_IT_PUBLISHES, str(tmp_path / "a.obj"), str(dst), form],
+                          capture_output=True, text=True, timeout=300,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT), PMWM_FAULT="published:TERM"))
+    assert done.returncode == 0, done.stderr
+    row = json.loads(done.stdout.splitlines()[-1])
+    assert (row["status"], row["error"]) == ("ok", None), row
+    assert row["bytes"] == dst.stat().st_size and row["output_sha256"] == sha256_file(str(dst))
+    assert row["vertices"] == inspect(str(dst))["vertices"] == mesh.vertex_count
+    assert (dst.parent / "a.obj.pmw.key.json").is_file()
+    assert sorted(os.listdir(dst.parent)) == ["a.obj.pmw", "a.obj.pmw.key.json"]

@@ -186,10 +186,13 @@ def _encode_in_child(job: EncodeJob, stopped=lambda: False) -> dict:
                "options": job.options or {}, "restore_sigint": job.restore_sigint, "watermark_given": job.watermark_given}
     if stopped():  # the run stopped while this task waited to start
         return {"status": "stopped", "error": "the run was stopped", "bytes": None, "vertices": None}
+    before = _identity(job.output)
     if multiprocessing.current_process().daemon:
         result = _run_interpreter(payload, job.timeout, stopped)
     else:
         result = _run_forked(payload, job.timeout, stopped)
+    if result["status"] != "ok":
+        result = _published_anyway(job, before) or result
     if result["status"] == "timeout":
         result["error"] = f"{job.input}: no result within {job.timeout:g} s; encoder killed"
     elif result["status"] == "stopped":
@@ -200,6 +203,34 @@ def _encode_in_child(job: EncodeJob, stopped=lambda: False) -> dict:
     if result["status"] != "ok":
         _remove_leftovers(job)
     return {k: result.get(k) for k in ("status", "error", "bytes", "vertices")}
+
+
+def _identity(path: str):
+    """``(device, inode, mtime_ns, size)`` of the file at ``path``, or None: what tells a file published since."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino, st.st_mtime_ns, st.st_size
+
+
+def _published_anyway(job: EncodeJob, before) -> dict | None:
+    """The ``ok`` result of an encoder that ended without reporting ``ok`` after it had published its output:
+    stopped, killed at the timeout or by a signal of its own in the moment between the two (a SIGTERM held
+    back while the key and the ``.pmw`` were renamed into place takes effect the moment the pair is published).
+    The output is replaced whole (one rename, its key before it; one run per OUT_DIR), so a file there other
+    than the one the encoder started beside is its own, and it gets its row: an output the ledger does not
+    name is the fault a stop must never leave.  None when the output is the one there before."""
+    now = _identity(job.output)
+    if now is None or now == before or (job.key_path is not None and not os.path.isfile(job.key_path)):
+        return None
+    from pmwm_codec.format.inspect import inspect
+
+    try:
+        vertices = inspect(job.output)["vertices"]
+    except (PmwError, OSError, ValueError, KeyError, TypeError):  # its row all the same: `batch verify` reads it
+        vertices = None
+    return {"status": "ok", "error": None, "bytes": now[3], "vertices": vertices}
 
 
 def _waits(timeout, stopped):
