@@ -576,10 +576,7 @@ class _Submitted:
         try:
             if self.event is not None:
                 self.event.set()
-            running = set()
-            for keys in self.client.processing().values():
-                running.update(keys)
-            queued = [f for f in self.futures if f.key not in running]
+            queued = self._not_started()
             self.client.cancel(queued)
             for future in queued:
                 self.futures.pop(future, None)
@@ -594,6 +591,27 @@ class _Submitted:
                 self.event.clear()  # every task has seen the stop or ended: the scheduler forgets the Event
         except Exception:  # noqa: BLE001 - a cluster gone or not answering: nothing more comes back from it
             return
+
+
+    def _not_started(self) -> list:
+        """The futures whose tasks no worker has been given yet, which :meth:`stop` cancels (started after the stop,
+        they would only see it and end).  Asked of the scheduler in one call: a task that has just finished, its
+        result not yet taken, must not be among them (cancelled, its row was lost, and its output was left without
+        one).  A task given to a worker after this answer sees the stop before it encodes anything.  A scheduler
+        that refuses the call (``distributed.scheduler.pickle`` off): those neither processing nor finished as far
+        as the client knows."""
+        def states(dask_scheduler, keys):  # run on the scheduler (pickled by value: it needs no import of ours)
+            tasks = dask_scheduler.tasks
+            return [key for key in keys if key in tasks and tasks[key].state in ("released", "waiting", "queued",
+                                                                                 "no-worker")]
+        try:
+            waiting = set(self.client.run_on_scheduler(states, keys=[f.key for f in self.futures]))
+            return [f for f in self.futures if f.key in waiting]
+        except Exception:  # noqa: BLE001
+            running = set()
+            for keys in self.client.processing().values():
+                running.update(keys)
+            return [f for f in self.futures if f.key not in running and f.status == "pending"]
 
 
 class _WorkerWatch:
