@@ -550,3 +550,66 @@ def test_a_glb_of_another_container_version_is_named_not_called_cut_short(capsys
     assert_refused(*run_encode(capsys, tmp_path, src), "m.glb", *words)
     with pytest.raises(InputFormatError, match="m.glb: .*GLB version"):
         pmwm_codec.encode(src, tmp_path / "api.pmw", measure="none")
+
+
+def _blob_of(doc: dict) -> bytes:
+    return base64.b64decode(doc["buffers"][0]["uri"].partition(",")[2])
+
+
+def _as_source(tmp_path, doc: dict, kind: str, data: bytes, declared: int):
+    """``doc``'s buffer 0 holding ``data`` and declaring ``declared`` bytes, written as ``kind``: a data URI, a
+    ``.bin`` beside the ``.gltf``, or a GLB's BIN chunk (zero padded to 4 bytes).  The file's path."""
+    from pmwm_codec.format.glb import join_glb
+
+    folder = tmp_path / "asset"
+    folder.mkdir(parents=True, exist_ok=True)
+    doc["buffers"][0] = {"byteLength": declared}
+    if kind == "glb":
+        src = folder / "m.glb"
+        src.write_bytes(join_glb(doc, data))
+        return src
+    if kind == "bin":
+        (folder / "m.bin").write_bytes(data)
+        doc["buffers"][0]["uri"] = "m.bin"
+    else:
+        doc["buffers"][0]["uri"] = "data:application/octet-stream;base64," + base64.b64encode(data).decode()
+    return write_gltf(folder, doc)
+
+
+@pytest.mark.parametrize("kind", ["data", "bin", "glb"])
+def test_a_buffer_declaring_more_bytes_than_it_holds_is_refused(capsys, tmp_path, mesh, kind):
+    """A buffer whose ``byteLength`` says more than its data URI, ``.bin`` or BIN chunk holds (the validator's
+    BUFFER_*_BYTELENGTH_MISMATCH) was read without a word: cut short, or the wrong length declared."""
+    doc = gltf_doc(mesh)
+    blob = _blob_of(doc)
+    src = _as_source(tmp_path, doc, kind, blob, len(blob) + 64)
+    assert_refused(*run_encode(capsys, tmp_path, src), src.name, "buffers[0] declares byteLength",
+                   f"{len(blob):,} bytes")
+    with pytest.raises(InputFormatError, match="buffers\\[0\\] declares byteLength"):
+        pmwm_codec.read_mesh(src)
+
+
+@pytest.mark.parametrize("kind", ["data", "bin", "glb"])
+def test_a_buffer_view_past_the_declared_byte_length_is_refused(capsys, tmp_path, mesh, kind):
+    """A bufferView that ends past its buffer's declared ``byteLength`` (BUFFER_VIEW_TOO_LONG) read bytes the
+    document says do not exist (a declared length 16 short of the data was read to its end, exit 0)."""
+    doc = gltf_doc(mesh)
+    blob = _blob_of(doc)
+    src = _as_source(tmp_path, doc, kind, blob, len(blob) - 16)
+    assert_refused(*run_encode(capsys, tmp_path, src), src.name, "bufferViews[1] ends at byte",
+                   f"past the byteLength {len(blob) - 16:,} buffers[0] declares")
+    with pytest.raises(InputFormatError, match="bufferViews\\[1\\] ends at byte"):
+        pmwm_codec.read_mesh(src)
+
+
+@pytest.mark.parametrize("kind", ["bin", "glb"])
+def test_a_buffer_holding_more_than_it_declares_still_reads(tmp_path, mesh, kind):
+    """A ``.bin`` that runs on past its declared ``byteLength`` and a GLB whose BIN chunk pads it to 4 bytes are
+    valid glTF: the views, inside the declared length, read the mesh as stored."""
+    doc = gltf_doc(mesh)
+    blob = _blob_of(doc)
+    data, declared = (blob + bytes(6), len(blob)) if kind == "bin" else (blob + bytes(2), len(blob) + 2)
+    src = _as_source(tmp_path, doc, kind, data, declared)
+    if kind == "glb":
+        assert len(split_glb(src.read_bytes())[1]) == declared + 2  # padded past the declared length
+    assert pmwm_codec.read_mesh(src) == pmwm_codec.read_mesh(write_gltf(tmp_path / "plain", gltf_doc(mesh)))

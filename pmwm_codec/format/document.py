@@ -90,12 +90,46 @@ def load_document(path):
                 buffers.extend([b""] * (i - len(buffers)) + [raw])
         elif i >= len(buffers):
             buffers.extend([b""] * (i + 1 - len(buffers)))
+    _check_buffer_lengths(gltf, buffers, data[:4] == GLB_MAGIC, name)
     for image in gltf.get("images", []):
         if "uri" in image:
             image["_bytes"] = _resolve_uri(image["uri"], base_dir, name, budget)
     gltf, buffers = decompress_meshopt(gltf, buffers, name)
     label_images(gltf, buffers, name)
     return gltf, buffers
+
+
+def _check_buffer_lengths(gltf: dict, buffers: list, glb: bool, name: str) -> None:
+    """Refuse a buffer that holds fewer bytes than its ``byteLength`` declares, and a bufferView that ends past
+    its buffer's declared ``byteLength`` (the glTF validator's BUFFER_*_BYTELENGTH_MISMATCH and
+    BUFFER_VIEW_TOO_LONG): either way the document and its data disagree on what the buffer is, and the
+    bytes a view read were never declared (a declared 40 over a 60-byte BIN chunk was read to its end
+    without a word).  A buffer may hold more than it declares (a GLB's BIN chunk pads to 4 bytes, a
+    ``.bin`` file may run on): the views, inside the declared length, read the same bytes.  A
+    meshopt fallback buffer holds no bytes by design (its views are decoded from another buffer)."""
+    from .meshopt import _fallback_ext
+
+    declared = []
+    for i, buf in enumerate(gltf.get("buffers", [])):
+        length = uint(buf, "byteLength", f"{name}: buffers[{i}]", error=InputFormatError)
+        declared.append(length)
+        if _fallback_ext(buf):
+            continue
+        if "uri" in buf:
+            source = "its uri holds"
+        elif i == 0 and glb:
+            source = "the GLB's BIN chunk holds"
+        else:
+            continue  # no data of its own: a view that reads it is refused by its reader
+        have = len(buffers[i]) if i < len(buffers) else 0
+        if have < length:
+            raise InputFormatError(f"{name}: buffers[{i}] declares byteLength {length:,} but {source} "
+                                   f"{have:,} bytes (cut short, or the wrong length declared)")
+    for i, view in enumerate(gltf.get("bufferViews", [])):
+        end = view.get("byteOffset", 0) + view["byteLength"]  # (check_document: integers, a buffer in range)
+        if end > declared[view["buffer"]]:
+            raise InputFormatError(f"{name}: bufferViews[{i}] ends at byte {end:,}, past the byteLength "
+                                   f"{declared[view['buffer']]:,} buffers[{view['buffer']}] declares")
 
 
 def is_progressive(gltf: dict) -> bool:
