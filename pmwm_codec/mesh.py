@@ -478,6 +478,7 @@ def obj_arrays(text: str, name: str) -> tuple:
     lines = _obj_lines(text)
     fast = _read_obj_columns(lines)
     if fast is not None:
+        _check_obj_corners(text, name)
         return fast
     verts, tris, widest = [], [], 3
     line = ""
@@ -500,7 +501,79 @@ def obj_arrays(text: str, name: str) -> tuple:
         raise InputFormatError(f"{name}: malformed OBJ record: {line.strip()[:60]!r}") from None
     if not verts or not tris:
         raise MeshError(f"{name}: the mesh has no vertices or no faces")
+    _check_obj_corners(text, name)  # (after the record reader, whose own words name what it refuses)
     return np.array(verts, dtype=np.float64), np.array(tris, dtype=np.int64), widest
+
+
+_OBJ_FACE = re.compile(r"\n[ \t]*f[ \t]")
+_OBJ_FACE_BODY = re.compile(r"\n[ \t]*f[ \t]+([^\n]*)")
+_OBJ_LATER_RECORD = re.compile(r"\n[ \t]*v[tn]?[ \t]")
+#: A ``vt`` / ``vn`` record indented or with a tab after its keyword (the rest are counted as ``"\nvt "``).
+_OBJ_LOOSE = {"vt": re.compile(r"\n(?:[ \t]+vt[ \t]|vt\t)"), "vn": re.compile(r"\n(?:[ \t]+vn[ \t]|vn\t)")}
+
+
+def _check_obj_corners(text: str, name: str) -> None:
+    """Refuse the OBJ ``text`` (:func:`obj_text`) when a face corner's texture coordinate or normal index names no
+    ``vt`` / ``vn`` record read before its face (``f 1/1/1 2/2/2 3/3/3`` in a file of no ``vt`` or ``vn``), a corner is
+    not ``v``, ``v/t``, ``v//n`` or ``v/t/n``, or a vertex index names a ``v`` record that comes after its face: the
+    rule, and the one-line message, of the OBJ asset reader (:func:`pmwm_codec.meshdoc.obj_document`), by which
+    the same file with one ``vt`` more is read.  The geometry readers take a corner's first number alone, and
+    read such files without a word: the mesh an OBJ reader shows (Blender skips such a face, three.js reads
+    no position for it) was not the one encoded.  Nothing to check without a slash or a record after the first
+    face; the common file (every corner of one form, every record before the faces) is checked a column at a
+    time (:func:`_obj_corners_in_range`), any other by the asset reader's face parser, which names what is wrong."""
+    lead = "\n" + text
+    face = _OBJ_FACE.search(lead)
+    if face is None:
+        return  # no face: named by the geometry reader
+    later = _OBJ_LATER_RECORD.search(lead, face.end()) is not None
+    if not later and ("/" not in text or _obj_corners_in_range(lead)):
+        return
+    from .meshdoc import _RECORD, _obj_faces
+
+    kinds, bodies = [], []
+    for m in _RECORD.finditer(text):
+        kinds.append(m.group(1))
+        bodies.append(m.group(2))
+    try:
+        _obj_faces(kinds, bodies, name, {})
+    except MeshError:
+        pass  # no face: named by the geometry reader
+
+
+def _obj_corners_in_range(lead: str) -> bool:
+    """Whether every face corner of the OBJ text ``lead`` (a line feed, then :func:`obj_text`), whose ``vt`` and ``vn``
+    records all come before its first face, has one form (``v``, ``v/t``, ``v//n``, ``v/t/n``), and its texture
+    coordinate and normal indices name a record; False when not, or not known (the caller's parser decides)."""
+    from .meshdoc import _CORNER_FORMS, _every_corner_has
+
+    joined = " ".join(_OBJ_FACE_BODY.findall(lead))
+    words = joined.split(None, 1)
+    if not words:
+        return True
+    slashes, double = words[0].count("/"), "//" in words[0]
+    form = _CORNER_FORMS.get((slashes, int(double)))
+    total = joined.count("/")
+    if form is None or not slashes or total % slashes:
+        return False
+    n = total // slashes
+    if joined.count("//") != n * double or not _every_corner_has(joined, n, slashes):
+        return False
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        try:
+            values = np.fromstring(joined.replace("/", " "), dtype=np.int64, sep=" ")
+        except (ValueError, DeprecationWarning):
+            return False
+    if values.size != n * len(form):
+        return False
+    values = values.reshape(n, len(form))
+    for column, kind in zip(range(1, len(form)), [("vt", "vn")[f - 1] for f in form[1:]]):
+        count = lead.count(f"\n{kind} ") + len(_OBJ_LOOSE[kind].findall(lead))
+        ids = values[:, column]
+        if not ((ids != 0) & (ids <= count) & (ids >= -count)).all():
+            return False
+    return True
 
 
 def _mesh_text(data: bytes, name: str, kind: str) -> str:

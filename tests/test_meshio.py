@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import codecs
 import json
+import re
 import stat
 
 import numpy as np
@@ -125,7 +126,8 @@ def obj_documents(draw):
 
     One to three objects, each its vertices then its faces (so a negative index counts back from the
     vertices read before its record, not from the end of the file); extra vertex fields, polygons of
-    3-5 vertices (fan-triangulated), indices written plain / ``i/t`` / ``i//n`` / ``i/t/n``, 1-based or
+    3-5 vertices (fan-triangulated), indices written plain / ``i/t`` / ``i//n`` / ``i/t/n`` (the ``vt`` and ``vn``
+    records they name written first), 1-based or
     negative, keywords indented or followed by tabs, comments and blank lines."""
     extra = draw(st.sampled_from([0, 0, 1, 3]))
     fmt = draw(st.sampled_from(["{:.9g}", "{!r}", "{:.3e}", "{}"]))
@@ -138,6 +140,8 @@ def obj_documents(draw):
         return draw(st.sampled_from([keyword + " ", keyword + "\t", "  " + keyword + " ", "\t" + keyword + "  "])) \
             if loose else keyword + " "
 
+    if "/" in style:  # the texture coordinate and normal the corners name (1): a record of each, before any face
+        lines += [head("vt") + "0.5 0.5", head("vn") + "0 0 1"]
     for _ in range(draw(st.integers(1, 3))):
         if lines and draw(st.booleans()):
             lines.append("o part")
@@ -406,3 +410,57 @@ def test_a_ply_value_past_float32_is_refused_in_one_line_without_a_warning(tmp_p
         with pytest.raises(MeshError, match="infinite"):
             pmwm_codec.read_mesh(tmp_path / "big.ply")
     assert not [w for w in seen if issubclass(w.category, RuntimeWarning)]
+
+
+_TRIANGLE = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n"
+
+
+@pytest.mark.parametrize("text, words", [
+    (_TRIANGLE + "f 1/1/1 2/2/2 3/3/3\n", "face index 1 names no vt record (0 read before the face)"),
+    (_TRIANGLE + "vn 0 0 1\nf 1//1 2//2 3//3\n", "face index 2 names no vn record (1 read before the face)"),
+    (_TRIANGLE + "vt 0 0\nf 1/1 2/1 3/1\nf 1/1 2/-2 4/1\n", "face index -2 names no vt record (1 read before the face)"),
+    (_TRIANGLE + "vt 0 0\nf 1/1 2/1 3/1\nvt 1 1\nf 1/3 2/1 4/1\n", "face index 3 names no vt record (2 read before"),
+    (_TRIANGLE + "f 1/1/1/1 2 3\n", "malformed OBJ face corner '1/1/1/1'"),
+], ids=["no-vt-no-vn", "too-few-vn", "relative-vt", "vt-after-a-face", "four-numbers"])
+def test_an_obj_corner_naming_a_texture_coordinate_or_normal_that_is_not_there_is_refused(capsys, tmp_path, text,
+                                                                                         words):
+    """``f 1/1/1 2/2/2 3/3/3`` in an OBJ of no ``vt`` or ``vn`` record (or fewer than named) was read without a
+    word: the geometry readers took each corner's first number alone, while the same file with one ``vt`` more
+    (read as an asset) was refused.  Both now refuse it with the asset reader's line."""
+    from test_hostile_inputs import assert_refused, run_encode
+
+    src = tmp_path / "m.obj"
+    src.write_text(text)
+    with pytest.raises(mesh_mod.InputFormatError, match=f"m.obj: {re.escape(words)}"):
+        pmwm_codec.read_mesh(src)
+    assert_refused(*run_encode(capsys, tmp_path, src), "m.obj", words)
+
+
+def test_an_obj_face_naming_a_vertex_written_after_it_is_refused(capsys, tmp_path):
+    """``f 1 2 3`` before the ``v`` records it names was read as if they came first (OBJ numbers the vertices read
+    so far: Blender skips such a face, three.js reads no position for it), and refused by the asset reader when
+    the file also had a ``vt``: both readers now name it."""
+    from test_hostile_inputs import assert_refused, run_encode
+
+    src = tmp_path / "m.obj"
+    src.write_text("v 0 0 0\nv 1 0 0\nf 1 2 3\nv 0 1 0\n")
+    words = "face index 3 names no v record (2 read before the face)"
+    with pytest.raises(mesh_mod.InputFormatError, match=re.escape(words)):
+        pmwm_codec.read_mesh(src)
+    assert_refused(*run_encode(capsys, tmp_path, src), "m.obj", words)
+
+
+@pytest.mark.parametrize("style", ["{0}/{0}/{0}", "{0}//{0}", "{0}/{0}", "{0}/-1/{0}"])
+def test_an_obj_whose_corners_name_their_records_reads_as_its_positions(tmp_path, style):
+    """Corners that name existing ``vt`` / ``vn`` records (numbered or counted back) read the mesh the plain faces
+    give, whether every record comes before the faces (the column check) or an object follows another."""
+    mesh = shapes.icosphere(1)
+    v = "".join(f"v {x:.17g} {y:.17g} {z:.17g}\n" for x, y, z in mesh.positions)
+    attrs = "".join("vt 0.5 0.5\nvn 0 0 1\n" for _ in mesh.positions)
+    faces = ["f " + " ".join(style.format(i + 1) for i in f) + "\n" for f in mesh.faces]
+    half = len(faces) // 2
+    (tmp_path / "one.obj").write_text(v + attrs + "".join(faces))
+    (tmp_path / "two.obj").write_text(v + attrs + "".join(faces[:half]) + "o second\nvn 0 0 1\n" + "".join(faces[half:]))
+    for name in ("one.obj", "two.obj"):
+        got = pmwm_codec.read_mesh(tmp_path / name)
+        assert np.array_equal(got.positions, mesh.positions) and np.array_equal(got.faces, mesh.faces), name
