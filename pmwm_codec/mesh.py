@@ -474,13 +474,22 @@ def obj_mesh(text: str, name: str) -> Mesh:
 def obj_arrays(text: str, name: str) -> tuple:
     """:func:`_read_obj`'s arrays of an OBJ's :func:`obj_text`, and the most numbers a ``v`` record holds
     (``(positions (n, 3) float64, faces (m, 3) int64, widest int)``: six or more, vertex colours, which
-    :func:`pmwm_codec.meshdoc.read_source` then reads as an asset, learnt from the one parse)."""
-    lines = _obj_lines(text)
-    fast = _read_obj_columns(lines)
+    :func:`pmwm_codec.meshdoc.read_source` then reads as an asset, learnt from the one parse).
+
+    Every index of a face corner must name a record read before its face (a position, and the texture
+    coordinate and normal of ``v/t``, ``v//n``, ``v/t/n``), as the OBJ asset reader
+    (:func:`pmwm_codec.meshdoc.obj_document`) requires, in its words: ``f 1/1/1 2/2/2 3/3/3`` in a file of no
+    ``vt`` or ``vn``, or ``f 1 2 3`` before its vertices, was read without a word (the mesh an OBJ viewer shows is
+    not that one: Blender skips such a face, three.js reads no position for it)."""
+    text = _obj_normalized(text)
+    lines = text.splitlines()
+    fast = _read_obj_columns(text, lines)
     if fast is not None:
-        _check_obj_corners(text, name)
         return fast
+    from .meshdoc import _corner
+
     verts, tris, widest = [], [], 3
+    counts = {"v": 0, "vt": 0, "vn": 0}  # records read so far, which a face corner may name
     line = ""
     try:
         for line in lines:
@@ -489,91 +498,22 @@ def obj_arrays(text: str, name: str) -> tuple:
                     raise InputFormatError(f"{name}: more than {MAX_ENCODE_VERTICES:,} vertices (the encoder's limit)")
                 parts = line.split(None, 4)
                 verts.append((_number(parts[1]), _number(parts[2]), _number(parts[3])))
+                counts["v"] += 1
                 if len(parts) == 5 and widest < 6:
                     widest = max(widest, 3 + len(parts[4].split()))
             elif line.startswith("f "):
                 if len(tris) + max(1, line.count(" ") - 2) > MAX_ENCODE_FACES:
                     raise InputFormatError(f"{name}: more than {MAX_ENCODE_FACES:,} triangles (the encoder's limit)")
-                _add_polygon(line, tris, name, len(verts))
+                _add_polygon(line, tris, name, counts, _corner)
+            elif line.startswith(("vt ", "vn ")):
+                counts[line[:2]] += 1
     except InputFormatError:
         raise
     except (ValueError, IndexError):
         raise InputFormatError(f"{name}: malformed OBJ record: {line.strip()[:60]!r}") from None
     if not verts or not tris:
         raise MeshError(f"{name}: the mesh has no vertices or no faces")
-    _check_obj_corners(text, name)  # (after the record reader, whose own words name what it refuses)
     return np.array(verts, dtype=np.float64), np.array(tris, dtype=np.int64), widest
-
-
-_OBJ_FACE = re.compile(r"\n[ \t]*f[ \t]")
-_OBJ_FACE_BODY = re.compile(r"\n[ \t]*f[ \t]+([^\n]*)")
-_OBJ_LATER_RECORD = re.compile(r"\n[ \t]*v[tn]?[ \t]")
-#: A ``vt`` / ``vn`` record indented or with a tab after its keyword (the rest are counted as ``"\nvt "``).
-_OBJ_LOOSE = {"vt": re.compile(r"\n(?:[ \t]+vt[ \t]|vt\t)"), "vn": re.compile(r"\n(?:[ \t]+vn[ \t]|vn\t)")}
-
-
-def _check_obj_corners(text: str, name: str) -> None:
-    """Refuse the OBJ ``text`` (:func:`obj_text`) when a face corner's texture coordinate or normal index names no
-    ``vt`` / ``vn`` record read before its face (``f 1/1/1 2/2/2 3/3/3`` in a file of no ``vt`` or ``vn``), a corner is
-    not ``v``, ``v/t``, ``v//n`` or ``v/t/n``, or a vertex index names a ``v`` record that comes after its face: the
-    rule, and the one-line message, of the OBJ asset reader (:func:`pmwm_codec.meshdoc.obj_document`), by which
-    the same file with one ``vt`` more is read.  The geometry readers take a corner's first number alone, and
-    read such files without a word: the mesh an OBJ reader shows (Blender skips such a face, three.js reads
-    no position for it) was not the one encoded.  Nothing to check without a slash or a record after the first
-    face; the common file (every corner of one form, every record before the faces) is checked a column at a
-    time (:func:`_obj_corners_in_range`), any other by the asset reader's face parser, which names what is wrong."""
-    lead = "\n" + text
-    face = _OBJ_FACE.search(lead)
-    if face is None:
-        return  # no face: named by the geometry reader
-    later = _OBJ_LATER_RECORD.search(lead, face.end()) is not None
-    if not later and ("/" not in text or _obj_corners_in_range(lead)):
-        return
-    from .meshdoc import _RECORD, _obj_faces
-
-    kinds, bodies = [], []
-    for m in _RECORD.finditer(text):
-        kinds.append(m.group(1))
-        bodies.append(m.group(2))
-    try:
-        _obj_faces(kinds, bodies, name, {})
-    except MeshError:
-        pass  # no face: named by the geometry reader
-
-
-def _obj_corners_in_range(lead: str) -> bool:
-    """Whether every face corner of the OBJ text ``lead`` (a line feed, then :func:`obj_text`), whose ``vt`` and ``vn``
-    records all come before its first face, has one form (``v``, ``v/t``, ``v//n``, ``v/t/n``), and its texture
-    coordinate and normal indices name a record; False when not, or not known (the caller's parser decides)."""
-    from .meshdoc import _CORNER_FORMS, _every_corner_has
-
-    joined = " ".join(_OBJ_FACE_BODY.findall(lead))
-    words = joined.split(None, 1)
-    if not words:
-        return True
-    slashes, double = words[0].count("/"), "//" in words[0]
-    form = _CORNER_FORMS.get((slashes, int(double)))
-    total = joined.count("/")
-    if form is None or not slashes or total % slashes:
-        return False
-    n = total // slashes
-    if joined.count("//") != n * double or not _every_corner_has(joined, n, slashes):
-        return False
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        try:
-            values = np.fromstring(joined.replace("/", " "), dtype=np.int64, sep=" ")
-        except (ValueError, DeprecationWarning):
-            return False
-    if values.size != n * len(form):
-        return False
-    values = values.reshape(n, len(form))
-    for column, kind in zip(range(1, len(form)), [("vt", "vn")[f - 1] for f in form[1:]]):
-        count = lead.count(f"\n{kind} ") + len(_OBJ_LOOSE[kind].findall(lead))
-        ids = values[:, column]
-        if not ((ids != 0) & (ids <= count) & (ids >= -count)).all():
-            return False
-    return True
 
 
 def _mesh_text(data: bytes, name: str, kind: str) -> str:
@@ -750,16 +690,16 @@ def _integer(token: str) -> int:
     return int(token)
 
 
-def _obj_lines(text: str) -> list:
-    """The lines of an OBJ text, each ``v`` / ``f`` record starting with its keyword and one space (the
-    form both readers match): records indented, or with a tab after the keyword, are valid OBJ."""
-    if _LOOSE_RECORD.search(text):
-        text = _RECORD_HEAD.sub(r"\1 ", text)
-    return text.splitlines()
+def _obj_normalized(text: str) -> str:
+    """An OBJ text with each ``v`` / ``vt`` / ``vn`` / ``f`` record starting with its keyword and one space (the
+    form the readers match): records indented, or with a tab after the keyword, are valid OBJ."""
+    return _RECORD_HEAD.sub(r"\1 ", text) if _LOOSE_RECORD.search(text) else text
 
 
-_LOOSE_RECORD = re.compile(r"^[ \t]+[vf][ \t]|^[vf](?:\t| [ \t])", re.M)
-_RECORD_HEAD = re.compile(r"^[ \t]*([vf])[ \t]+", re.M)
+_LOOSE_RECORD = re.compile(r"^[ \t]+(?:v[tn]?|f)[ \t]|^(?:v[tn]?|f)(?:\t| [ \t])", re.M)
+_RECORD_HEAD = re.compile(r"^[ \t]*(v[tn]?|f)[ \t]+", re.M)
+#: A ``v`` / ``vt`` / ``vn`` record after the first face (a ``"\n"`` before the text): faces read by what precedes them.
+_LATER_RECORD = re.compile(r"\nv[tn]? ")
 
 
 _FACE_INDICES = re.compile(r"[0-9 \t\n-]*")
@@ -767,59 +707,117 @@ _FACE_INDICES = re.compile(r"[0-9 \t\n-]*")
 _COLUMN_RECORD = 256
 
 
-def _read_obj_columns(lines: list):
+def _read_obj_columns(text: str, lines: list):
     """:func:`_read_obj`'s result for the common OBJ whose ``v`` records all have the same number of
-    fields and whose ``f`` records all name the same number of vertices (plain, ``i/t``, ``i//n`` or
-    ``i/t/n`` indices), parsed a column at a time (numpy's text reader: ~5x faster than the loop
+    fields and whose ``f`` records all name the same number of vertices, every corner in one form (plain,
+    ``v/t``, ``v//n`` or ``v/t/n``), parsed a column at a time (numpy's text reader: ~5x faster than the loop
     on the 100k-vertex dragon, the same float64 and int64 values); None for anything else, which the
-    record-by-record reader then reads or rejects with its message (limits, bad indices, comments,
-    mixed polygons, a malformed record)."""
+    record-by-record reader then reads or rejects with its message (limits, bad indices, an index naming no
+    record read before its face, mixed polygons or corner forms, a malformed record).  ``text``: the
+    normalized OBJ text (:func:`_obj_normalized`), ``lines`` its lines."""
+    from .meshdoc import _CORNER_FORMS, _every_corner_has
+
     verts = [line[2:] for line in lines if line.startswith("v ")]
     polys = [line[2:] for line in lines if line.startswith("f ") and line[2:].strip()]  # "f" alone names nothing
     if not verts or not polys or len(verts) > MAX_ENCODE_VERTICES:
         return None
     if max(map(len, verts)) > _COLUMN_RECORD or max(map(len, polys)) > _COLUMN_RECORD:
         return None  # a huge record is checked against the limits before it is split, record by record
-    indices = re.sub(r"/\S*", "", "\n".join(polys))
-    if _FACE_INDICES.fullmatch(indices) is None:
+    joined = "\n".join(polys)
+    first = polys[0].split(None, 1)[0]
+    slashes, double = first.count("/"), "//" in first
+    form = _CORNER_FORMS.get((slashes, int(double)))  # the record kinds a corner names: 0 v, 1 vt, 2 vn
+    numbers = joined.replace("//", "/").replace("/", " ") if slashes else joined
+    if form is None or _FACE_INDICES.fullmatch(numbers) is None:
         return None
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("error")  # an empty row or a changed column count: the general reader
             positions = np.loadtxt(verts, dtype=np.float64, comments=None, ndmin=2)
-            idx = np.loadtxt(indices.splitlines(), dtype=np.int64, comments=None, ndmin=2)
+            values = np.loadtxt(numbers.splitlines(), dtype=np.int64, comments=None, ndmin=2)
     except (ValueError, Warning):
         return None
-    if positions.shape[1] < 3 or idx.shape[1] < 3 or len(idx) * (idx.shape[1] - 2) > MAX_ENCODE_FACES:
+    if values.shape[1] % len(form):
+        return None
+    k = values.shape[1] // len(form)  # corners a face
+    corners = values.reshape(len(values), k, len(form))
+    n = corners.shape[0] * k
+    if slashes and (joined.count("/") != n * slashes or joined.count("//") != n * double
+                    or not _every_corner_has(joined, n, slashes)):
+        return None  # corners of mixed forms whose numbers make up the same count
+    idx = corners[:, :, 0]
+    if positions.shape[1] < 3 or k < 3 or len(idx) * (k - 2) > MAX_ENCODE_FACES:
         return None
     if not ((idx != 0) & (np.abs(idx) <= MAX_ENCODE_VERTICES)).all():
         return None
-    k = idx.shape[1]  # fan triangulation, as _add_polygon
-    faces = np.stack([np.repeat(idx[:, 0], k - 2), idx[:, 1:-1].reshape(-1), idx[:, 2:].reshape(-1)], axis=1)
-    if (faces < 0).any():  # relative indices count back from the vertices read before their record
-        is_v = np.fromiter((line.startswith("v ") for line in lines), bool, len(lines))
-        is_f = np.fromiter((line.startswith("f ") and bool(line[2:].strip()) for line in lines), bool, len(lines))
-        before = np.repeat(np.cumsum(is_v)[is_f], k - 2)[:, None]
-        if ((faces < 0) & (before + faces < 0)).any():
-            return None  # an index before the first vertex: the record reader names it
+    if not _corners_name_records(text, lines, corners, form, len(verts)):
+        return None
+    if (idx < 0).any():  # relative indices count back from the vertices read before their record
+        before = _records_before(text, lines, 0, len(idx))
+        if before is None:
+            return None
+        idx = np.where(idx > 0, idx - 1, before[:, None] + idx)
     else:
-        before = 0
-    faces = np.where(faces > 0, faces - 1, before + faces)
+        idx = idx - 1
+    faces = np.stack([np.repeat(idx[:, 0], k - 2), idx[:, 1:-1].reshape(-1), idx[:, 2:].reshape(-1)], axis=1)
     return np.ascontiguousarray(positions[:, :3]), faces, positions.shape[1]
 
 
-def _add_polygon(line: str, tris: list, name: str, read: int) -> None:
+def _corners_name_records(text: str, lines: list, corners: np.ndarray, form: tuple, vertices: int) -> bool:
+    """Whether every index of ``corners`` ((faces, k, len(form)) int64, the kinds ``form`` names: 0 ``v``,
+    1 ``vt``, 2 ``vn``) names a record read before its face, counted from 1 or back from -1 (index 0 and
+    the encoder's limit are the caller's).  ``vertices``: the ``v`` records of the file.  Records all before the
+    first face (the common file): each kind against its count; records after a face (objects one after another):
+    against what each face has before it (:func:`_records_before`)."""
+    first_face = 0 if text.startswith("f ") else text.find("\nf ") + 1
+    interleaved = _LATER_RECORD.search(text, first_face) is not None
+    for column, kind in enumerate(form):
+        ids = corners[:, :, column]
+        if interleaved:
+            before = _records_before(text, lines, kind, len(corners))
+            if before is None:
+                return False  # (faces of blanks alone among the records: the record reader counts)
+            before = before[:, None]
+        else:
+            before = vertices if kind == 0 else text.count(("\nvt ", "\nvn ")[kind - 1]) + text.startswith(
+                ("vt ", "vn ")[kind - 1])
+        if not ((ids != 0) & (ids <= before) & (ids >= -before)).all():
+            return False
+    return True
+
+
+def _records_before(text: str, lines: list, kind: int, faces: int) -> np.ndarray | None:
+    """(faces,) int64: how many records of ``kind`` (0 ``v``, 1 ``vt``, 2 ``vn``) come before each ``f`` record of
+    the normalized OBJ ``text`` (:func:`_obj_normalized`; ``lines``: its lines), numpy over the bytes that start its
+    lines; None unless there are ``faces`` such records (an ``f`` of blanks alone is none of the column reader's)."""
+    raw = np.frombuffer(text.encode("utf-8", "surrogatepass"), np.uint8)
+    starts = np.concatenate([[0], np.flatnonzero(raw == 10) + 1])
+    starts = starts[starts < len(raw)]  # (the line feed that ends the text starts no line)
+    if len(starts) != len(lines):
+        return None
+    head = np.concatenate([raw, np.zeros(3, np.uint8)])[starts[:, None] + np.arange(3)]  # each line's first bytes
+    is_f = (head[:, 0] == ord("f")) & (head[:, 1] == ord(" "))
+    record = (head[:, 0] == ord("v")) & ((head[:, 1] == ord(" ")) if kind == 0 else
+                                          (head[:, 1] == ord("tn"[kind - 1])) & (head[:, 2] == ord(" ")))
+    before = np.cumsum(record)[is_f]
+    return before if len(before) == faces else None
+
+
+def _add_polygon(line: str, tris: list, name: str, counts: dict, corner) -> None:
     """Fan-triangulate the ``f`` record ``line`` into ``tris`` as 0-based vertex ids: OBJ indices are
-    1-based, or negative counting back from the ``read`` vertices before the record (``-1``: the
+    1-based, or negative counting back from the ``counts["v"]`` vertices before the record (``-1``: the
     last of them).  A record without indices (``f`` and blanks) names nothing and adds nothing, as in the
     column reader (:func:`_read_obj_columns`, which skips it).  InputFormatError for an index 0, beyond the
-    limit or before the first vertex.  A record of one or two vertices (exporters write an edge so: Blender
-    reads it as one) is a degenerate face, one triangle repeating a corner, which
-    :func:`checked_mesh` drops and counts (``degenerate_faces``) as it does a triangle naming a vertex twice."""
-    idx = [_integer(tok.split("/", 1)[0]) for tok in line.split()[1:]]
+    limit or before the first vertex, and for a corner (``corner``: :func:`pmwm_codec.meshdoc._corner`) that is
+    malformed or names a record (``v``, ``vt``, ``vn``: ``counts``) not read before the face.  A record of one or
+    two vertices (exporters write an edge so: Blender reads it as one) is a degenerate face, one triangle
+    repeating a corner, which :func:`checked_mesh` drops and counts (``degenerate_faces``) as it does a triangle
+    naming a vertex twice."""
+    tokens = line.split()[1:]
+    idx = [_integer(tok.split("/", 1)[0]) for tok in tokens]
     if not idx:
         return
-    idx += idx[-1:] * (3 - len(idx))
+    read = counts["v"]
     for i in idx:
         if i == 0:
             raise InputFormatError(f"{name}: face index 0 names no vertex (OBJ counts vertices from 1, or back "
@@ -829,6 +827,9 @@ def _add_polygon(line: str, tris: list, name: str, read: int) -> None:
                                    "the encoder's limit)")
         if i < -read:
             raise InputFormatError(f"{name}: face index {i} counts back past the first vertex ({read} read before it)")
+    for tok in tokens:
+        corner(tok, counts, name)  # the texture coordinate and normal, and a vertex not yet read
+    idx += idx[-1:] * (3 - len(idx))
     idx = [i - 1 if i > 0 else read + i for i in idx]
     tris.extend((idx[0], idx[k], idx[k + 1]) for k in range(1, len(idx) - 1))
 

@@ -168,7 +168,7 @@ def obj_files(draw):
 
 def _read_by_records(path):
     saved = mesh_mod._read_obj_columns
-    mesh_mod._read_obj_columns = lambda lines: None
+    mesh_mod._read_obj_columns = lambda text, lines: None
     try:
         return mesh_mod._read_obj(path, "m.obj")
     finally:
@@ -180,7 +180,8 @@ def _read_by_records(path):
 def test_the_column_reader_gives_the_record_readers_arrays_or_leaves_the_file_to_it(tmp_path_factory, text):
     path = tmp_path_factory.mktemp("obj") / "m.obj"
     path.write_text(text)
-    columns = mesh_mod._read_obj_columns(mesh_mod._obj_lines(text))
+    normalized = mesh_mod._obj_normalized(text)
+    columns = mesh_mod._read_obj_columns(normalized, normalized.splitlines())
     positions, faces = _read_by_records(str(path))
     if columns is not None:
         assert columns[0].dtype == positions.dtype and columns[1].dtype == faces.dtype
@@ -192,7 +193,8 @@ def test_the_column_reader_gives_the_record_readers_arrays_or_leaves_the_file_to
 def test_a_plain_triangle_obj_takes_the_column_reader(mesh, tmp_path):
     path = tmp_path / "m.obj"
     write_mesh(path, mesh)
-    assert mesh_mod._read_obj_columns(path.read_text().splitlines()) is not None
+    text = path.read_text()
+    assert mesh_mod._read_obj_columns(text, text.splitlines()) is not None
 
 
 @settings(max_examples=200, deadline=None)
