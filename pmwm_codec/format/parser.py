@@ -464,6 +464,8 @@ class ContainerParser:
             chunk = ChunkHeader.parse(head)
             if chunk.type != CHUNK_TYPE_BIN:
                 raise FormatError(f"GLB: second chunk type {chunk.type!r}, expected {CHUNK_TYPE_BIN!r}")
+            if chunk.length % ALIGNMENT:  # bitstream.md §3: a chunk's length is a multiple of 4
+                raise FormatError(f"GLB: BIN chunk length {chunk.length} is not a multiple of {ALIGNMENT}")
             if self._bin_data + chunk.length != self._total:
                 raise FormatError(f"GLB: BIN chunk of {chunk.length} bytes does not end at the file length {self._total}")
             if chunk.length < self._plan.buffer_length:
