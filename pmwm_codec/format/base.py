@@ -734,14 +734,22 @@ def _attribute_accessor(gltf: dict, primitive: dict, spec: dict, grid: Attribute
     """The base accessor of the progressive attribute ``spec``, checked: FLOAT or the componentType the
     attribute names (:func:`stored_type`), not normalized, ``grid.width`` components, ``n`` values."""
     semantic = spec["semantic"]
+    if semantic not in primitive["attributes"]:
+        raise FormatError(f"base mesh: progressive attribute {semantic!r} is not an attribute of the primitive")
     acc = item(gltf.get("accessors"), primitive["attributes"][semantic], "base mesh: accessor")
     ctype = acc.get("componentType")
-    if ctype not in {FLOAT, stored_type(spec)} or acc.get("normalized") or VECTOR_WIDTH.get(acc.get("type")) != grid.width:
+    if not _is_int(ctype) or ctype not in {FLOAT, stored_type(spec)} or acc.get("normalized") or not isinstance(acc.get("type"), str) \
+            or VECTOR_WIDTH.get(acc.get("type")) != grid.width:
         named = "" if stored_type(spec) == FLOAT else f" or a componentType {stored_type(spec)} one"
         raise FormatError(f"base mesh: {semantic} must be a FLOAT accessor{named} with {grid.width} components")
     if uint(acc, "count", f"base mesh: {semantic} accessor") != n:
         raise FormatError(f"base mesh: {semantic} has {acc.get('count')} values for {n} stored vertices")
     return acc
+
+
+def _is_int(value) -> bool:
+    """Whether a JSON value is an integer (an int, not a bool: JSON's true is no number)."""
+    return isinstance(value, int) and not isinstance(value, bool)
 
 
 def weld_accessor(gltf: dict, primitive: dict, n: int) -> dict | None:
@@ -753,7 +761,7 @@ def weld_accessor(gltf: dict, primitive: dict, n: int) -> dict | None:
     if welded_vertex_count(primitive) is None:
         raise FormatError(f"base mesh: {WELD_ATTRIBUTE} without baseVertexCount (it serves the weld only)")
     acc = item(gltf.get("accessors"), attributes[WELD_ATTRIBUTE], "base mesh: accessor")
-    if acc.get("componentType") not in WELD_TYPES or acc.get("type") != "SCALAR" or acc.get("normalized"):
+    if not _is_int(acc.get("componentType")) or acc.get("componentType") not in WELD_TYPES or acc.get("type") != "SCALAR" or acc.get("normalized"):
         raise FormatError(f"base mesh: {WELD_ATTRIBUTE} must be an UNSIGNED_BYTE or UNSIGNED_SHORT SCALAR accessor")
     if uint(acc, "count", f"base mesh: {WELD_ATTRIBUTE} accessor") != n:
         raise FormatError(f"base mesh: {WELD_ATTRIBUTE} has {acc.get('count')} values for {n} stored vertices")
@@ -803,6 +811,8 @@ def _decode_draco(gltf, draco, bin_data, n, m, names, widths, types) -> tuple:
     for name in names:
         if name not in ids:
             raise FormatError(f"base mesh: {DRACO_EXTENSION}.attributes has no {name} id")
+        if not _is_int(ids[name]) or not 0 <= ids[name] <= 0xFFFF:  # a Draco unique id (true is no integer)
+            raise FormatError(f"base mesh: {DRACO_EXTENSION}.attributes.{name} is not a Draco attribute id, got {ids[name]!r}")
     try:
         mesh = DracoPy.decode(bytes(raw))
         found = {name: mesh.get_attribute_by_unique_id(ids[name]) for name in names}
