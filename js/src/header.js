@@ -261,8 +261,9 @@ function baseAccessor(gltf, index, what, { types, components, max }) {
   if (!isObj(acc)) throw new FormatError(`${what}: accessor ${index} does not exist`);
   // spec/README.md, Base mesh: a viewer applies a sparse substitution, the readers decode the stored values
   if (acc.sparse !== undefined) throw new FormatError(`${what}: accessor ${index} is sparse; a base accessor holds its values as stored`);
-  const size = types[acc.componentType];
-  const k = COMPONENTS[acc.type];
+  // an integer: `types` is an object, whose key "5123" a string or a one-element array [5123] would also find
+  const size = Number.isInteger(acc.componentType) ? types[acc.componentType] : undefined;
+  const k = typeof acc.type === 'string' && Object.hasOwn(COMPONENTS, acc.type) ? COMPONENTS[acc.type] : undefined; // not ["VEC3"]
   if (!size || k !== components) throw new FormatError(`${what}: accessor ${index} has the wrong type`);
   checkCount(acc.count, 0, max, `${what}: accessor ${index}'s count`);
   return { acc, size, k };
