@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from pmwm_codec.errors import FormatError
+from pmwm_codec.errors import FormatError, LimitError
 from pmwm_codec.format.glb import glb_parts, split_glb
 from pmwm_codec.stream import StreamDecoder
 
@@ -87,3 +87,30 @@ def test_a_draco_attribute_id_that_is_no_integer_of_its_range_is_a_format_error(
 
     with pytest.raises(FormatError):
         _decode(_rewrite(DRACO, change))
+
+
+@pytest.mark.parametrize("name, which, count", [
+    (PLAIN, "indices", 2**31), (PLAIN, "indices", 3 * 134217728 + 1), (DRACO, "indices", 2**32),
+    (PLAIN, "TEXCOORD_0", 67108865), (PLAIN, "NORMAL", 2**32), (DRACO, "TEXCOORD_0", 2**64), (DRACO, "_PMWM_WELD", 2**31)])
+def test_a_base_accessor_count_over_its_limit_is_a_limit_error(name, which, count):
+    """spec README, Kinds of refusal: an accessor's count over a limit is a LimitError. This reader named an
+    index count over ``3 * MAX_FACES`` that is no multiple of 3, and an attribute accessor's count over
+    ``MAX_VERTICES`` (unequal to the POSITION count), format errors; JavaScript checks the limit first."""
+    def change(gltf):
+        prim = _prim(gltf)
+        gltf["accessors"][prim["indices"] if which == "indices" else prim["attributes"][which]]["count"] = count
+
+    with pytest.raises(LimitError):
+        _decode(_rewrite(name, change))
+
+
+@pytest.mark.parametrize("k", [0, 1, 2])
+def test_a_chunk_table_vertex_count_over_the_limit_is_a_limit_error_before_the_next_counts_order(k):
+    """A version 2 chunk table (array form) whose ``vertexCounts[k]`` is 2^31: the chunk's splits are over
+    ``MAX_VERTICES`` (a LimitError in JavaScript, which checks chunk by chunk); this reader first saw
+    ``vertexCounts[k + 1]`` smaller than it and said FormatError."""
+    def change(gltf):
+        _prim(gltf)["extensions"]["PMWM_progressive_mesh"]["chunks"]["vertexCounts"][k] = 2**31
+
+    with pytest.raises(LimitError, match="splits"):
+        _decode(_rewrite("sphere-attributes.plain.v2.pmw", change))

@@ -623,6 +623,8 @@ def base_counts(gltf: dict, primitive: dict):
     if not isinstance(ctype, int) or ctype not in (UNSIGNED_SHORT, UNSIGNED_INT) or idx_acc.get("type") != "SCALAR":
         raise FormatError(f"base mesh: indices must be an UNSIGNED_SHORT or UNSIGNED_INT SCALAR accessor (spec README, Base mesh), got componentType {ctype!r}")
     count = uint(idx_acc, "count", "base mesh: indices accessor")
+    if count > 3 * MAX_FACES:  # over the limit before its shape (spec README, Kinds of refusal), as JavaScript
+        raise LimitError(f"base mesh: {count} indices exceed the limit of {MAX_FACES} faces")
     if count % 3:
         raise FormatError(f"base mesh: index count {count} is not a multiple of 3")
     m = count // 3
@@ -742,7 +744,10 @@ def _attribute_accessor(gltf: dict, primitive: dict, spec: dict, grid: Attribute
             or VECTOR_WIDTH.get(acc.get("type")) != grid.width:
         named = "" if stored_type(spec) == FLOAT else f" or a componentType {stored_type(spec)} one"
         raise FormatError(f"base mesh: {semantic} must be a FLOAT accessor{named} with {grid.width} components")
-    if uint(acc, "count", f"base mesh: {semantic} accessor") != n:
+    count = uint(acc, "count", f"base mesh: {semantic} accessor")
+    if count > MAX_VERTICES:  # an accessor's count over MAX_VERTICES (spec README, Kinds of refusal)
+        raise LimitError(f"base mesh: {semantic} accessor's count {count} exceeds the limit {MAX_VERTICES}")
+    if count != n:
         raise FormatError(f"base mesh: {semantic} has {acc.get('count')} values for {n} stored vertices")
     return acc
 
@@ -763,7 +768,10 @@ def weld_accessor(gltf: dict, primitive: dict, n: int) -> dict | None:
     acc = item(gltf.get("accessors"), attributes[WELD_ATTRIBUTE], "base mesh: accessor")
     if not _is_int(acc.get("componentType")) or acc.get("componentType") not in WELD_TYPES or acc.get("type") != "SCALAR" or acc.get("normalized"):
         raise FormatError(f"base mesh: {WELD_ATTRIBUTE} must be an UNSIGNED_BYTE or UNSIGNED_SHORT SCALAR accessor")
-    if uint(acc, "count", f"base mesh: {WELD_ATTRIBUTE} accessor") != n:
+    count = uint(acc, "count", f"base mesh: {WELD_ATTRIBUTE} accessor")
+    if count > MAX_VERTICES:
+        raise LimitError(f"base mesh: {WELD_ATTRIBUTE} accessor's count {count} exceeds the limit {MAX_VERTICES}")
+    if count != n:
         raise FormatError(f"base mesh: {WELD_ATTRIBUTE} has {acc.get('count')} values for {n} stored vertices")
     return acc
 

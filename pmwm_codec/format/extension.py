@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..constants import EXTENSION_NAME, FORMAT_VERSION, MAX_CHUNKS
+from ..constants import EXTENSION_NAME, FORMAT_VERSION, MAX_CHUNKS, MAX_VERTICES
 from ..errors import FormatError, LimitError, UnsupportedVersionError
 from .gltf import SHOWN_LIMIT, document_integers, integer_shape, json_integer, json_kind, shown_value, with_integers
 from .layout import DIGEST_SIZE
@@ -147,6 +147,9 @@ def chunk_entries(ext: dict, base_vertices: int) -> list:
             entry["mac"] = columns["mac"][k]
         entry["splits"], previous = entry["vertexCount"] - previous, entry["vertexCount"]
         if entry["splits"] < 0:
+            over = next((e for e in entries if e["splits"] > MAX_VERTICES), None)
+            if over is not None:  # an earlier chunk's count is over the limit: that refusal first (chunk by chunk, as JavaScript)
+                raise LimitError(f"{EXTENSION_NAME}: chunks: the {over['splits']} splits of a chunk exceed the limit {MAX_VERTICES}")
             raise FormatError(f"{EXTENSION_NAME}: chunks: vertexCounts[{k}] is smaller than the count before it")
         entry["uncompressedLength"] = entry["byteLength"]
         if first_face is not None and k >= first_face:
