@@ -105,12 +105,13 @@ def test_a_base_accessor_count_over_its_limit_is_a_limit_error(name, which, coun
 
 
 @pytest.mark.parametrize("k", [0, 1, 2])
-def test_a_chunk_table_vertex_count_over_the_limit_is_a_limit_error_before_the_next_counts_order(k):
-    """A version 2 chunk table (array form) whose ``vertexCounts[k]`` is 2^31: the chunk's splits are over
-    ``MAX_VERTICES`` (a LimitError in JavaScript, which checks chunk by chunk); this reader first saw
-    ``vertexCounts[k + 1]`` smaller than it and said FormatError."""
+@pytest.mark.parametrize("count", [2**31, 67108865])
+def test_a_chunk_table_vertex_count_over_the_limit_is_a_limit_error_before_the_next_counts_order(k, count):
+    """A version 2 chunk table (array form) whose ``vertexCounts[k]`` is over ``MAX_VERTICES`` (2^31: its splits
+    too): a LimitError in JavaScript, which checks chunk by chunk; this reader first saw ``vertexCounts[k + 1]``
+    smaller than it and said FormatError."""
     def change(gltf):
-        _prim(gltf)["extensions"]["PMWM_progressive_mesh"]["chunks"]["vertexCounts"][k] = 2**31
+        _prim(gltf)["extensions"]["PMWM_progressive_mesh"]["chunks"]["vertexCounts"][k] = count
 
-    with pytest.raises(LimitError, match="splits"):
+    with pytest.raises(LimitError, match="exceeds the limit"):
         _decode(_rewrite("sphere-attributes.plain.v2.pmw", change))

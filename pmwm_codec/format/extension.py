@@ -147,9 +147,10 @@ def chunk_entries(ext: dict, base_vertices: int) -> list:
             entry["mac"] = columns["mac"][k]
         entry["splits"], previous = entry["vertexCount"] - previous, entry["vertexCount"]
         if entry["splits"] < 0:
-            over = next((e for e in entries if e["splits"] > MAX_VERTICES), None)
+            over = next((e for e in entries if max(e["splits"], e["vertexCount"]) > MAX_VERTICES), None)
             if over is not None:  # an earlier chunk's count is over the limit: that refusal first (chunk by chunk, as JavaScript)
-                raise LimitError(f"{EXTENSION_NAME}: chunks: the {over['splits']} splits of a chunk exceed the limit {MAX_VERTICES}")
+                raise LimitError(f"{EXTENSION_NAME}: chunks: a chunk's vertexCount {over['vertexCount']} (splits "
+                                 f"{over['splits']}) exceeds the limit {MAX_VERTICES}")
             raise FormatError(f"{EXTENSION_NAME}: chunks: vertexCounts[{k}] is smaller than the count before it")
         entry["uncompressedLength"] = entry["byteLength"]
         if first_face is not None and k >= first_face:
