@@ -740,8 +740,8 @@ def _attribute_accessor(gltf: dict, primitive: dict, spec: dict, grid: Attribute
         raise FormatError(f"base mesh: progressive attribute {semantic!r} is not an attribute of the primitive")
     acc = item(gltf.get("accessors"), primitive["attributes"][semantic], "base mesh: accessor")
     ctype = acc.get("componentType")
-    if not _is_int(ctype) or ctype not in {FLOAT, stored_type(spec)} or acc.get("normalized") or not isinstance(acc.get("type"), str) \
-            or VECTOR_WIDTH.get(acc.get("type")) != grid.width:
+    if json_integer(ctype) is None or ctype not in {FLOAT, stored_type(spec)} or acc.get("normalized") \
+            or not isinstance(acc.get("type"), str) or VECTOR_WIDTH.get(acc.get("type")) != grid.width:
         named = "" if stored_type(spec) == FLOAT else f" or a componentType {stored_type(spec)} one"
         raise FormatError(f"base mesh: {semantic} must be a FLOAT accessor{named} with {grid.width} components")
     count = uint(acc, "count", f"base mesh: {semantic} accessor")
@@ -750,11 +750,6 @@ def _attribute_accessor(gltf: dict, primitive: dict, spec: dict, grid: Attribute
     if count != n:
         raise FormatError(f"base mesh: {semantic} has {acc.get('count')} values for {n} stored vertices")
     return acc
-
-
-def _is_int(value) -> bool:
-    """Whether a JSON value is an integer (an int, not a bool: JSON's true is no number)."""
-    return isinstance(value, int) and not isinstance(value, bool)
 
 
 def weld_accessor(gltf: dict, primitive: dict, n: int) -> dict | None:
@@ -766,7 +761,8 @@ def weld_accessor(gltf: dict, primitive: dict, n: int) -> dict | None:
     if welded_vertex_count(primitive) is None:
         raise FormatError(f"base mesh: {WELD_ATTRIBUTE} without baseVertexCount (it serves the weld only)")
     acc = item(gltf.get("accessors"), attributes[WELD_ATTRIBUTE], "base mesh: accessor")
-    if not _is_int(acc.get("componentType")) or acc.get("componentType") not in WELD_TYPES or acc.get("type") != "SCALAR" or acc.get("normalized"):
+    if json_integer(acc.get("componentType")) is None or acc.get("componentType") not in WELD_TYPES \
+            or acc.get("type") != "SCALAR" or acc.get("normalized"):
         raise FormatError(f"base mesh: {WELD_ATTRIBUTE} must be an UNSIGNED_BYTE or UNSIGNED_SHORT SCALAR accessor")
     count = uint(acc, "count", f"base mesh: {WELD_ATTRIBUTE} accessor")
     if count > MAX_VERTICES:
@@ -819,7 +815,7 @@ def _decode_draco(gltf, draco, bin_data, n, m, names, widths, types) -> tuple:
     for name in names:
         if name not in ids:
             raise FormatError(f"base mesh: {DRACO_EXTENSION}.attributes has no {name} id")
-        if not _is_int(ids[name]) or not 0 <= ids[name] <= 0xFFFF:  # a Draco unique id (true is no integer)
+        if json_integer(ids[name]) is None or not 0 <= ids[name] <= 0xFFFF:  # a Draco unique id (true is none)
             raise FormatError(f"base mesh: {DRACO_EXTENSION}.attributes.{name} is not a Draco attribute id, got {ids[name]!r}")
     try:
         mesh = DracoPy.decode(bytes(raw))
