@@ -354,6 +354,16 @@ SHAPES = {
                                       "nodes[0].name must be a string"),
     "a material name that is null": (lambda d, m: d["materials"][0].update(name=None),
                                      "materials[0].name must be a string"),
+    # a list or an object where glTF names an enum value ended in "unexpected TypeError: unhashable type"
+    "a componentType that is a list": (lambda d, m: d["accessors"][0].update(componentType=[5126]),
+                                       "accessors[0] has an unknown componentType or type"),
+    "a componentType that is an object": (lambda d, m: d["accessors"][1].update(componentType={"x": 5125}),
+                                          "accessors[1] has an unknown componentType or type"),
+    "a type that is a list": (lambda d, m: d["accessors"][0].update(type=["VEC3"]),
+                              "accessors[0] has an unknown componentType or type"),
+    "a sparse index componentType that is a list": (lambda d, m: d["accessors"][0].update(sparse={
+        "count": 1, "indices": {"bufferView": 1, "componentType": [5125]}, "values": {"bufferView": 0}}),
+        "accessor 0 sparse indices: componentType is not an index type"),
 }
 
 

@@ -46,7 +46,7 @@ from ..sources import read_regular_file
 from .glb import GLTF_1_ADVICE, split_glb
 from .gltf import (COMPONENT_DTYPES, COMPONENT_NAMES, DRACO_EXTENSION, FLOAT, INDEX_DTYPES, NORMALIZE_DIVISORS,
                    TRIANGLE_MODES, TRIANGLES, TYPE_WIDTH, check_finite_numbers, check_json_depth, element_rows,
-                   gltf_integers, shown_value, triangle_list, uint, view_bytes)
+                   gltf_integers, named, shown_value, triangle_list, uint, view_bytes)
 from .layout import CHUNK_HEADER_SIZE, CHUNK_TYPE_JSON, GLB_HEADER_SIZE, GLB_MAGIC, padded
 from .meshopt import EXTENSIONS as MESHOPT_EXTENSIONS
 from .meshopt import decompress as decompress_meshopt
@@ -564,7 +564,7 @@ def _check_accessor(acc: dict, where: str, n_views: int, name: str) -> None:
     """An accessor's numbers: known ``componentType`` / ``type``, ``count`` in
     1..:data:`MAX_ACCESSOR_COUNT`, ``byteOffset`` non-negative, bufferView references in
     range, a sparse ``count`` no larger than the accessor's."""
-    if acc.get("componentType") not in COMPONENT_DTYPES or acc.get("type") not in TYPE_WIDTH:
+    if named(acc.get("componentType"), COMPONENT_DTYPES) is None or named(acc.get("type"), TYPE_WIDTH) is None:
         raise InputFormatError(f"{name}: {where} has an unknown componentType or type")
     count = _bounded_count(acc, "count", f"{name}: {where}")
     if count < 1:
@@ -836,7 +836,7 @@ def _apply_sparse(gltf, buffers, acc, out, what, normalized):
     sparse, (count, width) = acc["sparse"], out.shape
     n = _bounded_count(sparse, "count", f"{what} sparse")
     ii, vv = sparse["indices"], sparse["values"]
-    idx = _sparse_part(gltf, buffers, ii, INDEX_DTYPES.get(ii.get("componentType")), n, 1, f"{what} sparse indices")
+    idx = _sparse_part(gltf, buffers, ii, named(ii.get("componentType"), INDEX_DTYPES), n, 1, f"{what} sparse indices")
     vals = _sparse_part(gltf, buffers, vv, COMPONENT_DTYPES[acc["componentType"]], n, width, f"{what} sparse values")
     if n and int(idx.max()) >= count:
         raise InputFormatError(f"{what}: sparse index {int(idx.max())} is past its {count} elements")

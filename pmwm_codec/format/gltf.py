@@ -102,6 +102,15 @@ VECTOR_WIDTH = {name: width for width, name in WIDTH_TYPE.items()}
 _REQUIRED = object()
 
 
+def named(value, table: dict):
+    """``table[value]`` for a JSON ``value`` that names one of ``table``'s entries (a ``componentType`` in
+    :data:`COMPONENT_DTYPES`, a ``type`` in :data:`TYPE_WIDTH` ...), else None: a list or an object names none
+    (as a key it raised TypeError, a crash where a one-line refusal was due), nor does a bool."""
+    if isinstance(value, (bool, list, dict)):
+        return None
+    return table.get(value)
+
+
 def json_integer(value):
     """``value`` as an ``int`` when it is a JSON integer, else None.
 

@@ -37,7 +37,7 @@ import numpy as np
 from ..constants import EXTENSION_NAME, MAX_SCENE_VALUES
 from ..errors import FormatError, LimitError
 from .extension import base_mesh_fields, framed_blake2b, payload_version
-from .gltf import COMPONENT_DTYPES, DRACO_EXTENSION, INDEX_DTYPES, TYPE_WIDTH, element_rows, gc_paused
+from .gltf import COMPONENT_DTYPES, DRACO_EXTENSION, INDEX_DTYPES, TYPE_WIDTH, element_rows, gc_paused, named
 from .parser import BaseEvent, ChunkEvent, HeaderEvent
 
 #: Extension fields left out of ``baseMac``: set per cut (counts, chunk list), the MAC itself, or
@@ -140,7 +140,7 @@ def scene_document(gltf: dict) -> tuple:
             continue
         if not isinstance(acc, dict):
             continue
-        width, dtype = TYPE_WIDTH.get(acc.get("type")), COMPONENT_DTYPES.get(acc.get("componentType"))
+        width, dtype = named(acc.get("type"), TYPE_WIDTH), named(acc.get("componentType"), COMPONENT_DTYPES)
         if "bufferView" in acc:
             if width is None or dtype is None:
                 raise FormatError(f"accessor {i}: unknown type or componentType")
@@ -151,7 +151,7 @@ def scene_document(gltf: dict) -> tuple:
             indices, values = sparse.get("indices"), sparse.get("values")
             if not isinstance(indices, dict) or not isinstance(values, dict) or width is None or dtype is None:
                 raise FormatError(f"accessor {i}: malformed sparse")
-            index_dtype = INDEX_DTYPES.get(indices.get("componentType"))
+            index_dtype = named(indices.get("componentType"), INDEX_DTYPES)
             if index_dtype is None:
                 raise FormatError(f"accessor {i}: sparse indices componentType is not an index type")
             _reference(indices, sources, n, np.dtype(index_dtype).itemsize, False)
