@@ -354,6 +354,15 @@ SHAPES = {
                                       "nodes[0].name must be a string"),
     "a material name that is null": (lambda d, m: d["materials"][0].update(name=None),
                                      "materials[0].name must be a string"),
+    # material values a .pmw would carry as they are, into a file the glTF validator refuses
+    "a base colour that is a word": (lambda d, m: d["materials"][0].update(pbrMetallicRoughness={"baseColorFactor": "red"}),
+                                     "materials[0].pbrMetallicRoughness.baseColorFactor must be 4 numbers"),
+    "a roughness that is a list": (lambda d, m: d["materials"][0].update(pbrMetallicRoughness={"roughnessFactor": [1]}),
+                                   "materials[0].pbrMetallicRoughness.roughnessFactor must be a number"),
+    "an alpha mode glTF does not name": (lambda d, m: d["materials"][0].update(alphaMode="SHINY"),
+                                         "materials[0].alphaMode must be OPAQUE, MASK or BLEND"),
+    "double-sided as a string": (lambda d, m: d["materials"][0].update(doubleSided="yes"),
+                                 "materials[0].doubleSided must be true or false"),
     # a list or an object where glTF names an enum value ended in "unexpected TypeError: unhashable type"
     "a componentType that is a list": (lambda d, m: d["accessors"][0].update(componentType=[5126]),
                                        "accessors[0] has an unknown componentType or type"),

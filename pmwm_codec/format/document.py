@@ -472,6 +472,7 @@ def _check_material(material: dict, where: str, n_textures: int, name: str) -> N
     """A material's textureInfo objects, each with a texture ``index`` in range: the core ones, and in its
     extensions every object with an ``index`` under a member whose name ends in ``Texture``
     (``clearcoatTexture``, ``sheenColorTexture`` ...: the rule decode renumbers them by)."""
+    _check_material_values(material, where, name)
     for member, keys in _MATERIAL_TEXTURES:
         at = f"{where}.{member}" if member else where
         holder = _object(material.get(member, {}), at, name) if member else material
@@ -635,14 +636,44 @@ def _check_node_transform(node: dict, where: str, name: str) -> None:
     """A node's transform: ``matrix`` 16 numbers, or any of ``translation`` (3), ``rotation`` (4, a
     quaternion), ``scale`` (3) -- not both (glTF 2.0, 5.25)."""
     for key, size in (("matrix", 16), ("translation", 3), ("rotation", 4), ("scale", 3)):
-        if key in node:
-            value = node[key]
-            if not (isinstance(value, list) and len(value) == size
-                    and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in value)):
-                raise InputFormatError(f"{name}: {where}.{key} must be {size} numbers, got {shown_value(value)}")
+        _numbers(node, key, size, where, name)
     if "matrix" in node and any(key in node for key in ("translation", "rotation", "scale")):
         raise InputFormatError(f"{name}: {where} has a matrix and translation / rotation / scale; glTF allows one "
                                "or the other")
+
+
+def _numbers(holder: dict, key: str, size: int | None, where: str, name: str) -> None:
+    """Refuse ``holder[key]`` (when there) unless it is ``size`` numbers, or one number for ``size`` None."""
+    if key not in holder:
+        return
+    value = holder[key]
+    values = value if size is not None and isinstance(value, list) else [value] if size is None else None
+    if values is None or len(values) != (size or 1) \
+            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in values):
+        what = "a number" if size is None else f"{size} numbers"
+        raise InputFormatError(f"{name}: {where}.{key} must be {what}, got {shown_value(value)}")
+
+
+def _check_material_values(material: dict, where: str, name: str) -> None:
+    """A material's factors and flags of the types glTF 2.0 (5.19) gives them (``baseColorFactor`` 4 numbers,
+    ``alphaMode`` one of its three names ...): a ``.pmw`` carries the material as it is, and one a viewer cannot
+    take (``"baseColorFactor": "red"``) made a file the glTF validator refuses, read by three.js as NaN colours."""
+    pbr = material.get("pbrMetallicRoughness", {})
+    if isinstance(pbr, dict):
+        _numbers(pbr, "baseColorFactor", 4, f"{where}.pbrMetallicRoughness", name)
+        for key in ("metallicFactor", "roughnessFactor"):
+            _numbers(pbr, key, None, f"{where}.pbrMetallicRoughness", name)
+    _numbers(material, "emissiveFactor", 3, where, name)
+    _numbers(material, "alphaCutoff", None, where, name)
+    for key, factor in (("normalTexture", "scale"), ("occlusionTexture", "strength")):
+        if isinstance(material.get(key), dict):
+            _numbers(material[key], factor, None, f"{where}.{key}", name)
+    if "alphaMode" in material and material["alphaMode"] not in ("OPAQUE", "MASK", "BLEND"):
+        raise InputFormatError(f"{name}: {where}.alphaMode must be OPAQUE, MASK or BLEND, got "
+                               f"{shown_value(material['alphaMode'])}")
+    if "doubleSided" in material and not isinstance(material["doubleSided"], bool):
+        raise InputFormatError(f"{name}: {where}.doubleSided must be true or false, got "
+                               f"{shown_value(material['doubleSided'])}")
 
 
 def _check_meshes(gltf: dict, n_acc: int, n_views: int, name: str) -> None:

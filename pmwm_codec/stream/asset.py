@@ -60,7 +60,7 @@ import os
 import numpy as np
 
 from ..constants import EXTENSION_NAME
-from ..errors import DegenerateMeshError, InputFormatError, MeshError
+from ..errors import DegenerateMeshError, FormatError, InputFormatError, MeshError
 from ..format.document import as_declared, primitive_triangles, view_sites
 from ..format.document import (check_document, is_progressive, label_images, load_document, progressive_refusal,
                                read_accessor, repack)
@@ -547,6 +547,10 @@ def decode_asset(src, chunks=None):
     results = decoder.feed(data)
     end = decoder.close()
     gltf = decoder.header.gltf_json
+    try:  # the document a .pmw carries is written out as it is: never one the glTF readers (ours too) refuse
+        check_document(gltf, "its glTF document")
+    except InputFormatError as exc:
+        raise FormatError(str(exc)) from None
     bin_start = decoder.header.bin_offset
     found = find_extension_primitives(gltf, EXTENSION_NAME)
     doc, drop = _without_progressive_geometry(gltf, found)
