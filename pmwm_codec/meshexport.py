@@ -358,6 +358,10 @@ def write_scene(path: str, scene: Scene) -> tuple:
     if suffix == ".obj":
         text, vertices, faces = _obj_text(scene, None if mtl is None else os.path.basename(mtl))
         files, notices = {path: [text]}, []
+        if any("COLOR_0" in p.attributes and (p.attributes["COLOR_0"][:, 3] < 1.0).any()
+               for s in scene.showings for p in s.parts):  # a v record's colour is r g b
+            notices.append("the vertex colours' alpha is left out: an OBJ's v records hold red, green and blue "
+                           "(decode to .ply, .off or .glb to keep it)")
         if mtl is not None:
             files[mtl] = [_mtl_text(scene, names)]
     elif suffix == ".off":
@@ -417,18 +421,19 @@ def _unique_rows(rows: np.ndarray) -> tuple:
     return rows[first[order]], rank[inverse.ravel()].astype(np.int64)
 
 
-def _welded(showing: Showing, coloured: bool, kind: str) -> tuple:
-    """``(rows (v, 3 | 6) float32, [faces (m_k, 3) int64 into rows, per part])``: the showing's vertices welded,
+def _welded(showing: Showing, coloured: bool, kind: str, alpha: bool = False) -> tuple:
+    """``(rows (v, 3 | 6 | 7) float32, [faces (m_k, 3) int64 into rows, per part])``: the showing's vertices welded,
     one row per distinct float32 position (and sRGB-encoded colour, clipped to 0..1, when ``coloured``: white
-    for a part without COLOR_0, glTF's default), in the order first met.  InputFormatError (``kind`` the file)
-    when a coordinate overflows float32."""
+    for a part without COLOR_0, glTF's default; with its alpha too when ``alpha``: opaque for a VEC3 one), in the
+    order first met.  InputFormatError (``kind`` the file) when a coordinate overflows float32."""
     parts = showing.parts
     pos = np.concatenate([_float32(p.positions) for p in parts]) if parts else np.zeros((0, 3), np.float32)
     if not np.isfinite(pos).all():
         raise InputFormatError(f"a coordinate of the decoded mesh overflows the float32 {kind}'s records hold")
     if coloured:
-        colours = np.concatenate([_float32(srgb_from_linear(p.attributes["COLOR_0"])[:, :3])
-                                  if "COLOR_0" in p.attributes else np.ones((len(p.positions), 3), np.float32)
+        width = 4 if alpha else 3
+        colours = np.concatenate([_float32(srgb_from_linear(p.attributes["COLOR_0"])[:, :width])
+                                  if "COLOR_0" in p.attributes else np.ones((len(p.positions), width), np.float32)
                                   for p in parts])
         pos = np.hstack([pos, colours])
     welded, v_of = _unique_rows(pos)
@@ -437,23 +442,22 @@ def _welded(showing: Showing, coloured: bool, kind: str) -> tuple:
 
 
 def _off_text(scene: Scene) -> tuple:
-    """``(OFF bytes, vertices, faces, notices)``: the scene welded as an OBJ's ``v`` records are, ``COFF`` with
-    each vertex's colour (sRGB-encoded, ``r g b a`` in 0..1, six decimals: the same bytes back) when it has
-    colours; what an OFF cannot hold is left out with a note."""
+    """``(OFF bytes, vertices, faces, notices)``: the scene welded as an OBJ's ``v`` records are (and by alpha),
+    ``COFF`` with each vertex's colour (sRGB-encoded, ``r g b a`` in 0..1, six decimals: the same bytes back; ``a``
+    COLOR_0's alpha, 1 where it has none) when it has colours; what an OFF cannot hold is left out with a note."""
     coloured = any("COLOR_0" in p.attributes for s in scene.showings for p in s.parts)
     rows, faces, total = [], [], 0
     for showing in scene.showings:
-        welded, corners = _welded(showing, coloured, "an OFF")
+        welded, corners = _welded(showing, coloured, "an OFF", alpha=True)
         faces += [c + total for c in corners]
         rows.append(welded)
         total += len(welded)
-    rows = np.concatenate(rows) if rows else np.zeros((0, 6 if coloured else 3), np.float32)
+    rows = np.concatenate(rows) if rows else np.zeros((0, 7 if coloured else 3), np.float32)
     faces = np.concatenate(faces) if faces else np.zeros((0, 3), np.int64)
     out = io.StringIO()
     out.write(f"{'COFF' if coloured else 'OFF'}\n{len(rows)} {len(faces)} 0\n")
     if coloured:
-        table = np.hstack([rows.astype(np.float64), np.ones((len(rows), 1))])
-        np.savetxt(out, table, fmt="%.9g %.9g %.9g %.6f %.6f %.6f %.6f")
+        np.savetxt(out, rows.astype(np.float64), fmt="%.9g %.9g %.9g %.6f %.6f %.6f %.6f")
     else:
         np.savetxt(out, rows.astype(np.float64), fmt="%.9g %.9g %.9g")
     np.savetxt(out, faces, fmt="3 %d %d %d")
