@@ -9,7 +9,8 @@ default scene shows (and of each progressive mesh it does not show: as stored, w
 node that shows it (positions by the world matrix, normals by its inverse
 transpose, the winding reversed under a mirroring one), as :class:`Showing` s of
 :class:`~pmwm_codec.meshdoc.Part` s, with the materials mapped onto :class:`~pmwm_codec.meshdoc.Material` (the
-base colour, its alpha where ``alphaMode`` blends or masks, the roughness, the base colour and normal textures)
+base colour, its alpha where ``alphaMode`` blends (where it masks: 1 or 0, as the alpha reaches ``alphaCutoff`` or
+not, a mask being opaque where drawn), the roughness, the base colour and normal textures)
 and the images those use.  What such a file cannot hold (another texture set than the first, a texture
 transform, metallic-roughness, occlusion and emissive textures; in a PLY the materials themselves) is left out
 with a notice.
@@ -239,12 +240,18 @@ def _materials(gltf: dict, buffers, written: list, notices: list) -> tuple:
         pbr = _object(mat, "pbrMetallicRoughness", where)
         where += ".pbrMetallicRoughness"
         color = _factor(pbr, "baseColorFactor", [1.0, 1.0, 1.0, 1.0], where)
-        if mat.get("alphaMode", "OPAQUE") == "OPAQUE":
+        mode = mat.get("alphaMode", "OPAQUE")
+        if mode == "OPAQUE":
             color[3] = 1.0
+        elif mode == "MASK":  # glTF 3.9.4: drawn opaque where the alpha reaches alphaCutoff, else not drawn at all
+            color[3] = 1.0 if color[3] >= _factor(mat, "alphaCutoff", 0.5, f"materials[{mi}]") else 0.0
         name = _safe_name(mat.get("name"), f"material_{mi}")
         while name in names:
             name = f"{name}_{mi}"
         names.add(name)
+        if mode == "MASK" and color[3] == 1.0 and "baseColorTexture" in pbr:
+            left.add(f"material {name}'s alpha mask (alphaMode MASK) is left out: an MTL has no cutoff, so its "
+                     "texture's alpha cuts nothing out")
         out = Material(name, tuple(color), _factor(pbr, "roughnessFactor", 1.0, where),
                        metallic=_factor(pbr, "metallicFactor", 1.0, where))
         out.texture = image_of(pbr.get("baseColorTexture"), f"material {name}'s base colour texture")

@@ -74,3 +74,40 @@ def test_a_ply_holds_the_alpha_and_an_obj_says_it_leaves_it_out(tmp_path):
     (tmp_path / "o.ply").write_bytes(ply_bytes("binary_little_endian", vertex, corners(mesh.faces)))
     pmwm_codec.encode(str(tmp_path / "o.ply"), str(tmp_path / "o.pmw"))
     assert not any("alpha" in n for n in pmwm_codec.decode_to(str(tmp_path / "o.pmw"), str(tmp_path / "o.obj"))["notices"])
+
+
+def _masked(tmp_path, alpha: float, cutoff=None):
+    """``.pmw`` of the textured torus OBJ with its material made ``alphaMode: MASK`` of base colour alpha ``alpha``."""
+    from pmwm_codec import meshdoc
+
+    from test_obj_appearance import _png, _torus_obj
+
+    path, *_ = _torus_obj(str(tmp_path))
+    _png(tmp_path / "skin.png")
+    (tmp_path / "t.mtl").write_text("newmtl skin\nmap_Kd skin.png\n")
+    (doc, buffers), _ = meshdoc.read_source(path)
+    material = doc["materials"][0]
+    material["alphaMode"] = "MASK"
+    material["pbrMetallicRoughness"]["baseColorFactor"] = [1.0, 1.0, 1.0, alpha]
+    if cutoff is not None:
+        material["alphaCutoff"] = cutoff
+    src = tmp_path / f"mask{alpha}.pmw"
+    pmwm_codec.encode((doc, buffers), str(src))
+    return src
+
+
+def _mtl_opacity(path) -> float:
+    (value,) = [float(line.split()[1]) for line in path.read_text().splitlines() if line.startswith("d ")]
+    return value
+
+
+def test_a_masked_material_is_opaque_where_drawn_and_absent_where_cut_not_translucent(tmp_path):
+    """glTF draws an ``alphaMode: MASK`` material opaque where its alpha reaches ``alphaCutoff`` (0.5 by default)
+    and not at all below: its MTL ``d`` is 1 or 0 (``d 0.8`` had shown it 80 % translucent in three.js and Blender),
+    and the texture's alpha, which would cut it out, is said to be left out."""
+    result = pmwm_codec.decode_to(str(_masked(tmp_path, 0.8)), str(tmp_path / "kept.obj"))
+    assert _mtl_opacity(tmp_path / "kept.mtl") == 1.0
+    assert any("alpha mask (alphaMode MASK) is left out" in n for n in result["notices"]), result["notices"]
+    result = pmwm_codec.decode_to(str(_masked(tmp_path, 0.8, cutoff=0.9)), str(tmp_path / "cut.obj"))
+    assert _mtl_opacity(tmp_path / "cut.mtl") == 0.0
+    assert not any("alpha mask" in n for n in result["notices"])
