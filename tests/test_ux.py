@@ -118,11 +118,10 @@ def test_the_encode_progress_bar_only_moves_forward(monkeypatch):
 
 def test_an_obj_face_past_the_last_vertex_is_named_in_the_files_own_numbering_too(tmp_path, capsys):
     """``f 1 2 9`` over three vertices said "face index 8": the reader's count from 0, a number the file never holds."""
-    (tmp_path / "bad.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n")
-    assert main(["encode", str(tmp_path / "bad.obj"), "-o", str(tmp_path / "bad.pmw")]) == 2
+    (tmp_path / "b9.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n")
+    assert main(["encode", str(tmp_path / "b9.obj"), "-o", str(tmp_path / "bad.pmw")]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.endswith("face index 8 out of range for 3 vertices (counted from 0; 9 in an OBJ file, whose numbering "
-                        "starts at 1)") and "\n" not in err
+    assert err.endswith("b9.obj: face index 9 names no v record (3 read before the face)") and "\n" not in err
     assert not (tmp_path / "bad.pmw").exists()
 
 
