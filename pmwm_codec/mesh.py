@@ -233,31 +233,52 @@ def _check_ply_header(path, name) -> None:
                         f"{declared.get('vertex', 0):,} vertices and no faces: a point cloud)")
 
 
-def _check_stl_header(path, name) -> None:
-    """Refuse a binary STL that declares more triangles than the encoder takes, or whose size is not
-    what its triangle count says (cut short, or trailing bytes).  A file is ASCII STL when it starts
-    with ``solid`` and its first KiB is text holding ``facet`` or ``endsolid``, in any case (binary
-    headers may start with ``solid`` too; some CAD exporters write the keywords in capitals)."""
+def _read_stl(path, name) -> Mesh:
+    """The mesh of the STL at ``path``: binary (an 80-byte header, a triangle count, 50 bytes a triangle) or
+    ASCII (``solid`` ... ``facet`` ... ``endsolid``), its corners welded where they are the same point.  Each
+    facet's normal is not read: its winding is its vertices' order, as other readers take it.  InputFormatError
+    (:func:`_check_stl_header`, :func:`_read_ascii_stl`) for a file that is neither, cut short, or malformed."""
+    size = os.stat(path).st_size
+    if _check_stl_header(path, name) == "ascii":
+        positions = _read_ascii_stl(path, name)
+    else:
+        data = read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name)
+        if len(data) != size:  # (changed while read)
+            raise InputFormatError(f"{name}: the file changed while it was read")
+        positions = np.frombuffer(data, _STL_RECORD, offset=84)["corners"].reshape(-1, 3).astype(np.float64)
+    if not len(positions):
+        raise MeshError(f"{name}: the file holds no triangle mesh")
+    positions, inverse = np.unique(positions, axis=0, return_inverse=True)
+    return checked_mesh(positions, inverse.reshape(-1, 3), name=name)
+
+
+#: A binary STL's triangle record: a normal, three corners (float32, little-endian) and two attribute bytes.
+_STL_RECORD = np.dtype([("normal", "<f4", (3,)), ("corners", "<f4", (3, 3)), ("attributes", "<u2")])
+
+
+def _check_stl_header(path, name) -> str:
+    """``"binary"`` or ``"ascii"``: what the STL at ``path`` is, or InputFormatError for a binary STL that declares
+    more triangles than the encoder takes, or whose size is not what its triangle count says (cut short, or
+    trailing bytes).  A file whose size is what its count says is binary, whatever its header (exporters start
+    it with ``solid`` too, and may name ``facet`` in it); otherwise it is ASCII when it starts with ``solid``,
+    its first KiB holds no NUL byte and names ``facet`` or ``endsolid``, in any case (some CAD exporters write
+    the keywords in capitals; the solid's name may be UTF-8 or Latin-1)."""
     size = os.stat(path).st_size
     with open(path, "rb") as fh:
         head = fh.read(1024)
+    count = int.from_bytes(head[80:84], "little") if len(head) >= 84 else -1
+    if 0 <= count <= MAX_ENCODE_FACES and size == 84 + 50 * count:
+        return "binary"
     low = head.lstrip().lower()
-    if low.startswith(b"solid") and (b"facet" in low or b"endsolid" in low):
-        try:
-            head.decode("ascii")
-        except UnicodeDecodeError:
-            pass
-        else:
-            return _check_ascii_stl(path, name)
+    if low.startswith(b"solid") and b"\0" not in head and (b"facet" in low or b"endsolid" in low):
+        return "ascii"  # (checked as it is read: _read_ascii_stl)
     if len(head) < 84:
         raise InputFormatError(f"{name}: not an STL file (a binary STL has an 84-byte header; the file has {size} bytes)")
-    count = int.from_bytes(head[80:84], "little")
     if count > MAX_ENCODE_FACES:
         raise InputFormatError(f"{name}: STL declares {count:,} triangles (the encoder takes {MAX_ENCODE_FACES:,})")
-    if size != 84 + 50 * count:
-        why = "cut short" if size < 84 + 50 * count else "bytes after its last triangle"
-        raise InputFormatError(f"{name}: binary STL declares {count:,} triangles ({84 + 50 * count:,} bytes) "
-                               f"but the file has {size:,} bytes ({why})")
+    why = "cut short" if size < 84 + 50 * count else "bytes after its last triangle"
+    raise InputFormatError(f"{name}: binary STL declares {count:,} triangles ({84 + 50 * count:,} bytes) "
+                           f"but the file has {size:,} bytes ({why})")
 
 
 #: An ASCII STL ``vertex`` record that is not the keyword and three numbers (a regular expression over the file's
@@ -268,21 +289,55 @@ _STL_FACET, _STL_VERTEX = re.compile(rb"^[ \t]*facet\b", re.M), re.compile(rb"^[
 #: A facet's loop of exactly three ``vertex`` records (the screen), and any loop (the diagnosis).
 _STL_LOOP3 = re.compile(rb"loop[ \t]*\r?\n(?:[ \t]*vertex[^\n]*\n){3}[ \t]*endloop")
 _STL_LOOP = re.compile(rb"\bouter[ \t]+loop\b(.*?)\bendloop\b", re.S)
+#: The three numbers of an ASCII STL ``vertex`` record (one checked by :data:`_STL_BAD_VERTEX`).
+_STL_CORNER = re.compile(rb"^[ \t]*vertex[ \t]+([^\r\n]*)", re.M)
 
 
-def _check_ascii_stl(path, name) -> None:
+def _stl_text(path, name) -> bytes:
+    """The ASCII STL at ``path``, lower-cased (its keywords are read in any case)."""
+    return read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name).lower()
+
+
+def _check_ascii_stl(path, name, data: bytes | None = None) -> None:
     """Refuse an ASCII STL whose facets do not each hold three ``vertex`` records, naming the facet (the
     reader's own words were numpy's: "cannot reshape array of size 40 into shape (3)", OpenSCAD's
-    toomanyvertices.stl; a facet of four beside one of two was read as wrong triangles, exit 0).  A count of
+    toomanyvertices.stl; a facet of four beside one of two was read as wrong triangles, exit 0), a ``vertex``
+    record that is not the keyword and three numbers (``vertex 1 0 0 7`` beside ``vertex 0 1`` made up the count
+    and was read as other corners), a facet after the closing ``endsolid``, or a file without one.  A count of
     the loops of three screens the file; the diagnosis (:func:`ascii_stl_problem`) runs only when it differs
     from the facets'."""
-    data = read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name).lower()  # keywords in any case
-    if len(_STL_LOOP3.findall(data)) != data.count(b"endfacet"):
+    data = _stl_text(path, name) if data is None else data
+    bad = _STL_BAD_VERTEX.search(data)
+    if bad is not None or len(_STL_LOOP3.findall(data)) != data.count(b"endfacet"):
         problem = ascii_stl_problem(data)
         if problem:
             raise InputFormatError(f"{name}: {problem}")
-    if b"endsolid" not in data:
+    end = data.rfind(b"endsolid")
+    if end < 0:
         raise InputFormatError(f"{name}: an ASCII STL without its closing 'endsolid' (cut short)")
+    if _STL_FACET.search(data, end) is not None:
+        raise InputFormatError(f"{name}: an ASCII STL with facets after its closing 'endsolid' (a solid must open "
+                               "with 'solid')")
+
+
+def _read_ascii_stl(path, name) -> np.ndarray:
+    """(3m, 3) float64: the corners of the m facets of the ASCII STL at ``path`` (checked by
+    :func:`_check_ascii_stl`), in file order, every solid of the file one after the other."""
+    data = _stl_text(path, name)
+    _check_ascii_stl(path, name, data)
+    records = _STL_CORNER.findall(data)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)  # numpy's parser stops at a malformed number
+        corners = np.fromstring(b" ".join(records), dtype=np.float64, sep=" ")
+    if len(corners) != 3 * len(records):  # a number the screen let by ("1e", "1.2.3"): named record by record
+        for i, record in enumerate(records):
+            try:
+                [float(x) for x in record.split()]
+            except ValueError:
+                raise InputFormatError(f"{name}: malformed ASCII STL record (vertex record {i + 1}): "
+                                       f"{record.strip()[:60].decode('ascii', 'replace')!r}") from None
+        raise InputFormatError(f"{name}: malformed ASCII STL vertex records")
+    return corners.reshape(-1, 3)
 
 
 def ascii_stl_problem(data: bytes):
@@ -401,15 +456,13 @@ def read_mesh(path: str | bytes | os.PathLike[str]) -> Mesh:
         data = read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name)
         return _soup_welded(*read_ply(data, name, MAX_ENCODE_FACES), name)
     if suffix == ".stl":
-        _check_stl_header(path, name)
-    else:
-        from .format.document import is_progressive, progressive_refusal, sniff_json
+        return _read_stl(path, name)
+    from .format.document import is_progressive, progressive_refusal, sniff_json
 
-        gltf = sniff_json(path)
-        if gltf is not None and is_progressive(gltf):
-            raise InputFormatError(progressive_refusal(name))
-        return _read_with_trimesh(_checked_glb(path), name, ".glb")
-    return _read_with_trimesh(path, name, suffix)
+    gltf = sniff_json(path)
+    if gltf is not None and is_progressive(gltf):
+        raise InputFormatError(progressive_refusal(name))
+    return _read_with_trimesh(_checked_glb(path), name, ".glb")
 
 
 def _checked_glb(path) -> io.BytesIO:
@@ -847,11 +900,7 @@ def _read_with_trimesh(path, name, suffix):
             else:
                 loaded = trimesh.load(path, process=False, force=None)
     except Exception as exc:  # trimesh raises many types on garbage
-        data = read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name) if suffix == ".stl" else b""
-        data = data.lower()  # keywords in any case
-        problem = ascii_stl_problem(data) if data.lstrip().startswith(b"solid") else None  # named, not the parser's words
-        raise InputFormatError(f"{name}: {problem}" if problem else
-                               f"{name}: cannot read as {suffix[1:].upper()}: {exc}".splitlines()[0]) from None
+        raise InputFormatError(f"{name}: cannot read as {suffix[1:].upper()}: {exc}".splitlines()[0]) from None
     if isinstance(loaded, trimesh.Scene):
         geoms = [g for g in loaded.dump(concatenate=False) if isinstance(g, trimesh.Trimesh)]
         if not geoms:
@@ -861,10 +910,6 @@ def _read_with_trimesh(path, name, suffix):
         raise MeshError(f"{name}: the file holds no triangle mesh")
     positions = np.asarray(loaded.vertices, dtype=np.float64)
     faces = np.asarray(loaded.faces, dtype=np.int64)
-    if suffix == ".stl" and faces.size:
-        positions, inverse = np.unique(positions, axis=0, return_inverse=True)
-        faces = inverse.reshape(-1)[faces]
-        return checked_mesh(positions, faces, name=name)
     return checked_mesh(positions, faces, name=name)
 
 

@@ -376,6 +376,70 @@ def test_an_ascii_stl_in_capitals_reads_and_one_cut_before_endsolid_is_named(tmp
         pmwm_codec.read_mesh(tmp_path / "cut.stl")
 
 
+def _facets(*triangles) -> str:
+    return "".join("facet normal 0 0 1\n outer loop\n" + "".join(f"  vertex {x} {y} {z}\n" for x, y, z in t)
+                   + " endloop\nendfacet\n" for t in triangles)
+
+
+SQUARE = ([(0, 0, 0), (1, 0, 0), (0, 1, 0)], [(1, 0, 0), (1, 1, 0), (0, 1, 0)])
+
+
+def _corners(m) -> list:
+    return sorted(tuple(tuple(p) for p in m.positions[f]) for f in m.faces.tolist())
+
+
+def test_a_vertex_record_of_four_numbers_beside_one_of_two_is_refused_not_read_as_other_corners(tmp_path):
+    """``vertex 1 0 0 7`` and ``vertex 0 1`` make up six numbers between them: the three-a-facet count held, and the
+    file was read with corners (7, 0, 1) and (0, 1, ...) that it does not hold, exit 0."""
+    body = (_facets(SQUARE[0]).replace("vertex 1 0 0\n", "vertex 1 0 0 7\n")
+            + _facets(SQUARE[1]).replace("vertex 0 1 0\n", "vertex 0 1\n"))
+    (tmp_path / "m.stl").write_text("solid m\n" + body + "endsolid m\n")
+    with pytest.raises(mesh_mod.InputFormatError, match=r"^m.stl: malformed ASCII STL record \(line 5\): 'vertex 1 0 0 7'$"):
+        pmwm_codec.read_mesh(tmp_path / "m.stl")
+
+
+@pytest.mark.parametrize("solid", ["vertex_colours", "vertex 5 6 7", "normal"])
+def test_an_ascii_stl_whose_solid_is_named_with_a_keyword_reads(tmp_path, solid):
+    """A solid named ``vertex_colours`` was refused in numpy's words ("could not be read to its end due to
+    unmatched data"), one named ``vertex 5 6 7`` as "cannot reshape array of size 7 into shape (3)": the name was
+    read as a vertex record."""
+    (tmp_path / "m.stl").write_text(f"solid {solid}\n" + _facets(*SQUARE) + f"endsolid {solid}\n")
+    got = pmwm_codec.read_mesh(tmp_path / "m.stl")
+    assert _corners(got) == sorted(tuple(map(tuple, np.asarray(t, float))) for t in SQUARE)
+
+
+@pytest.mark.parametrize("codec", ["utf-8", "latin-1"])
+def test_an_ascii_stl_whose_solid_name_is_not_ascii_reads(tmp_path, codec):
+    """``solid Würfel`` was taken for a binary STL: "STL declares 1,695,166,496 triangles"."""
+    (tmp_path / "m.stl").write_bytes(("solid Würfel\n" + _facets(*SQUARE) + "endsolid Würfel\n").encode(codec))
+    assert pmwm_codec.read_mesh(tmp_path / "m.stl").face_count == 2
+
+
+def test_an_ascii_stl_of_several_solids_and_crlf_reads_every_solid(tmp_path):
+    text = "solid a\n" + _facets(SQUARE[0]) + "endsolid a\nsolid b\n" + _facets(SQUARE[1]) + "endsolid b\n"
+    (tmp_path / "m.stl").write_bytes(text.replace("\n", "\r\n").encode())
+    assert pmwm_codec.read_mesh(tmp_path / "m.stl").face_count == 2
+
+
+def test_facets_after_the_closing_endsolid_are_refused_not_dropped(tmp_path):
+    """A facet after ``endsolid`` and before any ``solid`` was left out without a word."""
+    (tmp_path / "m.stl").write_text("solid m\n" + _facets(SQUARE[0]) + "endsolid m\n" + _facets(SQUARE[1]))
+    with pytest.raises(mesh_mod.InputFormatError, match=r"^m.stl: an ASCII STL with facets after its closing 'endsolid'"):
+        pmwm_codec.read_mesh(tmp_path / "m.stl")
+
+
+def test_a_binary_stl_whose_header_reads_as_ascii_keywords_is_read_as_binary(tmp_path):
+    """A binary STL is told by its size: a header ``solid part facet`` over triangles whose bytes are all ASCII (zero
+    normals, whole coordinates) was taken for an ASCII STL and refused ("without its closing 'endsolid'")."""
+    data = b"solid part facet".ljust(80, b" ") + (2).to_bytes(4, "little")
+    for t in SQUARE:
+        data += np.array([0, 0, 0, *np.asarray(t, float).ravel() * 2], "<f4").tobytes() + b"  "
+    assert data[84:].decode("ascii")  # the whole file is ASCII
+    (tmp_path / "m.stl").write_bytes(data)
+    got = pmwm_codec.read_mesh(tmp_path / "m.stl")
+    assert _corners(got) == sorted(tuple(map(tuple, np.asarray(t, float) * 2)) for t in SQUARE)
+
+
 def test_an_obj_comment_after_a_record_is_a_comment(tmp_path):
     (tmp_path / "c.obj").write_text("# a cube's corner\nv 0 0 0 # origin\nv 1 0 0\nv 0 1 0\nf 1 2 3 # the one face\n")
     mesh = pmwm_codec.read_mesh(tmp_path / "c.obj")
