@@ -18,7 +18,6 @@ vertices are dropped and counted in :attr:`Mesh.cleanup`.
 
 from __future__ import annotations
 
-import io
 import os
 import re
 import warnings
@@ -41,7 +40,9 @@ class Mesh:
     positions: np.ndarray
     faces: np.ndarray
     attributes: dict = field(default_factory=dict)
-    #: What :func:`checked_mesh` dropped: ``{"degenerate_faces": k, "unreferenced_vertices": j}``.
+    #: What :func:`checked_mesh` dropped: ``{"degenerate_faces": k, "unreferenced_vertices": j}``, and what the
+    #: file reader left out (``duplicate_soup_vertices``, a glTF's ``primitives_of_points_or_lines``): counts,
+    #: each said by the encoder.
     cleanup: dict = field(default_factory=dict)
 
     @property
@@ -421,9 +422,10 @@ def read_mesh(path: str | bytes | os.PathLike[str]) -> Mesh:
 
     Polygons are fan-triangulated; STL triangle soups have identical corners
     merged, and so do OBJ and PLY soups (every face corner its own vertex:
-    :func:`_soup_welded`).  For glTF/GLB the triangle primitives of the default
-    scene are merged into one mesh with node transforms applied (the asset
-    pipeline keeps the document structure; this function only wants geometry).
+    :func:`_soup_welded`).  For glTF/GLB the triangles the default scene shows
+    (triangle lists, strips and fans) are merged into one mesh with node transforms
+    applied (:func:`_read_gltf`; the asset pipeline keeps the document structure;
+    this function only wants geometry).
 
     Raises
     ------
@@ -462,27 +464,86 @@ def read_mesh(path: str | bytes | os.PathLike[str]) -> Mesh:
     gltf = sniff_json(path)
     if gltf is not None and is_progressive(gltf):
         raise InputFormatError(progressive_refusal(name))
-    return _read_with_trimesh(_checked_glb(path), name, ".glb")
+    return _read_gltf(path, name)
 
 
-def _checked_glb(path) -> io.BytesIO:
-    """A GLB in memory of the glTF / GLB at ``path`` as :func:`~pmwm_codec.format.document.load_document`
-    reads it for an encode -- every ``uri`` a regular file inside the asset's folder or a ``data:`` URI,
-    sizes, indices and the node tree checked, meshopt-compressed views decoded (trimesh reads neither
-    EXT_ nor KHR_meshopt_compression) -- in one buffer, so trimesh reads nothing from the disk.  The
-    accessors of the mesh primitives are read once (:func:`~pmwm_codec.format.document.read_accessor`:
-    counts, offsets and strides within their bufferViews) before trimesh sees them."""
-    from .format.document import load_document, read_accessor, repack
-    from .format.glb import join_glb
+#: glTF 2.0's primitive modes that draw points and lines (3.7.2.1).
+_POINT_AND_LINE_MODES = {0: "POINTS", 1: "LINES", 2: "LINE_LOOP", 3: "LINE_STRIP"}
+
+
+def _read_gltf(path, name) -> Mesh:
+    """The triangles the default scene of the glTF / GLB at ``path`` shows, as one mesh: every primitive of mode
+    TRIANGLES, TRIANGLE_STRIP or TRIANGLE_FAN (a strip's and a fan's triangles as glTF 2.0 3.7.2.1 winds them, a
+    strip's restarts dropped, as the asset encoder reads them) of each mesh the scene shows, placed by each node
+    that shows it (:func:`~pmwm_codec.format.gltf.mesh_placements`: without a default scene, every root node;
+    without nodes, each mesh once as stored), a mirrored showing with its winding reversed so that its faces
+    keep facing out; positions as their accessors declare them (``normalized`` integers, KHR_mesh_quantization,
+    mapped to -1..1 or 0..1; sparse accessors applied; Draco and meshopt data decoded).  The document is read as
+    :func:`~pmwm_codec.format.document.load_document` reads it for an encode (every ``uri`` a regular file
+    inside the asset's folder or a ``data:`` URI; sizes, indices and the node tree checked).
+
+    Primitives of points and lines in a shown mesh are left out and counted in ``cleanup``
+    (``primitives_of_points_or_lines``); morph targets and skins are not applied (the stored positions, the
+    scene's rest pose).  MeshError (named by primitive) for a TRIANGLES index count that is not a multiple of 3, as
+    the asset encoder says it, for a mesh drawn by ``EXT_mesh_gpu_instancing`` (its instances are not placed
+    here: the asset encoder keeps them), and for a scene that shows no triangle."""
+    from .format.document import load_document, read_accessor
+    from .format.gltf import DRACO_EXTENSION, TRIANGLE_MODES, TRIANGLE_STRIP, TRIANGLES, placements_by_mesh, \
+        scene_mesh, triangle_list
 
     gltf, buffers = load_document(path)
-    for mesh in gltf.get("meshes", []):
-        for prim in mesh.get("primitives", []):
-            for index in [*prim.get("attributes", {}).values(), *([prim["indices"]] if "indices" in prim else [])]:
-                read_accessor(gltf, buffers, index)
-    doc, data = repack(gltf, buffers)
-    doc["buffers"] = [{"byteLength": len(data)}]
-    return io.BytesIO(join_glb(doc, data))
+    meshes = gltf.get("meshes", [])
+    if gltf.get("nodes"):
+        shown = placements_by_mesh(gltf)
+    else:  # no node: each mesh once, where it is stored (as the encoder and decode read such a document)
+        shown = {mi: [np.eye(4)] for mi in range(len(meshes))}
+    parts, frames, lines = [], [], 0
+    for mi in sorted(shown):
+        matrices = shown[mi]
+        if any(m is None for m in matrices):  # (check_document has checked every node transform)
+            raise MeshError(f"{name}: mesh {mi} is drawn by GPU instancing (EXT_mesh_gpu_instancing), whose "
+                            "instances the geometry reader does not place (encode it without --geometry-only)")
+        for pi, prim in enumerate(meshes[mi].get("primitives", [])):
+            where = f"{name}: mesh {mi} primitive {pi}"
+            mode = prim.get("mode", TRIANGLES)
+            if mode not in TRIANGLE_MODES:
+                lines += 1
+                continue
+            if "POSITION" not in prim.get("attributes", {}):
+                continue  # (nothing to draw: glTF lets a client skip it)
+            draco = (prim.get("extensions") or {}).get(DRACO_EXTENSION)
+            if draco is not None:
+                from .stream.asset import _draco_arrays, _PassThrough
+
+                try:
+                    positions, faces, _ = _draco_arrays(gltf, buffers, prim, draco)
+                except (_PassThrough, InputFormatError) as exc:
+                    raise InputFormatError(f"{where}: {exc}") from None
+                if mode != TRIANGLES:
+                    raise InputFormatError(f"{where}: a Draco-compressed strip or fan (mode {mode}) is not read")
+            else:
+                positions = read_accessor(gltf, buffers, prim["attributes"]["POSITION"])[:, :3]
+                order = (read_accessor(gltf, buffers, prim["indices"]).reshape(-1) if "indices" in prim
+                         else np.arange(len(positions), dtype=np.int64))
+                if mode == TRIANGLES and len(order) % 3:
+                    raise MeshError(f"{where}: index count {len(order)} is not a multiple of 3")
+                faces = triangle_list(order, mode)
+                if mode == TRIANGLE_STRIP:  # a strip's restarts (an index repeated to join two strips) draw nothing
+                    faces = faces[~two_alike(faces)]
+            if len(faces) and (faces.min() < 0 or faces.max() >= len(positions)):
+                raise MeshError(f"{where}: face index {int(faces.max())} out of range for {len(positions)} vertices")
+            parts.append((np.asarray(positions, np.float64), np.asarray(faces, np.int64)))
+            frames.append(matrices)
+    if not any(len(f) and len(m) for (_, f), m in zip(parts, frames)):
+        why = ("it has no mesh" if not meshes else "no node of its scene shows a mesh" if not shown
+               else "its scene shows points and lines alone" if lines and not parts
+               else "its primitives hold no triangle")
+        raise MeshError(f"{name}: the file holds no triangle mesh ({why})")
+    positions, faces, _ = scene_mesh([p for p, _ in parts], [f for _, f in parts], frames, oriented=True)
+    mesh = checked_mesh(positions, faces, name=name)
+    if lines:
+        mesh.cleanup["primitives_of_points_or_lines"] = lines
+    return mesh
 
 
 #: What ends a line besides a line feed for :meth:`str.splitlines` (a classic Mac OS file's CR; NEL, byte 0x85,
@@ -885,32 +946,6 @@ def _add_polygon(line: str, tris: list, name: str, counts: dict, corner) -> None
     idx += idx[-1:] * (3 - len(idx))
     idx = [i - 1 if i > 0 else read + i for i in idx]
     tris.extend((idx[0], idx[k], idx[k + 1]) for k in range(1, len(idx) - 1))
-
-
-def _read_with_trimesh(path, name, suffix):
-    import trimesh
-
-    try:
-        # trimesh's parsers warn ("overflow encountered in cast") where a value past float32 becomes inf, which
-        # checked_mesh refuses in one line: the warning would be two lines more
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            if isinstance(path, io.BytesIO):
-                loaded = trimesh.load(path, file_type=suffix[1:], process=False, force=None)
-            else:
-                loaded = trimesh.load(path, process=False, force=None)
-    except Exception as exc:  # trimesh raises many types on garbage
-        raise InputFormatError(f"{name}: cannot read as {suffix[1:].upper()}: {exc}".splitlines()[0]) from None
-    if isinstance(loaded, trimesh.Scene):
-        geoms = [g for g in loaded.dump(concatenate=False) if isinstance(g, trimesh.Trimesh)]
-        if not geoms:
-            raise MeshError(f"{name}: the file holds no triangle mesh")
-        loaded = trimesh.util.concatenate(geoms) if len(geoms) > 1 else geoms[0]
-    if not isinstance(loaded, trimesh.Trimesh):
-        raise MeshError(f"{name}: the file holds no triangle mesh")
-    positions = np.asarray(loaded.vertices, dtype=np.float64)
-    faces = np.asarray(loaded.faces, dtype=np.int64)
-    return checked_mesh(positions, faces, name=name)
 
 
 def _soup_welded(positions: np.ndarray, faces: np.ndarray, name: str) -> Mesh:

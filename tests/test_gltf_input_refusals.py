@@ -632,3 +632,108 @@ def test_a_buffer_holding_more_than_it_declares_still_reads(tmp_path, mesh, kind
     if kind == "glb":
         assert len(split_glb(src.read_bytes())[1]) == declared + 2  # padded past the declared length
     assert pmwm_codec.read_mesh(src) == pmwm_codec.read_mesh(write_gltf(tmp_path / "plain", gltf_doc(mesh)))
+
+
+# --- the geometry reader (read_mesh, encode --geometry-only) reads what the scene draws -------------------
+
+
+def test_normalized_quantized_positions_are_read_as_their_values_by_the_geometry_reader(capsys, tmp_path, mesh):
+    """KHR_mesh_quantization positions (``normalized: true`` UNSIGNED_SHORT) were read as the raw integers
+    0..65535 by read_mesh and ``encode --geometry-only``: a mesh 65535 times its size, exit 0."""
+    doc = quantized_doc(mesh, True)
+    src = write_gltf(tmp_path / "asset", doc)
+    q = np.round((mesh.positions - mesh.positions.min(0)) * 50)
+    got = pmwm_codec.read_mesh(src)
+    np.testing.assert_array_equal(got.positions, q / 65535.0)
+    np.testing.assert_array_equal(got.faces, mesh.faces)
+    status, err, out = run_encode(capsys, tmp_path, src, "--geometry-only")
+    assert status == 0, err
+    assert pmwm_codec.decode(out).positions.max() <= 1.0
+
+
+def test_a_triangle_fan_is_read_as_the_triangles_it_draws_by_the_geometry_reader(tmp_path):
+    """A TRIANGLE_FAN primitive was "the file holds no triangle mesh" for read_mesh and --geometry-only (the
+    asset encoder read it); a strip reads as the spec's formula winds it, its restarts dropped."""
+    from test_gltf_strips import FAN, STRIP, doc_of, dome_fan, oriented, spec_triangles, terrain_strips
+
+    for mode, shape in ((FAN, dome_fan), (STRIP, terrain_strips)):
+        positions, order = shape()
+        got = pmwm_codec.read_mesh(write_gltf(tmp_path / str(mode), doc_of(positions, order, mode)))
+        np.testing.assert_array_equal(got.positions, positions.astype(np.float32))
+        assert oriented(got.faces) == oriented(spec_triangles(order.tolist(), mode)) and got.cleanup == {}
+
+
+def test_an_index_count_not_a_multiple_of_3_is_named_alike_by_every_reader(capsys, tmp_path, mesh):
+    """read_mesh and --geometry-only said it in numpy's words ("cannot read as GLB: cannot reshape array of size 5
+    into shape (3)"), the asset encoder "index count 5 is not a multiple of 3": one message now."""
+    doc = gltf_doc(mesh)
+    doc["accessors"][1]["count"] = 5
+    src = write_gltf(tmp_path / "asset", doc)
+    said = "m.gltf: mesh 0 primitive 0: index count 5 is not a multiple of 3"
+    with pytest.raises(pmwm_codec.PmwError) as exc:
+        pmwm_codec.read_mesh(src)
+    assert str(exc.value) == said
+    for options in ((), ("--geometry-only",)):
+        status, err, out = run_encode(capsys, tmp_path, src, *options)
+        assert_refused(status, err, out)
+        assert err[0] == "pmw: error: " + said
+
+
+@pytest.mark.parametrize("edit", ["no nodes", "no scenes"])
+def test_a_document_without_nodes_or_scenes_reads_as_the_encoder_reads_it(tmp_path, mesh, edit):
+    """Meshes without nodes (each shown once, as stored) and nodes without a scene (every root node shown), as
+    the asset encoder and decode read them: read_mesh said "the file holds no triangle mesh"."""
+    doc = gltf_doc(mesh)
+    del doc["scenes"], doc["scene"]
+    if edit == "no nodes":
+        del doc["nodes"]
+    else:
+        doc["nodes"][0]["translation"] = [5.0, 0.0, 0.0]
+    got = pmwm_codec.read_mesh(write_gltf(tmp_path / "asset", doc))
+    shift = [0.0, 0.0, 0.0] if edit == "no nodes" else [5.0, 0.0, 0.0]
+    np.testing.assert_array_equal(got.positions, mesh.positions.astype(np.float32).astype(np.float64) + shift)
+
+
+@pytest.mark.parametrize("edit", ["empty scene", "no node shows it"])
+def test_a_scene_that_shows_no_mesh_is_named_so(tmp_path, mesh, edit):
+    doc = gltf_doc(mesh)
+    if edit == "empty scene":
+        doc["scenes"][0]["nodes"] = []
+    else:
+        del doc["nodes"][0]["mesh"]
+    with pytest.raises(pmwm_codec.PmwError, match=r"^m.gltf: the file holds no triangle mesh \(no node of its "
+                                                   r"scene shows a mesh\)$"):
+        pmwm_codec.read_mesh(write_gltf(tmp_path / "asset", doc))
+
+
+def test_points_and_lines_beside_triangles_are_left_out_with_a_note(capsys, tmp_path, mesh):
+    """A LINES primitive beside the triangles went without a word through --geometry-only."""
+    doc = gltf_doc(mesh)
+    prim = doc["meshes"][0]["primitives"][0]
+    doc["meshes"][0]["primitives"].append({"attributes": {"POSITION": 0}, "indices": 1, "mode": 1})
+    src = write_gltf(tmp_path / "asset", doc)
+    got = pmwm_codec.read_mesh(src)
+    assert got.face_count == mesh.face_count and got.cleanup == {"primitives_of_points_or_lines": 1}
+    out = tmp_path / "out.pmw"
+    assert pmwm_codec.cli.main(["encode", str(src), "-o", str(out), "--geometry-only", "-q", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert "dropped 1 primitives of points or lines" in report["notices"], report["notices"]
+    del prim["indices"]  # only lines and points: named
+    doc["meshes"][0]["primitives"][0]["mode"] = 0
+    with pytest.raises(pmwm_codec.PmwError, match=r"no triangle mesh \(its scene shows points and lines alone\)"):
+        pmwm_codec.read_mesh(write_gltf(tmp_path / "only", doc))
+
+
+def test_a_mesh_drawn_by_gpu_instancing_is_refused_by_the_geometry_reader(capsys, tmp_path, mesh):
+    """EXT_mesh_gpu_instancing draws the mesh once per instance: read once at its node, as before, the geometry was
+    not what the scene shows.  The asset encoder keeps the instances."""
+    doc = gltf_doc(mesh, extensionsUsed=["EXT_mesh_gpu_instancing"])
+    offsets = np.array([[0, 0, 0], [3, 0, 0]], "<f4").tobytes()
+    view = append_view(doc, offsets)
+    doc["accessors"].append({"bufferView": view, "componentType": 5126, "count": 2, "type": "VEC3"})
+    doc["nodes"][0]["extensions"] = {"EXT_mesh_gpu_instancing": {"attributes": {"TRANSLATION": 2}}}
+    src = write_gltf(tmp_path / "asset", doc)
+    with pytest.raises(pmwm_codec.PmwError, match=r"^m.gltf: mesh 0 is drawn by GPU instancing"):
+        pmwm_codec.read_mesh(src)
+    status, err, out = run_encode(capsys, tmp_path, src)
+    assert status == 0, err
