@@ -318,7 +318,7 @@ def read_source(path) -> tuple:
     :class:`~pmwm_codec.mesh.Mesh` :func:`~pmwm_codec.mesh.read_mesh` reads -- an OBJ's text read once for both
     (a plain OBJ's second reading had cost 1.4 s on the 437k-vertex dragon, read in 1.6); ``notices`` what the
     encoder should say of what it leaves out (normals, face colours)."""
-    from .mesh import _soup_welded, obj_arrays, obj_mesh, obj_text, read_mesh
+    from .mesh import _soup_welded, obj_arrays, obj_lines_points, obj_mesh, obj_text, read_mesh, with_obj_left_out
     from .sources import check_input_path
 
     path = os.fspath(path)
@@ -337,9 +337,12 @@ def read_source(path) -> tuple:
     if _APPEARANCE_WORDS.search(lead) is None:  # no vt, mtllib, usemtl (~0.07 s on 30 MB; ^ with re.M: 0.2)
         positions, faces, widest = obj_arrays(text, name)
         if widest < 6:  # no v record of colours either: the one parse is the mesh
-            return _soup_welded(positions, faces, name), normals
+            return with_obj_left_out(_soup_welded(positions, faces, name), lead), normals
     doc, notices = obj_document(path, text)
     if doc is not None:
+        left = obj_lines_points(lead)
+        if left:  # as the geometry reader counts them (Mesh.cleanup)
+            notices.append(f"dropped {left:,} line and point records")
         return doc, notices
     return obj_mesh(text, name), notices + normals
 

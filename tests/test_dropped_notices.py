@@ -61,3 +61,40 @@ def test_an_obj_read_as_an_asset_says_its_unreferenced_vertices_as_a_plain_one_d
         report = pmwm_codec.encode(str(tmp_path / name), str(tmp_path / (name + ".pmw")))
         assert report["vertices"] == mesh.vertex_count
         assert "dropped 7 unreferenced vertices" in report["notices"], (name, report["notices"])
+
+
+def _obj_with_lines_and_points(tmp_path, appearance: bool):
+    mesh = shapes.icosphere(1)
+    lines = ["v " + " ".join(map(repr, p)) for p in mesh.positions.tolist()]
+    if appearance:
+        lines.append("vt 0.5 0.5")
+    corner = "{}/1" if appearance else "{}"
+    lines += ["f " + " ".join(corner.format(i + 1) for i in f) for f in mesh.faces.tolist()]
+    lines += ["l 1 2 3", "p 4", "  l\t5 6", "# l 7 8 (a comment)"]
+    src = tmp_path / ("uv.obj" if appearance else "plain.obj")
+    src.write_text("\n".join(lines) + "\n")
+    return mesh, src
+
+
+def test_an_obj_s_line_and_point_records_are_said_left_out(tmp_path, capsys):
+    """``l`` (polyline) and ``p`` (point) records were dropped without a word by every OBJ reading; now counted as
+    OFF's records past its faces are: read_mesh's ``cleanup``, the encoder's note."""
+    from pmwm_codec.cli import main
+
+    for appearance in (False, True):
+        mesh, src = _obj_with_lines_and_points(tmp_path, appearance)
+        got = pmwm_codec.read_mesh(src)
+        assert got.face_count == mesh.face_count and got.cleanup == {"line_and_point_records": 3}
+        for options in ((), ("--geometry-only",)):
+            assert main(["encode", str(src), "-o", str(tmp_path / "out.pmw"), "-q", "--json", *options]) == 0
+            notices = json.loads(capsys.readouterr().out)["notices"]
+            assert "dropped 3 line and point records" in notices, (appearance, options, notices)
+
+
+def test_an_obj_of_lines_and_points_alone_is_named_so(tmp_path):
+    import pytest
+
+    (tmp_path / "wire.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nl 1 2 3 1\np 2\n")
+    with pytest.raises(pmwm_codec.PmwError, match=r"^wire.obj: the file holds no triangle mesh \(no face; 2 line "
+                                                   r"and point records \(l, p\), not read\)$"):
+        pmwm_codec.read_mesh(tmp_path / "wire.obj")
