@@ -737,3 +737,33 @@ def test_a_mesh_drawn_by_gpu_instancing_is_refused_by_the_geometry_reader(capsys
         pmwm_codec.read_mesh(src)
     status, err, out = run_encode(capsys, tmp_path, src)
     assert status == 0, err
+
+
+def _morphed(mesh, mesh_weights, node_weights=None) -> dict:
+    """``mesh`` with one morph target moving every vertex by half its position; the weights given."""
+    doc = gltf_doc(mesh)
+    view = append_view(doc, (mesh.positions * 0.5).astype("<f4").tobytes())
+    doc["accessors"].append({"bufferView": view, "componentType": 5126, "count": mesh.vertex_count, "type": "VEC3",
+                             "min": (mesh.positions * 0.5).min(0).tolist(), "max": (mesh.positions * 0.5).max(0).tolist()})
+    doc["meshes"][0]["primitives"][0]["targets"] = [{"POSITION": 2}]
+    doc["meshes"][0]["weights"] = mesh_weights
+    if node_weights is not None:
+        doc["nodes"] = [{"children": list(range(1, len(node_weights) + 1))}] + [{"mesh": 0, "weights": w}
+                                                                              for w in node_weights]
+    return doc
+
+
+@pytest.mark.parametrize("mesh_weights, node_weights, scale", [([0.0], None, 1.0), ([1.0], None, 1.5),
+                                                               ([0.0], [[0.5]], 1.25)])
+def test_morph_targets_are_applied_by_their_rest_weights_by_the_geometry_reader(tmp_path, mesh, mesh_weights,
+                                                                               node_weights, scale):
+    """A mesh whose default weights morph it was read at its base positions: not the mesh a viewer draws, exit 0."""
+    got = pmwm_codec.read_mesh(write_gltf(tmp_path / "asset", _morphed(mesh, mesh_weights, node_weights)))
+    expected = mesh.positions.astype(np.float32).astype(np.float64)
+    expected = expected + (scale - 1.0) / 0.5 * (mesh.positions * 0.5).astype(np.float32)
+    np.testing.assert_allclose(got.positions, expected, rtol=0, atol=1e-12)
+
+
+def test_a_mesh_its_nodes_morph_differently_is_refused_by_the_geometry_reader(tmp_path, mesh):
+    with pytest.raises(pmwm_codec.PmwError, match=r"^m.gltf: mesh 0 is drawn with different morph weights by its nodes"):
+        pmwm_codec.read_mesh(write_gltf(tmp_path / "asset", _morphed(mesh, [0.0], [[0.5], [1.0]])))
