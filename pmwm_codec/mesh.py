@@ -249,6 +249,11 @@ def _read_stl(path, name) -> Mesh:
         positions = np.frombuffer(data, _STL_RECORD, offset=84)["corners"].reshape(-1, 3).astype(np.float64)
     if not len(positions):
         raise MeshError(f"{name}: the file holds no triangle mesh")
+    bad = ~np.isfinite(positions).all(axis=1)
+    if bad.any():  # named by facet, as the file counts them (checked_mesh would name a vertex of the weld)
+        facets = np.unique(np.flatnonzero(bad) // 3)
+        raise MeshError(f"{name}: {len(facets):,} facet{'s have' if len(facets) > 1 else ' has'} a NaN or infinite "
+                        f"coordinate (first: facet {int(facets[0]) + 1}, counted from 1)")
     positions, inverse = np.unique(positions, axis=0, return_inverse=True)
     return checked_mesh(positions, inverse.reshape(-1, 3), name=name)
 

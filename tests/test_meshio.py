@@ -530,3 +530,19 @@ def test_an_obj_whose_corners_name_their_records_reads_as_its_positions(tmp_path
     for name in ("one.obj", "two.obj"):
         got = pmwm_codec.read_mesh(tmp_path / name)
         assert np.array_equal(got.positions, mesh.positions) and np.array_equal(got.faces, mesh.faces), name
+
+
+@pytest.mark.parametrize("kind", ["ascii", "binary"])
+def test_an_stl_corner_of_nan_is_named_by_its_facet(tmp_path, kind):
+    """It was named by a vertex of the weld ("first at vertex 4"), a number the file does not hold."""
+    triangles = [SQUARE[0], [(1, 0, 0), (1, float("nan"), 0), (0, 1, 0)], SQUARE[1]]
+    if kind == "ascii":
+        (tmp_path / "m.stl").write_text("solid m\n" + _facets(*triangles) + "endsolid m\n")
+    else:
+        data = bytes(80) + (3).to_bytes(4, "little")
+        for t in triangles:
+            data += np.array([0, 0, 1, *np.asarray(t, float).ravel()], "<f4").tobytes() + bytes(2)
+        (tmp_path / "m.stl").write_bytes(data)
+    with pytest.raises(mesh_mod.MeshError, match=r"^m.stl: 1 facet has a NaN or infinite coordinate \(first: facet 2, "
+                                                 r"counted from 1\)$"):
+        pmwm_codec.read_mesh(tmp_path / "m.stl")
