@@ -322,8 +322,8 @@ def _check_ascii_stl(path, name, data: bytes | None = None) -> None:
     if end < 0:
         raise InputFormatError(f"{name}: an ASCII STL without its closing 'endsolid' (cut short)")
     if _STL_FACET.search(data, end) is not None:
-        raise InputFormatError(f"{name}: an ASCII STL with facets after its closing 'endsolid' (a solid must open "
-                               "with 'solid')")
+        raise InputFormatError(f"{name}: an ASCII STL with facets after its last 'endsolid' (a solid cut short, or "
+                               "facets outside any solid)")
 
 
 def _read_ascii_stl(path, name) -> np.ndarray:

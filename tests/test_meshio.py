@@ -422,10 +422,13 @@ def test_an_ascii_stl_of_several_solids_and_crlf_reads_every_solid(tmp_path):
 
 
 def test_facets_after_the_closing_endsolid_are_refused_not_dropped(tmp_path):
-    """A facet after ``endsolid`` and before any ``solid`` was left out without a word."""
-    (tmp_path / "m.stl").write_text("solid m\n" + _facets(SQUARE[0]) + "endsolid m\n" + _facets(SQUARE[1]))
-    with pytest.raises(mesh_mod.InputFormatError, match=r"^m.stl: an ASCII STL with facets after its closing 'endsolid'"):
-        pmwm_codec.read_mesh(tmp_path / "m.stl")
+    """A facet after ``endsolid`` and before any ``solid``, or in a second solid cut short, was left out without a
+    word."""
+    for tail in ("", "solid n\n"):
+        (tmp_path / "m.stl").write_text("solid m\n" + _facets(SQUARE[0]) + "endsolid m\n" + tail + _facets(SQUARE[1]))
+        with pytest.raises(mesh_mod.InputFormatError, match=r"^m.stl: an ASCII STL with facets after its last "
+                                                            r"'endsolid' \(a solid cut short, or facets outside any solid\)$"):
+            pmwm_codec.read_mesh(tmp_path / "m.stl")
 
 
 def test_a_binary_stl_whose_header_reads_as_ascii_keywords_is_read_as_binary(tmp_path):
