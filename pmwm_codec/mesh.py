@@ -555,12 +555,15 @@ def _read_gltf(path, name) -> Mesh:
                 order = (read_accessor(gltf, buffers, prim["indices"]).reshape(-1) if "indices" in prim
                          else np.arange(len(positions), dtype=np.int64))
                 if mode == TRIANGLES and len(order) % 3:
-                    raise MeshError(f"{where}: index count {len(order)} is not a multiple of 3")
+                    raise MeshError(f"{where}: " + (f"index count {len(order)} is not a multiple of 3" if "indices" in prim
+                                                    else f"vertex count {len(order)} (no indices: every three "
+                                                    "vertices a triangle) is not a multiple of 3"))
                 faces = triangle_list(order, mode)
                 if mode == TRIANGLE_STRIP:  # a strip's restarts (an index repeated to join two strips) draw nothing
                     faces = faces[~two_alike(faces)]
             if len(faces) and (faces.min() < 0 or faces.max() >= len(positions)):
-                raise MeshError(f"{where}: face index {int(faces.max())} out of range for {len(positions)} vertices")
+                raise MeshError(f"{where}: face index {int(faces.max())} out of range for {len(positions)} vertices "
+                                "(counted from 0)")  # (as the asset encoder says it: checked_mesh's words)
             parts.append((np.asarray(positions, np.float64), np.asarray(faces, np.int64)))
             frames.append(matrices)
     if not any(len(f) and len(m) for (_, f), m in zip(parts, frames)):

@@ -663,20 +663,29 @@ def test_a_triangle_fan_is_read_as_the_triangles_it_draws_by_the_geometry_reader
         assert oriented(got.faces) == oriented(spec_triangles(order.tolist(), mode)) and got.cleanup == {}
 
 
-def test_an_index_count_not_a_multiple_of_3_is_named_alike_by_every_reader(capsys, tmp_path, mesh):
+def test_an_index_count_not_a_multiple_of_3_or_out_of_range_is_named_alike_by_every_reader(capsys, tmp_path, mesh):
     """read_mesh and --geometry-only said it in numpy's words ("cannot read as GLB: cannot reshape array of size 5
-    into shape (3)"), the asset encoder "index count 5 is not a multiple of 3": one message now."""
+    into shape (3)"), the asset encoder "index count 5 is not a multiple of 3": one message now; a primitive without
+    indices is named by its vertex count (it was "index count 41"), an index past the vertices alike too."""
     doc = gltf_doc(mesh)
     doc["accessors"][1]["count"] = 5
-    src = write_gltf(tmp_path / "asset", doc)
-    said = "m.gltf: mesh 0 primitive 0: index count 5 is not a multiple of 3"
-    with pytest.raises(pmwm_codec.PmwError) as exc:
-        pmwm_codec.read_mesh(src)
-    assert str(exc.value) == said
-    for options in ((), ("--geometry-only",)):
-        status, err, out = run_encode(capsys, tmp_path, src, *options)
-        assert_refused(status, err, out)
-        assert err[0] == "pmw: error: " + said
+    unindexed = gltf_doc(mesh)
+    del unindexed["meshes"][0]["primitives"][0]["indices"]
+    unindexed["accessors"][0]["count"] = 41
+    out_of_range = gltf_doc(mesh)
+    out_of_range["accessors"][0]["count"] = 10
+    for edited, said in ((doc, "index count 5 is not a multiple of 3"),
+                         (unindexed, "vertex count 41 (no indices: every three vertices a triangle) is not a multiple of 3"),
+                         (out_of_range, f"face index {mesh.faces.max()} out of range for 10 vertices (counted from 0)")):
+        src = write_gltf(tmp_path / "asset", edited)
+        said = "m.gltf: mesh 0 primitive 0: " + said
+        with pytest.raises(pmwm_codec.PmwError) as exc:
+            pmwm_codec.read_mesh(src)
+        assert str(exc.value) == said
+        for options in ((), ("--geometry-only",)):
+            status, err, out = run_encode(capsys, tmp_path, src, *options)
+            assert_refused(status, err, out)
+            assert err[0] == "pmw: error: " + said
 
 
 @pytest.mark.parametrize("edit", ["no nodes", "no scenes"])
