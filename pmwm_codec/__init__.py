@@ -186,11 +186,17 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
         raise exc.as_given(*given) from None
     key_path = None if key_slot is None else key_slot.path
     cleanup = {} if mesh is None else mesh.cleanup
-    dropped = [f"dropped {v} {k.replace('_', ' ')}" for k, v in cleanup.items()]
+    dropped = [_CLEANUP_SAID[k].format(v) if k in _CLEANUP_SAID else f"dropped {v} {k.replace('_', ' ')}"
+               for k, v in cleanup.items()]
     doc = replace(report, notices=notices + report.notices + dropped, key_path=key_path).as_json()
     if options.get("owner_id") is not None and report.key is not None and report.key.owner_id is not None:
         doc["owner_id"] = report.key.owner_hex  # the owner layer is in the file
     return doc
+
+
+#: How the encoder says a :attr:`Mesh.cleanup` count that is no "dropped k <what>".
+_CLEANUP_SAID = {"gpu_instanced_meshes": "{} mesh(es) drawn by GPU instancing (EXT_mesh_gpu_instancing), whose "
+                                         "instances the geometry reader does not place: every mesh read once, as stored"}
 
 
 def _key_watermark(key, owner_id=None) -> tuple:

@@ -41,8 +41,8 @@ class Mesh:
     faces: np.ndarray
     attributes: dict = field(default_factory=dict)
     #: What :func:`checked_mesh` dropped: ``{"degenerate_faces": k, "unreferenced_vertices": j}``, and what the
-    #: file reader left out (``duplicate_soup_vertices``, a glTF's ``primitives_of_points_or_lines``, an OBJ's
-    #: ``line_and_point_records``): counts, each said by the encoder.
+    #: file reader left out (``duplicate_soup_vertices``, a glTF's ``primitives_of_points_or_lines`` and
+    #: ``gpu_instanced_meshes``, an OBJ's ``line_and_point_records``): counts, each said by the encoder.
     cleanup: dict = field(default_factory=dict)
 
     @property
@@ -509,9 +509,10 @@ def _read_gltf(path, name) -> Mesh:
     Primitives of points and lines in a shown mesh are left out and counted in ``cleanup``
     (``primitives_of_points_or_lines``).  Morph targets are applied by the default weights (a node's
     ``weights``, else its mesh's: the rest pose a viewer draws; :func:`_morph_weights`); skins are not (the
-    stored, bind-pose positions).  MeshError (named by primitive) for a TRIANGLES index count that is not a multiple of 3, as
-    the asset encoder says it, for a mesh drawn by ``EXT_mesh_gpu_instancing`` (its instances are not placed
-    here: the asset encoder keeps them), and for a scene that shows no triangle."""
+    stored, bind-pose positions).  MeshError (named by primitive) for a TRIANGLES index count that is not a
+    multiple of 3, as the asset encoder says it, and for a scene that shows no triangle.  A scene that draws a mesh by
+    ``EXT_mesh_gpu_instancing`` (whose instances are not placed here; the asset encoder keeps them) is read as
+    decode writes it to OBJ: each shown mesh once, as stored, counted in ``cleanup`` (``gpu_instanced_meshes``)."""
     from .format.document import load_document, read_accessor
     from .format.gltf import DRACO_EXTENSION, TRIANGLE_MODES, TRIANGLE_STRIP, TRIANGLES, placements_by_mesh, \
         scene_mesh, triangle_list
@@ -522,12 +523,12 @@ def _read_gltf(path, name) -> Mesh:
         shown = placements_by_mesh(gltf)
     else:  # no node: each mesh once, where it is stored (as the encoder and decode read such a document)
         shown = {mi: [np.eye(4)] for mi in range(len(meshes))}
+    instanced = sum(any(m is None for m in matrices) for matrices in shown.values())  # (transforms are checked)
+    if instanced:  # as decode writes such a scene to OBJ (stream.asset.scene_as_shown): each mesh once, as stored
+        shown = {mi: [np.eye(4)] for mi in shown}
     parts, frames, lines = [], [], 0
     for mi in sorted(shown):
         matrices = shown[mi]
-        if any(m is None for m in matrices):  # (check_document has checked every node transform)
-            raise MeshError(f"{name}: mesh {mi} is drawn by GPU instancing (EXT_mesh_gpu_instancing), whose "
-                            "instances the geometry reader does not place (encode it without --geometry-only)")
         for pi, prim in enumerate(meshes[mi].get("primitives", [])):
             where = f"{name}: mesh {mi} primitive {pi}"
             mode = prim.get("mode", TRIANGLES)
@@ -555,9 +556,9 @@ def _read_gltf(path, name) -> Mesh:
                 order = (read_accessor(gltf, buffers, prim["indices"]).reshape(-1) if "indices" in prim
                          else np.arange(len(positions), dtype=np.int64))
                 if mode == TRIANGLES and len(order) % 3:
-                    raise MeshError(f"{where}: " + (f"index count {len(order)} is not a multiple of 3" if "indices" in prim
-                                                    else f"vertex count {len(order)} (no indices: every three "
-                                                    "vertices a triangle) is not a multiple of 3"))
+                    counted = "index count" if "indices" in prim else "vertex count"
+                    raise MeshError(f"{where}: {counted} {len(order)} " + ("" if "indices" in prim else
+                                    "(no indices: every three vertices a triangle) ") + "is not a multiple of 3")
                 faces = triangle_list(order, mode)
                 if mode == TRIANGLE_STRIP:  # a strip's restarts (an index repeated to join two strips) draw nothing
                     faces = faces[~two_alike(faces)]
@@ -575,6 +576,8 @@ def _read_gltf(path, name) -> Mesh:
     mesh = checked_mesh(positions, faces, name=name)
     if lines:
         mesh.cleanup["primitives_of_points_or_lines"] = lines
+    if instanced:
+        mesh.cleanup["gpu_instanced_meshes"] = instanced
     return mesh
 
 

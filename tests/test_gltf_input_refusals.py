@@ -733,17 +733,23 @@ def test_points_and_lines_beside_triangles_are_left_out_with_a_note(capsys, tmp_
         pmwm_codec.read_mesh(write_gltf(tmp_path / "only", doc))
 
 
-def test_a_mesh_drawn_by_gpu_instancing_is_refused_by_the_geometry_reader(capsys, tmp_path, mesh):
-    """EXT_mesh_gpu_instancing draws the mesh once per instance: read once at its node, as before, the geometry was
-    not what the scene shows.  The asset encoder keeps the instances."""
+def test_a_mesh_drawn_by_gpu_instancing_is_read_once_as_stored_with_a_note(capsys, tmp_path, mesh):
+    """EXT_mesh_gpu_instancing draws the mesh once per instance, which the geometry reader does not place: it was
+    read once at its node without a word; it is read as decode writes such a scene to OBJ (each mesh once, as
+    stored), and the encoder says so.  The asset encoder keeps the instances."""
     doc = gltf_doc(mesh, extensionsUsed=["EXT_mesh_gpu_instancing"])
-    offsets = np.array([[0, 0, 0], [3, 0, 0]], "<f4").tobytes()
-    view = append_view(doc, offsets)
+    view = append_view(doc, np.array([[0, 0, 0], [3, 0, 0]], "<f4").tobytes())
     doc["accessors"].append({"bufferView": view, "componentType": 5126, "count": 2, "type": "VEC3"})
-    doc["nodes"][0]["extensions"] = {"EXT_mesh_gpu_instancing": {"attributes": {"TRANSLATION": 2}}}
+    doc["nodes"][0].update(translation=[0.0, 5.0, 0.0],
+                           extensions={"EXT_mesh_gpu_instancing": {"attributes": {"TRANSLATION": 2}}})
     src = write_gltf(tmp_path / "asset", doc)
-    with pytest.raises(pmwm_codec.PmwError, match=r"^m.gltf: mesh 0 is drawn by GPU instancing"):
-        pmwm_codec.read_mesh(src)
+    got = pmwm_codec.read_mesh(src)
+    np.testing.assert_array_equal(got.positions, mesh.positions.astype(np.float32))
+    assert got.cleanup == {"gpu_instanced_meshes": 1}
+    out = tmp_path / "out.pmw"
+    assert pmwm_codec.cli.main(["encode", str(src), "-o", str(out), "--geometry-only", "-q", "--json"]) == 0
+    assert "1 mesh(es) drawn by GPU instancing (EXT_mesh_gpu_instancing), whose instances the geometry reader does " \
+           "not place: every mesh read once, as stored" in json.loads(capsys.readouterr().out)["notices"]
     status, err, out = run_encode(capsys, tmp_path, src)
     assert status == 0, err
 

@@ -322,7 +322,8 @@ def _accessor_arrays(gltf, buffers, prim) -> tuple:
     mode = prim.get("mode", TRIANGLES)
     if mode == TRIANGLES and len(order) % 3:
         raise MeshError(f"index count {len(order)} is not a multiple of 3" if "indices" in prim else
-                        f"vertex count {len(order)} (no indices: every three vertices a triangle) is not a multiple of 3")
+                        f"vertex count {len(order)} (no indices: every three vertices a triangle) is not a "
+                        "multiple of 3")
     faces = triangle_list(order, mode)
     if mode == TRIANGLE_STRIP:  # a strip's restarts (an index repeated to join two strips) draw nothing
         faces = faces[~two_alike(faces)]
