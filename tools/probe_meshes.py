@@ -328,7 +328,8 @@ class Probe:
         * ``count-mismatch``: the progressive primitives of the decoded GLB hold the vertex and face
           counts the encoder reported.
         * The scene (``roundtrip-counts``, ``roundtrip-positions``): ``pmwm_codec.read_mesh`` of the
-          input (the default scene's triangle primitives placed by their nodes, one mesh) against the decoded OBJ (the scene as ``pmw decode`` shows it).  Counts: the faces not
+          input (the default scene's triangle primitives placed by their nodes, one mesh) against the
+          decoded OBJ (the scene as ``pmw decode`` shows it).  Counts: the faces not
           degenerate by index and the vertices they use are equal (at most the input's when the
           encoder welded a soup's duplicates, a notice).  Positions: every decoded vertex lies within
           ``tol`` (max norm) of some input vertex and every input vertex within ``tol`` of some decoded
@@ -337,8 +338,8 @@ class Probe:
           ``grid.step``; a node's linear part ``L`` maps that box into one of ``|L|_inf`` (largest row
           sum of absolute values) times as wide, so ``tol`` is the largest such bound over the
           progressive primitives and their showings (the matrices are the library's
-          ``placements_by_mesh``: only the bound depends on them), plus float32 rounding of the grid points (4 ulp of the grid's extent, scaled by
-          ``|L|_inf``) and the OBJ's 9 digits.  This proves each side is within ``tol`` of the other as
+          ``placements_by_mesh``: only the bound depends on them), plus float32 rounding of the grid
+          points (4 ulp of the grid's extent, scaled by ``|L|_inf``) and the OBJ's 9 digits.  This proves each side is within ``tol`` of the other as
           point sets (a vertex moved further, dropped or added is found; a face's corners swapped among
           nearby vertices is not).  Not sound, so skipped with the reason in ``roundtrip_skipped``
           (not a finding): a Draco strip or fan, morph targets with rest weights, GPU
@@ -410,7 +411,8 @@ class Probe:
             why = "the input has a Draco-compressed strip or fan, which read_mesh does not read"
         elif any(p.get("targets") for p in prims) and any(w for holder in in_meshes + in_doc.get("nodes", [])
                                                             for w in (holder.get("weights") or [])):
-            why = "the input's morph targets have rest weights (read_mesh poses them, decode's OBJ keeps the stored positions)"
+            why = ("the input's morph targets have rest weights (read_mesh poses them, decode's OBJ keeps the stored "
+                   "positions)")
         elif any("not placed by the scene's nodes" in n for n in notices):
             why = "the decoded OBJ holds the primitives as stored (decode's notice)"
         if why is None:

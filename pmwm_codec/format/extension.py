@@ -148,7 +148,7 @@ def chunk_entries(ext: dict, base_vertices: int) -> list:
         entry["splits"], previous = entry["vertexCount"] - previous, entry["vertexCount"]
         if entry["splits"] < 0:
             over = next((e for e in entries if max(e["splits"], e["vertexCount"]) > MAX_VERTICES), None)
-            if over is not None:  # an earlier chunk's count is over the limit: that refusal first (chunk by chunk, as JavaScript)
+            if over is not None:  # an earlier chunk's count over the limit: that refusal first (chunk by chunk, as JS)
                 raise LimitError(f"{EXTENSION_NAME}: chunks: a chunk's vertexCount {over['vertexCount']} (splits "
                                  f"{over['splits']}) exceeds the limit {MAX_VERTICES}")
             raise FormatError(f"{EXTENSION_NAME}: chunks: vertexCounts[{k}] is smaller than the count before it")
