@@ -472,10 +472,6 @@ def read_mesh(path: str | bytes | os.PathLike[str]) -> Mesh:
     return _read_gltf(path, name)
 
 
-#: glTF 2.0's primitive modes that draw points and lines (3.7.2.1).
-_POINT_AND_LINE_MODES = {0: "POINTS", 1: "LINES", 2: "LINE_LOOP", 3: "LINE_STRIP"}
-
-
 def _morph_weights(gltf: dict, mi: int, targets: int, name: str) -> list:
     """The ``targets`` morph weights (floats) mesh ``mi`` of ``gltf`` is drawn with at rest: its nodes' ``weights``
     (each node's, else the mesh's; zeros without either); MeshError when its nodes give it different weights (the
@@ -513,9 +509,8 @@ def _read_gltf(path, name) -> Mesh:
     multiple of 3, as the asset encoder says it, and for a scene that shows no triangle.  A scene that draws a mesh by
     ``EXT_mesh_gpu_instancing`` (whose instances are not placed here; the asset encoder keeps them) is read as
     decode writes it to OBJ: each shown mesh once, as stored, counted in ``cleanup`` (``gpu_instanced_meshes``)."""
-    from .format.document import load_document, read_accessor
-    from .format.gltf import DRACO_EXTENSION, TRIANGLE_MODES, TRIANGLE_STRIP, TRIANGLES, placements_by_mesh, \
-        scene_mesh, triangle_list
+    from .format.document import load_document, read_accessor, triangle_faces
+    from .format.gltf import DRACO_EXTENSION, TRIANGLE_MODES, TRIANGLES, placements_by_mesh, scene_mesh
 
     gltf, buffers = load_document(path)
     meshes = gltf.get("meshes", [])
@@ -553,15 +548,10 @@ def _read_gltf(path, name) -> Mesh:
                 for w, target in zip(weights, prim.get("targets", [])):
                     if w != 0.0 and "POSITION" in target:  # glTF 2.0 3.7.2.2: base + sum of weight x displacement
                         positions = positions + w * read_accessor(gltf, buffers, target["POSITION"])[:, :3]
-                order = (read_accessor(gltf, buffers, prim["indices"]).reshape(-1) if "indices" in prim
-                         else np.arange(len(positions), dtype=np.int64))
-                if mode == TRIANGLES and len(order) % 3:
-                    counted = "index count" if "indices" in prim else "vertex count"
-                    raise MeshError(f"{where}: {counted} {len(order)} " + ("" if "indices" in prim else
-                                    "(no indices: every three vertices a triangle) ") + "is not a multiple of 3")
-                faces = triangle_list(order, mode)
-                if mode == TRIANGLE_STRIP:  # a strip's restarts (an index repeated to join two strips) draw nothing
-                    faces = faces[~two_alike(faces)]
+                try:
+                    faces = triangle_faces(gltf, buffers, prim, len(positions))
+                except MeshError as exc:
+                    raise MeshError(f"{where}: {exc}") from None
             if len(faces) and (faces.min() < 0 or faces.max() >= len(positions)):
                 raise MeshError(f"{where}: face index {int(faces.max())} out of range for {len(positions)} vertices "
                                 "(counted from 0)")  # (as the asset encoder says it: checked_mesh's words)

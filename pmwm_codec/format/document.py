@@ -41,11 +41,11 @@ from ..constants import (
     MAX_JSON_BYTES,
     MAX_RESOURCE_BYTES,
 )
-from ..errors import InputFormatError
+from ..errors import InputFormatError, MeshError
 from ..sources import read_regular_file
 from .glb import GLTF_1_ADVICE, split_glb
 from .gltf import (COMPONENT_DTYPES, COMPONENT_NAMES, DRACO_EXTENSION, FLOAT, INDEX_DTYPES, NORMALIZE_DIVISORS,
-                   TRIANGLE_MODES, TRIANGLES, TYPE_WIDTH, check_finite_numbers, check_json_depth, element_rows,
+                   TRIANGLE_MODES, TRIANGLE_STRIP, TRIANGLES, TYPE_WIDTH, check_finite_numbers, check_json_depth, element_rows,
                    gltf_integers, named, shown_value, triangle_list, uint, view_bytes)
 from .layout import CHUNK_HEADER_SIZE, CHUNK_TYPE_JSON, GLB_HEADER_SIZE, GLB_MAGIC, padded
 from .meshopt import EXTENSIONS as MESHOPT_EXTENSIONS
@@ -853,6 +853,25 @@ def primitive_triangles(gltf: dict, buffers, prim: dict, what: str) -> tuple:
     if len(faces) and (faces.min() < 0 or faces.max() >= len(positions)):
         raise InputFormatError(f"{what}: an index past its {len(positions)} vertices")
     return np.asarray(positions, np.float64), np.asarray(faces, np.int64)
+
+
+def triangle_faces(gltf: dict, buffers, prim: dict, n: int) -> np.ndarray:
+    """(m, 3) int64: the triangles the primitive ``prim`` of ``n`` vertices draws, as the encoders read it (its
+    ``indices``, or the vertices in order; strips and fans as glTF 2.0 3.7.2.1 winds them, a strip's restarts --
+    an index repeated to join two strips -- dropped: they draw nothing); MeshError for a TRIANGLES primitive
+    whose index (or vertex) count is not a multiple of 3.  Indices past the vertices are the caller's."""
+    from ..progressive.topology import two_alike
+
+    order = read_accessor(gltf, buffers, prim["indices"]).reshape(-1) if "indices" in prim else np.arange(n)
+    mode = prim.get("mode", TRIANGLES)
+    if mode == TRIANGLES and len(order) % 3:
+        raise MeshError(f"index count {len(order)} is not a multiple of 3" if "indices" in prim else
+                        f"vertex count {len(order)} (no indices: every three vertices a triangle) is not a "
+                        "multiple of 3")
+    faces = triangle_list(order, mode)
+    if mode == TRIANGLE_STRIP:
+        faces = faces[~two_alike(faces)]
+    return np.asarray(faces, np.int64)
 
 
 def _bounded_count(holder: dict, key: str, what: str) -> int:

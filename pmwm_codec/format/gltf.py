@@ -41,6 +41,8 @@ TRIANGLES = 4
 #: primitive modes also drawn as triangles (glTF 2.0, 3.7.2.1), and the three together.
 TRIANGLE_STRIP, TRIANGLE_FAN = 5, 6
 TRIANGLE_MODES = (TRIANGLES, TRIANGLE_STRIP, TRIANGLE_FAN)
+#: glTF 2.0's primitive modes that draw points and lines (3.7.2.1), by name.
+POINT_AND_LINE_MODES = {0: "POINTS", 1: "LINES", 2: "LINE_LOOP", 3: "LINE_STRIP"}
 
 DRACO_EXTENSION = "KHR_draco_mesh_compression"
 

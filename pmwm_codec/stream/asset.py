@@ -61,7 +61,7 @@ import numpy as np
 
 from ..constants import EXTENSION_NAME
 from ..errors import DegenerateMeshError, FormatError, InputFormatError, MeshError
-from ..format.document import as_declared, primitive_triangles, view_sites
+from ..format.document import as_declared, primitive_triangles, triangle_faces, view_sites
 from ..format.document import (check_document, is_progressive, label_images, load_document, progressive_refusal,
                                read_accessor, repack)
 from ..format.document import strip_image_profiles as _strip_profiles
@@ -72,8 +72,8 @@ from ..format.gltf import (
     DRACO_EXTENSION,
     ELEMENT_ARRAY_BUFFER,
     FLOAT,
+    POINT_AND_LINE_MODES,
     TRIANGLE_MODES,
-    TRIANGLE_STRIP,
     TRIANGLES,
     UNSIGNED_INT,
     BufferBuilder,
@@ -81,7 +81,6 @@ from ..format.gltf import (
     item as gltf_item,
     forget_extension,
     place,
-    triangle_list,
     placed_by_nodes,
     placements_by_mesh,
     progressive_placements,
@@ -91,7 +90,6 @@ from ..format.gltf import (
     view_bytes,
 )
 from ..mesh import Mesh, checked_mesh, weld_duplicates, weld_soup
-from ..progressive.topology import two_alike
 from ..http import read_declared
 from .cut import data_not_arrived
 from .decoder import StreamDecoder
@@ -209,13 +207,9 @@ def _accessors_outside_meshes(gltf: dict) -> set:
     return used
 
 
-#: glTF 2.0's modes that draw points and lines (3.7.2.1), named in a notice.
-_POINT_AND_LINE_MODES = {0: "POINTS", 1: "LINES", 2: "LINE_LOOP", 3: "LINE_STRIP"}
-
-
 def _why_not(prim: dict):
     if prim.get("mode", TRIANGLES) not in TRIANGLE_MODES:
-        shown = _POINT_AND_LINE_MODES.get(prim.get("mode"))
+        shown = POINT_AND_LINE_MODES.get(prim.get("mode"))
         return f"mode {prim.get('mode')}{f' ({shown})' if shown else ''} does not draw triangles"
     if prim.get("mode", TRIANGLES) != TRIANGLES and DRACO_EXTENSION in (prim.get("extensions") or {}):
         return f"a Draco-compressed strip or fan (mode {prim['mode']}) is not made progressive"  # which order its
@@ -317,16 +311,7 @@ def _accessor_arrays(gltf, buffers, prim) -> tuple:
     """``(positions, faces (m, 3), {semantic: values})`` of a plain primitive, unchecked."""
     attrs = prim["attributes"]
     positions = read_accessor(gltf, buffers, attrs["POSITION"]).astype(np.float64)
-    n = len(positions)
-    order = read_accessor(gltf, buffers, prim["indices"]).reshape(-1) if "indices" in prim else np.arange(n)
-    mode = prim.get("mode", TRIANGLES)
-    if mode == TRIANGLES and len(order) % 3:
-        raise MeshError(f"index count {len(order)} is not a multiple of 3" if "indices" in prim else
-                        f"vertex count {len(order)} (no indices: every three vertices a triangle) is not a "
-                        "multiple of 3")
-    faces = triangle_list(order, mode)
-    if mode == TRIANGLE_STRIP:  # a strip's restarts (an index repeated to join two strips) draw nothing
-        faces = faces[~two_alike(faces)]
+    faces = triangle_faces(gltf, buffers, prim, len(positions))
     extra = {}
     for semantic, idx in attrs.items():
         if semantic == "POSITION":

@@ -15,7 +15,7 @@ import os
 
 from ..errors import OptionError
 from ..format.glb import split_glb
-from ..format.gltf import TRIANGLE_MODES, TRIANGLES
+from ..format.gltf import POINT_AND_LINE_MODES, TRIANGLE_MODES, TRIANGLES
 from ..format.reader import read_header
 from ..http import as_source, is_url, stream_end
 from ..meshexport import progressive_meshes, scene_parts, shows_appearance, sidecar_paths, write_scene
@@ -104,10 +104,6 @@ def decode_to(src, dst, chunks: int | None = None, geometry_only: bool = False) 
             "bytes_read": int(end.bytes_read)}
 
 
-#: glTF primitive modes that draw no triangles, by name.
-_POINT_AND_LINE_MODES = {0: "POINTS", 1: "LINES", 2: "LINE_LOOP", 3: "LINE_STRIP"}
-
-
 def _points_and_lines_left_out(gltf, suffix: str) -> list:
     """A notice naming the primitives of the document ``gltf`` that draw points or lines (which the ``.pmw``
     passes through, and a ``.glb`` / ``.gltf`` output keeps): an OBJ, PLY, STL or OFF output holds the scene's
@@ -116,8 +112,8 @@ def _points_and_lines_left_out(gltf, suffix: str) -> list:
     for mi, mesh in enumerate((gltf or {}).get("meshes", []) if isinstance(gltf, dict) else []):
         for pi, prim in enumerate(mesh.get("primitives", []) if isinstance(mesh, dict) else []):
             mode = prim.get("mode", TRIANGLES) if isinstance(prim, dict) else TRIANGLES
-            if mode in _POINT_AND_LINE_MODES:
-                named.append(f"mesh {mi} primitive {pi} ({_POINT_AND_LINE_MODES[mode]})")
+            if mode in POINT_AND_LINE_MODES:
+                named.append(f"mesh {mi} primitive {pi} ({POINT_AND_LINE_MODES[mode]})")
     if not named:
         return []
     shown = ", ".join(named[:3]) + (f" and {len(named) - 3} more" if len(named) > 3 else "")
