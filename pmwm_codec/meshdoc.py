@@ -69,6 +69,11 @@ class Material:
     normal_texture: int | None = None
     #: glTF's metallicFactor: 0 for a mesh file's material; a decoded asset's own (:mod:`pmwm_codec.meshexport`).
     metallic: float = 0.0
+    #: glTF's emissiveFactor (times KHR_materials_emissive_strength's emissiveStrength), linear RGB; and the
+    #: index of its emissiveTexture: a decoded asset's own (:mod:`pmwm_codec.meshexport`, an MTL's ``Ke`` /
+    #: ``map_Ke``); a mesh file's material emits nothing.
+    emissive: tuple = (0.0, 0.0, 0.0)
+    emissive_texture: int | None = None
     #: The file names an MTL gives for the two textures, read (into ``texture`` / ``normal_texture``) only
     #: for the materials some face uses.
     texture_file: str | None = None

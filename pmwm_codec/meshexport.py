@@ -10,10 +10,10 @@ node that shows it (positions by the world matrix, normals by its inverse
 transpose, the winding reversed under a mirroring one), as :class:`Showing` s of
 :class:`~pmwm_codec.meshdoc.Part` s, with the materials mapped onto :class:`~pmwm_codec.meshdoc.Material` (the
 base colour, its alpha where ``alphaMode`` blends (where it masks: 1 or 0, as the alpha reaches ``alphaCutoff`` or
-not, a mask being opaque where drawn), the roughness, the base colour and normal textures)
-and the images those use.  What such a file cannot hold (another texture set than the first, a texture
-transform, metallic-roughness, occlusion and emissive textures; in a PLY the materials themselves) is left out
-with a notice.
+not, a mask being opaque where drawn), the roughness, the emission, the base colour, normal and emissive
+textures) and the images those use.  What such a file cannot hold (another texture set than the first, a texture
+transform, metallic-roughness and occlusion textures, a material's ``doubleSided``; in a PLY the materials
+themselves) is left out with a notice.
 
 :func:`write_scene` writes the files as one set (:func:`~pmwm_codec.atomic.write_set`: all or none):
 
@@ -25,8 +25,11 @@ with a notice.
     ``f p/t/n`` records per part (``p``, ``p/t``, ``p//n`` as the part has them);
 ``X.mtl``
     one ``newmtl`` per material used: ``Kd`` (base colour), ``d`` (alpha), ``Ns`` (``1000 (1 - roughness)^2``,
-    the inverse of the reader's mapping), ``Pr`` / ``Pm`` (the PBR extension Blender reads), ``map_Kd`` and
-    ``map_Bump``;
+    the inverse of the reader's mapping), ``Pr`` / ``Pm`` (the PBR extension Blender reads), ``map_Kd``,
+    ``map_Bump``, and, for a material that emits light, ``Ke`` (``emissiveFactor`` times
+    ``KHR_materials_emissive_strength``) and ``map_Ke`` (``emissiveTexture``).  ``Kd`` and ``Ke`` hold glTF's
+    linear factors as they are (as Blender's importer takes them, and as :mod:`pmwm_codec.meshdoc` reads ``Kd``
+    back; three.js's MTLLoader takes them as sRGB);
 ``X.ply``
     binary little-endian, one vertex per glTF vertex (a PLY vertex has one value of each property): ``x y z``,
     then ``nx ny nz`` (when every part has normals), ``s t`` (``u, 1 - v``; 0 where a part has none) and
@@ -256,15 +259,28 @@ def _materials(gltf: dict, buffers, written: list, notices: list) -> tuple:
                        metallic=_factor(pbr, "metallicFactor", 1.0, where))
         out.texture = image_of(pbr.get("baseColorTexture"), f"material {name}'s base colour texture")
         out.normal_texture = image_of(mat.get("normalTexture"), f"material {name}'s normal texture")
+        out.emissive = tuple(_emission(mat, f"materials[{mi}]"))
+        out.emissive_texture = image_of(mat.get("emissiveTexture"), f"material {name}'s emissive texture")
         for holder, key, what in ((pbr, "metallicRoughnessTexture", "metallic-roughness texture"),
-                                  (mat, "occlusionTexture", "occlusion texture"),
-                                  (mat, "emissiveTexture", "emissive texture")):
+                                  (mat, "occlusionTexture", "occlusion texture")):
             if key in holder:
                 left.add(f"material {name}'s {what} is left out: an MTL has no place for it")
+        if mat.get("doubleSided") is True:
+            left.add(f"material {name} is double-sided (doubleSided): an MTL cannot say so, and a viewer that culls "
+                     "back faces (three.js) hides its inside (decode to .glb to keep it)")
         material_map[mi] = len(materials)
         materials.append(out)
     notices.extend(sorted(left))
     return materials, images, material_map
+
+
+def _emission(mat: dict, what: str) -> list:
+    """The light a glTF material ``mat`` emits: its ``emissiveFactor`` (linear RGB, default black) times its
+    ``KHR_materials_emissive_strength`` ``emissiveStrength`` (default 1), as a viewer draws it."""
+    factor = _factor(mat, "emissiveFactor", [0.0, 0.0, 0.0], what)
+    strength = _object(_object(mat, "extensions", what), "KHR_materials_emissive_strength", f"{what}.extensions")
+    scale = _factor(strength, "emissiveStrength", 1.0, f"{what}.extensions.KHR_materials_emissive_strength")
+    return [v * scale for v in factor]
 
 
 def _image_source(gltf: dict, tex: dict, what: str):
@@ -543,6 +559,10 @@ def _mtl_text(scene: Scene, image_names: list) -> bytes:
             out.write(f"map_Kd {image_names[m.texture]}\n")
         if m.normal_texture is not None:
             out.write(f"map_Bump {image_names[m.normal_texture]}\n")
+        if any(m.emissive) or m.emissive_texture is not None:  # glTF: the texture times the factor
+            out.write("Ke {:.6g} {:.6g} {:.6g}\n".format(*m.emissive))
+        if m.emissive_texture is not None:
+            out.write(f"map_Ke {image_names[m.emissive_texture]}\n")
     if any(p.material is None for s in scene.showings for p in s.parts):
         out.write("\nnewmtl default\nKd 1 1 1\nd 1\nillum 1\n")
     return out.getvalue().encode("utf-8", "surrogateescape")
@@ -609,4 +629,8 @@ def _ply_parts(scene: Scene, image_names: list) -> tuple:
                                        or scene.materials[p.material].normal_texture is not None) for p in parts):
         notices.append("material colours and normal textures are left out: a PLY holds vertex colours and one "
                        "texture per face; decode to .obj or .glb to keep them")
+    if any(p.material is not None and (any(scene.materials[p.material].emissive)
+                                       or scene.materials[p.material].emissive_texture is not None) for p in parts):
+        notices.append("the materials' emission (emissiveFactor, emissiveTexture) is left out: a PLY has no place "
+                       "for it; decode to .obj or .glb to keep it")
     return [("\n".join(lines) + "\n").encode("utf-8", "surrogateescape"), vert.tobytes(), face.tobytes()], n, m, notices

@@ -7,7 +7,9 @@
 //       it; the textures are not loaded: Node has no image decoder, the file names they give are reported):
 //   {"file", "ok", "meshes": [{"name", "corners", "position": [...], "uv": [...] | null, "normal": [...] | null,
 //     "color": [...] | null, "groups": [{"start", "count", "material"}]}],
-//    "materials": {NAME: {"color": [r, g, b], "opacity", "map": FILE | null, "bump": FILE | null}}, "error"}
+//    "materials": {NAME: {"color": [r, g, b], "opacity", "map": FILE | null, "bump": FILE | null,
+//      "emissive": [r, g, b] | null, "emissiveMap": FILE | null}}, "error"}
+//   (color, emissive: the MTL's Kd, Ke as written; MTLLoader takes them as sRGB when it makes the material)
 //   (position / uv / normal / color: the flat arrays OBJLoader builds, a value per corner, as three.js draws them;
 //    colours are the linear values three.js decodes the file's sRGB ones to)
 // .ply: PLYLoader.parse() of its bytes:
@@ -44,6 +46,7 @@ function checkObj(file) {
 			materials[name] = {
 				color: info.kd ?? null, opacity: info.d !== undefined ? Number(info.d) : null,
 				map: info.map_kd ?? null, bump: info.map_bump ?? info.bump ?? null,
+				emissive: info.ke ?? null, emissiveMap: info.map_ke ?? null,
 			};
 		}
 	}
