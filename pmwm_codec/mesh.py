@@ -472,25 +472,6 @@ def read_mesh(path: str | bytes | os.PathLike[str]) -> Mesh:
     return _read_gltf(path, name)
 
 
-def _morph_weights(gltf: dict, mi: int, targets: int, name: str) -> list:
-    """The ``targets`` morph weights (floats) mesh ``mi`` of ``gltf`` is drawn with at rest: its nodes' ``weights``
-    (each node's, else the mesh's; zeros without either); MeshError when its nodes give it different weights (the
-    one mesh this reader makes cannot pose it per node) or a list of another length than its targets."""
-    if not targets:
-        return []
-    mesh = gltf["meshes"][mi]
-    own = mesh.get("weights") or [0.0] * targets
-    found = {tuple(node.get("weights", own)) for node in gltf.get("nodes", [])
-             if isinstance(node, dict) and node.get("mesh") == mi} or {tuple(own)}
-    if len(found) > 1:
-        raise MeshError(f"{name}: mesh {mi} is drawn with different morph weights by its nodes, which the geometry "
-                        "reader does not pose node by node")
-    weights = list(found.pop())
-    if len(weights) != targets or not all(isinstance(w, (int, float)) and not isinstance(w, bool) for w in weights):
-        raise MeshError(f"{name}: mesh {mi}'s morph weights {weights!r:.60} are not one number per target ({targets})")
-    return [float(w) for w in weights]
-
-
 def _read_gltf(path, name) -> Mesh:
     """The triangles the default scene of the glTF / GLB at ``path`` shows, as one mesh: every primitive of mode
     TRIANGLES, TRIANGLE_STRIP or TRIANGLE_FAN (a strip's and a fan's triangles as glTF 2.0 3.7.2.1 winds them, a
@@ -504,12 +485,13 @@ def _read_gltf(path, name) -> Mesh:
 
     Primitives of points and lines in a shown mesh are left out and counted in ``cleanup``
     (``primitives_of_points_or_lines``).  Morph targets are applied by the default weights (a node's
-    ``weights``, else its mesh's: the rest pose a viewer draws; :func:`_morph_weights`); skins are not (the
+    ``weights``, else its mesh's: the rest pose a viewer draws;
+    :func:`~pmwm_codec.format.document.rest_weights`); skins are not (the
     stored, bind-pose positions).  MeshError (named by primitive) for a TRIANGLES index count that is not a
     multiple of 3, as the asset encoder says it, and for a scene that shows no triangle.  A scene that draws a mesh by
     ``EXT_mesh_gpu_instancing`` (whose instances are not placed here; the asset encoder keeps them) is read as
     decode writes it to OBJ: each shown mesh once, as stored, counted in ``cleanup`` (``gpu_instanced_meshes``)."""
-    from .format.document import load_document, read_accessor, triangle_faces
+    from .format.document import load_document, primitive_triangles, rest_weights
     from .format.gltf import DRACO_EXTENSION, TRIANGLE_MODES, TRIANGLES, placements_by_mesh, scene_mesh
 
     gltf, buffers = load_document(path)
@@ -543,15 +525,11 @@ def _read_gltf(path, name) -> Mesh:
                 if mode != TRIANGLES:
                     raise InputFormatError(f"{where}: a Draco-compressed strip or fan (mode {mode}) is not read")
             else:
-                positions = read_accessor(gltf, buffers, prim["attributes"]["POSITION"])[:, :3]
-                weights = _morph_weights(gltf, mi, len(prim.get("targets", [])), name)
-                for w, target in zip(weights, prim.get("targets", [])):
-                    if w != 0.0 and "POSITION" in target:  # glTF 2.0 3.7.2.2: base + sum of weight x displacement
-                        positions = positions + w * read_accessor(gltf, buffers, target["POSITION"])[:, :3]
                 try:
-                    faces = triangle_faces(gltf, buffers, prim, len(positions))
+                    weights = rest_weights(gltf, mi, len(prim.get("targets", [])))
                 except MeshError as exc:
-                    raise MeshError(f"{where}: {exc}") from None
+                    raise MeshError(f"{name}: {exc}") from None
+                positions, faces = primitive_triangles(gltf, buffers, prim, where, weights, MeshError, bounds=False)
             if len(faces) and (faces.min() < 0 or faces.max() >= len(positions)):
                 raise MeshError(f"{where}: face index {int(faces.max())} out of range for {len(positions)} vertices "
                                 "(counted from 0)")  # (as the asset encoder says it: checked_mesh's words)

@@ -842,15 +842,62 @@ def read_accessor(gltf: dict, buffers, index: int) -> np.ndarray:
     return out
 
 
-def primitive_triangles(gltf: dict, buffers, prim: dict, what: str) -> tuple:
-    """``(positions (n, 3) float64, faces (m, 3) int64)`` of a triangle primitive ``prim`` of a loaded document
-    (strips and fans as the triangles they draw, glTF 2.0 3.7.2.1; degenerate ones kept as stored; no indices:
-    the vertices in order); InputFormatError naming ``what`` for an index past the vertices."""
-    positions = read_accessor(gltf, buffers, prim["attributes"]["POSITION"])[:, :3]
-    order = (read_accessor(gltf, buffers, prim["indices"])[:, 0] if "indices" in prim
-             else np.arange(len(positions), dtype=np.int64))
-    faces = triangle_list(order, prim.get("mode", TRIANGLES))
-    if len(faces) and (faces.min() < 0 or faces.max() >= len(positions)):
+def rest_weights(gltf: dict, mi: int, targets: int) -> list:
+    """The ``targets`` morph weights (floats) mesh ``mi`` of ``gltf`` is drawn with at rest, as a viewer draws it:
+    its nodes' ``weights`` (each node's, else the mesh's; zeros without either); MeshError (naming the mesh) when
+    its nodes give it different weights (one pose cannot stand for them: decode holds such a mesh as stored) or a list of another length than its
+    targets."""
+    if not targets:
+        return []
+    mesh = gltf["meshes"][mi]
+    own = mesh.get("weights") or [0.0] * targets
+    found = {tuple(node.get("weights", own)) for node in gltf.get("nodes", [])
+             if isinstance(node, dict) and node.get("mesh") == mi} or {tuple(own)}
+    if len(found) > 1:
+        raise MeshError(f"mesh {mi} is drawn with different morph weights by its nodes, which the geometry "
+                        "reader does not pose node by node")
+    weights = list(found.pop())
+    if len(weights) != targets or not all(isinstance(w, (int, float)) and not isinstance(w, bool) for w in weights):
+        raise MeshError(f"mesh {mi}'s morph weights {weights!r:.60} are not one number per target ({targets})")
+    return [float(w) for w in weights]
+
+
+def shown_weights(gltf: dict, mi: int, prim: dict) -> list | None:
+    """The weights a decoded OBJ / PLY / STL / OFF poses the primitive ``prim`` of mesh ``mi`` of a checked
+    document with: :func:`rest_weights` of its targets ([] without any), None when the mesh's nodes draw it with
+    different weights (it is held as stored then)."""
+    try:
+        return rest_weights(gltf, mi, len(prim.get("targets", [])))
+    except MeshError:
+        return None
+
+
+def morphed(gltf: dict, buffers, prim: dict, semantic: str, values: np.ndarray, weights) -> np.ndarray:
+    """(n, k) float64: ``values`` (n, k), the primitive ``prim``'s ``semantic`` attribute, plus each morph
+    target's displacement of it times its weight (glTF 2.0 3.7.2.2; ``weights`` one per target, as
+    :func:`rest_weights` gives them; a zero weight reads nothing)."""
+    values = np.asarray(values, np.float64)
+    for w, target in zip(weights, prim.get("targets", [])):
+        if w != 0.0 and semantic in target:
+            values = values + w * read_accessor(gltf, buffers, target[semantic])[:, :values.shape[1]]
+    return values
+
+
+def primitive_triangles(gltf: dict, buffers, prim: dict, what: str, weights=(), error=InputFormatError,
+                        bounds: bool = True) -> tuple:
+    """``(positions (n, 3) float64, faces (m, 3) int64)`` of a triangle primitive ``prim`` of a loaded document:
+    its positions morphed by ``weights`` (:func:`morphed`; none: as stored), its triangles as
+    :func:`triangle_faces` reads them for the encoders (strips and fans as glTF 2.0 3.7.2.1 winds them, a strip's
+    restarts dropped; no indices: the vertices in order); ``error`` naming ``what`` for a TRIANGLES count that is
+    not a multiple of 3 (:func:`triangle_faces`' words), InputFormatError for an index past the vertices (unless
+    not ``bounds``: the caller's)."""
+    positions = morphed(gltf, buffers, prim, "POSITION",
+                        read_accessor(gltf, buffers, prim["attributes"]["POSITION"])[:, :3], weights)
+    try:
+        faces = triangle_faces(gltf, buffers, prim, len(positions))
+    except MeshError as exc:
+        raise error(f"{what}: {exc}") from None
+    if bounds and len(faces) and (faces.min() < 0 or faces.max() >= len(positions)):
         raise InputFormatError(f"{what}: an index past its {len(positions)} vertices")
     return np.asarray(positions, np.float64), np.asarray(faces, np.int64)
 

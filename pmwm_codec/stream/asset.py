@@ -61,7 +61,7 @@ import numpy as np
 
 from ..constants import EXTENSION_NAME
 from ..errors import DegenerateMeshError, FormatError, InputFormatError, MeshError
-from ..format.document import as_declared, primitive_triangles, triangle_faces, view_sites
+from ..format.document import as_declared, primitive_triangles, shown_weights, triangle_faces, view_sites
 from ..format.document import (check_document, is_progressive, label_images, load_document, progressive_refusal,
                                read_accessor, repack)
 from ..format.document import strip_image_profiles as _strip_profiles
@@ -579,29 +579,41 @@ def plain_triangle_primitives(gltf: dict | None) -> list:
 
 
 def posed_notes(gltf: dict | None) -> list:
-    """Notes for an OBJ / PLY / STL of the scene: the triangle meshes it shows skinned (progressive or not) or
-    with morph weights (non-progressive, :func:`plain_triangle_primitives`), which such a file holds at their
-    stored positions (the bind pose, no morph), placed by their nodes, while a glTF viewer poses them."""
+    """Notes for an OBJ / PLY / STL / OFF of the scene: the triangle meshes it shows skinned (progressive or not),
+    which such a file holds in their stored pose (the bind pose), placed by their nodes, while a glTF viewer poses
+    them by their joints; and those with morph targets (non-progressive, :func:`plain_triangle_primitives`),
+    which it holds posed at the weights a viewer draws them with at rest
+    (:func:`~pmwm_codec.format.document.shown_weights`), the targets themselves left out -- or as stored, when
+    their nodes draw them with different weights."""
     if not gltf:
         return []
     skinned = {n.get("mesh") for n in gltf.get("nodes", []) if isinstance(n, dict) and "skin" in n}
     shown = set(placements_by_mesh(gltf)) if gltf.get("nodes") else None
     progressive = {mi for mi, _, _ in find_extension_primitives(gltf, EXTENSION_NAME) if shown is None or mi in shown}
+    plain = plain_triangle_primitives(gltf)
     notes = []
-    for mi in sorted({mi for mi, _ in plain_triangle_primitives(gltf)} | progressive):
-        mesh = gltf["meshes"][mi]
-        weights = mesh.get("weights") if isinstance(mesh.get("weights"), list) else []
+    for mi in sorted({mi for mi, _ in plain} | progressive):
         if mi in skinned:
             notes.append(f"mesh {mi} is skinned: the file holds it in its stored pose, not posed by its joints")
-        elif any(isinstance(w, (int, float)) and w != 0 for w in weights):
-            notes.append(f"mesh {mi} has morph weights: the file holds its stored positions, not morphed")
+        morphs = [gltf["meshes"][mi]["primitives"][pi] for m, pi in plain if m == mi]
+        morphs = [prim for prim in morphs if prim.get("targets")]
+        if not morphs:
+            continue
+        if shown_weights(gltf, mi, morphs[0]) is None:
+            notes.append(f"mesh {mi} is drawn with different morph weights by its nodes: the file holds its stored "
+                         "positions, not morphed (decode to .glb to keep its morph targets)")
+        else:
+            notes.append(f"mesh {mi}'s morph targets are left out: the file holds it posed at the weights it is "
+                         "drawn with at rest (decode to .glb to keep them)")
     return notes
 
 
 def _plain_triangles(doc: dict, buffers, mi: int, pi: int) -> tuple:
     """``(positions (n, 3) float64, faces (m, 3) int64)`` of primitive ``pi`` of mesh ``mi`` of a plain
-    document (strips and fans as triangles, glTF 2.0 3.7.2.1; degenerate ones kept as stored)."""
-    return primitive_triangles(doc, buffers, doc["meshes"][mi]["primitives"][pi], f"mesh {mi} primitive {pi}")
+    document (:func:`~pmwm_codec.format.document.primitive_triangles`: strips and fans as triangles, glTF 2.0
+    3.7.2.1, a strip's restarts dropped; morphed as a viewer draws it at rest, :func:`posed_notes`)."""
+    prim = doc["meshes"][mi]["primitives"][pi]
+    return primitive_triangles(doc, buffers, prim, f"mesh {mi} primitive {pi}", shown_weights(doc, mi, prim) or [])
 
 
 def scene_as_shown(gltf: dict | None, result, plain=None) -> tuple:
