@@ -45,7 +45,6 @@ import numpy as np
 
 from .constants import MAX_ENCODE_FACES, MAX_ENCODE_VERTICES, MAX_INPUT_FILE_BYTES, MAX_RESOURCE_BYTES
 from .errors import DegenerateMeshError, InputFormatError, MeshError
-from .mesh import one_line_end
 
 
 @dataclass
@@ -56,6 +55,10 @@ class Part:
     indices: np.ndarray
     attributes: dict = field(default_factory=dict)
     material: int | None = None
+
+
+#: The glTF extension of an emission brighter than an ``emissiveFactor`` of 1 (an MTL's ``Ke 4 4 4``).
+EMISSIVE_STRENGTH = "KHR_materials_emissive_strength"
 
 
 @dataclass
@@ -69,15 +72,20 @@ class Material:
     normal_texture: int | None = None
     #: glTF's metallicFactor: 0 for a mesh file's material; a decoded asset's own (:mod:`pmwm_codec.meshexport`).
     metallic: float = 0.0
-    #: glTF's emissiveFactor (times KHR_materials_emissive_strength's emissiveStrength), linear RGB; and the
-    #: index of its emissiveTexture: a decoded asset's own (:mod:`pmwm_codec.meshexport`, an MTL's ``Ke`` /
-    #: ``map_Ke``); a mesh file's material emits nothing.
+    #: glTF's emissiveFactor times KHR_materials_emissive_strength's emissiveStrength (linear RGB, each >= 0) and
+    #: the index of its emissiveTexture: an MTL's ``Ke`` / ``map_Ke`` (:func:`_parse_mtl`), a decoded asset's own
+    #: (:mod:`pmwm_codec.meshexport`).
     emissive: tuple = (0.0, 0.0, 0.0)
     emissive_texture: int | None = None
-    #: The file names an MTL gives for the two textures, read (into ``texture`` / ``normal_texture``) only
-    #: for the materials some face uses.
+    #: The file names an MTL gives for the three textures (:data:`TEXTURE_FILES`), read (into ``texture`` /
+    #: ``normal_texture`` / ``emissive_texture``) only for the materials some face uses.
     texture_file: str | None = None
     normal_file: str | None = None
+    emissive_file: str | None = None
+
+
+#: A :class:`Material`'s texture file fields and the texture index each is read into.
+TEXTURE_FILES = {"texture_file": "texture", "normal_file": "normal_texture", "emissive_file": "emissive_texture"}
 
 
 def build_document(parts: list, materials: list, images: list, name: str) -> tuple:
@@ -115,6 +123,8 @@ def build_document(parts: list, materials: list, images: list, name: str) -> tup
             "accessors": accessors, "bufferViews": views, "buffers": [{"byteLength": len(blob)}]}
     if materials:
         gltf["materials"] = [_material(m) for m in materials]
+        if any(EMISSIVE_STRENGTH in m.get("extensions", {}) for m in gltf["materials"]):
+            gltf["extensionsUsed"] = [EMISSIVE_STRENGTH]
     if images:
         gltf["images"] = [{"name": file_name, "uri": file_name, "mimeType": kind, "_bytes": data}
                           for data, kind, file_name in images]
@@ -131,6 +141,13 @@ def _material(m: Material) -> dict:
         out["normalTexture"] = {"index": m.normal_texture}
     if m.color[3] < 1.0:
         out["alphaMode"] = "BLEND"
+    strength = max(m.emissive)  # glTF's emissiveFactor stops at 1: a brighter light is its emissive strength
+    if strength > 0.0:
+        out["emissiveFactor"] = [float(c / strength) if strength > 1.0 else float(c) for c in m.emissive]
+        if strength > 1.0:
+            out["extensions"] = {EMISSIVE_STRENGTH: {"emissiveStrength": float(strength)}}
+    if m.emissive_texture is not None:
+        out["emissiveTexture"] = {"index": m.emissive_texture}
     return out
 
 
@@ -408,29 +425,12 @@ def named_files(path) -> list:
         except (InputFormatError, OSError):
             return []
         materials, _ = _obj_materials(re.findall(r"^[ \t]*mtllib[ \t]+([^\n]*)", text, re.M), resources)
-        refs = [ref for m in materials for ref in (m.texture_file, m.normal_file) if ref]
+        refs = [ref for m in materials for ref in (getattr(m, f) for f in TEXTURE_FILES) if ref]
     out = list(resources.files)
     for ref in refs:
         target = resources.locate(ref)[1]
         if target is not None and os.path.isfile(target) and target not in out:
             out.append(target)
-    return out
-    try:
-        text = one_line_end(_mesh_text(read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError), path, "OBJ"))
-    except (InputFormatError, OSError):
-        return []
-    for record in re.findall(r"^[ \t]*mtllib[ \t]+([^\n#]*)", text, re.M):
-        for ref in _mtllib_names(record):
-            mtl = found(ref)
-            try:
-                materials = [] if mtl is None else _near_mtl(_parse_mtl(one_line_end(_mesh_text(
-                    read_regular_file(mtl, MAX_RESOURCE_BYTES, InputFormatError), mtl, "MTL"))), ref, base_dir)
-            except (InputFormatError, OSError):
-                continue
-            for m in materials:
-                for ref_file in (m.texture_file, m.normal_file):
-                    if ref_file and found(ref_file) is None:
-                        found(ref_file.rsplit("/", 1)[-1])  # by its name beside the OBJ (Resources._by_name)
     return out
 
 
@@ -495,8 +495,9 @@ def _document(parts: list, materials: list, resources: Resources, name: str) -> 
         p.material = None if p.material is None else renumber[p.material]
     kept = [materials[i] for i in used]
     for m in kept:  # the textures of the materials faces use, each read once
-        m.texture = None if m.texture_file is None else resources.image(m.texture_file)
-        m.normal_texture = None if m.normal_file is None else resources.image(m.normal_file)
+        for file_field, index_field in TEXTURE_FILES.items():
+            ref = getattr(m, file_field)
+            setattr(m, index_field, None if ref is None else resources.image(ref))
         if m.texture is not None:  # the texture is the colour (as Blender imports it); its alpha stays
             m.color = (1.0, 1.0, 1.0, m.color[3])
     return build_document(parts, kept, resources.images, os.path.splitext(name)[0])
@@ -581,7 +582,7 @@ def _near_mtl(materials: list, mtl_ref: str, base_dir: str) -> list:
 
     folder = os.path.dirname(mtl_ref)
     for m in materials if folder else []:
-        for attr in ("texture_file", "normal_file"):
+        for attr in TEXTURE_FILES:
             ref = getattr(m, attr)
             if not ref or ref.startswith("/") or os.path.isabs(ref):
                 continue
@@ -608,13 +609,16 @@ def _parse_mtl(text: str) -> list:
     """The :class:`Material` of each ``newmtl`` of an MTL text: ``Kd`` and ``d`` (or, without a ``d``, ``Tr``, its
     complement -- but ``Tr 1``, which MeshLab writes on every material as its opacity, is opaque) make the base
     colour (white where the ``map_Kd`` texture is read, as Blender imports it: the texture is the colour), ``Ns``
-    the roughness (``1 - sqrt(Ns / 1000)``), ``map_Kd`` the base colour texture and ``map_Bump`` / ``bump`` /
-    ``norm`` the normal texture; other statements are not carried."""
-    out, current, kd, alpha, tr = [], None, None, None, None
+    the roughness (``1 - sqrt(Ns / 1000)``), ``map_Kd`` the base colour texture, ``map_Bump`` / ``bump`` /
+    ``norm`` the normal texture, ``Ke`` the emission (linear RGB, negatives as 0) and ``map_Ke`` the emissive
+    texture (under a ``map_Ke`` without a ``Ke``, an emission of 1, as Blender imports it: the texture is the
+    light); other statements are not carried."""
+    out, current, kd, alpha, tr, ke = [], None, None, None, None, None
 
     def close():
         if current is not None:
             current.color = (*(kd or (1.0, 1.0, 1.0)), alpha if alpha is not None else tr if tr is not None else 1.0)
+            current.emissive = ke or ((1.0, 1.0, 1.0) if current.emissive_file else (0.0, 0.0, 0.0))
             out.append(current)
 
     for raw in text.splitlines():
@@ -624,11 +628,13 @@ def _parse_mtl(text: str) -> list:
         key = words[0].lower()
         if key == "newmtl":
             close()
-            current, kd, alpha, tr = Material(" ".join(words[1:]) or "material"), None, None, None
+            current, kd, alpha, tr, ke = Material(" ".join(words[1:]) or "material"), None, None, None, None
         elif current is None:
             continue
         elif key == "kd" and len(words) >= 4:
             kd = tuple(min(max(_number_or(w, 1.0), 0.0), 1.0) for w in words[1:4])
+        elif key == "ke" and len(words) >= 4:
+            ke = tuple(max(_number_or(w, 0.0), 0.0) for w in words[1:4])
         elif key == "d" and len(words) >= 2:
             alpha = min(max(_number_or(words[-1], 1.0), 0.0), 1.0)
         elif key == "tr" and len(words) >= 2:  # 1 - d; but MeshLab writes its opacity, "Tr 1.000000", as Tr
@@ -636,14 +642,17 @@ def _parse_mtl(text: str) -> list:
             tr = 1.0 if tr == 0.0 else tr
         elif key == "ns" and len(words) >= 2:
             current.roughness = float(1.0 - min(max(_number_or(words[1], 0.0), 0.0) / 1000.0, 1.0) ** 0.5)
-        elif key in ("map_kd", "map_bump", "bump", "norm") and len(words) >= 2:
+        elif key in _MAP_FIELDS and len(words) >= 2:
             ref = _map_file(words[1:])
-            if ref and key == "map_kd":
-                current.texture_file = ref
-            elif ref:
-                current.normal_file = ref
+            if ref:
+                setattr(current, _MAP_FIELDS[key], ref)
     close()
     return out
+
+
+#: The MTL map statements read (lower case) and the :class:`Material` file field each names.
+_MAP_FIELDS = {"map_kd": "texture_file", "map_bump": "normal_file", "bump": "normal_file", "norm": "normal_file",
+               "map_ke": "emissive_file"}
 
 
 def _number_or(token: str, default: float) -> float:

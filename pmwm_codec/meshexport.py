@@ -28,7 +28,7 @@ themselves) is left out with a notice.
     the inverse of the reader's mapping), ``Pr`` / ``Pm`` (the PBR extension Blender reads), ``map_Kd``,
     ``map_Bump``, and, for a material that emits light, ``Ke`` (``emissiveFactor`` times
     ``KHR_materials_emissive_strength``) and ``map_Ke`` (``emissiveTexture``).  ``Kd`` and ``Ke`` hold glTF's
-    linear factors as they are (as Blender's importer takes them, and as :mod:`pmwm_codec.meshdoc` reads ``Kd``
+    linear factors as they are (as Blender's importer takes them, and as :mod:`pmwm_codec.meshdoc` reads them
     back; three.js's MTLLoader takes them as sRGB);
 ``X.ply``
     binary little-endian, one vertex per glTF vertex (a PLY vertex has one value of each property): ``x y z``,
@@ -62,7 +62,7 @@ from .format.gltf import (
 )
 from .constants import EXTENSION_NAME, MAX_WRITTEN_IMAGES
 from .errors import InputFormatError, OptionError
-from .meshdoc import Material, Part, srgb_from_linear
+from .meshdoc import EMISSIVE_STRENGTH, Material, Part, srgb_from_linear
 
 __all__ = ["Scene", "Showing", "progressive_meshes", "scene_parts", "shows_appearance", "sidecar_paths",
            "write_scene"]
@@ -283,8 +283,8 @@ def _emission(mat: dict, what: str) -> list:
     """The light a glTF material ``mat`` emits: its ``emissiveFactor`` (linear RGB, default black) times its
     ``KHR_materials_emissive_strength`` ``emissiveStrength`` (default 1), as a viewer draws it."""
     factor = _factor(mat, "emissiveFactor", [0.0, 0.0, 0.0], what)
-    strength = _object(_object(mat, "extensions", what), "KHR_materials_emissive_strength", f"{what}.extensions")
-    scale = _factor(strength, "emissiveStrength", 1.0, f"{what}.extensions.KHR_materials_emissive_strength")
+    strength = _object(_object(mat, "extensions", what), EMISSIVE_STRENGTH, f"{what}.extensions")
+    scale = _factor(strength, "emissiveStrength", 1.0, f"{what}.extensions.{EMISSIVE_STRENGTH}")
     return [v * scale for v in factor]
 
 

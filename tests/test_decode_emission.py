@@ -93,3 +93,37 @@ def test_three_js_reads_the_emission_the_mtl_holds(tmp_path):
     (material,) = json.loads(proc.stdout)["materials"].values()
     assert [float(v) for v in material["emissive"]] == [0.25, 0.5, 0.125]
     assert material["emissiveMap"] == _mtl(tmp_path / "out.mtl")["map_Ke"][0]
+
+
+def _materials_of(pmw) -> list:
+    """The glTF materials a ``.pmw`` at ``pmw`` carries (its decoded GLB's document)."""
+    glb = pmwm_codec.decode_asset(str(pmw))
+    (length,) = np.frombuffer(glb[12:16], np.uint32)
+    return json.loads(glb[20:20 + int(length)])["materials"]
+
+
+def test_the_emission_an_obj_decoded_with_comes_back_when_it_is_encoded_again(tmp_path):
+    src, png = _emissive_asset(tmp_path, emissiveFactor=[0.25, 0.5, 0.125], emissiveTexture={"index": 0},
+                               extensions={"KHR_materials_emissive_strength": {"emissiveStrength": 4.0}})
+    pmwm_codec.decode_to(str(src), str(tmp_path / "out.obj"))
+    pmwm_codec.encode(str(tmp_path / "out.obj"), str(tmp_path / "again.pmw"))
+    (material,) = _materials_of(tmp_path / "again.pmw")
+    strength = material["extensions"]["KHR_materials_emissive_strength"]["emissiveStrength"]
+    assert strength * np.array(material["emissiveFactor"]) == pytest.approx([1.0, 2.0, 0.5])
+    assert max(material["emissiveFactor"]) == 1.0  # glTF's factor stops at 1: the rest is the strength
+    assert "emissiveTexture" in material
+
+
+def test_an_mtl_s_ke_and_map_ke_are_the_material_s_emission(tmp_path):
+    """Read as Blender reads them: ``Ke`` the emission, ``map_Ke`` its texture (an emission of 1 under a texture
+    with no ``Ke``); ``Ke 0 0 0``, which Blender's exporter writes on every material, emits nothing."""
+    _png(tmp_path / "glow.png", colour=(10, 220, 40))
+    (tmp_path / "m.mtl").write_text("newmtl dark\nKd 0.5 0.5 0.5\nKe 0 0 0\n\nnewmtl lit\nKd 1 1 1\nKe 0.2 0.4 0.1\n"
+                                    "\nnewmtl glow\nmap_Ke glow.png\n")
+    (tmp_path / "m.obj").write_text("mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nv 1 1 1\n"
+                                    "usemtl dark\nf 1 2 3\nusemtl lit\nf 1 2 4\nusemtl glow\nf 2 3 5\n")
+    pmwm_codec.encode(str(tmp_path / "m.obj"), str(tmp_path / "m.pmw"))
+    by_name = {m["name"]: m for m in _materials_of(tmp_path / "m.pmw")}
+    assert "emissiveFactor" not in by_name["dark"] and "emissiveTexture" not in by_name["dark"]
+    assert by_name["lit"]["emissiveFactor"] == pytest.approx([0.2, 0.4, 0.1])
+    assert by_name["glow"]["emissiveFactor"] == [1.0, 1.0, 1.0] and "emissiveTexture" in by_name["glow"]

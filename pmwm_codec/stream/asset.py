@@ -83,7 +83,6 @@ from ..format.gltf import (
     place,
     placed_by_nodes,
     placements_by_mesh,
-    progressive_placements,
     scene_mesh,
     uses_extension,
     world_placements,
