@@ -21,6 +21,7 @@ from __future__ import annotations
 import os
 import re
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -121,10 +122,14 @@ def checked_mesh(positions, faces, attributes=None, *, name="mesh") -> Mesh:
     n = pos.shape[0]
 
     attrs = {}
+    if attributes is not None and not isinstance(attributes, Mapping):
+        raise MeshError(f"{name}: attributes must be a dict of (n, k) arrays, one row per vertex, "
+                        f"got {type(attributes).__name__}")
     for key, value in (attributes or {}).items():
         arr = np.asarray(value)
-        if arr.shape[0] != n:
-            raise MeshError(f"{name}: attribute {key} has {arr.shape[0]} rows for {n} vertices")
+        if arr.ndim == 0 or arr.shape[0] != n:
+            rows = "no rows (a scalar)" if arr.ndim == 0 else f"{arr.shape[0]} rows"
+            raise MeshError(f"{name}: attribute {key} has {rows} for {n} vertices")
         attrs[key] = arr
 
     degenerate = two_alike(tri)  # faces repeating a vertex
@@ -180,7 +185,6 @@ def mesh_arrays(positions, faces, name: str = "mesh") -> tuple:
     if not np.issubdtype(tri.dtype, np.integer):
         if not np.all(np.equal(np.mod(tri, 1), 0)):
             raise MeshError(f"{name}: face indices are not integers")
-    tri = tri.astype(np.int64, copy=False)  # (checked_mesh's face filter copies: it never keeps the caller's array)
     finite = np.isfinite(pos)
     if not finite.all():
         bad = ~finite.all(axis=1)
@@ -190,12 +194,13 @@ def mesh_arrays(positions, faces, name: str = "mesh") -> tuple:
             f"(first at vertex {int(np.argmax(bad))})"
         )
     n = pos.shape[0]
-    if tri.min() < 0 or tri.max() >= n:
-        worst = int(tri.max()) if tri.max() >= n else int(tri.min())
+    lo, hi = tri.min(), tri.max()  # in the caller's dtype: a uint64 past int64's range would wrap to a negative
+    if lo < 0 or hi >= n:
+        worst = int(hi) if hi >= n else int(lo)
         numbering = (f"; {worst + 1} in an OBJ file, whose numbering starts at 1"
                      if worst >= n and str(name).lower().endswith(".obj") else "")  # OFF, PLY, glTF count from 0
         raise MeshError(f"{name}: face index {worst} out of range for {n} vertices (counted from 0{numbering})")
-    return pos, tri
+    return pos, tri.astype(np.int64, copy=False)  # (checked_mesh's face filter copies: it never keeps the caller's array)
 
 
 #: PLY property types that are integers (face indices must be one of them).

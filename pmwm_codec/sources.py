@@ -316,7 +316,7 @@ def check_input_path(path, what: str) -> str:
     """
     from .errors import InputFormatError
 
-    path = os.fspath(path)
+    path = path_argument(path, f"the path of {what}")  # bytes too, as a str
     shown = shown_path(path)
     if "\0" in path or not os.path.exists(path):
         raise InputFormatError(f"{shown}: no such file")

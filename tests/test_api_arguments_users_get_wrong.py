@@ -1,0 +1,57 @@
+"""The public API called as its users call it, with the arguments they get wrong: each refusal is a
+:class:`~pmwm_codec.errors.PmwError` of its documented kind, named clearly, and nothing is written."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+
+import pmwm_codec
+from pmwm_codec import shapes
+from pmwm_codec.errors import MeshError
+
+MESH = shapes.torus(24, 12)
+
+
+def _image(seed):
+    return np.random.default_rng(seed).integers(0, 256, (8, 8)).astype(np.uint8)
+
+
+@pytest.mark.parametrize("attributes, words", [
+    ([1, 2], "attributes must be a dict of .* got list"),
+    ({"normal": 5}, "attribute normal has no rows \\(a scalar\\) for"),
+    ({"normal": None}, "attribute normal has no rows \\(a scalar\\) for"),
+])
+def test_mesh_attributes_that_are_no_dict_of_rows_are_a_mesh_error_and_nothing_is_written(tmp_path, attributes,
+                                                                                          words):
+    """A list raised AttributeError ('list' object has no attribute 'items') out of encode, a scalar or None
+    an IndexError (tuple index out of range)."""
+    with pytest.raises(MeshError, match=words):
+        pmwm_codec.encode(pmwm_codec.Mesh(MESH.positions, MESH.faces, attributes), tmp_path / "m.pmw")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_uint64_face_index_past_int64_is_named_as_given(tmp_path):
+    """2**63 + 5 was named as face index -9223372036854775803: cast to int64 before the range was checked."""
+    faces = MESH.faces.astype(np.uint64)
+    faces[0, 0] = 2 ** 63 + 5
+    with pytest.raises(MeshError, match=f"face index {2 ** 63 + 5} out of range"):
+        pmwm_codec.encode(pmwm_codec.Mesh(MESH.positions, faces), tmp_path / "m.pmw")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_watermark_image_named_by_a_bytes_path_is_read(tmp_path):
+    """The image reader takes ``str``, ``bytes`` or ``os.PathLike``; a bytes path raised a bare TypeError
+    (a bytes-like object is required, not 'str') from the check that the file exists."""
+    from pmwm_codec.watermark.image import save_png
+
+    png = tmp_path / "mark.png"
+    save_png(png, _image(1))
+    key = pmwm_codec.watermark.key.WatermarkKey.generate(rng=np.random.default_rng(2))
+    by_bytes, by_str = io.BytesIO(), io.BytesIO()
+    pmwm_codec.encode(MESH, by_bytes, watermark=bytes(png), key=key, measure="none")
+    pmwm_codec.encode(MESH, by_str, watermark=str(png), key=key, measure="none")
+    assert by_bytes.getvalue() == by_str.getvalue()
+
