@@ -310,8 +310,13 @@ def iter_decode(src: Source, key: KeyLike = None, watermark: WatermarkImage = No
     Each has ``mesh``, ``watermark`` (the partial image, with a key), ``chunk`` and
     ``bytes_read``, plus ``nc`` and ``psnr_db`` when a reference watermark is known.
     ``src`` may be an ``http://`` or ``https://`` URL, fetched as the results are pulled.
+
+    The arguments are checked by the call itself, before anything is read: a key or watermark that cannot
+    be used, or a source of a kind no reader takes, raises here, not at the first ``next()``; the bytes
+    (a path's file, a URL's answer, a file object's or an iterable's blocks) are read as results are pulled.
     """
-    from .http import as_source
+    from .http import UrlSource, as_source
+    from .sources import checked_source
     from .stream.decoder import StreamDecoder
     from .stream.reader import iter_results
 
@@ -319,7 +324,8 @@ def iter_decode(src: Source, key: KeyLike = None, watermark: WatermarkImage = No
     if watermark is not None:
         reference, _, _ = _as_watermark(watermark)
     decoder = StreamDecoder(load_key(key), reference)
-    yield from iter_results(as_source(src), decoder)
+    source = as_source(src)
+    return iter_results(source if isinstance(source, UrlSource) else checked_source(source), decoder)
 
 
 def decode_asset(src: Source, chunks: int | None = None) -> bytes:

@@ -200,7 +200,7 @@ def mesh_arrays(positions, faces, name: str = "mesh") -> tuple:
         numbering = (f"; {worst + 1} in an OBJ file, whose numbering starts at 1"
                      if worst >= n and str(name).lower().endswith(".obj") else "")  # OFF, PLY, glTF count from 0
         raise MeshError(f"{name}: face index {worst} out of range for {n} vertices (counted from 0{numbering})")
-    return pos, tri.astype(np.int64, copy=False)  # (checked_mesh's face filter copies: it never keeps the caller's array)
+    return pos, tri.astype(np.int64, copy=False)  # (checked_mesh's face filter copies: never the caller's array)
 
 
 #: PLY property types that are integers (face indices must be one of them).

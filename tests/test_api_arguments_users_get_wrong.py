@@ -55,3 +55,43 @@ def test_a_watermark_image_named_by_a_bytes_path_is_read(tmp_path):
     pmwm_codec.encode(MESH, by_str, watermark=str(png), key=key, measure="none")
     assert by_bytes.getvalue() == by_str.getvalue()
 
+
+@pytest.mark.parametrize("arguments, error, words", [
+    ({"key": 123}, pmwm_codec.errors.WatermarkKeyError, "a key must be a WatermarkKey"),
+    ({"key": "no-such-key.json"}, pmwm_codec.errors.WatermarkKeyError, "no such key file"),
+    ({"watermark": np.zeros((8, 8), complex)}, pmwm_codec.errors.InputFormatError, "unsupported dtype"),
+    ({"src": 3}, pmwm_codec.errors.OptionError, "the source must be a path"),
+    ({"src": io.StringIO("glTF")}, pmwm_codec.errors.OptionError, "text mode"),
+])
+def test_iter_decode_refuses_its_arguments_when_called_not_at_the_first_result(tmp_path, monkeypatch, arguments,
+                                                                                 error, words):
+    """iter_decode was a generator function: a mistyped key path or a source no reader takes was said only at
+    the first next(), far from the call that named it (a consumer that never pulled a result heard nothing)."""
+    monkeypatch.chdir(tmp_path)
+    arguments = {"src": b"glTF", **arguments}
+    with pytest.raises(error, match=words):
+        pmwm_codec.iter_decode(**arguments)
+
+
+def test_iter_decode_stopped_early_closes_its_source():
+    """Closing the iterator after the first result closes the caller's generator of blocks (its ``finally``
+    runs) and leaves no thread behind."""
+    import threading
+
+    data = io.BytesIO()
+    pmwm_codec.encode(MESH, data, measure="none")
+    closed = []
+
+    def blocks():
+        try:
+            for i in range(0, len(data.getvalue()), 97):
+                yield data.getvalue()[i:i + 97]
+        finally:
+            closed.append(True)
+
+    threads = threading.active_count()
+    steps = pmwm_codec.iter_decode(blocks())
+    assert next(steps).chunk == 0
+    steps.close()
+    assert closed == [True] and threading.active_count() == threads
+
