@@ -7,7 +7,7 @@ Every reader of the package takes a *source*:
 * bytes-like: anything with the buffer protocol (``bytes``, ``bytearray``, ``memoryview`` of any
   shape or stride, ``array.array``, a numpy array), read as its bytes in C order;
 * a binary file object (anything with ``read``; ``read1`` is preferred), open, readable and blocking;
-* an iterable of bytes-like blocks.
+* an iterable of bytes-like blocks (not a dict or a set: its order is none the caller chose).
 
 :func:`checked_source` is the one gate: every reader (:func:`iter_blocks`, :func:`read_all`,
 :func:`source_size`, :func:`pmwm_codec.format.reader.read_header`) takes its source through it, so
@@ -22,7 +22,7 @@ import codecs
 import io
 import os
 import sys
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping, Set
 from typing import BinaryIO, Union
 
 #: Byte order marks and the codecs they name, longest first (UTF-32 LE's starts with UTF-16 LE's).
@@ -77,7 +77,7 @@ def checked_source(source):
     if hasattr(source, "read"):
         check_file_object(source, "the source", "read")
         return source
-    if not hasattr(source, "__iter__"):
+    if not hasattr(source, "__iter__") or isinstance(source, (Mapping, Set)):  # a dict, a set: no blocks in order
         from .errors import OptionError
 
         raise OptionError(f"the source must be a path, '-', bytes, a binary file object or an iterable of byte "

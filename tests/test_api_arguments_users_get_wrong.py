@@ -95,3 +95,11 @@ def test_iter_decode_stopped_early_closes_its_source():
     steps.close()
     assert closed == [True] and threading.active_count() == threads
 
+
+@pytest.mark.parametrize("source", [{}, {b"glTF": 1}, set(), frozenset({b"glTF"})])
+def test_a_dict_or_a_set_is_no_source_of_blocks(source):
+    """An empty dict was read as a file of 0 bytes ("truncated: stream ended after 0 bytes"), a dict's keys or a
+    set's members as blocks in an order nobody chose."""
+    with pytest.raises(pmwm_codec.errors.OptionError, match=f"the source must be a path.*got {type(source).__name__}"):
+        pmwm_codec.decode(source)
+
