@@ -172,7 +172,13 @@ def check_source(src) -> None:
         return
     if isinstance(src, tuple) and len(src) == 2 and isinstance(src[0], dict):
         return
-    raise OptionError(f"src must be a Mesh, a path or a (gltf dict, buffers) pair, got {type(src).__name__}")
+    arrays = ("vertices", "faces") if hasattr(src, "vertices") else ("positions", "faces")
+    hint = ""  # a mesh of another library (trimesh's .vertices), arrays given as a pair: the Mesh that takes them
+    if all(hasattr(src, name) for name in arrays):
+        hint = f": give pmwm_codec.Mesh(src.{arrays[0]}, src.{arrays[1]})"
+    elif isinstance(src, (tuple, list)) and len(src) == 2 and not isinstance(src[0], dict):
+        hint = ": give pmwm_codec.Mesh(positions, faces) for a pair of arrays"
+    raise OptionError(f"src must be a Mesh, a path or a (gltf dict, buffers) pair, got {type(src).__name__}{hint}")
 
 
 def check_destination(dst, inputs=()) -> None:

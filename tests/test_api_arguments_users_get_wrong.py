@@ -103,3 +103,16 @@ def test_a_dict_or_a_set_is_no_source_of_blocks(source):
     with pytest.raises(pmwm_codec.errors.OptionError, match=f"the source must be a path.*got {type(source).__name__}"):
         pmwm_codec.decode(source)
 
+
+def test_a_mesh_of_another_library_or_a_pair_of_arrays_is_refused_with_the_mesh_that_takes_them(tmp_path):
+    """encode() of a trimesh.Trimesh or of (positions, faces) said only "got Trimesh" / "got tuple"."""
+    class OtherMesh:  # what trimesh.Trimesh offers
+        vertices, faces = MESH.positions, MESH.faces
+
+    with pytest.raises(pmwm_codec.errors.OptionError, match=r"got OtherMesh: give pmwm_codec.Mesh\(src.vertices, "
+                                                            r"src.faces\)"):
+        pmwm_codec.encode(OtherMesh(), tmp_path / "m.pmw")
+    with pytest.raises(pmwm_codec.errors.OptionError, match=r"got tuple: give pmwm_codec.Mesh\(positions, faces\)"):
+        pmwm_codec.encode((MESH.positions, MESH.faces), tmp_path / "m.pmw")
+    assert list(tmp_path.iterdir()) == []
+
