@@ -83,6 +83,8 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
     is encoded as the glTF asset it describes (:mod:`pmwm_codec.meshdoc`); one of geometry alone as a mesh.
     The files a mesh file names (an MTL, a texture, a ``.gltf``'s buffers) are never replaced by ``dst``.
 
+    A path (``src``, ``dst``, ``watermark``, ``key``) may be a ``str``, ``bytes`` or ``os.PathLike``.
+
     ``dst``: a path, checked before any work (:func:`~pmwm_codec.options.check_destination`), or a
     binary file object, open, writable and blocking, that gets every byte
     (:func:`~pmwm_codec.atomic.write_stream`; a new key file is not kept when it does not).
@@ -121,6 +123,7 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
     from .stream.encoder import encode_mesh
     from .watermark.codec import MAX_EXACT_BITS, CapacityError
 
+    src, dst, key, watermark = (os.fsdecode(x) if isinstance(x, bytes) else x for x in (src, dst, key, watermark))
     check_source(src)
     named = ()  # the files a mesh file names (its MTL, textures, .gltf buffers): never replaced by the output
     if isinstance(src, (str, os.PathLike)) and isinstance(dst, (str, bytes, os.PathLike)) and os.path.exists(dst):

@@ -116,3 +116,17 @@ def test_a_mesh_of_another_library_or_a_pair_of_arrays_is_refused_with_the_mesh_
         pmwm_codec.encode((MESH.positions, MESH.faces), tmp_path / "m.pmw")
     assert list(tmp_path.iterdir()) == []
 
+
+def test_encode_takes_its_paths_as_bytes_as_read_mesh_and_load_key_do(tmp_path):
+    """encode() refused a bytes file name for ``src`` and ``dst`` ("src must be a Mesh, a path ..., got bytes") and
+    for ``key`` ("key must be a WatermarkKey, a key file path or None, got bytes"), which read_mesh, write_mesh,
+    decode_to and load_key take."""
+    obj = tmp_path / "m.obj"
+    pmwm_codec.write_mesh(obj, MESH)
+    as_bytes = pmwm_codec.encode(bytes(obj), bytes(tmp_path / "b.pmw"), watermark=_image(3),
+                                 key=bytes(tmp_path / "b.key.json"), measure="none")
+    assert as_bytes["key_path"] == str(tmp_path / "b.key.json")
+    key = pmwm_codec.load_key(tmp_path / "b.key.json")
+    again = io.BytesIO()
+    pmwm_codec.encode(str(obj), again, watermark=_image(3), key=key, measure="none")
+    assert (tmp_path / "b.pmw").read_bytes() == again.getvalue()
