@@ -29,10 +29,10 @@ if TYPE_CHECKING:  # for type checkers only: importing these here would make ``i
 
     from .sources import Source
 
-    MeshSource = Union[str, "os.PathLike[str]", "Mesh", tuple]
-    Destination = Union[str, "os.PathLike[str]", BinaryIO]
-    WatermarkImage = Union[str, "os.PathLike[str]", "np.ndarray", None]
-    KeyLike = Union["WatermarkKey", str, "os.PathLike[str]", None]
+    MeshSource = Union[str, bytes, "os.PathLike[str]", "Mesh", tuple]
+    Destination = Union[str, bytes, "os.PathLike[str]", BinaryIO]
+    WatermarkImage = Union[str, bytes, "os.PathLike[str]", "np.ndarray", None]
+    KeyLike = Union["WatermarkKey", str, bytes, "os.PathLike[str]", None]
 
     from .mesh import Mesh, checked_mesh, read_mesh
 
@@ -386,13 +386,13 @@ def _type_aliases() -> dict:
         "Source": Source,
         # what encode reads: a mesh file (OBJ, PLY, STL, OFF, glTF/GLB) or glTF asset path, a Mesh,
         # or an in-memory glTF asset (gltf dict, list of buffers)
-        "MeshSource": Union[str, "os.PathLike[str]", "Mesh", tuple],
+        "MeshSource": Union[str, bytes, "os.PathLike[str]", "Mesh", tuple],
         # where encode writes: a path or a binary file object
-        "Destination": Union[str, "os.PathLike[str]", BinaryIO],
+        "Destination": Union[str, bytes, "os.PathLike[str]", BinaryIO],
         # a watermark image: a path (PNG ...) or a square (s, s) array
-        "WatermarkImage": Union[str, "os.PathLike[str]", "np.ndarray", None],
+        "WatermarkImage": Union[str, bytes, "os.PathLike[str]", "np.ndarray", None],
         # a key: a WatermarkKey, a key file path, or None
-        "KeyLike": Union["WatermarkKey", str, "os.PathLike[str]", None],
+        "KeyLike": Union["WatermarkKey", str, bytes, "os.PathLike[str]", None],
     }
 
 

@@ -130,3 +130,12 @@ def test_encode_takes_its_paths_as_bytes_as_read_mesh_and_load_key_do(tmp_path):
     again = io.BytesIO()
     pmwm_codec.encode(str(obj), again, watermark=_image(3), key=key, measure="none")
     assert (tmp_path / "b.pmw").read_bytes() == again.getvalue()
+
+
+@pytest.mark.parametrize("alias", ["MeshSource", "Destination", "WatermarkImage", "KeyLike"])
+def test_the_type_aliases_of_encodes_paths_name_bytes(alias):
+    """encode (and load_key, iter_decode's key, the image reader) take a file name as bytes: a type checker reading
+    the aliases flagged such a call as an error."""
+    import typing
+
+    assert bytes in typing.get_args(getattr(pmwm_codec, alias))
