@@ -115,6 +115,17 @@ def test_a_start_leaving_too_few_splits_is_refused_with_the_numbers():
         _encode(0.99, img)
 
 
+def test_a_split_index_past_the_stream_is_a_capacity_error_and_writes_nothing(tmp_path):
+    """An embed_from index past the splits the mesh simplifies to (known only then: checked_options takes any
+    index >= 0) raised a bare ValueError out of pmwm_codec.encode, which no ``except PmwError`` caught."""
+    out = tmp_path / "m.pmw"
+    with pytest.raises(wm.CapacityError, match=r"embed_from 1,000,000 is outside the stream's 2,498 vertex splits: "
+                                               r"start earlier") as info:
+        pmwm_codec.encode(MESH, out, watermark=_image(8), embed_from=10 ** 6, measure="none")
+    assert isinstance(info.value, pmwm_codec.PmwError)
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_start_index_accepts_indices_and_fractions_only():
     assert wm.start_index(0.5, 101) == 50
     assert wm.start_index(7, 10) == 7

@@ -568,13 +568,15 @@ def start_index(embed_from, total: int) -> int:
     """The first code-carrying stream slot for ``embed_from`` over ``total`` splits.
 
     ``embed_from``: an int index (0 .. total) or a float fraction in [0, 1)
-    (``floor(fraction * total)``).  Raises ValueError for anything else.
+    (``floor(fraction * total)``).  Raises CapacityError for an index past ``total`` (the mark cannot start
+    there), ValueError for anything else (:func:`~pmwm_codec.options.checked_options` refuses it first).
     """
     if isinstance(embed_from, (bool, np.bool_)):
         raise ValueError(f"embed_from must be a split index or a fraction, got {embed_from!r}")
     if isinstance(embed_from, (int, np.integer)):
-        if not 0 <= embed_from <= total:
-            raise ValueError(f"embed_from {embed_from} is outside the stream's {total} vertex splits")
+        if not 0 <= embed_from <= total:  # known once the mesh is simplified: a mark that cannot start there
+            raise CapacityError(f"embed_from {int(embed_from):,} is outside the stream's {total:,} vertex splits: "
+                                "start earlier (a split index within them, or a fraction in [0, 1))")
         return int(embed_from)
     try:
         frac = float(embed_from)
