@@ -46,13 +46,23 @@ class Mesh:
     #: ``gpu_instanced_meshes``, an OBJ's ``line_and_point_records``): counts, each said by the encoder.
     cleanup: dict = field(default_factory=dict)
 
+    def __post_init__(self) -> None:
+        """A Mesh made of lists (any array_like) holds them as arrays, as its fields say (its counts, its repr and
+        its comparison read ``.shape``); MeshError when they are no arrays (ragged rows).  Arrays are kept as given:
+        :func:`checked_mesh` checks their shapes and values."""
+        if not isinstance(self.positions, np.ndarray) or not isinstance(self.faces, np.ndarray):
+            try:
+                self.positions, self.faces = np.asarray(self.positions), np.asarray(self.faces)
+            except (TypeError, ValueError) as exc:
+                raise MeshError(f"mesh: vertex or face data is not numeric ({exc})") from None
+
     @property
     def vertex_count(self) -> int:
-        return int(self.positions.shape[0])
+        return int(self.positions.shape[0]) if self.positions.ndim else 0
 
     @property
     def face_count(self) -> int:
-        return int(self.faces.shape[0])
+        return int(self.faces.shape[0]) if self.faces.ndim else 0
 
     def bbox_diagonal(self) -> float:
         """Length of the axis-aligned bounding box diagonal (float)."""

@@ -139,3 +139,15 @@ def test_the_type_aliases_of_encodes_paths_name_bytes(alias):
     import typing
 
     assert bytes in typing.get_args(getattr(pmwm_codec, alias))
+
+
+def test_a_mesh_made_of_lists_counts_and_shows_itself():
+    """Mesh(list, list) was taken by encode but its vertex_count, face_count, repr and bbox_diagonal raised
+    AttributeError ('list' object has no attribute 'shape')."""
+    mesh = pmwm_codec.Mesh(MESH.positions.tolist(), MESH.faces.tolist())
+    assert (mesh.vertex_count, mesh.face_count) == (MESH.vertex_count, MESH.face_count)
+    assert repr(mesh) == repr(MESH) and mesh == MESH
+    assert mesh.bbox_diagonal() == MESH.bbox_diagonal()
+    with pytest.raises(MeshError, match="vertex or face data is not numeric"):
+        pmwm_codec.Mesh([[0, 0, 0], [1, 0]], [[0, 1, 2]])
+
