@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import numbers
 import os
 import re
 import stat
@@ -413,6 +414,7 @@ def write_figures(results, directory, *, title: str | None = None, total_bytes: 
     command's input paths) are never removed.
     """
     directory = os.fspath(directory)
+    results = _checked_results(results, k, tamper)
     pictures = _frames(results)
     frames = [os.path.join(directory, name) for name in pictures]
     pictures[OVERVIEW_NAME] = overview(results, k=k, title=title, total_bytes=total_bytes)
@@ -429,6 +431,34 @@ def write_figures(results, directory, *, title: str | None = None, total_bytes: 
     write_pictures(directory, pictures)
     remove_stale(directory, set(pictures), inputs)
     return out
+
+
+def _checked_results(results, k, tamper) -> list:
+    """``results`` of :func:`write_figures` as a list once its arguments are known to draw: one
+    :class:`~pmwm_codec.stream.PartialResult` or more (:func:`pmwm_codec.iter_decode`'s), ``k`` an int >= 1 and
+    ``tamper`` None or vertex indices of the last result's mesh; OptionError naming what is wrong otherwise."""
+    from .stream.decoder import PartialResult
+
+    try:
+        results = list(results)
+    except TypeError:
+        results = []
+    if not results:
+        raise OptionError("results: nothing to draw; give the PartialResults of pmwm_codec.iter_decode, base first")
+    wrong = next((r for r in results if not isinstance(r, PartialResult)), None)
+    if wrong is not None:
+        raise OptionError(f"results: each must be a PartialResult of pmwm_codec.iter_decode, got {type(wrong).__name__}")
+    if any(not r.parts for r in results):
+        raise OptionError("results: they hold no meshes to draw (verify_stream keeps them with keep_meshes=True)")
+    if isinstance(k, bool) or not isinstance(k, numbers.Integral) or k < 1:
+        raise OptionError(f"k (how many levels the overview shows) must be an integer >= 1, got {k!r}")
+    if tamper is not None:
+        flagged = np.asarray(tamper)
+        n = results[-1].mesh.vertex_count
+        if flagged.size and (flagged.dtype.kind not in "iu" or flagged.ndim != 1 or flagged.min() < 0
+                             or flagged.max() >= n):
+            raise OptionError(f"tamper: vertex indices (f,) of the last result's mesh ({n:,} vertices) expected")
+    return results
 
 
 #: The names :func:`write_figures` writes: a stale one of them is removed by the next write into the folder.

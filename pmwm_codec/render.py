@@ -160,6 +160,38 @@ def rasterize(screen: np.ndarray, faces: np.ndarray, width: int, height: int) ->
     return fbuf.reshape(height, width)
 
 
+def _checked_arguments(positions, faces, camera, width, height, color, background) -> tuple:
+    """``(positions (n, 3) float64, faces (m, 3) int64)`` of :func:`render` once its arguments are known to draw:
+    a mesh (:func:`~pmwm_codec.mesh.mesh_arrays`: MeshError for NaN, an index out of range ...; no faces: the
+    background alone), a :class:`Camera` or None with ``width`` and ``height`` ints >= 1, RGB triples 0..255;
+    OptionError naming what is wrong otherwise."""
+    import numbers
+
+    from .errors import MeshError, OptionError
+    from .mesh import mesh_arrays
+
+    if np.size(faces):
+        positions, faces = mesh_arrays(positions, faces, "render")
+    else:
+        positions, faces = np.asarray(positions, np.float64), np.zeros((0, 3), np.int64)
+        if positions.ndim != 2 or positions.shape[1] != 3 or (camera is None and not len(positions)):
+            raise MeshError(f"render: positions must be (n, 3), n >= 1 without a camera, got shape {positions.shape}")
+    if camera is not None and not isinstance(camera, Camera):
+        raise OptionError(f"render: camera must be a Camera or None, got {type(camera).__name__}")
+    for name, size in (("width", width), ("height", height)):
+        if camera is None and (isinstance(size, bool) or not isinstance(size, numbers.Integral) or size < 1):
+            raise OptionError(f"render: {name} must be an integer >= 1, got {size!r}")
+    for name, rgb in (("color", color), ("background", background)):
+        try:
+            triple = np.asarray(rgb, np.float64)
+        except (TypeError, ValueError):
+            triple = None
+        if triple is None or triple.shape != (3,) or not (np.isfinite(triple).all() and 0 <= triple.min()
+                                                          and triple.max() <= 255):
+            raise OptionError(f"render: {name} must be an RGB triple of numbers 0..255, got {rgb!r}")
+    return positions, faces
+
+
 def render(positions, faces, camera: Camera | None = None, *, width: int = 256, height: int = 256,
            color=SURFACE, background=BACKGROUND, supersample: int = 2) -> np.ndarray:
     """Render a mesh: (height, width, 3) uint8 RGB.
@@ -173,8 +205,7 @@ def render(positions, faces, camera: Camera | None = None, *, width: int = 256, 
     color, background : RGB triples 0..255
     supersample : render at this factor and box-filter down (1 = aliased).
     """
-    positions = np.asarray(positions, dtype=np.float64)
-    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    positions, faces = _checked_arguments(positions, faces, camera, width, height, color, background)
     if camera is None:
         camera = Camera.fit(positions, width, height)
     k = max(1, int(supersample))

@@ -151,3 +151,69 @@ def test_a_mesh_made_of_lists_counts_and_shows_itself():
     with pytest.raises(MeshError, match="vertex or face data is not numeric"):
         pmwm_codec.Mesh([[0, 0, 0], [1, 0]], [[0, 1, 2]])
 
+
+@pytest.mark.parametrize("arguments, error, words", [
+    ({"positions": MESH.positions * np.nan}, MeshError, "NaN or infinite coordinates"),
+    ({"faces": MESH.faces + MESH.vertex_count}, MeshError, "face index .* out of range"),
+    ({"positions": MESH.positions[:, :2]}, MeshError, r"positions must be \(n, 3\)"),
+    ({"positions": np.zeros((0, 3)), "faces": np.zeros((0, 3), int)}, MeshError, "n >= 1 without a camera"),
+    ({"width": 0}, pmwm_codec.errors.OptionError, "width must be an integer >= 1, got 0"),
+    ({"height": -5}, pmwm_codec.errors.OptionError, "height must be an integer >= 1, got -5"),
+    ({"color": "red"}, pmwm_codec.errors.OptionError, "color must be an RGB triple"),
+    ({"background": (1, 2)}, pmwm_codec.errors.OptionError, "background must be an RGB triple"),
+    ({"camera": 5}, pmwm_codec.errors.OptionError, "camera must be a Camera or None, got int"),
+])
+def test_render_names_a_wrong_argument_with_a_pmw_error(arguments, error, words):
+    """render (README: pictures without the command line) raised IndexError (a face index out of range, (n, 2)
+    positions), ValueError from numpy or Pillow (no vertices, width 0 or negative, a colour of two numbers or a
+    name), AttributeError (a camera that is none), and drew NaN positions as garbage with RuntimeWarnings."""
+    from pmwm_codec.render import render
+
+    arguments = {"positions": MESH.positions, "faces": MESH.faces, **arguments}
+    with pytest.raises(error, match=words):
+        render(arguments.pop("positions"), arguments.pop("faces"), **arguments)
+
+
+def test_render_of_no_faces_is_the_background():
+    from pmwm_codec.render import BACKGROUND, render
+
+    image = render(MESH.positions, np.zeros((0, 3), np.int64), width=8, height=8)
+    assert image.shape == (8, 8, 3) and (image == BACKGROUND).all()
+
+
+@pytest.fixture(scope="module")
+def results():
+    data = io.BytesIO()
+    pmwm_codec.encode(MESH, data, measure="none")
+    return list(pmwm_codec.iter_decode(data.getvalue()))
+
+
+@pytest.mark.parametrize("arguments, words", [
+    ({"results": []}, "nothing to draw"),
+    ({"results": [1, 2]}, "each must be a PartialResult of pmwm_codec.iter_decode, got int"),
+    ({"k": 0}, r"k \(how many levels the overview shows\) must be an integer >= 1, got 0"),
+    ({"tamper": [10 ** 9]}, r"tamper: vertex indices \(f,\) of the last result's mesh"),
+])
+def test_write_figures_names_a_wrong_argument_with_an_option_error_and_writes_nothing(tmp_path, results, arguments,
+                                                                                      words):
+    """Each raised ValueError ('no results to draw'), AttributeError, IndexError (k=0, a flagged vertex past
+    the mesh) from inside the drawing."""
+    from pmwm_codec.figures import write_figures
+
+    arguments = {"results": results, **arguments}
+    with pytest.raises(pmwm_codec.errors.OptionError, match=words):
+        write_figures(arguments.pop("results"), tmp_path / "pictures", **arguments)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_write_figures_of_results_kept_without_meshes_says_how_to_keep_them(tmp_path):
+    """verify_stream's results hold no meshes unless keep_meshes=True: write_figures raised numpy's ValueError
+    ('need at least one array to concatenate')."""
+    from pmwm_codec.figures import write_figures
+
+    data = io.BytesIO()
+    pmwm_codec.encode(MESH, data, watermark=_image(4), key=tmp_path / "k.key.json", measure="none")
+    verified = pmwm_codec.verify_stream(data.getvalue(), tmp_path / "k.key.json")
+    with pytest.raises(pmwm_codec.errors.OptionError, match="keep_meshes=True"):
+        write_figures(verified.results, tmp_path / "pictures")
+    assert not (tmp_path / "pictures").exists()
