@@ -217,3 +217,24 @@ def test_write_figures_of_results_kept_without_meshes_says_how_to_keep_them(tmp_
     with pytest.raises(pmwm_codec.errors.OptionError, match="keep_meshes=True"):
         write_figures(verified.results, tmp_path / "pictures")
     assert not (tmp_path / "pictures").exists()
+
+
+def test_decode_and_encode_in_several_threads_give_what_one_thread_gives(tmp_path):
+    """README: the library keeps no state between calls, so calls may run in threads at once (each on its own
+    arguments): the same bytes decoded in 3 threads, 3 encodes with one key object, as one thread does them."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from pmwm_codec.watermark.key import WatermarkKey
+
+    key = WatermarkKey.generate(rng=np.random.default_rng(5))
+
+    def encoded(_):
+        out = io.BytesIO()
+        pmwm_codec.encode(MESH, out, watermark=_image(5), key=key, measure="none")
+        return out.getvalue()
+
+    alone = encoded(None)
+    with ThreadPoolExecutor(3) as pool:
+        assert list(pool.map(encoded, range(3))) == [alone] * 3
+        meshes = list(pool.map(lambda _: pmwm_codec.decode(alone), range(3)))
+    assert all(m == pmwm_codec.decode(alone) for m in meshes)
