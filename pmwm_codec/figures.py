@@ -447,7 +447,8 @@ def _checked_results(results, k, tamper) -> list:
         raise OptionError("results: nothing to draw; give the PartialResults of pmwm_codec.iter_decode, base first")
     wrong = next((r for r in results if not isinstance(r, PartialResult)), None)
     if wrong is not None:
-        raise OptionError(f"results: each must be a PartialResult of pmwm_codec.iter_decode, got {type(wrong).__name__}")
+        raise OptionError("results: each must be a PartialResult of pmwm_codec.iter_decode, "
+                          f"got {type(wrong).__name__}")
     if any(not r.parts for r in results):
         raise OptionError("results: they hold no meshes to draw (verify_stream keeps them with keep_meshes=True)")
     if isinstance(k, bool) or not isinstance(k, numbers.Integral) or k < 1:

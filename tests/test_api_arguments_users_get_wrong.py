@@ -238,3 +238,18 @@ def test_decode_and_encode_in_several_threads_give_what_one_thread_gives(tmp_pat
         assert list(pool.map(encoded, range(3))) == [alone] * 3
         meshes = list(pool.map(lambda _: pmwm_codec.decode(alone), range(3)))
     assert all(m == pmwm_codec.decode(alone) for m in meshes)
+
+
+def test_a_key_that_is_no_json_object_is_named_as_what_it_is(tmp_path):
+    """WatermarkKey.from_json of the key's text (a str), and a key file holding a JSON list, were refused as
+    '"format" is not "pmwm-key"', which sent the user looking at a member the key has."""
+    from pmwm_codec.errors import WatermarkKeyError
+    from pmwm_codec.watermark.key import WatermarkKey
+
+    text = WatermarkKey.generate(rng=np.random.default_rng(6)).to_text().decode()
+    with pytest.raises(WatermarkKeyError, match=r"a JSON object expected, got str: give json.loads\(text\)"):
+        WatermarkKey.from_json(text)
+    (tmp_path / "list.json").write_text("[1, 2]")
+    with pytest.raises(WatermarkKeyError, match="list.json: not a valid watermark key .a JSON object expected, "
+                                                 "got list"):
+        pmwm_codec.load_key(tmp_path / "list.json")

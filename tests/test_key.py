@@ -94,7 +94,7 @@ def test_check_binds_to_a_file(key):
     "content, message",
     [
         (b"\x00\xff garbage", "not JSON"),
-        (b"[1, 2]", "format"),
+        (b"[1, 2]", "a JSON object expected, got list"),
         (b'{"format": "pmwm-key", "version": 99, "secret": ""}', "version"),
         (b'{"format": "pmwm-key", "version": 1, "secret": "zz"}', "hexadecimal"),
         (b'{"format": "pmwm-key", "version": 1, "secret": "abcd"}', "bytes"),

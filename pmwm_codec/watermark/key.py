@@ -235,7 +235,11 @@ class WatermarkKey:
         from ..format.document import check_json_depth
 
         check_json_depth(doc, source, error=WatermarkKeyError)
-        if not isinstance(doc, dict) or doc.get("format") != KEY_FORMAT:
+        if not isinstance(doc, dict):  # a key file holding a list, or the key's text given for its object
+            text = isinstance(doc, (str, bytes))
+            hint = ": give json.loads(text), or WatermarkKey.load(path) for a file" if text else ""
+            raise bad(f"a JSON object expected, got {type(doc).__name__}{hint}")
+        if doc.get("format") != KEY_FORMAT:
             raise bad(f'"format" is not "{KEY_FORMAT}"')
         if not _is_int(doc.get("version")) or doc["version"] != KEY_VERSION:
             raise bad(f"unsupported key version {doc.get('version')!r}")
