@@ -253,3 +253,25 @@ def test_a_key_that_is_no_json_object_is_named_as_what_it_is(tmp_path):
     with pytest.raises(WatermarkKeyError, match="list.json: not a valid watermark key .a JSON object expected, "
                                                  "got list"):
         pmwm_codec.load_key(tmp_path / "list.json")
+
+
+def test_a_stream_decoder_takes_a_key_file_path_and_names_wrong_arguments_with_pmw_errors(tmp_path):
+    """StreamDecoder(key) raised AttributeError ('str' object has no attribute 'mac_key') for a key file path, which
+    iter_decode and load_key take, and for an int; max_chunks=-1 or '2' was taken; a feed() after close() raised a
+    bare ValueError."""
+    from pmwm_codec.errors import OptionError, WatermarkKeyError
+    from pmwm_codec.stream import StreamDecoder
+
+    data = io.BytesIO()
+    pmwm_codec.encode(MESH, data, watermark=_image(7), key=tmp_path / "k.key.json", measure="none")
+    by_path = StreamDecoder(tmp_path / "k.key.json")
+    by_object = StreamDecoder(pmwm_codec.load_key(tmp_path / "k.key.json"))
+    assert [r.nc for r in by_path.feed(data.getvalue())] == [r.nc for r in by_object.feed(data.getvalue())]
+    with pytest.raises(WatermarkKeyError, match="a key must be a WatermarkKey, a key file path or None, got int"):
+        StreamDecoder(5)
+    for wrong in (-1, "2"):
+        with pytest.raises(OptionError, match="must be None or an integer >= 0"):
+            StreamDecoder(max_chunks=wrong)
+    by_path.close()
+    with pytest.raises(OptionError, match="single-use: it was already closed"):
+        by_path.feed(b"")

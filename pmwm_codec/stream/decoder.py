@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..constants import MAX_VERTICES
-from ..errors import FormatError, LimitError, PmwError, WatermarkKeyError
+from ..errors import FormatError, LimitError, OptionError, PmwError, WatermarkKeyError
 from ..format import BaseEvent, ChunkEvent, ContainerParser, EndEvent, HeaderEvent
 from ..format.mac import MacChecker
 from ..mesh import Mesh
@@ -150,7 +150,7 @@ class StreamDecoder:
 
     Parameters
     ----------
-    key : WatermarkKey, optional
+    key : WatermarkKey or a key file path, optional
         Needed to read the watermark.  A key whose fingerprint differs from the
         file's raises :class:`WatermarkKeyError` as soon as the header is in.
     reference : (s, s) uint8, optional
@@ -165,6 +165,10 @@ class StreamDecoder:
 
     def __init__(self, key=None, reference=None, *, copy: bool = True, max_chunks: int | None = None,
                  check_key: bool = True):
+        from ..options import checked_chunks
+        from ..watermark.key import as_key
+
+        key, max_chunks = as_key(key), checked_chunks(max_chunks)  # a key file path too
         self._parser = ContainerParser(max_chunks=max_chunks)  # the chunks after them are not even opened
         self._replay = Replay(max_chunks=max_chunks, carriers=key is not None)  # only a key reads them
         self.key = key
@@ -198,7 +202,7 @@ class StreamDecoder:
     def feed(self, data) -> list:
         """Consume bytes; return the :class:`PartialResult` objects that became available."""
         if self._closed:
-            raise ValueError("StreamDecoder is single-use: it was already closed")
+            raise OptionError("StreamDecoder is single-use: it was already closed")
         data = byte_view(data, "StreamDecoder.feed()")  # a str is refused before anything is read
         if self._error is not None:  # the stream broke: every later call says why
             raise self._error
