@@ -115,3 +115,108 @@ def test_a_chunk_table_vertex_count_over_the_limit_is_a_limit_error_before_the_n
 
     with pytest.raises(LimitError, match="exceeds the limit"):
         _decode(_rewrite("sphere-attributes.plain.v2.pmw", change))
+
+
+# --- bytes after the GLB's declared length (spec README, Partial files) ------------------------------------------
+
+TRAILING = [b"\0\0\0\0", b"JUNKJUNKJUNK", (CONFORMANCE / PLAIN).read_bytes()[:24]]  # zeros, text, a second GLB's start
+
+
+def _level(r) -> tuple:
+    """What a level is, independent of how the bytes were split."""
+    return (r.chunk, r.bytes_read, r.vertices, r.faces_count, r.positions_int.tobytes(), r.faces.tobytes(),
+            b"".join(p.attributes_int.tobytes() for p in r.parts))
+
+
+def _pieces(data: bytes, size: int) -> list:
+    return [data[i:i + size] for i in range(0, len(data), size)]
+
+
+def _splits(clean: bytes, extra: bytes):
+    """``(name, pieces)``: ``clean + extra`` split in every way the spec names: at once, in pieces of several sizes
+    (the extra bytes split across feeds when a piece is shorter), the extra bytes in the piece that brings the last
+    chunk, in a later piece, or in several later pieces."""
+    data = clean + extra
+    yield "whole", [data]
+    for size in (1, 3, 7, 64, 509, 4096):
+        yield f"pieces of {size}", _pieces(data, size)
+    last_chunk = _decoded(clean)[-1][1]
+    start = last_chunk - 5  # the last chunk's end and the extra bytes together
+    yield "with the last chunk", [clean[:start], data[start:]]
+    yield "later", [clean, extra]
+    yield "later, split", [clean, *_pieces(extra, 2)]
+    yield "later, after an empty feed", [clean, b"", extra]
+
+
+def _decoded(data: bytes) -> list:
+    dec = StreamDecoder()
+    levels = [_level(r) for r in dec.feed(data)]
+    assert dec.close().complete
+    return levels
+
+
+@pytest.mark.parametrize("name", [PLAIN, DRACO, "sphere-attributes.plain.v2.pmw", "bowtie.welded-draco.packed.v2.pmw"])
+@pytest.mark.parametrize("extra", TRAILING, ids=["zeros", "text", "glb"])
+def test_bytes_after_the_declared_length_come_after_every_level_and_are_refused_once(name, extra):
+    """Every level the bytes inside the GLB's length complete is delivered, in order and as the clean file's, then
+    one FormatError names the bytes after that length: from the feed that brought them when it completed no level,
+    else from the next call (``feed`` or ``close``), and again from every call after it. The reader refused the
+    feed that brought the extra bytes without reading the file's bytes in it (a whole file: no level at all),
+    where the JavaScript reader delivered them: the two readers showed different levels of the same bytes."""
+    clean = (CONFORMANCE / name).read_bytes()
+    total = len(clean)
+    expected = _decoded(clean)
+    for how, pieces in _splits(clean, extra):
+        dec, levels, error, at, received, over = StreamDecoder(), [], None, None, 0, None
+        for i, piece in enumerate([*pieces, None]):  # None: close()
+            received += len(piece or b"")
+            if over is None and received > total:
+                over = (i, received - total)
+            try:
+                levels += dec.feed(piece) if piece is not None else [dec.close()]
+            except FormatError as exc:
+                error, at = exc, i
+                break
+        assert error is not None and over is not None, how
+        assert [_level(r) for r in levels] == expected, how
+        assert at in (over[0], over[0] + 1), how  # refused by the feed that brought them, or by the next call
+        assert str(error) == f"GLB: {over[1]} bytes after the declared file length {total}", how
+        for again in (dec.close,) if at == len(pieces) else (lambda: dec.feed(b""), dec.close):
+            with pytest.raises(FormatError) as exc:
+                again()
+            assert exc.value is error, how
+
+
+def test_the_pull_readers_give_every_level_then_refuse_bytes_after_the_declared_length(tmp_path):
+    """``iter_decode`` (a path, bytes) yields the clean file's levels, then raises; ``decode`` and ``pmw decode``
+    refuse (exit 2, one line, no file written), as for a corrupt last chunk."""
+    import pmwm_codec
+    from pmwm_codec.cli import main
+
+    clean = (CONFORMANCE / PLAIN).read_bytes()
+    longer = tmp_path / "longer.pmw"
+    longer.write_bytes(clean + b"JUNK")
+    expected = _decoded(clean)
+    for source in (longer, clean + b"JUNK"):
+        levels = []
+        with pytest.raises(FormatError, match=f"^GLB: 4 bytes after the declared file length {len(clean)}$"):
+            for r in pmwm_codec.iter_decode(source):
+                levels.append(_level(r))
+        assert levels == expected
+        with pytest.raises(FormatError, match="after the declared file length"):
+            pmwm_codec.decode(source)
+    assert main(["decode", str(longer), "-o", str(tmp_path / "out.obj")]) == 2
+    assert not (tmp_path / "out.obj").exists()
+
+
+@pytest.mark.parametrize("chunks", [0, 1, None])
+def test_cut_refuses_bytes_after_the_declared_length_that_arrive_after_the_chunks_it_keeps(chunks):
+    """``pmw cut --chunks N`` stops parsing once chunk N is in: bytes after the declared length in a later block
+    (a file of more than 64 KiB, read in blocks) were never seen and the cut was written, exit 0; in the same block
+    they were refused."""
+    import pmwm_codec
+
+    clean = (CONFORMANCE / PLAIN).read_bytes()
+    for blocks in ([clean, b"JUNK"], [clean + b"JUNK"], [*_pieces(clean, 4096), b"JU", b"NK"]):
+        with pytest.raises(FormatError, match=f"^GLB: [24] bytes after the declared file length {len(clean)}$"):
+            pmwm_codec.cut(iter(blocks), chunks=chunks)

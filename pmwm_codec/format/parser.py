@@ -27,7 +27,9 @@ or ``close`` call, so every good chunk before a bad one is delivered): a bad dig
 (``.chunk`` = index; None for a base mesh whose ``baseDigest`` differs); bad magic, JSON, layout or extension fields are ``FormatError``;
 a newer extension ``version`` is ``UnsupportedVersionError``; declared sizes or counts
 over the limits of :mod:`pmwm_codec.constants` (and JSON nested deeper than ``MAX_JSON_DEPTH``) are ``LimitError``, checked before
-anything of that size is allocated or decompressed.
+anything of that size is allocated or decompressed.  Bytes after the GLB header's ``length`` are a
+``FormatError`` raised the same way: the bytes up to that length are read as usual and the events they
+complete are returned first (spec README, *Partial files*), however the stream was split into ``feed`` calls.
 
 A parser is single-use: after ``close()`` or after it raised, it refuses more input.
 :func:`~.reader.iter_events` and :func:`~.reader.read_header` (in :mod:`.reader`) are thin pull wrappers.
@@ -345,9 +347,8 @@ class ContainerParser:
             raise RuntimeError("ContainerParser: feed() after an error; a parser is single-use")
         data = byte_view(data, "ContainerParser.feed()")
         self._received += len(data)
-        if self._total is not None and self._received > self._total:
-            self._state = _FAILED
-            raise FormatError(f"GLB: {self._received - self._total} bytes after the declared file length {self._total}")
+        if self._total is not None and self._received > self._total:  # only the bytes up to the length are read
+            data = data[: max(0, len(data) - (self._received - self._total))]
         if self._state != _TAIL:
             self._buf += data
         events = []
@@ -360,6 +361,8 @@ class ContainerParser:
                     events.extend(event)
                 elif event is not True:
                     events.append(event)
+            if self._total is not None and self._received > self._total:  # after the events the file's bytes made
+                raise trailing_bytes(self._received, self._total)
         except Exception as exc:
             self._state = _FAILED
             if not events:
@@ -442,8 +445,8 @@ class ContainerParser:
                     parse_preamble(bytes(self._buf[:4]) + bytes(PREAMBLE_SIZE))  # bad magic, early
                 return None
             self._total, self._json_length = parse_preamble(head)
-            if self._received > self._total:
-                raise trailing_bytes(self._received, self._total)
+            if self._received > self._total:  # the bytes after the length are no part of the file: never read
+                del self._buf[max(0, self._total - self._buf_start):]
             self._state = _JSON
             return True
         if state == _JSON:

@@ -35,6 +35,7 @@ from ..format.extension import chunk_start, payload_version
 from ..format.glb import compact_chunks, glb_parts
 from ..format.gltf import find_extension_primitives
 from ..format.layout import padded
+from ..format.parser import trailing_bytes
 from ..sources import iter_blocks
 
 
@@ -100,7 +101,7 @@ def _read_prefix(source, chunks):
 
     The remaining bytes are only collected (the data a kept bufferView needs may lie
     past the last kept chunk in files of other writers), never parsed, so damage in a
-    dropped chunk does not matter.  Returns ``(HeaderEvent, [ChunkEvent] kept, bytes
+    dropped chunk does not matter; bytes after the declared length do (FormatError).  Returns ``(HeaderEvent, [ChunkEvent] kept, bytes
     received, whether the source was complete)``.
     """
     parser = ContainerParser()
@@ -121,6 +122,8 @@ def _read_prefix(source, chunks):
         parser.close()  # TruncatedError when the base mesh never arrived
     if header is None or header.bin_offset is None:  # pragma: no cover - close() raised already
         raise TruncatedError(f"the file ends after {len(received):,} bytes, before its BIN chunk")
+    if len(received) > header.total_length:  # (the parser names them, unless it stopped before they came)
+        raise trailing_bytes(len(received), header.total_length)
     return header, kept, bytes(received), len(received) >= header.total_length
 
 

@@ -9,7 +9,10 @@ a :class:`StreamEnd` saying whether it was complete or cut short.  A cut stream
 is progress, not corruption: every complete chunk has been delivered; only a
 stream that ends before its base mesh is complete raises
 :class:`~pmwm_codec.errors.TruncatedError`.  A chunk whose digest fails raises
-:class:`~pmwm_codec.errors.ChecksumError` naming it.  The decoder is single-use: a second
+:class:`~pmwm_codec.errors.ChecksumError` naming it; bytes after the GLB header's ``length`` raise
+:class:`~pmwm_codec.errors.FormatError` naming how many, once every level the bytes before it complete is
+delivered (spec README, *Partial files*): the container's errors found in a ``feed`` that first completed
+levels are raised by the next ``feed`` or ``close``, after they are returned.  The decoder is single-use: a second
 ``close()`` returns the same :class:`StreamEnd`, after an error every later call raises that
 error again, and ``feed`` after ``close`` is a ValueError.  Data that is not bytes-like (a ``str``)
 is an :class:`~pmwm_codec.errors.OptionError`.
