@@ -51,7 +51,7 @@ export class PmwDecoder {
     this.chunksApplied = 0;
     this.closed = false;
     this.failed = null;
-    this.overflow = false; // the feed that brought the header brought bytes past the GLB length too
+    this.overflow = 0; // bytes past the GLB length in the feed that brought the header
     this.broken = false; // a chunk failed after it began to change the mesh: snapshot() rebuilds the last good level
     this.pending = 0;
     this.queue = Promise.resolve();
@@ -91,11 +91,13 @@ export class PmwDecoder {
     if (this.failed) throw this.failed;
     const out = [];
     try {
-      // bytes past the GLB length are refused, after the chunks before them (each complete chunk is delivered)
+      // bytes past the GLB length are refused, after the levels the bytes before it complete (spec/README.md,
+      // Partial files): those are read as usual, the rest never
       const room = this.header ? this.header.length - this.received : Infinity;
       this.#append(bytes.length > room ? bytes.subarray(0, room) : bytes);
       await this.#advance(out);
-      if (bytes.length > room || this.overflow) throw new FormatError('more bytes than the GLB length');
+      const past = Math.max(0, bytes.length - room) + this.overflow;
+      if (past) throw new FormatError(`GLB: ${past} bytes after the declared file length ${this.header.length}`);
     } catch (e) {
       this.failed = e;
       if (!out.length) throw e;
@@ -124,8 +126,8 @@ export class PmwDecoder {
       if (this.received < preambleLength(data)) return;
       this.header = parseGlb(data);
       if (this.received > this.header.length) { // the bytes past it are let go; this feed fails after its levels
+        this.overflow = this.received - this.header.length;
         this.received = this.header.length;
-        this.overflow = true;
       }
       this.plan = planDocument(this.header.gltf, this.header.binLength);
       // zstd only for payload version 1 chunks (a version 2 stream's first decode does not load it)

@@ -7,8 +7,8 @@ import assert from 'node:assert/strict';
 import { readFileSync } from 'node:fs';
 import { join } from 'node:path';
 import { test } from 'node:test';
-import { FormatError, decodePmw } from '../src/index.js';
-import { CONFORMANCE } from './lib/helpers.js';
+import { FormatError, PmwDecoder, decodePmw } from '../src/index.js';
+import { CONFORMANCE, levelDigest } from './lib/helpers.js';
 
 /** The file `name` with change(gltf) applied to its JSON (the BIN kept as it is). */
 function rewrite(name, change) {
@@ -61,5 +61,78 @@ test('a base accessor componentType or type given as a string or a one-element a
       acc[field] = wrap(acc[field]);
     });
     await assert.rejects(decodePmw(changed), FormatError, `${name} ${which} ${field}`);
+  }
+});
+
+// --- bytes after the GLB's declared length (spec/README.md, Partial files): the cases of
+// tests/test_reader_differentials.py::test_bytes_after_the_declared_length_come_after_every_level_and_are_refused_once
+
+const load = (name) => new Uint8Array(readFileSync(join(CONFORMANCE, name)));
+const concat = (...parts) => {
+  const out = new Uint8Array(parts.reduce((a, p) => a + p.length, 0));
+  let at = 0;
+  for (const p of parts) { out.set(p, at); at += p.length; }
+  return out;
+};
+const pieces = (bytes, size) => {
+  const out = [];
+  for (let i = 0; i < bytes.length; i += size) out.push(bytes.subarray(i, i + size));
+  return out;
+};
+/** What a level is, independent of how the bytes were split. */
+const level = (r) => [r.chunk, r.bytesRead, r.vertexCount, r.faceCount, levelDigest(r.mesh)].join(' ');
+
+/** [how, pieces] of clean + extra, split in every way the spec names (as _splits in the Python test). */
+function splits(clean, extra, lastChunkEnd) {
+  const data = concat(clean, extra);
+  const out = [['whole', [data]]];
+  for (const size of [1, 3, 7, 64, 509, 4096]) out.push([`pieces of ${size}`, pieces(data, size)]);
+  const start = lastChunkEnd - 5; // the last chunk's end and the extra bytes together
+  out.push(['with the last chunk', [data.subarray(0, start), data.subarray(start)]]);
+  out.push(['later', [clean, extra]]);
+  out.push(['later, split', [clean, ...pieces(extra, 2)]]);
+  out.push(['later, after an empty feed', [clean, new Uint8Array(0), extra]]);
+  return out;
+}
+
+test('bytes after the declared length come after every level and are refused once, however the bytes are split', async () => {
+  const extras = { zeros: new Uint8Array(4), text: new TextEncoder().encode('JUNKJUNKJUNK'), glb: load(PLAIN).subarray(0, 24) };
+  for (const name of [PLAIN, DRACO, 'sphere-attributes.plain.v2.pmw', 'bowtie.welded-draco.packed.v2.pmw']) {
+    const clean = load(name);
+    const total = clean.length;
+    const reference = new PmwDecoder({ snapshots: true });
+    const expected = (await reference.feed(clean)).map(level);
+    assert.ok((await reference.close()).complete);
+    const lastChunkEnd = Number(expected.at(-1).split(' ')[1]);
+    for (const [kind, extra] of Object.entries(extras)) {
+      for (const [how, parts] of splits(clean, extra, lastChunkEnd)) {
+        const what = `${name} ${kind} ${how}`;
+        const d = new PmwDecoder({ snapshots: true });
+        const levels = [];
+        let error = null;
+        let at = -1;
+        let received = 0;
+        let over = null;
+        for (let i = 0; i <= parts.length; i++) { // i === parts.length: close()
+          received += i < parts.length ? parts[i].length : 0;
+          if (over === null && received > total) over = [i, received - total];
+          try {
+            if (i < parts.length) levels.push(...(await d.feed(parts[i])));
+            else await d.close();
+          } catch (e) {
+            error = e;
+            at = i;
+            break;
+          }
+        }
+        assert.ok(error instanceof FormatError && over !== null, what);
+        assert.deepEqual(levels.map(level), expected, what);
+        assert.ok(at === over[0] || at === over[0] + 1, `${what}: refused by the feed that brought them, or the next call`);
+        assert.equal(error.message, `GLB: ${over[1]} bytes after the declared file length ${total}`, what);
+        assert.equal(d.error, error, what);
+        if (at < parts.length) await assert.rejects(d.feed(new Uint8Array(0)), (e) => e === error, what);
+        await assert.rejects(d.close(), (e) => e === error, what);
+      }
+    }
   }
 });
