@@ -220,3 +220,27 @@ def test_cut_refuses_bytes_after_the_declared_length_that_arrive_after_the_chunk
     for blocks in ([clean, b"JUNK"], [clean + b"JUNK"], [*_pieces(clean, 4096), b"JU", b"NK"]):
         with pytest.raises(FormatError, match=f"^GLB: [24] bytes after the declared file length {len(clean)}$"):
             pmwm_codec.cut(iter(blocks), chunks=chunks)
+
+
+def test_a_chunk_that_fails_as_it_is_applied_comes_after_the_levels_of_the_same_feed():
+    """A last chunk whose counts differ from its index entry (digest intact: it fails as it is applied): the
+    feed that brought it with the chunks before it raised at once and returned none of their levels (fed chunk by
+    chunk, they were delivered); the JavaScript reader returns them and refuses from the next call, as the spec's
+    Integrity section asks (the levels before stay valid). Now the same levels whatever the split."""
+    def change(gltf):
+        ext = _prim(gltf)["extensions"]["PMWM_progressive_mesh"]
+        ext["chunks"][-1]["faceCount"] += 2
+        ext["faceCount"] += 2
+
+    data = _rewrite(PLAIN, change)
+    expected = [level[:1] + level[2:] for level in _decoded((CONFORMANCE / PLAIN).read_bytes())[:-1]]
+    for size in (len(data), 4096, 1):
+        dec, levels = StreamDecoder(), []
+        with pytest.raises(FormatError, match=f"^chunk {len(expected)}: vertex/face counts differ") as exc:
+            for piece in _pieces(data, size):
+                levels += dec.feed(piece)
+            dec.close()
+        assert [level[:1] + level[2:] for level in map(_level, levels)] == expected, size
+        with pytest.raises(FormatError) as again:
+            dec.close()
+        assert again.value is exc.value

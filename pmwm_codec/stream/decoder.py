@@ -11,8 +11,9 @@ stream that ends before its base mesh is complete raises
 :class:`~pmwm_codec.errors.TruncatedError`.  A chunk whose digest fails raises
 :class:`~pmwm_codec.errors.ChecksumError` naming it; bytes after the GLB header's ``length`` raise
 :class:`~pmwm_codec.errors.FormatError` naming how many, once every level the bytes before it complete is
-delivered (spec README, *Partial files*): the container's errors found in a ``feed`` that first completed
-levels are raised by the next ``feed`` or ``close``, after they are returned.  The decoder is single-use: a second
+delivered (spec README, *Partial files*): an error found in a ``feed`` that first completed levels (a chunk's
+digest, a chunk that fails as it is applied, bytes after the length) is raised by the next ``feed`` or ``close``,
+after they are returned, so the levels delivered never depend on how the bytes were split.  The decoder is single-use: a second
 ``close()`` returns the same :class:`StreamEnd`, after an error every later call raises that
 error again, and ``feed`` after ``close`` is a ValueError.  Data that is not bytes-like (a ``str``)
 is an :class:`~pmwm_codec.errors.OptionError`.
@@ -215,9 +216,10 @@ class StreamDecoder:
                 result = self._on_event(event)
                 if result is not None:
                     out.append(result)
-        except PmwError as exc:
+        except PmwError as exc:  # a chunk that fails as it is applied: the levels before it first, as the parser's
             self._error = exc
-            raise
+            if not out:
+                raise
         return out
 
     def close(self) -> StreamEnd:
