@@ -154,10 +154,12 @@ def scene_parts(gltf: dict, buffers, also=()) -> Scene:
         for k, matrix in enumerate(matrices):
             shown = name if len(matrices) == 1 else f"{name}_{k}"
             showings.append(Showing(shown, [_placed(part, matrix) for part in stored]))
-    for semantic, what in (("TEXCOORD_1", "a second texture set (TEXCOORD_1)"), ("COLOR_1", "a second colour set"),
-                           ("JOINTS_0", "skin weights")):
+    for semantic, what in (("TEXCOORD_1", "a second texture set (TEXCOORD_1) is left out: an OBJ or PLY holds one set"),
+                           ("COLOR_1", "a second colour set is left out: an OBJ or PLY holds one set"),
+                           ("JOINTS_0", "skin joints and weights (JOINTS_n, WEIGHTS_n) are left out: an OBJ or PLY "
+                                        "holds none")):
         if any(semantic in prim.get("attributes", {}) for _, prim in written):
-            notices.append(f"{what} is left out: an OBJ or PLY holds one set")
+            notices.append(what)
     return Scene(showings, materials, images, notices)
 
 

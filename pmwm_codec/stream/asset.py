@@ -583,17 +583,25 @@ def posed_notes(gltf: dict | None) -> list:
     them by their joints; and those with morph targets (non-progressive, :func:`plain_triangle_primitives`),
     which it holds posed at the weights a viewer draws them with at rest
     (:func:`~pmwm_codec.format.document.shown_weights`), the targets themselves left out -- or as stored, when
-    their nodes draw them with different weights."""
+    their nodes draw them with different weights.  A skinned mesh its nodes
+    move is said to be moved: a glTF viewer ignores a skinned mesh node's transform (glTF 2.0 3.7.3.3), while the file
+    places it by its nodes as :func:`scene_as_shown` does (the frame :func:`~pmwm_codec.format.gltf.owner_placements`
+    marks its owner layer in)."""
     if not gltf:
         return []
     skinned = {n.get("mesh") for n in gltf.get("nodes", []) if isinstance(n, dict) and "skin" in n}
     shown = set(placements_by_mesh(gltf)) if gltf.get("nodes") else None
     progressive = {mi for mi, _, _ in find_extension_primitives(gltf, EXTENSION_NAME) if shown is None or mi in shown}
     plain = plain_triangle_primitives(gltf)
+    meshes = sorted({mi for mi, _ in plain} | progressive)
+    moved = {mi for mi, matrices in zip(meshes, world_placements(gltf, meshes)[0] or [])
+             if any(not np.array_equal(m, np.eye(4)) for m in matrices)}
     notes = []
-    for mi in sorted({mi for mi, _ in plain} | progressive):
+    for mi in meshes:
         if mi in skinned:
-            notes.append(f"mesh {mi} is skinned: the file holds it in its stored pose, not posed by its joints")
+            notes.append(f"mesh {mi} is skinned: the file holds it in its stored pose, not posed by its joints"
+                         + (", moved by its node's transform, which a glTF viewer ignores for a skinned mesh"
+                            if mi in moved else ""))
         morphs = [gltf["meshes"][mi]["primitives"][pi] for m, pi in plain if m == mi]
         morphs = [prim for prim in morphs if prim.get("targets")]
         if not morphs:

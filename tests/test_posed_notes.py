@@ -1,0 +1,78 @@
+"""An OBJ / PLY of an asset says where it differs from what a glTF viewer shows: a skinned mesh's joints and
+weights left out (an OBJ holds none), a skinned mesh moved by its node's transform (which a viewer ignores,
+glTF 2.0 3.7.3.3), a mesh its node draws with morph weights (a node's weights override its mesh's) posed by
+them."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from pmwm_codec import shapes
+from pmwm_codec.cli import main
+from pmwm_codec.stream.asset import encode_asset
+
+from test_asset import DocBuilder
+from test_skinned import _skinned_asset
+
+
+def _notices(capsys, *args) -> list:
+    capsys.readouterr()
+    assert main([*map(str, args), "--json"]) in (0, None)
+    return json.loads(capsys.readouterr().out)["notices"]
+
+
+def _with_node(path, **node):
+    """Rewrite the GLB at ``path`` with its node 0 updated by ``node`` (JSON only)."""
+    from pmwm_codec.format.glb import glb_parts
+    from pmwm_codec.format.document import load_document
+
+    doc, buffers = load_document(path)
+    doc["nodes"][0].update(node)
+    path.write_bytes(b"".join(glb_parts(doc, [buffers[0]], len(buffers[0]))))
+
+
+def test_an_obj_of_a_skinned_mesh_says_its_joints_and_weights_are_left_out_not_that_it_holds_one_set(tmp_path, capsys):
+    _skinned_asset(tmp_path / "in.glb")
+    encode_asset(tmp_path / "in.glb", tmp_path / "in.pmw", measure=False)
+    notices = _notices(capsys, "decode", tmp_path / "in.pmw", "-o", tmp_path / "out.obj")
+    assert "skin joints and weights (JOINTS_n, WEIGHTS_n) are left out: an OBJ or PLY holds none" in notices
+    assert not any("one set" in n for n in notices)
+
+
+def test_an_obj_of_a_skinned_mesh_its_node_moves_says_a_viewer_would_not_move_it(tmp_path, capsys):
+    positions, _, _ = _skinned_asset(tmp_path / "in.glb")
+    _with_node(tmp_path / "in.glb", translation=[3.0, 0.0, 0.0], scale=[1.0, 2.0, 1.0])
+    encode_asset(tmp_path / "in.glb", tmp_path / "in.pmw", measure=False)
+    notices = _notices(capsys, "decode", tmp_path / "in.pmw", "-o", tmp_path / "out.obj")
+    assert ("mesh 0 is skinned: the file holds it in its stored pose, not posed by its joints, moved by its node's "
+            "transform, which a glTF viewer ignores for a skinned mesh") in notices
+    obj = np.array([ln.split()[1:4] for ln in (tmp_path / "out.obj").read_text().splitlines() if ln.startswith("v ")],
+                   float)
+    assert obj[:, 0].min() > positions[:, 0].min() + 2  # (the note is true: the OBJ places it by the node)
+    _skinned_asset(tmp_path / "still.glb")  # a skinned mesh no node moves: the plain note
+    encode_asset(tmp_path / "still.glb", tmp_path / "still.pmw", measure=False)
+    notices = _notices(capsys, "decode", tmp_path / "still.pmw", "-o", tmp_path / "still.obj")
+    assert "mesh 0 is skinned: the file holds it in its stored pose, not posed by its joints" in notices
+
+
+def test_an_obj_of_a_mesh_its_node_draws_morphed_holds_it_morphed_and_says_so(tmp_path, capsys):
+    """The mesh's own weights are zero, its node's are not: a viewer draws it morphed (so does read_mesh)."""
+    b = DocBuilder()
+    sphere = shapes.icosphere(2, 1.0)
+    prim = b.triangles(sphere, uv=False)
+    prim["targets"] = [{"POSITION": b.accessor((sphere.positions * 0.5).astype(np.float32), 5126, "VEC3", 34962, True)}]
+    ball = b.triangles(shapes.icosphere(3, 1.0, noise=0.02), uv=False)  # (an asset needs a progressive mesh)
+    b.doc.update({"scene": 0, "scenes": [{"nodes": [0, 1]}],
+                  "nodes": [{"mesh": 0, "weights": [0.5]}, {"mesh": 1, "translation": [3.0, 0.0, 0.0]}],
+                  "meshes": [{"primitives": [prim], "weights": [0.0]}, {"primitives": [ball]}]})
+    (tmp_path / "in.glb").write_bytes(b.glb())
+    encode_asset(tmp_path / "in.glb", tmp_path / "in.pmw", measure=False)
+    for out in ("out.obj", "out.ply"):
+        notices = _notices(capsys, "decode", tmp_path / "in.pmw", "-o", tmp_path / out)
+        assert ("mesh 0's morph targets are left out: the file holds it posed at the weights it is drawn with at rest "
+                "(decode to .glb to keep them)") in notices, out
+    obj = (tmp_path / "out.obj").read_text().splitlines()
+    radii = np.linalg.norm(np.array([ln.split()[1:4] for ln in obj if ln.startswith("v ")], float), axis=1)
+    assert np.isclose(radii.min(), 1.25, atol=1e-3)  # the unit sphere morphed by 0.5 x its half: at the node's weight
