@@ -12,8 +12,9 @@ transpose, the winding reversed under a mirroring one), as :class:`Showing` s of
 base colour, its alpha where ``alphaMode`` blends (where it masks: 1 or 0, as the alpha reaches ``alphaCutoff`` or
 not, a mask being opaque where drawn), the roughness, the emission, the base colour, normal and emissive
 textures) and the images those use.  What such a file cannot hold (another texture set than the first, a texture
-transform, metallic-roughness and occlusion textures, a material's ``doubleSided``; in a PLY the materials
-themselves) is left out with a notice.
+transform, metallic-roughness and occlusion textures, a material's ``doubleSided`` and its extensions:
+KHR_materials_clearcoat, _transmission, _pbrSpecularGlossiness ...; in a PLY the materials themselves) is left
+out with a notice.
 
 :func:`write_scene` writes the files as one set (:func:`~pmwm_codec.atomic.write_set`: all or none):
 
@@ -275,6 +276,11 @@ def _materials(gltf: dict, buffers, written: list, notices: list) -> tuple:
         if mat.get("doubleSided") is True:
             left.add(f"material {name} is double-sided (doubleSided): an MTL cannot say so, and a viewer that culls "
                      "back faces (three.js) hides its inside (decode to .glb to keep it)")
+        extensions = sorted(set(_object(mat, "extensions", f"materials[{mi}]")) - {EMISSIVE_STRENGTH})  # (in Ke)
+        if extensions:  # clearcoat, transmission, unlit ...
+            left.add(f"material {name}'s {', '.join(extensions)} "
+                     + ("is left out: an MTL cannot say it" if len(extensions) == 1 else
+                        "are left out: an MTL cannot say them"))
         material_map[mi] = len(materials)
         materials.append(out)
     notices.extend(sorted(left))

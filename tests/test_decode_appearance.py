@@ -284,3 +284,33 @@ def test_the_library_call_writes_what_the_command_writes_and_returns_its_json(tm
     assert (tmp_path / "api.obj").read_bytes().replace(b"api.mtl", b"cli.mtl") == (tmp_path / "cli.obj").read_bytes()
     with pytest.raises(pmwm_codec.PmwError, match="is also the input"):
         pmwm_codec.decode_to(src, src)
+
+
+def test_an_obj_of_an_asset_says_it_leaves_out_material_extensions(tmp_path):
+    """An MTL has no clearcoat, transmission, unlit ...: each material says what it lost (they were dropped without
+    a word: a glass material came out as an opaque white one); a PLY says it lost the emission too."""
+    from pmwm_codec.stream.asset import encode_asset
+
+    from test_asset import DocBuilder
+
+    b = DocBuilder()
+    prims = [{**b.triangles(shapes.icosphere(3, 1.0, noise=0.02)), "material": 0},
+             {**b.triangles(shapes.icosphere(3, 0.5, noise=0.02)), "material": 1}]
+    b.doc.update({
+        "extensionsUsed": ["KHR_materials_transmission", "KHR_materials_volume", "KHR_materials_unlit"],
+        "meshes": [{"primitives": prims}],
+        "materials": [{"name": "glass", "emissiveFactor": [1.0, 0.5, 0.0],
+                       "extensions": {"KHR_materials_transmission": {"transmissionFactor": 0.9},
+                                      "KHR_materials_volume": {"thicknessFactor": 0.2}}},
+                      {"name": "flat", "extensions": {"KHR_materials_unlit": {}}}],
+    })
+    (tmp_path / "in.glb").write_bytes(b.glb())
+    encode_asset(tmp_path / "in.glb", tmp_path / "in.pmw", measure=False)
+    for suffix in (".obj", ".ply"):
+        out = pmw("decode", tmp_path / "in.pmw", "-o", tmp_path / f"out{suffix}", "--json")
+        notices = json.loads(out.stdout)["notices"]
+        assert ("material glass's KHR_materials_transmission, KHR_materials_volume are left out: an MTL cannot say "
+                "them") in notices, suffix
+        assert "material flat's KHR_materials_unlit is left out: an MTL cannot say it" in notices
+        emission_lost = any("emission (emissiveFactor, emissiveTexture) is left out" in n for n in notices)
+        assert emission_lost == (suffix == ".ply")  # (an MTL holds it: Ke)
