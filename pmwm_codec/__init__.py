@@ -199,7 +199,10 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
 
 #: How the encoder says a :attr:`Mesh.cleanup` count that is no "dropped k <what>".
 _CLEANUP_SAID = {"gpu_instanced_meshes": "{} mesh(es) drawn by GPU instancing (EXT_mesh_gpu_instancing), whose "
-                                         "instances the geometry reader does not place: every mesh read once, as stored"}
+                                         "instances the geometry reader does not place: every mesh read once, as stored",
+                "skinned_meshes_moved_by_their_nodes": "{} skinned mesh(es) read in their stored pose placed by their "
+                                                       "node's transform, which a glTF viewer ignores for a skinned "
+                                                       "mesh (glTF 2.0 3.7.3.3)"}
 
 
 def _key_watermark(key, owner_id=None) -> tuple:

@@ -43,7 +43,8 @@ class Mesh:
     attributes: dict = field(default_factory=dict)
     #: What :func:`checked_mesh` dropped: ``{"degenerate_faces": k, "unreferenced_vertices": j}``, and what the
     #: file reader left out (``duplicate_soup_vertices``, a glTF's ``primitives_of_points_or_lines`` and
-    #: ``gpu_instanced_meshes``, an OBJ's ``line_and_point_records``): counts, each said by the encoder.
+    #: ``gpu_instanced_meshes``, an OBJ's ``line_and_point_records``) or placed otherwise than a viewer draws it (a
+    #: glTF's ``skinned_meshes_moved_by_their_nodes``): counts, each said by the encoder.
     cleanup: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -502,12 +503,15 @@ def _read_gltf(path, name) -> Mesh:
     (``primitives_of_points_or_lines``).  Morph targets are applied by the default weights (a node's
     ``weights``, else its mesh's: the rest pose a viewer draws;
     :func:`~pmwm_codec.format.document.rest_weights`); skins are not (the
-    stored, bind-pose positions).  MeshError (named by primitive) for a TRIANGLES index count that is not a
-    multiple of 3, as the asset encoder says it, and for a scene that shows no triangle.  A scene that draws a mesh by
+    stored, bind-pose positions), and a skinned mesh is placed by its nodes as any mesh is (the frame its owner
+    layer is read in), which a glTF viewer ignores: counted in ``cleanup``
+    (``skinned_meshes_moved_by_their_nodes``) where that moves it.  MeshError (named by primitive) for a
+    TRIANGLES index count that is not a multiple of 3, as the asset encoder says it, and for a scene that shows no
+    triangle.  A scene that draws a mesh by
     ``EXT_mesh_gpu_instancing`` (whose instances are not placed here; the asset encoder keeps them) is read as
     decode writes it to OBJ: each shown mesh once, as stored, counted in ``cleanup`` (``gpu_instanced_meshes``)."""
     from .format.document import load_document, primitive_triangles, rest_weights
-    from .format.gltf import DRACO_EXTENSION, TRIANGLE_MODES, TRIANGLES, placements_by_mesh, scene_mesh
+    from .format.gltf import DRACO_EXTENSION, TRIANGLE_MODES, TRIANGLES, placements_by_mesh, scene_mesh, skinned_meshes
 
     gltf, buffers = load_document(path)
     meshes = gltf.get("meshes", [])
@@ -518,7 +522,7 @@ def _read_gltf(path, name) -> Mesh:
     instanced = sum(any(m is None for m in matrices) for matrices in shown.values())  # (transforms are checked)
     if instanced:  # as decode writes such a scene to OBJ (stream.asset.scene_as_shown): each mesh once, as stored
         shown = {mi: [np.eye(4)] for mi in shown}
-    parts, frames, lines = [], [], 0
+    parts, frames, placed, lines = [], [], [], 0
     for mi in sorted(shown):
         matrices = shown[mi]
         for pi, prim in enumerate(meshes[mi].get("primitives", [])):
@@ -550,6 +554,7 @@ def _read_gltf(path, name) -> Mesh:
                                 "(counted from 0)")  # (as the asset encoder says it: checked_mesh's words)
             parts.append((np.asarray(positions, np.float64), np.asarray(faces, np.int64)))
             frames.append(matrices)
+            placed.append(mi)
     if not any(len(f) and len(m) for (_, f), m in zip(parts, frames)):
         why = ("it has no mesh" if not meshes else "no node of its scene shows a mesh" if not shown
                else "its scene shows points and lines alone" if lines and not parts
@@ -561,6 +566,10 @@ def _read_gltf(path, name) -> Mesh:
         mesh.cleanup["primitives_of_points_or_lines"] = lines
     if instanced:
         mesh.cleanup["gpu_instanced_meshes"] = instanced
+    skinned = skinned_meshes(gltf)
+    moved = sum(mi in skinned and any(not np.array_equal(m, np.eye(4)) for m in shown[mi]) for mi in set(placed))
+    if moved:  # where the owner layer is marked and read (format.gltf.owner_placements), not where viewers draw it
+        mesh.cleanup["skinned_meshes_moved_by_their_nodes"] = moved
     return mesh
 
 

@@ -76,3 +76,17 @@ def test_an_obj_of_a_mesh_its_node_draws_morphed_holds_it_morphed_and_says_so(tm
     obj = (tmp_path / "out.obj").read_text().splitlines()
     radii = np.linalg.norm(np.array([ln.split()[1:4] for ln in obj if ln.startswith("v ")], float), axis=1)
     assert np.isclose(radii.min(), 1.25, atol=1e-3)  # the unit sphere morphed by 0.5 x its half: at the node's weight
+
+
+def test_geometry_only_of_a_skinned_mesh_its_node_moves_says_a_viewer_would_not_move_it(tmp_path, capsys):
+    """read_mesh places it by its node (the owner layer's frame) and counts it in ``cleanup``; the encoder says so."""
+    import pmwm_codec
+
+    _skinned_asset(tmp_path / "in.glb")
+    _with_node(tmp_path / "in.glb", translation=[3.0, 0.0, 0.0])
+    assert pmwm_codec.read_mesh(tmp_path / "in.glb").cleanup == {"skinned_meshes_moved_by_their_nodes": 1}
+    notices = _notices(capsys, "encode", tmp_path / "in.glb", "-o", tmp_path / "in.pmw", "--geometry-only")
+    assert ("1 skinned mesh(es) read in their stored pose placed by their node's transform, which a glTF viewer "
+            "ignores for a skinned mesh (glTF 2.0 3.7.3.3)") in notices
+    _skinned_asset(tmp_path / "still.glb")
+    assert not pmwm_codec.read_mesh(tmp_path / "still.glb").cleanup

@@ -664,6 +664,11 @@ def placements_by_mesh(gltf: dict) -> dict:
     return out
 
 
+def skinned_meshes(gltf: dict) -> set:
+    """The indices of the meshes a node with a ``skin`` shows (read leniently: whatever the nodes' ``mesh`` hold)."""
+    return {node.get("mesh") for node in gltf.get("nodes", []) if isinstance(node, dict) and "skin" in node}
+
+
 def placed_by_nodes(gltf: dict) -> bool:
     """Whether the default scene (or, without one, every root node) moves a mesh away from its stored
     coordinates (a node transform on its path) or shows a mesh more than once (instances).  Reads the

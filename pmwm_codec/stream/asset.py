@@ -84,6 +84,7 @@ from ..format.gltf import (
     placed_by_nodes,
     placements_by_mesh,
     scene_mesh,
+    skinned_meshes,
     uses_extension,
     world_placements,
     view_bytes,
@@ -589,7 +590,7 @@ def posed_notes(gltf: dict | None) -> list:
     marks its owner layer in)."""
     if not gltf:
         return []
-    skinned = {n.get("mesh") for n in gltf.get("nodes", []) if isinstance(n, dict) and "skin" in n}
+    skinned = skinned_meshes(gltf)
     shown = set(placements_by_mesh(gltf)) if gltf.get("nodes") else None
     progressive = {mi for mi, _, _ in find_extension_primitives(gltf, EXTENSION_NAME) if shown is None or mi in shown}
     plain = plain_triangle_primitives(gltf)
