@@ -73,7 +73,14 @@ def checked_source(source):
     if isinstance(source, (str, os.PathLike)):
         return source
     if _has_buffer(source):
-        return byte_view(source, "the source")
+        view = byte_view(source, "the source")
+        if _looks_like_a_name(view):
+            from .errors import FormatError
+
+            raise FormatError(f"the source is {len(view)} bytes of text that look like a file name, not a .pmw: a "
+                              "reader takes bytes as the file's content; give a name as a str or os.PathLike "
+                              "(os.fsdecode(name))")
+        return view
     if hasattr(source, "read"):
         check_file_object(source, "the source", "read")
         return source
@@ -83,6 +90,22 @@ def checked_source(source):
         raise OptionError(f"the source must be a path, '-', bytes, a binary file object or an iterable of byte "
                           f"blocks, got {type(source).__name__}")
     return source
+
+
+def _looks_like_a_name(view: memoryview) -> bool:
+    """Whether the bytes ``view`` are a file name given where a ``.pmw``'s bytes belong (``decode(b"x.pmw")``): short
+    text, one line, with a folder separator or a ``.pmw`` / ``.glb`` ending, that no ``.pmw`` can be (no GLB
+    magic).  Read for the message alone: nothing is looked up on disk, and the text is not repeated."""
+    if not 0 < len(view) <= 4096:
+        return False
+    data = bytes(view)
+    if data.startswith(b"glTF") or any(c < 0x20 for c in data):
+        return False
+    try:
+        data.decode("utf-8")
+    except UnicodeDecodeError:
+        return False
+    return b"/" in data or b"\\" in data or data.lower().endswith((b".pmw", b".glb"))
 
 
 def iter_blocks(source, block_size: int = DEFAULT_BLOCK_SIZE):

@@ -104,6 +104,17 @@ def test_a_dict_or_a_set_is_no_source_of_blocks(source):
         pmwm_codec.decode(source)
 
 
+@pytest.mark.parametrize("name", [b"/tmp/model.pmw", b"model.pmw", b"C:\\assets\\m.glb", bytearray(b"scans/a")])
+def test_a_file_name_given_as_bytes_to_a_reader_is_said_to_be_read_as_the_file_s_content(tmp_path, name):
+    """decode(b"/tmp/x.pmw") said only "bad magic b'/tmp'": the reader takes bytes as a .pmw's content."""
+    for read in (pmwm_codec.decode, pmwm_codec.inspect, lambda src: list(pmwm_codec.iter_decode(src))):
+        with pytest.raises(pmwm_codec.errors.FormatError, match="look like a file name.*give a name as a str") as exc:
+            read(name)
+        assert bytes(name).decode() not in str(exc.value)  # (the text itself is not repeated)
+    with pytest.raises(pmwm_codec.errors.FormatError, match="bad magic"):  # text that names no file: as before
+        pmwm_codec.decode(b"hello")
+
+
 def test_a_mesh_of_another_library_or_a_pair_of_arrays_is_refused_with_the_mesh_that_takes_them(tmp_path):
     """encode() of a trimesh.Trimesh or of (positions, faces) said only "got Trimesh" / "got tuple"."""
     class OtherMesh:  # what trimesh.Trimesh offers
