@@ -506,6 +506,13 @@ function httpError(url, res, what = '') {
   return new FetchError(`${url}: HTTP ${res.status}${what}`, { url, status: res.status });
 }
 
+/** The Content-Length of a whole-file answer `res` whose body is the file as stored (no Content-Encoding), else undefined. */
+function answerLength(res) {
+  const encoding = (res.headers?.get?.('Content-Encoding') ?? 'identity').trim().toLowerCase();
+  const length = res.headers?.get?.('Content-Length');
+  return encoding === 'identity' && /^\s*\d+\s*$/.test(length ?? '') ? Number(length) : undefined;
+}
+
 /** {first, last, size} of an answer's Content-Range (size undefined for `*`), null when absent or not readable (CORS). */
 function contentRange(res) {
   const m = /^\s*bytes\s+(\d+)-(\d+)\/(\d+|\*)\s*$/i.exec(res.headers?.get?.('Content-Range') ?? '');
@@ -773,11 +780,15 @@ export async function loadProgressive(loader, href, options = {}) {
   // without the extension: all of it, loaded as it is) and those the load reads (`end`: readEnd); known once the
   // JSON is in (parsed once)
   let known;
+  let size; // the file's size as the first answer gives it (Content-Range, or an unencoded answer's Content-Length)
   const needed = () => {
     if (known !== undefined) return known.base;
     if (prefix.length >= 20) checkPreamble(prefix); // a JSON chunk over the limit: refused before it is fetched
     if (prefix.length < 20 || prefix.length < preambleLength(prefix)) return preambleLength(prefix);
     const header = parseGlb(prefix);
+    if (size > header.length) { // spec/README.md, Partial files: refused (a reader told the size MAY refuse at once)
+      throw new FormatError(`${url}: GLB: ${size - header.length} bytes after the declared file length ${header.length}`);
+    }
     if (!header.gltf.extensionsUsed?.includes?.(EXTENSION_NAME)) known = { base: header.length, end: header.length };
     else {
       const plan = planDocument(header.gltf, header.binLength);
@@ -793,6 +804,7 @@ export async function loadProgressive(loader, href, options = {}) {
     if (res === STOPPED) throw signal.reason;
     count.requests++;
     if (!res.ok) throw httpError(url, res);
+    size = res.status === 206 ? contentRange(res)?.size : answerLength(res);
     const wanted = () => { needed(); return known.end; }; // the JSON is in
     rest = res.status === 206 ? rangeStream(fetchFn, url, net, count, res, () => requestEnd(prefix, wanted))
       : bodyPieces(res, net, url, Infinity, count);

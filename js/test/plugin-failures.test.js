@@ -38,6 +38,7 @@ before(async () => {
   const corrupt = bytes.slice();
   corrupt[binStart + stream[K - 1].offset + stream[K - 1].length - 1] ^= 0x40; // the last chunk's digest differs
   fs.writeFileSync(path.join(tmp, 'corrupt-last.pmw'), corrupt);
+  fs.writeFileSync(path.join(tmp, 'trailing.pmw'), Buffer.concat([bytes, Buffer.from('JUNKJUNK')]));
   servers.ranges = await startServer(tmp);
   servers.plain = await startServer(tmp, { ranges: false });
 });
@@ -187,6 +188,17 @@ test('Range answers shorter than asked: the rest is asked for, the load complete
   const outcome = await gltf.userData.pmwm.done;
   assert.equal(outcome.chunksApplied, K);
   assert.equal(outcome.bytesFetched, bytes.length);
+});
+
+test('a file with bytes after its GLB length is refused as the server sizes it (Content-Range, Content-Length): no level', async () => {
+  // spec/README.md, Partial files: a reader told the size before the bytes may refuse at once; the plugin had shown
+  // the file complete, its 8 extra bytes unread (Range) or read and ignored (one GET)
+  for (const server of [servers.ranges, servers.plain]) {
+    await assert.rejects(loadProgressive(new GLTFLoader(), `${server.url}trailing.pmw`, { range: server === servers.ranges }),
+      (e) => e instanceof FormatError && /GLB: 8 bytes after the declared file length \d+/.test(e.message));
+    const gltf = await loadProgressive(new GLTFLoader(), `${server.url}${NAME}`, { range: server === servers.ranges });
+    assert.equal((await gltf.userData.pmwm.done).complete, true); // (the same file without them: whole)
+  }
 });
 
 test('HTTP errors and network failures are FetchError (status, url, cause), not FormatError or a raw TypeError', async () => {
