@@ -286,3 +286,23 @@ def test_a_stream_decoder_takes_a_key_file_path_and_names_wrong_arguments_with_p
     by_path.close()
     with pytest.raises(OptionError, match="single-use: it was already closed"):
         by_path.feed(b"")
+
+
+def test_a_stream_decoder_reads_its_reference_image_when_made(tmp_path):
+    """StreamDecoder(reference="x.png") raised a bare ValueError ("invalid literal for int()") from inside the first
+    feed(); the reference is read as iter_decode reads its watermark: a path, or an array, checked when made."""
+    from pmwm_codec.errors import InputFormatError
+    from pmwm_codec.stream import StreamDecoder
+
+    data = io.BytesIO()
+    pmwm_codec.encode(MESH, data, watermark=_image(7), key=tmp_path / "k.key.json", measure="none")
+    with pytest.raises(InputFormatError, match="no such file"):
+        StreamDecoder(tmp_path / "k.key.json", reference=str(tmp_path / "missing.png"))
+    with pytest.raises(InputFormatError, match="watermark array"):
+        StreamDecoder(tmp_path / "k.key.json", reference=5)
+    image = pmwm_codec.load_key(tmp_path / "k.key.json").reference
+    from PIL import Image
+
+    Image.fromarray(image).save(tmp_path / "mark.png")
+    by_file = StreamDecoder(tmp_path / "k.key.json", reference=str(tmp_path / "mark.png")).feed(data.getvalue())
+    assert by_file[-1].nc == pytest.approx(1.0)

@@ -157,7 +157,7 @@ class StreamDecoder:
     key : WatermarkKey or a key file path, optional
         Needed to read the watermark.  A key whose fingerprint differs from the
         file's raises :class:`WatermarkKeyError` as soon as the header is in.
-    reference : (s, s) uint8, optional
+    reference : (s, s) uint8, or an image as ``iter_decode``'s ``watermark`` takes it, optional
         The original watermark, for NC/PSNR; defaults to the one in the key.
     copy : bool
         Copy the mesh arrays into every result (default) or hand out views.
@@ -170,9 +170,12 @@ class StreamDecoder:
     def __init__(self, key=None, reference=None, *, copy: bool = True, max_chunks: int | None = None,
                  check_key: bool = True):
         from ..options import checked_chunks
+        from ..watermark.image import load_watermark_given
         from ..watermark.key import as_key
 
         key, max_chunks = as_key(key), checked_chunks(max_chunks)  # a key file path too
+        if reference is not None:  # a path or an array, checked now (it was read, or failed, at the first level)
+            reference = load_watermark_given(reference)[0]
         self._parser = ContainerParser(max_chunks=max_chunks)  # the chunks after them are not even opened
         self._replay = Replay(max_chunks=max_chunks, carriers=key is not None)  # only a key reads them
         self.key = key
