@@ -124,9 +124,12 @@ def _note_interrupts(noted: list):
     """While the modules load: a SIGINT raises KeyboardInterrupt as Python's own handler does, and is noted in
     ``noted``, because a compiled module's loading may turn it into another error (numpy's C extension, its
     import of ``datetime`` interrupted, raises an ImportError that has lost the KeyboardInterrupt).  Only where
-    Python's own handler is in place, in the main thread (an ignored SIGINT stays ignored); returns the handler
-    to restore (None: nothing changed)."""
+    Python's own handler is in place, in the main thread (an ignored SIGINT stays ignored).  Where Python
+    cannot raise it (a weakref callback, as importlib's module locks run) it prints no "Exception ignored"
+    traceback: noted, ``main`` says it once.  Returns what :func:`_restore_sigint` puts back (the handler and
+    ``sys.unraisablehook``; None: nothing changed)."""
     import signal
+    import sys
     import threading
 
     if threading.current_thread() is not threading.main_thread() \
@@ -137,11 +140,20 @@ def _note_interrupts(noted: list):
         noted.append(signum)
         raise KeyboardInterrupt
 
-    return signal.signal(signal.SIGINT, note)
+    hook = sys.unraisablehook
+
+    def unraisable(info):  # a KeyboardInterrupt raised in a weakref callback (importlib's module locks) is
+        if not (noted and isinstance(info.exc_value, KeyboardInterrupt)):  # ignored by Python, which printed a
+            hook(info)  # traceback ("Exception ignored in ..."): noted, it is said once, as "interrupted"
+
+    sys.unraisablehook = unraisable
+    return signal.signal(signal.SIGINT, note), hook
 
 
 def _restore_sigint(previous) -> None:
     if previous is not None:
         import signal
+        import sys
 
-        signal.signal(signal.SIGINT, previous)
+        handler, sys.unraisablehook = previous
+        signal.signal(signal.SIGINT, handler)
