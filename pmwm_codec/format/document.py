@@ -354,7 +354,8 @@ def check_document(gltf: dict, name: str) -> None:
     bufferViews) is an index in range, that an accessor's ``normalized`` is a
     boolean, true only where glTF allows it (never on indices), that a primitive's
     indices are an unsigned integer SCALAR accessor and an animation's keyframe times a
-    FLOAT SCALAR one, that every required
+    FLOAT SCALAR one, that skins and animations are what glTF allows (:func:`_check_skins`,
+    :func:`_check_channels`: what the Khronos validator calls errors, from the JSON alone), that every required
     extension is used and supported (:data:`READ_EXTENSIONS`,
     :data:`CARRIED_EXTENSIONS`), and that the triangle primitives
     declare no more vertices and faces in total than the encoder takes
@@ -411,6 +412,9 @@ def check_document(gltf: dict, name: str) -> None:
         _check_scene_roots(scene.get("nodes", []), parent, f"scenes[{i}].nodes", name)
     _check_meshes(gltf, n_acc, n_views, name)
     _check_carried_refs(gltf, count["materials"], name)
+    _check_skins(gltf, parent, name)
+    for i, anim in enumerate(gltf.get("animations", [])):
+        _check_channels(gltf, anim, f"animations[{i}]", name)
 
 
 def _check_carried_refs(gltf: dict, n_materials: int, name: str) -> None:
@@ -508,6 +512,151 @@ def _check_animation(anim: dict, where: str, accessors: list, n_nodes: int, name
         at = f"{where}.channels[{j}]"
         _ref(channel, "sampler", len(samplers), at, name, "sampler", required=True)
         _ref(_object(channel.get("target"), f"{at}.target", name), "node", n_nodes, f"{at}.target", name, "node")
+
+
+#: The accessor formats glTF 2.0 (5.6 animation sampler) allows an animation's output for each target path:
+#: ``path -> (type, FLOAT or the integer componentTypes allowed normalized)``.
+_OUTPUT_TYPES = {"translation": ("VEC3", ()), "scale": ("VEC3", ()), "rotation": ("VEC4", tuple(NORMALIZE_DIVISORS)),
+                 "weights": ("SCALAR", tuple(NORMALIZE_DIVISORS))}
+
+
+def _check_channels(gltf: dict, anim: dict, where: str, name: str) -> None:
+    """What an animation's channels ask of their samplers and target nodes (glTF 2.0, 3.11 and 5.5-5.6; the
+    Khronos validator's errors): keyframe times with ``min`` / ``max``; an output of the format its path takes
+    (:data:`_OUTPUT_TYPES`) holding one value per keyframe -- three (in-tangent, value, out-tangent) for
+    CUBICSPLINE, which needs two keyframes, times the morph targets for ``weights``; no ``byteStride`` on their
+    bufferViews; a ``weights`` target whose mesh has morph targets, a TRS target without a ``matrix``, and no
+    two channels of the animation on one target; at least one channel and one sampler.  Indices and types are checked already
+    (:func:`_check_animation`, :func:`_check_meshes`)."""
+    accessors, nodes, meshes = gltf.get("accessors", []), gltf.get("nodes", []), gltf.get("meshes", [])
+    samplers, seen = anim.get("samplers", []), {}
+    for key in ("samplers", "channels"):
+        if not anim.get(key):
+            raise InputFormatError(f"{name}: {where}.{key} is empty; a glTF animation has at least one")
+    for j, sampler in enumerate(samplers):
+        at = f"{where}.samplers[{j}]"
+        times = accessors[sampler["input"]]
+        if "min" not in times or "max" not in times:
+            raise InputFormatError(f"{name}: {at}.input: accessor {sampler['input']} has no min / max; glTF "
+                                   "declares the bounds of keyframe times")
+        if sampler.get("interpolation") == "CUBICSPLINE" and times["count"] < 2:
+            raise InputFormatError(f"{name}: {at}: a CUBICSPLINE sampler with {times['count']} keyframe; it "
+                                   "needs at least 2")
+        for key in ("input", "output"):
+            if _view_stride(gltf, accessors[sampler[key]]) is not None:
+                raise InputFormatError(f"{name}: {at}.{key}: accessor {sampler[key]}'s bufferView has a "
+                                       "byteStride; glTF animation data is tightly packed")
+    for j, channel in enumerate(anim.get("channels", [])):
+        at, target = f"{where}.channels[{j}]", channel["target"]
+        path, node = target.get("path"), target.get("node")
+        if node is None or not isinstance(path, str) or path not in _OUTPUT_TYPES:  # another path: a warning
+            continue
+        if (node, path) in seen:
+            raise InputFormatError(f"{name}: {at} animates the {path} of nodes[{node}], as {where}.channels"
+                                   f"[{seen[node, path]}] does; glTF gives each target one channel")
+        seen[node, path] = j
+        sampler = samplers[channel["sampler"]]
+        if path == "weights":
+            mesh = meshes[nodes[node]["mesh"]] if "mesh" in nodes[node] else None
+            targets = len(mesh["primitives"][0].get("targets", [])) if mesh else 0
+            if not targets:
+                raise InputFormatError(f"{name}: {at} animates the morph weights of nodes[{node}], which draws "
+                                       "no mesh with morph targets")
+        elif "matrix" in nodes[node]:
+            raise InputFormatError(f"{name}: {at} animates the {path} of nodes[{node}], which has a matrix; "
+                                   "glTF animates only translation / rotation / scale nodes")
+        out = accessors[sampler["output"]]
+        kind, integers = _OUTPUT_TYPES[path]
+        if out["type"] != kind or (out["componentType"] != FLOAT and (out["componentType"] not in integers
+                                                                       or out.get("normalized") is not True)):
+            allowed = f"a FLOAT {kind}" + (" or a normalized integer one" if integers else "")
+            raise InputFormatError(f"{name}: {at}: its sampler's output, accessor {sampler['output']}, is "
+                                   f"{_kind(out)}{' (normalized)' if out.get('normalized') else ''}; "
+                                   f"glTF's {path} is {allowed}")
+        per_key = (3 if sampler.get("interpolation") == "CUBICSPLINE" else 1) * (targets if path == "weights" else 1)
+        keys = accessors[sampler["input"]]["count"]
+        if out["count"] != keys * per_key:
+            each = f" x {per_key} values" if per_key > 1 else ""
+            raise InputFormatError(f"{name}: {at}: its sampler's output, accessor {sampler['output']}, holds "
+                                   f"{out['count']} values for {keys} keyframes{each}; glTF needs "
+                                   f"{keys * per_key}")
+
+
+def _view_stride(gltf: dict, acc: dict):
+    """The ``byteStride`` of accessor ``acc``'s bufferView (checked), or None."""
+    return gltf["bufferViews"][acc["bufferView"]].get("byteStride") if "bufferView" in acc else None
+
+
+def _check_skins(gltf: dict, parent: dict, name: str) -> None:
+    """What skins and skinned nodes ask of each other (glTF 2.0, 3.8 and 5.23; the Khronos validator's errors):
+    a skin's joints are nodes, each once, at least one, under one common root, which its ``skeleton`` (if any)
+    is or is above; its ``inverseBindMatrices`` a FLOAT MAT4 accessor, tightly packed, with a matrix per joint;
+    a node with a skin draws a mesh, skinned (a primitive with JOINTS_0 and WEIGHTS_0), and every primitive has
+    as many JOINTS_n as WEIGHTS_n.  ``parent``: :func:`_check_node_trees`' parent of every child node."""
+    def root(x):
+        while x in parent:
+            x = parent[x]
+        return x
+
+    def above(x):  # x and its ancestors
+        out = [x]
+        while out[-1] in parent:
+            out.append(parent[out[-1]])
+        return out
+
+    accessors, nodes, meshes = gltf.get("accessors", []), gltf.get("nodes", []), gltf.get("meshes", [])
+    for i, skin in enumerate(gltf.get("skins", [])):
+        where, joints = f"skins[{i}]", skin.get("joints", [])
+        if not joints:
+            raise InputFormatError(f"{name}: {where}.joints is empty; a glTF skin has at least one joint")
+        if len(set(joints)) != len(joints):
+            twice = next(j for k, j in enumerate(joints) if j in joints[:k])
+            raise InputFormatError(f"{name}: {where}.joints names nodes[{twice}] twice")
+        common = set(above(joints[0]))
+        for j in joints[1:]:
+            common &= set(above(j))
+        if not common:
+            raise InputFormatError(f"{name}: {where}.joints have no common root (nodes[{joints[0]}] and "
+                                   f"nodes[{next(j for j in joints if root(j) != root(joints[0]))}] are in "
+                                   "different trees)")
+        if "skeleton" in skin and skin["skeleton"] not in common:
+            raise InputFormatError(f"{name}: {where}.skeleton = {skin['skeleton']} is not a common root of its "
+                                   "joints (an ancestor of each, or the joint itself)")
+        if "inverseBindMatrices" in skin:
+            index = skin["inverseBindMatrices"]
+            ibm = accessors[index]
+            at = f"{where}.inverseBindMatrices"
+            if (ibm["type"], ibm["componentType"]) != ("MAT4", FLOAT):
+                raise InputFormatError(f"{name}: {at}: accessor {index} is {_kind(ibm)}; glTF's inverse bind "
+                                       "matrices are a FLOAT MAT4")
+            if ibm["count"] < len(joints):
+                raise InputFormatError(f"{name}: {at}: accessor {index} holds {ibm['count']} matrices for "
+                                       f"{len(joints)} joints; glTF gives each joint one")
+            if _view_stride(gltf, ibm) is not None:
+                raise InputFormatError(f"{name}: {at}: accessor {index}'s bufferView has a byteStride; glTF "
+                                       "inverse bind matrices are tightly packed")
+    scene_roots = [set(scene.get("nodes", [])) for scene in gltf.get("scenes", [])]
+    for i, node in enumerate(nodes):
+        if "skin" not in node:
+            continue
+        if "mesh" not in node:
+            raise InputFormatError(f"{name}: nodes[{i}] has a skin but no mesh to skin")
+        prims = meshes[node["mesh"]]["primitives"]
+        if not any("JOINTS_0" in p.get("attributes", {}) and "WEIGHTS_0" in p.get("attributes", {}) for p in prims):
+            raise InputFormatError(f"{name}: nodes[{i}] has a skin but its mesh {node['mesh']} has no JOINTS_0 and "
+                                   "WEIGHTS_0 to skin it by")
+        joint_root = root(gltf["skins"][node["skin"]]["joints"][0])
+        for s, roots in enumerate(scene_roots):
+            if root(i) in roots and joint_root not in roots:
+                raise InputFormatError(f"{name}: scenes[{s}] shows nodes[{i}], skinned, but not the joints of its "
+                                       f"skin {node['skin']}")
+    for mi, mesh in enumerate(meshes):
+        for pi, prim in enumerate(mesh["primitives"]):
+            sets = {kind: sum(1 for k in prim.get("attributes", {}) if re.fullmatch(kind + r"_\d+", k))
+                    for kind in ("JOINTS", "WEIGHTS")}
+            if sets["JOINTS"] != sets["WEIGHTS"]:
+                raise InputFormatError(f"{name}: meshes[{mi}].primitives[{pi}] has {sets['JOINTS']} JOINTS_n and "
+                                       f"{sets['WEIGHTS']} WEIGHTS_n attributes; glTF pairs them")
 
 
 def _check_scene_roots(roots: list, parent: dict, where: str, name: str) -> None:
