@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 
 from pmwm_codec import shapes
-from pmwm_codec.errors import FormatError
+from pmwm_codec.errors import FormatError, InputFormatError
 from pmwm_codec.format.document import sniff_json
-from pmwm_codec.stream.asset import decode_asset
+from pmwm_codec.stream.asset import decode_asset, encode_asset
 
 from test_asset import DocBuilder
 from test_hostile_inputs import assert_refused, run_encode
@@ -221,6 +221,36 @@ ANIMATION_ERRORS = {
 def test_an_animation_the_validator_calls_an_error_is_refused_by_name(capsys, tmp_path, case):
     edit, words = ANIMATION_ERRORS[case]
     refused(capsys, tmp_path, rigged(), *words, edit=edit)
+
+
+def _times(b: DocBuilder, times) -> None:
+    """Sampler 0 of animation 0 keyed at ``times`` (3 of them, min / max declared as they are)."""
+    sampler(b, 0)["input"] = keyframes(b, times)
+
+
+def test_keyframe_times_that_do_not_strictly_increase_are_refused(capsys, tmp_path):
+    refused(capsys, tmp_path, rigged(), "animations[0].samplers[0].input",
+            "keyframe 2 at 0.5 s is not after keyframe 1 at 1 s", edit=lambda b: _times(b, [0, 1, 0.5]))
+
+
+def test_a_keyframe_time_repeated_is_refused(capsys, tmp_path):
+    refused(capsys, tmp_path, rigged(), "keyframe 1 at 0 s is not after keyframe 0 at 0 s",
+            edit=lambda b: _times(b, [0, 0, 1]))
+
+
+def test_negative_keyframe_times_are_refused(capsys, tmp_path):
+    refused(capsys, tmp_path, rigged(), "animations[0].samplers[0].input", "keyframe 0 is at -1 s",
+            edit=lambda b: _times(b, [-1, 0.5, 1]))
+
+
+def test_an_in_memory_document_with_keyframe_times_out_of_order_is_refused(tmp_path):
+    """``encode_asset((gltf, buffers), ...)`` reads the times as a file's are read."""
+    b = rigged()
+    _times(b, [0, 1, 0.5])
+    b.doc["buffers"] = [{"byteLength": b.offset}]
+    with pytest.raises(InputFormatError, match="the asset: animations.0..samplers.0..input.*not after keyframe 1"):
+        encode_asset((b.doc, [b"".join(b.parts)]), tmp_path / "out.pmw", measure=False)
+    assert not (tmp_path / "out.pmw").exists()
 
 
 def test_a_weights_output_not_one_value_per_keyframe_and_target_is_refused(capsys, tmp_path):

@@ -96,6 +96,7 @@ def load_document(path):
             image["_bytes"] = _resolve_uri(image["uri"], base_dir, name, budget)
     gltf, buffers = decompress_meshopt(gltf, buffers, name)
     label_images(gltf, buffers, name)
+    check_keyframe_times(gltf, buffers, name)
     return gltf, buffers
 
 
@@ -580,6 +581,32 @@ def _check_channels(gltf: dict, anim: dict, where: str, name: str) -> None:
             raise InputFormatError(f"{name}: {at}: its sampler's output, accessor {sampler['output']}, holds "
                                    f"{out['count']} values for {keys} keyframes{each}; glTF needs "
                                    f"{keys * per_key}")
+
+
+def check_keyframe_times(gltf: dict, buffers, name: str) -> None:
+    """Refuse (InputFormatError naming the sampler) keyframe times that are negative or do not strictly increase
+    (glTF 2.0, 5.6; the Khronos validator's ACCESSOR_ANIMATION_INPUT_NEGATIVE / _NON_INCREASING): every
+    animation sampler's ``input`` of a loaded document (its data: buffers read, meshopt decoded), each accessor
+    read once (:func:`read_accessor`, (count, 1) float64).  The rest of an animation is checked from the JSON
+    (:func:`_check_channels`)."""
+    seen = set()
+    for i, anim in enumerate(gltf.get("animations", [])):
+        for j, sampler in enumerate(anim.get("samplers", [])):
+            index = sampler["input"]
+            if index in seen:
+                continue
+            seen.add(index)
+            times = read_accessor(gltf, buffers, index)[:, 0]
+            at = f"{name}: animations[{i}].samplers[{j}].input (accessor {index})"
+            if len(times) and times.min() < 0:
+                k = int(np.argmax(times < 0))
+                raise InputFormatError(f"{at}: keyframe {k} is at {times[k]:g} s; glTF keyframe times are not "
+                                       "negative")
+            later = np.diff(times) <= 0
+            if later.any():
+                k = int(np.argmax(later)) + 1
+                raise InputFormatError(f"{at}: keyframe {k} at {times[k]:g} s is not after keyframe {k - 1} at "
+                                       f"{times[k - 1]:g} s; glTF keyframe times strictly increase")
 
 
 def _view_stride(gltf: dict, acc: dict):
