@@ -243,6 +243,12 @@ def test_negative_keyframe_times_are_refused(capsys, tmp_path):
             edit=lambda b: _times(b, [-1, 0.5, 1]))
 
 
+def test_a_rotation_keyframe_that_is_not_a_unit_quaternion_is_refused(capsys, tmp_path):
+    """The validator's ACCESSOR_ANIMATION_SAMPLER_OUTPUT_NON_NORMALIZED_QUATERNION (a viewer slerps it as it is)."""
+    refused(capsys, tmp_path, rigged(), "animations[0].samplers[0].output", "rotation of keyframe 0 is of length 2",
+            "unit quaternions", edit=lambda b: sampler(b, 0).update(output=values(b, np.ones((3, 4)), "VEC4")))
+
+
 def test_an_in_memory_document_with_keyframe_times_out_of_order_is_refused(tmp_path):
     """``encode_asset((gltf, buffers), ...)`` reads the times as a file's are read."""
     b = rigged()
@@ -261,7 +267,8 @@ def test_a_weights_output_not_one_value_per_keyframe_and_target_is_refused(capsy
 
 def test_a_valid_rigged_asset_animated_every_way_still_encodes_with_its_skin_and_animations(capsys, tmp_path):
     """Every interpolation, morph weights (LINEAR and CUBICSPLINE), a normalized integer rotation output, a
-    sampler no channel uses (valid glTF): encoded, its skin and animations kept as they were."""
+    CUBICSPLINE rotation (its tangents not unit quaternions), a sampler no channel uses (valid glTF): encoded,
+    its skin and animations kept as they were."""
     b = rigged(morph_targets=2)
     b.doc["animations"][0]["samplers"].append(dict(sampler(b, 1)))  # used by no channel
     q = np.round(np.array([[0, 0, 0, 1], [0, 0, 0.38268343, 0.92387953], [0, 0, 0, 1]]) * 32767).astype(np.int16)
@@ -269,6 +276,11 @@ def test_a_valid_rigged_asset_animated_every_way_still_encodes_with_its_skin_and
     b.doc["accessors"][out].update(componentType=5122, normalized=True)
     b.doc["animations"].append({"samplers": [{"input": sampler(b, 0)["input"], "output": out}],
                                 "channels": [{"sampler": 0, "target": {"node": 3, "path": "rotation"}}]})
+    cubic = np.zeros((3, 3, 4), np.float32)  # tangents free (zero), values unit quaternions
+    cubic[:, 1] = [[0, 0, 0, 1], [0, 0.6, 0, 0.8], [0, 0, 0, 1]]
+    b.doc["animations"].append({"samplers": [{"input": sampler(b, 0)["input"], "interpolation": "CUBICSPLINE",
+                                              "output": values(b, cubic.reshape(9, 4), "VEC4")}],
+                                "channels": [{"sampler": 0, "target": {"node": 1, "path": "rotation"}}]})
     src = tmp_path / "rig.glb"
     src.write_bytes(b.glb())
     status, err, path = run_encode(capsys, tmp_path, src)

@@ -96,7 +96,7 @@ def load_document(path):
             image["_bytes"] = _resolve_uri(image["uri"], base_dir, name, budget)
     gltf, buffers = decompress_meshopt(gltf, buffers, name)
     label_images(gltf, buffers, name)
-    check_keyframe_times(gltf, buffers, name)
+    check_animation_data(gltf, buffers, name)
     return gltf, buffers
 
 
@@ -583,15 +583,23 @@ def _check_channels(gltf: dict, anim: dict, where: str, name: str) -> None:
                                    f"{keys * per_key}")
 
 
-def check_keyframe_times(gltf: dict, buffers, name: str) -> None:
-    """Refuse (InputFormatError naming the sampler) keyframe times that are negative or do not strictly increase
-    (glTF 2.0, 5.6; the Khronos validator's ACCESSOR_ANIMATION_INPUT_NEGATIVE / _NON_INCREASING): every
-    animation sampler's ``input`` of a loaded document (its data: buffers read, meshopt decoded), each accessor
-    read once (:func:`read_accessor`, (count, 1) float64).  The rest of an animation is checked from the JSON
-    (:func:`_check_channels`)."""
+#: How far from 1 the length of a rotation keyframe's quaternion may be (the Khronos validator's bound for
+#: ACCESSOR_ANIMATION_SAMPLER_OUTPUT_NON_NORMALIZED_QUATERNION).
+QUATERNION_LENGTH_TOLERANCE = 0.00769
+
+
+def check_animation_data(gltf: dict, buffers, name: str) -> None:
+    """Refuse (InputFormatError naming the sampler) animation data the Khronos validator calls errors (glTF
+    2.0, 5.6): keyframe times that are negative or do not strictly increase (ACCESSOR_ANIMATION_INPUT_NEGATIVE /
+    _NON_INCREASING), and a rotation keyframe whose quaternion is not of unit length within
+    :data:`QUATERNION_LENGTH_TOLERANCE` (a CUBICSPLINE's values; its tangents are free).  Reads the data of a
+    loaded document (buffers read, meshopt decoded), each accessor once (:func:`read_accessor`: (count, 1)
+    float64 times, (count, 4) float64 quaternions, normalized integers mapped to [-1, 1]).  The rest of an
+    animation is checked from the JSON (:func:`_check_channels`)."""
     seen = set()
     for i, anim in enumerate(gltf.get("animations", [])):
-        for j, sampler in enumerate(anim.get("samplers", [])):
+        samplers = anim.get("samplers", [])
+        for j, sampler in enumerate(samplers):
             index = sampler["input"]
             if index in seen:
                 continue
@@ -607,6 +615,20 @@ def check_keyframe_times(gltf: dict, buffers, name: str) -> None:
                 k = int(np.argmax(later)) + 1
                 raise InputFormatError(f"{at}: keyframe {k} at {times[k]:g} s is not after keyframe {k - 1} at "
                                        f"{times[k - 1]:g} s; glTF keyframe times strictly increase")
+        for channel in anim.get("channels", []):
+            j = channel["sampler"]
+            if channel["target"].get("path") != "rotation" or ("rotation", i, j) in seen:
+                continue
+            seen.add(("rotation", i, j))
+            quats = read_accessor(gltf, buffers, samplers[j]["output"])
+            if samplers[j].get("interpolation") == "CUBICSPLINE":
+                quats = quats[1::3]  # in-tangent, value, out-tangent per keyframe
+            off = np.abs(np.linalg.norm(quats, axis=1) - 1) > QUATERNION_LENGTH_TOLERANCE
+            if off.any():
+                k = int(np.argmax(off))
+                raise InputFormatError(f"{name}: animations[{i}].samplers[{j}].output (accessor "
+                                       f"{samplers[j]['output']}): the rotation of keyframe {k} is of length "
+                                       f"{np.linalg.norm(quats[k]):.4g}; glTF rotations are unit quaternions")
 
 
 def _view_stride(gltf: dict, acc: dict):

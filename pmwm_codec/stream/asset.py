@@ -62,7 +62,7 @@ import numpy as np
 from ..constants import EXTENSION_NAME
 from ..errors import DegenerateMeshError, FormatError, InputFormatError, MeshError
 from ..format.document import as_declared, primitive_triangles, shown_weights, triangle_faces, view_sites
-from ..format.document import (check_document, check_keyframe_times, is_progressive, label_images, load_document,
+from ..format.document import (check_animation_data, check_document, is_progressive, label_images, load_document,
                                progressive_refusal, read_accessor, repack)
 from ..format.document import strip_image_profiles as _strip_profiles
 from ..format.glb import glb_parts
@@ -460,7 +460,7 @@ def encode_asset(src, dst, *, strip_image_profiles: bool = False, keep_flat_norm
         _refuse_external_uris(gltf)
         gltf, buffers = decompress_meshopt(gltf, buffers, label)
         label_images(gltf, buffers, label)
-        check_keyframe_times(gltf, buffers, label)
+        check_animation_data(gltf, buffers, label)
     else:
         gltf, buffers = load_document(src)
     if is_progressive(gltf):  # a .pmw by another name: its glTF is the base mesh alone
