@@ -57,7 +57,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .format.document import morphed, primitive_triangles, read_accessor, shown_weights, sniff_image
+from .format.document import (morphed, primitive_triangles, read_accessor, renormalized, shown_weights,
+                               sniff_image)
 from .format.gltf import (
     TRIANGLE_MODES, TRIANGLES, find_extension_primitives, item, placements_by_mesh, view_bytes, world_placements,
 )
@@ -173,9 +174,7 @@ def _part(gltf: dict, buffers, mi: int, prim: dict, material_map: dict) -> Part:
         if semantic in attrs:
             values = read_accessor(gltf, buffers, attrs[semantic]).astype(np.float64)
             if semantic == "NORMAL" and any(weights):  # displaced, then of unit length again, as a viewer shades
-                values = morphed(gltf, buffers, prim, semantic, values, weights)
-                length = np.linalg.norm(values, axis=1, keepdims=True)
-                values = np.divide(values, length, out=np.zeros_like(values), where=length > 0)
+                values = renormalized(morphed(gltf, buffers, prim, semantic, values, weights))
             if len(values) != len(positions):
                 raise InputFormatError(f"mesh {mi}: {semantic} has {len(values)} values for {len(positions)} vertices")
             if not np.isfinite(values).all():  # an OBJ or PLY of it would not read back (nan, inf)

@@ -642,16 +642,14 @@ def _check_skins(gltf: dict, parent: dict, name: str) -> None:
     is or is above; its ``inverseBindMatrices`` a FLOAT MAT4 accessor, tightly packed, with a matrix per joint;
     a node with a skin draws a mesh, skinned (a primitive with JOINTS_0 and WEIGHTS_0), and every primitive has
     as many JOINTS_n as WEIGHTS_n.  ``parent``: :func:`_check_node_trees`' parent of every child node."""
-    def root(x):
-        while x in parent:
-            x = parent[x]
-        return x
-
-    def above(x):  # x and its ancestors
+    def above(x):  # x and its ancestors, its tree's root last
         out = [x]
         while out[-1] in parent:
             out.append(parent[out[-1]])
         return out
+
+    def root(x):
+        return above(x)[-1]
 
     accessors, nodes, meshes = gltf.get("accessors", []), gltf.get("nodes", []), gltf.get("meshes", [])
     for i, skin in enumerate(gltf.get("skins", [])):
@@ -1079,6 +1077,15 @@ def morphed(gltf: dict, buffers, prim: dict, semantic: str, values: np.ndarray, 
         if w != 0.0 and semantic in target:
             values = values + w * read_accessor(gltf, buffers, target[semantic])[:, :values.shape[1]]
     return values
+
+
+def renormalized(values: np.ndarray) -> np.ndarray:
+    """``values`` (n, 3 or 4), NORMAL or TANGENT values, with unit-length xyz (a tangent's w kept; a zero vector
+    stays zero): a copy, of the dtype given."""
+    out = values.copy()
+    length = np.linalg.norm(out[:, :3], axis=1, keepdims=True)
+    out[:, :3] = np.where(length > 0, out[:, :3] / np.maximum(length, 1e-30), out[:, :3])
+    return out
 
 
 def primitive_triangles(gltf: dict, buffers, prim: dict, what: str, weights=(), error=InputFormatError,

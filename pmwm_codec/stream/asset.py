@@ -61,7 +61,8 @@ import numpy as np
 
 from ..constants import EXTENSION_NAME
 from ..errors import DegenerateMeshError, FormatError, InputFormatError, MeshError
-from ..format.document import as_declared, primitive_triangles, shown_weights, triangle_faces, view_sites
+from ..format.document import (as_declared, primitive_triangles, renormalized, shown_weights, triangle_faces,
+                               view_sites)
 from ..format.document import (check_animation_data, check_document, is_progressive, label_images, load_document,
                                progressive_refusal, read_accessor, repack)
 from ..format.document import strip_image_profiles as _strip_profiles
@@ -784,7 +785,7 @@ def _write_level(prim: dict, part, out: BufferBuilder, names: dict | None = None
             attributes[semantic] = out.add_vertex_integers(values, types[semantic], ARRAY_BUFFER)
             continue
         if semantic in RENORMALIZED:
-            values = _renormalized(values)
+            values = renormalized(values)
         attributes[semantic] = out.add_accessor(values, FLOAT, ARRAY_BUFFER)
     prim["attributes"] = attributes
     prim["indices"] = out.add_accessor(np.asarray(part.faces, np.uint32).reshape(-1), UNSIGNED_INT, ELEMENT_ARRAY_BUFFER)
@@ -795,9 +796,3 @@ def _write_level(prim: dict, part, out: BufferBuilder, names: dict | None = None
             out.accessors[index]["name"] = name
 
 
-def _renormalized(values: np.ndarray) -> np.ndarray:
-    """Unit-length xyz for NORMAL / TANGENT (w of a tangent kept)."""
-    out = values.copy()
-    length = np.linalg.norm(out[:, :3], axis=1, keepdims=True)
-    out[:, :3] = np.where(length > 0, out[:, :3] / np.maximum(length, 1e-30), out[:, :3])
-    return out
