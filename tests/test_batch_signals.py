@@ -243,3 +243,19 @@ def test_an_encoder_stopped_the_moment_it_published_still_gets_its_row(tmp_path,
     assert row["vertices"] == inspect(str(dst))["vertices"] == mesh.vertex_count
     assert (dst.parent / "a.obj.pmw.key.json").is_file()
     assert sorted(os.listdir(dst.parent)) == ["a.obj.pmw", "a.obj.pmw.key.json"]
+
+
+def test_a_sigterm_inside_a_native_callback_is_a_noted_stop_not_an_ignored_exception(tmp_path):
+    """CI saw it once: the SIGTERM of a stopped run landed in llvmlite's ctypes callback, where Python cannot
+    raise :class:`~pmwm_codec.batch.child.Stopped`, and printed "Exception ignored on calling ctypes callback
+    function" with a traceback; the stop is noted (the encoder stops after its encode) and nothing is printed."""
+
+    script = (
+        "import ctypes, signal\n"
+        "from pmwm_codec.batch import child\n"
+        "child._signals(False)\n"
+        "ctypes.CFUNCTYPE(None)(lambda: [signal.raise_signal(signal.SIGTERM)] + [i for i in range(9999)])()\n"
+        "print(child._state.get('stopping'))\n")
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60, cwd=tmp_path,
+                       env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
+    assert (r.stdout, r.stderr) == ("True\n", "")

@@ -76,9 +76,18 @@ def _signals(restore_sigint: bool) -> None:
     """The encoder's signals.  SIGINT: back to the default when ``restore_sigint`` (the run's local workers
     ignore it only so that a Ctrl-C stops the run once, in the client: :func:`pmwm_codec.batch.run.dask_client`;
     an encoder then dies with the run); left as inherited otherwise, so that an ignored SIGINT (a run started
-    as a background job of a script, ``nohup``) stays ignored.  SIGTERM: stop quietly (:class:`Stopped`)."""
+    as a background job of a script, ``nohup``) stays ignored.  SIGTERM: stop quietly (:class:`Stopped`); where
+    Python cannot raise it (a ctypes callback, as llvmlite's cache runs) it prints no "Exception ignored"
+    traceback: the stop is noted, and :func:`_encode` stops after the encode."""
     import signal
 
+    hook = sys.unraisablehook
+
+    def unraisable(info):
+        if not (_state.get("stopping") and isinstance(info.exc_value, Stopped)):
+            hook(info)
+
+    sys.unraisablehook = unraisable
     if restore_sigint:
         signal.signal(signal.SIGINT, signal.SIG_DFL)
     signal.signal(signal.SIGTERM, _on_sigterm)
