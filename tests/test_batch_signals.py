@@ -259,3 +259,20 @@ def test_a_sigterm_inside_a_native_callback_is_a_noted_stop_not_an_ignored_excep
     r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60, cwd=tmp_path,
                        env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
     assert (r.stdout, r.stderr) == ("True\n", "")
+
+
+def test_a_sigterm_as_a_result_comes_in_still_records_the_row_of_the_output_it_names(library, tmp_path):
+    """CI once: a ``--scheduler`` run stopped by SIGTERM the moment an encoder's result reached it lost that row (the
+    stop landed after the run had taken the result and before its ledger had it), leaving a published ``.pmw`` the
+    ledger does not name.  A result is now taken and recorded with the stop held back; the ``batch-row-taken:TERM``
+    fault point puts the SIGTERM in that moment: the row is there, and every output the run leaves has one."""
+    out = tmp_path / "out"
+    argv = [sys.executable, "-m", "pmwm_codec", "batch", "encode", str(library / "src"), "-o", str(out),
+            "--watermark", str(library / "wm.png"), "--workers", "1", "-q"]
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=300,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT), PMWM_FAULT="batch-row-taken:TERM"))
+    assert (done.returncode, done.stdout, done.stderr) == (143, "", "pmw: error: terminated\n")
+    rows = read_ledger(out / LEDGER_NAME)
+    assert 1 <= len(rows) < ASSETS and {row["status"] for row in rows} == {"ok"}
+    assert sorted(row["output"] for row in rows) == sorted(str(p) for p in out.rglob("*.pmw"))
+    assert not [p for p in out.rglob("*") if p.name.endswith(".tmp")]

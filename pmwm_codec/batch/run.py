@@ -21,6 +21,7 @@ import uuid
 
 import numpy as np
 
+from pmwm_codec.atomic import fault_point, signals_deferred
 from pmwm_codec.errors import PmwError
 from pmwm_codec.watermark.key import same_path
 
@@ -431,19 +432,19 @@ def encode_batch(src, out_dir, *, watermark=None, key=None, keys_dir=None, worke
                     if row["status"] in ("failed", "timeout"):
                         failures.append(row)
 
+                def each(row):
+                    record(row)
+                    if progress is not None:
+                        progress(_progress_counts(counts, len(jobs), client, start))
+
                 submitted = _Submitted(client, encode_task, jobs, stoppable=True)
                 try:
-                    for row in submitted.results(no_worker_timeout):
-                        record(row)
-                        if progress is not None:
-                            progress(_progress_counts(counts, len(jobs), client, start))
+                    submitted.run(each, no_worker_timeout)
                 except BaseException:
                     # interrupted, or stopped: the running encoders stop too; one that published first is
                     # recorded (a row for every output there), the others end without a row (a re-run does them)
                     with contextlib.suppress(Exception):
-                        for row in submitted.stop():
-                            if row.get("status") in ("ok", "skipped"):
-                                record(row)
+                        submitted.stop(lambda row: record(row) if row.get("status") in ("ok", "skipped") else None)
                     raise
     except BaseException:
         if not started:  # refused (a scheduler, the key's place, OUT_DIR itself) or interrupted before any work
@@ -511,11 +512,6 @@ def _progress_counts(counts, total, client, start) -> dict:
     return {"done": done, "total": total, **counts, "running": min(slots, total - done), "rate": done / elapsed}
 
 
-def _results(client, function, jobs, no_worker_timeout=NO_WORKER_TIMEOUT, what="assets"):
-    """Submit ``function(job)`` per job; yield each result as it finishes (:meth:`_Submitted.results`)."""
-    yield from _Submitted(client, function, jobs).results(no_worker_timeout, what)
-
-
 class _Submitted:
     """``function(job)`` submitted per job on ``client``.  ``stoppable``: each call also gets ``stop=NAME``, the
     name of a Dask Event that :meth:`stop` sets, which a running task polls (a cancel reaches only tasks that have
@@ -534,12 +530,12 @@ class _Submitted:
                                       **extra): job
                         for i, job in enumerate(jobs)}
 
-    def results(self, no_worker_timeout=NO_WORKER_TIMEOUT, what="assets"):
-        """Yield each result as it finishes (a lost task: a failed row).
+    def run(self, each, no_worker_timeout=NO_WORKER_TIMEOUT, what="assets") -> None:
+        """``each(result)`` for every result as it finishes (a lost task: a failed row), until all have come.
 
         BatchError (one line: how many of the ``what`` got no result) when the cluster has had no worker for
         ``no_worker_timeout`` seconds while tasks wait (its workers all died, or none ever joined); the tasks
-        left are cancelled, and the results yielded before stand (a re-run of an encode does the rest)."""
+        left are cancelled, and the results handled before stand (a re-run of an encode does the rest)."""
         from distributed import as_completed
 
         pending = as_completed(self.futures)
@@ -556,23 +552,32 @@ class _Submitted:
                                      "does them)")
                 time.sleep(_POLL)
                 continue
-            yield from self._take(finished)
+            self._take(finished, each)
 
-    def _take(self, finished):
+    def _take(self, finished, each) -> None:
+        """``each(result)`` for each of the ``finished`` futures still ours.  A future is ours until ``each`` has
+        done with its result (a row recorded), which runs with SIGINT / SIGTERM held back: a stop that lands as a
+        result comes in finds it either still here (:meth:`stop` takes it) or recorded, never lost between the two
+        (its output would be left without a ledger row)."""
         for future in finished:
-            job = self.futures.pop(future, None)
+            job = self.futures.get(future)
             if job is None:
                 continue
             if future.status == "finished":
-                yield future.result()
+                row = future.result()
             else:  # the worker died under the task (KilledWorker) or the task raised
-                yield _lost(job, future.exception())
+                row = _lost(job, future.exception())
+            with signals_deferred():
+                del self.futures[future]
+                fault_point("batch-row-taken")
+                each(row)
             future.release()
 
-    def stop(self, seconds: float = STOP_WAIT):
-        """Stop the run: the tasks not started are cancelled, the running ones told to stop (the Event); yield the
-        results of those that end within ``seconds`` (an encoder that published its output before the stop
-        reached it has an ``ok`` row: recording it leaves no output the ledger does not name).  Never raises."""
+    def stop(self, each, seconds: float = STOP_WAIT) -> None:
+        """Stop the run: the tasks not started are cancelled, the running ones told to stop (the Event);
+        ``each(result)`` for those that end within ``seconds`` (an encoder that published its output before the
+        stop reached it has an ``ok`` row: recording it leaves no output the ledger does not name).  Never
+        raises."""
         try:
             if self.event is not None:
                 self.event.set()
@@ -584,7 +589,7 @@ class _Submitted:
             while self.futures and time.monotonic() < deadline:
                 finished = [f for f in self.futures if f.status in ("finished", "error", "cancelled", "lost")]
                 if finished:
-                    yield from self._take(finished)
+                    self._take(finished, each)
                 else:
                     time.sleep(_POLL)
             if not self.futures and self.event is not None:
@@ -693,11 +698,14 @@ def verify_batch(out_dir, *, key=None, keys_dir=None, watermark=None, workers=No
     jobs = [(path, key if key is not None else _beside_key(path, out_dir, keys_dir), watermark, out_dir, key_root)
             for path in files]
     results = []
+
+    def each(result):
+        results.append(result)
+        if progress is not None:
+            progress({"done": len(results), "total": len(jobs), "rate": None})
+
     with dask_client(workers, scheduler, client, len(jobs)) as client:
-        for result in _results(client, _verify_job, jobs, no_worker_timeout, "files"):
-            results.append(result)
-            if progress is not None:
-                progress({"done": len(results), "total": len(jobs), "rate": None})
+        _Submitted(client, _verify_job, jobs).run(each, no_worker_timeout, "files")
     results.sort(key=lambda r: r["file"])
     return {"files": len(results), "authentic": sum(r["verdict"] == "authentic" for r in results),
             "present": sum(r["verdict"] == "present" for r in results), "results": results}
