@@ -154,6 +154,88 @@ def test_a_skin_the_validator_calls_an_error_is_refused_by_name(capsys, tmp_path
     refused(capsys, tmp_path, rigged(), *words, edit=edit)
 
 
+def _skin_data(edit, component: int = FLOAT):
+    """An edit giving the skinned sphere of :func:`rigged` the joints and weights ``edit(joints, weights)`` makes
+    of its own ((n, 4) uint8 joints, (n, 4) float64 weights; its weights ``component``: FLOAT, or UNSIGNED_BYTE
+    normalized)."""
+    def apply(b: DocBuilder) -> None:
+        attrs = b.doc["meshes"][0]["primitives"][0]["attributes"]
+        joints = _data(b, attrs["JOINTS_0"]).astype(np.uint8)
+        weights = _data(b, attrs["WEIGHTS_0"]).astype(np.float64)
+        edit(joints, weights)
+        attrs["JOINTS_0"] = b.accessor(joints, UNSIGNED_BYTE, "VEC4", 34962)
+        if component == FLOAT:
+            attrs["WEIGHTS_0"] = b.accessor(weights.astype(np.float32), FLOAT, "VEC4", 34962)
+        else:
+            q = np.round(weights * 255)
+            whole = np.abs(weights.sum(axis=1) - 1) < 1e-6  # rounded to bytes summing to 255, as exporters do
+            q[whole, np.argmax(q[whole], axis=1)] += 255 - q[whole].sum(axis=1)
+            attrs["WEIGHTS_0"] = b.accessor(q.astype(np.uint8), UNSIGNED_BYTE, "VEC4", 34962)
+            b.doc["accessors"][attrs["WEIGHTS_0"]]["normalized"] = True
+    return apply
+
+
+def _data(b: DocBuilder, index: int) -> np.ndarray:
+    """The elements of accessor ``index`` of ``b`` (tightly packed, as DocBuilder writes them)."""
+    acc = b.doc["accessors"][index]
+    view = b.doc["bufferViews"][acc["bufferView"]]
+    raw = b"".join(b.parts)[view.get("byteOffset", 0):][:view["byteLength"]]
+    return np.frombuffer(raw, DTYPES[acc["componentType"]]).reshape(acc["count"], 4)
+
+
+def _set(row: int, joints=None, weights=None):
+    def edit(j, w):
+        if joints is not None:
+            j[row] = joints
+        if weights is not None:
+            w[row] = weights
+    return edit
+
+
+#: Skin data the validator calls errors -> the words of the refusal.
+SKIN_DATA_ERRORS = {
+    "a joint index past the skin's joints": (
+        _skin_data(_set(5, joints=[0, 7, 0, 0])),
+        ["meshes[0].primitives[0].attributes.JOINTS_0", "vertex 5 names joint 7", "has 3 joints (0..2)"]),
+    "a negative weight": (
+        _skin_data(_set(9, weights=[1.25, -0.25, 0, 0])),
+        ["attributes.WEIGHTS_0", "vertex 9 has weight -0.25", "not negative"]),
+    "a joint named twice": (
+        _skin_data(_set(3, joints=[2, 2, 0, 0], weights=[0.5, 0.5, 0, 0])),
+        ["meshes[0].primitives[0]", "vertex 3 names joint 2 twice"]),
+    "weights that do not sum to 1": (
+        _skin_data(_set(4, weights=[0.5, 0.25, 0, 0])), ["the skin weights of vertex 4 sum to 0.75", "sum to 1"]),
+    "integer weights that do not sum to 255": (
+        _skin_data(_set(4, weights=[100 / 255, 100 / 255, 0, 0]), UNSIGNED_BYTE),
+        ["the skin weights of vertex 4 sum to 0.7843137"]),
+}
+
+
+@pytest.mark.parametrize("case", list(SKIN_DATA_ERRORS))
+def test_skin_data_the_validator_calls_an_error_is_refused_by_name(capsys, tmp_path, case):
+    """Copied through before: a joint index past the skin made three.js fail to load the decoded asset ("Cannot
+    read properties of undefined (reading 'matrixWorld')")."""
+    edit, words = SKIN_DATA_ERRORS[case]
+    refused(capsys, tmp_path, rigged(), *words, edit=edit)
+
+
+def test_skin_data_the_validator_only_warns_of_still_encodes(capsys, tmp_path):
+    """A joint with zero weight (ACCESSOR_JOINTS_USED_ZERO_WEIGHT, a warning), a joint repeated with zero weight,
+    weights spread over three joints in float32 rounding, and normalized bytes summing to 255: encoded."""
+    def edit(j, w):
+        j[2], w[2] = [0, 1, 2, 0], [0.5, 0.5, 0, 0]
+        j[3], w[3] = [1, 1, 1, 2], [1, 0, 0, 0]
+        j[6], w[6] = [0, 1, 2, 0], np.float32([0.1, 0.2, 0.7, 0])
+    for component in (FLOAT, UNSIGNED_BYTE):
+        b = rigged()
+        _skin_data(edit, component)(b)
+        src = tmp_path / "rig.glb"
+        src.write_bytes(b.glb())
+        status, err, path = run_encode(capsys, tmp_path, src)
+        assert status == 0, err
+        path.unlink()
+
+
 def _channel(b: DocBuilder, **channel) -> None:
     b.doc["animations"][0]["channels"].append(channel)
 
@@ -293,20 +375,39 @@ def test_a_valid_rigged_asset_animated_every_way_still_encodes_with_its_skin_and
         [[s.get("interpolation") for s in a["samplers"]] for a in b.doc["animations"]]
 
 
+def _edit_document(src, dst, edit) -> None:
+    """Write to ``dst`` the ``.pmw`` ``src`` with its glTF JSON chunk after ``edit(doc)``."""
+    data = bytearray(src.read_bytes())
+    length = struct.unpack("<I", data[12:16])[0]
+    doc = json.loads(data[20:20 + length])
+    edit(doc)
+    text = json.dumps(doc, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 4)
+    out = data[:12] + struct.pack("<II", len(text), 0x4E4F534A) + text + data[20 + length:]
+    out[8:12] = struct.pack("<I", len(out))
+    dst.write_bytes(bytes(out))
+
+
 def test_a_pmw_carrying_fewer_inverse_bind_matrices_than_joints_is_refused_by_decode(capsys, tmp_path):
     """The same check reads a ``.pmw``'s document: decode never writes out an asset the validator refuses."""
     src = tmp_path / "rig.glb"
     src.write_bytes(rigged().glb())
     status, err, path = run_encode(capsys, tmp_path, src)
     assert status == 0, err
-    data = bytearray(path.read_bytes())
-    length = struct.unpack("<I", data[12:16])[0]
-    doc = json.loads(data[20:20 + length])
-    doc["accessors"][doc["skins"][0]["inverseBindMatrices"]]["count"] = 2
-    text = json.dumps(doc, separators=(",", ":")).encode()
-    text += b" " * (-len(text) % 4)
-    out = data[:12] + struct.pack("<II", len(text), 0x4E4F534A) + text + data[20 + length:]
-    out[8:12] = struct.pack("<I", len(out))
-    (tmp_path / "edited.pmw").write_bytes(bytes(out))
+    _edit_document(path, tmp_path / "edited.pmw",
+                   lambda doc: doc["accessors"][doc["skins"][0]["inverseBindMatrices"]].update(count=2))
     with pytest.raises(FormatError, match="its glTF document: skins.0..inverseBindMatrices.*2 matrices for 3 joints"):
+        decode_asset(tmp_path / "edited.pmw")
+
+
+def test_a_pmw_whose_skin_lost_a_joint_its_stream_names_is_refused_by_decode(capsys, tmp_path):
+    """The joints a decoded level's vertices name come from the stream: a ``.pmw`` whose skin names fewer joints
+    than they use is refused, not written out as an asset three.js fails to load."""
+    src = tmp_path / "rig.glb"
+    src.write_bytes(rigged().glb())
+    status, err, path = run_encode(capsys, tmp_path, src)
+    assert status == 0, err
+    _edit_document(path, tmp_path / "edited.pmw", lambda doc: doc["skins"][0].update(joints=[1, 2]))
+    with pytest.raises(FormatError, match=r"its glTF document: meshes.0..primitives.0..attributes.JOINTS_0: "
+                                          r"vertex \d+ names joint 2, but the skin of nodes.0. has 2 joints"):
         decode_asset(tmp_path / "edited.pmw")

@@ -96,7 +96,7 @@ def load_document(path):
             image["_bytes"] = _resolve_uri(image["uri"], base_dir, name, budget)
     gltf, buffers = decompress_meshopt(gltf, buffers, name)
     label_images(gltf, buffers, name)
-    check_animation_data(gltf, buffers, name)
+    check_rig_data(gltf, buffers, name)
     return gltf, buffers
 
 
@@ -629,6 +629,75 @@ def check_animation_data(gltf: dict, buffers, name: str) -> None:
                 raise InputFormatError(f"{name}: animations[{i}].samplers[{j}].output (accessor "
                                        f"{samplers[j]['output']}): the rotation of keyframe {k} is of length "
                                        f"{np.linalg.norm(quats[k]):.4g}; glTF rotations are unit quaternions")
+
+
+def check_rig_data(gltf: dict, buffers, name: str) -> None:
+    """Refuse animation and skin data the Khronos validator calls errors (:func:`check_animation_data`,
+    :func:`check_skin_weights`): what :func:`check_document` cannot see in the JSON, read from the buffers."""
+    check_animation_data(gltf, buffers, name)
+    check_skin_weights(gltf, buffers, name)
+
+
+def check_skin_weights(gltf: dict, buffers, name: str) -> None:
+    """Refuse (InputFormatError naming the primitive, the attribute and the vertex) skin data the Khronos validator
+    calls errors (glTF 2.0, 3.7.3.3), in each primitive a skinned node draws: a joint index past the skin's joints
+    (ACCESSOR_JOINTS_INDEX_OOB; three.js fails to load such an asset), a joint named twice with non-zero weights
+    (_DUPLICATE), a negative weight (ACCESSOR_WEIGHTS_NEGATIVE), and a vertex whose weights over all its sets do
+    not sum to 1 (_NON_NORMALIZED: the validator's sum, float32 in its order, within 2e-7 a non-zero weight).
+    Reads the JOINTS_n / WEIGHTS_n accessors of a loaded document (:func:`read_accessor`: int64 joints, float64
+    weights, normalized integers mapped to [0, 1]); their types and pairing are checked already
+    (:func:`check_document`).  A mesh two skins draw is held to the one of fewer joints."""
+    nodes, skins, meshes = gltf.get("nodes", []), gltf.get("skins", []), gltf.get("meshes", [])
+    skinned = {}  # mesh -> (joint count, the node whose skin has it)
+    for i, node in enumerate(nodes):
+        if "skin" in node and "mesh" in node:
+            count = len(skins[node["skin"]].get("joints", []))
+            if node["mesh"] not in skinned or count < skinned[node["mesh"]][0]:
+                skinned[node["mesh"]] = (count, i)
+    for mi, (count, ni) in sorted(skinned.items()):
+        for pi, prim in enumerate(meshes[mi]["primitives"]):
+            attrs = prim.get("attributes", {})
+            sets = 0
+            while f"JOINTS_{sets}" in attrs and f"WEIGHTS_{sets}" in attrs:
+                sets += 1
+            if not sets:
+                continue
+            # the validator's order: a vertex's component 0 of every set, then component 1 ...
+            order = np.arange(4 * sets).reshape(sets, 4).T.ravel()
+            joints = np.hstack([read_accessor(gltf, buffers, attrs[f"JOINTS_{k}"]) for k in range(sets)])[:, order]
+            weights = np.hstack([read_accessor(gltf, buffers, attrs[f"WEIGHTS_{k}"]) for k in range(sets)])[:, order]
+            at = f"{name}: meshes[{mi}].primitives[{pi}]"
+
+            def attribute(column):  # the attribute of a column of ``order``
+                return f"{at}.attributes.%s_{order[column] // 4}"
+
+            bad = joints >= count
+            if bad.any():
+                v, c = np.argwhere(bad)[0]
+                raise InputFormatError(f"{attribute(c) % 'JOINTS'}: vertex {v} names joint {joints[v, c]}, but the skin "
+                                       f"of nodes[{ni}] has {count} joints (0..{count - 1})")
+            bad = weights < 0
+            if bad.any():
+                v, c = np.argwhere(bad)[0]
+                raise InputFormatError(f"{attribute(c) % 'WEIGHTS'}: vertex {v} has weight {weights[v, c]:.6g}; glTF "
+                                       "skin weights are not negative")
+            used = weights != 0
+            keyed = np.where(used, joints, -1 - np.arange(4 * sets))  # unused slots never match
+            ranked = np.sort(keyed, axis=1)
+            bad = (ranked[:, 1:] == ranked[:, :-1]).any(axis=1)
+            if bad.any():
+                v = int(np.argmax(bad))
+                twice = ranked[v, 1:][ranked[v, 1:] == ranked[v, :-1]][0]
+                raise InputFormatError(f"{at}: vertex {v} names joint {twice} twice with non-zero weights; glTF "
+                                       "gives a vertex each joint once")
+            total = np.zeros(len(weights), np.float32)
+            for c in range(4 * sets):
+                total = (total.astype(np.float64) + weights[:, c]).astype(np.float32)
+            bad = np.abs(total.astype(np.float64) - 1) > 2e-7 * used.sum(axis=1)
+            if bad.any():
+                v = int(np.argmax(bad))
+                raise InputFormatError(f"{at}: the skin weights of vertex {v} sum to {total[v]:.7g}; glTF skin "
+                                       "weights sum to 1")
 
 
 def _view_stride(gltf: dict, acc: dict):

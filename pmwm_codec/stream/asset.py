@@ -63,8 +63,8 @@ from ..constants import EXTENSION_NAME
 from ..errors import DegenerateMeshError, FormatError, InputFormatError, MeshError
 from ..format.document import (as_declared, primitive_triangles, renormalized, shown_weights, triangle_faces,
                                view_sites)
-from ..format.document import (check_animation_data, check_document, is_progressive, label_images, load_document,
-                               progressive_refusal, read_accessor, repack)
+from ..format.document import (check_document, check_rig_data, is_progressive, label_images,
+                               load_document, progressive_refusal, read_accessor, repack)
 from ..format.document import strip_image_profiles as _strip_profiles
 from ..format.glb import glb_parts
 from ..format.meshopt import decompress as decompress_meshopt
@@ -461,7 +461,7 @@ def encode_asset(src, dst, *, strip_image_profiles: bool = False, keep_flat_norm
         _refuse_external_uris(gltf)
         gltf, buffers = decompress_meshopt(gltf, buffers, label)
         label_images(gltf, buffers, label)
-        check_animation_data(gltf, buffers, label)
+        check_rig_data(gltf, buffers, label)
     else:
         gltf, buffers = load_document(src)
     if is_progressive(gltf):  # a .pmw by another name: its glTF is the base mesh alone
@@ -557,7 +557,14 @@ def decode_asset(src, chunks=None):
     if not uses_extension(kept, DRACO_EXTENSION):
         forget_extension(kept, DRACO_EXTENSION)
     kept["buffers"] = [{"byteLength": out.length}]
-    return b"".join(glb_parts(kept, out.parts, out.length)), end, decoder
+    parts = out.parts
+    if kept.get("skins") or kept.get("animations"):  # their data as it came (a skin's joints from the stream)
+        parts = [b"".join(parts)]
+        try:
+            check_rig_data(kept, parts, "its glTF document")
+        except InputFormatError as exc:
+            raise FormatError(str(exc)) from None
+    return b"".join(glb_parts(kept, parts, out.length)), end, decoder
 
 
 def plain_triangle_primitives(gltf: dict | None) -> list:
