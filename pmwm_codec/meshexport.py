@@ -173,8 +173,12 @@ def _part(gltf: dict, buffers, mi: int, prim: dict, material_map: dict) -> Part:
     for semantic in CARRIED:
         if semantic in attrs:
             values = read_accessor(gltf, buffers, attrs[semantic]).astype(np.float64)
-            if semantic == "NORMAL" and any(weights):  # displaced, then of unit length again, as a viewer shades
-                values = renormalized(morphed(gltf, buffers, prim, semantic, values, weights))
+            if any(weights):  # displaced by the targets as a viewer draws it (glTF 2.0 3.7.2.2)
+                values = morphed(gltf, buffers, prim, semantic, values, weights)
+                if semantic == "NORMAL":  # of unit length again, as a viewer shades
+                    values = renormalized(values)
+                elif semantic == "COLOR_0":  # a colour a viewer shows: clamped to [0, 1]
+                    values = values.clip(0.0, 1.0)
             if len(values) != len(positions):
                 raise InputFormatError(f"mesh {mi}: {semantic} has {len(values)} values for {len(positions)} vertices")
             if not np.isfinite(values).all():  # an OBJ or PLY of it would not read back (nan, inf)

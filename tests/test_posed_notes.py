@@ -90,3 +90,37 @@ def test_geometry_only_of_a_skinned_mesh_its_node_moves_says_a_viewer_would_not_
             "ignores for a skinned mesh (glTF 2.0 3.7.3.3)") in notices
     _skinned_asset(tmp_path / "still.glb")
     assert not pmwm_codec.read_mesh(tmp_path / "still.glb").cleanup
+
+
+def test_an_obj_of_a_morphed_mesh_holds_its_texture_coordinates_and_colours_morphed_too(tmp_path, capsys):
+    """glTF morph targets may move TEXCOORD_n and COLOR_n as well as positions and normals (glTF 2.0 3.7.2.2): the
+    OBJ / PLY of a mesh drawn morphed held its positions posed and its texture coordinates and colours as stored.
+    The PLY's values are the decoded GLB's plus half the targets' (colours clamped to 1, as a viewer shows them)."""
+    from pmwm_codec import meshdoc, ply
+    from pmwm_codec.format.document import load_document, read_accessor
+
+    b = DocBuilder()
+    sphere = shapes.icosphere(2, 1.0)
+    n = sphere.vertex_count
+    prim = b.triangles(sphere)
+    prim["attributes"]["COLOR_0"] = b.accessor(np.tile(np.float32([0.2, 0.4, 0.6]), (n, 1)), 5126, "VEC3", 34962)
+    prim["targets"] = [{"POSITION": b.accessor(np.zeros((n, 3), np.float32), 5126, "VEC3", 34962, True),
+                        "TEXCOORD_0": b.accessor(np.tile(np.float32([0.25, -0.5]), (n, 1)), 5126, "VEC2", 34962),
+                        "COLOR_0": b.accessor(np.tile(np.float32([0.5, 0.5, 0.9]), (n, 1)), 5126, "VEC3", 34962)}]
+    ball = b.triangles(shapes.icosphere(3, 1.0, noise=0.02), uv=False)
+    b.doc.update({"scene": 0, "scenes": [{"nodes": [0, 1]}],
+                  "nodes": [{"mesh": 0}, {"mesh": 1, "translation": [3.0, 0.0, 0.0]}],
+                  "meshes": [{"primitives": [prim], "weights": [0.5]}, {"primitives": [ball]}]})
+    (tmp_path / "in.glb").write_bytes(b.glb())
+    encode_asset(tmp_path / "in.glb", tmp_path / "in.pmw", measure=False)
+    _notices(capsys, "decode", tmp_path / "in.pmw", "-o", tmp_path / "out.glb")
+    _notices(capsys, "decode", tmp_path / "in.pmw", "-o", tmp_path / "out.ply")
+    gltf, buffers = load_document(tmp_path / "out.glb")
+    attrs = gltf["meshes"][0]["primitives"][0]["attributes"]
+    m = len(read_accessor(gltf, buffers, attrs["POSITION"]))
+    got = ply.read_appearance((tmp_path / "out.ply").read_bytes(), "out.ply", 10 ** 7)
+    uv = read_accessor(gltf, buffers, attrs["TEXCOORD_0"]) + [0.125, -0.25]
+    assert np.abs(got.uv[:m] - np.stack([uv[:, 0], 1 - uv[:, 1]], 1)).max() <= 2e-7
+    rgb = meshdoc.srgb_from_linear(np.clip(read_accessor(gltf, buffers, attrs["COLOR_0"])[:, :3] + 0.5 * np.float32(
+        [0.5, 0.5, 0.9]), 0, 1))
+    assert np.abs(got.colours[:m, :3] - rgb).max() <= 0.5 / 255 + 1e-9
