@@ -1,7 +1,7 @@
 """The JavaScript decoder (js/) reproduces the Python decoder exactly on every corpus mesh.
 
 Each corpus mesh is encoded with Python into a temporary .pmw (Draco base; one plain base too),
-then ``node js/test/dump.mjs`` prints the JS decode at every chunk boundary (counts, bytes read and
+then ``node js/tools/dump.mjs`` prints the JS decode at every chunk boundary (counts, bytes read and
 a SHA-256 of the level's positions, faces and quantized attributes) and the Python decoder's
 levels must match line for line.  The conformance files are compared by the Node tests themselves
 (``npm test --prefix js``).  Skips when node or js/node_modules is absent, or ../shared is.
@@ -26,7 +26,7 @@ from pmwm_codec.stream import StreamDecoder
 from conftest import CORPUS_MESHES, corpus_path
 
 ROOT = Path(__file__).resolve().parents[1]
-DUMP = ROOT / "js" / "test" / "dump.mjs"
+DUMP = ROOT / "js" / "tools" / "dump.mjs"
 
 
 def _node() -> str:

@@ -5,11 +5,11 @@
  * tests/test_golden.py's level digest (positions, faces, quantized attributes as <i8).
  * Used by tests/test_js_decoder.py. Exit 2 with one line on stderr on a decode error.
  *
- *   node js/test/dump.mjs FILE.pmw
+ *   node js/tools/dump.mjs FILE.pmw
  */
 import { readFileSync } from 'node:fs';
 import { PmwDecoder } from '../src/index.js';
-import { levelDigest } from './lib/helpers.js';
+import { levelDigest } from '../test/lib/helpers.js';
 
 const path = process.argv[2];
 try {
