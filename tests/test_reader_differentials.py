@@ -244,3 +244,26 @@ def test_a_chunk_that_fails_as_it_is_applied_comes_after_the_levels_of_the_same_
         with pytest.raises(FormatError) as again:
             dec.close()
         assert again.value is exc.value
+
+
+@pytest.mark.parametrize("name, which", [(PLAIN, "POSITION"), (PLAIN, "indices"), (PLAIN, "chunks"), (DRACO, "chunks"),
+                                         ("sphere-attributes.plain.packed.v2.pmw", "POSITION"),
+                                         ("sphere-attributes.plain.packed.v2.pmw", "chunks")])
+def test_a_buffer_view_whose_buffer_is_false_is_a_format_error(name, which):
+    """``"buffer": false`` on the bufferView of a base accessor or of a chunk (helper-136's differential run: 102
+    of 2,102 integer members set to a boolean): ``False != 0`` is false in Python, so this reader took the view as
+    buffer 0's and decoded every level, the JavaScript one refused it (a Draco base's bufferView was already refused) (spec/README.md, Kinds of refusal: a member of
+    the wrong JSON type is a format error; glTF types ``buffer`` integer)."""
+    def change(gltf):
+        prim = _prim(gltf)
+        if which == "chunks":
+            chunks = prim["extensions"]["PMWM_progressive_mesh"]["chunks"]
+            view = chunks["bufferView"] if isinstance(chunks, dict) else chunks[0]["bufferView"]
+        elif which == "indices":
+            view = gltf["accessors"][prim["indices"]]["bufferView"]
+        else:
+            view = gltf["accessors"][prim["attributes"]["POSITION"]]["bufferView"]
+        gltf["bufferViews"][view]["buffer"] = False
+
+    with pytest.raises(FormatError, match="buffer must be a non-negative integer, got False"):
+        _decode(_rewrite(name, change))

@@ -336,7 +336,7 @@ def view_range(views, index, buffer_length: int, what: str, *, error=FormatError
     that it is a multiple of 4 in 4..252 (the glTF schema's).
     """
     view = item(views, index, f"{what}: bufferView", error=error)
-    if view.get("buffer", 0) != 0:
+    if uint(view, "buffer", f"{what}: bufferView {index}", 0, error=error) != 0:  # not False, which == 0
         raise error(f"{what}: bufferView {index} is not in the GLB BIN buffer")
     return _range(view, index, buffer_length, what, error)
 
