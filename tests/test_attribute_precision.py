@@ -19,22 +19,26 @@ from test_asset import DocBuilder
 BOUND = 2.0**-TEXCOORD_STEP_BITS / 2  # 1/16384 of the texture
 
 
-def _uv_asset(path, uv: np.ndarray):
-    """A sphere with ``uv`` (n, 2) float32 as TEXCOORD_0 (n = 642)."""
+def _uv_asset(path, uv: np.ndarray, material: dict | None = None):
+    """A sphere with ``uv`` (n, 2) float32 as TEXCOORD_0 (n = 642), and ``material`` (a texture at index 0 it
+    may name is an image-less one: the encoder reads no pixel)."""
     mesh = shapes.icosphere(3, 1.0, noise=0.02)
     b = DocBuilder()
     attributes = {"POSITION": b.accessor(mesh.positions.astype(np.float32), 5126, "VEC3", 34962, True),
                   "TEXCOORD_0": b.accessor(uv.astype(np.float32), 5126, "VEC2", 34962)}
     indices = b.accessor(mesh.faces.astype(np.uint32).ravel(), 5125, "SCALAR", 34963)
-    b.doc.update(scene=0, scenes=[{"nodes": [0]}], nodes=[{"mesh": 0}],
-                 meshes=[{"primitives": [{"attributes": attributes, "indices": indices}]}])
+    prim = {"attributes": attributes, "indices": indices}
+    b.doc.update(scene=0, scenes=[{"nodes": [0]}], nodes=[{"mesh": 0}], meshes=[{"primitives": [prim]}])
+    if material is not None:
+        prim["material"] = 0
+        b.doc.update(materials=[material], textures=[{}], extensionsUsed=["KHR_texture_transform"])
     path.write_bytes(b.glb())
     return mesh
 
 
-def _uv_error(tmp_path, uv) -> tuple:
+def _uv_error(tmp_path, uv, material: dict | None = None) -> tuple:
     """``(largest TEXCOORD_0 error of the full decode, the .pmw's TEXCOORD_0 grid bits)``."""
-    mesh = _uv_asset(tmp_path / "uv.glb", uv)
+    mesh = _uv_asset(tmp_path / "uv.glb", uv, material)
     encode_asset(tmp_path / "uv.glb", tmp_path / "uv.pmw", measure=False)
     pmw, _ = load_document(tmp_path / "uv.pmw")
     spec = pmw["meshes"][0]["primitives"][0]["extensions"]["PMWM_progressive_mesh"]["attributes"][0]
@@ -72,6 +76,19 @@ def test_tiled_or_outlying_texture_coordinates_keep_a_sixteen_thousandth_of_the_
         uv[7] = (500.0, 500.0)  # one vertex far out: it coarsened every other vertex's UVs
     error, bits = _uv_error(tmp_path, uv)
     assert error <= BOUND, (error, bits)
+    assert bits > 14
+
+
+@pytest.mark.parametrize("where", ["baseColor", "clearcoat"])
+def test_a_texture_a_transform_repeats_keeps_a_sixteen_thousandth_of_the_texture(tmp_path, where):
+    """KHR_texture_transform's scale 64 repeats the texture 64 times over UVs of 0..1: the error the texture
+    shows is 64 times the coordinates' (on 14 bits it was 2e-3 of the texture, 32 times the bound)."""
+    uv = np.random.default_rng(4).uniform(0, 1, (642, 2))
+    info = {"index": 0, "extensions": {"KHR_texture_transform": {"scale": [64.0, -64.0], "rotation": 0.5}}}
+    material = ({"pbrMetallicRoughness": {"baseColorTexture": info}} if where == "baseColor" else
+                {"extensions": {"KHR_materials_clearcoat": {"clearcoatTexture": info}}})
+    error, bits = _uv_error(tmp_path, uv, material)
+    assert error * 64 <= BOUND, (error, bits)
     assert bits > 14
 
 

@@ -474,17 +474,23 @@ _MATERIAL_TEXTURES = (("pbrMetallicRoughness", ("baseColorTexture", "metallicRou
 
 
 def _check_material(material: dict, where: str, n_textures: int, name: str) -> None:
-    """A material's textureInfo objects, each with a texture ``index`` in range: the core ones, and in its
-    extensions every object with an ``index`` under a member whose name ends in ``Texture``
-    (``clearcoatTexture``, ``sheenColorTexture`` ...: the rule decode renumbers them by)."""
+    """A material's textureInfo objects (:func:`texture_infos`), each with a texture ``index`` in range."""
     _check_material_values(material, where, name)
+    for path, info in texture_infos(material, where, name):
+        _ref(info, "index", n_textures, path, name, "texture", required=True)
+
+
+def texture_infos(material: dict, where: str = "material", name: str = "glTF"):
+    """``(JSON path, textureInfo dict)`` of each texture a material reads: the core ones, and in its extensions
+    every object with an ``index`` under a member whose name ends in ``Texture`` (``clearcoatTexture``,
+    ``sheenColorTexture`` ...: the rule decode renumbers them by); InputFormatError for a member that is not an
+    object."""
     for member, keys in _MATERIAL_TEXTURES:
         at = f"{where}.{member}" if member else where
         holder = _object(material.get(member, {}), at, name) if member else material
         for key in keys:
             if key in holder:
-                info = _object(holder[key], f"{at}.{key}", name)
-                _ref(info, "index", n_textures, f"{at}.{key}", name, "texture", required=True)
+                yield f"{at}.{key}", _object(holder[key], f"{at}.{key}", name)
     stack = [(_object(material.get("extensions", {}), f"{where}.extensions", name), f"{where}.extensions")]
     while stack:  # the JSON depth is bounded already
         value, at = stack.pop()
@@ -492,9 +498,32 @@ def _check_material(material: dict, where: str, n_textures: int, name: str) -> N
         for key, child in children:
             path = f"{at}[{key}]" if isinstance(key, int) else f"{at}.{key}"
             if isinstance(key, str) and key.endswith("Texture") and isinstance(child, dict) and "index" in child:
-                _ref(child, "index", n_textures, path, name, "texture")
+                yield path, child
             if key != "extras":
                 stack.append((child, path))
+
+
+def texture_scales(gltf: dict, prim: dict) -> dict:
+    """``{"TEXCOORD_n": s}``: how many times over (s > 1) a texture the primitive's materials (its ``material``
+    and those its KHR_materials_variants mappings name) read with TEXCOORD_n repeats per unit of those
+    coordinates, by a KHR_texture_transform ``scale`` (the largest component's size; the transform's own
+    ``texCoord`` picks the set, as the extension says). A texture coordinate's error shows that many times
+    larger in the texture. Coordinate sets no transform scales up are left out (1). The document is checked."""
+    materials = [prim["material"]] if "material" in prim else []
+    variants = (prim.get("extensions") or {}).get("KHR_materials_variants") or {}
+    materials += [m["material"] for m in variants.get("mappings", []) if "material" in m]
+    scales = {}
+    for index in materials:
+        for _, info in texture_infos(gltf["materials"][index]):
+            transform = (info.get("extensions") or {}).get("KHR_texture_transform")
+            if not isinstance(transform, dict):
+                continue
+            scale = max((abs(float(x)) for x in transform.get("scale", ()) if isinstance(x, (int, float))),
+                        default=1.0)
+            semantic = f"TEXCOORD_{transform.get('texCoord', info.get('texCoord', 0))}"
+            if scale > scales.get(semantic, 1.0):
+                scales[semantic] = scale
+    return scales
 
 
 def _check_animation(anim: dict, where: str, accessors: list, n_nodes: int, name: str) -> None:

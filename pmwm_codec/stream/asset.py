@@ -64,7 +64,7 @@ from ..errors import DegenerateMeshError, FormatError, InputFormatError, MeshErr
 from ..format.document import (as_declared, primitive_triangles, renormalized, shown_weights, triangle_faces,
                                view_sites)
 from ..format.document import (check_document, check_rig_data, is_progressive, label_images,
-                               load_document, progressive_refusal, read_accessor, repack)
+                               load_document, progressive_refusal, read_accessor, repack, texture_scales)
 from ..format.document import strip_image_profiles as _strip_profiles
 from ..format.glb import glb_parts
 from ..format.meshopt import decompress as decompress_meshopt
@@ -172,7 +172,7 @@ def plan_asset(gltf: dict, buffers, name: str | None = None, *, keep_flat_normal
         dropped = [f"{v:,} {k.replace('_', ' ')}" for k, v in mesh.cleanup.items() if v]
         if dropped:  # as a mesh file's reader says it (pmwm_codec.encode): they had gone without a word
             notices.append(f"{where}: dropped " + " and ".join(dropped))
-        job = PrimitiveJob(mesh, mi, pi)
+        job = PrimitiveJob(mesh, mi, pi, texture_scales=texture_scales(gltf, prim))
         jobs.append(job)
         by_mesh.setdefault(mi, []).append(job)
     if not jobs:

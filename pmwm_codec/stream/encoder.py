@@ -114,7 +114,10 @@ class PrimitiveJob:
     (borders shared with other primitives; vertices sharing a position inside the
     primitive are seams, collapsed in pairs: :mod:`~pmwm_codec.progressive.seams`); ``mesh_index`` and
     ``primitive_index`` say where it sits in the document; ``names`` the names of its input accessors
-    (``{semantic or "indices": name}``), which the base's accessors keep (a decoded level's then do).
+    (``{semantic or "indices": name}``), which the base's accessors keep (a decoded level's then do);
+    ``texture_scales`` how many times over its materials' textures repeat per unit of a TEXCOORD_n
+    (``{"TEXCOORD_n": s}``, KHR_texture_transform: :func:`~pmwm_codec.format.document.texture_scales`), which
+    its grid keeps that much finer.
     """
 
     mesh: Mesh
@@ -122,6 +125,7 @@ class PrimitiveJob:
     primitive_index: int = 0
     locked: np.ndarray | None = None
     names: dict | None = None
+    texture_scales: dict | None = None
 
 
 @dataclass(frozen=True)
@@ -203,18 +207,20 @@ _INTEGER_TYPES = {np.dtype(dtype): ctype for ctype, dtype in COMPONENT_DTYPES.it
 #: texture's width), whatever the coordinates' range, so the error stays within half of it, 1/16384
 #: of the texture (a quarter of a texel at 4096², 1/16 at 1024²): the 14 bits of
 #: :data:`ATTRIBUTE_BITS` cover a span up to 2 (the usual 0..1, and a little over), a wider one (tiled
-#: UVs, an outlier) gets more bits, up to 30 and as many as float32 carries at the coordinates' size.
+#: UVs, an outlier, a texture a KHR_texture_transform ``scale`` repeats s times per unit: a span s times
+#: as wide) gets more bits, up to 30 and as many as float32 carries at the coordinates' size.
 TEXCOORD_STEP_BITS = 13
 
 
-def _attribute_bits(semantic: str, values: np.ndarray | None = None) -> int:
+def _attribute_bits(semantic: str, values: np.ndarray | None = None, texture_scale: float = 1.0) -> int:
     """Grid bits of a float attribute: :data:`ATTRIBUTE_BITS` by semantic prefix (others 14); TEXCOORD_n
-    as many more as its ``values`` (n, k) span needs (:data:`TEXCOORD_STEP_BITS`); values that are not all
-    finite have no span (the grid names them: "TEXCOORD_0 values are not finite")."""
+    as many more as its ``values`` (n, k) span, in textures (``texture_scale`` textures per unit: a
+    KHR_texture_transform's), needs (:data:`TEXCOORD_STEP_BITS`); values that are not all finite have no span
+    (the grid names them: "TEXCOORD_0 values are not finite")."""
     prefix = semantic.split("_")[0]
     bits = ATTRIBUTE_BITS.get(prefix, 14)
     if prefix == "TEXCOORD" and values is not None and values.size and np.isfinite(values).all():
-        span = float(np.ptp(values, axis=0).max())
+        span = float(np.ptp(values, axis=0).max()) * max(1.0, texture_scale)
         need = int(np.ceil(np.log2(span * float(1 << TEXCOORD_STEP_BITS) + 1.0)))
         bits = min(MAX_GRID_BITS, max(bits, need))
     return bits
@@ -262,10 +268,11 @@ def _colour_lattice(values: np.ndarray) -> AttributeGrid | None:
     return None
 
 
-def _attribute_grid(semantic: str, values: np.ndarray) -> tuple:
+def _attribute_grid(semantic: str, values: np.ndarray, texture_scale: float = 1.0) -> tuple:
     """``(AttributeGrid, extra spec members)`` of one attribute's ``values`` (n, k).
 
-    Float values: :func:`_attribute_bits` over each component's range (TEXCOORD_n: fewer where float32
+    Float values: :func:`_attribute_bits` over each component's range (TEXCOORD_n: ``texture_scale`` textures
+    a unit, fewer bits where float32
     cannot carry that many at the values' size, never under :data:`ATTRIBUTE_BITS`); skin weights in [0, 1]
     (WEIGHTS_n) on the grid of step 2^-:data:`WEIGHTS_BITS` from 0.  Integer values (an integer
     dtype: a non-normalized integer accessor): step 1 from each component's minimum, as many bits as
@@ -281,7 +288,7 @@ def _attribute_grid(semantic: str, values: np.ndarray) -> tuple:
         lattice = _colour_lattice(values) if semantic.startswith("COLOR_") else None
         if lattice is not None:
             return lattice, {}
-        bits, floor = _attribute_bits(semantic, values), _attribute_bits(semantic)
+        bits, floor = _attribute_bits(semantic, values, texture_scale), _attribute_bits(semantic)
         grid = AttributeGrid.fit(values, bits)
         while grid.bits > floor and not _carries(grid, values, semantic):  # finer than float32 holds them
             grid = AttributeGrid.fit(values, grid.bits - 1)
@@ -718,19 +725,20 @@ def _sharing_groups(positions: list, near: np.ndarray | None = None) -> np.ndarr
     return label
 
 
-def _quantize(mesh: Mesh, grid: Grid) -> tuple:
-    """``(grid, values (n, D) int64, attribute grids)`` of one mesh on its position ``grid``
-    (:func:`position_grids`): positions, then attributes.
+def _quantize(job: PrimitiveJob, grid: Grid) -> tuple:
+    """``(grid, values (n, D) int64, attribute grids)`` of one job's mesh on its position ``grid``
+    (:func:`position_grids`): positions, then attributes (TEXCOORD_n as finely as its ``texture_scales``).
 
     Raises MeshError when the positions or an attribute's grid values do not survive a float32 round trip.
     """
+    mesh, scales = job.mesh, job.texture_scales or {}
     q = grid.quantize(mesh.positions)
     if not _survives_float32(grid, q):
         raise MeshError(_float32_refusal(mesh.positions, grid))
     specs, columns = [], [q]
     for semantic in sorted(mesh.attributes):
         values = np.asarray(mesh.attributes[semantic]).reshape(mesh.vertex_count, -1)
-        agrid, extra = _attribute_grid(semantic, values)
+        agrid, extra = _attribute_grid(semantic, values, scales.get(semantic, 1.0))
         ints = agrid.from_float32(values.astype(np.float64), semantic)
         if not np.array_equal(agrid.from_float32(agrid.to_float32(ints), semantic), ints):
             raise MeshError(f"{semantic}: values too large for float32 at {agrid.bits} bits")
@@ -825,7 +833,7 @@ def _quantize_and_simplify(jobs, grid_bits: int, base_vertices, say, defer_faces
     """
     work = []
     say("simplify", 0.0)
-    quantized = [_quantize(job.mesh, grid) for job, grid in zip(jobs, position_grids(jobs, grid_bits))]
+    quantized = [_quantize(job, grid) for job, grid in zip(jobs, position_grids(jobs, grid_bits))]
     on_one_point = borders_on_one_point([values for _, values, _ in quantized], jobs)
     for i, job in enumerate(jobs):
         grid, values, specs = quantized[i][0], on_one_point[i], quantized[i][2]
