@@ -678,3 +678,39 @@ def test_a_primitive_whose_watermark_object_was_stripped_makes_the_file_not_auth
         assert out["codes_read"] > 0  # the primitive that kept its object is read
         assert len(out["mac"]["failed"]) == (name == "stripped.pmw")  # the stripped primitive's base
     assert main(["decode", str(tmp_path / "stripped.pmw"), "-o", str(tmp_path / "stripped.glb")]) == 0
+
+
+def _quantized_asset(path, with_line: bool):
+    """A sphere whose POSITION is a normalized SHORT VEC3 (KHR_mesh_quantization, required; a node scale places
+    it), and with ``with_line`` a LINES primitive on the same quantized positions, which passes through."""
+    b = DocBuilder()
+    mesh = shapes.icosphere(3, 1.0, noise=0.02)
+    q = np.round(mesh.positions / np.abs(mesh.positions).max() * 32767).astype(np.int16)
+    acc = b.accessor(np.concatenate([q, np.zeros((len(q), 1), np.int16)], 1), 5122, "VEC3", 34962)
+    b.doc["accessors"][acc].update(normalized=True, min=[int(x) for x in q.min(0)], max=[int(x) for x in q.max(0)])
+    b.doc["bufferViews"][b.doc["accessors"][acc]["bufferView"]]["byteStride"] = 8
+    prims = [{"attributes": {"POSITION": acc},
+              "indices": b.accessor(mesh.faces.astype(np.uint32).ravel(), 5125, "SCALAR", 34963)}]
+    if with_line:
+        prims.append({"attributes": {"POSITION": acc}, "mode": 1,
+                      "indices": b.accessor(np.arange(8, dtype=np.uint16), 5123, "SCALAR", 34963)})
+    b.doc.update(scene=0, scenes=[{"nodes": [0]}], nodes=[{"mesh": 0, "scale": [2.0, 2.0, 2.0]}],
+                 meshes=[{"primitives": prims}], extensionsUsed=["KHR_mesh_quantization"],
+                 extensionsRequired=["KHR_mesh_quantization"])
+    path.write_bytes(b.glb())
+
+
+@pytest.mark.parametrize("with_line", [False, True])
+def test_a_decoded_level_requires_mesh_quantization_only_where_an_accessor_still_needs_it(tmp_path, with_line):
+    """A decoded level writes progressive primitives as FLOAT: a quantized input's level required
+    KHR_mesh_quantization all the same, so a viewer without it refused a file that needs nothing of it. A
+    primitive passed through as stored (a LINES one on the quantized positions) still needs it."""
+    _quantized_asset(tmp_path / "q.glb", with_line)
+    encode_asset(tmp_path / "q.glb", tmp_path / "q.pmw", measure=False)
+    for chunks in (0, None):
+        (tmp_path / "out.glb").write_bytes(decode_asset(tmp_path / "q.pmw", chunks=chunks)[0])
+        doc, _ = load_document(tmp_path / "out.glb")
+        for key in ("extensionsUsed", "extensionsRequired"):
+            assert ("KHR_mesh_quantization" in doc.get(key, [])) == with_line
+        result = check(tmp_path / "out.glb")
+        assert result["validator"]["errors"] == 0 and result["three"]["ok"]

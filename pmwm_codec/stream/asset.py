@@ -63,8 +63,9 @@ from ..constants import EXTENSION_NAME
 from ..errors import DegenerateMeshError, FormatError, InputFormatError, MeshError
 from ..format.document import (as_declared, primitive_triangles, renormalized, shown_weights, triangle_faces,
                                view_sites)
-from ..format.document import (check_document, check_rig_data, is_progressive, label_images,
-                               load_document, progressive_refusal, read_accessor, repack, texture_scales)
+from ..format.document import (QUANTIZATION_EXTENSION, check_document, check_rig_data, is_progressive, label_images,
+                               load_document, progressive_refusal, read_accessor, repack, texture_scales,
+                               uses_quantization)
 from ..format.document import strip_image_profiles as _strip_profiles
 from ..format.glb import glb_parts
 from ..format.meshopt import decompress as decompress_meshopt
@@ -556,6 +557,8 @@ def decode_asset(src, chunks=None):
     forget_extension(kept, EXTENSION_NAME, keys=("extensionsUsed",))
     if not uses_extension(kept, DRACO_EXTENSION):
         forget_extension(kept, DRACO_EXTENSION)
+    if not uses_quantization(kept):  # the level's accessors are FLOAT: a quantized input's need may be gone
+        forget_extension(kept, QUANTIZATION_EXTENSION)
     kept["buffers"] = [{"byteLength": out.length}]
     parts = out.parts
     if kept.get("skins") or kept.get("animations"):  # their data as it came (a skin's joints from the stream)
