@@ -92,6 +92,18 @@ def test_a_texture_a_transform_repeats_keeps_a_sixteen_thousandth_of_the_texture
     assert bits > 14
 
 
+@pytest.mark.parametrize("scale", [None, "x", [None, "2"], [float("inf"), float("nan")], {"0": 5}])
+def test_a_transform_scale_that_is_no_list_of_numbers_widens_nothing_and_breaks_nothing(scale):
+    """A malformed ``scale`` (null ended pmw encode in "unexpected TypeError ... a bug of pmw") counts as 1."""
+    from pmwm_codec.format.document import texture_scales
+
+    info = {"index": 0, "extensions": {"KHR_texture_transform": {"scale": scale}}}
+    gltf = {"materials": [{"pbrMetallicRoughness": {"baseColorTexture": info}}]}
+    assert texture_scales(gltf, {"material": 0}) == {}
+    info["extensions"]["KHR_texture_transform"]["scale"] = [3, -8.0]
+    assert texture_scales(gltf, {"material": 0}) == {"TEXCOORD_0": 8.0}
+
+
 def test_unit_texture_coordinates_keep_fourteen_bits(tmp_path):
     uv = np.random.default_rng(2).uniform(-0.02, 1.02, (642, 2))  # spot's span: 1.04
     error, bits = _uv_error(tmp_path, uv)

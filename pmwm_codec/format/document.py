@@ -520,8 +520,9 @@ def texture_scales(gltf: dict, prim: dict) -> dict:
             transform = (info.get("extensions") or {}).get("KHR_texture_transform")
             if not isinstance(transform, dict):
                 continue
-            scale = max((abs(float(x)) for x in transform.get("scale", ()) if isinstance(x, (int, float))),
-                        default=1.0)
+            given = transform.get("scale")
+            scale = max((abs(float(x)) for x in (given if isinstance(given, list) else ())
+                         if isinstance(x, (int, float)) and np.isfinite(x)), default=1.0)
             semantic = f"TEXCOORD_{transform.get('texCoord', info.get('texCoord', 0))}"
             if scale > scales.get(semantic, 1.0):
                 scales[semantic] = scale
