@@ -54,7 +54,7 @@ def test_every_prefix_yields_exactly_the_chunks_inside_it_or_truncated_error(dat
 
 
 def test_truncated_error_names_bytes_arrived_and_needed():
-    with pytest.raises(TruncatedError, match=r"after 25 bytes.*needs \d+ bytes") as info:
+    with pytest.raises(TruncatedError, match=r"after 25 bytes, inside the GLB header or JSON.*needs at least \d+ bytes") as info:
         list(iter_events(DATA[:25]))
     assert info.value.bytes_read == 25
 

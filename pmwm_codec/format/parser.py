@@ -304,6 +304,18 @@ def _chunk_range(views, chunk, buffer_length, what, previous_end, version=1):
 _PREAMBLE, _JSON, _BIN_HEADER, _BASE, _CHUNKS, _TAIL, _CLOSED, _FAILED = range(8)
 
 
+def truncated_before_base(received: int, needed: int | None, header: bool) -> TruncatedError:
+    """The one refusal of a stream that ends before its base mesh is whole, read by push or by pull alike.
+
+    ``header``: it ended inside the GLB header or JSON, where ``needed`` counts the bytes to the JSON's end
+    only (the base mesh's end is not known yet: "at least").
+    """
+    where = "inside the GLB header or JSON, before the base mesh was complete" if header \
+        else "before the base mesh was complete"
+    need = "" if needed is None else f" (needs {'at least ' if header else ''}{needed} bytes)"
+    return TruncatedError(f"truncated: stream ended after {received} bytes, {where}{need}", bytes_read=received)
+
+
 class ContainerParser:
     """Incremental (push) reader of one ``.pmw`` stream.  Single-use.
 
@@ -384,12 +396,7 @@ class ContainerParser:
         self._state = _CLOSED
         self._buf = bytearray()
         if state <= _BASE:
-            need = self._needed(state)
-            raise TruncatedError(
-                f"truncated: stream ended after {self._received} bytes, before the base mesh was complete"
-                + (f" (needs {need} bytes)" if need is not None else ""),
-                bytes_read=self._received,
-            )
+            raise truncated_before_base(self._received, self._needed(state), header=state <= _JSON)
         count = len(self._plan.chunk_ranges)
         return EndEvent(
             complete=self._received == self._total and self._next_chunk == count,

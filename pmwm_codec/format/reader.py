@@ -9,10 +9,9 @@ from __future__ import annotations
 
 import os
 
-from ..errors import TruncatedError
 from ..sources import DEFAULT_BLOCK_SIZE, checked_source, iter_blocks, open_regular_file, read_block
 from .layout import PREAMBLE_SIZE
-from .parser import BaseEvent, ContainerParser, HeaderEvent
+from .parser import BaseEvent, ContainerParser, HeaderEvent, truncated_before_base
 
 
 def iter_events(source, block_size: int = DEFAULT_BLOCK_SIZE):
@@ -63,7 +62,7 @@ def read_header(source) -> HeaderEvent:
             block = pending or next(blocks, b"")
             block, pending = block[: wanted - got], block[wanted - got :]
         if not block:
-            raise TruncatedError(f"truncated: stream ended after {got} bytes, inside the GLB header or JSON (needs {wanted})", bytes_read=got)
+            raise truncated_before_base(got, wanted, header=True)
         got += len(block)
         for event in parser.feed(block):
             if isinstance(event, HeaderEvent):
