@@ -32,6 +32,19 @@ def files(tmp_path_factory):
     return d
 
 
+def test_verify_json_has_owner_null_when_the_key_names_no_owner_id(files, capsys):
+    """``verify --json`` lists ``owner`` among its fields; with a key that names no owner ID (``--no-owner``, or a
+    key written before the owner layer) the field was missing altogether, from the object and from every chunk
+    row, so a script reading ``doc["owner"]`` failed on such files.  It is ``null`` there."""
+    assert pmwm_codec.load_key(files / "m.key.json").owner_id is None  # the case: nothing to read the layer by
+    assert main(["verify", str(files / "m.pmw"), "--key", str(files / "m.key.json"), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["verdict"] == "authentic"
+    assert "owner" in doc and doc["owner"] is None, sorted(doc)
+    assert all("owner" in row and row["owner"] is None for row in doc["chunks"]), doc["chunks"][0]
+    assert doc["final"]["owner"] is None
+
+
 def test_a_file_cut_inside_its_json_is_named_alike_by_every_command(files, tmp_path, capsys):
     """Cut inside the JSON, the same file was "inside the GLB header or JSON (needs 2544)" for info and decode but
     "before the base mesh was complete (needs 2544 bytes)" for verify and cut -- a count that read as the base's

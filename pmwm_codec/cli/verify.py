@@ -104,10 +104,13 @@ def run(args) -> int:
                                  inputs=[p for p in (args.input, args.key, args.watermark) if p and p != "-"])
     if args.json:
         doc = outcome.as_json()
-        if owners:
-            for chunk, boundary in zip(doc["chunks"], owners):
-                chunk["owner"] = {**boundary.owner.as_json(), "read_at_chunk": boundary.read_at}
-            doc["owner"] = owners[-1].owner.as_json()
+        # ``owner`` is a field of every verify object (DESIGN.md §5): null where the key names no owner ID
+        # (written with --no-owner, or before the owner layer), so nothing is read
+        for n, chunk in enumerate(doc["chunks"]):
+            boundary = owners[n] if n < len(owners) else None
+            chunk["owner"] = None if boundary is None else {**boundary.owner.as_json(),
+                                                            "read_at_chunk": boundary.read_at}
+        doc["owner"] = owners[-1].owner.as_json() if owners else None
         if pictures is not None:
             doc["pictures"] = pictures
         print_json(doc)
