@@ -45,6 +45,18 @@ def test_verify_json_has_owner_null_when_the_key_names_no_owner_id(files, capsys
     assert doc["final"]["owner"] is None
 
 
+def test_encode_notes_go_to_stderr_and_the_summary_alone_to_stdout(files, tmp_path, capsys):
+    """``encode`` printed its notes (``--bits ignored: no --watermark``, ``dropped 1113 unreferenced vertices`` ...)
+    inside its summary on stdout, where ``decode``, ``cut`` and ``encode -q`` print them on stderr as
+    ``pmw: note: ...``.  They go to stderr, the summary alone to stdout."""
+    out = tmp_path / "plain.pmw"
+    assert main(["encode", str(files / "m.obj"), "-o", str(out), "--bits", "3", "--measure", "none"]) == 0
+    stdout, stderr = capsys.readouterr()
+    assert "pmw: note: --bits ignored: no --watermark" in stderr.splitlines(), stderr
+    assert "note:" not in stdout and "ignored" not in stdout, stdout
+    assert "plain.pmw" in stdout and "vertex splits" in stdout  # the summary is still there
+
+
 def test_a_file_cut_inside_its_json_is_named_alike_by_every_command(files, tmp_path, capsys):
     """Cut inside the JSON, the same file was "inside the GLB header or JSON (needs 2544)" for info and decode but
     "before the base mesh was complete (needs 2544 bytes)" for verify and cut -- a count that read as the base's

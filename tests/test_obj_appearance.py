@@ -165,7 +165,7 @@ def test_an_obj_never_makes_the_encoder_read_outside_its_folder(tmp_path, mtl, s
                          capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
     named = (statement or mtl).split()[-1]
-    assert re.search(rf"'{re.escape(named)}' not read \((leads outside the asset's folder|is an absolute path)", run.stdout)
+    assert re.search(rf"'{re.escape(named)}' not read \((leads outside the asset's folder|is an absolute path)", run.stderr)
     glb = pmwm_codec.decode_asset(str(out))
     assert outside not in glb and b"\"Kd\"" not in glb
     gltf = json.loads(glb[20:20 + int.from_bytes(glb[12:16], "little")])

@@ -710,8 +710,8 @@ def test_the_default_owner_layer_is_left_out_with_a_notice_where_it_cannot_be_re
     doc = json.loads(capsys.readouterr().out)
     assert doc["verdict"] == "authentic" and doc["owner"] is None  # the exact layer; no owner claim at all
     assert main(["encode", str(src), "-o", str(tmp_path / "b.pmw"), "--watermark", str(img)]) == 0
-    printed = capsys.readouterr().out
-    assert "note: the owner layer cannot be read back" in printed and "owner   " not in printed
+    printed, said = capsys.readouterr()
+    assert "pmw: note: the owner layer cannot be read back" in said and "owner   " not in printed
 
 
 def test_a_reused_key_naming_an_owner_id_marks_a_mesh_without_the_layer_and_stays_as_it_is(tmp_path, blob, capsys):

@@ -173,11 +173,13 @@ def run(args) -> int:
     report["notices"] = list(report.get("notices") or []) + extra
     if args.json:
         print_json(report)
-    elif not args.quiet:
+        return 0
+    # the notes (what was adjusted, left out or shrunk) go to stderr, as decode's and cut's, with or without -q:
+    # stdout holds the summary alone
+    for note in report["notices"]:
+        notice(note)
+    if not args.quiet:
         print(summary(args.input, args.output, report))
-    else:  # no summary; its notes (what was adjusted, left out or shrunk) still go to stderr, as decode's and cut's
-        for note in report["notices"]:
-            notice(note)
     return 0
 
 
@@ -264,6 +266,4 @@ def summary(src, dst, r) -> str:
     if r.get("owner_id"):
         lines.append(f"  owner       {r['owner_id']} (64-bit owner layer)"
                      + (f", key {r['key_path']}" if r.get("key_path") and not w else ""))
-    for note in r.get("notices") or []:
-        lines.append(f"  note: {note}")
     return "\n".join(lines)
