@@ -57,6 +57,23 @@ def test_encode_notes_go_to_stderr_and_the_summary_alone_to_stdout(files, tmp_pa
     assert "plain.pmw" in stdout and "vertex splits" in stdout  # the summary is still there
 
 
+@pytest.mark.parametrize("argv, what", [
+    (["encode", "-", "-o", "{d}/x.pmw"], "mesh file"),
+    (["encode", "{d}/m.obj", "-o", "{d}/x.pmw", "--watermark", "-"], "watermark image"),
+    (["verify", "{d}/m.pmw", "--key", "-"], "key file"),
+    (["verify", "{d}/m.pmw", "--key", "{d}/m.key.json", "--watermark", "-"], "watermark image"),
+    (["verify", "{d}/m.obj", "--key", "-"], "key file"),
+])
+def test_a_dash_where_only_a_file_is_read_is_named_so_not_as_a_missing_file(files, capsys, argv, what):
+    """``-`` given for a mesh, a key or a watermark image (read only from files) was refused as ``-: no such
+    file`` (``pmw: error: x.pmw: -: no such key file``), as if ``-`` were a missing file; it says that standard
+    input is read only for a ``.pmw``."""
+    assert main([a.format(d=files) for a in argv]) == 2
+    err = capsys.readouterr().err
+    assert err == f"pmw: error: -: give the {what} by its name (standard input is read only for a .pmw)\n", err
+    assert not (files / "x.pmw").exists()
+
+
 def test_a_file_cut_inside_its_json_is_named_alike_by_every_command(files, tmp_path, capsys):
     """Cut inside the JSON, the same file was "inside the GLB header or JSON (needs 2544)" for info and decode but
     "before the base mesh was complete (needs 2544 bytes)" for verify and cut -- a count that read as the base's

@@ -246,10 +246,13 @@ def check_pmw_output(path, inputs=()) -> None:
         raise UsageError(str(exc)) from None
 
 
-def check_input_file(path, what: str = "file") -> None:
-    """Fail (UsageError) unless ``path`` is ``-`` or an existing regular file."""
+def check_input_file(path, what: str = "file", stdin: bool = False) -> None:
+    """Fail (UsageError) unless ``path`` is an existing file, or ``-`` where ``stdin`` says standard input is read
+    (a ``.pmw``; a mesh, key or image is read from a file: ``-`` was "-: no such file")."""
     if path == "-":
-        return
+        if stdin:
+            return
+        raise UsageError(f"-: give the {what} by its name (standard input is read only for a .pmw)")
     if not path.strip():  # an unset variable: "pmw: error: : no such file" named nothing
         raise UsageError(f"an empty path ({path!r}) names no {what} (an unset variable?)")
     from pmwm_codec.sources import shown_path  # as the library names it: a key's JSON given as a path never echoed

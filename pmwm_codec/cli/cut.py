@@ -37,7 +37,7 @@ def run(args) -> int:
         raise UsageError(f"--chunks must be >= 0, got {args.chunks}")
     url = is_url(args.input)
     if not url:
-        check_input_file(args.input, ".pmw file")
+        check_input_file(args.input, ".pmw file", stdin=True)
     check_pmw_output(args.output, inputs=() if url else (args.input,))
     with naming(args.input):
         result = cut_file(as_source(args.input, args.chunks, whole_document=True), args.chunks)

@@ -40,7 +40,7 @@ def run(args) -> int:
         raise UsageError(f"--chunks must be >= 0, got {args.chunks}")
     url = is_url(args.input)
     if not url:
-        check_input_file(args.input, ".pmw file")
+        check_input_file(args.input, ".pmw file", stdin=True)
     check_output_path(args.output, "mesh", inputs=() if url else (args.input,))  # '-', a folder: named as such
     suffix = os.path.splitext(args.output)[1].lower()
     if suffix not in WRITE_SUFFIXES:

@@ -20,7 +20,7 @@ def add_parser(sub):
 def run(args) -> int:
     url = is_url(args.input)
     if not url:
-        check_input_file(args.input, ".pmw file")
+        check_input_file(args.input, ".pmw file", stdin=True)
     with naming(args.input):
         info = inspect(args.input)  # a URL: the header only
     if args.json:

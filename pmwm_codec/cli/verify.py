@@ -78,7 +78,7 @@ def run(args) -> int:
     if not url and _is_mesh_file(args.input):
         return run_owner(args)
     if not url:
-        check_input_file(args.input, ".pmw file")
+        check_input_file(args.input, ".pmw file", stdin=True)
     _check_common(args)
     progress = Progress(not (args.json or args.quiet))
     source = UrlSource(args.input) if url else args.input
@@ -196,7 +196,7 @@ def run_reference(args) -> int:
         raise UsageError("-: verify MESH --reference reads the mesh from a file (its suffix names its format), "
                          "not from standard input; give the mesh file's name")
     check_input_file(args.input, "mesh file")
-    check_input_file(args.reference, "reference .pmw")
+    check_input_file(args.reference, "reference .pmw", stdin=True)
     _check_common(args)
     with naming(args.input):
         mesh = pmwm_codec.read_mesh(args.input)
