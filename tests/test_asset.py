@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from pmwm_codec import shapes
-from pmwm_codec.format.document import load_document, read_accessor
+from pmwm_codec.format.document import load_document, read_accessor, sniff_json
 from pmwm_codec.format.glb import glb_parts
 from pmwm_codec.format.layout import padded
 from pmwm_codec.stream.asset import decode_asset, encode_asset
@@ -707,6 +707,9 @@ def test_a_decoded_level_requires_mesh_quantization_only_where_an_accessor_still
     primitive passed through as stored (a LINES one on the quantized positions) still needs it."""
     _quantized_asset(tmp_path / "q.glb", with_line)
     encode_asset(tmp_path / "q.glb", tmp_path / "q.pmw", measure=False)
+    pmw = sniff_json(tmp_path / "q.pmw")  # the .pmw's base too: written FLOAT (or Draco), it needs nothing of it
+    for key in ("extensionsUsed", "extensionsRequired"):
+        assert ("KHR_mesh_quantization" in pmw.get(key, [])) == with_line
     for chunks in (0, None):
         (tmp_path / "out.glb").write_bytes(decode_asset(tmp_path / "q.pmw", chunks=chunks)[0])
         doc, _ = load_document(tmp_path / "out.glb")

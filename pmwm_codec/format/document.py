@@ -45,8 +45,8 @@ from ..errors import InputFormatError, MeshError
 from ..sources import read_regular_file
 from .glb import GLTF_1_ADVICE, split_glb
 from .gltf import (COMPONENT_DTYPES, COMPONENT_NAMES, DRACO_EXTENSION, FLOAT, INDEX_DTYPES, NORMALIZE_DIVISORS,
-                   TRIANGLE_MODES, TRIANGLE_STRIP, TRIANGLES, TYPE_WIDTH, UNSIGNED_BYTE, UNSIGNED_SHORT, check_finite_numbers, check_json_depth, element_rows,
-                   gltf_integers, named, shown_value, triangle_list, uint, view_bytes)
+                   QUANTIZATION_EXTENSION, TRIANGLE_MODES, TRIANGLE_STRIP, TRIANGLES, TYPE_WIDTH, check_finite_numbers,
+                   check_json_depth, element_rows, gltf_integers, named, shown_value, triangle_list, uint, view_bytes)
 from .layout import CHUNK_HEADER_SIZE, CHUNK_TYPE_JSON, GLB_HEADER_SIZE, GLB_MAGIC, padded
 from .meshopt import EXTENSIONS as MESHOPT_EXTENSIONS
 from .meshopt import decompress as decompress_meshopt
@@ -308,8 +308,6 @@ def _data_uri(uri: str, name: str, shown: str, limit: int) -> bytes:
 _ARRAYS = ("accessors", "animations", "buffers", "bufferViews", "cameras", "images", "materials",
            "meshes", "nodes", "samplers", "scenes", "skins", "textures")
 
-#: Integer and normalized vertex attributes beyond glTF 2.0's own (:func:`uses_quantization`).
-QUANTIZATION_EXTENSION = "KHR_mesh_quantization"
 #: Extensions an input may list in ``extensionsRequired``: what the reader implements -- Draco and
 #: meshopt data are decoded, quantized accessors read (KHR_mesh_quantization: any componentType,
 #: ``normalized``), GPU instancing placed and renumbered -- and this package's own (a ``.pmw``, refused
@@ -902,39 +900,6 @@ ATTRIBUTE_TYPES = {"POSITION": ("VEC3",), "NORMAL": ("VEC3",), "TANGENT": ("VEC4
                    "COLOR": ("VEC3", "VEC4"), "JOINTS": ("VEC4",), "WEIGHTS": ("VEC4",)}
 TARGET_TYPES = {"POSITION": ("VEC3",), "NORMAL": ("VEC3",), "TANGENT": ("VEC3",), "TEXCOORD": ("VEC2",),
                 "COLOR": ("VEC3", "VEC4")}
-#: The (componentType, normalized) pairs glTF 2.0 itself (3.7.2.1, 3.7.2.2) allows a vertex attribute of each
-#: semantic; others (a SHORT POSITION, a BYTE NORMAL ...) need KHR_mesh_quantization (:func:`uses_quantization`).
-_NORMALIZED_8_16 = ((FLOAT, False), (UNSIGNED_BYTE, True), (UNSIGNED_SHORT, True))
-CORE_COMPONENTS = {"POSITION": ((FLOAT, False),), "NORMAL": ((FLOAT, False),), "TANGENT": ((FLOAT, False),),
-                   "TEXCOORD": _NORMALIZED_8_16, "COLOR": _NORMALIZED_8_16, "WEIGHTS": _NORMALIZED_8_16,
-                   "JOINTS": ((UNSIGNED_BYTE, False), (UNSIGNED_SHORT, False))}
-
-
-def uses_quantization(gltf: dict) -> bool:
-    """Whether an accessor of a (checked) ``gltf`` needs KHR_mesh_quantization: a vertex attribute of a componentType
-    glTF 2.0 does not allow its semantic (:data:`CORE_COMPONENTS`; a morph target's: FLOAT alone), or an
-    EXT_mesh_gpu_instancing attribute that is not FLOAT.  Application-specific ``_NAME`` attributes need nothing."""
-    accessors = gltf.get("accessors", [])
-
-    def form(index):
-        acc = accessors[index]
-        return acc["componentType"], bool(acc.get("normalized", False))
-
-    for mesh in gltf.get("meshes", []):
-        for prim in mesh.get("primitives", []):
-            sets = [(prim.get("attributes", {}), False)] + [(t, True) for t in prim.get("targets", [])]
-            for attributes, target in sets:
-                for semantic, index in attributes.items():
-                    allowed = ((FLOAT, False),) if target else CORE_COMPONENTS.get(semantic.split("_")[0])
-                    if semantic[:1] != "_" and allowed is not None and form(index) not in allowed:
-                        return True
-    for node in gltf.get("nodes", []):
-        instancing = (node.get("extensions") or {}).get("EXT_mesh_gpu_instancing") or {}
-        if any(form(index)[0] != FLOAT for index in (instancing.get("attributes") or {}).values()):
-            return True
-    return False
-
-
 #: bufferView targets (glTF 2.0, 5.11): vertex data, indices.
 ARRAY_BUFFER_TARGET, ELEMENT_ARRAY_BUFFER = 34962, 34963
 

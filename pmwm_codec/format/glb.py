@@ -47,7 +47,7 @@ from ..atomic import write_atomic, write_stream
 from ..constants import EXTENSION_NAME, FORMAT_VERSION, MAX_CHUNK_BYTES, MAX_CHUNKS, MAX_DECOMPRESSED_CHUNK_BYTES
 from ..errors import FormatError, InputFormatError, LimitError
 from .base import EncodedBase, decode_base_attributes
-from .gltf import DRACO_EXTENSION, without_defaults
+from .gltf import DRACO_EXTENSION, QUANTIZATION_EXTENSION, forget_extension, uses_quantization, without_defaults
 from .extension import (
     CHUNK_META_FIELDS, DERIVED_FIELDS, RESERVED_FIELDS, TABLE_ARRAYS, base_digest, check_extension, digest, float32_up,
     pack_chunk_table, payload_version,
@@ -373,6 +373,8 @@ def _document(doc: dict, meshes, accessors, views, bin_length: int, used, requir
     gltf["accessors"] = accessors
     gltf["bufferViews"] = [without_defaults(view) for view in views]
     gltf["buffers"] = [{"byteLength": bin_length}]
+    if not uses_quantization(gltf):  # a quantized input's progressive primitives became FLOAT bases (or Draco)
+        forget_extension(gltf, QUANTIZATION_EXTENSION)
     return gltf
 
 

@@ -297,6 +297,42 @@ def uses_extension(gltf: dict, name: str) -> bool:
                for mesh in gltf.get("meshes", []) for prim in mesh.get("primitives", []))
 
 
+#: Integer and normalized vertex attributes beyond glTF 2.0's own (:func:`uses_quantization`).
+QUANTIZATION_EXTENSION = "KHR_mesh_quantization"
+
+#: The (componentType, normalized) pairs glTF 2.0 itself (3.7.2.1, 3.7.2.2) allows a vertex attribute of each
+#: semantic; others (a SHORT POSITION, a BYTE NORMAL ...) need KHR_mesh_quantization (:func:`uses_quantization`).
+_NORMALIZED_8_16 = ((FLOAT, False), (UNSIGNED_BYTE, True), (UNSIGNED_SHORT, True))
+CORE_COMPONENTS = {"POSITION": ((FLOAT, False),), "NORMAL": ((FLOAT, False),), "TANGENT": ((FLOAT, False),),
+                   "TEXCOORD": _NORMALIZED_8_16, "COLOR": _NORMALIZED_8_16, "WEIGHTS": _NORMALIZED_8_16,
+                   "JOINTS": ((UNSIGNED_BYTE, False), (UNSIGNED_SHORT, False))}
+
+
+def uses_quantization(gltf: dict) -> bool:
+    """Whether an accessor of a (checked) ``gltf`` needs KHR_mesh_quantization: a vertex attribute of a componentType
+    glTF 2.0 does not allow its semantic (:data:`CORE_COMPONENTS`; a morph target's: FLOAT alone), or an
+    EXT_mesh_gpu_instancing attribute that is not FLOAT.  Application-specific ``_NAME`` attributes need nothing."""
+    accessors = gltf.get("accessors", [])
+
+    def form(index):
+        acc = accessors[index]
+        return acc["componentType"], bool(acc.get("normalized", False))
+
+    for mesh in gltf.get("meshes", []):
+        for prim in mesh.get("primitives", []):
+            sets = [(prim.get("attributes", {}), False)] + [(t, True) for t in prim.get("targets", [])]
+            for attributes, target in sets:
+                for semantic, index in attributes.items():
+                    allowed = ((FLOAT, False),) if target else CORE_COMPONENTS.get(semantic.split("_")[0])
+                    if semantic[:1] != "_" and allowed is not None and form(index) not in allowed:
+                        return True
+    for node in gltf.get("nodes", []):
+        instancing = (node.get("extensions") or {}).get("EXT_mesh_gpu_instancing") or {}
+        if any(form(index)[0] != FLOAT for index in (instancing.get("attributes") or {}).values()):
+            return True
+    return False
+
+
 def forget_extension(gltf: dict, name: str, keys=("extensionsUsed", "extensionsRequired")) -> None:
     """Remove ``name`` from the lists ``keys`` of ``gltf`` (in place), and each list that
     becomes empty; call it once no primitive uses the extension any more."""

@@ -63,9 +63,8 @@ from ..constants import EXTENSION_NAME
 from ..errors import DegenerateMeshError, FormatError, InputFormatError, MeshError
 from ..format.document import (as_declared, primitive_triangles, renormalized, shown_weights, triangle_faces,
                                view_sites)
-from ..format.document import (QUANTIZATION_EXTENSION, check_document, check_rig_data, is_progressive, label_images,
-                               load_document, progressive_refusal, read_accessor, repack, texture_scales,
-                               uses_quantization)
+from ..format.document import (check_document, check_rig_data, is_progressive, label_images, load_document,
+                               progressive_refusal, read_accessor, repack, texture_scales)
 from ..format.document import strip_image_profiles as _strip_profiles
 from ..format.glb import glb_parts
 from ..format.meshopt import decompress as decompress_meshopt
@@ -75,6 +74,7 @@ from ..format.gltf import (
     ELEMENT_ARRAY_BUFFER,
     FLOAT,
     POINT_AND_LINE_MODES,
+    QUANTIZATION_EXTENSION,
     TRIANGLE_MODES,
     TRIANGLES,
     UNSIGNED_INT,
@@ -88,6 +88,7 @@ from ..format.gltf import (
     scene_mesh,
     skinned_meshes,
     uses_extension,
+    uses_quantization,
     world_placements,
     view_bytes,
 )
