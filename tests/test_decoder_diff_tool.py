@@ -26,6 +26,14 @@ def test_the_decoders_agree_on_conformance_files(split, capsys):
     assert f"{len(FILES)} files: {len(FILES)} agreed" in capsys.readouterr().out
 
 
+def test_the_decoders_agree_that_a_whole_file_decoded_with_a_chunk_limit_is_complete(capsys):
+    """--max-chunks 1: both decoders stop after one chunk and both say the (whole) input is complete; before, the
+    JavaScript decoder's complete also required every chunk applied ("python complete, js truncated")."""
+    assert decoder_diff.main([*FILES, "--max-chunks", "1"]) == 0
+    assert f"{len(FILES)} files: {len(FILES)} agreed" in capsys.readouterr().out
+    assert decoder_diff.python_run(FILES[0], max_chunks=1)["outcome"] == "complete"
+
+
 def test_levels_one_decoder_delivers_and_the_other_refuses_are_a_disagreement():
     py = decoder_diff.python_run(FILES[0])
     js = {**py, "levels": [], "outcome": "FormatError: bufferView 1 lies outside buffer 0"}

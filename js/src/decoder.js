@@ -269,9 +269,11 @@ export class PmwDecoder {
 
   /**
    * Ends the stream, once the feeds queued before it are done (it needs no await of them). Resolves to
-   * {complete: boolean, bytesReceived: number, totalLength: number, chunksApplied: number, chunkCount: number};
-   * rejects with the error that broke the stream, or a TruncatedError when no base mesh arrived. A later
-   * feed() is a TypeError; a second close() settles as the first.
+   * {complete: boolean, bytesReceived: number, totalLength: number, chunksApplied: number, chunkCount: number}:
+   * `complete` says whether the input is whole (every byte up to the GLB length received: a whole file decoded with
+   * maxChunks 2 is complete, with chunksApplied 2 of chunkCount), as pmwm_codec.StreamDecoder's StreamEnd.complete.
+   * Rejects with the error that broke the stream, or a TruncatedError when no base mesh arrived. A later feed() is a
+   * TypeError; a second close() settles as the first.
    */
   close() {
     this.closed = true;
@@ -287,7 +289,7 @@ export class PmwDecoder {
     }
     const chunkCount = this.plan.stream.length;
     return {
-      complete: this.received === this.header.length && this.chunksApplied === chunkCount,
+      complete: this.received === this.header.length,
       bytesReceived: this.received, totalLength: this.header.length, chunksApplied: this.chunksApplied, chunkCount,
     };
   }

@@ -20,7 +20,9 @@ export {
  * @param {{chunks?: number, draco?: object}} options chunks: apply at most this many chunks of the stream
  * @returns {Promise<{positions: Float32Array, indices: Uint32Array, positionsInt: Int32Array, parts: object[],
  *   chunksApplied: number, chunkCount: number, complete: boolean, bytesRead: number}>}
- *   positions (3 per vertex), indices (3 per face) of every progressive primitive, concatenated;
+ *   positions (3 per vertex), indices (3 per face) of every progressive primitive, concatenated; complete: the
+ *   input is whole (every byte up to the GLB length given), however many chunks `chunks` let apply (a whole file
+ *   with {chunks: 2} is complete, chunksApplied 2 of chunkCount); as pmw decode's --json `complete`;
  *   the arrays of PmwDecoder.snapshot() (shared with parts[0] for one primitive; positionsInt a
  *   Float64Array only for a hostile stream whose values leave the int32 range)
  */

@@ -4,6 +4,7 @@
  *   loader.register((parser) => new PMWMProgressivePlugin(parser, { url, onChunk }));
  *   const gltf = await loader.loadAsync(url);       // or: await loadProgressive(loader, url, options)
  *   await gltf.userData.pmwm.done;                   // {complete, chunksApplied, bytesFetched, ...}
+ *   (the outcome's complete: the whole file read and every chunk drawn; the decoder's: its input was whole)
  *
  * three.js reads the base mesh itself (the extension is optional). When three.js holds the whole file
  * (GLTFLoader.load downloads it whole, or parse() was given it), the plugin decodes the stream from those bytes
@@ -216,8 +217,10 @@ export class ProgressiveRun {
     }
     // stopped with levels of the last piece decoded but not drawn: the outcome is the level drawn
     const shown = this.levels.at(-1)?.chunk;
-    if (shown !== undefined && shown < end.chunksApplied) end = { ...end, complete: false, chunksApplied: shown };
-    const outcome = { ...end, bytesFetched: this.bytesFetched, requests: this.requests, levels: this.levels.length,
+    if (shown !== undefined && shown < end.chunksApplied) end = { ...end, chunksApplied: shown };
+    // the decoder's complete says the bytes fed are the whole file; the outcome's, that the model is the full one
+    const full = end.complete && end.chunksApplied === end.chunkCount;
+    const outcome = { ...end, complete: full, bytesFetched: this.bytesFetched, requests: this.requests, levels: this.levels.length,
       workerLevels: this.decoder.workerLevels ?? 0, stopped: this.stopped };
     this.#call(o.onDone, outcome);
     return outcome;

@@ -37,14 +37,18 @@ for (const file of conformanceFiles()) {
   });
 }
 
-test('decodePmw stops after the requested chunk count and says the file is not complete', async () => {
+test('a chunk limit stops decodePmw at the chunk count and says the file is whole (chunksApplied < chunkCount)', async () => {
   const file = conformanceFiles()[0];
   const bytes = new Uint8Array(readFileSync(join(CONFORMANCE, file)));
   const want = readNpz(new Uint8Array(readFileSync(join(CONFORMANCE, file.replace(/\.pmw$/, '.expected.npz')))));
   const counts = asNumbers(want.counts.data);
   const base = await decodePmw(bytes, { chunks: 0 });
   assert.equal(base.chunksApplied, 0);
-  assert.equal(base.complete, false);
+  assert.ok(base.chunkCount > 0);
+  assert.equal(base.complete, true, 'complete: the input file is whole, as pmw decode --chunks N --json says');
+  const cut = await decodePmw(bytes.subarray(0, bytes.length - 1), { chunks: 0 });
+  assert.equal(cut.chunksApplied, 0);
+  assert.equal(cut.complete, false, 'the same chunk limit on a cut file: not complete');
   assert.equal(base.positions.length, counts[0] * 3);
   assert.equal(base.indices.length, counts[1] * 3);
   const full = await decodePmw(bytes);
