@@ -83,6 +83,33 @@ def edit_chunk_table(ext: dict, edit) -> None:
     ext["chunks"] = compact_chunks(entries)
 
 
+def rewrite_chunk(data: bytes, k: int, edit) -> bytes:
+    """The ``.pmw`` ``data`` (one primitive, payload version 1: a bufferView per chunk) with chunk ``k``'s payload
+    replaced by ``edit(payload)``, recompressed, re-digested and re-laid out, as a forger without the key would do
+    it (the MACs are left as they were): a hostile payload behind a valid digest."""
+    import zstandard
+
+    from pmwm_codec.constants import EXTENSION_NAME
+    from pmwm_codec.format.extension import digest
+    from pmwm_codec.format.glb import compress_chunk, glb_parts, split_glb
+    from pmwm_codec.format.layout import padded
+
+    gltf, binary = split_glb(data)
+    views, entries = gltf["bufferViews"], gltf["meshes"][0]["primitives"][0]["extensions"][EXTENSION_NAME]["chunks"]
+    out = bytearray(binary[: views[entries[k]["bufferView"]]["byteOffset"]])
+    for j in range(k, len(entries)):
+        view = views[entries[j]["bufferView"]]
+        stored = binary[view["byteOffset"] : view["byteOffset"] + view["byteLength"]]
+        if j == k:
+            payload = edit(zstandard.ZstdDecompressor().decompress(stored))
+            stored = compress_chunk(payload)
+            entries[j].update(byteLength=len(stored), digest=digest(stored), uncompressedLength=len(payload))
+        view["byteOffset"], view["byteLength"] = len(out), len(stored)
+        out += stored + bytes(padded(len(stored)) - len(stored))
+    gltf["buffers"][0]["byteLength"] = len(out)
+    return b"".join(glb_parts(gltf, [bytes(out)], len(out)))
+
+
 def closed_file(path, mode: str = "rb"):
     """A file object of ``path`` opened in ``mode`` ("wb" creates the file) and closed."""
     fh = open(path, mode)

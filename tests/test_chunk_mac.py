@@ -19,9 +19,8 @@ from pmwm_codec.cli import main
 from pmwm_codec.constants import EXTENSION_NAME
 from pmwm_codec.format import read_header
 from pmwm_codec.format.base import decode_base, decode_base_attributes
-from pmwm_codec.format.extension import base_digest, digest
-from pmwm_codec.format.glb import compress_chunk, glb_parts, split_glb
-from pmwm_codec.format.layout import padded
+from pmwm_codec.format.extension import base_digest
+from pmwm_codec.format.glb import glb_parts, split_glb
 from pmwm_codec.format.records import pack_batches, unpack_batches
 from pmwm_codec.progressive.grid import Grid
 from pmwm_codec.stream import StreamDecoder, encode_mesh
@@ -30,7 +29,7 @@ from pmwm_codec.verify import verify_stream
 from pmwm_codec.watermark.key import WatermarkKey
 
 from conftest import marked_sphere
-from samples import edit_chunk_table
+from samples import edit_chunk_table, rewrite_chunk
 import pytest
 
 CONFORMANCE = Path(__file__).resolve().parents[1] / "spec" / "conformance"
@@ -38,25 +37,6 @@ CONFORMANCE = Path(__file__).resolve().parents[1] / "spec" / "conformance"
 
 def _ext(gltf: dict) -> dict:
     return gltf["meshes"][0]["primitives"][0]["extensions"][EXTENSION_NAME]
-
-
-def _rewrite_chunk(data: bytes, k: int, edit) -> bytes:
-    """Chunk k's payload replaced by ``edit(payload)``, recompressed, re-digested and re-laid out,
-    as a forger without the key would do it (the MACs are left as they were)."""
-    gltf, binary = split_glb(data)
-    views, entries = gltf["bufferViews"], _ext(gltf)["chunks"]
-    out = bytearray(binary[: views[entries[k]["bufferView"]]["byteOffset"]])
-    for j in range(k, len(entries)):
-        view = views[entries[j]["bufferView"]]
-        stored = binary[view["byteOffset"] : view["byteOffset"] + view["byteLength"]]
-        if j == k:
-            payload = edit(zstandard.ZstdDecompressor().decompress(stored))
-            stored = compress_chunk(payload)
-            entries[j].update(byteLength=len(stored), digest=digest(stored), uncompressedLength=len(payload))
-        view["byteOffset"], view["byteLength"] = len(out), len(stored)
-        out += stored + bytes(padded(len(stored)) - len(stored))
-    gltf["buffers"][0]["byteLength"] = len(out)
-    return b"".join(glb_parts(gltf, [bytes(out)], len(out)))
 
 
 def _move_first_split(payload: bytes) -> bytes:
@@ -103,7 +83,7 @@ def test_untouched_file_passes_every_mac_and_stays_authentic():
 
 def test_chunk_changed_and_redigested_without_the_key_is_named_at_that_chunk(tmp_path, capsys):
     data, key, _ = marked_sphere(7, payload_version=1)  # rewrites a version 1 (zstd) chunk
-    forged = _rewrite_chunk(data, 3, _move_first_split)
+    forged = rewrite_chunk(data, 3, _move_first_split)
     results, _ = _decode(forged, None)  # the public digests agree: a keyless reader decodes it
     assert results[-1].chunk == read_header(forged).chunk_count
     outcome = verify_stream(forged, key)
