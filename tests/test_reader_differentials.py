@@ -267,3 +267,70 @@ def test_a_buffer_view_whose_buffer_is_false_is_a_format_error(name, which):
 
     with pytest.raises(FormatError, match="buffer must be a non-negative integer, got False"):
         _decode(_rewrite(name, change))
+
+
+# --- an srgb8 colour byte outside 0..255 (spec/README.md, attributes: transfer) -----------------------------------
+
+def colour_pushed_out(payload: bytes) -> bytes:
+    """A version 1 chunk payload whose first split's first attribute residual (the Draco source's COLOR_0 red, an
+    ``srgb8`` byte) moves 256 away from zero: its byte, the prediction (0..255) plus it, lies outside 0..255."""
+    from pmwm_codec.format.records import pack_batches, unpack_batches
+
+    batches = unpack_batches(payload, width=3 + 3 + 2 + 1)  # positions, COLOR_0, TEXCOORD_0, _FEATURE_ID_0
+    r = batches[0].residual
+    r[0, 3] += 256 if r[0, 3] >= 0 else -256
+    return pack_batches(batches)
+
+
+SRGB8_CHUNK = 3  # the chunk (1-based) whose new vertex gets the byte
+
+
+def test_an_srgb8_byte_outside_0_255_refuses_the_chunk_that_brings_it_after_the_levels_before_it(tmp_path):
+    """A chunk whose payload (behind a valid digest) gives a new vertex an srgb8 colour byte outside 0..255: the
+    reader applied it and every chunk after it, and only turning the integers into floats refused the byte ("a
+    colour's sRGB byte lies outside 0..255", naming neither the chunk nor the attribute; ``decode``, geometry only,
+    never noticed and returned the whole mesh). Now the chunk is refused as it is applied, as any chunk whose
+    payload is invalid: the levels before it delivered, then one FormatError naming the chunk and the attribute."""
+    import pmwm_codec
+    from pmwm_codec.cli import main
+    from samples import rewrite_chunk
+
+    clean = (CONFORMANCE / DRACO).read_bytes()
+    data = rewrite_chunk(clean, SRGB8_CHUNK - 1, colour_pushed_out)
+    expected = [level[:1] + level[2:] for level in _decoded(clean)[:SRGB8_CHUNK]]
+    message = rf"^chunk {SRGB8_CHUNK}: COLOR_0: sRGB byte -?\d+ lies outside 0\.\.255$"
+    for size in (len(data), 4096, 1):
+        dec, levels = StreamDecoder(), []
+        with pytest.raises(FormatError, match=message):
+            for piece in _pieces(data, size):
+                levels += dec.feed(piece)
+            dec.close()
+        assert [level[:1] + level[2:] for level in map(_level, levels)] == expected, size
+        for r in levels:
+            r.parts[0].attribute_values()  # every level delivered holds only bytes of 0..255
+    with pytest.raises(FormatError, match=message):
+        pmwm_codec.decode(data)
+    assert len(pmwm_codec.decode(data, chunks=SRGB8_CHUNK - 1).positions) == expected[-1][1]
+    bad = tmp_path / "bad.pmw"
+    bad.write_bytes(data)
+    assert main(["decode", str(bad), "-o", str(tmp_path / "out.glb")]) == 2
+    assert not (tmp_path / "out.glb").exists()
+
+
+def test_both_decoders_refuse_an_srgb8_byte_outside_0_255_at_the_chunk_that_brings_it(tmp_path, capsys):
+    """tools/decoder_diff.py on that file: the JavaScript reader delivers the same levels and refuses at the same
+    chunk with the same kind (both decoded every chunk and refused the byte only when dequantizing a level)."""
+    import shutil
+
+    from samples import rewrite_chunk
+    from tools import decoder_diff
+
+    if shutil.which("node") is None or not (CONFORMANCE.parents[1] / "js" / "node_modules" / "zstddec").exists():
+        pytest.skip("node or js/node_modules absent")
+    bad = tmp_path / "bad.pmw"
+    bad.write_bytes(rewrite_chunk((CONFORMANCE / DRACO).read_bytes(), SRGB8_CHUNK - 1, colour_pushed_out))
+    py = decoder_diff.python_run(str(bad))
+    assert len(py["levels"]) == SRGB8_CHUNK and py["outcome"].startswith(f"FormatError: chunk {SRGB8_CHUNK}: COLOR_0:")
+    for split in (0, 7):
+        assert decoder_diff.main([str(bad), "--split", str(split)]) == 0
+        assert "1 files: 1 agreed" in capsys.readouterr().out

@@ -51,7 +51,7 @@ def python_run(path: str, split: int = 0, max_chunks=None, digest=None) -> dict:
     def level(r) -> list:
         try:
             for p in r.parts:
-                p.attribute_values()  # what JavaScript's snapshot() dequantizes (an srgb8 byte out of range refuses)
+                p.attribute_values()  # what JavaScript's snapshot() dequantizes (an srgb8 byte out of range: refused at its chunk)
             h = digest(r)
         except PmwError as exc:
             h = f"SNAP:{KINDS.get(type(exc).__name__, type(exc).__name__)}"

@@ -171,6 +171,7 @@ export class PmwDecoder {
     const c = this.plan.stream[index];
     const state = states[c.primitive];
     const payload = openChunk(stored, c, index); // digest and frame: nothing changed yet when they fail
+    const before = state.n;
     if (live) this.broken = true;
     try {
       if (c.payloadVersion === 2) coders[c.primitive].decodeChunk(payload, c); // splits, or a face chunk (c.faces)
@@ -181,6 +182,12 @@ export class PmwDecoder {
     }
     if (state.n !== c.vertexCount || state.m !== c.faceCount) {
       throw new FormatError(`chunk ${index + 1}: vertex/face counts differ from its index entry`);
+    }
+    try {
+      checkSrgb8(state, before, this.plan.primitives[c.primitive].base.grids);
+    } catch (e) {
+      e.message = `chunk ${index + 1}: ${e.message}`;
+      throw e;
     }
     if (live) this.broken = false;
   }
@@ -385,16 +392,36 @@ function dequantize(attributesInt, n, a, col, g) {
 }
 
 /**
- * dequantize for a "srgb8" grid (spec/README.md, attributes: transfer): byte b = origin + i, 0..255 (else a
- * format error); red, green and blue SRGB8_TO_LINEAR[b], alpha b / 255 rounded to float32.
+ * FormatError unless every byte origin + i of the "srgb8" attributes (spec/README.md, attributes: transfer) of
+ * `state`'s vertices from..n lies in 0..255: a chunk's new vertices, checked as it is applied.
+ */
+function checkSrgb8(state, from, grids) {
+  const { values, D, n } = state;
+  let col = 3;
+  for (const g of grids) {
+    const k = g.origin.length;
+    if (g.transfer === 'srgb8') {
+      for (let i = from; i < n; i++) {
+        for (let c = 0; c < k; c++) {
+          const b = g.origin[c] + values[i * D + col + c];
+          if (!(b >= 0 && b <= 255)) throw new FormatError(`${g.semantic}: sRGB byte ${b} lies outside 0..255`);
+        }
+      }
+    }
+    col += k;
+  }
+}
+
+/**
+ * dequantize for a "srgb8" grid (spec/README.md, attributes: transfer): byte b = origin + i, 0..255 (a base
+ * or a chunk with a byte outside was refused as it was read); red, green and blue SRGB8_TO_LINEAR[b], alpha b / 255 rounded to float32.
  */
 function dequantizeSrgb8(attributesInt, n, a, col, g) {
   const k = g.origin.length;
   const out = new Float32Array(n * k);
   for (let i = 0, o = 0; i < n; i++, o += k) {
     for (let c = 0; c < k; c++) {
-      const b = g.origin[c] + attributesInt[i * a + col + c];
-      if (!(b >= 0 && b <= 255)) throw new FormatError(`${g.semantic}: a colour's sRGB byte lies outside 0..255`);
+      const b = g.origin[c] + attributesInt[i * a + col + c]; // 0..255: checkSrgb8 / the base's srgb8Into
       out[o + c] = c < 3 ? SRGB8_TO_LINEAR[b] : b / 255;
     }
   }

@@ -4,11 +4,14 @@
  * Python side's cases are in tests/test_reader_differentials.py. The sources are conformance files.
  */
 import assert from 'node:assert/strict';
-import { readFileSync } from 'node:fs';
+import { mkdtempSync, readFileSync, rmSync, writeFileSync } from 'node:fs';
+import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { test } from 'node:test';
 import { FormatError, PmwDecoder, decodePmw } from '../src/index.js';
-import { CONFORMANCE, levelDigest } from './lib/helpers.js';
+import { CONFORMANCE, jsLevels, levelDigest } from './lib/helpers.js';
+import { decodeFiles, python } from './lib/python.js';
+import { chunkPayloads, withPayload } from './lib/rewrite.js';
 
 /** The file `name` with change(gltf) applied to its JSON (the BIN kept as it is). */
 function rewrite(name, change) {
@@ -134,5 +137,81 @@ test('bytes after the declared length come after every level and are refused onc
         await assert.rejects(d.close(), (e) => e === error, what);
       }
     }
+  }
+});
+
+/**
+ * Version 1 chunk `payload` whose first split's first attribute residual (column attribute_0: the Draco source's
+ * COLOR_0 red, an srgb8 byte) moves 256 away from zero (zigzag + 512), the column rewritten 4 bytes a value: the
+ * new vertex's byte, its prediction (0..255) plus the residual, lies outside 0..255. `D`: residual columns.
+ */
+function colourPushedOut(payload, D) {
+  const dv = new DataView(payload.buffer, payload.byteOffset, payload.byteLength);
+  const B = dv.getUint32(0, true);
+  let K = 0;
+  let I = 0;
+  for (let j = 0; j < B; j++) { K += dv.getUint32(4 + 8 * j, true); I += dv.getUint32(8 + 8 * j, true); }
+  let at = 4 + 8 * B;
+  const skip = (count) => { const start = at; at += 1 + payload[at] * count; return start; };
+  skip(K); skip(Math.ceil(I / 3));
+  for (let d = 0; d < 3; d++) skip(K);
+  const start = skip(K); // attribute_0
+  const w = payload[start];
+  const values = Array.from({ length: K }, (_, i) => {
+    let z = 0;
+    for (let b = 0; b < w; b++) z += payload[start + 1 + b * K + i] * 2 ** (8 * b);
+    return z;
+  });
+  values[0] += 512;
+  const column = new Uint8Array(1 + 4 * K);
+  column[0] = 4;
+  for (let i = 0; i < K; i++) for (let b = 0; b < 4; b++) column[1 + b * K + i] = Math.floor(values[i] / 2 ** (8 * b)) & 255;
+  assert.equal(D, 3 + 6, 'the source keeps its attributes');
+  return new Uint8Array([...payload.subarray(0, start), ...column, ...payload.subarray(at)]);
+}
+
+/**
+ * A chunk whose payload (behind a valid digest) gives a new vertex an srgb8 colour byte outside 0..255 (spec/README.md,
+ * attributes: transfer): this reader applied it and every chunk after it, and only a snapshot refused the byte
+ * ("COLOR_0: a colour's sRGB byte lies outside 0..255", without the chunk; with no snapshot the file decoded). Now
+ * the chunk is refused as it is applied, as any chunk whose payload is invalid: the levels before it delivered,
+ * the chunk undone (a snapshot after the failure is the last good level), one FormatError naming the chunk and the
+ * attribute; the reference reader gives the same levels and the same error.
+ */
+test('an srgb8 byte outside 0..255 refuses the chunk that brings it, after the levels before it, as the reference reader', async () => {
+  const CHUNK = 3;
+  const clean = new Uint8Array(readFileSync(join(CONFORMANCE, DRACO)));
+  const { payload } = chunkPayloads(clean)[CHUNK - 1];
+  const bad = withPayload(clean, CHUNK - 1, colourPushedOut(payload, 9));
+  const want = (await jsLevels(clean)).levels.slice(0, CHUNK).map((l) => l.sha256);
+  const message = new RegExp(`^chunk ${CHUNK}: COLOR_0: sRGB byte -?\\d+ lies outside 0\\.\\.255$`);
+  for (const snapshots of [true, false]) {
+    for (const size of [bad.length, 509, 64]) {
+      const d = new PmwDecoder({ snapshots });
+      const levels = [];
+      let error = null;
+      try {
+        for (let at = 0; at < bad.length; at += size) levels.push(...await d.feed(bad.subarray(at, at + size)));
+        await d.close();
+      } catch (e) {
+        error = e;
+      }
+      assert.ok(error instanceof FormatError && message.test(error.message), `${size}: ${error}`);
+      assert.equal(levels.length, CHUNK, `${size}`);
+      if (snapshots) assert.deepEqual(levels.map((r) => levelDigest(r.mesh)), want, `${size}`);
+      assert.equal(levelDigest(d.snapshot()), want[CHUNK - 1], `${size}: the chunk is undone`);
+    }
+  }
+  if (!python()) return;
+  const dir = mkdtempSync(join(tmpdir(), 'pmw-srgb8-'));
+  try {
+    const file = join(dir, 'bad.pmw');
+    writeFileSync(file, bad);
+    const [py] = decodeFiles([file]);
+    assert.equal(py.error, 'FormatError');
+    assert.match(py.message, message);
+    assert.deepEqual(py.levels.map((l) => l.sha256), want);
+  } finally {
+    rmSync(dir, { recursive: true, force: true });
   }
 });

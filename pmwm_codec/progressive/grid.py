@@ -169,12 +169,19 @@ class AttributeGrid:
         """(n, k) int grid values -> the float32 values a file stores (beyond float32: infinite, as
         :meth:`Grid.to_float32`); an ``srgb8`` grid's (class docstring): FormatError for a byte outside 0..255."""
         if self.transfer == SRGB8:
-            b = np.asarray(self.origin, np.int64) + q.astype(np.int64)
-            if b.size and (b.min() < 0 or b.max() > 255):
-                raise FormatError("a colour's sRGB byte lies outside 0..255")
-            return self.to_float32_bytes(b)
+            return self.to_float32_bytes(self.srgb8_bytes(q))
         with np.errstate(over="ignore"):
             return (np.asarray(self.origin) + q.astype(np.float64) * np.asarray(self.step)).astype(np.float32)
+
+    def srgb8_bytes(self, q: np.ndarray, what: str = "a colour") -> np.ndarray:
+        """(n, k) int grid values of an ``srgb8`` grid -> (n, k) int64 bytes ``origin + q``; FormatError (naming
+        ``what``, e.g. the attribute) when one lies outside 0..255.  A reader checks a chunk's new vertices as it
+        applies the chunk (:class:`~pmwm_codec.stream.replay.Replay`), so a level never holds such a byte."""
+        b = np.asarray(self.origin, np.int64) + np.asarray(q).astype(np.int64)
+        bad = (b < 0) | (b > 255)
+        if bad.any():
+            raise FormatError(f"{what}: sRGB byte {int(b[bad][0])} lies outside 0..255")
+        return b
 
     def from_float32(self, values: np.ndarray, what: str) -> np.ndarray:
         """Stored values (n, k) float -> grid integers (n, k) int64; FormatError (naming

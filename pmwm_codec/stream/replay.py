@@ -41,7 +41,7 @@ from ..format import BaseEvent, ChunkEvent, HeaderEvent
 from ..format.extension import is_face_chunk, payload_version
 from ..format.records import unpack_batches
 from ..format.records_v2 import ChunkDecoder, decode_chunk, decode_face_chunk, plane_columns
-from ..progressive.grid import Grid
+from ..progressive.grid import SRGB8, AttributeGrid, Grid
 from ..progressive.seams import twin_rows
 from ..progressive.topology import mean_edge_length
 from ..progressive.vsplit import MeshState, apply_batch, split_topology
@@ -96,6 +96,18 @@ def value_width(ext: dict) -> int:
     return 3 + sum(len(spec["origin"]) for spec in ext.get("attributes", ()))
 
 
+def srgb8_columns(ext: dict) -> list:
+    """``[(column, AttributeGrid, semantic)]``: a primitive's ``srgb8`` attributes, each with its first column in the
+    (n, D) values (positions' 3 first)."""
+    out, col = [], 3
+    for spec in ext.get("attributes", ()):
+        grid = AttributeGrid.from_config(spec)
+        if grid.transfer == SRGB8:
+            out.append((col, grid, spec["semantic"]))
+        col += grid.width
+    return out
+
+
 def check_payload_codec(ext: dict) -> None:
     """Refuse a chunk payload codec this reader does not know (:func:`~pmwm_codec.format.extension.payload_version`)."""
     payload_version(ext)
@@ -143,6 +155,9 @@ class Replay:
         #: per primitive, the version 2 :class:`~pmwm_codec.format.records_v2.ChunkDecoder` the next chunk continues
         #: (None for version 1)
         self.models: list = []
+        #: per primitive, its ``srgb8`` attributes (:func:`srgb8_columns`), whose bytes every chunk's new vertices
+        #: must keep in 0..255
+        self.srgb8: list = []
         self.chunks_applied = 0
         self.batches_applied = 0
 
@@ -198,6 +213,7 @@ class Replay:
         self.shadows.append(shadow)
         self.models.append(ChunkDecoder(plane_columns(ext.get("attributes"))) if payload_version(ext) == 2 else None)
         self.base_faces.append(np.asarray(event.faces, np.int64))
+        self.srgb8.append(srgb8_columns(ext))  # the base read them: their grids are valid
         if self._nbar_override is not None:
             self.nbars.append(float(self._nbar_override[p]))
         elif "watermark" in ext:
@@ -212,6 +228,8 @@ class Replay:
         state, ext = self.states[p], self.exts[p]
         scale = ext["watermark"]["scale"] if "watermark" in ext else None
         meta = ext["chunks"][event.chunk]
+        own = state if self.given is None else self.shadows[p]  # the stream's own integers
+        n_before = own.n
         out = []
         face_chunk = is_face_chunk(ext, meta)
         if face_chunk:
@@ -240,6 +258,8 @@ class Replay:
         self.chunks_applied += 1
         if state.n != meta["vertexCount"] or state.m != meta["faceCount"]:
             raise FormatError(f"chunk {event.index + 1}: vertex/face counts differ from its index entry")
+        for col, grid, semantic in self.srgb8[p]:  # a colour byte outside 0..255 refuses the chunk (spec/README.md)
+            grid.srgb8_bytes(own.positions[n_before : own.n, col : col + grid.width], semantic)
         return out
 
     def _faces(self, p: int, event: ChunkEvent, meta: dict) -> None:

@@ -8,8 +8,8 @@ one JSON object: the reference decoder's level at every chunk boundary, ``{"leve
 [{"bytesRead", "vertexCount", "faceCount", "parts": [[n, m], ...], "sha256"}, ...], "complete"}``;
 ``sha256`` is tests/test_golden.py's level digest (positions, faces, quantized attributes as <i8)
 and js/test/lib/helpers.js::levelDigest.  ``decode`` prints one such object per file, in order,
-as a JSON array, with ``"error"`` (the exception's class name) instead when the decoder refuses
-the file.  Cases are generated meshes (``pmwm_codec.shapes``) and seeded keys, so the levels do
+as a JSON array, with ``"error"`` (the exception's class name) and ``"message"`` instead of ``"complete"``
+when the decoder refuses the file (``"levels"`` then those it delivered before refusing).  Cases are generated meshes (``pmwm_codec.shapes``) and seeded keys, so the levels do
 not depend on the machine.
 """
 
@@ -205,14 +205,14 @@ def _levels(path: str) -> dict:
     """The decoded levels of the file at ``path`` (module docstring), or ``{"error": class name}``."""
     with open(path, "rb") as f:
         data = f.read()
-    dec = StreamDecoder()
+    dec, levels = StreamDecoder(), []
     try:
-        levels = [{"bytesRead": r.bytes_read, "vertexCount": r.vertices, "faceCount": r.faces_count,
-                   "parts": [[len(p.positions_int), len(p.faces)] for p in r.parts], "sha256": golden._level_digest(r)}
-                  for r in dec.feed(data)]
+        levels += [{"bytesRead": r.bytes_read, "vertexCount": r.vertices, "faceCount": r.faces_count,
+                    "parts": [[len(p.positions_int), len(p.faces)] for p in r.parts], "sha256": golden._level_digest(r)}
+                   for r in dec.feed(data)]
         return {"levels": levels, "complete": dec.close().complete}
     except PmwError as exc:
-        return {"error": type(exc).__name__}
+        return {"levels": levels, "error": type(exc).__name__, "message": str(exc)}
 
 
 def main(command: str, *args: str) -> None:
