@@ -301,6 +301,18 @@ def test_sigint_sigterm_while_publishing_are_held_until_the_pair_is_whole(inputs
     assert out.exists() and key.exists() and _no_temp_files(tmp_path) and _pair_is_whole(out, key)
 
 
+@pytest.mark.parametrize("point", ["measured", "stage-written", "staged"])
+def test_a_sigterm_ends_an_encode_with_one_terminated_line_and_status_143(inputs, tmp_path, point):
+    # `timeout`, systemd and `docker stop` send SIGTERM: it stops an encode as a Ctrl-C does (what was being
+    # written discarded, or the pair published whole first), said in one line, 143 as a shell reports it
+    out, key = tmp_path / "a.pmw", tmp_path / "a.pmw.key.json"
+    r = encode(inputs, out, env={"PMWM_FAULT": f"{point}:TERM"},
+               preexec_fn=lambda: signal.signal(signal.SIGTERM, signal.SIG_DFL))
+    assert (r.returncode, r.stderr) == (143, "pmw: error: terminated\n")
+    assert _no_temp_files(tmp_path) and _pair_is_whole(out, key)
+    assert out.exists() == (point != "measured")  # once staging began, held back until the pair is whole
+
+
 @pytest.mark.parametrize("limit", [1_000, 8_000], ids=["key write fails", "pmw write fails"])  # key ~2 KB, .pmw ~15 KB
 def test_disk_full_leaves_nothing_and_exits_2(inputs, tmp_path, limit):
     out = tmp_path / "a.pmw"

@@ -2,7 +2,8 @@
 
 Exit status: encode 0 when every asset is ok or skipped, 1 when some failed or timed out;
 verify 0 when every file is authentic, 1 otherwise; 2 bad usage (or Dask not installed);
-130 interrupted (Ctrl-C), 143 terminated (SIGTERM: stopped as a Ctrl-C stops it), one line each.
+130 interrupted (Ctrl-C), 143 terminated (SIGTERM: stopped as a Ctrl-C stops it; :func:`.common.sigterm_stops`),
+one line each.
 The work is :mod:`pmwm_codec.batch`; this module parses, shows progress and reports.
 """
 
@@ -10,59 +11,9 @@ from __future__ import annotations
 
 
 import argparse
-import contextlib
 import os
-import sys
 
-from .common import EXIT_NOT_AUTHENTIC, EXIT_OK, Progress, UsageError, error_line, nonblank_path, print_json
-
-#: A batch stopped by SIGTERM (128 + 15, as a shell reports it).
-EXIT_TERMINATED = 143
-
-
-class Terminated(KeyboardInterrupt):
-    """A SIGTERM (``timeout``, systemd, ``docker stop``, a CI cancel) of a batch: raised in the main thread, it
-    takes the path a Ctrl-C takes (the cluster closed, its workers and encoders ended, the ledger whole)."""
-
-
-@contextlib.contextmanager
-def _sigterm_stops():
-    """SIGTERM raises :class:`Terminated` while a batch runs (once: the cleanup that follows is not cut short
-    by another); only the main thread may set a handler, elsewhere nothing changes."""
-    import signal
-    import threading
-
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def stop(signum, frame):
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)
-        raise Terminated()
-
-    previous = signal.signal(signal.SIGTERM, stop)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
-def _terminable(run):
-    """``run(args)`` with SIGTERM handled: ``pmw: error: terminated`` and :data:`EXIT_TERMINATED`."""
-    def wrapped(args) -> int:
-        try:
-            with _sigterm_stops():
-                return run(args)
-        except BaseException as exc:
-            seen = set()
-            while exc is not None and id(exc) not in seen:  # also when it surfaces wrapped in another error
-                if isinstance(exc, Terminated):
-                    sys.stderr.write(error_line("terminated") + "\n")
-                    return EXIT_TERMINATED
-                seen.add(id(exc))
-                exc = exc.__cause__ or exc.__context__
-            raise
-    return wrapped
+from .common import EXIT_NOT_AUTHENTIC, EXIT_OK, Progress, UsageError, nonblank_path, print_json
 from .encode import add_stream_options, owner_id_arg, stream_options
 
 INSTALL_HINT = 'pmw batch needs Dask: pip install "pmwm_codec[batch]"'
@@ -126,7 +77,7 @@ def add_parser(sub):
     owner.add_argument("--no-owner", action="store_true",
                        help="with --watermark: write the exact layer only, no owner layer")
     _cluster_options(e)
-    e.set_defaults(run=_terminable(run_encode))
+    e.set_defaults(run=run_encode)
     v = cmds.add_parser("verify", help="verify every .pmw under OUT_DIR",
                         description="Verify every .pmw under OUT_DIR with one collection key (--key), the keys "
                                     "under --keys-dir, or the key beside each file. Symlinked folders are not "
@@ -139,7 +90,7 @@ def add_parser(sub):
     keys.add_argument("--keys-dir", type=nonblank_path("--keys-dir", "directory"), metavar="DIR", help="the folder of per-asset keys")
     v.add_argument("--watermark", metavar="IMG", help="expected watermark image (default: the one in each key)")
     _cluster_options(v)
-    v.set_defaults(run=_terminable(run_verify))
+    v.set_defaults(run=run_verify)
 
 
 def _library():

@@ -20,6 +20,7 @@ EXIT_OK = 0
 EXIT_NOT_AUTHENTIC = 1  # verify ran; the mark is absent, wrong or too weak to decide
 EXIT_BAD_INPUT = 2  # bad input or usage (argparse uses 2 too)
 EXIT_INTERRUPTED = 130  # Ctrl-C (128 + SIGINT, as a shell reports it)
+EXIT_TERMINATED = 143  # SIGTERM (128 + 15): ``timeout``, systemd, ``docker stop``, a CI cancel
 
 PROG = "pmw"
 
@@ -41,23 +42,55 @@ def error_line(message) -> str:
     return f"{PROG}: error: {text}"
 
 
-def interrupted() -> int:
-    """Say that the command was interrupted (one line on stderr); returns :data:`EXIT_INTERRUPTED`."""
+class Terminated(KeyboardInterrupt):
+    """A SIGTERM (``timeout``, systemd, ``docker stop``, a CI cancel), raised in the main thread while a command
+    runs (:func:`sigterm_stops`): it takes the path a Ctrl-C takes (what was being written discarded, a batch's
+    cluster closed and its ledger whole), and ends as ``terminated``, exit :data:`EXIT_TERMINATED`."""
+
+
+@contextlib.contextmanager
+def sigterm_stops():
+    """SIGTERM raises :class:`Terminated` inside the block (once: the cleanup that follows is not cut short by
+    another); only the main thread may set a handler, elsewhere nothing changes."""
+    import signal
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum, frame):
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        raise Terminated()
+
+    previous = signal.signal(signal.SIGTERM, stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def interrupted(exc: BaseException | None = None) -> int:
+    """Say that the command was stopped (one line on stderr): ``terminated`` and :data:`EXIT_TERMINATED` when
+    ``exc`` stands for a SIGTERM (:func:`raised_by_interrupt`), else ``interrupted`` and :data:`EXIT_INTERRUPTED`."""
+    if isinstance(raised_by_interrupt(exc) if exc is not None else None, Terminated):
+        sys.stderr.write(error_line("terminated") + "\n")
+        return EXIT_TERMINATED
     sys.stderr.write(error_line("interrupted") + "\n")
     return EXIT_INTERRUPTED
 
 
-def raised_by_interrupt(exc: BaseException) -> bool:
-    """Whether ``exc`` stands for a Ctrl-C: a KeyboardInterrupt, or an exception raised because of one
-    (a KeyboardInterrupt raised inside a compiled call, a numba kernel's, comes back as a SystemError
-    "returned a result with an exception set" whose cause is the KeyboardInterrupt)."""
+def raised_by_interrupt(exc: BaseException) -> KeyboardInterrupt | None:
+    """The KeyboardInterrupt (a Ctrl-C, or a :class:`Terminated` SIGTERM) that ``exc`` stands for: ``exc`` itself,
+    or the one it was raised because of (a KeyboardInterrupt raised inside a compiled call, a numba kernel's,
+    comes back as a SystemError "returned a result with an exception set" whose cause is the KeyboardInterrupt);
+    None when it stands for neither."""
     seen = set()
     while exc is not None and id(exc) not in seen:
         if isinstance(exc, KeyboardInterrupt):
-            return True
+            return exc
         seen.add(id(exc))
         exc = exc.__cause__ or exc.__context__
-    return False
+    return None
 
 
 def os_error_message(exc: OSError) -> str:
@@ -269,8 +302,8 @@ def run_command(args) -> int:
     Named errors (PmwError, UsageError, OSError) keep their one-line messages; a
     MemoryError, a RecursionError or any other exception also ends as one line
     and exit 2 (never 1: that is ``verify``'s "not authentic"), without a traceback.
-    A Ctrl-C is ``interrupted`` and exit 130, also when it surfaces wrapped in another
-    exception (:func:`raised_by_interrupt`).
+    A Ctrl-C is ``interrupted`` and exit 130, a SIGTERM ``terminated`` and exit 143 (:func:`sigterm_stops`),
+    also when it surfaces wrapped in another exception (:func:`raised_by_interrupt`).
     Files are not cleaned up here: every output is published whole or not at all by
     the library (:func:`pmwm_codec.format.glb.write_parts`, :mod:`pmwm_codec.atomic`),
     so a failure leaves the old files or the new ones, never a part of one.
@@ -282,7 +315,8 @@ def _run_mapped(args) -> int:
     from pmwm_codec.errors import PmwError
 
     try:
-        return int(args.run(args))
+        with sigterm_stops():
+            return int(args.run(args))
     except BrokenPipeError:  # `pmw info x.pmw | head`: the reader left; not an error of ours
         with contextlib.suppress(OSError):
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
@@ -291,15 +325,15 @@ def _run_mapped(args) -> int:
         message = str(exc)
     except OSError as exc:
         message = os_error_message(exc)
-    except KeyboardInterrupt:
-        return interrupted()
+    except KeyboardInterrupt as exc:
+        return interrupted(exc)
     except MemoryError:
         message = "out of memory: the input is too large for this machine"
     except RecursionError:
         message = "the input is nested too deeply"
     except Exception as exc:  # the last net: one line, exit 2, never a traceback
-        if raised_by_interrupt(exc):
-            return interrupted()
+        if raised_by_interrupt(exc) is not None:
+            return interrupted(exc)
         message = f"unexpected {type(exc).__name__}: {exc} (a bug of pmw: please report it with the input)"
     sys.stderr.write(error_line(message) + "\n")
     return EXIT_BAD_INPUT
