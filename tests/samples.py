@@ -8,6 +8,8 @@ file object, a source or destination every reader and writer must refuse by name
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 
 from pmwm_codec import shapes
@@ -108,6 +110,19 @@ def rewrite_chunk(data: bytes, k: int, edit) -> bytes:
         out += stored + bytes(padded(len(stored)) - len(stored))
     gltf["buffers"][0]["byteLength"] = len(out)
     return b"".join(glb_parts(gltf, [bytes(out)], len(out)))
+
+
+def level_digest(r) -> str:
+    """The conformance files' ``level_sha256`` of a decoded level ``r`` (spec/conformance/README.md): SHA-256 of
+    its positions, faces and quantized attributes as little-endian int64, each part's (n_p, a_p) attributes
+    row-major one part after another (parts may carry different attributes; one without adds nothing).
+    js/test/lib/helpers.js ``levelDigest`` computes the same."""
+    h = hashlib.sha256()
+    h.update(np.ascontiguousarray(r.positions_int, dtype="<i8").tobytes())
+    h.update(np.ascontiguousarray(r.faces, dtype="<i8").tobytes())
+    for p in r.parts:
+        h.update(np.ascontiguousarray(p.attributes_int, dtype="<i8").tobytes())
+    return h.hexdigest()
 
 
 def closed_file(path, mode: str = "rb"):

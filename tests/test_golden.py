@@ -13,7 +13,6 @@ decodes to the same levels; its bytes still differ today because the encoder dra
 
 from __future__ import annotations
 
-import hashlib
 import io
 from pathlib import Path
 
@@ -27,6 +26,8 @@ from pmwm_codec.mesh import Mesh
 from pmwm_codec.stream import StreamDecoder, encode_mesh
 from pmwm_codec.stream.encoder import PrimitiveJob, encode_document
 from pmwm_codec.watermark.key import WatermarkKey
+
+from samples import level_digest
 
 CONFORMANCE = Path(__file__).resolve().parents[1] / "spec" / "conformance"
 
@@ -144,19 +145,8 @@ def _encode(mesh, **options):
 
 
 def _attributes_int(r) -> np.ndarray:
-    """(n, a) int64 quantized attributes of every part, stacked (a = 0 without attributes)."""
+    """(n, a) int64 quantized attributes of every part, stacked (a = 0 without attributes; parts alike)."""
     return np.concatenate([p.attributes_int for p in r.parts])
-
-
-def _level_digest(r) -> str:
-    """SHA-256 of positions, faces and (when there are any) quantized attributes, as <i8."""
-    h = hashlib.sha256()
-    h.update(np.ascontiguousarray(r.positions_int, dtype="<i8").tobytes())
-    h.update(np.ascontiguousarray(r.faces, dtype="<i8").tobytes())
-    attributes = _attributes_int(r)
-    if attributes.size:
-        h.update(np.ascontiguousarray(attributes, dtype="<i8").tobytes())
-    return h.hexdigest()
 
 
 def _expected_arrays(results):
@@ -164,7 +154,7 @@ def _expected_arrays(results):
     out = {
         "chunk_bytes": np.array([r.bytes_read for r in results]),
         "counts": np.array([(r.vertices, r.faces_count) for r in results]),
-        "level_sha256": np.array([_level_digest(r) for r in results]),
+        "level_sha256": np.array([level_digest(r) for r in results]),
         "final_positions": results[-1].positions_int,
         "final_faces": results[-1].faces,
         "final_attributes": _attributes_int(results[-1]),
@@ -212,7 +202,7 @@ def test_conformance_file_decodes_to_its_expected_levels(name, version, packed, 
     if "part_counts" in want:
         assert [[[len(p.positions_int), len(p.faces)] for p in r.parts] for r in results] == want["part_counts"].tolist()
     for r in results:
-        assert _level_digest(r) == want["level_sha256"][r.chunk]
+        assert level_digest(r) == want["level_sha256"][r.chunk]
         if f"watermark_{r.chunk}" in want:
             assert np.array_equal(r.watermark, want[f"watermark_{r.chunk}"])
     if key is not None:
@@ -267,7 +257,7 @@ def test_a_base_whose_attributes_interleave_decodes_to_the_same_levels():
     want, _ = _decode(data)
     got, end = _decode(edited)
     assert end.complete and len(got) == len(want)
-    assert [_level_digest(r) for r in got] == [_level_digest(r) for r in want]
+    assert [level_digest(r) for r in got] == [level_digest(r) for r in want]
 
 
 def test_interleaved_indices_are_refused_by_name():
@@ -291,7 +281,7 @@ def test_a_decode_without_a_key_ignores_the_watermark_parameters():
     edited = _join_glb(gltf, rest)
     want, _ = _decode(data)
     got, end = _decode(edited)
-    assert end.complete and [_level_digest(r) for r in got] == [_level_digest(r) for r in want]
+    assert end.complete and [level_digest(r) for r in got] == [level_digest(r) for r in want]
     key = WatermarkKey.load(str(_path(name, ".key.json", 2, packed=True)))
     with pytest.raises(FormatError, match="watermark size"):
         _decode(edited, key)

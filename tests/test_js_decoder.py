@@ -9,7 +9,6 @@ levels must match line for line.  The conformance files are compared by the Node
 
 from __future__ import annotations
 
-import hashlib
 import json
 import shutil
 import subprocess
@@ -24,6 +23,7 @@ from pmwm_codec.meshdoc import srgb_from_linear
 from pmwm_codec.stream import StreamDecoder
 
 from conftest import CORPUS_MESHES, corpus_path
+from samples import level_digest
 
 ROOT = Path(__file__).resolve().parents[1]
 DUMP = ROOT / "js" / "tools" / "dump.mjs"
@@ -36,24 +36,13 @@ def _node() -> str:
     return node
 
 
-def _level_digest(r) -> str:
-    """SHA-256 of positions_int, faces and (when any) quantized attributes as <i8 (as js/test/lib/helpers.js)."""
-    h = hashlib.sha256()
-    h.update(np.ascontiguousarray(r.positions_int, dtype="<i8").tobytes())
-    h.update(np.ascontiguousarray(r.faces, dtype="<i8").tobytes())
-    attributes = np.concatenate([np.ravel(p.attributes_int) for p in r.parts])  # parts of different attribute widths
-    if attributes.size:
-        h.update(np.ascontiguousarray(attributes, dtype="<i8").tobytes())
-    return h.hexdigest()
-
-
 def _python_levels(data: bytes) -> list:
     dec = StreamDecoder()
     results = dec.feed(data)
     assert dec.close().complete
     return [
         {"chunk": r.chunk, "bytesRead": r.bytes_read, "vertexCount": r.vertices, "faceCount": r.faces_count,
-         "parts": [[len(p.positions_int), len(p.faces)] for p in r.parts], "sha256": _level_digest(r)}
+         "parts": [[len(p.positions_int), len(p.faces)] for p in r.parts], "sha256": level_digest(r)}
         for r in results
     ]
 

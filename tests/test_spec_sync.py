@@ -232,6 +232,24 @@ def test_bitstream_base_digest_examples_are_what_the_reader_computes():
     assert f'b"{BASE_DIGEST_LABEL.decode()}"' in section and f"the {len(BASE_DIGEST_LABEL)}-byte label" in section
 
 
+def test_bitstream_mac_examples_are_what_the_verifier_computes():
+    """spec/bitstream.md §6.3, the *Example* of ``baseMac`` and a chunk's ``mac`` (version 1 entry)."""
+    from pmwm_codec.format.mac import base_mac, canonical_json, chunk_mac
+
+    text = (SPEC / "bitstream.md").read_text()
+    section = text[text.index("### 6.3 Keyed MACs") : text.index("**`sceneMac`**")]
+    key = bytes(range(32))
+    ext = {"version": 1, "grid": {"bits": 8, "origin": [0.0, 0.0, 0.0], "step": 0.5}, "vertexCount": 4,
+           "faceCount": 3, "chunks": []}
+    public = canonical_json({"grid": ext["grid"], "version": 1})
+    base = base_mac(key, 0, ext, [[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
+    entry = {"bufferView": 1, "byteLength": 20, "digest": "0" * 32, "splits": 1, "vertexCount": 4,
+             "faceCount": 3, "geometricError": 0.0, "uncompressedLength": 5}
+    assert f"the {len(public)} bytes `{public.decode()}`" in section
+    assert f"`baseMac = {base}`" in section
+    assert f"`mac_0 = {chunk_mac(key, base, 0, 0, entry, b'hello')}`" in section
+
+
 def test_readme_srgb8_table_is_the_one_the_readers_use():
     """spec/README.md's SRGB8_TO_LINEAR (float32 bit patterns) is the table of the Python reader and of the
     JavaScript one (js/src/constants.js), bit for bit."""
