@@ -92,3 +92,38 @@ def test_a_file_cut_inside_its_json_is_named_alike_by_every_command(files, tmp_p
     assert "stream ended after 100 bytes, inside the GLB header or JSON, before the base mesh was complete " \
            "(needs at least " in line, line
     assert not list(tmp_path.glob("o.*")) and not (tmp_path / "c.pmw").exists()
+
+
+def test_verify_mesh_against_its_reference_also_reads_the_owner_layer(tmp_path, capsys):
+    """``verify MESH --reference ORIGINAL.pmw --key KEY`` read only the exact layer, which any noise breaks by
+    design: a re-saved copy read ``not-authentic`` and nothing said whose it was, though the key's owner layer
+    was there to read (``verify MESH --key KEY`` without ``--reference`` found it).  It now reports ``owner``
+    too (null where the key names none), read as the blind form reads it; the verdict stays the image's."""
+    mesh = shapes.icosphere(4, noise=0.05, seed=2)
+    write_mesh(tmp_path / "m.obj", mesh)
+    Image.fromarray(_image(16)).save(tmp_path / "logo.png")
+    key = tmp_path / "m.key.json"
+    assert main(["encode", str(tmp_path / "m.obj"), "-o", str(tmp_path / "m.pmw"), "--watermark",
+                 str(tmp_path / "logo.png"), "--key", str(key), "-q"]) == 0
+    assert pmwm_codec.load_key(key).owner_id is not None
+    assert main(["decode", str(tmp_path / "m.pmw"), "-o", str(tmp_path / "d.obj"), "-q"]) == 0
+    copy = pmwm_codec.read_mesh(tmp_path / "d.obj")
+    diagonal = float(np.linalg.norm(np.ptp(copy.positions, axis=0)))
+    noisy = copy.positions + np.random.default_rng(3).normal(0.0, 2e-5 * diagonal, copy.positions.shape)
+    write_mesh(tmp_path / "noisy.obj", type(copy)(noisy, copy.faces))
+    capsys.readouterr()
+    assert main(["verify", str(tmp_path / "noisy.obj"), "--key", str(key), "--reference", str(tmp_path / "m.pmw"),
+                 "--json"]) == 1
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["verdict"] != "authentic"
+    assert doc["owner"]["verdict"] == "present" and doc["owner"]["id"] == pmwm_codec.load_key(key).owner_hex
+    assert main(["verify", str(tmp_path / "noisy.obj"), "--key", str(key), "--reference", str(tmp_path / "m.pmw")]) == 1
+    assert f"owner {pmwm_codec.load_key(key).owner_hex}: present" in capsys.readouterr().out
+
+
+def test_verify_mesh_against_its_reference_says_owner_null_without_an_owner_id(files, tmp_path, capsys):
+    assert main(["decode", str(files / "m.pmw"), "-o", str(tmp_path / "d.obj"), "-q"]) == 0
+    assert main(["verify", str(tmp_path / "d.obj"), "--key", str(files / "m.key.json"), "--reference",
+                 str(files / "m.pmw"), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["verdict"] == "authentic" and "owner" in doc and doc["owner"] is None

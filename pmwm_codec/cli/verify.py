@@ -163,8 +163,6 @@ def _erased(o) -> str:
 
 def run_owner(args) -> int:
     """``pmw verify MESH --key KEY``: the owner layer, read blind from any mesh file."""
-    from pmwm_codec.verify.owner import owner_key, owner_of_mesh, owner_view
-
     check_input_file(args.input, "mesh file")
     check_input_file(args.key, "key file")
     # this form reads the owner layer alone: no image is compared and no picture drawn, so an option asking for
@@ -174,11 +172,7 @@ def run_owner(args) -> int:
             raise UsageError(f"{option}: 'pmw verify MESH --key KEY' (no --reference) reads the owner layer alone, "
                              f"which compares no image and draws no picture; add --reference ORIGINAL.pmw to check "
                              f"the image watermark (and write pictures), or leave {option} out")
-    with naming(args.input):
-        mesh = owner_view(args.input)
-    with naming(args.key):
-        key = owner_key(args.key)
-        o = owner_of_mesh(mesh, key)
+    mesh, key, o = _blind_owner(args)
     if args.json:
         print_json({"input": args.input, "vertices": mesh.vertex_count, "owner": o.as_json(), "verdict": o.verdict})
     elif not args.quiet:
@@ -186,6 +180,18 @@ def run_owner(args) -> int:
               f"from the key's {key.owner_hex}{_erased(o)}, false-alarm probability {o.false_alarm_probability:.2e}")
         print(f"verdict: {o.verdict}")
     return EXIT_OK if o.verdict == "present" else EXIT_NOT_AUTHENTIC
+
+
+def _blind_owner(args, key=None) -> tuple:
+    """``(mesh, key, owner)``: the owner layer of the mesh file ``args.input`` read blind with ``args.key`` (an
+    :class:`~pmwm_codec.verify.owner.OwnerView`, the key, an :class:`~pmwm_codec.watermark.owner.OwnerRead`)."""
+    from pmwm_codec.verify.owner import owner_key, owner_of_mesh, owner_view
+
+    with naming(args.input):
+        mesh = owner_view(args.input)
+    with naming(args.key):
+        key = owner_key(args.key) if key is None else key
+        return mesh, key, owner_of_mesh(mesh, key)
 
 
 def run_reference(args) -> int:
@@ -202,6 +208,7 @@ def run_reference(args) -> int:
         mesh = pmwm_codec.read_mesh(args.input)
     with naming(args.reference):
         v = verify_mesh(mesh, args.reference, args.key, args.watermark)
+    owner = _reference_owner(args)
     if args.frames is not None:
         from pmwm_codec.figures import TAMPER_NAME, remove_stale, tamper_figure, write_pictures
         from pmwm_codec.watermark.image import gray_image
@@ -216,7 +223,7 @@ def run_reference(args) -> int:
         remove_stale(args.frames, set(names),
                      [p for p in (args.input, args.key, args.watermark, args.reference) if p and p != "-"])
     if args.json:
-        print_json(v.as_json())
+        print_json({**v.as_json(), "owner": None if owner is None else owner[1].as_json()})
     elif not args.quiet:
         print(f"{args.input}: {v.vertices:,} vertices matched to the reference by {v.correspondence} "
               f"({100 * v.coverage:.1f}% of its vertices); {v.carriers_read:,} of {v.carriers_total:,} codes read")
@@ -226,9 +233,26 @@ def run_reference(args) -> int:
             print(v.image_note)
         if v.reference_note():
             print(v.reference_note())
+        if owner is not None:
+            print(f"owner {_owner_line(owner[1], owner[0])}, false-alarm probability "
+                  f"{owner[1].false_alarm_probability:.2e}")
         print(f"verdict: {v.verdict}" + _tamper_note(v.tamper(), v.binding)
               + ("" if v.key_matches else " (the reference is marked with another key: its key fingerprint differs)"))
     return EXIT_OK if v.verdict == "authentic" else EXIT_NOT_AUTHENTIC
+
+
+def _reference_owner(args) -> tuple | None:
+    """``(key, owner read)``: the checked mesh's owner layer, read blind as ``pmw verify MESH --key KEY`` reads it
+    (the exact layer is fragile by design; this one says whose the mesh is after what broke that), or None when
+    the key names no owner ID.  It does not change the verdict, which is the image's."""
+    from pmwm_codec.watermark.key import as_key
+
+    with naming(args.key):
+        key = as_key(args.key)
+    if key.owner_id is None:
+        return None
+    _, key, o = _blind_owner(args, key)
+    return key, o
 
 
 def report(o: StreamVerification, pictures=None) -> str:
