@@ -234,6 +234,54 @@ def test_a_graft_beside_the_whole_marked_mesh_is_tampered_and_its_vertices_are_t
     assert r.tamper()["flagged"] == list(range(len(ref.positions), len(positions)))
 
 
+def _flip_edges(faces: np.ndarray, count: int, rng) -> tuple:
+    """``faces`` (m, 3) with ``count`` interior edges flipped (the two faces of each edge rewired across its other
+    diagonal: the same vertices, other triangles); returns (faces, the vertices of the changed faces)."""
+    faces = faces.copy()
+    changed, used = [], set()
+    edge_faces: dict = {}
+    for f, tri in enumerate(faces):
+        for a, b in ((tri[0], tri[1]), (tri[1], tri[2]), (tri[2], tri[0])):
+            edge_faces.setdefault((min(a, b), max(a, b)), []).append(f)
+    for (a, b) in rng.permutation(np.array(sorted(edge_faces)))[:, :].tolist():
+        pair = edge_faces[(a, b)]
+        if len(pair) != 2 or used & set(pair):
+            continue
+        f, g = pair
+        c = int(next(x for x in faces[f] if x not in (a, b)))
+        d = int(next(x for x in faces[g] if x not in (a, b)))
+        fa = list(faces[f]).index(a)
+        first = [a, faces[f][(fa + 1) % 3], faces[f][(fa + 2) % 3]]  # a, then f's winding
+        if first[1] == b:  # f = (a, b, c): flipped to (a, d, c) and (d, b, c)
+            faces[f], faces[g] = (a, d, c), (d, b, c)
+        else:  # f = (a, c, b)
+            faces[f], faces[g] = (a, c, d), (d, c, b)
+        used |= {f, g}
+        changed += [a, b, c, d]
+        if len(used) >= 2 * count:
+            break
+    return faces, np.unique(changed)
+
+
+def test_faces_rewired_over_the_same_vertices_are_tampered_and_flagged_where(marked):
+    """The codes are read from the positions alone: a mesh with every vertex where the reference has it but
+    other faces (edges flipped, or faces made anew) read ``authentic``, nothing flagged (outside probe)."""
+    data, key, _img, ref = marked
+    faces, corners = _flip_edges(np.asarray(ref.faces), 5, np.random.default_rng(4))
+    r = verify_mesh((ref.positions, faces), data, key)
+    assert r.verdict == "tampered" and r.bit_exact, r.as_json()
+    assert r.tamper()["flagged"] == corners.tolist()
+    scrambled = np.random.default_rng(5).integers(0, len(ref.positions), ref.faces.shape)
+    assert verify_mesh((ref.positions, scrambled), data, key).verdict == "tampered"
+
+
+def test_a_face_removed_is_tampered_and_its_corners_flagged(marked):
+    data, key, _img, ref = marked
+    r = verify_mesh((ref.positions, np.delete(ref.faces, 7, axis=0)), data, key)
+    assert r.verdict == "tampered", r.as_json()
+    assert r.tamper()["flagged"] == sorted(ref.faces[7].tolist())
+
+
 # ------------------------------------------------------------------- what must stay authentic
 
 
@@ -243,6 +291,8 @@ LOSSLESS = {
     "similarity": attacks.similarity,
     "reorder": attacks.reorder,
     "all three": attacks.chain(attacks.similarity, attacks.reorder, attacks.float32),
+    "winding flipped": lambda V, F, rng: (V, F[:, ::-1]),  # as a mirroring exporter writes them: not compared
+    "winding flipped, re-ordered": lambda V, F, rng: attacks.reorder(V, F[:, ::-1], rng),
 }
 
 

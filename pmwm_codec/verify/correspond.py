@@ -14,9 +14,9 @@ False where the mesh has no counterpart).  Methods, tried in this order:
     Same vertex count and the same face array: nothing moved in the index space.
 ``faces-reordered``
     Same vertex count and the same set of oriented triangles, faces permuted
-    and/or their corners rotated: vertex ids still agree.
+    and/or their corners rotated, or every face's winding reversed: vertex ids still agree.
 ``permutation``
-    Same connectivity up to a vertex permutation.  Found *topologically*: one
+    Same connectivity up to a vertex permutation (the faces wound as they are, or all reversed).  Found *topologically*: one
     seed triangle pair (chosen by similarity-invariant edge-length descriptors)
     is propagated across shared edges (breadth first, one half-edge lookup per
     step), and the result must map the face set onto the mesh's exactly.  Exact
@@ -242,6 +242,24 @@ def match_topology(positions, faces, ref_positions, ref_faces, *, seeds: int = 6
     return vmap
 
 
+def _permutation(pos, fac, ref, rfac):
+    """:func:`match_topology` of the faces as they are wound, or reversed (an exporter that flips every face):
+    a map the geometry does not fit exactly is only one automorphism of the connectivity (an orientation
+    reversing one, on a mesh whose faces were flipped: a near-symmetric sphere's mirror fit ``LOOSE_FIT``), so the
+    other winding is tried too and the better fit kept.  ``(n_ref,)`` int64 or None."""
+    every = np.arange(len(ref))
+    best, best_error = None, np.inf
+    for wound in (fac, fac[:, ::-1]):
+        vmap = match_topology(pos, wound, ref, rfac)
+        if vmap is not None:
+            error = _fit_error(ref, pos, every, vmap)
+            if error < best_error:
+                best, best_error = vmap, error
+            if error < EXACT_FIT:
+                break
+    return best
+
+
 # --------------------------------------------------------------- registration
 
 
@@ -402,9 +420,9 @@ def correspond(positions, faces, ref_positions, ref_faces, *, tolerance: float =
         ident = np.arange(n_ref, dtype=np.int64)
         if np.array_equal(fac, rfac):
             return Correspondence("identity", ident, np.ones(n_ref, bool))
-        if same_face_set(fac, rfac):
+        if same_face_set(fac, rfac) or same_face_set(fac[:, ::-1], rfac):
             return Correspondence("faces-reordered", ident, np.ones(n_ref, bool))
-        vmap = match_topology(pos, fac, ref, rfac)
+        vmap = _permutation(pos, fac, ref, rfac)
         if vmap is not None:
             return Correspondence("permutation", vmap, np.ones(n_ref, bool))
     unit = mean_edge_length(ref, rfac) or 1.0

@@ -31,8 +31,11 @@ codes are invariant to rotation, uniform scale and translation (``nbar`` is
 measured on the mesh's own base vertices).  Carriers whose vertex or ring has
 no counterpart stay unread.  The scores and the verdict are the stream
 verifier's (:class:`~pmwm_codec.watermark.verify.Verifier`); vertices of the mesh that
-no reference vertex explains (a graft) make it ``tampered``, and the carriers whose
-code no longer reads are mapped back to the mesh's vertices (``tamper``).
+no reference vertex explains (a graft), and faces that differ from the reference's among the
+vertices it has where the reference has them (rewired, added or removed; compared as sets of
+corners, so winding and order are free), make it ``tampered``; the carriers whose
+code no longer reads, a graft's vertices and a changed face's corners are the mesh's vertices
+``tamper`` names.
 
 ``MeshVerification.as_json()`` is the ``pmw verify MESH --reference ... --json``
 object.
@@ -67,6 +70,9 @@ __all__ = ["MeshVerification", "verify_mesh"]
 #: agree when they lie within this fraction of the scene's size of each other once taken back to the
 #: stored coordinates (float32 output and the transforms round them ~1e-7 apart).
 COPY_TOLERANCE = 1e-5
+#: A registered vertex lies where the reference has it (and its faces are compared, :func:`_changed_faces`)
+#: within this many reference mean edge lengths: float32 storage and a similarity move it ~1e-5 of an edge.
+FACE_PAIR_TOLERANCE = 1e-3
 
 
 @dataclass
@@ -379,16 +385,18 @@ def verify_mesh(mesh, reference_source, key, watermark=None, *, tolerance: float
     nbars = None if corr.valid.all() else _partial_nbars(ref, ref.split(pts), corr)
     verifier = read_given(ref, pts, key, ref_image, nbars=nbars)
     grafted = _foreign_vertices(m, ref, corr, tolerance)
-    verifier.foreign = len(grafted) > 0 or len(apart) > 0
+    refaced = _changed_faces(m, ref, corr)
+    verifier.foreign = len(grafted) > 0 or len(apart) > 0 or len(refaced) > 0
     est = verifier.estimate()
     flagged = index[np.concatenate([ref.scene_rows(verifier.tamper(ref.starts)), apart])]
-    flagged = np.unique(np.concatenate([flagged[flagged >= 0], grafted]))  # a graft's vertices are named too
+    flagged = np.unique(np.concatenate([flagged[flagged >= 0], grafted, refaced]))  # a graft's, a changed face's too
     owns = key.owns(ref.params.fingerprint)
     macs = ref.authenticate(key) if owns else None
     written = macs is None or (not macs["failed"] and macs["scene"] is not False)  # the reference as the key holder wrote it
     verdict = est.verdict if owns and written else "not-authentic"
     why = ([] if written else ["the reference is not the key holder's file as written"]) + \
-        (["vertices the reference does not explain"] if verifier.foreign else [])
+        (["vertices the reference does not explain"] if len(grafted) or len(apart) else []) + \
+        (["faces the reference does not have"] if len(refaced) else [])
     return MeshVerification(
         image_note=image_note(verdict, est.bit_exact, est.inconsistent, "; ".join(why)),
         verdict=verdict, key_matches=owns, reference_mac=macs, nc=est.nc, psnr_db=est.psnr_db, centered_nc=est.centered_nc, ber=est.ber,
@@ -444,6 +452,44 @@ def _foreign_vertices(mesh: Mesh, ref: Reference, corr: Correspondence, toleranc
     unit = tolerance * mean_edge_length(ref.scene_positions, ref.scene_faces)
     dist, _ = cKDTree(ref.scene_positions).query(corr.transform(np.asarray(mesh.positions, np.float64)))
     return np.flatnonzero(dist > unit).astype(np.int64)
+
+
+def _changed_faces(mesh: Mesh, ref: Reference, corr: Correspondence) -> np.ndarray:
+    """The vertices (k,) int64 of ``mesh`` on a face that differs from the reference's (the codes are read from
+    positions alone, so a mesh of the reference's vertices with its faces rewired read ``authentic``).
+
+    Only vertices where the reference has them are compared (a topological counterpart, or a registered one
+    within :data:`FACE_PAIR_TOLERANCE` reference mean edges; a moved vertex is the codes' to judge): a face of
+    the mesh whose corners are all such vertices and onto which no reference face maps, and the corners of a
+    reference face whose corners all have such counterparts but which the mesh lacks.  Faces are compared as
+    sets of corners, each corner by its position in the mesh (coincident vertices, a seam's or a weld's, are one
+    corner; winding and face order are not compared); a face two of whose corners coincide there is left out on
+    both sides (an exporter drops those)."""
+    faces = np.asarray(mesh.faces, np.int64).reshape(-1, 3)
+    if faces.size == 0:
+        return np.zeros(0, np.int64)
+    paired = corr.valid.copy()
+    if corr.distance is not None:
+        from ..progressive.topology import mean_edge_length
+
+        unit = mean_edge_length(ref.scene_positions, ref.scene_faces) or 1.0
+        paired &= corr.distance <= FACE_PAIR_TOLERANCE * unit
+    corner = np.unique(np.asarray(mesh.positions, np.float64), axis=0, return_inverse=True)[1].ravel()
+    seen = np.zeros(len(corner), bool)
+    seen[corr.index[paired]] = True
+    rf = np.asarray(ref.scene_faces, np.int64)
+    ours = corr.index[rf[paired[rf].all(axis=1)]]  # (k, 3) mesh vertices of the reference faces compared
+    faces = faces[seen[faces].all(axis=1)]
+
+    def keys(f: np.ndarray) -> tuple:
+        c = np.sort(corner[f], axis=1)
+        keep = (c[:, 0] != c[:, 1]) & (c[:, 1] != c[:, 2])
+        return np.ascontiguousarray(c[keep]).view(np.dtype((np.void, 24))).ravel(), f[keep]
+
+    mine, faces = keys(faces)
+    want, ours = keys(ours)
+    extra, missing = faces[~np.isin(mine, want)], ours[~np.isin(want, mine)]
+    return np.unique(np.concatenate([extra.ravel(), missing.ravel()]))
 
 
 def read_given(ref: Reference, positions: np.ndarray, key, reference_image=None, *, nbars=None) -> Verifier:
