@@ -415,6 +415,10 @@ def write_figures(results, directory, *, title: str | None = None, total_bytes: 
     """
     directory = os.fspath(directory)
     results = _checked_results(results, k, tamper)
+    if title is not None and not isinstance(title, str):
+        from .errors import OptionError
+
+        raise OptionError(f"write_figures: title must be a str or None, got {type(title).__name__}")
     pictures = _frames(results)
     frames = [os.path.join(directory, name) for name in pictures]
     pictures[OVERVIEW_NAME] = overview(results, k=k, title=title, total_bytes=total_bytes)

@@ -18,6 +18,7 @@ loop: a 65k-face mesh renders in well under a second.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,6 +27,10 @@ from PIL import Image
 #: Default surface colour (RGB) and background.
 SURFACE = (150, 176, 208)
 BACKGROUND = (255, 255, 255)
+#: Largest image side, and largest frame buffer (the side's pixels times ``supersample`` squared, 24 bytes each:
+#: 1.5 GB), in pixels; the pictures pmw draws are 256-1024 wide (a side of 10**6 ended in numpy's MemoryError).
+MAX_SIDE = 8192
+MAX_PIXELS = 1 << 26
 #: Direction towards the light, in view space (x right, y up, z towards the viewer).
 LIGHT = np.array([-0.35, 0.55, 1.0]) / np.linalg.norm([-0.35, 0.55, 1.0])
 #: Candidate pixels tested per vectorised step (bounds peak memory).
@@ -55,6 +60,27 @@ class Camera:
     width: int
     height: int
 
+    def __post_init__(self) -> None:
+        """OptionError naming a field that cannot draw: a rotation not (3, 3), a center not (3,), either not
+        finite, a scale not a finite number > 0, a size not an integer 1 .. :data:`MAX_SIDE`."""
+        import numbers
+
+        from .errors import OptionError
+
+        for name, shape in (("rotation", (3, 3)), ("center", (3,))):
+            try:
+                value = np.asarray(getattr(self, name), np.float64)
+            except (TypeError, ValueError):
+                value = None
+            if value is None or value.shape != shape or not np.isfinite(value).all():
+                got = "values that are not all finite" if value is not None and value.shape == shape else \
+                    f"shape {np.shape(value) if value is not None else type(getattr(self, name)).__name__}"
+                raise OptionError(f"Camera: {name} must be a finite {shape} array, got {got}")
+        if isinstance(self.scale, bool) or not isinstance(self.scale, numbers.Real) or not 0 < self.scale < math.inf:
+            raise OptionError(f"Camera: scale must be a finite number > 0, got {self.scale!r}")
+        for name in ("width", "height"):
+            _check_side(f"Camera: {name}", getattr(self, name))
+
     @classmethod
     def fit(cls, positions, width: int = 256, height: int = 256, *, azimuth: float = -28.0,
             elevation: float = 24.0, margin: float = 0.05) -> "Camera":
@@ -64,7 +90,11 @@ class Camera:
         silhouette faces the camera), with the longest remaining axis horizontal,
         then turns by ``azimuth`` about the vertical and tilts by ``elevation``.
         """
+        from .errors import MeshError
+
         p = np.asarray(positions, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 3 or not len(p) or not np.isfinite(p).all():
+            raise MeshError(f"Camera.fit: positions must be (n, 3) finite, n >= 1, got shape {p.shape}")
         lo, hi = p.min(0), p.max(0)
         extent = hi - lo
         order = np.argsort(extent, kind="stable")  # thinnest first
@@ -160,10 +190,21 @@ def rasterize(screen: np.ndarray, faces: np.ndarray, width: int, height: int) ->
     return fbuf.reshape(height, width)
 
 
-def _checked_arguments(positions, faces, camera, width, height, color, background) -> tuple:
+def _check_side(what: str, size) -> None:
+    """OptionError unless ``size`` is an integer 1 .. :data:`MAX_SIDE` (pixels)."""
+    import numbers
+
+    from .errors import OptionError
+
+    if isinstance(size, bool) or not isinstance(size, numbers.Integral) or not 1 <= size <= MAX_SIDE:
+        raise OptionError(f"{what} must be an integer 1..{MAX_SIDE} (pixels), got {size!r}")
+
+
+def _checked_arguments(positions, faces, camera, width, height, color, background, supersample) -> tuple:
     """``(positions (n, 3) float64, faces (m, 3) int64)`` of :func:`render` once its arguments are known to draw:
     a mesh (:func:`~pmwm_codec.mesh.mesh_arrays`: MeshError for NaN, an index out of range ...; no faces: the
-    background alone), a :class:`Camera` or None with ``width`` and ``height`` ints >= 1, RGB triples 0..255;
+    background alone), a :class:`Camera` or None with ``width`` and ``height`` ints 1 .. :data:`MAX_SIDE`, RGB
+    triples 0..255, ``supersample`` an int 1..8;
     OptionError naming what is wrong otherwise."""
     import numbers
 
@@ -178,9 +219,11 @@ def _checked_arguments(positions, faces, camera, width, height, color, backgroun
             raise MeshError(f"render: positions must be (n, 3), n >= 1 without a camera, got shape {positions.shape}")
     if camera is not None and not isinstance(camera, Camera):
         raise OptionError(f"render: camera must be a Camera or None, got {type(camera).__name__}")
-    for name, size in (("width", width), ("height", height)):
-        if camera is None and (isinstance(size, bool) or not isinstance(size, numbers.Integral) or size < 1):
-            raise OptionError(f"render: {name} must be an integer >= 1, got {size!r}")
+    if camera is None:
+        for name, size in (("width", width), ("height", height)):
+            _check_side(f"render: {name}", size)
+    if isinstance(supersample, bool) or not isinstance(supersample, numbers.Integral) or not 1 <= supersample <= 8:
+        raise OptionError(f"render: supersample must be an integer 1..8, got {supersample!r}")
     for name, rgb in (("color", color), ("background", background)):
         try:
             triple = np.asarray(rgb, np.float64)
@@ -205,11 +248,16 @@ def render(positions, faces, camera: Camera | None = None, *, width: int = 256, 
     color, background : RGB triples 0..255
     supersample : render at this factor and box-filter down (1 = aliased).
     """
-    positions, faces = _checked_arguments(positions, faces, camera, width, height, color, background)
+    positions, faces = _checked_arguments(positions, faces, camera, width, height, color, background, supersample)
     if camera is None:
         camera = Camera.fit(positions, width, height)
-    k = max(1, int(supersample))
+    k = int(supersample)
     w, h = camera.width * k, camera.height * k
+    if w * h > MAX_PIXELS:
+        from .errors import OptionError
+
+        raise OptionError(f"render: a {camera.width}x{camera.height} image at supersample {k} needs a {w}x{h} frame "
+                          f"buffer, more than {MAX_PIXELS:,} pixels; draw it smaller or with a lower supersample")
     img = np.empty((h, w, 3), dtype=np.float64)
     img[:] = background
     if len(faces):

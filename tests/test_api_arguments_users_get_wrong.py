@@ -168,8 +168,12 @@ def test_a_mesh_made_of_lists_counts_and_shows_itself():
     ({"faces": MESH.faces + MESH.vertex_count}, MeshError, "face index .* out of range"),
     ({"positions": MESH.positions[:, :2]}, MeshError, r"positions must be \(n, 3\)"),
     ({"positions": np.zeros((0, 3)), "faces": np.zeros((0, 3), int)}, MeshError, "n >= 1 without a camera"),
-    ({"width": 0}, pmwm_codec.errors.OptionError, "width must be an integer >= 1, got 0"),
-    ({"height": -5}, pmwm_codec.errors.OptionError, "height must be an integer >= 1, got -5"),
+    ({"width": 0}, pmwm_codec.errors.OptionError, r"width must be an integer 1\.\.8192 \(pixels\), got 0"),
+    ({"height": -5}, pmwm_codec.errors.OptionError, r"height must be an integer 1\.\.8192 \(pixels\), got -5"),
+    ({"width": 10**6, "height": 10**6}, pmwm_codec.errors.OptionError, "width must be an integer 1..8192"),  # MemoryError
+    ({"width": 8192, "height": 8192}, pmwm_codec.errors.OptionError, "more than 67,108,864 pixels"),  # 16384^2 buffer
+    ({"supersample": 0}, pmwm_codec.errors.OptionError, "supersample must be an integer 1..8, got 0"),  # drew at 1
+    ({"supersample": 2.5}, pmwm_codec.errors.OptionError, "supersample must be an integer 1..8, got 2.5"),
     ({"color": "red"}, pmwm_codec.errors.OptionError, "color must be an RGB triple"),
     ({"background": (1, 2)}, pmwm_codec.errors.OptionError, "background must be an RGB triple"),
     ({"camera": 5}, pmwm_codec.errors.OptionError, "camera must be a Camera or None, got int"),
@@ -183,6 +187,25 @@ def test_render_names_a_wrong_argument_with_a_pmw_error(arguments, error, words)
     arguments = {"positions": MESH.positions, "faces": MESH.faces, **arguments}
     with pytest.raises(error, match=words):
         render(arguments.pop("positions"), arguments.pop("faces"), **arguments)
+
+
+@pytest.mark.parametrize("fields, words", [
+    ({"rotation": np.eye(2)}, r"rotation must be a finite \(3, 3\) array, got shape \(2, 2\)"),  # numpy ValueError
+    ({"center": [0.0, np.nan, 0.0]}, "center must be a finite .* not all finite"),
+    ({"scale": float("nan")}, "scale must be a finite number > 0, got nan"),  # drew garbage, RuntimeWarnings
+    ({"scale": 0.0}, "scale must be a finite number > 0"),
+    ({"width": 0}, "width must be an integer 1..8192"),
+])
+def test_a_camera_that_cannot_draw_is_refused_by_name(fields, words):
+    """A Camera built by hand (README: frames that line up) was taken as given: a (2, 2) rotation raised
+    numpy's ValueError inside render, a NaN scale drew an empty picture with RuntimeWarnings (outside probe)."""
+    from pmwm_codec.render import Camera
+
+    base = {"rotation": np.eye(3), "center": np.zeros(3), "scale": 1.0, "width": 8, "height": 8}
+    with pytest.raises(pmwm_codec.errors.OptionError, match=words):
+        Camera(**{**base, **fields})
+    with pytest.raises(MeshError, match="Camera.fit: positions must be"):  # numpy's ValueError on an empty array
+        Camera.fit(np.zeros((0, 3)))
 
 
 def test_render_of_no_faces_is_the_background():
@@ -204,6 +227,7 @@ def results():
     ({"results": [1, 2]}, "each must be a PartialResult of pmwm_codec.iter_decode, got int"),
     ({"k": 0}, r"k \(how many levels the overview shows\) must be an integer >= 1, got 0"),
     ({"tamper": [10 ** 9]}, r"tamper: vertex indices \(f,\) of the last result's mesh"),
+    ({"title": 5}, "title must be a str or None, got int"),  # AttributeError from Pillow's text layout
 ])
 def test_write_figures_names_a_wrong_argument_with_an_option_error_and_writes_nothing(tmp_path, results, arguments,
                                                                                       words):

@@ -514,3 +514,11 @@ def test_exact_mode_past_six_bits_per_code_is_noted(tmp_path, bits, noted):
     report = pmwm_codec.encode(MESH, tmp_path / "m.pmw", watermark=_image(0), bits=bits, measure="none",
                                owner_id=False)
     assert any("bits per code: past the 6" in n for n in report["notices"]) == noted, report["notices"]
+
+
+def test_verify_stream_without_a_key_is_refused_not_judged_not_authentic(stream):
+    """``verify_stream(src, None)`` answered ``not-authentic``, the verdict of a forged file, for any file: a
+    script that lost its key read its own files as forgeries (outside probe of the API).  ``pmw verify`` without
+    ``--key`` is a usage error; the API now refuses it too."""
+    with pytest.raises(WatermarkKeyError, match="needs the key"):
+        pmwm_codec.verify_stream(stream, None)  # type: ignore[arg-type]

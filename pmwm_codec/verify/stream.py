@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import WatermarkKeyError
 from ..format.mac import SCENE_MAC, Scene
 from ..stream import StreamDecoder, iter_results
 from ..stream.decoder import StreamEnd
@@ -248,8 +249,9 @@ def verify_stream(source: Source, key: WatermarkKey | str | os.PathLike[str], wa
     if watermark is not None:
         reference, _ = load_watermark(watermark)
     key = as_key(key)
-    if key is not None:  # before anything is read
-        key.check_reference(reference, watermark)
+    if key is None:  # a verdict needs the key: without one every file read not-authentic, as a forgery does
+        raise WatermarkKeyError("verify_stream needs the key of the file (pmw verify --key KEY)")
+    key.check_reference(reference, watermark)  # before anything is read
     decoder = StreamDecoder(key, reference, copy=keep_meshes or each is not None, check_key=False)
     scene_data = _SceneData(decoder)
     gen = iter_results(scene_data.blocks(source), decoder)
