@@ -1,6 +1,6 @@
 """Differential run of the two ``.pmw`` decoders (``pmwm_codec.stream.StreamDecoder`` and the JavaScript
 ``PmwDecoder`` of js/) over the same files: per file, the levels each delivers (chunk, vertices, faces and
-tests/test_golden.py's level digest, which js/test/lib/helpers.js' ``levelDigest`` computes alike) and how the
+tests/samples.py's level digest, which js/test/lib/helpers.js' ``levelDigest`` computes alike) and how the
 decode ended ("complete", "truncated" or the error's kind).  Error kinds are compared as spec/README.md "Kinds of
 refusal" names them (``ChecksumError`` is JavaScript's ``CorruptChunkError``, ``UnsupportedVersionError`` its
 ``UnsupportedError``, a ``DracoError`` a format error); messages are not compared.
@@ -34,16 +34,17 @@ ROOT = Path(__file__).resolve().parents[1]
 KINDS = {"ChecksumError": "CorruptChunkError", "UnsupportedVersionError": "UnsupportedError", "DracoError": "FormatError"}
 
 
-def _golden():
-    spec = importlib.util.spec_from_file_location("_pmw_test_golden", ROOT / "tests" / "test_golden.py")
+def _level_digest():
+    """tests/samples.py's ``level_digest`` (the conformance files' level digest)."""
+    spec = importlib.util.spec_from_file_location("_pmw_test_samples", ROOT / "tests" / "samples.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    return module
+    return module.level_digest
 
 
 def python_run(path: str, split: int = 0, max_chunks=None, digest=None) -> dict:
     """What StreamDecoder makes of the file at ``path`` (as tools/decoder_diff.mjs prints it for PmwDecoder)."""
-    digest = digest or _golden()._level_digest
+    digest = digest or _level_digest()
     data = Path(path).read_bytes()
     dec = StreamDecoder(max_chunks=max_chunks)
     levels = []
@@ -102,7 +103,7 @@ def main(argv=None) -> int:
         out = subprocess.run(["node", str(ROOT / "tools" / "decoder_diff.mjs"), listing.name, *extra],
                              capture_output=True, text=True, check=True)
     js = [json.loads(line) for line in out.stdout.splitlines()]
-    digest = _golden()._level_digest
+    digest = _level_digest()
     counts, shown = collections.Counter(), collections.defaultdict(list)
     for path, j in zip(files, js):
         p = python_run(str(Path(path).resolve()), args.split, args.max_chunks, digest)

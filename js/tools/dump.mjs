@@ -2,7 +2,7 @@
 /**
  * Dumps the JS decode of a .pmw at every chunk boundary as JSON lines on stdout:
  * {"chunk", "bytesRead", "vertexCount", "faceCount", "parts": [[n, m], ...], "sha256"}, sha256 being
- * tests/test_golden.py's level digest (positions, faces, quantized attributes as <i8).
+ * tests/samples.py's level digest (positions, faces, quantized attributes as <i8).
  * Used by tests/test_js_decoder.py. Exit 2 with one line on stderr on a decode error.
  *
  *   node js/tools/dump.mjs FILE.pmw

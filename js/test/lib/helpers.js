@@ -1,4 +1,4 @@
-/** Shared test helpers: conformance file paths and the level digest of tests/test_golden.py. */
+/** Shared test helpers: conformance file paths and the level digest of tests/samples.py. */
 import { createHash } from 'node:crypto';
 import { readdirSync } from 'node:fs';
 import { join } from 'node:path';
@@ -34,7 +34,7 @@ export function attributesInt(mesh) {
   return out;
 }
 
-/** SHA-256 of positions, faces and (when any) quantized attributes as <i8: tests/test_golden.py::_level_digest. */
+/** SHA-256 of positions, faces and (when any) quantized attributes as <i8: tests/samples.py level_digest. */
 export function levelDigest(mesh) {
   const h = createHash('sha256');
   h.update(asInt64Bytes(mesh.positionsInt));

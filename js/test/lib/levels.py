@@ -6,7 +6,7 @@
 ``encode`` writes ``OUT.pmw`` (the case encoded with chunk payload ``VERSION``, 1 or 2) and prints
 one JSON object: the reference decoder's level at every chunk boundary, ``{"levels":
 [{"bytesRead", "vertexCount", "faceCount", "parts": [[n, m], ...], "sha256"}, ...], "complete"}``;
-``sha256`` is tests/test_golden.py's level digest (positions, faces, quantized attributes as <i8)
+``sha256`` is tests/samples.py's level digest (positions, faces, quantized attributes as <i8)
 and js/test/lib/helpers.js::levelDigest.  ``decode`` prints one such object per file, in order,
 as a JSON array, with ``"error"`` (the exception's class name) and ``"message"`` instead of ``"complete"``
 when the decoder refuses the file (``"levels"`` then those it delivered before refusing).  Cases are generated meshes (``pmwm_codec.shapes``) and seeded keys, so the levels do
@@ -33,9 +33,12 @@ OPTIONS = dict(min_chunk_splits=30, measure="none")
 
 
 def _load_golden():
-    """tests/test_golden.py of the tree this pmwm_codec comes from: the home of the level digest
-    and of the attribute sphere and watermark image used here."""
-    path = Path(pmwm_codec.__file__).resolve().parents[1] / "tests" / "test_golden.py"
+    """tests/test_golden.py of the tree this pmwm_codec comes from: the home of the attribute sphere and
+    watermark image used here (its folder on the path: the level digest is tests/samples.py's)."""
+    tests = Path(pmwm_codec.__file__).resolve().parents[1] / "tests"
+    if str(tests) not in sys.path:
+        sys.path.insert(0, str(tests))
+    path = tests / "test_golden.py"
     spec = importlib.util.spec_from_file_location("_pmw_test_golden", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
@@ -208,7 +211,7 @@ def _levels(path: str) -> dict:
     dec, levels = StreamDecoder(), []
     try:
         levels += [{"bytesRead": r.bytes_read, "vertexCount": r.vertices, "faceCount": r.faces_count,
-                    "parts": [[len(p.positions_int), len(p.faces)] for p in r.parts], "sha256": golden._level_digest(r)}
+                    "parts": [[len(p.positions_int), len(p.faces)] for p in r.parts], "sha256": golden.level_digest(r)}
                    for r in dec.feed(data)]
         return {"levels": levels, "complete": dec.close().complete}
     except PmwError as exc:
