@@ -437,6 +437,29 @@ def _median(x: np.ndarray) -> float:
     return float((part[:k].max() + part[k]) / 2)
 
 
+def _oversized_message(path: str, name: str, size: int, suffix: str) -> str:
+    """The one line refusing the mesh file at ``path`` (shown as ``name``) of ``size`` bytes over
+    :data:`MAX_INPUT_FILE_BYTES`: the limit with its unit and why it is there, and for a text format (OBJ, OFF,
+    STL, ASCII PLY) the way out: a binary PLY, which holds the same mesh (its colours and normals too) in a
+    fraction of the bytes."""
+    line = (f"{name}: {size:,} bytes, more than the {MAX_INPUT_FILE_BYTES:,} bytes "
+            f"({MAX_INPUT_FILE_BYTES / (1 << 30):g} GiB) a mesh file may hold (it is read whole into memory)")
+    if suffix in (".obj", ".off", ".stl") or (suffix == ".ply" and _ascii_ply(path, name)):
+        line += "; saved as a binary PLY the same mesh takes a fraction of the bytes"
+    return line
+
+
+def _ascii_ply(path: str, name: str) -> bool:
+    """Whether the PLY at ``path`` is an ASCII one (its header in its first 64 KiB); False when it cannot be read."""
+    from .ply import header_format
+
+    try:
+        with open(path, "rb") as fh:
+            return header_format(fh.read(1 << 16), name) == "ascii"
+    except (OSError, InputFormatError):
+        return False
+
+
 def read_mesh(path: str | bytes | os.PathLike[str]) -> Mesh:
     """Read a triangle mesh from OBJ, PLY, STL, OFF, glTF or GLB at ``path`` (a file name: ``str``, ``bytes``
     or ``os.PathLike``).
@@ -467,7 +490,7 @@ def read_mesh(path: str | bytes | os.PathLike[str]) -> Mesh:
         )
     size = os.stat(path).st_size
     if size > MAX_INPUT_FILE_BYTES:
-        raise InputFormatError(f"{name}: {size:,} bytes, more than the limit of {MAX_INPUT_FILE_BYTES:,}")
+        raise InputFormatError(_oversized_message(path, name, size, suffix))
     if suffix == ".obj":
         return obj_mesh(obj_text(path, name), name)
     if suffix == ".off":

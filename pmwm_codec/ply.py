@@ -85,6 +85,13 @@ def header_look(head: bytes, name: str) -> Look:
     return _look(head, _header(head.decode("ascii", "replace"), name)[1])
 
 
+def header_format(head: bytes, name: str) -> str:
+    """The format a PLY file's first bytes (its whole header) name: ``ascii``, ``binary_little_endian`` or
+    ``binary_big_endian``; InputFormatError for a header :func:`read_ply` refuses too."""
+    head, _ = _split_header(head, name)
+    return _header(head.decode("ascii", "replace"), name)[0]
+
+
 def _look(head: bytes, elements: list) -> Look:
     """The :class:`Look` of a header's bytes ``head`` and its ``elements`` (:func:`_header`); the texture
     names in UTF-8, else Latin-1 (as :func:`~pmwm_codec.mesh._mesh_text` reads an OBJ's)."""

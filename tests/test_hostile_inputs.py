@@ -24,7 +24,7 @@ import pytest
 from pmwm_codec import shapes
 from pmwm_codec.cli import main
 from pmwm_codec.meshio import write_mesh
-from pmwm_codec.constants import MAX_ENCODE_FACES, MAX_ENCODE_VERTICES, MAX_WATERMARK_PIXELS
+from pmwm_codec.constants import MAX_ENCODE_FACES, MAX_ENCODE_VERTICES, MAX_INPUT_FILE_BYTES, MAX_WATERMARK_PIXELS
 from pmwm_codec.format.document import load_document
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -216,6 +216,24 @@ def test_ply_declaring_more_vertices_than_the_encoder_takes_is_refused(capsys, t
     src = tmp_path / "m.ply"
     src.write_bytes(ply_bytes(mesh).replace(b"element vertex 42", f"element vertex {MAX_ENCODE_VERTICES + 1}".encode()))
     assert_refused(*run_encode(capsys, tmp_path, src), f"{MAX_ENCODE_VERTICES + 1}")
+
+
+@pytest.mark.parametrize("suffix, ascii_ply, hint", [(".obj", False, True), (".ply", True, True), (".ply", False, False)])
+def test_a_mesh_file_over_the_size_limit_is_refused_naming_the_limit_and_the_way_out(capsys, tmp_path, mesh, suffix,
+                                                                                     ascii_ply, hint):
+    """A scan of several GB: the line gives the limit in bytes and GiB and, for a text format, says a binary PLY
+    holds the same mesh in fewer bytes (never to a binary PLY, which is that already)."""
+    src = tmp_path / f"scan{suffix}"
+    if suffix == ".obj":
+        head = "".join(f"v {x} {y} {z}\n" for x, y, z in mesh.positions).encode()
+    else:
+        head = ply_bytes(mesh) if ascii_ply else ply_bytes(mesh).replace(b"format ascii", b"format binary_little_endian")
+    with open(src, "wb") as fh:  # a sparse file one byte over the limit
+        fh.write(head)
+        fh.truncate(MAX_INPUT_FILE_BYTES + 1)
+    status, err, out = run_encode(capsys, tmp_path, src)
+    assert_refused(status, err, out, f"{MAX_INPUT_FILE_BYTES + 1:,} bytes", f"{MAX_INPUT_FILE_BYTES:,} bytes", "2 GiB")
+    assert ("binary PLY" in err[0]) == hint, err
 
 
 def test_binary_stl_declaring_more_triangles_than_the_encoder_takes_is_refused(capsys, tmp_path):
