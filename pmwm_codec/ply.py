@@ -248,8 +248,8 @@ def _ascii_elements(body: bytes, elements: list, name: str) -> list:
     bad = _NOT_NUMERIC.search(body)
     if bad is not None:
         raise InputFormatError(f"{name}: byte {bad.group()!r} in the records of an ASCII PLY (numbers only)")
+    per_line = _tokens_per_line(body)  # first: its byte masks are gone before the tokens' list is made
     tokens = body.split()
-    per_line = _tokens_per_line(body)
     at, used, out = 0, 0, []
     for element, count, props in elements:
         if not props:  # an element of no properties holds no data
@@ -269,14 +269,20 @@ def _ascii_elements(body: bytes, elements: list, name: str) -> list:
 
 
 def _tokens_per_line(body: bytes) -> np.ndarray:
-    """(lines,) int64: the whitespace-separated tokens on each line of ``body`` that holds any."""
+    """(lines,) int64: the whitespace-separated tokens on each line of ``body`` that holds any.  Each token's
+    line is the count of line feeds before its first byte, found among the line feeds' offsets (a count over
+    every byte, an int64 a byte, took 8 bytes of memory per byte of the file: 3.3 GB for a 417 MB PLY)."""
     data = np.frombuffer(body, np.uint8)
     if not len(data):
         return np.zeros(0, np.int64)
-    newline = data == 10
-    word = ~(newline | (data == 32) | ((data >= 9) & (data <= 13)))
-    start = word & ~np.concatenate([[False], word[:-1]])
-    counts = np.bincount(np.cumsum(newline)[start], minlength=int(newline.sum()) + 1)
+    space = (data >= 9) & (data <= 13)  # line feed among them
+    space |= data == 32
+    start = np.flatnonzero(~space[1:] & space[:-1]) + 1  # a token's first byte: not white space, after white space
+    if not space[0]:
+        start = np.concatenate([[0], start])
+    del space
+    newlines = np.flatnonzero(data == 10)
+    counts = np.bincount(np.searchsorted(newlines, start), minlength=len(newlines) + 1)
     return counts[counts > 0]
 
 

@@ -197,3 +197,24 @@ def test_a_signalling_nan_in_a_binary_file_is_read_without_a_numpy_warning():
         warnings.simplefilter("error")
         positions, _ = read_ply(data, "m.ply", 100)
     assert np.isnan(positions[1, 1])
+
+
+def test_counting_an_ascii_ply_s_tokens_per_line_takes_less_than_an_int64_a_byte():
+    """A scan's ASCII PLY is read whole; counting its tokens line by line must not add 8 bytes per byte of the file
+    (a count over every byte in int64: 3.3 GB for a 417 MB file).  The counts are those of splitting each line."""
+    import tracemalloc
+
+    from pmwm_codec.ply import _tokens_per_line
+
+    rng = np.random.default_rng(5)
+    lines = [" ".join(f"{x:.7g}" for x in row) + (" 200 10 3" if i % 3 else "") for i, row in
+             enumerate(rng.normal(size=(40_000, 6)))]
+    body = ("\n".join(lines) + "\n\n  \t\n").encode()
+    tracemalloc.start()
+    try:
+        counts = _tokens_per_line(body)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert counts.tolist() == [len(line.split()) for line in lines]
+    assert peak < 4 * len(body), (peak, len(body))
