@@ -66,7 +66,7 @@ def _as_watermark(watermark) -> tuple:
 
 
 def load_key(key: KeyLike) -> WatermarkKey | None:
-    """A :class:`~pmwm_codec.watermark.key.WatermarkKey` from a key object or a key file path."""
+    """A :class:`~pmwm_codec.watermark.key.WatermarkKey` from a key object or a key file path (None for None)."""
     from .watermark.key import as_key
 
     return as_key(key)
@@ -89,7 +89,8 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
     binary file object, open, writable and blocking, that gets every byte
     (:func:`~pmwm_codec.atomic.write_stream`; a new key file is not kept when it does not).
 
-    ``watermark``: image path or (s, s) array; ``key``: a WatermarkKey (never modified, not
+    ``watermark``: image path or array ((h, w) gray, or (h, w, 3 | 4) colour, made gray; floats scaled, values out
+    of 0..255 clipped, a side not a power of two padded: each said in a notice); ``key``: a WatermarkKey (never modified, not
     saved), a key file path, or None (the key file ``dst + ".key.json"`` when ``dst`` is a
     path).  A key file path follows :class:`~pmwm_codec.watermark.key.KeySlot`: an existing
     key file is reused untouched when it holds this watermark, refused
@@ -112,9 +113,12 @@ def encode(src: MeshSource, dst: Destination, watermark: WatermarkImage = None, 
     an OBJ's or PLY's appearance, a glTF asset's document not carried).  Without a ``watermark``, ``mode``, ``bits``, ``embed_from`` and
     ``step_units`` change nothing in the file: each one given says so in a notice
     (:func:`~pmwm_codec.options.ignored_without_image`, ``"bits ignored: no watermark"``), and so does
-    ``owner_strength`` without an ``owner_id`` or a watermark (no owner layer).
-    Returns the report dict (the
-    ``pmw encode --json`` fields, plus ``notices`` and ``key_path``).
+    ``owner_strength`` without an ``owner_id`` or a watermark (no owner layer).  ``progress``: a callable
+    ``progress(stage, fraction)``, called as each stage (``simplify``, ``records``, ``measure``, ``write``) starts
+    (0.0) and ends (1.0); ``min_chunk_splits``: the smallest chunk, in vertex splits (default 1% of a
+    primitive's splits, at least 32; the first chunks grow to it from 32, so the first levels come early).
+    Returns the report dict (the ``pmw encode --json`` fields, plus ``notices``, ``key_path`` (None for a key
+    object or when nothing is marked) and ``owner_id`` (16 hex digits; absent without an owner layer)).
     """
     from dataclasses import replace
 

@@ -36,7 +36,8 @@ MESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 
 @dataclass
 class Mesh:
-    """A triangle mesh: ``positions`` (n, 3) float64, ``faces`` (m, 3) int64."""
+    """A triangle mesh: ``positions`` (n, 3) and ``faces`` (m, 3), float64 and int64 as the readers and
+    :func:`checked_mesh` make them (a Mesh built by hand keeps the arrays it is given, float32 / int32 too)."""
 
     positions: np.ndarray
     faces: np.ndarray

@@ -137,7 +137,8 @@ class StreamVerification:
         return f"a prefix of the key holder's stream: {self.codes_read:,} of {self.carriers_total:,} carriers read"
 
     def as_json(self) -> dict:
-        """The ``pmw verify --json`` object (without ``pictures``, which only the command writes)."""
+        """The ``pmw verify --json`` object without ``pictures`` (only the command writes them) and ``owner`` (the
+        owner layer, read by :func:`~pmwm_codec.verify.owner.owner_of_stream` in the command's pass)."""
         chunks = [{**r.as_json(), "authentic_bytes": r.authentic_bytes} for r in self.results]
         return {"complete": bool(self.end.complete), "truncated": bool(self.end.truncated),
                 "chunks_total": int(self.end.chunks_total), "chunks": chunks, "final": chunks[-1],
