@@ -250,6 +250,39 @@ def test_files_with_the_old_order_still_decode_and_cut(textured_pmw):
     assert _image_bytes(decode_asset(old)[0]) == _image_bytes(decode_asset(textured_pmw)[0])
 
 
+def _image_last(data: bytes) -> bytes:
+    """The same file with the document's own bufferViews (the image) after the chunks (bitstream.md §4 lets a
+    file place them anywhere outside the chunk ranges); where they were, zero bytes."""
+    gltf, bin_start = _json_and_bin(data)
+    views, payload = gltf["bufferViews"], bytearray(data[bin_start:])
+    end = len(payload)
+    for i in (image["bufferView"] for image in gltf["images"]):
+        start, length = views[i]["byteOffset"], views[i]["byteLength"]
+        payload += payload[start : start + length] + bytes(-length % 4)
+        payload[start : start + length] = bytes(length)
+        views[i]["byteOffset"], end = end, len(payload)
+    return b"".join(glb_parts(gltf, [bytes(payload)], len(payload)))
+
+
+def test_a_cut_carries_no_byte_of_the_chunks_it_drops(textured_pmw):
+    """With the document's data after the chunks, ``pmw cut`` kept the dropped chunks' bytes as the gap before it
+    (19,290 bytes of finer levels in a cut of spot), detail the user meant to cut away (outside probe): they are
+    zero bytes now, as every gap is, and the cut decodes and shows its image as before."""
+    moved = _image_last(textured_pmw)
+    gltf, bin_start = _json_and_bin(moved)
+    entries = read_header(moved).extensions[0]["chunks"]  # expanded: each chunk's bufferView and byteOffset in it
+    for n in (0, 2):
+        out = cut(moved, n)
+        _same_levels(moved, out, n)
+        assert _image_bytes(decode_asset(out)[0]) == _image_bytes(decode_asset(textured_pmw)[0])
+        _, out_bin = _json_and_bin(out)
+        for c in entries[n:]:
+            start = gltf["bufferViews"][c["bufferView"]].get("byteOffset", 0) + c.get("byteOffset", 0)
+            stored = moved[bin_start + start : bin_start + start + c["byteLength"]]
+            assert stored not in out, (n, c)
+            assert out[out_bin + start : out_bin + start + c["byteLength"]] == bytes(c["byteLength"])
+
+
 @pytest.mark.corpus
 def test_every_cut_of_spot_passes_the_khronos_validator(tmp_path):
     src = corpus_path("spot.glb")

@@ -75,11 +75,14 @@ def cut_file(source, chunks: int | None = None) -> CutResult:
     per_primitive = [0] * len(found)
     for event in kept:
         per_primitive[event.primitive] = max(per_primitive[event.primitive], event.chunk + 1)
-    dropped, kept_ends = set(), {}
+    dropped, kept_ends, gone = set(), {}, []
+    views = gltf.get("bufferViews", [])
     for (_, _, prim), entries, count in zip(found, header.extensions, per_primitive):
         ext = prim["extensions"][EXTENSION_NAME]
         entries = entries["chunks"]  # per-chunk entries, the compact table of payload version 2 expanded
         dropped.update(int(c["bufferView"]) for c in entries[count:])
+        gone += [(int(views[c["bufferView"]].get("byteOffset", 0)) + int(c.get("byteOffset", 0)), int(c["byteLength"]))
+                 for c in entries[count:]]
         for c in entries[:count]:
             end = int(c.get("byteOffset", 0)) + int(c["byteLength"])
             kept_ends[c["bufferView"]] = max(kept_ends.get(c["bufferView"], 0), end)
@@ -91,7 +94,7 @@ def cut_file(source, chunks: int | None = None) -> CutResult:
             ext["chunks"] = ext["chunks"][:count]
     for view, end in kept_ends.items():  # a shared version 2 bufferView ends after its last kept chunk
         gltf["bufferViews"][view]["byteLength"] = end
-    bin_bytes = _compact(gltf, dropped - set(kept_ends), received, header.bin_offset)
+    bin_bytes = _blanked(_compact(gltf, dropped - set(kept_ends), received, header.bin_offset), gone)
     data = b"".join(glb_parts(gltf, [bin_bytes], len(bin_bytes)))
     return CutResult(data, len(kept), _available(header, len(received)), header.chunk_count, complete)
 
@@ -160,6 +163,18 @@ def _view_sites(gltf: dict):
         for holder in chunks if isinstance(chunks, list) else [chunks]:  # entries, or a version 2 table
             if "bufferView" in holder:
                 yield holder, "bufferView"
+
+
+def _blanked(data: bytes, ranges: list) -> bytes:
+    """``data`` (the cut's BIN) with the ``(offset, length)`` ``ranges`` of the dropped chunks that lie in it
+    zeroed: a gap before document data placed after the chunks (bitstream.md §4) carries nothing of them."""
+    inside = [(start, min(length, len(data) - start)) for start, length in ranges if start < len(data)]
+    if not inside:
+        return data
+    out = bytearray(data)
+    for start, length in inside:
+        out[start : start + length] = bytes(length)
+    return bytes(out)
 
 
 def _compact(gltf: dict, dropped: set, received: bytes, bin_offset: int) -> bytes:
