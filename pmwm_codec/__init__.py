@@ -325,6 +325,7 @@ def iter_decode(src: Source, key: KeyLike = None, watermark: WatermarkImage = No
     be used, or a source of a kind no reader takes, raises here, not at the first ``next()``; the bytes
     (a path's file, a URL's answer, a file object's or an iterable's blocks) are read as results are pulled.
     """
+    from .errors import OptionError
     from .http import UrlSource, as_source
     from .sources import checked_source
     from .stream.decoder import StreamDecoder
@@ -332,6 +333,8 @@ def iter_decode(src: Source, key: KeyLike = None, watermark: WatermarkImage = No
 
     reference = None
     if watermark is not None:
+        if key is None:  # the partial image is read with the key alone: without one it would go unused in silence
+            raise OptionError("iter_decode: watermark needs a key (the watermark is read with the key; give key=)")
         reference, _, _ = _as_watermark(watermark)
     decoder = StreamDecoder(load_key(key), reference)
     source = as_source(src)

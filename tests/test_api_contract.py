@@ -522,3 +522,10 @@ def test_verify_stream_without_a_key_is_refused_not_judged_not_authentic(stream)
     ``--key`` is a usage error; the API now refuses it too."""
     with pytest.raises(WatermarkKeyError, match="needs the key"):
         pmwm_codec.verify_stream(stream, None)  # type: ignore[arg-type]
+
+
+def test_iter_decode_refuses_a_watermark_without_a_key(stream):
+    """``iter_decode(src, watermark=img)`` with no key decoded as if no image were given: no partial image, no
+    score, no word (outside probe of the API).  The image is read with the key, so the call names what is missing."""
+    with pytest.raises(OptionError, match="watermark needs a key"):
+        pmwm_codec.iter_decode(stream, watermark=_image(1))
