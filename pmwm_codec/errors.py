@@ -48,8 +48,9 @@ class LimitError(FormatError):
 class ChecksumError(FormatError):
     """A chunk whose digest does not match: corruption, not truncation.
 
-    ``chunk`` is the 0-based index into the extension's ``chunks`` array; messages
-    number chunks from 1 (chunk 0 is the base mesh), as ``pmw verify`` does.
+    ``chunk`` is the chunk's number in stream order, from 1 as in the message, ``pmw verify``,
+    ``pmw info`` and the levels (level k is reached by chunk k; 0 is the base mesh), and as
+    JavaScript's ``CorruptChunkError.chunk``; None for a base mesh whose ``baseDigest`` differs.
     """
 
     def __init__(self, message, chunk=None):

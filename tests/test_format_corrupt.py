@@ -149,7 +149,7 @@ def test_a_schema_error_on_a_long_value_keeps_its_reason_on_the_line(value):
 def test_lying_digest_raises_checksum_error_for_that_chunk():
     with pytest.raises(ChecksumError) as info:
         _events(_mutated(_set(["chunks", 1, "digest"], "0" * 32)))
-    assert info.value.chunk == 1
+    assert info.value.chunk == 2  # the second chunk, numbered from 1 as in the message
 
 
 def test_a_decode_stopped_before_a_corrupt_chunk_never_opens_it():
@@ -177,7 +177,7 @@ def test_a_decode_stopped_before_a_corrupt_chunk_never_opens_it():
     assert np.array_equal(last.mesh.positions, whole.mesh.positions)
     with pytest.raises(ChecksumError) as info:
         decode_stream(bad, chunks=3)
-    assert info.value.chunk == 2
+    assert info.value.chunk == 3 and str(info.value).startswith("chunk 3:")
     with pytest.raises(ChecksumError):
         decode_stream(bad)
     decoder = StreamDecoder(max_chunks=0)  # the base only: no chunk opened

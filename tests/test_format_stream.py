@@ -94,7 +94,7 @@ def test_a_flipped_bit_inside_a_chunk_raises_checksum_error_naming_it(data):
                 corrupt[bin_start + view["byteOffset"] + offset] ^= 1 << bit
                 with pytest.raises(ChecksumError) as info:
                     list(iter_events(bytes(corrupt)))
-                assert info.value.chunk == k
+                assert info.value.chunk == k + 1
                 assert f"chunk {k + 1}" in str(info.value)
 
 

@@ -105,15 +105,16 @@ export function frameLayout(frame, what) {
 }
 
 /**
- * Checks and decompresses chunk `index` of the stream (spec/bitstream.md §5, checks 2-4). A chunk
+ * Checks and decompresses chunk `index` (0-based) of the stream (spec/bitstream.md §5, checks 2-4). A chunk
  * of payload version 2 (§8) is stored as it is: digest, then `uncompressedLength` equal to its length.
  * @param {Uint8Array} stored the chunk's bufferView bytes
  * @param {{digest:string, uncompressedLength:number, payloadVersion?:number}} chunk its index entry
  * @returns {Uint8Array} the payload, exactly `uncompressedLength` bytes (version 2: `stored` itself)
  */
 export function openChunk(stored, chunk, index) {
-  const what = `chunk ${index + 1}`; // numbered from 1, as the Python reader does (0 is the base mesh)
-  if (!digestMatches(stored, chunk.digest)) throw new CorruptChunkError(`${what}: BLAKE2b digest differs`, index);
+  const number = index + 1; // numbered from 1, as the Python reader does (0 is the base mesh)
+  const what = `chunk ${number}`;
+  if (!digestMatches(stored, chunk.digest)) throw new CorruptChunkError(`${what}: BLAKE2b digest differs`, number);
   if (chunk.payloadVersion === 2) {
     if (chunk.uncompressedLength !== stored.length) {
       throw new FormatError(`${what}: uncompressedLength ${chunk.uncompressedLength} differs from byteLength ${stored.length} (payload version 2)`);

@@ -29,7 +29,10 @@ export class FormatError extends PmwError {}
 export class LimitError extends FormatError {}
 export class UnsupportedError extends FormatError {}
 export class CorruptChunkError extends PmwError {
-  /** @param {number|null} chunk stream index of the chunk (0-based); null for the base mesh */
+  /**
+   * @param {number|null} chunk the chunk's number in stream order, from 1 as in the message, the levels (level k is
+   *   reached by chunk k) and pmwm_codec's ChecksumError.chunk; null for the base mesh
+   */
   constructor(message, chunk) {
     super(message);
     this.chunk = chunk;

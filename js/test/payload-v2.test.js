@@ -92,7 +92,7 @@ test('a version 2 chunk is stored raw: a changed byte fails its digest, a chunk 
   const flipped = bytes.slice();
   flipped[h.binStart + chunks[1].c.offset + 2] ^= 0x10;
   const corrupt = await failure(flipped);
-  assert.ok(corrupt instanceof CorruptChunkError && corrupt.chunk === 1, String(corrupt));
+  assert.ok(corrupt instanceof CorruptChunkError && corrupt.chunk === 2, String(corrupt)); // chunks[1]: the second
   const lying = withPayload(bytes, 1, chunks[1].payload, { faceCounts: [] });
   const e = await failure(lying);
   assert.ok(e instanceof FormatError && /chunk table/.test(e.message), String(e));

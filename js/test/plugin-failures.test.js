@@ -72,7 +72,7 @@ for (const kind of ['ranges', 'plain']) {
     const events = [];
     const gltf = await loadProgressive(new GLTFLoader(), `${servers[kind].url}corrupt-last.pmw`, {
       onBase: (e) => events.push(`B${e.chunk}`), onChunk: (e) => events.push(e.chunk), onDone: () => events.push('D') });
-    await assert.rejects(gltf.userData.pmwm.done, (e) => e instanceof CorruptChunkError && e.chunk === K - 1);
+    await assert.rejects(gltf.userData.pmwm.done, (e) => e instanceof CorruptChunkError && e.chunk === K);
     assert.deepEqual(events, ['B0', ...Array.from({ length: K - 1 }, (_, i) => i + 1)]);
     const d = drawn(gltf);
     assert.equal(d.vertices, good.positions.length / 3);

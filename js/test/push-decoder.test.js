@@ -3,12 +3,15 @@
 // last good level, a throwing onLevel is not the decode's failure, the bytes are taken before feed()
 // returns, close() waits for the feeds before it, and a feed() after close() is a TypeError.
 import assert from 'node:assert/strict';
-import { readFileSync } from 'node:fs';
+import { spawnSync } from 'node:child_process';
+import { readFileSync, writeFileSync, mkdtempSync, rmSync } from 'node:fs';
+import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { test } from 'node:test';
 import { parseGlb, planDocument } from '../src/header.js';
 import { CorruptChunkError, decodePmw, FormatError, PmwDecoder } from '../src/index.js';
 import { CONFORMANCE, levelDigest } from './lib/helpers.js';
+import { python, TREE } from './lib/python.js';
 import { withJson } from './lib/rewrite.js';
 
 const NAME = 'sphere-attributes.plain.v1.pmw'; // plain base, attributes, payload version 1
@@ -32,7 +35,7 @@ test('a corrupt chunk after others in the same feed: feed resolves to every good
   const d = new PmwDecoder();
   const results = await d.feed(bad);
   assert.deepEqual(results.map((r) => r.chunk), [...Array(K).keys()], 'the base and every chunk before the bad one');
-  assert.ok(d.error instanceof CorruptChunkError && d.error.chunk === K - 1);
+  assert.ok(d.error instanceof CorruptChunkError && d.error.chunk === K);
   assert.equal(d.chunksApplied, K - 1);
   assert.equal(levelDigest(d.snapshot()), levelDigest(good), 'snapshot() is the last good level');
   await assert.rejects(d.feed(new Uint8Array(0)), (e) => e === d.error);
@@ -157,4 +160,32 @@ test('feed() after close() is a TypeError (misuse), not a FormatError', async ()
   const closing = e.close(); // refused from the call on, before the close settles
   await assert.rejects(e.feed(bytes), TypeError);
   await assert.rejects(closing, { name: 'TruncatedError' });
+});
+
+test('a corrupt chunk\'s CorruptChunkError.chunk is the number its message gives, one past the last level, as Python\'s', async () => {
+  const dir = mkdtempSync(join(tmpdir(), 'pmwm-chunk-number-'));
+  try {
+    for (const k of [0, 2, K - 1]) { // 0-based stream index of the chunk made corrupt
+      const levels = [];
+      const d = new PmwDecoder({ onLevel: (r) => levels.push(r.chunk) });
+      await d.feed(corruptChunk(k));
+      const { error } = d;
+      assert.ok(error instanceof CorruptChunkError, String(error));
+      assert.equal(error.chunk, Number(/^chunk (\d+):/.exec(error.message)?.[1]), error.message);
+      assert.equal(error.chunk, levels.at(-1) + 1, 'the chunk after the last level delivered');
+      if (python() === null) continue;
+      const file = join(dir, `corrupt-${k}.pmw`);
+      writeFileSync(file, corruptChunk(k));
+      const py = spawnSync(python(), ['-c', `import sys
+from pmwm_codec.errors import ChecksumError
+from pmwm_codec.stream.reader import decode_stream
+try:
+    decode_stream(open(sys.argv[1], "rb").read())
+except ChecksumError as e:
+    print(e.chunk)`, file], { env: { ...process.env, PYTHONPATH: TREE }, encoding: 'utf8' });
+      assert.equal(py.stdout.trim(), String(error.chunk), `pmwm_codec's ChecksumError.chunk ${py.stderr}`);
+    }
+  } finally {
+    rmSync(dir, { recursive: true, force: true });
+  }
 });

@@ -66,18 +66,18 @@ test('a file cut before its base mesh is complete is reported truncated with byt
 test('a chunk whose stored bytes change is corrupt, named, and neither it nor later chunks apply', async () => {
   const bytes = load(conformanceFiles()[0]).slice();
   const { out } = await levels(bytes, (b) => [b]);
-  bytes[out[1].bytesRead - 3] ^= 0x10; // inside chunk 0
+  bytes[out[1].bytesRead - 3] ^= 0x10; // inside the first chunk (chunk 1: level 1)
   const d = new PmwDecoder();
   // the base came in the same feed: it is delivered, and the error comes from the next call
   assert.deepEqual((await d.feed(bytes)).map((r) => r.chunk), [0]);
-  assert.ok(d.error instanceof CorruptChunkError && d.error.chunk === 0);
+  assert.ok(d.error instanceof CorruptChunkError && d.error.chunk === 1);
   assert.equal(d.chunksApplied, 0);
-  await assert.rejects(d.feed(new Uint8Array(0)), (e) => e instanceof CorruptChunkError && e.chunk === 0);
+  await assert.rejects(d.feed(new Uint8Array(0)), (e) => e instanceof CorruptChunkError && e.chunk === 1);
   await assert.rejects(d.close(), CorruptChunkError);
   // the base alone first: the feed that brings the bad chunk (and no good level) rejects at once
   const e = new PmwDecoder();
   assert.equal((await e.feed(bytes.subarray(0, out[0].bytesRead))).length, 1);
-  await assert.rejects(e.feed(bytes.subarray(out[0].bytesRead)), (x) => x instanceof CorruptChunkError && x.chunk === 0);
+  await assert.rejects(e.feed(bytes.subarray(out[0].bytesRead)), (x) => x instanceof CorruptChunkError && x.chunk === 1);
 });
 
 test('bytes beyond the GLB length are a format error', async () => {

@@ -24,7 +24,7 @@ complete, so the events do not depend on how the bytes were split into ``feed`` 
 Corruption is a named error, raised from ``feed`` (or, when the same ``feed`` call
 first completed other events, returned after them and raised by the next ``feed``
 or ``close`` call, so every good chunk before a bad one is delivered): a bad digest is ``ChecksumError``
-(``.chunk`` = index; None for a base mesh whose ``baseDigest`` differs); bad magic, JSON, layout or extension fields are ``FormatError``;
+(``.chunk`` = its number in stream order, from 1 as in the message; None for a base mesh whose ``baseDigest`` differs); bad magic, JSON, layout or extension fields are ``FormatError``;
 a newer extension ``version`` is ``UnsupportedVersionError``; declared sizes or counts
 over the limits of :mod:`pmwm_codec.constants` (and JSON nested deeper than ``MAX_JSON_DEPTH``) are ``LimitError``, checked before
 anything of that size is allocated or decompressed.  Bytes after the GLB header's ``length`` are a
@@ -551,10 +551,10 @@ def _check_base_digest(ext: dict, positions, faces, attributes, p: int, count: i
 
 
 def _open_chunk(k: int, stored: bytes, meta: dict, version: int = 1) -> bytes:
-    """Digest-check chunk ``k`` and return its raw payload: the zstd frame decompressed
+    """Digest-check chunk ``k`` (0-based stream index) and return its raw payload: the zstd frame decompressed
     (payload version 1, bitstream.md §5) or the stored range-coded stream itself (version 2, §8)."""
     if digest(stored, version) != meta["digest"]:
-        raise ChecksumError(f"chunk {k + 1}: digest mismatch, the stored bytes are corrupt", chunk=k)
+        raise ChecksumError(f"chunk {k + 1}: digest mismatch, the stored bytes are corrupt", chunk=k + 1)
     declared = meta["uncompressedLength"]
     if version == 2:
         if declared != len(stored):
