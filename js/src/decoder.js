@@ -22,24 +22,53 @@ const NORMALIZED = { NORMAL: 3, TANGENT: 3 };
 /** 1e-30 as float32: the least length a NORMAL/TANGENT is divided by. */
 const TINY = Math.fround(1e-30);
 
+/** `value` as an error message shows what the caller gave: a string in quotes ('2' as "2"), a number as it is (NaN, -1). */
+export function shown(value) {
+  if (typeof value === 'string') return JSON.stringify(value);
+  if (value === null || typeof value !== 'object') return String(value);
+  try {
+    return JSON.stringify(value) ?? String(value);
+  } catch {
+    return String(value);
+  }
+}
+
+/**
+ * The number of chunks `options` lets apply: its `maxChunks` or its `chunks` (PmwDecoder's and decodePmw's names,
+ * each accepted by both and by the three.js plugin: the same option), Infinity when neither is given. A RangeError
+ * naming the option the caller used unless it is a whole number >= 0 or Infinity, or when both are given and differ.
+ * @param {{maxChunks?: number, chunks?: number}} options
+ * @returns {number}
+ */
+export function chunkLimit(options) {
+  const { maxChunks, chunks } = options;
+  if (maxChunks !== undefined && chunks !== undefined && !Object.is(maxChunks, chunks)) {
+    throw new RangeError(`maxChunks ${shown(maxChunks)} and chunks ${shown(chunks)} differ: they are one option, give one`);
+  }
+  const name = maxChunks !== undefined ? 'maxChunks' : 'chunks';
+  const value = options[name] === undefined ? Infinity : options[name];
+  if (value !== Infinity && !(Number.isSafeInteger(value) && value >= 0)) {
+    throw new RangeError(`${name} must be a whole number >= 0 (or Infinity), not ${shown(value)}`);
+  }
+  return value;
+}
+
 export class PmwDecoder {
   /**
    * @param {{draco?: DracoDecoder, maxChunks?: number, snapshots?: boolean|'changed', onLevel?: Function,
    *   onCallbackError?: Function}} options
-   *   maxChunks: apply no chunk after this many; snapshots: attach `mesh` (see snapshot()) to every result;
+   *   maxChunks (or `chunks`, decodePmw's name: the same option, see chunkLimit): apply no chunk after this many; snapshots: attach `mesh` (see snapshot()) to every result;
    *   'changed': `mesh: {parts}` with parts[p] as snapshot()'s only for the primitive the level changed (the base:
    *   every one), null for the others (a copy of every part per level costs levels x mesh size on many primitives);
    *   onLevel(result, decoder): called as each level is reached, before the next chunk is applied;
    *   onCallbackError(error): given what onLevel throws (default: console.error); the decode goes on
    */
-  constructor({ draco, maxChunks = Infinity, snapshots = false, onLevel, onCallbackError } = {}) {
+  constructor(options = {}) {
+    const { draco, snapshots = false, onLevel, onCallbackError } = options;
     this.onLevel = onLevel;
     this.onCallbackError = onCallbackError;
     this.draco = draco;
-    if (maxChunks !== Infinity && !(Number.isSafeInteger(maxChunks) && maxChunks >= 0)) {
-      throw new RangeError(`maxChunks must be a whole number >= 0 (or Infinity), not ${maxChunks}`);
-    }
-    this.maxChunks = maxChunks;
+    this.maxChunks = chunkLimit(options);
     this.snapshots = snapshots;
     this.buf = new Uint8Array(0);
     this.received = 0;

@@ -17,7 +17,8 @@ export {
 /**
  * Decodes a whole (or cut) .pmw file.
  * @param {Uint8Array|ArrayBuffer|ArrayBufferView} bytes the file, or a prefix of it holding at least the base meshes
- * @param {{chunks?: number, draco?: object}} options chunks: apply at most this many chunks of the stream
+ * @param {{chunks?: number, maxChunks?: number, draco?: object}} options chunks (or maxChunks, PmwDecoder's name: the
+ *   same option): apply at most this many chunks of the stream
  * @returns {Promise<{positions: Float32Array, indices: Uint32Array, positionsInt: Int32Array, parts: object[],
  *   chunksApplied: number, chunkCount: number, complete: boolean, bytesRead: number}>}
  *   positions (3 per vertex), indices (3 per face) of every progressive primitive, concatenated; complete: the
@@ -26,8 +27,8 @@ export {
  *   the arrays of PmwDecoder.snapshot() (shared with parts[0] for one primitive; positionsInt a
  *   Float64Array only for a hostile stream whose values leave the int32 range)
  */
-export async function decodePmw(bytes, { chunks, draco } = {}) {
-  const decoder = new PmwDecoder({ draco, maxChunks: chunks ?? Infinity });
+export async function decodePmw(bytes, { chunks, maxChunks, draco } = {}) {
+  const decoder = new PmwDecoder({ draco, chunks, maxChunks });
   const results = await decoder.feed(bytes);
   const end = await decoder.close();
   const mesh = decoder.snapshot();

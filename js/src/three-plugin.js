@@ -33,7 +33,7 @@
  * worker starts (Node: no Worker global); the same levels, arrays and named errors either way (worker-decoder.js).
  */
 import { Box3, BufferAttribute, LoaderUtils, Sphere } from 'three';
-import { reportCallbackError } from './decoder.js';
+import { chunkLimit, reportCallbackError, shown } from './decoder.js';
 import { FetchError, FormatError, PmwError, StreamMismatchError, TruncatedError } from './errors.js';
 import { checkPreamble, glbHead, parseGlb, planDocument, preambleLength } from './header.js';
 import { createDecoder, threeName } from './worker-decoder.js';
@@ -131,8 +131,8 @@ export class ProgressiveRun {
     // aborts the request in flight on stop(); loadProgressive's own (its streamed GET's body) when it made one
     this.controller = options.controller ?? new AbortController();
     this.net = network(this.controller, options.stallTimeout);
-    checkStops(options);
-    const { maxChunks = Infinity, worker = 'auto', workerThreshold, workerUrl, signal } = options;
+    const maxChunks = checkStops(options);
+    const { worker = 'auto', workerThreshold, workerUrl, signal } = options;
     this.decoder = createDecoder({ bases: threeDracoBases(targets), maxChunks, worker, workerThreshold, workerUrl });
     if (signal?.aborted) this.stop();
     else if (signal) {
@@ -407,22 +407,27 @@ export const STALL_TIMEOUT_MS = 30000;
  */
 function network(controller, stallTimeout = STALL_TIMEOUT_MS) {
   if (typeof stallTimeout !== 'number' || !(stallTimeout >= 0)) {
-    throw new RangeError(`stallTimeout must be a number of milliseconds >= 0 (0: no limit), not ${stallTimeout}`);
+    throw new RangeError(`stallTimeout must be a number of milliseconds >= 0 (0: no limit), not ${shown(stallTimeout)}`);
   }
   return { signal: controller.signal, stallTimeout, abort: (reason) => controller.abort(reason) };
 }
 
 /**
- * RangeError unless the stops of `options` are what they say: `byteBudget` a number of bytes >= 0 and
- * `maxGeometricError` a number >= 0 (Infinity allowed, or absent), as `maxChunks` and `stallTimeout` are checked (a
- * budget of 'abc' made every later offset NaN, and the load showed the base as if stopped there).
+ * The chunk limit of `options` (chunkLimit: `maxChunks`, or `chunks`), once its stops are checked: a RangeError
+ * naming the first that is not what it says: the chunk limit a whole number >= 0, `byteBudget` a number of bytes
+ * >= 0 and `maxGeometricError` a number >= 0 (Infinity allowed, or absent). Called before anything is fetched (a
+ * budget of 'abc' made every later offset NaN, and the load showed the base as if stopped there; a maxChunks of -1
+ * was refused only by the decoder, after the requests for the base, and 1.5 crashed on a chunk index).
  */
-function checkStops({ byteBudget, maxGeometricError }) {
+function checkStops(options) {
+  const maxChunks = chunkLimit(options);
+  const { byteBudget, maxGeometricError } = options;
   for (const [name, value, unit] of [['byteBudget', byteBudget, 'a number of bytes'], ['maxGeometricError', maxGeometricError, 'a number']]) {
     if (value !== undefined && (typeof value !== 'number' || !(value >= 0))) {
-      throw new RangeError(`${name} must be ${unit} >= 0 (or Infinity), not ${value}`);
+      throw new RangeError(`${name} must be ${unit} >= 0 (or Infinity), not ${shown(value)}`);
     }
   }
+  return maxChunks;
 }
 
 /**
@@ -699,13 +704,13 @@ function baseEnd(header, plan) {
 
 /**
  * The number of chunks a load reads, from the stream's `plan` (planDocument) and the stops of `options`: at most
- * `maxChunks`; up to the first chunk at which every primitive is within `maxGeometricError` (a primitive without
+ * `maxChunks` (or `chunks`: chunkLimit); up to the first chunk at which every primitive is within `maxGeometricError` (a primitive without
  * chunks is as fine as this stream makes it: it never holds the stop back); those that end within `byteBudget`
  * bytes of the file (`binStart`: the file offset of the BIN data).
  */
 export function chunksWanted(plan, binStart, options) {
   const { stream } = plan;
-  let want = Math.min(stream.length, options.maxChunks ?? Infinity);
+  let want = Math.min(stream.length, chunkLimit(options));
   const target = options.maxGeometricError;
   if (target !== undefined) {
     const current = plan.primitives.map((p) => (p.chunks.length ? Infinity : 0));

@@ -307,6 +307,25 @@ test('byteBudget and maxGeometricError other than a number >= 0 are a RangeError
   }
 });
 
+test('a maxChunks (or chunks) other than a whole number >= 0 is one RangeError naming it before anything is fetched, by either way in', async () => {
+  const requests = [];
+  const fetch = (url, init) => { requests.push(url); return globalThis.fetch(url, init); };
+  const bad = [[{ maxChunks: -1 }, 'maxChunks', '-1'], [{ maxChunks: NaN }, 'maxChunks', 'NaN'], [{ maxChunks: '2' }, 'maxChunks', '"2"'],
+    [{ maxChunks: 1.5 }, 'maxChunks', '1.5'], [{ chunks: -1 }, 'chunks', '-1']];
+  for (const [stops, name, text] of bad) {
+    const error = { name: 'RangeError', message: `${name} must be a whole number >= 0 (or Infinity), not ${text}` };
+    await assert.rejects(loadProgressive(new GLTFLoader(), servers.ranges.url + NAME, { ...stops, fetch }), error);
+    const loader = new GLTFLoader();
+    loader.register((parser) => new PMWMProgressivePlugin(parser, { url: servers.ranges.url + NAME, ...stops, fetch }));
+    await assert.rejects(loader.parseAsync(baseGlb(bytes.subarray(0, baseEnd)).buffer, ''), error);
+  }
+  await assert.rejects(loadProgressive(new GLTFLoader(), servers.ranges.url + NAME, { maxChunks: 2, chunks: 3, fetch }),
+    { name: 'RangeError', message: /maxChunks 2 and chunks 3 differ/ });
+  assert.deepEqual(requests, []);
+  const gltf = await loadProgressive(new GLTFLoader(), servers.ranges.url + NAME, { chunks: 2 }); // decodePmw's name: the same stop
+  assert.equal((await gltf.userData.pmwm.done).chunksApplied, 2);
+});
+
 test('a callback that throws is reported (onCallbackError) and the load goes on to the full mesh', async () => {
   const full = await decodePmw(bytes);
   for (const kind of ['ranges', 'plain']) {

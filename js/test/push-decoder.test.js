@@ -189,3 +189,26 @@ except ChecksumError as e:
     rmSync(dir, { recursive: true, force: true });
   }
 });
+
+test('decodePmw and PmwDecoder take either name of the chunk limit, chunks or maxChunks; both given must agree', async () => {
+  for (const options of [{ chunks: 2 }, { maxChunks: 2 }, { chunks: 2, maxChunks: 2 }]) {
+    assert.equal((await decodePmw(bytes, options)).chunksApplied, 2, JSON.stringify(options));
+    const d = new PmwDecoder(options);
+    await d.feed(bytes);
+    assert.equal((await d.close()).chunksApplied, 2, JSON.stringify(options));
+  }
+  for (const options of [{ chunks: 2, maxChunks: 3 }, { chunks: 2, maxChunks: Infinity }]) {
+    await assert.rejects(decodePmw(bytes, options), { name: 'RangeError', message: /maxChunks .* and chunks 2 differ/ });
+    assert.throws(() => new PmwDecoder(options), { name: 'RangeError', message: /maxChunks .* and chunks 2 differ/ });
+  }
+});
+
+test('a bad chunk limit is refused naming the option the caller used and showing its value as given', async () => {
+  for (const name of ['chunks', 'maxChunks']) {
+    for (const [value, text] of [[-1, '-1'], [1.5, '1.5'], [NaN, 'NaN'], ['2', '"2"'], [null, 'null']]) {
+      const message = `${name} must be a whole number >= 0 (or Infinity), not ${text}`;
+      await assert.rejects(decodePmw(bytes, { [name]: value }), { name: 'RangeError', message });
+      assert.throws(() => new PmwDecoder({ [name]: value }), { name: 'RangeError', message });
+    }
+  }
+});
