@@ -239,9 +239,11 @@ def _check_ply_header(path, name) -> None:
         if words[:1] == ["element"] and len(words) == 3:
             element = words[1]
             count = int(words[2]) if words[2].isdigit() else -1
-            if count < 0 or count > limits.get(element, count):
-                raise InputFormatError(f"{name}: PLY declares {words[2]} {element} elements "
-                                       f"(the encoder takes 0..{limits.get(element, count):,})")
+            if count < 0:
+                raise InputFormatError(f"{name}: PLY declares {words[2]!r} {element} elements (not a count)")
+            if count > limits.get(element, count):
+                raise InputFormatError(f"{name}: PLY declares {count:,} {element} elements "
+                                       f"(the encoder takes at most {limits[element]:,})")
             declared[element] = count
         elif words[:2] == ["property", "list"] and element == "face" and len(words) == 5 and words[4] in FACE_LISTS:
             if words[2] not in _PLY_INTEGER_TYPES or words[3] not in _PLY_INTEGER_TYPES:

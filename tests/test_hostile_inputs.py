@@ -215,7 +215,7 @@ def test_ply_float_face_indices_are_refused(capsys, tmp_path, mesh):
 def test_ply_declaring_more_vertices_than_the_encoder_takes_is_refused(capsys, tmp_path, mesh):
     src = tmp_path / "m.ply"
     src.write_bytes(ply_bytes(mesh).replace(b"element vertex 42", f"element vertex {MAX_ENCODE_VERTICES + 1}".encode()))
-    assert_refused(*run_encode(capsys, tmp_path, src), f"{MAX_ENCODE_VERTICES + 1}")
+    assert_refused(*run_encode(capsys, tmp_path, src), f"{MAX_ENCODE_VERTICES + 1:,} vertex elements")
 
 
 @pytest.mark.parametrize("suffix, ascii_ply, hint", [(".obj", False, True), (".ply", True, True), (".ply", False, False)])

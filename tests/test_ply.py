@@ -218,3 +218,21 @@ def test_counting_an_ascii_ply_s_tokens_per_line_takes_less_than_an_int64_a_byte
         tracemalloc.stop()
     assert counts.tolist() == [len(line.split()) for line in lines]
     assert peak < 4 * len(body), (peak, len(body))
+
+
+def test_a_ply_declaring_more_vertices_than_the_encoder_takes_is_refused_with_readable_counts(tmp_path):
+    """The refusal printed the declared count as written, ``PLY declares 7814907 vertex elements (the encoder
+    takes 0..4,194,304)``: a heritage scan's 7.8M vertices without separators beside a limit with them (outside
+    probe of big inputs).  Both are written alike now, and a count that is no number is said to be none."""
+    from pmwm_codec.errors import InputFormatError
+    from pmwm_codec.mesh import read_mesh
+
+    path = tmp_path / "big.ply"
+    path.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 7814907\nproperty float x\n"
+                     b"property float y\nproperty float z\nelement face 0\nproperty list uchar int vertex_indices\n"
+                     b"end_header\n")
+    with pytest.raises(InputFormatError, match=r"declares 7,814,907 vertex elements \(the encoder takes at most 4,"):
+        read_mesh(path)
+    path.write_bytes(path.read_bytes().replace(b"vertex 7814907", b"vertex 12x"))
+    with pytest.raises(InputFormatError, match=r"declares '12x' vertex elements \(not a count\)"):
+        read_mesh(path)
