@@ -333,9 +333,9 @@ def iter_decode(src: Source, key: KeyLike = None, watermark: WatermarkImage = No
 
     reference = None
     if watermark is not None:
+        reference, _, _ = _as_watermark(watermark)  # an image that cannot be read is named first
         if key is None:  # the partial image is read with the key alone: without one it would go unused in silence
             raise OptionError("iter_decode: watermark needs a key (the watermark is read with the key; give key=)")
-        reference, _, _ = _as_watermark(watermark)
     decoder = StreamDecoder(load_key(key), reference)
     source = as_source(src)
     return iter_results(source if isinstance(source, UrlSource) else checked_source(source), decoder)
