@@ -182,13 +182,14 @@ def run_owner(args) -> int:
     return EXIT_OK if o.verdict == "present" else EXIT_NOT_AUTHENTIC
 
 
-def _blind_owner(args, key=None) -> tuple:
-    """``(mesh, key, owner)``: the owner layer of the mesh file ``args.input`` read blind with ``args.key`` (an
-    :class:`~pmwm_codec.verify.owner.OwnerView`, the key, an :class:`~pmwm_codec.watermark.owner.OwnerRead`)."""
+def _blind_owner(args, key=None, scene=None) -> tuple:
+    """``(mesh, key, owner)``: the owner layer of the mesh file ``args.input`` read blind with ``args.key`` (the
+    :class:`~pmwm_codec.mesh.Mesh` read, the key, an :class:`~pmwm_codec.watermark.owner.OwnerResult`); ``key``,
+    ``scene``: the key and the file's :func:`~pmwm_codec.mesh.read_mesh` mesh when already loaded."""
     from pmwm_codec.verify.owner import owner_key, owner_of_mesh, owner_view
 
     with naming(args.input):
-        mesh = owner_view(args.input)
+        mesh = owner_view(args.input, scene)
     with naming(args.key):
         key = owner_key(args.key) if key is None else key
         return mesh, key, owner_of_mesh(mesh, key)
@@ -197,6 +198,7 @@ def _blind_owner(args, key=None) -> tuple:
 def run_reference(args) -> int:
     """``pmw verify MESH --reference ORIGINAL.pmw --key KEY``: one verdict for a mesh file."""
     from pmwm_codec.verify.mesh import verify_mesh  # registration (scipy): loaded only for this form
+    from pmwm_codec.watermark.key import as_key
 
     if args.input == "-":  # read_mesh takes a file, whose suffix names its format
         raise UsageError("-: verify MESH --reference reads the mesh from a file (its suffix names its format), "
@@ -206,9 +208,11 @@ def run_reference(args) -> int:
     _check_common(args)
     with naming(args.input):
         mesh = pmwm_codec.read_mesh(args.input)
+    with naming(args.key):
+        key = as_key(args.key)  # read once: the image's check and the owner layer's
     with naming(args.reference):
-        v = verify_mesh(mesh, args.reference, args.key, args.watermark)
-    owner = _reference_owner(args)
+        v = verify_mesh(mesh, args.reference, key, args.watermark)
+    owner = None if key.owner_id is None else _blind_owner(args, key, mesh)[1:]
     if args.frames is not None:
         from pmwm_codec.figures import TAMPER_NAME, remove_stale, tamper_figure, write_pictures
         from pmwm_codec.watermark.image import gray_image
@@ -239,20 +243,6 @@ def run_reference(args) -> int:
         print(f"verdict: {v.verdict}" + _tamper_note(v.tamper(), v.binding)
               + ("" if v.key_matches else " (the reference is marked with another key: its key fingerprint differs)"))
     return EXIT_OK if v.verdict == "authentic" else EXIT_NOT_AUTHENTIC
-
-
-def _reference_owner(args) -> tuple | None:
-    """``(key, owner read)``: the checked mesh's owner layer, read blind as ``pmw verify MESH --key KEY`` reads it
-    (the exact layer is fragile by design; this one says whose the mesh is after what broke that), or None when
-    the key names no owner ID.  It does not change the verdict, which is the image's."""
-    from pmwm_codec.watermark.key import as_key
-
-    with naming(args.key):
-        key = as_key(args.key)
-    if key.owner_id is None:
-        return None
-    _, key, o = _blind_owner(args, key)
-    return key, o
 
 
 def report(o: StreamVerification, pictures=None) -> str:

@@ -180,8 +180,10 @@ def _copies(a: tuple, b: tuple) -> bool:
     return a[0] == b[0] and a[1] == b[1] and bool(np.allclose(a[2], b[2], rtol=0, atol=1e-5))
 
 
-def owner_view(path) -> Mesh:
-    """The mesh the owner layer of the mesh file at ``path`` is read from (see the module contract).
+def owner_view(path, scene: Mesh | None = None) -> Mesh:
+    """The mesh the owner layer of the mesh file at ``path`` is read from (see the module contract); ``scene``:
+    what :func:`~pmwm_codec.mesh.read_mesh` made of ``path`` already, taken where the view is that mesh (not read
+    again).
 
     A glTF/GLB whose view is the scene is read as :func:`~pmwm_codec.mesh.read_mesh` reads it (every
     triangle primitive placed by its nodes); one whose view is the stored meshes takes each primitive
@@ -192,13 +194,13 @@ def owner_view(path) -> Mesh:
 
     gltf = sniff_json(path) if is_asset_path(path) else None
     if gltf is None or is_progressive(gltf) or owner_placements(gltf, _triangle_meshes(gltf))[1]:
-        return read_mesh(path)
+        return read_mesh(path) if scene is None else scene
     name = os.path.basename(os.fspath(path))
     document, buffers = load_document(path)
     jobs = plan_asset(document, buffers, name)[0]
     frames, in_scene = owner_placements(document, [job.mesh_index for job in jobs])
     if in_scene:  # a mesh of triangles that are all degenerate was shown twice: the scene after all
-        return read_mesh(path)
+        return read_mesh(path) if scene is None else scene
     positions, faces, _ = scene_mesh([job.mesh.positions for job in jobs], [job.mesh.faces for job in jobs], frames)
     return checked_mesh(positions, faces, name=name)
 
