@@ -11,6 +11,7 @@ import pickle
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -23,6 +24,7 @@ from pmwm_codec.meshio import write_mesh
 pytest.importorskip("distributed")
 
 from pmwm_codec.batch import LEDGER_NAME, read_ledger  # noqa: E402
+from pmwm_codec.batch import child as child_module  # noqa: E402
 from pmwm_codec.batch import tasks  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -134,30 +136,66 @@ def test_the_interpreter_form_of_the_encoder_prints_nothing_but_its_result(tmp_p
     assert tasks._died(3, "MemoryError") == "encoder process died (exit status 3): MemoryError"
 
 
-def test_an_encoder_whose_worker_is_gone_stops_and_removes_what_it_was_writing(tmp_path):
-    """The interpreter form's parent ends mid-encode: the encoder stops within its grace time, silently."""
+def _orphaned_encoder(tmp_path, parent_script: str, fault: str | None = None) -> None:
+    """Run ``parent_script`` (it starts the interpreter form of the encoder on a 10k-vertex marked encode, hands
+    it the job from its own standard input, prints the encoder's pid and ends; the encoder shares its standard
+    output and error); wait until the encoder is gone.
+    ``fault``: the encoder's ``PMWM_FAULT``."""
     write_mesh(tmp_path / "big.obj", shapes.icosphere(5, noise=0.01))
     payload = {"src": str(tmp_path / "big.obj"), "dst": str(tmp_path / "big.obj.pmw"),
                "watermark": np.full((8, 8), 255, np.uint8), "key": None, "options": {}}
-    # a parent that starts the encoder, hands it the job and ends at once
-    parent = ("import os, subprocess, sys\n"
-              f"p = subprocess.Popen([sys.executable, '-c', {tasks._CHILD_MAIN!r}], stdin=subprocess.PIPE)\n"
-              "p.stdin.write(sys.stdin.buffer.read()); p.stdin.close()\n"
-              "print(p.pid, flush=True)\n"
-              "import time; time.sleep(1.0); os._exit(0)\n")
-    done = subprocess.run([sys.executable, "-c", parent], input=pickle.dumps(payload), capture_output=True,
-                          env=tasks._child_env(), timeout=120)
-    child = int(done.stdout.split()[0])
-    deadline = time.monotonic() + 20
-    while time.monotonic() < deadline:
-        try:
-            os.kill(child, 0)
-        except ProcessLookupError:
-            break
-        time.sleep(0.1)
-    else:
+    env = tasks._child_env()
+    if fault is not None:
+        env["PMWM_FAULT"] = fault
+    with tempfile.TemporaryFile() as job:
+        job.write(pickle.dumps(payload))
+        job.seek(0)
+        parent = subprocess.Popen([sys.executable, "-c", parent_script], stdin=job, stdout=subprocess.PIPE,
+                                  stderr=subprocess.PIPE, env=env)
+    child = int(parent.stdout.readline())
+    assert parent.wait(timeout=120) == 0
+    if fault is not None:
+        # held by the fault point; it goes on with its parent gone once its watch's next look is due, so that the
+        # look comes a GIL switch interval after it goes on, well before the rest of the encode has run
+        time.sleep(2 * child_module.PARENT_POLL)
+        os.kill(child, signal.SIGCONT)
+    try:  # the pipes close when the encoder, which shares them, has ended too
+        out, err = parent.communicate(timeout=20)
+    except subprocess.TimeoutExpired:
+        os.kill(child, signal.SIGKILL)
         pytest.fail("the encoder outlived its parent by 20 s")
-    assert done.stderr == b""
+    assert (out, err) == (b"", b""), err  # not a word: no result, no traceback
+
+
+def test_an_encoder_whose_worker_is_gone_stops_and_removes_what_it_was_writing(tmp_path):
+    """The interpreter form's parent ends mid-encode: the encoder stops within its grace time, silently, and
+    leaves nothing.  The moment is made certain: the encoder stops itself (SIGSTOP) at the ``measured`` fault
+    point, after the simplification and the watermark and before its files are written; its parent ends once it
+    sees it stopped, and the test continues it.  (Its parent used to sleep a second instead: an encode faster
+    than that published its pair, CI on 8c00ab1.)"""
+    parent = ("import os, pickle, subprocess, sys\n"
+              f"p = subprocess.Popen([sys.executable, '-c', {tasks._CHILD_MAIN!r}], stdin=subprocess.PIPE)\n"
+              "job = pickle.loads(sys.stdin.buffer.read())\n"
+              "p.stdin.write(pickle.dumps(dict(job, parent=os.getpid()))); p.stdin.close()\n"
+              "_, status = os.waitpid(p.pid, os.WUNTRACED)\n"
+              "assert os.WIFSTOPPED(status), status\n"
+              "print(p.pid, flush=True)\n"
+              "os._exit(0)\n")
+    _orphaned_encoder(tmp_path, parent, fault="measured:STOP")
+    assert sorted(os.listdir(tmp_path)) == ["big.obj"]
+
+
+def test_an_encoder_whose_worker_ended_before_its_watch_began_stops_too(tmp_path):
+    """The encoder's watch took its parent at the moment it began: a worker that had ended before (it hands the
+    job over and can die at once) left an encoder that ran to the end and published an output no ledger names.
+    The job now names the worker's pid."""
+    parent = ("import os, pickle, subprocess, sys\n"
+              f"p = subprocess.Popen([sys.executable, '-c', {tasks._CHILD_MAIN!r}], stdin=subprocess.PIPE)\n"
+              "job = pickle.loads(sys.stdin.buffer.read())\n"
+              "p.stdin.write(pickle.dumps(dict(job, parent=os.getpid()))); p.stdin.close()\n"
+              "print(p.pid, flush=True)\n"
+              "os._exit(0)\n")
+    _orphaned_encoder(tmp_path, parent)
     assert sorted(os.listdir(tmp_path)) == ["big.obj"]
 
 

@@ -8,7 +8,8 @@ closes when the worker ends, however); the interpreter form watches its parent p
 pickled job dict on standard input
 (``src``, ``dst``, ``watermark`` ((s, s) uint8 array or None), ``key`` (WatermarkKey,
 key path or None), ``options`` (the :func:`pmwm_codec.encode` options), ``restore_sigint``
-(:func:`_signals`) — trusted: written by our own task), one JSON object on standard output::
+(:func:`_signals`), ``parent`` (the interpreter form: the pid of the process that started it) — trusted:
+written by our own task), one JSON object on standard output::
 
     {"status": "ok", "bytes": 10724, "vertices": 800, "key_path": "...", "error": null}
     {"status": "failed", "error": "<one line>", ...}
@@ -63,6 +64,8 @@ class Stopped(BaseException):
 #: Seconds an encoder has to stop once its worker is gone, before it exits without cleaning up (a native call
 #: that does not return); the next run removes what such an exit leaves (:func:`~.tasks._remove_leftovers`).
 GRACE = 5.0
+#: Seconds between two looks of the interpreter form at its parent (:func:`_wait_reparented`).
+PARENT_POLL = 0.25
 _state = {"reporting": False}
 
 
@@ -128,16 +131,17 @@ def _wait_pipe_closed(lifeline):
     return wait
 
 
-def _wait_reparented():
-    """Wait until this process's parent changes (the worker that ran it ended)."""
+def _wait_reparented(parent: int | None = None):
+    """Wait until this process's parent is no longer ``parent`` (the pid of the worker that ran it, given in the
+    job: a worker that ended before this watch started is seen too; this process's parent now when None)."""
     import os
     import time
 
-    parent = os.getppid()
+    parent = os.getppid() if parent is None else parent
 
     def wait():
         while os.getppid() == parent:
-            time.sleep(0.25)
+            time.sleep(PARENT_POLL)
     return wait
 
 
@@ -182,7 +186,7 @@ def main() -> int:
     job = pickle.loads(sys.stdin.buffer.read())
     try:  # (as :func:`child_main`: a stop while the watch starts is a stop)
         _signals(job.get("restore_sigint", True))
-        _watch(_wait_reparented())
+        _watch(_wait_reparented(job.get("parent")))
         result = _encode(job)
         sys.stdout.write(json.dumps(result) + "\n")
         sys.stdout.flush()

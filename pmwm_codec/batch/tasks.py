@@ -314,7 +314,7 @@ def _run_interpreter(payload: dict, timeout, stopped=lambda: False) -> dict:
     # about it was the last line of every such child's stderr, taken for the reason it died
     proc = subprocess.Popen([sys.executable, "-c", _CHILD_MAIN], stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_child_env())
-    given = pickle.dumps(payload)
+    given = pickle.dumps(dict(payload, parent=os.getpid()))  # a worker gone before the encoder's watch starts
     for wait in _waits(timeout, stopped):
         if wait == "timeout":
             proc.kill()
