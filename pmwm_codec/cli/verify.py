@@ -229,7 +229,9 @@ def run_reference(args) -> int:
     if args.json:
         print_json({**v.as_json(), "owner": None if owner is None else owner[1].as_json()})
     elif not args.quiet:
-        print(f"{args.input}: {v.vertices:,} vertices matched to the reference by {v.correspondence} "
+        whom = "the reference" if v.level is None else \
+            f"the reference's level after {v.level:,} of {v.chunks_total:,} chunks"
+        print(f"{args.input}: {v.vertices:,} vertices matched to {whom} by {v.correspondence} "
               f"({100 * v.coverage:.1f}% of its vertices); {v.carriers_read:,} of {v.carriers_total:,} codes read")
         print(f"NC {fmt_float(v.nc, 4)}  PSNR {fmt_float(v.psnr_db, 2)} dB  BER {fmt_float(v.ber, 4)}"
               + ("  (bit-exact)" if v.bit_exact and not v.image_note else ""))

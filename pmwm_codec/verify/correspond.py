@@ -50,6 +50,7 @@ from ..progressive.topology import mean_edge_length, same_face_set
 __all__ = [
     "Correspondence",
     "correspond",
+    "exact_correspondence",
     "match_topology",
     "register",
     "umeyama",
@@ -399,6 +400,25 @@ def register(positions, ref_positions, *, unit: float, faces=None, ref_faces=Non
 # ---------------------------------------------------------------------- entry
 
 
+def exact_correspondence(positions, faces, ref_positions, ref_faces) -> Correspondence | None:
+    """:func:`correspond`'s topological methods alone (``identity``, ``faces-reordered``, ``permutation``):
+    the bijection they find, or None when the mesh is not the reference's connectivity (arguments as there)."""
+    pos = np.asarray(positions, np.float64)
+    fac = np.asarray(faces, np.int64)
+    ref = np.asarray(ref_positions, np.float64)
+    rfac = np.asarray(ref_faces, np.int64)
+    n_ref = len(ref)
+    if len(pos) != n_ref or fac.shape != rfac.shape:
+        return None
+    ident = np.arange(n_ref, dtype=np.int64)
+    if np.array_equal(fac, rfac):
+        return Correspondence("identity", ident, np.ones(n_ref, bool))
+    if same_face_set(fac, rfac) or same_face_set(fac[:, ::-1], rfac):
+        return Correspondence("faces-reordered", ident, np.ones(n_ref, bool))
+    vmap = _permutation(pos, fac, ref, rfac)
+    return None if vmap is None else Correspondence("permutation", vmap, np.ones(n_ref, bool))
+
+
 def correspond(positions, faces, ref_positions, ref_faces, *, tolerance: float = 0.5,
                topology: bool = True) -> Correspondence:
     """Map every reference vertex to a mesh vertex (see the module docstring).
@@ -415,16 +435,10 @@ def correspond(positions, faces, ref_positions, ref_faces, *, tolerance: float =
     fac = np.asarray(faces, np.int64)
     ref = np.asarray(ref_positions, np.float64)
     rfac = np.asarray(ref_faces, np.int64)
-    n_ref = len(ref)
-    if topology and len(pos) == n_ref and fac.shape == rfac.shape:
-        ident = np.arange(n_ref, dtype=np.int64)
-        if np.array_equal(fac, rfac):
-            return Correspondence("identity", ident, np.ones(n_ref, bool))
-        if same_face_set(fac, rfac) or same_face_set(fac[:, ::-1], rfac):
-            return Correspondence("faces-reordered", ident, np.ones(n_ref, bool))
-        vmap = _permutation(pos, fac, ref, rfac)
-        if vmap is not None:
-            return Correspondence("permutation", vmap, np.ones(n_ref, bool))
+    if topology:
+        exact = exact_correspondence(pos, fac, ref, rfac)
+        if exact is not None:
+            return exact
     unit = mean_edge_length(ref, rfac) or 1.0
     s, R, t, _ = register(pos, ref, unit=unit, faces=fac, ref_faces=rfac)
     moved = s * pos @ R.T + t

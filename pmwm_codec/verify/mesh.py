@@ -19,7 +19,10 @@ progressive primitive placed by its nodes' world matrices, once per showing, as 
 GLB is flattened and as ``pmw decode`` writes OBJ / PLY / STL; the primitives concatenated
 in stream order, as stored, when the scene shows each once where it is stored or its
 placements do not read) is the target of :func:`.correspond.correspond` (exact topological
-match first, similarity registration + nearest neighbours otherwise).  A placed mesh is
+match first, similarity registration + nearest neighbours otherwise).  A mesh with fewer vertices
+that is exactly, by topology, the decode after fewer chunks (a level a decoder shows, exported) is
+checked against that level instead, its codes those of the chunks up to it, as ``verify`` reads the
+``cut`` file of that level (``level`` in the result).  A placed mesh is
 taken back into each primitive's stored coordinates (the similarity that best maps the
 scene onto the mesh undone, then each showing's matrix; a vertex shown several times is
 read from its first showing that has a counterpart), so that a scene placed by any
@@ -51,7 +54,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import FormatError, InputFormatError, MeshError, WatermarkKeyError
-from ..format import EndEvent, HeaderEvent, iter_events
+from ..format import BaseEvent, ChunkEvent, EndEvent, HeaderEvent, iter_events
 from ..format.extension import EXTENSION_NAME
 from ..format.gltf import placed_by_nodes, progressive_placements, scene_mesh
 from ..format.mac import SCENE_MAC, MacChecker, Scene
@@ -62,7 +65,7 @@ from ..stream.replay import Replay
 from ..watermark import codec as wm
 from ..watermark.key import as_key
 from ..watermark.verify import Verifier, image_note
-from .correspond import Correspondence, correspond, umeyama
+from .correspond import Correspondence, correspond, exact_correspondence, umeyama
 
 __all__ = ["MeshVerification", "verify_mesh"]
 
@@ -98,7 +101,10 @@ class MeshVerification:
     reference file (:meth:`Reference.authenticate`): a reference whose base, chunks or scene fail them is
     not the key holder's file, so nothing checked against it is ``authentic``; ``image_note`` the line
     saying that a bit-exact ``watermark`` beside another verdict than ``authentic`` is no match the verdict
-    makes (:func:`~pmwm_codec.watermark.verify.image_note`), else None.
+    makes (:func:`~pmwm_codec.watermark.verify.image_note`), else None; ``level`` the number of chunks of the
+    reference's stream the mesh was found to be the decode after (a level short of the whole stream, which
+    ``reference_vertices``, ``coverage`` and the codes are then that level's), None for the whole stream;
+    ``chunks_total`` the stream's chunks.
     """
 
     verdict: str
@@ -125,6 +131,8 @@ class MeshVerification:
     binding: str = ""
     reference_mac: dict | None = None
     image_note: str | None = None
+    level: int | None = None
+    chunks_total: int = 0
 
     def tamper(self) -> dict:
         """``{"flagged": [mesh vertex ids whose carrier code no longer reads], "fraction": of the mesh's vertices}``."""
@@ -147,6 +155,7 @@ class MeshVerification:
             "reference_vertices": self.reference_vertices, "key_matches": self.key_matches,
             "tamper": self.tamper(), "foreign": self.foreign, "binding": self.binding or None,
             "reference_mac": self.reference_mac, "image_note": self.image_note,
+            "level": None if self.level is None else {"chunks": self.level, "chunks_total": self.chunks_total},
         }
 
     def reference_note(self) -> str | None:
@@ -187,7 +196,9 @@ class Reference:
     ``scene_positions`` (N, 3) / ``scene_faces`` (M, 3) the mesh a check is matched against
     (:func:`~pmwm_codec.format.gltf.scene_mesh` of the parts, or ``positions`` / ``faces``);
     ``spans`` per primitive the ``(start, stop)`` rows of its showings in it; ``part_faces`` per
-    primitive its full-resolution faces (m_p, 3) int64 in its own vertex ids.
+    primitive its full-resolution faces (m_p, 3) int64 in its own vertex ids.  ``chunks``: None for the full
+    decode; a level of the stream otherwise (:meth:`at_level`): the decode after that many chunks, whose
+    ``parts``, ``positions``, ``faces`` and scene are that level's (its codes are read by replaying those chunks).
     """
 
     events: list
@@ -201,6 +212,7 @@ class Reference:
     spans: list | None = None
     part_faces: list | None = None
     data: bytes = b""
+    chunks: int | None = None
 
     def __post_init__(self):
         #: (P + 1,) int64: where each primitive's rows start in ``positions``.
@@ -320,7 +332,12 @@ class Reference:
         end = events[-1]
         if isinstance(end, EndEvent) and not end.complete:
             raise FormatError("the reference file is cut short: verify against the complete original")
-        replay = Replay()
+        return cls._replayed(events, wm.WatermarkParams.from_config(cfg), bytes(data))
+
+    @classmethod
+    def _replayed(cls, events: list, params: wm.WatermarkParams, data: bytes, chunks: int | None = None) -> "Reference":
+        """The reference decoded from its ``events`` (after ``chunks`` chunks; all when None)."""
+        replay = Replay(max_chunks=chunks)
         for event in events:
             replay.on_event(event)
         parts, faces = [], []
@@ -330,12 +347,54 @@ class Reference:
             faces.append(np.array(fac))
         starts = np.cumsum([0] + [len(pos) for pos, _ in parts])
         positions = np.concatenate([pos for pos, _ in parts])
+        header = events[0]
         placements = None
         if placed_by_nodes(header.gltf_json):
             placements = progressive_placements(header.gltf_json, EXTENSION_NAME)[0]
-        return cls(events, wm.WatermarkParams.from_config(cfg), parts, positions,
-                   np.concatenate([f + a for f, a in zip(faces, starts)]), placements, part_faces=faces,
-                   data=bytes(data))
+        return cls(events, params, parts, positions, np.concatenate([f + a for f, a in zip(faces, starts)]),
+                   placements, part_faces=faces, data=data, chunks=chunks)
+
+    @property
+    def chunks_total(self) -> int:
+        """The number of chunks of the stream (every primitive's)."""
+        return int(self.events[0].chunk_count)
+
+    def level_counts(self) -> list:
+        """``[(chunks, vertices, faces)]``: the scene's vertex and face counts (every showing of a primitive
+        counted) after each number of chunks short of the whole stream, the base meshes first (0), from the
+        chunk index alone."""
+        header = self.events[0]
+        exts = header.extensions or (header.extension,)
+        showings = np.array([len(spans) for spans in self.spans], np.int64)
+        counts = np.zeros((len(exts), 2), np.int64)
+        out = []
+        for event in self.events:
+            if isinstance(event, BaseEvent):
+                counts[event.primitive] = len(event.positions_int), len(event.faces)
+            elif isinstance(event, ChunkEvent):
+                if event.index == 0:
+                    out.append((0, *map(int, showings @ counts)))
+                meta = exts[event.primitive]["chunks"][event.chunk]
+                counts[event.primitive] = meta["vertexCount"], meta["faceCount"]
+                if event.index + 1 < self.chunks_total:
+                    out.append((event.index + 1, *map(int, showings @ counts)))
+        return out
+
+    def at_level(self, chunks: int) -> "Reference":
+        """This reference as its stream stands after ``chunks`` chunks (a level a decoder shows)."""
+        return self._replayed(self.events, self.params, self.data, chunks)
+
+    def given(self, positions: np.ndarray) -> list:
+        """(n, 3) positions in this reference's order -> one (N_p, 3) array per primitive of its full vertex
+        count (the rows past this level's vertices NaN), as :class:`~pmwm_codec.stream.replay.Replay` takes them."""
+        header = self.events[0]
+        exts = header.extensions or (header.extension,)
+        out = []
+        for part, ext in zip(self.split(positions), exts):
+            full = np.full((int(ext["vertexCount"]), 3), np.nan)
+            full[: len(part)] = part
+            out.append(full)
+        return out
 
     def authenticate(self, key) -> dict:
         """The key holder's MACs over this file, as ``pmw verify FILE.pmw`` checks them (bitstream.md §6.3):
@@ -374,8 +433,11 @@ def verify_mesh(mesh, reference_source, key, watermark=None, *, tolerance: float
         ref_image, _ = load_watermark(watermark)
         key.check_reference(ref_image, watermark)  # before the correspondence search
 
-    corr = correspondence or correspond(m.positions, m.faces, ref.scene_positions, ref.scene_faces,
-                                        tolerance=tolerance)
+    corr = correspondence
+    if corr is None:
+        ref, corr = _level_of(m, ref)
+    if corr is None:
+        corr = correspond(m.positions, m.faces, ref.scene_positions, ref.scene_faces, tolerance=tolerance)
     pts = np.full((len(ref.scene_positions), 3), np.nan)
     pts[corr.valid] = np.asarray(m.positions, np.float64)[corr.index[corr.valid]]
     order = ref.showing_order(pts)
@@ -405,7 +467,26 @@ def verify_mesh(mesh, reference_source, key, watermark=None, *, tolerance: float
         vertices=m.vertex_count, faces=m.face_count, reference_vertices=len(ref.scene_positions),
         coefficients=est.coefficients, seconds=time.perf_counter() - t0, watermark=est.watermark,
         bit_exact=est.bit_exact, flagged=flagged, foreign=bool(verifier.foreign), binding=ref.params.binding,
+        level=ref.chunks, chunks_total=ref.chunks_total,
     )
+
+
+def _level_of(mesh: Mesh, ref: Reference) -> tuple:
+    """``(reference, correspondence)``: ``ref`` at the level of its stream that ``mesh`` is (a decode after fewer
+    chunks, exported: ``pmw decode --chunks N``, a viewer's level) with the correspondence found, or ``(ref,
+    None)``.  A level is taken only when the mesh has its vertex count and matches it exactly, by topology (up to
+    order, a similarity and float32 storage); a level of the mesh's face count is tried first.  Anything else is
+    checked against the whole stream, as before."""
+    n, m = mesh.vertex_count, mesh.face_count
+    if n >= len(ref.scene_positions):
+        return ref, None
+    levels = [(faces != m, chunks) for chunks, vertices, faces in ref.level_counts() if vertices == n]
+    for _, chunks in sorted(levels):
+        level = ref.at_level(chunks)
+        corr = exact_correspondence(mesh.positions, mesh.faces, level.scene_positions, level.scene_faces)
+        if corr is not None:
+            return level, corr
+    return ref, None
 
 
 def _robust_similarity(points: np.ndarray, target: np.ndarray, ok: np.ndarray, rounds: int = 4) -> np.ndarray:
@@ -502,7 +583,7 @@ def read_given(ref: Reference, positions: np.ndarray, key, reference_image=None,
     if reference_image is None:
         reference_image = key.reference
     verifier = Verifier(ref.params, key, None, reference_image)
-    replay = Replay(ref.split(np.asarray(positions, np.float64)), nbars=nbars)
+    replay = Replay(ref.given(np.asarray(positions, np.float64)), nbars=nbars, max_chunks=ref.chunks)
     for event in ref.events:
         for carriers in replay.on_event(event):
             verifier.add_carriers(carriers)
