@@ -36,9 +36,9 @@ no counterpart stay unread.  The scores and the verdict are the stream
 verifier's (:class:`~pmwm_codec.watermark.verify.Verifier`); vertices of the mesh that
 no reference vertex explains (a graft), and faces that differ from the reference's among the
 vertices it has where the reference has them (rewired, added or removed; compared as sets of
-corners, so winding and order are free), make it ``tampered``; the carriers whose
-code no longer reads, a graft's vertices and a changed face's corners are the mesh's vertices
-``tamper`` names.
+corners, so winding and order are free), and vertices that are not where the reference has them
+(:func:`_moved_rows`), make it ``tampered``; the carriers whose code no longer reads, a graft's
+vertices, a changed face's corners and the moved vertices are the mesh's vertices ``tamper`` names.
 
 ``MeshVerification.as_json()`` is the ``pmw verify MESH --reference ... --json``
 object.
@@ -199,6 +199,9 @@ class Reference:
     primitive its full-resolution faces (m_p, 3) int64 in its own vertex ids.  ``chunks``: None for the full
     decode; a level of the stream otherwise (:meth:`at_level`): the decode after that many chunks, whose
     ``parts``, ``positions``, ``faces`` and scene are that level's (its codes are read by replaying those chunks).
+    ``bins``: per primitive the length one step of its codes stands for in its stored coordinates (its reference
+    length over its ``scale``: a move smaller than half of it may leave a code as it was, by design), NaN for a
+    primitive without a watermark.
     """
 
     events: list
@@ -213,6 +216,7 @@ class Reference:
     part_faces: list | None = None
     data: bytes = b""
     chunks: int | None = None
+    bins: list | None = None
 
     def __post_init__(self):
         #: (P + 1,) int64: where each primitive's rows start in ``positions``.
@@ -351,8 +355,32 @@ class Reference:
         placements = None
         if placed_by_nodes(header.gltf_json):
             placements = progressive_placements(header.gltf_json, EXTENSION_NAME)[0]
+        bins = [nbar / ext["watermark"]["scale"] * grid.step if "watermark" in ext else float("nan")
+                for nbar, ext, grid in zip(replay.nbars, replay.exts, replay.grids)]  # nbar: in grid units
         return cls(events, params, parts, positions, np.concatenate([f + a for f, a in zip(faces, starts)]),
-                   placements, part_faces=faces, data=data, chunks=chunks)
+                   placements, part_faces=faces, data=data, chunks=chunks, bins=bins)
+
+    def scene_bins(self) -> np.ndarray:
+        """(N,) float64: per row of ``scene_positions``, its primitive's code step (``bins``) as its showing
+        scales it (the largest stretch of the showing's matrix), 0 for a primitive without a watermark."""
+        out = np.zeros(len(self.scene_positions))
+        for p, spans in enumerate(self.spans):
+            size = self.bins[p] if np.isfinite(self.bins[p]) else 0.0
+            stretch = [1.0] * len(spans) if self.placements is None else \
+                [float(np.linalg.norm(matrix[:3, :3], 2)) for matrix in self.placements[p]]
+            for (a, b), factor in zip(spans, stretch):
+                out[a:b] = size * factor
+        return out
+
+    @property
+    def unit(self) -> float:
+        """The scene's mean edge length (1.0 for a scene whose edges all have none): the length the tolerances
+        of a check are in."""
+        if not hasattr(self, "_unit"):
+            from ..progressive.topology import mean_edge_length
+
+            self._unit = mean_edge_length(self.scene_positions, self.scene_faces) or 1.0
+        return self._unit
 
     @property
     def chunks_total(self) -> int:
@@ -441,6 +469,7 @@ def verify_mesh(mesh, reference_source, key, watermark=None, *, tolerance: float
     pts = np.full((len(ref.scene_positions), 3), np.nan)
     pts[corr.valid] = np.asarray(m.positions, np.float64)[corr.index[corr.valid]]
     order = ref.showing_order(pts)
+    moved = _moved_rows(pts[order], ref)
     pts, apart = ref.stored(pts[order])
     pts = _float32_storage_undone(pts, ref.positions)
     index = corr.index[order]
@@ -448,9 +477,9 @@ def verify_mesh(mesh, reference_source, key, watermark=None, *, tolerance: float
     verifier = read_given(ref, pts, key, ref_image, nbars=nbars)
     grafted = _foreign_vertices(m, ref, corr, tolerance)
     refaced = _changed_faces(m, ref, corr)
-    verifier.foreign = len(grafted) > 0 or len(apart) > 0 or len(refaced) > 0
+    verifier.foreign = len(grafted) > 0 or len(apart) > 0 or len(refaced) > 0 or len(moved) > 0
     est = verifier.estimate()
-    flagged = index[np.concatenate([ref.scene_rows(verifier.tamper(ref.starts)), apart])]
+    flagged = index[np.concatenate([ref.scene_rows(verifier.tamper(ref.starts)), apart, moved])]
     flagged = np.unique(np.concatenate([flagged[flagged >= 0], grafted, refaced]))  # a graft's, a changed face's too
     owns = key.owns(ref.params.fingerprint)
     macs = ref.authenticate(key) if owns else None
@@ -458,7 +487,8 @@ def verify_mesh(mesh, reference_source, key, watermark=None, *, tolerance: float
     verdict = est.verdict if owns and written else "not-authentic"
     why = ([] if written else ["the reference is not the key holder's file as written"]) + \
         (["vertices the reference does not explain"] if len(grafted) or len(apart) else []) + \
-        (["faces the reference does not have"] if len(refaced) else [])
+        (["faces the reference does not have"] if len(refaced) else []) + \
+        (["vertices moved from where the reference has them"] if len(moved) else [])
     return MeshVerification(
         image_note=image_note(verdict, est.bit_exact, est.inconsistent, "; ".join(why)),
         verdict=verdict, key_matches=owns, reference_mac=macs, nc=est.nc, psnr_db=est.psnr_db, centered_nc=est.centered_nc, ber=est.ber,
@@ -489,15 +519,17 @@ def _level_of(mesh: Mesh, ref: Reference) -> tuple:
     return ref, None
 
 
-def _robust_similarity(points: np.ndarray, target: np.ndarray, ok: np.ndarray, rounds: int = 4) -> np.ndarray:
+def _robust_similarity(points: np.ndarray, target: np.ndarray, ok: np.ndarray, rounds: int = 4, *,
+                       reflection: bool = False) -> np.ndarray:
     """``points`` (N, 3) moved by the similarity that best maps its rows ``ok`` (N,) bool onto the same rows of
     ``target`` (N, 3), refitted on the pairs within 3x the median residual (at least 1e-9 of the target's size):
     the untouched vertices of an edited mesh fix it to rounding, which a showing's matrix, undone after it,
-    would otherwise spread over its primitive (a non-uniform matrix turns a small similarity into a distortion)."""
+    would otherwise spread over its primitive (a non-uniform matrix turns a small similarity into a distortion).
+    ``reflection``: fit a mirrored similarity (det R = -1) instead."""
     use = ok.copy()
     floor = 1e-9 * float(np.ptp(target[ok], axis=0).max()) if ok.any() else 0.0
     for _ in range(rounds):
-        s, R, t = umeyama(points[use], target[use])
+        s, R, t = umeyama(points[use], target[use], reflection=reflection)
         moved = s * points @ R.T + t
         residual = np.linalg.norm(moved[ok] - target[ok], axis=1)
         keep = ok.copy()
@@ -506,6 +538,33 @@ def _robust_similarity(points: np.ndarray, target: np.ndarray, ok: np.ndarray, r
             break
         use = keep
     return moved
+
+
+def _moved_rows(points: np.ndarray, ref: Reference) -> np.ndarray:
+    """The rows (k,) int64 of ``points`` (N, 3), the mesh's vertices in the order of ``ref.scene_positions`` (NaN:
+    no counterpart), that lie farther from their counterpart than :data:`FACE_PAIR_TOLERANCE` reference mean edges,
+    than float32 storage moves them (8 units in the last place of the largest coordinate) and than half a step of
+    their codes (:meth:`Reference.scene_bins`: what the mark is made to tolerate, e.g. a Draco transport with a
+    coarse ``step_units``), once the similarity that best maps the mesh onto the reference is undone.  The codes
+    are read from positions, and a code of one bit reads the same after a larger move with even odds (a vertex
+    moved by half an edge read ``authentic`` in about one check of five): a vertex the check has a counterpart
+    for must be where the reference has it."""
+    ok = np.isfinite(points).all(axis=1)
+    if np.count_nonzero(ok) < 3:
+        return np.zeros(0, np.int64)
+    target = ref.scene_positions
+
+    def fit(reflection: bool) -> tuple:
+        moved = _robust_similarity(points, target, ok, reflection=reflection)
+        return float(np.median(np.linalg.norm(moved[ok] - target[ok], axis=1))), moved
+
+    fitted = min(fit(False), fit(True), key=lambda f: f[0])[1]  # a mirrored copy's codes read as they were
+    spread = float(np.linalg.norm(points[ok] - points[ok].mean(axis=0), axis=1).mean())
+    scale = float(np.linalg.norm(fitted[ok] - fitted[ok].mean(axis=0), axis=1).mean()) / spread if spread > 0 else 1.0
+    rounding = 8 * 2.0**-24 * max(float(np.abs(points[ok]).max()) * scale, float(np.abs(target).max()))
+    gap = np.linalg.norm(fitted - target, axis=1)
+    allowed = np.maximum(max(FACE_PAIR_TOLERANCE * ref.unit, rounding), 0.5 * ref.scene_bins())
+    return np.flatnonzero(ok & (gap > allowed)).astype(np.int64)
 
 
 def _float32_storage_undone(points: np.ndarray, stored: np.ndarray) -> np.ndarray:
@@ -528,11 +587,8 @@ def _foreign_vertices(mesh: Mesh, ref: Reference, corr: Correspondence, toleranc
         return np.zeros(0, np.int64)
     from scipy.spatial import cKDTree
 
-    from ..progressive.topology import mean_edge_length
-
-    unit = tolerance * mean_edge_length(ref.scene_positions, ref.scene_faces)
     dist, _ = cKDTree(ref.scene_positions).query(corr.transform(np.asarray(mesh.positions, np.float64)))
-    return np.flatnonzero(dist > unit).astype(np.int64)
+    return np.flatnonzero(dist > tolerance * ref.unit).astype(np.int64)
 
 
 def _changed_faces(mesh: Mesh, ref: Reference, corr: Correspondence) -> np.ndarray:
@@ -551,10 +607,7 @@ def _changed_faces(mesh: Mesh, ref: Reference, corr: Correspondence) -> np.ndarr
         return np.zeros(0, np.int64)
     paired = corr.valid.copy()
     if corr.distance is not None:
-        from ..progressive.topology import mean_edge_length
-
-        unit = mean_edge_length(ref.scene_positions, ref.scene_faces) or 1.0
-        paired &= corr.distance <= FACE_PAIR_TOLERANCE * unit
+        paired &= corr.distance <= FACE_PAIR_TOLERANCE * ref.unit
     corner = np.unique(np.asarray(mesh.positions, np.float64), axis=0, return_inverse=True)[1].ravel()
     seen = np.zeros(len(corner), bool)
     seen[corr.index[paired]] = True
