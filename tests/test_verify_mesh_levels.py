@@ -22,15 +22,18 @@ from test_verify_mesh_assets import _encode_decode_flatten, _mark, _moved_and_re
 from test_asset import two_mesh_asset
 
 
+def marked_sphere(folder) -> tuple:
+    """``(path of a marked .pmw of a 2,562-vertex sphere written in ``folder``, its key)``."""
+    src = folder / "sphere.obj"
+    pmwm_codec.write_mesh(src, shapes.icosphere(4, noise=0.02, seed=2))
+    dst = folder / "sphere.pmw"
+    pmwm_codec.encode(src, dst, watermark=_mark(), measure="none")
+    return dst, pmwm_codec.load_key(folder / "sphere.pmw.key.json")
+
+
 @pytest.fixture(scope="module")
 def marked(tmp_path_factory):
-    """``(path of a marked .pmw of a 2,562-vertex sphere, its key)``."""
-    tmp = tmp_path_factory.mktemp("levels")
-    src = tmp / "sphere.obj"
-    pmwm_codec.write_mesh(src, shapes.icosphere(4, noise=0.02, seed=2))
-    dst = tmp / "sphere.pmw"
-    pmwm_codec.encode(src, dst, watermark=_mark(), measure="none")
-    return dst, pmwm_codec.load_key(tmp / "sphere.pmw.key.json")
+    return marked_sphere(tmp_path_factory.mktemp("levels"))
 
 
 def _levels(path) -> list:

@@ -13,21 +13,17 @@ import numpy as np
 import pytest
 
 import pmwm_codec
-from pmwm_codec import shapes
 from pmwm_codec.verify import verify_mesh
 
-from test_verify_mesh_assets import _mark, _moved_and_reordered
+from test_verify_mesh_assets import _moved_and_reordered
+from test_verify_mesh_levels import marked_sphere
 
 
 @pytest.fixture(scope="module")
 def marked(tmp_path_factory):
     """``(path of a marked .pmw of a 2,562-vertex sphere, its key, its full decode)``."""
-    tmp = tmp_path_factory.mktemp("moved")
-    src = tmp / "sphere.obj"
-    pmwm_codec.write_mesh(src, shapes.icosphere(4, noise=0.02, seed=2))
-    dst = tmp / "sphere.pmw"
-    pmwm_codec.encode(src, dst, watermark=_mark(), measure="none")
-    return dst, pmwm_codec.load_key(tmp / "sphere.pmw.key.json"), pmwm_codec.decode(dst)
+    pmw, key = marked_sphere(tmp_path_factory.mktemp("moved"))
+    return pmw, key, pmwm_codec.decode(pmw)
 
 
 def _mean_edge(positions, faces) -> float:
