@@ -124,9 +124,11 @@ def test_reading_a_file_while_it_is_being_written(tmp_path, marked):
     def writer():
         with open(path, "ab") as fh:
             for i in range(0, len(data), 701):
+                # counted before the write: the reader can see the bytes the moment they are written, before this
+                # thread runs again (counted after, a reader that had caught up failed whenever it was preempted there)
+                written[0] = min(len(data), i + 701)
                 fh.write(data[i: i + 701])
                 fh.flush()
-                written[0] = min(len(data), i + 701)
                 time.sleep(0.002)
         done.set()
 
