@@ -204,21 +204,29 @@ def test_a_command_run_in_process_arms_no_helper(monkeypatch, tmp_path):
 
 
 def test_the_command_waits_for_a_kernel_the_helper_is_compiling():
+    """Told by the order of events, not by a clock: the save of ``m.k`` is held until the command's wait for another
+    kernel has returned, so that wait cannot have waited for it; the wait for ``m.k`` must then see it saved.  (The
+    test timed it from after the saving thread had started, whose 0.2 s sleep had then already begun: under load the
+    wait ended 0.2 s after the sleep began and less than 0.2 s after the clock was read, 8 runs in 300.)"""
     helper = object.__new__(compile_ahead.Helper)
     helper.busy, helper.alive, helper.cond = {"m.k": 1}, True, threading.Condition()
+    other_done = threading.Event()
 
     def saved():
-        time.sleep(0.2)
+        other_done.wait(10)  # (a wait_for("m.other") that waited for m.k ends when m.k is saved, after 10 s)
+        time.sleep(0.2)  # the command has begun its wait for m.k (a wait_for that does not wait ends meanwhile)
         with helper.cond:
             helper.busy["m.k"] -= 1
             helper.cond.notify_all()
 
-    threading.Thread(target=saved).start()
-    t0 = time.monotonic()
+    saver = threading.Thread(target=saved)
+    saver.start()
     helper.wait_for("m.other")  # not the helper's: no wait
-    assert time.monotonic() - t0 < 0.1
+    assert helper.busy["m.k"] == 1  # returned while m.k was still being compiled
+    other_done.set()
     helper.wait_for("m.k")
-    assert time.monotonic() - t0 >= 0.2
+    assert helper.busy["m.k"] == 0  # returned once m.k was saved, not before
+    saver.join()
     helper.busy["m.k"] = 1
     helper.alive = False  # the helper ended (saved or not): nothing to wait for
     helper.wait_for("m.k")
