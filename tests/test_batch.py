@@ -28,6 +28,7 @@ from pmwm_codec.cli import main  # noqa: E402
 from pmwm_codec.verify import verify_stream  # noqa: E402
 
 from test_batch_scheduler import dask_cluster  # noqa: E402
+from test_batch_signals import _left_after  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 GOOD = {
@@ -217,9 +218,7 @@ def test_ctrl_c_halfway_is_one_line_and_exit_130_and_leaves_no_process_behind(li
             proc.wait()
     assert proc.returncode == 130, err
     assert "Traceback" not in err and err.strip().splitlines()[-1] == "pmw: error: interrupted", err
-    time.sleep(1)
-    ps = subprocess.run(["ps", "-o", "pid=,stat=,args=", "-g", str(proc.pid)], capture_output=True, text=True).stdout
-    left = [line for line in ps.splitlines() if not line.split()[1].startswith("Z")]  # zombies have ended
+    left = _left_after(proc.pid)  # (the run's own session: its process group)
     assert not left, left  # no worker, forkserver or encoder outlives the run
     assert not list(out.rglob("*.tmp"))
 

@@ -63,6 +63,15 @@ def _left(session: int) -> list:
     return [line for line in ps.splitlines() if not line.split()[1].startswith("Z")]
 
 
+def _left_after(session: int, seconds: float = 10) -> list:
+    """What :func:`_left` gives once the processes of ``session`` have ended, or after ``seconds``: a process has
+    closed its pipes (so :func:`_finish` returned) a moment before it ends; that moment is waited for, not slept on."""
+    deadline = time.monotonic() + seconds
+    while (left := _left(session)) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    return left
+
+
 def _finish(proc, seconds=120):
     """Stdout and stderr to their end: until every process holding them (orphaned encoders too) has ended."""
     try:
@@ -87,8 +96,7 @@ def test_sigterm_of_the_batch_stops_it_like_ctrl_c_in_one_line_with_exit_143_and
     os.kill(proc.pid, signal.SIGTERM)  # the command alone, as timeout, systemd or docker stop send it
     _, err = _finish(proc)
     assert proc.returncode == 143 and err == "pmw: error: terminated\n", (proc.returncode, err)
-    time.sleep(1)
-    assert not _left(proc.pid)
+    assert not _left_after(proc.pid)
     _consistent(out)
 
 
@@ -102,8 +110,7 @@ def test_kill_9_of_the_batch_ends_its_encoders_at_once_without_a_word(library, t
     assert proc.returncode == -9
     assert err == "", err  # no BrokenPipeError traceback of an encoder, no resource-tracker warning
     assert time.monotonic() - start < 30
-    time.sleep(1)
-    assert not _left(proc.pid)
+    assert not _left_after(proc.pid)
     _consistent(out)
 
 
