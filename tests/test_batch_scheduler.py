@@ -12,6 +12,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -64,10 +65,13 @@ def silent_port():
     server.close()
 
 
-def _free_port() -> int:
+@contextlib.contextmanager
+def _refusing_port():
+    """A port of the loopback bound but not listening, so nothing else can take it meanwhile: a connection to it is
+    refused.  (A free port found by binding and closing could be taken by another process before it was used.)"""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+        yield s.getsockname()[1]
 
 
 @pytest.mark.parametrize("address, words", [
@@ -94,10 +98,11 @@ def test_a_malformed_scheduler_address_is_bad_usage_and_leaves_no_output_folder_
 
 def test_an_unreachable_scheduler_leaves_no_new_collection_key_and_no_output_folder(lib, capsys, monkeypatch):
     monkeypatch.setattr(run, "CONNECT_TIMEOUT", 1.0)
-    address = f"tcp://127.0.0.1:{_free_port()}"
     out, key = lib / "out", lib / "c.key.json"
-    assert main(["batch", "encode", str(lib / "lib"), "-o", str(out), "--watermark", str(lib / "wm.png"),
-                 "--key", str(key), "--scheduler", address]) == 2
+    with _refusing_port() as port:
+        address = f"tcp://127.0.0.1:{port}"
+        assert main(["batch", "encode", str(lib / "lib"), "-o", str(out), "--watermark", str(lib / "wm.png"),
+                     "--key", str(key), "--scheduler", address]) == 2
     _one_line(capsys, address, "cannot reach the Dask scheduler")
     assert not out.exists() and not key.exists()
 
@@ -128,29 +133,43 @@ def test_check_scheduler_bounds_the_handshake_wait(silent_port, monkeypatch):
 
 @contextlib.contextmanager
 def dask_cluster(workers: int = 1):
-    """A ``dask scheduler`` on a free port of the loopback and ``workers`` ``dask worker`` processes (one thread each),
-    every one a session of its own: ``(address, procs)``, procs[0] the scheduler; all ended after."""
+    """A ``dask scheduler`` on a port of the loopback it binds itself and ``workers`` ``dask worker`` processes (one
+    thread each), every one a session of its own: ``(address, procs)``, procs[0] the scheduler; all ended after."""
     dask = shutil.which("dask", path=os.path.dirname(sys.executable)) or shutil.which("dask")
     if dask is None:
         pytest.skip("the dask command is not installed")
-    port = _free_port()
-    address = f"tcp://127.0.0.1:{port}"
-    procs = [_session([dask, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"])]
-    try:
-        for _ in range(workers):
-            procs.append(start_worker(address))
-        wait_for_workers(address, workers)
-        yield address, procs
-    finally:
-        for proc in reversed(procs):
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(proc.pid, signal.SIGTERM)
-        for proc in reversed(procs):
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
+    with tempfile.TemporaryDirectory() as tmp:  # the scheduler names the port it took in a file there
+        info = os.path.join(tmp, "scheduler.json")
+        procs = [_session([dask, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                           "--scheduler-file", info])]
+        try:
+            address = _scheduler_address(procs[0], info)
+            for _ in range(workers):
+                procs.append(start_worker(address))
+            wait_for_workers(address, workers)
+            yield address, procs
+        finally:
+            for proc in reversed(procs):
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(proc.pid, signal.SIGTERM)
+            for proc in reversed(procs):
+                try:
+                    proc.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    os.killpg(proc.pid, signal.SIGKILL)
+                    proc.wait()
+
+
+def _scheduler_address(scheduler, info: str, seconds: float = 120) -> str:
+    """The address the ``dask scheduler`` process ``scheduler`` wrote to its ``--scheduler-file`` ``info`` (written
+    once it listens; read whole: the file is written in place)."""
+    deadline = time.monotonic() + seconds
+    while scheduler.poll() is None and time.monotonic() < deadline:
+        with contextlib.suppress(OSError, ValueError):
+            with open(info) as f:
+                return json.load(f)["address"]
+        time.sleep(0.05)
+    raise AssertionError(f"the dask scheduler wrote no address in {seconds:g} s (exit status {scheduler.poll()})")
 
 
 def _session(argv):
