@@ -204,8 +204,11 @@ def test_ctrl_c_halfway_is_one_line_and_exit_130_and_leaves_no_process_behind(li
     out = tmp_path / "out"
     argv = [sys.executable, "-m", "pmwm_codec", "batch", "encode", str(src), "-o", str(out),
             "--watermark", str(root / "wm.png"), "--workers", "1", "-q"]
+    # started with SIGINT at its default, as a terminal's command is: a suite run as a background job (``cmd &``,
+    # nohup) has it ignored, and the run rightly kept it ignored: it went on to its end (exit 1, not a word)
     proc = subprocess.Popen(argv, env=dict(os.environ, PYTHONPATH=str(ROOT)), start_new_session=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         deadline = time.monotonic() + 240
         while len(read_ledger(out / LEDGER_NAME)) < 2 and proc.poll() is None and time.monotonic() < deadline:
