@@ -469,7 +469,7 @@ def verify_mesh(mesh, reference_source, key, watermark=None, *, tolerance: float
     pts = np.full((len(ref.scene_positions), 3), np.nan)
     pts[corr.valid] = np.asarray(m.positions, np.float64)[corr.index[corr.valid]]
     order = ref.showing_order(pts)
-    moved = _moved_rows(pts[order], ref)
+    moved = _moved_rows(pts[order], ref, mutual=corr.method == "registration")
     pts, apart = ref.stored(pts[order])
     pts = _float32_storage_undone(pts, ref.positions)
     index = corr.index[order]
@@ -496,7 +496,7 @@ def verify_mesh(mesh, reference_source, key, watermark=None, *, tolerance: float
         correspondence=corr.method, coverage=corr.coverage, registration_rms=corr.rms,
         vertices=m.vertex_count, faces=m.face_count, reference_vertices=len(ref.scene_positions),
         coefficients=est.coefficients, seconds=time.perf_counter() - t0, watermark=est.watermark,
-        bit_exact=est.bit_exact, flagged=flagged, foreign=bool(verifier.foreign), binding=ref.params.binding,
+        bit_exact=est.bit_exact, flagged=flagged, foreign=bool(len(grafted) or len(apart)), binding=ref.params.binding,
         level=ref.chunks, chunks_total=ref.chunks_total,
     )
 
@@ -540,7 +540,7 @@ def _robust_similarity(points: np.ndarray, target: np.ndarray, ok: np.ndarray, r
     return moved
 
 
-def _moved_rows(points: np.ndarray, ref: Reference) -> np.ndarray:
+def _moved_rows(points: np.ndarray, ref: Reference, *, mutual: bool = False) -> np.ndarray:
     """The rows (k,) int64 of ``points`` (N, 3), the mesh's vertices in the order of ``ref.scene_positions`` (NaN:
     no counterpart), that lie farther from their counterpart than :data:`FACE_PAIR_TOLERANCE` reference mean edges,
     than float32 storage moves them (8 units in the last place of the largest coordinate) and than half a step of
@@ -548,7 +548,9 @@ def _moved_rows(points: np.ndarray, ref: Reference) -> np.ndarray:
     coarse ``step_units``), once the similarity that best maps the mesh onto the reference is undone.  The codes
     are read from positions, and a code of one bit reads the same after a larger move with even odds (a vertex
     moved by half an edge read ``authentic`` in about one check of five): a vertex the check has a counterpart
-    for must be where the reference has it."""
+    for must be where the reference has it.  ``mutual`` (a registration's pairs, nearest neighbours within half
+    an edge): only rows whose mesh vertex has them as its nearest reference vertex are judged (at a crop's edge a
+    reference vertex that is gone pairs with a kept neighbour, which is where its own counterpart has it)."""
     ok = np.isfinite(points).all(axis=1)
     if np.count_nonzero(ok) < 3:
         return np.zeros(0, np.int64)
@@ -564,7 +566,13 @@ def _moved_rows(points: np.ndarray, ref: Reference) -> np.ndarray:
     rounding = 8 * 2.0**-24 * max(float(np.abs(points[ok]).max()) * scale, float(np.abs(target).max()))
     gap = np.linalg.norm(fitted - target, axis=1)
     allowed = np.maximum(max(FACE_PAIR_TOLERANCE * ref.unit, rounding), 0.5 * ref.scene_bins())
-    return np.flatnonzero(ok & (gap > allowed)).astype(np.int64)
+    far = ok & (gap > allowed)
+    if mutual and far.any():
+        from scipy.spatial import cKDTree
+
+        rows = np.flatnonzero(far)
+        far[rows] = cKDTree(target).query(fitted[rows])[1] == rows
+    return np.flatnonzero(far).astype(np.int64)
 
 
 def _float32_storage_undone(points: np.ndarray, stored: np.ndarray) -> np.ndarray:
