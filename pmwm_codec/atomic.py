@@ -338,15 +338,34 @@ def signals_deferred():
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    caught = []
-    old = {sig: signal.signal(sig, lambda signum, frame: caught.append(signum)) for sig in _DEFERRED_SIGNALS}
-    try:
+    caught, old, state = [], {}, {"holding": True}
+
+    def record(signum, frame):
+        if state["holding"]:
+            caught.append(signum)
+        else:  # the block has ended and this recorder is still installed (a signal stopped the restore): the
+            _forward(old[signum], signum, frame)  # signal's own handler takes it
+
+    try:  # a signal that comes between two swaps (its handler raising) leaves no recorder behind
+        for sig in _DEFERRED_SIGNALS:
+            old[sig] = signal.getsignal(sig)  # first: a handler may raise the moment the swap returns
+            signal.signal(sig, record)
         yield
     finally:
+        state["holding"] = False
         for sig, handler in old.items():
             signal.signal(sig, signal.SIG_DFL if handler is None else handler)
         for sig in dict.fromkeys(caught):
             os.kill(os.getpid(), sig)
+
+
+def _forward(handler, signum: int, frame) -> None:
+    """Deliver signal ``signum`` as ``handler`` (what :func:`signal.signal` returned for it) would have."""
+    if callable(handler):
+        handler(signum, frame)
+    elif handler != signal.SIG_IGN:  # the default action (None: a handler not installed from Python)
+        signal.signal(signum, signal.SIG_DFL)
+        os.kill(os.getpid(), signum)
 
 
 def fault_point(name: str) -> None:
