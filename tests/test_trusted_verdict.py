@@ -293,6 +293,9 @@ LOSSLESS = {
     "all three": attacks.chain(attacks.similarity, attacks.reorder, attacks.float32),
     "winding flipped": lambda V, F, rng: (V, F[:, ::-1]),  # as a mirroring exporter writes them: not compared
     "winding flipped, re-ordered": lambda V, F, rng: attacks.reorder(V, F[:, ::-1], rng),
+    # unwelded, every corner its own vertex (a triangle soup): the correspondence names one copy of each vertex,
+    # the faces on the others were left out of the comparison and every reference face read missing (tampered)
+    "unwelded": lambda V, F, rng: (V[F].reshape(-1, 3), np.arange(F.size).reshape(-1, 3)),
 }
 
 

@@ -617,11 +617,11 @@ def _changed_faces(mesh: Mesh, ref: Reference, corr: Correspondence) -> np.ndarr
     if corr.distance is not None:
         paired &= corr.distance <= FACE_PAIR_TOLERANCE * ref.unit
     corner = np.unique(np.asarray(mesh.positions, np.float64), axis=0, return_inverse=True)[1].ravel()
-    seen = np.zeros(len(corner), bool)
-    seen[corr.index[paired]] = True
+    seen = np.zeros(len(corner), bool)  # by corner: a vertex that coincides with a paired one (an unwelded
+    seen[corner[corr.index[paired]]] = True  # copy, the correspondence names one of them) is where the reference has it
     rf = np.asarray(ref.scene_faces, np.int64)
     ours = corr.index[rf[paired[rf].all(axis=1)]]  # (k, 3) mesh vertices of the reference faces compared
-    faces = faces[seen[faces].all(axis=1)]
+    faces = faces[seen[corner[faces]].all(axis=1)]
 
     def keys(f: np.ndarray) -> tuple:
         c = np.sort(corner[f], axis=1)
