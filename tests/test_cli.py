@@ -511,6 +511,18 @@ def test_demo_that_cannot_write_its_files_leaves_the_users_watermark_png_untouch
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()} == before
 
 
+@pytest.mark.parametrize("signal_name, status", [("TERM", 143), ("INT", 130)])
+def test_demo_stopped_before_it_wrote_a_file_leaves_no_folder_it_made(tmp_path, signal_name, status):
+    """``pmw demo --out new/dir`` stopped (SIGTERM, Ctrl-C) while it encodes left ``new/dir``, empty, behind: the
+    folders it made for nothing are removed as ``verify --frames`` removes its own (the stop made certain by the
+    encoder's ``measured`` fault point)."""
+    done = subprocess.run([sys.executable, "-m", "pmwm_codec.cli", "demo", "--out", str(tmp_path / "new" / "dir")],
+                          capture_output=True, text=True, timeout=300,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT), PMWM_FAULT=f"measured:{signal_name}"))
+    assert done.returncode == status and done.stderr.count("\n") == 1, done.stderr
+    assert os.listdir(tmp_path) == []
+
+
 @pytest.mark.parametrize("out", ["", "  "])
 def test_demo_with_an_empty_out_names_the_option_in_one_line(tmp_path, capsys, monkeypatch, out):
     """``--out ''`` (an unset variable in ``--out $DIR``) said only "pmw: error: No such file or directory"."""

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import time
 
 import pmwm_codec
 from pmwm_codec.atomic import write_atomic
-from pmwm_codec.figures import write_figures
+from pmwm_codec.figures import _missing_directories, write_figures
 from pmwm_codec.shapes import demo_mesh
 from pmwm_codec.verify import verify_stream
 from pmwm_codec.watermark import make_text_watermark, save_png
@@ -43,7 +44,19 @@ def run(args) -> int:
             if os.path.lexists(os.path.join(out, sub)) and not os.path.isdir(os.path.join(out, sub)):
                 raise UsageError(f"{os.path.join(out, sub)}: exists and is not a directory (the demo writes its "
                                  "pictures there)")
+    made = _missing_directories(out)
     os.makedirs(out, exist_ok=True)
+    try:
+        return _run(args, out, mark_path, pmw, cut)
+    except BaseException:  # a failure, a Ctrl-C or a SIGTERM: the folders made for nothing are not left behind
+        for folder in made:  # deepest first; one the demo already wrote a file in stays, with its whole files
+            with contextlib.suppress(OSError):
+                os.rmdir(folder)
+        raise
+
+
+def _run(args, out: str, mark_path: str, pmw: str, cut: str) -> int:
+    """The demo's steps, writing into the folder ``out`` (made): ``mark_path``, ``pmw``, ``cut`` and the pictures."""
     t0 = time.perf_counter()
     say = print
     mesh = demo_mesh(args.resolution)
