@@ -282,6 +282,17 @@ def test_a_face_removed_is_tampered_and_its_corners_flagged(marked):
     assert r.tamper()["flagged"] == sorted(ref.faces[7].tolist())
 
 
+@pytest.mark.parametrize("winding", [1, -1], ids=["as-is", "reversed"])
+def test_a_face_added_twice_is_tampered_and_its_corners_flagged(marked, winding):
+    """Faces were compared as sets: a copy of a face the reference has (a double-sided patch, either winding) read
+    ``authentic`` (helper-150)."""
+    data, key, _img, ref = marked
+    faces = np.concatenate([ref.faces, ref.faces[7:8, ::winding]])
+    r = verify_mesh((ref.positions, faces), data, key)
+    assert r.verdict == "tampered", r.as_json()
+    assert r.tamper()["flagged"] == sorted(ref.faces[7].tolist())
+
+
 # ------------------------------------------------------------------- what must stay authentic
 
 

@@ -607,7 +607,8 @@ def _changed_faces(mesh: Mesh, ref: Reference, corr: Correspondence) -> np.ndarr
     within :data:`FACE_PAIR_TOLERANCE` reference mean edges; a moved vertex is the codes' to judge): a face of
     the mesh whose corners are all such vertices and onto which no reference face maps, and the corners of a
     reference face whose corners all have such counterparts but which the mesh lacks.  Faces are compared as
-    sets of corners, each corner by its position in the mesh (coincident vertices, a seam's or a weld's, are one
+    sets of corners (counted: a face the mesh has more often than the reference is added), each corner by its
+    position in the mesh (coincident vertices, a seam's or a weld's, are one
     corner; winding and face order are not compared); a face two of whose corners coincide there is left out on
     both sides (an exporter drops those)."""
     faces = np.asarray(mesh.faces, np.int64).reshape(-1, 3)
@@ -630,7 +631,12 @@ def _changed_faces(mesh: Mesh, ref: Reference, corr: Correspondence) -> np.ndarr
 
     mine, faces = keys(faces)
     want, ours = keys(ours)
-    extra, missing = faces[~np.isin(mine, want)], ours[~np.isin(want, mine)]
+    # counted, not only matched: a face the reference has once and the mesh twice (a copy, either winding) is added
+    labels = np.unique(np.concatenate([mine, want]), return_inverse=True)[1].ravel()
+    have, need = np.bincount(labels[: len(mine)], minlength=len(labels)), np.bincount(labels[len(mine):],
+                                                                                        minlength=len(labels))
+    extra, missing = faces[have[labels[: len(mine)]] > need[labels[: len(mine)]]], \
+        ours[need[labels[len(mine):]] > have[labels[len(mine):]]]
     return np.unique(np.concatenate([extra.ravel(), missing.ravel()]))
 
 
