@@ -604,7 +604,7 @@ def _changed_faces(mesh: Mesh, ref: Reference, corr: Correspondence) -> np.ndarr
     positions alone, so a mesh of the reference's vertices with its faces rewired read ``authentic``).
 
     Only vertices where the reference has them are compared (a topological counterpart, or a registered one
-    within :data:`FACE_PAIR_TOLERANCE` reference mean edges; a moved vertex is the codes' to judge): a face of
+    within :data:`FACE_PAIR_TOLERANCE` reference mean edges; a moved vertex is :func:`_moved_rows`' to judge): a face of
     the mesh whose corners are all such vertices and onto which no reference face maps, and the corners of a
     reference face whose corners all have such counterparts but which the mesh lacks.  Faces are compared as
     sets of corners (counted: a face the mesh has more often than the reference is added), each corner by its
