@@ -633,10 +633,10 @@ def _changed_faces(mesh: Mesh, ref: Reference, corr: Correspondence) -> np.ndarr
     want, ours = keys(ours)
     # counted, not only matched: a face the reference has once and the mesh twice (a copy, either winding) is added
     labels = np.unique(np.concatenate([mine, want]), return_inverse=True)[1].ravel()
-    have, need = np.bincount(labels[: len(mine)], minlength=len(labels)), np.bincount(labels[len(mine):],
-                                                                                        minlength=len(labels))
-    extra, missing = faces[have[labels[: len(mine)]] > need[labels[: len(mine)]]], \
-        ours[need[labels[len(mine):]] > have[labels[len(mine):]]]
+    lm, lw = labels[: len(mine)], labels[len(mine):]
+    size = int(labels.max()) + 1 if len(labels) else 0
+    have, need = np.bincount(lm, minlength=size), np.bincount(lw, minlength=size)
+    extra, missing = faces[have[lm] > need[lm]], ours[need[lw] > have[lw]]
     return np.unique(np.concatenate([extra.ravel(), missing.ravel()]))
 
 
