@@ -303,6 +303,35 @@ def write_stream(stream, parts, what: str = "dst") -> int:
     return total
 
 
+def missing_directories(directory) -> list:
+    """The directories :func:`os.makedirs` would create for ``directory``, deepest first (absolute paths)."""
+    missing = []
+    path = os.path.abspath(os.fspath(directory))
+    while not os.path.exists(path):
+        missing.append(path)
+        parent = os.path.dirname(path)
+        if parent == path:
+            break
+        path = parent
+    return missing
+
+
+@contextlib.contextmanager
+def directory_made(directory):
+    """Make ``directory`` (and its missing parents) for the block; if the block fails (an error, a Ctrl-C, a
+    SIGTERM), remove the ones this made, deepest first, that are still empty: a command that wrote nothing leaves
+    no folder behind, and one holding a file something put there (a whole output of the block) stays."""
+    made = missing_directories(directory)
+    try:
+        os.makedirs(directory, exist_ok=True)
+        yield
+    except BaseException:
+        for folder in made:
+            with contextlib.suppress(OSError):
+                os.rmdir(folder)
+        raise
+
+
 @contextlib.contextmanager
 def directory_lock(paths):
     """Hold an exclusive ``flock`` on the directory of every path (sorted, so two writers never deadlock)."""

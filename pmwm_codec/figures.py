@@ -367,35 +367,16 @@ def write_pictures(directory, pictures: dict) -> list:
     already published: :func:`~pmwm_codec.atomic.write_set`).  A directory that did not exist is created.
     OptionError naming ``directory`` when a picture cannot be written.
     """
-    from .atomic import write_set
+    from .atomic import directory_made, write_set
 
     directory = os.fspath(directory)
     encoded = {os.path.join(directory, name): [png_bytes(image)] for name, image in pictures.items()}
-    made = _missing_directories(directory)
     try:
-        os.makedirs(directory, exist_ok=True)
-        write_set(encoded)
-    except BaseException as exc:
-        for parent in made:  # deepest first; a directory something else put a file in stays
-            with contextlib.suppress(OSError):
-                os.rmdir(parent)
-        if isinstance(exc, OSError):
-            raise OptionError(f"{directory}: cannot write pictures ({exc.strerror or exc})") from None
-        raise
+        with directory_made(directory):
+            write_set(encoded)
+    except OSError as exc:
+        raise OptionError(f"{directory}: cannot write pictures ({exc.strerror or exc})") from None
     return list(encoded)
-
-
-def _missing_directories(directory: str) -> list:
-    """The directories :func:`os.makedirs` would create for ``directory``, deepest first."""
-    missing = []
-    path = os.path.abspath(directory)
-    while not os.path.exists(path):
-        missing.append(path)
-        parent = os.path.dirname(path)
-        if parent == path:
-            break
-        path = parent
-    return missing
 
 
 def write_figures(results, directory, *, title: str | None = None, total_bytes: int | None = None,

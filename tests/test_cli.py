@@ -521,6 +521,7 @@ def test_demo_stopped_before_it_wrote_a_file_leaves_no_folder_it_made(tmp_path, 
                           env=dict(os.environ, PYTHONPATH=str(ROOT), PMWM_FAULT=f"measured:{signal_name}"))
     assert done.returncode == status and done.stderr.count("\n") == 1, done.stderr
     assert os.listdir(tmp_path) == []
+    assert str(tmp_path) not in done.stdout, done.stdout  # its first line named watermark.png, never written
 
 
 @pytest.mark.parametrize("out", ["", "  "])

@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
 import time
 
 import pmwm_codec
-from pmwm_codec.atomic import write_atomic
-from pmwm_codec.figures import _missing_directories, write_figures
+from pmwm_codec.atomic import directory_made, write_atomic
+from pmwm_codec.figures import write_figures
 from pmwm_codec.shapes import demo_mesh
 from pmwm_codec.verify import verify_stream
 from pmwm_codec.watermark import make_text_watermark, save_png
@@ -44,15 +43,8 @@ def run(args) -> int:
             if os.path.lexists(os.path.join(out, sub)) and not os.path.isdir(os.path.join(out, sub)):
                 raise UsageError(f"{os.path.join(out, sub)}: exists and is not a directory (the demo writes its "
                                  "pictures there)")
-    made = _missing_directories(out)
-    os.makedirs(out, exist_ok=True)
-    try:
+    with directory_made(out):  # a failure, a Ctrl-C or a SIGTERM leaves no folder made for nothing
         return _run(args, out, mark_path, pmw, cut)
-    except BaseException:  # a failure, a Ctrl-C or a SIGTERM: the folders made for nothing are not left behind
-        for folder in made:  # deepest first; one the demo already wrote a file in stays, with its whole files
-            with contextlib.suppress(OSError):
-                os.rmdir(folder)
-        raise
 
 
 def _run(args, out: str, mark_path: str, pmw: str, cut: str) -> int:
@@ -61,8 +53,7 @@ def _run(args, out: str, mark_path: str, pmw: str, cut: str) -> int:
     say = print
     mesh = demo_mesh(args.resolution)
     mark = make_text_watermark("PMWM", 64)
-    say(f"1. built a mesh ({mesh.vertex_count:,} vertices, {mesh.face_count:,} faces) "
-        f"and a 64x64 watermark: {mark_path}")
+    say(f"1. built a mesh ({mesh.vertex_count:,} vertices, {mesh.face_count:,} faces) and a 64x64 watermark")
 
     progress = Progress(True)
     try:
@@ -72,7 +63,8 @@ def _run(args, out: str, mark_path: str, pmw: str, cut: str) -> int:
     save_png(mark_path, mark)  # after the encode, which refuses a key of another image before writing anything
     d = r["distortion"]
     say(f"2. encoded {pmw}: {r['bytes']:,} bytes, base {r['base_vertices']:,} vertices + {r['vsplits']:,} splits "
-        f"in {r['chunks']} chunks; mesh PSNR {fmt_float(d['psnr_db'], 1, ' dB')}; key {r['key_path']}")
+        f"in {r['chunks']} chunks; mesh PSNR {fmt_float(d['psnr_db'], 1, ' dB')}; key {r['key_path']}; "
+        f"watermark {mark_path}")
 
     with open(pmw, "rb") as fh:
         data = fh.read()
