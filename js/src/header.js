@@ -384,7 +384,7 @@ function checkChunk(gltf, c, j, bufferLength, what, version = 1) {
     offset += c.byteOffset;
   } else if (view.length !== c.byteLength) throw new FormatError(`${what} chunks[${j}]: byteLength differs from its bufferView`);
   return {
-    offset, length: c.byteLength, digest: c.digest, uncompressedLength: c.uncompressedLength,
+    view, offset, length: c.byteLength, digest: c.digest, uncompressedLength: c.uncompressedLength,
     splits: c.splits, vertexCount: c.vertexCount, faceCount: c.faceCount, geometricError: c.geometricError,
     faces: version === 2 && c.faces === true, // a face chunk (spec/bitstream.md §8.6)
   };
@@ -564,7 +564,8 @@ function checkFinalCounts(ext, entries, baseVertices, baseFaces, what) {
 
 /**
  * The progressive primitives of a parsed document and the chunk stream.
- * @returns {{primitives: object[], stream: object[], baseEnd: number}} baseEnd: BIN offset where every base is in;
+ * @returns {{primitives: object[], stream: object[], baseEnd: number, dataEnd: number}} baseEnd: BIN offset where every
+ *   base is in; dataEnd: where every bufferView that holds no chunk ends (D of spec/bitstream.md §4, at least baseEnd);
  *   stream: chunks of all primitives ordered by byte offset, each {primitive, chunk, offset, length,
  *   payloadVersion, ...}; a primitive's payloadVersion is 1 or 2 (spec/bitstream.md §6, §8).
  */
@@ -620,8 +621,65 @@ export function planDocument(gltf, binLength) {
     if (c.chunk !== next[c.primitive]++) throw new FormatError('a primitive\'s chunks are not in stream order');
     end = c.offset + c.length;
   }
+  const dataEnd = checkChunkViews(gltf, primitives);
   for (const args of counted) checkFinalCounts(...args);
-  return { primitives, stream, baseEnd };
+  return { primitives, stream, baseEnd, dataEnd: Math.max(baseEnd, dataEnd) };
+}
+
+/** [where, index] of every bufferView reference of the document: an accessor's, its sparse parts', an image's, a Draco
+ * object's. */
+function viewReferences(gltf) {
+  const objects = (x) => (Array.isArray(x) ? x.map((o) => (isObj(o) ? o : {})) : []);
+  const found = [];
+  const add = (where, holder) => {
+    if (isObj(holder) && holder.bufferView !== undefined) found.push([where, holder.bufferView]);
+  };
+  objects(gltf.accessors).forEach((acc, i) => {
+    add(`accessors[${i}]`, acc);
+    if (isObj(acc.sparse)) for (const part of ['indices', 'values']) add(`accessors[${i}].sparse.${part}`, acc.sparse[part]);
+  });
+  objects(gltf.images).forEach((image, i) => add(`images[${i}]`, image));
+  objects(gltf.meshes).forEach((mesh, mi) => objects(mesh.primitives).forEach((prim, pi) => {
+    const draco = isObj(prim.extensions) ? prim.extensions[DRACO_EXTENSION] : undefined;
+    add(`meshes[${mi}].primitives[${pi}].extensions.${DRACO_EXTENSION}`, draco);
+  }));
+  return found;
+}
+
+/**
+ * spec/bitstream.md §4: a bufferView that holds chunks (a version 1 chunk's, a chunk table's) shares no byte with
+ * any other bufferView of buffer 0 (the base meshes', the document's data), and no accessor, image or Draco object
+ * reads it (a cut shortens or drops it and zeroes the chunks it drops); the chunk bufferViews may overlap one
+ * another. A FormatError otherwise. Returns D of §4: the largest end of the bufferViews of buffer 0 that hold no chunk
+ * (those no reader reads bytes through, with a byteOffset or byteLength that is no integer in range, left out).
+ */
+function checkChunkViews(gltf, primitives) {
+  const chunkViews = new Map(primitives.flatMap((p) => p.chunks.map((c) => [c.view.index, c.view])));
+  const shared = ' (a chunk\'s bytes are no other data\'s)';
+  for (const [where, index] of viewReferences(gltf)) {
+    if (chunkViews.has(index)) throw new FormatError(`${where} reads bufferView ${index}, which holds chunks${shared}`);
+  }
+  const spans = [...chunkViews.values()].sort((a, b) => a.offset - b.offset);
+  const furthest = []; // furthest[k]: the furthest end of spans[0..k]
+  spans.forEach((v, k) => furthest.push(Math.max(k ? furthest[k - 1] : 0, v.offset + v.length)));
+  let dataEnd = 0;
+  (Array.isArray(gltf.bufferViews) ? gltf.bufferViews : []).forEach((view, i) => {
+    if (chunkViews.has(i) || !isObj(view)) return;
+    const start = given(view.byteOffset, 0);
+    if (given(view.buffer, 0) !== 0 || !isInt(start, 0, Number.MAX_SAFE_INTEGER)
+      || !isInt(view.byteLength, 1, Number.MAX_SAFE_INTEGER)) return;
+    const end = start + view.byteLength;
+    dataEnd = Math.max(dataEnd, end);
+    let before = 0; // the chunk views that start before this one ends
+    for (let step = 1 << 30; step; step >>= 1) {
+      if (before + step <= spans.length && spans[before + step - 1].offset < end) before += step;
+    }
+    if (before && furthest[before - 1] > start) {
+      const chunkView = spans.slice(0, before).find((v) => v.offset + v.length > start);
+      throw new FormatError(`bufferViews[${i}] shares bytes with bufferView ${chunkView.index}, which holds chunks${shared}`);
+    }
+  });
+  return dataEnd;
 }
 
 /**

@@ -9,6 +9,7 @@ import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { test } from 'node:test';
 import { FormatError, PmwDecoder, decodePmw } from '../src/index.js';
+import { parseGlb } from '../src/header.js';
 import { CONFORMANCE, jsLevels, levelDigest } from './lib/helpers.js';
 import { decodeFiles, python } from './lib/python.js';
 import { chunkPayloads, withPayload } from './lib/rewrite.js';
@@ -211,6 +212,65 @@ test('an srgb8 byte outside 0..255 refuses the chunk that brings it, after the l
     assert.equal(py.error, 'FormatError');
     assert.match(py.message, message);
     assert.deepEqual(py.levels.map((l) => l.sha256), want);
+  } finally {
+    rmSync(dir, { recursive: true, force: true });
+  }
+});
+
+// --- chunk bytes that other data shares (spec/bitstream.md §4): the cases of tests/test_chunk_bytes_unshared.py
+
+const EXT = 'PMWM_progressive_mesh';
+/** The bufferView of the last chunk of the first progressive primitive. */
+const chunkView = (gltf) => {
+  const { chunks } = gltf.meshes[0].primitives[0].extensions[EXT];
+  return Array.isArray(chunks) ? chunks[chunks.length - 1].bufferView : chunks.bufferView;
+};
+/** Appends a 100-byte bufferView over the last 200 to 100 bytes of the chunk bufferView; returns its index. */
+const viewInsideTheChunks = (gltf) => {
+  const view = gltf.bufferViews[chunkView(gltf)];
+  gltf.bufferViews.push({ buffer: 0, byteOffset: (view.byteOffset ?? 0) + view.byteLength - 200, byteLength: 100 });
+  return gltf.bufferViews.length - 1;
+};
+const SHARED = {
+  'another bufferView': [(gltf) => { viewInsideTheChunks(gltf); }, /bufferViews\[\d+\] shares bytes with bufferView \d+, which holds chunks/],
+  "an image's bufferView": [(gltf) => { gltf.images = [{ bufferView: viewInsideTheChunks(gltf), mimeType: 'image/png' }]; },
+    /bufferViews\[\d+\] shares bytes with bufferView \d+, which holds chunks/],
+  'an image': [(gltf) => { gltf.images = [{ bufferView: chunkView(gltf), mimeType: 'image/png' }]; },
+    /images\[0\] reads bufferView \d+, which holds chunks/],
+  'an accessor': [(gltf) => { gltf.accessors.push({ bufferView: chunkView(gltf), componentType: 5126, count: 4, type: 'SCALAR' }); },
+    /accessors\[\d+\] reads bufferView \d+, which holds chunks/],
+  'sparse values': [(gltf) => {
+    gltf.accessors.push({ componentType: 5126, count: 4, type: 'SCALAR', sparse: { count: 1,
+      indices: { bufferView: 0, componentType: 5123 }, values: { bufferView: chunkView(gltf) } } });
+  }, /accessors\[\d+\]\.sparse\.values reads bufferView \d+, which holds chunks/],
+};
+
+/**
+ * Both readers accepted a file whose chunk bytes another bufferView (an image's, an accessor's ...) shares, and
+ * `pmw cut` then zeroed those bytes of the chunks it dropped: the other data silently changed. A FormatError in
+ * both readers now; the chunk table bufferView two primitives share stays valid.
+ */
+test('chunk bytes that other data shares are a FormatError in both readers', async () => {
+  const names = ['sphere-attributes.plain.v1.pmw', 'sphere-attributes.plain.v2.pmw', 'sphere-attributes.plain.packed.v2.pmw',
+    'sphere-pillows.draco.packed.v2.pmw'];
+  const files = [];
+  for (const name of names) {
+    for (const [label, [change, message]] of Object.entries(SHARED)) {
+      const bytes = rewrite(name, change);
+      await assert.rejects(decodePmw(bytes), (e) => e instanceof FormatError && message.test(e.message), `${name}: ${label}`);
+      files.push(bytes);
+    }
+  }
+  for (const name of ['two-primitives.draco.packed.v2.pmw', 'two-primitives.draco.v2.pmw']) {
+    const { gltf } = parseGlb(load(name));
+    assert.equal(new Set(gltf.meshes[0].primitives.map((p) => p.extensions[EXT].chunks.bufferView)).size, 1, name);
+    assert.ok((await decodePmw(load(name))).chunksApplied > 0, name);
+  }
+  if (!python()) return;
+  const dir = mkdtempSync(join(tmpdir(), 'pmwm-shared-chunks-'));
+  try {
+    const paths = files.map((bytes, i) => { const p = join(dir, `${i}.pmw`); writeFileSync(p, bytes); return p; });
+    decodeFiles(paths).forEach((r, i) => assert.equal(r.error, 'FormatError', `${paths[i]}: the reference reader (${r.message})`));
   } finally {
     rmSync(dir, { recursive: true, force: true });
   }

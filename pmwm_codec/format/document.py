@@ -46,7 +46,8 @@ from ..sources import read_regular_file
 from .glb import GLTF_1_ADVICE, split_glb
 from .gltf import (COMPONENT_DTYPES, COMPONENT_NAMES, DRACO_EXTENSION, FLOAT, INDEX_DTYPES, NORMALIZE_DIVISORS,
                    QUANTIZATION_EXTENSION, TRIANGLE_MODES, TRIANGLE_STRIP, TRIANGLES, TYPE_WIDTH, check_finite_numbers,
-                   check_json_depth, element_rows, gltf_integers, named, shown_value, triangle_list, uint, view_bytes)
+                   check_json_depth, element_rows, gltf_integers, named, named_view_sites, shown_value, triangle_list,
+                   uint, view_bytes)
 from .layout import CHUNK_HEADER_SIZE, CHUNK_TYPE_JSON, GLB_HEADER_SIZE, GLB_MAGIC, padded
 from .meshopt import EXTENSIONS as MESHOPT_EXTENSIONS
 from .meshopt import decompress as decompress_meshopt
@@ -1348,20 +1349,8 @@ def _embed_images(doc: dict, first_view: int) -> list:
 
 def view_sites(doc: dict):
     """Yield ``(holder, key)`` for every bufferView reference ``holder[key]`` that :func:`repack` knows."""
-    for acc in doc.get("accessors", []):
-        if "bufferView" in acc:
-            yield acc, "bufferView"
-        sparse = acc.get("sparse")
-        if sparse:
-            yield sparse["indices"], "bufferView"
-            yield sparse["values"], "bufferView"
-    for image in doc.get("images", []):
-        if "bufferView" in image:
-            yield image, "bufferView"
-    for prim in _primitives(doc):
-        draco = (prim.get("extensions") or {}).get(DRACO_EXTENSION)
-        if isinstance(draco, dict) and "bufferView" in draco:
-            yield draco, "bufferView"
+    for _, holder, key in named_view_sites(doc):
+        yield holder, key
 
 
 def _primitives(doc):

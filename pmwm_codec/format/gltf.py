@@ -794,3 +794,32 @@ def scene_mesh(positions: list, faces: list, placements: list, oriented: bool = 
     if not points:
         return np.zeros((0, 3)), np.zeros((0, 3), np.int64), spans
     return np.concatenate(points), np.concatenate(tris), spans
+
+
+def named_view_sites(doc: dict):
+    """Yield ``(where, holder, key)`` for every bufferView reference ``holder[key]`` of ``doc``: an accessor's,
+    its sparse ``indices``' and ``values``', an image's, a ``KHR_draco_mesh_compression`` object's; ``where``
+    names it (``"accessors[3].sparse.indices"``).  Members of the wrong JSON type are passed over (an unchecked
+    document's too: the value of ``holder[key]`` is the caller's to check)."""
+    for i, acc in enumerate(_dicts(doc.get("accessors"))):
+        if "bufferView" in acc:
+            yield f"accessors[{i}]", acc, "bufferView"
+        sparse = acc.get("sparse")
+        for part in ("indices", "values"):
+            holder = sparse.get(part) if isinstance(sparse, dict) else None
+            if isinstance(holder, dict) and "bufferView" in holder:
+                yield f"accessors[{i}].sparse.{part}", holder, "bufferView"
+    for i, image in enumerate(_dicts(doc.get("images"))):
+        if "bufferView" in image:
+            yield f"images[{i}]", image, "bufferView"
+    for mi, mesh in enumerate(_dicts(doc.get("meshes"))):
+        for pi, prim in enumerate(_dicts(mesh.get("primitives"))):
+            extensions = prim.get("extensions")
+            draco = extensions.get(DRACO_EXTENSION) if isinstance(extensions, dict) else None
+            if isinstance(draco, dict) and "bufferView" in draco:
+                yield f"meshes[{mi}].primitives[{pi}].extensions.{DRACO_EXTENSION}", draco, "bufferView"
+
+
+def _dicts(value) -> list:
+    """The objects of a JSON array ``value`` (positions kept: a member that is no object is ``{}``), [] if no array."""
+    return [v if isinstance(v, dict) else {} for v in value] if isinstance(value, list) else []

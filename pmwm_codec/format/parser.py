@@ -57,7 +57,8 @@ from ..progressive.grid import Grid
 from ..sources import byte_view
 from . import base as _base
 from .extension import base_digest, check_extension, chunk_entries, digest, integer_members, payload_version
-from .gltf import check_json_text_depth, find_extension_primitives, loads_finite, shown_value, uint, view_range
+from .gltf import (check_json_text_depth, find_extension_primitives, loads_finite, named_view_sites, shown_value, uint,
+                   view_range)
 from .layout import (
     ALIGNMENT,
     CHUNK_HEADER_SIZE,
@@ -258,9 +259,42 @@ def _plan(gltf: dict, exts: list, bin_capacity: int) -> _Plan:
     for (s0, e0, *_), (s1, e1, p1, k1) in zip(ranges, ranges[1:]):
         if s1 < e0:
             raise FormatError(f"{EXTENSION_NAME}: chunks[{k1}] of primitive {p1} overlaps the chunk before it")
+    _check_chunk_views_unshared(gltf, exts, buffer_length)
     for ext, (vertices0, faces0) in zip(exts, bases):
         _check_final_counts(ext, vertices0, faces0)
     return _Plan(tuple(primitives), tuple(exts), base_end, tuple(ranges), buffer_length)
+
+
+def _check_chunk_views_unshared(gltf: dict, exts: list, buffer_length: int) -> None:
+    """FormatError when a bufferView that holds chunks (a version 1 chunk's, a chunk table's; their ranges checked)
+    shares a byte with any other bufferView of the BIN (the base meshes', the document's data), or when an
+    accessor, an image or a Draco object reads it (bitstream.md §4): a cut shortens or drops it and zeroes
+    the chunks it drops, so whatever else read those bytes would silently change.  The chunk tables of
+    several primitives may name one bufferView, and the chunk bufferViews may overlap one another."""
+    views = gltf.get("bufferViews")
+    chunk_views = sorted({int(c["bufferView"]) for ext in exts for c in ext["chunks"]})
+    if not chunk_views:
+        return
+    chunk_set = set(chunk_views)
+    for where, holder, key in named_view_sites(gltf):
+        if type(holder[key]) is int and holder[key] in chunk_set:
+            raise FormatError(f"{EXTENSION_NAME}: {where} reads bufferView {holder[key]}, which holds chunks "
+                              "(a chunk's bytes are no other data's)")
+    spans = sorted((*view_range(views, i, buffer_length, EXTENSION_NAME), i) for i in chunk_views)
+    starts = np.array([start for start, _, _ in spans], dtype=np.int64)  # (c,) sorted
+    ends = np.maximum.accumulate(np.array([end for _, end, _ in spans], dtype=np.int64))  # (c,) furthest end so far
+    for i, view in enumerate(views):
+        fields = [view.get(key, default) for key, default in (("buffer", 0), ("byteOffset", 0), ("byteLength", None))] \
+            if isinstance(view, dict) else None
+        if i in chunk_set or fields is None or any(type(x) is not int for x in fields) or fields[0] != 0 \
+                or fields[1] < 0 or fields[2] <= 0:
+            continue  # a view of another buffer, or one no reader reads bytes through: it shares none
+        _, start, length = fields
+        before = int(np.searchsorted(starts, start + length))  # the chunk views that start before it ends
+        if before and ends[before - 1] > start:
+            shared = next(j for s, e, j in spans[:before] if e > start)
+            raise FormatError(f"{EXTENSION_NAME}: bufferViews[{i}] shares bytes with bufferView {shared}, which holds "
+                              "chunks (a chunk's bytes are no other data's)")
 
 
 def _check_final_counts(ext: dict, base_vertices: int, base_faces: int) -> None:
