@@ -784,7 +784,7 @@ export async function loadProgressive(loader, href, options = {}) {
     kept.set(b, prefix.length);
     prefix = kept.subarray(0, prefix.length + b.length);
   };
-  // the bytes three.js needs (`base`: the preamble, the JSON, then everything before the first chunk; a GLB
+  // the bytes three.js needs (`base`: the preamble, the JSON, then the base and the document's data; a GLB
   // without the extension: all of it, loaded as it is) and those the load reads (`end`: readEnd); known once the
   // JSON is in (parsed once)
   let known;
@@ -800,7 +800,10 @@ export async function loadProgressive(loader, href, options = {}) {
     if (!header.gltf.extensionsUsed?.includes?.(EXTENSION_NAME)) known = { base: header.length, end: header.length };
     else {
       const plan = planDocument(header.gltf, header.binLength);
-      known = { base: plan.stream.length ? baseEnd(header, plan) : header.length, end: readEnd(header, plan, options) };
+      // the base three.js shows and the data it uses (D of spec/bitstream.md §4), not the padding after them: the
+      // prefix that gives decodePmw its level 0 (the base's end) gives this load its base when nothing follows it
+      const base = header.binStart + plan.dataEnd;
+      known = { base, end: Math.max(base, readEnd(header, plan, options)) };
     }
     return known.base;
   };
@@ -823,8 +826,8 @@ export async function loadProgressive(loader, href, options = {}) {
     }
     signal?.throwIfAborted();
     if (prefix.length < needed()) {
-      throw new TruncatedError(`${url}: the file ended after ${prefix.length} bytes, before its base mesh and what `
-        + `comes before the first chunk (${needed()} bytes)`, prefix.length, needed());
+      throw new TruncatedError(`${url}: the file ended after ${prefix.length} bytes, before its base mesh and the `
+        + `data it uses (${needed()} bytes)`, prefix.length, needed());
     }
     const factory = (parser) => new PMWMProgressivePlugin(parser, { ...options, url, prefix, rest, fetch: fetchFn,
       controller, count });

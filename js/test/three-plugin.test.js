@@ -138,6 +138,49 @@ test('loadProgressive of a file that ends before its base mesh is a TruncatedErr
   }
 });
 
+/**
+ * grid-hole.plain.v1.pmw without its last base face: 99 uint16 triangles, so the base ends 2 bytes before a multiple
+ * of 4 and zero padding comes before the first chunk (its baseDigest, of the 100-face base, dropped).
+ */
+function oddBase() {
+  const source = new Uint8Array(fs.readFileSync(path.join(conformance, 'grid-hole.plain.v1.pmw')));
+  const { binStart, binLength, gltf } = parseGlb(source);
+  const prim = gltf.meshes[0].primitives[0];
+  const [positions, indices, chunk] = gltf.bufferViews;
+  assert.deepEqual([positions.byteLength, indices.byteOffset, chunk.byteOffset], [768, 768, 1368]); // the layout taken apart
+  const bin = new Uint8Array(binLength);
+  bin.set(source.subarray(binStart, binStart + 1362)); // positions, the first 99 faces
+  bin.set(source.subarray(binStart + 1368, binStart + 1368 + chunk.byteLength), 1364);
+  gltf.accessors[prim.indices].count -= 3;
+  indices.byteLength = 594;
+  chunk.byteOffset = 1364;
+  gltf.buffers[0].byteLength = 1364 + chunk.byteLength;
+  delete prim.extensions.PMWM_progressive_mesh.baseDigest;
+  return glb(gltf, bin.subarray(0, (1364 + chunk.byteLength + 3) & ~3));
+}
+
+test('loadProgressive loads the base of a file cut where decodePmw shows level 0, before the padding to the first chunk', async () => {
+  const file = oddBase();
+  const { binStart, binLength, gltf } = parseGlb(file);
+  const { baseEnd, stream } = planDocument(gltf, binLength);
+  assert.equal(baseEnd % 4, 2);
+  assert.ok(binStart + stream[0].offset > binStart + baseEnd); // padding between them
+  const prefix = file.subarray(0, binStart + baseEnd);
+  const level0 = await decodePmw(prefix);
+  assert.equal(level0.chunksApplied, 0);
+  for (const ranges of [true, false]) {
+    await serving({ 'base.pmw': prefix, 'short.pmw': prefix.subarray(0, prefix.length - 1) }, async (server) => {
+      const loaded = await loadProgressive(new GLTFLoader(), `${server.url}base.pmw`);
+      const outcome = await loaded.userData.pmwm.done;
+      assert.equal(outcome.complete, false, `ranges ${ranges}`);
+      const g = theMesh(loaded).geometry;
+      assert.deepEqual(g.index.array.subarray(0, g.drawRange.count), level0.indices, `ranges ${ranges}`);
+      await assert.rejects(loadProgressive(new GLTFLoader(), `${server.url}short.pmw`),
+        (e) => e instanceof TruncatedError && e.bytesNeeded === prefix.length, `ranges ${ranges}: a byte short`);
+    }, { ranges });
+  }
+});
+
 test('loadProgressive loads a GLB without PMWM_progressive_mesh as it is (no stream, no error)', async () => {
   const glb = withJson(bytes, (gltf) => {
     delete gltf.extensionsUsed;
