@@ -59,11 +59,13 @@ class ChecksumError(FormatError):
 
 
 class TruncatedError(FormatError):
-    """The stream ended before its base mesh was complete."""
+    """The stream ended before its base mesh was complete.  ``bytes_read``: the bytes it holds; ``bytes_needed``: the
+    bytes it needs (a lower bound while the JSON is not in, spec README *Partial files*), None when not said."""
 
-    def __init__(self, message, bytes_read=0):
+    def __init__(self, message, bytes_read=0, bytes_needed=None):
         super().__init__(message)
         self.bytes_read = bytes_read
+        self.bytes_needed = bytes_needed
 
 
 class WatermarkKeyError(PmwError, ValueError):

@@ -59,6 +59,35 @@ def test_truncated_error_names_bytes_arrived_and_needed():
     assert info.value.bytes_read == 25
 
 
+def _stream_closed(prefix):
+    parser = ContainerParser()
+    parser.feed(prefix)
+    parser.close()
+
+
+@pytest.mark.parametrize("data", [DATA, DRACO_DATA], ids=["plain", "draco"])
+def test_a_stream_cut_before_its_base_names_the_bytes_needed_the_javascript_reader_names(data):
+    """Cut inside the JSON, this reader named the JSON's end (``20 + J``) where the JavaScript reader names
+    ``28 + J``, where the BIN chunk's data (and the base mesh in it) starts: both lower bounds, two numbers.  Every
+    reader now names 20 in the preamble, ``28 + J`` up to the BIN data, then the base meshes' end (spec README,
+    *Partial files*; ``js/test/reader-differentials.test.js`` compares the two readers prefix by prefix)."""
+    json_length = int.from_bytes(data[12:16], "little")
+    base_end = next(e.bytes_read for e in iter_events(data) if isinstance(e, BaseEvent))
+    bin_data = 28 + json_length
+    for cut, needed in [(0, 20), (10, 20), (19, 20), (20, bin_data), (21, bin_data), (20 + json_length - 1, bin_data),
+                        (20 + json_length, bin_data), (bin_data - 1, bin_data), (bin_data, base_end),
+                        (base_end - 1, base_end)]:
+        readers = [lambda p: list(iter_events(p)), _stream_closed]
+        if cut < 20 + json_length:
+            readers.append(lambda p: read_header(io.BytesIO(p)))
+        for read in readers:
+            with pytest.raises(TruncatedError) as info:
+                read(data[:cut])
+            assert (info.value.bytes_read, info.value.bytes_needed) == (cut, needed), (cut, read)
+            assert f"{needed} bytes)" in str(info.value)
+            assert ("at least" in str(info.value)) == (cut < bin_data), str(info.value)
+
+
 def test_feeding_one_byte_at_a_time_gives_the_same_events():
     assert _feed_all(DATA, [1] * len(DATA)) == REFERENCE
 

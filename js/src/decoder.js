@@ -320,7 +320,9 @@ export class PmwDecoder {
   #close() {
     if (this.failed) throw this.failed;
     if (!this.states) {
-      throw new TruncatedError(`stream ended after ${this.received} bytes, before the base mesh (${this.#baseBytes()} bytes)`,
+      // before the header is in, a lower bound: where the BIN data starts (spec/README.md, Partial files)
+      throw new TruncatedError(`stream ended after ${this.received} bytes, before the base mesh (${this.header ? '' : 'at least '}`
+        + `${this.#baseBytes()} bytes)`,
         this.received, this.#baseBytes());
     }
     const chunkCount = this.plan.stream.length;

@@ -275,3 +275,32 @@ test('chunk bytes that other data shares are a FormatError in both readers', asy
     rmSync(dir, { recursive: true, force: true });
   }
 });
+
+/**
+ * Cut inside the JSON, the reference reader named the JSON's end (20 + J) as the bytes needed, this one 28 + J
+ * (where the BIN data, and the base in it, starts): two lower bounds, two numbers. Both name the same now
+ * (spec/README.md, Partial files): 20 in the preamble, 28 + J up to the BIN data, then the base meshes' end.
+ */
+test('a stream cut before its base mesh names the same bytes needed in both readers', async () => {
+  const bytes = load('sphere-pillows.draco.packed.v2.pmw');
+  const J = new DataView(bytes.buffer, bytes.byteOffset).getUint32(12, true);
+  const { levels } = await jsLevels(bytes);
+  const baseEnd = levels[0].bytesRead;
+  const cuts = [[0, 20], [10, 20], [19, 20], [20, 28 + J], [21, 28 + J], [19 + J, 28 + J], [20 + J, 28 + J],
+    [27 + J, 28 + J], [28 + J, baseEnd], [baseEnd - 1, baseEnd]];
+  for (const [n, needed] of cuts) {
+    const d = new PmwDecoder();
+    await d.feed(bytes.subarray(0, n));
+    await assert.rejects(d.close(), (e) => e.name === 'TruncatedError' && e.bytesReceived === n && e.bytesNeeded === needed,
+      `cut at ${n}: this reader`);
+  }
+  if (!python()) return;
+  const dir = mkdtempSync(join(tmpdir(), 'pmwm-needed-'));
+  try {
+    const paths = cuts.map(([n]) => { const p = join(dir, `${n}.pmw`); writeFileSync(p, bytes.subarray(0, n)); return p; });
+    decodeFiles(paths).forEach((r, i) => assert.deepEqual([r.error, r.bytesNeeded], ['TruncatedError', cuts[i][1]],
+      `cut at ${cuts[i][0]}: the reference reader (${r.message})`));
+  } finally {
+    rmSync(dir, { recursive: true, force: true });
+  }
+});

@@ -338,16 +338,18 @@ def _chunk_range(views, chunk, buffer_length, what, previous_end, version=1):
 _PREAMBLE, _JSON, _BIN_HEADER, _BASE, _CHUNKS, _TAIL, _CLOSED, _FAILED = range(8)
 
 
-def truncated_before_base(received: int, needed: int | None, header: bool) -> TruncatedError:
+def truncated_before_base(received: int, needed: int | None, header: bool, bin_header: bool = False) -> TruncatedError:
     """The one refusal of a stream that ends before its base mesh is whole, read by push or by pull alike.
 
-    ``header``: it ended inside the GLB header or JSON, where ``needed`` counts the bytes to the JSON's end
-    only (the base mesh's end is not known yet: "at least").
+    ``header``: it ended inside the GLB header or JSON; ``bin_header``: inside the BIN chunk's header.  There
+    ``needed`` (:attr:`ContainerParser.bytes_needed`) is a lower bound, the end of the BIN chunk's header: "at
+    least" (the JavaScript reader parses the JSON once that header is in, so every reader names the same bound).
     """
-    where = "inside the GLB header or JSON, before the base mesh was complete" if header \
-        else "before the base mesh was complete"
-    need = "" if needed is None else f" (needs {'at least ' if header else ''}{needed} bytes)"
-    return TruncatedError(f"truncated: stream ended after {received} bytes, {where}{need}", bytes_read=received)
+    where = "inside the GLB header or JSON, " if header else "inside the BIN chunk header, " if bin_header else ""
+    need = "" if needed is None else f" (needs {'at least ' if header or bin_header else ''}{needed} bytes)"
+    where += "before the base mesh was complete"
+    return TruncatedError(f"truncated: stream ended after {received} bytes, {where}{need}", bytes_read=received,
+                          bytes_needed=needed)
 
 
 class ContainerParser:
@@ -378,6 +380,14 @@ class ContainerParser:
     def bytes_read(self) -> int:
         """Bytes fed so far."""
         return self._received
+
+    @property
+    def bytes_needed(self):
+        """The bytes the stream needs before its base mesh is complete (spec README, *Partial files*): the base
+        meshes' end once the JSON is in; before, the lower bound that every reader names, the end of the BIN
+        chunk's header (``28 + J``) once the 20-byte preamble gives the JSON's length ``J``, else 20.  None once
+        the base mesh is in."""
+        return self._needed(self._state)
 
     @property
     def json_length(self):
@@ -430,7 +440,8 @@ class ContainerParser:
         self._state = _CLOSED
         self._buf = bytearray()
         if state <= _BASE:
-            raise truncated_before_base(self._received, self._needed(state), header=state <= _JSON)
+            raise truncated_before_base(self._received, self._needed(state), header=state <= _JSON,
+                                        bin_header=state == _BIN_HEADER)
         count = len(self._plan.chunk_ranges)
         return EndEvent(
             complete=self._received == self._total and self._next_chunk == count,
@@ -443,10 +454,8 @@ class ContainerParser:
     def _needed(self, state):
         if state == _PREAMBLE:
             return PREAMBLE_SIZE
-        if state == _JSON:
-            return PREAMBLE_SIZE + self._json_length
-        if state == _BIN_HEADER:
-            return self._bin_data
+        if state in (_JSON, _BIN_HEADER):  # the base lies in the BIN chunk: at least up to its data
+            return PREAMBLE_SIZE + self._json_length + CHUNK_HEADER_SIZE
         if state == _BASE:
             return self._bin_data + self._plan.base_end
         return None

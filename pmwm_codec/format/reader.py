@@ -62,7 +62,7 @@ def read_header(source) -> HeaderEvent:
             block = pending or next(blocks, b"")
             block, pending = block[: wanted - got], block[wanted - got :]
         if not block:
-            raise truncated_before_base(got, wanted, header=True)
+            raise truncated_before_base(got, parser.bytes_needed, header=True)
         got += len(block)
         for event in parser.feed(block):
             if isinstance(event, HeaderEvent):

@@ -144,7 +144,7 @@ def data_not_arrived(received: int, needed: int) -> TruncatedError:
     """The error for a prefix that holds the base meshes but not all the document's other data it needs:
     ``received`` bytes of a file whose data ends at ``needed``."""
     return TruncatedError(f"the data the base mesh needs (textures, other meshes) has not arrived: "
-                          f"{received:,} of {needed:,} bytes", bytes_read=received)
+                          f"{received:,} of {needed:,} bytes", bytes_read=received, bytes_needed=needed)
 
 
 def _base_counts(gltf: dict, prim: dict) -> dict:

@@ -9,7 +9,7 @@ one JSON object: the reference decoder's level at every chunk boundary, ``{"leve
 ``sha256`` is tests/samples.py's level digest (positions, faces, quantized attributes as <i8)
 and js/test/lib/helpers.js::levelDigest.  ``decode`` prints one such object per file, in order,
 as a JSON array, with ``"error"`` (the exception's class name) and ``"message"`` instead of ``"complete"``
-when the decoder refuses the file (``"levels"`` then those it delivered before refusing).  Cases are generated meshes (``pmwm_codec.shapes``) and seeded keys, so the levels do
+(and ``"bytesNeeded"`` for a ``TruncatedError``) when the decoder refuses the file (``"levels"`` then those it delivered before refusing).  Cases are generated meshes (``pmwm_codec.shapes``) and seeded keys, so the levels do
 not depend on the machine.
 """
 
@@ -24,6 +24,7 @@ import numpy as np
 
 import pmwm_codec
 from pmwm_codec import PmwError, encode, shapes
+from pmwm_codec.errors import TruncatedError
 from pmwm_codec.mesh import Mesh
 from pmwm_codec.stream import StreamDecoder
 from pmwm_codec.stream.encoder import PrimitiveJob, encode_document
@@ -215,7 +216,8 @@ def _levels(path: str) -> dict:
                    for r in dec.feed(data)]
         return {"levels": levels, "complete": dec.close().complete}
     except PmwError as exc:
-        return {"levels": levels, "error": type(exc).__name__, "message": str(exc)}
+        needed = {"bytesNeeded": exc.bytes_needed} if isinstance(exc, TruncatedError) else {}
+        return {"levels": levels, "error": type(exc).__name__, "message": str(exc), **needed}
 
 
 def main(command: str, *args: str) -> None:
