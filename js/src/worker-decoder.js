@@ -10,7 +10,7 @@
  * caller may reuse its buffer at once); with a worker, that copy is posted (its ArrayBuffer transferred, never the
  * caller's) and each level comes back as `result.mesh.parts[p]`
  * `{positions (n*3) Float32Array, indices (m*3) Uint32Array, attributes {semantic: Float32Array}}`
- * (transferred) for the primitive the level changed (the base: every one), null for the others; a failure comes back as the same named error (errors.js class, message, fields).
+ * (copied, not transferred: decode-worker.js) for the primitive the level changed (the base: every one), null for the others; a failure comes back as the same named error (errors.js class, message, fields).
  *
  * Starting the worker: first `new Worker(url, {type: 'module'})` (bundlers rewrite this form, and it
  * is all a page needs once import maps reach workers); Chromium does not apply the page's import map
