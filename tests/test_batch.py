@@ -575,19 +575,35 @@ def test_a_symlink_out_of_the_named_folder_is_a_refused_asset_never_read(tmp_pat
     assert encode_task(EncodeJob(listed.input, listed.output, timeout=60, root=listed.root))["status"] == "ok"
 
 
-def test_a_rerun_that_fails_leaves_the_output_of_the_run_before_as_it_was(tmp_path):
+class _HeldEncoder:
+    """A watermark that holds the encoder that unpickles it for ever (a ``select`` on nothing), before it has read
+    anything: its task's timeout is certain to come first, however fast the machine (a small encode given 10 ms
+    could finish in them)."""
+
+    def __reduce__(self):
+        import select
+
+        return select.select, ([], [], [])
+
+
+@pytest.mark.parametrize("ending", ["timeout", "failed"])
+def test_a_rerun_that_fails_leaves_the_output_of_the_run_before_as_it_was(tmp_path, ending):
     """A re-run with other settings (``--keys-dir``, so the key it wants is not there yet) deleted each old output
     before encoding: when the encode then failed or timed out, the good output of the run before was lost and its
-    key left alone beside nothing."""
-    write_mesh(tmp_path / "a.obj", shapes.icosphere(2))
+    key left alone beside nothing.  (``failed``: the input changed since into one that does not read.)"""
+    if ending == "failed":
+        (tmp_path / "a.obj").write_bytes(BROKEN["broken.obj"])
+    else:
+        write_mesh(tmp_path / "a.obj", shapes.icosphere(2))
     old = tmp_path / "out" / "a.obj.pmw"
     old.parent.mkdir()
     old.write_bytes(b"the output of the run before")
+    watermark = _HeldEncoder() if ending == "timeout" else np.full((4, 4), 255, np.uint8)
     job = EncodeJob(str(tmp_path / "a.obj"), str(old), key=str(tmp_path / "keys" / "a.obj.pmw.key.json"),
-                    key_path=str(tmp_path / "keys" / "a.obj.pmw.key.json"),
-                    watermark=np.full((4, 4), 255, np.uint8), timeout=0.01)
+                    key_path=str(tmp_path / "keys" / "a.obj.pmw.key.json"), watermark=watermark,
+                    timeout=0.01 if ending == "timeout" else 120)
     row = encode_task(job)
-    assert row["status"] == "timeout" and old.read_bytes() == b"the output of the run before"
+    assert row["status"] == ending and old.read_bytes() == b"the output of the run before", row
     assert not list(old.parent.glob(".*.tmp"))
 
 
