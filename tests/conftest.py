@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import socket
 from pathlib import Path
 
 import pytest
@@ -29,6 +31,16 @@ def watermark_path(name: str) -> Path:
     if not path.exists():
         pytest.skip(f"shared watermarks not available: {path}")
     return path
+
+
+@contextlib.contextmanager
+def refusing_port():
+    """A port of the loopback bound but not listening, so nothing else can take it meanwhile: a connection to it is
+    refused.  (A free port found by binding and closing, or a server's port once it is closed, could be taken by
+    another process before it was used.)"""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        yield s.getsockname()[1]
 
 
 GENERATED = {

@@ -25,6 +25,7 @@ pytest.importorskip("distributed")
 from pmwm_codec.batch import run  # noqa: E402
 from pmwm_codec.cli import main  # noqa: E402
 
+from conftest import refusing_port  # noqa: E402
 from test_batch_refusals import lib  # noqa: E402,F401 (a fixture: tmp/lib/a.obj and tmp/wm.png)
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -65,15 +66,6 @@ def silent_port():
     server.close()
 
 
-@contextlib.contextmanager
-def _refusing_port():
-    """A port of the loopback bound but not listening, so nothing else can take it meanwhile: a connection to it is
-    refused.  (A free port found by binding and closing could be taken by another process before it was used.)"""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        yield s.getsockname()[1]
-
-
 @pytest.mark.parametrize("address, words", [
     ("foo://x:1", ["unknown address scheme 'foo'"]),
     ("tcp://[::1", ["invalid address"]),
@@ -99,7 +91,7 @@ def test_a_malformed_scheduler_address_is_bad_usage_and_leaves_no_output_folder_
 def test_an_unreachable_scheduler_leaves_no_new_collection_key_and_no_output_folder(lib, capsys, monkeypatch):
     monkeypatch.setattr(run, "CONNECT_TIMEOUT", 1.0)
     out, key = lib / "out", lib / "c.key.json"
-    with _refusing_port() as port:
+    with refusing_port() as port:
         address = f"tcp://127.0.0.1:{port}"
         assert main(["batch", "encode", str(lib / "lib"), "-o", str(out), "--watermark", str(lib / "wm.png"),
                      "--key", str(key), "--scheduler", address]) == 2

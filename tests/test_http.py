@@ -26,6 +26,8 @@ from pmwm_codec.errors import FormatError, InputFormatError, PmwError
 from pmwm_codec.format.inspect import inspect
 from pmwm_codec.http import UrlSource, is_url
 
+from conftest import refusing_port
+
 
 class IgnoringRange(RangeRequestHandler):
     """A server that answers every GET with the whole file (200), as if Range did not exist."""
@@ -254,10 +256,9 @@ def test_verify_url_errors_are_one_line_exit_2(server, site, capsys):
     key = site / "x.pmw.key.json"
     code, out, err = _pmw(capsys, "verify", server.url + "missing.pmw", "--key", key)
     assert code == 2 and err.startswith("pmw: error: ") and "404" in err and len(err.splitlines()) == 1
-    server.shutdown()  # a closed port: connection refused
-    server.server_close()
-    code, out, err = _pmw(capsys, "verify", server.url + "x.pmw", "--key", key)
-    assert code == 2 and "cannot read" in err and len(err.splitlines()) == 1
+    with refusing_port() as port:  # connection refused
+        code, out, err = _pmw(capsys, "verify", f"http://127.0.0.1:{port}/x.pmw", "--key", key)
+    assert code == 2 and "cannot read" in err and "Connection refused" in err and len(err.splitlines()) == 1, err
 
 
 def test_range_server_answers_206_with_content_range(site):
