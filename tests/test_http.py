@@ -82,15 +82,13 @@ def _served(directory, handler):
         thread.join(5)
 
 
-def _decode_stalls(url: str, match: str, seconds: float, timeout: float = 1) -> UrlSource:
-    """``pmwm_codec.decode`` of ``url`` (with ``timeout``) is the stall error ``match`` within ``seconds``: the source."""
-    import time
-
-    start = time.monotonic()
+def _decode_stalls(url: str, match: str, timeout: float = 1) -> UrlSource:
+    """``pmwm_codec.decode`` of ``url`` (with ``timeout``) is the stall error ``match``: the source.  (No bound on the
+    time it takes: each server here ends its answer, or is stopped, long after the reader's rule cuts it off, with
+    another outcome than a stall; a bound of a few seconds failed on a loaded machine.)"""
     source = UrlSource(url, timeout=timeout)
     with pytest.raises(InputFormatError, match=match):
         pmwm_codec.decode(source)
-    assert time.monotonic() - start < seconds
     return source
 
 
@@ -870,7 +868,7 @@ class Trickling(RangeRequestHandler):
 def test_a_server_that_trickles_is_a_named_error_not_a_read_of_hours(site):
     """A byte every 0.1 s never trips the socket timeout: a .pmw of a few KB took hours, a large one days."""
     with _served(site, Trickling) as url:
-        _decode_stalls(url, "the server stalls", 5)
+        _decode_stalls(url, "the server stalls")
 
 
 def test_serve_answers_say_accept_ranges_once_and_name_the_files_version(tmp_path):
@@ -1469,38 +1467,44 @@ def test_a_server_that_drips_every_range_answer_is_a_stall_of_the_whole_transfer
 
     monkeypatch.setattr(http, "MIN_RATE", 20_000)  # so that a 0.5 s answer of 300 bytes is too slow
     with _served(site, Dripping) as url:  # a 2 s timeout: no single 0.5 s answer nears it, even on a loaded machine
-        source = _decode_stalls(url, r"the server stalls: [\d,]+ bytes in \d s, under 20,000 bytes/s", 6, timeout=2)
+        source = _decode_stalls(url, r"the server stalls: [\d,]+ bytes in \d+ s, under 20,000 bytes/s", timeout=2)
         assert source.requests <= 10
 
 
 def test_a_server_that_drips_its_answers_head_is_cut_off_after_the_timeout(tmp_path, capsys):
     """A status line and headers sent a byte every 0.2 s never trip a socket timeout: the read of one answer's head
-    took as long as the server liked (here 8 s, then "cannot read (RemoteDisconnected ...)")."""
+    took as long as the server liked (here 8 s, then "cannot read (RemoteDisconnected ...)").  This server drips
+    until the reader has given up, a minute at most (a guard against a hang): the reader must give up while the
+    server is still dripping, whatever the machine's load, not notice the stall once the head has come."""
     import socket
 
     listener = socket.create_server(("127.0.0.1", 0))
     done = threading.Event()
+    dripped_to_the_end = []
 
     def answer():
         conn, _ = listener.accept()
         with conn:
             conn.recv(65536)
-            for byte in b"HTTP/1.1 200 OK\r\nX-Slow: " + b"x" * 40:
+            for byte in b"HTTP/1.1 200 OK\r\nX-Slow: " + b"x" * 300:
                 if done.wait(0.2):
                     return
                 try:
                     conn.sendall(bytes([byte]))
                 except OSError:
                     return
+            dripped_to_the_end.append(True)
 
     thread = threading.Thread(target=answer, daemon=True)
     thread.start()
     try:
-        _decode_stalls(f"http://127.0.0.1:{listener.getsockname()[1]}/x.pmw", r"the server stalls: 0 bytes in 1 s", 3)
+        _decode_stalls(f"http://127.0.0.1:{listener.getsockname()[1]}/x.pmw",
+                       r"the server stalls: 0 bytes in \d+ s, under 64 bytes/s after the first 1 s\)$")
     finally:
         done.set()
         listener.close()
         thread.join(10)
+    assert not dripped_to_the_end
 
 
 class Steady(RangeRequestHandler):
@@ -1531,30 +1535,31 @@ def test_a_slow_link_that_keeps_bringing_bytes_is_read_to_the_end(site):
         assert pmwm_codec.decode(source, chunks=0) == pmwm_codec.decode(site / "x.pmw", chunks=0)
         assert source.bytes_fetched == _prefix_end(site / "x.pmw", 0)
     with _served(site, type("Trickle", (Steady,), {"rate": 20})) as url:  # 2 bytes every 0.1 s
-        _decode_stalls(url, r"the server stalls: \d+ bytes in \d s, under 64 bytes/s after the first 1 s", 3)
+        _decode_stalls(url, r"the server stalls: \d+ bytes in \d+ s, under 64 bytes/s after the first 1 s")
 
 
 def test_a_host_name_lookup_that_stalls_is_cut_off_after_the_timeout(site, monkeypatch):
     """``getaddrinfo`` blocks for as long as the resolver takes, and the watchdog had no connection to cut off: a
     lookup that never answered held the reader for ever.  It is now given the step's time and named."""
     import socket
-    import time
 
     lookup = socket.getaddrinfo
+    answer = threading.Event()  # the slow lookup answers once the reader has given up (a minute at most)
 
     def resolver(host, *args, **kwargs):
         if host == "slow.example":
-            time.sleep(4)
+            answer.wait(60)
         return lookup("127.0.0.1" if host.endswith(".example") else host, *args, **kwargs)
 
     monkeypatch.setattr(socket, "getaddrinfo", resolver)
     with _served(site, RangeRequestHandler) as url:
         quick = UrlSource(url.replace("127.0.0.1", "quick.example"), timeout=1)  # the addresses it gives are used
         assert pmwm_codec.decode(quick) == pmwm_codec.decode(site / "x.pmw") and quick.ranged
-        start = time.monotonic()
-        with pytest.raises(InputFormatError) as info:
-            pmwm_codec.decode(UrlSource(url.replace("127.0.0.1", "slow.example"), timeout=1))
-        assert time.monotonic() - start < 2.5
+        try:
+            with pytest.raises(InputFormatError) as info:
+                pmwm_codec.decode(UrlSource(url.replace("127.0.0.1", "slow.example"), timeout=1))
+        finally:
+            answer.set()
     assert re.fullmatch(r"http://slow\.example:\d+/x\.pmw: cannot read \(the name lookup \(DNS\) of slow\.example gave "
                         r"no answer in [01]\.\d s\)", str(info.value)), info.value
 
