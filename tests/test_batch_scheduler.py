@@ -201,10 +201,41 @@ def _finish(run_, seconds: float = 90):
             run_.communicate()
 
 
+def _state(proc) -> str:
+    """The state letter of ``proc`` in ``/proc`` (``T``: stopped, ``Z``: ended, not yet reaped)."""
+    with open(f"/proc/{proc.pid}/stat") as f:
+        return f.read().rpartition(")")[2].split()[0]
+
+
+def _stopped(proc, seconds: float = 240) -> None:
+    """Wait (up to ``seconds``) until ``proc`` is stopped (a SIGSTOP of its fault point), read off ``/proc`` (not
+    ``waitpid``: the process is not reaped)."""
+    deadline = time.monotonic() + seconds
+    while (state := _state(proc)) not in "tT":
+        assert state != "Z", f"the run ended before its fault point (exit status {proc.poll()})"
+        assert time.monotonic() < deadline, f"the run did not reach its fault point in {seconds:g} s"
+        time.sleep(0.05)
+
+
+def _continued(proc, seconds: float = 90):
+    """``(stdout, stderr)`` of ``proc`` once it has ended, continued (SIGCONT) each time its fault point stops it
+    (each result it takes); killed after ``seconds``."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline and _state(proc) != "Z":
+        if _state(proc) in "tT":
+            proc.send_signal(signal.SIGCONT)
+        time.sleep(0.05)
+    return _finish(proc, max(1.0, deadline - time.monotonic()))
+
+
 def test_a_run_whose_every_worker_dies_stops_in_one_line_after_the_no_worker_timeout_and_a_rerun_resumes(tmp_path):
     """Every worker of a --scheduler cluster killed mid-run: the run waited forever (Dask keeps the tasks for a
     worker that never comes).  It stops once the cluster has had no worker for --no-worker-timeout seconds: one
-    line, exit 2, the ledger whole (a row per asset done), and the next run, on a new worker, does the rest."""
+    line, exit 2, the ledger whole (a row per asset done), and the next run, on a new worker, does the rest.
+
+    The run is held (SIGSTOP, its ``batch-row-taken`` fault point) as it takes its first result, and the worker is
+    killed then: mid-run by the order of events (the run cannot have taken the rest meanwhile, nor started its
+    no-worker clock before the kill), not by a guess that the worker cannot finish the rest first."""
     from PIL import Image
 
     from pmwm_codec import shapes
@@ -220,19 +251,22 @@ def test_a_run_whose_every_worker_dies_stops_in_one_line_after_the_no_worker_tim
     with dask_cluster() as (address, procs):
         argv = [sys.executable, "-m", "pmwm_codec", "batch", "encode", str(tmp_path / "lib"), "-o", str(out),
                 "--watermark", str(tmp_path / "wm.png"), "--scheduler", address, "--json"]
-        run_ = subprocess.Popen([*argv, "--no-worker-timeout", "3"], env=dict(os.environ, PYTHONPATH=str(ROOT)),
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        _first_row(run_, out / LEDGER_NAME)
-        os.killpg(procs[1].pid, signal.SIGKILL)  # the one worker (and its encoder) gone mid-run
-        killed = time.monotonic()
-        stdout, stderr = _finish(run_)
+        run_ = subprocess.Popen([*argv, "--no-worker-timeout", "3"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                env=dict(os.environ, PYTHONPATH=str(ROOT), PMWM_FAULT="batch-row-taken:STOP"),
+                                text=True)
+        try:
+            _stopped(run_)  # the run holds its first result, not yet in its ledger
+            os.killpg(procs[1].pid, signal.SIGKILL)  # the one worker (and its encoder) gone mid-run
+            killed = time.monotonic()
+        finally:
+            stdout, stderr = _continued(run_)
         waited = time.monotonic() - killed
         done = read_ledger(out / LEDGER_NAME)
-        assert (run_.returncode, stdout) == (2, "")
+        assert (run_.returncode, stdout) == (2, ""), stderr
         assert stderr.count("\n") == 1 and stderr.startswith(
             "pmw: error: the Dask cluster has had no worker for 3 s (all gone?); the run stopped with "), stderr
         assert f" of {assets} assets not done (a re-run does them)" in stderr and "Traceback" not in stderr
-        assert 3 <= waited < 60
+        assert 3 <= waited  # the run was held while the worker was killed: its no-worker time begins after
         assert 1 <= len(done) < assets
         assert (out / LEDGER_NAME).read_bytes().endswith(b"\n")
         assert not [p for p in out.rglob("*") if p.name.endswith(".tmp")]
