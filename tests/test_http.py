@@ -899,7 +899,6 @@ def test_serve_closes_the_connection_when_the_file_shrank_under_its_answer(tmp_p
     the server sent fewer bytes and kept the connection open, so a keep-alive client waited for the rest until
     its timeout (30 s by default; a browser longer)."""
     import http.client
-    import time
 
     class Shrinking(RangeRequestHandler):
         def send_head(self):
@@ -912,8 +911,8 @@ def test_serve_closes_the_connection_when_the_file_shrank_under_its_answer(tmp_p
         for ranged in (True, False):
             (tmp_path / "x.pmw").write_bytes(b"glTF" + bytes(4000))
             headers = {"Range": "bytes=0-999"} if ranged else {}
-            start = time.monotonic()
-            # a keep-alive client, as a browser is (urllib asks for Connection: close)
+            # a keep-alive client, as a browser is (urllib asks for Connection: close); a connection left open would
+            # end in its timeout (TimeoutError, not IncompleteRead: no bound on the time taken, which load can outrun)
             connection = http.client.HTTPConnection("127.0.0.1", srv.server_address[1], timeout=10)
             try:
                 connection.request("GET", "/x.pmw", headers=headers)
@@ -921,7 +920,6 @@ def test_serve_closes_the_connection_when_the_file_shrank_under_its_answer(tmp_p
                     connection.getresponse().read()
             finally:
                 connection.close()
-            assert time.monotonic() - start < 5
     finally:
         srv.shutdown()
         srv.server_close()
