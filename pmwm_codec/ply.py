@@ -21,6 +21,7 @@ of mixed corner counts (triangles and quads, as MeshLab writes them) are read to
 from __future__ import annotations
 
 import re
+import warnings
 from array import array
 from dataclasses import dataclass, field
 
@@ -244,13 +245,12 @@ def _header(text: str, name: str) -> tuple:
 
 def _ascii_elements(body: bytes, elements: list, name: str) -> list:
     """Each element's values (:func:`_values`) from ASCII records, one a line (blank lines skipped).  The
-    tokens are split once and counted line by line with numpy (a split per line took twice trimesh's time)."""
+    lines are counted with numpy, and each element's text parsed on its own (:func:`_ascii_records`)."""
     bad = _NOT_NUMERIC.search(body)
     if bad is not None:
         raise InputFormatError(f"{name}: byte {bad.group()!r} in the records of an ASCII PLY (numbers only)")
-    per_line = _tokens_per_line(body)  # first: its byte masks are gone before the tokens' list is made
-    tokens = body.split()
-    at, used, out = 0, 0, []
+    per_line, ends = _tokens_per_line(body)
+    at, out = 0, []
     for element, count, props in elements:
         if not props:  # an element of no properties holds no data
             out.append({})
@@ -259,45 +259,88 @@ def _ascii_elements(body: bytes, elements: list, name: str) -> list:
         if len(widths) < count:
             raise InputFormatError(f"{name}: PLY declares {count:,} {element} records but holds {len(widths):,} "
                                    "lines for them (cut short, or not one record a line)")
-        size = int(widths.sum())
-        out.append(_ascii_records(tokens[used: used + size], widths, props, element, name, at))
-        at, used = at + count, used + size
+        text = body[int(ends[at - 1]) if at else 0: int(ends[at + count - 1]) if count else 0]
+        out.append(_ascii_records(text, widths, props, element, name, at))
+        at += count
     if at < len(per_line):
+        line = body[int(ends[at - 1]) if at else 0: int(ends[at])]
         raise InputFormatError(f"{name}: data after the last PLY element (line {at + 1} after the header: "
-                               f"{b' '.join(tokens[used: used + int(per_line[at])]).decode()[:60]!r})")
+                               f"{b' '.join(line.split()).decode()[:60]!r})")
     return out
 
 
-def _tokens_per_line(body: bytes) -> np.ndarray:
-    """(lines,) int64: the whitespace-separated tokens on each line of ``body`` that holds any.  Each token's
+def _tokens_per_line(body: bytes) -> tuple:
+    """``(tokens (lines,) int64, ends (lines,) int64)``: the whitespace-separated tokens on each line of ``body``
+    that holds any, and where that line ends (its line feed's offset, or the end of ``body``).  Each token's
     line is the count of line feeds before its first byte, found among the line feeds' offsets (a count over
     every byte, an int64 a byte, took 8 bytes of memory per byte of the file: 3.3 GB for a 417 MB PLY)."""
     data = np.frombuffer(body, np.uint8)
     if not len(data):
-        return np.zeros(0, np.int64)
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    start = _token_starts(data)
+    newlines = np.flatnonzero(data == 10)
+    counts = np.bincount(np.searchsorted(newlines, start), minlength=len(newlines) + 1)
+    held = counts > 0
+    return counts[held], np.append(newlines, len(data))[held]
+
+
+def _token_starts(data: np.ndarray) -> np.ndarray:
+    """(tokens,) int64: where each whitespace-separated token of the bytes ``data`` (uint8) starts."""
     space = (data >= 9) & (data <= 13)  # line feed among them
     space |= data == 32
     start = np.flatnonzero(~space[1:] & space[:-1]) + 1  # a token's first byte: not white space, after white space
-    if not space[0]:
-        start = np.concatenate([[0], start])
-    del space
-    newlines = np.flatnonzero(data == 10)
-    counts = np.bincount(np.searchsorted(newlines, start), minlength=len(newlines) + 1)
-    return counts[counts > 0]
+    return np.concatenate([[0], start]) if len(data) and not space[0] else start
 
 
+def _integer_columns_plain(text: bytes, width: int, columns: list) -> bool:
+    """Whether every token of the ``columns`` of records of ``width`` tokens in ``text`` is a sign and digits
+    alone (``2.0``, ``2e0`` and ``inf`` are no integer type's values, as the token reader refuses them)."""
+    data = np.frombuffer(text, np.uint8)
+    plain = ((data >= 48) & (data <= 57)) | (data == 43) | (data == 45) | ((data >= 9) & (data <= 13)) | (data == 32)
+    other = np.flatnonzero(~plain)
+    del plain
+    column = (np.searchsorted(_token_starts(data), other, "right") - 1) % width
+    return not np.isin(column, columns).any()
+
+
+def parsed_numbers(text, dtype) -> np.ndarray | None:
+    """The whitespace-separated numbers of ``text`` (bytes-like) as a (count,) ``dtype`` (int64 or float64) array,
+    parsed by numpy at once, or None when a token is not one number of that type -- the caller then reads the
+    tokens one by one, and names what is wrong.  Each token gives one value or stops the parse (a sign alone,
+    which numpy reads as 0 at the end or joins to the next token, gives None), so a caller that finds as many
+    values as tokens has the tokens' values."""
+    if _LONE_SIGN.search(memoryview(text)) is not None:
+        return None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # (a token that does not parse: numpy warns and stops)
+            return np.fromstring(text if isinstance(text, bytes) else bytes(text), dtype, sep=" ")
+    except (ValueError, Warning):
+        return None
+
+
+#: A sign that is a token of its own (``+`` or ``-`` before white space or the end).
+_LONE_SIGN = re.compile(rb"[+-](?![^\s])")
 #: What no ASCII PLY record holds: a byte other than ASCII letters, digits, signs, points and white space
 #: (numpy and Python read ``1_0`` as 10 and Arabic-Indic digits as digits).
 _NOT_NUMERIC = re.compile(rb"[^0-9A-Za-z+\-.\s]")
 
 
-def _ascii_records(tokens: list, widths: np.ndarray, props: list, element: str, name: str, first: int) -> dict:
-    """One element's values (:func:`_values`) from its records' ``tokens`` (bytes), ``widths[i]`` of them on
-    record i: records of one shape (every list as long as in the first) at once, else record by record."""
+def _ascii_records(text: bytes, widths: np.ndarray, props: list, element: str, name: str, first: int) -> dict:
+    """One element's values (:func:`_values`) from its records' ``text`` (``widths[i]`` tokens on record i, the
+    first of them line ``first`` after the header): records of one shape (every list as long as in the first)
+    at once -- parsed straight from the text by numpy when every value is an integer or every one a float
+    (:func:`_uniform_values`), else from its tokens -- otherwise record by record."""
     if not len(widths):
         return _values([], props)
-    lengths = _list_lengths(tokens[: widths[0]], props)
-    if lengths is not None and (widths == widths[0]).all():
+    lengths = _list_lengths(text.split(None, int(widths[0]))[: widths[0]], props)
+    uniform = lengths is not None and (widths == widths[0]).all()
+    if uniform:
+        out = _uniform_values(text, len(widths), int(widths[0]), props, lengths)
+        if out is not None:
+            return out
+    tokens = text.split()
+    if uniform:
         try:
             return _columns(np.array(tokens).reshape(len(widths), -1), props, lengths)
         except ValueError:
@@ -316,6 +359,30 @@ def _ascii_records(tokens: list, widths: np.ndarray, props: list, element: str, 
         rows.append(row)
         at += w
     return _values(rows, props)
+
+
+def _uniform_values(text: bytes, count: int, width: int, props: list, lengths: list):
+    """:func:`_columns`' values of ``count`` records of ``width`` tokens each, every list ``lengths[k]`` long,
+    parsed from ``text`` by numpy at once (no token list: a Python bytes object a token took ~5x the file's
+    size) when every value is of an integer type, or the element has no list (integers beside floats read as
+    float64, each of their tokens checked to be a plain integer: :func:`_integer_columns_plain`); None
+    otherwise, or when a token does not parse, a value is out of its type's range or a list's count differs
+    (the token reader then reads or names it): :func:`parsed_numbers`."""
+    integer = [kind[0] in "iu" for _, _, kind in props]
+    lists = any(c is not None for _, c, _ in props)
+    if lists and not all(integer):
+        return None  # (a list of floats, or beside floats: the token reader)
+    values = parsed_numbers(text, np.int64 if all(integer) else np.float64)
+    if values is None or values.size != count * width:
+        return None
+    try:
+        table = values.reshape(count, width)
+        if any(integer) and not all(integer) and not (
+                (np.abs(table[:, integer]) <= 1 << 32).all() and _integer_columns_plain(text, width, np.flatnonzero(integer))):
+            return None  # (an integer of 32 bits, PLY's widest, is exact in float64)
+        return _columns(table, props, lengths)
+    except (ValueError, Warning):
+        return None
 
 
 def _sorted_columns(tokens: list, widths: np.ndarray, props: list) -> dict:
@@ -362,7 +429,8 @@ def _list_lengths(words: list, props: list):
 
 
 def _columns(table: np.ndarray, props: list, lengths: list) -> dict:
-    """:func:`_values` of records of one shape, ``table`` (count, w) str, each list ``lengths[k]`` long;
+    """:func:`_values` of records of one shape, ``table`` (count, w) of str, or of int64 / float64 values already
+    parsed, each list ``lengths[k]`` long;
     ValueError when a value does not parse as its type or a list's count is not its length."""
     at, k, out = 0, 0, {}
     for p, count, kind in props:
@@ -370,7 +438,8 @@ def _columns(table: np.ndarray, props: list, lengths: list) -> dict:
             out[p] = _parsed(table[:, at], kind)
             at += 1
             continue
-        if not (table[:, at] == np.array(str(lengths[k])).astype(table.dtype)).all():
+        if not (table[:, at] == np.array(str(lengths[k])).astype(table.dtype)
+                if table.dtype.kind in "SU" else table[:, at] == lengths[k]).all():
             raise ValueError("a list's count differs")
         items = _parsed(table[:, at + 1: at + 1 + lengths[k]], kind)
         out[p] = (np.full(len(table), lengths[k], np.int64), items.reshape(-1))
@@ -379,11 +448,11 @@ def _columns(table: np.ndarray, props: list, lengths: list) -> dict:
 
 
 def _parsed(tokens: np.ndarray, kind: str) -> np.ndarray:
-    """``tokens`` (str array) as the declared numpy ``kind``, widened to int64 or float64: ValueError for an
+    """``tokens`` (str array, or int64 / float64 values) as the declared numpy ``kind``, widened to int64 or float64: ValueError for an
     integer type's token that is not an integer (``2.7``) or out of its range; a ``float`` past float32's
     range is infinite, as a binary file's would be (refused later, as every infinite coordinate is)."""
     if kind[0] in "iu":
-        values = tokens.astype(np.int64)
+        values = tokens.astype(np.int64)  # (a float64 table holds no integer type's values: _uniform_values)
         info = np.iinfo(kind)
         if values.size and (values.min() < info.min or values.max() > info.max):
             raise ValueError("an integer out of its type's range")

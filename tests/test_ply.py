@@ -212,11 +212,12 @@ def test_counting_an_ascii_ply_s_tokens_per_line_takes_less_than_an_int64_a_byte
     body = ("\n".join(lines) + "\n\n  \t\n").encode()
     tracemalloc.start()
     try:
-        counts = _tokens_per_line(body)
+        counts, ends = _tokens_per_line(body)
         peak = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
     assert counts.tolist() == [len(line.split()) for line in lines]
+    assert [body[e: e + 1] for e in ends.tolist()] == [b"\n"] * len(lines)  # where each line ends
     assert peak < 4 * len(body), (peak, len(body))
 
 
@@ -236,3 +237,43 @@ def test_a_ply_declaring_more_vertices_than_the_encoder_takes_is_refused_with_re
     path.write_bytes(path.read_bytes().replace(b"vertex 7814907", b"vertex 12x"))
     with pytest.raises(InputFormatError, match=r"declares '12x' vertex elements \(not a count\)"):
         read_mesh(path)
+
+
+def test_reading_an_ascii_ply_takes_no_python_object_per_token():
+    """Reading an ASCII PLY split its records into a list of tokens (a bytes object each: ~10x the file's size,
+    1.3 GB for a 144 MB scan); records of one shape are parsed from their text by numpy, to the same arrays --
+    floats and integers of one element together (a colour's uchar beside float coordinates) too."""
+    import tracemalloc
+
+    rng = np.random.default_rng(6)
+    n = 20_000
+    pos = rng.normal(size=(n, 3))
+    colour = rng.integers(0, 256, size=(n, 3))
+    faces = rng.integers(0, n, size=(2 * n, 3))
+    head = (f"ply\nformat ascii 1.0\nelement vertex {n}\nproperty float x\nproperty float y\nproperty float z\n"
+            "property uchar red\nproperty uchar green\nproperty uchar blue\n"
+            f"element face {2 * n}\nproperty list uchar int vertex_indices\nend_header\n")
+    body = "".join(["%.9g %.9g %.9g %d %d %d\n" % (*p, *c) for p, c in zip(pos, colour)]
+                   + ["3 %d %d %d\n" % tuple(f) for f in faces])
+    data = (head + body).encode()
+    tracemalloc.start()
+    try:
+        positions, triangles = read_ply(data, "m.ply", 10 * n)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert np.array_equal(positions, np.array([[float(np.float32(float("%.9g" % x))) for x in p] for p in pos]))
+    assert np.array_equal(triangles, faces)
+    assert peak < 6 * len(data), (peak, len(data))
+
+
+@pytest.mark.parametrize("token", ["2.0", "2e0", "nan", "+"])
+def test_an_ascii_ply_integer_written_as_no_integer_is_refused_beside_floats_too(token):
+    """A uchar colour written ``2.0`` (or ``nan``, or a sign alone) beside float coordinates is refused naming its
+    record, as it was when every token was parsed on its own (numpy would read ``2.0`` and ``nan`` as floats,
+    and a sign alone as 0)."""
+    head = ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+            "property uchar red\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n")
+    data = (head + f"0 0 0 1\n1 0 0 {token}\n0 1 0 3\n3 0 1 2\n").encode()
+    with pytest.raises(InputFormatError, match=r"malformed PLY vertex record \(line 2 after the header\)"):
+        read_ply(data, "m.ply", 10)
