@@ -670,6 +670,9 @@ def obj_arrays(text: str, name: str) -> tuple:
     ``vt`` or ``vn``, or ``f 1 2 3`` before its vertices, was read without a word (the mesh an OBJ viewer shows is
     not that one: Blender skips such a face, three.js reads no position for it)."""
     text = _obj_normalized(text)
+    fast = _read_obj_bytes(text)
+    if fast is not None:
+        return fast
     lines = text.splitlines()
     fast = _read_obj_columns(text, lines)
     if fast is not None:
@@ -950,6 +953,108 @@ def _read_obj_columns(text: str, lines: list):
         idx = np.where(idx > 0, idx - 1, before[:, None] + idx)
     else:
         idx = idx - 1
+    faces = np.stack([np.repeat(idx[:, 0], k - 2), idx[:, 1:-1].reshape(-1), idx[:, 2:].reshape(-1)], axis=1)
+    return np.ascontiguousarray(positions[:, :3]), faces, positions.shape[1]
+
+
+#: The bytes of the common OBJ's ``v`` records (digits, signs, points, exponents, blanks) and ``f`` records.
+_PLAIN_FLOAT = np.zeros(256, bool)
+_PLAIN_FLOAT[list(b"0123456789+-.eE \t\n")] = True
+_PLAIN_FACE = np.zeros(256, bool)
+_PLAIN_FACE[list(b"0123456789-/ \t\n")] = True
+
+
+def _read_obj_bytes(text: str):
+    """:func:`_read_obj_columns`' result, read from the text's bytes by numpy without a Python object per line
+    or token (the list of lines and its copies took ~8x the file's size: 1.9 GB for a 234 MB OBJ), for the
+    common ASCII OBJ that reader takes whose ``v`` records hold plain decimals (no ``nan`` / ``inf``) and whose
+    ``f`` records are no blank ones; None for anything else, which the readers of lines then read or refuse
+    (the same values: the records of every kind are found, counted and checked as :func:`_read_obj_columns`
+    finds, counts and checks them).  ``text``: the normalized OBJ text (:func:`_obj_normalized`)."""
+    from .meshdoc import _CORNER_FORMS, _every_corner_has
+    from .ply import _tokens_per_line, parsed_numbers
+
+    if not text.isascii():
+        return None
+    raw = text.encode("ascii")
+    data = np.frombuffer(raw, np.uint8)
+    ends = np.flatnonzero(data == 10)
+    if not len(data) or data[-1] != 10:
+        ends = np.append(ends, len(data))
+    starts = np.concatenate([[0], ends[:-1] + 1])
+    if (ends - starts).max() > _COLUMN_RECORD + 2:
+        return None  # a huge record is checked against the limits before it is split, record by record
+    padded = np.concatenate([data, np.zeros(3, np.uint8)])
+    b0, b1, b2 = padded[starts], padded[starts + 1], padded[starts + 2]
+    del padded
+    space = ord(" ")
+    kinds = [(b0 == ord("v")) & (b1 == space), (b0 == ord("v")) & (b1 == ord("t")) & (b2 == space),
+             (b0 == ord("v")) & (b1 == ord("n")) & (b2 == space), (b0 == ord("f")) & (b1 == space)]
+    del b0, b1, b2
+
+    def records(kind: np.ndarray, plain: np.ndarray):
+        """The bytes of the records of ``kind`` (lines, their keywords blanked), or None for a byte not ``plain``."""
+        keep = np.repeat(kind, ends - starts + 1)[: len(data)]  # each line with its line feed
+        body = data[keep]
+        del keep
+        body[np.cumsum(np.concatenate([[0], (ends - starts + 1)[kind][:-1]]))] = space  # the keywords' first byte
+        return body if plain[body].all() else None
+
+    n_vertices, faces = int(kinds[0].sum()), int(kinds[3].sum())
+    if not n_vertices or not faces or n_vertices > MAX_ENCODE_VERTICES:
+        return None
+    verts = records(kinds[0], _PLAIN_FLOAT)
+    if verts is None:
+        return None
+    widths = _tokens_per_line(verts)[0]
+    if len(widths) != n_vertices or (widths != widths[0]).any():
+        return None  # (a v record of no number, or of another count)
+    positions = parsed_numbers(verts, np.float64)
+    del verts
+    width = int(widths[0])
+    if positions is None or positions.size != n_vertices * width or width < 3:
+        return None
+    positions = positions.reshape(n_vertices, width)
+    polys = records(kinds[3], _PLAIN_FACE)
+    del data, raw  # (the text itself is the caller's)
+    if polys is None:
+        return None
+    first = polys[: _COLUMN_RECORD + 2].tobytes().split(None, 1)  # the first record's first corner
+    if not first:
+        return None
+    slashes, double = first[0].count(b"/"), b"//" in first[0]
+    form = _CORNER_FORMS.get((slashes, int(double)))  # the record kinds a corner names: 0 v, 1 vt, 2 vn
+    if form is None:
+        return None
+    corners_each = _tokens_per_line(polys)[0]
+    if len(corners_each) != faces or (corners_each != corners_each[0]).any():
+        return None  # (a blank f record, or faces of mixed corner counts)
+    k = int(corners_each[0])
+    n = faces * k
+    slash = polys == ord("/")
+    if slashes and (np.count_nonzero(slash) != n * slashes or np.count_nonzero(slash[1:] & slash[:-1]) != n * double
+                    or not _every_corner_has(polys, n, slashes)):
+        return None  # corners of mixed forms whose numbers make up the same count (each corner: its form's slashes)
+    polys[slash] = space
+    del slash
+    values = parsed_numbers(polys, np.int64)
+    del polys
+    if values is None or values.size != n * len(form) or k < 3 or faces * (k - 2) > MAX_ENCODE_FACES:
+        return None
+    corners = values.reshape(faces, k, len(form))
+    idx = corners[:, :, 0]
+    if not ((idx != 0) & (np.abs(idx) <= MAX_ENCODE_VERTICES)).all():
+        return None
+    is_face = kinds[3]
+    before_v = None
+    for column, kind in enumerate(form):  # each index names a record of its kind read before its face
+        before = np.cumsum(kinds[kind])[is_face][:, None]
+        ids = corners[:, :, column]
+        if not ((ids != 0) & (ids <= before) & (ids >= -before)).all():
+            return None
+        if kind == 0:
+            before_v = before
+    idx = np.where(idx > 0, idx - 1, before_v + idx) if (idx < 0).any() else idx - 1
     faces = np.stack([np.repeat(idx[:, 0], k - 2), idx[:, 1:-1].reshape(-1), idx[:, 2:].reshape(-1)], axis=1)
     return np.ascontiguousarray(positions[:, :3]), faces, positions.shape[1]
 

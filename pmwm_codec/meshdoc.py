@@ -773,13 +773,14 @@ _SPLITS = np.zeros(256, bool)
 _SPLITS[[9, 10, 11, 12, 13, 28, 29, 30, 31, 32]] = True
 
 
-def _every_corner_has(text: str, n: int, slashes: int) -> bool:
-    """Whether each of the ``n`` corners of the face records ``text`` (joined by spaces; ``n * slashes`` slashes in
+def _every_corner_has(text, n: int, slashes: int) -> bool:
+    """Whether each of the ``n`` corners of the face records ``text`` (str, or its bytes: bytes-like; joined by
+    white space; ``n * slashes`` slashes in
     all) holds ``slashes`` slashes: numpy over its bytes, two slashes in one corner when no separator lies between
     them.  False for a separator :meth:`str.split` knows and this does not (the record loop reads it)."""
     if not slashes:
         return True  # no slash at all (counted by the caller)
-    raw = np.frombuffer(text.encode("utf-8", "replace"), np.uint8)
+    raw = np.frombuffer(text.encode("utf-8", "replace") if isinstance(text, str) else text, np.uint8)
     before = np.searchsorted(np.flatnonzero(_SPLITS[raw]), np.flatnonzero(raw == 47)).reshape(n, slashes)
     return bool((before[:, 0] == before[:, -1]).all() and (before[1:, 0] > before[:-1, -1]).all())
 
