@@ -197,13 +197,20 @@ def discard(staged: Staged | None) -> None:
 
 def write_atomic(path, parts, mode: int | None = None) -> int:
     """Write ``parts`` to ``path`` atomically (old file or new file, whole); returns the byte count."""
-    staged = stage(path, parts, mode)
+    sizes = []  # parts may be a generator (text written a block at a time): counted as they are written
+    staged = stage(path, (_counted(p, sizes) for p in parts), mode)
     try:
         publish(staged)
     except BaseException:
         discard(staged)
         raise
-    return sum(len(memoryview(p).cast("B")) for p in parts)
+    return sum(sizes)
+
+
+def _counted(part, sizes: list):
+    view = memoryview(part).cast("B")
+    sizes.append(len(view))
+    return view
 
 
 def write_set(files: dict) -> None:

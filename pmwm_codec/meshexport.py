@@ -53,6 +53,7 @@ from __future__ import annotations
 import io
 import os
 import re
+from itertools import chain
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -64,6 +65,7 @@ from .format.gltf import (
 )
 from .constants import EXTENSION_NAME, MAX_WRITTEN_IMAGES
 from .errors import InputFormatError, OptionError
+from .meshio import text_rows
 from .meshdoc import EMISSIVE_STRENGTH, Material, Part, srgb_from_linear
 
 __all__ = ["Scene", "Showing", "progressive_meshes", "scene_parts", "shows_appearance", "sidecar_paths",
@@ -396,7 +398,7 @@ def write_scene(path: str, scene: Scene) -> tuple:
                               "naming it; give the output another name")
     if suffix == ".obj":
         text, vertices, faces = _obj_text(scene, None if mtl is None else os.path.basename(mtl))
-        files, notices = {path: [text]}, []
+        files, notices = {path: text}, []
         if any("COLOR_0" in p.attributes and (p.attributes["COLOR_0"][:, 3] < 1.0).any()
                for s in scene.showings for p in s.parts):  # a v record's colour is r g b
             notices.append("the vertex colours' alpha is left out: an OBJ's v records hold red, green and blue "
@@ -405,7 +407,7 @@ def write_scene(path: str, scene: Scene) -> tuple:
             files[mtl] = [_mtl_text(scene, names)]
     elif suffix == ".off":
         text, vertices, faces, notices = _off_text(scene)
-        files = {path: [text]}
+        files = {path: text}
     elif suffix == ".ply":
         parts, vertices, faces, notices = _ply_parts(scene, names)
         files = {path: parts}
@@ -481,7 +483,7 @@ def _welded(showing: Showing, coloured: bool, kind: str, alpha: bool = False) ->
 
 
 def _off_text(scene: Scene) -> tuple:
-    """``(OFF bytes, vertices, faces, notices)``: the scene welded as an OBJ's ``v`` records are (and by alpha),
+    """``(OFF bytes parts (a generator), vertices, faces, notices)``: the scene welded as an OBJ's ``v`` records are (and by alpha),
     ``COFF`` with each vertex's colour (sRGB-encoded, ``r g b a`` in 0..1, six decimals: the same bytes back; ``a``
     COLOR_0's alpha, 1 where it has none) when it has colours; what an OFF cannot hold is left out with a note."""
     coloured = any("COLOR_0" in p.attributes for s in scene.showings for p in s.parts)
@@ -493,70 +495,74 @@ def _off_text(scene: Scene) -> tuple:
         total += len(welded)
     rows = np.concatenate(rows) if rows else np.zeros((0, 7 if coloured else 3), np.float32)
     faces = np.concatenate(faces) if faces else np.zeros((0, 3), np.int64)
-    out = io.StringIO()
-    out.write(f"{'COFF' if coloured else 'OFF'}\n{len(rows)} {len(faces)} 0\n")
-    if coloured:
-        np.savetxt(out, rows.astype(np.float64), fmt="%.9g %.9g %.9g %.6f %.6f %.6f %.6f")
-    else:
-        np.savetxt(out, rows.astype(np.float64), fmt="%.9g %.9g %.9g")
-    np.savetxt(out, faces, fmt="3 %d %d %d")
+    text = chain([f"{'COFF' if coloured else 'OFF'}\n{len(rows)} {len(faces)} 0\n".encode("ascii")],
+                 text_rows("%.9g %.9g %.9g %.6f %.6f %.6f %.6f" if coloured else "%.9g %.9g %.9g", rows),
+                 text_rows("3 %d %d %d", faces))
     parts = [p for s in scene.showings for p in s.parts]
     notices = []
     if any(p.material is not None or "TEXCOORD_0" in p.attributes or "NORMAL" in p.attributes for p in parts):
         notices.append("texture coordinates, normals and materials are left out: an OFF holds positions and vertex "
                        "colours (decode to .obj, .ply or .glb to keep them)")
-    return out.getvalue().encode("ascii"), len(rows), len(faces), notices
+    return text, len(rows), len(faces), notices
 
 
 def _obj_text(scene: Scene, mtl_name: str | None) -> tuple:
-    """``(OBJ bytes, v records, f records)`` of ``scene`` (module docstring)."""
+    """``(OBJ bytes parts, v records, f records)`` of ``scene`` (module docstring): the records' arrays are made
+    first (the header counts them), their text a block at a time as the file is written
+    (:func:`~pmwm_codec.meshio.text_rows`: a generator, never the whole text in memory)."""
     coloured = any("COLOR_0" in p.attributes for s in scene.showings for p in s.parts)
-    out = io.StringIO()
     v_total = vt_total = vn_total = f_total = 0
-    body = io.StringIO()
+    body = []  # bytes, or (fmt, rows) of text_rows
     current = None  # the material of the last usemtl: it holds across o records
     for showing in scene.showings:
-        body.write(f"o {showing.name}\n")
+        body.append(f"o {showing.name}\n".encode("utf-8", "surrogateescape"))
         welded, corners = _welded(showing, coloured, "an OBJ")
-        np.savetxt(body, welded.astype(np.float64), fmt="v" + " %.9g" * welded.shape[1])
+        body.append(("v" + " %.9g" * welded.shape[1], welded))
         for part, p_idx in zip(showing.parts, corners):
-            p_idx = p_idx + 1 + v_total
-            columns = [p_idx]
-            t_idx = n_idx = None
+            columns = [p_idx + (1 + v_total)]
+            forms = ["%d"]
             if "TEXCOORD_0" in part.attributes:
                 uv = _float32(part.attributes["TEXCOORD_0"][:, :2] * [1.0, -1.0] + [0.0, 1.0])
                 values, t_of = _unique_rows(uv)
-                np.savetxt(body, values.astype(np.float64), fmt="vt %.9g %.9g")
-                t_idx = t_of[part.indices] + 1 + vt_total
+                body.append(("vt %.9g %.9g", values))
+                columns.append(t_of[part.indices] + (1 + vt_total))
                 vt_total += len(values)
+                forms.append("%d")
             if "NORMAL" in part.attributes:
                 values, n_of = _unique_rows(_float32(part.attributes["NORMAL"][:, :3]))
-                np.savetxt(body, values.astype(np.float64), fmt="vn %.9g %.9g %.9g")
-                n_idx = n_of[part.indices] + 1 + vn_total
+                body.append(("vn %.9g %.9g %.9g", values))
+                columns.append(n_of[part.indices] + (1 + vn_total))
                 vn_total += len(values)
+                forms.append("%d" if len(forms) == 2 else "/%d")
             if part.material is not None and part.material != current:
-                body.write(f"usemtl {scene.materials[part.material].name}\n")
+                body.append(f"usemtl {scene.materials[part.material].name}\n".encode("utf-8", "surrogateescape"))
                 current = part.material
             elif part.material is None and current is not None:
-                body.write("usemtl default\n")
+                body.append(b"usemtl default\n")
                 current = None
-            if t_idx is not None and n_idx is not None:
-                corner, columns = "%d/%d/%d", [p_idx, t_idx, n_idx]
-            elif t_idx is not None:
-                corner, columns = "%d/%d", [p_idx, t_idx]
-            elif n_idx is not None:
-                corner, columns = "%d//%d", [p_idx, n_idx]
-            else:
-                corner = "%d"
-            table = np.stack(columns, axis=2).reshape(len(part.indices), -1)  # (m, 3 * forms) corner by corner
-            np.savetxt(body, table, fmt="f " + " ".join([corner] * 3))
+            corner = "/".join(forms)  # %d, %d/%d, %d//%d or %d/%d/%d
+            body.append(("f " + " ".join([corner] * 3), _Corners(columns)))
             f_total += len(part.indices)
         v_total += len(welded)
-    out.write(f"# {GENERATOR}: {v_total} vertices, {f_total} faces\n")
-    if mtl_name is not None:
-        out.write(f"mtllib {mtl_name}\n")
-    out.write(body.getvalue())
-    return out.getvalue().encode("utf-8", "surrogateescape"), v_total, f_total
+    head = f"# {GENERATOR}: {v_total} vertices, {f_total} faces\n" + (f"mtllib {mtl_name}\n" if mtl_name is not None
+                                                                        else "")
+    return chain([head.encode("utf-8", "surrogateescape")], *(
+        [item] if isinstance(item, bytes) else text_rows(*item) for item in body)), v_total, f_total
+
+
+class _Corners:
+    """The (m, 3 * forms) table of an OBJ part's ``f`` records, corner by corner (position, texture coordinate,
+    normal), from its ``columns`` ((m, 3) int64 each), made a block of rows at a time (:func:`text_rows` slices it):
+    the whole table is not held beside its columns."""
+
+    def __init__(self, columns: list):
+        self.columns = columns
+
+    def __len__(self) -> int:
+        return len(self.columns[0])
+
+    def __getitem__(self, rows: slice) -> np.ndarray:
+        return np.stack([c[rows] for c in self.columns], axis=2).reshape(-1, 3 * len(self.columns))
 
 
 def _mtl_text(scene: Scene, image_names: list) -> bytes:
@@ -649,4 +655,5 @@ def _ply_parts(scene: Scene, image_names: list) -> tuple:
                                        or scene.materials[p.material].emissive_texture is not None) for p in parts):
         notices.append("the materials' emission (emissiveFactor, emissiveTexture) is left out: a PLY has no place "
                        "for it; decode to .obj or .glb to keep it")
-    return [("\n".join(lines) + "\n").encode("utf-8", "surrogateescape"), vert.tobytes(), face.tobytes()], n, m, notices
+    return [("\n".join(lines) + "\n").encode("utf-8", "surrogateescape"), vert.view(np.uint8), face.view(np.uint8)], \
+        n, m, notices  # (the records' own bytes, not a copy of them)

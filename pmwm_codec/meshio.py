@@ -32,8 +32,8 @@ untouched, and a new file gets the mode ``0666 & ~umask``.  GLB framing is
 
 from __future__ import annotations
 
-import io
 import os
+from itertools import chain
 
 import numpy as np
 
@@ -44,7 +44,7 @@ from .mesh import Mesh, mesh_arrays
 from .options import check_output_path
 from .sources import shown_path
 
-__all__ = ["WRITE_SUFFIXES", "write_mesh", "write_asset"]
+__all__ = ["WRITE_SUFFIXES", "write_mesh", "write_asset", "text_rows"]
 
 WRITE_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl", ".off")
 GENERATOR = "pmwm_codec (pmw decode)"
@@ -146,23 +146,34 @@ def _gltf_parts(positions, faces) -> list:
     return [glb_to_gltf(b"".join(_glb_parts(positions, faces)))]  # the .glb's document, buffer inline
 
 
-def _obj_parts(positions, faces) -> list:
-    buf = io.StringIO()
-    buf.write(f"# {GENERATOR}: {len(positions)} vertices, {len(faces)} faces\n")
-    np.savetxt(buf, positions.astype(np.float64), fmt="v %.9g %.9g %.9g")
-    np.savetxt(buf, faces.astype(np.int64) + 1, fmt="f %d %d %d")
-    return [buf.getvalue().encode("ascii")]
+def _obj_parts(positions, faces):
+    return chain([f"# {GENERATOR}: {len(positions)} vertices, {len(faces)} faces\n".encode("ascii")],
+                 text_rows("v %.9g %.9g %.9g", positions), text_rows("f %d %d %d", faces, 1))
 
 
-def _off_parts(positions, faces) -> list:
+def _off_parts(positions, faces):
     """OFF as Geomview defined it: the keyword, the counts, a vertex a line, a triangle a line (no comment: a
     strict reader takes none)."""
-    buf = io.StringIO()
-    buf.write(f"OFF\n{len(positions)} {len(faces)} 0\n")
-    np.savetxt(buf, positions.astype(np.float64), fmt="%.9g %.9g %.9g")
-    np.savetxt(buf, faces.astype(np.int64), fmt="3 %d %d %d")
-    return [buf.getvalue().encode("ascii")]
+    return chain([f"OFF\n{len(positions)} {len(faces)} 0\n".encode("ascii")],
+                 text_rows("%.9g %.9g %.9g", positions), text_rows("3 %d %d %d", faces))
 
+
+#: Rows a block of :func:`text_rows` formats at once (~4 MB of text: bounded, whatever the mesh).
+TEXT_ROWS_BLOCK = 1 << 16
+
+
+def text_rows(fmt: str, rows: np.ndarray, add: int = 0):
+    """The bytes of ``np.savetxt(f, rows + add, fmt=fmt)`` (one ``fmt`` line per row of the (n, k) int or float
+    array ``rows``, ``fmt`` holding k conversions), a block of :data:`TEXT_ROWS_BLOCK` rows at a time: each
+    block one ``%`` over its values (no Python loop per row, and never the whole text in memory: an OBJ of 2M
+    faces as a list of lines took more memory than the decoded mesh).  A generator of ASCII bytes, which
+    :func:`pmwm_codec.atomic.stage` writes as it goes."""
+    line = fmt + "\n"
+    for at in range(0, len(rows), TEXT_ROWS_BLOCK):
+        block = rows[at: at + TEXT_ROWS_BLOCK]
+        if add:
+            block = block.astype(np.int64) + add
+        yield ((line * len(block)) % tuple(block.reshape(-1).tolist())).encode("ascii")
 
 def _ply_parts(positions, faces) -> list:
     rec = np.empty(len(faces), dtype=[("n", "u1"), ("i", "<u4", (3,))])
@@ -171,7 +182,7 @@ def _ply_parts(positions, faces) -> list:
     header = (f"ply\nformat binary_little_endian 1.0\ncomment {GENERATOR}\n"
               f"element vertex {len(positions)}\nproperty float x\nproperty float y\nproperty float z\n"
               f"element face {len(faces)}\nproperty list uchar uint vertex_indices\nend_header\n")
-    return [header.encode("ascii"), positions.tobytes(), rec.tobytes()]
+    return [header.encode("ascii"), positions, rec.view(np.uint8)]  # (the arrays' own bytes, not a copy of them)
 
 
 def _stl_parts(positions, faces) -> list:

@@ -552,6 +552,74 @@ def test_an_stl_corner_of_nan_is_named_by_its_facet(tmp_path, kind):
         pmwm_codec.read_mesh(tmp_path / "m.stl")
 
 
+def _written_sizes(monkeypatch) -> list:
+    """The sizes of the os.write calls the atomic writer makes (a list, filled as files are written)."""
+    from pmwm_codec import atomic
+
+    sizes, write = [], os.write
+
+    def recording(fd, data):
+        sizes.append(len(data))
+        return write(fd, data)
+
+    monkeypatch.setattr(atomic.os, "write", recording)
+    return sizes
+
+
+@pytest.mark.parametrize("suffix", [".obj", ".off"])
+def test_an_obj_or_off_is_written_a_block_of_records_at_a_time_never_whole_in_memory(tmp_path, monkeypatch, suffix):
+    """``pmw decode -o X.obj`` of a heritage scan built the whole text (a Python string per line, joined, then
+    encoded: more memory than the decoded mesh); the records are formatted a block at a time and written as
+    they are made, the same bytes as ``np.savetxt`` writes."""
+    import io
+
+    from pmwm_codec import meshio
+
+    mesh = shapes.icosphere(4)
+    monkeypatch.setattr(meshio, "TEXT_ROWS_BLOCK", 100, raising=False)
+    sizes = _written_sizes(monkeypatch)
+    write_mesh(tmp_path / f"m{suffix}", mesh)
+    data = (tmp_path / f"m{suffix}").read_bytes()
+    assert max(sizes) < len(data) / 10, (max(sizes), len(data))
+    expected = io.StringIO()
+    positions, faces = mesh.positions.astype(np.float32).astype(np.float64), mesh.faces.astype(np.int64)
+    if suffix == ".obj":
+        expected.write(f"# pmwm_codec (pmw decode): {len(positions)} vertices, {len(faces)} faces\n")
+        np.savetxt(expected, positions, fmt="v %.9g %.9g %.9g")
+        np.savetxt(expected, faces + 1, fmt="f %d %d %d")
+    else:
+        expected.write(f"OFF\n{len(positions)} {len(faces)} 0\n")
+        np.savetxt(expected, positions, fmt="%.9g %.9g %.9g")
+        np.savetxt(expected, faces, fmt="3 %d %d %d")
+    assert data == expected.getvalue().encode("ascii")
+
+
+def test_a_scene_s_obj_with_texture_coordinates_and_normals_is_written_a_block_at_a_time(tmp_path, monkeypatch):
+    """The decoded asset's OBJ (``v``, ``vt``, ``vn`` and ``f p/t/n`` records: :mod:`pmwm_codec.meshexport`) is
+    formatted a block of records at a time too, and reads back as the scene it was written from."""
+    from pmwm_codec import meshio
+    from pmwm_codec.meshdoc import Part
+    from pmwm_codec.meshexport import Scene, Showing, write_scene
+
+    mesh = shapes.icosphere(4)
+    normals = mesh.positions / np.linalg.norm(mesh.positions, axis=1, keepdims=True)
+    uv = (mesh.positions[:, :2] + 1.0) / 2.0
+    scene = Scene([Showing("ball", [Part(mesh.positions, mesh.faces, {"NORMAL": normals, "TEXCOORD_0": uv})])],
+                  [], [], [])
+    monkeypatch.setattr(meshio, "TEXT_ROWS_BLOCK", 100, raising=False)
+    sizes = _written_sizes(monkeypatch)
+    assert write_scene(str(tmp_path / "m.obj"), scene)[:2] == (len(mesh.positions), len(mesh.faces))
+    data = (tmp_path / "m.obj").read_bytes()
+    assert max(sizes) < len(data) / 10, (max(sizes), len(data))
+    records = data.decode().splitlines()
+    corners = [c for r in records if r.startswith("f ") for c in r.split()[1:]]
+    assert len(corners) == 3 * len(mesh.faces) and all(re.fullmatch(r"\d+/\d+/\d+", c) for c in corners)
+    assert sum(r.startswith("vn ") for r in records) == len(np.unique(normals.astype(np.float32), axis=0))
+    back = pmwm_codec.read_mesh(tmp_path / "m.obj")
+    assert np.array_equal(back.faces, mesh.faces)
+    assert np.allclose(back.positions, mesh.positions, atol=1e-6)
+
+
 def test_reading_an_obj_takes_no_python_object_per_line():
     """Reading an OBJ of ``v``, ``vt`` and ``f v/t`` records peaked at ~8x the text's size (a list of its lines,
     copies of the ``v`` and ``f`` lines, the faces' text twice: 1.9 GB for a 234 MB scan); the common file is
