@@ -282,6 +282,7 @@ def write_stream(stream, parts, what: str = "dst") -> int:
 
     from .errors import OptionError
 
+    parts = list(parts)  # an iterable is read once: a generator of text blocks (write_atomic takes one too)
     total = sum(len(memoryview(p).cast("B")) for p in parts)
     done = 0
     for part in parts:

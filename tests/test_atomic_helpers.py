@@ -1,11 +1,13 @@
-"""``atomic.directory_made``: the folders a command makes for its outputs are gone again when it fails before
-writing one (``pmw demo --out``, ``verify --frames``), and nothing of the user's is removed."""
+"""Helpers of ``pmwm_codec.atomic``: ``directory_made`` (the folders a command makes for its outputs are gone again
+when it fails before writing one, ``pmw demo --out``, ``verify --frames``, and nothing of the user's is removed), and
+``write_stream`` / ``write_atomic`` given their parts as a generator (text written a block at a time)."""
 
+import io
 import os
 
 import pytest
 
-from pmwm_codec.atomic import directory_made, missing_directories
+from pmwm_codec.atomic import directory_made, missing_directories, write_atomic, write_stream
 
 
 class Stop(Exception):
@@ -43,3 +45,14 @@ def test_missing_directories_lists_the_ones_makedirs_would_make_deepest_first(tm
     target = tmp_path / "x" / "y"
     assert missing_directories(target) == [str(target), str(tmp_path / "x")]
     assert missing_directories(tmp_path) == []
+
+
+def test_parts_given_as_a_generator_are_written_whole_and_counted_once(tmp_path):
+    """The text writers (OBJ, OFF) hand their blocks over as a generator, read once: write_stream counted its parts
+    in one pass and wrote them in a second, so a generator's bytes were counted and never written."""
+    blocks = [b"v 0 0 0\n", b"v 1 0 0\n", b"f 1 2 3\n"]
+    out = io.BytesIO()
+    assert write_stream(out, (b for b in blocks)) == sum(map(len, blocks))
+    assert out.getvalue() == b"".join(blocks)
+    assert write_atomic(tmp_path / "m.obj", (b for b in blocks)) == sum(map(len, blocks))
+    assert (tmp_path / "m.obj").read_bytes() == b"".join(blocks)
