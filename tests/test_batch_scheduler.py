@@ -228,14 +228,31 @@ def _continued(proc, seconds: float = 90):
     return _finish(proc, max(1.0, deadline - time.monotonic()))
 
 
+def _results_on_workers(address: str, count: int, seconds: float = 240) -> None:
+    """Wait (up to ``seconds``) until the scheduler at ``address`` has ``count`` results in memory (kept on the
+    workers until their client has them)."""
+    from distributed import Client
+
+    def held(dask_scheduler):  # run on the scheduler
+        return sum(task.state == "memory" for task in dask_scheduler.tasks.values())
+
+    deadline = time.monotonic() + seconds
+    with Client(address, timeout="60s") as client:
+        while client.run_on_scheduler(held) < count:
+            assert time.monotonic() < deadline, f"fewer than {count} results in {seconds:g} s"
+            time.sleep(0.05)
+
+
 def test_a_run_whose_every_worker_dies_stops_in_one_line_after_the_no_worker_timeout_and_a_rerun_resumes(tmp_path):
     """Every worker of a --scheduler cluster killed mid-run: the run waited forever (Dask keeps the tasks for a
     worker that never comes).  It stops once the cluster has had no worker for --no-worker-timeout seconds: one
     line, exit 2, the ledger whole (a row per asset done), and the next run, on a new worker, does the rest.
 
-    The run is held (SIGSTOP, its ``batch-row-taken`` fault point) as it takes its first result, and the worker is
-    killed then: mid-run by the order of events (the run cannot have taken the rest meanwhile, nor started its
-    no-worker clock before the kill), not by a guess that the worker cannot finish the rest first."""
+    The run is held (SIGSTOP, its ``batch-row-taken`` fault point) as it takes its first result, and the worker
+    killed once it holds another result the run has not taken: mid-run by the order of events, not by a guess that
+    the worker cannot finish the rest first.  A result that died with its worker is the run's to wait for again,
+    not a wait for ever: asking for it (``Future.result``) waited for a worker to compute it again, and the
+    no-worker timeout was never looked at (the run hung; 1 run in 30 of the earlier form on a loaded machine)."""
     from PIL import Image
 
     from pmwm_codec import shapes
@@ -256,6 +273,7 @@ def test_a_run_whose_every_worker_dies_stops_in_one_line_after_the_no_worker_tim
                                 text=True)
         try:
             _stopped(run_)  # the run holds its first result, not yet in its ledger
+            _results_on_workers(address, 2)  # and the worker another one, done while the run was held
             os.killpg(procs[1].pid, signal.SIGKILL)  # the one worker (and its encoder) gone mid-run
             killed = time.monotonic()
         finally:

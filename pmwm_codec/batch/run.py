@@ -44,6 +44,9 @@ NO_WORKER_TIMEOUT = 120.0
 WORKER_CHECK_INTERVAL = 1.0
 #: Seconds between two looks for finished tasks (as :func:`distributed.as_completed` waits).
 _POLL = 0.1
+#: Seconds the run waits for a finished task's result to reach it; one that does not (its worker died holding it)
+#: is waited for again, as the task is computed again on another worker, under the no-worker timeout.
+RESULT_WAIT = 5.0
 #: Seconds an interrupted run waits for its running encoders to stop (they poll the stop every
 #: :data:`~.tasks.STOP_POLL` s and then have :data:`~.child.GRACE` s to end), recording those that published.
 STOP_WAIT = 10.0
@@ -552,21 +555,33 @@ class _Submitted:
                                      "does them)")
                 time.sleep(_POLL)
                 continue
-            self._take(finished, each)
+            self._take(finished, each, again=pending.add)
 
-    def _take(self, finished, each) -> None:
+    def _take(self, finished, each, again=lambda future: None) -> None:
         """``each(result)`` for each of the ``finished`` futures still ours.  A future is ours until ``each`` has
         done with its result (a row recorded), which runs with SIGINT / SIGTERM held back: a stop that lands as a
         result comes in finds it either still here (:meth:`stop` takes it) or recorded, never lost between the two
-        (its output would be left without a ledger row)."""
+        (its output would be left without a ledger row).  A result that died with its worker before it reached the
+        run (the future ``lost``, or its result not had within :data:`RESULT_WAIT` s) is not waited for here, which
+        waited until a worker computed it again, for ever when none came (the no-worker timeout never looked at):
+        the future is given to ``again`` (:meth:`run`'s ``as_completed``), which has it when it finishes again."""
+        from distributed import TimeoutError as DaskTimeoutError
+
         for future in finished:
             job = self.futures.get(future)
             if job is None:
                 continue
-            if future.status == "finished":
-                row = future.result()
-            else:  # the worker died under the task (KilledWorker) or the task raised
-                row = _lost(job, future.exception())
+            try:
+                if future.status == "finished":
+                    row = future.result(timeout=RESULT_WAIT)
+                elif future.status in ("error", "cancelled"):  # the worker died under the task (KilledWorker) or
+                    row = _lost(job, future.exception(timeout=RESULT_WAIT))  # the task raised
+                else:  # lost with its worker, or pending again: computed again when a worker comes
+                    again(future)
+                    continue
+            except (DaskTimeoutError, TimeoutError):
+                again(future)
+                continue
             with signals_deferred():
                 del self.futures[future]
                 fault_point("batch-row-taken")

@@ -100,7 +100,20 @@ def _library():
         raise UsageError(INSTALL_HINT) from None
     from pmwm_codec import batch
 
+    _quiet_client_logs()
     return batch
+
+
+def _quiet_client_logs() -> None:
+    """Keep what the Dask client tells its log off the command's standard error, which holds one line at most: a
+    result lost with its worker before the run had it is computed again ("Couldn't gather 1 keys, rescheduling",
+    a warning) and the run waits for it again (:meth:`pmwm_codec.batch.run._Submitted.run`), which leaves asyncio
+    a gather's task whose exception nobody reads ("Task exception was never retrieved", printed as the process
+    ends).  The run says what it has to say in its rows, its summary and its one-line errors."""
+    import logging
+
+    logging.getLogger("distributed.client").setLevel(logging.ERROR)
+    logging.getLogger("asyncio").setLevel(logging.CRITICAL)
 
 
 def _no_worker_timeout(args, batch) -> float:
