@@ -602,7 +602,8 @@ class _Submitted:
                 self.futures.pop(future, None)
             deadline = time.monotonic() + seconds
             while self.futures and time.monotonic() < deadline:
-                finished = [f for f in self.futures if f.status in ("finished", "error", "cancelled", "lost")]
+                # (a future lost with its worker is computed again only when a worker comes: not waited for here)
+                finished = [f for f in self.futures if f.status in ("finished", "error", "cancelled")]
                 if finished:
                     self._take(finished, each)
                 else:
