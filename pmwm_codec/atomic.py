@@ -25,7 +25,11 @@ Contract
   SIGTERM and SIGHUP back while a pair of files is published.
 
 Test hook: :func:`fault_point` (``PMWM_FAULT=<point>:<SIGNAL>`` in the environment) sends
-the process that signal when it reaches the named point; it does nothing otherwise.
+the process that signal when it reaches the named point; ``PMWM_FAULT=<point>@<N>:<SIGNAL>`` only the N-th time
+it reaches it (``batch-row-taken@3:STOP``: the batch run stops itself as it takes its third result); it does
+nothing otherwise.  Points: ``stage-written`` (here), ``measured``, ``staged``, ``key-published``, ``published``
+(:mod:`pmwm_codec.stream.encoder`), ``batch-row-taken`` (:mod:`pmwm_codec.batch.run`: a result taken, its ledger
+row not yet written).
 """
 
 from __future__ import annotations
@@ -406,13 +410,25 @@ def _forward(handler, signum: int, frame) -> None:
 
 
 def fault_point(name: str) -> None:
-    """Test hook: with ``PMWM_FAULT=name:SIGNAL`` (e.g. ``key-published:KILL``), send that signal to this process."""
+    """Test hook: with ``PMWM_FAULT=name:SIGNAL`` (e.g. ``key-published:KILL``), send that signal to this process
+    each time it reaches the point ``name``; with ``PMWM_FAULT=name@N:SIGNAL`` (e.g. ``batch-row-taken@3:STOP``),
+    only the ``N``-th time this process reaches it (counted from 1).  Nothing (one lookup) when unset."""
     spec = os.environ.get("PMWM_FAULT")
     if not spec:
         return
     point, _, sig = spec.partition(":")
-    if point == name:
-        os.kill(os.getpid(), getattr(signal, "SIG" + (sig or "KILL")))
+    point, at, nth = point.partition("@")
+    if point != name:
+        return
+    if at:
+        _fault_counts[name] = reached = _fault_counts.get(name, 0) + 1
+        if reached != int(nth):
+            return
+    os.kill(os.getpid(), getattr(signal, "SIG" + (sig or "KILL")))
+
+
+#: How many times this process has reached each fault point named with a count (``name@N``).
+_fault_counts: dict[str, int] = {}
 
 
 def _fsync_directory(directory: str) -> None:

@@ -4,10 +4,12 @@ when it fails before writing one, ``pmw demo --out``, ``verify --frames``, and n
 
 import io
 import os
+import signal
 
 import pytest
 
-from pmwm_codec.atomic import directory_made, missing_directories, write_atomic, write_stream
+from pmwm_codec import atomic
+from pmwm_codec.atomic import directory_made, fault_point, missing_directories, write_atomic, write_stream
 
 
 class Stop(Exception):
@@ -56,3 +58,21 @@ def test_parts_given_as_a_generator_are_written_whole_and_counted_once(tmp_path)
     assert out.getvalue() == b"".join(blocks)
     assert write_atomic(tmp_path / "m.obj", (b for b in blocks)) == sum(map(len, blocks))
     assert (tmp_path / "m.obj").read_bytes() == b"".join(blocks)
+
+
+@pytest.mark.parametrize("spec, fired", [("here:USR1", [1, 2, 3, 4, 5]), ("here@3:USR1", [3]), ("here@9:USR1", []),
+                                         ("elsewhere@1:USR1", []), ("", [])])
+def test_a_fault_point_named_with_a_count_signals_only_the_nth_time_it_is_reached(monkeypatch, spec, fired):
+    """``PMWM_FAULT=point@N:SIGNAL`` fixes a moment by the order of events (``batch-row-taken@3:STOP``: the run's
+    third result); without ``@N`` every time; an unset or other point never."""
+    monkeypatch.setattr(atomic, "_fault_counts", {})
+    monkeypatch.setenv("PMWM_FAULT", spec)
+    reached, got = [0], []
+    previous = signal.signal(signal.SIGUSR1, lambda signum, frame: got.append(reached[0]))
+    try:
+        for _ in range(5):
+            reached[0] += 1
+            fault_point("here")
+    finally:
+        signal.signal(signal.SIGUSR1, previous)
+    assert got == fired
