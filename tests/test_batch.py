@@ -8,7 +8,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +26,7 @@ from pmwm_codec.batch.tasks import EncodeJob, encode_task  # noqa: E402
 from pmwm_codec.cli import main  # noqa: E402
 from pmwm_codec.verify import verify_stream  # noqa: E402
 
-from test_batch_scheduler import dask_cluster  # noqa: E402
+from test_batch_scheduler import _stopped, dask_cluster  # noqa: E402
 from test_batch_signals import _left_after  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -170,23 +169,26 @@ def test_a_rerun_with_another_watermark_or_key_is_never_skipped_as_done(tmp_path
 
 
 def test_sigkill_of_the_process_group_halfway_then_rerun_finishes_consistently(library, tmp_path, client):
+    """Killed halfway by the order of events: the run stops itself (``batch-row-taken@4:STOP``) as it takes its fourth
+    result, three rows in its ledger (one at least ``ok``: two assets are broken), and the whole process group is
+    killed there.  The ledger keeps exactly those three rows (each flushed as written), and the re-run skips exactly
+    the outputs they name and does the rest."""
     root, src = library
     out = tmp_path / "out"
     argv = [sys.executable, "-m", "pmwm_codec", "batch", "encode", str(src), "-o", str(out),
             "--watermark", str(root / "wm.png"), "--workers", "1", "-q"]
-    proc = subprocess.Popen(argv, env=dict(os.environ, PYTHONPATH=str(ROOT)), start_new_session=True,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(argv, env=dict(os.environ, PYTHONPATH=str(ROOT), PMWM_FAULT="batch-row-taken@4:STOP"),
+                            start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        deadline = time.monotonic() + 240
-        while len(read_ledger(out / LEDGER_NAME)) < 3 and proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)
+        _stopped(proc)  # holding its fourth result, its row not yet written
     finally:
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait()
-    done_before = len(read_ledger(out / LEDGER_NAME))
-    assert 3 <= done_before < len(GOOD) + len(BROKEN)  # killed halfway, not after the end
+    before = read_ledger(out / LEDGER_NAME)
+    assert len(before) == 3
+    done = sum(row["status"] == "ok" for row in before)
     doc = encode_batch(src, out, watermark=root / "wm.png", client=client)
-    assert doc["ok"] + doc["skipped"] == len(GOOD) and doc["failed"] == len(BROKEN)
+    assert (doc["skipped"], doc["ok"], doc["failed"]) == (done, len(GOOD) - done, len(BROKEN))
     last = _last_statuses(out)
     assert {n: last[Path(n).name] for n in BROKEN} == dict.fromkeys(BROKEN, "failed")
     assert {last[Path(n).name] for n in GOOD} <= {"ok", "skipped"}
@@ -199,21 +201,22 @@ def test_sigkill_of_the_process_group_halfway_then_rerun_finishes_consistently(l
 
 def test_ctrl_c_halfway_is_one_line_and_exit_130_and_leaves_no_process_behind(library, tmp_path):
     """A Ctrl-C (SIGINT to the process group) raised KeyboardInterrupt in every Dask worker too, each printing
-    its traceback on stderr under ``pmw: error: interrupted``."""
+    its traceback on stderr under ``pmw: error: interrupted``.  Halfway by the order of events: the run stops itself
+    (``batch-row-taken@2:STOP``) as it takes its second result, the Ctrl-C reaches the group there, and the run is
+    continued: it records that row (the stop is held back while it does) and stops."""
     root, src = library
     out = tmp_path / "out"
     argv = [sys.executable, "-m", "pmwm_codec", "batch", "encode", str(src), "-o", str(out),
             "--watermark", str(root / "wm.png"), "--workers", "1", "-q"]
     # started with SIGINT at its default, as a terminal's command is: a suite run as a background job (``cmd &``,
     # nohup) has it ignored, and the run rightly kept it ignored: it went on to its end (exit 1, not a word)
-    proc = subprocess.Popen(argv, env=dict(os.environ, PYTHONPATH=str(ROOT)), start_new_session=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    proc = subprocess.Popen(argv, env=dict(os.environ, PYTHONPATH=str(ROOT), PMWM_FAULT="batch-row-taken@2:STOP"),
+                            start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
-        deadline = time.monotonic() + 240
-        while len(read_ledger(out / LEDGER_NAME)) < 2 and proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)
+        _stopped(proc)
         os.killpg(proc.pid, signal.SIGINT)
+        proc.send_signal(signal.SIGCONT)
         _, err = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
@@ -223,6 +226,9 @@ def test_ctrl_c_halfway_is_one_line_and_exit_130_and_leaves_no_process_behind(li
     assert "Traceback" not in err and err.strip().splitlines()[-1] == "pmw: error: interrupted", err
     left = _left_after(proc.pid)  # (the run's own session: its process group)
     assert not left, left  # no worker, forkserver or encoder outlives the run
+    rows = read_ledger(out / LEDGER_NAME)
+    assert 2 <= len(rows) < len(GOOD) + len(BROKEN)  # the held row, and those an encoder published before the stop
+    assert sorted(r["output"] for r in rows if r["status"] == "ok") == sorted(map(str, out.rglob("*.pmw")))
     assert not list(out.rglob("*.tmp"))
 
 

@@ -27,6 +27,8 @@ from pmwm_codec.batch import LEDGER_NAME, read_ledger  # noqa: E402
 from pmwm_codec.batch import child as child_module  # noqa: E402
 from pmwm_codec.batch import tasks  # noqa: E402
 
+from test_batch_scheduler import _state, _stopped  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 ASSETS = 24
 
@@ -43,19 +45,27 @@ def library(tmp_path_factory):
     return root
 
 
-def _start(library, out, sigint=signal.SIG_DFL):
+def _start(library, out, sigint=signal.SIG_DFL, fault="batch-row-taken@3:STOP"):
+    """The batch of ``library`` into ``out`` on two local workers, a session of its own.  ``fault``: its
+    ``PMWM_FAULT``; by default it stops itself (SIGSTOP) as it takes its third result, two rows in its ledger:
+    :func:`_held` waits for that moment, which the tests signal in (halfway by the order of events, never by a
+    sleep, nor by a look at the ledger that a fast run outpaces)."""
     argv = [sys.executable, "-m", "pmwm_codec", "batch", "encode", str(library / "src"), "-o", str(out),
             "--watermark", str(library / "wm.png"), "--workers", "2", "-q"]
-    return subprocess.Popen(argv, env=dict(os.environ, PYTHONPATH=str(ROOT)), start_new_session=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    return subprocess.Popen(argv, env=dict(os.environ, PYTHONPATH=str(ROOT), PMWM_FAULT=fault),
+                            start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, sigint))
 
 
-def _wait_rows(proc, out: Path, rows: int) -> None:
-    deadline = time.monotonic() + 240
-    while len(read_ledger(out / LEDGER_NAME)) < rows and proc.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.02)
-    assert proc.poll() is None, "the run ended before the signal"
+def _held(proc, out: Path, rows: int = 2) -> None:
+    """Wait until the run ``proc`` has stopped itself at its fault point, ``rows`` rows in its ledger (killed, its
+    whole session, when not: a run left stopped would hold its workers for ever)."""
+    try:
+        _stopped(proc)
+        assert len(read_ledger(out / LEDGER_NAME)) == rows
+    except BaseException:
+        os.killpg(proc.pid, signal.SIGKILL)
+        raise
 
 
 def _left(session: int) -> list:
@@ -92,18 +102,21 @@ def test_sigterm_of_the_batch_stops_it_like_ctrl_c_in_one_line_with_exit_143_and
                                                                                                    tmp_path):
     out = tmp_path / "out"
     proc = _start(library, out)
-    _wait_rows(proc, out, 3)
+    _held(proc, out)  # as it takes its third result
     os.kill(proc.pid, signal.SIGTERM)  # the command alone, as timeout, systemd or docker stop send it
+    proc.send_signal(signal.SIGCONT)
     _, err = _finish(proc)
     assert proc.returncode == 143 and err == "pmw: error: terminated\n", (proc.returncode, err)
     assert not _left_after(proc.pid)
     _consistent(out)
+    assert len(read_ledger(out / LEDGER_NAME)) >= 3  # the held row recorded (the stop held back while it is), and
+    # those an encoder published before the stop reached it
 
 
 def test_kill_9_of_the_batch_ends_its_encoders_at_once_without_a_word(library, tmp_path):
     out = tmp_path / "out"
     proc = _start(library, out)
-    _wait_rows(proc, out, 3)
+    _held(proc, out)  # as it takes its third result: the workers go on with the others
     os.kill(proc.pid, signal.SIGKILL)  # encoders are running: each must notice its worker is gone
     start = time.monotonic()
     _, err = _finish(proc)
@@ -112,21 +125,28 @@ def test_kill_9_of_the_batch_ends_its_encoders_at_once_without_a_word(library, t
     assert time.monotonic() - start < 30
     assert not _left_after(proc.pid)
     _consistent(out)
+    assert len(read_ledger(out / LEDGER_NAME)) == 2  # the held row died with the run; no row came after it
 
 
 def test_encoders_of_a_run_started_with_sigint_ignored_keep_it_ignored(library, tmp_path):
     """A background job of a script starts with SIGINT ignored; a Ctrl-C of its process group killed in-flight
-    encoders (``exit status -2`` rows) while the run went on."""
+    encoders (``exit status -2`` rows) while the run went on.  The Ctrl-C comes as the run takes each result (it
+    stops itself there, ``batch-row-taken:STOP``; the other worker's encoder runs meanwhile): one for every row."""
     out = tmp_path / "out"
-    proc = _start(library, out, sigint=signal.SIG_IGN)
-    _wait_rows(proc, out, 2)
-    while proc.poll() is None:
-        os.killpg(proc.pid, signal.SIGINT)
-        time.sleep(0.1)
+    proc = _start(library, out, sigint=signal.SIG_IGN, fault="batch-row-taken:STOP")
+    sent = 0
+    deadline = time.monotonic() + 300
+    while (state := _state(proc)) != "Z" and time.monotonic() < deadline:
+        if state in "tT":
+            os.killpg(proc.pid, signal.SIGINT)
+            sent += 1
+            proc.send_signal(signal.SIGCONT)
+        time.sleep(0.01)
     _, err = _finish(proc)
     assert (proc.returncode, err) == (0, "")
     rows = read_ledger(out / LEDGER_NAME)
     assert len(rows) == ASSETS and {r["status"] for r in rows} == {"ok"}
+    assert sent == ASSETS
 
 
 def test_the_interpreter_form_of_the_encoder_prints_nothing_but_its_result(tmp_path):
