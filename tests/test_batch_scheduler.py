@@ -290,6 +290,67 @@ def test_a_run_whose_every_worker_dies_stops_in_one_line_after_the_no_worker_tim
     assert (summary["skipped"], summary["ok"]) == (len(done), assets - len(done))
 
 
+class _Clock:
+    """A ``time`` for :mod:`pmwm_codec.batch.run` whose ``monotonic()`` moves only when the test moves it."""
+
+    def __init__(self):
+        self.now = 1000.0
+
+    def monotonic(self) -> float:
+        return self.now
+
+
+class _Cluster:
+    """A client whose scheduler answers each look (``nthreads``) with ``workers()`` workers, the answer taking
+    ``delay`` seconds of ``clock``."""
+
+    def __init__(self, clock, workers, delay: float = 0.0):
+        self.clock, self.workers, self.delay, self.looks = clock, workers, delay, 0
+
+    def nthreads(self) -> dict:
+        self.clock.now += self.delay
+        self.looks += 1
+        return {f"tcp://w{i}": 1 for i in range(self.workers())}
+
+
+def test_the_worker_watch_never_judges_a_worker_gone_without_a_look_that_saw_none_for_the_whole_timeout(
+        monkeypatch):
+    """A --no-worker-timeout shorter than the watch's interval (1 s) stopped the run on the clock alone: one look saw
+    no worker (one restarting), a worker came, and the next call, within the interval, said "gone" with no look.
+    A timeout that ends between two looks is decided at the next look."""
+    clock = _Clock()
+    monkeypatch.setattr(run, "time", clock)
+    present = {"workers": 0}
+    cluster = _Cluster(clock, lambda: present["workers"])
+    watch = run._WorkerWatch(cluster, 0.5)
+    assert not watch.gone()  # the first look: none yet
+    clock.now += 0.3
+    present["workers"] = 1  # a worker comes
+    clock.now += 0.3
+    assert not watch.gone() and cluster.looks == 1  # 0.6 s after a look that saw none, and no look since
+    clock.now += run.WORKER_CHECK_INTERVAL
+    assert not watch.gone() and cluster.looks == 2  # the next look sees the worker
+    present["workers"] = 0  # gone again: gone once two looks that saw none are the timeout apart
+    clock.now += run.WORKER_CHECK_INTERVAL
+    assert not watch.gone()
+    clock.now += run.WORKER_CHECK_INTERVAL
+    assert watch.gone() and cluster.looks == 4
+
+
+def test_the_worker_watch_does_not_count_a_slow_answer_as_time_without_a_worker(monkeypatch):
+    """A look whose answer (no worker) took the whole --no-worker-timeout counted the wait as time without one: the
+    run stopped after one look, which may have begun while workers were there."""
+    clock = _Clock()
+    monkeypatch.setattr(run, "time", clock)
+    cluster = _Cluster(clock, lambda: 0, delay=3.0)
+    watch = run._WorkerWatch(cluster, 3.0)
+    assert not watch.gone() and cluster.looks == 1
+    clock.now += run.WORKER_CHECK_INTERVAL
+    assert not watch.gone() and cluster.looks == 2  # asked 1 s after the first answer
+    clock.now += 2.0
+    assert watch.gone() and cluster.looks == 3  # asked 3 s or more after it: gone
+
+
 def _encoders(procs) -> list:
     """The encoder processes (``pmwm_codec.batch.child``) still alive in the sessions of ``procs`` (``ps -ww``: without
     it ps cuts each line at 80 columns, before the module's name under a long interpreter path)."""

@@ -642,12 +642,18 @@ class _WorkerWatch:
     def __init__(self, client, timeout: float):
         self.client, self.timeout = client, timeout
         self.checked = self.since = None
+        self.verdict = False
 
     def gone(self) -> bool:
-        """Whether there has been no worker for ``timeout`` seconds."""
-        now = time.monotonic()
-        if self.checked is not None and now - self.checked < WORKER_CHECK_INTERVAL:
-            return self.since is not None and now - self.since >= self.timeout
+        """Whether there has been no worker for ``timeout`` seconds, as the looks tell it: a look that saw none,
+        and a later one, asked ``timeout`` s or more after the first had its answer, that saw none either (and
+        none between that saw one).  Between two looks, the verdict of the last: a worker is never judged gone
+        on the clock alone (a ``timeout`` shorter than the interval stopped the run one look after it saw no
+        worker, one having come since), nor on one slow answer (an answer of no worker that took ``timeout`` s
+        counted the whole wait as time without one)."""
+        asked = time.monotonic()
+        if self.checked is not None and asked - self.checked < WORKER_CHECK_INTERVAL:
+            return self.verdict
         try:
             workers = len(self.client.nthreads())
         except Exception:  # noqa: BLE001 - the scheduler is gone or not answering: no worker either
@@ -656,8 +662,9 @@ class _WorkerWatch:
         if workers:
             self.since = None
         elif self.since is None:
-            self.since = now
-        return self.since is not None and self.checked - self.since >= self.timeout
+            self.since = self.checked  # seen without one by then at the latest
+        self.verdict = self.since is not None and asked - self.since >= self.timeout
+        return self.verdict
 
 
 def _lost(job, exc) -> dict:
