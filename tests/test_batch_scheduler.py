@@ -124,9 +124,10 @@ def test_check_scheduler_bounds_the_handshake_wait(silent_port, monkeypatch):
 
 
 @contextlib.contextmanager
-def dask_cluster(workers: int = 1):
+def dask_cluster(workers: int = 1, env: dict | None = None):
     """A ``dask scheduler`` on a port of the loopback it binds itself and ``workers`` ``dask worker`` processes (one
-    thread each), every one a session of its own: ``(address, procs)``, procs[0] the scheduler; all ended after."""
+    thread each), every one a session of its own: ``(address, procs)``, procs[0] the scheduler; all ended after.
+    ``env``: more environment for the workers (and so their encoders)."""
     dask = shutil.which("dask", path=os.path.dirname(sys.executable)) or shutil.which("dask")
     if dask is None:
         pytest.skip("the dask command is not installed")
@@ -137,7 +138,7 @@ def dask_cluster(workers: int = 1):
         try:
             address = _scheduler_address(procs[0], info)
             for _ in range(workers):
-                procs.append(start_worker(address))
+                procs.append(start_worker(address, env))
             wait_for_workers(address, workers)
             yield address, procs
         finally:
@@ -164,15 +165,16 @@ def _scheduler_address(scheduler, info: str, seconds: float = 120) -> str:
     raise AssertionError(f"the dask scheduler wrote no address in {seconds:g} s (exit status {scheduler.poll()})")
 
 
-def _session(argv):
-    return subprocess.Popen(argv, env=dict(os.environ, PYTHONPATH=str(ROOT)), stdout=subprocess.DEVNULL,
+def _session(argv, env: dict | None = None):
+    return subprocess.Popen(argv, env=dict(os.environ, PYTHONPATH=str(ROOT), **(env or {})), stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL, start_new_session=True)
 
 
-def start_worker(address: str):
-    """A ``dask worker`` of one thread for the scheduler at ``address`` (a session of its own)."""
+def start_worker(address: str, env: dict | None = None):
+    """A ``dask worker`` of one thread for the scheduler at ``address`` (a session of its own; ``env``: more
+    environment for it)."""
     dask = shutil.which("dask", path=os.path.dirname(sys.executable)) or shutil.which("dask")
-    return _session([dask, "worker", address, "--host", "127.0.0.1", "--nthreads", "1", "--no-dashboard"])
+    return _session([dask, "worker", address, "--host", "127.0.0.1", "--nthreads", "1", "--no-dashboard"], env)
 
 
 def wait_for_workers(address: str, count: int, timeout: float = 120) -> None:
@@ -405,6 +407,52 @@ def test_a_stopped_scheduler_run_leaves_no_output_its_ledger_does_not_name(tmp_p
         assert sorted(row["output"] for row in rows) == sorted(str(p) for p in out.rglob("*.pmw"))
         for row in rows:
             assert os.path.getsize(row["output"]) == row["bytes"]
+        assert not [p for p in out.rglob("*") if p.name.endswith(".tmp")]
+
+
+def test_a_stop_reaches_the_encoders_running_on_the_workers_and_none_of_them_publishes(tmp_path):
+    """Dask cannot cancel a running task: the run's stop reaches its encoders through a Dask Event their tasks poll.
+    Without it they published their outputs after the command had ended, with no ledger row (the stopped run above
+    does not show it when they finish within the run's STOP_WAIT, whose rows it records).  The moment is made
+    certain: every encoder stops itself (``measured:STOP``, its mesh measured, nothing written) and the run is
+    stopped (SIGTERM) while they are held; those still there once the run has ended, its stop set long before, are
+    continued: they end without publishing (without the Event they were still held, and published)."""
+    from PIL import Image
+
+    from pmwm_codec import shapes
+    from pmwm_codec.batch import LEDGER_NAME, read_ledger
+    from pmwm_codec.meshio import write_mesh
+
+    assets, workers = 4, 2
+    (tmp_path / "lib").mkdir()
+    for i in range(assets):
+        write_mesh(tmp_path / "lib" / f"m{i}.obj", shapes.icosphere(2, noise=0.01, seed=i))
+    Image.fromarray(np.full((8, 8), 255, np.uint8)).save(tmp_path / "wm.png")
+    out = tmp_path / "out"
+    with dask_cluster(workers, env={"PMWM_FAULT": "measured:STOP"}) as (address, procs):
+        argv = [sys.executable, "-m", "pmwm_codec", "batch", "encode", str(tmp_path / "lib"), "-o", str(out),
+                "--watermark", str(tmp_path / "wm.png"), "--scheduler", address, "-q"]
+        run_ = subprocess.Popen(argv, env=dict(os.environ, PYTHONPATH=str(ROOT)), stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+        held = []
+        try:
+            deadline = time.monotonic() + 240
+            while len(held := [e for e in _encoders(procs[1:]) if e.split()[1].startswith("T")]) < workers:
+                assert run_.poll() is None and time.monotonic() < deadline, "the encoders did not reach their point"
+                time.sleep(0.05)
+            run_.send_signal(signal.SIGTERM)
+            _, stderr = _finish(run_)
+        finally:
+            for line in held:  # (those the stop has not killed already: a held encoder cannot end on SIGTERM)
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(int(line.split()[0]), signal.SIGCONT)
+        assert (run_.returncode, stderr) == (143, "pmw: error: terminated\n")
+        deadline = time.monotonic() + 120
+        while _encoders(procs[1:]) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not _encoders(procs[1:])
+        assert read_ledger(out / LEDGER_NAME) == []
+        assert not list(out.rglob("*.pmw")) and not list(out.rglob("*.key.json"))
         assert not [p for p in out.rglob("*") if p.name.endswith(".tmp")]
 
 
