@@ -353,6 +353,59 @@ def test_the_worker_watch_does_not_count_a_slow_answer_as_time_without_a_worker(
     assert watch.gone() and cluster.looks == 3  # asked 3 s or more after it: gone
 
 
+class _LostResult:
+    """A future the scheduler still calls finished whose result cannot be had (its worker died holding it): each ask
+    waits :data:`~pmwm_codec.batch.run.RESULT_WAIT` seconds of ``clock`` and times out."""
+
+    status = "finished"
+
+    def __init__(self, clock):
+        self.clock = clock
+
+    def result(self, timeout=None):
+        from distributed import TimeoutError as DaskTimeoutError
+
+        self.clock.now += timeout
+        raise DaskTimeoutError("no result")
+
+
+class _Again:
+    """``as_completed`` over one future that comes straight back each time it is handed back (at most ``most``
+    times: a run that never looks at its workers would go round for ever)."""
+
+    def __init__(self, futures, most: int = 100):
+        self.futures, self.most = list(futures), most
+
+    def is_empty(self) -> bool:
+        return False
+
+    def next_batch(self, block=False) -> list:
+        self.most -= 1
+        assert self.most >= 0, "the run went round and round without looking at its workers"
+        return list(self.futures)
+
+    def add(self, future) -> None:
+        pass
+
+
+def test_a_result_that_keeps_coming_back_unobtainable_does_not_keep_the_run_from_its_no_worker_timeout(monkeypatch):
+    """The run looked at its workers only when no future came: a result lost with its worker that the scheduler
+    still called finished came straight back after each wait for it, and the run went round for ever, its
+    no-worker timeout never looked at.  It stops now, in one line, once the cluster has had no worker that long."""
+    import distributed
+
+    clock = _Clock()
+    monkeypatch.setattr(run, "time", clock)
+    monkeypatch.setattr(distributed, "as_completed", _Again)
+    cluster = _Cluster(clock, lambda: 0)
+    cluster.cancel = lambda futures: None
+    submitted = object.__new__(run._Submitted)
+    submitted.client, submitted.jobs, submitted.event = cluster, ["a.obj"], None
+    submitted.futures = {_LostResult(clock): "a.obj"}
+    with pytest.raises(run.BatchError, match=r"no worker for 12 s .* 1 of 1 assets not done"):
+        submitted.run(lambda row: pytest.fail("no result was had"), no_worker_timeout=12)
+
+
 def _encoders(procs) -> list:
     """The encoder processes (``pmwm_codec.batch.child``) still alive in the sessions of ``procs`` (``ps -ww``: without
     it ps cuts each line at 80 columns, before the module's name under a long interpreter path)."""

@@ -545,20 +545,22 @@ class _Submitted:
         watch = _WorkerWatch(self.client, no_worker_timeout)
         while not pending.is_empty():
             finished = pending.next_batch(block=False)
-            if not finished:
-                if watch.gone():
-                    left = len(self.futures)
-                    with contextlib.suppress(Exception):  # a cluster that cannot take the cancel lets them go
-                        self.client.cancel(list(self.futures))
-                    raise BatchError(f"the Dask cluster has had no worker for {no_worker_timeout:g} s (all gone?); "
-                                     f"the run stopped with {left} of {len(self.jobs)} {what} not done (a re-run "
-                                     "does them)")
-                time.sleep(_POLL)
+            if finished and self._take(finished, each, again=pending.add):
                 continue
-            self._take(finished, each, again=pending.add)
+            # nothing came, or nothing of what came could be had (a result lost with its worker: a future the
+            # scheduler may still call finished comes straight back, and the watch must be looked at all the same)
+            if watch.gone():
+                left = len(self.futures)
+                with contextlib.suppress(Exception):  # a cluster that cannot take the cancel lets them go
+                    self.client.cancel(list(self.futures))
+                raise BatchError(f"the Dask cluster has had no worker for {no_worker_timeout:g} s (all gone?); "
+                                 f"the run stopped with {left} of {len(self.jobs)} {what} not done (a re-run "
+                                 "does them)")
+            if not finished:
+                time.sleep(_POLL)
 
-    def _take(self, finished, each, again=lambda future: None) -> None:
-        """``each(result)`` for each of the ``finished`` futures still ours.  A future is ours until ``each`` has
+    def _take(self, finished, each, again=lambda future: None) -> int:
+        """``each(result)`` for each of the ``finished`` futures still ours; returns how many were taken.  A future is ours until ``each`` has
         done with its result (a row recorded), which runs with SIGINT / SIGTERM held back: a stop that lands as a
         result comes in finds it either still here (:meth:`stop` takes it) or recorded, never lost between the two
         (its output would be left without a ledger row).  A result that died with its worker before it reached the
@@ -567,6 +569,7 @@ class _Submitted:
         the future is given to ``again`` (:meth:`run`'s ``as_completed``), which has it when it finishes again."""
         from distributed import TimeoutError as DaskTimeoutError
 
+        taken = 0
         for future in finished:
             job = self.futures.get(future)
             if job is None:
@@ -587,6 +590,8 @@ class _Submitted:
                 fault_point("batch-row-taken")
                 each(row)
             future.release()
+            taken += 1
+        return taken
 
     def stop(self, each, seconds: float = STOP_WAIT) -> None:
         """Stop the run: the tasks not started are cancelled, the running ones told to stop (the Event);
