@@ -887,10 +887,14 @@ def _integer(token: str) -> int:
 def _obj_normalized(text: str) -> str:
     """An OBJ text with each ``v`` / ``vt`` / ``vn`` / ``f`` record starting with its keyword and one space (the
     form the readers match): records indented, or with a tab after the keyword, are valid OBJ."""
-    return _RECORD_HEAD.sub(r"\1 ", text) if _LOOSE_RECORD.search(text) else text
+    loose = _LOOSE_HEAD.match(text) or _LOOSE_RECORD.search(text)
+    return _RECORD_HEAD.sub(r"\1 ", text) if loose else text
 
 
-_LOOSE_RECORD = re.compile(r"^[ \t]+(?:v[tn]?|f)[ \t]|^(?:v[tn]?|f)(?:\t| [ \t])", re.M)
+#: A record that is not in that form at the start of a line: the text's first (``_LOOSE_HEAD``), or after a line feed
+#: (a literal first, which the engine scans for: ``^`` with re.M tried every position, 1.9 s on a 211 MB OBJ, 0.7 now).
+_LOOSE_HEAD = re.compile(r"[ \t]+(?:v[tn]?|f)[ \t]|(?:v[tn]?|f)(?:\t| [ \t])")
+_LOOSE_RECORD = re.compile(r"\n(?:" + _LOOSE_HEAD.pattern + ")")
 _RECORD_HEAD = re.compile(r"^[ \t]*(v[tn]?|f)[ \t]+", re.M)
 #: A ``v`` / ``vt`` / ``vn`` record after the first face (a ``"\n"`` before the text): faces read by what precedes them.
 _LATER_RECORD = re.compile(r"\nv[tn]? ")
@@ -964,6 +968,63 @@ _PLAIN_FACE = np.zeros(256, bool)
 _PLAIN_FACE[list(b"0123456789-/ \t\n")] = True
 
 
+class ObjLines:
+    """The lines of an ASCII OBJ text as numpy sees them, for readers that parse a kind of record at once:
+    ``data`` (bytes,) uint8 the text's bytes; ``starts``, ``ends`` (lines,) int64 where each line starts and
+    where its line feed is (or the end of the text); ``kinds`` four (lines,) bool masks: ``v``, ``vt``, ``vn``
+    and ``f`` records (the keyword and one space: the normalized text, :func:`_obj_normalized`)."""
+
+    def __init__(self, data: np.ndarray):
+        self.data = data
+        ends = np.flatnonzero(data == 10)
+        if data[-1] != 10:
+            ends = np.append(ends, len(data))
+        self.ends, self.starts = ends, np.concatenate([[0], ends[:-1] + 1])
+        b0, b1, b2 = (self._bytes_at(self.starts + k) for k in range(3))
+        space, v = ord(" "), b0 == ord("v")
+        self.kinds = [v & (b1 == space), v & (b1 == ord("t")) & (b2 == space), v & (b1 == ord("n")) & (b2 == space),
+                      (b0 == ord("f")) & (b1 == space)]
+
+    def _bytes_at(self, at: np.ndarray) -> np.ndarray:
+        """(len(at),) uint8: the bytes at offsets ``at``, 0 past the end (no padded copy of the text)."""
+        out = self.data[np.minimum(at, len(self.data) - 1)]
+        out[at >= len(self.data)] = 0
+        return out
+
+    def records(self, k: int, plain: np.ndarray):
+        """(bytes,) uint8: the records of kind ``k`` (0 ``v``, 1 ``vt``, 2 ``vn``, 3 ``f``), each line with its line
+        feed, its keyword blanked; None when one holds a byte not ``plain`` ((256,) bool).  Copied a run of
+        records at a time (the common file's records of a kind are a few runs), else through a mask of the text."""
+        kind, size = self.kinds[k], self.ends - self.starts + 1
+        edges = np.flatnonzero(np.diff(kind.view(np.int8), prepend=0, append=0))  # runs: [edges[2i], edges[2i+1])
+        if not len(edges):
+            return np.zeros(0, np.uint8)
+        if len(edges) <= 2 * _RECORD_RUNS:
+            body = np.concatenate([self.data[self.starts[a]: self.ends[b - 1] + 1]
+                                   for a, b in zip(edges[0::2].tolist(), edges[1::2].tolist())])
+        else:
+            keep = np.repeat(kind, size)[: len(self.data)]
+            body = self.data[keep]
+            del keep
+        first = np.cumsum(np.concatenate([[0], size[kind][:-1]]))  # each record's first byte
+        for at in range((1, 2, 2, 1)[k]):
+            body[first + at] = ord(" ")  # the keyword
+        block = 1 << 24
+        return body if all(plain[body[i: i + block]].all() for i in range(0, len(body), block)) else None
+
+
+#: Most runs of consecutive records of a kind :meth:`ObjLines.records` copies one by one.
+_RECORD_RUNS = 4096
+
+
+def obj_lines(text: str) -> ObjLines | None:
+    """:class:`ObjLines` of the normalized OBJ ``text`` (:func:`_obj_normalized`), or None when it is empty or
+    not ASCII (its readers of lines then read it)."""
+    if not text or not text.isascii():
+        return None
+    return ObjLines(np.frombuffer(text.encode("ascii"), np.uint8))
+
+
 def _read_obj_bytes(text: str):
     """:func:`_read_obj_columns`' result, read from the text's bytes by numpy without a Python object per line
     or token (the list of lines and its copies took ~8x the file's size: 1.9 GB for a 234 MB OBJ), for the
@@ -974,36 +1035,14 @@ def _read_obj_bytes(text: str):
     from .meshdoc import _CORNER_FORMS, _every_corner_has
     from .ply import _tokens_per_line, parsed_numbers
 
-    if not text.isascii():
-        return None
-    raw = text.encode("ascii")
-    data = np.frombuffer(raw, np.uint8)
-    ends = np.flatnonzero(data == 10)
-    if not len(data) or data[-1] != 10:
-        ends = np.append(ends, len(data))
-    starts = np.concatenate([[0], ends[:-1] + 1])
-    if (ends - starts).max() > _COLUMN_RECORD + 2:
+    lines = obj_lines(text)
+    if lines is None or (lines.ends - lines.starts).max() > _COLUMN_RECORD + 2:
         return None  # a huge record is checked against the limits before it is split, record by record
-    padded = np.concatenate([data, np.zeros(3, np.uint8)])
-    b0, b1, b2 = padded[starts], padded[starts + 1], padded[starts + 2]
-    del padded
-    space = ord(" ")
-    kinds = [(b0 == ord("v")) & (b1 == space), (b0 == ord("v")) & (b1 == ord("t")) & (b2 == space),
-             (b0 == ord("v")) & (b1 == ord("n")) & (b2 == space), (b0 == ord("f")) & (b1 == space)]
-    del b0, b1, b2
-
-    def records(kind: np.ndarray, plain: np.ndarray):
-        """The bytes of the records of ``kind`` (lines, their keywords blanked), or None for a byte not ``plain``."""
-        keep = np.repeat(kind, ends - starts + 1)[: len(data)]  # each line with its line feed
-        body = data[keep]
-        del keep
-        body[np.cumsum(np.concatenate([[0], (ends - starts + 1)[kind][:-1]]))] = space  # the keywords' first byte
-        return body if plain[body].all() else None
-
+    kinds, space = lines.kinds, ord(" ")
     n_vertices, faces = int(kinds[0].sum()), int(kinds[3].sum())
     if not n_vertices or not faces or n_vertices > MAX_ENCODE_VERTICES:
         return None
-    verts = records(kinds[0], _PLAIN_FLOAT)
+    verts = lines.records(0, _PLAIN_FLOAT)
     if verts is None:
         return None
     widths = _tokens_per_line(verts)[0]
@@ -1015,8 +1054,8 @@ def _read_obj_bytes(text: str):
     if positions is None or positions.size != n_vertices * width or width < 3:
         return None
     positions = positions.reshape(n_vertices, width)
-    polys = records(kinds[3], _PLAIN_FACE)
-    del data, raw  # (the text itself is the caller's)
+    polys = lines.records(3, _PLAIN_FACE)
+    del lines  # (the text itself is the caller's)
     if polys is None:
         return None
     first = polys[: _COLUMN_RECORD + 2].tobytes().split(None, 1)  # the first record's first corner

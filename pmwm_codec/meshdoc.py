@@ -451,18 +451,11 @@ def obj_document(path, text: str) -> tuple:
         if _COLOURED.search(text) is None:
             return None, []  # no vt, no material, no v record of six numbers or more: geometry only
         has_colours = True
-    kinds, bodies = [], []
-    for m in _RECORD.finditer(text):
-        kinds.append(m.group(1))
-        bodies.append(m.group(2))
-    try:
-        v = _rows([b for k, b in zip(kinds, bodies) if k == "v"], (3, 4, 6, 7), "v", name, finite=True)
-        vt = _rows([b for k, b in zip(kinds, bodies) if k == "vt"], (1, 2, 3), "vt", name, finite=True)
-        vn = _rows([b for k, b in zip(kinds, bodies) if k == "vn"], (3,), "vn", name)
-    except InputFormatError:
-        raise
-    except ValueError as exc:
-        raise InputFormatError(f"{name}: malformed OBJ record: {_printable(str(exc))[:60]}") from None
+    fast = _obj_records_fast(text)  # the common OBJ, parsed a kind of record at once from its bytes
+    if fast is not None:
+        v, vt, vn, mtllibs, faces = fast
+    else:
+        v, vt, vn, mtllibs, faces = _obj_records(text, name)
     if len(v) > MAX_ENCODE_VERTICES:
         raise InputFormatError(f"{name}: more than {MAX_ENCODE_VERTICES:,} vertices (the encoder's limit)")
     colours, notices = None, []
@@ -477,14 +470,118 @@ def obj_document(path, text: str) -> tuple:
             return None, notices
     positions = v[:, :3]
     resources = Resources(path, notices)
-    materials, by_name = _obj_materials([b for k, b in zip(kinds, bodies) if k == "mtllib"], resources)
-    corners, face_material = _obj_faces(kinds, bodies, name, by_name)
+    materials, by_name = _obj_materials(mtllibs, resources)
+    corners, face_material = faces(by_name)
     if len(vt) == 0 and colours is None and (face_material < 0).all():
         return None, notices  # materials that did not resolve, no vt, no colours: geometry only
     parts = _obj_parts(positions, vt, vn, colours, corners, face_material, notices, materials)
     if not parts:  # faces were read (else MeshError before), and every one was dropped
         raise DegenerateMeshError(f"{name}: every triangle is degenerate")
     return _document(parts, materials, resources, name), notices
+
+
+def _obj_records(text: str, name: str) -> tuple:
+    """``(v, vt, vn, mtllibs, faces)`` of an OBJ's text, read record by record (any OBJ): ``v`` (p, 3|4|6|7),
+    ``vt`` (t, 1..3), ``vn`` (n, 3) float64 (:func:`_rows`: narrower records padded with NaN), ``mtllibs`` the text
+    of each ``mtllib`` record, ``faces`` a function of the materials' ``{name: index}`` giving
+    :func:`_obj_faces`' ``(corners, face_material)``.  InputFormatError (one line) for a malformed record."""
+    kinds, bodies = [], []
+    for m in _RECORD.finditer(text):
+        kinds.append(m.group(1))
+        bodies.append(m.group(2))
+    try:
+        v = _rows([b for k, b in zip(kinds, bodies) if k == "v"], (3, 4, 6, 7), "v", name, finite=True)
+        vt = _rows([b for k, b in zip(kinds, bodies) if k == "vt"], (1, 2, 3), "vt", name, finite=True)
+        vn = _rows([b for k, b in zip(kinds, bodies) if k == "vn"], (3,), "vn", name)
+    except InputFormatError:
+        raise
+    except ValueError as exc:
+        raise InputFormatError(f"{name}: malformed OBJ record: {_printable(str(exc))[:60]}") from None
+    mtllibs = [b for k, b in zip(kinds, bodies) if k == "mtllib"]
+    return v, vt, vn, mtllibs, lambda by_name: _obj_faces(kinds, bodies, name, by_name)
+
+
+#: An OBJ's ``usemtl`` or ``mtllib`` record from the start of its line (as :data:`_RECORD` reads it).
+_MATERIAL_RECORD = re.compile(r"[ \t]*(usemtl|mtllib)[ \t]+([^\n]*)")
+#: The widths :func:`_rows` takes of each kind of vertex record, and whether its numbers must fit float32.
+_ROW_WIDTHS = (((3, 4, 6, 7), True), ((1, 2, 3), True), ((3,), False))
+
+
+def _obj_records_fast(text: str):
+    """:func:`_obj_records`' result, the same arrays, read from the text's bytes by numpy (no Python object per
+    record or token: those lists took ~8x the text at the peak), for the common ASCII OBJ whose ``v`` / ``vt`` / ``vn``
+    records hold plain decimals of the widths :func:`_rows` takes, each a float32 carries, and whose faces are
+    read a column at a time (:func:`_face_corners`: every corner of one form, naming a record read before its
+    face, three or more corners a face); None for anything else, which :func:`_obj_records` reads or names
+    what is wrong in (its words, since it reads it).  The number parsing is :func:`~pmwm_codec.ply.parsed_numbers`'
+    over the records :class:`~pmwm_codec.mesh.ObjLines` finds, as :func:`~pmwm_codec.mesh.read_mesh` reads an OBJ."""
+    from .mesh import _PLAIN_FACE, _PLAIN_FLOAT, _obj_normalized, obj_lines
+    from .ply import _tokens_per_line, parsed_numbers
+
+    text = _obj_normalized(text)
+    lines = obj_lines(text)
+    if lines is None:
+        return None
+    kinds = lines.kinds
+    arrays = []
+    for k, (kind, (widths, finite)) in enumerate(zip(kinds, _ROW_WIDTHS)):
+        count = int(np.count_nonzero(kind))
+        if not count:
+            arrays.append(np.zeros((0, min(widths))))
+            continue
+        body = lines.records(k, _PLAIN_FLOAT)
+        if body is None:
+            return None
+        counts = _tokens_per_line(body)[0]
+        if len(counts) != count or not np.isin(counts, widths).all():
+            return None  # (a record of no number, or of a width not taken)
+        values = parsed_numbers(body, np.float64)
+        del body
+        if values is None or values.size != counts.sum() or (finite and not _float32_carries(values)):
+            return None
+        arrays.append(_padded_rows(values, counts))
+    face_lines = np.flatnonzero(kinds[3])
+    before = np.stack([np.cumsum(kinds[k])[face_lines] for k in range(3)], axis=1)  # records read before each face
+    uses, mtllibs = [], []
+    heads = lines.data[lines.starts]
+    for line in np.flatnonzero(np.isin(heads, np.frombuffer(b"um \t", np.uint8))).tolist():
+        m = _MATERIAL_RECORD.match(text, int(lines.starts[line]))
+        if m is not None and m.group(1) == "mtllib":
+            mtllibs.append(m.group(2))
+        elif m is not None:
+            uses.append((line, m.group(2)))
+    use_lines = np.array([line for line, _ in uses], np.int64)
+    face_use = np.searchsorted(use_lines, face_lines) - 1  # each face's material: the last usemtl before it
+    polys = lines.records(3, _PLAIN_FACE) if len(face_lines) else None
+    del lines, kinds, text  # (the text's bytes: the caller keeps the text)
+    if polys is None:
+        return None
+    per_face = _tokens_per_line(polys)[0]
+    if len(per_face) != len(face_lines) or (per_face < 3).any() or int((per_face - 2).sum()) > MAX_ENCODE_FACES:
+        return None  # (a point or an edge, which the record loop skips)
+    n = int(per_face.sum())
+    slash = polys == ord("/")
+    slashes, odd = divmod(np.count_nonzero(slash), n)
+    double, odd_double = divmod(np.count_nonzero(slash[1:] & slash[:-1]), n)
+    del slash
+    form = _CORNER_FORMS.get((slashes, double))
+    if form is None or odd or odd_double or not _every_corner_has(polys, n, slashes):
+        return None
+    polys[polys == ord("/")] = ord(" ")
+    values = parsed_numbers(polys, np.int64)
+    del polys
+    if values is None or len(values) != n * len(form):
+        return None
+    corners = _face_corners(values, form, per_face, before, face_use)
+    if corners is None:
+        return None
+    corners, tri_use = corners
+
+    def faces_of(by_name: dict) -> tuple:
+        material = np.array([by_name.get(body.strip(), -1) for _, body in uses] + [-1], np.int64)
+        return corners, material[tri_use]  # (a face of no usemtl before it: -1, the last)
+
+    return (*arrays, mtllibs, faces_of)
 
 
 def _document(parts: list, materials: list, resources: Resources, name: str) -> tuple:
@@ -516,20 +613,31 @@ def _rows(records: list, widths: tuple, kind: str, name: str, finite: bool = Fal
     for w in np.unique(counts).tolist():
         if w not in widths:
             raise ValueError(f"{kind} {records[int(np.flatnonzero(counts == w)[0])].strip()}")
-    width = int(counts.max())
     flat = " ".join(records).split()
     try:
         values = np.array(flat, dtype=np.float64)
     except ValueError:
         bad = next(t for t in flat if not _is_number(t))
         raise ValueError(f"{kind} ... {bad}") from None
-    if finite and not (np.abs(values) <= np.finfo(np.float32).max).all():
+    if finite and not _float32_carries(values):
         row = int(np.searchsorted(np.cumsum(counts), np.argmin(np.abs(values) <= np.finfo(np.float32).max), "right"))
         raise InputFormatError(f"{name}: {kind} record {row + 1:,} holds a number float32 cannot carry (NaN, infinite "
                                f"or beyond 3.4e38): {_printable(kind + ' ' + records[row])[:60]}")
+    return _padded_rows(values, counts)
+
+
+def _float32_carries(values: np.ndarray) -> bool:
+    """Whether float32 carries every value of ``values`` (float64): none NaN, infinite or beyond its range."""
+    return bool((np.abs(values) <= np.finfo(np.float32).max).all())
+
+
+def _padded_rows(values: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """(len(counts), w) float64 of the records' ``values`` (float64, record after record; ``counts`` (r,) int64
+    values each), w the widest record, narrower ones padded with NaN."""
+    width = int(counts.max())
     if (counts == width).all():
         return values.reshape(-1, width)
-    out = np.full((len(records), width), np.nan)
+    out = np.full((len(counts), width), np.nan)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     for w in np.unique(counts).tolist():
         rows = np.flatnonzero(counts == w)
@@ -743,29 +851,38 @@ def _obj_faces_columns(kinds: list, bodies: list, by_name: dict):
     del text  # the faces' text (~60 bytes a face) is not held while the corners are made: in place from here
     if len(values) != n * len(form):
         return None
-    ids = np.zeros((n, 3), np.int64)
-    ids[:, list(form)] = values.reshape(n, len(form))
-    del values
     before = np.stack([np.cumsum(kind == k)[face_rows] for k in range(3)], axis=1)  # records read before each face
-    before = np.repeat(before, per_face, axis=0)
-    unnamed = [c for c in range(3) if c not in form]
-    if ((ids == 0) | (np.abs(ids) > before))[:, list(form)].any():  # an index 0, or one naming no record
-        return None
-    np.subtract(ids, 1, out=ids, where=ids > 0)  # 1-based -> 0-based
-    np.add(ids, before, out=ids, where=ids < 0)  # relative: counted back from the records read before the face
-    del before
-    ids[:, unnamed] = -1
-    starts = np.concatenate([[0], np.cumsum(per_face)[:-1]])
-    tri_face = np.repeat(np.arange(len(faces)), per_face - 2)
-    j = np.arange(len(tri_face)) - np.repeat(np.cumsum(per_face - 2) - (per_face - 2), per_face - 2) + 1
-    first = starts[tri_face]
-    corners = np.stack([ids[first], ids[first + j], ids[first + j + 1]], axis=1).reshape(-1, 3)
     use = np.flatnonzero(kind == 4)  # each face's material: the last usemtl before it
     material = np.full(len(kinds), -1, np.int64)
     material[use] = [by_name.get(bodies[i].strip(), -1) for i in use.tolist()]
     last = np.maximum.accumulate(np.where(kind == 4, np.arange(len(kinds)), -1))[face_rows]
-    face_material = np.where(last >= 0, material[np.maximum(last, 0)], -1)
-    return corners, face_material[tri_face]
+    return _face_corners(values, form, per_face, before, np.where(last >= 0, material[np.maximum(last, 0)], -1))
+
+
+def _face_corners(values: np.ndarray, form: tuple, per_face: np.ndarray, before: np.ndarray, face_material):
+    """:func:`_obj_faces`' ``(corners (c, 3) int64, material per triangle (c / 3,) int64)`` of the faces' corner
+    numbers ``values`` (int64, ``len(form)`` a corner, the kinds ``form`` names: 0 ``v``, 1 ``vt``, 2 ``vn``),
+    ``per_face`` (f,) int64 corners each (three or more), ``before`` (f, 3) int64 records of each kind read
+    before each face, ``face_material`` (f,) int64 each face's (-1 none); None where an index is 0 or names no
+    record (the record loop names it)."""
+    n = int(per_face.sum())
+    values = values.reshape(n, len(form))
+    ids = np.full((n, 3), -1, np.int64)  # a kind the corners do not name: -1
+    face_of = np.repeat(np.arange(len(per_face)), per_face)
+    for column, kind in enumerate(form):  # a column at a time: no (n, 3) temporaries
+        index, read = values[:, column], before[face_of, kind]
+        if ((index == 0) | (index > read) | (index < -read)).any():  # an index 0, or one naming no record
+            return None
+        ids[:, kind] = np.where(index > 0, index - 1, read + index)  # 1-based, or counted back from the records read
+    del values, face_of, index, read
+    if (per_face == 3).all():  # triangles: each face's corners are its triangle's
+        return ids, np.asarray(face_material)
+    starts = np.concatenate([[0], np.cumsum(per_face)[:-1]])
+    tri_face = np.repeat(np.arange(len(per_face)), per_face - 2)
+    j = np.arange(len(tri_face)) - np.repeat(np.cumsum(per_face - 2) - (per_face - 2), per_face - 2) + 1
+    first = starts[tri_face]
+    corners = np.stack([ids[first], ids[first + j], ids[first + j + 1]], axis=1).reshape(-1, 3)
+    return corners, np.asarray(face_material)[tri_face]
 
 
 #: The bytes :meth:`str.split` splits on that a face record may hold (its line breaks are gone: ``one_line_end``).
