@@ -107,11 +107,11 @@ def check_tarball(path: str) -> None:
         raise FetchError(f"{path} is not {TARBALL} (sha512-{got}, expected sha512-{TARBALL_SHA512})")
 
 
-def check_deb(path: str, sha256: str = DEB_SHA256) -> None:
-    """FetchError unless ``path`` is the pinned ``.deb`` (SHA-256 ``sha256``, hex), byte for byte."""
+def check_deb(path: str, sha256: str = DEB_SHA256, name: str = DEB) -> None:
+    """FetchError unless ``path`` is the pinned ``.deb`` ``name`` (SHA-256 ``sha256``, hex), byte for byte."""
     got = digest(path, "sha256").hex()
     if got != sha256:
-        raise FetchError(f"{path} is not the pinned {os.path.basename(path)} (SHA-256 {got}, expected {sha256})")
+        raise FetchError(f"{path} is not {name} (SHA-256 {got}, expected {sha256})")
 
 
 def unpack_tarball(path: str, into: str) -> None:

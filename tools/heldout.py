@@ -130,7 +130,7 @@ def fetch(out_dir: str) -> list:
                   for name, file in DRAGONS.items()}
         meshes["snowden"] = snowden_mesh(os.path.join(packages["snowden"], "index.js"))
         deb = apt_download(tmp, *DEBIAN[:2])
-        check_deb(deb, DEBIAN[2])
+        check_deb(deb, DEBIAN[2], os.path.basename(deb))
         meshes.update(cgal_meshes(deb, tmp))
         for name, mesh in meshes.items():
             write_mesh(os.path.join(out_dir, f"{name}.obj"), mesh)
