@@ -61,23 +61,30 @@ def decode_to(src, dst, chunks: int | None = None, geometry_only: bool = False) 
         if not plain:  # a URL read by ranges fetches nothing after chunk N
             decoder = StreamDecoder(copy=False, max_chunks=chunks)
             last, end = decode_stream(source, decoder=decoder)
-            gltf = decoder.header.gltf_json if decoder.header is not None else None
-            if is_url(src) and (plain_triangle_primitives(gltf) or (styled and shows_appearance(gltf))):
+            header = decoder.header.gltf_json if decoder.header is not None else None
+            if is_url(src) and (plain_triangle_primitives(header) or (styled and shows_appearance(header))):
                 plain, source = True, as_source(src, chunks, whole_document=True)  # read again, whole
             else:
-                mesh, why = scene_as_shown(gltf, last)
-                notices += posed_notes(gltf)  # a progressive skinned mesh
-                shown = gltf
+                mesh, why = scene_as_shown(header, last)
+                notices += posed_notes(header)  # a progressive skinned mesh
+                shown = header
         scene = None
         if plain:
             glb, end, decoder = decode_asset(source, chunks=chunks)
-            doc, bin_chunk = split_glb(glb, "the decoded asset")
             header = shown = decoder.header.gltf_json
             notices += decoder.notices + posed_notes(header)
-            if styled and shows_appearance(header):
+            keeps_appearance = styled and shows_appearance(header)
+            last = None if keeps_appearance else decoder.last
+            # the decoder is let go: its replay's state of the level (about 4x the GLB's bytes) is in the GLB
+            # now, and an OBJ / PLY of the scene would otherwise be written with both held
+            del decoder
+            doc, bin_chunk = split_glb(glb, "the decoded asset")
+            del glb  # (bin_chunk is a copy of its BIN chunk)
+            if keeps_appearance:
                 scene = scene_parts(doc, [bin_chunk], also=progressive_meshes(header))
+                del doc, bin_chunk  # the scene holds its arrays
             else:
-                mesh, why = scene_as_shown(header, decoder.last, plain=(doc, [bin_chunk]))
+                mesh, why = scene_as_shown(header, last, plain=(doc, [bin_chunk]))
         if scene is not None:
             mtl, images = sidecar_paths(dst, scene)
             beside = ([mtl] if mtl else []) + images
@@ -90,7 +97,7 @@ def decode_to(src, dst, chunks: int | None = None, geometry_only: bool = False) 
         else:
             write_mesh(dst, mesh)
             counts = (mesh.vertex_count, mesh.face_count)  # what the file holds: a mesh shown twice, twice
-            if suffix == ".stl" and shows_appearance(decoder.header.gltf_json if decoder.header else None):
+            if suffix == ".stl" and shows_appearance(header):
                 notices.append("an STL file holds geometry alone: the asset's texture coordinates, normals, "
                                "colours and materials are left out (decode to .obj, .ply or .glb to keep them)")
         if why is not None:
