@@ -463,7 +463,8 @@ def _unique_rows(rows: np.ndarray) -> tuple:
 
 
 def _welded(showing: Showing, coloured: bool, kind: str, alpha: bool = False) -> tuple:
-    """``(rows (v, 3 | 6 | 7) float32, [faces (m_k, 3) int64 into rows, per part])``: the showing's vertices welded,
+    """``(rows (v, 3 | 6 | 7) float32, [row of each vertex (n_k,) int64, per part])``: the showing's vertices welded
+    (a part's faces into rows: ``maps[k][part.indices]``),
     one row per distinct float32 position (and sRGB-encoded colour, clipped to 0..1, when ``coloured``: white
     for a part without COLOR_0, glTF's default; with its alpha too when ``alpha``: opaque for a VEC3 one), in the
     order first met.  InputFormatError (``kind`` the file) when a coordinate overflows float32."""
@@ -479,7 +480,7 @@ def _welded(showing: Showing, coloured: bool, kind: str, alpha: bool = False) ->
         pos = np.hstack([pos, colours])
     welded, v_of = _unique_rows(pos)
     starts = np.cumsum([0] + [len(p.positions) for p in parts])
-    return welded, [v_of[starts[k]:starts[k + 1]][p.indices] for k, p in enumerate(parts)]
+    return welded, [v_of[starts[k]:starts[k + 1]] for k in range(len(parts))]
 
 
 def _off_text(scene: Scene) -> tuple:
@@ -489,8 +490,8 @@ def _off_text(scene: Scene) -> tuple:
     coloured = any("COLOR_0" in p.attributes for s in scene.showings for p in s.parts)
     rows, faces, total = [], [], 0
     for showing in scene.showings:
-        welded, corners = _welded(showing, coloured, "an OFF", alpha=True)
-        faces += [c + total for c in corners]
+        welded, maps = _welded(showing, coloured, "an OFF", alpha=True)
+        faces += [v_of[p.indices] + total for v_of, p in zip(maps, showing.parts)]
         rows.append(welded)
         total += len(welded)
     rows = np.concatenate(rows) if rows else np.zeros((0, 7 if coloured else 3), np.float32)
@@ -516,22 +517,22 @@ def _obj_text(scene: Scene, mtl_name: str | None) -> tuple:
     current = None  # the material of the last usemtl: it holds across o records
     for showing in scene.showings:
         body.append(f"o {showing.name}\n".encode("utf-8", "surrogateescape"))
-        welded, corners = _welded(showing, coloured, "an OBJ")
+        welded, maps = _welded(showing, coloured, "an OBJ")
         body.append(("v" + " %.9g" * welded.shape[1], welded))
-        for part, p_idx in zip(showing.parts, corners):
-            columns = [p_idx + (1 + v_total)]
+        for part, v_of in zip(showing.parts, maps):
+            columns = [(v_of, 1 + v_total)]
             forms = ["%d"]
             if "TEXCOORD_0" in part.attributes:
                 uv = _float32(part.attributes["TEXCOORD_0"][:, :2] * [1.0, -1.0] + [0.0, 1.0])
                 values, t_of = _unique_rows(uv)
                 body.append(("vt %.9g %.9g", values))
-                columns.append(t_of[part.indices] + (1 + vt_total))
+                columns.append((t_of, 1 + vt_total))
                 vt_total += len(values)
                 forms.append("%d")
             if "NORMAL" in part.attributes:
                 values, n_of = _unique_rows(_float32(part.attributes["NORMAL"][:, :3]))
                 body.append(("vn %.9g %.9g %.9g", values))
-                columns.append(n_of[part.indices] + (1 + vn_total))
+                columns.append((n_of, 1 + vn_total))
                 vn_total += len(values)
                 forms.append("%d" if len(forms) == 2 else "/%d")
             if part.material is not None and part.material != current:
@@ -541,7 +542,7 @@ def _obj_text(scene: Scene, mtl_name: str | None) -> tuple:
                 body.append(b"usemtl default\n")
                 current = None
             corner = "/".join(forms)  # %d, %d/%d, %d//%d or %d/%d/%d
-            body.append(("f " + " ".join([corner] * 3), _Corners(columns)))
+            body.append(("f " + " ".join([corner] * 3), _Corners(part.indices, columns)))
             f_total += len(part.indices)
         v_total += len(welded)
     head = f"# {GENERATOR}: {v_total} vertices, {f_total} faces\n" + (f"mtllib {mtl_name}\n" if mtl_name is not None
@@ -551,18 +552,21 @@ def _obj_text(scene: Scene, mtl_name: str | None) -> tuple:
 
 
 class _Corners:
-    """The (m, 3 * forms) table of an OBJ part's ``f`` records, corner by corner (position, texture coordinate,
-    normal), from its ``columns`` ((m, 3) int64 each), made a block of rows at a time (:func:`text_rows` slices it):
-    the whole table is not held beside its columns."""
+    """The (m, 3 * forms) int64 table of an OBJ part's ``f`` records, corner by corner (position, texture
+    coordinate, normal), made a block of rows at a time (:func:`text_rows` slices it) from the part's ``indices``
+    ((m, 3) int64, into its vertices) and its ``columns`` (``(record of each vertex (n,) int64, first record's
+    number)`` per form): neither the table nor an (m, 3) array per form is held (3 x 48 MB for 2M faces)."""
 
-    def __init__(self, columns: list):
+    def __init__(self, indices: np.ndarray, columns: list):
+        self.indices = indices
         self.columns = columns
 
     def __len__(self) -> int:
-        return len(self.columns[0])
+        return len(self.indices)
 
     def __getitem__(self, rows: slice) -> np.ndarray:
-        return np.stack([c[rows] for c in self.columns], axis=2).reshape(-1, 3 * len(self.columns))
+        corners = self.indices[rows]
+        return np.stack([of[corners] + first for of, first in self.columns], axis=2).reshape(-1, 3 * len(self.columns))
 
 
 def _mtl_text(scene: Scene, image_names: list) -> bytes:
