@@ -175,6 +175,7 @@ def text_rows(fmt: str, rows: np.ndarray, add: int = 0):
             block = block.astype(np.int64) + add
         yield ((line * len(block)) % tuple(block.reshape(-1).tolist())).encode("ascii")
 
+
 def _ply_parts(positions, faces) -> list:
     rec = np.empty(len(faces), dtype=[("n", "u1"), ("i", "<u4", (3,))])
     rec["n"] = 3
