@@ -111,14 +111,15 @@ def call(function: str, path: Path) -> list:
 
 def measure(argv: list, code_root: Path) -> tuple:
     """``(peak resident MB, wall seconds)`` of a fresh process running ``argv``; exits on its failure."""
-    start = time.perf_counter()
-    proc = subprocess.Popen(argv, env=environment(code_root), cwd=code_root, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE)
-    _, status, usage = os.wait4(proc.pid, 0)
-    seconds = time.perf_counter() - start
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    err = proc.stderr.read().decode(errors="replace")
-    proc.stderr.close()
+    with tempfile.TemporaryFile() as stderr:  # (a pipe read only after the exit would hold a chatty process)
+        start = time.perf_counter()
+        proc = subprocess.Popen(argv, env=environment(code_root), cwd=code_root, stdout=subprocess.DEVNULL,
+                                stderr=stderr)
+        _, status, usage = os.wait4(proc.pid, 0)
+        seconds = time.perf_counter() - start
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        stderr.seek(0)
+        err = stderr.read().decode(errors="replace")
     if proc.returncode:
         sys.exit(f"{' '.join(argv)} failed ({proc.returncode}): {err.strip()[-400:]}")
     return usage.ru_maxrss / 1024, seconds
