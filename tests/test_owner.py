@@ -1240,7 +1240,7 @@ def test_a_stream_of_many_small_chunks_is_read_where_its_level_has_grown_and_at_
     assert main(["encode", str(src), "-o", str(out), "--owner-id", "00c0ffee00c0ffee", "--key", str(key), "-q"]) == 0
     every = verify_owner.owner_of_stream(out, key, every=True)
     calls = []
-    monkeypatch.setattr(verify_owner, "detect", lambda p, f, k: calls.append(len(p)) or layer.detect(p, f, k))
+    monkeypatch.setattr(verify_owner, "detect", lambda p, f, k, **kw: calls.append(len(p)) or layer.detect(p, f, k, **kw))
     monkeypatch.setattr(verify_owner, "REREAD_GROWTH", 0.5)  # coarse, so that this small stream skips some
     some = verify_owner.owner_of_stream(out, key)
     assert len(some) == len(every) and 2 < len(calls) < len(every)

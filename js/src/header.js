@@ -47,9 +47,13 @@ const isHex = (digits, one = true) => (x) => typeof x === 'string' && (one ? x.l
 const SCHEMA_FIELDS = {
   extension: {
     baseMac: [isHex(32), '32 lowercase hex digits'], sceneMac: [isHex(32), '32 lowercase hex digits'], baseDigest: [isHex(16), '16 lowercase hex digits'], fileId: [(x) => typeof x === 'string', 'a string'],
-    watermark: [isObj, 'an object'], extensions: [isObj, 'an object'],
+    watermark: [isObj, 'an object'], ownerFrame: [isObj, 'an object'], extensions: [isObj, 'an object'],
   },
   grid: { extensions: [isObj, 'an object'] },
+  ownerFrame: {
+    center: [(x) => Array.isArray(x) && x.length === 3 && x.every(isNum), 'an array of 3 numbers', true],
+    inner: [isNum, 'a number', true], width: [(x) => isNum(x) && x > 0, 'a number > 0', true],
+  },
   chunk: { mac: [isHex(32), '32 lowercase hex digits'], batches: [isWhole(1), 'an integer >= 1'], extensions: [isObj, 'an object'] },
   chunkTable: {
     digests: [isHex(16, false), 'groups of 16 lowercase hex digits'], macs: [isHex(32, false), 'groups of 32 lowercase hex digits'],
@@ -532,6 +536,7 @@ function checkExtension(ext, what) {
     }
   }
   if (isObj(ext.grid)) checkFields(ext.grid, 'grid', `${what}: grid`);
+  if (ext.ownerFrame !== undefined) checkFields(ext.ownerFrame, 'ownerFrame', `${what}: ownerFrame`);
   const payload = given(ext.payload, { codec: PAYLOAD_CODEC, version: 1 });
   if (!isObj(payload) || typeof payload.codec !== 'string' || !Number.isInteger(payload.version)) {
     throw new FormatError(`${what}: payload is not an object with a string codec and an integer version`);

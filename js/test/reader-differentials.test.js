@@ -304,3 +304,21 @@ test('a stream cut before its base mesh names the same bytes needed in both read
     rmSync(dir, { recursive: true, force: true });
   }
 });
+
+/**
+ * `ownerFrame` (spec/README.md, Properties; the owner layer's stated frame): this reader does not use it, but
+ * checks its form as the Python reader's schema does, so that both refuse the same files.
+ */
+test('a malformed ownerFrame is a FormatError, a well-formed one decodes', async () => {
+  const good = { center: [0.5, -1, 2], inner: 0.25, width: 0.01 };
+  await decodePmw(rewrite(PLAIN, (gltf) => { gltf.meshes[0].primitives[0].extensions.PMWM_progressive_mesh.ownerFrame = good; }));
+  const bad = [
+    [{ center: [0, 0], inner: 1, width: 0.1 }, /center/], [{ center: [0, 0, 0], inner: 1, width: 0 }, /width/],
+    [{ center: [0, 0, 0], inner: '1', width: 0.1 }, /inner/], [{ center: [0, 0, 0], width: 0.1 }, /inner/],
+    [[0, 0, 0, 1, 0.1], /ownerFrame/],
+  ];
+  for (const [value, what] of bad) {
+    const changed = rewrite(PLAIN, (gltf) => { gltf.meshes[0].primitives[0].extensions.PMWM_progressive_mesh.ownerFrame = value; });
+    await assert.rejects(decodePmw(changed), (e) => e instanceof FormatError && what.test(e.message), JSON.stringify(value));
+  }
+});

@@ -444,9 +444,14 @@ def encode_document(
             owner_id, decoded = None, None
             work, notices, order, carriers, params = stages(jobs)
     notices = owner_notices + notices
+    stated = None
+    if owner_id is not None:  # the frame the layer reads in at full resolution, for the stream's readers
+        stated = _stated_owner_frame(decoded if decoded is not None else [_decoded_input_positions(w) for w in work],
+                                     [w.job.mesh.faces for w in work], key,
+                                     owner_placements(doc, [w.job.mesh_index for w in work])[0])
     report = _report(work, params, measure, say, decoded)
     fault_point("measured")
-    prims, file_id = _primitives(doc, kept_bin, work, order, params, key, payload_version)
+    prims, file_id = _primitives(doc, kept_bin, work, order, params, key, payload_version, stated)
     if params is not None:
         key = dataclasses.replace(
             key, file_id=file_id, params=params.get_config(), reference=np.asarray(watermark, np.uint8)
@@ -592,6 +597,19 @@ def _owner_check(positions: list, faces: list, key: WatermarkKey, frames: list) 
             return None
     erased = f", {read.erased} of them in shells no vertex falls in" if read.erased else ""
     return f"pmw verify would read {read.bit_errors} of its {read.bits} bits wrong {where}{erased}: {read.verdict}"
+
+
+def _stated_owner_frame(positions: list, faces: list, key: WatermarkKey, frames: list) -> dict | None:
+    """The ``ownerFrame`` object (spec README) of a file whose primitives decode in full to ``positions`` (a
+    list of (n_i, 3)) with ``faces`` (a list of (m_i, 3)), placed by ``frames`` as :func:`_owner_check` and
+    ``pmw verify`` place them: the frame the layer marked with ``key`` reads in
+    (:func:`~pmwm_codec.watermark.owner.stated_frame`), which the stream's readers take at every chunk
+    boundary in place of the level's own estimate; None for a degenerate frame (no layer reads there)."""
+    from ..watermark import owner
+
+    points, tris, _ = scene_mesh(positions, faces, frames)
+    frame = owner.stated_frame(points, tris, key)
+    return owner.frame_json(frame) if frame[2] > 0 else None
 
 
 def _owner_unreadable(why: str, fallback: bool, notices: list, watermark: bool, reused: bool) -> None:
@@ -1250,8 +1268,10 @@ def _with_prediction(spec: dict) -> dict:
     return spec if "componentType" in spec else {**spec, "prediction": PLANE_PREDICTION}
 
 
-def _primitives(doc, kept_bin, work, order, params, key, payload_version: int = DEFAULT_PAYLOAD_VERSION) -> tuple:
-    """Stage 6: payloads, index entries, extension objects.  Returns ``(prims, fileId)``."""
+def _primitives(doc, kept_bin, work, order, params, key, payload_version: int = DEFAULT_PAYLOAD_VERSION,
+                owner_frame: dict | None = None) -> tuple:
+    """Stage 6: payloads, index entries, extension objects.  Returns ``(prims, fileId)``.  ``owner_frame``: the
+    ``ownerFrame`` object of a file with the owner layer (:func:`_stated_owner_frame`), on its first primitive."""
     prims = []
     for w in work:
         chunks = [[w.pm.batches[j] for j in grp] if len(grp) else FaceChunk(w.pm.late_faces, w.pm.late_values)
@@ -1276,6 +1296,8 @@ def _primitives(doc, kept_bin, work, order, params, key, payload_version: int = 
             extension["baseVertexCount"] = int(w.base.welded_count)
         if params is not None:
             extension["watermark"] = w.params.get_config()
+        if owner_frame is not None and not prims:
+            extension["ownerFrame"] = owner_frame
         meta = chunk_meta(w.pm, w.groups, w.grid.step)
         job = w.job
         prims.append(ProgressivePrimitive(job.mesh_index, job.primitive_index, _named(w.base, job.names), payloads,
