@@ -885,6 +885,18 @@ def test_a_multi_primitive_asset_carries_one_owner_layer_read_from_the_pmw_and_t
     (tmp_path / "out.glb").write_bytes(glb)
     read = owner_of_mesh(tmp_path / "out.glb", report.key)  # trimesh: nodes applied
     assert read.verdict == "present" and read.bit_errors == 0
+    # the frame the file states (on its first progressive primitive only) is the scene's, as both reads place it
+    from pmwm_codec.format.glb import split_glb
+    from pmwm_codec.verify.owner import owner_view
+    from pmwm_codec.watermark import owner
+
+    gltf = split_glb((tmp_path / "parts.pmw").read_bytes())[0]
+    stated = [p["extensions"]["PMWM_progressive_mesh"].get("ownerFrame") for m in gltf["meshes"] for p in m["primitives"]]
+    assert stated[0] is not None and stated[1:] == [None] * (len(stated) - 1)
+    view = owner_view(tmp_path / "out.glb")
+    points, _ = owner.distinct_mesh(view.positions, view.faces)
+    s, mass = owner._frame_scores(points, owner.frame_of_json(stated[0]))
+    assert owner._bit_errors(owner._soft_rows((s[None], mass[None]), report.key)[0], report.key) == 0
     # one budget for the whole asset: the layer's RMS over every vertex, against the asset's diagonal (each
     # input vertex against the nearest decoded vertex of its primitive: the layer moves a vertex by ~0.02%
     # of the diagonal, far less than the spacing of this mesh's vertices)
