@@ -789,8 +789,8 @@ def test_a_layer_the_watermark_leaves_unreadable_is_caught_on_the_full_decode(tm
     reads = []
     real = encoder._owner_check
 
-    def failing_on_the_decode(positions, faces, key, frames):
-        reads.append(real(positions, faces, key, frames))
+    def failing_on_the_decode(positions, faces, key, frames, notices=None):
+        reads.append(real(positions, faces, key, frames, notices))
         return "forced" if len(reads) == 2 else reads[-1]
 
     monkeypatch.setattr(encoder, "_owner_check", failing_on_the_decode)
@@ -1008,6 +1008,7 @@ def test_a_mesh_shown_twice_beside_one_shown_once_leaves_its_copies_and_the_othe
     only such copies reach cannot be marked: here they sit within the other mesh's range of norms.)"""
     from pmwm_codec.format.document import load_document, read_accessor
     from pmwm_codec.stream.asset import decode_asset, encode_asset
+    from pmwm_codec.stream.encoder import _WEAK_NOTICE
     from pmwm_codec.verify.owner import owner_of_mesh, owner_of_stream
 
     small = shapes.icosphere(3, 0.3, noise=0.02, seed=5)
@@ -1021,7 +1022,8 @@ def test_a_mesh_shown_twice_beside_one_shown_once_leaves_its_copies_and_the_othe
     (tmp_path / "wheels.glb").write_bytes(b.glb())
     key = WatermarkKey.generate(rng=np.random.default_rng(8))
     report = encode_asset(tmp_path / "wheels.glb", tmp_path / "wheels.pmw", key=key, owner_id=0xBEEF, measure=False)
-    assert not any("owner" in n for n in report.notices)
+    # no refusal, nor fear for re-compression; the shells the copies hold leave bits wrong, and a note says how many
+    assert not any("owner" in n and not n.startswith(_WEAK_NOTICE) for n in report.notices)
     assert owner_of_stream(tmp_path / "wheels.pmw", report.key)[-1].owner.verdict == "present"
     (tmp_path / "out.glb").write_bytes(decode_asset(tmp_path / "wheels.pmw")[0])
     assert owner_of_mesh(tmp_path / "out.glb", report.key).verdict == "present"
@@ -1302,6 +1304,35 @@ def test_a_layer_that_would_not_survive_re_compression_is_written_with_a_notice(
     assert seen == [blob.vertex_count] and f"{encoder._TRANSPORT_NOTICE}: (simulated)" in doc["notices"]
     assert main(["verify", str(out), "--key", str(tmp_path / "b.pmw.key.json"), "--json"]) == 0  # the layer is there
     assert json.loads(capsys.readouterr().out)["owner"]["verdict"] == "present"
+
+
+def test_a_mark_that_reads_a_bit_wrong_as_written_is_written_with_a_notice_saying_how_many(tmp_path, blob, capsys):
+    """A mark that reads ``present`` from the file it was written to, but with bits wrong or erased (here: a mesh
+    whose norms leave shells empty), has that many fewer to lose to an attack: one notice says how many, as
+    ``pmw verify`` counts them; a mark that reads every bit gets none.  Under a watermark the count is the full
+    decode's (the exact layer moves vertices too), said once."""
+    from pmwm_codec.stream.encoder import _WEAK_NOTICE
+
+    img = tmp_path / "w.png"
+    _watermark_png(img)
+    for name, mesh, image in (("gapped", _two_shells(), None), ("blob", blob, None), ("imaged", _two_shells(), img)):
+        src, out, key = tmp_path / f"{name}.obj", tmp_path / f"{name}.pmw", tmp_path / f"{name}.pmw.key.json"
+        _write_obj(src, mesh)
+        if image is None:  # the owner layer alone, of a key made before; else a new key with a random owner ID
+            WatermarkKey.generate(rng=np.random.default_rng(4)).save(key)
+        image = [] if image is None else ["--watermark", str(image)]
+        assert main(["encode", str(src), "-o", str(out), "--json", *image] + (["--key", str(key)] * key.exists())) == 0
+        said = [n for n in json.loads(capsys.readouterr().out)["notices"] if n.startswith(_WEAK_NOTICE)]
+        assert main(["verify", str(out), "--key", str(key), "--json"]) == 0
+        read = json.loads(capsys.readouterr().out)["owner"]
+        assert read["verdict"] == "present" and (read["bit_errors"] > 0) == (name != "blob")
+        if name == "blob":
+            assert said == []
+            continue
+        assert len(said) == 1 and f"pmw verify reads {read['bit_errors']} of its 64 bits wrong" in said[0]
+        assert f", {read['erased']} of them in shells no vertex falls in" in said[0] and read["erased"] > 0
+        assert main(["encode", str(src), "-o", str(tmp_path / f"{name}-2.pmw"), "--key", str(key), *image]) == 0
+        assert f"pmw: note: {said[0]}\n" in capsys.readouterr().err  # the same line in the text form
 
 
 def test_a_layer_that_reads_from_the_file_but_not_once_rounded_to_float32_is_refused(blob, monkeypatch):
