@@ -943,22 +943,14 @@ def _read_obj_columns(text: str, lines: list):
     if slashes and (joined.count("/") != n * slashes or joined.count("//") != n * double
                     or not _every_corner_has(joined, n, slashes)):
         return None  # corners of mixed forms whose numbers make up the same count
-    idx = corners[:, :, 0]
-    if positions.shape[1] < 3 or k < 3 or len(idx) * (k - 2) > MAX_ENCODE_FACES:
+    if positions.shape[1] < 3 or k < 3 or len(corners) * (k - 2) > MAX_ENCODE_FACES:
         return None
-    if not ((idx != 0) & (np.abs(idx) <= MAX_ENCODE_VERTICES)).all():
+    before = _records_before_faces(text, lines, form, len(verts), len(corners))
+    per_face = np.full(len(corners), k, np.int64)
+    ids = None if before is None else obj_corner_ids(values.reshape(-1), form, per_face, before, (0,))
+    if ids is None:
         return None
-    if not _corners_name_records(text, lines, corners, form, len(verts)):
-        return None
-    if (idx < 0).any():  # relative indices count back from the vertices read before their record
-        before = _records_before(text, lines, 0, len(idx))
-        if before is None:
-            return None
-        idx = np.where(idx > 0, idx - 1, before[:, None] + idx)
-    else:
-        idx = idx - 1
-    faces = np.stack([np.repeat(idx[:, 0], k - 2), idx[:, 1:-1].reshape(-1), idx[:, 2:].reshape(-1)], axis=1)
-    return np.ascontiguousarray(positions[:, :3]), faces, positions.shape[1]
+    return np.ascontiguousarray(positions[:, :3]), fan_triangles(ids.reshape(-1), per_face), positions.shape[1]
 
 
 #: The bytes of the common OBJ's ``v`` records (digits, signs, points, exponents, blanks) and ``f`` records.
@@ -972,7 +964,9 @@ class ObjLines:
     """The lines of an ASCII OBJ text as numpy sees them, for readers that parse a kind of record at once:
     ``data`` (bytes,) uint8 the text's bytes; ``starts``, ``ends`` (lines,) int64 where each line starts and
     where its line feed is (or the end of the text); ``kinds`` four (lines,) bool masks: ``v``, ``vt``, ``vn``
-    and ``f`` records (the keyword and one space: the normalized text, :func:`_obj_normalized`)."""
+    and ``f`` records (the keyword and one space: the normalized text, :func:`_obj_normalized`).  Both fast OBJ
+    readers (:func:`_read_obj_bytes`, :func:`pmwm_codec.meshdoc._obj_records_fast`) read their numbers
+    (:meth:`numbers`) and faces (:meth:`face_corners`) through it."""
 
     def __init__(self, data: np.ndarray):
         self.data = data
@@ -1012,6 +1006,108 @@ class ObjLines:
         block = 1 << 24
         return body if all(plain[body[i: i + block]].all() for i in range(0, len(body), block)) else None
 
+    def numbers(self, k: int) -> tuple | None:
+        """``(values (count,) float64, widths (records,) int64)``: the numbers of the records of kind ``k`` (0 ``v``,
+        1 ``vt``, 2 ``vn``), record after record, and how many each record holds; None when a record holds a byte
+        no plain decimal has (:data:`_PLAIN_FLOAT`: no ``nan`` / ``inf``), no number, or a token that is not one
+        number (:func:`~pmwm_codec.ply.parsed_numbers`).  The records' text is not held after the parse."""
+        from .ply import _tokens_per_line, parsed_numbers
+
+        body = self.records(k, _PLAIN_FLOAT)
+        if body is None:
+            return None
+        widths = _tokens_per_line(body)[0]
+        if len(widths) != np.count_nonzero(self.kinds[k]):
+            return None  # (a record of no number)
+        values = parsed_numbers(body, np.float64)
+        return None if values is None or values.size != widths.sum() else (values, widths)
+
+    def face_corners(self, kinds: tuple) -> tuple | None:
+        """``(ids (c, len(kinds)) int64, per_face (f,) int64)`` of the ``f`` records, read a column at a time: for
+        each of the c corners, face after face, the 0-based index of the record of each kind of ``kinds`` (0 ``v``,
+        1 ``vt``, 2 ``vn``) it names (:func:`obj_corner_ids`: relative indices resolved, -1 for a kind its form
+        names none of), and how many corners each face has (:func:`fan_triangles` makes its triangles).  None
+        unless every ``f`` record holds three or more corners, all of one form (``v``, ``v/t``, ``v//n`` or
+        ``v/t/n``, plain digits), each index naming a record of its kind read before its face, and the faces make
+        at most :data:`MAX_ENCODE_FACES` triangles: the readers of lines then read the file or name what is wrong.
+
+        The lines' last reading: their bytes and offsets (``data``, ``starts``, ``ends``: the text's size, and 16
+        bytes a line) are let go once the face records are copied out, not held while the corners are parsed."""
+        from .meshdoc import _CORNER_FORMS, _every_corner_has
+        from .ply import _tokens_per_line, parsed_numbers
+
+        polys = self.records(3, _PLAIN_FACE)
+        self.data = self.starts = self.ends = None
+        if polys is None:
+            return None
+        face_lines = self.kinds[3]
+        per_face = _tokens_per_line(polys)[0]
+        if not len(per_face) or len(per_face) != np.count_nonzero(face_lines) or (per_face < 3).any() \
+                or int((per_face - 2).sum()) > MAX_ENCODE_FACES:
+            return None  # (a blank f record, a point or an edge: the record readers skip or drop it)
+        n = int(per_face.sum())
+        slash = polys == ord("/")
+        slashes, odd = divmod(np.count_nonzero(slash), n)
+        double, odd_double = divmod(np.count_nonzero(slash[1:] & slash[:-1]), n)
+        del slash
+        form = _CORNER_FORMS.get((slashes, double))  # the record kinds a corner names: 0 v, 1 vt, 2 vn
+        if form is None or odd or odd_double or not _every_corner_has(polys, n, slashes):
+            return None  # corners of mixed forms (each corner: its form's slashes)
+        polys[polys == ord("/")] = ord(" ")
+        values = parsed_numbers(polys, np.int64)
+        del polys
+        if values is None or len(values) != n * len(form):
+            return None
+        before = [np.cumsum(self.kinds[k])[face_lines] if k in form else None for k in range(3)]
+        ids = obj_corner_ids(values, form, per_face, before, kinds)
+        return None if ids is None else (ids, per_face)
+
+
+def obj_corner_ids(values: np.ndarray, form: tuple, per_face: np.ndarray, before: list, kinds: tuple = (0, 1, 2)):
+    """(c, len(kinds)) int64: for each OBJ face corner, the 0-based index of the record of each kind of ``kinds``
+    (0 ``v``, 1 ``vt``, 2 ``vn``) it names, -1 for a kind ``form`` does not name; None where an index is 0 or names
+    no record read before its face (the record readers name it).  ``values``: the corners' numbers (int64,
+    ``len(form)`` a corner, face after face, of the kinds ``form`` names), ``per_face`` (f,) int64 corners each,
+    ``before[kind]`` (f,) int64 the records of that kind read before each face (for each kind of ``form``).  OBJ
+    indices count from 1, or back from -1 for the last record read before the face."""
+    n = len(values) // len(form)
+    values = values.reshape(n, len(form))
+    k = int(per_face[0]) if len(per_face) and (per_face == per_face[0]).all() else 0  # one polygon size: broadcast
+    ids = np.full((n, len(kinds)), -1, np.int64)
+    for column, kind in enumerate(form):  # a column at a time: no (c, 3) temporaries
+        index = values[:, column]
+        read = before[kind]
+        if k:
+            index, read = index.reshape(-1, k), read[:, None]
+        else:
+            read = np.repeat(read, per_face)
+        if ((index == 0) | (index > read) | (index < -read)).any():  # an index 0, or one naming no record
+            return None
+        if kind in kinds:
+            resolved = np.where(index > 0, index - 1, read + index) if (index < 0).any() else index - 1
+            ids[:, kinds.index(kind)] = resolved.reshape(-1)
+    return ids
+
+
+def fan_triangles(ids: np.ndarray, per_face: np.ndarray) -> np.ndarray:
+    """(t, 3, ...) of the corners ``ids`` ((c, ...), face after face; ``per_face`` (f,) int64 corners each, three
+    or more): each face fan-triangulated, corner 0 with each pair of consecutive others, ``t = sum(per_face - 2)``,
+    triangles in face order.  Triangles alone are ``ids`` itself, reshaped (no copy)."""
+    tail = ids.shape[1:]
+    k = int(per_face[0]) if (per_face == per_face[0]).all() else 0
+    if k == 3:
+        return ids.reshape(-1, 3, *tail)
+    if k:  # one polygon size: a column of each face's corners at a time
+        corners = ids.reshape(-1, k, *tail)
+        return np.stack([np.repeat(corners[:, 0], k - 2, axis=0), corners[:, 1:-1].reshape(-1, *tail),
+                         corners[:, 2:].reshape(-1, *tail)], axis=1)
+    starts = np.concatenate([[0], np.cumsum(per_face)[:-1]])
+    tri_face = np.repeat(np.arange(len(per_face)), per_face - 2)
+    j = np.arange(len(tri_face)) - np.repeat(np.cumsum(per_face - 2) - (per_face - 2), per_face - 2) + 1
+    first = starts[tri_face]
+    del tri_face
+    return np.stack([ids[first], ids[first + j], ids[first + j + 1]], axis=1)
+
 
 #: Most runs of consecutive records of a kind :meth:`ObjLines.records` copies one by one.
 _RECORD_RUNS = 4096
@@ -1028,97 +1124,42 @@ def obj_lines(text: str) -> ObjLines | None:
 def _read_obj_bytes(text: str):
     """:func:`_read_obj_columns`' result, read from the text's bytes by numpy without a Python object per line
     or token (the list of lines and its copies took ~8x the file's size: 1.9 GB for a 234 MB OBJ), for the
-    common ASCII OBJ that reader takes whose ``v`` records hold plain decimals (no ``nan`` / ``inf``) and whose
-    ``f`` records are no blank ones; None for anything else, which the readers of lines then read or refuse
-    (the same values: the records of every kind are found, counted and checked as :func:`_read_obj_columns`
-    finds, counts and checks them).  ``text``: the normalized OBJ text (:func:`_obj_normalized`)."""
-    from .meshdoc import _CORNER_FORMS, _every_corner_has
-    from .ply import _tokens_per_line, parsed_numbers
-
+    common ASCII OBJ whose ``v`` records hold the same count (three or more) of plain decimals (no ``nan`` /
+    ``inf``) and whose faces :meth:`ObjLines.face_corners` reads (polygons of any sizes, fan-triangulated:
+    :func:`fan_triangles`); None for anything else, which the readers of lines then read or refuse (the same
+    values: the records of every kind are found, counted and checked as the record reader finds, counts and
+    checks them).  ``text``: the normalized OBJ text (:func:`_obj_normalized`)."""
     lines = obj_lines(text)
     if lines is None or (lines.ends - lines.starts).max() > _COLUMN_RECORD + 2:
         return None  # a huge record is checked against the limits before it is split, record by record
-    kinds, space = lines.kinds, ord(" ")
-    n_vertices, faces = int(kinds[0].sum()), int(kinds[3].sum())
-    if not n_vertices or not faces or n_vertices > MAX_ENCODE_VERTICES:
+    n_vertices = int(np.count_nonzero(lines.kinds[0]))
+    if not n_vertices or n_vertices > MAX_ENCODE_VERTICES:
         return None
-    verts = lines.records(0, _PLAIN_FLOAT)
-    if verts is None:
+    numbers = lines.numbers(0)
+    if numbers is None or (numbers[1] != numbers[1][0]).any() or numbers[1][0] < 3:
+        return None  # (v records of another count of numbers, or fewer than three)
+    positions = numbers[0].reshape(n_vertices, int(numbers[1][0]))
+    del numbers
+    corners = lines.face_corners((0,))
+    if corners is None:
         return None
-    widths = _tokens_per_line(verts)[0]
-    if len(widths) != n_vertices or (widths != widths[0]).any():
-        return None  # (a v record of no number, or of another count)
-    positions = parsed_numbers(verts, np.float64)
-    del verts
-    width = int(widths[0])
-    if positions is None or positions.size != n_vertices * width or width < 3:
-        return None
-    positions = positions.reshape(n_vertices, width)
-    polys = lines.records(3, _PLAIN_FACE)
-    del lines  # (the text itself is the caller's)
-    if polys is None:
-        return None
-    first = polys[: _COLUMN_RECORD + 2].tobytes().split(None, 1)  # the first record's first corner
-    if not first:
-        return None
-    slashes, double = first[0].count(b"/"), b"//" in first[0]
-    form = _CORNER_FORMS.get((slashes, int(double)))  # the record kinds a corner names: 0 v, 1 vt, 2 vn
-    if form is None:
-        return None
-    corners_each = _tokens_per_line(polys)[0]
-    if len(corners_each) != faces or (corners_each != corners_each[0]).any():
-        return None  # (a blank f record, or faces of mixed corner counts)
-    k = int(corners_each[0])
-    n = faces * k
-    slash = polys == ord("/")
-    if slashes and (np.count_nonzero(slash) != n * slashes or np.count_nonzero(slash[1:] & slash[:-1]) != n * double
-                    or not _every_corner_has(polys, n, slashes)):
-        return None  # corners of mixed forms whose numbers make up the same count (each corner: its form's slashes)
-    polys[slash] = space
-    del slash
-    values = parsed_numbers(polys, np.int64)
-    del polys
-    if values is None or values.size != n * len(form) or k < 3 or faces * (k - 2) > MAX_ENCODE_FACES:
-        return None
-    corners = values.reshape(faces, k, len(form))
-    idx = corners[:, :, 0]
-    if not ((idx != 0) & (np.abs(idx) <= MAX_ENCODE_VERTICES)).all():
-        return None
-    is_face = kinds[3]
-    before_v = None
-    for column, kind in enumerate(form):  # each index names a record of its kind read before its face
-        before = np.cumsum(kinds[kind])[is_face][:, None]
-        ids = corners[:, :, column]
-        if not ((ids != 0) & (ids <= before) & (ids >= -before)).all():
-            return None
-        if kind == 0:
-            before_v = before
-    idx = np.where(idx > 0, idx - 1, before_v + idx) if (idx < 0).any() else idx - 1
-    faces = np.stack([np.repeat(idx[:, 0], k - 2), idx[:, 1:-1].reshape(-1), idx[:, 2:].reshape(-1)], axis=1)
-    return np.ascontiguousarray(positions[:, :3]), faces, positions.shape[1]
+    return np.ascontiguousarray(positions[:, :3]), fan_triangles(corners[0].reshape(-1), corners[1]), positions.shape[1]
 
 
-def _corners_name_records(text: str, lines: list, corners: np.ndarray, form: tuple, vertices: int) -> bool:
-    """Whether every index of ``corners`` ((faces, k, len(form)) int64, the kinds ``form`` names: 0 ``v``,
-    1 ``vt``, 2 ``vn``) names a record read before its face, counted from 1 or back from -1 (index 0 and
-    the encoder's limit are the caller's).  ``vertices``: the ``v`` records of the file.  Records all before the
-    first face (the common file): each kind against its count; records after a face (objects one after another):
-    against what each face has before it (:func:`_records_before`)."""
+def _records_before_faces(text: str, lines: list, form: tuple, vertices: int, faces: int) -> list | None:
+    """``before[kind]`` (faces,) int64, for each kind of ``form`` (0 ``v``, 1 ``vt``, 2 ``vn``): how many records of
+    that kind the normalized OBJ ``text`` (``lines``: its lines; ``vertices``: its ``v`` records) holds before each
+    of its ``faces`` ``f`` records (:func:`obj_corner_ids` checks and resolves indices against them).  Records all
+    before the first face (the common file): each kind's count; records after a face (objects one after another):
+    :func:`_records_before`.  None where that finds another count of faces (faces of blanks alone among the
+    records: the record reader counts)."""
     first_face = 0 if text.startswith("f ") else text.find("\nf ") + 1
-    interleaved = _LATER_RECORD.search(text, first_face) is not None
-    for column, kind in enumerate(form):
-        ids = corners[:, :, column]
-        if interleaved:
-            before = _records_before(text, lines, kind, len(corners))
-            if before is None:
-                return False  # (faces of blanks alone among the records: the record reader counts)
-            before = before[:, None]
-        else:
-            before = vertices if kind == 0 else text.count(("\nvt ", "\nvn ")[kind - 1]) + text.startswith(
-                ("vt ", "vn ")[kind - 1])
-        if not ((ids != 0) & (ids <= before) & (ids >= -before)).all():
-            return False
-    return True
+    if _LATER_RECORD.search(text, first_face) is not None:
+        before = [_records_before(text, lines, kind, faces) if kind in form else None for kind in range(3)]
+        return None if any(before[kind] is None for kind in form) else before
+    counts = [vertices] + [text.count(("\nvt ", "\nvn ")[kind - 1]) + text.startswith(("vt ", "vn ")[kind - 1])
+                           for kind in (1, 2)]
+    return [np.full(faces, counts[kind], np.int64) if kind in form else None for kind in range(3)]
 
 
 def _records_before(text: str, lines: list, kind: int, faces: int) -> np.ndarray | None:

@@ -511,12 +511,12 @@ def _obj_records_fast(text: str):
     """:func:`_obj_records`' result, the same arrays, read from the text's bytes by numpy (no Python object per
     record or token: those lists took ~8x the text at the peak), for the common ASCII OBJ whose ``v`` / ``vt`` / ``vn``
     records hold plain decimals of the widths :func:`_rows` takes, each a float32 carries, and whose faces are
-    read a column at a time (:func:`_face_corners`: every corner of one form, naming a record read before its
-    face, three or more corners a face); None for anything else, which :func:`_obj_records` reads or names
-    what is wrong in (its words, since it reads it).  The number parsing is :func:`~pmwm_codec.ply.parsed_numbers`'
-    over the records :class:`~pmwm_codec.mesh.ObjLines` finds, as :func:`~pmwm_codec.mesh.read_mesh` reads an OBJ."""
-    from .mesh import _PLAIN_FACE, _PLAIN_FLOAT, _obj_normalized, obj_lines
-    from .ply import _tokens_per_line, parsed_numbers
+    read a column at a time (:meth:`~pmwm_codec.mesh.ObjLines.face_corners`: every corner of one form, naming a
+    record read before its face, three or more corners a face); None for anything else, which :func:`_obj_records`
+    reads or names what is wrong in (its words, since it reads it).  The records are read by
+    :class:`~pmwm_codec.mesh.ObjLines` (:meth:`~pmwm_codec.mesh.ObjLines.numbers`, ``face_corners``), as
+    :func:`~pmwm_codec.mesh.read_mesh` reads an OBJ."""
+    from .mesh import _obj_normalized, fan_triangles, obj_lines
 
     text = _obj_normalized(text)
     lines = obj_lines(text)
@@ -525,23 +525,17 @@ def _obj_records_fast(text: str):
     kinds = lines.kinds
     arrays = []
     for k, (kind, (widths, finite)) in enumerate(zip(kinds, _ROW_WIDTHS)):
-        count = int(np.count_nonzero(kind))
-        if not count:
+        if not kind.any():
             arrays.append(np.zeros((0, min(widths))))
             continue
-        body = lines.records(k, _PLAIN_FLOAT)
-        if body is None:
+        numbers = lines.numbers(k)
+        if numbers is None or not np.isin(numbers[1], widths).all():
+            return None  # (a record of a width not taken)
+        if finite and not _float32_carries(numbers[0]):
             return None
-        counts = _tokens_per_line(body)[0]
-        if len(counts) != count or not np.isin(counts, widths).all():
-            return None  # (a record of no number, or of a width not taken)
-        values = parsed_numbers(body, np.float64)
-        del body
-        if values is None or values.size != counts.sum() or (finite and not _float32_carries(values)):
-            return None
-        arrays.append(_padded_rows(values, counts))
+        arrays.append(_padded_rows(*numbers))
+        del numbers
     face_lines = np.flatnonzero(kinds[3])
-    before = np.stack([np.cumsum(kinds[k])[face_lines] for k in range(3)], axis=1)  # records read before each face
     uses, mtllibs = [], []
     heads = lines.data[lines.starts]
     for line in np.flatnonzero(np.isin(heads, np.frombuffer(b"um \t", np.uint8))).tolist():
@@ -552,30 +546,13 @@ def _obj_records_fast(text: str):
             uses.append((line, m.group(2)))
     use_lines = np.array([line for line, _ in uses], np.int64)
     face_use = np.searchsorted(use_lines, face_lines) - 1  # each face's material: the last usemtl before it
-    polys = lines.records(3, _PLAIN_FACE) if len(face_lines) else None
-    del lines, kinds, text  # (the text's bytes: the caller keeps the text)
-    if polys is None:
-        return None
-    per_face = _tokens_per_line(polys)[0]
-    if len(per_face) != len(face_lines) or (per_face < 3).any() or int((per_face - 2).sum()) > MAX_ENCODE_FACES:
-        return None  # (a point or an edge, which the record loop skips)
-    n = int(per_face.sum())
-    slash = polys == ord("/")
-    slashes, odd = divmod(np.count_nonzero(slash), n)
-    double, odd_double = divmod(np.count_nonzero(slash[1:] & slash[:-1]), n)
-    del slash
-    form = _CORNER_FORMS.get((slashes, double))
-    if form is None or odd or odd_double or not _every_corner_has(polys, n, slashes):
-        return None
-    polys[polys == ord("/")] = ord(" ")
-    values = parsed_numbers(polys, np.int64)
-    del polys
-    if values is None or len(values) != n * len(form):
-        return None
-    corners = _face_corners(values, form, per_face, before, face_use)
+    del kinds, text, heads  # (the text: the caller keeps it)
+    corners = lines.face_corners((0, 1, 2))  # (the lines' bytes let go as the faces are copied out)
     if corners is None:
         return None
-    corners, tri_use = corners
+    ids, per_face = corners
+    corners = fan_triangles(ids, per_face).reshape(-1, 3)
+    tri_use = np.repeat(face_use, per_face - 2)
 
     def faces_of(by_name: dict) -> tuple:
         material = np.array([by_name.get(body.strip(), -1) for _, body in uses] + [-1], np.int64)
@@ -851,7 +828,7 @@ def _obj_faces_columns(kinds: list, bodies: list, by_name: dict):
     del text  # the faces' text (~60 bytes a face) is not held while the corners are made: in place from here
     if len(values) != n * len(form):
         return None
-    before = np.stack([np.cumsum(kind == k)[face_rows] for k in range(3)], axis=1)  # records read before each face
+    before = [np.cumsum(kind == k)[face_rows] for k in range(3)]  # records of each kind read before each face
     use = np.flatnonzero(kind == 4)  # each face's material: the last usemtl before it
     material = np.full(len(kinds), -1, np.int64)
     material[use] = [by_name.get(bodies[i].strip(), -1) for i in use.tolist()]
@@ -859,30 +836,19 @@ def _obj_faces_columns(kinds: list, bodies: list, by_name: dict):
     return _face_corners(values, form, per_face, before, np.where(last >= 0, material[np.maximum(last, 0)], -1))
 
 
-def _face_corners(values: np.ndarray, form: tuple, per_face: np.ndarray, before: np.ndarray, face_material):
+def _face_corners(values: np.ndarray, form: tuple, per_face: np.ndarray, before: list, face_material):
     """:func:`_obj_faces`' ``(corners (c, 3) int64, material per triangle (c / 3,) int64)`` of the faces' corner
     numbers ``values`` (int64, ``len(form)`` a corner, the kinds ``form`` names: 0 ``v``, 1 ``vt``, 2 ``vn``),
-    ``per_face`` (f,) int64 corners each (three or more), ``before`` (f, 3) int64 records of each kind read
+    ``per_face`` (f,) int64 corners each (three or more), ``before[kind]`` (f,) int64 the records of each kind read
     before each face, ``face_material`` (f,) int64 each face's (-1 none); None where an index is 0 or names no
-    record (the record loop names it)."""
-    n = int(per_face.sum())
-    values = values.reshape(n, len(form))
-    ids = np.full((n, 3), -1, np.int64)  # a kind the corners do not name: -1
-    face_of = np.repeat(np.arange(len(per_face)), per_face)
-    for column, kind in enumerate(form):  # a column at a time: no (n, 3) temporaries
-        index, read = values[:, column], before[face_of, kind]
-        if ((index == 0) | (index > read) | (index < -read)).any():  # an index 0, or one naming no record
-            return None
-        ids[:, kind] = np.where(index > 0, index - 1, read + index)  # 1-based, or counted back from the records read
-    del values, face_of, index, read
-    if (per_face == 3).all():  # triangles: each face's corners are its triangle's
-        return ids, np.asarray(face_material)
-    starts = np.concatenate([[0], np.cumsum(per_face)[:-1]])
-    tri_face = np.repeat(np.arange(len(per_face)), per_face - 2)
-    j = np.arange(len(tri_face)) - np.repeat(np.cumsum(per_face - 2) - (per_face - 2), per_face - 2) + 1
-    first = starts[tri_face]
-    corners = np.stack([ids[first], ids[first + j], ids[first + j + 1]], axis=1).reshape(-1, 3)
-    return corners, np.asarray(face_material)[tri_face]
+    record (the record loop names it).  The arithmetic of :meth:`~pmwm_codec.mesh.ObjLines.face_corners`:
+    :func:`~pmwm_codec.mesh.obj_corner_ids`, :func:`~pmwm_codec.mesh.fan_triangles`."""
+    from .mesh import fan_triangles, obj_corner_ids
+
+    ids = obj_corner_ids(values, form, per_face, before)
+    if ids is None:
+        return None
+    return fan_triangles(ids, per_face).reshape(-1, 3), np.repeat(np.asarray(face_material), per_face - 2)
 
 
 #: The bytes :meth:`str.split` splits on that a face record may hold (its line breaks are gone: ``one_line_end``).

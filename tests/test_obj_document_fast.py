@@ -11,8 +11,12 @@ import os
 import random
 import tracemalloc
 
+import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
+from pmwm_codec import mesh as mesh_mod
 from pmwm_codec import meshdoc
 from pmwm_codec.mesh import obj_text
 from tools.bench_textmesh import torus, write_obj
@@ -181,3 +185,91 @@ def test_a_textured_obj_is_read_without_a_python_object_per_record(tmp_path):
     write_obj(path, *torus(20_000))
     text = obj_text(path, "torus.obj")
     assert _peak(path, text) < 6 * len(text)
+
+
+@st.composite
+def valid_objs(draw) -> str:
+    """A valid OBJ text, every face's corners of one form (``v``, ``v/t``, ``v//n``, ``v/t/n``) throughout: one to
+    three objects, each its ``v`` (3, 4, 6 or 7 numbers, the same count in every record, or mixed counts) / ``vt`` /
+    ``vn`` records then faces of 3 to 6 corners (mixed sizes too) naming records read before them, 1-based or
+    counted back; ``o`` / ``g`` / ``usemtl`` records, comments, blank lines, tabs, trailing blanks, CRLF or LF, with
+    or without a last line end."""
+    form = draw(st.sampled_from(["v", "v/t", "v//n", "v/t/n"]))
+    widths = draw(st.sampled_from([[3], [4], [6], [7], [3, 4], [3, 6, 7]]))
+    sizes = draw(st.sampled_from([[3], [4], [5, 6], [3, 4], [3, 4, 5, 6]]))
+    coordinate = st.floats(-1e3, 1e3, allow_nan=False, width=32).map(lambda x: "%.6g" % x)
+    blank = st.sampled_from([" ", " ", "\t", "  "])
+    lines, read = [], {"v": 0, "vt": 0, "vn": 0}
+    for part in range(draw(st.integers(1, 3))):
+        if draw(st.booleans()):
+            lines.append(draw(st.sampled_from(["o part", "g group", "# a comment", "", "s 1", "usemtl m1"])))
+        counts = {"v": draw(st.integers(3, 8)), "vt": draw(st.integers(1, 4)) if "/t" in form else 0,
+                  "vn": draw(st.integers(1, 4)) if "n" in form else 0}
+        for kind, count in counts.items():
+            for _ in range(count):
+                width = draw(st.sampled_from(widths)) if kind == "v" else {"vt": 2, "vn": 3}[kind]
+                numbers = [draw(coordinate) for _ in range(width)]
+                lines.append(kind + draw(blank) + draw(blank).join(numbers) + draw(st.sampled_from(["", " ", "\t"])))
+            read[kind] += count
+
+        def index(kind: str) -> str:
+            i = draw(st.integers(1, counts[kind]))  # a record of this part, as written or counted back
+            return str(read[kind] - counts[kind] + i) if draw(st.booleans()) else str(i - counts[kind] - 1)
+
+        for _ in range(draw(st.integers(1, 6))):
+            if draw(st.integers(0, 5)) == 0:
+                lines.append(draw(st.sampled_from(["usemtl m1", "usemtl m2", "usemtl none"])))
+            corners = [{"v": lambda: index("v"), "v/t": lambda: index("v") + "/" + index("vt"),
+                        "v//n": lambda: index("v") + "//" + index("vn"),
+                        "v/t/n": lambda: index("v") + "/" + index("vt") + "/" + index("vn")}[form]()
+                       for _ in range(draw(st.sampled_from(sizes)))]
+            lines.append("f" + draw(blank) + draw(blank).join(corners) + draw(st.sampled_from(["", " ", " # lid"])))
+    end = draw(st.sampled_from(["\n", "\r\n"]))
+    return end.join(lines) + (end if draw(st.booleans()) else "")
+
+
+def _record_by_record(text: str, name: str) -> tuple:
+    """``_obj_records``' arrays and faces (every face read record by record, each corner checked: not the column
+    reader, which shares the fast path's arithmetic)."""
+    columns = meshdoc._obj_faces_columns
+    meshdoc._obj_faces_columns = lambda *args: None
+    try:
+        v, vt, vn, mtllibs, faces = meshdoc._obj_records(text, name)
+        return v, vt, vn, mtllibs, faces({"m1": 0, "m2": 1})
+    finally:
+        meshdoc._obj_faces_columns = columns
+
+
+def _mesh_record_by_record(text: str, name: str) -> tuple:
+    """``obj_arrays``' positions and triangles, read record by record (no reader of columns or bytes)."""
+    saved = mesh_mod._read_obj_bytes, mesh_mod._read_obj_columns
+    mesh_mod._read_obj_bytes, mesh_mod._read_obj_columns = (lambda text: None), (lambda text, lines: None)
+    try:
+        return mesh_mod.obj_arrays(text, name)
+    finally:
+        mesh_mod._read_obj_bytes, mesh_mod._read_obj_columns = saved
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(valid_objs())
+def test_the_shared_obj_face_reader_takes_every_valid_obj_and_agrees_with_the_record_readers(tmp_path, written):
+    """Both OBJ readers of bytes (the document's ``_obj_records_fast``, the mesh's ``_read_obj_bytes``) read faces
+    through one piece of code (``ObjLines.face_corners``: corners, forms, relative indices, fans): each reads every
+    valid OBJ of one corner form -- polygons of mixed sizes too, which the mesh's had left to the record loop --
+    and makes of it what the record-by-record readers make."""
+    path = tmp_path / "m.obj"
+    path.write_bytes(written.encode("ascii"))
+    text = obj_text(str(path), "m.obj")
+    fast = meshdoc._obj_records_fast(text)
+    assert fast is not None
+    got, expected = (*fast[:4], fast[4]({"m1": 0, "m2": 1})), _record_by_record(text, "m.obj")
+    for a, b in zip(got[:3] + got[4], expected[:3] + expected[4]):
+        assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True)
+    assert got[3] == expected[3]
+    positions, faces, widest = _mesh_record_by_record(text, "m.obj")
+    mesh_fast = mesh_mod._read_obj_bytes(mesh_mod._obj_normalized(text))
+    if len({len(r.split()) for r in text.splitlines() if r.split()[:1] == ["v"]}) == 1:  # (one v width: its reader)
+        assert mesh_fast is not None
+    if mesh_fast is not None:
+        assert np.array_equal(mesh_fast[0], positions) and np.array_equal(mesh_fast[1], faces)
+        assert mesh_fast[1].dtype == faces.dtype == np.int64 and mesh_fast[2] == widest
