@@ -14,7 +14,9 @@ Contract
   mesh is shown once or the placements do not read, each mesh once where it is stored).
 * :func:`owner_of_stream` ``(source, key, every=False) -> list[OwnerBoundary]``: a ``.pmw`` (path, bytes,
   binary file; whole or cut) decoded chunk by chunk, an :class:`OwnerBoundary` at each boundary,
-  base mesh first; its primitives are placed in the same view, as a decoded asset's are.  The layer is
+  base mesh first; its primitives are placed in the same view, as a decoded asset's are, and each level is
+  read with the frame the file states (``ownerFrame``: :func:`~pmwm_codec.watermark.owner.stated_frame`) as
+  its first view, in place of the level's own estimate (off by up to a shell width on a coarse level).  The layer is
   read at the base, at the last boundary, and wherever the level has at least :data:`REREAD_GROWTH`
   more vertices than at the last read; a boundary between carries the last read (``read_at``).
   ``every=True`` reads it at every boundary.
