@@ -141,3 +141,15 @@ def test_a_malformed_stated_frame_is_a_format_error(marked, value, what):
     with pytest.raises(FormatError, match=what):
         dec.feed(_rewrite(data, change))
         dec.close()
+
+
+def test_a_stated_frame_of_absurd_numbers_costs_that_view_only_without_a_word_on_stderr(marked, recwarn):
+    """Any finite numbers pass the schema; norms from a centre at 1e308 overflow, and the read treated them as
+    shells of garbage with numpy's RuntimeWarnings on stderr.  Now every point is outside that view's shells."""
+    _, key, data = marked
+
+    def change(ext):
+        ext["ownerFrame"] = {"center": [1e308, -1e308, 0.0], "inner": 1e308, "width": 1e-320}
+
+    assert owner_of_stream(_rewrite(data, change), key)[-1].owner.verdict == "present"
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]

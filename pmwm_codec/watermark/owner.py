@@ -447,14 +447,16 @@ def _frame(points: np.ndarray, faces: np.ndarray, areas: np.ndarray | None = Non
 
 
 def _shells(points: np.ndarray, frame: tuple) -> tuple:
-    """``(shell (k,) int64, -1 outside; t (k,) float64 in [0, 1); rho (k,); d (k, 3))``."""
+    """``(shell (k,) int64, -1 outside; t (k,) float64 in [0, 1); rho (k,); d (k, 3))``.  A frame whose numbers
+    overflow the norms (one a file states, ``ownerFrame``, may be any finite numbers) puts every point outside."""
     centroid, lo, width = frame
-    d = points - centroid
-    rho = np.linalg.norm(d, axis=1)
-    u = (rho - lo) / width
-    shell = np.floor(u).astype(np.int64)
-    shell[(shell < 0) | (shell >= BINS)] = -1
-    return shell, u - np.floor(u), rho, d
+    with np.errstate(over="ignore", invalid="ignore"):
+        d = points - centroid
+        rho = np.linalg.norm(d, axis=1)
+        u = (rho - lo) / width
+        inside = (u >= 0) & (u < BINS)  # (False for NaN)
+        shell = np.where(inside, np.floor(np.where(inside, u, 0.0)), -1).astype(np.int64)
+        return shell, u - np.floor(u), rho, d
 
 
 def _search_objective(n: np.ndarray, rho: np.ndarray, lo: float, width: float, x: np.ndarray) -> float:
