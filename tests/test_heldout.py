@@ -6,6 +6,7 @@ import base64
 import gzip
 import hashlib
 import shutil
+import struct
 import subprocess
 import tarfile
 
@@ -77,3 +78,67 @@ def test_the_cgal_package_layout_reads_back_the_same_meshes(tmp_path):
     assert sorted(got) == sorted(heldout.CGAL)
     for m in got.values():
         assert np.allclose(m.positions, mesh.positions) and np.array_equal(m.faces, mesh.faces)
+
+
+def _chunk(cid: int, body: bytes) -> bytes:
+    return struct.pack("<HI", cid, 6 + len(body)) + body
+
+
+def _write_3ds(path, parts) -> None:
+    """A 3DS file of ``parts`` (``[(positions, faces)]``), one named object each, as glmark2's ``cat.3ds`` lays it
+    out: MAIN > EDIT > OBJECT (name) > TRIMESH > VERTICES, FACES (3 indices and a flags word)."""
+    objects = b""
+    for i, (positions, faces) in enumerate(parts):
+        verts = _chunk(0x4110, struct.pack("<H", len(positions)) + positions.astype("<f4").tobytes())
+        quads = np.hstack([faces, np.zeros((len(faces), 1), np.int64)]).astype("<u2")
+        tris = _chunk(0x4120, struct.pack("<H", len(faces)) + quads.tobytes())
+        objects += _chunk(0x4000, f"part{i}".encode() + b"\0" + _chunk(0x4100, verts + tris))
+    path.write_bytes(_chunk(0x4D4D, _chunk(0x0002, struct.pack("<I", 3)) + _chunk(0x3D3D, objects)))
+
+
+def _triangles(mesh) -> list:
+    return sorted(map(tuple, np.round(mesh.positions[mesh.faces].reshape(len(mesh.faces), 9), 6).tolist()))
+
+
+def test_a_3ds_file_reads_back_every_object_with_its_seam_corners_merged(tmp_path):
+    """Two objects; the second repeats its vertices (a texture seam splits them in 3DS): one mesh, welded."""
+    a, b = shapes.icosphere(1), shapes.torus(10, 6)
+    split = b.positions[b.faces.reshape(-1)]  # every corner its own vertex
+    _write_3ds(tmp_path / "m.3ds", [(a.positions, a.faces), (split, np.arange(len(split)).reshape(-1, 3))])
+    got = heldout.read_3ds(str(tmp_path / "m.3ds"))
+    assert got.vertex_count == a.vertex_count + b.vertex_count and got.face_count == a.face_count + b.face_count
+    f32 = [type(m)(m.positions.astype(np.float32).astype(np.float64), m.faces) for m in (a, b)]
+    assert _triangles(got) == sorted(_triangles(f32[0]) + _triangles(f32[1]))
+
+
+@pytest.mark.skipif(shutil.which("dpkg-deb") is None, reason="dpkg-deb builds the package here")
+def test_the_stellarium_and_glmark2_layouts_read_back_the_same_meshes(tmp_path):
+    """.debs laid out as stellarium-data's (a gzipped OBJ, an OBJ) and glmark2-data's (a 3DS file)."""
+    mesh = shapes.icosphere(2)
+    built = {}
+    for (package, version, _), models in ((heldout.STELLARIUM, heldout.STELLARIUM_MODELS),
+                                          (heldout.GLMARK2, heldout.GLMARK2_MODELS)):
+        pkg = tmp_path / package
+        (pkg / "DEBIAN").mkdir(parents=True)
+        (pkg / "DEBIAN" / "control").write_text(f"Package: {package}\nVersion: {version}\nArchitecture: all\n"
+                                                "Maintainer: test <t@example.org>\nDescription: test\n")
+        for path in models.values():
+            target = pkg / path
+            target.parent.mkdir(parents=True, exist_ok=True)
+            if path.endswith(".3ds"):
+                _write_3ds(target, [(mesh.positions, mesh.faces)])
+            elif path.endswith(".gz"):
+                write_mesh(str(tmp_path / "m.obj"), mesh)
+                with open(tmp_path / "m.obj", "rb") as src, gzip.open(target, "wb") as dst:
+                    dst.write(src.read())
+            else:
+                write_mesh(str(target), mesh)
+        deb = tmp_path / f"{package}_{version}_all.deb"
+        subprocess.run(["dpkg-deb", "--build", "--root-owner-group", str(pkg), str(deb)], check=True,
+                       capture_output=True)
+        (tmp_path / "work").mkdir(exist_ok=True)
+        built.update(heldout.package_meshes(str(deb), str(tmp_path / "work"), models))
+    assert sorted(built) == sorted({**heldout.STELLARIUM_MODELS, **heldout.GLMARK2_MODELS})
+    for m in built.values():
+        assert m.vertex_count == mesh.vertex_count and m.face_count == mesh.face_count
+        assert np.allclose(sorted(map(tuple, m.positions)), sorted(map(tuple, mesh.positions)), atol=1e-6)
