@@ -20,6 +20,7 @@ from pmwm_codec.verify import verify_mesh
 
 from test_verify_mesh_assets import _encode_decode_flatten, _mark, _moved_and_reordered
 from test_asset import two_mesh_asset
+from test_obj_appearance import _png, _torus_obj
 
 
 def marked_sphere(folder) -> tuple:
@@ -118,3 +119,42 @@ def test_pmw_verify_names_the_level_in_its_text_and_json(marked, tmp_path, capsy
     main(["verify", str(level), "--reference", str(pmw), "--key", str(key_path), "--json"])
     out = json.loads(capsys.readouterr().out)
     assert out["level"] == {"chunks": n, "chunks_total": total} and out["verdict"] == "authentic"
+
+
+@pytest.fixture(scope="module")
+def textured(tmp_path_factory):
+    """``(marked .pmw of a UV torus OBJ with a texture, its key, a level's chunk count, that level as the OBJ
+    `pmw decode --chunks` writes: welded, one ``v`` per position, the seam copies one vertex)``."""
+    folder = tmp_path_factory.mktemp("textured")
+    path, *_ = _torus_obj(str(folder), rings=64)
+    (folder / "t.mtl").write_text("newmtl skin\nmap_Kd t.png\n")
+    _png(folder / "t.png")
+    pmw = folder / "t.pmw"
+    pmwm_codec.encode(path, pmw, watermark=_mark(), measure="none")
+    n = _levels(pmw)[len(_levels(pmw)) // 2]
+    out = folder / "level.obj"
+    assert main(["decode", str(pmw), "--chunks", str(n), "-o", str(out), "-q"]) == 0
+    return pmw, pmwm_codec.load_key(folder / "t.pmw.key.json"), n, pmwm_codec.read_mesh(out)
+
+
+def test_a_level_of_a_textured_asset_written_as_an_obj_verifies_as_that_level(textured):
+    """The OBJ welds the vertices the asset splits at its seams, so its vertex count is no chunk boundary's: it read
+    ``tampered`` against the whole stream, every vertex flagged; it is that level, welded."""
+    pmw, key, n, mesh = textured
+    cut = pmwm_codec.verify_stream(pmwm_codec.cut(pmw, chunks=n), key)
+    assert mesh.vertex_count < cut.results[-1].vertices  # welded
+    v = verify_mesh(mesh, pmw, key)
+    assert (v.level, v.correspondence, v.coverage, v.verdict) == (n, "identity", 1.0, "authentic")
+    assert v.carriers_read == cut.codes_read > 0 and len(v.flagged) == 0
+    positions, faces = _moved_and_reordered(mesh.positions, mesh.faces, seed=3)
+    v = verify_mesh((positions.astype(np.float32).astype(np.float64), faces), pmw, key)
+    assert (v.level, v.correspondence, v.verdict) == (n, "permutation", "authentic")
+
+
+def test_an_edited_welded_level_is_tampered(textured):
+    pmw, key, n, mesh = textured
+    positions = np.array(mesh.positions, np.float64)
+    edges = np.linalg.norm(positions[mesh.faces[:, 0]] - positions[mesh.faces[:, 1]], axis=1).mean()
+    positions[-10:] += 0.05 * edges
+    v = verify_mesh((positions, mesh.faces), pmw, key)
+    assert v.level == n and v.verdict == "tampered" and 0 < len(v.flagged) < mesh.vertex_count / 2

@@ -59,6 +59,7 @@ from ..format.extension import EXTENSION_NAME
 from ..format.gltf import placed_by_nodes, progressive_placements, scene_mesh
 from ..format.mac import SCENE_MAC, MacChecker, Scene
 from ..mesh import Mesh, checked_mesh, read_mesh
+from ..meshexport import _unique_rows
 from ..progressive.topology import unique_edges
 from ..sources import read_all
 from ..stream.replay import Replay
@@ -505,17 +506,29 @@ def _level_of(mesh: Mesh, ref: Reference) -> tuple:
     """``(reference, correspondence)``: ``ref`` at the level of its stream that ``mesh`` is (a decode after fewer
     chunks, exported: ``pmw decode --chunks N``, a viewer's level) with the correspondence found, or ``(ref,
     None)``.  A level is taken only when the mesh has its vertex count and matches it exactly, by topology (up to
-    order, a similarity and float32 storage); a level of the mesh's face count is tried first.  Anything else is
-    checked against the whole stream, as before."""
+    order, a similarity and float32 storage); a level of the mesh's face count is tried first.  So is, after
+    them, a level of the mesh's face count and more vertices, welded as an OBJ's or OFF's ``v`` records weld it
+    (one per distinct float32 position: an asset's vertices split at its texture seams are one there), the
+    correspondence then naming each level vertex the welded one.  Anything else is checked against the whole
+    stream, as before."""
     n, m = mesh.vertex_count, mesh.face_count
     if n >= len(ref.scene_positions):
         return ref, None
-    levels = [(faces != m, chunks) for chunks, vertices, faces in ref.level_counts() if vertices == n]
+    counts = ref.level_counts()
+    levels = [(faces != m, chunks) for chunks, vertices, faces in counts if vertices == n]
     for _, chunks in sorted(levels):
         level = ref.at_level(chunks)
         corr = exact_correspondence(mesh.positions, mesh.faces, level.scene_positions, level.scene_faces)
         if corr is not None:
             return level, corr
+    for chunks in [chunks for chunks, vertices, faces in counts if faces == m and vertices > n]:
+        level = ref.at_level(chunks)
+        welded, row = _unique_rows(np.asarray(level.scene_positions, np.float32))
+        if len(welded) != n:
+            continue
+        corr = exact_correspondence(mesh.positions, mesh.faces, welded, row[np.asarray(level.scene_faces, np.int64)])
+        if corr is not None:
+            return level, Correspondence(corr.method, corr.index[row], corr.valid[row])
     return ref, None
 
 
