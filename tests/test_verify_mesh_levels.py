@@ -149,6 +149,10 @@ def test_a_level_of_a_textured_asset_written_as_an_obj_verifies_as_that_level(te
     positions, faces = _moved_and_reordered(mesh.positions, mesh.faces, seed=3)
     v = verify_mesh((positions.astype(np.float32).astype(np.float64), faces), pmw, key)
     assert (v.level, v.correspondence, v.verdict) == (n, "permutation", "authentic")
+    stl = pmw.parent / "level.stl"  # a soup whose corners read welded
+    assert main(["decode", str(pmw), "--chunks", str(n), "-o", str(stl), "-q"]) == 0
+    v = verify_mesh(pmwm_codec.read_mesh(stl), pmw, key)
+    assert (v.level, v.verdict, v.carriers_read) == (n, "authentic", cut.codes_read)
 
 
 def test_an_edited_welded_level_is_tampered(textured):

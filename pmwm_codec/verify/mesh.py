@@ -508,7 +508,8 @@ def _level_of(mesh: Mesh, ref: Reference) -> tuple:
     None)``.  A level is taken only when the mesh has its vertex count and matches it exactly, by topology (up to
     order, a similarity and float32 storage); a level of the mesh's face count is tried first.  So is, after
     them, a level of the mesh's face count and more vertices, welded as an OBJ's or OFF's ``v`` records weld it
-    (one per distinct float32 position: an asset's vertices split at its texture seams are one there), the
+    (one per distinct float32 position, as an STL's corners read: an asset's vertices split at its texture seams are
+    one there), the
     correspondence then naming each level vertex the welded one.  Anything else is checked against the whole
     stream, as before."""
     n, m = mesh.vertex_count, mesh.face_count
