@@ -443,6 +443,14 @@ def test_cli_owner_only_encode_then_blind_verify_of_the_decoded_mesh(tmp_path, b
     assert main(["verify", str(out), "--key", str(other)]) == 1
     last = capsys.readouterr().out.splitlines()[-1]
     assert last.startswith("owner 0000000000001234: absent (read as ") and "bits differ" in last, last
+    # the text of an owner-only file: no image rows (no boundary reads a code), and the verdict line says
+    # that the owner layer decides the exit status (it said "not-authentic (the file carries no watermark)"
+    # over a table of zero coefficients, then exited 0)
+    assert main(["verify", str(out), "--key", str(key)]) == 0
+    text = capsys.readouterr().out
+    assert "coeffs" not in text and "PSNR" not in text
+    assert "the file carries no watermark image; its owner layer, below, decides the exit status" in text
+    assert text.splitlines()[-1].startswith("owner 00c0ffee00c0ffee: present")
 
 
 def test_a_pmw_renamed_glb_is_verified_as_the_stream_and_refused_as_a_plain_mesh(tmp_path, blob, capsys):

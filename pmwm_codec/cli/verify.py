@@ -115,7 +115,7 @@ def run(args) -> int:
             doc["pictures"] = pictures
         print_json(doc)
     elif not args.quiet:
-        print(report(outcome, pictures))
+        print(report(outcome, pictures, owner_only=bool(owners) and not outcome.marked))
         if owners:
             print(owner_report(owners, key))
     if not outcome.marked and owners:  # an owner-only file: the owner layer decides
@@ -247,20 +247,25 @@ def run_reference(args) -> int:
     return EXIT_OK if v.verdict == "authentic" else EXIT_NOT_AUTHENTIC
 
 
-def report(o: StreamVerification, pictures=None) -> str:
-    """The human table: one row per chunk boundary, then the verdict."""
-    head = f"{'chunk':>5} {'bytes':>11} {'vertices':>9} {'faces':>9} {'coeffs':>7} {'NC':>7} {'PSNR dB':>8}"
-    lines = [head]
-    for r in o.results:
-        lines.append(f"{r.chunk:>5} {r.bytes_read:>11,} {r.vertices:>9,} {r.faces_count:>9,} {r.coefficients:>7,} "
-                     f"{fmt_float(r.nc, 4):>7} {fmt_float(r.psnr_db, 2):>8}")
+def report(o: StreamVerification, pictures=None, owner_only: bool = False) -> str:
+    """The human table: one row per chunk boundary, then the verdict.  ``owner_only``: the file carries no
+    image and the key's owner layer is reported after this (:func:`owner_report`), which decides the exit
+    status: no image rows (they would read no code at any boundary), and the verdict line says so."""
+    lines = []
+    if not owner_only:
+        lines.append(f"{'chunk':>5} {'bytes':>11} {'vertices':>9} {'faces':>9} {'coeffs':>7} {'NC':>7} {'PSNR dB':>8}")
+        for r in o.results:
+            lines.append(f"{r.chunk:>5} {r.bytes_read:>11,} {r.vertices:>9,} {r.faces_count:>9,} "
+                         f"{r.coefficients:>7,} {fmt_float(r.nc, 4):>7} {fmt_float(r.psnr_db, 2):>8}")
     applied = o.results[-1].chunk
     if o.end.complete:
         lines.append(f"complete: {o.end.bytes_read:,} bytes, base + {applied} of {o.end.chunks_total} chunks")
     else:
         lines.append(f"truncated: {o.end.bytes_read:,} of {o.total_length:,} bytes arrived, "
                      f"base + {applied} of {o.end.chunks_total} chunks")
-    if not o.marked:
+    if not o.marked and owner_only:
+        why = "the file carries no watermark image; its owner layer, below, decides the exit status"
+    elif not o.marked:
         why = "the file carries no watermark"
     elif not o.key_matches:
         why = "the file is marked with another key: its key fingerprint differs"
