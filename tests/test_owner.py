@@ -646,6 +646,27 @@ def test_unreadable_flags_a_sphere_and_a_regular_torus_before_any_embedding(blob
     assert why(bumpy, 16) is None and "too narrow a range" in why(bumpy, 8)
 
 
+def test_unreadable_says_so_when_the_shells_lie_where_few_vertices_are(blob):
+    """A detailed object standing on a vast ground plane of 36 vertices: the plane is nearly all of the
+    surface's area, so the area-placed shells span the plane, where a few dozen of its thousands of vertices lie. The
+    refusal named "too few distinct values", which the object's norms are not; it now says where the shells
+    lie and why."""
+    from pmwm_codec.progressive.grid import Grid
+
+    ground = shapes.grid(6, 6, hole=False, bump=0.0)  # 36 vertices, 50 faces: a flat square in z = 0
+    xy = ground.positions[:, :2] - ground.positions[:, :2].mean(0)
+    ground = Mesh(np.column_stack([200 * xy[:, 0] / np.ptp(xy[:, 0]), np.full(len(xy), -1.5),
+                                   200 * xy[:, 1] / np.ptp(xy[:, 1])]), ground.faces)
+    obj = blob
+    scene = Mesh(np.vstack([obj.positions, ground.positions]),
+                 np.vstack([obj.faces, ground.faces + obj.vertex_count]))
+    why = owner.unreadable(scene.positions, scene.faces, Grid.fit(scene.positions, 16).step)
+    assert why is not None and "too few distinct values" not in why, why
+    assert "shells lie where most of its surface's area is" in why and f"of its {obj.vertex_count + 36:,} distinct" in why
+    assert ground.vertex_count == 36
+    assert owner.unreadable(obj.positions, obj.faces, Grid.fit(obj.positions, 16).step) is None  # the object alone
+
+
 def test_an_explicit_owner_id_the_mesh_cannot_carry_is_refused_and_nothing_is_written(tmp_path, capsys):
     import pmwm_codec
     from pmwm_codec.errors import OwnerLayerError

@@ -1175,16 +1175,23 @@ def unreadable(positions, faces, step: float) -> str | None:
     if not width >= MIN_SHELL_STEPS * step:
         return (f"its vertex norms span too narrow a range: its {BINS} shells are {width / step:.2g} of a grid "
                 f"step wide, under the {MIN_SHELL_STEPS:g} that quantization leaves readable")
-    empty = _empty_shells(points, frame)
+    shell = _shells(points, frame)[0]
+    empty = _empty_shells(shell)
     if empty > OWNER_BITS - MIN_BITS_READ:
+        inside = int(np.count_nonzero(shell >= 0))
+        if 2 * inside < len(points):  # the shells, placed by area, lie where few vertices are
+            lo = frame[1]
+            return (f"{empty} of its {BINS} shells hold no vertex, and an empty shell carries no bit: the shells "
+                    f"lie where most of its surface's area is (norms {lo:.4g} to {lo + BINS * width:.4g} from its "
+                    f"area centroid), and only {inside:,} of its {len(points):,} distinct vertices fall there (a few "
+                    "large faces, such as a ground plane, outweigh the rest)")
         return (f"its vertex norms take too few distinct values: {empty} of its {BINS} shells hold no vertex, "
                 "and an empty shell carries no bit")
     return None
 
 
-def _empty_shells(points: np.ndarray, frame: tuple) -> int:
-    """How many of the :data:`BINS` shells of ``frame`` no point of ``points`` (k, 3) falls in."""
-    shell = _shells(points, frame)[0]
+def _empty_shells(shell: np.ndarray) -> int:
+    """How many of the :data:`BINS` shells no point falls in; ``shell`` (k,) int64: each point's (:func:`_shells`)."""
     return BINS - int(np.count_nonzero(np.bincount(shell[shell >= 0], minlength=BINS)))
 
 
