@@ -627,10 +627,13 @@ def _read_obj(path, name):
 def obj_text(path, name) -> str:
     """The text of the OBJ at ``path`` as its readers take it: decoded (:func:`_mesh_text`), every line ended by a
     line feed (:func:`one_line_end`), comments cut (a comment runs to the end of its line, after a record too:
-    ``f 1 2 3 # the lid``).  Read once for both readers: :func:`obj_arrays` and
+    ``f 1 2 3 # the lid``), a line that ends in a backslash joined to the next by a blank (the format's line
+    continuation: ``f 1 2 \\`` then ``3`` is ``f 1 2 3``).  Read once for both readers: :func:`obj_arrays` and
     :func:`pmwm_codec.meshdoc.obj_document`."""
     text = one_line_end(_mesh_text(read_regular_file(path, MAX_INPUT_FILE_BYTES, InputFormatError, name), name, "OBJ"))
-    return re.sub(r"#[^\n]*", "", text) if "#" in text else text
+    if "#" in text:
+        text = re.sub(r"#[^\n]*", "", text)
+    return text.replace("\\\n", " ") if "\\\n" in text else text
 
 
 def obj_mesh(text: str, name: str) -> Mesh:

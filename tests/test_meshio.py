@@ -450,6 +450,21 @@ def test_an_obj_comment_after_a_record_is_a_comment(tmp_path):
     assert mesh.vertex_count == 3 and mesh.faces.tolist() == [[0, 1, 2]]
 
 
+@pytest.mark.parametrize("end", ["\n", "\r\n"])
+def test_an_obj_record_continued_by_a_backslash_reads_as_one_record(tmp_path, end):
+    """The OBJ format joins a line ending in a backslash to the next (trimesh and Blender read so); both OBJ
+    readers refused such a file as "malformed OBJ record: 'f 1 2 \\'" (exit 2)."""
+    rows = ["v 0 0 \\", "  0", "v 1 0 0", "v 1 1 0", "v 0 1 0", "f 1 2 \\", "3", "f 1\\", "3 4"]
+    (tmp_path / "m.obj").write_bytes(end.join(rows).encode() + end.encode())
+    mesh = pmwm_codec.read_mesh(tmp_path / "m.obj")
+    assert mesh.positions.tolist() == [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]
+    assert mesh.faces.tolist() == [[0, 1, 2], [0, 2, 3]]
+    from pmwm_codec import meshdoc
+
+    source, _ = meshdoc.read_source(tmp_path / "m.obj")
+    assert sorted(map(tuple, source.faces.tolist())) == [(0, 1, 2), (0, 2, 3)]
+
+
 @pytest.mark.parametrize("suffix, text, record", [
     (".obj", "v 1_0 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\n# a comment: the record reader\n", "'v 1_0 0 0'"),
     (".obj", "v \u0661 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\n", "'v \u0661 0 0'"),
