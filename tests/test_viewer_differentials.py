@@ -123,3 +123,20 @@ def test_position_bounds_of_a_draco_base_are_checked_too(capsys, tmp_path):
     assert "bufferView" not in _position_accessor(gltf)  # a Draco base
     status, out = _verify(capsys, tmp_path, _rewrite(data, _far_bounds), key)
     assert status == 2 and "is not the bound of its values" in out
+
+
+@pytest.mark.parametrize("value", [1e39, -3.5e38, 1e308])
+def test_a_position_bound_past_float32_is_refused_in_one_line_without_a_warning(capsys, tmp_path, plain, recwarn,
+                                                                                 value):
+    """A hand-edited POSITION ``min`` of 1e39 was refused (exit 2) after numpy's ``RuntimeWarning: overflow
+    encountered in cast`` and its source line (pmw info, decode, verify: three lines on stderr where the rule is
+    one); tests/test_fuzz.py::test_crafted_json met it too."""
+    data, key = plain
+
+    def edit(gltf, binary):
+        _position_accessor(gltf)["min"][0] = value
+
+    status, out = _verify(capsys, tmp_path, _rewrite(data, edit), key)
+    assert status == 2 and "is not the bound of its values" in out
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
+

@@ -726,8 +726,10 @@ def _check_bounds(acc: dict, stored: np.ndarray) -> None:
         if not isinstance(given, list) or len(given) != 3 or not all(
                 isinstance(x, (int, float)) and not isinstance(x, bool) for x in given):
             raise FormatError(f"base mesh: POSITION {name} is not three numbers")
-        if stored.shape[0] and not np.array_equal(np.asarray(given, np.float64).astype(np.float32),
-                                                  bound(stored, axis=0).astype(np.float32)):
+        with np.errstate(over="ignore"):  # a number past float32 is no float32 bound: inf, unequal (no warning)
+            exact = not stored.shape[0] or np.array_equal(np.asarray(given, np.float64).astype(np.float32),
+                                                          bound(stored, axis=0).astype(np.float32))
+        if not exact:
             raise FormatError(f"base mesh: POSITION {name} {given} is not the bound of its values "
                               f"{float32_numbers(bound(stored, axis=0))} (spec README, Base mesh)")
 
