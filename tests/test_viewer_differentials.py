@@ -140,3 +140,23 @@ def test_a_position_bound_past_float32_is_refused_in_one_line_without_a_warning(
     assert status == 2 and "is not the bound of its values" in out
     assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
 
+
+def _huge_integer_bound(gltf, binary):
+    _position_accessor(gltf)["min"][0] = 10**400
+
+
+def _huge_integer_frame(gltf, binary):
+    ext = gltf["meshes"][0]["primitives"][0]["extensions"]["PMWM_progressive_mesh"]
+    ext["ownerFrame"] = {"center": [0, 0, -10**400], "inner": 0, "width": 1}
+
+
+@pytest.mark.parametrize("edit, member", [(_huge_integer_bound, "min[0]"), (_huge_integer_frame, "center[2]")])
+def test_an_integer_past_a_doubles_range_is_refused_naming_it_as_the_javascript_reader_does(capsys, tmp_path, plain,
+                                                                                            edit, member):
+    """A JSON integer literal of 401 digits is Infinity to every reader of doubles (the JavaScript reader refuses
+    it: "holds a number that is not finite"); Python's JSON reader keeps it an int, and pmw info / verify ended in
+    "unexpected OverflowError: int too large to convert to float (a bug of pmw ...)" for a POSITION min, pmw verify
+    alone for an ownerFrame (info and decode took it)."""
+    data, key = plain
+    status, out = _verify(capsys, tmp_path, _rewrite(data, edit), key)
+    assert status == 2 and member in out and "which JSON does not allow" in out and "unexpected" not in out

@@ -495,12 +495,20 @@ class BufferBuilder:
         return len(self.accessors) - 1
 
 
+#: The least integer whose conversion to a double overflows (2^1024 rounded half to even): 309 digits.
+_INT_PAST_DOUBLE = 2**1024 - 2**970
+_INT_DIGITS_PAST_DOUBLE = 309
+
+
 def check_finite_numbers(gltf: dict, name: str, error) -> None:
     """Refuse (``error`` naming the member, e.g. ``accessors[3].min[0]``) a NaN or infinite number
     anywhere in a parsed JSON document: Python's reader takes ``NaN``, ``Infinity`` and ``1e999``, JSON
-    does not, and writing one back fails (walked without recursion; paths built only for the culprit)."""
+    does not, and writing one back fails (walked without recursion; paths built only for the culprit); nor an
+    integer literal past a double's range (a reader of doubles, as JavaScript's, takes it as Infinity; Python's
+    keeps an int that no float conversion takes)."""
     def refuse(value, path):
-        shown = "NaN" if math.isnan(value) else "Infinity" if value > 0 else "-Infinity"
+        shown = ("an integer past a double's range (Infinity)" if isinstance(value, int) else
+                 "NaN" if math.isnan(value) else "Infinity" if value > 0 else "-Infinity")
         raise error(f"{name}: {_json_path(path)} is {shown}, which JSON does not allow")
 
     if isinstance(gltf, float) and not math.isfinite(gltf):
@@ -511,6 +519,9 @@ def check_finite_numbers(gltf: dict, name: str, error) -> None:
         for key, child in (value.items() if isinstance(value, dict) else enumerate(value)):
             if isinstance(child, float):
                 if not math.isfinite(child):
+                    refuse(child, (path, key))
+            elif type(child) is int:
+                if not -_INT_PAST_DOUBLE < child < _INT_PAST_DOUBLE:
                     refuse(child, (path, key))
             elif isinstance(child, (dict, list)):
                 stack.append((child, (path, key)))
@@ -533,9 +544,11 @@ def gc_paused():
 def loads_finite(text: str, name: str, error):
     """``json.loads(text)``, refusing as :func:`check_finite_numbers` does (``error`` naming the member) a NaN or
     infinite number, without walking the document when it holds none: the parser reports every ``NaN`` /
-    ``Infinity`` / ``-Infinity`` literal and every number it reads as a float (an integer literal is never
-    infinite; ``1e999`` is), so the check rides on its own pass in C; only a document holding one is walked,
-    to name the member.  ``ValueError`` (``json.JSONDecodeError``) for text that is not JSON."""
+    ``Infinity`` / ``-Infinity`` literal and every number it reads as a float (``1e999`` is infinite), so the
+    check rides on its own pass, and every integer literal of 309 digits or more (the shortest past a double's
+    range: ~1.2x the parse of a document of 400,000 small integers); only a document holding one is walked, to
+    name the member.
+    ``ValueError`` (``json.JSONDecodeError``) for text that is not JSON."""
     import json
 
     found = []
@@ -550,8 +563,13 @@ def loads_finite(text: str, name: str, error):
             found.append(literal)
         return value
 
+    def whole(literal):
+        if len(literal) >= _INT_DIGITS_PAST_DOUBLE:
+            found.append(literal)
+        return int(literal)
+
     with gc_paused():
-        doc = json.loads(text, parse_constant=constant, parse_float=number)
+        doc = json.loads(text, parse_constant=constant, parse_float=number, parse_int=whole)
     if found:
         check_finite_numbers(doc, name, error)
     return doc
