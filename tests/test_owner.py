@@ -694,7 +694,7 @@ def test_an_explicit_owner_id_the_mesh_cannot_carry_is_refused_and_nothing_is_wr
 
 def _empty_shells(mesh) -> int:
     points, inverse = owner._distinct_index(mesh.positions)
-    return owner._empty_shells(points, owner._frame(points, inverse[mesh.faces]))
+    return owner._empty_shells(owner._shells(points, owner._frame(points, inverse[mesh.faces]))[0])
 
 
 def _two_shells():
