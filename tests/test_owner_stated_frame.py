@@ -1,6 +1,7 @@
 """The frame a ``.pmw`` states for its owner layer (``ownerFrame``, spec README; spec/watermark.md §7): the
-encoder writes the frame its mark reads in from the full decode, and a read of a stream's level takes it in
-place of the level's own estimate, which on a coarse level lies up to a shell width off."""
+encoder writes the frame its mark reads in from the full decode; no read takes it (anyone who edits the file
+can set it: a frame searched for another key brought that key to P_fa 7e-8 on a mesh never marked with it), so
+every level is read in its own views and an edited frame changes no read."""
 
 from __future__ import annotations
 
@@ -15,7 +16,6 @@ from pmwm_codec.errors import FormatError
 from pmwm_codec.format.glb import glb_parts, split_glb
 from pmwm_codec.shapes import icosphere
 from pmwm_codec.stream import StreamDecoder
-from pmwm_codec.verify import owner as verify_owner
 from pmwm_codec.verify.owner import owner_of_stream
 from pmwm_codec.watermark import owner
 from pmwm_codec.watermark.key import WatermarkKey
@@ -69,19 +69,36 @@ def test_a_file_without_the_owner_layer_states_no_frame():
     assert "ownerFrame" not in _extension(buf.getvalue())
 
 
-def test_the_levels_of_a_stream_read_the_mark_from_far_fewer_vertices_in_the_stated_frame(marked, monkeypatch):
+def _reads(boundaries: list) -> list:
+    return [(b.vertices, b.owner.bit_errors, b.owner.erased, b.owner.verdict, b.owner.id) for b in boundaries]
+
+
+def test_no_read_takes_the_stated_frame_so_an_edited_one_changes_nothing(marked):
+    """Every boundary reads the same with the file's own frame, with the frame removed and with frames moved
+    by hand, for the key that marked it and for another: the frame is the file's editor's to set (a frame
+    searched for another key, 660k tries, took that key to 8 of 64 bits wrong on a 1,148-vertex mesh, P_fa
+    5e-8, where its own views read it absent), so it is no view of the read.  Before, a level was read in it
+    first (the noisy sphere's mark then read from under half the vertices): this test failed."""
     _, key, data = marked
-    stated = owner_of_stream(data, key, every=True)
-    monkeypatch.setattr(verify_owner, "_stated_frame", lambda gltf: None)  # each level in its own estimate
-    estimated = owner_of_stream(data, key, every=True)
-    assert [b.vertices for b in stated] == [b.vertices for b in estimated]
-    a, b = _first_present(stated), _first_present(estimated)
-    assert a < len(stated) and b < len(estimated)
-    assert 2 * stated[a].vertices < estimated[b].vertices
-    assert stated[-1].owner.bit_errors == 0
+    other = WatermarkKey.generate(owner_id=0x0123456789ABCDEF, rng=np.random.default_rng(7))
+
+    def removed(ext):
+        del ext["ownerFrame"]
+
+    def moved(ext):
+        frame = ext["ownerFrame"]
+        frame["center"] = [c + 0.3 * frame["width"] for c in frame["center"]]
+        frame["inner"] -= 0.4 * frame["width"]
+
+    for k in (key, other):
+        base = _reads(owner_of_stream(data, k, every=True))
+        for change in (removed, moved):
+            assert _reads(owner_of_stream(_rewrite(data, change), k, every=True)) == base
+    assert _first_present(owner_of_stream(data, key, every=True)) < len(base)
 
 
 def test_a_cut_file_keeps_the_stated_frame_and_reads_present_where_the_whole_file_does(marked):
+    """``pmw cut`` copies the field as it is (the cut's base and levels are the whole file's)."""
     _, key, data = marked
     k = _first_present(owner_of_stream(data, key, every=True))
     cut = pmwm_codec.cut(data, chunks=k)
@@ -91,8 +108,7 @@ def test_a_cut_file_keeps_the_stated_frame_and_reads_present_where_the_whole_fil
 
 @pytest.mark.parametrize("shift", [(5.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.5), (0.0, 0.0, 0.0, 7.3)])
 def test_a_stated_frame_changed_by_hand_leaves_the_full_stream_present(marked, shift):
-    """A frame that does not read (moved by whole or half shells) costs the coarse levels their early read,
-    not the verdict on the full stream: its un-smoothed views are read in their own estimates."""
+    """A frame moved by whole or half shells leaves the full stream's verdict as it was."""
     _, key, data = marked
 
     def change(ext):
@@ -102,26 +118,6 @@ def test_a_stated_frame_changed_by_hand_leaves_the_full_stream_present(marked, s
 
     boundaries = owner_of_stream(_rewrite(data, change), key)
     assert boundaries[-1].owner.verdict == "present"
-
-
-def test_no_wrong_key_reads_a_level_present_in_the_stated_frame(marked):
-    """The stated frame depends on the mesh, not on a key's mappings: wrong keys read fair coins in it at every
-    level (the bound of :func:`~pmwm_codec.watermark.owner.false_alarm_probability` is unchanged)."""
-    _, key, data = marked
-    stated = owner.frame_of_json(_extension(data)["ownerFrame"])
-    wrong = [WatermarkKey.generate(rng=np.random.default_rng(100 + i)) for i in range(40)]
-    errors = []
-    for r in pmwm_codec.iter_decode(data):
-        points, faces = owner.distinct_mesh(r.mesh.positions, r.mesh.faces)
-        if len(points) < 1000:
-            continue
-        scores = owner.mesh_scores(points, faces, stated)  # the views do not depend on the key
-        for k in wrong:
-            read = owner.detect(points, faces, k, scores=scores)
-            assert read.verdict != "present"
-            errors.append(read.bit_errors)
-    assert len(errors) >= 5 * len(wrong)
-    assert 20 < np.mean(errors) < 32  # about half of 64 bits, the best of 192 codings a little lower
 
 
 @pytest.mark.parametrize("value, what", [
@@ -143,9 +139,9 @@ def test_a_malformed_stated_frame_is_a_format_error(marked, value, what):
         dec.close()
 
 
-def test_a_stated_frame_of_absurd_numbers_costs_that_view_only_without_a_word_on_stderr(marked, recwarn):
-    """Any finite numbers pass the schema; norms from a centre at 1e308 overflow, and the read treated them as
-    shells of garbage with numpy's RuntimeWarnings on stderr.  Now every point is outside that view's shells."""
+def test_a_stated_frame_of_absurd_numbers_passes_without_a_word_on_stderr(marked, recwarn):
+    """Any finite numbers pass the schema; a frame centred at 1e308 put numpy's RuntimeWarnings on stderr when
+    levels were read in it: the field is checked for its form, never read in."""
     _, key, data = marked
 
     def change(ext):

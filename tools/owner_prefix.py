@@ -3,8 +3,9 @@
 Per mesh and key (``--keys``, keys from seeds 0, 1, ...): an owner-only encode (``stream.encode_mesh(mesh,
 BytesIO(), key=<key>, owner_id=...)``, default grid) read at every chunk boundary with
 :func:`pmwm_codec.watermark.owner.detect` twice, on the same levels: in the frame the file states
-(``stated=``, what ``pmw verify FILE.pmw`` reads since the field exists) and in each level's own estimate
-(``stated=None``, the read before it).  Reported: the first boundary from which every later one reads
+(``stated=``: what a reader that confirmed the frame against the full decode would read; ``pmw verify`` read
+so from the eighth session of 2026-12-07 until a file's editor was found to be able to set it for another key)
+and in each level's own estimate (``stated=None``: what ``pmw verify FILE.pmw`` reads).  Reported: the first boundary from which every later one reads
 ``present``, as a share of the file's bytes and in vertices (issue 14, done-when 5: at most 25 %).  Then
 ``--wrong-keys`` keys that did not mark the file read every level of at least ``--min-vertices`` vertices in
 the stated frame (the views computed once per level: :func:`~pmwm_codec.watermark.owner.mesh_scores`):

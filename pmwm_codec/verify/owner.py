@@ -15,8 +15,10 @@ Contract
 * :func:`owner_of_stream` ``(source, key, every=False) -> list[OwnerBoundary]``: a ``.pmw`` (path, bytes,
   binary file; whole or cut) decoded chunk by chunk, an :class:`OwnerBoundary` at each boundary,
   base mesh first; its primitives are placed in the same view, as a decoded asset's are, and each level is
-  read with the frame the file states (``ownerFrame``: :func:`~pmwm_codec.watermark.owner.stated_frame`) as
-  its first view, in place of the level's own estimate (off by up to a shell width on a coarse level).  The layer is
+  read in its own views (:func:`~pmwm_codec.watermark.owner.detect`).  The frame the file states
+  (``ownerFrame``) is not read in: anyone who edits a file can set it, and a frame searched for another key
+  brings that key towards ``present`` on a mesh never marked with it (a free frame is a view chosen with the
+  key in hand, outside the false-alarm bound's views).  The layer is
   read at the base, at the last boundary, and wherever the level has at least :data:`REREAD_GROWTH`
   more vertices than at the last read; a boundary between carries the last read (``read_at``).
   ``every=True`` reads it at every boundary.
@@ -39,7 +41,7 @@ from ..format.gltf import TRIANGLE_MODES, TRIANGLES, find_extension_primitives, 
 from ..mesh import Mesh, checked_mesh, read_mesh, vertex_components
 from ..stream import StreamDecoder, iter_results
 from ..watermark.key import as_key
-from ..watermark.owner import OwnerResult, detect, distinct_mesh, frame_of_json
+from ..watermark.owner import OwnerResult, detect, distinct_mesh
 
 __all__ = ["OwnerBoundary", "OwnerReader", "owner_key", "owner_of_mesh", "owner_of_stream", "owner_view", "pieces",
            "MAX_PIECES", "MIN_PIECE_VERTICES"]
@@ -241,7 +243,6 @@ class OwnerReader:
         self.last_only = last_only
         self._boundaries: list = []
         self._frames = None
-        self._stated = None  # the frame the file states (ownerFrame), read in at every boundary
         self._read_vertices = None
         self._pending = None  # the last boundary's parts, when it was not read
 
@@ -262,7 +263,6 @@ class OwnerReader:
         boundary costs what its chunk brought, not every primitive again."""
         if self._frames is None:
             self._frames = _frames(gltf)
-            self._stated = _stated_frame(gltf)
         vertices = int(result.vertices)
         if self.last_only:  # read when asked for (boundaries), and only that one
             self._boundaries = [OwnerBoundary(result.chunk, int(result.bytes_read), vertices, None)]
@@ -281,15 +281,7 @@ class OwnerReader:
     def _read(self, parts: list):
         """The layer read from the scene of ``parts`` (:class:`~pmwm_codec.stream.decoder.Part`)."""
         positions, faces, _ = scene_mesh([p.positions for p in parts], [p.faces for p in parts], self._frames)
-        return detect(positions, faces, self.key, stated=self._stated)
-
-
-def _stated_frame(gltf: dict) -> tuple | None:
-    """The frame the first progressive primitive of ``gltf`` states for the owner layer (``ownerFrame``, spec
-    README; :func:`~pmwm_codec.watermark.owner.frame_of_json`), or None: a file without the layer, or
-    written before the field."""
-    first = find_extension_primitives(gltf, EXTENSION_NAME)[0][2]["extensions"][EXTENSION_NAME]
-    return frame_of_json(first.get("ownerFrame"))
+        return detect(positions, faces, self.key)
 
 
 def _frames(gltf: dict) -> list:
