@@ -1317,7 +1317,10 @@ def stated_frame(positions, faces, key) -> tuple:
     centroid and norm quantiles) lies up to a shell width off until most of the stream has come
     (the Chinese dragon of 10,000 vertices, one key: ``present`` from 1,128 vertices, 8,444 of 50,556 bytes,
     read so; from 5,345 vertices in the levels' own estimates).  It depends on the mesh and on which frame the mark reads in, not on the
-    key's secret mappings beyond that choice among four key-independent frames."""
+    key's secret mappings beyond that choice among four key-independent frames.  No read of the library takes
+    the frame a file states (anyone who edits the file can set it, a view chosen with a key in hand:
+    spec/watermark.md §7); the reads' ``stated=`` serves ``tools/owner_prefix.py``, which measures what a reader
+    that confirmed it against the full decode would read."""
     points, faces = distinct_mesh(positions, faces)
     best = None
     for frame in _frames_in_order(points, faces):
