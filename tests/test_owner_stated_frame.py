@@ -76,7 +76,7 @@ def _reads(boundaries: list) -> list:
 def test_no_read_takes_the_stated_frame_so_an_edited_one_changes_nothing(marked):
     """Every boundary reads the same with the file's own frame, with the frame removed and with frames moved
     by hand, for the key that marked it and for another: the frame is the file's editor's to set (a frame
-    searched for another key, 660k tries, took that key to 8 of 64 bits wrong on a 1,148-vertex mesh, P_fa
+    searched for another key, 678k tries, took that key to 8 of 64 bits wrong on a 1,148-vertex mesh, P_fa
     5e-8, where its own views read it absent), so it is no view of the read.  Before, a level was read in it
     first (the noisy sphere's mark then read from under half the vertices): this test failed."""
     _, key, data = marked
