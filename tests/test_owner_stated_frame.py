@@ -1,7 +1,7 @@
-"""The frame a ``.pmw`` states for its owner layer (``ownerFrame``, spec README; spec/watermark.md §7): the
-encoder writes the frame its mark reads in from the full decode; no read takes it (anyone who edits the file
-can set it: a frame searched for another key brought that key to P_fa 7e-8 on a mesh never marked with it), so
-every level is read in its own views and an edited frame changes no read."""
+"""The frames a stream's levels are read in (spec/watermark.md §7): those of its full decode, computed from the
+decoded mesh; and the frame a ``.pmw`` states (``ownerFrame``, spec README), which the encoder writes and no read
+takes (anyone who edits the file can set it: a frame searched for another key brought that key to P_fa 7e-8 on a
+mesh never marked with it), so an edited frame changes no read."""
 
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ from pmwm_codec.errors import FormatError
 from pmwm_codec.format.glb import glb_parts, split_glb
 from pmwm_codec.shapes import icosphere
 from pmwm_codec.stream import StreamDecoder
+from pmwm_codec.verify import owner as verify_owner
 from pmwm_codec.verify.owner import owner_of_stream
 from pmwm_codec.watermark import owner
 from pmwm_codec.watermark.key import WatermarkKey
@@ -97,10 +98,61 @@ def test_no_read_takes_the_stated_frame_so_an_edited_one_changes_nothing(marked)
     assert _first_present(owner_of_stream(data, key, every=True)) < len(base)
 
 
-def test_a_cut_file_keeps_the_stated_frame_and_reads_present_where_the_whole_file_does(marked):
-    """``pmw cut`` copies the field as it is (the cut's base and levels are the whole file's)."""
+def test_the_levels_read_the_mark_from_far_fewer_vertices_in_the_frames_of_the_full_decode(marked, monkeypatch):
+    """A level holds a subset of the full mesh's marked positions, exactly; its own estimate lies up to a shell
+    width off until most of the stream has come, the full decode's frames do not (computed from the decoded
+    mesh: nothing the file states).  At the last boundary the two reads are one."""
     _, key, data = marked
-    k = _first_present(owner_of_stream(data, key, every=True))
+    full = owner_of_stream(data, key, every=True)
+    with monkeypatch.context() as m:
+        m.setattr(verify_owner, "full_decode_frames", lambda source: None)  # each level in its own frames
+        own = owner_of_stream(data, key, every=True)
+    assert [b.vertices for b in full] == [b.vertices for b in own]
+    a, b = _first_present(full), _first_present(own)
+    assert a < len(full) and b < len(own) and 2 * full[a].vertices < own[b].vertices
+    assert full[-1].owner == own[-1].owner and full[-1].owner.bit_errors == 0
+
+
+def test_no_wrong_key_reads_a_level_present_in_the_frames_of_the_full_decode(marked):
+    """The full decode's frames depend on the decoded mesh, not on a key: wrong keys read fair coins in them at
+    every level (the bound of :func:`~pmwm_codec.watermark.owner.false_alarm_probability` is unchanged)."""
+    _, _, data = marked
+    frames = verify_owner.full_decode_frames(data)
+    assert len(frames) == owner.AS_IS
+    wrong = [WatermarkKey.generate(rng=np.random.default_rng(100 + i)) for i in range(40)]
+    errors = []
+    for r in pmwm_codec.iter_decode(data):
+        points, faces = owner.distinct_mesh(r.mesh.positions, r.mesh.faces)
+        if len(points) < 1000:
+            continue
+        scores = owner.mesh_scores(points, faces, frames)  # the views do not depend on the key
+        for k in wrong:
+            read = owner.detect(points, faces, k, scores=scores)
+            assert read.verdict != "present"
+            errors.append(read.bit_errors)
+    assert len(errors) >= 5 * len(wrong)
+    assert 20 < np.mean(errors) < 32  # about half of 64 bits, the best of 192 codings a little lower
+
+
+def test_a_stream_cut_short_reads_each_level_in_its_own_frames(marked):
+    """Without its full decode there are no frames to take: the levels of a truncated file read as they do in
+    their own frames (the frame the file states is not taken in their place)."""
+    _, key, data = marked
+    short = data[: len(data) * 2 // 3]
+    assert verify_owner.full_decode_frames(short) is None
+    reads = owner_of_stream(short, key, every=True)
+    for b, r in zip(reads, pmwm_codec.iter_decode(short)):
+        assert b.owner == owner.detect(r.mesh.positions, r.mesh.faces, key)
+
+
+def test_a_cut_file_keeps_the_stated_frame_and_reads_present_where_the_whole_files_level_does_in_its_own(marked,
+                                                                                                         monkeypatch):
+    """``pmw cut`` copies the field as it is.  A cut file decodes in full to the whole file's level, so its
+    levels are read in that level's frames: present where the whole file's levels read present in their own."""
+    _, key, data = marked
+    with monkeypatch.context() as m:
+        m.setattr(verify_owner, "full_decode_frames", lambda source: None)  # each level in its own frames
+        k = _first_present(owner_of_stream(data, key, every=True))
     cut = pmwm_codec.cut(data, chunks=k)
     assert _extension(cut)["ownerFrame"] == _extension(data)["ownerFrame"]
     assert owner_of_stream(cut, key)[-1].owner.verdict == "present"

@@ -1,16 +1,16 @@
-"""The owner layer from a stream's prefix: the stated frame (``ownerFrame``) against each level's own estimate.
+"""The owner layer from a stream's prefix: the full decode's frames against each level's own estimate.
 
 Per mesh and key (``--keys``, keys from seeds 0, 1, ...): an owner-only encode (``stream.encode_mesh(mesh,
 BytesIO(), key=<key>, owner_id=...)``, default grid) read at every chunk boundary with
-:func:`pmwm_codec.watermark.owner.detect` twice, on the same levels: in the frame the file states
-(``stated=``: what a reader that confirmed the frame against the full decode would read; ``pmw verify`` read
-so from the eighth session of 2026-12-07 until a file's editor was found to be able to set it for another key)
-and in each level's own estimate (``stated=None``: what ``pmw verify FILE.pmw`` reads).  Reported: the first boundary from which every later one reads
-``present``, as a share of the file's bytes and in vertices (issue 14, done-when 5: at most 25 %).  Then
-``--wrong-keys`` keys that did not mark the file read every level of at least ``--min-vertices`` vertices in
-the stated frame (the views computed once per level: :func:`~pmwm_codec.watermark.owner.mesh_scores`):
-how many read ``present`` (the bound says fewer than 1e-9 a read), and the share with at most
-:data:`TAIL_AT` errors against the bound's ``false_alarm_probability(TAIL_AT)``.
+:func:`pmwm_codec.watermark.owner.detect` twice, on the same levels: in the frames of the full decode
+(``given=owner.full_frames(...)`` of the last level: what ``pmw verify FILE.pmw`` reads of a whole file) and in
+each level's own frames (``given=None``: what it reads of a stream cut short, and read before the full
+decode's frames).  Reported: the first boundary from which every later one reads ``present``, as a share of
+the file's bytes and in vertices (issue 14, done-when 5: at most 25 %).  Then ``--wrong-keys`` keys that did
+not mark the file read every level of at least ``--min-vertices`` vertices in the full decode's frames (the
+views computed once per level: :func:`~pmwm_codec.watermark.owner.mesh_scores`): how many read ``present``
+(the bound says fewer than 1e-9 a read), and the share with at most :data:`TAIL_AT` errors against the
+bound's ``false_alarm_probability(TAIL_AT)``.
 
 Run from the repository root::
 
@@ -32,8 +32,6 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import pmwm_codec  # noqa: E402
-from pmwm_codec.format.glb import split_glb  # noqa: E402
-from pmwm_codec.constants import EXTENSION_NAME  # noqa: E402
 from pmwm_codec.mesh import read_mesh  # noqa: E402
 from pmwm_codec.stream import encode_mesh  # noqa: E402
 from pmwm_codec.watermark import owner  # noqa: E402
@@ -64,7 +62,7 @@ def levels(data: bytes) -> list:
 
 def run_mesh(path: str, keys: int, wrong: int, min_vertices: int, log) -> dict:
     mesh = read_mesh(path)
-    out = {"name": os.path.basename(path), "vertices": mesh.vertex_count, "stated": [], "estimate": [],
+    out = {"name": os.path.basename(path), "vertices": mesh.vertex_count, "full": [], "estimate": [],
            "wrong": [], "reads": 0}
     wrong_rng = np.random.default_rng(12345)
     for seed in range(keys):
@@ -72,21 +70,20 @@ def run_mesh(path: str, keys: int, wrong: int, min_vertices: int, log) -> dict:
         buf = io.BytesIO()
         key = encode_mesh(mesh, buf, key=key, owner_id=OWNER_ID + seed).key
         data = buf.getvalue()
-        gltf, _ = split_glb(data)
-        stated = owner.frame_of_json(gltf["meshes"][0]["primitives"][0]["extensions"][EXTENSION_NAME]["ownerFrame"])
         steps = levels(data)
-        for label, frame in (("stated", stated), ("estimate", None)):
-            verdicts = [owner.detect(p, f, key, stated=frame).verdict for _, p, f in steps]
+        full = owner.full_frames(steps[-1][1], steps[-1][2])  # the full decode's frames, from the decoded mesh
+        for label, frames in (("full", full), ("estimate", None)):
+            verdicts = [owner.detect(p, f, key, given=frames).verdict for _, p, f in steps]
             i = first_present(verdicts)
             out[label].append((steps[i][0] / len(data), len(steps[i][1])) if i < len(steps) else (float("nan"), 0))
         for _, p, f in steps:
             if len(p) < min_vertices:
                 continue
-            scores = owner.mesh_scores(p, f, stated)
+            scores = owner.mesh_scores(p, f, full)
             for _ in range(max(1, wrong // keys)):
                 r = owner.detect(p, f, WatermarkKey.generate(rng=wrong_rng), scores=scores)
                 out["wrong"].append((r.bit_errors, r.verdict))
-        log(f"  {out['name']} key {seed}: stated {out['stated'][-1]}, estimate {out['estimate'][-1]}")
+        log(f"  {out['name']} key {seed}: full decode's frames {out['full'][-1]}, estimate {out['estimate'][-1]}")
     return out
 
 
@@ -104,9 +101,9 @@ def render(rows: list, info: dict, command: str) -> str:
         e = np.array([err for err, _ in r["wrong"]])
         present = sum(v == "present" for _, v in r["wrong"])
         bound = owner.false_alarm_probability(TAIL_AT)
-        body.append((r["name"], f"{r['vertices']:,}", share(r["stated"]), share(r["estimate"]),
+        body.append((r["name"], f"{r['vertices']:,}", share(r["full"]), share(r["estimate"]),
                      f"{present} of {len(e)}", f"{np.mean(e <= TAIL_AT):.4f} / {bound:.4f}" if len(e) else "-"))
-    head = ["mesh", "vertices", "`present` from, stated frame (median of keys, range; vertices there)",
+    head = ["mesh", "vertices", "`present` from, the full decode's frames (median of keys, range; vertices there)",
             "the same levels, each in its own estimate", "wrong keys `present` (every level read)",
             f"wrong keys with <= {TAIL_AT} errors: measured / bound"]
     return "\n".join([f"Command (from the repository root): `{command}`", "",

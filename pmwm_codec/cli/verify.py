@@ -85,7 +85,8 @@ def run(args) -> int:
     try:
         with naming(args.input):
             key = pmwm_codec.load_key(args.key)
-            reader = _owner_reader(key)  # the owner layer read in the same pass as the image
+            # the owner layer read in the same pass as the image; a file's levels in the frames of its full decode
+            reader = _owner_reader(key, None if url or args.input == "-" else args.input)
             outcome = verify_stream(source, key, args.watermark, keep_meshes=args.frames is not None,
                                     progress=progress, each=None if reader is None else reader.add)
             owners = [] if reader is None else reader.boundaries
@@ -123,13 +124,16 @@ def run(args) -> int:
     return EXIT_OK if outcome.verdict == "authentic" else EXIT_NOT_AUTHENTIC
 
 
-def _owner_reader(key):
-    """An :class:`~pmwm_codec.verify.owner.OwnerReader` for the key's owner layer (None: the key carries no owner id)."""
+def _owner_reader(key, path=None):
+    """An :class:`~pmwm_codec.verify.owner.OwnerReader` for the key's owner layer (None: the key carries no owner
+    id); ``path``: a ``.pmw`` file whose levels are read in the frames of its full decode (a first pass, its
+    frames computed from the decoded mesh: :func:`~pmwm_codec.verify.owner.full_decode_frames`); None (a URL or
+    standard input, read as it arrives): each level in its own."""
     if key.owner_id is None:
         return None
-    from pmwm_codec.verify.owner import OwnerReader
+    from pmwm_codec.verify.owner import OwnerReader, full_decode_frames
 
-    return OwnerReader(key)
+    return OwnerReader(key, frames=None if path is None else full_decode_frames(path))
 
 
 def owner_report(owners, key) -> str:

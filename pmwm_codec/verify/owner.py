@@ -15,10 +15,13 @@ Contract
 * :func:`owner_of_stream` ``(source, key, every=False) -> list[OwnerBoundary]``: a ``.pmw`` (path, bytes,
   binary file; whole or cut) decoded chunk by chunk, an :class:`OwnerBoundary` at each boundary,
   base mesh first; its primitives are placed in the same view, as a decoded asset's are, and each level is
-  read in its own views (:func:`~pmwm_codec.watermark.owner.detect`).  The frame the file states
-  (``ownerFrame``) is not read in: anyone who edits a file can set it, and a frame searched for another key
-  brings that key towards ``present`` on a mesh never marked with it (a free frame is a view chosen with the
-  key in hand, outside the false-alarm bound's views).  The layer is
+  read in the frames of the stream's full decode (:func:`full_decode_frames`: its estimate, searched frame and
+  two aliases, computed from the decoded mesh, none depending on a key) in place of its own, which lie up to a
+  shell width off on a coarse level; a stream that does not decode in full (cut short, or read as it arrives)
+  has its levels read in their own frames.  The frame the file states (``ownerFrame``) is never read in:
+  anyone who edits a file can set it, and a frame searched for another key brings that key towards
+  ``present`` on a mesh never marked with it (a free frame is a view chosen with the key in hand, outside the
+  false-alarm bound's views).  The layer is
   read at the base, at the last boundary, and wherever the level has at least :data:`REREAD_GROWTH`
   more vertices than at the last read; a boundary between carries the last read (``read_at``).
   ``every=True`` reads it at every boundary.
@@ -30,18 +33,19 @@ Contract
 from __future__ import annotations
 
 import os
+import sys
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import WatermarkKeyError
+from ..errors import PmwError, WatermarkKeyError
 from ..format.extension import EXTENSION_NAME
 from ..format.document import sniff_json
 from ..format.gltf import TRIANGLE_MODES, TRIANGLES, find_extension_primitives, owner_placements, scene_mesh
 from ..mesh import Mesh, checked_mesh, read_mesh, vertex_components
 from ..stream import StreamDecoder, iter_results
 from ..watermark.key import as_key
-from ..watermark.owner import OwnerResult, detect, distinct_mesh
+from ..watermark.owner import OwnerResult, detect, distinct_mesh, full_frames
 
 __all__ = ["OwnerBoundary", "OwnerReader", "owner_key", "owner_of_mesh", "owner_of_stream", "owner_view", "pieces",
            "MAX_PIECES", "MIN_PIECE_VERTICES"]
@@ -221,11 +225,46 @@ def _triangle_meshes(gltf: dict) -> list:
 def owner_of_stream(source, key, every: bool = False, last_only: bool = False) -> list:
     """``[OwnerBoundary]`` of a ``.pmw`` (see the module contract), base mesh first; ``last_only``: the last
     boundary alone (:class:`OwnerReader`)."""
-    reader = OwnerReader(key, every=every, last_only=last_only)
+    source = _read_twice(source)
+    reader = OwnerReader(key, every=every, last_only=last_only, frames=None if last_only else full_decode_frames(source))
     decoder = StreamDecoder(None, None, copy=True)
     for r in iter_results(source, decoder):
         reader.add(r, decoder.header.gltf_json)
     return reader.boundaries
+
+
+def _read_twice(source):
+    """``source`` as a source two passes can read (:func:`iter_results`' kinds): a path or bytes as they are;
+    standard input (``"-"``), a binary file object or an iterable of blocks read into bytes."""
+    if isinstance(source, (bytes, bytearray, memoryview, os.PathLike)) or (isinstance(source, str) and source != "-"):
+        return source
+    if isinstance(source, str):
+        return sys.stdin.buffer.read()
+    if hasattr(source, "read"):
+        return source.read()
+    return b"".join(bytes(block) for block in source)
+
+
+def full_decode_frames(source) -> list | None:
+    """The frames of the mesh a ``.pmw`` (a path or bytes) decodes to in full, as the owner read places it
+    (:func:`~pmwm_codec.watermark.owner.full_frames` of the scene of its progressive primitives), or None
+    when the stream does not decode in full (cut short: no full mesh to take them from).  A stream's levels are
+    read in them (:class:`OwnerReader`); they depend on the decoded mesh alone, not on anything the file states
+    nor on a key.  None too for a stream this pass cannot read (the read of its levels then meets what stops it,
+    and says so as it would have)."""
+    decoder = StreamDecoder(None, None, copy=False)
+    last = None
+    try:
+        for r in iter_results(source, decoder):
+            last = r
+    except PmwError:
+        return None
+    if last is None or last.chunk != last.chunks_total:
+        return None
+    parts = last.parts
+    positions, faces, _ = scene_mesh([p.positions for p in parts], [p.faces for p in parts],
+                                     _frames(decoder.header.gltf_json))
+    return full_frames(positions, faces)
 
 
 class OwnerReader:
@@ -235,10 +274,12 @@ class OwnerReader:
     each whose level has :data:`REREAD_GROWTH` more vertices than the last read, and at the last one added
     (read when :attr:`boundaries` is asked for; the boundaries between carry the last read); ``every``:
     at each; ``last_only``: at the last one only (:attr:`boundaries` is then that one boundary: a verdict on
-    the whole file, as ``pmw batch verify`` gives)."""
+    the whole file, as ``pmw batch verify`` gives).  ``frames``: the frames of the stream's full decode
+    (:func:`full_decode_frames`), which every level is read in in place of its own; None: each in its own."""
 
-    def __init__(self, key, every: bool = False, last_only: bool = False):
+    def __init__(self, key, every: bool = False, last_only: bool = False, frames: list | None = None):
         self.key = owner_key(key)
+        self.given = frames  # the full decode's frames (full_decode_frames), or None: each level in its own
         self.every = every
         self.last_only = last_only
         self._boundaries: list = []
@@ -281,7 +322,7 @@ class OwnerReader:
     def _read(self, parts: list):
         """The layer read from the scene of ``parts`` (:class:`~pmwm_codec.stream.decoder.Part`)."""
         positions, faces, _ = scene_mesh([p.positions for p in parts], [p.faces for p in parts], self._frames)
-        return detect(positions, faces, self.key)
+        return detect(positions, faces, self.key, given=self.given)
 
 
 def _frames(gltf: dict) -> list:

@@ -111,7 +111,7 @@ import numpy as np
 from ..progressive.topology import compiled, kernel_helper
 
 __all__ = ["OwnerResult", "embed", "detect", "distinct_mesh", "judge", "unreadable", "false_alarm_probability",
-           "stated_frame", "frame_json", "frame_of_json", "OWNER_BITS", "DEFAULT_STRENGTH"]
+           "stated_frame", "full_frames", "frame_json", "frame_of_json", "OWNER_BITS", "DEFAULT_STRENGTH"]
 
 OWNER_BITS = 64
 #: Radial shells, one per bit (two keyed shells per bit cost less RMS but read worse after
@@ -581,15 +581,13 @@ def _searched_frames(points: np.ndarray, faces: np.ndarray, full: bool = True) -
     return list(_frames_in_order(points, faces, full))
 
 
-def _frames_in_order(points: np.ndarray, faces: np.ndarray, full: bool = True, stated: tuple | None = None):
+def _frames_in_order(points: np.ndarray, faces: np.ndarray, full: bool = True):
     """The frames a read tries in one view of a mesh, one at a time, each searched only when the
     one before has been taken: ``(centroid (3,), lo, width)`` of ``points`` (k, 3) /
     ``faces`` (m, 3): the four below, or (not ``full``) the estimate and the maximum one pattern search
     climbs to from it (no grid, no aliases).
 
-    First the estimate (:func:`_frame`; ``stated``, when given, in its place: the frame a ``.pmw`` states,
-    :func:`stated_frame`; the search below still starts from the estimate, so a stated frame that does
-    not read costs the read only that view); then the estimate moved to a local maximum of
+    First the estimate (:func:`_frame`); then the estimate moved to a local maximum of
     sum_k |S_k|: pattern searches (:func:`_ascend`) from the :data:`SEARCH_STARTS` best points
     of a coarse grid (:data:`SEARCH_GRID` on each of the centroid's 3 offsets and the two
     shell bounds), the highest one kept, on at most :data:`GRID_POINTS` of the points (every
@@ -604,7 +602,7 @@ def _frames_in_order(points: np.ndarray, faces: np.ndarray, full: bool = True, s
     key reads fair coins in each (:func:`false_alarm_probability` bounds the best of them).
     """
     centroid, lo, width = _frame(points, faces)
-    yield (centroid, lo, width) if stated is None else stated
+    yield centroid, lo, width
     if width == 0:
         yield from [(centroid, lo, width)] * (3 if full else 1)
         return
@@ -693,15 +691,15 @@ def _unsmoothed_view(powers: list, a: float) -> np.ndarray:
     return view
 
 
-def _read_frames(points: np.ndarray, faces: np.ndarray, unsmoothed: bool = True, stated: tuple | None = None) -> list:
+def _read_frames(points: np.ndarray, faces: np.ndarray, unsmoothed: bool = True, given: list | None = None) -> list:
     """The views a read tries: ``[(positions (k, 3) float64, frame)]`` of the distinct ``points`` (k, 3) /
     ``faces`` (m, 3): the mesh as it is in its :data:`AS_IS` :func:`_searched_frames`, then (with
     ``unsmoothed``; :data:`FRAMES` views in all) the mesh :func:`_unsmoothed` in its estimated frame
     and the frame one pattern search climbs to from it (a smoothed mesh un-smoothed needs no wider
     search: the 23k-vertex dragon after 30 iterations, Loop subdivision and 50% simplification read
     the same errors as with the grid's four climbs, 3 keys, at ~3/4 of the time).  None depends on a key.
-    ``stated``: :func:`read_soft`'s."""
-    return list(itertools.islice(_views_in_order(points, faces, stated), FRAMES if unsmoothed else AS_IS))
+    ``given``: :func:`read_soft`'s."""
+    return list(itertools.islice(_views_in_order(points, faces, given), FRAMES if unsmoothed else AS_IS))
 
 
 def distinct_mesh(positions, faces) -> tuple:
@@ -718,10 +716,10 @@ def _scores_of(views: list) -> tuple:
     return np.stack([s for s, _ in read]), np.stack([m for _, m in read])
 
 
-def _mesh_scores(positions, faces, stated: tuple | None = None) -> tuple:
+def _mesh_scores(positions, faces, given: list | None = None) -> tuple:
     """``(S (FRAMES, BINS) float64, mass (FRAMES, BINS) int64)``: a mesh read in each of its
     :func:`_read_frames` (positions (n, 3), faces (m, 3) indexing them; duplicates merged)."""
-    return _scores_of(_read_frames(*distinct_mesh(positions, faces), stated=stated))
+    return _scores_of(_read_frames(*distinct_mesh(positions, faces), given=given))
 
 
 @functools.lru_cache(maxsize=1)
@@ -1213,11 +1211,11 @@ def _coded(key, owner_id: int) -> np.ndarray:
     return (id_to_bits(owner_id) ^ _layout(key)[1])[None, :] ^ _alternatives(key)
 
 
-def mesh_scores(positions, faces, stated: tuple | None = None) -> tuple:
+def mesh_scores(positions, faces, given: list | None = None) -> tuple:
     """The key-independent part of a read: ``(S (FRAMES, BINS) float64, mass (FRAMES, BINS) int64)``
     of a mesh (positions (n, 3), faces (m, 3)) in each frame it is read in; :func:`detect` with
-    ``scores=`` reads any key from it.  ``stated``: the frame a ``.pmw`` states (:func:`read_soft`)."""
-    return _mesh_scores(positions, faces, stated)
+    ``scores=`` reads any key from it.  ``given``: :func:`read_soft`'s."""
+    return _mesh_scores(positions, faces, given)
 
 
 def best_frame(soft: np.ndarray, key, fewest_errors: bool = False) -> int:
@@ -1279,7 +1277,7 @@ def _view_read(scores: tuple, key, fewest_errors: bool = False) -> int:
 
 
 def read_soft(positions, faces, key, scores: tuple | None = None, fewest_errors: bool = False,
-              stated: tuple | None = None) -> np.ndarray:
+              given: list | None = None) -> np.ndarray:
     """Soft coded values (64,) float64 in [-1, 1] in the view of :func:`_view_read`: > 0 reads 1,
     < 0 reads 0, 0 is erased.
 
@@ -1290,13 +1288,15 @@ def read_soft(positions, faces, key, scores: tuple | None = None, fewest_errors:
     :func:`false_alarm_probability` covers the best of all :data:`FRAMES` views under every alternative
     coding, so it covers the best of those read.  ``scores``: :func:`mesh_scores` of the mesh, when already computed (positions and
     faces unused; the same answer).  ``fewest_errors``: of views that all read with an error, the one with
-    the fewest, erased bits counted (:func:`best_frame`; the embedding compares its marks so).  ``stated``:
-    the frame a ``.pmw`` states for the mesh it decodes to in full (:func:`stated_frame`), read in place of
-    the estimate of the mesh as it is (a level of the stream, whose own estimate is off by up to a shell).
+    the fewest, erased bits counted (:func:`best_frame`; the embedding compares its marks so).  ``given``:
+    the :data:`AS_IS` frames of the mesh a ``.pmw`` decodes to in full (:func:`full_frames`), read in place of
+    the mesh's own when the mesh is a level of that stream (a subset of the full mesh's positions, exactly,
+    whose own estimate lies up to a shell width off on a coarse level); the views stay :data:`FRAMES` and none
+    depends on a key, so the bound is unchanged.
     """
     if scores is None:
         read = []
-        for view in _views_in_order(*distinct_mesh(positions, faces), stated):
+        for view in _views_in_order(*distinct_mesh(positions, faces), given):
             read.append(_frame_scores(*view))
             soft = _soft_rows((read[-1][0][None], read[-1][1][None]), key)[0]
             if key.owner_id is None or _bit_errors(soft, key) == 0:
@@ -1319,8 +1319,8 @@ def stated_frame(positions, faces, key) -> tuple:
     read so; from 5,345 vertices in the levels' own estimates).  It depends on the mesh and on which frame the mark reads in, not on the
     key's secret mappings beyond that choice among four key-independent frames.  No read of the library takes
     the frame a file states (anyone who edits the file can set it, a view chosen with a key in hand:
-    spec/watermark.md §7); the reads' ``stated=`` serves ``tools/owner_prefix.py``, which measures what a reader
-    that confirmed it against the full decode would read."""
+    spec/watermark.md §7): a stream's levels are read in the frames of its full decode, computed from it
+    (:func:`full_frames`), of which this is one."""
     points, faces = distinct_mesh(positions, faces)
     best = None
     for frame in _frames_in_order(points, faces):
@@ -1331,6 +1331,14 @@ def stated_frame(positions, faces, key) -> tuple:
         if errors == 0:
             break
     return best[1]
+
+
+def full_frames(positions, faces) -> list:
+    """The :data:`AS_IS` frames a read tries in a mesh as it is (positions (n, 3), faces (m, 3); duplicates
+    merged): ``[(centroid (3,) float64, lo, width)]``, the estimate, the searched frame and its two aliases,
+    none depending on a key.  Of the mesh a ``.pmw`` decodes to in full, they are the frames its levels are
+    read in (``given=``: :func:`~pmwm_codec.verify.owner.owner_of_stream`)."""
+    return _searched_frames(*distinct_mesh(positions, faces))
 
 
 def frame_json(frame: tuple) -> dict:
@@ -1348,10 +1356,11 @@ def frame_of_json(value) -> tuple | None:
     return np.array(value["center"], np.float64), float(value["inner"]), float(value["width"])
 
 
-def _views_in_order(points: np.ndarray, faces: np.ndarray, stated: tuple | None = None):
+def _views_in_order(points: np.ndarray, faces: np.ndarray, given: list | None = None):
     """:func:`_read_frames`' views ``(positions (k, 3) float64, frame)`` one at a time, each (its frame
-    search, the un-smoothing) computed only when asked for; ``stated``: :func:`read_soft`'s."""
-    for frame in _frames_in_order(points, faces, stated=stated):
+    search, the un-smoothing) computed only when asked for; ``given``: :func:`read_soft`'s (in place of the
+    mesh's own :data:`AS_IS` frames; the un-smoothed views are the mesh's own)."""
+    for frame in _frames_in_order(points, faces) if given is None else given:
         yield points, frame
     smooth = _unsmoothed(points, faces)
     for frame in _frames_in_order(smooth, faces, full=False):
@@ -1384,16 +1393,17 @@ def judge(errors: int, erased: int, reads: int = 1) -> tuple:
 
 
 def detect(positions, faces, key, scores: tuple | None = None, reads: int = 1,
-           stated: tuple | None = None) -> OwnerResult:
+           given: list | None = None) -> OwnerResult:
     """Read the owner ID blind from any mesh: positions (n, 3) float, faces (m, 3) int.
 
     ``key`` must carry ``owner_id`` (the ID expected); the ID read is reported either way.
     ``scores``: :func:`mesh_scores` of the mesh, to read several keys from one mesh.  ``reads``: how
     many meshes the caller reads for the best answer (pieces of one file), this one among them: the
-    false-alarm probability covers the best of them (:func:`judge`).  ``stated``: the frame a ``.pmw``
-    states (:func:`read_soft`; the same views, so the same bound).
+    false-alarm probability covers the best of them (:func:`judge`).  ``given``: the frames of the full
+    decode of the stream the mesh is a level of (:func:`read_soft`; as many views, none depending on a key: the
+    same bound).
     """
-    soft = read_soft(positions, faces, key, scores, stated=stated)
+    soft = read_soft(positions, faces, key, scores, given=given)
     read = (soft > 0).astype(np.uint8) ^ _layout(key)[1]
     if key.owner_id is None:
         return OwnerResult(bits_to_hex(read), OWNER_BITS, int(np.count_nonzero(soft == 0)), 1.0, "inconclusive")
