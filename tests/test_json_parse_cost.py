@@ -75,9 +75,12 @@ def test_the_collector_does_not_walk_a_large_document_while_it_is_built(sphere):
     assert gc.isenabled()
 
 
-def test_verify_reads_the_image_and_the_owner_layer_in_one_pass(monkeypatch, tmp_path, capsys):
+def test_verify_reads_the_image_and_the_owner_layer_in_one_pass_after_the_full_decodes_frames(monkeypatch, tmp_path,
+                                                                                            capsys):
     """A key with an owner ID (every key ``pmw encode --watermark`` writes) made ``pmw verify`` decode the
-    stream twice, its JSON parsed twice: once for the image, once for the owner layer."""
+    stream twice, its JSON parsed twice: once for the image, once for the owner layer.  The image and the owner
+    layer are read in one pass; a file's levels are read in the frames of its full decode
+    (``verify.owner.full_decode_frames``), which one decode-only pass before it takes: two parses, not three."""
     import numpy as np
 
     import pmwm_codec
@@ -95,4 +98,4 @@ def test_verify_reads_the_image_and_the_owner_layer_in_one_pass(monkeypatch, tmp
     doc = json.loads(capsys.readouterr().out)
     assert doc["verdict"] == "authentic" and doc["owner"]["verdict"] == "present"
     assert all(row["owner"]["verdict"] in ("present", "absent", "inconclusive") for row in doc["chunks"])
-    assert len(parsed) == 1
+    assert len(parsed) == 2  # the frames' pass and the read's
