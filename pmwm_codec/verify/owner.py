@@ -33,7 +33,6 @@ Contract
 from __future__ import annotations
 
 import os
-import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,6 +42,7 @@ from ..format.extension import EXTENSION_NAME
 from ..format.document import sniff_json
 from ..format.gltf import TRIANGLE_MODES, TRIANGLES, find_extension_primitives, owner_placements, scene_mesh
 from ..mesh import Mesh, checked_mesh, read_mesh, vertex_components
+from ..sources import read_all
 from ..stream import StreamDecoder, iter_results
 from ..watermark.key import as_key
 from ..watermark.owner import OwnerResult, detect, distinct_mesh, full_frames
@@ -235,14 +235,11 @@ def owner_of_stream(source, key, every: bool = False, last_only: bool = False) -
 
 def _read_twice(source):
     """``source`` as a source two passes can read (:func:`iter_results`' kinds): a path or bytes as they are;
-    standard input (``"-"``), a binary file object or an iterable of blocks read into bytes."""
+    standard input (``"-"``), a binary file object or an iterable of blocks read into bytes
+    (:func:`~pmwm_codec.sources.read_all`)."""
     if isinstance(source, (bytes, bytearray, memoryview, os.PathLike)) or (isinstance(source, str) and source != "-"):
         return source
-    if isinstance(source, str):
-        return sys.stdin.buffer.read()
-    if hasattr(source, "read"):
-        return source.read()
-    return b"".join(bytes(block) for block in source)
+    return read_all(source)
 
 
 def full_decode_frames(source) -> list | None:
@@ -261,10 +258,7 @@ def full_decode_frames(source) -> list | None:
         return None
     if last is None or last.chunk != last.chunks_total:
         return None
-    parts = last.parts
-    positions, faces, _ = scene_mesh([p.positions for p in parts], [p.faces for p in parts],
-                                     _frames(decoder.header.gltf_json))
-    return full_frames(positions, faces)
+    return full_frames(*_scene(last.parts, _frames(decoder.header.gltf_json)))
 
 
 class OwnerReader:
@@ -321,8 +315,14 @@ class OwnerReader:
 
     def _read(self, parts: list):
         """The layer read from the scene of ``parts`` (:class:`~pmwm_codec.stream.decoder.Part`)."""
-        positions, faces, _ = scene_mesh([p.positions for p in parts], [p.faces for p in parts], self._frames)
-        return detect(positions, faces, self.key, given=self.given)
+        return detect(*_scene(parts, self._frames), self.key, given=self.given)
+
+
+def _scene(parts: list, frames: list) -> tuple:
+    """``(positions (n, 3), faces (m, 3))`` of the scene the owner read places a boundary's ``parts``
+    (:class:`~pmwm_codec.stream.decoder.Part`) in, by ``frames`` (:func:`_frames`)."""
+    positions, faces, _ = scene_mesh([p.positions for p in parts], [p.faces for p in parts], frames)
+    return positions, faces
 
 
 def _frames(gltf: dict) -> list:
